@@ -1,0 +1,118 @@
+"""The ``distnav`` command line.
+
+    distnav demo [--out DIR]                      quick variant of every reproduction + a report page
+    distnav reproduce NAME --out DIR [options]    one paper experiment (``distnav reproduce --help`` lists them)
+    distnav uwb ... / distnav gnss ...            real-data commands (see their --help)
+
+Bad input ends with ``error: <what is wrong>`` and exit code 2, never a bare traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from distnav import __version__
+from distnav.errors import DistnavError
+from distnav.experiments import EXPERIMENTS, available, load
+from distnav.experiments.common import ExperimentContext, Progress
+
+# real-data command groups; each module defines ``register(subparsers)``
+COMMAND_MODULES = ("distnav.commands.uwb", "distnav.commands.gnss")
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    p.add_argument("--backend", choices=["inprocess", "mpi"], default="inprocess",
+                   help="message transport: in-process simulator (default) or MPI "
+                        "(launch with mpiexec -n N python -m mpi4py -m distnav ...)")
+    p.add_argument("--no-progress", action="store_true", help="do not print progress")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="distnav", description="Distributed estimation over sensor networks.")
+    parser.add_argument("--version", action="version", version=f"distnav {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    demo = sub.add_parser("demo", help="run the quick variant of every reproduction and write a report")
+    demo.add_argument("--out", type=Path, default=Path("distnav-demo"), help="report folder (default distnav-demo)")
+    demo.add_argument("--only", nargs="+", choices=list(EXPERIMENTS), help="run only these experiments")
+    _add_common(demo)
+
+    rep = sub.add_parser("reproduce", help="reproduce a paper experiment (figures + results.json)")
+    rep_sub = rep.add_subparsers(dest="experiment", required=True)
+    for name in available():
+        mod = load(name)
+        p = rep_sub.add_parser(name, help=getattr(mod, "TITLE", name))
+        p.add_argument("--out", type=Path, required=True, help="output folder")
+        p.add_argument("--quick", action="store_true", help="the small variant used by `distnav demo`")
+        _add_common(p)
+        if hasattr(mod, "add_arguments"):
+            mod.add_arguments(p)
+
+    for modname in COMMAND_MODULES:
+        if importlib.util.find_spec(modname) is not None:
+            importlib.import_module(modname).register(sub)
+    return parser
+
+
+def _context(args: argparse.Namespace, out_dir: Path, quick: bool) -> ExperimentContext:
+    opts = {k: v for k, v in vars(args).items()
+            if k not in {"command", "experiment", "out", "quick", "seed", "backend", "no_progress", "only", "func"}}
+    return ExperimentContext(out_dir=out_dir, quick=quick, backend=args.backend, seed=args.seed,
+                             progress=Progress(enabled=not args.no_progress), options=opts)
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    from distnav.experiments.report import write_report
+
+    names = args.only or available()
+    entries = []
+    t_all = time.perf_counter()
+    for name in names:
+        mod = load(name)
+        ctx = _context(args, args.out / name, quick=True)
+        if ctx.is_root:
+            print(f"[{names.index(name) + 1}/{len(names)}] {getattr(mod, 'TITLE', name)}", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        results = mod.run(ctx)
+        entries.append((name, getattr(mod, "TITLE", name), ctx, results, time.perf_counter() - t0))
+    if entries and entries[0][2].is_root:
+        index = write_report(args.out, entries)
+        print(f"report: {index} ({time.perf_counter() - t_all:.1f} s)", flush=True)
+    return 0
+
+
+def _run_reproduce(args: argparse.Namespace) -> int:
+    mod = load(args.experiment)
+    ctx = _context(args, args.out, quick=args.quick)
+    mod.run(ctx)
+    if ctx.is_root:
+        print(f"results: {args.out / 'results.json'}", flush=True)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "demo":
+            return _run_demo(args)
+        if args.command == "reproduce":
+            return _run_reproduce(args)
+        return int(args.func(args) or 0)
+    except DistnavError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except FileNotFoundError as exc:
+        print(f"error: file not found: {exc.filename}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Real-data command groups of the CLI (``distnav uwb ...``, ``distnav gnss ...``)."""

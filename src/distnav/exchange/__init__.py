@@ -1,0 +1,23 @@
+"""Directed-edge message passing: in-process (vectorized) and MPI backends with one interface."""
+
+from __future__ import annotations
+
+from distnav.exchange.base import CommTotals, Exchange, Inbox, Mixer
+from distnav.exchange.faults import FaultSchedule
+from distnav.exchange.inprocess import InProcessExchange
+from distnav.network.graph import Graph
+
+__all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "FaultSchedule", "InProcessExchange", "make_exchange"]
+
+
+def make_exchange(graph: Graph, *, backend: str = "inprocess", faults: FaultSchedule | None = None,
+                  **options: object) -> Exchange:
+    """Create an exchange for ``graph``: ``backend="inprocess"`` (default) or ``"mpi"`` (needs the mpi extra
+    and a launch under ``mpiexec -n N python -m mpi4py``)."""
+    if backend == "inprocess":
+        return InProcessExchange(graph, faults)
+    if backend == "mpi":
+        from distnav.exchange.mpi import MPIExchange  # lazy: mpi4py is an optional extra
+
+        return MPIExchange(graph, faults, **options)  # type: ignore[arg-type]
+    raise ValueError(f"unknown exchange backend {backend!r}; choose 'inprocess' or 'mpi'")

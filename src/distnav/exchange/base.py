@@ -1,0 +1,364 @@
+"""The exchange interface: directed-edge message rounds over a block of nodes.
+
+An :class:`Exchange` holds a *block* of the graph's nodes (all of them in-process; a partition under MPI).
+Algorithms see only local arrays with a leading node axis (``n_local``) or edge axis, and talk to other
+nodes only through message rounds:
+
+* :meth:`Exchange.send` — one value per *outgoing* edge of the block (edge order :attr:`out_edges`);
+  returns an :class:`Inbox` with one value per *incoming* edge (order :attr:`in_edges`) and a
+  ``delivered`` mask (a dropped message is visible, never a silent zero).
+* :meth:`Exchange.broadcast` — one value per local node, sent along all its (active) outgoing edges.
+* :meth:`Exchange.mixer` — a fused "broadcast, then weighted sum over incoming edges" round for consensus
+  ``x_i ← w_ii x_i + Σ_j w_ij x_j`` (paper 003 eq. (31)); a message that is lost is replaced by the
+  receiver's own value, i.e. its weight moves to the self-weight (row sums stay 1).
+
+Every round is counted: messages and bytes sent and received per node, and totals per round. Faults come
+from a :class:`~distnav.exchange.faults.FaultSchedule` evaluated on global edge ids, so all backends drop
+the same messages. Global reductions (:meth:`allreduce`, :meth:`gather_nodes`) are for monitoring and
+results only — they model nothing a real node does.
+
+Subclasses implement the transport: :meth:`_columns` (local values plus the values of remote senders
+needed by this block) and :meth:`_move_edges` (per-edge values from senders to receivers).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import scipy.sparse as sp
+
+from distnav.errors import ExchangeError
+from distnav.exchange.faults import FaultSchedule
+from distnav.network.graph import Graph
+
+__all__ = ["Exchange", "Inbox", "Mixer", "CommTotals"]
+
+ReduceOp = Literal["sum", "max", "min"]
+
+
+@dataclass(frozen=True, eq=False)
+class CommTotals:
+    """Communication totals of a run, over the whole network (gathered from every block).
+
+    ``messages_sent[i]``/``bytes_sent[i]`` count what node ``i`` transmitted (one message per directed edge,
+    dropped ones included, silent nodes excluded); ``messages_received``/``bytes_received`` what arrived.
+    ``messages_per_round``/``bytes_per_round`` are network totals per round.
+    """
+
+    rounds: int
+    messages_sent: np.ndarray
+    bytes_sent: np.ndarray
+    messages_received: np.ndarray
+    bytes_received: np.ndarray
+    messages_per_round: np.ndarray
+    bytes_per_round: np.ndarray
+
+    @property
+    def messages(self) -> int:
+        return int(self.messages_sent.sum())
+
+    @property
+    def bytes(self) -> int:
+        return int(self.bytes_sent.sum())
+
+    @property
+    def messages_dropped(self) -> int:
+        return int(self.messages_sent.sum() - self.messages_received.sum())
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "rounds": self.rounds,
+            "messages": self.messages,
+            "bytes": self.bytes,
+            "messages_dropped": self.messages_dropped,
+            "max_messages_per_node": int(self.messages_sent.max()) if self.messages_sent.size else 0,
+            "max_bytes_per_node": int(self.bytes_sent.max()) if self.bytes_sent.size else 0,
+        }
+
+    @staticmethod
+    def empty(n_nodes: int) -> CommTotals:
+        z = np.zeros(n_nodes, np.int64)
+        return CommTotals(0, z, z.copy(), z.copy(), z.copy(), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+def _segment_matrix(dst_local: np.ndarray, n_rows: int, n_cols: int, data: np.ndarray,
+                    col_index: np.ndarray | None = None) -> sp.csr_matrix:
+    """CSR matrix with one entry per edge at (dst_local[e], col_index[e]); rows must be sorted."""
+    counts = np.bincount(dst_local, minlength=n_rows)
+    ptr = np.zeros(n_rows + 1, dtype=np.int64)
+    np.cumsum(counts, out=ptr[1:])
+    cols = np.arange(dst_local.size, dtype=np.int64) if col_index is None else col_index
+    idx_dtype = np.int32 if max(n_cols, dst_local.size) < 2**31 - 1 else np.int64
+    return sp.csr_matrix((data, cols.astype(idx_dtype), ptr.astype(idx_dtype)), shape=(n_rows, n_cols))
+
+
+def _flat(values: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
+    tail = values.shape[1:]
+    return values.reshape(values.shape[0], -1), tail
+
+
+@dataclass(eq=False)
+class Inbox:
+    """What the local block received in one round: a value per incoming edge and whether it arrived.
+
+    ``values[e]`` is meaningful only where ``delivered[e]``; elsewhere it holds zeros.
+    ``dst`` is the local receiver index, ``src`` the sender's global id, ``edges`` the global edge id.
+    """
+
+    values: np.ndarray
+    delivered: np.ndarray
+    dst: np.ndarray
+    src: np.ndarray
+    edges: np.ndarray
+    n_local: int
+
+    def sum(self, weights: np.ndarray | None = None) -> np.ndarray:
+        """``Σ_e w_e values[e]`` over delivered incoming edges, per local receiver → ``(n_local, ...)``."""
+        data = self.delivered.astype(float) if weights is None else np.where(self.delivered, weights, 0.0)
+        m = _segment_matrix(self.dst, self.n_local, self.values.shape[0], data)
+        flat, tail = _flat(self.values)
+        return np.asarray(m @ flat).reshape((self.n_local, *tail))
+
+    def count(self) -> np.ndarray:
+        """Number of delivered messages per local receiver."""
+        return np.bincount(self.dst[self.delivered], minlength=self.n_local)
+
+
+class Mixer:
+    """A prepared consensus round ``x_i ← w_ii x_i + Σ_{j∈N_i} w_ij x_j`` on an exchange.
+
+    Built by :meth:`Exchange.mixer`; holds the local CSR block of ``W`` so a fault-free round costs one sparse
+    product. With faults, a lost message's weight moves to the receiver's self-weight.
+    """
+
+    def __init__(self, exchange: Exchange, edge_weight: np.ndarray, self_weight: np.ndarray,
+                 active: np.ndarray | None) -> None:
+        ex = exchange
+        self.exchange = ex
+        ew_in = np.asarray(edge_weight, float)[ex.in_edges]
+        act_in = np.ones(ex.in_edges.size, bool) if active is None else np.asarray(active, bool)[ex.in_edges]
+        real_in = ex.in_src != ex.nodes[ex.in_dst]
+        self._act_in = act_in & real_in
+        self._act_out = (np.ones(ex.out_edges.size, bool) if active is None
+                         else np.asarray(active, bool)[ex.out_edges]) & (ex.out_dst != ex.nodes[ex.out_src])
+        self._active_global = active
+        self._ew_in = np.where(self._act_in, ew_in, 0.0)
+        self._self_w = np.asarray(self_weight, float)[ex.nodes]
+        # fused local block of W over [local nodes | halo columns]
+        self._w_edges = _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, self._ew_in, ex.in_src_col)
+        self._w_full = (self._w_edges + sp.diags(self._self_w, shape=(ex.n_local, ex.n_columns))).tocsr()
+        self._sent_counts = np.bincount(ex.out_src[self._act_out], minlength=ex.n_local)
+        self._recv_counts = np.bincount(ex.in_dst[self._act_in], minlength=ex.n_local)
+
+    def apply(self, x_local: np.ndarray) -> np.ndarray:
+        """One consensus round on local values ``x_local`` of shape ``(n_local, ...)``."""
+        ex = self.exchange
+        x = np.asarray(x_local, dtype=float)
+        if x.shape[0] != ex.n_local:
+            raise ExchangeError(f"mixer needs {ex.n_local} local rows, got array of shape {x.shape}")
+        flat, tail = _flat(x)
+        cols = ex._columns(flat, self._active_global)
+        msg_bytes = flat.shape[1] * flat.itemsize
+        if not ex.faults.active:
+            ex._account(self._sent_counts, self._recv_counts, msg_bytes)
+            out = self._w_full @ cols
+            return np.asarray(out).reshape(x.shape)
+        delivered = ex._delivered(self._act_in)
+        silent = ex.faults.silent_mask(ex.round_index, ex.nodes)
+        sent = np.bincount(ex.out_src[self._act_out & ~silent[ex.out_src]], minlength=ex.n_local)
+        recv = np.bincount(ex.in_dst[delivered], minlength=ex.n_local)
+        ex._account(sent, recv, msg_bytes)
+        w = np.where(delivered, self._ew_in, 0.0)
+        lost = np.bincount(ex.in_dst, weights=self._ew_in - w, minlength=ex.n_local)
+        m = _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, w, ex.in_src_col)
+        out = np.asarray(m @ cols) + (self._self_w + lost)[:, None] * flat
+        return out.reshape(x.shape)
+
+
+class Exchange(ABC):
+    """Directed-edge message passing for one block of nodes. See the module docstring.
+
+    Attributes (all local to the block; node arrays hold *global* ids unless named ``..._local``)
+    ----------
+    graph : the full communication graph.
+    nodes : global ids of the block's nodes, ascending (``n_local`` of them).
+    in_edges, in_dst, in_src : incoming edges (global ids), their local receiver index, their sender's global id;
+        sorted by receiver.
+    out_edges, out_src, out_dst : outgoing edges (global ids), local sender index, receiver's global id.
+    in_src_col : column of each incoming edge's sender in the array returned by :meth:`_columns`.
+    """
+
+    backend: str = "abstract"
+
+    def __init__(self, graph: Graph, faults: FaultSchedule | None = None) -> None:
+        self.graph = graph
+        self.faults = faults if faults is not None else FaultSchedule()
+        self.faults.validate_for(graph.n_nodes, graph.links.tolist() if self.faults.failed_links else None)
+        self.round_index = 0
+        self._round_messages: list[int] = []
+        self._round_bytes: list[int] = []
+
+    # ------------------------------------------------------------- set by subclasses
+    nodes: np.ndarray
+    in_edges: np.ndarray
+    in_dst: np.ndarray
+    in_src: np.ndarray
+    in_src_col: np.ndarray
+    out_edges: np.ndarray
+    out_src: np.ndarray
+    out_dst: np.ndarray
+    n_columns: int
+
+    def _init_accounting(self) -> None:
+        n = self.n_local
+        self.messages_sent = np.zeros(n, np.int64)
+        self.bytes_sent = np.zeros(n, np.int64)
+        self.messages_received = np.zeros(n, np.int64)
+        self.bytes_received = np.zeros(n, np.int64)
+        real_out = self.out_dst != self.nodes[self.out_src]
+        real_in = self.in_src != self.nodes[self.in_dst]
+        self._all_sent = np.bincount(self.out_src[real_out], minlength=n)
+        self._all_recv = np.bincount(self.in_dst[real_in], minlength=n)
+        self._real_out = real_out
+        self._real_in = real_in
+
+    @property
+    def n_local(self) -> int:
+        return int(self.nodes.size)
+
+    @property
+    def n_nodes(self) -> int:
+        return self.graph.n_nodes
+
+    # ------------------------------------------------------------- transport (backend)
+    @abstractmethod
+    def _columns(self, flat_local: np.ndarray, active: np.ndarray | None) -> np.ndarray:
+        """Local node values followed by the values of the remote senders this block needs."""
+
+    @abstractmethod
+    def _move_edges(self, flat_out: np.ndarray, active: np.ndarray | None) -> np.ndarray:
+        """Values on outgoing edges → values on incoming edges (in :attr:`in_edges` order)."""
+
+    @abstractmethod
+    def allreduce(self, value: Any, op: ReduceOp = "sum") -> Any:
+        """Reduce a scalar or array over all blocks (monitoring only)."""
+
+    @abstractmethod
+    def gather_nodes(self, local: np.ndarray) -> np.ndarray:
+        """Assemble a per-node array ``(n_local, ...)`` of every block into ``(n_nodes, ...)`` on every block."""
+
+    @abstractmethod
+    def barrier(self) -> None:
+        """Wait for every block (no-op in-process)."""
+
+    @property
+    def is_root(self) -> bool:
+        """True on the block that writes files (the only one in-process; rank 0 under MPI)."""
+        return True
+
+    def local(self, global_array: np.ndarray) -> np.ndarray:
+        """This block's rows of a per-node array with leading axis ``n_nodes``."""
+        arr = np.asarray(global_array)
+        if arr.shape[0] != self.n_nodes:
+            raise ExchangeError(f"expected a per-node array with {self.n_nodes} rows, got shape {arr.shape}")
+        return arr[self.nodes]
+
+    # ------------------------------------------------------------- rounds
+    def _delivered(self, active_in: np.ndarray) -> np.ndarray:
+        if not self.faults.active:
+            return active_in.copy()
+        ok = self.faults.delivered(self.round_index, self.in_src, self.nodes[self.in_dst], self.in_edges)
+        return ok & active_in
+
+    def _account(self, sent: np.ndarray, received: np.ndarray, msg_bytes: int) -> None:
+        self.messages_sent += sent
+        self.bytes_sent += sent * msg_bytes
+        self.messages_received += received
+        self.bytes_received += received * msg_bytes
+        total = int(sent.sum())
+        self._round_messages.append(total)
+        self._round_bytes.append(total * msg_bytes)
+        self.round_index += 1
+
+    def _active_slices(self, active: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        if active is None:
+            return self._real_out, self._real_in
+        act = np.asarray(active, bool)
+        if act.shape != (self.graph.n_edges,):
+            raise ExchangeError(f"active must be a mask over the {self.graph.n_edges} directed edges, got {act.shape}")
+        return act[self.out_edges] & self._real_out, act[self.in_edges] & self._real_in
+
+    def _finish_round(self, values_in: np.ndarray, act_out: np.ndarray, act_in: np.ndarray,
+                      tail: tuple[int, ...], msg_bytes: int) -> Inbox:
+        delivered = self._delivered(act_in)
+        if self.faults.active:
+            silent = self.faults.silent_mask(self.round_index, self.nodes)
+            sent = np.bincount(self.out_src[act_out & ~silent[self.out_src]], minlength=self.n_local)
+            recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
+        elif act_out is self._real_out:
+            sent, recv = self._all_sent, self._all_recv
+        else:
+            sent = np.bincount(self.out_src[act_out], minlength=self.n_local)
+            recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
+        self._account(sent, recv, msg_bytes)
+        values_in = np.where(delivered[:, None], values_in, 0.0) if not delivered.all() else values_in
+        return Inbox(values=values_in.reshape((values_in.shape[0], *tail)), delivered=delivered,
+                     dst=self.in_dst, src=self.in_src, edges=self.in_edges, n_local=self.n_local)
+
+    def broadcast(self, node_values: np.ndarray, *, active: np.ndarray | None = None) -> Inbox:
+        """Each local node sends its row of ``node_values`` along its (active) outgoing edges.
+
+        ``active`` is an optional boolean mask over the graph's directed edges (e.g. a session of a
+        switching graph); inactive edges carry nothing and are not counted.
+        """
+        x = np.asarray(node_values)
+        if x.ndim == 0 or x.shape[0] != self.n_local:
+            raise ExchangeError(f"broadcast needs {self.n_local} local rows, got array of shape {x.shape}")
+        flat, tail = _flat(x)
+        act_out, act_in = self._active_slices(active)
+        cols = self._columns(flat, active)
+        return self._finish_round(cols[self.in_src_col], act_out, act_in, tail, flat.shape[1] * flat.itemsize)
+
+    def send(self, edge_values: np.ndarray, *, active: np.ndarray | None = None) -> Inbox:
+        """Send one value per outgoing edge (rows in :attr:`out_edges` order); receive one per incoming edge."""
+        x = np.asarray(edge_values)
+        if x.ndim == 0 or x.shape[0] != self.out_edges.size:
+            raise ExchangeError(
+                f"send needs one row per outgoing edge ({self.out_edges.size}), got array of shape {x.shape}"
+            )
+        flat, tail = _flat(x)
+        act_out, act_in = self._active_slices(active)
+        moved = self._move_edges(flat, active)
+        return self._finish_round(moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize)
+
+    def mixer(self, weights: Any, *, active: np.ndarray | None = None) -> Mixer:
+        """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph.
+
+        For a switching graph pass the session's weights expressed on the union graph and its edge mask.
+        """
+        if weights.graph.n_edges != self.graph.n_edges or weights.graph.n_nodes != self.graph.n_nodes:
+            raise ExchangeError("weights are defined on a different graph than this exchange")
+        return Mixer(self, weights.edge_weight, weights.self_weight, active)
+
+    # ------------------------------------------------------------- accounting
+    def comm_totals(self) -> CommTotals:
+        """Network-wide totals so far (gathered from every block)."""
+        return CommTotals(
+            rounds=self.round_index,
+            messages_sent=self.gather_nodes(self.messages_sent),
+            bytes_sent=self.gather_nodes(self.bytes_sent),
+            messages_received=self.gather_nodes(self.messages_received),
+            bytes_received=self.gather_nodes(self.bytes_received),
+            messages_per_round=np.asarray(self.allreduce(np.asarray(self._round_messages, np.int64), "sum")),
+            bytes_per_round=np.asarray(self.allreduce(np.asarray(self._round_bytes, np.int64), "sum")),
+        )
+
+    def reset_accounting(self) -> None:
+        """Zero the counters and the round index (the fault schedule restarts at round 0)."""
+        self.round_index = 0
+        self._round_messages.clear()
+        self._round_bytes.clear()
+        self._init_accounting()

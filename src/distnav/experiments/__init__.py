@@ -1,0 +1,33 @@
+"""Paper reproductions. Each entry maps a CLI name to its module (see :mod:`distnav.experiments.common`).
+
+Listed in the order ``distnav demo`` runs them. A module that does not exist yet is skipped by the demo and
+refused by ``distnav reproduce`` with a clear message.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from types import ModuleType
+
+EXPERIMENTS: dict[str, str] = {
+    "consensus": "distnav.experiments.consensus",
+    "admm": "distnav.experiments.admm",
+    "ckf": "distnav.experiments.ckf",
+    "uwb": "distnav.experiments.uwb",
+    "codebias": "distnav.experiments.codebias",
+    "ckf-ionosphere": "distnav.experiments.ckf_ionosphere",
+}
+
+
+def available() -> list[str]:
+    """Names of the experiments whose modules are present."""
+    return [name for name, mod in EXPERIMENTS.items() if importlib.util.find_spec(mod) is not None]
+
+
+def load(name: str) -> ModuleType:
+    if name not in EXPERIMENTS:
+        raise ValueError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}")
+    if importlib.util.find_spec(EXPERIMENTS[name]) is None:
+        raise ValueError(f"experiment {name!r} is not implemented in this version of distnav")
+    return importlib.import_module(EXPERIMENTS[name])

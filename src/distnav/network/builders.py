@@ -1,0 +1,218 @@
+"""Graph builders: ring, path, complete, star, grid, ladder, random geometric, k-nearest neighbours.
+
+All builders return a :class:`~distnav.network.graph.Graph`. Random builders take a
+``numpy.random.Generator`` (never global state). Geometric builders store node positions in metres.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from distnav.errors import GraphError
+from distnav.network.graph import Graph
+
+__all__ = [
+    "ring",
+    "path",
+    "complete",
+    "star",
+    "grid",
+    "ladder",
+    "random_geometric",
+    "connected_random_geometric",
+    "k_nearest",
+    "from_edges",
+]
+
+
+def _need(n: int, minimum: int, what: str) -> int:
+    n = int(n)
+    if n < minimum:
+        raise GraphError(f"{what} needs at least {minimum} nodes, got {n}")
+    return n
+
+
+def ring(n_nodes: int, *, self_loops: bool = False) -> Graph:
+    """Cycle 0-1-...-(n-1)-0."""
+    n = _need(n_nodes, 3, "a ring")
+    i = np.arange(n)
+    return Graph.from_links(n, np.stack([i, (i + 1) % n], 1), self_loops=self_loops)
+
+
+def path(n_nodes: int, *, self_loops: bool = False) -> Graph:
+    """Chain 0-1-...-(n-1)."""
+    n = _need(n_nodes, 1, "a path")
+    i = np.arange(n - 1)
+    return Graph.from_links(n, np.stack([i, i + 1], 1), self_loops=self_loops)
+
+
+def complete(n_nodes: int, *, self_loops: bool = False) -> Graph:
+    """Every pair of nodes linked."""
+    n = _need(n_nodes, 1, "a complete graph")
+    a, b = np.triu_indices(n, 1)
+    return Graph.from_links(n, np.stack([a, b], 1), self_loops=self_loops)
+
+
+def star(n_nodes: int, *, self_loops: bool = False) -> Graph:
+    """Node 0 linked to every other node."""
+    n = _need(n_nodes, 2, "a star")
+    leaves = np.arange(1, n)
+    return Graph.from_links(n, np.stack([np.zeros_like(leaves), leaves], 1), self_loops=self_loops)
+
+
+def grid(
+    rows: int, cols: int, *, spacing_m: float = 1.0, neighbourhood: int = 4, self_loops: bool = False
+) -> Graph:
+    """A ``rows × cols`` grid (node ``r*cols + c`` at ``(c*spacing_m, r*spacing_m)``).
+
+    ``neighbourhood=4`` links horizontal/vertical neighbours; ``8`` also the diagonals
+    (paper 002 class G: 10 m grid, 8-neighbourhood).
+    """
+    if neighbourhood not in (4, 8):
+        raise GraphError(f"neighbourhood must be 4 or 8, got {neighbourhood}")
+    rows, cols = int(rows), int(cols)
+    if rows < 1 or cols < 1 or rows * cols < 2:
+        raise GraphError(f"a grid needs at least 2 nodes, got {rows}×{cols}")
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    parts = [
+        np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1),
+        np.stack([idx[:-1, :].ravel(), idx[1:, :].ravel()], 1),
+    ]
+    if neighbourhood == 8:
+        parts.append(np.stack([idx[:-1, :-1].ravel(), idx[1:, 1:].ravel()], 1))
+        parts.append(np.stack([idx[:-1, 1:].ravel(), idx[1:, :-1].ravel()], 1))
+    rr, cc = np.divmod(np.arange(rows * cols), cols)
+    pos = np.stack([cc * spacing_m, rr * spacing_m], 1).astype(float)
+    return Graph.from_links(rows * cols, np.concatenate(parts), positions=pos, self_loops=self_loops)
+
+
+def ladder(n_nodes: int, *, spacing_m: float = 1.0, diagonals: bool = True, self_loops: bool = False) -> Graph:
+    """A two-row ladder of ``n_nodes`` (even) nodes: rails, rungs and (optionally) one diagonal per cell.
+
+    Node ``2k`` is at ``(k*spacing_m, 0)``, node ``2k+1`` at ``(k*spacing_m, spacing_m)``. With
+    ``diagonals=True`` every node has degree at most 5 (paper 002 class L).
+    """
+    n = int(n_nodes)
+    if n < 4 or n % 2:
+        raise GraphError(f"a ladder needs an even number of nodes ≥ 4, got {n}")
+    k = n // 2
+    bottom, top = np.arange(k) * 2, np.arange(k) * 2 + 1
+    parts = [
+        np.stack([bottom[:-1], bottom[1:]], 1),
+        np.stack([top[:-1], top[1:]], 1),
+        np.stack([bottom, top], 1),
+    ]
+    if diagonals:
+        # alternate the diagonal direction so that no node exceeds degree 5
+        cells = np.arange(k - 1)
+        a = np.where(cells % 2 == 0, bottom[:-1], top[:-1])
+        b = np.where(cells % 2 == 0, top[1:], bottom[1:])
+        parts.append(np.stack([a, b], 1))
+    pos = np.stack([np.repeat(np.arange(k), 2) * spacing_m, np.tile([0.0, 1.0], k) * spacing_m], 1)
+    return Graph.from_links(n, np.concatenate(parts), positions=pos, self_loops=self_loops)
+
+
+def random_geometric(
+    n_nodes: int,
+    radius: float,
+    *,
+    rng: np.random.Generator,
+    dim: int = 2,
+    size: float = 1.0,
+    self_loops: bool = False,
+) -> Graph:
+    """Nodes uniform in ``[0, size]^dim``, linked when closer than ``radius`` (same units as ``size``).
+
+    Uses a k-d tree, so 10⁶ nodes build in seconds. The result may be disconnected; see
+    :func:`connected_random_geometric`.
+    """
+    n = _need(n_nodes, 1, "a random geometric graph")
+    if not radius > 0:
+        raise GraphError(f"radius must be positive, got {radius}")
+    pos = rng.uniform(0.0, size, size=(n, dim))
+    pairs = cKDTree(pos).query_pairs(float(radius), output_type="ndarray")
+    return Graph.from_links(n, pairs, positions=pos, self_loops=self_loops)
+
+
+def connected_random_geometric(
+    n_nodes: int,
+    *,
+    mean_degree: float,
+    rng: np.random.Generator,
+    dim: int = 2,
+    size: float = 1.0,
+    max_tries: int = 50,
+    self_loops: bool = False,
+) -> Graph:
+    """A *connected* random geometric graph whose expected mean degree is ``mean_degree``.
+
+    The radius is set from the expected degree of a Poisson point process, ``d = n π r² / size²`` (2-D) or
+    ``d = n (4/3) π r³ / size³`` (3-D); redrawn up to ``max_tries`` times until connected.
+    """
+    n = _need(n_nodes, 2, "a connected random geometric graph")
+    if dim == 2:
+        radius = size * np.sqrt(mean_degree / (np.pi * n))
+    elif dim == 3:
+        radius = size * np.cbrt(mean_degree / (4.0 / 3.0 * np.pi * n))
+    else:
+        raise GraphError(f"dim must be 2 or 3, got {dim}")
+    for _ in range(max_tries):
+        g = random_geometric(n, radius, rng=rng, dim=dim, size=size, self_loops=self_loops)
+        if g.is_connected:
+            return g
+    raise GraphError(
+        f"no connected graph in {max_tries} draws with n={n}, mean degree {mean_degree}: raise mean_degree"
+    )
+
+
+def k_nearest(positions: np.ndarray, k: int, *, self_loops: bool = False) -> Graph:
+    """Link every node to its ``k`` nearest neighbours (symmetrised: a link if either picks the other)."""
+    pos = np.asarray(positions, dtype=float)
+    if pos.ndim != 2:
+        raise GraphError(f"positions must be (n_nodes, dim), got shape {pos.shape}")
+    n = pos.shape[0]
+    if not 1 <= k < n:
+        raise GraphError(f"k must be in 1..{n - 1} for {n} nodes, got {k}")
+    _, idx = cKDTree(pos).query(pos, k=k + 1)
+    src = np.repeat(np.arange(n), k)
+    dst = idx[:, 1:].ravel()
+    return Graph.from_links(n, np.stack([src, dst], 1), positions=pos, allow_duplicates=True,
+                            self_loops=self_loops)
+
+
+def from_edges(
+    edges: Iterable[tuple[int, int]] | Iterable[tuple[str, str]] | np.ndarray,
+    *,
+    n_nodes: int | None = None,
+    names: Sequence[str] | None = None,
+    positions: np.ndarray | None = None,
+    self_loops: bool = False,
+    allow_duplicates: bool = False,
+) -> Graph:
+    """Build a graph from an edge list of integer ids or of node names.
+
+    With string names and no ``names`` given, nodes are named in order of first appearance.
+    """
+    edge_list = list(edges) if not isinstance(edges, np.ndarray) else edges.tolist()
+    if edge_list and all(isinstance(v, str) for e in edge_list for v in e):
+        if names is None:
+            order: dict[str, int] = {}
+            for a, b in edge_list:
+                order.setdefault(a, len(order))
+                order.setdefault(b, len(order))
+            names = list(order)
+        index = {s: i for i, s in enumerate(names)}
+        missing = [v for e in edge_list for v in e if v not in index]
+        if missing:
+            raise GraphError(f"edge list names node {missing[0]!r}, which is not among the node names")
+        ids = [(index[a], index[b]) for a, b in edge_list]
+        return Graph.from_links(len(names), ids, names=names, positions=positions, self_loops=self_loops,
+                                allow_duplicates=allow_duplicates)
+    arr = np.asarray(edge_list).reshape(-1, 2) if edge_list else np.zeros((0, 2), int)
+    if n_nodes is None:
+        n_nodes = len(names) if names is not None else (int(arr.max()) + 1 if arr.size else 1)
+    return Graph.from_links(n_nodes, arr, names=names, positions=positions, self_loops=self_loops,
+                            allow_duplicates=allow_duplicates)

@@ -1,0 +1,37 @@
+"""Shared fixtures: the ../shared data folder (skips with a reason where it is absent)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _shared_root() -> Path | None:
+    env = os.environ.get("DISTNAV_SHARED")
+    candidates = [Path(env)] if env else []
+    candidates += [REPO.parent / "shared", REPO.parent.parent / "shared"]
+    for c in candidates:
+        if (c / "data").is_dir():
+            return c
+    return None
+
+
+SHARED = _shared_root()
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """``../shared/data``; tests using it skip (with the reason) on a clone without it."""
+    if SHARED is None:
+        pytest.skip("../shared/data is absent (a fresh clone without the shared data folder)")
+    return SHARED / "data"
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(12345)
