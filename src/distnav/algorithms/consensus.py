@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
@@ -27,6 +28,7 @@ from distnav.network.weights import (
 )
 
 __all__ = [
+    "ConsensusWarning",
     "ConsensusSchedule",
     "ConsensusState",
     "consensus_schedule",
@@ -36,6 +38,10 @@ __all__ = [
     "consensus_probability",
     "second_largest_eigenvalue_modulus",
 ]
+
+
+class ConsensusWarning(UserWarning):
+    """Consensus weights that are valid but do not guarantee convergence to the average."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,7 +83,8 @@ def consensus_schedule(
 
     ``protocol`` is a name (``"P1"``–``"P4"``, ``"MH"``, ``"Koppanyi"``) applied to every session, or
     ready-made weights (one, or one per session). With ``validate`` the weights must be doubly stochastic
-    and non-negative; for a static graph, consensus must be guaranteed (:func:`check_weights` explains why not).
+    and non-negative; for a static graph where consensus is not guaranteed (:func:`check_weights` explains why)
+    a :class:`ConsensusWarning` is issued: the run goes ahead with the protocol as given, never silently changed.
     """
     if isinstance(graph, SwitchingGraph):
         union = graph.union
@@ -104,7 +111,7 @@ def consensus_schedule(
             if not (rep.nonnegative and rep.row_stochastic and rep.column_stochastic):
                 raise WeightsError(f"weights of session {k} ({w.name}) unusable: {rep.message}")
             if len(sessions) == 1 and not rep.guaranteed:
-                raise WeightsError(f"weights {w.name}: {rep.message}")
+                warnings.warn(f"weights {w.name}: {rep.message}", ConsensusWarning, stacklevel=2)
         out.append(w if m is None and w.graph is union else _on_union(union, w, m if m is not None else
                                                                        np.ones(union.n_edges, bool)))
     return ConsensusSchedule(graph=union, weights=tuple(out), active=tuple(masks))

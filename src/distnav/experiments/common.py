@@ -69,6 +69,10 @@ def atomic_write_json(path: Path, data: Any) -> None:
     atomic_write_text(path, json.dumps(to_jsonable(data), indent=2) + "\n")
 
 
+def _noop(n: int = 1) -> None:
+    return None
+
+
 class Progress:
     """Minimal progress reporting: a rich progress bar when ``rich`` is installed and stderr is a terminal,
     otherwise one line per task start/finish. Silent when ``enabled`` is False (e.g. non-root MPI ranks)."""
@@ -80,7 +84,7 @@ class Progress:
     def task(self, description: str, total: int | None = None) -> Iterator[Callable[[int], None]]:
         """Context manager yielding ``advance(n)``; prints timing when done."""
         if not self.enabled:
-            yield lambda n=1: None
+            yield _noop
             return
         import sys
 
@@ -88,7 +92,8 @@ class Progress:
         bar = None
         if sys.stderr.isatty() and total:
             try:
-                from rich.progress import BarColumn, Progress as RichProgress, TimeElapsedColumn
+                from rich.progress import BarColumn, TimeElapsedColumn
+                from rich.progress import Progress as RichProgress
 
                 bar = RichProgress("[bold]{task.description}", BarColumn(), "{task.completed}/{task.total}",
                                    TimeElapsedColumn(), transient=True)
@@ -97,10 +102,13 @@ class Progress:
         if bar is not None:
             with bar:
                 tid = bar.add_task(description, total=total)
-                yield lambda n=1: bar.advance(tid, n)
+                def advance(n: int = 1) -> None:
+                    bar.advance(tid, n)
+
+                yield advance
         else:
             print(f"  … {description}", file=sys.stderr, flush=True)
-            yield lambda n=1: None
+            yield _noop
         print(f"  ✓ {description} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr, flush=True)
 
     def iterate(self, items: Iterable[Any], description: str, total: int | None = None) -> Iterator[Any]:

@@ -98,7 +98,9 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     runs: dict[str, Any] = {}
     slem: dict[str, float] = {}
     probability: dict[str, dict[str, list[float]]] = {}
-    schedules = {p: (g_static, consensus_schedule(g_static, p)) for p in ("P1", "P2", "P3")}
+    schedules: dict[str, tuple[Graph | SwitchingGraph, Any]] = {
+        p: (g_static, consensus_schedule(g_static, p)) for p in ("P1", "P2", "P3")
+    }
     schedules["P4"] = (g_switch, consensus_schedule(g_switch, "P4"))
     with ctx.progress.task("consensus: protocols P1-P4, 30 iterations + Monte Carlo", total=4) as advance:
         for p, (graph, sched) in schedules.items():

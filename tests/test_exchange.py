@@ -1,0 +1,186 @@
+"""In-process exchange: message rounds, accounting by hand, fault injection reproducible by seed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from distnav.errors import ExchangeError
+from distnav.exchange import FaultSchedule, make_exchange
+from distnav.exchange.faults import uniform_hash
+from distnav.network import Graph, builders, consensus_weights
+
+
+def star4() -> Graph:
+    # node 0 is the hub of 1, 2, 3
+    return builders.star(4)
+
+
+def test_broadcast_delivers_sender_values_and_sums():
+    g = star4()
+    ex = make_exchange(g)
+    inbox = ex.broadcast(np.array([10.0, 1.0, 2.0, 3.0]))
+    assert inbox.delivered.all()
+    assert np.array_equal(inbox.values, np.array([10.0, 1.0, 2.0, 3.0])[g.src])
+    assert inbox.sum().tolist() == [6.0, 10.0, 10.0, 10.0]
+    assert inbox.count().tolist() == [3, 1, 1, 1]
+    w = np.arange(g.n_edges, dtype=float)
+    assert np.allclose(inbox.sum(w), np.bincount(g.dst, weights=w * inbox.values, minlength=4))
+
+
+def test_accounting_by_hand_on_star():
+    g = star4()
+    ex = make_exchange(g)
+    ex.broadcast(np.zeros((4, 3)))  # 3 floats = 24 bytes per message
+    ex.send(np.ones((g.n_edges, 2), dtype=np.float32))  # 8 bytes per message
+    tot = ex.comm_totals()
+    assert tot.rounds == 2
+    # hub sends 3 messages per round, each leaf 1
+    assert tot.messages_sent.tolist() == [6, 2, 2, 2]
+    assert tot.bytes_sent.tolist() == [3 * 24 + 3 * 8, 24 + 8, 24 + 8, 24 + 8]
+    assert tot.messages_received.tolist() == [6, 2, 2, 2]
+    assert tot.messages_per_round.tolist() == [6, 6]
+    assert tot.bytes_per_round.tolist() == [6 * 24, 6 * 8]
+    assert tot.as_dict()["messages"] == 12 and tot.messages_dropped == 0
+
+
+def test_active_mask_counts_only_active_edges():
+    g = builders.path(3)
+    ex = make_exchange(g)
+    active = np.zeros(g.n_edges, bool)
+    active[g.edge_index(0, 1)] = True  # only 0 → 1
+    inbox = ex.broadcast(np.array([5.0, 6.0, 7.0]), active=active)
+    assert inbox.delivered.sum() == 1
+    assert inbox.sum().tolist() == [0.0, 5.0, 0.0]
+    assert ex.comm_totals().messages_sent.tolist() == [1, 0, 0]
+    with pytest.raises(ExchangeError, match="mask over the 4 directed edges"):
+        ex.broadcast(np.zeros(3), active=np.ones(3, bool))
+
+
+def test_dropped_message_is_visible_not_silent_zero():
+    g = builders.complete(6)
+    ex = make_exchange(g, faults=FaultSchedule(drop_probability=0.5, seed=3))
+    inbox = ex.broadcast(np.ones(6))
+    assert 0 < inbox.delivered.sum() < g.n_edges
+    assert np.all(inbox.values[~inbox.delivered] == 0)
+    assert np.array_equal(inbox.sum(), inbox.count().astype(float))
+    tot = ex.comm_totals()
+    assert tot.messages == g.n_edges  # drops are sent but not received
+    assert tot.messages_received.sum() == inbox.delivered.sum()
+    assert tot.messages_dropped == g.n_edges - inbox.delivered.sum()
+
+
+def test_faults_reproducible_by_seed_and_differ_between_seeds():
+    g = builders.connected_random_geometric(50, mean_degree=6, rng=np.random.default_rng(0))
+
+    def masks(seed: int) -> np.ndarray:
+        ex = make_exchange(g, faults=FaultSchedule(drop_probability=0.3, seed=seed))
+        return np.stack([ex.broadcast(np.zeros(50)).delivered for _ in range(5)])
+
+    a, b, c = masks(1), masks(1), masks(2)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert not np.array_equal(a[0], a[1])  # a fresh draw every round
+    assert abs(1 - a.mean() - 0.3) < 0.05
+
+
+def test_uniform_hash_is_uniform_and_subset_consistent():
+    u = uniform_hash(7, 3, np.arange(100_000))
+    assert abs(u.mean() - 0.5) < 0.01 and u.min() >= 0 and u.max() < 1
+    sub = np.array([5, 99, 12345])
+    assert np.array_equal(uniform_hash(7, 3, sub), u[sub])
+
+
+def test_failed_link_and_silent_node():
+    g = builders.path(4)
+    faults = FaultSchedule(failed_links=((1, 2, 1),), silent_nodes=((3, 2),))
+    ex = make_exchange(g, faults=faults)
+    r0 = ex.broadcast(np.arange(4.0))
+    assert r0.delivered.all()
+    r1 = ex.broadcast(np.arange(4.0))
+    cut = np.isin(np.arange(g.n_edges), g.edge_index([1, 2], [2, 1]))
+    assert np.array_equal(r1.delivered, ~cut)
+    r2 = ex.broadcast(np.arange(4.0))
+    from3 = g.src == 3
+    assert np.array_equal(r2.delivered, ~cut & ~from3)
+    tot = ex.comm_totals()
+    assert tot.messages_sent.tolist() == [3, 6, 6, 2]  # node 3 silent in round 2 sends nothing
+
+
+def test_mixer_with_drops_moves_lost_weight_to_self():
+    g = builders.ring(6)
+    w = consensus_weights(g, "P3")
+    ex = make_exchange(g, faults=FaultSchedule(drop_probability=0.4, seed=5))
+    x = np.random.default_rng(1).normal(size=(6, 2))
+    got = ex.mixer(w).apply(x)
+    # recompute the same round by hand from the same seeded drop pattern
+    ok = FaultSchedule(drop_probability=0.4, seed=5).delivered(0, g.src, g.dst, np.arange(g.n_edges))
+    dense = w.to_dense()
+    ref = np.empty_like(x)
+    for i in range(6):
+        acc = dense[i, i] * x[i]
+        for e in np.flatnonzero(g.dst == i):
+            j = g.src[e]
+            acc = acc + dense[i, j] * (x[j] if ok[e] else x[i])
+        ref[i] = acc
+    assert np.allclose(got, ref, atol=1e-14)
+    # rows still sum to one: a constant stays constant under drops
+    assert np.allclose(ex.mixer(w).apply(np.full((6, 1), 3.0)), 3.0)
+
+
+def test_mixer_fault_free_equals_dense_product():
+    g = builders.connected_random_geometric(40, mean_degree=6, rng=np.random.default_rng(2))
+    w = consensus_weights(g, "MH")
+    ex = make_exchange(g)
+    x = np.random.default_rng(3).normal(size=(40, 2, 2))
+    assert np.allclose(ex.mixer(w).apply(x), np.einsum("ij,jkl->ikl", w.to_dense(), x), atol=1e-14)
+
+
+def test_exchange_input_errors():
+    g = builders.path(3)
+    ex = make_exchange(g)
+    with pytest.raises(ExchangeError, match="broadcast needs 3 local rows"):
+        ex.broadcast(np.zeros(4))
+    with pytest.raises(ExchangeError, match="one row per outgoing edge"):
+        ex.send(np.zeros(3))
+    with pytest.raises(ExchangeError, match="mixer needs 3 local rows"):
+        ex.mixer(consensus_weights(g, "P3")).apply(np.zeros(2))
+    with pytest.raises(ExchangeError, match="different graph"):
+        ex.mixer(consensus_weights(builders.path(4), "P3"))
+    with pytest.raises(ExchangeError, match="per-node array with 3 rows"):
+        ex.local(np.zeros(5))
+    with pytest.raises(ValueError, match="unknown exchange backend"):
+        make_exchange(g, backend="carrier-pigeon")
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"drop_probability": 1.0}, r"drop_probability must be in \[0, 1\)"),
+        ({"drop_probability": -0.1}, "drop_probability"),
+        ({"failed_links": ((0, 1),)}, "must be"),
+        ({"silent_nodes": ((0, -1),)}, "must be"),
+    ],
+)
+def test_fault_schedule_validation(kwargs, match):
+    with pytest.raises(ExchangeError, match=match):
+        FaultSchedule(**kwargs)
+
+
+def test_fault_schedule_checked_against_graph():
+    g = builders.path(3)
+    with pytest.raises(ExchangeError, match=r"failed link \(0, 2\) is not a link"):
+        make_exchange(g, faults=FaultSchedule(failed_links=((0, 2, 0),)))
+    with pytest.raises(ExchangeError, match="silent node 7 is outside"):
+        make_exchange(g, faults=FaultSchedule(silent_nodes=((7, 0),)))
+    with pytest.raises(ExchangeError, match="names a node outside"):
+        make_exchange(g, faults=FaultSchedule(failed_links=((0, 9, 0),)))
+
+
+def test_reset_accounting_restarts_fault_rounds():
+    g = builders.complete(5)
+    ex = make_exchange(g, faults=FaultSchedule(drop_probability=0.5, seed=9))
+    first = ex.broadcast(np.zeros(5)).delivered
+    ex.reset_accounting()
+    assert ex.comm_totals().rounds == 0
+    assert np.array_equal(ex.broadcast(np.zeros(5)).delivered, first)
