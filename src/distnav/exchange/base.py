@@ -152,6 +152,7 @@ class Mixer:
         self._w_full = (self._w_edges + sp.diags(self._self_w, shape=(ex.n_local, ex.n_columns))).tocsr()
         self._sent_counts = np.bincount(ex.out_src[self._act_out], minlength=ex.n_local)
         self._recv_counts = np.bincount(ex.in_dst[self._act_in], minlength=ex.n_local)
+        self._sent_total = int(self._sent_counts.sum())
 
     def apply(self, x_local: np.ndarray) -> np.ndarray:
         """One consensus round on local values ``x_local`` of shape ``(n_local, ...)``."""
@@ -163,8 +164,8 @@ class Mixer:
         cols = ex._columns(flat, self._active_global)
         msg_bytes = flat.shape[1] * flat.itemsize
         if not ex.faults.active:
-            ex._account(self._sent_counts, self._recv_counts, msg_bytes)
-            out = self._w_full @ cols
+            ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
+            out = self._w_full @ (cols.ravel() if x.ndim == 1 else cols)
             return np.asarray(out).reshape(x.shape)
         delivered = ex._delivered(self._act_in)
         silent = ex.faults.silent_mask(ex.round_index, ex.nodes)
@@ -214,6 +215,7 @@ class Exchange(ABC):
 
     def _init_accounting(self) -> None:
         n = self.n_local
+        self._pending: list[tuple[np.ndarray, np.ndarray, int]] = []
         self.messages_sent = np.zeros(n, np.int64)
         self.bytes_sent = np.zeros(n, np.int64)
         self.messages_received = np.zeros(n, np.int64)
@@ -222,6 +224,7 @@ class Exchange(ABC):
         real_in = self.in_src != self.nodes[self.in_dst]
         self._all_sent = np.bincount(self.out_src[real_out], minlength=n)
         self._all_recv = np.bincount(self.in_dst[real_in], minlength=n)
+        self._all_sent_total = int(self._all_sent.sum())
         self._real_out = real_out
         self._real_in = real_in
 
@@ -273,15 +276,36 @@ class Exchange(ABC):
         ok = self.faults.delivered(self.round_index, self.in_src, self.nodes[self.in_dst], self.in_edges)
         return ok & active_in
 
-    def _account(self, sent: np.ndarray, received: np.ndarray, msg_bytes: int) -> None:
-        self.messages_sent += sent
-        self.bytes_sent += sent * msg_bytes
-        self.messages_received += received
-        self.bytes_received += received * msg_bytes
-        total = int(sent.sum())
+    def _account(self, sent: np.ndarray, received: np.ndarray, msg_bytes: int, total: int | None = None) -> None:
+        """Count one round. With ``total`` given, ``sent``/``received`` are count arrays reused round after round
+        (a prepared mixer): they are folded in lazily (:meth:`_flush`), so such a round costs a list append, not
+        four array additions. Fresh arrays (fault rounds) are folded in at once."""
+        if total is None:
+            total = int(sent.sum())
+            self.messages_sent += sent
+            self.bytes_sent += sent * msg_bytes
+            self.messages_received += received
+            self.bytes_received += received * msg_bytes
+        else:
+            self._pending.append((sent, received, msg_bytes))
         self._round_messages.append(total)
         self._round_bytes.append(total * msg_bytes)
         self.round_index += 1
+
+    def _flush(self) -> None:
+        groups: dict[tuple[int, int, int], list[Any]] = {}
+        for sent, received, msg_bytes in self._pending:
+            key = (id(sent), id(received), msg_bytes)
+            if key in groups:
+                groups[key][3] += 1
+            else:
+                groups[key] = [sent, received, msg_bytes, 1]
+        for sent, received, msg_bytes, times in groups.values():
+            self.messages_sent += sent * times
+            self.bytes_sent += sent * (times * msg_bytes)
+            self.messages_received += received * times
+            self.bytes_received += received * (times * msg_bytes)
+        self._pending.clear()
 
     def _active_slices(self, active: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         if active is None:
@@ -299,11 +323,15 @@ class Exchange(ABC):
             sent = np.bincount(self.out_src[act_out & ~silent[self.out_src]], minlength=self.n_local)
             recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
         elif act_out is self._real_out:
-            sent, recv = self._all_sent, self._all_recv
+            self._account(self._all_sent, self._all_recv, msg_bytes, self._all_sent_total)
+            return self._inbox(values_in, delivered, tail)
         else:
             sent = np.bincount(self.out_src[act_out], minlength=self.n_local)
             recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
         self._account(sent, recv, msg_bytes)
+        return self._inbox(values_in, delivered, tail)
+
+    def _inbox(self, values_in: np.ndarray, delivered: np.ndarray, tail: tuple[int, ...]) -> Inbox:
         values_in = np.where(delivered[:, None], values_in, 0.0) if not delivered.all() else values_in
         return Inbox(values=values_in.reshape((values_in.shape[0], *tail)), delivered=delivered,
                      dst=self.in_dst, src=self.in_src, edges=self.in_edges, n_local=self.n_local)
@@ -346,6 +374,7 @@ class Exchange(ABC):
     # ------------------------------------------------------------- accounting
     def comm_totals(self) -> CommTotals:
         """Network-wide totals so far (gathered from every block)."""
+        self._flush()
         return CommTotals(
             rounds=self.round_index,
             messages_sent=self.gather_nodes(self.messages_sent),
