@@ -15,7 +15,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, main_for  # noqa: E402
-
 from distnav.algorithms.consensus import consensus_probability, consensus_product, consensus_schedule  # noqa: E402
 from distnav.exchange import FaultSchedule, make_exchange  # noqa: E402
 from distnav.network import builders, consensus_weights  # noqa: E402
@@ -35,8 +34,8 @@ def run(quick: bool) -> list[dict]:
         repeat = 20 if n <= 100_000 else 5
         for payload in (1, 10):
             x = np.random.default_rng(1).normal(size=(n, payload) if payload > 1 else n)
-            ref = best_time(lambda x=x: csr @ x, repeat=repeat)
-            ours = best_time(lambda x=x: mixer.apply(x), repeat=repeat)
+            ref = best_time(lambda x=x, csr=csr: csr @ x, repeat=repeat)
+            ours = best_time(lambda x=x, mixer=mixer: mixer.apply(x), repeat=repeat)
             assert np.allclose(mixer.apply(x), csr @ x)
             rows.append({
                 "name": "consensus round", "n_nodes": n, "mean_degree": round(float(g.degrees.mean()), 2),
@@ -49,7 +48,7 @@ def run(quick: bool) -> list[dict]:
             mf = exf.mixer(w)
             x = np.random.default_rng(1).normal(size=(n, 10))
             ours = best_time(lambda x=x, mf=mf: mf.apply(x), repeat=repeat)
-            ref = best_time(lambda x=x: csr @ x, repeat=repeat)
+            ref = best_time(lambda x=x, csr=csr: csr @ x, repeat=repeat)
             rows.append({"name": "round with 10% drops", "n_nodes": n, "payload_floats": 10,
                          "distnav_ms": ours * 1e3, "csr_product_ms": ref * 1e3, "ratio": ours / ref,
                          "goal": "(no goal)"})
