@@ -31,6 +31,9 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=["inprocess", "mpi"], default="inprocess",
                    help="message transport: in-process simulator (default) or MPI "
                         "(launch with mpiexec -n N python -m mpi4py -m distnav ...)")
+    p.add_argument("--ranks", type=int, default=None,
+                   help="with --backend mpi: the number of ranks you launched; distnav stops if MPI reports another "
+                        "(a mismatched mpiexec silently starts N one-process jobs)")
     p.add_argument("--no-progress", action="store_true", help="do not print progress")
 
 
@@ -63,7 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _context(args: argparse.Namespace, out_dir: Path, quick: bool) -> ExperimentContext:
     opts = {k: v for k, v in vars(args).items()
-            if k not in {"command", "experiment", "out", "quick", "seed", "backend", "no_progress", "only", "func"}}
+            if k not in {"command", "experiment", "out", "quick", "seed", "backend", "no_progress", "only", "func",
+                         "ranks"}}
     return ExperimentContext(out_dir=out_dir, quick=quick, backend=args.backend, seed=args.seed,
                              progress=Progress(enabled=not args.no_progress), options=opts)
 
@@ -97,15 +101,52 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_mpi_launch(args: argparse.Namespace) -> None:
+    from distnav.exchange.mpi import world_rank, world_size
+
+    size = world_size()
+    if args.ranks is not None and size != args.ranks:
+        raise DistnavError(
+            f"--ranks {args.ranks} was asked for but MPI reports {size} rank(s) on rank {world_rank()}: the launcher "
+            f"does not match this MPI (use the mpiexec of the same installation, e.g. .venv/bin/mpiexec)"
+        )
+    if size == 1 and world_rank() == 0:
+        print("warning: --backend mpi with a single rank; launch with mpiexec -n N python -m mpi4py -m distnav ...",
+              file=sys.stderr)
+
+
+def _main_mpi(args: argparse.Namespace) -> int:
+    """Run under MPI: any failure on any rank aborts the whole job with a message naming the rank."""
+    from distnav._optional import require
+
+    MPI = require("mpi4py.MPI", "mpi")
+    rank = MPI.COMM_WORLD.Get_rank()
+    try:
+        _check_mpi_launch(args)
+        return _dispatch(args)
+    except BaseException as exc:  # noqa: BLE001 - every failure must end all ranks
+        code = 2 if isinstance(exc, DistnavError) else 1
+        print(f"error on MPI rank {rank} of {MPI.COMM_WORLD.Get_size()}: {type(exc).__name__}: {exc}",
+              file=sys.stderr, flush=True)
+        MPI.COMM_WORLD.Abort(code)
+        return code  # pragma: no cover - Abort does not return
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    if args.command == "demo":
+        return _run_demo(args)
+    if args.command == "reproduce":
+        return _run_reproduce(args)
+    return int(args.func(args) or 0)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if getattr(args, "backend", "inprocess") == "mpi":
+        return _main_mpi(args)
     try:
-        if args.command == "demo":
-            return _run_demo(args)
-        if args.command == "reproduce":
-            return _run_reproduce(args)
-        return int(args.func(args) or 0)
+        return _dispatch(args)
     except DistnavError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

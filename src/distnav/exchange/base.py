@@ -149,7 +149,9 @@ class Mixer:
         self._self_w = np.asarray(self_weight, float)[ex.nodes]
         # fused local block of W over [local nodes | halo columns]
         self._w_edges = _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, self._ew_in, ex.in_src_col)
-        self._w_full = (self._w_edges + sp.diags(self._self_w, shape=(ex.n_local, ex.n_columns))).tocsr()
+        diag = sp.csr_matrix((self._self_w, (np.arange(ex.n_local), ex.local_col)), shape=(ex.n_local, ex.n_columns))
+        self._w_full = (self._w_edges + diag).tocsr()
+        self._w_full.sort_indices()
         self._sent_counts = np.bincount(ex.out_src[self._act_out], minlength=ex.n_local)
         self._recv_counts = np.bincount(ex.in_dst[self._act_in], minlength=ex.n_local)
         self._sent_total = int(self._sent_counts.sum())
@@ -190,6 +192,7 @@ class Exchange(ABC):
         sorted by receiver.
     out_edges, out_src, out_dst : outgoing edges (global ids), local sender index, receiver's global id.
     in_src_col : column of each incoming edge's sender in the array returned by :meth:`_columns`.
+    local_col : column of each local node in that array.
     """
 
     backend: str = "abstract"
@@ -208,6 +211,7 @@ class Exchange(ABC):
     in_dst: np.ndarray
     in_src: np.ndarray
     in_src_col: np.ndarray
+    local_col: np.ndarray
     out_edges: np.ndarray
     out_src: np.ndarray
     out_dst: np.ndarray

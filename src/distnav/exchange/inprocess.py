@@ -26,6 +26,7 @@ class InProcessExchange(Exchange):
         self.in_dst = graph.dst
         self.in_src = graph.src
         self.in_src_col = graph.src
+        self.local_col = self.nodes
         self.out_edges = e
         self.out_src = graph.src
         self.out_dst = graph.dst

@@ -1,0 +1,124 @@
+"""In-process equals MPI: the same runs under ``mpiexec -n 4`` give the same numbers; failures end the job.
+
+Each test launches ``mpiexec`` from inside pytest with a timeout and no standard input.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mpi4py", reason="the mpi extra is not installed (pip install 'distnav[mpi]')")
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE / "mpi"))
+from cases import CASES  # noqa: E402
+
+pytestmark = pytest.mark.mpi
+N_RANKS = 4
+
+
+def _mpiexec() -> str:
+    local = Path(sys.executable).parent / "mpiexec"
+    exe = str(local) if local.exists() else shutil.which("mpiexec")
+    if exe is None:
+        pytest.fail("mpi4py is installed but no mpiexec was found (pip install mpich)")
+    return exe
+
+
+def _launch(args: list[str], *, n: int = N_RANKS, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.run([_mpiexec(), "-n", str(n), sys.executable, "-m", "mpi4py", *args],
+                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+@pytest.fixture(scope="module")
+def mpi_results(tmp_path_factory) -> dict[str, np.ndarray]:
+    out = tmp_path_factory.mktemp("mpi") / "cases.npz"
+    proc = _launch([str(HERE / "mpi" / "run_cases.py"), str(out)], timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    with np.load(out) as data:
+        return {k: data[k] for k in data.files}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_mpi_equals_inprocess(name, mpi_results):
+    ref = CASES[name]("inprocess")
+    for key, value in ref.items():
+        got = mpi_results[f"{name}/{key}"]
+        assert got.shape == np.shape(value), f"{name}/{key}"
+        # bitwise: the MPI exchange sums every row in the in-process order
+        assert np.array_equal(got, value), f"{name}/{key}: max diff {np.max(np.abs(got - value))}"
+
+
+def test_cli_reproduce_under_mpi_writes_the_same_file(tmp_path):
+    from distnav.cli import main
+
+    proc = _launch(["-m", "distnav", "reproduce", "consensus", "--backend", "mpi", "--ranks", str(N_RANKS),
+                    "--quick", "--no-progress", "--out", str(tmp_path / "mpi")])
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert main(["reproduce", "consensus", "--quick", "--no-progress", "--out", str(tmp_path / "local")]) == 0
+    a = (tmp_path / "mpi" / "results.json").read_bytes()
+    b = (tmp_path / "local" / "results.json").read_bytes()
+    assert a == b
+    assert json.loads(a)["final_max_abs_deviation"]["P3"] > 0
+
+
+@pytest.mark.parametrize("mode", ["raise", "die"])
+def test_failing_rank_ends_whole_job(tmp_path, mode):
+    t0 = time.perf_counter()
+    proc = _launch([str(HERE / "mpi" / "fail_rank.py"), "2", mode, str(tmp_path / "out")], timeout=60)
+    elapsed = time.perf_counter() - t0
+    assert proc.returncode != 0
+    assert elapsed < 30
+    if mode == "raise":
+        assert "error on MPI rank 2 of 4: RuntimeError: injected failure" in proc.stderr
+    # no half-written output
+    assert not (tmp_path / "out" / "results.json").exists()
+    leftovers = list((tmp_path / "out").glob("*")) if (tmp_path / "out").exists() else []
+    assert not [p for p in leftovers if p.suffix in {".json", ".tmp"}]
+
+
+def test_rank_count_mismatch_is_reported(tmp_path):
+    proc = _launch(["-m", "distnav", "reproduce", "consensus", "--backend", "mpi", "--ranks", "3", "--quick",
+                    "--no-progress", "--out", str(tmp_path)], n=2)
+    assert proc.returncode != 0
+    assert "--ranks 3 was asked for but MPI reports 2 rank(s)" in proc.stderr
+
+
+def test_partition_rules():
+    from distnav.errors import ExchangeError
+    from distnav.exchange.mpi import partition_nodes
+    from distnav.network import Graph, builders
+
+    g = builders.path(6)
+    assert partition_nodes(g, 3, "block").tolist() == [0, 0, 1, 1, 2, 2]
+    assert partition_nodes(g, 6, "node").tolist() == list(range(6))
+    assert np.bincount(partition_nodes(g, 4, "rcm")).min() >= 1
+    with pytest.raises(ExchangeError, match="one rank per node: launch 6 ranks, not 3"):
+        partition_nodes(g, 3, "node")
+    with pytest.raises(ExchangeError, match="7 ranks for 6 nodes"):
+        partition_nodes(g, 7, "block")
+    with pytest.raises(ExchangeError, match="unknown partition"):
+        partition_nodes(g, 2, "metis")
+    with pytest.raises(ExchangeError, match=r"ranks \[1\] would hold no node"):
+        partition_nodes(g, 2, np.zeros(6, int))
+    with pytest.raises(ExchangeError, match="owner ranks must be in 0..1"):
+        partition_nodes(g, 2, np.full(6, 2))
+    # RCM keeps far fewer links cut than contiguous ids on a shuffled geometric network
+    base = builders.connected_random_geometric(2000, mean_degree=8, rng=np.random.default_rng(0))
+    perm = np.random.default_rng(1).permutation(2000)
+    shuffled = Graph.from_links(2000, perm[base.links])
+
+    def cut(owner: np.ndarray) -> int:
+        return int((owner[shuffled.src] != owner[shuffled.dst]).sum())
+
+    assert cut(partition_nodes(shuffled, 4, "rcm")) < 0.25 * cut(partition_nodes(shuffled, 4, "block"))
