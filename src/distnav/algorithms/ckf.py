@@ -1,0 +1,313 @@
+"""Consensus-based Kalman filter (CKF) and its error-variance recursion — paper 003 §4, Figs. 5–7.
+
+Every node ``i`` runs its own information filter. At epoch ``t`` it computes its normals ``(N_i,t, r_i,t)``
+(eq. (24)), runs ``k_n`` average-consensus rounds on them with its neighbours through the exchange (eq. (31),
+any protocol of Table 1, static or switching graph), and updates (Fig. 6)::
+
+    I_i,t|t = I_i,t|t−1 + n N_i,t^(k_n),      i_i,t|t = i_i,t|t−1 + n r_i,t^(k_n)
+
+followed by the same time update as the information filter (Fig. 1, eqs. (19)–(21)). ``k_n`` follows from the
+two time scales (Fig. 5): sampling interval ``Δ`` and sending interval ``δ``, ``k_n = ⌊Δ/δ⌋``
+(Δ = 60 s, δ = 15, 10, 5 s → k_n = 4, 6, 12 in §5.2).
+
+Error variance (Fig. 7, eqs. (41)–(45)): ``I_i,t|t⁻¹`` is *not* the error variance of ``x̂_i,t|t``; with
+``L = W_(k_n)⋯W_(1)`` (eq. (33)) and ``l_ij`` its entries,
+``P_i,t|t = I_i,t|t⁻¹ (I_i,t|t−1 P_i,t|t−1 I_i,t|t−1 + n² Σ_j l_ij² N_j,t) I_i,t|t⁻¹``,
+``P_i,t|t−1 = Φ_t P_i,t−1|t−1 Φ_tᵀ + S_t``. distnav propagates the equivalent information-error variance
+``Q_i = D(I_i x_t − i_i) = I_i P_i I_i`` (see :class:`distnav.algorithms.kalman._InfoKernel`), which stays finite
+while ``I_i`` is still singular (BLUP start, unobserved entries); ``P_i = I_i⁺ Q_i I_i⁺`` on the estimable entries.
+The extra term ``Σ_j l_ij² N_j,t`` is information no node has (the paper says so): it is assembled with
+``ex.gather_nodes`` as an analysis quantity. :func:`ckf_error_variance` runs the recursion alone (no data, no
+messages) as the a-priori design tool of §4.2.
+
+Consensus sessions of a switching graph restart at session 0 every epoch, so every epoch uses the same ``L``.
+With message faults the actual product differs from the nominal one; the CKF then carries the rows of ``L``
+along in the consensus payload (paid for in bytes) so that Fig. 7 uses the product actually applied.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from distnav.algorithms.consensus import ConsensusSchedule, consensus_product, consensus_schedule
+from distnav.algorithms.kalman import (
+    DynamicModel,
+    FilterSeries,
+    MeasurementSeries,
+    _check_pair,
+    _InfoKernel,
+    _std,
+    pseudo_inverse_psd,
+    std_ratio,
+)
+from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.errors import ModelError, WeightsError
+from distnav.exchange import Exchange, make_exchange
+from distnav.exchange.base import CommTotals
+from distnav.network.graph import Graph, SwitchingGraph
+from distnav.network.weights import ConsensusWeights
+
+__all__ = [
+    "consensus_rounds",
+    "alpha_factor",
+    "CKFState",
+    "iterate_ckf",
+    "ckf",
+    "ckf_error_variance",
+    "ckf_std_ratio",
+]
+
+
+def consensus_rounds(sampling_interval_s: float, sending_interval_s: float) -> int:
+    """``k_n = ⌊Δ/δ⌋``: consensus rounds that fit in one sampling interval (paper 003 §4.1, Fig. 5).
+
+    Δ = 60 s with δ = 15, 10, 5 s gives 4, 6, 12 (paper 003 §5.2).
+    """
+    D, d = float(sampling_interval_s), float(sending_interval_s)
+    if not (math.isfinite(D) and D > 0):
+        raise ModelError(f"sampling interval Δ must be positive, got {sampling_interval_s} s")
+    if not (math.isfinite(d) and d > 0):
+        raise ModelError(f"sending interval δ must be positive, got {sending_interval_s} s")
+    if d > D:
+        raise ModelError(f"sending interval δ = {d} s exceeds the sampling interval Δ = {D} s: no consensus round "
+                         f"fits in an epoch (the CKF needs δ ≤ Δ, paper 003 §4.1)")
+    return int(math.floor(D / d + 1e-9))
+
+
+def alpha_factor(product: np.ndarray) -> np.ndarray:
+    """``α_i = n Σ_j l_ij²`` per node (paper 003 eq. (46)); ``α_i ≥ 1`` with equality iff ``l_i = e/n`` (eq. (48))."""
+    L = np.asarray(product, dtype=float)
+    if L.ndim != 2 or L.shape[0] != L.shape[1]:
+        raise WeightsError(f"product matrix must be square, got shape {L.shape}")
+    return L.shape[0] * (L**2).sum(axis=1)
+
+
+def _resolve_rounds(rounds: int | None, sampling_interval_s: float | None, sending_interval_s: float | None) -> int:
+    if rounds is not None:
+        if sampling_interval_s is not None or sending_interval_s is not None:
+            raise ModelError("give either rounds or (sampling_interval_s, sending_interval_s), not both")
+        if int(rounds) != rounds or rounds < 0:
+            raise ModelError(f"rounds must be a non-negative integer, got {rounds}")
+        return int(rounds)
+    if sampling_interval_s is None or sending_interval_s is None:
+        raise ModelError("give rounds, or both sampling_interval_s (Δ) and sending_interval_s (δ)")
+    return consensus_rounds(sampling_interval_s, sending_interval_s)
+
+
+def _schedule(graph: Graph | SwitchingGraph | None, protocol: Any,
+              schedule: ConsensusSchedule | None, n_nodes: int) -> ConsensusSchedule:
+    if schedule is None:
+        if graph is None:
+            raise ModelError("give a graph (static or switching) or a consensus schedule")
+        schedule = consensus_schedule(graph, protocol)
+    if schedule.graph.n_nodes != n_nodes:
+        raise ModelError(f"the graph has {schedule.graph.n_nodes} nodes, the measurements {n_nodes}")
+    return schedule
+
+
+def _triu(p: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.triu_indices(p)
+
+
+@dataclass(frozen=True, eq=False)
+class CKFState:
+    """The CKF after the measurement update of ``epoch``, for this exchange block's nodes (rows).
+
+    information, info_vector : ``I_i,t|t`` (k×p×p), ``i_i,t|t`` (k×p).
+    estimates : ``x̂_i,t|t`` (NaN where not estimable); estimable : (k×p).
+    covariance : ``P_i,t|t`` from Fig. 7 (k×p×p) or ``None`` without the variance recursion.
+    nominal_covariance : ``I_i,t|t⁺``. consensus_deviation : max over local nodes and entries of
+    ``|N_i^(k_n) − N̄|``, ``|r_i^(k_n) − r̄|`` (monitoring).
+    """
+
+    epoch: int
+    nodes: np.ndarray
+    information: np.ndarray
+    info_vector: np.ndarray
+    estimates: np.ndarray
+    estimable: np.ndarray
+    covariance: np.ndarray | None
+    nominal_covariance: np.ndarray
+    consensus_deviation: float
+
+
+def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
+                graph: Graph | SwitchingGraph | None = None,
+                protocol: str | int | ConsensusWeights | Sequence[ConsensusWeights] = "P3",
+                rounds: int | None = None, sampling_interval_s: float | None = None,
+                sending_interval_s: float | None = None, exchange: Exchange | None = None,
+                schedule: ConsensusSchedule | None = None, variance: bool = True,
+                monitor: bool = True) -> Iterator[CKFState]:
+    """Yield the CKF state (paper 003 Fig. 6) of this block's nodes after every epoch.
+
+    ``rounds`` (= k_n) or the two time scales ``sampling_interval_s`` (Δ) and ``sending_interval_s`` (δ).
+    ``variance`` runs the error-variance recursion of Fig. 7 alongside. ``monitor`` computes the consensus
+    deviation from the exact averages (a global reduction: monitoring only).
+    Each consensus round sends one message per directed edge holding the upper triangle of ``N_i^(k)`` and
+    ``r_i^(k)`` (p(p+1)/2 + p floats).
+    """
+    _check_pair(dynamics, measurements)
+    kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
+    n = measurements.n_nodes
+    sched = _schedule(graph, protocol, schedule, n)
+    ex = exchange if exchange is not None else make_exchange(sched.graph)
+    if ex.graph.n_edges != sched.graph.n_edges or ex.graph.n_nodes != n:
+        raise ModelError("the exchange was built on a different graph than the consensus schedule")
+    mixers = [ex.mixer(w, active=a) for w, a in zip(sched.weights, sched.active, strict=True)]
+    p = measurements.n_states
+    iu = _triu(p)
+    n_tri = iu[0].size
+    nodes = ex.nodes
+    k_loc = nodes.size
+    track_L = variance and ex.faults.active
+    L_nominal = consensus_product(sched, kn) if (variance and not track_L) else None
+    ker = _InfoKernel(k_loc, p, track_error=variance)
+    for t in range(measurements.n_epochs):
+        if t > 0:
+            ker.time_update(dynamics, t)
+        N, r = measurements.normals(t, nodes)
+        parts = [N[:, iu[0], iu[1]], r]
+        if track_L:
+            parts.append(np.eye(n)[nodes])
+        payload = np.concatenate(parts, axis=1)
+        for k in range(kn):
+            payload = mixers[k % len(mixers)].apply(payload)
+        Nk = np.zeros((k_loc, p, p))
+        Nk[:, iu[0], iu[1]] = payload[:, :n_tri]
+        Nk[:, iu[1], iu[0]] = payload[:, :n_tri]
+        rk = payload[:, n_tri:n_tri + p]
+        extra = None
+        if variance:
+            L_rows = payload[:, n_tri + p:] if track_L else L_nominal[nodes]  # type: ignore[index]
+            N_all = ex.gather_nodes(N[:, iu[0], iu[1]])  # analysis input of Fig. 7 (no node has it)
+            e_tri = (n * n) * ((L_rows**2) @ N_all)
+            extra = np.zeros((k_loc, p, p))
+            extra[:, iu[0], iu[1]] = e_tri
+            extra[:, iu[1], iu[0]] = e_tri
+        ker.measurement_update(Nk, rk, scale=float(n), extra_error=extra)
+        dev = 0.0
+        if monitor:
+            Nbar = ex.allreduce(N.sum(axis=0), "sum") / n
+            rbar = ex.allreduce(r.sum(axis=0), "sum") / n
+            loc = max(float(np.abs(Nk - Nbar).max(initial=0.0)), float(np.abs(rk - rbar).max(initial=0.0)))
+            dev = float(ex.allreduce(loc, "max"))
+        x, est, inv, P = ker.estimates()
+        yield CKFState(t, nodes, ker.I, ker.i, x, est, P, inv, dev)
+
+
+def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
+        graph: Graph | SwitchingGraph | None = None,
+        protocol: str | int | ConsensusWeights | Sequence[ConsensusWeights] = "P3",
+        rounds: int | None = None, sampling_interval_s: float | None = None,
+        sending_interval_s: float | None = None, exchange: Exchange | None = None,
+        schedule: ConsensusSchedule | None = None, variance: bool = True, monitor: bool = True,
+        store_matrices: bool = False) -> SolverResult:
+    """Run the CKF (paper 003 Fig. 6) over all epochs; see :func:`iterate_ckf` for the arguments.
+
+    Returns a :class:`SolverResult`: ``estimates`` = last-epoch ``x̂_i,t|t`` (n×p), ``iterations`` = epochs,
+    ``comm`` = message/byte totals of all consensus rounds, ``extras``: ``"series"`` (:class:`FilterSeries`
+    over all nodes: ``std`` from Fig. 7, ``nominal_std`` = sqrt diag ``I_i⁻¹``; with ``store_matrices`` also
+    ``covariance`` = ``P_i,t|t`` and ``information`` = ``I_i,t|t`` for every epoch), ``"information"``,
+    ``"info_vector"``, ``"covariance"`` (last epoch), ``"rounds"`` (k_n), ``"product"`` (``L``), ``"alpha"``.
+    Trace: ``consensus_deviation`` per epoch.
+    """
+    kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
+    n = measurements.n_nodes
+    sched = _schedule(graph, protocol, schedule, n)
+    ex = exchange if exchange is not None else make_exchange(sched.graph)
+    xs, stds, nstds, ests, covs, infos = [], [], [], [], [], []
+    tb = TraceBuilder()
+    last: CKFState | None = None
+    for st in iterate_ckf(dynamics, measurements, rounds=kn, exchange=ex, schedule=sched, variance=variance,
+                          monitor=monitor):
+        xs.append(ex.gather_nodes(st.estimates))
+        ests.append(ex.gather_nodes(st.estimable))
+        nstds.append(ex.gather_nodes(_std(st.nominal_covariance, st.estimable)))
+        if st.covariance is not None:
+            stds.append(ex.gather_nodes(_std(st.covariance, st.estimable)))
+        if store_matrices:
+            infos.append(ex.gather_nodes(st.information))
+            if st.covariance is not None:
+                covs.append(ex.gather_nodes(st.covariance))
+        tb.add(consensus_deviation=st.consensus_deviation)
+        last = st
+    assert last is not None
+    nominal = np.stack(nstds)
+    series = FilterSeries(
+        estimates=np.stack(xs), std=np.stack(stds) if stds else np.full_like(nominal, np.nan),
+        estimable=np.stack(ests), nodes=np.arange(n), nominal_std=nominal,
+        covariance=np.stack(covs) if covs else None, information=np.stack(infos) if infos else None,
+    )
+    L = consensus_product(sched, kn)
+    comm: CommTotals = ex.comm_totals()
+    est_last = series.estimable[-1]
+    complete = bool(est_last.all())
+    return SolverResult(
+        estimates=series.estimates[-1], converged=complete, iterations=measurements.n_epochs,
+        status="converged" if complete else "stopped",
+        message=(f"CKF over {measurements.n_epochs} epochs with k_n = {kn} consensus rounds each; "
+                 f"{int(est_last.sum())}/{est_last.size} node-entries estimable at the last epoch"),
+        trace=tb.build(), comm=comm,
+        extras={"series": series, "information": ex.gather_nodes(last.information),
+                "info_vector": ex.gather_nodes(last.info_vector),
+                "covariance": ex.gather_nodes(last.covariance) if last.covariance is not None else None,
+                "rounds": kn, "product": L, "alpha": alpha_factor(L)},
+    )
+
+
+def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, product: np.ndarray, *,
+                       store_matrices: bool = False) -> FilterSeries:
+    """The CKF error-variance recursion of Fig. 7 alone, for every node and epoch, from ``L`` (= ``W^(k_n)``).
+
+    No data and no messages: the consensus normals are ``N_i^(k_n) = Σ_j l_ij N_j`` (eq. (35)), so ``I_i,t|t``
+    and ``P_i,t|t`` follow from the normal matrices and ``L`` — the a-priori design tool of paper 003 §4.2.
+    Returns a :class:`FilterSeries` with ``std`` = sqrt diag ``P_i,t|t`` and ``nominal_std`` = sqrt diag
+    ``I_i,t|t⁻¹`` (``estimates`` are NaN).
+    """
+    _check_pair(dynamics, measurements)
+    n, p = measurements.n_nodes, measurements.n_states
+    L = np.asarray(product, dtype=float)
+    if L.shape != (n, n):
+        raise ModelError(f"product matrix must be {n}×{n}, got {L.shape}")
+    L2 = L**2
+    iu = _triu(p)
+    ker = _InfoKernel(n, p, track_error=True)
+    T = measurements.n_epochs
+    stds, nstds, ests, covs, infos = [], [], [], [], []
+    for t in range(T):
+        if t > 0:
+            ker.time_update(dynamics, t)
+        N, _ = measurements.normals(t)
+        tri = N[:, iu[0], iu[1]]
+        both = np.concatenate([L, L2]) @ tri
+        Nk = np.zeros((n, p, p))
+        Nk[:, iu[0], iu[1]] = both[:n]
+        Nk[:, iu[1], iu[0]] = both[:n]
+        extra = np.zeros((n, p, p))
+        extra[:, iu[0], iu[1]] = (n * n) * both[n:]
+        extra[:, iu[1], iu[0]] = (n * n) * both[n:]
+        ker.measurement_update(Nk, np.zeros((n, p)), scale=float(n), extra_error=extra)
+        inv, est = pseudo_inverse_psd(ker.I)
+        assert ker.Q is not None
+        P = inv @ ker.Q @ inv
+        stds.append(_std(P, est))
+        nstds.append(_std(inv, est))
+        ests.append(est)
+        if store_matrices:
+            covs.append(0.5 * (P + np.swapaxes(P, 1, 2)))
+            infos.append(ker.I)
+    std = np.stack(stds)
+    return FilterSeries(estimates=np.full_like(std, np.nan), std=std, estimable=np.stack(ests),
+                        nodes=np.arange(n), nominal_std=np.stack(nstds),
+                        covariance=np.stack(covs) if store_matrices else None,
+                        information=np.stack(infos) if store_matrices else None)
+
+
+def ckf_std_ratio(ckf_series: FilterSeries, central_series: FilterSeries) -> np.ndarray:
+    """CKF-to-central standard-deviation ratios per epoch, node and parameter (paper 003 Fig. 12), (T, n, p)."""
+    return std_ratio(ckf_series, central_series)
