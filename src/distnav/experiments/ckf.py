@@ -125,7 +125,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     local_ratio = std_ratio(ls, cs)
 
     alpha_rows = [alpha_factor(consensus_product(sched, kn)) for kn in ALPHA_KN]
-    alpha = {
+    alpha: dict[str, Any] = {
         "kn": list(ALPHA_KN),
         "max_over_nodes": [float(a.max()) for a in alpha_rows],
         "mean_over_nodes": [float(a.mean()) for a in alpha_rows],
@@ -211,10 +211,10 @@ def _figures(ctx: ExperimentContext, graph: Graph, ratios: dict[int, np.ndarray]
     ctx.save_figure(fig, "std_ratio_vs_degree.png")
     # Fig. C: α table
     fig, ax = plt.subplots(figsize=(6, 4))
-    kn = np.asarray(alpha["kn"])
-    ax.plot(kn, alpha["max_over_nodes"], "o-", label="max over nodes")
-    ax.plot(kn, alpha["mean_over_nodes"], "s-", label="mean")
-    ax.plot(kn, alpha["min_over_nodes"], "^-", label="min")
+    kns = np.asarray(alpha["kn"])
+    ax.plot(kns, alpha["max_over_nodes"], "o-", label="max over nodes")
+    ax.plot(kns, alpha["mean_over_nodes"], "s-", label="mean")
+    ax.plot(kns, alpha["min_over_nodes"], "^-", label="min")
     ax.axhline(1.0, color="k", ls="--", lw=0.8)
     ax.set_yscale("log")
     ax.set_xlabel("consensus rounds k_n")
