@@ -1,0 +1,275 @@
+"""Readers of published code-bias products: Bias-SINEX (``.BIA``/``.BSX``, gzip too) and the differential
+code-bias block of IONEX files (between ``START OF AUX DATA`` and ``END OF AUX DATA``).
+
+Bias-SINEX 1.00 ``+BIAS/SOLUTION`` lines have fixed columns (``*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____
+BIAS_END______ UNIT __ESTIMATED_VALUE____ _STD_DEV___``); a satellite line has the PRN and no station, a station
+line a system letter in SVN and PRN and the station name. The reader takes the fixed columns and checks them
+against the whitespace tokens (10 for a satellite line, 11 for a station line), so a malformed line is reported
+with its file and line number. The GFZ product carries a non-ASCII byte in its header: files are decoded as
+latin-1, which accepts any byte.
+
+Sign convention (Bias-SINEX): a DSB ``OBS1−OBS2`` is the bias of OBS1 minus the bias of OBS2, both biases adding
+to the observations of receiver *and* satellite. :func:`resolve_dsb` chains DSBs (``C1C−C2W = (C1C−C1W) +
+(C1W−C2W)``), taking as many terms as possible from the first product given.
+"""
+
+from __future__ import annotations
+
+import gzip
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from distnav.errors import DataFileError, ModelError
+
+__all__ = [
+    "BiasRecord",
+    "BiasProduct",
+    "read_bias_sinex",
+    "IonexDCB",
+    "read_ionex_dcb",
+    "resolve_dsb",
+]
+
+
+def _read_text_lines(path: Path) -> list[str]:
+    if not path.exists():
+        raise DataFileError(f"{path}: file not found")
+    try:
+        raw = gzip.open(path, "rb").read() if path.name.lower().endswith(".gz") else path.read_bytes()
+    except (OSError, EOFError) as exc:
+        raise DataFileError(f"{path}: cannot read ({exc})") from None
+    return raw.decode("latin-1").splitlines()
+
+
+@dataclass(frozen=True)
+class BiasRecord:
+    """One ``+BIAS/SOLUTION`` line. ``prn`` is ``""`` for a station bias, ``station`` ``""`` for a satellite."""
+
+    kind: str
+    svn: str
+    prn: str
+    station: str
+    obs1: str
+    obs2: str
+    start: str
+    end: str
+    unit: str
+    value: float
+    std: float
+    line: int
+
+    @property
+    def system(self) -> str:
+        return (self.prn or self.svn)[:1]
+
+
+@dataclass(frozen=True)
+class BiasProduct:
+    """The bias records of one Bias-SINEX file, with look-ups by satellite or station."""
+
+    path: Path
+    agency: str
+    records: tuple[BiasRecord, ...]
+    _sat: dict[tuple[str, str, str], BiasRecord] = field(default_factory=dict, repr=False, compare=False)
+    _sta: dict[tuple[str, str, str, str], BiasRecord] = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        for r in self.records:
+            if r.kind != "DSB":
+                continue
+            if r.prn and not r.station:
+                self._sat.setdefault((r.prn, r.obs1, r.obs2), r)
+            elif r.station:
+                self._sta.setdefault((r.station[:4].upper(), r.system, r.obs1, r.obs2), r)
+
+    @property
+    def name(self) -> str:
+        return self.agency or self.path.name[:3]
+
+    def satellites(self, system: str = "G") -> tuple[str, ...]:
+        return tuple(sorted({k[0] for k in self._sat if k[0].startswith(system)}))
+
+    def satellite_pairs(self, prn: str) -> list[tuple[str, str, float]]:
+        """All DSBs ``(obs1, obs2, value_ns)`` given for a satellite."""
+        return [(o1, o2, _ns(r)) for (p, o1, o2), r in self._sat.items() if p == prn]
+
+    def station_pairs(self, station: str, system: str = "G") -> list[tuple[str, str, float]]:
+        st = station[:4].upper()
+        return [(o1, o2, _ns(r)) for (s, sy, o1, o2), r in self._sta.items() if s == st and sy == system]
+
+    def satellite_dsb_ns(self, prn: str, obs1: str, obs2: str) -> float | None:
+        """DSB ``obs1 − obs2`` of a satellite in ns, reversing the sign of a stored ``obs2 − obs1``; None if absent."""
+        r = self._sat.get((prn, obs1, obs2))
+        if r is not None:
+            return _ns(r)
+        r = self._sat.get((prn, obs2, obs1))
+        return -_ns(r) if r is not None else None
+
+    def station_dsb_ns(self, station: str, obs1: str, obs2: str, system: str = "G") -> float | None:
+        st = station[:4].upper()
+        r = self._sta.get((st, system, obs1, obs2))
+        if r is not None:
+            return _ns(r)
+        r = self._sta.get((st, system, obs2, obs1))
+        return -_ns(r) if r is not None else None
+
+
+def _ns(r: BiasRecord) -> float:
+    if r.unit.lower() != "ns":
+        raise ModelError(f"bias of {r.prn or r.station} {r.obs1}-{r.obs2} (line {r.line}) is in {r.unit!r}, not ns")
+    return r.value
+
+
+def read_bias_sinex(path: str | Path) -> BiasProduct:
+    """Read a Bias-SINEX file (plain or gzip). Raises :class:`~distnav.errors.DataFileError` with the line number
+    for a malformed ``+BIAS/SOLUTION`` line, or when the file has no such block."""
+    p = Path(path)
+    lines = _read_text_lines(p)
+    if not lines or not lines[0].startswith("%=BIA"):
+        raise DataFileError(f"{p}: not a Bias-SINEX file (first line does not start with '%=BIA')")
+    head = lines[0].split()
+    agency = head[2] if len(head) > 2 else ""
+    records: list[BiasRecord] = []
+    inside = False
+    seen_block = False
+    for no, line in enumerate(lines, start=1):
+        if line.startswith("+BIAS/SOLUTION"):
+            inside, seen_block = True, True
+            continue
+        if line.startswith("-BIAS/SOLUTION"):
+            inside = False
+            continue
+        if not inside or line.startswith("*") or not line.strip():
+            continue
+        tokens = line.split()
+        try:
+            kind = line[1:5].strip()
+            svn = line[6:10].strip()
+            prn = line[11:14].strip()
+            station = line[15:24].strip()
+            obs1 = line[25:29].strip()
+            obs2 = line[30:34].strip()
+            start = line[35:49].strip()
+            end = line[50:64].strip()
+            unit = line[65:69].strip()
+            value = float(line[70:91])
+            std = float(line[92:103]) if line[92:103].strip() else float("nan")
+        except (ValueError, IndexError):
+            raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line: {line.strip()!r}") from None
+        expected = 11 if station else 10
+        if not obs2:
+            expected -= 1     # OSB lines have no second observation code
+        if kind not in ("DSB", "OSB", "ISB") or len(tokens) != expected or tokens[0] != kind:
+            raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line "
+                                f"({len(tokens)} fields, expected {expected}): {line.strip()!r}")
+        records.append(BiasRecord(kind, svn, prn if len(prn) == 3 else "", station, obs1, obs2, start, end,
+                                  unit, value, std, no))
+    if not seen_block:
+        raise DataFileError(f"{p}: no +BIAS/SOLUTION block")
+    return BiasProduct(path=p, agency=agency, records=tuple(records))
+
+
+@dataclass(frozen=True)
+class IonexDCB:
+    """The DCB block of an IONEX file: satellite ``{prn: (bias_ns, rms_ns)}`` and station
+    ``{(system, site): (bias_ns, rms_ns)}``; ``reference`` the ``Reference observables`` comments if any."""
+
+    path: Path
+    satellite: dict[str, tuple[float, float]]
+    station: dict[tuple[str, str], tuple[float, float]]
+    reference: dict[str, str]
+
+
+def read_ionex_dcb(path: str | Path) -> IonexDCB:
+    """Read the ``DIFFERENTIAL CODE BIASES`` block (``PRN / BIAS / RMS`` and ``STATION / BIAS / RMS`` lines)
+    of an IONEX file header (plain or gzip). Satellite ids without a system letter are read as GPS."""
+    p = Path(path)
+    lines = _read_text_lines(p)
+    sat: dict[str, tuple[float, float]] = {}
+    sta: dict[tuple[str, str], tuple[float, float]] = {}
+    ref: dict[str, str] = {}
+    inside = False
+    found = False
+    for no, line in enumerate(lines, start=1):
+        label = line[60:].strip()
+        if label == "START OF AUX DATA" and "DIFFERENTIAL CODE BIASES" in line[:60]:
+            inside, found = True, True
+            continue
+        if label == "END OF AUX DATA":
+            inside = False
+            continue
+        if label == "END OF HEADER":
+            break
+        if not inside:
+            continue
+        content = line[:60]
+        try:
+            if label == "PRN / BIAS / RMS":
+                tok = content.split()
+                prn = tok[0] if tok[0][:1].isalpha() else f"G{int(tok[0]):02d}"
+                sat[prn] = (float(tok[-2]), float(tok[-1]))
+            elif label == "STATION / BIAS / RMS":
+                system = content[3:4].strip() or "G"
+                site = content[6:10].strip().upper()
+                tok = content[10:].split()
+                sta[(system, site)] = (float(tok[-2]), float(tok[-1]))
+            elif label == "COMMENT" and content.startswith("Reference observables"):
+                key, _, obs = content.partition(":")
+                ref[key.replace("Reference observables for", "").strip()] = obs.strip()
+        except (ValueError, IndexError):
+            raise DataFileError(f"{p}, line {no}: malformed IONEX DCB line: {line.rstrip()!r}") from None
+    if not found:
+        raise DataFileError(f"{p}: no 'DIFFERENTIAL CODE BIASES / START OF AUX DATA' block in the IONEX header")
+    return IonexDCB(path=p, satellite=sat, station=sta, reference=ref)
+
+
+def resolve_dsb(products: Sequence[BiasProduct], obs1: str, obs2: str, *, prn: str | None = None,
+                station: str | None = None, system: str = "G") -> tuple[float, list[str]]:
+    """The DSB ``obs1 − obs2`` [ns] of a satellite (``prn``) or station, chained through the DSBs of the products.
+
+    Among all chains ``obs1 → … → obs2`` (a path in the graph of available code pairs), the one with the fewest
+    DSBs from products other than the first is taken, then one that uses the first product at all, then the
+    shortest. So with ``[GFZ, CAS]`` a C1C−C2W satellite DSB is formed as CAS C1C−C1W + GFZ C1W−C2W.
+    Returns the value and the chain as text (e.g. ``["CAS C1C-C1W", "GFZ C1W-C2W"]``).
+    Raises :class:`~distnav.errors.ModelError` when no chain exists.
+    """
+    if (prn is None) == (station is None):
+        raise ModelError("resolve_dsb needs exactly one of prn= or station=")
+    if obs1 == obs2:
+        return 0.0, []
+    edges: dict[frozenset[str], list[tuple[int, str, str, float]]] = {}
+    for rank, prod in enumerate(products):
+        pairs = prod.satellite_pairs(prn) if prn is not None else prod.station_pairs(station or "", system)
+        for o1, o2, v in pairs:
+            edges.setdefault(frozenset((o1, o2)), []).append((rank, o1, o2, v))
+    nodes = sorted({c for k in edges for c in k})
+    if obs1 not in nodes or obs2 not in nodes:
+        what = prn if prn is not None else station
+        raise ModelError(f"no {obs1}-{obs2} DSB for {what} in {', '.join(p.name for p in products)}")
+    best: tuple[tuple[int, int, int], float, list[str]] | None = None
+    middle = [c for c in nodes if c not in (obs1, obs2)]
+    for length in range(0, min(len(middle), 4) + 1):
+        for mids in itertools.permutations(middle, length):
+            path = [obs1, *mids, obs2]
+            options = [edges.get(frozenset((a, b))) for a, b in itertools.pairwise(path)]
+            if any(o is None for o in options):
+                continue
+            value = 0.0
+            chain: list[str] = []
+            n_other = n_first = 0
+            for (a, b), opts in zip(itertools.pairwise(path), options, strict=True):
+                assert opts is not None
+                rank, o1, o2, v = min(opts, key=lambda e: e[0])
+                value += v if (o1, o2) == (a, b) else -v
+                chain.append(f"{products[rank].name} {o1}-{o2}")
+                n_first += rank == 0
+                n_other += rank != 0
+            key = (n_other, -int(n_first > 0), len(path))
+            if best is None or key < best[0]:
+                best = (key, value, chain)
+    if best is None:
+        what = prn if prn is not None else station
+        raise ModelError(f"no chain of DSBs gives {obs1}-{obs2} for {what} in {', '.join(p.name for p in products)}")
+    return best[1], best[2]

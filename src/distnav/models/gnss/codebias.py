@@ -1,0 +1,459 @@
+"""The satellite code-bias model of paper 000 §5: triple-frequency observable (24), between-satellite
+differencing (26), S-basis with receiver 1 lumped into the satellite biases, per-station normal equations, the
+centralized solution and its recursive (Kalman, constant-parameter) form over time.
+
+Per station ``i`` and epoch ``t`` the code-bias observable ``y = ȳ₃ − ȳ_IF − μ₃ ȳ_GF`` of every visible satellite
+``s`` obeys ``E(y_i^s) = b_i + b^s`` (receiver and satellite code-bias combinations; geometry, clocks, troposphere
+and first-order ionosphere are gone). With the S-basis of §5.1 the estimable parameters are
+``x_s = b^s + b_1`` (receiver 1 = the *reference* station) and
+
+* reference station:  ``E(y_1) = Ā_1 x``,           ``R_1 = Q_1``            (undifferenced),
+* other stations:     ``E(D_mᵀ y_i) = D_mᵀ Ā_i x``, ``R_i = D_mᵀ Q_i D_m``   (between-satellite differences),
+
+``Q_i = diag(σ_s²)`` with ``σ_s²`` the variance of the combination (full propagation of the three code
+variances). The normal-equation contribution of a differenced epoch equals
+``N = Q⁻¹ − Q⁻¹e(eᵀQ⁻¹e)⁻¹eᵀQ⁻¹`` (elimination of the epoch's receiver term), which is what
+:meth:`CodeBiasData.node_normals` computes in batch; :meth:`CodeBiasData.node_system` builds the explicit
+``(A_i, R_i, y_i)`` of eqs. (24)/(26) (tests check both agree).
+
+Units: metres throughout (``*_m``); :data:`~distnav.models.gnss.constants.NS_TO_M` converts to ns.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from distnav.errors import ModelError
+from distnav.models.gnss.constants import NS_TO_M
+from distnav.models.gnss.geometry import azimuth_elevation, ecef_to_geodetic, elevation_mask, geodetic_to_ecef
+from distnav.models.gnss.observables import (
+    between_satellite_operator,
+    codebias_coefficients,
+    codebias_observable,
+    elevation_sigma,
+    mu_coefficients,
+    sbasis_design,
+)
+from distnav.models.gnss.orbits import SatelliteOrbit, gps_seconds
+from distnav.models.gnss.rinex import CodeObservations
+
+__all__ = [
+    "CodeBiasData",
+    "CodeBiasSolution",
+    "combination_sigma",
+    "simulate_codebias_data",
+    "codebias_data_from_observations",
+    "sat_bias_combination",
+]
+
+
+def combination_sigma(el_rad: np.ndarray, sigma0_m: float, weighting: str = "euler-goad",
+                      mus: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
+    """Standard deviation of the code-bias observable (24) from three uncorrelated codes with the same
+    elevation-dependent σ(θ): ``σ_y = σ(θ)·‖c‖`` (c the combination coefficients, ‖c‖ ≈ 1.60 for GPS L1/L2/L5)."""
+    c = codebias_coefficients(mus)
+    return elevation_sigma(el_rad, sigma0_m, weighting) * float(np.sqrt(np.sum(c * c)))
+
+
+def sat_bias_combination(dsb12: np.ndarray | float, dsb13: np.ndarray | float,
+                         mus: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
+    """The code-bias combination ``b = c₁d₁ + c₂d₂ + d₃`` from DSBs ``d₁−d₂`` and ``d₁−d₃`` (any unit).
+
+    Since ``c₁ + c₂ + 1 = 0``: ``b = −c₂ (d₁ − d₂) − (d₁ − d₃)``. Used to turn published DSBs (Bias-SINEX, additive
+    biases) into the quantity the network estimates.
+    """
+    c = codebias_coefficients(mus)
+    return -c[1] * np.asarray(dsb12, dtype=float) - np.asarray(dsb13, dtype=float)
+
+
+@dataclass(frozen=True)
+class CodeBiasSolution:
+    """A code-bias estimate ``x_m`` over satellites ``svs`` with covariance ``cov_m2`` (metres)."""
+
+    svs: tuple[str, ...]
+    x_m: np.ndarray
+    cov_m2: np.ndarray
+    reference_station: str
+
+    @property
+    def sigma_m(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.cov_m2))
+
+    @property
+    def x_ns(self) -> np.ndarray:
+        return self.x_m / NS_TO_M
+
+    @property
+    def sigma_ns(self) -> np.ndarray:
+        return self.sigma_m / NS_TO_M
+
+
+@dataclass(frozen=True)
+class CodeBiasData:
+    """Code-bias observables (24) of a network: ``y_m`` and ``sigma_m`` are ``(n, T, p)`` (station, epoch,
+    satellite), NaN where a satellite is not observed (below the mask or a code missing).
+
+    ``reference`` is the station whose bias is lumped into the satellite biases (S-basis, paper 000 §5.1).
+    ``truth_m`` (simulations only) is the true estimable ``x``.
+    """
+
+    stations: tuple[str, ...]
+    svs: tuple[str, ...]
+    t_gps_s: np.ndarray
+    y_m: np.ndarray
+    sigma_m: np.ndarray
+    reference: int = 0
+    elevation_rad: np.ndarray | None = None
+    truth_m: np.ndarray | None = None
+    positions_ecef_m: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n, p = len(self.stations), len(self.svs)
+        t = np.asarray(self.t_gps_s)
+        if self.y_m.shape != (n, t.size, p) or self.sigma_m.shape != self.y_m.shape:
+            raise ModelError(f"y_m/sigma_m must be (stations, epochs, satellites) = {(n, t.size, p)}, got "
+                             f"{self.y_m.shape} and {self.sigma_m.shape}")
+        if not 0 <= self.reference < n:
+            raise ModelError(f"reference station index {self.reference} out of range 0..{n - 1}")
+        ok = np.isfinite(self.y_m)
+        bad = ok & ~(np.isfinite(self.sigma_m) & (self.sigma_m > 0))
+        if bad.any():
+            i, k, s = (int(v[0]) for v in np.nonzero(bad))
+            raise ModelError(f"station {self.stations[i]}, epoch {k}, {self.svs[s]}: observation without a "
+                             f"positive standard deviation")
+
+    # ------------------------------------------------------------------ shape
+    @property
+    def n_stations(self) -> int:
+        return len(self.stations)
+
+    @property
+    def n_sats(self) -> int:
+        return len(self.svs)
+
+    @property
+    def n_epochs(self) -> int:
+        return int(np.asarray(self.t_gps_s).size)
+
+    @property
+    def observed(self) -> np.ndarray:
+        """``(n, T, p)`` mask of the observations used."""
+        return np.isfinite(self.y_m)
+
+    def window(self, epochs: slice | np.ndarray) -> CodeBiasData:
+        """The same network over a subset of epochs."""
+        return CodeBiasData(self.stations, self.svs, np.asarray(self.t_gps_s)[epochs], self.y_m[:, epochs],
+                            self.sigma_m[:, epochs], self.reference,
+                            None if self.elevation_rad is None else self.elevation_rad[:, epochs],
+                            self.truth_m, self.positions_ecef_m, dict(self.meta))
+
+    # ------------------------------------------------------------------ checks
+    def check(self) -> None:
+        """Raise :class:`~distnav.errors.ModelError` when the network cannot determine every satellite bias:
+        a station with no epoch of two satellites, a station sharing no satellite with the rest of the network,
+        or satellites not linked to the reference station through common observations (named)."""
+        obs = self.observed
+        n = self.n_stations
+        if not bool(np.any(obs[self.reference])):
+            raise ModelError(f"reference station {self.stations[self.reference]} has no observation")
+        seen = np.asarray(obs.any(axis=1))  # (n, p)
+        for i in range(n):
+            if i == self.reference:
+                continue
+            if not (obs[i].sum(axis=1) >= 2).any():
+                raise ModelError(f"station {self.stations[i]} never observes two satellites at one epoch: its "
+                                 f"between-satellite differences are empty")
+            others = np.asarray(np.delete(seen, i, axis=0).any(axis=0))
+            if n > 1 and not bool(np.any(seen[i] & others)):
+                raise ModelError(f"station {self.stations[i]} shares no satellites with the rest of the network")
+        unlinked = self.unestimable()
+        if unlinked:
+            raise ModelError(f"satellite code biases not estimable (never linked to the reference station "
+                             f"{self.stations[self.reference]} through common observations): {', '.join(unlinked)}")
+
+    def unestimable(self, epochs: int | None = None) -> list[str]:
+        """Satellites whose bias is not estimable from the first ``epochs`` epochs (all by default)."""
+        anchored = self._anchored_after_each_epoch()[-1 if epochs is None else epochs - 1]
+        return [s for s, a in zip(self.svs, anchored, strict=True) if not a]
+
+    def _anchored_after_each_epoch(self) -> np.ndarray:
+        """``(T, p)``: satellite estimable from epochs ``0..t`` (union-find over co-observed satellites)."""
+        p = self.n_sats
+        parent = list(range(p + 1))          # node p = the datum (reference station)
+
+        def find(a: int) -> int:
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            return a
+
+        def union(a: int, b: int) -> None:
+            ra, rb = find(a), find(b)
+            if ra != rb:
+                parent[ra] = rb
+
+        obs = self.observed
+        out = np.zeros((self.n_epochs, p), dtype=bool)
+        for t in range(self.n_epochs):
+            for s in np.nonzero(obs[self.reference, t])[0]:
+                union(int(s), p)
+            for i in range(self.n_stations):
+                if i == self.reference:
+                    continue
+                vis = np.nonzero(obs[i, t])[0]
+                for s in vis[1:]:
+                    union(int(vis[0]), int(s))
+            root = find(p)
+            out[t] = [find(s) == root for s in range(p)]
+        return out
+
+    # ------------------------------------------------------------------ normal equations
+    def epoch_normals(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-station, per-epoch normals ``N (n, T, p, p)`` and ``r (n, T, p)`` (see the module docstring)."""
+        obs = self.observed
+        w = np.where(obs, 1.0 / np.where(obs, self.sigma_m, 1.0) ** 2, 0.0)          # (n, T, p)
+        wy = np.where(obs, w * np.nan_to_num(self.y_m), 0.0)
+        N = w[..., :, None] * np.eye(self.n_sats)                                      # diag(w)
+        r = wy.copy()
+        sw = w.sum(axis=-1)                                                            # (n, T)
+        diff = np.ones(self.n_stations, dtype=bool)
+        diff[self.reference] = False
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inv = np.where(sw > 0, 1.0 / sw, 0.0)
+        inv[~diff] = 0.0
+        N = N - inv[..., None, None] * w[..., :, None] * w[..., None, :]
+        r = r - inv[..., None] * w * wy.sum(axis=-1, keepdims=True)
+        return N, r
+
+    def node_normals(self) -> tuple[np.ndarray, np.ndarray]:
+        """``N_i = Σ_t A_itᵀR_it⁻¹A_it`` ``(n, p, p)``, ``r_i = Σ_t A_itᵀR_it⁻¹y_it`` ``(n, p)`` (paper 000, (4))."""
+        N, r = self.epoch_normals()
+        return N.sum(axis=1), r.sum(axis=1)
+
+    def node_system(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Explicit ``(A_i, R_i, y_i)`` of paper 000 eqs. (24)/(26) for station ``i``, stacked over epochs
+        (``R_i`` block diagonal). The reference station is undifferenced; others use ``D_mᵀ`` per epoch with the
+        first visible satellite as pivot; epochs with fewer than two satellites contribute no rows."""
+        if not 0 <= i < self.n_stations:
+            raise ModelError(f"station index {i} out of range 0..{self.n_stations - 1}")
+        blocks_a, blocks_r, blocks_y = [], [], []
+        for t in range(self.n_epochs):
+            vis = np.nonzero(self.observed[i, t])[0]
+            if vis.size == 0 or (i != self.reference and vis.size < 2):
+                continue
+            q = np.diag(self.sigma_m[i, t, vis] ** 2)
+            y = self.y_m[i, t, vis]
+            a = sbasis_design(vis, self.n_sats, reference_receiver=(i == self.reference))
+            if i == self.reference:
+                blocks_a.append(a)
+                blocks_r.append(q)
+                blocks_y.append(y)
+            else:
+                d = between_satellite_operator(vis.size)
+                blocks_a.append(a)
+                blocks_r.append(d.T @ q @ d)
+                blocks_y.append(d.T @ y)
+        if not blocks_a:
+            return np.zeros((0, self.n_sats)), np.zeros((0, 0)), np.zeros(0)
+        m = sum(b.shape[0] for b in blocks_a)
+        R = np.zeros((m, m))
+        k = 0
+        for b in blocks_r:
+            R[k:k + b.shape[0], k:k + b.shape[0]] = b
+            k += b.shape[0]
+        return np.vstack(blocks_a), R, np.concatenate(blocks_y)
+
+    def compressed_problem(self) -> tuple[np.ndarray, np.ndarray]:
+        """Square-root form ``(A (n, p, p), y (n, p))`` with unit weights and ``A_iᵀA_i = N_i``, ``A_iᵀy_i = r_i``.
+
+        Gives the same BLUE and the same ADMM iterates as the full ``(A_i, R_i, y_i)`` (both depend on the data only
+        through ``N_i`` and ``r_i``), with ``p`` rows per station instead of thousands. Built from the eigen-
+        decomposition ``N_i = V Λ Vᵀ``: ``A_i = Λ^½ Vᵀ``, ``y_i = Λ^{−½} Vᵀ r_i`` (zero rows for null directions).
+        """
+        N, r = self.node_normals()
+        lam, V = np.linalg.eigh(N)                                     # (n, p), (n, p, p)
+        tol = 1e-10 * np.maximum(lam.max(axis=1, keepdims=True), 1e-300)
+        keep = lam > tol
+        sq = np.where(keep, np.sqrt(np.where(keep, lam, 0.0)), 0.0)
+        A = sq[..., :, None] * np.swapaxes(V, 1, 2)
+        vr = np.einsum("npk,np->nk", V, r)
+        y = np.where(keep, vr / np.where(keep, sq, 1.0), 0.0)
+        return A, y
+
+    # ------------------------------------------------------------------ solutions
+    def centralized(self, *, check: bool = True) -> CodeBiasSolution:
+        """The BLUE ``x̂ = N⁻¹ r`` (paper 000, eq. (4)) with its covariance ``N⁻¹``."""
+        if check:
+            self.check()
+        N, r = self.node_normals()
+        Nt, rt = N.sum(axis=0), r.sum(axis=0)
+        try:
+            cov = np.linalg.inv(Nt)
+        except np.linalg.LinAlgError:
+            raise ModelError("the network normal matrix is singular: " + ", ".join(self.unestimable())) from None
+        return CodeBiasSolution(self.svs, cov @ rt, cov, self.stations[self.reference])
+
+    def recursive_solution(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centralized solution after each epoch, ``x (T, p)`` and ``σ (T, p)`` in metres (NaN while a satellite
+        is not yet estimable): the Kalman filter of constant parameters used for paper 000 Fig. 8."""
+        N, r = self.epoch_normals()
+        Nc = np.cumsum(N.sum(axis=0), axis=0)
+        rc = np.cumsum(r.sum(axis=0), axis=0)
+        anchored = self._anchored_after_each_epoch()
+        x = np.full((self.n_epochs, self.n_sats), np.nan)
+        s = np.full_like(x, np.nan)
+        for t in range(self.n_epochs):
+            k = np.nonzero(anchored[t])[0]
+            if k.size == 0:
+                continue
+            sub = Nc[t][np.ix_(k, k)]
+            try:
+                cov = np.linalg.inv(sub)
+            except np.linalg.LinAlgError:  # pragma: no cover - anchored ⇒ regular
+                continue
+            x[t, k] = cov @ rc[t, k]
+            s[t, k] = np.sqrt(np.diag(cov))
+        return x, s
+
+    def observation_counts(self) -> np.ndarray:
+        """Number of station-epochs observing each satellite ``(p,)``."""
+        return self.observed.sum(axis=(0, 1))
+
+
+# ----------------------------------------------------------------------------------------------- building
+def _elevations(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, t_gps_s: np.ndarray,
+                svs: Sequence[str]) -> np.ndarray:
+    sat = orbit.positions_ecef(t_gps_s, list(svs))                     # (T, p, 3)
+    out = np.empty((positions_ecef_m.shape[0], t_gps_s.size, len(svs)))
+    for i, rx in enumerate(positions_ecef_m):
+        _, el = azimuth_elevation(rx, sat)
+        out[i] = el
+    return out
+
+
+def simulate_codebias_data(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, t_gps_s: np.ndarray,
+                           svs: Sequence[str], *, rng: np.random.Generator, sigma0_m: float = 0.20,
+                           weighting: str = "euler-goad", mask_rad: float = np.deg2rad(10.0),
+                           sat_dsb_sigma_ns: float = 3.0, rx_dsb_sigma_ns: float = 5.0,
+                           sat_biases_m: np.ndarray | None = None, stations: Sequence[str] | None = None,
+                           reference: int = 0) -> CodeBiasData:
+    """Simulate L1/L2/L5 code observations of a network and form the observable (24).
+
+    Per station, epoch and visible satellite: ``ȳ_j = ρ + μ_j I + d_{r,j} + d^s_j + e_j`` with a geometric range
+    plus receiver/satellite clock terms ``ρ``, a slant ionosphere ``I`` (1–30 m), per-frequency code biases
+    ``d`` (zero-mean normal, ``*_dsb_sigma_ns``; ``sat_biases_m (p, 3)`` fixes the satellite ones) and
+    ``e_j ~ N(0, σ(θ)²)`` (Euler & Goad by default, σ₀ = 20 cm at zenith: paper 000 §5.1). Everything but the
+    biases and noise cancels in (24); ``truth_m`` holds the estimable ``x_s = b^s + b_ref``.
+    """
+    pos = np.asarray(positions_ecef_m, dtype=float)
+    t = np.asarray(t_gps_s, dtype=float)
+    n, p, T = pos.shape[0], len(svs), t.size
+    mus = mu_coefficients((1, 2, 5))
+    sat = orbit.positions_ecef(t, list(svs))
+    if sat_biases_m is None:
+        d_sat = rng.normal(0.0, sat_dsb_sigma_ns * NS_TO_M, size=(p, 3))
+    else:
+        d_sat = np.asarray(sat_biases_m, dtype=float)
+        if d_sat.shape != (p, 3):
+            raise ModelError(f"sat_biases_m must be (satellites, 3) = {(p, 3)}, got {d_sat.shape}")
+    d_rx = rng.normal(0.0, rx_dsb_sigma_ns * NS_TO_M, size=(n, 3))
+    clk_rx = rng.normal(0.0, 1e3, size=(n, T))
+    clk_sat = rng.normal(0.0, 1e2, size=(T, p))
+    y = np.full((n, T, p), np.nan)
+    sig = np.full((n, T, p), np.nan)
+    elev = np.empty((n, T, p))
+    for i in range(n):
+        _, el = azimuth_elevation(pos[i], sat)
+        elev[i] = el
+        vis = elevation_mask(el, mask_rad)
+        rng_m = np.linalg.norm(sat - pos[i], axis=-1) + clk_rx[i][:, None] - clk_sat
+        iono = rng.uniform(1.0, 30.0, size=(T, p))
+        s_code = elevation_sigma(np.where(vis, el, np.pi / 2), sigma0_m, weighting)
+        ybar = [rng_m + mus[j] * iono + d_rx[i, j] + d_sat[None, :, j] + rng.normal(size=(T, p)) * s_code
+                for j in range(3)]
+        yi = codebias_observable(ybar[0], ybar[1], ybar[2], mus=mus)
+        y[i] = np.where(vis, yi, np.nan)
+        sig[i] = np.where(vis, combination_sigma(np.where(vis, el, np.pi / 2), sigma0_m, weighting, mus), np.nan)
+    c = codebias_coefficients(mus)
+    truth = d_sat @ c + d_rx[reference] @ c
+    names = tuple(stations) if stations is not None else tuple(f"S{i + 1:03d}" for i in range(n))
+    return CodeBiasData(names, tuple(svs), t, y, sig, reference, elev, truth, pos,
+                        {"sigma0_m": sigma0_m, "weighting": weighting, "mask_deg": float(np.rad2deg(mask_rad)),
+                         "sat_biases_m": d_sat, "rx_biases_m": d_rx})
+
+
+def codebias_data_from_observations(observations: Sequence[CodeObservations], orbit: SatelliteOrbit, *,
+                                    sigma0_m: float = 0.20, weighting: str = "euler-goad",
+                                    mask_rad: float = np.deg2rad(10.0), reference: int = 0,
+                                    svs: Sequence[str] | None = None) -> CodeBiasData:
+    """Form the observable (24) of real RINEX code observations (:func:`~distnav.models.gnss.rinex.
+    read_code_observations` with bands 1, 2, 5) on the union of their epochs, with elevations from ``orbit`` at
+    each file's approximate position. ``svs`` defaults to the satellites observed on all three bands by any
+    station. Raises :class:`~distnav.errors.ModelError` for a missing band, a station without position, or no
+    satellite in common."""
+    if not observations:
+        raise ModelError("no observation files given")
+    for o in observations:
+        missing = [b for b in (1, 2, 5) if b not in o.range_m]
+        if missing:
+            raise ModelError(f"{o.path}: the code-bias observable needs L1, L2 and L5 codes; missing "
+                             f"{', '.join('L' + str(b) for b in missing)}")
+        if not np.all(np.isfinite(o.position_ecef_m)) or np.linalg.norm(o.position_ecef_m) < 6.0e6:
+            raise ModelError(f"{o.path}: no usable approximate position in the header ({o.position_ecef_m})")
+    names = [o.station for o in observations]
+    dup = {s for s in names if names.count(s) > 1}
+    if dup:
+        raise ModelError(f"station names appear twice: {', '.join(sorted(dup))}")
+    times = np.unique(np.concatenate([o.time for o in observations]))
+    if svs is None:
+        svs = sorted({s for o in observations for s in o.satellites_with_all_bands()})
+    svs = list(svs)
+    if not svs:
+        raise ModelError("no satellite is observed on L1, L2 and L5 by any station")
+    t_gps = gps_seconds(times)
+    pos = np.stack([o.position_ecef_m for o in observations])
+    elev = _elevations(pos, orbit, t_gps, svs)
+    mus = mu_coefficients((1, 2, 5))
+    n, T, p = len(observations), times.size, len(svs)
+    y = np.full((n, T, p), np.nan)
+    sig = np.full((n, T, p), np.nan)
+    for i, o in enumerate(observations):
+        ti = np.searchsorted(times, o.time)
+        cols = [o.svs.index(s) if s in o.svs else -1 for s in svs]
+        have = np.array([c >= 0 for c in cols])
+        if not have.any():
+            continue
+        src = [c for c in cols if c >= 0]
+        ybar = [o.range_m[b][:, src] for b in (1, 2, 5)]
+        yi = codebias_observable(ybar[0], ybar[1], ybar[2], mus=mus)
+        block = np.full((o.time.size, p), np.nan)
+        block[:, have] = yi
+        el = elev[i, ti]
+        vis = elevation_mask(el, mask_rad) & np.isfinite(block)
+        y[i, ti] = np.where(vis, block, np.nan)
+        sig[i, ti] = np.where(vis, combination_sigma(np.where(vis, el, np.pi / 2), sigma0_m, weighting, mus), np.nan)
+    seen = np.isfinite(y).any(axis=1)
+    for i, o in enumerate(observations):
+        if not seen[i].any():
+            raise ModelError(f"{o.path}: no satellite observed on L1, L2 and L5 above the "
+                             f"{np.rad2deg(mask_rad):.0f}° mask (among {', '.join(svs[:8])}...)")
+    data = CodeBiasData(tuple(names), tuple(svs), t_gps, y, sig, reference, elev, None, pos,
+                        {"sigma0_m": sigma0_m, "weighting": weighting, "mask_deg": float(np.rad2deg(mask_rad)),
+                         "codes": {o.station: {f"L{b}": c for b, c in o.codes.items()} for o in observations},
+                         "notes": {o.station: list(o.notes) for o in observations}})
+    return data
+
+
+def geodetic_grid_positions(lat_deg: np.ndarray, lon_deg: np.ndarray, height_m: float = 0.0) -> np.ndarray:
+    """ECEF positions of stations given in degrees (helper for experiments)."""
+    return geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), height_m)
+
+
+def station_latlon_deg(positions_ecef_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lat, lon, _ = ecef_to_geodetic(positions_ecef_m)
+    return np.rad2deg(lat), np.rad2deg(lon)

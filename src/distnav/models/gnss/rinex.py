@@ -1,0 +1,266 @@
+"""Reading RINEX observation (2.11 / 3.x, Hatanaka and gzip too), navigation and SP3 files through georinex.
+
+:func:`read_code_observations` picks, per GPS band, the first code observation type present in the file from a
+preference list and returns a :class:`CodeObservations` (pseudo-ranges in metres, NaN where missing):
+
+* L1: ``C1C``, ``C1W`` (RINEX 2: ``C1`` → C1C, ``P1`` → C1W)
+* L2: ``C2W``, ``C2L``, ``C2X``, ``C2S`` (RINEX 2: ``P2`` → C2W, ``C2`` → the receiver's L2C code)
+* L5: ``C5Q``, ``C5X``, ``C5I`` (RINEX 2: ``C5`` → C5Q or C5X depending on the receiver)
+
+RINEX 2 does not say which tracking mode ``C2``/``C5`` are; :data:`RINEX2_RECEIVER_ATTRIBUTES` maps the receiver
+make to the RINEX 3 attribute (Septentrio: L2C = C2L, L5 = C5Q — as CAS lists DGAR's receiver DSB as C1C−C5Q;
+Trimble: C2X, C5X), and the choice is recorded in ``CodeObservations.notes``.
+
+Reading a full day of 30-s data is dominated by georinex (tens of seconds); pass ``tlim`` to read a window.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from distnav._optional import require
+from distnav.errors import DataFileError
+from distnav.models.gnss.orbits import BroadcastOrbit, SP3Orbit
+
+__all__ = [
+    "CodeObservations",
+    "read_code_observations",
+    "read_navigation",
+    "read_sp3",
+    "CODE_PREFERENCE",
+    "RINEX2_RECEIVER_ATTRIBUTES",
+]
+
+CODE_PREFERENCE: dict[int, tuple[str, ...]] = {
+    1: ("C1C", "C1W"),
+    2: ("C2W", "C2L", "C2X", "C2S"),
+    5: ("C5Q", "C5X", "C5I"),
+}
+"""Default RINEX 3 code preference per GPS band (first present wins)."""
+
+_RINEX2_FIXED = {"C1": "C1C", "P1": "C1W", "P2": "C2W"}
+RINEX2_RECEIVER_ATTRIBUTES: dict[str, dict[str, str]] = {
+    "SEPT": {"C2": "C2L", "C5": "C5Q"},
+    "TRIMBLE": {"C2": "C2X", "C5": "C5X"},
+    "JAVAD": {"C2": "C2X", "C5": "C5X"},
+    "TPS": {"C2": "C2X", "C5": "C5X"},
+    "LEICA": {"C2": "C2S", "C5": "C5Q"},
+}
+"""RINEX 2 ``C2``/``C5`` → RINEX 3 code by receiver make (substring of the receiver type, upper case)."""
+_RINEX2_DEFAULT = {"C2": "C2X", "C5": "C5X"}
+
+
+@dataclass(frozen=True)
+class CodeObservations:
+    """GPS code observations of one receiver on up to three bands.
+
+    ``time`` (T,) ``datetime64[ns]`` (GPS time), ``svs`` (S,) ``"G01"``..., ``codes[band]`` the RINEX 3 code
+    used for the band (e.g. ``{1: "C1C", 2: "C2W", 5: "C5X"}``), ``range_m[band]`` (T, S) pseudo-ranges in
+    metres with NaN where not observed, ``position_ecef_m`` the header's approximate position.
+    """
+
+    station: str
+    path: Path
+    time: np.ndarray
+    svs: tuple[str, ...]
+    codes: dict[int, str]
+    range_m: dict[int, np.ndarray]
+    position_ecef_m: np.ndarray
+    receiver: str = ""
+    rinex_version: float = 0.0
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def n_epochs(self) -> int:
+        return int(self.time.size)
+
+    def satellites_with_all_bands(self) -> tuple[str, ...]:
+        """Satellites observed on every band at one epoch at least."""
+        have = np.ones((self.time.size, len(self.svs)), dtype=bool)
+        for arr in self.range_m.values():
+            have &= np.isfinite(arr)
+        return tuple(s for s, h in zip(self.svs, np.asarray(have.any(axis=0)).tolist(), strict=True) if h)
+
+
+def _georinex() -> Any:
+    return require("georinex", "gnss")
+
+
+def _header(path: Path) -> dict[str, Any]:
+    gr = _georinex()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return dict(gr.rinexheader(path))
+    except FileNotFoundError:
+        raise DataFileError(f"{path}: file not found") from None
+    except Exception as exc:  # georinex raises many kinds of errors on bad files
+        raise DataFileError(f"{path}: not a readable RINEX file ({type(exc).__name__}: {exc})") from None
+
+
+def _rinex2_attribute_map(receiver: str) -> tuple[dict[str, str], str]:
+    rx = receiver.upper()
+    for key, mapping in RINEX2_RECEIVER_ATTRIBUTES.items():
+        if key in rx:
+            return {**_RINEX2_FIXED, **mapping}, key
+    return {**_RINEX2_FIXED, **_RINEX2_DEFAULT}, ""
+
+
+def _station_name(header: Mapping[str, Any], path: Path) -> str:
+    """The 4-character site code: first four letters of the file name (RINEX 2 ``dgar0100.24o`` and RINEX 3
+    ``BELE00BRA_R_...`` alike), else of the marker name."""
+    stem = path.name[:4]
+    if len(stem) == 4 and stem.isalnum():
+        return stem.upper()
+    name = str(header.get("MARKER NAME", "")).strip() or "RCVR"
+    return name.split()[0][:4].upper()
+
+
+def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5),
+                           codes: Mapping[int, str] | None = None,
+                           tlim: tuple[Any, Any] | None = None,
+                           interval_s: float | None = None) -> CodeObservations:
+    """Read the GPS code observations of one RINEX 2.11/3.x observation file (``.o``, ``.d``, ``.crx``, ``.gz``).
+
+    ``codes`` forces the RINEX 3 code of a band (e.g. ``{1: "C1W"}``); otherwise :data:`CODE_PREFERENCE`
+    decides. ``tlim=(start, stop)`` reads a time window (ISO strings or datetimes), ``interval_s`` keeps only
+    epochs on that grid. Raises :class:`~distnav.errors.DataFileError` naming the file for an unreadable file,
+    a file without GPS data, or a band with none of the accepted codes.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise DataFileError(f"{p}: file not found")
+    hdr = _header(p)
+    version = float(hdr.get("version", 0.0) or 0.0)
+    try:  # the CRINEX wrapper's version is reported for Hatanaka files: prefer the RINEX header line
+        version = float(str(hdr.get("RINEX VERSION / TYPE", ""))[:9])
+    except ValueError:
+        pass
+    if hdr.get("rinextype", "obs") != "obs":
+        raise DataFileError(f"{p}: not a RINEX observation file (type {hdr.get('rinextype')!r})")
+    rec_line = str(hdr.get("REC # / TYPE / VERS", ""))
+    receiver = (rec_line[20:40] if len(rec_line) > 20 else str(hdr.get("rxmodel", ""))).strip()
+    notes: list[str] = []
+    forced = dict(codes or {})
+    chosen: dict[int, str] = {}
+    file_types: dict[int, str] = {}   # band -> the type name as stored in the file
+    if version >= 3:
+        fields = hdr.get("fields", {})
+        gps_types = list(fields.get("G", [])) if isinstance(fields, dict) else []
+        if not gps_types:
+            raise DataFileError(f"{p}: no GPS observation types in the header")
+        for b in bands:
+            prefs = (forced[b],) if b in forced else CODE_PREFERENCE.get(b, ())
+            hit = next((c for c in prefs if c in gps_types), None)
+            if hit is None:
+                raise DataFileError(
+                    f"{p}: no L{b} code observation ({'/'.join(prefs)}) for GPS; "
+                    f"types present: {' '.join(t for t in gps_types if t.startswith('C'))}")
+            chosen[b] = hit
+            file_types[b] = hit
+    else:
+        types = list(hdr.get("fields", hdr.get("# / TYPES OF OBSERV", [])))
+        amap, make = _rinex2_attribute_map(receiver)
+        inverse: dict[str, list[str]] = {}
+        for r2, r3 in amap.items():
+            inverse.setdefault(r3, []).append(r2)
+        for b in bands:
+            prefs = (forced[b],) if b in forced else CODE_PREFERENCE.get(b, ())
+            pair: tuple[str, str] | None = None
+            for c3 in prefs:
+                for r2 in inverse.get(c3, []):
+                    if r2 in types:
+                        pair = (c3, r2)
+                        break
+                if pair:
+                    break
+            if pair is None:
+                r2_names = [r2 for c3 in prefs for r2 in inverse.get(c3, [])]
+                raise DataFileError(
+                    f"{p}: no L{b} code observation ({'/'.join(r2_names) or '/'.join(prefs)}) in this RINEX 2 "
+                    f"file; types present: {' '.join(types)}")
+            chosen[b], file_types[b] = pair
+            if pair[1] in ("C2", "C5"):
+                notes.append(f"RINEX 2 {pair[1]} read as {pair[0]} "
+                             f"({'receiver ' + make if make else 'unknown receiver make: default'})")
+    gr = _georinex()
+    kwargs: dict[str, Any] = {"use": "G", "meas": sorted(set(file_types.values()))}
+    if tlim is not None:
+        kwargs["tlim"] = tuple(str(np.datetime64(t, "s")) if not isinstance(t, str) else t for t in tlim)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ds = gr.load(p, **kwargs)
+    except Exception as exc:
+        raise DataFileError(f"{p}: georinex could not read the observations ({type(exc).__name__}: {exc})") from None
+    if ds is None or "sv" not in ds.dims or ds.sizes.get("time", 0) == 0:
+        raise DataFileError(f"{p}: no GPS observation epochs" + (f" in {tlim}" if tlim else ""))
+    svs = [str(s) for s in ds.sv.values]
+    gps = [k for k, s in enumerate(svs) if s.startswith("G")]
+    if not gps:
+        raise DataFileError(f"{p}: no GPS satellites observed")
+    time = np.asarray(ds.time.values).astype("datetime64[ns]")
+    keep = np.ones(time.size, dtype=bool)
+    if interval_s is not None:
+        ns = (time - time.astype("datetime64[D]")).astype(np.int64)
+        keep = (ns % int(round(interval_s * 1e9))) == 0
+    ranges: dict[int, np.ndarray] = {}
+    for b, name in file_types.items():
+        if name not in ds.data_vars:
+            raise DataFileError(f"{p}: observation type {name} announced in the header but absent from the data")
+        arr = np.asarray(ds[name].values, dtype=float)[keep][:, gps]
+        with np.errstate(invalid="ignore"):
+            arr[(arr < 1.0e7) | (arr > 5.0e7)] = np.nan   # blanks / zeros / garbage are not GPS ranges
+        ranges[b] = arr
+    pos = hdr.get("position")
+    position = np.asarray(pos, dtype=float) if pos is not None else np.full(3, np.nan)
+    return CodeObservations(
+        station=_station_name(hdr, p), path=p, time=time[keep], svs=tuple(svs[k] for k in gps),
+        codes=chosen, range_m=ranges, position_ecef_m=position, receiver=receiver, rinex_version=version,
+        notes=tuple(notes))
+
+
+def read_navigation(path: str | Path, *, max_age_s: float = 2 * 3600.0) -> BroadcastOrbit:
+    """GPS broadcast ephemerides of a RINEX 2 or 3 navigation file (gzip too; multi-GNSS files read with
+    ``use='G'``). ``max_age_s`` bounds |t − toe| (the ±2 h fit interval by default)."""
+    p = Path(path)
+    if not p.exists():
+        raise DataFileError(f"{p}: file not found")
+    gr = _georinex()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            nav = gr.load(p, use="G")
+    except Exception as exc:
+        raise DataFileError(f"{p}: georinex could not read the navigation file ({type(exc).__name__}: {exc})") \
+            from None
+    if nav is None or "sv" not in getattr(nav, "dims", {}):
+        raise DataFileError(f"{p}: no GPS navigation records")
+    return BroadcastOrbit.from_dataset(nav, max_age_s=max_age_s, source=str(p))
+
+
+def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3Orbit:
+    """GPS orbits of one or more SP3 files (consecutive days are concatenated), Lagrange-interpolated."""
+    items = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    gr = _georinex()
+    datasets = []
+    for item in items:
+        p = Path(item)
+        if not p.exists():
+            raise DataFileError(f"{p}: file not found")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                ds = gr.load(p)
+        except Exception as exc:
+            raise DataFileError(f"{p}: georinex could not read the SP3 file ({type(exc).__name__}: {exc})") from None
+        if ds is None or "position" not in getattr(ds, "data_vars", {}):
+            raise DataFileError(f"{p}: not an SP3 orbit file")
+        datasets.append(ds)
+    return SP3Orbit.from_datasets(datasets, order=order, source=", ".join(str(i) for i in items))
