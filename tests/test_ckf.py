@@ -162,8 +162,15 @@ def paper_fig7(dyn: DynamicModel, ms: NormalSeries | ObservationSeries, L: np.nd
     return np.stack(out)
 
 
-def test_recursion_matches_paper_form_of_fig7():
+@pytest.mark.parametrize("general_noise", [False, True])
+def test_recursion_matches_paper_form_of_fig7(general_noise):
     dyn, ms, _ = observed_model(3, late_until=0)
+    if general_noise:  # singular S without identity-column structure: the generic H path of the time update
+        B = np.random.default_rng(9).standard_normal((ms.n_states, 2))
+        dyn = DynamicModel(ms.n_states, transition=dyn.transition_at(1), noise_cov=B @ B.T * 0.1)
+        assert dyn.noise_selection_at(1) is None
+    else:
+        assert dyn.noise_selection_at(1) is not None
     g = builders.path(ms.n_nodes)
     L = consensus_product(consensus_schedule(g, "P1"), 2)
     ref = paper_fig7(dyn, ms, L)

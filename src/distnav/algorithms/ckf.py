@@ -114,6 +114,14 @@ def _triu(p: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu_indices(p)
 
 
+def _symmetric(tri: np.ndarray, up: np.ndarray, lo: np.ndarray, k: int, p: int) -> np.ndarray:
+    """Rebuild symmetric (k, p, p) matrices from their upper triangles (flat indices ``up``, mirror ``lo``)."""
+    out = np.empty((k, p * p))
+    out[:, lo] = tri
+    out[:, up] = tri
+    return out.reshape(k, p, p)
+
+
 @dataclass(frozen=True, eq=False)
 class CKFState:
     """The CKF after the measurement update of ``epoch``, for this exchange block's nodes (rows).
@@ -167,28 +175,26 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     track_L = variance and ex.faults.active
     L_nominal = consensus_product(sched, kn) if (variance and not track_L) else None
     ker = _InfoKernel(k_loc, p, track_error=variance)
+    up = iu[0] * p + iu[1]  # flat indices of the upper triangle and of its mirror
+    lo = iu[1] * p + iu[0]
     for t in range(measurements.n_epochs):
         if t > 0:
             ker.time_update(dynamics, t)
         N, r = measurements.normals(t, nodes)
-        parts = [N[:, iu[0], iu[1]], r]
+        tri = N.reshape(k_loc, p * p)[:, up]
+        parts = [tri, r]
         if track_L:
             parts.append(np.eye(n)[nodes])
         payload = np.concatenate(parts, axis=1)
         for k in range(kn):
             payload = mixers[k % len(mixers)].apply(payload)
-        Nk = np.zeros((k_loc, p, p))
-        Nk[:, iu[0], iu[1]] = payload[:, :n_tri]
-        Nk[:, iu[1], iu[0]] = payload[:, :n_tri]
+        Nk = _symmetric(payload[:, :n_tri], up, lo, k_loc, p)
         rk = payload[:, n_tri:n_tri + p]
         extra = None
         if variance:
             L_rows = payload[:, n_tri + p:] if track_L else L_nominal[nodes]  # type: ignore[index]
-            N_all = ex.gather_nodes(N[:, iu[0], iu[1]])  # analysis input of Fig. 7 (no node has it)
-            e_tri = (n * n) * ((L_rows**2) @ N_all)
-            extra = np.zeros((k_loc, p, p))
-            extra[:, iu[0], iu[1]] = e_tri
-            extra[:, iu[1], iu[0]] = e_tri
+            N_all = ex.gather_nodes(tri)  # analysis input of Fig. 7 (no node has it)
+            extra = _symmetric((n * n) * ((L_rows**2) @ N_all), up, lo, k_loc, p)
         ker.measurement_update(Nk, rk, scale=float(n), extra_error=extra)
         dev = 0.0
         if monitor:

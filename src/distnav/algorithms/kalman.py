@@ -122,6 +122,14 @@ def _per_epoch(value: Any, what: str) -> tuple[bool, list[np.ndarray]]:
                      f"got shape {arr.shape}")
 
 
+def _identity_columns(H: np.ndarray) -> np.ndarray | None:
+    """Column indices if every column of ``H`` is a distinct unit vector, else ``None``."""
+    if H.shape[1] == 0 or not np.all((H == 0) | (H == 1)) or not np.all(H.sum(axis=0) == 1):
+        return None
+    sel = np.argmax(H, axis=0)
+    return sel if np.unique(sel).size == sel.size else None
+
+
 class DynamicModel:
     """The common dynamic model ``x_t = Φ_t x_{t−1} + d_t``, ``D(d_t) = S_t = H_t S̃_t H_tᵀ`` (paper 003 eqs. (2), (19)).
 
@@ -186,6 +194,7 @@ class DynamicModel:
             self._noise_const = True
             pairs = [(np.zeros((p, 0)), np.zeros((0, 0)))]
         self._H: list[np.ndarray] = []
+        self._sel: list[np.ndarray | None] = []
         self._St: list[np.ndarray] = []
         self._St_inv: list[np.ndarray] = []
         for t, (H, St) in enumerate(pairs):
@@ -208,6 +217,7 @@ class DynamicModel:
                     raise ModelError(f"noise_reduced_cov{e} is not positive definite (paper 003 eq. (19) needs "
                                      f"S̃ invertible)") from None
             self._H.append(H)
+            self._sel.append(_identity_columns(H))
             self._St.append(0.5 * (St + St.T))
             self._St_inv.append(np.linalg.inv(St) if q else St.copy())
 
@@ -230,6 +240,11 @@ class DynamicModel:
         """``(H_t, S̃_t, S̃_t⁻¹)``."""
         k = self._idx(self._noise_const, len(self._H), t, "system noise")
         return self._H[k], self._St[k], self._St_inv[k]
+
+    def noise_selection_at(self, t: int) -> np.ndarray | None:
+        """Indices ``sel`` when ``H_t`` is made of identity columns ``I[:, sel]`` (eq. (20)), else ``None``."""
+        k = self._idx(self._noise_const, len(self._H), t, "system noise")
+        return self._sel[k]
 
     def noise_cov_at(self, t: int) -> np.ndarray:
         H, St, _ = self.noise_factor_at(t)
@@ -483,8 +498,9 @@ class FunctionSeries(MeasurementSeries):
 def pseudo_inverse_psd(info: np.ndarray, *, rtol: float = _RANK_RTOL) -> tuple[np.ndarray, np.ndarray]:
     """Batched pseudo-inverse of PSD information matrices ``(k, p, p)`` and the estimable entries ``(k, p)``.
 
-    Entries with zero diagonal (never observed) are dropped first; the rest is tried with a batched Cholesky
-    (full rank: ``I⁺ = I⁻¹``) and falls back to an eigen-decomposition, where entry ``j`` is estimable when its
+    Entries with zero diagonal (never observed) are dropped first; the rest is tried with a batched inverse
+    (accepted when every variance-inflation factor ``(I⁻¹)_jj I_jj`` lies in [1, 1e7)) and otherwise falls back to
+    an eigen-decomposition (eigenvalues below ``rtol·λ_max`` are zero), where entry ``j`` is estimable when its
     squared projection on the null space is below 1e-8.
     """
     k, p, _ = info.shape
@@ -496,7 +512,9 @@ def pseudo_inverse_psd(info: np.ndarray, *, rtol: float = _RANK_RTOL) -> tuple[n
     dmax = d.max(axis=1, keepdims=True)
     seen = (d > 1e-14 * dmax) & (dmax > 0)
     if seen.all():
-        groups: list[tuple[np.ndarray, np.ndarray]] = [(np.arange(k), np.ones(p, bool))]
+        return _inv_or_pinv(info, rtol)
+    if (seen == seen[0]).all():
+        groups: list[tuple[np.ndarray, np.ndarray]] = [(np.arange(k), seen[0])]
     else:
         keys, inverse = np.unique(seen, axis=0, return_inverse=True)
         inverse = np.asarray(inverse).reshape(-1)
@@ -505,28 +523,20 @@ def pseudo_inverse_psd(info: np.ndarray, *, rtol: float = _RANK_RTOL) -> tuple[n
         cols = np.flatnonzero(mask)
         if cols.size == 0:
             continue
-        full = cols.size == p
-        sub = info[rows] if full else info[np.ix_(rows, cols, cols)]
+        sub = info[rows].take(cols, axis=1).take(cols, axis=2)
         sub_inv, sub_est = _inv_or_pinv(sub, rtol)
-        if full and rows.size == k:
-            return sub_inv, sub_est
-        if full:
-            inv[rows] = sub_inv
-            est[rows] = sub_est
-        else:
-            inv[np.ix_(rows, cols, cols)] = sub_inv
-            est[np.ix_(rows, cols)] = sub_est
+        inv[np.ix_(rows, cols, cols)] = sub_inv
+        est[np.ix_(rows, cols)] = sub_est
     return inv, est
 
 
 def _inv_or_pinv(sub: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray]:
     k, m, _ = sub.shape
     try:
-        C = np.linalg.cholesky(sub)
-        dc = np.diagonal(C, axis1=1, axis2=2)
-        dd = np.diagonal(sub, axis1=1, axis2=2)
-        if np.all(dc.min(axis=1) ** 2 > 1e3 * rtol * dd.max(axis=1)):
-            inv = np.linalg.inv(sub)
+        inv = np.linalg.inv(sub)
+        # well-conditioned PD check: 1 ≤ (I⁻¹)_jj I_jj (Cauchy–Schwarz), large values flag near-singularity
+        vif = np.diagonal(inv, axis1=1, axis2=2) * np.diagonal(sub, axis1=1, axis2=2)
+        if np.all(vif >= 1.0 - 1e-6) and np.all(vif < 1e-3 / rtol) and np.all(np.isfinite(inv)):
             return 0.5 * (inv + np.swapaxes(inv, 1, 2)), np.ones((k, m), bool)
     except np.linalg.LinAlgError:
         pass
@@ -570,17 +580,25 @@ class _InfoKernel:
         if q == 0:
             self.I, self.i, self.Q = M, v, Q
             return
-        MH = M @ H  # (k,p,q)
-        K = np.swapaxes(MH, 1, 2) @ H + St_inv  # Hᵀ M H + S̃⁻¹, (k,q,q)
-        Kinv = np.linalg.inv(K)
-        G = MH @ Kinv  # M H K⁻¹, (k,p,q)
+        sel = dyn.noise_selection_at(t)
+        if sel is not None:  # H = columns `sel` of the identity (eq. (20)): slicing instead of products
+            MH = M[:, :, sel]  # (k,p,q)
+            K = MH[:, sel, :] + St_inv
+        else:
+            MH = M @ H
+            K = np.swapaxes(MH, 1, 2) @ H + St_inv  # Hᵀ M H + S̃⁻¹, (k,q,q)
+        G = MH @ np.linalg.inv(K)  # M H K⁻¹, (k,p,q)
         I_new = M - G @ np.swapaxes(MH, 1, 2)
         self.I = 0.5 * (I_new + np.swapaxes(I_new, 1, 2))
-        self.i = v - np.einsum("kpq,kq->kp", G, v @ H)
+        vH = v[:, sel] if sel is not None else v @ H
+        self.i = v - np.einsum("kpq,kq->kp", G, vH)
         if Q is not None:
-            B = np.broadcast_to(np.eye(self.p), G.shape[:1] + (self.p, self.p)) - G @ H.T
-            F = G @ St_inv  # B M H = M H K⁻¹ S̃⁻¹
-            Q_new = B @ Q @ np.swapaxes(B, 1, 2) + F @ (_St @ np.swapaxes(F, 1, 2))
+            # B Q Bᵀ with B = I − G Hᵀ as rank-q corrections, plus F S̃ Fᵀ with F = B M H = G S̃⁻¹
+            HtQ = Q[:, sel, :] if sel is not None else np.swapaxes(H, 0, 1) @ Q  # (k,q,p)
+            BQ = Q - G @ HtQ
+            BQH = BQ[:, :, sel] if sel is not None else BQ @ H  # (k,p,q)
+            F = G @ St_inv
+            Q_new = BQ - BQH @ np.swapaxes(G, 1, 2) + F @ (_St @ np.swapaxes(F, 1, 2))
             self.Q = 0.5 * (Q_new + np.swapaxes(Q_new, 1, 2))
 
     def measurement_update(self, N: np.ndarray, r: np.ndarray, scale: float = 1.0,
