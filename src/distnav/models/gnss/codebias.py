@@ -111,6 +111,7 @@ class CodeBiasData:
     truth_m: np.ndarray | None = None
     positions_ecef_m: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         n, p = len(self.stations), len(self.svs)
@@ -182,35 +183,24 @@ class CodeBiasData:
         return [s for s, a in zip(self.svs, anchored, strict=True) if not a]
 
     def _anchored_after_each_epoch(self) -> np.ndarray:
-        """``(T, p)``: satellite estimable from epochs ``0..t`` (union-find over co-observed satellites)."""
-        p = self.n_sats
-        parent = list(range(p + 1))          # node p = the datum (reference station)
-
-        def find(a: int) -> int:
-            while parent[a] != a:
-                parent[a] = parent[parent[a]]
-                a = parent[a]
-            return a
-
-        def union(a: int, b: int) -> None:
-            ra, rb = find(a), find(b)
-            if ra != rb:
-                parent[ra] = rb
-
-        obs = self.observed
-        out = np.zeros((self.n_epochs, p), dtype=bool)
-        for t in range(self.n_epochs):
-            for s in np.nonzero(obs[self.reference, t])[0]:
-                union(int(s), p)
-            for i in range(self.n_stations):
-                if i == self.reference:
-                    continue
-                vis = np.nonzero(obs[i, t])[0]
-                for s in vis[1:]:
-                    union(int(vis[0]), int(s))
-            root = find(p)
-            out[t] = [find(s) == root for s in range(p)]
-        return out
+        """``(T, p)``: satellite estimable from epochs ``0..t``: reachable from the datum (the satellites the
+        reference station observed) through satellites co-observed by one station at one epoch."""
+        cached = self._cache.get("anchored")
+        if isinstance(cached, np.ndarray):
+            return cached
+        obs = self.observed.astype(np.int64)                          # (n, T, p)
+        others = np.delete(obs, self.reference, axis=0)
+        co = np.einsum("ntp,ntq->tpq", others, others) > 0             # co-observed at epoch t
+        adj = np.cumsum(co, axis=0) > 0                                # links known after epoch t
+        datum = np.cumsum(obs[self.reference], axis=0) > 0            # (T, p)
+        reach = datum.copy()
+        for _ in range(self.n_sats):
+            new = reach | (np.einsum("tpq,tq->tp", adj.astype(np.int64), reach.astype(np.int64)) > 0)
+            if np.array_equal(new, reach):
+                break
+            reach = new
+        self._cache["anchored"] = reach
+        return reach
 
     # ------------------------------------------------------------------ normal equations
     def epoch_normals(self) -> tuple[np.ndarray, np.ndarray]:
@@ -285,6 +275,22 @@ class CodeBiasData:
         y = np.where(keep, vr / np.where(keep, sq, 1.0), 0.0)
         return A, y
 
+    def linear_problem(self, *, per_epoch: bool = False) -> Any:
+        """The network as a :class:`distnav.algorithms.lsq.LinearProblem` in the compressed square-root form
+        (``p`` rows per station, unit weights; same BLUE and ADMM iterates as the full eqs. (24)/(26)).
+
+        ``per_epoch=True`` divides every station's normal equations by the number of epochs (``N_i/T``,
+        ``r_i/T``): the same BLUE, but the information per epoch, so that an ADMM weight ``W = ρI`` is measured
+        against one epoch's information (equivalently ``W = ρ·T·I`` on the session's normals).
+        """
+        from distnav.algorithms.lsq import LinearProblem
+
+        A, y = self.compressed_problem()
+        if per_epoch:
+            f = 1.0 / np.sqrt(max(self.n_epochs, 1))
+            A, y = A * f, y * f
+        return LinearProblem.from_stacked(A, y, None, parameter_names=self.svs, node_names=self.stations)
+
     # ------------------------------------------------------------------ solutions
     def centralized(self, *, check: bool = True) -> CodeBiasSolution:
         """The BLUE ``x̂ = N⁻¹ r`` (paper 000, eq. (4)) with its covariance ``N⁻¹``."""
@@ -340,13 +346,13 @@ def simulate_codebias_data(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, 
                            svs: Sequence[str], *, rng: np.random.Generator, sigma0_m: float = 0.20,
                            weighting: str = "euler-goad", mask_rad: float = np.deg2rad(10.0),
                            sat_dsb_sigma_ns: float = 3.0, rx_dsb_sigma_ns: float = 5.0,
-                           sat_biases_m: np.ndarray | None = None, stations: Sequence[str] | None = None,
-                           reference: int = 0) -> CodeBiasData:
+                           sat_biases_m: np.ndarray | None = None, rx_biases_m: np.ndarray | None = None,
+                           stations: Sequence[str] | None = None, reference: int = 0) -> CodeBiasData:
     """Simulate L1/L2/L5 code observations of a network and form the observable (24).
 
     Per station, epoch and visible satellite: ``ȳ_j = ρ + μ_j I + d_{r,j} + d^s_j + e_j`` with a geometric range
     plus receiver/satellite clock terms ``ρ``, a slant ionosphere ``I`` (1–30 m), per-frequency code biases
-    ``d`` (zero-mean normal, ``*_dsb_sigma_ns``; ``sat_biases_m (p, 3)`` fixes the satellite ones) and
+    ``d`` (zero-mean normal, ``*_dsb_sigma_ns``; ``sat_biases_m (p, 3)`` / ``rx_biases_m (n, 3)`` fix them) and
     ``e_j ~ N(0, σ(θ)²)`` (Euler & Goad by default, σ₀ = 20 cm at zenith: paper 000 §5.1). Everything but the
     biases and noise cancels in (24); ``truth_m`` holds the estimable ``x_s = b^s + b_ref``.
     """
@@ -361,7 +367,12 @@ def simulate_codebias_data(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, 
         d_sat = np.asarray(sat_biases_m, dtype=float)
         if d_sat.shape != (p, 3):
             raise ModelError(f"sat_biases_m must be (satellites, 3) = {(p, 3)}, got {d_sat.shape}")
-    d_rx = rng.normal(0.0, rx_dsb_sigma_ns * NS_TO_M, size=(n, 3))
+    if rx_biases_m is None:
+        d_rx = rng.normal(0.0, rx_dsb_sigma_ns * NS_TO_M, size=(n, 3))
+    else:
+        d_rx = np.asarray(rx_biases_m, dtype=float)
+        if d_rx.shape != (n, 3):
+            raise ModelError(f"rx_biases_m must be (stations, 3) = {(n, 3)}, got {d_rx.shape}")
     clk_rx = rng.normal(0.0, 1e3, size=(n, T))
     clk_sat = rng.normal(0.0, 1e2, size=(T, p))
     y = np.full((n, T, p), np.nan)
