@@ -34,13 +34,16 @@ def _precompute(ms: MeasurementSeries) -> NormalSeries:
     return NormalSeries(N, r)
 
 
-def reference_loop(dyn: DynamicModel, ms: NormalSeries, L: np.ndarray) -> np.ndarray:
+def reference_loop(dyn: DynamicModel, ms: NormalSeries, L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-node loop (one node at a time, dense L) of Fig. 6 with the singular-noise time update (eq. (21))
-    and Fig. 7 in its information-error form ``Q = I P I``; returns the last-epoch ``P_i`` (n×p×p)."""
+    and Fig. 7 in its information-error form ``Q = I P I``, with per-epoch estimates and ``P_i`` like the CKF
+    (``pinv`` where ``I_i`` is singular). Returns the last-epoch ``P_i`` (n×p×p) and estimates (n×p)."""
     n, p = ms.n_nodes, ms.n_states
     I = np.zeros((n, p, p))
     ivec = np.zeros((n, p))
     Q = np.zeros((n, p, p))
+    P = np.zeros((n, p, p))
+    x = np.zeros((n, p))
     H, St, St_inv = dyn.noise_factor_at(1)
     eye = np.eye(p)
     for t in range(ms.n_epochs):
@@ -51,13 +54,20 @@ def reference_loop(dyn: DynamicModel, ms: NormalSeries, L: np.ndarray) -> np.nda
                 Kinv = np.linalg.inv(H.T @ MH + St_inv)
                 B = eye - MH @ Kinv @ H.T
                 F = MH @ Kinv @ St_inv
-                I[i] = I[i] - MH @ Kinv @ MH.T
+                Ii = I[i] - MH @ Kinv @ MH.T
+                I[i] = 0.5 * (Ii + Ii.T)  # symmetrize: without it the loop diverges after ~500 epochs
                 ivec[i] = B @ ivec[i]
                 Q[i] = B @ Q[i] @ B.T + F @ St @ F.T
             I[i] += n * np.tensordot(L[i], N, axes=1)
             ivec[i] += n * (L[i] @ r)
             Q[i] += n * n * np.tensordot(L[i] ** 2, N, axes=1)
-    return np.stack([np.linalg.pinv(I[i]) @ Q[i] @ np.linalg.pinv(I[i]) for i in range(n)])
+            try:
+                Iinv = np.linalg.inv(I[i])
+            except np.linalg.LinAlgError:
+                Iinv = np.linalg.pinv(I[i], hermitian=True)
+            x[i] = Iinv @ ivec[i]
+            P[i] = Iinv @ Q[i] @ Iinv
+    return P, x
 
 
 def run(quick: bool) -> list[dict]:
@@ -77,7 +87,7 @@ def run(quick: bool) -> list[dict]:
     t_alone = best_time(lambda: ckf_error_variance(dyn, ms, L), repeat=repeat)
     res = ckf(dyn, ms, schedule=sched, rounds=kn, store_matrices=False)
     t0 = time.perf_counter()
-    P_ref = reference_loop(dyn, ms, L)
+    P_ref, _x_ref = reference_loop(dyn, ms, L)
     t_ref = time.perf_counter() - t0
     P_last = res.extras["covariance"]
     agree = float(np.abs(P_last - P_ref).max() / np.abs(P_ref).max())

@@ -543,7 +543,7 @@ def _inv_or_pinv(sub: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray]:
     w, U = np.linalg.eigh(sub)
     keep = w > rtol * np.maximum(w[:, -1:], 1e-300)
     winv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
-    inv = np.einsum("kij,kj,klj->kil", U, winv, U)
+    inv = (U * winv[:, None, :]) @ np.swapaxes(U, 1, 2)
     null_proj = np.einsum("kij,kj->ki", U**2, (~keep).astype(float))
     return inv, null_proj < _EST_TOL
 
@@ -591,7 +591,7 @@ class _InfoKernel:
         I_new = M - G @ np.swapaxes(MH, 1, 2)
         self.I = 0.5 * (I_new + np.swapaxes(I_new, 1, 2))
         vH = v[:, sel] if sel is not None else v @ H
-        self.i = v - np.einsum("kpq,kq->kp", G, vH)
+        self.i = v - (G @ vH[..., None])[..., 0]
         if Q is not None:
             # B Q Bᵀ with B = I − G Hᵀ as rank-q corrections, plus F S̃ Fᵀ with F = B M H = G S̃⁻¹
             HtQ = Q[:, sel, :] if sel is not None else np.swapaxes(H, 0, 1) @ Q  # (k,q,p)
@@ -612,7 +612,7 @@ class _InfoKernel:
     def estimates(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """``(x̂ (NaN where not estimable), estimable, I⁺, P = I⁺ Q I⁺ or None)``."""
         inv, est = pseudo_inverse_psd(self.I)
-        x = np.einsum("kpq,kq->kp", inv, self.i)
+        x = (inv @ self.i[..., None])[..., 0]
         x[~est] = np.nan
         P = None
         if self.Q is not None:

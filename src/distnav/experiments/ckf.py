@@ -83,7 +83,8 @@ def synthetic_model(*, n_nodes: int, n_epochs: int, n_random_walk: int, n_biases
         y = A @ truth[t] + eps
         w = np.where(vis, 1.0 / sig, 0.0)
         Aw = A * w[..., None]
-        return np.einsum("kbp,kbq->kpq", Aw, Aw), np.einsum("kbp,kb->kp", Aw, y * w)
+        AwT = np.swapaxes(Aw, 1, 2)
+        return AwT @ Aw, (AwT @ (y * w)[..., None])[..., 0]
 
     return dyn, FunctionSeries(n_nodes, n_epochs, p, fn), truth
 
