@@ -1,0 +1,495 @@
+"""Regional single-layer ionosphere and between-satellite DCBs from geometry-free code — paper 003 §5.1.
+
+Observable (paper 003 eq. (49) and the coefficients after it; papers README, "Ionosphere model"): receiver ``i``
+forms, per epoch ``t`` and tracked satellite ``s``, the geometry-free code combination
+
+    ``y_i^s = (P_2 − P_1)/(μ_2 − μ_1)``   [m]  (the slant ionospheric delay on L1 plus code biases),
+
+and the between-satellite differences ``y_i^{qs} = y_i^s − y_i^q`` follow the model
+
+    ``y_i^{qs} = Σ_{k∈{o,φ,ψ}} (a_{i,k}^s − a_{i,k}^q) ν_k + b^{ps} − b^{pq} + ε_i^{qs}``   (b^{pp} = 0),
+
+with the single-layer coefficients of the pierce point (IPP) of the line of sight on a 450 km layer over a sphere
+of radius 6378.137 km (:func:`distnav.models.gnss.geometry.pierce_point`)
+
+    ``a_o = 1/cos z'``,  ``a_φ = (φ_IPP − φ_o)/cos z'``,  ``a_ψ = (ψ_IPP − ψ_o)/cos z'``,
+
+about a reference point ``(φ_o, ψ_o)`` (default: the receivers' centroid; see :class:`IonosphereGeometry`).
+
+Units (all states in metres of the L1 observable, as in the paper):
+
+* ``ν_o``: vertical ionospheric delay on L1 at the reference point [m] (``vtec_m``; 1 TECU = :data:`TECU_L1_M`
+  = 0.1624 m); ``ν_φ``, ``ν_ψ``: its south-to-north and west-to-east gradients [m/rad].
+* ``b^{ps}`` [m of the geometry-free observable]: the between-satellite bias relative to the *pivot* satellite
+  ``p`` (paper: PRN 10). With the Bias-SINEX sign convention (biases add to the observations),
+  ``b^{ps} = −c (DSB^s − DSB^p)/(μ_2 − μ_1)`` where ``DSB = OSB(C1) − OSB(C2)`` (e.g. C1C−C2W): 1 ns of DSB is
+  :data:`GF_M_PER_DSB_NS` = 0.4634 m of ``b``. :func:`dcb_ns_from_gf_m` converts (``dcb_ns = DSB^s − DSB^p``).
+
+The observations need not be differenced against the pivot: the parameters are always ``b^{ps}`` (S-basis of the
+pivot) while the differences may use any tracked satellite ``q`` — satellites rise and set, the pivot among them,
+and the model is invariant to the choice of ``q``. Noise: the undifferenced ``y_i^s`` are uncorrelated with
+``σ_s = σ / sin θ_s`` (σ = 65.6 cm at zenith, the geometry-free code of 30 cm code noise: √2·0.30/0.647), so the
+differences have the full covariance ``D_mᵀ diag(σ_s²) D_m``. :class:`GeometryFreeSeries` gives the normals of the
+differenced model with that full covariance in closed form (they equal the normals of the undifferenced model
+with the receiver bias eliminated), for any subset of nodes, epoch by epoch — the input of
+:mod:`distnav.algorithms.kalman` and :mod:`distnav.algorithms.ckf`. :func:`differenced_observations` builds the
+explicit differences and their covariance (the reference of the tests).
+
+Dynamic model (paper 003 eqs. (52)–(53)): random walk on ``ν_o`` (1 mm/√s) and on ``ν_φ, ν_ψ`` (5 mm/rad/√s),
+constant DCBs, i.e. a singular system noise ``S = H S̃ Hᵀ`` with ``H`` the TEC columns
+(:func:`ionosphere_dynamics`). For a network spanning continents one regional model is meaningless; the series
+then accept one ionosphere (3 TEC parameters about the receiver's own zenith) per receiver ("per-receiver"
+mode), the DCBs staying common.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from distnav.algorithms.kalman import DynamicModel, MeasurementSeries, ObservationSeries, simulate_states
+from distnav.errors import ModelError
+from distnav.models.gnss.constants import C_M_S, F_L1_HZ, mu
+from distnav.models.gnss.geometry import (
+    azimuth_elevation,
+    ecef_to_geodetic,
+    elevation_mask,
+    geodetic_to_ecef,
+    pierce_point,
+)
+from distnav.models.gnss.observables import elevation_sigma
+from distnav.models.gnss.orbits import SatelliteOrbit
+
+__all__ = [
+    "TECU_L1_M",
+    "GF_M_PER_DSB_NS",
+    "GF_SIGMA_ZENITH_M",
+    "VTEC_RW_STD_M_PER_SQRT_S",
+    "GRADIENT_RW_STD_M_PER_RAD_SQRT_S",
+    "TEC_NAMES",
+    "dcb_ns_from_gf_m",
+    "gf_m_from_dcb_ns",
+    "geometry_free_m",
+    "ionosphere_coefficients",
+    "IonosphereGeometry",
+    "ionosphere_geometry",
+    "IonosphereStateLayout",
+    "ionosphere_dynamics",
+    "GeometryFreeSeries",
+    "geometry_free_series",
+    "differenced_observations",
+    "simulate_geometry_free",
+    "choose_pivot",
+]
+
+TECU_L1_M = 40.3e16 / F_L1_HZ**2
+"""Metres of L1 ionospheric delay per TEC unit (1e16 el/m²): 40.3e16/f₁² ≈ 0.1624 m."""
+
+GF_M_PER_DSB_NS = C_M_S * 1e-9 / (mu(2) - 1.0)
+"""Metres of the geometry-free observable ``(P2 − P1)/(μ2 − μ1)`` per ns of an L1−L2 DSB (≈ 0.4634 m/ns)."""
+
+GF_SIGMA_ZENITH_M = 0.656
+"""Zenith standard deviation of the undifferenced geometry-free code observable, paper 003 §5.1 (65.6 cm)."""
+
+VTEC_RW_STD_M_PER_SQRT_S = 1e-3
+"""Random-walk spectral density of ν_o, paper 003 §5.1: 1 mm/√s."""
+
+GRADIENT_RW_STD_M_PER_RAD_SQRT_S = 5e-3
+"""Random-walk spectral density of ν_φ and ν_ψ, paper 003 §5.1: 5 mm/rad/√s."""
+
+TEC_NAMES = ("vtec_m", "vtec_grad_lat_m_per_rad", "vtec_grad_lon_m_per_rad")
+"""Names (with units) of the three TEC parameters ν_o, ν_φ, ν_ψ of one ionosphere."""
+
+
+def dcb_ns_from_gf_m(b_m: np.ndarray | float) -> np.ndarray:
+    """Between-satellite DCB ``DSB^s − DSB^p`` [ns] from the geometry-free bias ``b^{ps}`` [m] (sign: Bias-SINEX)."""
+    return -np.asarray(b_m, dtype=float) / GF_M_PER_DSB_NS
+
+
+def gf_m_from_dcb_ns(dcb_ns: np.ndarray | float) -> np.ndarray:
+    """Inverse of :func:`dcb_ns_from_gf_m`."""
+    return -np.asarray(dcb_ns, dtype=float) * GF_M_PER_DSB_NS
+
+
+def geometry_free_m(p1_m: np.ndarray, p2_m: np.ndarray) -> np.ndarray:
+    """The geometry-free code combination ``(P2 − P1)/(μ2 − μ1)`` [m] (L1 slant delay + biases); NaN propagates."""
+    return (np.asarray(p2_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(2) - 1.0)
+
+
+def ionosphere_coefficients(lat_ipp_rad: np.ndarray, lon_ipp_rad: np.ndarray, zenith_ipp_rad: np.ndarray,
+                            ref_lat_rad: np.ndarray | float, ref_lon_rad: np.ndarray | float) -> np.ndarray:
+    """Coefficients ``(a_o, a_φ, a_ψ)`` of paper 003 eq. (49) on a new last axis.
+
+    ``a_o = 1/cos z'``, ``a_φ = (φ_IPP − φ_o)/cos z'``, ``a_ψ = (ψ_IPP − ψ_o)/cos z'`` (radians; the longitude
+    difference is wrapped to (−π, π]). Inputs broadcast.
+    """
+    inv_cos = 1.0 / np.cos(np.asarray(zenith_ipp_rad, dtype=float))
+    dlat = np.asarray(lat_ipp_rad, dtype=float) - np.asarray(ref_lat_rad, dtype=float)
+    dlon = np.asarray(lon_ipp_rad, dtype=float) - np.asarray(ref_lon_rad, dtype=float)
+    dlon = np.mod(dlon + np.pi, 2.0 * np.pi) - np.pi
+    return np.stack(np.broadcast_arrays(inv_cos, dlat * inv_cos, dlon * inv_cos), axis=-1)
+
+
+# ----------------------------------------------------------------------------------------------- geometry
+@dataclass(frozen=True, eq=False)
+class IonosphereGeometry:
+    """Receiver–satellite geometry of a network over time, with the single-layer coefficients.
+
+    ``t_gps_s`` (T,), ``svs`` (S,), receivers ``names`` (n,) at ``lat_rad``/``lon_rad``/``height_m`` (n,);
+    ``el_rad``, ``az_rad`` (T, n, S) (NaN where the satellite position is unknown); ``tracked`` (T, n, S) the
+    elevation-mask (and data) visibility; ``coefficients`` (T, n, S, 3) = ``(a_o, a_φ, a_ψ)`` of eq. (49) about the
+    reference point of each receiver's ionosphere (``ref_lat_rad``/``ref_lon_rad`` (n,)); ``groups`` (n,) the
+    ionosphere each receiver belongs to (all 0 for one regional ionosphere).
+    """
+
+    t_gps_s: np.ndarray
+    svs: tuple[str, ...]
+    names: tuple[str, ...]
+    lat_rad: np.ndarray
+    lon_rad: np.ndarray
+    height_m: np.ndarray
+    el_rad: np.ndarray
+    az_rad: np.ndarray
+    tracked: np.ndarray
+    coefficients: np.ndarray
+    ref_lat_rad: np.ndarray
+    ref_lon_rad: np.ndarray
+    groups: np.ndarray
+    mask_rad: float
+
+    @property
+    def n_epochs(self) -> int:
+        return int(self.t_gps_s.size)
+
+    @property
+    def n_receivers(self) -> int:
+        return len(self.names)
+
+    def with_tracked(self, tracked: np.ndarray) -> IonosphereGeometry:
+        """The same geometry with a narrower visibility (e.g. the epochs and satellites that have data)."""
+        tr = np.asarray(tracked, dtype=bool)
+        if tr.shape != self.tracked.shape:
+            raise ModelError(f"tracked mask of shape {tr.shape}, geometry has {self.tracked.shape}")
+        return IonosphereGeometry(self.t_gps_s, self.svs, self.names, self.lat_rad, self.lon_rad, self.height_m,
+                                  self.el_rad, self.az_rad, self.tracked & tr, self.coefficients, self.ref_lat_rad,
+                                  self.ref_lon_rad, self.groups, self.mask_rad)
+
+
+def ionosphere_geometry(orbit: SatelliteOrbit, t_gps_s: np.ndarray, *, lat_rad: np.ndarray | None = None,
+                        lon_rad: np.ndarray | None = None, height_m: np.ndarray | float = 0.0,
+                        receivers_ecef_m: np.ndarray | None = None, names: Sequence[str] | None = None,
+                        svs: Sequence[str] | None = None, mask_deg: float = 10.0,
+                        ionosphere: str = "common") -> IonosphereGeometry:
+    """Elevations, pierce points and eq.-(49) coefficients of every receiver–satellite pair at every epoch.
+
+    Receivers by geodetic ``lat_rad``/``lon_rad``/``height_m`` or by ``receivers_ecef_m`` (n, 3). ``ionosphere``:
+    ``"common"`` — one regional ionosphere about the receivers' centroid (paper 003 §5: all TEC parameters shared);
+    ``"per-receiver"`` — each receiver its own ν_o, ν_φ, ν_ψ about its own zenith (networks too wide for one
+    regional model). Satellites below ``mask_deg`` (paper: 10°) or without a position are not tracked.
+    """
+    if receivers_ecef_m is not None:
+        xyz = np.asarray(receivers_ecef_m, dtype=float).reshape(-1, 3)
+        if not np.all(np.isfinite(xyz)) or np.any(np.linalg.norm(xyz, axis=1) < 6.0e6):
+            bad = int(np.flatnonzero(~np.isfinite(xyz).all(axis=1) | (np.linalg.norm(xyz, axis=1) < 6.0e6))[0])
+            who = names[bad] if names is not None else str(bad)
+            raise ModelError(f"receiver {who}: position {xyz[bad].tolist()} m is not on the Earth's surface")
+        lat, lon, h = ecef_to_geodetic(xyz)
+    else:
+        if lat_rad is None or lon_rad is None:
+            raise ModelError("give the receivers as lat_rad/lon_rad or receivers_ecef_m")
+        lat = np.atleast_1d(np.asarray(lat_rad, dtype=float))
+        lon = np.atleast_1d(np.asarray(lon_rad, dtype=float))
+        h = np.broadcast_to(np.asarray(height_m, dtype=float), lat.shape).copy()
+        xyz = geodetic_to_ecef(lat, lon, h)
+    n = lat.size
+    rx_names = tuple(str(s) for s in names) if names is not None else tuple(str(i + 1) for i in range(n))
+    if len(rx_names) != n:
+        raise ModelError(f"{len(rx_names)} receiver names for {n} receivers")
+    if ionosphere not in ("common", "per-receiver"):
+        raise ModelError(f"ionosphere must be 'common' or 'per-receiver', got {ionosphere!r}")
+    if not 0.0 <= mask_deg < 90.0:
+        raise ModelError(f"elevation mask must lie in [0°, 90°), got {mask_deg}°")
+    t = np.atleast_1d(np.asarray(t_gps_s, dtype=float))
+    sv_names = tuple(orbit.svs) if svs is None else tuple(svs)
+    sat = orbit.positions_ecef(t, list(sv_names))  # (T, S, 3)
+    T, S = t.size, len(sv_names)
+    el = np.empty((T, n, S))
+    az = np.empty((T, n, S))
+    for i in range(n):
+        az[:, i], el[:, i] = azimuth_elevation(xyz[i], sat)
+    mask = np.deg2rad(mask_deg)
+    tracked = elevation_mask(el, mask)
+    if ionosphere == "common":
+        groups = np.zeros(n, np.int64)
+        # centroid of the receivers on the sphere (mean unit vector)
+        u = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=1).mean(axis=0)
+        ref_lat = np.full(n, np.arctan2(u[2], np.hypot(u[0], u[1])))
+        ref_lon = np.full(n, np.arctan2(u[1], u[0]))
+    else:
+        groups = np.arange(n, dtype=np.int64)
+        ref_lat, ref_lon = lat.copy(), lon.copy()
+    el_safe = np.where(tracked, el, 0.5 * np.pi)
+    az_safe = np.where(tracked, az, 0.0)
+    lat_ipp, lon_ipp, z_ipp = pierce_point(lat[None, :, None], lon[None, :, None], az_safe, el_safe)
+    coef = ionosphere_coefficients(lat_ipp, lon_ipp, z_ipp, ref_lat[None, :, None], ref_lon[None, :, None])
+    coef[~tracked] = 0.0
+    return IonosphereGeometry(t, sv_names, rx_names, lat, lon, h, el, az, tracked, coef, ref_lat, ref_lon, groups,
+                              float(mask))
+
+
+# ----------------------------------------------------------------------------------------------- state + dynamics
+@dataclass(frozen=True)
+class IonosphereStateLayout:
+    """State vector of paper 003 eq. (52): ``3 × n_ionospheres`` TEC parameters, then the DCBs ``b^{ps}`` of
+    every satellite but the pivot (in the order of ``svs``)."""
+
+    svs: tuple[str, ...]
+    pivot: str
+    n_ionospheres: int = 1
+
+    def __post_init__(self) -> None:
+        if self.pivot not in self.svs:
+            raise ModelError(f"pivot satellite {self.pivot} is not among the satellites {list(self.svs)[:8]}...")
+        if len(self.svs) < 2:
+            raise ModelError("the between-satellite model needs at least two satellites")
+        if self.n_ionospheres < 1:
+            raise ModelError("n_ionospheres must be ≥ 1")
+
+    @property
+    def n_tec(self) -> int:
+        return 3 * self.n_ionospheres
+
+    @property
+    def n_states(self) -> int:
+        return self.n_tec + len(self.svs) - 1
+
+    @property
+    def dcb_svs(self) -> tuple[str, ...]:
+        return tuple(s for s in self.svs if s != self.pivot)
+
+    @property
+    def pivot_index(self) -> int:
+        return self.svs.index(self.pivot)
+
+    def dcb_column(self) -> np.ndarray:
+        """State column of each satellite's DCB (``-1`` for the pivot), aligned with ``svs``."""
+        col = np.full(len(self.svs), -1, np.int64)
+        k = self.n_tec
+        for j, s in enumerate(self.svs):
+            if s != self.pivot:
+                col[j] = k
+                k += 1
+        return col
+
+    def state_names(self, receiver_names: Sequence[str] | None = None) -> list[str]:
+        names: list[str] = []
+        for g in range(self.n_ionospheres):
+            pre = "" if self.n_ionospheres == 1 else f"{receiver_names[g] if receiver_names else g}:"
+            names += [pre + t for t in TEC_NAMES]
+        return names + [f"dcb_gf_m:{s}-{self.pivot}" for s in self.dcb_svs]
+
+
+def ionosphere_dynamics(layout: IonosphereStateLayout, interval_s: float, *,
+                        vtec_std_m_per_sqrt_s: float = VTEC_RW_STD_M_PER_SQRT_S,
+                        gradient_std_m_per_rad_sqrt_s: float = GRADIENT_RW_STD_M_PER_RAD_SQRT_S) -> DynamicModel:
+    """Paper 003 eq. (53): ``Φ = I``; random walk on every ionosphere's ν_o, ν_φ, ν_ψ with variances
+    ``q² Δ`` per epoch (q = 1 mm/√s, 5 mm/rad/√s), DCBs constant. ``S = H S̃ Hᵀ`` with ``H`` the TEC columns
+    (eq. (20)): the system noise is singular."""
+    if not (np.isfinite(interval_s) and interval_s > 0):
+        raise ModelError(f"the sampling interval must be positive, got {interval_s} s")
+    q = np.tile([vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s],
+                layout.n_ionospheres)
+    p = layout.n_states
+    return DynamicModel(p, noise_map=np.eye(p)[:, :layout.n_tec], noise_reduced_cov=np.diag(q**2 * interval_s))
+
+
+def choose_pivot(svs: Sequence[str], tracked: np.ndarray, preferred: str | None = "G10") -> str:
+    """The pivot satellite: ``preferred`` (paper 003 §5.2: PRN 10) when it is tracked at all, else the satellite
+    tracked at the most receiver-epochs. ``tracked`` is (T, n, S)."""
+    counts = np.asarray(tracked, dtype=bool).sum(axis=(0, 1))
+    if preferred is not None and preferred in svs and counts[list(svs).index(preferred)] > 0:
+        return preferred
+    if counts.max(initial=0) == 0:
+        raise ModelError("no satellite is tracked by any receiver: no pivot")
+    return svs[int(np.argmax(counts))]
+
+
+# ----------------------------------------------------------------------------------------------- measurements
+class GeometryFreeSeries(MeasurementSeries):
+    """Per-node, per-epoch normals of the between-satellite geometry-free model (paper 003 eqs. (49)–(51)).
+
+    Inputs over (T epochs, n nodes, S satellites): ``coefficients`` (T, n, S, 3), ``sigma_m`` (T, n, S) standard
+    deviations of the undifferenced observable (``inf``/NaN or ``tracked`` False = not observed), optional
+    undifferenced observations ``obs_m`` (T, n, S) (NaN = not observed), ``groups`` (n,) the ionosphere of each
+    node. The normals of the differenced observations with full covariance ``Dᵀ Q D`` are formed without
+    choosing a reference satellite: with weights ``w_s = 1/σ_s²`` and ``Ā`` the undifferenced design rows
+    ``[a_s (in the node's TEC block), e_{col(s)}]``,
+
+        ``N = Āᵀ W Ā − (Āᵀ w)(wᵀ Ā)/Σw``,   ``r = Āᵀ W y − (Āᵀ w)(wᵀ y)/Σw``,
+
+    the identity ``D(DᵀQD)⁻¹Dᵀ = Q⁻¹ − Q⁻¹e(eᵀQ⁻¹e)⁻¹eᵀQ⁻¹`` (for ``Dᵀe = 0``) — the receiver's own bias is
+    eliminated. A node tracking fewer than two satellites contributes nothing.
+    """
+
+    def __init__(self, layout: IonosphereStateLayout, coefficients: np.ndarray, sigma_m: np.ndarray, *,
+                 obs_m: np.ndarray | None = None, tracked: np.ndarray | None = None,
+                 groups: np.ndarray | None = None) -> None:
+        a = np.asarray(coefficients, dtype=float)
+        if a.ndim != 4 or a.shape[-1] != 3:
+            raise ModelError(f"coefficients must have shape (epochs, nodes, satellites, 3), got {a.shape}")
+        T, n, S, _ = a.shape
+        if S != len(layout.svs):
+            raise ModelError(f"coefficients for {S} satellites, the state layout has {len(layout.svs)}")
+        sig = np.asarray(sigma_m, dtype=float)
+        if sig.shape != (T, n, S):
+            raise ModelError(f"sigma_m must have shape {(T, n, S)}, got {sig.shape}")
+        ok = np.isfinite(sig) & (sig > 0) & np.isfinite(a).all(axis=-1)
+        if tracked is not None:
+            tr = np.asarray(tracked, dtype=bool)
+            if tr.shape != (T, n, S):
+                raise ModelError(f"tracked must have shape {(T, n, S)}, got {tr.shape}")
+            ok &= tr
+        y = None
+        if obs_m is not None:
+            y = np.asarray(obs_m, dtype=float)
+            if y.shape != (T, n, S):
+                raise ModelError(f"obs_m must have shape {(T, n, S)}, got {y.shape}")
+            ok &= np.isfinite(y)
+        g = np.zeros(n, np.int64) if groups is None else np.asarray(groups, dtype=np.int64).reshape(-1)
+        if g.shape != (n,) or g.min() < 0 or g.max() >= layout.n_ionospheres:
+            raise ModelError(f"groups must be {n} ionosphere indices in 0..{layout.n_ionospheres - 1}")
+        ok &= ok.sum(axis=2, keepdims=True) >= 2  # one satellite alone gives no between-satellite difference
+        self.layout = layout
+        self.n_epochs, self.n_nodes, self.n_states = T, n, layout.n_states
+        self.n_satellites = S
+        self._a = np.where(ok[..., None], a, 0.0)
+        self._w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
+        self._y = None if y is None else np.where(ok, y, 0.0)
+        self._groups = g
+        self._col = layout.dcb_column()
+        self.tracked = ok
+
+    def design(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Undifferenced design rows ``Ā`` (k, S, p) and weights ``w`` (k, S) (zero where not tracked)."""
+        t = self._epoch(epoch)
+        idx = self._nodes(nodes)
+        k, S, p = idx.size, self.n_satellites, self.n_states
+        A = np.zeros((k, S, p))
+        a = self._a[t, idx]
+        for j, gi in enumerate(self._groups[idx]):
+            A[j, :, 3 * gi:3 * gi + 3] = a[j]
+        sv = np.flatnonzero(self._col >= 0)
+        A[:, sv, self._col[sv]] = 1.0
+        return A, self._w[t, idx]
+
+    def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        A, w = self.design(epoch, nodes)
+        idx = self._nodes(nodes)
+        sw = w.sum(axis=1)
+        sw_safe = np.where(sw > 0, sw, 1.0)
+        Aw = A * w[..., None]
+        u = Aw.sum(axis=1)  # Āᵀ w, (k, p)
+        N = np.swapaxes(Aw, 1, 2) @ A - u[:, :, None] * u[:, None, :] / sw_safe[:, None, None]
+        N = 0.5 * (N + np.swapaxes(N, 1, 2))
+        if self._y is None:
+            return N, np.zeros((idx.size, self.n_states))
+        y = self._y[self._epoch(epoch), idx]
+        r = (np.swapaxes(Aw, 1, 2) @ y[..., None])[..., 0] - u * ((w * y).sum(axis=1) / sw_safe)[:, None]
+        return N, r
+
+    def observations(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Whitened rows with the same normals: ``W^{1/2}(I − e wᵀ/Σw)Ā`` (rank m−1 in m rows; see class doc)."""
+        A, w = self.design(epoch, nodes)
+        idx = self._nodes(nodes)
+        t = self._epoch(epoch)
+        y = np.zeros(w.shape) if self._y is None else self._y[t, idx]
+        sw = np.where(w.sum(axis=1) > 0, w.sum(axis=1), 1.0)
+        Ac = A - (np.einsum("ks,ksp->kp", w, A) / sw[:, None])[:, None, :]
+        yc = y - ((w * y).sum(axis=1) / sw)[:, None]
+        sq = np.sqrt(w)
+        keep = w > 0
+        rows_A = (Ac * sq[..., None])[keep]
+        rows_y = (yc * sq)[keep]
+        node = np.broadcast_to(idx[:, None], w.shape)[keep]
+        return rows_A, rows_y, node.astype(np.int64)
+
+
+def geometry_free_series(geometry: IonosphereGeometry, layout: IonosphereStateLayout, *,
+                         sigma_zenith_m: float = GF_SIGMA_ZENITH_M, weighting: str = "sin",
+                         obs_m: np.ndarray | None = None) -> GeometryFreeSeries:
+    """:class:`GeometryFreeSeries` of a geometry: ``σ_s = elevation_sigma(θ_s, σ)`` (``"sin"``: σ/sin θ as in the
+    papers README; ``"euler-goad"`` or ``"constant"`` also), tracked = the geometry's mask."""
+    if tuple(layout.svs) != tuple(geometry.svs):
+        raise ModelError("the state layout and the geometry list different satellites")
+    el = np.where(geometry.tracked, geometry.el_rad, 0.5 * np.pi)
+    sig = elevation_sigma(el, sigma_zenith_m, weighting)
+    return GeometryFreeSeries(layout, geometry.coefficients, sig, obs_m=obs_m, tracked=geometry.tracked,
+                              groups=geometry.groups)
+
+
+def differenced_observations(series: GeometryFreeSeries, *, reference: str = "pivot") -> ObservationSeries:
+    """The explicit between-satellite differences ``y^{qs}`` with full covariance ``D_mᵀ diag(σ²) D_m``
+    (paper 003 eq. (49)–(51)) as an :class:`~distnav.algorithms.kalman.ObservationSeries`.
+
+    The reference ``q`` is the pivot when the node tracks it, else its first tracked satellite
+    (``reference="pivot"``), or always the first tracked satellite (``"first"``). Independent of the closed-form
+    normals of :class:`GeometryFreeSeries` (it is their test reference) and of the reference choice.
+    """
+    if reference not in ("pivot", "first"):
+        raise ModelError(f"reference must be 'pivot' or 'first', got {reference!r}")
+    piv = series.layout.pivot_index
+    epochs = []
+    for t in range(series.n_epochs):
+        A_all, w_all = series.design(t)
+        y_all = np.zeros(w_all.shape) if series._y is None else series._y[t]
+        row: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
+        for i in range(series.n_nodes):
+            vis = np.flatnonzero(w_all[i] > 0)
+            if vis.size < 2:
+                row.append(None)
+                continue
+            q = piv if (reference == "pivot" and piv in vis) else int(vis[0])
+            others = vis[vis != q]
+            A = A_all[i, others] - A_all[i, q]
+            y = y_all[i, others] - y_all[i, q]
+            var = 1.0 / np.where(w_all[i] > 0, w_all[i], 1.0)
+            R = np.diag(var[others]) + var[q]
+            row.append((A, R, y))
+        epochs.append(row)
+    return ObservationSeries(series.n_states, epochs)
+
+
+def simulate_geometry_free(geometry: IonosphereGeometry, layout: IonosphereStateLayout, interval_s: float, *,
+                           rng: np.random.Generator, sigma_zenith_m: float = GF_SIGMA_ZENITH_M,
+                           weighting: str = "sin", vtec0_m: float = 2.0, satellite_dsb_std_ns: float = 3.0,
+                           receiver_dsb_std_ns: float = 10.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Simulate undifferenced geometry-free observations of the model (paper 003 eqs. (49), (53)).
+
+    Truth: TEC parameters start at ``(vtec0_m, 0, 0)`` per ionosphere and follow the random walk; satellite DSBs
+    ``~ N(0, satellite_dsb_std_ns²)`` and receiver DSBs (eliminated by the differencing) ``~ N(0, ...)``.
+    ``y_i^s = a_i^s·ν + b_i,r + b^s + ε`` (``b`` in metres of the observable, ``b^{ps} = b^s − b^p``),
+    ``ε ~ N(0, σ_s²)`` independent. Returns ``(truth (T, p), obs_m (T, n, S) with NaN where not tracked,
+    satellite DSB ns (S,))``.
+    """
+    dyn = ionosphere_dynamics(layout, interval_s)
+    T, n, S = geometry.tracked.shape
+    x0 = np.zeros(layout.n_states)
+    x0[0:layout.n_tec:3] = vtec0_m
+    sat_dsb_ns = rng.normal(0.0, satellite_dsb_std_ns, S)
+    b_sat_m = gf_m_from_dcb_ns(sat_dsb_ns)
+    col = layout.dcb_column()
+    piv = layout.pivot_index
+    for j in range(S):
+        if col[j] >= 0:
+            x0[col[j]] = b_sat_m[j] - b_sat_m[piv]
+    truth = simulate_states(dyn, T, rng=rng, initial_state=x0)
+    b_rx_m = gf_m_from_dcb_ns(rng.normal(0.0, receiver_dsb_std_ns, n))
+    el = np.where(geometry.tracked, geometry.el_rad, 0.5 * np.pi)
+    sig = elevation_sigma(el, sigma_zenith_m, weighting)
+    tec = truth[:, :layout.n_tec].reshape(T, layout.n_ionospheres, 3)[:, geometry.groups]  # (T, n, 3)
+    iono = np.einsum("tnsk,tnk->tns", geometry.coefficients, tec)
+    y = iono + b_rx_m[None, :, None] + b_sat_m[None, None, :] + sig * rng.standard_normal((T, n, S))
+    y[~geometry.tracked] = np.nan
+    return truth, y, np.asarray(sat_dsb_ns)
