@@ -404,9 +404,9 @@ def codebias_data_from_observations(observations: Sequence[CodeObservations], or
                                     svs: Sequence[str] | None = None) -> CodeBiasData:
     """Form the observable (24) of real RINEX code observations (:func:`~distnav.models.gnss.rinex.
     read_code_observations` with bands 1, 2, 5) on the union of their epochs, with elevations from ``orbit`` at
-    each file's approximate position. ``svs`` defaults to the satellites observed on all three bands by any
-    station. Raises :class:`~distnav.errors.ModelError` for a missing band, a station without position, or no
-    satellite in common."""
+    each file's approximate position. ``svs`` defaults to the satellites observed on all three bands above the
+    mask by some station. Raises :class:`~distnav.errors.ModelError` for a missing band, a station without
+    position, or no satellite in common."""
     if not observations:
         raise ModelError("no observation files given")
     for o in observations:
@@ -421,6 +421,7 @@ def codebias_data_from_observations(observations: Sequence[CodeObservations], or
     if dup:
         raise ModelError(f"station names appear twice: {', '.join(sorted(dup))}")
     times = np.unique(np.concatenate([o.time for o in observations]))
+    svs_given = svs
     if svs is None:
         svs = sorted({s for o in observations for s in o.satellites_with_all_bands()})
     svs = list(svs)
@@ -448,6 +449,13 @@ def codebias_data_from_observations(observations: Sequence[CodeObservations], or
         vis = elevation_mask(el, mask_rad) & np.isfinite(block)
         y[i, ti] = np.where(vis, block, np.nan)
         sig[i, ti] = np.where(vis, combination_sigma(np.where(vis, el, np.pi / 2), sigma0_m, weighting, mus), np.nan)
+    auto_svs = svs_given is None
+    if auto_svs:  # keep the satellites observed above the mask by some station
+        keep = np.isfinite(y).any(axis=(0, 1))
+        svs = [s for s, k in zip(svs, keep.tolist(), strict=True) if k]
+        y, sig, elev = y[..., keep], sig[..., keep], elev[..., keep]
+        if not svs:
+            raise ModelError(f"no satellite observed on L1, L2 and L5 above the {np.rad2deg(mask_rad):.0f}° mask")
     seen = np.isfinite(y).any(axis=1)
     for i, o in enumerate(observations):
         if not seen[i].any():
