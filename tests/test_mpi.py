@@ -24,6 +24,7 @@ from cases import CASES  # noqa: E402
 
 pytestmark = pytest.mark.mpi
 N_RANKS = 4
+BITWISE = {"estimates", "sent", "received", "bytes", "per_round", "count", "edge_sum", "bcast_sum", "mixed"}
 
 
 def _mpiexec() -> str:
@@ -55,8 +56,12 @@ def test_mpi_equals_inprocess(name, mpi_results):
     for key, value in ref.items():
         got = mpi_results[f"{name}/{key}"]
         assert got.shape == np.shape(value), f"{name}/{key}"
-        # bitwise: the MPI exchange sums every row in the in-process order
-        assert np.array_equal(got, value), f"{name}/{key}: max diff {np.max(np.abs(got - value))}"
+        if key in BITWISE:
+            # the MPI exchange sums every row in the in-process order: node results agree bit for bit
+            assert np.array_equal(got, value), f"{name}/{key}: max diff {np.max(np.abs(got - value))}"
+        else:
+            # network-wide monitoring sums (allreduce) add partial sums in another order: equal to rounding
+            np.testing.assert_allclose(got, value, rtol=1e-12, atol=1e-14, err_msg=f"{name}/{key}")
 
 
 def test_cli_reproduce_under_mpi_writes_the_same_file(tmp_path):

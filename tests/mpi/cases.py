@@ -72,3 +72,54 @@ def raw_send_and_broadcast(backend: str) -> dict[str, np.ndarray]:
     return {"edge_sum": ex.gather_nodes(inbox.sum()), "count": ex.gather_nodes(inbox.count()),
             "bcast_sum": ex.gather_nodes(b.sum()), "mixed": ex.gather_nodes(mixed),
             "sent": ex.comm_totals().messages_sent}
+
+
+def _linear_problem(n: int, p: int = 4, m: int = 2):
+    from distnav.algorithms.lsq import LinearProblem
+
+    rng = np.random.default_rng(21)
+    A = rng.normal(size=(n, m, p))  # m < p: every N_i singular
+    x = rng.normal(size=p)
+    y = np.einsum("nmp,p->nm", A, x) + 0.1 * rng.normal(size=(n, m))
+    return LinearProblem.from_blocks(list(A), list(y), [0.01 * np.eye(m)] * n)
+
+
+@case
+def admm_constraint_nodes(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.admm import admm
+
+    g = _graph()
+    problem = _linear_problem(g.n_nodes)
+    ex = make_exchange(g, backend=backend)
+    res = admm(problem, g, constraint_nodes="min_cover", W=1.0, max_iterations=40, tol=0.0, exchange=ex)
+    return {"estimates": res.estimates, "sent": res.comm.messages_sent, "bytes": res.comm.bytes_sent,
+            "primal": res.trace["primal_residual"]}
+
+
+@case
+def admm_with_drops(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.admm import admm
+
+    g = _graph()
+    problem = _linear_problem(g.n_nodes)
+    ex = make_exchange(g, backend=backend, faults=FaultSchedule(drop_probability=0.1, seed=3))
+    res = admm(problem, g, constraint_nodes="all", W=1.0, max_iterations=25, tol=0.0, exchange=ex)
+    return {"estimates": res.estimates, "received": res.comm.messages_received}
+
+
+@case
+def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.ckf import ckf
+    from distnav.algorithms.kalman import DynamicModel, NormalSeries
+
+    g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
+    n, p, T = g.n_nodes, 3, 6
+    rng = np.random.default_rng(6)
+    A = rng.normal(size=(T, n, 2, p))
+    y = rng.normal(size=(T, n, 2))
+    N = np.einsum("tnmp,tnmq->tnpq", A, A)
+    r = np.einsum("tnmp,tnm->tnp", A, y)
+    dyn = DynamicModel(p, noise_cov=np.diag([0.1, 0.05, 0.0]))
+    res = ckf(dyn, NormalSeries(N, r), graph=g, protocol="P3", rounds=4, exchange=make_exchange(g, backend=backend))
+    series = res.extras["series"]
+    return {"estimates": res.estimates, "std": series.std, "sent": res.comm.messages_sent}
