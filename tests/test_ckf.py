@@ -326,3 +326,22 @@ def test_ckf_validation():
         ckf_error_variance(dyn, ms, np.eye(5))
     with pytest.raises(ModelError, match="3 states, measurements 4"):
         ckf(DynamicModel(3), ms, graph=g, rounds=1)
+
+
+def test_zero_rounds_is_a_suboptimal_local_filter():
+    # k_n = 0: L = I, node i uses only its own data but with weight n (Fig. 6), so its estimator is a linear
+    # unbiased one of the local data: Fig. 7's P must be ≥ the optimal local filter's variance (BLUP optimality),
+    # with no messages sent and α = n.
+    dyn, ms, _ = observed_model(1)
+    from distnav.algorithms.kalman import local_filters
+
+    loc = local_filters(dyn, ms).extras["series"]
+    r = ckf(dyn, ms, graph=builders.ring(ms.n_nodes), rounds=0)
+    s = r.extras["series"]
+    assert r.comm.messages == 0
+    np.testing.assert_allclose(r.extras["alpha"], ms.n_nodes)
+    assert np.array_equal(s.estimable, loc.estimable)
+    m = s.estimable
+    assert np.all(s.std[m] >= loc.std[m] * (1 - 1e-10))
+    assert np.any(s.std[m] > loc.std[m] * 1.01)  # strictly worse somewhere: the weighting is not optimal
+    assert ckf(dyn, ms, graph=builders.ring(ms.n_nodes), rounds=3, variance=False).extras["product"] is None

@@ -219,8 +219,12 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     ``comm`` = message/byte totals of all consensus rounds, ``extras``: ``"series"`` (:class:`FilterSeries`
     over all nodes: ``std`` from Fig. 7, ``nominal_std`` = sqrt diag ``I_i⁻¹``; with ``store_matrices`` also
     ``covariance`` = ``P_i,t|t`` and ``information`` = ``I_i,t|t`` for every epoch), ``"information"``,
-    ``"info_vector"``, ``"covariance"`` (last epoch), ``"rounds"`` (k_n), ``"product"`` (``L``), ``"alpha"``.
-    Trace: ``consensus_deviation`` per epoch.
+    ``"info_vector"``, ``"covariance"`` (last epoch), ``"rounds"`` (k_n), ``"product"`` (``L``) and ``"alpha"``
+    (with ``variance`` only). Trace: ``consensus_deviation`` per epoch.
+
+    Memory: the per-epoch series are (T, n, p) arrays, and the variance recursion needs the dense n×n ``L`` and
+    ``Σ_j l_ij² N_j`` (O(n² p²) work per epoch): for very large networks iterate with :func:`iterate_ckf` and
+    ``variance=False``.
     """
     kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
     n = measurements.n_nodes
@@ -249,7 +253,7 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         estimable=np.stack(ests), nodes=np.arange(n), nominal_std=nominal,
         covariance=np.stack(covs) if covs else None, information=np.stack(infos) if infos else None,
     )
-    L = consensus_product(sched, kn)
+    L = consensus_product(sched, kn) if variance else None  # dense n×n: only with the variance recursion
     comm: CommTotals = ex.comm_totals()
     est_last = series.estimable[-1]
     complete = bool(est_last.all())
@@ -262,7 +266,7 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         extras={"series": series, "information": ex.gather_nodes(last.information),
                 "info_vector": ex.gather_nodes(last.info_vector),
                 "covariance": ex.gather_nodes(last.covariance) if last.covariance is not None else None,
-                "rounds": kn, "product": L, "alpha": alpha_factor(L)},
+                "rounds": kn, "product": L, "alpha": alpha_factor(L) if L is not None else None},
     )
 
 
