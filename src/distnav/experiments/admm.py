@@ -1,0 +1,347 @@
+"""Reproduction of paper 000 §3–4, Figs. 3–5 (and the ρ study of §5.2 on a random network).
+
+* (a) Figs. 3–4: a 2-node problem with a scalar parameter (so ``[x_1, x_2]`` is 2-D): the method of multipliers
+  (eqs. (13)–(15)) versus ADMM with one consensus state (eq. (16)) from ``z⁰ = 3`` and ``z⁰ = −7``, 8 iterations,
+  ``u⁰ = 0``, with the dual function ``g(u)`` (eq. (10)) along each run. The paper's data are not given; ours:
+  ``a = (1, 2)``, ``R = I``, ``y = (−1, 4)``, ``W = 1`` (``x̂ = 1.4``).
+* (b) Fig. 5: the 9-node graph (reconstructed from the text: ``N_1 = {1, 2}``, ``N_3 = {2, 3, 5, 6, 7, 8}``, ``C =
+  {1, 3, 4, 6, 9}`` covers every link and ``{1, 3, 4, 9}`` leaves (5, 6), (6, 7) unused), ADMM of Fig. 6 with both
+  sets on random problems whose ``N_i`` are all singular: convergence of ``max_i ‖x_i − x̂‖/‖x̂‖``.
+* (c) ``W = ρI`` sweep on a random geometric network (all-nodes and minimum-cover ``C``), per-node curves as in
+  Fig. 9, and the initial-value comparison of Fig. 10 (zero versus a previous experiment's solution).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from distnav.algorithms.admm import admm
+from distnav.algorithms.lsq import (
+    LinearProblem,
+    blue,
+    dual_function,
+    method_of_multipliers,
+    single_consensus_admm,
+)
+from distnav.experiments.common import ExperimentContext, pyplot
+from distnav.network import builders
+from distnav.network.constraint_nodes import choose_constraint_nodes
+from distnav.network.graph import Graph
+
+NAME = "admm"
+TITLE = "Distributed least squares by ADMM with constraint nodes (paper 000 Figs. 3-5, 9-10)"
+
+# Fig. 5, 1-based as in the paper
+FIG5_LINKS = ((1, 2), (2, 3), (3, 5), (3, 6), (3, 7), (3, 8), (5, 6), (6, 7), (4, 5), (4, 8), (7, 9), (8, 9))
+FIG5_POSITIONS = ((0.0, 2.0), (1.0, 2.2), (2.0, 1.6), (4.0, 0.0), (3.0, 0.6), (3.2, 1.8), (3.0, 2.8), (2.6, -0.2),
+                  (4.2, 2.0))
+C_FULL = (1, 3, 4, 6, 9)
+C_REDUCED = (1, 3, 4, 9)
+TWO_NODE: dict[str, Any] = {"a": (1.0, 2.0), "R": (1.0, 1.0), "y": (-1.0, 4.0), "W": 1.0}
+ITERATIONS_2D = 8
+
+
+def fig5_graph() -> Graph:
+    """The 9-node graph of paper 000 Fig. 5 (node names 1..9, ids 0..8)."""
+    return Graph.from_links(9, [(a - 1, b - 1) for a, b in FIG5_LINKS], names=[str(k) for k in range(1, 10)],
+                            positions=np.array(FIG5_POSITIONS))
+
+
+def two_node_problem() -> LinearProblem:
+    a, R, y = (tuple(float(v) for v in TWO_NODE[k]) for k in ("a", "R", "y"))  # type: ignore[attr-defined]
+    return LinearProblem.from_blocks([np.array([[a[0]]]), np.array([[a[1]]])], [np.array([y[0]]), np.array([y[1]])],
+                                     [np.array([[R[0]]]), np.array([[R[1]]])])
+
+
+def random_problem(rng: np.random.Generator, n: int, m: int, p: int, sigma: float = 0.1) -> LinearProblem:
+    """``m < p`` rows per node (every ``N_i`` singular), standard-normal design, noise σ, unit weights (``R_i = I``:
+    ordinary least squares, so ``ρ`` is measured against ``N_i = A_iᵀA_i``), rank(A) = p."""
+    A = rng.normal(size=(n, m, p))
+    y = np.einsum("nmp,p->nm", A, rng.normal(size=p)) + sigma * rng.normal(size=(n, m))
+    return LinearProblem.from_stacked(A, y)
+
+
+def _iters(res: Any, level: str = "1e-06") -> int | None:
+    v = res.extras["iterations_to"][level]
+    return None if v is None else int(v)
+
+
+# ----------------------------------------------------------------------------------------------- (a)
+def part_a() -> dict[str, Any]:
+    prob = two_node_problem()
+    W = TWO_NODE["W"]
+    sol = blue(prob, W=W)
+    mom = method_of_multipliers(prob, W=W, iterations=ITERATIONS_2D)
+    runs = {"method_of_multipliers": mom}
+    for z0 in (3.0, -7.0):
+        runs[f"admm_z0={z0:g}"] = single_consensus_admm(prob, W=W, iterations=ITERATIONS_2D, z0=z0)
+    out: dict[str, Any] = {"x_hat": float(sol.x[0]), "optimal_value": sol.cost,
+                           "u_hat": sol.multipliers[:, 0].tolist() if sol.multipliers is not None else None}
+    for name, r in runs.items():
+        g = np.concatenate([[r.extras["dual_value_initial"]], r.trace["dual_value"]])
+        out[name] = {"x": r.trace["x"][:, :, 0].tolist(), "z": r.trace["z"][:, 0].tolist(),
+                     "u": r.trace["u"][:, :, 0].tolist(), "dual_value": g.tolist(),
+                     "dual_increasing": bool(np.all(np.diff(g) >= -1e-12)),
+                     "final_error": float(np.abs(r.trace["x"][-1, :, 0] - sol.x[0]).max())}
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- (b)
+def part_b(ctx: ExperimentContext, draws: int, iterations: int, rho: float,
+           rho_grid: tuple[float, ...]) -> dict[str, Any]:
+    g = fig5_graph()
+    sets = {"C_full": choose_constraint_nodes(g, [k - 1 for k in C_FULL]),
+            "C_reduced": choose_constraint_nodes(g, [k - 1 for k in C_REDUCED]),
+            "C_all": choose_constraint_nodes(g, "all")}
+    rng = ctx.rng(11)
+    problems = [random_problem(rng, 9, 2, 4) for _ in range(draws)]
+    refs = [blue(pr).x for pr in problems]
+    curves: dict[str, Any] = {}
+    finals: dict[str, float] = {}
+    comm: dict[str, Any] = {}
+    first: dict[str, int | None] = {}
+    for key, C in sets.items():  # the primary runs: first problem, ρ = rho, full length
+        res = admm(problems[0], g, constraint_nodes=C, W=rho, max_iterations=iterations, tol=0.0, reference=refs[0],
+                   exchange=ctx.exchange(g))
+        curves[key] = res.trace["relative_max_distance"]
+        finals[key] = float(res.trace["relative_max_distance"][-1])
+        first[key] = _iters(res)
+        comm[key] = {**res.comm.as_dict(), "messages_per_iteration": int(res.comm.messages_per_round[1:3].sum())}
+    # the study: every problem, every ρ of the grid, iterations to 1e-6
+    table: dict[str, dict[str, list[int]]] = {f"{r:g}": {k: [] for k in sets} for r in rho_grid}
+    with ctx.progress.task(f"admm: Fig. 5 graph, {draws} problems × {len(rho_grid)} ρ × 3 constraint sets",
+                           total=draws * len(rho_grid)) as adv:
+        for pr, xh in zip(problems, refs, strict=True):
+            for r in rho_grid:
+                for key, C in sets.items():
+                    res = admm(pr, g, constraint_nodes=C, W=r, max_iterations=iterations * 3, tol=0.0, reference=xh,
+                               stop_at_reference=1e-6, record_nodes=False, exchange=ctx.exchange(g))
+                    v = _iters(res)
+                    table[f"{r:g}"][key].append(iterations * 3 if v is None else v)
+                adv(1)
+    study: dict[str, dict[str, Any]] = {}
+    for label, row in table.items():
+        full, red = np.array(row["C_full"]), np.array(row["C_reduced"])
+        study[label] = {"median_iterations_to_1e-6": {k: float(np.median(v)) for k, v in row.items()},
+                    "reduced_slower_than_full": int((red > full).sum()),
+                    "reduced_faster_than_full": int((red < full).sum())}
+    best = {k: min(float(v["median_iterations_to_1e-6"][k]) for v in study.values()) for k in sets}
+    return {
+        "rho": rho, "draws": draws, "rho_grid": list(rho_grid),
+        **{key: {"iterations_to_1e-6": first[key], **sets[key].summary(), "communication": comm[key]}
+           for key in sets},
+        "rho_study": study, "best_median_over_rho": best,
+        "min_cover": choose_constraint_nodes(g, "min_cover").summary(),
+        "_curves": curves, "_finals": finals, "_graph": g, "_sets": sets,
+    }
+
+
+# ----------------------------------------------------------------------------------------------- (c)
+def part_c(ctx: ExperimentContext, n: int, rhos: np.ndarray, iterations: int) -> dict[str, Any]:
+    rng = ctx.rng(21)
+    g = builders.connected_random_geometric(n, mean_degree=6, rng=rng)
+    prob = random_problem(rng, n, 3, 6)
+    xh = blue(prob).x
+    sets = {"all": choose_constraint_nodes(g, "all"), "min_cover": choose_constraint_nodes(g, "min_cover")}
+    sweep: dict[str, list[int | None]] = {k: [] for k in sets}
+    with ctx.progress.task(f"admm: ρ sweep on a {n}-node random network", total=len(rhos) * 2) as adv:
+        for rho in rhos:
+            for key, C in sets.items():
+                res = admm(prob, g, constraint_nodes=C, W=float(rho), max_iterations=iterations, tol=0.0,
+                           reference=xh, stop_at_reference=1e-6, record_nodes=False, exchange=ctx.exchange(g))
+                sweep[key].append(_iters(res))
+                adv(1)
+    arr = np.array([np.inf if v is None else v for v in sweep["min_cover"]], float)
+    best = float(rhos[int(np.argmin(arr))])
+    # Fig. 9: per-node curves for three ρ around the best; Fig. 10: zero vs previous-experiment initial values
+    show = [best] if ctx.quick else sorted({best / 10, best, best * 10})
+    curves = {}
+    for rho in show:
+        res = admm(prob, g, constraint_nodes=sets["min_cover"], W=rho, max_iterations=iterations, tol=0.0,
+                   reference=xh, exchange=ctx.exchange(g))
+        curves[f"{rho:.3g}"] = res.trace["distance_to_reference"]
+    # a previous experiment: same nodes and parameters, fresh noise (σ = 0.1); its BLUE starts this run (§4.3)
+    y_prev = np.einsum("nmp,p->nm", prob.A, xh) + 0.1 * rng.normal(size=prob.y.shape)
+    x_prev = blue(LinearProblem.from_stacked(prob.A, y_prev, prob.R)).x
+    inits = {"zero": "zero", "previous": x_prev}
+    init_runs = {}
+    for label, init in inits.items():
+        res = admm(prob, g, constraint_nodes=sets["min_cover"], W=best, init=init, max_iterations=iterations,
+                   tol=0.0, reference=xh, exchange=ctx.exchange(g), record_nodes=False)
+        init_runs[label] = {"iterations_to_1e-6": _iters(res), "iterations_to_1e-8": _iters(res, "1e-08"),
+                            "initial_relative_distance": float(res.trace["relative_max_distance"][0]),
+                            "final_relative_distance": float(res.trace["relative_max_distance"][-1])}
+    final = admm(prob, g, constraint_nodes=sets["min_cover"], W=best, max_iterations=iterations, tol=1e-12,
+                 reference=xh, record_nodes=False, exchange=ctx.exchange(g))
+    return {
+        "n_nodes": n, "n_links": g.n_links, "p": 6, "m_i": 3,
+        "rho": rhos.tolist(), "iterations_to_1e-6": sweep, "best_rho_min_cover": best,
+        "constraint_nodes": {k: {"n": c.size, "method": c.method, "optimal": c.optimal} for k, c in sets.items()},
+        "initial_values": init_runs,
+        "final_run": {"rho": best, **final.summary(),
+                      "relative_max_distance": float(final.trace["relative_max_distance"][-1])},
+        "_curves": curves,
+    }
+
+
+# ----------------------------------------------------------------------------------------------- run
+def run(ctx: ExperimentContext) -> dict[str, Any]:
+    quick = ctx.quick
+    a = part_a()
+    b = part_b(ctx, draws=3 if quick else 40, iterations=400 if quick else 1000, rho=1.0,
+               rho_grid=(0.3, 1.0, 3.0) if quick else (0.3, 1.0, 3.0, 10.0))
+    rhos = np.array([0.3, 1.0, 3.0, 10.0]) if quick else np.geomspace(0.1, 30, 11)
+    c = part_c(ctx, n=20 if quick else 100, rhos=rhos, iterations=600 if quick else 5000)
+    final_dev = b["_finals"]["C_full"]
+    results: dict[str, Any] = {
+        "fig3_4": a,
+        "fig5": {k: v for k, v in b.items() if not k.startswith("_")},
+        "rho_sweep": {k: v for k, v in c.items() if not k.startswith("_")},
+        "final_max_deviation": final_dev,
+        "final_max_deviation_reduced": b["_finals"]["C_reduced"],
+        "headline": {
+            "Fig. 5, C={1,3,4,6,9}: iterations to 1e-6": b["C_full"]["iterations_to_1e-6"],
+            "Fig. 5, C={1,3,4,9}: iterations to 1e-6": b["C_reduced"]["iterations_to_1e-6"],
+            **{f"Fig. 5, ρ={r}: reduced C slower than full in draws (of {b['draws']})": v["reduced_slower_than_full"]
+               for r, v in b["rho_study"].items()},
+            "Fig. 5: final max_i ‖x_i − x̂‖/‖x̂‖ (C full)": final_dev,
+            "2-node: method of multipliers g(u) increasing": a["method_of_multipliers"]["dual_increasing"],
+            "2-node: ADMM z0=−7 g(u) increasing": a["admm_z0=-7"]["dual_increasing"],
+            f"{c['n_nodes']}-node net: best ρ (min cover)": c["best_rho_min_cover"],
+            f"{c['n_nodes']}-node net: iterations to 1e-6 at best ρ (min cover)":
+                min(v for v in c["iterations_to_1e-6"]["min_cover"] if v is not None),
+            f"{c['n_nodes']}-node net: final relative deviation (tol 1e-12)": c["final_run"]["relative_max_distance"],
+        },
+    }
+    ctx.write_json("results.json", results)
+    if ctx.is_root:
+        _figures(ctx, a, b, c)
+    return results
+
+
+# ----------------------------------------------------------------------------------------------- figures
+def _dual_on_grid(prob: LinearProblem, W: float, U1: np.ndarray, U2: np.ndarray) -> np.ndarray:
+    """``g(u)`` of the 2-node problem on a grid. For least squares ``g`` is an exact quadratic in ``u`` (eq. (10)
+    with the minimizers (15) linear in ``u``), so 9 evaluations of :func:`dual_function` determine it; the fit is
+    checked at a 10th point."""
+    pts = [(a, b) for a in (-1.0, 0.0, 1.0) for b in (-1.0, 0.0, 1.0)]
+
+    def basis(u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+        return np.stack([np.ones_like(u1), u1, u2, u1 * u1, u1 * u2, u2 * u2], axis=-1)
+
+    vals = np.array([dual_function(prob, np.array([[a], [b]]), W) for a, b in pts])
+    coef = np.linalg.lstsq(basis(*np.array(pts).T), vals, rcond=None)[0]
+    check = dual_function(prob, np.array([[2.5], [-1.5]]), W)
+    if abs(float(basis(np.array(2.5), np.array(-1.5)) @ coef) - check) > 1e-9 * (1 + abs(check)):
+        raise RuntimeError("the dual function is not quadratic: the grid fit failed")
+    return basis(U1, U2) @ coef
+
+
+def _figures(ctx: ExperimentContext, a: dict[str, Any], b: dict[str, Any], c: dict[str, Any]) -> None:
+    plt = pyplot()
+    prob = two_node_problem()
+    W = TWO_NODE["W"]
+    aa, RR, yy = (np.array(TWO_NODE[k]) for k in ("a", "R", "y"))
+    xh = a["x_hat"]
+    # primal plane: f1(x1) + f2(x2)
+    g1 = np.linspace(xh - 4, xh + 4, 200)
+    X1, X2 = np.meshgrid(g1, g1)
+    F = 0.5 * (yy[0] - aa[0] * X1) ** 2 / RR[0] + 0.5 * (yy[1] - aa[1] * X2) ** 2 / RR[1]
+    # dual feasibility: a1(a1 x1 − y1)/R1 + a2(a2 x2 − y2)/R2 = 0
+    x2_dual = (aa[1] * yy[1] / RR[1] - aa[0] * (aa[0] * g1 - yy[0]) / RR[0]) / (aa[1] ** 2 / RR[1])
+    styles = {"method_of_multipliers": ("o", "tab:red", "method of multipliers"),
+              "admm_z0=3": ("s", "tab:green", "ADMM, z⁰ = 3"), "admm_z0=-7": ("^", "m", "ADMM, z⁰ = −7")}
+
+    def primal_axes(ax: Any, keys: list[str]) -> None:
+        ax.contour(X1, X2, F, levels=15, colors="0.7", linewidths=0.7)
+        ax.plot(g1, g1, "b-", lw=1.2, label="primal feasibility x₁ = x₂")
+        ax.plot(g1, x2_dual, "k-", lw=1.2, label="dual feasibility")
+        for key in keys:
+            mk, col, lab = styles[key]
+            pts = np.array(a[key]["x"])
+            ax.plot(pts[:, 0], pts[:, 1], mk, color=col, ms=5, label=lab)
+        ax.plot([xh], [xh], "r*", ms=14, label="least-squares solution")
+        ax.set_xlim(g1[0], g1[-1])
+        ax.set_ylim(g1[0], g1[-1])
+        ax.set_xlabel("x₁")
+        ax.set_ylabel("x₂")
+        ax.set_aspect("equal")
+        ax.legend(fontsize=7)
+
+    # Fig. 3: method of multipliers, primal and dual planes
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    primal_axes(axes[0], ["method_of_multipliers"])
+    uh = np.array(a["u_hat"])
+    us = np.linspace(-4, 4, 81)
+    U1, U2 = np.meshgrid(uh[0] + us, uh[1] + us)
+    G = _dual_on_grid(prob, W, U1, U2)
+    axes[1].contour(U1, U2, G, levels=15, colors="0.7", linewidths=0.7, linestyles="solid")
+    upath = np.vstack([[0.0, 0.0], np.array(a["method_of_multipliers"]["u"])])
+    axes[1].plot(upath[:, 0], upath[:, 1], "o-", color="tab:red", ms=5, lw=0.8, label="u^[k−1], k = 1..")
+    axes[1].plot(*uh, "r*", ms=14, label="û")
+    axes[1].set_xlabel("u₁")
+    axes[1].set_ylabel("u₂")
+    axes[1].set_aspect("equal")
+    axes[1].legend(fontsize=7)
+    axes[1].set_title("dual function g(u) (eq. 10)")
+    axes[0].set_title("method of multipliers (eqs. 13-15)")
+    ctx.save_figure(fig, "fig3_method_of_multipliers.png")
+    # Fig. 4: MoM vs ADMM, and the dual values
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    primal_axes(axes[0], list(styles))
+    for key, (mk, col, lab) in styles.items():
+        axes[1].plot(np.arange(ITERATIONS_2D + 1), a[key]["dual_value"], mk + "-", color=col, label=lab, lw=0.8)
+    axes[1].axhline(a["optimal_value"], color="k", ls="--", lw=0.8, label="Σ f_i(x̂)")
+    axes[1].set_xlabel("iteration k (g at u^[k])")
+    axes[1].set_ylabel("g(u)")
+    axes[1].legend(fontsize=7)
+    axes[0].set_title("8 iterations from u⁰ = 0")
+    ctx.save_figure(fig, "fig4_admm_vs_multipliers.png")
+    # Fig. 5: graph with both constraint sets, and convergence
+    g: Graph = b["_graph"]
+    pos = g.positions
+    assert pos is not None
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    for ax, key, title in ((axes[0], "C_full", "C = {1,3,4,6,9}"), (axes[1], "C_reduced", "C = {1,3,4,9}")):
+        C = b["_sets"][key]
+        unused = {tuple(e) for e in C.unused_links.tolist()}
+        for i, j in g.links.tolist():
+            style = ":" if (i, j) in unused else "-"
+            ax.plot(pos[[i, j], 0], pos[[i, j], 1], style, color="tab:blue", lw=1.5)
+        mask = C.mask
+        ax.plot(pos[~mask, 0], pos[~mask, 1], "ko", ms=7)
+        ax.plot(pos[mask, 0], pos[mask, 1], "r^", ms=10)
+        for k in range(g.n_nodes):
+            ax.annotate(g.names[k], pos[k], xytext=(5, 5), textcoords="offset points")
+        ax.set_title(title + (f" (dotted: {len(unused)} unused links)" if unused else ""))
+        ax.set_aspect("equal")
+        ax.axis("off")
+    for key, col in (("C_full", "tab:red"), ("C_reduced", "tab:gray"), ("C_all", "tab:blue")):
+        curve = b["_curves"][key]
+        axes[2].semilogy(np.arange(curve.size), curve, color=col, label=f"{key}: {b[key]['iterations_to_1e-6']} it. "
+                         "to 1e-6")
+    axes[2].axhline(1e-6, color="k", ls=":", lw=0.8)
+    axes[2].set_xlabel("iteration k")
+    axes[2].set_ylabel("max_i ‖x_i − x̂‖ / ‖x̂‖")
+    axes[2].legend(fontsize=8)
+    axes[2].set_title(f"ρ = {b['rho']:g}, first of {b['draws']} random problems")
+    ctx.save_figure(fig, "fig5_constraint_nodes.png")
+    # ρ sweep + Fig. 9-like per-node curves
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for key, mk in (("all", "o-"), ("min_cover", "s-")):
+        v = [np.nan if x is None else x for x in c["iterations_to_1e-6"][key]]
+        axes[0].semilogx(c["rho"], v, mk, label=f"C = {key}")
+    axes[0].set_xlabel("ρ (W = ρI)")
+    axes[0].set_ylabel("iterations to max_i ‖x_i − x̂‖/‖x̂‖ ≤ 1e-6")
+    axes[0].legend()
+    axes[0].set_title(f"{c['n_nodes']}-node random network, p = 6, m_i = 3")
+    colours = ["tab:blue", "tab:red", "tab:orange"]
+    for (rho, dist), col in zip(c["_curves"].items(), colours, strict=False):
+        axes[1].semilogy(np.arange(dist.shape[0]), dist, color=col, lw=0.4, alpha=0.6)
+        axes[1].plot([], [], color=col, label=f"ρ = {rho}")
+    axes[1].set_xlabel("iteration k")
+    axes[1].set_ylabel("‖x_i^[k] − x̂‖ (every node)")
+    axes[1].legend()
+    ctx.save_figure(fig, "fig9_rho.png")

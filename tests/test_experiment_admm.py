@@ -1,0 +1,65 @@
+"""`distnav reproduce admm --quick`: files written, schema of results.json, and the facts of paper 000 Figs. 3–5."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from distnav.experiments.admm import fig5_graph, run, two_node_problem
+from distnav.experiments.common import ExperimentContext, Progress
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("admm")
+    ctx = ExperimentContext(out_dir=out, quick=True, progress=Progress(enabled=False))
+    return out, run(ctx)
+
+
+def test_results_schema_and_figures(quick_run):
+    out, res = quick_run
+    data = json.loads((out / "results.json").read_text())
+    for key in ("C_full", "C_reduced"):
+        assert isinstance(data["fig5"][key]["iterations_to_1e-6"], int)
+    assert isinstance(data["final_max_deviation"], float)
+    assert data["final_max_deviation"] < 1e-9  # 400 iterations at ρ = 1 on the Fig. 5 graph
+    assert isinstance(data["headline"], dict) and data["headline"]
+    for name in ("fig3_method_of_multipliers.png", "fig4_admm_vs_multipliers.png", "fig5_constraint_nodes.png",
+                 "fig9_rho.png"):
+        assert (out / name).stat().st_size > 10_000
+    assert res["fig5"]["C_reduced"]["unused_links"] == [[4, 5], [5, 6]]  # (5,6), (6,7) in the paper's numbering
+
+
+def test_two_node_illustration_facts(quick_run):
+    _, res = quick_run
+    a = res["fig3_4"]
+    # x̂ of a = (1, 2), R = I, y = (−1, 4): (1·(−1) + 2·4) / (1 + 4) = 1.4, optimum Σ f_i = ½(2.4² + 1.2²) = 3.6
+    assert a["x_hat"] == pytest.approx(1.4, abs=1e-14)
+    assert a["optimal_value"] == pytest.approx(3.6, abs=1e-12)
+    mom = a["method_of_multipliers"]
+    assert mom["dual_increasing"]  # an ascent method (eq. (14))
+    assert not a["admm_z0=-7"]["dual_increasing"]  # paper: g(u) need not increase for ADMM (magenta triangles)
+    for run_ in ("method_of_multipliers", "admm_z0=3", "admm_z0=-7"):
+        g = np.array(a[run_]["dual_value"])
+        assert g.shape == (9,) and np.all(g <= a["optimal_value"] + 1e-12)  # lower bound, eq. (11)
+        assert len(a[run_]["x"]) == 8
+    # the method of multipliers' iterates lie on the dual feasibility line a1(a1x1 − y1) + a2(a2x2 − y2) = 0
+    x = np.array(mom["x"])
+    np.testing.assert_allclose(1.0 * (x[:, 0] + 1.0) + 2.0 * (2.0 * x[:, 1] - 4.0), 0.0, atol=1e-12)
+    assert two_node_problem().n_nodes == 2
+
+
+def test_fig5_study_structure(quick_run):
+    _, res = quick_run
+    f5 = res["fig5"]
+    assert f5["C_full"]["n_unused_links"] == 0
+    assert f5["C_full"]["communication"]["messages_per_iteration"] > f5["C_reduced"]["communication"][
+        "messages_per_iteration"]
+    for row in f5["rho_study"].values():
+        assert row["reduced_slower_than_full"] + row["reduced_faster_than_full"] <= f5["draws"]
+    assert fig5_graph().n_links == 12
+    sweep = res["rho_sweep"]
+    assert sweep["final_run"]["relative_max_distance"] < 1e-9
+    assert sweep["initial_values"]["previous"]["initial_relative_distance"] < 0.1
