@@ -208,10 +208,29 @@ def test_pseudo_inverse_matches_numpy():
     info = np.stack(mats)
     inv, est = pseudo_inverse_psd(info)
     for k in range(info.shape[0]):
-        np.testing.assert_allclose(inv[k], np.linalg.pinv(info[k], rcond=1e-10, hermitian=True), atol=1e-8)
-        proj = np.eye(5) - np.linalg.pinv(info[k], rcond=1e-10) @ info[k]
+        pinv = np.linalg.pinv(info[k], rcond=1e-10, hermitian=True)
+        proj = np.eye(5) - pinv @ info[k]
         np.testing.assert_array_equal(est[k], np.diag(proj) < 1e-8)
-    assert est[0].all() and not est[2].any()
+        # a generalized inverse, equal to the pseudo-inverse on the estimable block
+        np.testing.assert_allclose(info[k] @ inv[k] @ info[k], info[k], atol=1e-8)
+        np.testing.assert_allclose(inv[k][np.ix_(est[k], est[k])], pinv[np.ix_(est[k], est[k])], atol=1e-8)
+    np.testing.assert_allclose(inv[0], np.linalg.inv(info[0]), rtol=1e-8)
+    assert est[0].all() and not est[2].any() and est[4].sum() == 0
+
+
+def test_estimability_does_not_depend_on_units():
+    # entries in wildly different units (1e-6 and 1e6): rank-deficient in entries 2-3 only
+    rng = np.random.default_rng(5)
+    A = rng.standard_normal((6, 4))
+    A[:, 3] = A[:, 2]  # entries 2 and 3 only estimable as a sum
+    D = np.diag([1e-6, 1e6, 1.0, 1.0])
+    info = (D @ A.T @ A @ D)[None]
+    inv, est = pseudo_inverse_psd(info)
+    np.testing.assert_array_equal(est[0], [True, True, False, False])
+    Dinv = np.linalg.inv(D)
+    unscaled = A.T @ A
+    ref = Dinv[:2, :2] @ np.linalg.pinv(unscaled, hermitian=True)[:2, :2] @ Dinv[:2, :2]
+    np.testing.assert_allclose(inv[0][:2, :2], ref, rtol=1e-8)
 
 
 def test_normal_equations_full_and_diagonal():

@@ -500,8 +500,10 @@ def pseudo_inverse_psd(info: np.ndarray, *, rtol: float = _RANK_RTOL) -> tuple[n
 
     Entries with zero diagonal (never observed) are dropped first; the rest is tried with a batched inverse
     (accepted when every variance-inflation factor ``(I⁻¹)_jj I_jj`` lies in [1, 1e7)) and otherwise falls back to
-    an eigen-decomposition (eigenvalues below ``rtol·λ_max`` are zero), where entry ``j`` is estimable when its
-    squared projection on the null space is below 1e-8.
+    an eigen-decomposition of the unit-diagonal scaled matrix (eigenvalues below ``rtol·λ_max`` are zero), where
+    entry ``j`` is estimable when its squared projection on the null space is below 1e-8. The returned matrix is a
+    generalized inverse (the pseudo-inverse when ``I`` is invertible or its singular part is unit-free); on the
+    estimable entries every generalized inverse gives the same estimates and variances.
     """
     k, p, _ = info.shape
     inv = np.zeros_like(info)
@@ -509,8 +511,7 @@ def pseudo_inverse_psd(info: np.ndarray, *, rtol: float = _RANK_RTOL) -> tuple[n
     if k == 0:
         return inv, est
     d = np.diagonal(info, axis1=1, axis2=2)
-    dmax = d.max(axis=1, keepdims=True)
-    seen = (d > 1e-14 * dmax) & (dmax > 0)
+    seen = d > 0  # exactly zero: no information ever (structural); the rest is decided scale-free below
     if seen.all():
         return _inv_or_pinv(info, rtol)
     if (seen == seen[0]).all():
@@ -540,10 +541,16 @@ def _inv_or_pinv(sub: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray]:
             return 0.5 * (inv + np.swapaxes(inv, 1, 2)), np.ones((k, m), bool)
     except np.linalg.LinAlgError:
         pass
-    w, U = np.linalg.eigh(sub)
+    # eigen-decomposition of the scaled matrix C = D^-1/2 I D^-1/2 (unit diagonal): the rank decision does not
+    # depend on the units of the state entries. G = D^-1/2 C⁺ D^-1/2 is a generalized inverse of I, and for
+    # estimable entries e_kᵀ G i and e_kᵀ G Q G e_k do not depend on which generalized inverse is used.
+    dsq = np.sqrt(np.diagonal(sub, axis1=1, axis2=2))
+    scale = 1.0 / np.where(dsq > 0, dsq, 1.0)
+    C = sub * scale[:, :, None] * scale[:, None, :]
+    w, U = np.linalg.eigh(C)
     keep = w > rtol * np.maximum(w[:, -1:], 1e-300)
     winv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
-    inv = (U * winv[:, None, :]) @ np.swapaxes(U, 1, 2)
+    inv = ((U * winv[:, None, :]) @ np.swapaxes(U, 1, 2)) * scale[:, :, None] * scale[:, None, :]
     null_proj = np.einsum("kij,kj->ki", U**2, (~keep).astype(float))
     return inv, null_proj < _EST_TOL
 
