@@ -203,7 +203,7 @@ class _Kernel:
         self.size_c = self.size_s * self.inC_loc
         self.count_f = self.count.astype(float)
 
-    def run(self, x0: np.ndarray, z0: np.ndarray) -> Iterator[AdmmState]:
+    def run(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int = 1) -> Iterator[AdmmState]:
         ex = self.ex
         cm = self.inC_loc[:, None].astype(float)  # 1 on constraint-node rows
         inv_count = 1.0 / self.count[:, None]
@@ -246,7 +246,10 @@ class _Kernel:
             self._hold(z_recv, inbox.values, inbox.delivered, self.ip)
             diff_pair = x[self.pair_dst] - z_recv
             diff_self = (x - z) * cm
-            yield self._state(k, x, z, diff_pair, diff_self, dz, u_pair, u_self)
+            if monitor_every and k % monitor_every == 0:
+                yield self._state(k, x, z, diff_pair, diff_self, dz, u_pair, u_self)
+            else:
+                yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
 
     def run_aggregated(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int) -> Iterator[AdmmState]:
         """Fig. 6 with aggregated messages: node ``i`` broadcasts ``x_i`` to its constraint neighbours instead of
@@ -445,8 +448,8 @@ def iterate_admm(
     ``U_i = Σ_s u_{i,s}``, constraint node ``V_s = Σ_i u_{i,s}``): the same iterates without faults, the same number of
     messages, but no per-pair state — several times faster on large networks. It refuses a fault schedule: a lost
     message corrupts the sums for good, while the per-pair form (holding the last value received) still converges
-    to the BLUE. ``monitor_every`` (aggregated
-    only): compute residuals every that many iterations (others yield NaN residuals; 0 = never).
+    to the BLUE. ``monitor_every``: compute the residuals (network totals, monitoring only) every that many
+    iterations; the others yield NaN residuals (0 = never).
     """
     if messages not in ("pairs", "aggregated"):
         raise ModelError(f"messages must be 'pairs' or 'aggregated', got {messages!r}")
@@ -472,7 +475,7 @@ def iterate_admm(
                          "converges to a wrong point); use messages='pairs' with a fault schedule")
     kernel = _Kernel(ex, C, Wm, p, xu)
     if messages == "pairs":
-        yield from kernel.run(x0[ex.nodes], zz0[ex.nodes])
+        yield from kernel.run(x0[ex.nodes], zz0[ex.nodes], monitor_every)
     else:
         yield from kernel.run_aggregated(x0[ex.nodes], zz0[ex.nodes], monitor_every)
 
