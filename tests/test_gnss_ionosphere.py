@@ -261,3 +261,107 @@ def test_validation_errors():
     with pytest.raises(ModelError, match="reference must be"):
         differenced_observations(GeometryFreeSeries(layout, np.zeros((1, 1, 3, 3)), np.ones((1, 1, 3))),
                                  reference="best")
+
+
+# ----------------------------------------------------------------------------------------------- real data command
+def _parser():
+    import argparse
+
+    from distnav.commands.gnss_ionosphere import add_ionosphere_parser
+
+    ap = argparse.ArgumentParser(prog="distnav gnss")
+    add_ionosphere_parser(ap.add_subparsers())
+    return ap
+
+
+def _nl(shared_data):
+    d = shared_data / "gnss" / "nl_2021001_short_network_snapshot"
+    obs = [str(d / f) for f in ("delf0010.21o", "eijs0010.21d", "wsra0010.21o", "zegv0010.21o", "rovn0010.21o")]
+    return d, obs
+
+
+def test_command_dutch_network_ckf_equals_central(shared_data, tmp_path):
+    import csv
+    import json
+
+    d, obs = _nl(shared_data)
+    args = _parser().parse_args(["ionosphere", "--obs", *obs, "--nav", str(d / "cbw10010.21n.gz"),
+                                 "--nav-max-age", "24", "--kn", "60", "--out", str(tmp_path), "--no-progress"])
+    assert args.func(args) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["stations"] == ["DELF", "EIJS", "WSRA", "ZEGV", "ROVN"]
+    assert summary["pivot"] == "G10" and summary["ionosphere"] == "common"
+    assert summary["codes"] == {"L1": "C1C", "L2": "C2W"}
+    tec = summary["final_tec_m"]
+    v = tec["central"]["vtec_m"]
+    assert 0.0 < v[0] < 3.0  # night-time winter TEC over the Netherlands: a few TECU (0.16 m/TECU)
+    # 60 consensus rounds on this 5-node graph reach the average: every CKF equals the central filter
+    for s in summary["stations"]:
+        np.testing.assert_allclose(tec[f"ckf:{s}"]["vtec_m"], v, rtol=1e-4)
+    with (tmp_path / "dcb_final.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == len(summary["satellites"]) - 1
+    for r in rows:
+        if r["central dcb_ns"]:
+            assert float(r["ckf:DELF dcb_ns"]) == pytest.approx(float(r["central dcb_ns"]), abs=1e-3)
+    with (tmp_path / "tec_dcb_per_epoch.csv").open() as fh:
+        head = fh.readline().strip().split(",")
+    assert head == ["time_gps", "filter", "parameter", "value", "std"]
+
+
+def test_command_bele_dgar_against_cas(shared_data, tmp_path):
+    import json
+
+    d = shared_data / "gnss" / "igs_2024010_bele_dgar"
+    args = _parser().parse_args([
+        "ionosphere", "--obs", str(d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"), str(d / "dgar0100.24o.gz"),
+        "--nav", str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"), "--tlim", "2024-01-10T00:00",
+        "2024-01-10T02:00", "--interval", "120", "--bias", str(d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"),
+        "--out", str(tmp_path), "--no-progress"])
+    assert args.func(args) == 0
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["ionosphere"] == "per-receiver" and s["graph_links"] == [["BELE", "DGAR"]]
+    comp = next(iter(s["comparison"].values()))["central"]
+    assert comp["n"] >= 15
+    ref = np.array([comp["reference_ns"][k] for k in comp["difference_ns"]])
+    est = ref + np.array(list(comp["difference_ns"].values()))
+    # two hours of code data from two stations: the DCBs follow CAS's (spread ≈ 5 ns) to a few ns
+    assert np.corrcoef(ref, est)[0, 1] > 0.6
+    assert comp["rms_zero_mean_ns"] < 6.0
+
+
+def test_command_errors(shared_data, tmp_path):
+    from distnav.commands.gnss_ionosphere import network_data, network_model
+    from distnav.errors import DataFileError, ModelError
+    from distnav.models.gnss.rinex import read_navigation
+
+    d, obs = _nl(shared_data)
+    nav = read_navigation(d / "cbw10010.21n.gz", max_age_s=24 * 3600.0)
+    with pytest.raises(DataFileError, match="delf0010.21o: no L2 code observation"):
+        network_data(obs[:1], nav, l2_code="C2L")
+    bad = tmp_path / "junk0010.21o"
+    bad.write_text("this is not RINEX\n")
+    with pytest.raises(DataFileError, match="junk0010.21o"):
+        network_data([str(bad)], nav)
+    with pytest.raises(DataFileError, match="station DELF is given twice"):
+        network_data([obs[0], obs[0]], nav)
+    bele_nav = read_navigation(shared_data / "gnss" / "igs_2024010_bele_dgar" / "brdc0100.24n.gz")
+    with pytest.raises(ModelError, match="no satellite position at the observation epochs"):
+        network_data(obs[:1], bele_nav)
+    with pytest.raises(DataFileError, match="bias.txt: neither a Bias-SINEX file"):
+        from distnav.commands.gnss_ionosphere import product_dcbs
+
+        (tmp_path / "bias.txt").write_text("nothing\n")
+        product_dcbs([tmp_path / "bias.txt"], ["G01"], "C1C", "C2W")
+    # two stations that never track a common satellite share no parameter
+    data = network_data(obs[:2], nav)
+    t = data.t_gps_s[:3]
+    gf = np.full((3, 2, 4), np.nan)
+    vis = np.asarray(data.geometry.tracked[:3].any(axis=1).all(axis=0))
+    svs = [s for s, v in zip(data.layout.svs, vis.tolist(), strict=True) if v][:4]
+    gf[:, 0, :2] = 5.0
+    gf[:, 1, 2:] = 5.0
+    with pytest.raises(ModelError, match="no satellite is tracked by two or more stations"):
+        network_model(data.stations, t, data.positions_ecef_m, gf, svs, nav)
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["ionosphere", "--obs", obs[0]])  # neither --nav nor --sp3

@@ -291,18 +291,33 @@ class IonosphereStateLayout:
         return names + [f"dcb_gf_m:{s}-{self.pivot}" for s in self.dcb_svs]
 
 
-def ionosphere_dynamics(layout: IonosphereStateLayout, interval_s: float, *,
+def ionosphere_dynamics(layout: IonosphereStateLayout, interval_s: float | np.ndarray, *,
                         vtec_std_m_per_sqrt_s: float = VTEC_RW_STD_M_PER_SQRT_S,
                         gradient_std_m_per_rad_sqrt_s: float = GRADIENT_RW_STD_M_PER_RAD_SQRT_S) -> DynamicModel:
     """Paper 003 eq. (53): ``Φ = I``; random walk on every ionosphere's ν_o, ν_φ, ν_ψ with variances
     ``q² Δ`` per epoch (q = 1 mm/√s, 5 mm/rad/√s), DCBs constant. ``S = H S̃ Hᵀ`` with ``H`` the TEC columns
-    (eq. (20)): the system noise is singular."""
-    if not (np.isfinite(interval_s) and interval_s > 0):
-        raise ModelError(f"the sampling interval must be positive, got {interval_s} s")
-    q = np.tile([vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s],
-                layout.n_ionospheres)
+    (eq. (20)): the system noise is singular.
+
+    ``interval_s`` is the sampling interval Δ, or one interval per epoch (entry ``t`` = time from epoch ``t−1`` to
+    ``t``; entry 0 unused) for an irregular epoch grid (real data with gaps).
+    """
+    q2 = np.tile([vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s],
+                 layout.n_ionospheres) ** 2
     p = layout.n_states
-    return DynamicModel(p, noise_map=np.eye(p)[:, :layout.n_tec], noise_reduced_cov=np.diag(q**2 * interval_s))
+    H = np.eye(p)[:, :layout.n_tec]
+    dt = np.asarray(interval_s, dtype=float)
+    if dt.ndim == 0:
+        if not (np.isfinite(dt) and dt > 0):
+            raise ModelError(f"the sampling interval must be positive, got {interval_s} s")
+        return DynamicModel(p, noise_map=H, noise_reduced_cov=np.diag(q2 * float(dt)))
+    if dt.ndim != 1 or dt.size < 1:
+        raise ModelError(f"interval_s must be a number or one interval per epoch, got shape {dt.shape}")
+    steps = dt[1:]
+    if not np.all(np.isfinite(steps) & (steps > 0)):
+        bad = int(np.flatnonzero(~(np.isfinite(steps) & (steps > 0)))[0]) + 1
+        raise ModelError(f"the interval before epoch {bad} is {dt[bad]} s; intervals must be positive")
+    dts = np.concatenate([[steps[0] if steps.size else 1.0], steps])
+    return DynamicModel(p, noise_map=[H] * dt.size, noise_reduced_cov=[np.diag(q2 * d) for d in dts])
 
 
 def choose_pivot(svs: Sequence[str], tracked: np.ndarray, preferred: str | None = "G10") -> str:
