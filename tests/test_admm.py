@@ -273,3 +273,19 @@ def test_range_model_validation():
     with pytest.raises(ModelError, match="x0 must be a length-2"):
         gauss_newton(prob, np.zeros(3))
     assert g.n_nodes == 2
+
+
+def test_nonlinear_problem_validation():
+    from distnav.algorithms.admm import NonlinearProblem, RangeModel
+
+    with pytest.raises(ModelError, match="node positions must be"):
+        RangeModel(np.zeros(3), 1)
+    with pytest.raises(ModelError, match="n_targets must be"):
+        RangeModel(np.zeros((3, 2)), 0)
+    model = RangeModel(np.zeros((3, 2)), 1)
+    with pytest.raises(ModelError, match="y must be"):
+        NonlinearProblem(model, np.zeros((3, 1)), np.ones((3, 2, 2)))
+    with pytest.raises(ModelError, match="node 1: observations are not finite"):
+        NonlinearProblem(model, np.array([[1.0], [np.nan], [1.0]]), np.ones((3, 1, 1)))
+    with pytest.raises(ModelError, match="node 2: R_i is not positive definite"):
+        NonlinearProblem(model, np.ones((3, 1)), np.array([[[1.0]], [[1.0]], [[-1.0]]]))
