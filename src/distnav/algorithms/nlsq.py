@@ -1,0 +1,484 @@
+"""Global (centralized) nonlinear least squares: Levenberg–Marquardt with Fletcher's scaling (paper 002 eq. (8)).
+
+:func:`levenberg_marquardt` is generic: it minimises ``Σ_l ρ_l(g_l(x))`` for a residual function ``g`` with a
+(sparse or dense) Jacobian ``G``. The update of paper 002 eq. (8),
+
+    x_{k+1} = x_k − (GᵀG + λ_k diag(GᵀG))⁻¹ Gᵀ g,
+
+uses Fletcher's (1971) scaling (the damping is proportional to the diagonal of ``GᵀG``, so every coordinate is
+damped by its own sensitivity). ``λ`` follows the gain ratio ``ρ = actual / predicted`` reduction (Nielsen's
+rule: on success ``λ ← λ·max(1/3, 1 − (2ρ − 1)³)``, on failure ``λ ← λ·ν``, ``ν ← 2ν``). One *iteration* is one
+trial step (one linear solve); a rejected step leaves ``x`` unchanged.
+
+Robust losses (``"huber"``, ``"cauchy"``) are handled by iteratively reweighted least squares inside LM: at the
+current point every residual gets the weight ``w_l = ρ'((g_l/s_l)²)``, the step minimises ``Σ w_l (g_l + G_l δ)²``,
+and acceptance is judged on the robust objective ``F = Σ s_l² ρ((g_l/s_l)²)`` (scipy's convention:
+Huber ``ρ(z) = z`` for ``z ≤ 1`` else ``2√z − 1``; Cauchy ``ρ(z) = ln(1 + z)``). The gradients of the weighted
+model and of ``F`` agree, so the fixed points are those of ``F``.
+
+:func:`solve_lm` applies it to a UWB ranging problem (:mod:`distnav.models.uwb.problems`, duck-typed here so
+``algorithms`` does not import ``models``) and returns the common :class:`~distnav.algorithms.result.SolverResult`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.errors import ModelError
+from distnav.exchange.base import CommTotals
+
+__all__ = ["single_threaded_blas", "levenberg_marquardt", "LMResult", "solve_lm", "RangingLike", "LOSSES",
+           "robust_weights", "range_loss_scale"]
+
+LOSSES = ("linear", "huber", "cauchy")
+
+
+def _openblas_handles() -> list[tuple[Any, Any]]:
+    """(set, get) thread-count functions of the OpenBLAS copies loaded by numpy and scipy (empty if none)."""
+    import ctypes
+    import glob
+    import os
+
+    out: list[tuple[Any, Any]] = []
+    for pkg in ("numpy", "scipy"):
+        try:
+            mod = __import__(pkg)
+        except ImportError:  # pragma: no cover
+            continue
+        libdir = os.path.join(os.path.dirname(os.path.dirname(mod.__file__ or "")), f"{pkg}.libs")
+        for path in glob.glob(os.path.join(libdir, "libscipy_openblas*.so*")):
+            try:
+                lib = ctypes.CDLL(path)
+            except OSError:  # pragma: no cover
+                continue
+            for suffix in ("64_", ""):
+                setter = getattr(lib, f"scipy_openblas_set_num_threads{suffix}", None)
+                getter = getattr(lib, f"scipy_openblas_get_num_threads{suffix}", None)
+                if setter is not None and getter is not None:
+                    setter.argtypes = [ctypes.c_int]
+                    getter.restype = ctypes.c_int
+                    out.append((setter, getter))
+                    break
+    return out
+
+
+_BLAS: list[tuple[Any, Any]] | None = None
+
+
+@contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """Run the block with OpenBLAS limited to one thread (restored afterwards).
+
+    The UWB solvers factorise many small matrices; on a loaded 2-core machine OpenBLAS's worker threads make a
+    290×290 banded Cholesky 100× slower (measured: 47 ms instead of 0.4 ms). A no-op where OpenBLAS is not found.
+    """
+    global _BLAS
+    if _BLAS is None:
+        try:
+            _BLAS = _openblas_handles()
+        except Exception:  # pragma: no cover - never let a speed tweak break a solve
+            _BLAS = []
+    saved = []
+    for setter, getter in _BLAS:
+        try:
+            saved.append((setter, int(getter())))
+            setter(1)
+        except Exception:  # pragma: no cover
+            pass
+    try:
+        yield
+    finally:
+        for setter, n in saved:
+            setter(n)
+
+
+class RangingLike(Protocol):
+    """What the UWB solvers need from a ranging problem (see :class:`distnav.models.uwb.problems.RangingProblem`)."""
+
+    ids: tuple[str, ...]
+    dim: int
+    positions_m: np.ndarray
+    free: np.ndarray
+    meas_a: np.ndarray
+    meas_b: np.ndarray
+    range_m: np.ndarray
+    truth_m: np.ndarray | None
+    initial_m: np.ndarray | None
+
+    @property
+    def n_anchors(self) -> int: ...
+    @property
+    def n_free(self) -> int: ...
+    @property
+    def estimated(self) -> np.ndarray: ...
+    @property
+    def range_sq(self) -> np.ndarray: ...
+    @property
+    def graph(self) -> Any: ...
+    def to_vector(self, positions_m: np.ndarray) -> np.ndarray: ...
+    def to_positions(self, x: np.ndarray) -> np.ndarray: ...
+    def residuals(self, positions_m: np.ndarray) -> np.ndarray: ...
+    def cost(self, positions_m: np.ndarray) -> float: ...
+    def jacobian(self, positions_m: np.ndarray) -> sp.csr_matrix: ...
+
+
+def robust_weights(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple[np.ndarray, float]:
+    """Per-residual IRLS weights ``ρ'((g/s)²)`` and the objective ``Σ s² ρ((g/s)²)`` (linear: 1 and ``Σ g²``)."""
+    if loss == "linear":
+        return np.ones_like(g), float(g @ g)
+    s = np.broadcast_to(np.asarray(scale, float), g.shape)
+    z = (g / s) ** 2
+    if loss == "huber":
+        small = z <= 1.0
+        rz = np.where(small, z, 2.0 * np.sqrt(z) - 1.0)
+        w = np.where(small, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))
+    elif loss == "cauchy":
+        rz = np.log1p(z)
+        w = 1.0 / (1.0 + z)
+    else:
+        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    return w, float(np.sum(s * s * rz))
+
+
+@dataclass(frozen=True)
+class LMResult:
+    """Outcome of :func:`levenberg_marquardt` (``cost`` is ``Σ g²``; ``objective`` the robust ``F``)."""
+
+    x: np.ndarray
+    cost: float
+    objective: float
+    iterations: int
+    converged: bool
+    message: str
+    trace: dict[str, np.ndarray]
+
+
+class _DampedSolver:
+    """Solves ``(A + λ diag(A)) δ = b`` for the normal matrix ``A = GᵀWG`` of one fixed sparsity pattern.
+
+    Sparse Jacobians: the unknowns are reordered by reverse Cuthill–McKee (structural pattern of ``|G|ᵀ|G|``) and
+    the damped matrix is factorised in LAPACK's banded Cholesky when the band is narrow (anchor networks are
+    geometric graphs, so it is); otherwise a dense Cholesky (small problems) or SuperLU (large ones).
+    """
+
+    def __init__(self, jac0: Any, dense_limit: int) -> None:
+        n = jac0.shape[1]
+        self.n = n
+        self.mode = "dense"
+        if sp.issparse(jac0) and n > 0:
+            pat = sp.csr_matrix((np.ones(jac0.nnz), jac0.indices, jac0.indptr), shape=jac0.shape)
+            struct = (pat.T @ pat).tocsr()
+            perm = np.asarray(reverse_cuthill_mckee(struct, symmetric_mode=True), np.int64)
+            inv = np.empty(n, np.int64)
+            inv[perm] = np.arange(n)
+            coo = struct.tocoo()
+            band = int(np.max(np.abs(inv[coo.row] - inv[coo.col]), initial=0))
+            self.perm, self.inv, self.band = perm, inv, band
+            if band <= max(8, n // 4):
+                self.mode = "banded"
+            elif n > dense_limit:
+                self.mode = "sparse"
+
+    def _pairs(self, jac: sp.csr_matrix) -> None:
+        """Precompute, for a fixed CSR pattern of ``G``, where every product ``G_lp G_lq`` lands in ``GᵀWG``."""
+        m = jac.shape[0]
+        counts = np.diff(jac.indptr)
+        rows = np.repeat(np.arange(m), counts)
+        # all ordered pairs (p, q) of stored entries within each row
+        ps, qs = [], []
+        for c in np.unique(counts):
+            rsel = np.flatnonzero(counts == c)
+            if c == 0 or rsel.size == 0:
+                continue
+            base = jac.indptr[rsel][:, None]
+            a_idx, b_idx = np.meshgrid(np.arange(c), np.arange(c), indexing="ij")
+            ps.append((base + a_idx.ravel()[None, :]).ravel())
+            qs.append((base + b_idx.ravel()[None, :]).ravel())
+        p = np.concatenate(ps) if ps else np.zeros(0, np.int64)
+        q = np.concatenate(qs) if qs else np.zeros(0, np.int64)
+        if self.mode == "banded":
+            r, c = self.inv[jac.indices[p]], self.inv[jac.indices[q]]
+            keep = r <= c
+            self._target = (self.band + r[keep] - c[keep]) * self.n + c[keep]
+            self._size = (self.band + 1) * self.n
+        else:
+            keep = np.ones(p.size, bool)
+            self._target = jac.indices[p] * self.n + jac.indices[q]
+            self._size = self.n * self.n
+        self._p, self._q, self._prow = p[keep], q[keep], rows[p[keep]]
+        self._rows = rows
+        self._pattern = (jac.indptr.copy(), jac.indices.copy())
+
+    def normal(self, jac: Any, w: np.ndarray | None, g: np.ndarray) -> tuple[Any, np.ndarray]:
+        """``(GᵀWG, GᵀWg)``, the matrix in the form :meth:`solve` needs (banded storage, dense or sparse)."""
+        if sp.issparse(jac) and self.mode in ("banded", "dense"):
+            jac = jac.tocsr()
+            pat = getattr(self, "_pattern", None)
+            if pat is None or pat[0].size != jac.indptr.size or pat[1].size != jac.indices.size or not (
+                    np.array_equal(pat[0], jac.indptr) and np.array_equal(pat[1], jac.indices)):
+                self._pairs(jac)
+            d = jac.data
+            prod = d[self._p] * d[self._q]
+            wd = d if w is None else d * w[self._rows]
+            if w is not None:
+                prod = prod * w[self._prow]
+            a = np.bincount(self._target, prod, minlength=self._size)
+            grad = np.bincount(jac.indices, wd * g[self._rows], minlength=self.n)
+            if self.mode == "banded":
+                return a.reshape(self.band + 1, self.n), grad
+            return a.reshape(self.n, self.n), grad
+        jw = jac if w is None else (jac.multiply(w[:, None]).tocsr() if sp.issparse(jac) else jac * w[:, None])
+        a = jw.T @ jac
+        if self.mode == "dense":
+            a = a.toarray() if sp.issparse(a) else np.asarray(a)
+        else:
+            a = sp.csr_matrix(a)
+        return a, np.asarray(jw.T @ g).ravel()
+
+    def solve(self, a: Any, b: np.ndarray, lam: float) -> np.ndarray | None:
+        if self.mode == "banded":
+            d = a[self.band]
+            floor = 1e-12 * max(float(d.max(initial=0.0)), 1e-300)
+            ab = a.copy()
+            ab[self.band] = d + lam * np.maximum(d, floor)
+            try:
+                out = sla.solveh_banded(ab, b[self.perm], lower=False, check_finite=False)
+            except (np.linalg.LinAlgError, ValueError):
+                return None
+            res = np.empty(self.n)
+            res[self.perm] = out
+            return res if np.all(np.isfinite(res)) else None
+        if self.mode == "dense":
+            d = np.diag(a).copy()
+            floor = 1e-12 * max(float(d.max(initial=0.0)), 1e-300)
+            m = a + np.diag(lam * np.maximum(d, floor))
+            try:
+                return np.asarray(sla.cho_solve(sla.cho_factor(m, check_finite=False), b, check_finite=False))
+            except (np.linalg.LinAlgError, ValueError):
+                return None
+        d = a.diagonal()
+        floor = 1e-12 * max(float(d.max(initial=0.0)), 1e-300)
+        m = (a + sp.diags(lam * np.maximum(d, floor))).tocsc()
+        try:
+            out = spla.spsolve(m, b)
+        except RuntimeError:
+            return None
+        return None if not np.all(np.isfinite(out)) else np.asarray(out)
+
+
+def levenberg_marquardt(
+    fun: Callable[[np.ndarray], np.ndarray],
+    jac: Callable[[np.ndarray], Any],
+    x0: np.ndarray,
+    *,
+    max_iterations: int = 500,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    gtol: float = 1e-12,
+    lambda0: float = 1e-3,
+    loss: str = "linear",
+    loss_scale: np.ndarray | float = 1.0,
+    callback: Callable[[int, np.ndarray], None] | None = None,
+    dense_limit: int = 200,
+) -> LMResult:
+    """Minimise ``Σ ρ(g(x))`` by Levenberg–Marquardt with Fletcher scaling (paper 002 eq. (8)); see module docstring.
+
+    Stops when an accepted step reduces the objective by less than ``ftol`` (relative, actual and predicted),
+    when the step is below ``xtol·(‖x‖ + xtol)``, when ``max |Gᵀg| / (‖G_col‖ ‖g‖) ≤ gtol`` (MINPACK's cosine
+    test), or after ``max_iterations`` trial steps. ``callback(k, x)`` is called after every iteration.
+    """
+    with single_threaded_blas():
+        return _lm_impl(fun, jac, x0, max_iterations=max_iterations, ftol=ftol, xtol=xtol, gtol=gtol,
+                        lambda0=lambda0, loss=loss, loss_scale=loss_scale, callback=callback, dense_limit=dense_limit)
+
+
+def _lm_impl(
+    fun: Callable[[np.ndarray], np.ndarray],
+    jac: Callable[[np.ndarray], Any],
+    x0: np.ndarray,
+    *,
+    max_iterations: int = 500,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    gtol: float = 1e-12,
+    lambda0: float = 1e-3,
+    loss: str = "linear",
+    loss_scale: np.ndarray | float = 1.0,
+    callback: Callable[[int, np.ndarray], None] | None = None,
+    dense_limit: int = 200,
+) -> LMResult:
+    """Implementation of :func:`levenberg_marquardt`."""
+    if loss not in LOSSES:
+        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    if max_iterations < 0:
+        raise ModelError(f"max_iterations must be ≥ 0, got {max_iterations}")
+    x = np.array(x0, dtype=float)
+    g = np.asarray(fun(x), float)
+    w, obj = robust_weights(g, loss_scale, loss)
+    lam, nu = float(lambda0), 2.0
+    tb: dict[str, list[float]] = {"cost": [], "objective": [], "step_norm": [], "lambda": [], "accepted": []}
+
+    def normal(jm: Any, w_: np.ndarray, g_: np.ndarray) -> tuple[Any, np.ndarray]:
+        return solver.normal(jm, None if loss == "linear" else w_, g_)
+
+    J = jac(x)
+    solver = _DampedSolver(J, dense_limit)
+    A, grad = normal(J, w, g)
+    converged, message, k = False, f"stopped after {max_iterations} iterations", 0
+    if x.size == 0:
+        converged, message = True, "nothing to estimate"
+    for k in range(1, max_iterations + 1):
+        if converged:
+            k -= 1
+            break
+        delta = solver.solve(A, -grad, lam)
+        if delta is None:
+            lam *= nu
+            nu *= 2.0
+            tb["cost"].append(float(g @ g))
+            tb["objective"].append(obj)
+            tb["step_norm"].append(0.0)
+            tb["lambda"].append(lam)
+            tb["accepted"].append(0.0)
+            continue
+        jd = np.asarray(J @ delta).ravel()
+        pred = float(np.sum(w * g * g) - np.sum(w * (g + jd) ** 2))
+        x_new = x + delta
+        g_new = np.asarray(fun(x_new), float)
+        w_new, obj_new = robust_weights(g_new, loss_scale, loss)
+        actual = obj - obj_new
+        rho = actual / pred if pred > 0 else -1.0
+        step = float(np.linalg.norm(delta))
+        accepted = rho > 0 and np.isfinite(obj_new)
+        if accepted:
+            x, g, w, obj_old, obj = x_new, g_new, w_new, obj, obj_new
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            J = jac(x)
+            A, grad = normal(J, w, g)
+            if actual <= ftol * obj_old and pred <= ftol * obj_old:
+                converged, message = True, f"relative reduction below ftol={ftol:g}"
+            elif step <= xtol * (xtol + float(np.linalg.norm(x))):
+                converged, message = True, f"step below xtol={xtol:g}"
+            else:
+                gnorm = float(np.linalg.norm(g))
+                if gnorm == 0.0:
+                    converged, message = True, "zero residual"
+                else:
+                    if sp.issparse(J):
+                        jc = J.tocsr()
+                        colnorm = np.sqrt(np.bincount(jc.indices, jc.data**2, minlength=x.size))
+                    else:
+                        colnorm = np.linalg.norm(J, axis=0)
+                    cos = np.abs(grad) / np.maximum(colnorm * gnorm, 1e-300)
+                    if float(cos.max(initial=0.0)) <= gtol:
+                        converged, message = True, f"gradient below gtol={gtol:g}"
+        else:
+            lam *= nu
+            nu *= 2.0
+            if step <= xtol * (xtol + float(np.linalg.norm(x))):
+                converged, message = True, f"step below xtol={xtol:g} (rejected)"
+        tb["cost"].append(float(g @ g))
+        tb["objective"].append(obj)
+        tb["step_norm"].append(step if accepted else 0.0)
+        tb["lambda"].append(lam)
+        tb["accepted"].append(1.0 if accepted else 0.0)
+        if callback is not None:
+            callback(k, x)
+    else:
+        k = max_iterations
+    return LMResult(x=x, cost=float(g @ g), objective=obj, iterations=k, converged=converged, message=message,
+                    trace={key: np.asarray(v) for key, v in tb.items()})
+
+
+def range_loss_scale(problem: RangingLike, loss_scale_m: float) -> np.ndarray:
+    """Residual scale ``s_l = 2 d_l σ`` of ``g_l = ‖r_a − r_b‖² − d_l²`` for a range error of ``σ`` metres
+    (``g ≈ 2 d (‖r_a − r_b‖ − d)``), so the robust loss switches at range errors of about ``loss_scale_m``."""
+    if not loss_scale_m > 0:
+        raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
+    return 2.0 * np.maximum(problem.range_m, loss_scale_m) * loss_scale_m
+
+
+def solve_lm(
+    problem: RangingLike,
+    *,
+    initial_m: np.ndarray | None = None,
+    max_iterations: int = 500,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    gtol: float = 1e-12,
+    lambda0: float = 1e-3,
+    loss: str = "linear",
+    loss_scale_m: float = 0.3,
+    pad_trace: bool = False,
+) -> SolverResult:
+    """Global LM (paper 002 eq. (8), Fletcher scaling) on a ranging problem; returns a :class:`SolverResult`.
+
+    ``estimates`` are the ``(n, dim)`` anchor positions. Trace (one row per iteration, plus row 0 = start):
+    ``cost`` (``f`` of eq. (2)), ``objective`` (robust ``F``), ``rmse_m`` (eq. (24), when the truth is known),
+    ``step_size`` (‖δ‖, 0 for a rejected step), ``lambda``. With ``pad_trace`` the trace is extended to
+    ``max_iterations`` rows by repeating the final state (for averaging runs that stopped early).
+    ``loss`` = ``"huber"``/``"cauchy"`` down-weights ranges off by more than about ``loss_scale_m`` (NLOS).
+    No messages are counted: gathering the ranges at a centre is not modelled (``comm`` is empty).
+    """
+    init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
+    if init is None:
+        raise ModelError("global LM needs an initial guess (problem.initial_m or initial_m=)")
+    x0 = problem.to_vector(init)
+    truth = problem.truth_m
+    est = problem.estimated
+    scale = range_loss_scale(problem, loss_scale_m) if loss != "linear" else 1.0
+    rm: list[float] = []
+
+    def rmse(x: np.ndarray) -> float:
+        if truth is None:
+            return float("nan")
+        d = problem.to_positions(x)[est] - truth[est]
+        return float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d)))) if est.any() else 0.0
+
+    rm.append(rmse(x0))
+    res = levenberg_marquardt(
+        lambda x: problem.residuals(problem.to_positions(x)),
+        lambda x: problem.jacobian(problem.to_positions(x)),
+        x0, max_iterations=max_iterations, ftol=ftol, xtol=xtol, gtol=gtol, lambda0=lambda0, loss=loss,
+        loss_scale=scale, callback=(lambda k, x: rm.append(rmse(x))) if truth is not None else None,
+    )
+    g0 = problem.residuals(init)
+    tr = res.trace
+    cost = np.concatenate([[float(g0 @ g0)], tr["cost"]])
+    obj0 = robust_weights(g0, scale, loss)[1]
+    objective = np.concatenate([[obj0], tr["objective"]])
+    step = np.concatenate([[0.0], tr["step_norm"]])
+    lam = np.concatenate([[lambda0], tr["lambda"]])
+    rmse_tr = np.asarray(rm) if truth is not None else np.full(cost.size, np.nan)
+    if pad_trace and cost.size < max_iterations + 1:
+        pad = max_iterations + 1 - cost.size
+        cost = np.concatenate([cost, np.full(pad, cost[-1])])
+        objective = np.concatenate([objective, np.full(pad, objective[-1])])
+        step = np.concatenate([step, np.zeros(pad)])
+        lam = np.concatenate([lam, np.full(pad, lam[-1])])
+        rmse_tr = np.concatenate([rmse_tr, np.full(pad, rmse_tr[-1])])
+    tbld = TraceBuilder()
+    for i in range(cost.size):
+        tbld.add(cost=cost[i], objective=objective[i], rmse_m=rmse_tr[i], step_size=step[i], **{"lambda": lam[i]})
+    pos = problem.to_positions(res.x)
+    return SolverResult(
+        estimates=pos,
+        converged=res.converged,
+        iterations=res.iterations,
+        status="converged" if res.converged else "max_iterations",
+        message=f"LM: {res.message}; cost {res.cost:.6g}",
+        trace=tbld.build(),
+        comm=CommTotals.empty(problem.n_anchors),
+        extras={"solver": "LM", "cost": res.cost, "objective": res.objective, "x": res.x, "loss": loss},
+    )
