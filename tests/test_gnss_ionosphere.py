@@ -93,10 +93,10 @@ def test_geometry_mask_and_coefficients_consistent():
 
 
 # ----------------------------------------------------------------------------------------------- normals
-def _random_series(rng, with_obs=True, pivot_seen=True):
+def _random_series(rng, with_obs=True, pivot_seen=True, per_receiver=False):
     T, n, S = 4, 3, 7
     svs = tuple(f"G{k:02d}" for k in range(1, S + 1))
-    layout = IonosphereStateLayout(svs, "G03")
+    layout = IonosphereStateLayout(svs, "G03", n_ionospheres=3 if per_receiver else 1)
     coef = rng.normal(size=(T, n, S, 3))
     sig = rng.uniform(0.5, 3.0, size=(T, n, S))
     tracked = rng.random((T, n, S)) < 0.7
@@ -108,12 +108,13 @@ def _random_series(rng, with_obs=True, pivot_seen=True):
     else:
         tracked[2, 0, 2] = False       # pivot not tracked by node 0 at epoch 2
     obs = rng.normal(size=(T, n, S)) * 5 if with_obs else None
-    return GeometryFreeSeries(layout, coef, sig, obs_m=obs, tracked=tracked), layout
+    groups = np.array([2, 0, 1]) if per_receiver else None
+    return GeometryFreeSeries(layout, coef, sig, obs_m=obs, tracked=tracked, groups=groups), layout
 
 
-@pytest.mark.parametrize("reference", ["pivot", "first"])
-def test_closed_form_normals_equal_explicit_differences(rng, reference):
-    ser, _ = _random_series(rng)
+@pytest.mark.parametrize(("reference", "per_receiver"), [("pivot", False), ("first", False), ("pivot", True)])
+def test_closed_form_normals_equal_explicit_differences(rng, reference, per_receiver):
+    ser, _ = _random_series(rng, per_receiver=per_receiver)
     ref = differenced_observations(ser, reference=reference)
     for t in range(ser.n_epochs):
         N, r = ser.normals(t)

@@ -31,6 +31,7 @@ also reported, as the paper does not say which it used.)
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -190,24 +191,58 @@ def initial_ratio(local: FilterSeries, central: FilterSeries, node: int = 0, par
 
 
 # ----------------------------------------------------------------------------------------------- run
-def run(ctx: ExperimentContext) -> dict[str, Any]:
-    opt_epochs = ctx.options.get("epochs")
-    n_epochs = int(opt_epochs) if opt_epochs else (QUICK_EPOCHS if ctx.quick else N_EPOCHS)
-    data_kn = int(ctx.options.get("data_kn") or 4)
+@dataclass(frozen=True, eq=False)
+class PrecisionAnalysis:
+    """The variance-only part of the reproduction (what the benchmark times): scenario, the central and local
+    filters, the Fig. 7 recursion for every k_n, and the DCB times to 0.5 ns (minutes, ``inf`` = never)."""
+
+    graph: Graph
+    geometry: IonosphereGeometry
+    layout: IonosphereStateLayout
+    series: GeometryFreeSeries
+    dynamics: DynamicModel
+    kns: list[int]
+    central: FilterSeries
+    local: FilterSeries
+    ckf: dict[int, FilterSeries]
+    dcb_minutes_central: np.ndarray
+    dcb_minutes_local: np.ndarray
+    dcb_minutes_ckf: dict[int, np.ndarray]
+
+
+def precision_analysis(n_epochs: int = N_EPOCHS, *, progress: Any = None) -> PrecisionAnalysis:
+    """Central, local and CKF (Fig. 7, k_n = 4, 6, 12, protocol 3) standard deviations of the Perth network and the
+    DCB times to 0.5 ns (paper 003 §5.3–5.4)."""
     graph = perth_network()
-    n = graph.n_nodes
     geo, layout, series, dyn = perth_scenario(n_epochs)
     sched = consensus_schedule(graph, PROTOCOL)
     kns = [consensus_rounds(INTERVAL_S, d) for d in SENDING_INTERVALS_S]
     products = [consensus_product(sched, k) for k in kns]
+    central = central_filter(dyn, series).extras["series"]
+    if progress:
+        progress(1)
+    local = local_filters(dyn, series).extras["series"]
+    if progress:
+        progress(1)
+    ckf_series = {k: ckf_error_variance(dyn, series, L) for k, L in zip(kns, products, strict=True)}
+    if progress:
+        progress(1)
+    start = first_tracked_epoch(series)
+    return PrecisionAnalysis(
+        graph, geo, layout, series, dyn, kns, central, local, ckf_series,
+        dcb_time_to_threshold(central.std, layout, start)[0], dcb_time_to_threshold(local.std, layout, start),
+        {k: dcb_time_to_threshold(s.std, layout, start) for k, s in ckf_series.items()})
 
+
+def run(ctx: ExperimentContext) -> dict[str, Any]:
+    opt_epochs = ctx.options.get("epochs")
+    n_epochs = int(opt_epochs) if opt_epochs else (QUICK_EPOCHS if ctx.quick else N_EPOCHS)
+    data_kn = int(ctx.options.get("data_kn") or 4)
     with ctx.progress.task("ckf-ionosphere: central, local and CKF (Fig. 7) variance recursions", total=3) as adv:
-        central = central_filter(dyn, series).extras["series"]
-        adv(1)
-        local = local_filters(dyn, series).extras["series"]
-        adv(1)
-        ckf_series = {k: ckf_error_variance(dyn, series, L) for k, L in zip(kns, products, strict=True)}
-        adv(1)
+        pa = precision_analysis(n_epochs, progress=adv)
+    graph, geo, layout, series, dyn, kns = pa.graph, pa.geometry, pa.layout, pa.series, pa.dynamics, pa.kns
+    n = graph.n_nodes
+    central, local, ckf_series = pa.central, pa.local, pa.ckf
     cs, ls = central.std, local.std
     steady = int(STEADY_AFTER_MIN * 60.0 / INTERVAL_S)
     if steady >= n_epochs:
@@ -224,11 +259,8 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     r0_col, t0_col = initial_ratio(l_col, c_col)
 
     # DCB time to 0.5 ns
-    start = first_tracked_epoch(series)
-    t_central = dcb_time_to_threshold(cs, layout, start)[0]
-    t_local = dcb_time_to_threshold(ls, layout, start)
-    t_ckf = {k: dcb_time_to_threshold(s.std, layout, start) for k, s in ckf_series.items()}
-    t_central_c = dcb_time_to_threshold(cs, layout, start, m_per_ns=0.299792458)[0]
+    t_central, t_local, t_ckf = pa.dcb_minutes_central, pa.dcb_minutes_local, pa.dcb_minutes_ckf
+    t_central_c = dcb_time_to_threshold(cs, layout, first_tracked_epoch(series), m_per_ns=0.299792458)[0]
 
     # one realization with data through the CKF
     rng = ctx.rng(1)

@@ -384,6 +384,7 @@ class GeometryFreeSeries(MeasurementSeries):
         self._y = None if y is None else np.where(ok, y, 0.0)
         self._groups = g
         self._col = layout.dcb_column()
+        self._sv = np.flatnonzero(self._col >= 0)  # satellites with a DCB column, in column order
         self.tracked = ok
 
     def design(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -400,18 +401,52 @@ class GeometryFreeSeries(MeasurementSeries):
         return A, self._w[t, idx]
 
     def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        A, w = self.design(epoch, nodes)
+        """``N = Āᵀ P Ā``, ``r = Āᵀ P y`` with ``P = W − w wᵀ/Σw`` (class doc), assembled block by block in
+        satellite space (TEC block ``aᵀPa``, cross block ``aᵀP``, DCB block ``P`` without the pivot)."""
+        t = self._epoch(epoch)
         idx = self._nodes(nodes)
+        k, p, n_tec = idx.size, self.n_states, self.layout.n_tec
+        a = self._a[t, idx]                      # (k, S, 3)
+        w = self._w[t, idx]                      # (k, S)
         sw = w.sum(axis=1)
-        sw_safe = np.where(sw > 0, sw, 1.0)
-        Aw = A * w[..., None]
-        u = Aw.sum(axis=1)  # Āᵀ w, (k, p)
-        N = np.swapaxes(Aw, 1, 2) @ A - u[:, :, None] * u[:, None, :] / sw_safe[:, None, None]
-        N = 0.5 * (N + np.swapaxes(N, 1, 2))
+        inv_sw = np.where(sw > 0, 1.0 / np.where(sw > 0, sw, 1.0), 0.0)[:, None]
+        aw = a * w[..., None]
+        awT = np.swapaxes(aw, 1, 2)              # (k, 3, S)
+        ua = aw.sum(axis=1)                      # aᵀw (k, 3)
+        sv = self._sv
+        ntt = awT @ a - ua[:, :, None] * (ua * inv_sw)[:, None, :]
+        ntb = awT[:, :, sv] - ua[:, :, None] * (w[:, sv] * inv_sw)[:, None, :]
+        wv = w[:, sv]
+        nbb = -wv[:, :, None] * (wv * inv_sw)[:, None, :]
+        d = np.arange(sv.size)
+        nbb[:, d, d] += wv
+        N = np.zeros((k, p, p))
+        N[:, n_tec:, n_tec:] = nbb
+        off = 3 * self._groups[idx]
+        if np.all(off == off[0]):
+            o = int(off[0])
+            N[:, o:o + 3, o:o + 3] = ntt
+            N[:, o:o + 3, n_tec:] = ntb
+            N[:, n_tec:, o:o + 3] = np.swapaxes(ntb, 1, 2)
+        else:
+            rows = np.arange(k)[:, None, None]
+            tec = (off[:, None] + np.arange(3)[None, :])[:, :, None]
+            dcb = (n_tec + d)[None, None, :]
+            N[rows, tec, np.swapaxes(tec, 1, 2)] = ntt
+            N[rows, tec, dcb] = ntb
+            N[rows, np.swapaxes(dcb, 1, 2), np.swapaxes(tec, 1, 2)] = np.swapaxes(ntb, 1, 2)
         if self._y is None:
-            return N, np.zeros((idx.size, self.n_states))
-        y = self._y[self._epoch(epoch), idx]
-        r = (np.swapaxes(Aw, 1, 2) @ y[..., None])[..., 0] - u * ((w * y).sum(axis=1) / sw_safe)[:, None]
+            return N, np.zeros((k, p))
+        y = self._y[t, idx]
+        wy = w * y
+        m = wy.sum(axis=1, keepdims=True) * inv_sw   # weighted mean of y
+        r = np.zeros((k, p))
+        r[:, n_tec:] = wy[:, sv] - wv * m
+        rt = (awT @ y[..., None])[..., 0] - ua * m
+        if np.all(off == off[0]):
+            r[:, int(off[0]):int(off[0]) + 3] = rt
+        else:
+            r[np.arange(k)[:, None], off[:, None] + np.arange(3)[None, :]] = rt
         return N, r
 
     def observations(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
