@@ -138,6 +138,9 @@ def test_estimability_errors_name_the_culprit() -> None:
     with pytest.raises(ModelError, match="not estimable.*G04"):
         _data(y).centralized()
     assert _data(y).unestimable() == ["G04"]
+    sub = _data(y).estimable_subset()
+    assert sub.svs == ("G01", "G02", "G03") and sub.y_m.shape == (2, 1, 3)
+    sub.check()
     y = np.array([[[nan, nan, nan, nan]], [[nan, 2, 3, nan]]], dtype=float)
     with pytest.raises(ModelError, match="reference station R0 has no observation"):
         _data(y).check()

@@ -113,6 +113,16 @@ def test_small_dutch_network_runs(shared_data: Path, tmp_path: Path) -> None:
     assert est["reference_station"] == "ROVN" and est["graph"]["links"] == [["ROVN", "ZEGV"]]
 
 
+def test_single_station(shared_data: Path, tmp_path: Path) -> None:
+    """One receiver: the S-basis solution is its own undifferenced observable; no network, no ADMM."""
+    nl = shared_data / NL
+    rc = main(["gnss", "codebias", "--obs", str(nl / "zegv0010.21o"), "--nav", str(nl / "cbw10010.21n.gz"),
+               "--out", str(tmp_path), "--no-progress", "--nav-max-age", "24"])
+    assert rc == 0
+    est = json.loads((tmp_path / "codebias.json").read_text())
+    assert est["stations"] == ["ZEGV"] and "skipped" in est["admm"]
+
+
 def test_graph_csv_validation(tmp_path: Path) -> None:
     st = ["BELE", "DGAR", "ZEGV"]
     f = tmp_path / "g.csv"

@@ -137,14 +137,21 @@ def _run_codebias(args: argparse.Namespace) -> int:
     graph = load_edges(Path(args.graph), stations) if args.graph else default_graph(data.positions_ecef_m, stations)
     problem = data.linear_problem(per_epoch=True)
     x_blue = blue(problem).x
-    res = admm(problem, graph, W=args.rho, max_iterations=args.iterations, tol=0.0, reference=x_blue,
-               record_nodes=False)
-    dist = res.trace["max_distance_to_reference"]
+    admm_x = np.broadcast_to(sol.x_m, (len(stations), len(data.svs)))
+    admm_info: dict[str, Any] = {"skipped": "a single station has no network to iterate over"}
+    if len(stations) > 1:
+        res = admm(problem, graph, W=args.rho, max_iterations=args.iterations, tol=0.0, reference=x_blue,
+                   record_nodes=False)
+        dist_m = float(res.trace["max_distance_to_reference"][-1])
+        admm_x = res.estimates
+        admm_info = {"rho": args.rho, "rho_scale": "epoch", "iterations": res.iterations,
+                     "max_distance_to_centralized_ns": dist_m / NS_TO_M,
+                     "constraint_nodes": [stations[i] for i in res.extras["constraint_nodes"].nodes]}
     counts = data.observation_counts()
     c = codebias_coefficients()
     out = Path(args.out)
     rows = ["satellite,x_m,x_ns,sigma_ns,admm_max_dev_ns,n_obs"]
-    admm_dev = np.abs(res.estimates - sol.x_m[None]).max(axis=0) / NS_TO_M
+    admm_dev = np.abs(admm_x - sol.x_m[None]).max(axis=0) / NS_TO_M
     for k, sv in enumerate(data.svs):
         rows.append(f"{sv},{sol.x_m[k]:.4f},{sol.x_ns[k]:.4f},{sol.sigma_ns[k]:.4f},{admm_dev[k]:.3g},{int(counts[k])}")
     report: dict[str, Any] = {
@@ -164,15 +171,16 @@ def _run_codebias(args: argparse.Namespace) -> int:
         "sigma_ns": dict(zip(data.svs, sol.sigma_ns.tolist(), strict=True)),
         "n_obs": dict(zip(data.svs, counts.tolist(), strict=True)),
         "graph": {"links": [[stations[i], stations[j]] for i, j in graph.links.tolist()]},
-        "admm": {"rho": args.rho, "rho_scale": "epoch", "iterations": res.iterations,
-                 "max_distance_to_centralized_ns": float(dist[-1]) / NS_TO_M,
-                 "constraint_nodes": [stations[i] for i in res.extras["constraint_nodes"].nodes]},
+        "admm": admm_info,
     }
     atomic_write_text(out / "codebias.csv", "\n".join(rows) + "\n")
     atomic_write_json(out / "codebias.json", report)
-    _say(args, f"{len(data.svs)} satellite code biases (reference {stations[data.reference]}), σ "
-               f"{np.median(sol.sigma_ns):.3f} ns median; ADMM ({res.iterations} it., ρ = {args.rho}) within "
-               f"{float(dist[-1]) / NS_TO_M:.2g} ns of the centralized solution")
+    msg = (f"{len(data.svs)} satellite code biases (reference {stations[data.reference]}), σ "
+           f"{np.median(sol.sigma_ns):.3f} ns median")
+    if "iterations" in admm_info:
+        msg += (f"; ADMM ({admm_info['iterations']} it., ρ = {args.rho}) within "
+                f"{admm_info['max_distance_to_centralized_ns']:.2g} ns of the centralized solution")
+    _say(args, msg)
     print(f"written {out / 'codebias.csv'} and {out / 'codebias.json'}")
     if args.bias:
         summary = compare_with_products(report, [Path(b) for b in args.bias])

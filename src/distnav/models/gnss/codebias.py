@@ -177,6 +177,18 @@ class CodeBiasData:
             raise ModelError(f"satellite code biases not estimable (never linked to the reference station "
                              f"{self.stations[self.reference]} through common observations): {', '.join(unlinked)}")
 
+    def estimable_subset(self) -> CodeBiasData:
+        """The same network restricted to the satellites whose biases are estimable (see :meth:`unestimable`)."""
+        keep = np.asarray(self._anchored_after_each_epoch()[-1]) if self.n_epochs else np.zeros(self.n_sats, bool)
+        idx = np.flatnonzero(keep)
+        if idx.size == 0:
+            raise ModelError("no satellite code bias is estimable from these data")
+        return CodeBiasData(self.stations, tuple(self.svs[k] for k in idx), self.t_gps_s, self.y_m[..., idx],
+                            self.sigma_m[..., idx], self.reference,
+                            None if self.elevation_rad is None else self.elevation_rad[..., idx],
+                            None if self.truth_m is None else self.truth_m[idx], self.positions_ecef_m,
+                            dict(self.meta))
+
     def unestimable(self, epochs: int | None = None) -> list[str]:
         """Satellites whose bias is not estimable from the first ``epochs`` epochs (all by default)."""
         anchored = self._anchored_after_each_epoch()[-1 if epochs is None else epochs - 1]

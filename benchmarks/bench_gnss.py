@@ -1,0 +1,110 @@
+"""GNSS code biases (issue 6): the 110-station experiment and RINEX reading.
+
+* the 110-station, 300-epoch code-bias computation (simulation of the session, centralized solution, recursive
+  solution, 4 ADMM runs of 1,000 iterations): goal ≤ 20 s (quick: 120 epochs, 300 iterations);
+* reading a full day of 30-s RINEX 3 (BELE, Hatanaka + gzip, 2880 epochs) with distnav's reader against georinex
+  alone on the same observation types: distnav should add little (quick: a 1-hour window);
+* orbit evaluation: broadcast (IS-GPS-200) and SP3 (9th-order Lagrange) positions of 31 satellites at 2880 epochs.
+Reading tests need ``../shared/data``; they are skipped (row with a note) when it is absent.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import best_time, main_for  # noqa: E402
+from distnav.algorithms.admm import admm  # noqa: E402
+from distnav.algorithms.lsq import blue  # noqa: E402
+from distnav.experiments.codebias import RHOS, _simulate, synthetic_igs_network  # noqa: E402
+from distnav.models.gnss.constants import NS_TO_M  # noqa: E402
+from distnav.models.gnss.orbits import gps_seconds  # noqa: E402
+from distnav.network.constraint_nodes import choose_constraint_nodes  # noqa: E402
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "gnss"
+
+
+def _codebias(epochs: int, iterations: int) -> dict:
+    t0 = time.perf_counter()
+    net = synthetic_igs_network(np.random.default_rng([0, 1]))
+    C = choose_constraint_nodes(net.graph, "min_cover")
+    sb = np.random.default_rng([0, 2]).normal(0, 3 * NS_TO_M, (12, 3))
+    rb = np.random.default_rng([0, 4]).normal(0, 5 * NS_TO_M, (net.graph.n_nodes, 3))
+    data = _simulate(net, epochs, 0.0, np.random.default_rng([0, 3]), sb, rb)
+    data.check()
+    sol = data.centralized(check=False)
+    data.recursive_solution()
+    problem = data.linear_problem(per_epoch=True)
+    x_hat = blue(problem).x
+    t_setup = time.perf_counter() - t0
+    finals = []
+    for rho in RHOS:
+        res = admm(problem, net.graph, constraint_nodes=C, W=rho, max_iterations=iterations, tol=0.0,
+                   reference=x_hat, record_nodes=True)
+        finals.append(float(res.trace["max_distance_to_reference"][-1]))
+    total = time.perf_counter() - t0
+    assert np.allclose(sol.x_m, x_hat, atol=1e-9)
+    return {"name": "codebias 110 stations", "epochs": epochs, "admm_runs": len(RHOS), "iterations": iterations,
+            "setup_s": round(t_setup, 2), "seconds": total, "goal": "≤ 20 s", "meets_goal": bool(total <= 20.0),
+            "max_dist_rho_0.5_m": finals[1]}
+
+
+def _reading(quick: bool) -> list[dict]:
+    f = SHARED / "igs_2024010_bele_dgar" / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"
+    if not f.exists():
+        return [{"name": "read RINEX 3 day", "note": f"skipped: {f} absent"}]
+    import georinex as gr
+
+    from distnav.models.gnss.rinex import read_code_observations
+
+    tlim = ("2024-01-10T00:00", "2024-01-10T01:00") if quick else None
+    kw = {"tlim": tlim} if tlim else {}
+
+    def plain() -> None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            gr.load(f, use="G", meas=["C1C", "C2W", "C5X"], **kw)
+
+    def ours() -> None:
+        read_code_observations(f, tlim=tlim)
+
+    repeat = 2 if quick else 1
+    t_ref = best_time(plain, repeat=repeat)
+    t_ours = best_time(ours, repeat=repeat)
+    return [{"name": "read RINEX 3 BELE " + ("1 h" if quick else "full day"), "epochs": 121 if quick else 2880,
+             "seconds": t_ours, "reference_seconds": t_ref, "ratio": t_ours / t_ref,
+             "goal": "≤ 1.2 × georinex", "meets_goal": bool(t_ours <= 1.2 * t_ref)}]
+
+
+def _orbits() -> list[dict]:
+    d = SHARED / "esbc_2020177_single_station_L5_sp3"
+    if not d.exists():
+        return [{"name": "orbits", "note": "skipped: shared data absent"}]
+    from distnav.models.gnss.rinex import read_navigation, read_sp3
+
+    nav = read_navigation(d / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz")
+    sp3 = read_sp3([d / "GRG0MGXFIN_20201760000_01D_15M_ORB.SP3.gz", d / "GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz"])
+    t = gps_seconds(np.datetime64("2020-06-25T00:00")) + np.arange(2880) * 30.0
+    svs = [s for s in sp3.svs if s.startswith("G")]
+    tb = best_time(lambda: nav.positions_ecef(t, svs), repeat=3)
+    ts = best_time(lambda: sp3.positions_ecef(t, svs), repeat=3)
+    return [{"name": "broadcast positions", "satellites": len(svs), "epochs": 2880, "seconds": tb,
+             "goal": "(no goal)"},
+            {"name": "SP3 Lagrange positions", "satellites": len(svs), "epochs": 2880, "seconds": ts,
+             "goal": "(no goal)"}]
+
+
+def run(quick: bool) -> list[dict]:
+    rows = [_codebias(120, 300) if quick else _codebias(300, 1000)]
+    rows += _reading(quick)
+    rows += _orbits()
+    return rows
+
+
+if __name__ == "__main__":
+    main_for(__file__, run)
