@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from distnav.experiments.codebias import N_LINKS, N_STATIONS, synthetic_igs_network
 from distnav.experiments.common import ExperimentContext, Progress
@@ -43,3 +48,28 @@ def test_small_reproduction(tmp_path: Path) -> None:
     assert "headline" in saved and saved["rho_scale"] == "epoch"
     for f in ("fig7_network.png", "fig8_centralized.png", "fig9_rho.png", "fig10_init.png", "fig11_per_node.png"):
         assert (tmp_path / f).stat().st_size > 1000
+
+
+@pytest.mark.mpi
+def test_mpi_backend_gives_the_same_numbers(tmp_path: Path) -> None:
+    """The reproduction under ``mpiexec -n 2 ... --backend mpi`` equals the in-process run."""
+    pytest.importorskip("mpi4py", reason="the mpi extra is not installed (pip install 'distnav[mpi]')")
+    local = Path(sys.executable).parent / "mpiexec"
+    exe = str(local) if local.exists() else shutil.which("mpiexec")
+    if exe is None:
+        pytest.skip("no mpiexec")
+    opts = ["--quick", "--epochs", "40", "--iterations", "250", "--no-progress"]
+    proc = subprocess.run([exe, "-n", "2", sys.executable, "-m", "mpi4py", "-m", "distnav", "reproduce", "codebias",
+                           "--backend", "mpi", "--out", str(tmp_path / "mpi"), *opts],
+                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=240,
+                          env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    from distnav.cli import main
+
+    assert main(["reproduce", "codebias", "--out", str(tmp_path / "inproc"), *opts]) == 0
+    a = json.loads((tmp_path / "mpi" / "results.json").read_text())
+    b = json.loads((tmp_path / "inproc" / "results.json").read_text())
+    assert a["iterations_to_1e-3"] == b["iterations_to_1e-3"]
+    assert a["iterations_to_1e-3_by_init_rho_0.5"] == b["iterations_to_1e-3_by_init_rho_0.5"]
+    for k, v in b["final_max_distance_m"].items():
+        assert a["final_max_distance_m"][k] == pytest.approx(v, rel=1e-9, abs=1e-15)

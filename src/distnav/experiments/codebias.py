@@ -279,7 +279,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                                       "satellite (PRN 1) converges faster than the poorly tracked one (PRN 24)"},
         "headline": {
             "links / constraint nodes (paper 118 / 9)": f"{graph.n_links} / {C.size}",
-            **{f"iterations to 1 mm, ρ = {k}": v for k, v in it_rho.items()},
+            **{f"iterations to 1 mm, ρ = {k}": (v if v is not None else f"> {iterations}") for k, v in it_rho.items()},
             "iterations to 1 mm, ρ = 0.5, x⁰ = prev.": it_init["prev."],
             "iterations to 1 cm, ρ = 0.5, x⁰ = 0 / prev.": f"{it_init_cm['0']} / {it_init_cm['prev.']}",
             f"σ of x̂ {data.svs[best]} / {data.svs[worst]} [cm]":
