@@ -366,3 +366,50 @@ def test_command_errors(shared_data, tmp_path):
         network_model(data.stations, t, data.positions_ecef_m, gf, svs, nav)
     with pytest.raises(SystemExit):
         _parser().parse_args(["ionosphere", "--obs", obs[0]])  # neither --nav nor --sp3
+
+
+def test_compare_dcbs_aligns_to_pivot():
+    from distnav.commands.gnss_ionosphere import compare_dcbs
+
+    product = {"G10": 2.0, "G01": 5.0, "G02": -1.0, "G05": 7.0}
+    est = {"G01": 3.1, "G02": -2.9, "G07": 1.0}
+    c = compare_dcbs(est, product, "G10")
+    assert c["reference_ns"] == {"G01": 3.0, "G02": -3.0}
+    assert c["n"] == 2
+    assert c["mean_ns"] == pytest.approx(0.1) and c["rms_ns"] == pytest.approx(0.1)
+    assert c["rms_zero_mean_ns"] == pytest.approx(0.0, abs=1e-12)
+    assert compare_dcbs(est, {"G01": 1.0}, "G10")["n"] == 0
+
+
+def test_product_dcbs_reads_ionex_aux_block(tmp_path):
+    from distnav.commands.gnss_ionosphere import product_dcbs
+
+    def line(content: str, label: str) -> str:
+        return f"{content:<60}{label}\n"
+
+    text = (line("     1.0            IONOSPHERE MAPS     GPS", "IONEX VERSION / TYPE")
+            + line("DIFFERENTIAL CODE BIASES", "START OF AUX DATA")
+            + line("   G01    -7.187     0.010", "PRN / BIAS / RMS")
+            + line("   G10     2.500     0.012", "PRN / BIAS / RMS")
+            + line("   G12    -1.000     0.011", "PRN / BIAS / RMS")
+            + line("DIFFERENTIAL CODE BIASES", "END OF AUX DATA")
+            + line("", "END OF HEADER"))
+    path = tmp_path / "codg0100.24i"
+    path.write_text(text)
+    (name, values, notes), = product_dcbs([path], ["G01", "G10", "G12", "G30"], "C1C", "C2W")
+    assert name.startswith("IONEX") and values == {"G01": -7.187, "G10": 2.5, "G12": -1.0}
+    assert notes and "C1W-C2W" in notes[0]
+    (_, _, notes), = product_dcbs([path], ["G01"], "C1W", "C2W")
+    assert notes == []
+
+
+def test_docs_example_runs(capsys):
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "ionosphere.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert blocks
+    for block in blocks:
+        exec(compile(block, "docs/ionosphere.md", "exec"), {})  # noqa: S102 - our own documentation example
+    assert capsys.readouterr().out.strip()

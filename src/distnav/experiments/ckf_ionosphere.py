@@ -420,6 +420,7 @@ def _figures(ctx: ExperimentContext, graph: Graph, geo: IonosphereGeometry, layo
         axes[r, 0].set_ylabel("minutes to std < 0.5 ns")
         axes[r, 0].set_title(f"δ = {INTERVAL_S / kn:.0f} s (k_n = {kn})")
         axes[r, 0].grid(alpha=0.3)
+    fig.tight_layout()
     ctx.save_figure(fig, "fig13_dcb_time_boxplots.png")
     # CKF on data
     fig, axes = plt.subplots(2, 1, figsize=(11, 6))
