@@ -175,19 +175,25 @@ def run(quick: bool) -> list[dict[str, Any]]:
             "goal": "≤ 300 ms/iteration" if n_big == 100_000 else "(quick: 10,000 nodes)",
             "meets_goal": bool(ms <= 300) if n_big == 100_000 else None,
         })
-    if not quick:  # iterations to 1e-6 at 100,000 nodes (deviation checked every 10 iterations)
+    if not quick:  # convergence at 100,000 nodes: deviation every 10 iterations, up to 2000
         gen = iterate_admm(pb, gb, constraint_nodes=Cb, W=rho, messages="aggregated", monitor_every=0)
         t0 = time.perf_counter()
-        reached = None
+        reached: int | None = None
         nrm = float(np.linalg.norm(xhb))
+        at: dict[str, float] = {}
         for st in gen:
-            if st.iteration % 10 == 0 and np.linalg.norm(st.x - xhb, axis=1).max() / nrm <= 1e-6:
-                reached = st.iteration
+            if st.iteration % 10 == 0:
+                dev = float(np.linalg.norm(st.x - xhb, axis=1).max() / nrm)
+                if st.iteration in (100, 500, 1000, 2000):
+                    at[f"deviation_at_{st.iteration}"] = dev
+                if reached is None and dev <= 1e-6:
+                    reached = st.iteration
+                    at[f"deviation_at_{st.iteration}"] = dev
+                    break
+            if st.iteration >= 2000:
                 break
-            if st.iteration >= 3000:
-                break
-        rows.append({"name": f"n={n_big:,}: iterations to 1e-6 (checked every 10)", "iterations_to_1e-6": reached,
-                     "seconds": time.perf_counter() - t0, "rho": rho})
+        rows.append({"name": f"n={n_big:,}: iterations to 1e-6 (checked every 10, at most 2000)",
+                     "iterations_to_1e-6": reached, "seconds": time.perf_counter() - t0, "rho": rho, **at})
     return rows
 
 

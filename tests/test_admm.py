@@ -289,3 +289,12 @@ def test_nonlinear_problem_validation():
         NonlinearProblem(model, np.array([[1.0], [np.nan], [1.0]]), np.ones((3, 1, 1)))
     with pytest.raises(ModelError, match="node 2: R_i is not positive definite"):
         NonlinearProblem(model, np.ones((3, 1)), np.array([[[1.0]], [[1.0]], [[-1.0]]]))
+
+
+def test_admm_equals_blue_with_approximate_cover(case):
+    g, prob, xh = case
+    C = choose_constraint_nodes(g, "min_cover", method="approx")
+    assert C.optimal is False
+    res = admm(prob, g, constraint_nodes=C, W=20.0, max_iterations=5000, tol=1e-12, reference=xh)
+    assert res.converged
+    assert np.linalg.norm(res.estimates - xh, axis=1).max() / np.linalg.norm(xh) < 1e-8
