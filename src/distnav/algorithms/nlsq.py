@@ -105,16 +105,24 @@ def single_threaded_blas() -> Iterator[None]:
 class RangingLike(Protocol):
     """What the UWB solvers need from a ranging problem (see :class:`distnav.models.uwb.problems.RangingProblem`)."""
 
-    ids: tuple[str, ...]
-    dim: int
-    positions_m: np.ndarray
-    free: np.ndarray
-    meas_a: np.ndarray
-    meas_b: np.ndarray
-    range_m: np.ndarray
-    truth_m: np.ndarray | None
-    initial_m: np.ndarray | None
-
+    @property
+    def ids(self) -> tuple[str, ...]: ...
+    @property
+    def dim(self) -> int: ...
+    @property
+    def positions_m(self) -> np.ndarray: ...
+    @property
+    def free(self) -> np.ndarray: ...
+    @property
+    def meas_a(self) -> np.ndarray: ...
+    @property
+    def meas_b(self) -> np.ndarray: ...
+    @property
+    def range_m(self) -> np.ndarray: ...
+    @property
+    def truth_m(self) -> np.ndarray | None: ...
+    @property
+    def initial_m(self) -> np.ndarray | None: ...
     @property
     def n_anchors(self) -> int: ...
     @property

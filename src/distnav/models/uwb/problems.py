@@ -280,7 +280,7 @@ def build_problem(
     links: Sequence[tuple[Any, Any]] | np.ndarray,
     range_m: Sequence[float] | np.ndarray,
     *,
-    fixed: Mapping[str, Sequence[float]] | None = None,
+    fixed: Mapping[str, Any] | None = None,
     dim: int = 3,
     held: Mapping[str, Mapping[int, float]] | None = None,
     initial_m: np.ndarray | None = None,

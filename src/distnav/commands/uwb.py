@@ -1,0 +1,292 @@
+"""``distnav uwb solve``: anchor positions from a real (or simulated) inter-anchor range log.
+
+    distnav uwb solve --ranges RANGES.csv --known KNOWN.csv [--initial INIT.csv] [--solver NAME]
+                      [--truth TRUTH.csv] [--heights HEIGHTS.csv] [--loss linear|huber|cauchy]
+                      [--loss-scale-m 0.3] [--iterations 500] --out OUT_DIR
+
+* Repeated ranges of a pair are combined by their **median** (robust to a minority of NLOS ranges).
+* Without ``--initial`` the initial guess is classical multidimensional scaling (MDS) of the range graph
+  (missing pairs completed by shortest paths), refined by stress majorization (SMACOF) on the measured pairs and
+  rotated/reflected/translated onto the known anchors (Procrustes).
+* ``--loss huber|cauchy`` (solver LM) down-weights ranges whose error exceeds about ``--loss-scale-m`` metres, so
+  NLOS ranges that are metres too long stop pulling the solution (``rms_cost`` still reports the plain cost).
+* ``--heights HEIGHTS.csv`` (``id,z_m``) holds those anchors' heights fixed and solves their horizontal position
+  from the 3-D ranges — the remedy for the mirror ambiguity of anchors mounted in one plane (under a ceiling).
+  A 3-D solve of a nearly planar network without it prints a warning.
+
+Outputs in OUT_DIR: ``positions.csv`` (every anchor), ``summary.json`` and ``positions.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import shortest_path
+
+from distnav.algorithms.csg import SOLVERS, solve
+from distnav.algorithms.nlsq import LOSSES
+from distnav.errors import DataFileError, ModelError
+from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges, write_positions
+from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
+
+__all__ = ["register", "classical_mds", "smacof", "mds_initial_guess", "planarity", "solve_range_log"]
+
+PLANAR_RATIO = 0.05
+
+
+def register(subparsers: Any) -> None:
+    """Add ``distnav uwb solve`` to the CLI."""
+    uwb = subparsers.add_parser("uwb", help="UWB anchor self-localization from inter-anchor range logs")
+    sub = uwb.add_subparsers(dest="uwb_command", required=True)
+    s = sub.add_parser("solve", help="estimate anchor positions from RANGES.csv and the known anchors",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    s.add_argument("--ranges", type=Path, required=True, help="CSV a,b,range_m (many rows per pair allowed)")
+    s.add_argument("--known", type=Path, required=True, help="CSV id,x_m,y_m,z_m of the fixed (known) anchors")
+    s.add_argument("--initial", type=Path, help="CSV id,x_m,y_m,z_m initial guess (default: MDS of the ranges)")
+    s.add_argument("--truth", type=Path, help="CSV id,x_m,y_m,z_m true positions, for rmse_m")
+    s.add_argument("--heights", type=Path, help="CSV id,z_m heights to hold fixed (anchors under a ceiling)")
+    s.add_argument("--solver", default="LM", type=str.upper, choices=list(SOLVERS),
+                   help="LM (centralized, default) or a distributed solver of paper 002")
+    s.add_argument("--loss", default="linear", choices=list(LOSSES), help="robust loss (solver LM only)")
+    s.add_argument("--loss-scale-m", type=float, default=0.3,
+                   help="range error (m) beyond which the robust loss down-weights a range (default 0.3)")
+    s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")
+    s.add_argument("--out", type=Path, required=True, help="output folder")
+    s.set_defaults(func=_handler)
+
+
+# ---------------------------------------------------------------------- initial guess
+def classical_mds(dist_m: np.ndarray, dim: int) -> np.ndarray:
+    """Coordinates ``(n, dim)`` whose distances approximate the full matrix ``dist_m`` (Torgerson's MDS)."""
+    d2 = np.asarray(dist_m, float) ** 2
+    n = d2.shape[0]
+    j = np.eye(n) - np.full((n, n), 1.0 / n)
+    b = -0.5 * j @ d2 @ j
+    w, v = np.linalg.eigh(b)
+    order = np.argsort(w)[::-1][:dim]
+    return v[:, order] * np.sqrt(np.maximum(w[order], 0.0))
+
+
+def smacof(links: np.ndarray, dist_m: np.ndarray, x0: np.ndarray, iterations: int = 200) -> np.ndarray:
+    """Stress majorization (SMACOF, de Leeuw 1977) on the measured pairs only, started from ``x0``.
+
+    Minimises ``Σ_(i,j)∈links (‖x_i − x_j‖ − d_ij)²`` by Guttman transforms; it refines the classical-MDS
+    start, whose shortest-path distances overestimate long pairs.
+    """
+    n = x0.shape[0]
+    i, j = links[:, 0], links[:, 1]
+    v = np.zeros((n, n))
+    np.add.at(v, (i, j), -1.0)
+    np.add.at(v, (j, i), -1.0)
+    v[np.diag_indices(n)] = -v.sum(axis=1)
+    vp = np.linalg.pinv(v)
+    x = np.array(x0, float)
+    for _ in range(iterations):
+        cur = np.linalg.norm(x[i] - x[j], axis=1)
+        ratio = np.where(cur > 1e-12, dist_m / np.maximum(cur, 1e-12), 0.0)
+        b = np.zeros((n, n))
+        np.add.at(b, (i, j), -ratio)
+        np.add.at(b, (j, i), -ratio)
+        b[np.diag_indices(n)] = -b.sum(axis=1)
+        x_new = vp @ (b @ x)
+        if np.max(np.abs(x_new - x)) < 1e-9:
+            x = x_new
+            break
+        x = x_new
+    return x
+
+
+def _procrustes(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation/reflection ``R`` and translation ``t`` minimising ``‖src R + t − dst‖`` (no scaling)."""
+    ms, md = src.mean(axis=0), dst.mean(axis=0)
+    u, _, vt = np.linalg.svd((src - ms).T @ (dst - md))
+    r = u @ vt
+    return r, md - ms @ r
+
+
+def mds_initial_guess(problem: RangingProblem) -> np.ndarray:
+    """MDS of the range graph, refined by SMACOF on the measured pairs, aligned to the fixed anchors.
+
+    With held heights (``problem.free[:, 2]`` False for estimated anchors) the ranges are first reduced to
+    horizontal distances ``sqrt(d² − Δz²)`` and a 2-D MDS is aligned; heights come from the held values.
+    """
+    n, dim = problem.n_anchors, problem.dim
+    links = problem.links
+    # one (median-combined upstream; here mean of samples) range per link
+    lo = np.minimum(problem.meas_a, problem.meas_b)
+    hi = np.maximum(problem.meas_a, problem.meas_b)
+    key = lo * n + hi
+    uniq, inv = np.unique(key, return_inverse=True)
+    d = np.bincount(inv, problem.range_m) / np.bincount(inv)
+    z = None
+    horizontal = dim == 3 and bool(np.all(~problem.free[:, 2]))
+    if horizontal:
+        z = problem.positions_m[:, 2]
+        dz = z[links[:, 0]] - z[links[:, 1]]
+        d = np.sqrt(np.maximum(d * d - dz * dz, 0.0))
+    g = csr_matrix((np.concatenate([d, d]) + 1e-9, (np.concatenate([links[:, 0], links[:, 1]]),
+                                                    np.concatenate([links[:, 1], links[:, 0]]))), shape=(n, n))
+    full = shortest_path(g, directed=False)
+    if not np.all(np.isfinite(full)):
+        raise ModelError("the range graph is not connected: no MDS initial guess (pass --initial)")
+    k = 2 if horizontal else dim
+    coords = smacof(links, d, classical_mds(full, k))
+    fixed = problem.fixed
+    r, t = _procrustes(coords[fixed], problem.positions_m[fixed][:, :k])
+    aligned = coords @ r + t
+    if horizontal:
+        assert z is not None
+        out = np.column_stack([aligned, z])
+    else:
+        out = aligned
+    return np.where(problem.free, out, problem.positions_m)
+
+
+def planarity(points_m: np.ndarray) -> float:
+    """Ratio of the smallest to the largest principal spread of 3-D points (0 = perfectly planar)."""
+    p = np.asarray(points_m, float)
+    if p.shape[0] < 4 or p.shape[1] < 3:
+        return 0.0
+    s = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
+    return float(s[-1] / s[0]) if s[0] > 0 else 0.0
+
+
+# ---------------------------------------------------------------------- the solve
+def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, truth: Path | None = None,
+                    heights: Path | None = None, solver: str = "LM", loss: str = "linear",
+                    loss_scale_m: float = 0.3, iterations: int = 500) -> tuple[RangingProblem, Any, dict[str, Any]]:
+    """Read the files, build the problem, solve; returns ``(problem, result, summary)`` (no files written)."""
+    if loss != "linear" and solver.upper() != "LM":
+        raise ModelError(f"--loss {loss} is implemented for --solver LM only (got {solver})")
+    if iterations < 1:
+        raise ModelError(f"--iterations must be ≥ 1, got {iterations}")
+    log = read_ranges(ranges)
+    comb = combine_ranges(log)
+    known_pos, dim = read_positions(known)
+    ids = log.ids
+    index = {k: i for i, k in enumerate(ids)}
+    unused_known = [k for k in known_pos if k not in index]
+    warnings: list[str] = []
+    if unused_known:
+        warnings.append(f"known anchors without ranges are ignored: {', '.join(unused_known[:10])}")
+    held: dict[str, dict[int, float]] = {}
+    if heights is not None:
+        if dim != 3:
+            raise DataFileError(f"{heights}: heights need a 3-D network, but {known} has no z_m column")
+        hz, hline = read_heights(heights)
+        for k, z in hz.items():
+            if k not in index:
+                raise DataFileError(f"{heights}:{hline[k]}: anchor {k!r} does not appear in {ranges}")
+            if k not in known_pos:
+                held[k] = {2: z}
+    fixed = {k: v for k, v in known_pos.items() if k in index}
+
+    def full_array(path: Path, what: str) -> np.ndarray:
+        pos, d = read_positions(path)
+        if d != dim:
+            raise DataFileError(f"{path}: has {d}-D positions but {known} has {dim}-D")
+        missing = [k for k in ids if k not in pos]
+        if missing:
+            raise DataFileError(f"{path}: {what} lacks anchor(s) {', '.join(repr(m) for m in missing[:10])}")
+        return np.array([pos[k] for k in ids])
+
+    truth_m = full_array(truth, "truth") if truth is not None else None
+    problem = build_problem(ids, list(comb.pairs), comb.range_m, fixed=fixed, dim=dim, held=held or None,
+                            truth_m=truth_m, name=Path(ranges).stem)
+    if initial is not None:
+        init = full_array(initial, "initial guess")
+        init_source = str(initial)
+    else:
+        init = mds_initial_guess(problem)
+        init_source = "classical MDS of the range graph + SMACOF, aligned to the known anchors"
+    problem = problem.with_initial(init)
+    if dim == 3 and not held:
+        assert problem.initial_m is not None
+        ratio = planarity(problem.initial_m)
+        if ratio < PLANAR_RATIO:
+            warnings.append(
+                f"the network is nearly planar (vertical/horizontal spread {ratio:.3f} < {PLANAR_RATIO}): the 3-D "
+                f"solve cannot tell above from below the anchors' plane and heights may come out metres off; "
+                f"pass --heights HEIGHTS.csv (id,z_m) to hold the known mounting heights")
+    options: dict[str, Any] = {}
+    if solver.upper() == "LM":
+        options = {"loss": loss, "loss_scale_m": loss_scale_m}
+    result = solve(problem, solver, iterations=iterations, **options)
+    est = result.estimates
+    g = problem.residuals(est)
+    summary: dict[str, Any] = {
+        "solver": solver.upper(),
+        "iterations": int(result.iterations),
+        "rms_cost": float(np.sqrt(np.mean(g * g))),
+        "cost": float(g @ g),
+        "rmse_m": rmse_m(problem, est) if truth_m is not None else None,
+        "converged": bool(result.converged),
+        "message": result.message,
+        "loss": loss,
+        "loss_scale_m": loss_scale_m if loss != "linear" else None,
+        "n_anchors": problem.n_anchors,
+        "n_known": int(problem.fixed.sum()),
+        "n_heights_held": len(held),
+        "n_pairs": len(comb.pairs),
+        "n_ranges": int(log.range_m.size),
+        "range_combination": "median of the samples of each pair",
+        "initial_guess": init_source,
+        "range_residual_rms_m": float(np.sqrt(np.mean(
+            (np.linalg.norm(est[problem.meas_a] - est[problem.meas_b], axis=1) - problem.range_m) ** 2))),
+        "warnings": warnings,
+    }
+    return problem, result, summary
+
+
+def _plot(path: Path, problem: RangingProblem, est: np.ndarray) -> None:
+    from distnav.experiments.common import pyplot
+
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 6))
+    for i, j in problem.links:
+        ax.plot(est[[i, j], 0], est[[i, j], 1], "-", color="0.8", lw=0.6, zorder=1)
+    if problem.truth_m is not None:
+        t = problem.truth_m
+        ax.plot(t[:, 0], t[:, 1], "x", color="tab:green", label="truth", zorder=2)
+        for k in np.flatnonzero(problem.estimated):
+            ax.plot([t[k, 0], est[k, 0]], [t[k, 1], est[k, 1]], "-", color="tab:red", lw=0.8, zorder=2)
+    e = problem.estimated
+    ax.plot(est[e, 0], est[e, 1], "o", color="tab:blue", ms=5, label="estimated", zorder=3)
+    ax.plot(est[~e, 0], est[~e, 1], "^", color="k", ms=8, label="known", zorder=4)
+    for idx, name in enumerate(problem.ids):
+        ax.annotate(name, est[idx, :2], fontsize=6, xytext=(3, 3), textcoords="offset points")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize=8)
+    ax.set_title(f"{problem.n_anchors} anchors, {problem.links.shape[0]} measured pairs")
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
+def _handler(args: argparse.Namespace) -> int:
+    problem, result, summary = solve_range_log(
+        args.ranges, args.known, initial=args.initial, truth=args.truth, heights=args.heights, solver=args.solver,
+        loss=args.loss, loss_scale_m=args.loss_scale_m, iterations=args.iterations)
+    for w in summary["warnings"]:
+        print(f"warning: {w}", file=sys.stderr)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_positions(out / "positions.csv", problem.ids, result.estimates)
+    from distnav.experiments.common import atomic_write_json
+
+    atomic_write_json(out / "summary.json", summary)
+    try:
+        _plot(out / "positions.png", problem, result.estimates)
+    except ImportError as exc:  # pragma: no cover - plot extra missing
+        print(f"warning: no plot ({exc})", file=sys.stderr)
+    rm = summary["rmse_m"]
+    print(f"{summary['solver']}: {summary['iterations']} iterations, rms_cost {summary['rms_cost']:.4g} m², "
+          f"range residual RMS {summary['range_residual_rms_m']:.3f} m"
+          + (f", RMSE {rm:.3f} m" if rm is not None else "") + f" -> {out}")
+    return 0

@@ -1,0 +1,182 @@
+"""``distnav uwb solve`` on small generated range logs: outputs, median combination, MDS start, heights,
+robust loss, the planar warning and every file error (named by file and line)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from distnav.cli import main
+from distnav.commands.uwb import classical_mds, planarity
+from distnav.errors import DataFileError
+from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
+
+
+def hall(tmp_path: Path, *, seed: int = 0, n: int = 14, sigma_m: float = 0.0, samples: int = 3,
+         nlos: dict[tuple[int, int], float] | None = None, ceiling: bool = True) -> dict[str, Path]:
+    """Anchors in a 40 m × 20 m hall (under a 3 m ceiling, or at spread heights), ranges up to 22 m."""
+    rng = np.random.default_rng(seed)
+    xy = np.column_stack([rng.uniform(0, 40, n), rng.uniform(0, 20, n)])
+    z = 3.0 + rng.normal(0, 0.05, n) if ceiling else rng.uniform(0, 12, n)
+    t = np.column_stack([xy, z])
+    ids = [f"A{i:02d}" for i in range(n)]
+    rows = ["a,b,range_m"]
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = float(np.linalg.norm(t[i] - t[j]))
+            if d > 22:
+                continue
+            for s in range(samples):
+                r = d + rng.normal(0, sigma_m) + (nlos or {}).get((i, j), 0.0)
+                rows.append(f"{ids[i]},{ids[j]},{r:.4f}" if s % 2 else f"{ids[j]},{ids[i]},{r:.4f}")
+    files = {k: tmp_path / f"{k}.csv" for k in ("ranges", "known", "truth", "heights", "initial")}
+    files["ranges"].write_text("\n".join(rows) + "\n")
+    pos = lambda ks, arr: "id,x_m,y_m,z_m\n" + "".join(f"{ids[k]},{arr[k, 0]:.4f},{arr[k, 1]:.4f},{arr[k, 2]:.4f}\n"
+                                                      for k in ks)
+    files["known"].write_text(pos([0, 1, 2, 3], t))
+    files["truth"].write_text(pos(range(n), t))
+    files["initial"].write_text(pos(range(n), t + rng.uniform(-1, 1, t.shape)))
+    files["heights"].write_text("id,z_m\n" + "".join(f"{ids[k]},{t[k, 2]:.4f}\n" for k in range(n)))
+    return files
+
+
+def run(files: dict[str, Path], out: Path, *extra: str) -> int:
+    return main(["uwb", "solve", "--ranges", str(files["ranges"]), "--known", str(files["known"]),
+                 "--out", str(out), *extra])
+
+
+def test_solve_writes_positions_summary_and_plot(tmp_path, capsys):
+    f = hall(tmp_path, ceiling=False)
+    out = tmp_path / "out"
+    assert run(f, out, "--truth", str(f["truth"])) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["solver"] == "LM" and summary["iterations"] >= 1
+    assert summary["rmse_m"] < 1e-3 and summary["rms_cost"] < 1e-2  # noise-free, well-posed 3-D
+    assert summary["initial_guess"].startswith("classical MDS")
+    assert summary["range_combination"].startswith("median")
+    pos, dim = read_positions(out / "positions.csv")
+    truth, _ = read_positions(f["truth"])
+    assert dim == 3 and set(pos) == set(truth)
+    assert max(np.abs(pos[k] - truth[k]).max() for k in pos) < 5e-3
+    assert (out / "positions.png").stat().st_size > 1000
+    assert "RMSE" in capsys.readouterr().out
+
+
+def test_distributed_solver_with_initial_guess(tmp_path):
+    f = hall(tmp_path, ceiling=False)
+    out = tmp_path / "out"
+    assert run(f, out, "--initial", str(f["initial"]), "--truth", str(f["truth"]), "--solver", "n-clm",
+               "--iterations", "300") == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["solver"] == "N-CLM" and summary["iterations"] == 300
+    assert summary["rmse_m"] < 0.05
+
+
+def test_without_truth_rmse_is_null(tmp_path):
+    f = hall(tmp_path, ceiling=False)
+    assert run(f, tmp_path / "o") == 0
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["rmse_m"] is None
+
+
+def test_heights_fix_the_ceiling_mirror_and_planar_warning(tmp_path, capsys):
+    f = hall(tmp_path, sigma_m=0.05, seed=3)
+    assert run(f, tmp_path / "free", "--truth", str(f["truth"])) == 0
+    err = capsys.readouterr().err
+    assert "nearly planar" in err and "--heights" in err
+    free = json.loads((tmp_path / "free" / "summary.json").read_text())
+    assert run(f, tmp_path / "held", "--truth", str(f["truth"]), "--heights", str(f["heights"])) == 0
+    assert "nearly planar" not in capsys.readouterr().err
+    held = json.loads((tmp_path / "held" / "summary.json").read_text())
+    assert held["n_heights_held"] == 10  # the 14 anchors minus the 4 known ones
+    assert held["rmse_m"] < 0.1
+    assert held["rmse_m"] < 0.5 * free["rmse_m"]
+    assert any("nearly planar" in w for w in free["warnings"])
+
+
+def test_robust_loss_ignores_nlos_pairs(tmp_path):
+    # two pairs whose every sample is 3 m too long (the median cannot remove a consistent NLOS bias)
+    f = hall(tmp_path, sigma_m=0.02, ceiling=False, nlos={(4, 5): 3.0, (6, 9): 3.0}, seed=1)
+    rm = {}
+    for loss in ("linear", "cauchy"):
+        assert run(f, tmp_path / loss, "--truth", str(f["truth"]), "--initial", str(f["initial"]),
+                   "--loss", loss, "--loss-scale-m", "0.1") == 0
+        rm[loss] = json.loads((tmp_path / loss / "summary.json").read_text())["rmse_m"]
+    assert rm["cauchy"] < 0.05 < rm["linear"]
+
+
+def test_median_combination(tmp_path):
+    p = tmp_path / "r.csv"
+    p.write_text("a,b,range_m\nX,Y,10.0\nY,X,10.2\nX,Y,15.0\nX,Z,4\n")
+    c = combine_ranges(read_ranges(p))
+    got = dict(zip(c.pairs, c.range_m, strict=True))
+    assert got[("X", "Y")] == pytest.approx(10.2) and got[("X", "Z")] == 4.0  # median, not mean (11.73)
+    assert dict(zip(c.pairs, c.count, strict=True))[("X", "Y")] == 3
+
+
+def test_classical_mds_and_planarity():
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0, 10, (9, 3))
+    y = classical_mds(np.linalg.norm(x[:, None] - x[None], axis=2), 3)
+    np.testing.assert_allclose(np.linalg.norm(y[:, None] - y[None], axis=2),
+                               np.linalg.norm(x[:, None] - x[None], axis=2), atol=1e-8)
+    assert planarity(np.column_stack([x[:, :2], np.zeros(9)])) < 1e-12 < planarity(x)
+
+
+# ---------------------------------------------------------------------- file errors (file and line)
+@pytest.mark.parametrize(
+    "content, match",
+    [
+        ("a,b,range_m\nA00,A01,12.0\nA00,A02,abc\n", r"ranges\.csv:3: range_m 'abc' is not a number"),
+        ("a,b,range_m\nA00,A01,12.0\nA00,A02\n", r"ranges\.csv:3: expected 3 fields"),
+        ("a,b,range_m\nA00,A01,-2\n", r"ranges\.csv:2: negative range"),
+        ("a,b,range_m\nA00,A00,2\n", r"ranges\.csv:2: range from anchor 'A00' to itself"),
+        ("a,b,range_m\nA00,A01,nan\n", r"ranges\.csv:2: range_m 'nan' is not finite"),
+        ("a,b,distance\nA00,A01,2\n", r"ranges\.csv:1: header must name the columns a,b,range_m"),
+        ("a,b,range_m\n", r"ranges\.csv: no data rows"),
+        ("", r"ranges\.csv: empty file"),
+    ],
+)
+def test_bad_range_files(tmp_path, capsys, content, match):
+    f = hall(tmp_path)
+    f["ranges"].write_text(content)
+    assert run(f, tmp_path / "o") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ")
+    import re
+
+    assert re.search(match, err), err
+
+
+def test_bad_position_and_height_files(tmp_path, capsys):
+    f = hall(tmp_path)
+    f["known"].write_text("id,x_m,y_m,z_m\nA00,0,0,3\nA00,1,1,3\n")
+    assert run(f, tmp_path / "o") == 2
+    assert "known.csv:3: anchor 'A00' is listed twice" in capsys.readouterr().err
+    f = hall(tmp_path)
+    f["heights"].write_text("id,z_m\nA05,3.0\nQ9,3.1\n")
+    assert run(f, tmp_path / "o", "--heights", str(f["heights"])) == 2
+    assert "heights.csv:3: anchor 'Q9' does not appear" in capsys.readouterr().err
+    f["initial"].write_text("id,x_m,y_m,z_m\nA00,0,0,3\n")
+    assert run(f, tmp_path / "o", "--initial", str(f["initial"])) == 2
+    assert "initial.csv: initial guess lacks anchor(s) 'A01'" in capsys.readouterr().err
+    f["truth"].write_text("id,x_m,y_m\nA00,0,0\n")
+    assert run(f, tmp_path / "o", "--truth", str(f["truth"])) == 2
+    assert "truth.csv: has 2-D positions" in capsys.readouterr().err
+    f["known"].write_text("id,x_m,y_m,z_m\nA00,0,zero,3\n")
+    assert run(f, tmp_path / "o") == 2
+    assert "known.csv:2: y_m 'zero' is not a number" in capsys.readouterr().err
+
+
+def test_not_determined_and_option_errors(tmp_path, capsys):
+    f = hall(tmp_path)
+    f["known"].write_text("id,x_m,y_m,z_m\nA00,0,0,3\nA01,1,1,3\n")  # 2 known anchors in 3-D
+    assert run(f, tmp_path / "o") == 2
+    assert "3 non-collinear fixed anchors" in capsys.readouterr().err
+    f = hall(tmp_path)
+    assert run(f, tmp_path / "o", "--solver", "N-CSG", "--loss", "huber") == 2
+    assert "solver LM only" in capsys.readouterr().err
+    with pytest.raises(DataFileError, match="missing"):
+        read_heights(f["ranges"])
