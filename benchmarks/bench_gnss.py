@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, main_for  # noqa: E402
 from distnav.algorithms.admm import admm  # noqa: E402
 from distnav.algorithms.lsq import blue  # noqa: E402
-from distnav.experiments.codebias import RHOS, _simulate, synthetic_igs_network  # noqa: E402
+from distnav.experiments.codebias import RHOS, _simulate, constellation, synthetic_igs_network  # noqa: E402
 from distnav.models.gnss.constants import NS_TO_M  # noqa: E402
 from distnav.models.gnss.orbits import gps_seconds  # noqa: E402
 from distnav.network.constraint_nodes import choose_constraint_nodes  # noqa: E402
@@ -35,7 +35,8 @@ def _codebias(epochs: int, iterations: int) -> dict:
     C = choose_constraint_nodes(net.graph, "min_cover")
     sb = np.random.default_rng([0, 2]).normal(0, 3 * NS_TO_M, (12, 3))
     rb = np.random.default_rng([0, 4]).normal(0, 5 * NS_TO_M, (net.graph.n_nodes, 3))
-    data = _simulate(net, epochs, 0.0, np.random.default_rng([0, 3]), sb, rb)
+    orbit, svs, t_start, _ = constellation()
+    data = _simulate(net, orbit, svs, t_start, epochs, np.random.default_rng([0, 3]), sb, rb)
     data.check()
     sol = data.centralized(check=False)
     data.recursive_solution()

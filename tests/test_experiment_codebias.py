@@ -73,3 +73,18 @@ def test_mpi_backend_gives_the_same_numbers(tmp_path: Path) -> None:
     assert a["iterations_to_1e-3_by_init_rho_0.5"] == b["iterations_to_1e-3_by_init_rho_0.5"]
     for k, v in b["final_max_distance_m"].items():
         assert a["final_max_distance_m"][k] == pytest.approx(v, rel=1e-9, abs=1e-15)
+
+
+def test_real_constellation_option(shared_data: Path) -> None:
+    from distnav.experiments.codebias import constellation
+    from distnav.models.gnss.orbits import datetime_from_gps_seconds
+
+    orbit, svs, t0, text = constellation(
+        str(shared_data / "gnss/igs_2024010_bele_dgar/BRDC00IGS_R_20240100000_01D_MN.rnx.gz"))
+    assert "G01" not in svs                      # flagged unhealthy all day in the broadcast file
+    assert set(svs) <= {"G03", "G06", "G08", "G09", "G10", "G24", "G25", "G26", "G27", "G30", "G32"}
+    assert len(svs) >= 8 and "BRDC00IGS" in text
+    assert datetime_from_gps_seconds(np.array(t0)) == np.datetime64("2024-01-10T01:00:00")
+    assert np.isfinite(orbit.positions_ecef(np.array([t0]), list(svs))).all()
+    _, svs_syn, _, text_syn = constellation()
+    assert len(svs_syn) == 12 and "synthetic" in text_syn

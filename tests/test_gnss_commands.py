@@ -150,3 +150,21 @@ def test_default_graph_is_connected() -> None:
     pos = rng.normal(size=(7, 3)) * 6.4e6
     g = default_graph(pos, [f"S{i}" for i in range(7)])
     assert g.is_connected and g.n_links >= 6
+
+
+def test_sp3_and_broadcast_orbits_give_the_same_biases(shared_data: Path, tmp_path: Path) -> None:
+    """ESBC 2020-177, one hour: the orbits only set elevations (mask and weights), so precise SP3 and broadcast
+    orbits must give the same code biases to far below their σ."""
+    d = shared_data / "gnss/esbc_2020177_single_station_L5_sp3"
+    common = ["gnss", "codebias", "--obs", str(d / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz"),
+              "--tlim", "2020-06-25T00:00", "2020-06-25T01:00", "--no-progress"]
+    assert main([*common, "--sp3", str(d / "GRG0MGXFIN_20201760000_01D_15M_ORB.SP3.gz"),
+                 str(d / "GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz"), "--out", str(tmp_path / "sp3")]) == 0
+    assert main([*common, "--nav", str(d / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"), "--nav-max-age", "6",
+                 "--out", str(tmp_path / "nav")]) == 0
+    a = json.loads((tmp_path / "sp3" / "codebias.json").read_text())
+    b = json.loads((tmp_path / "nav" / "codebias.json").read_text())
+    assert a["codes"]["ESBC"] == {"L1": "C1C", "L2": "C2W", "L5": "C5Q"}
+    assert a["satellites"] == b["satellites"] and len(a["satellites"]) >= 4
+    for s in a["satellites"]:
+        assert abs(a["x_ns"][s] - b["x_ns"][s]) < 0.01 * a["sigma_ns"][s]

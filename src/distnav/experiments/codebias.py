@@ -27,16 +27,22 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from distnav.errors import GraphError
+from distnav.errors import GraphError, ModelError
 from distnav.experiments.common import ExperimentContext, pyplot
 from distnav.models.gnss.codebias import CodeBiasData, simulate_codebias_data
 from distnav.models.gnss.constants import NS_TO_M
 from distnav.models.gnss.geometry import geodetic_to_ecef
-from distnav.models.gnss.orbits import synthetic_gps_constellation
+from distnav.models.gnss.orbits import (
+    BLOCK_IIF_PRNS,
+    datetime_from_gps_seconds,
+    gps_seconds,
+    synthetic_gps_constellation,
+)
 from distnav.network.graph import Graph
 
 NAME = "codebias"
@@ -69,6 +75,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ADMM iterations per run (default 1000; 300 with --quick)")
     parser.add_argument("--epochs", type=int, default=None,
                         help="30-s epochs of the session (default 300 = 2.5 h; 120 with --quick)")
+    parser.add_argument("--nav", default=None, metavar="FILE",
+                        help="use the block IIF satellites of this RINEX navigation file instead of the synthetic "
+                             "constellation")
+    parser.add_argument("--start", default=None, metavar="ISO",
+                        help="session start (GPS time), e.g. 2024-01-10T06:00 (default: synthetic epoch, or one hour "
+                             "after the navigation file's first ephemeris)")
     parser.add_argument("--rho-scale", choices=["epoch", "session"], default="epoch",
                         help="W = ρI against the information of one epoch (default: normals divided by the number "
                              "of epochs) or of the whole session")
@@ -166,12 +178,33 @@ def _iterations_to(trace_max: np.ndarray, threshold: float) -> int | None:
     return int(hit[0]) if hit.size else None
 
 
-def _simulate(net: StationNetwork, epochs: int, start_s: float, rng: np.random.Generator,
-              sat_biases_m: np.ndarray, rx_biases_m: np.ndarray) -> CodeBiasData:
-    sc = synthetic_gps_constellation()
-    l5 = sc.subset(sc.l5_svs)
-    t = sc.epoch_gps_s + start_s + np.arange(epochs) * EPOCH_S
-    return simulate_codebias_data(net.positions_ecef_m, l5, t, l5.svs, rng=rng, sat_biases_m=sat_biases_m,
+def constellation(nav: str | None = None, start: str | None = None) -> tuple[Any, tuple[str, ...], float, str]:
+    """The block IIF satellites: ``(orbit, svs, t0_gps_s, description)`` of the synthetic constellation (default)
+    or of a real broadcast navigation file (``nav``; healthy IIF PRNs, start at ``start`` or one hour after the
+    file's first ephemeris)."""
+    if nav is None:
+        sc = synthetic_gps_constellation()
+        l5 = sc.subset(sc.l5_svs)
+        t0 = sc.epoch_gps_s if start is None else float(gps_seconds(np.array(start, dtype="datetime64[ns]")))
+        return l5, l5.svs, t0, "synthetic constellation (nominal elements)"
+    from distnav.models.gnss.rinex import read_navigation
+
+    orbit = read_navigation(Path(nav), max_age_s=4 * 3600.0)
+    svs = tuple(f"G{p:02d}" for p in BLOCK_IIF_PRNS if f"G{p:02d}" in orbit.svs)
+    if len(svs) < 2:
+        raise ModelError(f"{nav}: fewer than two healthy block IIF satellites ({', '.join(svs) or 'none'})")
+    if start is None:
+        first = min(float(r["toe_abs_s"].min()) for r in orbit.records.values())
+        t0 = float(np.ceil(first / 3600.0) * 3600.0 + 3600.0)
+    else:
+        t0 = float(gps_seconds(np.array(start, dtype="datetime64[ns]")))
+    return orbit, svs, t0, f"broadcast ephemerides of {Path(nav).name}"
+
+
+def _simulate(net: StationNetwork, orbit: Any, svs: tuple[str, ...], t0: float, epochs: int,
+              rng: np.random.Generator, sat_biases_m: np.ndarray, rx_biases_m: np.ndarray) -> CodeBiasData:
+    t = t0 + np.arange(epochs) * EPOCH_S
+    return simulate_codebias_data(net.positions_ecef_m, orbit, t, svs, rng=rng, sat_biases_m=sat_biases_m,
                                   rx_biases_m=rx_biases_m, stations=net.graph.names, reference=int(net.hubs[0]))
 
 
@@ -187,11 +220,20 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     graph = net.graph
     C = choose_constraint_nodes(graph, "min_cover")
     # code biases per frequency [m]: satellites 3 ns, receivers 5 ns (1σ); the same in both sessions
-    sat_biases = ctx.rng(2).normal(0.0, 3.0 * NS_TO_M, size=(12, 3))
+    orbit, svs, t0, orbit_text = constellation(ctx.options.get("nav"), ctx.options.get("start"))
+    sat_biases = ctx.rng(2).normal(0.0, 3.0 * NS_TO_M, size=(len(svs), 3))
     rx_biases = ctx.rng(4).normal(0.0, 5.0 * NS_TO_M, size=(graph.n_nodes, 3))
+    # the "previous experiment" of Fig. 10: the session before (after, when a navigation file starts too late)
+    t_other = t0 - epochs * EPOCH_S
+    if ctx.options.get("nav") and not np.isfinite(orbit.positions_ecef(np.array([t_other]), list(svs))).any():
+        t_other = t0 + epochs * EPOCH_S
     with ctx.progress.task(f"codebias: simulate {N_STATIONS} stations × {epochs} epochs (this and previous session)"):
-        data = _simulate(net, epochs, 0.0, ctx.rng(3), sat_biases, rx_biases)
-        prev = _simulate(net, epochs, -epochs * EPOCH_S, ctx.rng(5), sat_biases, rx_biases)
+        data = _simulate(net, orbit, svs, t0, epochs, ctx.rng(3), sat_biases, rx_biases)
+        prev = _simulate(net, orbit, svs, t_other, epochs, ctx.rng(5), sat_biases, rx_biases)
+        data = data.estimable_subset()
+        prev = prev.estimable_subset()
+        if prev.svs != data.svs:
+            raise ModelError(f"the adjacent session does not determine the same satellites ({prev.svs} vs {data.svs})")
         data.check()
         sol = data.centralized()
         x_prev = prev.centralized().x_m
@@ -261,6 +303,8 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "epochs": epochs,
         "epoch_s": EPOCH_S,
         "satellites": list(data.svs),
+        "constellation": orbit_text,
+        "session_start": str(datetime_from_gps_seconds(np.array(t0))),
         "reference_station": data.stations[data.reference],
         "observation_counts": dict(zip(data.svs, counts.tolist(), strict=True)),
         "well_visible": data.svs[best],
