@@ -35,6 +35,7 @@ def test_codebias_outputs(run_dir: Path) -> None:
     assert est["codes"]["BELE"] == {"L1": "C1C", "L2": "C2W", "L5": "C5X"}
     assert est["codes"]["DGAR"]["L5"] == "C5Q"
     assert len(est["satellites"]) >= 8
+    assert "G01" in est["no_orbit"] and "G01" not in est["satellites"]   # G01 flagged unhealthy in BRDC all day
     assert est["admm"]["max_distance_to_centralized_ns"] < 1e-6
     rows = (run_dir / "codebias.csv").read_text().splitlines()
     assert rows[0].startswith("satellite,x_m,x_ns,sigma_ns") and len(rows) == len(est["satellites"]) + 1

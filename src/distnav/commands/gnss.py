@@ -130,6 +130,9 @@ def _run_codebias(args: argparse.Namespace) -> int:
              else read_sp3([Path(p) for p in args.sp3]))
     data = codebias_data_from_observations(obs, orbit, sigma0_m=args.sigma, weighting=args.weighting,
                                            mask_rad=np.deg2rad(args.mask))
+    if data.meta.get("no_orbit"):
+        _say(args, f"no valid orbit (unhealthy or missing ephemeris) for {', '.join(data.meta['no_orbit'])}: "
+                   f"not used")
     data.check()
     stations = list(data.stations)
     sol = data.centralized(check=False)
@@ -159,6 +162,7 @@ def _run_codebias(args: argparse.Namespace) -> int:
         "reference_station": stations[data.reference],
         "codes": data.meta["codes"],
         "notes": data.meta["notes"],
+        "no_orbit": data.meta.get("no_orbit", []),
         "epochs": data.n_epochs,
         "first_epoch": str(np.asarray(obs[0].time)[0]) if obs[0].n_epochs else None,
         "mask_deg": args.mask, "sigma0_m": args.sigma, "weighting": args.weighting,

@@ -461,6 +461,7 @@ def codebias_data_from_observations(observations: Sequence[CodeObservations], or
         vis = elevation_mask(el, mask_rad) & np.isfinite(block)
         y[i, ti] = np.where(vis, block, np.nan)
         sig[i, ti] = np.where(vis, combination_sigma(np.where(vis, el, np.pi / 2), sigma0_m, weighting, mus), np.nan)
+    no_orbit = [s for k, s in enumerate(svs) if not np.isfinite(elev[..., k]).any()]
     auto_svs = svs_given is None
     if auto_svs:  # keep the satellites observed above the mask by some station
         keep = np.isfinite(y).any(axis=(0, 1))
@@ -476,6 +477,7 @@ def codebias_data_from_observations(observations: Sequence[CodeObservations], or
     data = CodeBiasData(tuple(names), tuple(svs), t_gps, y, sig, reference, elev, None, pos,
                         {"sigma0_m": sigma0_m, "weighting": weighting, "mask_deg": float(np.rad2deg(mask_rad)),
                          "codes": {o.station: {f"L{b}": c for b, c in o.codes.items()} for o in observations},
+                         "no_orbit": no_orbit,
                          "notes": {o.station: list(o.notes) for o in observations}})
     return data
 
