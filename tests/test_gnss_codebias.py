@@ -178,3 +178,25 @@ def test_real_rinex_zegv_rovn(shared_data: Path) -> None:
         codebias_data_from_observations([], nav)
     with pytest.raises(ModelError, match="appear twice"):
         codebias_data_from_observations([obs[0], obs[0]], nav)
+
+
+def test_simulation_and_building_validation(rng: np.random.Generator, shared_data: Path) -> None:
+    sc = synthetic_gps_constellation()
+    pos = geodetic_to_ecef(np.zeros(2), np.zeros(2), 0.0)
+    t = sc.epoch_gps_s + np.arange(3) * 30.0
+    with pytest.raises(ModelError, match=r"sat_biases_m must be \(satellites, 3\)"):
+        simulate_codebias_data(pos, sc, t, sc.l5_svs, rng=rng, sat_biases_m=np.zeros((3, 3)))
+    with pytest.raises(ModelError, match=r"rx_biases_m must be \(stations, 3\)"):
+        simulate_codebias_data(pos, sc, t, sc.l5_svs, rng=rng, rx_biases_m=np.zeros((5, 3)))
+    nan = np.nan
+    with pytest.raises(ModelError, match="no satellite code bias is estimable"):
+        _data(np.array([[[nan, nan]], [[1.0, 2.0]]])).estimable_subset()
+    d = shared_data / "gnss/nl_2021001_short_network_snapshot"
+    obs = read_code_observations(d / "zegv0010.21o")
+    nav = read_navigation(d / "cbw10010.21n.gz", max_age_s=24 * 3600)
+    with pytest.raises(ModelError, match="no satellite observed on L1, L2 and L5 above the 89° mask"):
+        codebias_data_from_observations([obs], nav, mask_rad=np.deg2rad(89.0))
+    from dataclasses import replace
+
+    with pytest.raises(ModelError, match="no usable approximate position"):
+        codebias_data_from_observations([replace(obs, position_ecef_m=np.full(3, np.nan))], nav)

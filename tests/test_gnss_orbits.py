@@ -163,3 +163,29 @@ def test_navigation_errors(tmp_path: Path) -> None:
 def test_sp3_outside_span_is_nan(esbc_orbits: tuple[BroadcastOrbit, SP3Orbit]) -> None:
     _, sp3 = esbc_orbits
     assert np.isnan(sp3.positions_ecef(np.array([sp3.t_gps_s[-1] + 3600.0]), ["G01"])).all()
+
+
+def test_orbit_validation_errors(esbc_orbits: tuple[BroadcastOrbit, SP3Orbit]) -> None:
+    import xarray as xr
+
+    nav, sp3 = esbc_orbits
+    t = np.array([nav.records["G01"]["toe_abs_s"][0]])
+    with pytest.raises(ModelError, match="none of the satellites"):
+        sp3.positions_ecef(t, ["G99", "E99"])
+    # BroadcastOrbit: missing fields, no GPS satellite, no healthy record
+    ds = xr.Dataset({"sqrtA": (("time", "sv"), np.ones((1, 1)))},
+                    coords={"time": [np.datetime64("2020-06-25T00:00")], "sv": ["G01"]})
+    with pytest.raises(DataFileError, match="not a GPS navigation file"):
+        BroadcastOrbit.from_dataset(ds, source="x.nav")
+    fields = {f: (("time", "sv"), np.ones((1, 1))) for f in
+              ("Toe", "GPSWeek", "sqrtA", "Eccentricity", "M0", "DeltaN", "omega", "Omega0", "OmegaDot", "Io",
+               "IDOT", "Cuc", "Cus", "Crc", "Crs", "Cic", "Cis", "SVclockBias", "SVclockDrift", "SVclockDriftRate",
+               "TGD", "health")}
+    sick = xr.Dataset(fields, coords={"time": [np.datetime64("2020-06-25T00:00")], "sv": ["G01"]})
+    with pytest.raises(DataFileError, match="no healthy GPS ephemeris"):
+        BroadcastOrbit.from_dataset(sick, source="x.nav")
+    glo = sick.assign_coords(sv=["R01"])
+    with pytest.raises(DataFileError, match="no GPS ephemeris records"):
+        BroadcastOrbit.from_dataset(glo, source="x.nav")
+    with pytest.raises(DataFileError, match="no SP3 file"):
+        SP3Orbit.from_datasets([])

@@ -78,3 +78,8 @@ def test_unreadable_files(tmp_path: Path) -> None:
 def test_navigation_file_is_not_observations(shared_data: Path) -> None:
     with pytest.raises(DataFileError, match="not a RINEX observation file|no GPS observation"):
         read_code_observations(shared_data / NL / "CBW100NLD_R_20210010000_01D_MN.rnx")
+
+
+def test_time_window_without_epochs(shared_data: Path) -> None:
+    with pytest.raises(DataFileError, match=r"zegv0010\.21o: no GPS observation epochs"):
+        read_code_observations(shared_data / NL / "zegv0010.21o", tlim=("2021-01-02T00:00", "2021-01-02T01:00"))
