@@ -100,6 +100,10 @@ def test_recursive_solution_ends_at_centralized(rng: np.random.Generator) -> Non
     ok = np.isfinite(s[10]) & np.isfinite(s[-1])
     assert np.all(s[-1][ok] < s[10][ok])                                 # precision improves with epochs
     assert sol.x_ns == pytest.approx(sol.x_m / 0.299792458)
+    # the first 40 epochs alone give the recursive solution after epoch 40
+    w = d.window(slice(0, 40))
+    xw, sw = w.recursive_solution()
+    assert np.allclose(xw[-1], x[39], equal_nan=True) and np.allclose(sw[-1], s[39], equal_nan=True)
 
 
 def test_compressed_problem_is_equivalent(rng: np.random.Generator) -> None:

@@ -29,7 +29,7 @@ import numpy as np
 
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import NS_TO_M
-from distnav.models.gnss.geometry import azimuth_elevation, ecef_to_geodetic, elevation_mask, geodetic_to_ecef
+from distnav.models.gnss.geometry import azimuth_elevation, elevation_mask
 from distnav.models.gnss.observables import (
     between_satellite_operator,
     codebias_coefficients,
@@ -481,12 +481,3 @@ def codebias_data_from_observations(observations: Sequence[CodeObservations], or
                          "notes": {o.station: list(o.notes) for o in observations}})
     return data
 
-
-def geodetic_grid_positions(lat_deg: np.ndarray, lon_deg: np.ndarray, height_m: float = 0.0) -> np.ndarray:
-    """ECEF positions of stations given in degrees (helper for experiments)."""
-    return geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), height_m)
-
-
-def station_latlon_deg(positions_ecef_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    lat, lon, _ = ecef_to_geodetic(positions_ecef_m)
-    return np.rad2deg(lat), np.rad2deg(lon)
