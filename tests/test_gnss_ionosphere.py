@@ -286,10 +286,15 @@ def test_command_dutch_network_ckf_equals_central(shared_data, tmp_path):
     import json
 
     d, obs = _nl(shared_data)
+    edges = tmp_path / "edges.csv"
+    edges.write_text("a,b\nDELF,EIJS\nEIJS,ZEGV\nZEGV,WSRA\nWSRA,ROVN\n")  # a path: 4 hops end to end
     args = _parser().parse_args(["ionosphere", "--obs", *obs, "--nav", str(d / "cbw10010.21n.gz"),
-                                 "--nav-max-age", "24", "--kn", "60", "--out", str(tmp_path), "--no-progress"])
+                                 "--nav-max-age", "24", "--kn", "60", "--graph", str(edges), "--out", str(tmp_path),
+                                 "--no-progress"])
     assert args.func(args) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
+    assert sorted(map(sorted, summary["graph_links"])) == [["DELF", "EIJS"], ["EIJS", "ZEGV"], ["ROVN", "WSRA"],
+                                                           ["WSRA", "ZEGV"]]
     assert summary["stations"] == ["DELF", "EIJS", "WSRA", "ZEGV", "ROVN"]
     assert summary["pivot"] == "G10" and summary["ionosphere"] == "common"
     assert summary["codes"] == {"L1": "C1C", "L2": "C2W"}
