@@ -520,13 +520,18 @@ def _run(problem: RangingLike, states: Iterator[IterationState], ex: Exchange, n
     count = max(int(ex.allreduce(ex.n_local, "sum")), 1)
     own = None
     last = None
-    for st in states:
-        own, c, r = _summarize(problem, ex, st.own_m, truth, est)
-        rm.append(r)
-        cost.append(c)
-        pcost.append(float(ex.allreduce(float(st.partial_cost.sum()), "sum")))
-        step.append(float(ex.allreduce(float(st.step_size.sum()), "sum")) / count)
-        last = st
+    diverged = False
+    with np.errstate(over="ignore", invalid="ignore"):
+        for st in states:
+            own, c, r = _summarize(problem, ex, st.own_m, truth, est)
+            rm.append(r)
+            cost.append(c)
+            pcost.append(float(ex.allreduce(float(st.partial_cost.sum()), "sum")))
+            step.append(float(ex.allreduce(float(st.step_size.sum()), "sum")) / count)
+            last = st
+            if not np.isfinite(c):  # the estimates blew up (e.g. a fixed α too large for the geometry)
+                diverged = True
+                break
     assert own is not None and last is not None
     key = "lambda" if name == "N-CLM" else "step_size"
     trace = Trace({"rmse_m": np.asarray(rm), "cost": np.asarray(cost), "partial_cost": np.asarray(pcost),
@@ -536,8 +541,8 @@ def _run(problem: RangingLike, states: Iterator[IterationState], ex: Exchange, n
         estimates=own,
         converged=False,
         iterations=last.iteration,
-        status="max_iterations",
-        message=f"{name}: {last.iteration} iterations, cost {cost[-1]:.6g}"
+        status="diverged" if diverged else "max_iterations",
+        message=f"{name}: {'diverged after ' if diverged else ''}{last.iteration} iterations, cost {cost[-1]:.6g}"
                 + (f", RMSE {rm[-1]:.3f} m" if truth is not None else ""),
         trace=trace,
         comm=comm,

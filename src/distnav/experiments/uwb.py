@@ -1,0 +1,255 @@
+"""Reproduction of paper 002 §4–5: UWB anchor self-localization, Figs. 3–6 and Table 1.
+
+Problems GC, GO, GM, LC, LO, LM, RC, RM (class G: 10 m grid with 8-neighbourhood; L: two-row ladder, degree ≤ 5;
+R: random, links up to 18 m; 100 anchors of which 3 fixed in a corner (C), opposite corners (O) or the middle
+(M)); ranging noise N(0, 0.15² m²); initial guess truth + U(−5, 5) m per coordinate (eq. (23)); anchors in a
+horizontal plane, solved in 3-D. Solvers LM, CSG, N-CSG, N-CSG-BLS, N-CSG-TBLS, N-CLM with the paper's settings
+(500 iterations, α = 1e-3, α₀ = 1e-2, β = γ = 1/2, one consensus round, Metropolis–Hastings weights).
+
+Per iteration and problem × solver: the mean RMSE over instances (eqs. (24)–(25)) and the mean RMS cost
+``ρ = sqrt(f(x_k)/m)`` (the RMS of the residuals ``g_l`` of eq. (6), m²; ``f`` evaluated at every anchor's own
+estimate, so every solver is scored on the same function), the mean BLS/TBLS step size (Fig. 6), example
+N-CSG-TBLS solutions (Fig. 5) and the Table 1 analogue (final values; messages and bytes per instance).
+``--instances N`` sets the instances per problem (paper: 50 for G and L, 100 for R); ``--quick`` runs one
+instance of 60 iterations. A run whose estimates blow up (CSG and N-CSG with the fixed α = 1e-3 can, on class R)
+is counted in ``diverged`` and left out of the means.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+import numpy as np
+
+from distnav.algorithms.csg import SOLVERS, solve
+from distnav.experiments.common import ExperimentContext, pyplot
+from distnav.models.uwb.problems import PAPER_PROBLEMS, RangingProblem, generate_layout, generate_problem
+
+NAME = "uwb"
+TITLE = "UWB anchor self-localization: LM, CSG, N-CSG (+BLS/TBLS), N-CLM (paper 002 Figs. 3-6, Table 1)"
+
+PAPER_INSTANCES = {"G": 50, "L": 50, "R": 100}
+PAPER_ITERATIONS = 500
+QUICK_ITERATIONS = 60
+PAPER_TBLS_FINAL_STEP = {"N-CSG-BLS": 1.2e-3, "N-CSG-TBLS": 1.3e-3}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--instances", type=int, default=None,
+                        help="instances per problem (default: the paper's 50 for G and L, 100 for R; --quick: 1)")
+    parser.add_argument("--iterations", type=int, default=None,
+                        help=f"iterations of every solver (default {PAPER_ITERATIONS}; --quick: {QUICK_ITERATIONS})")
+
+
+def _errors(problem: RangingProblem, est: np.ndarray) -> tuple[float, float]:
+    assert problem.truth_m is not None
+    e = (est - problem.truth_m)[problem.estimated]
+    return float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))), float(np.sqrt(np.mean(e[:, 2:] ** 2)))
+
+
+def run(ctx: ExperimentContext) -> dict[str, Any]:
+    opt_inst = ctx.options.get("instances")
+    opt_iter = ctx.options.get("iterations")
+    iterations = int(opt_iter) if opt_iter else (QUICK_ITERATIONS if ctx.quick else PAPER_ITERATIONS)
+    if opt_inst is not None and int(opt_inst) < 1:
+        raise ValueError(f"--instances must be ≥ 1, got {opt_inst}")
+    n_inst = {c: (int(opt_inst) if opt_inst else (1 if ctx.quick else PAPER_INSTANCES[c])) for c in "GLR"}
+    layouts = {c: generate_layout(c) for c in "GL"}
+    curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+    table: list[dict[str, Any]] = []
+    examples: dict[str, Any] = {}
+    timing: dict[str, float] = {s: 0.0 for s in SOLVERS}
+    for pi, name in enumerate(PAPER_PROBLEMS):
+        cls = name[0]
+        acc: dict[str, dict[str, Any]] = {s: {"rmse": [], "cost": [], "step": [], "msg": [], "bytes": [],
+                                              "xy": [], "z": [], "diverged": 0} for s in SOLVERS}
+        with ctx.progress.task(f"uwb: {name}, {n_inst[cls]} instance(s) × {len(SOLVERS)} solvers",
+                               total=n_inst[cls]) as advance:
+            for inst in range(n_inst[cls]):
+                rng = ctx.rng(1000 * (pi + 1) + inst)
+                problem = generate_problem(name, rng, layout=layouts.get(cls))
+                m = problem.n_meas
+                for s in SOLVERS:
+                    t0 = time.perf_counter()
+                    if s == "LM":
+                        res = solve(problem, s, iterations=iterations, pad_trace=True)
+                    else:
+                        res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph))
+                    timing[s] += time.perf_counter() - t0
+                    a = acc[s]
+                    a["msg"].append(res.comm.messages)
+                    a["bytes"].append(res.comm.bytes)
+                    if res.status == "diverged" or not np.all(np.isfinite(res.trace["rmse_m"])):
+                        a["diverged"] += 1
+                        continue
+                    a["rmse"].append(res.trace["rmse_m"][: iterations + 1])
+                    a["cost"].append(np.sqrt(res.trace["cost"][: iterations + 1] / m))
+                    if "LS" in s:
+                        a["step"].append(res.trace["step_size"][: iterations + 1])
+                    xy, z = _errors(problem, res.estimates)
+                    a["xy"].append(xy)
+                    a["z"].append(z)
+                    if inst == 0 and s == "N-CSG-TBLS" and name in ("GO", "LC", "RM"):
+                        examples[name] = {"truth": problem.truth_m, "initial": problem.initial_m,
+                                          "estimate": res.estimates, "fixed": problem.fixed,
+                                          "links": problem.links}
+                advance(1)
+        curves[name] = {}
+        for s in SOLVERS:
+            a = acc[s]
+            nanrow = [np.full(iterations + 1, np.nan)]
+            rm = np.mean(a["rmse"] or nanrow, axis=0)  # eq. (25), over the runs that did not blow up
+            rc = np.mean(a["cost"] or nanrow, axis=0)
+            curves[name][s] = {"rmse_m": rm, "rms_cost": rc}
+            if a["step"]:
+                curves[name][s]["step_size"] = np.mean(a["step"], axis=0)
+            table.append({
+                "problem": name, "solver": s, "rmse_m": float(rm[-1]), "rms_cost": float(rc[-1]),
+                "messages": int(round(float(np.mean(a["msg"])))), "bytes": int(round(float(np.mean(a["bytes"])))),
+                "rmse_xy_m": float(np.mean(a["xy"])) if a["xy"] else float("nan"),
+                "rmse_z_m": float(np.mean(a["z"])) if a["z"] else float("nan"),
+                "instances": n_inst[cls], "diverged": a["diverged"], "iterations": iterations,
+            })
+
+    results: dict[str, Any] = {
+        "settings": {"iterations": iterations, "instances": n_inst, "alpha": 1e-3, "alpha0": 1e-2, "beta": 0.5,
+                     "gamma": 0.5, "consensus_rounds": 1, "weights": "MH", "sigma_m": 0.15,
+                     "init_halfwidth_m": 5.0, "dim": 3, "anchors": 100, "fixed": 3},
+        "table": table,
+        "curves": {p: {s: {k: v.tolist() for k, v in d.items()} for s, d in sv.items()} for p, sv in curves.items()},
+        "paper_claims": {
+            "LM lowest cost": "LM reaches the lowest cost on every problem (Table 1)",
+            "distributed lower RMSE": "LM RMSE stagnates above 1 m; distributed solvers mostly below 0.6 m",
+            "ladder hardest": "class L has the highest errors for every solver",
+            "step size": "mean BLS/TBLS α rises to about 1.2e-3 / 1.3e-3 (RC, RM; Fig. 6)",
+        },
+        "solver_seconds": timing,
+    }
+    results["checks"] = _checks(table, curves)
+    results["headline"] = _headline(table, curves, results["checks"])
+    ctx.write_json("results.json", results)
+    ctx.write_text("table.csv", _table_csv(table))
+    ctx.write_text("table.md", _table_md(table))
+    if ctx.is_root:
+        _figures(ctx, curves, examples)
+    return results
+
+
+def _final(table: list[dict[str, Any]], problem: str, solver: str, key: str) -> float:
+    return next(float(r[key]) for r in table if r["problem"] == problem and r["solver"] == solver)
+
+
+def _checks(table: list[dict[str, Any]], curves: dict[str, Any]) -> dict[str, Any]:
+    """The paper's qualitative claims evaluated on distnav's numbers (see docs/uwb.md)."""
+    dist = [s for s in SOLVERS if s != "LM"]
+    lm_lowest = [p for p in PAPER_PROBLEMS
+                 if all(not _final(table, p, "LM", "rms_cost") > _final(table, p, s, "rms_cost") for s in dist)]
+    dist_better = {p: [s for s in dist if _final(table, p, s, "rmse_m") < _final(table, p, "LM", "rmse_m")]
+                   for p in PAPER_PROBLEMS}
+    by_class = {c: float(np.nanmean([_final(table, p, s, "rmse_m") for p in PAPER_PROBLEMS if p[0] == c
+                                     for s in dist])) for c in "GLR"}
+    step = {s: {p: float(curves[p][s]["step_size"][-1]) for p in ("RC", "RM")} for s in ("N-CSG-BLS", "N-CSG-TBLS")}
+    return {
+        "problems_where_LM_has_lowest_cost": lm_lowest,
+        "distributed_solvers_with_lower_RMSE_than_LM": dist_better,
+        "mean_distributed_RMSE_by_class_m": by_class,
+        "hardest_class": max(by_class, key=lambda c: by_class[c]),
+        "final_mean_step_size": step,
+    }
+
+
+def _headline(table: list[dict[str, Any]], curves: dict[str, Any], checks: dict[str, Any]) -> dict[str, Any]:
+    h: dict[str, Any] = {}
+    for p in ("GC", "LC", "RC"):
+        for s in ("LM", "N-CSG-TBLS"):
+            h[f"{p} final RMSE {s} [m]"] = _final(table, p, s, "rmse_m")
+    h["problems where LM has the lowest cost (paper: all 8)"] = len(checks["problems_where_LM_has_lowest_cost"])
+    h["problems where N-CSG-TBLS beats LM in RMSE (paper: all)"] = sum(
+        "N-CSG-TBLS" in v for v in checks["distributed_solvers_with_lower_RMSE_than_LM"].values())
+    h["hardest class (paper: L)"] = checks["hardest_class"]
+    for s, v in checks["final_mean_step_size"].items():
+        h[f"{s} mean α at the end, RC (paper ≈{PAPER_TBLS_FINAL_STEP[s]:.1e})"] = v["RC"]
+    h["bytes per message, CSG"] = _final(table, "GC", "CSG", "bytes") / max(_final(table, "GC", "CSG", "messages"), 1)
+    h["bytes per message, N-CSG"] = (_final(table, "GC", "N-CSG", "bytes")
+                                     / max(_final(table, "GC", "N-CSG", "messages"), 1))
+    return h
+
+
+def _table_csv(table: list[dict[str, Any]]) -> str:
+    cols = ["problem", "solver", "rmse_m", "rms_cost", "messages", "bytes", "rmse_xy_m", "rmse_z_m", "instances",
+            "diverged", "iterations"]
+    lines = [",".join(cols)]
+    for r in table:
+        lines.append(",".join(f"{r[c]:.6g}" if isinstance(r[c], float) else str(r[c]) for c in cols))
+    return "\n".join(lines) + "\n"
+
+
+def _table_md(table: list[dict[str, Any]]) -> str:
+    out = ["# Table 1 analogue (paper 002): final mean RMSE [m] / RMS cost [m²]", "",
+           "| problem | " + " | ".join(SOLVERS) + " |", "|---|" + "---|" * len(SOLVERS)]
+    for p in PAPER_PROBLEMS:
+        cells = [f"{_final(table, p, s, 'rmse_m'):.3f} / {_final(table, p, s, 'rms_cost'):.3g}" for s in SOLVERS]
+        out.append(f"| {p} | " + " | ".join(cells) + " |")
+    out += ["", "Messages / bytes per instance:", "", "| problem | " + " | ".join(SOLVERS) + " |",
+            "|---|" + "---|" * len(SOLVERS)]
+    for p in PAPER_PROBLEMS:
+        cells = [f"{int(_final(table, p, s, 'messages'))} / {int(_final(table, p, s, 'bytes'))}" for s in SOLVERS]
+        out.append(f"| {p} | " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
+STYLE = {"LM": ("k", "-"), "CSG": ("tab:gray", "--"), "N-CSG": ("tab:blue", "-"), "N-CSG-BLS": ("tab:orange", "-"),
+         "N-CSG-TBLS": ("tab:green", "--"), "N-CLM": ("tab:red", ":")}
+
+
+def _figures(ctx: ExperimentContext, curves: dict[str, Any], examples: dict[str, Any]) -> None:
+    plt = pyplot()
+    for key, fname, label in (("rmse_m", "fig3_rmse.png", "mean RMSE [m]"),
+                              ("rms_cost", "fig4_cost.png", "mean RMS cost [m²]")):
+        fig, axes = plt.subplots(2, 4, figsize=(16, 7), sharex=True)
+        for ax, p in zip(axes.ravel(), PAPER_PROBLEMS, strict=True):
+            for s in SOLVERS:
+                c, ls = STYLE[s]
+                ax.semilogy(np.asarray(curves[p][s][key]), color=c, ls=ls, lw=1.2, label=s)
+            ax.set_title(p)
+            ax.grid(alpha=0.3, which="both")
+            ax.set_xlabel("iteration")
+        axes[0, 0].set_ylabel(label)
+        axes[1, 0].set_ylabel(label)
+        axes[0, 0].legend(fontsize=7)
+        ctx.save_figure(fig, fname)
+    if examples:
+        fig, axes = plt.subplots(2, len(examples), figsize=(6 * len(examples), 8), squeeze=False,
+                                 gridspec_kw={"height_ratios": [3, 1]})
+        for col, (p, ex) in enumerate(examples.items()):
+            ax, axz = axes[0, col], axes[1, col]
+            t, e, f = ex["truth"], ex["estimate"], ex["fixed"]
+            for i, j in ex["links"]:
+                ax.plot(t[[i, j], 0], t[[i, j], 1], "-", color="0.85", lw=0.5)
+            ax.plot(ex["initial"][:, 0], ex["initial"][:, 1], ".", color="0.6", ms=3, label="initial guess")
+            ax.plot(t[:, 0], t[:, 1], "x", color="tab:green", label="truth")
+            ax.plot(e[:, 0], e[:, 1], "o", mfc="none", color="tab:blue", ms=5, label="N-CSG-TBLS")
+            ax.plot(t[f, 0], t[f, 1], "^", color="k", ms=8, label="fixed")
+            ax.set_title(f"{p} (first instance): x–y")
+            if p[0] != "L":
+                ax.set_aspect("equal")
+            axz.plot(t[:, 0], t[:, 2], "x", color="tab:green")
+            axz.plot(e[:, 0], e[:, 2], "o", mfc="none", color="tab:blue", ms=4)
+            axz.set_xlabel("x [m]")
+            axz.set_ylabel("z [m]")
+            axz.set_title("heights: the plane's mirror ambiguity", fontsize=9)
+        axes[0, 0].legend(fontsize=7)
+        ctx.save_figure(fig, "fig5_examples.png")
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for ax, p in zip(axes, ("RC", "RM"), strict=True):
+        for s in ("N-CSG-BLS", "N-CSG-TBLS"):
+            c, ls = STYLE[s]
+            ax.plot(np.asarray(curves[p][s]["step_size"])[1:], color=c, ls=ls, label=s)
+        ax.axhline(1e-3, color="k", ls=":", lw=1, label="N-CSG α = 1e-3")
+        ax.set_title(f"{p}: mean step size α")
+        ax.set_xlabel("iteration")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    ctx.save_figure(fig, "fig6_step_size.png")

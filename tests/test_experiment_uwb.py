@@ -1,0 +1,72 @@
+"""The paper 002 reproduction (``distnav reproduce uwb``) on a tiny setting: files, table structure, accounting."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from distnav.algorithms.csg import SOLVERS
+from distnav.cli import main
+from distnav.experiments import uwb
+from distnav.experiments.common import ExperimentContext, Progress
+from distnav.models.uwb.problems import PAPER_PROBLEMS, generate_layout
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    out = tmp_path_factory.mktemp("uwb")
+    ctx = ExperimentContext(out_dir=out, quick=True, progress=Progress(enabled=False),
+                            options={"instances": 1, "iterations": 12})
+    return out, uwb.run(ctx)
+
+
+def test_files_and_table_shape(results):
+    out, res = results
+    for name in ("results.json", "table.csv", "table.md", "fig3_rmse.png", "fig4_cost.png", "fig5_examples.png",
+                 "fig6_step_size.png"):
+        assert (out / name).stat().st_size > 0, name
+    on_disk = json.loads((out / "results.json").read_text())
+    rows = on_disk["table"]
+    assert {(r["problem"], r["solver"]) for r in rows} == {(p, s) for p in PAPER_PROBLEMS for s in SOLVERS}
+    for r in rows:
+        assert isinstance(r["messages"], int) and isinstance(r["bytes"], int)
+        assert r["rmse_m"] is None or isinstance(r["rmse_m"], float)
+        assert r["iterations"] == 12 and r["instances"] == 1
+    assert on_disk["headline"] and "hardest class (paper: L)" in on_disk["headline"]
+    csv_lines = (out / "table.csv").read_text().splitlines()
+    assert len(csv_lines) == 1 + len(PAPER_PROBLEMS) * len(SOLVERS)
+    assert "| GC |" in (out / "table.md").read_text()
+
+
+def test_curves_start_at_the_initial_guess(results):
+    _, res = results
+    for p in PAPER_PROBLEMS:
+        first = {s: res["curves"][p][s]["rmse_m"][0] for s in SOLVERS}
+        row = {r["solver"]: r for r in res["table"] if r["problem"] == p}
+        kept = [v for s, v in first.items() if not row[s]["diverged"]]  # a blown-up run is left out (NaN)
+        assert len(set(np.round(kept, 12))) == 1  # every solver starts from the same guess
+        assert 4.3 < first["LM"] < 5.7  # U(−5, 5) per coordinate: E‖e‖² = 3 · 10²/12 = 25 m², RMSE ≈ 5 m
+        assert len(res["curves"][p]["N-CSG-TBLS"]["step_size"]) == 13
+
+
+def test_message_accounting(results):
+    _, res = results
+    g_links = generate_layout("G")[1].shape[0]
+    row = {(r["problem"], r["solver"]): r for r in res["table"]}
+    assert row[("GC", "LM")]["messages"] == 0
+    for s in SOLVERS[1:]:
+        assert row[("GC", s)]["messages"] == 12 * 2 * g_links  # one message per directed edge and iteration
+    csg = row[("GC", "CSG")]["bytes"] / row[("GC", "CSG")]["messages"]
+    ncsg = row[("GC", "N-CSG")]["bytes"] / row[("GC", "N-CSG")]["messages"]
+    assert csg == 100 * 3 * 8 and ncsg == (8 + 1) * 3 * 8  # whole network vs max degree + 1
+
+
+def test_cli_registration_and_bad_instances(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["reproduce", "uwb", "--help"])
+    assert "--instances" in capsys.readouterr().out
+    ctx = ExperimentContext(out_dir=tmp_path, quick=True, progress=Progress(enabled=False), options={"instances": 0})
+    with pytest.raises(ValueError, match="instances"):
+        uwb.run(ctx)
