@@ -418,3 +418,21 @@ def test_docs_example_runs(capsys):
     for block in blocks:
         exec(compile(block, "docs/ionosphere.md", "exec"), {})  # noqa: S102 - our own documentation example
     assert capsys.readouterr().out.strip()
+
+
+def test_command_single_station_with_sp3(shared_data, tmp_path):
+    import json
+
+    d = shared_data / "gnss" / "esbc_2020177_single_station_L5_sp3"
+    args = _parser().parse_args([
+        "ionosphere", "--obs", str(d / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz"),
+        "--sp3", str(d / "GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz"),
+        "--tlim", "2020-06-25T10:00", "2020-06-25T10:20", "--out", str(tmp_path), "--no-progress"])
+    assert args.func(args) == 0
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert s["stations"] == ["ESBC"] and s["epochs"] == 41
+    v, sd = s["final_tec_m"]["central"]["vtec_m"]
+    assert 0.0 < v < 5.0 and sd > 0  # midday June TEC over Denmark: a few to ~20 TECU (0.16 m/TECU)
+    # one station: the CKF is the local filter is the central filter
+    assert s["final_tec_m"]["ckf:ESBC"]["vtec_m"][0] == pytest.approx(v, rel=1e-9)
+    assert s["final_tec_m"]["local:ESBC"]["vtec_m"][0] == pytest.approx(v, rel=1e-9)
