@@ -41,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="instances per problem (default: the paper's 50 for G and L, 100 for R; --quick: 1)")
     parser.add_argument("--iterations", type=int, default=None,
                         help=f"iterations of every solver (default {PAPER_ITERATIONS}; --quick: {QUICK_ITERATIONS})")
+    parser.add_argument("--armijo-slope", choices=["gradient", "subgradient"], default="gradient",
+                        help="slope in the BLS/TBLS Armijo test: the true gradient 2Gᵀg (default) or the "
+                             "subgradient Gᵀg as the paper's text names it")
 
 
 def _errors(problem: RangingProblem, est: np.ndarray) -> tuple[float, float]:
@@ -55,6 +58,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     iterations = int(opt_iter) if opt_iter else (QUICK_ITERATIONS if ctx.quick else PAPER_ITERATIONS)
     if opt_inst is not None and int(opt_inst) < 1:
         raise ValueError(f"--instances must be ≥ 1, got {opt_inst}")
+    armijo_slope = str(ctx.options.get("armijo_slope") or "gradient")
     n_inst = {c: (int(opt_inst) if opt_inst else (1 if ctx.quick else PAPER_INSTANCES[c])) for c in "GLR"}
     layouts = {c: generate_layout(c) for c in "GL"}
     curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
@@ -75,6 +79,9 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                     t0 = time.perf_counter()
                     if s == "LM":
                         res = solve(problem, s, iterations=iterations, pad_trace=True)
+                    elif "LS" in s:
+                        res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph),
+                                    armijo_slope=armijo_slope)
                     else:
                         res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph))
                     timing[s] += time.perf_counter() - t0
@@ -115,7 +122,8 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
 
     results: dict[str, Any] = {
         "settings": {"iterations": iterations, "instances": n_inst, "alpha": 1e-3, "alpha0": 1e-2, "beta": 0.5,
-                     "gamma": 0.5, "consensus_rounds": 1, "weights": "MH", "sigma_m": 0.15,
+                     "gamma": 0.5, "armijo_slope": armijo_slope, "consensus_rounds": 1, "weights": "MH",
+                     "sigma_m": 0.15,
                      "init_halfwidth_m": 5.0, "dim": 3, "anchors": 100, "fixed": 3},
         "table": table,
         "curves": {p: {s: {k: v.tolist() for k, v in d.items()} for s, d in sv.items()} for p, sv in curves.items()},
