@@ -57,6 +57,7 @@ def test_solve_writes_positions_summary_and_plot(tmp_path, capsys):
     assert summary["rmse_m"] < 1e-3 and summary["rms_cost"] < 1e-2  # noise-free, well-posed 3-D
     assert summary["initial_guess"].startswith("classical MDS")
     assert summary["range_combination"].startswith("median")
+    assert summary["warnings"] == []  # anchors at spread heights: no planar warning
     pos, dim = read_positions(out / "positions.csv")
     truth, _ = read_positions(f["truth"])
     assert dim == 3 and set(pos) == set(truth)

@@ -34,7 +34,8 @@ from distnav.errors import DataFileError, ModelError
 from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges, write_positions
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 
-__all__ = ["register", "classical_mds", "smacof", "mds_initial_guess", "planarity", "solve_range_log"]
+__all__ = ["register", "classical_mds", "smacof", "mds_initial_guess", "planarity", "height_spread_ratio",
+           "solve_range_log"]
 
 PLANAR_RATIO = 0.05
 
@@ -109,42 +110,58 @@ def _procrustes(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return r, md - ms @ r
 
 
+def _link_distances(problem: RangingProblem, horizontal: bool) -> tuple[np.ndarray, np.ndarray]:
+    """One distance per measured link (mean of its samples), reduced to horizontal when heights are held."""
+    n = problem.n_anchors
+    links = problem.links
+    lo = np.minimum(problem.meas_a, problem.meas_b)
+    hi = np.maximum(problem.meas_a, problem.meas_b)
+    _, inv = np.unique(lo * n + hi, return_inverse=True)
+    d = np.bincount(inv, problem.range_m) / np.bincount(inv)
+    if horizontal:
+        z = problem.positions_m[:, 2]
+        dz = z[links[:, 0]] - z[links[:, 1]]
+        d = np.sqrt(np.maximum(d * d - dz * dz, 0.0))
+    return links, d
+
+
+def _completed(problem: RangingProblem, links: np.ndarray, d: np.ndarray) -> np.ndarray:
+    n = problem.n_anchors
+    g = csr_matrix((np.concatenate([d, d]) + 1e-9, (np.concatenate([links[:, 0], links[:, 1]]),
+                                                    np.concatenate([links[:, 1], links[:, 0]]))), shape=(n, n))
+    full = shortest_path(g, directed=False)
+    if not np.all(np.isfinite(full)):
+        raise ModelError("the range graph is not connected: no MDS initial guess (pass --initial)")
+    return np.asarray(full)
+
+
 def mds_initial_guess(problem: RangingProblem) -> np.ndarray:
     """MDS of the range graph, refined by SMACOF on the measured pairs, aligned to the fixed anchors.
 
     With held heights (``problem.free[:, 2]`` False for estimated anchors) the ranges are first reduced to
     horizontal distances ``sqrt(d² − Δz²)`` and a 2-D MDS is aligned; heights come from the held values.
     """
-    n, dim = problem.n_anchors, problem.dim
-    links = problem.links
-    # one (median-combined upstream; here mean of samples) range per link
-    lo = np.minimum(problem.meas_a, problem.meas_b)
-    hi = np.maximum(problem.meas_a, problem.meas_b)
-    key = lo * n + hi
-    uniq, inv = np.unique(key, return_inverse=True)
-    d = np.bincount(inv, problem.range_m) / np.bincount(inv)
-    z = None
+    dim = problem.dim
     horizontal = dim == 3 and bool(np.all(~problem.free[:, 2]))
-    if horizontal:
-        z = problem.positions_m[:, 2]
-        dz = z[links[:, 0]] - z[links[:, 1]]
-        d = np.sqrt(np.maximum(d * d - dz * dz, 0.0))
-    g = csr_matrix((np.concatenate([d, d]) + 1e-9, (np.concatenate([links[:, 0], links[:, 1]]),
-                                                    np.concatenate([links[:, 1], links[:, 0]]))), shape=(n, n))
-    full = shortest_path(g, directed=False)
-    if not np.all(np.isfinite(full)):
-        raise ModelError("the range graph is not connected: no MDS initial guess (pass --initial)")
+    links, d = _link_distances(problem, horizontal)
+    full = _completed(problem, links, d)
     k = 2 if horizontal else dim
     coords = smacof(links, d, classical_mds(full, k))
     fixed = problem.fixed
     r, t = _procrustes(coords[fixed], problem.positions_m[fixed][:, :k])
     aligned = coords @ r + t
-    if horizontal:
-        assert z is not None
-        out = np.column_stack([aligned, z])
-    else:
-        out = aligned
+    out = np.column_stack([aligned, problem.positions_m[:, 2]]) if horizontal else aligned
     return np.where(problem.free, out, problem.positions_m)
+
+
+def height_spread_ratio(problem: RangingProblem) -> float:
+    """Vertical spread of the known anchors over their horizontal spread (0 = all at one height).
+
+    Anchors mounted under a ceiling give ≈ 0; then the ranges cannot tell above from below the anchors' plane.
+    """
+    p = problem.positions_m[problem.fixed]
+    horizontal = float(np.ptp(p[:, :2], axis=0).max()) if p.shape[0] else 0.0
+    return float(np.ptp(p[:, 2])) / horizontal if horizontal > 0 else 0.0
 
 
 def planarity(points_m: np.ndarray) -> float:
@@ -206,13 +223,12 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
         init_source = "classical MDS of the range graph + SMACOF, aligned to the known anchors"
     problem = problem.with_initial(init)
     if dim == 3 and not held:
-        assert problem.initial_m is not None
-        ratio = planarity(problem.initial_m)
+        ratio = height_spread_ratio(problem)
         if ratio < PLANAR_RATIO:
             warnings.append(
-                f"the network is nearly planar (vertical/horizontal spread {ratio:.3f} < {PLANAR_RATIO}): the 3-D "
-                f"solve cannot tell above from below the anchors' plane and heights may come out metres off; "
-                f"pass --heights HEIGHTS.csv (id,z_m) to hold the known mounting heights")
+                f"the network looks nearly planar (the known anchors' vertical/horizontal spread is {ratio:.3f} < "
+                f"{PLANAR_RATIO}): a 3-D solve cannot tell above from below the anchors' plane and heights may come "
+                f"out metres off; pass --heights HEIGHTS.csv (id,z_m) to hold the known mounting heights")
     options: dict[str, Any] = {}
     if solver.upper() == "LM":
         options = {"loss": loss, "loss_scale_m": loss_scale_m}
