@@ -374,3 +374,32 @@ def test_filter_entry_point_validation():
     loc = local_filters(dyn, ms).extras["series"]
     with pytest.raises(ModelError, match="one row or"):
         std_ratio(c, loc)
+
+
+def test_long_gnss_like_run_stays_equal_to_covariance_form():
+    # GNSS-like scales (paper 003 §5): random-walk TEC-like entries with tiny system noise, constant biases
+    # that set during the run, 300 epochs: the two forms must not drift apart numerically.
+    rng = np.random.default_rng(0)
+    n, nb, T = 4, 12, 300
+    p = 3 + nb
+    dyn = DynamicModel(p, noise_map=np.eye(p)[:, :3], noise_reduced_cov=np.diag([1e-6, 2.5e-5, 2.5e-5]))
+    set_epoch = rng.integers(100, T + 1, nb)
+    epochs = []
+    for t in range(T):
+        sats = np.flatnonzero(t < set_epoch)
+        row = []
+        for _ in range(n):
+            A = np.zeros((sats.size, p))
+            A[:, 0] = rng.uniform(1, 3, sats.size)
+            A[:, 1:3] = rng.normal(0, 0.05, (sats.size, 2))
+            A[np.arange(sats.size), 3 + sats] = 2.85
+            var = rng.uniform(0.4, 2.0, sats.size) ** 2
+            row.append((A, var, rng.standard_normal(sats.size)) if sats.size else None)
+        epochs.append(row)
+    ms = ObservationSeries(p, epochs)
+    info = central_filter(dyn, ms).extras["series"]
+    cov = kalman_filter(dyn, ms).extras["series"]
+    assert np.array_equal(info.estimable, cov.estimable) and info.estimable[1:].all()
+    m = info.estimable
+    assert np.max(np.abs(info.estimates - cov.estimates)[m] / info.std[m]) < 1e-9
+    assert np.max(np.abs(info.std / cov.std - 1)[m]) < 1e-9

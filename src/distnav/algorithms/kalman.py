@@ -858,7 +858,8 @@ def kalman_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     estimable entries; at the first epoch where everything is estimable it initializes ``x̂_t|t, P_t|t``
     (eq. (15)), then runs time update ``x̂⁻ = Φ x̂``, ``P⁻ = Φ P Φᵀ + S`` (eqs. (8)–(9)) and measurement update
     ``K = P⁻Aᵀ(R + A P⁻ Aᵀ)⁻¹``, ``x̂ = x̂⁻ + K (y − A x̂⁻)``, ``P = (I − KA) P⁻ (I − KA)ᵀ + K R Kᵀ``
-    (eqs. (10)–(12), Joseph form). Raises :class:`ModelError` if the state is still not estimable after
+    (eqs. (10)–(12), Joseph form), one node's observations at a time (their noises are uncorrelated, eq. (23)).
+    Raises :class:`ModelError` if the state is still not estimable after
     ``max_batch_epochs`` epochs.
     """
     _check_pair(dynamics, measurements)
@@ -873,7 +874,7 @@ def kalman_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     P = np.zeros((p, p))
     init_epoch = -1
     for t in range(T):
-        A, y, _ = measurements.observations(t, idx)  # whitened: R = I
+        A, y, row_node = measurements.observations(t, idx)  # whitened: R = I
         if batch is not None:
             if t > max_batch_epochs:
                 raise ModelError(f"state not estimable after {max_batch_epochs} epochs (entries "
@@ -893,11 +894,16 @@ def kalman_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
             F = dynamics.transition_at(t)
             x = F @ x
             P = F @ P @ F.T + dynamics.noise_cov_at(t)
-            if A.shape[0]:
-                S = np.eye(A.shape[0]) + A @ P @ A.T  # Q_vv = R + A P⁻ Aᵀ (eq. (13)), R = I after whitening
-                K = np.linalg.solve(S, A @ P).T
-                x = x + K @ (y - A @ x)
-                IKA = np.eye(p) - K @ A
+            # node blocks are uncorrelated (eq. (23)): update with one node's rows at a time (exact, and
+            # O(Σ m_i³) instead of O((Σ m_i)³))
+            for blk in np.split(np.arange(A.shape[0]), np.flatnonzero(np.diff(row_node)) + 1):
+                if blk.size == 0:
+                    continue
+                Ab, yb = A[blk], y[blk]
+                S = np.eye(blk.size) + Ab @ P @ Ab.T  # Q_vv = R + A P⁻ Aᵀ (eq. (13)), R = I after whitening
+                K = np.linalg.solve(S, Ab @ P).T
+                x = x + K @ (yb - Ab @ x)
+                IKA = np.eye(p) - K @ Ab
                 P = IKA @ P @ IKA.T + K @ K.T
             P = 0.5 * (P + P.T)
         xs[t, 0] = x
