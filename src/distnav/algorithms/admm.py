@@ -181,7 +181,7 @@ class _Kernel:
         self.ip = np.flatnonzero(inC[ex.in_src] & real_in)
         self.pair_dst = ex.in_dst[self.ip]
         n_pairs = self.ip.size
-        self.S_pairs = sp.csr_matrix((np.ones(n_pairs), (self.pair_dst, np.arange(n_pairs))), shape=(nl, n_pairs))
+        self.S_pairs = _segment_matrix(self.pair_dst, nl)
         self.count = np.bincount(self.pair_dst, minlength=nl) + self.inC_loc  # c_i = |N_i ∩ C|
         # outgoing z_{i,s} on edges i→s, s ∈ C: the multiplier of the pair is stored at the reverse in-edge s→i
         self.op = np.flatnonzero(inC[ex.out_dst] & real_out)
@@ -194,12 +194,13 @@ class _Kernel:
         # at constraint node s: z_{i,s} arrives on in-edges i→s
         self.ic = np.flatnonzero(self.inC_loc[ex.in_dst] & real_in)
         n_ic = self.ic.size
-        self.S_c = sp.csr_matrix((np.ones(n_ic), (ex.in_dst[self.ic], np.arange(n_ic))), shape=(nl, n_ic))
+        self.S_c = _segment_matrix(ex.in_dst[self.ic], nl)
         self.size_s = (np.bincount(ex.in_dst[self.ic], minlength=nl) + 1).astype(float)  # |N_s|
         n_in = ex.in_edges.size
         self.S_pairs_all = sp.csr_matrix((np.ones(n_pairs), (self.pair_dst, self.ip)), shape=(nl, n_in))
         self.S_c_all = sp.csr_matrix((np.ones(n_ic), (ex.in_dst[self.ic], self.ic)), shape=(nl, n_in))
         self.out_buf = np.zeros((ex.out_edges.size, p))
+        self.w_iso = float(W[0, 0]) if np.array_equal(W, W[0, 0] * np.eye(p)) else None
         self.size_c = self.size_s * self.inC_loc
         self.count_f = self.count.astype(float)
 
@@ -328,7 +329,7 @@ class _Kernel:
         assert xvals is not None
         d = xvals[self.ic] - z[self.ex.in_dst[self.ic]]  # at constraint node s: x_i − z_s for i ∈ N_s
         ds = (x - z) * self.inC_loc[:, None]
-        WU = U_next @ self.W
+        WU = self._times_W(U_next)
         sums = np.array([
             np.einsum("ij,ij->", d, d) + np.einsum("ij,ij->", ds, ds),
             self.w_scale ** 2 * np.einsum("i,ij,ij->", self.size_c, dz, dz),
@@ -339,8 +340,13 @@ class _Kernel:
         tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
         return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
 
-    @staticmethod
-    def _hold(target: np.ndarray, values: np.ndarray, delivered: np.ndarray, pos: np.ndarray) -> None:
+    def _times_W(self, a: np.ndarray) -> np.ndarray:
+        return a * self.w_iso if self.w_iso is not None else np.einsum("ij,jk->ik", a, self.W)
+
+    def _hold(self, target: np.ndarray, values: np.ndarray, delivered: np.ndarray, pos: np.ndarray) -> None:
+        if not self.ex.faults.active:  # every message on an active edge arrives
+            np.take(values, pos, axis=0, out=target)
+            return
         ok = delivered[pos]
         if ok.all():
             np.take(values, pos, axis=0, out=target)
@@ -355,10 +361,16 @@ class _Kernel:
             self.w_scale ** 2 * np.einsum("i,ij,ij->", self.size_c, dz, dz),
             np.einsum("i,ij,ij->", self.count_f, x, x),
             np.einsum("i,ij,ij->", self.size_c, z, z),
-            _sq_rows((self.S_pairs @ (u_pair + diff_pair) + u_self + diff_self) @ self.W),
+            _sq_rows(self._times_W(self.S_pairs @ (u_pair + diff_pair) + u_self + diff_self)),
         ])
         tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
         return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
+
+
+def _segment_matrix(receiver: np.ndarray, n_rows: int) -> sp.csr_matrix:
+    """0/1 CSR matrix summing values (one per entry of ``receiver``) into their receiver's row."""
+    k = receiver.size
+    return sp.csr_matrix((np.ones(k), (receiver, np.arange(k))), shape=(n_rows, k))
 
 
 def _sq_rows(a: np.ndarray) -> float:
