@@ -148,3 +148,11 @@ def test_all_and_per_node_counts():
     r = choose_constraint_nodes(g, ids(1, 3, 4, 9))
     # node 6 (id 5) sees constraint node 3 only; node 8 (id 7) sees 3, 4 and 9
     assert r.per_node_count[5] == 1 and r.per_node_count[7] == 3
+
+
+def test_exact_cover_time_limit_raises_or_falls_back():
+    g = builders.connected_random_geometric(60, mean_degree=8, rng=np.random.default_rng(0))
+    with pytest.raises(GraphError, match="did not finish in 1e-09 s"):
+        minimum_vertex_cover(g, method="exact", time_limit_s=1e-9)
+    nodes, optimal, lower, used = minimum_vertex_cover(g, method="auto", time_limit_s=1e-9)
+    assert not optimal and used.startswith("2-approximation") and lower <= nodes.size <= 2 * lower
