@@ -298,3 +298,16 @@ def test_admm_equals_blue_with_approximate_cover(case):
     res = admm(prob, g, constraint_nodes=C, W=20.0, max_iterations=5000, tol=1e-12, reference=xh)
     assert res.converged
     assert np.linalg.norm(res.estimates - xh, axis=1).max() / np.linalg.norm(xh) < 1e-8
+
+
+def test_monitor_every_checks_the_tolerance_on_monitored_iterations(case):
+    g, prob, xh = case
+    every = admm(prob, g, W=20.0, max_iterations=5000, tol=1e-10, reference=xh)
+    sparse = admm(prob, g, W=20.0, max_iterations=5000, tol=1e-10, reference=xh, monitor_every=7)
+    assert every.converged and sparse.converged
+    assert sparse.iterations % 7 == 0 and every.iterations <= sparse.iterations < every.iterations + 7
+    pr = sparse.trace["primal_residual"]
+    assert np.isnan(pr[1]) and np.isfinite(pr[7])
+    for mode in ("pairs", "aggregated"):
+        never = admm(prob, g, W=20.0, max_iterations=50, tol=1e-3, monitor_every=0, messages=mode)
+        assert not never.converged and never.iterations == 50
