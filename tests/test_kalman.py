@@ -403,3 +403,27 @@ def test_long_gnss_like_run_stays_equal_to_covariance_form():
     m = info.estimable
     assert np.max(np.abs(info.estimates - cov.estimates)[m] / info.std[m]) < 1e-9
     assert np.max(np.abs(info.std / cov.std - 1)[m]) < 1e-9
+
+
+def test_remaining_validation_rules():
+    with pytest.raises(ModelError, match="must be square"):
+        noise_factor(np.ones((2, 3)))
+    with pytest.raises(ModelError, match="at epoch 4 is not finite"):
+        noise_factor(np.array([[np.nan, 0.0], [0.0, 1.0]]), epoch=4)
+    with pytest.raises(ModelError, match="empty sequence"):
+        DynamicModel(2, transition=[])
+    with pytest.raises(ModelError, match="must be a matrix, a 3-D array"):
+        DynamicModel(2, transition=np.ones(2))
+    with pytest.raises(ModelError, match="factor is not finite"):
+        DynamicModel(2, noise_map=np.array([[1.0], [np.inf]]), noise_reduced_cov=np.eye(1))
+    with pytest.raises(ModelError, match="noise_reduced_cov is not symmetric"):
+        DynamicModel(2, noise_map=np.eye(2), noise_reduced_cov=np.array([[1.0, 0.5], [0.0, 1.0]]))
+    dyn = DynamicModel(2, noise_cov=[np.eye(2)] * 3)
+    with pytest.raises(ModelError, match="given for 3 epochs, epoch 5 requested"):
+        dyn.noise_factor_at(5)
+    with pytest.raises(ModelError, match="system noise given for 3 epochs, the measurements have 4"):
+        central_filter(dyn, NormalSeries(np.zeros((4, 1, 2, 2))))
+    with pytest.raises(ModelError, match="design must be a matrix"):
+        normal_equations(np.ones(3), np.ones(3))
+    with pytest.raises(ModelError, match="n_states must be ≥ 1"):
+        ObservationSeries(0, [[None]])
