@@ -27,7 +27,7 @@ def test_results_schema_and_figures(quick_run):
     assert data["final_max_deviation"] < 1e-9  # 400 iterations at ρ = 1 on the Fig. 5 graph
     assert isinstance(data["headline"], dict) and data["headline"]
     for name in ("fig3_method_of_multipliers.png", "fig4_admm_vs_multipliers.png", "fig5_constraint_nodes.png",
-                 "fig9_rho.png"):
+                 "fig9_rho.png", "fig_nonlinear_ranges.png"):
         assert (out / name).stat().st_size > 10_000
     assert res["fig5"]["C_reduced"]["unused_links"] == [[4, 5], [5, 6]]  # (5,6), (6,7) in the paper's numbering
 
@@ -63,3 +63,11 @@ def test_fig5_study_structure(quick_run):
     sweep = res["rho_sweep"]
     assert sweep["final_run"]["relative_max_distance"] < 1e-9
     assert sweep["initial_values"]["previous"]["initial_relative_distance"] < 0.1
+
+
+def test_nonlinear_part_agrees_with_gauss_newton(quick_run):
+    _, res = quick_run
+    nl = res["nonlinear"]
+    assert nl["linearized"]["max_deviation_from_gauss_newton_m"] < 1e-6
+    assert nl["nonlinear_eq23"]["converged"] and nl["nonlinear_eq23"]["max_deviation_from_gauss_newton_m"] < 1e-6
+    assert nl["gauss_newton"]["error_vs_truth_m"] < 5 * nl["sigma_m"]  # a sane estimate of the truth

@@ -755,7 +755,8 @@ def gauss_newton(problem: NonlinearProblem, x0: np.ndarray, *, max_iterations: i
 
 def admm_linearized(problem: NonlinearProblem, graph: Graph, x_approx: np.ndarray, *,
                     constraint_nodes: Any = "min_cover", W: Any = 1.0, outer_iterations: int = 10,
-                    inner_max_iterations: int = 2000, inner_tol: float = 1e-12, tol: float = 1e-10,
+                    inner_max_iterations: int = 2000, inner_tol: float = 1e-12, inner_atol: float = 1e-12,
+                    tol: float = 1e-10,
                     reference: np.ndarray | None = None, messages: Literal["pairs", "aggregated"] = "pairs",
                     exchange: Exchange | None = None) -> SolverResult:
     """The linearized case of paper 000 §4.3: all nodes start from the same approximate value ``x^o``, linearize
@@ -763,7 +764,8 @@ def admm_linearized(problem: NonlinearProblem, graph: Graph, x_approx: np.ndarra
     ``x_i^o ← x_i^o + Δx_i``; repeated until ``max_i ‖Δx_i‖ ≤ tol·(1 + ‖x^o‖)`` or ``outer_iterations``.
 
     Each node keeps its own ``x_i^o``; they stay identical up to the inner tolerance (the paper's requirement of
-    identical approximate values), so ``inner_tol`` should be tight. Trace per outer iteration: ``max_step``,
+    identical approximate values), so ``inner_tol`` should be tight; ``inner_atol`` (absolute, in the units of ``x``)
+    ends the inner runs of the last steps, whose increments are tiny. Trace per outer iteration: ``max_step``,
     ``inner_iterations``, ``spread`` (``max_i ‖x_i^o − mean‖``) and with ``reference`` ``max_distance_to_reference``.
     """
     p = problem.n_params
@@ -777,7 +779,8 @@ def admm_linearized(problem: NonlinearProblem, graph: Graph, x_approx: np.ndarra
     while t < outer_iterations:
         t += 1
         inner = admm(problem.linearize(xo), graph, constraint_nodes=C, W=W, init="zero",
-                     max_iterations=inner_max_iterations, tol=inner_tol, exchange=ex, messages=messages,
+                     max_iterations=inner_max_iterations, tol=inner_tol, atol=inner_atol, exchange=ex,
+                     messages=messages,
                      record_nodes=False)
         dx = inner.estimates
         xo = xo + dx

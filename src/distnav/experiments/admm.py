@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.admm import admm
+from distnav.algorithms.admm import admm, admm_linearized, admm_nonlinear, gauss_newton, range_positioning_problem
 from distnav.algorithms.lsq import (
     LinearProblem,
     blue,
@@ -186,6 +186,38 @@ def part_c(ctx: ExperimentContext, n: int, rhos: np.ndarray, iterations: int) ->
     }
 
 
+# ----------------------------------------------------------------------------------------------- (d)
+def part_d(ctx: ExperimentContext, rho: float = 3.0) -> dict[str, Any]:
+    """§4.3 on a nonlinear model: 20 nodes range two 2-D targets (m_i = 2 < p = 4), σ = 0.5 m; the linearized
+    variant and the nonlinear x-update (eq. 23) against centralized Gauss–Newton, all from the same start."""
+    rng = ctx.rng(31)
+    g = builders.connected_random_geometric(20, mean_degree=5, rng=rng, size=100.0)
+    targets = np.array([[30.0, 60.0], [70.0, 25.0]])
+    assert g.positions is not None
+    prob = range_positioning_problem(g.positions, targets, sigma_m=0.5, rng=rng)
+    x0 = targets.ravel() + rng.uniform(-5, 5, 4)
+    gn = gauss_newton(prob, x0)
+    xg = gn.estimates[0]
+    C = choose_constraint_nodes(g, "min_cover")
+    with ctx.progress.task("admm: nonlinear range positioning (linearized and eq. 23)"):
+        lin = admm_linearized(prob, g, x0, constraint_nodes=C, W=rho, reference=xg, inner_tol=1e-10,
+                              exchange=ctx.exchange(g))
+        nl = admm_nonlinear(prob, g, x0, constraint_nodes=C, W=rho, reference=xg, max_iterations=3000, tol=1e-10,
+                            exchange=ctx.exchange(g))
+    return {
+        "n_nodes": g.n_nodes, "targets_m": targets.tolist(), "sigma_m": 0.5, "rho": rho, "x0": x0.tolist(),
+        "gauss_newton": {"x": xg.tolist(), "iterations": gn.iterations,
+                         "error_vs_truth_m": float(np.abs(xg - targets.ravel()).max())},
+        "linearized": {"outer_iterations": lin.iterations, "admm_iterations": lin.extras["inner_iterations_total"],
+                       "max_deviation_from_gauss_newton_m": float(np.abs(lin.estimates - xg).max()),
+                       "messages": lin.comm.messages},
+        "nonlinear_eq23": {"iterations": nl.iterations, "converged": nl.converged,
+                           "max_deviation_from_gauss_newton_m": float(np.abs(nl.estimates - xg).max()),
+                           "messages": nl.comm.messages},
+        "_graph": g, "_lin": lin, "_nl": nl, "_xg": xg,
+    }
+
+
 # ----------------------------------------------------------------------------------------------- run
 def run(ctx: ExperimentContext) -> dict[str, Any]:
     quick = ctx.quick
@@ -194,11 +226,13 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                rho_grid=(0.3, 1.0, 3.0) if quick else (0.3, 1.0, 3.0, 10.0))
     rhos = np.array([0.3, 1.0, 3.0, 10.0]) if quick else np.geomspace(0.1, 30, 11)
     c = part_c(ctx, n=20 if quick else 100, rhos=rhos, iterations=600 if quick else 5000)
+    d = part_d(ctx)
     final_dev = b["_finals"]["C_full"]
     results: dict[str, Any] = {
         "fig3_4": a,
         "fig5": {k: v for k, v in b.items() if not k.startswith("_")},
         "rho_sweep": {k: v for k, v in c.items() if not k.startswith("_")},
+        "nonlinear": {k: v for k, v in d.items() if not k.startswith("_")},
         "final_max_deviation": final_dev,
         "final_max_deviation_reduced": b["_finals"]["C_reduced"],
         "headline": {
@@ -213,11 +247,15 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
             f"{c['n_nodes']}-node net: iterations to 1e-6 at best ρ (min cover)":
                 min(v for v in c["iterations_to_1e-6"]["min_cover"] if v is not None),
             f"{c['n_nodes']}-node net: final relative deviation (tol 1e-12)": c["final_run"]["relative_max_distance"],
+            "ranges: linearized ADMM − Gauss-Newton [m]": d["linearized"]["max_deviation_from_gauss_newton_m"],
+            "ranges: nonlinear x-update (eq. 23) − Gauss-Newton [m]":
+                d["nonlinear_eq23"]["max_deviation_from_gauss_newton_m"],
         },
     }
     ctx.write_json("results.json", results)
     if ctx.is_root:
         _figures(ctx, a, b, c)
+        _figure_nonlinear(ctx, d)
     return results
 
 
@@ -345,3 +383,34 @@ def _figures(ctx: ExperimentContext, a: dict[str, Any], b: dict[str, Any], c: di
     axes[1].set_ylabel("‖x_i^[k] − x̂‖ (every node)")
     axes[1].legend()
     ctx.save_figure(fig, "fig9_rho.png")
+
+
+def _figure_nonlinear(ctx: ExperimentContext, d: dict[str, Any]) -> None:
+    plt = pyplot()
+    g: Graph = d["_graph"]
+    pos = g.positions
+    assert pos is not None
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    for i, j in g.links.tolist():
+        axes[0].plot(pos[[i, j], 0], pos[[i, j], 1], "-", color="0.75", lw=0.8)
+    axes[0].plot(pos[:, 0], pos[:, 1], "ko", ms=4, label="nodes (range to both targets)")
+    tg = np.array(d["targets_m"])
+    axes[0].plot(tg[:, 0], tg[:, 1], "r*", ms=14, label="targets (truth)")
+    est = d["_nl"].estimates.reshape(-1, 2, 2)
+    axes[0].plot(est[:, :, 0].ravel(), est[:, :, 1].ravel(), "b+", ms=8, label="x_i (every node, eq. 23)")
+    x0 = np.array(d["x0"]).reshape(2, 2)
+    axes[0].plot(x0[:, 0], x0[:, 1], "gx", ms=8, label="start x⁰")
+    axes[0].set_aspect("equal")
+    axes[0].set_xlabel("x [m]")
+    axes[0].set_ylabel("y [m]")
+    axes[0].legend(fontsize=7)
+    nl = d["_nl"].trace["max_distance_to_reference"]
+    axes[1].semilogy(np.arange(nl.size), nl, label="nonlinear x-update (eq. 23)")
+    lin = d["_lin"]
+    cum = np.cumsum(lin.trace["inner_iterations"])
+    axes[1].semilogy(cum, lin.trace["max_distance_to_reference"], "o-", label="linearized (end of each outer step)")
+    axes[1].set_xlabel("ADMM iterations")
+    axes[1].set_ylabel("max_i ‖x_i − x̂_GN‖ [m]")
+    axes[1].legend(fontsize=8)
+    axes[1].set_title("against centralized Gauss–Newton")
+    ctx.save_figure(fig, "fig_nonlinear_ranges.png")
