@@ -9,6 +9,8 @@
   sets on random problems whose ``N_i`` are all singular: convergence of ``max_i ‖x_i − x̂‖/‖x̂‖``.
 * (c) ``W = ρI`` sweep on a random geometric network (all-nodes and minimum-cover ``C``), per-node curves as in
   Fig. 9, and the initial-value comparison of Fig. 10 (zero versus a previous experiment's solution).
+* (d) §4.3 on a nonlinear model: range positioning of two targets, the linearized variant and the nonlinear
+  x-update (eq. (23)) against centralized Gauss–Newton.
 """
 
 from __future__ import annotations
