@@ -311,3 +311,19 @@ def test_monitor_every_checks_the_tolerance_on_monitored_iterations(case):
     for mode in ("pairs", "aggregated"):
         never = admm(prob, g, W=20.0, max_iterations=50, tol=1e-3, monitor_every=0, messages=mode)
         assert not never.converged and never.iterations == 50
+
+
+@pytest.mark.parametrize("method", ["normal", "observation", "cholesky"])
+def test_uneven_rows_including_a_node_without_data(method):
+    rng = np.random.default_rng(17)
+    g = builders.connected_random_geometric(12, mean_degree=4, rng=rng)
+    rows = [0, 1, 2, 3, 1, 2, 0, 3, 2, 1, 2, 2]
+    p = 4
+    A = [rng.normal(size=(m, p)) for m in rows]
+    y = [rng.normal(size=m) for m in rows]
+    R = [np.diag(rng.uniform(0.5, 2.0, m)) for m in rows]
+    prob = LinearProblem.from_blocks(A, y, R)
+    xh = blue(prob).x
+    res = admm(prob, g, W=1.0, x_update=method, max_iterations=20000, tol=1e-12, reference=xh)
+    assert res.converged
+    assert np.linalg.norm(res.estimates - xh, axis=1).max() / np.linalg.norm(xh) < 1e-8
