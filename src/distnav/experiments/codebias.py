@@ -281,6 +281,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     it_rho = {k: _iterations_to(r.trace["max_distance_to_reference"], THRESHOLD_M) for k, r in runs.items()}
     it_init = {k: _iterations_to(r.trace["max_distance_to_reference"], THRESHOLD_M) for k, r in init_runs.items()}
     it_init_cm = {k: _iterations_to(r.trace["max_distance_to_reference"], 1e-2) for k, r in init_runs.items()}
+    it_rho_cm = {k: _iterations_to(r.trace["max_distance_to_reference"], 1e-2) for k, r in runs.items()}
     final_rho = {k: float(r.trace["max_distance_to_reference"][-1]) for k, r in runs.items()}
     truth = data.truth_m
     assert truth is not None
@@ -293,6 +294,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "constraint_nodes": [graph.names[i] for i in C.nodes],
         "constraint_nodes_optimal": C.optimal,
         "iterations_to_1e-3": it_rho,
+        "iterations_to_1e-2": it_rho_cm,
         "iterations_to_1e-3_by_init_rho_0.5": it_init,
         "iterations_to_1e-2_by_init_rho_0.5": it_init_cm,
         "iterations_to_1e-3_per_satellite_prev_init": per_sat,
