@@ -223,17 +223,25 @@ class _Kernel:
         yield self._state(0, x, z, diff_pair, diff_self, np.zeros_like(z), u_pair, u_self)
         k = 0
         buf = self.out_buf
+        # work arrays reused every iteration (large networks: no fresh allocation per round)
+        tmp = np.empty_like(u_pair)
+        g_x = np.empty((self.op.size, self.p))
+        g_u = np.empty_like(g_x)
         while True:
             k += 1
             # step 1: u-update, l, x-update, send z_{i,s} = x_i + u_{i,s} to constraint neighbours
             u_pair += diff_pair
             u_self += diff_self
-            l = self.S_pairs @ (z_recv - u_pair)
+            np.subtract(z_recv, u_pair, out=tmp)
+            l = self.S_pairs @ tmp
             l += z
             l -= u_self
             l *= inv_count
             x = self.x_update(l, x)
-            buf[self.op] = x[self.op_src] + u_pair[self.op_pair]
+            np.take(x, self.op_src, axis=0, out=g_x)
+            np.take(u_pair, self.op_pair, axis=0, out=g_u)
+            g_x += g_u
+            buf[self.op] = g_x
             inbox = ex.send(buf, active=self.to_c)
             self._hold(zin_c, inbox.values, inbox.delivered, self.ic)
             # step 2: z-update at constraint nodes, broadcast z_s
@@ -245,7 +253,8 @@ class _Kernel:
             z = z_new
             inbox = ex.broadcast(z, active=self.from_c)
             self._hold(z_recv, inbox.values, inbox.delivered, self.ip)
-            diff_pair = x[self.pair_dst] - z_recv
+            np.take(x, self.pair_dst, axis=0, out=diff_pair)
+            diff_pair -= z_recv
             diff_self = (x - z) * cm
             if monitor_every and k % monitor_every == 0:
                 yield self._state(k, x, z, diff_pair, diff_self, dz, u_pair, u_self)
