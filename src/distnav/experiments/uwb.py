@@ -41,9 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="instances per problem (default: the paper's 50 for G and L, 100 for R; --quick: 1)")
     parser.add_argument("--iterations", type=int, default=None,
                         help=f"iterations of every solver (default {PAPER_ITERATIONS}; --quick: {QUICK_ITERATIONS})")
-    parser.add_argument("--armijo-slope", choices=["gradient", "subgradient"], default="gradient",
-                        help="slope in the BLS/TBLS Armijo test: the true gradient 2Gᵀg (default) or the "
-                             "subgradient Gᵀg as the paper's text names it")
+    parser.add_argument("--armijo-slope", choices=["gradient", "subgradient"], default="subgradient",
+                        help="slope in the BLS/TBLS Armijo test: the subgradient Gᵀg as in the paper (default) "
+                             "or the true gradient 2Gᵀg of f")
 
 
 def _errors(problem: RangingProblem, est: np.ndarray) -> tuple[float, float]:
@@ -58,7 +58,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     iterations = int(opt_iter) if opt_iter else (QUICK_ITERATIONS if ctx.quick else PAPER_ITERATIONS)
     if opt_inst is not None and int(opt_inst) < 1:
         raise ValueError(f"--instances must be ≥ 1, got {opt_inst}")
-    armijo_slope = str(ctx.options.get("armijo_slope") or "gradient")
+    armijo_slope = str(ctx.options.get("armijo_slope") or "subgradient")
     n_inst = {c: (int(opt_inst) if opt_inst else (1 if ctx.quick else PAPER_INSTANCES[c])) for c in "GLR"}
     layouts = {c: generate_layout(c) for c in "GL"}
     curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
