@@ -23,9 +23,11 @@ exchange (:mod:`distnav.exchange`); all arrays below are local to the exchange's
   anchor's own partial cost locally — no messages — vectorized over anchors: along ``x + α d`` every residual
   is the quartic ``(a + 2αb + α²c − d²)`` with ``a, b, c`` computed once per iteration.
 * **N-CLM** (eq. (22)): the N-CSG step with the subgradient step replaced by the Levenberg–Marquardt step of
-  eq. (8) on the partial cost, ``u⁽ⁱ⁾ = x⁽ⁱ⁾ − (G⁽ⁱ⁾ᵀG⁽ⁱ⁾ + λ_i diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾))⁻¹ G⁽ⁱ⁾ᵀ g⁽ⁱ⁾``; each anchor adapts
-  its own ``λ_i`` from the gain ratio of its partial cost (a rejected step leaves ``x⁽ⁱ⁾`` unchanged this
-  iteration); the consensus phase is that of N-CSG.
+  eq. (8) on the partial cost, ``u⁽ⁱ⁾ = x⁽ⁱ⁾ − (G⁽ⁱ⁾ᵀG⁽ⁱ⁾ + λ_i D_i)⁻¹ G⁽ⁱ⁾ᵀ g⁽ⁱ⁾``; each anchor adapts its own
+  ``λ_i`` from the gain ratio of its partial cost (a rejected step leaves ``x⁽ⁱ⁾`` unchanged this iteration);
+  the consensus phase is that of N-CSG. ``D_i = mean(diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾))·I`` by default — a deviation from eq. (8)'s
+  Fletcher scaling ``diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾)`` (``damping="fletcher"``), which stalls on the rank-deficient partial
+  problems (see :func:`solve_nclm`).
 
 Fixed anchors take part (they measure and relay) but their coordinates, and any held coordinate, are never changed.
 Paper defaults: 500 iterations, ``α = 1e-3``, ``α₀ = 1e-2``, ``β = γ = 1/2``, one consensus round.
