@@ -123,3 +123,15 @@ def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
     res = ckf(dyn, NormalSeries(N, r), graph=g, protocol="P3", rounds=4, exchange=make_exchange(g, backend=backend))
     series = res.extras["series"]
     return {"estimates": res.estimates, "std": series.std, "sent": res.comm.messages_sent}
+
+
+@case
+def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.admm import admm
+
+    g = _graph()
+    problem = _linear_problem(g.n_nodes)
+    ex = make_exchange(g, backend=backend)
+    res = admm(problem, g, constraint_nodes="min_cover", W=2.0, messages="aggregated", max_iterations=30, tol=0.0,
+               exchange=ex)
+    return {"estimates": res.estimates, "sent": res.comm.messages_sent}
