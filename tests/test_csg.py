@@ -240,6 +240,21 @@ def test_noise_free_sparse_3d_network_converges():
         assert rmse_m(p, res.estimates) < tol, solver
 
 
+def test_koppanyi_problem_distributed_close_to_centralized_cost(shared_data):
+    sio = pytest.importorskip("scipy.io")
+    m = sio.loadmat(shared_data / "uwb" / "koppanyi-distrib-optim-synthetic" / "problem_0011c51.mat")
+    meas, coors = m["meas"], m["coors"]
+    ref_res = float(np.asarray(m["chk_prob"]["res"][0, 0]).ravel()[0])  # centralized (lsqnonlin) ‖r‖
+    ids = [str(i + 1) for i in range(coors.shape[0])]
+    control = [int(v) for v in m["cont_agents"].ravel()]
+    p = build_problem(ids, [(str(int(i)), str(int(j))) for i, j, _ in meas], np.abs(meas[:, 2]),
+                      fixed={str(c): coors[c - 1] for c in control}, dim=2, initial_m=m["x0_mat"].T, truth_m=coors)
+    res = solve(p, "N-CSG-TBLS", iterations=600, alpha0=1e-3, weights="Koppanyi")
+    ratio = np.sqrt(res.trace["cost"][-1]) / ref_res
+    assert 0.999 < ratio < 1.03  # Koppanyi's own metric (‖r‖/‖r*‖ − 1)·100 % below 3 %
+    assert np.sqrt(res.trace["cost"][0]) / ref_res > 10  # from a start 12× worse
+
+
 # ---------------------------------------------------------------------- communication
 def ladder_problem(n: int):
     pos, links = generate_layout("L", n_anchors=n)
