@@ -74,9 +74,11 @@ def _reading(quick: bool) -> list[dict]:
     def ours() -> None:
         read_code_observations(f, tlim=tlim)
 
-    repeat = 2 if quick else 1
-    t_ref = best_time(plain, repeat=repeat)
-    t_ours = best_time(ours, repeat=repeat)
+    # interleaved, best of 2 (3 when quick): the machine is shared and its load changes over a minute
+    t_ref = t_ours = float("inf")
+    for _ in range(3 if quick else 2):
+        t_ref = min(t_ref, best_time(plain, repeat=1))
+        t_ours = min(t_ours, best_time(ours, repeat=1))
     return [{"name": "read RINEX 3 BELE " + ("1 h" if quick else "full day"), "epochs": 121 if quick else 2880,
              "seconds": t_ours, "reference_seconds": t_ref, "ratio": t_ours / t_ref,
              "goal": "≤ 1.2 × georinex", "meets_goal": bool(t_ours <= 1.2 * t_ref)}]
