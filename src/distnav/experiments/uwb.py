@@ -170,9 +170,10 @@ def _checks(table: list[dict[str, Any]], curves: dict[str, Any]) -> dict[str, An
 
 def _headline(table: list[dict[str, Any]], curves: dict[str, Any], checks: dict[str, Any]) -> dict[str, Any]:
     h: dict[str, Any] = {}
+    its = table[0]["iterations"] if table else 0
     for p in ("GC", "LC", "RC"):
         for s in ("LM", "N-CSG-TBLS"):
-            h[f"{p} final RMSE {s} [m]"] = _final(table, p, s, "rmse_m")
+            h[f"{p} RMSE {s} after {its} it. [m]"] = _final(table, p, s, "rmse_m")
     h["problems where LM has the lowest cost (paper: all 8)"] = len(checks["problems_where_LM_has_lowest_cost"])
     h["problems where N-CSG-TBLS beats LM in RMSE (paper: all)"] = sum(
         "N-CSG-TBLS" in v for v in checks["distributed_solvers_with_lower_RMSE_than_LM"].values())
