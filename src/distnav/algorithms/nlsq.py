@@ -33,7 +33,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.algorithms.result import SolverResult, Trace
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
 
@@ -476,9 +476,7 @@ def solve_lm(
         step = np.concatenate([step, np.zeros(pad)])
         lam = np.concatenate([lam, np.full(pad, lam[-1])])
         rmse_tr = np.concatenate([rmse_tr, np.full(pad, rmse_tr[-1])])
-    tbld = TraceBuilder()
-    for i in range(cost.size):
-        tbld.add(cost=cost[i], objective=objective[i], rmse_m=rmse_tr[i], step_size=step[i], **{"lambda": lam[i]})
+    trace = Trace({"cost": cost, "objective": objective, "rmse_m": rmse_tr, "step_size": step, "lambda": lam})
     pos = problem.to_positions(res.x)
     return SolverResult(
         estimates=pos,
@@ -486,7 +484,7 @@ def solve_lm(
         iterations=res.iterations,
         status="converged" if res.converged else "max_iterations",
         message=f"LM: {res.message}; cost {res.cost:.6g}",
-        trace=tbld.build(),
+        trace=trace,
         comm=CommTotals.empty(problem.n_anchors),
         extras={"solver": "LM", "cost": res.cost, "objective": res.objective, "x": res.x, "loss": loss},
     )
