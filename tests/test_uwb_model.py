@@ -222,3 +222,13 @@ def test_generator_is_seeded_and_all_paper_problems_build():
     r1 = generate_problem("RC", np.random.default_rng(1))
     r2 = generate_problem("RC", np.random.default_rng(2))
     assert not np.allclose(r1.truth_m, r2.truth_m)  # class R: a new placement per instance
+
+
+def test_hold_heights_option():
+    p = generate_problem("GC", np.random.default_rng(0), hold_heights=True)
+    assert p.n_free == 2 * 97
+    np.testing.assert_array_equal(p.initial_m[:, 2], p.truth_m[:, 2])  # heights start (and stay) at the truth
+    q = generate_problem("GC", np.random.default_rng(0))
+    np.testing.assert_array_equal(p.range_m, q.range_m)  # same random draws
+    with pytest.raises(ModelError, match="dim=3"):
+        generate_problem("GC", np.random.default_rng(0), hold_heights=True, dim=2)

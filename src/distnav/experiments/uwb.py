@@ -44,6 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--armijo-slope", choices=["gradient", "subgradient"], default="subgradient",
                         help="slope in the BLS/TBLS Armijo test: the subgradient Gᵀg as in the paper (default) "
                              "or the true gradient 2Gᵀg of f")
+    parser.add_argument("--hold-heights", action="store_true",
+                        help="hold every estimated anchor's height at its true value (solve x, y only)")
 
 
 def _errors(problem: RangingProblem, est: np.ndarray) -> tuple[float, float]:
@@ -59,6 +61,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     if opt_inst is not None and int(opt_inst) < 1:
         raise ValueError(f"--instances must be ≥ 1, got {opt_inst}")
     armijo_slope = str(ctx.options.get("armijo_slope") or "subgradient")
+    hold_heights = bool(ctx.options.get("hold_heights", False))
     n_inst = {c: (int(opt_inst) if opt_inst else (1 if ctx.quick else PAPER_INSTANCES[c])) for c in "GLR"}
     layouts = {c: generate_layout(c) for c in "GL"}
     curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
@@ -73,7 +76,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                                total=n_inst[cls]) as advance:
             for inst in range(n_inst[cls]):
                 rng = ctx.rng(1000 * (pi + 1) + inst)
-                problem = generate_problem(name, rng, layout=layouts.get(cls))
+                problem = generate_problem(name, rng, layout=layouts.get(cls), hold_heights=hold_heights)
                 m = problem.n_meas
                 for s in SOLVERS:
                     t0 = time.perf_counter()
@@ -122,7 +125,8 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
 
     results: dict[str, Any] = {
         "settings": {"iterations": iterations, "instances": n_inst, "alpha": 1e-3, "alpha0": 1e-2, "beta": 0.5,
-                     "gamma": 0.5, "armijo_slope": armijo_slope, "consensus_rounds": 1, "weights": "MH",
+                     "gamma": 0.5, "armijo_slope": armijo_slope, "hold_heights": hold_heights,
+                     "consensus_rounds": 1, "weights": "MH",
                      "sigma_m": 0.15,
                      "init_halfwidth_m": 5.0, "dim": 3, "anchors": 100, "fixed": 3},
         "table": table,

@@ -494,13 +494,16 @@ def generate_problem(
     init_halfwidth_m: float = 5.0,
     dim: int = 3,
     layout: tuple[np.ndarray, np.ndarray] | None = None,
+    hold_heights: bool = False,
 ) -> RangingProblem:
     """One seeded instance of a paper problem such as ``"GC"`` (class letter + fixed-anchor selection).
 
     Ranges: true distance + ``N(0, sigma_m²)`` (one sample per link); initial guess: truth +
     ``U(−init_halfwidth_m, init_halfwidth_m)`` per coordinate of every estimated anchor (paper 002 eq. (23)).
     ``layout`` (positions, links) reuses a placement: the paper keeps the G and L placements over instances,
-    and draws a new R placement for each instance. Anchors lie at z = 0 and are solved in ``dim`` = 3.
+    and draws a new R placement for each instance. Anchors lie at z = 0 and are solved in ``dim`` = 3;
+    ``hold_heights=True`` holds every estimated anchor's height at its true value (the paper's suggested height
+    constraint), leaving the horizontal coordinates to estimate (the random draws are the same either way).
     """
     name = problem.upper()
     if len(name) != 2 or name[0] not in PROBLEM_CLASSES or name[1] not in SELECTIONS[name[0]]:
@@ -518,7 +521,12 @@ def generate_problem(
     ranges = np.abs(true_d + rng.normal(0.0, sigma_m, size=true_d.size))
     init = truth + rng.uniform(-init_halfwidth_m, init_halfwidth_m, size=truth.shape)
     ids = [str(i) for i in range(n)]
+    held = None
+    if hold_heights:
+        if dim != 3:
+            raise ModelError("hold_heights needs dim=3")
+        held = {ids[i]: {2: float(truth[i, 2])} for i in range(n) if i not in set(fixed_idx.tolist())}
     return build_problem(ids, np.stack([a, b], 1), ranges, fixed={ids[i]: truth[i] for i in fixed_idx}, dim=dim,
-                         initial_m=init, truth_m=truth, name=name,
+                         held=held, initial_m=init, truth_m=truth, name=name,
                          info={"class": name[0], "selection": name[1], "sigma_m": sigma_m,
                                "fixed": fixed_idx.tolist()})
