@@ -184,3 +184,14 @@ def test_reset_accounting_restarts_fault_rounds():
     ex.reset_accounting()
     assert ex.comm_totals().rounds == 0
     assert np.array_equal(ex.broadcast(np.zeros(5)).delivered, first)
+
+
+def test_graph_without_links_rounds_are_empty_not_errors():
+    from distnav.network import Graph
+
+    g = Graph.from_links(1, [])
+    ex = make_exchange(g)
+    inbox = ex.send(np.zeros((0, 3)))
+    assert inbox.values.shape == (0, 3) and inbox.sum().shape == (1, 3)
+    assert ex.broadcast(np.ones((1, 2))).sum().tolist() == [[0.0, 0.0]]
+    assert ex.comm_totals().messages == 0

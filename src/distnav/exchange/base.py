@@ -97,7 +97,7 @@ def _segment_matrix(dst_local: np.ndarray, n_rows: int, n_cols: int, data: np.nd
 
 def _flat(values: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
     tail = values.shape[1:]
-    return values.reshape(values.shape[0], -1), tail
+    return values.reshape(values.shape[0], int(np.prod(tail, dtype=np.int64))), tail
 
 
 @dataclass(eq=False)
