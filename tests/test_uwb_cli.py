@@ -73,6 +73,7 @@ def test_distributed_solver_with_initial_guess(tmp_path):
                "--iterations", "300") == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == "N-CLM" and summary["iterations"] == 300
+    assert summary["messages"] > 0 and summary["bytes"] > 0  # anchor-to-anchor messages of the distributed run
     assert summary["rmse_m"] < 0.05
 
 
