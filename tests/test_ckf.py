@@ -199,12 +199,15 @@ def test_monte_carlo_error_covariance():
     """Monte Carlo check of Fig. 7: D(x_t − x̂_i,t|t) = P_i,t|t.
 
     Model: 5 nodes on a path, Protocol 3, k_n = 2, p = 3, non-identity Φ, singular S (one constant entry),
-    x_0 with an arbitrary non-zero mean (the BLUP start needs no prior). 1500 realizations of system and
-    measurement noise; for node i and epoch t the errors are whitened with P_i,t|t: z = C⁻¹ e, C Cᵀ = P.
+    x_0 with an arbitrary non-zero mean (the BLUP start needs no prior). At epoch 0 entries 1 and 2 are observed
+    only as their sum, so only entry 0 is estimable and every I_i is singular (not structurally): that epoch
+    tests the information-error form of the recursion on the estimable block. 1500 realizations of system and
+    measurement noise; for node i and epoch t the errors of the k estimable entries are whitened with P_i,t|t:
+    z = C⁻¹ e, C Cᵀ = P (that block).
     Statistic: the likelihood-ratio test of D(z) = I with known zero mean (so bias is tested too),
-    λ = R (tr S_z − ln det S_z − p), S_z = Σ z zᵀ / R, asymptotically χ² with p(p+1)/2 = 6 degrees of freedom.
-    Each of the 15 (node, epoch) tests uses level 1e-4 (χ²₆ quantile 27.9); the family-wise false-alarm rate is
-    below 15 × 1e-4 = 1.5e-3 (Bonferroni). Seeded, so the outcome is reproducible. Power check in the same
+    λ = R (tr S_z − ln det S_z − k), S_z = Σ z zᵀ / R, asymptotically χ² with k(k+1)/2 degrees of freedom.
+    Each of the 20 (node, epoch) tests uses level 1e-4 (χ²₆ quantile 27.9, χ²₁ 15.1); the family-wise false-alarm
+    rate is below 20 × 1e-4 = 2e-3 (Bonferroni). Seeded, so the outcome is reproducible. Power check in the same
     run: the nominal variance I_i⁻¹ (what a node believes, not its error variance) must be rejected for the
     path's end nodes, where α is largest (≈ 2.2).
     """
@@ -213,6 +216,7 @@ def test_monte_carlo_error_covariance():
     F = np.array([[1.0, 0.1, 0.0], [0.0, 1.0, 0.05], [0.0, 0.0, 1.0]])
     dyn = DynamicModel(p, transition=F, noise_cov=np.diag([0.3, 0.2, 0.0]))
     designs = rng.standard_normal((T, n, 1, p))
+    designs[0, :, :, 2] = designs[0, :, :, 1]  # epoch 0: entries 1 and 2 only observed as their sum
     var = rng.uniform(0.5, 2.0, (T, n, 1))
     g = builders.path(n)
     sched = consensus_schedule(g, "P3")
@@ -230,23 +234,29 @@ def test_monte_carlo_error_covariance():
     ref = ckf(dyn, ms0, schedule=sched, rounds=kn, store_matrices=True, monitor=False)
     P = ref.extras["series"].covariance
     info = ref.extras["series"].information
-    crit = stats.chi2.ppf(1 - 1e-4, p * (p + 1) // 2)
+    est = ref.extras["series"].estimable
+
+    def crit(k: int) -> float:
+        return float(stats.chi2.ppf(1 - 1e-4, k * (k + 1) // 2))
 
     def lr_stat(e: np.ndarray, cov: np.ndarray) -> float:
         z = np.linalg.solve(np.linalg.cholesky(cov), e.T).T
         Sz = z.T @ z / z.shape[0]
-        return float(R * (np.trace(Sz) - np.log(np.linalg.det(Sz)) - p))
+        return float(R * (np.trace(Sz) - np.log(np.linalg.det(Sz)) - e.shape[1]))
 
-    assert np.isfinite(errors).all()
-    for t in (0, 2, 5):
+    # epoch 0: only entry 0 estimable (I_i singular, not structurally: the eigen-decomposition path)
+    assert est[0, :, 0].all() and not est[0, :, 1:].any() and est[1:].all()
+    assert np.isfinite(errors[:, 1:]).all() and np.isnan(errors[:, 0, :, 1:]).all()
+    for t in (0, 1, 2, 5):
         for i in range(n):
-            lam = lr_stat(errors[:, t, i], P[t, i])
-            assert lam < crit, f"node {i}, epoch {t}: λ = {lam:.1f} ≥ {crit:.1f}"
+            m = est[t, i]
+            lam = lr_stat(errors[:, t, i][:, m], P[t, i][np.ix_(m, m)])
+            assert lam < crit(int(m.sum())), f"node {i}, epoch {t}: λ = {lam:.1f} ≥ {crit(int(m.sum())):.1f}"
     # power: the nominal I_i⁻¹ is rejected at the end nodes (α ≈ 2.2 there; λ ≈ 700–1300 in this run)
     alpha = ref.extras["alpha"]
     assert alpha[0] > 2.0 and alpha[-1] > 2.0
     for i in (0, n - 1):
-        assert lr_stat(errors[:, T - 1, i], np.linalg.inv(info[T - 1, i])) > crit
+        assert lr_stat(errors[:, T - 1, i], np.linalg.inv(info[T - 1, i])) > crit(p)
 
 
 def test_communication_totals():
