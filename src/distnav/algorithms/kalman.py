@@ -860,7 +860,8 @@ def kalman_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     ``K = P⁻Aᵀ(R + A P⁻ Aᵀ)⁻¹``, ``x̂ = x̂⁻ + K (y − A x̂⁻)``, ``P = (I − KA) P⁻ (I − KA)ᵀ + K R Kᵀ``
     (eqs. (10)–(12), Joseph form), one node's observations at a time (their noises are uncorrelated, eq. (23)).
     Raises :class:`ModelError` if the state is still not estimable after
-    ``max_batch_epochs`` epochs.
+    ``max_batch_epochs`` epochs. Before the initialization every epoch re-solves the batch (O((p + Σ q_t)³)): a
+    reference for moderate rank-deficient phases; the information form is the production path.
     """
     _check_pair(dynamics, measurements)
     idx = measurements._nodes(None if nodes is None else np.asarray(nodes))
