@@ -46,6 +46,9 @@ def test_paper_findings(quick_run):
     assert s["1"] > s["4"] > s["12"] >= 1.0  # more rounds → closer to the central filter (Fig. 12)
     assert s["12"] < 1.5
     assert r["local_to_central_final"]["max"] > s["1"]  # the CKF improves on the single-node filter
+    d = r["message_drops"]
+    assert d["messages_dropped"] > 0.05 * d["messages"]
+    assert s["4"] <= d["std_ratio_final"] < s["1"]  # lost messages cost precision, but less than 3 rounds do
     # the worst node at k_n = 4 has the fewest neighbours or close to it (paper §5.4)
     deg = np.asarray(r["network"]["degrees"])
     worst = int(np.argmax(r["std_ratio_final_per_node"]["4"]))
