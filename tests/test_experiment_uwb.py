@@ -34,7 +34,8 @@ def test_files_and_table_shape(results):
         assert isinstance(r["messages"], int) and isinstance(r["bytes"], int)
         assert r["rmse_m"] is None or isinstance(r["rmse_m"], float)
         assert r["iterations"] == 12 and r["instances"] == 1
-    assert on_disk["headline"] and "hardest class (paper: L)" in on_disk["headline"]
+    assert on_disk["headline"] and "hardest class, N-CSG-BLS/TBLS (paper: L)" in on_disk["headline"]
+    assert on_disk["checks"]["hardest_class_line_search"] in ("G", "L", "R")
     csv_lines = (out / "table.csv").read_text().splitlines()
     assert len(csv_lines) == 1 + len(PAPER_PROBLEMS) * len(SOLVERS)
     assert "| GC |" in (out / "table.md").read_text()
