@@ -8,8 +8,9 @@
 * Without ``--initial`` the initial guess is classical multidimensional scaling (MDS) of the range graph
   (missing pairs completed by shortest paths), refined by stress majorization (SMACOF) on the measured pairs and
   rotated/reflected/translated onto the known anchors (Procrustes).
-* ``--loss huber|cauchy`` (solver LM) down-weights ranges whose error exceeds about ``--loss-scale-m`` metres, so
-  NLOS ranges that are metres too long stop pulling the solution (``rms_cost`` still reports the plain cost).
+* ``--loss huber|cauchy`` (LM and the neighbourhood solvers) down-weights ranges whose error exceeds about
+  ``--loss-scale-m`` metres, so NLOS ranges that are metres too long stop pulling the solution (``rms_cost`` still
+  reports the plain cost).
 * ``--heights HEIGHTS.csv`` (``id,z_m``) holds those anchors' heights fixed and solves their horizontal position
   from the 3-D ranges — the remedy for the mirror ambiguity of anchors mounted in one plane (under a ceiling).
   A 3-D solve of a nearly planar network without it prints a warning.
@@ -53,7 +54,8 @@ def register(subparsers: Any) -> None:
     s.add_argument("--heights", type=Path, help="CSV id,z_m heights to hold fixed (anchors under a ceiling)")
     s.add_argument("--solver", default="LM", type=str.upper, choices=list(SOLVERS),
                    help="LM (centralized, default) or a distributed solver of paper 002")
-    s.add_argument("--loss", default="linear", choices=list(LOSSES), help="robust loss (solver LM only)")
+    s.add_argument("--loss", default="linear", choices=list(LOSSES),
+                   help="robust loss (LM and the N-CSG/N-CLM solvers; not CSG)")
     s.add_argument("--loss-scale-m", type=float, default=0.3,
                    help="range error (m) beyond which the robust loss down-weights a range (default 0.3)")
     s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")
@@ -178,8 +180,8 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
                     heights: Path | None = None, solver: str = "LM", loss: str = "linear",
                     loss_scale_m: float = 0.3, iterations: int = 500) -> tuple[RangingProblem, Any, dict[str, Any]]:
     """Read the files, build the problem, solve; returns ``(problem, result, summary)`` (no files written)."""
-    if loss != "linear" and solver.upper() != "LM":
-        raise ModelError(f"--loss {loss} is implemented for --solver LM only (got {solver})")
+    if loss != "linear" and solver.upper() == "CSG":
+        raise ModelError(f"--loss {loss} is implemented for LM and the neighbourhood solvers, not CSG")
     if iterations < 1:
         raise ModelError(f"--iterations must be ≥ 1, got {iterations}")
     log = read_ranges(ranges)
@@ -230,7 +232,7 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
                 f"{PLANAR_RATIO}): a 3-D solve cannot tell above from below the anchors' plane and heights may come "
                 f"out metres off; pass --heights HEIGHTS.csv (id,z_m) to hold the known mounting heights")
     options: dict[str, Any] = {}
-    if solver.upper() == "LM":
+    if solver.upper() != "CSG":
         options = {"loss": loss, "loss_scale_m": loss_scale_m}
     result = solve(problem, solver, iterations=iterations, **options)
     est = result.estimates
