@@ -184,6 +184,7 @@ class _DampedSolver:
         self.n = n
         self.mode = "dense"
         if sp.issparse(jac0) and n > 0:
+            jac0 = sp.csr_matrix(jac0)
             pat = sp.csr_matrix((np.ones(jac0.nnz), jac0.indices, jac0.indptr), shape=jac0.shape)
             struct = (pat.T @ pat).tocsr()
             perm = np.asarray(reverse_cuthill_mckee(struct, symmetric_mode=True), np.int64)
