@@ -135,3 +135,30 @@ def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
     res = admm(problem, g, constraint_nodes="min_cover", W=2.0, messages="aggregated", max_iterations=30, tol=0.0,
                exchange=ex)
     return {"estimates": res.estimates, "sent": res.comm.messages_sent}
+
+
+def _uwb_problem():
+    from distnav.models.uwb.problems import generate_problem
+
+    return generate_problem("RC", np.random.default_rng(31), n_anchors=40, dim=2)
+
+
+@case
+def ncsg_tbls(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.csg import solve_ncsg
+
+    problem = _uwb_problem()
+    res = solve_ncsg(problem, line_search="TBLS", iterations=30, exchange=make_exchange(problem.graph, backend=backend))
+    return {"estimates": res.estimates, "sent": res.comm.messages_sent, "bytes": res.comm.bytes_sent,
+            "cost": res.trace["cost"]}
+
+
+@case
+def csg_and_nclm(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.csg import solve_csg, solve_nclm
+
+    problem = _uwb_problem()
+    csg = solve_csg(problem, iterations=20, exchange=make_exchange(problem.graph, backend=backend))
+    nclm = solve_nclm(problem, iterations=10, exchange=make_exchange(problem.graph, backend=backend))
+    return {"estimates": np.concatenate([csg.estimates.ravel(), nclm.estimates.ravel()]),
+            "sent": csg.comm.messages_sent + nclm.comm.messages_sent}
