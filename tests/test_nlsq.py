@@ -56,6 +56,8 @@ def test_dense_and_banded_paths_agree():
     sparse = levenberg_marquardt(fun, p.jacobian_of, p.x0())
     dense = levenberg_marquardt(fun, lambda x: p.jacobian_of(x).toarray(), p.x0())
     huge = levenberg_marquardt(fun, p.jacobian_of, p.x0(), dense_limit=0)
+    csc = levenberg_marquardt(fun, lambda x: p.jacobian_of(x).tocsc(), p.x0())
+    assert csc.cost == pytest.approx(dense.cost, rel=1e-10)
     assert sparse.cost == pytest.approx(dense.cost, rel=1e-10)
     assert huge.cost == pytest.approx(dense.cost, rel=1e-10)
     np.testing.assert_allclose(sparse.x, dense.x, atol=1e-6)
