@@ -127,3 +127,20 @@ def test_partition_rules():
         return int((owner[shuffled.src] != owner[shuffled.dst]).sum())
 
     assert cut(partition_nodes(shuffled, 4, "rcm")) < 0.25 * cut(partition_nodes(shuffled, 4, "block"))
+
+
+def test_real_data_command_under_mpi_writes_the_same_files(shared_data, tmp_path):
+    """`distnav gnss ionosphere --backend mpi` (a CKF on 5 real Dutch receivers) equals the in-process run."""
+    from distnav.cli import main
+
+    d = shared_data / "gnss" / "nl_2021001_short_network_snapshot"
+    obs = [str(d / f) for f in ("delf0010.21o", "eijs0010.21d", "wsra0010.21o", "zegv0010.21o", "rovn0010.21o")]
+    common = ["gnss", "ionosphere", "--obs", *obs, "--nav", str(d / "cbw10010.21n.gz"), "--nav-max-age", "24",
+              "--kn", "4", "--no-progress"]
+    proc = _launch(["-m", "distnav", *common, "--backend", "mpi", "--ranks", "2", "--out", str(tmp_path / "mpi")],
+                   n=2)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert main([*common, "--out", str(tmp_path / "local")]) == 0
+    for name in ("tec_dcb_per_epoch.csv", "dcb_final.csv"):
+        assert (tmp_path / "mpi" / name).read_bytes() == (tmp_path / "local" / name).read_bytes(), name
+    assert proc.stdout.count("pivot") <= 1  # only rank 0 prints

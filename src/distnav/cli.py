@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -20,7 +21,7 @@ from pathlib import Path
 from distnav import __version__
 from distnav.errors import DistnavError
 from distnav.experiments import EXPERIMENTS, available, load
-from distnav.experiments.common import ExperimentContext, Progress
+from distnav.experiments.common import ExperimentContext, Progress, set_file_writer
 
 # real-data command groups; each module defines ``register(subparsers)``
 COMMAND_MODULES = ("distnav.commands.uwb", "distnav.commands.gnss")
@@ -121,6 +122,9 @@ def _main_mpi(args: argparse.Namespace) -> int:
 
     MPI = require("mpi4py.MPI", "mpi")
     rank = MPI.COMM_WORLD.Get_rank()
+    if rank != 0:  # one writer, one voice: rank 0 writes files and prints; errors still reach stderr from any rank
+        set_file_writer(False)
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - lives for the whole process
     try:
         _check_mpi_launch(args)
         return _dispatch(args)

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav.commands import add_backend_arguments, command_exchange
 from distnav.errors import DataFileError, ModelError
 
 __all__ = ["register", "load_edges", "default_graph", "compare_with_products"]
@@ -144,7 +145,7 @@ def _run_codebias(args: argparse.Namespace) -> int:
     admm_info: dict[str, Any] = {"skipped": "a single station has no network to iterate over"}
     if len(stations) > 1:
         res = admm(problem, graph, W=args.rho, max_iterations=args.iterations, tol=0.0, reference=x_blue,
-                   record_nodes=False)
+                   record_nodes=False, exchange=command_exchange(args, graph))
         dist_m = float(res.trace["max_distance_to_reference"][-1])
         admm_x = res.estimates
         admm_info = {"rho": args.rho, "rho_scale": "epoch", "iterations": res.iterations,
@@ -317,6 +318,7 @@ def register(subparsers: Any) -> None:
                          "accuracy, so a sparse station nav file may need more)")
     cb.add_argument("--graph", metavar="EDGES.csv", help="links as station-name pairs (default: MST + 2 nearest)")
     cb.add_argument("--out", default="distnav-codebias", help="output folder (default distnav-codebias)")
+    add_backend_arguments(cb)
     cb.add_argument("--reference", metavar="STATION", help="station lumped into the satellite biases")
     cb.add_argument("--codes", metavar="L1=C1C,L2=C2W,L5=C5X", help="force the code used on a band")
     cb.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")

@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav.commands import add_backend_arguments, command_exchange
 from distnav.errors import DataFileError, ModelError
 
 __all__ = ["add_ionosphere_parser", "add_parser", "IonosphereNetworkData", "network_data", "network_model",
@@ -280,7 +281,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                f"ionosphere {data.ionosphere}; graph links {[(stations[i], stations[j]) for i, j in graph.links]}")
     central = central_filter(dyn, series).extras["series"]
     local = local_filters(dyn, series).extras["series"]
-    res = ckf(dyn, series, graph=graph, protocol="P3", rounds=args.kn, monitor=False)
+    res = ckf(dyn, series, graph=graph, protocol="P3", rounds=args.kn, monitor=False,
+              exchange=command_exchange(args, graph))
     ck = res.extras["series"]
 
     names = layout.state_names(stations)
@@ -406,6 +408,7 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--bias", nargs="+", metavar="FILE",
                    help="published products to compare with: Bias-SINEX (.BIA) and/or IONEX with a DCB block")
     p.add_argument("--out", default="distnav-ionosphere", help="output folder (default distnav-ionosphere)")
+    add_backend_arguments(p)
     p.add_argument("--l1-code", default="C1C", help="L1 code (C1C = RINEX 2 C1, C1W = P1; default C1C)")
     p.add_argument("--l2-code", default="C2W", help="L2 code (default C2W = RINEX 2 P2)")
     p.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")

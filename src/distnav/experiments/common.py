@@ -28,7 +28,16 @@ import numpy as np
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
 
-__all__ = ["ExperimentContext", "Progress", "to_jsonable", "atomic_write_text", "atomic_write_json"]
+__all__ = [
+    "ExperimentContext",
+    "Progress",
+    "to_jsonable",
+    "atomic_write_text",
+    "atomic_write_json",
+    "save_figure_file",
+    "set_file_writer",
+    "is_file_writer",
+]
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -51,8 +60,44 @@ def to_jsonable(obj: Any) -> Any:
     return obj
 
 
+_FILE_WRITER = True
+
+
+def set_file_writer(enabled: bool) -> None:
+    """Under MPI only rank 0 writes: the CLI calls ``set_file_writer(False)`` on every other rank, which turns
+    :func:`atomic_write_text`, :func:`atomic_write_json` and :func:`save_figure_file` into no-ops there."""
+    global _FILE_WRITER
+    _FILE_WRITER = bool(enabled)
+
+
+def is_file_writer() -> bool:
+    return _FILE_WRITER
+
+
+def save_figure_file(fig: Any, path: Path, *, dpi: int = 110) -> None:
+    """Save a matplotlib figure atomically as PNG (no-op on non-writing MPI ranks) and close it."""
+    import matplotlib.pyplot as plt
+
+    if _FILE_WRITER:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
+        os.close(fd)
+        try:
+            fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+    plt.close(fig)
+
+
 def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same folder and an atomic rename."""
+    """Write ``text`` to ``path`` via a temporary file in the same folder and an atomic rename.
+
+    A no-op on MPI ranks other than 0 (see :func:`set_file_writer`)."""
+    if not _FILE_WRITER:
+        return
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -180,16 +225,7 @@ class ExperimentContext:
         import matplotlib.pyplot as plt
 
         if self.is_root:
-            path = self.out_dir / name
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-            os.close(fd)
-            try:
-                fig.savefig(tmp, dpi=110, bbox_inches="tight")
-                os.replace(tmp, path)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
+            save_figure_file(fig, self.out_dir / name)
             self.figures.append(name)
         plt.close(fig)
         return name
