@@ -186,3 +186,29 @@ def test_not_determined_and_option_errors(tmp_path, capsys):
     assert "not CSG" in capsys.readouterr().err
     with pytest.raises(DataFileError, match="missing"):
         read_heights(f["ranges"])
+
+
+@pytest.mark.mpi
+def test_distributed_solve_under_mpi_writes_the_same_positions(tmp_path):
+    pytest.importorskip("mpi4py", reason="the mpi extra is not installed")
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    exe = Path(sys.executable).parent / "mpiexec"
+    mpiexec = str(exe) if exe.exists() else shutil.which("mpiexec")
+    if mpiexec is None:
+        pytest.skip("no mpiexec")
+    f = hall(tmp_path, ceiling=False)
+    args = ["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--initial", str(f["initial"]),
+            "--solver", "N-CSG-TBLS", "--iterations", "100"]
+    proc = subprocess.run([mpiexec, "-n", "2", sys.executable, "-m", "mpi4py", "-m", "distnav", *args, "--backend",
+                           "mpi", "--ranks", "2", "--out", str(tmp_path / "mpi")], stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert main([*args, "--out", str(tmp_path / "local")]) == 0
+    assert (tmp_path / "mpi" / "positions.csv").read_bytes() == (tmp_path / "local" / "positions.csv").read_bytes()
+    a = json.loads((tmp_path / "mpi" / "summary.json").read_text())
+    b = json.loads((tmp_path / "local" / "summary.json").read_text())
+    assert a["messages"] == b["messages"] > 0 and a["rms_cost"] == b["rms_cost"]

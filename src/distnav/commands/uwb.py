@@ -2,7 +2,7 @@
 
     distnav uwb solve --ranges RANGES.csv --known KNOWN.csv [--initial INIT.csv] [--solver NAME]
                       [--truth TRUTH.csv] [--heights HEIGHTS.csv] [--loss linear|huber|cauchy]
-                      [--loss-scale-m 0.3] [--iterations 500] --out OUT_DIR
+                      [--loss-scale-m 0.3] [--iterations 500] [--backend inprocess|mpi] --out OUT_DIR
 
 * Repeated ranges of a pair are combined by their **median** (robust to a minority of NLOS ranges).
 * Without ``--initial`` the initial guess is classical multidimensional scaling (MDS) of the range graph
@@ -31,7 +31,9 @@ from scipy.sparse.csgraph import shortest_path
 
 from distnav.algorithms.csg import SOLVERS, solve
 from distnav.algorithms.nlsq import LOSSES
+from distnav.commands import add_backend_arguments
 from distnav.errors import DataFileError, ModelError
+from distnav.exchange import make_exchange
 from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges, write_positions
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 
@@ -60,6 +62,7 @@ def register(subparsers: Any) -> None:
                    help="range error (m) beyond which the robust loss down-weights a range (default 0.3)")
     s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")
     s.add_argument("--out", type=Path, required=True, help="output folder")
+    add_backend_arguments(s)
     s.set_defaults(func=_handler)
 
 
@@ -178,8 +181,11 @@ def planarity(points_m: np.ndarray) -> float:
 # ---------------------------------------------------------------------- the solve
 def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, truth: Path | None = None,
                     heights: Path | None = None, solver: str = "LM", loss: str = "linear",
-                    loss_scale_m: float = 0.3, iterations: int = 500) -> tuple[RangingProblem, Any, dict[str, Any]]:
-    """Read the files, build the problem, solve; returns ``(problem, result, summary)`` (no files written)."""
+                    loss_scale_m: float = 0.3, iterations: int = 500,
+                    backend: str = "inprocess") -> tuple[RangingProblem, Any, dict[str, Any]]:
+    """Read the files, build the problem, solve; returns ``(problem, result, summary)`` (no files written).
+
+    A distributed solver runs on an exchange of ``backend`` (``"mpi"`` under ``mpiexec``); LM is centralized."""
     if loss != "linear" and solver.upper() == "CSG":
         raise ModelError(f"--loss {loss} is implemented for LM and the neighbourhood solvers, not CSG")
     if iterations < 1:
@@ -234,6 +240,8 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
     options: dict[str, Any] = {}
     if solver.upper() != "CSG":
         options = {"loss": loss, "loss_scale_m": loss_scale_m}
+    if solver.upper() != "LM":
+        options["exchange"] = make_exchange(problem.graph, backend=backend)
     result = solve(problem, solver, iterations=iterations, **options)
     est = result.estimates
     g = problem.residuals(est)
@@ -293,19 +301,21 @@ def _plot(path: Path, problem: RangingProblem, est: np.ndarray) -> None:
 def _handler(args: argparse.Namespace) -> int:
     problem, result, summary = solve_range_log(
         args.ranges, args.known, initial=args.initial, truth=args.truth, heights=args.heights, solver=args.solver,
-        loss=args.loss, loss_scale_m=args.loss_scale_m, iterations=args.iterations)
-    for w in summary["warnings"]:
-        print(f"warning: {w}", file=sys.stderr)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_positions(out / "positions.csv", problem.ids, result.estimates)
-    from distnav.experiments.common import atomic_write_json
+        loss=args.loss, loss_scale_m=args.loss_scale_m, iterations=args.iterations,
+        backend=getattr(args, "backend", "inprocess"))
+    from distnav.experiments.common import atomic_write_json, is_file_writer
 
-    atomic_write_json(out / "summary.json", summary)
-    try:
-        _plot(out / "positions.png", problem, result.estimates)
-    except ImportError as exc:  # pragma: no cover - plot extra missing
-        print(f"warning: no plot ({exc})", file=sys.stderr)
+    out = Path(args.out)
+    if is_file_writer():  # under MPI only rank 0 writes (and prints)
+        for w in summary["warnings"]:
+            print(f"warning: {w}", file=sys.stderr)
+        out.mkdir(parents=True, exist_ok=True)
+        write_positions(out / "positions.csv", problem.ids, result.estimates)
+        atomic_write_json(out / "summary.json", summary)
+        try:
+            _plot(out / "positions.png", problem, result.estimates)
+        except ImportError as exc:  # pragma: no cover - plot extra missing
+            print(f"warning: no plot ({exc})", file=sys.stderr)
     rm = summary["rmse_m"]
     print(f"{summary['solver']}: {summary['iterations']} iterations, rms_cost {summary['rms_cost']:.4g} m², "
           f"range residual RMS {summary['range_residual_rms_m']:.3f} m"
