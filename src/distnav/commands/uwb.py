@@ -277,8 +277,10 @@ def _plot(path: Path, problem: RangingProblem, est: np.ndarray) -> None:
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 6))
-    for i, j in problem.links:
-        ax.plot(est[[i, j], 0], est[[i, j], 1], "-", color="0.8", lw=0.6, zorder=1)
+    lk = problem.links
+    seg = np.full((lk.shape[0], 3, 2), np.nan)  # one NaN-separated polyline
+    seg[:, 0], seg[:, 1] = est[lk[:, 0], :2], est[lk[:, 1], :2]
+    ax.plot(seg[:, :, 0].ravel(), seg[:, :, 1].ravel(), "-", color="0.8", lw=0.6, zorder=1)
     if problem.truth_m is not None:
         t = problem.truth_m
         ax.plot(t[:, 0], t[:, 1], "x", color="tab:green", label="truth", zorder=2)
