@@ -141,6 +141,8 @@ class MPIExchange(Exchange):
         self._edge_send_counts = np.array([e.size for e in send_edges], dtype=np.int64)
         self._edge_recv_counts = np.array([e.size for e in recv_edges], dtype=np.int64)
 
+        self._layouts: dict[tuple[int, int, int], Any] = {}
+        self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}
         self.dist_comm = self.comm.Create_dist_graph_adjacent(
             sources=nbr.tolist(), destinations=nbr.tolist(), reorder=False
         )
@@ -160,18 +162,32 @@ class MPIExchange(Exchange):
         if self.neighbour_ranks.size == 0:
             return recv
         send = np.ascontiguousarray(send, dtype=dtype)
-        sc, rc = send_counts * width, recv_counts * width
-        self.dist_comm.Neighbor_alltoallv([send, (sc.tolist(), self._displs(sc).tolist())],
-                                          [recv, (rc.tolist(), self._displs(rc).tolist())])
+        key = (id(send_counts), id(recv_counts), width)
+        layout = self._layouts.get(key)
+        if layout is None:  # counts and displacements per payload width, computed once
+            sc, rc = send_counts * width, recv_counts * width
+            layout = self._layouts[key] = ((sc.tolist(), self._displs(sc).tolist()),
+                                           (rc.tolist(), self._displs(rc).tolist()))
+        self.dist_comm.Neighbor_alltoallv([send, layout[0]], [recv, layout[1]])
         return recv
 
     def _columns(self, flat_local: np.ndarray, active: np.ndarray | None) -> np.ndarray:
+        """Local values and the halo in ascending global node order.
+
+        The returned array is a buffer reused by the next round (callers consume it within the round)."""
         width = flat_local.shape[1]
-        halo = self._alltoallv(flat_local[self._send_node_idx], self._node_send_counts,
-                               self._node_recv_counts, width, flat_local.dtype)
-        if not halo.shape[0]:
+        if self.n_halo == 0:
             return flat_local
-        cols = np.empty((self.n_columns, width), dtype=flat_local.dtype)
+        key = (width, flat_local.dtype.str)
+        bufs = self._column_buffers.get(key)
+        if bufs is None:
+            bufs = self._column_buffers[key] = (
+                np.empty((self._send_node_idx.size, width), dtype=flat_local.dtype),
+                np.empty((self.n_columns, width), dtype=flat_local.dtype),
+            )
+        send, cols = bufs
+        np.take(flat_local, self._send_node_idx, axis=0, out=send)
+        halo = self._alltoallv(send, self._node_send_counts, self._node_recv_counts, width, flat_local.dtype)
         cols[self.local_col] = flat_local
         cols[self._halo_col] = halo
         return cols
