@@ -162,3 +162,14 @@ def csg_and_nclm(backend: str) -> dict[str, np.ndarray]:
     nclm = solve_nclm(problem, iterations=10, exchange=make_exchange(problem.graph, backend=backend))
     return {"estimates": np.concatenate([csg.estimates.ravel(), nclm.estimates.ravel()]),
             "sent": csg.comm.messages_sent + nclm.comm.messages_sent}
+
+
+@case
+def ncsg_tbls_with_drops(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.csg import solve
+    from distnav.models.uwb.problems import generate_problem
+
+    problem = generate_problem("RM", np.random.default_rng(3), n_anchors=40)
+    ex = make_exchange(problem.graph, backend=backend, faults=FaultSchedule(drop_probability=0.1, seed=2))
+    res = solve(problem, "N-CSG-TBLS", iterations=30, exchange=ex)
+    return {"estimates": res.estimates, "bytes": res.comm.bytes_sent, "received": res.comm.messages_received}
