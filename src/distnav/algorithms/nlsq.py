@@ -285,6 +285,7 @@ class _DampedSolver:
         return None if not np.all(np.isfinite(out)) else np.asarray(out)
 
 
+@single_threaded_blas()
 def levenberg_marquardt(
     fun: Callable[[np.ndarray], np.ndarray],
     jac: Callable[[np.ndarray], Any],
@@ -305,28 +306,8 @@ def levenberg_marquardt(
     Stops when an accepted step reduces the objective by less than ``ftol`` (relative, actual and predicted),
     when the step is below ``xtol·(‖x‖ + xtol)``, when ``max |Gᵀg| / (‖G_col‖ ‖g‖) ≤ gtol`` (MINPACK's cosine
     test), or after ``max_iterations`` trial steps. ``callback(k, x)`` is called after every iteration.
+    Runs with OpenBLAS limited to one thread (:func:`single_threaded_blas`).
     """
-    with single_threaded_blas():
-        return _lm_impl(fun, jac, x0, max_iterations=max_iterations, ftol=ftol, xtol=xtol, gtol=gtol,
-                        lambda0=lambda0, loss=loss, loss_scale=loss_scale, callback=callback, dense_limit=dense_limit)
-
-
-def _lm_impl(
-    fun: Callable[[np.ndarray], np.ndarray],
-    jac: Callable[[np.ndarray], Any],
-    x0: np.ndarray,
-    *,
-    max_iterations: int = 500,
-    ftol: float = 1e-12,
-    xtol: float = 1e-12,
-    gtol: float = 1e-12,
-    lambda0: float = 1e-3,
-    loss: str = "linear",
-    loss_scale: np.ndarray | float = 1.0,
-    callback: Callable[[int, np.ndarray], None] | None = None,
-    dense_limit: int = 200,
-) -> LMResult:
-    """Implementation of :func:`levenberg_marquardt`."""
     if loss not in LOSSES:
         raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
     if max_iterations < 0:
