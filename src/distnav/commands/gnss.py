@@ -300,6 +300,23 @@ def _say(args: argparse.Namespace, text: str) -> None:
 
 
 # ----------------------------------------------------------------------------------------------- CLI
+def add_data_arguments(parser: argparse.ArgumentParser, *, obs_note: str = "") -> None:
+    """The data options every real-data GNSS command shares: --obs, --nav | --sp3, --nav-max-age, --graph,
+    --tlim, --interval, --mask."""
+    parser.add_argument("--obs", nargs="+", required=True, metavar="FILE",
+                        help=f"RINEX 2.11/3.x observation files (.o/.d/.crx, gzip ok), one per station{obs_note}")
+    orbit = parser.add_mutually_exclusive_group(required=True)
+    orbit.add_argument("--nav", metavar="FILE", help="RINEX navigation file (broadcast ephemerides)")
+    orbit.add_argument("--sp3", nargs="+", metavar="FILE", help="SP3 orbit files")
+    parser.add_argument("--nav-max-age", type=float, default=4.0, metavar="HOURS",
+                        help="use a broadcast record up to this far from its toe (default 4 h; elevations only need "
+                             "km accuracy, so a sparse station nav file may need more)")
+    parser.add_argument("--graph", metavar="EDGES.csv", help="links as station-name pairs (default: MST + 2 nearest)")
+    parser.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")
+    parser.add_argument("--interval", type=float, default=None, help="keep epochs on this grid [s] (e.g. 60)")
+    parser.add_argument("--mask", type=float, default=10.0, help="elevation mask [deg] (default 10)")
+
+
 def register(subparsers: Any) -> None:
     """Add ``distnav gnss codebias`` and ``distnav gnss compare`` (and any modules of ``_SUBCOMMAND_MODULES``)."""
     gnss = subparsers.add_parser("gnss", help="real-data GNSS commands (code biases, ionosphere)")
@@ -307,23 +324,11 @@ def register(subparsers: Any) -> None:
 
     cb = sub.add_parser("codebias", help="satellite code biases from L1/L2/L5 RINEX code data (paper 000 §5)",
                         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    cb.add_argument("--obs", nargs="+", required=True, metavar="FILE",
-                    help="RINEX 2.11/3.x observation files (.o/.d/.crx, gzip ok), one per station; the first "
-                         "is the S-basis reference unless --reference")
-    orbit = cb.add_mutually_exclusive_group(required=True)
-    orbit.add_argument("--nav", metavar="FILE", help="RINEX navigation file (broadcast ephemerides)")
-    orbit.add_argument("--sp3", nargs="+", metavar="FILE", help="SP3 orbit files")
-    cb.add_argument("--nav-max-age", type=float, default=4.0, metavar="HOURS",
-                    help="use a broadcast record up to this far from its toe (default 4 h; elevations only need km "
-                         "accuracy, so a sparse station nav file may need more)")
-    cb.add_argument("--graph", metavar="EDGES.csv", help="links as station-name pairs (default: MST + 2 nearest)")
+    add_data_arguments(cb, obs_note="; the first is the S-basis reference unless --reference")
     cb.add_argument("--out", default="distnav-codebias", help="output folder (default distnav-codebias)")
     add_backend_arguments(cb)
     cb.add_argument("--reference", metavar="STATION", help="station lumped into the satellite biases")
     cb.add_argument("--codes", metavar="L1=C1C,L2=C2W,L5=C5X", help="force the code used on a band")
-    cb.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")
-    cb.add_argument("--interval", type=float, default=None, help="keep epochs on this grid [s]")
-    cb.add_argument("--mask", type=float, default=10.0, help="elevation mask [deg] (default 10)")
     cb.add_argument("--sigma", type=float, default=0.20, help="zenith code σ [m] (default 0.20)")
     cb.add_argument("--weighting", choices=["euler-goad", "sin", "constant"], default="euler-goad")
     cb.add_argument("--rho", type=float, default=0.5, help="ADMM weight ρ, per-epoch scale (default 0.5)")

@@ -396,14 +396,9 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     p = gnss_subparsers.add_parser(
         "ionosphere", help="TEC and between-satellite DCBs by central, local and consensus Kalman filters "
                            "(paper 003 §5)", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--obs", nargs="+", required=True, metavar="FILE",
-                   help="RINEX 2.11/3.x observation files (.o/.d/.crx, gzip ok), one per station")
-    orbit = p.add_mutually_exclusive_group(required=True)
-    orbit.add_argument("--nav", metavar="FILE", help="RINEX navigation file (broadcast ephemerides)")
-    orbit.add_argument("--sp3", nargs="+", metavar="FILE", help="SP3 orbit files")
-    p.add_argument("--nav-max-age", type=float, default=4.0, metavar="HOURS",
-                   help="use a broadcast record up to this far from its toe (default 4 h)")
-    p.add_argument("--graph", metavar="EDGES.csv", help="links as station-name pairs (default: MST + 2 nearest)")
+    from distnav.commands.gnss import add_data_arguments  # gnss.py registers this module: import lazily
+
+    add_data_arguments(p)
     p.add_argument("--kn", type=int, default=4, help="consensus rounds per epoch (default 4 = δ 15 s at Δ 60 s)")
     p.add_argument("--bias", nargs="+", metavar="FILE",
                    help="published products to compare with: Bias-SINEX (.BIA) and/or IONEX with a DCB block")
@@ -411,9 +406,6 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     add_backend_arguments(p)
     p.add_argument("--l1-code", default="C1C", help="L1 code (C1C = RINEX 2 C1, C1W = P1; default C1C)")
     p.add_argument("--l2-code", default="C2W", help="L2 code (default C2W = RINEX 2 P2)")
-    p.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")
-    p.add_argument("--interval", type=float, default=None, help="keep epochs on this grid [s] (e.g. 60)")
-    p.add_argument("--mask", type=float, default=10.0, help="elevation mask [deg] (default 10)")
     p.add_argument("--pivot", default="G10", help="pivot satellite (default G10; the longest tracked if absent)")
     p.add_argument("--ionosphere", choices=["auto", "common", "per-receiver"], default="auto",
                    help="one regional ionosphere for all stations, one per station, or auto (by --regional-km)")
