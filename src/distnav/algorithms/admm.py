@@ -42,7 +42,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from distnav.algorithms.lsq import LinearProblem, weight_matrix
-from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.algorithms.result import LegacyResult, SolverResult, SolverStatus, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.exchange.base import CommTotals
@@ -578,7 +578,8 @@ def _drive(gen: Iterator[AdmmState], ex: Exchange, C: ConstraintNodes, p: int, *
     thresholds = (1e-4, 1e-6, 1e-8)
     reached: dict[str, int | None] = {f"{t:g}": None for t in thresholds}
     state: AdmmState | None = None
-    status, converged = "max_iterations", False
+    status: SolverStatus = "max_iterations"
+    converged = False
     for state in gen:
         tb.add(primal_residual=state.primal_residual, dual_residual=state.dual_residual)
         rel = None
@@ -613,10 +614,10 @@ def _drive(gen: Iterator[AdmmState], ex: Exchange, C: ConstraintNodes, p: int, *
            f"dual residual {state.dual_residual:.3g}")
     if ref is not None:
         msg += f", max_i ‖x_i − x̂‖/‖x̂‖ = {float(np.max(np.linalg.norm(x_all - ref, axis=1))) / ref_norm:.3g}"
-    return SolverResult(
+    return LegacyResult(
         estimates=x_all, converged=converged, iterations=state.iteration, status=status, message=msg,
         trace=tb.build(), comm=ex.comm_totals(),
-        extras={"z": z_all[C.nodes], "z_nodes": z_all, "constraint_nodes": C, "iterations_to": reached,
+        legacy={"z": z_all[C.nodes], "z_nodes": z_all, "constraint_nodes": C, "iterations_to": reached,
                 "pairs": n_pairs, **extras},
     )
 
@@ -756,7 +757,7 @@ def gauss_newton(problem: NonlinearProblem, x0: np.ndarray, *, max_iterations: i
         if np.linalg.norm(dx) <= tol * (1 + np.linalg.norm(x)):
             converged = True
             break
-    return SolverResult(estimates=x[None, :], converged=converged, iterations=k,
+    return LegacyResult(estimates=x[None, :], converged=converged, iterations=k,
                         status="converged" if converged else "max_iterations",
                         message=f"Gauss-Newton: {k} iterations, cost {problem.cost(x):.6g}", trace=tb.build(),
                         comm=CommTotals.empty(n))
@@ -802,11 +803,11 @@ def admm_linearized(problem: NonlinearProblem, graph: Graph, x_approx: np.ndarra
         if step <= tol * (1 + float(np.linalg.norm(xo.mean(axis=0)))):
             converged = True
             break
-    return SolverResult(estimates=xo, converged=converged, iterations=t,
+    return LegacyResult(estimates=xo, converged=converged, iterations=t,
                         status="converged" if converged else "max_iterations",
                         message=f"linearized ADMM: {t} outer iterations, {total_inner} ADMM iterations in all",
                         trace=tb.build(), comm=ex.comm_totals(),
-                        extras={"inner_iterations_total": total_inner, "constraint_nodes": C})
+                        legacy={"inner_iterations_total": total_inner, "constraint_nodes": C})
 
 
 class _NonlinearXUpdate:

@@ -45,7 +45,7 @@ from distnav.algorithms.kalman import (
     pseudo_inverse_psd,
     std_ratio,
 )
-from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.algorithms.result import LegacyResult, SolverResult, TraceBuilder
 from distnav.errors import ModelError, WeightsError
 from distnav.exchange import Exchange, make_exchange
 from distnav.exchange.base import CommTotals
@@ -257,13 +257,13 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     comm: CommTotals = ex.comm_totals()
     est_last = series.estimable[-1]
     complete = bool(est_last.all())
-    return SolverResult(
+    return LegacyResult(
         estimates=series.estimates[-1], converged=complete, iterations=measurements.n_epochs,
         status="converged" if complete else "stopped",
         message=(f"CKF over {measurements.n_epochs} epochs with k_n = {kn} consensus rounds each; "
                  f"{int(est_last.sum())}/{est_last.size} node-entries estimable at the last epoch"),
         trace=tb.build(), comm=comm,
-        extras={"series": series, "information": ex.gather_nodes(last.information),
+        legacy={"series": series, "information": ex.gather_nodes(last.information),
                 "info_vector": ex.gather_nodes(last.info_vector),
                 "covariance": ex.gather_nodes(last.covariance) if last.covariance is not None else None,
                 "rounds": kn, "product": L, "alpha": alpha_factor(L) if L is not None else None},

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.algorithms.result import LegacyResult, SolverResult, TraceBuilder
 from distnav.errors import WeightsError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.graph import Graph, SwitchingGraph
@@ -197,7 +197,7 @@ def average_consensus(
     dev_final = float(np.abs(final - mean).max())
     tol = 1e-9 * (1 + float(np.abs(mean).max()))
     converged = dev_final <= tol
-    return SolverResult(
+    return LegacyResult(
         estimates=final,
         converged=converged,
         iterations=rounds,
@@ -205,7 +205,7 @@ def average_consensus(
         message=f"{rounds} rounds, max |r_i − r̄| = {dev_final:.3g}",
         trace=tb.build(),
         comm=ex.comm_totals(),
-        extras={"average": mean},
+        legacy={"average": mean},
     )
 
 

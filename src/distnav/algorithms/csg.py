@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from distnav.algorithms.nlsq import LOSSES, RangingLike, range_loss_scale, single_threaded_blas, solve_lm
-from distnav.algorithms.result import SolverResult, Trace
+from distnav.algorithms.result import LegacyResult, SolverResult, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.weights import ConsensusWeights, consensus_weights
@@ -579,7 +579,7 @@ def _run(problem: RangingLike, states: Iterator[IterationState], ex: Exchange, n
     trace = Trace({"rmse_m": np.asarray(rm), "cost": np.asarray(cost), "partial_cost": np.asarray(pcost),
                    key: np.asarray(step)})
     comm = ex.comm_totals()
-    return SolverResult(
+    return LegacyResult(
         estimates=own,
         converged=False,
         iterations=last.iteration,
@@ -588,7 +588,7 @@ def _run(problem: RangingLike, states: Iterator[IterationState], ex: Exchange, n
                 + (f", RMSE {rm[-1]:.3f} m" if truth is not None else ""),
         trace=trace,
         comm=comm,
-        extras={"solver": name, **extras},
+        legacy={"solver": name, **extras},
     )
 
 

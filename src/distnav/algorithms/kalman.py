@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.algorithms.result import LegacyResult, SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
 
@@ -759,13 +759,13 @@ def information_filter(dynamics: DynamicModel, measurements: MeasurementSeries, 
         information=np.stack(infos) if store_matrices else None,
     )
     complete = bool(last.estimable.all())
-    return SolverResult(
+    return LegacyResult(
         estimates=last.estimates, converged=complete, iterations=measurements.n_epochs,
         status="converged" if complete else "stopped",
         message=f"{mode} information filter over {measurements.n_epochs} epochs; "
                 f"{int(last.estimable.sum())}/{last.estimable.size} entries estimable at the last epoch",
         trace=tb.build(), comm=CommTotals.empty(measurements.n_nodes),
-        extras={"series": series, "information": last.information, "info_vector": last.info_vector,
+        legacy={"series": series, "information": last.information, "info_vector": last.info_vector,
                 "mode": mode},
     )
 
@@ -912,11 +912,11 @@ def kalman_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         covs[t, 0] = P
     series = FilterSeries(estimates=xs, std=_std(np.nan_to_num(covs), ests), estimable=ests, nodes=np.array([-1]),
                           covariance=covs if store_matrices else None)
-    return SolverResult(
+    return LegacyResult(
         estimates=xs[-1], converged=init_epoch >= 0, iterations=T,
         status="converged" if init_epoch >= 0 else "stopped",
         message=(f"covariance-form Kalman filter, BLUP start at epoch {init_epoch}" if init_epoch >= 0
                  else "covariance-form Kalman filter: state never fully estimable"),
         trace=TraceBuilder().build(), comm=CommTotals.empty(measurements.n_nodes),
-        extras={"series": series, "init_epoch": init_epoch, "covariance": covs[-1, 0]},
+        legacy={"series": series, "init_epoch": init_epoch, "covariance": covs[-1, 0]},
     )

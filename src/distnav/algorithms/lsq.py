@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.algorithms.result import LegacyResult, SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
 
@@ -481,11 +481,11 @@ def _run(problem: LinearProblem, states: Iterator[MultiplierState], W: Any, u0: 
         k = 0
     else:
         x_final, k = last.x, last.iteration
-    return SolverResult(
+    return LegacyResult(
         estimates=x_final, converged=False, iterations=k, status="max_iterations",
         message=f"{name}: {k} iterations (reference solver: needs a fusion centre)",
         trace=trace, comm=CommTotals.empty(problem.n_nodes),
-        extras={"z": None if last is None else last.z, "u": u_start if last is None else last.u,
+        legacy={"z": None if last is None else last.z, "u": u_start if last is None else last.u,
                 "dual_value_initial": dual0},
     )
 

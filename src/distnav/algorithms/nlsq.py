@@ -33,7 +33,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from distnav.algorithms.result import SolverResult, Trace
+from distnav.algorithms.result import LegacyResult, SolverResult, Trace
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
 
@@ -460,7 +460,7 @@ def solve_lm(
         rmse_tr = np.concatenate([rmse_tr, np.full(pad, rmse_tr[-1])])
     trace = Trace({"cost": cost, "objective": objective, "rmse_m": rmse_tr, "step_size": step, "lambda": lam})
     pos = problem.to_positions(res.x)
-    return SolverResult(
+    return LegacyResult(
         estimates=pos,
         converged=res.converged,
         iterations=res.iterations,
@@ -468,5 +468,5 @@ def solve_lm(
         message=f"LM: {res.message}; cost {res.cost:.6g}",
         trace=trace,
         comm=CommTotals.empty(problem.n_anchors),
-        extras={"solver": "LM", "cost": res.cost, "objective": res.objective, "x": res.x, "loss": loss},
+        legacy={"solver": "LM", "cost": res.cost, "objective": res.objective, "x": res.x, "loss": loss},
     )
