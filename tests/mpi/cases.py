@@ -121,7 +121,7 @@ def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
     r = np.einsum("tnmp,tnm->tnp", A, y)
     dyn = DynamicModel(p, noise_cov=np.diag([0.1, 0.05, 0.0]))
     res = ckf(dyn, NormalSeries(N, r), graph=g, protocol="P3", rounds=4, exchange=make_exchange(g, backend=backend))
-    series = res.extras["series"]
+    series = res.series
     return {"estimates": res.estimates, "std": series.std, "sent": res.comm.messages_sent}
 
 
