@@ -101,8 +101,11 @@ def test_rank_count_mismatch_is_reported(tmp_path):
 
 def test_partition_rules():
     from distnav.errors import ExchangeError
-    from distnav.exchange.mpi import partition_nodes
+    from distnav.exchange import mpi as exchange_mpi
     from distnav.network import Graph, builders
+    from distnav.network.partition import partition_nodes
+
+    assert exchange_mpi.partition_nodes is partition_nodes  # the old import path still works
 
     g = builders.path(6)
     assert partition_nodes(g, 3, "block").tolist() == [0, 0, 1, 1, 2, 2]

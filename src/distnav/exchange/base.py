@@ -178,7 +178,7 @@ class Mixer:
         lost = np.bincount(ex.in_dst, weights=self._ew_in - w, minlength=ex.n_local)
         m = _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, w, ex.in_src_col)
         out = np.asarray(m @ cols) + (self._self_w + lost)[:, None] * flat
-        return out.reshape(x.shape)
+        return np.asarray(out.reshape(x.shape))
 
 
 class Exchange(ABC):
@@ -271,14 +271,14 @@ class Exchange(ABC):
         arr = np.asarray(global_array)
         if arr.shape[0] != self.n_nodes:
             raise ExchangeError(f"expected a per-node array with {self.n_nodes} rows, got shape {arr.shape}")
-        return arr[self.nodes]
+        return np.asarray(arr[self.nodes])
 
     # ------------------------------------------------------------- rounds
     def _delivered(self, active_in: np.ndarray) -> np.ndarray:
         if not self.faults.active:
             return active_in.copy()
         ok = self.faults.delivered(self.round_index, self.in_src, self.nodes[self.in_dst], self.in_edges)
-        return ok & active_in
+        return np.asarray(ok & active_in)
 
     def _account(self, sent: np.ndarray, received: np.ndarray, msg_bytes: int, total: int | None = None) -> None:
         """Count one round. With ``total`` given, ``sent``/``received`` are count arrays reused round after round

@@ -36,7 +36,8 @@ def uniform_hash(seed: int, round_index: int, edge_ids: np.ndarray) -> np.ndarra
     with np.errstate(over="ignore"):
         key = _splitmix64(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) * np.uint64(1_000_003) + np.uint64(round_index))
         z = _splitmix64(np.asarray(edge_ids, dtype=np.uint64) ^ key)
-    return (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+    out: np.ndarray = (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+    return out
 
 
 @dataclass(frozen=True)

@@ -3,13 +3,8 @@
 Launch with ``mpiexec -n N python -m mpi4py -m distnav ... --backend mpi`` (``-m mpi4py`` makes an exception on
 one rank abort the whole job instead of deadlocking the others).
 
-Partition (``partition=``):
-
-* ``"rcm"`` (default) — nodes ordered by reverse Cuthill–McKee (scipy), then cut into equal contiguous chunks.
-  RCM minimises the bandwidth of the adjacency, so each chunk's links mostly stay inside the chunk or go to
-  the neighbouring chunks: few cut edges and few neighbour ranks for geometric networks, without METIS.
-* ``"block"`` — contiguous node ids (``n/N`` per rank); ``"node"`` — one node per rank (needs N = n_nodes, to mimic
-  real devices); or an explicit owner array (rank of every node).
+Partition (``partition=``): ``"rcm"`` (default), ``"block"``, ``"node"`` or an owner array — see
+:func:`distnav.network.partition.partition_nodes` (re-exported here under its old name).
 
 Every rank builds the same global graph (deterministic from the seed) and derives, without any negotiation,
 which boundary node values it sends to and receives from each neighbour rank. Messages between nodes of the same
@@ -23,13 +18,13 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from distnav._optional import require
 from distnav.errors import ExchangeError
 from distnav.exchange.base import Exchange, ReduceOp
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
+from distnav.network.partition import partition_nodes
 
 __all__ = ["MPIExchange", "partition_nodes", "world_rank", "world_size"]
 
@@ -44,33 +39,6 @@ def world_rank() -> int:
 
 def world_size() -> int:
     return int(_mpi().COMM_WORLD.Get_size())
-
-
-def partition_nodes(graph: Graph, n_ranks: int, method: str | np.ndarray = "rcm") -> np.ndarray:
-    """Rank owning each node: ``"rcm"``, ``"block"``, ``"node"`` or an explicit owner array (see module doc)."""
-    n = graph.n_nodes
-    if isinstance(method, np.ndarray) or not isinstance(method, str):
-        owner = np.asarray(method, dtype=np.int64)
-        if owner.shape != (n,):
-            raise ExchangeError(f"an owner array needs one rank per node ({n}), got shape {owner.shape}")
-        if owner.min() < 0 or owner.max() >= n_ranks:
-            raise ExchangeError(f"owner ranks must be in 0..{n_ranks - 1}")
-    elif method == "node":
-        if n_ranks != n:
-            raise ExchangeError(f"partition 'node' needs one rank per node: launch {n} ranks, not {n_ranks}")
-        owner = np.arange(n, dtype=np.int64)
-    elif method in ("block", "rcm"):
-        if n_ranks > n:
-            raise ExchangeError(f"{n_ranks} ranks for {n} nodes: some ranks would hold no node")
-        order = np.arange(n) if method == "block" else reverse_cuthill_mckee(graph.adjacency(), symmetric_mode=True)
-        owner = np.empty(n, dtype=np.int64)
-        owner[order] = (np.arange(n) * n_ranks) // n
-    else:
-        raise ExchangeError(f"unknown partition {method!r}; choose 'rcm', 'block', 'node' or an owner array")
-    counts = np.bincount(owner, minlength=n_ranks)
-    if (counts == 0).any():
-        raise ExchangeError(f"ranks {np.flatnonzero(counts == 0).tolist()} would hold no node")
-    return owner
 
 
 class MPIExchange(Exchange):

@@ -154,7 +154,7 @@ def unused_links(graph: Graph, nodes: Any) -> np.ndarray:
     links = graph.links
     if links.size == 0:
         return links
-    return links[~(inC[links[:, 0]] | inC[links[:, 1]])]
+    return np.asarray(links[~(inC[links[:, 0]] | inC[links[:, 1]])])
 
 
 # ----------------------------------------------------------------------------------------------- vertex cover

@@ -202,7 +202,7 @@ class Graph:
         rkey = self.dst * self.n_nodes + self.src
         order = np.argsort(key, kind="stable")
         pos = np.searchsorted(key[order], rkey)
-        return order[pos]
+        return np.asarray(order[pos])
 
     def edge_index(self, src: np.ndarray | int, dst: np.ndarray | int) -> np.ndarray:
         """Indices of the directed edges ``src→dst``; raises if one is not an edge."""
@@ -216,7 +216,7 @@ class Graph:
         if missing.any():
             k = int(np.argmax(missing))
             raise GraphError(f"({s[k]}, {d[k]}) is not an edge of the graph")
-        return pos_c
+        return np.asarray(pos_c)
 
     def neighbors(self, i: int, *, include_self: bool = False) -> np.ndarray:
         """Sorted neighbours of node ``i`` (``N_i``); with ``include_self`` also ``i`` itself."""
@@ -263,7 +263,7 @@ class Graph:
     def component_labels(self) -> np.ndarray:
         """Connected-component label of every node."""
         _, labels = connected_components(self.adjacency(), directed=False)
-        return labels
+        return np.asarray(labels)
 
     @property
     def is_connected(self) -> bool:
