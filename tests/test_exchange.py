@@ -195,3 +195,47 @@ def test_graph_without_links_rounds_are_empty_not_errors():
     assert inbox.values.shape == (0, 3) and inbox.sum().shape == (1, 3)
     assert ex.broadcast(np.ones((1, 2))).sum().tolist() == [[0.0, 0.0]]
     assert ex.comm_totals().messages == 0
+
+
+@pytest.mark.parametrize("name", ["consensus_with_faults", "raw_send_and_broadcast", "admm_constraint_nodes",
+                                  "admm_with_drops", "ncsg_tbls_with_drops"])
+def test_locality_order_changes_no_result(name):
+    """Renumbering the exchange's nodes (RCM) is invisible: node results bit for bit, results in the user's ids."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "mpi"))
+    from cases import CASES
+
+    plain, ordered = CASES[name]("inprocess"), CASES[f"{name}_rcm"]("inprocess")
+    assert plain.keys() == ordered.keys()
+    for key, value in plain.items():
+        if key in {"primal", "trace", "cost"}:  # network-wide sums, added in another order
+            np.testing.assert_allclose(ordered[key], value, rtol=1e-12, atol=1e-14, err_msg=key)
+        else:
+            assert np.array_equal(ordered[key], value), f"{name}/{key}"
+
+
+def test_locality_order_is_a_renumbering():
+    from distnav.exchange import InProcessExchange
+    from distnav.network.partition import locality_order, rcm_order, space_filling_order
+
+    g = builders.connected_random_geometric(300, mean_degree=10, rng=np.random.default_rng(4))
+    ex = InProcessExchange(g, order="rcm")
+    assert np.array_equal(ex.nodes, rcm_order(g)) and not np.array_equal(ex.nodes, np.arange(300))
+    assert np.array_equal(np.sort(ex.in_edges), np.arange(g.n_edges))
+    assert np.array_equal(ex.nodes[ex.in_dst], g.dst[ex.in_edges]) and np.array_equal(ex.in_src, g.src[ex.in_edges])
+    assert np.all(np.diff(ex.in_dst) >= 0)
+    x = np.arange(300.0)
+    assert np.array_equal(ex.gather_nodes(ex.local(x)), x)
+    # RCM shrinks the bandwidth of the local adjacency: neighbours sit near each other in memory
+    assert np.abs(ex.in_dst - ex.in_src_col).max() < 0.3 * np.abs(g.dst - g.src).max()
+    assert locality_order(g, "auto") is None  # small graphs keep the user's ids
+    hil = space_filling_order(g.positions)
+    assert np.array_equal(np.sort(hil), np.arange(300))
+    with pytest.raises(ExchangeError, match="permutation"):
+        InProcessExchange(g, order=np.zeros(300, int))
+    with pytest.raises(ExchangeError, match="unknown node order"):
+        InProcessExchange(g, order="metis")
+    with pytest.raises(ExchangeError, match="needs node positions"):
+        InProcessExchange(builders.path(4), order="hilbert")

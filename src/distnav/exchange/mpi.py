@@ -21,10 +21,10 @@ import numpy as np
 
 from distnav._optional import require
 from distnav.errors import ExchangeError
-from distnav.exchange.base import Exchange, ReduceOp
+from distnav.exchange.base import Exchange, ReduceOp, incoming_edges
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
-from distnav.network.partition import partition_nodes
+from distnav.network.partition import locality_order, partition_nodes
 
 __all__ = ["MPIExchange", "partition_nodes", "world_rank", "world_size"]
 
@@ -47,7 +47,7 @@ class MPIExchange(Exchange):
     backend = "mpi"
 
     def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *, comm: Any = None,
-                 partition: str | np.ndarray = "rcm") -> None:
+                 partition: str | np.ndarray = "rcm", order: str | np.ndarray = "auto") -> None:
         super().__init__(graph, faults)
         MPI = _mpi()
         self._MPI = MPI
@@ -59,11 +59,14 @@ class MPIExchange(Exchange):
         src, dst = graph.src, graph.dst
         own_src, own_dst = self.owner[src], self.owner[dst]
 
-        self.nodes = np.flatnonzero(self.owner == me).astype(np.int64)
+        # local order: the shared locality order (the same as in-process) restricted to this rank
+        perm = locality_order(graph, order)
+        mine = self.owner == me
+        self.nodes = (np.flatnonzero(mine) if perm is None else perm[mine[perm]]).astype(np.int64)
         local_index = np.full(graph.n_nodes, -1, dtype=np.int64)
         local_index[self.nodes] = np.arange(self.nodes.size)
 
-        in_sel = np.flatnonzero(own_dst == me)
+        in_sel = incoming_edges(graph, self.nodes)
         out_sel = np.flatnonzero(own_src == me)
         self.in_edges = in_sel
         self.in_dst = local_index[dst[in_sel]]
@@ -74,7 +77,7 @@ class MPIExchange(Exchange):
 
         # neighbour ranks: those sharing cut edges (symmetric: every link is stored both ways)
         cut_out = out_sel[own_dst[out_sel] != me]
-        cut_in = in_sel[own_src[in_sel] != me]
+        cut_in = np.sort(in_sel[own_src[in_sel] != me])
         self.neighbour_ranks = np.unique(own_dst[cut_out]).astype(np.int64)
         nbr = self.neighbour_ranks
 
@@ -86,13 +89,14 @@ class MPIExchange(Exchange):
         self._node_recv_counts = np.array([s.size for s in recv_nodes], dtype=np.int64)
         halo = np.concatenate(recv_nodes) if nbr.size else np.zeros(0, np.int64)
         self.n_halo = int(halo.size)
-        # columns = local and halo nodes in ascending global order, so every row of a sparse product sums its
-        # terms in the same order as in-process: results agree bitwise, not just to rounding
-        column_nodes = np.union1d(self.nodes, halo)
-        self.n_columns = int(column_nodes.size)
-        self.local_col = np.searchsorted(column_nodes, self.nodes)
-        self._halo_col = np.searchsorted(column_nodes, halo)
-        self.in_src_col = np.searchsorted(column_nodes, self.in_src)
+        # columns = [local nodes in local order | halo as received]: the halo lands in one contiguous slice. Each
+        # row of the mixer's product still sums its terms in global sender order (Mixer), so results agree
+        # bitwise with in-process whatever the column numbering.
+        self.n_columns = self.n_local + self.n_halo
+        column_of = local_index.copy()
+        column_of[halo] = self.n_local + np.arange(self.n_halo)
+        self.local_col = np.arange(self.n_local, dtype=np.int64)
+        self.in_src_col = column_of[self.in_src]
 
         # edge messages: per neighbour rank, cut edges in global edge order on both sides
         out_pos = np.full(graph.n_edges, -1, dtype=np.int64)
@@ -140,7 +144,7 @@ class MPIExchange(Exchange):
         return recv
 
     def _columns(self, flat_local: np.ndarray, active: np.ndarray | None) -> np.ndarray:
-        """Local values and the halo in ascending global node order.
+        """Local values (local order) followed by the halo (per neighbour rank, ascending global ids).
 
         The returned array is a buffer reused by the next round (callers consume it within the round)."""
         width = flat_local.shape[1]
@@ -156,8 +160,8 @@ class MPIExchange(Exchange):
         send, cols = bufs
         np.take(flat_local, self._send_node_idx, axis=0, out=send)
         halo = self._alltoallv(send, self._node_send_counts, self._node_recv_counts, width, flat_local.dtype)
-        cols[self.local_col] = flat_local
-        cols[self._halo_col] = halo
+        cols[:self.n_local] = flat_local
+        cols[self.n_local:] = halo
         return cols
 
     def _move_edges(self, flat_out: np.ndarray, active: np.ndarray | None) -> np.ndarray:
