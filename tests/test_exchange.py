@@ -239,3 +239,55 @@ def test_locality_order_is_a_renumbering():
         InProcessExchange(g, order="metis")
     with pytest.raises(ExchangeError, match="needs node positions"):
         InProcessExchange(builders.path(4), order="hilbert")
+
+
+def test_fault_plan_drops_exactly_the_scheduled_messages():
+    """The compiled plan (bulk hash, integer threshold, folded link/silent faults) equals FaultSchedule.delivered."""
+    from distnav.exchange.faults import FaultPlan
+
+    g = builders.random_geometric(2000, 0.04, rng=np.random.default_rng(0), self_loops=True)
+    link = g.links[0]
+    schedules = [
+        FaultSchedule(drop_probability=0.1, seed=3),
+        FaultSchedule(drop_probability=0.37, seed=2**63 + 5, failed_links=((int(link[0]), int(link[1]), 3),),
+                      silent_nodes=((5, 2), (7, 9))),
+        FaultSchedule(failed_links=((int(g.links[3, 0]), int(g.links[3, 1]), 1),), silent_nodes=((5, 0),)),
+    ]
+    edges = np.random.default_rng(1).permutation(g.n_edges)[: g.n_edges // 2]  # any subset, any order
+    for fs in schedules:
+        plan = FaultPlan(fs, g.src[edges], g.dst[edges], edges)
+        for k in [*range(150), 3, 1000, 2]:
+            assert np.array_equal(plan.delivered(k), fs.delivered(k, g.src[edges], g.dst[edges], edges)), k
+
+
+def test_mixer_fault_rounds_by_hand_with_every_kind_of_fault():
+    g = builders.connected_random_geometric(50, mean_degree=6, rng=np.random.default_rng(7))
+    w = consensus_weights(g, "MH")
+    a, b = (int(v) for v in g.links[4])
+    fs = FaultSchedule(drop_probability=0.25, failed_links=((a, b, 2),), silent_nodes=((9, 3),), seed=11)
+    ex = make_exchange(g, faults=fs)
+    mixer = ex.mixer(w)
+    x = np.random.default_rng(8).normal(size=(50, 3))
+    ref = x.copy()
+    dense = w.to_dense()
+    sent = np.zeros(50, int)
+    recv = np.zeros(50, int)
+    e_all = np.arange(g.n_edges)
+    for k in range(12):
+        x = mixer.apply(x)
+        ok = fs.delivered(k, g.src, g.dst, e_all)
+        new = np.empty_like(ref)
+        for i in range(50):
+            acc = dense[i, i] * ref[i]
+            for e in np.flatnonzero(g.dst == i):
+                acc = acc + dense[i, g.src[e]] * (ref[g.src[e]] if ok[e] else ref[i])
+            new[i] = acc
+        ref = new
+        talking = ~((g.src == 9) & (k >= 3))
+        np.add.at(sent, g.src[talking], 1)
+        np.add.at(recv, g.dst[ok], 1)
+    np.testing.assert_allclose(x, ref, rtol=1e-13, atol=1e-14)
+    tot = ex.comm_totals()
+    assert tot.messages_sent.tolist() == sent.tolist()
+    assert tot.messages_received.tolist() == recv.tolist()
+    assert tot.bytes_received.tolist() == (recv * 24).tolist()

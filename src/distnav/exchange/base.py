@@ -26,13 +26,14 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse as sp
 
 from distnav.errors import ExchangeError
-from distnav.exchange.faults import FaultSchedule
+from distnav.exchange.faults import FaultPlan, FaultSchedule
 from distnav.network.graph import Graph
 
 __all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "incoming_edges"]
@@ -221,16 +222,23 @@ class Mixer:
             ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
             out = _csr_product(self._w_full, cols.ravel() if x.ndim == 1 else cols)
             return out.reshape(x.shape)
-        delivered = ex._delivered(self._act_in)
-        silent = ex.faults.silent_mask(ex.round_index, ex.nodes)
-        sent = np.bincount(ex.out_src[self._act_out & ~silent[ex.out_src]], minlength=ex.n_local)
-        recv = np.bincount(ex.in_dst[delivered], minlength=ex.n_local)
-        ex._account(sent, recv, msg_bytes)
-        w = np.where(delivered, self._ew_in, 0.0)
-        lost = np.bincount(ex.in_dst, weights=self._ew_in - w, minlength=ex.n_local)
-        m = _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, w, ex.in_src_col)
-        out = np.asarray(m @ cols) + (self._self_w + lost)[:, None] * flat
-        return np.asarray(out.reshape(x.shape))
+        # fault round: the same prepared matrix with its data masked in place, lost weight to the self-weight
+        ok = ex._fault_plan.delivered(ex.round_index)
+        delivered = ok & self._act_in
+        sent, sent_total = ex._sent_counts(self._act_out, cache=True)
+        ex._account_faulty(sent, sent_total, delivered, msg_bytes)
+        m = self._w_masked
+        np.multiply(self._ew_in, ok, out=m.data)
+        lost = np.bincount(ex.in_dst, weights=self._ew_in - m.data, minlength=ex.n_local)
+        out = _csr_product(m, cols)
+        out += (self._self_w + lost)[:, None] * flat
+        return out.reshape(x.shape)
+
+    @cached_property
+    def _w_masked(self) -> sp.csr_matrix:
+        """The edge part of the local block of ``W`` in incoming-edge order (data rewritten every fault round)."""
+        ex = self.exchange
+        return _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, self._ew_in.copy(), ex.in_src_col)
 
 
 class Exchange(ABC):
@@ -274,7 +282,9 @@ class Exchange(ABC):
 
     def _init_accounting(self) -> None:
         n = self.n_local
-        self._pending: list[tuple[np.ndarray, np.ndarray, int]] = []
+        self._pending: list[tuple[np.ndarray, np.ndarray | None, int]] = []
+        self._recv_edges: dict[int, np.ndarray] = {}
+        self._sent_cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, int]] = {}
         self.messages_sent = np.zeros(n, np.int64)
         self.bytes_sent = np.zeros(n, np.int64)
         self.messages_received = np.zeros(n, np.int64)
@@ -329,16 +339,50 @@ class Exchange(ABC):
         return np.asarray(arr[self.nodes])
 
     # ------------------------------------------------------------- rounds
+    @cached_property
+    def _fault_plan(self) -> FaultPlan:
+        """The fault schedule compiled for this block's incoming edges (once)."""
+        return FaultPlan(self.faults, self.in_src, self.nodes[self.in_dst], self.in_edges)
+
     def _delivered(self, active_in: np.ndarray) -> np.ndarray:
         if not self.faults.active:
             return active_in.copy()
-        ok = self.faults.delivered(self.round_index, self.in_src, self.nodes[self.in_dst], self.in_edges)
-        return np.asarray(ok & active_in)
+        return np.asarray(self._fault_plan.delivered(self.round_index) & active_in)
+
+    def _sent_counts(self, act_out: np.ndarray, *, cache: bool) -> tuple[np.ndarray, int]:
+        """Messages each local node transmits this round on the outgoing edges ``act_out`` (silent senders send
+        nothing). They change only when a silencing begins, so a persistent ``act_out`` is counted once per stage."""
+        stage = self._fault_plan.silent_stage(self.round_index) if self.faults.silent_nodes else 0
+        key = (id(act_out), stage)
+        hit = self._sent_cache.get(key) if cache else None
+        if hit is not None:
+            return hit[1], hit[2]
+        sel = act_out
+        if stage:
+            silent = self.faults.silent_mask(self.round_index, self.nodes)
+            sel = act_out & ~silent[self.out_src]
+        counts = np.bincount(self.out_src[sel], minlength=self.n_local)
+        total = int(counts.sum())
+        if cache:
+            self._sent_cache[key] = (act_out, counts, total)  # act_out kept alive so its id stays unique
+        return counts, total
+
+    def _account_faulty(self, sent: np.ndarray, sent_total: int, delivered: np.ndarray, msg_bytes: int) -> None:
+        """Count a fault round lazily: ``sent`` is a reused count array, ``delivered`` a mask over incoming edges
+        added to a per-edge counter (one pass), turned into per-node counts only by :meth:`_flush`."""
+        acc = self._recv_edges.get(msg_bytes)
+        if acc is None:
+            acc = self._recv_edges[msg_bytes] = np.zeros(self.in_edges.size, np.int64)
+        np.add(acc, delivered, out=acc)
+        self._pending.append((sent, None, msg_bytes))
+        self._round_messages.append(sent_total)
+        self._round_bytes.append(sent_total * msg_bytes)
+        self.round_index += 1
 
     def _account(self, sent: np.ndarray, received: np.ndarray, msg_bytes: int, total: int | None = None) -> None:
         """Count one round. With ``total`` given, ``sent``/``received`` are count arrays reused round after round
         (a prepared mixer): they are folded in lazily (:meth:`_flush`), so such a round costs a list append, not
-        four array additions. Fresh arrays (fault rounds) are folded in at once."""
+        four array additions. Fresh arrays are folded in at once."""
         if total is None:
             total = int(sent.sum())
             self.messages_sent += sent
@@ -362,9 +406,15 @@ class Exchange(ABC):
         for sent, received, msg_bytes, times in groups.values():
             self.messages_sent += sent * times
             self.bytes_sent += sent * (times * msg_bytes)
-            self.messages_received += received * times
-            self.bytes_received += received * (times * msg_bytes)
+            if received is not None:
+                self.messages_received += received * times
+                self.bytes_received += received * (times * msg_bytes)
         self._pending.clear()
+        for msg_bytes, acc in self._recv_edges.items():
+            counts = np.bincount(self.in_dst, weights=acc, minlength=self.n_local).astype(np.int64)
+            self.messages_received += counts
+            self.bytes_received += counts * msg_bytes
+            acc[:] = 0
 
     def _active_slices(self, active: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         if active is None:
@@ -376,17 +426,17 @@ class Exchange(ABC):
 
     def _finish_round(self, values_in: np.ndarray, act_out: np.ndarray, act_in: np.ndarray,
                       tail: tuple[int, ...], msg_bytes: int) -> Inbox:
-        delivered = self._delivered(act_in)
         if self.faults.active:
-            silent = self.faults.silent_mask(self.round_index, self.nodes)
-            sent = np.bincount(self.out_src[act_out & ~silent[self.out_src]], minlength=self.n_local)
-            recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
-        elif act_out is self._real_out:
+            delivered = self._delivered(act_in)
+            sent, total = self._sent_counts(act_out, cache=act_out is self._real_out)
+            self._account_faulty(sent, total, delivered, msg_bytes)
+            return self._inbox(values_in, delivered, tail)
+        delivered = act_in.copy()
+        if act_out is self._real_out:
             self._account(self._all_sent, self._all_recv, msg_bytes, self._all_sent_total)
             return self._inbox(values_in, delivered, tail)
-        else:
-            sent = np.bincount(self.out_src[act_out], minlength=self.n_local)
-            recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
+        sent = np.bincount(self.out_src[act_out], minlength=self.n_local)
+        recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
         self._account(sent, recv, msg_bytes)
         return self._inbox(values_in, delivered, tail)
 
