@@ -425,23 +425,28 @@ class Exchange(ABC):
         return act[self.out_edges] & self._real_out, act[self.in_edges] & self._real_in
 
     def _finish_round(self, values_in: np.ndarray, act_out: np.ndarray, act_in: np.ndarray,
-                      tail: tuple[int, ...], msg_bytes: int) -> Inbox:
+                      tail: tuple[int, ...], msg_bytes: int, owned: bool = False) -> Inbox:
         if self.faults.active:
             delivered = self._delivered(act_in)
             sent, total = self._sent_counts(act_out, cache=act_out is self._real_out)
             self._account_faulty(sent, total, delivered, msg_bytes)
-            return self._inbox(values_in, delivered, tail)
+            return self._inbox(values_in, delivered, tail, owned=owned)
         delivered = act_in.copy()
         if act_out is self._real_out:
             self._account(self._all_sent, self._all_recv, msg_bytes, self._all_sent_total)
-            return self._inbox(values_in, delivered, tail)
+            return self._inbox(values_in, delivered, tail, owned=owned)
         sent = np.bincount(self.out_src[act_out], minlength=self.n_local)
         recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
         self._account(sent, recv, msg_bytes)
-        return self._inbox(values_in, delivered, tail)
+        return self._inbox(values_in, delivered, tail, owned=owned)
 
-    def _inbox(self, values_in: np.ndarray, delivered: np.ndarray, tail: tuple[int, ...]) -> Inbox:
-        values_in = np.where(delivered[:, None], values_in, 0.0) if not delivered.all() else values_in
+    def _inbox(self, values_in: np.ndarray, delivered: np.ndarray, tail: tuple[int, ...], *,
+               owned: bool = False) -> Inbox:
+        if not delivered.all():
+            if owned:  # a fresh array of this round: zero the undelivered rows in place
+                values_in[~delivered] = 0.0
+            else:
+                values_in = np.where(delivered[:, None], values_in, 0.0)
         return Inbox(values=values_in.reshape((values_in.shape[0], *tail)), delivered=delivered,
                      dst=self.in_dst, src=self.in_src, edges=self.in_edges, n_local=self.n_local)
 
@@ -457,7 +462,8 @@ class Exchange(ABC):
         flat, tail = _flat(x)
         act_out, act_in = self._active_slices(active)
         cols = self._columns(flat, active)
-        return self._finish_round(cols[self.in_src_col], act_out, act_in, tail, flat.shape[1] * flat.itemsize)
+        return self._finish_round(cols[self.in_src_col], act_out, act_in, tail, flat.shape[1] * flat.itemsize,
+                                  owned=True)
 
     def send(self, edge_values: np.ndarray, *, active: np.ndarray | None = None) -> Inbox:
         """Send one value per outgoing edge (rows in :attr:`out_edges` order); receive one per incoming edge."""
@@ -469,7 +475,8 @@ class Exchange(ABC):
         flat, tail = _flat(x)
         act_out, act_in = self._active_slices(active)
         moved = self._move_edges(flat, active)
-        return self._finish_round(moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize)
+        return self._finish_round(moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize,
+                                  owned=not np.may_share_memory(moved, x))
 
     def mixer(self, weights: Any, *, active: np.ndarray | None = None) -> Mixer:
         """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph.
