@@ -182,3 +182,25 @@ def ncsg_tbls_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndar
 for _fn in (consensus_with_faults, raw_send_and_broadcast, admm_constraint_nodes, admm_with_drops,
             ncsg_tbls_with_drops):
     CASES[f"{_fn.__name__}_rcm"] = partial(_fn, order="rcm")
+
+
+@case
+def transport_options(backend: str) -> dict[str, np.ndarray]:
+    """The non-persistent transport, and a partition read from a file (in-process ignores both)."""
+    import os
+    import tempfile
+
+    from distnav.network.partition import partition_nodes, write_partition
+
+    g = _graph()
+    faults = FaultSchedule(drop_probability=0.2, seed=6)
+    plain = make_exchange(g, backend=backend, faults=faults, persistent=False)
+    vals = np.random.default_rng(9).normal(size=(60, 3))
+    res = average_consensus(vals, graph=g, protocol="MH", rounds=15, exchange=plain)
+    owner = partition_nodes(g, 4, "block")[::-1].copy()  # any valid owner array: here blocks in reverse
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write_partition(os.path.join(tmp, "owner.txt"), owner)
+        ex = make_exchange(g, backend=backend, faults=faults, partition=path)
+        inbox = ex.send(np.stack([g.src[ex.out_edges], ex.out_edges], axis=1).astype(float))
+    return {"estimates": res.estimates, "received": res.comm.messages_received,
+            "edge_sum": ex.gather_nodes(inbox.sum()), "count": ex.gather_nodes(inbox.count())}

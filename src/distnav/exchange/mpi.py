@@ -3,7 +3,7 @@
 Launch with ``mpiexec -n N python -m mpi4py -m distnav ... --backend mpi`` (``-m mpi4py`` makes an exception on
 one rank abort the whole job instead of deadlocking the others).
 
-Partition (``partition=``): ``"rcm"`` (default), ``"block"``, ``"node"`` or an owner array — see
+Partition (``partition=``): ``"rcm"`` (default), ``"block"``, ``"node"``, an owner array or a partition file — see
 :func:`distnav.network.partition.partition_nodes` (re-exported here under its old name).
 
 Every rank builds the same global graph (deterministic from the seed) and derives, without any negotiation,
@@ -15,6 +15,7 @@ global edge ids exactly as in-process, so a run with drops gives the same number
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import numpy as np
@@ -47,7 +48,8 @@ class MPIExchange(Exchange):
     backend = "mpi"
 
     def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *, comm: Any = None,
-                 partition: str | np.ndarray = "rcm", order: str | np.ndarray = "auto") -> None:
+                 partition: str | np.ndarray | os.PathLike[str] = "rcm", order: str | np.ndarray = "auto",
+                 persistent: bool = True) -> None:
         super().__init__(graph, faults)
         MPI = _mpi()
         self._MPI = MPI
@@ -114,10 +116,13 @@ class MPIExchange(Exchange):
         self._edge_recv_counts = np.array([e.size for e in recv_edges], dtype=np.int64)
 
         self._layouts: dict[tuple[int, int, int], Any] = {}
-        self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}
+        self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
+        self._edge_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
+        self._requests: list[Any] = []
         self.dist_comm = self.comm.Create_dist_graph_adjacent(
             sources=nbr.tolist(), destinations=nbr.tolist(), reorder=False
         )
+        self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
         self._init_accounting()
 
     # ------------------------------------------------------------- transport
@@ -143,22 +148,41 @@ class MPIExchange(Exchange):
         self.dist_comm.Neighbor_alltoallv([send, layout[0]], [recv, layout[1]])
         return recv
 
+    def _persistent_request(self, send: np.ndarray, send_counts: np.ndarray, recv: np.ndarray,
+                            recv_counts: np.ndarray) -> Any:
+        """A persistent ``Neighbor_alltoallv`` on fixed buffers (MPI-4), or None where the library lacks it."""
+        if not self.persistent:
+            return None
+        width = send.shape[1] if send.ndim == 2 else recv.shape[1]
+        sc, rc = send_counts * width, recv_counts * width
+        req = self.dist_comm.Neighbor_alltoallv_init([send, (sc.tolist(), self._displs(sc).tolist())],
+                                                     [recv, (rc.tolist(), self._displs(rc).tolist())])
+        self._requests.append(req)
+        return req
+
     def _columns(self, flat_local: np.ndarray, active: np.ndarray | None) -> np.ndarray:
         """Local values (local order) followed by the halo (per neighbour rank, ascending global ids).
 
-        The returned array is a buffer reused by the next round (callers consume it within the round)."""
+        The halo arrives straight into the tail of a preallocated column buffer through a persistent neighbour
+        collective started once per round; the local values are copied while it is in flight. The returned array
+        is that buffer, reused by the next round (callers consume it within the round)."""
         width = flat_local.shape[1]
         if self.n_halo == 0:
             return flat_local
         key = (width, flat_local.dtype.str)
         bufs = self._column_buffers.get(key)
         if bufs is None:
-            bufs = self._column_buffers[key] = (
-                np.empty((self._send_node_idx.size, width), dtype=flat_local.dtype),
-                np.empty((self.n_columns, width), dtype=flat_local.dtype),
-            )
-        send, cols = bufs
+            send = np.empty((self._send_node_idx.size, width), dtype=flat_local.dtype)
+            cols = np.empty((self.n_columns, width), dtype=flat_local.dtype)
+            req = self._persistent_request(send, self._node_send_counts, cols[self.n_local:], self._node_recv_counts)
+            bufs = self._column_buffers[key] = (send, cols, req)
+        send, cols, req = bufs
         np.take(flat_local, self._send_node_idx, axis=0, out=send)
+        if req is not None:
+            req.Start()
+            cols[:self.n_local] = flat_local
+            req.Wait()
+            return cols
         halo = self._alltoallv(send, self._node_send_counts, self._node_recv_counts, width, flat_local.dtype)
         cols[:self.n_local] = flat_local
         cols[self.n_local:] = halo
@@ -167,11 +191,35 @@ class MPIExchange(Exchange):
     def _move_edges(self, flat_out: np.ndarray, active: np.ndarray | None) -> np.ndarray:
         width = flat_out.shape[1]
         out = np.zeros((self.in_edges.size, width), dtype=flat_out.dtype)
+        key = (width, flat_out.dtype.str)
+        bufs = self._edge_buffers.get(key)
+        if bufs is None and self.neighbour_ranks.size:
+            send = np.empty((self._edge_send_pos.size, width), dtype=flat_out.dtype)
+            recv = np.empty((self._edge_recv_pos.size, width), dtype=flat_out.dtype)
+            req = self._persistent_request(send, self._edge_send_counts, recv, self._edge_recv_counts)
+            bufs = self._edge_buffers[key] = (send, recv, req)
+        if bufs is not None and bufs[2] is not None:
+            send, recv, req = bufs
+            np.take(flat_out, self._edge_send_pos, axis=0, out=send)
+            req.Start()
+            out[self._local_in_pos] = flat_out[self._local_out_pos]
+            req.Wait()
+            out[self._edge_recv_pos] = recv
+            return out
         out[self._local_in_pos] = flat_out[self._local_out_pos]
         recv = self._alltoallv(flat_out[self._edge_send_pos], self._edge_send_counts,
                                self._edge_recv_counts, width, flat_out.dtype)
         out[self._edge_recv_pos] = recv
         return out
+
+    def free(self) -> None:
+        """Release the persistent requests (also done at exit by MPI); the exchange stays usable."""
+        for req in self._requests:
+            if req:
+                req.Free()
+        self._requests.clear()
+        self._column_buffers.clear()
+        self._edge_buffers.clear()
 
     # ------------------------------------------------------------- global operations
     def allreduce(self, value: Any, op: ReduceOp = "sum") -> Any:

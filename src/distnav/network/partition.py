@@ -6,7 +6,9 @@
   RCM minimises the bandwidth of the adjacency, so each chunk's links mostly stay inside the chunk or go to
   the neighbouring chunks: few cut edges and few neighbour ranks for geometric networks, without METIS.
 * ``"block"`` — contiguous node ids (``n/N`` per rank); ``"node"`` — one node per rank (needs N = n_nodes, to mimic
-  real devices); or an explicit owner array (rank of every node).
+  real devices); an explicit owner array (rank of every node); or a **file** holding that array
+  (:func:`write_partition` / :func:`read_partition`: ``.npy``, or text with one rank per line, ``#`` comments), so
+  large runs partition once (or with an external partitioner such as METIS) instead of at every launch.
 
 :func:`locality_order` is the node order an exchange keeps its local arrays in (paper-independent engineering, issue
 17 item 0): ``"rcm"`` (reverse Cuthill–McKee), ``"hilbert"`` (a Hilbert curve through the positions, 2-D; a
@@ -21,13 +23,17 @@ without any negotiation.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from distnav.errors import ExchangeError
 from distnav.network.graph import Graph
 
-__all__ = ["LOCALITY_MIN_NODES", "locality_order", "partition_nodes", "rcm_order", "space_filling_order"]
+__all__ = ["LOCALITY_MIN_NODES", "locality_order", "partition_nodes", "rcm_order", "read_partition",
+           "space_filling_order", "write_partition"]
 
 LOCALITY_MIN_NODES = 10_000
 """From this many nodes on, ``order="auto"`` renumbers by RCM."""
@@ -102,9 +108,59 @@ def locality_order(graph: Graph, method: str | np.ndarray = "auto") -> np.ndarra
     raise ExchangeError(f"unknown node order {method!r}; choose 'auto', 'rcm', 'hilbert', 'none' or a permutation")
 
 
-def partition_nodes(graph: Graph, n_ranks: int, method: str | np.ndarray = "rcm") -> np.ndarray:
-    """Rank owning each node: ``"rcm"``, ``"block"``, ``"node"`` or an explicit owner array (see module doc)."""
+def write_partition(path: str | os.PathLike[str], owner: np.ndarray) -> Path:
+    """Write an owner array (rank of every node): ``.npy`` binary, anything else as text, one rank per line."""
+    out = Path(path)
+    arr = np.asarray(owner, dtype=np.int64)
+    if out.suffix == ".npy":
+        np.save(out, arr)
+    else:
+        out.write_text(f"# distnav partition: rank of each of {arr.size} nodes, one per line\n"
+                       + "\n".join(map(str, arr.tolist())) + "\n")
+    return out
+
+
+def read_partition(path: str | os.PathLike[str], n_nodes: int, n_ranks: int) -> np.ndarray:
+    """Read an owner array written by :func:`write_partition` (or any tool) and check it against the run."""
+    src = Path(path)
+    if not src.is_file():
+        raise ExchangeError(f"partition file {src} does not exist")
+    if src.suffix == ".npy":
+        try:
+            owner = np.load(src, allow_pickle=False)
+        except ValueError as err:
+            raise ExchangeError(f"partition file {src} is not a numpy array: {err}") from None
+        if not np.issubdtype(owner.dtype, np.integer):
+            raise ExchangeError(f"partition file {src} holds {owner.dtype} values, not integer ranks")
+    else:
+        ranks: list[int] = []
+        for lineno, line in enumerate(src.read_text().splitlines(), start=1):
+            text = line.split("#", 1)[0].strip()
+            if not text:
+                continue
+            try:
+                ranks.append(int(text))
+            except ValueError:
+                raise ExchangeError(f"{src}, line {lineno}: {text!r} is not an integer rank") from None
+        owner = np.asarray(ranks, dtype=np.int64)
+    owner = owner.astype(np.int64).ravel()
+    if owner.size != n_nodes:
+        raise ExchangeError(f"partition file {src} gives ranks for {owner.size} nodes, the graph has {n_nodes}")
+    if owner.size and (owner.min() < 0 or owner.max() >= n_ranks):
+        bad = int(np.flatnonzero((owner < 0) | (owner >= n_ranks))[0])
+        raise ExchangeError(f"partition file {src}: node {bad} is given rank {owner[bad]}, outside 0..{n_ranks - 1} "
+                            f"({n_ranks} ranks launched)")
+    return np.asarray(owner)
+
+
+def partition_nodes(graph: Graph, n_ranks: int, method: str | np.ndarray | os.PathLike[str] = "rcm"
+                    ) -> np.ndarray:
+    """Rank owning each node: ``"rcm"``, ``"block"``, ``"node"``, an explicit owner array or a partition file
+    (see module doc)."""
     n = graph.n_nodes
+    if isinstance(method, os.PathLike) or (isinstance(method, str) and method not in ("rcm", "block", "node")
+                                           and ("/" in method or "." in method)):
+        method = read_partition(method, n, n_ranks)
     if isinstance(method, np.ndarray) or not isinstance(method, str):
         owner = np.asarray(method, dtype=np.int64)
         if owner.shape != (n,):
