@@ -55,3 +55,12 @@ def test_cli_reproduce_and_errors(tmp_path, capsys):
     assert (tmp_path / "c" / "results.json").exists()
     # no temporary files are left behind
     assert not [p for p in (tmp_path / "c").iterdir() if p.name.endswith(".tmp")]
+
+
+def test_cli_network_random_keeps_the_random_draw(tmp_path):
+    assert main(["reproduce", "consensus", "--network", "random", "--out", str(tmp_path / "r"), "--quick",
+                 "--no-progress"]) == 0
+    data = json.loads((tmp_path / "r" / "results.json").read_text())
+    ref = static_network(np.random.default_rng([0, 1]))
+    assert data["network"]["kind"] == "random" and data["network"]["search"] is None
+    assert data["network"]["static"]["links"] == ref.links.tolist()
