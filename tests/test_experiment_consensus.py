@@ -121,6 +121,11 @@ def test_cli_demo_writes_report(tmp_path, capsys):
     assert main(["demo", "--out", str(out), "--only", "consensus", "--no-progress"]) == 0
     html = (out / "index.html").read_text()
     assert "consensus/fig4_probability.png" in html and "λ_(n-1) P3" in html
+    assert "11 paper claims checked by this run: <b>11 agree</b>" in html
+    from test_report import assert_links_resolve  # tests/ is on sys.path (pytest prepend mode)
+
+    parser = assert_links_resolve(out)
+    assert parser.figures == parser.captions == 3
     assert (out / "consensus" / "results.json").exists()
     assert "report:" in capsys.readouterr().out
 

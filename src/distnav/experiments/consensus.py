@@ -179,10 +179,9 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "headline": {
             **{f"λ_(n-1) {p} (paper {PAPER_SLEM[p]})": v for p, v in slem.items()},
             **{f"max |r_i − r̄| after 30 it., {p} (paper: P1, P3 fastest)": v for p, v in final_dev.items()},
-            **{f"P(max dev ≤ 0.2σ), k_n=10, {p} (paper {PAPER_AT_Q02[10].get(p, '—')})": at[p][10]
-               for p in probability},
-            **{f"P(max dev ≤ 0.2σ), k_n=30, {p} (paper {PAPER_AT_Q02[30].get(p, '—')})": at[p][30]
-               for p in probability},
+            **{f"P(max dev ≤ 0.2σ), k_n={kn}, {p}" + (f" (paper {PAPER_AT_Q02[kn][p]})" if p in PAPER_AT_Q02[kn]
+                                                       else ""): at[p][kn]
+               for kn in (10, 30) for p in probability},
         },
         "claims": _claims(kind, slem, probability, at, final_dev),
     }
@@ -198,8 +197,7 @@ _TEST = "tests/test_experiment_consensus.py::"
 def _claims(kind: str, slem: dict[str, float], probability: dict[str, dict[str, list[float]]],
             at: dict[str, dict[int, float]], final_dev: dict[str, float]) -> list[dict[str, Any]]:
     """The statements of paper 003 §3.3 on distnav's numbers (tolerances of :mod:`consensus_network`)."""
-    net = ("on the stored paper-like network (the paper's edge lists are not printed; found by search, "
-           "see docs/claims.md)" if kind == "paper-like" else "on a random network (--network random)")
+    net = "paper-like network (docs/claims.md)" if kind == "paper-like" else "random network (--network random)"
     curves = {p: {k: np.asarray(v) for k, v in c.items()} for p, c in probability.items()}
     p3_best = all(np.all(curves["P3"][k] >= curves[p][k] - SLACK) for k in curves["P3"] for p in curves)
     p2_worst = all(np.all(curves["P2"][k] <= curves[p][k] + SLACK) for k in curves["P2"] for p in curves)
@@ -209,7 +207,7 @@ def _claims(kind: str, slem: dict[str, float], probability: dict[str, dict[str, 
     rows = [
         claim(paper="003", where="§3.3 eq. (38)", text=f"λ_(n−1) of Protocol {p[1]} ≈ {v}", paper_value=v,
               distnav_value=round(slem[p], 4), ok=round(slem[p], 2) == v,
-              why=f"eigenvalues of W {net}; compared to two decimals", test=_TEST + "test_paper_like_slem")
+              why=f"eigenvalues of W, {net}; to two decimals", test=_TEST + "test_paper_like_slem")
         for p, v in PAPER_SLEM.items()
     ]
     rows += [
@@ -218,7 +216,7 @@ def _claims(kind: str, slem: dict[str, float], probability: dict[str, dict[str, 
               == "P3", why=net, test=_TEST + "test_paper_like_slem"),
         claim(paper="003", where="Fig. 4", text="P1 ≈ 80 % at k_n = 10 (q = 0.2)", paper_value="≈ 0.80",
               distnav_value=round(at["P1"][10], 4), ok=abs(at["P1"][10] - 0.8) <= ABOUT,
-              why=f"Monte Carlo of eq. (40) {net}; 'about' read as ± {ABOUT:.0%}",
+              why=f"Monte Carlo of eq. (40), {net}; 'about' read as ± {ABOUT:.0%}",
               test=_TEST + "test_paper_like_probabilities"),
         claim(paper="003", where="Fig. 4", text="P2 < 5 % at k_n = 10 (q = 0.2)", paper_value="< 0.05",
               distnav_value=round(at["P2"][10], 4), ok=at["P2"][10] < 0.05, why=net,
