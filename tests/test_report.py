@@ -81,8 +81,8 @@ def test_paper_values_for_labels_without_one():
 
 def test_report_summary_captions_paper_column_and_links(tmp_path):
     (tmp_path / "exp").mkdir()
-    _png(tmp_path / "exp" / "wide.png", 1300)
-    _png(tmp_path / "exp" / "small.png", 400)
+    _png(tmp_path / "exp" / "wide.png", 1300, 400)
+    _png(tmp_path / "exp" / "small.png", 1000, 800)
     (tmp_path / "exp" / "results.json").write_text("{}")
     results = {
         "headline": {"λ P1 (paper 0.92)": 0.9175, "a number the paper does not give": 3},

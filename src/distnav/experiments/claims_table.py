@@ -19,7 +19,7 @@ from typing import Any
 
 from distnav.experiments import EXPERIMENTS
 from distnav.experiments.claims import AGREE, DIFFER, NOT_CHECKABLE, claim
-from distnav.experiments.common import atomic_write_text
+from distnav.output import atomic_write_text
 
 __all__ = ["claims_for", "collect", "markdown_table", "html_table", "counts", "render", "update", "main"]
 

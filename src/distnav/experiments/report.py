@@ -18,7 +18,7 @@ from typing import Any
 from distnav import __version__
 from distnav.experiments.claims import AGREE, DIFFER, NOT_CHECKABLE
 from distnav.experiments.claims_table import claims_for, counts, html_table, markdown_table
-from distnav.experiments.common import atomic_write_text, to_jsonable
+from distnav.output import atomic_write_text, to_jsonable
 
 __all__ = ["write_report", "FIGURE_CAPTIONS", "QUICK_NOTES", "PAPER_VALUES", "paper_value", "split_paper_value",
            "caption"]
@@ -184,7 +184,8 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def _png_width(path: Path) -> int | None:
+def _png_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) in pixels from a PNG header; ``None`` when the file is missing or not a PNG."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(24)
@@ -192,7 +193,8 @@ def _png_width(path: Path) -> int | None:
         return None
     if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n":
         return None
-    return int(struct.unpack(">I", head[16:20])[0])
+    w, h = struct.unpack(">II", head[16:24])
+    return int(w), int(h)
 
 
 _CSS = (
@@ -266,8 +268,8 @@ def write_report(out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any
             md.append("")
         for fig in ctx.figures:
             cap = caption(name, fig, mod_caps)
-            width = _png_width(out_dir / rel / fig)
-            cls = " class='wide'" if width is not None and width > 900 else ""
+            size = _png_size(out_dir / rel / fig)  # a row of panels gets the full width, anything else half
+            cls = " class='wide'" if size is not None and size[0] >= 1.8 * size[1] and size[0] > 700 else ""
             parts.append(f"<figure{cls}><a href='{rel}/{fig}' title='open full size'><img src='{rel}/{fig}' "
                          f"alt='{html.escape(fig)}' loading='lazy'></a><figcaption>{html.escape(cap)} "
                          f"<a href='{rel}/{fig}'>[full size]</a></figcaption></figure>")
