@@ -96,7 +96,8 @@ def test_report_summary_captions_paper_column_and_links(tmp_path):
     assert "quick variants" in text
     assert "<td>λ P1</td><td>0.9175</td><td>0.92</td>" in text
     assert "<td>a number the paper does not give</td><td>3</td><td>not stated</td>" in text
-    assert "<figure class='wide'><a href='exp/wide.png'" in text and "<figure><a href='exp/small.png'" in text
+    assert "<figure class='wide'><a href='exp/wide.png'" in text
+    assert "<figure class='half'><a href='exp/small.png'" in text
     parser = assert_links_resolve(tmp_path)
     assert parser.figures == parser.captions == 2
     md = (tmp_path / "REPORT.md").read_text()

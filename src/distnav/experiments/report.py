@@ -197,13 +197,26 @@ def _png_size(path: Path) -> tuple[int, int] | None:
     return int(w), int(h)
 
 
+def _figure_class(size: tuple[int, int] | None) -> str:
+    """A row of panels gets the full width, another large figure half, a small one a third."""
+    if size is None:
+        return ""
+    w, h = size
+    if w >= 1.8 * h and w > 700:
+        return " class='wide'"
+    return " class='half'" if w > 900 else ""
+
+
 _CSS = (
     "body{font-family:system-ui,sans-serif;max-width:1200px;margin:auto;padding:0 12px;line-height:1.4}"
     "table{border-collapse:collapse;margin:6px 0;font-size:13px}td,th{border:1px solid #bbb;padding:2px 6px;"
     "vertical-align:top}th{background:#f3f3f3}figure{display:inline-block;vertical-align:top;margin:6px;"
-    "width:calc(50% - 16px)}figure.wide{width:calc(100% - 16px)}figure img{width:100%;border:1px solid #ccc}"
+    "width:calc(33.3% - 16px)}figure.half{width:calc(50% - 16px)}"
+    "figure.wide{width:calc(100% - 16px)}figure img{width:100%;max-height:400px;object-fit:contain;"
+    "border:1px solid #ccc}"
     "figcaption{font-size:13px;color:#333}.caveat{background:#fff6d6;border-left:4px solid #e0b000;padding:4px 8px}"
-    "table.claims td:nth-child(4){max-width:320px}table.claims td:nth-child(8){max-width:360px;color:#444}"
+    "table.claims td:nth-child(4){max-width:260px}table.claims td:nth-child(6){max-width:220px}"
+    "table.claims td:nth-child(8){min-width:340px;color:#444}"
 )
 
 
@@ -268,8 +281,7 @@ def write_report(out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any
             md.append("")
         for fig in ctx.figures:
             cap = caption(name, fig, mod_caps)
-            size = _png_size(out_dir / rel / fig)  # a row of panels gets the full width, anything else half
-            cls = " class='wide'" if size is not None and size[0] >= 1.8 * size[1] and size[0] > 700 else ""
+            cls = _figure_class(_png_size(out_dir / rel / fig))
             parts.append(f"<figure{cls}><a href='{rel}/{fig}' title='open full size'><img src='{rel}/{fig}' "
                          f"alt='{html.escape(fig)}' loading='lazy'></a><figcaption>{html.escape(cap)} "
                          f"<a href='{rel}/{fig}'>[full size]</a></figcaption></figure>")
