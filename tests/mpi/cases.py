@@ -127,6 +127,32 @@ def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
 
 
 @case
+def ckf_local_precision_and_tests(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.ckf import ckf
+    from distnav.algorithms.kalman import DynamicModel, ObservationSeries
+
+    g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
+    n, p, T = g.n_nodes, 3, 6
+    rng = np.random.default_rng(7)
+    epochs = []
+    for t in range(T):
+        row = []
+        for i in range(n):
+            A = rng.normal(size=(3, p))
+            y = rng.normal(size=3)
+            if (t, i) == (4, 5):
+                y[0] += 50.0  # a gross error the node must reject
+            row.append((A, np.ones(3), y))
+        epochs.append(row)
+    dyn = DynamicModel(p, noise_cov=np.diag([0.1, 0.05, 0.0]))
+    res = ckf(dyn, ObservationSeries(p, epochs), graph=g, protocol="P3", rounds=4, local_precision="exact",
+              test_level=0.001, exchange=make_exchange(g, backend=backend))
+    assert res.tests is not None and res.local_std is not None
+    return {"estimates": res.estimates, "local_std": res.local_std, "w": res.tests.w,
+            "removed": np.array(res.tests.removed), "sent": res.comm.bytes_sent}
+
+
+@case
 def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
     from distnav.algorithms.admm import admm
 
