@@ -51,27 +51,29 @@ def _float(text: str) -> float:
     return value
 
 
+def _check(ok: bool, message: str) -> None:
+    if not ok:
+        raise argparse.ArgumentTypeError(message)
+
+
 def positive_int(text: str) -> int:
     """A whole number ≥ 1 (iterations, epochs, instances, ranks)."""
     value = _int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    _check(value >= 1, f"must be at least 1, got {value}")
     return value
 
 
 def nonnegative_int(text: str) -> int:
     """A whole number ≥ 0 (consensus rounds, where 0 means none)."""
     value = _int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be 0 or more, got {value}")
+    _check(value >= 0, f"must be 0 or more, got {value}")
     return value
 
 
 def seed(text: str) -> int:
     """A seed of :func:`numpy.random.default_rng`: a whole number ≥ 0."""
     value = _int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"a seed must be 0 or more, got {value}")
+    _check(value >= 0, f"a seed must be 0 or more, got {value}")
     return value
 
 
@@ -83,16 +85,14 @@ def finite_float(text: str) -> float:
 def positive_float(text: str) -> float:
     """A finite number > 0 (a standard deviation, a scale, a step)."""
     value = _float(text)
-    if value <= 0.0:
-        raise argparse.ArgumentTypeError(f"must be greater than 0, got {text}")
+    _check(value > 0.0, f"must be greater than 0, got {text}")
     return value
 
 
 def nonnegative_float(text: str) -> float:
     """A finite number ≥ 0."""
     value = _float(text)
-    if value < 0.0:
-        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text}")
+    _check(value >= 0.0, f"must be 0 or more, got {text}")
     return value
 
 
