@@ -26,7 +26,7 @@ from distnav.commands import add_backend_arguments
 from distnav.errors import DistnavError, UsageError
 from distnav.experiments import EXPERIMENTS, available, load
 from distnav.experiments.common import ExperimentContext, Progress
-from distnav.options import check_output_folder, output_folder, prepare_output_folder, seed
+from distnav.options import output_folder, probe_output_folder, seed
 from distnav.output import set_file_writer
 
 # real-data command groups; each module defines ``register(subparsers)``
@@ -118,11 +118,12 @@ def _check_mpi_launch(args: argparse.Namespace) -> None:
               file=sys.stderr)
 
 
-def check_arguments(args: argparse.Namespace) -> None:
+def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None:
     """What the parser cannot check alone, before any work; raises :class:`UsageError`.
 
     ``--ranks`` without ``--backend mpi`` (it would be ignored), ``--backend mpi`` without the ``mpi`` extra, and
-    ``--out``: created here (with its parents), so a folder that cannot be made stops the run now."""
+    ``--out``: with ``probe_out``, proved creatable and writable (:func:`~distnav.options.probe_output_folder`), so a
+    folder that cannot be made stops the run now; under MPI only rank 0 probes."""
     backend = getattr(args, "backend", "inprocess")
     if getattr(args, "ranks", None) is not None and backend != "mpi":
         raise UsageError(f"--ranks {args.ranks} applies only with --backend mpi (launched with mpiexec -n N)")
@@ -131,8 +132,8 @@ def check_arguments(args: argparse.Namespace) -> None:
 
         require("mpi4py.MPI", "mpi")
     out = getattr(args, "out", None)
-    if out is not None:
-        prepare_output_folder(check_output_folder(out))
+    if out is not None and probe_out:
+        probe_output_folder(out)
 
 
 def _main_mpi(args: argparse.Namespace) -> int:
@@ -145,6 +146,7 @@ def _main_mpi(args: argparse.Namespace) -> int:
         set_file_writer(False)
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - lives for the whole process
     try:
+        check_arguments(args, probe_out=rank == 0)
         _check_mpi_launch(args)
         return _dispatch(args)
     except BaseException as exc:  # noqa: BLE001 - every failure must end all ranks
@@ -202,14 +204,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     _configure_logging()
     parser = build_parser()
     args = parser.parse_args(argv)
+    if getattr(args, "backend", "inprocess") == "mpi":
+        try:  # every rank fails alike here, before MPI starts
+            check_arguments(args, probe_out=False)
+        except DistnavError as exc:
+            print(_user_error(exc), file=sys.stderr)
+            return 2
+        return _main_mpi(args)  # checks again inside, where a failure on one rank aborts them all
     try:
         check_arguments(args)
-    except DistnavError as exc:
-        print(_user_error(exc), file=sys.stderr)
-        return 2
-    if getattr(args, "backend", "inprocess") == "mpi":
-        return _main_mpi(args)
-    try:
         return _dispatch(args)
     except DistnavError as exc:
         print(_user_error(exc), file=sys.stderr)

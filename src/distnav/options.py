@@ -5,8 +5,8 @@ Each is an ``argparse`` ``type=`` callable: a bad value ends the run at parse ti
 layers (it imports only :mod:`distnav.errors` and the standard library), for experiments, commands and the CLI.
 
 :func:`output_folder` checks ``--out`` when it is parsed (not an existing file, under a folder); the CLI then
-creates the folder with :func:`prepare_output_folder` before running anything, so a folder that cannot be created
-is reported as such.
+proves with :func:`probe_output_folder` that the folder can be created and written before running anything, so a
+folder that cannot be created is reported as such.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ __all__ = [
     "output_folder",
     "positive_float",
     "positive_int",
-    "prepare_output_folder",
+    "probe_output_folder",
     "seed",
 ]
 
@@ -127,7 +127,7 @@ def _nearest_existing(path: Path) -> Path:
 
 def check_output_folder(path: str | Path) -> Path:
     """An output folder: an existing folder or one that can be made (not an existing file, nor under one);
-    :class:`UsageError` otherwise. Checks only; :func:`prepare_output_folder` creates it."""
+    :class:`UsageError` otherwise. Checks only, creates nothing (see :func:`probe_output_folder`)."""
     text = str(path)
     if not text:
         raise UsageError("an empty path is not an output folder")
@@ -148,15 +148,27 @@ def output_folder(text: str) -> Path:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def prepare_output_folder(path: str | Path) -> Path:
-    """Create the output folder (and its parents) before any work; :class:`UsageError` if it cannot be made."""
-    p = Path(path)
+def probe_output_folder(path: str | Path) -> Path:
+    """Prove, before any work, that the output folder can be created and written: create what is missing, check
+    write permission, then remove again the folders this call created (a failed run leaves no empty folder
+    behind; the writers create it when they write). :class:`UsageError` names the folder and the reason."""
+    p = check_output_folder(path)
+    missing = []
+    q = p.absolute()
+    while not q.exists():
+        missing.append(q)
+        q = q.parent
     try:
-        p.mkdir(parents=True, exist_ok=True)
+        for d in reversed(missing):
+            d.mkdir()
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise UsageError(f"cannot write into output folder {p}: permission denied")
     except FileExistsError:
-        raise UsageError(f"cannot create output folder {p}: a file of that name exists") from None
+        raise UsageError(f"cannot create output folder {p}: a file of that name appeared") from None
     except OSError as exc:
         raise UsageError(f"cannot create output folder {p}: {exc.strerror or exc}") from None
-    if not os.access(p, os.W_OK | os.X_OK):
-        raise UsageError(f"cannot write into output folder {p}: permission denied")
+    finally:
+        for d in missing:
+            if d.is_dir():
+                d.rmdir()
     return p
