@@ -18,6 +18,7 @@ import logging
 import os
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -190,6 +191,13 @@ def _configure_logging() -> None:
         logger.setLevel(logging.WARNING)
 
 
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: object = None, line: str | None = None) -> None:
+    """Library warnings (e.g. :class:`~distnav.algorithms.consensus.ConsensusWarning`) as ``warning: ...`` lines,
+    without the source location a user cannot act on."""
+    print(f"warning: {message}", file=sys.stderr)
+
+
 def _user_error(exc: BaseException) -> str:
     if isinstance(exc, FileNotFoundError) and exc.filename:
         return f"error: file not found: {exc.filename}"
@@ -202,6 +210,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """The ``distnav`` command: 0 on success, 2 on a user error (``error: ...`` on stderr), 1 when a command
     computed nothing usable. ``argparse`` ends bad option values with ``SystemExit(2)``."""
     _configure_logging()
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        return _main(argv)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "backend", "inprocess") == "mpi":
