@@ -150,3 +150,11 @@ def test_claims_table_command_rewrites_only_its_block(tmp_path, capsys):
     text = doc.read_text()
     assert text.startswith("# Claims\n\n" + BEGIN) and text.endswith(END + "\n\n## Notes\n")
     assert "| consensus | 003 | Fig. 4 | P4 > P2 | P4 > P2 | yes | agree |" in text
+
+
+def test_every_test_the_claims_table_names_exists():
+    source = (SRC / "claims_table.py").read_text(encoding="utf-8")
+    named = set(re.findall(r"(?<![\w/])test_\w+(?![\w.])", source))  # test functions, not test_*.py files
+    tests = "\n".join(p.read_text(encoding="utf-8") for p in (SRC.parents[2] / "tests").glob("test_*.py"))
+    defined = set(re.findall(r"^def (test_\w+)", tests, flags=re.M))
+    assert named and not named - defined, named - defined
