@@ -122,8 +122,34 @@ def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
     r = np.einsum("tnmp,tnm->tnp", A, y)
     dyn = DynamicModel(p, noise_cov=np.diag([0.1, 0.05, 0.0]))
     res = ckf(dyn, NormalSeries(N, r), graph=g, protocol="P3", rounds=4, exchange=make_exchange(g, backend=backend))
-    series = res.extras["series"]
+    series = res.series
     return {"estimates": res.estimates, "std": series.std, "sent": res.comm.messages_sent}
+
+
+@case
+def ckf_local_precision_and_tests(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.ckf import ckf
+    from distnav.algorithms.kalman import DynamicModel, ObservationSeries
+
+    g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
+    n, p, T = g.n_nodes, 3, 6
+    rng = np.random.default_rng(7)
+    epochs = []
+    for t in range(T):
+        row = []
+        for i in range(n):
+            A = rng.normal(size=(3, p))
+            y = rng.normal(size=3)
+            if (t, i) == (4, 5):
+                y[0] += 50.0  # a gross error the node must reject
+            row.append((A, np.ones(3), y))
+        epochs.append(row)
+    dyn = DynamicModel(p, noise_cov=np.diag([0.1, 0.05, 0.0]))
+    res = ckf(dyn, ObservationSeries(p, epochs), graph=g, protocol="P3", rounds=4, local_precision="exact",
+              test_level=0.001, exchange=make_exchange(g, backend=backend))
+    assert res.tests is not None and res.local_std is not None
+    return {"estimates": res.estimates, "local_std": res.local_std, "w": res.tests.w,
+            "removed": np.array(res.tests.removed), "sent": res.comm.bytes_sent}
 
 
 @case
@@ -173,8 +199,9 @@ def ncsg_tbls_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndar
     problem = generate_problem("RM", np.random.default_rng(3), n_anchors=40)
     ex = make_exchange(problem.graph, backend=backend, faults=FaultSchedule(drop_probability=0.1, seed=2),
                        order=order)
-    res = solve(problem, "N-CSG-TBLS", iterations=30, exchange=ex)
-    return {"estimates": res.estimates, "bytes": res.comm.bytes_sent, "received": res.comm.messages_received}
+    res = solve(problem, "N-CSG-TBLS", iterations=30, exchange=ex, monitor_every=7)  # gathers at 0, 7, …, 28, 30
+    return {"estimates": res.estimates, "bytes": res.comm.bytes_sent, "received": res.comm.messages_received,
+            "cost": res.trace["cost"]}
 
 
 # the same runs with the exchange's nodes renumbered by reverse Cuthill–McKee (issue 17 item 0): on the small graphs
