@@ -34,15 +34,8 @@ from typing import Any, Unpack
 import numpy as np
 import scipy.sparse.csgraph as csgraph
 
-from distnav.algorithms.admm_driver import (
-    AdmmOptions,
-    AdmmResult,
-    PreparedRun,
-    check_stopping,
-    constraint_nodes_for,
-    drive,
-    prepare,
-)
+from distnav.algorithms import admm_driver as driver
+from distnav.algorithms.admm_driver import AdmmOptions, AdmmResult, PreparedRun, drive
 from distnav.algorithms.admm_kernel import _Kernel
 from distnav.algorithms.lsq import LinearProblem, weight_matrix
 from distnav.algorithms.result import ObservationTests, Precision
@@ -103,8 +96,10 @@ def _normal_run(ex: Exchange, C: ConstraintNodes, N: FloatArray, B: FloatArray, 
     else:
         x0 = init.estimates[ex.nodes]
         z0 = init.z_nodes[ex.nodes]
-    run = PreparedRun(states=kernel.run(x0, z0), exchange=ex, constraint_nodes=C, p=p * k,
-                      x_update="normal equations (matrix right-hand side)", x_weight="lagrangian", messages="pairs")
+    u0 = None if init is None else init.multipliers
+    run = PreparedRun(states=kernel.run(x0, z0, u0=u0), exchange=ex, constraint_nodes=C, p=p * k,
+                      x_update="normal equations (matrix right-hand side)", x_weight="lagrangian", messages="pairs",
+                      kernel=kernel)
     return drive(run, max_iterations=max_iterations, tol=tol, atol=atol,
                  reference=None if reference is None else reference.ravel(), stop_at_reference=None,
                  record_nodes=False)
@@ -136,7 +131,7 @@ def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, 
     up to the stopping tolerance), the iterations and messages of both runs; the variance factor is node 0's
     (``variance_factor_nodes`` holds every node's, equal to the tolerance).
     """
-    check_stopping(max_iterations, tol, atol)
+    driver.check_stopping(max_iterations, tol, atol)
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm_precision(), not both")
     n, p = problem.n_nodes, problem.n_params
@@ -146,7 +141,7 @@ def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, 
     if x_all.shape != (n, p):
         raise ModelError(f"estimates must be ({n}, {p}) (one x_i per node), got shape {x_all.shape}")
     Wm = weight_matrix(W, p)
-    C = constraint_nodes_for(graph, constraint_nodes)
+    C = driver.constraint_nodes_for(graph, constraint_nodes)
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
     before = _snapshot(ex)
     nodes = ex.nodes
@@ -235,20 +230,20 @@ def admm_data_snooping(problem: LinearProblem, graph: Graph, *, level: float = 0
     ``tests`` filled in. ``tests.removed`` are flat observation indices (node-major over each node's rows, as in
     :func:`distnav.algorithms.statistics.data_snooping` on the stacked data); ``tests.iterations`` and ``tests.comm``
     are what the re-convergences after the first solution cost (estimate, precision and the floods)."""
-    check_stopping(max_iterations, tol, atol)
+    driver.check_stopping(max_iterations, tol, atol)
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm_data_snooping(), not both")
     k_crit = critical_value(level)
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
     opts = AdmmOptions(**options)
-    W, C = opts.get("W", 1.0), constraint_nodes_for(graph, opts.get("constraint_nodes", "min_cover"))
+    W, C = opts.get("W", 1.0), driver.constraint_nodes_for(graph, opts.get("constraint_nodes", "min_cover"))
     opts["constraint_nodes"] = C
     diameter = int(np.max(csgraph.shortest_path(graph.adjacency(), unweighted=True, directed=False)))
     flood_rounds = max(diameter, 1) * (3 if ex.faults.active else 1)
     act = _active_rows(problem, None)
     offsets = np.concatenate([[0], np.cumsum(problem.rows)])
     prob = problem
-    est = drive(prepare(prob, graph, ex, opts), reference=None, stop_at_reference=None, record_nodes=False,
+    est = drive(driver.prepare(prob, graph, ex, opts), reference=None, stop_at_reference=None, record_nodes=False,
                max_iterations=max_iterations, tol=tol, atol=atol)
     prec = admm_precision(prob, graph, est.estimates, W=W, constraint_nodes=C, active=act, exchange=ex,
                           max_iterations=max_iterations, tol=tol, atol=atol)
@@ -279,8 +274,9 @@ def admm_data_snooping(problem: LinearProblem, graph: Graph, *, level: float = 0
         act = act.copy()
         act[node, r] = False
         prob = remove_observation(prob, node, r)
-        est = drive(prepare(prob, graph, ex, AdmmOptions(**{**opts, "init": est})), reference=None,
-                    stop_at_reference=None, record_nodes=False, max_iterations=max_iterations, tol=tol, atol=atol)
+        warm = AdmmOptions(**{**opts, "init": est, "multipliers": est.multipliers})  # x, z and u carried over
+        est = drive(driver.prepare(prob, graph, ex, warm), reference=None, stop_at_reference=None, record_nodes=False,
+                    max_iterations=max_iterations, tol=tol, atol=atol)
         prec = admm_precision(prob, graph, est.estimates, W=W, constraint_nodes=C, active=act, init=prec,
                               exchange=ex, max_iterations=max_iterations, tol=tol, atol=atol)
         extra_iterations += est.iterations + prec.precision.iterations
