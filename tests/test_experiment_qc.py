@@ -35,3 +35,6 @@ def test_distributed_snooping_finds_what_the_centralized_one_finds(quick_run):
     assert d["extra_iterations"] > 0 and d["extra_messages"] > 0
     assert (out / "fig_qc_snooping.png").stat().st_size > 10_000
     assert saved["headline"] and res["headline"] == saved["headline"]
+    # the CKF half (experiments/qc_ckf.py) joins the same results.json and headline
+    assert "ckf" in saved and any(k.startswith("CKF: ") for k in saved["headline"])
+    assert (out / "ckf_detection.png").stat().st_size > 1000

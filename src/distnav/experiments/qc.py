@@ -163,8 +163,11 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "σ̂² (distributed / centralized)": f"{res.precision.variance_factor:.6g} / {ref.variance_factor:.6g}",
         "extra iterations / messages after the first solution":
             f"{res.tests.iterations} / {res.tests.comm.messages}",
-        "CKF half": "see results['ckf']" if ckf_part is not None else "not run (experiments/qc_ckf.py absent)",
     }
+    if ckf_part is not None:
+        results["headline"].update({f"CKF: {k}": v for k, v in ckf_part.get("headline", {}).items()})
+    else:
+        results["headline"]["CKF half"] = "not run (experiments/qc_ckf.py absent)"
     ctx.write_json("results.json", results)
     if ctx.is_root:
         _figures(ctx, prob, res, ref, bad, dist)
