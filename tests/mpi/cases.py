@@ -164,6 +164,19 @@ def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
     return {"estimates": res.estimates, "sent": res.comm.messages_sent}
 
 
+@case
+def admm_precision_and_snooping(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.lsq_qc import admm_data_snooping
+    from distnav.experiments.qc import gross_error_problem
+
+    pb = gross_error_problem(np.random.default_rng([12, 0]))
+    res = admm_data_snooping(pb.problem, pb.graph, W=3.0, tol=1e-11, exchange=make_exchange(pb.graph, backend=backend))
+    assert res.precision is not None and res.tests is not None and res.precision.variance_factor is not None
+    return {"estimates": res.estimates, "covariance": res.precision.covariance, "w": res.tests.w,
+            "removed": np.array(res.tests.removed), "variance_factor": np.array(res.precision.variance_factor),
+            "sent": res.comm.messages_sent}
+
+
 def _uwb_problem():
     from distnav.models.uwb.problems import generate_problem
 
