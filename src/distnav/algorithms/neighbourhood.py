@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from distnav.algorithms.nlsq import LOSSES, range_loss_scale, single_threaded_blas
+from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, single_threaded_blas
 from distnav.algorithms.ranging import RangingData
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
@@ -201,15 +201,7 @@ class Neighbourhoods:
 
     def rho(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per half-measurement IRLS weight ``ρ'((g/s)²)`` and objective term ``s² ρ((g/s)²)`` (linear: 1, g²)."""
-        if self.loss == "linear":
-            return np.ones_like(g), g * g
-        s = self.h_scale
-        z = (g / s) ** 2
-        if self.loss == "huber":
-            small = z <= 1.0
-            return (np.where(small, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0))),
-                    s * s * np.where(small, z, 2.0 * np.sqrt(z) - 1.0))
-        return 1.0 / (1.0 + z), s * s * np.log1p(z)
+        return loss_terms(g, self.h_scale, self.loss)
 
     def partial_cost(self, g: np.ndarray) -> np.ndarray:
         """``f⁽ⁱ⁾ = Σ_{l∈E(i)} g_l²`` (eq. (14)); with a robust loss ``Σ s_l² ρ((g_l/s_l)²)``."""
