@@ -273,7 +273,7 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
 
 
 def _plot(path: Path, problem: RangingProblem, est: np.ndarray) -> None:
-    from distnav.experiments.common import pyplot
+    from distnav.output import pyplot
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 6))
@@ -306,7 +306,7 @@ def _handler(args: argparse.Namespace) -> int:
         args.ranges, args.known, initial=args.initial, truth=args.truth, heights=args.heights, solver=args.solver,
         loss=args.loss, loss_scale_m=args.loss_scale_m, iterations=args.iterations,
         backend=getattr(args, "backend", "inprocess"))
-    from distnav.experiments.common import atomic_write_json, is_file_writer
+    from distnav.output import atomic_write_json, is_file_writer
 
     out = Path(args.out)
     if is_file_writer():  # under MPI only rank 0 writes (and prints)
