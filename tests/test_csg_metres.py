@@ -124,3 +124,16 @@ def test_options_are_validated():
         solve_ncsg(p, test_scale="mad")
     with pytest.raises(ModelError, match="graduated"):
         solve_ncsg(p, graduated=-1)
+
+
+def test_exclusion_loop_with_a_distributed_fit():
+    from distnav.algorithms.ranging_qc import exclude_links
+
+    nlos = {3: 1.5, 17: 2.0, 40: 1.0}
+    p = hall(seed=6, n=18, sigma_m=0.05, nlos=nlos)
+    fit = lambda q: solve(q, "N-CLM", iterations=2000, objective="metres", sigma_m=0.05, loss="cauchy",
+                          loss_scale_m=0.15)
+    res, sub, tests = exclude_links(p, fit)
+    assert set(nlos) <= set(tests.removed) and len(tests.removed) <= len(nlos) + 2
+    assert res.usable and sub.n_meas == p.n_meas - len(tests.removed)
+    assert np.isnan(tests.w[list(tests.removed)]).all()
