@@ -198,7 +198,7 @@ def csg_and_nclm(backend: str) -> dict[str, np.ndarray]:
     from distnav.algorithms.csg import solve_csg, solve_nclm
 
     problem = _uwb_problem()
-    csg = solve_csg(problem, iterations=20, exchange=make_exchange(problem.graph, backend=backend))
+    csg = solve_csg(problem, iterations=20, exchange=make_exchange(problem.graph, backend=backend), alpha=1e-4)
     nclm = solve_nclm(problem, iterations=10, exchange=make_exchange(problem.graph, backend=backend))
     return {"estimates": np.concatenate([csg.estimates.ravel(), nclm.estimates.ravel()]),
             "sent": csg.comm.messages_sent + nclm.comm.messages_sent}
@@ -215,6 +215,17 @@ def ncsg_tbls_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndar
     res = solve(problem, "N-CSG-TBLS", iterations=30, exchange=ex, monitor_every=7)  # gathers at 0, 7, …, 28, 30
     return {"estimates": res.estimates, "bytes": res.comm.bytes_sent, "received": res.comm.messages_received,
             "cost": res.trace["cost"]}
+
+
+@case
+def ncsg_metres_with_local_qc(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.csg import solve_ncsg
+
+    problem = _uwb_problem()
+    res = solve_ncsg(problem, line_search="TBLS", iterations=40, objective="metres", sigma_m=0.15, loss="cauchy",
+                     exchange=make_exchange(problem.graph, backend=backend))
+    return {"estimates": res.estimates, "w": np.nan_to_num(res.tests.w, nan=-99.0),
+            "covariance": res.precision.covariance}
 
 
 # the same runs with the exchange's nodes renumbered by reverse Cuthill–McKee (issue 17 item 0): on the small graphs
