@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import csv
 import io
+import re
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -64,6 +65,39 @@ class IonosphereNetworkData:
 def _say(args: argparse.Namespace, text: str) -> None:
     if not getattr(args, "no_progress", False):
         print(text, file=sys.stderr, flush=True)
+
+
+_PRN = re.compile(r"^G(0[1-9]|[12][0-9]|3[0-2])$")
+_L1_CODE = re.compile(r"^C1[CSLXPWYMN]$")
+_LB_CODE = re.compile(r"^C(2[CDSLXPWYMN]|5[IQX])$")
+
+
+def validate_arguments(args: argparse.Namespace) -> None:
+    """Check every option value before any file is read (errors name the option; the CLI exits with 2)."""
+    if args.pivot is not None and not _PRN.match(str(args.pivot).upper()):
+        raise ModelError(f"--pivot {args.pivot}: not a GPS satellite (G01 … G32)")
+    if args.l1_code is not None and not _L1_CODE.match(args.l1_code.upper()):
+        raise ModelError(f"--l1-code {args.l1_code}: not a GPS L1 code (C1C, C1W, C1L, C1X …)")
+    if not _LB_CODE.match(args.l2_code.upper()):
+        raise ModelError(f"--l2-code {args.l2_code}: not a GPS L2 or L5 code (C2W, C2L, C2X, C5Q, C5X …)")
+    for opt, value, low in (("--sigma", args.sigma, 0.0), ("--interval", args.interval, 0.0),
+                            ("--nav-max-age", args.nav_max_age, 0.0), ("--regional-km", args.regional_km, 0.0)):
+        if value is not None and not (np.isfinite(value) and value > low):
+            raise ModelError(f"{opt} {value:g}: must be a positive number")
+    if not 0.0 <= args.mask < 90.0:
+        raise ModelError(f"--mask {args.mask:g}: the elevation mask must lie in [0, 90) degrees")
+    if args.kn < 0:
+        raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
+    if args.tlim:
+        try:
+            t0, t1 = (np.datetime64(t, "s") for t in args.tlim)
+        except ValueError:
+            raise ModelError(f"--tlim {' '.join(args.tlim)}: not ISO date/times (e.g. 2024-01-10T06:00)") from None
+        if not t0 < t1:
+            raise ModelError(f"--tlim {' '.join(args.tlim)}: the start must be before the stop")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DataFileError(f"--out {out}: exists and is not a folder")
 
 
 def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = "C1C", l2_code: str = "C2W",
@@ -261,8 +295,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     from distnav.models.gnss.ionosphere import GF_M_PER_DSB_NS, TEC_NAMES, TECU_L1_M, dcb_ns_from_gf_m
     from distnav.models.gnss.rinex import read_navigation, read_sp3
 
-    if args.kn < 0:
-        raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
+    validate_arguments(args)
     orbit = (read_navigation(args.nav, max_age_s=args.nav_max_age * 3600.0) if args.nav else read_sp3(args.sp3))
     tlim = tuple(args.tlim) if args.tlim else None
     _say(args, f"reading {len(args.obs)} observation file(s)")
