@@ -31,6 +31,7 @@ import io
 import re
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -91,11 +92,14 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
                  tlim: tuple[str, str] | None = None, interval_s: float | None = None, mask_deg: float = 10.0,
                  ionosphere: str = "auto", regional_km: float = REGIONAL_KM, sigma_zenith_m: float | None = None,
                  weighting: str = "sin", reference: str | None = None, progress: Any = None,
-                 exclude: Sequence[str] = ()) -> Any:
+                 exclude: Sequence[str] = (), levelling: bool = True, min_arc_epochs: int = 10,
+                 gf_threshold_m: float = 0.05, screen: bool = True) -> Any:
     """Read the stations, form the geometry-free code on the union of their epochs and build the bias model
     (:func:`distnav.models.gnss.gfnetwork.bias_network_model`). ``exclude``: satellites (``G01``) and stations
-    (``BELE``) left out. Errors name the file: unreadable files, missing code types, a station without any
-    epoch with both codes."""
+    (``BELE``) left out. ``levelling``: carrier-to-code levelling per arc on the full-rate data, then the
+    ``interval_s`` grid (:func:`~distnav.models.gnss.levelling.level_station`; ``screen`` runs each station's
+    w-test screening of its own code). Errors name the file: unreadable files, missing code types, a station
+    without any epoch with both codes."""
     from distnav.models.gnss.gfbias import geometry_free_band_m
     from distnav.models.gnss.gfnetwork import bias_network_model, read_stations
     from distnav.models.gnss.orbits import gps_seconds
@@ -103,34 +107,74 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
     band = int(l2_code[1])
     excl = {e.upper() for e in exclude}
     files = list(obs_files)
-    obs = read_stations(files, l1_code=l1_code, l2_code=l2_code, tlim=tlim, interval_s=interval_s,
-                        progress=progress)
+    obs = read_stations(files, l1_code=l1_code, l2_code=l2_code, tlim=tlim,
+                        interval_s=None if levelling else interval_s, phases=levelling, progress=progress)
     obs = [o for o in obs if o.station not in excl]
     if not obs:
         raise DataFileError("every station is excluded")
     stations = [o.station for o in obs]
     notes = [f"{o.station}: {n}" for o in obs for n in o.notes]
-    t_all = np.unique(np.concatenate([gps_seconds(o.time) for o in obs]))
+    levelled = {o.station: _level(o, orbit, band, mask_deg, min_arc_epochs, gf_threshold_m, screen) for o in obs
+                if levelling} if levelling else {}
+    if levelling and interval_s:
+        from distnav.models.gnss.rinex_obs import on_grid
+
+        grids = {o.station: on_grid(o.time, interval_s) for o in obs}
+    else:
+        grids = {o.station: np.ones(o.time.size, bool) for o in obs}
+    t_all = np.unique(np.concatenate([gps_seconds(o.time[grids[o.station]]) for o in obs]))
     svs_all = sorted({s for o in obs for s in o.svs} - excl)
     T, n, S = t_all.size, len(obs), len(svs_all)
     gf = np.full((T, n, S), np.nan)
     for i, o in enumerate(obs):
-        ti = np.searchsorted(t_all, gps_seconds(o.time))
+        keep_t = grids[o.station]
+        ti = np.searchsorted(t_all, gps_seconds(o.time[keep_t]))
         cols = [k for k, sv in enumerate(o.svs) if sv not in excl]
         si = np.array([svs_all.index(o.svs[k]) for k in cols], dtype=np.int64)
-        g = geometry_free_band_m(o.range_m[1], o.range_m[band], band)[:, cols]
+        full = levelled[o.station].gf_m if levelling else geometry_free_band_m(o.range_m[1], o.range_m[band], band)
+        g = full[keep_t][:, cols]
         gf[np.ix_(ti, np.array([i]), si)] = g[:, None, :]
-        if not (np.isfinite(g).sum(axis=1) >= 1).any():
+        if not (np.isfinite(o.range_m[1]) & np.isfinite(o.range_m[band])).any():
             raise DataFileError(f"{o.path}: no epoch with a GPS satellite on both {l1_code} and {l2_code} "
                                 f"(missing frequency?)")
     if excl:
         notes.append(f"excluded: {' '.join(sorted(excl))}")
     codes = {o.station: dict(o.codes) for o in obs}
     xyz = np.stack([o.position_ecef_m for o in obs])
-    return bias_network_model(stations, t_all, xyz, gf, svs_all, orbit, band=band, codes=codes, mask_deg=mask_deg,
+    for sta, lev in levelled.items():
+        n_rm = int(lev.removed.sum())
+        notes.append(f"{sta}: levelled {len(lev.arcs)} arcs (starts: "
+                     f"{', '.join(f'{k} {v}' for k, v in sorted(lev.starts.items()))}; {lev.dropped_short} shorter "
+                     f"than {min_arc_epochs} epochs dropped); screening removed {n_rm} code observations")
+    data = bias_network_model(stations, t_all, xyz, gf, svs_all, orbit, band=band, codes=codes, mask_deg=mask_deg,
                               ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
                               weighting=weighting, reference=reference, notes=notes,
                               paths=[str(o.path) for o in obs])
+    return replace(data, levelled=levelled)
+
+
+def _level(o: Any, orbit: Any, band: int, mask_deg: float, min_arc_epochs: int, gf_threshold_m: float,
+           screen: bool) -> Any:
+    """Level one station's geometry-free code per arc (σ of the code from the elevation: σ₀/sin θ)."""
+    from distnav.models.gnss.geometry import azimuth_elevation
+    from distnav.models.gnss.levelling import level_station
+    from distnav.models.gnss.orbits import gps_seconds
+
+    if band not in o.phase_m or 1 not in o.phase_m:
+        raise DataFileError(f"{o.path}: no carrier phase on L1 and L{band} for levelling (use --levelling none)")
+    t = gps_seconds(o.time)
+    svs = [s for s in o.svs if s in orbit.svs]
+    el = np.full((t.size, len(o.svs)), np.nan)
+    if svs:
+        _, e = azimuth_elevation(o.position_ecef_m, orbit.positions_ecef(t, svs))
+        el[:, [o.svs.index(s) for s in svs]] = e
+    above = np.isfinite(el) & (el > np.deg2rad(mask_deg))
+    p1, pb = np.where(above, o.range_m[1], np.nan), np.where(above, o.range_m[band], np.nan)
+    sigma = 1.0 / np.sin(np.where(above, el, 0.5 * np.pi))
+    lli = o.lli.get(1, np.zeros(p1.shape, np.int8)) | o.lli.get(band, np.zeros(p1.shape, np.int8))
+    return level_station(t, o.svs, p1, pb, o.phase_m[1], o.phase_m[band], band=band, lli=lli, sigma_m=sigma,
+                         min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen,
+                         fallback_raw=True)
 
 
 def _iso(t_gps_s: float) -> str:
@@ -181,7 +225,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     data = network_data(args.obs, orbit, l1_code=l1, l2_code=l2, tlim=tlim,  # type: ignore[arg-type]
                         interval_s=args.interval, mask_deg=args.mask, ionosphere=args.ionosphere,
                         regional_km=args.regional_km, sigma_zenith_m=args.sigma, weighting=args.weighting,
-                        reference=args.reference, progress=progress, exclude=args.exclude or ())
+                        reference=args.reference, progress=progress, exclude=args.exclude or (),
+                        levelling=args.levelling == "arc", min_arc_epochs=args.min_arc,
+                        gf_threshold_m=args.gf_threshold, screen=not args.no_screening)
     stations, layout = data.stations, data.layout
     pivot = args.pivot.upper() if args.pivot else None
     if args.datum == "pivot":
@@ -270,10 +316,27 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         "first_estimable_epoch": {o: (times[int(np.argmax(np.isfinite(c.dsb_ns[:, k])))]
                                       if np.isfinite(c.dsb_ns[:, k]).any() else None) for k, o in enumerate(obj)},
     }
+    if data.levelled:
+        rows = ["station,satellite,first_epoch,last_epoch,n_epochs,start,offset_m,offset_std_m,code_rms_m,removed"]
+        for sta, lev in data.levelled.items():
+            for a in lev.arcs:
+                rows.append(f"{sta},{a.sv},{a.first},{a.last},{a.n_epochs},{a.start_reason},{a.offset_m:.4f},"
+                            f"{a.offset_std_m:.4f},{a.code_rms_m:.4f},{a.removed}")
+        atomic_write_text(out / "arcs.csv", "\n".join(rows) + "\n")
+        summary["arcs"] = {sta: _arc_summary(lev) for sta, lev in data.levelled.items()}
     atomic_write_json(out / "summary.json", summary)
     _print_summary(stations, comparison, finals)
     print(f"written {out / 'tec_dcb_per_epoch.csv'}, {out / 'dcb_final.csv'}, {out / 'summary.json'}")
     return 0
+
+
+def _arc_summary(lev: Any) -> dict[str, Any]:
+    n = np.array([a.n_epochs for a in lev.arcs])
+    rms = np.array([a.code_rms_m for a in lev.arcs])
+    return {"arcs": len(lev.arcs), "starts": lev.starts, "dropped_short": lev.dropped_short,
+            "median_epochs": float(np.median(n)) if n.size else 0.0,
+            "median_code_rms_m": float(np.median(rms)) if rms.size else float("nan"),
+            "removed_by_screening": int(lev.removed.sum())}
 
 
 def _check_days(products: Sequence[Any], t_gps_s: np.ndarray, allow: bool) -> None:
@@ -340,6 +403,13 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--exclude", nargs="+", metavar="SAT|STA", help="satellites (G01) or stations (BELE) left out")
     p.add_argument("--compare-exclude", nargs="+", metavar="SAT",
                    help="satellites left out of the product comparison statistics (e.g. G01)")
+    p.add_argument("--levelling", choices=["arc", "none"], default="arc",
+                   help="carrier-to-code levelling per continuous arc (default) or raw code")
+    p.add_argument("--min-arc", type=int, default=10, metavar="EPOCHS",
+                   help="shortest arc kept for levelling, in epochs of the file (default 10)")
+    p.add_argument("--gf-threshold", type=float, default=0.05, metavar="M",
+                   help="cycle-slip threshold on the geometry-free phase [m] (default 0.05)")
+    p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
     p.add_argument("--allow-other-day", action="store_true",
                    help="compare with a product of another day than the data")
     p.add_argument("--ionosphere", choices=["auto", "common", "per-receiver"], default="auto",

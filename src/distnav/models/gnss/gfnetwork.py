@@ -52,6 +52,7 @@ class BiasNetworkData:
     obs_m: np.ndarray
     sigma_m: np.ndarray
     notes: list[str] = field(default_factory=list)
+    levelled: dict[str, Any] = field(default_factory=dict)
 
     def series_for(self, reference: str) -> BiasGeometryFreeSeries:
         """The same data in the basis of another reference receiver."""

@@ -25,7 +25,7 @@ import numpy as np
 
 from distnav.errors import DataFileError
 
-__all__ = ["RinexHeader", "RawObservations", "read_header", "read_observation_types", "ProgressCallback"]
+__all__ = ["RinexHeader", "RawObservations", "read_header", "read_observation_types", "on_grid", "ProgressCallback"]
 
 log = logging.getLogger(__name__)
 
@@ -264,6 +264,13 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
     return RawObservations(hdr, np.array(times, dtype="datetime64[ns]"), svs,
                            {t: V[:, seen, j] for j, t in enumerate(types)},
                            {t: L[:, seen, j] for j, t in enumerate(types)})
+
+
+def on_grid(time: np.ndarray, interval_s: float) -> np.ndarray:
+    """Epochs (datetime64) whose time of day is a multiple of ``interval_s``."""
+    t = np.asarray(time).astype("datetime64[ns]")
+    ns = (t - t.astype("datetime64[D]")).astype(np.int64)
+    return np.asarray(ns % int(round(interval_s * 1e9)) == 0)
 
 
 def _keep(t: np.datetime64, lo: np.datetime64 | None, hi: np.datetime64 | None, step_ns: int) -> bool:
