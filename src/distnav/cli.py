@@ -21,7 +21,8 @@ from pathlib import Path
 from distnav import __version__
 from distnav.errors import DistnavError
 from distnav.experiments import EXPERIMENTS, available, load
-from distnav.experiments.common import ExperimentContext, Progress, set_file_writer
+from distnav.experiments.common import ExperimentContext, Progress
+from distnav.output import set_file_writer
 
 # real-data command groups; each module defines ``register(subparsers)``
 COMMAND_MODULES = ("distnav.commands.uwb", "distnav.commands.gnss")

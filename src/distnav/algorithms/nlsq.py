@@ -16,8 +16,9 @@ and acceptance is judged on the robust objective ``F = Σ s_l² ρ((g_l/s_l)²)`
 Huber ``ρ(z) = z`` for ``z ≤ 1`` else ``2√z − 1``; Cauchy ``ρ(z) = ln(1 + z)``). The gradients of the weighted
 model and of ``F`` agree, so the fixed points are those of ``F``.
 
-:func:`solve_lm` applies it to a UWB ranging problem (:mod:`distnav.models.uwb.problems`, duck-typed here so
-``algorithms`` does not import ``models``) and returns the common :class:`~distnav.algorithms.result.SolverResult`.
+:func:`solve_lm` applies it to a UWB ranging problem (:class:`~distnav.algorithms.ranging.RangingData`, which
+:class:`distnav.models.uwb.problems.RangingProblem` extends) and returns a
+:class:`~distnav.algorithms.ranging.RangingResult`.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -33,11 +34,12 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from distnav.algorithms.result import LegacyResult, SolverResult, Trace
+from distnav.algorithms.ranging import RangingData, RangingResult
+from distnav.algorithms.result import Trace
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
 
-__all__ = ["single_threaded_blas", "levenberg_marquardt", "LMResult", "solve_lm", "RangingLike", "LOSSES",
+__all__ = ["single_threaded_blas", "levenberg_marquardt", "LMResult", "solve_lm", "LOSSES",
            "robust_weights", "range_loss_scale"]
 
 LOSSES = ("linear", "huber", "cauchy")
@@ -102,42 +104,14 @@ def single_threaded_blas() -> Iterator[None]:
             setter(n)
 
 
-class RangingLike(Protocol):
-    """What the UWB solvers need from a ranging problem (see :class:`distnav.models.uwb.problems.RangingProblem`)."""
+def __getattr__(name: str) -> Any:
+    if name == "RangingLike":  # the protocol that restated RangingProblem; one definition now: RangingData
+        import warnings
 
-    @property
-    def ids(self) -> tuple[str, ...]: ...
-    @property
-    def dim(self) -> int: ...
-    @property
-    def positions_m(self) -> np.ndarray: ...
-    @property
-    def free(self) -> np.ndarray: ...
-    @property
-    def meas_a(self) -> np.ndarray: ...
-    @property
-    def meas_b(self) -> np.ndarray: ...
-    @property
-    def range_m(self) -> np.ndarray: ...
-    @property
-    def truth_m(self) -> np.ndarray | None: ...
-    @property
-    def initial_m(self) -> np.ndarray | None: ...
-    @property
-    def n_anchors(self) -> int: ...
-    @property
-    def n_free(self) -> int: ...
-    @property
-    def estimated(self) -> np.ndarray: ...
-    @property
-    def range_sq(self) -> np.ndarray: ...
-    @property
-    def graph(self) -> Any: ...
-    def to_vector(self, positions_m: np.ndarray) -> np.ndarray: ...
-    def to_positions(self, x: np.ndarray) -> np.ndarray: ...
-    def residuals(self, positions_m: np.ndarray) -> np.ndarray: ...
-    def cost(self, positions_m: np.ndarray) -> float: ...
-    def jacobian(self, positions_m: np.ndarray) -> sp.csr_matrix: ...
+        warnings.warn("distnav.algorithms.nlsq.RangingLike is deprecated: use distnav.algorithms.ranging.RangingData",
+                      DeprecationWarning, stacklevel=2)
+        return RangingData
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def robust_weights(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple[np.ndarray, float]:
@@ -391,16 +365,16 @@ def levenberg_marquardt(
                     trace={key: np.asarray(v) for key, v in tb.items()})
 
 
-def range_loss_scale(problem: RangingLike, loss_scale_m: float) -> np.ndarray:
+def range_loss_scale(problem: RangingData, loss_scale_m: float) -> np.ndarray:
     """Residual scale ``s_l = 2 d_l σ`` of ``g_l = ‖r_a − r_b‖² − d_l²`` for a range error of ``σ`` metres
     (``g ≈ 2 d (‖r_a − r_b‖ − d)``), so the robust loss switches at range errors of about ``loss_scale_m``."""
     if not loss_scale_m > 0:
         raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
-    return 2.0 * np.maximum(problem.range_m, loss_scale_m) * loss_scale_m
+    return np.asarray(2.0 * np.maximum(problem.range_m, loss_scale_m) * loss_scale_m)
 
 
 def solve_lm(
-    problem: RangingLike,
+    problem: RangingData,
     *,
     initial_m: np.ndarray | None = None,
     max_iterations: int = 500,
@@ -411,8 +385,8 @@ def solve_lm(
     loss: str = "linear",
     loss_scale_m: float = 0.3,
     pad_trace: bool = False,
-) -> SolverResult:
-    """Global LM (paper 002 eq. (8), Fletcher scaling) on a ranging problem; returns a :class:`SolverResult`.
+) -> RangingResult:
+    """Global LM (paper 002 eq. (8), Fletcher scaling) on a ranging problem; returns a :class:`RangingResult`.
 
     ``estimates`` are the ``(n, dim)`` anchor positions. Trace (one row per iteration, plus row 0 = start):
     ``cost`` (``f`` of eq. (2)), ``objective`` (robust ``F``), ``rmse_m`` (eq. (24), when the truth is known),
@@ -460,7 +434,7 @@ def solve_lm(
         rmse_tr = np.concatenate([rmse_tr, np.full(pad, rmse_tr[-1])])
     trace = Trace({"cost": cost, "objective": objective, "rmse_m": rmse_tr, "step_size": step, "lambda": lam})
     pos = problem.to_positions(res.x)
-    return LegacyResult(
+    return RangingResult(
         estimates=pos,
         converged=res.converged,
         iterations=res.iterations,
@@ -468,5 +442,10 @@ def solve_lm(
         message=f"LM: {res.message}; cost {res.cost:.6g}",
         trace=trace,
         comm=CommTotals.empty(problem.n_anchors),
-        legacy={"solver": "LM", "cost": res.cost, "objective": res.objective, "x": res.x, "loss": loss},
+        solver="LM",
+        cost=res.cost,
+        objective=res.objective,
+        loss=loss,
+        x=res.x,
+        settings={"lambda0": lambda0, "ftol": ftol, "xtol": xtol, "gtol": gtol},
     )

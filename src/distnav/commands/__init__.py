@@ -8,9 +8,9 @@ rank 0 print and write files.
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 from distnav.exchange import Exchange, make_exchange
+from distnav.network.graph import Graph
 
 
 def add_backend_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,6 +22,6 @@ def add_backend_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --backend mpi: the number of ranks launched (checked against MPI)")
 
 
-def command_exchange(args: argparse.Namespace, graph: Any) -> Exchange:
+def command_exchange(args: argparse.Namespace, graph: Graph) -> Exchange:
     """The exchange for a command's distributed solver on ``graph``, for ``args.backend``."""
     return make_exchange(graph, backend=getattr(args, "backend", "inprocess"))

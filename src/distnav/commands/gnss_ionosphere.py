@@ -199,7 +199,7 @@ C1C_WARNING = ("WARNING: L1 code C1C (RINEX 2 C1). The satellites' C1C-C1W biase
 
 def run_ionosphere(args: argparse.Namespace) -> int:
     """Handler of ``distnav gnss ionosphere``."""
-    from distnav.experiments.common import atomic_write_json, atomic_write_text
+    from distnav.output import atomic_write_json, atomic_write_text
     from distnav.models.gnss.gfnetwork import run_bias_filters
     from distnav.models.gnss.ionosphere import TEC_NAMES, TECU_L1_M
     from distnav.models.gnss.products import compare_in_datum, product_dsbs
