@@ -76,12 +76,14 @@ def test_screening_equals_centralized_data_snooping(rng: np.random.Generator) ->
     d = 2.0 + sigma * rng.standard_normal(m)
     bad = [10, 77, 140]
     d[bad] += np.array([6.0, -5.0, 8.0]) * sigma[bad]
-    keep, off, off_sd = screen_arc(d, sigma, scale="apriori")
+    keep, off, off_sd, w = screen_arc(d, sigma, scale="apriori")
     ref = data_snooping(np.ones((m, 1)), d, sigma**2, level=0.001)
     assert sorted(ref.removed) == sorted(np.flatnonzero(~keep).tolist())
     assert set(bad) <= set(ref.removed)
     assert off == pytest.approx(float(ref.x[0]), abs=1e-10)
-    assert off_sd == pytest.approx(np.sqrt(ref.covariance[0, 0] * (ref.variance_factor or 1.0)), rel=1e-8)
+    assert off_sd == pytest.approx(np.sqrt(ref.covariance[0, 0]), rel=1e-8)
+    np.testing.assert_allclose(w[keep], ref.w[keep], rtol=1e-8)
+    assert np.isnan(w[~keep]).all()
 
 
 def test_real_rinex_levelled_noise_far_below_raw(shared_data: Path) -> None:

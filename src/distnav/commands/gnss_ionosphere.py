@@ -100,22 +100,37 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
     ``interval_s`` grid (:func:`~distnav.models.gnss.levelling.level_station`; ``screen`` runs each station's
     w-test screening of its own code). Errors name the file: unreadable files, missing code types, a station
     without any epoch with both codes."""
+    from distnav.models.gnss.gfnetwork import read_stations
+
+    obs = read_stations(list(obs_files), l1_code=l1_code, l2_code=l2_code, tlim=tlim,
+                        interval_s=None if levelling else interval_s, phases=levelling, progress=progress)
+    return network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
+                                     ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
+                                     weighting=weighting, reference=reference, exclude=exclude, levelling=levelling,
+                                     min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen)
+
+
+def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = "C2W",
+                              interval_s: float | None = None, mask_deg: float = 10.0, ionosphere: str = "auto",
+                              regional_km: float = REGIONAL_KM, sigma_zenith_m: float | None = None,
+                              weighting: str = "sin", reference: str | None = None, exclude: Sequence[str] = (),
+                              levelling: bool = True, min_arc_epochs: int = 10, gf_threshold_m: float = 0.05,
+                              screen: bool = True) -> Any:
+    """:func:`network_data` from observations already read (:class:`~distnav.models.gnss.rinex.CodeObservations`
+    with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid)."""
     from distnav.models.gnss.gfbias import geometry_free_band_m
-    from distnav.models.gnss.gfnetwork import bias_network_model, read_stations
+    from distnav.models.gnss.gfnetwork import bias_network_model
     from distnav.models.gnss.orbits import gps_seconds
 
     band = int(l2_code[1])
     excl = {e.upper() for e in exclude}
-    files = list(obs_files)
-    obs = read_stations(files, l1_code=l1_code, l2_code=l2_code, tlim=tlim,
-                        interval_s=None if levelling else interval_s, phases=levelling, progress=progress)
     obs = [o for o in obs if o.station not in excl]
     if not obs:
         raise DataFileError("every station is excluded")
     stations = [o.station for o in obs]
     notes = [f"{o.station}: {n}" for o in obs for n in o.notes]
-    levelled = {o.station: _level(o, orbit, band, mask_deg, min_arc_epochs, gf_threshold_m, screen) for o in obs
-                if levelling} if levelling else {}
+    levelled = {o.station: _level(o, orbit, band, mask_deg, min_arc_epochs, gf_threshold_m, screen, i)
+                for i, o in enumerate(obs)} if levelling else {}
     if levelling and interval_s:
         from distnav.models.gnss.rinex_obs import on_grid
 
@@ -135,7 +150,7 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
         g = full[keep_t][:, cols]
         gf[np.ix_(ti, np.array([i]), si)] = g[:, None, :]
         if not (np.isfinite(o.range_m[1]) & np.isfinite(o.range_m[band])).any():
-            raise DataFileError(f"{o.path}: no epoch with a GPS satellite on both {l1_code} and {l2_code} "
+            raise DataFileError(f"{o.path}: no epoch with a GPS satellite on both {o.codes[1]} and {o.codes[band]} "
                                 f"(missing frequency?)")
     if excl:
         notes.append(f"excluded: {' '.join(sorted(excl))}")
@@ -150,11 +165,11 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
                               ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
                               weighting=weighting, reference=reference, notes=notes,
                               paths=[str(o.path) for o in obs])
-    return replace(data, levelled=levelled)
+    return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs})
 
 
 def _level(o: Any, orbit: Any, band: int, mask_deg: float, min_arc_epochs: int, gf_threshold_m: float,
-           screen: bool) -> Any:
+           screen: bool, node: int) -> Any:
     """Level one station's geometry-free code per arc (σ of the code from the elevation: σ₀/sin θ)."""
     from distnav.models.gnss.geometry import azimuth_elevation
     from distnav.models.gnss.levelling import level_station
@@ -174,7 +189,7 @@ def _level(o: Any, orbit: Any, band: int, mask_deg: float, min_arc_epochs: int, 
     lli = o.lli.get(1, np.zeros(p1.shape, np.int8)) | o.lli.get(band, np.zeros(p1.shape, np.int8))
     return level_station(t, o.svs, p1, pb, o.phase_m[1], o.phase_m[band], band=band, lli=lli, sigma_m=sigma,
                          min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen,
-                         fallback_raw=True)
+                         fallback_raw=True, node=node)
 
 
 def _iso(t_gps_s: float) -> str:
@@ -199,11 +214,11 @@ C1C_WARNING = ("WARNING: L1 code C1C (RINEX 2 C1). The satellites' C1C-C1W biase
 
 def run_ionosphere(args: argparse.Namespace) -> int:
     """Handler of ``distnav gnss ionosphere``."""
-    from distnav.output import atomic_write_json, atomic_write_text
     from distnav.models.gnss.gfnetwork import run_bias_filters
     from distnav.models.gnss.ionosphere import TEC_NAMES, TECU_L1_M
     from distnav.models.gnss.products import compare_in_datum, product_dsbs
     from distnav.models.gnss.rinex import read_navigation, read_sp3
+    from distnav.output import atomic_write_json, atomic_write_text
 
     validate_arguments(args)
     l1, l1_note = _l1_code(args)
@@ -324,6 +339,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                             f"{a.offset_std_m:.4f},{a.code_rms_m:.4f},{a.removed}")
         atomic_write_text(out / "arcs.csv", "\n".join(rows) + "\n")
         summary["arcs"] = {sta: _arc_summary(lev) for sta, lev in data.levelled.items()}
+        summary["screening"] = {sta: _screening_summary(lev, layout_svs=data.levelled_svs[sta])
+                                for sta, lev in data.levelled.items()}
     atomic_write_json(out / "summary.json", summary)
     _print_summary(stations, comparison, finals)
     print(f"written {out / 'tec_dcb_per_epoch.csv'}, {out / 'dcb_final.csv'}, {out / 'summary.json'}")
@@ -337,6 +354,18 @@ def _arc_summary(lev: Any) -> dict[str, Any]:
             "median_epochs": float(np.median(n)) if n.size else 0.0,
             "median_code_rms_m": float(np.median(rms)) if rms.size else float("nan"),
             "removed_by_screening": int(lev.removed.sum())}
+
+
+def _screening_summary(lev: Any, layout_svs: Sequence[str]) -> dict[str, Any]:
+    """What each station's own screening removed: counts per satellite and the w-test summary."""
+    t_idx, s_idx = np.nonzero(lev.removed)
+    per_sat: dict[str, int] = {}
+    for s in s_idx.tolist():
+        per_sat[layout_svs[s]] = per_sat.get(layout_svs[s], 0) + 1
+    tests = lev.tests.summary() if lev.tests is not None else {}
+    tests.pop("removed", None)
+    return {"tested": int(lev.tests.w.size) if lev.tests is not None else 0, "removed": int(lev.removed.sum()),
+            "removed_per_satellite": per_sat, **tests}
 
 
 def _check_days(products: Sequence[Any], t_gps_s: np.ndarray, allow: bool) -> None:

@@ -53,6 +53,7 @@ class BiasNetworkData:
     sigma_m: np.ndarray
     notes: list[str] = field(default_factory=list)
     levelled: dict[str, Any] = field(default_factory=dict)
+    levelled_svs: dict[str, list[str]] = field(default_factory=dict)
 
     def series_for(self, reference: str) -> BiasGeometryFreeSeries:
         """The same data in the basis of another reference receiver."""

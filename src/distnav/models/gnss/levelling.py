@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from distnav.algorithms.result import ObservationTests
 from distnav.algorithms.statistics import critical_value, w_statistics
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
@@ -62,7 +63,9 @@ class ArcStatistics:
 class LevelledStation:
     """Levelled geometry-free code ``gf_m`` (T, S) (NaN outside kept arcs), ``arc`` (T, S) arc index (−1 none),
     ``arcs`` their statistics, ``removed`` (T, S) True where the screening removed the code, counts of arc
-    starts by reason."""
+    starts by reason; ``tests`` the station's w-tests (:class:`~distnav.algorithms.result.ObservationTests`, owner
+    ``node``; ``removed`` indexes the tested observations in (epoch, satellite) order; computed by the station on
+    its own data: no messages)."""
 
     gf_m: np.ndarray
     arc: np.ndarray
@@ -70,6 +73,7 @@ class LevelledStation:
     removed: np.ndarray
     starts: dict[str, int]
     dropped_short: int
+    tests: ObservationTests | None = None
 
 
 def geometry_free_phase_m(phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2) -> np.ndarray:
@@ -143,10 +147,11 @@ def find_arcs(t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, ll
 
 
 def screen_arc(d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, scale: str = "arc",
-               max_fraction: float = 0.2) -> tuple[np.ndarray, float, float]:
+               max_fraction: float = 0.2) -> tuple[np.ndarray, float, float, np.ndarray]:
     """Iterative w-test screening of ``d = g_P − g_Φ = offset + e`` over one arc (module doc).
 
-    Returns (kept mask, offset [m], σ of the offset [m]). ``scale="arc"`` tests with the arc's a-posteriori
+    Returns (kept mask, offset [m], σ of the offset [m], w of every observation in the final solution — NaN
+    for removed ones). ``scale="arc"`` tests with the arc's a-posteriori
     variance factor (robust to a wrong a-priori σ), ``"apriori"`` with ``sigma_m`` as given. At most
     ``max_fraction`` of the arc is removed.
     """
@@ -157,6 +162,7 @@ def screen_arc(d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, sc
     keep = np.isfinite(d) & np.isfinite(s2) & (s2 > 0)
     k_crit = critical_value(level)
     limit = int(max_fraction * keep.sum())
+    w_out = np.full(d.shape, np.nan)
     for _ in range(limit + 1):
         wts = np.where(keep, 1.0 / np.where(keep, s2, 1.0), 0.0)
         sw = wts.sum()
@@ -169,8 +175,9 @@ def screen_arc(d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, sc
         if scale == "arc":
             r = keep.sum() - 1
             factor = max(float((wts * e**2).sum() / r), 1e-12) if r > 0 else 1.0
-        w = w_statistics(e, var_e * factor)
-        w = np.where(keep, np.abs(np.nan_to_num(w)), 0.0)
+        w_signed = w_statistics(e, var_e * factor)
+        w_out = np.where(keep, w_signed, np.nan)
+        w = np.where(keep, np.abs(np.nan_to_num(w_signed)), 0.0)
         worst = int(np.argmax(w))
         if w[worst] <= k_crit or (~keep).sum() - (~np.isfinite(d)).sum() >= limit:
             break
@@ -178,18 +185,18 @@ def screen_arc(d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, sc
     wts = np.where(keep, 1.0 / np.where(keep, s2, 1.0), 0.0)
     sw = wts.sum()
     if sw <= 0:
-        return keep, float("nan"), float("nan")
+        return keep, float("nan"), float("nan"), w_out
     off = float((wts * np.where(keep, d, 0.0)).sum() / sw)
     r = keep.sum() - 1
-    s0 = float((wts * np.where(keep, d - off, 0.0) ** 2).sum() / r) if r > 0 else 1.0
-    return keep, off, float(np.sqrt(s0 / sw))
+    s0 = float((wts * np.where(keep, d - off, 0.0) ** 2).sum() / r) if r > 0 and scale == "arc" else 1.0
+    return keep, off, float(np.sqrt(s0 / sw)), w_out
 
 
 def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray,
                   phib_m: np.ndarray, *, band: int = 2, lli: np.ndarray | None = None,
                   sigma_m: np.ndarray | None = None, min_arc_epochs: int = 10, max_gap_s: float | None = None,
                   gf_threshold_m: float = 0.05, screen: bool = True, level: float = 0.001,
-                  fallback_raw: bool = False) -> LevelledStation:
+                  fallback_raw: bool = False, node: int = 0) -> LevelledStation:
     """Level one station's geometry-free code (T, S) per arc (module doc). ``sigma_m`` (T, S) σ of the code
     ``g_P`` (default 1: equal weights); ``max_gap_s`` defaults to 3 × the median sampling interval."""
     t = np.asarray(t_s, float)
@@ -204,6 +211,7 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
     out = np.full((T, S), np.nan)
     arc_id = np.full((T, S), -1, np.int64)
     removed = np.zeros((T, S), bool)
+    w_all = np.full((T, S), np.nan)
     arcs: list[ArcStatistics] = []
     starts: dict[str, int] = {}
     dropped = 0
@@ -221,7 +229,8 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
                 continue
             d = gp[ep, s] - gphi[ep, s]
             if screen:
-                keep, off, off_sd = screen_arc(d, sig[ep, s], level=level)
+                keep, off, off_sd, w_arc = screen_arc(d, sig[ep, s], level=level)
+                w_all[ep, s] = w_arc
             else:
                 keep = np.ones(ep.size, bool)
                 wts = 1.0 / sig[ep, s] ** 2
@@ -235,4 +244,10 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
     if fallback_raw:
         raw = np.isnan(out) & np.isfinite(gp) & ~removed
         out[raw] = gp[raw]
-    return LevelledStation(out, arc_id, arcs, removed, starts, dropped)
+    tested = np.isfinite(w_all) | removed
+    k = critical_value(level)
+    flat_w = w_all[tested]
+    tests = ObservationTests(node=np.full(flat_w.size, node, np.int64), w=flat_w, critical_value=k, level=level,
+                             flagged=np.abs(np.nan_to_num(flat_w)) > k,
+                             removed=tuple(np.flatnonzero(removed[tested]).tolist()))
+    return LevelledStation(out, arc_id, arcs, removed, starts, dropped, tests)
