@@ -341,10 +341,31 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         summary["arcs"] = {sta: _arc_summary(lev) for sta, lev in data.levelled.items()}
         summary["screening"] = {sta: _screening_summary(lev, layout_svs=data.levelled_svs[sta])
                                 for sta, lev in data.levelled.items()}
+    summary["bias_sinex"] = str(_write_sinex(out / "distnav_dsb.bia", data, finals["central"], l1, l2,
+                                             args.datum, times))
     atomic_write_json(out / "summary.json", summary)
     _print_summary(stations, comparison, finals)
     print(f"written {out / 'tec_dcb_per_epoch.csv'}, {out / 'dcb_final.csv'}, {out / 'summary.json'}")
     return 0
+
+
+def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str, float]], l1: str, l2: str,
+                 datum: str, times: list[str]) -> Path:
+    """The central filter's final DSBs as Bias-SINEX 1.00 (satellites and receivers with σ)."""
+    from distnav.models.gnss.bias_sinex import write_bias_sinex
+
+    val, sd = final
+    step = float(np.median(np.diff(data.t_gps_s))) if data.t_gps_s.size > 1 else 30.0
+    end = np.datetime64(times[-1], "s") + np.timedelta64(int(round(step)), "s")
+    return write_bias_sinex(
+        path, obs1=l1, obs2=l2, start=times[0], end=end, sampling_s=step,
+        satellites={k: (v, sd[k]) for k, v in val.items() if not k.startswith("rx:")},
+        stations={k[3:]: (v, sd[k]) for k, v in val.items() if k.startswith("rx:")},
+        comments=[f"distnav gnss ionosphere, central filter, datum {datum} "
+                  f"({'IGS convention' if datum == 'zero-mean' else 'not the IGS convention'})",
+                  f"stations: {' '.join(data.stations)}; geometry-free {l1}-{l2} code, "
+                  f"{'carrier-levelled' if data.levelled else 'raw'}",
+                  "satellite SVN field holds the system letter only"])
 
 
 def _arc_summary(lev: Any) -> dict[str, Any]:

@@ -19,7 +19,7 @@ import numpy as np
 
 from distnav.errors import DataFileError, ModelError
 
-__all__ = ["ProductDSB", "product_dsbs", "compare_in_datum", "product_day"]
+__all__ = ["ProductDSB", "product_dsbs", "compare_in_datum", "product_day", "DSBEstimates", "read_estimates"]
 
 
 @dataclass(frozen=True)
@@ -132,3 +132,64 @@ def compare_in_datum(sat_ns: dict[str, float], rx_ns: dict[str, float], product:
         out["receivers"] = {"difference_ns": rx, "reference_ns": {r: product.station[r] for r in rx},
                             **_stats(np.array(list(rx.values())))}
     return out
+
+
+@dataclass(frozen=True)
+class DSBEstimates:
+    """Estimated DSBs to compare: ``satellite``/``station`` [ns] of ``obs1 − obs2``, the days of the data."""
+
+    source: str
+    obs1: str
+    obs2: str
+    satellite: dict[str, float]
+    station: dict[str, float]
+    days: tuple[np.datetime64, ...]
+
+
+def read_estimates(path: str | Path, *, filter_label: str = "central") -> DSBEstimates:
+    """The DSBs of a ``distnav gnss ionosphere`` output (its folder or ``summary.json``) or of a Bias-SINEX file
+    (one code pair: the most frequent satellite pair in it)."""
+    import json
+
+    from distnav.models.gnss.bias_sinex import read_bias_sinex
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / "summary.json"
+    if not p.exists():
+        raise DataFileError(f"{p}: file not found")
+    if p.suffix == ".json":
+        try:
+            s = json.loads(p.read_text())
+            vals = s["final_dsb_ns"][filter_label]
+            codes = list(s["codes"].values())
+            days = tuple(sorted({np.datetime64(s["first_epoch"], "D"), np.datetime64(s["last_epoch"], "D")}))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise DataFileError(f"{p}: not a `distnav gnss ionosphere` summary.json with filter {filter_label!r} "
+                                f"({type(exc).__name__}: {exc})") from None
+        return DSBEstimates(str(p), codes[0], codes[1], {k: v for k, v in vals.items() if not k.startswith("rx:")},
+                            {k[3:]: v for k, v in vals.items() if k.startswith("rx:")}, days)
+    prod = read_bias_sinex(p)
+    pairs: dict[tuple[str, str], int] = {}
+    for r in prod.records:
+        if r.kind == "DSB" and r.prn.startswith("G"):
+            pairs[(r.obs1, r.obs2)] = pairs.get((r.obs1, r.obs2), 0) + 1
+    if not pairs:
+        raise DataFileError(f"{p}: no GPS satellite DSB")
+    o1, o2 = max(pairs, key=lambda k: pairs[k])
+    sat = {r.prn: r.value for r in prod.records if r.kind == "DSB" and r.prn.startswith("G")
+           and (r.obs1, r.obs2) == (o1, o2)}
+    sta = {r.station[:4].upper(): r.value for r in prod.records if r.kind == "DSB" and r.station
+           and r.system == "G" and (r.obs1, r.obs2) == (o1, o2)}
+    starts = {r.start for r in prod.records if r.start}
+    days = tuple(sorted({_sinex_day(t) for t in starts} - {None}))  # type: ignore[type-var]
+    return DSBEstimates(str(p), o1, o2, sat, sta, days)
+
+
+def _sinex_day(t: str) -> np.datetime64 | None:
+    try:
+        y, d, _ = t.split(":")
+        year = int(y) + (2000 if len(y) == 2 else 0)
+        return np.datetime64(f"{year:04d}-01-01") + np.timedelta64(int(d) - 1, "D")
+    except ValueError:
+        return None
