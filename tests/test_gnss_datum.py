@@ -126,3 +126,47 @@ def test_layout_errors() -> None:
     lay = BiasStateLayout(("G01", "G02", "G03"), ("A", "B"), 1, "receiver", "A")
     assert lay.n_states == 3 + 2 + 3 - 1
     assert lay.state_names()[3:] == ["rx_gf_m:B", "sat_gf_m:G01", "sat_gf_m:G02", "sat_gf_m:G03"]
+
+
+def test_variance_factor_from_predicted_residuals() -> None:
+    """σ̂² ≈ 1 when the data follow the model; ≈ 4 when the noise is twice the assumed σ."""
+    gps, t, xyz, y, _ = _simulate(11, epochs=40)
+    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
+    (c,), _ = run_bias_filters(data, local=False)
+    assert c.n_innovations > 500 and c.variance_factor is not None
+    assert 0.85 < c.variance_factor < 1.15
+    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.15)
+    (c,), _ = run_bias_filters(data, local=False)
+    assert c.variance_factor is not None and 3.4 < c.variance_factor < 4.6
+
+
+def test_realistic_sigma_with_time_correlated_errors() -> None:
+    """Errors following an AR(1) process (ρ = 0.9 epoch to epoch): the formal σ is far too optimistic; the
+    realistic σ (formal × √(σ̂² (1 + ρ̂)/(1 − ρ̂))) matches the Monte Carlo scatter of the DCBs within 1.5×."""
+    gps, t, xyz, _, _ = _simulate(0, epochs=60)
+    z, formal, real = [], [], []
+    for seed in range(16):
+        rng = np.random.default_rng(100 + seed)
+        geo = ionosphere_geometry(gps, t, receivers_ecef_m=xyz, names=NAMES, mask_deg=10)
+        T, n, S = geo.tracked.shape
+        b_rx, b_s = rng.normal(0, 3, n), rng.normal(0, 1.5, S)
+        sig = 0.3 / np.sin(np.where(geo.tracked, geo.el_rad, np.pi / 2))
+        e = np.zeros((T, n, S))
+        e[0] = rng.standard_normal((n, S))
+        for k in range(1, T):
+            e[k] = 0.9 * e[k - 1] + np.sqrt(1 - 0.81) * rng.standard_normal((n, S))
+        y = 2.0 * geo.coefficients[..., 0] + b_rx[None, :, None] + b_s[None, None, :] + sig * e
+        y[~geo.tracked] = np.nan
+        data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
+        (c,), _ = run_bias_filters(data, local=False)
+        k_sv = [list(gps.svs).index(s) for s in data.layout.svs]
+        bs = b_s[k_sv]
+        ref = np.concatenate([b_rx + bs.mean(), bs - bs.mean()]) / -gf_m_per_dsb_ns(2)
+        ok = np.isfinite(c.dsb_ns[-1])
+        z.append((c.dsb_ns[-1] - ref)[ok])
+        formal.append(c.dsb_std_ns[-1][ok])
+        real.append(c.dsb_std_ns[-1][ok] * c.realistic_factor)
+    err, f, r = (np.concatenate(a) for a in (z, formal, real))
+    assert np.sqrt(np.mean((err / f) ** 2)) > 1.8                 # formal σ: optimistic
+    ratio = np.sqrt(np.mean((err / r) ** 2))
+    assert 1 / 1.5 < ratio < 1.5

@@ -327,6 +327,11 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                                   for k, nm in enumerate(tec_names)} for s in series},
         "final_dsb_ns": {label: v for label, (v, _) in finals.items()},
         "final_dsb_std_ns": {label: sd for label, (_, sd) in finals.items()},
+        "variance_factor": {s.label: s.variance_factor for s in series},
+        "innovations": {s.label: s.n_innovations for s in series},
+        "lag1_correlation": {s.label: s.lag1_correlation for s in series},
+        "final_dsb_std_realistic_ns": {s.label: {k: v * s.realistic_factor for k, v in finals[s.label][1].items()}
+                                       for s in series},
         "comparison": comparison, "messages": comm.as_dict() if comm is not None else {},
         "first_estimable_epoch": {o: (times[int(np.argmax(np.isfinite(c.dsb_ns[:, k])))]
                                       if np.isfinite(c.dsb_ns[:, k]).any() else None) for k, o in enumerate(obj)},
@@ -341,10 +346,14 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         summary["arcs"] = {sta: _arc_summary(lev) for sta, lev in data.levelled.items()}
         summary["screening"] = {sta: _screening_summary(lev, layout_svs=data.levelled_svs[sta])
                                 for sta, lev in data.levelled.items()}
-    summary["bias_sinex"] = str(_write_sinex(out / "distnav_dsb.bia", data, finals["central"], l1, l2,
-                                             args.datum, times))
+    fac = series[0].realistic_factor
+    post = (finals["central"][0], {k: v * fac for k, v in finals["central"][1].items()})
+    summary["bias_sinex"] = str(_write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times))
     atomic_write_json(out / "summary.json", summary)
     _print_summary(stations, comparison, finals)
+    c0 = series[0]
+    print(f"precision: variance factor {c0.variance_factor or float('nan'):.2f}, lag-1 correlation of the predicted "
+          f"residuals {c0.lag1_correlation:.3f}: realistic σ = formal σ × {fac:.2f} (used in distnav_dsb.bia)")
     print(f"written {out / 'tec_dcb_per_epoch.csv'}, {out / 'dcb_final.csv'}, {out / 'summary.json'}")
     return 0
 
@@ -365,6 +374,7 @@ def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str,
                   f"({'IGS convention' if datum == 'zero-mean' else 'not the IGS convention'})",
                   f"stations: {' '.join(data.stations)}; geometry-free {l1}-{l2} code, "
                   f"{'carrier-levelled' if data.levelled else 'raw'}",
+                  "sigma: formal x sqrt(variance factor x (1+rho)/(1-rho)) of the predicted residuals",
                   "satellite SVN field holds the system letter only"])
 
 

@@ -163,18 +163,37 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
 @dataclass(frozen=True, eq=False)
 class DatumSeries:
     """One filter's per-epoch outputs in the output datum: ``tec`` / ``tec_std`` (T, n_tec) [m],
-    ``dsb_ns`` / ``dsb_std_ns`` (T, n + S) DSBs ``C1 − C_b`` [ns] of the receivers then the satellites."""
+    ``dsb_ns`` / ``dsb_std_ns`` (T, n + S) DSBs ``C1 − C_b`` [ns] of the receivers then the satellites (formal:
+    σ² = 1); ``variance_factor`` σ̂² from the filter's own predicted residuals (``Σ vᵀQ_v⁻¹v / Σ m``, each
+    filter on the observations it uses: a local quantity in the CKF too) and the number of them;
+    ``lag1_correlation`` ρ of the standardized predicted residuals of the same receiver–satellite pair at
+    consecutive epochs and the inflation ``(1 + ρ)/(1 − ρ)`` it implies for the variance of constant parameters."""
 
     label: str
     tec: np.ndarray
     tec_std: np.ndarray
     dsb_ns: np.ndarray
     dsb_std_ns: np.ndarray
+    variance_factor: float | None = None
+    n_innovations: int = 0
+    lag1_correlation: float = 0.0
+    correlation_inflation: float = 1.0
+
+    @property
+    def realistic_factor(self) -> float:
+        """``√(σ̂² (1 + ρ)/(1 − ρ))``: the formal σ times this accounts for the misfit and for the epoch-to-epoch
+        correlation ``ρ`` of the standardized predicted residuals (variance of a mean of AR(1) errors)."""
+        return float(np.sqrt((self.variance_factor or 1.0) * self.correlation_inflation))
 
 
 class _Collector:
     def __init__(self, label: str, T: int, n_tec: int, q: int) -> None:
         self.label = label
+        self.ssr = 0.0
+        self.m = 0
+        self.z_prev: dict[tuple[int, int], tuple[int, float]] = {}
+        self.zz = self.zlag = 0.0
+        self.prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.tec = np.full((T, n_tec), np.nan)
         self.tec_std = np.full((T, n_tec), np.nan)
         self.dsb = np.full((T, q), np.nan)
@@ -194,8 +213,45 @@ class _Collector:
         self.dsb[t] = -v / scale
         self.dsb_std[t] = s / scale
 
+    def innovations(self, t: int, series: BiasGeometryFreeSeries, nodes: np.ndarray, dynamics: Any,
+                    x: np.ndarray, est: np.ndarray, P: np.ndarray | None) -> None:
+        """Accumulate the predicted residuals ``v = y − A x̂_{t−1}`` of ``nodes`` with ``Q_v = R + A P⁻ Aᵀ``
+        (``P⁻ = P_{t−1} + S_t``) over the observations whose parameters were all estimable before epoch ``t``."""
+        if self.prev is not None and t > 0:
+            xp, ep, Pp = self.prev
+            A, w = series.design(t, nodes)
+            y = series._y[t, nodes] if series._y is not None else np.zeros(w.shape)
+            rows = (w > 0) & ~((np.abs(A) > 0) & ~ep[None, None, :]).any(axis=2)
+            if rows.any():
+                Pm = np.where(np.outer(ep, ep), Pp, 0.0) + dynamics.noise_cov_at(t)
+                xz = np.where(ep, xp, 0.0)
+                for k in range(A.shape[0]):
+                    r = rows[k]
+                    if r.sum() == 0:
+                        continue
+                    Ak = A[k, r]
+                    v = y[k, r] - Ak @ xz
+                    Qv = np.diag(1.0 / w[k, r]) + Ak @ Pm @ Ak.T
+                    self.ssr += float(v @ np.linalg.solve(Qv, v))
+                    self.m += int(r.sum())
+                    z = v / np.sqrt(np.diag(Qv))
+                    for sat, zk in zip(np.flatnonzero(r).tolist(), z.tolist(), strict=True):
+                        key = (int(nodes[k]), sat)
+                        last = self.z_prev.get(key)
+                        if last is not None and last[0] == t - 1:
+                            self.zlag += zk * last[1]
+                        self.zz += zk * zk
+                        self.z_prev[key] = (t, zk)
+        if P is not None:
+            self.prev = (x.copy(), est.copy(), P.copy())
+
     def done(self) -> DatumSeries:
-        return DatumSeries(self.label, self.tec, self.tec_std, self.dsb, self.dsb_std)
+        from distnav.algorithms.statistics import variance_factor
+
+        vf = variance_factor(self.ssr, self.m) if self.m else None
+        rho = min(max(self.zlag / self.zz, 0.0), 0.999) if self.zz > 0 else 0.0
+        return DatumSeries(self.label, self.tec, self.tec_std, self.dsb, self.dsb_std, vf, self.m, rho,
+                           (1.0 + rho) / (1.0 - rho))
 
 
 def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: str | None = None,
@@ -214,7 +270,10 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
     scale = gf_m_per_dsb_ns(data.band)
     out: list[DatumSeries] = []
     c = _Collector("central", T, lay.n_tec, q)
+    everyone = np.arange(len(data.stations))
     for st in iterate_information_filter(data.dynamics, data.series, mode="central"):
+        c.innovations(st.epoch, data.series, everyone, data.dynamics, st.estimates[0], st.estimable[0],
+                      st.covariance[0])
         c.add(st.epoch, lay, st.estimates[0], st.estimable[0], st.covariance[0], datum, pivot, reference, scale)
     out.append(c.done())
     if local:
@@ -222,6 +281,8 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
             si = data.series_for(sta)
             c = _Collector(f"local:{sta}", T, lay.n_tec, q)
             for st in iterate_information_filter(data.dynamics, si, mode="central", nodes=[i]):
+                c.innovations(st.epoch, si, np.array([i]), data.dynamics, st.estimates[0], st.estimable[0],
+                              st.covariance[0])
                 c.add(st.epoch, si.layout, st.estimates[0], st.estimable[0], st.covariance[0], datum, pivot,
                       None if datum != "receiver" else sta, scale)
             out.append(c.done())
@@ -237,6 +298,8 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
             est = ex.gather_nodes(st.estimable)
             P = ex.gather_nodes(st.covariance) if st.covariance is not None else None
             for i, col in enumerate(cs):
+                col.innovations(st.epoch, data.series, np.array([i]), data.dynamics, x[i], est[i],
+                                None if P is None else P[i])
                 col.add(st.epoch, lay, x[i], est[i], None if P is None else P[i], datum, pivot, reference, scale)
         out += [col.done() for col in cs]
         comm = ex.comm_totals()
