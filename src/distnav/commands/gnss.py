@@ -127,7 +127,9 @@ def _run_codebias(args: argparse.Namespace) -> int:
         if ref not in names:
             raise ModelError(f"--reference {args.reference}: not one of the stations {', '.join(names)}")
         obs.insert(0, obs.pop(names.index(ref)))
-    orbit = (read_navigation(Path(args.nav), max_age_s=args.nav_max_age * 3600.0) if args.nav
+    if args.nav and len(args.nav) > 1:
+        raise ModelError("gnss codebias takes one --nav file")
+    orbit = (read_navigation(Path(args.nav[0]), max_age_s=args.nav_max_age * 3600.0) if args.nav
              else read_sp3([Path(p) for p in args.sp3]))
     data = codebias_data_from_observations(obs, orbit, sigma0_m=args.sigma, weighting=args.weighting,
                                            mask_rad=np.deg2rad(args.mask))
@@ -342,7 +344,8 @@ def add_data_arguments(parser: argparse.ArgumentParser, *, obs_note: str = "") -
     parser.add_argument("--obs", nargs="+", required=True, metavar="FILE",
                         help=f"RINEX 2.11/3.x observation files (.o/.d/.crx, gzip ok), one per station{obs_note}")
     orbit = parser.add_mutually_exclusive_group(required=True)
-    orbit.add_argument("--nav", metavar="FILE", help="RINEX navigation file (broadcast ephemerides)")
+    orbit.add_argument("--nav", nargs="+", metavar="FILE",
+                       help="RINEX navigation file (broadcast ephemerides); one per day for several days")
     orbit.add_argument("--sp3", nargs="+", metavar="FILE", help="SP3 orbit files")
     parser.add_argument("--nav-max-age", type=float, default=4.0, metavar="HOURS",
                         help="use a broadcast record up to this far from its toe (default 4 h; elevations only need "

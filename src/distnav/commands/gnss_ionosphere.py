@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import csv
 import io
+import json
 import re
 import sys
 from collections.abc import Sequence
@@ -221,6 +222,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     from distnav.output import atomic_write_json, atomic_write_text
 
     validate_arguments(args)
+    days = _split_days(args)
+    if len(days) > 1:
+        return _run_days(args, days)
     l1, l1_note = _l1_code(args)
     l2 = args.l2_code.upper()
     if l1_note:
@@ -231,7 +235,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         for b in args.bias:
             if not Path(b).exists():
                 raise DataFileError(f"{b}: file not found")
-    orbit = (read_navigation(args.nav, max_age_s=args.nav_max_age * 3600.0) if args.nav else read_sp3(args.sp3))
+    if args.nav and len(args.nav) > 1:
+        raise ModelError(f"{len(args.nav)} --nav files for one day of observations: give one")
+    orbit = (read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0) if args.nav else read_sp3(args.sp3))
     tlim = tuple(args.tlim) if args.tlim else None
 
     def progress(label: str, fraction: float) -> None:
@@ -356,6 +362,75 @@ def run_ionosphere(args: argparse.Namespace) -> int:
           f"residuals {c0.lag1_correlation:.3f}: realistic σ = formal σ × {fac:.2f} (used in distnav_dsb.bia)")
     print(f"written {out / 'tec_dcb_per_epoch.csv'}, {out / 'dcb_final.csv'}, {out / 'summary.json'}")
     return 0
+
+
+def _split_days(args: argparse.Namespace) -> dict[str, list[str]]:
+    """Observation files by day (from the IGS file names; a name without a day goes with the first)."""
+    from distnav.models.gnss.products import product_day
+
+    by: dict[str, list[str]] = {}
+    for f in args.obs:
+        d = product_day(f)
+        by.setdefault(str(d) if d is not None else "", []).append(f)
+    if "" in by and len(by) > 1:
+        raise ModelError(f"cannot tell the day of {', '.join(by['']) }: use IGS file names or one day per run")
+    return by
+
+
+def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
+    """Several days: one solution per day (``DIR/YYYY-MM-DD/``), the combined one and the day-to-day
+    repeatability (``DIR/multiday.json``, ``DIR/distnav_dsb_combined.bia``)."""
+    from distnav.models.gnss.multiday import combine_days
+    from distnav.models.gnss.products import product_day
+    from distnav.output import atomic_write_json
+
+    if args.tlim:
+        raise ModelError("--tlim selects a window of one day; with files of several days leave it out")
+    navs: dict[str, str] = {}
+    for f in args.nav or []:
+        navs.setdefault(str(product_day(f)), f)
+    if args.nav and len(args.nav) > 1:
+        missing = [d for d in days if d not in navs]
+        if missing:
+            raise DataFileError(f"no --nav file of {', '.join(missing)} (navigation files: {', '.join(args.nav)})")
+        if len(navs) < len(args.nav):
+            raise DataFileError(f"two --nav files of the same day among {', '.join(args.nav)}")
+    out = Path(args.out)
+    summaries = {}
+    for day, files in sorted(days.items()):
+        sub = argparse.Namespace(**vars(args))
+        sub.obs, sub.out = files, str(out / day)
+        if args.nav:
+            sub.nav = [navs.get(day, args.nav[0])]
+        if args.bias:
+            sub.bias = [b for b in args.bias if product_day(b) in (None, np.datetime64(day))] or None
+        print(f"=== {day}: {len(files)} station file(s) ===")
+        rc = run_ionosphere(sub)
+        if rc != 0:
+            return rc
+        summaries[day] = json.loads((out / day / "summary.json").read_text())
+    result = combine_days(summaries)
+    atomic_write_json(out / "multiday.json", result)
+    _write_combined_sinex(out / "distnav_dsb_combined.bia", result, summaries)
+    rep = result["repeatability_ns"]
+    med = np.nanmedian([v for v in rep.values() if v is not None]) if rep else float("nan")
+    print(f"combined {len(summaries)} days: {len(result['combined_ns'])} DSBs; day-to-day repeatability (std) median "
+          f"{med:.3f} ns; written {out / 'multiday.json'}, {out / 'distnav_dsb_combined.bia'}")
+    return 0
+
+
+def _write_combined_sinex(path: Path, result: dict[str, Any], summaries: dict[str, Any]) -> None:
+    from distnav.models.gnss.bias_sinex import write_bias_sinex
+
+    first = summaries[min(summaries)]
+    codes = list(first["codes"].values())
+    comb, sd = result["combined_ns"], result["combined_std_ns"]
+    write_bias_sinex(path, obs1=codes[0], obs2=codes[1], start=f"{min(summaries)}T00:00:00",
+                     end=np.datetime64(max(summaries)) + np.timedelta64(1, "D"),
+                     satellites={k: (v, sd[k]) for k, v in comb.items() if not k.startswith("rx:")},
+                     stations={k[3:]: (v, sd[k]) for k, v in comb.items() if k.startswith("rx:")},
+                     comments=[f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
+                               "zero-mean satellite datum over the satellites common to the days"])
 
 
 def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str, float]], l1: str, l2: str,

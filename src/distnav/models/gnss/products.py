@@ -36,15 +36,15 @@ class ProductDSB:
 
 
 def product_day(path: str | Path) -> np.datetime64 | None:
-    """The day of a product from an IGS long file name (``..._YYYYDDDHHMM_01D_...``) or a short IONEX/RINEX-like
-    name (``codgDDD0.YYi``); ``None`` when the name does not say."""
+    """The day of a product or RINEX file from an IGS long file name (``..._YYYYDDDHHMM_01D_...``) or a short
+    name (``codgDDD0.YYi``, ``dgarDDD0.YYo``/``.YYd``/``.YYn``); ``None`` when the name does not say."""
     import re
 
     name = Path(path).name
     m = re.search(r"_(\d{4})(\d{3})\d{4}_", name)
     if m:
         return np.datetime64(f"{m.group(1)}-01-01") + np.timedelta64(int(m.group(2)) - 1, "D")
-    m = re.match(r"^[a-zA-Z0-9]{4}(\d{3})\d\.(\d{2})[iI]", name)
+    m = re.match(r"^[a-zA-Z0-9]{4}(\d{3})[0-9a-xA-X]\.(\d{2})[iIoOdDnNgG]", name)
     if m:
         year = 2000 + int(m.group(2)) if int(m.group(2)) < 80 else 1900 + int(m.group(2))
         return np.datetime64(f"{year}-01-01") + np.timedelta64(int(m.group(1)) - 1, "D")
