@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -89,3 +91,22 @@ def test_old_import_path_is_the_same_object() -> None:
     for name in ("to_jsonable", "atomic_write_text", "atomic_write_json", "save_figure_file", "set_file_writer",
                  "is_file_writer", "pyplot"):
         assert getattr(common, name) is getattr(output, name), name
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o077, 0o002])
+def test_files_follow_the_umask(tmp_path: Path, mask: int) -> None:
+    old = os.umask(mask)
+    try:
+        output.atomic_write_text(tmp_path / "a.txt", "x")
+        output.atomic_write_json(tmp_path / "b.json", {"x": 1})
+        plt = output.pyplot()
+        fig, _ = plt.subplots()
+        output.save_figure_file(fig, tmp_path / "c.png")
+        (tmp_path / "plain.txt").write_text("x")  # what open() gives: the reference
+        assert os.umask(mask) == mask  # the writers put the umask back
+    finally:
+        os.umask(old)
+    want = stat.S_IMODE((tmp_path / "plain.txt").stat().st_mode)
+    assert want == 0o666 & ~mask
+    for name in ("a.txt", "b.json", "c.png"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == want, name

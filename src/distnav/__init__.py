@@ -16,6 +16,7 @@ from distnav.errors import (  # noqa: E402
     GraphError,
     MissingExtraError,
     ModelError,
+    UsageError,
     WeightsError,
 )
 
@@ -28,4 +29,5 @@ __all__ = [
     "ModelError",
     "DataFileError",
     "MissingExtraError",
+    "UsageError",
 ]

@@ -1,14 +1,14 @@
 """Writing output files: atomic writes, JSON conversion, figures, and the rank-0 writer switch.
 
-A utility used by :mod:`distnav.experiments` and :mod:`distnav.commands` (and the CLI), beside
-:mod:`distnav.errors`, :mod:`distnav._optional` and :mod:`distnav.typing` at the bottom of the layers: it imports
-only the standard library and numpy (matplotlib lazily, in :func:`pyplot`). Library layers (network, exchange,
-algorithms, models) compute and return; they do not write files or plot, so they do not import this module.
+Used by :mod:`distnav.experiments`, :mod:`distnav.commands` and the CLI, and sitting just below them in the layers
+(above :mod:`distnav.models`; see docs/DEVELOPING.md): it imports only the standard library and numpy (matplotlib
+lazily, in :func:`pyplot`). The library layers (network, exchange, algorithms, models) compute and return; they
+neither write files nor plot, so they do not import it.
 
 Every write goes to a temporary name in the target folder first and is renamed on success, so a failed run leaves
-no half-written file. Under MPI only rank 0 writes: the CLI calls :func:`set_file_writer(False) <set_file_writer>`
-on every other rank, which turns :func:`atomic_write_text`, :func:`atomic_write_json` and
-:func:`save_figure_file` into no-ops there.
+no half-written file; the file gets the mode the umask gives (0644 under the usual 022), not the temporary's 0600.
+Under MPI only rank 0 writes: the CLI calls :func:`set_file_writer(False) <set_file_writer>` on every other rank,
+which turns :func:`atomic_write_text`, :func:`atomic_write_json` and :func:`save_figure_file` into no-ops there.
 """
 
 from __future__ import annotations
@@ -69,11 +69,23 @@ def is_file_writer() -> bool:
     return _FILE_WRITER
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)  # reading the umask means setting it: put it straight back
+    os.umask(mask)
+    return mask
+
+
 def _temporary(path: Path, suffix: str) -> Path:
-    """A fresh temporary file next to ``path`` (same folder, so the final rename is atomic)."""
+    """A fresh temporary file next to ``path`` (same folder, so the final rename is atomic).
+
+    :func:`tempfile.mkstemp` creates it mode 0600; it gets the mode a plain ``open(path, "w")`` would give
+    (0666 less the umask), so results can be shared as the user's umask says."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())
+    finally:
+        os.close(fd)
     return Path(tmp)
 
 

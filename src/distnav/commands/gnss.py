@@ -152,7 +152,7 @@ def _run_codebias(args: argparse.Namespace) -> int:
         admm_x = res.estimates
         admm_info = {"rho": args.rho, "rho_scale": "epoch", "iterations": res.iterations,
                      "max_distance_to_centralized_ns": dist_m / NS_TO_M,
-                     "constraint_nodes": [stations[i] for i in res.extras["constraint_nodes"].nodes]}
+                     "constraint_nodes": [stations[i] for i in res.constraint_nodes.nodes]}
     counts = data.observation_counts()
     c = codebias_coefficients()
     out = Path(args.out)

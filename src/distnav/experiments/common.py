@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
+from distnav.errors import UsageError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
 from distnav.output import (  # re-exported: the writers moved to distnav.output
@@ -116,6 +117,18 @@ class ExperimentContext:
 
     def __post_init__(self) -> None:
         self.out_dir = Path(self.out_dir)
+
+    def option(self, name: str, default: Any, *, minimum: float | None = None) -> Any:
+        """The experiment option ``name`` (from ``--name``), or ``default`` when it was not given (``None``).
+
+        A given value is never replaced by the default (``--epochs 0`` is not "the default"); below ``minimum`` it
+        is refused with :class:`~distnav.errors.UsageError` (the CLI already refuses it when parsing)."""
+        value = self.options.get(name)
+        if value is None:
+            return default
+        if minimum is not None and value < minimum:
+            raise UsageError(f"--{name.replace('_', '-')} must be at least {minimum:g}, got {value!r}")
+        return value
 
     def rng(self, stream: int = 0) -> np.random.Generator:
         """A generator seeded from ``(seed, stream)``: independent streams, reproducible runs."""
