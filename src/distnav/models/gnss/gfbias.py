@@ -83,22 +83,30 @@ class BiasStateLayout:
 
     def receiver_column(self) -> np.ndarray:
         """State column of each receiver's bias (``-1`` for the reference receiver in basis "receiver")."""
+        cached = self.__dict__.get("_rcol")
+        if cached is not None:
+            return np.asarray(cached).copy()
         col = np.full(len(self.receivers), -1, np.int64)
         k = self.n_tec
         for j, r in enumerate(self.receivers):
             if not (self.basis == "receiver" and r == self.reference):
                 col[j] = k
                 k += 1
+        object.__setattr__(self, "_rcol", col.copy())
         return col
 
     def satellite_column(self) -> np.ndarray:
         """State column of each satellite's bias (``-1`` for the pivot in basis "pivot")."""
+        cached = self.__dict__.get("_scol")
+        if cached is not None:
+            return np.asarray(cached).copy()
         col = np.full(len(self.svs), -1, np.int64)
         k = self.n_tec + int((self.receiver_column() >= 0).sum())
         for j, s in enumerate(self.svs):
             if not (self.basis == "pivot" and s == self.reference):
                 col[j] = k
                 k += 1
+        object.__setattr__(self, "_scol", col.copy())
         return col
 
     @property
@@ -176,20 +184,22 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         self._groups = g
         self._rcol = layout.receiver_column()
         self._scol = layout.satellite_column()
+        self._static = np.zeros((n, S, layout.n_states))
+        for i in range(n):
+            if self._rcol[i] >= 0:
+                self._static[i, :, self._rcol[i]] = 1.0
+        sv = np.flatnonzero(self._scol >= 0)
+        self._static[:, sv, self._scol[sv]] = 1.0
         self.tracked = ok
 
     def design(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Design rows ``Ā`` (k, S, p) and weights ``w`` (k, S) (zero where not tracked)."""
         t = self._epoch(epoch)
         idx = self._nodes(nodes)
-        A = np.zeros((idx.size, self.n_satellites, self.n_states))
-        for j, i in enumerate(idx.tolist()):
-            gi = int(self._groups[i])
-            A[j, :, 3 * gi:3 * gi + 3] = self._a[t, i]
-            if self._rcol[i] >= 0:
-                A[j, :, self._rcol[i]] = 1.0
-        sv = np.flatnonzero(self._scol >= 0)
-        A[:, sv, self._scol[sv]] = 1.0
+        A = self._static[idx].copy()            # receiver and satellite columns (constant)
+        tec = 3 * self._groups[idx][:, None] + np.arange(3)[None, :]          # (k, 3) TEC columns per node
+        A[np.arange(idx.size)[:, None, None], np.arange(self.n_satellites)[None, :, None], tec[:, None, :]] = \
+            self._a[t, idx]
         w = self._w[t, idx]
         return A * (w > 0)[..., None], w
 

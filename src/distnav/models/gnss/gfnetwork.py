@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -136,8 +136,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
         raise ModelError("no satellite is tracked by two or more stations: the stations share no parameter")
     keep = np.flatnonzero(geo.tracked.any(axis=(0, 1)))
     svs = tuple(svs_all[k] for k in keep.tolist())
-    geo = ionosphere_geometry(orbit, t_all, receivers_ecef_m=xyz, names=stations, svs=svs, mask_deg=mask_deg,
-                              ionosphere=mode).with_tracked(geo.tracked[:, :, keep])
+    geo = replace(geo, svs=svs, el_rad=geo.el_rad[:, :, keep], az_rad=geo.az_rad[:, :, keep],
+                  tracked=geo.tracked[:, :, keep], coefficients=geo.coefficients[:, :, keep])
     counts = geo.tracked.sum(axis=(0, 2))
     if reference is None:
         first = np.flatnonzero(geo.tracked.any(axis=2).any(axis=0) & geo.tracked[np.argmax(
@@ -191,8 +191,10 @@ class _Collector:
         self.label = label
         self.ssr = 0.0
         self.m = 0
-        self.z_prev: dict[tuple[int, int], tuple[int, float]] = {}
+        self.zt: np.ndarray | None = None       # (nodes, S) epoch of the last standardized residual
+        self.zv: np.ndarray | None = None       # (nodes, S) its value
         self.zz = self.zlag = 0.0
+        self.T_cache: dict[bytes, np.ndarray] = {}
         self.prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.tec = np.full((T, n_tec), np.nan)
         self.tec_std = np.full((T, n_tec), np.nan)
@@ -205,10 +207,14 @@ class _Collector:
         self.tec[t] = np.where(est[:nt], x[:nt], np.nan)
         if P is not None:
             self.tec_std[t] = np.where(est[:nt], np.sqrt(np.maximum(np.diag(P)[:nt], 0.0)), np.nan)
-        try:
-            T = datum_transform(layout, datum, estimable=est, pivot=pivot, reference=reference)
-        except ModelError:
-            return
+        key = est.tobytes()
+        T = self.T_cache.get(key)
+        if T is None:
+            try:
+                T = datum_transform(layout, datum, estimable=est, pivot=pivot, reference=reference)
+            except ModelError:
+                return
+            self.T_cache[key] = T
         v, s = in_datum(T, x, P)
         self.dsb[t] = -v / scale
         self.dsb_std[t] = s / scale
@@ -235,13 +241,15 @@ class _Collector:
                     self.ssr += float(v @ np.linalg.solve(Qv, v))
                     self.m += int(r.sum())
                     z = v / np.sqrt(np.diag(Qv))
-                    for sat, zk in zip(np.flatnonzero(r).tolist(), z.tolist(), strict=True):
-                        key = (int(nodes[k]), sat)
-                        last = self.z_prev.get(key)
-                        if last is not None and last[0] == t - 1:
-                            self.zlag += zk * last[1]
-                        self.zz += zk * zk
-                        self.z_prev[key] = (t, zk)
+                    if self.zt is None or self.zv is None:
+                        self.zt = np.full((series.n_nodes, series.n_satellites), -2, np.int64)
+                        self.zv = np.zeros((series.n_nodes, series.n_satellites))
+                    node, sats = int(nodes[k]), np.flatnonzero(r)
+                    follows = self.zt[node, sats] == t - 1
+                    self.zlag += float((z[follows] * self.zv[node, sats][follows]).sum())
+                    self.zz += float(z @ z)
+                    self.zt[node, sats] = t
+                    self.zv[node, sats] = z
         if P is not None:
             self.prev = (x.copy(), est.copy(), P.copy())
 
