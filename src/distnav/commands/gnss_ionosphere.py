@@ -243,7 +243,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     def progress(label: str, fraction: float) -> None:
         _say(args, f"reading {label}: {100 * fraction:3.0f} %")
 
-    data = network_data(args.obs, orbit, l1_code=l1, l2_code=l2, tlim=tlim,  # type: ignore[arg-type]
+    data = network_data(args.obs, orbit, l1_code=l1, l2_code=l2, tlim=tlim,
                         interval_s=args.interval, mask_deg=args.mask, ionosphere=args.ionosphere,
                         regional_km=args.regional_km, sigma_zenith_m=args.sigma, weighting=args.weighting,
                         reference=args.reference, progress=progress, exclude=args.exclude or (),
@@ -477,7 +477,8 @@ def _screening_summary(lev: Any, layout_svs: Sequence[str]) -> dict[str, Any]:
 def _check_days(products: Sequence[Any], t_gps_s: np.ndarray, allow: bool) -> None:
     from distnav.models.gnss.orbits import datetime_from_gps_seconds
 
-    days = {np.datetime64(datetime_from_gps_seconds(float(t)), "D") for t in (t_gps_s[0], t_gps_s[-1])}
+    days = {np.asarray(datetime_from_gps_seconds(float(t))).astype("datetime64[D]")[()]
+            for t in (t_gps_s[0], t_gps_s[-1])}
     for p in products:
         if p.day is not None and p.day not in days and not allow:
             raise ModelError(f"{p.path.name}: a product of {p.day}, the data are of "
@@ -557,7 +558,8 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
                    help="elevation weighting (default sin: σ/sin θ)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_ionosphere)
-    return p
+    parser: argparse.ArgumentParser = p
+    return parser
 
 
 add_parser = add_ionosphere_parser

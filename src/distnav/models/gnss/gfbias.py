@@ -53,7 +53,8 @@ def gf_m_per_dsb_ns(band: int = 2) -> float:
 
 def geometry_free_band_m(p1_m: np.ndarray, pb_m: np.ndarray, band: int = 2) -> np.ndarray:
     """``(P_b − P_1)/(μ_b − 1)`` [m] with the frequency factor of the second code's band; NaN propagates."""
-    return (np.asarray(pb_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(band) - 1.0)
+    out: np.ndarray = (np.asarray(pb_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(band) - 1.0)
+    return out
 
 
 @dataclass(frozen=True)

@@ -300,15 +300,15 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
 
         ex = exchange if exchange is not None else make_exchange(graph)
         cs = [_Collector(f"ckf:{s}", T, lay.n_tec, q) for s in data.stations]
-        for st in iterate_ckf(data.dynamics, data.series, graph=graph, protocol="P3", rounds=kn, exchange=ex,
-                              monitor=False):
-            x = ex.gather_nodes(st.estimates)
-            est = ex.gather_nodes(st.estimable)
-            P = ex.gather_nodes(st.covariance) if st.covariance is not None else None
+        for cst in iterate_ckf(data.dynamics, data.series, graph=graph, protocol="P3", rounds=kn, exchange=ex,
+                               monitor=False):
+            x = ex.gather_nodes(cst.estimates)
+            est = ex.gather_nodes(cst.estimable)
+            P = ex.gather_nodes(cst.covariance) if cst.covariance is not None else None
             for i, col in enumerate(cs):
-                col.innovations(st.epoch, data.series, np.array([i]), data.dynamics, x[i], est[i],
+                col.innovations(cst.epoch, data.series, np.array([i]), data.dynamics, x[i], est[i],
                                 None if P is None else P[i])
-                col.add(st.epoch, lay, x[i], est[i], None if P is None else P[i], datum, pivot, reference, scale)
+                col.add(cst.epoch, lay, x[i], est[i], None if P is None else P[i], datum, pivot, reference, scale)
         out += [col.done() for col in cs]
         comm = ex.comm_totals()
     return out, comm

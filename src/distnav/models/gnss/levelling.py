@@ -78,7 +78,8 @@ class LevelledStation:
 
 def geometry_free_phase_m(phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2) -> np.ndarray:
     """``(Φ_1 − Φ_b)/(μ_b − 1)`` [m]: the L1 ionospheric delay plus a constant per arc."""
-    return (np.asarray(phi1_m, float) - np.asarray(phib_m, float)) / (mu(band) - 1.0)
+    out: np.ndarray = (np.asarray(phi1_m, float) - np.asarray(phib_m, float)) / (mu(band) - 1.0)
+    return out
 
 
 def melbourne_wubbena_cycles(p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray, phib_m: np.ndarray,

@@ -182,7 +182,8 @@ def read_estimates(path: str | Path, *, filter_label: str = "central") -> DSBEst
     sta = {r.station[:4].upper(): r.value for r in prod.records if r.kind == "DSB" and r.station
            and r.system == "G" and (r.obs1, r.obs2) == (o1, o2)}
     starts = {r.start for r in prod.records if r.start}
-    days = tuple(sorted({_sinex_day(t) for t in starts} - {None}))  # type: ignore[type-var]
+    found = [_sinex_day(t) for t in starts]
+    days = tuple(sorted({d for d in found if d is not None}))
     return DSBEstimates(str(p), o1, o2, sat, sta, days)
 
 

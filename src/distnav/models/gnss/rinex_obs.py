@@ -20,6 +20,7 @@ import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -163,7 +164,7 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
     name = label or p.name
     lo = hi = None
     if tlim is not None:
-        lo, hi = (np.datetime64(t, "ns") for t in tlim)
+        lo, hi = (np.asarray(t).astype("datetime64[ns]")[()] for t in tlim)
     step_ns = int(round(interval_s * 1e9)) if interval_s else 0
     times: list[np.datetime64] = []
     rows: list[np.ndarray] = []
@@ -273,7 +274,7 @@ def on_grid(time: np.ndarray, interval_s: float) -> np.ndarray:
     return np.asarray(ns % int(round(interval_s * 1e9)) == 0)
 
 
-def _keep(t: np.datetime64, lo: np.datetime64 | None, hi: np.datetime64 | None, step_ns: int) -> bool:
+def _keep(t: np.datetime64, lo: Any, hi: Any, step_ns: int) -> bool:
     if lo is not None and t < lo:
         return False
     if hi is not None and t > hi:
