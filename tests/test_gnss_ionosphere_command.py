@@ -161,3 +161,26 @@ def test_errors_name_the_file(shared_data: Path, tmp_path: Path) -> None:
     bele_nav = read_navigation(shared_data / IGS / "brdc0100.24n.gz")
     with pytest.raises(ModelError, match="no satellite position at the observation epochs"):
         network_data(obs[:1], bele_nav)
+
+
+def test_c1_corrections_from_a_product(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from distnav.commands.gnss_ionosphere import correct_c1
+    from distnav.models.gnss.bias_sinex import read_bias_sinex
+    from distnav.models.gnss.rinex import read_code_observations
+
+    d = shared_data / IGS
+    cas = d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"
+    o = read_code_observations(d / "dgar0100.24o.gz", bands=(1, 2), tlim=("2024-01-10T06:00", "2024-01-10T06:10"))
+    c = correct_c1(o, cas)
+    assert c.codes[1] == "C1W" and "C1C corrected to C1W" in c.notes[-1]
+    k = o.svs.index("G01")
+    dsb = read_bias_sinex(cas).satellite_dsb_ns("G01", "C1C", "C1W")   # CAS: −0.903 ns
+    assert dsb == pytest.approx(-0.903)
+    np.testing.assert_allclose(o.range_m[1][:, k] - c.range_m[1][:, k], 0.299792458 * dsb, atol=1e-6)
+    rc = main(["gnss", "ionosphere", "--obs", str(d / "dgar0100.24o.gz"), "--nav", str(d / "brdc0100.24n.gz"),
+               "--tlim", "2024-01-10T06:00", "2024-01-10T06:30", "--c1-corrections", str(cas), "--out",
+               str(tmp_path), "--no-progress"])
+    assert rc == 0
+    assert "WARNING: L1 code C1C" not in capsys.readouterr().err
+    assert main(["gnss", "ionosphere", "--obs", str(d / "dgar0100.24o.gz"), "--nav", str(d / "brdc0100.24n.gz"),
+                 "--l1-code", "C1W", "--c1-corrections", str(cas), "--out", str(tmp_path)]) == 2

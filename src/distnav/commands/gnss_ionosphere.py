@@ -82,6 +82,11 @@ def validate_arguments(args: argparse.Namespace) -> None:
     for e in (args.exclude or []) + (args.compare_exclude or []):
         if not (_PRN.match(e.upper()) or re.match(r"^[A-Za-z0-9]{4}$", e)):
             raise ModelError(f"--exclude {e}: neither a GPS satellite (G01 … G32) nor a 4-character station")
+    if getattr(args, "c1_corrections", None):
+        if args.l1_code is not None and args.l1_code.upper() != "C1C":
+            raise ModelError(f"--c1-corrections applies to --l1-code C1C, not {args.l1_code}")
+        if not Path(args.c1_corrections).exists():
+            raise DataFileError(f"--c1-corrections {args.c1_corrections}: file not found")
     if args.reference is not None and not re.match(r"^[A-Za-z0-9]{4}$", args.reference):
         raise ModelError(f"--reference {args.reference}: not a 4-character station name")
     out = Path(args.out)
@@ -94,7 +99,7 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
                  ionosphere: str = "auto", regional_km: float = REGIONAL_KM, sigma_zenith_m: float | None = None,
                  weighting: str = "sin", reference: str | None = None, progress: Any = None,
                  exclude: Sequence[str] = (), levelling: bool = True, min_arc_epochs: int = 10,
-                 gf_threshold_m: float = 0.05, screen: bool = True) -> Any:
+                 gf_threshold_m: float = 0.05, screen: bool = True, c1_corrections: str | None = None) -> Any:
     """Read the stations, form the geometry-free code on the union of their epochs and build the bias model
     (:func:`distnav.models.gnss.gfnetwork.bias_network_model`). ``exclude``: satellites (``G01``) and stations
     (``BELE``) left out. ``levelling``: carrier-to-code levelling per arc on the full-rate data, then the
@@ -105,10 +110,35 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
 
     obs = read_stations(list(obs_files), l1_code=l1_code, l2_code=l2_code, tlim=tlim,
                         interval_s=None if levelling else interval_s, phases=levelling, progress=progress)
+    if c1_corrections:
+        obs = [correct_c1(o, c1_corrections) for o in obs]
     return network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
                                      ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
                                      weighting=weighting, reference=reference, exclude=exclude, levelling=levelling,
                                      min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen)
+
+
+def correct_c1(o: Any, product: str | Path) -> Any:
+    """C1C corrected to C1W with the satellites' C1C−C1W DSBs of a Bias-SINEX product: ``P1 = C1C − c·DSB``
+    (biases add to the observations). Satellites the product lacks lose their L1 code (noted)."""
+    from distnav.models.gnss.bias_sinex import read_bias_sinex
+    from distnav.models.gnss.constants import C_M_S
+
+    if o.codes.get(1) != "C1C":
+        raise ModelError(f"{o.path}: --c1-corrections needs C1C on L1, the file gives {o.codes.get(1)}")
+    prod = read_bias_sinex(product)
+    p1 = o.range_m[1].copy()
+    missing = []
+    for k, sv in enumerate(o.svs):
+        dsb = prod.satellite_dsb_ns(sv, "C1C", "C1W")
+        if dsb is None:
+            p1[:, k] = np.nan
+            missing.append(sv)
+        else:
+            p1[:, k] -= C_M_S * 1e-9 * dsb
+    note = f"C1C corrected to C1W with {prod.name} C1C-C1W satellite DSBs" + \
+        (f" (none for {' '.join(missing)}: dropped)" if missing else "")
+    return replace(o, range_m={**o.range_m, 1: p1}, codes={**o.codes, 1: "C1W"}, notes=(*o.notes, note))
 
 
 def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = "C2W",
@@ -229,7 +259,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     l2 = args.l2_code.upper()
     if l1_note:
         _say(args, l1_note)
-    if l1 == "C1C":
+    if l1 == "C1C" and not args.c1_corrections:
         print(C1C_WARNING.format(l2=l2), file=sys.stderr, flush=True)
     if args.bias:
         for b in args.bias:
@@ -248,7 +278,10 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                         regional_km=args.regional_km, sigma_zenith_m=args.sigma, weighting=args.weighting,
                         reference=args.reference, progress=progress, exclude=args.exclude or (),
                         levelling=args.levelling == "arc", min_arc_epochs=args.min_arc,
-                        gf_threshold_m=args.gf_threshold, screen=not args.no_screening)
+                        gf_threshold_m=args.gf_threshold, screen=not args.no_screening,
+                        c1_corrections=args.c1_corrections)
+    if args.c1_corrections:
+        l1 = "C1W"
     stations, layout = data.stations, data.layout
     pivot = args.pivot.upper() if args.pivot else None
     if args.datum == "pivot":
@@ -539,6 +572,9 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--exclude", nargs="+", metavar="SAT|STA", help="satellites (G01) or stations (BELE) left out")
     p.add_argument("--compare-exclude", nargs="+", metavar="SAT",
                    help="satellites left out of the product comparison statistics (e.g. G01)")
+    p.add_argument("--c1-corrections", metavar="BIA",
+                   help="with --l1-code C1C: remove each satellite's C1C-C1W DSB of this Bias-SINEX product from C1C "
+                        "(estimates then refer to C1W, the P1 of IONEX/GFZ; the receivers' part stays in their DSB)")
     p.add_argument("--levelling", choices=["arc", "none"], default="arc",
                    help="carrier-to-code levelling per continuous arc (default) or raw code")
     p.add_argument("--min-arc", type=int, default=10, metavar="EPOCHS",
