@@ -185,6 +185,7 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         self._groups = g
         self._rcol = layout.receiver_column()
         self._scol = layout.satellite_column()
+        self._last_design: tuple[tuple[int, bytes], np.ndarray, np.ndarray] | None = None
         self._static = np.zeros((n, S, layout.n_states))
         for i in range(n):
             if self._rcol[i] >= 0:
@@ -197,12 +198,17 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         """Design rows ``Ā`` (k, S, p) and weights ``w`` (k, S) (zero where not tracked)."""
         t = self._epoch(epoch)
         idx = self._nodes(nodes)
+        key = (t, idx.tobytes())
+        if self._last_design is not None and self._last_design[0] == key:
+            return self._last_design[1], self._last_design[2]
         A = self._static[idx].copy()            # receiver and satellite columns (constant)
         tec = 3 * self._groups[idx][:, None] + np.arange(3)[None, :]          # (k, 3) TEC columns per node
         A[np.arange(idx.size)[:, None, None], np.arange(self.n_satellites)[None, :, None], tec[:, None, :]] = \
             self._a[t, idx]
         w = self._w[t, idx]
-        return A * (w > 0)[..., None], w
+        A *= (w > 0)[..., None]
+        self._last_design = (key, A, w)          # the filter and the residual statistics ask twice per epoch
+        return A, w
 
     def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         A, w = self.design(epoch, nodes)

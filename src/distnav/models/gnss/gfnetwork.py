@@ -222,7 +222,8 @@ class _Collector:
     def innovations(self, t: int, series: BiasGeometryFreeSeries, nodes: np.ndarray, dynamics: Any,
                     x: np.ndarray, est: np.ndarray, P: np.ndarray | None) -> None:
         """Accumulate the predicted residuals ``v = y − A x̂_{t−1}`` of ``nodes`` with ``Q_v = R + A P⁻ Aᵀ``
-        (``P⁻ = P_{t−1} + S_t``) over the observations whose parameters were all estimable before epoch ``t``."""
+        (``P⁻ = P_{t−1} + S_t``; all the nodes' observations jointly: they share the state) over the observations
+        whose parameters were all estimable before epoch ``t``."""
         if self.prev is not None and t > 0:
             xp, ep, Pp = self.prev
             A, w = series.design(t, nodes)
@@ -231,25 +232,22 @@ class _Collector:
             if rows.any():
                 Pm = np.where(np.outer(ep, ep), Pp, 0.0) + dynamics.noise_cov_at(t)
                 xz = np.where(ep, xp, 0.0)
-                for k in range(A.shape[0]):
-                    r = rows[k]
-                    if r.sum() == 0:
-                        continue
-                    Ak = A[k, r]
-                    v = y[k, r] - Ak @ xz
-                    Qv = np.diag(1.0 / w[k, r]) + Ak @ Pm @ Ak.T
-                    self.ssr += float(v @ np.linalg.solve(Qv, v))
-                    self.m += int(r.sum())
-                    z = v / np.sqrt(np.diag(Qv))
-                    if self.zt is None or self.zv is None:
-                        self.zt = np.full((series.n_nodes, series.n_satellites), -2, np.int64)
-                        self.zv = np.zeros((series.n_nodes, series.n_satellites))
-                    node, sats = int(nodes[k]), np.flatnonzero(r)
-                    follows = self.zt[node, sats] == t - 1
-                    self.zlag += float((z[follows] * self.zv[node, sats][follows]).sum())
-                    self.zz += float(z @ z)
-                    self.zt[node, sats] = t
-                    self.zv[node, sats] = z
+                kk, ss = np.nonzero(rows)                    # all observations of all nodes together
+                Ar = A[kk, ss]
+                v = y[kk, ss] - Ar @ xz
+                Qv = np.diag(1.0 / w[kk, ss]) + Ar @ Pm @ Ar.T
+                self.ssr += float(v @ np.linalg.solve(Qv, v))
+                self.m += int(kk.size)
+                z = v / np.sqrt(np.diag(Qv))
+                if self.zt is None or self.zv is None:
+                    self.zt = np.full((series.n_nodes, series.n_satellites), -2, np.int64)
+                    self.zv = np.zeros((series.n_nodes, series.n_satellites))
+                node = np.asarray(nodes)[kk]
+                follows = self.zt[node, ss] == t - 1
+                self.zlag += float((z[follows] * self.zv[node, ss][follows]).sum())
+                self.zz += float(z @ z)
+                self.zt[node, ss] = t
+                self.zv[node, ss] = z
         if P is not None:
             self.prev = (x.copy(), est.copy(), P.copy())
 
