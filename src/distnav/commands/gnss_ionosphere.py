@@ -454,16 +454,18 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
 
 def _write_combined_sinex(path: Path, result: dict[str, Any], summaries: dict[str, Any]) -> None:
     from distnav.models.gnss.bias_sinex import write_bias_sinex
+    from distnav.output import atomic_write_text
 
     first = summaries[min(summaries)]
     codes = list(first["codes"].values())
     comb, sd = result["combined_ns"], result["combined_std_ns"]
-    write_bias_sinex(path, obs1=codes[0], obs2=codes[1], start=f"{min(summaries)}T00:00:00",
+    text = write_bias_sinex(None, obs1=codes[0], obs2=codes[1], start=f"{min(summaries)}T00:00:00",
                      end=np.datetime64(max(summaries)) + np.timedelta64(1, "D"),
                      satellites={k: (v, sd[k]) for k, v in comb.items() if not k.startswith("rx:")},
                      stations={k[3:]: (v, sd[k]) for k, v in comb.items() if k.startswith("rx:")},
                      comments=[f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
                                "zero-mean satellite datum over the satellites common to the days"])
+    atomic_write_text(path, str(text))
 
 
 def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str, float]], l1: str, l2: str,
@@ -474,8 +476,10 @@ def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str,
     val, sd = final
     step = float(np.median(np.diff(data.t_gps_s))) if data.t_gps_s.size > 1 else 30.0
     end = np.datetime64(times[-1], "s") + np.timedelta64(int(round(step)), "s")
-    return write_bias_sinex(
-        path, obs1=l1, obs2=l2, start=times[0], end=end, sampling_s=step,
+    from distnav.output import atomic_write_text
+
+    text = write_bias_sinex(
+        None, obs1=l1, obs2=l2, start=times[0], end=end, sampling_s=step,
         satellites={k: (v, sd[k]) for k, v in val.items() if not k.startswith("rx:")},
         stations={k[3:]: (v, sd[k]) for k, v in val.items() if k.startswith("rx:")},
         comments=[f"distnav gnss ionosphere, central filter, datum {datum} "
@@ -484,6 +488,8 @@ def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str,
                   f"{'carrier-levelled' if data.levelled else 'raw'}",
                   "sigma: formal x sqrt(variance factor x (1+rho)/(1-rho)) of the predicted residuals",
                   "satellite SVN field holds the system letter only"])
+    atomic_write_text(path, str(text))
+    return path
 
 
 def _arc_summary(lev: Any) -> dict[str, Any]:

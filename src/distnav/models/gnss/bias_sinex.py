@@ -281,7 +281,7 @@ def sinex_time(t: object) -> str:
     """``YYYY:DDD:SSSSS`` (SINEX epoch) of a datetime64 / ISO string."""
     import numpy as np
 
-    ts = np.datetime64(t, "s")
+    ts = np.asarray(t).astype("datetime64[s]")[()]
     day = ts.astype("datetime64[D]")
     year = int(str(day)[:4])
     doy = int((day - np.datetime64(f"{year}-01-01", "D")).astype(int)) + 1
@@ -297,20 +297,22 @@ def _solution_line(prn: str, station: str, obs1: str, obs2: str, start: str, end
             f"{value:21.4f} {std:11.4f}")
 
 
-def write_bias_sinex(path: str | Path, *, obs1: str, obs2: str, start: object, end: object,
+def write_bias_sinex(path: str | Path | None, *, obs1: str, obs2: str, start: object, end: object,
                      satellites: Mapping[str, tuple[float, float]], stations: Mapping[str, tuple[float, float]],
                      agency: str = "DNV", created: object = None, description: str = "",
-                     sampling_s: float = 30.0, comments: Sequence[str] = ()) -> Path:
+                     sampling_s: float = 30.0, comments: Sequence[str] = ()) -> Path | str:
     """Write satellite and station DSBs ``obs1 − obs2`` [ns] with σ as a Bias-SINEX 1.00 file (gzip if the name
     ends in ``.gz``): header line, ``FILE/REFERENCE``, ``FILE/COMMENT``, ``BIAS/DESCRIPTION`` (relative biases,
     GPS time) and ``BIAS/SOLUTION`` in the fixed columns of the format (those :func:`read_bias_sinex` reads).
-    distnav does not know satellite SVNs: the SVN field holds the system letter only. NaN values are skipped."""
+    distnav does not know satellite SVNs: the SVN field holds the system letter only. NaN values are skipped.
+    ``path=None`` returns the text instead (for an atomic write by the caller)."""
     import math
 
     import numpy as np
 
     t0, t1 = sinex_time(start), sinex_time(end)
-    spacing = int(round(float((np.datetime64(end, "s") - np.datetime64(start, "s")).astype(int))))
+    t_end, t_start = (np.asarray(x).astype("datetime64[s]")[()] for x in (end, start))
+    spacing = int(round(float((t_end - t_start).astype(int))))
     made = sinex_time(created if created is not None else np.datetime64("now", "s"))
     rows = [_solution_line(prn, "", obs1, obs2, t0, t1, v, sd) for prn, (v, sd) in sorted(satellites.items())
             if math.isfinite(v)]
@@ -332,6 +334,8 @@ def write_bias_sinex(path: str | Path, *, obs1: str, obs2: str, start: object, e
              "*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____ BIAS_END______ UNIT __ESTIMATED_VALUE____ _STD_DEV___",
              *rows, "-BIAS/SOLUTION", "%=ENDBIA"]
     text = "\n".join(lines) + "\n"
+    if path is None:
+        return text
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     data = text.encode("ascii", errors="replace")
