@@ -2,7 +2,7 @@
 
     mpiexec -n R python -m mpi4py benchmarks/mpi_round.py N_NODES PAYLOAD ROUNDS
 
-* transport: ``ex._columns`` (the halo of every neighbour rank into the column buffer: a persistent
+* transport: ``ex.halo`` (the halo of every neighbour rank into the column buffer: a persistent
   ``Neighbor_alltoallv_init`` request where the MPI library has it) against a bare ``Neighbor_alltoallv`` of the
   same counts on the same distributed-graph communicator, buffers preallocated, written here without distnav;
 * full consensus round: ``Mixer.apply`` against that bare collective plus one scipy CSR product of this rank's
@@ -80,7 +80,7 @@ def bare_round() -> None:
 
 
 def distnav_transport() -> None:
-    ex._columns(x, None)
+    ex.halo(x)  # the boundary values sent and the halo received, as the bare collective does
 
 
 def distnav_round() -> None:

@@ -100,7 +100,8 @@ def markdown(results: dict[str, dict[str, Any]]) -> str:
             met = r.get("meets_goal")
             setup = r.get("setup_s", r.get("setup_seconds"))
             lines.append("| " + " | ".join([
-                str(r["name"]), _size(r), _time(r, "distnav_ms", "distnav_s"),
+                str(r["name"]) + (f" ({r['note']})" if r.get("note") else ""), _size(r),
+                _time(r, "distnav_ms", "distnav_s"),
                 _time(r, "floor_ms", "bare_setup_s") if ("floor_ms" in r or "bare_setup_s" in r)
                 else _time(r, "csr_product_ms", "reference_seconds"),
                 str(r.get("floor", "")), _ratio(r), str(r.get("goal", "")),

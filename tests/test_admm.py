@@ -407,3 +407,20 @@ def test_result_is_typed_and_warm_start_reads_z_nodes(case):
     st0 = next(iterate_admm(prob, g, W=20.0, init=res))
     np.testing.assert_array_equal(st0.x, res.estimates)
     np.testing.assert_array_equal(st0.z, res.z_nodes)
+
+
+def test_continuing_with_the_multipliers_equals_one_longer_run(case):
+    g, prob, _ = case
+    first = admm(prob, g, W=20.0, max_iterations=30, tol=0.0)
+    assert first.multipliers is not None
+    cont = admm(prob, g, W=20.0, max_iterations=30, tol=0.0, init=first, multipliers=first.multipliers)
+    full = admm(prob, g, W=20.0, max_iterations=60, tol=0.0)
+    np.testing.assert_allclose(cont.estimates, full.estimates, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(cont.z_nodes, full.z_nodes, rtol=1e-12, atol=1e-13)
+    reset = admm(prob, g, W=20.0, max_iterations=30, tol=0.0, init=first)  # u^[−1] = 0 (§4.3): another run
+    assert np.abs(reset.estimates - full.estimates).max() > 1e-6
+    with pytest.raises(ModelError, match="belong to another exchange block"):
+        admm(prob, g, W=20.0, constraint_nodes="all", max_iterations=2, multipliers=first.multipliers)
+    with pytest.raises(ModelError, match="only be continued with messages='pairs'"):
+        admm(prob, g, W=20.0, messages="aggregated", max_iterations=2, multipliers=first.multipliers)
+    assert admm(prob, g, W=20.0, messages="aggregated", max_iterations=2).multipliers is None

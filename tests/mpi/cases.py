@@ -164,6 +164,19 @@ def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
     return {"estimates": res.estimates, "sent": res.comm.messages_sent}
 
 
+@case
+def admm_precision_and_snooping(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.lsq_qc import admm_data_snooping
+    from distnav.experiments.qc import gross_error_problem
+
+    pb = gross_error_problem(np.random.default_rng([12, 0]))
+    res = admm_data_snooping(pb.problem, pb.graph, W=3.0, tol=1e-11, exchange=make_exchange(pb.graph, backend=backend))
+    assert res.precision is not None and res.tests is not None and res.precision.variance_factor is not None
+    return {"estimates": res.estimates, "covariance": res.precision.covariance, "w": res.tests.w,
+            "removed": np.array(res.tests.removed), "variance_factor": np.array(res.precision.variance_factor),
+            "sent": res.comm.messages_sent}
+
+
 def _uwb_problem():
     from distnav.models.uwb.problems import generate_problem
 
@@ -185,7 +198,7 @@ def csg_and_nclm(backend: str) -> dict[str, np.ndarray]:
     from distnav.algorithms.csg import solve_csg, solve_nclm
 
     problem = _uwb_problem()
-    csg = solve_csg(problem, iterations=20, exchange=make_exchange(problem.graph, backend=backend))
+    csg = solve_csg(problem, iterations=20, exchange=make_exchange(problem.graph, backend=backend), alpha=1e-4)
     nclm = solve_nclm(problem, iterations=10, exchange=make_exchange(problem.graph, backend=backend))
     return {"estimates": np.concatenate([csg.estimates.ravel(), nclm.estimates.ravel()]),
             "sent": csg.comm.messages_sent + nclm.comm.messages_sent}
@@ -202,6 +215,17 @@ def ncsg_tbls_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndar
     res = solve(problem, "N-CSG-TBLS", iterations=30, exchange=ex, monitor_every=7)  # gathers at 0, 7, …, 28, 30
     return {"estimates": res.estimates, "bytes": res.comm.bytes_sent, "received": res.comm.messages_received,
             "cost": res.trace["cost"]}
+
+
+@case
+def ncsg_metres_with_local_qc(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.csg import solve_ncsg
+
+    problem = _uwb_problem()
+    res = solve_ncsg(problem, line_search="TBLS", iterations=40, objective="metres", sigma_m=0.15, loss="cauchy",
+                     exchange=make_exchange(problem.graph, backend=backend))
+    return {"estimates": res.estimates, "w": np.nan_to_num(res.tests.w, nan=-99.0),
+            "covariance": res.precision.covariance}
 
 
 # the same runs with the exchange's nodes renumbered by reverse Cuthill–McKee (issue 17 item 0): on the small graphs

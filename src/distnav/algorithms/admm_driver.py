@@ -14,7 +14,7 @@ from typing import Any, Literal, TypedDict, get_args
 
 import numpy as np
 
-from distnav.algorithms.admm_kernel import AdmmState, XUpdate, XUpdateMethod, _Kernel, _per_node
+from distnav.algorithms.admm_kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
 from distnav.algorithms.lsq import LinearProblem, inestimable_directions, weight_matrix
 from distnav.algorithms.result import ObservationTests, Precision, SolverResult, SolverStatus, TraceBuilder
 from distnav.errors import ModelError
@@ -40,6 +40,8 @@ class AdmmOptions(TypedDict, total=False):
     [``"lagrangian"``]: ``"lagrangian"``, ``"fig6"`` or ``"fig6-zweighted"`` (module docstring of
     :mod:`distnav.algorithms.admm`). ``messages`` [``"pairs"``]: ``"pairs"`` or ``"aggregated"``. ``init``
     [``"zero"``] and ``z0`` [None]: initial values. ``monitor_every`` [1]: residuals every that many iterations.
+    ``multipliers`` [None: ``u^[−1] = 0``]: a previous per-pair run's :attr:`AdmmResult.multipliers` (same exchange
+    and constraint nodes) to continue from — a warm start of a changed problem (data snooping).
     """
 
     constraint_nodes: Any
@@ -50,6 +52,7 @@ class AdmmOptions(TypedDict, total=False):
     init: Any
     z0: Any
     monitor_every: int
+    multipliers: Multipliers | None
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -69,6 +72,8 @@ class AdmmResult(SolverResult):
     messages : ``"pairs"`` or ``"aggregated"``.
     precision : the covariance blocks and variance factor when computed (:mod:`distnav.algorithms.lsq_qc`).
     tests : the observation tests when data snooping ran (:mod:`distnav.algorithms.lsq_qc`).
+    multipliers : this exchange block's final ``u_{i,s}`` (per-pair runs; None for aggregated messages), for a
+        warm start that keeps them (option ``multipliers``).
     """
 
     z: FloatArray
@@ -81,6 +86,7 @@ class AdmmResult(SolverResult):
     messages: str
     precision: Precision | None = None
     tests: ObservationTests | None = None
+    multipliers: Multipliers | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,6 +100,7 @@ class PreparedRun:
     x_update: str
     x_weight: str
     messages: str
+    kernel: _Kernel | None = None
 
 
 def constraint_nodes_for(graph: Graph, constraint_nodes: Any) -> ConstraintNodes:
@@ -181,12 +188,15 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
     _check_estimable(problem, local, ex)
     z_weight = 1.0 / C.per_node_count.astype(float) if x_weight == "fig6-zweighted" else None
     kernel = _Kernel(ex, C, Wm, p, xu, z_weight=z_weight)
+    u0 = options.get("multipliers")
     if messages == "pairs":
-        states = kernel.run(x0[ex.nodes], zz0[ex.nodes], monitor_every)
+        states = kernel.run(x0[ex.nodes], zz0[ex.nodes], monitor_every, u0=u0)
     else:
+        if u0 is not None:
+            raise ModelError("multipliers can only be continued with messages='pairs'")
         states = kernel.run_aggregated(x0[ex.nodes], zz0[ex.nodes], monitor_every)
     return PreparedRun(states=states, exchange=ex, constraint_nodes=C, p=p, x_update=xu.method, x_weight=x_weight,
-                       messages=messages)
+                       messages=messages, kernel=kernel if messages == "pairs" else None)
 
 
 def drive(run: PreparedRun, *, max_iterations: int, tol: float, atol: float, reference: np.ndarray | None,
@@ -236,6 +246,7 @@ def drive(run: PreparedRun, *, max_iterations: int, tol: float, atol: float, ref
     if close is not None:
         close()
     assert state is not None
+    u = getattr(run.kernel, "multipliers", None) if run.kernel is not None else None
     x_all = ex.gather_nodes(state.x)
     z_all = ex.gather_nodes(state.z)
     msg = (f"{state.iteration} iterations, primal residual {state.primal_residual:.3g}, "
@@ -246,4 +257,5 @@ def drive(run: PreparedRun, *, max_iterations: int, tol: float, atol: float, ref
         estimates=x_all, converged=converged, iterations=state.iteration, status=status, message=msg,
         trace=tb.build(), comm=ex.comm_totals(), z=z_all[C.nodes], z_nodes=z_all, constraint_nodes=C,
         iterations_to=reached, pairs=n_pairs, x_update=run.x_update, x_weight=run.x_weight, messages=run.messages,
+        multipliers=None if u is None else u.copy(),
     )

@@ -21,7 +21,7 @@ from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.constraint_nodes import ConstraintNodes
 
-__all__ = ["AdmmState", "XUpdate", "XUpdateMethod"]
+__all__ = ["AdmmState", "Multipliers", "XUpdate", "XUpdateMethod"]
 
 XUpdateMethod = Literal["auto", "normal", "observation", "cholesky"]
 
@@ -86,6 +86,19 @@ def _cholesky_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------------- kernel
+@dataclass(frozen=True, eq=False)
+class Multipliers:
+    """The scaled multipliers of one exchange block after a per-pair run: ``pairs`` ``u_{i,s}`` (one row per pair
+    ``s ≠ i``, in the kernel's pair order) and ``self_pairs`` ``u_{s,s}`` (zero rows off ``C``). Block-local state:
+    valid only for the same exchange block, constraint nodes and parameter count."""
+
+    pairs: np.ndarray
+    self_pairs: np.ndarray
+
+    def copy(self) -> Multipliers:
+        return Multipliers(self.pairs.copy(), self.self_pairs.copy())
+
+
 @dataclass(frozen=True, eq=False)
 class AdmmState:
     """After iteration ``k`` (``k = 0``: the initial values) of Fig. 6, for this exchange block.
@@ -180,7 +193,10 @@ class _Kernel:
             inv_total = np.divide(1.0, total, out=np.zeros_like(total), where=self.inC_loc)
             self.z_weight = (w_in[:, None], w_self[:, None], inv_total[:, None])
 
-    def run(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int = 1) -> Iterator[AdmmState]:
+    def run(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int = 1,
+            u0: Multipliers | None = None) -> Iterator[AdmmState]:
+        """Fig. 6 with per-pair messages from ``x0``, ``z0`` and multipliers ``u0`` (default ``u^[−1] = 0``, §4.3);
+        :attr:`multipliers` follows the run (a warm start of a changed problem continues from them)."""
         ex = self.ex
         cm = self.inC_loc[:, None].astype(float)  # 1 on constraint-node rows
         inv_count = 1.0 / self.count[:, None]
@@ -189,6 +205,13 @@ class _Kernel:
         z = z0 * cm
         u_pair = np.zeros((self.ip.size, self.p))
         u_self = np.zeros_like(x)  # u_{s,s}; zero on rows of non-constraint nodes, and stays so
+        if u0 is not None:
+            if u0.pairs.shape != u_pair.shape or u0.self_pairs.shape != u_self.shape:
+                raise ModelError("the multipliers to continue from belong to another exchange block, constraint-"
+                                 "node set or parameter count")
+            u_pair[:] = u0.pairs
+            u_self[:] = u0.self_pairs
+        self.multipliers = Multipliers(u_pair, u_self)
         # initialization round: constraint nodes send z_s^[0] to their neighbours
         inbox = ex.broadcast(z, active=self.from_c)
         z_recv = x[self.pair_dst]  # until z_s arrives, a node assumes its own x_i^[0]

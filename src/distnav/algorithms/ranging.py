@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from distnav.algorithms.result import SolverResult
+from distnav.algorithms.result import ObservationTests, Precision, SolverResult
 from distnav.errors import ModelError
 from distnav.network.graph import Graph
 
@@ -165,6 +165,30 @@ class RangingData:
     def jacobian_of(self, x: np.ndarray) -> sp.csr_matrix:
         return self.jacobian(self.to_positions(x))
 
+    # ------------------------------------------------------------------ the objective in metres
+    def distances(self, positions_m: np.ndarray) -> np.ndarray:
+        """``‖r_a − r_b‖`` of every sample."""
+        p = np.asarray(positions_m, float)
+        return np.asarray(np.linalg.norm(p[self.meas_a] - p[self.meas_b], axis=1))
+
+    def residuals_m(self, positions_m: np.ndarray) -> np.ndarray:
+        """Range residuals in metres, ``e_l = ‖r_a − r_b‖ − d_l`` (the objective ``Σ e²/σ²`` departs from paper
+        002's squared form ``g = ‖r_a − r_b‖² − d²``, whose losses weight every link by about ``d²``)."""
+        return np.asarray(self.distances(positions_m) - self.range_m)
+
+    def jacobian_m(self, positions_m: np.ndarray) -> sp.csr_matrix:
+        """Sparse ``∂e/∂x`` (``m × n_free``): the unit vector ``u = (r_a − r_b)/‖r_a − r_b‖`` at a's free columns
+        and ``−u`` at b's (``u`` = 0 where the two estimates coincide: the residual has no direction there)."""
+        p = np.asarray(positions_m, float)
+        diff = p[self.meas_a] - p[self.meas_b]
+        norm = np.linalg.norm(diff, axis=1)
+        u = diff / np.where(norm > 0, norm, np.inf)[:, None]
+        vals = np.concatenate([u.ravel(), -u.ravel()])
+        mat, perm, _ = self._jac_structure
+        out = mat.copy()
+        out.data = vals[perm]
+        return out
+
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class RangingResult(SolverResult):
@@ -184,6 +208,13 @@ class RangingResult(SolverResult):
     loss : ``"linear"``, ``"huber"`` or ``"cauchy"``.
     x : LM's estimated free-coordinate vector (eq. (1)); ``None`` for the distributed solvers.
     settings : the solver's step / damping / consensus settings (``alpha``, ``alpha0``, ``lambda0``, …).
+    objective_kind : ``"squared"`` (paper 002's ``g = ‖r_a − r_b‖² − d²``) or ``"metres"`` (``e = ‖r_a − r_b‖ − d``,
+        weight ``1/σ²``); ``cost`` and ``objective`` are in its units (m⁴, or whitened: dimensionless).
+    precision : per-anchor covariance (:class:`~distnav.algorithms.result.Precision`: ``"centralized"`` from LM,
+        ``"conditional"`` from what each anchor holds in a distributed solver), or ``None`` where not computed /
+        not determined.
+    tests : per-sample w-tests (:class:`~distnav.algorithms.result.ObservationTests`), or ``None``.
+    offsets_m, offsets_std_m : estimated range offsets (one common, or one per anchor) and their a-posteriori σ.
     """
 
     solver: str
@@ -192,6 +223,11 @@ class RangingResult(SolverResult):
     loss: str = "linear"
     x: np.ndarray | None = None
     settings: Mapping[str, Any] = field(default_factory=dict)
+    objective_kind: str = "squared"
+    precision: Precision | None = None
+    tests: ObservationTests | None = None
+    offsets_m: np.ndarray | None = None
+    offsets_std_m: np.ndarray | None = None
 
     def summary(self) -> dict[str, Any]:
         out = super().summary()

@@ -155,9 +155,9 @@ def _csr_product(m: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
         return np.asarray(m @ x)
     x = np.ascontiguousarray(x)
     rows, cols = m.shape
-    if x.ndim == 1:
-        out = np.zeros(rows)
-        _MATVEC(rows, cols, m.indptr, m.indices, m.data, x, out)
+    if x.ndim == 1 or x.shape[1] == 1:  # one column: the single-vector kernel (as scipy's ``@`` does)
+        out = np.zeros(rows if x.ndim == 1 else (rows, 1))
+        _MATVEC(rows, cols, m.indptr, m.indices, m.data, x.ravel(), out.ravel())
     else:
         out = np.zeros((rows, x.shape[1]))
         _MATVECS(rows, cols, x.shape[1], m.indptr, m.indices, m.data, x.ravel(), out.ravel())

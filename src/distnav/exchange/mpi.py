@@ -166,9 +166,28 @@ class MPIExchange(Exchange):
         The halo arrives straight into the tail of a preallocated column buffer through a persistent neighbour
         collective started once per round; the local values are copied while it is in flight. The returned array
         is that buffer, reused by the next round (callers consume it within the round)."""
-        width = flat_local.shape[1]
         if self.n_halo == 0:
             return flat_local
+        cols, req = self._start_halo(flat_local)
+        cols[:self.n_local] = flat_local
+        if req is not None:
+            req.Wait()
+        return cols
+
+    def halo(self, flat_local: np.ndarray) -> np.ndarray:
+        """The transport alone: the values of the remote senders this block needs, ``(n_halo, width)`` (a view of
+        the reused column buffer)."""
+        if self.n_halo == 0:
+            return flat_local[:0]
+        cols, req = self._start_halo(flat_local)
+        if req is not None:
+            req.Wait()
+        return cols[self.n_local:]
+
+    def _start_halo(self, flat_local: np.ndarray) -> tuple[np.ndarray, Any]:
+        """Send this block's boundary values and start receiving the halo into the column buffer's tail; returns
+        the buffer and the request to wait for (None when the plain collective has already completed)."""
+        width = flat_local.shape[1]
         key = (width, flat_local.dtype.str)
         bufs = self._column_buffers.get(key)
         if bufs is None:
@@ -180,13 +199,10 @@ class MPIExchange(Exchange):
         np.take(flat_local, self._send_node_idx, axis=0, out=send)
         if req is not None:
             req.Start()
-            cols[:self.n_local] = flat_local
-            req.Wait()
-            return cols
-        halo = self._alltoallv(send, self._node_send_counts, self._node_recv_counts, width, flat_local.dtype)
-        cols[:self.n_local] = flat_local
-        cols[self.n_local:] = halo
-        return cols
+            return cols, req
+        cols[self.n_local:] = self._alltoallv(send, self._node_send_counts, self._node_recv_counts, width,
+                                              flat_local.dtype)
+        return cols, None
 
     def _move_edges(self, flat_out: np.ndarray, active: np.ndarray | None) -> np.ndarray:
         width = flat_out.shape[1]

@@ -19,6 +19,7 @@ EXPERIMENTS: dict[str, str] = {
     "uwb": "distnav.experiments.uwb",
     "codebias": "distnav.experiments.codebias",
     "ckf-ionosphere": "distnav.experiments.ckf_ionosphere",
+    "qc": "distnav.experiments.qc",
 }
 
 

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.csg import SOLVERS, solve
+from distnav.algorithms.csg import PAPER_MODE, SOLVERS, solve
 from distnav.experiments.common import ExperimentContext, pyplot
 from distnav.models.uwb.problems import PAPER_PROBLEMS, RangingProblem, generate_layout, generate_problem
 from distnav.options import positive_int
@@ -80,11 +80,12 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                     t0 = time.perf_counter()
                     if s == "LM":
                         res = solve(problem, s, iterations=iterations, pad_trace=True)
-                    elif "LS" in s:
+                    elif "LS" in s:  # the paper's mode: a fixed iteration count, no QC
                         res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph),
-                                    armijo_slope=armijo_slope)
+                                    armijo_slope=armijo_slope, **PAPER_MODE)
                     else:
-                        res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph))
+                        res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph),
+                                    **PAPER_MODE)
                     timing[s] += time.perf_counter() - t0
                     a = acc[s]
                     a["msg"].append(res.comm.messages)
