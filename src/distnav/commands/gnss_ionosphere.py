@@ -111,34 +111,13 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
     obs = read_stations(list(obs_files), l1_code=l1_code, l2_code=l2_code, tlim=tlim,
                         interval_s=None if levelling else interval_s, phases=levelling, progress=progress)
     if c1_corrections:
+        from distnav.models.gnss.products import correct_c1
+
         obs = [correct_c1(o, c1_corrections) for o in obs]
     return network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
                                      ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
                                      weighting=weighting, reference=reference, exclude=exclude, levelling=levelling,
                                      min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen)
-
-
-def correct_c1(o: Any, product: str | Path) -> Any:
-    """C1C corrected to C1W with the satellites' C1C−C1W DSBs of a Bias-SINEX product: ``P1 = C1C − c·DSB``
-    (biases add to the observations). Satellites the product lacks lose their L1 code (noted)."""
-    from distnav.models.gnss.bias_sinex import read_bias_sinex
-    from distnav.models.gnss.constants import C_M_S
-
-    if o.codes.get(1) != "C1C":
-        raise ModelError(f"{o.path}: --c1-corrections needs C1C on L1, the file gives {o.codes.get(1)}")
-    prod = read_bias_sinex(product)
-    p1 = o.range_m[1].copy()
-    missing = []
-    for k, sv in enumerate(o.svs):
-        dsb = prod.satellite_dsb_ns(sv, "C1C", "C1W")
-        if dsb is None:
-            p1[:, k] = np.nan
-            missing.append(sv)
-        else:
-            p1[:, k] -= C_M_S * 1e-9 * dsb
-    note = f"C1C corrected to C1W with {prod.name} C1C-C1W satellite DSBs" + \
-        (f" (none for {' '.join(missing)}: dropped)" if missing else "")
-    return replace(o, range_m={**o.range_m, 1: p1}, codes={**o.codes, 1: "C1W"}, notes=(*o.notes, note))
 
 
 def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = "C2W",
@@ -382,8 +361,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                 rows.append(f"{sta},{a.sv},{a.first},{a.last},{a.n_epochs},{a.start_reason},{a.offset_m:.4f},"
                             f"{a.offset_std_m:.4f},{a.code_rms_m:.4f},{a.removed}")
         atomic_write_text(out / "arcs.csv", "\n".join(rows) + "\n")
-        summary["arcs"] = {sta: _arc_summary(lev) for sta, lev in data.levelled.items()}
-        summary["screening"] = {sta: _screening_summary(lev, layout_svs=data.levelled_svs[sta])
+        summary["arcs"] = {sta: lev.arc_summary() for sta, lev in data.levelled.items()}
+        summary["screening"] = {sta: lev.screening_summary(data.levelled_svs[sta])
                                 for sta, lev in data.levelled.items()}
     fac = series[0].realistic_factor
     post = (finals["central"][0], {k: v * fac for k, v in finals["central"][1].items()})
@@ -490,27 +469,6 @@ def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str,
                   "satellite SVN field holds the system letter only"])
     atomic_write_text(path, str(text))
     return path
-
-
-def _arc_summary(lev: Any) -> dict[str, Any]:
-    n = np.array([a.n_epochs for a in lev.arcs])
-    rms = np.array([a.code_rms_m for a in lev.arcs])
-    return {"arcs": len(lev.arcs), "starts": lev.starts, "dropped_short": lev.dropped_short,
-            "median_epochs": float(np.median(n)) if n.size else 0.0,
-            "median_code_rms_m": float(np.median(rms)) if rms.size else float("nan"),
-            "removed_by_screening": int(lev.removed.sum())}
-
-
-def _screening_summary(lev: Any, layout_svs: Sequence[str]) -> dict[str, Any]:
-    """What each station's own screening removed: counts per satellite and the w-test summary."""
-    t_idx, s_idx = np.nonzero(lev.removed)
-    per_sat: dict[str, int] = {}
-    for s in s_idx.tolist():
-        per_sat[layout_svs[s]] = per_sat.get(layout_svs[s], 0) + 1
-    tests = lev.tests.summary() if lev.tests is not None else {}
-    tests.pop("removed", None)
-    return {"tested": int(lev.tests.w.size) if lev.tests is not None else 0, "removed": int(lev.removed.sum()),
-            "removed_per_satellite": per_sat, **tests}
 
 
 def _check_days(products: Sequence[Any], t_gps_s: np.ndarray, allow: bool) -> None:

@@ -30,7 +30,9 @@ that an arc's total information on its level equals that of its code (Σ 1/σ² 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -74,6 +76,25 @@ class LevelledStation:
     starts: dict[str, int]
     dropped_short: int
     tests: ObservationTests | None = None
+
+    def arc_summary(self) -> dict[str, Any]:
+        """Counts of arcs, starts by reason, short arcs dropped, median arc length and code RMS."""
+        n = np.array([a.n_epochs for a in self.arcs])
+        rms = np.array([a.code_rms_m for a in self.arcs])
+        return {"arcs": len(self.arcs), "starts": self.starts, "dropped_short": self.dropped_short,
+                "median_epochs": float(np.median(n)) if n.size else 0.0,
+                "median_code_rms_m": float(np.median(rms)) if rms.size else float("nan"),
+                "removed_by_screening": int(self.removed.sum())}
+
+    def screening_summary(self, svs: Sequence[str]) -> dict[str, Any]:
+        """What the station's own screening removed (per satellite) and its w-test summary."""
+        per_sat: dict[str, int] = {}
+        for s in np.nonzero(self.removed)[1].tolist():
+            per_sat[svs[s]] = per_sat.get(svs[s], 0) + 1
+        tests = self.tests.summary() if self.tests is not None else {}
+        tests.pop("removed", None)
+        return {"tested": int(self.tests.w.size) if self.tests is not None else 0,
+                "removed": int(self.removed.sum()), "removed_per_satellite": per_sat, **tests}
 
 
 def geometry_free_phase_m(phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2) -> np.ndarray:

@@ -19,7 +19,8 @@ import numpy as np
 
 from distnav.errors import DataFileError, ModelError
 
-__all__ = ["ProductDSB", "product_dsbs", "compare_in_datum", "product_day", "DSBEstimates", "read_estimates"]
+__all__ = ["ProductDSB", "product_dsbs", "compare_in_datum", "product_day", "DSBEstimates", "read_estimates",
+           "correct_c1"]
 
 
 @dataclass(frozen=True)
@@ -194,3 +195,28 @@ def _sinex_day(t: str) -> np.datetime64 | None:
         return np.datetime64(f"{year:04d}-01-01") + np.timedelta64(int(d) - 1, "D")
     except ValueError:
         return None
+
+
+def correct_c1(o: Any, product: str | Path) -> Any:
+    """C1C corrected to C1W with the satellites' C1C−C1W DSBs of a Bias-SINEX product: ``P1 = C1C − c·DSB``
+    (biases add to the observations). Satellites the product lacks lose their L1 code (noted)."""
+    from dataclasses import replace
+
+    from distnav.models.gnss.bias_sinex import read_bias_sinex
+    from distnav.models.gnss.constants import C_M_S
+
+    if o.codes.get(1) != "C1C":
+        raise ModelError(f"{o.path}: --c1-corrections needs C1C on L1, the file gives {o.codes.get(1)}")
+    prod = read_bias_sinex(product)
+    p1 = o.range_m[1].copy()
+    missing = []
+    for k, sv in enumerate(o.svs):
+        dsb = prod.satellite_dsb_ns(sv, "C1C", "C1W")
+        if dsb is None:
+            p1[:, k] = np.nan
+            missing.append(sv)
+        else:
+            p1[:, k] -= C_M_S * 1e-9 * dsb
+    note = f"C1C corrected to C1W with {prod.name} C1C-C1W satellite DSBs" + \
+        (f" (none for {' '.join(missing)}: dropped)" if missing else "")
+    return replace(o, range_m={**o.range_m, 1: p1}, codes={**o.codes, 1: "C1W"}, notes=(*o.notes, note))
