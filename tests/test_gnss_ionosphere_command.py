@@ -164,8 +164,8 @@ def test_errors_name_the_file(shared_data: Path, tmp_path: Path) -> None:
 
 
 def test_c1_corrections_from_a_product(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from distnav.models.gnss.products import correct_c1
     from distnav.models.gnss.bias_sinex import read_bias_sinex
+    from distnav.models.gnss.products import correct_c1
     from distnav.models.gnss.rinex import read_code_observations
 
     d = shared_data / IGS
