@@ -23,6 +23,7 @@ import csv
 import importlib
 import importlib.util
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -112,6 +113,7 @@ def _run_codebias(args: argparse.Namespace) -> int:
     from distnav.models.gnss.rinex import read_code_observations, read_navigation, read_sp3
     from distnav.output import atomic_write_json, atomic_write_text
 
+    _check_codebias_arguments(args)
     codes = _parse_codes(args.codes)
     tlim = tuple(args.tlim) if args.tlim else None
     obs = []
@@ -275,9 +277,18 @@ def _print_comparison(summary: dict[str, Any]) -> None:
         print(f"  note: {summary['warning']}")
 
 
+_FILTER = re.compile(r"^(central|(ckf|local):[A-Za-z0-9]{4})$")
+_SATELLITE = re.compile(r"^G(0[1-9]|[12][0-9]|3[0-2])$")
+
+
 def _run_compare(args: argparse.Namespace) -> int:
     from distnav.output import atomic_write_json
 
+    if not _FILTER.match(args.filter):
+        raise ModelError(f"--filter {args.filter}: expected central, ckf:STATION or local:STATION (e.g. ckf:BELE)")
+    for sat in args.exclude or []:
+        if not _SATELLITE.match(sat.upper()):
+            raise ModelError(f"--exclude {sat}: not a GPS satellite (G01 … G32)")
     path = Path(args.estimates)
     if (path.is_dir() and (path / "summary.json").exists()) or path.name == "summary.json" or \
             ".bia" in path.name.lower() or ".bsx" in path.name.lower():
@@ -354,6 +365,44 @@ def add_data_arguments(parser: argparse.ArgumentParser, *, obs_note: str = "") -
     parser.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")
     parser.add_argument("--interval", type=float, default=None, help="keep epochs on this grid [s] (e.g. 60)")
     parser.add_argument("--mask", type=float, default=10.0, help="elevation mask [deg] (default 10)")
+
+
+def check_data_arguments(args: argparse.Namespace) -> None:
+    """Check the values of the shared data options (:func:`add_data_arguments`) before any file is read; errors
+    name the option (the CLI exits with 2)."""
+    for opt, value in (("--interval", args.interval), ("--nav-max-age", args.nav_max_age)):
+        if value is not None and not (np.isfinite(value) and value > 0.0):
+            raise ModelError(f"{opt} {value:g}: must be a positive number")
+    if not 0.0 <= args.mask < 90.0:
+        raise ModelError(f"--mask {args.mask:g}: the elevation mask must lie in [0, 90) degrees")
+    if args.tlim:
+        try:
+            t0, t1 = (np.datetime64(t, "s") for t in args.tlim)
+        except ValueError:
+            raise ModelError(f"--tlim {' '.join(args.tlim)}: not ISO date/times (e.g. 2024-01-10T06:00)") from None
+        if not t0 < t1:
+            raise ModelError(f"--tlim {' '.join(args.tlim)}: the start must be before the stop")
+    for opt, files in (("--obs", args.obs), ("--nav", args.nav), ("--sp3", args.sp3),
+                       ("--graph", [args.graph] if args.graph else None),
+                       ("--bias", getattr(args, "bias", None))):
+        for f in files or []:
+            if not Path(f).is_file():
+                raise DataFileError(f"{opt} {f}: file not found")
+    out = getattr(args, "out", None)
+    if out is not None and Path(out).exists() and not Path(out).is_dir():
+        raise DataFileError(f"--out {out}: exists and is not a folder")
+
+
+def _check_codebias_arguments(args: argparse.Namespace) -> None:
+    check_data_arguments(args)
+    for opt, value in (("--sigma", args.sigma), ("--rho", args.rho)):
+        if not (np.isfinite(value) and value > 0.0):
+            raise ModelError(f"{opt} {value:g}: must be a positive number")
+    if args.iterations < 1:
+        raise ModelError(f"--iterations must be ≥ 1, got {args.iterations}")
+    if args.reference is not None and not args.reference.strip():
+        raise ModelError("--reference is empty: give a station name (e.g. BELE)")
+    _parse_codes(args.codes)
 
 
 def register(subparsers: Any) -> None:

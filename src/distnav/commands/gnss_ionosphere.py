@@ -64,21 +64,18 @@ def validate_arguments(args: argparse.Namespace) -> None:
         raise ModelError(f"--l1-code {args.l1_code}: not a GPS L1 code (C1C, C1W, C1L, C1X …)")
     if not _LB_CODE.match(args.l2_code.upper()):
         raise ModelError(f"--l2-code {args.l2_code}: not a GPS L2 or L5 code (C2W, C2L, C2X, C5Q, C5X …)")
-    for opt, value, low in (("--sigma", args.sigma, 0.0), ("--interval", args.interval, 0.0),
-                            ("--nav-max-age", args.nav_max_age, 0.0), ("--regional-km", args.regional_km, 0.0)):
-        if value is not None and not (np.isfinite(value) and value > low):
+    from distnav.commands.gnss import check_data_arguments  # gnss.py registers this module: import lazily
+
+    check_data_arguments(args)
+    for opt, value in (("--sigma", args.sigma), ("--regional-km", args.regional_km)):
+        if value is not None and not (np.isfinite(value) and value > 0.0):
             raise ModelError(f"{opt} {value:g}: must be a positive number")
-    if not 0.0 <= args.mask < 90.0:
-        raise ModelError(f"--mask {args.mask:g}: the elevation mask must lie in [0, 90) degrees")
     if args.kn < 0:
         raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
-    if args.tlim:
-        try:
-            t0, t1 = (np.datetime64(t, "s") for t in args.tlim)
-        except ValueError:
-            raise ModelError(f"--tlim {' '.join(args.tlim)}: not ISO date/times (e.g. 2024-01-10T06:00)") from None
-        if not t0 < t1:
-            raise ModelError(f"--tlim {' '.join(args.tlim)}: the start must be before the stop")
+    if args.min_arc < 2:
+        raise ModelError(f"--min-arc must be ≥ 2 epochs, got {args.min_arc}")
+    if not (np.isfinite(args.gf_threshold) and args.gf_threshold > 0.0):
+        raise ModelError(f"--gf-threshold {args.gf_threshold:g}: must be a positive number of metres")
     for e in (args.exclude or []) + (args.compare_exclude or []):
         if not (_PRN.match(e.upper()) or re.match(r"^[A-Za-z0-9]{4}$", e)):
             raise ModelError(f"--exclude {e}: neither a GPS satellite (G01 … G32) nor a 4-character station")
@@ -89,9 +86,6 @@ def validate_arguments(args: argparse.Namespace) -> None:
             raise DataFileError(f"--c1-corrections {args.c1_corrections}: file not found")
     if args.reference is not None and not re.match(r"^[A-Za-z0-9]{4}$", args.reference):
         raise ModelError(f"--reference {args.reference}: not a 4-character station name")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise DataFileError(f"--out {out}: exists and is not a folder")
 
 
 def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = "C1C", l2_code: str = "C2W",
