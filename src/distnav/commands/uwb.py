@@ -34,7 +34,15 @@ from distnav.algorithms.nlsq import LOSSES
 from distnav.commands import add_backend_arguments
 from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange
-from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges, write_positions
+from distnav.models.uwb.io import (
+    check_units,
+    combine_ranges,
+    read_heights,
+    read_positions,
+    read_ranges,
+    single_link_anchors,
+    write_positions,
+)
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 
 __all__ = ["register", "classical_mds", "smacof", "mds_initial_guess", "planarity", "height_spread_ratio",
@@ -61,6 +69,8 @@ def register(subparsers: Any) -> None:
     s.add_argument("--loss-scale-m", type=float, default=0.3,
                    help="range error (m) beyond which the robust loss down-weights a range (default 0.3)")
     s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")
+    s.add_argument("--strict", action="store_true",
+                   help="refuse a range log with a negative, zero or non-finite sample (default: drop and count)")
     s.add_argument("--out", type=Path, required=True, help="output folder")
     add_backend_arguments(s)
     s.set_defaults(func=_handler)
@@ -181,8 +191,8 @@ def planarity(points_m: np.ndarray) -> float:
 # ---------------------------------------------------------------------- the solve
 def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, truth: Path | None = None,
                     heights: Path | None = None, solver: str = "LM", loss: str = "linear",
-                    loss_scale_m: float = 0.3, iterations: int = 500,
-                    backend: str = "inprocess") -> tuple[RangingProblem, Any, dict[str, Any]]:
+                    loss_scale_m: float = 0.3, iterations: int = 500, backend: str = "inprocess",
+                    strict: bool = False) -> tuple[RangingProblem, Any, dict[str, Any]]:
     """Read the files, build the problem, solve; returns ``(problem, result, summary)`` (no files written).
 
     A distributed solver runs on an exchange of ``backend`` (``"mpi"`` under ``mpiexec``); LM is centralized."""
@@ -190,13 +200,15 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
         raise ModelError(f"--loss {loss} is implemented for LM and the neighbourhood solvers, not CSG")
     if iterations < 1:
         raise ModelError(f"--iterations must be ≥ 1, got {iterations}")
-    log = read_ranges(ranges)
+    log = read_ranges(ranges, strict=strict)
     comb = combine_ranges(log)
     known_pos, dim = read_positions(known)
+    units_note, units_warning = check_units(comb, known_pos, where=str(ranges))
     ids = log.ids
     index = {k: i for i, k in enumerate(ids)}
     unused_known = [k for k in known_pos if k not in index]
-    warnings: list[str] = []
+    warnings: list[str] = [log.drop_message()] if log.n_dropped else []
+    warnings += single_link_anchors(comb) + ([units_warning] if units_warning else [])
     if unused_known:
         warnings.append(f"known anchors without ranges are ignored: {', '.join(unused_known[:10])}")
     held: dict[str, dict[int, float]] = {}
@@ -263,6 +275,9 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
         "n_heights_held": len(held),
         "n_pairs": len(comb.pairs),
         "n_ranges": int(log.range_m.size),
+        "n_dropped_samples": log.n_dropped,
+        "dropped_samples": dict(log.dropped),
+        "units_check": units_note,
         "range_combination": "median of the samples of each pair",
         "initial_guess": init_source,
         "range_residual_rms_m": float(np.sqrt(np.mean(
@@ -304,7 +319,7 @@ def _handler(args: argparse.Namespace) -> int:
     problem, result, summary = solve_range_log(
         args.ranges, args.known, initial=args.initial, truth=args.truth, heights=args.heights, solver=args.solver,
         loss=args.loss, loss_scale_m=args.loss_scale_m, iterations=args.iterations,
-        backend=getattr(args, "backend", "inprocess"))
+        backend=getattr(args, "backend", "inprocess"), strict=args.strict)
     from distnav.experiments.common import atomic_write_json, is_file_writer
 
     out = Path(args.out)
