@@ -89,7 +89,7 @@ def run(quick: bool) -> list[dict]:
     t0 = time.perf_counter()
     P_ref, _x_ref = reference_loop(dyn, ms, L)
     t_ref = time.perf_counter() - t0
-    P_last = res.extras["covariance"]
+    P_last = res.covariance
     agree = float(np.abs(P_last - P_ref).max() / np.abs(P_ref).max())
     rows.append({"name": "CKF + Fig. 7, paper workload", "n_nodes": n, "p": 33, "epochs": T, "k_n": kn,
                  "seconds": t_ckf, "reference_seconds": t_ref, "ratio": t_ckf / t_ref,

@@ -83,7 +83,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
 
         ref = scipy_run()
         ref_t = best_time(scipy_run, repeat=repeat)
-        ours_cost = float(ours_res.extras["cost"])
+        ours_cost = float(ours_res.cost)
         ref_cost = float(ref.fun @ ref.fun)
         rel = abs(ours_cost - ref_cost) / ref_cost
         rows.append({"name": f"LM vs scipy lm, {q.name or 'GC'} {q.dim}-D ({q.n_free} unknowns)",

@@ -31,6 +31,7 @@ from distnav.errors import ModelError, WeightsError
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.network import builders
 from distnav.network.graph import Graph, SwitchingGraph
+from distnav.network.weights import ConsensusWeights
 
 
 def observed_model(seed: int, *, n: int = 6, p: int = 4, T: int = 10, late_until: int = 3,
@@ -52,6 +53,39 @@ def observed_model(seed: int, *, n: int = 6, p: int = 4, T: int = 10, late_until
             row.append((A, var, A @ x[t] + np.sqrt(var) * rng.standard_normal(m)))
         epochs.append(row)
     return dyn, ObservationSeries(p, epochs), x
+
+
+def table1_product(n: int, links: list[tuple[int, int]], protocol: str, kn: int) -> np.ndarray:
+    """``L = W^k_n`` from paper 003 Table 1, written here from the links (independent of the library's weights).
+
+    For a neighbour j of i: P1 ``w_ij = 1/max_u dg_u``, P2 ``1/n``, P3 (Metropolis) ``1/(1 + max(dg_i, dg_j))``;
+    the self-weight makes each row sum to 1.
+    """
+    adj = np.zeros((n, n), bool)
+    for a, b in links:
+        adj[a, b] = adj[b, a] = True
+    dg = adj.sum(axis=1)
+    W = np.zeros((n, n))
+    for i in range(n):
+        for j in np.flatnonzero(adj[i]):
+            W[i, j] = {"P1": 1.0 / dg.max(), "P2": 1.0 / n, "P3": 1.0 / (1 + max(dg[i], dg[j]))}[protocol]
+        W[i, i] = 1.0 - W[i].sum()
+    return np.linalg.matrix_power(W, kn)
+
+
+def path_links(n: int) -> list[tuple[int, int]]:
+    return [(i, i + 1) for i in range(n - 1)]
+
+
+def ring_links(n: int) -> list[tuple[int, int]]:
+    return [(i, (i + 1) % n) for i in range(n)]
+
+
+def test_table1_reference_tells_the_protocols_apart():
+    # the reference above must distinguish the protocols on the graphs used here, or the tests below prove nothing
+    for links in (path_links(6), ring_links(6)):
+        Ls = [table1_product(6, links, pr, 3) for pr in ("P1", "P2", "P3")]
+        assert not np.allclose(Ls[0], Ls[2]) and not np.allclose(Ls[1], Ls[2]) and not np.allclose(Ls[0], Ls[1])
 
 
 def test_consensus_rounds_from_time_scales():
@@ -89,16 +123,16 @@ def test_stationary_closed_form(kn):
     ms = NormalSeries(np.broadcast_to(N, (T, n, p, p)).copy())
     g = builders.path(n)
     res = ckf(DynamicModel(p), ms, graph=g, protocol="P3", rounds=kn, store_matrices=True)
-    P = res.extras["series"].covariance
-    L = consensus_product(consensus_schedule(g, "P3"), kn)
+    P = res.series.covariance
+    L = table1_product(n, path_links(n), "P3", kn)  # the protocol's definition, not the library's weights
     alpha = n * (L**2).sum(axis=1)
     Ninv = np.linalg.inv(N)
     for t in range(T):
         for i in range(n):
             np.testing.assert_allclose(P[t, i], alpha[i] * Ninv / ((t + 1) * n), rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(res.extras["alpha"], alpha, rtol=1e-12)
+    np.testing.assert_allclose(res.alpha, alpha, rtol=1e-12)
     # the nominal variance I_i⁻¹ = (t n N)⁻¹ is the central one: it understates the error by √α
-    s = res.extras["series"]
+    s = res.series
     np.testing.assert_allclose(s.std / s.nominal_std, np.broadcast_to(np.sqrt(alpha)[None, :, None], s.std.shape),
                                rtol=1e-10)
 
@@ -114,9 +148,9 @@ def test_many_rounds_give_the_central_filter(graph_kind):
         s2 = Graph.from_links(6, [(1, 2), (3, 4), (5, 0)])
         g = SwitchingGraph((s1, s2))
         protocol, kn = "P4", 300
-    c = central_filter(dyn, ms).extras["series"]
+    c = central_filter(dyn, ms).series
     r = ckf(dyn, ms, graph=g, protocol=protocol, rounds=kn)
-    s = r.extras["series"]
+    s = r.series
     assert np.array_equal(s.estimable, np.broadcast_to(c.estimable, s.estimable.shape))
     central = np.broadcast_to(c.estimates, s.estimates.shape)
     np.testing.assert_allclose(np.nan_to_num(s.estimates), np.nan_to_num(central), atol=1e-8)
@@ -129,8 +163,8 @@ def test_many_rounds_give_the_central_filter(graph_kind):
 def test_complete_graph_one_round_is_exact_average():
     # Protocol 2 on a complete graph: W = eeᵀ/n, so one round delivers N̄, r̄ exactly (eqs. (27)–(28))
     dyn, ms, _ = observed_model(2)
-    c = central_filter(dyn, ms).extras["series"]
-    s = ckf(dyn, ms, graph=builders.complete(ms.n_nodes), protocol="P2", rounds=1).extras["series"]
+    c = central_filter(dyn, ms).series
+    s = ckf(dyn, ms, graph=builders.complete(ms.n_nodes), protocol="P2", rounds=1).series
     central = np.broadcast_to(c.estimates, s.estimates.shape)
     np.testing.assert_allclose(np.nan_to_num(s.estimates), np.nan_to_num(central), atol=1e-10)
     np.testing.assert_allclose(np.nan_to_num(s.std), np.nan_to_num(np.broadcast_to(c.std, s.std.shape)), atol=1e-10)
@@ -172,10 +206,10 @@ def test_recursion_matches_paper_form_of_fig7(general_noise):
     else:
         assert dyn.noise_selection_at(1) is not None
     g = builders.path(ms.n_nodes)
-    L = consensus_product(consensus_schedule(g, "P1"), 2)
+    L = table1_product(ms.n_nodes, path_links(ms.n_nodes), "P1", 2)  # Table 1, not the library's weights
     ref = paper_fig7(dyn, ms, L)
     res = ckf(dyn, ms, graph=g, protocol="P1", rounds=2, store_matrices=True)
-    np.testing.assert_allclose(res.extras["series"].covariance, ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(res.series.covariance, ref, rtol=1e-9, atol=1e-12)
     alone = ckf_error_variance(dyn, ms, L, store_matrices=True)
     np.testing.assert_allclose(alone.covariance, ref, rtol=1e-9, atol=1e-12)
 
@@ -184,13 +218,14 @@ def test_standalone_recursion_equals_ckf_with_rank_deficient_start():
     dyn, ms, _ = observed_model(4, late_until=4, identity_transition=True)
     g = builders.ring(ms.n_nodes)
     r = ckf(dyn, ms, graph=g, rounds=3)
-    s = r.extras["series"]
-    alone = ckf_error_variance(dyn, ms, r.extras["product"])
+    s = r.series
+    np.testing.assert_allclose(r.product, table1_product(ms.n_nodes, ring_links(ms.n_nodes), "P3", 3), atol=1e-15)
+    alone = ckf_error_variance(dyn, ms, r.product)
     assert np.array_equal(alone.estimable, s.estimable)
     assert not s.estimable[:4, :, -1].any() and s.estimable[4:].all()
     np.testing.assert_allclose(np.nan_to_num(alone.std), np.nan_to_num(s.std), rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(np.nan_to_num(alone.nominal_std), np.nan_to_num(s.nominal_std), rtol=1e-10)
-    c = central_filter(dyn, ms).extras["series"]
+    c = central_filter(dyn, ms).series
     ratio = ckf_std_ratio(s, c)
     assert np.nanmin(ratio) >= 1 - 1e-9  # the CKF is never better than the central filter (eq. (48))
 
@@ -232,9 +267,9 @@ def test_monte_carlo_error_covariance():
             errors[k, st.epoch] = x[st.epoch] - st.estimates
     ms0 = ObservationSeries(p, [[(designs[t, i], var[t, i]) for i in range(n)] for t in range(T)])
     ref = ckf(dyn, ms0, schedule=sched, rounds=kn, store_matrices=True, monitor=False)
-    P = ref.extras["series"].covariance
-    info = ref.extras["series"].information
-    est = ref.extras["series"].estimable
+    P = ref.series.covariance
+    info = ref.series.information
+    est = ref.series.estimable
 
     def crit(k: int) -> float:
         return float(stats.chi2.ppf(1 - 1e-4, k * (k + 1) // 2))
@@ -253,7 +288,7 @@ def test_monte_carlo_error_covariance():
             lam = lr_stat(errors[:, t, i][:, m], P[t, i][np.ix_(m, m)])
             assert lam < crit(int(m.sum())), f"node {i}, epoch {t}: λ = {lam:.1f} ≥ {crit(int(m.sum())):.1f}"
     # power: the nominal I_i⁻¹ is rejected at the end nodes (α ≈ 2.2 there; λ ≈ 700–1300 in this run)
-    alpha = ref.extras["alpha"]
+    alpha = ref.alpha
     assert alpha[0] > 2.0 and alpha[-1] > 2.0
     for i in (0, n - 1):
         assert lr_stat(errors[:, T - 1, i], np.linalg.inv(info[T - 1, i])) > crit(p)
@@ -269,13 +304,13 @@ def test_communication_totals():
     assert r.comm.messages == msgs
     assert r.comm.rounds == ms.n_epochs * kn
     assert r.comm.bytes == msgs * (p * (p + 1) // 2 + p) * 8
-    assert r.iterations == ms.n_epochs and r.extras["rounds"] == kn
+    assert r.iterations == ms.n_epochs and r.rounds == kn
 
 
 def test_time_scales_give_rounds():
     dyn, ms, _ = observed_model(6, T=3)
     r = ckf(dyn, ms, graph=builders.ring(ms.n_nodes), sampling_interval_s=60.0, sending_interval_s=10.0)
-    assert r.extras["rounds"] == 6
+    assert r.rounds == 6
     assert r.comm.rounds == 3 * 6
 
 
@@ -288,9 +323,11 @@ def test_faults_use_the_product_actually_applied():
     faults = FaultSchedule(drop_probability=0.3, seed=3)
     res = ckf(dyn, ms, graph=g, rounds=kn, exchange=make_exchange(g, faults=faults), store_matrices=True)
     assert res.comm.messages_dropped > 0
-    # products per epoch, obtained by mixing the identity with an exchange with the same fault schedule
+    # products per epoch, obtained by mixing the identity with an exchange with the same fault schedule, with
+    # the P3 weights of Table 1 built here (so a wrong protocol in the library cannot agree with itself)
     ex = make_exchange(g, faults=faults)
-    mixer = ex.mixer(consensus_schedule(g, "P3").weights[0])
+    W3 = table1_product(ms.n_nodes, ring_links(ms.n_nodes), "P3", 1)
+    mixer = ex.mixer(ConsensusWeights.from_matrix(g, W3))
     Ls = []
     for _ in range(ms.n_epochs):
         Lt = np.eye(ms.n_nodes)
@@ -314,7 +351,7 @@ def test_faults_use_the_product_actually_applied():
             I[i] = Ipred[i] + n * np.einsum("j,jab->ab", Ls[t][i], N)
             Iinv = np.linalg.inv(I[i])
             P[i] = Iinv @ (Ipred[i] @ Ppred[i] @ Ipred[i] + n**2 * np.einsum("j,jab->ab", Ls[t][i] ** 2, N)) @ Iinv
-        np.testing.assert_allclose(res.extras["series"].covariance[t], P, rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(res.series.covariance[t], P, rtol=1e-8, atol=1e-12)
 
 
 def test_ckf_validation():
@@ -345,13 +382,13 @@ def test_zero_rounds_is_a_suboptimal_local_filter():
     dyn, ms, _ = observed_model(1)
     from distnav.algorithms.kalman import local_filters
 
-    loc = local_filters(dyn, ms).extras["series"]
+    loc = local_filters(dyn, ms).series
     r = ckf(dyn, ms, graph=builders.ring(ms.n_nodes), rounds=0)
-    s = r.extras["series"]
+    s = r.series
     assert r.comm.messages == 0
-    np.testing.assert_allclose(r.extras["alpha"], ms.n_nodes)
+    np.testing.assert_allclose(r.alpha, ms.n_nodes)
     assert np.array_equal(s.estimable, loc.estimable)
     m = s.estimable
     assert np.all(s.std[m] >= loc.std[m] * (1 - 1e-10))
     assert np.any(s.std[m] > loc.std[m] * 1.01)  # strictly worse somewhere: the weighting is not optimal
-    assert ckf(dyn, ms, graph=builders.ring(ms.n_nodes), rounds=3, variance=False).extras["product"] is None
+    assert ckf(dyn, ms, graph=builders.ring(ms.n_nodes), rounds=3, variance=False).product is None

@@ -272,10 +272,10 @@ def nlos_network():
 
 @pytest.mark.parametrize("loss", ["huber", "cauchy"])
 def test_robust_partial_gradient_matches_finite_differences(loss):
-    from distnav.algorithms.csg import _Neighbourhoods
+    from distnav.algorithms.neighbourhood import Neighbourhoods
 
     p = nlos_network()
-    nb = _Neighbourhoods(p, make_exchange(p.graph), loss, 0.1)
+    nb = Neighbourhoods(p, make_exchange(p.graph), loss, 0.1)
     P = nb.initial(p.initial_m)
     diff, g = nb.geometry(P)
     w, _ = nb.rho(g)
@@ -363,3 +363,71 @@ def test_validation():
         solve_ncsg(p, initial_m=np.zeros((3, 2)))
     with pytest.raises(ModelError, match="measurement graph"):
         solve_ncsg(p, exchange=make_exchange(ring(7)))
+
+
+# ---------------------------------------------------------------------- TBLS cap, results, monitoring
+def test_tbls_alpha0_cap_binds():
+    """Eq. (21): TBLS grows α by 1/β only while α ≤ α₀. With a tiny α₀ the Armijo test holds far beyond it
+    (checked independently below at 2α₀ and 4α₀), so every anchor's step must sit exactly at α₀, never above."""
+    p = paper_fig1_network(3)
+    alpha0 = 1e-6
+    _, steps = run_ours(p, "N-CSG-TBLS", 5, alpha0=alpha0)
+    moving = p.estimated  # anchors with a free coordinate have a non-zero direction
+    for st in steps:
+        assert np.all(st <= alpha0 * (1 + 1e-12))
+        np.testing.assert_allclose(st[moving], alpha0, rtol=1e-12)
+    # independent: at the start every moving anchor's Armijo test (subgradient slope) also holds at 2α₀ and 4α₀
+    nbr = {i: [int(j) for j in p.graph.neighbors(i)] for i in range(p.n_anchors)}
+    for i in np.flatnonzero(moving):
+        X_i = {k: p.initial_m[k].copy() for k in [int(i)] + nbr[int(i)]}
+        f0, gr = partial(p, X_i, int(i))
+        dd = sum(v @ v for v in gr.values())
+        for a in (2 * alpha0, 4 * alpha0):
+            trial = {k: X_i[k] - a * gr[k] for k in X_i}
+            assert partial(p, trial, int(i))[0] <= f0 - 0.5 * a * dd
+
+
+def test_results_are_typed_and_diverged_is_reported():
+    from distnav.algorithms.ranging import RangingResult
+
+    p = paper_fig1_network(3)
+    res = solve_ncsg(p, line_search="TBLS", iterations=20, loss="huber", loss_scale_m=0.01)
+    assert isinstance(res, RangingResult)
+    assert res.solver == "N-CSG-TBLS" and res.loss == "huber" and res.x is None
+    assert res.cost == pytest.approx(p.cost(res.estimates), rel=1e-12)
+    assert res.objective < res.cost  # Huber down-weights: Σ s²ρ(z) ≤ Σ g²
+    assert res.settings["alpha0"] == 1e-2
+    assert res.status == "max_iterations" and res.usable
+    with pytest.warns(DeprecationWarning):
+        assert res.extras["solver"] == "N-CSG-TBLS"
+    # a fixed step far too large for the geometry blows up: status diverged, not usable, the message says so
+    bad = solve_csg(p, alpha=1.0, iterations=50)
+    assert bad.status == "diverged" and not bad.usable and not bad.converged
+    assert "diverged" in bad.message and bad.iterations < 50
+
+
+@pytest.mark.parametrize("solver", ["CSG", "N-CSG-TBLS", "N-CLM"])
+def test_monitor_every_changes_only_the_trace(solver):
+    p = paper_fig1_network(3)
+    kw = {"alpha": 2e-3} if solver == "CSG" else {}
+    full = solve(p, solver, iterations=10, **kw)
+    sparse = solve(p, solver, iterations=10, monitor_every=4, **kw)
+    np.testing.assert_array_equal(full.estimates, sparse.estimates)
+    assert full.comm.messages == sparse.comm.messages
+    monitored = np.array([0, 4, 8, 10])
+    np.testing.assert_array_equal(np.flatnonzero(np.isfinite(sparse.trace["cost"])), monitored)
+    np.testing.assert_array_equal(sparse.trace["cost"][monitored], full.trace["cost"][monitored])
+    assert sparse.cost == full.cost
+    ends = solve(p, solver, iterations=10, monitor_every=0, **kw)
+    np.testing.assert_array_equal(np.flatnonzero(np.isfinite(ends.trace["rmse_m"])), [0, 10])
+    with pytest.raises(ModelError, match="monitor_every"):
+        solve(p, solver, iterations=10, monitor_every=-1, **kw)
+
+
+def test_ranging_like_is_a_deprecated_alias():
+    import distnav.algorithms.nlsq as nlsq
+    from distnav.algorithms.ranging import RangingData
+
+    with pytest.warns(DeprecationWarning, match="RangingData"):
+        assert nlsq.RangingLike is RangingData
+    assert isinstance(paper_fig1_network(2), RangingData)

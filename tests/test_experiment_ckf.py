@@ -63,4 +63,4 @@ def test_synthetic_model_normals_do_not_depend_on_the_node_subset():
     np.testing.assert_array_equal(N_sub, N_all[[3, 1]])
     np.testing.assert_array_equal(r_sub, r_all[[3, 1]])
     assert truth.shape == (6, 6)
-    assert central_filter(dyn, ms).extras["series"].estimable[-1].all()
+    assert central_filter(dyn, ms).series.estimable[-1].all()

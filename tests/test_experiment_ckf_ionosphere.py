@@ -46,12 +46,12 @@ def test_scenario_pivot_and_visibility():
 def test_initial_ratio_sqrt13():
     # equal normals (co-located receivers): exactly √13 up to the tiny system noise of one epoch
     _, _, s, d = exp.perth_scenario(3, colocated=True)
-    r, t = exp.initial_ratio(local_filters(d, s).extras["series"], central_filter(d, s).extras["series"])
+    r, t = exp.initial_ratio(local_filters(d, s).series, central_filter(d, s).series)
     assert r == pytest.approx(np.sqrt(13.0), rel=1e-3)
     # the real Perth layout: all receivers track the same satellites at the start, ratio close to √13
     _, _, s, d = exp.perth_scenario(3)
     assert (s.tracked[0] == s.tracked[0, 0]).all()
-    r, _ = exp.initial_ratio(local_filters(d, s).extras["series"], central_filter(d, s).extras["series"])
+    r, _ = exp.initial_ratio(local_filters(d, s).series, central_filter(d, s).series)
     assert r == pytest.approx(np.sqrt(13.0), rel=0.06)
 
 
@@ -77,8 +77,8 @@ def test_ckf_with_many_rounds_equals_central_on_perth_data():
     truth, obs, _ = simulate_geometry_free(geo, layout, exp.INTERVAL_S, rng=np.random.default_rng(5))
     ser = geometry_free_series(geo, layout, obs_m=obs)
     g = exp.perth_network()
-    c = central_filter(dyn, ser).extras["series"]
-    k = ckf(dyn, ser, graph=g, rounds=300, monitor=False).extras["series"]
+    c = central_filter(dyn, ser).series
+    k = ckf(dyn, ser, graph=g, rounds=300, monitor=False).series
     est = c.estimable[-1, 0]
     np.testing.assert_allclose(k.estimates[-1][:, est], np.broadcast_to(c.estimates[-1, 0, est], (13, est.sum())),
                                rtol=1e-6, atol=1e-6)

@@ -168,8 +168,8 @@ def test_central_information_filter_equals_covariance_form_on_differences():
     truth, obs, _ = simulate_geometry_free(geo, layout, 60.0, rng=rng)
     ser = geometry_free_series(geo, layout, obs_m=obs)
     dyn = ionosphere_dynamics(layout, 60.0)
-    info = central_filter(dyn, ser).extras["series"]
-    cov = kalman_filter(dyn, differenced_observations(ser)).extras["series"]
+    info = central_filter(dyn, ser).series
+    cov = kalman_filter(dyn, differenced_observations(ser)).series
     last = info.estimable[-1, 0]
     assert last[:3].all()
     np.testing.assert_allclose(info.estimates[-1, 0, last], cov.estimates[-1, 0, last], rtol=1e-6, atol=1e-6)
@@ -182,8 +182,8 @@ def test_colocated_receivers_start_sqrt_n_better():
     layout = IonosphereStateLayout(geo.svs, choose_pivot(geo.svs, geo.tracked))
     ser = geometry_free_series(geo, layout)
     dyn = ionosphere_dynamics(layout, 60.0)
-    c = central_filter(dyn, ser).extras["series"].std
-    loc = local_filters(dyn, ser).extras["series"].std
+    c = central_filter(dyn, ser).series.std
+    loc = local_filters(dyn, ser).series.std
     t = int(np.argmax(np.isfinite(loc[:, 0, 0])))
     np.testing.assert_allclose(loc[t, :, :3] / c[t, 0, :3], np.sqrt(5), rtol=1e-3)
 
@@ -196,7 +196,7 @@ def test_simulated_errors_consistent_with_std():
     z = []
     for seed in range(40):
         truth, obs, dsb = simulate_geometry_free(geo, layout, 120.0, rng=np.random.default_rng(seed))
-        s = central_filter(dyn, geometry_free_series(geo, layout, obs_m=obs)).extras["series"]
+        s = central_filter(dyn, geometry_free_series(geo, layout, obs_m=obs)).series
         est = s.estimable[-1, 0]
         z.append(((s.estimates[-1, 0] - truth[-1]) / s.std[-1, 0])[est][:8])
         # truth DCBs are the satellite DSB differences

@@ -81,9 +81,9 @@ def test_information_form_equals_covariance_form(seed, general_noise):
     dyn, ms = random_model(seed, general_noise=general_noise)
     info = central_filter(dyn, ms, store_matrices=True)
     cov = kalman_filter(dyn, ms, store_matrices=True)
-    si, sc = info.extras["series"], cov.extras["series"]
+    si, sc = info.series, cov.series
     _assert_series_equal(si, sc)
-    init = cov.extras["init_epoch"]
+    init = cov.init_epoch
     assert init >= 0
     # full error-variance matrices after the BLUP initialization
     np.testing.assert_allclose(si.covariance[init:], sc.covariance[init:], atol=1e-10, rtol=1e-9)
@@ -93,20 +93,20 @@ def test_rank_deficient_early_epochs_are_reported_as_nan():
     # identity transition: the late entry carries no information at all before epoch 6
     dyn, ms = random_model(5, identity_transition=True, late_entry=4, late_until=6)
     res = central_filter(dyn, ms)
-    s = res.extras["series"]
+    s = res.series
     assert not s.estimable[:6, 0, 4].any()
     assert np.isnan(s.estimates[:6, 0, 4]).all() and np.isnan(s.std[:6, 0, 4]).all()
     assert s.estimable[6:, 0].all()
     assert s.estimable[1:6, 0, :4].all()  # the others are estimable from epoch 1 on (enough rows)
     cov = kalman_filter(dyn, ms)
-    assert cov.extras["init_epoch"] == 6
-    _assert_series_equal(s, cov.extras["series"])
+    assert cov.init_epoch == 6
+    _assert_series_equal(s, cov.series)
 
 
 @pytest.mark.parametrize("epoch", [0, 2, 5, 9, 13])
 def test_information_filter_equals_batch_blup(epoch):
     dyn, ms = random_model(3, identity_transition=True)
-    s = central_filter(dyn, ms, store_matrices=True).extras["series"]
+    s = central_filter(dyn, ms, store_matrices=True).series
     x, est, P = batch_blup(dyn, ms, epoch)
     assert np.array_equal(est, s.estimable[epoch, 0])
     np.testing.assert_allclose(x[est], s.estimates[epoch, 0, est], atol=1e-10)
@@ -115,8 +115,8 @@ def test_information_filter_equals_batch_blup(epoch):
 
 def test_exact_average_filters_reproduce_central():
     dyn, ms = random_model(7)
-    c = central_filter(dyn, ms).extras["series"]
-    e = exact_average_filters(dyn, ms).extras["series"]
+    c = central_filter(dyn, ms).series
+    e = exact_average_filters(dyn, ms).series
     assert e.estimates.shape == (ms.n_epochs, ms.n_nodes, ms.n_states)
     for i in range(ms.n_nodes):
         assert np.array_equal(e.estimable[:, i], c.estimable[:, 0])
@@ -127,9 +127,9 @@ def test_exact_average_filters_reproduce_central():
 
 def test_local_filters_equal_single_node_covariance_form():
     dyn, ms = random_model(11, n=3, T=20, late_entry=None)
-    loc = local_filters(dyn, ms).extras["series"]
+    loc = local_filters(dyn, ms).series
     for i in range(ms.n_nodes):
-        ref = kalman_filter(dyn, ms, nodes=[i]).extras["series"]
+        ref = kalman_filter(dyn, ms, nodes=[i]).series
         assert np.array_equal(loc.estimable[:, i], ref.estimable[:, 0])
         np.testing.assert_allclose(np.nan_to_num(loc.estimates[:, i]), np.nan_to_num(ref.estimates[:, 0]),
                                    atol=1e-9)
@@ -145,8 +145,8 @@ def test_local_to_central_ratio_is_sqrt_n_at_start():
     Ns = np.broadcast_to(N[:, None], (T, n, p, p)).copy()
     ms = NormalSeries(Ns)
     dyn = DynamicModel.random_walk([0.1, 0.1, 0.0])
-    c = central_filter(dyn, ms).extras["series"]
-    loc = local_filters(dyn, ms).extras["series"]
+    c = central_filter(dyn, ms).series
+    loc = local_filters(dyn, ms).series
     ratio = std_ratio(loc, c)
     assert ratio.shape == (T, n, p)
     np.testing.assert_allclose(ratio[0], np.sqrt(n), rtol=1e-12)
@@ -173,8 +173,8 @@ def test_noise_map_equals_noise_cov():
     F = dyn1.transition_at(1)
     H = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]])
     dyn2 = DynamicModel(5, transition=F, noise_map=H, noise_reduced_cov=S[:2, :2])
-    a = central_filter(dyn1, ms).extras["series"]
-    b = central_filter(dyn2, ms).extras["series"]
+    a = central_filter(dyn1, ms).series
+    b = central_filter(dyn2, ms).series
     _assert_series_equal(a, b, tol=1e-12)
 
 
@@ -186,10 +186,10 @@ def test_per_epoch_dynamics_and_static_state():
     dyn = DynamicModel(p, transition=Fs, noise_cov=Ss)
     epochs = [[(rng.standard_normal((2, p)), np.ones(2), rng.standard_normal(2))] for _ in range(T)]
     ms = ObservationSeries(p, epochs)
-    _assert_series_equal(central_filter(dyn, ms).extras["series"], kalman_filter(dyn, ms).extras["series"])
+    _assert_series_equal(central_filter(dyn, ms).series, kalman_filter(dyn, ms).series)
     # no system noise: the filter is recursive least squares = the batch solution of all data
     static = DynamicModel(p)
-    s = central_filter(static, ms).extras["series"]
+    s = central_filter(static, ms).series
     A = np.concatenate([e[0][0] for e in epochs])
     y = np.concatenate([e[0][2] for e in epochs])
     np.testing.assert_allclose(s.estimates[-1, 0], np.linalg.lstsq(A, y, rcond=None)[0], atol=1e-12)
@@ -251,9 +251,9 @@ def test_normal_equations_full_and_diagonal():
 def test_function_series_and_node_subsets():
     dyn, ms = random_model(8)
     fs = FunctionSeries(ms.n_nodes, ms.n_epochs, ms.n_states, lambda t, nodes: ms.normals(t, nodes))
-    _assert_series_equal(central_filter(dyn, ms).extras["series"], central_filter(dyn, fs).extras["series"], 0)
-    sub = central_filter(dyn, ms, nodes=[0, 2]).extras["series"]
-    ref = kalman_filter(dyn, ms, nodes=[0, 2]).extras["series"]
+    _assert_series_equal(central_filter(dyn, ms).series, central_filter(dyn, fs).series, 0)
+    sub = central_filter(dyn, ms, nodes=[0, 2]).series
+    ref = kalman_filter(dyn, ms, nodes=[0, 2]).series
     _assert_series_equal(sub, ref)
 
 
@@ -367,11 +367,11 @@ def test_filter_entry_point_validation():
     with pytest.raises(ModelError, match="not estimable after 2 epochs"):
         kalman_filter(DynamicModel(2), ObservationSeries(2, [[(np.array([[1.0, 0.0]]), np.ones(1))]] * 5),
                       max_batch_epochs=2)
-    c = central_filter(dyn, ms).extras["series"]
-    short = local_filters(dyn, ObservationSeries(ms.n_states, [[None] * 2] * 3)).extras["series"]
+    c = central_filter(dyn, ms).series
+    short = local_filters(dyn, ObservationSeries(ms.n_states, [[None] * 2] * 3)).series
     with pytest.raises(ModelError, match="do not match"):
         std_ratio(short, c)
-    loc = local_filters(dyn, ms).extras["series"]
+    loc = local_filters(dyn, ms).series
     with pytest.raises(ModelError, match="one row or"):
         std_ratio(c, loc)
 
@@ -397,8 +397,8 @@ def test_long_gnss_like_run_stays_equal_to_covariance_form():
             row.append((A, var, rng.standard_normal(sats.size)) if sats.size else None)
         epochs.append(row)
     ms = ObservationSeries(p, epochs)
-    info = central_filter(dyn, ms).extras["series"]
-    cov = kalman_filter(dyn, ms).extras["series"]
+    info = central_filter(dyn, ms).series
+    cov = kalman_filter(dyn, ms).series
     assert np.array_equal(info.estimable, cov.estimable) and info.estimable[1:].all()
     m = info.estimable
     assert np.max(np.abs(info.estimates - cov.estimates)[m] / info.std[m]) < 1e-9

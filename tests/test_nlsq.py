@@ -38,8 +38,8 @@ def test_lm_reaches_scipy_lm_cost(dim):
                         xtol=1e-14, ftol=1e-14, gtol=1e-14)
     ref_cost = float(ref.fun @ ref.fun)
     assert ours.converged
-    assert ours.extras["cost"] == pytest.approx(ref_cost, rel=1e-9)
-    np.testing.assert_allclose(ours.extras["x"], ref.x, atol=1e-5)
+    assert ours.cost == pytest.approx(ref_cost, rel=1e-9)
+    np.testing.assert_allclose(ours.x, ref.x, atol=1e-5)
 
 
 def test_noise_free_lm_recovers_truth():
@@ -80,7 +80,7 @@ def test_koppanyi_published_problem_reaches_centralized_cost(shared_data):
                       initial_m=m["x0_mat"].T, truth_m=coors)
     assert np.sqrt(p.cost(sol)) == pytest.approx(ref_res, rel=1e-12)  # same residual definition as theirs
     res = solve_lm(p)
-    ours = np.sqrt(res.extras["cost"])
+    ours = np.sqrt(res.cost)
     assert ours <= ref_res * (1 + 1e-9)  # at least as low as the published centralized solution
     assert ours >= ref_res * (1 - 1e-6)  # ... and the same minimum
     np.testing.assert_allclose(res.estimates, sol, atol=0.1)  # units of the problem (≈ 0–1000)

@@ -211,3 +211,16 @@ def test_distributed_solve_under_mpi_writes_the_same_positions(tmp_path):
     a = json.loads((tmp_path / "mpi" / "summary.json").read_text())
     b = json.loads((tmp_path / "local" / "summary.json").read_text())
     assert a["messages"] == b["messages"] > 0 and a["rms_cost"] == b["rms_cost"]
+
+
+def test_diverged_run_exits_non_zero_and_writes_no_positions(tmp_path, capsys, monkeypatch):
+    import distnav.commands.uwb as cmd
+
+    real = cmd.solve
+    monkeypatch.setattr(cmd, "solve", lambda *a, **kw: real(*a, **{**kw, "alpha": 1.0}))  # a step that blows up
+    f = hall(tmp_path, ceiling=False)
+    out = tmp_path / "out"
+    assert run(f, out, "--solver", "CSG", "--iterations", "50", "--initial", str(f["initial"])) == 1
+    assert json.loads((out / "summary.json").read_text())["status"] == "diverged"
+    assert not (out / "positions.csv").exists() and not (out / "positions.png").exists()
+    assert "diverged" in capsys.readouterr().err

@@ -14,7 +14,7 @@ Error variance (Fig. 7, eqs. (41)–(45)): ``I_i,t|t⁻¹`` is *not* the error v
 ``L = W_(k_n)⋯W_(1)`` (eq. (33)) and ``l_ij`` its entries,
 ``P_i,t|t = I_i,t|t⁻¹ (I_i,t|t−1 P_i,t|t−1 I_i,t|t−1 + n² Σ_j l_ij² N_j,t) I_i,t|t⁻¹``,
 ``P_i,t|t−1 = Φ_t P_i,t−1|t−1 Φ_tᵀ + S_t``. distnav propagates the equivalent information-error variance
-``Q_i = D(I_i x_t − i_i) = I_i P_i I_i`` (see :class:`distnav.algorithms.kalman._InfoKernel`), which stays finite
+``Q_i = D(I_i x_t − i_i) = I_i P_i I_i`` (see :class:`distnav.algorithms.kalman.InformationKernel`), which stays finite
 while ``I_i`` is still singular (BLUP start, unobserved entries); ``P_i = I_i⁺ Q_i I_i⁺`` on the estimable entries.
 The extra term ``Σ_j l_ij² N_j,t`` is information no node has (the paper says so): it is assembled with
 ``ex.gather_nodes`` as an analysis quantity. :func:`ckf_error_variance` runs the recursion alone (no data, no
@@ -30,27 +30,31 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from distnav.algorithms.consensus import ConsensusSchedule, consensus_product, consensus_schedule
 from distnav.algorithms.kalman import (
     DynamicModel,
+    FilterResult,
     FilterSeries,
+    InformationKernel,
     MeasurementSeries,
-    _check_pair,
-    _InfoKernel,
-    _std,
+    check_model,
+    masked_std,
     pseudo_inverse_psd,
     std_ratio,
 )
-from distnav.algorithms.result import LegacyResult, SolverResult, TraceBuilder
+from distnav.algorithms.result import TraceBuilder
 from distnav.errors import ModelError, WeightsError
 from distnav.exchange import Exchange, make_exchange
 from distnav.exchange.base import CommTotals
 from distnav.network.graph import Graph, SwitchingGraph
 from distnav.network.weights import ConsensusWeights
+from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
+
+ConsensusProtocol = str | int | ConsensusWeights | Sequence[ConsensusWeights]
+"""A consensus protocol: a Table 1 name or number (``"P1"``…``"P4"``), one weight object, or one per session."""
 
 __all__ = [
     "consensus_rounds",
@@ -79,12 +83,13 @@ def consensus_rounds(sampling_interval_s: float, sending_interval_s: float) -> i
     return int(math.floor(D / d + 1e-9))
 
 
-def alpha_factor(product: np.ndarray) -> np.ndarray:
+def alpha_factor(product: ArrayLike) -> FloatArray:
     """``α_i = n Σ_j l_ij²`` per node (paper 003 eq. (46)); ``α_i ≥ 1`` with equality iff ``l_i = e/n`` (eq. (48))."""
     L = np.asarray(product, dtype=float)
     if L.ndim != 2 or L.shape[0] != L.shape[1]:
         raise WeightsError(f"product matrix must be square, got shape {L.shape}")
-    return L.shape[0] * (L**2).sum(axis=1)
+    alpha: FloatArray = L.shape[0] * (L**2).sum(axis=1)
+    return alpha
 
 
 def _resolve_rounds(rounds: int | None, sampling_interval_s: float | None, sending_interval_s: float | None) -> int:
@@ -99,7 +104,7 @@ def _resolve_rounds(rounds: int | None, sampling_interval_s: float | None, sendi
     return consensus_rounds(sampling_interval_s, sending_interval_s)
 
 
-def _schedule(graph: Graph | SwitchingGraph | None, protocol: Any,
+def _schedule(graph: Graph | SwitchingGraph | None, protocol: ConsensusProtocol,
               schedule: ConsensusSchedule | None, n_nodes: int) -> ConsensusSchedule:
     if schedule is None:
         if graph is None:
@@ -110,11 +115,11 @@ def _schedule(graph: Graph | SwitchingGraph | None, protocol: Any,
     return schedule
 
 
-def _triu(p: int) -> tuple[np.ndarray, np.ndarray]:
+def _triu(p: int) -> tuple[IntArray, IntArray]:
     return np.triu_indices(p)
 
 
-def _symmetric(tri: np.ndarray, up: np.ndarray, lo: np.ndarray, k: int, p: int) -> np.ndarray:
+def _symmetric(tri: FloatArray, up: IntArray, lo: IntArray, k: int, p: int) -> FloatArray:
     """Rebuild symmetric (k, p, p) matrices from their upper triangles (flat indices ``up``, mirror ``lo``)."""
     out = np.empty((k, p * p))
     out[:, lo] = tri
@@ -134,19 +139,19 @@ class CKFState:
     """
 
     epoch: int
-    nodes: np.ndarray
-    information: np.ndarray
-    info_vector: np.ndarray
-    estimates: np.ndarray
-    estimable: np.ndarray
-    covariance: np.ndarray | None
-    nominal_covariance: np.ndarray
+    nodes: IntArray
+    information: FloatArray
+    info_vector: FloatArray
+    estimates: FloatArray
+    estimable: BoolArray
+    covariance: FloatArray | None
+    nominal_covariance: FloatArray
     consensus_deviation: float
 
 
 def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
                 graph: Graph | SwitchingGraph | None = None,
-                protocol: str | int | ConsensusWeights | Sequence[ConsensusWeights] = "P3",
+                protocol: ConsensusProtocol = "P3",
                 rounds: int | None = None, sampling_interval_s: float | None = None,
                 sending_interval_s: float | None = None, exchange: Exchange | None = None,
                 schedule: ConsensusSchedule | None = None, variance: bool = True,
@@ -159,7 +164,7 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     Each consensus round sends one message per directed edge holding the upper triangle of ``N_i^(k)`` and
     ``r_i^(k)`` (p(p+1)/2 + p floats).
     """
-    _check_pair(dynamics, measurements)
+    check_model(dynamics, measurements)
     kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
     n = measurements.n_nodes
     sched = _schedule(graph, protocol, schedule, n)
@@ -174,7 +179,7 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     k_loc = nodes.size
     track_L = variance and ex.faults.active
     L_nominal = consensus_product(sched, kn) if (variance and not track_L) else None
-    ker = _InfoKernel(k_loc, p, track_error=variance)
+    ker = InformationKernel(k_loc, p, track_error=variance)
     up = iu[0] * p + iu[1]  # flat indices of the upper triangle and of its mirror
     lo = iu[1] * p + iu[0]
     for t in range(measurements.n_epochs):
@@ -192,7 +197,11 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         rk = payload[:, n_tri:n_tri + p]
         extra = None
         if variance:
-            L_rows = payload[:, n_tri + p:] if track_L else L_nominal[nodes]  # type: ignore[index]
+            if track_L:
+                L_rows = payload[:, n_tri + p:]
+            else:
+                assert L_nominal is not None
+                L_rows = L_nominal[nodes]
             N_all = ex.gather_nodes(tri)  # analysis input of Fig. 7 (no node has it)
             extra = _symmetric((n * n) * ((L_rows**2) @ N_all), up, lo, k_loc, p)
         ker.measurement_update(Nk, rk, scale=float(n), extra_error=extra)
@@ -208,19 +217,19 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
 
 def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         graph: Graph | SwitchingGraph | None = None,
-        protocol: str | int | ConsensusWeights | Sequence[ConsensusWeights] = "P3",
+        protocol: ConsensusProtocol = "P3",
         rounds: int | None = None, sampling_interval_s: float | None = None,
         sending_interval_s: float | None = None, exchange: Exchange | None = None,
         schedule: ConsensusSchedule | None = None, variance: bool = True, monitor: bool = True,
-        store_matrices: bool = False) -> SolverResult:
+        store_matrices: bool = False) -> FilterResult:
     """Run the CKF (paper 003 Fig. 6) over all epochs; see :func:`iterate_ckf` for the arguments.
 
-    Returns a :class:`SolverResult`: ``estimates`` = last-epoch ``x̂_i,t|t`` (n×p), ``iterations`` = epochs,
-    ``comm`` = message/byte totals of all consensus rounds, ``extras``: ``"series"`` (:class:`FilterSeries`
-    over all nodes: ``std`` from Fig. 7, ``nominal_std`` = sqrt diag ``I_i⁻¹``; with ``store_matrices`` also
-    ``covariance`` = ``P_i,t|t`` and ``information`` = ``I_i,t|t`` for every epoch), ``"information"``,
-    ``"info_vector"``, ``"covariance"`` (last epoch), ``"rounds"`` (k_n), ``"product"`` (``L``) and ``"alpha"``
-    (with ``variance`` only). Trace: ``consensus_deviation`` per epoch.
+    Returns a :class:`FilterResult` (``mode="ckf"``): ``estimates`` = last-epoch ``x̂_i,t|t`` (n×p),
+    ``iterations`` = epochs, ``comm`` = message/byte totals of all consensus rounds, ``series``
+    (:class:`FilterSeries` over all nodes: ``std`` from Fig. 7, ``nominal_std`` = sqrt diag ``I_i⁻¹``; with
+    ``store_matrices`` also ``covariance`` = ``P_i,t|t`` and ``information`` = ``I_i,t|t`` for every epoch),
+    ``information``, ``info_vector``, ``covariance`` (last epoch), ``rounds`` (k_n), ``product`` (``L``) and
+    ``alpha`` (with ``variance`` only). Trace: ``consensus_deviation`` per epoch.
 
     Memory: the per-epoch series are (T, n, p) arrays, and the variance recursion needs the dense n×n ``L`` and
     ``Σ_j l_ij² N_j`` (O(n² p²) work per epoch): for very large networks iterate with :func:`iterate_ckf` and
@@ -230,16 +239,21 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     n = measurements.n_nodes
     sched = _schedule(graph, protocol, schedule, n)
     ex = exchange if exchange is not None else make_exchange(sched.graph)
-    xs, stds, nstds, ests, covs, infos = [], [], [], [], [], []
+    xs: list[FloatArray] = []
+    stds: list[FloatArray] = []
+    nstds: list[FloatArray] = []
+    ests: list[BoolArray] = []
+    covs: list[FloatArray] = []
+    infos: list[FloatArray] = []
     tb = TraceBuilder()
     last: CKFState | None = None
     for st in iterate_ckf(dynamics, measurements, rounds=kn, exchange=ex, schedule=sched, variance=variance,
                           monitor=monitor):
         xs.append(ex.gather_nodes(st.estimates))
         ests.append(ex.gather_nodes(st.estimable))
-        nstds.append(ex.gather_nodes(_std(st.nominal_covariance, st.estimable)))
+        nstds.append(ex.gather_nodes(masked_std(st.nominal_covariance, st.estimable)))
         if st.covariance is not None:
-            stds.append(ex.gather_nodes(_std(st.covariance, st.estimable)))
+            stds.append(ex.gather_nodes(masked_std(st.covariance, st.estimable)))
         if store_matrices:
             infos.append(ex.gather_nodes(st.information))
             if st.covariance is not None:
@@ -257,20 +271,20 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     comm: CommTotals = ex.comm_totals()
     est_last = series.estimable[-1]
     complete = bool(est_last.all())
-    return LegacyResult(
+    return FilterResult(
         estimates=series.estimates[-1], converged=complete, iterations=measurements.n_epochs,
         status="converged" if complete else "stopped",
         message=(f"CKF over {measurements.n_epochs} epochs with k_n = {kn} consensus rounds each; "
                  f"{int(est_last.sum())}/{est_last.size} node-entries estimable at the last epoch"),
         trace=tb.build(), comm=comm,
-        legacy={"series": series, "information": ex.gather_nodes(last.information),
-                "info_vector": ex.gather_nodes(last.info_vector),
-                "covariance": ex.gather_nodes(last.covariance) if last.covariance is not None else None,
-                "rounds": kn, "product": L, "alpha": alpha_factor(L) if L is not None else None},
+        series=series, mode="ckf", information=ex.gather_nodes(last.information),
+        info_vector=ex.gather_nodes(last.info_vector),
+        covariance=ex.gather_nodes(last.covariance) if last.covariance is not None else None,
+        rounds=kn, product=L, alpha=alpha_factor(L) if L is not None else None,
     )
 
 
-def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, product: np.ndarray, *,
+def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, product: ArrayLike, *,
                        store_matrices: bool = False) -> FilterSeries:
     """The CKF error-variance recursion of Fig. 7 alone, for every node and epoch, from ``L`` (= ``W^(k_n)``).
 
@@ -279,16 +293,20 @@ def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, 
     Returns a :class:`FilterSeries` with ``std`` = sqrt diag ``P_i,t|t`` and ``nominal_std`` = sqrt diag
     ``I_i,t|t⁻¹`` (``estimates`` are NaN).
     """
-    _check_pair(dynamics, measurements)
+    check_model(dynamics, measurements)
     n, p = measurements.n_nodes, measurements.n_states
     L = np.asarray(product, dtype=float)
     if L.shape != (n, n):
         raise ModelError(f"product matrix must be {n}×{n}, got {L.shape}")
     L2 = L**2
     iu = _triu(p)
-    ker = _InfoKernel(n, p, track_error=True)
+    ker = InformationKernel(n, p, track_error=True)
     T = measurements.n_epochs
-    stds, nstds, ests, covs, infos = [], [], [], [], []
+    stds: list[FloatArray] = []
+    nstds: list[FloatArray] = []
+    ests: list[BoolArray] = []
+    covs: list[FloatArray] = []
+    infos: list[FloatArray] = []
     for t in range(T):
         if t > 0:
             ker.time_update(dynamics, t)
@@ -305,8 +323,8 @@ def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, 
         inv, est = pseudo_inverse_psd(ker.I)
         assert ker.Q is not None
         P = inv @ ker.Q @ inv
-        stds.append(_std(P, est))
-        nstds.append(_std(inv, est))
+        stds.append(masked_std(P, est))
+        nstds.append(masked_std(inv, est))
         ests.append(est)
         if store_matrices:
             covs.append(0.5 * (P + np.swapaxes(P, 1, 2)))
@@ -318,6 +336,6 @@ def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, 
                         information=np.stack(infos) if store_matrices else None)
 
 
-def ckf_std_ratio(ckf_series: FilterSeries, central_series: FilterSeries) -> np.ndarray:
+def ckf_std_ratio(ckf_series: FilterSeries, central_series: FilterSeries) -> FloatArray:
     """CKF-to-central standard-deviation ratios per epoch, node and parameter (paper 003 Fig. 12), (T, n, p)."""
     return std_ratio(ckf_series, central_series)

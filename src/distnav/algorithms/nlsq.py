@@ -16,8 +16,9 @@ and acceptance is judged on the robust objective ``F = Σ s_l² ρ((g_l/s_l)²)`
 Huber ``ρ(z) = z`` for ``z ≤ 1`` else ``2√z − 1``; Cauchy ``ρ(z) = ln(1 + z)``). The gradients of the weighted
 model and of ``F`` agree, so the fixed points are those of ``F``.
 
-:func:`solve_lm` applies it to a UWB ranging problem (:mod:`distnav.models.uwb.problems`, duck-typed here so
-``algorithms`` does not import ``models``) and returns the common :class:`~distnav.algorithms.result.SolverResult`.
+:func:`solve_lm` applies it to a UWB ranging problem (:class:`~distnav.algorithms.ranging.RangingData`, which
+:class:`distnav.models.uwb.problems.RangingProblem` extends) and returns a
+:class:`~distnav.algorithms.ranging.RangingResult`.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -33,14 +34,16 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from distnav.algorithms.result import LegacyResult, SolverResult, Trace
+from distnav.algorithms.ranging import RangingData, RangingResult
+from distnav.algorithms.result import Trace
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
 
-__all__ = ["single_threaded_blas", "levenberg_marquardt", "LMResult", "solve_lm", "RangingLike", "LOSSES",
+__all__ = ["single_threaded_blas", "levenberg_marquardt", "LMResult", "solve_lm", "LOSSES", "OBJECTIVES", "loss_terms",
            "robust_weights", "range_loss_scale"]
 
-LOSSES = ("linear", "huber", "cauchy")
+LOSSES = ("linear", "huber", "soft_l1", "cauchy")
+OBJECTIVES = ("squared", "metres")
 
 
 def _openblas_handles() -> list[tuple[Any, Any]]:
@@ -102,60 +105,48 @@ def single_threaded_blas() -> Iterator[None]:
             setter(n)
 
 
-class RangingLike(Protocol):
-    """What the UWB solvers need from a ranging problem (see :class:`distnav.models.uwb.problems.RangingProblem`)."""
+def __getattr__(name: str) -> Any:
+    if name == "RangingLike":  # the protocol that restated RangingProblem; one definition now: RangingData
+        import warnings
 
-    @property
-    def ids(self) -> tuple[str, ...]: ...
-    @property
-    def dim(self) -> int: ...
-    @property
-    def positions_m(self) -> np.ndarray: ...
-    @property
-    def free(self) -> np.ndarray: ...
-    @property
-    def meas_a(self) -> np.ndarray: ...
-    @property
-    def meas_b(self) -> np.ndarray: ...
-    @property
-    def range_m(self) -> np.ndarray: ...
-    @property
-    def truth_m(self) -> np.ndarray | None: ...
-    @property
-    def initial_m(self) -> np.ndarray | None: ...
-    @property
-    def n_anchors(self) -> int: ...
-    @property
-    def n_free(self) -> int: ...
-    @property
-    def estimated(self) -> np.ndarray: ...
-    @property
-    def range_sq(self) -> np.ndarray: ...
-    @property
-    def graph(self) -> Any: ...
-    def to_vector(self, positions_m: np.ndarray) -> np.ndarray: ...
-    def to_positions(self, x: np.ndarray) -> np.ndarray: ...
-    def residuals(self, positions_m: np.ndarray) -> np.ndarray: ...
-    def cost(self, positions_m: np.ndarray) -> float: ...
-    def jacobian(self, positions_m: np.ndarray) -> sp.csr_matrix: ...
+        warnings.warn("distnav.algorithms.nlsq.RangingLike is deprecated: use distnav.algorithms.ranging.RangingData",
+                      DeprecationWarning, stacklevel=2)
+        return RangingData
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def robust_weights(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple[np.ndarray, float]:
-    """Per-residual IRLS weights ``ρ'((g/s)²)`` and the objective ``Σ s² ρ((g/s)²)`` (linear: 1 and ``Σ g²``)."""
+def loss_terms(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per-residual IRLS weights ``ρ'((g/s)²)`` and objective terms ``s² ρ((g/s)²)`` (linear: 1 and ``g²``).
+
+    scipy's conventions (``least_squares(loss=...)``): Huber ``ρ(z) = z`` for ``z ≤ 1`` else ``2√z − 1``;
+    soft-L1 ``ρ(z) = 2(√(1 + z) − 1)``; Cauchy ``ρ(z) = ln(1 + z)``.
+    """
     if loss == "linear":
-        return np.ones_like(g), float(g @ g)
+        return np.ones_like(g), g * g
     s = np.broadcast_to(np.asarray(scale, float), g.shape)
     z = (g / s) ** 2
     if loss == "huber":
         small = z <= 1.0
         rz = np.where(small, z, 2.0 * np.sqrt(z) - 1.0)
         w = np.where(small, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))
+    elif loss == "soft_l1":
+        t = np.sqrt(1.0 + z)
+        rz = 2.0 * (t - 1.0)
+        w = 1.0 / t
     elif loss == "cauchy":
         rz = np.log1p(z)
         w = 1.0 / (1.0 + z)
     else:
         raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-    return w, float(np.sum(s * s * rz))
+    return np.asarray(w), np.asarray(s * s * rz)
+
+
+def robust_weights(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple[np.ndarray, float]:
+    """Per-residual IRLS weights ``ρ'((g/s)²)`` and the objective ``Σ s² ρ((g/s)²)`` (linear: 1 and ``Σ g²``)."""
+    if loss == "linear":
+        return np.ones_like(g), float(g @ g)
+    w, terms = loss_terms(g, scale, loss)
+    return w, float(np.sum(terms))
 
 
 @dataclass(frozen=True)
@@ -391,16 +382,16 @@ def levenberg_marquardt(
                     trace={key: np.asarray(v) for key, v in tb.items()})
 
 
-def range_loss_scale(problem: RangingLike, loss_scale_m: float) -> np.ndarray:
+def range_loss_scale(problem: RangingData, loss_scale_m: float) -> np.ndarray:
     """Residual scale ``s_l = 2 d_l σ`` of ``g_l = ‖r_a − r_b‖² − d_l²`` for a range error of ``σ`` metres
     (``g ≈ 2 d (‖r_a − r_b‖ − d)``), so the robust loss switches at range errors of about ``loss_scale_m``."""
     if not loss_scale_m > 0:
         raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
-    return 2.0 * np.maximum(problem.range_m, loss_scale_m) * loss_scale_m
+    return np.asarray(2.0 * np.maximum(problem.range_m, loss_scale_m) * loss_scale_m)
 
 
 def solve_lm(
-    problem: RangingLike,
+    problem: RangingData,
     *,
     initial_m: np.ndarray | None = None,
     max_iterations: int = 500,
@@ -411,62 +402,109 @@ def solve_lm(
     loss: str = "linear",
     loss_scale_m: float = 0.3,
     pad_trace: bool = False,
-) -> SolverResult:
-    """Global LM (paper 002 eq. (8), Fletcher scaling) on a ranging problem; returns a :class:`SolverResult`.
+    objective: str = "squared",
+    sigma_m: float | np.ndarray = 1.0,
+    graduated: bool | None = None,
+    range_offsets: str = "none",
+    offset_prior_sigma_m: float = 0.1,
+    quality: bool = True,
+    test_level: float = 0.001,
+    test_scale: str = "robust",
+) -> RangingResult:
+    """Global LM (paper 002 eq. (8), Fletcher scaling) on a ranging problem; returns a :class:`RangingResult`.
 
     ``estimates`` are the ``(n, dim)`` anchor positions. Trace (one row per iteration, plus row 0 = start):
     ``cost`` (``f`` of eq. (2)), ``objective`` (robust ``F``), ``rmse_m`` (eq. (24), when the truth is known),
     ``step_size`` (‖δ‖, 0 for a rejected step), ``lambda``. With ``pad_trace`` the trace is extended to
     ``max_iterations`` rows by repeating the final state (for averaging runs that stopped early).
-    ``loss`` = ``"huber"``/``"cauchy"`` down-weights ranges off by more than about ``loss_scale_m`` (NLOS).
+    ``loss`` = ``"huber"``/``"soft_l1"``/``"cauchy"`` down-weights ranges off by more than about ``loss_scale_m``.
     No messages are counted: gathering the ranges at a centre is not modelled (``comm`` is empty).
+
+    ``objective="metres"`` fits ``e = ‖r_a − r_b‖ − d`` with weight ``1/sigma_m²`` instead of paper 002's squared
+    form (:mod:`distnav.algorithms.ranging_objective`); ``graduated`` (default: on for metres) first fits the linear
+    loss, then the robust one from there. ``range_offsets="common"|"per_anchor"`` (metres only) estimates a common
+    range offset or per-anchor antenna delays (prior σ ``offset_prior_sigma_m``) jointly with the positions.
+    ``quality`` adds the per-anchor covariance (``precision``) and per-sample w-tests (``tests``) at the solution
+    (:func:`distnav.algorithms.ranging_qc.centralized_quality`; ``test_level``, ``test_scale``).
     """
+    from distnav.algorithms.ranging_objective import RangeObjective
+    from distnav.algorithms.ranging_qc import centralized_quality
+
     init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
     if init is None:
         raise ModelError("global LM needs an initial guess (problem.initial_m or initial_m=)")
-    x0 = problem.to_vector(init)
+    if loss not in LOSSES:
+        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    obj = RangeObjective(problem, objective, sigma_m, range_offsets, offset_prior_sigma_m)
+    x0 = obj.x0(init)
     truth = problem.truth_m
     est = problem.estimated
-    scale = range_loss_scale(problem, loss_scale_m) if loss != "linear" else 1.0
+    scale = obj.loss_scale(loss_scale_m) if loss != "linear" else 1.0
     rm: list[float] = []
 
     def rmse(x: np.ndarray) -> float:
         if truth is None:
             return float("nan")
-        d = problem.to_positions(x)[est] - truth[est]
+        d = obj.split(x)[0][est] - truth[est]
         return float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d)))) if est.any() else 0.0
 
     rm.append(rmse(x0))
-    res = levenberg_marquardt(
-        lambda x: problem.residuals(problem.to_positions(x)),
-        lambda x: problem.jacobian(problem.to_positions(x)),
-        x0, max_iterations=max_iterations, ftol=ftol, xtol=xtol, gtol=gtol, lambda0=lambda0, loss=loss,
-        loss_scale=scale, callback=(lambda k, x: rm.append(rmse(x))) if truth is not None else None,
-    )
-    g0 = problem.residuals(init)
-    tr = res.trace
-    cost = np.concatenate([[float(g0 @ g0)], tr["cost"]])
+    callback = (lambda k, x: rm.append(rmse(x))) if truth is not None else None
+    stages = []
+    x_start = x0
+    if (objective == "metres" if graduated is None else graduated) and loss != "linear":
+        first = levenberg_marquardt(obj.residual, obj.jacobian, x0, max_iterations=max_iterations, ftol=ftol,
+                                    xtol=xtol, gtol=gtol, lambda0=lambda0, callback=callback)
+        stages.append(first)
+        x_start = first.x
+    res = levenberg_marquardt(obj.residual, obj.jacobian, x_start, max_iterations=max_iterations, ftol=ftol,
+                              xtol=xtol, gtol=gtol, lambda0=lambda0, loss=loss, loss_scale=scale, callback=callback)
+    stages.append(res)
+    g0 = obj.residual(x0)
+    cost = np.concatenate([[float(g0 @ g0)]] + [st.trace["cost"] for st in stages])
     obj0 = robust_weights(g0, scale, loss)[1]
-    objective = np.concatenate([[obj0], tr["objective"]])
-    step = np.concatenate([[0.0], tr["step_norm"]])
-    lam = np.concatenate([[lambda0], tr["lambda"]])
+    objective_tr = np.concatenate([[obj0]] + [st.trace["objective"] for st in stages])
+    step = np.concatenate([[0.0]] + [st.trace["step_norm"] for st in stages])
+    lam = np.concatenate([[lambda0]] + [st.trace["lambda"] for st in stages])
     rmse_tr = np.asarray(rm) if truth is not None else np.full(cost.size, np.nan)
     if pad_trace and cost.size < max_iterations + 1:
         pad = max_iterations + 1 - cost.size
         cost = np.concatenate([cost, np.full(pad, cost[-1])])
-        objective = np.concatenate([objective, np.full(pad, objective[-1])])
+        objective_tr = np.concatenate([objective_tr, np.full(pad, objective_tr[-1])])
         step = np.concatenate([step, np.zeros(pad)])
         lam = np.concatenate([lam, np.full(pad, lam[-1])])
         rmse_tr = np.concatenate([rmse_tr, np.full(pad, rmse_tr[-1])])
-    trace = Trace({"cost": cost, "objective": objective, "rmse_m": rmse_tr, "step_size": step, "lambda": lam})
-    pos = problem.to_positions(res.x)
-    return LegacyResult(
+    trace = Trace({"cost": cost, "objective": objective_tr, "rmse_m": rmse_tr, "step_size": step, "lambda": lam})
+    pos, off = obj.split(res.x)
+    precision = tests = None
+    off_std = None
+    if quality:
+        r = obj.residual(res.x)
+        w = robust_weights(r, scale, loss)[0]
+        precision, tests, Q = centralized_quality(problem, obj.jacobian(res.x), r, w, problem.n_meas,
+                                                  level=test_level, scale=test_scale)
+        if Q is not None and obj.n_offsets:
+            s2 = precision.variance_factor if precision is not None and precision.variance_factor else 1.0
+            off_std = np.sqrt(np.diag(Q)[problem.n_free:] * s2)
+    iterations = sum(st.iterations for st in stages)
+    return RangingResult(
         estimates=pos,
         converged=res.converged,
-        iterations=res.iterations,
+        iterations=iterations,
         status="converged" if res.converged else "max_iterations",
         message=f"LM: {res.message}; cost {res.cost:.6g}",
         trace=trace,
         comm=CommTotals.empty(problem.n_anchors),
-        legacy={"solver": "LM", "cost": res.cost, "objective": res.objective, "x": res.x, "loss": loss},
+        solver="LM",
+        cost=res.cost,
+        objective=res.objective,
+        loss=loss,
+        x=res.x,
+        settings={"lambda0": lambda0, "ftol": ftol, "xtol": xtol, "gtol": gtol, "sigma_m": sigma_m,
+                  "range_offsets": range_offsets, "graduated": len(stages) > 1},
+        objective_kind=objective,
+        precision=precision,
+        tests=tests,
+        offsets_m=off if obj.n_offsets else None,
+        offsets_std_m=off_std,
     )

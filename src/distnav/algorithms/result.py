@@ -77,7 +77,8 @@ class Precision:
     variance_factor : a-posteriori variance factor σ̂² = êᵀR⁻¹ê / redundancy, or ``None`` where the redundancy is 0.
     redundancy : number of observations minus the number of estimable parameters (m − rank A).
     kind : ``"exact"`` (equal to the centralized value up to the stopping tolerance), ``"bound"`` (a stated upper
-        bound, never optimistic) or ``"centralized"`` (computed at one place).
+        bound, never optimistic), ``"centralized"`` (computed at one place) or ``"conditional"`` (each node's
+        covariance with its neighbours held at their estimates: a lower bound, optimistic, and said so).
     iterations : message rounds or iterations spent on the precision (beyond those of the estimate).
     comm : the messages and bytes they cost (``None`` for centralized values).
     """
@@ -85,7 +86,7 @@ class Precision:
     covariance: np.ndarray
     variance_factor: float | None
     redundancy: float
-    kind: Literal["exact", "bound", "centralized"]
+    kind: Literal["exact", "bound", "centralized", "conditional"]
     iterations: int = 0
     comm: CommTotals | None = None
 

@@ -279,11 +279,11 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         graph = _default_graph(data.positions_ecef_m, stations)
     _say(args, f"{n} station(s), {series.n_epochs} epochs, {len(layout.svs)} satellites, pivot {layout.pivot}, "
                f"ionosphere {data.ionosphere}; graph links {[(stations[i], stations[j]) for i, j in graph.links]}")
-    central = central_filter(dyn, series).extras["series"]
-    local = local_filters(dyn, series).extras["series"]
+    central = central_filter(dyn, series).series
+    local = local_filters(dyn, series).series
     res = ckf(dyn, series, graph=graph, protocol="P3", rounds=args.kn, monitor=False,
               exchange=command_exchange(args, graph))
-    ck = res.extras["series"]
+    ck = res.series
 
     names = layout.state_names(stations)
     n_tec = layout.n_tec

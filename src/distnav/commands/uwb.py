@@ -203,6 +203,7 @@ def _plot(path: Path, problem: RangingProblem, est: np.ndarray) -> None:
     plt.close(fig)
 
 
+@np.errstate(over="ignore", invalid="ignore")  # a diverged run's summary reads huge estimates
 def _handler(args: argparse.Namespace) -> int:
     problem, result, summary = solve_range_log(
         args.ranges, args.known, initial=args.initial, truth=args.truth, heights=args.heights, solver=args.solver,
@@ -215,12 +216,18 @@ def _handler(args: argparse.Namespace) -> int:
         for w in summary["warnings"]:
             print(f"warning: {w}", file=sys.stderr)
         out.mkdir(parents=True, exist_ok=True)
-        write_positions(out / "positions.csv", problem.ids, result.estimates)
         atomic_write_json(out / "summary.json", summary)
+        if not result.usable:  # e.g. "diverged": the estimates are not a result; write no positions
+            print(f"error: {result.message} (status {result.status}); no positions written, see "
+                  f"{out / 'summary.json'}", file=sys.stderr)
+            return 1
+        write_positions(out / "positions.csv", problem.ids, result.estimates)
         try:
             _plot(out / "positions.png", problem, result.estimates)
         except ImportError as exc:  # pragma: no cover - plot extra missing
             print(f"warning: no plot ({exc})", file=sys.stderr)
+    if not result.usable:
+        return 1
     rm = summary["rmse_m"]
     print(f"{summary['solver']}: {summary['iterations']} iterations, rms_cost {summary['rms_cost']:.4g} m², "
           f"range residual RMS {summary['range_residual_rms_m']:.3f} m"

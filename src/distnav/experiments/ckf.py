@@ -129,9 +129,9 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         drops = FaultSchedule(drop_probability=DROP_PROBABILITY, seed=7)
         lossy = ckf(dyn, ms, schedule=sched, rounds=DROP_KN, exchange=ctx.exchange(graph, faults=drops))
         advance(1)
-    cs = central.extras["series"]
-    ls = local.extras["series"]
-    ratios = {kn: ckf_std_ratio(r.extras["series"], cs) for kn, r in runs.items()}
+    cs = central.series
+    ls = local.series
+    ratios = {kn: ckf_std_ratio(r.series, cs) for kn, r in runs.items()}
     local_ratio = std_ratio(ls, cs)
 
     alpha_rows = [alpha_factor(consensus_product(sched, kn)) for kn in ALPHA_KN]
@@ -152,14 +152,14 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     zc = (truth[:, None, :] - cs.estimates) / cs.std
     consistency = {"central": float(np.sqrt(np.nanmean(zc**2)))}
     for kn, r in runs.items():
-        s = r.extras["series"]
+        s = r.series
         z = (truth[:, None, :] - s.estimates) / s.std
         consistency[str(kn)] = float(np.sqrt(np.nanmean(z**2)))
-    lossy_ratio = ckf_std_ratio(lossy.extras["series"], cs)
+    lossy_ratio = ckf_std_ratio(lossy.series, cs)
     drops_result = {"k_n": DROP_KN, "drop_probability": DROP_PROBABILITY,
                     "std_ratio_final": final_max(lossy_ratio),
                     "messages_dropped": lossy.comm.messages_dropped, "messages": lossy.comm.messages}
-    not_estimable = {str(kn): int((~r.extras["series"].estimable[-1]).sum()) for kn, r in runs.items()}
+    not_estimable = {str(kn): int((~r.series.estimable[-1]).sum()) for kn, r in runs.items()}
     degrees = graph.degrees
     results: dict[str, Any] = {
         "network": {"n_nodes": n, "n_links": graph.n_links, "links": graph.links.tolist(),

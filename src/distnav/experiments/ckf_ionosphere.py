@@ -218,10 +218,10 @@ def precision_analysis(n_epochs: int = N_EPOCHS, *, progress: Any = None) -> Pre
     sched = consensus_schedule(graph, PROTOCOL)
     kns = [consensus_rounds(INTERVAL_S, d) for d in SENDING_INTERVALS_S]
     products = [consensus_product(sched, k) for k in kns]
-    central = central_filter(dyn, series).extras["series"]
+    central = central_filter(dyn, series).series
     if progress:
         progress(1)
-    local = local_filters(dyn, series).extras["series"]
+    local = local_filters(dyn, series).series
     if progress:
         progress(1)
     ckf_series = {k: ckf_error_variance(dyn, series, L) for k, L in zip(kns, products, strict=True)}
@@ -254,8 +254,8 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     # initial local-to-central ratio: Perth network (receiver 1) and the co-located check (equal normals)
     r0, t0 = initial_ratio(local, central)
     _, _, s_col, d_col = perth_scenario(min(n_epochs, 5), colocated=True)
-    c_col = central_filter(d_col, s_col).extras["series"]
-    l_col = local_filters(d_col, s_col).extras["series"]
+    c_col = central_filter(d_col, s_col).series
+    l_col = local_filters(d_col, s_col).series
     r0_col, t0_col = initial_ratio(l_col, c_col)
 
     # DCB time to 0.5 ns
@@ -270,7 +270,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         res = ckf(dyn, data_series, graph=graph, protocol=PROTOCOL, rounds=data_kn, exchange=ctx.exchange(graph),
                   monitor=False)
         adv(1)
-    ds = res.extras["series"]
+    ds = res.series
     with np.errstate(invalid="ignore"):
         z = (ds.estimates - truth[:, None, :]) / ds.std
     zf = z[np.isfinite(z)]

@@ -31,15 +31,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from functools import cached_property
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from distnav.algorithms.ranging import RangingData
 from distnav.errors import ModelError
-from distnav.network.graph import Graph
 
 __all__ = [
     "RangingProblem",
@@ -71,154 +70,28 @@ def _collinear(points: np.ndarray, tol: float = 1e-6) -> bool:
 
 
 @dataclass(frozen=True, eq=False)
-class RangingProblem:
+class RangingProblem(RangingData):
     """An anchor network with measured ranges; see the module docstring for the model.
 
-    Build with :func:`build_problem` (validates) or :func:`generate_problem`. Attributes
+    Build with :func:`build_problem` (validates) or :func:`generate_problem`. The arrays and the model
+    (residuals, cost, Jacobian, graph) are those of :class:`~distnav.algorithms.ranging.RangingData` (``ids``,
+    ``dim``, ``positions_m``, ``free``, ``meas_a``, ``meas_b``, ``range_m``, ``truth_m``, ``initial_m``); this
+    class adds a label and free-form information.
+
+    Attributes
     ----------
-    ids : anchor names (``n``).
-    dim : 2 or 3.
-    positions_m : ``(n, dim)`` known coordinates: fixed anchors' positions and held coordinates; other entries
-        are ignored (0).
-    free : ``(n, dim)`` bool, True for the coordinates to estimate (all False for a fixed anchor).
-    meas_a, meas_b : anchor indices of every range sample (``m``).
-    range_m : the measured ranges ``d_l`` (``m``).
-    truth_m, initial_m : optional ``(n, dim)`` true positions and initial guess.
     name : a label such as ``"GC"``.
+    info : how the problem was made (class, selection, noise, …).
     """
 
-    ids: tuple[str, ...]
-    dim: int
-    positions_m: np.ndarray
-    free: np.ndarray
-    meas_a: np.ndarray
-    meas_b: np.ndarray
-    range_m: np.ndarray
-    truth_m: np.ndarray | None = None
-    initial_m: np.ndarray | None = None
     name: str = ""
     info: Mapping[str, Any] = field(default_factory=dict)
-
-    # ------------------------------------------------------------------ basic facts
-    @property
-    def n_anchors(self) -> int:
-        return len(self.ids)
-
-    @property
-    def n_meas(self) -> int:
-        return int(self.range_m.size)
-
-    @cached_property
-    def fixed(self) -> np.ndarray:
-        """Anchors without any free coordinate (the gauge)."""
-        return np.asarray(~self.free.any(axis=1))
-
-    @cached_property
-    def estimated(self) -> np.ndarray:
-        """Anchors with at least one free coordinate."""
-        return np.asarray(self.free.any(axis=1))
-
-    @property
-    def n_free(self) -> int:
-        return int(self.free.sum())
-
-    @cached_property
-    def links(self) -> np.ndarray:
-        """Unique measured pairs ``(i, j)``, ``i < j``, sorted."""
-        lo = np.minimum(self.meas_a, self.meas_b)
-        hi = np.maximum(self.meas_a, self.meas_b)
-        key = np.unique(lo * self.n_anchors + hi)
-        return np.stack([key // self.n_anchors, key % self.n_anchors], axis=1)
-
-    @cached_property
-    def graph(self) -> Graph:
-        """The measurement graph G(V, E) (paper 002 §2), also the communication graph of the distributed solvers."""
-        pos = self.truth_m if self.truth_m is not None else None
-        return Graph.from_links(self.n_anchors, self.links, names=self.ids, positions=pos)
-
-    @cached_property
-    def range_sq(self) -> np.ndarray:
-        return self.range_m**2
-
-    # ------------------------------------------------------------------ x <-> positions
-    @cached_property
-    def _col(self) -> np.ndarray:
-        """Column of each coordinate in ``x`` (−1 when not free)."""
-        col = np.full(self.free.shape, -1, np.int64)
-        col[self.free] = np.arange(self.n_free)
-        return col
-
-    def to_vector(self, positions_m: np.ndarray) -> np.ndarray:
-        """The free coordinates of a full ``(n, dim)`` position array (eq. (1))."""
-        p = np.asarray(positions_m, float)
-        if p.shape != self.free.shape:
-            raise ModelError(f"positions must have shape {self.free.shape}, got {p.shape}")
-        out: np.ndarray = p[self.free]
-        return out
-
-    def to_positions(self, x: np.ndarray) -> np.ndarray:
-        """Full ``(n, dim)`` positions: ``x`` in the free coordinates, known values elsewhere."""
-        xv = np.asarray(x, float)
-        if xv.shape != (self.n_free,):
-            raise ModelError(f"x must have shape ({self.n_free},), got {xv.shape}")
-        out = self.positions_m.copy()
-        out[self.free] = xv
-        return out
 
     def x0(self) -> np.ndarray:
         """The initial guess as a vector of free coordinates."""
         if self.initial_m is None:
             raise ModelError(f"problem {self.name or ''} has no initial guess; pass one")
         return self.to_vector(self.initial_m)
-
-    # ------------------------------------------------------------------ eqs. (2)-(6), (9)
-    def residuals(self, positions_m: np.ndarray) -> np.ndarray:
-        """``g_l = ‖r_a − r_b‖² − d_l²`` for every sample (paper 002 eq. (6)); positions are ``(n, dim)``."""
-        p = np.asarray(positions_m, float)
-        diff = p[self.meas_a] - p[self.meas_b]
-        out: np.ndarray = np.einsum("ij,ij->i", diff, diff) - self.range_sq
-        return out
-
-    def cost(self, positions_m: np.ndarray) -> float:
-        """``f = Σ_l g_l²`` (paper 002 eqs. (2), (5))."""
-        g = self.residuals(positions_m)
-        return float(g @ g)
-
-    def partial_costs(self, positions_m: np.ndarray) -> np.ndarray:
-        """``f^[i] = Σ_{l∈E(i)} g_l²`` per anchor at a common point (paper 002 eq. (14)); ``Σ_i f^[i] = 2 f``."""
-        g2 = self.residuals(positions_m) ** 2
-        n = self.n_anchors
-        return np.bincount(self.meas_a, g2, minlength=n) + np.bincount(self.meas_b, g2, minlength=n)
-
-    def residual_vector(self, x: np.ndarray) -> np.ndarray:
-        """``g(x)`` of the free-coordinate vector (eq. (5))."""
-        return self.residuals(self.to_positions(x))
-
-    @cached_property
-    def _jac_structure(self) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
-        m, d = self.n_meas, self.dim
-        rows = np.concatenate([np.repeat(np.arange(m), d)] * 2)
-        cols = np.concatenate([self._col[self.meas_a].ravel(), self._col[self.meas_b].ravel()])
-        keep = cols >= 0
-        order_id = np.arange(rows.size)[keep]
-        mat = sp.csr_matrix((order_id.astype(float) + 1.0, (rows[keep], cols[keep])), shape=(m, self.n_free))
-        mat.sort_indices()
-        perm = mat.data.astype(np.int64) - 1  # position in the concatenated value array of each CSR entry
-        return mat, perm, keep
-
-    def jacobian(self, positions_m: np.ndarray) -> sp.csr_matrix:
-        """Sparse ``G = ∂g/∂x`` (``m × n_free``, eq. (9)): row l holds ``2(r_a − r_b)`` at a's free columns
-        and ``−2(r_a − r_b)`` at b's."""
-        p = np.asarray(positions_m, float)
-        diff2 = 2.0 * (p[self.meas_a] - p[self.meas_b])
-        vals = np.concatenate([diff2.ravel(), -diff2.ravel()])
-        mat, perm, _ = self._jac_structure
-        out = mat.copy()
-        out.data = vals[perm]
-        return out
-
-    def jacobian_of(self, x: np.ndarray) -> sp.csr_matrix:
-        return self.jacobian(self.to_positions(x))
 
     # ------------------------------------------------------------------ derived problems
     def with_initial(self, initial_m: np.ndarray) -> RangingProblem:

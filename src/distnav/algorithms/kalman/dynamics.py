@@ -1,0 +1,231 @@
+"""The common dynamic model of the Kalman/CKF family — paper 003 eqs. (2), (19)–(20).
+
+``x_t = Φ_t x_{t−1} + d_t``, ``D(d_t) = S_t = H_t S̃_t H_tᵀ`` with ``H_t`` of full column rank and ``S̃_t``
+positive definite; a singular ``S_t`` (constant biases) is the normal case. :class:`DynamicModel` validates and
+factors the model once; :func:`simulate_states` draws one realization.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from distnav.errors import ModelError
+from distnav.typing import ArrayLike, FloatArray, IntArray
+
+__all__ = ["DynamicModel", "noise_factor", "simulate_states"]
+
+
+def noise_factor(noise_cov: ArrayLike, *, rtol: float = 1e-12,
+                 epoch: int | None = None) -> tuple[FloatArray, FloatArray]:
+    """Factor a (possibly singular) system-noise variance ``S = H S̃ Hᵀ`` (paper 003 eq. (19)).
+
+    When ``S`` is diagonal-block shaped with zero rows, ``H`` is made of the columns of the identity for the
+    entries with noise and ``S̃`` is the corresponding sub-matrix (eq. (20)); otherwise an eigen-decomposition
+    ``H = U₊``, ``S̃ = diag(λ₊)`` is used. Returns ``(H (p×q), S̃ (q×q))``; ``q = 0`` when ``S = 0``.
+    """
+    where = f" at epoch {epoch}" if epoch is not None else ""
+    S = np.asarray(noise_cov, dtype=float)
+    if S.ndim != 2 or S.shape[0] != S.shape[1]:
+        raise ModelError(f"system-noise variance{where} must be square, got shape {S.shape}")
+    if not np.all(np.isfinite(S)):
+        raise ModelError(f"system-noise variance{where} is not finite")
+    scale = float(np.abs(S).max()) if S.size else 0.0
+    if not np.allclose(S, S.T, atol=1e-12 * max(scale, 1e-300), rtol=0.0):
+        raise ModelError(f"system-noise variance{where} is not symmetric")
+    p = S.shape[0]
+    if scale == 0.0:
+        return np.zeros((p, 0)), np.zeros((0, 0))
+    nz = np.flatnonzero(np.abs(S).max(axis=1) > 0)
+    sub = S[np.ix_(nz, nz)]
+    w = np.linalg.eigvalsh(sub)
+    if w.min() < -1e-10 * w.max():
+        raise ModelError(f"system-noise variance{where} is not positive semi-definite (eigenvalue {w.min():.3g})")
+    if w.min() > rtol * w.max():  # the representation of eq. (20): identity columns + invertible sub-matrix
+        return np.eye(p)[:, nz], 0.5 * (sub + sub.T)
+    w, U = np.linalg.eigh(S)
+    keep = w > rtol * w.max()
+    return U[:, keep], np.diag(w[keep])
+
+
+def _per_epoch(value: ArrayLike, what: str) -> tuple[bool, list[FloatArray]]:
+    """(constant?, list of matrices) from a single matrix, a 3-D array or a sequence of matrices."""
+    if isinstance(value, np.ndarray) and value.ndim == 2:
+        return True, [np.asarray(value, dtype=float)]
+    if isinstance(value, np.ndarray) and value.ndim == 3:
+        return False, [np.asarray(v, dtype=float) for v in value]
+    if isinstance(value, (list, tuple)):
+        mats = [np.asarray(v, dtype=float) for v in value]
+        if not mats:
+            raise ModelError(f"{what}: empty sequence")
+        return False, mats
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 2:
+        return True, [arr]
+    raise ModelError(f"{what} must be a matrix, a 3-D array (one per epoch) or a sequence of matrices, "
+                     f"got shape {arr.shape}")
+
+
+def _identity_columns(H: FloatArray) -> IntArray | None:
+    """Column indices if every column of ``H`` is a distinct unit vector, else ``None``."""
+    if H.shape[1] == 0 or not np.all((H == 0) | (H == 1)) or not np.all(H.sum(axis=0) == 1):
+        return None
+    sel = np.argmax(H, axis=0)
+    return sel if np.unique(sel).size == sel.size else None
+
+
+class DynamicModel:
+    """The common dynamic model ``x_t = Φ_t x_{t−1} + d_t``, ``D(d_t) = S_t = H_t S̃_t H_tᵀ`` (paper 003 eqs. (2), (19)).
+
+    Parameters (each a single matrix = constant in time, or one per epoch as a 3-D array or a sequence;
+    entry ``t`` is the model of the step ``t−1 → t``, entry 0 is never used):
+
+    n_states : ``p``.
+    transition : ``Φ_t`` (p×p, nonsingular); ``None`` = identity.
+    noise_cov : ``S_t`` (p×p, symmetric PSD, may be singular); it is factored with :func:`noise_factor`.
+    noise_map, noise_reduced_cov : the factor ``H_t`` (p×q, full column rank) and ``S̃_t`` (q×q, PD) directly,
+        instead of ``noise_cov``. Neither given = no system noise (a static state).
+    """
+
+    def __init__(self, n_states: int, *, transition: ArrayLike | None = None, noise_cov: ArrayLike | None = None,
+                 noise_map: ArrayLike | None = None, noise_reduced_cov: ArrayLike | None = None) -> None:
+        p = int(n_states)
+        if p < 1:
+            raise ModelError(f"n_states must be ≥ 1, got {n_states}")
+        self.n_states = p
+        if transition is None:
+            self._phi_const, phis = True, [np.eye(p)]
+        else:
+            self._phi_const, phis = _per_epoch(transition, "transition")
+        self._phi: list[np.ndarray] = []
+        self._phi_inv: list[np.ndarray | None] = []
+        for t, F in enumerate(phis):
+            e = "" if self._phi_const else f" of epoch {t}"
+            if F.shape != (p, p):
+                raise ModelError(f"transition matrix{e} must be {p}×{p}, got {F.shape}")
+            if not np.all(np.isfinite(F)):
+                raise ModelError(f"transition matrix{e} is not finite")
+            if np.array_equal(F, np.eye(p)):
+                self._phi.append(F)
+                self._phi_inv.append(None)
+                continue
+            if np.linalg.cond(F) > 1e12:
+                raise ModelError(f"transition matrix{e} is singular (paper 003 eq. (2) needs Φ nonsingular)")
+            self._phi.append(F)
+            self._phi_inv.append(np.linalg.inv(F))
+        if noise_cov is not None and (noise_map is not None or noise_reduced_cov is not None):
+            raise ModelError("give either noise_cov or (noise_map, noise_reduced_cov), not both")
+        if (noise_map is None) != (noise_reduced_cov is None):
+            raise ModelError("noise_map and noise_reduced_cov must be given together")
+        pairs: list[tuple[FloatArray, FloatArray]]
+        if noise_cov is not None:
+            self._noise_const, covs = _per_epoch(noise_cov, "noise_cov")
+            pairs = []
+            for t, S in enumerate(covs):
+                if S.shape != (p, p):
+                    e = "" if self._noise_const else f" of epoch {t}"
+                    raise ModelError(f"noise_cov{e} must be {p}×{p}, got {S.shape}")
+                pairs.append(noise_factor(S, epoch=None if self._noise_const else t))
+        elif noise_map is not None:
+            cH, Hs = _per_epoch(noise_map, "noise_map")
+            assert noise_reduced_cov is not None  # checked above: both or neither
+            cS, Ss = _per_epoch(noise_reduced_cov, "noise_reduced_cov")
+            if cH != cS or len(Hs) != len(Ss):
+                raise ModelError("noise_map and noise_reduced_cov must both be constant or both per epoch "
+                                 "with the same length")
+            self._noise_const = cH
+            pairs = list(zip(Hs, Ss, strict=True))
+        else:
+            self._noise_const = True
+            pairs = [(np.zeros((p, 0)), np.zeros((0, 0)))]
+        self._H: list[np.ndarray] = []
+        self._sel: list[IntArray | None] = []
+        self._St: list[np.ndarray] = []
+        self._St_inv: list[np.ndarray] = []
+        for t, (H, St) in enumerate(pairs):
+            e = "" if self._noise_const else f" of epoch {t}"
+            if H.ndim != 2 or H.shape[0] != p:
+                raise ModelError(f"noise_map{e} must have {p} rows, got shape {H.shape}")
+            q = H.shape[1]
+            if St.shape != (q, q):
+                raise ModelError(f"noise_reduced_cov{e} must be {q}×{q} to match noise_map, got {St.shape}")
+            if not (np.all(np.isfinite(H)) and np.all(np.isfinite(St))):
+                raise ModelError(f"system-noise factor{e} is not finite")
+            if q:
+                if np.linalg.matrix_rank(H) < q:
+                    raise ModelError(f"noise_map{e} must have full column rank (paper 003 eq. (19))")
+                if not np.allclose(St, St.T, rtol=0, atol=1e-12 * np.abs(St).max()):
+                    raise ModelError(f"noise_reduced_cov{e} is not symmetric")
+                try:
+                    np.linalg.cholesky(St)
+                except np.linalg.LinAlgError:
+                    raise ModelError(f"noise_reduced_cov{e} is not positive definite (paper 003 eq. (19) needs "
+                                     f"S̃ invertible)") from None
+            self._H.append(H)
+            self._sel.append(_identity_columns(H))
+            self._St.append(0.5 * (St + St.T))
+            self._St_inv.append(np.linalg.inv(St) if q else St.copy())
+
+    # -- accessors: epoch t ≥ 1 (the step t−1 → t)
+    def _idx(self, const: bool, n: int, t: int, what: str) -> int:
+        if const:
+            return 0
+        if t >= n:
+            raise ModelError(f"{what} given for {n} epochs, epoch {t} requested")
+        return t
+
+    def transition_at(self, t: int) -> FloatArray:
+        return self._phi[self._idx(self._phi_const, len(self._phi), t, "transition")]
+
+    def transition_inverse_at(self, t: int) -> FloatArray | None:
+        """``Φ_t⁻¹``, or ``None`` when ``Φ_t`` is the identity."""
+        return self._phi_inv[self._idx(self._phi_const, len(self._phi), t, "transition")]
+
+    def noise_factor_at(self, t: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(H_t, S̃_t, S̃_t⁻¹)``."""
+        k = self._idx(self._noise_const, len(self._H), t, "system noise")
+        return self._H[k], self._St[k], self._St_inv[k]
+
+    def noise_selection_at(self, t: int) -> IntArray | None:
+        """Indices ``sel`` when ``H_t`` is made of identity columns ``I[:, sel]`` (eq. (20)), else ``None``."""
+        k = self._idx(self._noise_const, len(self._H), t, "system noise")
+        return self._sel[k]
+
+    def noise_cov_at(self, t: int) -> FloatArray:
+        """``S_t = H_t S̃_t H_tᵀ``."""
+        H, St, _ = self.noise_factor_at(t)
+        S: FloatArray = H @ St @ H.T
+        return S
+
+    def check_epochs(self, n_epochs: int) -> None:
+        if not self._phi_const and len(self._phi) < n_epochs:
+            raise ModelError(f"transition given for {len(self._phi)} epochs, the measurements have {n_epochs}")
+        if not self._noise_const and len(self._H) < n_epochs:
+            raise ModelError(f"system noise given for {len(self._H)} epochs, the measurements have {n_epochs}")
+
+    @classmethod
+    def random_walk(cls, noise_std: FloatArray | Sequence[float]) -> DynamicModel:
+        """``Φ = I``, ``S = diag(noise_std²)`` (zeros allowed: constant entries)."""
+        s = np.asarray(noise_std, dtype=float)
+        if s.ndim != 1 or np.any(s < 0) or not np.all(np.isfinite(s)):
+            raise ModelError("noise_std must be a 1-D array of non-negative finite values")
+        return cls(s.size, noise_cov=np.diag(s**2))
+
+    def __repr__(self) -> str:
+        q = self._H[0].shape[1]
+        return f"DynamicModel(n_states={self.n_states}, noise rank={q}{'' if self._noise_const else ' (varying)'})"
+
+
+def simulate_states(dynamics: DynamicModel, n_epochs: int, *, rng: np.random.Generator,
+                    initial_state: ArrayLike | None = None) -> FloatArray:
+    """One realization ``x_0..x_{T−1}`` (T×p) of the dynamic model; ``x_0 = initial_state`` (default zeros)."""
+    p = dynamics.n_states
+    x = np.zeros((n_epochs, p))
+    x[0] = 0.0 if initial_state is None else np.asarray(initial_state, float)
+    for t in range(1, n_epochs):
+        H, St, _ = dynamics.noise_factor_at(t)
+        d = H @ (np.linalg.cholesky(St) @ rng.standard_normal(St.shape[0])) if St.size else 0.0
+        x[t] = dynamics.transition_at(t) @ x[t - 1] + d
+    return x
+

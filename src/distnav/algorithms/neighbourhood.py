@@ -1,0 +1,463 @@
+"""The neighbourhood machinery of N-CSG and N-CLM (paper 002 §3.3–3.4), and the set-up shared with CSG.
+
+Every anchor is a node of the measurement graph and talks only to the anchors it ranges with, through the
+exchange (:mod:`distnav.exchange`); all arrays below are local to the exchange's block of anchors. The front doors
+(:func:`~distnav.algorithms.csg.solve_ncsg`, :func:`~distnav.algorithms.csg.solve_nclm`) are in
+:mod:`distnav.algorithms.csg`; here are the index maps of the neighbourhood vectors (:class:`Neighbourhoods`), the
+consensus round (:class:`Mixing`), the line searches (:func:`armijo_search`), the local LM step (:class:`LocalLM`)
+and the iteration itself (:func:`iterate_neighbourhood`).
+
+* **N-CSG** (eqs. (14)–(18)): ``x⁽ⁱ⁾`` holds only anchor ``i`` and its neighbours; the update minimises the
+  partial cost ``f⁽ⁱ⁾ = Σ_{l∈E(i)} g_l²`` (eq. (14)). In the consensus phase anchor ``j`` sends to each neighbour
+  ``i`` the entries of ``u⁽ʲ⁾`` that ``i`` also holds (a message of at most ``max degree + 1`` positions: its size
+  grows with the *neighbourhood*); anchor ``i`` stacks them row-wise, fills the entries a neighbour does not hold
+  (non-common neighbours) with its own ``u⁽ⁱ⁾`` (eq. (18)) and mixes with row ``i`` of ``W`` (eq. (15)).
+* **N-CSG + BLS** (eqs. (19)–(20)): each anchor picks its own step by backtracking from ``α₀`` until the Armijo
+  condition ``f⁽ⁱ⁾(x + α d) ≤ f⁽ⁱ⁾(x) + γ α ∇f⁽ⁱ⁾ᵀ d`` holds, ``d = −G⁽ⁱ⁾ᵀ g⁽ⁱ⁾`` (the subgradient direction of
+  eq. (10)) and, as in the paper, the subgradient ``G⁽ⁱ⁾ᵀ g⁽ⁱ⁾`` in the role of ``∇f⁽ⁱ⁾`` (``armijo_slope``
+  selects the true gradient ``2 G⁽ⁱ⁾ᵀ g⁽ⁱ⁾`` instead), ``α ← β α``.
+  **N-CSG + TBLS** (eq. (21), Truong & Nguyen 2020): start from the anchor's previous ``α``; if Armijo fails,
+  shrink by ``β``; otherwise grow by ``1/β`` while Armijo holds and ``α ≤ α₀``. The line searches evaluate each
+  anchor's own partial cost locally — no messages — vectorized over anchors: along ``x + α d`` every residual
+  is the quartic ``(a + 2αb + α²c − d²)`` with ``a, b, c`` computed once per iteration.
+* **N-CLM** (eq. (22)): the N-CSG step with the subgradient step replaced by the Levenberg–Marquardt step of
+  eq. (8) on the partial cost, ``u⁽ⁱ⁾ = x⁽ⁱ⁾ − (G⁽ⁱ⁾ᵀG⁽ⁱ⁾ + λ_i D_i)⁻¹ G⁽ⁱ⁾ᵀ g⁽ⁱ⁾``; each anchor adapts its own
+  ``λ_i`` from the gain ratio of its partial cost (a rejected step leaves ``x⁽ⁱ⁾`` unchanged this iteration);
+  the consensus phase is that of N-CSG. ``D_i = mean(diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾))·I`` by default — a deviation from eq. (8)'s
+  Fletcher scaling ``diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾)`` (``damping="fletcher"``), which stalls on the rank-deficient partial
+  problems (see :func:`~distnav.algorithms.csg.solve_nclm`).
+
+Fixed anchors take part (they measure and relay) but their coordinates, and any held coordinate, are never changed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, single_threaded_blas
+from distnav.algorithms.ranging import RangingData
+from distnav.errors import ModelError
+from distnav.exchange import Exchange, make_exchange
+from distnav.network.weights import ConsensusWeights, consensus_weights
+
+__all__ = ["IterationState", "LocalLM", "Mixing", "Neighbourhoods", "armijo_search", "check_start", "exchange_for",
+           "half_measurements", "iterate_neighbourhood", "mixing_weights"]
+
+@dataclass(frozen=True, eq=False)
+class IterationState:
+    """State of a distributed solver after ``iteration`` iterations (this block's anchors only).
+
+    ``own_m``: each local anchor's estimate of itself ``(n_local, dim)``; ``step_size``: the ``α`` (or, for N-CLM,
+    ``λ``) each local anchor used; ``partial_cost``: ``f⁽ⁱ⁾(x⁽ⁱ⁾)`` of every local anchor before the update.
+    """
+
+    iteration: int
+    own_m: np.ndarray
+    step_size: np.ndarray
+    partial_cost: np.ndarray
+
+
+# ---------------------------------------------------------------------- checks and set-up
+def check_start(problem: RangingData, iterations: int, consensus_rounds: int, initial_m: Any) -> np.ndarray:
+    if iterations < 0:
+        raise ModelError(f"iterations must be ≥ 0, got {iterations}")
+    if consensus_rounds < 1:
+        raise ModelError(f"consensus_rounds must be ≥ 1, got {consensus_rounds}")
+    init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
+    if init is None:
+        raise ModelError("the solver needs an initial guess (problem.initial_m or initial_m=)")
+    init = np.asarray(init, float)
+    if init.shape != (problem.n_anchors, problem.dim) or not np.all(np.isfinite(init)):
+        raise ModelError(f"initial guess must be finite with shape ({problem.n_anchors}, {problem.dim})")
+    return np.where(problem.free, init, problem.positions_m)
+
+
+def exchange_for(problem: RangingData, exchange: Exchange | None) -> Exchange:
+    g = problem.graph
+    ex = exchange if exchange is not None else make_exchange(g)
+    if ex.graph.n_nodes != g.n_nodes or ex.graph.n_edges != g.n_edges or not (
+            np.array_equal(ex.graph.src, g.src) and np.array_equal(ex.graph.dst, g.dst)):
+        raise ModelError("the exchange must be built on the problem's measurement graph (problem.graph)")
+    return ex
+
+
+def mixing_weights(problem: RangingData, weights: str | ConsensusWeights) -> ConsensusWeights:
+    if isinstance(weights, ConsensusWeights):
+        if weights.graph.n_edges != problem.graph.n_edges:
+            raise ModelError("consensus weights are defined on another graph than the measurement graph")
+        return weights
+    key = str(weights).strip().lower()
+    if key not in ("mh", "metropolis", "metropolis-hastings", "koppanyi"):
+        raise ModelError(f"weights must be 'MH' (paper 002 eq. (12)) or 'Koppanyi', got {weights!r}")
+    return consensus_weights(problem.graph, "Koppanyi" if key == "koppanyi" else "MH")
+
+
+def half_measurements(problem: RangingData, ex: Exchange) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every range sample seen from each of its two local anchors: (owner local idx, other global id, d², sample)."""
+    n = problem.n_anchors
+    local_of = np.full(n, -1, np.int64)
+    local_of[ex.nodes] = np.arange(ex.n_local)
+    a, b = problem.meas_a, problem.meas_b
+    own = np.concatenate([a, b])
+    other = np.concatenate([b, a])
+    samp = np.concatenate([np.arange(a.size)] * 2)
+    keep = local_of[own] >= 0
+    d2 = problem.range_sq[samp[keep]]
+    return local_of[own[keep]], other[keep], d2, samp[keep]
+
+
+# ---------------------------------------------------------------------- neighbourhoods (N-CSG, N-CLM)
+class Neighbourhoods:
+    """Index maps of the neighbourhood estimation vectors on one exchange block.
+
+    Anchor ``i``'s vector has ``K = max degree + 1`` slots (padded): slot 0 is ``i``, slots ``1..d_i`` its
+    neighbours in ascending id order. Built from the graph's topology only (what anchors learn from their
+    neighbours' neighbour lists when the network is set up).
+    """
+
+    def __init__(self, problem: RangingData, ex: Exchange, loss: str = "linear", loss_scale_m: float = 0.3) -> None:
+        g = problem.graph
+        n = g.n_nodes
+        self.n, self.dim = n, problem.dim
+        self.K = int(g.degrees.max(initial=0)) + 1
+        nl = ex.n_local
+        self.nl = nl
+        deg = g.degrees[ex.nodes]
+        slot_node = np.full((nl, self.K), -1, np.int64)
+        slot_node[:, 0] = ex.nodes
+        # neighbours of local node li = src of the graph's in-edges of ex.nodes[li] (sorted by src)
+        starts = g.in_ptr[ex.nodes]
+        rows = np.repeat(np.arange(nl), deg)
+        offs = np.arange(rows.size) - np.repeat(np.cumsum(deg) - deg, deg)
+        slot_node[rows, offs + 1] = g.src[starts[rows] + offs]
+        self.slot_node = slot_node
+        self.valid = slot_node >= 0
+        key_sorted = g.dst * n + g.src  # graph edges are sorted by (dst, src)
+
+        def is_edge(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+            want = dst * n + src
+            pos = np.minimum(np.searchsorted(key_sorted, want), key_sorted.size - 1)
+            return (key_sorted[pos] == want) if key_sorted.size else np.zeros(want.shape, bool)
+
+        def position(holder: np.ndarray, k: np.ndarray) -> np.ndarray:
+            """Slot of node k in holder's vector (k must be holder or a neighbour)."""
+            e = np.searchsorted(key_sorted, holder * n + k)
+            return np.where(k == holder, 0, e - g.in_ptr[holder] + 1)
+
+        self.position = position
+        # free / known values per slot
+        safe = np.where(self.valid, slot_node, 0)
+        self.free_slot = problem.free[safe] & self.valid[:, :, None]
+        self.known_slot = np.where(self.valid[:, :, None], problem.positions_m[safe], 0.0)
+        # half-measurements: owner local idx, slot of the other end in the owner's vector
+        own_idx, other, d2, samp = half_measurements(problem, ex)
+        self.h_own, self.h_d2, self.h_samp = own_idx, d2, samp
+        self.loss = loss
+        self.h_scale = (range_loss_scale(problem, loss_scale_m)[samp] if loss != "linear"
+                        else np.ones(samp.size))
+        self.h_slot = position(ex.nodes[own_idx], other)
+        self.h_flat_self = own_idx * self.K
+        self.h_flat_other = own_idx * self.K + self.h_slot
+        nh = own_idx.size
+        self.Q = sp.csr_matrix((np.concatenate([np.ones(nh), -np.ones(nh)]),
+                                (np.concatenate([self.h_flat_self, self.h_flat_other]),
+                                 np.concatenate([np.arange(nh)] * 2))), shape=(nl * self.K, nh))
+        # outgoing messages: sender slot s of node k goes to receiver i at position(i, k) when k ∈ N(i) ∪ {i}
+        oe = np.arange(ex.out_edges.size)
+        send_local = ex.out_src
+        recv = ex.out_dst
+        e_rep = np.repeat(oe, self.K)
+        s_rep = np.tile(np.arange(self.K), oe.size)
+        k_node = slot_node[send_local[e_rep], s_rep]
+        r_node = recv[e_rep]
+        ok = (k_node >= 0) & ((k_node == r_node) | is_edge(np.maximum(k_node, 0), r_node))
+        self.msg_flat = e_rep[ok] * self.K + position(r_node[ok], k_node[ok])
+        self.msg_src = send_local[e_rep[ok]] * self.K + s_rep[ok]
+        self.n_out = oe.size
+        # incoming: which positions of the receiver's vector the sender holds (static "has" mask)
+        ie = np.arange(ex.in_edges.size)
+        i_rep = np.repeat(ie, self.K)
+        p_rep = np.tile(np.arange(self.K), ie.size)
+        kk = slot_node[ex.in_dst[i_rep], p_rep]
+        snd = ex.in_src[i_rep]
+        has = (kk >= 0) & ((kk == snd) | is_edge(np.maximum(kk, 0), snd))
+        self.has = has.reshape(ie.size, self.K)
+        self.in_dst = ex.in_dst
+        self.n_in = ie.size
+
+    def initial(self, init: np.ndarray) -> np.ndarray:
+        safe = np.where(self.valid, self.slot_node, 0)
+        return np.where(self.valid[:, :, None], init[safe], 0.0)
+
+    def geometry(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        flat = P.reshape(-1, self.dim)
+        diff = flat[self.h_flat_self] - flat[self.h_flat_other]
+        return diff, np.einsum("ij,ij->i", diff, diff) - self.h_d2
+
+    def rho(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per half-measurement IRLS weight ``ρ'((g/s)²)`` and objective term ``s² ρ((g/s)²)`` (linear: 1, g²)."""
+        return loss_terms(g, self.h_scale, self.loss)
+
+    def partial_cost(self, g: np.ndarray) -> np.ndarray:
+        """``f⁽ⁱ⁾ = Σ_{l∈E(i)} g_l²`` (eq. (14)); with a robust loss ``Σ s_l² ρ((g_l/s_l)²)``."""
+        return np.bincount(self.h_own, self.rho(g)[1], minlength=self.nl)
+
+    def gradient(self, diff: np.ndarray, g: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
+        """``G⁽ⁱ⁾ᵀ g⁽ⁱ⁾`` per anchor in slot layout (zero on fixed/held/padding slots), eq. (10) restricted;
+        with IRLS weights ``w``: ``G⁽ⁱ⁾ᵀ W g⁽ⁱ⁾`` (half the gradient of the robust partial objective)."""
+        gw = g if w is None else w * g
+        grad = np.asarray(self.Q @ (2.0 * gw[:, None] * diff)).reshape(self.nl, self.K, self.dim)
+        return np.where(self.free_slot, grad, 0.0)
+
+
+class Mixing:
+    """The N-CSG consensus round (eqs. (15), (18)) on an exchange.
+
+    Row ``i`` of ``W`` mixes ``i``'s own vector with the rows received from its neighbours; an entry a neighbour
+    does not hold is filled with ``i``'s own entry (eq. (18)). Filling is linear, so the fill-in weight of every
+    slot, ``Σ_{j: j lacks slot p} W_ij``, is folded into the self-weight per slot (recomputed only when a
+    message is lost).
+    """
+
+    def __init__(self, nb: Neighbourhoods, ex: Exchange, w: ConsensusWeights) -> None:
+        self.nb, self.ex = nb, ex
+        self.self_w = w.self_weight[ex.nodes]
+        ew_in = w.edge_weight[ex.in_edges]
+        self.ew_in = ew_in
+        self.S = sp.csr_matrix((ew_in, (ex.in_dst, np.arange(ex.in_edges.size))),
+                               shape=(ex.n_local, ex.in_edges.size))
+        self.fill_w = self._fill_weights(np.ones(ex.in_edges.size, bool))
+
+    def _fill_weights(self, delivered: np.ndarray) -> np.ndarray:
+        nb = self.nb
+        lack = (~(nb.has & delivered[:, None])).astype(float)
+        return np.asarray(self.self_w[:, None] + np.asarray(self.S @ lack))  # (n_local, K)
+
+    def apply(self, U: np.ndarray) -> np.ndarray:
+        nb, ex = self.nb, self.ex
+        K, dim = nb.K, nb.dim
+        msg = np.zeros((nb.n_out * K, dim))
+        msg[nb.msg_flat] = U.reshape(-1, dim)[nb.msg_src]
+        inbox = ex.send(msg.reshape(nb.n_out, K, dim))
+        fill = self.fill_w if inbox.delivered.all() else self._fill_weights(inbox.delivered)
+        vals = inbox.values.reshape(nb.n_in, K * dim)  # entries not held (or lost) arrive as zeros
+        mixed = fill[:, :, None] * U + np.asarray(self.S @ vals).reshape(U.shape)  # eqs. (15), (18)
+        return np.where(nb.free_slot, mixed, nb.known_slot)
+
+
+def armijo_search(nb: Neighbourhoods, diff: np.ndarray, g: np.ndarray, d: np.ndarray, f0: np.ndarray,
+                   alpha_start: np.ndarray, alpha0: float, beta: float, gamma: float, two_way: bool,
+                   max_backtracks: int, slope_factor: float = 2.0) -> np.ndarray:
+    """Per-anchor step sizes by BLS (eqs. (19)–(20)) or TBLS (eq. (21)), vectorized over the block's anchors."""
+    flat = d.reshape(-1, nb.dim)
+    dd = flat[nb.h_flat_self] - flat[nb.h_flat_other]
+    a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
+    b = 2.0 * np.einsum("ij,ij->i", diff, dd)
+    c = np.einsum("ij,ij->i", dd, dd)
+    # ∇f⁽ⁱ⁾ᵀ d with ∇f⁽ⁱ⁾ = 2 G⁽ⁱ⁾ᵀ g⁽ⁱ⁾ = −2 d (slope_factor 2); "subgradient": G⁽ⁱ⁾ᵀ g⁽ⁱ⁾ in its place (factor 1)
+    slope = -slope_factor * np.einsum("ijk,ijk->i", d, d)
+    moving = slope < 0
+    own = nb.h_own
+
+    def armijo(alpha: np.ndarray) -> np.ndarray:
+        al = alpha[own]
+        r = a + al * (b + al * c)
+        fa = np.bincount(own, nb.rho(r)[1], minlength=nb.nl)
+        return np.asarray(fa <= f0 + gamma * alpha * slope)
+
+    alpha = alpha_start.copy()
+    ok = armijo(alpha)
+    todo = moving & ~ok
+    for _ in range(max_backtracks):  # shrink until Armijo holds
+        if not todo.any():
+            break
+        alpha[todo] *= beta
+        ok = armijo(alpha)
+        todo = moving & ~ok
+    if two_way:  # grow while Armijo holds and α ≤ α₀
+        grow = moving & ok & (alpha / beta <= alpha0 * (1 + 1e-12))
+        for _ in range(max_backtracks):
+            if not grow.any():
+                break
+            trial = np.where(grow, alpha / beta, alpha)
+            ok_t = armijo(trial)
+            step_up = grow & ok_t
+            alpha = np.where(step_up, trial, alpha)
+            grow = step_up & (alpha / beta <= alpha0 * (1 + 1e-12))
+    return np.where(moving, alpha, alpha_start)
+
+
+def iterate_neighbourhood(
+    problem: RangingData,
+    *,
+    method: str = "N-CSG",
+    exchange: Exchange | None = None,
+    iterations: int = 500,
+    alpha: float = 1e-3,
+    alpha0: float = 1e-2,
+    beta: float = 0.5,
+    gamma: float = 0.5,
+    lambda0: float = 1e-3,
+    consensus_rounds: int = 1,
+    weights: str | ConsensusWeights = "MH",
+    initial_m: np.ndarray | None = None,
+    max_backtracks: int = 40,
+    damping: str = "levenberg",
+    armijo_slope: str = "subgradient",
+    loss: str = "linear",
+    loss_scale_m: float = 0.3,
+    lambda_min: float = 0.1,
+) -> Iterator[IterationState]:
+    """Yield the state of N-CSG / N-CSG-BLS / N-CSG-TBLS / N-CLM after iterations 0, 1, …, ``iterations``.
+
+    See the module docstring for the equations (paper 002 eqs. (14)–(22)). ``loss="huber"|"cauchy"`` makes every
+    anchor minimise the robust partial objective ``Σ_{l∈E(i)} s_l² ρ((g_l/s_l)²)`` (``s_l = 2 d_l σ``,
+    ``σ = loss_scale_m``, as :func:`distnav.algorithms.nlsq.solve_lm`): the subgradient becomes ``G⁽ⁱ⁾ᵀW g⁽ⁱ⁾``
+    with IRLS weights ``w_l = ρ'`` computed by the anchor from its own estimates, the line searches test the
+    robust objective, and N-CLM solves the weighted normal equations.
+    """
+    method = method.upper()
+    if method not in ("N-CSG", "N-CSG-BLS", "N-CSG-TBLS", "N-CLM"):
+        raise ModelError(f"unknown neighbourhood method {method!r}")
+    init = check_start(problem, iterations, consensus_rounds, initial_m)
+    if not (alpha > 0 and alpha0 > 0 and lambda0 > 0 and lambda_min > 0):
+        raise ModelError("alpha, alpha0, lambda0 and lambda_min must be positive")
+    if loss not in LOSSES:
+        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    if armijo_slope not in ("gradient", "subgradient"):
+        raise ModelError(f"armijo_slope must be 'gradient' or 'subgradient', got {armijo_slope!r}")
+    if damping not in ("levenberg", "fletcher"):
+        raise ModelError(f"damping must be 'levenberg' or 'fletcher', got {damping!r}")
+    if not (0 < beta < 1 and 0 < gamma < 1):
+        raise ModelError(f"beta and gamma must lie in (0, 1), got beta={beta}, gamma={gamma}")
+    ex = exchange_for(problem, exchange)
+    nb = Neighbourhoods(problem, ex, loss, loss_scale_m)
+    mix = Mixing(nb, ex, mixing_weights(problem, weights))
+    P = nb.initial(init)
+    nl = nb.nl
+    if method == "N-CSG":
+        step = np.full(nl, float(alpha))
+    elif method == "N-CLM":
+        step = np.full(nl, float(lambda0))
+    else:
+        step = np.full(nl, float(alpha0))
+    nu = np.full(nl, 2.0)
+    diff, g = nb.geometry(P)
+    yield IterationState(0, P[:, 0].copy(), step.copy(), nb.partial_cost(g))
+    if method == "N-CLM":
+        lm = LocalLM(nb, damping, lambda_min)
+    for k in range(1, iterations + 1):
+        diff, g = nb.geometry(P)
+        w, terms = nb.rho(g)
+        f0 = np.bincount(nb.h_own, terms, minlength=nl)
+        grad = nb.gradient(diff, g, None if loss == "linear" else w)
+        if method == "N-CSG":
+            U = P - alpha * grad
+        elif method == "N-CLM":
+            U, step, nu = lm.step(P, diff, g, f0, grad, step, nu, w)
+        else:
+            start = np.full(nl, float(alpha0)) if method == "N-CSG-BLS" else step
+            step = armijo_search(nb, diff, g, -grad, f0, start, alpha0, beta, gamma,
+                                  two_way=method == "N-CSG-TBLS", max_backtracks=max_backtracks,
+                                  slope_factor=2.0 if armijo_slope == "gradient" else 1.0)
+            U = P - step[:, None, None] * grad
+        for _ in range(consensus_rounds):
+            U = mix.apply(U)
+        P = U
+        yield IterationState(k, P[:, 0].copy(), step.copy(), f0)
+
+
+class LocalLM:
+    """Batched per-anchor LM steps on the partial costs (paper 002 eq. (22)).
+
+    ``G⁽ⁱ⁾ᵀG⁽ⁱ⁾`` is an arrowhead matrix: the own block couples with every neighbour block, neighbour blocks do
+    not couple with each other (a range involves anchor ``i`` and one neighbour), and a neighbour block is
+    rank one, ``c_s v_s v_sᵀ`` (``c_s`` samples of the link, ``v_s = 2(r_i − r_s)``). The damped system is solved
+    by Sherman–Morrison on the neighbour blocks and the Schur complement on the own ``dim × dim`` block,
+    vectorized over all anchors and links: no ``(K·dim)²`` matrix is formed or factorised.
+    """
+
+    def __init__(self, nb: Neighbourhoods, damping: str, lambda_min: float = 0.1) -> None:
+        self.nb = nb
+        self.damping = damping
+        self.lambda_min = lambda_min
+        key = nb.h_own * nb.K + nb.h_slot
+        uniq, first, inv, count = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+        self.ls_own, self.ls_slot = uniq // nb.K, uniq % nb.K
+        self.first, self.count, self.inv = first, count.astype(float), inv
+        nls = uniq.size
+        self.O = sp.csr_matrix((np.ones(nls), (self.ls_own, np.arange(nls))), shape=(nb.nl, nls))  # → anchors
+        self.fo = nb.free_slot[:, 0, :]
+        self.fs = nb.free_slot[self.ls_own, self.ls_slot, :]
+        self.mo = self.fo[:, :, None] & self.fo[:, None, :]
+        self.n_free = self.fo.sum(axis=1) + np.asarray(self.O @ self.fs.sum(axis=1).astype(float))
+        self.eye = np.eye(nb.dim)
+
+    def step(self, P: np.ndarray, diff: np.ndarray, g: np.ndarray, f0: np.ndarray, grad: np.ndarray, lam: np.ndarray,
+             nu: np.ndarray, wt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        nb = self.nb
+        nl, d = nb.nl, nb.dim
+        robust = nb.loss != "linear" and wt is not None
+        c = np.bincount(self.inv, wt, minlength=self.count.size) if robust else self.count  # Σ of sample weights
+        v = 2.0 * diff[self.first]  # (links, d): the same for every sample of a link
+        u = v * self.fs  # neighbour columns that are free
+        w = v * self.fo[self.ls_own]  # own columns that are free
+        A0 = np.asarray(self.O @ (c[:, None, None] * v[:, :, None] * v[:, None, :]).reshape(-1, d * d))
+        A0 = A0.reshape(nl, d, d)
+        dA = np.einsum("kii->ki", A0) * self.fo
+        dB = c[:, None] * u * u
+        if self.damping == "fletcher":  # eq. (8) literally: λ diag(GᵀG)
+            floor = 1e-12 * np.maximum(dA.max(axis=1), 1e-300)
+            sA = np.maximum(dA, floor[:, None])
+            sB = np.maximum(dB, floor[self.ls_own][:, None])
+        else:  # Levenberg: λ · mean free diagonal · I
+            mean = (dA.sum(axis=1) + np.asarray(self.O @ dB.sum(axis=1))) / np.maximum(self.n_free, 1)
+            mean = np.maximum(mean, 1e-300)
+            sA = np.broadcast_to(mean[:, None], dA.shape)
+            sB = np.broadcast_to(mean[self.ls_own][:, None], dB.shape)
+        t = np.where(self.fs, lam[self.ls_own][:, None] * sB, 1.0)  # D_s = diag(t) + c u uᵀ
+        tu = u / t
+        q = np.einsum("ij,ij->i", u, tu)
+        den = 1.0 + c * q
+        b0 = -grad[:, 0, :]
+        bs = -grad[self.ls_own, self.ls_slot, :]
+        # Schur complement: S = A − Σ_s C_s D_s⁻¹ C_sᵀ with C_s = −c w uᵀ  ⇒  C D⁻¹ Cᵀ = c² q/(1+cq) w wᵀ
+        Am = A0 * self.mo + self.eye * np.where(self.fo, lam[:, None] * sA, 1.0)[:, :, None]
+        coef = c * c * q / den
+        S = Am - np.asarray(self.O @ (coef[:, None, None] * w[:, :, None] * w[:, None, :]).reshape(-1, d * d)
+                            ).reshape(nl, d, d)
+        tub = np.einsum("ij,ij->i", tu, bs)
+        r0 = b0 + np.asarray(self.O @ ((c * tub / den)[:, None] * w))
+        with single_threaded_blas():
+            d0 = np.linalg.solve(S, r0[:, :, None])[:, :, 0]
+        x = bs + (c * np.einsum("ij,ij->i", w, d0[self.ls_own]))[:, None] * u  # b_s − C_sᵀ δ0
+        ds = x / t - (c * np.einsum("ij,ij->i", tu, x) / den)[:, None] * tu  # D_s⁻¹ x (Sherman–Morrison)
+        delta = np.zeros_like(P)
+        delta[:, 0, :] = d0
+        delta[self.ls_own, self.ls_slot, :] = ds
+        delta = np.where(nb.free_slot, delta, 0.0)
+        # gain ratio of each anchor's own partial cost (local evaluation, like the line searches)
+        dflat = delta.reshape(-1, d)
+        dd = dflat[nb.h_flat_self] - dflat[nb.h_flat_other]
+        a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
+        lin = a + 2.0 * np.einsum("ij,ij->i", diff, dd)  # g + Gδ
+        r = lin + np.einsum("ij,ij->i", dd, dd)
+        f_new = np.bincount(nb.h_own, nb.rho(r)[1], minlength=nl)
+        if robust:  # reduction of the weighted quadratic model Σ w (g + Gδ)²
+            assert wt is not None
+            pred = np.bincount(nb.h_own, wt * (a * a - lin * lin), minlength=nl)
+        else:
+            pred = f0 - np.bincount(nb.h_own, lin * lin, minlength=nl)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.where(pred > 0, (f0 - f_new) / pred, -1.0)
+        acc = (rho > 0) & np.isfinite(f_new)
+        new_lam = np.where(acc, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), lam * nu)
+        new_nu = np.where(acc, 2.0, nu * 2.0)
+        new_lam = np.clip(new_lam, self.lambda_min, 1e12)
+        U = P + np.where(acc[:, None, None], delta, 0.0)
+        return U, new_lam, new_nu

@@ -1,0 +1,132 @@
+"""The centralized ranging objectives LM minimises: paper 002's squared form, the range residual in metres, and
+range-bias calibration (a common offset or per-anchor antenna delays with a prior).
+
+* ``"squared"`` (paper 002 eq. (6)): ``g_l = ‖r_a − r_b‖² − d_l²``, unweighted; a robust loss acts on ``g`` with the
+  scale ``s_l = 2 d_l σ_loss`` (:func:`~distnav.algorithms.nlsq.range_loss_scale`).
+* ``"metres"``: ``e_l = ‖r_a − r_b‖ + b_l − d_l`` whitened by the range σ, ``r_l = e_l / σ_l`` (weight ``1/σ²``), a
+  robust loss on ``r`` with the scale ``σ_loss / σ_l`` — i.e. it switches at range errors of about ``σ_loss``
+  metres whatever the link's length. ``b_l`` is the range bias: 0, a common offset ``b`` (every range reads ``b``
+  too long), or the sum ``b_a + b_b`` of the two anchors' antenna delays. Per-anchor delays are not separable from
+  the geometry without a prior: each gets a pseudo-observation ``b_i / σ_b = 0`` (``offset_prior_sigma_m``);
+  prior rows are never down-weighted by the loss.
+
+The free vector is ``x = [free coordinates (eq. (1)), offsets]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import scipy.sparse as sp
+
+from distnav.algorithms.ranging import RangingData
+from distnav.errors import ModelError
+
+__all__ = ["OFFSETS", "RangeObjective", "range_sigma"]
+
+OFFSETS = ("none", "common", "per_anchor")
+_PRIOR_SCALE = 1e30  # the loss scale of prior rows: ρ(z) = z for every loss
+
+
+def range_sigma(problem: RangingData, sigma_m: float | np.ndarray) -> np.ndarray:
+    """The range σ of every sample (a scalar is broadcast); must be finite and positive."""
+    s = np.broadcast_to(np.asarray(sigma_m, float), problem.range_m.shape).copy()
+    if not np.all(np.isfinite(s)) or np.any(s <= 0):
+        raise ModelError(f"sigma_m must be finite and positive (one value or one per range sample), got {sigma_m!r}")
+    return s
+
+
+@dataclass(frozen=True, eq=False)
+class RangeObjective:
+    """Whitened residuals and their Jacobian for LM on a ranging problem (see the module docstring)."""
+
+    problem: RangingData
+    kind: str = "squared"
+    sigma_m: float | np.ndarray = 1.0
+    offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("squared", "metres"):
+            raise ModelError(f"objective must be 'squared' or 'metres', got {self.kind!r}")
+        if self.offsets not in OFFSETS:
+            raise ModelError(f"range offsets must be one of {', '.join(OFFSETS)}, got {self.offsets!r}")
+        if self.offsets != "none" and self.kind != "metres":
+            raise ModelError("range offsets are estimated with objective='metres' only")
+        if self.offsets == "per_anchor" and not self.offset_prior_sigma_m > 0:
+            raise ModelError(f"offset_prior_sigma_m must be positive, got {self.offset_prior_sigma_m}")
+
+    @cached_property
+    def sigma(self) -> np.ndarray:
+        return range_sigma(self.problem, self.sigma_m)
+
+    @property
+    def n_offsets(self) -> int:
+        return {"none": 0, "common": 1, "per_anchor": self.problem.n_anchors}[self.offsets]
+
+    @property
+    def n_prior(self) -> int:
+        return self.problem.n_anchors if self.offsets == "per_anchor" else 0
+
+    @property
+    def n_x(self) -> int:
+        return self.problem.n_free + self.n_offsets
+
+    def x0(self, initial_m: np.ndarray) -> np.ndarray:
+        return np.concatenate([self.problem.to_vector(initial_m), np.zeros(self.n_offsets)])
+
+    def split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(positions (n, dim), offsets)`` of a free vector."""
+        nf = self.problem.n_free
+        return self.problem.to_positions(x[:nf]), np.asarray(x[nf:])
+
+    def sample_offsets(self, offsets: np.ndarray) -> np.ndarray:
+        """``b_l`` of every sample."""
+        p = self.problem
+        if self.offsets == "common":
+            return np.full(p.n_meas, float(offsets[0]))
+        if self.offsets == "per_anchor":
+            return np.asarray(offsets[p.meas_a] + offsets[p.meas_b])
+        return np.zeros(p.n_meas)
+
+    def residual(self, x: np.ndarray) -> np.ndarray:
+        pos, off = self.split(x)
+        if self.kind == "squared":
+            return self.problem.residuals(pos)
+        r = (self.problem.distances(pos) + self.sample_offsets(off) - self.problem.range_m) / self.sigma
+        if self.n_prior:
+            r = np.concatenate([r, off / self.offset_prior_sigma_m])
+        return np.asarray(r)
+
+    def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
+        pos, _ = self.split(x)
+        p = self.problem
+        if self.kind == "squared":
+            return p.jacobian(pos)
+        jac = sp.diags(1.0 / self.sigma) @ p.jacobian_m(pos)
+        if self.offsets == "none":
+            return sp.csr_matrix(jac)
+        if self.offsets == "common":
+            cols = sp.csr_matrix((1.0 / self.sigma)[:, None])
+        else:
+            m, n = p.n_meas, p.n_anchors
+            rows = np.concatenate([np.arange(m)] * 2)
+            cols = sp.csr_matrix((np.concatenate([1.0 / self.sigma] * 2), (rows, np.concatenate([p.meas_a, p.meas_b]))),
+                                 shape=(m, n))
+        top = sp.hstack([jac, cols])
+        if not self.n_prior:
+            return sp.csr_matrix(top)
+        prior = sp.hstack([sp.csr_matrix((self.n_prior, p.n_free)),
+                           sp.identity(self.n_prior, format="csr") / self.offset_prior_sigma_m])
+        return sp.csr_matrix(sp.vstack([top, prior]))
+
+    def loss_scale(self, loss_scale_m: float) -> np.ndarray:
+        """Scale of every residual for the robust loss (prior rows: never down-weighted)."""
+        if not loss_scale_m > 0:
+            raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
+        p = self.problem
+        if self.kind == "squared":
+            return np.asarray(2.0 * np.maximum(p.range_m, loss_scale_m) * loss_scale_m)
+        return np.concatenate([loss_scale_m / self.sigma, np.full(self.n_prior, _PRIOR_SCALE)])

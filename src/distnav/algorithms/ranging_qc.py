@@ -1,0 +1,239 @@
+"""Precision and per-link tests of a UWB ranging solution; the link-exclusion loop.
+
+Centralized (LM, :func:`centralized_quality`): at the solution ``x̂`` with whitened Jacobian ``J`` (rows
+``j_l``) and the final IRLS weights ``W = diag(w_l)`` (1 for the linear loss),
+
+* covariance ``Q_x̂ = (JᵀWJ)⁻¹`` (σ² = 1; the a-posteriori covariance is ``σ̂² Q_x̂`` with ``σ̂² = Σ w r² / (m − n)``),
+  cut into every anchor's ``dim × dim`` block (:class:`~distnav.algorithms.result.Precision`, kind
+  ``"centralized"``);
+* residual variances of the whitened ranges under H0 for the fixed weights,
+  ``q_l = (I − JQJᵀW)(I − JQJᵀW)ᵀ_ll = 1 − 2 w_l h_l + j_l Q (JᵀW²J) Q j_lᵀ`` with ``h_l = j_l Q j_lᵀ``
+  (for ``W = I``: ``1 − h_l``, Baarda's redundancy number). A link the robust loss ignored (``w_l ≈ 0``) gets
+  ``q_l ≈ 1 + h_l``: its residual is a prediction and tests it at full strength;
+* w-statistics ``w_l = r̂_l / (ŝ √q_l)`` (:func:`distnav.algorithms.statistics.w_statistics`), where ``ŝ`` is a
+  **robust scale** by default: ``1.4826 · median |r̂_l / √q_l|``. Why: the range σ of a real log is not known
+  in advance, and the a-posteriori ``σ̂`` from the sum of squares is inflated by the very NLOS links one is
+  looking for (masking them); the median is insensitive to up to half the links being bad. ``scale="a-priori"``
+  uses the given σ (``ŝ = 1``) for data whose σ is trusted.
+
+Distributed (:func:`local_quality`): anchor ``i`` knows its own links and the estimates it holds of itself and
+its neighbours. Its information about its own position with the neighbours held at their estimates is
+``N_i = Σ_{l∈E(i)} w_l j_l j_lᵀ``; ``N_i⁻¹`` is the **conditional** covariance (kind ``"conditional"``): never
+larger than the centralized block (it ignores the neighbours' own errors), so it is a lower bound — optimistic —
+and says so. Each anchor tests its own links with ``q_l = 1 − w_l j_lᵀ N_i⁻¹ j_l`` and a robust scale from its
+own links (floored at the a-priori σ / 4).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Callable
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from distnav.algorithms.ranging import RangingData, RangingResult
+from distnav.algorithms.result import ObservationTests, Precision
+from distnav.algorithms.statistics import critical_value, variance_factor, w_statistics
+from distnav.errors import ModelError
+
+__all__ = ["TEST_SCALES", "centralized_quality", "exclude_links", "local_quality", "robust_scale"]
+
+log = logging.getLogger(__name__)
+TEST_SCALES = ("robust", "a-priori")
+_MAX_DENSE = 6000  # unknowns up to which the covariance is formed (a dense inverse)
+
+
+def robust_scale(standardized: np.ndarray) -> float:
+    """``1.4826 · median |s|`` over the finite entries (the normal-consistent MAD about zero); NaN if none."""
+    s = np.abs(standardized[np.isfinite(standardized)])
+    return float(1.4826 * np.median(s)) if s.size else float("nan")
+
+
+def _row_quadratic(J: sp.csr_matrix, Q: np.ndarray) -> np.ndarray:
+    """``j_l Q j_lᵀ`` of every row of a sparse ``J`` without forming ``J Q`` (rows are short)."""
+    J = sp.csr_matrix(J)
+    J.sort_indices()
+    counts = np.diff(J.indptr)
+    K = int(counts.max(initial=0))
+    m = J.shape[0]
+    cols = np.zeros((m, K), np.int64)
+    vals = np.zeros((m, K))
+    slot = np.arange(J.nnz) - np.repeat(J.indptr[:-1], counts)
+    rows = np.repeat(np.arange(m), counts)
+    cols[rows, slot] = J.indices
+    vals[rows, slot] = J.data
+    sub = Q[cols[:, :, None], cols[:, None, :]]  # (m, K, K)
+    return np.asarray(np.einsum("lk,lkj,lj->l", vals, sub, vals))
+
+
+def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual: np.ndarray, weight: np.ndarray,
+                        n_ranges: int, *, level: float = 0.001, scale: str = "robust"
+                        ) -> tuple[Precision | None, ObservationTests | None, np.ndarray | None]:
+    """Precision of every anchor and w-tests of every range sample at an LM solution (module docstring).
+
+    ``jacobian`` / ``residual`` / ``weight`` are the whitened rows at the solution (the first ``n_ranges`` rows are
+    the range samples; further rows are priors, not tested). Returns ``(precision, tests, Q_x̂)``, or Nones when
+    the normal matrix is singular (a mirror image or a non-rigid part: the positions are not determined) or the
+    problem is too large for a dense covariance.
+    """
+    if scale not in TEST_SCALES:
+        raise ModelError(f"test scale must be one of {', '.join(TEST_SCALES)}, got {scale!r}")
+    n_x = jacobian.shape[1]
+    if n_x == 0 or n_x > _MAX_DENSE:
+        log.info("no covariance: %d unknowns", n_x)
+        return None, None, None
+    J = sp.csr_matrix(jacobian)
+    N = np.asarray((J.T @ sp.diags(weight) @ J).toarray())
+    try:
+        Q = sla.cho_solve(sla.cho_factor(N, check_finite=False), np.eye(n_x), check_finite=False)
+    except (np.linalg.LinAlgError, ValueError):
+        log.info("singular normal matrix: no covariance")
+        return None, None, None
+    Q = 0.5 * (Q + Q.T)
+    m_rows = J.shape[0]
+    redundancy = float(m_rows - n_x)
+    s2 = variance_factor(float(np.sum(weight * residual * residual)), redundancy)
+    # per-anchor blocks of Q (zeros at known coordinates)
+    col = np.full(problem.free.shape, -1, np.int64)
+    col[problem.free] = np.arange(problem.n_free)
+    safe = np.maximum(col, 0)
+    blocks = Q[safe[:, :, None], safe[:, None, :]] * ((col[:, :, None] >= 0) & (col[:, None, :] >= 0))
+    precision = Precision(covariance=blocks, variance_factor=s2, redundancy=redundancy, kind="centralized")
+    # residual variances and w-tests of the range samples
+    Jr = J[:n_ranges]
+    h = _row_quadratic(Jr, Q)
+    M = np.asarray((J.T @ sp.diags(weight * weight) @ J).toarray())
+    QMQ = Q @ M @ Q
+    q = np.maximum(1.0 - 2.0 * weight[:n_ranges] * h + _row_quadratic(Jr, QMQ), 0.0)
+    r = residual[:n_ranges]
+    std = w_statistics(r, q)
+    s = robust_scale(std) if scale == "robust" else 1.0
+    w = std / s if s > 0 else std
+    k = critical_value(level)
+    tests = ObservationTests(node=np.asarray(problem.meas_a), w=w, critical_value=k, level=level,
+                             flagged=np.abs(np.nan_to_num(w)) > k)
+    return precision, tests, Q
+
+
+def local_quality(problem: RangingData, own_m: np.ndarray, held_other_m: np.ndarray, owner: np.ndarray,
+                  sample: np.ndarray, sigma: np.ndarray, weight: np.ndarray, kind: str, *, level: float = 0.001,
+                  scale: str = "robust") -> tuple[Precision, ObservationTests]:
+    """What every anchor computes from its own links (module docstring): conditional covariance and w-tests.
+
+    One row per half-measurement held by an anchor: ``owner`` (anchor index), ``sample`` (range sample index),
+    ``own_m`` / ``held_other_m`` (the owner's estimate of itself and of the other end, ``(h, dim)``), the range σ
+    and the final IRLS weight. ``kind`` is the objective (``"squared"`` or ``"metres"``). Every sample is tested
+    by the lower-indexed of its two anchors (its owner in :attr:`ObservationTests.node`).
+    """
+    if scale not in TEST_SCALES:
+        raise ModelError(f"test scale must be one of {', '.join(TEST_SCALES)}, got {scale!r}")
+    n, dim = problem.n_anchors, problem.dim
+    diff = own_m - held_other_m
+    dist = np.linalg.norm(diff, axis=1)
+    d = problem.range_m[sample]
+    if kind == "metres":
+        j = diff / np.where(dist > 0, dist, np.inf)[:, None] / sigma[:, None]
+        r = (dist - d) / sigma
+    else:
+        j = 2.0 * diff
+        r = dist * dist - d * d
+    fr = problem.free[owner]
+    j = j * fr
+    info = np.zeros((n, dim, dim))
+    np.add.at(info, owner, weight[:, None, None] * j[:, :, None] * j[:, None, :])
+    est = problem.estimated
+    cov = np.zeros((n, dim, dim))
+    for i in np.flatnonzero(est):  # small dim × dim blocks, the free coordinates only
+        f = problem.free[i]
+        sub = info[i][np.ix_(f, f)]
+        try:
+            cov[i][np.ix_(f, f)] = np.linalg.inv(sub)
+        except np.linalg.LinAlgError:
+            cov[i][np.ix_(f, f)] = np.inf
+    with np.errstate(invalid="ignore"):
+        h = np.einsum("li,lij,lj->l", j, cov[owner], j)
+    q = np.where(np.isfinite(h), np.maximum(1.0 - weight * h, 0.0), 0.0)
+    std = w_statistics(r, q)
+    # each anchor's robust scale from its own links, floored at a quarter of the a-priori scale
+    s = np.ones(n)
+    if scale == "robust":
+        for node in range(n):
+            own = owner == node
+            if own.any():
+                val = robust_scale(std[own])
+                s[node] = max(val, 0.25) if np.isfinite(val) else 1.0
+    w_half = std / s[owner]
+    tester = np.minimum(problem.meas_a, problem.meas_b)[sample] == owner
+    m = problem.n_meas
+    w = np.full(m, np.nan)
+    w[sample[tester]] = w_half[tester]
+    k = critical_value(level)
+    # redundancy of each anchor's local problem: its links minus its free coordinates
+    links = np.bincount(owner, minlength=n).astype(float)
+    red = float(np.sum(np.maximum(links - problem.free.sum(axis=1), 0.0)[est]))
+    wssr = float(np.sum(weight * r * r)) / 2.0  # every sample is held twice
+    precision = Precision(covariance=cov, variance_factor=variance_factor(wssr, max(m - problem.n_free, 0)),
+                          redundancy=red, kind="conditional")
+    tests = ObservationTests(node=np.minimum(problem.meas_a, problem.meas_b), w=w, critical_value=k, level=level,
+                             flagged=np.abs(np.nan_to_num(w)) > k)
+    return precision, tests
+
+
+def _links_left(problem: RangingData, keep: np.ndarray) -> np.ndarray:
+    """Distinct links per anchor among the kept samples."""
+    a, b = problem.meas_a[keep], problem.meas_b[keep]
+    n = problem.n_anchors
+    key = np.unique(np.minimum(a, b) * n + np.maximum(a, b))
+    return np.bincount(np.concatenate([key // n, key % n]), minlength=n)
+
+
+def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResult], *,
+                  max_exclusions: int | None = None) -> tuple[RangingResult, RangingData, ObservationTests]:
+    """Iterative exclusion: while a link is flagged, remove the link (all its samples) with the largest |w| whose
+    two anchors keep more links than free coordinates (the network stays determined with a check), and re-fit.
+
+    ``fit(subproblem)`` solves a problem and returns a result with ``tests`` (LM with QC, or a distributed solver).
+    Returns ``(final result, the problem without the excluded links, tests)`` where the tests hold the final
+    ``w`` of every original sample (NaN for excluded ones), ``flagged`` in the final solution and ``removed`` =
+    the original sample indices excluded, in order.
+    """
+    keep = np.ones(problem.n_meas, bool)
+    removed: list[int] = []
+    res = fit(problem)
+    sub = problem
+    limit = problem.n_meas if max_exclusions is None else int(max_exclusions)
+    n_links = 0
+    need = problem.free.sum(axis=1) + 1
+    while res.tests is not None and res.usable and n_links < limit:
+        t = res.tests
+        idx = np.flatnonzero(keep)
+        aw = np.where(np.isfinite(t.w), np.abs(t.w), -np.inf)
+        left = _links_left(problem, keep)
+        a, b = problem.meas_a[idx], problem.meas_b[idx]
+        ok = ((left[a] - 1 >= need[a]) | problem.fixed[a]) & ((left[b] - 1 >= need[b]) | problem.fixed[b])
+        aw = np.where(ok, aw, -np.inf)
+        worst = int(np.argmax(aw)) if aw.size else 0
+        if not aw.size or aw[worst] <= t.critical_value:
+            break
+        lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
+        same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
+        keep[same] = False
+        removed.extend(int(s) for s in same)
+        n_links += 1
+        sub = dataclasses.replace(problem, meas_a=problem.meas_a[keep], meas_b=problem.meas_b[keep],
+                                  range_m=problem.range_m[keep])
+        res = fit(sub)
+    w_all = np.full(problem.n_meas, np.nan)
+    flagged = np.zeros(problem.n_meas, bool)
+    final = res.tests
+    if final is None:
+        raise ModelError("exclude_links needs a fit that returns per-link tests (result.tests)")
+    w_all[keep] = final.w
+    flagged[keep] = final.flagged
+    node = np.minimum(problem.meas_a, problem.meas_b)
+    tests = ObservationTests(node=node, w=w_all, critical_value=final.critical_value, level=final.level,
+                             flagged=flagged, removed=tuple(removed), iterations=0, comm=None)
+    return res, sub, tests

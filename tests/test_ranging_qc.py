@@ -1,0 +1,170 @@
+"""UWB objective in metres, per-anchor precision, per-link w-tests, range-offset calibration and link exclusion,
+against scipy, a dense reference and Monte Carlo."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from distnav.algorithms.nlsq import solve_lm
+from distnav.algorithms.ranging_objective import RangeObjective
+from distnav.algorithms.ranging_qc import exclude_links
+from distnav.algorithms.statistics import residual_covariance
+from distnav.errors import ModelError
+from distnav.models.uwb.problems import build_problem
+
+
+def network(rng: np.random.Generator, *, sigma_m: float = 0.1, n: int = 30, dim: int = 3, offset_m: float = 0.0,
+            delays_m: np.ndarray | None = None):
+    """Anchors in a 30 m × 30 m × 8 m hall, links up to 16 m, rigid (every anchor ≥ dim + 2 links)."""
+    for _ in range(100):
+        t = rng.uniform(0.0, 30.0, (n, dim))
+        if dim == 3:
+            t[:, 2] = rng.uniform(0.0, 8.0, n)
+        a, b = np.triu_indices(n, 1)
+        d = np.linalg.norm(t[a] - t[b], axis=1)
+        k = d < 16.0
+        if np.bincount(np.concatenate([a[k], b[k]]), minlength=n).min() < dim + 2:
+            continue
+        a, b, d = a[k], b[k], d[k]
+        bias = offset_m + (0.0 if delays_m is None else delays_m[a] + delays_m[b])
+        r = d + bias + rng.normal(0, sigma_m, d.size)
+        ids = [f"A{i}" for i in range(n)]
+        return build_problem(ids, np.stack([a, b], 1), r, fixed={ids[i]: t[i] for i in range(4)}, dim=dim,
+                             initial_m=t + rng.uniform(-1.0, 1.0, t.shape), truth_m=t)
+    raise AssertionError("no rigid network drawn")
+
+
+def with_nlos(p, rng, count=5):
+    r = p.range_m.copy()
+    bad = np.sort(rng.choice(r.size, count, replace=False))
+    r[bad] += rng.uniform(0.6, 2.4, count)
+    return p.with_ranges(r), bad
+
+
+def rmse(p, est):
+    d = (est - p.truth_m)[p.estimated]
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+@pytest.mark.parametrize("loss", ["linear", "huber", "soft_l1", "cauchy"])
+def test_metres_objective_matches_scipy_least_squares(loss):
+    p, _ = with_nlos(network(np.random.default_rng(4)), np.random.default_rng(5))
+    ours = solve_lm(p, objective="metres", sigma_m=0.1, loss=loss, loss_scale_m=0.2)
+    assert ours.converged and ours.objective_kind == "metres"
+    o = RangeObjective(p, "metres", 0.1)
+    start = solve_lm(p, objective="metres", sigma_m=0.1).x  # scipy from the linear fit (our graduated start)
+    ref = least_squares(o.residual, start, jac=lambda x: o.jacobian(x).toarray(), loss=loss, f_scale=0.2 / 0.1,
+                        method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert ours.objective == pytest.approx(2.0 * ref.cost, rel=1e-9)  # scipy's cost is ½ Σ s²ρ
+    np.testing.assert_allclose(ours.x, ref.x, atol=1e-6)
+
+
+def test_metres_residual_and_jacobian_by_finite_differences():
+    p = network(np.random.default_rng(1), n=12)
+    o = RangeObjective(p, "metres", np.linspace(0.05, 0.2, p.n_meas), "per_anchor", 0.3)
+    x = o.x0(p.initial_m) + 0.01
+    J = o.jacobian(x).toarray()
+    num = np.empty_like(J)
+    for c in range(x.size):
+        e = np.zeros(x.size)
+        e[c] = 1e-6
+        num[:, c] = (o.residual(x + e) - o.residual(x - e)) / 2e-6
+    np.testing.assert_allclose(J, num, atol=1e-6)
+
+
+def test_w_tests_match_dense_residual_covariance():
+    p = network(np.random.default_rng(2), n=15)
+    res = solve_lm(p, objective="metres", sigma_m=0.1, test_scale="a-priori")
+    o = RangeObjective(p, "metres", 0.1)
+    A = o.jacobian(res.x).toarray()
+    Qx = np.linalg.inv(A.T @ A)
+    Qe = residual_covariance(A, np.eye(A.shape[0]), Qx)
+    w_ref = o.residual(res.x) / np.sqrt(np.diag(Qe))
+    np.testing.assert_allclose(res.tests.w, w_ref, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(res.precision.covariance[~p.fixed],
+                               np.stack([Qx[3 * k:3 * k + 3, 3 * k:3 * k + 3] for k in range(p.n_anchors - 4)]),
+                               rtol=1e-8, atol=1e-14)
+    assert res.precision.kind == "centralized" and res.precision.redundancy == p.n_meas - p.n_free
+
+
+def test_covariance_is_calibrated_by_monte_carlo():
+    """2σ coverage of every estimated coordinate over noise draws: σ from σ̂² × (JᵀWJ)⁻¹ (a-posteriori)."""
+    rng = np.random.default_rng(7)
+    base = network(rng, n=20)
+    d_true = np.linalg.norm(base.truth_m[base.meas_a] - base.truth_m[base.meas_b], axis=1)
+    inside, total = 0, 0
+    for _ in range(150):
+        p = base.with_ranges(d_true + rng.normal(0, 0.1, d_true.size))
+        res = solve_lm(p, objective="metres", sigma_m=0.1, initial_m=base.truth_m)
+        std = res.precision.std(a_posteriori=True)
+        err = np.abs(res.estimates - base.truth_m)
+        f = p.free
+        inside += int(np.sum(err[f] <= 2.0 * std[f]))
+        total += int(f.sum())
+    coverage = inside / total
+    assert 0.90 <= coverage <= 0.98, coverage
+
+
+def test_nlos_links_are_found_and_excluded():
+    """Recall and false alarms of Cauchy fit + iterative exclusion over 6 draws (issue 13: ≥ 90 %, ≤ 5 %), heights
+    held (2-D, as under a ceiling). In 3-D with free heights one of these draws leaves an NLOS link on an anchor
+    whose height is weakly determined undetected (the bias moves the anchor instead of the residual)."""
+    found = false = n_bad = n_good = 0
+    ours, best = [], []
+    for seed in range(6):
+        p, bad = with_nlos(network(np.random.default_rng(100 + seed), dim=2), np.random.default_rng(200 + seed))
+        fit = lambda q: solve_lm(q, objective="metres", sigma_m=0.1, loss="cauchy", loss_scale_m=0.2)
+        res, sub, tests = exclude_links(p, fit)
+        removed = set(tests.removed)
+        found += len(removed & set(bad.tolist()))
+        false += len(removed - set(bad.tolist()))
+        n_bad += bad.size
+        n_good += p.n_meas - bad.size
+        assert sub.n_meas == p.n_meas - len(removed) and not tests.flagged.any()
+        assert np.isnan(tests.w[sorted(removed)]).all()
+        keep = np.ones(p.n_meas, bool)
+        keep[bad] = False
+        oracle = dataclasses.replace(p, meas_a=p.meas_a[keep], meas_b=p.meas_b[keep], range_m=p.range_m[keep])
+        ours.append(rmse(p, res.estimates))
+        best.append(rmse(p, solve_lm(oracle, objective="metres", sigma_m=0.1).estimates))
+    assert found / n_bad >= 0.9 and false / n_good <= 0.05, (found, n_bad, false, n_good)
+    assert np.mean(ours) <= 1.15 * np.mean(best), (ours, best)  # issue 13: ≤ 1.15 × the oracle (NLOS removed)
+
+
+def test_common_range_offset_is_estimated():
+    rng = np.random.default_rng(9)
+    p = network(rng, offset_m=0.4)
+    plain = solve_lm(p, objective="metres", sigma_m=0.1)
+    cal = solve_lm(p, objective="metres", sigma_m=0.1, range_offsets="common")
+    assert cal.offsets_m.shape == (1,) and abs(cal.offsets_m[0] - 0.4) < 3 * cal.offsets_std_m[0]
+    assert cal.offsets_std_m[0] < 0.05
+    assert rmse(p, cal.estimates) < 0.5 * rmse(p, plain.estimates)
+
+
+def test_per_anchor_delays_with_prior():
+    rng = np.random.default_rng(10)
+    n = 30
+    delays = rng.normal(0.0, 0.15, n)
+    p = network(rng, n=n, delays_m=delays, sigma_m=0.05)
+    plain = solve_lm(p, objective="metres", sigma_m=0.05)
+    cal = solve_lm(p, objective="metres", sigma_m=0.05, range_offsets="per_anchor", offset_prior_sigma_m=0.3)
+    assert cal.offsets_m.shape == (n,)
+    z = (cal.offsets_m - delays) / cal.offsets_std_m
+    assert np.mean(np.abs(z) <= 2.0) >= 0.85  # the delays within their stated 2σ
+    assert rmse(p, cal.estimates) < rmse(p, plain.estimates)
+
+
+def test_validation_of_the_new_options():
+    p = network(np.random.default_rng(1), n=12)
+    with pytest.raises(ModelError, match="objective"):
+        solve_lm(p, objective="cubic")
+    with pytest.raises(ModelError, match="range offsets"):
+        solve_lm(p, range_offsets="common")
+    with pytest.raises(ModelError, match="sigma_m"):
+        solve_lm(p, objective="metres", sigma_m=0.0)
+    with pytest.raises(ModelError, match="unknown loss"):
+        solve_lm(p, objective="metres", loss="tukey")
