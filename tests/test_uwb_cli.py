@@ -83,32 +83,44 @@ def test_without_truth_rmse_is_null(tmp_path):
     assert json.loads((tmp_path / "o" / "summary.json").read_text())["rmse_m"] is None
 
 
-def test_heights_fix_the_ceiling_mirror_and_planar_warning(tmp_path, capsys):
+def test_heights_fix_the_ceiling_mirror_and_planar_refusal(tmp_path, capsys):
     f = hall(tmp_path, sigma_m=0.05, seed=3)
-    assert run(f, tmp_path / "free", "--truth", str(f["truth"])) == 0
+    assert run(f, tmp_path / "free", "--truth", str(f["truth"])) == 2  # refused: nearly planar, heights free
     err = capsys.readouterr().err
-    assert "nearly planar" in err and "--heights" in err
-    free = json.loads((tmp_path / "free" / "summary.json").read_text())
+    assert "nearly planar" in err and "--heights" in err and "--allow-planar-3d" in err
+    assert not (tmp_path / "free").exists()
+    assert run(f, tmp_path / "asked", "--truth", str(f["truth"]), "--allow-planar-3d") == 0
+    assert "nearly planar" in capsys.readouterr().err
+    free = json.loads((tmp_path / "asked" / "summary.json").read_text())
+    assert free["status"] == "weakly_determined" and any("nearly planar" in w for w in free["warnings"])
     assert run(f, tmp_path / "held", "--truth", str(f["truth"]), "--heights", str(f["heights"])) == 0
     assert "nearly planar" not in capsys.readouterr().err
     held = json.loads((tmp_path / "held" / "summary.json").read_text())
     assert held["n_heights_held"] == 10  # the 14 anchors minus the 4 known ones
-    assert held["rmse_m"] < 0.1
+    assert held["status"] == "converged" and held["rmse_m"] < 0.1
     assert held["rmse_m"] < 0.5 * free["rmse_m"]
-    assert any("nearly planar" in w for w in free["warnings"])
 
 
-def test_robust_loss_ignores_nlos_pairs(tmp_path):
-    # two pairs whose every sample is 3 m too long (the median cannot remove a consistent NLOS bias)
+def test_robust_loss_and_exclusion_handle_nlos_pairs(tmp_path):
+    # a pair whose every sample is 3 m too long (the median cannot remove a consistent NLOS bias); (6, 9) is
+    # farther apart than the 22 m range limit and so never measured
     f = hall(tmp_path, sigma_m=0.02, ceiling=False, nlos={(4, 5): 3.0, (6, 9): 3.0}, seed=1)
     rm = {}
     for loss in ("linear", "cauchy"):
         assert run(f, tmp_path / loss, "--truth", str(f["truth"]), "--initial", str(f["initial"]),
-                   "--loss", loss, "--loss-scale-m", "0.1") == 0
+                   "--loss", loss, "--loss-scale-m", "0.1", "--no-exclude") == 0
         rm[loss] = json.loads((tmp_path / loss / "summary.json").read_text())["rmse_m"]
     assert rm["cauchy"] < 0.05 < rm["linear"]
+    assert run(f, tmp_path / "default", "--truth", str(f["truth"])) == 0  # metres, Cauchy, exclusion
+    s = json.loads((tmp_path / "default" / "summary.json").read_text())
+    assert sorted(sorted(x) for x in s["excluded_links"]) == [["A04", "A05"]]
+    assert s["rmse_m"] < 0.05
+    links = (tmp_path / "default" / "links.csv").read_text().splitlines()
+    assert links[0] == "a,b,samples,median_range_m,mad_m,residual_m,w,flagged,excluded"
+    excluded = {tuple(sorted(r.split(",")[:2])): float(r.split(",")[5]) for r in links[1:] if r.endswith(",1")}
+    assert list(excluded) == [("A04", "A05")] and excluded["A04", "A05"] == pytest.approx(-3.0, abs=0.1)
     assert run(f, tmp_path / "tbls", "--truth", str(f["truth"]), "--initial", str(f["initial"]), "--loss", "cauchy",
-               "--loss-scale-m", "0.1", "--solver", "N-CSG-TBLS", "--iterations", "800") == 0
+               "--loss-scale-m", "0.1", "--solver", "N-CSG-TBLS", "--iterations", "800", "--no-exclude") == 0
     tbls = json.loads((tmp_path / "tbls" / "summary.json").read_text())["rmse_m"]
     assert tbls < 0.5 * rm["linear"]
 
@@ -181,7 +193,7 @@ def test_not_determined_and_option_errors(tmp_path, capsys):
     assert run(f, tmp_path / "o") == 2
     assert "3 non-collinear fixed anchors" in capsys.readouterr().err
     f = hall(tmp_path)
-    assert run(f, tmp_path / "o", "--solver", "CSG", "--loss", "huber") == 2
+    assert run(f, tmp_path / "o", "--solver", "CSG") == 2  # the default Cauchy loss: not for CSG
     assert "not CSG" in capsys.readouterr().err
     with pytest.raises(DataFileError, match="missing"):
         read_heights(f["ranges"])
@@ -214,13 +226,15 @@ def test_distributed_solve_under_mpi_writes_the_same_positions(tmp_path):
 
 
 def test_diverged_run_exits_non_zero_and_writes_no_positions(tmp_path, capsys, monkeypatch):
-    import distnav.commands.uwb as cmd
 
-    real = cmd.solve
-    monkeypatch.setattr(cmd, "solve", lambda *a, **kw: real(*a, **{**kw, "alpha": 1.0}))  # a step that blows up
+    import distnav.models.uwb.field as field
+
+    real = field.csg.solve
+    monkeypatch.setattr(field.csg, "solve", lambda *a, **kw: real(*a, **{**kw, "alpha": 1.0}))  # blows up
     f = hall(tmp_path, ceiling=False)
     out = tmp_path / "out"
-    assert run(f, out, "--solver", "CSG", "--iterations", "50", "--initial", str(f["initial"])) == 1
+    assert run(f, out, "--solver", "CSG", "--loss", "linear", "--iterations", "50", "--initial",
+               str(f["initial"])) == 1
     assert json.loads((out / "summary.json").read_text())["status"] == "diverged"
     assert not (out / "positions.csv").exists() and not (out / "positions.png").exists()
     assert "diverged" in capsys.readouterr().err

@@ -4,10 +4,10 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
 1. :func:`prepare`: :func:`~distnav.models.uwb.geometry.check_geometry` on the problem as read; the anchors the
    ranges cannot locate (cut off, non-rigid) are dropped (reported *unsolved*), the rest gets the MDS start
    (:mod:`distnav.models.uwb.initial`) and the planar / mirror checks; a refused geometry raises ModelError.
-2. :func:`solve_field`: a robust solve (``loss``, default Cauchy, which finds the NLOS links' basin) and then,
-   with ``exclude``, :func:`~distnav.models.uwb.qc.exclude_links` with the plain (linear) loss, each re-solve
-   started from the last estimate (the graduated start of issue 13: robust first, then least squares on the links
-   that pass their tests). Precision: :func:`~distnav.models.uwb.qc.anchor_covariance` on the kept links.
+2. :func:`solve_field`: the solver with the metres objective and a robust loss (default Cauchy at 0.3 m, LM's
+   graduated start: linear first, then robust), per-link w-tests and per-anchor precision from the solver
+   (:mod:`distnav.algorithms.ranging_qc`), and with ``exclude`` its iterative exclusion of the worst link while
+   the network stays determined (:func:`distnav.algorithms.ranging_qc.exclude_links`).
 3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
 
 The solve call goes to :func:`distnav.algorithms.csg.solve` by name, with ``objective`` passed when the solver
@@ -16,6 +16,7 @@ takes it (the metres objective of issue 13; until then the paper's squared form)
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -26,15 +27,16 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
 from distnav.algorithms import csg
+from distnav.algorithms.nlsq import solve_lm
+from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import mds_initial_guess
 from distnav.models.uwb.problems import RangingProblem
-from distnav.models.uwb.qc import LinkQC, anchor_covariance, exclude_links, link_tests, with_measurements
-from distnav.typing import BoolArray, FloatArray, IntArray
+from distnav.typing import BoolArray, FloatArray
 
 __all__ = ["FieldOptions", "FieldSolution", "prepare", "solve_field", "gather_cost", "RANGE_RECORD_BYTES",
-           "supports_objective"]
+           "supports_objective", "subset_measurements"]
 
 RANGE_RECORD_BYTES = 16  # two int32 anchor ids + one float64 range
 POSITION_BYTES = 8
@@ -42,14 +44,19 @@ POSITION_BYTES = 8
 
 @dataclass(frozen=True)
 class FieldOptions:
+    """How :func:`solve_field` solves (defaults: LM, objective in metres, Cauchy loss at 0.3 m, exclusions)."""
+
     solver: str = "LM"
     objective: str = "metres"
     loss: str = "cauchy"
     loss_scale_m: float = 0.3
+    sigma_m: float = 0.1
     iterations: int = 500
     exclude: bool = True
     level: float = 0.001
     max_exclusions: int | None = None
+    range_offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
     allow_planar_3d: bool = False
     solver_options: dict[str, Any] = field(default_factory=dict)
 
@@ -57,15 +64,17 @@ class FieldOptions:
 @dataclass(frozen=True, eq=False)
 class FieldSolution:
     """Everything ``uwb solve`` writes. Arrays over ``problem``'s anchors / measurements (the solvable part);
-    ``geometry.unsolved`` names the anchors left out."""
+    ``geometry.unsolved`` names the anchors left out. ``w`` / ``flagged`` / ``excluded`` per measurement (``w``
+    NaN where the solver gave no test); ``sigma_m`` per anchor and axis (a-posteriori; NaN where unknown)."""
 
     problem: RangingProblem
     geometry: GeometryReport
     positions_m: FloatArray
-    covariance_m2: FloatArray | None
-    tests: LinkQC
+    sigma_m: FloatArray
+    residual_m: FloatArray
+    w: FloatArray
+    flagged: BoolArray
     excluded: BoolArray
-    kept_flagged: IntArray
     result: Any
     status: str
     message: str
@@ -73,20 +82,17 @@ class FieldSolution:
     iterations: int
     messages: int
     bytes: int
-    rounds: int
+    critical_value: float | None
 
     @property
-    def sigma_m(self) -> FloatArray | None:
-        if self.covariance_m2 is None:
-            return None
-        out: FloatArray = np.sqrt(np.maximum(np.diagonal(self.covariance_m2, axis1=1, axis2=2), 0.0))
-        return out
+    def usable(self) -> bool:
+        return self.status != "diverged"
 
 
 def supports_objective(solver: str) -> bool:
     """Whether the solver front door takes ``objective=`` (the metres objective of issue 13)."""
     key = solver.upper()
-    fn: Callable[..., Any] = csg.solve_lm if key == "LM" else (csg.solve_csg if key == "CSG" else
+    fn: Callable[..., Any] = solve_lm if key == "LM" else (csg.solve_csg if key == "CSG" else
                                                                csg.solve_nclm if key == "N-CLM" else csg.solve_ncsg)
     return "objective" in inspect.signature(fn).parameters
 
@@ -112,17 +118,39 @@ def prepare(problem: RangingProblem, *, initial_m: FloatArray | None = None, all
     return sub, report
 
 
-def _solve_once(problem: RangingProblem, opts: FieldOptions, loss: str, initial_m: FloatArray,
-                exchange: Callable[[RangingProblem], Any] | None, objective: str | None) -> Any:
-    kw: dict[str, Any] = dict(opts.solver_options)
+def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int],
+            start: FloatArray | None = None) -> Callable[[Any], Any]:
     key = opts.solver.upper()
+    kw: dict[str, Any] = dict(opts.solver_options)
     if key != "CSG":
-        kw.update(loss=loss, loss_scale_m=opts.loss_scale_m)
-    if objective is not None:
-        kw["objective"] = objective
-    if key != "LM" and exchange is not None:
-        kw["exchange"] = exchange(problem)
-    return csg.solve(problem.with_initial(initial_m), key, iterations=opts.iterations, **kw)
+        kw.update(loss=opts.loss, loss_scale_m=opts.loss_scale_m)
+    if supports_objective(key):
+        kw.update(objective=opts.objective)
+        if opts.objective == "metres":
+            kw.update(sigma_m=opts.sigma_m)
+            if key == "LM":
+                kw.update(range_offsets=opts.range_offsets, offset_prior_sigma_m=opts.offset_prior_sigma_m,
+                          test_level=opts.level)
+    elif opts.range_offsets != "none":
+        raise ModelError(f"range offsets are estimated by LM with the metres objective, not by {key}")
+
+    last: list[FloatArray] = [] if start is None else [np.asarray(start, float)]
+
+    def fit(sub: Any) -> Any:
+        extra: dict[str, Any] = {"exchange": exchange(sub)} if key != "LM" and exchange is not None else {}
+        if last:  # a re-fit after an exclusion starts from the last solution, robust loss straight away
+            sub = sub.with_initial(last[-1])
+            if key == "LM" and "objective" in kw and "graduated" not in kw:
+                extra["graduated"] = False
+        r = csg.solve(sub, key, iterations=opts.iterations, **kw, **extra)
+        if r.usable and np.all(np.isfinite(r.estimates)):
+            last.append(np.asarray(r.estimates, float))
+        comm[0] += int(r.iterations)
+        comm[1] += int(r.comm.messages)
+        comm[2] += int(r.comm.bytes)
+        return r
+
+    return fit
 
 
 def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
@@ -132,74 +160,58 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     opts = options or FieldOptions()
     if problem.initial_m is None:
         raise ModelError("solve_field needs a prepared problem with an initial guess (see prepare)")
-    has_obj = supports_objective(opts.solver)
-    objective = opts.objective if has_obj else "squared"
-    obj_arg = opts.objective if has_obj else None
-    if not has_obj and opts.objective != "squared":
-        note = " (the metres objective is not available in this version's solvers: squared form used)"
-    else:
-        note = ""
-    first_loss = opts.loss if opts.solver.upper() != "CSG" else "linear"
-    res = _solve_once(problem, opts, first_loss, problem.initial_m, exchange, obj_arg)
-    total = [int(res.iterations), int(res.comm.messages), int(res.comm.bytes)]
-    if res.status == "diverged" or not np.all(np.isfinite(res.estimates)):
-        return _diverged(problem, geometry, res, objective, total)
-    pos = np.asarray(res.estimates, float)
+    objective = opts.objective if supports_objective(opts.solver) else "squared"
+    note = "" if objective == opts.objective else f" ({opts.solver} has no {opts.objective} objective: squared used)"
+    total = [0, 0, 0]
+    fit = _fitter(opts, exchange, total)
     excluded = np.zeros(problem.n_meas, bool)
-    kept_flagged = np.zeros(0, np.int64)
-    rounds = 0
-    if opts.exclude:
-
-        def resolve_with(loss: str) -> Callable[[RangingProblem, FloatArray], tuple[FloatArray, Any, int]]:
-            def resolve(sub: RangingProblem, start: FloatArray) -> tuple[FloatArray, Any, int]:
-                r = _solve_once(sub, opts, loss, start, exchange, obj_arg)
-                total[1] += int(r.comm.messages)
-                total[2] += int(r.comm.bytes)
-                return np.asarray(r.estimates, float), r, int(r.iterations)
-            return resolve
-
-        # exclusions tested at the robust solution (NLOS links stand out, they do not drag it), each re-solve
-        # robust too; then the plain least-squares solve on the links kept (the graduated start's last stage)
-        out = exclude_links(problem, pos, resolve_with(first_loss), objective=objective, level=opts.level,
-                            max_exclusions=opts.max_exclusions)
-        total[0] += out.solver_iterations
-        excluded[out.excluded] = True
-        kept_flagged = out.kept_flagged
-        rounds = out.rounds
-        pos, res, k = resolve_with("linear")(with_measurements(problem, ~excluded), out.positions_m)
-        total[0] += k
-        if res.status == "diverged" or not np.all(np.isfinite(pos)):
-            return _diverged(problem, geometry, res, objective, total)
-        tests = link_tests(problem, pos, objective=objective, level=opts.level, active=~excluded)
+    res = fit(problem)
+    if res.usable and opts.exclude and res.tests is not None:
+        # stage 1: exclusions tested at the robust solution (an NLOS link does not drag it)
+        res, _, tests = exclude_links(problem, fit, max_exclusions=opts.max_exclusions)
+        excluded[list(tests.removed)] = True
+        w, flagged, crit = tests.w, tests.flagged, float(tests.critical_value)
+        if res.usable and opts.loss != "linear":
+            # stage 2 (the graduated start's last step): plain least squares on the links kept, and data
+            # snooping on it, so that with every NLOS link found the estimate is the oracle's
+            kept_idx = np.flatnonzero(~excluded)
+            linear = _fitter(dataclasses.replace(opts, loss="linear"), exchange, total, start=res.estimates)
+            cap = None if opts.max_exclusions is None else max(opts.max_exclusions - int(excluded.sum()), 0)
+            res2, _, t2 = exclude_links(subset_measurements(problem, ~excluded), linear, max_exclusions=cap)
+            if res2.usable:
+                res = res2
+                excluded[kept_idx[list(t2.removed)]] = True
+                w = np.full(problem.n_meas, np.nan)
+                w[kept_idx] = t2.w
+                flagged = np.zeros(problem.n_meas, bool)
+                flagged[kept_idx] = t2.flagged
+    elif res.tests is not None and res.usable:
+        w, flagged, crit = res.tests.w, res.tests.flagged, float(res.tests.critical_value)
     else:
-        tests = link_tests(problem, pos, objective=objective, level=opts.level)
-    cov: FloatArray | None
-    try:
-        cov = anchor_covariance(problem, pos, objective=objective, active=~excluded)
-    except ModelError:
-        cov = None
+        w, flagged, crit = np.full(problem.n_meas, np.nan), np.zeros(problem.n_meas, bool), None
+        if opts.exclude and res.usable:
+            note += f"; {opts.solver} gives no per-link tests: no link was tested or excluded"
     geo = geometry if geometry is not None else check_geometry(problem)
+    nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
+    if not res.usable or not np.all(np.isfinite(res.estimates)):
+        return FieldSolution(problem=problem, geometry=geo, positions_m=nan_pos, sigma_m=nan_pos.copy(),
+                             residual_m=np.full(problem.n_meas, np.nan), w=w, flagged=flagged, excluded=excluded,
+                             result=res, status="diverged",
+                             message=f"diverged: {res.message} (no positions are reported)",
+                             objective_used=objective, iterations=total[0], messages=total[1], bytes=total[2],
+                             critical_value=crit)
+    pos = np.asarray(res.estimates, float)
+    sigma = nan_pos.copy()
+    if res.precision is not None:
+        sigma = np.where(problem.free, res.precision.std(a_posteriori=True), 0.0)
     status = geo.status or res.status
     msg = res.message + note
     if geo.status is not None:
         msg = f"{geo.status}: " + "; ".join(i.message for i in geo.issues if i.severity != "unsolved") + f" — {msg}"
-    return FieldSolution(problem=problem, geometry=geo, positions_m=pos, covariance_m2=cov, tests=tests,
-                         excluded=excluded, kept_flagged=kept_flagged, result=res, status=status, message=msg,
-                         objective_used=objective, iterations=total[0], messages=total[1], bytes=total[2],
-                         rounds=rounds)
-
-
-def _diverged(problem: RangingProblem, geometry: GeometryReport | None, res: Any, objective: str,
-              total: list[int]) -> FieldSolution:
-    nan = np.full(problem.n_meas, np.nan)
-    tests = LinkQC(residual_m=nan, w=nan, q_ll=nan, scale_m=float("nan"), variance_factor_m2=None, redundancy=0,
-                   critical_value=float("nan"), level=float("nan"), active=np.ones(problem.n_meas, bool))
-    return FieldSolution(problem=problem, geometry=geometry or check_geometry(problem),
-                         positions_m=np.full((problem.n_anchors, problem.dim), np.nan), covariance_m2=None,
-                         tests=tests, excluded=np.zeros(problem.n_meas, bool), kept_flagged=np.zeros(0, np.int64),
-                         result=res, status="diverged",
-                         message=f"diverged: {res.message} (no positions are reported)", objective_used=objective,
-                         iterations=total[0], messages=total[1], bytes=total[2], rounds=0)
+    return FieldSolution(problem=problem, geometry=geo, positions_m=pos, sigma_m=sigma,
+                         residual_m=problem.residuals_m(pos), w=w, flagged=flagged, excluded=excluded, result=res,
+                         status=status, message=msg, objective_used=objective, iterations=total[0],
+                         messages=total[1], bytes=total[2], critical_value=crit)
 
 
 def gather_cost(problem: RangingProblem) -> dict[str, Any]:
@@ -228,5 +240,6 @@ def gather_cost(problem: RangingProblem) -> dict[str, Any]:
 
 
 def subset_measurements(problem: RangingProblem, keep: BoolArray) -> RangingProblem:
-    """Alias of :func:`distnav.models.uwb.qc.with_measurements` (the oracle drops the NLOS links by truth)."""
-    return with_measurements(problem, keep)
+    """The same problem with only the measurements where ``keep`` is True (the oracle drops NLOS links)."""
+    k = np.asarray(keep, bool)
+    return dataclasses.replace(problem, meas_a=problem.meas_a[k], meas_b=problem.meas_b[k], range_m=problem.range_m[k])

@@ -23,7 +23,8 @@ def classical_mds(dist_m: np.ndarray, dim: int) -> np.ndarray:
     b = -0.5 * j @ d2 @ j
     w, v = np.linalg.eigh(b)
     order = np.argsort(w)[::-1][:dim]
-    return v[:, order] * np.sqrt(np.maximum(w[order], 0.0))
+    out: np.ndarray = v[:, order] * np.sqrt(np.maximum(w[order], 0.0))
+    return out
 
 
 def smacof(links: np.ndarray, dist_m: np.ndarray, x0: np.ndarray, iterations: int = 200) -> np.ndarray:
