@@ -29,8 +29,8 @@ def _log(shared_data: Path, name: str = "dataset4.txt") -> Path:
     return p
 
 
-def _reference_fit(log: Path) -> tuple[dict[int, np.ndarray], float]:
-    """Medians of the positive ranges per pair, then scipy least_squares (soft-L1, 0.3 m) over the unknown
+def _reference_fit(log: Path, loss: str) -> tuple[dict[int, np.ndarray], float]:
+    """Medians of the positive ranges per pair, then scipy least_squares (``loss``, scale 0.3 m) over the unknown
     nodes' 2-D positions and one common range offset, started at the known nodes' centroid (+ a spread)."""
     raw = np.loadtxt(log, usecols=(0, 1, 2))
     nodes = set(TRUTH_FT)
@@ -59,7 +59,7 @@ def _reference_fit(log: Path) -> tuple[dict[int, np.ndarray], float]:
         return np.array([np.linalg.norm(pos[a] - pos[b]) for a, b in keys]) + x[-1] - med
 
     x0 = np.concatenate([centre + [0.5 * (i - 1), 0.3 * (-1) ** i] for i in range(len(free))] + [[0.0]])
-    sol = least_squares(resid, x0, loss="soft_l1", f_scale=0.3, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    sol = least_squares(resid, x0, loss=loss, f_scale=0.3, xtol=1e-12, ftol=1e-12, gtol=1e-12)
     pos = unpack(sol.x)
     return {k: pos[k] for k in free}, float(sol.x[-1])
 
@@ -78,12 +78,16 @@ def test_april_common_offset_matches_a_scipy_fit(shared_data, tmp_path, name):
     assert main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
                  "--truth", str(files / "truth.csv"), "--range-offsets", "common", "--out", str(out)]) == 0
     s = json.loads((out / "summary.json").read_text())
-    ref, ref_offset = _reference_fit(log)
     got = _positions(out / "positions.csv")
-    diff = [np.linalg.norm([float(got[str(k)]["x_m"]) - v[0], float(got[str(k)]["y_m"]) - v[1]])
-            for k, v in ref.items()]
-    assert max(diff) < 0.05, (diff, s["excluded_links"])
-    assert s["offsets_m"][0] == pytest.approx(ref_offset, abs=0.05)
+    # distnav's default is the Cauchy loss at 0.3 m: the careful reference uses the same loss; a soft-L1 or a
+    # plain least-squares fit weighs the large multipath residuals (0.4 m RMS) differently (looser tolerance)
+    for loss, tol in (("cauchy", 0.05), ("soft_l1", 0.15)):
+        ref, ref_offset = _reference_fit(log, loss)
+        diff = [np.linalg.norm([float(got[str(k)]["x_m"]) - v[0], float(got[str(k)]["y_m"]) - v[1]])
+                for k, v in ref.items()]
+        print(name, loss, "max position difference [m]", round(max(diff), 4), "offset", s["offsets_m"][0], ref_offset)
+        assert max(diff) < tol, (loss, diff, s["excluded_links"])
+        assert s["offsets_m"][0] == pytest.approx(ref_offset, abs=tol)
     assert s["n_dropped_samples"] > 100 and s["dropped_samples"].keys() == {"negative"}  # clock-wrap garbage
     assert s["status"] == "converged" and s["objective"] == "metres"
     # with a common offset the fit is better than without (issue 13: 0.41 → 0.25 m on a centralized fit)

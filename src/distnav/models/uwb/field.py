@@ -167,24 +167,10 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     excluded = np.zeros(problem.n_meas, bool)
     res = fit(problem)
     if res.usable and opts.exclude and res.tests is not None:
-        # stage 1: exclusions tested at the robust solution (an NLOS link does not drag it)
+        # exclusions tested at the robust solution (an NLOS link does not drag it); every re-fit robust too
         res, _, tests = exclude_links(problem, fit, max_exclusions=opts.max_exclusions)
         excluded[list(tests.removed)] = True
         w, flagged, crit = tests.w, tests.flagged, float(tests.critical_value)
-        if res.usable and opts.loss != "linear":
-            # stage 2 (the graduated start's last step): plain least squares on the links kept, and data
-            # snooping on it, so that with every NLOS link found the estimate is the oracle's
-            kept_idx = np.flatnonzero(~excluded)
-            linear = _fitter(dataclasses.replace(opts, loss="linear"), exchange, total, start=res.estimates)
-            cap = None if opts.max_exclusions is None else max(opts.max_exclusions - int(excluded.sum()), 0)
-            res2, _, t2 = exclude_links(subset_measurements(problem, ~excluded), linear, max_exclusions=cap)
-            if res2.usable:
-                res = res2
-                excluded[kept_idx[list(t2.removed)]] = True
-                w = np.full(problem.n_meas, np.nan)
-                w[kept_idx] = t2.w
-                flagged = np.zeros(problem.n_meas, bool)
-                flagged[kept_idx] = t2.flagged
     elif res.tests is not None and res.usable:
         w, flagged, crit = res.tests.w, res.tests.flagged, float(res.tests.critical_value)
     else:
