@@ -33,6 +33,25 @@ def best_time(fn: Callable[[], Any], *, repeat: int = 5, number: int = 1) -> flo
     return best
 
 
+def paired_times(fns: dict[str, Callable[[], Any]], *, repeat: int = 5, number: int = 1) -> dict[str, np.ndarray]:
+    """Seconds per call of each function, measured *interleaved* (one batch of each per repeat), so a noisy
+    neighbour on the shared machine slows every candidate of a repeat alike. Returns ``repeat`` timings each."""
+    out: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(repeat):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            for _ in range(number):
+                fn()
+            out[name].append((time.perf_counter() - t0) / number)
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+def ratio_stats(ours: np.ndarray, floor: np.ndarray) -> dict[str, float]:
+    """Per-repeat ratios of two paired timings: their minimum and median (the figure quoted as min–median)."""
+    r = np.asarray(ours) / np.asarray(floor)
+    return {"ratio_min": float(r.min()), "ratio_median": float(np.median(r))}
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"

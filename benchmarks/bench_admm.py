@@ -112,7 +112,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
     for rho in rhos:
         res = admm(prob, g, constraint_nodes=C, W=rho, max_iterations=3000, tol=0.0, reference=xh,
                    stop_at_reference=1e-8, record_nodes=False)
-        sweep[rho] = res.extras["iterations_to"]["1e-08"] or 10**9
+        sweep[rho] = res.iterations_to["1e-08"] or 10**9
     rho = min(sweep, key=lambda r: sweep[r])
     t_naive = naive_fig6(prob, g, C, rho, 3 if quick else 10)
     for label, cset, messages, mon in (("min cover, per-pair messages (Fig. 6), residuals every it.", C, "pairs", 1),
@@ -125,7 +125,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
         gen = iterate_admm(prob, g, constraint_nodes=cset, W=rho, messages=messages,  # type: ignore[arg-type]
                            monitor_every=mon)
         ms, cpu = ms_per_iteration(gen, 100 if quick else 300, 3 if quick else 7)
-        its = full.extras["iterations_to"]
+        its = full.iterations_to
         rows.append({
             "name": f"n=200, p=10, m_i=5: {label}",
             "seconds": ms / 1e3, "ms_per_iteration": ms, "cpu_ms_per_iteration": cpu,

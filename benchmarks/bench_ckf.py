@@ -7,6 +7,9 @@ Workloads (issue 4):
   of the paper's formulas (Fig. 6 + Fig. 7 as printed, dense L, one node at a time) measured in the same run.
 * n = 1,000 nodes, p = 33, 100 epochs, k_n = 12 (mean degree ≈ 8): reported, no goal. Normals are generated
   on the fly; their generation time is measured separately and reported.
+* issue 17: the Fig. 7 recursion alone (``ckf_error_variance``) at n = 100, 300, 1,000 (quick: 100, 300), 50 epochs,
+  p = 33, against a batched bare-numpy implementation of the same recursion (:func:`batched_reference`).
+  Goal: ≤ 2×.
 """
 
 from __future__ import annotations
@@ -70,6 +73,67 @@ def reference_loop(dyn: DynamicModel, ms: NormalSeries, L: np.ndarray) -> tuple[
     return P, x
 
 
+def batched_reference(dyn: DynamicModel, ms: NormalSeries, L: np.ndarray) -> np.ndarray:
+    """Fig. 7 in its information-error form, vectorized over the nodes in bare numpy (the floor of issue 17).
+
+    Written independently of the library: ``I += n L N``, ``Q += n² L² N`` as one GEMM on the upper triangles of
+    the normals, the singular-noise time update with the identity-column ``H`` by slicing, and the inverse of
+    ``I`` with the never-observed entries (zero diagonal) padded by 1 and zeroed afterwards.
+    Returns the last-epoch std (n×p)."""
+    n, p = ms.n_nodes, ms.n_states
+    sel = dyn.noise_selection_at(1)
+    assert sel is not None
+    _H, St, St_inv = dyn.noise_factor_at(1)
+    LL = np.concatenate([L, L**2])
+    iu, ju = np.triu_indices(p)
+    I = np.zeros((n, p, p))
+    Q = np.zeros((n, p, p))
+    std = np.zeros((n, p))
+    for t in range(ms.n_epochs):
+        N, _ = ms.normals(t)
+        if t:
+            MH = I[:, :, sel]
+            G = MH @ np.linalg.inv(MH[:, sel, :] + St_inv)
+            I = I - G @ np.swapaxes(MH, 1, 2)
+            BQ = Q - G @ Q[:, sel, :]
+            F = G @ St_inv
+            Q = BQ - BQ[:, :, sel] @ np.swapaxes(G, 1, 2) + F @ St @ np.swapaxes(F, 1, 2)
+        both = LL @ N[:, iu, ju]  # upper triangles only (symmetric normals): half the dominant GEMM
+        full = np.zeros((2 * n, p, p))
+        full[:, iu, ju] = both
+        full[:, ju, iu] = both
+        I = I + n * full[:n]
+        Q = Q + (n * n) * full[n:]
+        d = np.diagonal(I, axis1=1, axis2=2)
+        unseen = d <= 0
+        Iinv = np.linalg.inv(I + unseen[:, :, None] * np.eye(p))
+        Iinv = Iinv * ~unseen[:, :, None] * ~unseen[:, None, :]
+        std = np.sqrt(np.maximum(np.diagonal(Iinv @ Q @ Iinv, axis1=1, axis2=2), 0.0))
+    return std
+
+
+def recursion_scaling(quick: bool) -> list[dict]:
+    """Fig. 7 recursion alone (``ckf_error_variance``) against :func:`batched_reference`, 50 epochs, p = 33."""
+    rows: list[dict] = []
+    T, kn = 50, 12
+    for n in ((100, 300) if quick else (100, 300, 1000)):
+        dyn, fs, _ = synthetic_model(n_nodes=n, n_epochs=T, n_random_walk=3, n_biases=30, seed=3, rw_std=0.05)
+        ms = _precompute(fs)
+        g = builders.connected_random_geometric(n, mean_degree=8.0, rng=np.random.default_rng(4))
+        L = consensus_product(consensus_schedule(g, "P3"), kn)
+        repeat = 3
+        t_lib = best_time(lambda: ckf_error_variance(dyn, ms, L), repeat=repeat)  # noqa: B023
+        t_ref = best_time(lambda: batched_reference(dyn, ms, L), repeat=repeat)  # noqa: B023
+        lib = ckf_error_variance(dyn, ms, L).std[-1]
+        ref = batched_reference(dyn, ms, L)
+        ok = np.isfinite(lib)
+        rows.append({"name": "Fig. 7 recursion vs batched numpy", "n_nodes": n, "p": 33, "epochs": T, "k_n": kn,
+                     "seconds": t_lib, "reference_seconds": t_ref, "ratio": t_lib / t_ref, "goal": "≤ 2×",
+                     "meets_goal": bool(t_lib <= 2.0 * t_ref),
+                     "max_rel_diff_vs_reference": float(np.max(np.abs(lib[ok] / ref[ok] - 1.0)))})
+    return rows
+
+
 def run(quick: bool) -> list[dict]:
     rows: list[dict] = []
     # --- the paper's workload
@@ -115,6 +179,7 @@ def run(quick: bool) -> list[dict]:
     rows.append({"name": "CKF + Fig. 7, large network", "n_nodes": n2, "p": 33, "epochs": T2, "k_n": kn,
                  "seconds": t_big, "data_generation_seconds": t_data, "filter_seconds": t_big - t_data,
                  "goal": "(reported)", "messages": res2.comm.messages, "megabytes": res2.comm.bytes / 1e6})
+    rows.extend(recursion_scaling(quick))
     return rows
 
 

@@ -53,11 +53,11 @@ def test_admm_equals_blue(case, choice):
     rel = np.linalg.norm(res.estimates - xh, axis=1).max() / np.linalg.norm(xh)
     assert rel < 1e-8
     # the constraint nodes' consensus states agree with x̂ too
-    assert np.linalg.norm(res.extras["z"] - xh, axis=1).max() / np.linalg.norm(xh) < 1e-8
+    assert np.linalg.norm(res.z - xh, axis=1).max() / np.linalg.norm(xh) < 1e-8
     tr = res.trace
     assert tr["distance_to_reference"].shape == (res.iterations + 1, g.n_nodes)
     assert tr["primal_residual"].shape == (res.iterations + 1,)
-    its = res.extras["iterations_to"]
+    its = res.iterations_to
     assert its["0.0001"] <= its["1e-06"] <= its["1e-08"] <= res.iterations
 
 
@@ -327,3 +327,83 @@ def test_uneven_rows_including_a_node_without_data(method):
     res = admm(prob, g, W=1.0, x_update=method, max_iterations=20000, tol=1e-12, reference=xh)
     assert res.converged
     assert np.linalg.norm(res.estimates - xh, axis=1).max() / np.linalg.norm(xh) < 1e-8
+
+
+# ------------------------------------------------------------------------------------------ residuals, weighting
+@pytest.mark.parametrize("messages", ["pairs", "aggregated"])
+@pytest.mark.parametrize("weight", ["rho", "matrix"])
+def test_dual_residual_against_an_independent_computation(case, messages, weight):
+    """``dual_k = sqrt(Σ_s |N_s| ‖W (z_s^[k] − z_s^[k−1])‖²)`` from the yielded z and the graph, with ρ ≠ 1 (a
+    residual scaled by ρ instead of ρ² fails here) and with a non-isotropic W."""
+    g, prob, _ = case
+    W = 2.5 if weight == "rho" else np.diag([0.5, 1.0, 2.0, 3.0, 1.5, 4.0])
+    Wm = W * np.eye(6) if weight == "rho" else W
+    C = choose_constraint_nodes(g, "min_cover")
+    deg = np.bincount(g.links.ravel(), minlength=g.n_nodes)
+    size = (deg + 1)[C.nodes]  # |N_s| counts s itself
+    states = iterate_admm(prob, g, constraint_nodes=C, W=W, messages=messages)
+    prev = next(states)
+    for _ in range(6):
+        st = next(states)
+        dz = (st.z - prev.z)[C.nodes] @ Wm.T
+        expected = np.sqrt(np.sum(size * np.einsum("sp,sp->s", dz, dz)))
+        assert st.dual_residual == pytest.approx(expected, rel=1e-12)
+        assert expected > 0
+        prev = st
+
+
+def test_inestimable_parameter_is_refused_not_reported_as_zero():
+    """Issue 15: a parameter no node observes (and a pair only observed as a sum) must not converge to 0."""
+    rng = np.random.default_rng(8)
+    g = builders.ring(8)
+    A = rng.normal(size=(8, 3, 4))
+    A[:, :, 2] = 0.0  # nobody observes x[2]
+    y = rng.normal(size=(8, 3))
+    prob = LinearProblem.from_stacked(A, y)
+    with pytest.raises(ModelError, match=r"inestimable directions: x\[2\]") as blue_err:
+        blue(prob)
+    with pytest.raises(ModelError, match=r"inestimable directions: x\[2\]; ADMM would converge") as admm_err:
+        admm(prob, g, max_iterations=50)
+    assert str(blue_err.value) in str(admm_err.value)
+    with pytest.raises(ModelError, match=r"inestimable directions: x\[2\]"):
+        next(iterate_admm(prob, g))
+    B = rng.normal(size=(8, 3, 4))
+    B[:, :, 1] = B[:, :, 0]  # x[0] and x[1] only through their sum
+    with pytest.raises(ModelError, match=r"inestimable directions: x\[0\] − x\[1\]"):
+        admm(LinearProblem.from_stacked(B, y), g, max_iterations=50)
+
+
+@pytest.mark.parametrize("choice", ["all", "min_cover"])
+def test_printed_fig6_x_update_with_a_1_over_c_weighted_z_update_converges_to_the_blue(case, choice):
+    """Issue 16 item 4: keep Fig. 6's x-update, weight z_{i,s} by 1/c_i in the z-update: the ADMM of the Lagrangian
+    with pair weights W/c_i, so the BLUE — where the plain-mean z-update (x_weight="fig6") is biased."""
+    g, prob, xh = case
+    rel = {}
+    for xw in ("fig6", "fig6-zweighted"):
+        res = admm(prob, g, constraint_nodes=choice, W=20.0, x_weight=xw, max_iterations=8000, tol=1e-13)
+        assert res.converged and res.x_weight == xw
+        rel[xw] = np.linalg.norm(res.estimates - xh, axis=1).max() / np.linalg.norm(xh)
+    assert rel["fig6-zweighted"] < 1e-8
+    assert rel["fig6"] > 1e-4
+    with pytest.raises(ModelError, match="fig6-zweighted.*messages='pairs'"):
+        admm(prob, g, x_weight="fig6-zweighted", messages="aggregated", max_iterations=2)
+
+
+def test_unknown_option_is_a_project_error(case):
+    g, prob, _ = case
+    with pytest.raises(ModelError, match="unknown ADMM option.*rhoo"):
+        admm(prob, g, rhoo=3.0)  # type: ignore[call-arg]
+
+
+def test_result_is_typed_and_warm_start_reads_z_nodes(case):
+    g, prob, xh = case
+    res = admm(prob, g, W=20.0, max_iterations=30, tol=0.0)
+    C = res.constraint_nodes
+    np.testing.assert_array_equal(res.z, res.z_nodes[C.nodes])
+    assert np.all(res.z_nodes[~C.mask] == 0)
+    assert res.pairs == int(C.per_node_count.sum()) and res.messages == "pairs" and res.x_update == "observation"
+    assert res.precision is None and res.tests is None
+    # a warm start from the result continues from its x and its z (§4.3)
+    st0 = next(iterate_admm(prob, g, W=20.0, init=res))
+    np.testing.assert_array_equal(st0.x, res.estimates)
+    np.testing.assert_array_equal(st0.z, res.z_nodes)

@@ -156,3 +156,65 @@ def test_exact_cover_time_limit_raises_or_falls_back():
         minimum_vertex_cover(g, method="exact", time_limit_s=1e-9)
     nodes, optimal, lower, used = minimum_vertex_cover(g, method="auto", time_limit_s=1e-9)
     assert not optimal and used.startswith("2-approximation") and lower <= nodes.size <= 2 * lower
+
+
+def _sequential_matching(g):
+    """The one-link-at-a-time greedy matching (lowest-degree endpoints first), written as a plain loop."""
+    deg = g.degrees
+    links = g.links
+    order = np.lexsort((np.maximum(deg[links[:, 0]], deg[links[:, 1]]), deg[links[:, 0]] + deg[links[:, 1]]))
+    used, out = set(), []
+    for a, b in links[order].tolist():
+        if a not in used and b not in used:
+            used |= {a, b}
+            out.append((a, b))
+    return out
+
+
+def _sequential_prune(g, chosen):
+    chosen = set(chosen)
+    for v in sorted(chosen, key=lambda k: (g.degrees[k], k)):
+        nb = g.neighbors(v).tolist()
+        if nb and all(u in chosen for u in nb):
+            chosen.discard(v)
+    return sorted(chosen)
+
+
+@pytest.mark.parametrize("tail", [0, 50])
+def test_vectorized_greedy_passes_equal_the_sequential_ones(monkeypatch, tail):
+    import distnav.network.constraint_nodes as cn
+
+    monkeypatch.setattr(cn, "_SEQUENTIAL_TAIL", tail)
+    monkeypatch.setattr(cn, "_SEQUENTIAL_TAIL_LINKS", tail)
+    g = builders.connected_random_geometric(3000, mean_degree=9, rng=np.random.default_rng(5))
+    ref = _sequential_matching(g)
+    got = cn._maximal_matching(g)
+    assert sorted(map(tuple, got.tolist())) == sorted(ref)
+    chosen = np.zeros(g.n_nodes, bool)
+    chosen[np.asarray(ref).ravel()] = True
+    assert np.flatnonzero(cn._prune(g, chosen)).tolist() == _sequential_prune(g, np.flatnonzero(chosen).tolist())
+
+
+def test_approximation_reports_the_lp_bound():
+    from distnav.network.constraint_nodes import lp_lower_bound
+
+    # odd ring: LP optimum n/2 → bound ⌈n/2⌉ = OPT; a star: LP = 1 = OPT
+    assert lp_lower_bound(builders.ring(9)) == 5 and lp_lower_bound(builders.star(6)) == 1
+    g = builders.connected_random_geometric(1000, mean_degree=8, rng=np.random.default_rng(0))
+    c = choose_constraint_nodes(g, "min_cover")  # beyond exact_max_nodes: the approximation
+    assert c.optimal is False and c.method.startswith("2-approximation")
+    assert c.lower_bound >= g.n_nodes // 2 and c.ratio_bound is not None and 1 <= c.ratio_bound <= 2
+    assert unused_links(g, c.nodes).shape == (0, 2)
+
+
+def test_overlap_groups_equal_those_of_the_neighbourhood_product():
+    """(18)-2 groups via the linear bipartite construction = components of A[C] A[:, C] (the definition)."""
+    from scipy.sparse.csgraph import connected_components
+
+    g = builders.connected_random_geometric(200, mean_degree=9, rng=np.random.default_rng(3))
+    A = g.adjacency(include_self=True)
+    for seed in range(5):
+        C = np.sort(np.random.default_rng(seed).choice(200, size=25, replace=False))
+        _, lab = connected_components(A[C] @ A[:, C], directed=False)
+        want = sorted(tuple(int(s) for s in C[lab == k]) for k in np.unique(lab))
+        assert sorted(check_conditions(g, C).groups) == want

@@ -195,3 +195,99 @@ def test_graph_without_links_rounds_are_empty_not_errors():
     assert inbox.values.shape == (0, 3) and inbox.sum().shape == (1, 3)
     assert ex.broadcast(np.ones((1, 2))).sum().tolist() == [[0.0, 0.0]]
     assert ex.comm_totals().messages == 0
+
+
+@pytest.mark.parametrize("name", ["consensus_with_faults", "raw_send_and_broadcast", "admm_constraint_nodes",
+                                  "admm_with_drops", "ncsg_tbls_with_drops"])
+def test_locality_order_changes_no_result(name):
+    """Renumbering the exchange's nodes (RCM) is invisible: node results bit for bit, results in the user's ids."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "mpi"))
+    from cases import CASES
+
+    plain, ordered = CASES[name]("inprocess"), CASES[f"{name}_rcm"]("inprocess")
+    assert plain.keys() == ordered.keys()
+    for key, value in plain.items():
+        if key in {"primal", "trace", "cost"}:  # network-wide sums, added in another order
+            np.testing.assert_allclose(ordered[key], value, rtol=1e-12, atol=1e-14, err_msg=key)
+        else:
+            assert np.array_equal(ordered[key], value), f"{name}/{key}"
+
+
+def test_locality_order_is_a_renumbering():
+    from distnav.exchange import InProcessExchange
+    from distnav.network.partition import locality_order, rcm_order, space_filling_order
+
+    g = builders.connected_random_geometric(300, mean_degree=10, rng=np.random.default_rng(4))
+    ex = InProcessExchange(g, order="rcm")
+    assert np.array_equal(ex.nodes, rcm_order(g)) and not np.array_equal(ex.nodes, np.arange(300))
+    assert np.array_equal(np.sort(ex.in_edges), np.arange(g.n_edges))
+    assert np.array_equal(ex.nodes[ex.in_dst], g.dst[ex.in_edges]) and np.array_equal(ex.in_src, g.src[ex.in_edges])
+    assert np.all(np.diff(ex.in_dst) >= 0)
+    x = np.arange(300.0)
+    assert np.array_equal(ex.gather_nodes(ex.local(x)), x)
+    # RCM shrinks the bandwidth of the local adjacency: neighbours sit near each other in memory
+    assert np.abs(ex.in_dst - ex.in_src_col).max() < 0.3 * np.abs(g.dst - g.src).max()
+    assert locality_order(g, "auto") is None  # small graphs keep the user's ids
+    hil = space_filling_order(g.positions)
+    assert np.array_equal(np.sort(hil), np.arange(300))
+    with pytest.raises(ExchangeError, match="permutation"):
+        InProcessExchange(g, order=np.zeros(300, int))
+    with pytest.raises(ExchangeError, match="unknown node order"):
+        InProcessExchange(g, order="metis")
+    with pytest.raises(ExchangeError, match="needs node positions"):
+        InProcessExchange(builders.path(4), order="hilbert")
+
+
+def test_fault_plan_drops_exactly_the_scheduled_messages():
+    """The compiled plan (bulk hash, integer threshold, folded link/silent faults) equals FaultSchedule.delivered."""
+    from distnav.exchange.faults import FaultPlan
+
+    g = builders.random_geometric(2000, 0.04, rng=np.random.default_rng(0), self_loops=True)
+    link = g.links[0]
+    schedules = [
+        FaultSchedule(drop_probability=0.1, seed=3),
+        FaultSchedule(drop_probability=0.37, seed=2**63 + 5, failed_links=((int(link[0]), int(link[1]), 3),),
+                      silent_nodes=((5, 2), (7, 9))),
+        FaultSchedule(failed_links=((int(g.links[3, 0]), int(g.links[3, 1]), 1),), silent_nodes=((5, 0),)),
+    ]
+    edges = np.random.default_rng(1).permutation(g.n_edges)[: g.n_edges // 2]  # any subset, any order
+    for fs in schedules:
+        plan = FaultPlan(fs, g.src[edges], g.dst[edges], edges)
+        for k in [*range(150), 3, 1000, 2]:
+            assert np.array_equal(plan.delivered(k), fs.delivered(k, g.src[edges], g.dst[edges], edges)), k
+
+
+def test_mixer_fault_rounds_by_hand_with_every_kind_of_fault():
+    g = builders.connected_random_geometric(50, mean_degree=6, rng=np.random.default_rng(7))
+    w = consensus_weights(g, "MH")
+    a, b = (int(v) for v in g.links[4])
+    fs = FaultSchedule(drop_probability=0.25, failed_links=((a, b, 2),), silent_nodes=((9, 3),), seed=11)
+    ex = make_exchange(g, faults=fs)
+    mixer = ex.mixer(w)
+    x = np.random.default_rng(8).normal(size=(50, 3))
+    ref = x.copy()
+    dense = w.to_dense()
+    sent = np.zeros(50, int)
+    recv = np.zeros(50, int)
+    e_all = np.arange(g.n_edges)
+    for k in range(12):
+        x = mixer.apply(x)
+        ok = fs.delivered(k, g.src, g.dst, e_all)
+        new = np.empty_like(ref)
+        for i in range(50):
+            acc = dense[i, i] * ref[i]
+            for e in np.flatnonzero(g.dst == i):
+                acc = acc + dense[i, g.src[e]] * (ref[g.src[e]] if ok[e] else ref[i])
+            new[i] = acc
+        ref = new
+        talking = ~((g.src == 9) & (k >= 3))
+        np.add.at(sent, g.src[talking], 1)
+        np.add.at(recv, g.dst[ok], 1)
+    np.testing.assert_allclose(x, ref, rtol=1e-13, atol=1e-14)
+    tot = ex.comm_totals()
+    assert tot.messages_sent.tolist() == sent.tolist()
+    assert tot.messages_received.tolist() == recv.tolist()
+    assert tot.bytes_received.tolist() == (recv * 24).tolist()

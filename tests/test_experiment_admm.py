@@ -7,7 +7,14 @@ import json
 import numpy as np
 import pytest
 
-from distnav.experiments.admm import fig5_graph, run, two_node_problem
+from distnav.experiments.admm import (
+    fig5_graph,
+    fig5_problems,
+    fig5_sets,
+    iterations_to_1e6,
+    run,
+    two_node_problem,
+)
 from distnav.experiments.common import ExperimentContext, Progress
 
 
@@ -57,8 +64,7 @@ def test_fig5_study_structure(quick_run):
     assert f5["C_full"]["n_unused_links"] == 0
     assert f5["C_full"]["communication"]["messages_per_iteration"] > f5["C_reduced"]["communication"][
         "messages_per_iteration"]
-    for row in f5["rho_study"].values():
-        assert row["reduced_slower_than_full"] + row["reduced_faster_than_full"] <= f5["draws"]
+    assert {r: v["reduced_slower_than_full"] for r, v in f5["rho_study"].items()} == {"0.3": 3, "1": 1, "3": 0}
     assert fig5_graph().n_links == 12
     sweep = res["rho_sweep"]
     assert sweep["final_run"]["relative_max_distance"] < 1e-9
@@ -71,3 +77,20 @@ def test_nonlinear_part_agrees_with_gauss_newton(quick_run):
     assert nl["linearized"]["max_deviation_from_gauss_newton_m"] < 1e-6
     assert nl["nonlinear_eq23"]["converged"] and nl["nonlinear_eq23"]["max_deviation_from_gauss_newton_m"] < 1e-6
     assert nl["gauss_newton"]["error_vs_truth_m"] < 5 * nl["sigma_m"]  # a sane estimate of the truth
+
+
+def test_fig5_reduced_set_is_slower_at_small_rho_and_faster_at_large_rho(tmp_path):
+    """The finding of the full run (docs/admm.md, 40 seeded problems, seed 0): without node 6 in C the run is slower
+    in 37 of 40 draws at ρ = 0.3 and faster in 37 of 40 at ρ = 3, so the paper's "never higher" holds only for
+    small ρ. The same problems, sets and counting as the full reproduction (seed 0)."""
+    ctx = ExperimentContext(out_dir=tmp_path, quick=False, progress=Progress(enabled=False))
+    g = fig5_graph()
+    sets = fig5_sets(g)
+    problems, refs = fig5_problems(ctx, 40)
+    found = {}
+    for rho in (0.3, 3.0):
+        its = {key: np.array([iterations_to_1e6(ctx, pr, xh, g, sets[key], rho, 3000)
+                              for pr, xh in zip(problems, refs, strict=True)]) for key in ("C_full", "C_reduced")}
+        assert (its["C_full"] < 3000).all() and (its["C_reduced"] < 3000).all()
+        found[rho] = (int((its["C_reduced"] > its["C_full"]).sum()), int((its["C_reduced"] < its["C_full"]).sum()))
+    assert found == {0.3: (37, 3), 3.0: (2, 37)}

@@ -175,3 +175,25 @@ def test_switching_graph_union_and_masks():
         SwitchingGraph((s1, Graph.from_links(3, [(0, 1), (1, 2)])))
     with pytest.raises(GraphError, match="at least one session"):
         SwitchingGraph(())
+
+
+def test_partition_file_round_trip_and_errors(tmp_path):
+    from distnav.errors import ExchangeError
+    from distnav.network.partition import partition_nodes, read_partition, write_partition
+
+    g = builders.path(8)
+    owner = partition_nodes(g, 3, "rcm")
+    for name in ("owner.npy", "owner.txt"):
+        path = write_partition(tmp_path / name, owner)
+        assert np.array_equal(partition_nodes(g, 3, path), owner)
+        assert np.array_equal(partition_nodes(g, 3, str(path)), owner)
+    bad = tmp_path / "bad.txt"
+    bad.write_text("# header\n0\n1\nx\n")
+    with pytest.raises(ExchangeError, match=r"bad.txt, line 4: 'x' is not an integer rank"):
+        read_partition(bad, 8, 3)
+    with pytest.raises(ExchangeError, match="gives ranks for 8 nodes, the graph has 9"):
+        read_partition(tmp_path / "owner.txt", 9, 3)
+    with pytest.raises(ExchangeError, match=r"node 0 is given rank 2, outside 0..1 \(2 ranks launched\)"):
+        read_partition(write_partition(tmp_path / "o2.npy", np.full(8, 2)), 8, 2)
+    with pytest.raises(ExchangeError, match="does not exist"):
+        partition_nodes(g, 3, tmp_path / "missing.npy")

@@ -153,7 +153,7 @@ def test_method_of_multipliers_matches_hand_computation():
     np.testing.assert_allclose(res.trace["z"][:, 0], [2.0, 2.0, 2.0], atol=1e-14)
     np.testing.assert_allclose(res.trace["u"][:, :, 0], [[-1, 1], [-1.5, 1.5], [-1.75, 1.75]], atol=1e-14)
     # g(0): x = (1, 3), z = 2: f = ½·1² + ½·1² = 1; ½(x_i − z)² = ½ + ½ = 1: g = 2
-    assert res.extras["dual_value_initial"] == pytest.approx(2.0, abs=1e-14)
+    assert res.dual_value_initial == pytest.approx(2.0, abs=1e-14)
     # u = (−1, 1): x = (1.5, 2.5), z = 2: f = ½·1.5² + ½·1.5² = 2.25; ½(x_i − z + u_i)² = ½·1.5² each = 2.25;
     # −½u_i² = −1 in all: g = 3.5
     assert res.trace["dual_value"][0] == pytest.approx(3.5, abs=1e-14)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("mpi4py", reason="the mpi extra is not installed (pip install 'distnav[mpi]')")
+pytest.importorskip("mpi4py", reason="the mpi extra is not installed (pip install 'distnav-estimation[mpi]')")
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE / "mpi"))
@@ -77,6 +77,22 @@ def test_cli_reproduce_under_mpi_writes_the_same_file(tmp_path):
     assert json.loads(a)["final_max_abs_deviation"]["P3"] > 0
 
 
+def test_hostfile_launch_as_in_the_slurm_recipe(tmp_path):
+    """docs/scale.md: the multi-host launch line, here with a hostfile naming localhost (4 slots)."""
+    from distnav.cli import main
+
+    hosts = tmp_path / "hosts"
+    hosts.write_text("localhost:4\n")
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.run([_mpiexec(), "-f", str(hosts), "-n", "4", sys.executable, "-m", "mpi4py", "-m", "distnav",
+                           "reproduce", "consensus", "--backend", "mpi", "--ranks", "4", "--quick", "--no-progress",
+                           "--out", str(tmp_path / "mpi")],
+                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=180, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert main(["reproduce", "consensus", "--quick", "--no-progress", "--out", str(tmp_path / "local")]) == 0
+    assert (tmp_path / "mpi" / "results.json").read_bytes() == (tmp_path / "local" / "results.json").read_bytes()
+
+
 @pytest.mark.parametrize("mode", ["raise", "die"])
 def test_failing_rank_ends_whole_job(tmp_path, mode):
     t0 = time.perf_counter()
@@ -101,8 +117,11 @@ def test_rank_count_mismatch_is_reported(tmp_path):
 
 def test_partition_rules():
     from distnav.errors import ExchangeError
-    from distnav.exchange.mpi import partition_nodes
+    from distnav.exchange import mpi as exchange_mpi
     from distnav.network import Graph, builders
+    from distnav.network.partition import partition_nodes
+
+    assert exchange_mpi.partition_nodes is partition_nodes  # the old import path still works
 
     g = builders.path(6)
     assert partition_nodes(g, 3, "block").tolist() == [0, 0, 1, 1, 2, 2]

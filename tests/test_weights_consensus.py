@@ -71,6 +71,7 @@ def test_consensus_preserves_average(g, protocol, rounds, seed):
     vals = np.random.default_rng(seed).normal(size=(g.n_nodes, 3))
     res = average_consensus(vals, graph=g, protocol=protocol, rounds=rounds)
     assert np.allclose(res.estimates.mean(axis=0), vals.mean(axis=0), atol=1e-12)
+    assert np.array_equal(res.average, vals.mean(axis=0))  # typed field: the reference the trace measures against
 
 
 def test_table1_values_on_hand_graph():

@@ -1,7 +1,8 @@
 """distnav: distributed estimation over sensor networks.
 
 Layers (imports point downwards only): ``network`` → ``exchange`` → ``algorithms`` → ``models`` →
-``experiments``/``cli``. See ARCHITECTURE.md.
+(``output``) → ``experiments`` | ``commands`` → ``cli``, with ``errors``, ``_optional`` and ``typing`` usable by
+all. See docs/DEVELOPING.md (checked by tests/test_layers.py).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from distnav.errors import (  # noqa: E402
     GraphError,
     MissingExtraError,
     ModelError,
+    UsageError,
     WeightsError,
 )
 
@@ -27,4 +29,5 @@ __all__ = [
     "ModelError",
     "DataFileError",
     "MissingExtraError",
+    "UsageError",
 ]

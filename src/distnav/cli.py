@@ -4,7 +4,9 @@
     distnav reproduce NAME --out DIR [options]    one paper experiment (``distnav reproduce --help`` lists them)
     distnav uwb ... / distnav gnss ...            real-data commands (see their --help)
 
-Bad input ends with ``error: <what is wrong>`` and exit code 2, never a bare traceback.
+Bad input ends with ``error: <what is wrong>`` and exit code 2, never a bare traceback, and is found before any
+work: option values when they are parsed (:mod:`distnav.options`), then :func:`check_arguments` (``--out`` is
+created, ``--ranks`` needs ``--backend mpi``, which needs the ``mpi`` extra) before a command or experiment runs.
 """
 
 from __future__ import annotations
@@ -12,29 +14,29 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import logging
 import os
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
 from distnav import __version__
-from distnav.errors import DistnavError
+from distnav.commands import add_backend_arguments
+from distnav.errors import DistnavError, UsageError
 from distnav.experiments import EXPERIMENTS, available, load
-from distnav.experiments.common import ExperimentContext, Progress, set_file_writer
+from distnav.experiments.common import ExperimentContext, Progress
+from distnav.options import output_folder, probe_output_folder, seed
+from distnav.output import set_file_writer
 
 # real-data command groups; each module defines ``register(subparsers)``
 COMMAND_MODULES = ("distnav.commands.uwb", "distnav.commands.gnss")
 
 
 def _add_common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
-    p.add_argument("--backend", choices=["inprocess", "mpi"], default="inprocess",
-                   help="message transport: in-process simulator (default) or MPI "
-                        "(launch with mpiexec -n N python -m mpi4py -m distnav ...)")
-    p.add_argument("--ranks", type=int, default=None,
-                   help="with --backend mpi: the number of ranks you launched; distnav stops if MPI reports another "
-                        "(a mismatched mpiexec silently starts N one-process jobs)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of every random draw, 0 or more (default 0)")
+    add_backend_arguments(p)
     p.add_argument("--no-progress", action="store_true", help="do not print progress")
 
 
@@ -44,7 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="run the quick variant of every reproduction and write a report")
-    demo.add_argument("--out", type=Path, default=Path("distnav-demo"), help="report folder (default distnav-demo)")
+    demo.add_argument("--out", type=output_folder, default=Path("distnav-demo"),
+                      help="report folder (default distnav-demo)")
     demo.add_argument("--only", nargs="+", choices=list(EXPERIMENTS), help="run only these experiments")
     _add_common(demo)
 
@@ -53,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name in available():
         mod = load(name)
         p = rep_sub.add_parser(name, help=getattr(mod, "TITLE", name))
-        p.add_argument("--out", type=Path, required=True, help="output folder")
+        p.add_argument("--out", type=output_folder, required=True, help="output folder")
         p.add_argument("--quick", action="store_true", help="the small variant used by `distnav demo`")
         _add_common(p)
         if hasattr(mod, "add_arguments"):
@@ -116,6 +119,24 @@ def _check_mpi_launch(args: argparse.Namespace) -> None:
               file=sys.stderr)
 
 
+def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None:
+    """What the parser cannot check alone, before any work; raises :class:`UsageError`.
+
+    ``--ranks`` without ``--backend mpi`` (it would be ignored), ``--backend mpi`` without the ``mpi`` extra, and
+    ``--out``: with ``probe_out``, proved creatable and writable (:func:`~distnav.options.probe_output_folder`), so a
+    folder that cannot be made stops the run now; under MPI only rank 0 probes."""
+    backend = getattr(args, "backend", "inprocess")
+    if getattr(args, "ranks", None) is not None and backend != "mpi":
+        raise UsageError(f"--ranks {args.ranks} applies only with --backend mpi (launched with mpiexec -n N)")
+    if backend == "mpi":
+        from distnav._optional import require
+
+        require("mpi4py.MPI", "mpi")
+    out = getattr(args, "out", None)
+    if out is not None and probe_out:
+        probe_output_folder(out)
+
+
 def _main_mpi(args: argparse.Namespace) -> int:
     """Run under MPI: any failure on any rank aborts the whole job with a message naming the rank."""
     from distnav._optional import require
@@ -126,6 +147,7 @@ def _main_mpi(args: argparse.Namespace) -> int:
         set_file_writer(False)
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - lives for the whole process
     try:
+        check_arguments(args, probe_out=rank == 0)
         _check_mpi_launch(args)
         return _dispatch(args)
     except BaseException as exc:  # noqa: BLE001 - every failure must end all ranks
@@ -144,18 +166,73 @@ def _dispatch(args: argparse.Namespace) -> int:
     return int(args.func(args) or 0)
 
 
+class _CliLogHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """``warning: <message>`` on the current stderr (looked up per record, so redirection and pytest's capture
+    see it)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.setFormatter(logging.Formatter("%(message)s"))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.setStream(sys.stderr)
+        record = logging.makeLogRecord(record.__dict__)
+        record.msg, record.args = f"{record.levelname.lower()}: {record.getMessage()}", None
+        super().emit(record)
+
+
+def _configure_logging() -> None:
+    """Library modules log through :mod:`logging` (loggers ``distnav.*``) and never print; the CLI shows their
+    warnings and errors on stderr as ``warning: ...``. An application embedding distnav configures logging itself."""
+    logger = logging.getLogger("distnav")
+    if not any(isinstance(h, _CliLogHandler) for h in logger.handlers):
+        logger.addHandler(_CliLogHandler())
+    if logger.level == logging.NOTSET:
+        logger.setLevel(logging.WARNING)
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: object = None, line: str | None = None) -> None:
+    """Library warnings (e.g. :class:`~distnav.algorithms.consensus.ConsensusWarning`) as ``warning: ...`` lines,
+    without the source location a user cannot act on."""
+    print(f"warning: {message}", file=sys.stderr)
+
+
+def _user_error(exc: BaseException) -> str:
+    if isinstance(exc, FileNotFoundError) and exc.filename:
+        return f"error: file not found: {exc.filename}"
+    if isinstance(exc, OSError) and exc.filename:
+        return f"error: {exc.strerror or exc}: {exc.filename}"
+    return f"error: {exc}"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """The ``distnav`` command: 0 on success, 2 on a user error (``error: ...`` on stderr), 1 when a command
+    computed nothing usable. ``argparse`` ends bad option values with ``SystemExit(2)``."""
+    _configure_logging()
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        return _main(argv)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "backend", "inprocess") == "mpi":
-        return _main_mpi(args)
+        try:  # every rank fails alike here, before MPI starts
+            check_arguments(args, probe_out=False)
+        except DistnavError as exc:
+            print(_user_error(exc), file=sys.stderr)
+            return 2
+        return _main_mpi(args)  # checks again inside, where a failure on one rank aborts them all
     try:
+        check_arguments(args)
         return _dispatch(args)
     except DistnavError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(_user_error(exc), file=sys.stderr)
         return 2
-    except FileNotFoundError as exc:
-        print(f"error: file not found: {exc.filename}", file=sys.stderr)
+    except OSError as exc:  # a file that vanished or could not be written mid-run: say which, no traceback
+        print(_user_error(exc), file=sys.stderr)
         return 2
 
 

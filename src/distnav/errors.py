@@ -14,6 +14,7 @@ __all__ = [
     "ModelError",
     "DataFileError",
     "MissingExtraError",
+    "UsageError",
 ]
 
 
@@ -42,4 +43,9 @@ class DataFileError(DistnavError, ValueError):
 
 
 class MissingExtraError(DistnavError, ImportError):
-    """An optional dependency is missing; the message says which ``pip install distnav[extra]`` fixes it."""
+    """An optional dependency is missing; the message says which ``pip install 'distnav-estimation[extra]'`` fixes
+    it."""
+
+
+class UsageError(DistnavError, ValueError):
+    """A command-line option, argument or output path is not usable (the CLI's exit code 2)."""

@@ -7,6 +7,7 @@ Each case is ``f(backend: str) -> dict[str, np.ndarray]``; ``run_cases.py`` runs
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 
@@ -36,12 +37,12 @@ def consensus_static(backend: str) -> dict[str, np.ndarray]:
 
 
 @case
-def consensus_with_faults(backend: str) -> dict[str, np.ndarray]:
+def consensus_with_faults(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
     g = _graph()
     faults = FaultSchedule(drop_probability=0.2, failed_links=((int(g.links[0, 0]), int(g.links[0, 1]), 3),),
                            silent_nodes=((5, 10),), seed=4)
     vals = np.random.default_rng(3).normal(size=60)
-    ex = make_exchange(g, backend=backend, faults=faults)
+    ex = make_exchange(g, backend=backend, faults=faults, order=order)
     res = average_consensus(vals, graph=g, protocol="MH", rounds=20, exchange=ex)
     return {"estimates": res.estimates, "sent": res.comm.messages_sent, "received": res.comm.messages_received,
             "per_round": res.comm.messages_per_round}
@@ -58,9 +59,9 @@ def consensus_switching(backend: str) -> dict[str, np.ndarray]:
 
 
 @case
-def raw_send_and_broadcast(backend: str) -> dict[str, np.ndarray]:
+def raw_send_and_broadcast(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
     g = _graph()
-    ex = make_exchange(g, backend=backend, faults=FaultSchedule(drop_probability=0.3, seed=8))
+    ex = make_exchange(g, backend=backend, faults=FaultSchedule(drop_probability=0.3, seed=8), order=order)
     # each out-edge carries (src id, dst id, edge id): the receiver checks it got the right message
     vals = np.stack([g.src[ex.out_edges], g.dst[ex.out_edges], ex.out_edges], axis=1).astype(float)
     inbox = ex.send(vals)
@@ -85,24 +86,24 @@ def _linear_problem(n: int, p: int = 4, m: int = 2):
 
 
 @case
-def admm_constraint_nodes(backend: str) -> dict[str, np.ndarray]:
+def admm_constraint_nodes(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
     from distnav.algorithms.admm import admm
 
     g = _graph()
     problem = _linear_problem(g.n_nodes)
-    ex = make_exchange(g, backend=backend)
+    ex = make_exchange(g, backend=backend, order=order)
     res = admm(problem, g, constraint_nodes="min_cover", W=1.0, max_iterations=40, tol=0.0, exchange=ex)
     return {"estimates": res.estimates, "sent": res.comm.messages_sent, "bytes": res.comm.bytes_sent,
             "primal": res.trace["primal_residual"]}
 
 
 @case
-def admm_with_drops(backend: str) -> dict[str, np.ndarray]:
+def admm_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
     from distnav.algorithms.admm import admm
 
     g = _graph()
     problem = _linear_problem(g.n_nodes)
-    ex = make_exchange(g, backend=backend, faults=FaultSchedule(drop_probability=0.1, seed=3))
+    ex = make_exchange(g, backend=backend, faults=FaultSchedule(drop_probability=0.1, seed=3), order=order)
     res = admm(problem, g, constraint_nodes="all", W=1.0, max_iterations=25, tol=0.0, exchange=ex)
     return {"estimates": res.estimates, "received": res.comm.messages_received}
 
@@ -123,6 +124,32 @@ def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
     res = ckf(dyn, NormalSeries(N, r), graph=g, protocol="P3", rounds=4, exchange=make_exchange(g, backend=backend))
     series = res.series
     return {"estimates": res.estimates, "std": series.std, "sent": res.comm.messages_sent}
+
+
+@case
+def ckf_local_precision_and_tests(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.ckf import ckf
+    from distnav.algorithms.kalman import DynamicModel, ObservationSeries
+
+    g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
+    n, p, T = g.n_nodes, 3, 6
+    rng = np.random.default_rng(7)
+    epochs = []
+    for t in range(T):
+        row = []
+        for i in range(n):
+            A = rng.normal(size=(3, p))
+            y = rng.normal(size=3)
+            if (t, i) == (4, 5):
+                y[0] += 50.0  # a gross error the node must reject
+            row.append((A, np.ones(3), y))
+        epochs.append(row)
+    dyn = DynamicModel(p, noise_cov=np.diag([0.1, 0.05, 0.0]))
+    res = ckf(dyn, ObservationSeries(p, epochs), graph=g, protocol="P3", rounds=4, local_precision="exact",
+              test_level=0.001, exchange=make_exchange(g, backend=backend))
+    assert res.tests is not None and res.local_std is not None
+    return {"estimates": res.estimates, "local_std": res.local_std, "w": res.tests.w,
+            "removed": np.array(res.tests.removed), "sent": res.comm.bytes_sent}
 
 
 @case
@@ -158,19 +185,60 @@ def csg_and_nclm(backend: str) -> dict[str, np.ndarray]:
     from distnav.algorithms.csg import solve_csg, solve_nclm
 
     problem = _uwb_problem()
-    csg = solve_csg(problem, iterations=20, exchange=make_exchange(problem.graph, backend=backend))
+    csg = solve_csg(problem, iterations=20, exchange=make_exchange(problem.graph, backend=backend), alpha=1e-4)
     nclm = solve_nclm(problem, iterations=10, exchange=make_exchange(problem.graph, backend=backend))
     return {"estimates": np.concatenate([csg.estimates.ravel(), nclm.estimates.ravel()]),
             "sent": csg.comm.messages_sent + nclm.comm.messages_sent}
 
 
 @case
-def ncsg_tbls_with_drops(backend: str) -> dict[str, np.ndarray]:
+def ncsg_tbls_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
     from distnav.algorithms.csg import solve
     from distnav.models.uwb.problems import generate_problem
 
     problem = generate_problem("RM", np.random.default_rng(3), n_anchors=40)
-    ex = make_exchange(problem.graph, backend=backend, faults=FaultSchedule(drop_probability=0.1, seed=2))
+    ex = make_exchange(problem.graph, backend=backend, faults=FaultSchedule(drop_probability=0.1, seed=2),
+                       order=order)
     res = solve(problem, "N-CSG-TBLS", iterations=30, exchange=ex, monitor_every=7)  # gathers at 0, 7, …, 28, 30
     return {"estimates": res.estimates, "bytes": res.comm.bytes_sent, "received": res.comm.messages_received,
             "cost": res.trace["cost"]}
+
+
+@case
+def ncsg_metres_with_local_qc(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.csg import solve_ncsg
+
+    problem = _uwb_problem()
+    res = solve_ncsg(problem, line_search="TBLS", iterations=40, objective="metres", sigma_m=0.15, loss="cauchy",
+                     exchange=make_exchange(problem.graph, backend=backend))
+    return {"estimates": res.estimates, "w": np.nan_to_num(res.tests.w, nan=-99.0),
+            "covariance": res.precision.covariance}
+
+
+# the same runs with the exchange's nodes renumbered by reverse Cuthill–McKee (issue 17 item 0): on the small graphs
+# above "auto" keeps the user's order, so these exercise the locality order on both backends
+for _fn in (consensus_with_faults, raw_send_and_broadcast, admm_constraint_nodes, admm_with_drops,
+            ncsg_tbls_with_drops):
+    CASES[f"{_fn.__name__}_rcm"] = partial(_fn, order="rcm")
+
+
+@case
+def transport_options(backend: str) -> dict[str, np.ndarray]:
+    """The non-persistent transport, and a partition read from a file (in-process ignores both)."""
+    import os
+    import tempfile
+
+    from distnav.network.partition import partition_nodes, write_partition
+
+    g = _graph()
+    faults = FaultSchedule(drop_probability=0.2, seed=6)
+    plain = make_exchange(g, backend=backend, faults=faults, persistent=False)
+    vals = np.random.default_rng(9).normal(size=(60, 3))
+    res = average_consensus(vals, graph=g, protocol="MH", rounds=15, exchange=plain)
+    owner = partition_nodes(g, 4, "block")[::-1].copy()  # any valid owner array: here blocks in reverse
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write_partition(os.path.join(tmp, "owner.txt"), owner)
+        ex = make_exchange(g, backend=backend, faults=faults, partition=path)
+        inbox = ex.send(np.stack([g.src[ex.out_edges], ex.out_edges], axis=1).astype(float))
+    return {"estimates": res.estimates, "received": res.comm.messages_received,
+            "edge_sum": ex.gather_nodes(inbox.sum()), "count": ex.gather_nodes(inbox.count())}

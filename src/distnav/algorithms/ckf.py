@@ -30,9 +30,17 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
+from distnav.algorithms.ckf_qc import (
+    InnovationCollector,
+    NodeEpochTest,
+    innovation_test,
+    local_extra_bound,
+    local_extra_exact,
+)
 from distnav.algorithms.consensus import ConsensusSchedule, consensus_product, consensus_schedule
 from distnav.algorithms.kalman import (
     DynamicModel,
@@ -45,7 +53,8 @@ from distnav.algorithms.kalman import (
     pseudo_inverse_psd,
     std_ratio,
 )
-from distnav.algorithms.result import TraceBuilder
+from distnav.algorithms.result import Precision, TraceBuilder
+from distnav.algorithms.statistics import critical_value
 from distnav.errors import ModelError, WeightsError
 from distnav.exchange import Exchange, make_exchange
 from distnav.exchange.base import CommTotals
@@ -53,6 +62,8 @@ from distnav.network.graph import Graph, SwitchingGraph
 from distnav.network.weights import ConsensusWeights
 from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
 
+LocalPrecision = Literal["exact", "bound"]
+"""Node-local form of the Fig. 7 variance (:mod:`distnav.algorithms.ckf_qc`)."""
 ConsensusProtocol = str | int | ConsensusWeights | Sequence[ConsensusWeights]
 """A consensus protocol: a Table 1 name or number (``"P1"``…``"P4"``), one weight object, or one per session."""
 
@@ -134,6 +145,8 @@ class CKFState:
     information, info_vector : ``I_i,t|t`` (k×p×p), ``i_i,t|t`` (k×p).
     estimates : ``x̂_i,t|t`` (NaN where not estimable); estimable : (k×p).
     covariance : ``P_i,t|t`` from Fig. 7 (k×p×p) or ``None`` without the variance recursion.
+    local_covariance : the node-local ``P_i,t|t`` (exact or bound, :mod:`distnav.algorithms.ckf_qc`) or ``None``.
+    tests : per local node, its innovation tests at this epoch (``None``: nothing tested); empty without tests.
     nominal_covariance : ``I_i,t|t⁺``. consensus_deviation : max over local nodes and entries of
     ``|N_i^(k_n) − N̄|``, ``|r_i^(k_n) − r̄|`` (monitoring).
     """
@@ -147,6 +160,8 @@ class CKFState:
     covariance: FloatArray | None
     nominal_covariance: FloatArray
     consensus_deviation: float
+    local_covariance: FloatArray | None = None
+    tests: tuple[NodeEpochTest | None, ...] = ()
 
 
 def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
@@ -155,7 +170,8 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
                 rounds: int | None = None, sampling_interval_s: float | None = None,
                 sending_interval_s: float | None = None, exchange: Exchange | None = None,
                 schedule: ConsensusSchedule | None = None, variance: bool = True,
-                monitor: bool = True) -> Iterator[CKFState]:
+                monitor: bool = True, local_precision: LocalPrecision | None = None,
+                test_level: float | None = None) -> Iterator[CKFState]:
     """Yield the CKF state (paper 003 Fig. 6) of this block's nodes after every epoch.
 
     ``rounds`` (= k_n) or the two time scales ``sampling_interval_s`` (Δ) and ``sending_interval_s`` (δ).
@@ -163,6 +179,11 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     deviation from the exact averages (a global reduction: monitoring only).
     Each consensus round sends one message per directed edge holding the upper triangle of ``N_i^(k)`` and
     ``r_i^(k)`` (p(p+1)/2 + p floats).
+
+    ``local_precision`` ("exact" or "bound") runs the node-local form of Fig. 7 from the messages alone
+    (:mod:`distnav.algorithms.ckf_qc`; it adds ``n (p(p+1)/2 + 1)`` resp. ``n`` floats to every message).
+    ``test_level`` (needs ``local_precision`` and raw observations) makes every node test its predicted residuals
+    at that level and reject outliers before they enter its consensus.
     """
     check_model(dynamics, measurements)
     kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
@@ -177,34 +198,62 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     n_tri = iu[0].size
     nodes = ex.nodes
     k_loc = nodes.size
-    track_L = variance and ex.faults.active
-    L_nominal = consensus_product(sched, kn) if (variance and not track_L) else None
-    ker = InformationKernel(k_loc, p, track_error=variance)
+    if local_precision not in (None, "exact", "bound"):
+        raise ModelError(f"local_precision must be 'exact', 'bound' or None, got {local_precision!r}")
+    critical = None
+    if test_level is not None:
+        if local_precision is None:
+            raise ModelError("innovation tests need the node-local precision: give local_precision='exact' or "
+                             "'bound' with test_level")
+        critical = critical_value(test_level)
+    track_L = (variance and ex.faults.active) or local_precision is not None
+    L_nominal = consensus_product(sched, kn) if (variance and not ex.faults.active) else None
+    L2_nominal = L_nominal[nodes] ** 2 if L_nominal is not None else None  # once, not every epoch
+    n_err = int(variance) + int(local_precision is not None)
+    ker = InformationKernel(k_loc, p, track_error=n_err > 0, n_errors=max(n_err, 1))
+    i_local = int(variance)  # index of the node-local variance in ker.Qs
     up = iu[0] * p + iu[1]  # flat indices of the upper triangle and of its mirror
     lo = iu[1] * p + iu[0]
     for t in range(measurements.n_epochs):
         if t > 0:
             ker.time_update(dynamics, t)
         N, r = measurements.normals(t, nodes)
+        tests: tuple[NodeEpochTest | None, ...] = ()
+        if critical is not None:
+            N, r, tests = _tested_normals(ker, measurements, t, nodes, N, r, i_local, critical)
         tri = N.reshape(k_loc, p * p)[:, up]
         parts = [tri, r]
         if track_L:
             parts.append(np.eye(n)[nodes])
+        if local_precision == "exact":
+            tagged = np.zeros((k_loc, n, n_tri))
+            tagged[np.arange(k_loc), nodes] = tri
+            parts.append(tagged.reshape(k_loc, n * n_tri))
         payload = np.concatenate(parts, axis=1)
         for k in range(kn):
             payload = mixers[k % len(mixers)].apply(payload)
         Nk = _symmetric(payload[:, :n_tri], up, lo, k_loc, p)
         rk = payload[:, n_tri:n_tri + p]
         extra = None
+        L_mixed = payload[:, n_tri + p:n_tri + p + n] if track_L else None
         if variance:
-            if track_L:
-                L_rows = payload[:, n_tri + p:]
+            if L_mixed is not None and ex.faults.active:
+                L2_rows = L_mixed**2
             else:
-                assert L_nominal is not None
-                L_rows = L_nominal[nodes]
+                assert L2_nominal is not None
+                L2_rows = L2_nominal
             N_all = ex.gather_nodes(tri)  # analysis input of Fig. 7 (no node has it)
-            extra = _symmetric((n * n) * ((L_rows**2) @ N_all), up, lo, k_loc, p)
-        ker.measurement_update(Nk, rk, scale=float(n), extra_error=extra)
+            extra = _symmetric((n * n) * (L2_rows @ N_all), up, lo, k_loc, p)
+        if local_precision is None:
+            ker.measurement_update(Nk, rk, scale=float(n), extra_error=extra)
+        else:
+            assert L_mixed is not None
+            if local_precision == "exact":
+                E = local_extra_exact(L_mixed, payload[:, n_tri + p + n:].reshape(k_loc, n, n_tri))
+            else:
+                E = local_extra_bound(L_mixed, payload[:, :n_tri])
+            local_extra = _symmetric((n * n) * E, up, lo, k_loc, p)
+            ker.measurement_update(Nk, rk, scale=float(n), extra_errors=[extra, local_extra][-n_err:])
         dev = 0.0
         if monitor:
             Nbar = ex.allreduce(N.sum(axis=0), "sum") / n
@@ -212,7 +261,35 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
             loc = max(float(np.abs(Nk - Nbar).max(initial=0.0)), float(np.abs(rk - rbar).max(initial=0.0)))
             dev = float(ex.allreduce(loc, "max"))
         x, est, inv, P = ker.estimates()
-        yield CKFState(t, nodes, ker.I, ker.i, x, est, P, inv, dev)
+        if not variance:
+            P = None
+        P_local = ker.error_covariance(inv, i_local) if local_precision is not None else None
+        yield CKFState(t, nodes, ker.I, ker.i, x, est, P, inv, dev, P_local, tests)
+
+
+def _tested_normals(ker: InformationKernel, measurements: MeasurementSeries, t: int, nodes: IntArray,
+                    N: FloatArray, r: FloatArray, i_local: int, critical: float,
+                    ) -> tuple[FloatArray, FloatArray, tuple[NodeEpochTest | None, ...]]:
+    """Innovation tests of every local node at epoch ``t`` (after the time update); normals of the kept rows."""
+    A, y, row_node = measurements.observations(t, nodes)
+    tests: list[NodeEpochTest | None] = [None] * nodes.size
+    if t == 0:  # no prediction yet (BLUP start): nothing to test against
+        return N, r, tuple(tests)
+    inv, est = pseudo_inverse_psd(ker.I)
+    x_pred = (inv @ ker.i[..., None])[..., 0]
+    P_pred = ker.error_covariance(inv, i_local)
+    N, r = N.copy(), r.copy()
+    for a, node in enumerate(nodes):
+        rows = np.flatnonzero(row_node == node)
+        if rows.size == 0:
+            continue
+        res = innovation_test(A[rows], y[rows], x_pred[a], P_pred[a], est[a], critical)
+        tests[a] = res
+        if res.removed:
+            Ak, yk = A[rows][res.keep], y[rows][res.keep]
+            N[a] = Ak.T @ Ak
+            r[a] = Ak.T @ yk
+    return N, r, tuple(tests)
 
 
 def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
@@ -221,7 +298,8 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         rounds: int | None = None, sampling_interval_s: float | None = None,
         sending_interval_s: float | None = None, exchange: Exchange | None = None,
         schedule: ConsensusSchedule | None = None, variance: bool = True, monitor: bool = True,
-        store_matrices: bool = False) -> FilterResult:
+        store_matrices: bool = False, local_precision: LocalPrecision | None = None,
+        test_level: float | None = None) -> FilterResult:
     """Run the CKF (paper 003 Fig. 6) over all epochs; see :func:`iterate_ckf` for the arguments.
 
     Returns a :class:`FilterResult` (``mode="ckf"``): ``estimates`` = last-epoch ``x̂_i,t|t`` (n×p),
@@ -229,7 +307,9 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     (:class:`FilterSeries` over all nodes: ``std`` from Fig. 7, ``nominal_std`` = sqrt diag ``I_i⁻¹``; with
     ``store_matrices`` also ``covariance`` = ``P_i,t|t`` and ``information`` = ``I_i,t|t`` for every epoch),
     ``information``, ``info_vector``, ``covariance`` (last epoch), ``rounds`` (k_n), ``product`` (``L``) and
-    ``alpha`` (with ``variance`` only). Trace: ``consensus_deviation`` per epoch.
+    ``alpha`` (with ``variance`` only). Trace: ``consensus_deviation`` per epoch. With ``local_precision`` also
+    ``precision`` (:class:`~distnav.algorithms.result.Precision` of the last epoch, with the bytes it cost) and
+    ``local_std`` (T, n, p); with ``test_level`` also ``tests`` (:class:`~distnav.algorithms.kalman.InnovationTests`).
 
     Memory: the per-epoch series are (T, n, p) arrays, and the variance recursion needs the dense n×n ``L`` and
     ``Σ_j l_ij² N_j`` (O(n² p²) work per epoch): for very large networks iterate with :func:`iterate_ckf` and
@@ -245,11 +325,18 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     ests: list[BoolArray] = []
     covs: list[FloatArray] = []
     infos: list[FloatArray] = []
+    lstds: list[FloatArray] = []
     tb = TraceBuilder()
     last: CKFState | None = None
+    collector = (InnovationCollector(ex, n, test_level, critical_value(test_level))
+                 if test_level is not None else None)
     for st in iterate_ckf(dynamics, measurements, rounds=kn, exchange=ex, schedule=sched, variance=variance,
-                          monitor=monitor):
+                          monitor=monitor, local_precision=local_precision, test_level=test_level):
         xs.append(ex.gather_nodes(st.estimates))
+        if st.local_covariance is not None:
+            lstds.append(ex.gather_nodes(masked_std(st.local_covariance, st.estimable)))
+        if collector is not None:
+            collector.add(st.tests)
         ests.append(ex.gather_nodes(st.estimable))
         nstds.append(ex.gather_nodes(masked_std(st.nominal_covariance, st.estimable)))
         if st.covariance is not None:
@@ -281,7 +368,29 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         info_vector=ex.gather_nodes(last.info_vector),
         covariance=ex.gather_nodes(last.covariance) if last.covariance is not None else None,
         rounds=kn, product=L, alpha=alpha_factor(L) if L is not None else None,
+        precision=_local_precision(ex, last, local_precision, comm, measurements.n_states, variance),
+        local_std=np.stack(lstds) if lstds else None,
+        tests=collector.build() if collector is not None else None,
     )
+
+
+def _local_precision(ex: Exchange, last: CKFState, kind: LocalPrecision | None, comm: CommTotals, p: int,
+                     variance: bool) -> Precision | None:
+    """The node-local :class:`Precision` of the last epoch; ``comm`` = the bytes it added to the messages."""
+    if kind is None or last.local_covariance is None:
+        return None
+    n = ex.n_nodes
+    n_tri = p * (p + 1) // 2
+    base = n_tri + p + (n if (variance and ex.faults.active) else 0)
+    width = n_tri + p + n + (n * n_tri if kind == "exact" else 0)
+    share = (width - base) / width
+    extra = CommTotals(0, np.zeros_like(comm.messages_sent), np.rint(comm.bytes_sent * share).astype(np.int64),
+                       np.zeros_like(comm.messages_received),
+                       np.rint(comm.bytes_received * share).astype(np.int64),
+                       np.zeros_like(comm.messages_per_round),
+                       np.rint(comm.bytes_per_round * share).astype(np.int64))
+    return Precision(covariance=ex.gather_nodes(last.local_covariance), variance_factor=None,
+                     redundancy=float("nan"), kind=kind, iterations=0, comm=extra)
 
 
 def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, product: ArrayLike, *,
@@ -292,13 +401,19 @@ def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, 
     and ``P_i,t|t`` follow from the normal matrices and ``L`` — the a-priori design tool of paper 003 §4.2.
     Returns a :class:`FilterSeries` with ``std`` = sqrt diag ``P_i,t|t`` and ``nominal_std`` = sqrt diag
     ``I_i,t|t⁻¹`` (``estimates`` are NaN).
+
+    Cost per epoch: one dense GEMM ``[L; L∘L] · tri(N)`` of (2n × n) by (n × p(p+1)/2) — O(n² p²) flops, the
+    dominant term (≈ 1.1 GFLOP at n = 1,000, p = 33) — plus O(n p³) for the batched time update and inverses;
+    memory O(n² + n p²). Measured in ``benchmarks/bench_ckf.py`` against a bare batched-numpy implementation of the
+    same recursion (issue 17: ≤ 2×). For the node-local form that needs no global knowledge see
+    ``ckf(..., local_precision=...)``.
     """
     check_model(dynamics, measurements)
     n, p = measurements.n_nodes, measurements.n_states
     L = np.asarray(product, dtype=float)
     if L.shape != (n, n):
         raise ModelError(f"product matrix must be {n}×{n}, got {L.shape}")
-    L2 = L**2
+    LL = np.concatenate([L, L**2])  # one GEMM per epoch gives Σ_j l_ij N_j and Σ_j l_ij² N_j
     iu = _triu(p)
     ker = InformationKernel(n, p, track_error=True)
     T = measurements.n_epochs
@@ -312,7 +427,7 @@ def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, 
             ker.time_update(dynamics, t)
         N, _ = measurements.normals(t)
         tri = N[:, iu[0], iu[1]]
-        both = np.concatenate([L, L2]) @ tri
+        both = LL @ tri
         Nk = np.zeros((n, p, p))
         Nk[:, iu[0], iu[1]] = both[:n]
         Nk[:, iu[1], iu[0]] = both[:n]

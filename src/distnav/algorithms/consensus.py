@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from distnav.algorithms.result import LegacyResult, SolverResult, TraceBuilder
+from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import WeightsError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.graph import Graph, SwitchingGraph
@@ -28,6 +28,7 @@ from distnav.network.weights import (
 )
 
 __all__ = [
+    "ConsensusResult",
     "ConsensusWarning",
     "ConsensusSchedule",
     "ConsensusState",
@@ -165,6 +166,14 @@ def iterate_average_consensus(
         yield ConsensusState(k + 1, x)
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
+class ConsensusResult(SolverResult):
+    """Result of :func:`average_consensus`: ``average`` is the true network average r̄ (the reference the trace's
+    ``max_abs_deviation`` is measured against; a monitoring value no node holds)."""
+
+    average: np.ndarray
+
+
 def average_consensus(
     values: np.ndarray,
     *,
@@ -173,7 +182,7 @@ def average_consensus(
     rounds: int,
     exchange: Exchange | None = None,
     record_values: bool = False,
-) -> SolverResult:
+) -> ConsensusResult:
     """Run ``rounds`` of average consensus; returns per-node values after the last round.
 
     Trace: ``max_abs_deviation`` (round 0..rounds, max over nodes and entries of |r_i^(k) − r̄|) and, with
@@ -197,7 +206,7 @@ def average_consensus(
     dev_final = float(np.abs(final - mean).max())
     tol = 1e-9 * (1 + float(np.abs(mean).max()))
     converged = dev_final <= tol
-    return LegacyResult(
+    return ConsensusResult(
         estimates=final,
         converged=converged,
         iterations=rounds,
@@ -205,7 +214,7 @@ def average_consensus(
         message=f"{rounds} rounds, max |r_i − r̄| = {dev_final:.3g}",
         trace=tb.build(),
         comm=ex.comm_totals(),
-        legacy={"average": mean},
+        average=mean,
     )
 
 

@@ -22,7 +22,8 @@ Paper defaults: 500 iterations, ``α = 1e-3``, ``α₀ = 1e-2``, ``β = γ = 1/2
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -36,15 +37,20 @@ from distnav.algorithms.neighbourhood import (
     iterate_neighbourhood,
     mixing_weights,
 )
-from distnav.algorithms.nlsq import range_loss_scale, robust_weights, solve_lm
+from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, solve_lm
 from distnav.algorithms.ranging import RangingData, RangingResult
-from distnav.algorithms.result import Trace
+from distnav.algorithms.ranging_objective import range_sigma
+from distnav.algorithms.ranging_qc import TEST_SCALES, local_quality
+from distnav.algorithms.result import ObservationTests, Precision, SolverStatus, Trace
+from distnav.algorithms.statistics import critical_value, variance_factor
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.weights import ConsensusWeights
 
 __all__ = [
+    "PAPER_MODE",
     "SOLVERS",
+    "StopRule",
     "DISTRIBUTED_SOLVERS",
     "IterationState",
     "iterate_csg",
@@ -59,11 +65,45 @@ SOLVERS = ("LM", "CSG", "N-CSG", "N-CSG-BLS", "N-CSG-TBLS", "N-CLM")
 DISTRIBUTED_SOLVERS = SOLVERS[1:]
 
 
+@dataclass(frozen=True)
+class StopRule:
+    """When a distributed run stops (paper 002 §5 suggests the cost and the step size; a network-total test).
+
+    At every monitored iteration (after the graduated linear stage): converged when, for ``patience`` checks in a
+    row, the global objective changed by at most ``ftol`` (relative) since the previous check and no anchor's own
+    estimate moved by more than ``xtol_m`` metres. Diverged when the cost is not finite or an own estimate is
+    farther than ``divergence_factor`` × the extent of the start from its centre. The tests use network totals
+    (``ex.allreduce``), like ADMM's; a deployment without them runs a fixed count (``stop=None``, the paper's mode).
+    """
+
+    ftol: float = 1e-6
+    xtol_m: float = 1e-4
+    patience: int = 3
+    divergence_factor: float = 100.0
+
+    def __post_init__(self) -> None:
+        if not (self.ftol >= 0 and self.xtol_m >= 0 and self.patience >= 1 and self.divergence_factor > 1):
+            raise ModelError(f"invalid stopping rule {self}")
+
+
+PAPER_MODE: dict[str, Any] = {"stop": None, "quality": False}
+"""Options that make a distributed solver run as in paper 002: a fixed iteration count, no QC."""
+
+
+def _cost_of(problem: RangingData, objective: str, sigma: np.ndarray) -> Callable[[np.ndarray], float]:
+    if objective == "metres":
+        def cost(pos: np.ndarray) -> float:
+            r = (problem.distances(pos) - problem.range_m) / sigma
+            return float(r @ r)
+        return cost
+    return problem.cost
+
+
 def _summarize(problem: RangingData, ex: Exchange, own_local: np.ndarray, truth: np.ndarray | None,
-               est: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """Monitoring only (gathers): all own estimates, global cost f (eq. (2)) and RMSE (eq. (24))."""
+               est: np.ndarray, cost_of: Callable[[np.ndarray], float]) -> tuple[np.ndarray, float, float]:
+    """Monitoring only (gathers): all own estimates, global cost (eq. (2), or Σ e²/σ²) and RMSE (eq. (24))."""
     own = ex.gather_nodes(own_local)
-    cost = problem.cost(own)
+    cost = cost_of(own)
     if truth is None:
         return own, cost, float("nan")
     d = own[est] - truth[est]
@@ -80,15 +120,25 @@ def iterate_csg(
     consensus_rounds: int = 1,
     weights: str | ConsensusWeights = "MH",
     initial_m: np.ndarray | None = None,
+    objective: str = "squared",
+    sigma_m: float | np.ndarray = 1.0,
 ) -> Iterator[IterationState]:
-    """Yield the CSG state after iterations 0 (start), 1, …, ``iterations`` (paper 002 eqs. (10)–(12))."""
+    """Yield the CSG state after iterations 0 (start), 1, …, ``iterations`` (paper 002 eqs. (10)–(12)).
+
+    ``objective="metres"``: the residuals are ``(‖r_a − r_b‖ − d)/σ`` and ``α`` is relative to each anchor's
+    information ``Σ_{l∈E(i)} σ_l⁻²`` (as in :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`)."""
     init = check_start(problem, iterations, consensus_rounds, initial_m)
     if not alpha > 0:
         raise ModelError(f"alpha must be positive, got {alpha}")
+    if objective not in ("squared", "metres"):
+        raise ModelError(f"objective must be 'squared' or 'metres', got {objective!r}")
+    metres = objective == "metres"
     ex = exchange_for(problem, exchange)
     mixer = ex.mixer(mixing_weights(problem, weights))
     n, dim, nl = problem.n_anchors, problem.dim, ex.n_local
-    own_idx, other, d2, _ = half_measurements(problem, ex)
+    own_idx, other, d2, samp = half_measurements(problem, ex)
+    sig = range_sigma(problem, sigma_m)[samp]
+    rng_m = problem.range_m[samp]
     me = ex.nodes[own_idx]
     # full vectors: F[li, k] = anchor ex.nodes[li]'s estimate of anchor k
     F = np.broadcast_to(init, (nl, n, dim)).copy()
@@ -100,12 +150,20 @@ def iterate_csg(
     Q = sp.csr_matrix((np.concatenate([np.ones(nh), -np.ones(nh)]),
                        (np.concatenate([fl_self, fl_other]), np.concatenate([np.arange(nh)] * 2))),
                       shape=(nl * n, nh))
-    alpha_local = np.full(nl, float(alpha))
+    if metres:
+        info = np.bincount(own_idx, 1.0 / sig**2, minlength=nl)
+        alpha_local = alpha / np.where(info > 0, info, 1.0)
+    else:
+        alpha_local = np.full(nl, float(alpha))
+
+    def residual(diff: np.ndarray) -> np.ndarray:
+        if metres:
+            return np.asarray((np.linalg.norm(diff, axis=1) - rng_m) / sig)
+        return np.asarray(np.einsum("ij,ij->i", diff, diff) - d2)
 
     def partial_cost(Fc: np.ndarray) -> np.ndarray:
         flat = Fc.reshape(nl * n, dim)
-        diff = flat[fl_self] - flat[fl_other]
-        g = np.einsum("ij,ij->i", diff, diff) - d2
+        g = residual(flat[fl_self] - flat[fl_other])
         return np.bincount(own_idx, g * g, minlength=nl)
 
     flat = F.reshape(nl * n, dim)
@@ -114,15 +172,22 @@ def iterate_csg(
     for k in range(1, iterations + 1):
         flat = F.reshape(nl * n, dim)
         diff = flat[fl_self] - flat[fl_other]
-        g = np.einsum("ij,ij->i", diff, diff) - d2
+        g = residual(diff)
         pc = np.bincount(own_idx, g * g, minlength=nl)
-        grad = np.asarray(Q @ (2.0 * g[:, None] * diff)).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
-        U = np.where(free, F - alpha * grad, known)
+        if metres:
+            norm = np.linalg.norm(diff, axis=1)
+            jr = diff / (np.where(norm > 0, norm, np.inf) * sig)[:, None]
+            grad = np.asarray(Q @ (g[:, None] * jr)).reshape(nl, n, dim)
+            U = np.where(free, F - alpha_local[:, None, None] * grad, known)
+        else:
+            grad = np.asarray(Q @ (2.0 * g[:, None] * diff)).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
+            U = np.where(free, F - alpha * grad, known)
         for _ in range(consensus_rounds):  # eq. (11)
             U = mixer.apply(U)
         F = np.where(free, U, known)
         flat = F.reshape(nl * n, dim)
-        yield IterationState(k, flat[ex.nodes + np.arange(nl) * n].copy(), alpha_local, pc)
+        yield IterationState(k, flat[ex.nodes + np.arange(nl) * n].copy(), alpha_local, pc, own_idx, samp,
+                             flat[fl_other])
 
 
 # ---------------------------------------------------------------------- run-to-end front doors
@@ -131,18 +196,44 @@ def _check_monitor(monitor_every: int) -> None:
         raise ModelError(f"monitor_every must be ≥ 0, got {monitor_every}")
 
 
+@dataclass(frozen=True)
+class _Setup:
+    """What :func:`_run` needs besides the states: objective, loss, stopping rule and QC options."""
+
+    objective: str = "squared"
+    sigma_m: float | np.ndarray = 1.0
+    loss: str = "linear"
+    loss_scale_m: float = 0.3
+    stop: StopRule | None = None
+    graduated: int = 0
+    quality: bool = False
+    test_level: float = 0.001
+    test_scale: str = "robust"
+    monitor_every: int = 1
+
+    def check(self) -> None:
+        _check_monitor(self.monitor_every)
+        if self.test_scale not in TEST_SCALES:
+            raise ModelError(f"test_scale must be one of {', '.join(TEST_SCALES)}, got {self.test_scale!r}")
+        if self.loss not in LOSSES:
+            raise ModelError(f"unknown loss {self.loss!r}; choose one of {', '.join(LOSSES)}")
+
+
 def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, name: str, iterations: int,
-         settings: dict[str, Any], *, monitor_every: int = 1, loss: str = "linear",
-         loss_scale_m: float = 0.3) -> RangingResult:
-    """Drive a state generator to its end, monitoring every ``monitor_every``-th iteration (and the first and last).
+         settings: dict[str, Any], setup: _Setup) -> RangingResult:
+    """Drive a state generator until the stopping rule or the budget, monitoring every ``monitor_every``-th
+    iteration (and the first and last).
 
     Monitoring gathers every anchor's own estimate (``ex.gather_nodes``) and sums the partial costs and steps
     (``ex.allreduce``): network-wide collectives a deployment would not run each iteration. Unmonitored rows of the
     trace are NaN; a blow-up (non-finite cost) is detected at the next monitored iteration and ends the run as
-    ``"diverged"``. ``monitor_every=0`` monitors the start and the end only.
+    ``"diverged"`` (estimates NaN). ``monitor_every=0`` monitors the start and the end only.
     """
+    monitor_every, stop = setup.monitor_every, setup.stop
     truth = problem.truth_m
     est = problem.estimated
+    sigma = range_sigma(problem, setup.sigma_m)
+    cost_of = _cost_of(problem, setup.objective, sigma)
     rm: list[float] = []
     cost: list[float] = []
     pcost: list[float] = []
@@ -150,8 +241,12 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
     count = max(int(ex.allreduce(ex.n_local, "sum")), 1)
     own: np.ndarray | None = None
     last: IterationState | None = None
-    diverged = False
-    nan = float("nan")
+    prev_local: np.ndarray | None = None
+    prev_pcost = nan = float("nan")
+    centre, extent = np.zeros(problem.dim), 1.0
+    status: SolverStatus = "max_iterations"
+    why = ""
+    calm = 0
     with np.errstate(over="ignore", invalid="ignore"):
         for st in states:
             last = st
@@ -162,65 +257,166 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                 pcost.append(nan)
                 step.append(nan)
                 continue
-            own, c, r = _summarize(problem, ex, st.own_m, truth, est)
+            own, c, r = _summarize(problem, ex, st.own_m, truth, est, cost_of)
             rm.append(r)
             cost.append(c)
             pcost.append(float(ex.allreduce(float(st.partial_cost.sum()), "sum")))
             step.append(float(ex.allreduce(float(st.step_size.sum()), "sum")) / count)
+            if k == 0:
+                centre = own.mean(axis=0)
+                extent = max(float(np.max(np.linalg.norm(own - centre, axis=1), initial=0.0)), 1.0)
             if not np.isfinite(c):  # the estimates blew up (e.g. a fixed α too large for the geometry)
-                diverged = True
+                status, why = "diverged", "the cost is not finite"
                 break
+            if stop is None:
+                continue
+            far = float(np.max(np.linalg.norm(own - centre, axis=1), initial=0.0))
+            if far > stop.divergence_factor * extent:
+                status, why = "diverged", f"an estimate left the network ({far:.3g} m from its centre)"
+                break
+            if prev_local is not None and k > setup.graduated + 1:  # vs the previous monitored iteration
+                local_move = np.linalg.norm(st.own_m - prev_local, axis=1)
+                moved = float(ex.allreduce(float(local_move.max(initial=0.0)), "max"))
+                change = abs(pcost[-1] - prev_pcost)
+                small = change <= stop.ftol * max(abs(pcost[-1]), 1e-9 * abs(pcost[0]), 1e-300) and moved <= stop.xtol_m
+                calm = calm + 1 if small else 0
+                if calm >= stop.patience:
+                    status = "converged"
+                    why = (f"objective change ≤ {stop.ftol:g} (relative) and steps ≤ {stop.xtol_m:g} m "
+                           f"for {stop.patience} checks")
+                    break
+            prev_local, prev_pcost = st.own_m, pcost[-1]
     assert own is not None and last is not None
     key = "lambda" if name == "N-CLM" else "step_size"
     trace = Trace({"rmse_m": np.asarray(rm), "cost": np.asarray(cost), "partial_cost": np.asarray(pcost),
                    key: np.asarray(step)})
     final_cost = cost[-1]
+    scale = _loss_scale(problem, setup, sigma)
     with np.errstate(over="ignore", invalid="ignore"):
-        objective = final_cost if loss == "linear" else robust_weights(
-            problem.residuals(own), range_loss_scale(problem, loss_scale_m), loss)[1]
+        res_final = ((problem.distances(own) - problem.range_m) / sigma if setup.objective == "metres"
+                     else problem.residuals(own))
+        objective = final_cost if setup.loss == "linear" else float(np.sum(loss_terms(res_final, scale,
+                                                                                        setup.loss)[1]))
+    precision = tests = None
+    if status == "diverged":
+        own = np.full_like(own, np.nan)  # never present a blown-up iterate as a result
+    elif setup.quality and last.half_owner is not None:
+        precision, tests = _local_qc(problem, ex, last, setup, sigma, scale)
+    tail = f" ({why})" if why else ""
     return RangingResult(
         estimates=own,
-        converged=False,
+        converged=status == "converged",
         iterations=last.iteration,
-        status="diverged" if diverged else "max_iterations",
-        message=f"{name}: {'diverged after ' if diverged else ''}{last.iteration} iterations, cost {final_cost:.6g}"
-                + (f", RMSE {rm[-1]:.3f} m" if truth is not None else ""),
+        status=status,
+        message=f"{name}: {status.replace('_', ' ')} after {last.iteration} iterations{tail}, cost {final_cost:.6g}"
+                + (f", RMSE {rm[-1]:.3f} m" if truth is not None and status != "diverged" else ""),
         trace=trace,
         comm=ex.comm_totals(),
         solver=name,
         cost=final_cost,
         objective=objective,
-        loss=loss,
+        loss=setup.loss,
         settings=settings,
+        objective_kind=setup.objective,
+        precision=precision,
+        tests=tests,
     )
 
 
+def _loss_scale(problem: RangingData, setup: _Setup, sigma: np.ndarray) -> np.ndarray:
+    if setup.objective == "metres":
+        return np.asarray(setup.loss_scale_m / sigma)
+    return range_loss_scale(problem, setup.loss_scale_m) if setup.loss != "linear" else np.ones(problem.n_meas)
+
+
+def _local_qc(problem: RangingData, ex: Exchange, st: IterationState, setup: _Setup, sigma: np.ndarray,
+              scale: np.ndarray) -> tuple[Precision, ObservationTests]:
+    """Every anchor's conditional covariance and the w-tests of its own links (computed locally, then gathered
+    for the result only); each sample is reported by the lower-indexed of its two anchors."""
+    assert st.half_owner is not None and st.half_sample is not None and st.half_other_m is not None
+    owner, samp = st.half_owner, st.half_sample
+    cov, w_half, wssr = local_quality(problem.range_m[samp], owner, problem.free[ex.nodes[owner]],
+                                      st.own_m[owner], st.half_other_m, sigma[samp], ex.n_local, setup.objective,
+                                      loss=setup.loss, loss_scale=scale[samp], scale=setup.test_scale)
+    # pack per anchor (padded) so the result can be gathered over blocks
+    per = np.bincount(owner, minlength=ex.n_local)
+    K = max(int(ex.allreduce(int(per.max(initial=0)), "max")), 1)
+    order = np.argsort(owner, kind="stable")
+    slot = np.empty(owner.size, np.int64)
+    slot[order] = np.arange(owner.size) - np.repeat(np.cumsum(per) - per, per)
+    w_pack = np.full((ex.n_local, K), np.nan)
+    s_pack = np.full((ex.n_local, K), -1.0)
+    w_pack[owner, slot] = w_half
+    s_pack[owner, slot] = samp
+    cov_all = ex.gather_nodes(cov)
+    w_all_half = ex.gather_nodes(w_pack)
+    s_all = ex.gather_nodes(s_pack).astype(np.int64)
+    holder = np.repeat(np.arange(problem.n_anchors), K)
+    smp = s_all.ravel()
+    ok = smp >= 0
+    tester = np.minimum(problem.meas_a, problem.meas_b)
+    mine = ok & (holder == tester[np.maximum(smp, 0)])
+    w = np.full(problem.n_meas, np.nan)
+    w[smp[mine]] = w_all_half.ravel()[mine]
+    wssr_total = float(ex.allreduce(float(wssr.sum()), "sum")) / 2.0  # every sample is held twice
+    links = np.bincount(np.concatenate([problem.meas_a, problem.meas_b]), minlength=problem.n_anchors)
+    red = float(np.sum(np.maximum(links - problem.free.sum(axis=1), 0)[problem.estimated]))
+    k = critical_value(setup.test_level)
+    precision = Precision(covariance=cov_all, variance_factor=variance_factor(
+        wssr_total, max(problem.n_meas - problem.n_free, 0)), redundancy=red, kind="conditional")
+    tests = ObservationTests(node=tester, w=w, critical_value=k, level=setup.test_level,
+                             flagged=np.abs(np.nan_to_num(w)) > k)
+    return precision, tests
+
+
+def _graduated(setup_objective: str, loss: str, graduated: int | None, iterations: int) -> int:
+    if graduated is not None:
+        return int(graduated)
+    return iterations // 4 if setup_objective == "metres" and loss != "linear" else 0
+
+
 def solve_csg(problem: RangingData, *, exchange: Exchange | None = None, iterations: int = 500,
-              alpha: float = 1e-3, consensus_rounds: int = 1, weights: str | ConsensusWeights = "MH",
-              initial_m: np.ndarray | None = None, monitor_every: int = 1) -> RangingResult:
+              alpha: float | None = None, consensus_rounds: int = 1, weights: str | ConsensusWeights = "MH",
+              initial_m: np.ndarray | None = None, monitor_every: int = 1, objective: str = "squared",
+              sigma_m: float | np.ndarray = 1.0, stop: StopRule | None = StopRule(), quality: bool = True,
+              test_level: float = 0.001, test_scale: str = "robust") -> RangingResult:
     """CSG (paper 002 eqs. (10)–(12)); trace: ``rmse_m``, ``cost`` (global f at the anchors' own estimates),
     ``partial_cost`` (Σ_i f⁽ⁱ⁾(x⁽ⁱ⁾)), ``step_size``; row 0 is the start.
 
-    ``monitor_every = k`` gathers the estimates for the trace (and the divergence check) only every ``k``-th
-    iteration (NaN rows otherwise; 0: start and end only); see :func:`_run`. The estimates do not depend on it."""
-    _check_monitor(monitor_every)
+    ``alpha`` defaults to the paper's 1e-3 (squared; a fixed step that diverges on long links — the run then
+    ends ``"diverged"``) and to 0.8 for ``objective="metres"`` (relative to each anchor's information: below the
+    stability bound 1 of the Gauss–Newton curvature).
+    CSG has no robust loss (Koppanyi's algorithm; the neighbourhood solvers do). ``stop``: the stopping rule
+    (:class:`StopRule`; ``None`` runs all ``iterations`` as in the paper). ``quality`` adds the conditional
+    per-anchor covariance and the w-tests of every anchor's own links (:mod:`distnav.algorithms.ranging_qc`).
+    ``monitor_every = k`` gathers the estimates for the trace (and the stopping and divergence tests) only every
+    ``k``-th iteration (NaN rows otherwise; 0: start and end only); see :func:`_run`."""
+    setup = _Setup(objective=objective, sigma_m=sigma_m, stop=stop, quality=quality, test_level=test_level,
+                   test_scale=test_scale, monitor_every=monitor_every)
+    setup.check()
+    a = (1e-3 if objective == "squared" else 0.8) if alpha is None else alpha
     ex = exchange_for(problem, exchange)
-    states = iterate_csg(problem, exchange=ex, iterations=iterations, alpha=alpha,
-                         consensus_rounds=consensus_rounds, weights=weights, initial_m=initial_m)
-    return _run(problem, states, ex, "CSG", iterations, {"alpha": alpha, "consensus_rounds": consensus_rounds},
-                monitor_every=monitor_every)
+    states = iterate_csg(problem, exchange=ex, iterations=iterations, alpha=a, consensus_rounds=consensus_rounds,
+                         weights=weights, initial_m=initial_m, objective=objective, sigma_m=sigma_m)
+    return _run(problem, states, ex, "CSG", iterations, {"alpha": a, "consensus_rounds": consensus_rounds}, setup)
 
 
 def solve_ncsg(problem: RangingData, *, line_search: str | None = None, exchange: Exchange | None = None,
-               iterations: int = 500, alpha: float = 1e-3, alpha0: float = 1e-2, beta: float = 0.5,
+               iterations: int = 500, alpha: float | None = None, alpha0: float | None = None, beta: float = 0.5,
                gamma: float = 0.5, consensus_rounds: int = 1, weights: str | ConsensusWeights = "MH",
                initial_m: np.ndarray | None = None, max_backtracks: int = 40,
                armijo_slope: str = "subgradient", loss: str = "linear", loss_scale_m: float = 0.3,
-               monitor_every: int = 1) -> RangingResult:
+               monitor_every: int = 1, objective: str = "squared", sigma_m: float | np.ndarray = 1.0,
+               graduated: int | None = None, stop: StopRule | None = StopRule(), quality: bool = True,
+               test_level: float = 0.001, test_scale: str = "robust") -> RangingResult:
     """N-CSG (eqs. (14)–(18)); ``line_search="BLS"`` (eqs. (19)–(20)) or ``"TBLS"`` (eq. (21)).
 
-    Trace (and ``monitor_every``) as :func:`solve_csg`; ``step_size`` is the mean ``α`` over anchors (paper 002
-    Fig. 6).
+    Trace, ``stop``, ``quality`` and ``monitor_every`` as :func:`solve_csg`; ``step_size`` is the mean ``α`` over
+    anchors (paper 002 Fig. 6). Steps: squared ``alpha = 1e-3``, ``alpha0 = 1e-2`` (the paper's), metres
+    ``alpha = 0.8``, ``alpha0 = 2`` (the Armijo test keeps it safe; 4 oscillates) relative to each anchor's
+    information (see :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`). ``graduated``: iterations
+    with the linear loss before the robust one (default: a quarter of ``iterations`` for metres with a robust loss,
+    else 0).
     ``armijo_slope="subgradient"`` (default, the papers README's eq. (19): ``d = −∇f``, "the subgradient") puts
     the subgradient ``G⁽ⁱ⁾ᵀg⁽ⁱ⁾`` of eq. (10) in place of ``∇f⁽ⁱ⁾`` in the Armijo test, i.e. requires
     ``f⁽ⁱ⁾(x + αd) ≤ f⁽ⁱ⁾(x) − γα‖d‖²``; this reproduces the paper's Fig. 6 step sizes (≈1.2e-3 on RC/RM).
@@ -232,24 +428,33 @@ def solve_ncsg(problem: RangingData, *, line_search: str | None = None, exchange
         method = f"N-CSG-{str(line_search).upper()}"
     else:
         raise ModelError(f"line_search must be None, 'BLS' or 'TBLS', got {line_search!r}")
-    _check_monitor(monitor_every)
+    grad_its = _graduated(objective, loss, graduated, iterations)
+    setup = _Setup(objective=objective, sigma_m=sigma_m, loss=loss, loss_scale_m=loss_scale_m, stop=stop,
+                   graduated=grad_its, quality=quality, test_level=test_level, test_scale=test_scale,
+                   monitor_every=monitor_every)
+    setup.check()
+    a = (1e-3 if objective == "squared" else 0.8) if alpha is None else alpha
+    a0 = (1e-2 if objective == "squared" else 2.0) if alpha0 is None else alpha0
     ex = exchange_for(problem, exchange)
-    states = iterate_neighbourhood(problem, method=method, exchange=ex, iterations=iterations, alpha=alpha,
-                                   alpha0=alpha0, beta=beta, gamma=gamma, consensus_rounds=consensus_rounds,
+    states = iterate_neighbourhood(problem, method=method, exchange=ex, iterations=iterations, alpha=a,
+                                   alpha0=a0, beta=beta, gamma=gamma, consensus_rounds=consensus_rounds,
                                    weights=weights, initial_m=initial_m, max_backtracks=max_backtracks,
-                                   armijo_slope=armijo_slope, loss=loss, loss_scale_m=loss_scale_m)
+                                   armijo_slope=armijo_slope, loss=loss, loss_scale_m=loss_scale_m,
+                                   objective=objective, sigma_m=sigma_m, graduated=grad_its)
     return _run(problem, states, ex, method, iterations,
-                {"alpha": alpha, "alpha0": alpha0, "beta": beta, "gamma": gamma, "consensus_rounds": consensus_rounds,
-                 "armijo_slope": armijo_slope, "loss": loss},
-                monitor_every=monitor_every, loss=loss, loss_scale_m=loss_scale_m)
+                {"alpha": a, "alpha0": a0, "beta": beta, "gamma": gamma, "consensus_rounds": consensus_rounds,
+                 "armijo_slope": armijo_slope, "loss": loss}, setup)
 
 
 def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterations: int = 500,
                lambda0: float = 1e-3, consensus_rounds: int = 1, weights: str | ConsensusWeights = "MH",
                initial_m: np.ndarray | None = None, damping: str = "levenberg", loss: str = "linear",
-               loss_scale_m: float = 0.3, lambda_min: float = 0.1, monitor_every: int = 1) -> RangingResult:
-    """N-CLM (eq. (22)); trace (and ``monitor_every``) as :func:`solve_csg` with the mean ``lambda`` instead of
-    ``step_size``.
+               loss_scale_m: float = 0.3, lambda_min: float = 0.1, monitor_every: int = 1,
+               objective: str = "squared", sigma_m: float | np.ndarray = 1.0, graduated: int | None = None,
+               stop: StopRule | None = StopRule(), quality: bool = True, test_level: float = 0.001,
+               test_scale: str = "robust") -> RangingResult:
+    """N-CLM (eq. (22)); trace, ``objective``, ``graduated``, ``stop``, ``quality`` and ``monitor_every`` as
+    :func:`solve_ncsg`, with the mean ``lambda`` instead of ``step_size``.
 
     ``damping="fletcher"`` is eq. (22) read literally with eq. (8)'s ``λ diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾)``. On the partial cost
     this stalls: anchor ``i`` has ``d_i`` ranges but ``(d_i + 1)·dim`` unknowns, and a neighbour's coordinates
@@ -263,14 +468,18 @@ def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterat
     underdetermined, ranges exactly and the network drifts when the ranges disagree (one anchor pair 3 m NLOS:
     RMSE 3.15 m with the floor 1e-9, 0.30 m with 0.1 and a Cauchy loss; RM with heights held: 0.78 → 0.51 m).
     """
-    _check_monitor(monitor_every)
+    grad_its = _graduated(objective, loss, graduated, iterations)
+    setup = _Setup(objective=objective, sigma_m=sigma_m, loss=loss, loss_scale_m=loss_scale_m, stop=stop,
+                   graduated=grad_its, quality=quality, test_level=test_level, test_scale=test_scale,
+                   monitor_every=monitor_every)
+    setup.check()
     ex = exchange_for(problem, exchange)
     states = iterate_neighbourhood(problem, method="N-CLM", exchange=ex, iterations=iterations, lambda0=lambda0,
                                    consensus_rounds=consensus_rounds, weights=weights, initial_m=initial_m,
-                                   damping=damping, loss=loss, loss_scale_m=loss_scale_m, lambda_min=lambda_min)
+                                   damping=damping, loss=loss, loss_scale_m=loss_scale_m, lambda_min=lambda_min,
+                                   objective=objective, sigma_m=sigma_m, graduated=grad_its)
     return _run(problem, states, ex, "N-CLM", iterations,
-                {"lambda0": lambda0, "consensus_rounds": consensus_rounds, "damping": damping, "loss": loss},
-                monitor_every=monitor_every, loss=loss, loss_scale_m=loss_scale_m)
+                {"lambda0": lambda0, "consensus_rounds": consensus_rounds, "damping": damping, "loss": loss}, setup)
 
 
 def solve(problem: RangingData, solver: str, *, iterations: int = 500, exchange: Exchange | None = None,

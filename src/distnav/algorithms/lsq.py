@@ -18,23 +18,26 @@ Conventions: ``f_i(x) = ½‖y_i − A_i x‖²_{R_i⁻¹}`` (eq. (3)); multipli
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.result import LegacyResult, SolverResult, TraceBuilder
+from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
+from distnav.typing import FloatArray
 
 __all__ = [
     "LinearProblem",
     "BlueSolution",
     "weight_matrix",
     "null_space_directions",
+    "inestimable_directions",
     "blue",
+    "MultiplierResult",
     "dual_function",
     "multiplier_step",
     "MultiplierState",
@@ -237,7 +240,8 @@ class LinearProblem:
         """``f_i(x_i) = ½‖y_i − A_i x_i‖²_{R_i⁻¹}`` per node, for ``x`` of shape ``(p,)`` or ``(n, p)``."""
         xx = np.broadcast_to(np.asarray(x, float), (self.n_nodes, self.n_params))
         e = self.y - np.einsum("nmp,np->nm", self.A, xx)
-        return 0.5 * np.einsum("nm,nmk,nk->n", e, self.R_inv, e)
+        cost: np.ndarray = 0.5 * np.einsum("nm,nmk,nk->n", e, self.R_inv, e)
+        return cost
 
     def subset(self, nodes: np.ndarray) -> LinearProblem:
         """The blocks of the given nodes (e.g. an exchange block's ``ex.nodes``)."""
@@ -288,7 +292,7 @@ def null_space_directions(N: np.ndarray, *, rcond: float = 1e-10) -> np.ndarray:
     return Q
 
 
-def _describe_direction(v: np.ndarray, label: Any) -> str:
+def _describe_direction(v: np.ndarray, label: Callable[[int], str]) -> str:
     v = v / np.abs(v).max()
     if v[np.flatnonzero(np.abs(v) > 1e-8)[0]] < 0:
         v = -v
@@ -301,6 +305,19 @@ def _describe_direction(v: np.ndarray, label: Any) -> str:
         terms.append(f"{sign} {coef}{label(int(k))}")
     text = " ".join(terms)
     return text[2:] if text.startswith("+ ") else text
+
+
+def inestimable_directions(N: np.ndarray, label: Callable[[int], str], *, rcond: float = 1e-10) -> str | None:
+    """``None`` when ``N = Σ N_i`` is regular, else the rank statement naming a basis of the directions of ``x``
+    that the data do not determine (e.g. ``x[0] − x[1]``; paper 000, eq. (2)). ``label(k)`` names parameter ``k``."""
+    null = null_space_directions(N, rcond=rcond)
+    if null.shape[1] == 0:
+        return None
+    p = N.shape[0]
+    dirs = "; ".join(_describe_direction(null[:, k], label) for k in range(min(null.shape[1], 8)))
+    more = f" (and {null.shape[1] - 8} more)" if null.shape[1] > 8 else ""
+    return (f"rank(A) = {p - null.shape[1]} < p = {p} (paper 000, eq. (2)): x is not estimable from all nodes' "
+            f"data; inestimable directions: {dirs}{more}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -330,15 +347,9 @@ def blue(problem: LinearProblem, *, rcond: float = 1e-10, W: Any = None) -> Blue
     N_i, r_i = problem.normal_equations
     N = N_i.sum(axis=0)
     r = r_i.sum(axis=0)
-    null = null_space_directions(N, rcond=rcond)
-    if null.shape[1] > 0:
-        p = problem.n_params
-        dirs = "; ".join(_describe_direction(null[:, k], problem.param_label) for k in range(min(null.shape[1], 8)))
-        more = f" (and {null.shape[1] - 8} more)" if null.shape[1] > 8 else ""
-        raise ModelError(
-            f"rank(A) = {p - null.shape[1]} < p = {p} (paper 000, eq. (2)): x is not estimable from all nodes' data; "
-            f"inestimable directions: {dirs}{more}"
-        )
+    text = inestimable_directions(N, problem.param_label, rcond=rcond)
+    if text is not None:
+        raise ModelError(text)
     L = np.linalg.cholesky(N)
     x = np.linalg.solve(L.T, np.linalg.solve(L, r))
     Linv = np.linalg.inv(L)
@@ -362,7 +373,8 @@ def _gain(problem: LinearProblem, Wm: np.ndarray) -> np.ndarray:
 def _x_of(problem: LinearProblem, G: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``x_i = v_i + G_i (y_i − A_i v_i)`` for ``v_i = z − u_i`` (paper 000, eqs. (15)–(16))."""
     res = problem.y - np.einsum("nmp,np->nm", problem.A, v)
-    return v + np.einsum("npm,nm->np", G, res)
+    x: np.ndarray = v + np.einsum("npm,nm->np", G, res)
+    return x
 
 
 def multiplier_step(problem: LinearProblem, u: np.ndarray, W: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -462,8 +474,21 @@ def iterate_single_consensus_admm(problem: LinearProblem, *, W: Any, iterations:
         yield MultiplierState(k, x, z, u)
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
+class MultiplierResult(SolverResult):
+    """Outcome of the §3 reference solvers (:func:`method_of_multipliers`, :func:`single_consensus_admm`).
+
+    ``z``: the last ``z^[k]`` (None after 0 iterations); ``u``: the last multipliers ``(n, p)`` (``u^[0]`` after 0
+    iterations); ``dual_value_initial``: ``g(u^[0])`` (eq. (10)), the start of the trace's ``dual_value``.
+    """
+
+    z: FloatArray | None
+    u: FloatArray
+    dual_value_initial: float
+
+
 def _run(problem: LinearProblem, states: Iterator[MultiplierState], W: Any, u0: Any, reference: np.ndarray | None,
-         name: str) -> SolverResult:
+         name: str) -> MultiplierResult:
     Wm = weight_matrix(W, problem.n_params)
     tb = TraceBuilder()
     u_start = _init_u(problem, u0)
@@ -481,26 +506,25 @@ def _run(problem: LinearProblem, states: Iterator[MultiplierState], W: Any, u0: 
         k = 0
     else:
         x_final, k = last.x, last.iteration
-    return LegacyResult(
+    return MultiplierResult(
         estimates=x_final, converged=False, iterations=k, status="max_iterations",
         message=f"{name}: {k} iterations (reference solver: needs a fusion centre)",
         trace=trace, comm=CommTotals.empty(problem.n_nodes),
-        legacy={"z": None if last is None else last.z, "u": u_start if last is None else last.u,
-                "dual_value_initial": dual0},
+        z=None if last is None else last.z, u=u_start if last is None else last.u, dual_value_initial=dual0,
     )
 
 
 def method_of_multipliers(problem: LinearProblem, *, W: Any, iterations: int, u0: Any = None,
-                          reference: np.ndarray | None = None) -> SolverResult:
+                          reference: np.ndarray | None = None) -> MultiplierResult:
     """Run :func:`iterate_method_of_multipliers`; the trace holds ``x`` (k × n × p), ``z``, ``u``, ``dual_value``
-    ``g(u^[k])`` (eq. (10)) and, with ``reference``, ``distance_to_reference``. ``extras["dual_value_initial"]``
-    is ``g(u^[0])``. Reference solver: it needs a fusion centre (no communication is modelled)."""
+    ``g(u^[k])`` (eq. (10)) and, with ``reference``, ``distance_to_reference``. ``dual_value_initial`` is
+    ``g(u^[0])``. Reference solver: it needs a fusion centre (no communication is modelled)."""
     states = iterate_method_of_multipliers(problem, W=W, iterations=iterations, u0=u0)
     return _run(problem, states, W, u0, reference, "method of multipliers")
 
 
 def single_consensus_admm(problem: LinearProblem, *, W: Any, iterations: int, z0: Any, u0: Any = None,
-                          reference: np.ndarray | None = None) -> SolverResult:
+                          reference: np.ndarray | None = None) -> MultiplierResult:
     """Run :func:`iterate_single_consensus_admm` (eq. (16)); same trace as :func:`method_of_multipliers`.
     Reference solver: the z-average needs a fusion centre."""
     states = iterate_single_consensus_admm(problem, W=W, iterations=iterations, z0=z0, u0=u0)

@@ -41,6 +41,7 @@ import scipy.sparse as sp
 
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, single_threaded_blas
 from distnav.algorithms.ranging import RangingData
+from distnav.algorithms.ranging_objective import range_sigma
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.weights import ConsensusWeights, consensus_weights
@@ -54,12 +55,17 @@ class IterationState:
 
     ``own_m``: each local anchor's estimate of itself ``(n_local, dim)``; ``step_size``: the ``α`` (or, for N-CLM,
     ``λ``) each local anchor used; ``partial_cost``: ``f⁽ⁱ⁾(x⁽ⁱ⁾)`` of every local anchor before the update.
+    ``half_owner`` / ``half_sample`` / ``half_other_m``: for every range sample an anchor of this block holds, the
+    holder (local index), the sample and the holder's estimate of the other end (for local precision and tests).
     """
 
     iteration: int
     own_m: np.ndarray
     step_size: np.ndarray
     partial_cost: np.ndarray
+    half_owner: np.ndarray | None = None
+    half_sample: np.ndarray | None = None
+    half_other_m: np.ndarray | None = None
 
 
 # ---------------------------------------------------------------------- checks and set-up
@@ -120,7 +126,8 @@ class Neighbourhoods:
     neighbours' neighbour lists when the network is set up).
     """
 
-    def __init__(self, problem: RangingData, ex: Exchange, loss: str = "linear", loss_scale_m: float = 0.3) -> None:
+    def __init__(self, problem: RangingData, ex: Exchange, loss: str = "linear", loss_scale_m: float = 0.3,
+                 objective: str = "squared", sigma_m: float | np.ndarray = 1.0) -> None:
         g = problem.graph
         n = g.n_nodes
         self.n, self.dim = n, problem.dim
@@ -158,8 +165,16 @@ class Neighbourhoods:
         own_idx, other, d2, samp = half_measurements(problem, ex)
         self.h_own, self.h_d2, self.h_samp = own_idx, d2, samp
         self.loss = loss
-        self.h_scale = (range_loss_scale(problem, loss_scale_m)[samp] if loss != "linear"
-                        else np.ones(samp.size))
+        self.metres = objective == "metres"
+        self.h_range = problem.range_m[samp]
+        self.h_sigma = range_sigma(problem, sigma_m)[samp]
+        if self.metres:
+            if not loss_scale_m > 0:
+                raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
+            self.h_scale = loss_scale_m / self.h_sigma
+        else:
+            self.h_scale = (range_loss_scale(problem, loss_scale_m)[samp] if loss != "linear"
+                            else np.ones(samp.size))
         self.h_slot = position(ex.nodes[own_idx], other)
         self.h_flat_self = own_idx * self.K
         self.h_flat_other = own_idx * self.K + self.h_slot
@@ -195,9 +210,24 @@ class Neighbourhoods:
         return np.where(self.valid[:, :, None], init[safe], 0.0)
 
     def geometry(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(r_own − r_other, residual)`` of every half-measurement: ``g = ‖·‖² − d²`` (squared) or the whitened
+        ``(‖·‖ − d)/σ`` (metres)."""
         flat = P.reshape(-1, self.dim)
         diff = flat[self.h_flat_self] - flat[self.h_flat_other]
-        return diff, np.einsum("ij,ij->i", diff, diff) - self.h_d2
+        return diff, self.residual_of(np.einsum("ij,ij->i", diff, diff))
+
+    def residual_of(self, sq_norm: np.ndarray) -> np.ndarray:
+        """The residual from ``‖r_own − r_other‖²``."""
+        if self.metres:
+            return np.asarray((np.sqrt(np.maximum(sq_norm, 0.0)) - self.h_range) / self.h_sigma)
+        return np.asarray(sq_norm - self.h_d2)
+
+    def jrows(self, diff: np.ndarray) -> np.ndarray:
+        """``∂residual/∂r_own`` per half-measurement: ``2(r_own − r_other)`` or ``u/σ`` (``u`` the unit vector)."""
+        if not self.metres:
+            return 2.0 * diff
+        norm = np.linalg.norm(diff, axis=1)
+        return np.asarray(diff / (np.where(norm > 0, norm, np.inf) * self.h_sigma)[:, None])
 
     def rho(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per half-measurement IRLS weight ``ρ'((g/s)²)`` and objective term ``s² ρ((g/s)²)`` (linear: 1, g²)."""
@@ -211,7 +241,10 @@ class Neighbourhoods:
         """``G⁽ⁱ⁾ᵀ g⁽ⁱ⁾`` per anchor in slot layout (zero on fixed/held/padding slots), eq. (10) restricted;
         with IRLS weights ``w``: ``G⁽ⁱ⁾ᵀ W g⁽ⁱ⁾`` (half the gradient of the robust partial objective)."""
         gw = g if w is None else w * g
-        grad = np.asarray(self.Q @ (2.0 * gw[:, None] * diff)).reshape(self.nl, self.K, self.dim)
+        if self.metres:
+            grad = np.asarray(self.Q @ (gw[:, None] * self.jrows(diff))).reshape(self.nl, self.K, self.dim)
+        else:
+            grad = np.asarray(self.Q @ (2.0 * gw[:, None] * diff)).reshape(self.nl, self.K, self.dim)
         return np.where(self.free_slot, grad, 0.0)
 
 
@@ -251,7 +284,7 @@ class Mixing:
 
 
 def armijo_search(nb: Neighbourhoods, diff: np.ndarray, g: np.ndarray, d: np.ndarray, f0: np.ndarray,
-                   alpha_start: np.ndarray, alpha0: float, beta: float, gamma: float, two_way: bool,
+                   alpha_start: np.ndarray, alpha0: float | np.ndarray, beta: float, gamma: float, two_way: bool,
                    max_backtracks: int, slope_factor: float = 2.0) -> np.ndarray:
     """Per-anchor step sizes by BLS (eqs. (19)–(20)) or TBLS (eq. (21)), vectorized over the block's anchors."""
     flat = d.reshape(-1, nb.dim)
@@ -264,9 +297,11 @@ def armijo_search(nb: Neighbourhoods, diff: np.ndarray, g: np.ndarray, d: np.nda
     moving = slope < 0
     own = nb.h_own
 
+    n2 = a + nb.h_d2  # ‖r_own − r_other‖² (metres)
+
     def armijo(alpha: np.ndarray) -> np.ndarray:
         al = alpha[own]
-        r = a + al * (b + al * c)
+        r = nb.residual_of(n2 + al * (b + al * c)) if nb.metres else a + al * (b + al * c)
         fa = np.bincount(own, nb.rho(r)[1], minlength=nb.nl)
         return np.asarray(fa <= f0 + gamma * alpha * slope)
 
@@ -312,6 +347,9 @@ def iterate_neighbourhood(
     loss: str = "linear",
     loss_scale_m: float = 0.3,
     lambda_min: float = 0.1,
+    objective: str = "squared",
+    sigma_m: float | np.ndarray = 1.0,
+    graduated: int = 0,
 ) -> Iterator[IterationState]:
     """Yield the state of N-CSG / N-CSG-BLS / N-CSG-TBLS / N-CLM after iterations 0, 1, …, ``iterations``.
 
@@ -320,6 +358,12 @@ def iterate_neighbourhood(
     ``σ = loss_scale_m``, as :func:`distnav.algorithms.nlsq.solve_lm`): the subgradient becomes ``G⁽ⁱ⁾ᵀW g⁽ⁱ⁾``
     with IRLS weights ``w_l = ρ'`` computed by the anchor from its own estimates, the line searches test the
     robust objective, and N-CLM solves the weighted normal equations.
+
+    ``objective="metres"``: every anchor fits the whitened range residuals ``(‖r_i − r_j‖ − d)/σ`` of its links
+    instead of ``g`` (the loss scale ``loss_scale_m`` then is in metres of range error for every link), and the
+    steps ``alpha`` / ``alpha0`` are relative to each anchor's own information, ``α_i = alpha / Σ_{l∈E(i)} σ_l⁻²``
+    (a gradient step of ``alpha ≤ 1`` is stable for the partial cost's Gauss–Newton curvature, whose largest
+    eigenvalue is at most ``2 Σ σ_l⁻²``); ``graduated = k`` runs the first ``k`` iterations with the linear loss.
     """
     method = method.upper()
     if method not in ("N-CSG", "N-CSG-BLS", "N-CSG-TBLS", "N-CLM"):
@@ -335,41 +379,57 @@ def iterate_neighbourhood(
         raise ModelError(f"damping must be 'levenberg' or 'fletcher', got {damping!r}")
     if not (0 < beta < 1 and 0 < gamma < 1):
         raise ModelError(f"beta and gamma must lie in (0, 1), got beta={beta}, gamma={gamma}")
+    if objective not in ("squared", "metres"):
+        raise ModelError(f"objective must be 'squared' or 'metres', got {objective!r}")
+    if graduated < 0:
+        raise ModelError(f"graduated must be ≥ 0 iterations, got {graduated}")
     ex = exchange_for(problem, exchange)
-    nb = Neighbourhoods(problem, ex, loss, loss_scale_m)
+    nb = Neighbourhoods(problem, ex, loss, loss_scale_m, objective, sigma_m)
     mix = Mixing(nb, ex, mixing_weights(problem, weights))
     P = nb.initial(init)
     nl = nb.nl
+    if nb.metres:  # steps relative to each anchor's information Σ σ⁻² (1 for an anchor without links)
+        info = np.bincount(nb.h_own, 1.0 / nb.h_sigma**2, minlength=nl)
+        unit = 1.0 / np.where(info > 0, info, 1.0)
+        alpha_i: float | np.ndarray = alpha * unit
+        alpha0_i: float | np.ndarray = alpha0 * unit
+    else:
+        alpha_i, alpha0_i = alpha, alpha0
     if method == "N-CSG":
-        step = np.full(nl, float(alpha))
+        step = np.full(nl, float(alpha)) if not nb.metres else np.asarray(alpha_i, float).copy()
     elif method == "N-CLM":
         step = np.full(nl, float(lambda0))
     else:
-        step = np.full(nl, float(alpha0))
+        step = np.full(nl, float(alpha0)) if not nb.metres else np.asarray(alpha0_i, float).copy()
     nu = np.full(nl, 2.0)
     diff, g = nb.geometry(P)
     yield IterationState(0, P[:, 0].copy(), step.copy(), nb.partial_cost(g))
     if method == "N-CLM":
         lm = LocalLM(nb, damping, lambda_min)
     for k in range(1, iterations + 1):
+        nb.loss = "linear" if k <= graduated else loss
         diff, g = nb.geometry(P)
         w, terms = nb.rho(g)
         f0 = np.bincount(nb.h_own, terms, minlength=nl)
-        grad = nb.gradient(diff, g, None if loss == "linear" else w)
+        grad = nb.gradient(diff, g, None if nb.loss == "linear" else w)
         if method == "N-CSG":
-            U = P - alpha * grad
+            U = P - alpha * grad if not nb.metres else P - step[:, None, None] * grad
         elif method == "N-CLM":
             U, step, nu = lm.step(P, diff, g, f0, grad, step, nu, w)
         else:
-            start = np.full(nl, float(alpha0)) if method == "N-CSG-BLS" else step
-            step = armijo_search(nb, diff, g, -grad, f0, start, alpha0, beta, gamma,
+            if method == "N-CSG-BLS":
+                start = np.full(nl, float(alpha0)) if not nb.metres else np.asarray(alpha0_i, float).copy()
+            else:
+                start = step
+            step = armijo_search(nb, diff, g, -grad, f0, start, alpha0_i, beta, gamma,
                                   two_way=method == "N-CSG-TBLS", max_backtracks=max_backtracks,
                                   slope_factor=2.0 if armijo_slope == "gradient" else 1.0)
             U = P - step[:, None, None] * grad
         for _ in range(consensus_rounds):
             U = mix.apply(U)
         P = U
-        yield IterationState(k, P[:, 0].copy(), step.copy(), f0)
+        yield IterationState(k, P[:, 0].copy(), step.copy(), f0, nb.h_own, nb.h_samp,
+                             P.reshape(-1, nb.dim)[nb.h_flat_other])
 
 
 class LocalLM:
@@ -403,8 +463,14 @@ class LocalLM:
         nb = self.nb
         nl, d = nb.nl, nb.dim
         robust = nb.loss != "linear" and wt is not None
-        c = np.bincount(self.inv, wt, minlength=self.count.size) if robust else self.count  # Σ of sample weights
-        v = 2.0 * diff[self.first]  # (links, d): the same for every sample of a link
+        if nb.metres:  # rows u/σ_s: per link the unit vector u, and c = Σ_s w_s / σ_s²
+            iw = 1.0 / nb.h_sigma**2 * (wt if robust and wt is not None else 1.0)
+            c = np.bincount(self.inv, iw, minlength=self.count.size)
+            norm = np.linalg.norm(diff[self.first], axis=1)
+            v = diff[self.first] / np.where(norm > 0, norm, np.inf)[:, None]
+        else:
+            c = np.bincount(self.inv, wt, minlength=self.count.size) if robust else self.count  # Σ sample weights
+            v = 2.0 * diff[self.first]  # (links, d): the same for every sample of a link
         u = v * self.fs  # neighbour columns that are free
         w = v * self.fo[self.ls_own]  # own columns that are free
         A0 = np.asarray(self.O @ (c[:, None, None] * v[:, :, None] * v[:, None, :]).reshape(-1, d * d))
@@ -444,9 +510,14 @@ class LocalLM:
         # gain ratio of each anchor's own partial cost (local evaluation, like the line searches)
         dflat = delta.reshape(-1, d)
         dd = dflat[nb.h_flat_self] - dflat[nb.h_flat_other]
-        a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
-        lin = a + 2.0 * np.einsum("ij,ij->i", diff, dd)  # g + Gδ
-        r = lin + np.einsum("ij,ij->i", dd, dd)
+        if nb.metres:
+            a = g
+            lin = a + np.einsum("ij,ij->i", nb.jrows(diff), dd)  # r + Jδ
+            r = nb.residual_of(np.einsum("ij,ij->i", diff + dd, diff + dd))
+        else:
+            a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
+            lin = a + 2.0 * np.einsum("ij,ij->i", diff, dd)  # g + Gδ
+            r = lin + np.einsum("ij,ij->i", dd, dd)
         f_new = np.bincount(nb.h_own, nb.rho(r)[1], minlength=nl)
         if robust:  # reduction of the weighted quadratic model Σ w (g + Gδ)²
             assert wt is not None

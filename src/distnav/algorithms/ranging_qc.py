@@ -34,6 +34,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from distnav.algorithms.nlsq import loss_terms
 from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, variance_factor, w_statistics
@@ -118,68 +119,53 @@ def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual:
     return precision, tests, Q
 
 
-def local_quality(problem: RangingData, own_m: np.ndarray, held_other_m: np.ndarray, owner: np.ndarray,
-                  sample: np.ndarray, sigma: np.ndarray, weight: np.ndarray, kind: str, *, level: float = 0.001,
-                  scale: str = "robust") -> tuple[Precision, ObservationTests]:
-    """What every anchor computes from its own links (module docstring): conditional covariance and w-tests.
+def local_quality(range_m: np.ndarray, owner: np.ndarray, owner_free: np.ndarray, own_m: np.ndarray,
+                  other_m: np.ndarray, sigma: np.ndarray, n_local: int, kind: str, *, loss: str = "linear",
+                  loss_scale: np.ndarray | float = 1.0, scale: str = "robust"
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What every anchor of one exchange block computes from its own links (module docstring); no messages.
 
-    One row per half-measurement held by an anchor: ``owner`` (anchor index), ``sample`` (range sample index),
-    ``own_m`` / ``held_other_m`` (the owner's estimate of itself and of the other end, ``(h, dim)``), the range σ
-    and the final IRLS weight. ``kind`` is the objective (``"squared"`` or ``"metres"``). Every sample is tested
-    by the lower-indexed of its two anchors (its owner in :attr:`ObservationTests.node`).
+    One row per half-measurement the block holds: its measured range, ``owner`` (local anchor index) and the
+    owner's free coordinates ``(h, dim)``, ``own_m`` / ``other_m`` (the owner's estimate of itself and of the other
+    end, ``(h, dim)``), σ, and the loss with its per-row scale (for the IRLS weights). ``kind`` is the objective
+    (``"squared"`` or ``"metres"``).
+    Returns ``(conditional covariance (n_local, dim, dim), w of every half-measurement, weighted SSR per anchor)``.
     """
     if scale not in TEST_SCALES:
         raise ModelError(f"test scale must be one of {', '.join(TEST_SCALES)}, got {scale!r}")
-    n, dim = problem.n_anchors, problem.dim
-    diff = own_m - held_other_m
+    dim = own_m.shape[1]
+    diff = own_m - other_m
     dist = np.linalg.norm(diff, axis=1)
-    d = problem.range_m[sample]
     if kind == "metres":
-        j = diff / np.where(dist > 0, dist, np.inf)[:, None] / sigma[:, None]
-        r = (dist - d) / sigma
+        j = diff / (np.where(dist > 0, dist, np.inf) * sigma)[:, None]
+        r = (dist - range_m) / sigma
     else:
         j = 2.0 * diff
-        r = dist * dist - d * d
-    fr = problem.free[owner]
-    j = j * fr
-    info = np.zeros((n, dim, dim))
+        r = dist * dist - range_m * range_m
+    j = j * owner_free
+    weight = loss_terms(r, loss_scale, loss)[0]
+    info = np.zeros((n_local, dim, dim))
     np.add.at(info, owner, weight[:, None, None] * j[:, :, None] * j[:, None, :])
-    est = problem.estimated
-    cov = np.zeros((n, dim, dim))
-    for i in np.flatnonzero(est):  # small dim × dim blocks, the free coordinates only
-        f = problem.free[i]
-        sub = info[i][np.ix_(f, f)]
+    free = np.zeros((n_local, dim), bool)
+    free[owner] = owner_free
+    cov = np.zeros((n_local, dim, dim))
+    for li in np.flatnonzero(free.any(axis=1)):  # small dim × dim blocks, the free coordinates only
+        f = free[li]
         try:
-            cov[i][np.ix_(f, f)] = np.linalg.inv(sub)
+            cov[li][np.ix_(f, f)] = np.linalg.inv(info[li][np.ix_(f, f)])
         except np.linalg.LinAlgError:
-            cov[i][np.ix_(f, f)] = np.inf
+            cov[li][np.ix_(f, f)] = np.inf
     with np.errstate(invalid="ignore"):
         h = np.einsum("li,lij,lj->l", j, cov[owner], j)
     q = np.where(np.isfinite(h), np.maximum(1.0 - weight * h, 0.0), 0.0)
     std = w_statistics(r, q)
-    # each anchor's robust scale from its own links, floored at a quarter of the a-priori scale
-    s = np.ones(n)
-    if scale == "robust":
-        for node in range(n):
-            own = owner == node
-            if own.any():
-                val = robust_scale(std[own])
-                s[node] = max(val, 0.25) if np.isfinite(val) else 1.0
-    w_half = std / s[owner]
-    tester = np.minimum(problem.meas_a, problem.meas_b)[sample] == owner
-    m = problem.n_meas
-    w = np.full(m, np.nan)
-    w[sample[tester]] = w_half[tester]
-    k = critical_value(level)
-    # redundancy of each anchor's local problem: its links minus its free coordinates
-    links = np.bincount(owner, minlength=n).astype(float)
-    red = float(np.sum(np.maximum(links - problem.free.sum(axis=1), 0.0)[est]))
-    wssr = float(np.sum(weight * r * r)) / 2.0  # every sample is held twice
-    precision = Precision(covariance=cov, variance_factor=variance_factor(wssr, max(m - problem.n_free, 0)),
-                          redundancy=red, kind="conditional")
-    tests = ObservationTests(node=np.minimum(problem.meas_a, problem.meas_b), w=w, critical_value=k, level=level,
-                             flagged=np.abs(np.nan_to_num(w)) > k)
-    return precision, tests
+    s = np.ones(n_local)
+    if scale == "robust":  # each anchor's robust scale from its own links, floored at a quarter of the a-priori σ
+        for node in range(n_local):
+            val = robust_scale(std[owner == node])
+            s[node] = max(val, 0.25) if np.isfinite(val) else 1.0
+    wssr = np.bincount(owner, weight * r * r, minlength=n_local)
+    return cov, np.asarray(std / s[owner]), np.asarray(wssr)
 
 
 def _links_left(problem: RangingData, keep: np.ndarray) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any, Literal, get_args
 
 import numpy as np
@@ -191,13 +191,3 @@ class SolverResult:
             "communication": self.comm.as_dict(),
         }
 
-
-@dataclass(frozen=True, eq=False)
-class LegacyResult(SolverResult):
-    """Transitional: a result whose family-specific outputs are still an untyped mapping (being replaced)."""
-
-    legacy: Mapping[str, Any] = field(default_factory=dict)
-
-    @property
-    def extras(self) -> Mapping[str, Any]:
-        return self.legacy

@@ -106,11 +106,11 @@ def _parse_codes(text: str | None) -> dict[int, str]:
 def _run_codebias(args: argparse.Namespace) -> int:
     from distnav.algorithms.admm import admm
     from distnav.algorithms.lsq import blue
-    from distnav.experiments.common import atomic_write_json, atomic_write_text
     from distnav.models.gnss.codebias import codebias_data_from_observations
     from distnav.models.gnss.constants import NS_TO_M
     from distnav.models.gnss.observables import codebias_coefficients, mu_coefficients
     from distnav.models.gnss.rinex import read_code_observations, read_navigation, read_sp3
+    from distnav.output import atomic_write_json, atomic_write_text
 
     codes = _parse_codes(args.codes)
     tlim = tuple(args.tlim) if args.tlim else None
@@ -150,7 +150,7 @@ def _run_codebias(args: argparse.Namespace) -> int:
         admm_x = res.estimates
         admm_info = {"rho": args.rho, "rho_scale": "epoch", "iterations": res.iterations,
                      "max_distance_to_centralized_ns": dist_m / NS_TO_M,
-                     "constraint_nodes": [stations[i] for i in res.extras["constraint_nodes"].nodes]}
+                     "constraint_nodes": [stations[i] for i in res.constraint_nodes.nodes]}
     counts = data.observation_counts()
     c = codebias_coefficients()
     out = Path(args.out)
@@ -274,7 +274,7 @@ def _print_comparison(summary: dict[str, Any]) -> None:
 
 
 def _run_compare(args: argparse.Namespace) -> int:
-    from distnav.experiments.common import atomic_write_json
+    from distnav.output import atomic_write_json
 
     path = Path(args.estimates)
     if path.is_dir():

@@ -257,9 +257,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     """Handler of ``distnav gnss ionosphere``."""
     from distnav.algorithms.ckf import ckf
     from distnav.algorithms.kalman import central_filter, local_filters
-    from distnav.experiments.common import atomic_write_json, atomic_write_text
     from distnav.models.gnss.ionosphere import GF_M_PER_DSB_NS, TEC_NAMES, TECU_L1_M, dcb_ns_from_gf_m
     from distnav.models.gnss.rinex import read_navigation, read_sp3
+    from distnav.output import atomic_write_json, atomic_write_text
 
     if args.kn < 0:
         raise ModelError(f"--kn must be ≥ 0, got {args.kn}")

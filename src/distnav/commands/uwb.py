@@ -32,7 +32,6 @@ from distnav.algorithms.nlsq import LOSSES
 from distnav.commands import add_backend_arguments
 from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange
-from distnav.experiments.common import atomic_write_text
 from distnav.models.uwb.field import FieldOptions, FieldSolution, gather_cost, prepare, solve_field
 from distnav.models.uwb.geometry import planarity
 from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_initial_guess, smacof  # noqa: F401
@@ -46,6 +45,7 @@ from distnav.models.uwb.io import (
     single_link_anchors,
 )
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
+from distnav.output import atomic_write_text
 
 __all__ = ["register", "classical_mds", "smacof", "mds_initial_guess", "planarity", "height_spread_ratio",
            "solve_range_log"]
@@ -291,7 +291,7 @@ def _positions_table(path: Path, sol: FieldSolution) -> None:
 
 
 def _plot(path: Path, sol: FieldSolution) -> None:
-    from distnav.experiments.common import pyplot
+    from distnav.output import pyplot
 
     plt = pyplot()
     from matplotlib.collections import LineCollection
@@ -354,7 +354,7 @@ def _handler(args: argparse.Namespace) -> int:
     sol, comb, summary = solve_range_log(args.ranges, args.known, initial=args.initial, truth=args.truth,
                                          heights=args.heights, options=opts,
                                          backend=getattr(args, "backend", "inprocess"), strict=args.strict)
-    from distnav.experiments.common import atomic_write_json, is_file_writer
+    from distnav.output import atomic_write_json, is_file_writer
 
     usable = sol.status != "diverged"
     if is_file_writer():  # under MPI only rank 0 writes (and prints)

@@ -13,9 +13,11 @@ __all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "FaultSchedule", "InProce
 def make_exchange(graph: Graph, *, backend: str = "inprocess", faults: FaultSchedule | None = None,
                   **options: object) -> Exchange:
     """Create an exchange for ``graph``: ``backend="inprocess"`` (default) or ``"mpi"`` (needs the mpi extra
-    and a launch under ``mpiexec -n N python -m mpi4py``)."""
+    and a launch under ``mpiexec -n N python -m mpi4py``). ``order=`` (both backends) picks the local node order
+    (:func:`distnav.network.partition.locality_order`); MPI also takes ``partition=``."""
     if backend == "inprocess":
-        return InProcessExchange(graph, faults)
+        order = options.get("order", "auto")  # other options (partition=, comm=) mean nothing in-process
+        return InProcessExchange(graph, faults, order=order)  # type: ignore[arg-type]
     if backend == "mpi":
         from distnav.exchange.mpi import MPIExchange  # lazy: mpi4py is an optional extra
 

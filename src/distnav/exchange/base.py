@@ -23,18 +23,20 @@ needed by this block) and :meth:`_move_edges` (per-edge values from senders to r
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse as sp
 
 from distnav.errors import ExchangeError
-from distnav.exchange.faults import FaultSchedule
+from distnav.exchange.faults import FaultPlan, FaultSchedule
 from distnav.network.graph import Graph
 
-__all__ = ["Exchange", "Inbox", "Mixer", "CommTotals"]
+__all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "incoming_edges"]
 
 ReduceOp = Literal["sum", "max", "min"]
 
@@ -95,9 +97,76 @@ def _segment_matrix(dst_local: np.ndarray, n_rows: int, n_cols: int, data: np.nd
     return sp.csr_matrix((data, cols.astype(idx_dtype), ptr.astype(idx_dtype)), shape=(n_rows, n_cols))
 
 
+def incoming_edges(graph: Graph, nodes: np.ndarray) -> np.ndarray:
+    """Global ids of the edges into ``nodes``, grouped by receiver in the order of ``nodes`` (senders ascending
+    within a receiver, as in the graph's own edge order)."""
+    ptr = graph.in_ptr
+    starts, counts = ptr[nodes], ptr[nodes + 1] - ptr[nodes]
+    total = int(counts.sum())
+    offsets = np.zeros(nodes.size, np.int64)
+    if nodes.size > 1:
+        np.cumsum(counts[:-1], out=offsets[1:])
+    return np.asarray(np.repeat(starts - offsets, counts) + np.arange(total, dtype=np.int64))
+
+
+def _block_csr(in_dst: np.ndarray, in_src: np.ndarray, in_src_col: np.ndarray, edge_w: np.ndarray,
+               nodes: np.ndarray, local_col: np.ndarray, self_w: np.ndarray, n_cols: int) -> sp.csr_matrix:
+    """The local block of ``W`` in CSR, each row's entries stored by ascending *global* sender id (the diagonal
+    merged in at its place), whatever the column numbering. A row's product then sums its terms in the same order
+    on every backend and in every local node order, so results agree bitwise; explicit zeros are left out (as
+    scipy's ``+`` does). Needs the incoming edges grouped by receiver with senders ascending (:func:`incoming_edges`);
+    the merge is one linear pass, no sort."""
+    n = nodes.size
+    row_len = np.bincount(in_dst, minlength=n)
+    row_start = np.zeros(n, np.int64)
+    if n > 1:
+        np.cumsum(row_len[:-1], out=row_start[1:])
+    below = in_src < nodes[in_dst]  # senders before the diagonal in global order
+    n_below = np.bincount(in_dst, weights=below, minlength=n).astype(np.int64)
+    start = row_start + np.arange(n, dtype=np.int64)  # one diagonal slot per row
+    pos_e = start[in_dst] + (np.arange(in_dst.size, dtype=np.int64) - row_start[in_dst]) + ~below
+    pos_d = start + n_below
+    total = in_dst.size + n
+    data = np.empty(total)
+    cols = np.empty(total, np.int64)
+    rows = np.empty(total, np.int64)
+    data[pos_e], cols[pos_e], rows[pos_e] = edge_w, in_src_col, in_dst
+    data[pos_d], cols[pos_d], rows[pos_d] = self_w, local_col, np.arange(n)
+    keep = data != 0
+    data, cols, rows = data[keep], cols[keep], rows[keep]
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=n), out=ptr[1:])
+    idx_dtype = np.int32 if max(n_cols, data.size) < 2**31 - 1 else np.int64
+    return sp.csr_matrix((data, cols.astype(idx_dtype), ptr.astype(idx_dtype)), shape=(n, n_cols))
+
+
+try:  # scipy's own CSR kernels, called without the ``@`` dispatch (≈ 8 µs a call, a fifth of a 10³-node round)
+    from scipy.sparse import _sparsetools
+
+    _MATVEC = _sparsetools.csr_matvec
+    _MATVECS = _sparsetools.csr_matvecs
+except (ImportError, AttributeError):  # pragma: no cover - other scipy layouts: the public operator
+    _MATVEC = _MATVECS = None
+
+
+def _csr_product(m: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
+    """``m @ x`` for a float CSR matrix and a float64 vector or ``(n, k)`` array: the same scipy kernel."""
+    if _MATVEC is None or m.dtype != np.float64 or x.dtype != np.float64:
+        return np.asarray(m @ x)
+    x = np.ascontiguousarray(x)
+    rows, cols = m.shape
+    if x.ndim == 1:
+        out = np.zeros(rows)
+        _MATVEC(rows, cols, m.indptr, m.indices, m.data, x, out)
+    else:
+        out = np.zeros((rows, x.shape[1]))
+        _MATVECS(rows, cols, x.shape[1], m.indptr, m.indices, m.data, x.ravel(), out.ravel())
+    return out
+
+
 def _flat(values: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
     tail = values.shape[1:]
-    return values.reshape(values.shape[0], int(np.prod(tail, dtype=np.int64))), tail
+    return values.reshape(values.shape[0], math.prod(tail)), tail
 
 
 @dataclass(eq=False)
@@ -147,11 +216,9 @@ class Mixer:
         self._active_global = active
         self._ew_in = np.where(self._act_in, ew_in, 0.0)
         self._self_w = np.asarray(self_weight, float)[ex.nodes]
-        # fused local block of W over [local nodes | halo columns]
-        self._w_edges = _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, self._ew_in, ex.in_src_col)
-        diag = sp.csr_matrix((self._self_w, (np.arange(ex.n_local), ex.local_col)), shape=(ex.n_local, ex.n_columns))
-        self._w_full = (self._w_edges + diag).tocsr()
-        self._w_full.sort_indices()
+        # fused local block of W over [local nodes | halo columns], each row's terms in global sender order
+        self._w_full = _block_csr(ex.in_dst, ex.in_src, ex.in_src_col, self._ew_in, ex.nodes, ex.local_col,
+                                  self._self_w, ex.n_columns)
         self._sent_counts = np.bincount(ex.out_src[self._act_out], minlength=ex.n_local)
         self._recv_counts = np.bincount(ex.in_dst[self._act_in], minlength=ex.n_local)
         self._sent_total = int(self._sent_counts.sum())
@@ -167,18 +234,25 @@ class Mixer:
         msg_bytes = flat.shape[1] * flat.itemsize
         if not ex.faults.active:
             ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
-            out = self._w_full @ (cols.ravel() if x.ndim == 1 else cols)
-            return np.asarray(out).reshape(x.shape)
-        delivered = ex._delivered(self._act_in)
-        silent = ex.faults.silent_mask(ex.round_index, ex.nodes)
-        sent = np.bincount(ex.out_src[self._act_out & ~silent[ex.out_src]], minlength=ex.n_local)
-        recv = np.bincount(ex.in_dst[delivered], minlength=ex.n_local)
-        ex._account(sent, recv, msg_bytes)
-        w = np.where(delivered, self._ew_in, 0.0)
-        lost = np.bincount(ex.in_dst, weights=self._ew_in - w, minlength=ex.n_local)
-        m = _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, w, ex.in_src_col)
-        out = np.asarray(m @ cols) + (self._self_w + lost)[:, None] * flat
+            out = _csr_product(self._w_full, cols.ravel() if x.ndim == 1 else cols)
+            return out.reshape(x.shape)
+        # fault round: the same prepared matrix with its data masked in place, lost weight to the self-weight
+        ok = ex._fault_plan.delivered(ex.round_index)
+        delivered = ok & self._act_in
+        sent, sent_total = ex._sent_counts(self._act_out, cache=True)
+        ex._account_faulty(sent, sent_total, delivered, msg_bytes)
+        m = self._w_masked
+        np.multiply(self._ew_in, ok, out=m.data)
+        lost = np.bincount(ex.in_dst, weights=self._ew_in - m.data, minlength=ex.n_local)
+        out = _csr_product(m, cols)
+        out += (self._self_w + lost)[:, None] * flat
         return out.reshape(x.shape)
+
+    @cached_property
+    def _w_masked(self) -> sp.csr_matrix:
+        """The edge part of the local block of ``W`` in incoming-edge order (data rewritten every fault round)."""
+        ex = self.exchange
+        return _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, self._ew_in.copy(), ex.in_src_col)
 
 
 class Exchange(ABC):
@@ -187,9 +261,12 @@ class Exchange(ABC):
     Attributes (all local to the block; node arrays hold *global* ids unless named ``..._local``)
     ----------
     graph : the full communication graph.
-    nodes : global ids of the block's nodes, ascending (``n_local`` of them).
+    nodes : global ids of the block's nodes in the block's *local order* (``n_local`` of them): the user's order
+        restricted to the block, or a locality order (:func:`~distnav.network.partition.locality_order`) chosen
+        once at set-up. Per-node arrays of an algorithm follow it; :meth:`local` and :meth:`gather_nodes` convert
+        from and to the user's order, so results come back in the user's ids.
     in_edges, in_dst, in_src : incoming edges (global ids), their local receiver index, their sender's global id;
-        sorted by receiver.
+        grouped by local receiver (senders ascending within a receiver).
     out_edges, out_src, out_dst : outgoing edges (global ids), local sender index, receiver's global id.
     in_src_col : column of each incoming edge's sender in the array returned by :meth:`_columns`.
     local_col : column of each local node in that array.
@@ -219,7 +296,9 @@ class Exchange(ABC):
 
     def _init_accounting(self) -> None:
         n = self.n_local
-        self._pending: list[tuple[np.ndarray, np.ndarray, int]] = []
+        self._pending: list[tuple[np.ndarray, np.ndarray | None, int]] = []
+        self._recv_edges: dict[int, np.ndarray] = {}
+        self._sent_cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, int]] = {}
         self.messages_sent = np.zeros(n, np.int64)
         self.bytes_sent = np.zeros(n, np.int64)
         self.messages_received = np.zeros(n, np.int64)
@@ -271,19 +350,53 @@ class Exchange(ABC):
         arr = np.asarray(global_array)
         if arr.shape[0] != self.n_nodes:
             raise ExchangeError(f"expected a per-node array with {self.n_nodes} rows, got shape {arr.shape}")
-        return arr[self.nodes]
+        return np.asarray(arr[self.nodes])
 
     # ------------------------------------------------------------- rounds
+    @cached_property
+    def _fault_plan(self) -> FaultPlan:
+        """The fault schedule compiled for this block's incoming edges (once)."""
+        return FaultPlan(self.faults, self.in_src, self.nodes[self.in_dst], self.in_edges)
+
     def _delivered(self, active_in: np.ndarray) -> np.ndarray:
         if not self.faults.active:
             return active_in.copy()
-        ok = self.faults.delivered(self.round_index, self.in_src, self.nodes[self.in_dst], self.in_edges)
-        return ok & active_in
+        return np.asarray(self._fault_plan.delivered(self.round_index) & active_in)
+
+    def _sent_counts(self, act_out: np.ndarray, *, cache: bool) -> tuple[np.ndarray, int]:
+        """Messages each local node transmits this round on the outgoing edges ``act_out`` (silent senders send
+        nothing). They change only when a silencing begins, so a persistent ``act_out`` is counted once per stage."""
+        stage = self._fault_plan.silent_stage(self.round_index) if self.faults.silent_nodes else 0
+        key = (id(act_out), stage)
+        hit = self._sent_cache.get(key) if cache else None
+        if hit is not None:
+            return hit[1], hit[2]
+        sel = act_out
+        if stage:
+            silent = self.faults.silent_mask(self.round_index, self.nodes)
+            sel = act_out & ~silent[self.out_src]
+        counts = np.bincount(self.out_src[sel], minlength=self.n_local)
+        total = int(counts.sum())
+        if cache:
+            self._sent_cache[key] = (act_out, counts, total)  # act_out kept alive so its id stays unique
+        return counts, total
+
+    def _account_faulty(self, sent: np.ndarray, sent_total: int, delivered: np.ndarray, msg_bytes: int) -> None:
+        """Count a fault round lazily: ``sent`` is a reused count array, ``delivered`` a mask over incoming edges
+        added to a per-edge counter (one pass), turned into per-node counts only by :meth:`_flush`."""
+        acc = self._recv_edges.get(msg_bytes)
+        if acc is None:
+            acc = self._recv_edges[msg_bytes] = np.zeros(self.in_edges.size, np.int64)
+        np.add(acc, delivered, out=acc)
+        self._pending.append((sent, None, msg_bytes))
+        self._round_messages.append(sent_total)
+        self._round_bytes.append(sent_total * msg_bytes)
+        self.round_index += 1
 
     def _account(self, sent: np.ndarray, received: np.ndarray, msg_bytes: int, total: int | None = None) -> None:
         """Count one round. With ``total`` given, ``sent``/``received`` are count arrays reused round after round
         (a prepared mixer): they are folded in lazily (:meth:`_flush`), so such a round costs a list append, not
-        four array additions. Fresh arrays (fault rounds) are folded in at once."""
+        four array additions. Fresh arrays are folded in at once."""
         if total is None:
             total = int(sent.sum())
             self.messages_sent += sent
@@ -307,9 +420,15 @@ class Exchange(ABC):
         for sent, received, msg_bytes, times in groups.values():
             self.messages_sent += sent * times
             self.bytes_sent += sent * (times * msg_bytes)
-            self.messages_received += received * times
-            self.bytes_received += received * (times * msg_bytes)
+            if received is not None:
+                self.messages_received += received * times
+                self.bytes_received += received * (times * msg_bytes)
         self._pending.clear()
+        for msg_bytes, acc in self._recv_edges.items():
+            counts = np.bincount(self.in_dst, weights=acc, minlength=self.n_local).astype(np.int64)
+            self.messages_received += counts
+            self.bytes_received += counts * msg_bytes
+            acc[:] = 0
 
     def _active_slices(self, active: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         if active is None:
@@ -320,23 +439,28 @@ class Exchange(ABC):
         return act[self.out_edges] & self._real_out, act[self.in_edges] & self._real_in
 
     def _finish_round(self, values_in: np.ndarray, act_out: np.ndarray, act_in: np.ndarray,
-                      tail: tuple[int, ...], msg_bytes: int) -> Inbox:
-        delivered = self._delivered(act_in)
+                      tail: tuple[int, ...], msg_bytes: int, owned: bool = False) -> Inbox:
         if self.faults.active:
-            silent = self.faults.silent_mask(self.round_index, self.nodes)
-            sent = np.bincount(self.out_src[act_out & ~silent[self.out_src]], minlength=self.n_local)
-            recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
-        elif act_out is self._real_out:
+            delivered = self._delivered(act_in)
+            sent, total = self._sent_counts(act_out, cache=act_out is self._real_out)
+            self._account_faulty(sent, total, delivered, msg_bytes)
+            return self._inbox(values_in, delivered, tail, owned=owned)
+        delivered = act_in.copy()
+        if act_out is self._real_out:
             self._account(self._all_sent, self._all_recv, msg_bytes, self._all_sent_total)
-            return self._inbox(values_in, delivered, tail)
-        else:
-            sent = np.bincount(self.out_src[act_out], minlength=self.n_local)
-            recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
+            return self._inbox(values_in, delivered, tail, owned=owned)
+        sent = np.bincount(self.out_src[act_out], minlength=self.n_local)
+        recv = np.bincount(self.in_dst[delivered], minlength=self.n_local)
         self._account(sent, recv, msg_bytes)
-        return self._inbox(values_in, delivered, tail)
+        return self._inbox(values_in, delivered, tail, owned=owned)
 
-    def _inbox(self, values_in: np.ndarray, delivered: np.ndarray, tail: tuple[int, ...]) -> Inbox:
-        values_in = np.where(delivered[:, None], values_in, 0.0) if not delivered.all() else values_in
+    def _inbox(self, values_in: np.ndarray, delivered: np.ndarray, tail: tuple[int, ...], *,
+               owned: bool = False) -> Inbox:
+        if not delivered.all():
+            if owned:  # a fresh array of this round: zero the undelivered rows in place
+                values_in[~delivered] = 0.0
+            else:
+                values_in = np.where(delivered[:, None], values_in, 0.0)
         return Inbox(values=values_in.reshape((values_in.shape[0], *tail)), delivered=delivered,
                      dst=self.in_dst, src=self.in_src, edges=self.in_edges, n_local=self.n_local)
 
@@ -352,7 +476,8 @@ class Exchange(ABC):
         flat, tail = _flat(x)
         act_out, act_in = self._active_slices(active)
         cols = self._columns(flat, active)
-        return self._finish_round(cols[self.in_src_col], act_out, act_in, tail, flat.shape[1] * flat.itemsize)
+        return self._finish_round(cols[self.in_src_col], act_out, act_in, tail, flat.shape[1] * flat.itemsize,
+                                  owned=True)
 
     def send(self, edge_values: np.ndarray, *, active: np.ndarray | None = None) -> Inbox:
         """Send one value per outgoing edge (rows in :attr:`out_edges` order); receive one per incoming edge."""
@@ -364,7 +489,8 @@ class Exchange(ABC):
         flat, tail = _flat(x)
         act_out, act_in = self._active_slices(active)
         moved = self._move_edges(flat, active)
-        return self._finish_round(moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize)
+        return self._finish_round(moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize,
+                                  owned=not np.may_share_memory(moved, x))
 
     def mixer(self, weights: Any, *, active: np.ndarray | None = None) -> Mixer:
         """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph.

@@ -8,6 +8,7 @@ edges it evaluates and in whatever order.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -16,7 +17,7 @@ import numpy as np
 
 from distnav.errors import ExchangeError
 
-__all__ = ["FaultSchedule", "uniform_hash"]
+__all__ = ["FaultPlan", "FaultSchedule", "uniform_hash"]
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -36,7 +37,8 @@ def uniform_hash(seed: int, round_index: int, edge_ids: np.ndarray) -> np.ndarra
     with np.errstate(over="ignore"):
         key = _splitmix64(np.uint64(seed & 0xFFFFFFFFFFFFFFFF) * np.uint64(1_000_003) + np.uint64(round_index))
         z = _splitmix64(np.asarray(edge_ids, dtype=np.uint64) ^ key)
-    return (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+    out: np.ndarray = (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+    return out
 
 
 @dataclass(frozen=True)
@@ -108,3 +110,105 @@ class FaultSchedule:
             ok &= ~self.silent_mask(round_index, src)
         ok |= src == dst  # a node's message to itself never leaves the device
         return ok
+
+
+class FaultPlan:
+    """A :class:`FaultSchedule` compiled once for one block's edges, so a fault round costs a few array passes.
+
+    * drops: the same SplitMix64 hash as :func:`uniform_hash` (the same messages drop on every backend), computed
+      in place on cache-sized chunks and for several rounds at once when the block is small; ``u ≥ p`` is
+      decided in integers (``z ≥ ⌈p·2⁵³⌉·2¹¹``, exact, no float conversion);
+    * failed links and silent senders: folded into one per-edge "dead from round" array (``min`` over every fault
+      that silences the edge), so a round compares one integer array instead of looping over the faults.
+
+    ``delivered(k)`` equals ``schedule.delivered(k, src, dst, edges)`` bit for bit (tested).
+    """
+
+    _CHUNK = 1 << 15  # uint64 elements per pass: 256 KB stays in cache
+
+    def __init__(self, schedule: FaultSchedule, src: np.ndarray, dst: np.ndarray, edge_ids: np.ndarray) -> None:
+        self.schedule = schedule
+        src = np.asarray(src, np.int64)
+        dst = np.asarray(dst, np.int64)
+        self.n_edges = int(src.size)
+        self._edges = np.ascontiguousarray(edge_ids, dtype=np.uint64)
+        self._self = src == dst
+        self._has_self = bool(self._self.any())
+        p = float(schedule.drop_probability)
+        self._drops = p > 0
+        self._threshold = np.uint64(math.ceil(p * 2.0**53) << 11) if self._drops else np.uint64(0)
+        never = np.iinfo(np.int64).max
+        dead = np.full(self.n_edges, never, np.int64)
+        for i, j, r in schedule.failed_links:  # set-up only: a few faults, each one vectorized pass
+            hit = ((src == i) & (dst == j)) | ((src == j) & (dst == i))
+            np.minimum(dead, np.where(hit, r, never), out=dead)
+        for node, r in schedule.silent_nodes:
+            np.minimum(dead, np.where(src == node, r, never), out=dead)
+        dead[self._self] = never  # a node's message to itself never leaves the device
+        self._dead_from = dead
+        self._first_dead = int(dead.min()) if dead.size else never
+        self._ones = np.ones(self.n_edges, bool)
+        self._ones.setflags(write=False)
+        rows = max(1, min(64, self._CHUNK // max(self.n_edges, 1)))
+        self._rows = rows
+        self._block_start = -1
+        self._block = np.zeros((0, self.n_edges), bool)
+        # silent senders of the block's outgoing edges: per number of silencings already begun, cached
+        self._silent_rounds = np.array(sorted({r for _, r in schedule.silent_nodes}), dtype=np.int64)
+
+    # ----------------------------------------------------------------- drops
+    def _keys(self, first: int, count: int) -> np.ndarray:
+        seed = self.schedule.seed
+        with np.errstate(over="ignore"):
+            base = np.uint64(seed & 0xFFFFFFFFFFFFFFFF) * np.uint64(1_000_003)
+            rounds = np.arange(first, first + count, dtype=np.uint64)
+            keys: np.ndarray = _splitmix64(base + rounds)
+        return keys
+
+    def _draw(self, first: int) -> None:
+        """Drop decisions of rounds ``first … first + rows − 1`` for every edge of the block."""
+        rows = self._rows
+        keys = self._keys(first, rows)[:, None]
+        out = np.empty((rows, self.n_edges), bool)
+        step = max(1, self._CHUNK // rows)
+        z = np.empty((rows, min(step, self.n_edges)), np.uint64)
+        t = np.empty_like(z)
+        s30, s27, s31 = np.uint64(30), np.uint64(27), np.uint64(31)
+        for a in range(0, self.n_edges, step):
+            b = min(a + step, self.n_edges)
+            zz, tt = z[:, : b - a], t[:, : b - a]
+            np.bitwise_xor(self._edges[a:b][None, :], keys, out=zz)
+            np.add(zz, _GOLDEN, out=zz)
+            np.right_shift(zz, s30, out=tt)
+            np.bitwise_xor(zz, tt, out=zz)
+            np.multiply(zz, _M1, out=zz)
+            np.right_shift(zz, s27, out=tt)
+            np.bitwise_xor(zz, tt, out=zz)
+            np.multiply(zz, _M2, out=zz)
+            np.right_shift(zz, s31, out=tt)
+            np.bitwise_xor(zz, tt, out=zz)
+            np.greater_equal(zz, self._threshold, out=out[:, a:b])
+        self._block_start = first
+        self._block = out
+
+    def delivered(self, round_index: int) -> np.ndarray:
+        """Boolean mask over the block's edges: does each message arrive in this round? (Do not modify it.)"""
+        ok: np.ndarray
+        if self._drops:
+            k = round_index - self._block_start
+            if self._block_start < 0 or not 0 <= k < self._rows:
+                self._draw(round_index)
+                k = 0
+            ok = self._block[k]
+        else:
+            ok = self._ones
+        if round_index >= self._first_dead:
+            ok = ok & (round_index < self._dead_from)
+        if self._has_self and self._drops:
+            ok = ok | self._self
+        return ok
+
+    # ----------------------------------------------------------------- silent senders
+    def silent_stage(self, round_index: int) -> int:
+        """How many distinct silencing rounds have begun: the sent counts change only when this does."""
+        return int(np.searchsorted(self._silent_rounds, round_index, side="right"))

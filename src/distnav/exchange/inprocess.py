@@ -1,4 +1,9 @@
-"""In-process exchange: the whole network is one block; a round is a vectorized gather or sparse product."""
+"""In-process exchange: the whole network is one block; a round is a vectorized gather or sparse product.
+
+The block keeps its nodes in a locality order (``order=``, see :func:`distnav.network.partition.locality_order`;
+from 10⁴ nodes on reverse Cuthill–McKee by default), chosen once at set-up: algorithms' per-node arrays follow
+``ex.nodes``, and :meth:`~distnav.exchange.base.Exchange.gather_nodes` returns them in the user's order.
+"""
 
 from __future__ import annotations
 
@@ -6,30 +11,44 @@ from typing import Any
 
 import numpy as np
 
-from distnav.exchange.base import Exchange, ReduceOp
+from distnav.exchange.base import Exchange, ReduceOp, incoming_edges
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
+from distnav.network.partition import locality_order
 
 __all__ = ["InProcessExchange"]
 
 
 class InProcessExchange(Exchange):
-    """All nodes in one block. Edge orders: outgoing = incoming = the graph's global edge order."""
+    """All nodes in one block. Edge orders: outgoing = incoming = grouped by receiver in the local node order (the
+    graph's global edge order when the order is the user's)."""
 
     backend = "inprocess"
 
-    def __init__(self, graph: Graph, faults: FaultSchedule | None = None) -> None:
+    def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *,
+                 order: str | np.ndarray = "auto") -> None:
         super().__init__(graph, faults)
-        e = np.arange(graph.n_edges, dtype=np.int64)
-        self.nodes = np.arange(graph.n_nodes, dtype=np.int64)
+        perm = locality_order(graph, order)
+        self._identity = perm is None
+        if perm is None:
+            e = np.arange(graph.n_edges, dtype=np.int64)
+            self.nodes = np.arange(graph.n_nodes, dtype=np.int64)
+            self.in_dst = graph.dst
+            self.in_src_col = graph.src
+            self.out_src = graph.src
+        else:
+            self.nodes = np.asarray(perm, dtype=np.int64)
+            position = np.empty(graph.n_nodes, dtype=np.int64)
+            position[self.nodes] = np.arange(graph.n_nodes)
+            e = incoming_edges(graph, self.nodes)
+            self.in_dst = position[graph.dst[e]]
+            self.in_src_col = position[graph.src[e]]
+            self.out_src = self.in_src_col
         self.in_edges = e
-        self.in_dst = graph.dst
-        self.in_src = graph.src
-        self.in_src_col = graph.src
-        self.local_col = self.nodes
+        self.in_src = graph.src[e] if perm is not None else graph.src
+        self.local_col = np.arange(graph.n_nodes, dtype=np.int64)
         self.out_edges = e
-        self.out_src = graph.src
-        self.out_dst = graph.dst
+        self.out_dst = graph.dst[e] if perm is not None else graph.dst
         self.n_columns = graph.n_nodes
         self._init_accounting()
 
@@ -43,7 +62,12 @@ class InProcessExchange(Exchange):
         return value
 
     def gather_nodes(self, local: np.ndarray) -> np.ndarray:
-        return np.asarray(local)
+        arr = np.asarray(local)
+        if self._identity:
+            return arr
+        out = np.empty_like(arr)
+        out[self.nodes] = arr
+        return out
 
     def barrier(self) -> None:
         return None

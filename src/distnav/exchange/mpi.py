@@ -3,13 +3,8 @@
 Launch with ``mpiexec -n N python -m mpi4py -m distnav ... --backend mpi`` (``-m mpi4py`` makes an exception on
 one rank abort the whole job instead of deadlocking the others).
 
-Partition (``partition=``):
-
-* ``"rcm"`` (default) — nodes ordered by reverse Cuthill–McKee (scipy), then cut into equal contiguous chunks.
-  RCM minimises the bandwidth of the adjacency, so each chunk's links mostly stay inside the chunk or go to
-  the neighbouring chunks: few cut edges and few neighbour ranks for geometric networks, without METIS.
-* ``"block"`` — contiguous node ids (``n/N`` per rank); ``"node"`` — one node per rank (needs N = n_nodes, to mimic
-  real devices); or an explicit owner array (rank of every node).
+Partition (``partition=``): ``"rcm"`` (default), ``"block"``, ``"node"``, an owner array or a partition file — see
+:func:`distnav.network.partition.partition_nodes` (re-exported here under its old name).
 
 Every rank builds the same global graph (deterministic from the seed) and derives, without any negotiation,
 which boundary node values it sends to and receives from each neighbour rank. Messages between nodes of the same
@@ -20,16 +15,17 @@ global edge ids exactly as in-process, so a run with drops gives the same number
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import numpy as np
-from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from distnav._optional import require
 from distnav.errors import ExchangeError
-from distnav.exchange.base import Exchange, ReduceOp
+from distnav.exchange.base import Exchange, ReduceOp, incoming_edges
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
+from distnav.network.partition import locality_order, partition_nodes
 
 __all__ = ["MPIExchange", "partition_nodes", "world_rank", "world_size"]
 
@@ -46,40 +42,14 @@ def world_size() -> int:
     return int(_mpi().COMM_WORLD.Get_size())
 
 
-def partition_nodes(graph: Graph, n_ranks: int, method: str | np.ndarray = "rcm") -> np.ndarray:
-    """Rank owning each node: ``"rcm"``, ``"block"``, ``"node"`` or an explicit owner array (see module doc)."""
-    n = graph.n_nodes
-    if isinstance(method, np.ndarray) or not isinstance(method, str):
-        owner = np.asarray(method, dtype=np.int64)
-        if owner.shape != (n,):
-            raise ExchangeError(f"an owner array needs one rank per node ({n}), got shape {owner.shape}")
-        if owner.min() < 0 or owner.max() >= n_ranks:
-            raise ExchangeError(f"owner ranks must be in 0..{n_ranks - 1}")
-    elif method == "node":
-        if n_ranks != n:
-            raise ExchangeError(f"partition 'node' needs one rank per node: launch {n} ranks, not {n_ranks}")
-        owner = np.arange(n, dtype=np.int64)
-    elif method in ("block", "rcm"):
-        if n_ranks > n:
-            raise ExchangeError(f"{n_ranks} ranks for {n} nodes: some ranks would hold no node")
-        order = np.arange(n) if method == "block" else reverse_cuthill_mckee(graph.adjacency(), symmetric_mode=True)
-        owner = np.empty(n, dtype=np.int64)
-        owner[order] = (np.arange(n) * n_ranks) // n
-    else:
-        raise ExchangeError(f"unknown partition {method!r}; choose 'rcm', 'block', 'node' or an owner array")
-    counts = np.bincount(owner, minlength=n_ranks)
-    if (counts == 0).any():
-        raise ExchangeError(f"ranks {np.flatnonzero(counts == 0).tolist()} would hold no node")
-    return owner
-
-
 class MPIExchange(Exchange):
     """This rank's block of the network; see the module docstring."""
 
     backend = "mpi"
 
     def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *, comm: Any = None,
-                 partition: str | np.ndarray = "rcm") -> None:
+                 partition: str | np.ndarray | os.PathLike[str] = "rcm", order: str | np.ndarray = "auto",
+                 persistent: bool = True) -> None:
         super().__init__(graph, faults)
         MPI = _mpi()
         self._MPI = MPI
@@ -91,11 +61,14 @@ class MPIExchange(Exchange):
         src, dst = graph.src, graph.dst
         own_src, own_dst = self.owner[src], self.owner[dst]
 
-        self.nodes = np.flatnonzero(self.owner == me).astype(np.int64)
+        # local order: the shared locality order (the same as in-process) restricted to this rank
+        perm = locality_order(graph, order)
+        mine = self.owner == me
+        self.nodes = (np.flatnonzero(mine) if perm is None else perm[mine[perm]]).astype(np.int64)
         local_index = np.full(graph.n_nodes, -1, dtype=np.int64)
         local_index[self.nodes] = np.arange(self.nodes.size)
 
-        in_sel = np.flatnonzero(own_dst == me)
+        in_sel = incoming_edges(graph, self.nodes)
         out_sel = np.flatnonzero(own_src == me)
         self.in_edges = in_sel
         self.in_dst = local_index[dst[in_sel]]
@@ -106,7 +79,7 @@ class MPIExchange(Exchange):
 
         # neighbour ranks: those sharing cut edges (symmetric: every link is stored both ways)
         cut_out = out_sel[own_dst[out_sel] != me]
-        cut_in = in_sel[own_src[in_sel] != me]
+        cut_in = np.sort(in_sel[own_src[in_sel] != me])
         self.neighbour_ranks = np.unique(own_dst[cut_out]).astype(np.int64)
         nbr = self.neighbour_ranks
 
@@ -118,13 +91,14 @@ class MPIExchange(Exchange):
         self._node_recv_counts = np.array([s.size for s in recv_nodes], dtype=np.int64)
         halo = np.concatenate(recv_nodes) if nbr.size else np.zeros(0, np.int64)
         self.n_halo = int(halo.size)
-        # columns = local and halo nodes in ascending global order, so every row of a sparse product sums its
-        # terms in the same order as in-process: results agree bitwise, not just to rounding
-        column_nodes = np.union1d(self.nodes, halo)
-        self.n_columns = int(column_nodes.size)
-        self.local_col = np.searchsorted(column_nodes, self.nodes)
-        self._halo_col = np.searchsorted(column_nodes, halo)
-        self.in_src_col = np.searchsorted(column_nodes, self.in_src)
+        # columns = [local nodes in local order | halo as received]: the halo lands in one contiguous slice. Each
+        # row of the mixer's product still sums its terms in global sender order (Mixer), so results agree
+        # bitwise with in-process whatever the column numbering.
+        self.n_columns = self.n_local + self.n_halo
+        column_of = local_index.copy()
+        column_of[halo] = self.n_local + np.arange(self.n_halo)
+        self.local_col = np.arange(self.n_local, dtype=np.int64)
+        self.in_src_col = column_of[self.in_src]
 
         # edge messages: per neighbour rank, cut edges in global edge order on both sides
         out_pos = np.full(graph.n_edges, -1, dtype=np.int64)
@@ -142,10 +116,13 @@ class MPIExchange(Exchange):
         self._edge_recv_counts = np.array([e.size for e in recv_edges], dtype=np.int64)
 
         self._layouts: dict[tuple[int, int, int], Any] = {}
-        self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}
+        self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
+        self._edge_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
+        self._requests: list[Any] = []
         self.dist_comm = self.comm.Create_dist_graph_adjacent(
             sources=nbr.tolist(), destinations=nbr.tolist(), reorder=False
         )
+        self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
         self._init_accounting()
 
     # ------------------------------------------------------------- transport
@@ -171,35 +148,78 @@ class MPIExchange(Exchange):
         self.dist_comm.Neighbor_alltoallv([send, layout[0]], [recv, layout[1]])
         return recv
 
-    def _columns(self, flat_local: np.ndarray, active: np.ndarray | None) -> np.ndarray:
-        """Local values and the halo in ascending global node order.
+    def _persistent_request(self, send: np.ndarray, send_counts: np.ndarray, recv: np.ndarray,
+                            recv_counts: np.ndarray) -> Any:
+        """A persistent ``Neighbor_alltoallv`` on fixed buffers (MPI-4), or None where the library lacks it."""
+        if not self.persistent:
+            return None
+        width = send.shape[1] if send.ndim == 2 else recv.shape[1]
+        sc, rc = send_counts * width, recv_counts * width
+        req = self.dist_comm.Neighbor_alltoallv_init([send, (sc.tolist(), self._displs(sc).tolist())],
+                                                     [recv, (rc.tolist(), self._displs(rc).tolist())])
+        self._requests.append(req)
+        return req
 
-        The returned array is a buffer reused by the next round (callers consume it within the round)."""
+    def _columns(self, flat_local: np.ndarray, active: np.ndarray | None) -> np.ndarray:
+        """Local values (local order) followed by the halo (per neighbour rank, ascending global ids).
+
+        The halo arrives straight into the tail of a preallocated column buffer through a persistent neighbour
+        collective started once per round; the local values are copied while it is in flight. The returned array
+        is that buffer, reused by the next round (callers consume it within the round)."""
         width = flat_local.shape[1]
         if self.n_halo == 0:
             return flat_local
         key = (width, flat_local.dtype.str)
         bufs = self._column_buffers.get(key)
         if bufs is None:
-            bufs = self._column_buffers[key] = (
-                np.empty((self._send_node_idx.size, width), dtype=flat_local.dtype),
-                np.empty((self.n_columns, width), dtype=flat_local.dtype),
-            )
-        send, cols = bufs
+            send = np.empty((self._send_node_idx.size, width), dtype=flat_local.dtype)
+            cols = np.empty((self.n_columns, width), dtype=flat_local.dtype)
+            req = self._persistent_request(send, self._node_send_counts, cols[self.n_local:], self._node_recv_counts)
+            bufs = self._column_buffers[key] = (send, cols, req)
+        send, cols, req = bufs
         np.take(flat_local, self._send_node_idx, axis=0, out=send)
+        if req is not None:
+            req.Start()
+            cols[:self.n_local] = flat_local
+            req.Wait()
+            return cols
         halo = self._alltoallv(send, self._node_send_counts, self._node_recv_counts, width, flat_local.dtype)
-        cols[self.local_col] = flat_local
-        cols[self._halo_col] = halo
+        cols[:self.n_local] = flat_local
+        cols[self.n_local:] = halo
         return cols
 
     def _move_edges(self, flat_out: np.ndarray, active: np.ndarray | None) -> np.ndarray:
         width = flat_out.shape[1]
         out = np.zeros((self.in_edges.size, width), dtype=flat_out.dtype)
+        key = (width, flat_out.dtype.str)
+        bufs = self._edge_buffers.get(key)
+        if bufs is None and self.neighbour_ranks.size:
+            send = np.empty((self._edge_send_pos.size, width), dtype=flat_out.dtype)
+            recv = np.empty((self._edge_recv_pos.size, width), dtype=flat_out.dtype)
+            req = self._persistent_request(send, self._edge_send_counts, recv, self._edge_recv_counts)
+            bufs = self._edge_buffers[key] = (send, recv, req)
+        if bufs is not None and bufs[2] is not None:
+            send, recv, req = bufs
+            np.take(flat_out, self._edge_send_pos, axis=0, out=send)
+            req.Start()
+            out[self._local_in_pos] = flat_out[self._local_out_pos]
+            req.Wait()
+            out[self._edge_recv_pos] = recv
+            return out
         out[self._local_in_pos] = flat_out[self._local_out_pos]
         recv = self._alltoallv(flat_out[self._edge_send_pos], self._edge_send_counts,
                                self._edge_recv_counts, width, flat_out.dtype)
         out[self._edge_recv_pos] = recv
         return out
+
+    def free(self) -> None:
+        """Release the persistent requests (also done at exit by MPI); the exchange stays usable."""
+        for req in self._requests:
+            if req:
+                req.Free()
+        self._requests.clear()
+        self._column_buffers.clear()
+        self._edge_buffers.clear()
 
     # ------------------------------------------------------------- global operations
     def allreduce(self, value: Any, op: ReduceOp = "sum") -> Any:

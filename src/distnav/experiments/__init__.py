@@ -10,6 +10,8 @@ import importlib
 import importlib.util
 from types import ModuleType
 
+from distnav.errors import UsageError
+
 EXPERIMENTS: dict[str, str] = {
     "consensus": "distnav.experiments.consensus",
     "admm": "distnav.experiments.admm",
@@ -27,8 +29,9 @@ def available() -> list[str]:
 
 
 def load(name: str) -> ModuleType:
+    """The module of experiment ``name``; :class:`~distnav.errors.UsageError` (a ``ValueError``) if unknown."""
     if name not in EXPERIMENTS:
-        raise ValueError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}")
+        raise UsageError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}")
     if importlib.util.find_spec(EXPERIMENTS[name]) is None:
-        raise ValueError(f"experiment {name!r} is not implemented in this version of distnav")
+        raise UsageError(f"experiment {name!r} is not implemented in this version of distnav")
     return importlib.import_module(EXPERIMENTS[name])

@@ -54,6 +54,7 @@ from distnav.models.gnss.ionosphere import (
 )
 from distnav.models.gnss.orbits import gps_seconds, synthetic_gps_constellation
 from distnav.network.graph import Graph
+from distnav.options import nonnegative_int, positive_int
 
 NAME = "ckf-ionosphere"
 TITLE = "GNSS ionosphere + DCB network by consensus Kalman filter, 13 receivers in Perth (paper 003 §5, Figs. 8-13)"
@@ -92,9 +93,9 @@ PAPER = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--epochs", type=int, default=None,
+    parser.add_argument("--epochs", type=positive_int, default=None,
                         help=f"number of 60-s epochs (default {N_EPOCHS}; --quick {QUICK_EPOCHS})")
-    parser.add_argument("--data-kn", type=int, default=4,
+    parser.add_argument("--data-kn", type=nonnegative_int, default=4,
                         help="consensus rounds of the CKF run on simulated data (default 4 = δ 15 s)")
 
 
@@ -235,9 +236,8 @@ def precision_analysis(n_epochs: int = N_EPOCHS, *, progress: Any = None) -> Pre
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
-    opt_epochs = ctx.options.get("epochs")
-    n_epochs = int(opt_epochs) if opt_epochs else (QUICK_EPOCHS if ctx.quick else N_EPOCHS)
-    data_kn = int(ctx.options.get("data_kn") or 4)
+    n_epochs = int(ctx.option("epochs", QUICK_EPOCHS if ctx.quick else N_EPOCHS, minimum=1))
+    data_kn = int(ctx.option("data_kn", 4, minimum=0))
     with ctx.progress.task("ckf-ionosphere: central, local and CKF (Fig. 7) variance recursions", total=3) as adv:
         pa = precision_analysis(n_epochs, progress=adv)
     graph, geo, layout, series, dyn, kns = pa.graph, pa.geometry, pa.layout, pa.series, pa.dynamics, pa.kns

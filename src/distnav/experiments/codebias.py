@@ -44,6 +44,7 @@ from distnav.models.gnss.orbits import (
     synthetic_gps_constellation,
 )
 from distnav.network.graph import Graph
+from distnav.options import existing_file, iso_datetime, positive_int
 
 NAME = "codebias"
 TITLE = "GNSS satellite code biases by ADMM on 110 stations (paper 000 Figs. 7-11)"
@@ -71,14 +72,14 @@ REGIONS: tuple[tuple[str, float, float, int, float], ...] = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--iterations", type=int, default=None,
+    parser.add_argument("--iterations", type=positive_int, default=None,
                         help="ADMM iterations per run (default 1000; 300 with --quick)")
-    parser.add_argument("--epochs", type=int, default=None,
+    parser.add_argument("--epochs", type=positive_int, default=None,
                         help="30-s epochs of the session (default 300 = 2.5 h; 120 with --quick)")
-    parser.add_argument("--nav", default=None, metavar="FILE",
+    parser.add_argument("--nav", type=existing_file, default=None, metavar="FILE",
                         help="use the block IIF satellites of this RINEX navigation file instead of the synthetic "
                              "constellation")
-    parser.add_argument("--start", default=None, metavar="ISO",
+    parser.add_argument("--start", type=iso_datetime, default=None, metavar="ISO",
                         help="session start (GPS time), e.g. 2024-01-10T06:00 (default: synthetic epoch, or one hour "
                              "after the navigation file's first ephemeris)")
     parser.add_argument("--rho-scale", choices=["epoch", "session"], default="epoch",
@@ -213,9 +214,9 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     from distnav.algorithms.lsq import blue
     from distnav.network.constraint_nodes import choose_constraint_nodes
 
-    epochs = int(ctx.options.get("epochs") or (120 if ctx.quick else SESSION_EPOCHS))
+    epochs = int(ctx.option("epochs", 120 if ctx.quick else SESSION_EPOCHS, minimum=1))
     rho_scale = str(ctx.options.get("rho_scale") or "epoch")
-    iterations = int(ctx.options.get("iterations") or (300 if ctx.quick else 1000))
+    iterations = int(ctx.option("iterations", 300 if ctx.quick else 1000, minimum=1))
     net = synthetic_igs_network(ctx.rng(1))
     graph = net.graph
     C = choose_constraint_nodes(graph, "min_cover")

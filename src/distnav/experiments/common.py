@@ -8,110 +8,43 @@ An experiment module ``distnav.experiments.<name>`` defines::
 
 and is listed in :data:`distnav.experiments.EXPERIMENTS`. ``ctx.quick`` selects the small variant that
 ``distnav demo`` runs. Only the root block (rank 0 under MPI) writes files; every write goes to a temporary
-name first and is renamed on success, so a failed run leaves no half-written output.
+name first and is renamed on success, so a failed run leaves no half-written output. The writers themselves
+(:func:`atomic_write_text`, :func:`atomic_write_json`, :func:`save_figure_file`, :func:`pyplot`, the rank-0 switch)
+live in :mod:`distnav.output`, shared with :mod:`distnav.commands`; they stay importable from here.
 """
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
+from distnav.errors import UsageError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
+from distnav.output import (  # re-exported: the writers moved to distnav.output
+    atomic_write_json,
+    atomic_write_text,
+    is_file_writer,
+    pyplot,
+    save_figure_file,
+    set_file_writer,
+    to_jsonable,
+)
 
-__all__ = [
-    "ExperimentContext",
-    "Progress",
-    "to_jsonable",
-    "atomic_write_text",
-    "atomic_write_json",
-    "save_figure_file",
-    "set_file_writer",
-    "is_file_writer",
-]
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
+T = TypeVar("T")
 
-def to_jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays (and nested containers) to plain JSON types; NaN → None."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, (np.bool_, bool)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return None if not np.isfinite(v) else v
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
-_FILE_WRITER = True
-
-
-def set_file_writer(enabled: bool) -> None:
-    """Under MPI only rank 0 writes: the CLI calls ``set_file_writer(False)`` on every other rank, which turns
-    :func:`atomic_write_text`, :func:`atomic_write_json` and :func:`save_figure_file` into no-ops there."""
-    global _FILE_WRITER
-    _FILE_WRITER = bool(enabled)
-
-
-def is_file_writer() -> bool:
-    return _FILE_WRITER
-
-
-def save_figure_file(fig: Any, path: Path, *, dpi: int = 110) -> None:
-    """Save a matplotlib figure atomically as PNG (no-op on non-writing MPI ranks) and close it."""
-    import matplotlib.pyplot as plt
-
-    if _FILE_WRITER:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-        os.close(fd)
-        try:
-            fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    plt.close(fig)
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same folder and an atomic rename.
-
-    A no-op on MPI ranks other than 0 (see :func:`set_file_writer`)."""
-    if not _FILE_WRITER:
-        return
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def atomic_write_json(path: Path, data: Any) -> None:
-    atomic_write_text(path, json.dumps(to_jsonable(data), indent=2) + "\n")
+__all__ = ["ExperimentContext", "Progress",  # and, re-exported from distnav.output:
+           "to_jsonable", "atomic_write_text", "atomic_write_json", "save_figure_file", "set_file_writer",
+           "is_file_writer", "pyplot"]
 
 
 def _noop(n: int = 1) -> None:
@@ -156,11 +89,14 @@ class Progress:
             yield _noop
         print(f"  ✓ {description} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr, flush=True)
 
-    def iterate(self, items: Iterable[Any], description: str, total: int | None = None) -> Iterator[Any]:
-        items = list(items) if total is None else items
-        n = total if total is not None else len(items)  # type: ignore[arg-type]
-        with self.task(description, n) as advance:
-            for it in items:
+    def iterate(self, items: Iterable[T], description: str, total: int | None = None) -> Iterator[T]:
+        """Yield ``items`` while advancing a task of ``total`` steps (``len(items)`` when not given)."""
+        seq: Iterable[T] = items
+        if total is None:
+            seq = list(items)
+            total = len(seq)
+        with self.task(description, total) as advance:
+            for it in seq:
                 yield it
                 advance(1)
 
@@ -181,6 +117,18 @@ class ExperimentContext:
 
     def __post_init__(self) -> None:
         self.out_dir = Path(self.out_dir)
+
+    def option(self, name: str, default: Any, *, minimum: float | None = None) -> Any:
+        """The experiment option ``name`` (from ``--name``), or ``default`` when it was not given (``None``).
+
+        A given value is never replaced by the default (``--epochs 0`` is not "the default"); below ``minimum`` it
+        is refused with :class:`~distnav.errors.UsageError` (the CLI already refuses it when parsing)."""
+        value = self.options.get(name)
+        if value is None:
+            return default
+        if minimum is not None and value < minimum:
+            raise UsageError(f"--{name.replace('_', '-')} must be at least {minimum:g}, got {value!r}")
+        return value
 
     def rng(self, stream: int = 0) -> np.random.Generator:
         """A generator seeded from ``(seed, stream)``: independent streams, reproducible runs."""
@@ -220,7 +168,7 @@ class ExperimentContext:
             atomic_write_text(path, text)
         return path
 
-    def save_figure(self, fig: Any, name: str) -> str | None:
+    def save_figure(self, fig: Figure, name: str) -> str | None:
         """Save a matplotlib figure as ``out_dir/name`` (PNG, atomically) and close it; returns the file name."""
         import matplotlib.pyplot as plt
 
@@ -230,13 +178,3 @@ class ExperimentContext:
         plt.close(fig)
         return name
 
-
-def pyplot() -> Any:
-    """matplotlib.pyplot with the non-interactive Agg backend (needs the ``plot`` extra)."""
-    from distnav._optional import require
-
-    mpl = require("matplotlib", "plot")
-    mpl.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt

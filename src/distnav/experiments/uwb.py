@@ -23,9 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.csg import SOLVERS, solve
+from distnav.algorithms.csg import PAPER_MODE, SOLVERS, solve
 from distnav.experiments.common import ExperimentContext, pyplot
 from distnav.models.uwb.problems import PAPER_PROBLEMS, RangingProblem, generate_layout, generate_problem
+from distnav.options import positive_int
 
 NAME = "uwb"
 TITLE = "UWB anchor self-localization: LM, CSG, N-CSG (+BLS/TBLS), N-CLM (paper 002 Figs. 3-6, Table 1)"
@@ -37,9 +38,9 @@ PAPER_TBLS_FINAL_STEP = {"N-CSG-BLS": 1.2e-3, "N-CSG-TBLS": 1.3e-3}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--instances", type=int, default=None,
+    parser.add_argument("--instances", type=positive_int, default=None,
                         help="instances per problem (default: the paper's 50 for G and L, 100 for R; --quick: 1)")
-    parser.add_argument("--iterations", type=int, default=None,
+    parser.add_argument("--iterations", type=positive_int, default=None,
                         help=f"iterations of every solver (default {PAPER_ITERATIONS}; --quick: {QUICK_ITERATIONS})")
     parser.add_argument("--armijo-slope", choices=["gradient", "subgradient"], default="subgradient",
                         help="slope in the BLS/TBLS Armijo test: the subgradient Gᵀg as in the paper (default) "
@@ -55,14 +56,11 @@ def _errors(problem: RangingProblem, est: np.ndarray) -> tuple[float, float]:
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
-    opt_inst = ctx.options.get("instances")
-    opt_iter = ctx.options.get("iterations")
-    iterations = int(opt_iter) if opt_iter else (QUICK_ITERATIONS if ctx.quick else PAPER_ITERATIONS)
-    if opt_inst is not None and int(opt_inst) < 1:
-        raise ValueError(f"--instances must be ≥ 1, got {opt_inst}")
+    opt_inst = ctx.option("instances", None, minimum=1)
+    iterations = int(ctx.option("iterations", QUICK_ITERATIONS if ctx.quick else PAPER_ITERATIONS, minimum=1))
     armijo_slope = str(ctx.options.get("armijo_slope") or "subgradient")
     hold_heights = bool(ctx.options.get("hold_heights", False))
-    n_inst = {c: (int(opt_inst) if opt_inst else (1 if ctx.quick else PAPER_INSTANCES[c])) for c in "GLR"}
+    n_inst = {c: (int(opt_inst) if opt_inst is not None else (1 if ctx.quick else PAPER_INSTANCES[c])) for c in "GLR"}
     layouts = {c: generate_layout(c) for c in "GL"}
     curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     table: list[dict[str, Any]] = []
@@ -82,11 +80,12 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                     t0 = time.perf_counter()
                     if s == "LM":
                         res = solve(problem, s, iterations=iterations, pad_trace=True)
-                    elif "LS" in s:
+                    elif "LS" in s:  # the paper's mode: a fixed iteration count, no QC
                         res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph),
-                                    armijo_slope=armijo_slope)
+                                    armijo_slope=armijo_slope, **PAPER_MODE)
                     else:
-                        res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph))
+                        res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph),
+                                    **PAPER_MODE)
                     timing[s] += time.perf_counter() - t0
                     a = acc[s]
                     a["msg"].append(res.comm.messages)

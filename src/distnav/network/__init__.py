@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from distnav.network import builders
 from distnav.network.graph import Graph, SwitchingGraph
+from distnav.network.partition import partition_nodes, rcm_order
 from distnav.network.weights import (
     ConsensusWeights,
     WeightsReport,
@@ -19,6 +20,8 @@ __all__ = [
     "Graph",
     "SwitchingGraph",
     "builders",
+    "partition_nodes",
+    "rcm_order",
     "ConsensusWeights",
     "WeightsReport",
     "check_weights",

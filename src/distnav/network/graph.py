@@ -172,10 +172,9 @@ class Graph:
     @cached_property
     def links(self) -> np.ndarray:
         """Undirected links as an ``(n_links, 2)`` array with ``i < j``, sorted."""
-        keep = self.src < self.dst
-        out = np.stack([self.src[keep], self.dst[keep]], axis=1)
-        order = np.lexsort((out[:, 1], out[:, 0]))
-        return out[order]
+        # the edges j→i with j > i, in the stored (dst, src) order, are the links (i, j) already sorted
+        keep = self.src > self.dst
+        return np.stack([self.dst[keep], self.src[keep]], axis=1)
 
     @property
     def n_links(self) -> int:
@@ -198,11 +197,12 @@ class Graph:
     @cached_property
     def reverse_edge(self) -> np.ndarray:
         """For each directed edge ``e = (i→j)`` the index of ``(j→i)`` (self-loops map to themselves)."""
-        key = self.src * self.n_nodes + self.dst
-        rkey = self.dst * self.n_nodes + self.src
-        order = np.argsort(key, kind="stable")
-        pos = np.searchsorted(key[order], rkey)
-        return order[pos]
+        # Edges are stored by (dst, src); listed by (src, dst) instead (a stable sort by src), the k-th is the
+        # pair (s, d) whose reverse (d→s) is the k-th stored edge: the link set is symmetric.
+        order = np.argsort(self.src, kind="stable")
+        out = np.empty(self.n_edges, dtype=np.int64)
+        out[order] = np.arange(self.n_edges, dtype=np.int64)
+        return out
 
     def edge_index(self, src: np.ndarray | int, dst: np.ndarray | int) -> np.ndarray:
         """Indices of the directed edges ``src→dst``; raises if one is not an edge."""
@@ -216,7 +216,7 @@ class Graph:
         if missing.any():
             k = int(np.argmax(missing))
             raise GraphError(f"({s[k]}, {d[k]}) is not an edge of the graph")
-        return pos_c
+        return np.asarray(pos_c)
 
     def neighbors(self, i: int, *, include_self: bool = False) -> np.ndarray:
         """Sorted neighbours of node ``i`` (``N_i``); with ``include_self`` also ``i`` itself."""
@@ -245,6 +245,10 @@ class Graph:
     # ------------------------------------------------------------------ matrices
     def adjacency(self, *, include_self: bool = False) -> sp.csr_matrix:
         """Symmetric 0/1 adjacency in CSR (rows = receivers)."""
+        n = self.n_nodes
+        if not self.self_loops and not include_self:  # edges are already CSR by receiver, senders sorted
+            idx = np.int32 if max(n, self.n_edges) < 2**31 - 1 else np.int64
+            return sp.csr_matrix((np.ones(self.n_edges), self.src.astype(idx), self.in_ptr.astype(idx)), shape=(n, n))
         keep = np.ones(self.n_edges, bool) if include_self else self.src != self.dst
         a = sp.csr_matrix(
             (np.ones(int(keep.sum())), (self.dst[keep], self.src[keep])), shape=(self.n_nodes, self.n_nodes)
@@ -263,7 +267,7 @@ class Graph:
     def component_labels(self) -> np.ndarray:
         """Connected-component label of every node."""
         _, labels = connected_components(self.adjacency(), directed=False)
-        return labels
+        return np.asarray(labels)
 
     @property
     def is_connected(self) -> bool:

@@ -76,7 +76,7 @@ class ConsensusWeights:
         return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
 
     def to_dense(self) -> np.ndarray:
-        return self.to_sparse().toarray()
+        return np.asarray(self.to_sparse().toarray())
 
     @cached_property
     def slem(self) -> float:

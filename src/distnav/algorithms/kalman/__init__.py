@@ -65,7 +65,7 @@ from distnav.algorithms.kalman.measurements import (
     check_model,
     normal_equations,
 )
-from distnav.algorithms.kalman.results import FilterMode, FilterResult, FilterSeries, std_ratio
+from distnav.algorithms.kalman.results import FilterMode, FilterResult, FilterSeries, InnovationTests, std_ratio
 
 __all__ = [
     "DynamicModel",
@@ -79,6 +79,7 @@ __all__ = [
     "FilterState",
     "FilterMode",
     "FilterResult",
+    "InnovationTests",
     "InformationKernel",
     "check_model",
     "masked_std",

@@ -8,6 +8,8 @@ entry.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from distnav.algorithms.kalman.dynamics import DynamicModel
@@ -104,31 +106,37 @@ class InformationKernel:
     Parameters
     ----------
     k : number of filters (rows). p : number of states. track_error : propagate ``Q`` as well.
+    n_errors : how many information-error variances to propagate side by side with ``track_error`` (e.g. the
+        exact Fig. 7 value and a node-local one); :attr:`Q` is the first, :attr:`Qs` all of them.
 
     Cost per epoch: O(k p² q) for the time update (q = rank of the system noise), O(k p²) for the measurement
     update, O(k p³) for :meth:`estimates`.
     """
 
-    def __init__(self, k: int, p: int, track_error: bool) -> None:
+    def __init__(self, k: int, p: int, track_error: bool, *, n_errors: int = 1) -> None:
         self.I: FloatArray = np.zeros((k, p, p))
         self.i: FloatArray = np.zeros((k, p))
-        self.Q: FloatArray | None = np.zeros((k, p, p)) if track_error else None
+        self.Qs: list[FloatArray] = [np.zeros((k, p, p)) for _ in range(n_errors)] if track_error else []
         self.p = p
+
+    @property
+    def Q(self) -> FloatArray | None:
+        """The first information-error variance (``None`` without ``track_error``)."""
+        return self.Qs[0] if self.Qs else None
 
     def time_update(self, dyn: DynamicModel, t: int) -> None:
         """Predict from epoch ``t − 1`` to ``t`` with the model of that step (eqs. (19)–(21)); ``Q`` alongside."""
         Finv = dyn.transition_inverse_at(t)
         H, _St, St_inv = dyn.noise_factor_at(t)
         M, v = self.I, self.i
-        Q = self.Q
+        Qs = self.Qs
         if Finv is not None:
             M = Finv.T @ M @ Finv
             v = v @ Finv  # (Φ⁻ᵀ i) row-wise
-            if Q is not None:
-                Q = Finv.T @ Q @ Finv
+            Qs = [Finv.T @ Q @ Finv for Q in Qs]
         q = H.shape[1]
         if q == 0:
-            self.I, self.i, self.Q = M, v, Q
+            self.I, self.i, self.Qs = M, v, Qs
             return
         sel = dyn.noise_selection_at(t)
         if sel is not None:  # H = columns `sel` of the identity (eq. (20)): slicing instead of products
@@ -142,32 +150,43 @@ class InformationKernel:
         self.I = 0.5 * (I_new + np.swapaxes(I_new, 1, 2))
         vH = v[:, sel] if sel is not None else v @ H
         self.i = v - (G @ vH[..., None])[..., 0]
-        if Q is not None:
+        new: list[FloatArray] = []
+        for Q in Qs:
             # B Q Bᵀ with B = I − G Hᵀ as rank-q corrections, plus F S̃ Fᵀ with F = B M H = G S̃⁻¹
             HtQ = Q[:, sel, :] if sel is not None else np.swapaxes(H, 0, 1) @ Q  # (k,q,p)
             BQ = Q - G @ HtQ
             BQH = BQ[:, :, sel] if sel is not None else BQ @ H  # (k,p,q)
             F = G @ St_inv
             Q_new = BQ - BQH @ np.swapaxes(G, 1, 2) + F @ (_St @ np.swapaxes(F, 1, 2))
-            self.Q = 0.5 * (Q_new + np.swapaxes(Q_new, 1, 2))
+            new.append(0.5 * (Q_new + np.swapaxes(Q_new, 1, 2)))
+        self.Qs = new
 
     def measurement_update(self, N: FloatArray, r: FloatArray, scale: float = 1.0,
-                           extra_error: FloatArray | None = None) -> None:
-        """``I += scale N``, ``i += scale r`` (Fig. 1 / Fig. 6); ``Q += extra_error`` (Fig. 7)."""
+                           extra_error: FloatArray | None = None,
+                           extra_errors: Sequence[FloatArray | None] = ()) -> None:
+        """``I += scale N``, ``i += scale r`` (Fig. 1 / Fig. 6); ``Q += extra_error`` (Fig. 7).
+
+        ``extra_errors`` gives one term per propagated variance (:attr:`Qs`) instead (``None`` entries: nothing).
+        """
         self.I = self.I + scale * N
         self.i = self.i + scale * r
-        if self.Q is not None and extra_error is not None:
-            self.Q = self.Q + extra_error
+        terms: Sequence[FloatArray | None] = extra_errors if extra_errors else [extra_error]
+        for j, term in enumerate(terms):
+            if j < len(self.Qs) and term is not None:
+                self.Qs[j] = self.Qs[j] + term
+
+    def error_covariance(self, inverse: FloatArray, which: int = 0) -> FloatArray:
+        """``P = I⁺ Q I⁺`` of variance ``which`` (symmetrized), given ``inverse`` = ``I⁺`` from :meth:`estimates`."""
+        P = inverse @ self.Qs[which] @ inverse
+        out: FloatArray = 0.5 * (P + np.swapaxes(P, 1, 2))
+        return out
 
     def estimates(self) -> tuple[FloatArray, BoolArray, FloatArray, FloatArray | None]:
         """``(x̂ (NaN where not estimable), estimable, I⁺, P = I⁺ Q I⁺ or None)``."""
         inv, est = pseudo_inverse_psd(self.I)
         x = (inv @ self.i[..., None])[..., 0]
         x[~est] = np.nan
-        P = None
-        if self.Q is not None:
-            P = inv @ self.Q @ inv
-            P = 0.5 * (P + np.swapaxes(P, 1, 2))
+        P = self.error_covariance(inv) if self.Qs else None
         return x, est, inv, P
 
 

@@ -11,7 +11,7 @@ from distnav.algorithms.result import ObservationTests, Precision, SolverResult
 from distnav.errors import ModelError
 from distnav.typing import BoolArray, FloatArray, IntArray
 
-__all__ = ["FilterMode", "FilterResult", "FilterSeries", "std_ratio"]
+__all__ = ["FilterMode", "FilterResult", "FilterSeries", "InnovationTests", "std_ratio"]
 
 FilterMode = Literal["central", "local", "exact_average", "covariance", "ckf"]
 """Which filter produced a :class:`FilterResult`: the information filter's three modes, the covariance form
@@ -62,6 +62,31 @@ def std_ratio(series: FilterSeries, reference: FilterSeries) -> FloatArray:
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
+class InnovationTests(ObservationTests):
+    """Local innovation tests of a filter: :class:`ObservationTests` of every tested observation, plus where it is.
+
+    One entry per tested (whitened) observation row, in the order epoch, node, row. ``w`` is the statistic of the
+    first test at that node and epoch (before any rejection there), ``flagged`` whether it exceeded the critical
+    value then, ``removed`` the indices (into these arrays) rejected before the consensus.
+
+    Extra attributes: ``epoch`` and ``row`` (row within the node's observations of that epoch) of each entry;
+    ``chi2`` (T, n) local χ² of the predicted residuals (NaN: nothing tested), ``chi2_dof`` (T, n) their number,
+    ``chi2_flagged`` (T, n) χ² above its critical value at the same level.
+    """
+
+    epoch: IntArray
+    row: IntArray
+    chi2: FloatArray
+    chi2_dof: IntArray
+    chi2_flagged: BoolArray
+
+    @property
+    def n_removed(self) -> int:
+        """Number of rejected observations."""
+        return len(self.removed)
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
 class FilterResult(SolverResult):
     """Outcome of a Kalman-family filter: the :class:`SolverResult` fields plus what the filters return.
 
@@ -79,8 +104,10 @@ class FilterResult(SolverResult):
     product : CKF only: the dense consensus product ``L = W_(k_n) ⋯ W_(1)`` (eq. (33)); ``None`` without the
         variance recursion.
     alpha : CKF only: ``α_i = n Σ_j l_ij²`` (eq. (46)).
-    precision : CKF only: the node-local :class:`Precision` of every node (``None`` when not computed).
-    tests : CKF only: the local innovation tests (:class:`ObservationTests`), ``None`` when not run.
+    precision : CKF only: the node-local :class:`Precision` of every node at the last epoch (``kind`` "exact" or
+        "bound", ``comm`` = the bytes it added to the consensus messages); ``None`` when not computed.
+    local_std : CKF only: (T, n, p) standard deviations from the node-local precision (``None`` without it).
+    tests : CKF only: the local :class:`InnovationTests`, ``None`` when not run.
     """
 
     series: FilterSeries
@@ -93,4 +120,5 @@ class FilterResult(SolverResult):
     product: FloatArray | None = None
     alpha: FloatArray | None = None
     precision: Precision | None = None
-    tests: ObservationTests | None = None
+    local_std: FloatArray | None = None
+    tests: InnovationTests | None = None

@@ -129,8 +129,8 @@ def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None
         if opts.objective == "metres":
             kw.update(sigma_m=opts.sigma_m)
             if key == "LM":
-                kw.update(range_offsets=opts.range_offsets, offset_prior_sigma_m=opts.offset_prior_sigma_m,
-                          test_level=opts.level)
+                kw.update(range_offsets=opts.range_offsets, offset_prior_sigma_m=opts.offset_prior_sigma_m)
+        kw.update(test_level=opts.level)
     elif opts.range_offsets != "none":
         raise ModelError(f"range offsets are estimated by LM with the metres objective, not by {key}")
 

@@ -1,0 +1,249 @@
+"""Setting up and driving a Fig. 6 run: the options shared by every ADMM front door, written once, and the result.
+
+:class:`AdmmOptions` names the kernel options that :func:`~distnav.algorithms.admm.iterate_admm`,
+:func:`~distnav.algorithms.admm.admm` and the QC runs accept as keywords; :func:`prepare` validates them (before any
+iteration) and builds the kernel's state generator; :func:`drive` runs a generator to the stopping rule and returns
+an :class:`AdmmResult`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any, Literal, TypedDict, get_args
+
+import numpy as np
+
+from distnav.algorithms.admm_kernel import AdmmState, XUpdate, XUpdateMethod, _Kernel, _per_node
+from distnav.algorithms.lsq import LinearProblem, inestimable_directions, weight_matrix
+from distnav.algorithms.result import ObservationTests, Precision, SolverResult, SolverStatus, TraceBuilder
+from distnav.errors import ModelError
+from distnav.exchange import Exchange, make_exchange
+from distnav.network.constraint_nodes import ConstraintNodes, choose_constraint_nodes
+from distnav.network.graph import Graph
+from distnav.typing import FloatArray
+
+__all__ = ["AdmmOptions", "AdmmResult", "MessageMode", "PreparedRun", "XWeight", "drive", "prepare"]
+
+XWeight = Literal["lagrangian", "fig6", "fig6-zweighted"]
+MessageMode = Literal["pairs", "aggregated"]
+X_WEIGHTS: tuple[str, ...] = get_args(XWeight)
+THRESHOLDS = (1e-4, 1e-6, 1e-8)
+
+
+class AdmmOptions(TypedDict, total=False):
+    """Keyword options of the Fig. 6 kernel (default in brackets); see :func:`~distnav.algorithms.admm.iterate_admm`.
+
+    ``constraint_nodes`` [``"min_cover"``]: ``"min_cover"``, ``"all"``, node ids or a
+    :class:`~distnav.network.constraint_nodes.ConstraintNodes`. ``W`` [1.0]: ``ρ`` or an SPD ``(p, p)`` matrix.
+    ``x_update`` [``"auto"``]: see :class:`~distnav.algorithms.admm_kernel.XUpdate`. ``x_weight``
+    [``"lagrangian"``]: ``"lagrangian"``, ``"fig6"`` or ``"fig6-zweighted"`` (module docstring of
+    :mod:`distnav.algorithms.admm`). ``messages`` [``"pairs"``]: ``"pairs"`` or ``"aggregated"``. ``init``
+    [``"zero"``] and ``z0`` [None]: initial values. ``monitor_every`` [1]: residuals every that many iterations.
+    """
+
+    constraint_nodes: Any
+    W: Any
+    x_update: XUpdateMethod
+    x_weight: XWeight
+    messages: MessageMode
+    init: Any
+    z0: Any
+    monitor_every: int
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class AdmmResult(SolverResult):
+    """Outcome of :func:`~distnav.algorithms.admm.admm` (and :func:`~distnav.algorithms.admm.admm_nonlinear`).
+
+    Attributes (beyond :class:`~distnav.algorithms.result.SolverResult`)
+    ----------
+    z : ``(|C|, p)`` consensus state of every constraint node, in the order of ``constraint_nodes.nodes``.
+    z_nodes : ``(n, p)`` the same per node (zero rows off ``C``); a warm start reads it (§4.3).
+    constraint_nodes : the set ``C`` used.
+    iterations_to : first iteration with ``max_i ‖x_i − x̂‖/‖x̂‖`` at or below ``"0.0001"``, ``"1e-06"``,
+        ``"1e-08"`` (None if never reached or no reference was given).
+    pairs : number of pairs ``(i, s)``, ``s ∈ N_i ∩ C`` (including ``s = i``).
+    x_update : the x-update method run (``"normal"``, ``"observation"``, ``"cholesky"`` or the nonlinear one).
+    x_weight : the weighting of the x-update (``"lagrangian"``, ``"fig6"``, ``"fig6-zweighted"``).
+    messages : ``"pairs"`` or ``"aggregated"``.
+    precision : the covariance blocks and variance factor when computed (:mod:`distnav.algorithms.lsq_qc`).
+    tests : the observation tests when data snooping ran (:mod:`distnav.algorithms.lsq_qc`).
+    """
+
+    z: FloatArray
+    z_nodes: FloatArray
+    constraint_nodes: ConstraintNodes
+    iterations_to: Mapping[str, int | None]
+    pairs: int
+    x_update: str
+    x_weight: str
+    messages: str
+    precision: Precision | None = None
+    tests: ObservationTests | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedRun:
+    """A validated Fig. 6 run: the state generator of this exchange block and what it was built from."""
+
+    states: Iterator[AdmmState]
+    exchange: Exchange
+    constraint_nodes: ConstraintNodes
+    p: int
+    x_update: str
+    x_weight: str
+    messages: str
+
+
+def constraint_nodes_for(graph: Graph, constraint_nodes: Any) -> ConstraintNodes:
+    """``C`` from a choice (``"min_cover"``, ``"all"``, ids) or a given set checked against ``graph``."""
+    if isinstance(constraint_nodes, ConstraintNodes):
+        if constraint_nodes.graph.n_nodes != graph.n_nodes or constraint_nodes.graph.n_edges != graph.n_edges:
+            raise ModelError("the constraint nodes were chosen on a different graph")
+        return constraint_nodes
+    return choose_constraint_nodes(graph, constraint_nodes)
+
+
+def initial_values(init: Any, z0: Any, n: int, p: int) -> tuple[FloatArray, FloatArray]:
+    """``x_i^[0]`` and ``z_s^[0]`` (per node) from ``init`` (``"zero"``, a vector, an ``(n, p)`` array, or a previous
+    :class:`~distnav.algorithms.result.SolverResult`, whose ``z_nodes`` it continues from) and ``z0``."""
+    if isinstance(init, SolverResult):
+        x0 = _per_node(init.estimates, n, p, "the previous solution's estimates")
+        prev_z = init.z_nodes if isinstance(init, AdmmResult) else None
+        z_default = x0 if prev_z is None else _per_node(prev_z, n, p, "the previous solution's z")
+    elif isinstance(init, str):
+        if init != "zero":
+            raise ModelError(f"init must be 'zero', a vector, a per-node array or a previous SolverResult, "
+                             f"got {init!r}")
+        x0 = np.zeros((n, p))
+        z_default = x0
+    else:
+        x0 = _per_node(init, n, p, "init")
+        z_default = x0
+    z = z_default.copy() if z0 is None else _per_node(z0, n, p, "z0")
+    if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(z))):
+        raise ModelError("initial values x0/z0 have non-finite entries")
+    return x0, z
+
+
+def check_stopping(max_iterations: int, tol: float, atol: float) -> None:
+    if max_iterations < 0:
+        raise ModelError(f"max_iterations must be ≥ 0, got {max_iterations}")
+    if tol < 0 or atol < 0:
+        raise ModelError(f"tolerances must be ≥ 0, got tol={tol}, atol={atol}")
+
+
+def _check_estimable(problem: LinearProblem, local: LinearProblem, ex: Exchange) -> None:
+    """Refuse a problem whose ``N = Σ N_i`` is singular (paper 000, eq. (2)), as :func:`~distnav.algorithms.lsq.blue`
+    does: ADMM would converge and report the initial value for an inestimable direction. ``N`` is a network sum of
+    ``p × p`` blocks (``ex.allreduce``, a set-up check like the stopping rule's totals)."""
+    N_local = local.normal_equations[0].sum(axis=0)
+    N = np.asarray(ex.allreduce(N_local, "sum"), dtype=float)
+    text = inestimable_directions(N, problem.param_label)
+    if text is not None:
+        raise ModelError(f"{text}; ADMM would converge and return the initial value for these directions")
+
+
+def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, options: AdmmOptions) -> PreparedRun:
+    """Validate the options (unknown names too) and build the Fig. 6 state generator for this exchange block."""
+    unknown = sorted(set(options) - AdmmOptions.__optional_keys__)
+    if unknown:
+        raise ModelError(f"unknown ADMM option(s) {', '.join(unknown)}; expected "
+                         f"{', '.join(sorted(AdmmOptions.__optional_keys__))}")
+    messages = options.get("messages", "pairs")
+    monitor_every = options.get("monitor_every", 1)
+    x_weight = options.get("x_weight", "lagrangian")
+    if messages not in ("pairs", "aggregated"):
+        raise ModelError(f"messages must be 'pairs' or 'aggregated', got {messages!r}")
+    if monitor_every < 0:
+        raise ModelError(f"monitor_every must be ≥ 0, got {monitor_every}")
+    if problem.n_nodes != graph.n_nodes:
+        raise ModelError(f"the problem has {problem.n_nodes} nodes, the graph {graph.n_nodes}")
+    if x_weight not in X_WEIGHTS:
+        raise ModelError(f"x_weight must be {', '.join(repr(w) for w in X_WEIGHTS)}, got {x_weight!r}")
+    p = problem.n_params
+    Wm = weight_matrix(options.get("W", 1.0), p)
+    C = constraint_nodes_for(graph, options.get("constraint_nodes", "min_cover"))
+    ex = exchange if exchange is not None else make_exchange(graph)
+    if ex.graph.n_edges != graph.n_edges or ex.graph.n_nodes != graph.n_nodes:
+        raise ModelError("the exchange was built on a different graph")
+    x0, zz0 = initial_values(options.get("init", "zero"), options.get("z0"), graph.n_nodes, p)
+    local = problem.subset(ex.nodes)
+    count = C.per_node_count[ex.nodes].astype(float)
+    c_weight = count if x_weight == "lagrangian" else np.ones_like(count)
+    xu = XUpdate(local, Wm, c_weight, options.get("x_update", "auto"))
+    if messages == "aggregated" and ex.faults.active:
+        raise ModelError("messages='aggregated' keeps multiplier sums that lost messages corrupt for good (the run "
+                         "converges to a wrong point); use messages='pairs' with a fault schedule")
+    if messages == "aggregated" and x_weight == "fig6-zweighted":
+        raise ModelError("x_weight='fig6-zweighted' weights the z-update per pair: use messages='pairs'")
+    _check_estimable(problem, local, ex)
+    z_weight = 1.0 / C.per_node_count.astype(float) if x_weight == "fig6-zweighted" else None
+    kernel = _Kernel(ex, C, Wm, p, xu, z_weight=z_weight)
+    if messages == "pairs":
+        states = kernel.run(x0[ex.nodes], zz0[ex.nodes], monitor_every)
+    else:
+        states = kernel.run_aggregated(x0[ex.nodes], zz0[ex.nodes], monitor_every)
+    return PreparedRun(states=states, exchange=ex, constraint_nodes=C, p=p, x_update=xu.method, x_weight=x_weight,
+                       messages=messages)
+
+
+def drive(run: PreparedRun, *, max_iterations: int, tol: float, atol: float, reference: np.ndarray | None,
+          stop_at_reference: float | None, record_nodes: bool) -> AdmmResult:
+    """Run a prepared state generator to the stopping rule of :func:`~distnav.algorithms.admm.admm`, tracing as it
+    goes."""
+    gen, ex, C, p = run.states, run.exchange, run.constraint_nodes, run.p
+    ref = None
+    if reference is not None:
+        ref = np.asarray(reference, dtype=float)
+        if ref.shape != (p,):
+            raise ModelError(f"reference must be a length-{p} vector (x̂), got shape {ref.shape}")
+    ref_norm = float(np.linalg.norm(ref)) if ref is not None else 1.0
+    ref_norm = ref_norm if ref_norm > 0 else 1.0
+    tb = TraceBuilder()
+    n_pairs = int(C.per_node_count.sum())
+    abs_term = atol * np.sqrt(n_pairs * p)
+    reached: dict[str, int | None] = {f"{t:g}": None for t in THRESHOLDS}
+    state: AdmmState | None = None
+    status: SolverStatus = "max_iterations"
+    converged = False
+    for state in gen:
+        tb.add(primal_residual=state.primal_residual, dual_residual=state.dual_residual)
+        rel = None
+        if ref is not None:
+            dist_local = np.linalg.norm(state.x - ref[None, :], axis=1)
+            dmax = float(ex.allreduce(float(dist_local.max()) if dist_local.size else 0.0, "max"))
+            rel = dmax / ref_norm
+            tb.add(max_distance_to_reference=dmax, relative_max_distance=rel)
+            if record_nodes:
+                tb.add(distance_to_reference=ex.gather_nodes(dist_local))
+            for t in THRESHOLDS:
+                if reached[f"{t:g}"] is None and rel <= t:
+                    reached[f"{t:g}"] = state.iteration
+        if state.iteration > 0:
+            ok_pri = state.primal_residual <= abs_term + tol * max(state.x_norm, state.z_norm)
+            ok_dual = state.dual_residual <= abs_term + tol * state.u_norm
+            if ok_pri and ok_dual:
+                status, converged = "converged", True
+                break
+            if stop_at_reference is not None and rel is not None and rel <= stop_at_reference:
+                status, converged = "converged", True
+                break
+        if state.iteration >= max_iterations:
+            break
+    close = getattr(gen, "close", None)
+    if close is not None:
+        close()
+    assert state is not None
+    x_all = ex.gather_nodes(state.x)
+    z_all = ex.gather_nodes(state.z)
+    msg = (f"{state.iteration} iterations, primal residual {state.primal_residual:.3g}, "
+           f"dual residual {state.dual_residual:.3g}")
+    if ref is not None:
+        msg += f", max_i ‖x_i − x̂‖/‖x̂‖ = {float(np.max(np.linalg.norm(x_all - ref, axis=1))) / ref_norm:.3g}"
+    return AdmmResult(
+        estimates=x_all, converged=converged, iterations=state.iteration, status=status, message=msg,
+        trace=tb.build(), comm=ex.comm_totals(), z=z_all[C.nodes], z_nodes=z_all, constraint_nodes=C,
+        iterations_to=reached, pairs=n_pairs, x_update=run.x_update, x_weight=run.x_weight, messages=run.messages,
+    )

@@ -1,0 +1,403 @@
+"""The Fig. 6 kernel of ADMM with constraint nodes (paper 000 §4) on one exchange block.
+
+:class:`XUpdate` is the linear x-update (eqs. (20)/(21)); :class:`AdmmState` what an iteration yields; the private
+``_Kernel`` runs the iterations as message rounds (per-pair messages exactly as Fig. 6, or aggregated ones) and
+holds the last value received on every edge when messages are lost. The front doors are
+:func:`distnav.algorithms.admm.admm` and :func:`~distnav.algorithms.admm.iterate_admm`; the module docstring of
+:mod:`distnav.algorithms.admm` describes the iteration and the weighting of the x-update.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import scipy.sparse as sp
+
+from distnav.algorithms.lsq import LinearProblem
+from distnav.errors import ModelError
+from distnav.exchange import Exchange
+from distnav.network.constraint_nodes import ConstraintNodes
+
+__all__ = ["AdmmState", "XUpdate", "XUpdateMethod"]
+
+XUpdateMethod = Literal["auto", "normal", "observation", "cholesky"]
+
+
+# ----------------------------------------------------------------------------------------------- x-update
+class XUpdate:
+    """The linear x-update of Fig. 6 for a block of nodes, prepared once.
+
+    ``method``: ``"normal"`` — ``G_i = (N_i + W_i)⁻¹ A_iᵀR_i⁻¹`` (first form of eq. (20), a ``p × p`` inverse);
+    ``"observation"`` — ``G_i = W_i⁻¹ A_iᵀ (R_i + A_i W_i⁻¹ A_iᵀ)⁻¹`` (second form, an ``m_i × m_i`` inverse);
+    ``"cholesky"`` — ``N_i + W_i = L Lᵀ`` factored once, ``δ`` from eq. (21) by forward and backward substitution
+    (vectorized over nodes, looping over the ``p`` rows only); ``"auto"`` — the first form when ``p ≤ m``, else the
+    second (paper 000 §4.3). ``W_i = c_i W`` (see the module docstring).
+    """
+
+    def __init__(self, problem: LinearProblem, W: np.ndarray, c: np.ndarray, method: XUpdateMethod = "auto") -> None:
+        if method not in ("auto", "normal", "observation", "cholesky"):
+            raise ModelError(f"unknown x-update method {method!r}; choose 'auto', 'normal', 'observation' or "
+                             f"'cholesky'")
+        if method == "auto":
+            method = "normal" if problem.n_params <= problem.max_rows else "observation"
+        self.method = method
+        self.A = np.ascontiguousarray(problem.A)
+        self.y = np.ascontiguousarray(problem.y)
+        n, m, p = self.A.shape
+        Wi = c[:, None, None] * W[None]  # (n, p, p)
+        if method == "normal":
+            N_i, _ = problem.normal_equations
+            AtRi = np.einsum("nmp,nmk->npk", problem.A, problem.R_inv)
+            self.G = np.linalg.solve(N_i + Wi, AtRi)  # (n, p, m)
+        elif method == "observation":
+            Winv = np.linalg.inv(W)[None] / c[:, None, None]
+            S = problem.R + np.einsum("nmp,npq,nkq->nmk", problem.A, Winv, problem.A)
+            self.G = np.einsum("npq,nmq->npm", Winv, problem.A) @ np.linalg.inv(S)
+        else:
+            N_i, r_i = problem.normal_equations
+            self.L = np.linalg.cholesky(N_i + Wi)
+            self.N = N_i
+            self.r = r_i
+
+    def __call__(self, l: np.ndarray, x_prev: np.ndarray | None = None) -> np.ndarray:
+        """``x_i = l_i + G_i (y_i − A_i l_i)`` for every node of the block."""
+        if self.method == "cholesky":
+            rhs = self.r - (self.N @ l[..., None])[..., 0]  # A_iᵀR_i⁻¹(y_i − A_i l_i), eq. (21)
+            x: np.ndarray = l + _cholesky_solve(self.L, rhs)
+            return x
+        res = self.y - (self.A @ l[..., None])[..., 0]
+        x = l + (self.G @ res[..., None])[..., 0]
+        return x
+
+
+def _cholesky_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve ``L Lᵀ δ = b`` for a stack of lower-triangular ``L`` ``(n, p, p)``: forward then backward substitution."""
+    p = L.shape[-1]
+    w = np.empty_like(b)
+    for j in range(p):
+        w[:, j] = (b[:, j] - np.einsum("nk,nk->n", L[:, j, :j], w[:, :j])) / L[:, j, j]
+    d = np.empty_like(b)
+    for j in range(p - 1, -1, -1):
+        d[:, j] = (w[:, j] - np.einsum("nk,nk->n", L[:, j + 1:, j], d[:, j + 1:])) / L[:, j, j]
+    return d
+
+
+# ----------------------------------------------------------------------------------------------- kernel
+@dataclass(frozen=True, eq=False)
+class AdmmState:
+    """After iteration ``k`` (``k = 0``: the initial values) of Fig. 6, for this exchange block.
+
+    ``x`` ``(n_local, p)`` local states; ``z`` ``(n_local, p)`` consensus states (rows of non-constraint nodes are 0);
+    ``primal_residual`` ``sqrt(Σ_pairs ‖x_i − z_s‖²)``; ``dual_residual`` ``sqrt(Σ_pairs ‖W(z_s^[k] − z_s^[k−1])‖²)``;
+    ``x_norm``, ``z_norm``: pair norms ``sqrt(Σ_pairs ‖·‖²)``; ``u_norm``: ``sqrt(Σ_i ‖W Σ_s u_{i,s}‖²)`` (at the
+    solution ``W Σ_s û_{i,s} = r_i − N_i x̂``, eq. (9)), for relative stopping. Residuals and norms
+    are network totals (``ex.allreduce``: monitoring only).
+    """
+
+    iteration: int
+    x: np.ndarray
+    z: np.ndarray
+    primal_residual: float
+    dual_residual: float
+    x_norm: float
+    z_norm: float
+    u_norm: float
+
+
+def _per_node(value: Any, n: int, p: int, what: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(p, float(arr))
+    if arr.shape == (p,):
+        return np.broadcast_to(arr, (n, p)).copy()
+    if arr.shape == (n, p):
+        return arr.copy()
+    raise ModelError(f"{what} must be a scalar, a length-{p} vector or an ({n}, {p}) array, got shape {arr.shape}")
+
+
+class _Kernel:
+    """Fig. 6 on one exchange block; ``x_update`` maps ``(l, x_prev)`` to the new ``x`` for the block.
+
+    ``z_weight`` (global, one per node, or None): the z-update of constraint node ``s`` becomes the weighted mean
+    ``Σ_{i∈N_s} w_i z_{i,s} / Σ_{i∈N_s} w_i`` instead of the plain one; with ``w_i = 1/c_i`` it is the z-update of
+    the Lagrangian with pair weights ``W/c_i`` (``x_weight="fig6-zweighted"``, per-pair messages only). The weights
+    are structural (the constraint neighbours' ``c_i``), known from the graph like the pairs themselves.
+    """
+
+    def __init__(self, ex: Exchange, C: ConstraintNodes, W: np.ndarray, p: int,
+                 x_update: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                 z_weight: np.ndarray | None = None) -> None:
+        g = ex.graph
+        self.ex = ex
+        self.W = W
+        self.w_scale = float(np.linalg.eigvalsh(W).max())
+        self.p = p
+        self.x_update = x_update
+        inC = C.mask
+        self.inC_global = inC
+        nodes = ex.nodes
+        nl = ex.n_local
+        self.inC_loc = inC[nodes]
+        real = g.src != g.dst
+        self.to_c = inC[g.dst] & real
+        self.from_c = inC[g.src] & real
+        real_in = ex.in_src != nodes[ex.in_dst]
+        real_out = ex.out_dst != nodes[ex.out_src]
+        # pairs (i, s), s ≠ i: one per in-edge s→i with s ∈ C (z_s arrives there); u_{i,s} lives here at node i
+        self.ip = np.flatnonzero(inC[ex.in_src] & real_in)
+        self.pair_dst = ex.in_dst[self.ip]
+        n_pairs = self.ip.size
+        self.S_pairs = _segment_matrix(self.pair_dst, nl)
+        self.count = np.bincount(self.pair_dst, minlength=nl) + self.inC_loc  # c_i = |N_i ∩ C|
+        # outgoing z_{i,s} on edges i→s, s ∈ C: the multiplier of the pair is stored at the reverse in-edge s→i
+        self.op = np.flatnonzero(inC[ex.out_dst] & real_out)
+        lookup = np.full(g.n_edges, -1, dtype=np.int64)
+        lookup[ex.in_edges[self.ip]] = np.arange(n_pairs)
+        self.op_pair = lookup[g.reverse_edge[ex.out_edges[self.op]]]
+        if (self.op_pair < 0).any():  # pragma: no cover - guaranteed by symmetric graphs
+            raise ModelError("pair edges are not symmetric in this exchange block")
+        self.op_src = ex.out_src[self.op]
+        # at constraint node s: z_{i,s} arrives on in-edges i→s
+        self.ic = np.flatnonzero(self.inC_loc[ex.in_dst] & real_in)
+        n_ic = self.ic.size
+        self.S_c = _segment_matrix(ex.in_dst[self.ic], nl)
+        self.size_s = (np.bincount(ex.in_dst[self.ic], minlength=nl) + 1).astype(float)  # |N_s|
+        n_in = ex.in_edges.size
+        self.S_pairs_all = sp.csr_matrix((np.ones(n_pairs), (self.pair_dst, self.ip)), shape=(nl, n_in))
+        self.S_c_all = sp.csr_matrix((np.ones(n_ic), (ex.in_dst[self.ic], self.ic)), shape=(nl, n_in))
+        self.out_buf = np.zeros((ex.out_edges.size, p))
+        self.w_iso = float(W[0, 0]) if np.array_equal(W, W[0, 0] * np.eye(p)) else None
+        self.size_c = self.size_s * self.inC_loc
+        self.count_f = self.count.astype(float)
+        self.z_weight: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        if z_weight is not None:
+            w_in = z_weight[ex.in_src[self.ic]]
+            w_self = z_weight[nodes] * self.inC_loc
+            total = self.S_c @ w_in + w_self
+            inv_total = np.divide(1.0, total, out=np.zeros_like(total), where=self.inC_loc)
+            self.z_weight = (w_in[:, None], w_self[:, None], inv_total[:, None])
+
+    def run(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int = 1) -> Iterator[AdmmState]:
+        ex = self.ex
+        cm = self.inC_loc[:, None].astype(float)  # 1 on constraint-node rows
+        inv_count = 1.0 / self.count[:, None]
+        inv_size = cm / self.size_s[:, None]
+        x = x0.copy()
+        z = z0 * cm
+        u_pair = np.zeros((self.ip.size, self.p))
+        u_self = np.zeros_like(x)  # u_{s,s}; zero on rows of non-constraint nodes, and stays so
+        # initialization round: constraint nodes send z_s^[0] to their neighbours
+        inbox = ex.broadcast(z, active=self.from_c)
+        z_recv = x[self.pair_dst]  # until z_s arrives, a node assumes its own x_i^[0]
+        self._hold(z_recv, inbox.values, inbox.delivered, self.ip)
+        zin_c = z[ex.in_dst[self.ic]]  # until z_{i,s} arrives, s assumes its own z_s^[0]
+        diff_pair = x[self.pair_dst] - z_recv
+        diff_self = (x - z) * cm
+        yield self._state(0, x, z, diff_pair, diff_self, np.zeros_like(z), u_pair, u_self)
+        k = 0
+        buf = self.out_buf
+        # work arrays reused every iteration (large networks: no fresh allocation per round)
+        tmp = np.empty_like(u_pair)
+        g_x = np.empty((self.op.size, self.p))
+        g_u = np.empty_like(g_x)
+        while True:
+            k += 1
+            # step 1: u-update, l, x-update, send z_{i,s} = x_i + u_{i,s} to constraint neighbours
+            u_pair += diff_pair
+            u_self += diff_self
+            np.subtract(z_recv, u_pair, out=tmp)
+            l = self.S_pairs @ tmp
+            l += z
+            l -= u_self
+            l *= inv_count
+            x = self.x_update(l, x)
+            np.take(x, self.op_src, axis=0, out=g_x)
+            np.take(u_pair, self.op_pair, axis=0, out=g_u)
+            g_x += g_u
+            buf[self.op] = g_x
+            inbox = ex.send(buf, active=self.to_c)
+            self._hold(zin_c, inbox.values, inbox.delivered, self.ic)
+            # step 2: z-update at constraint nodes, broadcast z_s
+            if self.z_weight is None:
+                z_new = self.S_c @ zin_c
+                z_new += x
+                z_new += u_self
+                z_new *= inv_size
+            else:
+                w_in, w_self, inv_total = self.z_weight
+                z_new = self.S_c @ (zin_c * w_in)
+                z_new += (x + u_self) * w_self
+                z_new *= inv_total
+            dz = z_new - z
+            z = z_new
+            inbox = ex.broadcast(z, active=self.from_c)
+            self._hold(z_recv, inbox.values, inbox.delivered, self.ip)
+            np.take(x, self.pair_dst, axis=0, out=diff_pair)
+            diff_pair -= z_recv
+            diff_self = (x - z) * cm
+            if monitor_every and k % monitor_every == 0:
+                yield self._state(k, x, z, diff_pair, diff_self, dz, u_pair, u_self)
+            else:
+                yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
+
+    def run_aggregated(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int) -> Iterator[AdmmState]:
+        """Fig. 6 with aggregated messages: node ``i`` broadcasts ``x_i`` to its constraint neighbours instead of
+        ``z_{i,s} = x_i + u_{i,s}`` per pair, and keeps only ``U_i = Σ_s u_{i,s}``; constraint node ``s`` keeps
+        ``V_s = Σ_{i∈N_s} u_{i,s}``. Since ``Σ_i z_{i,s} = Σ_i x_i + V_s``, the iterates equal those of
+        :meth:`run` in exact arithmetic (and ``V_s = 0`` after the first iteration, Boyd et al. 2011 §7.1).
+
+        Without faults a round whose receiver only needs the *sum* of its messages is a fused mixer round
+        (``ex.mixer`` with 0/1 weights: one sparse product); monitored iterations send the x-round as a broadcast
+        so each constraint node can form its exact pair residuals ``‖x_i − z_s‖``.
+        """
+        from distnav.network.weights import ConsensusWeights
+
+        ex = self.ex
+        g = ex.graph
+        fused = not ex.faults.active
+        if fused:
+            inC_f = self.inC_global.astype(float)
+            mix_x = ex.mixer(ConsensusWeights(g, self.to_c.astype(float), inC_f, name="sum into C"), active=self.to_c)
+            mix_z = ex.mixer(ConsensusWeights(g, self.from_c.astype(float), inC_f, name="sum from C"),
+                             active=self.from_c)
+        cm = self.inC_loc[:, None].astype(float)
+        inv_count = 1.0 / self.count[:, None]
+        inv_size = cm / self.size_s[:, None]
+        cnt = self.count[:, None].astype(float)
+        size = self.size_s[:, None]
+        x = x0.copy()
+        z = z0 * cm
+        held_x = _Held(ex.in_edges.size, self.p)
+        held_z = _Held(ex.in_edges.size, self.p)
+
+        def x_round(x: np.ndarray, monitored: bool, fill: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+            if fused and not monitored:
+                return mix_x.apply(x), None
+            inbox = ex.broadcast(x, active=self.to_c)
+            vals = held_x.update(inbox.values, inbox.delivered, self.ic, fill=fill)
+            out = self.S_c_all @ vals
+            out += x * cm
+            return out, vals
+
+        def z_round(z: np.ndarray, fill: np.ndarray | None) -> np.ndarray:
+            if fused:
+                return mix_z.apply(z)
+            inbox = ex.broadcast(z, active=self.from_c)
+            vals = held_z.update(inbox.values, inbox.delivered, self.ip, fill=fill)
+            out: np.ndarray = self.S_pairs_all @ vals
+            out += z
+            return out
+
+        # initialization rounds: z_s^[0] from constraint nodes, x_i^[0] to constraint nodes
+        zsum = z_round(z, fill=x[ex.in_dst])
+        xsum, xvals = x_round(x, True, fill=z[ex.in_dst])
+        U = np.zeros_like(x)
+        V = (xsum - size * z) * cm  # Σ_i u^[0]_{i,s} with u^[−1] = 0
+        yield self._state_agg(0, x, z, xvals, np.zeros_like(z), U + cnt * x - zsum)
+        k = 0
+        while True:
+            k += 1
+            monitored = bool(monitor_every) and k % monitor_every == 0
+            U += cnt * x - zsum  # Σ_s of the u-updates
+            l = (zsum - U) * inv_count
+            x = self.x_update(l, x)
+            xsum, xvals = x_round(x, monitored, None)
+            z_new = (xsum + V) * inv_size
+            V += (xsum - size * z_new) * cm
+            dz = z_new - z
+            z = z_new
+            zsum = z_round(z, None)
+            if monitored:
+                yield self._state_agg(k, x, z, xvals, dz, U + cnt * x - zsum)
+            else:
+                yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
+
+    def _state_agg(self, k: int, x: np.ndarray, z: np.ndarray, xvals: np.ndarray | None, dz: np.ndarray,
+                   U_next: np.ndarray) -> AdmmState:
+        assert xvals is not None
+        d = xvals[self.ic] - z[self.ex.in_dst[self.ic]]  # at constraint node s: x_i − z_s for i ∈ N_s
+        ds = (x - z) * self.inC_loc[:, None]
+        WU = self._times_W(U_next)
+        sums = np.array([
+            np.einsum("ij,ij->", d, d) + np.einsum("ij,ij->", ds, ds),
+            self._dual_sq(dz),
+            np.einsum("i,ij,ij->", self.count_f, x, x),
+            np.einsum("i,ij,ij->", self.size_c, z, z),
+            np.einsum("ij,ij->", WU, WU),
+        ])
+        tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
+        return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
+
+    def _dual_sq(self, dz: np.ndarray) -> float:
+        """``Σ_pairs ‖W (z_s^[k] − z_s^[k−1])‖²`` (every constraint node ``s`` is in ``|N_s|`` pairs)."""
+        if self.w_iso is not None:
+            return float(self.w_scale ** 2 * np.einsum("i,ij,ij->", self.size_c, dz, dz))
+        Wdz = self._times_W(dz)
+        return float(np.einsum("i,ij,ij->", self.size_c, Wdz, Wdz))
+
+    def _times_W(self, a: np.ndarray) -> np.ndarray:
+        return a * self.w_iso if self.w_iso is not None else np.einsum("ij,jk->ik", a, self.W)
+
+    def _hold(self, target: np.ndarray, values: np.ndarray, delivered: np.ndarray, pos: np.ndarray) -> None:
+        if not self.ex.faults.active:  # every message on an active edge arrives
+            np.take(values, pos, axis=0, out=target)
+            return
+        ok = delivered[pos]
+        if ok.all():
+            np.take(values, pos, axis=0, out=target)
+        else:
+            target[ok] = values[pos[ok]]
+
+    def _state(self, k: int, x: np.ndarray, z: np.ndarray, diff_pair: np.ndarray, diff_self: np.ndarray,
+               dz: np.ndarray, u_pair: np.ndarray, u_self: np.ndarray) -> AdmmState:
+        # einsum, not BLAS: tiny BLAS calls are slow when the BLAS thread pool is contended
+        sums = np.array([
+            np.einsum("ij,ij->", diff_pair, diff_pair) + np.einsum("ij,ij->", diff_self, diff_self),
+            self._dual_sq(dz),
+            np.einsum("i,ij,ij->", self.count_f, x, x),
+            np.einsum("i,ij,ij->", self.size_c, z, z),
+            _sq_rows(self._times_W(self.S_pairs @ (u_pair + diff_pair) + u_self + diff_self)),
+        ])
+        tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
+        return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
+
+
+def _segment_matrix(receiver: np.ndarray, n_rows: int) -> sp.csr_matrix:
+    """0/1 CSR matrix summing values (one per entry of ``receiver``) into their receiver's row."""
+    k = receiver.size
+    return sp.csr_matrix((np.ones(k), (receiver, np.arange(k))), shape=(n_rows, k))
+
+
+def _sq_rows(a: np.ndarray) -> float:
+    return float(np.einsum("ij,ij->", a, a))
+
+
+class _Held:
+    """Last value received on each incoming edge: a dropped message is replaced by the previous one.
+
+    Without drops the inbox array is used as is (no copy); the first drop switches to a private copy.
+    """
+
+    def __init__(self, n_in: int, p: int) -> None:
+        self.prev: np.ndarray | None = None
+        self.own = False
+        self.shape = (n_in, p)
+
+    def update(self, values: np.ndarray, delivered: np.ndarray, pos: np.ndarray,
+               fill: np.ndarray | None) -> np.ndarray:
+        ok = delivered[pos]
+        if not self.own and ok.all():
+            self.prev = values
+            return values
+        if not self.own:
+            base = self.prev if self.prev is not None else (fill if fill is not None else np.zeros(self.shape))
+            self.prev = np.array(base, dtype=float)
+            self.own = True
+        assert self.prev is not None
+        keep = pos[ok]
+        self.prev[keep] = values[keep]
+        return self.prev
+

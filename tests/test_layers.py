@@ -1,0 +1,78 @@
+"""The layers of ARCHITECTURE.md / docs/DEVELOPING.md, checked on every import statement under src/distnav.
+
+network → exchange → algorithms → models → experiments | commands → cli: a module may import its own layer and the
+layers below it, never a layer above or beside (experiments and commands do not import each other). The utilities
+(errors, _optional, typing) sit below everything; ``output`` (file writing, figures) and ``options`` (checked
+CLI option types) are for experiments, commands and the CLI only.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "distnav"
+
+RANK = {"errors": 0, "_optional": 0.5, "typing": 0.5, "network": 1, "exchange": 2, "algorithms": 3, "models": 4,
+        "output": 4.5, "options": 4.5, "experiments": 5, "commands": 5, "cli": 6, "__main__": 7, "__init__": 7}
+# ``import distnav`` / ``from distnav import __version__``: the package root only re-exports distnav.errors
+
+
+def _violations(path: Path, own: str) -> list[str]:
+    bad = []
+    for line, module in _imports(path):
+        target = _layer(module)
+        if target == own or module == "distnav":
+            continue
+        if RANK[target] >= RANK[own]:
+            bad.append(f"{path.name}:{line} imports {module} ({own} may not import {target})")
+    return bad
+
+
+def _layer(module: str) -> str:
+    """``distnav.algorithms.kalman`` → ``algorithms``; ``distnav`` → ``__init__``."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def _imports(path: Path) -> list[tuple[int, str]]:
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    found: list[tuple[int, str]] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names if a.name.startswith("distnav")]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0 and node.module.startswith("distnav"):
+            found.append((node.lineno, node.module))
+    return found
+
+
+FILES = sorted(SRC.rglob("*.py"))
+
+
+def test_every_layer_is_ranked() -> None:
+    layers = {_layer("distnav." + ".".join(p.relative_to(SRC).with_suffix("").parts)) for p in FILES}
+    assert layers <= set(RANK), layers - set(RANK)
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(SRC)))
+def test_imports_point_downwards(path: Path) -> None:
+    own = _layer("distnav." + ".".join(path.relative_to(SRC).with_suffix("").parts))
+    bad = _violations(path, own)
+    assert not bad, "\n".join(bad)
+
+
+def test_the_check_catches_upward_and_sideways_imports(tmp_path: Path) -> None:
+    """The checker itself: lazy imports inside functions count; up and sideways are refused, down is allowed."""
+    f = tmp_path / "x.py"
+    f.write_text("import numpy\nfrom distnav.network.graph import Graph\n\n\ndef g():\n"
+                 "    from distnav.experiments.common import atomic_write_json\n", encoding="utf-8")
+    assert _imports(f) == [(2, "distnav.network.graph"), (6, "distnav.experiments.common")]
+    assert _violations(f, "algorithms") == [
+        "x.py:6 imports distnav.experiments.common (algorithms may not import experiments)"]
+    assert _violations(f, "commands") == [
+        "x.py:6 imports distnav.experiments.common (commands may not import experiments)"]
+    assert _violations(f, "cli") == []
+    assert _violations(f, "network") == [
+        "x.py:6 imports distnav.experiments.common (network may not import experiments)"]

@@ -1,0 +1,36 @@
+"""The shared result types: a fixed status set, usability, the deprecated extras view."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from distnav.algorithms.consensus import ConsensusResult, average_consensus
+from distnav.algorithms.result import SOLVER_STATUSES, Precision, SolverResult, Trace
+from distnav.network import builders
+
+
+def test_unknown_status_is_refused_and_usable_follows_status() -> None:
+    res = average_consensus(np.arange(5.0), graph=builders.ring(5), rounds=3)
+    assert isinstance(res, ConsensusResult) and res.usable
+    kw = {"estimates": res.estimates, "converged": False, "iterations": 1, "message": "", "trace": Trace(),
+          "comm": res.comm}
+    with pytest.raises(ValueError, match="unknown solver status"):
+        SolverResult(status="done", **kw)  # type: ignore[arg-type]
+    assert {"converged", "max_iterations", "stopped", "diverged", "ambiguous", "weakly_determined"} == set(
+        SOLVER_STATUSES)
+    assert not SolverResult(status="diverged", **kw).usable
+    assert not SolverResult(status="ambiguous", **kw).usable
+
+
+def test_extras_is_a_deprecated_view_of_the_typed_fields() -> None:
+    res = average_consensus(np.arange(5.0), graph=builders.ring(5), rounds=3)
+    with pytest.warns(DeprecationWarning):
+        assert res.extras["average"] is res.average
+
+
+def test_precision_std_scales_with_the_variance_factor() -> None:
+    cov = np.array([[[4.0, 0.0], [0.0, 9.0]]])
+    p = Precision(covariance=cov, variance_factor=4.0, redundancy=3, kind="centralized")
+    np.testing.assert_allclose(p.std(), [[2.0, 3.0]])
+    np.testing.assert_allclose(p.std(a_posteriori=True), [[4.0, 6.0]])
