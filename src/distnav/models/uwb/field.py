@@ -32,6 +32,7 @@ from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import mds_initial_guess
+from distnav.models.uwb.local import repair_exclusions
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray
 
@@ -58,6 +59,7 @@ class FieldOptions:
     range_offsets: str = "none"
     offset_prior_sigma_m: float = 0.1
     allow_planar_3d: bool = False
+    repair: bool = True
     solver_options: dict[str, Any] = field(default_factory=dict)
 
 
@@ -171,6 +173,24 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
         res, _, tests = exclude_links(problem, fit, max_exclusions=opts.max_exclusions)
         excluded[list(tests.removed)] = True
         w, flagged, crit = tests.w, tests.flagged, float(tests.critical_value)
+        for _ in range(2 if opts.repair else 0):
+            if not res.usable:
+                break
+            repaired, notes = repair_exclusions(problem, np.asarray(res.estimates, float), excluded, flagged)
+            if not notes:
+                break
+            if notes:  # re-fit without the links each anchor chose, then test (and exclude) again
+                kept_idx = np.flatnonzero(~repaired)
+                res2, _, t2 = exclude_links(subset_measurements(problem, ~repaired), fit,
+                                            max_exclusions=opts.max_exclusions)
+                if res2.usable:
+                    res, excluded = res2, repaired
+                    excluded[kept_idx[list(t2.removed)]] = True
+                    w = np.full(problem.n_meas, np.nan)
+                    w[kept_idx] = t2.w
+                    flagged = np.zeros(problem.n_meas, bool)
+                    flagged[kept_idx] = t2.flagged
+                    note += "; per-anchor check: " + "; ".join(notes)
     elif res.tests is not None and res.usable:
         w, flagged, crit = res.tests.w, res.tests.flagged, float(res.tests.critical_value)
     else:
