@@ -155,6 +155,15 @@ def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None
     return fit
 
 
+def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], cap: int | None) -> tuple[Any, Any] | None:
+    """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular)."""
+    try:
+        res, _, tests = exclude_links(problem, fit, max_exclusions=cap)
+    except ModelError:
+        return None
+    return res, tests
+
+
 def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
                 geometry: GeometryReport | None = None,
                 exchange: Callable[[RangingProblem], Any] | None = None) -> FieldSolution:
@@ -167,10 +176,10 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     total = [0, 0, 0]
     fit = _fitter(opts, exchange, total)
     excluded = np.zeros(problem.n_meas, bool)
-    res = fit(problem)
-    if res.usable and opts.exclude and res.tests is not None:
-        # exclusions tested at the robust solution (an NLOS link does not drag it); every re-fit robust too
-        res, _, tests = exclude_links(problem, fit, max_exclusions=opts.max_exclusions)
+    # exclusions tested at the robust solution (an NLOS link does not drag it); every re-fit robust too
+    first = _exclude(problem, fit, opts.max_exclusions) if opts.exclude else None
+    if first is not None:
+        res, tests = first
         excluded[list(tests.removed)] = True
         w, flagged, crit = tests.w, tests.flagged, float(tests.critical_value)
         for _ in range(2 if opts.repair else 0):
@@ -181,8 +190,11 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
                 break
             if notes:  # re-fit without the links each anchor chose, then test (and exclude) again
                 kept_idx = np.flatnonzero(~repaired)
-                res2, _, t2 = exclude_links(subset_measurements(problem, ~repaired), fit,
-                                            max_exclusions=opts.max_exclusions)
+                again = _exclude(subset_measurements(problem, ~repaired), fit, opts.max_exclusions)
+                if again is None:
+                    note += "; per-anchor check: its re-fit gave no link tests, kept the first choice"
+                    break
+                res2, t2 = again
                 if res2.usable:
                     res, excluded = res2, repaired
                     excluded[kept_idx[list(t2.removed)]] = True
@@ -191,12 +203,14 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
                     flagged = np.zeros(problem.n_meas, bool)
                     flagged[kept_idx] = t2.flagged
                     note += "; per-anchor check: " + "; ".join(notes)
-    elif res.tests is not None and res.usable:
-        w, flagged, crit = res.tests.w, res.tests.flagged, float(res.tests.critical_value)
     else:
-        w, flagged, crit = np.full(problem.n_meas, np.nan), np.zeros(problem.n_meas, bool), None
+        res = fit(problem)
+        if res.tests is not None and res.usable:
+            w, flagged, crit = res.tests.w, res.tests.flagged, float(res.tests.critical_value)
+        else:
+            w, flagged, crit = np.full(problem.n_meas, np.nan), np.zeros(problem.n_meas, bool), None
         if opts.exclude and res.usable:
-            note += f"; {opts.solver} gives no per-link tests: no link was tested or excluded"
+            note += f"; {opts.solver}: no per-link tests (or they failed on a re-fit): no link excluded"
     geo = geometry if geometry is not None else check_geometry(problem)
     nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
     if not res.usable or not np.all(np.isfinite(res.estimates)):
