@@ -10,7 +10,7 @@ Per solver: mean RMSE over the estimated anchors, NLOS recall (excluded NLOS lin
 (excluded LOS links / LOS links), 2σ coverage of the reported σ per axis (the Monte Carlo check of the
 precision), status counts, messages and bytes. The **oracle** is LM on the same links with the NLOS ones removed
 by the truth (plain least squares, no exclusion). Targets (issue 13): RMSE ≤ 1.15 × the oracle's, recall ≥ 90 %
-with ≤ 5 % false alarms, coverage within 90–98 %. ``--quick``: 2 instances, LM and N-CSG-TBLS (200 iterations).
+with ≤ 5 % false alarms, coverage within 90–98 %. ``--quick``: 1 hall per placement, LM and N-CSG-TBLS (200 it.).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ PLACEMENTS = ("middle", "corner")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--instances", type=int, default=None, help="halls per placement (default 20; --quick 2)")
+    parser.add_argument("--instances", type=int, default=None, help="halls per placement (default 20; --quick 1)")
     parser.add_argument("--solvers", nargs="+", type=str.upper, choices=list(SOLVERS), default=None,
                         help="solvers to run (default all; --quick LM and N-CSG-TBLS)")
     parser.add_argument("--iterations", type=int, default=None,
@@ -88,7 +88,7 @@ def _solve(sub: RangingProblem, geo: GeometryReport, nlos: np.ndarray, solver: s
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
-    n_inst = int(ctx.options.get("instances") or (2 if ctx.quick else 20))
+    n_inst = int(ctx.options.get("instances") or (1 if ctx.quick else 20))
     solvers = list(ctx.options.get("solvers") or (["LM", "N-CSG-TBLS"] if ctx.quick else SOLVERS))
     iterations = int(ctx.options.get("iterations") or (200 if ctx.quick else 500))
     n_anchors = int(ctx.options.get("anchors") or 28)
