@@ -235,6 +235,7 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "offsets_std_m": None if offsets_std is None else np.asarray(offsets_std).tolist(),
         "geometry": sol.geometry.as_dict(),
         "unsolved": list(sol.geometry.unsolved),
+        "weakly_determined_anchors": list(sol.weak),
         "n_anchors": len(sol.geometry.ids),
         "n_solved": p.n_anchors,
         "n_known": int(p.fixed.sum()),
@@ -284,7 +285,8 @@ def _positions_table(path: Path, sol: FieldSolution) -> None:
             rows.append(name + "," * (2 * dim) + ",unsolved")
             continue
         i = index[name]
-        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "estimated")
+        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in sol.weak
+                                          else "estimated")
         rows.append(name + "," + ",".join(f"{v:.6f}" for v in sol.positions_m[i]) + ","
                     + ",".join(f"{v:.6f}" for v in sol.sigma_m[i]) + f",{st}")
     atomic_write_text(path, "\n".join(rows) + "\n")

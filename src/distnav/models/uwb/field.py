@@ -85,6 +85,7 @@ class FieldSolution:
     messages: int
     bytes: int
     critical_value: float | None
+    weak: tuple[str, ...] = ()
 
     @property
     def usable(self) -> bool:
@@ -153,6 +154,30 @@ def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None
         return r
 
     return fit
+
+
+WEAK_RMS_M = 0.15
+
+
+def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: BoolArray, flagged: BoolArray, *,
+                 limit_m: float = WEAK_RMS_M) -> tuple[str, ...]:
+    """Anchors with an excluded or flagged link whose kept links still misfit by more than ``limit_m`` RMS (or 3 ×
+    the network's robust residual scale, if larger) at the solution: the exclusions could not find a consistent
+    subset of their links (e.g. 2 NLOS of 4 links)."""
+    kept = ~np.asarray(excluded, bool)
+    n = problem.n_anchors
+    a, b = problem.meas_a, problem.meas_b
+    e2 = np.where(kept, residual_m**2, 0.0)
+    ssr = np.bincount(a, e2, minlength=n) + np.bincount(b, e2, minlength=n)
+    cnt = np.bincount(a[kept], minlength=n) + np.bincount(b[kept], minlength=n)
+    touched = np.zeros(n, bool)
+    bad = ~kept | np.asarray(flagged, bool)
+    touched[a[bad]] = True
+    touched[b[bad]] = True
+    rms = np.sqrt(ssr / np.maximum(cnt, 1))
+    scale = 1.4826 * float(np.median(np.abs(residual_m[kept]))) if kept.any() else 0.0
+    limit = max(limit_m, 3.0 * scale)  # a network whose every link misfits (range bias) is not "weak" here
+    return tuple(problem.ids[i] for i in np.flatnonzero(touched & problem.estimated & (rms > limit)))
 
 
 def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], cap: int | None) -> tuple[Any, Any] | None:
@@ -224,14 +249,21 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     sigma = nan_pos.copy()
     if res.precision is not None:
         sigma = np.where(problem.free, res.precision.std(a_posteriori=True), 0.0)
-    status = geo.status or res.status
+    residual = problem.residuals_m(pos)
+    weak = weak_anchors(problem, residual, excluded, flagged)
+    status = geo.status or ("weakly_determined" if weak and res.status in ("converged", "max_iterations")
+                            else res.status)
     msg = res.message + note
+    if weak:
+        msg = (f"weakly determined: anchors {', '.join(repr(k) for k in weak[:12])} still misfit their kept links "
+               f"by more than {WEAK_RMS_M} m RMS (or 3 × the network's robust residual scale) after the "
+               f"exclusions (too few consistent links to tell which are NLOS) — {msg}")
     if geo.status is not None:
         msg = f"{geo.status}: " + "; ".join(i.message for i in geo.issues if i.severity != "unsolved") + f" — {msg}"
     return FieldSolution(problem=problem, geometry=geo, positions_m=pos, sigma_m=sigma,
-                         residual_m=problem.residuals_m(pos), w=w, flagged=flagged, excluded=excluded, result=res,
+                         residual_m=residual, w=w, flagged=flagged, excluded=excluded, result=res,
                          status=status, message=msg, objective_used=objective, iterations=total[0],
-                         messages=total[1], bytes=total[2], critical_value=crit)
+                         messages=total[1], bytes=total[2], critical_value=crit, weak=weak)
 
 
 def gather_cost(problem: RangingProblem) -> dict[str, Any]:
