@@ -71,17 +71,22 @@ def test_uwb_field_quick_variant_runs(tmp_path):
     assert (tmp_path / "results.json").is_file() and (tmp_path / "table.md").is_file()
 
 
-def test_weak_anchor_when_its_kept_links_still_misfit():
+def test_weak_anchor_when_its_kept_links_still_misfit_or_are_too_few():
     from distnav.models.uwb.field import weak_anchors
 
-    known = {"K0": [0.0, 0.0], "K1": [10.0, 0.0], "K2": [10.0, 10.0], "K3": [0.0, 10.0]}
-    links = [(u, k) for u in ("X", "Y", "Z") for k in known]
-    p = build_problem(["X", "Y", "Z", *known], links, np.full(12, 5.0), fixed=known, dim=2)
-    excl = np.zeros(12, bool)
-    excl[2] = True  # X-K2 excluded
-    fits = np.full(12, 0.01)
-    assert weak_anchors(p, fits, excl, np.zeros(12, bool)) == ()  # X's kept links fit: not weak
+    known = {"K0": [0.0, 0.0], "K1": [10.0, 0.0], "K2": [10.0, 10.0], "K3": [0.0, 10.0], "K4": [5.0, -3.0]}
+    links = [(u, k) for u in ("X", "Y", "Z") for k in known]  # 5 links each, 2 free coordinates each
+    p = build_problem(["X", "Y", "Z", *known], links, np.full(15, 5.0), fixed=known, dim=2)
+    none = np.zeros(15, bool)
+    excl = none.copy()
+    excl[2] = True  # X-K2 excluded: 4 links kept
+    fits = np.full(15, 0.01)
+    assert weak_anchors(p, fits, excl, none) == ()  # X's kept links fit: not weak
     misfit = fits.copy()
-    misfit[[0, 1, 3]] = [0.5, -0.5, 0.4]  # X's kept links still 0.47 m RMS off
-    assert weak_anchors(p, misfit, excl, np.zeros(12, bool)) == ("X",)
-    assert weak_anchors(p, misfit, np.zeros(12, bool), np.zeros(12, bool)) == ()  # nothing excluded or flagged
+    misfit[[0, 1, 3]] = [0.5, -0.5, 0.4]  # X's kept links still 0.4 m RMS off
+    assert weak_anchors(p, misfit, excl, none) == ("X",)
+    assert weak_anchors(p, misfit, none, none) == ()  # nothing excluded or flagged
+    two = excl.copy()
+    two[7] = True  # Y-K2 excluded too, and Y-K3: Y keeps 3 links = one redundant link only
+    two[8] = True
+    assert weak_anchors(p, fits, two, none) == ("Y",)

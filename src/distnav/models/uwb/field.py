@@ -163,7 +163,8 @@ def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: Bool
                  limit_m: float = WEAK_RMS_M) -> tuple[str, ...]:
     """Anchors with an excluded or flagged link whose kept links still misfit by more than ``limit_m`` RMS (or 3 ×
     the network's robust residual scale, if larger) at the solution: the exclusions could not find a consistent
-    subset of their links (e.g. 2 NLOS of 4 links)."""
+    subset of their links; and anchors left with a single redundant link after an exclusion (4 links of which 2
+    are NLOS fit the wrong pair exactly: only the thin redundancy gives it away)."""
     kept = ~np.asarray(excluded, bool)
     n = problem.n_anchors
     a, b = problem.meas_a, problem.meas_b
@@ -177,7 +178,9 @@ def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: Bool
     rms = np.sqrt(ssr / np.maximum(cnt, 1))
     scale = 1.4826 * float(np.median(np.abs(residual_m[kept]))) if kept.any() else 0.0
     limit = max(limit_m, 3.0 * scale)  # a network whose every link misfits (range bias) is not "weak" here
-    return tuple(problem.ids[i] for i in np.flatnonzero(touched & problem.estimated & (rms > limit)))
+    # one redundant link left after an exclusion: a second bad link could be detected there but not located
+    thin = (cnt <= problem.free.sum(axis=1) + 1) & np.isin(np.arange(n), np.concatenate([a[~kept], b[~kept]]))
+    return tuple(problem.ids[i] for i in np.flatnonzero(touched & problem.estimated & ((rms > limit) | thin)))
 
 
 def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], cap: int | None) -> tuple[Any, Any] | None:
