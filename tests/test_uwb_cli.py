@@ -163,7 +163,7 @@ def test_classical_mds_and_planarity():
     [
         ("a,b,range_m\nA00,A01,12.0\nA00,A02,abc\n", r"ranges\.csv:3: range_m 'abc' is not a number"),
         ("a,b,range_m\nA00,A01,12.0\nA00,A02\n", r"ranges\.csv:3: expected 3 fields"),
-        ("a,b,range_m\nA00,A01,-2\n", r"ranges\.csv: no usable range sample \(1 bad ones dropped\)"),
+        ("a,b,range_m\nA00,A01,-2\n", r"ranges\.csv:2: no usable range sample \(1 bad one\(s\) dropped: 1 negative\)"),
         ("a,b,range_m\nA00,A00,2\n", r"ranges\.csv:2: range from anchor 'A00' to itself"),
         ("a,b,distance\nA00,A01,2\n", r"ranges\.csv:1: header must name the columns a,b,range_m"),
         ("a,b,range_m\n", r"ranges\.csv: no data rows"),
@@ -252,3 +252,38 @@ def test_diverged_run_exits_non_zero_and_writes_no_positions(tmp_path, capsys, m
     assert json.loads((out / "summary.json").read_text())["status"] == "diverged"
     assert not (out / "positions.csv").exists() and not (out / "positions.png").exists()
     assert "diverged" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("extra, match", [
+    (("--sigma-m", "0"), "--sigma-m must be a positive"), (("--sigma-m", "nan"), "--sigma-m must be a positive"),
+    (("--level", "0.7"), "--level must lie in"), (("--offset-prior-sigma-m", "-1"), "--offset-prior-sigma-m"),
+    (("--range-offsets", "common", "--solver", "N-CLM"), "--range-offsets is estimated by LM"),
+    (("--range-offsets", "common", "--objective", "squared"), "--range-offsets is estimated by LM"),
+    (("--objective", "cubed"), "invalid choice"), (("--range-offsets", "all"), "invalid choice"),
+    (("--level", "x"), "invalid float"),
+])
+def test_new_option_errors_before_any_work(tmp_path, capsys, extra, match):
+    f = hall(tmp_path)
+    out = tmp_path / "o"
+    with pytest.raises(SystemExit) if "invalid" in match else _nothing():
+        assert run(f, out, *extra) == 2
+    assert match in capsys.readouterr().err and not out.exists()
+
+
+def test_import_april_errors(tmp_path, capsys):
+    assert main(["uwb", "import-april", str(tmp_path / "none.txt"), "--out", str(tmp_path / "o")]) == 2
+    assert "none.txt: file not found" in capsys.readouterr().err
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0.53 12 99 1 2 3\n")
+    assert main(["uwb", "import-april", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "node ids [99]" in capsys.readouterr().err
+    assert main(["uwb", "import-april", str(bad), "--known", "8,x", "--out", str(tmp_path / "o")]) == 2
+    assert "--known must be comma-separated" in capsys.readouterr().err
+
+
+class _nothing:
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc: object) -> bool:
+        return False

@@ -29,6 +29,7 @@ from distnav.models.uwb.geometry import GeometryReport
 from distnav.models.uwb.hall import HallNetwork, simulate_hall
 from distnav.models.uwb.io import RangeLog, combine_ranges
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
+from distnav.options import positive_int
 
 NAME = "uwb-field"
 TITLE = "UWB anchors in a simulated industrial hall: NLOS exclusion, precision, every solver vs the oracle"
@@ -39,12 +40,13 @@ PLACEMENTS = ("middle", "corner")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--instances", type=int, default=None, help="halls per placement (default 20; --quick 1)")
+    parser.add_argument("--instances", type=positive_int, default=None,
+                        help="halls per placement (default 20; --quick 1)")
     parser.add_argument("--solvers", nargs="+", type=str.upper, choices=list(SOLVERS), default=None,
                         help="solvers to run (default all; --quick LM and N-CSG-TBLS)")
-    parser.add_argument("--iterations", type=int, default=None,
+    parser.add_argument("--iterations", type=positive_int, default=None,
                         help="iterations of the distributed solvers (default 500; --quick 200)")
-    parser.add_argument("--anchors", type=int, default=28, help="anchors per hall (default 28)")
+    parser.add_argument("--anchors", type=positive_int, default=28, help="anchors per hall (default 28)")
 
 
 def hall_problem(h: HallNetwork, *, heights: bool = True) -> tuple[RangingProblem, np.ndarray]:

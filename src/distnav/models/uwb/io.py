@@ -177,7 +177,8 @@ def read_ranges(path: str | Path, *, strict: bool = False) -> RangeLog:
         r.append(v)
         ln.append(number)
     if not r:
-        raise DataFileError(f"{p}: no usable range sample ({len(dropped_lines)} bad ones dropped)")
+        raise DataFileError(f"{p}:{dropped_lines[0]}: no usable range sample ({len(dropped_lines)} bad one(s) "
+                            f"dropped: {', '.join(f'{v} {k}' for k, v in dropped.items() if v)})")
     out = RangeLog(p, tuple(a), tuple(b), np.asarray(r, float), np.asarray(ln, np.int64),
                    {k: v for k, v in dropped.items() if v}, tuple(dropped_lines))
     if out.n_dropped:
