@@ -7,7 +7,8 @@
     python scripts/compare_results.py DIR_A DIR_B
 
 ``--run`` calls ``python -m distnav reproduce NAME --quick --out OUT_DIR/NAME --no-progress`` for every experiment
-with the interpreter running this script (so ``PYTHONPATH`` picks the tree). The comparison reads
+of the tree (``distnav.experiments.available()``) with the interpreter running this script (so ``PYTHONPATH``
+picks the tree). The comparison reads
 ``DIR/NAME/results.json`` for every NAME in either folder; a file missing on one side is a difference. For a
 differing pair it names the first JSON path whose value differs, to say where to look.
 
@@ -27,7 +28,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
-EXPERIMENTS = ("consensus", "admm", "ckf", "uwb", "codebias", "ckf-ionosphere")
+EXPERIMENTS = ("consensus", "admm", "ckf", "uwb", "codebias", "ckf-ionosphere")  # if distnav is not importable
+
+
+def _experiments() -> tuple[str, ...]:
+    """The experiments of the tree on the path (new ones are compared too), else :data:`EXPERIMENTS`."""
+    try:
+        from distnav.experiments import available
+    except ImportError:
+        return EXPERIMENTS
+    return tuple(available())
 VOLATILE = ("solver_seconds",)
 
 
@@ -114,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dirs", nargs="*", type=Path, help="DIR_A DIR_B to compare")
     parser.add_argument("--run", type=Path, metavar="OUT_DIR", help="run every quick reproduction into OUT_DIR")
-    parser.add_argument("--only", nargs="+", choices=EXPERIMENTS, help="with --run: only these experiments")
+    parser.add_argument("--only", nargs="+", metavar="NAME", help="with --run: only these experiments")
     parser.add_argument("--volatile", nargs="*", default=list(VOLATILE), metavar="KEY",
                         help="JSON keys holding wall-clock timings, ignored in the comparison (default: "
                              f"{' '.join(VOLATILE)}; give none to compare every byte)")
@@ -122,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.run is not None:
         if args.dirs:
             parser.error("--run takes no DIR_A DIR_B")
-        return 1 if run_all(args.run, list(args.only or EXPERIMENTS)) else 0
+        return 1 if run_all(args.run, list(args.only or _experiments())) else 0
     if len(args.dirs) != 2:
         parser.error("give DIR_A DIR_B (or --run OUT_DIR)")
     return 1 if compare(*args.dirs, volatile=tuple(args.volatile)) else 0

@@ -13,7 +13,7 @@ from scipy import stats
 
 from distnav.algorithms.ckf import ckf, iterate_ckf
 from distnav.algorithms.consensus import consensus_schedule
-from distnav.algorithms.kalman import DynamicModel, ObservationSeries, simulate_states
+from distnav.algorithms.kalman import DynamicModel, NormalSeries, ObservationSeries, simulate_states
 from distnav.errors import ModelError
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.network import builders
@@ -183,6 +183,9 @@ def test_tests_need_local_precision_and_a_valid_level():
         ckf(dyn, ms, graph=g, rounds=2, test_level=0.01)
     with pytest.raises(ModelError, match="test level"):
         ckf(dyn, ms, graph=g, rounds=2, local_precision="exact", test_level=1.5)
+    N = np.stack([ms.normals(t)[0] for t in range(ms.n_epochs)])
+    with pytest.raises(ModelError, match="need the raw observations; NormalSeries"):
+        ckf(dyn, NormalSeries(N), graph=g, rounds=2, local_precision="exact", test_level=0.01)
 
 
 @pytest.mark.parametrize("kind", ["exact", "bound"])

@@ -13,6 +13,7 @@ from distnav.algorithms.nlsq import solve_lm
 from distnav.errors import ModelError
 from distnav.exchange import make_exchange
 from distnav.models.uwb.problems import build_problem, rmse_m
+from test_csg import check_partial_gradient
 
 
 def hall(seed: int = 4, n: int = 16, sigma_m: float = 0.0, nlos: dict[int, float] | None = None,
@@ -39,18 +40,8 @@ def test_metres_partial_gradient_matches_finite_differences(loss):
     diff, r = nb.geometry(P)
     w, _ = nb.rho(r)
     grad = nb.gradient(diff, r, None if loss == "linear" else w)  # Jᵀ W r = ½ ∇F⁽ⁱ⁾
-    eps = 1e-6
-    checked = 0
-    for li, slot, c in [(5, 0, 0), (5, 2, 1), (9, 1, 2), (13, 3, 0), (7, 0, 2)]:
-        if not nb.free_slot[li, slot, c]:
-            continue
-        up, dn = P.copy(), P.copy()
-        up[li, slot, c] += eps
-        dn[li, slot, c] -= eps
-        num = (nb.partial_cost(nb.geometry(up)[1])[li] - nb.partial_cost(nb.geometry(dn)[1])[li]) / (2 * eps)
-        assert grad[li, slot, c] == pytest.approx(num / 2, rel=1e-5, abs=1e-5)
-        checked += 1
-    assert checked >= 3
+    assert check_partial_gradient(nb, P, grad, [(5, 0, 0), (5, 2, 1), (9, 1, 2), (13, 3, 0), (7, 0, 2)],
+                                  abs_tol=1e-5) >= 3
 
 
 @pytest.mark.parametrize("solver", SOLVERS[1:])
@@ -133,3 +124,16 @@ def test_options_are_validated():
         solve_ncsg(p, test_scale="mad")
     with pytest.raises(ModelError, match="graduated"):
         solve_ncsg(p, graduated=-1)
+
+
+def test_exclusion_loop_with_a_distributed_fit():
+    from distnav.algorithms.ranging_qc import exclude_links
+
+    nlos = {3: 1.5, 17: 2.0, 40: 1.0}
+    p = hall(seed=6, n=18, sigma_m=0.05, nlos=nlos)
+    fit = lambda q: solve(q, "N-CLM", iterations=2000, objective="metres", sigma_m=0.05, loss="cauchy",
+                          loss_scale_m=0.15)
+    res, sub, tests = exclude_links(p, fit)
+    assert set(nlos) <= set(tests.removed) and len(tests.removed) <= len(nlos) + 2
+    assert res.usable and sub.n_meas == p.n_meas - len(tests.removed)
+    assert np.isnan(tests.w[list(tests.removed)]).all()

@@ -134,3 +134,27 @@ def test_claims_table_adapters_tolerate_missing_fields_and_block_update(tmp_path
     new = update(doc, render(rows, "run"))
     assert new.startswith("# Claims\n\nintro\n\n" + BEGIN) and new.endswith(END + "\n\n## Notes\nkept\n")
     assert "old table" not in new and "1 claims: 1 agree" in new
+
+
+def test_claims_table_command_rewrites_only_its_block(tmp_path, capsys):
+    from distnav.experiments.claims_table import main
+
+    assert main([str(tmp_path / "empty")]) == 2 and "no <experiment>/results.json" in capsys.readouterr().err
+    run = tmp_path / "run"
+    (run / "consensus").mkdir(parents=True)
+    own = [claim(paper="003", where="Fig. 4", text="P4 > P2", paper_value="P4 > P2", distnav_value="yes", ok=True)]
+    (run / "consensus" / "results.json").write_text(json.dumps({"claims": own}))
+    doc = tmp_path / "claims.md"
+    doc.write_text("# Claims\n\n" + BEGIN + "\n" + END + "\n\n## Notes\n")
+    assert main([str(run), "--out", str(doc)]) == 0
+    text = doc.read_text()
+    assert text.startswith("# Claims\n\n" + BEGIN) and text.endswith(END + "\n\n## Notes\n")
+    assert "| consensus | 003 | Fig. 4 | P4 > P2 | P4 > P2 | yes | agree |" in text
+
+
+def test_every_test_the_claims_table_names_exists():
+    source = (SRC / "claims_table.py").read_text(encoding="utf-8")
+    named = set(re.findall(r"(?<![\w/])test_\w+(?![\w.])", source))  # test functions, not test_*.py files
+    tests = "\n".join(p.read_text(encoding="utf-8") for p in (SRC.parents[2] / "tests").glob("test_*.py"))
+    defined = set(re.findall(r"^def (test_\w+)", tests, flags=re.M))
+    assert named and not named - defined, named - defined

@@ -19,7 +19,7 @@ import os
 import sys
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from distnav import __version__
@@ -175,20 +175,29 @@ class _CliLogHandler(logging.StreamHandler):  # type: ignore[type-arg]
         self.setFormatter(logging.Formatter("%(message)s"))
 
     def emit(self, record: logging.LogRecord) -> None:
-        self.setStream(sys.stderr)
+        self.stream = sys.stderr  # not setStream(): that flushes the previous stream, which may be closed
         record = logging.makeLogRecord(record.__dict__)
         record.msg, record.args = f"{record.levelname.lower()}: {record.getMessage()}", None
         super().emit(record)
 
 
-def _configure_logging() -> None:
+def _configure_logging() -> Callable[[], None]:
     """Library modules log through :mod:`logging` (loggers ``distnav.*``) and never print; the CLI shows their
-    warnings and errors on stderr as ``warning: ...``. An application embedding distnav configures logging itself."""
+    warnings and errors on stderr as ``warning: ...`` while it runs. An application embedding distnav configures
+    logging itself. Returns the function that undoes this (so an in-process ``main`` leaves logging as it was)."""
     logger = logging.getLogger("distnav")
-    if not any(isinstance(h, _CliLogHandler) for h in logger.handlers):
-        logger.addHandler(_CliLogHandler())
-    if logger.level == logging.NOTSET:
+    if any(isinstance(h, _CliLogHandler) for h in logger.handlers):
+        return lambda: None
+    handler, level = _CliLogHandler(), logger.level
+    logger.addHandler(handler)
+    if level == logging.NOTSET:
         logger.setLevel(logging.WARNING)
+
+    def undo() -> None:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+
+    return undo
 
 
 def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
@@ -209,10 +218,13 @@ def _user_error(exc: BaseException) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """The ``distnav`` command: 0 on success, 2 on a user error (``error: ...`` on stderr), 1 when a command
     computed nothing usable. ``argparse`` ends bad option values with ``SystemExit(2)``."""
-    _configure_logging()
-    with warnings.catch_warnings():
-        warnings.showwarning = _show_warning
-        return _main(argv)
+    undo_logging = _configure_logging()
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return _main(argv)
+    finally:
+        undo_logging()
 
 
 def _main(argv: Sequence[str] | None) -> int:

@@ -206,6 +206,9 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
             raise ModelError("innovation tests need the node-local precision: give local_precision='exact' or "
                              "'bound' with test_level")
         critical = critical_value(test_level)
+        if type(measurements).observations is MeasurementSeries.observations:
+            raise ModelError(f"innovation tests need the raw observations; {type(measurements).__name__} holds "
+                             f"normal equations only (use an ObservationSeries)")
     track_L = (variance and ex.faults.active) or local_precision is not None
     L_nominal = consensus_product(sched, kn) if (variance and not ex.faults.active) else None
     L2_nominal = L_nominal[nodes] ** 2 if L_nominal is not None else None  # once, not every epoch

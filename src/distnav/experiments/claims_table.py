@@ -49,6 +49,7 @@ def _fmt(v: Any) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ adapters
+_FIG6_TEST = "tests/test_admm.py::test_literal_fig6_weighting_is_biased_on_irregular_graphs_but_not_on_regular_ones"
 def _admm(r: dict[str, Any]) -> list[Row]:
     t = "tests/test_experiment_admm.py::"
     rows: list[Callable[[], Row]] = [
@@ -70,9 +71,10 @@ def _admm(r: dict[str, Any]) -> list[Row]:
                       test="tests/test_admm.py::test_admm_equals_blue"),
         lambda: claim(paper="000", where="Fig. 6", text="Fig. 6 as printed (plain-mean x-update) gives the BLUE",
                       paper_value="= BLUE", distnav_value="0.5 % off unless every c_i is equal", ok=False,
-                      why="not in results.json: measured in tests on irregular vs regular graphs (docs/admm.md)",
-                      test="tests/test_admm.py::test_literal_fig6_weighting_is_biased_on_irregular_graphs_but_not_"
-                      "on_regular_ones"),
+                      why="not in results.json: measured in tests on irregular vs regular graphs (docs/admm.md); "
+                      "weighting its z-update by 1/c_i repairs it (x_weight='fig6-zweighted', tested in "
+                      "test_printed_fig6_x_update_with_a_1_over_c_weighted_z_update_converges_to_the_blue)",
+                      test=_FIG6_TEST),
         lambda: _admm_fig5(r, t),
         lambda: _admm_rho(r, t),
         lambda: claim(paper="000", where="Fig. 10 / §4.3",
@@ -106,7 +108,7 @@ def _admm_fig5(r: dict[str, Any], t: str) -> Row:
                  ok=all(v == draws for v in slower.values()),
                  why="holds for small ρ only: with the Lagrangian's weighting a node with fewer constraint "
                  "neighbours is held less tightly, which helps at large ρ (docs/admm.md)",
-                 test=t + "test_fig5_study_structure")
+                 test=t + "test_fig5_reduced_set_is_slower_at_small_rho_and_faster_at_large_rho")
 
 
 def _admm_rho(r: dict[str, Any], t: str) -> Row:
@@ -141,8 +143,8 @@ def _codebias(r: dict[str, Any]) -> list[Row]:
         lambda: claim(paper="000", where="Fig. 9", text="ρ = 0.5 is the fastest of ρ = 5, 0.5, 0.05, 0.005",
                       paper_value="0.5", distnav_value=_fmt_its(_get(r, "iterations_to_1e-3")),
                       ok=fastest(_get(r, "iterations_to_1e-3")) == "0.5",
-                      why="iterations to 1 mm (None: not within the run), ρ against one epoch's normals "
-                      "(docs/gnss.md)", test=""),
+                      why="iterations to 1 mm (—: not within the run), ρ against one epoch's normals "
+                      "(docs/gnss.md)", test=t + "test_small_reproduction"),
         lambda: claim(paper="000", where="Fig. 10", text="the previous solution as initial value converges fastest",
                       paper_value="prev.", distnav_value="to 1 cm: " + _fmt_its(
                           _get(r, "iterations_to_1e-2_by_init_rho_0.5")) + "; to 1 mm: " + _fmt_its(
