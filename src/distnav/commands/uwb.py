@@ -158,6 +158,9 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
             if k not in known_pos:
                 held[k] = {2: z}
     fixed = {k: v for k, v in known_pos.items() if k in index}
+    if not fixed:
+        raise DataFileError(f"{known}: none of the known anchors ({', '.join(unused_known[:10])}) appears in "
+                            f"{ranges} (whose anchors are {', '.join(ids[:10])}{' …' if len(ids) > 10 else ''})")
 
     def full_array(path: Path, what: str) -> np.ndarray:
         pos, d = read_positions(path)
