@@ -6,6 +6,7 @@ by shortest paths), refined by SMACOF stress majorization on the measured pairs 
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import orthogonal_procrustes
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
@@ -57,10 +58,10 @@ def smacof(links: np.ndarray, dist_m: np.ndarray, x0: np.ndarray, iterations: in
 
 
 def _procrustes(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation/reflection ``R`` and translation ``t`` minimising ``‖src R + t − dst‖`` (no scaling)."""
+    """Rotation/reflection ``R`` and translation ``t`` minimising ``‖src R + t − dst‖`` (no scaling): the orthogonal
+    Procrustes problem of the centred point sets (:func:`scipy.linalg.orthogonal_procrustes`)."""
     ms, md = src.mean(axis=0), dst.mean(axis=0)
-    u, _, vt = np.linalg.svd((src - ms).T @ (dst - md))
-    r = u @ vt
+    r, _ = orthogonal_procrustes(src - ms, dst - md)
     return r, md - ms @ r
 
 
