@@ -64,9 +64,6 @@ def validate_arguments(args: argparse.Namespace) -> None:
         raise ModelError(f"--l1-code {args.l1_code}: not a GPS L1 code (C1C, C1W, C1L, C1X …)")
     if not _LB_CODE.match(args.l2_code.upper()):
         raise ModelError(f"--l2-code {args.l2_code}: not a GPS L2 or L5 code (C2W, C2L, C2X, C5Q, C5X …)")
-    from distnav.commands.gnss import check_data_arguments  # gnss.py registers this module: import lazily
-
-    check_data_arguments(args)
     for opt, value in (("--sigma", args.sigma), ("--regional-km", args.regional_km)):
         if value is not None and not (np.isfinite(value) and value > 0.0):
             raise ModelError(f"{opt} {value:g}: must be a positive number")
@@ -86,6 +83,9 @@ def validate_arguments(args: argparse.Namespace) -> None:
             raise DataFileError(f"--c1-corrections {args.c1_corrections}: file not found")
     if args.reference is not None and not re.match(r"^[A-Za-z0-9]{4}$", args.reference):
         raise ModelError(f"--reference {args.reference}: not a 4-character station name")
+    from distnav.commands.gnss import check_data_arguments  # gnss.py registers this module: import lazily
+
+    check_data_arguments(args)  # the shared data options, then whether the named files exist
 
 
 def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = "C1C", l2_code: str = "C2W",
