@@ -50,12 +50,29 @@ class XUpdate:
         Wi = c[:, None, None] * W[None]  # (n, p, p)
         if method == "normal":
             N_i, _ = problem.normal_equations
-            AtRi = np.einsum("nmp,nmk->npk", problem.A, problem.R_inv)
+            R_inv = problem.R_inv
+            r_diag = _diagonal_or_none(R_inv)
+            if r_diag is None:
+                AtRi = np.einsum("nmp,nmk->npk", problem.A, R_inv)
+            else:  # the same products without the zero terms (bitwise equal, see _diagonal_or_none)
+                AtRi = np.swapaxes(problem.A * r_diag[:, :, None], 1, 2)
             self.G = np.linalg.solve(N_i + Wi, AtRi)  # (n, p, m)
         elif method == "observation":
-            Winv = np.linalg.inv(W)[None] / c[:, None, None]
-            S = problem.R + np.einsum("nmp,npq,nkq->nmk", problem.A, Winv, problem.A)
-            self.G = np.einsum("npq,nmq->npm", Winv, problem.A) @ np.linalg.inv(S)
+            Winv1 = np.linalg.inv(W)
+            w_diag = _diagonal_or_none(Winv1[None])
+            if w_diag is None:
+                Winv = Winv1[None] / c[:, None, None]
+                S = problem.R + np.einsum("nmp,npq,nkq->nmk", problem.A, Winv, problem.A)
+                WinvAt = np.einsum("npq,nmq->npm", Winv, problem.A)
+            else:  # W⁻¹ diagonal (W = ρI): A_i W_i⁻¹ A_iᵀ term by term in the einsum's order, ~10× faster
+                w = w_diag[0][None, :] / c[:, None]  # (n, p): the diagonal of W_i⁻¹
+                Aw = self.A * w[:, None, :]  # (n, m, p)
+                acc = np.zeros((n, m, m))
+                for j in range(p):
+                    acc += Aw[:, :, j, None] * self.A[:, None, :, j]
+                S = problem.R + acc
+                WinvAt = np.swapaxes(Aw, 1, 2)
+            self.G = WinvAt @ np.linalg.inv(S)
         else:
             N_i, r_i = problem.normal_equations
             self.L = np.linalg.cholesky(N_i + Wi)
@@ -71,6 +88,18 @@ class XUpdate:
         res = self.y - (self.A @ l[..., None])[..., 0]
         x = l + (self.G @ res[..., None])[..., 0]
         return x
+
+
+def _diagonal_or_none(M: np.ndarray) -> np.ndarray | None:
+    """The diagonals ``(n, k)`` of a stack ``(n, k, k)`` whose off-diagonal entries are all exactly zero, else None.
+
+    Then every product with an off-diagonal entry in an einsum over ``M`` is ±0 and adding it leaves the (finite)
+    running sum unchanged, so the sums without those terms are bitwise those of the einsum (the x-update set-up
+    stays bitwise equal to the einsum form; tests/test_admm_setup.py checks it)."""
+    k = M.shape[-1]
+    d = np.diagonal(M, axis1=-2, axis2=-1)
+    off = M.reshape(M.shape[0], -1)[:, :-1].reshape(M.shape[0], k - 1, k + 1)[:, :, 1:]  # entries off the diagonal
+    return np.ascontiguousarray(d) if not off.any() else None
 
 
 def _cholesky_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -179,12 +208,8 @@ class _Kernel:
         self.out_from_pair[self.op] = self.op_pair
         # at constraint node s: z_{i,s} arrives on in-edges i→s
         self.ic = np.flatnonzero(self.inC_loc[ex.in_dst] & real_in)
-        n_ic = self.ic.size
         self.S_c = _segment_matrix(ex.in_dst[self.ic], nl)
         self.size_s = (np.bincount(ex.in_dst[self.ic], minlength=nl) + 1).astype(float)  # |N_s|
-        n_in = ex.in_edges.size
-        self.S_pairs_all = sp.csr_matrix((np.ones(n_pairs), (self.pair_dst, self.ip)), shape=(nl, n_in))
-        self.S_c_all = sp.csr_matrix((np.ones(n_ic), (ex.in_dst[self.ic], self.ic)), shape=(nl, n_in))
         self.out_buf = np.zeros((ex.out_edges.size, p))
         self.w_iso = float(W[0, 0]) if np.array_equal(W, W[0, 0] * np.eye(p)) else None
         self.size_c = self.size_s * self.inC_loc
@@ -291,6 +316,9 @@ class _Kernel:
             mix_x = ex.mixer(ConsensusWeights(g, self.to_c.astype(float), inC_f, name="sum into C"), active=self.to_c)
             mix_z = ex.mixer(ConsensusWeights(g, self.from_c.astype(float), inC_f, name="sum from C"),
                              active=self.from_c)
+        nl, n_in = ex.n_local, ex.in_edges.size  # segment sums over the whole inbox (built here: aggregated only)
+        S_pairs_all = sp.csr_matrix((np.ones(self.ip.size), (self.pair_dst, self.ip)), shape=(nl, n_in))
+        S_c_all = sp.csr_matrix((np.ones(self.ic.size), (ex.in_dst[self.ic], self.ic)), shape=(nl, n_in))
         cm = self.inC_loc[:, None].astype(float)
         inv_count = 1.0 / self.count[:, None]
         inv_size = cm / self.size_s[:, None]
@@ -306,7 +334,7 @@ class _Kernel:
                 return mix_x.apply(x), None
             inbox = ex.broadcast(x, active=self.to_c)
             vals = held_x.update(inbox.values, inbox.delivered, self.ic, fill=fill)
-            out = self.S_c_all @ vals
+            out = S_c_all @ vals
             out += x * cm
             return out, vals
 
@@ -315,7 +343,7 @@ class _Kernel:
                 return mix_z.apply(z)
             inbox = ex.broadcast(z, active=self.from_c)
             vals = held_z.update(inbox.values, inbox.delivered, self.ip, fill=fill)
-            out: np.ndarray = self.S_pairs_all @ vals
+            out: np.ndarray = S_pairs_all @ vals
             out += z
             return out
 
