@@ -19,7 +19,7 @@ def _problem(rng: np.random.Generator, n: int, m: int, p: int, variances: bool) 
 @pytest.mark.parametrize("W", [3.0, "diag"])
 def test_observation_form_gain_is_bitwise_the_einsum_form(variances: bool, W: object) -> None:
     rng = np.random.default_rng(11)
-    n, m, p = 400, 5, 10
+    n, m, p = 4500, 5, 10  # several blocks of 2048 nodes
     prob = _problem(rng, n, m, p, variances)
     Wm = 3.0 * np.eye(p) if W == 3.0 else np.diag(rng.uniform(0.5, 4.0, p))
     c = rng.integers(1, 9, n).astype(float)

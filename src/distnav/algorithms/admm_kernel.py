@@ -68,8 +68,10 @@ class XUpdate:
                 w = w_diag[0][None, :] / c[:, None]  # (n, p): the diagonal of W_i⁻¹
                 Aw = self.A * w[:, None, :]  # (n, m, p)
                 acc = np.zeros((n, m, m))
-                for j in range(p):
-                    acc += Aw[:, :, j, None] * self.A[:, None, :, j]
+                for a in range(0, n, 2048):  # blocks of nodes whose sums stay in cache over the p terms
+                    acc_b, A_b, Aw_b = acc[a:a + 2048], self.A[a:a + 2048], Aw[a:a + 2048]
+                    for j in range(p):
+                        acc_b += Aw_b[:, :, j, None] * A_b[:, None, :, j]
                 S = problem.R + acc
                 WinvAt = np.swapaxes(Aw, 1, 2)
             self.G = WinvAt @ np.linalg.inv(S)
