@@ -14,7 +14,15 @@ from typing import Any, Literal, TypedDict, get_args
 
 import numpy as np
 
-from distnav.algorithms.admm_kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
+from distnav.algorithms.admm_kernel import (
+    AdmmState,
+    Multipliers,
+    XUpdate,
+    XUpdateMethod,
+    _diagonal_or_none,
+    _Kernel,
+    _per_node,
+)
 from distnav.algorithms.lsq import LinearProblem, inestimable_directions, weight_matrix
 from distnav.algorithms.result import ObservationTests, Precision, SolverResult, SolverStatus, TraceBuilder
 from distnav.errors import ModelError
@@ -141,11 +149,19 @@ def check_stopping(max_iterations: int, tol: float, atol: float) -> None:
         raise ModelError(f"tolerances must be ≥ 0, got tol={tol}, atol={atol}")
 
 
-def _check_estimable(problem: LinearProblem, local: LinearProblem, ex: Exchange) -> None:
+def _check_estimable(problem: LinearProblem, local: LinearProblem, ex: Exchange, need_blocks: bool) -> None:
     """Refuse a problem whose ``N = Σ N_i`` is singular (paper 000, eq. (2)), as :func:`~distnav.algorithms.lsq.blue`
     does: ADMM would converge and report the initial value for an inestimable direction. ``N`` is a network sum of
-    ``p × p`` blocks (``ex.allreduce``, a set-up check like the stopping rule's totals)."""
-    N_local = local.normal_equations[0].sum(axis=0)
+    ``p × p`` blocks (``ex.allreduce``, a set-up check like the stopping rule's totals). With ``R_i`` diagonal and the
+    per-node ``N_i`` not needed otherwise (the observation-form x-update), the block's sum is one ``(p × m n)`` product
+    instead of ``n`` whitened ``N_i`` (only this rank test reads it)."""
+    r_diag = None if need_blocks else _diagonal_or_none(local.R)
+    if r_diag is None:
+        N_local = local.normal_equations[0].sum(axis=0)
+    else:
+        p = local.n_params
+        A = local.A.reshape(-1, p)
+        N_local = (A / r_diag.reshape(-1, 1)).T @ A
     N = np.asarray(ex.allreduce(N_local, "sum"), dtype=float)
     text = inestimable_directions(N, problem.param_label)
     if text is not None:
@@ -185,7 +201,7 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
                          "converges to a wrong point); use messages='pairs' with a fault schedule")
     if messages == "aggregated" and x_weight == "fig6-zweighted":
         raise ModelError("x_weight='fig6-zweighted' weights the z-update per pair: use messages='pairs'")
-    _check_estimable(problem, local, ex)
+    _check_estimable(problem, local, ex, need_blocks=xu.method != "observation")
     z_weight = 1.0 / C.per_node_count.astype(float) if x_weight == "fig6-zweighted" else None
     kernel = _Kernel(ex, C, Wm, p, xu, z_weight=z_weight)
     u0 = options.get("multipliers")
