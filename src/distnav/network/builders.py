@@ -211,7 +211,9 @@ def from_edges(
         ids = [(index[a], index[b]) for a, b in edge_list]
         return Graph.from_links(len(names), ids, names=names, positions=positions, self_loops=self_loops,
                                 allow_duplicates=allow_duplicates)
-    arr = np.asarray(edge_list).reshape(-1, 2) if edge_list else np.zeros((0, 2), int)
+    arr = np.asarray(edge_list) if edge_list else np.zeros((0, 2), int)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise GraphError(f"edges must be pairs (shape (n_edges, 2)), got shape {arr.shape}")
     if n_nodes is None:
         n_nodes = len(names) if names is not None else (int(arr.max()) + 1 if arr.size else 1)
     return Graph.from_links(n_nodes, arr, names=names, positions=positions, self_loops=self_loops,
