@@ -196,7 +196,16 @@ def from_edges(
 
     With string names and no ``names`` given, nodes are named in order of first appearance.
     """
-    edge_list = list(edges) if not isinstance(edges, np.ndarray) else edges.tolist()
+    if isinstance(edges, np.ndarray):
+        if edges.size and (edges.ndim != 2 or edges.shape[1] != 2):
+            raise GraphError(f"edges must be pairs (shape (n_edges, 2)), got shape {edges.shape}")
+        edge_list = edges.tolist()
+    else:
+        edge_list = list(edges)
+        bad = next((k for k, e in enumerate(edge_list)
+                    if isinstance(e, str) or not hasattr(e, "__len__") or len(e) != 2), None)
+        if bad is not None:
+            raise GraphError(f"edge #{bad} is {edge_list[bad]!r}, not a pair of node ids or names")
     if edge_list and all(isinstance(v, str) for e in edge_list for v in e):
         if names is None:
             order: dict[str, int] = {}
