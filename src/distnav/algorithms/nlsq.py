@@ -301,7 +301,7 @@ class _DampedSolver:
 @single_threaded_blas()
 def levenberg_marquardt(
     fun: Callable[[np.ndarray], np.ndarray],
-    jac: Callable[[np.ndarray], Any],
+    jac: Callable[[np.ndarray], np.ndarray | sp.spmatrix | sp.sparray],
     x0: np.ndarray,
     *,
     loss: str = "linear",
@@ -333,7 +333,7 @@ def levenberg_marquardt(
     def normal(jm: Any, w_: np.ndarray, g_: np.ndarray) -> tuple[Any, np.ndarray]:
         return solver.normal(jm, None if loss == "linear" else w_, g_)
 
-    J = jac(x)
+    J: Any = jac(x)  # dense or any scipy sparse format: used through its array interface
     solver = _DampedSolver(J, dense_limit)
     A, grad = normal(J, w, g)
     converged, message, k = False, f"stopped after {max_iterations} iterations", 0
