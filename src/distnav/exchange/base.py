@@ -27,7 +27,7 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -42,6 +42,8 @@ if TYPE_CHECKING:
 __all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "incoming_edges"]
 
 ReduceOp = Literal["sum", "max", "min"]
+#: What :meth:`Exchange.allreduce` reduces: a number or an array (returned as the same kind).
+Reducible = TypeVar("Reducible", bound="float | np.ndarray")
 
 
 @dataclass(frozen=True, eq=False)
@@ -332,7 +334,7 @@ class Exchange(ABC):
         """Values on outgoing edges → values on incoming edges (in :attr:`in_edges` order)."""
 
     @abstractmethod
-    def allreduce(self, value: Any, op: ReduceOp = "sum") -> Any:
+    def allreduce(self, value: Reducible, op: ReduceOp = "sum") -> Reducible:
         """Reduce a scalar or array over all blocks (monitoring only)."""
 
     @abstractmethod
