@@ -26,9 +26,6 @@ from distnav import options
 from distnav.cli import main
 from distnav.errors import DistnavError
 
-GNSS = "owned by helper gnss (models/gnss, commands/gnss*) — issue 14: option values checked before reading files"
-UWB = "owned by helper uwb (models/uwb, commands/uwb.py) — issue 13"
-SCALE = "owned by helper scale (network/*, exchange/*): a project error, not a bare ValueError"
 ALGO = "owned by the algorithms helpers: refuse a run of no iterations instead of a 'usable' zero result"
 
 
@@ -129,6 +126,22 @@ def _uwb_cases() -> list[Cli]:
         Cli("uwb-solve-loss-scale-zero", (*base, *o, "--loss", "huber", "--loss-scale-m", "0"), "loss"),
         Cli("uwb-solve-loss-scale-negative", (*base, *o, "--loss", "huber", "--loss-scale-m", "-1"), "loss"),
         Cli("uwb-solve-loss-scale-nan", (*base, *o, "--loss", "huber", "--loss-scale-m", "nan"), "loss"),
+        Cli("uwb-solve-objective", (*base, *o, "--objective", "cubic"), "invalid choice"),
+        Cli("uwb-solve-sigma-zero", (*base, *o, "--sigma-m", "0"), "--sigma-m"),
+        Cli("uwb-solve-sigma-text", (*base, *o, "--sigma-m", "tight"), "invalid float value"),
+        Cli("uwb-solve-no-exclude-value", (*base, *o, "--no-exclude=yes"), "ignored explicit"),
+        Cli("uwb-solve-level-zero", (*base, *o, "--level", "0"), "level"),
+        Cli("uwb-solve-level-one", (*base, *o, "--level", "1.5"), "level"),
+        Cli("uwb-solve-range-offsets", (*base, *o, "--range-offsets", "all"), "invalid choice"),
+        Cli("uwb-solve-offset-prior-negative", (*base, *o, "--range-offsets", "per_anchor",
+                                                 "--offset-prior-sigma-m", "-1"), "offset-prior-sigma-m"),
+        Cli("uwb-solve-allow-planar-value", (*base, *o, "--allow-planar-3d=yes"), "ignored explicit"),
+        Cli("uwb-solve-strict-value", (*base, *o, "--strict=yes"), "ignored explicit"),
+        Cli("uwb-import-april-no-log", ("uwb", "import-april", *o), "required: log"),
+        Cli("uwb-import-april-missing", ("uwb", "import-april", "{tmp}/none.txt", *o), "none.txt"),
+        Cli("uwb-import-april-no-out", ("uwb", "import-april", "{file}"), "required: --out"),
+        Cli("uwb-import-april-known", ("uwb", "import-april", "--known", "8,x", *o, "{file}"), "--known"),
+        Cli("uwb-import-april-delays", ("uwb", "import-april", "--delays", "auto", *o, "{file}"), "invalid choice"),
     ]
     for key, flag in files + [("initial", "--initial"), ("truth", "--truth"), ("heights", "--heights")]:
         argv = tuple("{tmp}/missing.csv" if a == f"{{{key}}}" else a for a in base)
@@ -136,13 +149,12 @@ def _uwb_cases() -> list[Cli]:
             argv = (*base, flag, "{tmp}/missing.csv")
         cases.append(Cli(f"uwb-solve-{key}-missing", (*argv, *o), "missing.csv"))
     # malformed files: each error names the file
-    missing_known = UWB + ": name the known anchor that no range mentions (today: 'got 0 fixed anchors')"
     for key, content, expect, owner in [
         ("ranges", "", "empty", None), ("ranges", "a,b\nA00,A01\n", "range_m", None),
         ("ranges", "a,b,range_m\nA00,A01,far\n", ":2", None), ("ranges", "a,b,range_m\nA00,A01,-3\n", ":2", None),
         ("ranges", "a,b,range_m\nA00,A00,3\n", ":2", None), ("ranges", "a,b,range_m\nA00,A01,nan\n", ":2", None),
         ("known", "id,x_m\nA00,1\n", "y_m", None), ("known", "id,x_m,y_m,z_m\nA00,1,2,zz\n", ":2", None),
-        ("known", "id,x_m,y_m,z_m\nZZ9,1,2,3\n", "ZZ9", missing_known),
+        ("known", "id,x_m,y_m,z_m\nZZ9,1,2,3\n", "ZZ9", None),
         ("known", "id,x_m,y_m,z_m\nA00,1,2,3\nA00,1,2,3\n", "twice", None),
     ]:
         argv = tuple(f"{{write:{key}:{content}}}" if a == f"{{{key}}}" else a for a in base)
@@ -187,27 +199,46 @@ def _gnss_cases() -> list[Cli]:
             if cmd == "ionosphere" and opt == "--sigma" and value == "-1":
                 continue
             cases.append(Cli(f"gnss-{cmd}-{opt[2:]}-{value.split()[0]}", (*argv, *o, opt, *value.split()),
-                             opt, GNSS))
+                             opt))
     cases += [
-        Cli("gnss-codebias-rho-zero", (*cb, *o, "--rho", "0"), "--rho", GNSS),
-        Cli("gnss-codebias-iterations-zero", (*cb, *o, "--iterations", "0"), "--iterations", GNSS),
+        Cli("gnss-codebias-rho-zero", (*cb, *o, "--rho", "0"), "--rho"),
+        Cli("gnss-codebias-iterations-zero", (*cb, *o, "--iterations", "0"), "--iterations"),
         Cli("gnss-codebias-codes-garbage", (*cb, *o, "--codes", "L1:C1C"), "--codes"),
-        Cli("gnss-codebias-graph-missing", (*cb, *o, "--graph", "{tmp}/none.csv"), "none.csv", GNSS),
+        Cli("gnss-codebias-graph-missing", (*cb, *o, "--graph", "{tmp}/none.csv"), "none.csv"),
         Cli("gnss-ionosphere-kn-negative", (*io, *o, "--kn", "-1"), "--kn"),
-        Cli("gnss-ionosphere-pivot-garbage", (*io, *o, "--pivot", "XYZ"), "--pivot", GNSS),
-        Cli("gnss-ionosphere-l1-code", (*io, *o, "--l1-code", "Q9"), "--l1-code", GNSS),
-        Cli("gnss-ionosphere-regional-zero", (*io, *o, "--regional-km", "0"), "--regional-km", GNSS),
+        Cli("gnss-ionosphere-pivot-garbage", (*io, *o, "--pivot", "XYZ"), "--pivot"),
+        Cli("gnss-ionosphere-l1-code", (*io, *o, "--l1-code", "Q9"), "--l1-code"),
+        Cli("gnss-ionosphere-regional-zero", (*io, *o, "--regional-km", "0"), "--regional-km"),
         Cli("gnss-codebias-backend", (*cb, *o, "--backend", "tcp"), "invalid choice"),
         Cli("gnss-codebias-no-progress-value", (*cb, *o, "--no-progress=yes"), "ignored explicit"),
-        Cli("gnss-codebias-reference-empty", (*cb, *o, "--reference", ""), "--reference", GNSS),
-        Cli("gnss-codebias-bias-missing", (*cb, *o, "--bias", "{tmp}/none.bia"), "none.bia", GNSS),
+        Cli("gnss-codebias-reference-empty", (*cb, *o, "--reference", ""), "--reference"),
+        Cli("gnss-codebias-bias-missing", (*cb, *o, "--bias", "{tmp}/none.bia"), "none.bia"),
         Cli("gnss-ionosphere-backend", (*io, *o, "--backend", "tcp"), "invalid choice"),
         Cli("gnss-ionosphere-weighting", (*io, *o, "--weighting", "cos"), "invalid choice"),
         Cli("gnss-ionosphere-no-progress-value", (*io, *o, "--no-progress=yes"), "ignored explicit"),
         Cli("gnss-ionosphere-nav-and-sp3", (*io, *o, "--sp3", "{nav}"), "not allowed with argument"),
-        Cli("gnss-ionosphere-graph-missing", (*io, *o, "--graph", "{tmp}/none.csv"), "none.csv", GNSS),
-        Cli("gnss-ionosphere-bias-missing", (*io, *o, "--bias", "{tmp}/none.bia"), "none.bia", GNSS),
-        Cli("gnss-ionosphere-l2-code", (*io, *o, "--l2-code", "Q9"), "--l2-code", GNSS),
+        Cli("gnss-ionosphere-graph-missing", (*io, *o, "--graph", "{tmp}/none.csv"), "none.csv"),
+        Cli("gnss-ionosphere-bias-missing", (*io, *o, "--bias", "{tmp}/none.bia"), "none.bia"),
+        Cli("gnss-ionosphere-l2-code", (*io, *o, "--l2-code", "Q9"), "--l2-code"),
+        Cli("gnss-ionosphere-datum", (*io, *o, "--datum", "mean"), "invalid choice"),
+        Cli("gnss-ionosphere-reference", (*io, *o, "--reference", "BELE00BRA"), "--reference"),
+        Cli("gnss-ionosphere-exclude", (*io, *o, "--exclude", "TOOLONG"), "--exclude"),
+        Cli("gnss-ionosphere-compare-exclude", (*io, *o, "--compare-exclude", "X1"), "exclude"),
+        Cli("gnss-ionosphere-c1-corrections-missing", (*io, *o, "--c1-corrections", "{tmp}/none.bia"),
+            "--c1-corrections"),
+        Cli("gnss-ionosphere-c1-corrections-c1w", (*io, *o, "--l1-code", "C1W", "--c1-corrections", "{file}"),
+            "--c1-corrections"),
+        Cli("gnss-ionosphere-levelling", (*io, *o, "--levelling", "smooth"), "invalid choice"),
+        Cli("gnss-ionosphere-min-arc", (*io, *o, "--min-arc", "0"), "--min-arc"),
+        Cli("gnss-ionosphere-gf-threshold", (*io, *o, "--gf-threshold", "0"), "--gf-threshold"),
+        Cli("gnss-ionosphere-no-screening-value", (*io, *o, "--no-screening=yes"), "ignored explicit"),
+        Cli("gnss-ionosphere-allow-other-day-value", (*io, *o, "--allow-other-day=yes"), "ignored explicit"),
+        Cli("gnss-compare-filter", ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}", "--filter",
+                                    "best"), "--filter"),
+        Cli("gnss-compare-exclude", ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}", "--exclude",
+                                     "G99"), "--exclude"),
+        Cli("gnss-compare-allow-other-day-value", ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}",
+                                                   "--allow-other-day=yes"), "ignored explicit"),
     ]
     return cases
 
@@ -331,13 +362,12 @@ def _api_cases() -> list[Api]:
         Api("graph-bad-link", lambda: Graph.from_links(3, [(0, 5)]), "5"),
         Api("graph-self-link", lambda: Graph.from_links(3, [(1, 1)]), "1"),
         Api("weights-unknown", lambda: consensus_weights(ring, "P9"), "P9"),
-        Api("exchange-backend", lambda: make_exchange(ring, backend="carrier-pigeon"), "carrier-pigeon", SCALE),
+        Api("exchange-backend", lambda: make_exchange(ring, backend="carrier-pigeon"), "carrier-pigeon"),
         Api("faults-probability", lambda: FaultSchedule(drop_probability=1.5), "drop"),
         Api("consensus-rounds-negative", lambda: average_consensus(np.ones(5), graph=ring, rounds=-1), "rounds"),
         Api("consensus-values-shape", lambda: average_consensus(np.ones(4), graph=ring, rounds=3), "5"),
         Api("consensus-nan", lambda: average_consensus(np.full(5, np.nan), graph=ring, rounds=3), "finite"),
-        Api("consensus-product-rounds", lambda: consensus_product(consensus_weights(ring, "P3"), -2), "rounds",
-            "owned by the algorithms helpers (consensus.py): -2 rounds returns a matrix instead of an error"),
+        Api("consensus-product-rounds", lambda: consensus_product(consensus_weights(ring, "P3"), -2), "rounds"),
         Api("lsq-shapes", lambda: LinearProblem.from_blocks([np.eye(2)], [np.zeros(3)]), "node 0"),
         Api("lsq-R-not-pd", lambda: LinearProblem.from_blocks([np.eye(2)], [np.zeros(2)], [-np.eye(2)]),
             "node 0"),

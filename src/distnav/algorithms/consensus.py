@@ -224,6 +224,8 @@ def consensus_product(schedule: ConsensusSchedule | ConsensusWeights, rounds: in
     After ``rounds`` rounds every node holds ``r^(k_n) = L r``; row ``l_i`` of ``L`` is what the CKF error-variance
     recursion needs (paper 003 Fig. 7).
     """
+    if rounds < 0:
+        raise WeightsError(f"rounds must be ≥ 0, got {rounds}")
     if isinstance(schedule, ConsensusWeights):
         schedule = ConsensusSchedule(schedule.graph, (schedule,), (None,))
     n = schedule.graph.n_nodes

@@ -23,6 +23,7 @@ import csv
 import importlib
 import importlib.util
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -112,6 +113,7 @@ def _run_codebias(args: argparse.Namespace) -> int:
     from distnav.models.gnss.rinex import read_code_observations, read_navigation, read_sp3
     from distnav.output import atomic_write_json, atomic_write_text
 
+    _check_codebias_arguments(args)
     codes = _parse_codes(args.codes)
     tlim = tuple(args.tlim) if args.tlim else None
     obs = []
@@ -127,7 +129,9 @@ def _run_codebias(args: argparse.Namespace) -> int:
         if ref not in names:
             raise ModelError(f"--reference {args.reference}: not one of the stations {', '.join(names)}")
         obs.insert(0, obs.pop(names.index(ref)))
-    orbit = (read_navigation(Path(args.nav), max_age_s=args.nav_max_age * 3600.0) if args.nav
+    if args.nav and len(args.nav) > 1:
+        raise ModelError("gnss codebias takes one --nav file")
+    orbit = (read_navigation(Path(args.nav[0]), max_age_s=args.nav_max_age * 3600.0) if args.nav
              else read_sp3([Path(p) for p in args.sp3]))
     data = codebias_data_from_observations(obs, orbit, sigma0_m=args.sigma, weighting=args.weighting,
                                            mask_rad=np.deg2rad(args.mask))
@@ -273,10 +277,22 @@ def _print_comparison(summary: dict[str, Any]) -> None:
         print(f"  note: {summary['warning']}")
 
 
+_FILTER = re.compile(r"^(central|(ckf|local):[A-Za-z0-9]{4})$")
+_SATELLITE = re.compile(r"^G(0[1-9]|[12][0-9]|3[0-2])$")
+
+
 def _run_compare(args: argparse.Namespace) -> int:
     from distnav.output import atomic_write_json
 
+    if not _FILTER.match(args.filter):
+        raise ModelError(f"--filter {args.filter}: expected central, ckf:STATION or local:STATION (e.g. ckf:BELE)")
+    for sat in args.exclude or []:
+        if not _SATELLITE.match(sat.upper()):
+            raise ModelError(f"--exclude {sat}: not a GPS satellite (G01 … G32)")
     path = Path(args.estimates)
+    if (path.is_dir() and (path / "summary.json").exists()) or path.name == "summary.json" or \
+            ".bia" in path.name.lower() or ".bsx" in path.name.lower():
+        return _run_compare_dsb(args, path)
     if path.is_dir():
         path = path / "codebias.json"
     if not path.exists():
@@ -294,6 +310,39 @@ def _run_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_compare_dsb(args: argparse.Namespace, path: Path) -> int:
+    """``gnss compare`` of receiver/satellite DSBs (ionosphere output or a Bias-SINEX file) with products."""
+    from distnav.models.gnss.products import compare_in_datum, product_dsbs, read_estimates
+    from distnav.output import atomic_write_json
+
+    est = read_estimates(path, filter_label=args.filter)
+    products = product_dsbs(args.bias, sorted(est.satellite), sorted(est.station), est.obs1, est.obs2)
+    result: dict[str, Any] = {"estimates": est.source, "codes": [est.obs1, est.obs2], "filter": args.filter,
+                              "products": {}}
+    for prod in products:
+        if prod.day is not None and est.days and prod.day not in est.days and not args.allow_other_day:
+            raise ModelError(f"{prod.path.name}: a product of {prod.day}, the estimates are of "
+                             f"{', '.join(str(d) for d in est.days)} (--allow-other-day to compare anyway)")
+        r = compare_in_datum(est.satellite, est.station, prod, exclude=[e.upper() for e in args.exclude or []])
+        r["notes"] = prod.notes
+        result["products"][prod.name] = r
+        print(f"\n{est.obs1}-{est.obs2} DSBs vs {prod.name} (estimate − product after aligning the datum over "
+              f"{r.get('n', 0)} common satellites, ns)")
+        if not r.get("n"):
+            print(f"  {r.get('note')}")
+            continue
+        for sv, d in sorted(r["difference_ns"].items()):
+            print(f"  {sv}  {d:+8.3f}")
+        print(f"  datum offset {r['datum_offset_ns']:+.3f}   RMS {r['rms_zero_mean_ns']:.3f}   max "
+              f"{r['max_abs_zero_mean_ns']:.3f} ({r['worst']})")
+        for sta, d in r.get("receivers", {}).get("difference_ns", {}).items():
+            print(f"  receiver {sta}  {d:+8.3f}")
+    if args.out:
+        atomic_write_json(Path(args.out) / "comparison.json", result)
+        print(f"written {Path(args.out) / 'comparison.json'}")
+    return 0
+
+
 def _say(args: argparse.Namespace, text: str) -> None:
     if not getattr(args, "no_progress", False):
         print(text, file=sys.stderr, flush=True)
@@ -306,7 +355,8 @@ def add_data_arguments(parser: argparse.ArgumentParser, *, obs_note: str = "") -
     parser.add_argument("--obs", nargs="+", required=True, metavar="FILE",
                         help=f"RINEX 2.11/3.x observation files (.o/.d/.crx, gzip ok), one per station{obs_note}")
     orbit = parser.add_mutually_exclusive_group(required=True)
-    orbit.add_argument("--nav", metavar="FILE", help="RINEX navigation file (broadcast ephemerides)")
+    orbit.add_argument("--nav", nargs="+", metavar="FILE",
+                       help="RINEX navigation file (broadcast ephemerides); one per day for several days")
     orbit.add_argument("--sp3", nargs="+", metavar="FILE", help="SP3 orbit files")
     parser.add_argument("--nav-max-age", type=float, default=4.0, metavar="HOURS",
                         help="use a broadcast record up to this far from its toe (default 4 h; elevations only need "
@@ -315,6 +365,44 @@ def add_data_arguments(parser: argparse.ArgumentParser, *, obs_note: str = "") -
     parser.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")
     parser.add_argument("--interval", type=float, default=None, help="keep epochs on this grid [s] (e.g. 60)")
     parser.add_argument("--mask", type=float, default=10.0, help="elevation mask [deg] (default 10)")
+
+
+def check_data_arguments(args: argparse.Namespace) -> None:
+    """Check the values of the shared data options (:func:`add_data_arguments`) before any file is read; errors
+    name the option (the CLI exits with 2)."""
+    for opt, value in (("--interval", args.interval), ("--nav-max-age", args.nav_max_age)):
+        if value is not None and not (np.isfinite(value) and value > 0.0):
+            raise ModelError(f"{opt} {value:g}: must be a positive number")
+    if not 0.0 <= args.mask < 90.0:
+        raise ModelError(f"--mask {args.mask:g}: the elevation mask must lie in [0, 90) degrees")
+    if args.tlim:
+        try:
+            t0, t1 = (np.datetime64(t, "s") for t in args.tlim)
+        except ValueError:
+            raise ModelError(f"--tlim {' '.join(args.tlim)}: not ISO date/times (e.g. 2024-01-10T06:00)") from None
+        if not t0 < t1:
+            raise ModelError(f"--tlim {' '.join(args.tlim)}: the start must be before the stop")
+    for opt, files in (("--obs", args.obs), ("--nav", args.nav), ("--sp3", args.sp3),
+                       ("--graph", [args.graph] if args.graph else None),
+                       ("--bias", getattr(args, "bias", None))):
+        for f in files or []:
+            if not Path(f).is_file():
+                raise DataFileError(f"{opt} {f}: file not found")
+    out = getattr(args, "out", None)
+    if out is not None and Path(out).exists() and not Path(out).is_dir():
+        raise DataFileError(f"--out {out}: exists and is not a folder")
+
+
+def _check_codebias_arguments(args: argparse.Namespace) -> None:
+    check_data_arguments(args)
+    for opt, value in (("--sigma", args.sigma), ("--rho", args.rho)):
+        if not (np.isfinite(value) and value > 0.0):
+            raise ModelError(f"{opt} {value:g}: must be a positive number")
+    if args.iterations < 1:
+        raise ModelError(f"--iterations must be ≥ 1, got {args.iterations}")
+    if args.reference is not None and not args.reference.strip():
+        raise ModelError("--reference is empty: give a station name (e.g. BELE)")
+    _parse_codes(args.codes)
 
 
 def register(subparsers: Any) -> None:
@@ -338,11 +426,17 @@ def register(subparsers: Any) -> None:
     cb.set_defaults(func=_run_codebias)
 
     cmp_ = sub.add_parser("compare", help="compare estimated code biases with Bias-SINEX products")
-    cmp_.add_argument("--estimates", required=True, help="codebias.json (or its folder) of `distnav gnss codebias`")
+    cmp_.add_argument("--estimates", required=True,
+                      help="codebias.json (or its folder) of `distnav gnss codebias`, the output folder or "
+                           "summary.json of `distnav gnss ionosphere`, or a Bias-SINEX file (e.g. its distnav_dsb.bia)")
     cmp_.add_argument("--bias", nargs="+", required=True, metavar="FILE",
-                      help="Bias-SINEX files (.BIA/.BSX, gzip ok); DSBs missing from the first are taken from "
-                           "the next (e.g. GFZ C1W-C2W completed with CAS C1C-C1W and C1C-C5X)")
+                      help="Bias-SINEX files (.BIA/.BSX, gzip ok) or IONEX files with a DCB block; DSBs missing "
+                           "from the first are taken from the next (e.g. GFZ C1W-C2W completed with CAS C1C-C1W)")
     cmp_.add_argument("--out", help="write comparison.json here")
+    cmp_.add_argument("--filter", default="central",
+                      help="which filter of a `gnss ionosphere` output to compare (central, ckf:STA, local:STA)")
+    cmp_.add_argument("--exclude", nargs="+", metavar="SAT", help="satellites left out of the statistics (e.g. G01)")
+    cmp_.add_argument("--allow-other-day", action="store_true", help="compare with a product of another day")
     cmp_.set_defaults(func=_run_compare)
 
     # ---- room for more gnss sub-commands (issue 7: ``distnav gnss ionosphere``) ----

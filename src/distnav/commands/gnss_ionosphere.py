@@ -28,9 +28,11 @@ from __future__ import annotations
 import argparse
 import csv
 import io
+import json
+import re
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -39,26 +41,9 @@ import numpy as np
 from distnav.commands import add_backend_arguments, command_exchange
 from distnav.errors import DataFileError, ModelError
 
-__all__ = ["add_ionosphere_parser", "add_parser", "IonosphereNetworkData", "network_data", "network_model",
-           "run_ionosphere", "product_dcbs", "compare_dcbs"]
+__all__ = ["add_ionosphere_parser", "add_parser", "network_data", "run_ionosphere", "validate_arguments"]
 
 REGIONAL_KM = 500.0
-
-
-@dataclass(frozen=True, eq=False)
-class IonosphereNetworkData:
-    """Everything the filters need from the real data: stations, epochs, geometry, model and series."""
-
-    stations: list[str]
-    codes: dict[int, str]
-    t_gps_s: np.ndarray
-    geometry: Any
-    layout: Any
-    series: Any
-    dynamics: Any
-    ionosphere: str
-    positions_ecef_m: np.ndarray
-    notes: list[str]
 
 
 def _say(args: argparse.Namespace, text: str) -> None:
@@ -66,114 +51,149 @@ def _say(args: argparse.Namespace, text: str) -> None:
         print(text, file=sys.stderr, flush=True)
 
 
+_PRN = re.compile(r"^G(0[1-9]|[12][0-9]|3[0-2])$")
+_L1_CODE = re.compile(r"^C1[CSLXPWYMN]$")
+_LB_CODE = re.compile(r"^C(2[CDSLXPWYMN]|5[IQX])$")
+
+
+def validate_arguments(args: argparse.Namespace) -> None:
+    """Check every option value before any file is read (errors name the option; the CLI exits with 2)."""
+    if args.pivot is not None and not _PRN.match(str(args.pivot).upper()):
+        raise ModelError(f"--pivot {args.pivot}: not a GPS satellite (G01 … G32)")
+    if args.l1_code is not None and not _L1_CODE.match(args.l1_code.upper()):
+        raise ModelError(f"--l1-code {args.l1_code}: not a GPS L1 code (C1C, C1W, C1L, C1X …)")
+    if not _LB_CODE.match(args.l2_code.upper()):
+        raise ModelError(f"--l2-code {args.l2_code}: not a GPS L2 or L5 code (C2W, C2L, C2X, C5Q, C5X …)")
+    from distnav.commands.gnss import check_data_arguments  # gnss.py registers this module: import lazily
+
+    check_data_arguments(args)
+    for opt, value in (("--sigma", args.sigma), ("--regional-km", args.regional_km)):
+        if value is not None and not (np.isfinite(value) and value > 0.0):
+            raise ModelError(f"{opt} {value:g}: must be a positive number")
+    if args.kn < 0:
+        raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
+    if args.min_arc < 2:
+        raise ModelError(f"--min-arc must be ≥ 2 epochs, got {args.min_arc}")
+    if not (np.isfinite(args.gf_threshold) and args.gf_threshold > 0.0):
+        raise ModelError(f"--gf-threshold {args.gf_threshold:g}: must be a positive number of metres")
+    for e in (args.exclude or []) + (args.compare_exclude or []):
+        if not (_PRN.match(e.upper()) or re.match(r"^[A-Za-z0-9]{4}$", e)):
+            raise ModelError(f"--exclude {e}: neither a GPS satellite (G01 … G32) nor a 4-character station")
+    if getattr(args, "c1_corrections", None):
+        if args.l1_code is not None and args.l1_code.upper() != "C1C":
+            raise ModelError(f"--c1-corrections applies to --l1-code C1C, not {args.l1_code}")
+        if not Path(args.c1_corrections).exists():
+            raise DataFileError(f"--c1-corrections {args.c1_corrections}: file not found")
+    if args.reference is not None and not re.match(r"^[A-Za-z0-9]{4}$", args.reference):
+        raise ModelError(f"--reference {args.reference}: not a 4-character station name")
+
+
 def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = "C1C", l2_code: str = "C2W",
                  tlim: tuple[str, str] | None = None, interval_s: float | None = None, mask_deg: float = 10.0,
-                 pivot: str | None = "G10", ionosphere: str = "auto", regional_km: float = REGIONAL_KM,
-                 sigma_zenith_m: float | None = None, weighting: str = "sin") -> IonosphereNetworkData:
-    """Read the stations, form the geometry-free observable on the union of their epochs, and build the model.
+                 ionosphere: str = "auto", regional_km: float = REGIONAL_KM, sigma_zenith_m: float | None = None,
+                 weighting: str = "sin", reference: str | None = None, progress: Any = None,
+                 exclude: Sequence[str] = (), levelling: bool = True, min_arc_epochs: int = 10,
+                 gf_threshold_m: float = 0.05, screen: bool = True, c1_corrections: str | None = None) -> Any:
+    """Read the stations, form the geometry-free code on the union of their epochs and build the bias model
+    (:func:`distnav.models.gnss.gfnetwork.bias_network_model`). ``exclude``: satellites (``G01``) and stations
+    (``BELE``) left out. ``levelling``: carrier-to-code levelling per arc on the full-rate data, then the
+    ``interval_s`` grid (:func:`~distnav.models.gnss.levelling.level_station`; ``screen`` runs each station's
+    w-test screening of its own code). Errors name the file: unreadable files, missing code types, a station
+    without any epoch with both codes."""
+    from distnav.models.gnss.gfnetwork import read_stations
 
-    Raises :class:`~distnav.errors.DataFileError` naming the file for unreadable files, missing code types or a
-    station without any epoch with two satellites on both frequencies, and :class:`~distnav.errors.ModelError`
-    when the orbit gives no position at the epochs or when no satellite is tracked by two stations.
-    """
-    from distnav.models.gnss.ionosphere import geometry_free_m
+    obs = read_stations(list(obs_files), l1_code=l1_code, l2_code=l2_code, tlim=tlim,
+                        interval_s=None if levelling else interval_s, phases=levelling, progress=progress)
+    if c1_corrections:
+        from distnav.models.gnss.products import correct_c1
+
+        obs = [correct_c1(o, c1_corrections) for o in obs]
+    return network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
+                                     ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
+                                     weighting=weighting, reference=reference, exclude=exclude, levelling=levelling,
+                                     min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen)
+
+
+def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = "C2W",
+                              interval_s: float | None = None, mask_deg: float = 10.0, ionosphere: str = "auto",
+                              regional_km: float = REGIONAL_KM, sigma_zenith_m: float | None = None,
+                              weighting: str = "sin", reference: str | None = None, exclude: Sequence[str] = (),
+                              levelling: bool = True, min_arc_epochs: int = 10, gf_threshold_m: float = 0.05,
+                              screen: bool = True) -> Any:
+    """:func:`network_data` from observations already read (:class:`~distnav.models.gnss.rinex.CodeObservations`
+    with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid)."""
+    from distnav.models.gnss.gfbias import geometry_free_band_m
+    from distnav.models.gnss.gfnetwork import bias_network_model
     from distnav.models.gnss.orbits import gps_seconds
-    from distnav.models.gnss.rinex import read_code_observations
 
-    if not obs_files:
-        raise DataFileError("no observation file given")
-    codes = {1: l1_code.upper(), 2: l2_code.upper()}
-    obs = [read_code_observations(p, bands=(1, 2), codes=codes, tlim=tlim, interval_s=interval_s)
-           for p in obs_files]
+    band = int(l2_code[1])
+    excl = {e.upper() for e in exclude}
+    obs = [o for o in obs if o.station not in excl]
+    if not obs:
+        raise DataFileError("every station is excluded")
     stations = [o.station for o in obs]
-    dup = sorted({s for s in stations if stations.count(s) > 1})
-    if dup:
-        twice = ", ".join(str(o.path) for o in obs if o.station == dup[0])
-        raise DataFileError(f"station {dup[0]} is given twice ({twice})")
     notes = [f"{o.station}: {n}" for o in obs for n in o.notes]
-    for o in obs:
-        pos = o.position_ecef_m
-        if not (np.all(np.isfinite(pos)) and np.linalg.norm(pos) > 6.0e6):
-            raise DataFileError(f"{o.path}: no usable APPROX POSITION XYZ in the header ({pos.tolist()})")
-    t_all = np.unique(np.concatenate([gps_seconds(o.time) for o in obs]))
-    svs_all = sorted({s for o in obs for s in o.svs})
+    levelled = {o.station: _level(o, orbit, band, mask_deg, min_arc_epochs, gf_threshold_m, screen, i)
+                for i, o in enumerate(obs)} if levelling else {}
+    if levelling and interval_s:
+        from distnav.models.gnss.rinex_obs import on_grid
+
+        grids = {o.station: on_grid(o.time, interval_s) for o in obs}
+    else:
+        grids = {o.station: np.ones(o.time.size, bool) for o in obs}
+    t_all = np.unique(np.concatenate([gps_seconds(o.time[grids[o.station]]) for o in obs]))
+    svs_all = sorted({s for o in obs for s in o.svs} - excl)
     T, n, S = t_all.size, len(obs), len(svs_all)
     gf = np.full((T, n, S), np.nan)
     for i, o in enumerate(obs):
-        ti = np.searchsorted(t_all, gps_seconds(o.time))
-        si = np.array([svs_all.index(s) for s in o.svs], dtype=np.int64)
-        g = geometry_free_m(o.range_m[1], o.range_m[2])
+        keep_t = grids[o.station]
+        ti = np.searchsorted(t_all, gps_seconds(o.time[keep_t]))
+        cols = [k for k, sv in enumerate(o.svs) if sv not in excl]
+        si = np.array([svs_all.index(o.svs[k]) for k in cols], dtype=np.int64)
+        full = levelled[o.station].gf_m if levelling else geometry_free_band_m(o.range_m[1], o.range_m[band], band)
+        g = full[keep_t][:, cols]
         gf[np.ix_(ti, np.array([i]), si)] = g[:, None, :]
-        both = np.isfinite(g).sum(axis=1) >= 2
-        if not both.any():
-            raise DataFileError(f"{o.path}: no epoch with two or more GPS satellites on both {codes[1]} and "
-                                f"{codes[2]} (missing frequency?)")
+        if not (np.isfinite(o.range_m[1]) & np.isfinite(o.range_m[band])).any():
+            raise DataFileError(f"{o.path}: no epoch with a GPS satellite on both {o.codes[1]} and {o.codes[band]} "
+                                f"(missing frequency?)")
+    if excl:
+        notes.append(f"excluded: {' '.join(sorted(excl))}")
+    codes = {o.station: dict(o.codes) for o in obs}
     xyz = np.stack([o.position_ecef_m for o in obs])
-    return network_model(stations, t_all, xyz, gf, svs_all, orbit, codes=codes, mask_deg=mask_deg, pivot=pivot,
-                         ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
-                         weighting=weighting, notes=notes, paths=[str(o.path) for o in obs])
+    for sta, lev in levelled.items():
+        n_rm = int(lev.removed.sum())
+        notes.append(f"{sta}: levelled {len(lev.arcs)} arcs (starts: "
+                     f"{', '.join(f'{k} {v}' for k, v in sorted(lev.starts.items()))}; {lev.dropped_short} shorter "
+                     f"than {min_arc_epochs} epochs dropped); screening removed {n_rm} code observations")
+    data = bias_network_model(stations, t_all, xyz, gf, svs_all, orbit, band=band, codes=codes, mask_deg=mask_deg,
+                              ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
+                              weighting=weighting, reference=reference, notes=notes,
+                              paths=[str(o.path) for o in obs])
+    return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs})
 
 
-def network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray, gf_m: np.ndarray,
-                  svs_all: Sequence[str], orbit: Any, *, codes: dict[int, str] | None = None, mask_deg: float = 10.0,
-                  pivot: str | None = "G10", ionosphere: str = "auto", regional_km: float = REGIONAL_KM,
-                  sigma_zenith_m: float | None = None, weighting: str = "sin", notes: list[str] | None = None,
-                  paths: list[str] | None = None) -> IonosphereNetworkData:
-    """The model of :func:`network_data` from arrays: undifferenced geometry-free observations ``gf_m``
-    (T, n, S) [m] (NaN = not observed) at ``t_gps_s`` for stations at ``xyz`` (n, 3)."""
-    from distnav.models.gnss.ionosphere import (
-        GF_SIGMA_ZENITH_M,
-        IonosphereStateLayout,
-        choose_pivot,
-        geometry_free_series,
-        ionosphere_dynamics,
-        ionosphere_geometry,
-    )
+def _level(o: Any, orbit: Any, band: int, mask_deg: float, min_arc_epochs: int, gf_threshold_m: float,
+           screen: bool, node: int) -> Any:
+    """Level one station's geometry-free code per arc (σ of the code from the elevation: σ₀/sin θ)."""
+    from distnav.models.gnss.geometry import azimuth_elevation
+    from distnav.models.gnss.levelling import level_station
+    from distnav.models.gnss.orbits import gps_seconds
 
-    codes = codes or {1: "C1C", 2: "C2W"}
-    notes = list(notes or [])
-    paths = paths or list(stations)
-    t_all = np.asarray(t_gps_s, dtype=float)
-    gf = np.asarray(gf_m, dtype=float)
-    T, n, S = gf.shape
-    base_km = float(np.max(np.linalg.norm(xyz[:, None] - xyz[None], axis=-1))) / 1e3 if n > 1 else 0.0
-    mode = ionosphere
-    if mode == "auto":
-        mode = "common" if base_km <= regional_km else "per-receiver"
-        notes.append(f"ionosphere: {mode} (longest baseline {base_km:.0f} km, regional limit {regional_km:.0f} km)")
-    geo = ionosphere_geometry(orbit, t_all, receivers_ecef_m=xyz, names=stations, svs=svs_all, mask_deg=mask_deg,
-                              ionosphere=mode)
-    if not np.isfinite(geo.el_rad).any():
-        raise ModelError(f"the orbit gives no satellite position at the observation epochs "
-                         f"({_iso(t_all[0])} – {_iso(t_all[-1])}): wrong navigation/SP3 file?")
-    no_orbit = [svs_all[k] for k in range(S)
-                if np.isfinite(gf[:, :, k]).any() and not np.isfinite(geo.el_rad[:, :, k]).any()]
-    if no_orbit:
-        notes.append(f"no orbit at the observation epochs for {' '.join(no_orbit)} (dropped; a sparse broadcast file "
-                     f"may need a larger --nav-max-age)")
-    geo = geo.with_tracked(np.isfinite(gf))
-    pair = geo.tracked.sum(axis=2, keepdims=True) >= 2
-    geo = geo.with_tracked(np.broadcast_to(pair, geo.tracked.shape))
-    for i in range(n):
-        if not geo.tracked[:, i].any():
-            raise DataFileError(f"{paths[i]}: no epoch with two or more satellites above the {mask_deg:g}° mask with "
-                                f"{codes[1]} and {codes[2]} (or no orbit for them)")
-    seen = np.asarray(geo.tracked.any(axis=(0, 1)))
-    if n > 1 and not (np.asarray(geo.tracked.any(axis=0)).sum(axis=0) >= 2).any():
-        raise ModelError("no satellite is tracked by two or more stations: the stations share no parameter")
-    keep = [k for k in range(S) if seen[k]]
-    svs = tuple(svs_all[k] for k in keep)
-    geo = ionosphere_geometry(orbit, t_all, receivers_ecef_m=xyz, names=stations, svs=svs, mask_deg=mask_deg,
-                              ionosphere=mode).with_tracked(geo.tracked[:, :, keep])
-    piv = choose_pivot(svs, geo.tracked, pivot)
-    if pivot is not None and piv != pivot:
-        notes.append(f"pivot {pivot} not tracked: {piv} (tracked longest) used instead")
-    layout = IonosphereStateLayout(svs, piv, n_ionospheres=1 if mode == "common" else n)
-    sig = GF_SIGMA_ZENITH_M if sigma_zenith_m is None else float(sigma_zenith_m)
-    series = geometry_free_series(geo, layout, obs_m=gf[:, :, keep], sigma_zenith_m=sig, weighting=weighting)
-    dt = np.concatenate([[np.nan], np.diff(t_all)]) if T > 1 else np.array([30.0])
-    dyn = ionosphere_dynamics(layout, dt if T > 1 else 30.0)
-    return IonosphereNetworkData(stations, codes, t_all, geo, layout, series, dyn, mode, xyz, notes)
+    if band not in o.phase_m or 1 not in o.phase_m:
+        raise DataFileError(f"{o.path}: no carrier phase on L1 and L{band} for levelling (use --levelling none)")
+    t = gps_seconds(o.time)
+    svs = [s for s in o.svs if s in orbit.svs]
+    el = np.full((t.size, len(o.svs)), np.nan)
+    if svs:
+        _, e = azimuth_elevation(o.position_ecef_m, orbit.positions_ecef(t, svs))
+        el[:, [o.svs.index(s) for s in svs]] = e
+    above = np.isfinite(el) & (el > np.deg2rad(mask_deg))
+    p1, pb = np.where(above, o.range_m[1], np.nan), np.where(above, o.range_m[band], np.nan)
+    sigma = 1.0 / np.sin(np.where(above, el, 0.5 * np.pi))
+    lli = o.lli.get(1, np.zeros(p1.shape, np.int8)) | o.lli.get(band, np.zeros(p1.shape, np.int8))
+    return level_station(t, o.svs, p1, pb, o.phase_m[1], o.phase_m[band], band=band, lli=lli, sigma_m=sigma,
+                         min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen,
+                         fallback_raw=True, node=node)
 
 
 def _iso(t_gps_s: float) -> str:
@@ -182,94 +202,67 @@ def _iso(t_gps_s: float) -> str:
     return str(datetime_from_gps_seconds(t_gps_s))[:19]
 
 
-# ----------------------------------------------------------------------------------------------- products
-def product_dcbs(paths: Sequence[str | Path], svs: Sequence[str], obs1: str, obs2: str,
-                 ) -> list[tuple[str, dict[str, float], list[str]]]:
-    """Satellite DSBs ``obs1 − obs2`` [ns] of each product: ``[(name, {sv: dsb_ns}, notes)]``.
-
-    Bias-SINEX files are read with :func:`~distnav.models.gnss.bias_sinex.read_bias_sinex` and DSBs chained across
-    all given Bias-SINEX files (the file itself first); IONEX files give their P1−P2 satellite DCBs (C1W−C2W): a
-    C1C−C2W comparison against them carries the satellites' C1C−C1W biases (noted).
-    """
-    from distnav.models.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, resolve_dsb
-
-    sinex: list[Any] = []
-    out: list[tuple[str, dict[str, float], list[str]]] = []
-    kinds: list[tuple[str, Any]] = []
-    for p in paths:
-        path = Path(p)
-        try:
-            prod = read_bias_sinex(path)
-            sinex.append(prod)
-            kinds.append(("sinex", prod))
-        except DataFileError as exc_sinex:
-            try:
-                kinds.append(("ionex", read_ionex_dcb(path)))
-            except DataFileError as exc_ionex:
-                raise DataFileError(f"{path}: neither a Bias-SINEX file ({exc_sinex}) nor an IONEX file with a DCB "
-                                    f"block ({exc_ionex})") from None
-    for kind, prod in kinds:
-        values: dict[str, float] = {}
-        notes: list[str] = []
-        if kind == "sinex":
-            order = [prod] + [q for q in sinex if q is not prod]
-            for s in svs:
-                try:
-                    v, chain = resolve_dsb(order, obs1, obs2, prn=s)
-                except ModelError:
-                    continue
-                values[s] = v
-                if len(chain) > 1 or (chain and not chain[0].endswith(f"{obs1}-{obs2}")):
-                    notes.append(f"{s}: {' + '.join(chain)}")
-            name = f"{prod.name} {Path(prod.path).name}"
-        else:
-            for s in svs:
-                if s in prod.satellite:
-                    values[s] = prod.satellite[s][0]
-            name = f"IONEX {Path(prod.path).name}"
-            if (obs1, obs2) != ("C1W", "C2W"):
-                notes.append(f"IONEX DCBs are P1-P2 (C1W-C2W); estimates are {obs1}-{obs2}: differences include "
-                             f"the satellites' {obs1}-C1W biases")
-        out.append((name, values, notes))
-    return out
+def _l1_code(args: argparse.Namespace) -> tuple[str, str | None]:
+    """The L1 code: given, or matched to the comparison products (IONEX DCBs are P1−P2 → C1W), else C1C."""
+    if args.l1_code:
+        return args.l1_code.upper(), None
+    if args.bias and all(Path(b).name.lower().rstrip(".gz").endswith(("i", "inx")) for b in args.bias):
+        return "C1W", "--l1-code C1W chosen to match the IONEX products (P1-P2 DCBs)"
+    return "C1C", None
 
 
-def compare_dcbs(estimate_ns: dict[str, float], product_ns: dict[str, float], pivot: str) -> dict[str, Any]:
-    """Compare between-satellite DCBs ``DSB^s − DSB^p`` with a product aligned to the same pivot.
-
-    Returns per-satellite reference and difference and the statistics of the differences: mean, RMS, RMS after
-    removing the mean (zero-mean datum: insensitive to the pivot's own product value), max |·|, count.
-    """
-    if pivot not in product_ns:
-        return {"n": 0, "note": f"the product has no DCB for the pivot {pivot}"}
-    ref = {s: product_ns[s] - product_ns[pivot] for s in estimate_ns if s in product_ns and s != pivot}
-    diff = {s: estimate_ns[s] - ref[s] for s in ref if np.isfinite(estimate_ns[s])}
-    d = np.array(list(diff.values()))
-    if d.size == 0:
-        return {"n": 0, "note": "no satellite in common"}
-    return {"n": int(d.size), "mean_ns": float(d.mean()), "rms_ns": float(np.sqrt(np.mean(d**2))),
-            "rms_zero_mean_ns": float(np.std(d)), "max_abs_ns": float(np.max(np.abs(d))),
-            "reference_ns": ref, "difference_ns": diff}
+C1C_WARNING = ("WARNING: L1 code C1C (RINEX 2 C1). The satellites' C1C-C1W biases (up to 1-2 ns) go into the DCBs: "
+               "compare only with C1C-{l2} products (CAS), not with P1-P2 / C1W-{l2} ones (IONEX, GFZ), or use "
+               "--l1-code C1W where every station tracks P1.")
 
 
-# ----------------------------------------------------------------------------------------------- command
 def run_ionosphere(args: argparse.Namespace) -> int:
     """Handler of ``distnav gnss ionosphere``."""
-    from distnav.algorithms.ckf import ckf
-    from distnav.algorithms.kalman import central_filter, local_filters
-    from distnav.models.gnss.ionosphere import GF_M_PER_DSB_NS, TEC_NAMES, TECU_L1_M, dcb_ns_from_gf_m
+    from distnav.models.gnss.gfnetwork import run_bias_filters
+    from distnav.models.gnss.ionosphere import TEC_NAMES, TECU_L1_M
+    from distnav.models.gnss.products import compare_in_datum, product_dsbs
     from distnav.models.gnss.rinex import read_navigation, read_sp3
     from distnav.output import atomic_write_json, atomic_write_text
 
-    if args.kn < 0:
-        raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
-    orbit = (read_navigation(args.nav, max_age_s=args.nav_max_age * 3600.0) if args.nav else read_sp3(args.sp3))
+    validate_arguments(args)
+    days = _split_days(args)
+    if len(days) > 1:
+        return _run_days(args, days)
+    l1, l1_note = _l1_code(args)
+    l2 = args.l2_code.upper()
+    if l1_note:
+        _say(args, l1_note)
+    if l1 == "C1C" and not args.c1_corrections:
+        print(C1C_WARNING.format(l2=l2), file=sys.stderr, flush=True)
+    if args.bias:
+        for b in args.bias:
+            if not Path(b).exists():
+                raise DataFileError(f"{b}: file not found")
+    if args.nav and len(args.nav) > 1:
+        raise ModelError(f"{len(args.nav)} --nav files for one day of observations: give one")
+    orbit = (read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0) if args.nav else read_sp3(args.sp3))
     tlim = tuple(args.tlim) if args.tlim else None
-    _say(args, f"reading {len(args.obs)} observation file(s)")
-    data = network_data(args.obs, orbit, l1_code=args.l1_code, l2_code=args.l2_code, tlim=tlim,  # type: ignore[arg-type]
-                        interval_s=args.interval, mask_deg=args.mask, pivot=args.pivot, ionosphere=args.ionosphere,
-                        regional_km=args.regional_km, sigma_zenith_m=args.sigma, weighting=args.weighting)
-    stations, layout, series, dyn = data.stations, data.layout, data.series, data.dynamics
+
+    def progress(label: str, fraction: float) -> None:
+        _say(args, f"reading {label}: {100 * fraction:3.0f} %")
+
+    data = network_data(args.obs, orbit, l1_code=l1, l2_code=l2, tlim=tlim,
+                        interval_s=args.interval, mask_deg=args.mask, ionosphere=args.ionosphere,
+                        regional_km=args.regional_km, sigma_zenith_m=args.sigma, weighting=args.weighting,
+                        reference=args.reference, progress=progress, exclude=args.exclude or (),
+                        levelling=args.levelling == "arc", min_arc_epochs=args.min_arc,
+                        gf_threshold_m=args.gf_threshold, screen=not args.no_screening,
+                        c1_corrections=args.c1_corrections)
+    if args.c1_corrections:
+        l1 = "C1W"
+    stations, layout = data.stations, data.layout
+    pivot = args.pivot.upper() if args.pivot else None
+    if args.datum == "pivot":
+        if pivot is None:
+            raise ModelError("--datum pivot needs --pivot PRN")
+        if pivot not in layout.svs:
+            raise ModelError(f"--pivot {pivot}: not tracked above the mask by any station (tracked: "
+                             f"{' '.join(layout.svs)})")
     n = len(stations)
     if args.graph:
         from distnav.commands.gnss import load_edges
@@ -277,117 +270,236 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         graph = load_edges(Path(args.graph), stations)
     else:
         graph = _default_graph(data.positions_ecef_m, stations)
-    _say(args, f"{n} station(s), {series.n_epochs} epochs, {len(layout.svs)} satellites, pivot {layout.pivot}, "
-               f"ionosphere {data.ionosphere}; graph links {[(stations[i], stations[j]) for i, j in graph.links]}")
-    central = central_filter(dyn, series).series
-    local = local_filters(dyn, series).series
-    res = ckf(dyn, series, graph=graph, protocol="P3", rounds=args.kn, monitor=False,
-              exchange=command_exchange(args, graph))
-    ck = res.series
-
-    names = layout.state_names(stations)
-    n_tec = layout.n_tec
-    filters = [("central", central, 0)] + [(f"local:{s}", local, i) for i, s in enumerate(stations)] + \
-              [(f"ckf:{s}", ck, i) for i, s in enumerate(stations)]
+    _say(args, f"{n} station(s), {data.series.n_epochs} epochs, {len(layout.svs)} satellites, datum {args.datum}, "
+               f"estimation basis: receiver {layout.reference}; ionosphere {data.ionosphere}; graph links "
+               f"{[(stations[i], stations[j]) for i, j in graph.links]}")
+    series, comm = run_bias_filters(data, datum=args.datum, pivot=pivot, reference=args.reference,
+                                    graph=graph, kn=args.kn, exchange=command_exchange(args, graph))
+    obj = [f"rx:{r}" for r in stations] + list(layout.svs)
     out = Path(args.out)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["time_gps", "filter", "parameter", "value", "std"])
     times = [_iso(t) for t in data.t_gps_s]
-    dcb_names = [f"dcb_ns:{s}-{layout.pivot}" for s in layout.dcb_svs]
+    tec_names = [nm for g in range(layout.n_ionospheres)
+                 for nm in ((f"{stations[g]}:" if layout.n_ionospheres > 1 else "") + t for t in TEC_NAMES)]
     for t, tt in enumerate(times):
-        for label, s, row in filters:
-            x, sd = s.estimates[t, row], s.std[t, row]
-            for k in range(n_tec):
-                if np.isfinite(x[k]):
-                    w.writerow([tt, label, names[k], f"{x[k]:.5f}", f"{sd[k]:.5f}"])
+        for s in series:
+            for k, nm in enumerate(tec_names):
+                x, sd = s.tec[t, k], s.tec_std[t, k]
+                if np.isfinite(x):
+                    w.writerow([tt, s.label, nm, f"{x:.5f}", f"{sd:.5f}"])
                     if k % 3 == 0:
-                        base = names[k].replace("vtec_m", "vtec_tecu")
-                        w.writerow([tt, label, base, f"{x[k] / TECU_L1_M:.4f}", f"{sd[k] / TECU_L1_M:.4f}"])
-            xd = dcb_ns_from_gf_m(x[n_tec:])
-            sdd = sd[n_tec:] / GF_M_PER_DSB_NS
-            for k, nm in enumerate(dcb_names):
-                if np.isfinite(xd[k]):
-                    w.writerow([tt, label, nm, f"{xd[k]:.4f}", f"{sdd[k]:.4f}"])
+                        w.writerow([tt, s.label, nm.replace("vtec_m", "vtec_tecu"), f"{x / TECU_L1_M:.4f}",
+                                    f"{sd / TECU_L1_M:.4f}"])
+            for k, nm in enumerate(obj):
+                x, sd = s.dsb_ns[t, k], s.dsb_std_ns[t, k]
+                if np.isfinite(x):
+                    w.writerow([tt, s.label, f"dsb_ns:{nm}", f"{x:.4f}", f"{sd:.4f}"])
     atomic_write_text(out / "tec_dcb_per_epoch.csv", buf.getvalue())
 
-    # final DCBs and comparison with products
-    scale = 1.0 / GF_M_PER_DSB_NS
-
-    def final(s: Any, row: int) -> tuple[dict[str, float], dict[str, float]]:
-        xd = dcb_ns_from_gf_m(s.estimates[-1, row, n_tec:])
-        sd = s.std[-1, row, n_tec:] * scale
-        return (dict(zip(layout.dcb_svs, xd.tolist(), strict=True)),
-                dict(zip(layout.dcb_svs, sd.tolist(), strict=True)))
-
-    finals = {label: final(s, row) for label, s, row in filters}
-    products = product_dcbs(args.bias, layout.svs, data.codes[1], data.codes[2]) if args.bias else []
+    finals = {s.label: ({o: float(v) for o, v in zip(obj, s.dsb_ns[-1].tolist(), strict=True)},
+                        {o: float(v) for o, v in zip(obj, s.dsb_std_ns[-1].tolist(), strict=True)}) for s in series}
+    products = product_dsbs(args.bias, layout.svs, stations, l1, l2) if args.bias else []
+    _check_days(products, data.t_gps_s, args.allow_other_day)
     comparison: dict[str, Any] = {}
-    for pname, values, pnotes in products:
-        comparison[pname] = {"notes": pnotes,
-                             **{label: compare_dcbs(est, values, layout.pivot) for label, (est, _) in finals.items()}}
+    excl = [e.upper() for e in (args.compare_exclude or [])]
+    for prod in products:
+        comparison[prod.name] = {"notes": prod.notes}
+        for label, (val, _) in finals.items():
+            sat = {k: v for k, v in val.items() if not k.startswith("rx:")}
+            rx = {k[3:]: v for k, v in val.items() if k.startswith("rx:")}
+            comparison[prod.name][label] = compare_in_datum(sat, rx, prod, exclude=excl)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    head = ["satellite"]
-    for label, _, _ in filters:
-        head += [f"{label} dcb_ns", f"{label} std_ns"]
-    head += [f"{p} dcb_ns" for p, _, _ in products]
-    w.writerow(head)
-    for s in layout.dcb_svs:
-        row_out = [f"{s}-{layout.pivot}"]
-        for label, _, _ in filters:
-            v, sd = finals[label][0][s], finals[label][1][s]
+    w.writerow(["object"] + [f"{s.label} {q}" for s in series for q in ("dsb_ns", "std_ns")] +
+               [f"{p.name} dsb_ns" for p in products])
+    for o in obj:
+        row_out = [o]
+        for s in series:
+            v, sd = finals[s.label][0][o], finals[s.label][1][o]
             row_out += [f"{v:.4f}" if np.isfinite(v) else "", f"{sd:.4f}" if np.isfinite(sd) else ""]
-        for _, values, _ in products:
-            ref = values.get(s, np.nan) - values.get(layout.pivot, np.nan)
-            row_out.append(f"{ref:.4f}" if np.isfinite(ref) else "")
+        for p in products:
+            ref = p.station.get(o[3:]) if o.startswith("rx:") else p.satellite.get(o)
+            row_out.append(f"{ref:.4f}" if ref is not None else "")
         w.writerow(row_out)
     atomic_write_text(out / "dcb_final.csv", buf.getvalue())
 
-    tec_final = {label: {names[k]: (float(s.estimates[-1, row, k]), float(s.std[-1, row, k]))
-                         for k in range(n_tec)} for label, s, row in filters}
+    c = series[0]
     summary: dict[str, Any] = {
-        "stations": stations, "codes": {f"L{b}": c for b, c in data.codes.items()},
-        "epochs": series.n_epochs, "first_epoch": times[0], "last_epoch": times[-1],
-        "satellites": list(layout.svs), "pivot": layout.pivot, "ionosphere": data.ionosphere,
-        "tec_parameters": list(TEC_NAMES), "graph_links": [[stations[i], stations[j]] for i, j in graph.links],
-        "kn": args.kn, "protocol": "P3", "mask_deg": args.mask, "notes": data.notes,
-        "dcb_convention": "dcb_ns = DSB^s - DSB^p of the code pair (Bias-SINEX sign: biases add to observations)",
-        "final_tec_m": tec_final, "comparison": comparison,
-        "messages": res.comm.as_dict(),
+        "stations": stations, "codes": {"L1": l1, f"L{data.band}": l2}, "band": data.band,
+        "epochs": data.series.n_epochs, "first_epoch": times[0], "last_epoch": times[-1],
+        "satellites": list(layout.svs), "datum": args.datum, "pivot": pivot, "estimation_basis": layout.reference,
+        "ionosphere": data.ionosphere, "tec_parameters": tec_names,
+        "graph_links": [[stations[i], stations[j]] for i, j in graph.links], "kn": args.kn, "protocol": "P3",
+        "mask_deg": args.mask, "notes": data.notes,
+        "dcb_convention": f"DSB {l1}-{l2} in ns (Bias-SINEX sign: biases add to the observations), "
+                          f"datum {args.datum}",
+        "final_tec_m": {s.label: {nm: (float(s.tec[-1, k]), float(s.tec_std[-1, k]))
+                                  for k, nm in enumerate(tec_names)} for s in series},
+        "final_dsb_ns": {label: v for label, (v, _) in finals.items()},
+        "final_dsb_std_ns": {label: sd for label, (_, sd) in finals.items()},
+        "variance_factor": {s.label: s.variance_factor for s in series},
+        "innovations": {s.label: s.n_innovations for s in series},
+        "lag1_correlation": {s.label: s.lag1_correlation for s in series},
+        "final_dsb_std_realistic_ns": {s.label: {k: v * s.realistic_factor for k, v in finals[s.label][1].items()}
+                                       for s in series},
+        "comparison": comparison, "messages": comm.as_dict() if comm is not None else {},
+        "first_estimable_epoch": {o: (times[int(np.argmax(np.isfinite(c.dsb_ns[:, k])))]
+                                      if np.isfinite(c.dsb_ns[:, k]).any() else None) for k, o in enumerate(obj)},
     }
+    if data.levelled:
+        rows = ["station,satellite,first_epoch,last_epoch,n_epochs,start,offset_m,offset_std_m,code_rms_m,removed"]
+        for sta, lev in data.levelled.items():
+            for a in lev.arcs:
+                rows.append(f"{sta},{a.sv},{a.first},{a.last},{a.n_epochs},{a.start_reason},{a.offset_m:.4f},"
+                            f"{a.offset_std_m:.4f},{a.code_rms_m:.4f},{a.removed}")
+        atomic_write_text(out / "arcs.csv", "\n".join(rows) + "\n")
+        summary["arcs"] = {sta: lev.arc_summary() for sta, lev in data.levelled.items()}
+        summary["screening"] = {sta: lev.screening_summary(data.levelled_svs[sta])
+                                for sta, lev in data.levelled.items()}
+    fac = series[0].realistic_factor
+    post = (finals["central"][0], {k: v * fac for k, v in finals["central"][1].items()})
+    summary["bias_sinex"] = str(_write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times))
     atomic_write_json(out / "summary.json", summary)
-    _print_summary(stations, layout, comparison, finals)
+    _print_summary(stations, comparison, finals)
+    c0 = series[0]
+    print(f"precision: variance factor {c0.variance_factor or float('nan'):.2f}, lag-1 correlation of the predicted "
+          f"residuals {c0.lag1_correlation:.3f}: realistic σ = formal σ × {fac:.2f} (used in distnav_dsb.bia)")
     print(f"written {out / 'tec_dcb_per_epoch.csv'}, {out / 'dcb_final.csv'}, {out / 'summary.json'}")
     return 0
 
 
+def _split_days(args: argparse.Namespace) -> dict[str, list[str]]:
+    """Observation files by day (from the IGS file names; a name without a day goes with the first)."""
+    from distnav.models.gnss.products import product_day
+
+    by: dict[str, list[str]] = {}
+    for f in args.obs:
+        d = product_day(f)
+        by.setdefault(str(d) if d is not None else "", []).append(f)
+    if "" in by and len(by) > 1:
+        raise ModelError(f"cannot tell the day of {', '.join(by['']) }: use IGS file names or one day per run")
+    return by
+
+
+def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
+    """Several days: one solution per day (``DIR/YYYY-MM-DD/``), the combined one and the day-to-day
+    repeatability (``DIR/multiday.json``, ``DIR/distnav_dsb_combined.bia``)."""
+    from distnav.models.gnss.multiday import combine_days
+    from distnav.models.gnss.products import product_day
+    from distnav.output import atomic_write_json
+
+    if args.tlim:
+        raise ModelError("--tlim selects a window of one day; with files of several days leave it out")
+    navs: dict[str, str] = {}
+    for f in args.nav or []:
+        navs.setdefault(str(product_day(f)), f)
+    if args.nav and len(args.nav) > 1:
+        missing = [d for d in days if d not in navs]
+        if missing:
+            raise DataFileError(f"no --nav file of {', '.join(missing)} (navigation files: {', '.join(args.nav)})")
+        if len(navs) < len(args.nav):
+            raise DataFileError(f"two --nav files of the same day among {', '.join(args.nav)}")
+    out = Path(args.out)
+    summaries = {}
+    for day, files in sorted(days.items()):
+        sub = argparse.Namespace(**vars(args))
+        sub.obs, sub.out = files, str(out / day)
+        if args.nav:
+            sub.nav = [navs.get(day, args.nav[0])]
+        if args.bias:
+            sub.bias = [b for b in args.bias if product_day(b) in (None, np.datetime64(day))] or None
+        print(f"=== {day}: {len(files)} station file(s) ===")
+        rc = run_ionosphere(sub)
+        if rc != 0:
+            return rc
+        summaries[day] = json.loads((out / day / "summary.json").read_text())
+    result = combine_days(summaries)
+    atomic_write_json(out / "multiday.json", result)
+    _write_combined_sinex(out / "distnav_dsb_combined.bia", result, summaries)
+    rep = result["repeatability_ns"]
+    med = np.nanmedian([v for v in rep.values() if v is not None]) if rep else float("nan")
+    print(f"combined {len(summaries)} days: {len(result['combined_ns'])} DSBs; day-to-day repeatability (std) median "
+          f"{med:.3f} ns; written {out / 'multiday.json'}, {out / 'distnav_dsb_combined.bia'}")
+    return 0
+
+
+def _write_combined_sinex(path: Path, result: dict[str, Any], summaries: dict[str, Any]) -> None:
+    from distnav.models.gnss.bias_sinex import write_bias_sinex
+    from distnav.output import atomic_write_text
+
+    first = summaries[min(summaries)]
+    codes = list(first["codes"].values())
+    comb, sd = result["combined_ns"], result["combined_std_ns"]
+    text = write_bias_sinex(None, obs1=codes[0], obs2=codes[1], start=f"{min(summaries)}T00:00:00",
+                     end=np.datetime64(max(summaries)) + np.timedelta64(1, "D"),
+                     satellites={k: (v, sd[k]) for k, v in comb.items() if not k.startswith("rx:")},
+                     stations={k[3:]: (v, sd[k]) for k, v in comb.items() if k.startswith("rx:")},
+                     comments=[f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
+                               "zero-mean satellite datum over the satellites common to the days"])
+    atomic_write_text(path, str(text))
+
+
+def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str, float]], l1: str, l2: str,
+                 datum: str, times: list[str]) -> Path:
+    """The central filter's final DSBs as Bias-SINEX 1.00 (satellites and receivers with σ)."""
+    from distnav.models.gnss.bias_sinex import write_bias_sinex
+
+    val, sd = final
+    step = float(np.median(np.diff(data.t_gps_s))) if data.t_gps_s.size > 1 else 30.0
+    end = np.datetime64(times[-1], "s") + np.timedelta64(int(round(step)), "s")
+    from distnav.output import atomic_write_text
+
+    text = write_bias_sinex(
+        None, obs1=l1, obs2=l2, start=times[0], end=end, sampling_s=step,
+        satellites={k: (v, sd[k]) for k, v in val.items() if not k.startswith("rx:")},
+        stations={k[3:]: (v, sd[k]) for k, v in val.items() if k.startswith("rx:")},
+        comments=[f"distnav gnss ionosphere, central filter, datum {datum} "
+                  f"({'IGS convention' if datum == 'zero-mean' else 'not the IGS convention'})",
+                  f"stations: {' '.join(data.stations)}; geometry-free {l1}-{l2} code, "
+                  f"{'carrier-levelled' if data.levelled else 'raw'}",
+                  "sigma: formal x sqrt(variance factor x (1+rho)/(1-rho)) of the predicted residuals",
+                  "satellite SVN field holds the system letter only"])
+    atomic_write_text(path, str(text))
+    return path
+
+
+def _check_days(products: Sequence[Any], t_gps_s: np.ndarray, allow: bool) -> None:
+    from distnav.models.gnss.orbits import datetime_from_gps_seconds
+
+    days = {np.asarray(datetime_from_gps_seconds(float(t))).astype("datetime64[D]")[()]
+            for t in (t_gps_s[0], t_gps_s[-1])}
+    for p in products:
+        if p.day is not None and p.day not in days and not allow:
+            raise ModelError(f"{p.path.name}: a product of {p.day}, the data are of "
+                             f"{', '.join(str(d) for d in sorted(days))} (--allow-other-day to compare anyway)")
+
+
 def _default_graph(xyz: np.ndarray, stations: list[str]) -> Any:
-    try:
-        from distnav.commands.gnss import default_graph
+    from distnav.commands.gnss import default_graph
 
-        return default_graph(xyz, stations)
-    except ImportError:  # pragma: no cover - the gnss command group is absent
-        from distnav.network.graph import Graph
-
-        n = len(stations)
-        return Graph.from_links(n, [(i, i + 1) for i in range(n - 1)], names=stations)
+    return default_graph(xyz, stations)
 
 
-def _print_summary(stations: list[str], layout: Any, comparison: dict[str, Any],
+def _print_summary(stations: list[str], comparison: dict[str, Any],
                    finals: dict[str, tuple[dict[str, float], dict[str, float]]]) -> None:
     c = finals["central"]
-    est = np.array([v for v in c[0].values() if np.isfinite(v)])
-    sd = np.array([v for v in c[1].values() if np.isfinite(v)])
-    print(f"central filter: {est.size} DCBs relative to {layout.pivot}; median std {np.median(sd):.2f} ns")
+    sd = np.array([v for k, v in c[1].items() if not k.startswith("rx:") and np.isfinite(v)])
+    rx = ", ".join(f"{k[3:]} {v:+.2f} ± {c[1][k]:.2f}" for k, v in c[0].items() if k.startswith("rx:"))
+    print(f"central filter: {sd.size} satellite DSBs, median std {np.median(sd):.2f} ns; receivers: {rx} ns")
     for pname, comp in comparison.items():
         print(f"vs {pname}:")
         for label in ["central"] + [f"ckf:{s}" for s in stations] + [f"local:{s}" for s in stations]:
             r = comp.get(label, {})
             if r.get("n"):
-                print(f"  {label:<12} n={r['n']:2d}  mean {r['mean_ns']:+7.2f}  RMS {r['rms_ns']:6.2f}  "
-                      f"RMS (zero-mean) {r['rms_zero_mean_ns']:6.2f}  max {r['max_abs_ns']:6.2f} ns")
-            else:
+                line = (f"  {label:<12} n={r['n']:2d}  offset {r['datum_offset_ns']:+7.2f}  RMS (zero-mean) "
+                        f"{r['rms_zero_mean_ns']:5.2f}  max {r['max_abs_zero_mean_ns']:5.2f} ns ({r['worst']})")
+                if "receivers" in r:
+                    line += "; receivers " + ", ".join(f"{k} {v:+.2f}" for k, v in
+                                                       r["receivers"]["difference_ns"].items())
+                print(line)
+            elif label in comp:
                 print(f"  {label:<12} {r.get('note', 'no comparison')}")
 
 
@@ -404,9 +516,32 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
                    help="published products to compare with: Bias-SINEX (.BIA) and/or IONEX with a DCB block")
     p.add_argument("--out", default="distnav-ionosphere", help="output folder (default distnav-ionosphere)")
     add_backend_arguments(p)
-    p.add_argument("--l1-code", default="C1C", help="L1 code (C1C = RINEX 2 C1, C1W = P1; default C1C)")
-    p.add_argument("--l2-code", default="C2W", help="L2 code (default C2W = RINEX 2 P2)")
-    p.add_argument("--pivot", default="G10", help="pivot satellite (default G10; the longest tracked if absent)")
+    p.add_argument("--l1-code", default=None,
+                   help="L1 code (C1C = RINEX 2 C1, C1W = P1; default C1C, or C1W when every --bias is IONEX)")
+    p.add_argument("--l2-code", default="C2W",
+                   help="second code (default C2W = RINEX 2 P2; C5Q/C5X use the L5 frequency factor)")
+    p.add_argument("--datum", choices=["zero-mean", "pivot", "receiver"], default="zero-mean",
+                   help="S-basis of the output DSBs: zero-mean satellites (IGS products; default), a pivot "
+                        "satellite (--pivot) or a reference receiver (--reference)")
+    p.add_argument("--pivot", default=None, help="pivot satellite of --datum pivot (e.g. G10)")
+    p.add_argument("--reference", default=None, metavar="STATION",
+                   help="reference receiver (--datum receiver; also the estimation basis; default: the station "
+                        "observing at the first epoch)")
+    p.add_argument("--exclude", nargs="+", metavar="SAT|STA", help="satellites (G01) or stations (BELE) left out")
+    p.add_argument("--compare-exclude", nargs="+", metavar="SAT",
+                   help="satellites left out of the product comparison statistics (e.g. G01)")
+    p.add_argument("--c1-corrections", metavar="BIA",
+                   help="with --l1-code C1C: remove each satellite's C1C-C1W DSB of this Bias-SINEX product from C1C "
+                        "(estimates then refer to C1W, the P1 of IONEX/GFZ; the receivers' part stays in their DSB)")
+    p.add_argument("--levelling", choices=["arc", "none"], default="arc",
+                   help="carrier-to-code levelling per continuous arc (default) or raw code")
+    p.add_argument("--min-arc", type=int, default=10, metavar="EPOCHS",
+                   help="shortest arc kept for levelling, in epochs of the file (default 10)")
+    p.add_argument("--gf-threshold", type=float, default=0.05, metavar="M",
+                   help="cycle-slip threshold on the geometry-free phase [m] (default 0.05)")
+    p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
+    p.add_argument("--allow-other-day", action="store_true",
+                   help="compare with a product of another day than the data")
     p.add_argument("--ionosphere", choices=["auto", "common", "per-receiver"], default="auto",
                    help="one regional ionosphere for all stations, one per station, or auto (by --regional-km)")
     p.add_argument("--regional-km", type=float, default=REGIONAL_KM,
@@ -417,7 +552,8 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
                    help="elevation weighting (default sin: σ/sin θ)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_ionosphere)
-    return p
+    parser: argparse.ArgumentParser = p
+    return parser
 
 
 add_parser = add_ionosphere_parser

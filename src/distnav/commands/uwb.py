@@ -26,16 +26,26 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import shortest_path
 
-from distnav.algorithms.csg import SOLVERS, solve
+from distnav.algorithms.csg import SOLVERS
 from distnav.algorithms.nlsq import LOSSES
 from distnav.commands import add_backend_arguments
 from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange
-from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges, write_positions
+from distnav.models.uwb.field import FieldOptions, FieldSolution, gather_cost, prepare, solve_field
+from distnav.models.uwb.geometry import planarity
+from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_initial_guess, smacof  # noqa: F401
+from distnav.models.uwb.io import (
+    CombinedRanges,
+    check_units,
+    combine_ranges,
+    read_heights,
+    read_positions,
+    read_ranges,
+    single_link_anchors,
+)
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
+from distnav.output import atomic_write_text
 
 __all__ = ["register", "classical_mds", "smacof", "mds_initial_guess", "planarity", "height_spread_ratio",
            "solve_range_log"]
@@ -56,147 +66,85 @@ def register(subparsers: Any) -> None:
     s.add_argument("--heights", type=Path, help="CSV id,z_m heights to hold fixed (anchors under a ceiling)")
     s.add_argument("--solver", default="LM", type=str.upper, choices=list(SOLVERS),
                    help="LM (centralized, default) or a distributed solver of paper 002")
-    s.add_argument("--loss", default="linear", choices=list(LOSSES),
-                   help="robust loss (LM and the N-CSG/N-CLM solvers; not CSG)")
+    s.add_argument("--objective", default="metres", choices=["metres", "squared"],
+                   help="residual in metres e = |r_a - r_b| - d (default) or the paper's squared form")
+    s.add_argument("--loss", default="cauchy", choices=list(LOSSES),
+                   help="robust loss (default cauchy; LM and the N-CSG/N-CLM solvers; not CSG)")
     s.add_argument("--loss-scale-m", type=float, default=0.3,
                    help="range error (m) beyond which the robust loss down-weights a range (default 0.3)")
+    s.add_argument("--sigma-m", type=float, default=0.1, help="a-priori range σ in metres (default 0.1)")
+    s.add_argument("--no-exclude", dest="exclude", action="store_false",
+                   help="test the links but exclude none (default: exclude the worst link while it fails its "
+                        "w-test and the network stays determined, and re-solve)")
+    s.add_argument("--level", type=float, default=0.001, help="false-alarm probability of one link test (0.001)")
+    s.add_argument("--range-offsets", default="none", choices=["none", "common", "per_anchor"],
+                   help="estimate a common range offset or per-anchor antenna delays (LM, metres objective)")
+    s.add_argument("--offset-prior-sigma-m", type=float, default=0.1,
+                   help="prior σ of each per-anchor offset (m, default 0.1)")
+    s.add_argument("--allow-planar-3d", action="store_true",
+                   help="solve a nearly planar network in 3-D with free heights anyway (refused by default)")
     s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")
+    s.add_argument("--strict", action="store_true",
+                   help="refuse a range log with a negative, zero or non-finite sample (default: drop and count)")
     s.add_argument("--out", type=Path, required=True, help="output folder")
     add_backend_arguments(s)
     s.set_defaults(func=_handler)
+    imp = sub.add_parser("import-april", help="convert an APRIL DW1000 log (../shared/data/uwb/april-dw1000-8node) "
+                                              "to ranges.csv, known.csv, truth.csv")
+    imp.add_argument("log", type=Path, help="dataset4.txt or dataset5.txt")
+    imp.add_argument("--known", default="8,12,54,87", help="comma-separated known node ids (default 8,12,54,87)")
+    imp.add_argument("--delays", default="manual", choices=["manual", "default"],
+                     help="subtract the lab's hand-calibrated antenna delays (default) or one 0.516 µs for all")
+    imp.add_argument("--out", type=Path, required=True, help="output folder")
+    imp.set_defaults(func=_import_april)
 
 
-# ---------------------------------------------------------------------- initial guess
-def classical_mds(dist_m: np.ndarray, dim: int) -> np.ndarray:
-    """Coordinates ``(n, dim)`` whose distances approximate the full matrix ``dist_m`` (Torgerson's MDS)."""
-    d2 = np.asarray(dist_m, float) ** 2
-    n = d2.shape[0]
-    j = np.eye(n) - np.full((n, n), 1.0 / n)
-    b = -0.5 * j @ d2 @ j
-    w, v = np.linalg.eigh(b)
-    order = np.argsort(w)[::-1][:dim]
-    return v[:, order] * np.sqrt(np.maximum(w[order], 0.0))
+def _import_april(args: argparse.Namespace) -> int:
+    from distnav.models.uwb.april import write_april_csvs
 
-
-def smacof(links: np.ndarray, dist_m: np.ndarray, x0: np.ndarray, iterations: int = 200) -> np.ndarray:
-    """Stress majorization (SMACOF, de Leeuw 1977) on the measured pairs only, started from ``x0``.
-
-    Minimises ``Σ_(i,j)∈links (‖x_i − x_j‖ − d_ij)²`` by Guttman transforms; it refines the classical-MDS
-    start, whose shortest-path distances overestimate long pairs.
-    """
-    n = x0.shape[0]
-    i, j = links[:, 0], links[:, 1]
-    v = np.zeros((n, n))
-    np.add.at(v, (i, j), -1.0)
-    np.add.at(v, (j, i), -1.0)
-    v[np.diag_indices(n)] = -v.sum(axis=1)
-    vp = np.linalg.pinv(v)
-    x = np.array(x0, float)
-    for _ in range(iterations):
-        cur = np.linalg.norm(x[i] - x[j], axis=1)
-        ratio = np.where(cur > 1e-12, dist_m / np.maximum(cur, 1e-12), 0.0)
-        b = np.zeros((n, n))
-        np.add.at(b, (i, j), -ratio)
-        np.add.at(b, (j, i), -ratio)
-        b[np.diag_indices(n)] = -b.sum(axis=1)
-        x_new = vp @ (b @ x)
-        if np.max(np.abs(x_new - x)) < 1e-9:
-            x = x_new
-            break
-        x = x_new
-    return x
-
-
-def _procrustes(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation/reflection ``R`` and translation ``t`` minimising ``‖src R + t − dst‖`` (no scaling)."""
-    ms, md = src.mean(axis=0), dst.mean(axis=0)
-    u, _, vt = np.linalg.svd((src - ms).T @ (dst - md))
-    r = u @ vt
-    return r, md - ms @ r
-
-
-def _link_distances(problem: RangingProblem, horizontal: bool) -> tuple[np.ndarray, np.ndarray]:
-    """One distance per measured link (mean of its samples), reduced to horizontal when heights are held."""
-    n = problem.n_anchors
-    links = problem.links
-    lo = np.minimum(problem.meas_a, problem.meas_b)
-    hi = np.maximum(problem.meas_a, problem.meas_b)
-    _, inv = np.unique(lo * n + hi, return_inverse=True)
-    d = np.bincount(inv, problem.range_m) / np.bincount(inv)
-    if horizontal:
-        z = problem.positions_m[:, 2]
-        dz = z[links[:, 0]] - z[links[:, 1]]
-        d = np.sqrt(np.maximum(d * d - dz * dz, 0.0))
-    return links, d
-
-
-def _completed(problem: RangingProblem, links: np.ndarray, d: np.ndarray) -> np.ndarray:
-    n = problem.n_anchors
-    g = csr_matrix((np.concatenate([d, d]) + 1e-9, (np.concatenate([links[:, 0], links[:, 1]]),
-                                                    np.concatenate([links[:, 1], links[:, 0]]))), shape=(n, n))
-    full = shortest_path(g, directed=False)
-    if not np.all(np.isfinite(full)):
-        raise ModelError("the range graph is not connected: no MDS initial guess (pass --initial)")
-    return np.asarray(full)
-
-
-def mds_initial_guess(problem: RangingProblem) -> np.ndarray:
-    """MDS of the range graph, refined by SMACOF on the measured pairs, aligned to the fixed anchors.
-
-    With held heights (``problem.free[:, 2]`` False for estimated anchors) the ranges are first reduced to
-    horizontal distances ``sqrt(d² − Δz²)`` and a 2-D MDS is aligned; heights come from the held values.
-    """
-    dim = problem.dim
-    horizontal = dim == 3 and bool(np.all(~problem.free[:, 2]))
-    links, d = _link_distances(problem, horizontal)
-    full = _completed(problem, links, d)
-    k = 2 if horizontal else dim
-    coords = smacof(links, d, classical_mds(full, k))
-    fixed = problem.fixed
-    r, t = _procrustes(coords[fixed], problem.positions_m[fixed][:, :k])
-    aligned = coords @ r + t
-    out = np.column_stack([aligned, problem.positions_m[:, 2]]) if horizontal else aligned
-    return np.where(problem.free, out, problem.positions_m)
-
-
-def height_spread_ratio(problem: RangingProblem) -> float:
-    """Vertical spread of the known anchors over their horizontal spread (0 = all at one height).
-
-    Anchors mounted under a ceiling give ≈ 0; then the ranges cannot tell above from below the anchors' plane.
-    """
-    p = problem.positions_m[problem.fixed]
-    horizontal = float(np.ptp(p[:, :2], axis=0).max()) if p.shape[0] else 0.0
-    return float(np.ptp(p[:, 2])) / horizontal if horizontal > 0 else 0.0
-
-
-def planarity(points_m: np.ndarray) -> float:
-    """Ratio of the smallest to the largest principal spread of 3-D points (0 = perfectly planar)."""
-    p = np.asarray(points_m, float)
-    if p.shape[0] < 4 or p.shape[1] < 3:
-        return 0.0
-    s = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
-    return float(s[-1] / s[0]) if s[0] > 0 else 0.0
+    try:
+        known = [int(k) for k in str(args.known).split(",") if k.strip()]
+    except ValueError:
+        raise DataFileError(f"--known must be comma-separated node ids, got {args.known!r}") from None
+    files = write_april_csvs(args.log, args.out, known=known, delays=args.delays)
+    print("wrote " + ", ".join(str(f) for f in files.values()))
+    return 0
 
 
 # ---------------------------------------------------------------------- the solve
+def _validate(opts: FieldOptions) -> None:
+    if opts.loss != "linear" and opts.solver.upper() == "CSG":
+        raise ModelError(f"--loss {opts.loss} is implemented for LM and the neighbourhood solvers, not CSG "
+                         f"(pass --loss linear)")
+    if opts.iterations < 1:
+        raise ModelError(f"--iterations must be ≥ 1, got {opts.iterations}")
+    for name, v in (("--sigma-m", opts.sigma_m), ("--loss-scale-m", opts.loss_scale_m),
+                    ("--offset-prior-sigma-m", opts.offset_prior_sigma_m)):
+        if not (np.isfinite(v) and v > 0):
+            raise ModelError(f"{name} must be a positive number of metres, got {v}")
+    if not 0.0 < opts.level < 0.5:
+        raise ModelError(f"--level must lie in (0, 0.5), got {opts.level}")
+    if opts.range_offsets != "none" and (opts.solver.upper() != "LM" or opts.objective != "metres"):
+        raise ModelError("--range-offsets is estimated by LM with --objective metres")
+
+
 def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, truth: Path | None = None,
-                    heights: Path | None = None, solver: str = "LM", loss: str = "linear",
-                    loss_scale_m: float = 0.3, iterations: int = 500,
-                    backend: str = "inprocess") -> tuple[RangingProblem, Any, dict[str, Any]]:
-    """Read the files, build the problem, solve; returns ``(problem, result, summary)`` (no files written).
+                    heights: Path | None = None, options: FieldOptions | None = None, backend: str = "inprocess",
+                    strict: bool = False) -> tuple[FieldSolution, CombinedRanges, dict[str, Any]]:
+    """Read the files, check the geometry, solve with QC; returns ``(solution, ranges, summary)`` (no files).
 
     A distributed solver runs on an exchange of ``backend`` (``"mpi"`` under ``mpiexec``); LM is centralized."""
-    if loss != "linear" and solver.upper() == "CSG":
-        raise ModelError(f"--loss {loss} is implemented for LM and the neighbourhood solvers, not CSG")
-    if iterations < 1:
-        raise ModelError(f"--iterations must be ≥ 1, got {iterations}")
-    log = read_ranges(ranges)
+    opts = options or FieldOptions()
+    _validate(opts)
+    log = read_ranges(ranges, strict=strict)
     comb = combine_ranges(log)
     known_pos, dim = read_positions(known)
+    units_note, units_warning = check_units(comb, known_pos, where=str(ranges))
     ids = log.ids
     index = {k: i for i, k in enumerate(ids)}
     unused_known = [k for k in known_pos if k not in index]
-    warnings: list[str] = []
+    warnings: list[str] = [log.drop_message()] if log.n_dropped else []
+    warnings += single_link_anchors(comb) + ([units_warning] if units_warning else [])
     if unused_known:
         warnings.append(f"known anchors without ranges are ignored: {', '.join(unused_known[:10])}")
     held: dict[str, dict[int, float]] = {}
@@ -210,6 +158,9 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
             if k not in known_pos:
                 held[k] = {2: z}
     fixed = {k: v for k, v in known_pos.items() if k in index}
+    if not fixed:
+        raise DataFileError(f"{known}: none of the known anchors ({', '.join(unused_known[:10])}) appears in "
+                            f"{ranges} (whose anchors are {', '.join(ids[:10])}{' …' if len(ids) > 10 else ''})")
 
     def full_array(path: Path, what: str) -> np.ndarray:
         pos, d = read_positions(path)
@@ -222,111 +173,220 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
 
     truth_m = full_array(truth, "truth") if truth is not None else None
     problem = build_problem(ids, list(comb.pairs), comb.range_m, fixed=fixed, dim=dim, held=held or None,
-                            truth_m=truth_m, name=Path(ranges).stem)
-    if initial is not None:
-        init = full_array(initial, "initial guess")
-        init_source = str(initial)
-    else:
-        init = mds_initial_guess(problem)
-        init_source = "classical MDS of the range graph + SMACOF, aligned to the known anchors"
-    problem = problem.with_initial(init)
-    if dim == 3 and not held:
-        ratio = height_spread_ratio(problem)
-        if ratio < PLANAR_RATIO:
-            warnings.append(
-                f"the network looks nearly planar (the known anchors' vertical/horizontal spread is {ratio:.3f} < "
-                f"{PLANAR_RATIO}): a 3-D solve cannot tell above from below the anchors' plane and heights may come "
-                f"out metres off; pass --heights HEIGHTS.csv (id,z_m) to hold the known mounting heights")
-    options: dict[str, Any] = {}
-    if solver.upper() != "CSG":
-        options = {"loss": loss, "loss_scale_m": loss_scale_m}
-    if solver.upper() != "LM":
-        options["exchange"] = make_exchange(problem.graph, backend=backend)
-    result = solve(problem, solver, iterations=iterations, **options)
-    est = result.estimates
-    g = problem.residuals(est)
-    summary: dict[str, Any] = {
-        "solver": solver.upper(),
-        "iterations": int(result.iterations),
-        "rms_cost": float(np.sqrt(np.mean(g * g))),
-        "cost": float(g @ g),
-        "rmse_m": rmse_m(problem, est) if truth_m is not None else None,
-        "converged": bool(result.converged),
-        "status": result.status,
-        "messages": int(result.comm.messages),
-        "bytes": int(result.comm.bytes),
-        "message": result.message,
-        "loss": loss,
-        "loss_scale_m": loss_scale_m if loss != "linear" else None,
-        "n_anchors": problem.n_anchors,
-        "n_known": int(problem.fixed.sum()),
-        "n_heights_held": len(held),
+                            truth_m=truth_m, name=Path(ranges).stem, check_determined=False)
+    _check_gauge(problem)
+    init = full_array(initial, "initial guess") if initial is not None else None
+    init_source = str(initial) if initial is not None else \
+        "classical MDS of the range graph + SMACOF, aligned to the known anchors"
+    sub, geometry = prepare(problem, initial_m=init, allow_planar_3d=opts.allow_planar_3d)
+    warnings += [i.message for i in geometry.issues]
+    exchange = None
+    if opts.solver.upper() != "LM":
+        def exchange(p: RangingProblem) -> Any:
+            return make_exchange(p.graph, backend=backend)
+    sol = solve_field(sub, opts, geometry=geometry, exchange=exchange)
+    summary = _summary(sol, opts, comb, log.range_m.size, log.n_dropped, dict(log.dropped), units_note,
+                       init_source, len(held), warnings)
+    return sol, comb, summary
+
+
+def _check_gauge(problem: RangingProblem) -> None:
+    """The number of known anchors a frame needs (what build_problem checks first; ModelError otherwise)."""
+    fixed = problem.fixed
+    planar = problem.dim == 2 or bool(np.all(~problem.free[~fixed, 2]))
+    need = 2 if planar else 3
+    if int(fixed.sum()) < need:
+        what = ("2 fixed anchors (2-D, or 3-D with every height held)" if planar
+                else "3 non-collinear fixed anchors in 3-D")
+        raise ModelError(f"the problem is not determined: it needs at least {what}, got {int(fixed.sum())}")
+
+
+def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ranges: int, n_dropped: int,
+             dropped: dict[str, int], units_note: str, init_source: str, n_held: int,
+             warnings: list[str]) -> dict[str, Any]:
+    p = sol.problem
+    res = sol.result
+    usable = sol.status != "diverged"
+    e = sol.residual_m
+    rms = float(np.sqrt(np.mean(e[~sol.excluded] ** 2))) if usable and (~sol.excluded).any() else None
+    prec = getattr(res, "precision", None)
+    gather = gather_cost(p)
+    offsets = getattr(res, "offsets_m", None)
+    offsets_std = getattr(res, "offsets_std_m", None)
+    return {
+        "solver": opts.solver.upper(),
+        "objective": sol.objective_used,
+        "status": sol.status,
+        "usable": sol.status in ("converged", "max_iterations", "weakly_determined"),
+        "message": sol.message,
+        "iterations": sol.iterations,
+        "rmse_m": rmse_m(p, sol.positions_m) if usable and p.truth_m is not None else None,
+        "range_residual_rms_m": rms,
+        "rms_cost": float(np.sqrt(np.mean(p.residuals(sol.positions_m) ** 2))) if usable else None,
+        "loss": opts.loss,
+        "loss_scale_m": opts.loss_scale_m if opts.loss != "linear" else None,
+        "sigma_m": opts.sigma_m,
+        "variance_factor": None if prec is None else prec.variance_factor,
+        "precision_kind": None if prec is None else prec.kind,
+        "test_level": opts.level,
+        "critical_value": sol.critical_value,
+        "n_flagged": int(sol.flagged.sum()),
+        "n_excluded": int(sol.excluded.sum()),
+        "excluded_links": [[p.ids[p.meas_a[k]], p.ids[p.meas_b[k]]] for k in np.flatnonzero(sol.excluded)],
+        "range_offsets": opts.range_offsets,
+        "offsets_m": None if offsets is None else np.asarray(offsets).tolist(),
+        "offsets_std_m": None if offsets_std is None else np.asarray(offsets_std).tolist(),
+        "geometry": sol.geometry.as_dict(),
+        "unsolved": list(sol.geometry.unsolved),
+        "weakly_determined_anchors": list(sol.weak),
+        "n_anchors": len(sol.geometry.ids),
+        "n_solved": p.n_anchors,
+        "n_known": int(p.fixed.sum()),
+        "n_heights_held": n_held,
         "n_pairs": len(comb.pairs),
-        "n_ranges": int(log.range_m.size),
+        "n_ranges": int(n_ranges),
+        "n_dropped_samples": n_dropped,
+        "dropped_samples": dropped,
+        "units_check": units_note,
         "range_combination": "median of the samples of each pair",
         "initial_guess": init_source,
-        "range_residual_rms_m": float(np.sqrt(np.mean(
-            (np.linalg.norm(est[problem.meas_a] - est[problem.meas_b], axis=1) - problem.range_m) ** 2))),
+        "communication": {
+            "distributed": {"solver": opts.solver.upper(), "messages": sol.messages, "bytes": sol.bytes,
+                            "note": "every re-solve of the exclusion loop included" if opts.solver.upper() != "LM"
+                            else "LM is centralized: it needs the ranges gathered (below)"},
+            "gather_at_one_anchor": gather,
+        },
+        "messages": sol.messages,
+        "bytes": sol.bytes,
         "warnings": warnings,
     }
-    return problem, result, summary
 
 
-def _plot(path: Path, problem: RangingProblem, est: np.ndarray) -> None:
+def write_links(path: Path, sol: FieldSolution, comb: CombinedRanges) -> None:
+    """``links.csv``: a, b, samples, median range, MAD, residual, w, flagged, excluded (one row per pair)."""
+    p = sol.problem
+    stats = {k: (int(c), float(m)) for k, c, m in zip(comb.pairs, comb.count, comb.mad_m, strict=True)}
+    rows = ["a,b,samples,median_range_m,mad_m,residual_m,w,flagged,excluded"]
+    for k in range(p.n_meas):
+        a, b = p.ids[p.meas_a[k]], p.ids[p.meas_b[k]]
+        cnt, mad = stats.get((a, b)) or stats.get((b, a)) or (0, float("nan"))
+        rows.append(f"{a},{b},{cnt},{p.range_m[k]:.4f},{mad:.4f},{sol.residual_m[k]:.4f},{sol.w[k]:.3f},"
+                    f"{int(sol.flagged[k])},{int(sol.excluded[k])}")
+    atomic_write_text(path, "\n".join(rows) + "\n")
+
+
+def _positions_table(path: Path, sol: FieldSolution) -> None:
+    """``positions.csv``: every anchor with σ per axis and a status (known, estimated, ambiguous, unsolved)."""
+    p = sol.problem
+    dim = p.dim
+    axes = ["x", "y", "z"][:dim]
+    rows = ["id," + ",".join(f"{a}_m" for a in axes) + "," + ",".join(f"s{a}_m" for a in axes) + ",status"]
+    index = {k: i for i, k in enumerate(p.ids)}
+    amb = sol.geometry.ambiguous_anchors()
+    for name in sol.geometry.ids:
+        if name not in index:
+            rows.append(name + "," * (2 * dim) + ",unsolved")
+            continue
+        i = index[name]
+        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in sol.weak
+                                          else "estimated")
+        rows.append(name + "," + ",".join(f"{v:.6f}" for v in sol.positions_m[i]) + ","
+                    + ",".join(f"{v:.6f}" for v in sol.sigma_m[i]) + f",{st}")
+    atomic_write_text(path, "\n".join(rows) + "\n")
+
+
+def _plot(path: Path, sol: FieldSolution) -> None:
     from distnav.output import pyplot
 
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7, 6))
-    lk = problem.links
-    seg = np.full((lk.shape[0], 3, 2), np.nan)  # one NaN-separated polyline
-    seg[:, 0], seg[:, 1] = est[lk[:, 0], :2], est[lk[:, 1], :2]
-    ax.plot(seg[:, :, 0].ravel(), seg[:, :, 1].ravel(), "-", color="0.8", lw=0.6, zorder=1)
-    if problem.truth_m is not None:
-        t = problem.truth_m
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Ellipse
+
+    p, est = sol.problem, sol.positions_m
+    fig, ax = plt.subplots(figsize=(8, 6))
+    seg = np.stack([est[p.meas_a, :2], est[p.meas_b, :2]], axis=1)
+    res = np.abs(np.nan_to_num(sol.residual_m))
+    kept = ~sol.excluded
+    lc = LineCollection(list(seg[kept]), array=res[kept], cmap="viridis_r", linewidths=1.2, zorder=1)
+    ax.add_collection(lc)
+    fig.colorbar(lc, ax=ax, label="|range residual| [m]")
+    if sol.excluded.any():
+        ax.add_collection(LineCollection(list(seg[sol.excluded]), colors="tab:red", linestyles="dashed", linewidths=1.0,
+                                         zorder=1, label="excluded (NLOS?)"))
+    if p.truth_m is not None:
+        t = p.truth_m
         ax.plot(t[:, 0], t[:, 1], "x", color="tab:green", label="truth", zorder=2)
-        for k in np.flatnonzero(problem.estimated):
-            ax.plot([t[k, 0], est[k, 0]], [t[k, 1], est[k, 1]], "-", color="tab:red", lw=0.8, zorder=2)
-    e = problem.estimated
-    ax.plot(est[e, 0], est[e, 1], "o", color="tab:blue", ms=5, label="estimated", zorder=3)
+    e = p.estimated
+    ax.plot(est[e, 0], est[e, 1], "o", color="tab:blue", ms=4, label="estimated", zorder=3)
     ax.plot(est[~e, 0], est[~e, 1], "^", color="k", ms=8, label="known", zorder=4)
-    for idx, name in enumerate(problem.ids):
+    prec = getattr(sol.result, "precision", None)
+    scale = 0.0
+    if prec is not None:
+        cov = prec.covariance[:, :2, :2] * (prec.variance_factor or 1.0)
+        sig = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2), 0.0))
+        span = float(np.ptp(est[:, :2], axis=0).max())
+        scale = max(1.0, round(0.03 * span / max(float(sig[e].max(initial=0.0)), 1e-9)))  # ellipses visible
+        for i in np.flatnonzero(e):
+            w, v = np.linalg.eigh(cov[i])
+            ang = float(np.degrees(np.arctan2(v[1, 1], v[0, 1])))
+            ax.add_patch(Ellipse(tuple(est[i, :2]), 2 * 2 * scale * np.sqrt(max(w[1], 0.0)),
+                                 2 * 2 * scale * np.sqrt(max(w[0], 0.0)), angle=ang, fill=False,
+                                 color="tab:orange", lw=0.8, zorder=3))
+    for idx, name in enumerate(p.ids):
         ax.annotate(name, est[idx, :2], fontsize=6, xytext=(3, 3), textcoords="offset points")
     ax.set_aspect("equal")
+    ax.autoscale_view()
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.legend(fontsize=8)
-    ax.set_title(f"{problem.n_anchors} anchors, {problem.links.shape[0]} measured pairs")
+    ax.legend(fontsize=7, loc="best")
+    ell = f"; 2σ ellipses × {scale:g}" if scale else ""
+    ax.set_title(f"{p.n_anchors} anchors, {p.links.shape[0]} links ({int(sol.excluded.sum())} excluded){ell}",
+                 fontsize=9)
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
 
 
 @np.errstate(over="ignore", invalid="ignore")  # a diverged run's summary reads huge estimates
 def _handler(args: argparse.Namespace) -> int:
-    problem, result, summary = solve_range_log(
-        args.ranges, args.known, initial=args.initial, truth=args.truth, heights=args.heights, solver=args.solver,
-        loss=args.loss, loss_scale_m=args.loss_scale_m, iterations=args.iterations,
-        backend=getattr(args, "backend", "inprocess"))
+    opts = FieldOptions(solver=args.solver, objective=args.objective, loss=args.loss, loss_scale_m=args.loss_scale_m,
+                        sigma_m=args.sigma_m, iterations=args.iterations, exclude=args.exclude, level=args.level,
+                        range_offsets=args.range_offsets, offset_prior_sigma_m=args.offset_prior_sigma_m,
+                        allow_planar_3d=args.allow_planar_3d)
+    _validate(opts)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DataFileError(f"{out}: --out must be a folder, and this is a file")
+    sol, comb, summary = solve_range_log(args.ranges, args.known, initial=args.initial, truth=args.truth,
+                                         heights=args.heights, options=opts,
+                                         backend=getattr(args, "backend", "inprocess"), strict=args.strict)
     from distnav.output import atomic_write_json, is_file_writer
 
-    out = Path(args.out)
+    usable = sol.status != "diverged"
     if is_file_writer():  # under MPI only rank 0 writes (and prints)
         for w in summary["warnings"]:
             print(f"warning: {w}", file=sys.stderr)
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(out / "summary.json", summary)
-        if not result.usable:  # e.g. "diverged": the estimates are not a result; write no positions
-            print(f"error: {result.message} (status {result.status}); no positions written, see "
+        if not usable:  # the estimates are not a result; write no positions
+            print(f"error: {sol.message} (status {sol.status}); no positions written, see "
                   f"{out / 'summary.json'}", file=sys.stderr)
             return 1
-        write_positions(out / "positions.csv", problem.ids, result.estimates)
+        _positions_table(out / "positions.csv", sol)
+        write_links(out / "links.csv", sol, comb)
         try:
-            _plot(out / "positions.png", problem, result.estimates)
+            _plot(out / "positions.png", sol)
         except ImportError as exc:  # pragma: no cover - plot extra missing
             print(f"warning: no plot ({exc})", file=sys.stderr)
-    if not result.usable:
+    if not usable:
         return 1
     rm = summary["rmse_m"]
-    print(f"{summary['solver']}: {summary['iterations']} iterations, rms_cost {summary['rms_cost']:.4g} m², "
-          f"range residual RMS {summary['range_residual_rms_m']:.3f} m"
+    rr = summary["range_residual_rms_m"]
+    print(f"{summary['solver']} ({summary['objective']}, {summary['loss']}): {summary['iterations']} iterations, "
+          f"status {summary['status']}, {summary['n_excluded']} link(s) excluded"
+          + (f", range residual RMS {rr:.3f} m" if rr is not None else "")
           + (f", RMSE {rm:.3f} m" if rm is not None else "") + f" -> {out}")
+    if sol.status == "ambiguous":
+        print(f"error: the solution is ambiguous ({sol.message}); positions written with status 'ambiguous'",
+              file=sys.stderr)
+        return 1
     return 0

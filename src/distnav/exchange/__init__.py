@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from distnav.errors import ExchangeError
 from distnav.exchange.base import CommTotals, Exchange, Inbox, Mixer
 from distnav.exchange.faults import FaultSchedule
 from distnav.exchange.inprocess import InProcessExchange
@@ -22,4 +23,4 @@ def make_exchange(graph: Graph, *, backend: str = "inprocess", faults: FaultSche
         from distnav.exchange.mpi import MPIExchange  # lazy: mpi4py is an optional extra
 
         return MPIExchange(graph, faults, **options)  # type: ignore[arg-type]
-    raise ValueError(f"unknown exchange backend {backend!r}; choose 'inprocess' or 'mpi'")
+    raise ExchangeError(f"unknown exchange backend {backend!r}; choose 'inprocess' or 'mpi'")

@@ -17,6 +17,7 @@ EXPERIMENTS: dict[str, str] = {
     "admm": "distnav.experiments.admm",
     "ckf": "distnav.experiments.ckf",
     "uwb": "distnav.experiments.uwb",
+    "uwb-field": "distnav.experiments.uwb_field",
     "codebias": "distnav.experiments.codebias",
     "ckf-ionosphere": "distnav.experiments.ckf_ionosphere",
     "qc": "distnav.experiments.qc",

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import gzip
 import itertools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +30,8 @@ __all__ = [
     "IonexDCB",
     "read_ionex_dcb",
     "resolve_dsb",
+    "sinex_time",
+    "write_bias_sinex",
 ]
 
 
@@ -273,3 +275,69 @@ def resolve_dsb(products: Sequence[BiasProduct], obs1: str, obs2: str, *, prn: s
         what = prn if prn is not None else station
         raise ModelError(f"no chain of DSBs gives {obs1}-{obs2} for {what} in {', '.join(p.name for p in products)}")
     return best[1], best[2]
+
+
+def sinex_time(t: object) -> str:
+    """``YYYY:DDD:SSSSS`` (SINEX epoch) of a datetime64 / ISO string."""
+    import numpy as np
+
+    ts = np.asarray(t).astype("datetime64[s]")[()]
+    day = ts.astype("datetime64[D]")
+    year = int(str(day)[:4])
+    doy = int((day - np.datetime64(f"{year}-01-01", "D")).astype(int)) + 1
+    sec = int((ts - day).astype(int))
+    return f"{year:04d}:{doy:03d}:{sec:05d}"
+
+
+def _solution_line(prn: str, station: str, obs1: str, obs2: str, start: str, end: str, value: float,
+                   std: float) -> str:
+    svn = prn[:1] if prn else "G"
+    std = std if std == std else 0.0          # NaN σ (not estimable) written as 0
+    return (f" DSB  {svn:<4} {prn or 'G':<3} {station:<9} {obs1:<4} {obs2:<4} {start} {end} ns   "
+            f"{value:21.4f} {std:11.4f}")
+
+
+def write_bias_sinex(path: str | Path | None, *, obs1: str, obs2: str, start: object, end: object,
+                     satellites: Mapping[str, tuple[float, float]], stations: Mapping[str, tuple[float, float]],
+                     agency: str = "DNV", created: object = None, description: str = "",
+                     sampling_s: float = 30.0, comments: Sequence[str] = ()) -> Path | str:
+    """Write satellite and station DSBs ``obs1 − obs2`` [ns] with σ as a Bias-SINEX 1.00 file (gzip if the name
+    ends in ``.gz``): header line, ``FILE/REFERENCE``, ``FILE/COMMENT``, ``BIAS/DESCRIPTION`` (relative biases,
+    GPS time) and ``BIAS/SOLUTION`` in the fixed columns of the format (those :func:`read_bias_sinex` reads).
+    distnav does not know satellite SVNs: the SVN field holds the system letter only. NaN values are skipped.
+    ``path=None`` returns the text instead (for an atomic write by the caller)."""
+    import math
+
+    import numpy as np
+
+    t0, t1 = sinex_time(start), sinex_time(end)
+    t_end, t_start = (np.asarray(x).astype("datetime64[s]")[()] for x in (end, start))
+    spacing = int(round(float((t_end - t_start).astype(int))))
+    made = sinex_time(created if created is not None else np.datetime64("now", "s"))
+    rows = [_solution_line(prn, "", obs1, obs2, t0, t1, v, sd) for prn, (v, sd) in sorted(satellites.items())
+            if math.isfinite(v)]
+    rows += [_solution_line("", sta.upper(), obs1, obs2, t0, t1, v, sd) for sta, (v, sd) in sorted(stations.items())
+             if math.isfinite(v)]
+    bar = "*" + "-" * 79
+    lines = [f"%=BIA 1.00 {agency:<3} {made} {agency:<3} {t0} {t1} R {len(rows):08d}", bar,
+             "+FILE/REFERENCE", "*INFO_TYPE_________ INFO" + "_" * 56,
+             f" DESCRIPTION        {description or 'distnav geometry-free code DCBs (receivers and satellites)'}"[:80],
+             " OUTPUT             daily DSBs of satellites and receivers, zero-mean satellite datum",
+             " SOFTWARE           distnav", "-FILE/REFERENCE", bar, "+FILE/COMMENT",
+             *[f" {c}"[:80] for c in comments], "-FILE/COMMENT", bar, "+BIAS/DESCRIPTION",
+             "*KEYWORD________________________________ VALUE(S)" + "_" * 31,
+             f" OBSERVATION_SAMPLING                    {int(round(sampling_s))}",
+             f" PARAMETER_SPACING                       {spacing}",
+             " DETERMINATION_METHOD                    INTER-FREQUENCY_BIAS_ESTIMATION",
+             " BIAS_MODE                               RELATIVE", " TIME_SYSTEM                             G",
+             "-BIAS/DESCRIPTION", bar, "+BIAS/SOLUTION",
+             "*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____ BIAS_END______ UNIT __ESTIMATED_VALUE____ _STD_DEV___",
+             *rows, "-BIAS/SOLUTION", "%=ENDBIA"]
+    text = "\n".join(lines) + "\n"
+    if path is None:
+        return text
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    data = text.encode("ascii", errors="replace")
+    p.write_bytes(gzip.compress(data) if p.name.lower().endswith(".gz") else data)
+    return p

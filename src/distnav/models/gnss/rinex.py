@@ -11,7 +11,8 @@ RINEX 2 does not say which tracking mode ``C2``/``C5`` are; :data:`RINEX2_RECEIV
 make to the RINEX 3 attribute (Septentrio: L2C = C2L, L5 = C5Q — as CAS lists DGAR's receiver DSB as C1C−C5Q;
 Trimble: C2X, C5X), and the choice is recorded in ``CodeObservations.notes``.
 
-Reading a full day of 30-s data is dominated by georinex (tens of seconds); pass ``tlim`` to read a window.
+Observation files are read by :mod:`distnav.models.gnss.rinex_obs` (own reader, latin-1, ≈ 2 s per full day of
+30-s data, progress callback); navigation and SP3 files by georinex.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 from distnav._optional import require
 from distnav.errors import DataFileError
 from distnav.models.gnss.orbits import BroadcastOrbit, SP3Orbit
+from distnav.models.gnss.rinex_obs import ProgressCallback, read_header, read_observation_types
 
 __all__ = [
     "CodeObservations",
@@ -62,7 +64,9 @@ class CodeObservations:
 
     ``time`` (T,) ``datetime64[ns]`` (GPS time), ``svs`` (S,) ``"G01"``..., ``codes[band]`` the RINEX 3 code
     used for the band (e.g. ``{1: "C1C", 2: "C2W", 5: "C5X"}``), ``range_m[band]`` (T, S) pseudo-ranges in
-    metres with NaN where not observed, ``position_ecef_m`` the header's approximate position.
+    metres with NaN where not observed, ``position_ecef_m`` the header's approximate position. With
+    ``phases=True``: ``phase_m[band]`` (T, S) carrier phase in metres (cycles × λ; NaN where the code is missing),
+    ``lli[band]`` its loss-of-lock indicators, ``phase_types[band]`` the phase type read.
     """
 
     station: str
@@ -75,6 +79,10 @@ class CodeObservations:
     receiver: str = ""
     rinex_version: float = 0.0
     notes: tuple[str, ...] = field(default_factory=tuple)
+    phase_m: dict[int, np.ndarray] = field(default_factory=dict)
+    lli: dict[int, np.ndarray] = field(default_factory=dict)
+    phase_types: dict[int, str] = field(default_factory=dict)
+    time_system: str = "GPS"
 
     @property
     def n_epochs(self) -> int:
@@ -92,18 +100,6 @@ def _georinex() -> Any:
     return require("georinex", "gnss")
 
 
-def _header(path: Path) -> dict[str, Any]:
-    gr = _georinex()
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return dict(gr.rinexheader(path))
-    except FileNotFoundError:
-        raise DataFileError(f"{path}: file not found") from None
-    except Exception as exc:  # georinex raises many kinds of errors on bad files
-        raise DataFileError(f"{path}: not a readable RINEX file ({type(exc).__name__}: {exc})") from None
-
-
 def _rinex2_attribute_map(receiver: str) -> tuple[dict[str, str], str]:
     rx = receiver.upper()
     for key, mapping in RINEX2_RECEIVER_ATTRIBUTES.items():
@@ -112,49 +108,65 @@ def _rinex2_attribute_map(receiver: str) -> tuple[dict[str, str], str]:
     return {**_RINEX2_FIXED, **_RINEX2_DEFAULT}, ""
 
 
-def _station_name(header: Mapping[str, Any], path: Path) -> str:
+def _station_name(marker: str, path: Path) -> str:
     """The 4-character site code: first four letters of the file name (RINEX 2 ``dgar0100.24o`` and RINEX 3
     ``BELE00BRA_R_...`` alike), else of the marker name."""
     stem = path.name[:4]
     if len(stem) == 4 and stem.isalnum():
         return stem.upper()
-    name = str(header.get("MARKER NAME", "")).strip() or "RCVR"
+    name = marker.strip() or "RCVR"
     return name.split()[0][:4].upper()
+
+
+def _phase_type(band: int, code: str, file_code: str, types: Sequence[str], rinex3: bool) -> str | None:
+    """The carrier-phase type that goes with a code: the same tracking mode if recorded (L1C with C1C), else any
+    phase of the band (the phase bias of another mode is constant and goes into the arc offset of levelling)."""
+    if not rinex3:
+        return f"L{band}" if f"L{band}" in types else None
+    same = "L" + code[1:]
+    if same in types:
+        return same
+    return next((t for t in types if t.startswith(f"L{band}")), None)
+
+
+def _to_datetime64(t: Any) -> np.datetime64:
+    try:
+        return np.datetime64(t, "ns")
+    except ValueError:
+        raise DataFileError(f"time {t!r} is not an ISO date/time (e.g. 2024-01-10T06:00)") from None
 
 
 def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5),
                            codes: Mapping[int, str] | None = None,
                            tlim: tuple[Any, Any] | None = None,
-                           interval_s: float | None = None) -> CodeObservations:
+                           interval_s: float | None = None, phases: bool = False,
+                           progress: ProgressCallback | None = None) -> CodeObservations:
     """Read the GPS code observations of one RINEX 2.11/3.x observation file (``.o``, ``.d``, ``.crx``, ``.gz``).
 
     ``codes`` forces the RINEX 3 code of a band (e.g. ``{1: "C1W"}``); otherwise :data:`CODE_PREFERENCE`
-    decides. ``tlim=(start, stop)`` reads a time window (ISO strings or datetimes), ``interval_s`` keeps only
-    epochs on that grid. Raises :class:`~distnav.errors.DataFileError` naming the file for an unreadable file,
-    a file without GPS data, or a band with none of the accepted codes.
+    decides. ``tlim=(start, stop)`` reads a time window (ISO strings or datetimes, inclusive), ``interval_s`` keeps
+    only epochs on that grid. ``phases=True`` also reads a carrier phase per band (``phase_m``, metres, and the
+    loss-of-lock indicators ``lli``; a band without phase is left out of ``phase_m``). ``progress(label, fraction)``
+    is called while reading (see :mod:`distnav.models.gnss.rinex_obs`, the reader). Raises
+    :class:`~distnav.errors.DataFileError` naming the file for an unreadable file, a file without GPS data, or a
+    band with none of the accepted codes.
     """
+    from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ
+
     p = Path(path)
-    if not p.exists():
-        raise DataFileError(f"{p}: file not found")
-    hdr = _header(p)
-    version = float(hdr.get("version", 0.0) or 0.0)
-    try:  # the CRINEX wrapper's version is reported for Hatanaka files: prefer the RINEX header line
-        version = float(str(hdr.get("RINEX VERSION / TYPE", ""))[:9])
-    except ValueError:
-        pass
-    if hdr.get("rinextype", "obs") != "obs":
-        raise DataFileError(f"{p}: not a RINEX observation file (type {hdr.get('rinextype')!r})")
-    rec_line = str(hdr.get("REC # / TYPE / VERS", ""))
-    receiver = (rec_line[20:40] if len(rec_line) > 20 else str(hdr.get("rxmodel", ""))).strip()
+    hdr = read_header(p)
+    version = hdr.version
+    if hdr.file_type not in ("O", ""):
+        raise DataFileError(f"{p}: not a RINEX observation file (type {hdr.file_type!r})")
+    receiver = hdr.receiver
     notes: list[str] = []
     forced = dict(codes or {})
     chosen: dict[int, str] = {}
     file_types: dict[int, str] = {}   # band -> the type name as stored in the file
+    gps_types = list(hdr.gps_types)
+    if not gps_types:
+        raise DataFileError(f"{p}: no GPS observation types in the header")
     if version >= 3:
-        fields = hdr.get("fields", {})
-        gps_types = list(fields.get("G", [])) if isinstance(fields, dict) else []
-        if not gps_types:
-            raise DataFileError(f"{p}: no GPS observation types in the header")
         for b in bands:
             prefs = (forced[b],) if b in forced else CODE_PREFERENCE.get(b, ())
             hit = next((c for c in prefs if c in gps_types), None)
@@ -165,7 +177,7 @@ def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5)
             chosen[b] = hit
             file_types[b] = hit
     else:
-        types = list(hdr.get("fields", hdr.get("# / TYPES OF OBSERV", [])))
+        types = gps_types
         amap, make = _rinex2_attribute_map(receiver)
         inverse: dict[str, list[str]] = {}
         for r2, r3 in amap.items():
@@ -189,41 +201,34 @@ def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5)
             if pair[1] in ("C2", "C5"):
                 notes.append(f"RINEX 2 {pair[1]} read as {pair[0]} "
                              f"({'receiver ' + make if make else 'unknown receiver make: default'})")
-    gr = _georinex()
-    kwargs: dict[str, Any] = {"use": "G", "meas": sorted(set(file_types.values()))}
-    if tlim is not None:
-        kwargs["tlim"] = tuple(str(np.datetime64(t, "s")) if not isinstance(t, str) else t for t in tlim)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            ds = gr.load(p, **kwargs)
-    except Exception as exc:
-        raise DataFileError(f"{p}: georinex could not read the observations ({type(exc).__name__}: {exc})") from None
-    if ds is None or "sv" not in ds.dims or ds.sizes.get("time", 0) == 0:
-        raise DataFileError(f"{p}: no GPS observation epochs" + (f" in {tlim}" if tlim else ""))
-    svs = [str(s) for s in ds.sv.values]
-    gps = [k for k, s in enumerate(svs) if s.startswith("G")]
-    if not gps:
-        raise DataFileError(f"{p}: no GPS satellites observed")
-    time = np.asarray(ds.time.values).astype("datetime64[ns]")
-    keep = np.ones(time.size, dtype=bool)
-    if interval_s is not None:
-        ns = (time - time.astype("datetime64[D]")).astype(np.int64)
-        keep = (ns % int(round(interval_s * 1e9))) == 0
+    phase_types: dict[int, str] = {}
+    if phases:
+        for b in bands:
+            ph = _phase_type(b, chosen[b], file_types[b], gps_types, version >= 3)
+            if ph is not None:
+                phase_types[b] = ph
+    window = None if tlim is None else (_to_datetime64(tlim[0]), _to_datetime64(tlim[1]))
+    wanted = sorted(set(file_types.values()) | set(phase_types.values()))
+    raw = read_observation_types(p, wanted, tlim=window, interval_s=interval_s, progress=progress,
+                                 label=_station_name(hdr.marker, p))
     ranges: dict[int, np.ndarray] = {}
     for b, name in file_types.items():
-        if name not in ds.data_vars:
-            raise DataFileError(f"{p}: observation type {name} announced in the header but absent from the data")
-        arr = np.asarray(ds[name].values, dtype=float)[keep][:, gps]
+        arr = raw.values[name].copy()
         with np.errstate(invalid="ignore"):
             arr[(arr < 1.0e7) | (arr > 5.0e7)] = np.nan   # blanks / zeros / garbage are not GPS ranges
         ranges[b] = arr
-    pos = hdr.get("position")
-    position = np.asarray(pos, dtype=float) if pos is not None else np.full(3, np.nan)
+    phase_m: dict[int, np.ndarray] = {}
+    lli: dict[int, np.ndarray] = {}
+    for b, name in phase_types.items():
+        arr = raw.values[name] * (C_M_S / GPS_FREQUENCIES_HZ[b])
+        arr[~np.isfinite(ranges[b]) | (raw.values[name] == 0.0)] = np.nan
+        phase_m[b] = arr
+        lli[b] = raw.lli[name]
     return CodeObservations(
-        station=_station_name(hdr, p), path=p, time=time[keep], svs=tuple(svs[k] for k in gps),
-        codes=chosen, range_m=ranges, position_ecef_m=position, receiver=receiver, rinex_version=version,
-        notes=tuple(notes))
+        station=_station_name(hdr.marker, p), path=p, time=raw.time, svs=raw.svs,
+        codes=chosen, range_m=ranges, position_ecef_m=hdr.position_ecef_m, receiver=receiver,
+        rinex_version=version, notes=tuple(notes), phase_m=phase_m, lli=lli,
+        phase_types={b: t for b, t in phase_types.items()}, time_system=hdr.time_system)
 
 
 def read_navigation(path: str | Path, *, max_age_s: float = 2 * 3600.0) -> BroadcastOrbit:

@@ -106,6 +106,28 @@ class RangingProblem(RangingData):
         _check_ranges(r, self.meas_a, self.meas_b, self.ids)
         return _replace(self, range_m=r)
 
+    def subset(self, keep: np.ndarray, *, check: bool = True) -> RangingProblem:
+        """The problem on the anchors where ``keep`` is True (and the ranges among them), re-validated
+        (``check``) as by :func:`build_problem`; ``info["subset_of"]`` keeps the original anchor indices."""
+        k = np.asarray(keep, bool)
+        if k.shape != (self.n_anchors,):
+            raise ModelError(f"keep must have shape ({self.n_anchors},), got {k.shape}")
+        idx = np.flatnonzero(k)
+        new = np.full(self.n_anchors, -1, np.int64)
+        new[idx] = np.arange(idx.size)
+        m = k[self.meas_a] & k[self.meas_b]
+        if not m.any():
+            raise ModelError("the kept anchors have no range between them")
+        info = dict(self.info)
+        info["subset_of"] = idx.tolist()
+        out = _replace(self, ids=tuple(self.ids[i] for i in idx), positions_m=self.positions_m[idx],
+                       free=self.free[idx], meas_a=new[self.meas_a[m]], meas_b=new[self.meas_b[m]],
+                       range_m=self.range_m[m], truth_m=None if self.truth_m is None else self.truth_m[idx],
+                       initial_m=None if self.initial_m is None else self.initial_m[idx], info=info)
+        if check:
+            _check_determined(out.ids, out.dim, out.positions_m, out.free, out.fixed, out.meas_a, out.meas_b)
+        return out
+
     def describe(self) -> str:
         return (f"{self.name or 'problem'}: {self.n_anchors} anchors ({int(self.fixed.sum())} fixed), "
                 f"{self.dim}-D, {self.links.shape[0]} links, {self.n_meas} ranges, {self.n_free} unknowns")
@@ -162,6 +184,7 @@ def build_problem(
     truth_m: np.ndarray | None = None,
     name: str = "",
     info: Mapping[str, Any] | None = None,
+    check_determined: bool = True,
 ) -> RangingProblem:
     """Build and validate a :class:`RangingProblem`.
 
@@ -169,7 +192,8 @@ def build_problem(
     one range per sample (several samples of one pair are allowed). ``fixed`` maps the id of every fixed anchor
     to its position. ``held`` maps an estimated anchor's id to ``{axis: value}`` of coordinates to hold (e.g.
     ``{"A7": {2: 2.85}}`` holds A7's height at 2.85 m). Raises :class:`~distnav.errors.ModelError` when the
-    problem is malformed or not determined (see the module docstring).
+    problem is malformed or not determined (see the module docstring); ``check_determined=False`` skips the
+    determinacy test (for :func:`distnav.models.uwb.geometry.check_geometry`, which finds the determined part).
     """
     ids_t = tuple(str(s) for s in ids)
     n = len(ids_t)
@@ -227,7 +251,8 @@ def build_problem(
             free[index[str(key)], int(ax)] = False
 
     fixed_mask = np.asarray(~free.any(axis=1))
-    _check_determined(ids_t, dim, positions, free, fixed_mask, a, b)
+    if check_determined:
+        _check_determined(ids_t, dim, positions, free, fixed_mask, a, b)
     truth = _check_positions(truth_m, n, dim, "truth", ids_t) if truth_m is not None else None
     init = None
     if initial_m is not None:

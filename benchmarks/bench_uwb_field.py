@@ -1,0 +1,91 @@
+"""Timing of the real-data workflow (issue 13): one ``uwb solve`` with QC on the APRIL network and on a 28-anchor
+simulated hall, and a 1,000-anchor hall, against a bare scipy floor measured in the same run (one
+``scipy.optimize.least_squares`` Cauchy fit of the same problem from the same start, no QC).
+
+    python benchmarks/bench_uwb_field.py [--big] [--out bench_uwb_field.json]
+
+Prints a table; CPU time (``time.process_time``) is listed beside wall time because the machine is shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from distnav.experiments.uwb_field import hall_problem
+from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+from distnav.models.uwb.hall import simulate_hall
+from distnav.models.uwb.problems import RangingProblem
+
+_REPO = Path(__file__).resolve().parents[1]
+APRIL = next((c / "shared" / "data" / "uwb" / "april-dw1000-8node" / "dataset4.txt" for c in (_REPO.parent,
+              _REPO.parent.parent) if (c / "shared" / "data").is_dir()), Path("absent"))
+
+
+def _timed(fn: Any) -> tuple[Any, float, float]:
+    w0, c0 = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - w0, time.process_time() - c0
+
+
+def _scipy_floor(p: RangingProblem) -> float:
+    """CPU seconds of one scipy Cauchy fit of the same residuals (metres) from the same start."""
+    assert p.initial_m is not None
+    x0 = p.to_vector(p.initial_m)
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        pos = p.to_positions(x)
+        return np.linalg.norm(pos[p.meas_a] - pos[p.meas_b], axis=1) - p.range_m
+
+    _, _, cpu = _timed(lambda: least_squares(resid, x0, loss="cauchy", f_scale=0.3, method="trf"))
+    return cpu
+
+
+def _row(name: str, p: RangingProblem) -> dict[str, Any]:
+    (sub, geo), w_prep, c_prep = _timed(lambda: prepare(p))
+    sol, w_sol, c_sol = _timed(lambda: solve_field(sub, FieldOptions(), geometry=geo))
+    floor = _scipy_floor(sub)
+    return {"case": name, "anchors": p.n_anchors, "links": p.n_meas, "wall_s": w_prep + w_sol,
+            "cpu_s": c_prep + c_sol, "cpu_prepare_s": c_prep, "cpu_solve_qc_s": c_sol, "scipy_floor_cpu_s": floor,
+            "ratio_to_floor": (c_prep + c_sol) / max(floor, 1e-9), "excluded": int(sol.excluded.sum()),
+            "status": sol.status}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--big", action="store_true", help="also the 1,000-anchor hall (tens of seconds)")
+    ap.add_argument("--out", type=Path, default=Path("bench_uwb_field.json"))
+    args = ap.parse_args()
+    rows = []
+    if APRIL.is_file():
+        from distnav.commands.uwb import solve_range_log
+        from distnav.models.uwb.april import write_april_csvs
+
+        with tempfile.TemporaryDirectory() as d:
+            f = write_april_csvs(APRIL, d, known=[8, 12, 54, 87])
+            (_, _, s), w, c = _timed(lambda: solve_range_log(f["ranges"], f["known"], options=FieldOptions(
+                range_offsets="common")))
+            rows.append({"case": "APRIL dataset4, uwb solve incl. reading 21,504 samples", "anchors": 7,
+                         "links": s["n_pairs"], "wall_s": w, "cpu_s": c, "status": s["status"],
+                         "excluded": s["n_excluded"]})
+    rows.append(_row("hall, 28 anchors (middle)", hall_problem(simulate_hall(np.random.default_rng(1)))[0]))
+    if args.big:
+        big = simulate_hall(np.random.default_rng(2), n_anchors=1000, length_m=400.0, width_m=200.0)
+        rows.append(_row("hall, 1000 anchors", hall_problem(big)[0]))
+    args.out.write_text(json.dumps(rows, indent=2) + "\n")
+    print(f"{'case':55s} {'wall s':>8s} {'CPU s':>8s} {'floor CPU s':>12s} {'ratio':>7s}")
+    for r in rows:
+        fl = r.get("scipy_floor_cpu_s")
+        print(f"{r['case']:55s} {r['wall_s']:8.2f} {r['cpu_s']:8.2f} {fl if fl is not None else float('nan'):12.3f} "
+              f"{r.get('ratio_to_floor', float('nan')):7.1f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,234 @@
+"""``reproduce uwb-field``: the real-data workflow of ``uwb solve`` on simulated industrial halls (issue 13).
+
+Each instance is one :func:`~distnav.models.uwb.hall.simulate_hall` network (28 anchors under a 9 m ceiling of a
+60 m × 30 m hall, surveyed heights, NLOS links whose every sample is 0.5–2.5 m long, likelier with length,
+per-node antenna offsets, multipath minority, 5–60 samples per link), solved exactly as ``uwb solve`` does
+(median per pair, heights held, geometry checks, MDS start, objective in metres where the solver has it, Cauchy
+loss, link exclusion: :mod:`distnav.models.uwb.field`), with the 4 known anchors in the middle and in a corner.
+
+Per solver: mean RMSE over the estimated anchors, NLOS recall (excluded NLOS links / NLOS links) and false alarms
+(excluded LOS links / LOS links), 2σ coverage of the reported σ per axis (the Monte Carlo check of the
+precision), status counts, messages and bytes. The **oracle** is LM on the same links with the NLOS ones removed
+by the truth (plain least squares, no exclusion). Targets (issue 13): RMSE ≤ 1.15 × the oracle's, recall ≥ 90 %
+with ≤ 5 % false alarms, coverage within 90–98 %. ``--quick``: 1 hall per placement, LM and N-CSG-TBLS (200 it.).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from distnav.algorithms.csg import SOLVERS
+from distnav.experiments.common import ExperimentContext, pyplot
+from distnav.models.uwb.field import FieldOptions, gather_cost, prepare, solve_field, subset_measurements
+from distnav.models.uwb.geometry import GeometryReport
+from distnav.models.uwb.hall import HallNetwork, simulate_hall
+from distnav.models.uwb.io import RangeLog, combine_ranges
+from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
+from distnav.options import positive_int
+
+NAME = "uwb-field"
+TITLE = "UWB anchors in a simulated industrial hall: NLOS exclusion, precision, every solver vs the oracle"
+
+TARGETS: dict[str, Any] = {"rmse_ratio_max": 1.15, "recall_min": 0.90, "false_alarm_max": 0.05,
+                           "coverage": (0.90, 0.98)}
+PLACEMENTS = ("middle", "corner")
+FIGURE_CAPTIONS = {
+    "fig_uwb_field.png": "Simulated industrial halls: mean RMSE of each solver (uwb solve's workflow: metres "
+                         "objective, Cauchy loss, NLOS link exclusion) against the oracle that drops the NLOS links "
+                         "by the truth; right, the first hall with its NLOS links in red.",
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--instances", type=positive_int, default=None,
+                        help="halls per placement (default 20; --quick 1)")
+    parser.add_argument("--solvers", nargs="+", type=str.upper, choices=list(SOLVERS), default=None,
+                        help="solvers to run (default all; --quick LM and N-CSG-TBLS)")
+    parser.add_argument("--iterations", type=positive_int, default=None,
+                        help="iterations of the distributed solvers (default 500; --quick 200)")
+    parser.add_argument("--anchors", type=positive_int, default=28, help="anchors per hall (default 28)")
+
+
+def hall_problem(h: HallNetwork, *, heights: bool = True) -> tuple[RangingProblem, np.ndarray]:
+    """The problem ``uwb solve`` builds from the hall's files (median per pair, surveyed heights held), and the
+    NLOS truth of each of its links."""
+    a, b = h.sample_pairs()
+    comb = combine_ranges(RangeLog(Path("simulated"), tuple(a), tuple(b), h.range_m,
+                                   np.arange(h.range_m.size, dtype=np.int64)))
+    known = set(h.known.tolist())
+    held = ({h.ids[i]: {2: float(h.surveyed_z_m[i])} for i in range(h.n_anchors) if i not in known}
+            if heights else None)
+    p = build_problem(list(h.ids), list(comb.pairs), comb.range_m, fixed={h.ids[k]: h.truth_m[k] for k in known},
+                      dim=3, held=held, truth_m=h.truth_m, check_determined=False, name="hall")
+    label = {(h.ids[i], h.ids[j]): bool(f) for (i, j), f in zip(h.links.tolist(), h.nlos, strict=True)}
+    nlos = np.array([label.get((p.ids[x], p.ids[y]), label.get((p.ids[y], p.ids[x]), False))
+                     for x, y in zip(p.meas_a, p.meas_b, strict=True)])
+    return p, nlos
+
+
+def _coverage(sub: RangingProblem, pos: np.ndarray, sigma: np.ndarray) -> tuple[int, int]:
+    assert sub.truth_m is not None
+    free = sub.free
+    ok = np.isfinite(sigma) & free & (sigma > 0)
+    err = np.abs(pos - sub.truth_m)
+    return int(np.sum(err[ok] <= 2.0 * sigma[ok])), int(ok.sum())
+
+
+def _solve(sub: RangingProblem, geo: GeometryReport, nlos: np.ndarray, solver: str, iterations: int,
+           ctx: ExperimentContext) -> dict[str, Any]:
+    opts = FieldOptions(solver=solver, loss="linear" if solver == "CSG" else "cauchy",
+                        iterations=500 if solver == "LM" else iterations)
+    t0 = time.process_time()
+    sol = solve_field(sub, opts, geometry=geo, exchange=lambda p: ctx.exchange(p.graph) if solver != "LM" else None)
+    dt = time.process_time() - t0
+    ex = sol.excluded
+    hit, n_cov = _coverage(sub, sol.positions_m, sol.sigma_m) if sol.usable else (0, 0)
+    return {"rmse_m": rmse_m(sub, sol.positions_m) if sol.usable else float("nan"), "status": sol.status,
+            "tp": int((ex & nlos).sum()), "fp": int((ex & ~nlos).sum()), "nlos": int(nlos.sum()),
+            "los": int((~nlos).sum()), "cov_hit": hit, "cov_n": n_cov, "messages": sol.messages, "bytes": sol.bytes,
+            "cpu_s": dt, "objective": sol.objective_used, "weak": len(sol.weak),
+            "rmse_m_not_weak": _rmse_without(sub, sol) if sol.usable else float("nan")}
+
+
+def _rmse_without(sub: RangingProblem, sol: Any) -> float:
+    """RMSE over the estimated anchors the solution does not call weakly determined."""
+    keep = sub.estimated & ~np.isin(np.array(sub.ids), list(sol.weak))
+    assert sub.truth_m is not None
+    d = (sol.positions_m - sub.truth_m)[keep]
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1)))) if keep.any() else float("nan")
+
+
+def run(ctx: ExperimentContext) -> dict[str, Any]:
+    n_inst = int(ctx.options.get("instances") or (1 if ctx.quick else 20))
+    solvers = list(ctx.options.get("solvers") or (["LM", "N-CSG-TBLS"] if ctx.quick else SOLVERS))
+    iterations = int(ctx.options.get("iterations") or (200 if ctx.quick else 500))
+    n_anchors = int(ctx.options.get("anchors") or 28)
+    if n_inst < 1 or iterations < 1:
+        raise ValueError("--instances and --iterations must be ≥ 1")
+    rows: list[dict[str, Any]] = []
+    example: dict[str, Any] = {}
+    for pi, placement in enumerate(PLACEMENTS):
+        with ctx.progress.task(f"uwb-field: {placement}, {n_inst} hall(s) × {len(solvers)} solver(s) + oracle",
+                               total=n_inst):
+            for inst in range(n_inst):
+                h = simulate_hall(ctx.rng(100 * (pi + 1) + inst), n_anchors=n_anchors, known=placement)
+                p, nlos_full = hall_problem(h)
+                sub, geo = prepare(p)
+                keep = geo.solvable
+                nlos = nlos_full[keep[p.meas_a] & keep[p.meas_b]]
+                oracle = solve_field(subset_measurements(sub, ~nlos), FieldOptions(loss="linear", exclude=False),
+                                     geometry=geo)
+                base = {"placement": placement, "instance": inst, "oracle_rmse_m": rmse_m(sub, oracle.positions_m),
+                        "gather_bytes": gather_cost(sub)["bytes"], "links": sub.n_meas}
+                for s in solvers:
+                    r = _solve(sub, geo, nlos, s, iterations, ctx)
+                    rows.append({**base, "solver": s, **r})
+                if not example and ctx.is_root:
+                    example = {"truth": h.truth_m, "links": np.stack([sub.meas_a, sub.meas_b], 1), "nlos": nlos,
+                               "known": np.flatnonzero(sub.fixed)}
+    table = _aggregate(rows, solvers)
+    results: dict[str, Any] = {
+        "settings": {"instances_per_placement": n_inst, "solvers": solvers, "iterations": iterations,
+                     "anchors": n_anchors, "placements": list(PLACEMENTS), "hall": "HallConfig defaults",
+                     "options": "FieldOptions defaults (metres where available, Cauchy 0.3 m, exclusion at 0.001)"},
+        "targets": {k: list(v) if isinstance(v, tuple) else v for k, v in TARGETS.items()},
+        "table": table,
+        "runs": rows,
+    }
+    results["headline"] = {f"{r['placement']} {r['solver']}: RMSE / oracle": r["rmse_ratio"] for r in table}
+    ctx.write_json("results.json", results)
+    ctx.write_text("table.md", _table_md(table))
+    if ctx.is_root:
+        _figure(ctx, table, example)
+    return results
+
+
+def _aggregate(rows: list[dict[str, Any]], solvers: list[str]) -> list[dict[str, Any]]:
+    out = []
+    for placement in PLACEMENTS:
+        for s in solvers:
+            rs = [r for r in rows if r["placement"] == placement and r["solver"] == s]
+            if not rs:
+                continue
+            ok = [r for r in rs if r["status"] != "diverged"]
+            rm = float(np.mean([r["rmse_m"] for r in ok])) if ok else float("nan")
+            orc = float(np.mean([r["oracle_rmse_m"] for r in rs]))
+            tp, nl = sum(r["tp"] for r in rs), sum(r["nlos"] for r in rs)
+            fp, los = sum(r["fp"] for r in rs), sum(r["los"] for r in rs)
+            ch, cn = sum(r["cov_hit"] for r in rs), sum(r["cov_n"] for r in rs)
+            statuses: dict[str, int] = {}
+            for r in rs:
+                statuses[r["status"]] = statuses.get(r["status"], 0) + 1
+            ratio = rm / orc if orc > 0 else float("nan")
+            cov = ch / cn if cn else None
+            out.append({
+                "placement": placement, "solver": s, "instances": len(rs), "rmse_m": rm,
+                "rmse_m_median": float(np.median([r["rmse_m"] for r in ok])) if ok else float("nan"),
+                "rmse_m_not_weak": float(np.nanmean([r["rmse_m_not_weak"] for r in ok])) if ok else float("nan"),
+                "weak_anchors": int(sum(r["weak"] for r in rs)),
+                "oracle_rmse_m": orc, "rmse_ratio": ratio, "recall": tp / nl if nl else None,
+                "false_alarm": fp / los if los else None, "coverage_2sigma": cov, "statuses": statuses,
+                "objective": rs[0]["objective"], "messages": float(np.mean([r["messages"] for r in rs])),
+                "bytes": float(np.mean([r["bytes"] for r in rs])),
+                "gather_bytes": float(np.mean([r["gather_bytes"] for r in rs])),
+                "cpu_s_per_solve": float(np.mean([r["cpu_s"] for r in rs])),
+                "meets": {
+                    "rmse": bool(ratio <= TARGETS["rmse_ratio_max"]),
+                    "recall": bool(nl and tp / nl >= TARGETS["recall_min"]),
+                    "false_alarm": bool(los and fp / los <= TARGETS["false_alarm_max"]),
+                    "coverage": None if cov is None else bool(TARGETS["coverage"][0] <= cov <= TARGETS["coverage"][1]),
+                },
+            })
+    return out
+
+
+def _fmt(v: Any, spec: str) -> str:
+    return "–" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, spec)
+
+
+def _table_md(table: list[dict[str, Any]]) -> str:
+    out = ["# uwb-field: simulated industrial halls (targets: RMSE ≤ 1.15 × oracle, recall ≥ 90 %, false alarms "
+           "≤ 5 %, 2σ coverage 90–98 %)", "",
+           "| known | solver | objective | RMSE [m] | oracle [m] | ratio | recall | false alarms | 2σ coverage | "
+           "statuses | weak anchors | RMSE without them [m] | messages | bytes | gather bytes | CPU s |",
+           "|---" * 16 + "|"]
+    for r in table:
+        out.append(f"| {r['placement']} | {r['solver']} | {r['objective']} | {_fmt(r['rmse_m'], '.3f')} | "
+                   f"{_fmt(r['oracle_rmse_m'], '.3f')} | {_fmt(r['rmse_ratio'], '.2f')} | {_fmt(r['recall'], '.3f')} | "
+                   f"{_fmt(r['false_alarm'], '.3f')} | {_fmt(r['coverage_2sigma'], '.3f')} | "
+                   f"{', '.join(f'{k} {v}' for k, v in r['statuses'].items())} | {r['weak_anchors']} | "
+                   f"{_fmt(r['rmse_m_not_weak'], '.3f')} | {r['messages']:.0f} | "
+                   f"{r['bytes']:.0f} | {r['gather_bytes']:.0f} | {r['cpu_s_per_solve']:.2f} |")
+    return "\n".join(out) + "\n"
+
+
+def _figure(ctx: ExperimentContext, table: list[dict[str, Any]], example: dict[str, Any]) -> None:
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.8))
+    ax = axes[0]
+    labels = [f"{r['solver']}\n{r['placement']}" for r in table]
+    x = np.arange(len(table))
+    ax.bar(x - 0.2, [r["rmse_m"] for r in table], 0.4, label="solver (with exclusion)")
+    ax.bar(x + 0.2, [r["oracle_rmse_m"] for r in table], 0.4, label="oracle (NLOS removed by truth)")
+    ax.set_xticks(x, labels, fontsize=7)
+    ax.set_yscale("log")
+    ax.set_ylabel("mean RMSE [m]")
+    ax.legend(fontsize=8)
+    ax.set_title("RMSE vs the oracle")
+    ax = axes[1]
+    if example:
+        t, lk, nl = example["truth"], example["links"], example["nlos"]
+        for (i, j), f in zip(lk.tolist(), nl, strict=True):
+            ax.plot(t[[i, j], 0], t[[i, j], 1], "-", color="tab:red" if f else "0.75", lw=1.4 if f else 0.6)
+        ax.plot(t[:, 0], t[:, 1], "o", color="tab:blue", ms=4)
+        k = example["known"]
+        ax.plot(t[k, 0], t[k, 1], "^", color="k", ms=8)
+        ax.set_aspect("equal")
+        ax.set_title(f"first hall: {int(nl.sum())} NLOS links (red) of {len(nl)}")
+        ax.set_xlabel("x [m]")
+    ctx.save_figure(fig, "fig_uwb_field.png")

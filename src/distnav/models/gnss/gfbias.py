@@ -1,0 +1,300 @@
+"""Receiver and satellite DCBs with the ionosphere in one undifferenced geometry-free model, with a choice of datum.
+
+Observable (paper 003 eq. (49) before differencing; papers README): receiver ``i``, satellite ``s``, epoch ``t``,
+
+    ``y_i^s = (P_b − P_1)/(μ_b − 1) = Σ_k a_{i,k}^s ν_k + b_i + b^s + ε_i^s``,   [m]
+
+with ``b`` the second code's band (2 or 5: the frequency factor ``μ_b = (f₁/f_b)²`` comes from the band of the
+code, so ``C5X`` uses L5's), ``ν`` the single-layer ionosphere of :mod:`distnav.models.gnss.ionosphere`, and
+``b_i``, ``b^s`` the receiver and satellite biases in metres of the observable. A DSB ``C1−C_b`` of ``d`` ns (the
+Bias-SINEX sign: biases add to the observations) is ``b = −d·c·10⁻⁹/(μ_b − 1)`` (:func:`gf_m_per_dsb_ns`).
+
+**S-basis.** The design ``[a, e_i, e^s]`` has one rank defect: a constant added to every receiver bias and
+subtracted from every satellite bias changes nothing. The filters estimate in one of two bases (a choice of the
+``n + S − 1`` bias parameters, Teunissen's S-system), both estimable from the first epoch at which the named
+object observes:
+
+* ``basis="receiver"`` (default): the reference receiver ``r`` is lumped into the satellites,
+  ``x^s = b^s + b_r`` and ``x_j = b_j − b_r``. Chosen as the station observing at the first epoch, so every DCB
+  is estimable from the first epoch whatever satellites are up.
+* ``basis="pivot"``: the pivot satellite ``p`` is lumped into the receivers, ``x^s = b^s − b^p``,
+  ``x_j = b_j + b^p`` (paper 003's choice; nothing is estimable before ``p`` rises).
+
+Any other datum is an S-transformation of the estimates (:func:`datum_transform`): *zero-mean satellites*
+(``Σ_s b̃^s = 0`` over the estimable satellites: the IGS convention of the products), *pivot satellite* or
+*reference receiver*. Estimable functions — differences between satellites, between receivers, and
+``b_i + b^s`` — are the same in every datum; only the datum-defining part differs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from distnav.algorithms.kalman import DynamicModel, MeasurementSeries
+from distnav.errors import ModelError
+from distnav.models.gnss.constants import C_M_S, mu
+from distnav.models.gnss.ionosphere import GRADIENT_RW_STD_M_PER_RAD_SQRT_S, TEC_NAMES, VTEC_RW_STD_M_PER_SQRT_S
+
+__all__ = ["DATUMS", "gf_m_per_dsb_ns", "geometry_free_band_m", "BiasStateLayout", "BiasGeometryFreeSeries",
+           "bias_dynamics", "datum_transform", "in_datum"]
+
+DATUMS = ("zero-mean", "pivot", "receiver")
+"""Output datums: zero-mean satellites (IGS products), pivot satellite, reference receiver."""
+
+
+def gf_m_per_dsb_ns(band: int = 2) -> float:
+    """Metres of the geometry-free observable ``(P_b − P_1)/(μ_b − 1)`` per ns of a ``C1−C_b`` DSB (L2: 0.4634,
+    L5: 0.3779)."""
+    return C_M_S * 1e-9 / (mu(band) - 1.0)
+
+
+def geometry_free_band_m(p1_m: np.ndarray, pb_m: np.ndarray, band: int = 2) -> np.ndarray:
+    """``(P_b − P_1)/(μ_b − 1)`` [m] with the frequency factor of the second code's band; NaN propagates."""
+    out: np.ndarray = (np.asarray(pb_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(band) - 1.0)
+    return out
+
+
+@dataclass(frozen=True)
+class BiasStateLayout:
+    """State vector: ``3 × n_ionospheres`` TEC parameters, the receiver biases but the reference one (basis
+    "receiver") or all (basis "pivot"), then the satellite biases but the pivot (basis "pivot") or all."""
+
+    svs: tuple[str, ...]
+    receivers: tuple[str, ...]
+    n_ionospheres: int = 1
+    basis: str = "receiver"
+    reference: str = ""
+
+    def __post_init__(self) -> None:
+        if self.basis not in ("receiver", "pivot"):
+            raise ModelError(f"basis must be 'receiver' or 'pivot', got {self.basis!r}")
+        pool = self.receivers if self.basis == "receiver" else self.svs
+        if self.reference not in pool:
+            what = "receiver" if self.basis == "receiver" else "pivot satellite"
+            raise ModelError(f"reference {what} {self.reference!r} is not one of {', '.join(pool)}")
+        if not self.svs or not self.receivers or self.n_ionospheres < 1:
+            raise ModelError("the bias model needs satellites, receivers and at least one ionosphere")
+
+    @property
+    def n_tec(self) -> int:
+        return 3 * self.n_ionospheres
+
+    def receiver_column(self) -> np.ndarray:
+        """State column of each receiver's bias (``-1`` for the reference receiver in basis "receiver")."""
+        cached = self.__dict__.get("_rcol")
+        if cached is not None:
+            return np.asarray(cached).copy()
+        col = np.full(len(self.receivers), -1, np.int64)
+        k = self.n_tec
+        for j, r in enumerate(self.receivers):
+            if not (self.basis == "receiver" and r == self.reference):
+                col[j] = k
+                k += 1
+        object.__setattr__(self, "_rcol", col.copy())
+        return col
+
+    def satellite_column(self) -> np.ndarray:
+        """State column of each satellite's bias (``-1`` for the pivot in basis "pivot")."""
+        cached = self.__dict__.get("_scol")
+        if cached is not None:
+            return np.asarray(cached).copy()
+        col = np.full(len(self.svs), -1, np.int64)
+        k = self.n_tec + int((self.receiver_column() >= 0).sum())
+        for j, s in enumerate(self.svs):
+            if not (self.basis == "pivot" and s == self.reference):
+                col[j] = k
+                k += 1
+        object.__setattr__(self, "_scol", col.copy())
+        return col
+
+    @property
+    def n_states(self) -> int:
+        return self.n_tec + len(self.receivers) + len(self.svs) - 1
+
+    def state_names(self) -> list[str]:
+        names: list[str] = []
+        for g in range(self.n_ionospheres):
+            pre = "" if self.n_ionospheres == 1 else f"{self.receivers[g]}:"
+            names += [pre + t for t in TEC_NAMES]
+        names += [f"rx_gf_m:{r}" for r, c in zip(self.receivers, self.receiver_column(), strict=True) if c >= 0]
+        return names + [f"sat_gf_m:{s}" for s, c in zip(self.svs, self.satellite_column(), strict=True) if c >= 0]
+
+
+def bias_dynamics(layout: BiasStateLayout, interval_s: float | np.ndarray, *,
+                  vtec_std_m_per_sqrt_s: float = VTEC_RW_STD_M_PER_SQRT_S,
+                  gradient_std_m_per_rad_sqrt_s: float = GRADIENT_RW_STD_M_PER_RAD_SQRT_S) -> DynamicModel:
+    """Paper 003 eq. (53) for this layout: random walk on the TEC parameters, constant receiver and satellite
+    biases (the same dynamics as :func:`~distnav.models.gnss.ionosphere.ionosphere_dynamics`)."""
+    q2 = np.tile([vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s],
+                 layout.n_ionospheres) ** 2
+    H = np.eye(layout.n_states)[:, :layout.n_tec]
+    dt = np.asarray(interval_s, dtype=float)
+    if dt.ndim == 0:
+        if not (np.isfinite(dt) and dt > 0):
+            raise ModelError(f"the sampling interval must be positive, got {interval_s} s")
+        return DynamicModel(layout.n_states, noise_map=H, noise_reduced_cov=np.diag(q2 * float(dt)))
+    steps = dt[1:]
+    if not np.all(np.isfinite(steps) & (steps > 0)):
+        raise ModelError("epoch intervals must be positive (epochs sorted, no duplicates)")
+    dts = np.concatenate([[steps[0] if steps.size else 1.0], steps])
+    return DynamicModel(layout.n_states, noise_map=[H] * dt.size, noise_reduced_cov=[np.diag(q2 * d) for d in dts])
+
+
+class BiasGeometryFreeSeries(MeasurementSeries):
+    """Per-node, per-epoch normals ``N = Āᵀ W Ā``, ``r = Āᵀ W y`` of the undifferenced model (module doc) with
+    design rows ``Ā = [a_s (node's TEC block), e_{col(i)}, e_{col(s)}]`` and weights ``w = 1/σ²``.
+
+    Inputs over (T epochs, n nodes, S satellites) as for :class:`~distnav.models.gnss.ionosphere.
+    GeometryFreeSeries`: ``coefficients`` (T, n, S, 3), ``sigma_m`` (T, n, S), ``obs_m`` (T, n, S) (NaN = not
+    observed), ``tracked`` (T, n, S), ``groups`` (n,).
+    """
+
+    def __init__(self, layout: BiasStateLayout, coefficients: np.ndarray, sigma_m: np.ndarray, *,
+                 obs_m: np.ndarray | None = None, tracked: np.ndarray | None = None,
+                 groups: np.ndarray | None = None) -> None:
+        a = np.asarray(coefficients, dtype=float)
+        if a.ndim != 4 or a.shape[-1] != 3:
+            raise ModelError(f"coefficients must have shape (epochs, nodes, satellites, 3), got {a.shape}")
+        T, n, S, _ = a.shape
+        if S != len(layout.svs) or n != len(layout.receivers):
+            raise ModelError(f"coefficients for {n} receivers × {S} satellites, the layout has "
+                             f"{len(layout.receivers)} × {len(layout.svs)}")
+        sig = np.asarray(sigma_m, dtype=float)
+        if sig.shape != (T, n, S):
+            raise ModelError(f"sigma_m must have shape {(T, n, S)}, got {sig.shape}")
+        ok = np.isfinite(sig) & (sig > 0) & np.isfinite(a).all(axis=-1)
+        if tracked is not None:
+            ok &= np.asarray(tracked, dtype=bool).reshape(T, n, S)
+        y = None
+        if obs_m is not None:
+            y = np.asarray(obs_m, dtype=float)
+            if y.shape != (T, n, S):
+                raise ModelError(f"obs_m must have shape {(T, n, S)}, got {y.shape}")
+            ok &= np.isfinite(y)
+        g = np.zeros(n, np.int64) if groups is None else np.asarray(groups, dtype=np.int64).reshape(-1)
+        if g.shape != (n,) or g.min() < 0 or g.max() >= layout.n_ionospheres:
+            raise ModelError(f"groups must be {n} ionosphere indices in 0..{layout.n_ionospheres - 1}")
+        self.layout = layout
+        self.n_epochs, self.n_nodes, self.n_states, self.n_satellites = T, n, layout.n_states, S
+        self._a = np.where(ok[..., None], a, 0.0)
+        self._w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
+        self._y = None if y is None else np.where(ok, y, 0.0)
+        self._groups = g
+        self._rcol = layout.receiver_column()
+        self._scol = layout.satellite_column()
+        self._last_design: tuple[tuple[int, bytes], np.ndarray, np.ndarray] | None = None
+        self._static = np.zeros((n, S, layout.n_states))
+        for i in range(n):
+            if self._rcol[i] >= 0:
+                self._static[i, :, self._rcol[i]] = 1.0
+        sv = np.flatnonzero(self._scol >= 0)
+        self._static[:, sv, self._scol[sv]] = 1.0
+        self.tracked = ok
+
+    def design(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Design rows ``Ā`` (k, S, p) and weights ``w`` (k, S) (zero where not tracked)."""
+        t = self._epoch(epoch)
+        idx = self._nodes(nodes)
+        key = (t, idx.tobytes())
+        if self._last_design is not None and self._last_design[0] == key:
+            return self._last_design[1], self._last_design[2]
+        A = self._static[idx].copy()            # receiver and satellite columns (constant)
+        tec = 3 * self._groups[idx][:, None] + np.arange(3)[None, :]          # (k, 3) TEC columns per node
+        A[np.arange(idx.size)[:, None, None], np.arange(self.n_satellites)[None, :, None], tec[:, None, :]] = \
+            self._a[t, idx]
+        w = self._w[t, idx]
+        A *= (w > 0)[..., None]
+        self._last_design = (key, A, w)          # the filter and the residual statistics ask twice per epoch
+        return A, w
+
+    def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        A, w = self.design(epoch, nodes)
+        Aw = A * w[..., None]
+        N = np.swapaxes(Aw, 1, 2) @ A
+        if self._y is None:
+            return N, np.zeros(N.shape[:2])
+        y = self._y[self._epoch(epoch), self._nodes(nodes)]
+        return N, np.einsum("ksp,ks->kp", Aw, y)
+
+    def observations(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Whitened rows ``W^{1/2} Ā``, ``W^{1/2} y`` and their node of the tracked observations."""
+        A, w = self.design(epoch, nodes)
+        idx = self._nodes(nodes)
+        y = np.zeros(w.shape) if self._y is None else self._y[self._epoch(epoch), idx]
+        keep = w > 0
+        sq = np.sqrt(w)
+        node = np.broadcast_to(idx[:, None], w.shape)[keep]
+        return (A * sq[..., None])[keep], (y * sq)[keep], node.astype(np.int64)
+
+
+def datum_transform(layout: BiasStateLayout, datum: str, *, estimable: np.ndarray | None = None,
+                    pivot: str | None = None, reference: str | None = None,
+                    mean_over: Sequence[str] | None = None) -> np.ndarray:
+    """The S-transformation ``T`` (n + S, p) from the state to ``[b̃_receivers (n), b̃^s (S)]`` in ``datum``.
+
+    ``datum``: ``"zero-mean"`` (mean of the satellites in ``mean_over`` — default: those ``estimable`` — is zero),
+    ``"pivot"`` (``b̃^{pivot} = 0``), ``"receiver"`` (``b̃_{reference} = 0``). ``estimable`` (p,) marks the state
+    entries with finite estimates (default all). Rows of inestimable outputs are NaN.
+    """
+    if datum not in DATUMS:
+        raise ModelError(f"datum must be one of {', '.join(DATUMS)}, got {datum!r}")
+    n, S, p = len(layout.receivers), len(layout.svs), layout.n_states
+    est = np.ones(p, bool) if estimable is None else np.asarray(estimable, bool)
+    rcol, scol = layout.receiver_column(), layout.satellite_column()
+    # the state's own S-basis: rows give b_j (receivers) and b^s (satellites) with the basis object's bias = 0
+    B = np.zeros((n + S, p))
+    ok = np.ones(n + S, bool)
+    for j in range(n):
+        if rcol[j] >= 0:
+            B[j, rcol[j]] = 1.0
+            ok[j] = est[rcol[j]]
+    for s in range(S):
+        if scol[s] >= 0:
+            B[n + s, scol[s]] = 1.0
+            ok[n + s] = est[scol[s]]
+    # a shift c: b_j += c, b^s −= c keeps every observation; choose c by the datum
+    sat_ok = ok[n:]
+    if datum == "zero-mean":
+        members = sat_ok.copy() if mean_over is None else np.isin(np.array(layout.svs), list(mean_over)) & sat_ok
+        if not members.any():
+            return np.full((n + S, p), np.nan)
+        shift = B[n:][members].mean(axis=0)          # c = mean of the satellites → b̃^s = b^s − c
+        defined = np.ones(n + S, bool)
+    elif datum == "pivot":
+        name = pivot or (layout.reference if layout.basis == "pivot" else "")
+        if name not in layout.svs:
+            raise ModelError(f"pivot satellite {name!r} is not one of the satellites")
+        k = layout.svs.index(name)
+        shift = B[n + k]
+        defined = np.full(n + S, bool(ok[n + k]))
+    else:
+        name = reference or (layout.reference if layout.basis == "receiver" else "")
+        if name not in layout.receivers:
+            raise ModelError(f"reference receiver {name!r} is not one of {', '.join(layout.receivers)}")
+        k = layout.receivers.index(name)
+        shift = -B[k]                               # b̃_k = b_k − b_k = 0 → c = −b_k
+        defined = np.full(n + S, bool(ok[k]))
+    T = B.copy()
+    T[:n] += shift
+    T[n:] -= shift
+    T[~(ok & defined)] = np.nan
+    return T
+
+
+def in_datum(T: np.ndarray, x: np.ndarray, P: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Values ``T x`` and standard deviations ``sqrt diag(T P Tᵀ)`` (NaN rows of ``T`` give NaN)."""
+    bad = ~np.isfinite(T).all(axis=1)
+    Tz = np.where(np.isfinite(T), T, 0.0)
+    xz = np.where(np.isfinite(x), x, 0.0)
+    val = Tz @ xz
+    if P is None:
+        sd = np.full(val.shape, np.nan)
+    else:
+        Pz = np.where(np.isfinite(P), P, 0.0)
+        sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Tz, Pz, Tz), 0.0))
+    val[bad] = np.nan
+    sd[bad] = np.nan
+    return val, sd

@@ -1,0 +1,275 @@
+"""Carrier-to-code levelling of the geometry-free code per continuous arc, cycle-slip detection, arc screening.
+
+Per receiver and satellite, with code ``P_1, P_b`` and phase ``Φ_1, Φ_b`` (metres) on L1 and band ``b``:
+
+* geometry-free code  ``g_P = (P_b − P_1)/(μ_b − 1) = I + (code biases) + noise`` (decimetres, multipath);
+* geometry-free phase ``g_Φ = (Φ_1 − Φ_b)/(μ_b − 1) = I + (ambiguities, phase biases)`` (millimetres),
+  constant offset per continuous arc;
+* levelled code ``ḡ = g_Φ + ⟨g_P − g_Φ⟩_arc``: the phase's precision, the code's level.
+
+Arcs end at a data gap longer than ``max_gap_s``, a loss-of-lock indicator (bit 0), or a cycle slip:
+
+* geometry-free phase: ``|g_Φ,k − (2g_Φ,k−1 − g_Φ,k−2)| > gf_threshold_m`` (a linear ionosphere predicted
+  over the two previous epochs; 0.05 m catches the L1 = L2 one-cycle slip of 0.083 m on L2, 0.071 m on L5);
+* Melbourne–Wübbena wide-lane ``N_w = (Φ_1/λ_1 − Φ_b/λ_b) − (f_1P_1 + f_bP_b)/((f_1 + f_b)λ_w)`` [cycles]:
+  a jump of more than ``max(mw_sigmas × σ, mw_min_cycles)`` from the arc's running mean, confirmed by the next
+  epoch (an unconfirmed jump is an outlier of one epoch and is removed instead).
+
+Arcs shorter than ``min_arc_epochs`` are dropped (their offset would carry the code noise of a few epochs).
+Screening (quality control on the station's own data): within an arc the model ``g_P − g_Φ = offset + e`` with
+``σ_k`` of the geometry-free code is tested observation by observation (w-test of
+:func:`distnav.algorithms.statistics.w_statistics`, critical value :func:`~distnav.algorithms.statistics.
+critical_value`), the largest rejected one removed and the offset re-estimated until none is rejected — Baarda's
+iterative data snooping for a one-parameter model, the same as :func:`~distnav.algorithms.statistics.
+data_snooping` (a test compares them). The test uses the arc's own a-posteriori σ̂ (variance factor of the arc)
+with ``scale="arc"`` since real multipath makes the a-priori σ of the code only approximate.
+
+The levelling error is common to an arc: the levelled observations are given the code's σ (not the phase's) so
+that an arc's total information on its level equals that of its code (Σ 1/σ² over the arc).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from distnav.algorithms.result import ObservationTests
+from distnav.algorithms.statistics import critical_value, w_statistics
+from distnav.errors import ModelError
+from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
+
+__all__ = ["ArcStatistics", "LevelledStation", "geometry_free_phase_m", "melbourne_wubbena_cycles", "find_arcs",
+           "level_station", "screen_arc"]
+
+
+@dataclass(frozen=True)
+class ArcStatistics:
+    """One continuous arc: satellite, first/last epoch index, epochs kept, why it started, offset (m) and its σ,
+    RMS of code minus levelled phase before/after screening [m], observations removed by the screening."""
+
+    sv: str
+    first: int
+    last: int
+    n_epochs: int
+    start_reason: str
+    offset_m: float
+    offset_std_m: float
+    code_rms_m: float
+    removed: int
+
+
+@dataclass(frozen=True, eq=False)
+class LevelledStation:
+    """Levelled geometry-free code ``gf_m`` (T, S) (NaN outside kept arcs), ``arc`` (T, S) arc index (−1 none),
+    ``arcs`` their statistics, ``removed`` (T, S) True where the screening removed the code, counts of arc
+    starts by reason; ``tests`` the station's w-tests (:class:`~distnav.algorithms.result.ObservationTests`, owner
+    ``node``; ``removed`` indexes the tested observations in (epoch, satellite) order; computed by the station on
+    its own data: no messages)."""
+
+    gf_m: np.ndarray
+    arc: np.ndarray
+    arcs: list[ArcStatistics]
+    removed: np.ndarray
+    starts: dict[str, int]
+    dropped_short: int
+    tests: ObservationTests | None = None
+
+    def arc_summary(self) -> dict[str, Any]:
+        """Counts of arcs, starts by reason, short arcs dropped, median arc length and code RMS."""
+        n = np.array([a.n_epochs for a in self.arcs])
+        rms = np.array([a.code_rms_m for a in self.arcs])
+        return {"arcs": len(self.arcs), "starts": self.starts, "dropped_short": self.dropped_short,
+                "median_epochs": float(np.median(n)) if n.size else 0.0,
+                "median_code_rms_m": float(np.median(rms)) if rms.size else float("nan"),
+                "removed_by_screening": int(self.removed.sum())}
+
+    def screening_summary(self, svs: Sequence[str]) -> dict[str, Any]:
+        """What the station's own screening removed (per satellite) and its w-test summary."""
+        per_sat: dict[str, int] = {}
+        for s in np.nonzero(self.removed)[1].tolist():
+            per_sat[svs[s]] = per_sat.get(svs[s], 0) + 1
+        tests = self.tests.summary() if self.tests is not None else {}
+        tests.pop("removed", None)
+        return {"tested": int(self.tests.w.size) if self.tests is not None else 0,
+                "removed": int(self.removed.sum()), "removed_per_satellite": per_sat, **tests}
+
+
+def geometry_free_phase_m(phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2) -> np.ndarray:
+    """``(Φ_1 − Φ_b)/(μ_b − 1)`` [m]: the L1 ionospheric delay plus a constant per arc."""
+    out: np.ndarray = (np.asarray(phi1_m, float) - np.asarray(phib_m, float)) / (mu(band) - 1.0)
+    return out
+
+
+def melbourne_wubbena_cycles(p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray, phib_m: np.ndarray,
+                             band: int = 2) -> np.ndarray:
+    """Melbourne–Wübbena wide-lane [cycles of ``λ_w = c/(f_1 − f_b)``]: constant per arc up to code noise."""
+    f1, fb = GPS_FREQUENCIES_HZ[1], GPS_FREQUENCIES_HZ[band]
+    lw = C_M_S / (f1 - fb)
+    l1, lb = C_M_S / f1, C_M_S / fb
+    phase_wl = np.asarray(phi1_m, float) / l1 - np.asarray(phib_m, float) / lb
+    code_nl = (f1 * np.asarray(p1_m, float) + fb * np.asarray(pb_m, float)) / ((f1 + fb) * lw)
+    return phase_wl - code_nl
+
+
+def find_arcs(t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, lli: np.ndarray | None = None, *,
+              max_gap_s: float = 90.0, gf_threshold_m: float = 0.05, mw_sigmas: float = 4.0,
+              mw_min_cycles: float = 1.0) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Split one satellite's series into arcs. Returns ``arc`` (T,) (−1 where no data), ``outlier`` (T,) one-epoch
+    MW outliers, and the start reason of every arc (``first``, ``gap``, ``lli``, ``gf``, ``mw``)."""
+    t = np.asarray(t_s, float)
+    g = np.asarray(gf_phase_m, float)
+    w = np.asarray(mw_cycles, float)
+    ok = np.isfinite(g) & np.isfinite(w)
+    arc = np.full(t.size, -1, np.int64)
+    outlier = np.zeros(t.size, bool)
+    reasons: list[str] = []
+    idx = np.flatnonzero(ok)
+    cur = -1
+    hist: list[int] = []            # epochs of the current arc
+    mw_sum = mw_sq = 0.0
+    for pos, k in enumerate(idx.tolist()):
+        reason = ""
+        if cur < 0:
+            reason = "first"
+        elif t[k] - t[hist[-1]] > max_gap_s:
+            reason = "gap"
+        elif lli is not None and int(lli[k]) & 1:
+            reason = "lli"
+        else:
+            if len(hist) >= 2:
+                k1, k2 = hist[-1], hist[-2]
+                pred = g[k1] + (g[k1] - g[k2]) * (t[k] - t[k1]) / max(t[k1] - t[k2], 1e-9)
+                if abs(g[k] - pred) > gf_threshold_m:
+                    reason = "gf"
+            if not reason and len(hist) >= 3:
+                m = mw_sum / len(hist)
+                sd = np.sqrt(max(mw_sq / len(hist) - m * m, 0.0))
+                lim = max(mw_sigmas * sd, mw_min_cycles)
+                if abs(w[k] - m) > lim:
+                    nxt = idx[pos + 1] if pos + 1 < idx.size else -1
+                    confirmed = nxt >= 0 and abs(w[nxt] - m) > lim and abs(w[nxt] - w[k]) < lim
+                    if confirmed:
+                        reason = "mw"
+                    else:
+                        outlier[k] = True
+                        continue
+        if reason:
+            cur = len(reasons)
+            reasons.append(reason)
+            hist = []
+            mw_sum = mw_sq = 0.0
+        arc[k] = cur
+        hist.append(k)
+        mw_sum += w[k]
+        mw_sq += w[k] ** 2
+    return arc, outlier, reasons
+
+
+def screen_arc(d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, scale: str = "arc",
+               max_fraction: float = 0.2) -> tuple[np.ndarray, float, float, np.ndarray]:
+    """Iterative w-test screening of ``d = g_P − g_Φ = offset + e`` over one arc (module doc).
+
+    Returns (kept mask, offset [m], σ of the offset [m], w of every observation in the final solution — NaN
+    for removed ones). ``scale="arc"`` tests with the arc's a-posteriori
+    variance factor (robust to a wrong a-priori σ), ``"apriori"`` with ``sigma_m`` as given. At most
+    ``max_fraction`` of the arc is removed.
+    """
+    d = np.asarray(d_m, float)
+    s2 = np.asarray(sigma_m, float) ** 2
+    if scale not in ("arc", "apriori"):
+        raise ModelError(f"scale must be 'arc' or 'apriori', got {scale!r}")
+    keep = np.isfinite(d) & np.isfinite(s2) & (s2 > 0)
+    k_crit = critical_value(level)
+    limit = int(max_fraction * keep.sum())
+    w_out = np.full(d.shape, np.nan)
+    for _ in range(limit + 1):
+        wts = np.where(keep, 1.0 / np.where(keep, s2, 1.0), 0.0)
+        sw = wts.sum()
+        if sw <= 0 or keep.sum() < 3:
+            break
+        off = float((wts * np.where(keep, d, 0.0)).sum() / sw)
+        e = np.where(keep, d - off, 0.0)
+        var_e = np.where(keep, s2 - 1.0 / sw, 0.0)       # Q_ê of a weighted mean: σ_k² − 1/Σw
+        factor = 1.0
+        if scale == "arc":
+            r = keep.sum() - 1
+            factor = max(float((wts * e**2).sum() / r), 1e-12) if r > 0 else 1.0
+        w_signed = w_statistics(e, var_e * factor)
+        w_out = np.where(keep, w_signed, np.nan)
+        w = np.where(keep, np.abs(np.nan_to_num(w_signed)), 0.0)
+        worst = int(np.argmax(w))
+        if w[worst] <= k_crit or (~keep).sum() - (~np.isfinite(d)).sum() >= limit:
+            break
+        keep[worst] = False
+    wts = np.where(keep, 1.0 / np.where(keep, s2, 1.0), 0.0)
+    sw = wts.sum()
+    if sw <= 0:
+        return keep, float("nan"), float("nan"), w_out
+    off = float((wts * np.where(keep, d, 0.0)).sum() / sw)
+    r = keep.sum() - 1
+    s0 = float((wts * np.where(keep, d - off, 0.0) ** 2).sum() / r) if r > 0 and scale == "arc" else 1.0
+    return keep, off, float(np.sqrt(s0 / sw)), w_out
+
+
+def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray,
+                  phib_m: np.ndarray, *, band: int = 2, lli: np.ndarray | None = None,
+                  sigma_m: np.ndarray | None = None, min_arc_epochs: int = 10, max_gap_s: float | None = None,
+                  gf_threshold_m: float = 0.05, screen: bool = True, level: float = 0.001,
+                  fallback_raw: bool = False, node: int = 0) -> LevelledStation:
+    """Level one station's geometry-free code (T, S) per arc (module doc). ``sigma_m`` (T, S) σ of the code
+    ``g_P`` (default 1: equal weights); ``max_gap_s`` defaults to 3 × the median sampling interval."""
+    t = np.asarray(t_s, float)
+    if t.ndim != 1 or np.any(np.diff(t) <= 0):
+        raise ModelError("epoch times must be one increasing series")
+    gp = (np.asarray(pb_m, float) - np.asarray(p1_m, float)) / (mu(band) - 1.0)
+    gphi = geometry_free_phase_m(phi1_m, phib_m, band)
+    mw = melbourne_wubbena_cycles(p1_m, pb_m, phi1_m, phib_m, band)
+    sig = np.ones_like(gp) if sigma_m is None else np.asarray(sigma_m, float)
+    gap = max_gap_s if max_gap_s is not None else 3.0 * float(np.median(np.diff(t))) if t.size > 1 else 90.0
+    T, S = gp.shape
+    out = np.full((T, S), np.nan)
+    arc_id = np.full((T, S), -1, np.int64)
+    removed = np.zeros((T, S), bool)
+    w_all = np.full((T, S), np.nan)
+    arcs: list[ArcStatistics] = []
+    starts: dict[str, int] = {}
+    dropped = 0
+    for s in range(S):
+        ok = np.isfinite(gp[:, s]) & np.isfinite(gphi[:, s])
+        a, outl, reasons = find_arcs(t, np.where(ok, gphi[:, s], np.nan), np.where(ok, mw[:, s], np.nan),
+                                     None if lli is None else lli[:, s], max_gap_s=gap,
+                                     gf_threshold_m=gf_threshold_m)
+        removed[:, s] |= outl
+        for j, why in enumerate(reasons):
+            starts[why] = starts.get(why, 0) + 1
+            ep = np.flatnonzero(a == j)
+            if ep.size < min_arc_epochs:
+                dropped += 1
+                continue
+            d = gp[ep, s] - gphi[ep, s]
+            if screen:
+                keep, off, off_sd, w_arc = screen_arc(d, sig[ep, s], level=level)
+                w_all[ep, s] = w_arc
+            else:
+                keep = np.ones(ep.size, bool)
+                wts = 1.0 / sig[ep, s] ** 2
+                off = float((wts * d).sum() / wts.sum())
+                off_sd = float(np.sqrt(1.0 / wts.sum()))
+            removed[ep[~keep], s] = True
+            out[ep, s] = gphi[ep, s] + off
+            arc_id[ep, s] = len(arcs)
+            arcs.append(ArcStatistics(svs[s], int(ep[0]), int(ep[-1]), int(ep.size), why, off, off_sd,
+                                      float(np.sqrt(np.mean((d[keep] - off) ** 2))), int((~keep).sum())))
+    if fallback_raw:
+        raw = np.isnan(out) & np.isfinite(gp) & ~removed
+        out[raw] = gp[raw]
+    tested = np.isfinite(w_all) | removed
+    k = critical_value(level)
+    flat_w = w_all[tested]
+    tests = ObservationTests(node=np.full(flat_w.size, node, np.int64), w=flat_w, critical_value=k, level=level,
+                             flagged=np.abs(np.nan_to_num(flat_w)) > k,
+                             removed=tuple(np.flatnonzero(removed[tested]).tolist()))
+    return LevelledStation(out, arc_id, arcs, removed, starts, dropped, tests)

@@ -1,0 +1,75 @@
+"""The APRIL lab DW1000 range logs (``../shared/data/uwb/april-dw1000-8node``, read in place): conversion to the
+CSV files ``uwb solve`` reads.
+
+The logs hold one double-sided two-way-ranging exchange per line, whitespace separated: the raw time of
+propagation in **microseconds including the antenna delays**, the two node ids, then DW1000 diagnostics (see the
+folder's PROVENANCE.md). The range is ``d = (t − (δ_a + δ_b)/2) · c`` with ``c = 299.792458 m/µs`` and the
+lab's hand-calibrated delays :data:`MANUAL_DELAYS_US` (or one default delay, 0.516 µs, for every node: the
+uncalibrated case a common range offset absorbs). Clock-wrap garbage comes out as large negative ranges; they
+are kept in ``ranges.csv`` so that ``uwb solve`` drops and counts them as it would in any real log. Ground truth
+is 2-D, in feet (converted to metres); node 16 (the robot) has none and is left out.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from distnav.errors import DataFileError
+
+__all__ = ["C_M_PER_US", "MANUAL_DELAYS_US", "DEFAULT_DELAY_US", "TRUTH_FT", "read_april", "write_april_csvs"]
+
+C_M_PER_US = 299.792458
+DEFAULT_DELAY_US = 0.516
+MANUAL_DELAYS_US = {8: 0.515375, 12: 0.515547, 14: 0.515818, 16: 0.515717, 54: 0.515316, 61: 0.515541,
+                    81: 0.515397, 87: 0.515345}
+TRUTH_FT = {8: (0.0, 0.0), 12: (15.0, 1.0), 14: (2.0, 9.0), 54: (20.0, 3.0), 61: (10.0, 0.0), 81: (17.0, 7.0),
+            87: (8.0, 8.0)}
+FT_M = 0.3048
+
+
+def read_april(path: str | Path, *, delays: str = "manual") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(a, b, range_m)`` of every sample of one APRIL log (``delays`` = ``"manual"`` or ``"default"``)."""
+    p = Path(path)
+    if not p.is_file():
+        raise DataFileError(f"{p}: file not found")
+    if delays not in ("manual", "default"):
+        raise DataFileError(f"delays must be 'manual' or 'default', got {delays!r}")
+    try:
+        d = np.loadtxt(p, usecols=(0, 1, 2), ndmin=2)
+    except ValueError as exc:
+        raise DataFileError(f"{p}: not an APRIL range log (3 leading numeric columns expected): {exc}") from None
+    a, b = d[:, 1].astype(np.int64), d[:, 2].astype(np.int64)
+    unknown = sorted(set(a.tolist() + b.tolist()) - set(MANUAL_DELAYS_US))
+    if unknown:
+        raise DataFileError(f"{p}: node ids {unknown} are not the APRIL nodes {sorted(MANUAL_DELAYS_US)}")
+    if delays == "manual":
+        da = np.array([MANUAL_DELAYS_US[int(k)] for k in a])
+        db = np.array([MANUAL_DELAYS_US[int(k)] for k in b])
+    else:
+        da = db = np.full(a.size, DEFAULT_DELAY_US)
+    return a, b, (d[:, 0] - 0.5 * (da + db)) * C_M_PER_US
+
+
+def write_april_csvs(path: str | Path, out: str | Path, *, known: list[int], delays: str = "manual"
+                     ) -> dict[str, Path]:
+    """Write ``ranges.csv``, ``known.csv`` (the ``known`` nodes' true positions) and ``truth.csv`` (2-D, metres)."""
+    for k in known:
+        if k not in TRUTH_FT:
+            raise DataFileError(f"known node {k} has no ground truth; choose from {sorted(TRUTH_FT)}")
+    a, b, r = read_april(path, delays=delays)
+    keep = np.isin(a, list(TRUTH_FT)) & np.isin(b, list(TRUTH_FT))  # node 16: no truth, left out
+    o = Path(out)
+    o.mkdir(parents=True, exist_ok=True)
+    files = {k: o / f"{k}.csv" for k in ("ranges", "known", "truth")}
+    lines = ["a,b,range_m"] + [f"{x},{y},{v:.6f}" for x, y, v in zip(a[keep], b[keep], r[keep], strict=True)]
+    files["ranges"].write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+    def table(nodes: list[int]) -> str:
+        return "id,x_m,y_m\n" + "".join(f"{k},{TRUTH_FT[k][0] * FT_M:.4f},{TRUTH_FT[k][1] * FT_M:.4f}\n"
+                                        for k in nodes)
+
+    files["known"].write_text(table(sorted(known)), encoding="utf-8")
+    files["truth"].write_text(table(sorted(TRUTH_FT)), encoding="utf-8")
+    return files

@@ -1,0 +1,300 @@
+"""The real-data workflow of ``uwb solve`` and ``reproduce uwb-field``, in memory: geometry checks, initial
+guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the communication comparison.
+
+1. :func:`prepare`: :func:`~distnav.models.uwb.geometry.check_geometry` on the problem as read; the anchors the
+   ranges cannot locate (cut off, non-rigid) are dropped (reported *unsolved*), the rest gets the MDS start
+   (:mod:`distnav.models.uwb.initial`) and the planar / mirror checks; a refused geometry raises ModelError.
+2. :func:`solve_field`: the solver with the metres objective and a robust loss (default Cauchy at 0.3 m, LM's
+   graduated start: linear first, then robust), per-link w-tests and per-anchor precision from the solver
+   (:mod:`distnav.algorithms.ranging_qc`), and with ``exclude`` its iterative exclusion of the worst link while
+   the network stays determined (:func:`distnav.algorithms.ranging_qc.exclude_links`).
+3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
+
+The solve call goes to :func:`distnav.algorithms.csg.solve` by name, with ``objective`` passed when the solver
+takes it (the metres objective of issue 13; until then the paper's squared form) — ``objective_used`` says which.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import shortest_path
+
+from distnav.algorithms import csg
+from distnav.algorithms.nlsq import solve_lm
+from distnav.algorithms.ranging_qc import exclude_links
+from distnav.errors import ModelError
+from distnav.models.uwb.geometry import GeometryReport, check_geometry
+from distnav.models.uwb.initial import mds_initial_guess
+from distnav.models.uwb.local import repair_exclusions
+from distnav.models.uwb.problems import RangingProblem
+from distnav.typing import BoolArray, FloatArray
+
+__all__ = ["FieldOptions", "FieldSolution", "prepare", "solve_field", "gather_cost", "RANGE_RECORD_BYTES",
+           "supports_objective", "subset_measurements"]
+
+RANGE_RECORD_BYTES = 16  # two int32 anchor ids + one float64 range
+POSITION_BYTES = 8
+
+
+@dataclass(frozen=True)
+class FieldOptions:
+    """How :func:`solve_field` solves (defaults: LM, objective in metres, Cauchy loss at 0.3 m, exclusions)."""
+
+    solver: str = "LM"
+    objective: str = "metres"
+    loss: str = "cauchy"
+    loss_scale_m: float = 0.3
+    sigma_m: float = 0.1
+    iterations: int = 500
+    exclude: bool = True
+    level: float = 0.001
+    max_exclusions: int | None = None
+    range_offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
+    allow_planar_3d: bool = False
+    repair: bool = True
+    solver_options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class FieldSolution:
+    """Everything ``uwb solve`` writes. Arrays over ``problem``'s anchors / measurements (the solvable part);
+    ``geometry.unsolved`` names the anchors left out. ``w`` / ``flagged`` / ``excluded`` per measurement (``w``
+    NaN where the solver gave no test); ``sigma_m`` per anchor and axis (a-posteriori; NaN where unknown)."""
+
+    problem: RangingProblem
+    geometry: GeometryReport
+    positions_m: FloatArray
+    sigma_m: FloatArray
+    residual_m: FloatArray
+    w: FloatArray
+    flagged: BoolArray
+    excluded: BoolArray
+    result: Any
+    status: str
+    message: str
+    objective_used: str
+    iterations: int
+    messages: int
+    bytes: int
+    critical_value: float | None
+    weak: tuple[str, ...] = ()
+
+    @property
+    def usable(self) -> bool:
+        return self.status != "diverged"
+
+
+def supports_objective(solver: str) -> bool:
+    """Whether the solver front door takes ``objective=`` (the metres objective of issue 13)."""
+    key = solver.upper()
+    fn: Callable[..., Any] = solve_lm if key == "LM" else (csg.solve_csg if key == "CSG" else
+                                                               csg.solve_nclm if key == "N-CLM" else csg.solve_ncsg)
+    return "objective" in inspect.signature(fn).parameters
+
+
+def prepare(problem: RangingProblem, *, initial_m: FloatArray | None = None, allow_planar_3d: bool = False,
+            rng: np.random.Generator | None = None) -> tuple[RangingProblem, GeometryReport]:
+    """Geometry checks, the determined part, its initial guess (see the module docstring)."""
+    first = check_geometry(problem, allow_planar_3d=allow_planar_3d, rng=rng)
+    if not (first.solvable & problem.estimated).any():
+        raise ModelError("nothing to solve: " + ("; ".join(first.messages()) or "no estimated anchor"))
+    sub = problem.subset(first.solvable)
+    if initial_m is not None:
+        init = np.asarray(initial_m, float)[first.solvable]
+    else:
+        init = mds_initial_guess(sub)
+    sub = sub.with_initial(init)
+    second = check_geometry(sub, allow_planar_3d=allow_planar_3d, rng=rng)
+    carried = tuple(i for i in first.issues if i.severity == "unsolved")
+    report = GeometryReport(ids=problem.ids, solvable=first.solvable, issues=carried + second.issues,
+                            planarity_known=second.planarity_known, planarity_network=second.planarity_network,
+                            notes=first.notes + second.notes)
+    report.raise_if_refused()
+    return sub, report
+
+
+def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int],
+            start: FloatArray | None = None) -> Callable[[Any], Any]:
+    key = opts.solver.upper()
+    kw: dict[str, Any] = dict(opts.solver_options)
+    if key != "CSG":
+        kw.update(loss=opts.loss, loss_scale_m=opts.loss_scale_m)
+    if supports_objective(key):
+        kw.update(objective=opts.objective)
+        if opts.objective == "metres":
+            kw.update(sigma_m=opts.sigma_m)
+            if key == "LM":
+                kw.update(range_offsets=opts.range_offsets, offset_prior_sigma_m=opts.offset_prior_sigma_m)
+        kw.update(test_level=opts.level)
+    elif opts.range_offsets != "none":
+        raise ModelError(f"range offsets are estimated by LM with the metres objective, not by {key}")
+
+    last: list[FloatArray] = [] if start is None else [np.asarray(start, float)]
+
+    def fit(sub: Any) -> Any:
+        extra: dict[str, Any] = {"exchange": exchange(sub)} if key != "LM" and exchange is not None else {}
+        if last:  # a re-fit after an exclusion starts from the last solution, robust loss straight away
+            sub = sub.with_initial(last[-1])
+            if key == "LM" and "objective" in kw and "graduated" not in kw:
+                extra["graduated"] = False
+        r = csg.solve(sub, key, iterations=opts.iterations, **kw, **extra)
+        if r.usable and np.all(np.isfinite(r.estimates)):
+            last.append(np.asarray(r.estimates, float))
+        comm[0] += int(r.iterations)
+        comm[1] += int(r.comm.messages)
+        comm[2] += int(r.comm.bytes)
+        return r
+
+    return fit
+
+
+WEAK_RMS_M = 0.15
+
+
+def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: BoolArray, flagged: BoolArray, *,
+                 limit_m: float = WEAK_RMS_M) -> tuple[str, ...]:
+    """Anchors with an excluded or flagged link whose kept links still misfit by more than ``limit_m`` RMS (or 3 ×
+    the network's robust residual scale, if larger) at the solution: the exclusions could not find a consistent
+    subset of their links; and anchors left with a single redundant link after an exclusion (4 links of which 2
+    are NLOS fit the wrong pair exactly: only the thin redundancy gives it away)."""
+    kept = ~np.asarray(excluded, bool)
+    n = problem.n_anchors
+    a, b = problem.meas_a, problem.meas_b
+    e2 = np.where(kept, residual_m**2, 0.0)
+    ssr = np.bincount(a, e2, minlength=n) + np.bincount(b, e2, minlength=n)
+    cnt = np.bincount(a[kept], minlength=n) + np.bincount(b[kept], minlength=n)
+    touched = np.zeros(n, bool)
+    bad = ~kept | np.asarray(flagged, bool)
+    touched[a[bad]] = True
+    touched[b[bad]] = True
+    rms = np.sqrt(ssr / np.maximum(cnt, 1))
+    scale = 1.4826 * float(np.median(np.abs(residual_m[kept]))) if kept.any() else 0.0
+    limit = max(limit_m, 3.0 * scale)  # a network whose every link misfits (range bias) is not "weak" here
+    # one redundant link left after an exclusion: a second bad link could be detected there but not located
+    thin = (cnt <= problem.free.sum(axis=1) + 1) & np.isin(np.arange(n), np.concatenate([a[~kept], b[~kept]]))
+    return tuple(problem.ids[i] for i in np.flatnonzero(touched & problem.estimated & ((rms > limit) | thin)))
+
+
+def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], cap: int | None) -> tuple[Any, Any] | None:
+    """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular)."""
+    try:
+        res, _, tests = exclude_links(problem, fit, max_exclusions=cap)
+    except ModelError:
+        return None
+    return res, tests
+
+
+def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
+                geometry: GeometryReport | None = None,
+                exchange: Callable[[RangingProblem], Any] | None = None) -> FieldSolution:
+    """Solve a prepared problem (from :func:`prepare`) with QC; see the module docstring."""
+    opts = options or FieldOptions()
+    if problem.initial_m is None:
+        raise ModelError("solve_field needs a prepared problem with an initial guess (see prepare)")
+    objective = opts.objective if supports_objective(opts.solver) else "squared"
+    note = "" if objective == opts.objective else f" ({opts.solver} has no {opts.objective} objective: squared used)"
+    total = [0, 0, 0]
+    fit = _fitter(opts, exchange, total)
+    excluded = np.zeros(problem.n_meas, bool)
+    # exclusions tested at the robust solution (an NLOS link does not drag it); every re-fit robust too
+    first = _exclude(problem, fit, opts.max_exclusions) if opts.exclude else None
+    if first is not None:
+        res, tests = first
+        excluded[list(tests.removed)] = True
+        w, flagged, crit = tests.w, tests.flagged, float(tests.critical_value)
+        for _ in range(2 if opts.repair else 0):
+            if not res.usable:
+                break
+            repaired, notes = repair_exclusions(problem, np.asarray(res.estimates, float), excluded, flagged)
+            if not notes:
+                break
+            if notes:  # re-fit without the links each anchor chose, then test (and exclude) again
+                kept_idx = np.flatnonzero(~repaired)
+                again = _exclude(subset_measurements(problem, ~repaired), fit, opts.max_exclusions)
+                if again is None:
+                    note += "; per-anchor check: its re-fit gave no link tests, kept the first choice"
+                    break
+                res2, t2 = again
+                if res2.usable:
+                    res, excluded = res2, repaired
+                    excluded[kept_idx[list(t2.removed)]] = True
+                    w = np.full(problem.n_meas, np.nan)
+                    w[kept_idx] = t2.w
+                    flagged = np.zeros(problem.n_meas, bool)
+                    flagged[kept_idx] = t2.flagged
+                    note += "; per-anchor check: " + "; ".join(notes)
+    else:
+        res = fit(problem)
+        if res.tests is not None and res.usable:
+            w, flagged, crit = res.tests.w, res.tests.flagged, float(res.tests.critical_value)
+        else:
+            w, flagged, crit = np.full(problem.n_meas, np.nan), np.zeros(problem.n_meas, bool), None
+        if opts.exclude and res.usable:
+            note += f"; {opts.solver}: no per-link tests (or they failed on a re-fit): no link excluded"
+    geo = geometry if geometry is not None else check_geometry(problem)
+    nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
+    if not res.usable or not np.all(np.isfinite(res.estimates)):
+        return FieldSolution(problem=problem, geometry=geo, positions_m=nan_pos, sigma_m=nan_pos.copy(),
+                             residual_m=np.full(problem.n_meas, np.nan), w=w, flagged=flagged, excluded=excluded,
+                             result=res, status="diverged",
+                             message=f"diverged: {res.message} (no positions are reported)",
+                             objective_used=objective, iterations=total[0], messages=total[1], bytes=total[2],
+                             critical_value=crit)
+    pos = np.asarray(res.estimates, float)
+    sigma = nan_pos.copy()
+    if res.precision is not None:
+        sigma = np.where(problem.free, res.precision.std(a_posteriori=True), 0.0)
+    residual = problem.residuals_m(pos)
+    weak = weak_anchors(problem, residual, excluded, flagged)
+    status = geo.status or ("weakly_determined" if weak and res.status in ("converged", "max_iterations")
+                            else res.status)
+    msg = res.message + note
+    if weak:
+        msg = (f"weakly determined: anchors {', '.join(repr(k) for k in weak[:12])} still misfit their kept links "
+               f"by more than {WEAK_RMS_M} m RMS (or 3 × the network's robust residual scale) after the "
+               f"exclusions (too few consistent links to tell which are NLOS) — {msg}")
+    if geo.status is not None:
+        msg = f"{geo.status}: " + "; ".join(i.message for i in geo.issues if i.severity != "unsolved") + f" — {msg}"
+    return FieldSolution(problem=problem, geometry=geo, positions_m=pos, sigma_m=sigma,
+                         residual_m=residual, w=w, flagged=flagged, excluded=excluded, result=res,
+                         status=status, message=msg, objective_used=objective, iterations=total[0],
+                         messages=total[1], bytes=total[2], critical_value=crit, weak=weak)
+
+
+def gather_cost(problem: RangingProblem) -> dict[str, Any]:
+    """Messages and bytes to gather every range at one anchor over the range graph and send the positions back.
+
+    Convergecast along a shortest-path tree to the anchor that minimizes the bytes: every link's record
+    (:data:`RANGE_RECORD_BYTES`) travels from the nearer of its two anchors one hop per tree edge, one message
+    per tree edge carries a subtree's records; the estimated positions (``dim × 8`` B each) go back the same way.
+    """
+    lk = problem.links
+    n = problem.n_anchors
+    g = csr_matrix((np.ones(2 * lk.shape[0]), (np.concatenate([lk[:, 0], lk[:, 1]]),
+                                                 np.concatenate([lk[:, 1], lk[:, 0]]))), shape=(n, n))
+    hops = shortest_path(g, directed=False, unweighted=True)
+    if not np.all(np.isfinite(hops)):
+        raise ModelError("the range graph is not connected: no single anchor can gather every range")
+    own = np.minimum(hops[:, lk[:, 0]], hops[:, lk[:, 1]])  # sink × link: hops of the link's record
+    up = own.sum(axis=1) * RANGE_RECORD_BYTES
+    down = hops[:, problem.estimated].sum(axis=1) * problem.dim * POSITION_BYTES
+    total = up + down
+    sink = int(np.argmin(total))
+    return {"sink": problem.ids[sink], "messages": int(2 * (n - 1)), "bytes": int(total[sink]),
+            "bytes_ranges": int(up[sink]), "bytes_positions": int(down[sink]),
+            "record_bytes": RANGE_RECORD_BYTES, "links": int(lk.shape[0]),
+            "max_hops": int(hops[sink].max())}
+
+
+def subset_measurements(problem: RangingProblem, keep: BoolArray) -> RangingProblem:
+    """The same problem with only the measurements where ``keep`` is True (the oracle drops NLOS links)."""
+    k = np.asarray(keep, bool)
+    return dataclasses.replace(problem, meas_a=problem.meas_a[k], meas_b=problem.meas_b[k], range_m=problem.range_m[k])

@@ -1,0 +1,283 @@
+"""Geometry and ambiguity checks of a ranging problem, made before solving (issue 13, item 4).
+
+A solver given an undetermined or ambiguous network still returns numbers, and they look as good as any. These
+pure functions say beforehand which anchors the ranges can locate, and how well:
+
+* **Cut-off parts** (``disconnected``): anchors whose part of the range graph holds no known anchor cannot be
+  placed in the known anchors' frame. They are reported *unsolved*; the rest is solved.
+* **Non-rigid parts** (``non_rigid``): an anchor that can move while every range stays the same (a single link,
+  two links in 3-D, a part hinged on two anchors, a part with one known anchor that can rotate). Test: the
+  rank of the rigidity matrix (rows ``(p_a − p_b)ᵀ`` at a's and ``−(p_a − p_b)ᵀ`` at b's free coordinates,
+  i.e. the Jacobian of the ranges) at **random** positions (generic rigidity, Asimow & Roth 1978): an anchor
+  with a component in its null space is flexible. Unsolved too; the test is repeated on the rest.
+* **Flips** (``flip``): an anchor measured to exactly as many others as it has free coordinates (2 links in
+  2-D or with its height held, 3 in 3-D) is rigid but has a second, mirrored position fitting its ranges as
+  well (reflected through the line or plane of its neighbours). *Ambiguous*: the issue's "2 links left one
+  anchor 8–9 m off, converged".
+* **Mirror of the whole network** (``mirror``): the known anchors of a part lie on one line (2-D, or 3-D with the
+  heights held: their horizontal positions), or in 3-D with free heights on one plane (always the case with 3
+  known anchors): the reflection through that line / plane keeps every range and every known position, so the
+  ranges cannot choose between the solution and its mirror image. *Ambiguous*.
+* **Nearly planar network solved in 3-D** (``planar``): anchors under a ceiling lie within decimetres of one
+  plane; with free heights the ranges constrain the heights only to second order and each anchor can fold
+  through the plane. Measured by :func:`planarity` (smallest / largest principal spread) of the known anchors
+  and of the initial guess of the whole network; below ``planar_tol`` (0.1 by default: a 2 m height span across
+  20 m is planar) the solve is *refused* unless ``allow_planar_3d=True`` (then *weakly determined*). The remedy
+  is to hold the surveyed heights (``--heights``). The network's planarity is that of the initial guess (an
+  MDS of the ranges) where there is one, else that of the known anchors. Known anchors that are nearly but not
+  exactly coplanar in a network that is not planar (``near_mirror``) make the solve *weakly determined*.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from distnav.errors import ModelError
+from distnav.models.uwb.problems import RangingProblem
+from distnav.typing import BoolArray, FloatArray, IntArray
+
+__all__ = ["GeometryIssue", "GeometryReport", "check_geometry", "rigidity_matrix", "flexible_anchors",
+           "planarity", "PLANAR_TOL", "MAX_DENSE_RIGIDITY"]
+
+PLANAR_TOL = 0.1
+EXACT_TOL = 1e-6
+MAX_DENSE_RIGIDITY = 6000
+Severity = Literal["unsolved", "ambiguous", "weakly_determined", "refused"]
+
+
+@dataclass(frozen=True)
+class GeometryIssue:
+    """One finding: ``kind`` (disconnected, non_rigid, flip, mirror, planar), what it means for the solve
+    (``severity``), the anchors concerned and a message for a user."""
+
+    kind: str
+    severity: Severity
+    anchors: tuple[str, ...]
+    message: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "severity": self.severity, "anchors": list(self.anchors), "message": self.message}
+
+
+@dataclass(frozen=True, eq=False)
+class GeometryReport:
+    """What :func:`check_geometry` found. ``solvable`` marks the anchors the ranges can locate (known anchors
+    included); ``planarity_known`` / ``planarity_network`` are ``None`` where not computed (2-D, heights held,
+    no initial guess)."""
+
+    ids: tuple[str, ...]
+    solvable: BoolArray
+    issues: tuple[GeometryIssue, ...] = ()
+    planarity_known: float | None = None
+    planarity_network: float | None = None
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def unsolved(self) -> tuple[str, ...]:
+        return tuple(k for k, s in zip(self.ids, self.solvable, strict=True) if not s)
+
+    @property
+    def refused(self) -> tuple[GeometryIssue, ...]:
+        return tuple(i for i in self.issues if i.severity == "refused")
+
+    @property
+    def status(self) -> Literal["ambiguous", "weakly_determined"] | None:
+        """The worst :data:`~distnav.algorithms.result.SolverStatus` the geometry allows (None: no concern)."""
+        sev = {i.severity for i in self.issues}
+        if "ambiguous" in sev:
+            return "ambiguous"
+        if "weakly_determined" in sev:
+            return "weakly_determined"
+        return None
+
+    def ambiguous_anchors(self) -> set[str]:
+        out: set[str] = set()
+        for i in self.issues:
+            if i.severity == "ambiguous":
+                out.update(i.anchors)
+        return out
+
+    def messages(self) -> list[str]:
+        return [i.message for i in self.issues]
+
+    def raise_if_refused(self) -> None:
+        if self.refused:
+            raise ModelError("; ".join(i.message for i in self.refused))
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"status": self.status, "unsolved": list(self.unsolved), "issues": [i.as_dict() for i in self.issues],
+                "planarity_known": self.planarity_known, "planarity_network": self.planarity_network,
+                "notes": list(self.notes)}
+
+
+def planarity(points_m: FloatArray) -> float:
+    """Smallest over largest principal spread of 3-D points (0 = coplanar; 0 for fewer than 4 points)."""
+    p = np.asarray(points_m, float)
+    if p.shape[0] < 4 or p.shape[1] < 3:
+        return 0.0
+    s = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
+    return float(s[-1] / s[0]) if s[0] > 0 else 0.0
+
+
+def _line_ratio(points: FloatArray) -> float:
+    """Second over first principal spread (0 = collinear; 0 for fewer than 3 points)."""
+    if points.shape[0] < 3:
+        return 0.0
+    s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return float(s[1] / s[0]) if s[0] > 0 else 0.0
+
+
+def rigidity_matrix(problem: RangingProblem, positions_m: FloatArray) -> sp.csr_matrix:
+    """Rigidity matrix of the measured links (one row per link) at ``positions_m``, columns = free coordinates."""
+    links = problem.links
+    p = np.asarray(positions_m, float)
+    diff = p[links[:, 0]] - p[links[:, 1]]
+    col = np.full(problem.free.shape, -1, np.int64)
+    col[problem.free] = np.arange(problem.n_free)
+    rows = np.repeat(np.arange(links.shape[0]), problem.dim)
+    ca, cb = col[links[:, 0]].ravel(), col[links[:, 1]].ravel()
+    r = np.concatenate([rows, rows])
+    c = np.concatenate([ca, cb])
+    v = np.concatenate([diff.ravel(), -diff.ravel()])
+    keep = c >= 0
+    return sp.csr_matrix((v[keep], (r[keep], c[keep])), shape=(links.shape[0], problem.n_free))
+
+
+def flexible_anchors(problem: RangingProblem, rng: np.random.Generator | None = None) -> BoolArray:
+    """Anchors that can move without changing any range (generic rigidity at random positions; see module)."""
+    n_free = problem.n_free
+    out = np.zeros(problem.n_anchors, bool)
+    if n_free == 0:
+        return out
+    g = rng if rng is not None else np.random.default_rng(20240613)
+    pos = g.normal(0.0, 1.0, size=(problem.n_anchors, problem.dim))
+    r = rigidity_matrix(problem, pos)
+    normal = (r.T @ r).toarray()
+    w, v = np.linalg.eigh(normal)
+    null = v[:, w <= 1e-9 * max(float(w[-1]), 1e-300)]
+    if null.shape[1] == 0:
+        return out
+    energy = np.einsum("ij,ij->i", null, null)  # diagonal of the null-space projector, per free coordinate
+    owner = np.nonzero(problem.free)[0]
+    per_anchor = np.bincount(owner, energy, minlength=problem.n_anchors)
+    out[:] = per_anchor > 1e-8
+    return out
+
+
+def _components(problem: RangingProblem, keep: BoolArray) -> Iterator[IntArray]:
+    lk = problem.links
+    m = keep[lk[:, 0]] & keep[lk[:, 1]]
+    n = problem.n_anchors
+    adj = sp.csr_matrix((np.ones(int(m.sum())), (lk[m, 0], lk[m, 1])), shape=(n, n))
+    _, labels = connected_components(adj, directed=False)
+    for lab in np.unique(labels[keep]):
+        yield np.flatnonzero((labels == lab) & keep)
+
+
+def _names(problem: RangingProblem, idx: IntArray | list[int], limit: int = 12) -> str:
+    shown = ", ".join(repr(problem.ids[i]) for i in list(idx)[:limit])
+    return shown + (f" and {len(idx) - limit} more" if len(idx) > limit else "")
+
+
+def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, planar_tol: float = PLANAR_TOL,
+                   initial_m: FloatArray | None = None, rng: np.random.Generator | None = None) -> GeometryReport:
+    """Run every check of the module docstring on ``problem`` (built with ``check_determined=False`` if it may
+    be undetermined). ``initial_m`` (default ``problem.initial_m``) is used for the network's planarity."""
+    n = problem.n_anchors
+    fixed = problem.fixed
+    issues: list[GeometryIssue] = []
+    notes: list[str] = []
+    keep = np.ones(n, bool)
+
+    # 1. parts of the range graph without a known anchor
+    lost: list[int] = []
+    for comp in _components(problem, keep):
+        if not fixed[comp].any():
+            lost += comp.tolist()
+    if lost:
+        keep[lost] = False
+        issues.append(GeometryIssue("disconnected", "unsolved", tuple(problem.ids[i] for i in lost),
+                                    f"anchors {_names(problem, lost)} have no chain of measured links to a known "
+                                    f"anchor: left unsolved"))
+    # 2. non-rigid parts (repeat: removing a flexible anchor can leave another flexible)
+    for _ in range(4):
+        if not (keep & problem.estimated).any():
+            break
+        if problem.n_free > MAX_DENSE_RIGIDITY:
+            notes.append(f"rigidity test skipped: {problem.n_free} unknowns > {MAX_DENSE_RIGIDITY}")
+            break
+        sub = problem.subset(keep, check=False)
+        flex_sub = flexible_anchors(sub, rng)
+        if not flex_sub.any():
+            break
+        flex = np.flatnonzero(keep)[flex_sub]
+        keep[flex] = False
+        issues.append(GeometryIssue("non_rigid", "unsolved", tuple(problem.ids[i] for i in flex),
+                                    f"anchors {_names(problem, flex)} can move without changing any range (not "
+                                    f"rigid: too few links, or a part hinged on too few anchors): left unsolved"))
+    # 3. flips: exactly as many neighbours as free coordinates
+    lk = problem.links
+    m = keep[lk[:, 0]] & keep[lk[:, 1]]
+    degree = np.bincount(lk[m].ravel(), minlength=n)
+    k_free = problem.free.sum(axis=1)
+    flips = np.flatnonzero(keep & (k_free > 0) & (degree == k_free))
+    for i in flips:
+        nb = np.concatenate([lk[m & (lk[:, 0] == i), 1], lk[m & (lk[:, 1] == i), 0]])
+        issues.append(GeometryIssue(
+            "flip", "ambiguous", (problem.ids[i],),
+            f"anchor {problem.ids[i]!r} has only {degree[i]} links (to {_names(problem, nb.tolist())}) for "
+            f"{k_free[i]} free coordinates: its mirror image through them fits the ranges as well (ambiguous); "
+            f"it needs at least {k_free[i] + 1}"))
+    # 4. mirror of a whole part, nearly planar 3-D solve
+    z_free = problem.dim == 3 and bool(problem.free[keep & problem.estimated, 2].any())
+    init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
+    pk: float | None = None
+    pn: float | None = None
+    for comp in _components(problem, keep):
+        if not problem.estimated[comp].any():
+            continue
+        kf = comp[fixed[comp]]
+        if not z_free:
+            ratio = _line_ratio(problem.positions_m[kf][:, :2])
+            if ratio <= EXACT_TOL:
+                what = "2-D" if problem.dim == 2 else "3-D with the heights held"
+                issues.append(GeometryIssue(
+                    "mirror", "ambiguous", tuple(problem.ids[i] for i in comp if problem.estimated[i]),
+                    f"the {kf.size} known anchor(s) {_names(problem, kf.tolist())} lie on one line ({what}): the "
+                    f"mirror image of the network through that line fits every range equally (ambiguous); add a "
+                    f"known anchor off the line"))
+            continue
+        pk_c = planarity(problem.positions_m[kf])
+        pk = pk_c if pk is None else min(pk, pk_c)
+        if init is not None and comp.size >= 4:
+            pn_c = planarity(np.asarray(init)[comp])
+            pn = pn_c if pn is None else min(pn, pn_c)
+        if pk_c <= EXACT_TOL:
+            issues.append(GeometryIssue(
+                "mirror", "ambiguous", tuple(problem.ids[i] for i in comp if problem.estimated[i]),
+                f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie in one plane and the heights are "
+                f"free: the mirror image of the network through that plane fits every range equally (ambiguous); "
+                f"hold the surveyed heights (--heights) or add a known anchor off the plane"))
+    network_planar = pn if pn is not None else pk
+    if z_free and network_planar is not None and network_planar < planar_tol:
+        sev: Severity = "weakly_determined" if allow_planar_3d else "refused"
+        tail = ("solved as asked: heights are weakly determined" if allow_planar_3d else
+                "refused: hold the surveyed heights (--heights HEIGHTS.csv) or ask for it with --allow-planar-3d")
+        issues.append(GeometryIssue(
+            "planar", sev, tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
+            f"the network is nearly planar (planarity of the known anchors {pk if pk is not None else float('nan'):.3f}"
+            f", of the initial guess {pn if pn is not None else float('nan'):.3f}, < {planar_tol}) and is solved in "
+            f"3-D with free heights: the ranges cannot tell above from below its plane; {tail}"))
+    elif z_free and pk is not None and EXACT_TOL < pk < planar_tol:
+        issues.append(GeometryIssue(
+            "near_mirror", "weakly_determined", tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
+            f"the known anchors are nearly coplanar (planarity {pk:.3f} < {planar_tol}) and the heights are free: "
+            f"the mirror image through their plane fits the ranges almost as well (weakly determined)"))
+    return GeometryReport(ids=problem.ids, solvable=keep, issues=tuple(issues), planarity_known=pk,
+                          planarity_network=pn, notes=tuple(notes))

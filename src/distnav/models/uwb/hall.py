@@ -1,0 +1,239 @@
+"""A realistic simulated UWB anchor network in an industrial hall (issue 13, item 9).
+
+What a real installation under the ceiling of a metal hall looks like, and what this simulator draws (every
+draw from one seeded :class:`numpy.random.Generator`):
+
+* **Anchors** on a jittered grid over a ``length_m × width_m`` floor plan (installers follow the roof beams, not
+  exactly), mounted under a ceiling at ``ceiling_m``: each anchor hangs ``U(0, drop_max_m)`` below it (brackets,
+  beams, cable trays: a few decimetres of height variation). The *surveyed* heights (``heights.csv``) are the
+  true heights plus ``N(0, height_survey_sd_m²)``.
+* **Links**: every pair closer than ``range_limit_m``; a pair is actually measured with probability
+  ``1 − link_loss·(d / range_limit_m)²`` (long links drop out), and only if at least ``min_samples`` ranges got
+  through.
+* **Sample counts**: ``attempts`` ranging exchanges per pair, each succeeding with probability
+  ``1 − sample_loss·(d / range_limit_m)`` (weaker signal on long links), so long links have fewer samples.
+* **NLOS links** (a shelf, a crane or a pillar in the first Fresnel zone): a measured link is NLOS with
+  probability ``nlos_p0 + (nlos_p1 − nlos_p0)·d / range_limit_m`` (likelier with length). An NLOS link has one
+  bias ``U(nlos_bias_m)`` (0.5–2.5 m by default) and **every** sample of it is long by that bias plus
+  ``|N(0, nlos_spread_m²)|`` (the excess path length fluctuates but is never negative).
+* **LOS samples**: the true distance + ``N(0, sigma_m²)``; a fraction ``multipath_fraction`` of them picks up an
+  extra positive excess ``Exp(multipath_excess_m)`` (a minority that the median of a pair ignores).
+* **Antenna delays**: every node has a range offset ``common_offset_m + N(0, antenna_delay_sd_m²)`` (metres of
+  range: the delay × c); a range between a and b is long by ``(δ_a + δ_b) / 2`` (the DS-TWR model
+  ``t = d/c + (delay_a + delay_b)/2``, as in the APRIL data's PROVENANCE).
+
+:meth:`HallNetwork.write` writes the CSV files ``distnav uwb solve`` reads (``ranges.csv`` ``a,b,range_m``;
+``known.csv``, ``truth.csv`` ``id,x_m,y_m,z_m``; ``heights.csv`` ``id,z_m``) plus the labels a user never has
+(``links_truth.csv``: ``a,b,distance_m,nlos,bias_m``; ``delays.csv``: ``id,offset_m``).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from distnav.errors import ModelError
+from distnav.models.uwb.problems import select_fixed
+from distnav.typing import BoolArray, FloatArray, IntArray
+
+__all__ = ["HallConfig", "HallNetwork", "simulate_hall", "KNOWN_PLACEMENTS"]
+
+KNOWN_PLACEMENTS = ("middle", "corner", "spread")
+
+
+@dataclass(frozen=True)
+class HallConfig:
+    """Parameters of :func:`simulate_hall` (defaults: a 28-anchor, 60 m × 30 m hall with a 9 m ceiling)."""
+
+    n_anchors: int = 28
+    length_m: float = 60.0
+    width_m: float = 30.0
+    ceiling_m: float = 9.0
+    drop_max_m: float = 0.6
+    grid_jitter_m: float = 1.5
+    height_survey_sd_m: float = 0.01
+    range_limit_m: float = 20.0
+    link_loss: float = 0.4
+    attempts: int = 60
+    sample_loss: float = 0.5
+    min_samples: int = 5
+    sigma_m: float = 0.05
+    multipath_fraction: float = 0.03
+    multipath_excess_m: float = 0.3
+    nlos_p0: float = 0.0
+    nlos_p1: float = 0.18
+    nlos_bias_m: tuple[float, float] = (0.5, 2.5)
+    nlos_spread_m: float = 0.08
+    common_offset_m: float = 0.0
+    antenna_delay_sd_m: float = 0.03
+    n_known: int = 4
+    known: str = "middle"
+
+    def __post_init__(self) -> None:
+        if self.n_anchors < 4:
+            raise ModelError(f"a hall needs at least 4 anchors, got {self.n_anchors}")
+        for name in ("length_m", "width_m", "ceiling_m", "range_limit_m"):
+            if not getattr(self, name) > 0:
+                raise ModelError(f"HallConfig.{name} must be positive, got {getattr(self, name)}")
+        for name in ("link_loss", "sample_loss", "multipath_fraction", "nlos_p0", "nlos_p1"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ModelError(f"HallConfig.{name} must be a probability in [0, 1], got {getattr(self, name)}")
+        lo, hi = self.nlos_bias_m
+        if not 0 <= lo <= hi:
+            raise ModelError(f"HallConfig.nlos_bias_m must be (low, high) with 0 ≤ low ≤ high, got {self.nlos_bias_m}")
+        if self.attempts < 1 or not 1 <= self.min_samples <= self.attempts:
+            raise ModelError(f"need attempts ≥ min_samples ≥ 1, got {self.attempts}, {self.min_samples}")
+        if self.known not in KNOWN_PLACEMENTS:
+            raise ModelError(f"HallConfig.known must be one of {', '.join(KNOWN_PLACEMENTS)}, got {self.known!r}")
+        if not 2 <= self.n_known < self.n_anchors:
+            raise ModelError(f"HallConfig.n_known must be in 2..{self.n_anchors - 1}, got {self.n_known}")
+
+    def with_(self, **changes: object) -> HallConfig:
+        """A copy with some parameters changed."""
+        return replace(self, **changes)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True, eq=False)
+class HallNetwork:
+    """One simulated hall: truth, links with their NLOS labels, and every range sample.
+
+    ``links`` ``(L, 2)`` anchor indices (i < j) of the measured pairs; ``distance_m``, ``nlos``, ``bias_m`` per
+    link (bias 0 for LOS links); ``sample_link`` ``(m,)`` the link of every range sample and ``range_m`` its
+    value (in the order written); ``offset_m`` ``(n,)`` every node's range offset (antenna delay × c).
+    """
+
+    config: HallConfig
+    ids: tuple[str, ...]
+    truth_m: FloatArray
+    surveyed_z_m: FloatArray
+    known: IntArray
+    links: IntArray
+    distance_m: FloatArray
+    nlos: BoolArray
+    bias_m: FloatArray
+    offset_m: FloatArray
+    sample_link: IntArray
+    range_m: FloatArray
+    swapped: BoolArray = field(repr=False)
+
+    @property
+    def n_anchors(self) -> int:
+        return len(self.ids)
+
+    @property
+    def samples_per_link(self) -> IntArray:
+        counts: IntArray = np.bincount(self.sample_link, minlength=self.links.shape[0]).astype(np.int64)
+        return counts
+
+    def sample_pairs(self) -> tuple[list[str], list[str]]:
+        """``(a, b)`` ids of every sample, in the direction it was logged (either order occurs)."""
+        i, j = self.links[self.sample_link, 0], self.links[self.sample_link, 1]
+        a = np.where(self.swapped, j, i)
+        b = np.where(self.swapped, i, j)
+        return [self.ids[k] for k in a], [self.ids[k] for k in b]
+
+    def write(self, folder: str | Path) -> dict[str, Path]:
+        """Write the CSV files of the module docstring into ``folder``; returns ``{name: path}``."""
+        out = Path(folder)
+        out.mkdir(parents=True, exist_ok=True)
+        files = {k: out / f"{k}.csv" for k in ("ranges", "known", "truth", "heights", "links_truth", "delays")}
+        a, b = self.sample_pairs()
+        _write(files["ranges"], ["a,b,range_m"] + [f"{x},{y},{r:.4f}" for x, y, r in zip(a, b, self.range_m,
+                                                                                        strict=True)])
+
+        def table(rows: IntArray | range) -> list[str]:
+            t = self.truth_m
+            return ["id,x_m,y_m,z_m"] + [f"{self.ids[k]},{t[k, 0]:.4f},{t[k, 1]:.4f},{t[k, 2]:.4f}" for k in rows]
+
+        _write(files["known"], table(self.known))
+        _write(files["truth"], table(range(self.n_anchors)))
+        _write(files["heights"], ["id,z_m"] + [f"{k},{z:.4f}" for k, z in zip(self.ids, self.surveyed_z_m,
+                                                                               strict=True)])
+        _write(files["links_truth"], ["a,b,distance_m,nlos,bias_m"] + [
+            f"{self.ids[i]},{self.ids[j]},{d:.4f},{int(f)},{bm:.4f}"
+            for (i, j), d, f, bm in zip(self.links, self.distance_m, self.nlos, self.bias_m, strict=True)])
+        _write(files["delays"], ["id,offset_m"] + [f"{k},{o:.4f}" for k, o in zip(self.ids, self.offset_m,
+                                                                                   strict=True)])
+        return files
+
+
+def _write(path: Path, lines: list[str]) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _layout(cfg: HallConfig, rng: np.random.Generator) -> FloatArray:
+    """A jittered grid with about the hall's aspect ratio, ``n_anchors`` cells kept at random if it has more."""
+    ny = max(1, int(round(np.sqrt(cfg.n_anchors * cfg.width_m / cfg.length_m))))
+    nx = int(np.ceil(cfg.n_anchors / ny))
+    gx = (np.arange(nx) + 0.5) * cfg.length_m / nx
+    gy = (np.arange(ny) + 0.5) * cfg.width_m / ny
+    cells = np.array([(x, y) for y in gy for x in gx])
+    keep = np.sort(rng.choice(cells.shape[0], cfg.n_anchors, replace=False))
+    xy = cells[keep] + rng.uniform(-cfg.grid_jitter_m, cfg.grid_jitter_m, size=(cfg.n_anchors, 2))
+    xy = np.clip(xy, 0.0, [cfg.length_m, cfg.width_m])
+    z = cfg.ceiling_m - rng.uniform(0.0, cfg.drop_max_m, cfg.n_anchors)
+    out: FloatArray = np.column_stack([xy, z])
+    return out
+
+
+def _known(cfg: HallConfig, truth: FloatArray) -> IntArray:
+    xy = truth[:, :2]
+    if cfg.known == "spread":  # one per corner region, then the middle
+        corners = np.array([[0, 0], [cfg.length_m, 0], [cfg.length_m, cfg.width_m], [0, cfg.width_m]], float)
+        chosen: list[int] = []
+        for c in corners[: cfg.n_known]:
+            d = np.linalg.norm(xy - c, axis=1)
+            d[chosen] = np.inf
+            chosen.append(int(np.argmin(d)))
+        if cfg.n_known > 4:
+            rest = select_fixed(np.delete(xy, chosen, axis=0), "M", cfg.n_known - 4)
+            others = np.delete(np.arange(xy.shape[0]), chosen)
+            chosen += others[rest].tolist()
+        known: IntArray = np.array(sorted(chosen), np.int64)
+        return known
+    return np.asarray(select_fixed(xy, "M" if cfg.known == "middle" else "C", cfg.n_known), np.int64)
+
+
+def simulate_hall(rng: np.random.Generator, config: HallConfig | None = None, **changes: object) -> HallNetwork:
+    """Draw one hall network (see the module docstring); ``changes`` override fields of ``config``."""
+    cfg = (config or HallConfig())
+    if changes:
+        cfg = cfg.with_(**changes)
+    truth = _layout(cfg, rng)
+    n = cfg.n_anchors
+    ids = tuple(f"A{k:02d}" if n <= 100 else f"A{k:04d}" for k in range(n))
+    surveyed = truth[:, 2] + rng.normal(0.0, cfg.height_survey_sd_m, n)
+    offset = cfg.common_offset_m + rng.normal(0.0, cfg.antenna_delay_sd_m, n)
+
+    pairs = cKDTree(truth).query_pairs(cfg.range_limit_m, output_type="ndarray")
+    pairs = np.sort(pairs, axis=1)
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    dist = np.linalg.norm(truth[pairs[:, 0]] - truth[pairs[:, 1]], axis=1)
+    rel = dist / cfg.range_limit_m
+    kept = rng.random(dist.size) < 1.0 - cfg.link_loss * rel**2
+    counts = rng.binomial(cfg.attempts, np.clip(1.0 - cfg.sample_loss * rel, 0.0, 1.0))
+    kept &= counts >= cfg.min_samples
+    pairs, dist, rel, counts = pairs[kept], dist[kept], rel[kept], counts[kept]
+    n_links = dist.size
+    p_nlos = cfg.nlos_p0 + (cfg.nlos_p1 - cfg.nlos_p0) * rel
+    nlos = rng.random(n_links) < p_nlos
+    bias = np.where(nlos, rng.uniform(cfg.nlos_bias_m[0], cfg.nlos_bias_m[1], n_links), 0.0)
+
+    link = np.repeat(np.arange(n_links), counts)
+    m = link.size
+    base = dist[link] + 0.5 * (offset[pairs[link, 0]] + offset[pairs[link, 1]])
+    noise = rng.normal(0.0, cfg.sigma_m, m)
+    multipath = (rng.random(m) < cfg.multipath_fraction) * rng.exponential(cfg.multipath_excess_m, m)
+    excess = np.abs(rng.normal(0.0, cfg.nlos_spread_m, m))
+    r = base + noise + np.where(nlos[link], bias[link] + excess, multipath)
+    r = np.maximum(r, 1e-3)  # a range is never logged ≤ 0 by a DW1000 on these distances
+    swapped = rng.random(m) < 0.5
+    return HallNetwork(config=cfg, ids=ids, truth_m=truth, surveyed_z_m=surveyed, known=_known(cfg, truth),
+                       links=pairs.astype(np.int64), distance_m=dist, nlos=nlos, bias_m=bias, offset_m=offset,
+                       sample_link=link.astype(np.int64), range_m=r, swapped=swapped)

@@ -1,0 +1,118 @@
+"""Initial guess of an anchor network from its ranges: classical MDS of the range graph (missing pairs completed
+by shortest paths), refined by SMACOF stress majorization on the measured pairs and aligned to the known anchors
+(Procrustes). Moved here from ``distnav.commands.uwb`` so the experiments use the same start as ``uwb solve``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import shortest_path
+
+from distnav.errors import ModelError
+from distnav.models.uwb.problems import RangingProblem
+
+__all__ = ["classical_mds", "smacof", "mds_initial_guess", "height_spread_ratio"]
+
+
+def classical_mds(dist_m: np.ndarray, dim: int) -> np.ndarray:
+    """Coordinates ``(n, dim)`` whose distances approximate the full matrix ``dist_m`` (Torgerson's MDS)."""
+    d2 = np.asarray(dist_m, float) ** 2
+    n = d2.shape[0]
+    j = np.eye(n) - np.full((n, n), 1.0 / n)
+    b = -0.5 * j @ d2 @ j
+    w, v = np.linalg.eigh(b)
+    order = np.argsort(w)[::-1][:dim]
+    out: np.ndarray = v[:, order] * np.sqrt(np.maximum(w[order], 0.0))
+    return out
+
+
+def smacof(links: np.ndarray, dist_m: np.ndarray, x0: np.ndarray, iterations: int = 200) -> np.ndarray:
+    """Stress majorization (SMACOF, de Leeuw 1977) on the measured pairs only, started from ``x0``.
+
+    Minimises ``Σ_(i,j)∈links (‖x_i − x_j‖ − d_ij)²`` by Guttman transforms; it refines the classical-MDS
+    start, whose shortest-path distances overestimate long pairs.
+    """
+    n = x0.shape[0]
+    i, j = links[:, 0], links[:, 1]
+    v = np.zeros((n, n))
+    np.add.at(v, (i, j), -1.0)
+    np.add.at(v, (j, i), -1.0)
+    v[np.diag_indices(n)] = -v.sum(axis=1)
+    vp = np.linalg.pinv(v)
+    x = np.array(x0, float)
+    for _ in range(iterations):
+        cur = np.linalg.norm(x[i] - x[j], axis=1)
+        ratio = np.where(cur > 1e-12, dist_m / np.maximum(cur, 1e-12), 0.0)
+        b = np.zeros((n, n))
+        np.add.at(b, (i, j), -ratio)
+        np.add.at(b, (j, i), -ratio)
+        b[np.diag_indices(n)] = -b.sum(axis=1)
+        x_new = vp @ (b @ x)
+        if np.max(np.abs(x_new - x)) < 1e-9:
+            x = x_new
+            break
+        x = x_new
+    return x
+
+
+def _procrustes(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation/reflection ``R`` and translation ``t`` minimising ``‖src R + t − dst‖`` (no scaling)."""
+    ms, md = src.mean(axis=0), dst.mean(axis=0)
+    u, _, vt = np.linalg.svd((src - ms).T @ (dst - md))
+    r = u @ vt
+    return r, md - ms @ r
+
+
+def _link_distances(problem: RangingProblem, horizontal: bool) -> tuple[np.ndarray, np.ndarray]:
+    """One distance per measured link (mean of its samples), reduced to horizontal when heights are held."""
+    n = problem.n_anchors
+    links = problem.links
+    lo = np.minimum(problem.meas_a, problem.meas_b)
+    hi = np.maximum(problem.meas_a, problem.meas_b)
+    _, inv = np.unique(lo * n + hi, return_inverse=True)
+    d = np.bincount(inv, problem.range_m) / np.bincount(inv)
+    if horizontal:
+        z = problem.positions_m[:, 2]
+        dz = z[links[:, 0]] - z[links[:, 1]]
+        d = np.sqrt(np.maximum(d * d - dz * dz, 0.0))
+    return links, d
+
+
+def _completed(problem: RangingProblem, links: np.ndarray, d: np.ndarray) -> np.ndarray:
+    n = problem.n_anchors
+    g = csr_matrix((np.concatenate([d, d]) + 1e-9, (np.concatenate([links[:, 0], links[:, 1]]),
+                                                    np.concatenate([links[:, 1], links[:, 0]]))), shape=(n, n))
+    full = shortest_path(g, directed=False)
+    if not np.all(np.isfinite(full)):
+        raise ModelError("the range graph is not connected: no MDS initial guess (pass --initial)")
+    return np.asarray(full)
+
+
+def mds_initial_guess(problem: RangingProblem) -> np.ndarray:
+    """MDS of the range graph, refined by SMACOF on the measured pairs, aligned to the fixed anchors.
+
+    With held heights (``problem.free[:, 2]`` False for estimated anchors) the ranges are first reduced to
+    horizontal distances ``sqrt(d² − Δz²)`` and a 2-D MDS is aligned; heights come from the held values.
+    """
+    dim = problem.dim
+    horizontal = dim == 3 and bool(np.all(~problem.free[:, 2]))
+    links, d = _link_distances(problem, horizontal)
+    full = _completed(problem, links, d)
+    k = 2 if horizontal else dim
+    coords = smacof(links, d, classical_mds(full, k))
+    fixed = problem.fixed
+    r, t = _procrustes(coords[fixed], problem.positions_m[fixed][:, :k])
+    aligned = coords @ r + t
+    out = np.column_stack([aligned, problem.positions_m[:, 2]]) if horizontal else aligned
+    return np.where(problem.free, out, problem.positions_m)
+
+
+def height_spread_ratio(problem: RangingProblem) -> float:
+    """Vertical spread of the known anchors over their horizontal spread (0 = all at one height).
+
+    Anchors mounted under a ceiling give ≈ 0; then the ranges cannot tell above from below the anchors' plane.
+    """
+    p = problem.positions_m[problem.fixed]
+    horizontal = float(np.ptp(p[:, :2], axis=0).max()) if p.shape[0] else 0.0
+    return float(np.ptp(p[:, 2])) / horizontal if horizontal > 0 else 0.0

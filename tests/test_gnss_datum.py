@@ -1,0 +1,172 @@
+"""Receiver + satellite DCBs in one model (distnav.models.gnss.gfbias): S-basis, datums, estimability, CKF."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from distnav.algorithms.kalman import iterate_information_filter
+from distnav.errors import ModelError
+from distnav.models.gnss.geometry import geodetic_to_ecef
+from distnav.models.gnss.gfbias import (
+    BiasGeometryFreeSeries,
+    BiasStateLayout,
+    bias_dynamics,
+    datum_transform,
+    gf_m_per_dsb_ns,
+    in_datum,
+)
+from distnav.models.gnss.gfnetwork import bias_network_model, run_bias_filters
+from distnav.models.gnss.ionosphere import ionosphere_geometry
+from distnav.models.gnss.orbits import gps_seconds, synthetic_gps_constellation
+from distnav.network.graph import Graph
+
+NAMES = ["A", "B", "C"]
+
+
+def _simulate(seed: int, epochs: int = 40) -> tuple[object, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    gps = synthetic_gps_constellation()
+    t = gps_seconds(np.datetime64("2016-06-02T00:00")) + 60.0 * np.arange(epochs)
+    xyz = geodetic_to_ecef(np.deg2rad([-31.9, -32.0, -31.5]), np.deg2rad([115.8, 116.2, 115.9]), np.zeros(3))
+    geo = ionosphere_geometry(gps, t, receivers_ecef_m=xyz, names=NAMES, mask_deg=10)
+    T, n, S = geo.tracked.shape
+    b_rx, b_s = rng.normal(0, 3, n), rng.normal(0, 1.5, S)
+    tec = 2.0 + np.cumsum(rng.normal(0, 1e-3 * np.sqrt(60.0), T))
+    sig = 0.3 / np.sin(np.where(geo.tracked, geo.el_rad, np.pi / 2))
+    y = geo.coefficients[..., 0] * tec[:, None, None] + b_rx[None, :, None] + b_s[None, None, :] \
+        + sig * rng.standard_normal((T, n, S))
+    y[~geo.tracked] = np.nan
+    return gps, t, xyz, y, np.concatenate([b_rx, b_s])
+
+
+def test_l5_frequency_factor_from_the_band() -> None:
+    f1, f2, f5 = 1575.42e6, 1227.60e6, 1176.45e6
+    assert gf_m_per_dsb_ns(2) == pytest.approx(0.299792458 / ((f1 / f2) ** 2 - 1), rel=1e-12)
+    assert gf_m_per_dsb_ns(5) == pytest.approx(0.299792458 / ((f1 / f5) ** 2 - 1), rel=1e-12)
+    assert gf_m_per_dsb_ns(5) == pytest.approx(0.3779, abs=1e-4)
+
+
+def test_bases_and_datums_give_the_same_estimable_functions() -> None:
+    """The same data in the receiver basis and in the pivot basis: every estimable function (satellite − satellite,
+    receiver − receiver, receiver + satellite) agrees, and the three output datums are S-transforms of each other."""
+    gps, t, xyz, y, _ = _simulate(3)
+    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3,
+                              reference="A")
+    lay_r = data.layout
+    piv = lay_r.svs[int(np.argmax(data.geometry.tracked.sum(axis=(0, 1))))]
+    lay_p = BiasStateLayout(lay_r.svs, lay_r.receivers, 1, "pivot", piv)
+    ser_p = BiasGeometryFreeSeries(lay_p, data.geometry.coefficients, data.sigma_m, obs_m=data.obs_m,
+                                   tracked=data.geometry.tracked)
+    last_r = list(iterate_information_filter(data.dynamics, data.series))[-1]
+    last_p = list(iterate_information_filter(bias_dynamics(lay_p, np.concatenate([[np.nan], np.diff(t)])),
+                                             ser_p))[-1]
+    assert last_r.estimable.all() and last_p.estimable.all()
+    outs = {}
+    for datum in ("zero-mean", "pivot", "receiver"):
+        for name, lay, st in (("r", lay_r, last_r), ("p", lay_p, last_p)):
+            T = datum_transform(lay, datum, pivot=piv, reference="B")
+            outs[datum, name] = in_datum(T, st.estimates[0], st.covariance[0])
+    n = len(NAMES)
+    for datum in ("zero-mean", "pivot", "receiver"):
+        np.testing.assert_allclose(outs[datum, "r"][0], outs[datum, "p"][0], atol=1e-6)
+        np.testing.assert_allclose(outs[datum, "r"][1], outs[datum, "p"][1], rtol=1e-6)
+    v = {d: outs[d, "r"][0] for d in ("zero-mean", "pivot", "receiver")}
+    for a, b in (("zero-mean", "pivot"), ("pivot", "receiver")):
+        sat_shift = v[a][n:] - v[b][n:]
+        rx_shift = v[a][:n] - v[b][:n]
+        np.testing.assert_allclose(sat_shift, sat_shift[0], atol=1e-8)        # one common shift …
+        np.testing.assert_allclose(rx_shift, -sat_shift[0], atol=1e-8)        # … the other way for receivers
+    assert abs(v["zero-mean"][n:].mean()) < 1e-10
+    assert v["pivot"][n + lay_r.svs.index(piv)] == pytest.approx(0.0, abs=1e-12)
+    assert v["receiver"][1] == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(ModelError, match="datum must be one of"):
+        datum_transform(lay_r, "mean")
+
+
+def test_estimable_from_the_first_epoch_and_consistent_with_truth() -> None:
+    """In the receiver basis every DCB of a satellite tracked at epoch 0 is estimable at epoch 0 (no pivot needed);
+    over Monte Carlo replicas the zero-mean errors match the filter's σ."""
+    z = []
+    for seed in range(12):
+        gps, t, xyz, y, truth = _simulate(seed, epochs=30)
+        data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
+        (central,), _ = run_bias_filters(data, datum="zero-mean", local=False)
+        n = len(NAMES)
+        seen0 = data.geometry.tracked[0].any(axis=0)
+        assert np.isfinite(central.dsb_ns[0, n:][seen0]).all() and np.isfinite(central.dsb_ns[0, :n]).all()
+        k = [list(gps.svs).index(s) for s in data.layout.svs]
+        b_s = truth[n:][k]
+        ref = np.concatenate([truth[:n] + b_s.mean(), b_s - b_s.mean()]) / -gf_m_per_dsb_ns(2)
+        z.append((central.dsb_ns[-1] - ref) / central.dsb_std_ns[-1])
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.75 < rms < 1.3
+
+
+def test_ckf_with_many_rounds_equals_central() -> None:
+    gps, t, xyz, y, _ = _simulate(5, epochs=25)
+    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
+    graph = Graph.from_links(3, [(0, 1), (1, 2)], names=NAMES)
+    series, comm = run_bias_filters(data, datum="zero-mean", graph=graph, kn=80, local=False)
+    central, ckfs = series[0], series[1:]
+    assert [s.label for s in ckfs] == ["ckf:A", "ckf:B", "ckf:C"] and comm is not None
+    for s in ckfs:
+        ok = np.isfinite(central.dsb_ns[-1])
+        np.testing.assert_allclose(s.dsb_ns[-1][ok], central.dsb_ns[-1][ok], atol=1e-6)
+        np.testing.assert_allclose(s.tec[-1], central.tec[-1], atol=1e-6)
+    few, _ = run_bias_filters(data, datum="zero-mean", graph=graph, kn=1, local=False)
+    assert np.nanmax(np.abs(few[1].dsb_ns[-1] - central.dsb_ns[-1])) > 1e-4   # one round is not the average
+
+
+def test_layout_errors() -> None:
+    with pytest.raises(ModelError, match="reference receiver 'X'"):
+        BiasStateLayout(("G01", "G02"), ("A", "B"), 1, "receiver", "X")
+    with pytest.raises(ModelError, match="pivot satellite 'G09'"):
+        BiasStateLayout(("G01", "G02"), ("A", "B"), 1, "pivot", "G09")
+    lay = BiasStateLayout(("G01", "G02", "G03"), ("A", "B"), 1, "receiver", "A")
+    assert lay.n_states == 3 + 2 + 3 - 1
+    assert lay.state_names()[3:] == ["rx_gf_m:B", "sat_gf_m:G01", "sat_gf_m:G02", "sat_gf_m:G03"]
+
+
+def test_variance_factor_from_predicted_residuals() -> None:
+    """σ̂² ≈ 1 when the data follow the model; ≈ 4 when the noise is twice the assumed σ."""
+    gps, t, xyz, y, _ = _simulate(11, epochs=40)
+    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
+    (c,), _ = run_bias_filters(data, local=False)
+    assert c.n_innovations > 500 and c.variance_factor is not None
+    assert 0.85 < c.variance_factor < 1.15
+    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.15)
+    (c,), _ = run_bias_filters(data, local=False)
+    assert c.variance_factor is not None and 3.4 < c.variance_factor < 4.6
+
+
+def test_realistic_sigma_with_time_correlated_errors() -> None:
+    """Errors following an AR(1) process (ρ = 0.9 epoch to epoch): the formal σ is far too optimistic; the
+    realistic σ (formal × √(σ̂² (1 + ρ̂)/(1 − ρ̂))) matches the Monte Carlo scatter of the DCBs within 1.5×."""
+    gps, t, xyz, _, _ = _simulate(0, epochs=60)
+    z, formal, real = [], [], []
+    for seed in range(16):
+        rng = np.random.default_rng(100 + seed)
+        geo = ionosphere_geometry(gps, t, receivers_ecef_m=xyz, names=NAMES, mask_deg=10)
+        T, n, S = geo.tracked.shape
+        b_rx, b_s = rng.normal(0, 3, n), rng.normal(0, 1.5, S)
+        sig = 0.3 / np.sin(np.where(geo.tracked, geo.el_rad, np.pi / 2))
+        e = np.zeros((T, n, S))
+        e[0] = rng.standard_normal((n, S))
+        for k in range(1, T):
+            e[k] = 0.9 * e[k - 1] + np.sqrt(1 - 0.81) * rng.standard_normal((n, S))
+        y = 2.0 * geo.coefficients[..., 0] + b_rx[None, :, None] + b_s[None, None, :] + sig * e
+        y[~geo.tracked] = np.nan
+        data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
+        (c,), _ = run_bias_filters(data, local=False)
+        k_sv = [list(gps.svs).index(s) for s in data.layout.svs]
+        bs = b_s[k_sv]
+        ref = np.concatenate([b_rx + bs.mean(), bs - bs.mean()]) / -gf_m_per_dsb_ns(2)
+        ok = np.isfinite(c.dsb_ns[-1])
+        z.append((c.dsb_ns[-1] - ref)[ok])
+        formal.append(c.dsb_std_ns[-1][ok])
+        real.append(c.dsb_std_ns[-1][ok] * c.realistic_factor)
+    err, f, r = (np.concatenate(a) for a in (z, formal, real))
+    assert np.sqrt(np.mean((err / f) ** 2)) > 1.8                 # formal σ: optimistic
+    ratio = np.sqrt(np.mean((err / r) ** 2))
+    assert 1 / 1.5 < ratio < 1.5

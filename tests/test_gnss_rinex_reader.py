@@ -1,0 +1,81 @@
+"""The own RINEX observation reader (distnav.models.gnss.rinex_obs) against georinex, latin-1 headers, progress."""
+
+from __future__ import annotations
+
+import gzip
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from distnav.errors import DataFileError
+from distnav.models.gnss.rinex import read_code_observations
+from distnav.models.gnss.rinex_obs import read_observation_types
+
+IGS = "gnss/igs_2024010_bele_dgar"
+NL = "gnss/nl_2021001_short_network_snapshot"
+WINDOW = (np.datetime64("2024-01-10T03:00"), np.datetime64("2024-01-10T03:30"))
+
+
+@pytest.mark.parametrize("name,types", [
+    ("BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", ["C1C", "C2W", "C5X", "L1C", "L2W"]),   # RINEX 3, Hatanaka
+    ("dgar0100.24o.gz", ["C1", "P1", "P2", "C5", "L1", "L2"]),                             # RINEX 2.11, mixed
+])
+def test_values_equal_georinex(shared_data: Path, name: str, types: list[str]) -> None:
+    gr = pytest.importorskip("georinex")
+    path = shared_data / IGS / name
+    ours = read_observation_types(path, types, tlim=WINDOW)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = gr.load(path, use="G", meas=types, tlim=tuple(str(t) for t in WINDOW))
+    assert np.array_equal(ref.time.values.astype("datetime64[ns]"), ours.time)
+    assert set(ours.svs) <= {str(s) for s in ref.sv.values}
+    for t in types:
+        theirs = ref[t].sel(sv=list(ours.svs)).values
+        assert np.array_equal(np.isfinite(theirs), np.isfinite(ours.values[t]))
+        np.testing.assert_array_equal(theirs[np.isfinite(theirs)], ours.values[t][np.isfinite(theirs)])
+
+
+def test_latin1_byte_in_header_is_accepted(shared_data: Path, tmp_path: Path) -> None:
+    text = (shared_data / NL / "zegv0010.21o").read_bytes()
+    marker = b"END OF HEADER"
+    k = text.index(marker)
+    line_start = text.rindex(b"\n", 0, k) + 1
+    comment = b"Messstation J\xe4ger (latin-1 byte 0xE4)".ljust(60) + b"COMMENT\n"
+    bad = text[:line_start] + comment + text[line_start:]
+    path = tmp_path / "zegv0010.21o.gz"
+    path.write_bytes(gzip.compress(bad))
+    o = read_code_observations(path)
+    ref = read_code_observations(shared_data / NL / "zegv0010.21o")
+    assert o.n_epochs == ref.n_epochs == 19
+    np.testing.assert_array_equal(o.range_m[1], ref.range_m[1])
+
+
+def test_progress_callback_and_phases(shared_data: Path) -> None:
+    seen: list[tuple[str, float]] = []
+    o = read_code_observations(shared_data / NL / "zegv0010.21o", phases=True,
+                               progress=lambda label, f: seen.append((label, f)))
+    assert seen and seen[-1] == ("ZEGV", 1.0) and all(0 <= f <= 1 for _, f in seen)
+    assert o.phase_types == {1: "L1", 2: "L2", 5: "L5"}
+    # geometry-free phase and code of the same satellite agree up to a constant of metres, never kilometres
+    g = (o.phase_m[1] - o.phase_m[2]) - (o.range_m[2] - o.range_m[1])
+    ok = np.isfinite(g)
+    assert ok.sum() > 50
+    per_sat = np.nanstd(np.where(ok, g, np.nan), axis=0)
+    assert np.nanmax(per_sat) < 2.0
+
+
+def test_bad_records_name_the_line(tmp_path: Path) -> None:
+    head = ("     3.04           OBSERVATION DATA    G                   RINEX VERSION / TYPE\n"
+            "G    2 C1C C2W                                              SYS / # / OBS TYPES\n"
+            "                                                            END OF HEADER\n")
+    p = tmp_path / "bad.rnx"
+    p.write_text(head + "> 2024 01 10 00 00 xx.0000000  0  1\nG01  22000000.000    22000001.000\n")
+    with pytest.raises(DataFileError, match=r"bad\.rnx, line 4: malformed"):
+        read_observation_types(p, ["C1C"])
+    with pytest.raises(DataFileError, match=r"types L1C not in the header"):
+        read_observation_types(p, ["L1C"])
+    p.write_text("garbage\n")
+    with pytest.raises(DataFileError, match="no END OF HEADER"):
+        read_observation_types(p, ["C1C"])

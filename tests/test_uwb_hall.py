@@ -1,0 +1,121 @@
+"""The industrial-hall simulator (``distnav.models.uwb.hall``): its statistics against the model it states, and
+the files it writes read back by the range-log reader."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from distnav.errors import ModelError
+from distnav.models.uwb.hall import HallConfig, simulate_hall
+from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
+
+
+def _pooled(seeds: range, **changes: object) -> list:
+    return [simulate_hall(np.random.default_rng(s), **changes) for s in seeds]
+
+
+def test_seeded_and_reproducible():
+    a = simulate_hall(np.random.default_rng(3))
+    b = simulate_hall(np.random.default_rng(3))
+    c = simulate_hall(np.random.default_rng(4))
+    assert np.array_equal(a.range_m, b.range_m) and np.array_equal(a.links, b.links)
+    assert a.range_m.size != c.range_m.size or not np.array_equal(a.range_m, c.range_m)
+
+
+def test_anchors_under_the_ceiling_with_surveyed_heights():
+    cfg = HallConfig()
+    h = simulate_hall(np.random.default_rng(0), cfg)
+    z = h.truth_m[:, 2]
+    assert np.all(z <= cfg.ceiling_m) and np.all(z >= cfg.ceiling_m - cfg.drop_max_m)
+    assert 0.2 < np.ptp(z) <= cfg.drop_max_m  # a few decimetres of height variation
+    assert np.all(np.abs(h.surveyed_z_m - z) < 5 * cfg.height_survey_sd_m)
+    assert np.all((h.truth_m[:, 0] >= 0) & (h.truth_m[:, 0] <= cfg.length_m))
+    assert h.known.size == cfg.n_known and len(set(h.known.tolist())) == cfg.n_known
+    # "middle": the known anchors are nearer the hall's centre than the average anchor
+    centre = np.array([cfg.length_m / 2, cfg.width_m / 2])
+    dk = np.linalg.norm(h.truth_m[h.known, :2] - centre, axis=1).mean()
+    assert dk < np.linalg.norm(h.truth_m[:, :2] - centre, axis=1).mean()
+    corner = simulate_hall(np.random.default_rng(0), known="corner")
+    assert np.linalg.norm(corner.truth_m[corner.known, :2], axis=1).max() < 25.0
+
+
+def test_nlos_links_every_sample_long_by_the_stated_bias():
+    cfg = HallConfig()
+    for h in _pooled(range(5)):
+        assert h.nlos.any() and (~h.nlos).any()
+        assert np.all((h.bias_m[h.nlos] >= 0.5) & (h.bias_m[h.nlos] <= 2.5)) and np.all(h.bias_m[~h.nlos] == 0)
+        link = h.sample_link
+        offset = 0.5 * (h.offset_m[h.links[link, 0]] + h.offset_m[h.links[link, 1]])
+        excess = h.range_m - h.distance_m[link] - offset
+        on_nlos = h.nlos[link]
+        # every sample of an NLOS link is long by its bias (noise of 5 sigma at most the other way)
+        assert np.all(excess[on_nlos] - h.bias_m[link[on_nlos]] > -5 * cfg.sigma_m)
+        # the median of every NLOS link is at least 0.5 m long, of every LOS link within 0.1 m of the truth
+        med = np.array([np.median(excess[link == k]) for k in range(h.links.shape[0])])
+        assert np.all(med[h.nlos] > 0.5 - 0.05) and np.all(np.abs(med[~h.nlos]) < 0.1)
+
+
+def test_nlos_probability_grows_with_length_as_stated():
+    cfg = HallConfig()
+    halls = _pooled(range(30))
+    d = np.concatenate([h.distance_m for h in halls])
+    f = np.concatenate([h.nlos for h in halls])
+    short, long_ = d < cfg.range_limit_m / 2, d >= cfg.range_limit_m / 2
+    assert f[long_].mean() > 1.5 * f[short].mean()
+    p = cfg.nlos_p0 + (cfg.nlos_p1 - cfg.nlos_p0) * d / cfg.range_limit_m
+    expected, sd = p.sum(), np.sqrt((p * (1 - p)).sum())
+    assert abs(f.sum() - expected) < 4 * sd  # the stated p(d) = p0 + (p1 - p0) d / limit, binomial bound
+
+
+def test_los_noise_multipath_and_antenna_offsets():
+    cfg = HallConfig(antenna_delay_sd_m=0.15, common_offset_m=0.2)
+    h = simulate_hall(np.random.default_rng(1), cfg)
+    link = h.sample_link
+    los = ~h.nlos[link]
+    excess = h.range_m - h.distance_m[link]
+    pair_offset = 0.5 * (h.offset_m[h.links[:, 0]] + h.offset_m[h.links[:, 1]])
+    resid = excess - pair_offset[link]
+    mad_sigma = 1.4826 * np.median(np.abs(resid[los] - np.median(resid[los])))
+    assert abs(mad_sigma - cfg.sigma_m) < 0.15 * cfg.sigma_m  # robust scale of LOS samples = sigma_m
+    tail = np.mean(resid[los] > 5 * cfg.sigma_m)  # the multipath minority: positive excess only
+    assert 0.3 * cfg.multipath_fraction < tail < 2 * cfg.multipath_fraction
+    assert np.mean(resid[los] < -5 * cfg.sigma_m) < 1e-3
+    # per-link LOS medians track the pair's antenna offset (δ_a + δ_b)/2
+    med = np.array([np.median(excess[link == k]) for k in np.flatnonzero(~h.nlos)])
+    assert np.corrcoef(med, pair_offset[~h.nlos])[0, 1] > 0.95
+    assert abs(np.mean(h.offset_m) - 0.2) < 4 * 0.15 / np.sqrt(h.n_anchors)
+
+
+def test_sample_counts_realistic_and_fewer_on_long_links():
+    cfg = HallConfig()
+    h = simulate_hall(np.random.default_rng(2), cfg)
+    c = h.samples_per_link
+    assert c.min() >= cfg.min_samples and c.max() <= cfg.attempts
+    assert np.corrcoef(h.distance_m, c)[0, 1] < -0.5
+    assert np.all(h.distance_m < cfg.range_limit_m)
+
+
+def test_written_files_read_back(tmp_path):
+    h = simulate_hall(np.random.default_rng(5))
+    files = h.write(tmp_path)
+    log = read_ranges(files["ranges"])
+    comb = combine_ranges(log)
+    assert log.range_m.size == h.range_m.size
+    assert np.allclose(log.range_m, h.range_m, atol=6e-5)
+    assert len(comb.pairs) == h.links.shape[0] and sorted(comb.count.tolist()) == sorted(h.samples_per_link.tolist())
+    rev = np.mean([x > y for x, y in zip(log.a, log.b, strict=True)])
+    assert 0.4 < rev < 0.6  # both orders of a pair occur in the log
+    known, dim = read_positions(files["known"])
+    assert dim == 3 and sorted(known) == sorted(h.ids[k] for k in h.known)
+    heights, _ = read_heights(files["heights"])
+    assert np.allclose([heights[k] for k in h.ids], h.surveyed_z_m, atol=6e-5)
+    truth_lines = files["links_truth"].read_text().splitlines()
+    assert truth_lines[0] == "a,b,distance_m,nlos,bias_m" and len(truth_lines) == h.links.shape[0] + 1
+
+
+@pytest.mark.parametrize("bad", [dict(n_anchors=3), dict(nlos_p1=1.5), dict(nlos_bias_m=(2.0, 1.0)),
+                                 dict(known="edge"), dict(min_samples=0), dict(n_known=1)])
+def test_bad_configuration_is_a_model_error(bad):
+    with pytest.raises(ModelError):
+        HallConfig(**bad)
