@@ -449,6 +449,7 @@ def solve_lm(
     from distnav.algorithms.ranging_objective import RangeObjective
     from distnav.algorithms.ranging_qc import centralized_quality
 
+    c = LMControls(**options)  # checks the option names first; the values the iteration uses, for trace and settings
     init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
     if init is None:
         raise ModelError("global LM needs an initial guess (problem.initial_m or initial_m=)")
@@ -460,7 +461,6 @@ def solve_lm(
     est = problem.estimated
     scale = obj.loss_scale(loss_scale_m) if loss != "linear" else 1.0
     rm: list[float] = []
-    c = LMControls(**options)  # the defaults the iteration uses, for the trace and settings below
 
     def rmse(x: np.ndarray) -> float:
         if truth is None:
