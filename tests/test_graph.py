@@ -101,6 +101,17 @@ def test_networkx_roundtrip_keeps_names_and_positions():
     assert Graph.from_networkx(named.to_networkx()).n_links == 2
 
 
+def test_from_edges_refuses_what_is_not_pairs():
+    with pytest.raises(GraphError, match=r"pairs \(shape \(n_edges, 2\)\), got shape \(4,\)"):
+        builders.from_edges(np.array([0, 1, 1, 2]))
+    with pytest.raises(GraphError, match=r"got shape \(2, 3\)"):
+        builders.from_edges(np.array([(0, 1, 2), (1, 2, 3)]))
+    with pytest.raises(GraphError, match=r"edge #1 is \(1, 2, 3\), not a pair"):
+        builders.from_edges([(0, 1), (1, 2, 3)])  # type: ignore[list-item]
+    with pytest.raises(GraphError, match="edge #0 is 0, not a pair"):
+        builders.from_edges([0, 1, 1, 2])  # type: ignore[list-item]
+
+
 def test_from_edges_with_names_and_ids():
     g = builders.from_edges([(0, 1), (1, 2)])
     assert g.n_nodes == 3
@@ -197,3 +208,7 @@ def test_partition_file_round_trip_and_errors(tmp_path):
         read_partition(write_partition(tmp_path / "o2.npy", np.full(8, 2)), 8, 2)
     with pytest.raises(ExchangeError, match="does not exist"):
         partition_nodes(g, 3, tmp_path / "missing.npy")
+    flat_2d = tmp_path / "owner2d.npy"
+    np.save(flat_2d, np.zeros((2, 4), dtype=np.int64))  # 8 ranks, but not one per node: refused, not flattened
+    with pytest.raises(ExchangeError, match=r"a 1-D array\), got shape \(2, 4\)"):
+        read_partition(flat_2d, 8, 3)

@@ -299,6 +299,18 @@ def test_dynamic_model_validation():
         central_filter(DynamicModel(2), NormalSeries(np.zeros((2, 1, 3, 3))))
 
 
+def test_node_ids_refuse_arrays_they_would_have_reshaped():
+    ms = NormalSeries(np.zeros((4, 3, 2, 2)))
+    assert ms.node_ids(1).tolist() == [1] and ms.node_ids([2, 0]).tolist() == [2, 0]
+    assert ms.node_ids(np.array([], dtype=np.int64)).size == 0
+    with pytest.raises(ModelError, match=r"1-D list of ids, got shape \(1, 2\)"):
+        ms.node_ids([[0, 1]])
+    with pytest.raises(ModelError, match="node ids must be integers, got dtype float64"):
+        ms.node_ids([0.5])
+    with pytest.raises(ModelError, match=r"must lie in 0..2"):
+        ms.node_ids([3])
+
+
 def test_observation_series_validation():
     A = np.ones((2, 3))
     with pytest.raises(ModelError, match="epoch 1, node 1: design must be m×3"):

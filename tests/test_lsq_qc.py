@@ -72,6 +72,8 @@ def test_precision_validation(net):
         admm_precision(prob, g, np.zeros((3, 6)))
     with pytest.raises(ModelError, match="active must be"):
         admm_precision(prob, g, np.zeros((24, 6)), active=np.ones((24, 2), bool))
+    with pytest.raises(ModelError, match=r"reference_covariance must be \(6, 6\), got shape \(36,\)"):
+        admm_precision(prob, g, np.zeros((24, 6)), reference_covariance=np.eye(6).ravel())
     with pytest.raises(ModelError, match="either to the exchange"):
         admm_precision(prob, g, np.zeros((24, 6)), faults=FaultSchedule(), exchange="x")  # type: ignore[arg-type]
 

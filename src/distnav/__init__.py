@@ -9,25 +9,8 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from distnav.errors import (  # noqa: E402
-    DataFileError,
-    DistnavError,
-    ExchangeError,
-    GraphError,
-    MissingExtraError,
-    ModelError,
-    UsageError,
-    WeightsError,
-)
+from distnav import errors  # noqa: E402
+from distnav.errors import *  # noqa: E402, F403 (the error types, listed once: distnav.errors.__all__)
 
-__all__ = [
-    "__version__",
-    "DistnavError",
-    "GraphError",
-    "WeightsError",
-    "ExchangeError",
-    "ModelError",
-    "DataFileError",
-    "MissingExtraError",
-    "UsageError",
-]
+__all__ = ["__version__"]
+__all__ += errors.__all__

@@ -51,30 +51,35 @@ def _float(text: str) -> float:
     return value
 
 
-def _check(ok: bool, message: str) -> None:
-    if not ok:
-        raise argparse.ArgumentTypeError(message)
+def _whole(text: str, minimum: int, message: str) -> int:
+    """``text`` as a whole number ≥ ``minimum``, else ``message`` (``{}`` stands for the value)."""
+    value = _int(text)
+    if value < minimum:
+        raise argparse.ArgumentTypeError(message.format(value))
+    return value
+
+
+def _number(text: str, *, zero_ok: bool, message: str) -> float:
+    """``text`` as a finite number > 0 (``≥ 0`` with ``zero_ok``), else ``message`` (``{}`` stands for the text)."""
+    value = _float(text)
+    if value < 0.0 or (value == 0.0 and not zero_ok):
+        raise argparse.ArgumentTypeError(message.format(text))
+    return value
 
 
 def positive_int(text: str) -> int:
     """A whole number ≥ 1 (iterations, epochs, instances, ranks)."""
-    value = _int(text)
-    _check(value >= 1, f"must be at least 1, got {value}")
-    return value
+    return _whole(text, 1, "must be at least 1, got {}")
 
 
 def nonnegative_int(text: str) -> int:
     """A whole number ≥ 0 (consensus rounds, where 0 means none)."""
-    value = _int(text)
-    _check(value >= 0, f"must be 0 or more, got {value}")
-    return value
+    return _whole(text, 0, "must be 0 or more, got {}")
 
 
 def seed(text: str) -> int:
     """A seed of :func:`numpy.random.default_rng`: a whole number ≥ 0."""
-    value = _int(text)
-    _check(value >= 0, f"a seed must be 0 or more, got {value}")
-    return value
+    return _whole(text, 0, "a seed must be 0 or more, got {}")
 
 
 def finite_float(text: str) -> float:
@@ -84,16 +89,12 @@ def finite_float(text: str) -> float:
 
 def positive_float(text: str) -> float:
     """A finite number > 0 (a standard deviation, a scale, a step)."""
-    value = _float(text)
-    _check(value > 0.0, f"must be greater than 0, got {text}")
-    return value
+    return _number(text, zero_ok=False, message="must be greater than 0, got {}")
 
 
 def nonnegative_float(text: str) -> float:
     """A finite number ≥ 0."""
-    value = _float(text)
-    _check(value >= 0.0, f"must be 0 or more, got {text}")
-    return value
+    return _number(text, zero_ok=True, message="must be 0 or more, got {}")
 
 
 def iso_datetime(text: str) -> str:

@@ -10,7 +10,7 @@ on the same kernel (:mod:`distnav.algorithms.admm_kernel`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 
@@ -30,9 +30,9 @@ from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.exchange.base import CommTotals
-from distnav.network.constraint_nodes import ConstraintNodes
+from distnav.network.constraint_nodes import ConstraintNodes, ConstraintNodeSpec
 from distnav.network.graph import Graph
-from distnav.typing import FloatArray
+from distnav.typing import ArrayLike, FloatArray
 
 __all__ = ["LinearizedAdmmResult", "NonlinearModel", "NonlinearProblem", "RangeModel", "admm_linearized",
            "admm_nonlinear", "gauss_newton", "range_positioning_problem"]
@@ -205,7 +205,7 @@ def gauss_newton(problem: NonlinearProblem, x0: FloatArray, *, max_iterations: i
 
 
 def admm_linearized(problem: NonlinearProblem, graph: Graph, x_approx: FloatArray, *,
-                    constraint_nodes: Any = "min_cover", W: Any = 1.0, outer_iterations: int = 10,
+                    constraint_nodes: ConstraintNodeSpec = "min_cover", W: ArrayLike = 1.0, outer_iterations: int = 10,
                     inner_max_iterations: int = 2000, inner_tol: float = 1e-12, inner_atol: float = 1e-12,
                     tol: float = 1e-10,
                     reference: np.ndarray | None = None, messages: Literal["pairs", "aggregated"] = "pairs",
@@ -276,8 +276,9 @@ class _NonlinearXUpdate:
         return x
 
 
-def admm_nonlinear(problem: NonlinearProblem, graph: Graph, x0: FloatArray, *, constraint_nodes: Any = "min_cover",
-                   W: Any = 1.0, gn_steps: int = 2, max_iterations: int = 2000, tol: float = 1e-10,
+def admm_nonlinear(problem: NonlinearProblem, graph: Graph, x0: FloatArray, *,
+                   constraint_nodes: ConstraintNodeSpec = "min_cover", W: ArrayLike = 1.0, gn_steps: int = 2,
+                   max_iterations: int = 2000, tol: float = 1e-10,
                    atol: float = 0.0, reference: np.ndarray | None = None, record_nodes: bool = True,
                    exchange: Exchange | None = None) -> AdmmResult:
     """ADMM with constraint nodes and the nonlinear x-update of paper 000 eq. (23): each node solves its regularized

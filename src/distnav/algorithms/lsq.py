@@ -28,7 +28,7 @@ import numpy as np
 from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
-from distnav.typing import FloatArray
+from distnav.typing import ArrayLike, FloatArray
 
 __all__ = [
     "LinearProblem",
@@ -53,7 +53,7 @@ def _node(names: Sequence[str] | None, i: int) -> str:
     return f"node {names[i]}" if names is not None else f"node {i}"
 
 
-def _as_R(Ri: Any, m: int, i: int, names: Sequence[str] | None) -> np.ndarray:
+def _as_R(Ri: ArrayLike | None, m: int, i: int, names: Sequence[str] | None) -> np.ndarray:
     if Ri is None:
         return np.eye(m)
     R = np.asarray(Ri, dtype=float)
@@ -92,9 +92,9 @@ class LinearProblem:
     @classmethod
     def from_blocks(
         cls,
-        A: Sequence[Any],
-        y: Sequence[Any],
-        R: Sequence[Any] | None = None,
+        A: Sequence[ArrayLike],
+        y: Sequence[ArrayLike],
+        R: Sequence[ArrayLike] | None = None,
         *,
         parameter_names: Sequence[str] | None = None,
         node_names: Sequence[str] | None = None,
@@ -252,7 +252,7 @@ class LinearProblem:
 
 
 # ----------------------------------------------------------------------------------------------- W and rank
-def weight_matrix(W: Any, p: int) -> np.ndarray:
+def weight_matrix(W: ArrayLike, p: int) -> np.ndarray:
     """The ADMM weight matrix: a scalar ``ρ > 0`` gives ``ρ I_p``; a ``(p, p)`` matrix must be symmetric
     positive definite (paper 000, eq. (8))."""
     arr = np.asarray(W, dtype=float)
@@ -337,7 +337,7 @@ class BlueSolution:
     multipliers: np.ndarray | None = None
 
 
-def blue(problem: LinearProblem, *, rcond: float = 1e-10, W: Any = None) -> BlueSolution:
+def blue(problem: LinearProblem, *, rcond: float = 1e-10, W: ArrayLike | None = None) -> BlueSolution:
     """Centralized BLUE from the per-node normal equations: ``N x̂ = r``, ``N = Σ N_i``, ``r = Σ r_i``
     (paper 000, eq. (4)). This is what a fusion centre computes.
 
@@ -377,7 +377,7 @@ def _x_of(problem: LinearProblem, G: np.ndarray, v: np.ndarray) -> np.ndarray:
     return x
 
 
-def multiplier_step(problem: LinearProblem, u: np.ndarray, W: Any) -> tuple[np.ndarray, np.ndarray]:
+def multiplier_step(problem: LinearProblem, u: np.ndarray, W: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Minimize ``L_W`` jointly over ``x_1..x_n, z`` for given multipliers ``u`` (paper 000, eq. (15)).
 
     ``z = (Σ H_i)⁻¹ Σ h_i`` with ``H_i = A_iᵀ(R_i + A_iW⁻¹A_iᵀ)⁻¹A_i``,
@@ -400,7 +400,7 @@ def multiplier_step(problem: LinearProblem, u: np.ndarray, W: Any) -> tuple[np.n
     return x, z
 
 
-def _check_u(problem: LinearProblem, u: Any) -> np.ndarray:
+def _check_u(problem: LinearProblem, u: ArrayLike) -> np.ndarray:
     arr = np.asarray(u, dtype=float)
     shape = (problem.n_nodes, problem.n_params)
     if arr.shape != shape:
@@ -410,7 +410,7 @@ def _check_u(problem: LinearProblem, u: Any) -> np.ndarray:
     return arr
 
 
-def dual_function(problem: LinearProblem, u: np.ndarray, W: Any) -> float:
+def dual_function(problem: LinearProblem, u: np.ndarray, W: ArrayLike) -> float:
     """The dual function ``g(u) = min_{x_i, z} L_W`` (paper 000, eq. (10)):
     ``Σ f_i(x̂_i(u)) + ½‖x̂_i(u) − (ẑ(u) − u_i)‖²_W − ½‖u_i‖²_W``, a lower bound of ``Σ f_i(x̂)`` (eq. (11))."""
     Wm = weight_matrix(W, problem.n_params)
@@ -431,14 +431,14 @@ class MultiplierState:
     u: np.ndarray
 
 
-def _init_u(problem: LinearProblem, u0: Any) -> np.ndarray:
+def _init_u(problem: LinearProblem, u0: ArrayLike | None) -> np.ndarray:
     if u0 is None:
         return np.zeros((problem.n_nodes, problem.n_params))
     return _check_u(problem, u0).copy()
 
 
-def iterate_method_of_multipliers(problem: LinearProblem, *, W: Any, iterations: int,
-                                  u0: Any = None) -> Iterator[MultiplierState]:
+def iterate_method_of_multipliers(problem: LinearProblem, *, W: ArrayLike, iterations: int,
+                                  u0: ArrayLike | None = None) -> Iterator[MultiplierState]:
     """The method of multipliers (paper 000, eq. (13)): step 1 solves ``∂_{x_i}L_W = 0, ∂_zL_W = 0`` jointly
     (eq. (15)), step 2 moves ``u`` along the ascent direction ``d_i = x_i − z`` (eq. (14)).
     Needs a fusion centre (``z^[k]`` uses all nodes' data). Yields states ``k = 1..iterations``."""
@@ -452,8 +452,8 @@ def iterate_method_of_multipliers(problem: LinearProblem, *, W: Any, iterations:
         yield MultiplierState(k, x, z, u)
 
 
-def iterate_single_consensus_admm(problem: LinearProblem, *, W: Any, iterations: int, z0: Any,
-                                  u0: Any = None) -> Iterator[MultiplierState]:
+def iterate_single_consensus_admm(problem: LinearProblem, *, W: ArrayLike, iterations: int, z0: ArrayLike,
+                                  u0: ArrayLike | None = None) -> Iterator[MultiplierState]:
     """ADMM with one consensus state (paper 000, eq. (16)):
     ``x_i^[k] = z^[k−1] − u_i^[k−1] + G_i(y_i − A_i[z^[k−1] − u_i^[k−1]])``, ``z^[k] = (1/n) Σ (x_i^[k] + u_i^[k−1])``,
     ``u_i^[k] = u_i^[k−1] + x_i^[k] − z^[k]``. The average over all nodes needs a fusion centre.
@@ -487,8 +487,8 @@ class MultiplierResult(SolverResult):
     dual_value_initial: float
 
 
-def _run(problem: LinearProblem, states: Iterator[MultiplierState], W: Any, u0: Any, reference: np.ndarray | None,
-         name: str) -> MultiplierResult:
+def _run(problem: LinearProblem, states: Iterator[MultiplierState], W: ArrayLike, u0: ArrayLike | None,
+         reference: np.ndarray | None, name: str) -> MultiplierResult:
     Wm = weight_matrix(W, problem.n_params)
     tb = TraceBuilder()
     u_start = _init_u(problem, u0)
@@ -514,7 +514,7 @@ def _run(problem: LinearProblem, states: Iterator[MultiplierState], W: Any, u0: 
     )
 
 
-def method_of_multipliers(problem: LinearProblem, *, W: Any, iterations: int, u0: Any = None,
+def method_of_multipliers(problem: LinearProblem, *, W: ArrayLike, iterations: int, u0: ArrayLike | None = None,
                           reference: np.ndarray | None = None) -> MultiplierResult:
     """Run :func:`iterate_method_of_multipliers`; the trace holds ``x`` (k × n × p), ``z``, ``u``, ``dual_value``
     ``g(u^[k])`` (eq. (10)) and, with ``reference``, ``distance_to_reference``. ``dual_value_initial`` is
@@ -523,8 +523,8 @@ def method_of_multipliers(problem: LinearProblem, *, W: Any, iterations: int, u0
     return _run(problem, states, W, u0, reference, "method of multipliers")
 
 
-def single_consensus_admm(problem: LinearProblem, *, W: Any, iterations: int, z0: Any, u0: Any = None,
-                          reference: np.ndarray | None = None) -> MultiplierResult:
+def single_consensus_admm(problem: LinearProblem, *, W: ArrayLike, iterations: int, z0: ArrayLike,
+                          u0: ArrayLike | None = None, reference: np.ndarray | None = None) -> MultiplierResult:
     """Run :func:`iterate_single_consensus_admm` (eq. (16)); same trace as :func:`method_of_multipliers`.
     Reference solver: the z-average needs a fusion centre."""
     states = iterate_single_consensus_admm(problem, W=W, iterations=iterations, z0=z0, u0=u0)

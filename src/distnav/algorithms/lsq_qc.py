@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Unpack
+from typing import Unpack
 
 import numpy as np
 import scipy.sparse.csgraph as csgraph
@@ -43,9 +43,9 @@ from distnav.algorithms.statistics import critical_value, w_statistics
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.exchange.base import CommTotals
-from distnav.network.constraint_nodes import ConstraintNodes
+from distnav.network.constraint_nodes import ConstraintNodes, ConstraintNodeSpec
 from distnav.network.graph import Graph
-from distnav.typing import BoolArray, FloatArray
+from distnav.typing import ArrayLike, BoolArray, FloatArray
 
 __all__ = ["MIN_REDUNDANCY_NUMBER", "PrecisionRun", "admm_data_snooping", "admm_precision", "remove_observation"]
 
@@ -115,8 +115,9 @@ class PrecisionRun:
     variance_factor_nodes: FloatArray
 
 
-def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, *, W: Any = 1.0,
-                   constraint_nodes: Any = "min_cover", active: BoolArray | None = None, max_iterations: int = 5000,
+def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, *, W: ArrayLike = 1.0,
+                   constraint_nodes: ConstraintNodeSpec = "min_cover", active: BoolArray | None = None,
+                   max_iterations: int = 5000,
                    tol: float = 1e-12, atol: float = 0.0, init: PrecisionRun | None = None,
                    reference_covariance: FloatArray | None = None, exchange: Exchange | None = None,
                    faults: FaultSchedule | None = None) -> PrecisionRun:
@@ -140,6 +141,8 @@ def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, 
     x_all = np.asarray(estimates, dtype=float)
     if x_all.shape != (n, p):
         raise ModelError(f"estimates must be ({n}, {p}) (one x_i per node), got shape {x_all.shape}")
+    if reference_covariance is not None and np.shape(reference_covariance) != (p, p):
+        raise ModelError(f"reference_covariance must be ({p}, {p}), got shape {np.shape(reference_covariance)}")
     Wm = weight_matrix(W, p)
     C = driver.constraint_nodes_for(graph, constraint_nodes)
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults)

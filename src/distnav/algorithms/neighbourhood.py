@@ -34,7 +34,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -45,6 +44,7 @@ from distnav.algorithms.ranging_objective import range_sigma
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.weights import ConsensusWeights, consensus_weights
+from distnav.typing import ArrayLike
 
 __all__ = ["IterationState", "LocalLM", "Mixing", "Neighbourhoods", "armijo_search", "check_start", "exchange_for",
            "half_measurements", "iterate_neighbourhood", "mixing_weights"]
@@ -69,7 +69,8 @@ class IterationState:
 
 
 # ---------------------------------------------------------------------- checks and set-up
-def check_start(problem: RangingData, iterations: int, consensus_rounds: int, initial_m: Any) -> np.ndarray:
+def check_start(problem: RangingData, iterations: int, consensus_rounds: int,
+                initial_m: ArrayLike | None) -> np.ndarray:
     if iterations < 0:
         raise ModelError(f"iterations must be ≥ 0, got {iterations}")
     if consensus_rounds < 1:

@@ -26,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 import scipy.linalg as sla
@@ -39,8 +39,8 @@ from distnav.algorithms.result import Trace
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
 
-__all__ = ["single_threaded_blas", "levenberg_marquardt", "LMResult", "solve_lm", "LOSSES", "OBJECTIVES", "loss_terms",
-           "robust_weights", "range_loss_scale"]
+__all__ = ["single_threaded_blas", "levenberg_marquardt", "LMControls", "LMOptions", "LMResult", "solve_lm", "LOSSES",
+           "OBJECTIVES", "loss_terms", "robust_weights", "range_loss_scale"]
 
 LOSSES = ("linear", "huber", "soft_l1", "cauchy")
 OBJECTIVES = ("squared", "metres")
@@ -147,6 +147,28 @@ def robust_weights(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple
         return np.ones_like(g), float(g @ g)
     w, terms = loss_terms(g, scale, loss)
     return w, float(np.sum(terms))
+
+
+class LMOptions(TypedDict, total=False):
+    """Keyword options of the LM iteration, taken by :func:`levenberg_marquardt` and :func:`solve_lm`; the defaults
+    are those of :class:`LMControls`."""
+
+    max_iterations: int
+    ftol: float
+    xtol: float
+    gtol: float
+    lambda0: float
+
+
+@dataclass(frozen=True)
+class LMControls:
+    """Stopping tests and initial damping of :func:`levenberg_marquardt` (see its docstring), with their defaults."""
+
+    max_iterations: int = 500
+    ftol: float = 1e-12
+    xtol: float = 1e-12
+    gtol: float = 1e-12
+    lambda0: float = 1e-3
 
 
 @dataclass(frozen=True)
@@ -279,26 +301,25 @@ class _DampedSolver:
 @single_threaded_blas()
 def levenberg_marquardt(
     fun: Callable[[np.ndarray], np.ndarray],
-    jac: Callable[[np.ndarray], Any],
+    jac: Callable[[np.ndarray], np.ndarray | sp.spmatrix | sp.sparray],
     x0: np.ndarray,
     *,
-    max_iterations: int = 500,
-    ftol: float = 1e-12,
-    xtol: float = 1e-12,
-    gtol: float = 1e-12,
-    lambda0: float = 1e-3,
     loss: str = "linear",
     loss_scale: np.ndarray | float = 1.0,
     callback: Callable[[int, np.ndarray], None] | None = None,
     dense_limit: int = 200,
+    **options: Unpack[LMOptions],
 ) -> LMResult:
     """Minimise ``Σ ρ(g(x))`` by Levenberg–Marquardt with Fletcher scaling (paper 002 eq. (8)); see module docstring.
 
     Stops when an accepted step reduces the objective by less than ``ftol`` (relative, actual and predicted),
     when the step is below ``xtol·(‖x‖ + xtol)``, when ``max |Gᵀg| / (‖G_col‖ ‖g‖) ≤ gtol`` (MINPACK's cosine
-    test), or after ``max_iterations`` trial steps. ``callback(k, x)`` is called after every iteration.
+    test), or after ``max_iterations`` trial steps (``options``: :class:`LMOptions`, defaults
+    :class:`LMControls`). ``callback(k, x)`` is called after every iteration.
     Runs with OpenBLAS limited to one thread (:func:`single_threaded_blas`).
     """
+    c = LMControls(**options)
+    max_iterations, ftol, xtol, gtol, lambda0 = c.max_iterations, c.ftol, c.xtol, c.gtol, c.lambda0
     if loss not in LOSSES:
         raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
     if max_iterations < 0:
@@ -312,7 +333,7 @@ def levenberg_marquardt(
     def normal(jm: Any, w_: np.ndarray, g_: np.ndarray) -> tuple[Any, np.ndarray]:
         return solver.normal(jm, None if loss == "linear" else w_, g_)
 
-    J = jac(x)
+    J: Any = jac(x)  # dense or any scipy sparse format: used through its array interface
     solver = _DampedSolver(J, dense_limit)
     A, grad = normal(J, w, g)
     converged, message, k = False, f"stopped after {max_iterations} iterations", 0
@@ -394,11 +415,6 @@ def solve_lm(
     problem: RangingData,
     *,
     initial_m: np.ndarray | None = None,
-    max_iterations: int = 500,
-    ftol: float = 1e-12,
-    xtol: float = 1e-12,
-    gtol: float = 1e-12,
-    lambda0: float = 1e-3,
     loss: str = "linear",
     loss_scale_m: float = 0.3,
     pad_trace: bool = False,
@@ -410,6 +426,7 @@ def solve_lm(
     quality: bool = True,
     test_level: float = 0.001,
     test_scale: str = "robust",
+    **options: Unpack[LMOptions],
 ) -> RangingResult:
     """Global LM (paper 002 eq. (8), Fletcher scaling) on a ranging problem; returns a :class:`RangingResult`.
 
@@ -426,10 +443,13 @@ def solve_lm(
     range offset or per-anchor antenna delays (prior σ ``offset_prior_sigma_m``) jointly with the positions.
     ``quality`` adds the per-anchor covariance (``precision``) and per-sample w-tests (``tests``) at the solution
     (:func:`distnav.algorithms.ranging_qc.centralized_quality`; ``test_level``, ``test_scale``).
+    ``options`` (:class:`LMOptions`: ``max_iterations``, ``ftol``, ``xtol``, ``gtol``, ``lambda0``) go to
+    :func:`levenberg_marquardt` (defaults :class:`LMControls`).
     """
     from distnav.algorithms.ranging_objective import RangeObjective
     from distnav.algorithms.ranging_qc import centralized_quality
 
+    c = LMControls(**options)  # checks the option names first; the values the iteration uses, for trace and settings
     init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
     if init is None:
         raise ModelError("global LM needs an initial guess (problem.initial_m or initial_m=)")
@@ -453,22 +473,21 @@ def solve_lm(
     stages = []
     x_start = x0
     if (objective == "metres" if graduated is None else graduated) and loss != "linear":
-        first = levenberg_marquardt(obj.residual, obj.jacobian, x0, max_iterations=max_iterations, ftol=ftol,
-                                    xtol=xtol, gtol=gtol, lambda0=lambda0, callback=callback)
+        first = levenberg_marquardt(obj.residual, obj.jacobian, x0, callback=callback, **options)
         stages.append(first)
         x_start = first.x
-    res = levenberg_marquardt(obj.residual, obj.jacobian, x_start, max_iterations=max_iterations, ftol=ftol,
-                              xtol=xtol, gtol=gtol, lambda0=lambda0, loss=loss, loss_scale=scale, callback=callback)
+    res = levenberg_marquardt(obj.residual, obj.jacobian, x_start, loss=loss, loss_scale=scale, callback=callback,
+                              **options)
     stages.append(res)
     g0 = obj.residual(x0)
     cost = np.concatenate([[float(g0 @ g0)]] + [st.trace["cost"] for st in stages])
     obj0 = robust_weights(g0, scale, loss)[1]
     objective_tr = np.concatenate([[obj0]] + [st.trace["objective"] for st in stages])
     step = np.concatenate([[0.0]] + [st.trace["step_norm"] for st in stages])
-    lam = np.concatenate([[lambda0]] + [st.trace["lambda"] for st in stages])
+    lam = np.concatenate([[c.lambda0]] + [st.trace["lambda"] for st in stages])
     rmse_tr = np.asarray(rm) if truth is not None else np.full(cost.size, np.nan)
-    if pad_trace and cost.size < max_iterations + 1:
-        pad = max_iterations + 1 - cost.size
+    if pad_trace and cost.size < c.max_iterations + 1:
+        pad = c.max_iterations + 1 - cost.size
         cost = np.concatenate([cost, np.full(pad, cost[-1])])
         objective_tr = np.concatenate([objective_tr, np.full(pad, objective_tr[-1])])
         step = np.concatenate([step, np.zeros(pad)])
@@ -500,7 +519,7 @@ def solve_lm(
         objective=res.objective,
         loss=loss,
         x=res.x,
-        settings={"lambda0": lambda0, "ftol": ftol, "xtol": xtol, "gtol": gtol, "sigma_m": sigma_m,
+        settings={"lambda0": c.lambda0, "ftol": c.ftol, "xtol": c.xtol, "gtol": c.gtol, "sigma_m": sigma_m,
                   "range_offsets": range_offsets, "graduated": len(stages) > 1},
         objective_kind=objective,
         precision=precision,

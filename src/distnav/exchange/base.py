@@ -27,7 +27,7 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -36,9 +36,14 @@ from distnav.errors import ExchangeError
 from distnav.exchange.faults import FaultPlan, FaultSchedule
 from distnav.network.graph import Graph
 
+if TYPE_CHECKING:
+    from distnav.network.weights import ConsensusWeights
+
 __all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "incoming_edges"]
 
 ReduceOp = Literal["sum", "max", "min"]
+#: What :meth:`Exchange.allreduce` reduces: a number or an array (returned as the same kind).
+Reducible = TypeVar("Reducible", bound="float | np.ndarray")
 
 
 @dataclass(frozen=True, eq=False)
@@ -329,7 +334,7 @@ class Exchange(ABC):
         """Values on outgoing edges → values on incoming edges (in :attr:`in_edges` order)."""
 
     @abstractmethod
-    def allreduce(self, value: Any, op: ReduceOp = "sum") -> Any:
+    def allreduce(self, value: Reducible, op: ReduceOp = "sum") -> Reducible:
         """Reduce a scalar or array over all blocks (monitoring only)."""
 
     @abstractmethod
@@ -492,7 +497,7 @@ class Exchange(ABC):
         return self._finish_round(moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize,
                                   owned=not np.may_share_memory(moved, x))
 
-    def mixer(self, weights: Any, *, active: np.ndarray | None = None) -> Mixer:
+    def mixer(self, weights: ConsensusWeights, *, active: np.ndarray | None = None) -> Mixer:
         """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph.
 
         For a switching graph pass the session's weights expressed on the union graph and its edge mask.

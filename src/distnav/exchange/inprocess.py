@@ -7,11 +7,9 @@ from 10⁴ nodes on reverse Cuthill–McKee by default), chosen once at set-up: 
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
-from distnav.exchange.base import Exchange, ReduceOp, incoming_edges
+from distnav.exchange.base import Exchange, ReduceOp, Reducible, incoming_edges
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
 from distnav.network.partition import locality_order
@@ -58,7 +56,7 @@ class InProcessExchange(Exchange):
     def _move_edges(self, flat_out: np.ndarray, active: np.ndarray | None) -> np.ndarray:
         return flat_out
 
-    def allreduce(self, value: Any, op: ReduceOp = "sum") -> Any:
+    def allreduce(self, value: Reducible, op: ReduceOp = "sum") -> Reducible:
         return value
 
     def gather_nodes(self, local: np.ndarray) -> np.ndarray:

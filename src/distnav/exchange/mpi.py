@@ -16,13 +16,13 @@ global edge ids exactly as in-process, so a run with drops gives the same number
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from distnav._optional import require
 from distnav.errors import ExchangeError
-from distnav.exchange.base import Exchange, ReduceOp, incoming_edges
+from distnav.exchange.base import Exchange, ReduceOp, Reducible, incoming_edges
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
 from distnav.network.partition import locality_order, partition_nodes
@@ -238,7 +238,7 @@ class MPIExchange(Exchange):
         self._edge_buffers.clear()
 
     # ------------------------------------------------------------- global operations
-    def allreduce(self, value: Any, op: ReduceOp = "sum") -> Any:
+    def allreduce(self, value: Reducible, op: ReduceOp = "sum") -> Reducible:
         MPI = self._MPI
         mpi_op = {"sum": MPI.SUM, "max": MPI.MAX, "min": MPI.MIN}[op]
         if isinstance(value, np.ndarray):
@@ -246,8 +246,8 @@ class MPIExchange(Exchange):
                 return value
             out = np.empty_like(value)
             self.comm.Allreduce(np.ascontiguousarray(value), out, op=mpi_op)
-            return out
-        return self.comm.allreduce(value, op=mpi_op)
+            return cast(Reducible, out)
+        return cast(Reducible, self.comm.allreduce(value, op=mpi_op))
 
     def gather_nodes(self, local: np.ndarray) -> np.ndarray:
         arr = np.asarray(local)

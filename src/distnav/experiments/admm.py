@@ -59,7 +59,7 @@ def fig5_graph() -> Graph:
 
 
 def two_node_problem() -> LinearProblem:
-    a, R, y = (tuple(float(v) for v in TWO_NODE[k]) for k in ("a", "R", "y"))  # type: ignore[attr-defined]
+    a, R, y = (tuple(float(v) for v in TWO_NODE[k]) for k in ("a", "R", "y"))
     return LinearProblem.from_blocks([np.array([[a[0]]]), np.array([[a[1]]])], [np.array([y[0]]), np.array([y[1]])],
                                      [np.array([[R[0]]]), np.array([[R[1]]])])
 
@@ -300,7 +300,8 @@ def _dual_on_grid(prob: LinearProblem, W: float, U1: np.ndarray, U2: np.ndarray)
     check = dual_function(prob, np.array([[2.5], [-1.5]]), W)
     if abs(float(basis(np.array(2.5), np.array(-1.5)) @ coef) - check) > 1e-9 * (1 + abs(check)):
         raise RuntimeError("the dual function is not quadratic: the grid fit failed")
-    return basis(U1, U2) @ coef
+    grid: np.ndarray = basis(U1, U2) @ coef
+    return grid
 
 
 def _figures(ctx: ExperimentContext, a: dict[str, Any], b: dict[str, Any], c: dict[str, Any]) -> None:

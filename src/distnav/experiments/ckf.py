@@ -220,12 +220,7 @@ def _figures(ctx: ExperimentContext, graph: Graph, ratios: dict[int, np.ndarray]
     for kn in KN_VALUES:
         ax.plot(degrees, results["std_ratio_final_per_node"][str(kn)], "o", label=f"CKF k_n={kn}")
     ax.plot(degrees, results["local_to_central_final"]["per_node"], "x", color="0.4", label="local")
-    ax.set_yscale("log")
-    ax.set_xlabel("node degree")
-    ax.set_ylabel("max std ratio to central, last epoch")
-    ax.legend()
-    ax.grid(alpha=0.3)
-    ctx.save_figure(fig, "std_ratio_vs_degree.png")
+    _save_panel(ctx, fig, ax, "node degree", "max std ratio to central, last epoch", "std_ratio_vs_degree.png")
     # Fig. C: α table
     fig, ax = plt.subplots(figsize=(6, 4))
     kns = np.asarray(alpha["kn"])
@@ -233,9 +228,14 @@ def _figures(ctx: ExperimentContext, graph: Graph, ratios: dict[int, np.ndarray]
     ax.plot(kns, alpha["mean_over_nodes"], "s-", label="mean")
     ax.plot(kns, alpha["min_over_nodes"], "^-", label="min")
     ax.axhline(1.0, color="k", ls="--", lw=0.8)
+    _save_panel(ctx, fig, ax, "consensus rounds k_n", "α = n Σ_j l_ij²  (eq. 46)", "alpha.png")
+
+
+def _save_panel(ctx: ExperimentContext, fig: Any, ax: Any, xlabel: str, ylabel: str, name: str) -> None:
+    """Finish a one-panel figure (log y axis, labels, legend, grid) and save it as ``name``."""
     ax.set_yscale("log")
-    ax.set_xlabel("consensus rounds k_n")
-    ax.set_ylabel("α = n Σ_j l_ij²  (eq. 46)")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     ax.legend()
     ax.grid(alpha=0.3)
-    ctx.save_figure(fig, "alpha.png")
+    ctx.save_figure(fig, name)

@@ -31,6 +31,7 @@ also reported, as the paper does not say which it used.)
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -211,7 +212,8 @@ class PrecisionAnalysis:
     dcb_minutes_ckf: dict[int, np.ndarray]
 
 
-def precision_analysis(n_epochs: int = N_EPOCHS, *, progress: Any = None) -> PrecisionAnalysis:
+def precision_analysis(n_epochs: int = N_EPOCHS, *,
+                       progress: Callable[[int], object] | None = None) -> PrecisionAnalysis:
     """Central, local and CKF (Fig. 7, k_n = 4, 6, 12, protocol 3) standard deviations of the Perth network and the
     DCB times to 0.5 ns (paper 003 §5.3–5.4)."""
     graph = perth_network()

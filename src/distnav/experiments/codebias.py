@@ -45,6 +45,7 @@ from distnav.models.gnss.orbits import (
 )
 from distnav.network.graph import Graph
 from distnav.options import existing_file, iso_datetime, positive_int
+from distnav.typing import FloatArray
 
 NAME = "codebias"
 TITLE = "GNSS satellite code biases by ADMM on 110 stations (paper 000 Figs. 7-11)"
@@ -87,10 +88,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "of epochs) or of the whole session")
 
 
-def _great_circle(lat1: Any, lon1: Any, lat2: Any, lon2: Any) -> np.ndarray:
+def _great_circle(lat1: FloatArray | float, lon1: FloatArray | float, lat2: FloatArray | float,
+                  lon2: FloatArray | float) -> FloatArray:
     a = np.deg2rad
     c = (np.sin(a(lat1)) * np.sin(a(lat2)) + np.cos(a(lat1)) * np.cos(a(lat2)) * np.cos(a(lon1 - lon2)))
-    return np.arccos(np.clip(c, -1.0, 1.0))
+    angle: FloatArray = np.arccos(np.clip(c, -1.0, 1.0))
+    return angle
 
 
 @dataclass(frozen=True)

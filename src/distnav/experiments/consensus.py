@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import argparse
 from typing import Any
 
 import numpy as np
@@ -106,7 +107,7 @@ def twenty_values(rng: np.random.Generator, n_nodes: int = N_NODES, average: flo
     return out
 
 
-def add_arguments(parser: Any) -> None:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--network", choices=NETWORKS, default="paper-like",
                         help="paper-like: the stored networks matching the paper's numbers (found by "
                              "distnav.experiments.consensus_network); random: fresh random networks from --seed")

@@ -7,6 +7,8 @@ All builders return a :class:`~distnav.network.graph.Graph`. Random builders tak
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import TypedDict, Unpack
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -23,6 +25,7 @@ __all__ = [
     "ladder",
     "random_geometric",
     "connected_random_geometric",
+    "PointOptions",
     "k_nearest",
     "from_edges",
 ]
@@ -115,16 +118,27 @@ def ladder(n_nodes: int, *, spacing_m: float = 1.0, diagonals: bool = True, self
     return Graph.from_links(n, np.concatenate(parts), positions=pos, self_loops=self_loops)
 
 
-def random_geometric(
-    n_nodes: int,
-    radius: float,
-    *,
-    rng: np.random.Generator,
-    dim: int = 2,
-    size: float = 1.0,
-    self_loops: bool = False,
-) -> Graph:
-    """Nodes uniform in ``[0, size]^dim``, linked when closer than ``radius`` (same units as ``size``).
+@dataclass(frozen=True)
+class _Points:
+    dim: int = 2
+    size: float = 1.0
+    self_loops: bool = False
+
+
+class PointOptions(TypedDict, total=False):
+    """Keyword options of the random geometric builders (defaults in brackets, kept in ``_Points``): ``dim`` [2]
+    coordinates, points uniform in ``[0, size]^dim`` (``size`` [1.0]), ``self_loops`` [False] as for
+    :class:`Graph`."""
+
+    dim: int
+    size: float
+    self_loops: bool
+
+
+def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator,
+                     **points: Unpack[PointOptions]) -> Graph:
+    """Nodes uniform in ``[0, size]^dim``, linked when closer than ``radius`` (same units as ``size``); ``points``:
+    :class:`PointOptions`.
 
     Uses a k-d tree, so 10⁶ nodes build in seconds. The result may be disconnected; see
     :func:`connected_random_geometric`.
@@ -132,27 +146,23 @@ def random_geometric(
     n = _need(n_nodes, 1, "a random geometric graph")
     if not radius > 0:
         raise GraphError(f"radius must be positive, got {radius}")
-    pos = rng.uniform(0.0, size, size=(n, dim))
+    opt = _Points(**points)
+    pos = rng.uniform(0.0, opt.size, size=(n, opt.dim))
     pairs = cKDTree(pos).query_pairs(float(radius), output_type="ndarray")
-    return Graph.from_links(n, pairs, positions=pos, self_loops=self_loops)
+    return Graph.from_links(n, pairs, positions=pos, self_loops=opt.self_loops)
 
 
-def connected_random_geometric(
-    n_nodes: int,
-    *,
-    mean_degree: float,
-    rng: np.random.Generator,
-    dim: int = 2,
-    size: float = 1.0,
-    max_tries: int = 50,
-    self_loops: bool = False,
-) -> Graph:
-    """A *connected* random geometric graph whose expected mean degree is ``mean_degree``.
+def connected_random_geometric(n_nodes: int, *, mean_degree: float, rng: np.random.Generator, max_tries: int = 50,
+                               **points: Unpack[PointOptions]) -> Graph:
+    """A *connected* random geometric graph whose expected mean degree is ``mean_degree`` (``points``:
+    :class:`PointOptions`).
 
     The radius is set from the expected degree of a Poisson point process, ``d = n π r² / size²`` (2-D) or
     ``d = n (4/3) π r³ / size³`` (3-D); redrawn up to ``max_tries`` times until connected.
     """
     n = _need(n_nodes, 2, "a connected random geometric graph")
+    opt = _Points(**points)
+    dim, size = opt.dim, opt.size
     if dim == 2:
         radius = size * np.sqrt(mean_degree / (np.pi * n))
     elif dim == 3:
@@ -160,7 +170,7 @@ def connected_random_geometric(
     else:
         raise GraphError(f"dim must be 2 or 3, got {dim}")
     for _ in range(max_tries):
-        g = random_geometric(n, radius, rng=rng, dim=dim, size=size, self_loops=self_loops)
+        g = random_geometric(n, radius, rng=rng, **points)
         if g.is_connected:
             return g
     raise GraphError(
@@ -196,7 +206,16 @@ def from_edges(
 
     With string names and no ``names`` given, nodes are named in order of first appearance.
     """
-    edge_list = list(edges) if not isinstance(edges, np.ndarray) else edges.tolist()
+    if isinstance(edges, np.ndarray):
+        if edges.size and (edges.ndim != 2 or edges.shape[1] != 2):
+            raise GraphError(f"edges must be pairs (shape (n_edges, 2)), got shape {edges.shape}")
+        edge_list = edges.tolist()
+    else:
+        edge_list = list(edges)
+        bad = next((k for k, e in enumerate(edge_list)
+                    if isinstance(e, str) or not hasattr(e, "__len__") or len(e) != 2), None)
+        if bad is not None:
+            raise GraphError(f"edge #{bad} is {edge_list[bad]!r}, not a pair of node ids or names")
     if edge_list and all(isinstance(v, str) for e in edge_list for v in e):
         if names is None:
             order: dict[str, int] = {}
@@ -211,7 +230,9 @@ def from_edges(
         ids = [(index[a], index[b]) for a, b in edge_list]
         return Graph.from_links(len(names), ids, names=names, positions=positions, self_loops=self_loops,
                                 allow_duplicates=allow_duplicates)
-    arr = np.asarray(edge_list).reshape(-1, 2) if edge_list else np.zeros((0, 2), int)
+    arr = np.asarray(edge_list) if edge_list else np.zeros((0, 2), int)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise GraphError(f"edges must be pairs (shape (n_edges, 2)), got shape {arr.shape}")
     if n_nodes is None:
         n_nodes = len(names) if names is not None else (int(arr.max()) + 1 if arr.size else 1)
     return Graph.from_links(n_nodes, arr, names=names, positions=positions, self_loops=self_loops,

@@ -37,7 +37,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypeAlias
 
 import numpy as np
 import scipy.sparse as sp
@@ -57,9 +57,15 @@ __all__ = [
     "unused_links",
     "minimum_vertex_cover",
     "choose_constraint_nodes",
+    "ConstraintNodeSpec",
+    "NodeIds",
 ]
 
 Choice = Literal["all", "min_cover"]
+#: Node ids (or a boolean mask over the nodes), as the checks here take them.
+NodeIds: TypeAlias = Iterable[int] | np.ndarray
+#: What the solvers take as ``constraint_nodes``: a choice, node ids, or a :class:`ConstraintNodes` already chosen.
+ConstraintNodeSpec: TypeAlias = "ConstraintNodes | Choice | NodeIds"
 
 
 def _names(graph: Graph, ids: Iterable[int], limit: int = 20) -> str:
@@ -68,7 +74,7 @@ def _names(graph: Graph, ids: Iterable[int], limit: int = 20) -> str:
     return shown + (f" and {len(ids) - limit} more" if len(ids) > limit else "")
 
 
-def _as_node_set(graph: Graph, nodes: Any) -> np.ndarray:
+def _as_node_set(graph: Graph, nodes: NodeIds) -> np.ndarray:
     arr = np.asarray(list(nodes) if not isinstance(nodes, np.ndarray) else nodes)
     if arr.dtype == bool:
         if arr.shape != (graph.n_nodes,):
@@ -109,7 +115,7 @@ class ConditionsReport:
         return not self.uncovered and len(self.groups) <= 1 and not self.unbridged_pairs
 
 
-def check_conditions(graph: Graph, nodes: Any, *, literal: bool = False) -> ConditionsReport:
+def check_conditions(graph: Graph, nodes: NodeIds, *, literal: bool = False) -> ConditionsReport:
     """Check conditions (18) of paper 000 for the constraint nodes ``nodes`` (see the module docstring for how
     condition 2 is read). Returns a report; :func:`validate_constraint_nodes` raises instead."""
     C = _as_node_set(graph, nodes)
@@ -145,7 +151,7 @@ def check_conditions(graph: Graph, nodes: Any, *, literal: bool = False) -> Cond
                             unbridged_pairs=tuple(unbridged), literal=literal)
 
 
-def validate_constraint_nodes(graph: Graph, nodes: Any, *, literal: bool = False) -> np.ndarray:
+def validate_constraint_nodes(graph: Graph, nodes: NodeIds, *, literal: bool = False) -> np.ndarray:
     """Return the sorted constraint-node ids, or raise :class:`~distnav.errors.GraphError` naming the nodes that
     violate conditions (18) of paper 000."""
     C = _as_node_set(graph, nodes)
@@ -166,7 +172,7 @@ def validate_constraint_nodes(graph: Graph, nodes: Any, *, literal: bool = False
     return C
 
 
-def unused_links(graph: Graph, nodes: Any) -> np.ndarray:
+def unused_links(graph: Graph, nodes: NodeIds) -> np.ndarray:
     """Links ``(i, j)`` (``i < j``) with no constraint node at either end: ADMM sends nothing over them."""
     inC = _mask(graph, _as_node_set(graph, nodes))
     links = graph.links

@@ -143,7 +143,9 @@ def read_partition(path: str | os.PathLike[str], n_nodes: int, n_ranks: int) -> 
             except ValueError:
                 raise ExchangeError(f"{src}, line {lineno}: {text!r} is not an integer rank") from None
         owner = np.asarray(ranks, dtype=np.int64)
-    owner = owner.astype(np.int64).ravel()
+    if owner.ndim != 1:
+        raise ExchangeError(f"partition file {src} must hold one rank per node (a 1-D array), got shape {owner.shape}")
+    owner = owner.astype(np.int64)
     if owner.size != n_nodes:
         raise ExchangeError(f"partition file {src} gives ranks for {owner.size} nodes, the graph has {n_nodes}")
     if owner.size and (owner.min() < 0 or owner.max() >= n_ranks):

@@ -115,7 +115,12 @@ class MeasurementSeries:
         """The selected global node ids as an int64 vector (default all), validated against ``n_nodes``."""
         if nodes is None:
             return np.arange(self.n_nodes)
-        idx = np.asarray(nodes, dtype=np.int64).reshape(-1)
+        given = np.asarray(nodes)
+        if given.ndim > 1:
+            raise ModelError(f"node ids must be a single id or a 1-D list of ids, got shape {given.shape}")
+        if given.size and not np.issubdtype(given.dtype, np.integer):
+            raise ModelError(f"node ids must be integers, got dtype {given.dtype}")
+        idx = np.atleast_1d(given.astype(np.int64))
         if idx.size and (idx.min() < 0 or idx.max() >= self.n_nodes):
             raise ModelError(f"node ids must lie in 0..{self.n_nodes - 1}, got {idx.min()}..{idx.max()}")
         return idx
