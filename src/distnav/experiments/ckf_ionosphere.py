@@ -347,7 +347,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
 
 
 def _rerising(series: GeometryFreeSeries, layout: IonosphereStateLayout) -> list[str]:
-    tr = series.tracked.any(axis=1).astype(np.int8)  # (T, S)
+    tr = np.asarray(series.tracked.any(axis=1), dtype=np.int8)  # (T, S)
     rises = (np.diff(tr, axis=0) == 1).sum(axis=0) + tr[0]
     return [s for s, k in zip(layout.svs, rises, strict=True) if k >= 2]
 

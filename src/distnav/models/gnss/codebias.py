@@ -354,6 +354,16 @@ def _elevations(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, t_gps_s: np
     return out
 
 
+def _given_or_drawn(value: Any, shape: tuple[int, int], sigma_m: float, rng: np.random.Generator, name: str,
+                    rows: str) -> np.ndarray:
+    """The biases a caller gave (checked for shape), or a draw from N(0, sigma_m²) when ``value`` is None."""
+    if value is None:
+        return rng.normal(0.0, sigma_m, size=shape)
+    out = np.asarray(value, dtype=float)
+    if out.shape != shape:
+        raise ModelError(f"{name} must be ({rows}, 3) = {shape}, got {out.shape}")
+    return out
+
 def simulate_codebias_data(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, t_gps_s: np.ndarray,
                            svs: Sequence[str], *, rng: np.random.Generator, sigma0_m: float = 0.20,
                            weighting: str = "euler-goad", mask_rad: float = np.deg2rad(10.0),
@@ -373,18 +383,8 @@ def simulate_codebias_data(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, 
     n, p, T = pos.shape[0], len(svs), t.size
     mus = mu_coefficients((1, 2, 5))
     sat = orbit.positions_ecef(t, list(svs))
-    if sat_biases_m is None:
-        d_sat = rng.normal(0.0, sat_dsb_sigma_ns * NS_TO_M, size=(p, 3))
-    else:
-        d_sat = np.asarray(sat_biases_m, dtype=float)
-        if d_sat.shape != (p, 3):
-            raise ModelError(f"sat_biases_m must be (satellites, 3) = {(p, 3)}, got {d_sat.shape}")
-    if rx_biases_m is None:
-        d_rx = rng.normal(0.0, rx_dsb_sigma_ns * NS_TO_M, size=(n, 3))
-    else:
-        d_rx = np.asarray(rx_biases_m, dtype=float)
-        if d_rx.shape != (n, 3):
-            raise ModelError(f"rx_biases_m must be (stations, 3) = {(n, 3)}, got {d_rx.shape}")
+    d_sat = _given_or_drawn(sat_biases_m, (p, 3), sat_dsb_sigma_ns * NS_TO_M, rng, "sat_biases_m", "satellites")
+    d_rx = _given_or_drawn(rx_biases_m, (n, 3), rx_dsb_sigma_ns * NS_TO_M, rng, "rx_biases_m", "stations")
     clk_rx = rng.normal(0.0, 1e3, size=(n, T))
     clk_sat = rng.normal(0.0, 1e2, size=(T, p))
     y = np.full((n, T, p), np.nan)

@@ -36,7 +36,12 @@ import numpy as np
 from distnav.algorithms.kalman import DynamicModel, MeasurementSeries
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, mu
-from distnav.models.gnss.ionosphere import GRADIENT_RW_STD_M_PER_RAD_SQRT_S, TEC_NAMES, VTEC_RW_STD_M_PER_SQRT_S
+from distnav.models.gnss.ionosphere import (
+    GRADIENT_RW_STD_M_PER_RAD_SQRT_S,
+    TEC_NAMES,
+    VTEC_RW_STD_M_PER_SQRT_S,
+    series_inputs,
+)
 
 __all__ = ["DATUMS", "gf_m_per_dsb_ns", "geometry_free_band_m", "BiasStateLayout", "BiasGeometryFreeSeries",
            "bias_dynamics", "datum_transform", "in_datum"]
@@ -155,28 +160,11 @@ class BiasGeometryFreeSeries(MeasurementSeries):
     def __init__(self, layout: BiasStateLayout, coefficients: np.ndarray, sigma_m: np.ndarray, *,
                  obs_m: np.ndarray | None = None, tracked: np.ndarray | None = None,
                  groups: np.ndarray | None = None) -> None:
-        a = np.asarray(coefficients, dtype=float)
-        if a.ndim != 4 or a.shape[-1] != 3:
-            raise ModelError(f"coefficients must have shape (epochs, nodes, satellites, 3), got {a.shape}")
+        a, sig, ok, y, g = series_inputs(coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres)
         T, n, S, _ = a.shape
         if S != len(layout.svs) or n != len(layout.receivers):
             raise ModelError(f"coefficients for {n} receivers × {S} satellites, the layout has "
                              f"{len(layout.receivers)} × {len(layout.svs)}")
-        sig = np.asarray(sigma_m, dtype=float)
-        if sig.shape != (T, n, S):
-            raise ModelError(f"sigma_m must have shape {(T, n, S)}, got {sig.shape}")
-        ok = np.isfinite(sig) & (sig > 0) & np.isfinite(a).all(axis=-1)
-        if tracked is not None:
-            ok &= np.asarray(tracked, dtype=bool).reshape(T, n, S)
-        y = None
-        if obs_m is not None:
-            y = np.asarray(obs_m, dtype=float)
-            if y.shape != (T, n, S):
-                raise ModelError(f"obs_m must have shape {(T, n, S)}, got {y.shape}")
-            ok &= np.isfinite(y)
-        g = np.zeros(n, np.int64) if groups is None else np.asarray(groups, dtype=np.int64).reshape(-1)
-        if g.shape != (n,) or g.min() < 0 or g.max() >= layout.n_ionospheres:
-            raise ModelError(f"groups must be {n} ionosphere indices in 0..{layout.n_ionospheres - 1}")
         self.layout = layout
         self.n_epochs, self.n_nodes, self.n_states, self.n_satellites = T, n, layout.n_states, S
         self._a = np.where(ok[..., None], a, 0.0)

@@ -61,6 +61,7 @@ from distnav.models.gnss.geometry import (
 )
 from distnav.models.gnss.observables import elevation_sigma
 from distnav.models.gnss.orbits import SatelliteOrbit
+from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
 
 __all__ = [
     "TECU_L1_M",
@@ -332,6 +333,37 @@ def choose_pivot(svs: Sequence[str], tracked: np.ndarray, preferred: str | None 
 
 
 # ----------------------------------------------------------------------------------------------- measurements
+def series_inputs(coefficients: ArrayLike, sigma_m: ArrayLike, obs_m: ArrayLike | None, tracked: ArrayLike | None,
+                  groups: ArrayLike | None, n_ionospheres: int
+                  ) -> tuple[FloatArray, FloatArray, BoolArray, FloatArray | None, IntArray]:
+    """Check the inputs of a geometry-free series: ``coefficients`` (T epochs, n nodes, S satellites, 3);
+    ``sigma_m``, ``obs_m`` and ``tracked`` (T, n, S); ``groups`` (n,) ionosphere indices. Returns ``(coefficients,
+    σ, usable mask, y or None, groups)``; a value is usable where σ > 0 and everything is finite and tracked."""
+    a = np.asarray(coefficients, dtype=float)
+    if a.ndim != 4 or a.shape[-1] != 3:
+        raise ModelError(f"coefficients must have shape (epochs, nodes, satellites, 3), got {a.shape}")
+    T, n, S, _ = a.shape
+    sig = np.asarray(sigma_m, dtype=float)
+    if sig.shape != (T, n, S):
+        raise ModelError(f"sigma_m must have shape {(T, n, S)}, got {sig.shape}")
+    ok = np.isfinite(sig) & (sig > 0) & np.isfinite(a).all(axis=-1)
+    if tracked is not None:
+        tr = np.asarray(tracked, dtype=bool)
+        if tr.shape != (T, n, S):
+            raise ModelError(f"tracked must have shape {(T, n, S)}, got {tr.shape}")
+        ok &= tr
+    y = None
+    if obs_m is not None:
+        y = np.asarray(obs_m, dtype=float)
+        if y.shape != (T, n, S):
+            raise ModelError(f"obs_m must have shape {(T, n, S)}, got {y.shape}")
+        ok &= np.isfinite(y)
+    g = np.zeros(n, np.int64) if groups is None else np.asarray(groups, dtype=np.int64)
+    if g.shape != (n,) or g.min() < 0 or g.max() >= n_ionospheres:
+        raise ModelError(f"groups must be {n} ionosphere indices in 0..{n_ionospheres - 1}, got shape {g.shape}")
+    return a, sig, ok, y, g
+
+
 class GeometryFreeSeries(MeasurementSeries):
     """Per-node, per-epoch normals of the between-satellite geometry-free model (paper 003 eqs. (49)–(51)).
 
@@ -351,30 +383,10 @@ class GeometryFreeSeries(MeasurementSeries):
     def __init__(self, layout: IonosphereStateLayout, coefficients: np.ndarray, sigma_m: np.ndarray, *,
                  obs_m: np.ndarray | None = None, tracked: np.ndarray | None = None,
                  groups: np.ndarray | None = None) -> None:
-        a = np.asarray(coefficients, dtype=float)
-        if a.ndim != 4 or a.shape[-1] != 3:
-            raise ModelError(f"coefficients must have shape (epochs, nodes, satellites, 3), got {a.shape}")
+        a, sig, ok, y, g = series_inputs(coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres)
         T, n, S, _ = a.shape
         if S != len(layout.svs):
             raise ModelError(f"coefficients for {S} satellites, the state layout has {len(layout.svs)}")
-        sig = np.asarray(sigma_m, dtype=float)
-        if sig.shape != (T, n, S):
-            raise ModelError(f"sigma_m must have shape {(T, n, S)}, got {sig.shape}")
-        ok = np.isfinite(sig) & (sig > 0) & np.isfinite(a).all(axis=-1)
-        if tracked is not None:
-            tr = np.asarray(tracked, dtype=bool)
-            if tr.shape != (T, n, S):
-                raise ModelError(f"tracked must have shape {(T, n, S)}, got {tr.shape}")
-            ok &= tr
-        y = None
-        if obs_m is not None:
-            y = np.asarray(obs_m, dtype=float)
-            if y.shape != (T, n, S):
-                raise ModelError(f"obs_m must have shape {(T, n, S)}, got {y.shape}")
-            ok &= np.isfinite(y)
-        g = np.zeros(n, np.int64) if groups is None else np.asarray(groups, dtype=np.int64).reshape(-1)
-        if g.shape != (n,) or g.min() < 0 or g.max() >= layout.n_ionospheres:
-            raise ModelError(f"groups must be {n} ionosphere indices in 0..{layout.n_ionospheres - 1}")
         ok &= ok.sum(axis=2, keepdims=True) >= 2  # one satellite alone gives no between-satellite difference
         self.layout = layout
         self.n_epochs, self.n_nodes, self.n_states = T, n, layout.n_states

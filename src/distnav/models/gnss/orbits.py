@@ -16,7 +16,7 @@ outside the SP3 time span) the position is NaN; downstream code treats NaN as "n
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -182,15 +182,21 @@ class BroadcastOrbit:
         t = np.atleast_1d(np.asarray(t_gps_s, dtype=float))
         names = list(self.svs) if svs is None else list(svs)
         out = np.full((t.size, len(names), 3), np.nan)
+        for k, _, valid, pos, _ in self._kepler_per_satellite(t, names):
+            pos[~valid] = np.nan
+            out[:, k] = pos
+        return out
+
+    def _kepler_per_satellite(self, t: np.ndarray, names: Sequence[str]
+                              ) -> Iterator[tuple[int, dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]]:
+        """For every named satellite with records: its column, the records picked for ``t``, their validity, and
+        the Kepler position and eccentric anomaly at ``t``."""
         for k, sv in enumerate(names):
             if sv not in self.records:
                 continue
             sel, valid = self._pick(sv, t)
-            tk = t - sel["toe_abs_s"]
-            pos, _ = _kepler_position(sel, tk, sel["Toe"])
-            pos[~valid] = np.nan
-            out[:, k] = pos
-        return out
+            pos, ecc = _kepler_position(sel, t - sel["toe_abs_s"], sel["Toe"])
+            yield k, sel, valid, pos, ecc
 
     def clock_offsets_s(self, t_gps_s: np.ndarray, svs: Sequence[str] | None = None,
                         *, relativistic: bool = True, include_tgd: bool = False) -> np.ndarray:
@@ -200,12 +206,7 @@ class BroadcastOrbit:
         t = np.atleast_1d(np.asarray(t_gps_s, dtype=float))
         names = list(self.svs) if svs is None else list(svs)
         out = np.full((t.size, len(names)), np.nan)
-        for k, sv in enumerate(names):
-            if sv not in self.records:
-                continue
-            sel, valid = self._pick(sv, t)
-            tk = t - sel["toe_abs_s"]
-            _, ecc = _kepler_position(sel, tk, sel["Toe"])
+        for k, sel, valid, _, ecc in self._kepler_per_satellite(t, names):
             dt = t - sel["toc_s"]
             clk = sel["SVclockBias"] + sel["SVclockDrift"] * dt + sel["SVclockDriftRate"] * dt**2
             if relativistic:
