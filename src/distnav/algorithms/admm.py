@@ -150,6 +150,10 @@ def admm(
     ``iterations_to`` (first iteration with relative distance ≤ 1e-4, 1e-6, 1e-8 when a reference is given).
     """
     check_stopping(max_iterations, tol, atol)
+    init = options.get("init", "zero")
+    if max_iterations == 0 and (init is None or isinstance(init, str)):
+        raise ModelError("max_iterations=0 from a cold start returns the initial values, not a solution: give "
+                         "max_iterations ≥ 1, or init= a previous result or values to evaluate them")
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm(), not both")
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
