@@ -67,7 +67,7 @@ def sat_bias_combination(dsb12: np.ndarray | float, dsb13: np.ndarray | float,
     biases) into the quantity the network estimates.
     """
     c = codebias_coefficients(mus)
-    return -c[1] * np.asarray(dsb12, dtype=float) - np.asarray(dsb13, dtype=float)
+    return np.asarray(-c[1] * np.asarray(dsb12, dtype=float) - np.asarray(dsb13, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -144,7 +144,7 @@ class CodeBiasData:
     @property
     def observed(self) -> np.ndarray:
         """``(n, T, p)`` mask of the observations used."""
-        return np.isfinite(self.y_m)
+        return np.asarray(np.isfinite(self.y_m))
 
     def window(self, epochs: slice | np.ndarray) -> CodeBiasData:
         """The same network over a subset of epochs."""
@@ -340,7 +340,7 @@ class CodeBiasData:
 
     def observation_counts(self) -> np.ndarray:
         """Number of station-epochs observing each satellite ``(p,)``."""
-        return self.observed.sum(axis=(0, 1))
+        return np.asarray(self.observed.sum(axis=(0, 1)))
 
 
 # ----------------------------------------------------------------------------------------------- building

@@ -86,7 +86,7 @@ def ecef_to_enu(target_ecef_m: np.ndarray, origin_ecef_m: np.ndarray) -> np.ndar
     lat, lon, _ = ecef_to_geodetic(origin)
     rot = enu_rotation(lat, lon)
     d = np.asarray(target_ecef_m, dtype=float) - origin
-    return np.einsum("...ij,...j->...i", rot, d)
+    return np.asarray(np.einsum("...ij,...j->...i", rot, d))
 
 
 def azimuth_elevation(receiver_ecef_m: np.ndarray, satellite_ecef_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -111,7 +111,7 @@ def elevation_mask(el_rad: np.ndarray, mask_rad: float) -> np.ndarray:
     """Boolean mask: finite elevation at or above ``mask_rad``."""
     el = np.asarray(el_rad, dtype=float)
     with np.errstate(invalid="ignore"):
-        return np.isfinite(el) & (el >= mask_rad)
+        return np.asarray(np.isfinite(el) & (el >= mask_rad))
 
 
 def pierce_zenith_angle(el_rad: np.ndarray | float, *, height_m: float = IONO_HEIGHT_M,
@@ -121,7 +121,7 @@ def pierce_zenith_angle(el_rad: np.ndarray | float, *, height_m: float = IONO_HE
     Paper 003 §5 (layer height H = 450 km, R = 6378.137 km); the slant factor of the layer is 1/cos z'.
     """
     el = np.asarray(el_rad, dtype=float)
-    return np.arcsin(radius_m / (radius_m + height_m) * np.cos(el))
+    return np.asarray(np.arcsin(radius_m / (radius_m + height_m) * np.cos(el)))
 
 
 def pierce_point(lat_rad: np.ndarray | float, lon_rad: np.ndarray | float, az_rad: np.ndarray,

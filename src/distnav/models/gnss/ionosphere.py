@@ -116,7 +116,7 @@ def gf_m_from_dcb_ns(dcb_ns: np.ndarray | float) -> np.ndarray:
 
 def geometry_free_m(p1_m: np.ndarray, p2_m: np.ndarray) -> np.ndarray:
     """The geometry-free code combination ``(P2 − P1)/(μ2 − μ1)`` [m] (L1 slant delay + biases); NaN propagates."""
-    return (np.asarray(p2_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(2) - 1.0)
+    return np.asarray((np.asarray(p2_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(2) - 1.0))
 
 
 def ionosphere_coefficients(lat_ipp_rad: np.ndarray, lon_ipp_rad: np.ndarray, zenith_ipp_rad: np.ndarray,

@@ -56,7 +56,7 @@ def ionosphere_free(y1: np.ndarray, y2: np.ndarray, mu1: float = 1.0, mu2: float
 def geometry_free(y1: np.ndarray, y2: np.ndarray, mu1: float = 1.0, mu2: float | None = None) -> np.ndarray:
     """Geometry-free combination, paper 000 eq. (25): ``(ȳ₂ − ȳ₁)/(μ₂ − μ₁)`` (the f₁ slant ionosphere)."""
     m2 = mu(2) if mu2 is None else mu2
-    return (np.asarray(y2) - np.asarray(y1)) / (m2 - mu1)
+    return np.asarray((np.asarray(y2) - np.asarray(y1)) / (m2 - mu1))
 
 
 def codebias_coefficients(mus: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
@@ -75,7 +75,7 @@ def codebias_observable(y1: np.ndarray, y2: np.ndarray, y3: np.ndarray,
     m1, m2, m3 = (mu_coefficients((1, 2, 5)) if mus is None else np.asarray(mus, dtype=float))
     y_if = ionosphere_free(y1, y2, m1, m2)
     y_gf = geometry_free(y1, y2, m1, m2)
-    return np.asarray(y3) - y_if - m3 * y_gf
+    return np.asarray(np.asarray(y3) - y_if - m3 * y_gf)
 
 
 def combination_matrix(mus: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
@@ -104,7 +104,7 @@ def combination_covariance(coefficients: np.ndarray, q: np.ndarray) -> np.ndarra
         qq = qq[..., :, None] * np.eye(m)
     else:
         raise ModelError(f"covariance of shape {qq.shape} does not match {m} combination coefficients")
-    return np.einsum("ij,...jk,lk->...il", c, qq, c)
+    return np.asarray(np.einsum("ij,...jk,lk->...il", c, qq, c))
 
 
 def between_satellite_operator(m: int) -> np.ndarray:
@@ -128,8 +128,8 @@ def sbasis_design(visible: np.ndarray, n_satellites: int, *, reference_receiver:
         raise ModelError(f"visible satellite index out of range 0..{n_satellites - 1}: {vis.tolist()}")
     a_bar = np.eye(n_satellites)[vis]
     if reference_receiver:
-        return a_bar
-    return between_satellite_operator(vis.size).T @ a_bar
+        return np.asarray(a_bar)
+    return np.asarray(between_satellite_operator(vis.size).T @ a_bar)
 
 
 def euler_goad_sigma(el_rad: np.ndarray, sigma0_m: float, *, a: float = 10.0,
@@ -143,7 +143,7 @@ def euler_goad_sigma(el_rad: np.ndarray, sigma0_m: float, *, a: float = 10.0,
 
 def sine_sigma(el_rad: np.ndarray, sigma0_m: float) -> np.ndarray:
     """``σ(θ) = σ₀ / sin θ`` (variance σ₀²/sin²θ)."""
-    return sigma0_m / np.sin(np.asarray(el_rad, dtype=float))
+    return np.asarray(sigma0_m / np.sin(np.asarray(el_rad, dtype=float)))
 
 
 def elevation_sigma(el_rad: np.ndarray, sigma0_m: float, model: str = "euler-goad") -> np.ndarray:

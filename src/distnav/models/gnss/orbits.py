@@ -245,7 +245,7 @@ def lagrange_interpolate(t_nodes: np.ndarray, values: np.ndarray, t: np.ndarray,
     out = np.einsum("tk,tk...->t...", w, v[idx])
     outside = (tq < tn[0]) | (tq > tn[-1])
     out[outside] = np.nan
-    return out
+    return np.asarray(out)
 
 
 @dataclass(frozen=True)
