@@ -143,7 +143,8 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
     ids = log.ids
     index = {k: i for i, k in enumerate(ids)}
     unused_known = [k for k in known_pos if k not in index]
-    warnings: list[str] = [log.drop_message()] if log.n_dropped else []
+    # dropped samples: read_ranges has logged them (the CLI shows that line); summary.json counts them itself
+    warnings: list[str] = []
     warnings += single_link_anchors(comb) + ([units_warning] if units_warning else [])
     if unused_known:
         warnings.append(f"known anchors without ranges are ignored: {', '.join(unused_known[:10])}")
