@@ -21,19 +21,6 @@ C = 299.792458
 TRUTH_FT = {8: (0, 0), 12: (15, 1), 14: (2, 9), 54: (20, 3), 61: (10, 0), 81: (17, 7), 87: (8, 8)}
 KNOWN = (8, 12, 54, 87)
 
-@pytest.fixture(autouse=True)
-def _cli_log_stream():
-    """Work around distnav.cli._CliLogHandler flushing the stderr of an earlier test (closed by pytest's capture)
-    when it switches streams: point it at this test's stderr first."""
-    import logging
-    import sys
-
-    for h in logging.getLogger("distnav").handlers:
-        if type(h).__name__ == "_CliLogHandler":
-            h.stream = sys.stderr
-    yield
-
-
 
 def _log(shared_data: Path, name: str = "dataset4.txt") -> Path:
     p = shared_data / "uwb" / "april-dw1000-8node" / name

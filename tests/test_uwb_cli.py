@@ -15,20 +15,6 @@ from distnav.errors import DataFileError
 from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
 
 
-@pytest.fixture(autouse=True)
-def _cli_log_stream():
-    """Work around distnav.cli._CliLogHandler flushing the stderr of an earlier test (closed by pytest's capture)
-    when it switches streams: point it at this test's stderr first."""
-    import logging
-    import sys
-
-    for h in logging.getLogger("distnav").handlers:
-        if type(h).__name__ == "_CliLogHandler":
-            h.stream = sys.stderr
-    yield
-
-
-
 def hall(tmp_path: Path, *, seed: int = 0, n: int = 14, sigma_m: float = 0.0, samples: int = 3,
          nlos: dict[tuple[int, int], float] | None = None, ceiling: bool = True) -> dict[str, Path]:
     """Anchors in a 40 m × 20 m hall (under a 3 m ceiling, or at spread heights), ranges up to 22 m."""

@@ -16,20 +16,6 @@ from distnav.models.uwb.hall import simulate_hall
 from distnav.models.uwb.io import check_units, combine_ranges, read_positions, read_ranges, single_link_anchors
 
 
-@pytest.fixture(autouse=True)
-def _cli_log_stream():
-    """Work around distnav.cli._CliLogHandler flushing the stderr of an earlier test (closed by pytest's capture)
-    when it switches streams: point it at this test's stderr first."""
-    import logging
-    import sys
-
-    for h in logging.getLogger("distnav").handlers:
-        if type(h).__name__ == "_CliLogHandler":
-            h.stream = sys.stderr
-    yield
-
-
-
 def _hall(tmp_path: Path) -> dict[str, Path]:
     return simulate_hall(np.random.default_rng(11), n_anchors=16, length_m=30.0, width_m=15.0, nlos_p1=0.0,
                          antenna_delay_sd_m=0.0).write(tmp_path)
