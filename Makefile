@@ -1,37 +1,60 @@
 # distnav — set-up and checks. A fresh machine needs only Python 3.11, pip and make.
-#   make demo   create .venv (first time), install distnav with every extra, run `distnav demo`
-#   make test   the same environment, then ruff + mypy + the whole pytest suite
+#   make demo   create .venv (first time), install distnav with what the demo needs (numpy, scipy, matplotlib:
+#               the `plot` extra), run `distnav demo` (its experiments in 2 processes)
+#   make test   install every extra and the checkers (`.[dev]`), then ruff + mypy + the whole pytest suite
+# Two stamps: .venv/.demo-stamp (the `plot` extra) and .venv/.dev-stamp (`.[dev]`, which includes it).
 PYTHON ?= python3
 VENV   ?= .venv
 BIN     = $(VENV)/bin
-STAMP   = $(VENV)/.installed-stamp
+DEMO_STAMP = $(VENV)/.demo-stamp
+DEV_STAMP  = $(VENV)/.dev-stamp
 DEMO_OUT ?= distnav-demo
+DEMO_JOBS ?= 2
+# --no-compile: no byte-compiling of every installed module (scipy alone is seconds); Python compiles what it
+# imports, once.
+PIP_FLAGS = --quiet --no-compile
 
-.PHONY: demo test lint typecheck pytest bench clean env
+.PHONY: demo test lint typecheck pytest bench clean env demo-env
 
-env: $(STAMP)
+env: $(DEV_STAMP)
+demo-env: $(DEMO_STAMP)
 
-$(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
-	touch $(STAMP)
+# The venv is made without pip (`ensurepip` byte-compiles pip and setuptools: seconds) when the pip of $(PYTHON)
+# can install into it (`pip --python`, pip 22.3 or later); the first install then puts pip into the venv, so
+# `.venv/bin/pip` works as usual. An older pip: the venv gets its pip from ensurepip.
+$(BIN)/python:
+	$(PYTHON) -m venv --without-pip $(VENV)
+	$(PYTHON) -m pip --python $(BIN)/python --version >/dev/null 2>&1 || $(BIN)/python -m ensurepip --default-pip
 
-demo: $(STAMP)
-	$(BIN)/distnav demo --out $(DEMO_OUT)
+# pip: the venv's own once it has one, else the outer pip installing into the venv (and pip with it)
+PIP_INSTALL = if $(BIN)/python -m pip --version >/dev/null 2>&1; then $(BIN)/python -m pip install $(PIP_FLAGS) $(1); \
+	else $(PYTHON) -m pip --python $(BIN)/python install $(PIP_FLAGS) pip $(1); fi
 
-lint: $(STAMP)
+$(DEMO_STAMP): pyproject.toml | $(BIN)/python
+	@echo "installing distnav with the plot extra into $(VENV) (numpy, scipy, matplotlib)"
+	$(call PIP_INSTALL,-e '.[plot]')
+	touch $(DEMO_STAMP)
+
+$(DEV_STAMP): pyproject.toml | $(BIN)/python
+	@echo "installing distnav with every extra and the checkers into $(VENV) (.[dev])"
+	$(call PIP_INSTALL,-e '.[dev]')
+	touch $(DEV_STAMP) $(DEMO_STAMP)
+
+demo: $(DEMO_STAMP)
+	$(BIN)/distnav demo --out $(DEMO_OUT) --jobs $(DEMO_JOBS)
+
+lint: $(DEV_STAMP)
 	$(BIN)/ruff check src tests benchmarks
 
-typecheck: $(STAMP)
+typecheck: $(DEV_STAMP)
 	$(BIN)/mypy
 
-pytest: $(STAMP)
+pytest: $(DEV_STAMP)
 	$(BIN)/python -m pytest -q
 
 test: lint typecheck pytest
 
-bench: $(STAMP)
+bench: $(DEV_STAMP)
 	$(BIN)/python benchmarks/run.py
 
 clean:

@@ -93,7 +93,9 @@ def _experiment_cases() -> list[Cli]:
 
     cases = [Cli("reproduce-unknown", ("reproduce", "nonsense", "--out", "{tmp}/out"), "invalid choice"),
              Cli("reproduce-none", ("reproduce",), "required"),
-             Cli("demo-only-empty", ("demo", "--out", "{tmp}/out", "--only"), "expected at least one argument")]
+             Cli("demo-only-empty", ("demo", "--out", "{tmp}/out", "--only"), "expected at least one argument"),
+             Cli("demo-jobs-mpi", ("demo", "--out", "{tmp}/out", "--jobs", "2", "--backend", "mpi"),
+                 "--jobs 2 applies only with the in-process backend")]
     for path, parser in _subparsers(build_parser()):
         if path and path[0] in {"demo", "reproduce"} and (path[0] == "demo" or len(path) == 2):
             cases += _derived_cases(path, parser)

@@ -16,18 +16,20 @@ import importlib
 import importlib.util
 import logging
 import os
+import signal
 import sys
 import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any, TextIO
 
 from distnav import __version__
 from distnav.commands import add_backend_arguments
 from distnav.errors import DistnavError, UsageError
 from distnav.experiments import EXPERIMENTS, available, load
 from distnav.experiments.common import ExperimentContext, Progress
-from distnav.options import output_folder, probe_output_folder, seed
+from distnav.options import output_folder, positive_int, probe_output_folder, seed
 from distnav.output import set_file_writer
 
 # real-data command groups; each module defines ``register(subparsers)``
@@ -49,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", type=output_folder, default=Path("distnav-demo"),
                       help="report folder (default distnav-demo)")
     demo.add_argument("--only", nargs="+", choices=list(EXPERIMENTS), help="run only these experiments")
+    demo.add_argument("--jobs", type=positive_int, default=1,
+                      help="run the experiments in this many processes (default 1; `make demo` uses 2); "
+                           "in-process backend only")
     _add_common(demo)
 
     rep = sub.add_parser("reproduce", help="reproduce a paper experiment (figures + results.json)")
@@ -71,28 +76,97 @@ def build_parser() -> argparse.ArgumentParser:
 def _context(args: argparse.Namespace, out_dir: Path, quick: bool) -> ExperimentContext:
     opts = {k: v for k, v in vars(args).items()
             if k not in {"command", "experiment", "out", "quick", "seed", "backend", "no_progress", "only", "func",
-                         "ranks"}}
+                         "ranks", "jobs"}}
     return ExperimentContext(out_dir=out_dir, quick=quick, backend=args.backend, seed=args.seed,
                              progress=Progress(enabled=not args.no_progress), options=opts)
 
 
+#: Seconds each quick variant took in ``distnav demo`` (sequential, this project's 2-core test machine): the demo
+#: starts the longest first, so two processes finish close together. Only the order matters.
+DEMO_SECONDS: dict[str, float] = {"qc": 31, "uwb-field": 22, "uwb": 14, "ckf-ionosphere": 12, "codebias": 12,
+                                  "admm": 9, "consensus": 3, "ckf": 3}
+
+
+class _LineStream:
+    """stderr for a demo worker: the same stream, but not a terminal, so progress comes as whole lines (two
+    processes drawing progress bars on one terminal garble each other)."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        return self._stream.write(text)
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+    def isatty(self) -> bool:
+        return False
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
+def _demo_worker_init() -> None:
+    """In each demo worker: line progress, the CLI's warning lines, Ctrl-C left to the parent (which ends the
+    pool)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.stderr = _LineStream(sys.stderr)
+    _configure_logging()
+    warnings.showwarning = _show_warning
+
+
+def _demo_one(job: tuple[int, int, str, argparse.Namespace]) -> tuple[str, dict[str, Any], list[str], float, float]:
+    """Run one quick variant: ``(name, results, figures written, wall seconds, CPU seconds)``."""
+    index, total, name, args = job
+    mod = load(name)
+    ctx = _context(args, args.out / name, quick=True)
+    if ctx.is_root:
+        print(f"[{index}/{total}] {getattr(mod, 'TITLE', name)}", file=sys.stderr, flush=True)
+    t0, c0 = time.perf_counter(), time.process_time()
+    results = mod.run(ctx)
+    return name, results, list(ctx.figures), time.perf_counter() - t0, time.process_time() - c0
+
+
 def _run_demo(args: argparse.Namespace) -> int:
+    """Every quick variant, then the report. With ``--jobs N`` > 1 (in-process backend only) the experiments run
+    in N worker processes, the longest first (:data:`DEMO_SECONDS`); each is the same computation as alone (its
+    own seeded generators, its own output folder), so the results are the same; only the progress lines of two
+    experiments interleave (each names its experiment)."""
     from distnav.experiments.report import write_report
 
     names = args.only or available()
-    entries = []
+    jobs = [(i + 1, len(names), name, args) for i, name in enumerate(names)]
+    n_workers = min(getattr(args, "jobs", 1), len(names))
     t_all = time.perf_counter()
+    done: dict[str, tuple[str, dict[str, Any], list[str], float, float]] = {}
+    if n_workers <= 1:
+        for job in jobs:
+            done[job[2]] = _demo_one(job)
+    else:
+        for name in names:
+            load(name)  # import every experiment (numpy, scipy, matplotlib) once, before the workers fork
+        import multiprocessing
+
+        method = "fork" if "fork" in multiprocessing.get_all_start_methods() and sys.platform == "linux" else None
+        order = sorted(jobs, key=lambda job: -DEMO_SECONDS.get(job[2], 0.0))
+        with multiprocessing.get_context(method).Pool(n_workers, initializer=_demo_worker_init) as pool:
+            for result in pool.imap_unordered(_demo_one, order, chunksize=1):
+                done[result[0]] = result
+                if not args.no_progress:
+                    print(f"  ✓ {result[0]} done, {len(done)} of {len(names)} ({result[3]:.1f} s)",
+                          file=sys.stderr, flush=True)
+    entries = []
     for name in names:
-        mod = load(name)
+        _, results, figures, seconds, _ = done[name]
         ctx = _context(args, args.out / name, quick=True)
-        if ctx.is_root:
-            print(f"[{names.index(name) + 1}/{len(names)}] {getattr(mod, 'TITLE', name)}", file=sys.stderr, flush=True)
-        t0 = time.perf_counter()
-        results = mod.run(ctx)
-        entries.append((name, getattr(mod, "TITLE", name), ctx, results, time.perf_counter() - t0))
+        ctx.figures.extend(figures)
+        entries.append((name, getattr(load(name), "TITLE", name), ctx, results, seconds))
     if entries and entries[0][2].is_root:
         index = write_report(args.out, entries)
-        print(f"report: {index} ({time.perf_counter() - t_all:.1f} s)", flush=True)
+        cpu = sum(d[4] for d in done.values())
+        print(f"report: {index} ({time.perf_counter() - t_all:.1f} s; experiments {cpu:.1f} CPU s in "
+              f"{max(n_workers, 1)} process(es))", flush=True)
     return 0
 
 
@@ -128,6 +202,9 @@ def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None
     backend = getattr(args, "backend", "inprocess")
     if getattr(args, "ranks", None) is not None and backend != "mpi":
         raise UsageError(f"--ranks {args.ranks} applies only with --backend mpi (launched with mpiexec -n N)")
+    if getattr(args, "jobs", 1) > 1 and backend == "mpi":
+        raise UsageError(f"--jobs {args.jobs} applies only with the in-process backend (under MPI the ranks "
+                         "share the work)")
     if backend == "mpi":
         from distnav._optional import require
 
