@@ -101,7 +101,10 @@ def test_malformed_files(tmp_path: Path) -> None:
         read_bias_sinex(f)
     with pytest.raises(DataFileError, match="file not found"):
         read_bias_sinex(tmp_path / "none.bia")
-    f.write_text(HEAD + SAT.replace(" ns ", " cyc"))
+    f.write_text(HEAD + SAT)  # a truncated file: the block is never closed
+    with pytest.raises(DataFileError, match=r"line 4: the \+BIAS/SOLUTION block of line 2 is not closed"):
+        read_bias_sinex(f)
+    f.write_text(HEAD + SAT.replace(" ns ", " cyc") + "-BIAS/SOLUTION\n")
     with pytest.raises(ModelError, match="not ns"):
         read_bias_sinex(f).satellite_dsb_ns("G01", "C1C", "C1W")
 

@@ -72,7 +72,7 @@ def test_bad_records_name_the_line(tmp_path: Path) -> None:
             "                                                            END OF HEADER\n")
     p = tmp_path / "bad.rnx"
     p.write_text(head + "> 2024 01 10 00 00 xx.0000000  0  1\nG01  22000000.000    22000001.000\n")
-    with pytest.raises(DataFileError, match=r"bad\.rnx, line 4: malformed"):
+    with pytest.raises(DataFileError, match=r"bad\.rnx, line 4: the epoch: expected year month day"):
         read_observation_types(p, ["C1C"])
     with pytest.raises(DataFileError, match=r"types L1C not in the header"):
         read_observation_types(p, ["L1C"])

@@ -36,13 +36,13 @@ __all__ = [
 
 
 def _read_text_lines(path: Path) -> list[str]:
-    if not path.exists():
-        raise DataFileError(f"{path}: file not found")
-    try:
-        raw = gzip.open(path, "rb").read() if path.name.lower().endswith(".gz") else path.read_bytes()
-    except (OSError, EOFError) as exc:
-        raise DataFileError(f"{path}: cannot read ({exc})") from None
-    return raw.decode("latin-1").splitlines()
+    from distnav.models.gnss.rinex_obs import read_text_file
+
+    return read_text_file(path, whole_lines=True)
+
+
+_COLUMNS = ("the fixed columns of '*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____ BIAS_END______ UNIT "
+            "__ESTIMATED_VALUE____ _STD_DEV___'")
 
 
 @dataclass(frozen=True)
@@ -130,15 +130,17 @@ def read_bias_sinex(path: str | Path) -> BiasProduct:
     p = Path(path)
     lines = _read_text_lines(p)
     if not lines or not lines[0].startswith("%=BIA"):
-        raise DataFileError(f"{p}: not a Bias-SINEX file (first line does not start with '%=BIA')")
+        raise DataFileError(f"{p}, line 1: not a Bias-SINEX file: expected a first line starting with '%=BIA', got "
+                            f"{(lines[0] if lines else '')[:20]!r}")
     head = lines[0].split()
     agency = head[2] if len(head) > 2 else ""
     records: list[BiasRecord] = []
     inside = False
     seen_block = False
+    opened = 0
     for no, line in enumerate(lines, start=1):
         if line.startswith("+BIAS/SOLUTION"):
-            inside, seen_block = True, True
+            inside, seen_block, opened = True, True, no
             continue
         if line.startswith("-BIAS/SOLUTION"):
             inside = False
@@ -146,31 +148,43 @@ def read_bias_sinex(path: str | Path) -> BiasProduct:
         if not inside or line.startswith("*") or not line.strip():
             continue
         tokens = line.split()
-        try:
-            kind = line[1:5].strip()
-            svn = line[6:10].strip()
-            prn = line[11:14].strip()
-            station = line[15:24].strip()
-            obs1 = line[25:29].strip()
-            obs2 = line[30:34].strip()
-            start = line[35:49].strip()
-            end = line[50:64].strip()
-            unit = line[65:69].strip()
-            value = float(line[70:91])
-            std = float(line[92:103]) if line[92:103].strip() else float("nan")
-        except (ValueError, IndexError):
-            raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line: {line.strip()!r}") from None
+        kind = line[1:5].strip()
+        svn = line[6:10].strip()
+        prn = line[11:14].strip()
+        station = line[15:24].strip()
+        obs1 = line[25:29].strip()
+        obs2 = line[30:34].strip()
+        start = line[35:49].strip()
+        end = line[50:64].strip()
+        unit = line[65:69].strip()
+        value = _number(p, no, line, 70, 91, "the estimated value")
+        std = _number(p, no, line, 92, 103, "the standard deviation") if line[92:103].strip() else float("nan")
         expected = 11 if station else 10
         if not obs2:
             expected -= 1     # OSB lines have no second observation code
-        if kind not in ("DSB", "OSB", "ISB") or len(tokens) != expected or tokens[0] != kind:
-            raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line "
-                                f"({len(tokens)} fields, expected {expected}): {line.strip()!r}")
+        if kind not in ("DSB", "OSB", "ISB") or tokens[0] != kind:
+            raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line: expected DSB, OSB or ISB in "
+                                f"columns 2-4 ({_COLUMNS}), got {line.strip()[:40]!r}")
+        if len(tokens) != expected:
+            raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line: {len(tokens)} fields where a "
+                                f"{'station' if station else 'satellite'} line has {expected} ({_COLUMNS}): "
+                                f"{line.strip()!r}")
         records.append(BiasRecord(kind, svn, prn if len(prn) == 3 else "", station, obs1, obs2, start, end,
                                   unit, value, std, no))
     if not seen_block:
         raise DataFileError(f"{p}: no +BIAS/SOLUTION block")
+    if inside:
+        raise DataFileError(f"{p}, line {len(lines)}: the +BIAS/SOLUTION block of line {opened} is not closed by "
+                            f"-BIAS/SOLUTION: the file is truncated")
     return BiasProduct(path=p, agency=agency, records=tuple(records))
+
+
+def _number(p: Path, no: int, line: str, a: int, b: int, what: str) -> float:
+    try:
+        return float(line[a:b])
+    except ValueError:
+        raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line: {what} (columns {a + 1}-{b}): expected "
+                            f"a number, got {line[a:b].strip()!r}") from None
 
 
 @dataclass(frozen=True)
@@ -193,11 +207,11 @@ def read_ionex_dcb(path: str | Path) -> IonexDCB:
     sta: dict[tuple[str, str], tuple[float, float]] = {}
     ref: dict[str, str] = {}
     inside = False
-    found = False
+    found = 0
     for no, line in enumerate(lines, start=1):
         label = line[60:].strip()
         if label == "START OF AUX DATA" and "DIFFERENTIAL CODE BIASES" in line[:60]:
-            inside, found = True, True
+            inside, found = True, no
             continue
         if label == "END OF AUX DATA":
             inside = False
@@ -210,20 +224,30 @@ def read_ionex_dcb(path: str | Path) -> IonexDCB:
         try:
             if label == "PRN / BIAS / RMS":
                 tok = content.split()
+                if len(tok) != 3 or not (tok[0].isdigit() or (tok[0][:1].isalpha() and tok[0][1:].isdigit())):
+                    raise ValueError
                 prn = tok[0] if tok[0][:1].isalpha() else f"G{int(tok[0]):02d}"
                 sat[prn] = (float(tok[-2]), float(tok[-1]))
             elif label == "STATION / BIAS / RMS":
                 system = content[3:4].strip() or "G"
                 site = content[6:10].strip().upper()
                 tok = content[10:].split()
+                if len(tok) < 2 or not site:
+                    raise ValueError
                 sta[(system, site)] = (float(tok[-2]), float(tok[-1]))
             elif label == "COMMENT" and content.startswith("Reference observables"):
                 key, _, obs = content.partition(":")
                 ref[key.replace("Reference observables for", "").strip()] = obs.strip()
         except (ValueError, IndexError):
-            raise DataFileError(f"{p}, line {no}: malformed IONEX DCB line: {line.rstrip()!r}") from None
+            example = ("'   G01    -7.722     0.020' (satellite, bias ns, rms ns)" if label == "PRN / BIAS / RMS"
+                       else "'   G  ALIC    21.005     0.071' (system, station, bias ns, rms ns)")
+            raise DataFileError(f"{p}, line {no}: malformed IONEX DCB line: expected {example} in columns 1-60, "
+                                f"got {content.rstrip()!r}") from None
     if not found:
         raise DataFileError(f"{p}: no 'DIFFERENTIAL CODE BIASES / START OF AUX DATA' block in the IONEX header")
+    if inside:
+        raise DataFileError(f"{p}, line {len(lines)}: the DCB block of line {found} is not closed by "
+                            f"'END OF AUX DATA' before the end of the header: the file is truncated or malformed")
     return IonexDCB(path=p, satellite=sat, station=sta, reference=ref)
 
 

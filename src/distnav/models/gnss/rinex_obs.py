@@ -26,7 +26,8 @@ import numpy as np
 
 from distnav.errors import DataFileError
 
-__all__ = ["RinexHeader", "RawObservations", "read_header", "read_observation_types", "on_grid", "ProgressCallback"]
+__all__ = ["RinexHeader", "RawObservations", "read_header", "read_observation_types", "on_grid", "ProgressCallback",
+           "read_text_file"]
 
 log = logging.getLogger(__name__)
 
@@ -62,29 +63,73 @@ class RawObservations:
     lli: dict[str, np.ndarray]
 
 
-def _read_lines(path: Path) -> list[str]:
+def _decompress(path: Path, raw: bytes) -> bytes:
+    """gzip-decoded ``raw`` (unchanged when it is not gzip); :class:`DataFileError` naming the file otherwise."""
+    if raw[:2] != b"\x1f\x8b":
+        return raw
+    try:
+        return gzip.decompress(raw)
+    except EOFError:
+        raise DataFileError(f"{path}: the gzip data end early (the file is truncated; download it again)") from None
+    except OSError:  # gzip.BadGzipFile and zlib errors
+        raise DataFileError(f"{path}: starts like gzip but is not valid gzip data (expected a .gz file written by "
+                            f"gzip)") from None
+
+
+def _file_bytes(path: Path) -> bytes:
     if not path.exists():
         raise DataFileError(f"{path}: file not found")
     try:
-        with path.open("rb") as fh:
-            raw = fh.read()
-        if raw[:2] == b"\x1f\x8b":
-            raw = gzip.decompress(raw)
-    except (OSError, EOFError) as exc:
-        raise DataFileError(f"{path}: cannot read ({type(exc).__name__}: {exc})") from None
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot read the file ({exc.strerror or 'read error'})") from None
+    return _decompress(path, raw)
+
+
+def _text_lines(path: Path, raw: bytes) -> list[str]:
+    nul = raw.find(b"\x00")
+    if nul >= 0:
+        line = raw.count(b"\n", 0, nul) + 1
+        raise DataFileError(f"{path}, line {line}: binary data (NUL bytes): expected a plain ASCII text file "
+                            f"(not UTF-16, not a binary format)")
+    return raw.decode("latin-1").splitlines()
+
+
+def read_text_file(path: Path, *, whole_lines: bool = False) -> list[str]:
+    """The lines of a plain or gzip-compressed text file, decoded as latin-1 (any byte is accepted); a truncated
+    or fake gzip file and a file with NUL bytes (binary data, UTF-16) are refused naming the file (and line).
+    ``whole_lines``: a file that ends inside a line (no final newline: a cut download) is refused too."""
+    raw = _file_bytes(path)
+    if whole_lines:
+        _ends_with_newline(path, raw)
+    return _text_lines(path, raw)
+
+
+def _ends_with_newline(path: Path, raw: bytes) -> None:
+    if raw and not raw.endswith(b"\n"):  # records are lines: a cut download ends inside one
+        last = raw.count(b"\n") + 1
+        raise DataFileError(f"{path}, line {last}: the file ends inside a line (no final newline): it is truncated")
+
+
+def _read_lines(path: Path) -> list[str]:
+    raw = _file_bytes(path)
+    _ends_with_newline(path, raw)
     if b"COMPACT RINEX" in raw[:200] or b"CRINEX VERS" in raw[:200]:
         try:
             import hatanaka
 
             raw = hatanaka.decompress(raw)
         except ImportError:
+            from distnav._optional import install_hint
+
             raise DataFileError(f"{path}: Hatanaka-compressed; install the 'hatanaka' package "
-                                f"(pip install distnav[gnss])") from None
-        except Exception as exc:  # the hatanaka package raises its own and OS errors
-            raise DataFileError(f"{path}: Hatanaka decompression failed ({type(exc).__name__}: {exc})") from None
+                                f"({install_hint('gnss')})") from None
+        except Exception:  # the hatanaka package raises its own and OS errors
+            raise DataFileError(f"{path}: not valid Compact RINEX (Hatanaka) data: expected a .crx/.d file as "
+                                f"written by rnx2crx") from None
         if isinstance(raw, str):
             raw = raw.encode("latin-1")
-    return raw.decode("latin-1").splitlines()
+    return _text_lines(path, raw)
 
 
 def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
@@ -103,7 +148,8 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
             try:
                 version = float(line[:9])
             except ValueError:
-                raise DataFileError(f"{path}, line {k + 1}: unreadable RINEX version {line[:9]!r}") from None
+                raise DataFileError(f"{path}, line {k + 1}: the RINEX version (columns 1-9): expected a number such "
+                                    f"as 2.11 or 3.04, got {line[:9].strip()!r}") from None
             ftype = line[20:21]
         elif label == "REC # / TYPE / VERS":
             receiver = line[20:40].strip()
@@ -175,6 +221,7 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
     k = hdr.header_lines
     rinex3 = hdr.version >= 3
     n_per_sat = (len(hdr.gps_types) + 4) // 5
+    epoch: np.datetime64 | None = None
     try:
         while k < n_lines:
             if progress is not None and k / n_lines >= next_report:
@@ -185,50 +232,57 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
                 if not line.startswith(">"):
                     k += 1
                     continue
-                flag = int(line[31:32] or 0)
-                nsat = int(line[32:35])
+                flag = _int(line[31:32] or "0", "the event flag (column 32)", "0-6")
+                nsat = _int(line[32:35], "the number of satellites (columns 33-35)", "a whole number")
                 if flag > 1:
                     k += 1 + (nsat if flag in (2, 3, 4, 5, 6) else 0)
                     continue
-                t = _epoch_time(int(line[2:6]), int(line[7:9]), int(line[10:12]), int(line[13:15]),
-                                int(line[16:18]), float(line[18:29]))
+                epoch = t = _epoch(line[2:6], line[7:9], line[10:12], line[13:15], line[16:18], line[18:29])
                 sat_lines = lines[k + 1:k + 1 + nsat]
+                _complete(len(sat_lines), nsat, "satellite lines")
+                start = k + 1
                 k += 1 + nsat
                 if not _keep(t, lo, hi, step_ns):
                     continue
                 vals = np.full((_N_PRN, nt), np.nan)
                 lli = np.zeros((_N_PRN, nt), np.int8)
-                for sl in sat_lines:
+                for i, sl in enumerate(sat_lines):
+                    k = start + i
+                    if not (sl[:1].isalpha() and sl[1:3].strip().isdigit()):
+                        raise _Bad(f"expected a satellite line starting with its id (e.g. G01) in columns 1-3, got "
+                                   f"{sl[:12]!r}")
                     if sl[:1] != "G":
                         continue
-                    prn = int(sl[1:3])
+                    prn = _prn(sl[1:3])
                     for j, c in enumerate(idx):
-                        f = sl[3 + 16 * c:17 + 16 * c]
-                        if f.strip():
-                            vals[prn, j] = float(f)
-                            ll = sl[17 + 16 * c:18 + 16 * c]
-                            if ll.strip():
-                                lli[prn, j] = int(ll)
+                        _value(sl, 3 + 16 * c, vals, lli, prn, j, types[j])
+                k = start + nsat
             else:
                 if not line.strip():
                     k += 1
                     continue
-                flag = int(line[28:29] or 0)
-                nsat = int(line[29:32])
+                k0 = k
+                flag = _int(line[28:29] or "0", "the event flag (column 29)", "0-6")
+                nsat = _int(line[29:32], "the number of satellites (columns 30-32)", "a whole number")
                 if flag > 1:
                     k += 1 + (nsat if flag in (2, 3, 4, 5, 6) else 0)
                     continue
                 sats = [line[32 + 3 * i:35 + 3 * i] for i in range(min(nsat, 12))]
+                yy = _int(line[1:3], "the year (columns 2-3)", "two digits")
+                epoch = t = _epoch(str(yy + (2000 if yy < 80 else 1900)), line[4:6], line[7:9], line[10:12],
+                                   line[13:15], line[15:26])
                 k += 1
                 while len(sats) < nsat:
+                    _complete(n_lines - k, 1, "satellite continuation lines")
                     cont = lines[k]
                     sats += [cont[32 + 3 * i:35 + 3 * i] for i in range(min(nsat - len(sats), 12))]
                     k += 1
-                yy = int(line[1:3])
-                t = _epoch_time(yy + (2000 if yy < 80 else 1900), int(line[4:6]), int(line[7:9]),
-                                int(line[10:12]), int(line[13:15]), float(line[15:26]))
                 block = lines[k:k + nsat * n_per_sat]
-                k += nsat * n_per_sat
+                if k + nsat * n_per_sat - n_lines in range(1, n_per_sat):
+                    block += [""] * (k + nsat * n_per_sat - n_lines)  # the last satellite's blank lines left out
+                start, k = k, k0
+                _complete(len(block), nsat * n_per_sat, "observation lines")
+                k = start + nsat * n_per_sat
                 if not _keep(t, lo, hi, step_ns):
                     continue
                 vals = np.full((_N_PRN, nt), np.nan)
@@ -236,21 +290,18 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
                 for s, sv in enumerate(sats):
                     if sv[:1] not in ("G", " "):
                         continue
-                    prn = int(sv[1:3])
+                    k = k0  # a bad satellite list is on the epoch line (or its continuation)
+                    prn = _prn(sv[1:3])
                     for j, c in enumerate(idx):
-                        sl = block[s * n_per_sat + c // 5]
-                        o = 16 * (c % 5)
-                        f = sl[o:o + 14]
-                        if f.strip():
-                            vals[prn, j] = float(f)
-                            ll = sl[o + 14:o + 15]
-                            if ll.strip():
-                                lli[prn, j] = int(ll)
+                        k = start + s * n_per_sat + c // 5
+                        _value(block[s * n_per_sat + c // 5], 16 * (c % 5), vals, lli, prn, j, types[j])
+                k = start + nsat * n_per_sat
             times.append(t)
             rows.append(vals)
             lrows.append(lli)
-    except (ValueError, IndexError) as exc:
-        raise DataFileError(f"{p}, line {k + 1}: malformed observation record ({exc})") from None
+    except _Bad as exc:
+        at = f" (epoch {str(epoch)[:19]})" if epoch is not None and "epoch" not in str(exc) else ""
+        raise DataFileError(f"{p}, line {k + 1}{at}: {exc}") from None
     if progress is not None:
         progress(name, 1.0)
     if not times:
@@ -265,6 +316,66 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
     return RawObservations(hdr, np.array(times, dtype="datetime64[ns]"), svs,
                            {t: V[:, seen, j] for j, t in enumerate(types)},
                            {t: L[:, seen, j] for j, t in enumerate(types)})
+
+
+class _Bad(Exception):
+    """A malformed field; the reader adds the file, line and epoch."""
+
+
+def _int(text: str, what: str, expected: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise _Bad(f"{what}: expected {expected}, got {text.strip()!r}") from None
+
+
+def _prn(text: str) -> int:
+    try:
+        prn = int(text)
+    except ValueError:
+        prn = -1
+    if not 0 < prn < _N_PRN:
+        raise _Bad(f"satellite number {text!r}: expected a GPS PRN 01-{_N_PRN - 1}")
+    return prn
+
+
+def _epoch(year: str, month: str, day: str, hour: str, minute: str, second: str) -> np.datetime64:
+    fields = (year, month, day, hour, minute)
+    try:
+        y, mo, d, h, mi = (int(f) for f in fields)
+        sec = float(second)
+        return _epoch_time(y, mo, d, h, mi, sec)
+    except ValueError:
+        got = " ".join(f.strip() for f in (*fields, second))
+        raise _Bad(f"the epoch: expected year month day hour minute second (e.g. 2024 01 10 00 00 30.0000000), "
+                   f"got {got!r}") from None
+
+
+def _complete(have: int, need: int, what: str) -> None:
+    if have < need:
+        raise _Bad(f"the epoch announces {need} {what}, the file ends after {have}: the file is truncated")
+
+
+def _value(line: str, start: int, vals: np.ndarray, lli: np.ndarray, prn: int, j: int, obs_type: str) -> None:
+    """One F14.3 observation (columns ``start``+1..+14) and its loss-of-lock digit into ``vals``/``lli``."""
+    f = line[start:start + 14]
+    if not f.strip():
+        return
+    ok = len(f) == 14 and f[10] == "."
+    try:
+        value = float(f) if ok else 0.0
+    except ValueError:
+        ok = False
+    if not ok:
+        raise _Bad(f"{obs_type} of G{prn:02d} (columns {start + 1}-{start + 14}): expected a number in F14.3 "
+                   f"(e.g. '  22000000.123'), got {f!r}")
+    vals[prn, j] = value
+    ll = line[start + 14:start + 15]
+    if ll.strip():
+        if not ll.isdigit():
+            raise _Bad(f"loss-of-lock indicator of {obs_type}, G{prn:02d} (column {start + 15}): expected a digit "
+                       f"0-7, got {ll!r}")
+        lli[prn, j] = int(ll)
 
 
 def on_grid(time: np.ndarray, interval_s: float) -> np.ndarray:

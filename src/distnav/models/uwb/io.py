@@ -92,10 +92,17 @@ def _rows(path: Path, required: Sequence[str]) -> tuple[list[str], list[tuple[in
     p = Path(path)
     if not p.is_file():
         raise DataFileError(f"{p}: file not found")
+    raw = p.read_bytes()
     try:
-        text = p.read_text(encoding="utf-8-sig")
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise DataFileError(f"{p}: not a UTF-8 text file ({exc})") from None
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise DataFileError(f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 text: expected a CSV text "
+                            f"file in UTF-8 (this looks like binary data, a gzip archive, or text saved as UTF-16 "
+                            f"or in a local code page: save it as UTF-8 CSV)") from None
+    if "\x00" in text:
+        line = text.count("\n", 0, text.index("\x00")) + 1
+        raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected a CSV text file in UTF-8")
     lines = text.splitlines()
     rows: list[tuple[int, list[str]]] = []
     header: list[str] | None = None
