@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from distnav.errors import DistnavError
+from test_gnss_bias_sinex import IONEX  # the DCB block of an IONEX header (G01, G32, R01; ALBH, ALIC)
 
 # what a message must never contain: the text of the library (or builtin) exception it came from
 LIBRARY_TEXT = re.compile(
@@ -70,16 +71,6 @@ G02  23000100.123   120865525.123 7  23000102.789    94180409.456 7
 """
 R3_OBS_DATA_LINE = 9
 
-IONEX = """\
-     1.0            IONOSPHERE MAPS     GPS                 IONEX VERSION / TYPE
-DIFFERENTIAL CODE BIASES                                    START OF AUX DATA
-Reference observables for GPS    : C1W-C2W                  COMMENT
-   G01    -7.722     0.020                                  PRN / BIAS / RMS
-   G32    -4.401     0.019                                  PRN / BIAS / RMS
-   G  ALIC                    21.005     0.071              STATION / BIAS / RMS
-DIFFERENTIAL CODE BIASES                                    END OF AUX DATA
-                                                            END OF HEADER
-"""
 IONEX_DATA_LINE = 4
 
 RANGES = "a,b,range_m\nA1,A2,5.012\nA1,A3,7.250\nA2,A3,4.100\nA3,A4,6.000\nA1,A4,8.020\n"
@@ -253,7 +244,7 @@ FORMATS: tuple[Format, ...] = (
         ("bad-rms", "-7.722     0.020", "-7.722     0.0x0", IONEX_DATA_LINE),
         ("missing-rms", "   G01    -7.722     0.020     ", "   G01    -7.722               ", IONEX_DATA_LINE),
         ("bad-prn", "   G32    -4.401", "   Gxx    -4.401", 5),
-        ("bad-station-bias", "21.005     0.071", "21.0x5     0.071", 6),
+        ("bad-station-bias", "21.005     0.071", "21.0x5     0.071", 9),
         ("no-end-of-aux", "DIFFERENTIAL CODE BIASES                                    END OF AUX DATA\n", "",
          None),
         ("no-block", "DIFFERENTIAL CODE BIASES                                    START OF AUX DATA\n", "",
