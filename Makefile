@@ -11,8 +11,8 @@ DEV_STAMP  = $(VENV)/.dev-stamp
 DEMO_OUT ?= distnav-demo
 DEMO_JOBS ?= 2
 # --no-compile: no byte-compiling of every installed module (scipy alone is seconds); Python compiles what it
-# imports, once.
-PIP_FLAGS = --quiet --no-compile
+# imports, once. Not --quiet: pip's lines are the progress of the install.
+PIP_FLAGS = --no-compile --progress-bar off
 
 .PHONY: demo test lint typecheck pytest bench clean env demo-env
 

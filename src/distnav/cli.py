@@ -81,10 +81,10 @@ def _context(args: argparse.Namespace, out_dir: Path, quick: bool) -> Experiment
                              progress=Progress(enabled=not args.no_progress), options=opts)
 
 
-#: Seconds each quick variant took in ``distnav demo`` (sequential, this project's 2-core test machine): the demo
-#: starts the longest first, so two processes finish close together. Only the order matters.
-DEMO_SECONDS: dict[str, float] = {"qc": 31, "uwb-field": 22, "uwb": 14, "ckf-ionosphere": 12, "codebias": 12,
-                                  "admm": 9, "consensus": 3, "ckf": 3}
+#: Seconds each quick variant took in ``distnav demo --jobs 2`` (the project's shared 2-core machine, loaded): the
+#: demo starts the longest first, so two processes finish close together. Only the order matters.
+DEMO_SECONDS: dict[str, float] = {"qc": 48, "uwb-field": 38, "uwb": 21, "admm": 19, "ckf-ionosphere": 12,
+                                  "codebias": 10, "consensus": 6, "ckf": 5}
 
 
 class _LineStream:
@@ -144,6 +144,9 @@ def _run_demo(args: argparse.Namespace) -> int:
         for job in jobs:
             done[job[2]] = _demo_one(job)
     else:
+        if not args.no_progress:
+            print(f"loading {len(names)} experiments (numpy, scipy, matplotlib), then running them in {n_workers} "
+                  f"processes", file=sys.stderr, flush=True)
         for name in names:
             load(name)  # import every experiment (numpy, scipy, matplotlib) once, before the workers fork
         import multiprocessing
