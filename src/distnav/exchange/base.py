@@ -34,6 +34,7 @@ import scipy.sparse as sp
 
 from distnav.errors import ExchangeError
 from distnav.exchange.faults import FaultPlan, FaultSchedule
+from distnav.exchange.route import Route
 from distnav.network.graph import Graph
 
 if TYPE_CHECKING:
@@ -278,6 +279,8 @@ class Exchange(ABC):
     """
 
     backend: str = "abstract"
+    #: True where a message on out-edge row ``r`` arrives on in-edge row ``r`` with nothing moved (in-process).
+    _moves_rows_in_place: bool = False
 
     def __init__(self, graph: Graph, faults: FaultSchedule | None = None) -> None:
         self.graph = graph
@@ -481,7 +484,8 @@ class Exchange(ABC):
         flat, tail = _flat(x)
         act_out, act_in = self._active_slices(active)
         cols = self._columns(flat, active)
-        return self._finish_round(cols[self.in_src_col], act_out, act_in, tail, flat.shape[1] * flat.itemsize,
+        gathered = np.take(cols, self.in_src_col, axis=0, mode="clip")  # valid indices; "clip" skips a temporary
+        return self._finish_round(gathered, act_out, act_in, tail, flat.shape[1] * flat.itemsize,
                                   owned=True)
 
     def send(self, edge_values: np.ndarray, *, active: np.ndarray | None = None) -> Inbox:
@@ -496,6 +500,13 @@ class Exchange(ABC):
         moved = self._move_edges(flat, active)
         return self._finish_round(moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize,
                                   owned=not np.may_share_memory(moved, x))
+
+    def route(self, active: np.ndarray, *, in_rows: np.ndarray | None = None,
+              out_rows: np.ndarray | None = None) -> Route:
+        """Prepare rounds over the edges of ``active`` on compact arrays (:class:`~distnav.exchange.route.Route`):
+        the same messages, counts and faults as :meth:`broadcast`/:meth:`send` with that mask, without the
+        full-length arrays."""
+        return Route(self, active, in_rows=in_rows, out_rows=out_rows)
 
     def mixer(self, weights: ConsensusWeights, *, active: np.ndarray | None = None) -> Mixer:
         """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph.
