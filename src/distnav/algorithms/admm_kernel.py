@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Literal
 
 import numpy as np
@@ -214,14 +215,14 @@ class _Kernel:
         # sums them in in-edge order (senders ascending), whatever order the route returns them in
         recv_rows = self.x_route.in_rows
         self.recv_dst = ex.in_dst[recv_rows]
-        by_edge = np.argsort(recv_rows, kind="stable")
+        if recv_rows is send_rows:  # in-process: received in pair order; ascending rows are the op order
+            by_edge = op_pair
+        elif recv_rows.size < 2 or bool((recv_rows[1:] > recv_rows[:-1]).all()):
+            by_edge = np.arange(recv_rows.size)
+        else:  # routes return ascending rows or the caller's order; anything else is sorted
+            by_edge = np.argsort(recv_rows, kind="stable")
         self.S_c = _rows_in_order(self.recv_dst[by_edge], nl, by_edge)
         self.size_s = (np.bincount(self.recv_dst, minlength=nl) + 1).astype(float)  # |N_s|
-        # the aggregated form's full-length views: in-edges at constraint nodes (i→s) and the sum over them
-        self.ic = np.flatnonzero(self.inC_loc[ex.in_dst] & real_in)
-        self.S_c_in = sp.csr_matrix((np.ones(self.ic.size), (ex.in_dst[self.ic], self.ic)),
-                                    shape=(nl, ex.in_edges.size))
-        self.S_pairs_in = sp.csr_matrix((np.ones(n_pairs), (self.pair_dst, self.ip)), shape=(nl, ex.in_edges.size))
         self.w_iso = float(W[0, 0]) if np.array_equal(W, W[0, 0] * np.eye(p)) else None
         self.size_c = self.size_s * self.inC_loc
         self.count_f = self.count.astype(float)
@@ -384,6 +385,26 @@ class _Kernel:
                 yield self._state_agg(k, x, z, xvals, dz, U + cnt * x - zsum)
             else:
                 yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
+
+    @cached_property
+    def ic(self) -> np.ndarray:
+        """The aggregated form's in-edge rows at constraint nodes (``i→s``, ``s ∈ C``)."""
+        ex = self.ex
+        return np.flatnonzero(self.inC_loc[ex.in_dst] & (ex.in_src != ex.nodes[ex.in_dst]))
+
+    @cached_property
+    def S_c_in(self) -> sp.csr_matrix:
+        """Sum over the in-edges ``i→s`` at each constraint node (full-length inbox, aggregated form)."""
+        ex = self.ex
+        return sp.csr_matrix((np.ones(self.ic.size), (ex.in_dst[self.ic], self.ic)), shape=(ex.n_local,
+                                                                                          ex.in_edges.size))
+
+    @cached_property
+    def S_pairs_in(self) -> sp.csr_matrix:
+        """Sum over the pair in-edges ``s→i`` at each node (full-length inbox, aggregated form)."""
+        ex = self.ex
+        return sp.csr_matrix((np.ones(self.ip.size), (self.pair_dst, self.ip)), shape=(ex.n_local,
+                                                                                     ex.in_edges.size))
 
     def _state_agg(self, k: int, x: np.ndarray, z: np.ndarray, xvals: np.ndarray | None, dz: np.ndarray,
                    U_next: np.ndarray) -> AdmmState:

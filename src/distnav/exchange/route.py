@@ -35,12 +35,17 @@ __all__ = ["Route"]
 
 def _rows_or_default(rows: np.ndarray | None, mask: np.ndarray, what: str) -> np.ndarray:
     """``rows`` checked to list every active row exactly once (in any order), or the active rows ascending."""
-    active = np.flatnonzero(mask)
+    n_active = int(np.count_nonzero(mask))
     if rows is None:
-        return active
+        return np.flatnonzero(mask)
     rows = np.asarray(rows, dtype=np.int64)
-    if rows.shape != active.shape or not np.array_equal(np.sort(rows), active):
-        raise ExchangeError(f"route {what} must list each of the {active.size} active {what.split('_')[0]}-edge "
+    ok = rows.shape == (n_active,) and (rows.size == 0 or (0 <= int(rows.min()) and int(rows.max()) < mask.size))
+    if ok:  # as many rows as active ones, all active, as many distinct ones: a permutation (linear, no sort)
+        seen = np.zeros(mask.size, bool)
+        seen[rows] = True
+        ok = bool(mask[rows].all()) and int(np.count_nonzero(seen)) == n_active
+    if not ok:
+        raise ExchangeError(f"route {what} must list each of the {n_active} active {what.split('_')[0]}-edge "
                             f"rows of this block once, got {rows.size} rows")
     return rows
 
