@@ -267,7 +267,7 @@ class Mixer:
 
     def _in_edge_weights(self) -> np.ndarray:
         """``w_ij`` on every incoming edge (zero on inactive edges and self-loops)."""
-        w = np.asarray(self._edge_weight, float)[self.exchange.in_edges]
+        w: np.ndarray = np.asarray(self._edge_weight, float)[self.exchange.in_edges]
         w[~self._act_in] = 0.0
         return w
 
