@@ -13,8 +13,8 @@ n = 10³, 10⁴, 10⁵, 10⁶ (10⁶ only without ``--quick``), payloads of 1 an
 * set-up (exchange + mixer, including the RCM) is reported separately, as is the graph build.
 * **peak memory** (item "peak memory, consensus at 10⁶ nodes"): ``mem_consensus.py`` in a fresh process per mode,
   distnav (builder graph, weights, exchange, mixer, 5 rounds) against the bare arrays of the same run written
-  without distnav (the k-d tree's pairs, one RCM-renumbered CSR matrix, 5 products); ``ru_maxrss`` of each
-  process, 10⁶ nodes (10⁵ with ``--quick``). Goal ≤ 1.2×.
+  without distnav (the k-d tree's pairs, one RCM-renumbered CSR matrix, 5 products); the peak resident memory
+  (``VmHWM``) of each process, 10⁶ nodes (10⁵ with ``--quick``). Goal ≤ 1.2×.
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ def memory_rows(n: int, payload: int = 1, rounds: int = 5) -> list[dict[str, Any
                               capture_output=True, text=True, timeout=1800, check=True)
         peak[mode] = json.loads(proc.stdout.strip().splitlines()[-1])
     ours, bare = float(peak["distnav"]["end_mb"]), float(peak["bare"]["end_mb"])
-    return [{"name": "peak memory, consensus (process ru_maxrss, MB)", "n_nodes": n, "payload_floats": payload,
+    return [{"name": "peak memory, consensus (process peak resident memory)", "n_nodes": n, "payload_floats": payload,
              "distnav_mb": ours, "bare_mb": bare, "floor": "bare numpy/scipy arrays of the same run",
              "ratio": ours / bare, "goal": "≤ 1.2", "meets_goal": bool(ours / bare <= 1.2),
              "distnav_stages_mb": {k: v for k, v in peak["distnav"].items() if k.endswith("_mb")},

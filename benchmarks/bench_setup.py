@@ -29,6 +29,7 @@ from distnav.network import builders  # noqa: E402
 from distnav.network.constraint_nodes import choose_constraint_nodes  # noqa: E402
 
 P, M = 10, 5
+BARE = "bare set-up: every x-update matrix inverted in one stacked call + the CSR adjacency (numpy/scipy)"
 
 
 def _bare_setup(g: Any, A: np.ndarray, count: np.ndarray) -> None:
@@ -70,7 +71,7 @@ def setup_rows(sizes: tuple[int, ...], repeat: int = 3) -> list[dict[str, Any]]:
             "name": "ADMM set-up (constraint nodes + exchange + kernel)", "n_nodes": n, "n_links": g.n_links,
             "distnav_s": best["total"], "cover_s": best["cover"], "exchange_s": best["exchange"],
             "kernel_s": best["kernel"], "first_round_s": best["first"], "bare_setup_s": best["bare"],
-            "ratio": best["total"] / best["bare"],
+            "ratio": best["total"] / best["bare"], "floor": BARE,
             "cover_method": C.method, "cover_size": C.size, "cover_lower_bound": C.lower_bound,
             "cover_ratio_bound": C.ratio_bound, "goal": "≤ 1 s", "meets_goal": bool(best["total"] <= 1.0),
         })

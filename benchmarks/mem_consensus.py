@@ -8,7 +8,7 @@ nodes renumbered by reverse Cuthill–McKee, and run ``ROUNDS`` consensus rounds
 and its mixer (with a fault schedule dropping ``DROP`` of the messages when given). ``bare``, written without
 distnav: the k-d tree's link pairs, the weights and one scipy CSR matrix, RCM-renumbered, the rounds as CSR
 products (with drops: the bare drop round of bench_consensus, masked data and lost weight to the diagonal).
-Prints one JSON line: peak resident memory (``ru_maxrss``) after the imports, after the graph, after the set-up
+Prints one JSON line: peak resident memory (``VmHWM``) after the imports, after the graph, after the set-up
 and at the end, in MB. ``bench_consensus`` launches it (a fresh process per measurement).
 """
 
@@ -26,6 +26,15 @@ from scipy.spatial import cKDTree
 
 
 def rss_mb() -> float:
+    """Peak resident memory of this process so far: ``VmHWM`` (Linux; reset by exec, unlike ``ru_maxrss``, which a
+    child started from a large parent inherits), else ``ru_maxrss``."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0  # kB
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: kilobytes
 
 
