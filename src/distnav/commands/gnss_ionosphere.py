@@ -434,6 +434,12 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
             return rc
         summaries[day] = json.loads((out / day / "summary.json").read_text())
     result = combine_days(summaries)
+    wf = {d: (s.get("satellite_fit") or {}).get("worst_fitting") for d, s in summaries.items()}
+    names = [w["satellite"] for w in wf.values() if w]
+    if names:
+        top = max(sorted(set(names)), key=names.count)
+        result["worst_fitting"] = {"satellite": top, "days": names.count(top), "per_day": wf}
+        print(f"worst-fitting satellite over the days: {top} ({names.count(top)} of {len(summaries)} days)")
     atomic_write_json(out / "multiday.json", result)
     _write_combined_sinex(out / "distnav_dsb_combined.bia", result, summaries)
     rep = result["repeatability_ns"]

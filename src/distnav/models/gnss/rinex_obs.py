@@ -91,6 +91,7 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     version, ftype, receiver, marker, tsys = 0.0, "", "", "", "GPS"
     pos = np.full(3, np.nan)
     r2_types: list[str] = []
+    r2_count = 0
     r3_types: dict[str, list[str]] = {}
     r3_sys = ""
     end = -1
@@ -115,7 +116,10 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
             except ValueError:
                 pos = np.full(3, np.nan)
         elif label == "# / TYPES OF OBSERV":
-            r2_types += [line[10 + 6 * i:16 + 6 * i].strip() for i in range(9)]
+            if line[:6].strip():
+                r2_count = int(line[:6])
+            # 9(4X,A2) in columns 7–60: the label (from column 61) is not a type
+            r2_types += line[6:60].split()
         elif label == "SYS / # / OBS TYPES":
             if line[0] != " ":
                 r3_sys = line[0]
@@ -128,6 +132,8 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     if not version:
         raise DataFileError(f"{path}: no RINEX VERSION / TYPE line")
     types = [t for t in (r3_types.get("G", []) if version >= 3 else r2_types) if t]
+    if version < 3 and r2_count and len(types) > r2_count:
+        types = types[:r2_count]
     return RinexHeader(version, ftype, receiver, marker, pos, tuple(types), tsys, end + 1)
 
 
