@@ -54,12 +54,23 @@ def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
     series, _ = run_bias_filters(data, local=False)
     c = series[0]
     sat, rx, sd = final_dsbs(data, c)
+    names = [f"rx:{r}" for r in data.stations] + list(data.layout.svs)
     r = compare_in_datum(sat, rx, truth_product(sim), exclude=["G01"])
     assert r["n"] >= 12
     assert r["rms_zero_mean_ns"] < 0.6                               # 4 h, two receivers
     assert max(abs(v) for v in r["receivers"]["difference_ns"].values()) < 0.7
     z = np.array([d / sd[s] for s, d in r["difference_ns"].items()])
     assert np.sqrt(np.mean(z**2)) < 3.0                              # the realistic σ is not wildly optimistic
+    # the Precision payload: its diagonal is the formal σ², the a-posteriori σ the realistic one, and the
+    # zero-mean datum makes the sum of the satellite DSBs a constant (no variance)
+    prec = c.precision
+    assert prec is not None and prec.kind == "centralized" and prec.covariance.shape == (1, len(names), len(names))
+    np.testing.assert_allclose(prec.std()[0], c.dsb_std_ns[-1], rtol=1e-9, equal_nan=True)
+    np.testing.assert_allclose(prec.std(a_posteriori=True)[0], c.dsb_std_ns[-1] * c.realistic_factor, rtol=1e-9,
+                               equal_nan=True)
+    C = prec.covariance[0][len(data.stations):, len(data.stations):]
+    ok = np.isfinite(np.diag(C))
+    assert abs(C[np.ix_(ok, ok)].sum()) < 1e-9 * np.trace(C[np.ix_(ok, ok)])
     worst = satellite_fit(data, c).worst()
     assert worst is not None and worst[0] == "G01"
     # without the elevation-dependent bias G01 is an ordinary satellite, below the median
@@ -86,3 +97,29 @@ def test_bad_options() -> None:
         simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(0), gross_fraction=0.7)
     with pytest.raises(ModelError, match="no DSB given"):
         simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(0), hours=1, receiver_dsb_ns={"SIMA": 1.0})
+
+
+def test_ckf_receivers_screen_their_own_innovations() -> None:
+    """Raw code (no levelling, no per-arc screening) with 1 % gross P1 errors at one receiver: with
+    ``innovation_level`` every CKF node w-tests its own predicted residuals and rejects them before the consensus;
+    the injected errors are found at that receiver and the DSBs come closer to the truth."""
+    from distnav.commands.gnss import default_graph
+
+    orbit, sim = _sim(hours=2.0, gross_fraction=0.01, gross_station="SIMB", svn49=None)
+    data = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, levelling=False,
+                                     screen=False)
+    graph = default_graph(data.positions_ecef_m, data.stations)
+    truth = truth_product(sim)
+    rms = {}
+    for level in (None, 0.001):
+        series, _ = run_bias_filters(data, local=False, graph=graph, kn=20, innovation_level=level)
+        ckf = series[1]
+        assert ckf.label == "ckf:SIMA"
+        sat, rx, _ = final_dsbs(data, ckf)
+        rms[level] = compare_in_datum(sat, rx, truth)["rms_zero_mean_ns"]
+        if level is not None:
+            it = ckf.innovation_tests
+            removed = it.node[np.asarray(it.removed, np.int64)]
+            assert (removed == 1).sum() >= 5                          # found at SIMB, which holds the errors …
+            assert (removed == 1).sum() > 3 * (removed == 0).sum()      # … far more than at the clean SIMA
+    assert rms[0.001] < rms[None]

@@ -69,6 +69,8 @@ def validate_arguments(args: argparse.Namespace) -> None:
             raise ModelError(f"{opt} {value:g}: must be a positive number")
     if args.kn < 0:
         raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
+    if args.innovation_test is not None and not 0.0 < args.innovation_test < 0.5:
+        raise ModelError(f"--innovation-test {args.innovation_test:g}: a test level in (0, 0.5), e.g. 0.001")
     if args.min_satellite_obs < 1:
         raise ModelError(f"--min-satellite-obs must be ≥ 1, got {args.min_satellite_obs}")
     if args.min_arc < 2:
@@ -226,7 +228,7 @@ C1C_WARNING = ("WARNING: L1 code C1C (RINEX 2 C1). The satellites' C1C-C1W biase
 
 def run_ionosphere(args: argparse.Namespace) -> int:
     """Handler of ``distnav gnss ionosphere``."""
-    from distnav.models.gnss.gfnetwork import run_bias_filters, satellite_fit
+    from distnav.models.gnss.gfnetwork import innovation_summary, run_bias_filters, satellite_fit
     from distnav.models.gnss.ionosphere import TEC_NAMES, TECU_L1_M
     from distnav.models.gnss.products import compare_in_datum, product_dsbs
     from distnav.models.gnss.rinex import read_navigation, read_sp3
@@ -283,7 +285,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                f"estimation basis: receiver {layout.reference}; ionosphere {data.ionosphere}; graph links "
                f"{[(stations[i], stations[j]) for i, j in graph.links]}")
     series, comm = run_bias_filters(data, datum=args.datum, pivot=pivot, reference=args.reference,
-                                    graph=graph, kn=args.kn, exchange=command_exchange(args, graph))
+                                    graph=graph, kn=args.kn, exchange=command_exchange(args, graph),
+                                    innovation_level=args.innovation_test)
     obj = [f"rx:{r}" for r in stations] + list(layout.svs)
     out = Path(args.out)
     buf = io.StringIO()
@@ -367,6 +370,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         summary["arcs"] = {sta: lev.arc_summary() for sta, lev in data.levelled.items()}
         summary["screening"] = {sta: lev.screening_summary(data.levelled_svs[sta])
                                 for sta, lev in data.levelled.items()}
+    summary["precision"] = {s.label: s.precision.summary() for s in series if s.precision is not None}
+    if (tests := innovation_summary(series, stations)) is not None:
+        summary["ckf_innovation_tests"] = tests
     fit = satellite_fit(data, series[0])
     summary["satellite_fit"] = fit.as_dict()
     fac = series[0].realistic_factor
@@ -579,6 +585,9 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
                         "10× paper 003's: docs/ionosphere.md)")
     p.add_argument("--min-satellite-obs", type=int, default=30, metavar="N",
                    help="satellites with fewer station-epochs are not estimated (default 30)")
+    p.add_argument("--innovation-test", type=float, default=None, metavar="LEVEL",
+                   help="CKF: each receiver w-tests its own predicted residuals at this level and rejects outliers "
+                        "before the consensus (e.g. 0.001)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_ionosphere)
     parser: argparse.ArgumentParser = p

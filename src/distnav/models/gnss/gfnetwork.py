@@ -31,8 +31,8 @@ from distnav.models.gnss.gfbias import (
 from distnav.models.gnss.rinex import CodeObservations
 from distnav.models.gnss.rinex_obs import ProgressCallback
 
-__all__ = ["BiasNetworkData", "DatumSeries", "SatelliteFit", "final_dsbs", "satellite_fit", "MIN_SATELLITE_OBS",
-           "TEC_RW_M_PER_SQRT_S", "read_stations", "bias_network_model", "run_bias_filters"]
+__all__ = ["BiasNetworkData", "DatumSeries", "SatelliteFit", "final_dsbs", "innovation_summary", "satellite_fit",
+           "MIN_SATELLITE_OBS", "TEC_RW_M_PER_SQRT_S", "read_stations", "bias_network_model", "run_bias_filters"]
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +188,12 @@ class DatumSeries:
     σ² = 1); ``variance_factor`` σ̂² from the filter's own predicted residuals (``Σ vᵀQ_v⁻¹v / Σ m``, each
     filter on the observations it uses: a local quantity in the CKF too) and the number of them;
     ``lag1_correlation`` ρ of the standardized predicted residuals of the same receiver–satellite pair at
-    consecutive epochs and the inflation ``(1 + ρ)/(1 − ρ)`` it implies for the variance of constant parameters."""
+    consecutive epochs and the inflation ``(1 + ρ)/(1 − ρ)`` it implies for the variance of constant parameters.
+    ``precision``: a :class:`~distnav.algorithms.result.Precision` of the last epoch's DSBs ``[receivers, satellites]``
+    [ns²] in the output datum (one block: the filter's own state), ``variance_factor`` = σ̂²·(1 + ρ)/(1 − ρ) so that
+    ``precision.std(a_posteriori=True)`` is the realistic σ (a departure from the plain σ̂² of the payload: the
+    AR(1) inflation is folded in), ``redundancy`` = predicted residuals − states; ``None`` for the CKF (its
+    covariance comes from the Fig. 7 recursion of one node's view, not a centralized one)."""
 
     label: str
     tec: np.ndarray
@@ -199,6 +204,8 @@ class DatumSeries:
     n_innovations: int = 0
     lag1_correlation: float = 0.0
     correlation_inflation: float = 1.0
+    precision: Any = None
+    innovation_tests: Any = None
 
     @property
     def realistic_factor(self) -> float:
@@ -216,6 +223,8 @@ class _Collector:
         self.zv: np.ndarray | None = None       # (nodes, S) its value
         self.zz = self.zlag = 0.0
         self.T_cache: dict[bytes, np.ndarray] = {}
+        self.last: tuple[np.ndarray, np.ndarray, float] | None = None   # T, P, scale of the last epoch
+        self.n_states = 0
         self.prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.tec = np.full((T, n_tec), np.nan)
         self.tec_std = np.full((T, n_tec), np.nan)
@@ -239,6 +248,9 @@ class _Collector:
         v, s = in_datum(T, x, P)
         self.dsb[t] = -v / scale
         self.dsb_std[t] = s / scale
+        if P is not None:
+            self.last = (T, P, scale)
+            self.n_states = layout.n_states
 
     def innovations(self, t: int, series: BiasGeometryFreeSeries, nodes: np.ndarray, dynamics: Any,
                     x: np.ndarray, est: np.ndarray, P: np.ndarray | None) -> None:
@@ -277,8 +289,21 @@ class _Collector:
 
         vf = variance_factor(self.ssr, self.m) if self.m else None
         rho = min(max(self.zlag / self.zz, 0.0), 0.999) if self.zz > 0 else 0.0
+        precision = None
+        if self.last is not None:
+            from distnav.algorithms.result import Precision
+
+            T, P, scale = self.last
+            bad = ~np.isfinite(T).all(axis=1)
+            Tz = np.where(np.isfinite(T), T, 0.0)
+            cov = Tz @ np.where(np.isfinite(P), P, 0.0) @ Tz.T / scale**2
+            cov[bad] = np.nan
+            cov[:, bad] = np.nan
+            inflation = (1.0 + rho) / (1.0 - rho)
+            precision = Precision(covariance=cov[None], variance_factor=None if vf is None else vf * inflation,
+                                  redundancy=float(self.m - self.n_states), kind="centralized")
         return DatumSeries(self.label, self.tec, self.tec_std, self.dsb, self.dsb_std, vf, self.m, rho,
-                           (1.0 + rho) / (1.0 - rho))
+                           (1.0 + rho) / (1.0 - rho), precision)
 
 
 def final_dsbs(data: BiasNetworkData, s: DatumSeries) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
@@ -383,13 +408,27 @@ def satellite_fit(data: BiasNetworkData, final: DatumSeries) -> SatelliteFit:
                         code_rms, code_n)
 
 
+def innovation_summary(series: Sequence[DatumSeries], stations: Sequence[str]) -> dict[str, Any] | None:
+    """What the CKF's innovation tests (``run_bias_filters(innovation_level=…)``) tested and removed per station."""
+    it = next((s.innovation_tests for s in series if s.innovation_tests is not None), None)
+    if it is None:
+        return None
+    rm = np.asarray(it.removed, np.int64)
+    return {"level": it.level, "critical_value": it.critical_value,
+            "per_station": {sta: {"tested": int((it.node == i).sum()), "removed": int((it.node[rm] == i).sum())}
+                            for i, sta in enumerate(stations)}}
+
+
 def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: str | None = None,
                      reference: str | None = None, graph: Any = None, kn: int = 4, exchange: Any = None,
-                     local: bool = True) -> tuple[list[DatumSeries], Any]:
+                     local: bool = True, innovation_level: float | None = None) -> tuple[list[DatumSeries], Any]:
     """Central, single-receiver and CKF filters over the network, every epoch S-transformed into ``datum``.
 
     Returns the series (labels ``central``, ``local:STA``, ``ckf:STA``) and the communication totals of the CKF
-    (``None`` without a graph).
+    (``None`` without a graph). ``innovation_level``: in the CKF every receiver tests its own predicted residuals
+    (w-tests at this level with its node-local "bound" precision, :mod:`distnav.algorithms.ckf_qc`) and rejects
+    outliers before its normals enter the consensus; the tests (network-wide
+    :class:`~distnav.algorithms.kalman.InnovationTests`) are on every ``ckf:STA`` series as ``innovation_tests``.
     """
     from distnav.algorithms.ckf import iterate_ckf
     from distnav.algorithms.kalman import iterate_information_filter
@@ -421,8 +460,17 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
 
         ex = exchange if exchange is not None else make_exchange(graph)
         cs = [_Collector(f"ckf:{s}", T, lay.n_tec, q) for s in data.stations]
+        tests = None
+        if innovation_level is not None:
+            from distnav.algorithms.ckf_qc import InnovationCollector
+            from distnav.algorithms.statistics import critical_value
+
+            tests = InnovationCollector(ex, len(data.stations), innovation_level, critical_value(innovation_level))
         for cst in iterate_ckf(data.dynamics, data.series, graph=graph, protocol="P3", rounds=kn, exchange=ex,
-                               monitor=False):
+                               monitor=False, local_precision=None if tests is None else "bound",
+                               test_level=innovation_level):
+            if tests is not None:
+                tests.add(cst.tests)
             x = ex.gather_nodes(cst.estimates)
             est = ex.gather_nodes(cst.estimable)
             P = ex.gather_nodes(cst.covariance) if cst.covariance is not None else None
@@ -430,6 +478,7 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
                 col.innovations(cst.epoch, data.series, np.array([i]), data.dynamics, x[i], est[i],
                                 None if P is None else P[i])
                 col.add(cst.epoch, lay, x[i], est[i], None if P is None else P[i], datum, pivot, reference, scale)
-        out += [col.done() for col in cs]
+        built = tests.build() if tests is not None else None
+        out += [replace(col.done(), precision=None, innovation_tests=built) for col in cs]
         comm = ex.comm_totals()
     return out, comm
