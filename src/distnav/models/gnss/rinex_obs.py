@@ -16,7 +16,9 @@ flag 6 (cycle-slip records) skipped. Satellite identifiers without a system lett
 from __future__ import annotations
 
 import gzip
+import io
 import logging
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,7 +64,22 @@ class RawObservations:
     lli: dict[str, np.ndarray]
 
 
-def _read_lines(path: Path) -> list[str]:
+COMPRESSED_MAGIC = (b"\x1f\x9d", b"BZh", b"PK\x03\x04")   # Unix compress (.Z), bzip2, zip
+
+
+def _unix_decompress(raw: bytes, path: Path) -> bytes:
+    try:
+        import ncompress  # installed with hatanaka (the gnss extra)
+    except ImportError:
+        raise DataFileError(f"{path}: Unix-compressed (.Z); install the 'ncompress' package "
+                            f"(pip install distnav[gnss])") from None
+    out: bytes = ncompress.decompress(raw)
+    return out
+
+
+def read_bytes(path: Path) -> bytes:
+    """A file's bytes, decompressed by content: gzip, Unix compress (``.Z``, older IGS archives), bzip2, zip (Hatanaka
+    compression is left to the caller)."""
     if not path.exists():
         raise DataFileError(f"{path}: file not found")
     try:
@@ -72,6 +89,27 @@ def _read_lines(path: Path) -> list[str]:
             raw = gzip.decompress(raw)
     except (OSError, EOFError) as exc:
         raise DataFileError(f"{path}: cannot read ({type(exc).__name__}: {exc})") from None
+    if raw.startswith(COMPRESSED_MAGIC):
+        try:
+            if raw[:2] == b"\x1f\x9d":
+                raw = _unix_decompress(raw, path)
+            elif raw[:3] == b"BZh":
+                import bz2
+
+                raw = bz2.decompress(raw)
+            else:
+                with zipfile.ZipFile(io.BytesIO(raw)) as z:
+                    names = z.namelist()
+                    if len(names) != 1:
+                        raise DataFileError(f"{path}: a zip archive of {len(names)} files (one expected)")
+                    raw = z.read(names[0])
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise DataFileError(f"{path}: decompression failed ({type(exc).__name__}: {exc})") from None
+    return raw
+
+
+def _read_lines(path: Path) -> list[str]:
+    raw = read_bytes(path)
     if b"COMPACT RINEX" in raw[:200] or b"CRINEX VERS" in raw[:200]:
         try:
             import hatanaka
