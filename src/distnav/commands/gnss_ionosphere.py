@@ -382,11 +382,12 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     _print_summary(stations, comparison, finals)
     wf = summary["satellite_fit"]["worst_fitting"]
     if wf is not None:
-        what = ("code minus levelled phase, RMS at zenith" if summary["satellite_fit"]["statistic"].startswith("code")
-                else "post-fit residuals, weighted RMS")
-        print(f"worst-fitting satellite: {wf['satellite']} ({what} {wf['value']:.3f}, "
-              f"{wf['ratio_to_median'] or float('nan'):.2f}× the median satellite; an elevation-dependent code bias "
-              f"such as SVN49's shows here; --compare-exclude {wf['satellite']} leaves it out of the comparison)")
+        what = summary["satellite_fit"]["statistic"]
+        ratio = wf["ratio_to_median"] or float("nan")
+        tail = (f"it stands out, e.g. an elevation-dependent code bias as SVN49's; --compare-exclude {wf['satellite']} "
+                "leaves it out of the comparison" if ratio > 1.2 else "none stands out")
+        print(f"worst-fitting satellite: {wf['satellite']} ({what} {wf['value']:.3f}, {ratio:.2f}× the median "
+              f"satellite: {tail})")
     c0 = series[0]
     print(f"precision: variance factor {c0.variance_factor or float('nan'):.2f}, lag-1 correlation of the predicted "
           f"residuals {c0.lag1_correlation:.3f}: realistic σ = formal σ × {fac:.2f} (used in distnav_dsb.bia)")
