@@ -189,7 +189,7 @@ FORMATS: tuple[Format, ...] = (
         ("shifted-columns", " 24  1 10  0  0 30.0000000", "    24  1 10  0  0 30.0000000", 13),
         ("bad-version", "     2.11           OBSERVATION", "     2.x1           OBSERVATION", 1),
         ("no-types", "     7    C1    P1    P2    L1    L2    S1    S2            # / TYPES OF OBSERV\n", "", None),
-        ("bad-types-count", "     7    C1    P1", "    xx    C1    P1", None),
+        ("bad-types-count", "     7    C1    P1", "    xx    C1    P1", 5),
         ("bad-lli", "  22000000.123    22000000.456", "  22000000.123x   22000000.456", R2_OBS_DATA_LINE),
         ("truncated-epoch", "        45.000          40.000\n  23000100.123    23000100.456    23000102.789   "
          "120865525.123 7  94180409.456 7\n        44.000          39.000\n", "        45.000          40.000\n", 13),
@@ -323,8 +323,6 @@ _APRIL = ("models/uwb/april.py (not this branch's file) passes numpy.loadtxt's t
 OWNED_ELSEWHERE: dict[str, str] = {
     **{f"april-log-{k}": _APRIL for k in ("empty", "binary-junk", "nul-bytes", "utf16", "gzip-truncated", "fake-gzip",
                                           "bad-number", "bad-node", "missing-columns")},
-    "rinex2-obs-bad-types-count": "the RINEX 2 types count is parsed on branch gnss3 (models/gnss/rinex_obs.py "
-                                  "_parse_header: int(line[:6]) needs a DataFileError naming the line)",
 }
 
 

@@ -28,7 +28,14 @@ import numpy as np
 from distnav._optional import require
 from distnav.errors import DataFileError
 from distnav.models.gnss.orbits import BroadcastOrbit, SP3Orbit
-from distnav.models.gnss.rinex_obs import ProgressCallback, read_header, read_observation_types, read_text_file
+from distnav.models.gnss.rinex_obs import (
+    COMPRESSED_MAGIC,
+    ProgressCallback,
+    read_bytes,
+    read_header,
+    read_observation_types,
+    read_text_file,
+)
 
 __all__ = [
     "CodeObservations",
@@ -369,10 +376,19 @@ def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3
     for item in items:
         p = Path(item)
         check_sp3_file(p)
+        with p.open("rb") as fh:
+            magic = fh.read(4)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                ds = gr.load(p)
+                if magic.startswith(COMPRESSED_MAGIC):      # .Z / bzip2 / zip: georinex needs unlzw3 for .Z
+                    import io
+
+                    from georinex.sp3 import load_sp3
+
+                    ds = load_sp3(io.StringIO(read_bytes(p).decode("latin-1")), None)
+                else:
+                    ds = gr.load(p)
         except Exception:  # georinex's messages quote Python internals; the checks above found nothing specific
             raise DataFileError(f"{p}: could not be read as SP3 orbits although its epochs and records look "
                                 f"well-formed (expected SP3-c/d position records)") from None

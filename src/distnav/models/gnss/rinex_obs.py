@@ -16,7 +16,9 @@ flag 6 (cycle-slip records) skipped. Satellite identifiers without a system lett
 from __future__ import annotations
 
 import gzip
+import io
 import logging
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +29,7 @@ import numpy as np
 from distnav.errors import DataFileError
 
 __all__ = ["RinexHeader", "RawObservations", "read_header", "read_observation_types", "on_grid", "ProgressCallback",
-           "read_text_file"]
+           "read_bytes", "read_text_file", "COMPRESSED_MAGIC"]
 
 log = logging.getLogger(__name__)
 
@@ -63,20 +65,57 @@ class RawObservations:
     lli: dict[str, np.ndarray]
 
 
-def _decompress(path: Path, raw: bytes) -> bytes:
-    """gzip-decoded ``raw`` (unchanged when it is not gzip); :class:`DataFileError` naming the file otherwise."""
-    if raw[:2] != b"\x1f\x8b":
-        return raw
+COMPRESSED_MAGIC = (b"\x1f\x9d", b"BZh", b"PK\x03\x04")   # Unix compress (.Z), bzip2, zip
+
+
+def _unix_decompress(raw: bytes, path: Path) -> bytes:
     try:
-        return gzip.decompress(raw)
-    except EOFError:
-        raise DataFileError(f"{path}: the gzip data end early (the file is truncated; download it again)") from None
-    except OSError:  # gzip.BadGzipFile and zlib errors
-        raise DataFileError(f"{path}: starts like gzip but is not valid gzip data (expected a .gz file written by "
-                            f"gzip)") from None
+        import ncompress  # installed with hatanaka (the gnss extra)
+    except ImportError:
+        from distnav._optional import install_hint
+
+        raise DataFileError(f"{path}: Unix-compressed (.Z); install the 'ncompress' package "
+                            f"({install_hint('gnss')})") from None
+    out: bytes = ncompress.decompress(raw)
+    return out
 
 
-def _file_bytes(path: Path) -> bytes:
+def _decompress(path: Path, raw: bytes) -> bytes:
+    """``raw`` decompressed by content (gzip, Unix compress, bzip2, zip; unchanged when none of them);
+    :class:`DataFileError` naming the file and the format when the compressed data are broken."""
+    if raw[:2] == b"\x1f\x8b":
+        try:
+            raw = gzip.decompress(raw)
+        except EOFError:
+            raise DataFileError(f"{path}: the gzip data end early (the file is truncated; download it again)"
+                                ) from None
+        except OSError:  # gzip.BadGzipFile and zlib errors
+            raise DataFileError(f"{path}: starts like gzip but is not valid gzip data (expected a .gz file written "
+                                f"by gzip)") from None
+    if raw.startswith(COMPRESSED_MAGIC):
+        kind = "Unix compress (.Z)" if raw[:2] == b"\x1f\x9d" else "bzip2" if raw[:3] == b"BZh" else "zip"
+        try:
+            if raw[:2] == b"\x1f\x9d":
+                raw = _unix_decompress(raw, path)
+            elif raw[:3] == b"BZh":
+                import bz2
+
+                raw = bz2.decompress(raw)
+            else:
+                with zipfile.ZipFile(io.BytesIO(raw)) as z:
+                    names = z.namelist()
+                    if len(names) != 1:
+                        raise DataFileError(f"{path}: a zip archive of {len(names)} files (one expected)")
+                    raw = z.read(names[0])
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+            raise DataFileError(f"{path}: starts like {kind} data but could not be decompressed (truncated or "
+                                f"not {kind}; download it again)") from None
+    return raw
+
+
+def read_bytes(path: Path) -> bytes:
+    """A file's bytes, decompressed by content: gzip, Unix compress (``.Z``, older IGS archives), bzip2, zip (Hatanaka
+    compression is left to the caller)."""
     if not path.exists():
         raise DataFileError(f"{path}: file not found")
     try:
@@ -96,10 +135,10 @@ def _text_lines(path: Path, raw: bytes) -> list[str]:
 
 
 def read_text_file(path: Path, *, whole_lines: bool = False) -> list[str]:
-    """The lines of a plain or gzip-compressed text file, decoded as latin-1 (any byte is accepted); a truncated
-    or fake gzip file and a file with NUL bytes (binary data, UTF-16) are refused naming the file (and line).
+    """The lines of a plain or compressed (:func:`read_bytes`) text file, decoded as latin-1 (any byte is accepted);
+    broken compressed data and a file with NUL bytes (binary data, UTF-16) are refused naming the file (and line).
     ``whole_lines``: a file that ends inside a line (no final newline: a cut download) is refused too."""
-    raw = _file_bytes(path)
+    raw = read_bytes(path)
     if whole_lines:
         _ends_with_newline(path, raw)
     return _text_lines(path, raw)
@@ -112,8 +151,26 @@ def _ends_with_newline(path: Path, raw: bytes) -> None:
 
 
 def _read_lines(path: Path) -> list[str]:
-    raw = _file_bytes(path)
+    raw = read_bytes(path)
     _ends_with_newline(path, raw)
+    if b"COMPACT RINEX" in raw[:200] or b"CRINEX VERS" in raw[:200]:
+        try:
+            import hatanaka
+
+            raw = hatanaka.decompress(raw)
+        except ImportError:
+            from distnav._optional import install_hint
+
+            raise DataFileError(f"{path}: Hatanaka-compressed; install the 'hatanaka' package "
+                                f"({install_hint('gnss')})") from None
+        except Exception:  # the hatanaka package raises its own and OS errors
+            raise DataFileError(f"{path}: not valid Compact RINEX (Hatanaka) data: expected a .crx/.d file as "
+                                f"written by rnx2crx") from None
+        if isinstance(raw, str):
+            raw = raw.encode("latin-1")
+    return _text_lines(path, raw)
+
+
     if b"COMPACT RINEX" in raw[:200] or b"CRINEX VERS" in raw[:200]:
         try:
             import hatanaka
@@ -136,6 +193,7 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     version, ftype, receiver, marker, tsys = 0.0, "", "", "", "GPS"
     pos = np.full(3, np.nan)
     r2_types: list[str] = []
+    r2_count = 0
     r3_types: dict[str, list[str]] = {}
     r3_sys = ""
     end = -1
@@ -161,7 +219,13 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
             except ValueError:
                 pos = np.full(3, np.nan)
         elif label == "# / TYPES OF OBSERV":
-            r2_types += [line[10 + 6 * i:16 + 6 * i].strip() for i in range(9)]
+            if line[:6].strip():
+                if not line[:6].strip().isdigit():
+                    raise DataFileError(f"{path}, line {k + 1}: the number of observation types (columns 1-6): "
+                                        f"expected a whole number, got {line[:6].strip()!r}")
+                r2_count = int(line[:6])
+            # 9(4X,A2) in columns 7–60: the label (from column 61) is not a type
+            r2_types += line[6:60].split()
         elif label == "SYS / # / OBS TYPES":
             if line[0] != " ":
                 r3_sys = line[0]
@@ -174,6 +238,8 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     if not version:
         raise DataFileError(f"{path}: no RINEX VERSION / TYPE line")
     types = [t for t in (r3_types.get("G", []) if version >= 3 else r2_types) if t]
+    if version < 3 and r2_count and len(types) > r2_count:
+        types = types[:r2_count]
     return RinexHeader(version, ftype, receiver, marker, pos, tuple(types), tsys, end + 1)
 
 
