@@ -171,24 +171,6 @@ def _read_lines(path: Path) -> list[str]:
     return _text_lines(path, raw)
 
 
-    if b"COMPACT RINEX" in raw[:200] or b"CRINEX VERS" in raw[:200]:
-        try:
-            import hatanaka
-
-            raw = hatanaka.decompress(raw)
-        except ImportError:
-            from distnav._optional import install_hint
-
-            raise DataFileError(f"{path}: Hatanaka-compressed; install the 'hatanaka' package "
-                                f"({install_hint('gnss')})") from None
-        except Exception:  # the hatanaka package raises its own and OS errors
-            raise DataFileError(f"{path}: not valid Compact RINEX (Hatanaka) data: expected a .crx/.d file as "
-                                f"written by rnx2crx") from None
-        if isinstance(raw, str):
-            raw = raw.encode("latin-1")
-    return _text_lines(path, raw)
-
-
 def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     version, ftype, receiver, marker, tsys = 0.0, "", "", "", "GPS"
     pos = np.full(3, np.nan)
