@@ -318,12 +318,6 @@ CASES = [Case(f"{f.name}-{g}", f, "generic", g) for f in FORMATS
 CASES += [Case(f"{f.name}-{e[0]}", f, "edit", e[0]) for f in FORMATS for e in f.edits]
 
 # the readers whose messages are another helper's: marked strictly, the mark comes off when the owner's fix lands
-_APRIL = ("models/uwb/april.py (not this branch's file) passes numpy.loadtxt's text on and reads an empty log as "
-          "no samples without a word; it needs the line-by-line checks of models/uwb/io.py")
-OWNED_ELSEWHERE: dict[str, str] = {
-    **{f"april-log-{k}": _APRIL for k in ("empty", "binary-junk", "nul-bytes", "utf16", "gzip-truncated", "fake-gzip",
-                                          "bad-number", "bad-node", "missing-columns")},
-}
 
 
 def _materialize(case: Case, tmp: Path, shared: Path | None) -> tuple[Path, int | None]:
@@ -347,11 +341,7 @@ def _check_message(case: Case, msg: str, path: Path, line: int | None) -> None:
 
 
 def _params() -> list[Any]:
-    out = []
-    for c in CASES:
-        marks = [pytest.mark.xfail(strict=True, reason=OWNED_ELSEWHERE[c.id])] if c.id in OWNED_ELSEWHERE else []
-        out.append(pytest.param(c, id=c.id, marks=marks))
-    return out
+    return [pytest.param(c, id=c.id) for c in CASES]
 
 
 @pytest.fixture
@@ -398,7 +388,7 @@ def _cli_cases(tmp: Path, shared: Path | None) -> list[tuple[str, list[str], Pat
     ranges.write_text(RANGES)
     out = str(tmp / "out")
     picks = {"uwb-ranges": ("bad-number", "nul-bytes", "binary-junk", "utf16", "missing-field"),
-             "uwb-positions": ("bad-number", "nan", "binary-junk"),  # (APRIL logs: see OWNED_ELSEWHERE)
+             "uwb-positions": ("bad-number", "nan", "binary-junk"),
              "bias-sinex": ("bad-number", "no-end-of-block", "fake-gzip", "binary-junk"),
              "ionex-dcb": ("bad-number", "gzip-truncated"),
              "rinex2-obs": ("bad-number", "cut-mid-line", "binary-junk"),

@@ -36,11 +36,8 @@ def read_april(path: str | Path, *, delays: str = "manual") -> tuple[np.ndarray,
         raise DataFileError(f"{p}: file not found")
     if delays not in ("manual", "default"):
         raise DataFileError(f"delays must be 'manual' or 'default', got {delays!r}")
-    try:
-        d = np.loadtxt(p, usecols=(0, 1, 2), ndmin=2)
-    except ValueError as exc:
-        raise DataFileError(f"{p}: not an APRIL range log (3 leading numeric columns expected): {exc}") from None
-    a, b = d[:, 1].astype(np.int64), d[:, 2].astype(np.int64)
+    rows = _parse_log(p)
+    a, b = rows[:, 1].astype(np.int64), rows[:, 2].astype(np.int64)
     unknown = sorted(set(a.tolist() + b.tolist()) - set(MANUAL_DELAYS_US))
     if unknown:
         raise DataFileError(f"{p}: node ids {unknown} are not the APRIL nodes {sorted(MANUAL_DELAYS_US)}")
@@ -49,7 +46,7 @@ def read_april(path: str | Path, *, delays: str = "manual") -> tuple[np.ndarray,
         db = np.array([MANUAL_DELAYS_US[int(k)] for k in b])
     else:
         da = db = np.full(a.size, DEFAULT_DELAY_US)
-    return a, b, (d[:, 0] - 0.5 * (da + db)) * C_M_PER_US
+    return a, b, (rows[:, 0] - 0.5 * (da + db)) * C_M_PER_US
 
 
 def write_april_csvs(path: str | Path, out: str | Path, *, known: list[int], delays: str = "manual"
@@ -73,3 +70,39 @@ def write_april_csvs(path: str | Path, out: str | Path, *, known: list[int], del
     files["known"].write_text(table(sorted(known)), encoding="utf-8")
     files["truth"].write_text(table(sorted(TRUTH_FT)), encoding="utf-8")
     return files
+
+
+def _parse_log(p: Path) -> np.ndarray:
+    """``(n, 3)`` array of time of propagation (µs), node a, node b, checked line by line; a
+    :class:`DataFileError` names the line and what was expected."""
+    raw = p.read_bytes()
+    if raw[:2] == b"\x1f\x8b":
+        raise DataFileError(f"{p}: a gzip archive: expected the APRIL range log as plain text (gunzip it first)")
+    if b"\x00" in raw:
+        line = raw.count(b"\n", 0, raw.index(b"\x00")) + 1
+        raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected an APRIL range log (text)")
+    try:
+        text = raw.decode("ascii")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise DataFileError(f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not plain ASCII text: expected an "
+                            f"APRIL range log (whitespace-separated numbers)") from None
+    out: list[tuple[float, float, float]] = []
+    for number, text_line in enumerate(text.splitlines(), start=1):
+        fields = text_line.split()
+        if not fields:
+            continue
+        if len(fields) < 3:
+            raise DataFileError(f"{p}, line {number}: {len(fields)} field(s): expected at least 3 (time of "
+                                f"propagation in µs, node a, node b)")
+        try:
+            t_us = float(fields[0])
+        except ValueError:
+            raise DataFileError(f"{p}, line {number}: time of propagation {fields[0]!r} is not a number") from None
+        if not (fields[1].isdigit() and fields[2].isdigit()):
+            raise DataFileError(f"{p}, line {number}: node ids {fields[1]!r} {fields[2]!r}: expected two whole "
+                                f"numbers")
+        out.append((t_us, float(fields[1]), float(fields[2])))
+    if not out:
+        raise DataFileError(f"{p}: no samples (an empty APRIL range log)")
+    return np.array(out)
