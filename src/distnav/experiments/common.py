@@ -15,6 +15,7 @@ live in :mod:`distnav.output`, shared with :mod:`distnav.commands`; they stay im
 
 from __future__ import annotations
 
+import argparse
 import multiprocessing
 import os
 import time
@@ -30,6 +31,7 @@ import numpy as np
 from distnav.errors import UsageError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
+from distnav.options import positive_int
 from distnav.output import (  # re-exported: the writers moved to distnav.output
     atomic_write_json,
     atomic_write_text,
@@ -46,7 +48,8 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 R = TypeVar("R")
 
-__all__ = ["ExperimentContext", "Progress", "available_cores", "parallel_map",  # and, re-exported from distnav.output:
+__all__ = ["ExperimentContext", "Progress", "add_jobs_argument", "available_cores", "parallel_map",
+           # and, re-exported from distnav.output:
            "to_jsonable", "atomic_write_text", "atomic_write_json", "save_figure_file", "set_file_writer",
            "is_file_writer", "pyplot"]
 
@@ -113,6 +116,13 @@ def available_cores() -> int:
         return max(os.cpu_count() or 1, 1)
 
 
+def add_jobs_argument(parser: argparse.ArgumentParser) -> None:
+    """``--jobs N``: worker processes for an experiment's independent runs (:meth:`ExperimentContext.workers`)."""
+    parser.add_argument("--jobs", type=positive_int, default=None,
+                        help="worker processes for the independent runs (default: the available cores; 1: none); "
+                             "the results do not depend on it")
+
+
 def parallel_map(fn: Callable[[T], R], tasks: Sequence[T], jobs: int,
                  advance: Callable[[int], None] = _noop) -> list[R]:
     """``[fn(t) for t in tasks]``, in ``jobs`` worker processes when ``jobs > 1`` (and there is more than one task).
@@ -167,6 +177,12 @@ class ExperimentContext:
         if minimum is not None and value < minimum:
             raise UsageError(f"--{name.replace('_', '-')} must be at least {minimum:g}, got {value!r}")
         return value
+
+    def workers(self) -> int:
+        """Worker processes for independent runs: ``--jobs`` (default: the available cores); 1 under MPI (the
+        ranks run every run in step) or with fault injection (the schedule lives in this process)."""
+        jobs = int(self.option("jobs", available_cores(), minimum=1))
+        return jobs if self.backend == "inprocess" and self.faults is None else 1
 
     def rng(self, stream: int = 0) -> np.random.Generator:
         """A generator seeded from ``(seed, stream)``: independent streams, reproducible runs."""

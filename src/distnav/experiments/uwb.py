@@ -33,7 +33,7 @@ import numpy as np
 from distnav.algorithms.csg import PAPER_MODE, SOLVERS, solve
 from distnav.errors import UsageError
 from distnav.exchange import Exchange, make_exchange
-from distnav.experiments.common import ExperimentContext, available_cores, parallel_map, pyplot
+from distnav.experiments.common import ExperimentContext, add_jobs_argument, parallel_map, pyplot
 from distnav.models.uwb.problems import PAPER_PROBLEMS, RangingProblem, generate_layout, generate_problem
 from distnav.network.graph import Graph
 from distnav.options import positive_int
@@ -61,9 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start", choices=list(STARTS), default="paper",
                         help="initial guess: truth + U(-5, 5) m in every coordinate (paper: eq. (23), default) or "
                              "in x and y only, the heights started at the truth (horizontal)")
-    parser.add_argument("--jobs", type=positive_int, default=None,
-                        help="worker processes for the instances (default: the available cores; 1: no workers); "
-                             "the results do not depend on it")
+    add_jobs_argument(parser)
 
 
 def _errors(problem: RangingProblem, est: np.ndarray) -> tuple[float, float]:
@@ -149,10 +147,9 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     start = str(ctx.options.get("start") or "paper")
     if start not in STARTS:
         raise UsageError(f"--start must be one of {', '.join(STARTS)}, got {start!r}")
-    jobs = int(ctx.option("jobs", available_cores(), minimum=1))
+    jobs = ctx.workers()
     n_inst = {c: (int(opt_inst) if opt_inst is not None else (1 if ctx.quick else PAPER_INSTANCES[c])) for c in "GLR"}
-    # worker processes only in-process without fault injection (MPI ranks run the instances in step)
-    parallel = ctx.backend == "inprocess" and ctx.faults is None and jobs > 1
+    parallel = jobs > 1
     curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     table: list[dict[str, Any]] = []
     examples: dict[str, Any] = {}
