@@ -389,7 +389,11 @@ def _api_cases() -> list[Api]:
         Api("admm-W-negative", lambda: admm(good, ring, W=-1.0), "W"),
         Api("admm-iterations-zero", lambda: admm(good, ring, max_iterations=0), "max_iterations=0"),
     ]
+    from distnav.experiments.uwb import instance_problem
     from distnav.models.uwb.io import read_positions, read_ranges
+
+    cases.append(Api("uwb-reproduce-start", lambda: instance_problem("GC", np.random.default_rng(0),
+                                                                      start="vertical"), "--start"))
 
     cases += [
         Api("uwb-read-ranges-missing", lambda: read_ranges("/nonexistent/r.csv"), "r.csv"),

@@ -37,3 +37,22 @@ def test_bls_and_tbls_differ_with_a_small_armijo_constant(ladder):
     assert np.any(sb != st) and 0 < first < 30
     assert st[first] < sb[first]  # same iterate, TBLS stopped below the gap that BLS jumped over
     assert np.abs(xb - xt).max() > 0.5  # metres
+
+
+def test_claims_table_reads_the_horizontal_start_run_after_uwb(tmp_path):
+    """``RUN_DIR/uwb-horizontal`` (``reproduce uwb --start horizontal``) adds its "< 60 cm" row after uwb's; a
+    run without the setting is not mistaken for it."""
+    import json
+
+    from distnav.experiments.claims_table import collect
+
+    checks = {"mean_line_search_RMSE_by_class_m": {"G": 0.35, "L": 0.8, "R": 0.5}}
+    for folder, start in (("uwb-horizontal", "horizontal"), ("other", None)):
+        (tmp_path / folder).mkdir()
+        settings = {"iterations": 500, "instances": {"G": 1}, **({"start": start} if start else {})}
+        (tmp_path / folder / "results.json").write_text(json.dumps({"settings": settings, "checks": checks}))
+    rows = collect(tmp_path)
+    assert [r["experiment"] for r in rows] == ["uwb-horizontal"]
+    assert rows[0]["verdict"] == "agree" and rows[0]["distnav_value"] == "G: 0.35 m, L: 0.80 m, R: 0.50 m"
+    (tmp_path / "uwb-horizontal" / "results.json").write_text(json.dumps({"settings": {}, "checks": checks}))
+    assert collect(tmp_path)[0]["verdict"] == "not checkable"

@@ -15,6 +15,10 @@
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -34,7 +38,8 @@ from distnav.algorithms.lsq import (
     method_of_multipliers,
     single_consensus_admm,
 )
-from distnav.experiments.common import ExperimentContext, pyplot
+from distnav.exchange import Exchange, make_exchange
+from distnav.experiments.common import ExperimentContext, add_jobs_argument, parallel_map, pyplot
 from distnav.network import builders
 from distnav.network.constraint_nodes import ConstraintNodes, choose_constraint_nodes
 from distnav.network.graph import Graph
@@ -50,6 +55,47 @@ C_FULL = (1, 3, 4, 6, 9)
 C_REDUCED = (1, 3, 4, 9)
 TWO_NODE: dict[str, Any] = {"a": (1.0, 2.0), "R": (1.0, 1.0), "y": (-1.0, 4.0), "W": 1.0}
 ITERATIONS_2D = 8
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_jobs_argument(parser)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """One ADMM run of a study (Fig. 5 draws, the ρ sweep): what a worker process needs to run it."""
+
+    problem: LinearProblem
+    graph: Graph
+    constraint_nodes: ConstraintNodes
+    rho: float
+    max_iterations: int
+    reference: np.ndarray
+    monitor_every: int = 1
+
+
+def _iterations_of(run: _Run, exchange: Callable[[Graph], Exchange] | None = None) -> int | None:
+    """Iterations of Fig. 6 until ``max_i ‖x_i − x̂‖/‖x̂‖ ≤ 1e-6`` (None if never within ``max_iterations``; the
+    residuals are not monitored: only the distance to x̂ stops the run)."""
+    make = exchange or (lambda graph: make_exchange(graph))
+    res = admm(run.problem, run.graph, constraint_nodes=run.constraint_nodes, W=run.rho,
+               max_iterations=run.max_iterations, tol=0.0, reference=run.reference, stop_at_reference=1e-6,
+               record_nodes=False, exchange=make(run.graph), monitor_every=run.monitor_every)
+    return _iters(res)
+
+
+def iterations_to_1e6(ctx: ExperimentContext, problem: LinearProblem, x_hat: np.ndarray, g: Graph,
+                      C: ConstraintNodes, rho: float, max_iterations: int) -> int:
+    """Iterations of Fig. 6 until ``max_i ‖x_i − x̂‖/‖x̂‖ ≤ 1e-6`` (``max_iterations`` if never)."""
+    v = _iterations_of(_Run(problem, g, C, rho, max_iterations, x_hat, monitor_every=0), ctx.exchange)
+    return max_iterations if v is None else v
+
+
+def _study(ctx: ExperimentContext, runs: list[_Run], advance: Callable[[int], None]) -> list[int | None]:
+    """:func:`_iterations_of` of every run, in worker processes (``--jobs``) or, under MPI, here in step."""
+    jobs = ctx.workers()
+    fn = _iterations_of if jobs > 1 else partial(_iterations_of, exchange=ctx.exchange)
+    return parallel_map(fn, runs, jobs, advance)
 
 
 def fig5_graph() -> Graph:
@@ -112,16 +158,6 @@ def fig5_problems(ctx: ExperimentContext, draws: int) -> tuple[list[LinearProble
     return problems, [blue(pr).x for pr in problems]
 
 
-def iterations_to_1e6(ctx: ExperimentContext, problem: LinearProblem, x_hat: np.ndarray, g: Graph,
-                      C: ConstraintNodes, rho: float, max_iterations: int) -> int:
-    """Iterations of Fig. 6 until ``max_i ‖x_i − x̂‖/‖x̂‖ ≤ 1e-6`` (``max_iterations`` if never; the residuals are not
-    monitored: only the distance to x̂ stops the run)."""
-    res = admm(problem, g, constraint_nodes=C, W=rho, max_iterations=max_iterations, tol=0.0, reference=x_hat,
-               stop_at_reference=1e-6, record_nodes=False, exchange=ctx.exchange(g), monitor_every=0)
-    v = _iters(res)
-    return max_iterations if v is None else v
-
-
 def part_b(ctx: ExperimentContext, draws: int, iterations: int, rho: float,
            rho_grid: tuple[float, ...]) -> dict[str, Any]:
     g = fig5_graph()
@@ -140,13 +176,13 @@ def part_b(ctx: ExperimentContext, draws: int, iterations: int, rho: float,
         comm[key] = {**res.comm.as_dict(), "messages_per_iteration": int(res.comm.messages_per_round[1:3].sum())}
     # the study: every problem, every ρ of the grid, iterations to 1e-6
     table: dict[str, dict[str, list[int]]] = {f"{r:g}": {k: [] for k in sets} for r in rho_grid}
-    with ctx.progress.task(f"admm: Fig. 5 graph, {draws} problems × {len(rho_grid)} ρ × 3 constraint sets",
-                           total=draws * len(rho_grid)) as adv:
-        for pr, xh in zip(problems, refs, strict=True):
-            for r in rho_grid:
-                for key, C in sets.items():
-                    table[f"{r:g}"][key].append(iterations_to_1e6(ctx, pr, xh, g, C, r, iterations * 3))
-                adv(1)
+    cells = [(f"{r:g}", key, _Run(pr, g, C, r, iterations * 3, xh, monitor_every=0))
+             for pr, xh in zip(problems, refs, strict=True) for r in rho_grid for key, C in sets.items()]
+    with ctx.progress.task(f"admm: Fig. 5 graph, {draws} problems × {len(rho_grid)} ρ × {len(sets)} constraint "
+                           "sets", total=len(cells)) as adv:
+        its = _study(ctx, [c[2] for c in cells], adv)
+    for (label, key, run), v in zip(cells, its, strict=True):
+        table[label][key].append(run.max_iterations if v is None else v)
     study: dict[str, dict[str, Any]] = {}
     for label, row in table.items():
         full, red = np.array(row["C_full"]), np.array(row["C_reduced"])
@@ -172,13 +208,14 @@ def part_c(ctx: ExperimentContext, n: int, rhos: np.ndarray, iterations: int) ->
     xh = blue(prob).x
     sets = {"all": choose_constraint_nodes(g, "all"), "min_cover": choose_constraint_nodes(g, "min_cover")}
     sweep: dict[str, list[int | None]] = {k: [] for k in sets}
-    with ctx.progress.task(f"admm: ρ sweep on a {n}-node random network", total=len(rhos) * 2) as adv:
-        for rho in rhos:
-            for key, C in sets.items():
-                res = admm(prob, g, constraint_nodes=C, W=float(rho), max_iterations=iterations, tol=0.0,
-                           reference=xh, stop_at_reference=1e-6, record_nodes=False, exchange=ctx.exchange(g))
-                sweep[key].append(_iters(res))
-                adv(1)
+    # monitor_every=0: with tol=0 the residuals never stop a run (only the distance to x̂ does), so not computing
+    # them leaves every count unchanged
+    cells = [(key, _Run(prob, g, C, float(rho), iterations, xh, monitor_every=0))
+             for rho in rhos for key, C in sets.items()]
+    with ctx.progress.task(f"admm: ρ sweep on a {n}-node random network", total=len(cells)) as adv:
+        its = _study(ctx, [c[1] for c in cells], adv)
+    for (key, _), v in zip(cells, its, strict=True):
+        sweep[key].append(v)
     arr = np.array([np.inf if v is None else v for v in sweep["min_cover"]], float)
     best = float(rhos[int(np.argmin(arr))])
     # Fig. 9: per-node curves for three ρ around the best; Fig. 10: zero vs previous-experiment initial values

@@ -15,8 +15,12 @@ live in :mod:`distnav.output`, shared with :mod:`distnav.commands`; they stay im
 
 from __future__ import annotations
 
+import argparse
+import multiprocessing
+import os
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +31,7 @@ import numpy as np
 from distnav.errors import UsageError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
+from distnav.options import positive_int
 from distnav.output import (  # re-exported: the writers moved to distnav.output
     atomic_write_json,
     atomic_write_text,
@@ -41,8 +46,10 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 T = TypeVar("T")
+R = TypeVar("R")
 
-__all__ = ["ExperimentContext", "Progress",  # and, re-exported from distnav.output:
+__all__ = ["ExperimentContext", "Progress", "add_jobs_argument", "available_cores", "parallel_map",
+           # and, re-exported from distnav.output:
            "to_jsonable", "atomic_write_text", "atomic_write_json", "save_figure_file", "set_file_writer",
            "is_file_writer", "pyplot"]
 
@@ -101,6 +108,47 @@ class Progress:
                 advance(1)
 
 
+def available_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where the platform has one)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(os.cpu_count() or 1, 1)
+
+
+def add_jobs_argument(parser: argparse.ArgumentParser) -> None:
+    """``--jobs N``: worker processes for an experiment's independent runs (:meth:`ExperimentContext.workers`)."""
+    parser.add_argument("--jobs", type=positive_int, default=None,
+                        help="worker processes for the independent runs (default: the available cores; 1: none); "
+                             "the results do not depend on it")
+
+
+def parallel_map(fn: Callable[[T], R], tasks: Sequence[T], jobs: int,
+                 advance: Callable[[int], None] = _noop) -> list[R]:
+    """``[fn(t) for t in tasks]``, in ``jobs`` worker processes when ``jobs > 1`` (and there is more than one task).
+
+    The results come back in the order of ``tasks`` whatever the order the workers finish in, so a reduction over
+    them is the same sum in the same order as the serial loop (bit-identical results). ``fn`` and the tasks must
+    be picklable (module-level functions, plain data); each task must draw its own random numbers (seeded from
+    the task), never from state shared between tasks. ``advance(1)`` is called as each result arrives. Workers
+    are forked where the platform allows it (no re-import), else spawned.
+    """
+    if jobs <= 1 or len(tasks) <= 1:
+        out = []
+        for t in tasks:
+            out.append(fn(t))
+            advance(1)
+        return out
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)),
+                             mp_context=multiprocessing.get_context(method)) as pool:
+        out = []
+        for r in pool.map(fn, tasks):
+            out.append(r)
+            advance(1)
+        return out
+
+
 @dataclass
 class ExperimentContext:
     """Everything a reproduction needs besides its own parameters."""
@@ -129,6 +177,12 @@ class ExperimentContext:
         if minimum is not None and value < minimum:
             raise UsageError(f"--{name.replace('_', '-')} must be at least {minimum:g}, got {value!r}")
         return value
+
+    def workers(self) -> int:
+        """Worker processes for independent runs: ``--jobs`` (default: the available cores); 1 under MPI (the
+        ranks run every run in step) or with fault injection (the schedule lives in this process)."""
+        jobs = int(self.option("jobs", available_cores(), minimum=1))
+        return jobs if self.backend == "inprocess" and self.faults is None else 1
 
     def rng(self, stream: int = 0) -> np.random.Generator:
         """A generator seeded from ``(seed, stream)``: independent streams, reproducible runs."""

@@ -11,21 +11,31 @@ Per iteration and problem × solver: the mean RMSE over instances (eqs. (24)–(
 estimate, so every solver is scored on the same function), the mean BLS/TBLS step size (Fig. 6), example
 N-CSG-TBLS solutions (Fig. 5) and the Table 1 analogue (final values; messages and bytes per instance).
 ``--instances N`` sets the instances per problem (paper: 50 for G and L, 100 for R); ``--quick`` runs one
-instance of 60 iterations. A run whose estimates blow up (CSG and N-CSG with the fixed α = 1e-3 can, on class R)
-is counted in ``diverged`` and left out of the means.
+instance of 60 iterations. ``--start horizontal`` perturbs the initial guess in x and y only and starts every
+height at the truth (the paper's measured class is described at one height; a planar truth is a saddle point of
+the 3-D cost, docs/uwb.md); the default run's ``results.json`` has no ``start`` setting. The instances run in
+``--jobs`` worker processes (default: the available cores; every instance seeds its own draws and the sums run
+in instance order, so the results are the same for any ``--jobs``). A run whose estimates blow up (CSG and
+N-CSG with the fixed α = 1e-3 can, on class R) is counted in ``diverged`` and left out of the means.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cache, partial
 from typing import Any
 
 import numpy as np
 
 from distnav.algorithms.csg import PAPER_MODE, SOLVERS, solve
-from distnav.experiments.common import ExperimentContext, pyplot
+from distnav.errors import UsageError
+from distnav.exchange import Exchange, make_exchange
+from distnav.experiments.common import ExperimentContext, add_jobs_argument, parallel_map, pyplot
 from distnav.models.uwb.problems import PAPER_PROBLEMS, RangingProblem, generate_layout, generate_problem
+from distnav.network.graph import Graph
 from distnav.options import positive_int
 
 NAME = "uwb"
@@ -35,6 +45,7 @@ PAPER_INSTANCES = {"G": 50, "L": 50, "R": 100}
 PAPER_ITERATIONS = 500
 QUICK_ITERATIONS = 60
 PAPER_TBLS_FINAL_STEP = {"N-CSG-BLS": 1.2e-3, "N-CSG-TBLS": 1.3e-3}
+STARTS = ("paper", "horizontal")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,6 +58,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "or the true gradient 2Gᵀg of f")
     parser.add_argument("--hold-heights", action="store_true",
                         help="hold every estimated anchor's height at its true value (solve x, y only)")
+    parser.add_argument("--start", choices=list(STARTS), default="paper",
+                        help="initial guess: truth + U(-5, 5) m in every coordinate (paper: eq. (23), default) or "
+                             "in x and y only, the heights started at the truth (horizontal)")
+    add_jobs_argument(parser)
 
 
 def _errors(problem: RangingProblem, est: np.ndarray) -> tuple[float, float]:
@@ -55,56 +70,116 @@ def _errors(problem: RangingProblem, est: np.ndarray) -> tuple[float, float]:
     return float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))), float(np.sqrt(np.mean(e[:, 2:] ** 2)))
 
 
+@dataclass(frozen=True)
+class _Task:
+    """One instance of one problem: everything a worker process needs to run the six solvers on it."""
+
+    seed: int
+    problem_index: int
+    name: str
+    instance: int
+    iterations: int
+    armijo_slope: str
+    hold_heights: bool
+    start: str
+
+
+@cache
+def _layout(cls: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """The fixed G / L placement (the paper keeps it over the instances); None for R (drawn per instance)."""
+    return generate_layout(cls) if cls in "GL" else None
+
+
+def instance_problem(name: str, rng: np.random.Generator, *, hold_heights: bool = False,
+                     start: str = "paper") -> RangingProblem:
+    """The reproduction's instance of problem ``name``: :func:`generate_problem` with the fixed G / L placement;
+    ``start="horizontal"`` keeps its initial guess's horizontal perturbation and starts every height at the
+    truth (the random draws are the same, so the two starts are paired instance by instance)."""
+    if start not in STARTS:
+        raise UsageError(f"--start must be one of {', '.join(STARTS)}, got {start!r}")
+    problem = generate_problem(name, rng, layout=_layout(name[0]), hold_heights=hold_heights)
+    if start == "horizontal":
+        assert problem.initial_m is not None and problem.truth_m is not None
+        init = problem.initial_m.copy()
+        init[:, 2:] = problem.truth_m[:, 2:]
+        problem = problem.with_initial(init)
+    return problem
+
+
+def _run_instance(task: _Task, exchange: Callable[[Graph], Exchange] | None = None) -> dict[str, Any]:
+    """The six solvers on one instance (in a worker process, or in the main one with ``ctx.exchange``)."""
+    make = exchange or (lambda graph: make_exchange(graph))
+    rng = np.random.default_rng([task.seed, 1000 * (task.problem_index + 1) + task.instance])  # = ctx.rng(...)
+    problem = instance_problem(task.name, rng, hold_heights=task.hold_heights, start=task.start)
+    m, its = problem.n_meas, task.iterations
+    out: dict[str, Any] = {"runs": {}, "example": None}
+    for s in SOLVERS:
+        t0 = time.perf_counter()
+        if s == "LM":
+            res = solve(problem, s, iterations=its, pad_trace=True)
+        elif "LS" in s:  # the paper's mode: a fixed iteration count, no QC
+            res = solve(problem, s, iterations=its, exchange=make(problem.graph), armijo_slope=task.armijo_slope,
+                        **PAPER_MODE)
+        else:
+            res = solve(problem, s, iterations=its, exchange=make(problem.graph), **PAPER_MODE)
+        run: dict[str, Any] = {"seconds": time.perf_counter() - t0, "messages": res.comm.messages,
+                               "bytes": res.comm.bytes, "diverged": False}
+        out["runs"][s] = run
+        if res.status == "diverged" or not np.all(np.isfinite(res.trace["rmse_m"])):
+            run["diverged"] = True
+            continue
+        run["rmse"] = res.trace["rmse_m"][: its + 1]
+        run["cost"] = np.sqrt(res.trace["cost"][: its + 1] / m)
+        if "LS" in s:
+            run["step"] = res.trace["step_size"][: its + 1]
+        run["xy"], run["z"] = _errors(problem, res.estimates)
+        if task.instance == 0 and s == "N-CSG-TBLS" and task.name in ("GO", "LC", "RM"):
+            out["example"] = {"truth": problem.truth_m, "initial": problem.initial_m, "estimate": res.estimates,
+                              "fixed": problem.fixed, "links": problem.links}
+    return out
+
+
 def run(ctx: ExperimentContext) -> dict[str, Any]:
     opt_inst = ctx.option("instances", None, minimum=1)
     iterations = int(ctx.option("iterations", QUICK_ITERATIONS if ctx.quick else PAPER_ITERATIONS, minimum=1))
     armijo_slope = str(ctx.options.get("armijo_slope") or "subgradient")
     hold_heights = bool(ctx.options.get("hold_heights", False))
+    start = str(ctx.options.get("start") or "paper")
+    if start not in STARTS:
+        raise UsageError(f"--start must be one of {', '.join(STARTS)}, got {start!r}")
+    jobs = ctx.workers()
     n_inst = {c: (int(opt_inst) if opt_inst is not None else (1 if ctx.quick else PAPER_INSTANCES[c])) for c in "GLR"}
-    layouts = {c: generate_layout(c) for c in "GL"}
+    parallel = jobs > 1
     curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     table: list[dict[str, Any]] = []
     examples: dict[str, Any] = {}
     timing: dict[str, float] = {s: 0.0 for s in SOLVERS}
-    for pi, name in enumerate(PAPER_PROBLEMS):
-        cls = name[0]
+    tasks = [_Task(ctx.seed, pi, name, inst, iterations, armijo_slope, hold_heights, start)
+             for pi, name in enumerate(PAPER_PROBLEMS) for inst in range(n_inst[name[0]])]
+    workers = min(jobs, len(tasks)) if parallel else 1
+    with ctx.progress.task(f"uwb: {len(tasks)} instances of {len(PAPER_PROBLEMS)} problems × {len(SOLVERS)} "
+                           f"solvers, {workers} process(es)", total=len(tasks)) as advance:
+        if parallel:
+            runs = parallel_map(_run_instance, tasks, jobs, advance)
+        else:
+            runs = parallel_map(partial(_run_instance, exchange=ctx.exchange), tasks, 1, advance)
+    for name in PAPER_PROBLEMS:
         acc: dict[str, dict[str, Any]] = {s: {"rmse": [], "cost": [], "step": [], "msg": [], "bytes": [],
                                               "xy": [], "z": [], "diverged": 0} for s in SOLVERS}
-        with ctx.progress.task(f"uwb: {name}, {n_inst[cls]} instance(s) × {len(SOLVERS)} solvers",
-                               total=n_inst[cls]) as advance:
-            for inst in range(n_inst[cls]):
-                rng = ctx.rng(1000 * (pi + 1) + inst)
-                problem = generate_problem(name, rng, layout=layouts.get(cls), hold_heights=hold_heights)
-                m = problem.n_meas
-                for s in SOLVERS:
-                    t0 = time.perf_counter()
-                    if s == "LM":
-                        res = solve(problem, s, iterations=iterations, pad_trace=True)
-                    elif "LS" in s:  # the paper's mode: a fixed iteration count, no QC
-                        res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph),
-                                    armijo_slope=armijo_slope, **PAPER_MODE)
-                    else:
-                        res = solve(problem, s, iterations=iterations, exchange=ctx.exchange(problem.graph),
-                                    **PAPER_MODE)
-                    timing[s] += time.perf_counter() - t0
-                    a = acc[s]
-                    a["msg"].append(res.comm.messages)
-                    a["bytes"].append(res.comm.bytes)
-                    if res.status == "diverged" or not np.all(np.isfinite(res.trace["rmse_m"])):
-                        a["diverged"] += 1
-                        continue
-                    a["rmse"].append(res.trace["rmse_m"][: iterations + 1])
-                    a["cost"].append(np.sqrt(res.trace["cost"][: iterations + 1] / m))
-                    if "LS" in s:
-                        a["step"].append(res.trace["step_size"][: iterations + 1])
-                    xy, z = _errors(problem, res.estimates)
-                    a["xy"].append(xy)
-                    a["z"].append(z)
-                    if inst == 0 and s == "N-CSG-TBLS" and name in ("GO", "LC", "RM"):
-                        examples[name] = {"truth": problem.truth_m, "initial": problem.initial_m,
-                                          "estimate": res.estimates, "fixed": problem.fixed,
-                                          "links": problem.links}
-                advance(1)
+        done = [r for t, r in zip(tasks, runs, strict=True) if t.name == name]
+        for one in done:  # in instance order: the means are the serial loop's sums
+            for s, r in one["runs"].items():
+                a = acc[s]
+                timing[s] += r["seconds"]
+                a["msg"].append(r["messages"])
+                a["bytes"].append(r["bytes"])
+                if r["diverged"]:
+                    a["diverged"] += 1
+                    continue
+                for key in ("rmse", "cost", "xy", "z") + (("step",) if "step" in r else ()):
+                    a[key].append(r[key])
+            if one["example"] is not None:
+                examples[name] = one["example"]
         curves[name] = {}
         for s in SOLVERS:
             a = acc[s]
@@ -122,7 +197,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                 "messages": int(round(float(np.mean(a["msg"])))), "bytes": int(round(float(np.mean(a["bytes"])))),
                 "rmse_xy_m": float(np.mean(a["xy"])) if a["xy"] else float("nan"),
                 "rmse_z_m": float(np.mean(a["z"])) if a["z"] else float("nan"),
-                "instances": n_inst[cls], "diverged": a["diverged"], "iterations": iterations,
+                "instances": n_inst[name[0]], "diverged": a["diverged"], "iterations": iterations,
             })
 
     results: dict[str, Any] = {
@@ -130,7 +205,8 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                      "gamma": 0.5, "armijo_slope": armijo_slope, "hold_heights": hold_heights,
                      "consensus_rounds": 1, "weights": "MH",
                      "sigma_m": 0.15,
-                     "init_halfwidth_m": 5.0, "dim": 3, "anchors": 100, "fixed": 3},
+                     "init_halfwidth_m": 5.0, "dim": 3, "anchors": 100, "fixed": 3,
+                     **({"start": start} if start != "paper" else {})},
         "table": table,
         "curves": {p: {s: {k: v.tolist() for k, v in d.items()} for s, d in sv.items()} for p, sv in curves.items()},
         "paper_claims": {
