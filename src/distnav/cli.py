@@ -137,7 +137,7 @@ def _run_demo(args: argparse.Namespace) -> int:
 
     names = args.only or available()
     jobs = [(i + 1, len(names), name, args) for i, name in enumerate(names)]
-    n_workers = min(getattr(args, "jobs", 1), len(names))
+    n_workers = min(getattr(args, "jobs", None) or 1, len(names))
     t_all = time.perf_counter()
     done: dict[str, tuple[str, dict[str, Any], list[str], float, float]] = {}
     if n_workers <= 1:
@@ -205,7 +205,7 @@ def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None
     backend = getattr(args, "backend", "inprocess")
     if getattr(args, "ranks", None) is not None and backend != "mpi":
         raise UsageError(f"--ranks {args.ranks} applies only with --backend mpi (launched with mpiexec -n N)")
-    if getattr(args, "jobs", 1) > 1 and backend == "mpi":
+    if (getattr(args, "jobs", None) or 1) > 1 and backend == "mpi":
         raise UsageError(f"--jobs {args.jobs} applies only with the in-process backend (under MPI the ranks "
                          "share the work)")
     if backend == "mpi":
