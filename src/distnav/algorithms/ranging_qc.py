@@ -177,9 +177,15 @@ def _links_left(problem: RangingData, keep: np.ndarray) -> np.ndarray:
 
 
 def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResult], *,
-                  max_exclusions: int | None = None) -> tuple[RangingResult, RangingData, ObservationTests]:
+                  max_exclusions: int | None = None, one_sided: bool = False
+                  ) -> tuple[RangingResult, RangingData, ObservationTests]:
     """Iterative exclusion: while a link is flagged, remove the link (all its samples) with the largest |w| whose
     two anchors keep more links than free coordinates (the network stays determined with a check), and re-fit.
+
+    ``one_sided``: only links measured *longer* than the fit (``w < 0``; residual = fitted − measured) are
+    excluded. NLOS and multipath only ever lengthen a UWB range, so a link measured much shorter than the fit
+    is a good link the fit was dragged away from (by NLOS links elsewhere): excluding it would lock in the wrong
+    solution. Such a link stays flagged (and the per-anchor check of :mod:`distnav.models.uwb.local` looks at it).
 
     ``fit(subproblem)`` solves a problem and returns a result with ``tests`` (LM with QC, or a distributed solver).
     Returns ``(final result, the problem without the excluded links, tests)`` where the tests hold the final
@@ -196,7 +202,7 @@ def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResu
     while res.tests is not None and res.usable and n_links < limit:
         t = res.tests
         idx = np.flatnonzero(keep)
-        aw = np.where(np.isfinite(t.w), np.abs(t.w), -np.inf)
+        aw = np.where(np.isfinite(t.w) & ((t.w < 0) if one_sided else True), np.abs(t.w), -np.inf)
         left = _links_left(problem, keep)
         a, b = problem.meas_a[idx], problem.meas_b[idx]
         ok = ((left[a] - 1 >= need[a]) | problem.fixed[a]) & ((left[b] - 1 >= need[b]) | problem.fixed[b])

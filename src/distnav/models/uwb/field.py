@@ -60,6 +60,7 @@ class FieldOptions:
     offset_prior_sigma_m: float = 0.1
     allow_planar_3d: bool = False
     repair: bool = True
+    one_sided: bool = True
     solver_options: dict[str, Any] = field(default_factory=dict)
 
 
@@ -122,7 +123,7 @@ def prepare(problem: RangingProblem, *, initial_m: FloatArray | None = None, all
 
 
 def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int],
-            start: FloatArray | None = None) -> Callable[[Any], Any]:
+            last: list[FloatArray]) -> Callable[[Any], Any]:
     key = opts.solver.upper()
     kw: dict[str, Any] = dict(opts.solver_options)
     if key != "CSG":
@@ -136,8 +137,6 @@ def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None
         kw.update(test_level=opts.level)
     elif opts.range_offsets != "none":
         raise ModelError(f"range offsets are estimated by LM with the metres objective, not by {key}")
-
-    last: list[FloatArray] = [] if start is None else [np.asarray(start, float)]
 
     def fit(sub: Any) -> Any:
         extra: dict[str, Any] = {"exchange": exchange(sub)} if key != "LM" and exchange is not None else {}
@@ -163,8 +162,9 @@ def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: Bool
                  limit_m: float = WEAK_RMS_M) -> tuple[str, ...]:
     """Anchors with an excluded or flagged link whose kept links still misfit by more than ``limit_m`` RMS (or 3 ×
     the network's robust residual scale, if larger) at the solution: the exclusions could not find a consistent
-    subset of their links; and anchors left with a single redundant link after an exclusion (4 links of which 2
-    are NLOS fit the wrong pair exactly: only the thin redundancy gives it away)."""
+    subset of their links; and anchors with at most one redundant link left (3 links for 2 coordinates, with or
+    without exclusions: one NLOS link among them moves the anchor by metres while its residuals stay at a few cm,
+    and 4 links of which 2 are NLOS fit the wrong pair exactly)."""
     kept = ~np.asarray(excluded, bool)
     n = problem.n_anchors
     a, b = problem.meas_a, problem.meas_b
@@ -178,15 +178,16 @@ def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: Bool
     rms = np.sqrt(ssr / np.maximum(cnt, 1))
     scale = 1.4826 * float(np.median(np.abs(residual_m[kept]))) if kept.any() else 0.0
     limit = max(limit_m, 3.0 * scale)  # a network whose every link misfits (range bias) is not "weak" here
-    # one redundant link left after an exclusion: a second bad link could be detected there but not located
-    thin = (cnt <= problem.free.sum(axis=1) + 1) & np.isin(np.arange(n), np.concatenate([a[~kept], b[~kept]]))
-    return tuple(problem.ids[i] for i in np.flatnonzero(touched & problem.estimated & ((rms > limit) | thin)))
+    # at most one redundant link (kept): one NLOS link there shifts the anchor with residuals too small to test,
+    # and could not be located if it were detected
+    thin = cnt <= problem.free.sum(axis=1) + 1
+    return tuple(problem.ids[i] for i in np.flatnonzero(problem.estimated & ((touched & (rms > limit)) | thin)))
 
 
-def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], cap: int | None) -> tuple[Any, Any] | None:
+def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], opts: FieldOptions) -> tuple[Any, Any] | None:
     """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular)."""
     try:
-        res, _, tests = exclude_links(problem, fit, max_exclusions=cap)
+        res, _, tests = exclude_links(problem, fit, max_exclusions=opts.max_exclusions, one_sided=opts.one_sided)
     except ModelError:
         return None
     return res, tests
@@ -202,10 +203,11 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     objective = opts.objective if supports_objective(opts.solver) else "squared"
     note = "" if objective == opts.objective else f" ({opts.solver} has no {opts.objective} objective: squared used)"
     total = [0, 0, 0]
-    fit = _fitter(opts, exchange, total)
+    starts: list[FloatArray] = []
+    fit = _fitter(opts, exchange, total, starts)
     excluded = np.zeros(problem.n_meas, bool)
     # exclusions tested at the robust solution (an NLOS link does not drag it); every re-fit robust too
-    first = _exclude(problem, fit, opts.max_exclusions) if opts.exclude else None
+    first = _exclude(problem, fit, opts) if opts.exclude else None
     if first is not None:
         res, tests = first
         excluded[list(tests.removed)] = True
@@ -213,12 +215,17 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
         for _ in range(2 if opts.repair else 0):
             if not res.usable:
                 break
-            repaired, notes = repair_exclusions(problem, np.asarray(res.estimates, float), excluded, flagged)
+            repaired, notes, moved = repair_exclusions(problem, np.asarray(res.estimates, float), excluded, flagged,
+                                                       one_sided=opts.one_sided)
             if not notes:
                 break
             if notes:  # re-fit without the links each anchor chose, then test (and exclude) again
                 kept_idx = np.flatnonzero(~repaired)
-                again = _exclude(subset_measurements(problem, ~repaired), fit, opts.max_exclusions)
+                seed = np.asarray(res.estimates, float).copy()
+                for k, at in moved.items():  # each changed anchor starts where its own links put it
+                    seed[k] = at
+                starts.append(seed)
+                again = _exclude(subset_measurements(problem, ~repaired), fit, opts)
                 if again is None:
                     note += "; per-anchor check: its re-fit gave no link tests, kept the first choice"
                     break
