@@ -386,6 +386,10 @@ def _handler(args: argparse.Namespace) -> int:
           f"status {summary['status']}, {summary['n_excluded']} link(s) excluded"
           + (f", range residual RMS {rr:.3f} m" if rr is not None else "")
           + (f", RMSE {rm:.3f} m" if rm is not None else "") + f" -> {out}")
+    if sol.weak:
+        print(f"warning: {len(sol.weak)} anchor(s) weakly determined, their positions may be metres off: "
+              f"{', '.join(sol.weak)} (positions.csv status 'weak'; too few consistent links to tell which are NLOS, "
+              "or at most one redundant link)", file=sys.stderr)
     if sol.status == "ambiguous":
         print(f"error: the solution is ambiguous ({sol.message}); positions written with status 'ambiguous'",
               file=sys.stderr)

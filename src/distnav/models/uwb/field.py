@@ -267,7 +267,8 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     if weak:
         msg = (f"weakly determined: anchors {', '.join(repr(k) for k in weak[:12])} still misfit their kept links "
                f"by more than {WEAK_RMS_M} m RMS (or 3 × the network's robust residual scale) after the "
-               f"exclusions (too few consistent links to tell which are NLOS) — {msg}")
+               f"exclusions (too few consistent links to tell which are NLOS), or keep at most one redundant link "
+               f"(one NLOS link there would move them unseen) — {msg}")
     if geo.status is not None:
         msg = f"{geo.status}: " + "; ".join(i.message for i in geo.issues if i.severity != "unsolved") + f" — {msg}"
     return FieldSolution(problem=problem, geometry=geo, positions_m=pos, sigma_m=sigma,
