@@ -56,12 +56,21 @@ class FieldOptions:
     exclude: bool = True
     level: float = 0.001
     max_exclusions: int | None = None
-    range_offsets: str = "none"
+    range_offsets: str = "auto"
     offset_prior_sigma_m: float = 0.1
     allow_planar_3d: bool = False
     repair: bool = True
     one_sided: bool = True
     solver_options: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def offsets_used(self) -> str:
+        """``range_offsets`` resolved: ``"auto"`` is a common range offset where it can be estimated (LM, metres
+        objective) and none otherwise. On simulated halls with per-node antenna delays it brings the 2σ coverage
+        of LM's σ from 0.72–0.94 to 0.83–0.97 and lowers the RMSE a little (docs/uwb.md)."""
+        if self.range_offsets != "auto":
+            return self.range_offsets
+        return "common" if self.solver.upper() == "LM" and self.objective == "metres" else "none"
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,9 +142,9 @@ def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None
         if opts.objective == "metres":
             kw.update(sigma_m=opts.sigma_m)
             if key == "LM":
-                kw.update(range_offsets=opts.range_offsets, offset_prior_sigma_m=opts.offset_prior_sigma_m)
+                kw.update(range_offsets=opts.offsets_used, offset_prior_sigma_m=opts.offset_prior_sigma_m)
         kw.update(test_level=opts.level)
-    elif opts.range_offsets != "none":
+    elif opts.offsets_used != "none":
         raise ModelError(f"range offsets are estimated by LM with the metres objective, not by {key}")
 
     def fit(sub: Any) -> Any:
