@@ -177,7 +177,7 @@ def _links_left(problem: RangingData, keep: np.ndarray) -> np.ndarray:
 
 
 def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResult], *,
-                  max_exclusions: int | None = None, one_sided: bool = False
+                  max_exclusions: int | None = None, one_sided: bool = False, per_round: int | None = 1
                   ) -> tuple[RangingResult, RangingData, ObservationTests]:
     """Iterative exclusion: while a link is flagged, remove the link (all its samples) with the largest |w| whose
     two anchors keep more links than free coordinates (the network stays determined with a check), and re-fit.
@@ -186,6 +186,11 @@ def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResu
     excluded. NLOS and multipath only ever lengthen a UWB range, so a link measured much shorter than the fit
     is a good link the fit was dragged away from (by NLOS links elsewhere): excluding it would lock in the wrong
     solution. Such a link stays flagged (and the per-anchor check of :mod:`distnav.models.uwb.local` looks at it).
+
+    ``per_round`` (default 1: Baarda's one at a time): up to that many links per re-fit (``None``: no cap), the
+    flagged ones in order of |w| that share no anchor with a link already taken in that round. An NLOS link
+    inflates the residuals of the other links of its anchors most (swamping), so links of one anchor are
+    removed one per re-fit; links of different anchors together.
 
     ``fit(subproblem)`` solves a problem and returns a result with ``tests`` (LM with QC, or a distributed solver).
     Returns ``(final result, the problem without the excluded links, tests)`` where the tests hold the final
@@ -207,14 +212,23 @@ def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResu
         a, b = problem.meas_a[idx], problem.meas_b[idx]
         ok = ((left[a] - 1 >= need[a]) | problem.fixed[a]) & ((left[b] - 1 >= need[b]) | problem.fixed[b])
         aw = np.where(ok, aw, -np.inf)
-        worst = int(np.argmax(aw)) if aw.size else 0
-        if not aw.size or aw[worst] <= t.critical_value:
+        if not aw.size or aw.max() <= t.critical_value:
             break
-        lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
-        same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
-        keep[same] = False
-        removed.extend(int(s) for s in same)
-        n_links += 1
+        blocked = np.zeros(problem.n_anchors, bool)  # anchors of this round's links
+        cap = min(limit - n_links, problem.n_meas if per_round is None else max(int(per_round), 1))
+        taken = 0
+        for worst in np.argsort(-aw, kind="stable"):
+            if taken >= cap or aw[worst] <= t.critical_value:
+                break
+            lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
+            if blocked[lo] or blocked[hi] or not keep[idx[worst]]:
+                continue
+            same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
+            keep[same] = False
+            removed.extend(int(s) for s in same)
+            n_links += 1
+            taken += 1
+            blocked[[lo, hi]] = True
         sub = dataclasses.replace(problem, meas_a=problem.meas_a[keep], meas_b=problem.meas_b[keep],
                                   range_m=problem.range_m[keep])
         res = fit(sub)

@@ -61,6 +61,7 @@ class FieldOptions:
     allow_planar_3d: bool = False
     repair: bool = True
     one_sided: bool = True
+    exclusions_per_round: int | None = 3
     solver_options: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -196,7 +197,8 @@ def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: Bool
 def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], opts: FieldOptions) -> tuple[Any, Any] | None:
     """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular)."""
     try:
-        res, _, tests = exclude_links(problem, fit, max_exclusions=opts.max_exclusions, one_sided=opts.one_sided)
+        res, _, tests = exclude_links(problem, fit, max_exclusions=opts.max_exclusions, one_sided=opts.one_sided,
+                                      per_round=opts.exclusions_per_round)
     except ModelError:
         return None
     return res, tests

@@ -51,13 +51,16 @@ def fit_anchor(problem: RangingProblem, i: int, positions_m: FloatArray, links: 
     best_x, best_rms = x[free].copy(), np.inf
     for s in (start, x[free]):
         y = np.array(s, float)
-        for _ in range(20):
+        for _ in range(20):  # Gauss–Newton on the k × k normal equations (k ≤ 3)
             diff = y - qf
-            r = np.linalg.norm(diff, axis=1)
+            r = np.sqrt(np.einsum("ij,ij->i", diff, diff))
             j = diff / np.maximum(r, 1e-9)[:, None]
-            step, *_ = np.linalg.lstsq(j, dh - r, rcond=None)
+            try:
+                step = np.linalg.solve(j.T @ j, j.T @ (dh - r))
+            except np.linalg.LinAlgError:
+                step, *_ = np.linalg.lstsq(j, dh - r, rcond=None)
             y = y + step
-            if np.linalg.norm(step) < 1e-9:
+            if float(step @ step) < 1e-14:  # 0.1 µm
                 break
         rms = float(np.sqrt(np.mean((np.linalg.norm(y - qf, axis=1) - dh) ** 2)))
         if rms < best_rms:
@@ -145,6 +148,8 @@ def repair_exclusions(problem: RangingProblem, positions_m: FloatArray, excluded
         now = (_judge(problem, ii, positions_m, current, sorted(now_out), one_sided, good_rms_m)
                if len(current) > k_free[i] else [])
         rms_now = min((v[0] for v in now), default=np.inf)
+        if rms_now <= good_rms_m:  # the current choice is consistent (and its dropped links are long): kept
+            continue
         chosen: tuple[float, tuple[int, ...], FloatArray] | None = None
         # leave at least one redundant link, except at an anchor with only two more links than unknowns (4 links
         # for 2 coordinates: two of them NLOS leave no check, and only the sign of the misfits can decide)
@@ -168,8 +173,6 @@ def repair_exclusions(problem: RangingProblem, positions_m: FloatArray, excluded
             here = np.asarray(positions_m, float)[ii]
             chosen = min(valid, key=lambda v: (round(v[0] / good_rms_m, 1), float(np.linalg.norm(v[2] - here))))
             break
-        if rms_now <= good_rms_m:  # the current choice is consistent (and its dropped links are long): kept
-            continue
         if chosen is None or set(chosen[1]) == now_out or not chosen[0] * improvement < rms_now:
             continue
         ex[mine] = False
