@@ -17,7 +17,7 @@ Workloads (issue 3):
   kernel of the same iteration written here without the exchange (pair index arrays, two gathers, two segment sums,
   the batched gain product), n = 10³, 10⁴, 10⁵ (10³, 10⁴ with --quick), on the strip-numbered graphs above; timed
   interleaved, ratio min–median of the per-repeat ratios. The floor's iterates are checked against distnav's.
-  Goal ≤ 1.5×.
+  Goal ≤ 1.5×. Those rows are ``bench_admm_pairs.py`` (its own area, re-run alone).
 """
 
 from __future__ import annotations
@@ -191,7 +191,7 @@ def pair_floor_rows(sizes: tuple[int, ...], rho: float = 3.0, repeat: int = 5) -
 
 
 def run(quick: bool) -> list[dict[str, Any]]:
-    rows: list[dict[str, Any]] = pair_floor_rows((1_000, 10_000) if quick else (1_000, 10_000, 100_000))
+    rows: list[dict[str, Any]] = []  # the per-pair floor rows: bench_admm_pairs.py
     rng = np.random.default_rng(2024)
     n = 200
     g = builders.connected_random_geometric(n, mean_degree=8, rng=rng)

@@ -11,10 +11,16 @@ n = 10³, 10⁴, 10⁵, 10⁶ (10⁶ only without ``--quick``), payloads of 1 an
 * **round with 10 % drops** (item 1) against a bare drop round: draw a numpy random mask over the off-diagonal
   CSR entries, zero them, add their weight to the diagonal entries, one CSR product. Goal ≤ 1.5×.
 * set-up (exchange + mixer, including the RCM) is reported separately, as is the graph build.
+* **peak memory** (item "peak memory, consensus at 10⁶ nodes"): ``mem_consensus.py`` in a fresh process per mode,
+  distnav (builder graph, weights, exchange, mixer, 5 rounds) against the bare arrays of the same run written
+  without distnav (the k-d tree's pairs, one RCM-renumbered CSR matrix, 5 products); the peak resident memory
+  (``VmHWM``) of each process, 10⁶ nodes (10⁵ with ``--quick``). Goal ≤ 1.2×.
 """
 
 from __future__ import annotations
 
+import json
+import subprocess
 import sys
 import time
 from functools import partial
@@ -61,8 +67,24 @@ class BareDropRound:
         return self.W @ x
 
 
+def memory_rows(n: int, payload: int = 1, rounds: int = 5) -> list[dict[str, Any]]:
+    """Peak resident memory of a consensus run, distnav against the bare arrays (one fresh process each)."""
+    script = Path(__file__).resolve().parent / "mem_consensus.py"
+    peak: dict[str, dict[str, Any]] = {}
+    for mode in ("bare", "distnav"):
+        proc = subprocess.run([sys.executable, str(script), mode, str(n), str(payload), str(rounds)],
+                              capture_output=True, text=True, timeout=1800, check=True)
+        peak[mode] = json.loads(proc.stdout.strip().splitlines()[-1])
+    ours, bare = float(peak["distnav"]["end_mb"]), float(peak["bare"]["end_mb"])
+    return [{"name": "peak memory, consensus (process peak resident memory)", "n_nodes": n, "payload_floats": payload,
+             "distnav_mb": ours, "bare_mb": bare, "floor": "bare numpy/scipy arrays of the same run",
+             "ratio": ours / bare, "goal": "≤ 1.2", "meets_goal": bool(ours / bare <= 1.2),
+             "distnav_stages_mb": {k: v for k, v in peak["distnav"].items() if k.endswith("_mb")},
+             "bare_stages_mb": {k: v for k, v in peak["bare"].items() if k.endswith("_mb")}}]
+
+
 def run(quick: bool) -> list[dict[str, Any]]:
-    rows: list[dict[str, Any]] = []
+    rows: list[dict[str, Any]] = memory_rows(100_000 if quick else 1_000_000)
     sizes = [1_000, 10_000, 100_000] if quick else [1_000, 10_000, 100_000, 1_000_000]
     for n in sizes:
         t0 = time.perf_counter()

@@ -5,15 +5,25 @@ Rows: the halo transport alone (persistent ``Neighbor_alltoallv_init`` where the
 consensus round against that collective plus one scipy CSR product of the rank's block; set-up and peak memory per
 rank reported separately (docs/scale.md fits bytes per node and per link from them). The machine has 2 cores:
 more ranks than that are oversubscribed and their ratios say little.
+
+Start-up (launch + import, issue 17 item 4): wall time of ``mpiexec -n R python -m mpi4py -c CODE`` where CODE
+imports what a distnav MPI job needs (the MPI exchange, consensus and ADMM) and meets at a barrier, against an
+empty mpi4py job (import ``mpi4py.MPI``, barrier); interleaved launches, the added seconds as min–median of the
+per-repeat differences. Goal ≤ 0.3 s over the empty job. A third job importing only numpy and scipy.sparse (what
+every distnav run needs) shows how much of that is distnav's own.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import main_for  # noqa: E402
@@ -51,11 +61,55 @@ def _rows(r: dict[str, Any]) -> list[dict[str, Any]]:
     ]
 
 
-def run(quick: bool) -> list[dict[str, Any]]:
+_EMPTY_JOB = "from mpi4py import MPI; MPI.COMM_WORLD.Barrier()"
+_DEPS_JOB = "from mpi4py import MPI; import numpy, scipy.sparse; MPI.COMM_WORLD.Barrier()"
+_DISTNAV_JOB = ("from mpi4py import MPI; from distnav.exchange.mpi import MPIExchange; "
+                "from distnav.algorithms.consensus import average_consensus; from distnav.algorithms.admm import admm; "
+                "MPI.COMM_WORLD.Barrier()")
+
+
+def _launch_seconds(ranks: int, code: str) -> float:
+    mpiexec = Path(sys.executable).parent / "mpiexec"
+    t0 = time.perf_counter()
+    subprocess.run([str(mpiexec), "-n", str(ranks), sys.executable, "-m", "mpi4py", "-c", code], check=True,
+                   stdin=subprocess.DEVNULL, capture_output=True, timeout=120, env=dict(os.environ))
+    return time.perf_counter() - t0
+
+
+def _startup_note(added_min: float, added_median: float, own_median: float) -> str:
+    return (f"added {added_min:.2f}–{added_median:.2f} s (min–median), of which numpy + scipy.sparse leave "
+            f"{own_median:.2f} s to distnav")
+
+
+def startup_rows(ranks: tuple[int, ...] = (1, 2), repeat: int = 5) -> list[dict[str, Any]]:
+    """MPI start-up of a distnav job against an empty mpi4py job, launched interleaved."""
     rows: list[dict[str, Any]] = []
+    for r in ranks:
+        _launch_seconds(r, _DISTNAV_JOB)  # warm the file cache
+        empty, deps, ours = [], [], []
+        for _ in range(repeat):
+            empty.append(_launch_seconds(r, _EMPTY_JOB))
+            deps.append(_launch_seconds(r, _DEPS_JOB))
+            ours.append(_launch_seconds(r, _DISTNAV_JOB))
+        added = np.asarray(ours) - np.asarray(empty)
+        own = np.asarray(ours) - np.asarray(deps)
+        rows.append({"name": "MPI start-up (launch + import), seconds over an empty mpi4py job", "ranks": r,
+                     "distnav_s": float(np.median(ours)), "bare_setup_s": float(np.median(empty)),
+                     "floor": "empty mpi4py job (import mpi4py.MPI, barrier)",
+                     "added_s_min": float(added.min()), "added_s_median": float(np.median(added)),
+                     "numpy_scipy_sparse_job_s": float(np.median(deps)),
+                     "added_over_numpy_scipy_sparse_s_median": float(np.median(own)),
+                     "ratio": float(np.median(ours) / np.median(empty)), "repeats": repeat,
+                     "note": _startup_note(float(added.min()), float(np.median(added)), float(np.median(own))),
+                     "goal": "≤ 0.3 s added", "meets_goal": bool(np.median(added) <= 0.3)})
+    return rows
+
+
+def run(quick: bool) -> list[dict[str, Any]]:
+    rows: list[dict[str, Any]] = startup_rows((1, 2) if quick else (1, 2, 4))
     cases = [(2, 100_000, 1, 50), (2, 100_000, 10, 30)]
     if not quick:
-        cases += [(4, 100_000, 10, 30), (2, 1_000_000, 1, 10)]  # 10⁶ once: the machine is shared
+        cases += [(4, 100_000, 10, 30), (2, 1_000_000, 1, 30)]  # 10⁶ once: the machine is shared
     for ranks, n, payload, rounds in cases:
         rows += _rows(_launch(ranks, n, payload, rounds))
     if not quick:

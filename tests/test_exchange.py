@@ -291,3 +291,49 @@ def test_mixer_fault_rounds_by_hand_with_every_kind_of_fault():
     assert tot.messages_sent.tolist() == sent.tolist()
     assert tot.messages_received.tolist() == recv.tolist()
     assert tot.bytes_received.tolist() == (recv * 24).tolist()
+
+
+@pytest.mark.parametrize("order", ["none", "rcm"])
+def test_route_rounds_equal_masked_rounds(order):
+    """A prepared route carries the same messages as broadcast/send with the same mask: same values on the route's
+    rows (in the order asked for), same deliveries and dropped messages, same counts."""
+    g = builders.connected_random_geometric(40, mean_degree=5, rng=np.random.default_rng(4))
+    active = np.random.default_rng(5).random(g.n_edges) < 0.6
+    faults = FaultSchedule(drop_probability=0.25, failed_links=((int(g.src[3]), int(g.dst[3]), 2),),
+                           silent_nodes=((7, 3),), seed=11)
+    for fs in (None, faults):
+        plain, prepared = (make_exchange(g, faults=fs, order=order) for _ in range(2))
+        in_rows = np.flatnonzero(active[prepared.in_edges])[::-1].copy()  # any order of the active in-edges
+        out_rows = np.random.default_rng(6).permutation(np.flatnonzero(active[prepared.out_edges]))
+        bro = prepared.route(active, in_rows=in_rows)
+        snd = prepared.route(active, out_rows=out_rows)
+        for k in range(6):
+            x = np.random.default_rng(k).normal(size=(g.n_nodes, 2))
+            ib = plain.broadcast(plain.local(x), active=active)
+            vb, okb = bro.broadcast(prepared.local(x))
+            assert np.array_equal(okb, ib.delivered[in_rows]) and np.array_equal(vb, ib.values[in_rows])
+            edge_vals = np.stack([g.src[plain.out_edges], plain.out_edges + 0.5 * k], axis=1)
+            ie = plain.send(edge_vals, active=active)
+            vs, oks = snd.send(edge_vals[out_rows])
+            assert np.array_equal(oks, ie.delivered[snd.in_rows]) and np.array_equal(vs, ie.values[snd.in_rows])
+            assert np.array_equal(snd.src, g.src[plain.in_edges[snd.in_rows]])
+        if fs is not None:
+            assert not okb.all()  # the fault schedule did drop route messages
+        a, b = plain.comm_totals(), prepared.comm_totals()
+        for name in ("messages_sent", "bytes_sent", "messages_received", "bytes_received", "messages_per_round"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_route_rows_checked():
+    g = star4()
+    ex = make_exchange(g)
+    active = g.src == 0  # hub → leaves
+    with pytest.raises(ExchangeError, match="in_rows must list each of the 3 active in-edge rows"):
+        ex.route(active, in_rows=np.array([0, 0, 1]))
+    with pytest.raises(ExchangeError, match="out_rows must list each of the 3 active out-edge rows"):
+        ex.route(active, out_rows=np.array([0, 1]))
+    r = ex.route(active)
+    with pytest.raises(ExchangeError, match="one row per route out-edge"):
+        r.send(np.zeros((g.n_edges, 1)))
+    with pytest.raises(ExchangeError, match="out must be a contiguous"):
+        r.broadcast(np.zeros((4, 2)), out=np.zeros((3, 3)))

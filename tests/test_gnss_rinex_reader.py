@@ -79,3 +79,32 @@ def test_bad_records_name_the_line(tmp_path: Path) -> None:
     p.write_text("garbage\n")
     with pytest.raises(DataFileError, match="no END OF HEADER"):
         read_observation_types(p, ["C1C"])
+
+
+@pytest.mark.parametrize("types", [["C1", "P1", "P2", "L1", "L2"],
+                                   ["C1", "P1", "P2", "L1", "L2", "S1", "S2", "C2", "C5", "L5"]])
+def test_rinex2_types_stop_at_the_label(tmp_path: Path, types: list[str]) -> None:
+    """5 or 10 RINEX 2 types (a full last line): the header label is not read as an extra type (it was: '# /',
+    and every record of the file was then misaligned by one line per satellite)."""
+    def line(content: str, label: str) -> str:
+        return f"{content:<60}{label}\n"
+
+    rows = [types[i:i + 9] for i in range(0, len(types), 9)]
+    head = line("     2.11           OBSERVATION DATA    G (GPS)", "RINEX VERSION / TYPE")
+    for k, row in enumerate(rows):
+        head += line((f"{len(types):6d}" if k == 0 else " " * 6) + "".join(f"{t:>6}" for t in row),
+                     "# / TYPES OF OBSERV")
+    head += line("", "END OF HEADER")
+    n_lines = (len(types) + 4) // 5
+    rec = ""
+    for base in (21e6, 22e6):                                     # G01, G07
+        vals = [base + 10.0 * j for j in range(len(types))]
+        fields = "".join(f"{v:14.3f}  " for v in vals)
+        rec += "".join(fields[80 * i:80 * (i + 1)] + "\n" for i in range(n_lines))
+    p = tmp_path / "site0100.24o"
+    p.write_text(head + " 24  1 10  0  0  0.0000000  0  2G01G07\n" + rec
+                 + " 24  1 10  0  0 30.0000000  0  2G01G07\n" + rec)
+    o = read_code_observations(p, bands=(1, 2), codes={1: "C1W", 2: "C2W"})
+    assert o.n_epochs == 2 and o.svs[:2] == ("G01", "G07")
+    np.testing.assert_allclose(o.range_m[1][:, 0], 21e6 + 10.0)     # P1 is the 2nd type
+    np.testing.assert_allclose(o.range_m[2][:, 1], 22e6 + 20.0)     # P2 the 3rd

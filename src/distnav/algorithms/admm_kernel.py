@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Literal
 
 import numpy as np
@@ -190,40 +191,46 @@ class _Kernel:
         self.from_c = inC[g.src] & real
         real_in = ex.in_src != nodes[ex.in_dst]
         real_out = ex.out_dst != nodes[ex.out_src]
-        # pairs (i, s), s ≠ i: one per in-edge s→i with s ∈ C (z_s arrives there); u_{i,s} lives here at node i
+        # pairs (i, s), s ≠ i: one per in-edge s→i with s ∈ C (z_s arrives there); u_{i,s} lives here at node i.
+        # Per-pair arrays hold one row per pair in this order (in-edge order: grouped by receiver, senders
+        # ascending), and the two message rounds are prepared routes on these compact arrays.
         self.ip = np.flatnonzero(inC[ex.in_src] & real_in)
         self.pair_dst = ex.in_dst[self.ip]
         n_pairs = self.ip.size
         self.count = np.bincount(self.pair_dst, minlength=nl) + self.inC_loc  # c_i = |N_i ∩ C|
-        # outgoing z_{i,s} on edges i→s, s ∈ C: the multiplier of the pair is stored at the reverse in-edge s→i
-        self.op = np.flatnonzero(inC[ex.out_dst] & real_out)
+        # outgoing z_{i,s} on edges i→s, s ∈ C: the pair's row is that of the reverse in-edge s→i
+        op = np.flatnonzero(inC[ex.out_dst] & real_out)
         lookup = np.full(g.n_edges, -1, dtype=np.int64)
         lookup[ex.in_edges[self.ip]] = np.arange(n_pairs)
-        self.op_pair = lookup[g.reverse_edge[ex.out_edges[self.op]]]
-        if (self.op_pair < 0).any():  # pragma: no cover - guaranteed by symmetric graphs
+        op_pair = lookup[g.reverse_edge[ex.out_edges[op]]]
+        if op.size != n_pairs or (op_pair < 0).any():  # pragma: no cover - guaranteed by symmetric graphs
             raise ModelError("pair edges are not symmetric in this exchange block")
-        self.op_src = ex.out_src[self.op]
-        # outgoing row i→s ← the in-edge row s→i of its pair, or n_in (a zero row) off the pair edges: the send
-        # buffer is one gather (a scatter of the pair rows is several times slower)
-        n_in = ex.in_edges.size
-        self.out_from_in = np.full(ex.out_edges.size, n_in, dtype=np.int64)
-        self.out_from_in[self.op] = self.ip[self.op_pair]
-        self.S_pairs_in = sp.csr_matrix((np.ones(n_pairs), (self.pair_dst, self.ip)), shape=(nl, n_in))
+        send_rows = np.empty(n_pairs, dtype=np.int64)
+        send_rows[op_pair] = op  # the out-edge row of each pair, in pair order: z_{i,s} is sent as it is computed
+        self.z_route = ex.route(self.from_c, in_rows=self.ip)  # step 2: z_s to the pairs (i, s)
+        self.x_route = ex.route(self.to_c, out_rows=send_rows)  # step 1: z_{i,s} to the constraint nodes
+        self.S_pairs = _rows_in_order(self.pair_dst, nl)
         self._u: tuple[np.ndarray, np.ndarray] | None = None
-        # at constraint node s: z_{i,s} arrives on in-edges i→s
-        self.ic = np.flatnonzero(self.inC_loc[ex.in_dst] & real_in)
-        self.S_c_in = sp.csr_matrix((np.ones(self.ic.size), (ex.in_dst[self.ic], self.ic)), shape=(nl, n_in))
-        self.size_s = (np.bincount(ex.in_dst[self.ic], minlength=nl) + 1).astype(float)  # |N_s|
-        self.out_buf = np.zeros((ex.out_edges.size, p))
+        # at constraint node s: z_{i,s} arrives on in-edges i→s (rows of x_route.in_rows); each row of the z-update
+        # sums them in in-edge order (senders ascending), whatever order the route returns them in
+        recv_rows = self.x_route.in_rows
+        self.recv_dst = ex.in_dst[recv_rows]
+        if recv_rows is send_rows:  # in-process: received in pair order; ascending rows are the op order
+            by_edge = op_pair
+        elif recv_rows.size < 2 or bool((recv_rows[1:] > recv_rows[:-1]).all()):
+            by_edge = np.arange(recv_rows.size)
+        else:  # routes return ascending rows or the caller's order; anything else is sorted
+            by_edge = np.argsort(recv_rows, kind="stable")
+        self.S_c = _rows_in_order(self.recv_dst[by_edge], nl, by_edge)
+        self.size_s = (np.bincount(self.recv_dst, minlength=nl) + 1).astype(float)  # |N_s|
         self.w_iso = float(W[0, 0]) if np.array_equal(W, W[0, 0] * np.eye(p)) else None
         self.size_c = self.size_s * self.inC_loc
         self.count_f = self.count.astype(float)
         self.z_weight: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         if z_weight is not None:
-            w_in = np.zeros(n_in)  # on the rows z_{i,s} arrives on (i→s, s ∈ C); never read elsewhere
-            w_in[self.ic] = z_weight[ex.in_src[self.ic]]
+            w_in = z_weight[ex.in_src[recv_rows]]  # on the rows z_{i,s} arrives on (i→s, s ∈ C)
             w_self = z_weight[nodes] * self.inC_loc
-            total = self.S_c_in @ w_in + w_self
+            total = self.S_c @ w_in + w_self
             inv_total = np.divide(1.0, total, out=np.zeros_like(total), where=self.inC_loc)
             self.z_weight = (w_in[:, None], w_self[:, None], inv_total[:, None])
 
@@ -231,79 +238,71 @@ class _Kernel:
             u0: Multipliers | None = None) -> Iterator[AdmmState]:
         """Fig. 6 with per-pair messages from ``x0``, ``z0`` and multipliers ``u0`` (default ``u^[−1] = 0``, §4.3);
         :attr:`multipliers` follows the run (a warm start of a changed problem continues from them)."""
-        ex = self.ex
         cm = self.inC_loc[:, None].astype(float)  # 1 on constraint-node rows
         inv_count = 1.0 / self.count[:, None]
         inv_size = cm / self.size_s[:, None]
         x = x0.copy()
         z = z0 * cm
-        # Per-pair state lives at the pair's in-edge row s→i of the inbox (n_in rows; rows of other in-edges are
-        # never read: the segment sums and the send gather touch pair rows only), so the inboxes are used as they
-        # arrive — no gather of the received values into pair order. Without faults every message on an active edge
-        # arrives and the inbox *is* the held value; with faults a preallocated held buffer takes the delivered rows
-        # in place. Sums run over the same entries in the same order as over pair-ordered arrays (bitwise equal).
-        n_in = ex.in_edges.size
-        u_in = np.zeros((n_in, self.p))
+        # Per-pair state is compact (one row per pair); the routes deliver straight into it. Without faults every
+        # message on a route arrives and the received array *is* the held value; with faults a preallocated held
+        # buffer takes the delivered rows in place. Sums run over the same entries in the same order as over the
+        # full in-edge arrays of before (bitwise equal).
+        n_pairs = self.ip.size
+        u = np.zeros((n_pairs, self.p))
         u_self = np.zeros_like(x)  # u_{s,s}; zero on rows of non-constraint nodes, and stays so
         if u0 is not None:
-            if u0.pairs.shape != (self.ip.size, self.p) or u0.self_pairs.shape != u_self.shape:
+            if u0.pairs.shape != u.shape or u0.self_pairs.shape != u_self.shape:
                 raise ModelError("the multipliers to continue from belong to another exchange block, constraint-"
                                  "node set or parameter count")
-            u_in[self.ip] = u0.pairs
+            u[:] = u0.pairs
             u_self[:] = u0.self_pairs
-        self._u = (u_in, u_self)
-        faulty = ex.faults.active
-        in_dst = ex.in_dst
-        x_in = _take(x, in_dst)  # x_i on every in-edge row: computed once per x-update, used twice
+        self._u = (u, u_self)
+        faulty = self.ex.faults.active
+        x_p = _take(x, self.pair_dst)  # x_i on every pair row: computed once per x-update, used twice
         # until z_s arrives, a node assumes its own x_i^[0]; until z_{i,s} arrives, s assumes its own z_s^[0]
-        held_z = x_in.copy() if faulty else None
-        held_c = _take(z, in_dst) if faulty else None
+        held_z = x_p.copy() if faulty else None
+        held_c = _take(z, self.recv_dst) if faulty else None
+        z_buf = np.empty((n_pairs, self.p))
         # initialization round: constraint nodes send z_s^[0] to their neighbours
-        inbox = ex.broadcast(z, active=self.from_c)
-        z_recv = _held(held_z, inbox.values, inbox.delivered)
-        diff_in = x_in - z_recv
+        z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
+        diff = x_p - z_recv
         diff_self = (x - z) * cm
-        yield self._state(0, x, z, diff_in, diff_self, np.zeros_like(z), u_in, u_self)
+        yield self._state(0, x, z, diff, diff_self, np.zeros_like(z), u, u_self)
         k = 0
-        buf = self.out_buf
-        tmp_ext = np.zeros((n_in + 1, self.p))  # in-edge rows and a zero row for the out-edges off the pairs
-        tmp = tmp_ext[:-1]
+        tmp = np.zeros((n_pairs, self.p))
         while True:
             k += 1
             # step 1: u-update, l, x-update, send z_{i,s} = x_i + u_{i,s} to constraint neighbours
-            u_in += diff_in
+            u += diff
             u_self += diff_self
-            np.subtract(z_recv, u_in, out=tmp)
-            l = self.S_pairs_in @ tmp
+            np.subtract(z_recv, u, out=tmp)
+            l = self.S_pairs @ tmp
             l += z
             l -= u_self
             l *= inv_count
             x = self.x_update(l, x)
-            _take(x, in_dst, out=x_in)
-            np.add(x_in, u_in, out=tmp)
-            _take(tmp_ext, self.out_from_in, out=buf)
-            inbox = ex.send(buf, active=self.to_c)
-            zin_c = _held(held_c, inbox.values, inbox.delivered)
+            _take(x, self.pair_dst, out=x_p)
+            np.add(x_p, u, out=tmp)
+            zin_c = _held(held_c, *self.x_route.send(tmp))
             # step 2: z-update at constraint nodes, broadcast z_s
             if self.z_weight is None:
-                z_new = self.S_c_in @ zin_c
+                z_new = self.S_c @ zin_c
                 z_new += x
                 z_new += u_self
                 z_new *= inv_size
             else:
                 w_in, w_self, inv_total = self.z_weight
-                z_new = self.S_c_in @ (zin_c * w_in)
+                z_new = self.S_c @ (zin_c * w_in)
                 z_new += (x + u_self) * w_self
                 z_new *= inv_total
             dz = z_new - z
             z = z_new
-            inbox = ex.broadcast(z, active=self.from_c)
-            z_recv = _held(held_z, inbox.values, inbox.delivered)
-            np.subtract(x_in, z_recv, out=diff_in)
+            z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
+            np.subtract(x_p, z_recv, out=diff)
             np.subtract(x, z, out=diff_self)
             diff_self *= cm
             if monitor_every and k % monitor_every == 0:
-                yield self._state(k, x, z, diff_in, diff_self, dz, u_in, u_self)
+                yield self._state(k, x, z, diff, diff_self, dz, u, u_self)
             else:
                 yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
 
@@ -312,8 +311,8 @@ class _Kernel:
         """This block's ``u_{i,s}`` (pair order) and ``u_{s,s}`` now (None before :meth:`run` started)."""
         if self._u is None:
             return None
-        u_in, u_self = self._u
-        return Multipliers(_take(u_in, self.ip), u_self.copy())
+        u, u_self = self._u
+        return Multipliers(u.copy(), u_self.copy())
 
     def run_aggregated(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int) -> Iterator[AdmmState]:
         """Fig. 6 with aggregated messages: node ``i`` broadcasts ``x_i`` to its constraint neighbours instead of
@@ -387,6 +386,26 @@ class _Kernel:
             else:
                 yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
 
+    @cached_property
+    def ic(self) -> np.ndarray:
+        """The aggregated form's in-edge rows at constraint nodes (``i→s``, ``s ∈ C``)."""
+        ex = self.ex
+        return np.flatnonzero(self.inC_loc[ex.in_dst] & (ex.in_src != ex.nodes[ex.in_dst]))
+
+    @cached_property
+    def S_c_in(self) -> sp.csr_matrix:
+        """Sum over the in-edges ``i→s`` at each constraint node (full-length inbox, aggregated form)."""
+        ex = self.ex
+        return sp.csr_matrix((np.ones(self.ic.size), (ex.in_dst[self.ic], self.ic)), shape=(ex.n_local,
+                                                                                          ex.in_edges.size))
+
+    @cached_property
+    def S_pairs_in(self) -> sp.csr_matrix:
+        """Sum over the pair in-edges ``s→i`` at each node (full-length inbox, aggregated form)."""
+        ex = self.ex
+        return sp.csr_matrix((np.ones(self.ip.size), (self.pair_dst, self.ip)), shape=(ex.n_local,
+                                                                                     ex.in_edges.size))
+
     def _state_agg(self, k: int, x: np.ndarray, z: np.ndarray, xvals: np.ndarray | None, dz: np.ndarray,
                    U_next: np.ndarray) -> AdmmState:
         assert xvals is not None
@@ -413,19 +432,28 @@ class _Kernel:
     def _times_W(self, a: np.ndarray) -> np.ndarray:
         return a * self.w_iso if self.w_iso is not None else np.einsum("ij,jk->ik", a, self.W)
 
-    def _state(self, k: int, x: np.ndarray, z: np.ndarray, diff_in: np.ndarray, diff_self: np.ndarray,
-               dz: np.ndarray, u_in: np.ndarray, u_self: np.ndarray) -> AdmmState:
+    def _state(self, k: int, x: np.ndarray, z: np.ndarray, diff_pair: np.ndarray, diff_self: np.ndarray,
+               dz: np.ndarray, u: np.ndarray, u_self: np.ndarray) -> AdmmState:
         # einsum, not BLAS: tiny BLAS calls are slow when the BLAS thread pool is contended
-        diff_pair = _take(diff_in, self.ip)
         sums = np.array([
             np.einsum("ij,ij->", diff_pair, diff_pair) + np.einsum("ij,ij->", diff_self, diff_self),
             self._dual_sq(dz),
             np.einsum("i,ij,ij->", self.count_f, x, x),
             np.einsum("i,ij,ij->", self.size_c, z, z),
-            _sq_rows(self._times_W(self.S_pairs_in @ (u_in + diff_in) + u_self + diff_self)),
+            _sq_rows(self._times_W(self.S_pairs @ (u + diff_pair) + u_self + diff_self)),
         ])
         tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
         return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
+
+
+def _rows_in_order(rows: np.ndarray, n_rows: int, columns: np.ndarray | None = None) -> sp.csr_matrix:
+    """0/1 CSR matrix ``(n_rows, len(rows))`` summing entry ``q`` (column ``columns[q]``, default ``q``) into row
+    ``rows[q]``; ``rows`` ascending. Each row keeps its entries in the given order, and a product sums them in it."""
+    cols = np.arange(rows.size, dtype=np.int64) if columns is None else np.asarray(columns, np.int64)
+    ptr = np.zeros(n_rows + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=n_rows), out=ptr[1:])
+    idx = np.int32 if rows.size < 2**31 - 1 else np.int64
+    return sp.csr_matrix((np.ones(rows.size), cols.astype(idx), ptr.astype(idx)), shape=(n_rows, rows.size))
 
 
 def _held(held: np.ndarray | None, values: np.ndarray, delivered: np.ndarray) -> np.ndarray:

@@ -290,6 +290,8 @@ def _run_compare(args: argparse.Namespace) -> int:
         if not _SATELLITE.match(sat.upper()):
             raise ModelError(f"--exclude {sat}: not a GPS satellite (G01 … G32)")
     path = Path(args.estimates)
+    if path.is_dir() and (path / "multiday.json").exists():
+        return _run_compare_days(args, path)
     if (path.is_dir() and (path / "summary.json").exists()) or path.name == "summary.json" or \
             ".bia" in path.name.lower() or ".bsx" in path.name.lower():
         return _run_compare_dsb(args, path)
@@ -310,13 +312,54 @@ def _run_compare(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_compare_dsb(args: argparse.Namespace, path: Path) -> int:
-    """``gnss compare`` of receiver/satellite DSBs (ionosphere output or a Bias-SINEX file) with products."""
-    from distnav.models.gnss.products import compare_in_datum, product_dsbs, read_estimates
+def _run_compare_days(args: argparse.Namespace, path: Path) -> int:
+    """``gnss compare`` of a several-day ``gnss ionosphere`` output: each day's solution against the products of
+    that day (a product whose name tells no day is used for every day)."""
+    from distnav.models.gnss.products import product_day
     from distnav.output import atomic_write_json
 
+    days = sorted(p.name for p in path.iterdir() if p.is_dir() and (p / "summary.json").exists())
+    if not days:
+        raise DataFileError(f"{path}: multiday.json but no day folder with a summary.json")
+    result: dict[str, Any] = {"estimates": str(path), "filter": args.filter, "days": {}}
+    rms: dict[str, list[float]] = {}
+    for day in days:
+        bias = [b for b in args.bias if product_day(b) in (None, np.datetime64(day))]
+        print(f"\n=== {day} ===")
+        if not bias:
+            print(f"  no product of {day} among --bias")
+            continue
+        r = _compare_dsb(args, path / day, bias)
+        result["days"][day] = r
+        for name, c in r["products"].items():
+            if c.get("n"):
+                rms.setdefault(name.split()[0], []).append(c["rms_zero_mean_ns"])
+    result["median_rms_zero_mean_ns"] = {k: float(np.median(v)) for k, v in rms.items()}
+    for k, v in rms.items():
+        print(f"{k}: RMS (zero-mean) median over {len(v)} days {np.median(v):.3f} ns "
+              f"(range {min(v):.3f} – {max(v):.3f})")
+    if args.out:
+        atomic_write_json(Path(args.out) / "comparison.json", result)
+        print(f"written {Path(args.out) / 'comparison.json'}")
+    return 0
+
+
+def _run_compare_dsb(args: argparse.Namespace, path: Path) -> int:
+    """``gnss compare`` of receiver/satellite DSBs (ionosphere output or a Bias-SINEX file) with products."""
+    from distnav.output import atomic_write_json
+
+    result = _compare_dsb(args, path, args.bias)
+    if args.out:
+        atomic_write_json(Path(args.out) / "comparison.json", result)
+        print(f"written {Path(args.out) / 'comparison.json'}")
+    return 0
+
+
+def _compare_dsb(args: argparse.Namespace, path: Path, bias: list[str]) -> dict[str, Any]:
+    from distnav.models.gnss.products import compare_in_datum, product_dsbs, read_estimates
+
     est = read_estimates(path, filter_label=args.filter)
-    products = product_dsbs(args.bias, sorted(est.satellite), sorted(est.station), est.obs1, est.obs2)
+    products = product_dsbs(bias, sorted(est.satellite), sorted(est.station), est.obs1, est.obs2)
     result: dict[str, Any] = {"estimates": est.source, "codes": [est.obs1, est.obs2], "filter": args.filter,
                               "products": {}}
     for prod in products:
@@ -337,10 +380,7 @@ def _run_compare_dsb(args: argparse.Namespace, path: Path) -> int:
               f"{r['max_abs_zero_mean_ns']:.3f} ({r['worst']})")
         for sta, d in r.get("receivers", {}).get("difference_ns", {}).items():
             print(f"  receiver {sta}  {d:+8.3f}")
-    if args.out:
-        atomic_write_json(Path(args.out) / "comparison.json", result)
-        print(f"written {Path(args.out) / 'comparison.json'}")
-    return 0
+    return result
 
 
 def _say(args: argparse.Namespace, text: str) -> None:

@@ -43,7 +43,7 @@ from distnav.errors import DataFileError, ModelError
 
 __all__ = ["add_ionosphere_parser", "add_parser", "network_data", "run_ionosphere", "validate_arguments"]
 
-REGIONAL_KM = 500.0
+REGIONAL_KM = 1000.0
 
 
 def _say(args: argparse.Namespace, text: str) -> None:
@@ -64,11 +64,15 @@ def validate_arguments(args: argparse.Namespace) -> None:
         raise ModelError(f"--l1-code {args.l1_code}: not a GPS L1 code (C1C, C1W, C1L, C1X …)")
     if not _LB_CODE.match(args.l2_code.upper()):
         raise ModelError(f"--l2-code {args.l2_code}: not a GPS L2 or L5 code (C2W, C2L, C2X, C5Q, C5X …)")
-    for opt, value in (("--sigma", args.sigma), ("--regional-km", args.regional_km)):
+    for opt, value in (("--sigma", args.sigma), ("--regional-km", args.regional_km), ("--tec-rw", args.tec_rw)):
         if value is not None and not (np.isfinite(value) and value > 0.0):
             raise ModelError(f"{opt} {value:g}: must be a positive number")
     if args.kn < 0:
         raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
+    if args.innovation_test is not None and not 0.0 < args.innovation_test < 0.5:
+        raise ModelError(f"--innovation-test {args.innovation_test:g}: a test level in (0, 0.5), e.g. 0.001")
+    if args.min_satellite_obs < 1:
+        raise ModelError(f"--min-satellite-obs must be ≥ 1, got {args.min_satellite_obs}")
     if args.min_arc < 2:
         raise ModelError(f"--min-arc must be ≥ 2 epochs, got {args.min_arc}")
     if not (np.isfinite(args.gf_threshold) and args.gf_threshold > 0.0):
@@ -93,7 +97,8 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
                  ionosphere: str = "auto", regional_km: float = REGIONAL_KM, sigma_zenith_m: float | None = None,
                  weighting: str = "sin", reference: str | None = None, progress: Any = None,
                  exclude: Sequence[str] = (), levelling: bool = True, min_arc_epochs: int = 10,
-                 gf_threshold_m: float = 0.05, screen: bool = True, c1_corrections: str | None = None) -> Any:
+                 gf_threshold_m: float = 0.05, screen: bool = True, c1_corrections: str | None = None,
+                 tec_rw_m_per_sqrt_s: float | None = None, min_satellite_obs: int | None = None) -> Any:
     """Read the stations, form the geometry-free code on the union of their epochs and build the bias model
     (:func:`distnav.models.gnss.gfnetwork.bias_network_model`). ``exclude``: satellites (``G01``) and stations
     (``BELE``) left out. ``levelling``: carrier-to-code levelling per arc on the full-rate data, then the
@@ -111,7 +116,8 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
     return network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
                                      ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
                                      weighting=weighting, reference=reference, exclude=exclude, levelling=levelling,
-                                     min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen)
+                                     min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen,
+                                     tec_rw_m_per_sqrt_s=tec_rw_m_per_sqrt_s, min_satellite_obs=min_satellite_obs)
 
 
 def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = "C2W",
@@ -119,11 +125,12 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
                               regional_km: float = REGIONAL_KM, sigma_zenith_m: float | None = None,
                               weighting: str = "sin", reference: str | None = None, exclude: Sequence[str] = (),
                               levelling: bool = True, min_arc_epochs: int = 10, gf_threshold_m: float = 0.05,
-                              screen: bool = True) -> Any:
+                              screen: bool = True, tec_rw_m_per_sqrt_s: float | None = None,
+                              min_satellite_obs: int | None = None) -> Any:
     """:func:`network_data` from observations already read (:class:`~distnav.models.gnss.rinex.CodeObservations`
     with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid)."""
     from distnav.models.gnss.gfbias import geometry_free_band_m
-    from distnav.models.gnss.gfnetwork import bias_network_model
+    from distnav.models.gnss.gfnetwork import MIN_SATELLITE_OBS, TEC_RW_M_PER_SQRT_S, bias_network_model
     from distnav.models.gnss.orbits import gps_seconds
 
     band = int(l2_code[1])
@@ -168,7 +175,10 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
     data = bias_network_model(stations, t_all, xyz, gf, svs_all, orbit, band=band, codes=codes, mask_deg=mask_deg,
                               ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
                               weighting=weighting, reference=reference, notes=notes,
-                              paths=[str(o.path) for o in obs])
+                              paths=[str(o.path) for o in obs],
+                              vtec_rw_m_per_sqrt_s=TEC_RW_M_PER_SQRT_S if tec_rw_m_per_sqrt_s is None
+                              else tec_rw_m_per_sqrt_s,
+                              min_satellite_obs=MIN_SATELLITE_OBS if min_satellite_obs is None else min_satellite_obs)
     return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs})
 
 
@@ -218,7 +228,7 @@ C1C_WARNING = ("WARNING: L1 code C1C (RINEX 2 C1). The satellites' C1C-C1W biase
 
 def run_ionosphere(args: argparse.Namespace) -> int:
     """Handler of ``distnav gnss ionosphere``."""
-    from distnav.models.gnss.gfnetwork import run_bias_filters
+    from distnav.models.gnss.gfnetwork import innovation_summary, run_bias_filters, satellite_fit
     from distnav.models.gnss.ionosphere import TEC_NAMES, TECU_L1_M
     from distnav.models.gnss.products import compare_in_datum, product_dsbs
     from distnav.models.gnss.rinex import read_navigation, read_sp3
@@ -252,7 +262,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                         reference=args.reference, progress=progress, exclude=args.exclude or (),
                         levelling=args.levelling == "arc", min_arc_epochs=args.min_arc,
                         gf_threshold_m=args.gf_threshold, screen=not args.no_screening,
-                        c1_corrections=args.c1_corrections)
+                        c1_corrections=args.c1_corrections, tec_rw_m_per_sqrt_s=args.tec_rw,
+                        min_satellite_obs=args.min_satellite_obs)
     if args.c1_corrections:
         l1 = "C1W"
     stations, layout = data.stations, data.layout
@@ -274,7 +285,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                f"estimation basis: receiver {layout.reference}; ionosphere {data.ionosphere}; graph links "
                f"{[(stations[i], stations[j]) for i, j in graph.links]}")
     series, comm = run_bias_filters(data, datum=args.datum, pivot=pivot, reference=args.reference,
-                                    graph=graph, kn=args.kn, exchange=command_exchange(args, graph))
+                                    graph=graph, kn=args.kn, exchange=command_exchange(args, graph),
+                                    innovation_level=args.innovation_test)
     obj = [f"rx:{r}" for r in stations] + list(layout.svs)
     out = Path(args.out)
     buf = io.StringIO()
@@ -358,11 +370,24 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         summary["arcs"] = {sta: lev.arc_summary() for sta, lev in data.levelled.items()}
         summary["screening"] = {sta: lev.screening_summary(data.levelled_svs[sta])
                                 for sta, lev in data.levelled.items()}
+    summary["precision"] = {s.label: s.precision.summary() for s in series if s.precision is not None}
+    if (tests := innovation_summary(series, stations)) is not None:
+        summary["ckf_innovation_tests"] = tests
+    fit = satellite_fit(data, series[0])
+    summary["satellite_fit"] = fit.as_dict()
     fac = series[0].realistic_factor
     post = (finals["central"][0], {k: v * fac for k, v in finals["central"][1].items()})
     summary["bias_sinex"] = str(_write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times))
     atomic_write_json(out / "summary.json", summary)
     _print_summary(stations, comparison, finals)
+    wf = summary["satellite_fit"]["worst_fitting"]
+    if wf is not None:
+        what = summary["satellite_fit"]["statistic"]
+        ratio = wf["ratio_to_median"] or float("nan")
+        tail = (f"it stands out, e.g. an elevation-dependent code bias as SVN49's; --compare-exclude {wf['satellite']} "
+                "leaves it out of the comparison" if ratio > 1.2 else "none stands out")
+        print(f"worst-fitting satellite: {wf['satellite']} ({what} {wf['value']:.3f}, {ratio:.2f}× the median "
+              f"satellite: {tail})")
     c0 = series[0]
     print(f"precision: variance factor {c0.variance_factor or float('nan'):.2f}, lag-1 correlation of the predicted "
           f"residuals {c0.lag1_correlation:.3f}: realistic σ = formal σ × {fac:.2f} (used in distnav_dsb.bia)")
@@ -416,6 +441,12 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
             return rc
         summaries[day] = json.loads((out / day / "summary.json").read_text())
     result = combine_days(summaries)
+    wf = {d: (s.get("satellite_fit") or {}).get("worst_fitting") for d, s in summaries.items()}
+    names = [w["satellite"] for w in wf.values() if w]
+    if names:
+        top = max(sorted(set(names)), key=names.count)
+        result["worst_fitting"] = {"satellite": top, "days": names.count(top), "per_day": wf}
+        print(f"worst-fitting satellite over the days: {top} ({names.count(top)} of {len(summaries)} days)")
     atomic_write_json(out / "multiday.json", result)
     _write_combined_sinex(out / "distnav_dsb_combined.bia", result, summaries)
     rep = result["repeatability_ns"]
@@ -550,6 +581,14 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
                    help="zenith σ of the geometry-free code [m] (default 0.656, paper 003 §5.1)")
     p.add_argument("--weighting", choices=["sin", "euler-goad", "constant"], default="sin",
                    help="elevation weighting (default sin: σ/sin θ)")
+    p.add_argument("--tec-rw", type=float, default=None, metavar="M_PER_SQRT_S",
+                   help="random walk of the vertical L1 delay [m/√s] (gradients 5× per radian; default 0.01, "
+                        "10× paper 003's: docs/ionosphere.md)")
+    p.add_argument("--min-satellite-obs", type=int, default=30, metavar="N",
+                   help="satellites with fewer station-epochs are not estimated (default 30)")
+    p.add_argument("--innovation-test", type=float, default=None, metavar="LEVEL",
+                   help="CKF: each receiver w-tests its own predicted residuals at this level and rejects outliers "
+                        "before the consensus (e.g. 0.001)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_ionosphere)
     parser: argparse.ArgumentParser = p

@@ -34,6 +34,7 @@ import scipy.sparse as sp
 
 from distnav.errors import ExchangeError
 from distnav.exchange.faults import FaultPlan, FaultSchedule
+from distnav.exchange.route import Route
 from distnav.network.graph import Graph
 
 if TYPE_CHECKING:
@@ -120,29 +121,38 @@ def _block_csr(in_dst: np.ndarray, in_src: np.ndarray, in_src_col: np.ndarray, e
     merged in at its place), whatever the column numbering. A row's product then sums its terms in the same order
     on every backend and in every local node order, so results agree bitwise; explicit zeros are left out (as
     scipy's ``+`` does). Needs the incoming edges grouped by receiver with senders ascending (:func:`incoming_edges`);
-    the merge is one linear pass, no sort."""
-    n = nodes.size
+    the merge is one linear pass, no sort, and writes the CSR arrays in place (few edge-sized temporaries)."""
+    n, n_e = nodes.size, in_dst.size
     row_len = np.bincount(in_dst, minlength=n)
-    row_start = np.zeros(n, np.int64)
-    if n > 1:
-        np.cumsum(row_len[:-1], out=row_start[1:])
     below = in_src < nodes[in_dst]  # senders before the diagonal in global order
-    n_below = np.bincount(in_dst, weights=below, minlength=n).astype(np.int64)
-    start = row_start + np.arange(n, dtype=np.int64)  # one diagonal slot per row
-    pos_e = start[in_dst] + (np.arange(in_dst.size, dtype=np.int64) - row_start[in_dst]) + ~below
-    pos_d = start + n_below
-    total = in_dst.size + n
+    # row r holds its row_len[r] edges and one diagonal slot: it starts at row_start[r] + r
+    slot_start = np.zeros(n + 1, np.int64)
+    np.cumsum(row_len + 1, out=slot_start[1:])
+    n_below = np.zeros(n, np.int64)
+    has = row_len > 0
+    if n_e:
+        starts = (slot_start[:-1] - np.arange(n))[has]  # each non-empty row's first edge
+        n_below[has] = np.add.reduceat(below, starts, dtype=np.int64)
+    pos = np.arange(n_e, dtype=np.int64)
+    pos += in_dst
+    pos += ~below  # an edge after the diagonal moves one slot on
+    total = n_e + n
+    idx_dtype = np.int32 if max(n_cols, total) < 2**31 - 1 else np.int64
     data = np.empty(total)
-    cols = np.empty(total, np.int64)
-    rows = np.empty(total, np.int64)
-    data[pos_e], cols[pos_e], rows[pos_e] = edge_w, in_src_col, in_dst
-    data[pos_d], cols[pos_d], rows[pos_d] = self_w, local_col, np.arange(n)
+    cols = np.empty(total, idx_dtype)
+    data[pos], cols[pos] = edge_w, in_src_col
+    del pos, below
+    pos_d = slot_start[:-1] + n_below
+    data[pos_d], cols[pos_d] = self_w, local_col
     keep = data != 0
-    data, cols, rows = data[keep], cols[keep], rows[keep]
-    ptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(rows, minlength=n), out=ptr[1:])
-    idx_dtype = np.int32 if max(n_cols, data.size) < 2**31 - 1 else np.int64
-    return sp.csr_matrix((data, cols.astype(idx_dtype), ptr.astype(idx_dtype)), shape=(n, n_cols))
+    if keep.all():
+        ptr = slot_start
+    else:
+        kept = np.add.reduceat(keep, slot_start[:-1], dtype=np.int64) if n else np.zeros(0, np.int64)
+        data, cols = data[keep], cols[keep]
+        ptr = np.zeros(n + 1, np.int64)
+        np.cumsum(kept, out=ptr[1:])
+    return sp.csr_matrix((data, cols, ptr.astype(idx_dtype)), shape=(n, n_cols))
 
 
 try:  # scipy's own CSR kernels, called without the ``@`` dispatch (≈ 8 µs a call, a fifth of a 10³-node round)
@@ -212,18 +222,17 @@ class Mixer:
                  active: np.ndarray | None) -> None:
         ex = exchange
         self.exchange = ex
-        ew_in = np.asarray(edge_weight, float)[ex.in_edges]
-        act_in = np.ones(ex.in_edges.size, bool) if active is None else np.asarray(active, bool)[ex.in_edges]
-        real_in = ex.in_src != ex.nodes[ex.in_dst]
-        self._act_in = act_in & real_in
-        self._act_out = (np.ones(ex.out_edges.size, bool) if active is None
-                         else np.asarray(active, bool)[ex.out_edges]) & (ex.out_dst != ex.nodes[ex.out_src])
+        self._edge_weight = edge_weight  # kept by reference: the fault rounds' in-edge weights come from it
+        self._act_in = ex._real_in if active is None else np.asarray(active, bool)[ex.in_edges] & ex._real_in
+        self._act_out = ex._real_out if active is None else np.asarray(active, bool)[ex.out_edges] & ex._real_out
         self._active_global = active
-        self._ew_in = np.where(self._act_in, ew_in, 0.0)
         self._self_w = np.asarray(self_weight, float)[ex.nodes]
-        # fused local block of W over [local nodes | halo columns], each row's terms in global sender order
-        self._w_full = _block_csr(ex.in_dst, ex.in_src, ex.in_src_col, self._ew_in, ex.nodes, ex.local_col,
+        # fused local block of W over [local nodes | halo columns], each row's terms in global sender order; the
+        # in-edge weights are kept only where fault rounds need them (an edge-sized array less at 10⁶ nodes)
+        ew_in = self._ew_in if ex.faults.active else self._in_edge_weights()
+        self._w_full = _block_csr(ex.in_dst, ex.in_src, ex.in_src_col, ew_in, ex.nodes, ex.local_col,
                                   self._self_w, ex.n_columns)
+        del ew_in
         self._sent_counts = np.bincount(ex.out_src[self._act_out], minlength=ex.n_local)
         self._recv_counts = np.bincount(ex.in_dst[self._act_in], minlength=ex.n_local)
         self._sent_total = int(self._sent_counts.sum())
@@ -242,16 +251,29 @@ class Mixer:
             out = _csr_product(self._w_full, cols.ravel() if x.ndim == 1 else cols)
             return out.reshape(x.shape)
         # fault round: the same prepared matrix with its data masked in place, lost weight to the self-weight
+        # (the lost messages are a tenth of the edges: counters and lost weight are summed over them alone, in
+        # edge order, which adds the same terms in the same order as a pass over every edge)
         ok = ex._fault_plan.delivered(ex.round_index)
-        delivered = ok & self._act_in
+        lost_e = np.flatnonzero(self._act_in > ok)  # active and not delivered
         sent, sent_total = ex._sent_counts(self._act_out, cache=True)
-        ex._account_faulty(sent, sent_total, delivered, msg_bytes)
+        lost_dst = ex.in_dst[lost_e]
+        ex._account_dropped(sent, sent_total, self._recv_counts, lost_dst, msg_bytes)
         m = self._w_masked
         np.multiply(self._ew_in, ok, out=m.data)
-        lost = np.bincount(ex.in_dst, weights=self._ew_in - m.data, minlength=ex.n_local)
+        lost = np.bincount(lost_dst, weights=self._ew_in[lost_e], minlength=ex.n_local)
         out = _csr_product(m, cols)
         out += (self._self_w + lost)[:, None] * flat
         return out.reshape(x.shape)
+
+    def _in_edge_weights(self) -> np.ndarray:
+        """``w_ij`` on every incoming edge (zero on inactive edges and self-loops)."""
+        w: np.ndarray = np.asarray(self._edge_weight, float)[self.exchange.in_edges]
+        w[~self._act_in] = 0.0
+        return w
+
+    @cached_property
+    def _ew_in(self) -> np.ndarray:
+        return self._in_edge_weights()
 
     @cached_property
     def _w_masked(self) -> sp.csr_matrix:
@@ -278,6 +300,8 @@ class Exchange(ABC):
     """
 
     backend: str = "abstract"
+    #: True where a message on out-edge row ``r`` arrives on in-edge row ``r`` with nothing moved (in-process).
+    _moves_rows_in_place: bool = False
 
     def __init__(self, graph: Graph, faults: FaultSchedule | None = None) -> None:
         self.graph = graph
@@ -398,6 +422,18 @@ class Exchange(ABC):
         self._round_bytes.append(sent_total * msg_bytes)
         self.round_index += 1
 
+    def _account_dropped(self, sent: np.ndarray, sent_total: int, received_all: np.ndarray, lost_dst: np.ndarray,
+                         msg_bytes: int) -> None:
+        """Count a fault round from its lost messages: ``sent`` a reused count array (folded in lazily),
+        ``received_all`` what would arrive without losses, ``lost_dst`` the local receiver of each lost message."""
+        received = received_all - np.bincount(lost_dst, minlength=self.n_local)
+        self.messages_received += received
+        self.bytes_received += received * msg_bytes
+        self._pending.append((sent, None, msg_bytes))
+        self._round_messages.append(sent_total)
+        self._round_bytes.append(sent_total * msg_bytes)
+        self.round_index += 1
+
     def _account(self, sent: np.ndarray, received: np.ndarray, msg_bytes: int, total: int | None = None) -> None:
         """Count one round. With ``total`` given, ``sent``/``received`` are count arrays reused round after round
         (a prepared mixer): they are folded in lazily (:meth:`_flush`), so such a round costs a list append, not
@@ -481,7 +517,8 @@ class Exchange(ABC):
         flat, tail = _flat(x)
         act_out, act_in = self._active_slices(active)
         cols = self._columns(flat, active)
-        return self._finish_round(cols[self.in_src_col], act_out, act_in, tail, flat.shape[1] * flat.itemsize,
+        gathered = np.take(cols, self.in_src_col, axis=0, mode="clip")  # valid indices; "clip" skips a temporary
+        return self._finish_round(gathered, act_out, act_in, tail, flat.shape[1] * flat.itemsize,
                                   owned=True)
 
     def send(self, edge_values: np.ndarray, *, active: np.ndarray | None = None) -> Inbox:
@@ -496,6 +533,13 @@ class Exchange(ABC):
         moved = self._move_edges(flat, active)
         return self._finish_round(moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize,
                                   owned=not np.may_share_memory(moved, x))
+
+    def route(self, active: np.ndarray, *, in_rows: np.ndarray | None = None,
+              out_rows: np.ndarray | None = None) -> Route:
+        """Prepare rounds over the edges of ``active`` on compact arrays (:class:`~distnav.exchange.route.Route`):
+        the same messages, counts and faults as :meth:`broadcast`/:meth:`send` with that mask, without the
+        full-length arrays."""
+        return Route(self, active, in_rows=in_rows, out_rows=out_rows)
 
     def mixer(self, weights: ConsensusWeights, *, active: np.ndarray | None = None) -> Mixer:
         """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph.

@@ -22,6 +22,7 @@ class InProcessExchange(Exchange):
     graph's global edge order when the order is the user's)."""
 
     backend = "inprocess"
+    _moves_rows_in_place = True
 
     def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *,
                  order: str | np.ndarray = "auto") -> None:

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from typing import TypedDict, Unpack
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
@@ -148,6 +147,8 @@ def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator,
         raise GraphError(f"radius must be positive, got {radius}")
     opt = _Points(**points)
     pos = rng.uniform(0.0, opt.size, size=(n, opt.dim))
+    from scipy.spatial import cKDTree  # lazy: scipy.spatial is a third of the import time of the MPI path
+
     pairs = cKDTree(pos).query_pairs(float(radius), output_type="ndarray")
     return Graph.from_links(n, pairs, positions=pos, self_loops=opt.self_loops)
 
@@ -186,6 +187,8 @@ def k_nearest(positions: np.ndarray, k: int, *, self_loops: bool = False) -> Gra
     n = pos.shape[0]
     if not 1 <= k < n:
         raise GraphError(f"k must be in 1..{n - 1} for {n} nodes, got {k}")
+    from scipy.spatial import cKDTree
+
     _, idx = cKDTree(pos).query(pos, k=k + 1)
     src = np.repeat(np.arange(n), k)
     dst = idx[:, 1:].ravel()

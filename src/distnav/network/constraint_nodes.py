@@ -41,7 +41,6 @@ from typing import Any, Literal, TypeAlias
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
@@ -135,6 +134,8 @@ def check_conditions(graph: Graph, nodes: NodeIds, *, literal: bool = False) -> 
     b_rows = np.concatenate([np.arange(k), col_of[src[sel]]])
     b_cols = k + np.concatenate([C, dst[sel]])
     B = sp.csr_matrix((np.ones(b_rows.size), (b_rows, b_cols)), shape=(k + graph.n_nodes, k + graph.n_nodes))
+    from scipy.sparse.csgraph import connected_components  # lazy (import time)
+
     _, labels_all = connected_components(B, directed=False)
     labels = labels_all[:k]
     groups = tuple(tuple(C[labels == g].tolist()) for g in np.unique(labels))

@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from distnav.errors import GraphError
 
@@ -266,6 +265,8 @@ class Graph:
     @cached_property
     def component_labels(self) -> np.ndarray:
         """Connected-component label of every node."""
+        from scipy.sparse.csgraph import connected_components  # lazy (import time)
+
         _, labels = connected_components(self.adjacency(), directed=False)
         return np.asarray(labels)
 

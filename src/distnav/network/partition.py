@@ -27,7 +27,6 @@ import os
 from pathlib import Path
 
 import numpy as np
-from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from distnav.errors import ExchangeError
 from distnav.network.graph import Graph
@@ -44,6 +43,8 @@ def rcm_order(graph: Graph) -> np.ndarray:
     per graph and cached on it)."""
     cached = graph._cache.get("rcm_order")
     if cached is None:
+        from scipy.sparse.csgraph import reverse_cuthill_mckee  # lazy (import time)
+
         cached = np.asarray(reverse_cuthill_mckee(graph.adjacency(), symmetric_mode=True), dtype=np.int64)
         cached.setflags(write=False)
         graph._cache["rcm_order"] = cached

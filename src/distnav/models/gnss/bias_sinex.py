@@ -36,13 +36,9 @@ __all__ = [
 
 
 def _read_text_lines(path: Path) -> list[str]:
-    if not path.exists():
-        raise DataFileError(f"{path}: file not found")
-    try:
-        raw = gzip.open(path, "rb").read() if path.name.lower().endswith(".gz") else path.read_bytes()
-    except (OSError, EOFError) as exc:
-        raise DataFileError(f"{path}: cannot read ({exc})") from None
-    return raw.decode("latin-1").splitlines()
+    from distnav.models.gnss.rinex_obs import read_bytes  # gzip, .Z, bzip2, zip by content
+
+    return read_bytes(path).decode("latin-1").splitlines()
 
 
 @dataclass(frozen=True)

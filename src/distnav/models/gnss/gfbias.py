@@ -36,15 +36,18 @@ import numpy as np
 from distnav.algorithms.kalman import DynamicModel, MeasurementSeries
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, mu
-from distnav.models.gnss.ionosphere import (
-    GRADIENT_RW_STD_M_PER_RAD_SQRT_S,
-    TEC_NAMES,
-    VTEC_RW_STD_M_PER_SQRT_S,
-    series_inputs,
-)
+from distnav.models.gnss.ionosphere import TEC_NAMES, VTEC_RW_STD_M_PER_SQRT_S, series_inputs
 
-__all__ = ["DATUMS", "gf_m_per_dsb_ns", "geometry_free_band_m", "BiasStateLayout", "BiasGeometryFreeSeries",
-           "bias_dynamics", "datum_transform", "in_datum"]
+__all__ = ["DATUMS", "TEC_RW_M_PER_SQRT_S", "gf_m_per_dsb_ns", "geometry_free_band_m", "BiasStateLayout",
+           "BiasGeometryFreeSeries", "bias_dynamics", "datum_transform", "in_datum"]
+
+TEC_RW_M_PER_SQRT_S = 10.0 * VTEC_RW_STD_M_PER_SQRT_S
+"""Default random walk of the vertical L1 delay in the bias model, 0.01 m/√s (gradients: 5× per radian): 10×
+paper 003's 1 mm/√s. With carrier-levelled data weighted by the code's σ (their arc-constant error keeps the
+code's information on the level), 1 mm/√s (0.37 TECU per hour) is far stiffer than the diurnal rise and fall of the TEC
+(5–10 TECU/h at mid-latitudes in the morning, more near the equator): the lag of ν̂ goes into the receiver bias and,
+through the elevation dependence of the mapping function, into the satellite DCBs (6-h sessions several times
+worse than the full day; measured in docs/ionosphere.md, "Why the 6-h sessions got worse")."""
 
 DATUMS = ("zero-mean", "pivot", "receiver")
 """Output datums: zero-mean satellites (IGS products), pivot satellite, reference receiver."""
@@ -129,10 +132,11 @@ class BiasStateLayout:
 
 
 def bias_dynamics(layout: BiasStateLayout, interval_s: float | np.ndarray, *,
-                  vtec_std_m_per_sqrt_s: float = VTEC_RW_STD_M_PER_SQRT_S,
-                  gradient_std_m_per_rad_sqrt_s: float = GRADIENT_RW_STD_M_PER_RAD_SQRT_S) -> DynamicModel:
+                  vtec_std_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
+                  gradient_std_m_per_rad_sqrt_s: float = 5.0 * TEC_RW_M_PER_SQRT_S) -> DynamicModel:
     """Paper 003 eq. (53) for this layout: random walk on the TEC parameters, constant receiver and satellite
-    biases (the same dynamics as :func:`~distnav.models.gnss.ionosphere.ionosphere_dynamics`)."""
+    biases — the form of :func:`~distnav.models.gnss.ionosphere.ionosphere_dynamics`, but by default 10× its
+    random walk (:data:`TEC_RW_M_PER_SQRT_S`: why)."""
     q2 = np.tile([vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s],
                  layout.n_ionospheres) ** 2
     H = np.eye(layout.n_states)[:, :layout.n_tec]

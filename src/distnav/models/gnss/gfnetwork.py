@@ -20,6 +20,7 @@ import numpy as np
 
 from distnav.errors import DataFileError, ModelError
 from distnav.models.gnss.gfbias import (
+    TEC_RW_M_PER_SQRT_S,
     BiasGeometryFreeSeries,
     BiasStateLayout,
     bias_dynamics,
@@ -30,9 +31,13 @@ from distnav.models.gnss.gfbias import (
 from distnav.models.gnss.rinex import CodeObservations
 from distnav.models.gnss.rinex_obs import ProgressCallback
 
-__all__ = ["BiasNetworkData", "DatumSeries", "read_stations", "bias_network_model", "run_bias_filters"]
+__all__ = ["BiasNetworkData", "DatumSeries", "SatelliteFit", "final_dsbs", "innovation_summary", "satellite_fit",
+           "MIN_SATELLITE_OBS", "TEC_RW_M_PER_SQRT_S", "read_stations", "bias_network_model", "run_bias_filters"]
 
 log = logging.getLogger(__name__)
+
+MIN_SATELLITE_OBS = 30
+"""Fewest station-epochs (at the filter's sampling) for a satellite to be estimated."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,9 +95,10 @@ def read_stations(paths: Sequence[str | Path], *, l1_code: str, l2_code: str, tl
 def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray, gf_m: np.ndarray,
                        svs_all: Sequence[str], orbit: Any, *, band: int = 2,
                        codes: dict[str, dict[int, str]] | None = None, mask_deg: float = 10.0,
-                       ionosphere: str = "auto", regional_km: float = 500.0, sigma_zenith_m: float | None = None,
+                       ionosphere: str = "auto", regional_km: float = 1000.0, sigma_zenith_m: float | None = None,
                        weighting: str = "sin", reference: str | None = None, notes: list[str] | None = None,
-                       paths: list[str] | None = None) -> BiasNetworkData:
+                       paths: list[str] | None = None, vtec_rw_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
+                       min_satellite_obs: int = MIN_SATELLITE_OBS) -> BiasNetworkData:
     """The model from undifferenced geometry-free observations ``gf_m`` (T, n, S) [m] (NaN = not observed).
 
     ``sigma_zenith_m`` defaults to the paper's 65.6 cm scaled to the band (√2·30 cm/(μ_b − 1)). The estimation
@@ -100,6 +106,11 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     at the first epoch). Raises :class:`~distnav.errors.ModelError` / :class:`~distnav.errors.DataFileError` when
     the orbit has no position at the epochs, a station keeps no observation above the mask, or the stations
     share no satellite.
+
+    ``vtec_rw_m_per_sqrt_s``: random walk of the vertical delay (the gradients get 5× this per radian), by default
+    10× paper 003's 1 mm/√s — see :data:`TEC_RW_M_PER_SQRT_S`. Satellites with fewer than ``min_satellite_obs``
+    station-epochs are not estimated (a note names them): a satellite seen for a few minutes at low elevation
+    at a session edge has a DCB of several ns σ that would only pull the zero-mean datum.
     """
     from distnav.models.gnss.constants import mu
     from distnav.models.gnss.ionosphere import ionosphere_geometry
@@ -134,7 +145,14 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
                                 f"(or no orbit for the satellites)")
     if n > 1 and not (np.asarray(geo.tracked.any(axis=0)).sum(axis=0) >= 2).any():
         raise ModelError("no satellite is tracked by two or more stations: the stations share no parameter")
-    keep = np.flatnonzero(geo.tracked.any(axis=(0, 1)))
+    n_obs = geo.tracked.sum(axis=(0, 1))
+    few = [svs_all[k] for k in range(S) if 0 < n_obs[k] < min_satellite_obs]
+    if few:
+        notes.append(f"not estimated, fewer than {min_satellite_obs} station-epochs: "
+                     + " ".join(f"{s} ({int(n_obs[svs_all.index(s)])})" for s in few))
+    keep = np.flatnonzero(n_obs >= max(min_satellite_obs, 1))
+    if keep.size < 2:
+        raise ModelError(f"fewer than two satellites with {min_satellite_obs} station-epochs or more")
     svs = tuple(svs_all[k] for k in keep.tolist())
     geo = replace(geo, svs=svs, el_rad=geo.el_rad[:, :, keep], az_rad=geo.az_rad[:, :, keep],
                   tracked=geo.tracked[:, :, keep], coefficients=geo.coefficients[:, :, keep])
@@ -155,7 +173,10 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     series = BiasGeometryFreeSeries(layout, geo.coefficients, sig, obs_m=obs, tracked=geo.tracked,
                                     groups=geo.groups)
     dt = np.concatenate([[np.nan], np.diff(t_all)]) if T > 1 else np.array([30.0])
-    dyn = bias_dynamics(layout, dt if T > 1 else 30.0)
+    if not (np.isfinite(vtec_rw_m_per_sqrt_s) and vtec_rw_m_per_sqrt_s > 0):
+        raise ModelError(f"the TEC random walk must be positive, got {vtec_rw_m_per_sqrt_s} m/√s")
+    dyn = bias_dynamics(layout, dt if T > 1 else 30.0, vtec_std_m_per_sqrt_s=vtec_rw_m_per_sqrt_s,
+                        gradient_std_m_per_rad_sqrt_s=5.0 * vtec_rw_m_per_sqrt_s)
     return BiasNetworkData(stations, dict(codes or {}), band, t_all, geo, layout, series, dyn, mode,
                            np.asarray(xyz, float), obs, sig, notes)
 
@@ -167,7 +188,12 @@ class DatumSeries:
     σ² = 1); ``variance_factor`` σ̂² from the filter's own predicted residuals (``Σ vᵀQ_v⁻¹v / Σ m``, each
     filter on the observations it uses: a local quantity in the CKF too) and the number of them;
     ``lag1_correlation`` ρ of the standardized predicted residuals of the same receiver–satellite pair at
-    consecutive epochs and the inflation ``(1 + ρ)/(1 − ρ)`` it implies for the variance of constant parameters."""
+    consecutive epochs and the inflation ``(1 + ρ)/(1 − ρ)`` it implies for the variance of constant parameters.
+    ``precision``: a :class:`~distnav.algorithms.result.Precision` of the last epoch's DSBs ``[receivers, satellites]``
+    [ns²] in the output datum (one block: the filter's own state), ``variance_factor`` = σ̂²·(1 + ρ)/(1 − ρ) so that
+    ``precision.std(a_posteriori=True)`` is the realistic σ (a departure from the plain σ̂² of the payload: the
+    AR(1) inflation is folded in), ``redundancy`` = predicted residuals − states; ``None`` for the CKF (its
+    covariance comes from the Fig. 7 recursion of one node's view, not a centralized one)."""
 
     label: str
     tec: np.ndarray
@@ -178,6 +204,8 @@ class DatumSeries:
     n_innovations: int = 0
     lag1_correlation: float = 0.0
     correlation_inflation: float = 1.0
+    precision: Any = None
+    innovation_tests: Any = None
 
     @property
     def realistic_factor(self) -> float:
@@ -195,6 +223,8 @@ class _Collector:
         self.zv: np.ndarray | None = None       # (nodes, S) its value
         self.zz = self.zlag = 0.0
         self.T_cache: dict[bytes, np.ndarray] = {}
+        self.last: tuple[np.ndarray, np.ndarray, float] | None = None   # T, P, scale of the last epoch
+        self.n_states = 0
         self.prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.tec = np.full((T, n_tec), np.nan)
         self.tec_std = np.full((T, n_tec), np.nan)
@@ -218,6 +248,9 @@ class _Collector:
         v, s = in_datum(T, x, P)
         self.dsb[t] = -v / scale
         self.dsb_std[t] = s / scale
+        if P is not None:
+            self.last = (T, P, scale)
+            self.n_states = layout.n_states
 
     def innovations(self, t: int, series: BiasGeometryFreeSeries, nodes: np.ndarray, dynamics: Any,
                     x: np.ndarray, est: np.ndarray, P: np.ndarray | None) -> None:
@@ -256,17 +289,146 @@ class _Collector:
 
         vf = variance_factor(self.ssr, self.m) if self.m else None
         rho = min(max(self.zlag / self.zz, 0.0), 0.999) if self.zz > 0 else 0.0
+        precision = None
+        if self.last is not None:
+            from distnav.algorithms.result import Precision
+
+            T, P, scale = self.last
+            bad = ~np.isfinite(T).all(axis=1)
+            Tz = np.where(np.isfinite(T), T, 0.0)
+            cov = Tz @ np.where(np.isfinite(P), P, 0.0) @ Tz.T / scale**2
+            cov[bad] = np.nan
+            cov[:, bad] = np.nan
+            inflation = (1.0 + rho) / (1.0 - rho)
+            precision = Precision(covariance=cov[None], variance_factor=None if vf is None else vf * inflation,
+                                  redundancy=float(self.m - self.n_states), kind="centralized")
         return DatumSeries(self.label, self.tec, self.tec_std, self.dsb, self.dsb_std, vf, self.m, rho,
-                           (1.0 + rho) / (1.0 - rho))
+                           (1.0 + rho) / (1.0 - rho), precision)
+
+
+def final_dsbs(data: BiasNetworkData, s: DatumSeries) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
+    """A filter's last-epoch DSBs [ns]: satellites (estimated ones), receivers, and the realistic σ of every
+    object (``rx:STA`` or the PRN; formal σ × :attr:`DatumSeries.realistic_factor`)."""
+    names = [f"rx:{r}" for r in data.stations] + list(data.layout.svs)
+    sd = dict(zip(names, (s.dsb_std_ns[-1] * s.realistic_factor).tolist(), strict=True))
+    fin = dict(zip(names, s.dsb_ns[-1].tolist(), strict=True))
+    sat = {k: v for k, v in fin.items() if not k.startswith("rx:") and np.isfinite(v)}
+    return sat, {k[3:]: v for k, v in fin.items() if k.startswith("rx:")}, sd
+
+
+@dataclass(frozen=True, eq=False)
+class SatelliteFit:
+    """Per-satellite fit statistics. ``code_rms_m`` (S,): with carrier levelling, the RMS of the code minus the
+    levelled phase within the arcs, weighted to the zenith (``(g_P − g_Φ − offset)·sin θ``), over all stations
+    (each station computes its own sums); ``code_n`` their number. ``rms_m`` / ``rms_w`` (S,): post-fit residuals
+    of the filter's observations with the final biases [m] and weighted (``e/σ``); ``n`` their number.
+
+    The worst-fitting satellite is the one with the largest ``code_rms_m`` when levelled (the levelled code has
+    the phase's shape, so an elevation-dependent code bias like SVN49's shows only in the code minus phase), else
+    the largest ``rms_w``."""
+
+    svs: tuple[str, ...]
+    rms_m: np.ndarray
+    rms_w: np.ndarray
+    n: np.ndarray
+    code_rms_m: np.ndarray | None = None
+    code_n: np.ndarray | None = None
+
+    def worst(self, *, min_residuals: int = 30) -> tuple[str, float] | None:
+        """The worst-fitting satellite and its statistic (among those with ``min_residuals`` or more)."""
+        stat, cnt = ((self.code_rms_m, self.code_n) if self.code_rms_m is not None and self.code_n is not None
+                     else (self.rms_w, self.n))
+        ok = (cnt >= min_residuals) & np.isfinite(stat)
+        if not ok.any():
+            return None
+        k = int(np.argmax(np.where(ok, stat, -np.inf)))
+        return self.svs[k], float(stat[k])
+
+    def as_dict(self) -> dict[str, Any]:
+        w = self.worst()
+        stat = "code_minus_phase_rms_zenith_m" if self.code_rms_m is not None else "postfit_rms_weighted"
+        per: dict[str, Any] = {}
+        for k, s in enumerate(self.svs):
+            row: dict[str, Any] = {"postfit_rms_m": float(self.rms_m[k]), "postfit_rms_weighted": float(self.rms_w[k]),
+                                   "postfit_n": int(self.n[k])}
+            if self.code_rms_m is not None and self.code_n is not None:
+                row.update({"code_minus_phase_rms_zenith_m": float(self.code_rms_m[k]), "code_n": int(self.code_n[k])})
+            per[s] = row
+        med = float(np.nanmedian(self.code_rms_m if self.code_rms_m is not None else self.rms_w))
+        return {"statistic": stat, "median": med,
+                "worst_fitting": None if w is None else {"satellite": w[0], "value": w[1],
+                                                         "ratio_to_median": w[1] / med if med > 0 else None},
+                "per_satellite": per}
+
+
+def satellite_fit(data: BiasNetworkData, final: DatumSeries) -> SatelliteFit:
+    """How well each satellite fits the model with the filter's final biases: per epoch and ionosphere, the TEC
+    parameters re-fitted by weighted least squares to the observations minus the final receiver + satellite
+    biases (datum-free sums ``b_i + b^s``), and the residuals collected per satellite. A satellite whose code
+    bias depends on the elevation (SVN49) fits worst: no constant DCB absorbs it, while the levelled code of the
+    other satellites leaves only the arcs' level errors."""
+    geo, lay = data.geometry, data.layout
+    T, n, S = data.obs_m.shape
+    scale = gf_m_per_dsb_ns(data.band)
+    dsb = final.dsb_ns[-1]
+    b_m = -(dsb[:n, None] + dsb[None, n:]) * scale                       # (n, S) b_i + b^s [m]
+    ok = geo.tracked & np.isfinite(data.obs_m) & np.isfinite(b_m)[None]
+    w = np.where(ok, 1.0 / np.where(ok, data.sigma_m, 1.0) ** 2, 0.0)
+    y = np.where(ok, data.obs_m - np.where(np.isfinite(b_m), b_m, 0.0)[None], 0.0)
+    a = np.where(ok[..., None], geo.coefficients, 0.0)                    # (T, n, S, 3)
+    G = lay.n_ionospheres
+    onehot = np.eye(G)[np.asarray(geo.groups, np.int64)]                   # (n, G)
+    N = np.einsum("ng,tns,tnsk,tnsl->tgkl", onehot, w, a, a)
+    r = np.einsum("ng,tns,tnsk,tns->tgk", onehot, w, a, y)
+    good = np.linalg.det(N) > 1e-12 * np.maximum(np.einsum("tgkk->tg", N), 1e-300) ** 3
+    nu = np.zeros((T, G, 3))
+    if good.any():
+        nu[good] = np.linalg.solve(N[good], r[good][..., None])[..., 0]
+    e = y - np.einsum("tnsk,tnk->tns", a, nu[:, np.asarray(geo.groups, np.int64)])
+    use = ok & good[:, np.asarray(geo.groups, np.int64)][..., None]
+    cnt = use.sum(axis=(0, 1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms_m = np.sqrt(np.where(use, e**2, 0.0).sum(axis=(0, 1)) / cnt)
+        rms_w = np.sqrt(np.where(use, w * e**2, 0.0).sum(axis=(0, 1)) / cnt)
+    code_rms = code_n = None
+    if data.levelled:
+        wss = np.zeros(S)
+        code_n = np.zeros(S, np.int64)
+        for sta, lev in data.levelled.items():
+            if lev.fit_wss is None or lev.fit_n is None:
+                continue
+            own = data.levelled_svs.get(sta, [])
+            for k, sv in enumerate(own):
+                if sv in lay.svs:
+                    wss[lay.svs.index(sv)] += lev.fit_wss[k]
+                    code_n[lay.svs.index(sv)] += lev.fit_n[k]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            code_rms = np.where(code_n > 0, np.sqrt(wss / np.maximum(code_n, 1)), np.nan)
+    return SatelliteFit(tuple(lay.svs), np.where(cnt > 0, rms_m, np.nan), np.where(cnt > 0, rms_w, np.nan), cnt,
+                        code_rms, code_n)
+
+
+def innovation_summary(series: Sequence[DatumSeries], stations: Sequence[str]) -> dict[str, Any] | None:
+    """What the CKF's innovation tests (``run_bias_filters(innovation_level=…)``) tested and removed per station."""
+    it = next((s.innovation_tests for s in series if s.innovation_tests is not None), None)
+    if it is None:
+        return None
+    rm = np.asarray(it.removed, np.int64)
+    return {"level": it.level, "critical_value": it.critical_value,
+            "per_station": {sta: {"tested": int((it.node == i).sum()), "removed": int((it.node[rm] == i).sum())}
+                            for i, sta in enumerate(stations)}}
 
 
 def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: str | None = None,
                      reference: str | None = None, graph: Any = None, kn: int = 4, exchange: Any = None,
-                     local: bool = True) -> tuple[list[DatumSeries], Any]:
+                     local: bool = True, innovation_level: float | None = None) -> tuple[list[DatumSeries], Any]:
     """Central, single-receiver and CKF filters over the network, every epoch S-transformed into ``datum``.
 
     Returns the series (labels ``central``, ``local:STA``, ``ckf:STA``) and the communication totals of the CKF
-    (``None`` without a graph).
+    (``None`` without a graph). ``innovation_level``: in the CKF every receiver tests its own predicted residuals
+    (w-tests at this level with its node-local "bound" precision, :mod:`distnav.algorithms.ckf_qc`) and rejects
+    outliers before its normals enter the consensus; the tests (network-wide
+    :class:`~distnav.algorithms.kalman.InnovationTests`) are on every ``ckf:STA`` series as ``innovation_tests``.
     """
     from distnav.algorithms.ckf import iterate_ckf
     from distnav.algorithms.kalman import iterate_information_filter
@@ -298,8 +460,17 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
 
         ex = exchange if exchange is not None else make_exchange(graph)
         cs = [_Collector(f"ckf:{s}", T, lay.n_tec, q) for s in data.stations]
+        tests = None
+        if innovation_level is not None:
+            from distnav.algorithms.ckf_qc import InnovationCollector
+            from distnav.algorithms.statistics import critical_value
+
+            tests = InnovationCollector(ex, len(data.stations), innovation_level, critical_value(innovation_level))
         for cst in iterate_ckf(data.dynamics, data.series, graph=graph, protocol="P3", rounds=kn, exchange=ex,
-                               monitor=False):
+                               monitor=False, local_precision=None if tests is None else "bound",
+                               test_level=innovation_level):
+            if tests is not None:
+                tests.add(cst.tests)
             x = ex.gather_nodes(cst.estimates)
             est = ex.gather_nodes(cst.estimable)
             P = ex.gather_nodes(cst.covariance) if cst.covariance is not None else None
@@ -307,6 +478,7 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
                 col.innovations(cst.epoch, data.series, np.array([i]), data.dynamics, x[i], est[i],
                                 None if P is None else P[i])
                 col.add(cst.epoch, lay, x[i], est[i], None if P is None else P[i], datum, pivot, reference, scale)
-        out += [col.done() for col in cs]
+        built = tests.build() if tests is not None else None
+        out += [replace(col.done(), precision=None, innovation_tests=built) for col in cs]
         comm = ex.comm_totals()
     return out, comm

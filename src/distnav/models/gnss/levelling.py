@@ -67,7 +67,9 @@ class LevelledStation:
     ``arcs`` their statistics, ``removed`` (T, S) True where the screening removed the code, counts of arc
     starts by reason; ``tests`` the station's w-tests (:class:`~distnav.algorithms.result.ObservationTests`, owner
     ``node``; ``removed`` indexes the tested observations in (epoch, satellite) order; computed by the station on
-    its own data: no messages)."""
+    its own data: no messages); ``fit_wss`` / ``fit_n`` (S,) per satellite the sum of squared weighted residuals
+    ``((g_P − g_Φ − offset)/σ)²`` of the kept levelled observations and their number — the code's misfit within
+    the arcs, where an elevation-dependent code bias (SVN49) shows and which the levelled code hides."""
 
     gf_m: np.ndarray
     arc: np.ndarray
@@ -76,6 +78,8 @@ class LevelledStation:
     starts: dict[str, int]
     dropped_short: int
     tests: ObservationTests | None = None
+    fit_wss: np.ndarray | None = None
+    fit_n: np.ndarray | None = None
 
     def arc_summary(self) -> dict[str, Any]:
         """Counts of arcs, starts by reason, short arcs dropped, median arc length and code RMS."""
@@ -237,6 +241,8 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
     arcs: list[ArcStatistics] = []
     starts: dict[str, int] = {}
     dropped = 0
+    fit_wss = np.zeros(S)
+    fit_n = np.zeros(S, np.int64)
     for s in range(S):
         ok = np.isfinite(gp[:, s]) & np.isfinite(gphi[:, s])
         a, outl, reasons = find_arcs(t, np.where(ok, gphi[:, s], np.nan), np.where(ok, mw[:, s], np.nan),
@@ -260,6 +266,8 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
                 off_sd = float(np.sqrt(1.0 / wts.sum()))
             removed[ep[~keep], s] = True
             out[ep, s] = gphi[ep, s] + off
+            fit_wss[s] += float((((d[keep] - off) / sig[ep, s][keep]) ** 2).sum())
+            fit_n[s] += int(keep.sum())
             arc_id[ep, s] = len(arcs)
             arcs.append(ArcStatistics(svs[s], int(ep[0]), int(ep[-1]), int(ep.size), why, off, off_sd,
                                       float(np.sqrt(np.mean((d[keep] - off) ** 2))), int((~keep).sum())))
@@ -272,4 +280,4 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
     tests = ObservationTests(node=np.full(flat_w.size, node, np.int64), w=flat_w, critical_value=k, level=level,
                              flagged=np.abs(np.nan_to_num(flat_w)) > k,
                              removed=tuple(np.flatnonzero(removed[tested]).tolist()))
-    return LevelledStation(out, arc_id, arcs, removed, starts, dropped, tests)
+    return LevelledStation(out, arc_id, arcs, removed, starts, dropped, tests, fit_wss, fit_n)

@@ -28,7 +28,13 @@ import numpy as np
 from distnav._optional import require
 from distnav.errors import DataFileError
 from distnav.models.gnss.orbits import BroadcastOrbit, SP3Orbit
-from distnav.models.gnss.rinex_obs import ProgressCallback, read_header, read_observation_types
+from distnav.models.gnss.rinex_obs import (
+    COMPRESSED_MAGIC,
+    ProgressCallback,
+    read_bytes,
+    read_header,
+    read_observation_types,
+)
 
 __all__ = [
     "CodeObservations",
@@ -259,10 +265,19 @@ def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3
         p = Path(item)
         if not p.exists():
             raise DataFileError(f"{p}: file not found")
+        with p.open("rb") as fh:
+            magic = fh.read(4)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                ds = gr.load(p)
+                if magic.startswith(COMPRESSED_MAGIC):      # .Z / bzip2 / zip: georinex needs unlzw3 for .Z
+                    import io
+
+                    from georinex.sp3 import load_sp3
+
+                    ds = load_sp3(io.StringIO(read_bytes(p).decode("latin-1")), None)
+                else:
+                    ds = gr.load(p)
         except Exception as exc:
             raise DataFileError(f"{p}: georinex could not read the SP3 file ({type(exc).__name__}: {exc})") from None
         if ds is None or "position" not in getattr(ds, "data_vars", {}):

@@ -16,7 +16,9 @@ flag 6 (cycle-slip records) skipped. Satellite identifiers without a system lett
 from __future__ import annotations
 
 import gzip
+import io
 import logging
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,7 +64,22 @@ class RawObservations:
     lli: dict[str, np.ndarray]
 
 
-def _read_lines(path: Path) -> list[str]:
+COMPRESSED_MAGIC = (b"\x1f\x9d", b"BZh", b"PK\x03\x04")   # Unix compress (.Z), bzip2, zip
+
+
+def _unix_decompress(raw: bytes, path: Path) -> bytes:
+    try:
+        import ncompress  # installed with hatanaka (the gnss extra)
+    except ImportError:
+        raise DataFileError(f"{path}: Unix-compressed (.Z); install the 'ncompress' package "
+                            f"(pip install distnav[gnss])") from None
+    out: bytes = ncompress.decompress(raw)
+    return out
+
+
+def read_bytes(path: Path) -> bytes:
+    """A file's bytes, decompressed by content: gzip, Unix compress (``.Z``, older IGS archives), bzip2, zip (Hatanaka
+    compression is left to the caller)."""
     if not path.exists():
         raise DataFileError(f"{path}: file not found")
     try:
@@ -72,6 +89,27 @@ def _read_lines(path: Path) -> list[str]:
             raw = gzip.decompress(raw)
     except (OSError, EOFError) as exc:
         raise DataFileError(f"{path}: cannot read ({type(exc).__name__}: {exc})") from None
+    if raw.startswith(COMPRESSED_MAGIC):
+        try:
+            if raw[:2] == b"\x1f\x9d":
+                raw = _unix_decompress(raw, path)
+            elif raw[:3] == b"BZh":
+                import bz2
+
+                raw = bz2.decompress(raw)
+            else:
+                with zipfile.ZipFile(io.BytesIO(raw)) as z:
+                    names = z.namelist()
+                    if len(names) != 1:
+                        raise DataFileError(f"{path}: a zip archive of {len(names)} files (one expected)")
+                    raw = z.read(names[0])
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise DataFileError(f"{path}: decompression failed ({type(exc).__name__}: {exc})") from None
+    return raw
+
+
+def _read_lines(path: Path) -> list[str]:
+    raw = read_bytes(path)
     if b"COMPACT RINEX" in raw[:200] or b"CRINEX VERS" in raw[:200]:
         try:
             import hatanaka
@@ -91,6 +129,7 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     version, ftype, receiver, marker, tsys = 0.0, "", "", "", "GPS"
     pos = np.full(3, np.nan)
     r2_types: list[str] = []
+    r2_count = 0
     r3_types: dict[str, list[str]] = {}
     r3_sys = ""
     end = -1
@@ -115,7 +154,10 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
             except ValueError:
                 pos = np.full(3, np.nan)
         elif label == "# / TYPES OF OBSERV":
-            r2_types += [line[10 + 6 * i:16 + 6 * i].strip() for i in range(9)]
+            if line[:6].strip():
+                r2_count = int(line[:6])
+            # 9(4X,A2) in columns 7–60: the label (from column 61) is not a type
+            r2_types += line[6:60].split()
         elif label == "SYS / # / OBS TYPES":
             if line[0] != " ":
                 r3_sys = line[0]
@@ -128,6 +170,8 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     if not version:
         raise DataFileError(f"{path}: no RINEX VERSION / TYPE line")
     types = [t for t in (r3_types.get("G", []) if version >= 3 else r2_types) if t]
+    if version < 3 and r2_count and len(types) > r2_count:
+        types = types[:r2_count]
     return RinexHeader(version, ftype, receiver, marker, pos, tuple(types), tsys, end + 1)
 
 
