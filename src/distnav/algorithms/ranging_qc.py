@@ -106,9 +106,15 @@ def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual:
     # residual variances and w-tests of the range samples
     Jr = J[:n_ranges]
     h = _row_quadratic(Jr, Q)
-    M = np.asarray((J.T @ sp.diags(weight * weight) @ J).toarray())
-    QMQ = Q @ M @ Q
-    q = np.maximum(1.0 - 2.0 * weight[:n_ranges] * h + _row_quadratic(Jr, QMQ), 0.0)
+    # j Q M Q jᵀ (M = JᵀW²J, sparse) of every range row without the dense n³ product Q M Q: z = j Q row by row
+    # (in chunks), then z M zᵀ
+    M = sp.csr_matrix(J.T @ sp.diags(weight * weight) @ J)
+    Jr_csr = sp.csr_matrix(Jr)
+    qmq = np.empty(n_ranges)
+    for lo in range(0, n_ranges, 1024):
+        z = np.asarray(Jr_csr[lo:lo + 1024] @ Q)
+        qmq[lo:lo + 1024] = np.einsum("ij,ij->i", np.asarray((M @ z.T).T), z)
+    q = np.maximum(1.0 - 2.0 * weight[:n_ranges] * h + qmq, 0.0)
     r = residual[:n_ranges]
     std = w_statistics(r, q)
     s = robust_scale(std) if scale == "robust" else 1.0

@@ -41,6 +41,7 @@ __all__ = ["FieldOptions", "FieldSolution", "prepare", "solve_field", "gather_co
 
 RANGE_RECORD_BYTES = 16  # two int32 anchor ids + one float64 range
 POSITION_BYTES = 8
+REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,7 @@ class FieldOptions:
     allow_planar_3d: bool = False
     repair: bool = True
     one_sided: bool = True
-    exclusions_per_round: int | None = 3
+    exclusions_per_round: int | None = 3  # at least; n_anchors // 4 on larger networks
     solver_options: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -154,6 +155,8 @@ def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None
             sub = sub.with_initial(last[-1])
             if key == "LM" and "objective" in kw and "graduated" not in kw:
                 extra["graduated"] = False
+            if key == "LM":  # a warm re-fit: a looser (still sub-µm) stopping rule, fewer iterations
+                extra.update({k: v for k, v in REFIT_TOLERANCES.items() if k not in kw})
         r = csg.solve(sub, key, iterations=opts.iterations, **kw, **extra)
         if r.usable and np.all(np.isfinite(r.estimates)):
             last.append(np.asarray(r.estimates, float))
@@ -197,8 +200,11 @@ def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: Bool
 def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], opts: FieldOptions) -> tuple[Any, Any] | None:
     """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular)."""
     try:
+        per_round = opts.exclusions_per_round
+        if per_round is not None:  # 3 on a 28-anchor plant; grows with the network (1000 anchors: 250 per re-fit)
+            per_round = max(per_round, problem.n_anchors // 4)
         res, _, tests = exclude_links(problem, fit, max_exclusions=opts.max_exclusions, one_sided=opts.one_sided,
-                                      per_round=opts.exclusions_per_round)
+                                      per_round=per_round)
     except ModelError:
         return None
     return res, tests
