@@ -197,6 +197,21 @@ def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: Bool
     return tuple(problem.ids[i] for i in np.flatnonzero(problem.estimated & ((touched & (rms > limit)) | thin)))
 
 
+def all_links_cost(problem: RangingProblem, res: Any, opts: FieldOptions) -> float:
+    """Σ log(1 + (e/s)²) over *every* link, excluded ones too (e in metres with the solution's range offsets,
+    s = ``loss_scale_m``): the Cauchy cost of all the data, the same yardstick for two solutions that excluded
+    different links. A per-anchor repair is kept only if it lowers it (it must explain the ranges better, NLOS
+    ones included at their bounded cost)."""
+    pos = np.asarray(res.estimates, float)
+    e = problem.residuals_m(pos)
+    off = getattr(res, "offsets_m", None)
+    if off is not None and len(off) == 1:
+        e = e + float(off[0])
+    elif off is not None and len(off) == problem.n_anchors:
+        e = e + np.asarray(off)[problem.meas_a] + np.asarray(off)[problem.meas_b]
+    return float(np.sum(np.log1p((e / opts.loss_scale_m) ** 2)))
+
+
 def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], opts: FieldOptions) -> tuple[Any, Any] | None:
     """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular)."""
     try:
@@ -247,6 +262,9 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
                     note += "; per-anchor check: its re-fit gave no link tests, kept the first choice"
                     break
                 res2, t2 = again
+                if res2.usable and all_links_cost(problem, res2, opts) > all_links_cost(problem, res, opts):
+                    note += "; per-anchor check: its re-solve fitted all the ranges worse, kept the first choice"
+                    break
                 if res2.usable:
                     res, excluded = res2, repaired
                     excluded[kept_idx[list(t2.removed)]] = True
