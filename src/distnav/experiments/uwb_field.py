@@ -215,7 +215,8 @@ def _aggregate(rows: list[dict[str, Any]], solvers: list[str]) -> list[dict[str,
         rm = float(np.mean([r["rmse_m"] for r in ok])) if ok else float("nan")
         orc = float(np.mean([r["oracle_rmse_m"] for r in rs]))
         careful = float(np.mean([r["careful_rmse_m"] for r in rs]))
-        not_weak = float(np.nanmean([r["rmse_m_not_weak"] for r in ok])) if ok else float("nan")
+        nw = [r["rmse_m_not_weak"] for r in ok if np.isfinite(r["rmse_m_not_weak"])]
+        not_weak = float(np.mean(nw)) if nw else float("nan")  # halls whose every anchor is weak: left out
         tp, nl = sum(r["tp"] for r in rs), sum(r["nlos"] for r in rs)
         fp, los = sum(r["fp"] for r in rs), sum(r["los"] for r in rs)
         ch, cn = sum(r["cov_hit"] for r in rs), sum(r["cov_n"] for r in rs)
