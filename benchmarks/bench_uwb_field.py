@@ -21,7 +21,7 @@ from scipy.optimize import least_squares
 
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field
-from distnav.models.uwb.hall import simulate_hall
+from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 from distnav.models.uwb.problems import RangingProblem
 
 _REPO = Path(__file__).resolve().parents[1]
@@ -75,10 +75,13 @@ def main() -> None:
             rows.append({"case": "APRIL dataset4, uwb solve incl. reading 21,504 samples", "anchors": 7,
                          "links": s["n_pairs"], "wall_s": w, "cpu_s": c, "status": s["status"],
                          "excluded": s["n_excluded"]})
-    rows.append(_row("hall, 28 anchors (middle)", hall_problem(simulate_hall(np.random.default_rng(1)))[0]))
+    rows.append(_row("hall, 28 anchors (middle), dense", hall_problem(simulate_hall(np.random.default_rng(1)))[0]))
+    for seed in (1, 2, 3):
+        plant = simulate_hall(np.random.default_rng(seed), HallConfig().with_(**PLANT_LIKE))
+        rows.append(_row(f"hall, 28 anchors (middle), plant-like #{seed}", hall_problem(plant)[0]))
     if args.big:
         big = simulate_hall(np.random.default_rng(2), n_anchors=1000, length_m=400.0, width_m=200.0)
-        rows.append(_row("hall, 1000 anchors", hall_problem(big)[0]))
+        rows.append(_row("hall, 1000 anchors (400 m × 200 m), heights held", hall_problem(big)[0]))
     args.out.write_text(json.dumps(rows, indent=2) + "\n")
     print(f"{'case':55s} {'wall s':>8s} {'CPU s':>8s} {'floor CPU s':>12s} {'ratio':>7s}")
     for r in rows:

@@ -168,3 +168,55 @@ def test_validation_of_the_new_options():
         solve_lm(p, objective="metres", sigma_m=0.0)
     with pytest.raises(ModelError, match="unknown loss"):
         solve_lm(p, objective="metres", loss="tukey")
+
+
+class _Scripted:
+    """A stand-in fit for exclude_links: the w of every original link is given; each call reports the kept ones
+    (so the loop's choices can be checked by hand)."""
+
+    def __init__(self, problem, w):
+        self.problem, self.w, self.calls = problem, np.asarray(w, float), 0
+
+    def __call__(self, sub):
+        from types import SimpleNamespace
+
+        from distnav.algorithms.result import ObservationTests
+
+        self.calls += 1
+        pairs = zip(self.problem.meas_a, self.problem.meas_b, strict=True)
+        key = {(int(a), int(b)): k for k, (a, b) in enumerate(pairs)}
+        w = np.array([self.w[key[(int(a), int(b))]] for a, b in zip(sub.meas_a, sub.meas_b, strict=True)])
+        tests = ObservationTests(node=sub.meas_a, w=w, critical_value=3.29, level=0.001, flagged=np.abs(w) > 3.29)
+        return SimpleNamespace(tests=tests, usable=True)
+
+
+def _ring():
+    """8 anchors around 2 known ones, every anchor with ≥ 5 links (2-D): room to exclude."""
+    ids = [f"N{k}" for k in range(8)] + ["K0", "K1"]
+    ang = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    pos = np.vstack([np.column_stack([10 * np.cos(ang), 10 * np.sin(ang)]), [[0.0, 0.0], [3.0, 1.0]]])
+    links = [(i, j) for i in range(10) for j in range(i + 1, 10) if np.linalg.norm(pos[i] - pos[j]) < 16]
+    d = [float(np.linalg.norm(pos[i] - pos[j])) for i, j in links]
+    return build_problem(ids, [(ids[i], ids[j]) for i, j in links], d, fixed={"K0": pos[8], "K1": pos[9]}, dim=2,
+                         truth_m=pos, initial_m=pos)
+
+
+def test_exclusion_rounds_take_links_of_different_anchors_together():
+    p = _ring()
+    pair = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(p.meas_a, p.meas_b, strict=True))}
+    w = np.zeros(p.n_meas)
+    w[pair[(0, 1)]], w[pair[(0, 2)]], w[pair[(4, 5)]] = -9.0, -8.0, -7.0  # two share anchor N0
+    one = _Scripted(p, w)
+    _, _, t1 = exclude_links(p, one)
+    assert list(t1.removed) == [pair[(0, 1)], pair[(0, 2)], pair[(4, 5)]] and one.calls == 4
+    many = _Scripted(p, w)
+    _, _, t2 = exclude_links(p, many, per_round=None)
+    # round 1: N0-N1 and N4-N5 (no common anchor); N0-N2 waits for the re-fit (it shares N0); round 2: N0-N2
+    assert list(t2.removed) == [pair[(0, 1)], pair[(4, 5)], pair[(0, 2)]] and many.calls == 3
+    capped = _Scripted(p, w)
+    _, _, t3 = exclude_links(p, capped, per_round=None, max_exclusions=1)
+    assert list(t3.removed) == [pair[(0, 1)]]
+    short = np.zeros(p.n_meas)
+    short[pair[(4, 5)]] = +9.0  # measured short: never excluded one-sided, excluded two-sided
+    assert exclude_links(p, _Scripted(p, short), one_sided=True)[2].removed == ()
+    assert exclude_links(p, _Scripted(p, short))[2].removed == (pair[(4, 5)],)

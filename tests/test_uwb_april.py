@@ -93,7 +93,7 @@ def test_april_common_offset_matches_a_scipy_fit(shared_data, tmp_path, name):
     # with a common offset the fit is better than without (issue 13: 0.41 → 0.25 m on a centralized fit)
     plain = tmp_path / "plain"
     assert main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
-                 "--truth", str(files / "truth.csv"), "--out", str(plain)]) == 0
+                 "--truth", str(files / "truth.csv"), "--range-offsets", "none", "--out", str(plain)]) == 0
     assert s["rmse_m"] < json.loads((plain / "summary.json").read_text())["rmse_m"]
     sig = [float(got[str(k)]["sx_m"]) for k in ref]
     assert all(0.0 < v < 1.0 for v in sig)
@@ -113,3 +113,18 @@ def test_april_two_known_nodes_are_flagged_ambiguous(shared_data, tmp_path, caps
     assert s["status"] == "ambiguous" and s["geometry"]["issues"][0]["kind"] == "mirror"
     rows = _positions(out / "positions.csv")
     assert {r["status"] for k, r in rows.items() if k not in ("8", "54")} == {"ambiguous"}
+
+
+def test_april_default_estimates_the_common_offset(shared_data, tmp_path):
+    """``--range-offsets auto`` (the default) is the common offset for LM: the same solution as asking for it."""
+    log = _log(shared_data)
+    files = tmp_path / "april"
+    assert main(["uwb", "import-april", str(log), "--out", str(files)]) == 0
+    runs = {}
+    for name, extra in (("default", []), ("common", ["--range-offsets", "common"])):
+        assert main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
+                     "--truth", str(files / "truth.csv"), *extra, "--out", str(tmp_path / name)]) == 0
+        runs[name] = json.loads((tmp_path / name / "summary.json").read_text())
+    assert runs["default"]["range_offsets"] == "common" and len(runs["default"]["offsets_m"]) == 1
+    assert runs["default"]["offsets_m"] == runs["common"]["offsets_m"]
+    assert runs["default"]["rmse_m"] == runs["common"]["rmse_m"]

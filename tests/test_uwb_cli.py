@@ -273,3 +273,23 @@ class _nothing:
 
     def __exit__(self, *exc: object) -> bool:
         return False
+
+
+def test_weak_anchors_are_named_on_the_console_and_in_positions_csv(tmp_path, capsys):
+    """A simulated hall with an anchor on 3 links, one of them NLOS: the solve says which anchors are weak."""
+    import csv
+    import json
+
+    from distnav.models.uwb.hall import simulate_hall
+
+    simulate_hall(np.random.default_rng([0, 105]), known="middle").write(tmp_path / "hall")
+    h = tmp_path / "hall"
+    code = main(["uwb", "solve", "--ranges", str(h / "ranges.csv"), "--known", str(h / "known.csv"),
+                 "--heights", str(h / "heights.csv"), "--out", str(tmp_path / "out")])
+    assert code == 0
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    with (tmp_path / "out" / "positions.csv").open() as f:
+        weak = sorted(r["id"] for r in csv.DictReader(f) if r["status"] == "weak")
+    assert s["status"] == "weakly_determined" and weak and sorted(s["weakly_determined_anchors"]) == weak
+    err = capsys.readouterr().err
+    assert "weakly determined" in err and all(k in err for k in weak)

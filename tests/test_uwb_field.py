@@ -36,11 +36,82 @@ def test_fit_anchor_recovers_the_position_without_the_nlos_link():
 def test_repair_swaps_a_swamped_exclusion_for_the_nlos_link():
     p, _ = _star(bias_on=2)
     wrong = np.array([True, True, False, False])  # the global fit excluded two good links
-    new, notes = repair_exclusions(p, p.truth_m, wrong, np.zeros(4, bool))
+    new, notes, moved = repair_exclusions(p, p.truth_m, wrong, np.zeros(4, bool))
     assert new.tolist() == [False, False, True, False] and len(notes) == 1 and "X-K2" in notes[0]
+    assert set(moved) == {0} and np.allclose(moved[0], p.truth_m[0], atol=1e-6)  # where its own links put it
     right = np.array([False, False, True, False])
-    same, notes = repair_exclusions(p, p.truth_m, right, np.zeros(4, bool))
-    assert same.tolist() == right.tolist() and notes == []
+    same, notes, moved = repair_exclusions(p, p.truth_m, right, np.zeros(4, bool))
+    assert same.tolist() == right.tolist() and notes == [] and moved == {}
+
+
+def _star4(long_on: dict[int, float]):
+    """Anchor X (2-D) and 4 known anchors at hand-picked places; link k in ``long_on`` reads ``long_on[k]`` m long
+    (NLOS)."""
+    known = {"K0": [0.0, 0.0], "K1": [12.0, 1.0], "K2": [11.0, 9.0], "K3": [1.0, 11.0]}
+    x = np.array([4.0, 3.0])
+    r = [float(np.linalg.norm(x - q)) + long_on.get(k, 0.0) for k, q in enumerate(known.values())]
+    pos = np.array([x, *known.values()])
+    return build_problem(["X", *known], [("X", k) for k in known], r, fixed=known, dim=2, truth_m=pos,
+                         initial_m=pos)
+
+
+def test_repair_never_drops_a_link_measured_short():
+    """The one-sided rule (NLOS only lengthens a range). X's true place is (4, 3); K2 and K3 are NLOS, read exactly
+    as if X were at X' = (−3, −4) (on K0's circle, farther from every other known anchor). The current choice
+    (K1 dropped) fits K0, K2, K3 exactly at X', but there K1 reads *short*: impossible for NLOS, so it is replaced
+    by the truth (K2, K3 dropped). Two-sided, the exact fit at X' is kept."""
+    known = {"K0": [0.0, 0.0], "K1": [12.0, 1.0], "K2": [11.0, 9.0], "K3": [1.0, 11.0]}
+    q = np.array(list(known.values()))
+    x, x_wrong = np.array([4.0, 3.0]), np.array([-3.0, -4.0])
+    r = [float(np.linalg.norm((x if k < 2 else x_wrong) - q[k])) for k in range(4)]
+    assert r[2] > np.linalg.norm(x - q[2]) and r[3] > np.linalg.norm(x - q[3])  # K2, K3 read long at the truth
+    pos = np.array([x, *q])
+    p = build_problem(["X", *known], [("X", k) for k in known], r, fixed=known, dim=2, truth_m=pos)
+    est = pos.copy()
+    est[0] = x_wrong
+    current = np.array([False, True, False, False])
+    assert np.linalg.norm(x_wrong - q[1]) - r[1] > 5.0  # at X', K1 reads more than 5 m short
+    new, notes, moved = repair_exclusions(p, est, current, np.zeros(4, bool))
+    assert new.tolist() == [False, False, True, True] and "X-K2" in notes[0] and "X-K3" in notes[0]
+    mirror = np.array([4.0, 3.0]) - 2 * (np.array([4.0, 3.0]) @ np.array([1.0, -12.0])) / 145.0 * np.array(
+        [1.0, -12.0])  # X mirrored through the line K0–K1: K2, K3 read long there too, so it fits as well
+    assert np.allclose(moved[0], x, atol=1e-6) or np.allclose(moved[0], mirror, atol=1e-6)
+    kept, notes, _ = repair_exclusions(p, est, current, np.zeros(4, bool), one_sided=False)
+    assert kept.tolist() == current.tolist() and notes == []
+
+
+def test_repair_leaves_an_undecidable_anchor_alone():
+    """4 links, 2 of them long: two links fit any 2-D position exactly. If more than one pair of kept links puts X
+    where both dropped ones read long, nothing can tell them apart: the exclusions are left as they were."""
+    p = _star4({1: 0.8, 2: 2.0})
+    none = np.zeros(4, bool)
+    flagged = np.ones(4, bool)
+    new, notes, moved = repair_exclusions(p, p.truth_m, none, flagged)
+    for k in range(4):  # no 3 links fit together (so the fewest exclusions are 2, with no redundancy left)
+        assert fit_anchor(p, 0, p.truth_m, [m for m in range(4) if m != k])[1] > 0.15
+    # enumerate the candidates independently: every pair kept, both circle intersections, dropped pair long
+    ok = []
+    q = p.positions_m[1:]
+    for keep in ([0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]):
+        drop = [k for k in range(4) if k not in keep]
+        c0, c1 = q[keep[0]], q[keep[1]]
+        r0, r1 = p.range_m[keep[0]], p.range_m[keep[1]]
+        dd = np.linalg.norm(c1 - c0)
+        if not abs(r0 - r1) <= dd <= r0 + r1:
+            continue
+        a = (r0**2 - r1**2 + dd**2) / (2 * dd)
+        hgt = np.sqrt(max(r0**2 - a**2, 0.0))
+        u = (c1 - c0) / dd
+        for sg in (1, -1):
+            y = c0 + a * u + sg * hgt * np.array([-u[1], u[0]])
+            if all(np.linalg.norm(y - q[k]) - p.range_m[k] < -0.15 for k in drop):
+                ok.append(y)
+    distinct = [y for y in ok if np.linalg.norm(y - ok[0]) > 0.3]
+    if distinct:  # ambiguous: left alone
+        assert new.tolist() == none.tolist() and notes == [] and moved == {}
+    else:  # a single candidate: it is the truth
+        assert len(ok) >= 1 and np.allclose(ok[0], p.truth_m[0], atol=1e-6)
+        assert new.tolist() == [False, True, True, False] and np.allclose(moved[0], p.truth_m[0], atol=1e-6)
 
 
 def test_gather_cost_on_a_chain_is_hand_counted():
@@ -64,10 +135,11 @@ def test_uwb_field_quick_variant_runs(tmp_path):
     mod = load("uwb-field")
     ctx = ExperimentContext(out_dir=tmp_path, quick=True, options={"instances": 1, "solvers": ["LM"]})
     res = mod.run(ctx)
-    rows = {r["placement"]: r for r in res["table"]}
-    assert set(rows) == {"middle", "corner"}
+    rows = {(r["scenario"], r["placement"]): r for r in res["table"]}
+    assert set(rows) == {(s, k) for s in ("dense", "plant") for k in ("middle", "corner")}
     for r in rows.values():
-        assert r["oracle_rmse_m"] < 0.2 and r["recall"] is not None and r["statuses"]
+        assert r["oracle_rmse_m"] < 0.5 and r["recall"] is not None and r["statuses"]
+        assert np.isfinite(r["careful_rmse_m"]) and 0 <= r["not_worse_than_careful"] <= r["instances"]
     assert (tmp_path / "results.json").is_file() and (tmp_path / "table.md").is_file()
 
 
@@ -90,3 +162,72 @@ def test_weak_anchor_when_its_kept_links_still_misfit_or_are_too_few():
     two[7] = True  # Y-K2 excluded too, and Y-K3: Y keeps 3 links = one redundant link only
     two[8] = True
     assert weak_anchors(p, fits, two, none) == ("Y",)
+    # an anchor measured on 3 links only (nothing excluded or flagged) is weak too: one NLOS link moves it unseen
+    three = build_problem(["X", "Y", "Z", *known], links[:3] + links[5:], np.full(13, 5.0), fixed=known, dim=2)
+    assert weak_anchors(three, np.full(13, 0.01), np.zeros(13, bool), np.zeros(13, bool)) == ("X",)
+
+
+def test_careful_fit_reference_is_exact_on_noise_free_ranges_and_robust_to_one_nlos_link():
+    """The experiment's independent scipy reference: noise-free ranges give the truth; one NLOS link on a well
+    connected anchor does not move it (Cauchy)."""
+    from distnav.experiments.uwb_field import careful_fit, hall_problem
+    from distnav.models.uwb.hall import simulate_hall
+
+    h = simulate_hall(np.random.default_rng(5), sigma_m=1e-9, nlos_p1=0.0, multipath_fraction=0.0,
+                      antenna_delay_sd_m=0.0, height_survey_sd_m=0.0)
+    p, _ = hall_problem(h)
+    est = careful_fit(p)
+    assert np.max(np.abs(est - p.truth_m)) < 1e-4
+    deg = np.bincount(np.r_[p.meas_a, p.meas_b], minlength=p.n_anchors)
+    m = int(np.flatnonzero(p.estimated[p.meas_a] & (deg[p.meas_a] >= 8) & (deg[p.meas_b] >= 8))[0])
+    r = p.range_m.copy()
+    r[m] += 1.5
+    est = careful_fit(p.with_ranges(r))
+    assert np.max(np.linalg.norm(est - p.truth_m, axis=1)) < 0.05
+
+
+def test_default_range_offsets_resolve_per_solver():
+    from distnav.models.uwb.field import FieldOptions
+
+    assert FieldOptions().offsets_used == "common"
+    assert FieldOptions(solver="N-CLM").offsets_used == "none"
+    assert FieldOptions(objective="squared").offsets_used == "none"
+    assert FieldOptions(range_offsets="per_anchor").offsets_used == "per_anchor"
+
+
+def test_default_sigma_is_calibrated_on_plant_like_halls_with_antenna_delays():
+    """Monte Carlo check of the default precision: plant-like halls (antenna delays N(0, 3 cm²) per node, NLOS,
+    multipath), known anchors in a corner, heights held. The fraction of estimated coordinates within 2σ of the
+    truth (anchors not reported weak) lies in 0.90–0.98 with the default (common offset); without any offset the
+    σ are too small (the delays are correlated errors the plain model lacks)."""
+    from distnav.experiments.uwb_field import hall_problem
+    from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+    from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+
+    cover: dict[str, list[bool]] = {"auto": [], "none": []}
+    for s in range(4):
+        h = simulate_hall(np.random.default_rng([7, s, 6]), HallConfig().with_(known="corner", **PLANT_LIKE))
+        sub, geo = prepare(hall_problem(h)[0])
+        for k in cover:
+            sol = solve_field(sub, FieldOptions(range_offsets=k), geometry=geo)
+            ok = sub.free & ~np.isin(np.array(sub.ids), list(sol.weak))[:, None]
+            cover[k] += (np.abs(sol.positions_m - sub.truth_m)[ok] <= 2 * sol.sigma_m[ok]).tolist()
+    print({k: np.mean(v) for k, v in cover.items()})
+    assert 0.90 <= np.mean(cover["auto"]) <= 0.98
+    assert np.mean(cover["none"]) < 0.90
+
+
+def test_a_folded_hall_is_not_reported_as_determined():
+    """Plant-like hall (seed [0, 1200], corner): the MDS start is 2 m off, the first robust fit folds and the
+    exclusions make it worse (6.7 m RMSE). The run must not present any anchor as determined."""
+    from distnav.experiments.uwb_field import hall_problem
+    from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+    from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+    from distnav.models.uwb.problems import rmse_m
+
+    h = simulate_hall(np.random.default_rng([0, 1200]), HallConfig().with_(known="corner", **PLANT_LIKE))
+    sub, geo = prepare(hall_problem(h)[0])
+    sol = solve_field(sub, FieldOptions(), geometry=geo)
+    assert rmse_m(sub, sol.positions_m) > 1.0  # still wrong (not fixed) ...
+    assert sol.status == "weakly_determined" and "every anchor reported weak" in sol.message  # ... but says so
+    assert set(sol.weak) == {sub.ids[i] for i in np.flatnonzero(sub.estimated)}

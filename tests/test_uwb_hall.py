@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from distnav.errors import ModelError
-from distnav.models.uwb.hall import HallConfig, simulate_hall
+from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
 
 
@@ -119,3 +119,20 @@ def test_written_files_read_back(tmp_path):
 def test_bad_configuration_is_a_model_error(bad):
     with pytest.raises(ModelError):
         HallConfig(**bad)
+
+
+def test_plant_like_halls_have_the_real_plants_counts():
+    """PLANT_LIKE: about 105 links (7.5 per anchor) and 9 % NLOS over 40 halls (issue 13's real plant: 105 links,
+    9 NLOS), and every anchor keeps at least 4 partners where it has 4 measurable pairs."""
+    halls = _pooled(range(40), **PLANT_LIKE)
+    links = np.array([h.links.shape[0] for h in halls])
+    nlos = np.array([h.nlos.mean() for h in halls])
+    assert 95 <= links.mean() <= 115, links.mean()
+    assert 0.07 <= nlos.mean() <= 0.11, nlos.mean()
+    for h in halls:
+        assert np.bincount(h.links.ravel(), minlength=h.n_anchors).min() >= 4
+    # the rule only adds pairs back: without it, fewer links from the same draws
+    plain = _pooled(range(40), **{**PLANT_LIKE, "min_links": 0})
+    assert all(a.links.shape[0] >= b.links.shape[0] for a, b in zip(halls, plain, strict=True))
+    with pytest.raises(ModelError, match="min_links"):
+        HallConfig(min_links=-1)

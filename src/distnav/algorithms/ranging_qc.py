@@ -106,9 +106,15 @@ def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual:
     # residual variances and w-tests of the range samples
     Jr = J[:n_ranges]
     h = _row_quadratic(Jr, Q)
-    M = np.asarray((J.T @ sp.diags(weight * weight) @ J).toarray())
-    QMQ = Q @ M @ Q
-    q = np.maximum(1.0 - 2.0 * weight[:n_ranges] * h + _row_quadratic(Jr, QMQ), 0.0)
+    # j Q M Q jᵀ (M = JᵀW²J, sparse) of every range row without the dense n³ product Q M Q: z = j Q row by row
+    # (in chunks), then z M zᵀ
+    M = sp.csr_matrix(J.T @ sp.diags(weight * weight) @ J)
+    Jr_csr = sp.csr_matrix(Jr)
+    qmq = np.empty(n_ranges)
+    for lo in range(0, n_ranges, 1024):
+        z = np.asarray(Jr_csr[lo:lo + 1024] @ Q)
+        qmq[lo:lo + 1024] = np.einsum("ij,ij->i", np.asarray((M @ z.T).T), z)
+    q = np.maximum(1.0 - 2.0 * weight[:n_ranges] * h + qmq, 0.0)
     r = residual[:n_ranges]
     std = w_statistics(r, q)
     s = robust_scale(std) if scale == "robust" else 1.0
@@ -177,9 +183,20 @@ def _links_left(problem: RangingData, keep: np.ndarray) -> np.ndarray:
 
 
 def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResult], *,
-                  max_exclusions: int | None = None) -> tuple[RangingResult, RangingData, ObservationTests]:
+                  max_exclusions: int | None = None, one_sided: bool = False, per_round: int | None = 1
+                  ) -> tuple[RangingResult, RangingData, ObservationTests]:
     """Iterative exclusion: while a link is flagged, remove the link (all its samples) with the largest |w| whose
     two anchors keep more links than free coordinates (the network stays determined with a check), and re-fit.
+
+    ``one_sided``: only links measured *longer* than the fit (``w < 0``; residual = fitted − measured) are
+    excluded. NLOS and multipath only ever lengthen a UWB range, so a link measured much shorter than the fit
+    is a good link the fit was dragged away from (by NLOS links elsewhere): excluding it would lock in the wrong
+    solution. Such a link stays flagged (and the per-anchor check of :mod:`distnav.models.uwb.local` looks at it).
+
+    ``per_round`` (default 1: Baarda's one at a time): up to that many links per re-fit (``None``: no cap), the
+    flagged ones in order of |w| that share no anchor with a link already taken in that round. An NLOS link
+    inflates the residuals of the other links of its anchors most (swamping), so links of one anchor are
+    removed one per re-fit; links of different anchors together.
 
     ``fit(subproblem)`` solves a problem and returns a result with ``tests`` (LM with QC, or a distributed solver).
     Returns ``(final result, the problem without the excluded links, tests)`` where the tests hold the final
@@ -196,19 +213,28 @@ def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResu
     while res.tests is not None and res.usable and n_links < limit:
         t = res.tests
         idx = np.flatnonzero(keep)
-        aw = np.where(np.isfinite(t.w), np.abs(t.w), -np.inf)
+        aw = np.where(np.isfinite(t.w) & ((t.w < 0) if one_sided else True), np.abs(t.w), -np.inf)
         left = _links_left(problem, keep)
         a, b = problem.meas_a[idx], problem.meas_b[idx]
         ok = ((left[a] - 1 >= need[a]) | problem.fixed[a]) & ((left[b] - 1 >= need[b]) | problem.fixed[b])
         aw = np.where(ok, aw, -np.inf)
-        worst = int(np.argmax(aw)) if aw.size else 0
-        if not aw.size or aw[worst] <= t.critical_value:
+        if not aw.size or aw.max() <= t.critical_value:
             break
-        lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
-        same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
-        keep[same] = False
-        removed.extend(int(s) for s in same)
-        n_links += 1
+        blocked = np.zeros(problem.n_anchors, bool)  # anchors of this round's links
+        cap = min(limit - n_links, problem.n_meas if per_round is None else max(int(per_round), 1))
+        taken = 0
+        for worst in np.argsort(-aw, kind="stable"):
+            if taken >= cap or aw[worst] <= t.critical_value:
+                break
+            lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
+            if blocked[lo] or blocked[hi] or not keep[idx[worst]]:
+                continue
+            same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
+            keep[same] = False
+            removed.extend(int(s) for s in same)
+            n_links += 1
+            taken += 1
+            blocked[[lo, hi]] = True
         sub = dataclasses.replace(problem, meas_a=problem.meas_a[keep], meas_b=problem.meas_b[keep],
                                   range_m=problem.range_m[keep])
         res = fit(sub)

@@ -77,8 +77,9 @@ def register(subparsers: Any) -> None:
                    help="test the links but exclude none (default: exclude the worst link while it fails its "
                         "w-test and the network stays determined, and re-solve)")
     s.add_argument("--level", type=float, default=0.001, help="false-alarm probability of one link test (0.001)")
-    s.add_argument("--range-offsets", default="none", choices=["none", "common", "per_anchor"],
-                   help="estimate a common range offset or per-anchor antenna delays (LM, metres objective)")
+    s.add_argument("--range-offsets", default="auto", choices=["auto", "none", "common", "per_anchor"],
+                   help="estimate a common range offset or per-anchor antenna delays (LM, metres objective); "
+                        "auto (default): common where LM with the metres objective solves, none otherwise")
     s.add_argument("--offset-prior-sigma-m", type=float, default=0.1,
                    help="prior σ of each per-anchor offset (m, default 0.1)")
     s.add_argument("--allow-planar-3d", action="store_true",
@@ -124,7 +125,7 @@ def _validate(opts: FieldOptions) -> None:
             raise ModelError(f"{name} must be a positive number of metres, got {v}")
     if not 0.0 < opts.level < 0.5:
         raise ModelError(f"--level must lie in (0, 0.5), got {opts.level}")
-    if opts.range_offsets != "none" and (opts.solver.upper() != "LM" or opts.objective != "metres"):
+    if opts.range_offsets not in ("none", "auto") and (opts.solver.upper() != "LM" or opts.objective != "metres"):
         raise ModelError("--range-offsets is estimated by LM with --objective metres")
 
 
@@ -234,7 +235,7 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "n_flagged": int(sol.flagged.sum()),
         "n_excluded": int(sol.excluded.sum()),
         "excluded_links": [[p.ids[p.meas_a[k]], p.ids[p.meas_b[k]]] for k in np.flatnonzero(sol.excluded)],
-        "range_offsets": opts.range_offsets,
+        "range_offsets": opts.offsets_used,
         "offsets_m": None if offsets is None else np.asarray(offsets).tolist(),
         "offsets_std_m": None if offsets_std is None else np.asarray(offsets_std).tolist(),
         "geometry": sol.geometry.as_dict(),
@@ -386,6 +387,10 @@ def _handler(args: argparse.Namespace) -> int:
           f"status {summary['status']}, {summary['n_excluded']} link(s) excluded"
           + (f", range residual RMS {rr:.3f} m" if rr is not None else "")
           + (f", RMSE {rm:.3f} m" if rm is not None else "") + f" -> {out}")
+    if sol.weak:
+        print(f"warning: {len(sol.weak)} anchor(s) weakly determined, their positions may be metres off: "
+              f"{', '.join(sol.weak)} (positions.csv status 'weak'; too few consistent links to tell which are NLOS, "
+              "or at most one redundant link)", file=sys.stderr)
     if sol.status == "ambiguous":
         print(f"error: the solution is ambiguous ({sol.message}); positions written with status 'ambiguous'",
               file=sys.stderr)

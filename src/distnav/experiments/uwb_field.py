@@ -6,11 +6,21 @@ per-node antenna offsets, multipath minority, 5–60 samples per link), solved e
 (median per pair, heights held, geometry checks, MDS start, objective in metres where the solver has it, Cauchy
 loss, link exclusion: :mod:`distnav.models.uwb.field`), with the 4 known anchors in the middle and in a corner.
 
+Two hall **scenarios**: ``dense`` (the :class:`~distnav.models.uwb.hall.HallConfig` defaults: ~130 links, 9.3
+per anchor, 12 % NLOS) and ``plant`` (:data:`~distnav.models.uwb.hall.PLANT_LIKE`: ~105 links, 7.5 per anchor,
+9 % NLOS, every anchor with ≥ 4 partners — the counts of issue 13's real plant).
+
 Per solver: mean RMSE over the estimated anchors, NLOS recall (excluded NLOS links / NLOS links) and false alarms
 (excluded LOS links / LOS links), 2σ coverage of the reported σ per axis (the Monte Carlo check of the
 precision), status counts, messages and bytes. The **oracle** is LM on the same links with the NLOS ones removed
-by the truth (plain least squares, no exclusion). Targets (issue 13): RMSE ≤ 1.15 × the oracle's, recall ≥ 90 %
-with ≤ 5 % false alarms, coverage within 90–98 %. ``--quick``: 1 hall per placement, LM and N-CSG-TBLS (200 it.).
+by the truth (plain least squares, no exclusion, started at the truth: what the LOS links support). The
+**careful fit** is a second, independent reference written here (:func:`careful_fit`, no truth used): the
+"20-line scipy fit" of issue 13 — classical MDS of the horizontal median ranges (shortest paths for missing
+pairs), Procrustes onto the known anchors, then ``scipy.optimize.least_squares`` on the residual in metres,
+linear first and then Cauchy (``f_scale`` 0.3 m). "RMSE without the weak anchors" leaves out the anchors the
+solution itself reports weakly determined (``positions.csv`` status ``weak``). Targets (issue 13): RMSE ≤ 1.15 ×
+the oracle's, recall ≥ 90 % with ≤ 5 % false alarms, coverage within 90–98 %. ``--quick``: 1 hall per scenario and
+placement, LM and N-CSG-TBLS (200 it.).
 """
 
 from __future__ import annotations
@@ -21,12 +31,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.linalg import orthogonal_procrustes
+from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import shortest_path
 
 from distnav.algorithms.csg import SOLVERS
 from distnav.experiments.common import ExperimentContext, pyplot
 from distnav.models.uwb.field import FieldOptions, gather_cost, prepare, solve_field, subset_measurements
 from distnav.models.uwb.geometry import GeometryReport
-from distnav.models.uwb.hall import HallNetwork, simulate_hall
+from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, HallNetwork, simulate_hall
 from distnav.models.uwb.io import RangeLog, combine_ranges
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 from distnav.options import positive_int
@@ -37,6 +51,8 @@ TITLE = "UWB anchors in a simulated industrial hall: NLOS exclusion, precision, 
 TARGETS: dict[str, Any] = {"rmse_ratio_max": 1.15, "recall_min": 0.90, "false_alarm_max": 0.05,
                            "coverage": (0.90, 0.98)}
 PLACEMENTS = ("middle", "corner")
+SCENARIOS: dict[str, dict[str, object]] = {"dense": {}, "plant": dict(PLANT_LIKE)}
+CAREFUL_F_SCALE_M = 0.3
 FIGURE_CAPTIONS = {
     "fig_uwb_field.png": "Simulated industrial halls: mean RMSE of each solver (uwb solve's workflow: metres "
                          "objective, Cauchy loss, NLOS link exclusion) against the oracle that drops the NLOS links "
@@ -69,6 +85,38 @@ def hall_problem(h: HallNetwork, *, heights: bool = True) -> tuple[RangingProble
     nlos = np.array([label.get((p.ids[x], p.ids[y]), label.get((p.ids[y], p.ids[x]), False))
                      for x, y in zip(p.meas_a, p.meas_b, strict=True)])
     return p, nlos
+
+
+def careful_fit(p: RangingProblem, f_scale_m: float = CAREFUL_F_SCALE_M) -> np.ndarray:
+    """Issue 13's "careful centralized scipy fit", written independently of distnav's solvers (module docstring):
+    positions ``(n, 3)`` of a heights-held hall problem (x, y free, z known for every anchor). No truth used."""
+    if np.any(p.free[:, 2]) or not np.array_equal(p.free[:, 0], p.free[:, 1]):
+        raise ValueError("careful_fit takes a problem with every height known (x, y free together)")
+    n, i, j, d = p.n_anchors, p.meas_a, p.meas_b, p.range_m
+    z = p.positions_m[:, 2]
+    dh = np.sqrt(np.maximum(d * d - (z[i] - z[j]) ** 2, 0.0))
+    dist = shortest_path(csr_matrix((np.r_[dh, dh], (np.r_[i, j], np.r_[j, i])), shape=(n, n)), directed=False)
+    dist[~np.isfinite(dist)] = np.max(dist[np.isfinite(dist)])
+    c = np.eye(n) - 1.0 / n
+    val, vec = np.linalg.eigh(-0.5 * c @ dist**2 @ c)
+    xy = vec[:, -2:] * np.sqrt(np.maximum(val[-2:], 0.0))
+    k = np.flatnonzero(p.fixed)
+    rot, _ = orthogonal_procrustes(xy[k] - xy[k].mean(0), p.positions_m[k, :2] - p.positions_m[k, :2].mean(0))
+    xy = (xy - xy[k].mean(0)) @ rot + p.positions_m[k, :2].mean(0)
+    est = ~p.fixed
+
+    def pos(x: np.ndarray) -> np.ndarray:
+        out = p.positions_m.copy()
+        out[est, :2] = x.reshape(-1, 2)
+        return out
+
+    def res(x: np.ndarray) -> np.ndarray:
+        q = pos(x)
+        return np.asarray(np.linalg.norm(q[i] - q[j], axis=1) - d)
+
+    lin = least_squares(res, xy[est].ravel(), method="trf")
+    robust = least_squares(res, lin.x, loss="cauchy", f_scale=f_scale_m, method="trf")
+    return pos(robust.x)
 
 
 def _coverage(sub: RangingProblem, pos: np.ndarray, sigma: np.ndarray) -> tuple[int, int]:
@@ -112,35 +160,26 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         raise ValueError("--instances and --iterations must be ≥ 1")
     rows: list[dict[str, Any]] = []
     example: dict[str, Any] = {}
-    for pi, placement in enumerate(PLACEMENTS):
-        with ctx.progress.task(f"uwb-field: {placement}, {n_inst} hall(s) × {len(solvers)} solver(s) + oracle",
-                               total=n_inst):
-            for inst in range(n_inst):
-                h = simulate_hall(ctx.rng(100 * (pi + 1) + inst), n_anchors=n_anchors, known=placement)
-                p, nlos_full = hall_problem(h)
-                sub, geo = prepare(p)
-                keep = geo.solvable
-                nlos = nlos_full[keep[p.meas_a] & keep[p.meas_b]]
-                oracle = solve_field(subset_measurements(sub, ~nlos), FieldOptions(loss="linear", exclude=False),
-                                     geometry=geo)
-                base = {"placement": placement, "instance": inst, "oracle_rmse_m": rmse_m(sub, oracle.positions_m),
-                        "gather_bytes": gather_cost(sub)["bytes"], "links": sub.n_meas}
-                for s in solvers:
-                    r = _solve(sub, geo, nlos, s, iterations, ctx)
-                    rows.append({**base, "solver": s, **r})
-                if not example and ctx.is_root:
-                    example = {"truth": h.truth_m, "links": np.stack([sub.meas_a, sub.meas_b], 1), "nlos": nlos,
-                               "known": np.flatnonzero(sub.fixed)}
+    for si, (scenario, changes) in enumerate(SCENARIOS.items()):
+        for pi, placement in enumerate(PLACEMENTS):
+            with ctx.progress.task(f"uwb-field: {scenario} {placement}, {n_inst} hall(s) × {len(solvers)} "
+                                   "solver(s) + careful fit + oracle", total=n_inst):
+                for inst in range(n_inst):
+                    cfg = HallConfig().with_(n_anchors=n_anchors, known=placement, **changes)
+                    h = simulate_hall(ctx.rng(1000 * si + 100 * (pi + 1) + inst), cfg)
+                    rows += _instance(ctx, h, scenario, placement, inst, solvers, iterations, example)
     table = _aggregate(rows, solvers)
     results: dict[str, Any] = {
         "settings": {"instances_per_placement": n_inst, "solvers": solvers, "iterations": iterations,
-                     "anchors": n_anchors, "placements": list(PLACEMENTS), "hall": "HallConfig defaults",
+                     "anchors": n_anchors, "placements": list(PLACEMENTS),
+                     "scenarios": {k: dict(v) for k, v in SCENARIOS.items()},
                      "options": "FieldOptions defaults (metres where available, Cauchy 0.3 m, exclusion at 0.001)"},
         "targets": {k: list(v) if isinstance(v, tuple) else v for k, v in TARGETS.items()},
         "table": table,
         "runs": rows,
     }
-    results["headline"] = {f"{r['placement']} {r['solver']}: RMSE / oracle": r["rmse_ratio"] for r in table}
+    results["headline"] = {f"{r['scenario']} {r['placement']} {r['solver']}: RMSE / oracle / careful fit [m]":
+                           [r["rmse_m"], r["oracle_rmse_m"], r["careful_rmse_m"]] for r in table}
     ctx.write_json("results.json", results)
     ctx.write_text("table.md", _table_md(table))
     if ctx.is_root:
@@ -148,42 +187,65 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     return results
 
 
+def _instance(ctx: ExperimentContext, h: HallNetwork, scenario: str, placement: str, inst: int, solvers: list[str],
+              iterations: int, example: dict[str, Any]) -> list[dict[str, Any]]:
+    p, nlos_full = hall_problem(h)
+    sub, geo = prepare(p)
+    keep = geo.solvable
+    nlos = nlos_full[keep[p.meas_a] & keep[p.meas_b]]
+    assert sub.truth_m is not None
+    oracle = solve_field(subset_measurements(sub, ~nlos).with_initial(sub.truth_m),
+                         FieldOptions(loss="linear", exclude=False), geometry=geo)
+    base = {"scenario": scenario, "placement": placement, "instance": inst,
+            "oracle_rmse_m": rmse_m(sub, oracle.positions_m), "careful_rmse_m": rmse_m(sub, careful_fit(sub)),
+            "gather_bytes": gather_cost(sub)["bytes"], "links": sub.n_meas, "nlos_links": int(nlos.sum())}
+    if not example and ctx.is_root:
+        example.update({"truth": h.truth_m, "links": np.stack([sub.meas_a, sub.meas_b], 1), "nlos": nlos,
+                        "known": np.flatnonzero(sub.fixed)})
+    return [{**base, "solver": s, **_solve(sub, geo, nlos, s, iterations, ctx)} for s in solvers]
+
+
 def _aggregate(rows: list[dict[str, Any]], solvers: list[str]) -> list[dict[str, Any]]:
     out = []
-    for placement in PLACEMENTS:
-        for s in solvers:
-            rs = [r for r in rows if r["placement"] == placement and r["solver"] == s]
-            if not rs:
-                continue
-            ok = [r for r in rs if r["status"] != "diverged"]
-            rm = float(np.mean([r["rmse_m"] for r in ok])) if ok else float("nan")
-            orc = float(np.mean([r["oracle_rmse_m"] for r in rs]))
-            tp, nl = sum(r["tp"] for r in rs), sum(r["nlos"] for r in rs)
-            fp, los = sum(r["fp"] for r in rs), sum(r["los"] for r in rs)
-            ch, cn = sum(r["cov_hit"] for r in rs), sum(r["cov_n"] for r in rs)
-            statuses: dict[str, int] = {}
-            for r in rs:
-                statuses[r["status"]] = statuses.get(r["status"], 0) + 1
-            ratio = rm / orc if orc > 0 else float("nan")
-            cov = ch / cn if cn else None
-            out.append({
-                "placement": placement, "solver": s, "instances": len(rs), "rmse_m": rm,
-                "rmse_m_median": float(np.median([r["rmse_m"] for r in ok])) if ok else float("nan"),
-                "rmse_m_not_weak": float(np.nanmean([r["rmse_m_not_weak"] for r in ok])) if ok else float("nan"),
-                "weak_anchors": int(sum(r["weak"] for r in rs)),
-                "oracle_rmse_m": orc, "rmse_ratio": ratio, "recall": tp / nl if nl else None,
-                "false_alarm": fp / los if los else None, "coverage_2sigma": cov, "statuses": statuses,
-                "objective": rs[0]["objective"], "messages": float(np.mean([r["messages"] for r in rs])),
-                "bytes": float(np.mean([r["bytes"] for r in rs])),
-                "gather_bytes": float(np.mean([r["gather_bytes"] for r in rs])),
-                "cpu_s_per_solve": float(np.mean([r["cpu_s"] for r in rs])),
-                "meets": {
-                    "rmse": bool(ratio <= TARGETS["rmse_ratio_max"]),
-                    "recall": bool(nl and tp / nl >= TARGETS["recall_min"]),
-                    "false_alarm": bool(los and fp / los <= TARGETS["false_alarm_max"]),
-                    "coverage": None if cov is None else bool(TARGETS["coverage"][0] <= cov <= TARGETS["coverage"][1]),
-                },
-            })
+    for scenario, placement, s in ((c, p, s) for c in SCENARIOS for p in PLACEMENTS for s in solvers):
+        rs = [r for r in rows if r["scenario"] == scenario and r["placement"] == placement and r["solver"] == s]
+        if not rs:
+            continue
+        ok = [r for r in rs if r["status"] != "diverged"]
+        rm = float(np.mean([r["rmse_m"] for r in ok])) if ok else float("nan")
+        orc = float(np.mean([r["oracle_rmse_m"] for r in rs]))
+        careful = float(np.mean([r["careful_rmse_m"] for r in rs]))
+        nw = [r["rmse_m_not_weak"] for r in ok if np.isfinite(r["rmse_m_not_weak"])]
+        not_weak = float(np.mean(nw)) if nw else float("nan")  # halls whose every anchor is weak: left out
+        tp, nl = sum(r["tp"] for r in rs), sum(r["nlos"] for r in rs)
+        fp, los = sum(r["fp"] for r in rs), sum(r["los"] for r in rs)
+        ch, cn = sum(r["cov_hit"] for r in rs), sum(r["cov_n"] for r in rs)
+        statuses: dict[str, int] = {}
+        for r in rs:
+            statuses[r["status"]] = statuses.get(r["status"], 0) + 1
+        ratio = rm / orc if orc > 0 else float("nan")
+        cov = ch / cn if cn else None
+        out.append({
+            "scenario": scenario, "placement": placement, "solver": s, "instances": len(rs), "rmse_m": rm,
+            "rmse_m_median": float(np.median([r["rmse_m"] for r in ok])) if ok else float("nan"),
+            "rmse_m_not_weak": not_weak, "weak_anchors": int(sum(r["weak"] for r in rs)),
+            "oracle_rmse_m": orc, "rmse_ratio": ratio, "careful_rmse_m": careful,
+            "rmse_vs_careful": rm / careful if careful > 0 else float("nan"),
+            "rmse_ratio_not_weak": not_weak / orc if orc > 0 else float("nan"),
+            "not_worse_than_careful": int(sum(r["rmse_m"] <= r["careful_rmse_m"] + 1e-3 for r in ok)),
+            "recall": tp / nl if nl else None,
+            "false_alarm": fp / los if los else None, "coverage_2sigma": cov, "statuses": statuses,
+            "objective": rs[0]["objective"], "messages": float(np.mean([r["messages"] for r in rs])),
+            "bytes": float(np.mean([r["bytes"] for r in rs])),
+            "gather_bytes": float(np.mean([r["gather_bytes"] for r in rs])),
+            "cpu_s_per_solve": float(np.mean([r["cpu_s"] for r in rs])),
+            "meets": {
+                "rmse": bool(ratio <= TARGETS["rmse_ratio_max"]),
+                "recall": bool(nl and tp / nl >= TARGETS["recall_min"]),
+                "false_alarm": bool(los and fp / los <= TARGETS["false_alarm_max"]),
+                "coverage": None if cov is None else bool(TARGETS["coverage"][0] <= cov <= TARGETS["coverage"][1]),
+            },
+        })
     return out
 
 
@@ -194,12 +256,17 @@ def _fmt(v: Any, spec: str) -> str:
 def _table_md(table: list[dict[str, Any]]) -> str:
     out = ["# uwb-field: simulated industrial halls (targets: RMSE ≤ 1.15 × oracle, recall ≥ 90 %, false alarms "
            "≤ 5 %, 2σ coverage 90–98 %)", "",
-           "| known | solver | objective | RMSE [m] | oracle [m] | ratio | recall | false alarms | 2σ coverage | "
+           "| scenario | known | solver | objective | RMSE [m] | careful scipy fit [m] | halls ≤ careful | "
+           "oracle [m] | "
+           "ratio | ratio without weak | recall | false alarms | 2σ coverage | "
            "statuses | weak anchors | RMSE without them [m] | messages | bytes | gather bytes | CPU s |",
-           "|---" * 16 + "|"]
+           "|---" * 20 + "|"]
     for r in table:
-        out.append(f"| {r['placement']} | {r['solver']} | {r['objective']} | {_fmt(r['rmse_m'], '.3f')} | "
-                   f"{_fmt(r['oracle_rmse_m'], '.3f')} | {_fmt(r['rmse_ratio'], '.2f')} | {_fmt(r['recall'], '.3f')} | "
+        out.append(f"| {r['scenario']} | {r['placement']} | {r['solver']} | {r['objective']} | "
+                   f"{_fmt(r['rmse_m'], '.3f')} | {_fmt(r['careful_rmse_m'], '.3f')} | "
+                   f"{r['not_worse_than_careful']} of {r['instances']} | "
+                   f"{_fmt(r['oracle_rmse_m'], '.3f')} | {_fmt(r['rmse_ratio'], '.2f')} | "
+                   f"{_fmt(r['rmse_ratio_not_weak'], '.2f')} | {_fmt(r['recall'], '.3f')} | "
                    f"{_fmt(r['false_alarm'], '.3f')} | {_fmt(r['coverage_2sigma'], '.3f')} | "
                    f"{', '.join(f'{k} {v}' for k, v in r['statuses'].items())} | {r['weak_anchors']} | "
                    f"{_fmt(r['rmse_m_not_weak'], '.3f')} | {r['messages']:.0f} | "
@@ -211,10 +278,11 @@ def _figure(ctx: ExperimentContext, table: list[dict[str, Any]], example: dict[s
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.8))
     ax = axes[0]
-    labels = [f"{r['solver']}\n{r['placement']}" for r in table]
+    labels = [f"{r['solver']}\n{r['scenario']} {r['placement']}" for r in table]
     x = np.arange(len(table))
-    ax.bar(x - 0.2, [r["rmse_m"] for r in table], 0.4, label="solver (with exclusion)")
-    ax.bar(x + 0.2, [r["oracle_rmse_m"] for r in table], 0.4, label="oracle (NLOS removed by truth)")
+    ax.bar(x - 0.27, [r["rmse_m"] for r in table], 0.27, label="solver (with exclusion)")
+    ax.bar(x, [r["careful_rmse_m"] for r in table], 0.27, label="careful scipy fit (no truth)")
+    ax.bar(x + 0.27, [r["oracle_rmse_m"] for r in table], 0.27, label="oracle (NLOS removed by truth)")
     ax.set_xticks(x, labels, fontsize=7)
     ax.set_yscale("log")
     ax.set_ylabel("mean RMSE [m]")

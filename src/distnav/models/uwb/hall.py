@@ -10,6 +10,11 @@ draw from one seeded :class:`numpy.random.Generator`):
 * **Links**: every pair closer than ``range_limit_m``; a pair is actually measured with probability
   ``1 − link_loss·(d / range_limit_m)²`` (long links drop out), and only if at least ``min_samples`` ranges got
   through.
+* **Installation rule** (``min_links``, default 0 = none): an anchor left with fewer measured partners than
+  ``min_links`` gets its shortest dropped pairs back (an installer moves or adds an anchor that sees too few
+  others); with 28 anchors, ``link_loss = 0.7``, ``nlos_p1 = 0.15`` and ``min_links = 4`` a hall has about 105
+  links (7.5 per anchor) of which 9 % NLOS, the counts of the real 28-anchor plant of issue 13
+  (:data:`PLANT_LIKE`).
 * **Sample counts**: ``attempts`` ranging exchanges per pair, each succeeding with probability
   ``1 − sample_loss·(d / range_limit_m)`` (weaker signal on long links), so long links have fewer samples.
 * **NLOS links** (a shelf, a crane or a pillar in the first Fresnel zone): a measured link is NLOS with
@@ -40,7 +45,7 @@ from distnav.errors import ModelError
 from distnav.models.uwb.problems import select_fixed
 from distnav.typing import BoolArray, FloatArray, IntArray
 
-__all__ = ["HallConfig", "HallNetwork", "simulate_hall", "KNOWN_PLACEMENTS"]
+__all__ = ["HallConfig", "HallNetwork", "simulate_hall", "KNOWN_PLACEMENTS", "PLANT_LIKE"]
 
 KNOWN_PLACEMENTS = ("middle", "corner", "spread")
 
@@ -61,6 +66,7 @@ class HallConfig:
     attempts: int = 60
     sample_loss: float = 0.5
     min_samples: int = 5
+    min_links: int = 0
     sigma_m: float = 0.05
     multipath_fraction: float = 0.03
     multipath_excess_m: float = 0.3
@@ -85,6 +91,8 @@ class HallConfig:
         lo, hi = self.nlos_bias_m
         if not 0 <= lo <= hi:
             raise ModelError(f"HallConfig.nlos_bias_m must be (low, high) with 0 ≤ low ≤ high, got {self.nlos_bias_m}")
+        if self.min_links < 0:
+            raise ModelError(f"HallConfig.min_links must be ≥ 0, got {self.min_links}")
         if self.attempts < 1 or not 1 <= self.min_samples <= self.attempts:
             raise ModelError(f"need attempts ≥ min_samples ≥ 1, got {self.attempts}, {self.min_samples}")
         if self.known not in KNOWN_PLACEMENTS:
@@ -95,6 +103,10 @@ class HallConfig:
     def with_(self, **changes: object) -> HallConfig:
         """A copy with some parameters changed."""
         return replace(self, **changes)  # type: ignore[arg-type]
+
+
+PLANT_LIKE: dict[str, object] = {"link_loss": 0.7, "nlos_p1": 0.15, "min_links": 4}
+""":class:`HallConfig` changes that give the link and NLOS counts of issue 13's real plant (module docstring)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -200,6 +212,22 @@ def _known(cfg: HallConfig, truth: FloatArray) -> IntArray:
     return np.asarray(select_fixed(xy, "M" if cfg.known == "middle" else "C", cfg.n_known), np.int64)
 
 
+def _restore_links(pairs: IntArray, dist: FloatArray, kept: BoolArray, possible: BoolArray, n: int,
+                   min_links: int) -> BoolArray:
+    """``kept`` with the shortest dropped (but measurable) pairs of every anchor below ``min_links`` restored."""
+    kept = kept.copy()
+    for i in range(n):
+        mine = np.flatnonzero((pairs[:, 0] == i) | (pairs[:, 1] == i))
+        have = int(kept[mine].sum())
+        for k in mine[np.argsort(dist[mine])]:
+            if have >= min_links:
+                break
+            if not kept[k] and possible[k]:
+                kept[k] = True
+                have += 1
+    return kept
+
+
 def simulate_hall(rng: np.random.Generator, config: HallConfig | None = None, **changes: object) -> HallNetwork:
     """Draw one hall network (see the module docstring); ``changes`` override fields of ``config``."""
     cfg = (config or HallConfig())
@@ -219,6 +247,8 @@ def simulate_hall(rng: np.random.Generator, config: HallConfig | None = None, **
     kept = rng.random(dist.size) < 1.0 - cfg.link_loss * rel**2
     counts = rng.binomial(cfg.attempts, np.clip(1.0 - cfg.sample_loss * rel, 0.0, 1.0))
     kept &= counts >= cfg.min_samples
+    if cfg.min_links > 0:
+        kept = _restore_links(pairs, dist, kept, counts >= cfg.min_samples, n, cfg.min_links)
     pairs, dist, rel, counts = pairs[kept], dist[kept], rel[kept], counts[kept]
     n_links = dist.size
     p_nlos = cfg.nlos_p0 + (cfg.nlos_p1 - cfg.nlos_p0) * rel

@@ -22,7 +22,12 @@ def classical_mds(dist_m: np.ndarray, dim: int) -> np.ndarray:
     n = d2.shape[0]
     j = np.eye(n) - np.full((n, n), 1.0 / n)
     b = -0.5 * j @ d2 @ j
-    w, v = np.linalg.eigh(b)
+    if n > 300:  # the dim largest eigenpairs only (Lanczos, a fixed start: reproducible); a full eigh is n³
+        from scipy.sparse.linalg import eigsh
+
+        w, v = eigsh(b, k=dim, which="LA", v0=np.random.default_rng(0).standard_normal(n))
+    else:
+        w, v = np.linalg.eigh(b)
     order = np.argsort(w)[::-1][:dim]
     out: np.ndarray = v[:, order] * np.sqrt(np.maximum(w[order], 0.0))
     return out

@@ -51,13 +51,16 @@ def fit_anchor(problem: RangingProblem, i: int, positions_m: FloatArray, links: 
     best_x, best_rms = x[free].copy(), np.inf
     for s in (start, x[free]):
         y = np.array(s, float)
-        for _ in range(20):
+        for _ in range(20):  # Gauss–Newton on the k × k normal equations (k ≤ 3)
             diff = y - qf
-            r = np.linalg.norm(diff, axis=1)
+            r = np.sqrt(np.einsum("ij,ij->i", diff, diff))
             j = diff / np.maximum(r, 1e-9)[:, None]
-            step, *_ = np.linalg.lstsq(j, dh - r, rcond=None)
+            try:
+                step = np.linalg.solve(j.T @ j, j.T @ (dh - r))
+            except np.linalg.LinAlgError:
+                step, *_ = np.linalg.lstsq(j, dh - r, rcond=None)
             y = y + step
-            if np.linalg.norm(step) < 1e-9:
+            if float(step @ step) < 1e-14:  # 0.1 µm
                 break
         rms = float(np.sqrt(np.mean((np.linalg.norm(y - qf, axis=1) - dh) ** 2)))
         if rms < best_rms:
@@ -67,42 +70,115 @@ def fit_anchor(problem: RangingProblem, i: int, positions_m: FloatArray, links: 
     return out, best_rms
 
 
+def _intersections(problem: RangingProblem, i: int, positions_m: FloatArray, links: list[int]) -> list[FloatArray]:
+    """Both positions of anchor ``i`` that fit two links exactly when it has two free coordinates (the two
+    intersection points of the two range circles in its free plane; none if they do not meet)."""
+    p = np.asarray(positions_m, float)
+    free = problem.free[i]
+    if int(free.sum()) != 2 or len(links) != 2:
+        return []
+    other = np.where(problem.meas_a[links] == i, problem.meas_b[links], problem.meas_a[links])
+    q = p[other]
+    dz2 = np.sum((q[:, ~free] - p[i, ~free]) ** 2, axis=1)
+    r = np.sqrt(np.maximum(problem.range_m[links] ** 2 - dz2, 0.0))
+    c0, c1 = q[0, free], q[1, free]
+    base = float(np.linalg.norm(c1 - c0))
+    if base <= 0 or base > r[0] + r[1] or base < abs(r[0] - r[1]):
+        return []
+    along = (r[0] ** 2 - r[1] ** 2 + base**2) / (2.0 * base)
+    half = np.sqrt(max(r[0] ** 2 - along**2, 0.0))
+    u = (c1 - c0) / base
+    mid = c0 + along * u
+    out = []
+    for sgn in (1.0, -1.0):
+        y = p[i].copy()
+        y[free] = mid + sgn * half * np.array([-u[1], u[0]])
+        out.append(y)
+    return out
+
+
+def _candidates(problem: RangingProblem, i: int, positions_m: FloatArray, kept: list[int]) -> list[FloatArray]:
+    k = int(problem.free[i].sum())
+    if len(kept) > k:
+        return [fit_anchor(problem, i, positions_m, kept)[0]]
+    return _intersections(problem, i, positions_m, kept)
+
+
+def _misfit(problem: RangingProblem, i: int, positions_m: FloatArray, at: FloatArray, links: list[int]
+            ) -> FloatArray:
+    """Fitted − measured range of ``links`` of anchor ``i`` placed at ``at`` (the others at ``positions_m``)."""
+    p = np.asarray(positions_m, float)
+    other = np.where(problem.meas_a[links] == i, problem.meas_b[links], problem.meas_a[links])
+    return np.asarray(np.linalg.norm(p[other] - at, axis=1) - problem.range_m[links])
+
+
+def _judge(problem: RangingProblem, i: int, positions_m: FloatArray, kept: list[int], drop: list[int],
+           one_sided: bool, long_m: float) -> list[tuple[float, FloatArray]]:
+    """(RMS on ``kept``, position) of anchor ``i`` at every candidate position whose dropped links are all measured
+    longer than the fit by more than ``long_m`` (with ``one_sided``: NLOS only lengthens a range)."""
+    out = []
+    for at in _candidates(problem, i, positions_m, kept):
+        rms = float(np.sqrt(np.mean(_misfit(problem, i, positions_m, at, kept) ** 2)))
+        if one_sided and drop and np.max(_misfit(problem, i, positions_m, at, drop)) > -long_m:
+            continue  # a dropped link measured shorter than the fit: not an NLOS link
+        out.append((rms, at))
+    return out
+
+
 def repair_exclusions(problem: RangingProblem, positions_m: FloatArray, excluded: BoolArray, flagged: BoolArray,
-                      *, improvement: float = 2.0, good_rms_m: float = 0.15, max_subsets: int = 200
-                      ) -> tuple[BoolArray, list[str]]:
-    """New exclusions after the per-anchor check (module docstring), and one note per anchor changed."""
+                      *, improvement: float = 2.0, good_rms_m: float = 0.15, max_subsets: int = 200,
+                      one_sided: bool = True) -> tuple[BoolArray, list[str], dict[int, FloatArray]]:
+    """New exclusions after the per-anchor check (module docstring), one note per anchor changed, and the
+    position each changed anchor fits best from its chosen links (a start for the network re-solve)."""
     ex = np.asarray(excluded, bool).copy()
     notes: list[str] = []
+    moved: dict[int, FloatArray] = {}
     k_free = problem.free.sum(axis=1)
     touched = np.zeros(problem.n_anchors, bool)
-    for arr in (problem.meas_a[ex | flagged], problem.meas_b[ex | flagged]):
+    bad_any = ex | np.asarray(flagged, bool)
+    for arr in (problem.meas_a[bad_any], problem.meas_b[bad_any]):
         touched[arr] = True
     for i in np.flatnonzero(touched & problem.estimated):
+        ii = int(i)
         mine = np.flatnonzero((problem.meas_a == i) | (problem.meas_b == i)).tolist()
         now_out = {m for m in mine if ex[m]}
+        n_bad = sum(1 for m in mine if bad_any[m])
         current = [m for m in mine if not ex[m]]
-        # too few links left to check the current choice: any consistent subset is better
-        rms_now = fit_anchor(problem, int(i), positions_m, current)[1] if len(current) > k_free[i] else np.inf
-        chosen: tuple[float, tuple[int, ...]] | None = None
-        for r in range(1, max(len(now_out), 1) + 1):  # the fewest links whose removal leaves a consistent fit
-            if len(mine) - r <= k_free[i]:
-                break
-            best: tuple[float, tuple[int, ...]] | None = None
+
+        now = (_judge(problem, ii, positions_m, current, sorted(now_out), one_sided, good_rms_m)
+               if len(current) > k_free[i] else [])
+        rms_now = min((v[0] for v in now), default=np.inf)
+        if rms_now <= good_rms_m:  # the current choice is consistent (and its dropped links are long): kept
+            continue
+        chosen: tuple[float, tuple[int, ...], FloatArray] | None = None
+        # leave at least one redundant link, except at an anchor with only two more links than unknowns (4 links
+        # for 2 coordinates: two of them NLOS leave no check, and only the sign of the misfits can decide)
+        most = len(mine) - int(k_free[i]) - (0 if len(mine) <= k_free[i] + 2 else 1)
+        for r in range(1, min(n_bad + 1, most) + 1):  # the fewest links to leave out
+            valid: list[tuple[float, tuple[int, ...], FloatArray]] = []
             for count, drop in enumerate(itertools.combinations(mine, r)):
                 if count >= max_subsets:
                     break
-                _, rms = fit_anchor(problem, int(i), positions_m, [m for m in mine if m not in drop])
-                if best is None or rms < best[0]:
-                    best = (rms, drop)
-            if best is not None and best[0] <= good_rms_m:
-                chosen = best
-                break
+                valid += [(rms, drop, at) for rms, at in _judge(problem, ii, positions_m,
+                                                    [m for m in mine if m not in drop], list(drop),
+                                                    one_sided, good_rms_m)
+                          if rms <= good_rms_m]
+            if not valid:
+                continue
+            valid.sort(key=lambda v: v[0])
+            if len(mine) - r <= k_free[i] and len({v[1] for v in valid}) > 1:
+                break  # no redundancy left and several choices fit with long dropped links: undecidable, kept
+            # one choice of links (with no redundancy left, maybe at either of two flipped places: the one
+            # nearer the current estimate; the anchor is then reported weak)
+            here = np.asarray(positions_m, float)[ii]
+            chosen = min(valid, key=lambda v: (round(v[0] / good_rms_m, 1), float(np.linalg.norm(v[2] - here))))
+            break
         if chosen is None or set(chosen[1]) == now_out or not chosen[0] * improvement < rms_now:
             continue
-        drop_set = set(chosen[1])
         ex[mine] = False
-        ex[list(drop_set)] = True
-        names = ", ".join(f"{problem.ids[problem.meas_a[m]]}-{problem.ids[problem.meas_b[m]]}" for m in drop_set)
+        ex[list(chosen[1])] = True
+        moved[ii] = chosen[2]
+        names = ", ".join(f"{problem.ids[problem.meas_a[m]]}-{problem.ids[problem.meas_b[m]]}" for m in chosen[1])
         notes.append(f"anchor {problem.ids[i]!r}: its links fit best without {names} "
                      f"(RMS {chosen[0]:.3f} m vs {rms_now:.3f} m)")
-    return ex, notes
+    return ex, notes, moved
