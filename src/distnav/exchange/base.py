@@ -115,16 +115,23 @@ def incoming_edges(graph: Graph, nodes: np.ndarray) -> np.ndarray:
     return np.asarray(np.repeat(starts - offsets, counts) + np.arange(total, dtype=np.int64))
 
 
-def _block_csr(in_dst: np.ndarray, in_src: np.ndarray, in_src_col: np.ndarray, edge_w: np.ndarray,
-               nodes: np.ndarray, local_col: np.ndarray, self_w: np.ndarray, n_cols: int) -> sp.csr_matrix:
+def _masked_count(index: np.ndarray, mask: np.ndarray, n: int) -> np.ndarray:
+    """``np.bincount(index[mask], minlength=n)`` without the edge-sized copy ``index[mask]`` (exact integers)."""
+    return np.bincount(index, weights=mask, minlength=n).astype(np.int64)
+
+
+def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray, edge_w: np.ndarray,
+               local_col: np.ndarray, self_w: np.ndarray, n_cols: int) -> sp.csr_matrix:
     """The local block of ``W`` in CSR, each row's entries stored by ascending *global* sender id (the diagonal
     merged in at its place), whatever the column numbering. A row's product then sums its terms in the same order
     on every backend and in every local node order, so results agree bitwise; explicit zeros are left out (as
     scipy's ``+`` does). Needs the incoming edges grouped by receiver with senders ascending (:func:`incoming_edges`);
     the merge is one linear pass, no sort, and writes the CSR arrays in place (few edge-sized temporaries)."""
-    n, n_e = nodes.size, in_dst.size
+    n, n_e = local_col.size, in_dst.size
     row_len = np.bincount(in_dst, minlength=n)
-    below = in_src < nodes[in_dst]  # senders before the diagonal in global order
+    # below: senders before the diagonal in global order (``in_src < nodes[in_dst]``)
+    total = n_e + n
+    idx_dtype = np.int32 if max(n_cols, total) < 2**31 - 1 else np.int64
     # row r holds its row_len[r] edges and one diagonal slot: it starts at row_start[r] + r
     slot_start = np.zeros(n + 1, np.int64)
     np.cumsum(row_len + 1, out=slot_start[1:])
@@ -133,11 +140,9 @@ def _block_csr(in_dst: np.ndarray, in_src: np.ndarray, in_src_col: np.ndarray, e
     if n_e:
         starts = (slot_start[:-1] - np.arange(n))[has]  # each non-empty row's first edge
         n_below[has] = np.add.reduceat(below, starts, dtype=np.int64)
-    pos = np.arange(n_e, dtype=np.int64)
-    pos += in_dst
-    pos += ~below  # an edge after the diagonal moves one slot on
-    total = n_e + n
-    idx_dtype = np.int32 if max(n_cols, total) < 2**31 - 1 else np.int64
+    pos: np.ndarray = np.arange(n_e, dtype=idx_dtype)
+    np.add(pos, in_dst, out=pos, casting="same_kind")
+    np.add(pos, ~below, out=pos, casting="same_kind")  # an edge after the diagonal moves one slot on
     data = np.empty(total)
     cols = np.empty(total, idx_dtype)
     data[pos], cols[pos] = edge_w, in_src_col
@@ -230,11 +235,11 @@ class Mixer:
         # fused local block of W over [local nodes | halo columns], each row's terms in global sender order; the
         # in-edge weights are kept only where fault rounds need them (an edge-sized array less at 10⁶ nodes)
         ew_in = self._ew_in if ex.faults.active else self._in_edge_weights()
-        self._w_full = _block_csr(ex.in_dst, ex.in_src, ex.in_src_col, ew_in, ex.nodes, ex.local_col,
+        self._w_full = _block_csr(ex.in_dst, ex._sender_below(), ex.in_src_col, ew_in, ex.local_col,
                                   self._self_w, ex.n_columns)
         del ew_in
-        self._sent_counts = np.bincount(ex.out_src[self._act_out], minlength=ex.n_local)
-        self._recv_counts = np.bincount(ex.in_dst[self._act_in], minlength=ex.n_local)
+        self._sent_counts = _masked_count(ex.out_src, self._act_out, ex.n_local)
+        self._recv_counts = _masked_count(ex.in_dst, self._act_in, ex.n_local)
         self._sent_total = int(self._sent_counts.sum())
 
     def apply(self, x_local: np.ndarray) -> np.ndarray:
@@ -332,13 +337,20 @@ class Exchange(ABC):
         self.bytes_sent = np.zeros(n, np.int64)
         self.messages_received = np.zeros(n, np.int64)
         self.bytes_received = np.zeros(n, np.int64)
-        real_out = self.out_dst != self.nodes[self.out_src]
-        real_in = self.in_src != self.nodes[self.in_dst]
-        self._all_sent = np.bincount(self.out_src[real_out], minlength=n)
-        self._all_recv = np.bincount(self.in_dst[real_in], minlength=n)
+        real_out, real_in = self._real_edges()
+        self._all_sent = _masked_count(self.out_src, real_out, n)
+        self._all_recv = _masked_count(self.in_dst, real_in, n)
         self._all_sent_total = int(self._all_sent.sum())
         self._real_out = real_out
         self._real_in = real_in
+
+    def _real_edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Masks over the out- and in-edges that are not self-loops."""
+        return self.out_dst != self.nodes[self.out_src], self.in_src != self.nodes[self.in_dst]
+
+    def _sender_below(self) -> np.ndarray:
+        """Over the in-edges: is the sender's global id below the receiver's?"""
+        return np.asarray(self.in_src < self.nodes[self.in_dst])
 
     @property
     def n_local(self) -> int:

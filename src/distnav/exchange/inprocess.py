@@ -7,6 +7,8 @@ from 10⁴ nodes on reverse Cuthill–McKee by default), chosen once at set-up: 
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 
 from distnav.exchange.base import Exchange, ReduceOp, Reducible, incoming_edges
@@ -44,12 +46,29 @@ class InProcessExchange(Exchange):
             self.in_src_col = position[graph.src[e]]
             self.out_src = self.in_src_col
         self.in_edges = e
-        self.in_src = graph.src[e] if perm is not None else graph.src
         self.local_col = np.arange(graph.n_nodes, dtype=np.int64)
         self.out_edges = e
-        self.out_dst = graph.dst[e] if perm is not None else graph.dst
         self.n_columns = graph.n_nodes
         self._init_accounting()
+
+    # the senders' and receivers' global ids per edge are made only when asked for (consensus needs neither: two
+    # edge-sized arrays less at 10⁶ nodes); the graph's own arrays in the user's order
+    @cached_property
+    def in_src(self) -> np.ndarray:  # type: ignore[override]
+        return self.graph.src if self._identity else np.asarray(self.graph.src[self.in_edges])
+
+    @cached_property
+    def out_dst(self) -> np.ndarray:  # type: ignore[override]
+        return self.graph.dst if self._identity else np.asarray(self.graph.dst[self.out_edges])
+
+    def _real_edges(self) -> tuple[np.ndarray, np.ndarray]:
+        # sender and receiver are the same node exactly when their local positions are
+        real = self.in_src_col != self.in_dst
+        return real, real.copy()
+
+    def _sender_below(self) -> np.ndarray:
+        below = self.graph.src < self.graph.dst
+        return below if self._identity else np.asarray(below[self.in_edges])
 
     def _columns(self, flat_local: np.ndarray, active: np.ndarray | None) -> np.ndarray:
         return flat_local
