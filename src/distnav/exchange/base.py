@@ -244,8 +244,11 @@ class Mixer:
         ew_in = (lambda a, b: self._ew_in[a:b]) if ex.faults.active else self._in_edge_weights
         self._w_full = _block_csr(ex.in_dst, ex._sender_below(), ex.in_src_col, ew_in, ex.local_col,
                                   self._self_w, ex.n_columns)
-        self._sent_counts = _masked_count(ex.out_src, self._act_out, ex.n_local)
-        self._recv_counts = _masked_count(ex.in_dst, self._act_in, ex.n_local)
+        if active is None:  # the exchange's own counts over its real edges (the same mask: the same numbers)
+            self._sent_counts, self._recv_counts = ex._all_sent, ex._all_recv
+        else:
+            self._sent_counts = _masked_count(ex.out_src, self._act_out, ex.n_local)
+            self._recv_counts = _masked_count(ex.in_dst, self._act_in, ex.n_local)
         self._sent_total = int(self._sent_counts.sum())
 
     def apply(self, x_local: np.ndarray) -> np.ndarray:

@@ -31,22 +31,26 @@ class InProcessExchange(Exchange):
         super().__init__(graph, faults)
         perm = locality_order(graph, order)
         self._identity = perm is None
+        # edge-sized index arrays in 32 bits where they fit (half the exchange's memory at 10⁶ nodes); per-node ids
+        # (``nodes``) stay int64, and in the user's order the receivers and senders are the graph's own arrays
+        idx = np.int32 if max(graph.n_nodes, graph.n_edges) < 2**31 - 1 else np.int64
         if perm is None:
-            e = np.arange(graph.n_edges, dtype=np.int64)
+            e = np.arange(graph.n_edges, dtype=idx)
             self.nodes = np.arange(graph.n_nodes, dtype=np.int64)
             self.in_dst = graph.dst
             self.in_src_col = graph.src
             self.out_src = graph.src
         else:
             self.nodes = np.asarray(perm, dtype=np.int64)
-            position = np.empty(graph.n_nodes, dtype=np.int64)
-            position[self.nodes] = np.arange(graph.n_nodes)
-            e = incoming_edges(graph, self.nodes)
+            position = np.empty(graph.n_nodes, dtype=idx)
+            position[self.nodes] = np.arange(graph.n_nodes, dtype=idx)
+            e = incoming_edges(graph, self.nodes).astype(idx)
             self.in_dst = position[graph.dst[e]]
             self.in_src_col = position[graph.src[e]]
             self.out_src = self.in_src_col
+            del position
         self.in_edges = e
-        self.local_col = np.arange(graph.n_nodes, dtype=np.int64)
+        self.local_col = np.arange(graph.n_nodes, dtype=idx)
         self.out_edges = e
         self.n_columns = graph.n_nodes
         self._init_accounting()
