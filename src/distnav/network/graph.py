@@ -37,6 +37,34 @@ def _as_int_array(values: Any, what: str) -> np.ndarray:
     return arr.astype(np.int64, copy=False)
 
 
+def _sorted_edges(n_nodes: int, key: np.ndarray, self_loops: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Both directions of the links ``key = lo * n + hi`` (sorted, unique; ``lo < hi``), and a self-loop at every
+    node if asked, as ``(src, dst)`` sorted by ``(dst, src)`` -- the order a lexsort gives, placed by counting.
+
+    Into receiver ``d`` come, by ascending sender: the links' lower ends ``lo < d`` (links with ``hi = d``), then
+    ``d`` itself (a self-loop), then the upper ends ``hi > d`` (links with ``lo = d``). ``key`` lists the links by
+    ``(lo, hi)``: the second group is already in order, the first needs a stable sort by ``hi``."""
+    n = n_nodes
+    lo, hi = np.divmod(key, n)
+    n_low = np.bincount(hi, minlength=n)  # per receiver: senders below it
+    n_high = np.bincount(lo, minlength=n)  # senders above it
+    counts = n_low + n_high + (1 if self_loops else 0)
+    ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(counts, out=ptr[1:])
+    first_low = ptr[:-1] - np.concatenate([[0], np.cumsum(n_low)[:-1]])
+    first_high = ptr[:-1] + n_low + (1 if self_loops else 0) - np.concatenate([[0], np.cumsum(n_high)[:-1]])
+    src = np.empty(int(ptr[-1]), np.int64)
+    rank = np.arange(lo.size, dtype=np.int64)
+    by_hi = np.argsort(hi, kind="stable")
+    src[rank + first_low[hi[by_hi]]] = lo[by_hi]
+    del by_hi
+    src[rank + first_high[lo]] = hi
+    if self_loops:
+        src[ptr[:-1] + n_low] = np.arange(n, dtype=np.int64)
+    dst = np.repeat(np.arange(n, dtype=np.int64), counts)
+    return src, dst
+
+
 @dataclass(frozen=True, eq=False)
 class Graph:
     """An undirected communication graph stored as directed edges sorted by receiver.
@@ -100,25 +128,22 @@ class Graph:
             raise GraphError(
                 f"link #{row} joins node {arr[row, 0]} to itself; use self_loops=True for self-weights"
             )
-        lo = np.minimum(arr[:, 0], arr[:, 1])
-        hi = np.maximum(arr[:, 0], arr[:, 1])
-        key = lo * n_nodes + hi
-        uniq, first, counts = np.unique(key, return_index=True, return_counts=True)
-        if not allow_duplicates and (counts > 1).any():
-            dup = uniq[counts > 1][0]
-            raise GraphError(
-                f"link ({dup // n_nodes}, {dup % n_nodes}) is listed {counts[counts > 1][0]} times "
-                f"(pass allow_duplicates=True to merge repeated links)"
-            )
-        lo, hi = uniq // n_nodes, uniq % n_nodes
-        src = np.concatenate([lo, hi])
-        dst = np.concatenate([hi, lo])
-        if self_loops:
-            ids = np.arange(n_nodes, dtype=np.int64)
-            src = np.concatenate([src, ids])
-            dst = np.concatenate([dst, ids])
-        order = np.lexsort((src, dst))
-        src, dst = src[order], dst[order]
+        key = np.minimum(arr[:, 0], arr[:, 1])
+        key *= n_nodes
+        key += np.maximum(arr[:, 0], arr[:, 1])  # lo * n + hi: one int64 per link
+        key.sort()
+        repeated = key[1:] == key[:-1]
+        if repeated.any():
+            if not allow_duplicates:
+                uniq, counts = np.unique(key, return_counts=True)
+                dup = uniq[counts > 1][0]
+                raise GraphError(
+                    f"link ({dup // n_nodes}, {dup % n_nodes}) is listed {counts[counts > 1][0]} times "
+                    f"(pass allow_duplicates=True to merge repeated links)"
+                )
+            key = key[np.concatenate([[True], ~repeated])]
+        del repeated
+        src, dst = _sorted_edges(n_nodes, key, self_loops)
         return cls._checked(n_nodes, src, dst, names, positions, self_loops)
 
     @classmethod
