@@ -212,3 +212,28 @@ def test_partition_file_round_trip_and_errors(tmp_path):
     np.save(flat_2d, np.zeros((2, 4), dtype=np.int64))  # 8 ranks, but not one per node: refused, not flattened
     with pytest.raises(ExchangeError, match=r"a 1-D array\), got shape \(2, 4\)"):
         read_partition(flat_2d, 8, 3)
+
+
+@pytest.mark.parametrize("self_loops", [False, True])
+@pytest.mark.parametrize("n_nodes, n_links", [(1, 0), (2, 1), (7, 0), (30, 60), (200, 900)])
+def test_from_links_edge_order_matches_a_sorted_list(n_nodes: int, n_links: int, self_loops: bool) -> None:
+    # the counting placement against the definition: both directions of every link (and i→i), sorted by (dst, src)
+    rng = np.random.default_rng(n_nodes + n_links)
+    pairs = {tuple(sorted(map(int, rng.choice(n_nodes, 2, replace=False)))) for _ in range(n_links)} if n_nodes > 1 \
+        else set()
+    links = [(j, i) if rng.random() < 0.5 else (i, j) for i, j in pairs]  # either order, as given
+    g = Graph.from_links(n_nodes, np.array(links, dtype=np.int64).reshape(-1, 2), self_loops=self_loops)
+    want = sorted({(d, s) for i, j in pairs for s, d in ((i, j), (j, i))}
+                  | ({(i, i) for i in range(n_nodes)} if self_loops else set()))
+    assert g.dst.tolist() == [d for d, _ in want]
+    assert g.src.tolist() == [s for _, s in want]
+    assert g.src.dtype == g.dst.dtype == np.int64
+
+
+def test_from_links_merges_repeats_only_when_asked() -> None:
+    links = np.array([[0, 1], [2, 1], [1, 0], [1, 2], [1, 2], [3, 0]])
+    with pytest.raises(GraphError, match=r"link \(0, 1\) is listed 2 times"):
+        Graph.from_links(4, links)
+    g = Graph.from_links(4, links, allow_duplicates=True)
+    assert g.links.tolist() == [[0, 1], [0, 3], [1, 2]]
+    assert g.names == ("0", "1", "2", "3")

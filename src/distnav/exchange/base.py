@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
@@ -115,16 +116,25 @@ def incoming_edges(graph: Graph, nodes: np.ndarray) -> np.ndarray:
     return np.asarray(np.repeat(starts - offsets, counts) + np.arange(total, dtype=np.int64))
 
 
-def _block_csr(in_dst: np.ndarray, in_src: np.ndarray, in_src_col: np.ndarray, edge_w: np.ndarray,
-               nodes: np.ndarray, local_col: np.ndarray, self_w: np.ndarray, n_cols: int) -> sp.csr_matrix:
+def _masked_count(index: np.ndarray, mask: np.ndarray, n: int) -> np.ndarray:
+    """``np.bincount(index[mask], minlength=n)`` without the edge-sized copy ``index[mask]`` (exact integers)."""
+    return np.bincount(index, weights=mask, minlength=n).astype(np.int64)
+
+
+def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray,
+               edge_w: Callable[[int, int], np.ndarray], local_col: np.ndarray, self_w: np.ndarray,
+               n_cols: int) -> sp.csr_matrix:
     """The local block of ``W`` in CSR, each row's entries stored by ascending *global* sender id (the diagonal
     merged in at its place), whatever the column numbering. A row's product then sums its terms in the same order
     on every backend and in every local node order, so results agree bitwise; explicit zeros are left out (as
     scipy's ``+`` does). Needs the incoming edges grouped by receiver with senders ascending (:func:`incoming_edges`);
-    the merge is one linear pass, no sort, and writes the CSR arrays in place (few edge-sized temporaries)."""
-    n, n_e = nodes.size, in_dst.size
+    the merge is one linear pass, no sort, and writes the CSR arrays in place, in chunks of edges (``edge_w(a, b)``:
+    the weights of in-edges ``a:b``), so no edge-sized temporary is made."""
+    n, n_e = local_col.size, in_dst.size
     row_len = np.bincount(in_dst, minlength=n)
-    below = in_src < nodes[in_dst]  # senders before the diagonal in global order
+    # below: senders before the diagonal in global order (``in_src < nodes[in_dst]``)
+    total = n_e + n
+    idx_dtype = np.int32 if max(n_cols, total) < 2**31 - 1 else np.int64
     # row r holds its row_len[r] edges and one diagonal slot: it starts at row_start[r] + r
     slot_start = np.zeros(n + 1, np.int64)
     np.cumsum(row_len + 1, out=slot_start[1:])
@@ -133,15 +143,14 @@ def _block_csr(in_dst: np.ndarray, in_src: np.ndarray, in_src_col: np.ndarray, e
     if n_e:
         starts = (slot_start[:-1] - np.arange(n))[has]  # each non-empty row's first edge
         n_below[has] = np.add.reduceat(below, starts, dtype=np.int64)
-    pos = np.arange(n_e, dtype=np.int64)
-    pos += in_dst
-    pos += ~below  # an edge after the diagonal moves one slot on
-    total = n_e + n
-    idx_dtype = np.int32 if max(n_cols, total) < 2**31 - 1 else np.int64
     data = np.empty(total)
     cols = np.empty(total, idx_dtype)
-    data[pos], cols[pos] = edge_w, in_src_col
-    del pos, below
+    for a in range(0, n_e, _CSR_CHUNK):
+        b = min(a + _CSR_CHUNK, n_e)
+        pos: np.ndarray = np.arange(a, b, dtype=idx_dtype)
+        np.add(pos, in_dst[a:b], out=pos, casting="same_kind")
+        np.add(pos, ~below[a:b], out=pos, casting="same_kind")  # an edge after the diagonal moves one slot on
+        data[pos], cols[pos] = edge_w(a, b), in_src_col[a:b]
     pos_d = slot_start[:-1] + n_below
     data[pos_d], cols[pos_d] = self_w, local_col
     keep = data != 0
@@ -153,6 +162,9 @@ def _block_csr(in_dst: np.ndarray, in_src: np.ndarray, in_src_col: np.ndarray, e
         ptr = np.zeros(n + 1, np.int64)
         np.cumsum(kept, out=ptr[1:])
     return sp.csr_matrix((data, cols, ptr.astype(idx_dtype)), shape=(n, n_cols))
+
+
+_CSR_CHUNK = 1 << 18  # edges per pass when the mixer's block is written (a few MB of temporaries)
 
 
 try:  # scipy's own CSR kernels, called without the ``@`` dispatch (≈ 8 µs a call, a fifth of a 10³-node round)
@@ -229,12 +241,14 @@ class Mixer:
         self._self_w = np.asarray(self_weight, float)[ex.nodes]
         # fused local block of W over [local nodes | halo columns], each row's terms in global sender order; the
         # in-edge weights are kept only where fault rounds need them (an edge-sized array less at 10⁶ nodes)
-        ew_in = self._ew_in if ex.faults.active else self._in_edge_weights()
-        self._w_full = _block_csr(ex.in_dst, ex.in_src, ex.in_src_col, ew_in, ex.nodes, ex.local_col,
+        ew_in = (lambda a, b: self._ew_in[a:b]) if ex.faults.active else self._in_edge_weights
+        self._w_full = _block_csr(ex.in_dst, ex._sender_below(), ex.in_src_col, ew_in, ex.local_col,
                                   self._self_w, ex.n_columns)
-        del ew_in
-        self._sent_counts = np.bincount(ex.out_src[self._act_out], minlength=ex.n_local)
-        self._recv_counts = np.bincount(ex.in_dst[self._act_in], minlength=ex.n_local)
+        if active is None:  # the exchange's own counts over its real edges (the same mask: the same numbers)
+            self._sent_counts, self._recv_counts = ex._all_sent, ex._all_recv
+        else:
+            self._sent_counts = _masked_count(ex.out_src, self._act_out, ex.n_local)
+            self._recv_counts = _masked_count(ex.in_dst, self._act_in, ex.n_local)
         self._sent_total = int(self._sent_counts.sum())
 
     def apply(self, x_local: np.ndarray) -> np.ndarray:
@@ -265,10 +279,10 @@ class Mixer:
         out += (self._self_w + lost)[:, None] * flat
         return out.reshape(x.shape)
 
-    def _in_edge_weights(self) -> np.ndarray:
-        """``w_ij`` on every incoming edge (zero on inactive edges and self-loops)."""
-        w: np.ndarray = np.asarray(self._edge_weight, float)[self.exchange.in_edges]
-        w[~self._act_in] = 0.0
+    def _in_edge_weights(self, a: int = 0, b: int | None = None) -> np.ndarray:
+        """``w_ij`` on the incoming edges ``a:b`` (zero on inactive edges and self-loops)."""
+        w: np.ndarray = np.asarray(self._edge_weight, float)[self.exchange.in_edges[a:b]]
+        w[~self._act_in[a:b]] = 0.0
         return w
 
     @cached_property
@@ -332,13 +346,20 @@ class Exchange(ABC):
         self.bytes_sent = np.zeros(n, np.int64)
         self.messages_received = np.zeros(n, np.int64)
         self.bytes_received = np.zeros(n, np.int64)
-        real_out = self.out_dst != self.nodes[self.out_src]
-        real_in = self.in_src != self.nodes[self.in_dst]
-        self._all_sent = np.bincount(self.out_src[real_out], minlength=n)
-        self._all_recv = np.bincount(self.in_dst[real_in], minlength=n)
+        real_out, real_in = self._real_edges()
+        self._all_sent = _masked_count(self.out_src, real_out, n)
+        self._all_recv = _masked_count(self.in_dst, real_in, n)
         self._all_sent_total = int(self._all_sent.sum())
         self._real_out = real_out
         self._real_in = real_in
+
+    def _real_edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Masks over the out- and in-edges that are not self-loops."""
+        return self.out_dst != self.nodes[self.out_src], self.in_src != self.nodes[self.in_dst]
+
+    def _sender_below(self) -> np.ndarray:
+        """Over the in-edges: is the sender's global id below the receiver's?"""
+        return np.asarray(self.in_src < self.nodes[self.in_dst])
 
     @property
     def n_local(self) -> int:

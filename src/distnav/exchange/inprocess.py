@@ -7,6 +7,8 @@ from 10⁴ nodes on reverse Cuthill–McKee by default), chosen once at set-up: 
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 
 from distnav.exchange.base import Exchange, ReduceOp, Reducible, incoming_edges
@@ -29,27 +31,48 @@ class InProcessExchange(Exchange):
         super().__init__(graph, faults)
         perm = locality_order(graph, order)
         self._identity = perm is None
+        # edge-sized index arrays in 32 bits where they fit (half the exchange's memory at 10⁶ nodes); per-node ids
+        # (``nodes``) stay int64, and in the user's order the receivers and senders are the graph's own arrays
+        idx = np.int32 if max(graph.n_nodes, graph.n_edges) < 2**31 - 1 else np.int64
         if perm is None:
-            e = np.arange(graph.n_edges, dtype=np.int64)
+            e = np.arange(graph.n_edges, dtype=idx)
             self.nodes = np.arange(graph.n_nodes, dtype=np.int64)
             self.in_dst = graph.dst
             self.in_src_col = graph.src
             self.out_src = graph.src
         else:
             self.nodes = np.asarray(perm, dtype=np.int64)
-            position = np.empty(graph.n_nodes, dtype=np.int64)
-            position[self.nodes] = np.arange(graph.n_nodes)
-            e = incoming_edges(graph, self.nodes)
+            position = np.empty(graph.n_nodes, dtype=idx)
+            position[self.nodes] = np.arange(graph.n_nodes, dtype=idx)
+            e = incoming_edges(graph, self.nodes).astype(idx)
             self.in_dst = position[graph.dst[e]]
             self.in_src_col = position[graph.src[e]]
             self.out_src = self.in_src_col
+            del position
         self.in_edges = e
-        self.in_src = graph.src[e] if perm is not None else graph.src
-        self.local_col = np.arange(graph.n_nodes, dtype=np.int64)
+        self.local_col = np.arange(graph.n_nodes, dtype=idx)
         self.out_edges = e
-        self.out_dst = graph.dst[e] if perm is not None else graph.dst
         self.n_columns = graph.n_nodes
         self._init_accounting()
+
+    # the senders' and receivers' global ids per edge are made only when asked for (consensus needs neither: two
+    # edge-sized arrays less at 10⁶ nodes); the graph's own arrays in the user's order
+    @cached_property
+    def in_src(self) -> np.ndarray:  # type: ignore[override]
+        return self.graph.src if self._identity else np.asarray(self.graph.src[self.in_edges])
+
+    @cached_property
+    def out_dst(self) -> np.ndarray:  # type: ignore[override]
+        return self.graph.dst if self._identity else np.asarray(self.graph.dst[self.out_edges])
+
+    def _real_edges(self) -> tuple[np.ndarray, np.ndarray]:
+        # sender and receiver are the same node exactly when their local positions are
+        real = self.in_src_col != self.in_dst
+        return real, real.copy()
+
+    def _sender_below(self) -> np.ndarray:
+        below = self.graph.src < self.graph.dst
+        return below if self._identity else np.asarray(below[self.in_edges])
 
     def _columns(self, flat_local: np.ndarray, active: np.ndarray | None) -> np.ndarray:
         return flat_local
