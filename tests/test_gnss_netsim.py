@@ -9,7 +9,7 @@ from distnav.commands.gnss_ionosphere import network_from_observations
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import mu
 from distnav.models.gnss.gfnetwork import final_dsbs, run_bias_filters, satellite_fit
-from distnav.models.gnss.netsim import TECU_L1_M, VtecField, simulate_network, truth_product
+from distnav.models.gnss.netsim import REALISTIC, TECU_L1_M, VtecField, simulate_network, truth_product
 from distnav.models.gnss.orbits import synthetic_gps_constellation
 from distnav.models.gnss.products import compare_in_datum
 
@@ -123,3 +123,47 @@ def test_ckf_receivers_screen_their_own_innovations() -> None:
             assert (removed == 1).sum() >= 5                          # found at SIMB, which holds the errors …
             assert (removed == 1).sum() > 3 * (removed == 0).sum()      # … far more than at the clean SIMA
     assert rms[0.001] < rms[None]
+
+
+def _arc_gf_rms_m(o: object) -> float:
+    """Median over arcs of the RMS of (geometry-free code − geometry-free phase − its arc mean): what multipath
+    and code noise leave after levelling (computed here from the observations, not by the levelling code)."""
+    f = mu(2) - 1.0
+    d = (o.range_m[2] - o.range_m[1]) / f - (o.phase_m[1] - o.phase_m[2]) / f  # type: ignore[attr-defined]
+    out = []
+    for j in range(d.shape[1]):
+        ok = np.isfinite(d[:, j])
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if b - a >= 60:
+                out.append(np.std(d[a:b, j]))
+    return float(np.median(out))
+
+
+def test_realistic_preset_is_noisier_but_consistent() -> None:
+    """The realistic preset: the TIDs and irregularities are ionosphere (the geometry-free code follows the phase
+    epoch to epoch as before, no slips), the multipath left after levelling is larger, the second station's
+    (×1.4) larger than the first's, and part of the multipath differs from one day to the next."""
+    orbit, plain = _sim(code_sigma_m=(0.0, 0.0), svn49=None)                    # multipath only
+    _, real = _sim(**{**REALISTIC, "code_sigma_m": (0.0, 0.0), "svn49": None})
+    o = real.observations[0]
+    f = mu(2) - 1.0
+    gp, gphi = (o.range_m[2] - o.range_m[1]) / f, (o.phase_m[1] - o.phase_m[2]) / f
+    step = np.diff(gp - gphi, axis=0)
+    assert np.nanmedian(np.abs(step)) < 1.0 and np.nanmax(np.abs(np.diff(gphi, axis=0))) < 0.5
+    rms_plain = [_arc_gf_rms_m(x) for x in plain.observations]
+    rms_real = [_arc_gf_rms_m(x) for x in real.observations]
+    assert rms_real[0] > 1.2 * rms_plain[0] and rms_real[1] > 1.2 * rms_real[0]
+    # the multipath of two "days" (different rng) with noise off: identical with f = 0, different with f = 0.6
+    quiet = {"code_sigma_m": (0.0, 0.0), "svn49": None, "multipath_el_scale_deg": 20.0}
+
+    def code(seed: int, fraction: float) -> np.ndarray:
+        s = simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(seed), stations=TWO, hours=1.0,
+                             satellite_dsb_ns=dict.fromkeys(orbit.svs, 0.0), receiver_dsb_ns={"SIMA": 0, "SIMB": 0},
+                             multipath_day_fraction=fraction, **quiet)
+        return s.observations[0].range_m[1]
+
+    assert np.nanmax(np.abs(code(1, 0.0) - code(2, 0.0))) < 1e-9
+    assert np.nanmedian(np.abs(code(1, 0.6) - code(2, 0.6))) > 0.01
+    with pytest.raises(ModelError, match="multipath_day_fraction"):
+        simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(0), hours=1, multipath_day_fraction=1.5)
