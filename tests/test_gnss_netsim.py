@@ -49,7 +49,14 @@ def test_observables_carry_the_ionosphere_and_the_biases() -> None:
 
 def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
     orbit, sim = _sim()
-    data = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0)
+    # the default (here a quarter of the best-tracked satellite's 480 station-epochs: 120) leaves out the
+    # satellites seen briefly in these 4 h and names them
+    strict = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0)
+    named = [n for n in strict.notes if n.startswith("not estimated, fewer than 120 ")]
+    assert len(named) == 1 and len(strict.layout.svs) >= 10
+    data = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, min_satellite_obs=30)
+    assert set(strict.layout.svs) < set(data.layout.svs)
+    assert all(s in named[0] for s in set(data.layout.svs) - set(strict.layout.svs))
     assert data.ionosphere == "common"                               # 200 km apart: one regional layer
     series, _ = run_bias_filters(data, local=False)
     c = series[0]
@@ -75,7 +82,7 @@ def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
     assert worst is not None and worst[0] == "G01"
     # without the elevation-dependent bias G01 is an ordinary satellite, below the median
     orbit, clean = _sim(svn49=None)
-    data = network_from_observations(clean.observations, orbit, l2_code="C2W", interval_s=60.0)
+    data = network_from_observations(clean.observations, orbit, l2_code="C2W", interval_s=60.0, min_satellite_obs=30)
     fit = satellite_fit(data, run_bias_filters(data, local=False)[0][0])
     assert fit.code_rms_m is not None
     g01 = float(fit.code_rms_m[data.layout.svs.index("G01")])
@@ -167,3 +174,18 @@ def test_realistic_preset_is_noisier_but_consistent() -> None:
     assert np.nanmedian(np.abs(code(1, 0.6) - code(2, 0.6))) > 0.01
     with pytest.raises(ModelError, match="multipath_day_fraction"):
         simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(0), hours=1, multipath_day_fraction=1.5)
+
+
+def test_arc_sigma_scale_counts_effective_observations() -> None:
+    """One arc of 60 epochs over 59 min with a 10-min correlation holds 5.9 effective observations: σ × √(60/5.9);
+    an arc shorter than the correlation time is one observation (σ × √n); no arc (−1) or no correlation: 1."""
+    from distnav.models.gnss.gfnetwork import arc_sigma_scale
+
+    t = 60.0 * np.arange(70)
+    arc = np.full((70, 2), -1)
+    arc[:60, 0] = 0
+    arc[60:65, 1] = 1
+    sc = arc_sigma_scale(arc, t, 600.0)
+    np.testing.assert_allclose(sc[:60, 0], np.sqrt(60 / 5.9))
+    np.testing.assert_allclose(sc[60:65, 1], np.sqrt(5.0))
+    assert (sc[arc < 0] == 1.0).all() and (arc_sigma_scale(arc, t, 0.0) == 1.0).all()
