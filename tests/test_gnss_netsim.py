@@ -9,7 +9,7 @@ from distnav.commands.gnss_ionosphere import network_from_observations
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import mu
 from distnav.models.gnss.gfnetwork import final_dsbs, run_bias_filters, satellite_fit
-from distnav.models.gnss.netsim import TECU_L1_M, VtecField, simulate_network, truth_product
+from distnav.models.gnss.netsim import REALISTIC, TECU_L1_M, VtecField, simulate_network, truth_product
 from distnav.models.gnss.orbits import synthetic_gps_constellation
 from distnav.models.gnss.products import compare_in_datum
 
@@ -49,7 +49,14 @@ def test_observables_carry_the_ionosphere_and_the_biases() -> None:
 
 def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
     orbit, sim = _sim()
-    data = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0)
+    # the default (here a quarter of the best-tracked satellite's 480 station-epochs: 120) leaves out the
+    # satellites seen briefly in these 4 h and names them
+    strict = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0)
+    named = [n for n in strict.notes if n.startswith("not estimated, fewer than 120 ")]
+    assert len(named) == 1 and len(strict.layout.svs) >= 10
+    data = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, min_satellite_obs=30)
+    assert set(strict.layout.svs) < set(data.layout.svs)
+    assert all(s in named[0] for s in set(data.layout.svs) - set(strict.layout.svs))
     assert data.ionosphere == "common"                               # 200 km apart: one regional layer
     series, _ = run_bias_filters(data, local=False)
     c = series[0]
@@ -75,7 +82,7 @@ def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
     assert worst is not None and worst[0] == "G01"
     # without the elevation-dependent bias G01 is an ordinary satellite, below the median
     orbit, clean = _sim(svn49=None)
-    data = network_from_observations(clean.observations, orbit, l2_code="C2W", interval_s=60.0)
+    data = network_from_observations(clean.observations, orbit, l2_code="C2W", interval_s=60.0, min_satellite_obs=30)
     fit = satellite_fit(data, run_bias_filters(data, local=False)[0][0])
     assert fit.code_rms_m is not None
     g01 = float(fit.code_rms_m[data.layout.svs.index("G01")])
@@ -123,3 +130,62 @@ def test_ckf_receivers_screen_their_own_innovations() -> None:
             assert (removed == 1).sum() >= 5                          # found at SIMB, which holds the errors …
             assert (removed == 1).sum() > 3 * (removed == 0).sum()      # … far more than at the clean SIMA
     assert rms[0.001] < rms[None]
+
+
+def _arc_gf_rms_m(o: object) -> float:
+    """Median over arcs of the RMS of (geometry-free code − geometry-free phase − its arc mean): what multipath
+    and code noise leave after levelling (computed here from the observations, not by the levelling code)."""
+    f = mu(2) - 1.0
+    d = (o.range_m[2] - o.range_m[1]) / f - (o.phase_m[1] - o.phase_m[2]) / f  # type: ignore[attr-defined]
+    out = []
+    for j in range(d.shape[1]):
+        ok = np.isfinite(d[:, j])
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if b - a >= 60:
+                out.append(np.std(d[a:b, j]))
+    return float(np.median(out))
+
+
+def test_realistic_preset_is_noisier_but_consistent() -> None:
+    """The realistic preset: the TIDs and irregularities are ionosphere (the geometry-free code follows the phase
+    epoch to epoch as before, no slips), the multipath left after levelling is larger, the second station's
+    (×1.4) larger than the first's, and part of the multipath differs from one day to the next."""
+    orbit, plain = _sim(code_sigma_m=(0.0, 0.0), svn49=None)                    # multipath only
+    _, real = _sim(**{**REALISTIC, "code_sigma_m": (0.0, 0.0), "svn49": None})
+    o = real.observations[0]
+    f = mu(2) - 1.0
+    gp, gphi = (o.range_m[2] - o.range_m[1]) / f, (o.phase_m[1] - o.phase_m[2]) / f
+    step = np.diff(gp - gphi, axis=0)
+    assert np.nanmedian(np.abs(step)) < 1.0 and np.nanmax(np.abs(np.diff(gphi, axis=0))) < 0.5
+    rms_plain = [_arc_gf_rms_m(x) for x in plain.observations]
+    rms_real = [_arc_gf_rms_m(x) for x in real.observations]
+    assert rms_real[0] > 1.2 * rms_plain[0] and rms_real[1] > 1.2 * rms_real[0]
+    # the multipath of two "days" (different rng) with noise off: identical with f = 0, different with f = 0.6
+    quiet = {"code_sigma_m": (0.0, 0.0), "svn49": None, "multipath_el_scale_deg": 20.0}
+
+    def code(seed: int, fraction: float) -> np.ndarray:
+        s = simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(seed), stations=TWO, hours=1.0,
+                             satellite_dsb_ns=dict.fromkeys(orbit.svs, 0.0), receiver_dsb_ns={"SIMA": 0, "SIMB": 0},
+                             multipath_day_fraction=fraction, **quiet)
+        return s.observations[0].range_m[1]
+
+    assert np.nanmax(np.abs(code(1, 0.0) - code(2, 0.0))) < 1e-9
+    assert np.nanmedian(np.abs(code(1, 0.6) - code(2, 0.6))) > 0.01
+    with pytest.raises(ModelError, match="multipath_day_fraction"):
+        simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(0), hours=1, multipath_day_fraction=1.5)
+
+
+def test_arc_sigma_scale_counts_effective_observations() -> None:
+    """One arc of 60 epochs over 59 min with a 10-min correlation holds 5.9 effective observations: σ × √(60/5.9);
+    an arc shorter than the correlation time is one observation (σ × √n); no arc (−1) or no correlation: 1."""
+    from distnav.models.gnss.gfnetwork import arc_sigma_scale
+
+    t = 60.0 * np.arange(70)
+    arc = np.full((70, 2), -1)
+    arc[:60, 0] = 0
+    arc[60:65, 1] = 1
+    sc = arc_sigma_scale(arc, t, 600.0)
+    np.testing.assert_allclose(sc[:60, 0], np.sqrt(60 / 5.9))
+    np.testing.assert_allclose(sc[60:65, 1], np.sqrt(5.0))
+    assert (sc[arc < 0] == 1.0).all() and (arc_sigma_scale(arc, t, 0.0) == 1.0).all()

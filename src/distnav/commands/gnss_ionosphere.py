@@ -44,6 +44,9 @@ from distnav.errors import DataFileError, ModelError
 __all__ = ["add_ionosphere_parser", "add_parser", "network_data", "run_ionosphere", "validate_arguments"]
 
 REGIONAL_KM = 1000.0
+ARC_CORRELATION_S = 0.0
+"""Correlation time [s] of the levelled code's error within an arc (σ per arc:
+:func:`~distnav.models.gnss.gfnetwork.arc_sigma_scale`); 0 = off (independent epochs, the default)."""
 
 
 def _say(args: argparse.Namespace, text: str) -> None:
@@ -71,7 +74,7 @@ def validate_arguments(args: argparse.Namespace) -> None:
         raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
     if args.innovation_test is not None and not 0.0 < args.innovation_test < 0.5:
         raise ModelError(f"--innovation-test {args.innovation_test:g}: a test level in (0, 0.5), e.g. 0.001")
-    if args.min_satellite_obs < 1:
+    if args.min_satellite_obs is not None and args.min_satellite_obs < 1:
         raise ModelError(f"--min-satellite-obs must be ≥ 1, got {args.min_satellite_obs}")
     if args.min_arc < 2:
         raise ModelError(f"--min-arc must be ≥ 2 epochs, got {args.min_arc}")
@@ -126,11 +129,17 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
                               weighting: str = "sin", reference: str | None = None, exclude: Sequence[str] = (),
                               levelling: bool = True, min_arc_epochs: int = 10, gf_threshold_m: float = 0.05,
                               screen: bool = True, tec_rw_m_per_sqrt_s: float | None = None,
-                              min_satellite_obs: int | None = None) -> Any:
+                              min_satellite_obs: int | None = None, arc_correlation_s: float | None = None) -> Any:
     """:func:`network_data` from observations already read (:class:`~distnav.models.gnss.rinex.CodeObservations`
-    with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid)."""
+    with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid).
+    ``arc_correlation_s``: the levelled code's σ per arc from :func:`~distnav.models.gnss.gfnetwork.arc_sigma_scale`
+    (default :data:`ARC_CORRELATION_S`; 0: independent epochs)."""
     from distnav.models.gnss.gfbias import geometry_free_band_m
-    from distnav.models.gnss.gfnetwork import MIN_SATELLITE_OBS, TEC_RW_M_PER_SQRT_S, bias_network_model
+    from distnav.models.gnss.gfnetwork import (
+        TEC_RW_M_PER_SQRT_S,
+        arc_sigma_scale,
+        bias_network_model,
+    )
     from distnav.models.gnss.orbits import gps_seconds
 
     band = int(l2_code[1])
@@ -152,6 +161,8 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
     svs_all = sorted({s for o in obs for s in o.svs} - excl)
     T, n, S = t_all.size, len(obs), len(svs_all)
     gf = np.full((T, n, S), np.nan)
+    corr_s = ARC_CORRELATION_S if arc_correlation_s is None else float(arc_correlation_s)
+    scale = np.ones((T, n, S)) if levelling and corr_s > 0 else None
     for i, o in enumerate(obs):
         keep_t = grids[o.station]
         ti = np.searchsorted(t_all, gps_seconds(o.time[keep_t]))
@@ -160,6 +171,9 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
         full = levelled[o.station].gf_m if levelling else geometry_free_band_m(o.range_m[1], o.range_m[band], band)
         g = full[keep_t][:, cols]
         gf[np.ix_(ti, np.array([i]), si)] = g[:, None, :]
+        if scale is not None:
+            arcs = levelled[o.station].arc[keep_t][:, cols]
+            scale[np.ix_(ti, np.array([i]), si)] = arc_sigma_scale(arcs, t_all[ti], corr_s)[:, None, :]
         if not (np.isfinite(o.range_m[1]) & np.isfinite(o.range_m[band])).any():
             raise DataFileError(f"{o.path}: no epoch with a GPS satellite on both {o.codes[1]} and {o.codes[band]} "
                                 f"(missing frequency?)")
@@ -178,7 +192,8 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
                               paths=[str(o.path) for o in obs],
                               vtec_rw_m_per_sqrt_s=TEC_RW_M_PER_SQRT_S if tec_rw_m_per_sqrt_s is None
                               else tec_rw_m_per_sqrt_s,
-                              min_satellite_obs=MIN_SATELLITE_OBS if min_satellite_obs is None else min_satellite_obs)
+                              min_satellite_obs=min_satellite_obs,
+                              sigma_scale=scale)
     return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs})
 
 
@@ -584,8 +599,10 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--tec-rw", type=float, default=None, metavar="M_PER_SQRT_S",
                    help="random walk of the vertical L1 delay [m/√s] (gradients 5× per radian; default 0.01, "
                         "10× paper 003's: docs/ionosphere.md)")
-    p.add_argument("--min-satellite-obs", type=int, default=30, metavar="N",
-                   help="satellites with fewer station-epochs are not estimated (default 30)")
+    p.add_argument("--min-satellite-obs", type=int, default=None, metavar="N",
+                   help="satellites with fewer station-epochs (filter grid) are not estimated and named in the "
+                        "notes (default 240 = 4 station-hours at 60 s, at most a quarter of the best-tracked "
+                        "satellite's, at least 30)")
     p.add_argument("--innovation-test", type=float, default=None, metavar="LEVEL",
                    help="CKF: each receiver w-tests its own predicted residuals at this level and rejects outliers "
                         "before the consensus (e.g. 0.001)")

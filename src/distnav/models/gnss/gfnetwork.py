@@ -36,8 +36,13 @@ __all__ = ["BiasNetworkData", "DatumSeries", "SatelliteFit", "final_dsbs", "inno
 
 log = logging.getLogger(__name__)
 
-MIN_SATELLITE_OBS = 30
-"""Fewest station-epochs (at the filter's sampling) for a satellite to be estimated."""
+MIN_SATELLITE_OBS = 240
+"""Fewest station-epochs (at the filter's sampling) for a satellite to be estimated by default: 240 = 4
+station-hours on a 60-s grid, but at most a quarter of the best-tracked satellite's count and at least 30 (so
+short snapshots keep the old threshold, 30). Was 30 throughout; raised on the realistic simulator preset
+(docs/ionosphere.md), where satellites seen for
+less than about an hour per station in a 6-h session carry DCB errors of ~1 ns that dominate the session's RMS
+(the note "not estimated, fewer than …" names them; a full day excludes none)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,7 +103,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
                        ionosphere: str = "auto", regional_km: float = 1000.0, sigma_zenith_m: float | None = None,
                        weighting: str = "sin", reference: str | None = None, notes: list[str] | None = None,
                        paths: list[str] | None = None, vtec_rw_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
-                       min_satellite_obs: int = MIN_SATELLITE_OBS) -> BiasNetworkData:
+                       min_satellite_obs: int | None = None,
+                       sigma_scale: np.ndarray | None = None) -> BiasNetworkData:
     """The model from undifferenced geometry-free observations ``gf_m`` (T, n, S) [m] (NaN = not observed).
 
     ``sigma_zenith_m`` defaults to the paper's 65.6 cm scaled to the band (√2·30 cm/(μ_b − 1)). The estimation
@@ -109,8 +115,11 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
 
     ``vtec_rw_m_per_sqrt_s``: random walk of the vertical delay (the gradients get 5× this per radian), by default
     10× paper 003's 1 mm/√s — see :data:`TEC_RW_M_PER_SQRT_S`. Satellites with fewer than ``min_satellite_obs``
-    station-epochs are not estimated (a note names them): a satellite seen for a few minutes at low elevation
-    at a session edge has a DCB of several ns σ that would only pull the zero-mean datum.
+    station-epochs (default: :data:`MIN_SATELLITE_OBS`' rule) are not estimated (a note names them): a
+    satellite seen for a few minutes at low elevation
+    at a session edge has a DCB of several ns σ that would only pull the zero-mean datum. ``sigma_scale``
+    (T, n, S): factors on the elevation-dependent σ (the levelled code's arc correlation, see
+    :func:`arc_sigma_scale`).
     """
     from distnav.models.gnss.constants import mu
     from distnav.models.gnss.ionosphere import ionosphere_geometry
@@ -146,6 +155,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     if n > 1 and not (np.asarray(geo.tracked.any(axis=0)).sum(axis=0) >= 2).any():
         raise ModelError("no satellite is tracked by two or more stations: the stations share no parameter")
     n_obs = geo.tracked.sum(axis=(0, 1))
+    if min_satellite_obs is None:
+        min_satellite_obs = int(max(30, min(MIN_SATELLITE_OBS, 0.25 * float(n_obs.max()))))
     few = [svs_all[k] for k in range(S) if 0 < n_obs[k] < min_satellite_obs]
     if few:
         notes.append(f"not estimated, fewer than {min_satellite_obs} station-epochs: "
@@ -169,6 +180,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     sig0 = (np.sqrt(2.0) * 0.30 / (mu(band) - 1.0)) if sigma_zenith_m is None else float(sigma_zenith_m)
     el = np.where(geo.tracked, geo.el_rad, 0.5 * np.pi)
     sig = elevation_sigma(el, sig0, weighting)
+    if sigma_scale is not None:
+        sig = sig * np.where(geo.tracked, np.asarray(sigma_scale, float)[:, :, keep], 1.0)
     obs = gf[:, :, keep]
     series = BiasGeometryFreeSeries(layout, geo.coefficients, sig, obs_m=obs, tracked=geo.tracked,
                                     groups=geo.groups)
@@ -179,6 +192,27 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
                         gradient_std_m_per_rad_sqrt_s=5.0 * vtec_rw_m_per_sqrt_s)
     return BiasNetworkData(stations, dict(codes or {}), band, t_all, geo, layout, series, dyn, mode,
                            np.asarray(xyz, float), obs, sig, notes)
+
+
+def arc_sigma_scale(arc_id: np.ndarray, t_s: np.ndarray, correlation_s: float) -> np.ndarray:
+    """σ factors (T, S) for levelled code whose error is mostly the arc's levelling offset, common to the arc.
+
+    An arc of ``n`` epochs over ``D`` seconds determines its offset only to about σ²/n_eff with
+    ``n_eff = max(1, D / correlation_s)`` (multipath and the levelling error are correlated over
+    ``correlation_s``), not σ²/n as independent epochs would: each epoch's σ is scaled by ``√(n / n_eff)`` so that
+    the arc carries n_eff observations' worth of information. A departure from paper 003 (raw code, white noise);
+    ``arc_id`` −1 (no arc, e.g. raw code kept) gets 1.
+    """
+    out = np.ones(arc_id.shape)
+    if correlation_s <= 0:
+        return out
+    for a in np.unique(arc_id[arc_id >= 0]).tolist():
+        where = arc_id == a
+        ti = np.nonzero(where)[0]
+        n = ti.size
+        n_eff = max(1.0, float(t_s[ti.max()] - t_s[ti.min()]) / correlation_s)
+        out[where] = np.sqrt(max(1.0, n / n_eff))
+    return out
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,6 +23,22 @@ with a product — runs exactly as on real files. What is simulated, per receive
   fits — it should be the worst-fitting satellite;
 * optional gross errors: a fraction of one receiver's P1 values off by ±5…50 m.
 
+**Realism knobs** (all off by default, so the default simulation is unchanged; :data:`REALISTIC` sets them,
+calibrated so that the first-wave model scores on it about what it scored on the held-out IGS network):
+
+* ``multipath_el_scale_deg``: the e-folding elevation of the multipath amplitude (15°; larger = multipath
+  reaching higher elevations);
+* ``multipath_day_fraction`` *f*: the multipath is ``√(1 − f²)·(repeating pattern) + f·(pattern of this day)``
+  (real multipath repeats only in part: wet ground, snow, changes near the antenna, the orbit's drift);
+* ``station_noise_scale``: per-station factors (by station order, cycled) on code noise and multipath;
+* ``tid_tecu``: ``n_tid`` travelling ionospheric disturbances per day (plane waves of random direction,
+  wavelength 150–400 km, period 15–60 min, drawn from ``rng``), common to all receivers, which no smooth layer
+  fits;
+* ``irregularity_tecu`` / ``irregularity_tau_s``: small-scale irregularities per ray, an AR(1) process in the
+  vertical TEC (time constant τ) times the slant factor — in code and phase alike (it is ionosphere);
+* ``shell_jitter_km``: the three shells' heights shifted by one N(0, jitter) per day — the thin 450-km layer's
+  mapping error at low elevation then changes from day to day.
+
 Receivers record above ``record_mask_deg`` (5°); an arc is a continuous pass. :func:`simulate_network` returns
 the observations and the truth (DSBs in ns and the VTEC field) for comparisons; :func:`truth_product` wraps the
 truth as a :class:`~distnav.models.gnss.products.ProductDSB` so that
@@ -44,7 +60,7 @@ from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
 from distnav.models.gnss.geometry import azimuth_elevation, geodetic_to_ecef, pierce_point
 from distnav.models.gnss.rinex import CodeObservations
 
-__all__ = ["EUROPEAN_STATIONS", "VtecField", "SimulatedNetwork", "simulate_network", "truth_product"]
+__all__ = ["EUROPEAN_STATIONS", "REALISTIC", "VtecField", "SimulatedNetwork", "simulate_network", "truth_product"]
 
 TECU_L1_M = 40.3e16 / GPS_FREQUENCIES_HZ[1] ** 2
 """L1 delay of 1 TECU [m] (0.1624 m)."""
@@ -55,6 +71,13 @@ EUROPEAN_STATIONS: dict[str, tuple[float, float, float]] = {
 IGS cluster."""
 
 _SHELLS_M = ((300e3, 0.30), (400e3, 0.45), (550e3, 0.25))
+
+REALISTIC: dict[str, Any] = {
+    "multipath_m": 0.9, "multipath_el_scale_deg": 20.0, "multipath_day_fraction": 0.6,
+    "station_noise_scale": (1.0, 1.4, 0.8), "tid_tecu": 0.5, "n_tid": 3, "irregularity_tecu": 0.15,
+    "irregularity_tau_s": 600.0, "shell_jitter_km": 40.0}
+"""Keyword arguments of :func:`simulate_network` for the "realistic" preset (module doc; the calibration is in
+``docs/ionosphere.md``): ``simulate_network(orbit, day, rng=rng, **REALISTIC)``."""
 
 
 @dataclass(frozen=True)
@@ -120,13 +143,16 @@ def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Gen
                      code_sigma_m: tuple[float, float] = (0.15, 0.18), multipath_m: float = 0.5,
                      phase_sigma_m: float = 0.002, record_mask_deg: float = 5.0,
                      gross_fraction: float = 0.0, gross_station: str | None = None,
-                     multipath_seed: int = 7) -> SimulatedNetwork:
+                     multipath_seed: int = 7, multipath_el_scale_deg: float = 15.0,
+                     multipath_day_fraction: float = 0.0, station_noise_scale: Sequence[float] = (1.0,),
+                     tid_tecu: float = 0.0, n_tid: int = 3, irregularity_tecu: float = 0.0,
+                     irregularity_tau_s: float = 600.0, shell_jitter_km: float = 0.0) -> SimulatedNetwork:
     """Simulate a day (or ``hours`` of it from 00:00 GPS) of the network (module doc) with ``orbit``
     (``positions_ecef(t, svs)``, e.g. :func:`~distnav.models.gnss.orbits.synthetic_gps_constellation`).
 
     ``multipath_seed`` fixes the multipath pattern of each receiver–satellite pair (the same every day, as real
     multipath repeats with the geometry); ``rng`` draws the noise, ambiguities, gross errors and any DSB not
-    given.
+    given, and the day's share of the multipath, the TIDs, irregularities and shell shift (module doc).
     """
     from distnav.models.gnss.orbits import datetime_from_gps_seconds, gps_seconds
 
@@ -134,6 +160,11 @@ def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Gen
         raise ModelError(f"interval {interval_s} s / {hours} h: must be positive (at most 24 h)")
     if not 0.0 <= gross_fraction < 0.5:
         raise ModelError(f"gross_fraction {gross_fraction}: must lie in [0, 0.5)")
+    if not 0.0 <= multipath_day_fraction <= 1.0:
+        raise ModelError(f"multipath_day_fraction {multipath_day_fraction}: must lie in [0, 1]")
+    if not station_noise_scale or min(station_noise_scale) <= 0 or irregularity_tau_s <= 0 \
+            or multipath_el_scale_deg <= 0:
+        raise ModelError("station_noise_scale, irregularity_tau_s and multipath_el_scale_deg must be positive")
     sta = dict(EUROPEAN_STATIONS if stations is None else stations)
     fld = field or VtecField()
     names = list(sta)
@@ -149,6 +180,9 @@ def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Gen
     gross_at = gross_station or names[-1]
     obs: list[CodeObservations] = []
     gross: dict[str, int] = {}
+    shells = [(height + 1e3 * shell_jitter_km * rng.standard_normal() if shell_jitter_km > 0 else height, weight)
+              for height, weight in _SHELLS_M]
+    tids = _draw_tids(rng, tid_tecu, n_tid)
     for ri, name in enumerate(names):
         lat_d, lon_d, h = sta[name]
         lat, lon = np.deg2rad(lat_d), np.deg2rad(lon_d)
@@ -158,22 +192,27 @@ def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Gen
         el_s = np.where(up, el, 0.5 * np.pi)
         az_s = np.where(up, az, 0.0)
         iono = np.zeros(el.shape)
-        for height, weight in _SHELLS_M:
+        for height, weight in shells:
             la, lo, z = pierce_point(lat, lon, az_s, el_s, height_m=height)
-            iono += weight * fld.tecu(la, lo, t[:, None]) / np.cos(z)
+            iono += weight * (fld.tecu(la, lo, t[:, None]) + _tid_tecu(tids, la, lo, t[:, None])) / np.cos(z)
+        if irregularity_tecu > 0:
+            _, _, z = pierce_point(lat, lon, az_s, el_s, height_m=450e3)
+            iono += irregularity_tecu * _ar1(rng, el.shape, interval_s / irregularity_tau_s) / np.cos(z)
         iono *= TECU_L1_M
+        scale = float(station_noise_scale[ri % len(station_noise_scale)])
         rho = np.linalg.norm(sat_xyz - xyz, axis=-1)
-        mrng = np.random.default_rng([multipath_seed, ri])
-        lam_el = np.deg2rad(mrng.uniform(4.0, 12.0, (2, len(svs))))
-        ph = mrng.uniform(0, 2 * np.pi, (4, len(svs)))
-        n_az = mrng.integers(1, 4, len(svs))
-        amp = multipath_m * np.exp(-np.rad2deg(el_s) / 15.0)
+        unit = _multipath(np.random.default_rng([multipath_seed, ri]), len(svs), el_s, az_s)
+        if multipath_day_fraction > 0:
+            today = _multipath(rng, len(svs), el_s, az_s)
+            unit = [np.sqrt(1.0 - multipath_day_fraction**2) * u + multipath_day_fraction * v
+                    for u, v in zip(unit, today, strict=True)]
+        amp = scale * multipath_m * np.exp(-np.rad2deg(el_s) / multipath_el_scale_deg)
         ranges: dict[int, np.ndarray] = {}
         phases: dict[int, np.ndarray] = {}
         for k, (band, mu_k) in enumerate(((1, 1.0), (2, mu2))):
-            mp = (1.0 + 0.3 * k) * amp * (np.sin(el_s / lam_el[k] + ph[k]) + 0.5 * np.sin(n_az * az_s + ph[2 + k]))
+            mp = (1.0 + 0.3 * k) * amp * unit[k]
             dsb_part = np.array([sat_dsb[s] for s in svs]) + rx_dsb[name] if band == 1 else 0.0
-            p = rho + mu_k * iono + C_M_S * 1e-9 * dsb_part + mp + code_sigma_m[k] / np.sin(el_s) * \
+            p = rho + mu_k * iono + C_M_S * 1e-9 * dsb_part + mp + scale * code_sigma_m[k] / np.sin(el_s) * \
                 rng.standard_normal(el.shape)
             if svn49 in svs:
                 j = svs.index(svn49)
@@ -201,6 +240,46 @@ def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Gen
                                     notes=("simulated by distnav.models.gnss.netsim",), phase_m=phases, lli=lli,
                                     phase_types={1: "L1W", 2: "L2W"}))
     return SimulatedNetwork(obs, sat_dsb, rx_dsb, fld, svn49 if svn49 in svs else None, gross)
+
+
+def _multipath(g: np.random.Generator, n_sv: int, el: np.ndarray, az: np.ndarray) -> list[np.ndarray]:
+    """Unit multipath patterns of both bands per satellite: a sinusoid in elevation and one in azimuth whose
+    periods and phases ``g`` draws."""
+    lam_el = np.deg2rad(g.uniform(4.0, 12.0, (2, n_sv)))
+    ph = g.uniform(0, 2 * np.pi, (4, n_sv))
+    n_az = g.integers(1, 4, n_sv)
+    return [np.sin(el / lam_el[k] + ph[k]) + 0.5 * np.sin(n_az * az + ph[2 + k]) for k in (0, 1)]
+
+
+def _draw_tids(rng: np.random.Generator, tecu: float, n: int) -> list[tuple[float, float, float, float, float]]:
+    """``n`` plane waves (amplitude TECU, direction rad, wavelength km, period s, phase) or none."""
+    if tecu <= 0 or n <= 0:
+        return []
+    return [(tecu * rng.uniform(0.5, 1.0), rng.uniform(0, 2 * np.pi), rng.uniform(150.0, 400.0),
+             rng.uniform(900.0, 3600.0), rng.uniform(0, 2 * np.pi)) for _ in range(n)]
+
+
+def _tid_tecu(tids: Sequence[tuple[float, float, float, float, float]], lat: np.ndarray, lon: np.ndarray,
+              t: np.ndarray) -> np.ndarray | float:
+    if not tids:
+        return 0.0
+    north_km = np.rad2deg(lat) * 111.2
+    east_km = np.rad2deg(lon) * 111.2 * np.cos(lat)
+    out: np.ndarray = sum(a * np.sin(2 * np.pi * ((np.cos(d) * north_km + np.sin(d) * east_km) / lam_km
+                                                  - t / period_s) + ph)
+                          for a, d, lam_km, period_s, ph in tids)
+    return out
+
+
+def _ar1(rng: np.random.Generator, shape: tuple[int, ...], step: float) -> np.ndarray:
+    """A unit-variance AR(1) process along axis 0 with correlation ``exp(−step)`` between rows."""
+    from scipy.signal import lfilter
+
+    a = float(np.exp(-step))
+    e = rng.standard_normal(shape) * np.sqrt(1.0 - a * a)
+    e[0] = rng.standard_normal(shape[1:])
+    out: np.ndarray = lfilter([1.0], [1.0, -a], e, axis=0)
+    return out
 
 
 def truth_product(sim: SimulatedNetwork, day: str | np.datetime64 | None = None) -> Any:
