@@ -156,7 +156,10 @@ def test_two_days_of_rinex2_with_sp3_and_ionex(heldout: dict[str, object], capsy
         (name,) = [k for k in s["comparison"] if k.startswith("IONEX")]
         assert f"codg{doy:03d}0.24i" in name                           # each day against its own product
         c = s["comparison"][name]["central"]
-        assert c["n"] >= 12 and c["rms_zero_mean_ns"] < 0.6          # 3 h of two stations vs the truth
+        # 3 h of two stations vs the truth; the default leaves out satellites tracked for under a quarter of the
+        # best-tracked one's station-epochs (named in the notes), so 10 or more of them are compared
+        assert c["n"] >= 10 and c["rms_zero_mean_ns"] < 0.6
+        assert any("not estimated, fewer than" in note for note in s.get("notes", [])), s.get("notes")
         assert max(abs(v) for v in c["receivers"]["difference_ns"].values()) < 0.7
     # gnss compare of the whole output folder: each day against the IONEX file of that day
     rc = main(["gnss", "compare", "--estimates", str(out), "--bias", *heldout["ionex"],  # type: ignore[misc]
@@ -168,7 +171,7 @@ def test_two_days_of_rinex2_with_sp3_and_ionex(heldout: dict[str, object], capsy
     assert sorted(cmp["days"]) == list(DAYS)
     for day in DAYS:
         (prod,) = cmp["days"][day]["products"].values()
-        assert prod["n"] >= 12 and prod["rms_zero_mean_ns"] < 0.6 and "G01" not in prod["difference_ns"]
+        assert prod["n"] >= 10 and prod["rms_zero_mean_ns"] < 0.6 and "G01" not in prod["difference_ns"]
     assert "median over 2 days" in text
     # a product of another day is refused for one day's solution unless told
     assert main(["gnss", "compare", "--estimates", str(out / DAYS[0]), "--bias", heldout["ionex"][1]]) == 2  # type: ignore[index]
