@@ -64,3 +64,22 @@ def test_every_experiment_has_a_cost() -> None:
     """The longest-first order knows every experiment (a new one would otherwise start last)."""
     assert set(DEMO_SECONDS) == set(EXPERIMENTS)
     assert json.dumps(DEMO_SECONDS)  # plain numbers
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def _nested_parallel_map(n: int) -> list[int]:
+    from distnav.experiments.common import parallel_map
+
+    return parallel_map(_square, list(range(n)), 2)
+
+
+def test_parallel_map_inside_a_pool_worker_runs_serially() -> None:
+    """The demo's workers are daemonic: an experiment's own ``parallel_map`` there must not try to start children
+    (it raised "daemonic processes are not allowed to have children" and ended ``make demo`` in a traceback)."""
+    import multiprocessing
+
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.apply(_nested_parallel_map, (5,)) == [0, 1, 4, 9, 16]

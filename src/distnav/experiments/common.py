@@ -131,9 +131,10 @@ def parallel_map(fn: Callable[[T], R], tasks: Sequence[T], jobs: int,
     them is the same sum in the same order as the serial loop (bit-identical results). ``fn`` and the tasks must
     be picklable (module-level functions, plain data); each task must draw its own random numbers (seeded from
     the task), never from state shared between tasks. ``advance(1)`` is called as each result arrives. Workers
-    are forked where the platform allows it (no re-import), else spawned.
+    are forked where the platform allows it (no re-import), else spawned. Inside a daemonic worker (``distnav demo
+    --jobs N`` runs whole experiments in pool workers, which may not have children) the loop runs serially.
     """
-    if jobs <= 1 or len(tasks) <= 1:
+    if jobs <= 1 or len(tasks) <= 1 or multiprocessing.current_process().daemon:
         out = []
         for t in tasks:
             out.append(fn(t))
