@@ -31,7 +31,7 @@ from distnav.algorithms.nlsq import solve_lm
 from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
-from distnav.models.uwb.initial import mds_initial_guess
+from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray
@@ -43,6 +43,8 @@ RANGE_RECORD_BYTES = 16  # two int32 anchor ids + one float64 range
 POSITION_BYTES = 8
 DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions were right, 1.80 on the folded one
 REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
+START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
+SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
 
 
 @dataclass(frozen=True)
@@ -64,6 +66,8 @@ class FieldOptions:
     repair: bool = True
     one_sided: bool = True
     exclusions_per_round: int | None = 3  # at least; n_anchors // 4 on larger networks
+    multi_start: bool = True  # LM with the metres objective: choose_start before the exclusions
+    revert: bool = True  # exclusions that raise the all-links robust cost > DISAGREE_RATIO × are rejected
     solver_options: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -134,8 +138,8 @@ def prepare(problem: RangingProblem, *, initial_m: FloatArray | None = None, all
     return sub, report
 
 
-def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int],
-            last: list[FloatArray]) -> Callable[[Any], Any]:
+def _solver_kwargs(opts: FieldOptions) -> dict[str, Any]:
+    """The solver front door's keyword arguments for ``opts`` (loss, objective, σ, offsets, test level)."""
     key = opts.solver.upper()
     kw: dict[str, Any] = dict(opts.solver_options)
     if key != "CSG":
@@ -149,6 +153,44 @@ def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None
         kw.update(test_level=opts.level)
     elif opts.offsets_used != "none":
         raise ModelError(f"range offsets are estimated by LM with the metres objective, not by {key}")
+    return kw
+
+
+def choose_start(problem: RangingProblem, opts: FieldOptions) -> tuple[FloatArray | None, str]:
+    """The robust fit of every link (LM, graduated: linear then the robust loss) from the prepared start and from
+    each of :func:`~distnav.models.uwb.initial.candidate_starts`; returns the solution with the lowest
+    :func:`all_links_cost` (None if no fit was usable) and a note naming the start it came from when that was not
+    the prepared one. The exclusions then start from there. Why: on simulated plant-like halls with the known
+    anchors in a corner the MDS/SMACOF start can be folded (2 m off) and the first robust fit keeps the fold; the
+    careful fit's classical-MDS start, a leave-one-out alignment or one weak anchor mirrored finds a lower cost."""
+    kw = _solver_kwargs(opts)
+    kw["quality"] = False
+    kw.update({k: v for k, v in START_TOLERANCES.items() if k not in kw})
+    assert problem.initial_m is not None
+    best: tuple[float, str, FloatArray] | None = None
+    tried: list[FloatArray] = []
+    est = problem.estimated
+    for name, start in [("prepared", problem.initial_m), *candidate_starts(problem)]:
+        if any(np.sqrt(np.mean(np.sum((start[est] - t[est]) ** 2, axis=1))) < SAME_START_M for t in tried):
+            continue  # as good as tried: it lands in the same basin
+        tried.append(start)
+        r = csg.solve(problem.with_initial(start), "LM", iterations=opts.iterations, **kw)
+        if not (r.usable and np.all(np.isfinite(r.estimates))):
+            continue
+        cost = all_links_cost(problem, r, opts)
+        if best is None or cost < best[0] - 1e-9 * max(1.0, abs(best[0])):
+            best = (cost, name, np.asarray(r.estimates, float))
+    if best is None:
+        return None, ""
+    note = "" if best[1] == "prepared" else (f"; multi-start: the {best[1]} start of {len(tried)} gave the lowest "
+                                             f"robust cost of all the links ({best[0]:.4g})")
+    return best[2], note
+
+
+def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int],
+            last: list[FloatArray]) -> Callable[[Any], Any]:
+    key = opts.solver.upper()
+    kw = _solver_kwargs(opts)
 
     def fit(sub: Any) -> Any:
         extra: dict[str, Any] = {"exchange": exchange(sub)} if key != "LM" and exchange is not None else {}
@@ -246,6 +288,11 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             no_exclusion.append(r)
         return r
 
+    if opts.multi_start and opts.solver.upper() == "LM" and objective == "metres":
+        best, start_note = choose_start(problem, opts)
+        if best is not None:
+            starts.append(best)  # the first fit starts there, with the robust loss straight away
+            note += start_note
     excluded = np.zeros(problem.n_meas, bool)
     # exclusions tested at the robust solution (an NLOS link does not drag it); every re-fit robust too
     first = _exclude(problem, fit, opts) if opts.exclude else None
@@ -290,6 +337,15 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             w, flagged, crit = np.full(problem.n_meas, np.nan), np.zeros(problem.n_meas, bool), None
         if opts.exclude and res.usable:
             note += f"; {opts.solver}: no per-link tests (or they failed on a re-fit): no link excluded"
+    reverted = 0.0
+    if excluded.any() and no_exclusion and no_exclusion[0].usable and res.usable and opts.revert:
+        worse = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
+        if worse > DISAGREE_RATIO:  # the exclusions raised the robust cost of all the data: rejected
+            reverted = worse
+            res = no_exclusion[0]
+            excluded = np.zeros(problem.n_meas, bool)
+            if res.tests is not None:
+                w, flagged = res.tests.w, res.tests.flagged
     geo = geometry if geometry is not None else check_geometry(problem)
     nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
     if not res.usable or not np.all(np.isfinite(res.estimates)):
@@ -305,13 +361,16 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
         sigma = np.where(problem.free, res.precision.std(a_posteriori=True), 0.0)
     residual = problem.residuals_m(pos)
     weak = weak_anchors(problem, residual, excluded, flagged)
-    if excluded.any() and no_exclusion and no_exclusion[0].usable:
-        worse = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
-        if worse > DISAGREE_RATIO:  # the exclusions and the robust fit of all links disagree: trust neither
-            weak = tuple(problem.ids[i] for i in np.flatnonzero(problem.estimated))
-            note += (f"; the solution after the exclusions fits all the ranges {worse:.2f} × worse (Cauchy cost) "
-                     "than the robust fit of every link: a folded start or a swamped exclusion — every anchor "
-                     "reported weak")
+    if not reverted and excluded.any() and no_exclusion and no_exclusion[0].usable:
+        reverted = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
+        reverted = reverted if reverted > DISAGREE_RATIO else 0.0
+    if reverted:  # the exclusions and the robust fit of all links disagree: trust neither
+        weak = tuple(problem.ids[i] for i in np.flatnonzero(problem.estimated))
+        note += (f"; the solution after the exclusions fitted all the ranges {reverted:.2f} × worse (Cauchy cost) "
+                 "than the robust fit of every link: a folded start or a swamped exclusion — "
+                 + ("the exclusions were rejected (the robust fit of every link is reported, its flagged links "
+                    "named, none excluded) and " if opts.revert else "")
+                 + "every anchor reported weak")
     status = geo.status or ("weakly_determined" if weak and res.status in ("converged", "max_iterations")
                             else res.status)
     msg = res.message + note

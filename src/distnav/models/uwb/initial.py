@@ -13,7 +13,7 @@ from scipy.sparse.csgraph import shortest_path
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
 
-__all__ = ["classical_mds", "smacof", "mds_initial_guess", "height_spread_ratio"]
+__all__ = ["classical_mds", "smacof", "mds_initial_guess", "height_spread_ratio", "candidate_starts"]
 
 
 def classical_mds(dist_m: np.ndarray, dim: int) -> np.ndarray:
@@ -112,6 +112,76 @@ def mds_initial_guess(problem: RangingProblem) -> np.ndarray:
     aligned = coords @ r + t
     out = np.column_stack([aligned, problem.positions_m[:, 2]]) if horizontal else aligned
     return np.where(problem.free, out, problem.positions_m)
+
+
+def _aligned(problem: RangingProblem, coords: np.ndarray, horizontal: bool, use: np.ndarray) -> np.ndarray:
+    """``coords`` (k columns) aligned onto the known anchors ``use`` (indices) and completed as in
+    :func:`mds_initial_guess`."""
+    k = coords.shape[1]
+    r, t = _procrustes(coords[use], problem.positions_m[use][:, :k])
+    aligned = coords @ r + t
+    out = np.column_stack([aligned, problem.positions_m[:, 2]]) if horizontal else aligned
+    return np.where(problem.free, out, problem.positions_m)
+
+
+def _reflected(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``point`` mirrored across the line through ``a`` and ``b`` (2-D)."""
+    u = b - a
+    n2 = float(u @ u)
+    if n2 <= 1e-12:
+        return point.copy()
+    foot = a + u * float((point - a) @ u) / n2
+    out: np.ndarray = 2.0 * foot - point
+    return out
+
+
+def candidate_starts(problem: RangingProblem, *, max_flips: int = 8) -> list[tuple[str, np.ndarray]]:
+    """Further initial guesses for a multi-start robust fit (issue 13: never worse than the careful fit):
+
+    * ``classical``: classical MDS of the completed range graph without the SMACOF refinement (the careful fit's
+      start; SMACOF can fold a weakly linked part), aligned onto the known anchors;
+    * ``procrustes-<id>``: the SMACOF start aligned onto the known anchors without ``<id>`` (one leave-one-out
+      alignment per known anchor, where at least 3 remain: a poorly ranged known anchor can tilt the alignment);
+    * ``flip-<id>``: the SMACOF start with one weakly held anchor (at most 2 links more than free coordinates)
+      mirrored across the line through its two nearest linked partners (the two positions those two ranges allow:
+      a fold the local descent cannot undo) — up to ``max_flips`` anchors, fewest links first.
+
+    Horizontal (2-D) problems and heights-held 3-D problems only (the reflections are in the plane); others get
+    the ``classical`` start alone. Returns ``(name, positions (n, dim))`` pairs; empty where the range graph is
+    not connected.
+    """
+    dim = problem.dim
+    horizontal = dim == 3 and bool(np.all(~problem.free[:, 2]))
+    planar = horizontal or dim == 2
+    try:
+        links, d = _link_distances(problem, horizontal)
+        full = _completed(problem, links, d)
+    except ModelError:
+        return []
+    k = 2 if horizontal else dim
+    fixed = np.flatnonzero(problem.fixed)
+    cm = classical_mds(full, k)
+    out: list[tuple[str, np.ndarray]] = [("classical", _aligned(problem, cm, horizontal, fixed))]
+    sm = smacof(links, d, cm)
+    if fixed.size >= 4:
+        for f in fixed:
+            out.append((f"procrustes-{problem.ids[f]}", _aligned(problem, sm, horizontal, fixed[fixed != f])))
+    if not planar:
+        return out
+    base = _aligned(problem, sm, horizontal, fixed)
+    n = problem.n_anchors
+    deg = np.bincount(links[:, 0], minlength=n) + np.bincount(links[:, 1], minlength=n)
+    weak = [i for i in np.argsort(deg, kind="stable")
+            if problem.estimated[i] and deg[i] <= int(problem.free[i].sum()) + 2][:max_flips]
+    for i in weak:
+        partners = np.concatenate([links[links[:, 0] == i, 1], links[links[:, 1] == i, 0]])
+        if partners.size < 2:
+            continue
+        near = partners[np.argsort(np.linalg.norm(base[partners, :2] - base[i, :2], axis=1))[:2]]
+        start = base.copy()
+        start[i, :2] = _reflected(base[i, :2], base[near[0], :2], base[near[1], :2])
+        out.append((f"flip-{problem.ids[i]}", np.where(problem.free, start, problem.positions_m)))
+    return out
 
 
 def height_spread_ratio(problem: RangingProblem) -> float:
