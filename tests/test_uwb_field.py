@@ -193,13 +193,17 @@ def test_default_range_offsets_resolve_per_solver():
     assert FieldOptions(solver="N-CLM").offsets_used == "none"
     assert FieldOptions(objective="squared").offsets_used == "none"
     assert FieldOptions(range_offsets="per_anchor").offsets_used == "per_anchor"
+    assert FieldOptions().considers_delays  # LM, metres, common offset: the delays left are considered in σ
+    assert not FieldOptions(delay_sigma_m=0.0).considers_delays
+    assert not FieldOptions(range_offsets="per_anchor").considers_delays  # estimated instead
+    assert not FieldOptions(solver="N-CLM").considers_delays
 
 
 def test_default_sigma_is_calibrated_on_plant_like_halls_with_antenna_delays():
     """Monte Carlo check of the default precision: plant-like halls (antenna delays N(0, 3 cm²) per node, NLOS,
     multipath), known anchors in a corner, heights held. The fraction of estimated coordinates within 2σ of the
-    truth (anchors not reported weak) lies in 0.90–0.98 with the default (common offset); without any offset the
-    σ are too small (the delays are correlated errors the plain model lacks)."""
+    truth (anchors not reported weak) is at least 0.90 with the default (common offset, delays of σ 1.5 cm
+    considered); without any offset model the σ are too small (the delays are correlated errors)."""
     from distnav.experiments.uwb_field import hall_problem
     from distnav.models.uwb.field import FieldOptions, prepare, solve_field
     from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
@@ -209,11 +213,14 @@ def test_default_sigma_is_calibrated_on_plant_like_halls_with_antenna_delays():
         h = simulate_hall(np.random.default_rng([7, s, 6]), HallConfig().with_(known="corner", **PLANT_LIKE))
         sub, geo = prepare(hall_problem(h)[0])
         for k in cover:
-            sol = solve_field(sub, FieldOptions(range_offsets=k), geometry=geo)
+            extra = {} if k == "auto" else {"delay_sigma_m": 0.0}  # "none": no offset, no delays considered
+            sol = solve_field(sub, FieldOptions(range_offsets=k, **extra), geometry=geo)
             ok = sub.free & ~np.isin(np.array(sub.ids), list(sol.weak))[:, None]
             cover[k] += (np.abs(sol.positions_m - sub.truth_m)[ok] <= 2 * sol.sigma_m[ok]).tolist()
     print({k: np.mean(v) for k, v in cover.items()})
-    assert 0.90 <= np.mean(cover["auto"]) <= 0.98
+    # one delay draw per hall makes a hall's coordinates covered or missed together: 4 halls bound coverage from
+    # below only (100 halls: 0.951, docs/uwb.md); the upper bound is the exact Monte Carlo of test_uwb_precision
+    assert np.mean(cover["auto"]) >= 0.90
     assert np.mean(cover["none"]) < 0.90
 
 

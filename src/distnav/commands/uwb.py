@@ -32,7 +32,14 @@ from distnav.algorithms.nlsq import LOSSES
 from distnav.commands import add_backend_arguments
 from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange
-from distnav.models.uwb.field import FieldOptions, FieldSolution, gather_cost, prepare, solve_field
+from distnav.models.uwb.field import (
+    DELAY_SIGMA_M,
+    FieldOptions,
+    FieldSolution,
+    gather_cost,
+    prepare,
+    solve_field,
+)
 from distnav.models.uwb.geometry import planarity
 from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_initial_guess, smacof  # noqa: F401
 from distnav.models.uwb.io import (
@@ -82,6 +89,10 @@ def register(subparsers: Any) -> None:
                         "auto (default): common where LM with the metres objective solves, none otherwise")
     s.add_argument("--offset-prior-sigma-m", type=float, default=0.1,
                    help="prior σ of each per-anchor offset (m, default 0.1)")
+    s.add_argument("--delay-sigma-m", type=float, default=DELAY_SIGMA_M,
+                   help="σ (m) of each anchor's antenna delay left after the common offset, admitted in the "
+                        f"reported σ without estimating it (LM, offsets auto/none/common; default {DELAY_SIGMA_M}, "
+                        "0 = off)")
     s.add_argument("--allow-planar-3d", action="store_true",
                    help="solve a nearly planar network in 3-D with free heights anyway (refused by default)")
     s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")
@@ -123,6 +134,8 @@ def _validate(opts: FieldOptions) -> None:
                     ("--offset-prior-sigma-m", opts.offset_prior_sigma_m)):
         if not (np.isfinite(v) and v > 0):
             raise ModelError(f"{name} must be a positive number of metres, got {v}")
+    if not (np.isfinite(opts.delay_sigma_m) and opts.delay_sigma_m >= 0):
+        raise ModelError(f"--delay-sigma-m must be a number of metres ≥ 0, got {opts.delay_sigma_m}")
     if not 0.0 < opts.level < 0.5:
         raise ModelError(f"--level must lie in (0, 0.5), got {opts.level}")
     if opts.range_offsets not in ("none", "auto") and (opts.solver.upper() != "LM" or opts.objective != "metres"):
@@ -229,6 +242,7 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "loss_scale_m": opts.loss_scale_m if opts.loss != "linear" else None,
         "sigma_m": opts.sigma_m,
         "variance_factor": None if prec is None else prec.variance_factor,
+        "delay_sigma_m_considered": opts.delay_sigma_m if opts.considers_delays else None,
         "precision_kind": None if prec is None else prec.kind,
         "test_level": opts.level,
         "critical_value": sol.critical_value,
@@ -353,7 +367,7 @@ def _handler(args: argparse.Namespace) -> int:
     opts = FieldOptions(solver=args.solver, objective=args.objective, loss=args.loss, loss_scale_m=args.loss_scale_m,
                         sigma_m=args.sigma_m, iterations=args.iterations, exclude=args.exclude, level=args.level,
                         range_offsets=args.range_offsets, offset_prior_sigma_m=args.offset_prior_sigma_m,
-                        allow_planar_3d=args.allow_planar_3d)
+                        allow_planar_3d=args.allow_planar_3d, delay_sigma_m=args.delay_sigma_m)
     _validate(opts)
     out = Path(args.out)
     if out.exists() and not out.is_dir():

@@ -7,7 +7,11 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
 2. :func:`solve_field`: the solver with the metres objective and a robust loss (default Cauchy at 0.3 m, LM's
    graduated start: linear first, then robust), per-link w-tests and per-anchor precision from the solver
    (:mod:`distnav.algorithms.ranging_qc`), and with ``exclude`` its iterative exclusion of the worst link while
-   the network stays determined (:func:`distnav.algorithms.ranging_qc.exclude_links`).
+   the network stays determined (:func:`distnav.algorithms.ranging_qc.exclude_links`). With LM in metres the
+   robust fit of every link is first run from several starts (:func:`choose_start`: the lowest Cauchy cost of
+   all the links wins) and the exclusions start from there; exclusions that leave a solution fitting all the
+   links more than :data:`DISAGREE_RATIO` × worse are rejected (``revert``). σ admit the antenna delays the
+   model does not estimate (:mod:`distnav.models.uwb.precision`, ``delay_sigma_m``).
 3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
 
 The solve call goes to :func:`distnav.algorithms.csg.solve` by name, with ``objective`` passed when the solver
@@ -33,6 +37,7 @@ from distnav.errors import ModelError
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
+from distnav.models.uwb.precision import consider_sigma
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray
 
@@ -44,6 +49,7 @@ POSITION_BYTES = 8
 DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions were right, 1.80 on the folded one
 REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
+DELAY_SIGMA_M = 0.015  # Monte Carlo over 4 × 100 simulated halls (docs/uwb.md, "Precision")
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
 
 
@@ -68,6 +74,14 @@ class FieldOptions:
     exclusions_per_round: int | None = 3  # at least; n_anchors // 4 on larger networks
     multi_start: bool = True  # LM with the metres objective: choose_start before the exclusions
     revert: bool = True  # exclusions that raise the all-links robust cost > DISAGREE_RATIO × are rejected
+    delay_sigma_m: float = DELAY_SIGMA_M  # antenna delays considered in σ (models/uwb/precision.py); 0: off
+
+    @property
+    def considers_delays(self) -> bool:
+        """Whether σ admit the per-anchor delays (:mod:`distnav.models.uwb.precision`): LM in metres, delays not
+        estimated (``range_offsets`` none or common), ``delay_sigma_m`` > 0."""
+        return (self.delay_sigma_m > 0 and self.solver.upper() == "LM" and self.objective == "metres"
+                and self.offsets_used in ("none", "common"))
     solver_options: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -359,6 +373,12 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     sigma = nan_pos.copy()
     if res.precision is not None:
         sigma = np.where(problem.free, res.precision.std(a_posteriori=True), 0.0)
+        if opts.considers_delays:
+            considered = consider_sigma(subset_measurements(problem, ~excluded), res, sigma_m=opts.sigma_m,
+                                        offsets=opts.offsets_used, loss=opts.loss, loss_scale_m=opts.loss_scale_m,
+                                        delay_sigma_m=opts.delay_sigma_m)
+            if considered is not None:
+                sigma = considered
     residual = problem.residuals_m(pos)
     weak = weak_anchors(problem, residual, excluded, flagged)
     if not reverted and excluded.any() and no_exclusion and no_exclusion[0].usable:

@@ -1,0 +1,85 @@
+"""Per-anchor precision that admits the antenna delays the model does not estimate (a *consider* covariance).
+
+LM's a-posteriori covariance ``σ̂² (JᵀWJ)⁻¹`` (:func:`distnav.algorithms.ranging_qc.centralized_quality`) treats
+the range errors as independent. Per-node antenna delays are not: anchor ``i``'s delay ``δ_i`` lengthens every
+range it takes part in, ``d_ab + δ_a + δ_b`` (the convention of ``range_offsets="per_anchor"``). A common offset
+(the default) removes their mean; what is left moves the anchors coherently, and on simulated halls with
+delays N(0, (1.5 cm)²) per node (``HallConfig.antenna_delay_sd_m`` 3 cm on ``(δ_a + δ_b)/2``) the plain
+covariance covers 2σ in 77–94 % instead of 95 %.
+
+Rather than estimate 28 more unknowns (which a plant-like network with 7.5 links per anchor cannot carry: the
+RMSE doubles, docs/uwb.md), the delays are *considered* (the orbit determiners' consider covariance, e.g.
+Tapley, Schutz & Born, *Statistical Orbit Determination*, 2004, §6.4): with ``G`` the ``∂range/∂δ`` incidence
+(1 at both ends of every link) whitened like ``J``, the estimate's error from delays of covariance
+``σ_δ² I`` is ``−(JᵀWJ)⁻¹ JᵀW G δ``, so
+
+    C = σ̂²_noise Q + σ_δ² B Bᵀ,   Q = (JᵀWJ)⁻¹,   B = Q JᵀW G,
+
+where ``σ̂²_noise`` is the a-posteriori variance factor less the delays' expected share of the weighted residual
+sum, ``σ_δ² tr(Gᵀ Pᵀ W P G) / redundancy`` (``P = I − J Q JᵀW``; a variance-component split, at least
+:data:`MIN_NOISE_SHARE` of σ̂²): without it the delays are counted twice (a 12-anchor Monte Carlo: 99 % coverage
+of 2σ instead of 95 %).
+
+The estimates do not change (no RMSE is traded), only their σ. ``σ_δ`` is a prior (``FieldOptions.delay_sigma_m``;
+0 switches it off); its default was chosen by Monte Carlo over simulated halls (docs/uwb.md, "Precision").
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from distnav.algorithms.nlsq import robust_weights
+from distnav.algorithms.ranging_objective import RangeObjective
+from distnav.models.uwb.problems import RangingProblem
+from distnav.typing import FloatArray
+
+__all__ = ["consider_sigma", "MIN_NOISE_SHARE"]
+
+MIN_NOISE_SHARE = 0.1  # the noise part keeps at least this share of σ̂² (the delays' prior may be too large)
+
+
+def consider_sigma(problem: RangingProblem, result: Any, *, sigma_m: float, offsets: str, loss: str,
+                   loss_scale_m: float, delay_sigma_m: float, offset_prior_sigma_m: float = 0.1
+                   ) -> FloatArray | None:
+    """σ per anchor and axis ``(n, dim)`` (0 at known coordinates) of an LM metres-objective ``result`` on
+    ``problem`` (the links it was fitted on), with per-anchor delays of σ ``delay_sigma_m`` considered (module
+    docstring). None when the result carries no free vector or variance factor, or the normal matrix is singular.
+    """
+    x = getattr(result, "x", None)
+    prec = getattr(result, "precision", None)
+    if x is None or prec is None or prec.variance_factor is None:
+        return None
+    obj = RangeObjective(problem, "metres", sigma_m, offsets, offset_prior_sigma_m)
+    x = np.asarray(x, float)
+    if x.size != obj.n_x:
+        return None
+    J = sp.csr_matrix(obj.jacobian(x))
+    r = obj.residual(x)
+    w = robust_weights(r, obj.loss_scale(loss_scale_m), loss)[0] if loss != "linear" else np.ones_like(r)
+    JW = sp.csr_matrix(J.T @ sp.diags(w))
+    N = np.asarray((JW @ J).toarray())
+    try:
+        Q = sla.cho_solve(sla.cho_factor(N, check_finite=False), np.eye(obj.n_x), check_finite=False)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    m, n = problem.n_meas, problem.n_anchors
+    inv_sigma = 1.0 / obj.sigma
+    G = sp.csr_matrix((np.concatenate([inv_sigma, inv_sigma]),
+                       (np.concatenate([np.arange(m)] * 2), np.concatenate([problem.meas_a, problem.meas_b]))),
+                      shape=(J.shape[0], n))
+    Gd = np.asarray(G.toarray())
+    B = Q @ np.asarray(JW @ Gd)
+    # the variance factor σ̂² = Σ w r² / redundancy also holds the delays' share of the residuals,
+    # σ_δ² tr(Gᵀ Pᵀ W P G) / redundancy with P G = G − J B (the residual maker): taken out, not counted twice
+    PG = Gd - np.asarray(J @ B)
+    redundancy = float(prec.redundancy) if prec.redundancy else 0.0
+    share = delay_sigma_m**2 * float(np.sum(w[:, None] * PG * PG)) / redundancy if redundancy > 0 else 0.0
+    s2 = max(float(prec.variance_factor) - share, MIN_NOISE_SHARE * float(prec.variance_factor))
+    var = s2 * np.diag(Q) + delay_sigma_m**2 * np.einsum("ij,ij->i", B, B)
+    out = np.zeros(problem.free.shape)
+    out[problem.free] = np.sqrt(np.maximum(var[:problem.n_free], 0.0))
+    return out
