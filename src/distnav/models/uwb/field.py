@@ -50,6 +50,7 @@ DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions wer
 REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
 DELAY_SIGMA_M = 0.015  # Monte Carlo over 4 × 100 simulated halls (docs/uwb.md, "Precision")
+MULTI_START_MAX_ANCHORS = 200  # larger networks: the prepared start only (each extra start is a full LM fit)
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
 
 
@@ -172,8 +173,9 @@ def _solver_kwargs(opts: FieldOptions) -> dict[str, Any]:
 
 def choose_start(problem: RangingProblem, opts: FieldOptions) -> tuple[FloatArray | None, str]:
     """The robust fit of every link (LM, graduated: linear then the robust loss) from the prepared start and from
-    each of :func:`~distnav.models.uwb.initial.candidate_starts`; returns the solution with the lowest
-    :func:`all_links_cost` (None if no fit was usable) and a note naming the start it came from when that was not
+    each of :func:`~distnav.models.uwb.initial.candidate_starts`; returns the solution with the lowest objective
+    of the fit itself over every link (for the Cauchy loss the order of :func:`all_links_cost`; None if no fit was
+    usable) and a note naming the start it came from when that was not
     the prepared one. The exclusions then start from there. Why: on simulated plant-like halls with the known
     anchors in a corner the MDS/SMACOF start can be folded (2 m off) and the first robust fit keeps the fold; the
     careful fit's classical-MDS start, a leave-one-out alignment or one weak anchor mirrored finds a lower cost."""
@@ -191,7 +193,7 @@ def choose_start(problem: RangingProblem, opts: FieldOptions) -> tuple[FloatArra
         r = csg.solve(problem.with_initial(start), "LM", iterations=opts.iterations, **kw)
         if not (r.usable and np.all(np.isfinite(r.estimates))):
             continue
-        cost = all_links_cost(problem, r, opts)
+        cost = float(r.objective)  # the fit's own (robust) objective over every link
         if best is None or cost < best[0] - 1e-9 * max(1.0, abs(best[0])):
             best = (cost, name, np.asarray(r.estimates, float))
     if best is None:
@@ -302,7 +304,8 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             no_exclusion.append(r)
         return r
 
-    if opts.multi_start and opts.solver.upper() == "LM" and objective == "metres":
+    if (opts.multi_start and opts.solver.upper() == "LM" and objective == "metres"
+            and problem.n_anchors <= MULTI_START_MAX_ANCHORS):
         best, start_note = choose_start(problem, opts)
         if best is not None:
             starts.append(best)  # the first fit starts there, with the robust loss straight away
