@@ -14,6 +14,9 @@
 * ``--heights HEIGHTS.csv`` (``id,z_m``) holds those anchors' heights fixed and solves their horizontal position
   from the 3-D ranges — the remedy for the mirror ambiguity of anchors mounted in one plane (under a ceiling).
   A 3-D solve of a nearly planar network without it prints a warning.
+* LM in metres: the robust fit of every link from several starts (the lowest cost wins) before the exclusions;
+  exclusions that fit all the links much worse are rejected; ``--delay-sigma-m`` (default 0.015 m) widens the
+  reported σ by the antenna delays left after the common offset (:mod:`distnav.models.uwb.precision`).
 
 Outputs in OUT_DIR: ``positions.csv`` (every anchor), ``summary.json`` and ``positions.png``.
 """

@@ -71,13 +71,14 @@ def consider_sigma(problem: RangingProblem, result: Any, *, sigma_m: float, offs
     G = sp.csr_matrix((np.concatenate([inv_sigma, inv_sigma]),
                        (np.concatenate([np.arange(m)] * 2), np.concatenate([problem.meas_a, problem.meas_b]))),
                       shape=(J.shape[0], n))
-    Gd = np.asarray(G.toarray())
-    B = Q @ np.asarray(JW @ Gd)
+    JWG = np.asarray((JW @ G).toarray())  # n_x × n
+    B = Q @ JWG
     # the variance factor σ̂² = Σ w r² / redundancy also holds the delays' share of the residuals,
-    # σ_δ² tr(Gᵀ Pᵀ W P G) / redundancy with P G = G − J B (the residual maker): taken out, not counted twice
-    PG = Gd - np.asarray(J @ B)
+    # σ_δ² tr(Gᵀ Pᵀ W P G) / redundancy with P G = G − J B (the residual maker): taken out, not counted twice.
+    # tr(Gᵀ Pᵀ W P G) = tr(GᵀWG) − tr(BᵀJᵀWG) (N B = JᵀWG), without forming the m × n product
+    trace = float(np.sum(w[:m] * 2.0 * inv_sigma**2)) - float(np.sum(JWG * B))
     redundancy = float(prec.redundancy) if prec.redundancy else 0.0
-    share = delay_sigma_m**2 * float(np.sum(w[:, None] * PG * PG)) / redundancy if redundancy > 0 else 0.0
+    share = delay_sigma_m**2 * trace / redundancy if redundancy > 0 else 0.0
     s2 = max(float(prec.variance_factor) - share, MIN_NOISE_SHARE * float(prec.variance_factor))
     var = s2 * np.diag(Q) + delay_sigma_m**2 * np.einsum("ij,ij->i", B, B)
     out = np.zeros(problem.free.shape)
