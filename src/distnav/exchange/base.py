@@ -96,12 +96,13 @@ class CommTotals:
 def _segment_matrix(dst_local: np.ndarray, n_rows: int, n_cols: int, data: np.ndarray,
                     col_index: np.ndarray | None = None) -> sp.csr_matrix:
     """CSR matrix with one entry per edge at (dst_local[e], col_index[e]); rows must be sorted."""
-    counts = np.bincount(dst_local, minlength=n_rows)
+    counts = _masked_count(dst_local, None, n_rows)
     ptr = np.zeros(n_rows + 1, dtype=np.int64)
     np.cumsum(counts, out=ptr[1:])
-    cols = np.arange(dst_local.size, dtype=np.int64) if col_index is None else col_index
     idx_dtype = np.int32 if max(n_cols, dst_local.size) < 2**31 - 1 else np.int64
-    return sp.csr_matrix((data, cols.astype(idx_dtype), ptr.astype(idx_dtype)), shape=(n_rows, n_cols))
+    cols = np.arange(dst_local.size, dtype=idx_dtype) if col_index is None else col_index
+    # the column index array is shared, not copied, when it has the index dtype already (the mixer's edge block)
+    return sp.csr_matrix((data, cols.astype(idx_dtype, copy=False), ptr.astype(idx_dtype)), shape=(n_rows, n_cols))
 
 
 def incoming_edges(graph: Graph, nodes: np.ndarray) -> np.ndarray:
@@ -116,9 +117,19 @@ def incoming_edges(graph: Graph, nodes: np.ndarray) -> np.ndarray:
     return np.asarray(np.repeat(starts - offsets, counts) + np.arange(total, dtype=np.int64))
 
 
-def _masked_count(index: np.ndarray, mask: np.ndarray, n: int) -> np.ndarray:
-    """``np.bincount(index[mask], minlength=n)`` without the edge-sized copy ``index[mask]`` (exact integers)."""
-    return np.bincount(index, weights=mask, minlength=n).astype(np.int64)
+def _masked_count(index: np.ndarray, mask: np.ndarray | None, n: int) -> np.ndarray:
+    """``np.bincount(index[mask], minlength=n)`` (int64) a chunk of edges at a time: no edge-sized temporary (a
+    whole-array bincount casts an int32 index to a 64-bit copy, and a weighted one makes a float copy too)."""
+    counts = np.zeros(n, np.int64)
+    for a in range(0, int(index.size), _COUNT_CHUNK):
+        part = index[a:a + _COUNT_CHUNK]
+        if mask is not None:
+            part = part[mask[a:a + _COUNT_CHUNK]]
+        counts += np.bincount(part, minlength=n)
+    return counts
+
+
+_COUNT_CHUNK = 1 << 20  # edges per bincount (8 MB of 64-bit indices)
 
 
 def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray,
@@ -131,7 +142,7 @@ def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray,
     the merge is one linear pass, no sort, and writes the CSR arrays in place, in chunks of edges (``edge_w(a, b)``:
     the weights of in-edges ``a:b``), so no edge-sized temporary is made."""
     n, n_e = local_col.size, in_dst.size
-    row_len = np.bincount(in_dst, minlength=n)
+    row_len = _masked_count(in_dst, None, n)
     # below: senders before the diagonal in global order (``in_src < nodes[in_dst]``)
     total = n_e + n
     idx_dtype = np.int32 if max(n_cols, total) < 2**31 - 1 else np.int64
@@ -234,16 +245,23 @@ class Mixer:
                  active: np.ndarray | None) -> None:
         ex = exchange
         self.exchange = ex
-        self._edge_weight = edge_weight  # kept by reference: the fault rounds' in-edge weights come from it
+        self._edge_weight = edge_weight  # kept by reference (the caller's weights hold it): no copy
         self._act_in = ex._real_in if active is None else np.asarray(active, bool)[ex.in_edges] & ex._real_in
         self._act_out = ex._real_out if active is None else np.asarray(active, bool)[ex.out_edges] & ex._real_out
         self._active_global = active
         self._self_w = np.asarray(self_weight, float)[ex.nodes]
-        # fused local block of W over [local nodes | halo columns], each row's terms in global sender order; the
-        # in-edge weights are kept only where fault rounds need them (an edge-sized array less at 10⁶ nodes)
-        ew_in = (lambda a, b: self._ew_in[a:b]) if ex.faults.active else self._in_edge_weights
-        self._w_full = _block_csr(ex.in_dst, ex._sender_below(), ex.in_src_col, ew_in, ex.local_col,
-                                  self._self_w, ex.n_columns)
+        # fault-free: the fused local block of W over [local nodes | halo columns], each row's terms in global
+        # sender order. Under faults only the edge part in incoming-edge order is held (its data are the in-edge
+        # weights themselves, the lost entries zeroed for one product and restored), the self-weights apart: one
+        # edge-sized float array in all, no fused block that fault rounds never use
+        self._w_full: sp.csr_matrix | None = None
+        self._w_masked: sp.csr_matrix | None = None
+        if ex.faults.active:
+            self._w_masked = _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, self._in_edge_weights(),
+                                             ex.in_src_col)
+        else:
+            self._w_full = _block_csr(ex.in_dst, ex._sender_below(), ex.in_src_col, self._in_edge_weights,
+                                      ex.local_col, self._self_w, ex.n_columns)
         if active is None:  # the exchange's own counts over its real edges (the same mask: the same numbers)
             self._sent_counts, self._recv_counts = ex._all_sent, ex._all_recv
         else:
@@ -260,22 +278,28 @@ class Mixer:
         flat, tail = _flat(x)
         cols = ex._columns(flat, self._active_global)
         msg_bytes = flat.shape[1] * flat.itemsize
-        if not ex.faults.active:
+        if self._w_full is not None:
             ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
             out = _csr_product(self._w_full, cols.ravel() if x.ndim == 1 else cols)
             return out.reshape(x.shape)
-        # fault round: the same prepared matrix with its data masked in place, lost weight to the self-weight
-        # (the lost messages are a tenth of the edges: counters and lost weight are summed over them alone, in
-        # edge order, which adds the same terms in the same order as a pass over every edge)
+        # fault round: the prepared edge matrix with its lost entries zeroed for the product, lost weight to the
+        # self-weight (the lost messages are a tenth of the edges: counters and lost weight are summed over them
+        # alone, in edge order, which adds the same terms in the same order as a pass over every edge). Entries
+        # not delivered but not lost either are inactive edges and self-loops, whose weight is already 0.
+        m = self._w_masked
+        assert m is not None
         ok = ex._fault_plan.delivered(ex.round_index)
         lost_e = np.flatnonzero(self._act_in > ok)  # active and not delivered
         sent, sent_total = ex._sent_counts(self._act_out, cache=True)
         lost_dst = ex.in_dst[lost_e]
         ex._account_dropped(sent, sent_total, self._recv_counts, lost_dst, msg_bytes)
-        m = self._w_masked
-        np.multiply(self._ew_in, ok, out=m.data)
-        lost = np.bincount(lost_dst, weights=self._ew_in[lost_e], minlength=ex.n_local)
-        out = _csr_product(m, cols)
+        lost_w = m.data[lost_e]
+        lost = np.bincount(lost_dst, weights=lost_w, minlength=ex.n_local)
+        m.data[lost_e] = lost_w * 0.0  # w·0 as a masked product would hold it
+        try:
+            out = _csr_product(m, cols)
+        finally:
+            m.data[lost_e] = lost_w
         out += (self._self_w + lost)[:, None] * flat
         return out.reshape(x.shape)
 
@@ -284,16 +308,6 @@ class Mixer:
         w: np.ndarray = np.asarray(self._edge_weight, float)[self.exchange.in_edges[a:b]]
         w[~self._act_in[a:b]] = 0.0
         return w
-
-    @cached_property
-    def _ew_in(self) -> np.ndarray:
-        return self._in_edge_weights()
-
-    @cached_property
-    def _w_masked(self) -> sp.csr_matrix:
-        """The edge part of the local block of ``W`` in incoming-edge order (data rewritten every fault round)."""
-        ex = self.exchange
-        return _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, self._ew_in.copy(), ex.in_src_col)
 
 
 class Exchange(ABC):
@@ -406,7 +420,9 @@ class Exchange(ABC):
     @cached_property
     def _fault_plan(self) -> FaultPlan:
         """The fault schedule compiled for this block's incoming edges (once)."""
-        return FaultPlan(self.faults, self.in_src, self.nodes[self.in_dst], self.in_edges)
+        real = self._real_in  # not a self-loop: the plan needs the endpoints only for failed links / silent nodes
+        return FaultPlan(self.faults, lambda: self.in_src, lambda: self.nodes[self.in_dst], self.in_edges,
+                         is_self=~real if not real.all() else np.zeros(real.size, bool))
 
     def _delivered(self, active_in: np.ndarray) -> np.ndarray:
         if not self.faults.active:
@@ -425,7 +441,7 @@ class Exchange(ABC):
         if stage:
             silent = self.faults.silent_mask(self.round_index, self.nodes)
             sel = act_out & ~silent[self.out_src]
-        counts = np.bincount(self.out_src[sel], minlength=self.n_local)
+        counts = _masked_count(self.out_src, sel, self.n_local)
         total = int(counts.sum())
         if cache:
             self._sent_cache[key] = (act_out, counts, total)  # act_out kept alive so its id stays unique
