@@ -37,9 +37,10 @@ from distnav.errors import ExchangeError
 from distnav.exchange.faults import FaultPlan, FaultSchedule
 from distnav.exchange.route import Route
 from distnav.network.graph import Graph
+from distnav.network.graph_part import GraphPart, incoming_positions
 
 if TYPE_CHECKING:
-    from distnav.network.weights import ConsensusWeights
+    from distnav.network.weights import ConsensusWeights, PartWeights
 
 __all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "incoming_edges"]
 
@@ -108,13 +109,7 @@ def _segment_matrix(dst_local: np.ndarray, n_rows: int, n_cols: int, data: np.nd
 def incoming_edges(graph: Graph, nodes: np.ndarray) -> np.ndarray:
     """Global ids of the edges into ``nodes``, grouped by receiver in the order of ``nodes`` (senders ascending
     within a receiver, as in the graph's own edge order)."""
-    ptr = graph.in_ptr
-    starts, counts = ptr[nodes], ptr[nodes + 1] - ptr[nodes]
-    total = int(counts.sum())
-    offsets = np.zeros(nodes.size, np.int64)
-    if nodes.size > 1:
-        np.cumsum(counts[:-1], out=offsets[1:])
-    return np.asarray(np.repeat(starts - offsets, counts) + np.arange(total, dtype=np.int64))
+    return incoming_positions(graph.in_ptr, nodes)
 
 
 def _masked_count(index: np.ndarray, mask: np.ndarray | None, n: int) -> np.ndarray:
@@ -242,14 +237,16 @@ class Mixer:
     """
 
     def __init__(self, exchange: Exchange, edge_weight: np.ndarray, self_weight: np.ndarray,
-                 active: np.ndarray | None) -> None:
+                 active: np.ndarray | None, *, rows: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         ex = exchange
         self.exchange = ex
         self._edge_weight = edge_weight  # kept by reference (the caller's weights hold it): no copy
+        # which entries of the weight arrays belong to the in-edges and nodes: global ids, or a part's positions
+        self._weight_rows = (ex.in_edges, ex.nodes) if rows is None else rows
         self._act_in = ex._real_in if active is None else np.asarray(active, bool)[ex.in_edges] & ex._real_in
         self._act_out = ex._real_out if active is None else np.asarray(active, bool)[ex.out_edges] & ex._real_out
         self._active_global = active
-        self._self_w = np.asarray(self_weight, float)[ex.nodes]
+        self._self_w = np.asarray(self_weight, float)[self._weight_rows[1]]
         # fault-free: the fused local block of W over [local nodes | halo columns], each row's terms in global
         # sender order. Under faults only the edge part in incoming-edge order is held (its data are the in-edge
         # weights themselves, the lost entries zeroed for one product and restored), the self-weights apart: one
@@ -305,7 +302,7 @@ class Mixer:
 
     def _in_edge_weights(self, a: int = 0, b: int | None = None) -> np.ndarray:
         """``w_ij`` on the incoming edges ``a:b`` (zero on inactive edges and self-loops)."""
-        w: np.ndarray = np.asarray(self._edge_weight, float)[self.exchange.in_edges[a:b]]
+        w: np.ndarray = np.asarray(self._edge_weight, float)[self._weight_rows[0][a:b]]
         w[~self._act_in[a:b]] = 0.0
         return w
 
@@ -331,10 +328,12 @@ class Exchange(ABC):
     #: True where a message on out-edge row ``r`` arrives on in-edge row ``r`` with nothing moved (in-process).
     _moves_rows_in_place: bool = False
 
-    def __init__(self, graph: Graph, faults: FaultSchedule | None = None) -> None:
-        self.graph = graph
+    def __init__(self, graph: Graph | GraphPart, faults: FaultSchedule | None = None) -> None:
+        self._graph = graph
         self.faults = faults if faults is not None else FaultSchedule()
-        self.faults.validate_for(graph.n_nodes, graph.links.tolist() if self.faults.failed_links else None)
+        # a part can check node ids only: most links are on other ranks
+        links = graph.links.tolist() if self.faults.failed_links and isinstance(graph, Graph) else None
+        self.faults.validate_for(graph.n_nodes, links)
         self.round_index = 0
         self._round_messages: list[int] = []
         self._round_bytes: list[int] = []
@@ -376,12 +375,30 @@ class Exchange(ABC):
         return np.asarray(self.in_src < self.nodes[self.in_dst])
 
     @property
+    def graph(self) -> Graph:
+        """The whole communication graph (not held by an exchange built from a :class:`GraphPart`)."""
+        if not isinstance(self._graph, Graph):
+            raise ExchangeError("this exchange was built from a graph part: the whole graph is on no rank (use "
+                                "n_nodes / n_edges, or build the exchange from a Graph)")
+        return self._graph
+
+    @property
+    def part(self) -> GraphPart | None:
+        """The graph part the exchange was built from, or None when it holds the whole graph."""
+        return self._graph if isinstance(self._graph, GraphPart) else None
+
+    @property
     def n_local(self) -> int:
         return int(self.nodes.size)
 
     @property
     def n_nodes(self) -> int:
-        return self.graph.n_nodes
+        return self._graph.n_nodes
+
+    @property
+    def n_edges(self) -> int:
+        """Directed edges of the whole graph (global edge ids run over ``0..n_edges-1``)."""
+        return self._graph.n_edges
 
     # ------------------------------------------------------------- transport (backend)
     @abstractmethod
@@ -512,8 +529,8 @@ class Exchange(ABC):
         if active is None:
             return self._real_out, self._real_in
         act = np.asarray(active, bool)
-        if act.shape != (self.graph.n_edges,):
-            raise ExchangeError(f"active must be a mask over the {self.graph.n_edges} directed edges, got {act.shape}")
+        if act.shape != (self.n_edges,):
+            raise ExchangeError(f"active must be a mask over the {self.n_edges} directed edges, got {act.shape}")
         return act[self.out_edges] & self._real_out, act[self.in_edges] & self._real_in
 
     def _finish_round(self, values_in: np.ndarray, act_out: np.ndarray, act_in: np.ndarray,
@@ -578,14 +595,22 @@ class Exchange(ABC):
         full-length arrays."""
         return Route(self, active, in_rows=in_rows, out_rows=out_rows)
 
-    def mixer(self, weights: ConsensusWeights, *, active: np.ndarray | None = None) -> Mixer:
-        """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph.
+    def mixer(self, weights: ConsensusWeights | PartWeights, *, active: np.ndarray | None = None) -> Mixer:
+        """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph (or,
+        on an exchange built from a graph part, :class:`~distnav.network.weights.PartWeights` of that part).
 
         For a switching graph pass the session's weights expressed on the union graph and its edge mask.
         """
-        if weights.graph.n_edges != self.graph.n_edges or weights.graph.n_nodes != self.graph.n_nodes:
+        if weights.graph.n_edges != self.n_edges or weights.graph.n_nodes != self.n_nodes:
             raise ExchangeError("weights are defined on a different graph than this exchange")
-        return Mixer(self, weights.edge_weight, weights.self_weight, active)
+        if isinstance(weights.graph, GraphPart) and weights.graph is not self.part:
+            raise ExchangeError("weights on a graph part must be made on this exchange's own part")
+        rows = self._part_rows() if isinstance(weights.graph, GraphPart) else None
+        return Mixer(self, weights.edge_weight, weights.self_weight, active, rows=rows)
+
+    def _part_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Positions of the in-edges and nodes in the arrays of :attr:`part` (exchanges built from a part)."""
+        raise ExchangeError(f"the {self.backend} exchange is not built from a graph part")
 
     # ------------------------------------------------------------- accounting
     def comm_totals(self) -> CommTotals:
