@@ -115,8 +115,6 @@ def mpi_run(n: int, payload: int, rounds: int, drop: float, path: str, whole: bo
 
     from distnav.exchange import FaultSchedule, make_exchange
     from distnav.network import builders, consensus_weights
-    from distnav.network.partition import read_partition
-    from distnav.network.weights import part_weights
 
     comm = MPI.COMM_WORLD
     rank, size = comm.Get_rank(), comm.Get_size()
@@ -131,6 +129,9 @@ def mpi_run(n: int, payload: int, rounds: int, drop: float, path: str, whole: bo
         w = consensus_weights(g, "MH")
         ex = make_exchange(g, backend="mpi", faults=faults, partition=path)
     else:
+        from distnav.network.partition import read_partition
+        from distnav.network.weights import part_weights
+
         owner = read_partition(path, n, size)
         part = builders.random_geometric_part(n, radius, rng=rng, nodes=np.flatnonzero(owner == rank))
         del owner

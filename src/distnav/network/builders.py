@@ -264,24 +264,30 @@ def random_geometric_part(n_nodes: int, radius: float, *, rng: np.random.Generat
     opt = _Points(**points)
     pos = rng.uniform(0.0, opt.size, size=(n, opt.dim))
     tree = cKDTree(pos)
-    r = float(radius)
+    r, step = float(radius), 1 << 16
     own = np.unique(np.asarray(nodes, dtype=np.int64))
     if own.size and (own[0] < 0 or own[-1] >= n):
         raise GraphError(f"owned nodes must lie in 0..{n - 1}")
+
     def ball_pairs(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Links of ``rows`` as (row, neighbour) pairs, by the same distance test as ``query_pairs``."""
-        if rows.size == 0:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        found = cKDTree(pos[rows]).sparse_distance_matrix(tree, r, output_type="ndarray")
-        i, j = rows[found["i"].astype(np.int64)], found["j"].astype(np.int64)
-        keep = i != j
-        return i[keep], j[keep]
+        """Links of ``rows`` as (row, neighbour) pairs, by the same distance test as ``query_pairs`` (a chunk of
+        rows at a time: the k-d tree's structured output, 24 bytes a pair, stays small)."""
+        out_i, out_j = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+        for a in range(0, rows.size, step):
+            chunk = rows[a:a + step]
+            found = cKDTree(pos[chunk]).sparse_distance_matrix(tree, r, output_type="ndarray")
+            i, j = chunk[found["i"]], found["j"].astype(np.int64)
+            del found
+            keep = i != j
+            out_i.append(i[keep])
+            out_j.append(j[keep])
+        return np.concatenate(out_i), np.concatenate(out_j)
 
     # degree of every node, a chunk of nodes at a time (counts only: no edge list of the whole graph is held)
     degree = np.zeros(n, np.int64)
-    step = 1 << 16
     for a in range(0, n, step):
-        degree += np.bincount(ball_pairs(np.arange(a, min(a + step, n), dtype=np.int64))[0], minlength=n)
+        b = min(a + step, n)
+        degree[a:b] = np.bincount(ball_pairs(np.arange(a, b, dtype=np.int64))[0] - a, minlength=b - a)
 
     r_own, s_own = ball_pairs(own)
     is_own = np.zeros(n, bool)
@@ -289,5 +295,6 @@ def random_geometric_part(n_nodes: int, radius: float, *, rng: np.random.Generat
     halo = np.unique(s_own[~is_own[s_own]])
     del is_own
     r_halo, s_halo = ball_pairs(halo)
-    return GraphPart.from_neighbours(n, own, degree, np.concatenate([r_own, r_halo]),
-                                     np.concatenate([s_own, s_halo]), self_loops=opt.self_loops)
+    rows, nbr = np.concatenate([r_own, r_halo]), np.concatenate([s_own, s_halo])
+    del r_own, s_own, r_halo, s_halo
+    return GraphPart.from_neighbours(n, own, degree, rows, nbr, self_loops=opt.self_loops)

@@ -15,6 +15,7 @@ whole edge list (:func:`distnav.network.builders.random_geometric_part`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -42,6 +43,7 @@ class GraphPart:
     edge_ids : global id of each incoming edge.
     out_edge_ids : global id of its reverse edge (the owned receiver's message to that sender).
     degree : neighbours of each owned node (self excluded).
+    (``src``, the edge ids and the degrees are int32 where every id fits, else int64.)
     halo, halo_degree : the foreign senders (ascending) and their degrees.
     self_loops : whether every node has an edge to itself (as :attr:`Graph.self_loops`).
     """
@@ -109,14 +111,16 @@ class GraphPart:
         counts = ptr[own + 1] - ptr[own]
         in_ptr = np.zeros(own.size + 1, np.int64)
         np.cumsum(counts, out=in_ptr[1:])
-        src = np.asarray(graph.src[e])
+        idx = _index_dtype(graph.n_edges, graph.n_nodes)
+        src = graph.src[e].astype(idx)
         is_own = np.zeros(graph.n_nodes, bool)
         is_own[own] = True
-        halo = np.unique(src[~is_own[src]])
+        halo = np.unique(src[~is_own[src]]).astype(np.int64)
         deg = graph.degrees
-        return cls(n_nodes=graph.n_nodes, n_edges=graph.n_edges, nodes=own, in_ptr=in_ptr, src=src, edge_ids=e,
-                   out_edge_ids=np.asarray(graph.reverse_edge[e]), degree=np.asarray(deg[own]), halo=halo,
-                   halo_degree=np.asarray(deg[halo]), self_loops=graph.self_loops)
+        return cls(n_nodes=graph.n_nodes, n_edges=graph.n_edges, nodes=own, in_ptr=in_ptr, src=src,
+                   edge_ids=e.astype(idx), out_edge_ids=graph.reverse_edge[e].astype(idx),
+                   degree=deg[own].astype(idx), halo=halo, halo_degree=deg[halo].astype(idx),
+                   self_loops=graph.self_loops)
 
     @classmethod
     def from_neighbours(cls, n_nodes: int, nodes: np.ndarray, degree_all: np.ndarray, rows: np.ndarray,
@@ -142,16 +146,12 @@ class GraphPart:
         if loop:  # every row node's self-loop, at its place in the sender order
             uniq = np.union1d(r, own)
             r, s = np.concatenate([r, uniq]), np.concatenate([s, uniq])
-        key = r * n + s
-        order = np.argsort(key, kind="stable")
-        key = key[order]
-        del order
+        key = r * n
+        key += s
+        del r, s
+        key.sort()  # rows ascending, senders ascending within a row: the whole graph's edge order
         if key.size > 1 and bool((key[1:] == key[:-1]).any()):
             raise GraphError("graph part: a link is listed twice in the neighbour lists")
-        r_sorted = key // n
-        first = np.searchsorted(key, r_sorted * n)  # each entry's row starts here in ``key``
-        edge_of_key = start[r_sorted] + (np.arange(key.size, dtype=np.int64) - first)  # global id of s→r
-        del first
         # the owned rows, in order
         lo = np.searchsorted(key, own * n)
         hi = np.searchsorted(key, own * n + n)
@@ -163,23 +163,37 @@ class GraphPart:
         in_ptr = np.zeros(own.size + 1, np.int64)
         np.cumsum(counts, out=in_ptr[1:])
         pos = _ranges(lo, hi)
-        src = key[pos] % n
-        edge_ids = edge_of_key[pos]
-        dst = np.repeat(own, counts)
-        rev = np.searchsorted(key, src * n + dst)
-        if rev.size and (int(rev.max()) >= key.size or not bool((key[np.minimum(rev, key.size - 1)]
-                                                                  == src * n + dst).all())):
+        # a row's k-th entry is the edge start[row] + k (the edges into a node are ordered by sender)
+        idx = _index_dtype(int(start[-1]), n)
+        edge_ids = (pos + np.repeat(start[own] - lo, counts)).astype(idx)
+        src = (key[pos] % n).astype(idx)
+        del pos
+        want = src * np.int64(n)  # the reverse edge dst → src is entry dst of row src
+        want += np.repeat(own, counts)
+        rev = np.searchsorted(key, want)
+        ok = rev < key.size
+        ok[ok] = key[rev[ok]] == want[ok]
+        if not bool(ok.all()):
             raise GraphError("graph part: a halo node's neighbour list is missing")
-        out_edge_ids = edge_of_key[rev]
-        is_own = np.isin(src, own)
-        halo = np.unique(src[~is_own])
+        del want, ok
+        row_lo = np.searchsorted(key, src * np.int64(n))
+        out_edge_ids = (rev - row_lo + start[src]).astype(idx)
+        del rev, row_lo, key
+        k = np.minimum(np.searchsorted(own, src), max(own.size - 1, 0))
+        halo = np.unique(src[own[k] != src]).astype(np.int64) if own.size else np.zeros(0, np.int64)
+        del k
         return cls(n_nodes=n, n_edges=int(start[-1]), nodes=own, in_ptr=in_ptr, src=src, edge_ids=edge_ids,
-                   out_edge_ids=out_edge_ids, degree=deg[own], halo=halo, halo_degree=deg[halo],
+                   out_edge_ids=out_edge_ids, degree=deg[own].astype(idx), halo=halo, halo_degree=deg[halo].astype(idx),
                    self_loops=bool(self_loops))
 
     def __repr__(self) -> str:
         return (f"GraphPart(n_nodes={self.n_nodes}, owned={self.n_local}, in_edges={self.n_local_edges}, "
                 f"halo={self.halo.size})")
+
+
+def _index_dtype(n_edges: int, n_nodes: int) -> type[np.signedinteger[Any]]:
+    """int32 for per-edge ids and senders where every id fits (half the part's memory), else int64."""
+    return np.int32 if max(n_edges, n_nodes) < 2**31 - 1 else np.int64
 
 
 def _ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
