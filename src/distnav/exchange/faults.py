@@ -122,7 +122,9 @@ class FaultPlan:
       in place on cache-sized chunks and for several rounds at once when the block is small; ``u ≥ p`` is
       decided in integers (``z ≥ ⌈p·2⁵³⌉·2¹¹``, exact, no float conversion);
     * failed links and silent senders: folded into one per-edge "dead from round" array (``min`` over every fault
-      that silences the edge), so a round compares one integer array instead of looping over the faults.
+      that silences the edge), so a round compares one integer array instead of looping over the faults; made only
+      when the schedule has such faults (the senders and receivers are read only then: pass callables to have
+      them made on demand, and ``is_self``, the self-loop mask, so a drop-only plan never needs them).
 
     ``delivered(k)`` equals ``schedule.delivered(k, src, dst, edges)`` bit for bit (tested).
     """
