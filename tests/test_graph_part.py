@@ -72,3 +72,33 @@ def test_part_errors_are_clear() -> None:
     with pytest.raises(ExchangeError, match="'rcm' needs the whole graph"):
         partition_nodes(GraphPart.from_graph(g, np.arange(5)), 2, "rcm")
     assert partition_nodes(GraphPart.from_graph(g, np.arange(5)), 2, "block").tolist() == [0, 0, 0, 1, 1]
+
+
+def test_single_rank_exchange_on_a_part_equals_the_whole_graph() -> None:
+    """An MPI exchange on one rank (COMM_SELF) built from a part holding every node gives the in-process numbers;
+    it has no whole graph, and a part that does not match the partition is refused."""
+    mpi = pytest.importorskip("mpi4py.MPI", reason="the mpi extra is not installed")
+    from distnav.exchange import FaultSchedule
+
+    n = 400
+    g = builders.random_geometric(n, 0.09, rng=np.random.default_rng(8))
+    part = builders.random_geometric_part(n, 0.09, rng=np.random.default_rng(8), nodes=np.arange(n))
+    faults = FaultSchedule(drop_probability=0.2, seed=3)
+    ex = make_exchange(part, backend="mpi", faults=faults, partition=np.zeros(n, int), comm=mpi.COMM_SELF)
+    ref = make_exchange(g, faults=faults)
+    x0 = np.random.default_rng(2).normal(size=(n, 2))
+    x, y = ex.local(x0), ref.local(x0)
+    m, mr = ex.mixer(part_weights(part, "MH")), ref.mixer(consensus_weights(g, "MH"))
+    for _ in range(8):
+        x, y = m.apply(x), mr.apply(y)
+    assert np.array_equal(ex.gather_nodes(x), ref.gather_nodes(y))
+    assert np.array_equal(ex.comm_totals().messages_received, ref.comm_totals().messages_received)
+    assert ex.part is part
+    with pytest.raises(ExchangeError, match="built from a graph part"):
+        _ = ex.graph
+    with pytest.raises(ExchangeError, match="holds other nodes than the partition"):
+        make_exchange(GraphPart.from_graph(g, np.arange(n // 2)), backend="mpi", partition=np.zeros(n, int),
+                      comm=mpi.COMM_SELF)
+    with pytest.raises(ExchangeError, match="needs the partition the parts were built from"):
+        make_exchange(part, backend="mpi", comm=mpi.COMM_SELF)
+    ex.free()

@@ -6,11 +6,13 @@ one rank abort the whole job instead of deadlocking the others).
 Partition (``partition=``): ``"rcm"`` (default), ``"block"``, ``"node"``, an owner array or a partition file — see
 :func:`distnav.network.partition.partition_nodes` (re-exported here under its old name).
 
-Every rank builds the same global graph (deterministic from the seed) and derives, without any negotiation,
-which boundary node values it sends to and receives from each neighbour rank. Messages between nodes of the same
-rank never touch MPI; messages on cut edges travel in one ``Neighbor_alltoallv`` per round over a distributed-graph
-communicator whose neighbours are the ranks that share cut edges. Accounting and seeded faults are computed on
-global edge ids exactly as in-process, so a run with drops gives the same numbers on both backends.
+Every rank builds the same global graph (deterministic from the seed), or only its own part of it (a
+:class:`~distnav.network.graph_part.GraphPart`, with the partition given as a file or an owner array), and derives,
+without any negotiation, which boundary node values it sends to and receives from each neighbour rank. Messages
+between nodes of the same rank never touch MPI; messages on cut edges travel in one ``Neighbor_alltoallv`` per
+round over a distributed-graph communicator whose neighbours are the ranks that share cut edges. Accounting and
+seeded faults are computed on global edge ids exactly as in-process, so a run with drops gives the same numbers on
+both backends.
 """
 
 from __future__ import annotations
@@ -94,7 +96,6 @@ class MPIExchange(Exchange):
             part = GraphPart.from_graph(graph, np.flatnonzero(self.owner == me))
             full = locality_order(graph, order)  # the shared locality order (as in-process) restricted to the rank
             perm = None if full is None else np.searchsorted(part.nodes, full[self.owner[full] == me])
-        self._part = part
         self._setup_from_part(part, perm, persistent)
 
     def _setup_from_part(self, part: GraphPart, perm: np.ndarray | None, persistent: bool) -> None:
@@ -107,17 +108,17 @@ class MPIExchange(Exchange):
         local_of_part = np.empty(n_local, np.int64)  # part position → local index
         local_of_part[rows] = np.arange(n_local, dtype=np.int64)
         pos_in = incoming_positions(part.in_ptr, rows)  # in-edges grouped by local receiver, senders ascending
-        self._in_part_pos = pos_in
-        self._node_part_pos = rows
+        if self.part is not None:  # where the part's weights sit (PartWeights); not needed with the whole graph
+            self._in_part_pos, self._node_part_pos = pos_in, rows
         self.in_edges = part.edge_ids[pos_in]
-        self.in_src = part.src[pos_in]
+        self.in_src = part.src[pos_in].astype(np.int64)  # global ids stay 64-bit (as in-process): callers compute
         self.in_dst = np.repeat(np.arange(n_local, dtype=np.int64), np.diff(part.in_ptr)[rows])
         # out-edges: the reverse of every in-edge, in global edge order
         recv_part = np.repeat(np.arange(n_local, dtype=np.int64), np.diff(part.in_ptr))
         by_id = np.argsort(part.out_edge_ids, kind="stable")
         self.out_edges = part.out_edge_ids[by_id]
         self.out_src = local_of_part[recv_part[by_id]]
-        self.out_dst = part.src[by_id]
+        self.out_dst = part.src[by_id].astype(np.int64)
         del recv_part
 
         def local_index(glob: np.ndarray) -> np.ndarray:  # owned global ids → local index
