@@ -100,21 +100,24 @@ class MPIExchange(Exchange):
 
     def _setup_from_part(self, part: GraphPart, perm: np.ndarray | None, persistent: bool) -> None:
         """Every index array of the block from its part: no array over the whole graph's edges."""
-        me, owner = self.rank, self.owner
-        n_local = part.n_local
+        me, n_local = self.rank, part.n_local
+        # edge-sized index arrays in 32 bits where every index fits (as in-process); global ids stay 64-bit
+        idx = np.int32 if max(self.n_nodes, self.n_edges) < 2**31 - 1 else np.int64
+        owner = self.owner.astype(np.int32 if self.size < 2**31 - 1 else np.int64)  # per-edge lookups: half the bytes
         # local order: ``perm[k]`` is the position in ``part.nodes`` of local node k
         rows = np.arange(n_local, dtype=np.int64) if perm is None else np.asarray(perm, np.int64)
         self.nodes = part.nodes[rows]
-        local_of_part = np.empty(n_local, np.int64)  # part position → local index
-        local_of_part[rows] = np.arange(n_local, dtype=np.int64)
+        local_of_part = np.empty(n_local, idx)  # part position → local index
+        local_of_part[rows] = np.arange(n_local, dtype=idx)
         pos_in = incoming_positions(part.in_ptr, rows)  # in-edges grouped by local receiver, senders ascending
         if self.part is not None:  # where the part's weights sit (PartWeights); not needed with the whole graph
-            self._in_part_pos, self._node_part_pos = pos_in, rows
+            self._in_part_pos, self._node_part_pos = pos_in.astype(idx), rows
         self.in_edges = part.edge_ids[pos_in]
         self.in_src = part.src[pos_in].astype(np.int64)  # global ids stay 64-bit (as in-process): callers compute
-        self.in_dst = np.repeat(np.arange(n_local, dtype=np.int64), np.diff(part.in_ptr)[rows])
+        self.in_dst = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr)[rows])
+        del pos_in
         # out-edges: the reverse of every in-edge, in global edge order
-        recv_part = np.repeat(np.arange(n_local, dtype=np.int64), np.diff(part.in_ptr))
+        recv_part = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr))
         by_id = np.argsort(part.out_edge_ids, kind="stable")
         self.out_edges = part.out_edge_ids[by_id]
         self.out_src = local_of_part[recv_part[by_id]]
@@ -148,7 +151,7 @@ class MPIExchange(Exchange):
         # bitwise with in-process whatever the column numbering.
         self.n_columns = self.n_local + self.n_halo
         self.local_col = np.arange(self.n_local, dtype=np.int64)
-        col = np.empty(self.in_src.size, np.int64)
+        col = np.empty(self.in_src.size, idx)
         mine = own_in_src == me
         col[mine] = local_index(self.in_src[mine])
         if self.n_halo:
@@ -159,10 +162,14 @@ class MPIExchange(Exchange):
         # edge messages: per neighbour rank, cut edges in global edge order on both sides
         in_by_id = np.argsort(self.in_edges, kind="stable")
         local_out_rows = np.flatnonzero(own_out_dst == me)
-        self._local_out_pos = local_out_rows
-        self._local_in_pos = in_by_id[np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])]
-        self._edge_send_pos = np.concatenate(send_rows) if nbr.size else np.zeros(0, np.int64)
-        self._edge_recv_pos = np.concatenate(recv_rows) if nbr.size else np.zeros(0, np.int64)
+        self._local_out_pos = local_out_rows.astype(idx)
+        self._local_in_pos = in_by_id[np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])
+                                      ].astype(idx)
+        del in_by_id, local_out_rows, own_in_src, own_out_dst
+        self._edge_send_pos: np.ndarray = (np.concatenate(send_rows) if nbr.size else np.zeros(0, np.int64)
+                                           ).astype(idx)
+        self._edge_recv_pos: np.ndarray = (np.concatenate(recv_rows) if nbr.size else np.zeros(0, np.int64)
+                                           ).astype(idx)
         self._edge_send_counts = np.array([e.size for e in send_rows], dtype=np.int64)
         self._edge_recv_counts = np.array([e.size for e in recv_rows], dtype=np.int64)
 
