@@ -44,6 +44,7 @@ from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.ranging_objective import range_sigma
 from distnav.algorithms.ranging_qc import TEST_SCALES, local_quality
 from distnav.algorithms.result import ObservationTests, Precision, SolverStatus, Trace
+from distnav.algorithms.sparse_kernels import csr_times
 from distnav.algorithms.statistics import critical_value, variance_factor
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -109,8 +110,10 @@ def _summarize(problem: RangingData, ex: Exchange, own_local: np.ndarray, truth:
     cost = cost_of(own)
     if truth is None:
         return own, cost, float("nan")
-    d = own[est] - truth[est]
-    return own, cost, float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d)))) if est.any() else 0.0
+    if not est.any():
+        return own, cost, 0.0
+    d = own[est] - truth  # truth: the estimated anchors' true positions
+    return own, cost, float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d))))
 
 
 # ---------------------------------------------------------------------- CSG (full estimation vector)
@@ -180,10 +183,10 @@ def iterate_csg(
         if metres:
             norm = np.linalg.norm(diff, axis=1)
             jr = diff / (np.where(norm > 0, norm, np.inf) * sig)[:, None]
-            grad = np.asarray(Q @ (g[:, None] * jr)).reshape(nl, n, dim)
+            grad = csr_times(Q, g[:, None] * jr).reshape(nl, n, dim)
             U = np.where(free, F - alpha_local[:, None, None] * grad, known)
         else:
-            grad = np.asarray(Q @ (2.0 * g[:, None] * diff)).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
+            grad = csr_times(Q, 2.0 * g[:, None] * diff).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
             U = np.where(free, F - alpha * grad, known)
         for _ in range(consensus_rounds):  # eq. (11)
             U = mixer.apply(U)
@@ -235,6 +238,7 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
     monitor_every, stop = setup.monitor_every, setup.stop
     truth = problem.truth_m
     est = problem.estimated
+    truth_est = None if truth is None else truth[est]
     sigma = range_sigma(problem, setup.sigma_m)
     cost_of = _cost_of(problem, setup.objective, sigma)
     rm: list[float] = []
@@ -260,7 +264,7 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                 pcost.append(nan)
                 step.append(nan)
                 continue
-            own, c, r = _summarize(problem, ex, st.own_m, truth, est, cost_of)
+            own, c, r = _summarize(problem, ex, st.own_m, truth_est, est, cost_of)
             rm.append(r)
             cost.append(c)
             pcost.append(float(ex.allreduce(float(st.partial_cost.sum()), "sum")))

@@ -12,6 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from distnav.algorithms.nlsq import single_threaded_blas
+from distnav.algorithms.sparse_kernels import csr_times
 
 if TYPE_CHECKING:
     from distnav.algorithms.neighbourhood import Neighbourhoods
@@ -60,7 +61,7 @@ class LocalLM:
             v = 2.0 * diff[self.first]  # (links, d): the same for every sample of a link
         u = v * self.fs  # neighbour columns that are free
         w = v * self.fo[self.ls_own]  # own columns that are free
-        A0 = np.asarray(self.O @ (c[:, None, None] * v[:, :, None] * v[:, None, :]).reshape(-1, d * d))
+        A0 = csr_times(self.O, (c[:, None, None] * v[:, :, None] * v[:, None, :]).reshape(-1, d * d))
         A0 = A0.reshape(nl, d, d)
         dA = np.einsum("kii->ki", A0) * self.fo
         dB = c[:, None] * u * u
@@ -69,7 +70,7 @@ class LocalLM:
             sA = np.maximum(dA, floor[:, None])
             sB = np.maximum(dB, floor[self.ls_own][:, None])
         else:  # Levenberg: λ · mean free diagonal · I
-            mean = (dA.sum(axis=1) + np.asarray(self.O @ dB.sum(axis=1))) / np.maximum(self.n_free, 1)
+            mean = (dA.sum(axis=1) + csr_times(self.O, dB.sum(axis=1))) / np.maximum(self.n_free, 1)
             mean = np.maximum(mean, 1e-300)
             sA = np.broadcast_to(mean[:, None], dA.shape)
             sB = np.broadcast_to(mean[self.ls_own][:, None], dB.shape)
@@ -82,10 +83,10 @@ class LocalLM:
         # Schur complement: S = A − Σ_s C_s D_s⁻¹ C_sᵀ with C_s = −c w uᵀ  ⇒  C D⁻¹ Cᵀ = c² q/(1+cq) w wᵀ
         Am = A0 * self.mo + self.eye * np.where(self.fo, lam[:, None] * sA, 1.0)[:, :, None]
         coef = c * c * q / den
-        S = Am - np.asarray(self.O @ (coef[:, None, None] * w[:, :, None] * w[:, None, :]).reshape(-1, d * d)
-                            ).reshape(nl, d, d)
+        S = Am - csr_times(self.O, (coef[:, None, None] * w[:, :, None] * w[:, None, :]).reshape(-1, d * d)
+                              ).reshape(nl, d, d)
         tub = np.einsum("ij,ij->i", tu, bs)
-        r0 = b0 + np.asarray(self.O @ ((c * tub / den)[:, None] * w))
+        r0 = b0 + csr_times(self.O, (c * tub / den)[:, None] * w)
         with single_threaded_blas():
             d0 = np.linalg.solve(S, r0[:, :, None])[:, :, 0]
         x = bs + (c * np.einsum("ij,ij->i", w, d0[self.ls_own]))[:, None] * u  # b_s − C_sᵀ δ0

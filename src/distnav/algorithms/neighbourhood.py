@@ -43,6 +43,7 @@ from distnav.algorithms.local_lm import LocalLM
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale
 from distnav.algorithms.ranging import RangingData
 from distnav.algorithms.ranging_objective import range_sigma
+from distnav.algorithms.sparse_kernels import csr_times
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.weights import ConsensusWeights, consensus_weights
@@ -250,9 +251,9 @@ class Neighbourhoods:
         with IRLS weights ``w``: ``G⁽ⁱ⁾ᵀ W g⁽ⁱ⁾`` (half the gradient of the robust partial objective)."""
         gw = g if w is None else w * g
         if self.metres:
-            grad = np.asarray(self.Q @ (gw[:, None] * self.jrows(diff))).reshape(self.nl, self.K, self.dim)
+            grad = csr_times(self.Q, gw[:, None] * self.jrows(diff)).reshape(self.nl, self.K, self.dim)
         else:
-            grad = np.asarray(self.Q @ (2.0 * gw[:, None] * diff)).reshape(self.nl, self.K, self.dim)
+            grad = csr_times(self.Q, 2.0 * gw[:, None] * diff).reshape(self.nl, self.K, self.dim)
         return np.where(self.free_slot, grad, 0.0)
 
 
@@ -273,6 +274,7 @@ class Mixing:
         self.S = sp.csr_matrix((ew_in, (ex.in_dst, np.arange(ex.in_edges.size))),
                                shape=(ex.n_local, ex.in_edges.size))
         self.fill_w = self._fill_weights(np.ones(ex.in_edges.size, bool))
+        self._msg = np.zeros((nb.n_out * nb.K, nb.dim))  # the entries outside msg_flat stay zero
 
     def _fill_weights(self, delivered: np.ndarray) -> np.ndarray:
         nb = self.nb
@@ -284,14 +286,14 @@ class Mixing:
         too (it only counts them: a second solver whose state is, bit for bit, this one's)."""
         nb, ex = self.nb, self.ex
         K, dim = nb.K, nb.dim
-        msg = np.zeros((nb.n_out * K, dim))
+        msg = self._msg  # consumed by the round below before the next one overwrites it
         msg[nb.msg_flat] = U.reshape(-1, dim)[nb.msg_src]
         inbox = ex.send(msg.reshape(nb.n_out, K, dim))
         if echo is not None:
             echo.send(msg.reshape(nb.n_out, K, dim))
         fill = self.fill_w if inbox.delivered.all() else self._fill_weights(inbox.delivered)
         vals = inbox.values.reshape(nb.n_in, K * dim)  # entries not held (or lost) arrive as zeros
-        mixed = fill[:, :, None] * U + np.asarray(self.S @ vals).reshape(U.shape)  # eqs. (15), (18)
+        mixed = fill[:, :, None] * U + csr_times(self.S, vals).reshape(U.shape)  # eqs. (15), (18)
         return np.where(nb.free_slot, mixed, nb.known_slot)
 
 
