@@ -106,7 +106,7 @@ class LocalLM:
             a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
             lin = a + 2.0 * np.einsum("ij,ij->i", diff, dd)  # g + Gδ
             r = lin + np.einsum("ij,ij->i", dd, dd)
-        f_new = np.bincount(nb.h_own, nb.rho(r)[1], minlength=nl)
+        f_new = np.bincount(nb.h_own, nb.terms(r), minlength=nl)
         if robust:  # reduction of the weighted quadratic model Σ w (g + Gδ)²
             assert wt is not None
             pred = np.bincount(nb.h_own, wt * (a * a - lin * lin), minlength=nl)
