@@ -135,6 +135,8 @@ def _uwb_cases() -> list[Cli]:
         Cli("uwb-solve-range-offsets", (*base, *o, "--range-offsets", "all"), "invalid choice"),
         Cli("uwb-solve-offset-prior-negative", (*base, *o, "--range-offsets", "per_anchor",
                                                  "--offset-prior-sigma-m", "-1"), "offset-prior-sigma-m"),
+        Cli("uwb-solve-delay-sigma-negative", (*base, *o, "--delay-sigma-m", "-0.01"), "--delay-sigma-m"),
+        Cli("uwb-solve-delay-sigma-nan", (*base, *o, "--delay-sigma-m", "nan"), "--delay-sigma-m"),
         Cli("uwb-solve-allow-planar-value", (*base, *o, "--allow-planar-3d=yes"), "ignored explicit"),
         Cli("uwb-solve-strict-value", (*base, *o, "--strict=yes"), "ignored explicit"),
         Cli("uwb-import-april-no-log", ("uwb", "import-april", *o), "required: log"),
