@@ -111,16 +111,19 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
     from distnav.models.gnss.gfnetwork import read_stations
 
     obs = read_stations(list(obs_files), l1_code=l1_code, l2_code=l2_code, tlim=tlim,
-                        interval_s=None if levelling else interval_s, phases=levelling, progress=progress)
+                        interval_s=None if levelling else interval_s, phases=levelling, progress=progress,
+                        l1_fallback="C1W" if c1_corrections else None)
+    own = {o.station: dict(o.codes) for o in obs}          # the receivers' own codes (their DSBs' code pair)
     if c1_corrections:
         from distnav.models.gnss.products import correct_c1
 
-        obs = [correct_c1(o, c1_corrections) for o in obs]
-    return network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
+        obs = [correct_c1(o, c1_corrections) if o.codes.get(1) == "C1C" else o for o in obs]
+    data = network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
                                      ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
                                      weighting=weighting, reference=reference, exclude=exclude, levelling=levelling,
                                      min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen,
                                      tec_rw_m_per_sqrt_s=tec_rw_m_per_sqrt_s, min_satellite_obs=min_satellite_obs)
+    return replace(data, codes={s: own[s] for s in data.stations})
 
 
 def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = "C2W",
@@ -327,7 +330,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
 
     finals = {s.label: ({o: float(v) for o, v in zip(obj, s.dsb_ns[-1].tolist(), strict=True)},
                         {o: float(v) for o, v in zip(obj, s.dsb_std_ns[-1].tolist(), strict=True)}) for s in series}
-    products = product_dsbs(args.bias, layout.svs, stations, l1, l2) if args.bias else []
+    own = {sta: (c.get(1, l1), c.get(data.band, l2)) for sta, c in data.codes.items()}
+    products = product_dsbs(args.bias, layout.svs, stations, l1, l2, station_codes=own) if args.bias else []
     _check_days(products, data.t_gps_s, args.allow_other_day)
     comparison: dict[str, Any] = {}
     excl = [e.upper() for e in (args.compare_exclude or [])]
@@ -359,7 +363,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         "satellites": list(layout.svs), "datum": args.datum, "pivot": pivot, "estimation_basis": layout.reference,
         "ionosphere": data.ionosphere, "tec_parameters": tec_names,
         "graph_links": [[stations[i], stations[j]] for i, j in graph.links], "kn": args.kn, "protocol": "P3",
-        "mask_deg": args.mask, "notes": data.notes,
+        "mask_deg": args.mask, "notes": data.notes, "station_codes": own,
         "dcb_convention": f"DSB {l1}-{l2} in ns (Bias-SINEX sign: biases add to the observations), "
                           f"datum {args.datum}",
         "final_tec_m": {s.label: {nm: (float(s.tec[-1, k]), float(s.tec_std[-1, k]))
@@ -501,6 +505,7 @@ def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str,
         None, obs1=l1, obs2=l2, start=times[0], end=end, sampling_s=step,
         satellites={k: (v, sd[k]) for k, v in val.items() if not k.startswith("rx:")},
         stations={k[3:]: (v, sd[k]) for k, v in val.items() if k.startswith("rx:")},
+        station_codes={s: (c.get(1, l1), c.get(data.band, l2)) for s, c in data.codes.items()},
         comments=[f"distnav gnss ionosphere, central filter, datum {datum} "
                   f"({'IGS convention' if datum == 'zero-mean' else 'not the IGS convention'})",
                   f"stations: {' '.join(data.stations)}; geometry-free {l1}-{l2} code, "
@@ -578,7 +583,8 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
                    help="satellites left out of the product comparison statistics (e.g. G01)")
     p.add_argument("--c1-corrections", metavar="BIA",
                    help="with --l1-code C1C: remove each satellite's C1C-C1W DSB of this Bias-SINEX product from C1C "
-                        "(estimates then refer to C1W, the P1 of IONEX/GFZ; the receivers' part stays in their DSB)")
+                        "(satellites then refer to C1W, the P1 of IONEX/GFZ; a file without C1C uses its C1W; each "
+                        "receiver's DSB stays C1C-C2W, compared and written as such)")
     p.add_argument("--levelling", choices=["arc", "none"], default="arc",
                    help="carrier-to-code levelling per continuous arc (default) or raw code")
     p.add_argument("--min-arc", type=int, default=10, metavar="EPOCHS",

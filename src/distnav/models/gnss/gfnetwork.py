@@ -75,16 +75,27 @@ class BiasNetworkData:
 
 def read_stations(paths: Sequence[str | Path], *, l1_code: str, l2_code: str, tlim: tuple[str, str] | None = None,
                   interval_s: float | None = None, phases: bool = False,
-                  progress: ProgressCallback | None = None) -> list[CodeObservations]:
-    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of every station."""
+                  progress: ProgressCallback | None = None, l1_fallback: str | None = None) -> list[CodeObservations]:
+    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of every station; a file without
+    ``l1_code`` on L1 is read with ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
     from distnav.models.gnss.rinex import read_code_observations
 
     if not paths:
         raise DataFileError("no observation file given")
     band = int(l2_code[1])
     codes = {1: l1_code.upper(), band: l2_code.upper()}
-    obs = [read_code_observations(p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s,
-                                  phases=phases, progress=progress) for p in paths]
+
+    def read(p: str | Path) -> CodeObservations:
+        try:
+            return read_code_observations(p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s,
+                                          phases=phases, progress=progress)
+        except DataFileError as exc:
+            if l1_fallback is None or "no L1 code observation" not in str(exc):
+                raise
+        return read_code_observations(p, bands=(1, band), codes={**codes, 1: l1_fallback.upper()}, tlim=tlim,
+                                      interval_s=interval_s, phases=phases, progress=progress)
+
+    obs = [read(p) for p in paths]
     stations = [o.station for o in obs]
     dup = sorted({s for s in stations if stations.count(s) > 1})
     if dup:
