@@ -486,6 +486,8 @@ def _write_combined_sinex(path: Path, result: dict[str, Any], summaries: dict[st
                      end=np.datetime64(max(summaries)) + np.timedelta64(1, "D"),
                      satellites={k: (v, sd[k]) for k, v in comb.items() if not k.startswith("rx:")},
                      stations={k[3:]: (v, sd[k]) for k, v in comb.items() if k.startswith("rx:")},
+                     station_codes={k: tuple(v) for s in summaries.values()
+                                    for k, v in (s.get("station_codes") or {}).items()},
                      comments=[f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
                                "zero-mean satellite datum over the satellites common to the days"])
     atomic_write_text(path, str(text))
