@@ -68,7 +68,7 @@ class BiasNetworkData:
     def series_for(self, reference: str) -> BiasGeometryFreeSeries:
         """The same data in the basis of another reference receiver."""
         lay = BiasStateLayout(self.layout.svs, self.layout.receivers, self.layout.n_ionospheres, "receiver",
-                              reference)
+                              reference, self.layout.n_tec_terms)
         return BiasGeometryFreeSeries(lay, self.geometry.coefficients, self.sigma_m, obs_m=self.obs_m,
                                       tracked=self.geometry.tracked, groups=self.geometry.groups)
 
@@ -114,8 +114,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
                        ionosphere: str = "auto", regional_km: float = 1000.0, sigma_zenith_m: float | None = None,
                        weighting: str = "sin", reference: str | None = None, notes: list[str] | None = None,
                        paths: list[str] | None = None, vtec_rw_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
-                       min_satellite_obs: int | None = None,
-                       sigma_scale: np.ndarray | None = None) -> BiasNetworkData:
+                       min_satellite_obs: int | None = None, sigma_scale: np.ndarray | None = None,
+                       tec_order: int = 1, mapping: str = "slm") -> BiasNetworkData:
     """The model from undifferenced geometry-free observations ``gf_m`` (T, n, S) [m] (NaN = not observed).
 
     ``sigma_zenith_m`` defaults to the paper's 65.6 cm scaled to the band (√2·30 cm/(μ_b − 1)). The estimation
@@ -130,7 +130,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     satellite seen for a few minutes at low elevation
     at a session edge has a DCB of several ns σ that would only pull the zero-mean datum. ``sigma_scale``
     (T, n, S): factors on the elevation-dependent σ (the levelled code's arc correlation, see
-    :func:`arc_sigma_scale`).
+    :func:`arc_sigma_scale`). ``tec_order`` 2: a second-order VTEC field per ionosphere (six parameters);
+    ``mapping`` ``"mslm"``: the modified single-layer mapping (both off by default; docs/gnss.md, low latitudes).
     """
     from distnav.models.gnss.constants import mu
     from distnav.models.gnss.ionosphere import ionosphere_geometry
@@ -148,7 +149,7 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
         mode = "common" if base_km <= regional_km else "per-receiver"
         notes.append(f"ionosphere: {mode} (longest baseline {base_km:.0f} km, regional limit {regional_km:.0f} km)")
     geo = ionosphere_geometry(orbit, t_all, receivers_ecef_m=xyz, names=stations, svs=svs_all, mask_deg=mask_deg,
-                              ionosphere=mode)
+                              ionosphere=mode, tec_order=tec_order, mapping=mapping)
     if not np.isfinite(geo.el_rad).any():
         span = f"{str(datetime_from_gps_seconds(t_all[0]))[:19]} – {str(datetime_from_gps_seconds(t_all[-1]))[:19]}"
         raise ModelError(f"the orbit gives no satellite position at the observation epochs ({span}): "
@@ -187,7 +188,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
         ref = reference.upper()
         if ref not in stations:
             raise ModelError(f"reference receiver {reference}: not one of the stations {', '.join(stations)}")
-    layout = BiasStateLayout(svs, tuple(stations), 1 if mode == "common" else n, "receiver", ref)
+    layout = BiasStateLayout(svs, tuple(stations), 1 if mode == "common" else n, "receiver", ref,
+                             3 if tec_order == 1 else 6)
     sig0 = (np.sqrt(2.0) * 0.30 / (mu(band) - 1.0)) if sigma_zenith_m is None else float(sigma_zenith_m)
     el = np.where(geo.tracked, geo.el_rad, 0.5 * np.pi)
     sig = elevation_sigma(el, sig0, weighting)
