@@ -10,7 +10,7 @@ import pytest
 from distnav.errors import ModelError
 from distnav.models.gnss.geometry import geodetic_to_ecef
 from distnav.models.gnss.gfbias import gf_m_per_dsb_ns
-from distnav.models.gnss.gfnetwork import bias_network_model, final_dsbs, run_bias_filters
+from distnav.models.gnss.gfnetwork import bias_network_model, final_dsbs, run_bias_filters, satellite_fit
 from distnav.models.gnss.ionosphere import ionosphere_coefficients, ionosphere_geometry
 from distnav.models.gnss.orbits import gps_seconds, synthetic_gps_constellation
 
@@ -58,5 +58,7 @@ def test_curved_field_biases_the_linear_receiver_dsb_not_the_quadratic() -> None
         sat, rx, _ = final_dsbs(data, series[0])
         c = np.mean([sat[s] - sat_ns[svs.index(s)] for s in sat])          # datum offset over the satellites
         err[order] = np.array([rx["DGAR"] - rx_ns[0] + c, rx["BELE"] - rx_ns[1] + c])
+        fit = satellite_fit(data, series[0])                  # the per-satellite fit works on six TEC terms too
+        assert fit.worst() is not None and np.isfinite(fit.rms_m).any()
     assert np.abs(err[2]).max() < 0.1, err
     assert np.abs(err[1]).max() > 0.5, err

@@ -422,13 +422,18 @@ def satellite_fit(data: BiasNetworkData, final: DatumSeries) -> SatelliteFit:
     ok = geo.tracked & np.isfinite(data.obs_m) & np.isfinite(b_m)[None]
     w = np.where(ok, 1.0 / np.where(ok, data.sigma_m, 1.0) ** 2, 0.0)
     y = np.where(ok, data.obs_m - np.where(np.isfinite(b_m), b_m, 0.0)[None], 0.0)
-    a = np.where(ok[..., None], geo.coefficients, 0.0)                    # (T, n, S, 3)
+    a = np.where(ok[..., None], geo.coefficients, 0.0)                    # (T, n, S, 3 or 6)
     G = lay.n_ionospheres
     onehot = np.eye(G)[np.asarray(geo.groups, np.int64)]                   # (n, G)
     N = np.einsum("ng,tns,tnsk,tnsl->tgkl", onehot, w, a, a)
     r = np.einsum("ng,tns,tnsk,tns->tgk", onehot, w, a, y)
-    good = np.linalg.det(N) > 1e-12 * np.maximum(np.einsum("tgkk->tg", N), 1e-300) ** 3
-    nu = np.zeros((T, G, 3))
+    nk = a.shape[-1]                                                       # 3 or 6 TEC terms
+    if nk == 3:
+        good = np.linalg.det(N) > 1e-12 * np.maximum(np.einsum("tgkk->tg", N), 1e-300) ** 3
+    else:                        # the curvature terms are small (Δφ² ≪ 1): judge by the eigenvalue spread
+        ev = np.linalg.eigvalsh(N)
+        good = ev[..., 0] > 1e-12 * np.maximum(ev[..., -1], 1e-300)
+    nu = np.zeros((T, G, nk))
     if good.any():
         nu[good] = np.linalg.solve(N[good], r[good][..., None])[..., 0]
     e = y - np.einsum("tnsk,tnk->tns", a, nu[:, np.asarray(geo.groups, np.int64)])
