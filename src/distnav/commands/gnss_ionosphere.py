@@ -101,7 +101,8 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
                  weighting: str = "sin", reference: str | None = None, progress: Any = None,
                  exclude: Sequence[str] = (), levelling: bool = True, min_arc_epochs: int = 10,
                  gf_threshold_m: float = 0.05, screen: bool = True, c1_corrections: str | None = None,
-                 tec_rw_m_per_sqrt_s: float | None = None, min_satellite_obs: int | None = None) -> Any:
+                 tec_rw_m_per_sqrt_s: float | None = None, min_satellite_obs: int | None = None,
+                 **model: Any) -> Any:
     """Read the stations, form the geometry-free code on the union of their epochs and build the bias model
     (:func:`distnav.models.gnss.gfnetwork.bias_network_model`). ``exclude``: satellites (``G01``) and stations
     (``BELE``) left out. ``levelling``: carrier-to-code levelling per arc on the full-rate data, then the
@@ -111,16 +112,20 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
     from distnav.models.gnss.gfnetwork import read_stations
 
     obs = read_stations(list(obs_files), l1_code=l1_code, l2_code=l2_code, tlim=tlim,
-                        interval_s=None if levelling else interval_s, phases=levelling, progress=progress)
+                        interval_s=None if levelling else interval_s, phases=levelling, progress=progress,
+                        l1_fallback="C1W" if c1_corrections else None)
+    own = {o.station: dict(o.codes) for o in obs}          # the receivers' own codes (their DSBs' code pair)
     if c1_corrections:
         from distnav.models.gnss.products import correct_c1
 
-        obs = [correct_c1(o, c1_corrections) for o in obs]
-    return network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
+        obs = [correct_c1(o, c1_corrections) if o.codes.get(1) == "C1C" else o for o in obs]
+    data = network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
                                      ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
                                      weighting=weighting, reference=reference, exclude=exclude, levelling=levelling,
                                      min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen,
-                                     tec_rw_m_per_sqrt_s=tec_rw_m_per_sqrt_s, min_satellite_obs=min_satellite_obs)
+                                     tec_rw_m_per_sqrt_s=tec_rw_m_per_sqrt_s, min_satellite_obs=min_satellite_obs,
+                                     **model)
+    return replace(data, codes={s: own[s] for s in data.stations})
 
 
 def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = "C2W",
@@ -129,7 +134,8 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
                               weighting: str = "sin", reference: str | None = None, exclude: Sequence[str] = (),
                               levelling: bool = True, min_arc_epochs: int = 10, gf_threshold_m: float = 0.05,
                               screen: bool = True, tec_rw_m_per_sqrt_s: float | None = None,
-                              min_satellite_obs: int | None = None, arc_correlation_s: float | None = None) -> Any:
+                              min_satellite_obs: int | None = None, arc_correlation_s: float | None = None,
+                              tec_order: int = 1, mapping: str = "slm") -> Any:
     """:func:`network_data` from observations already read (:class:`~distnav.models.gnss.rinex.CodeObservations`
     with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid).
     ``arc_correlation_s``: the levelled code's σ per arc from :func:`~distnav.models.gnss.gfnetwork.arc_sigma_scale`
@@ -192,8 +198,8 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
                               paths=[str(o.path) for o in obs],
                               vtec_rw_m_per_sqrt_s=TEC_RW_M_PER_SQRT_S if tec_rw_m_per_sqrt_s is None
                               else tec_rw_m_per_sqrt_s,
-                              min_satellite_obs=min_satellite_obs,
-                              sigma_scale=scale)
+                              min_satellite_obs=min_satellite_obs, sigma_scale=scale, tec_order=tec_order,
+                              mapping=mapping)
     return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs})
 
 
@@ -243,8 +249,9 @@ C1C_WARNING = ("WARNING: L1 code C1C (RINEX 2 C1). The satellites' C1C-C1W biase
 
 def run_ionosphere(args: argparse.Namespace) -> int:
     """Handler of ``distnav gnss ionosphere``."""
+    from distnav.commands.gnss_sinex_out import write_sinex
     from distnav.models.gnss.gfnetwork import innovation_summary, run_bias_filters, satellite_fit
-    from distnav.models.gnss.ionosphere import TEC_NAMES, TECU_L1_M
+    from distnav.models.gnss.ionosphere import TEC_NAMES_QUADRATIC, TECU_L1_M
     from distnav.models.gnss.products import compare_in_datum, product_dsbs
     from distnav.models.gnss.rinex import read_navigation, read_sp3
     from distnav.output import atomic_write_json, atomic_write_text
@@ -278,7 +285,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                         levelling=args.levelling == "arc", min_arc_epochs=args.min_arc,
                         gf_threshold_m=args.gf_threshold, screen=not args.no_screening,
                         c1_corrections=args.c1_corrections, tec_rw_m_per_sqrt_s=args.tec_rw,
-                        min_satellite_obs=args.min_satellite_obs)
+                        min_satellite_obs=args.min_satellite_obs, mapping=args.mapping,
+                        tec_order=2 if args.tec_field == "quadratic" else 1)
     if args.c1_corrections:
         l1 = "C1W"
     stations, layout = data.stations, data.layout
@@ -308,15 +316,16 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["time_gps", "filter", "parameter", "value", "std"])
     times = [_iso(t) for t in data.t_gps_s]
-    tec_names = [nm for g in range(layout.n_ionospheres)
-                 for nm in ((f"{stations[g]}:" if layout.n_ionospheres > 1 else "") + t for t in TEC_NAMES)]
+    nt = layout.n_tec_terms
+    tec_names = [nm for g in range(layout.n_ionospheres) for nm in ((f"{stations[g]}:" if layout.n_ionospheres > 1
+                                                                     else "") + t for t in TEC_NAMES_QUADRATIC[:nt])]
     for t, tt in enumerate(times):
         for s in series:
             for k, nm in enumerate(tec_names):
                 x, sd = s.tec[t, k], s.tec_std[t, k]
                 if np.isfinite(x):
                     w.writerow([tt, s.label, nm, f"{x:.5f}", f"{sd:.5f}"])
-                    if k % 3 == 0:
+                    if k % nt == 0:
                         w.writerow([tt, s.label, nm.replace("vtec_m", "vtec_tecu"), f"{x / TECU_L1_M:.4f}",
                                     f"{sd / TECU_L1_M:.4f}"])
             for k, nm in enumerate(obj):
@@ -327,7 +336,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
 
     finals = {s.label: ({o: float(v) for o, v in zip(obj, s.dsb_ns[-1].tolist(), strict=True)},
                         {o: float(v) for o, v in zip(obj, s.dsb_std_ns[-1].tolist(), strict=True)}) for s in series}
-    products = product_dsbs(args.bias, layout.svs, stations, l1, l2) if args.bias else []
+    own = {sta: (c.get(1, l1), c.get(data.band, l2)) for sta, c in data.codes.items()}
+    products = product_dsbs(args.bias, layout.svs, stations, l1, l2, station_codes=own) if args.bias else []
     _check_days(products, data.t_gps_s, args.allow_other_day)
     comparison: dict[str, Any] = {}
     excl = [e.upper() for e in (args.compare_exclude or [])]
@@ -359,7 +369,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         "satellites": list(layout.svs), "datum": args.datum, "pivot": pivot, "estimation_basis": layout.reference,
         "ionosphere": data.ionosphere, "tec_parameters": tec_names,
         "graph_links": [[stations[i], stations[j]] for i, j in graph.links], "kn": args.kn, "protocol": "P3",
-        "mask_deg": args.mask, "notes": data.notes,
+        "mask_deg": args.mask, "notes": data.notes, "station_codes": own,
         "dcb_convention": f"DSB {l1}-{l2} in ns (Bias-SINEX sign: biases add to the observations), "
                           f"datum {args.datum}",
         "final_tec_m": {s.label: {nm: (float(s.tec[-1, k]), float(s.tec_std[-1, k]))
@@ -392,7 +402,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     summary["satellite_fit"] = fit.as_dict()
     fac = series[0].realistic_factor
     post = (finals["central"][0], {k: v * fac for k, v in finals["central"][1].items()})
-    summary["bias_sinex"] = str(_write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times))
+    summary["bias_sinex"] = str(write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times))
     atomic_write_json(out / "summary.json", summary)
     _print_summary(stations, comparison, finals)
     wf = summary["satellite_fit"]["worst_fitting"]
@@ -426,6 +436,7 @@ def _split_days(args: argparse.Namespace) -> dict[str, list[str]]:
 def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
     """Several days: one solution per day (``DIR/YYYY-MM-DD/``), the combined one and the day-to-day
     repeatability (``DIR/multiday.json``, ``DIR/distnav_dsb_combined.bia``)."""
+    from distnav.commands.gnss_sinex_out import write_combined_sinex
     from distnav.models.gnss.multiday import combine_days
     from distnav.models.gnss.products import product_day
     from distnav.output import atomic_write_json
@@ -463,52 +474,12 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
         result["worst_fitting"] = {"satellite": top, "days": names.count(top), "per_day": wf}
         print(f"worst-fitting satellite over the days: {top} ({names.count(top)} of {len(summaries)} days)")
     atomic_write_json(out / "multiday.json", result)
-    _write_combined_sinex(out / "distnav_dsb_combined.bia", result, summaries)
+    write_combined_sinex(out / "distnav_dsb_combined.bia", result, summaries)
     rep = result["repeatability_ns"]
     med = np.nanmedian([v for v in rep.values() if v is not None]) if rep else float("nan")
     print(f"combined {len(summaries)} days: {len(result['combined_ns'])} DSBs; day-to-day repeatability (std) median "
           f"{med:.3f} ns; written {out / 'multiday.json'}, {out / 'distnav_dsb_combined.bia'}")
     return 0
-
-
-def _write_combined_sinex(path: Path, result: dict[str, Any], summaries: dict[str, Any]) -> None:
-    from distnav.models.gnss.bias_sinex import write_bias_sinex
-    from distnav.output import atomic_write_text
-
-    first = summaries[min(summaries)]
-    codes = list(first["codes"].values())
-    comb, sd = result["combined_ns"], result["combined_std_ns"]
-    text = write_bias_sinex(None, obs1=codes[0], obs2=codes[1], start=f"{min(summaries)}T00:00:00",
-                     end=np.datetime64(max(summaries)) + np.timedelta64(1, "D"),
-                     satellites={k: (v, sd[k]) for k, v in comb.items() if not k.startswith("rx:")},
-                     stations={k[3:]: (v, sd[k]) for k, v in comb.items() if k.startswith("rx:")},
-                     comments=[f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
-                               "zero-mean satellite datum over the satellites common to the days"])
-    atomic_write_text(path, str(text))
-
-
-def _write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str, float]], l1: str, l2: str,
-                 datum: str, times: list[str]) -> Path:
-    """The central filter's final DSBs as Bias-SINEX 1.00 (satellites and receivers with σ)."""
-    from distnav.models.gnss.bias_sinex import write_bias_sinex
-
-    val, sd = final
-    step = float(np.median(np.diff(data.t_gps_s))) if data.t_gps_s.size > 1 else 30.0
-    end = np.datetime64(times[-1], "s") + np.timedelta64(int(round(step)), "s")
-    from distnav.output import atomic_write_text
-
-    text = write_bias_sinex(
-        None, obs1=l1, obs2=l2, start=times[0], end=end, sampling_s=step,
-        satellites={k: (v, sd[k]) for k, v in val.items() if not k.startswith("rx:")},
-        stations={k[3:]: (v, sd[k]) for k, v in val.items() if k.startswith("rx:")},
-        comments=[f"distnav gnss ionosphere, central filter, datum {datum} "
-                  f"({'IGS convention' if datum == 'zero-mean' else 'not the IGS convention'})",
-                  f"stations: {' '.join(data.stations)}; geometry-free {l1}-{l2} code, "
-                  f"{'carrier-levelled' if data.levelled else 'raw'}",
-                  "sigma: formal x sqrt(variance factor x (1+rho)/(1-rho)) of the predicted residuals",
-                  "satellite SVN field holds the system letter only"])
-    atomic_write_text(path, str(text))
-    return path
 
 
 def _check_days(products: Sequence[Any], t_gps_s: np.ndarray, allow: bool) -> None:
@@ -578,7 +549,13 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
                    help="satellites left out of the product comparison statistics (e.g. G01)")
     p.add_argument("--c1-corrections", metavar="BIA",
                    help="with --l1-code C1C: remove each satellite's C1C-C1W DSB of this Bias-SINEX product from C1C "
-                        "(estimates then refer to C1W, the P1 of IONEX/GFZ; the receivers' part stays in their DSB)")
+                        "(satellites then refer to C1W, the P1 of IONEX/GFZ; a file without C1C uses its C1W; each "
+                        "receiver's DSB stays C1C-C2W, compared and written as such)")
+    p.add_argument("--tec-field", choices=["linear", "quadratic"], default="linear",
+                   help="VTEC field of each ionosphere: paper 003's ν and two gradients, or second order too "
+                        "(low-latitude stations: docs/gnss.md)")
+    p.add_argument("--mapping", choices=["slm", "mslm"], default="slm",
+                   help="single-layer mapping: 450-km thin shell (paper 003) or modified (506.7 km, α = 0.9782)")
     p.add_argument("--levelling", choices=["arc", "none"], default="arc",
                    help="carrier-to-code levelling per continuous arc (default) or raw code")
     p.add_argument("--min-arc", type=int, default=10, metavar="EPOCHS",

@@ -324,12 +324,14 @@ def _solution_line(prn: str, station: str, obs1: str, obs2: str, start: str, end
 def write_bias_sinex(path: str | Path | None, *, obs1: str, obs2: str, start: object, end: object,
                      satellites: Mapping[str, tuple[float, float]], stations: Mapping[str, tuple[float, float]],
                      agency: str = "DNV", created: object = None, description: str = "",
-                     sampling_s: float = 30.0, comments: Sequence[str] = ()) -> Path | str:
+                     sampling_s: float = 30.0, comments: Sequence[str] = (),
+                     station_codes: Mapping[str, tuple[str, str]] | None = None) -> Path | str:
     """Write satellite and station DSBs ``obs1 − obs2`` [ns] with σ as a Bias-SINEX 1.00 file (gzip if the name
     ends in ``.gz``): header line, ``FILE/REFERENCE``, ``FILE/COMMENT``, ``BIAS/DESCRIPTION`` (relative biases,
     GPS time) and ``BIAS/SOLUTION`` in the fixed columns of the format (those :func:`read_bias_sinex` reads).
     distnav does not know satellite SVNs: the SVN field holds the system letter only. NaN values are skipped.
-    ``path=None`` returns the text instead (for an atomic write by the caller)."""
+    ``path=None`` returns the text instead (for an atomic write by the caller). ``station_codes``: a station's own
+    code pair where it differs from the satellites' (C1C receivers corrected to C1W)."""
     import math
 
     import numpy as np
@@ -340,8 +342,9 @@ def write_bias_sinex(path: str | Path | None, *, obs1: str, obs2: str, start: ob
     made = sinex_time(created if created is not None else np.datetime64("now", "s"))
     rows = [_solution_line(prn, "", obs1, obs2, t0, t1, v, sd) for prn, (v, sd) in sorted(satellites.items())
             if math.isfinite(v)]
-    rows += [_solution_line("", sta.upper(), obs1, obs2, t0, t1, v, sd) for sta, (v, sd) in sorted(stations.items())
-             if math.isfinite(v)]
+    own = station_codes or {}
+    rows += [_solution_line("", sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
+             for sta, (v, sd) in sorted(stations.items()) if math.isfinite(v)]
     bar = "*" + "-" * 79
     lines = [f"%=BIA 1.00 {agency:<3} {made} {agency:<3} {t0} {t1} R {len(rows):08d}", bar,
              "+FILE/REFERENCE", "*INFO_TYPE_________ INFO" + "_" * 56,

@@ -36,7 +36,7 @@ import numpy as np
 from distnav.algorithms.kalman import DynamicModel, MeasurementSeries
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, mu
-from distnav.models.gnss.ionosphere import TEC_NAMES, VTEC_RW_STD_M_PER_SQRT_S, series_inputs
+from distnav.models.gnss.ionosphere import TEC_NAMES, TEC_NAMES_QUADRATIC, VTEC_RW_STD_M_PER_SQRT_S, series_inputs
 
 __all__ = ["DATUMS", "TEC_RW_M_PER_SQRT_S", "gf_m_per_dsb_ns", "geometry_free_band_m", "BiasStateLayout",
            "BiasGeometryFreeSeries", "bias_dynamics", "datum_transform", "in_datum"]
@@ -75,6 +75,8 @@ class BiasStateLayout:
     n_ionospheres: int = 1
     basis: str = "receiver"
     reference: str = ""
+    n_tec_terms: int = 3
+    """TEC parameters per ionosphere: 3 (paper 003's ν_o and gradients) or 6 (second-order field)."""
 
     def __post_init__(self) -> None:
         if self.basis not in ("receiver", "pivot"):
@@ -83,12 +85,14 @@ class BiasStateLayout:
         if self.reference not in pool:
             what = "receiver" if self.basis == "receiver" else "pivot satellite"
             raise ModelError(f"reference {what} {self.reference!r} is not one of {', '.join(pool)}")
+        if self.n_tec_terms not in (3, 6):
+            raise ModelError(f"n_tec_terms must be 3 or 6, got {self.n_tec_terms}")
         if not self.svs or not self.receivers or self.n_ionospheres < 1:
             raise ModelError("the bias model needs satellites, receivers and at least one ionosphere")
 
     @property
     def n_tec(self) -> int:
-        return 3 * self.n_ionospheres
+        return self.n_tec_terms * self.n_ionospheres
 
     def receiver_column(self) -> np.ndarray:
         """State column of each receiver's bias (``-1`` for the reference receiver in basis "receiver")."""
@@ -126,7 +130,7 @@ class BiasStateLayout:
         names: list[str] = []
         for g in range(self.n_ionospheres):
             pre = "" if self.n_ionospheres == 1 else f"{self.receivers[g]}:"
-            names += [pre + t for t in TEC_NAMES]
+            names += [pre + t for t in (TEC_NAMES if self.n_tec_terms == 3 else TEC_NAMES_QUADRATIC)]
         names += [f"rx_gf_m:{r}" for r, c in zip(self.receivers, self.receiver_column(), strict=True) if c >= 0]
         return names + [f"sat_gf_m:{s}" for s, c in zip(self.svs, self.satellite_column(), strict=True) if c >= 0]
 
@@ -137,8 +141,10 @@ def bias_dynamics(layout: BiasStateLayout, interval_s: float | np.ndarray, *,
     """Paper 003 eq. (53) for this layout: random walk on the TEC parameters, constant receiver and satellite
     biases — the form of :func:`~distnav.models.gnss.ionosphere.ionosphere_dynamics`, but by default 10× its
     random walk (:data:`TEC_RW_M_PER_SQRT_S`: why)."""
-    q2 = np.tile([vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s],
-                 layout.n_ionospheres) ** 2
+    per = [vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s]
+    if layout.n_tec_terms == 6:      # curvature [m/rad²]: 5× the gradients' random walk per radian, as they to ν_o
+        per += [5.0 * gradient_std_m_per_rad_sqrt_s] * 3
+    q2 = np.tile(per, layout.n_ionospheres) ** 2
     H = np.eye(layout.n_states)[:, :layout.n_tec]
     dt = np.asarray(interval_s, dtype=float)
     if dt.ndim == 0:
@@ -164,7 +170,8 @@ class BiasGeometryFreeSeries(MeasurementSeries):
     def __init__(self, layout: BiasStateLayout, coefficients: np.ndarray, sigma_m: np.ndarray, *,
                  obs_m: np.ndarray | None = None, tracked: np.ndarray | None = None,
                  groups: np.ndarray | None = None) -> None:
-        a, sig, ok, y, g = series_inputs(coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres)
+        a, sig, ok, y, g = series_inputs(coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres,
+                                         layout.n_tec_terms)
         T, n, S, _ = a.shape
         if S != len(layout.svs) or n != len(layout.receivers):
             raise ModelError(f"coefficients for {n} receivers × {S} satellites, the layout has "
@@ -194,7 +201,8 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         if self._last_design is not None and self._last_design[0] == key:
             return self._last_design[1], self._last_design[2]
         A = self._static[idx].copy()            # receiver and satellite columns (constant)
-        tec = 3 * self._groups[idx][:, None] + np.arange(3)[None, :]          # (k, 3) TEC columns per node
+        nt = self.layout.n_tec_terms
+        tec = nt * self._groups[idx][:, None] + np.arange(nt)[None, :]        # (k, nt) TEC columns per node
         A[np.arange(idx.size)[:, None, None], np.arange(self.n_satellites)[None, :, None], tec[:, None, :]] = \
             self._a[t, idx]
         w = self._w[t, idx]

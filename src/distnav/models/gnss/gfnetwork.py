@@ -68,23 +68,34 @@ class BiasNetworkData:
     def series_for(self, reference: str) -> BiasGeometryFreeSeries:
         """The same data in the basis of another reference receiver."""
         lay = BiasStateLayout(self.layout.svs, self.layout.receivers, self.layout.n_ionospheres, "receiver",
-                              reference)
+                              reference, self.layout.n_tec_terms)
         return BiasGeometryFreeSeries(lay, self.geometry.coefficients, self.sigma_m, obs_m=self.obs_m,
                                       tracked=self.geometry.tracked, groups=self.geometry.groups)
 
 
 def read_stations(paths: Sequence[str | Path], *, l1_code: str, l2_code: str, tlim: tuple[str, str] | None = None,
                   interval_s: float | None = None, phases: bool = False,
-                  progress: ProgressCallback | None = None) -> list[CodeObservations]:
-    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of every station."""
+                  progress: ProgressCallback | None = None, l1_fallback: str | None = None) -> list[CodeObservations]:
+    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of every station; a file without
+    ``l1_code`` on L1 is read with ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
     from distnav.models.gnss.rinex import read_code_observations
 
     if not paths:
         raise DataFileError("no observation file given")
     band = int(l2_code[1])
     codes = {1: l1_code.upper(), band: l2_code.upper()}
-    obs = [read_code_observations(p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s,
-                                  phases=phases, progress=progress) for p in paths]
+
+    def read(p: str | Path) -> CodeObservations:
+        try:
+            return read_code_observations(p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s,
+                                          phases=phases, progress=progress)
+        except DataFileError as exc:
+            if l1_fallback is None or "no L1 code observation" not in str(exc):
+                raise
+        return read_code_observations(p, bands=(1, band), codes={**codes, 1: l1_fallback.upper()}, tlim=tlim,
+                                      interval_s=interval_s, phases=phases, progress=progress)
+
+    obs = [read(p) for p in paths]
     stations = [o.station for o in obs]
     dup = sorted({s for s in stations if stations.count(s) > 1})
     if dup:
@@ -103,8 +114,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
                        ionosphere: str = "auto", regional_km: float = 1000.0, sigma_zenith_m: float | None = None,
                        weighting: str = "sin", reference: str | None = None, notes: list[str] | None = None,
                        paths: list[str] | None = None, vtec_rw_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
-                       min_satellite_obs: int | None = None,
-                       sigma_scale: np.ndarray | None = None) -> BiasNetworkData:
+                       min_satellite_obs: int | None = None, sigma_scale: np.ndarray | None = None,
+                       tec_order: int = 1, mapping: str = "slm") -> BiasNetworkData:
     """The model from undifferenced geometry-free observations ``gf_m`` (T, n, S) [m] (NaN = not observed).
 
     ``sigma_zenith_m`` defaults to the paper's 65.6 cm scaled to the band (√2·30 cm/(μ_b − 1)). The estimation
@@ -119,7 +130,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     satellite seen for a few minutes at low elevation
     at a session edge has a DCB of several ns σ that would only pull the zero-mean datum. ``sigma_scale``
     (T, n, S): factors on the elevation-dependent σ (the levelled code's arc correlation, see
-    :func:`arc_sigma_scale`).
+    :func:`arc_sigma_scale`). ``tec_order`` 2: a second-order VTEC field per ionosphere (six parameters);
+    ``mapping`` ``"mslm"``: the modified single-layer mapping (both off by default; docs/gnss.md, low latitudes).
     """
     from distnav.models.gnss.constants import mu
     from distnav.models.gnss.ionosphere import ionosphere_geometry
@@ -137,7 +149,7 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
         mode = "common" if base_km <= regional_km else "per-receiver"
         notes.append(f"ionosphere: {mode} (longest baseline {base_km:.0f} km, regional limit {regional_km:.0f} km)")
     geo = ionosphere_geometry(orbit, t_all, receivers_ecef_m=xyz, names=stations, svs=svs_all, mask_deg=mask_deg,
-                              ionosphere=mode)
+                              ionosphere=mode, tec_order=tec_order, mapping=mapping)
     if not np.isfinite(geo.el_rad).any():
         span = f"{str(datetime_from_gps_seconds(t_all[0]))[:19]} – {str(datetime_from_gps_seconds(t_all[-1]))[:19]}"
         raise ModelError(f"the orbit gives no satellite position at the observation epochs ({span}): "
@@ -176,7 +188,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
         ref = reference.upper()
         if ref not in stations:
             raise ModelError(f"reference receiver {reference}: not one of the stations {', '.join(stations)}")
-    layout = BiasStateLayout(svs, tuple(stations), 1 if mode == "common" else n, "receiver", ref)
+    layout = BiasStateLayout(svs, tuple(stations), 1 if mode == "common" else n, "receiver", ref,
+                             3 if tec_order == 1 else 6)
     sig0 = (np.sqrt(2.0) * 0.30 / (mu(band) - 1.0)) if sigma_zenith_m is None else float(sigma_zenith_m)
     el = np.where(geo.tracked, geo.el_rad, 0.5 * np.pi)
     sig = elevation_sigma(el, sig0, weighting)
@@ -409,13 +422,18 @@ def satellite_fit(data: BiasNetworkData, final: DatumSeries) -> SatelliteFit:
     ok = geo.tracked & np.isfinite(data.obs_m) & np.isfinite(b_m)[None]
     w = np.where(ok, 1.0 / np.where(ok, data.sigma_m, 1.0) ** 2, 0.0)
     y = np.where(ok, data.obs_m - np.where(np.isfinite(b_m), b_m, 0.0)[None], 0.0)
-    a = np.where(ok[..., None], geo.coefficients, 0.0)                    # (T, n, S, 3)
+    a = np.where(ok[..., None], geo.coefficients, 0.0)                    # (T, n, S, 3 or 6)
     G = lay.n_ionospheres
     onehot = np.eye(G)[np.asarray(geo.groups, np.int64)]                   # (n, G)
     N = np.einsum("ng,tns,tnsk,tnsl->tgkl", onehot, w, a, a)
     r = np.einsum("ng,tns,tnsk,tns->tgk", onehot, w, a, y)
-    good = np.linalg.det(N) > 1e-12 * np.maximum(np.einsum("tgkk->tg", N), 1e-300) ** 3
-    nu = np.zeros((T, G, 3))
+    nk = a.shape[-1]                                                       # 3 or 6 TEC terms
+    if nk == 3:
+        good = np.linalg.det(N) > 1e-12 * np.maximum(np.einsum("tgkk->tg", N), 1e-300) ** 3
+    else:                        # the curvature terms are small (Δφ² ≪ 1): judge by the eigenvalue spread
+        ev = np.linalg.eigvalsh(N)
+        good = ev[..., 0] > 1e-12 * np.maximum(ev[..., -1], 1e-300)
+    nu = np.zeros((T, G, nk))
     if good.any():
         nu[good] = np.linalg.solve(N[good], r[good][..., None])[..., 0]
     e = y - np.einsum("tnsk,tnk->tns", a, nu[:, np.asarray(geo.groups, np.int64)])

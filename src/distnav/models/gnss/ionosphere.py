@@ -51,7 +51,7 @@ import numpy as np
 
 from distnav.algorithms.kalman import DynamicModel, MeasurementSeries, ObservationSeries, simulate_states
 from distnav.errors import ModelError
-from distnav.models.gnss.constants import C_M_S, F_L1_HZ, mu
+from distnav.models.gnss.constants import C_M_S, F_L1_HZ, IONO_EARTH_RADIUS_M, mu
 from distnav.models.gnss.geometry import (
     azimuth_elevation,
     ecef_to_geodetic,
@@ -103,6 +103,15 @@ GRADIENT_RW_STD_M_PER_RAD_SQRT_S = 5e-3
 TEC_NAMES = ("vtec_m", "vtec_grad_lat_m_per_rad", "vtec_grad_lon_m_per_rad")
 """Names (with units) of the three TEC parameters ν_o, ν_φ, ν_ψ of one ionosphere."""
 
+TEC_NAMES_QUADRATIC = (*TEC_NAMES, "vtec_curv_lat_m_per_rad2", "vtec_curv_latlon_m_per_rad2",
+                       "vtec_curv_lon_m_per_rad2")
+"""The six TEC parameters of a second-order field (``tec_order=2``): ν_o, the gradients, then the coefficients of
+Δφ², Δφ·Δψ and Δψ² — a departure from paper 003's linear field, for low-latitude stations (docs/gnss.md)."""
+
+MSLM_HEIGHT_M = 506.7e3
+MSLM_ALPHA = 0.9782
+"""Modified single-layer mapping (CODE): ``sin z' = R/(R + 506.7 km) · sin(0.9782 · (π/2 − θ))``."""
+
 
 def dcb_ns_from_gf_m(b_m: np.ndarray | float) -> np.ndarray:
     """Between-satellite DCB ``DSB^s − DSB^p`` [ns] from the geometry-free bias ``b^{ps}`` [m] (sign: Bias-SINEX)."""
@@ -120,17 +129,24 @@ def geometry_free_m(p1_m: np.ndarray, p2_m: np.ndarray) -> np.ndarray:
 
 
 def ionosphere_coefficients(lat_ipp_rad: np.ndarray, lon_ipp_rad: np.ndarray, zenith_ipp_rad: np.ndarray,
-                            ref_lat_rad: np.ndarray | float, ref_lon_rad: np.ndarray | float) -> np.ndarray:
+                            ref_lat_rad: np.ndarray | float, ref_lon_rad: np.ndarray | float, *,
+                            order: int = 1) -> np.ndarray:
     """Coefficients ``(a_o, a_φ, a_ψ)`` of paper 003 eq. (49) on a new last axis.
 
     ``a_o = 1/cos z'``, ``a_φ = (φ_IPP − φ_o)/cos z'``, ``a_ψ = (ψ_IPP − ψ_o)/cos z'`` (radians; the longitude
-    difference is wrapped to (−π, π]). Inputs broadcast.
+    difference is wrapped to (−π, π]). Inputs broadcast. ``order=2`` appends ``Δφ²``, ``Δφ·Δψ``, ``Δψ²`` over
+    cos z' (:data:`TEC_NAMES_QUADRATIC`).
     """
     inv_cos = 1.0 / np.cos(np.asarray(zenith_ipp_rad, dtype=float))
     dlat = np.asarray(lat_ipp_rad, dtype=float) - np.asarray(ref_lat_rad, dtype=float)
     dlon = np.asarray(lon_ipp_rad, dtype=float) - np.asarray(ref_lon_rad, dtype=float)
     dlon = np.mod(dlon + np.pi, 2.0 * np.pi) - np.pi
-    return np.stack(np.broadcast_arrays(inv_cos, dlat * inv_cos, dlon * inv_cos), axis=-1)
+    terms = [inv_cos, dlat * inv_cos, dlon * inv_cos]
+    if order == 2:
+        terms += [dlat**2 * inv_cos, dlat * dlon * inv_cos, dlon**2 * inv_cos]
+    elif order != 1:
+        raise ModelError(f"the TEC field's order must be 1 (linear) or 2 (quadratic), got {order}")
+    return np.stack(np.broadcast_arrays(*terms), axis=-1)
 
 
 # ----------------------------------------------------------------------------------------------- geometry
@@ -182,14 +198,18 @@ def ionosphere_geometry(orbit: SatelliteOrbit, t_gps_s: np.ndarray, *, lat_rad: 
                         lon_rad: np.ndarray | None = None, height_m: np.ndarray | float = 0.0,
                         receivers_ecef_m: np.ndarray | None = None, names: Sequence[str] | None = None,
                         svs: Sequence[str] | None = None, mask_deg: float = 10.0,
-                        ionosphere: str = "common") -> IonosphereGeometry:
+                        ionosphere: str = "common", tec_order: int = 1, mapping: str = "slm") -> IonosphereGeometry:
     """Elevations, pierce points and eq.-(49) coefficients of every receiver–satellite pair at every epoch.
 
     Receivers by geodetic ``lat_rad``/``lon_rad``/``height_m`` or by ``receivers_ecef_m`` (n, 3). ``ionosphere``:
     ``"common"`` — one regional ionosphere about the receivers' centroid (paper 003 §5: all TEC parameters shared);
     ``"per-receiver"`` — each receiver its own ν_o, ν_φ, ν_ψ about its own zenith (networks too wide for one
     regional model). Satellites below ``mask_deg`` (paper: 10°) or without a position are not tracked.
+    ``tec_order`` 2: the second-order coefficients too; ``mapping`` ``"mslm"``: the modified single-layer mapping
+    (:data:`MSLM_HEIGHT_M`, :data:`MSLM_ALPHA`) instead of paper 003's 450-km thin shell.
     """
+    if mapping not in ("slm", "mslm"):
+        raise ModelError(f"mapping must be 'slm' or 'mslm', got {mapping!r}")
     if receivers_ecef_m is not None:
         xyz = np.asarray(receivers_ecef_m, dtype=float).reshape(-1, 3)
         if not np.all(np.isfinite(xyz)) or np.any(np.linalg.norm(xyz, axis=1) < 6.0e6):
@@ -233,8 +253,15 @@ def ionosphere_geometry(orbit: SatelliteOrbit, t_gps_s: np.ndarray, *, lat_rad: 
         ref_lat, ref_lon = lat.copy(), lon.copy()
     el_safe = np.where(tracked, el, 0.5 * np.pi)
     az_safe = np.where(tracked, az, 0.0)
-    lat_ipp, lon_ipp, z_ipp = pierce_point(lat[None, :, None], lon[None, :, None], az_safe, el_safe)
-    coef = ionosphere_coefficients(lat_ipp, lon_ipp, z_ipp, ref_lat[None, :, None], ref_lon[None, :, None])
+    if mapping == "mslm":
+        lat_ipp, lon_ipp, _ = pierce_point(lat[None, :, None], lon[None, :, None], az_safe, el_safe,
+                                           height_m=MSLM_HEIGHT_M)
+        z_ipp = np.arcsin(IONO_EARTH_RADIUS_M / (IONO_EARTH_RADIUS_M + MSLM_HEIGHT_M)
+                          * np.sin(MSLM_ALPHA * (0.5 * np.pi - el_safe)))
+    else:
+        lat_ipp, lon_ipp, z_ipp = pierce_point(lat[None, :, None], lon[None, :, None], az_safe, el_safe)
+    coef = ionosphere_coefficients(lat_ipp, lon_ipp, z_ipp, ref_lat[None, :, None], ref_lon[None, :, None],
+                                   order=tec_order)
     coef[~tracked] = 0.0
     return IonosphereGeometry(t, sv_names, rx_names, lat, lon, h, el, az, tracked, coef, ref_lat, ref_lon, groups,
                               float(mask))
@@ -334,14 +361,14 @@ def choose_pivot(svs: Sequence[str], tracked: np.ndarray, preferred: str | None 
 
 # ----------------------------------------------------------------------------------------------- measurements
 def series_inputs(coefficients: ArrayLike, sigma_m: ArrayLike, obs_m: ArrayLike | None, tracked: ArrayLike | None,
-                  groups: ArrayLike | None, n_ionospheres: int
+                  groups: ArrayLike | None, n_ionospheres: int, n_terms: int = 3
                   ) -> tuple[FloatArray, FloatArray, BoolArray, FloatArray | None, IntArray]:
     """Check the inputs of a geometry-free series: ``coefficients`` (T epochs, n nodes, S satellites, 3);
     ``sigma_m``, ``obs_m`` and ``tracked`` (T, n, S); ``groups`` (n,) ionosphere indices. Returns ``(coefficients,
     σ, usable mask, y or None, groups)``; a value is usable where σ > 0 and everything is finite and tracked."""
     a = np.asarray(coefficients, dtype=float)
-    if a.ndim != 4 or a.shape[-1] != 3:
-        raise ModelError(f"coefficients must have shape (epochs, nodes, satellites, 3), got {a.shape}")
+    if a.ndim != 4 or a.shape[-1] != n_terms:
+        raise ModelError(f"coefficients must have shape (epochs, nodes, satellites, {n_terms}), got {a.shape}")
     T, n, S, _ = a.shape
     sig = np.asarray(sigma_m, dtype=float)
     if sig.shape != (T, n, S):

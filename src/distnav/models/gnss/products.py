@@ -10,7 +10,7 @@ product is valid for, so a product of another day can be refused.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -53,8 +53,11 @@ def product_day(path: str | Path) -> np.datetime64 | None:
 
 
 def product_dsbs(paths: Sequence[str | Path], svs: Sequence[str], stations: Sequence[str], obs1: str,
-                 obs2: str) -> list[ProductDSB]:
-    """Satellite and station DSBs ``obs1 − obs2`` [ns] of each product file (Bias-SINEX or IONEX)."""
+                 obs2: str, *, station_codes: Mapping[str, tuple[str, str]] | None = None) -> list[ProductDSB]:
+    """Satellite and station DSBs ``obs1 − obs2`` [ns] of each product file (Bias-SINEX or IONEX).
+
+    ``station_codes``: a station's own code pair where it differs from the satellites' (a C1C station corrected
+    to C1W with the satellites' C1C−C1W DSBs keeps its receiver's C1C in its bias: its DSB is C1C−C2W)."""
     from distnav.models.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, resolve_dsb
 
     kinds: list[tuple[str, Any, Path]] = []
@@ -85,8 +88,9 @@ def product_dsbs(paths: Sequence[str | Path], svs: Sequence[str], stations: Sequ
                 if len(chain) > 1 or (chain and not chain[0].endswith(f"{obs1}-{obs2}")):
                     notes.append(f"{s}: {' + '.join(chain)}")
             for r in stations:
+                o1, o2 = (station_codes or {}).get(r, (obs1, obs2))
                 try:
-                    sta[r], chain = resolve_dsb(order, obs1, obs2, station=r)
+                    sta[r], chain = resolve_dsb(order, o1, o2, station=r)
                 except ModelError:
                     continue
                 if len(chain) > 1:
@@ -94,7 +98,8 @@ def product_dsbs(paths: Sequence[str | Path], svs: Sequence[str], stations: Sequ
             name = f"{prod.name} {path.name}"
         else:
             sat = {s: prod.satellite[s][0] for s in svs if s in prod.satellite}
-            sta = {r: prod.station[("G", r.upper())][0] for r in stations if ("G", r.upper()) in prod.station}
+            sta = {r: prod.station[("G", r.upper())][0] for r in stations if ("G", r.upper()) in prod.station
+                   and (station_codes or {}).get(r, ("C1W", "C2W")) == ("C1W", "C2W")}
             name = f"IONEX {path.name}"
             if (obs1, obs2) != ("C1W", "C2W"):
                 notes.append(f"IONEX DCBs are P1-P2 (C1W-C2W); estimates are {obs1}-{obs2}: differences include "
