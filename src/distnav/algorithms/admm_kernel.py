@@ -12,15 +12,20 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-import scipy.sparse as sp
 
+from distnav._optional import lazy
 from distnav.algorithms.lsq import LinearProblem
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.constraint_nodes import ConstraintNodes
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+else:  # imported on first use (start-up of an MPI job)
+    sp = lazy("scipy.sparse")
 
 __all__ = ["AdmmState", "Multipliers", "XUpdate", "XUpdateMethod"]
 

@@ -37,13 +37,18 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Literal, TypeAlias
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias
 
 import numpy as np
-import scipy.sparse as sp
 
+from distnav._optional import lazy
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+else:  # imported on first use (start-up of an MPI job)
+    sp = lazy("scipy.sparse")
 
 logger = logging.getLogger(__name__)
 
