@@ -31,15 +31,19 @@ from functools import cached_property
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import numpy as np
-import scipy.sparse as sp
 
+from distnav._optional import lazy
 from distnav.errors import ExchangeError
 from distnav.exchange.faults import FaultPlan, FaultSchedule
 from distnav.exchange.route import Route
 from distnav.network.graph import Graph
 
 if TYPE_CHECKING:
+    import scipy.sparse as sp
+
     from distnav.network.weights import ConsensusWeights
+else:  # imported on first use (start-up of an MPI job)
+    sp = lazy("scipy.sparse")
 
 __all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "incoming_edges"]
 
@@ -167,17 +171,25 @@ def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray,
 _CSR_CHUNK = 1 << 18  # edges per pass when the mixer's block is written (a few MB of temporaries)
 
 
-try:  # scipy's own CSR kernels, called without the ``@`` dispatch (≈ 8 µs a call, a fifth of a 10³-node round)
-    from scipy.sparse import _sparsetools
+_KERNELS: list[Any] = []  # scipy's own CSR kernels (matvec, matvecs), looked up at the first product
 
-    _MATVEC = _sparsetools.csr_matvec
-    _MATVECS = _sparsetools.csr_matvecs
-except (ImportError, AttributeError):  # pragma: no cover - other scipy layouts: the public operator
-    _MATVEC = _MATVECS = None
+
+def _csr_kernels() -> tuple[Any, Any]:
+    """scipy's CSR kernels, called without the ``@`` dispatch (≈ 8 µs a call, a fifth of a 10³-node round);
+    ``(None, None)`` on a scipy without them (then the public operator). Resolved on first use, not at import."""
+    if not _KERNELS:
+        try:
+            from scipy.sparse import _sparsetools
+
+            _KERNELS.extend((_sparsetools.csr_matvec, _sparsetools.csr_matvecs))
+        except (ImportError, AttributeError):  # pragma: no cover - other scipy layouts: the public operator
+            _KERNELS.extend((None, None))
+    return _KERNELS[0], _KERNELS[1]
 
 
 def _csr_product(m: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
     """``m @ x`` for a float CSR matrix and a float64 vector or ``(n, k)`` array: the same scipy kernel."""
+    _MATVEC, _MATVECS = _KERNELS if _KERNELS else _csr_kernels()
     if _MATVEC is None or m.dtype != np.float64 or x.dtype != np.float64:
         return np.asarray(m @ x)
     x = np.ascontiguousarray(x)
