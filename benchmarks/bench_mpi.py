@@ -6,10 +6,11 @@ consensus round against that collective plus one scipy CSR product of the rank's
 rank reported separately (docs/scale.md fits bytes per node and per link from them). The machine has 2 cores:
 more ranks than that are oversubscribed and their ratios say little.
 
-Start-up (launch + import, issue 17 item 4): wall time of ``mpiexec -n R python -m mpi4py -c CODE`` where CODE
-imports what a distnav MPI job needs (the MPI exchange, consensus and ADMM) and meets at a barrier, against an
-empty mpi4py job (import ``mpi4py.MPI``, barrier); interleaved launches, the added seconds as min–median of the
-per-repeat differences. Goal ≤ 0.3 s over the empty job. A job importing only numpy shows how much of that is
+Start-up (launch + import, issue 17 item 4; rows written by ``bench_mpi_startup.py``): wall time of
+``mpiexec -n R python -m mpi4py -c CODE`` where CODE imports what a distnav MPI job needs (the MPI exchange,
+consensus and ADMM) and meets at a barrier, against an empty mpi4py job (import ``mpi4py.MPI``, barrier);
+interleaved launches, the added seconds as min–median of the per-repeat differences. Goal ≤ 0.3 s over the empty
+job. A job importing only numpy shows how much of that is
 distnav's own. scipy.sparse is imported on first use since issue 17 (the first set-up or round pays it, not the
 start-up); a job importing numpy and scipy.sparse says how much that is (``scipy_sparse_on_first_use_s_median``).
 Every job reads its bytecode from one cache, as an installed package does (``PYTHONPYCACHEPREFIX`` set to a fresh
@@ -126,7 +127,7 @@ def startup_rows(ranks: tuple[int, ...] = (1, 2, 4), repeat: int = 5) -> list[di
 
 
 def run(quick: bool) -> list[dict[str, Any]]:
-    rows: list[dict[str, Any]] = startup_rows((1, 2, 4), repeat=3 if quick else 5)
+    rows: list[dict[str, Any]] = []  # start-up: bench_mpi_startup.py
     cases = [(2, 100_000, 1, 50), (2, 100_000, 10, 30)]
     if not quick:
         cases += [(4, 100_000, 10, 30), (2, 1_000_000, 1, 30)]  # 10⁶ once: the machine is shared
