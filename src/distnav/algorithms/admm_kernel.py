@@ -53,7 +53,6 @@ class XUpdate:
         self.A = np.ascontiguousarray(problem.A)
         self.y = np.ascontiguousarray(problem.y)
         n, m, p = self.A.shape
-        Wi = c[:, None, None] * W[None]  # (n, p, p)
         if method == "normal":
             N_i, _ = problem.normal_equations
             R_inv = problem.R_inv
@@ -62,7 +61,7 @@ class XUpdate:
                 AtRi = np.einsum("nmp,nmk->npk", problem.A, R_inv)
             else:  # the same products without the zero terms (bitwise equal, see _diagonal_or_none)
                 AtRi = np.swapaxes(problem.A * r_diag[:, :, None], 1, 2)
-            self.G = np.linalg.solve(N_i + Wi, AtRi)  # (n, p, m)
+            self.G = np.linalg.solve(N_i + c[:, None, None] * W[None], AtRi)  # (n, p, m): W_i = c_i W
         elif method == "observation":
             Winv1 = np.linalg.inv(W)
             w_diag = _diagonal_or_none(Winv1[None])
@@ -83,7 +82,7 @@ class XUpdate:
             self.G = WinvAt @ np.linalg.inv(S)
         else:
             N_i, r_i = problem.normal_equations
-            self.L = np.linalg.cholesky(N_i + Wi)
+            self.L = np.linalg.cholesky(N_i + c[:, None, None] * W[None])
             self.N = N_i
             self.r = r_i
 
