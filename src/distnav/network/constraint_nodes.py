@@ -189,7 +189,7 @@ def unused_links(graph: Graph, nodes: NodeIds) -> np.ndarray:
 
 # ----------------------------------------------------------------------------------------------- vertex cover
 _SEQUENTIAL_TAIL = 2000  # when fewer candidates than this remain, finish a greedy pass in a plain loop
-_SEQUENTIAL_TAIL_LINKS = 4000  # per chunk of the matching: its loop is cheap per link (no array slicing)
+_SEQUENTIAL_TAIL_LINKS = 1000  # per chunk of the matching: its loop is cheap per link (no array slicing)
 _MATCH_CHUNK = 1 << 16  # links (in greedy order) matched per chunk
 
 
