@@ -171,25 +171,16 @@ def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray,
 _CSR_CHUNK = 1 << 18  # edges per pass when the mixer's block is written (a few MB of temporaries)
 
 
-_KERNELS: list[Any] = []  # scipy's own CSR kernels (matvec, matvecs), looked up at the first product
-
-
-def _csr_kernels() -> tuple[Any, Any]:
-    """scipy's CSR kernels, called without the ``@`` dispatch (≈ 8 µs a call, a fifth of a 10³-node round);
-    ``(None, None)`` on a scipy without them (then the public operator). Resolved on first use, not at import."""
-    if not _KERNELS:
-        try:
-            from scipy.sparse import _sparsetools
-
-            _KERNELS.extend((_sparsetools.csr_matvec, _sparsetools.csr_matvecs))
-        except (ImportError, AttributeError):  # pragma: no cover - other scipy layouts: the public operator
-            _KERNELS.extend((None, None))
-    return _KERNELS[0], _KERNELS[1]
+_KERNELS: list[Any] = []  # scipy's CSR (matvec, matvecs), looked up at the first product (not at import)
 
 
 def _csr_product(m: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
-    """``m @ x`` for a float CSR matrix and a float64 vector or ``(n, k)`` array: the same scipy kernel."""
-    _MATVEC, _MATVECS = _KERNELS if _KERNELS else _csr_kernels()
+    """``m @ x`` (float CSR; float64 vector or ``(n, k)`` array) by scipy's kernel, without the ``@`` dispatch
+    (≈ 8 µs a call, a fifth of a 10³-node round)."""
+    if not _KERNELS:  # (None, None) on other scipy layouts: then the public operator
+        st = getattr(sp, "_sparsetools", None)
+        _KERNELS.extend((getattr(st, "csr_matvec", None), getattr(st, "csr_matvecs", None)))
+    _MATVEC, _MATVECS = _KERNELS
     if _MATVEC is None or m.dtype != np.float64 or x.dtype != np.float64:
         return np.asarray(m @ x)
     x = np.ascontiguousarray(x)
