@@ -180,12 +180,13 @@ def _sequential_prune(g, chosen):
     return sorted(chosen)
 
 
-@pytest.mark.parametrize("tail", [0, 50])
-def test_vectorized_greedy_passes_equal_the_sequential_ones(monkeypatch, tail):
+@pytest.mark.parametrize(("tail", "chunk"), [(0, 1 << 16), (50, 1 << 16), (0, 997), (50, 7)])
+def test_vectorized_greedy_passes_equal_the_sequential_ones(monkeypatch, tail, chunk):
     import distnav.network.constraint_nodes as cn
 
     monkeypatch.setattr(cn, "_SEQUENTIAL_TAIL", tail)
     monkeypatch.setattr(cn, "_SEQUENTIAL_TAIL_LINKS", tail)
+    monkeypatch.setattr(cn, "_MATCH_CHUNK", chunk)  # links matched per chunk (≈ 13,500 links here)
     g = builders.connected_random_geometric(3000, mean_degree=9, rng=np.random.default_rng(5))
     ref = _sequential_matching(g)
     got = cn._maximal_matching(g)

@@ -29,3 +29,22 @@ def require(module: str, extra: str) -> ModuleType:
             f"{module} is needed for this feature and could not be imported ({exc}): "
             f"{install_hint(extra)} (or pip install {package})"
         ) from exc
+
+
+class LazyModule(ModuleType):
+    """Stands for the module ``name`` and imports it when one of its attributes is first read; its namespace is
+    then copied in, so later reads are plain attribute reads. For heavy dependencies that an import of distnav
+    should not pay for before they are used (``scipy.sparse`` is half the start-up of an MPI job:
+    docs/scale.md). Modules bind it under ``if not TYPE_CHECKING`` so the type checker sees the real module."""
+
+    def __getattr__(self, attr: str) -> object:
+        if attr.startswith("__") and attr.endswith("__"):  # introspection (copy, pickle, help) imports nothing
+            raise AttributeError(attr)
+        module = importlib.import_module(self.__name__)
+        self.__dict__.update(module.__dict__)
+        return getattr(module, attr)
+
+
+def lazy(name: str) -> ModuleType:
+    """A :class:`LazyModule` for ``name`` (imported on first attribute access)."""
+    return LazyModule(name)

@@ -12,15 +12,20 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-import scipy.sparse as sp
 
+from distnav._optional import lazy
 from distnav.algorithms.lsq import LinearProblem
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.constraint_nodes import ConstraintNodes
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+else:  # imported on first use (start-up of an MPI job)
+    sp = lazy("scipy.sparse")
 
 __all__ = ["AdmmState", "Multipliers", "XUpdate", "XUpdateMethod"]
 
@@ -48,7 +53,6 @@ class XUpdate:
         self.A = np.ascontiguousarray(problem.A)
         self.y = np.ascontiguousarray(problem.y)
         n, m, p = self.A.shape
-        Wi = c[:, None, None] * W[None]  # (n, p, p)
         if method == "normal":
             N_i, _ = problem.normal_equations
             R_inv = problem.R_inv
@@ -57,7 +61,7 @@ class XUpdate:
                 AtRi = np.einsum("nmp,nmk->npk", problem.A, R_inv)
             else:  # the same products without the zero terms (bitwise equal, see _diagonal_or_none)
                 AtRi = np.swapaxes(problem.A * r_diag[:, :, None], 1, 2)
-            self.G = np.linalg.solve(N_i + Wi, AtRi)  # (n, p, m)
+            self.G = np.linalg.solve(N_i + c[:, None, None] * W[None], AtRi)  # (n, p, m): W_i = c_i W
         elif method == "observation":
             Winv1 = np.linalg.inv(W)
             w_diag = _diagonal_or_none(Winv1[None])
@@ -78,7 +82,7 @@ class XUpdate:
             self.G = WinvAt @ np.linalg.inv(S)
         else:
             N_i, r_i = problem.normal_equations
-            self.L = np.linalg.cholesky(N_i + Wi)
+            self.L = np.linalg.cholesky(N_i + c[:, None, None] * W[None])
             self.N = N_i
             self.r = r_i
 
@@ -189,17 +193,16 @@ class _Kernel:
         real = g.src != g.dst
         self.to_c = inC[g.dst] & real
         self.from_c = inC[g.src] & real
-        real_in = ex.in_src != nodes[ex.in_dst]
-        real_out = ex.out_dst != nodes[ex.out_src]
         # pairs (i, s), s ≠ i: one per in-edge s→i with s ∈ C (z_s arrives there); u_{i,s} lives here at node i.
         # Per-pair arrays hold one row per pair in this order (in-edge order: grouped by receiver, senders
-        # ascending), and the two message rounds are prepared routes on these compact arrays.
-        self.ip = np.flatnonzero(inC[ex.in_src] & real_in)
+        # ascending), and the two message rounds are prepared routes on these compact arrays. The masks are the
+        # graph's per-edge ones read at the block's edges (no per-edge sender/receiver ids needed).
+        self.ip = np.flatnonzero(self.from_c[ex.in_edges])
         self.pair_dst = ex.in_dst[self.ip]
         n_pairs = self.ip.size
         self.count = np.bincount(self.pair_dst, minlength=nl) + self.inC_loc  # c_i = |N_i ∩ C|
         # outgoing z_{i,s} on edges i→s, s ∈ C: the pair's row is that of the reverse in-edge s→i
-        op = np.flatnonzero(inC[ex.out_dst] & real_out)
+        op = np.flatnonzero(self.to_c[ex.out_edges])
         lookup = np.full(g.n_edges, -1, dtype=np.int64)
         lookup[ex.in_edges[self.ip]] = np.arange(n_pairs)
         op_pair = lookup[g.reverse_edge[ex.out_edges[op]]]
@@ -265,11 +268,13 @@ class _Kernel:
         z_buf = np.empty((n_pairs, self.p))
         # initialization round: constraint nodes send z_s^[0] to their neighbours
         z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
-        diff = x_p - z_recv
+        # x_p is not read again before the next x-update overwrites it, so the pair residuals x_i − z_s take its
+        # buffer (one pair-sized array less to allocate and touch)
+        diff = np.subtract(x_p, z_recv, out=x_p)
         diff_self = (x - z) * cm
-        yield self._state(0, x, z, diff, diff_self, np.zeros_like(z), u, u_self)
+        tmp = np.empty((n_pairs, self.p))  # scratch: z_s − u_{i,s}, then z_{i,s}, then u_{i,s} + x_i − z_s
+        yield self._state(0, x, z, diff, diff_self, np.zeros_like(z), u, u_self, None if u0 is None else tmp)
         k = 0
-        tmp = np.zeros((n_pairs, self.p))
         while True:
             k += 1
             # step 1: u-update, l, x-update, send z_{i,s} = x_i + u_{i,s} to constraint neighbours
@@ -298,11 +303,11 @@ class _Kernel:
             dz = z_new - z
             z = z_new
             z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
-            np.subtract(x_p, z_recv, out=diff)
+            np.subtract(x_p, z_recv, out=diff)  # diff is x_p's buffer
             np.subtract(x, z, out=diff_self)
             diff_self *= cm
-            if monitor_every and k % monitor_every == 0:
-                yield self._state(k, x, z, diff, diff_self, dz, u, u_self)
+            if monitor_every and k % monitor_every == 0:  # tmp is free until the next u-update
+                yield self._state(k, x, z, diff, diff_self, dz, u, u_self, tmp)
             else:
                 yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
 
@@ -433,14 +438,18 @@ class _Kernel:
         return a * self.w_iso if self.w_iso is not None else np.einsum("ij,jk->ik", a, self.W)
 
     def _state(self, k: int, x: np.ndarray, z: np.ndarray, diff_pair: np.ndarray, diff_self: np.ndarray,
-               dz: np.ndarray, u: np.ndarray, u_self: np.ndarray) -> AdmmState:
+               dz: np.ndarray, u: np.ndarray, u_self: np.ndarray, scratch: np.ndarray | None) -> AdmmState:
+        """The monitored state; ``scratch`` a free pair-sized buffer for ``u + diff_pair``, or None when ``u`` is
+        all zero (the first state of a cold start: ``0 + d`` is ``d`` bitwise but for the sign of a zero, which the
+        sum into rows, started at +0, and the square both drop)."""
+        u_next = diff_pair if scratch is None else np.add(u, diff_pair, out=scratch)
         # einsum, not BLAS: tiny BLAS calls are slow when the BLAS thread pool is contended
         sums = np.array([
             np.einsum("ij,ij->", diff_pair, diff_pair) + np.einsum("ij,ij->", diff_self, diff_self),
             self._dual_sq(dz),
             np.einsum("i,ij,ij->", self.count_f, x, x),
             np.einsum("i,ij,ij->", self.size_c, z, z),
-            _sq_rows(self._times_W(self.S_pairs @ (u + diff_pair) + u_self + diff_self)),
+            _sq_rows(self._times_W(self.S_pairs @ u_next + u_self + diff_self)),
         ])
         tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
         return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))

@@ -3,9 +3,16 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
+
+from distnav._optional import lazy
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+else:  # imported on first use (start-up of an MPI job)
+    sp = lazy("scipy.sparse")
 
 __all__: list[str] = []
 

@@ -2,18 +2,22 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.sparse as sp
 
+from distnav._optional import lazy
 from distnav.errors import ExchangeError
 from distnav.exchange._arrays import _flat, _masked_count, _segment_matrix
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    import scipy.sparse as sp
+
     from distnav.exchange.base import Exchange
+else:  # imported on first use (start-up of an MPI job)
+    sp = lazy("scipy.sparse")
 
 __all__ = ["Mixer"]
 
@@ -64,17 +68,16 @@ def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray,
 _CSR_CHUNK = 1 << 18  # edges per pass when the mixer's block is written (a few MB of temporaries)
 
 
-try:  # scipy's own CSR kernels, called without the ``@`` dispatch (≈ 8 µs a call, a fifth of a 10³-node round)
-    from scipy.sparse import _sparsetools
-
-    _MATVEC = _sparsetools.csr_matvec
-    _MATVECS = _sparsetools.csr_matvecs
-except (ImportError, AttributeError):  # pragma: no cover - other scipy layouts: the public operator
-    _MATVEC = _MATVECS = None
+_KERNELS: list[Any] = []  # scipy's CSR (matvec, matvecs), looked up at the first product (not at import)
 
 
 def _csr_product(m: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
-    """``m @ x`` for a float CSR matrix and a float64 vector or ``(n, k)`` array: the same scipy kernel."""
+    """``m @ x`` (float CSR; float64 vector or ``(n, k)`` array) by scipy's kernel, without the ``@`` dispatch
+    (≈ 8 µs a call, a fifth of a 10³-node round)."""
+    if not _KERNELS:  # (None, None) on other scipy layouts: then the public operator
+        st = getattr(sp, "_sparsetools", None)
+        _KERNELS.extend((getattr(st, "csr_matvec", None), getattr(st, "csr_matvecs", None)))
+    _MATVEC, _MATVECS = _KERNELS
     if _MATVEC is None or m.dtype != np.float64 or x.dtype != np.float64:
         return np.asarray(m @ x)
     x = np.ascontiguousarray(x)

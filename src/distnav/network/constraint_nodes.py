@@ -37,13 +37,18 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Literal, TypeAlias
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias
 
 import numpy as np
-import scipy.sparse as sp
 
+from distnav._optional import lazy
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+else:  # imported on first use (start-up of an MPI job)
+    sp = lazy("scipy.sparse")
 
 logger = logging.getLogger(__name__)
 
@@ -184,7 +189,8 @@ def unused_links(graph: Graph, nodes: NodeIds) -> np.ndarray:
 
 # ----------------------------------------------------------------------------------------------- vertex cover
 _SEQUENTIAL_TAIL = 2000  # when fewer candidates than this remain, finish a greedy pass in a plain loop
-_SEQUENTIAL_TAIL_LINKS = 20000  # the matching's loop is cheap per link (no array slicing): hand it more
+_SEQUENTIAL_TAIL_LINKS = 1000  # per chunk of the matching: its loop is cheap per link (no array slicing)
+_MATCH_CHUNK = 1 << 16  # links (in greedy order) matched per chunk
 
 
 def _min_at(n: int, index: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -198,7 +204,10 @@ def _maximal_matching(graph: Graph) -> np.ndarray:
 
     The sequential greedy pass is computed in vectorized rounds: a link whose rank is the smallest among the
     remaining links at both its ends is one greedy would take, so each round takes all of them at once (the
-    same matching as the one-link-at-a-time loop, which finishes the last few links)."""
+    same matching as the one-link-at-a-time loop, which finishes the last few links). The links are taken in
+    chunks of ``_MATCH_CHUNK`` ranks: greedy's choice among the first ranks does not depend on the later ones,
+    so each chunk is matched given the nodes the earlier chunks used, and links at used nodes are dropped before
+    any round looks at them (a round then scans a chunk's live links, not every remaining link of the graph)."""
     links = graph.links
     if links.size == 0:
         return links
@@ -208,33 +217,46 @@ def _maximal_matching(graph: Graph) -> np.ndarray:
     # rank by (degree sum, larger degree, link order): one integer key, one stable sort
     key = (lo_deg + hi_deg) * (int(deg.max()) + 1) + np.maximum(lo_deg, hi_deg)
     order = np.argsort(key, kind="stable")
-    a, b = links[order, 0].copy(), links[order, 1].copy()
-    rank = np.arange(a.size, dtype=np.int64)
+    a_all, b_all = links[order, 0], links[order, 1]
     used = np.zeros(n, bool)
     taken_a: list[np.ndarray] = []
     taken_b: list[np.ndarray] = []
     big = np.iinfo(np.int64).max
-    best = np.empty(n, np.int64)
-    while a.size > _SEQUENTIAL_TAIL_LINKS:
-        best.fill(big)
-        np.minimum.at(best, a, rank)
-        np.minimum.at(best, b, rank)
-        pick = (best[a] == rank) & (best[b] == rank)
-        pa, pb = a[pick], b[pick]
-        taken_a.append(pa)
-        taken_b.append(pb)
-        used[pa] = True
-        used[pb] = True
-        keep = ~(used[a] | used[b])
-        a, b, rank = a[keep], b[keep], rank[keep]
-    tail = []
-    used_list = used.tolist()
-    for u, v in zip(a.tolist(), b.tolist(), strict=True):
-        if not used_list[u] and not used_list[v]:
-            used_list[u] = used_list[v] = True
-            tail.append((u, v))
-    head = np.stack([np.concatenate(taken_a or [a[:0]]), np.concatenate(taken_b or [b[:0]])], axis=1)
-    return np.concatenate([head, np.asarray(tail, dtype=np.int64).reshape(-1, 2)])
+    best = np.full(n, big, np.int64)
+    for start in range(0, a_all.size, _MATCH_CHUNK):
+        a, b = a_all[start:start + _MATCH_CHUNK], b_all[start:start + _MATCH_CHUNK]
+        live = ~(used[a] | used[b])
+        a, b = a[live], b[live]
+        rank = np.flatnonzero(live)
+        while a.size > _SEQUENTIAL_TAIL_LINKS:
+            np.minimum.at(best, a, rank)
+            np.minimum.at(best, b, rank)
+            pick = (best[a] == rank) & (best[b] == rank)
+            best[a] = big  # reset only the entries this round wrote
+            best[b] = big
+            pa, pb = a[pick], b[pick]
+            taken_a.append(pa)
+            taken_b.append(pb)
+            used[pa] = True
+            used[pb] = True
+            keep = ~(used[a] | used[b])
+            a, b, rank = a[keep], b[keep], rank[keep]
+        if a.size:  # the chunk's last links in a plain loop (ranks ascending, as greedy takes them)
+            tail_a, tail_b = [], []
+            free = {u: True for u in np.concatenate([a, b]).tolist()}  # all free: dead links were dropped
+            for u, v in zip(a.tolist(), b.tolist(), strict=True):
+                if free[u] and free[v]:
+                    free[u] = free[v] = False
+                    tail_a.append(u)
+                    tail_b.append(v)
+            ta, tb = np.asarray(tail_a, np.int64), np.asarray(tail_b, np.int64)
+            used[ta] = True
+            used[tb] = True
+            taken_a.append(ta)
+            taken_b.append(tb)
+    if not taken_a:  # pragma: no cover - a graph with links always matches one
+        return links[:0]
+    return np.stack([np.concatenate(taken_a), np.concatenate(taken_b)], axis=1).astype(links.dtype, copy=False)
 
 
 def _prune(graph: Graph, inC: np.ndarray) -> np.ndarray:
@@ -253,13 +275,17 @@ def _prune(graph: Graph, inC: np.ndarray) -> np.ndarray:
     rank = np.empty(n, np.int64)
     rank[np.lexsort((np.arange(n), deg))] = np.arange(n)
     alive = cand.copy()
+    # the rounds only look at links between candidates (alive nodes are candidates), shrunk to the alive ones
+    ce = cand[src] & cand[dst]
+    cs, cd = src[ce], dst[ce]
     while int(alive.sum()) > _SEQUENTIAL_TAIL:
-        e = alive[src] & alive[dst]
-        best_nbr = _min_at(n, dst[e], rank[src[e]])
+        e = alive[cs] & alive[cd]
+        cs, cd = cs[e], cd[e]
+        best_nbr = _min_at(n, cd, rank[cs])
         pick = alive & (rank < best_nbr)
         inC[pick] = False
         blocked = np.zeros(n, bool)
-        blocked[dst[pick[src]]] = True
+        blocked[cd[pick[cs]]] = True
         alive &= ~pick & ~blocked
     ptr = graph.in_ptr
     gsrc = graph.src

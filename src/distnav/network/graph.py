@@ -15,12 +15,17 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.sparse as sp
 
+from distnav._optional import lazy
 from distnav.errors import GraphError
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+else:  # imported on first use (start-up of an MPI job)
+    sp = lazy("scipy.sparse")
 
 __all__ = ["Graph", "SwitchingGraph"]
 

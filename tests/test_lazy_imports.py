@@ -1,0 +1,56 @@
+"""Start-up of an MPI job (issue 17): the modules an MPI run imports do not import scipy (nor networkx or
+matplotlib) until they are used, and the deferred module behaves as the real one once used."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from distnav._optional import LazyModule, lazy
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+_HEAVY = ("scipy", "networkx", "matplotlib", "georinex")
+
+
+def _modules_after(code: str) -> list[str]:
+    script = (f"import sys\n{code}\nimport json\n"
+              f"print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in {_HEAVY!r})))")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                          env={"PYTHONPATH": str(SRC), "PATH": ""}, stdin=subprocess.DEVNULL)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    loaded: list[str] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return loaded
+
+
+@pytest.mark.parametrize("code", [
+    "from distnav.exchange.mpi import MPIExchange\nfrom distnav.algorithms.consensus import average_consensus\n"
+    "from distnav.algorithms.admm import admm",
+    "import distnav.cli",
+])
+def test_mpi_path_imports_no_scipy_networkx_or_matplotlib(code: str) -> None:
+    assert _modules_after(code) == []
+
+
+def test_first_use_imports_scipy_sparse_and_runs() -> None:
+    code = ("import numpy as np\nfrom distnav.algorithms.admm import admm\nfrom distnav.algorithms.lsq import "
+            "LinearProblem\nfrom distnav.network.graph import Graph\n"
+            "g = Graph.from_links(4, [(0, 1), (1, 2), (2, 3)])\n"
+            "A = np.ones((4, 1, 1)); r = admm(LinearProblem.from_stacked(A, np.arange(4.0)[:, None]), g, "
+            "max_iterations=300, tol=1e-12)\nassert abs(r.estimates[0, 0] - 1.5) < 1e-8, r.estimates")
+    assert "scipy.sparse" in _modules_after(code)
+
+
+def test_lazy_module_resolves_on_first_attribute() -> None:
+    mod = lazy("json.decoder")
+    assert isinstance(mod, LazyModule)
+    assert "JSONDecoder" not in vars(mod)
+    assert mod.JSONDecoder is sys.modules["json.decoder"].JSONDecoder
+    assert "JSONDecoder" in vars(mod)  # copied in: later reads are plain attribute reads
+    with pytest.raises(AttributeError):
+        _ = mod.no_such_name
+    with pytest.raises(AttributeError):
+        _ = lazy("json").__wrapped__  # introspection of a dunder does not import
