@@ -56,14 +56,15 @@ def robust_scale(standardized: np.ndarray) -> float:
 def _inverse_spd(n_mat: np.ndarray) -> np.ndarray | None:
     """``N⁻¹`` of a symmetric positive definite matrix by LAPACK's Cholesky and ``potri`` (half the flops of
     solving for the identity); None if ``N`` is not positive definite (singular)."""
-    u, info = sla.lapack.dpotrf(n_mat, lower=0, clean=0, overwrite_a=0)
+    u, info = sla.lapack.dpotrf(n_mat, lower=0, clean=1, overwrite_a=0)  # clean: zeros below the diagonal
     if info != 0 or not np.all(np.isfinite(u)):
         return None
-    inv, info = sla.lapack.dpotri(u, lower=0, overwrite_c=1)
+    inv, info = sla.lapack.dpotri(u, lower=0, overwrite_c=1)  # the upper triangle of N⁻¹; zeros below
     if info != 0:
         return None
-    upper = np.triu(inv)
-    return np.asarray(upper + np.triu(inv, 1).T)
+    out = inv + inv.T
+    out.flat[::out.shape[0] + 1] *= 0.5
+    return np.asarray(out)
 
 
 def _hat_terms(J: sp.csr_matrix, Q: np.ndarray, weight: np.ndarray, n_ranges: int
