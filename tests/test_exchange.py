@@ -260,6 +260,49 @@ def test_fault_plan_drops_exactly_the_scheduled_messages():
             assert np.array_equal(plan.delivered(k), fs.delivered(k, g.src[edges], g.dst[edges], edges)), k
 
 
+def test_drop_only_fault_plan_reads_no_endpoints_and_holds_no_per_edge_fault_arrays():
+    """A drop-only plan given the self-loop mask never asks for senders or receivers (at 10⁶ nodes they are two
+    64-bit edge arrays) and keeps the edge ids as given (no uint64 copy), yet drops what the schedule drops."""
+    from distnav.exchange.faults import FaultPlan
+
+    g = builders.random_geometric(1500, 0.05, rng=np.random.default_rng(4), self_loops=True)
+    edges = np.arange(g.n_edges, dtype=np.int32)
+
+    def unread() -> np.ndarray:
+        raise AssertionError("a drop-only plan must not read the endpoints")
+
+    fs = FaultSchedule(drop_probability=0.2, seed=9)
+    plan = FaultPlan(fs, unread, unread, edges, is_self=g.src == g.dst)
+    assert plan._dead_from is None and plan._edges is edges
+    for k in (0, 1, 77, 5):
+        assert np.array_equal(plan.delivered(k), fs.delivered(k, g.src, g.dst, edges)), k
+    with pytest.raises(AssertionError, match="endpoints"):  # failed links do need them
+        FaultPlan(FaultSchedule(failed_links=((int(g.links[0, 0]), int(g.links[0, 1]), 1),)), unread, unread, edges,
+                  is_self=g.src == g.dst)
+
+
+def test_fault_mixer_restores_its_weights_after_every_round():
+    """Fault rounds zero the lost entries of the held edge matrix for one product only: the matrix holds the
+    in-edge weights again afterwards, and a round equals the dense masked product (lost weight to the diagonal)."""
+    g = builders.connected_random_geometric(80, mean_degree=6, rng=np.random.default_rng(3))
+    w = consensus_weights(g, "MH")
+    fs = FaultSchedule(drop_probability=0.3, seed=4)
+    ex = make_exchange(g, faults=fs)
+    mixer = ex.mixer(w)
+    held = mixer._w_masked.data.copy()
+    assert mixer._w_full is None  # the fault-free fused block is not built under faults
+    x = np.random.default_rng(5).normal(size=80)
+    for k in range(6):
+        ok = fs.delivered(k, g.src, g.dst, np.arange(g.n_edges))
+        dense = np.zeros((80, 80))
+        np.add.at(dense, (g.dst[ok], g.src[ok]), w.edge_weight[ok])
+        dense[np.arange(80), np.arange(80)] += 1.0 - dense.sum(axis=1)
+        x_new = mixer.apply(x)
+        assert np.allclose(x_new, dense @ x, rtol=1e-13, atol=1e-15), k
+        assert np.array_equal(mixer._w_masked.data, held), k
+        x = x_new
+
+
 def test_mixer_fault_rounds_by_hand_with_every_kind_of_fault():
     g = builders.connected_random_geometric(50, mean_degree=6, rng=np.random.default_rng(7))
     w = consensus_weights(g, "MH")

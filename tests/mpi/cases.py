@@ -276,3 +276,53 @@ def transport_options(backend: str) -> dict[str, np.ndarray]:
         inbox = ex.send(np.stack([g.src[ex.out_edges], ex.out_edges], axis=1).astype(float))
     return {"estimates": res.estimates, "received": res.comm.messages_received,
             "edge_sum": ex.gather_nodes(inbox.sum()), "count": ex.gather_nodes(inbox.count())}
+
+
+@case
+def consensus_on_graph_parts(backend: str) -> dict[str, np.ndarray]:
+    """MPI: each rank builds only its part of a random geometric graph (``random_geometric_part``) from a partition
+    file (strips of the unit square, not a partition distnav computes); in-process: the whole graph. Drops, a
+    silent node, raw broadcast/send rounds: the same numbers."""
+    import os
+    import tempfile
+
+    from distnav.network.graph_part import GraphPart
+    from distnav.network.partition import write_partition
+    from distnav.network.weights import part_weights
+
+    n, radius = 3000, float(np.sqrt(8 / (np.pi * 3000)))
+    faults = FaultSchedule(drop_probability=0.15, silent_nodes=((17, 4),), seed=6)
+    x0 = np.random.default_rng(4).normal(size=(n, 2))
+    if backend == "mpi":
+        from mpi4py import MPI
+
+        comm = MPI.COMM_WORLD
+        rank, size = comm.Get_rank(), comm.Get_size()
+        x_pos = np.random.default_rng(0).uniform(0.0, 1.0, size=(n, 2))[:, 0]  # the builder's first draw
+        owner = np.minimum((x_pos * size).astype(np.int64), size - 1)
+        tmp = comm.bcast(tempfile.mkdtemp() if rank == 0 else None)
+        path = os.path.join(tmp, "owner.npy")
+        if rank == 0:
+            write_partition(path, owner)
+        comm.Barrier()
+        part: GraphPart = builders.random_geometric_part(n, radius, rng=np.random.default_rng(0),
+                                                         nodes=np.flatnonzero(owner == rank))
+        ex = make_exchange(part, backend="mpi", faults=faults, partition=path)
+        mixer = ex.mixer(part_weights(part, "MH"))
+        comm.Barrier()
+        if rank == 0:
+            os.remove(path)
+            os.rmdir(tmp)
+    else:
+        g = builders.random_geometric(n, radius, rng=np.random.default_rng(0))
+        ex = make_exchange(g, faults=faults)
+        mixer = ex.mixer(consensus_weights(g, "MH"))
+    x = ex.local(x0)
+    for _ in range(15):
+        x = mixer.apply(x)
+    bcast = ex.broadcast(ex.local(x0[:, 0])).sum()
+    edge = ex.send(ex.out_edges.astype(float)).sum()
+    comm_totals = ex.comm_totals()
+    return {"estimates": ex.gather_nodes(x), "bcast_sum": ex.gather_nodes(bcast), "edge_sum": ex.gather_nodes(edge),
+            "sent": comm_totals.messages_sent, "received": comm_totals.messages_received,
+            "per_round": comm_totals.messages_per_round}

@@ -22,6 +22,7 @@ Paper defaults: 500 iterations, ``α = 1e-3``, ``α₀ = 1e-2``, ``β = γ = 1/2
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -29,6 +30,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from distnav.algorithms.line_search_pair import iterate_line_search_pair
 from distnav.algorithms.neighbourhood import (
     IterationState,
     check_start,
@@ -42,6 +44,7 @@ from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.ranging_objective import range_sigma
 from distnav.algorithms.ranging_qc import TEST_SCALES, local_quality
 from distnav.algorithms.result import ObservationTests, Precision, SolverStatus, Trace
+from distnav.algorithms.sparse_kernels import csr_times
 from distnav.algorithms.statistics import critical_value, variance_factor
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -58,6 +61,7 @@ __all__ = [
     "solve_csg",
     "solve_ncsg",
     "solve_nclm",
+    "solve_line_search_pair",
     "solve",
 ]
 
@@ -106,8 +110,10 @@ def _summarize(problem: RangingData, ex: Exchange, own_local: np.ndarray, truth:
     cost = cost_of(own)
     if truth is None:
         return own, cost, float("nan")
-    d = own[est] - truth[est]
-    return own, cost, float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d)))) if est.any() else 0.0
+    if not est.any():
+        return own, cost, 0.0
+    d = own[est] - truth  # truth: the estimated anchors' true positions
+    return own, cost, float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d))))
 
 
 # ---------------------------------------------------------------------- CSG (full estimation vector)
@@ -177,10 +183,10 @@ def iterate_csg(
         if metres:
             norm = np.linalg.norm(diff, axis=1)
             jr = diff / (np.where(norm > 0, norm, np.inf) * sig)[:, None]
-            grad = np.asarray(Q @ (g[:, None] * jr)).reshape(nl, n, dim)
+            grad = csr_times(Q, g[:, None] * jr).reshape(nl, n, dim)
             U = np.where(free, F - alpha_local[:, None, None] * grad, known)
         else:
-            grad = np.asarray(Q @ (2.0 * g[:, None] * diff)).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
+            grad = csr_times(Q, 2.0 * g[:, None] * diff).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
             U = np.where(free, F - alpha * grad, known)
         for _ in range(consensus_rounds):  # eq. (11)
             U = mixer.apply(U)
@@ -220,9 +226,11 @@ class _Setup:
 
 
 def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, name: str, iterations: int,
-         settings: dict[str, Any], setup: _Setup) -> RangingResult:
+         settings: dict[str, Any], setup: _Setup,
+         seen: dict[int, tuple[np.ndarray, np.ndarray, float, float]] | None = None) -> RangingResult:
     """Drive a state generator until the stopping rule or the budget, monitoring every ``monitor_every``-th
-    iteration (and the first and last).
+    iteration (and the first and last). ``seen``: the monitoring of states whose ``own_m`` another run shares
+    (the same array object: :func:`solve_line_search_pair`), filled by the first run and reused by the second.
 
     Monitoring gathers every anchor's own estimate (``ex.gather_nodes``) and sums the partial costs and steps
     (``ex.allreduce``): network-wide collectives a deployment would not run each iteration. Unmonitored rows of the
@@ -232,6 +240,7 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
     monitor_every, stop = setup.monitor_every, setup.stop
     truth = problem.truth_m
     est = problem.estimated
+    truth_est = None if truth is None else truth[est]
     sigma = range_sigma(problem, setup.sigma_m)
     cost_of = _cost_of(problem, setup.objective, sigma)
     rm: list[float] = []
@@ -257,7 +266,13 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                 pcost.append(nan)
                 step.append(nan)
                 continue
-            own, c, r = _summarize(problem, ex, st.own_m, truth, est, cost_of)
+            hit = seen.get(id(st.own_m)) if seen is not None else None
+            if hit is not None and hit[0] is st.own_m:
+                own, c, r = hit[1].copy(), hit[2], hit[3]  # a result of its own
+            else:
+                own, c, r = _summarize(problem, ex, st.own_m, truth_est, est, cost_of)
+                if seen is not None:
+                    seen[id(st.own_m)] = (st.own_m, own, c, r)  # st.own_m kept alive: its id stays unique
             rm.append(r)
             cost.append(c)
             pcost.append(float(ex.allreduce(float(st.partial_cost.sum()), "sum")))
@@ -428,22 +443,49 @@ def solve_ncsg(problem: RangingData, *, line_search: str | None = None, exchange
         method = f"N-CSG-{str(line_search).upper()}"
     else:
         raise ModelError(f"line_search must be None, 'BLS' or 'TBLS', got {line_search!r}")
-    grad_its = _graduated(objective, loss, graduated, iterations)
-    setup = _Setup(objective=objective, sigma_m=sigma_m, loss=loss, loss_scale_m=loss_scale_m, stop=stop,
-                   graduated=grad_its, quality=quality, test_level=test_level, test_scale=test_scale,
-                   monitor_every=monitor_every)
-    setup.check()
-    a = (1e-3 if objective == "squared" else 0.8) if alpha is None else alpha
-    a0 = (1e-2 if objective == "squared" else 2.0) if alpha0 is None else alpha0
+    setup, options, settings = _ncsg_parts(dict(locals()))
     ex = exchange_for(problem, exchange)
-    states = iterate_neighbourhood(problem, method=method, exchange=ex, iterations=iterations, alpha=a,
-                                   alpha0=a0, beta=beta, gamma=gamma, consensus_rounds=consensus_rounds,
-                                   weights=weights, initial_m=initial_m, max_backtracks=max_backtracks,
-                                   armijo_slope=armijo_slope, loss=loss, loss_scale_m=loss_scale_m,
-                                   objective=objective, sigma_m=sigma_m, graduated=grad_its)
-    return _run(problem, states, ex, method, iterations,
-                {"alpha": a, "alpha0": a0, "beta": beta, "gamma": gamma, "consensus_rounds": consensus_rounds,
-                 "armijo_slope": armijo_slope, "loss": loss}, setup)
+    states = iterate_neighbourhood(problem, method=method, exchange=ex, **options)
+    return _run(problem, states, ex, method, iterations, settings, setup)
+
+
+def _ncsg_parts(args: dict[str, Any]) -> tuple[_Setup, dict[str, Any], dict[str, Any]]:
+    """From :func:`solve_ncsg`'s arguments: the run's set-up, the iteration's options and the result's settings."""
+    objective, loss, iterations = args["objective"], args["loss"], args["iterations"]
+    grad_its = _graduated(objective, loss, args["graduated"], iterations)
+    setup = _Setup(objective=objective, sigma_m=args["sigma_m"], loss=loss, loss_scale_m=args["loss_scale_m"],
+                   stop=args["stop"], graduated=grad_its, quality=args["quality"], test_level=args["test_level"],
+                   test_scale=args["test_scale"], monitor_every=args["monitor_every"])
+    setup.check()
+    a = (1e-3 if objective == "squared" else 0.8) if args["alpha"] is None else args["alpha"]
+    a0 = (1e-2 if objective == "squared" else 2.0) if args["alpha0"] is None else args["alpha0"]
+    options = {k: args[k] for k in ("iterations", "beta", "gamma", "consensus_rounds", "weights", "initial_m",
+                                    "max_backtracks", "armijo_slope", "loss", "loss_scale_m", "objective",
+                                    "sigma_m")}
+    options.update(alpha=a, alpha0=a0, graduated=grad_its)
+    settings = {"alpha": a, "alpha0": a0, "beta": args["beta"], "gamma": args["gamma"],
+                "consensus_rounds": args["consensus_rounds"], "armijo_slope": args["armijo_slope"], "loss": loss}
+    return setup, options, settings
+
+
+def solve_line_search_pair(problem: RangingData, *, exchanges: tuple[Exchange, Exchange] | None = None,
+                           **options: Any) -> tuple[RangingResult, RangingResult]:
+    """N-CSG-BLS and N-CSG-TBLS: the results of ``solve_ncsg(problem, line_search="BLS", exchange=exchanges[0],
+    **options)`` and of ``line_search="TBLS"`` on ``exchanges[1]``, computing the work the two runs provably share
+    once (:mod:`distnav.algorithms.line_search_pair`). ``options``: those of :func:`solve_ncsg`."""
+    if "line_search" in options or "exchange" in options:
+        raise ModelError("solve_line_search_pair runs BLS and TBLS: pass exchanges=(bls, tbls), not line_search "
+                         "or exchange")
+    bound = inspect.signature(solve_ncsg).bind(problem, **options)
+    bound.apply_defaults()
+    setup, opts, settings = _ncsg_parts(dict(bound.arguments))
+    pair = exchanges or (exchange_for(problem, None), exchange_for(problem, None))
+    ex_b, ex_t = exchange_for(problem, pair[0]), exchange_for(problem, pair[1])
+    bls_states, tbls_states = iterate_line_search_pair(problem, exchanges=(ex_b, ex_t), **opts)
+    its = opts["iterations"]
+    seen: dict[int, tuple[np.ndarray, np.ndarray, float, float]] = {}
+    res_b = _run(problem, bls_states, ex_b, "N-CSG-BLS", its, settings, setup, seen)
+    return res_b, _run(problem, tbls_states, ex_t, "N-CSG-TBLS", its, settings, setup, seen)
 
 
 def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterations: int = 500,

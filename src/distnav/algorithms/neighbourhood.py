@@ -34,20 +34,24 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
-from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, single_threaded_blas
+from distnav.algorithms.local_lm import LocalLM
+from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale
 from distnav.algorithms.ranging import RangingData
 from distnav.algorithms.ranging_objective import range_sigma
+from distnav.algorithms.sparse_kernels import csr_times
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.weights import ConsensusWeights, consensus_weights
 from distnav.typing import ArrayLike
 
-__all__ = ["IterationState", "LocalLM", "Mixing", "Neighbourhoods", "armijo_search", "check_start", "exchange_for",
-           "half_measurements", "iterate_neighbourhood", "mixing_weights"]
+__all__ = ["ArmijoTest", "IterationState", "LocalLM", "Mixing", "NeighbourhoodPlan", "Neighbourhoods", "armijo_details",
+           "armijo_search", "check_start", "exchange_for", "half_measurements", "iterate_neighbourhood",
+           "mixing_weights", "plan_neighbourhood"]
 
 @dataclass(frozen=True, eq=False)
 class IterationState:
@@ -234,18 +238,22 @@ class Neighbourhoods:
         """Per half-measurement IRLS weight ``ρ'((g/s)²)`` and objective term ``s² ρ((g/s)²)`` (linear: 1, g²)."""
         return loss_terms(g, self.h_scale, self.loss)
 
+    def terms(self, g: np.ndarray) -> np.ndarray:
+        """The objective terms of :meth:`rho` alone (linear: ``g²``, without the weights)."""
+        return np.asarray(g * g) if self.loss == "linear" else self.rho(g)[1]
+
     def partial_cost(self, g: np.ndarray) -> np.ndarray:
         """``f⁽ⁱ⁾ = Σ_{l∈E(i)} g_l²`` (eq. (14)); with a robust loss ``Σ s_l² ρ((g_l/s_l)²)``."""
-        return np.bincount(self.h_own, self.rho(g)[1], minlength=self.nl)
+        return np.bincount(self.h_own, self.terms(g), minlength=self.nl)
 
     def gradient(self, diff: np.ndarray, g: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
         """``G⁽ⁱ⁾ᵀ g⁽ⁱ⁾`` per anchor in slot layout (zero on fixed/held/padding slots), eq. (10) restricted;
         with IRLS weights ``w``: ``G⁽ⁱ⁾ᵀ W g⁽ⁱ⁾`` (half the gradient of the robust partial objective)."""
         gw = g if w is None else w * g
         if self.metres:
-            grad = np.asarray(self.Q @ (gw[:, None] * self.jrows(diff))).reshape(self.nl, self.K, self.dim)
+            grad = csr_times(self.Q, gw[:, None] * self.jrows(diff)).reshape(self.nl, self.K, self.dim)
         else:
-            grad = np.asarray(self.Q @ (2.0 * gw[:, None] * diff)).reshape(self.nl, self.K, self.dim)
+            grad = csr_times(self.Q, 2.0 * gw[:, None] * diff).reshape(self.nl, self.K, self.dim)
         return np.where(self.free_slot, grad, 0.0)
 
 
@@ -266,45 +274,82 @@ class Mixing:
         self.S = sp.csr_matrix((ew_in, (ex.in_dst, np.arange(ex.in_edges.size))),
                                shape=(ex.n_local, ex.in_edges.size))
         self.fill_w = self._fill_weights(np.ones(ex.in_edges.size, bool))
+        self._msg = np.zeros((nb.n_out * nb.K, nb.dim))  # the entries outside msg_flat stay zero
 
     def _fill_weights(self, delivered: np.ndarray) -> np.ndarray:
         nb = self.nb
         lack = (~(nb.has & delivered[:, None])).astype(float)
         return np.asarray(self.self_w[:, None] + np.asarray(self.S @ lack))  # (n_local, K)
 
-    def apply(self, U: np.ndarray) -> np.ndarray:
+    def apply(self, U: np.ndarray, echo: Exchange | None = None) -> np.ndarray:
+        """One consensus round; ``echo``: an in-process exchange without faults that sends the same messages
+        too (it only counts them: a second solver whose state is, bit for bit, this one's)."""
         nb, ex = self.nb, self.ex
         K, dim = nb.K, nb.dim
-        msg = np.zeros((nb.n_out * K, dim))
+        msg = self._msg  # consumed by the round below before the next one overwrites it
         msg[nb.msg_flat] = U.reshape(-1, dim)[nb.msg_src]
         inbox = ex.send(msg.reshape(nb.n_out, K, dim))
+        if echo is not None:
+            echo.send(msg.reshape(nb.n_out, K, dim))
         fill = self.fill_w if inbox.delivered.all() else self._fill_weights(inbox.delivered)
         vals = inbox.values.reshape(nb.n_in, K * dim)  # entries not held (or lost) arrive as zeros
-        mixed = fill[:, :, None] * U + np.asarray(self.S @ vals).reshape(U.shape)  # eqs. (15), (18)
+        mixed = fill[:, :, None] * U + csr_times(self.S, vals).reshape(U.shape)  # eqs. (15), (18)
         return np.where(nb.free_slot, mixed, nb.known_slot)
 
 
-def armijo_search(nb: Neighbourhoods, diff: np.ndarray, g: np.ndarray, d: np.ndarray, f0: np.ndarray,
-                   alpha_start: np.ndarray, alpha0: float | np.ndarray, beta: float, gamma: float, two_way: bool,
-                   max_backtracks: int, slope_factor: float = 2.0) -> np.ndarray:
-    """Per-anchor step sizes by BLS (eqs. (19)–(20)) or TBLS (eq. (21)), vectorized over the block's anchors."""
-    flat = d.reshape(-1, nb.dim)
-    dd = flat[nb.h_flat_self] - flat[nb.h_flat_other]
-    a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
-    b = 2.0 * np.einsum("ij,ij->i", diff, dd)
-    c = np.einsum("ij,ij->i", dd, dd)
-    # ∇f⁽ⁱ⁾ᵀ d with ∇f⁽ⁱ⁾ = 2 G⁽ⁱ⁾ᵀ g⁽ⁱ⁾ = −2 d (slope_factor 2); "subgradient": G⁽ⁱ⁾ᵀ g⁽ⁱ⁾ in its place (factor 1)
-    slope = -slope_factor * np.einsum("ijk,ijk->i", d, d)
-    moving = slope < 0
-    own = nb.h_own
+class ArmijoTest:
+    """The Armijo test of every anchor along ``x + α d`` (eqs. (19)–(21)): every residual is the quartic
+    ``a + 2αb + α²c − d²`` in ``α`` with ``a, b, c`` computed once per iteration."""
 
-    n2 = a + nb.h_d2  # ‖r_own − r_other‖² (metres)
+    def __init__(self, nb: Neighbourhoods, diff: np.ndarray, d: np.ndarray, f0: np.ndarray, gamma: float,
+                 slope_factor: float) -> None:
+        flat = d.reshape(-1, nb.dim)
+        dd = flat[nb.h_flat_self] - flat[nb.h_flat_other]
+        self.nb, self.f0, self.gamma = nb, f0, gamma
+        self.a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
+        self.b = 2.0 * np.einsum("ij,ij->i", diff, dd)
+        self.c = np.einsum("ij,ij->i", dd, dd)
+        # ∇f⁽ⁱ⁾ᵀd with ∇f⁽ⁱ⁾ = 2 G⁽ⁱ⁾ᵀg⁽ⁱ⁾ = −2d (slope_factor 2); "subgradient": G⁽ⁱ⁾ᵀg⁽ⁱ⁾ in its place (factor 1)
+        self.slope = -slope_factor * np.einsum("ijk,ijk->i", d, d)
+        self.moving = self.slope < 0
+        self.n2 = self.a + nb.h_d2  # ‖r_own − r_other‖² (metres)
+
+    def __call__(self, alpha: np.ndarray) -> np.ndarray:
+        nb = self.nb
+        al = alpha[nb.h_own]
+        r = nb.residual_of(self.n2 + al * (self.b + al * self.c)) if nb.metres else self.a + al * (self.b + al * self.c)
+        fa = np.bincount(nb.h_own, nb.terms(r), minlength=nb.nl)
+        return np.asarray(fa <= self.f0 + self.gamma * alpha * self.slope)
+
+
+def armijo_search(nb: Neighbourhoods, diff: np.ndarray, g: np.ndarray, d: np.ndarray, f0: np.ndarray,
+                  alpha_start: np.ndarray, alpha0: float | np.ndarray, beta: float, gamma: float, two_way: bool,
+                  max_backtracks: int, slope_factor: float = 2.0) -> np.ndarray:
+    """Per-anchor step sizes by BLS (eqs. (19)–(20)) or TBLS (eq. (21)), vectorized over the block's anchors."""
+    return armijo_details(nb, diff, g, d, f0, alpha_start, alpha0, beta, gamma, two_way, max_backtracks,
+                          slope_factor)[0]
+
+
+def armijo_details(nb: Neighbourhoods, diff: np.ndarray, g: np.ndarray, d: np.ndarray, f0: np.ndarray,
+                   alpha_start: np.ndarray, alpha0: float | np.ndarray, beta: float, gamma: float, two_way: bool,
+                   max_backtracks: int, slope_factor: float = 2.0,
+                   known: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                   reuse: ArmijoTest | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`armijo_search`'s ``(steps, ok, moving)``: whether the Armijo condition holds at the returned step,
+    and which anchors have a descent direction (the others keep ``alpha_start``).
+
+    ``known``: a BLS search's ``(steps, ok, moving)`` at the same point with the same ``α₀`` and a power-of-two
+    ``β``: it tested every grid step from ``α₀`` down to its result, all failing but the result, so a test at a
+    step ≥ the result needs no evaluation (every anchor's test depends on its own step only; the steps are exact
+    grid values). A test is evaluated only when some moving anchor's step is below BLS's result. ``reuse``: the
+    :class:`ArmijoTest` of the same point (computed once for both searches)."""
+    test = ArmijoTest(nb, diff, d, f0, gamma, slope_factor) if reuse is None else reuse
+    moving = test.moving
 
     def armijo(alpha: np.ndarray) -> np.ndarray:
-        al = alpha[own]
-        r = nb.residual_of(n2 + al * (b + al * c)) if nb.metres else a + al * (b + al * c)
-        fa = np.bincount(own, nb.rho(r)[1], minlength=nb.nl)
-        return np.asarray(fa <= f0 + gamma * alpha * slope)
+        if known is not None and np.all((alpha >= known[0]) | ~moving):
+            return np.asarray(known[1] & (alpha == known[0]))
+        return test(alpha)
 
     alpha = alpha_start.copy()
     ok = armijo(alpha)
@@ -325,10 +370,78 @@ def armijo_search(nb: Neighbourhoods, diff: np.ndarray, g: np.ndarray, d: np.nda
             step_up = grow & ok_t
             alpha = np.where(step_up, trial, alpha)
             grow = step_up & (alpha / beta <= alpha0 * (1 + 1e-12))
-    return np.where(moving, alpha, alpha_start)
+            ok = ok | step_up
+    return np.where(moving, alpha, alpha_start), ok, moving
 
 
-def iterate_neighbourhood(
+@dataclass
+class NeighbourhoodPlan:
+    """Everything the iteration loop of one neighbourhood solver needs besides its state (set up once)."""
+
+    nb: Neighbourhoods
+    mix: Mixing
+    weights: ConsensusWeights
+    method: str
+    iterations: int
+    alpha: float
+    alpha_i: float | np.ndarray
+    alpha0_i: float | np.ndarray
+    beta: float
+    gamma: float
+    max_backtracks: int
+    slope_factor: float
+    loss: str
+    graduated: int
+    consensus_rounds: int
+    lm: LocalLM | None
+
+    def bls_start(self) -> np.ndarray:
+        """BLS's start in every iteration: ``α₀`` (per anchor for metres)."""
+        nb = self.nb
+        return np.full(nb.nl, float(self.alpha0_i)) if not nb.metres else np.asarray(self.alpha0_i, float).copy()
+
+    def linearize(self, P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(diff, g, IRLS weights, f⁽ⁱ⁾(x⁽ⁱ⁾), G⁽ⁱ⁾ᵀ g⁽ⁱ⁾)`` at the start of iteration ``k``."""
+        nb = self.nb
+        nb.loss = "linear" if k <= self.graduated else self.loss
+        diff, g = nb.geometry(P)
+        w, terms = nb.rho(g)
+        f0 = np.bincount(nb.h_own, terms, minlength=nb.nl)
+        grad = nb.gradient(diff, g, None if nb.loss == "linear" else w)
+        return diff, g, w, f0, grad
+
+    def search(self, diff: np.ndarray, g: np.ndarray, grad: np.ndarray, f0: np.ndarray, start: np.ndarray,
+               two_way: bool, known: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+               reuse: ArmijoTest | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return armijo_details(self.nb, diff, g, -grad, f0, start, self.alpha0_i, self.beta, self.gamma,
+                              two_way, self.max_backtracks, self.slope_factor, known, reuse)
+
+    def state(self, k: int, P: np.ndarray, step: np.ndarray, f0: np.ndarray) -> IterationState:
+        nb = self.nb
+        return IterationState(k, P[:, 0].copy(), step.copy(), f0, nb.h_own, nb.h_samp,
+                              P.reshape(-1, nb.dim)[nb.h_flat_other])
+
+    def loop(self, P: np.ndarray, step: np.ndarray, nu: np.ndarray, first: int) -> Iterator[IterationState]:
+        """Iterations ``first``, …, ``iterations`` from the state ``(P, step, nu)`` (eqs. (14)–(22))."""
+        nb, method = self.nb, self.method
+        for k in range(first, self.iterations + 1):
+            diff, g, w, f0, grad = self.linearize(P, k)
+            if method == "N-CSG":
+                U = P - self.alpha * grad if not nb.metres else P - step[:, None, None] * grad
+            elif method == "N-CLM":
+                assert self.lm is not None
+                U, step, nu = self.lm.step(P, diff, g, f0, grad, step, nu, w)
+            else:
+                start = self.bls_start() if method == "N-CSG-BLS" else step
+                step = self.search(diff, g, grad, f0, start, method == "N-CSG-TBLS")[0]
+                U = P - step[:, None, None] * grad
+            for _ in range(self.consensus_rounds):
+                U = self.mix.apply(U)
+            P = U
+            yield self.state(k, P, step, f0)
+
+
+def plan_neighbourhood(
     problem: RangingData,
     *,
     method: str = "N-CSG",
@@ -351,21 +464,8 @@ def iterate_neighbourhood(
     objective: str = "squared",
     sigma_m: float | np.ndarray = 1.0,
     graduated: int = 0,
-) -> Iterator[IterationState]:
-    """Yield the state of N-CSG / N-CSG-BLS / N-CSG-TBLS / N-CLM after iterations 0, 1, …, ``iterations``.
-
-    See the module docstring for the equations (paper 002 eqs. (14)–(22)). ``loss="huber"|"cauchy"`` makes every
-    anchor minimise the robust partial objective ``Σ_{l∈E(i)} s_l² ρ((g_l/s_l)²)`` (``s_l = 2 d_l σ``,
-    ``σ = loss_scale_m``, as :func:`distnav.algorithms.nlsq.solve_lm`): the subgradient becomes ``G⁽ⁱ⁾ᵀW g⁽ⁱ⁾``
-    with IRLS weights ``w_l = ρ'`` computed by the anchor from its own estimates, the line searches test the
-    robust objective, and N-CLM solves the weighted normal equations.
-
-    ``objective="metres"``: every anchor fits the whitened range residuals ``(‖r_i − r_j‖ − d)/σ`` of its links
-    instead of ``g`` (the loss scale ``loss_scale_m`` then is in metres of range error for every link), and the
-    steps ``alpha`` / ``alpha0`` are relative to each anchor's own information, ``α_i = alpha / Σ_{l∈E(i)} σ_l⁻²``
-    (a gradient step of ``alpha ≤ 1`` is stable for the partial cost's Gauss–Newton curvature, whose largest
-    eigenvalue is at most ``2 Σ σ_l⁻²``); ``graduated = k`` runs the first ``k`` iterations with the linear loss.
-    """
+) -> tuple[NeighbourhoodPlan, np.ndarray, np.ndarray]:
+    """Check the options of :func:`iterate_neighbourhood` and set up its loop: ``(plan, P₀, step₀)``."""
     method = method.upper()
     if method not in ("N-CSG", "N-CSG-BLS", "N-CSG-TBLS", "N-CLM"):
         raise ModelError(f"unknown neighbourhood method {method!r}")
@@ -386,8 +486,7 @@ def iterate_neighbourhood(
         raise ModelError(f"graduated must be ≥ 0 iterations, got {graduated}")
     ex = exchange_for(problem, exchange)
     nb = Neighbourhoods(problem, ex, loss, loss_scale_m, objective, sigma_m)
-    mix = Mixing(nb, ex, mixing_weights(problem, weights))
-    P = nb.initial(init)
+    w = mixing_weights(problem, weights)
     nl = nb.nl
     if nb.metres:  # steps relative to each anchor's information Σ σ⁻² (1 for an anchor without links)
         info = np.bincount(nb.h_own, 1.0 / nb.h_sigma**2, minlength=nl)
@@ -396,140 +495,41 @@ def iterate_neighbourhood(
         alpha0_i: float | np.ndarray = alpha0 * unit
     else:
         alpha_i, alpha0_i = alpha, alpha0
+    plan = NeighbourhoodPlan(nb, Mixing(nb, ex, w), w, method, iterations, alpha, alpha_i, alpha0_i, beta, gamma,
+                 max_backtracks, 2.0 if armijo_slope == "gradient" else 1.0, loss, graduated, consensus_rounds,
+                 LocalLM(nb, damping, lambda_min) if method == "N-CLM" else None)
     if method == "N-CSG":
         step = np.full(nl, float(alpha)) if not nb.metres else np.asarray(alpha_i, float).copy()
     elif method == "N-CLM":
         step = np.full(nl, float(lambda0))
     else:
-        step = np.full(nl, float(alpha0)) if not nb.metres else np.asarray(alpha0_i, float).copy()
-    nu = np.full(nl, 2.0)
+        step = plan.bls_start()
+    return plan, nb.initial(init), step
+
+
+def iterate_neighbourhood(problem: RangingData, **options: Any) -> Iterator[IterationState]:
+    """Yield the state of N-CSG / N-CSG-BLS / N-CSG-TBLS / N-CLM after iterations 0, 1, …, ``iterations``.
+
+    The options (checked by :func:`plan_neighbourhood`) are ``method`` (``"N-CSG"`` default), ``exchange``,
+    ``iterations`` (500), ``alpha`` (1e-3), ``alpha0`` (1e-2), ``beta`` and ``gamma`` (1/2), ``lambda0`` (1e-3),
+    ``consensus_rounds`` (1), ``weights`` ("MH"), ``initial_m``, ``max_backtracks`` (40), ``damping``
+    ("levenberg"), ``armijo_slope`` ("subgradient"), ``loss`` ("linear"), ``loss_scale_m`` (0.3), ``lambda_min``
+    (0.1), ``objective`` ("squared"), ``sigma_m`` (1) and ``graduated`` (0).
+
+    See the module docstring for the equations (paper 002 eqs. (14)–(22)). ``loss="huber"|"cauchy"`` makes every
+    anchor minimise the robust partial objective ``Σ_{l∈E(i)} s_l² ρ((g_l/s_l)²)`` (``s_l = 2 d_l σ``,
+    ``σ = loss_scale_m``, as :func:`distnav.algorithms.nlsq.solve_lm`): the subgradient becomes ``G⁽ⁱ⁾ᵀW g⁽ⁱ⁾``
+    with IRLS weights ``w_l = ρ'`` computed by the anchor from its own estimates, the line searches test the
+    robust objective, and N-CLM solves the weighted normal equations.
+
+    ``objective="metres"``: every anchor fits the whitened range residuals ``(‖r_i − r_j‖ − d)/σ`` of its links
+    instead of ``g`` (the loss scale ``loss_scale_m`` then is in metres of range error for every link), and the
+    steps ``alpha`` / ``alpha0`` are relative to each anchor's own information, ``α_i = alpha / Σ_{l∈E(i)} σ_l⁻²``
+    (a gradient step of ``alpha ≤ 1`` is stable for the partial cost's Gauss–Newton curvature, whose largest
+    eigenvalue is at most ``2 Σ σ_l⁻²``); ``graduated = k`` runs the first ``k`` iterations with the linear loss.
+    """
+    plan, P, step = plan_neighbourhood(problem, **options)
+    nb = plan.nb
     diff, g = nb.geometry(P)
     yield IterationState(0, P[:, 0].copy(), step.copy(), nb.partial_cost(g))
-    if method == "N-CLM":
-        lm = LocalLM(nb, damping, lambda_min)
-    for k in range(1, iterations + 1):
-        nb.loss = "linear" if k <= graduated else loss
-        diff, g = nb.geometry(P)
-        w, terms = nb.rho(g)
-        f0 = np.bincount(nb.h_own, terms, minlength=nl)
-        grad = nb.gradient(diff, g, None if nb.loss == "linear" else w)
-        if method == "N-CSG":
-            U = P - alpha * grad if not nb.metres else P - step[:, None, None] * grad
-        elif method == "N-CLM":
-            U, step, nu = lm.step(P, diff, g, f0, grad, step, nu, w)
-        else:
-            if method == "N-CSG-BLS":
-                start = np.full(nl, float(alpha0)) if not nb.metres else np.asarray(alpha0_i, float).copy()
-            else:
-                start = step
-            step = armijo_search(nb, diff, g, -grad, f0, start, alpha0_i, beta, gamma,
-                                  two_way=method == "N-CSG-TBLS", max_backtracks=max_backtracks,
-                                  slope_factor=2.0 if armijo_slope == "gradient" else 1.0)
-            U = P - step[:, None, None] * grad
-        for _ in range(consensus_rounds):
-            U = mix.apply(U)
-        P = U
-        yield IterationState(k, P[:, 0].copy(), step.copy(), f0, nb.h_own, nb.h_samp,
-                             P.reshape(-1, nb.dim)[nb.h_flat_other])
-
-
-class LocalLM:
-    """Batched per-anchor LM steps on the partial costs (paper 002 eq. (22)).
-
-    ``G⁽ⁱ⁾ᵀG⁽ⁱ⁾`` is an arrowhead matrix: the own block couples with every neighbour block, neighbour blocks do
-    not couple with each other (a range involves anchor ``i`` and one neighbour), and a neighbour block is
-    rank one, ``c_s v_s v_sᵀ`` (``c_s`` samples of the link, ``v_s = 2(r_i − r_s)``). The damped system is solved
-    by Sherman–Morrison on the neighbour blocks and the Schur complement on the own ``dim × dim`` block,
-    vectorized over all anchors and links: no ``(K·dim)²`` matrix is formed or factorised.
-    """
-
-    def __init__(self, nb: Neighbourhoods, damping: str, lambda_min: float = 0.1) -> None:
-        self.nb = nb
-        self.damping = damping
-        self.lambda_min = lambda_min
-        key = nb.h_own * nb.K + nb.h_slot
-        uniq, first, inv, count = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
-        self.ls_own, self.ls_slot = uniq // nb.K, uniq % nb.K
-        self.first, self.count, self.inv = first, count.astype(float), inv
-        nls = uniq.size
-        self.O = sp.csr_matrix((np.ones(nls), (self.ls_own, np.arange(nls))), shape=(nb.nl, nls))  # → anchors
-        self.fo = nb.free_slot[:, 0, :]
-        self.fs = nb.free_slot[self.ls_own, self.ls_slot, :]
-        self.mo = self.fo[:, :, None] & self.fo[:, None, :]
-        self.n_free = self.fo.sum(axis=1) + np.asarray(self.O @ self.fs.sum(axis=1).astype(float))
-        self.eye = np.eye(nb.dim)
-
-    def step(self, P: np.ndarray, diff: np.ndarray, g: np.ndarray, f0: np.ndarray, grad: np.ndarray, lam: np.ndarray,
-             nu: np.ndarray, wt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        nb = self.nb
-        nl, d = nb.nl, nb.dim
-        robust = nb.loss != "linear" and wt is not None
-        if nb.metres:  # rows u/σ_s: per link the unit vector u, and c = Σ_s w_s / σ_s²
-            iw = 1.0 / nb.h_sigma**2 * (wt if robust and wt is not None else 1.0)
-            c = np.bincount(self.inv, iw, minlength=self.count.size)
-            norm = np.linalg.norm(diff[self.first], axis=1)
-            v = diff[self.first] / np.where(norm > 0, norm, np.inf)[:, None]
-        else:
-            c = np.bincount(self.inv, wt, minlength=self.count.size) if robust else self.count  # Σ sample weights
-            v = 2.0 * diff[self.first]  # (links, d): the same for every sample of a link
-        u = v * self.fs  # neighbour columns that are free
-        w = v * self.fo[self.ls_own]  # own columns that are free
-        A0 = np.asarray(self.O @ (c[:, None, None] * v[:, :, None] * v[:, None, :]).reshape(-1, d * d))
-        A0 = A0.reshape(nl, d, d)
-        dA = np.einsum("kii->ki", A0) * self.fo
-        dB = c[:, None] * u * u
-        if self.damping == "fletcher":  # eq. (8) literally: λ diag(GᵀG)
-            floor = 1e-12 * np.maximum(dA.max(axis=1), 1e-300)
-            sA = np.maximum(dA, floor[:, None])
-            sB = np.maximum(dB, floor[self.ls_own][:, None])
-        else:  # Levenberg: λ · mean free diagonal · I
-            mean = (dA.sum(axis=1) + np.asarray(self.O @ dB.sum(axis=1))) / np.maximum(self.n_free, 1)
-            mean = np.maximum(mean, 1e-300)
-            sA = np.broadcast_to(mean[:, None], dA.shape)
-            sB = np.broadcast_to(mean[self.ls_own][:, None], dB.shape)
-        t = np.where(self.fs, lam[self.ls_own][:, None] * sB, 1.0)  # D_s = diag(t) + c u uᵀ
-        tu = u / t
-        q = np.einsum("ij,ij->i", u, tu)
-        den = 1.0 + c * q
-        b0 = -grad[:, 0, :]
-        bs = -grad[self.ls_own, self.ls_slot, :]
-        # Schur complement: S = A − Σ_s C_s D_s⁻¹ C_sᵀ with C_s = −c w uᵀ  ⇒  C D⁻¹ Cᵀ = c² q/(1+cq) w wᵀ
-        Am = A0 * self.mo + self.eye * np.where(self.fo, lam[:, None] * sA, 1.0)[:, :, None]
-        coef = c * c * q / den
-        S = Am - np.asarray(self.O @ (coef[:, None, None] * w[:, :, None] * w[:, None, :]).reshape(-1, d * d)
-                            ).reshape(nl, d, d)
-        tub = np.einsum("ij,ij->i", tu, bs)
-        r0 = b0 + np.asarray(self.O @ ((c * tub / den)[:, None] * w))
-        with single_threaded_blas():
-            d0 = np.linalg.solve(S, r0[:, :, None])[:, :, 0]
-        x = bs + (c * np.einsum("ij,ij->i", w, d0[self.ls_own]))[:, None] * u  # b_s − C_sᵀ δ0
-        ds = x / t - (c * np.einsum("ij,ij->i", tu, x) / den)[:, None] * tu  # D_s⁻¹ x (Sherman–Morrison)
-        delta = np.zeros_like(P)
-        delta[:, 0, :] = d0
-        delta[self.ls_own, self.ls_slot, :] = ds
-        delta = np.where(nb.free_slot, delta, 0.0)
-        # gain ratio of each anchor's own partial cost (local evaluation, like the line searches)
-        dflat = delta.reshape(-1, d)
-        dd = dflat[nb.h_flat_self] - dflat[nb.h_flat_other]
-        if nb.metres:
-            a = g
-            lin = a + np.einsum("ij,ij->i", nb.jrows(diff), dd)  # r + Jδ
-            r = nb.residual_of(np.einsum("ij,ij->i", diff + dd, diff + dd))
-        else:
-            a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
-            lin = a + 2.0 * np.einsum("ij,ij->i", diff, dd)  # g + Gδ
-            r = lin + np.einsum("ij,ij->i", dd, dd)
-        f_new = np.bincount(nb.h_own, nb.rho(r)[1], minlength=nl)
-        if robust:  # reduction of the weighted quadratic model Σ w (g + Gδ)²
-            assert wt is not None
-            pred = np.bincount(nb.h_own, wt * (a * a - lin * lin), minlength=nl)
-        else:
-            pred = f0 - np.bincount(nb.h_own, lin * lin, minlength=nl)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rho = np.where(pred > 0, (f0 - f_new) / pred, -1.0)
-        acc = (rho > 0) & np.isfinite(f_new)
-        new_lam = np.where(acc, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), lam * nu)
-        new_nu = np.where(acc, 2.0, nu * 2.0)
-        new_lam = np.clip(new_lam, self.lambda_min, 1e12)
-        U = P + np.where(acc[:, None, None], delta, 0.0)
-        return U, new_lam, new_nu
+    yield from plan.loop(P, step, np.full(nb.nl, 2.0), 1)

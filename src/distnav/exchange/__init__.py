@@ -7,16 +7,21 @@ from distnav.exchange.base import CommTotals, Exchange, Inbox, Mixer
 from distnav.exchange.faults import FaultSchedule
 from distnav.exchange.inprocess import InProcessExchange
 from distnav.network.graph import Graph
+from distnav.network.graph_part import GraphPart
 
 __all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "FaultSchedule", "InProcessExchange", "make_exchange"]
 
 
-def make_exchange(graph: Graph, *, backend: str = "inprocess", faults: FaultSchedule | None = None,
+def make_exchange(graph: Graph | GraphPart, *, backend: str = "inprocess", faults: FaultSchedule | None = None,
                   **options: object) -> Exchange:
     """Create an exchange for ``graph``: ``backend="inprocess"`` (default) or ``"mpi"`` (needs the mpi extra
     and a launch under ``mpiexec -n N python -m mpi4py``). ``order=`` (both backends) picks the local node order
-    (:func:`distnav.network.partition.locality_order`); MPI also takes ``partition=``."""
+    (:func:`distnav.network.partition.locality_order`); MPI also takes ``partition=``, and instead of the whole
+    graph this rank's :class:`~distnav.network.graph_part.GraphPart` (``partition=`` then names the partition the
+    parts were built from: an owner array, a partition file or ``"block"``)."""
     if backend == "inprocess":
+        if not isinstance(graph, Graph):
+            raise ExchangeError("the in-process exchange needs the whole graph, not a graph part")
         order = options.get("order", "auto")  # other options (partition=, comm=) mean nothing in-process
         return InProcessExchange(graph, faults, order=order)  # type: ignore[arg-type]
     if backend == "mpi":

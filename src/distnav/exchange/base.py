@@ -23,23 +23,23 @@ needed by this block) and :meth:`_move_edges` (per-edge values from senders to r
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import numpy as np
-import scipy.sparse as sp
 
 from distnav.errors import ExchangeError
+from distnav.exchange._arrays import _flat, _masked_count, _segment_matrix
 from distnav.exchange.faults import FaultPlan, FaultSchedule
+from distnav.exchange.mixer import Mixer
 from distnav.exchange.route import Route
 from distnav.network.graph import Graph
+from distnav.network.graph_part import GraphPart, incoming_positions
 
 if TYPE_CHECKING:
-    from distnav.network.weights import ConsensusWeights
+    from distnav.network.weights import ConsensusWeights, PartWeights
 
 __all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "incoming_edges"]
 
@@ -93,107 +93,10 @@ class CommTotals:
         return CommTotals(0, z, z.copy(), z.copy(), z.copy(), np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
-def _segment_matrix(dst_local: np.ndarray, n_rows: int, n_cols: int, data: np.ndarray,
-                    col_index: np.ndarray | None = None) -> sp.csr_matrix:
-    """CSR matrix with one entry per edge at (dst_local[e], col_index[e]); rows must be sorted."""
-    counts = np.bincount(dst_local, minlength=n_rows)
-    ptr = np.zeros(n_rows + 1, dtype=np.int64)
-    np.cumsum(counts, out=ptr[1:])
-    cols = np.arange(dst_local.size, dtype=np.int64) if col_index is None else col_index
-    idx_dtype = np.int32 if max(n_cols, dst_local.size) < 2**31 - 1 else np.int64
-    return sp.csr_matrix((data, cols.astype(idx_dtype), ptr.astype(idx_dtype)), shape=(n_rows, n_cols))
-
-
 def incoming_edges(graph: Graph, nodes: np.ndarray) -> np.ndarray:
     """Global ids of the edges into ``nodes``, grouped by receiver in the order of ``nodes`` (senders ascending
     within a receiver, as in the graph's own edge order)."""
-    ptr = graph.in_ptr
-    starts, counts = ptr[nodes], ptr[nodes + 1] - ptr[nodes]
-    total = int(counts.sum())
-    offsets = np.zeros(nodes.size, np.int64)
-    if nodes.size > 1:
-        np.cumsum(counts[:-1], out=offsets[1:])
-    return np.asarray(np.repeat(starts - offsets, counts) + np.arange(total, dtype=np.int64))
-
-
-def _masked_count(index: np.ndarray, mask: np.ndarray, n: int) -> np.ndarray:
-    """``np.bincount(index[mask], minlength=n)`` without the edge-sized copy ``index[mask]`` (exact integers)."""
-    return np.bincount(index, weights=mask, minlength=n).astype(np.int64)
-
-
-def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray,
-               edge_w: Callable[[int, int], np.ndarray], local_col: np.ndarray, self_w: np.ndarray,
-               n_cols: int) -> sp.csr_matrix:
-    """The local block of ``W`` in CSR, each row's entries stored by ascending *global* sender id (the diagonal
-    merged in at its place), whatever the column numbering. A row's product then sums its terms in the same order
-    on every backend and in every local node order, so results agree bitwise; explicit zeros are left out (as
-    scipy's ``+`` does). Needs the incoming edges grouped by receiver with senders ascending (:func:`incoming_edges`);
-    the merge is one linear pass, no sort, and writes the CSR arrays in place, in chunks of edges (``edge_w(a, b)``:
-    the weights of in-edges ``a:b``), so no edge-sized temporary is made."""
-    n, n_e = local_col.size, in_dst.size
-    row_len = np.bincount(in_dst, minlength=n)
-    # below: senders before the diagonal in global order (``in_src < nodes[in_dst]``)
-    total = n_e + n
-    idx_dtype = np.int32 if max(n_cols, total) < 2**31 - 1 else np.int64
-    # row r holds its row_len[r] edges and one diagonal slot: it starts at row_start[r] + r
-    slot_start = np.zeros(n + 1, np.int64)
-    np.cumsum(row_len + 1, out=slot_start[1:])
-    n_below = np.zeros(n, np.int64)
-    has = row_len > 0
-    if n_e:
-        starts = (slot_start[:-1] - np.arange(n))[has]  # each non-empty row's first edge
-        n_below[has] = np.add.reduceat(below, starts, dtype=np.int64)
-    data = np.empty(total)
-    cols = np.empty(total, idx_dtype)
-    for a in range(0, n_e, _CSR_CHUNK):
-        b = min(a + _CSR_CHUNK, n_e)
-        pos: np.ndarray = np.arange(a, b, dtype=idx_dtype)
-        np.add(pos, in_dst[a:b], out=pos, casting="same_kind")
-        np.add(pos, ~below[a:b], out=pos, casting="same_kind")  # an edge after the diagonal moves one slot on
-        data[pos], cols[pos] = edge_w(a, b), in_src_col[a:b]
-    pos_d = slot_start[:-1] + n_below
-    data[pos_d], cols[pos_d] = self_w, local_col
-    keep = data != 0
-    if keep.all():
-        ptr = slot_start
-    else:
-        kept = np.add.reduceat(keep, slot_start[:-1], dtype=np.int64) if n else np.zeros(0, np.int64)
-        data, cols = data[keep], cols[keep]
-        ptr = np.zeros(n + 1, np.int64)
-        np.cumsum(kept, out=ptr[1:])
-    return sp.csr_matrix((data, cols, ptr.astype(idx_dtype)), shape=(n, n_cols))
-
-
-_CSR_CHUNK = 1 << 18  # edges per pass when the mixer's block is written (a few MB of temporaries)
-
-
-try:  # scipy's own CSR kernels, called without the ``@`` dispatch (≈ 8 µs a call, a fifth of a 10³-node round)
-    from scipy.sparse import _sparsetools
-
-    _MATVEC = _sparsetools.csr_matvec
-    _MATVECS = _sparsetools.csr_matvecs
-except (ImportError, AttributeError):  # pragma: no cover - other scipy layouts: the public operator
-    _MATVEC = _MATVECS = None
-
-
-def _csr_product(m: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
-    """``m @ x`` for a float CSR matrix and a float64 vector or ``(n, k)`` array: the same scipy kernel."""
-    if _MATVEC is None or m.dtype != np.float64 or x.dtype != np.float64:
-        return np.asarray(m @ x)
-    x = np.ascontiguousarray(x)
-    rows, cols = m.shape
-    if x.ndim == 1 or x.shape[1] == 1:  # one column: the single-vector kernel (as scipy's ``@`` does)
-        out = np.zeros(rows if x.ndim == 1 else (rows, 1))
-        _MATVEC(rows, cols, m.indptr, m.indices, m.data, x.ravel(), out.ravel())
-    else:
-        out = np.zeros((rows, x.shape[1]))
-        _MATVECS(rows, cols, x.shape[1], m.indptr, m.indices, m.data, x.ravel(), out.ravel())
-    return out
-
-
-def _flat(values: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
-    tail = values.shape[1:]
-    return values.reshape(values.shape[0], math.prod(tail)), tail
+    return incoming_positions(graph.in_ptr, nodes)
 
 
 @dataclass(eq=False)
@@ -223,79 +126,6 @@ class Inbox:
         return np.bincount(self.dst[self.delivered], minlength=self.n_local)
 
 
-class Mixer:
-    """A prepared consensus round ``x_i ← w_ii x_i + Σ_{j∈N_i} w_ij x_j`` on an exchange.
-
-    Built by :meth:`Exchange.mixer`; holds the local CSR block of ``W`` so a fault-free round costs one sparse
-    product. With faults, a lost message's weight moves to the receiver's self-weight.
-    """
-
-    def __init__(self, exchange: Exchange, edge_weight: np.ndarray, self_weight: np.ndarray,
-                 active: np.ndarray | None) -> None:
-        ex = exchange
-        self.exchange = ex
-        self._edge_weight = edge_weight  # kept by reference: the fault rounds' in-edge weights come from it
-        self._act_in = ex._real_in if active is None else np.asarray(active, bool)[ex.in_edges] & ex._real_in
-        self._act_out = ex._real_out if active is None else np.asarray(active, bool)[ex.out_edges] & ex._real_out
-        self._active_global = active
-        self._self_w = np.asarray(self_weight, float)[ex.nodes]
-        # fused local block of W over [local nodes | halo columns], each row's terms in global sender order; the
-        # in-edge weights are kept only where fault rounds need them (an edge-sized array less at 10⁶ nodes)
-        ew_in = (lambda a, b: self._ew_in[a:b]) if ex.faults.active else self._in_edge_weights
-        self._w_full = _block_csr(ex.in_dst, ex._sender_below(), ex.in_src_col, ew_in, ex.local_col,
-                                  self._self_w, ex.n_columns)
-        if active is None:  # the exchange's own counts over its real edges (the same mask: the same numbers)
-            self._sent_counts, self._recv_counts = ex._all_sent, ex._all_recv
-        else:
-            self._sent_counts = _masked_count(ex.out_src, self._act_out, ex.n_local)
-            self._recv_counts = _masked_count(ex.in_dst, self._act_in, ex.n_local)
-        self._sent_total = int(self._sent_counts.sum())
-
-    def apply(self, x_local: np.ndarray) -> np.ndarray:
-        """One consensus round on local values ``x_local`` of shape ``(n_local, ...)``."""
-        ex = self.exchange
-        x = np.asarray(x_local, dtype=float)
-        if x.shape[0] != ex.n_local:
-            raise ExchangeError(f"mixer needs {ex.n_local} local rows, got array of shape {x.shape}")
-        flat, tail = _flat(x)
-        cols = ex._columns(flat, self._active_global)
-        msg_bytes = flat.shape[1] * flat.itemsize
-        if not ex.faults.active:
-            ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
-            out = _csr_product(self._w_full, cols.ravel() if x.ndim == 1 else cols)
-            return out.reshape(x.shape)
-        # fault round: the same prepared matrix with its data masked in place, lost weight to the self-weight
-        # (the lost messages are a tenth of the edges: counters and lost weight are summed over them alone, in
-        # edge order, which adds the same terms in the same order as a pass over every edge)
-        ok = ex._fault_plan.delivered(ex.round_index)
-        lost_e = np.flatnonzero(self._act_in > ok)  # active and not delivered
-        sent, sent_total = ex._sent_counts(self._act_out, cache=True)
-        lost_dst = ex.in_dst[lost_e]
-        ex._account_dropped(sent, sent_total, self._recv_counts, lost_dst, msg_bytes)
-        m = self._w_masked
-        np.multiply(self._ew_in, ok, out=m.data)
-        lost = np.bincount(lost_dst, weights=self._ew_in[lost_e], minlength=ex.n_local)
-        out = _csr_product(m, cols)
-        out += (self._self_w + lost)[:, None] * flat
-        return out.reshape(x.shape)
-
-    def _in_edge_weights(self, a: int = 0, b: int | None = None) -> np.ndarray:
-        """``w_ij`` on the incoming edges ``a:b`` (zero on inactive edges and self-loops)."""
-        w: np.ndarray = np.asarray(self._edge_weight, float)[self.exchange.in_edges[a:b]]
-        w[~self._act_in[a:b]] = 0.0
-        return w
-
-    @cached_property
-    def _ew_in(self) -> np.ndarray:
-        return self._in_edge_weights()
-
-    @cached_property
-    def _w_masked(self) -> sp.csr_matrix:
-        """The edge part of the local block of ``W`` in incoming-edge order (data rewritten every fault round)."""
-        ex = self.exchange
-        return _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, self._ew_in.copy(), ex.in_src_col)
-
-
 class Exchange(ABC):
     """Directed-edge message passing for one block of nodes. See the module docstring.
 
@@ -317,10 +147,12 @@ class Exchange(ABC):
     #: True where a message on out-edge row ``r`` arrives on in-edge row ``r`` with nothing moved (in-process).
     _moves_rows_in_place: bool = False
 
-    def __init__(self, graph: Graph, faults: FaultSchedule | None = None) -> None:
-        self.graph = graph
+    def __init__(self, graph: Graph | GraphPart, faults: FaultSchedule | None = None) -> None:
+        self._graph = graph
         self.faults = faults if faults is not None else FaultSchedule()
-        self.faults.validate_for(graph.n_nodes, graph.links.tolist() if self.faults.failed_links else None)
+        # a part can check node ids only: most links are on other ranks
+        links = graph.links.tolist() if self.faults.failed_links and isinstance(graph, Graph) else None
+        self.faults.validate_for(graph.n_nodes, links)
         self.round_index = 0
         self._round_messages: list[int] = []
         self._round_bytes: list[int] = []
@@ -362,12 +194,30 @@ class Exchange(ABC):
         return np.asarray(self.in_src < self.nodes[self.in_dst])
 
     @property
+    def graph(self) -> Graph:
+        """The whole communication graph (not held by an exchange built from a :class:`GraphPart`)."""
+        if not isinstance(self._graph, Graph):
+            raise ExchangeError("this exchange was built from a graph part: the whole graph is on no rank (use "
+                                "n_nodes / n_edges, or build the exchange from a Graph)")
+        return self._graph
+
+    @property
+    def part(self) -> GraphPart | None:
+        """The graph part the exchange was built from, or None when it holds the whole graph."""
+        return self._graph if isinstance(self._graph, GraphPart) else None
+
+    @property
     def n_local(self) -> int:
         return int(self.nodes.size)
 
     @property
     def n_nodes(self) -> int:
-        return self.graph.n_nodes
+        return self._graph.n_nodes
+
+    @property
+    def n_edges(self) -> int:
+        """Directed edges of the whole graph (global edge ids run over ``0..n_edges-1``)."""
+        return self._graph.n_edges
 
     # ------------------------------------------------------------- transport (backend)
     @abstractmethod
@@ -406,7 +256,9 @@ class Exchange(ABC):
     @cached_property
     def _fault_plan(self) -> FaultPlan:
         """The fault schedule compiled for this block's incoming edges (once)."""
-        return FaultPlan(self.faults, self.in_src, self.nodes[self.in_dst], self.in_edges)
+        real = self._real_in  # not a self-loop: the plan needs the endpoints only for failed links / silent nodes
+        return FaultPlan(self.faults, lambda: self.in_src, lambda: self.nodes[self.in_dst], self.in_edges,
+                         is_self=~real if not real.all() else np.zeros(real.size, bool))
 
     def _delivered(self, active_in: np.ndarray) -> np.ndarray:
         if not self.faults.active:
@@ -425,7 +277,7 @@ class Exchange(ABC):
         if stage:
             silent = self.faults.silent_mask(self.round_index, self.nodes)
             sel = act_out & ~silent[self.out_src]
-        counts = np.bincount(self.out_src[sel], minlength=self.n_local)
+        counts = _masked_count(self.out_src, sel, self.n_local)
         total = int(counts.sum())
         if cache:
             self._sent_cache[key] = (act_out, counts, total)  # act_out kept alive so its id stays unique
@@ -496,8 +348,8 @@ class Exchange(ABC):
         if active is None:
             return self._real_out, self._real_in
         act = np.asarray(active, bool)
-        if act.shape != (self.graph.n_edges,):
-            raise ExchangeError(f"active must be a mask over the {self.graph.n_edges} directed edges, got {act.shape}")
+        if act.shape != (self.n_edges,):
+            raise ExchangeError(f"active must be a mask over the {self.n_edges} directed edges, got {act.shape}")
         return act[self.out_edges] & self._real_out, act[self.in_edges] & self._real_in
 
     def _finish_round(self, values_in: np.ndarray, act_out: np.ndarray, act_in: np.ndarray,
@@ -562,14 +414,22 @@ class Exchange(ABC):
         full-length arrays."""
         return Route(self, active, in_rows=in_rows, out_rows=out_rows)
 
-    def mixer(self, weights: ConsensusWeights, *, active: np.ndarray | None = None) -> Mixer:
-        """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph.
+    def mixer(self, weights: ConsensusWeights | PartWeights, *, active: np.ndarray | None = None) -> Mixer:
+        """Prepare consensus rounds with a :class:`~distnav.network.weights.ConsensusWeights` on this graph (or,
+        on an exchange built from a graph part, :class:`~distnav.network.weights.PartWeights` of that part).
 
         For a switching graph pass the session's weights expressed on the union graph and its edge mask.
         """
-        if weights.graph.n_edges != self.graph.n_edges or weights.graph.n_nodes != self.graph.n_nodes:
+        if weights.graph.n_edges != self.n_edges or weights.graph.n_nodes != self.n_nodes:
             raise ExchangeError("weights are defined on a different graph than this exchange")
-        return Mixer(self, weights.edge_weight, weights.self_weight, active)
+        if isinstance(weights.graph, GraphPart) and weights.graph is not self.part:
+            raise ExchangeError("weights on a graph part must be made on this exchange's own part")
+        rows = self._part_rows() if isinstance(weights.graph, GraphPart) else None
+        return Mixer(self, weights.edge_weight, weights.self_weight, active, rows=rows)
+
+    def _part_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Positions of the in-edges and nodes in the arrays of :attr:`part` (exchanges built from a part)."""
+        raise ExchangeError(f"the {self.backend} exchange is not built from a graph part")
 
     # ------------------------------------------------------------- accounting
     def comm_totals(self) -> CommTotals:

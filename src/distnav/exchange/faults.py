@@ -9,7 +9,7 @@ edges it evaluates and in whatever order.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,6 +18,9 @@ import numpy as np
 from distnav.errors import ExchangeError
 
 __all__ = ["FaultPlan", "FaultSchedule", "uniform_hash"]
+
+#: Per-edge senders or receivers (global ids), or a callable making them only when a plan needs them.
+Endpoints = np.ndarray | Callable[[], np.ndarray]
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -119,36 +122,49 @@ class FaultPlan:
       in place on cache-sized chunks and for several rounds at once when the block is small; ``u ≥ p`` is
       decided in integers (``z ≥ ⌈p·2⁵³⌉·2¹¹``, exact, no float conversion);
     * failed links and silent senders: folded into one per-edge "dead from round" array (``min`` over every fault
-      that silences the edge), so a round compares one integer array instead of looping over the faults.
+      that silences the edge), so a round compares one integer array instead of looping over the faults; made only
+      when the schedule has such faults (the senders and receivers are read only then: pass callables to have
+      them made on demand, and ``is_self``, the self-loop mask, so a drop-only plan never needs them).
 
     ``delivered(k)`` equals ``schedule.delivered(k, src, dst, edges)`` bit for bit (tested).
     """
 
     _CHUNK = 1 << 15  # uint64 elements per pass: 256 KB stays in cache
 
-    def __init__(self, schedule: FaultSchedule, src: np.ndarray, dst: np.ndarray, edge_ids: np.ndarray) -> None:
+    def __init__(self, schedule: FaultSchedule, src: Endpoints, dst: Endpoints, edge_ids: np.ndarray, *,
+                 is_self: np.ndarray | None = None) -> None:
         self.schedule = schedule
-        src = np.asarray(src, np.int64)
-        dst = np.asarray(dst, np.int64)
-        self.n_edges = int(src.size)
-        self._edges = np.ascontiguousarray(edge_ids, dtype=np.uint64)
-        self._self = src == dst
-        self._has_self = bool(self._self.any())
+        self.n_edges = int(np.shape(edge_ids)[0])
+        # the edge ids as given (int32 in-process), turned into uint64 a chunk at a time by the draw: no
+        # edge-sized copy. Senders and receivers (arrays, or callables making them) are read only for failed links
+        # and silent nodes, or to find self-loops when ``is_self`` is not given: a drop-only plan holds no
+        # per-edge array but the optional self-loop mask and one round's decisions.
+        self._edges = np.ascontiguousarray(edge_ids)
+        need_ends = bool(schedule.failed_links or schedule.silent_nodes) or is_self is None
+        src_a = np.asarray(src() if callable(src) else src) if need_ends else None
+        dst_a = np.asarray(dst() if callable(dst) else dst) if need_ends else None
+        is_self = np.asarray(src_a == dst_a if is_self is None else is_self, bool)
+        self._has_self = bool(is_self.any())
+        self._self = is_self if self._has_self else None
         p = float(schedule.drop_probability)
         self._drops = p > 0
         self._threshold = np.uint64(math.ceil(p * 2.0**53) << 11) if self._drops else np.uint64(0)
         never = np.iinfo(np.int64).max
-        dead = np.full(self.n_edges, never, np.int64)
-        for i, j, r in schedule.failed_links:  # set-up only: a few faults, each one vectorized pass
-            hit = ((src == i) & (dst == j)) | ((src == j) & (dst == i))
-            np.minimum(dead, np.where(hit, r, never), out=dead)
-        for node, r in schedule.silent_nodes:
-            np.minimum(dead, np.where(src == node, r, never), out=dead)
-        dead[self._self] = never  # a node's message to itself never leaves the device
-        self._dead_from = dead
-        self._first_dead = int(dead.min()) if dead.size else never
-        self._ones = np.ones(self.n_edges, bool)
-        self._ones.setflags(write=False)
+        self._dead_from: np.ndarray | None = None
+        self._first_dead = never
+        if src_a is not None and dst_a is not None and (schedule.failed_links or schedule.silent_nodes):
+            dead = np.full(self.n_edges, never, np.int64)
+            for i, j, r in schedule.failed_links:  # set-up only: a few faults, each one vectorized pass
+                hit = ((src_a == i) & (dst_a == j)) | ((src_a == j) & (dst_a == i))
+                np.minimum(dead, np.where(hit, r, never), out=dead)
+            for node, r in schedule.silent_nodes:
+                np.minimum(dead, np.where(src_a == node, r, never), out=dead)
+            if self._self is not None:
+                dead[self._self] = never  # a node's message to itself never leaves the device
+            self._dead_from = dead
+            self._first_dead = int(dead.min()) if dead.size else never
+        del src_a, dst_a
+        self._ones: np.ndarray | None = None
         rows = max(1, min(64, self._CHUNK // max(self.n_edges, 1)))
         self._rows = rows
         self._block_start = -1
@@ -177,7 +193,8 @@ class FaultPlan:
         for a in range(0, self.n_edges, step):
             b = min(a + step, self.n_edges)
             zz, tt = z[:, : b - a], t[:, : b - a]
-            np.bitwise_xor(self._edges[a:b][None, :], keys, out=zz)
+            np.copyto(zz, self._edges[a:b][None, :], casting="unsafe")  # ids ≥ 0: the same uint64 values
+            np.bitwise_xor(zz, keys, out=zz)
             np.add(zz, _GOLDEN, out=zz)
             np.right_shift(zz, s30, out=tt)
             np.bitwise_xor(zz, tt, out=zz)
@@ -201,10 +218,13 @@ class FaultPlan:
                 k = 0
             ok = self._block[k]
         else:
+            if self._ones is None:
+                self._ones = np.ones(self.n_edges, bool)
+                self._ones.setflags(write=False)
             ok = self._ones
-        if round_index >= self._first_dead:
+        if self._dead_from is not None and round_index >= self._first_dead:
             ok = ok & (round_index < self._dead_from)
-        if self._has_self and self._drops:
+        if self._self is not None and self._drops:
             ok = ok | self._self
         return ok
 

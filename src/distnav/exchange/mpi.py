@@ -6,11 +6,13 @@ one rank abort the whole job instead of deadlocking the others).
 Partition (``partition=``): ``"rcm"`` (default), ``"block"``, ``"node"``, an owner array or a partition file — see
 :func:`distnav.network.partition.partition_nodes` (re-exported here under its old name).
 
-Every rank builds the same global graph (deterministic from the seed) and derives, without any negotiation,
-which boundary node values it sends to and receives from each neighbour rank. Messages between nodes of the same
-rank never touch MPI; messages on cut edges travel in one ``Neighbor_alltoallv`` per round over a distributed-graph
-communicator whose neighbours are the ranks that share cut edges. Accounting and seeded faults are computed on
-global edge ids exactly as in-process, so a run with drops gives the same numbers on both backends.
+Every rank builds the same global graph (deterministic from the seed), or only its own part of it (a
+:class:`~distnav.network.graph_part.GraphPart`, with the partition given as a file or an owner array), and derives,
+without any negotiation, which boundary node values it sends to and receives from each neighbour rank. Messages
+between nodes of the same rank never touch MPI; messages on cut edges travel in one ``Neighbor_alltoallv`` per
+round over a distributed-graph communicator whose neighbours are the ranks that share cut edges. Accounting and
+seeded faults are computed on global edge ids exactly as in-process, so a run with drops gives the same numbers on
+both backends.
 """
 
 from __future__ import annotations
@@ -22,9 +24,10 @@ import numpy as np
 
 from distnav._optional import require
 from distnav.errors import ExchangeError
-from distnav.exchange.base import Exchange, ReduceOp, Reducible, incoming_edges
+from distnav.exchange.base import Exchange, ReduceOp, Reducible
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
+from distnav.network.graph_part import GraphPart, incoming_positions
 from distnav.network.partition import locality_order, partition_nodes
 
 __all__ = ["MPIExchange", "partition_nodes", "world_rank", "world_size"]
@@ -32,6 +35,25 @@ __all__ = ["MPIExchange", "partition_nodes", "world_rank", "world_size"]
 
 def _mpi() -> Any:
     return require("mpi4py.MPI", "mpi")
+
+
+def _part_order(part: GraphPart, order: str | np.ndarray) -> np.ndarray | None:
+    """Local order of a part's nodes (positions in ``part.nodes``): reverse Cuthill–McKee of the links among them
+    (``"auto"`` from :data:`~distnav.network.partition.LOCALITY_MIN_NODES` owned nodes on), or none."""
+    from distnav.network.partition import LOCALITY_MIN_NODES
+
+    if not isinstance(order, str) or order not in ("auto", "rcm", "none"):
+        raise ExchangeError(f"a graph part takes order 'auto', 'rcm' or 'none', got {order!r}")
+    if order == "none" or (order == "auto" and part.n_local < LOCALITY_MIN_NODES):
+        return None
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    k = np.minimum(np.searchsorted(part.nodes, part.src), part.n_local - 1)
+    inner = part.nodes[k] == part.src
+    rows = np.repeat(np.arange(part.n_local), np.diff(part.in_ptr))[inner]
+    adj = sp.csr_matrix((np.ones(rows.size), (rows, k[inner])), shape=(part.n_local, part.n_local))
+    return np.asarray(reverse_cuthill_mckee(adj, symmetric_mode=True), dtype=np.int64)
 
 
 def world_rank() -> int:
@@ -47,8 +69,8 @@ class MPIExchange(Exchange):
 
     backend = "mpi"
 
-    def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *, comm: Any = None,
-                 partition: str | np.ndarray | os.PathLike[str] = "rcm", order: str | np.ndarray = "auto",
+    def __init__(self, graph: Graph | GraphPart, faults: FaultSchedule | None = None, *, comm: Any = None,
+                 partition: str | np.ndarray | os.PathLike[str] | None = None, order: str | np.ndarray = "auto",
                  persistent: bool = True) -> None:
         super().__init__(graph, faults)
         MPI = _mpi()
@@ -56,37 +78,70 @@ class MPIExchange(Exchange):
         self.comm = comm if comm is not None else MPI.COMM_WORLD
         self.rank = int(self.comm.Get_rank())
         self.size = int(self.comm.Get_size())
-        self.owner = partition_nodes(graph, self.size, partition)
         me = self.rank
-        src, dst = graph.src, graph.dst
-        own_src, own_dst = self.owner[src], self.owner[dst]
+        if isinstance(graph, GraphPart):  # this rank's part only: the partition must be given, not computed
+            if partition is None or (isinstance(partition, str) and partition == "rcm"):
+                raise ExchangeError("an exchange on a graph part needs the partition the parts were built from "
+                                    "(an owner array, a partition file or 'block'): 'rcm' needs the whole graph")
+            self.owner = partition_nodes(graph, self.size, partition)
+            part = graph
+            if not np.array_equal(part.nodes, np.flatnonzero(self.owner == me)):
+                raise ExchangeError(f"rank {me}: the graph part holds other nodes than the partition gives this "
+                                    f"rank ({part.n_local} nodes in the part, "
+                                    f"{int(np.count_nonzero(self.owner == me))} in the partition)")
+            perm = _part_order(part, order)  # a locality order of the part's own links (results do not depend
+            # on it: every row sums its terms in global sender order)
+        else:
+            self.owner = partition_nodes(graph, self.size, "rcm" if partition is None else partition)
+            part = GraphPart.from_graph(graph, np.flatnonzero(self.owner == me))
+            full = locality_order(graph, order)  # the shared locality order (as in-process) restricted to the rank
+            perm = None if full is None else np.searchsorted(part.nodes, full[self.owner[full] == me])
+        self._setup_from_part(part, perm, persistent)
 
-        # local order: the shared locality order (the same as in-process) restricted to this rank
-        perm = locality_order(graph, order)
-        mine = self.owner == me
-        self.nodes = (np.flatnonzero(mine) if perm is None else perm[mine[perm]]).astype(np.int64)
-        local_index = np.full(graph.n_nodes, -1, dtype=np.int64)
-        local_index[self.nodes] = np.arange(self.nodes.size)
+    def _setup_from_part(self, part: GraphPart, perm: np.ndarray | None, persistent: bool) -> None:
+        """Every index array of the block from its part: no array over the whole graph's edges."""
+        me, n_local = self.rank, part.n_local
+        # edge-sized index arrays in 32 bits where every index fits (as in-process); global ids stay 64-bit
+        idx = np.int32 if max(self.n_nodes, self.n_edges) < 2**31 - 1 else np.int64
+        owner = self.owner.astype(np.int32 if self.size < 2**31 - 1 else np.int64)  # per-edge lookups: half the bytes
+        # local order: ``perm[k]`` is the position in ``part.nodes`` of local node k
+        rows = np.arange(n_local, dtype=np.int64) if perm is None else np.asarray(perm, np.int64)
+        self.nodes = part.nodes[rows]
+        local_of_part = np.empty(n_local, idx)  # part position → local index
+        local_of_part[rows] = np.arange(n_local, dtype=idx)
+        pos_in = incoming_positions(part.in_ptr, rows)  # in-edges grouped by local receiver, senders ascending
+        if self.part is not None:  # where the part's weights sit (PartWeights); not needed with the whole graph
+            self._in_part_pos, self._node_part_pos = pos_in.astype(idx), rows
+        self.in_edges = part.edge_ids[pos_in]
+        self.in_src = part.src[pos_in].astype(np.int64)  # global ids stay 64-bit (as in-process): callers compute
+        self.in_dst = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr)[rows])
+        del pos_in
+        # out-edges: the reverse of every in-edge, in global edge order
+        recv_part = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr))
+        by_id = np.argsort(part.out_edge_ids, kind="stable")
+        self.out_edges = part.out_edge_ids[by_id]
+        self.out_src = local_of_part[recv_part[by_id]]
+        self.out_dst = part.src[by_id].astype(np.int64)
+        del recv_part
 
-        in_sel = incoming_edges(graph, self.nodes)
-        out_sel = np.flatnonzero(own_src == me)
-        self.in_edges = in_sel
-        self.in_dst = local_index[dst[in_sel]]
-        self.in_src = src[in_sel]
-        self.out_edges = out_sel
-        self.out_src = local_index[src[out_sel]]
-        self.out_dst = dst[out_sel]
+        def local_index(glob: np.ndarray) -> np.ndarray:  # owned global ids → local index
+            return np.asarray(local_of_part[np.searchsorted(part.nodes, glob)])
 
+        own_in_src = owner[self.in_src]
+        own_out_dst = owner[self.out_dst]
         # neighbour ranks: those sharing cut edges (symmetric: every link is stored both ways)
-        cut_out = out_sel[own_dst[out_sel] != me]
-        cut_in = np.sort(in_sel[own_src[in_sel] != me])
-        self.neighbour_ranks = np.unique(own_dst[cut_out]).astype(np.int64)
+        cut_out_rows = np.flatnonzero(own_out_dst != me)  # out rows, global edge order
+        cut_in_rows = np.flatnonzero(own_in_src != me)
+        cut_in_rows = cut_in_rows[np.argsort(self.in_edges[cut_in_rows], kind="stable")]  # global edge order
+        self.neighbour_ranks = np.unique(own_out_dst[cut_out_rows]).astype(np.int64)
         nbr = self.neighbour_ranks
+        send_rows = [cut_out_rows[own_out_dst[cut_out_rows] == r] for r in nbr]
+        recv_rows = [cut_in_rows[own_in_src[cut_in_rows] == r] for r in nbr]
 
         # node halo: for each neighbour rank r, the sorted boundary nodes sent to / received from r
-        send_nodes = [np.unique(src[cut_out[own_dst[cut_out] == r]]) for r in nbr]
-        recv_nodes = [np.unique(src[cut_in[own_src[cut_in] == r]]) for r in nbr]
-        self._send_node_idx = local_index[np.concatenate(send_nodes)] if nbr.size else np.zeros(0, np.int64)
+        send_nodes = [np.unique(self.nodes[self.out_src[rr]]) for rr in send_rows]
+        recv_nodes = [np.unique(self.in_src[rr]) for rr in recv_rows]
+        self._send_node_idx = local_index(np.concatenate(send_nodes)) if nbr.size else np.zeros(0, np.int64)
         self._node_send_counts = np.array([s.size for s in send_nodes], dtype=np.int64)
         self._node_recv_counts = np.array([s.size for s in recv_nodes], dtype=np.int64)
         halo = np.concatenate(recv_nodes) if nbr.size else np.zeros(0, np.int64)
@@ -95,25 +150,28 @@ class MPIExchange(Exchange):
         # row of the mixer's product still sums its terms in global sender order (Mixer), so results agree
         # bitwise with in-process whatever the column numbering.
         self.n_columns = self.n_local + self.n_halo
-        column_of = local_index.copy()
-        column_of[halo] = self.n_local + np.arange(self.n_halo)
         self.local_col = np.arange(self.n_local, dtype=np.int64)
-        self.in_src_col = column_of[self.in_src]
+        col = np.empty(self.in_src.size, idx)
+        mine = own_in_src == me
+        col[mine] = local_index(self.in_src[mine])
+        if self.n_halo:
+            halo_order = np.argsort(halo, kind="stable")
+            col[~mine] = self.n_local + halo_order[np.searchsorted(halo[halo_order], self.in_src[~mine])]
+        self.in_src_col = col
 
         # edge messages: per neighbour rank, cut edges in global edge order on both sides
-        out_pos = np.full(graph.n_edges, -1, dtype=np.int64)
-        out_pos[out_sel] = np.arange(out_sel.size)
-        in_pos = np.full(graph.n_edges, -1, dtype=np.int64)
-        in_pos[in_sel] = np.arange(in_sel.size)
-        local_edges = out_sel[own_dst[out_sel] == me]
-        self._local_out_pos = out_pos[local_edges]
-        self._local_in_pos = in_pos[local_edges]
-        send_edges = [cut_out[own_dst[cut_out] == r] for r in nbr]
-        recv_edges = [cut_in[own_src[cut_in] == r] for r in nbr]
-        self._edge_send_pos = out_pos[np.concatenate(send_edges)] if nbr.size else np.zeros(0, np.int64)
-        self._edge_recv_pos = in_pos[np.concatenate(recv_edges)] if nbr.size else np.zeros(0, np.int64)
-        self._edge_send_counts = np.array([e.size for e in send_edges], dtype=np.int64)
-        self._edge_recv_counts = np.array([e.size for e in recv_edges], dtype=np.int64)
+        in_by_id = np.argsort(self.in_edges, kind="stable")
+        local_out_rows = np.flatnonzero(own_out_dst == me)
+        self._local_out_pos = local_out_rows.astype(idx)
+        self._local_in_pos = in_by_id[np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])
+                                      ].astype(idx)
+        del in_by_id, local_out_rows, own_in_src, own_out_dst
+        self._edge_send_pos: np.ndarray = (np.concatenate(send_rows) if nbr.size else np.zeros(0, np.int64)
+                                           ).astype(idx)
+        self._edge_recv_pos: np.ndarray = (np.concatenate(recv_rows) if nbr.size else np.zeros(0, np.int64)
+                                           ).astype(idx)
+        self._edge_send_counts = np.array([e.size for e in send_rows], dtype=np.int64)
+        self._edge_recv_counts = np.array([e.size for e in recv_rows], dtype=np.int64)
 
         self._layouts: dict[tuple[int, int, int], Any] = {}
         self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
@@ -124,6 +182,11 @@ class MPIExchange(Exchange):
         )
         self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
         self._init_accounting()
+
+    def _part_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.part is None:
+            return super()._part_rows()
+        return self._in_part_pos, self._node_part_pos
 
     # ------------------------------------------------------------- transport
     @staticmethod
@@ -254,7 +317,7 @@ class MPIExchange(Exchange):
         if arr.shape[0] != self.n_local:
             raise ExchangeError(f"gather_nodes needs {self.n_local} local rows, got shape {arr.shape}")
         parts = self.comm.allgather((self.nodes, arr))
-        out = np.empty((self.graph.n_nodes, *arr.shape[1:]), dtype=arr.dtype)
+        out = np.empty((self.n_nodes, *arr.shape[1:]), dtype=arr.dtype)
         for nodes, values in parts:
             out[nodes] = values
         return out

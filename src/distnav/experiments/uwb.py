@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.csg import PAPER_MODE, SOLVERS, solve
+from distnav.algorithms.csg import PAPER_MODE, SOLVERS, solve, solve_line_search_pair
+from distnav.algorithms.ranging import RangingResult
 from distnav.errors import UsageError
 from distnav.exchange import Exchange, make_exchange
 from distnav.experiments.common import ExperimentContext, add_jobs_argument, parallel_map, pyplot
@@ -113,13 +114,17 @@ def _run_instance(task: _Task, exchange: Callable[[Graph], Exchange] | None = No
     problem = instance_problem(task.name, rng, hold_heights=task.hold_heights, start=task.start)
     m, its = problem.n_meas, task.iterations
     out: dict[str, Any] = {"runs": {}, "example": None}
+    line_searches: dict[str, RangingResult] = {}
     for s in SOLVERS:
         t0 = time.perf_counter()
         if s == "LM":
             res = solve(problem, s, iterations=its, pad_trace=True)
-        elif "LS" in s:  # the paper's mode: a fixed iteration count, no QC
-            res = solve(problem, s, iterations=its, exchange=make(problem.graph), armijo_slope=task.armijo_slope,
-                        **PAPER_MODE)
+        elif s in line_searches:
+            res = line_searches[s]
+        elif "LS" in s:  # the paper's mode: a fixed iteration count, no QC; BLS and TBLS share what they can
+            pair = solve_line_search_pair(problem, iterations=its, armijo_slope=task.armijo_slope,
+                                          exchanges=(make(problem.graph), make(problem.graph)), **PAPER_MODE)
+            res, line_searches["N-CSG-TBLS"] = pair
         else:
             res = solve(problem, s, iterations=its, exchange=make(problem.graph), **PAPER_MODE)
         run: dict[str, Any] = {"seconds": time.perf_counter() - t0, "messages": res.comm.messages,

@@ -30,6 +30,7 @@ import numpy as np
 
 from distnav.errors import ExchangeError
 from distnav.network.graph import Graph
+from distnav.network.graph_part import GraphPart
 
 __all__ = ["LOCALITY_MIN_NODES", "locality_order", "partition_nodes", "rcm_order", "read_partition",
            "space_filling_order", "write_partition"]
@@ -156,7 +157,7 @@ def read_partition(path: str | os.PathLike[str], n_nodes: int, n_ranks: int) -> 
     return np.asarray(owner)
 
 
-def partition_nodes(graph: Graph, n_ranks: int, method: str | np.ndarray | os.PathLike[str] = "rcm"
+def partition_nodes(graph: Graph | GraphPart, n_ranks: int, method: str | np.ndarray | os.PathLike[str] = "rcm"
                     ) -> np.ndarray:
     """Rank owning each node: ``"rcm"``, ``"block"``, ``"node"``, an explicit owner array or a partition file
     (see module doc)."""
@@ -177,7 +178,13 @@ def partition_nodes(graph: Graph, n_ranks: int, method: str | np.ndarray | os.Pa
     elif method in ("block", "rcm"):
         if n_ranks > n:
             raise ExchangeError(f"{n_ranks} ranks for {n} nodes: some ranks would hold no node")
-        order = np.arange(n) if method == "block" else rcm_order(graph)
+        if method == "block":
+            order = np.arange(n)
+        elif isinstance(graph, Graph):
+            order = rcm_order(graph)
+        else:
+            raise ExchangeError("partition 'rcm' needs the whole graph; a graph part takes 'block', an owner array "
+                                "or a partition file")
         owner = np.empty(n, dtype=np.int64)
         owner[order] = (np.arange(n) * n_ranks) // n
     else:

@@ -23,9 +23,12 @@ import scipy.sparse as sp
 
 from distnav.errors import WeightsError
 from distnav.network.graph import Graph
+from distnav.network.graph_part import GraphPart
 
 __all__ = [
     "ConsensusWeights",
+    "PartWeights",
+    "part_weights",
     "WeightsReport",
     "PROTOCOLS",
     "consensus_weights",
@@ -185,6 +188,39 @@ def consensus_weights(graph: Graph, protocol: str | int) -> ConsensusWeights:
     if key == "koppanyi":
         return koppanyi_weights(graph)
     raise WeightsError(f"unknown consensus protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")
+
+
+@dataclass(frozen=True, eq=False)
+class PartWeights:
+    """Consensus weights of one :class:`~distnav.network.graph_part.GraphPart`: ``edge_weight[k]`` on the part's
+    incoming edge ``k`` (``w_{dst, src}``), ``self_weight[k]`` of ``part.nodes[k]``. Equal, entry for entry, to the
+    whole graph's :class:`ConsensusWeights` of the same protocol on those edges and nodes."""
+
+    graph: GraphPart
+    edge_weight: np.ndarray
+    self_weight: np.ndarray
+    name: str = "custom"
+
+
+def part_weights(part: GraphPart, protocol: str | int) -> PartWeights:
+    """Weights on a graph part, from the degrees it holds: Protocol 2 (``1/n``) and Protocol 3 / Metropolis–Hastings
+    (``1/(1+max(dg_i, dg_j))``, paper 003 Table 1, paper 002 eq. (12)) need nothing beyond a node's neighbours;
+    the others (the network's largest degree, Koppanyi's sums) are refused rather than approximated."""
+    key = str(protocol).strip().lower()
+    names = {"2": "P2", "p2": "P2", "3": "P3", "p3": "P3", "mh": "MH", "metropolis": "MH", "metropolis-hastings": "MH"}
+    if key not in names:
+        raise WeightsError(f"protocol {protocol!r} needs the whole graph; on a graph part use 'P2', 'P3' or 'MH'")
+    name = names[key]
+    dst_local = np.repeat(np.arange(part.n_local), np.diff(part.in_ptr))
+    if name == "P2":
+        w = np.full(part.n_local_edges, 1.0 / part.n_nodes)
+    else:  # the same expression as protocol_weights on the whole graph: the same numbers, bit for bit
+        di = part.degree.astype(float)[dst_local]
+        dj = part.sender_degree().astype(float)
+        w = 1.0 / (1.0 + np.maximum(di, dj))
+    w = np.where(part.src == part.nodes[dst_local], 0.0, w)
+    row_sum = np.bincount(dst_local, weights=w, minlength=part.n_local)
+    return PartWeights(part, w, 1.0 - row_sum, name=name)
 
 
 def second_largest_eigenvalue_modulus(matrix: np.ndarray) -> float:
