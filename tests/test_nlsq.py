@@ -126,3 +126,40 @@ def test_lm_validation_and_padding():
                                 "initial_m": None}))
     res = solve_lm(p, max_iterations=30, pad_trace=True)
     assert res.trace["rmse_m"].shape == (31,) and res.comm.messages == 0
+
+
+def test_bordered_path_with_a_dense_column_matches_scipy():
+    """A common range offset (one column touching every range) on a long strip network: the band of the rest is
+    narrow, the offset is eliminated by its Schur complement; the answer is scipy's."""
+    import scipy.sparse as sp
+
+    from distnav.algorithms.nlsq import _DampedSolver
+
+    rng = np.random.default_rng(8)
+    n = 150
+    t = np.column_stack([np.linspace(0.0, 300.0, n) + rng.uniform(-1, 1, n), rng.uniform(0.0, 25.0, n)])
+    a, b = np.triu_indices(n, 1)
+    d = np.linalg.norm(t[a] - t[b], axis=1)
+    k = d < 16.0
+    ids = [str(i) for i in range(n)]
+    p = build_problem(ids, np.stack([a[k], b[k]], 1), d[k] + 0.4 + rng.normal(0, 0.05, k.sum()),
+                      fixed={ids[i]: t[i] for i in (0, 1, n // 2, n - 1)}, dim=2,
+                      initial_m=t + rng.uniform(-0.5, 0.5, t.shape), truth_m=t)
+
+    def fun(x):
+        return p.residual_vector(x[:-1]) - x[-1]
+
+    def jac(x):
+        return sp.hstack([p.jacobian_of(x[:-1]), sp.csr_matrix(-np.ones((p.n_meas, 1)))]).tocsr()
+
+    x0 = np.concatenate([p.x0(), [0.0]])
+    solver = _DampedSolver(jac(x0), 200)
+    assert solver.mode == "bordered" and solver.dense_cols.tolist() == [x0.size - 1]
+    tight = {"ftol": 1e-15, "xtol": 1e-15, "gtol": 1e-15}
+    ours = levenberg_marquardt(fun, jac, x0, **tight)
+    ref = least_squares(fun, x0, jac=lambda x: jac(x).toarray(), method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    assert ours.converged
+    assert ours.cost == pytest.approx(float(ref.fun @ ref.fun), rel=1e-9)
+    np.testing.assert_allclose(ours.x, ref.x, atol=1e-6)
+    huge = levenberg_marquardt(fun, lambda x: jac(x).toarray(), x0, **tight)  # dense path
+    np.testing.assert_allclose(ours.x, huge.x, atol=1e-8)

@@ -220,3 +220,27 @@ def test_exclusion_rounds_take_links_of_different_anchors_together():
     short[pair[(4, 5)]] = +9.0  # measured short: never excluded one-sided, excluded two-sided
     assert exclude_links(p, _Scripted(p, short), one_sided=True)[2].removed == ()
     assert exclude_links(p, _Scripted(p, short))[2].removed == (pair[(4, 5)],)
+
+
+@pytest.mark.parametrize("offsets", ["common", "per_anchor"])
+def test_robust_w_tests_and_covariance_match_the_dense_formula(offsets):
+    """IRLS weights (Cauchy), offset columns and prior rows: ``q_l`` of ``(I − JQJᵀW)(I − JQJᵀW)ᵀ`` and
+    ``Q = (JᵀWJ)⁻¹`` formed densely, against :func:`centralized_quality` (chunked ``J Q Jᵀ``, ``potri``)."""
+    from distnav.algorithms.nlsq import robust_weights
+    from distnav.algorithms.ranging_qc import centralized_quality
+
+    p = network(np.random.default_rng(4), n=18, offset_m=0.3)
+    p = dataclasses.replace(p, range_m=p.range_m + np.where(np.arange(p.n_meas) % 17 == 0, 1.5, 0.0))  # NLOS
+    o = RangeObjective(p, "metres", 0.1, offsets, 0.1)
+    res = solve_lm(p, objective="metres", sigma_m=0.1, loss="cauchy", range_offsets=offsets)
+    J = o.jacobian(res.x)
+    r = o.residual(res.x)
+    wt = robust_weights(r, o.loss_scale(0.3), "cauchy")[0]
+    assert wt.min() < 0.1  # the NLOS links down-weighted
+    _, tests, Q = centralized_quality(p, J, r, wt, p.n_meas, scale="a-priori")
+    A = J.toarray()
+    Q_ref = np.linalg.inv(A.T @ (wt[:, None] * A))
+    R = np.eye(A.shape[0]) - A @ Q_ref @ A.T @ np.diag(wt)
+    q_ref = np.diag(R @ R.T)[:p.n_meas]
+    np.testing.assert_allclose(Q, Q_ref, rtol=1e-10, atol=1e-10 * np.abs(Q_ref).max())
+    np.testing.assert_allclose(tests.w, r[:p.n_meas] / np.sqrt(q_ref), rtol=1e-10, atol=1e-10)

@@ -129,3 +129,34 @@ def test_nearly_coplanar_known_anchors_in_a_volumetric_network_are_weak():
     rep = check_geometry(_problem(pos, _complete(list(range(8))), [0, 1, 2, 3]))
     assert [i.kind for i in rep.issues] == ["near_mirror"] and rep.status == "weakly_determined"
     assert rep.planarity_network is not None and rep.planarity_network > 0.1
+
+
+def test_fast_rigidity_test_agrees_with_the_eigendecomposition():
+    """The Cholesky shortcut (no eigenvalue of RᵀR below the threshold) against a dense eigh of the same matrix
+    on random 2-D / 3-D networks, rigid and not (sparse links, hinged parts): the same flexible anchors."""
+    import scipy.sparse as sp
+
+    from distnav.models.uwb.geometry import NULL_TOL, _clearly_rigid, rigidity_matrix
+
+    seen = {True: 0, False: 0}
+    for seed in range(24):
+        rng = np.random.default_rng(seed)
+        dim, n = (2, 30) if seed % 2 else (3, 24)
+        t = rng.uniform(0.0, 20.0, (n, dim))
+        a, b = np.triu_indices(n, 1)
+        k = np.linalg.norm(t[a] - t[b], axis=1) < rng.uniform(4.0, 12.0)
+        ids = [f"A{i}" for i in range(n)]
+        p = build_problem(ids, np.stack([a[k], b[k]], 1), np.ones(int(k.sum())),
+                          fixed={ids[i]: t[i] for i in range(dim + 1)}, dim=dim, check_determined=False)
+        pos = np.random.default_rng(100 + seed).normal(0.0, 1.0, size=(n, dim))
+        r = rigidity_matrix(p, pos)
+        w, v = np.linalg.eigh((r.T @ r).toarray())
+        null = v[:, w <= NULL_TOL * max(float(w[-1]), 1e-300)]
+        energy = np.bincount(np.nonzero(p.free)[0], np.einsum("ij,ij->i", null, null), minlength=n)
+        expected = energy > 1e-8
+        got = flexible_anchors(p, np.random.default_rng(100 + seed))
+        assert got.tolist() == expected.tolist(), seed
+        fast = _clearly_rigid(sp.csr_matrix(r.T @ r))
+        assert fast == (null.shape[1] == 0), seed
+        seen[fast] += 1
+    assert seen[True] >= 3 and seen[False] >= 3  # both outcomes drawn

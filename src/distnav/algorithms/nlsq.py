@@ -189,8 +189,14 @@ class _DampedSolver:
 
     Sparse Jacobians: the unknowns are reordered by reverse Cuthill–McKee (structural pattern of ``|G|ᵀ|G|``) and
     the damped matrix is factorised in LAPACK's banded Cholesky when the band is narrow (anchor networks are
-    geometric graphs, so it is); otherwise a dense Cholesky (small problems) or SuperLU (large ones).
+    geometric graphs, so it is); otherwise a dense Cholesky (small problems) or SuperLU (large ones). A few
+    *dense* unknowns (a common range offset touches every range: one full row and column of ``A``, which makes
+    any band as wide as the matrix) are ordered last and eliminated by their Schur complement (``"bordered"``):
+    the banded Cholesky of the rest solves for ``[b₁, C]``, then the small system
+    ``(E − Cᵀ B⁻¹ C) δ₂ = b₂ − Cᵀ B⁻¹ b₁`` gives the dense unknowns (the same solution, to rounding).
     """
+
+    MAX_DENSE_COLUMNS = 8
 
     def __init__(self, jac0: Any, dense_limit: int) -> None:
         n = jac0.shape[1]
@@ -201,12 +207,25 @@ class _DampedSolver:
             pat = sp.csr_matrix((np.ones(jac0.nnz), jac0.indices, jac0.indptr), shape=jac0.shape)
             struct = (pat.T @ pat).tocsr()
             perm = np.asarray(reverse_cuthill_mckee(struct, symmetric_mode=True), np.int64)
-            inv = np.empty(n, np.int64)
-            inv[perm] = np.arange(n)
-            coo = struct.tocoo()
-            band = int(np.max(np.abs(inv[coo.row] - inv[coo.col]), initial=0))
+            band = _band(struct, perm)
+            self.dense_cols = np.zeros(0, np.int64)
+            degree = np.diff(struct.indptr)
+            wide = np.flatnonzero(degree > max(8, n // 4))
+            if band > max(8, n // 4) and 0 < wide.size <= self.MAX_DENSE_COLUMNS and wide.size < n:
+                rest = np.setdiff1d(np.arange(n), wide)
+                sub = struct[rest][:, rest]
+                perm_r = rest[np.asarray(reverse_cuthill_mckee(sp.csr_matrix(sub), symmetric_mode=True), np.int64)]
+                band_r = _band(struct[perm_r][:, perm_r], np.arange(rest.size))
+                if band_r <= max(8, rest.size // 4):
+                    perm, band, self.dense_cols = perm_r, band_r, wide
+            inv = np.full(n, -1, np.int64)
+            inv[perm] = np.arange(perm.size)
             self.perm, self.inv, self.band = perm, inv, band
-            if band <= max(8, n // 4):
+            if self.dense_cols.size:
+                self.mode = "bordered"
+                self.dense_pos = np.full(n, -1, np.int64)
+                self.dense_pos[self.dense_cols] = np.arange(self.dense_cols.size)
+            elif band <= max(8, n // 4):
                 self.mode = "banded"
             elif n > dense_limit:
                 self.mode = "sparse"
@@ -233,6 +252,19 @@ class _DampedSolver:
             keep = r <= c
             self._target = (self.band + r[keep] - c[keep]) * self.n + c[keep]
             self._size = (self.band + 1) * self.n
+        elif self.mode == "bordered":  # [upper band of B | C (nb × k) | E (k × k)]
+            nb, k = self.perm.size, self.dense_cols.size
+            r, c = self.inv[jac.indices[p]], self.inv[jac.indices[q]]
+            dr, dc = self.dense_pos[jac.indices[p]], self.dense_pos[jac.indices[q]]
+            in_b = (r >= 0) & (c >= 0) & (r <= c)
+            in_c = (r >= 0) & (dc >= 0)
+            in_e = (dr >= 0) & (dc >= 0)
+            keep = in_b | in_c | in_e
+            off_c, off_e = (self.band + 1) * nb, (self.band + 1) * nb + nb * k
+            target = np.where(in_b, (self.band + r - c) * nb + c,
+                              np.where(in_c, off_c + r * k + dc, off_e + dr * k + dc))
+            self._target = target[keep]
+            self._size = off_e + k * k
         else:
             keep = np.ones(p.size, bool)
             self._target = jac.indices[p] * self.n + jac.indices[q]
@@ -243,7 +275,7 @@ class _DampedSolver:
 
     def normal(self, jac: Any, w: np.ndarray | None, g: np.ndarray) -> tuple[Any, np.ndarray]:
         """``(GᵀWG, GᵀWg)``, the matrix in the form :meth:`solve` needs (banded storage, dense or sparse)."""
-        if sp.issparse(jac) and self.mode in ("banded", "dense"):
+        if sp.issparse(jac) and self.mode in ("banded", "bordered", "dense"):
             jac = jac.tocsr()
             pat = getattr(self, "_pattern", None)
             if pat is None or pat[0].size != jac.indptr.size or pat[1].size != jac.indices.size or not (
@@ -258,6 +290,11 @@ class _DampedSolver:
             grad = np.bincount(jac.indices, wd * g[self._rows], minlength=self.n)
             if self.mode == "banded":
                 return a.reshape(self.band + 1, self.n), grad
+            if self.mode == "bordered":
+                nb, k = self.perm.size, self.dense_cols.size
+                off_c = (self.band + 1) * nb
+                return (a[:off_c].reshape(self.band + 1, nb), a[off_c:off_c + nb * k].reshape(nb, k),
+                        a[off_c + nb * k:].reshape(k, k)), grad
             return a.reshape(self.n, self.n), grad
         jw = jac if w is None else (jac.multiply(w[:, None]).tocsr() if sp.issparse(jac) else jac * w[:, None])
         a = jw.T @ jac
@@ -267,7 +304,29 @@ class _DampedSolver:
             a = sp.csr_matrix(a)
         return a, np.asarray(jw.T @ g).ravel()
 
+    def _solve_bordered(self, a: tuple[np.ndarray, np.ndarray, np.ndarray], b: np.ndarray, lam: float
+                        ) -> np.ndarray | None:
+        ab, cm, em = a
+        d, de = ab[self.band], np.diag(em)
+        floor = 1e-12 * max(float(d.max(initial=0.0)), float(de.max(initial=0.0)), 1e-300)
+        ab = ab.copy()
+        ab[self.band] = d + lam * np.maximum(d, floor)
+        e = em + np.diag(lam * np.maximum(de, floor))
+        try:
+            cb = sla.cholesky_banded(ab, lower=False, check_finite=False)
+            y = sla.cho_solve_banded((cb, False), np.column_stack([b[self.perm], cm]), check_finite=False)
+            schur = e - cm.T @ y[:, 1:]
+            x2 = sla.solve(schur, b[self.dense_cols] - cm.T @ y[:, 0], assume_a="pos", check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+        res = np.empty(self.n)
+        res[self.perm] = y[:, 0] - y[:, 1:] @ x2
+        res[self.dense_cols] = x2
+        return res if np.all(np.isfinite(res)) else None
+
     def solve(self, a: Any, b: np.ndarray, lam: float) -> np.ndarray | None:
+        if self.mode == "bordered":
+            return self._solve_bordered(a, b, lam)
         if self.mode == "banded":
             d = a[self.band]
             floor = 1e-12 * max(float(d.max(initial=0.0)), 1e-300)
@@ -296,6 +355,14 @@ class _DampedSolver:
         except RuntimeError:
             return None
         return None if not np.all(np.isfinite(out)) else np.asarray(out)
+
+
+def _band(struct: sp.csr_matrix, perm: np.ndarray) -> int:
+    """Half-bandwidth of the symmetric pattern ``struct`` with its unknowns in the order ``perm``."""
+    inv = np.empty(perm.size, np.int64)
+    inv[perm] = np.arange(perm.size)
+    coo = struct.tocoo()
+    return int(np.max(np.abs(inv[coo.row] - inv[coo.col]), initial=0))
 
 
 @single_threaded_blas()

@@ -34,7 +34,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from distnav.algorithms.nlsq import loss_terms
+from distnav.algorithms.nlsq import loss_terms, single_threaded_blas
 from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, variance_factor, w_statistics
@@ -53,21 +53,36 @@ def robust_scale(standardized: np.ndarray) -> float:
     return float(1.4826 * np.median(s)) if s.size else float("nan")
 
 
-def _row_quadratic(J: sp.csr_matrix, Q: np.ndarray) -> np.ndarray:
-    """``j_l Q j_lᵀ`` of every row of a sparse ``J`` without forming ``J Q`` (rows are short)."""
-    J = sp.csr_matrix(J)
-    J.sort_indices()
-    counts = np.diff(J.indptr)
-    K = int(counts.max(initial=0))
-    m = J.shape[0]
-    cols = np.zeros((m, K), np.int64)
-    vals = np.zeros((m, K))
-    slot = np.arange(J.nnz) - np.repeat(J.indptr[:-1], counts)
-    rows = np.repeat(np.arange(m), counts)
-    cols[rows, slot] = J.indices
-    vals[rows, slot] = J.data
-    sub = Q[cols[:, :, None], cols[:, None, :]]  # (m, K, K)
-    return np.asarray(np.einsum("lk,lkj,lj->l", vals, sub, vals))
+def _inverse_spd(n_mat: np.ndarray) -> np.ndarray | None:
+    """``N⁻¹`` of a symmetric positive definite matrix by LAPACK's Cholesky and ``potri`` (half the flops of
+    solving for the identity); None if ``N`` is not positive definite (singular)."""
+    u, info = sla.lapack.dpotrf(n_mat, lower=0, clean=1, overwrite_a=0)  # clean: zeros below the diagonal
+    if info != 0 or not np.all(np.isfinite(u)):
+        return None
+    inv, info = sla.lapack.dpotri(u, lower=0, overwrite_c=1)  # the upper triangle of N⁻¹; zeros below
+    if info != 0:
+        return None
+    out = inv + inv.T
+    out.flat[::out.shape[0] + 1] *= 0.5
+    return np.asarray(out)
+
+
+def _hat_terms(J: sp.csr_matrix, Q: np.ndarray, weight: np.ndarray, n_ranges: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """``h_l = j_l Q j_lᵀ`` and ``j_l Q (JᵀW²J) Q j_lᵀ = Σ_k w_k² (j_l Q j_kᵀ)²`` of the first ``n_ranges`` rows,
+    from blocks of ``J Q Jᵀ`` (``z = J_l Q`` for a chunk of rows, then ``J zᵀ``; never the n × n product
+    ``Q JᵀW²J Q``)."""
+    Jr = J[:n_ranges]
+    JT = sp.csr_matrix(J)
+    w2 = weight * weight
+    h = np.empty(n_ranges)
+    qmq = np.empty(n_ranges)
+    for lo in range(0, n_ranges, 512):
+        z = np.asarray(Jr[lo:lo + 512] @ Q)  # (chunk, n)
+        y = np.asarray(JT @ z.T)  # (m, chunk): j_k Q j_lᵀ
+        h[lo:lo + 512] = y[np.arange(lo, lo + z.shape[0]), np.arange(z.shape[0])]
+        qmq[lo:lo + 512] = w2 @ (y * y)
+    return h, qmq
 
 
 def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual: np.ndarray, weight: np.ndarray,
@@ -87,33 +102,21 @@ def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual:
         log.info("no covariance: %d unknowns", n_x)
         return None, None, None
     J = sp.csr_matrix(jacobian)
-    N = np.asarray((J.T @ sp.diags(weight) @ J).toarray())
-    try:
-        Q = sla.cho_solve(sla.cho_factor(N, check_finite=False), np.eye(n_x), check_finite=False)
-    except (np.linalg.LinAlgError, ValueError):
-        log.info("singular normal matrix: no covariance")
-        return None, None, None
-    Q = 0.5 * (Q + Q.T)
-    m_rows = J.shape[0]
-    redundancy = float(m_rows - n_x)
-    s2 = variance_factor(float(np.sum(weight * residual * residual)), redundancy)
-    # per-anchor blocks of Q (zeros at known coordinates)
-    col = np.full(problem.free.shape, -1, np.int64)
-    col[problem.free] = np.arange(problem.n_free)
-    safe = np.maximum(col, 0)
-    blocks = Q[safe[:, :, None], safe[:, None, :]] * ((col[:, :, None] >= 0) & (col[:, None, :] >= 0))
-    precision = Precision(covariance=blocks, variance_factor=s2, redundancy=redundancy, kind="centralized")
-    # residual variances and w-tests of the range samples
-    Jr = J[:n_ranges]
-    h = _row_quadratic(Jr, Q)
-    # j Q M Q jᵀ (M = JᵀW²J, sparse) of every range row without the dense n³ product Q M Q: z = j Q row by row
-    # (in chunks), then z M zᵀ
-    M = sp.csr_matrix(J.T @ sp.diags(weight * weight) @ J)
-    Jr_csr = sp.csr_matrix(Jr)
-    qmq = np.empty(n_ranges)
-    for lo in range(0, n_ranges, 1024):
-        z = np.asarray(Jr_csr[lo:lo + 1024] @ Q)
-        qmq[lo:lo + 1024] = np.einsum("ij,ij->i", np.asarray((M @ z.T).T), z)
+    with single_threaded_blas():  # one LAPACK thread: OpenBLAS's threads on a loaded machine cost 5× (measured)
+        Q = _inverse_spd(np.asarray((J.T @ sp.diags(weight) @ J).toarray()))
+        if Q is None:
+            log.info("singular normal matrix: no covariance")
+            return None, None, None
+        m_rows = J.shape[0]
+        redundancy = float(m_rows - n_x)
+        s2 = variance_factor(float(np.sum(weight * residual * residual)), redundancy)
+        # per-anchor blocks of Q (zeros at known coordinates)
+        col = np.full(problem.free.shape, -1, np.int64)
+        col[problem.free] = np.arange(problem.n_free)
+        safe = np.maximum(col, 0)
+        blocks = Q[safe[:, :, None], safe[:, None, :]] * ((col[:, :, None] >= 0) & (col[:, None, :] >= 0))
+        precision = Precision(covariance=blocks, variance_factor=s2, redundancy=redundancy, kind="centralized")
+        h, qmq = _hat_terms(J, Q, weight, n_ranges)
     q = np.maximum(1.0 - 2.0 * weight[:n_ranges] * h + qmq, 0.0)
     r = residual[:n_ranges]
     std = w_statistics(r, q)

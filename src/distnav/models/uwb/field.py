@@ -31,7 +31,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
 from distnav.algorithms import csg
-from distnav.algorithms.nlsq import solve_lm
+from distnav.algorithms.nlsq import single_threaded_blas, solve_lm
 from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
@@ -142,7 +142,8 @@ def prepare(problem: RangingProblem, *, initial_m: FloatArray | None = None, all
     if initial_m is not None:
         init = np.asarray(initial_m, float)[first.solvable]
     else:
-        init = mds_initial_guess(sub)
+        with single_threaded_blas():  # dense n × n SVD / products: one BLAS thread is 4× cheaper in CPU on 2 cores
+            init = mds_initial_guess(sub)
     sub = sub.with_initial(init)
     second = check_geometry(sub, allow_planar_3d=allow_planar_3d, rng=rng)
     carried = tuple(i for i in first.issues if i.severity == "unsolved")

@@ -35,9 +35,11 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, reverse_cuthill_mckee
 
+from distnav.algorithms.nlsq import single_threaded_blas
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray, IntArray
@@ -48,6 +50,7 @@ __all__ = ["GeometryIssue", "GeometryReport", "check_geometry", "rigidity_matrix
 PLANAR_TOL = 0.1
 EXACT_TOL = 1e-6
 MAX_DENSE_RIGIDITY = 6000
+NULL_TOL = 1e-9  # eigenvalues of RᵀR at most this × the largest span its null space
 Severity = Literal["unsolved", "ambiguous", "weakly_determined", "refused"]
 
 
@@ -149,6 +152,34 @@ def rigidity_matrix(problem: RangingProblem, positions_m: FloatArray) -> sp.csr_
     return sp.csr_matrix((v[keep], (r[keep], c[keep])), shape=(links.shape[0], problem.n_free))
 
 
+def _clearly_rigid(normal: sp.csr_matrix, rel_tol: float = NULL_TOL) -> bool:
+    """True if ``RᵀR`` has no eigenvalue ≤ ``rel_tol · λ_max`` (so :func:`flexible_anchors`' eigendecomposition
+    would find no null space), decided by one Cholesky factorization instead of ``eigh``: with ``τ = rel_tol ×``
+    the Gershgorin bound (≥ ``λ_max``), ``RᵀR − τI`` is positive definite — its Cholesky succeeds — exactly when
+    every eigenvalue exceeds ``τ ≥ rel_tol · λ_max`` (Sylvester's inertia). The factorization is banded after a
+    reverse Cuthill–McKee ordering (anchor networks are geometric graphs). False means "maybe not": the caller
+    runs the full eigendecomposition."""
+    n = normal.shape[0]
+    gersh = float(np.max(np.asarray(abs(normal).sum(axis=1)).ravel(), initial=0.0))
+    if n == 0 or gersh <= 0.0:
+        return False
+    shifted = sp.csr_matrix(normal - sp.identity(n, format="csr") * (rel_tol * gersh))
+    perm = np.asarray(reverse_cuthill_mckee(shifted, symmetric_mode=True), np.int64)
+    a = shifted[perm][:, perm].tocoo()
+    band = int(np.max(np.abs(a.row - a.col), initial=0))
+    try:
+        if band <= max(8, n // 4):
+            ab = np.zeros((band + 1, n))
+            up = a.row <= a.col
+            ab[band + a.row[up] - a.col[up], a.col[up]] = a.data[up]
+            sla.cholesky_banded(ab, lower=False, check_finite=False)
+        else:
+            sla.cholesky(a.toarray(), lower=False, check_finite=False)
+    except (np.linalg.LinAlgError, ValueError):
+        return False
+    return True
+
+
 def flexible_anchors(problem: RangingProblem, rng: np.random.Generator | None = None) -> BoolArray:
     """Anchors that can move without changing any range (generic rigidity at random positions; see module)."""
     n_free = problem.n_free
@@ -158,9 +189,12 @@ def flexible_anchors(problem: RangingProblem, rng: np.random.Generator | None = 
     g = rng if rng is not None else np.random.default_rng(20240613)
     pos = g.normal(0.0, 1.0, size=(problem.n_anchors, problem.dim))
     r = rigidity_matrix(problem, pos)
-    normal = (r.T @ r).toarray()
-    w, v = np.linalg.eigh(normal)
-    null = v[:, w <= 1e-9 * max(float(w[-1]), 1e-300)]
+    normal_sp = sp.csr_matrix(r.T @ r)
+    with single_threaded_blas():
+        if _clearly_rigid(normal_sp):
+            return out
+        w, v = np.linalg.eigh(normal_sp.toarray())
+    null = v[:, w <= NULL_TOL * max(float(w[-1]), 1e-300)]
     if null.shape[1] == 0:
         return out
     energy = np.einsum("ij,ij->i", null, null)  # diagonal of the null-space projector, per free coordinate

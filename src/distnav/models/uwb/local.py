@@ -24,6 +24,61 @@ from distnav.typing import BoolArray, FloatArray
 __all__ = ["fit_anchor", "repair_exclusions"]
 
 
+def _gauss_newton(starts: FloatArray, qf: FloatArray, dh: FloatArray) -> FloatArray:
+    """Gauss–Newton on the k × k normal equations (k ≤ 3) of the ranges ``dh`` to the points ``qf``, from every
+    row of ``starts`` at once (each stops after 20 steps or when its step is below 0.1 µm; the same iterates as
+    one start at a time, in one batched solve per step)."""
+    y = np.array(starts, float)
+    if y.shape[1] == 2:
+        return _gauss_newton_2d(y, qf, dh)
+    active = np.ones(y.shape[0], bool)
+    for _ in range(20):
+        diff = y[active][:, None, :] - qf[None]  # (s, L, k)
+        r = np.sqrt(np.einsum("sij,sij->si", diff, diff))
+        j = diff / np.maximum(r, 1e-9)[:, :, None]
+        jt = np.swapaxes(j, 1, 2)
+        rhs = (jt @ (dh - r)[:, :, None])[:, :, 0]
+        try:
+            step = np.linalg.solve(jt @ j, rhs[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:  # a singular start: each on its own, least squares where singular
+            step = np.empty_like(rhs)
+            for t in range(rhs.shape[0]):
+                try:
+                    step[t] = np.linalg.solve(jt[t] @ j[t], rhs[t])
+                except np.linalg.LinAlgError:
+                    step[t] = np.linalg.lstsq(j[t], (dh - r[t]), rcond=None)[0]
+        idx = np.flatnonzero(active)
+        y[idx] = y[idx] + step
+        active[idx[np.einsum("ij,ij->i", step, step) < 1e-14]] = False  # 0.1 µm
+        if not active.any():
+            break
+    return y
+
+
+def _gauss_newton_2d(y: FloatArray, qf: FloatArray, dh: FloatArray) -> FloatArray:
+    """:func:`_gauss_newton` for two free coordinates (heights held: the common case), the 2 × 2 normal
+    equations solved in closed form (a singular one by least squares, as there)."""
+    qx, qy = qf[:, 0], qf[:, 1]
+    for t in range(y.shape[0]):
+        for _ in range(20):
+            dx, dy = y[t, 0] - qx, y[t, 1] - qy
+            r = np.sqrt(dx * dx + dy * dy)
+            rr = np.maximum(r, 1e-9)
+            jx, jy, e = dx / rr, dy / rr, dh - r
+            a00, a01, a11 = float(jx @ jx), float(jx @ jy), float(jy @ jy)
+            b0, b1 = float(jx @ e), float(jy @ e)
+            det = a00 * a11 - a01 * a01
+            if det != 0.0 and np.isfinite(det):
+                s0, s1 = (a11 * b0 - a01 * b1) / det, (a00 * b1 - a01 * b0) / det
+            else:
+                s0, s1 = np.linalg.lstsq(np.column_stack([jx, jy]), e, rcond=None)[0]
+            y[t, 0] += s0
+            y[t, 1] += s1
+            if s0 * s0 + s1 * s1 < 1e-14:  # 0.1 µm
+                break
+    return y
+
+
 def fit_anchor(problem: RangingProblem, i: int, positions_m: FloatArray, links: list[int]
                ) -> tuple[FloatArray, float]:
     """Position of anchor ``i`` from the measurements ``links`` (indices) with every other anchor held at
@@ -48,20 +103,9 @@ def fit_anchor(problem: RangingProblem, i: int, positions_m: FloatArray, links: 
         start, *_ = np.linalg.lstsq(a, b, rcond=None)
     except np.linalg.LinAlgError:
         start = x[free]
+    ys = _gauss_newton(np.stack([np.asarray(start, float), x[free]]), qf, dh)
     best_x, best_rms = x[free].copy(), np.inf
-    for s in (start, x[free]):
-        y = np.array(s, float)
-        for _ in range(20):  # Gauss–Newton on the k × k normal equations (k ≤ 3)
-            diff = y - qf
-            r = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-            j = diff / np.maximum(r, 1e-9)[:, None]
-            try:
-                step = np.linalg.solve(j.T @ j, j.T @ (dh - r))
-            except np.linalg.LinAlgError:
-                step, *_ = np.linalg.lstsq(j, dh - r, rcond=None)
-            y = y + step
-            if float(step @ step) < 1e-14:  # 0.1 µm
-                break
+    for y in ys:
         rms = float(np.sqrt(np.mean((np.linalg.norm(y - qf, axis=1) - dh) ** 2)))
         if rms < best_rms:
             best_x, best_rms = y, rms
