@@ -194,8 +194,14 @@ class DynamicModel:
 
     def noise_cov_at(self, t: int) -> FloatArray:
         """``S_t = H_t S̃_t H_tᵀ``."""
-        H, St, _ = self.noise_factor_at(t)
-        S: FloatArray = H @ St @ H.T
+        k = self._idx(self._noise_const, len(self._H), t, "system noise")
+        sel = self._sel[k]
+        if sel is not None:   # H = identity columns: S̃ placed in the rows/columns `sel` (exactly H S̃ Hᵀ)
+            S: FloatArray = np.zeros((self.n_states, self.n_states))
+            S[np.ix_(sel, sel)] = self._St[k]
+            return S
+        H, St = self._H[k], self._St[k]
+        S = H @ St @ H.T
         return S
 
     def check_epochs(self, n_epochs: int) -> None:
