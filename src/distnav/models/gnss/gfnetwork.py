@@ -332,7 +332,10 @@ class _Collector:
             xp, ep, Pp = self.prev
             A, w = series.design(t, nodes)
             y = series._y[t, nodes] if series._y is not None else np.zeros(w.shape)
-            rows = (w > 0) & ~(A[..., ~ep] != 0).any(axis=2)
+            inest = np.flatnonzero(~ep)
+            rows = w > 0
+            if inest.size:                                   # no coefficient on an inestimable parameter
+                rows &= ~(A.take(inest, axis=2) != 0).any(axis=2)
             if rows.any():
                 Pm = np.where(ep[:, None] & ep[None, :], Pp, 0.0) + dynamics.noise_cov_at(t)
                 xz = np.where(ep, xp, 0.0)
