@@ -141,7 +141,7 @@ class DynamicModel:
             pairs = [(np.zeros((p, 0)), np.zeros((0, 0)))]
         self._H: list[np.ndarray] = []
         self._sel: list[IntArray | None] = []
-        self._sel_grid: list[tuple[IntArray, IntArray] | None] = []   # np.ix_(sel, sel), for noise_cov_at
+        self._sel_grid: list[tuple[np.ndarray, ...] | None] = []   # np.ix_(sel, sel), for noise_cov_at
         self._St: list[np.ndarray] = []
         self._St_inv: list[np.ndarray] = []
         for t, (H, St) in enumerate(pairs):
