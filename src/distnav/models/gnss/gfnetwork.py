@@ -337,11 +337,13 @@ class _Collector:
             if inest.size:                                   # no coefficient on an inestimable parameter
                 rows &= ~(A.take(inest, axis=2) != 0).any(axis=2)
             if rows.any():
-                Pm = np.where(ep[:, None] & ep[None, :], Pp, 0.0) + dynamics.noise_cov_at(t)
-                xz = np.where(ep, xp, 0.0)
                 kk, ss = np.nonzero(rows)                    # all observations of all nodes together
                 Ar = A[kk, ss]
-                v = y[kk, ss] - Ar @ xz
+                used = np.flatnonzero(Ar.any(axis=0))        # the parameters observed (all estimable)
+                Ar = Ar[:, used]
+                grid = np.ix_(used, used)
+                Pm = Pp[grid] + dynamics.noise_cov_at(t)[grid]
+                v = y[kk, ss] - Ar @ xp[used]
                 Qv = Ar @ Pm @ Ar.T
                 dq = np.arange(kk.size)
                 Qv[dq, dq] += 1.0 / w[kk, ss]                # R + A P⁻ Aᵀ
