@@ -141,6 +141,7 @@ class DynamicModel:
             pairs = [(np.zeros((p, 0)), np.zeros((0, 0)))]
         self._H: list[np.ndarray] = []
         self._sel: list[IntArray | None] = []
+        self._sel_grid: list[tuple[np.ndarray, ...] | None] = []   # np.ix_(sel, sel), for noise_cov_at
         self._St: list[np.ndarray] = []
         self._St_inv: list[np.ndarray] = []
         for t, (H, St) in enumerate(pairs):
@@ -164,6 +165,8 @@ class DynamicModel:
                                      f"S̃ invertible)") from None
             self._H.append(H)
             self._sel.append(_identity_columns(H))
+            sel = self._sel[-1]
+            self._sel_grid.append(None if sel is None else np.ix_(sel, sel))
             self._St.append(0.5 * (St + St.T))
             self._St_inv.append(np.linalg.inv(St) if q else St.copy())
 
@@ -194,8 +197,14 @@ class DynamicModel:
 
     def noise_cov_at(self, t: int) -> FloatArray:
         """``S_t = H_t S̃_t H_tᵀ``."""
-        H, St, _ = self.noise_factor_at(t)
-        S: FloatArray = H @ St @ H.T
+        k = self._idx(self._noise_const, len(self._H), t, "system noise")
+        grid = self._sel_grid[k]
+        if grid is not None:   # H = identity columns: S̃ placed in the rows/columns `sel` (exactly H S̃ Hᵀ)
+            S: FloatArray = np.zeros((self.n_states, self.n_states))
+            S[grid] = self._St[k]
+            return S
+        H, St = self._H[k], self._St[k]
+        S = H @ St @ H.T
         return S
 
     def check_epochs(self, n_epochs: int) -> None:

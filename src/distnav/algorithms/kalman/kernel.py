@@ -42,6 +42,13 @@ def pseudo_inverse_psd(info: FloatArray, *, rtol: float = RANK_RTOL) -> tuple[Fl
     seen = d > 0  # exactly zero: no information ever (structural); the rest is decided scale-free below
     if seen.all():
         return _inv_or_pinv(info, rtol)
+    if k == 1:                   # one filter (central, single-receiver): the observed entries by one grid
+        grid = np.ix_(np.flatnonzero(seen[0]), np.flatnonzero(seen[0]))
+        if grid[0].size:
+            sub_inv, sub_est = _inv_or_pinv(info[0][grid][None], rtol)
+            inv[0][grid] = sub_inv[0]
+            est[0, grid[0][:, 0]] = sub_est[0]
+        return inv, est
     if (seen == seen[0]).all():
         groups: list[tuple[np.ndarray, BoolArray]] = [(np.arange(k), seen[0])]
     else:

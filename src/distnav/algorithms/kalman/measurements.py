@@ -116,6 +116,10 @@ class MeasurementSeries:
         if nodes is None:
             return np.arange(self.n_nodes)
         given = np.asarray(nodes)
+        if given.dtype == np.int64 and given.ndim == 1 and given.size:   # the common case, checked cheaply
+            if given.min() < 0 or given.max() >= self.n_nodes:
+                raise ModelError(f"node ids must lie in 0..{self.n_nodes - 1}, got {given.min()}..{given.max()}")
+            return given
         if given.ndim > 1:
             raise ModelError(f"node ids must be a single id or a 1-D list of ids, got shape {given.shape}")
         if given.size and not np.issubdtype(given.dtype, np.integer):

@@ -185,6 +185,7 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         self._rcol = layout.receiver_column()
         self._scol = layout.satellite_column()
         self._last_design: tuple[tuple[int, bytes], np.ndarray, np.ndarray] | None = None
+        self._epoch_cache: tuple[int, np.ndarray, np.ndarray] | None = None
         self._static = np.zeros((n, S, layout.n_states))
         for i in range(n):
             if self._rcol[i] >= 0:
@@ -200,14 +201,28 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         key = (t, idx.tobytes())
         if self._last_design is not None and self._last_design[0] == key:
             return self._last_design[1], self._last_design[2]
-        A = self._static[idx].copy()            # receiver and satellite columns (constant)
-        nt = self.layout.n_tec_terms
-        tec = nt * self._groups[idx][:, None] + np.arange(nt)[None, :]        # (k, nt) TEC columns per node
-        A[np.arange(idx.size)[:, None, None], np.arange(self.n_satellites)[None, :, None], tec[:, None, :]] = \
-            self._a[t, idx]
-        w = self._w[t, idx]
-        A *= (w > 0)[..., None]
+        A_all, w_all = self._epoch_design(t)
+        if idx.size == self.n_nodes and np.array_equal(idx, np.arange(self.n_nodes)):
+            A, w = A_all, w_all
+        else:
+            A, w = A_all[idx], w_all[idx]
         self._last_design = (key, A, w)          # the filter and the residual statistics ask twice per epoch
+        return A, w
+
+    def _epoch_design(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """All nodes' design rows and weights at epoch ``t`` (cached for the last epoch asked: the CKF's nodes
+        and the residual statistics of each node ask for their rows of the same epoch)."""
+        if self._epoch_cache is not None and self._epoch_cache[0] == t:
+            return self._epoch_cache[1], self._epoch_cache[2]
+        A = self._static.copy()                  # receiver and satellite columns (constant)
+        nt = self.layout.n_tec_terms
+        a = self._a[t]
+        for i in range(self.n_nodes):            # the node's TEC block: nt contiguous columns
+            g = int(self._groups[i])
+            A[i, :, nt * g:nt * (g + 1)] = a[i]
+        w = self._w[t]
+        A *= (w > 0)[..., None]
+        self._epoch_cache = (t, A, w)
         return A, w
 
     def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

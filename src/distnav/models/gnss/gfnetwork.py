@@ -26,7 +26,6 @@ from distnav.models.gnss.gfbias import (
     bias_dynamics,
     datum_transform,
     gf_m_per_dsb_ns,
-    in_datum,
 )
 from distnav.models.gnss.rinex import CodeObservations
 from distnav.models.gnss.rinex_obs import ProgressCallback
@@ -261,6 +260,30 @@ class DatumSeries:
         return float(np.sqrt((self.variance_factor or 1.0) * self.correlation_inflation))
 
 
+@dataclass(frozen=True, eq=False)
+class _DatumRows:
+    """An S-transformation prepared once per estimable pattern: :func:`in_datum` without re-masking ``T``."""
+
+    Tz: np.ndarray
+    bad: np.ndarray
+
+    @classmethod
+    def of(cls, T: np.ndarray) -> _DatumRows:
+        return cls(np.where(np.isfinite(T), T, 0.0), ~np.isfinite(T).all(axis=1))
+
+    def apply(self, x: np.ndarray, P: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """``in_datum(T, x, P)`` (the diagonal by a product and a row sum: equal to rounding)."""
+        val = self.Tz @ np.where(np.isfinite(x), x, 0.0)
+        if P is None:
+            sd = np.full(val.shape, np.nan)
+        else:
+            Pz = np.where(np.isfinite(P), P, 0.0)
+            sd = np.sqrt(np.maximum(((self.Tz @ Pz) * self.Tz).sum(axis=1), 0.0))   # diag(T P Tᵀ)
+        val[self.bad] = np.nan
+        sd[self.bad] = np.nan
+        return val, sd
+
+
 class _Collector:
     def __init__(self, label: str, T: int, n_tec: int, q: int) -> None:
         self.label = label
@@ -269,7 +292,7 @@ class _Collector:
         self.zt: np.ndarray | None = None       # (nodes, S) epoch of the last standardized residual
         self.zv: np.ndarray | None = None       # (nodes, S) its value
         self.zz = self.zlag = 0.0
-        self.T_cache: dict[bytes, np.ndarray] = {}
+        self.T_cache: dict[bytes, tuple[np.ndarray, _DatumRows]] = {}
         self.last: tuple[np.ndarray, np.ndarray, float] | None = None   # T, P, scale of the last epoch
         self.n_states = 0
         self.prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -285,14 +308,15 @@ class _Collector:
         if P is not None:
             self.tec_std[t] = np.where(est[:nt], np.sqrt(np.maximum(np.diag(P)[:nt], 0.0)), np.nan)
         key = est.tobytes()
-        T = self.T_cache.get(key)
-        if T is None:
+        cached = self.T_cache.get(key)
+        if cached is None:
             try:
                 T = datum_transform(layout, datum, estimable=est, pivot=pivot, reference=reference)
             except ModelError:
                 return
-            self.T_cache[key] = T
-        v, s = in_datum(T, x, P)
+            cached = self.T_cache[key] = (T, _DatumRows.of(T))
+        T, rows = cached
+        v, s = rows.apply(x, P)
         self.dsb[t] = -v / scale
         self.dsb_std[t] = s / scale
         if P is not None:
@@ -308,17 +332,24 @@ class _Collector:
             xp, ep, Pp = self.prev
             A, w = series.design(t, nodes)
             y = series._y[t, nodes] if series._y is not None else np.zeros(w.shape)
-            rows = (w > 0) & ~((np.abs(A) > 0) & ~ep[None, None, :]).any(axis=2)
+            inest = np.flatnonzero(~ep)
+            rows = w > 0
+            if inest.size:                                   # no coefficient on an inestimable parameter
+                rows &= ~(A.take(inest, axis=2) != 0).any(axis=2)
             if rows.any():
-                Pm = np.where(np.outer(ep, ep), Pp, 0.0) + dynamics.noise_cov_at(t)
-                xz = np.where(ep, xp, 0.0)
                 kk, ss = np.nonzero(rows)                    # all observations of all nodes together
                 Ar = A[kk, ss]
-                v = y[kk, ss] - Ar @ xz
-                Qv = np.diag(1.0 / w[kk, ss]) + Ar @ Pm @ Ar.T
+                used = np.flatnonzero(Ar.any(axis=0))        # the parameters observed (all estimable)
+                Ar = Ar[:, used]
+                grid = np.ix_(used, used)
+                Pm = Pp[grid] + dynamics.noise_cov_at(t)[grid]
+                v = y[kk, ss] - Ar @ xp[used]
+                Qv = Ar @ Pm @ Ar.T
+                dq = np.arange(kk.size)
+                Qv[dq, dq] += 1.0 / w[kk, ss]                # R + A P⁻ Aᵀ
                 self.ssr += float(v @ np.linalg.solve(Qv, v))
                 self.m += int(kk.size)
-                z = v / np.sqrt(np.diag(Qv))
+                z = v / np.sqrt(Qv[dq, dq])
                 if self.zt is None or self.zv is None:
                     self.zt = np.full((series.n_nodes, series.n_satellites), -2, np.int64)
                     self.zv = np.zeros((series.n_nodes, series.n_satellites))

@@ -1,0 +1,94 @@
+"""The filter stage's shortcuts (issue 14, time target) against the general forms they replace.
+
+Each shortcut must give exactly what the general computation gives: the system noise placed by its selected
+rows/columns vs ``H S̃ Hᵀ``, the single-filter pseudo-inverse vs the grouped batch path, the node-subset design
+rows vs building them for those nodes alone, and the cheap node-id check still rejecting bad ids.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from distnav.algorithms.kalman import DynamicModel, pseudo_inverse_psd
+from distnav.errors import ModelError
+from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
+
+
+def test_noise_cov_by_selection_equals_product() -> None:
+    p, sel = 7, [1, 4, 5]
+    H = np.eye(p)[:, sel]
+    rng = np.random.default_rng(0)
+    m = rng.standard_normal((3, 3))
+    St = m @ m.T + np.eye(3)
+    dyn = DynamicModel(p, noise_map=H, noise_reduced_cov=St)
+    assert dyn.noise_selection_at(1) is not None
+    np.testing.assert_array_equal(dyn.noise_cov_at(1), H @ dyn.noise_factor_at(1)[1] @ H.T)
+    # a general (non-selection) map keeps the product
+    G = rng.standard_normal((p, 2))
+    dyn2 = DynamicModel(p, noise_map=G, noise_reduced_cov=np.eye(2))
+    assert dyn2.noise_selection_at(1) is None
+    np.testing.assert_array_equal(dyn2.noise_cov_at(1), G @ np.eye(2) @ G.T)
+
+
+@pytest.mark.parametrize("singular", [False, True])
+def test_single_filter_pseudo_inverse_equals_batched_path(singular: bool) -> None:
+    rng = np.random.default_rng(1)
+    p = 6
+    a = rng.standard_normal((4 if singular else 9, p))
+    info = a.T @ a
+    info[2, :] = info[:, 2] = 0.0               # never observed: dropped before the inverse
+    inv1, est1 = pseudo_inverse_psd(info[None])
+    # the same matrix twice, with a second row that has another unseen pattern: the grouped path
+    other = info.copy()
+    other[4, :] = other[:, 4] = 0.0
+    inv2, est2 = pseudo_inverse_psd(np.stack([info, other]))
+    np.testing.assert_array_equal(inv1[0], inv2[0])
+    np.testing.assert_array_equal(est1[0], est2[0])
+    assert not est1[0, 2]
+    assert (est1[0].sum() < p - 1) if singular else (est1[0].sum() == p - 1)   # rank 4 of 5 seen: a null space
+    if not singular:
+        seen = np.r_[0:2, 3:p]
+        np.testing.assert_allclose(inv1[0][np.ix_(seen, seen)], np.linalg.inv(info[np.ix_(seen, seen)]),
+                                   rtol=1e-10, atol=1e-12)
+
+
+def _series(seed: int) -> BiasGeometryFreeSeries:
+    rng = np.random.default_rng(seed)
+    T, n, S = 5, 3, 6
+    lay = BiasStateLayout(tuple(f"G{k:02d}" for k in range(S)), ("A", "B", "C"), n_ionospheres=2,
+                          reference="B")
+    coef = rng.standard_normal((T, n, S, 3))
+    sig = rng.uniform(0.2, 1.0, (T, n, S))
+    tracked = rng.random((T, n, S)) > 0.3
+    obs = rng.standard_normal((T, n, S))
+    return BiasGeometryFreeSeries(lay, coef, sig, obs_m=obs, tracked=tracked, groups=np.array([0, 1, 1]))
+
+
+def test_subset_design_equals_design_built_for_those_nodes() -> None:
+    ser = _series(2)
+    for t in range(ser.n_epochs):
+        A_all, w_all = ser.design(t)
+        for nodes in ([0], [2], [1, 2], [2, 0]):
+            fresh = _series(2)                  # nothing cached: built for these nodes directly
+            A, w = fresh.design(t, np.array(nodes))
+            np.testing.assert_array_equal(A, A_all[nodes])
+            np.testing.assert_array_equal(w, w_all[nodes])
+            N, r = fresh.normals(t, np.array(nodes))
+            Aw = A_all[nodes] * w_all[nodes][..., None]
+            np.testing.assert_allclose(N, np.swapaxes(Aw, 1, 2) @ A_all[nodes], rtol=1e-14, atol=1e-14)
+        # node C (ionosphere 1): its TEC coefficients in columns 3–5, none in ionosphere 0's; its own bias column
+        A, w = ser.design(t, np.array([2]))
+        on = w[0] > 0
+        assert np.all(A[0, :, 0:3] == 0.0)
+        np.testing.assert_array_equal(A[0, on, 3:6], ser._a[t, 2][on])
+        np.testing.assert_array_equal(A[0, :, ser.layout.receiver_column()[2]], on.astype(float))
+
+
+def test_node_id_fast_path_still_rejects_bad_ids() -> None:
+    ser = _series(3)
+    with pytest.raises(ModelError, match="0..2"):
+        ser.node_ids(np.array([0, 3], np.int64))
+    with pytest.raises(ModelError, match="0..2"):
+        ser.node_ids(np.array([-1], np.int64))
+    np.testing.assert_array_equal(ser.node_ids(np.array([2, 0], np.int64)), [2, 0])
