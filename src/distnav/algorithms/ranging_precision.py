@@ -112,8 +112,10 @@ def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, ex
     ``estimates_m``: the anchors' estimates of themselves ``(n_anchors, dim)`` (a distributed solver's
     ``result.estimates``); each block reads only its own rows and learns its neighbours' positions by one
     broadcast. ``objective`` / ``sigma_m`` / ``loss`` / ``loss_scale_m`` as the solver that produced them.
-    ``rounds``: at most this many rounds of block messages; they stop early (an allreduce, monitoring only) when
-    no σ changed by more than ``rtol`` relative.
+    ``rounds``: at most this many rounds of block messages; they stop early when no σ changed by more than
+    ``rtol`` relative (a one-float max allreduce per round, like the solvers' :class:`~distnav.algorithms.csg.
+    StopRule`; ``rtol=0`` runs all ``rounds``). ``precision.iterations`` counts the message rounds including the
+    broadcast of the positions.
     """
     if objective not in ("metres", "squared"):
         raise ModelError(f"objective must be 'metres' or 'squared', got {objective!r}")
