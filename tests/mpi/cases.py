@@ -326,3 +326,20 @@ def consensus_on_graph_parts(backend: str) -> dict[str, np.ndarray]:
     return {"estimates": ex.gather_nodes(x), "bcast_sum": ex.gather_nodes(bcast), "edge_sum": ex.gather_nodes(edge),
             "sent": comm_totals.messages_sent, "received": comm_totals.messages_received,
             "per_round": comm_totals.messages_per_round}
+
+
+@case
+def ncsg_neighbourhood_precision(backend: str) -> dict[str, np.ndarray]:
+    """The node-local "neighbourhood" precision (block broadcasts) at an N-CSG-TBLS solution."""
+    from distnav.algorithms.csg import solve_ncsg
+    from distnav.algorithms.ranging_precision import neighbourhood_precision
+
+    problem = _uwb_problem()
+    res = solve_ncsg(problem, line_search="TBLS", iterations=40, objective="metres", sigma_m=0.15, quality=False,
+                     exchange=make_exchange(problem.graph, backend=backend))
+    out = neighbourhood_precision(problem, res.estimates, exchange=make_exchange(problem.graph, backend=backend),
+                                  objective="metres", sigma_m=0.15, rounds=6)
+    assert out.precision.comm is not None
+    return {"covariance": out.precision.covariance, "conditional": out.conditional,
+            "variance_factor_nodes": np.nan_to_num(out.variance_factor_nodes, nan=-1.0),
+            "bytes": out.precision.comm.bytes_sent}

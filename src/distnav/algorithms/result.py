@@ -78,7 +78,9 @@ class Precision:
     redundancy : number of observations minus the number of estimable parameters (m − rank A).
     kind : ``"exact"`` (equal to the centralized value up to the stopping tolerance), ``"bound"`` (a stated upper
         bound, never optimistic), ``"centralized"`` (computed at one place) or ``"conditional"`` (each node's
-        covariance with its neighbours held at their estimates: a lower bound, optimistic, and said so).
+        covariance with its neighbours held at their estimates: a lower bound, optimistic, and said so) or
+        ``"neighbourhood"`` (each node's covariance with its neighbours' errors propagated through its links from
+        their own blocks, :mod:`distnav.algorithms.ranging_precision`: an approximation, neither bound).
     iterations : message rounds or iterations spent on the precision (beyond those of the estimate).
     comm : the messages and bytes they cost (``None`` for centralized values).
     """
@@ -86,7 +88,7 @@ class Precision:
     covariance: np.ndarray
     variance_factor: float | None
     redundancy: float
-    kind: Literal["exact", "bound", "centralized", "conditional"]
+    kind: Literal["exact", "bound", "centralized", "conditional", "neighbourhood"]
     iterations: int = 0
     comm: CommTotals | None = None
 
