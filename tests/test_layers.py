@@ -2,7 +2,7 @@
 
 network → exchange → algorithms → models → experiments | commands → cli: a module may import its own layer and the
 layers below it, never a layer above or beside (experiments and commands do not import each other). The utilities
-(errors, _optional, typing) sit below everything; ``output`` (file writing, figures) and ``options`` (checked
+(errors, _optional, _sparse, typing) sit below everything; ``output`` (file writing, figures) and ``options`` (checked
 CLI option types) are for experiments, commands and the CLI only.
 """
 
@@ -15,8 +15,9 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "distnav"
 
-RANK = {"errors": 0, "_optional": 0.5, "typing": 0.5, "network": 1, "exchange": 2, "algorithms": 3, "models": 4,
-        "output": 4.5, "options": 4.5, "experiments": 5, "commands": 5, "cli": 6, "__main__": 7, "__init__": 7}
+RANK = {"errors": 0, "_optional": 0.5, "_sparse": 0.5, "typing": 0.5, "network": 1, "exchange": 2,
+        "algorithms": 3, "models": 4, "output": 4.5, "options": 4.5, "experiments": 5, "commands": 5, "cli": 6,
+        "__main__": 7, "__init__": 7}
 # ``import distnav`` / ``from distnav import __version__``: the package root only re-exports distnav.errors
 
 

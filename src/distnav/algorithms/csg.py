@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from distnav._sparse import csr_times
 from distnav.algorithms.line_search_pair import iterate_line_search_pair
 from distnav.algorithms.neighbourhood import (
     IterationState,
@@ -44,7 +45,6 @@ from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.ranging_objective import range_sigma
 from distnav.algorithms.ranging_qc import TEST_SCALES, local_quality
 from distnav.algorithms.result import ObservationTests, Precision, SolverStatus, Trace
-from distnav.algorithms.sparse_kernels import csr_times
 from distnav.algorithms.statistics import critical_value, variance_factor
 from distnav.errors import ModelError
 from distnav.exchange import Exchange

@@ -39,11 +39,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from distnav._sparse import csr_times
 from distnav.algorithms.local_lm import LocalLM
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale
 from distnav.algorithms.ranging import RangingData
 from distnav.algorithms.ranging_objective import range_sigma
-from distnav.algorithms.sparse_kernels import csr_times
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.weights import ConsensusWeights, consensus_weights

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from distnav._optional import lazy
+from distnav._sparse import csr_times
 from distnav.errors import ExchangeError
 from distnav.exchange._arrays import _flat, _masked_count, _segment_matrix
 
@@ -68,29 +69,6 @@ def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray,
 _CSR_CHUNK = 1 << 18  # edges per pass when the mixer's block is written (a few MB of temporaries)
 
 
-_KERNELS: list[Any] = []  # scipy's CSR (matvec, matvecs), looked up at the first product (not at import)
-
-
-def _csr_product(m: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
-    """``m @ x`` (float CSR; float64 vector or ``(n, k)`` array) by scipy's kernel, without the ``@`` dispatch
-    (≈ 8 µs a call, a fifth of a 10³-node round)."""
-    if not _KERNELS:  # (None, None) on other scipy layouts: then the public operator
-        st = getattr(sp, "_sparsetools", None)
-        _KERNELS.extend((getattr(st, "csr_matvec", None), getattr(st, "csr_matvecs", None)))
-    _MATVEC, _MATVECS = _KERNELS
-    if _MATVEC is None or m.dtype != np.float64 or x.dtype != np.float64:
-        return np.asarray(m @ x)
-    x = np.ascontiguousarray(x)
-    rows, cols = m.shape
-    if x.ndim == 1 or x.shape[1] == 1:  # one column: the single-vector kernel (as scipy's ``@`` does)
-        out = np.zeros(rows if x.ndim == 1 else (rows, 1))
-        _MATVEC(rows, cols, m.indptr, m.indices, m.data, x.ravel(), out.ravel())
-    else:
-        out = np.zeros((rows, x.shape[1]))
-        _MATVECS(rows, cols, x.shape[1], m.indptr, m.indices, m.data, x.ravel(), out.ravel())
-    return out
-
-
 class Mixer:
     """A prepared consensus round ``x_i ← w_ii x_i + Σ_{j∈N_i} w_ij x_j`` on an exchange.
 
@@ -139,7 +117,7 @@ class Mixer:
         msg_bytes = flat.shape[1] * flat.itemsize
         if self._w_full is not None:
             ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
-            out = _csr_product(self._w_full, cols.ravel() if x.ndim == 1 else cols)
+            out = csr_times(self._w_full, cols.ravel() if x.ndim == 1 else cols)
             return out.reshape(x.shape)
         # fault round: the prepared edge matrix with its lost entries zeroed for the product, lost weight to the
         # self-weight (the lost messages are a tenth of the edges: counters and lost weight are summed over them
@@ -156,7 +134,7 @@ class Mixer:
         lost = np.bincount(lost_dst, weights=lost_w, minlength=ex.n_local)
         m.data[lost_e] = lost_w * 0.0  # w·0 as a masked product would hold it
         try:
-            out = _csr_product(m, cols)
+            out = csr_times(m, cols)
         finally:
             m.data[lost_e] = lost_w
         out += (self._self_w + lost)[:, None] * flat
