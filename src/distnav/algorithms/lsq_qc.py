@@ -42,7 +42,6 @@ from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, w_statistics
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
-from distnav.exchange.base import CommTotals
 from distnav.network.constraint_nodes import ConstraintNodes, ConstraintNodeSpec
 from distnav.network.graph import Graph
 from distnav.typing import ArrayLike, BoolArray, FloatArray
@@ -67,19 +66,6 @@ class _NormalXUpdate:
         return X.reshape(-1, self.p * self.k)
 
 
-def _snapshot(ex: Exchange) -> CommTotals:
-    """The exchange's totals so far, copied (the in-process counters are updated in place)."""
-    t = ex.comm_totals()
-    return CommTotals(t.rounds, t.messages_sent.copy(), t.bytes_sent.copy(), t.messages_received.copy(),
-                      t.bytes_received.copy(), t.messages_per_round.copy(), t.bytes_per_round.copy())
-
-
-def _since(after: CommTotals, before: CommTotals) -> CommTotals:
-    """The communication between two snapshots of one exchange's totals."""
-    return CommTotals(after.rounds - before.rounds, after.messages_sent - before.messages_sent,
-                      after.bytes_sent - before.bytes_sent, after.messages_received - before.messages_received,
-                      after.bytes_received - before.bytes_received, after.messages_per_round[before.rounds:],
-                      after.bytes_per_round[before.rounds:])
 
 
 def _normal_run(ex: Exchange, C: ConstraintNodes, N: FloatArray, B: FloatArray, W: FloatArray,
@@ -146,7 +132,7 @@ def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, 
     Wm = weight_matrix(W, p)
     C = driver.constraint_nodes_for(graph, constraint_nodes)
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
-    before = _snapshot(ex)
+    before = ex.comm_totals().snapshot()
     nodes = ex.nodes
     local = problem.subset(nodes)
     act = _active_rows(problem, active)[nodes]
@@ -170,7 +156,7 @@ def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, 
     Q = 0.5 * (Q + np.swapaxes(Q, 1, 2))
     precision = Precision(covariance=Q, variance_factor=None if not np.isfinite(vf[0]) else float(vf[0]),
                           redundancy=float(redundancy[0]), kind="exact",
-                          iterations=sums.iterations + cov.iterations, comm=_since(ex.comm_totals(), before))
+                          iterations=sums.iterations + cov.iterations, comm=ex.comm_totals().since(before))
     return PrecisionRun(precision=precision, covariance_run=cov, sums_run=sums, variance_factor_nodes=vf)
 
 
@@ -251,7 +237,7 @@ def admm_data_snooping(problem: LinearProblem, graph: Graph, *, level: float = 0
     prec = admm_precision(prob, graph, est.estimates, W=W, constraint_nodes=C, active=act, exchange=ex,
                           max_iterations=max_iterations, tol=tol, atol=atol)
     first_iterations = est.iterations + prec.precision.iterations
-    after_first = _snapshot(ex)
+    after_first = ex.comm_totals().snapshot()
     removed: list[int] = []
     extra_iterations = 0
     nodes = ex.nodes
@@ -288,7 +274,7 @@ def admm_data_snooping(problem: LinearProblem, graph: Graph, *, level: float = 0
     owner = np.repeat(np.arange(problem.n_nodes), problem.rows)
     tests = ObservationTests(node=owner, w=flat, critical_value=k_crit, level=level,
                              flagged=np.nan_to_num(np.abs(flat)) > k_crit, removed=tuple(removed),
-                             iterations=extra_iterations, comm=_since(ex.comm_totals(), after_first))
+                             iterations=extra_iterations, comm=ex.comm_totals().since(after_first))
     msg = (f"data snooping: {len(removed)} observation(s) removed, {extra_iterations} extra iterations after the "
            f"first solution ({first_iterations} for estimate and precision); {est.message}")
     return dataclasses.replace(est, precision=prec.precision, tests=tests, message=msg, comm=ex.comm_totals())

@@ -46,11 +46,11 @@ from distnav.algorithms.neighbourhood import exchange_for, half_measurements
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale
 from distnav.algorithms.ranging import RangingData
 from distnav.algorithms.ranging_objective import range_sigma
+from distnav.algorithms.ranging_qc import free_block_inverses
 from distnav.algorithms.result import Precision
 from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
-from distnav.exchange.base import CommTotals
 
 __all__ = ["NeighbourhoodPrecision", "neighbourhood_precision"]
 
@@ -81,28 +81,6 @@ class NeighbourhoodPrecision:
         return np.asarray(s)
 
 
-def _comm_since(before: CommTotals, after: CommTotals) -> CommTotals:
-    return CommTotals(rounds=after.rounds - before.rounds,
-                      messages_sent=after.messages_sent - before.messages_sent,
-                      bytes_sent=after.bytes_sent - before.bytes_sent,
-                      messages_received=after.messages_received - before.messages_received,
-                      bytes_received=after.bytes_received - before.bytes_received,
-                      messages_per_round=after.messages_per_round[before.messages_per_round.size:],
-                      bytes_per_round=after.bytes_per_round[before.bytes_per_round.size:])
-
-
-def _inverse_blocks(info: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """``N_i⁻¹`` on each anchor's free coordinates (zeros elsewhere; inf where ``N_i`` is singular)."""
-    cov = np.zeros_like(info)
-    for li in np.flatnonzero(free.any(axis=1)):
-        f = free[li]
-        try:
-            cov[li][np.ix_(f, f)] = np.linalg.inv(info[li][np.ix_(f, f)])
-        except np.linalg.LinAlgError:
-            cov[li][np.ix_(f, f)] = np.inf
-    return cov
-
-
 def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, exchange: Exchange | None = None,
                             objective: str = "metres", sigma_m: float | np.ndarray = 1.0, loss: str = "linear",
                             loss_scale_m: float = 0.3, rounds: int = 20, rtol: float = 1e-3
@@ -127,10 +105,7 @@ def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, ex
     if est.shape != (problem.n_anchors, problem.dim):
         raise ModelError(f"estimates must have shape ({problem.n_anchors}, {problem.dim}), got {est.shape}")
     ex = exchange_for(problem, exchange)
-    t0 = ex.comm_totals()  # copies: an in-process exchange may hand out its live counters
-    before = CommTotals(t0.rounds, *(np.array(a, copy=True) for a in (
-        t0.messages_sent, t0.bytes_sent, t0.messages_received, t0.bytes_received, t0.messages_per_round,
-        t0.bytes_per_round)))
+    before = ex.comm_totals().snapshot()
     dim, n, nl = problem.dim, problem.n_anchors, ex.n_local
     own = est[ex.nodes]
     if not np.all(np.isfinite(own)):
@@ -164,7 +139,7 @@ def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, ex
     cross = np.zeros((pos_in.values.shape[0], dim, dim))  # O_ij per in-edge (i = receiver, j = sender)
     np.add.at(cross, pos, -w[:, None, None] * j_own[:, :, None] * j_oth[:, None, :])
     free = problem.free[ex.nodes]
-    cond = _inverse_blocks(info, free)
+    cond = free_block_inverses(info, free)
     # local variance factor from the anchor's share of its links
     share = np.where(problem.fixed[other], 1.0, 0.5)
     wssr_i = np.bincount(owner, share * w * r * r, minlength=nl)
@@ -195,6 +170,6 @@ def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, ex
     m_red = float(max(problem.n_meas - problem.n_free, 0))
     precision = Precision(covariance=ex.gather_nodes(cov), variance_factor=variance_factor(wssr, m_red),
                           redundancy=m_red, kind="neighbourhood", iterations=done + 1,
-                          comm=_comm_since(before, ex.comm_totals()))
+                          comm=ex.comm_totals().since(before))
     return NeighbourhoodPrecision(precision=precision, variance_factor_nodes=ex.gather_nodes(vf_i),
                                   conditional=ex.gather_nodes(cond), change=change)

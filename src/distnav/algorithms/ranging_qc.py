@@ -40,7 +40,7 @@ from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, variance_factor, w_statistics
 from distnav.errors import ModelError
 
-__all__ = ["TEST_SCALES", "centralized_quality", "exclude_links", "local_quality", "robust_scale"]
+__all__ = ["TEST_SCALES", "centralized_quality", "exclude_links", "free_block_inverses", "local_quality", "robust_scale"]
 
 log = logging.getLogger(__name__)
 TEST_SCALES = ("robust", "a-priori")
@@ -128,6 +128,19 @@ def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual:
     return precision, tests, Q
 
 
+def free_block_inverses(info: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """``N_i⁻¹`` of every anchor's ``dim × dim`` information block on its free coordinates (zeros elsewhere; inf
+    where the block is singular): the conditional covariance each anchor computes from its own links."""
+    cov = np.zeros_like(info)
+    for li in np.flatnonzero(free.any(axis=1)):  # small blocks, the free coordinates only
+        f = free[li]
+        try:
+            cov[li][np.ix_(f, f)] = np.linalg.inv(info[li][np.ix_(f, f)])
+        except np.linalg.LinAlgError:
+            cov[li][np.ix_(f, f)] = np.inf
+    return cov
+
+
 def local_quality(range_m: np.ndarray, owner: np.ndarray, owner_free: np.ndarray, own_m: np.ndarray,
                   other_m: np.ndarray, sigma: np.ndarray, n_local: int, kind: str, *, loss: str = "linear",
                   loss_scale: np.ndarray | float = 1.0, scale: str = "robust"
@@ -157,13 +170,7 @@ def local_quality(range_m: np.ndarray, owner: np.ndarray, owner_free: np.ndarray
     np.add.at(info, owner, weight[:, None, None] * j[:, :, None] * j[:, None, :])
     free = np.zeros((n_local, dim), bool)
     free[owner] = owner_free
-    cov = np.zeros((n_local, dim, dim))
-    for li in np.flatnonzero(free.any(axis=1)):  # small dim × dim blocks, the free coordinates only
-        f = free[li]
-        try:
-            cov[li][np.ix_(f, f)] = np.linalg.inv(info[li][np.ix_(f, f)])
-        except np.linalg.LinAlgError:
-            cov[li][np.ix_(f, f)] = np.inf
+    cov = free_block_inverses(info, free)
     with np.errstate(invalid="ignore"):
         h = np.einsum("li,lij,lj->l", j, cov[owner], j)
     q = np.where(np.isfinite(h), np.maximum(1.0 - weight * h, 0.0), 0.0)

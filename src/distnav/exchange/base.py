@@ -87,6 +87,19 @@ class CommTotals:
             "max_bytes_per_node": int(self.bytes_sent.max()) if self.bytes_sent.size else 0,
         }
 
+    def snapshot(self) -> CommTotals:
+        """A copy of these totals (an in-process exchange hands out its live counters, updated in place)."""
+        return CommTotals(self.rounds, self.messages_sent.copy(), self.bytes_sent.copy(),
+                          self.messages_received.copy(), self.bytes_received.copy(),
+                          self.messages_per_round.copy(), self.bytes_per_round.copy())
+
+    def since(self, before: CommTotals) -> CommTotals:
+        """The communication between ``before`` (an earlier :meth:`snapshot` of the same exchange) and these."""
+        return CommTotals(self.rounds - before.rounds, self.messages_sent - before.messages_sent,
+                          self.bytes_sent - before.bytes_sent, self.messages_received - before.messages_received,
+                          self.bytes_received - before.bytes_received, self.messages_per_round[before.rounds:],
+                          self.bytes_per_round[before.rounds:])
+
     @staticmethod
     def empty(n_nodes: int) -> CommTotals:
         z = np.zeros(n_nodes, np.int64)
