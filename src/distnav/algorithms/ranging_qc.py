@@ -40,7 +40,8 @@ from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, variance_factor, w_statistics
 from distnav.errors import ModelError
 
-__all__ = ["TEST_SCALES", "centralized_quality", "exclude_links", "free_block_inverses", "local_quality", "robust_scale"]
+__all__ = ["TEST_SCALES", "centralized_quality", "exclude_links", "free_block_inverses", "local_quality",
+           "robust_scale"]
 
 log = logging.getLogger(__name__)
 TEST_SCALES = ("robust", "a-priori")
