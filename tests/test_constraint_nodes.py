@@ -208,6 +208,31 @@ def test_approximation_reports_the_lp_bound():
     assert unused_links(g, c.nodes).shape == (0, 2)
 
 
+@pytest.mark.parametrize("n, degree, seed", [(20, 8, 0), (57, 8, 1), (200, 8, 2), (1001, 8, 3), (1001, 12, 4)])
+def test_matching_bound_is_below_the_lp_bound_and_equal_when_it_says_so(n, degree, seed):
+    """The linear-time bound (greedy matching + triangle augmentations in the double cover) against the exact LP
+    bound of scipy's Hopcroft–Karp matching: never above it, and equal where it claims to be the LP bound."""
+    from distnav.network.constraint_nodes import _maximal_matching, lp_lower_bound, matching_lower_bound
+
+    g = builders.connected_random_geometric(n, mean_degree=degree, rng=np.random.default_rng(seed))
+    matching = _maximal_matching(g)
+    bound, is_lp = matching_lower_bound(g, matching)
+    lp = lp_lower_bound(g)
+    assert matching.shape[0] <= bound <= lp
+    assert is_lp == (bound == -(-n // 2)) and (not is_lp or bound == lp)
+
+
+def test_the_cover_states_which_lower_bound_it_reports(monkeypatch):
+    from distnav.network import constraint_nodes as cn
+
+    g = builders.ring(41)  # no triangles: the matching bound stays at |M| + 0 < ⌈n/2⌉
+    assert cn.matching_lower_bound(g, cn._maximal_matching(g))[1] is False
+    assert minimum_vertex_cover(g, method="approx")[3].endswith("lower bound: LP relaxation")
+    monkeypatch.setattr(cn, "LP_BOUND_MAX_LINKS", 10)  # too large for the exact LP: the cheaper bound, said so
+    nodes, optimal, lower, used = minimum_vertex_cover(g, method="approx")
+    assert used.endswith("the LP relaxation not computed: too large)") and lower == 20 <= nodes.size
+
+
 def test_overlap_groups_equal_those_of_the_neighbourhood_product():
     """(18)-2 groups via the linear bipartite construction = components of A[C] A[:, C] (the definition)."""
     from scipy.sparse.csgraph import connected_components

@@ -77,7 +77,7 @@ class XUpdate:
                     acc_b, A_b, Aw_b = acc[a:a + 2048], self.A[a:a + 2048], Aw[a:a + 2048]
                     for j in range(p):
                         acc_b += Aw_b[:, :, j, None] * A_b[:, None, :, j]
-                S = problem.R + acc
+                S = np.add(acc, problem.R, out=acc)  # R + acc in place (the same sums: + commutes)
                 WinvAt = np.swapaxes(Aw, 1, 2)
             self.G = WinvAt @ np.linalg.inv(S)
         else:
@@ -197,7 +197,8 @@ class _Kernel:
         # Per-pair arrays hold one row per pair in this order (in-edge order: grouped by receiver, senders
         # ascending), and the two message rounds are prepared routes on these compact arrays. The masks are the
         # graph's per-edge ones read at the block's edges (no per-edge sender/receiver ids needed).
-        self.ip = np.flatnonzero(self.from_c[ex.in_edges])
+        self.z_route = ex.route(self.from_c)  # step 2: z_s to the pairs (i, s), on in-edge rows ascending
+        self.ip = self.z_route.in_rows
         self.pair_dst = ex.in_dst[self.ip]
         n_pairs = self.ip.size
         self.count = np.bincount(self.pair_dst, minlength=nl) + self.inC_loc  # c_i = |N_i ∩ C|
@@ -210,7 +211,6 @@ class _Kernel:
             raise ModelError("pair edges are not symmetric in this exchange block")
         send_rows = np.empty(n_pairs, dtype=np.int64)
         send_rows[op_pair] = op  # the out-edge row of each pair, in pair order: z_{i,s} is sent as it is computed
-        self.z_route = ex.route(self.from_c, in_rows=self.ip)  # step 2: z_s to the pairs (i, s)
         self.x_route = ex.route(self.to_c, out_rows=send_rows)  # step 1: z_{i,s} to the constraint nodes
         self.S_pairs = _rows_in_order(self.pair_dst, nl)
         self._u: tuple[np.ndarray, np.ndarray] | None = None

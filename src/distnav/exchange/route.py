@@ -59,7 +59,14 @@ class Route:
         ex = exchange
         self.exchange = ex
         self.active = np.asarray(active, bool)
-        self._act_out, self._act_in = ex._active_slices(self.active)
+        if ex._moves_rows_in_place and ex.out_edges is ex.in_edges:  # in-process: one edge order, one mask
+            if self.active.shape != (ex.n_edges,):
+                raise ExchangeError(f"active must be a mask over the {ex.n_edges} directed edges, got "
+                                    f"{self.active.shape}")
+            self._act_in = self.active[ex.in_edges] & ex._real_in
+            self._act_out = self._act_in
+        else:
+            self._act_out, self._act_in = ex._active_slices(self.active)
         self.out_rows = _rows_or_default(out_rows, self._act_out, "out_rows")
         self._in_place = ex._moves_rows_in_place and in_rows is None and out_rows is not None
         if self._in_place:  # in-process: the message on out-edge row r arrives on in-edge row r
