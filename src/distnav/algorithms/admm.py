@@ -41,7 +41,7 @@ reference (all in :mod:`distnav.algorithms.admm_nonlinear`, re-exported here). T
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Unpack
+from typing import TYPE_CHECKING, Any, Unpack
 
 import numpy as np
 
@@ -55,20 +55,35 @@ from distnav.algorithms.admm_driver import (
     prepare,
 )
 from distnav.algorithms.admm_kernel import AdmmState, XUpdate, XUpdateMethod
-from distnav.algorithms.admm_nonlinear import (
-    LinearizedAdmmResult,
-    NonlinearModel,
-    NonlinearProblem,
-    RangeModel,
-    admm_linearized,
-    admm_nonlinear,
-    gauss_newton,
-    range_positioning_problem,
-)
 from distnav.algorithms.lsq import LinearProblem
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
+
+if TYPE_CHECKING:
+    from distnav.algorithms.admm_nonlinear import (
+        LinearizedAdmmResult,
+        NonlinearModel,
+        NonlinearProblem,
+        RangeModel,
+        admm_linearized,
+        admm_nonlinear,
+        gauss_newton,
+        range_positioning_problem,
+    )
+
+_NONLINEAR = frozenset({"LinearizedAdmmResult", "NonlinearModel", "NonlinearProblem", "RangeModel", "admm_linearized",
+                        "admm_nonlinear", "gauss_newton", "range_positioning_problem"})
+
+
+def __getattr__(name: str) -> Any:
+    """The nonlinear variants, re-exported from :mod:`distnav.algorithms.admm_nonlinear` on first use (PEP 562): an
+    MPI job of the linear kernel does not import them at start-up."""
+    if name in _NONLINEAR:
+        from distnav.algorithms import admm_nonlinear as module
+
+        return getattr(module, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "AdmmOptions",

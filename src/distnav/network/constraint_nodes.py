@@ -37,7 +37,6 @@ constraint node at either end: they carry no ADMM message (Fig. 5 right: ``C = {
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
@@ -54,7 +53,6 @@ if TYPE_CHECKING:
 else:  # imported on first use (start-up of an MPI job)
     sp = lazy("scipy.sparse")
 
-logger = logging.getLogger(__name__)
 
 __all__ = [
     "lp_lower_bound",
@@ -414,8 +412,10 @@ def minimum_vertex_cover(graph: Graph, *, method: Literal["auto", "exact", "appr
         if method == "exact":
             raise GraphError(f"the exact vertex cover did not finish in {time_limit_s} s ({res.message}); "
                              f"use method='approx'")
-        logger.warning("exact vertex cover not proven within %.3g s on %d nodes; using the best cover found",
-                       time_limit_s, n)
+        import logging  # only here: an MPI job's start-up does not import logging for this module
+
+        logging.getLogger(__name__).warning(
+            "exact vertex cover not proven within %.3g s on %d nodes; using the best cover found", time_limit_s, n)
         if res.x is not None:
             incumbent = np.flatnonzero(res.x > 0.5).astype(np.int64)
         bound = getattr(res, "mip_dual_bound", None)

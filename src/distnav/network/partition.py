@@ -24,13 +24,16 @@ without any negotiation.
 from __future__ import annotations
 
 import os
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from distnav.errors import ExchangeError
 from distnav.network.graph import Graph
 from distnav.network.graph_part import GraphPart
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 __all__ = ["LOCALITY_MIN_NODES", "locality_order", "partition_nodes", "rcm_order", "read_partition",
            "space_filling_order", "write_partition"]
@@ -112,6 +115,8 @@ def locality_order(graph: Graph, method: str | np.ndarray = "auto") -> np.ndarra
 
 def write_partition(path: str | os.PathLike[str], owner: np.ndarray) -> Path:
     """Write an owner array (rank of every node): ``.npy`` binary, anything else as text, one rank per line."""
+    from pathlib import Path  # here, not at import (the start-up of an MPI job)
+
     out = Path(path)
     arr = np.asarray(owner, dtype=np.int64)
     if out.suffix == ".npy":
@@ -124,6 +129,8 @@ def write_partition(path: str | os.PathLike[str], owner: np.ndarray) -> Path:
 
 def read_partition(path: str | os.PathLike[str], n_nodes: int, n_ranks: int) -> np.ndarray:
     """Read an owner array written by :func:`write_partition` (or any tool) and check it against the run."""
+    from pathlib import Path
+
     src = Path(path)
     if not src.is_file():
         raise ExchangeError(f"partition file {src} does not exist")
