@@ -72,12 +72,8 @@ class XUpdate:
             else:  # W⁻¹ diagonal (W = ρI): A_i W_i⁻¹ A_iᵀ term by term in the einsum's order, ~10× faster
                 w = w_diag[0][None, :] / c[:, None]  # (n, p): the diagonal of W_i⁻¹
                 Aw = self.A * w[:, None, :]  # (n, m, p)
-                acc = np.zeros((n, m, m))
-                for a in range(0, n, 2048):  # blocks of nodes whose sums stay in cache over the p terms
-                    acc_b, A_b, Aw_b = acc[a:a + 2048], self.A[a:a + 2048], Aw[a:a + 2048]
-                    for j in range(p):
-                        acc_b += Aw_b[:, :, j, None] * A_b[:, None, :, j]
-                S = np.add(acc, problem.R, out=acc)  # R + acc in place (the same sums: + commutes)
+                S = _sum_outer_products(Aw, self.A)
+                np.add(S, problem.R, out=S)  # R + acc in place (the same sums: + commutes)
                 WinvAt = np.swapaxes(Aw, 1, 2)
             self.G = WinvAt @ np.linalg.inv(S)
         else:
@@ -95,6 +91,28 @@ class XUpdate:
         res = self.y - (self.A @ l[..., None])[..., 0]
         x = l + (self.G @ res[..., None])[..., 0]
         return x
+
+
+def _sum_outer_products(X: np.ndarray, Y: np.ndarray, block: int = 1024) -> np.ndarray:
+    """``S[i, a, b] = Σ_j X[i, a, j] Y[i, b, j]`` for stacks ``(n, m, p)``, term by term from ``+0`` in ``j`` order
+    (bitwise the sums of ``einsum("nmp,nkp->nmk")`` written as a loop over ``j``). Each block of nodes is turned
+    node-last (``(p, m, block)``, in cache) so every product and sum runs over a contiguous node axis instead of
+    ``m``-long rows."""
+    n, m, p = X.shape
+    out = np.empty((n, m, m))
+    acc = np.empty((m, m, min(block, n)))
+    prod = np.empty_like(acc)
+    for a in range(0, n, block):
+        k = min(block, n - a)
+        Xb = np.ascontiguousarray(X[a:a + k].transpose(2, 1, 0))  # (p, m, k)
+        Yb = np.ascontiguousarray(Y[a:a + k].transpose(2, 1, 0))
+        acc_b, prod_b = acc[:, :, :k], prod[:, :, :k]
+        acc_b.fill(0.0)
+        for j in range(p):
+            np.multiply(Xb[j][:, None, :], Yb[j][None, :, :], out=prod_b)
+            acc_b += prod_b
+        out[a:a + k] = acc_b.transpose(2, 0, 1)
+    return out
 
 
 def _diagonal_or_none(M: np.ndarray) -> np.ndarray | None:
