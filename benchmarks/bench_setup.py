@@ -108,7 +108,8 @@ def setup_rows(sizes: tuple[int, ...], repeat: int = 3) -> list[dict[str, Any]]:
             "load_1min": os.getloadavg()[0],
             "note": (f"CPU s; cover {best['cover']:.3g} + exchange {best['exchange']:.3g} + kernel "
                      f"{best['kernel']:.3g} + first state {best['first']:.3g}; wall {min(w for w, _ in walls):.3g} s; "
-                     f"cover {C.size:,} ≤ {C.ratio_bound or 1:.2f}× the minimum; load {os.getloadavg()[0]:.1f}"),
+                     f"cover {C.size:,} ≤ {C.ratio_bound or 1:.2f}× the minimum (lower bound {C.lower_bound or 0:,}: "
+                     f"{C.method.partition('lower bound: ')[2] or C.method}); load {os.getloadavg()[0]:.1f}"),
         })
     return rows
 
