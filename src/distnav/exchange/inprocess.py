@@ -45,7 +45,9 @@ class InProcessExchange(Exchange):
             position = np.empty(graph.n_nodes, dtype=idx)
             position[self.nodes] = np.arange(graph.n_nodes, dtype=idx)
             e = incoming_edges(graph, self.nodes).astype(idx)
-            self.in_dst = position[graph.dst[e]]
+            # grouped by receiver in the local order: the k-th group's receiver is local row k (no gather needed)
+            in_degree = np.diff(graph.in_ptr)[self.nodes]
+            self.in_dst = np.repeat(np.arange(graph.n_nodes, dtype=idx), in_degree)
             self.in_src_col = position[graph.src[e]]
             self.out_src = self.in_src_col
             del position
