@@ -246,7 +246,7 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "sigma_m": opts.sigma_m,
         "variance_factor": None if prec is None else prec.variance_factor,
         "delay_sigma_m_considered": opts.delay_sigma_m if opts.considers_delays else None,
-        "precision_kind": None if prec is None else prec.kind,
+        "precision_kind": sol.precision_kind,
         "test_level": opts.level,
         "critical_value": sol.critical_value,
         "n_flagged": int(sol.flagged.sum()),
@@ -271,7 +271,9 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "initial_guess": init_source,
         "communication": {
             "distributed": {"solver": opts.solver.upper(), "messages": sol.messages, "bytes": sol.bytes,
-                            "note": "every re-solve of the exclusion loop included" if opts.solver.upper() != "LM"
+                            "precision_messages": sol.precision_messages, "precision_bytes": sol.precision_bytes,
+                            "note": "every re-solve of the exclusion loop and the precision included"
+                            if opts.solver.upper() != "LM"
                             else "LM is centralized: it needs the ranges gathered (below)"},
             "gather_at_one_anchor": gather,
         },
@@ -338,10 +340,9 @@ def _plot(path: Path, sol: FieldSolution) -> None:
     e = p.estimated
     ax.plot(est[e, 0], est[e, 1], "o", color="tab:blue", ms=4, label="estimated", zorder=3)
     ax.plot(est[~e, 0], est[~e, 1], "^", color="k", ms=8, label="known", zorder=4)
-    prec = getattr(sol.result, "precision", None)
     scale = 0.0
-    if prec is not None:
-        cov = prec.covariance[:, :2, :2] * (prec.variance_factor or 1.0)
+    if sol.covariance_m2 is not None:
+        cov = sol.covariance_m2[:, :2, :2]
         sig = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2), 0.0))
         span = float(np.ptp(est[:, :2], axis=0).max())
         scale = max(1.0, round(0.03 * span / max(float(sig[e].max(initial=0.0)), 1e-9)))  # ellipses visible
