@@ -17,6 +17,9 @@
 * LM in metres: the robust fit of every link from several starts (the lowest cost wins) before the exclusions;
   exclusions that fit all the links much worse are rejected; ``--delay-sigma-m`` (default 0.015 m) widens the
   reported σ by the antenna delays left after the common offset (:mod:`distnav.models.uwb.precision`).
+* The distributed solvers' σ are node-local: every anchor's 2-hop sub-network covariance, with the delays
+  considered there (:mod:`distnav.algorithms.ranging_precision`; ``summary.json`` names the kind and counts its
+  messages).
 
 Outputs in OUT_DIR: ``positions.csv`` (every anchor), ``summary.json`` and ``positions.png``.
 """
@@ -94,8 +97,8 @@ def register(subparsers: Any) -> None:
                    help="prior σ of each per-anchor offset (m, default 0.1)")
     s.add_argument("--delay-sigma-m", type=float, default=DELAY_SIGMA_M,
                    help="σ (m) of each anchor's antenna delay left after the common offset, admitted in the "
-                        f"reported σ without estimating it (LM, offsets auto/none/common; default {DELAY_SIGMA_M}, "
-                        "0 = off)")
+                        f"reported σ without estimating it (metres objective, offsets auto/none/common; LM and "
+                        f"the distributed solvers; default {DELAY_SIGMA_M}, 0 = off)")
     s.add_argument("--allow-planar-3d", action="store_true",
                    help="solve a nearly planar network in 3-D with free heights anyway (refused by default)")
     s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")

@@ -53,6 +53,7 @@ START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins;
 DELAY_SIGMA_M = 0.015  # Monte Carlo over 4 × 100 simulated halls (docs/uwb.md, "Precision")
 MULTI_START_MAX_ANCHORS = 200  # larger networks: the prepared start only (each extra start is a full LM fit)
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
+PRECISION_HOPS = 2  # distributed σ: each anchor's 2-hop sub-network (docs/uwb.md, "Per-anchor precision")
 
 
 @dataclass(frozen=True)
@@ -80,9 +81,10 @@ class FieldOptions:
 
     @property
     def considers_delays(self) -> bool:
-        """Whether σ admit the per-anchor delays (:mod:`distnav.models.uwb.precision`): LM in metres, delays not
-        estimated (``range_offsets`` none or common), ``delay_sigma_m`` > 0."""
-        return (self.delay_sigma_m > 0 and self.solver.upper() == "LM" and self.objective == "metres"
+        """Whether σ admit the per-anchor delays: the metres objective, delays not estimated (``range_offsets``
+        none or common), ``delay_sigma_m`` > 0 — LM by :mod:`distnav.models.uwb.precision`, the distributed solvers
+        (metres) over each anchor's 2-hop sub-network (:mod:`distnav.algorithms.ranging_precision`)."""
+        return (self.delay_sigma_m > 0 and self.objective == "metres" and supports_objective(self.solver)
                 and self.offsets_used in ("none", "common"))
     solver_options: dict[str, Any] = field(default_factory=dict)
 
@@ -434,8 +436,9 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
     LM: its central ``σ̂² (JᵀWJ)⁻¹`` (kind ``"centralized"``), with the antenna delays considered where
     ``opts.considers_delays`` (:mod:`distnav.models.uwb.precision`). The distributed solvers: the node-local
     **neighbourhood** precision (:func:`distnav.algorithms.ranging_precision.neighbourhood_precision`, through the
-    exchange; its messages counted), × the a-posteriori variance factor; the solvers' own conditional ``N_i⁻¹``
-    (a lower bound) is used only if that fails, and the note says so."""
+    exchange, its messages counted) over every anchor's :data:`PRECISION_HOPS`-hop sub-network, a-posteriori
+    with the sub-network's own variance factor, the delays considered there too; the solvers' own conditional
+    ``N_i⁻¹`` (a lower bound) is used only if that fails, and the note says so."""
     nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
     prec = res.precision
     kept = subset_measurements(problem, ~excluded)
@@ -444,15 +447,16 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
             out = neighbourhood_precision(kept, np.asarray(res.estimates, float),
                                           exchange=None if exchange is None else exchange(kept), objective=objective,
                                           sigma_m=opts.sigma_m, loss="linear" if opts.solver.upper() == "CSG"
-                                          else opts.loss, loss_scale_m=opts.loss_scale_m)
+                                          else opts.loss, loss_scale_m=opts.loss_scale_m, hops=PRECISION_HOPS,
+                                          delay_sigma_m=opts.delay_sigma_m if opts.considers_delays
+                                          and objective == "metres" else 0.0)
         except ModelError as err:
             note = f"; neighbourhood precision failed ({err}): σ are the conditional ones (a lower bound)"
         else:
-            np_ = out.precision
-            vf = np_.variance_factor if np_.variance_factor is not None else 1.0
-            comm = np_.comm
-            return AnchorPrecision(sigma_m=np.where(problem.free, np_.std() * np.sqrt(vf), 0.0),
-                                   covariance_m2=np_.covariance * vf, kind=np_.kind,
+            comm = out.precision.comm
+            cov = out.covariance(a_posteriori=True)
+            return AnchorPrecision(sigma_m=np.where(problem.free, out.std(a_posteriori=True), 0.0),
+                                   covariance_m2=cov, kind=out.precision.kind,
                                    messages=0 if comm is None else int(comm.messages),
                                    bytes=0 if comm is None else int(comm.bytes))
     else:
