@@ -250,7 +250,8 @@ def _subnetwork(problem: RangingData, ex: Exchange, hops: int, cov: np.ndarray, 
                            np.where(nb.delivered[:, None], nb.values, np.nan)], axis=1)
     rows = np.full((nl, 1 + k_max * width), -1.0)
     rows[:, 0] = ex.nodes
-    slot = np.arange(n_in) - np.searchsorted(nb.dst, nb.dst, side="left")  # in-edges are grouped by receiver
+    starts = np.flatnonzero(np.r_[True, nb.dst[1:] != nb.dst[:-1]]) if n_in else np.zeros(0, np.int64)
+    slot = np.arange(n_in) - np.repeat(starts, np.diff(np.r_[starts, n_in]))  # in-edges grouped by receiver
     flat = rows[:, 1:].reshape(nl, k_max, width)
     flat[nb.dst, slot] = link
     rows[:, 1:] = flat.reshape(nl, -1)
