@@ -196,7 +196,8 @@ def test_default_range_offsets_resolve_per_solver():
     assert FieldOptions().considers_delays  # LM, metres, common offset: the delays left are considered in σ
     assert not FieldOptions(delay_sigma_m=0.0).considers_delays
     assert not FieldOptions(range_offsets="per_anchor").considers_delays  # estimated instead
-    assert not FieldOptions(solver="N-CLM").considers_delays
+    assert FieldOptions(solver="N-CLM").considers_delays  # over each anchor's 2-hop sub-network (uwb8)
+    assert not FieldOptions(solver="N-CLM", objective="squared").considers_delays
 
 
 def test_default_sigma_is_calibrated_on_plant_like_halls_with_antenna_delays():

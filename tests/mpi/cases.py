@@ -339,7 +339,11 @@ def ncsg_neighbourhood_precision(backend: str) -> dict[str, np.ndarray]:
                      exchange=make_exchange(problem.graph, backend=backend))
     out = neighbourhood_precision(problem, res.estimates, exchange=make_exchange(problem.graph, backend=backend),
                                   objective="metres", sigma_m=0.15, rounds=6)
-    assert out.precision.comm is not None
+    ball = neighbourhood_precision(problem, res.estimates, exchange=make_exchange(problem.graph, backend=backend),
+                                   objective="metres", sigma_m=0.15, rounds=6, hops=2, delay_sigma_m=0.015)
+    assert out.precision.comm is not None and ball.precision.comm is not None
     return {"covariance": out.precision.covariance, "conditional": out.conditional,
             "variance_factor_nodes": np.nan_to_num(out.variance_factor_nodes, nan=-1.0),
-            "bytes": out.precision.comm.bytes_sent}
+            "bytes": out.precision.comm.bytes_sent, "subnetwork_covariance": ball.covariance(a_posteriori=True),
+            "subnetwork_factor": np.nan_to_num(ball.variance_factor_nodes, nan=-1.0),
+            "subnetwork_bytes": ball.precision.comm.bytes_sent}

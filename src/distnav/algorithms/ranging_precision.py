@@ -28,6 +28,28 @@ neighbours of its own in common with ``i`` counts ``i``'s own noise again. Monte
 "Per-anchor precision". Linearized at the anchors' own estimates with the final weights of the solver's loss
 (fixed IRLS weights, as :func:`~distnav.algorithms.ranging_qc.local_quality`).
 
+**k-hop sub-network** (``hops`` = 1 or 2; ``uwb solve`` uses 2). The same identity holds for any split of the
+anchors into ``S`` and the rest ``R``: with ``N_SS`` the principal block of ``S`` (its anchors' own blocks and the
+cross terms among them) and ``N_SR`` the cross terms of the links leaving ``S``,
+
+    ``Q_SS = N_SS⁻¹ + N_SS⁻¹ N_SR Q_RR N_RS N_SS⁻¹``   (exact; ``N_SR`` couples ``S`` only to its *ring*).
+
+Anchor ``i`` takes ``S`` = the free anchors within ``hops`` hops and replaces ``Q_RR`` of the ring by its
+anchors' neighbourhood blocks ``⊕_v Σ_v`` (a consider covariance of the ring, Bierman 1977 ch. VI): the
+cross-covariances *inside* ``S`` are now carried exactly, only those among the ring are dropped. It learns
+``N_SS`` and ``N_SR`` from link records ``[v, u, c, Σ w r², samples, Σ_v]`` (``c u uᵀ`` is the link's
+information) relayed over ``hops`` rounds of messages (padded to the largest degree). Where ``S`` spans the
+network (every anchor within ``hops`` of every other) it is LM's ``(JᵀWJ)⁻¹`` block (tested). Its variance
+factor is the local one's over ``S``'s links (a link into the ring counts ½), which is the global ``σ̂²`` where
+``S`` spans the network.
+
+**Antenna delays considered** (``delay_sigma_m``): as :mod:`distnav.models.uwb.precision` does for LM (Tapley,
+Schutz & Born 2004 §6.4), over ``S``: a delay ``δ_k`` shifts ``JᵀWr`` by ``c u`` at both ends of each of
+``k``'s links (``G_S``), so the estimate by ``−N_SS⁻¹ G_S δ`` and ``C_i = s_i² Q_ii + σ_δ² B_i B_iᵀ`` with
+``B = N_SS⁻¹ G_S`` and ``s_i²`` the sub-network's factor less the delays' share ``σ_δ² (tr GᵀWG − tr G_Sᵀ
+N_SS⁻¹ G_S) / redundancy``. It omits the delays' effect through the ring; where ``S`` spans the network it is
+LM's consider covariance (tested).
+
 **Local variance factor.** Each anchor scales its σ by ``σ̂_i² = Σ_l s_l w_l r_l² / (Σ_l s_l − p_i)`` over its own
 links, with ``s_l = ½`` for a link to an estimated anchor (the other half is the neighbour's) and 1 to a known one,
 ``p_i`` its free coordinates (the shares sum to the global ``m − n``). It is robust only through the loss's
@@ -41,6 +63,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg as sla
 
 from distnav.algorithms.neighbourhood import exchange_for, half_measurements
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale
@@ -56,6 +79,7 @@ __all__ = ["NeighbourhoodPrecision", "neighbourhood_precision"]
 
 log = logging.getLogger(__name__)
 VARIANCE_FLOOR = 1.0 / 16.0
+MIN_NOISE_SHARE = 0.1  # as distnav.models.uwb.precision: the noise keeps at least this share of σ̂²
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -72,19 +96,30 @@ class NeighbourhoodPrecision:
     variance_factor_nodes: np.ndarray
     conditional: np.ndarray
     change: float
+    delay_covariance: np.ndarray | None = None
+    noise_factor_nodes: np.ndarray | None = None
+
+    def covariance(self, *, a_posteriori: bool = False) -> np.ndarray:
+        """Every anchor's covariance ``(n_anchors, dim, dim)``: the noise part (a-posteriori: × its own ``σ̂_i²``,
+        less the delays' share where they are considered) plus the considered delays' part, if any."""
+        cov = self.precision.covariance
+        if a_posteriori:
+            vf = self.variance_factor_nodes if self.noise_factor_nodes is None else self.noise_factor_nodes
+            cov = cov * np.nan_to_num(vf, nan=1.0)[:, None, None]
+        if self.delay_covariance is not None:
+            cov = cov + self.delay_covariance
+        return np.asarray(cov)
 
     def std(self, *, a_posteriori: bool = False) -> np.ndarray:
-        """σ per anchor and axis ``(n_anchors, dim)``; a-posteriori: × every anchor's own ``σ̂_i``."""
-        s = self.precision.std()
-        if a_posteriori:
-            s = s * np.sqrt(np.nan_to_num(self.variance_factor_nodes, nan=1.0))[:, None]
-        return np.asarray(s)
+        """σ per anchor and axis ``(n_anchors, dim)`` from :meth:`covariance`."""
+        cov = self.covariance(a_posteriori=a_posteriori)
+        return np.asarray(np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)))
 
 
 def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, exchange: Exchange | None = None,
                             objective: str = "metres", sigma_m: float | np.ndarray = 1.0, loss: str = "linear",
-                            loss_scale_m: float = 0.3, rounds: int = 20, rtol: float = 1e-3
-                            ) -> NeighbourhoodPrecision:
+                            loss_scale_m: float = 0.3, rounds: int = 20, rtol: float = 1e-3, hops: int = 0,
+                            delay_sigma_m: float = 0.0) -> NeighbourhoodPrecision:
     """Every anchor's covariance from its own links and its neighbours' blocks (module docstring).
 
     ``estimates_m``: the anchors' estimates of themselves ``(n_anchors, dim)`` (a distributed solver's
@@ -93,8 +128,15 @@ def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, ex
     ``rounds``: at most this many rounds of block messages; they stop early when no σ changed by more than
     ``rtol`` relative (a one-float max allreduce per round, like the solvers' :class:`~distnav.algorithms.csg.
     StopRule`; ``rtol=0`` runs all ``rounds``). ``precision.iterations`` counts the message rounds including the
-    broadcast of the positions.
+    broadcast of the positions. ``hops`` ≥ 1: then the **k-hop sub-network** covariance (module docstring) from
+    one more broadcast of the blocks and ``hops`` relay rounds of link records (kind ``"neighbourhood"`` still;
+    ``variance_factor_nodes`` then from the sub-network's links). ``delay_sigma_m`` > 0 (with ``hops`` ≥ 1):
+    per-anchor antenna delays of that σ are *considered* over the sub-network (module docstring).
     """
+    if hops not in (0, 1, 2):
+        raise ModelError(f"hops must be 0, 1 or 2, got {hops}")
+    if not (np.isfinite(delay_sigma_m) and delay_sigma_m >= 0) or (delay_sigma_m > 0 and not hops):
+        raise ModelError(f"delay_sigma_m must be ≥ 0 m (and needs hops ≥ 1), got {delay_sigma_m}")
     if objective not in ("metres", "squared"):
         raise ModelError(f"objective must be 'metres' or 'squared', got {objective!r}")
     if loss not in LOSSES:
@@ -166,10 +208,163 @@ def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, ex
             done += 1
     if change > rtol:
         log.info("neighbourhood precision: σ still changing by %.3g after %d rounds", change, done)
+    delay_cov = noise_f = None
+    if hops:
+        cov, vf_i, delay_cov, noise_f = _subnetwork(problem, ex, hops, cov, cond, pos, pos_in.values.shape[0],
+                                                    j_own, w, r, free, delay_sigma_m)
+        done += 1 + hops
     wssr = float(ex.allreduce(float(np.sum(w * r * r)), "sum")) / 2.0  # every sample is held twice
     m_red = float(max(problem.n_meas - problem.n_free, 0))
     precision = Precision(covariance=ex.gather_nodes(cov), variance_factor=variance_factor(wssr, m_red),
                           redundancy=m_red, kind="neighbourhood", iterations=done + 1,
                           comm=ex.comm_totals().since(before))
     return NeighbourhoodPrecision(precision=precision, variance_factor_nodes=ex.gather_nodes(vf_i),
-                                  conditional=ex.gather_nodes(cond), change=change)
+                                  conditional=ex.gather_nodes(cond), change=change,
+                                  delay_covariance=None if delay_cov is None else ex.gather_nodes(delay_cov),
+                                  noise_factor_nodes=None if noise_f is None else ex.gather_nodes(noise_f))
+
+
+def _subnetwork(problem: RangingData, ex: Exchange, hops: int, cov: np.ndarray, cond: np.ndarray, pos: np.ndarray,
+                n_in: int, j_own: np.ndarray, w: np.ndarray, r: np.ndarray, free: np.ndarray, delay_sigma_m: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The k-hop sub-network covariance and variance factor of every local anchor (module docstring).
+
+    Link record of in-edge (i ← v), held by i: ``[v, u (dim), c, Σ w r², samples, Σ_v (dim²)]`` with ``c u uᵀ``
+    the link's information (``u`` the unit direction of the own-end Jacobian row, ``c = Σ_s w_s ‖j_s‖²``). One
+    broadcast of the final ``Σ`` (so the records carry the neighbours' blocks), then round 1: every anchor
+    broadcasts ``[id, its K records]`` (``K`` = the largest degree, padded with id −1), round 2 (``hops = 2``):
+    it relays the ``K`` rows it received. ``(n_in, …)`` arrays follow the in-edges of ``ex``."""
+    dim, nl, n = problem.dim, ex.n_local, problem.n_anchors
+    bsz = dim * dim
+    k_max = int(problem.graph.degrees.max(initial=0))
+    nb = ex.broadcast(cov.reshape(nl, bsz))  # every anchor's final Σ to its neighbours
+    norm2 = np.einsum("hd,hd->h", j_own, j_own)
+    c_in = np.bincount(pos, w * norm2, minlength=n_in)
+    wr2_in = np.bincount(pos, w * r * r, minlength=n_in)
+    cnt_in = np.bincount(pos, minlength=n_in).astype(float)
+    u_in = np.zeros((n_in, dim))
+    nz = norm2 > 0
+    u_in[pos[nz]] = j_own[nz] / np.sqrt(norm2[nz])[:, None]  # same direction for every sample of a pair
+    width = 4 + dim + bsz
+    link = np.concatenate([nb.src[:, None].astype(float), u_in, c_in[:, None], wr2_in[:, None], cnt_in[:, None],
+                           np.where(nb.delivered[:, None], nb.values, np.nan)], axis=1)
+    rows = np.full((nl, 1 + k_max * width), -1.0)
+    rows[:, 0] = ex.nodes
+    starts = np.flatnonzero(np.r_[True, nb.dst[1:] != nb.dst[:-1]]) if n_in else np.zeros(0, np.int64)
+    slot = np.arange(n_in) - np.repeat(starts, np.diff(np.r_[starts, n_in]))  # in-edges grouped by receiver
+    flat = rows[:, 1:].reshape(nl, k_max, width)
+    flat[nb.dst, slot] = link
+    rows[:, 1:] = flat.reshape(nl, -1)
+    known: list[list[np.ndarray]] = [[rows[li]] for li in range(nl)]
+    first = ex.broadcast(rows)
+    for e in np.flatnonzero(first.delivered):
+        known[first.dst[e]].append(first.values[e])
+    if hops == 2:
+        relay = np.full((nl, k_max, rows.shape[1]), -1.0)
+        relay[first.dst, slot] = np.where(first.delivered[:, None], first.values, -1.0)
+        second = ex.broadcast(relay.reshape(nl, -1))
+        for e in np.flatnonzero(second.delivered):
+            known[second.dst[e]].extend(second.values[e].reshape(k_max, -1))
+    out = cov.copy()
+    vf = np.full(nl, np.nan)
+    delay = np.zeros_like(cov) if delay_sigma_m > 0 else None
+    noise = np.full(nl, np.nan) if delay_sigma_m > 0 else None
+    for li in np.flatnonzero(free.any(axis=1)):
+        ball = _solve_ball(problem, int(ex.nodes[li]), known[li], k_max, width, cond[li], n, delay_sigma_m)
+        out[li], vf[li] = ball[0], ball[1]
+        if delay is not None and noise is not None:
+            delay[li], noise[li] = ball[2], ball[3]
+    return out, vf, delay, noise
+
+
+def _solve_ball(problem: RangingData, me: int, records: list[np.ndarray], k_max: int, width: int,
+                cond: np.ndarray, n: int, delay_sigma_m: float = 0.0
+                ) -> tuple[np.ndarray, float, np.ndarray, float]:
+    """Anchor ``me``'s block of ``Q_SS = N_SS⁻¹ + N_SS⁻¹ N_SR (⊕_v Σ_v) N_RS N_SS⁻¹`` over the anchors whose link
+    records it holds (``S``, free ones), the ring ``R`` behind their links considered with its blocks ``Σ_v``,
+    and the variance factor of the sub-network's links (shares as the local one); with ``delay_sigma_m`` the
+    delays' covariance ``σ_δ² B_i B_iᵀ`` (``B = N_SS⁻¹ G_S``) and the noise factor less the delays' share. Falls
+    back to ``cond`` (no delay term) where the sub-network's normal matrix is singular."""
+    dim = problem.dim
+    free = problem.free
+    recs: dict[int, np.ndarray] = {}
+    for row in records:
+        k = int(row[0])
+        if k >= 0 and k not in recs and free[k].any():
+            recs[k] = row[1:].reshape(k_max, width)
+    ball = sorted(recs)
+    col = np.full((n, dim), -1, np.int64)  # column of every free coordinate of the ball
+    cnt = 0
+    for k in ball:
+        f = np.flatnonzero(free[k])
+        col[k, f] = cnt + np.arange(f.size)
+        cnt += f.size
+    nss = np.zeros((cnt, cnt))
+    ring: dict[int, list[tuple[int, np.ndarray]]] = {}  # ring anchor -> (ball anchor, its O_uv)
+    g_cols: dict[int, np.ndarray] = {}  # ∂(JᵀW r)/∂δ_k over the ball's coordinates: c u at both ends' delays
+    trace_g = 0.0
+    sigma_ring: dict[int, np.ndarray] = {}
+    wssr = share_sum = 0.0
+    for u in ball:
+        lk = recs[u]
+        lk = lk[lk[:, 0] >= 0]
+        cu = col[u][free[u]]
+        for row in lk:
+            v = int(row[0])
+            d_u = row[1:1 + dim] * free[u]
+            c = float(row[1 + dim])
+            info = c * np.outer(d_u, row[1:1 + dim])  # c u uᵀ, rows of u's free coordinates
+            nss[np.ix_(cu, cu)] += info[np.ix_(free[u], free[u])]
+            if not free[v].any():
+                sh = 1.0
+            elif v in recs:
+                sh = 0.5  # counted from both ends
+                cv = col[v][free[v]]
+                nss[np.ix_(cu, cv)] -= info[np.ix_(free[u], free[v])]
+            else:
+                sh = 0.5
+                ring.setdefault(v, []).append((u, info))
+                sigma_ring.setdefault(v, row[4 + dim:].reshape(dim, dim))
+            wssr += sh * float(row[2 + dim])
+            share_sum += sh * float(row[3 + dim])
+            if delay_sigma_m > 0:
+                g = np.zeros(cnt)
+                g[cu] = c * row[1:1 + dim][free[u]]
+                for k in (u, v):
+                    g_cols[k] = g_cols[k] + g if k in g_cols else g.copy()
+                trace_g += sh * 2.0 * c
+    red = share_sum - cnt
+    vf = max(wssr / red, VARIANCE_FLOOR) if red > 0 else 1.0
+    nss = 0.5 * (nss + nss.T)
+    mine = col[me][free[me]]
+    zero = np.zeros((dim, dim))
+    try:
+        fac = sla.cho_factor(nss, check_finite=True)
+    except (np.linalg.LinAlgError, ValueError):
+        return cond, vf, zero, vf
+    rhs = np.zeros((cnt, mine.size))
+    rhs[mine, np.arange(mine.size)] = 1.0
+    x = sla.cho_solve(fac, rhs).T  # rows of N_SS⁻¹ for my coordinates
+    q = x[:, mine].copy()
+    for v, parts in ring.items():
+        m_v = np.zeros((cnt, dim))  # N_SR column block of v: −c u_u u_vᵀ over its ball partners
+        for u, info in parts:
+            cu = col[u][free[u]]
+            m_v[cu] -= info[free[u]] * free[v]
+        xm = x @ m_v
+        sig = sigma_ring[v]
+        if not np.all(np.isfinite(sig)):
+            return cond, vf, zero, vf
+        q += xm @ sig @ xm.T
+    f = free[me]
+    out = zero.copy()
+    out[np.ix_(f, f)] = 0.5 * (q + q.T)
+    if delay_sigma_m <= 0 or not g_cols:
+        return out, vf, zero, vf
+    g_s = np.column_stack([g_cols[k] for k in sorted(g_cols)])
+    b = sla.cho_solve(fac, g_s)  # N_SS⁻¹ G_S: the ball's coordinates moved by each delay
+    delay = zero.copy()
+    b_me = b[mine]
+    delay[np.ix_(f, f)] = delay_sigma_m**2 * (b_me @ b_me.T)
+    share = delay_sigma_m**2 * (trace_g - float(np.sum(g_s * b))) / red if red > 0 else 0.0
+    return out, vf, delay, max(vf - share, MIN_NOISE_SHARE * vf)

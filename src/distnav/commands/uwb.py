@@ -17,6 +17,9 @@
 * LM in metres: the robust fit of every link from several starts (the lowest cost wins) before the exclusions;
   exclusions that fit all the links much worse are rejected; ``--delay-sigma-m`` (default 0.015 m) widens the
   reported σ by the antenna delays left after the common offset (:mod:`distnav.models.uwb.precision`).
+* The distributed solvers' σ are node-local: every anchor's 2-hop sub-network covariance, with the delays
+  considered there (:mod:`distnav.algorithms.ranging_precision`; ``summary.json`` names the kind and counts its
+  messages).
 
 Outputs in OUT_DIR: ``positions.csv`` (every anchor), ``summary.json`` and ``positions.png``.
 """
@@ -94,8 +97,8 @@ def register(subparsers: Any) -> None:
                    help="prior σ of each per-anchor offset (m, default 0.1)")
     s.add_argument("--delay-sigma-m", type=float, default=DELAY_SIGMA_M,
                    help="σ (m) of each anchor's antenna delay left after the common offset, admitted in the "
-                        f"reported σ without estimating it (LM, offsets auto/none/common; default {DELAY_SIGMA_M}, "
-                        "0 = off)")
+                        f"reported σ without estimating it (metres objective, offsets auto/none/common; LM and "
+                        f"the distributed solvers; default {DELAY_SIGMA_M}, 0 = off)")
     s.add_argument("--allow-planar-3d", action="store_true",
                    help="solve a nearly planar network in 3-D with free heights anyway (refused by default)")
     s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")
@@ -246,7 +249,7 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "sigma_m": opts.sigma_m,
         "variance_factor": None if prec is None else prec.variance_factor,
         "delay_sigma_m_considered": opts.delay_sigma_m if opts.considers_delays else None,
-        "precision_kind": None if prec is None else prec.kind,
+        "precision_kind": sol.precision_kind,
         "test_level": opts.level,
         "critical_value": sol.critical_value,
         "n_flagged": int(sol.flagged.sum()),
@@ -271,7 +274,9 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "initial_guess": init_source,
         "communication": {
             "distributed": {"solver": opts.solver.upper(), "messages": sol.messages, "bytes": sol.bytes,
-                            "note": "every re-solve of the exclusion loop included" if opts.solver.upper() != "LM"
+                            "precision_messages": sol.precision_messages, "precision_bytes": sol.precision_bytes,
+                            "note": "every re-solve of the exclusion loop and the precision included"
+                            if opts.solver.upper() != "LM"
                             else "LM is centralized: it needs the ranges gathered (below)"},
             "gather_at_one_anchor": gather,
         },
@@ -338,10 +343,9 @@ def _plot(path: Path, sol: FieldSolution) -> None:
     e = p.estimated
     ax.plot(est[e, 0], est[e, 1], "o", color="tab:blue", ms=4, label="estimated", zorder=3)
     ax.plot(est[~e, 0], est[~e, 1], "^", color="k", ms=8, label="known", zorder=4)
-    prec = getattr(sol.result, "precision", None)
     scale = 0.0
-    if prec is not None:
-        cov = prec.covariance[:, :2, :2] * (prec.variance_factor or 1.0)
+    if sol.covariance_m2 is not None:
+        cov = sol.covariance_m2[:, :2, :2]
         sig = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2), 0.0))
         span = float(np.ptp(est[:, :2], axis=0).max())
         scale = max(1.0, round(0.03 * span / max(float(sig[e].max(initial=0.0)), 1e-9)))  # ellipses visible

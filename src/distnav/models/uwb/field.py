@@ -32,6 +32,7 @@ from scipy.sparse.csgraph import shortest_path
 
 from distnav.algorithms import csg
 from distnav.algorithms.nlsq import single_threaded_blas, solve_lm
+from distnav.algorithms.ranging_precision import neighbourhood_precision
 from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
@@ -42,7 +43,7 @@ from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray
 
 __all__ = ["FieldOptions", "FieldSolution", "prepare", "solve_field", "gather_cost", "RANGE_RECORD_BYTES",
-           "supports_objective", "subset_measurements"]
+           "supports_objective", "subset_measurements", "anchor_precision", "AnchorPrecision"]
 
 RANGE_RECORD_BYTES = 16  # two int32 anchor ids + one float64 range
 POSITION_BYTES = 8
@@ -52,6 +53,7 @@ START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins;
 DELAY_SIGMA_M = 0.015  # Monte Carlo over 4 × 100 simulated halls (docs/uwb.md, "Precision")
 MULTI_START_MAX_ANCHORS = 200  # larger networks: the prepared start only (each extra start is a full LM fit)
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
+PRECISION_HOPS = 2  # distributed σ: each anchor's 2-hop sub-network (docs/uwb.md, "Per-anchor precision")
 
 
 @dataclass(frozen=True)
@@ -79,9 +81,10 @@ class FieldOptions:
 
     @property
     def considers_delays(self) -> bool:
-        """Whether σ admit the per-anchor delays (:mod:`distnav.models.uwb.precision`): LM in metres, delays not
-        estimated (``range_offsets`` none or common), ``delay_sigma_m`` > 0."""
-        return (self.delay_sigma_m > 0 and self.solver.upper() == "LM" and self.objective == "metres"
+        """Whether σ admit the per-anchor delays: the metres objective, delays not estimated (``range_offsets``
+        none or common), ``delay_sigma_m`` > 0 — LM by :mod:`distnav.models.uwb.precision`, the distributed solvers
+        (metres) over each anchor's 2-hop sub-network (:mod:`distnav.algorithms.ranging_precision`)."""
+        return (self.delay_sigma_m > 0 and self.objective == "metres" and supports_objective(self.solver)
                 and self.offsets_used in ("none", "common"))
     solver_options: dict[str, Any] = field(default_factory=dict)
 
@@ -118,6 +121,10 @@ class FieldSolution:
     bytes: int
     critical_value: float | None
     weak: tuple[str, ...] = ()
+    covariance_m2: FloatArray | None = None  # per-anchor blocks (a-posteriori) whose diagonal gives sigma_m
+    precision_kind: str | None = None  # Precision.kind of sigma_m ("centralized", "neighbourhood", …)
+    precision_messages: int = 0  # of messages / bytes: those of the precision (distributed solvers)
+    precision_bytes: int = 0
 
     @property
     def usable(self) -> bool:
@@ -374,15 +381,11 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
                              objective_used=objective, iterations=total[0], messages=total[1], bytes=total[2],
                              critical_value=crit)
     pos = np.asarray(res.estimates, float)
-    sigma = nan_pos.copy()
-    if res.precision is not None:
-        sigma = np.where(problem.free, res.precision.std(a_posteriori=True), 0.0)
-        if opts.considers_delays:
-            considered = consider_sigma(subset_measurements(problem, ~excluded), res, sigma_m=opts.sigma_m,
-                                        offsets=opts.offsets_used, loss=opts.loss, loss_scale_m=opts.loss_scale_m,
-                                        delay_sigma_m=opts.delay_sigma_m)
-            if considered is not None:
-                sigma = considered
+    prec_out = anchor_precision(problem, res, opts, excluded, objective, exchange)
+    sigma = prec_out.sigma_m
+    total[1] += prec_out.messages
+    total[2] += prec_out.bytes
+    note += prec_out.note
     residual = problem.residuals_m(pos)
     weak = weak_anchors(problem, residual, excluded, flagged)
     if not reverted and excluded.any() and no_exclusion and no_exclusion[0].usable:
@@ -408,7 +411,66 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     return FieldSolution(problem=problem, geometry=geo, positions_m=pos, sigma_m=sigma,
                          residual_m=residual, w=w, flagged=flagged, excluded=excluded, result=res,
                          status=status, message=msg, objective_used=objective, iterations=total[0],
-                         messages=total[1], bytes=total[2], critical_value=crit, weak=weak)
+                         messages=total[1], bytes=total[2], critical_value=crit, weak=weak,
+                         covariance_m2=prec_out.covariance_m2, precision_kind=prec_out.kind,
+                         precision_messages=prec_out.messages, precision_bytes=prec_out.bytes)
+
+
+@dataclass(frozen=True, eq=False)
+class AnchorPrecision:
+    """What :func:`anchor_precision` gives ``solve_field``: σ per anchor and axis, the covariance blocks they come
+    from (a-posteriori, m²; None where unknown), the precision's kind, its messages / bytes and a note."""
+
+    sigma_m: FloatArray
+    covariance_m2: FloatArray | None
+    kind: str | None
+    messages: int = 0
+    bytes: int = 0
+    note: str = ""
+
+
+def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excluded: BoolArray, objective: str,
+                     exchange: Callable[[RangingProblem], Any] | None) -> AnchorPrecision:
+    """σ of every anchor after the solve, on the links kept (``~excluded``).
+
+    LM: its central ``σ̂² (JᵀWJ)⁻¹`` (kind ``"centralized"``), with the antenna delays considered where
+    ``opts.considers_delays`` (:mod:`distnav.models.uwb.precision`). The distributed solvers: the node-local
+    **neighbourhood** precision (:func:`distnav.algorithms.ranging_precision.neighbourhood_precision`, through the
+    exchange, its messages counted) over every anchor's :data:`PRECISION_HOPS`-hop sub-network, a-posteriori
+    with the sub-network's own variance factor, the delays considered there too; the solvers' own conditional
+    ``N_i⁻¹`` (a lower bound) is used only if that fails, and the note says so."""
+    nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
+    prec = res.precision
+    kept = subset_measurements(problem, ~excluded)
+    if opts.solver.upper() != "LM":
+        try:
+            out = neighbourhood_precision(kept, np.asarray(res.estimates, float),
+                                          exchange=None if exchange is None else exchange(kept), objective=objective,
+                                          sigma_m=opts.sigma_m, loss="linear" if opts.solver.upper() == "CSG"
+                                          else opts.loss, loss_scale_m=opts.loss_scale_m, hops=PRECISION_HOPS,
+                                          delay_sigma_m=opts.delay_sigma_m if opts.considers_delays
+                                          and objective == "metres" else 0.0)
+        except ModelError as err:
+            note = f"; neighbourhood precision failed ({err}): σ are the conditional ones (a lower bound)"
+        else:
+            comm = out.precision.comm
+            cov = out.covariance(a_posteriori=True)
+            return AnchorPrecision(sigma_m=np.where(problem.free, out.std(a_posteriori=True), 0.0),
+                                   covariance_m2=cov, kind=out.precision.kind,
+                                   messages=0 if comm is None else int(comm.messages),
+                                   bytes=0 if comm is None else int(comm.bytes))
+    else:
+        note = ""
+    if prec is None:
+        return AnchorPrecision(sigma_m=nan_pos, covariance_m2=None, kind=None, note=note)
+    vf = prec.variance_factor if prec.variance_factor is not None else 1.0
+    sigma = np.where(problem.free, prec.std(a_posteriori=True), 0.0)
+    if opts.considers_delays:
+        considered = consider_sigma(kept, res, sigma_m=opts.sigma_m, offsets=opts.offsets_used, loss=opts.loss,
+                                    loss_scale_m=opts.loss_scale_m, delay_sigma_m=opts.delay_sigma_m)
+        if considered is not None:
+            sigma = considered
+    return AnchorPrecision(sigma_m=sigma, covariance_m2=prec.covariance * vf, kind=prec.kind, note=note)
 
 
 def gather_cost(problem: RangingProblem) -> dict[str, Any]:
