@@ -225,9 +225,11 @@ def test_default_sigma_is_calibrated_on_plant_like_halls_with_antenna_delays():
 
 
 def test_a_folded_hall_is_never_worse_than_the_careful_fit_and_says_so():
-    """Plant-like hall (seed [0, 1200], corner): the MDS start is 2 m off and the robust fit of every link folds
-    (2.44 m, as the careful fit); the exclusions then made it worse (6.7 m RMSE) and are now rejected (they raise
-    the robust cost of all the links 1.8 ×). The run must not present any anchor as determined."""
+    """Plant-like hall (seed [0, 1200], corner): the MDS start is 2 m off and the symmetric Cauchy fit of every
+    link folds (2.44 m, as the careful fit; the Cauchy cost prefers the fold). With the symmetric loss
+    (``nlos_loss=False``) the exclusions made it worse (6.7 m) and are rejected, every anchor reported weak. The
+    default one-sided loss (tightened) unfolds it: below 0.5 m (the oracle: 0.26 m), and any anchor still more
+    than 0.5 m off is reported weak."""
     from distnav.experiments.uwb_field import careful_fit, hall_problem
     from distnav.models.uwb.field import FieldOptions, prepare, solve_field
     from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
@@ -235,15 +237,22 @@ def test_a_folded_hall_is_never_worse_than_the_careful_fit_and_says_so():
 
     h = simulate_hall(np.random.default_rng([0, 1200]), HallConfig().with_(known="corner", **PLANT_LIKE))
     sub, geo = prepare(hall_problem(h)[0])
+    careful = rmse_m(sub, careful_fit(sub))
+    assert careful > 2.0
     sol = solve_field(sub, FieldOptions(), geometry=geo)
-    assert rmse_m(sub, sol.positions_m) <= rmse_m(sub, careful_fit(sub)) + 1e-3  # never worse than that ...
-    assert rmse_m(sub, sol.positions_m) > 1.0  # ... but still wrong: the lowest robust cost is folded here
-    assert not sol.excluded.any() and "exclusions were rejected" in sol.message
-    old = solve_field(sub, FieldOptions(revert=False), geometry=geo)
+    assert rmse_m(sub, sol.positions_m) < 0.5 and "one-sided Cauchy loss" in sol.message
+    assert sub.truth_m is not None
+    off = np.linalg.norm(sol.positions_m - sub.truth_m, axis=1) > 0.5
+    assert off.any() and {sub.ids[i] for i in np.flatnonzero(off)} <= set(sol.weak)
+    assert sol.status == "weakly_determined"
+    sym = solve_field(sub, FieldOptions(nlos_loss=False), geometry=geo)
+    assert rmse_m(sub, sym.positions_m) <= careful + 1e-3  # never worse than the careful fit ...
+    assert rmse_m(sub, sym.positions_m) > 1.0  # ... but still wrong: the lowest symmetric Cauchy cost is folded
+    assert not sym.excluded.any() and "exclusions were rejected" in sym.message
+    old = solve_field(sub, FieldOptions(revert=False, nlos_loss=False), geometry=geo)
     assert rmse_m(sub, old.positions_m) > 5.0  # what keeping the exclusions gave
-    assert sol.status == "weakly_determined" and "every anchor reported weak" in sol.message  # ... but says so
-    assert set(sol.weak) == {sub.ids[i] for i in np.flatnonzero(sub.estimated)}
-
+    assert sym.status == "weakly_determined" and "every anchor reported weak" in sym.message  # ... but says so
+    assert set(sym.weak) == {sub.ids[i] for i in np.flatnonzero(sub.estimated)}
 
 
 def _scrambled():
@@ -269,7 +278,7 @@ def test_multi_start_finds_the_solution_a_start_in_a_wrong_basin_misses():
     from distnav.models.uwb.problems import rmse_m
 
     p = _scrambled()
-    opts = FieldOptions(range_offsets="none")
+    opts = FieldOptions(range_offsets="none", nlos_loss=False)  # the symmetric Cauchy loss: multi-start needed
     stuck = solve_lm(p, objective="metres", loss="cauchy", loss_scale_m=0.3, sigma_m=0.1, quality=False)
     assert rmse_m(p, stuck.estimates) > 1.0  # the precondition: that start's basin is wrong
     names = [n for n, _ in candidate_starts(p)]
