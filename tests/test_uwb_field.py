@@ -289,3 +289,37 @@ def test_multi_start_finds_the_solution_a_start_in_a_wrong_basin_misses():
     refit = solve_lm(p.with_initial(best), objective="metres", loss="cauchy", loss_scale_m=0.3, sigma_m=0.1,
                      quality=False)
     assert all_links_cost(p, refit, opts) < all_links_cost(p, stuck, opts)
+
+
+def _grid(noise_m: float, nlos: dict[int, float]):
+    """The 4 × 4 grid of :func:`_scrambled`, started at the truth, ranges with N(0, noise²) and ``nlos`` (link
+    index → metres too long)."""
+    from distnav.models.uwb.problems import build_problem
+
+    rng = np.random.default_rng(3)
+    g = np.array([[5.0 * i, 5.0 * j] for i in range(4) for j in range(4)]) + rng.uniform(-0.8, 0.8, (16, 2))
+    ids = [f"A{k:02d}" for k in range(16)]
+    known = {ids[k]: g[k] for k in (0, 3, 12, 15)}
+    links = [(a, b) for a in range(16) for b in range(a + 1, 16) if np.linalg.norm(g[a] - g[b]) < 8.0]
+    r = np.array([float(np.linalg.norm(g[a] - g[b])) for a, b in links]) + noise_m * rng.standard_normal(len(links))
+    for k, v in nlos.items():
+        r[k] += v
+    return build_problem(ids, links, list(r), fixed=known, dim=2, truth_m=g, initial_m=g)
+
+
+def test_tighten_halves_the_one_sided_scale_down_to_three_times_the_scatter():
+    from distnav.models.uwb.field import TIGHT_SCALE_FLOOR_M, FieldOptions, tighten
+
+    opts = FieldOptions(range_offsets="none")
+    assert opts.nlos_aware and not FieldOptions(nlos_loss=False).nlos_aware
+    assert not FieldOptions(loss="huber").nlos_aware and not FieldOptions(solver="N-CLM").nlos_aware
+    clean = _grid(0.002, {5: 1.2, 20: 0.8})
+    assert clean.initial_m is not None
+    pos, scale, fits = tighten(clean, clean.initial_m, opts)
+    assert scale == TIGHT_SCALE_FLOOR_M and fits == 3  # 0.15, 0.075, then the floor
+    assert clean.truth_m is not None
+    assert np.max(np.linalg.norm(pos - clean.truth_m, axis=1)) < 0.01  # the two long links did not move it
+    noisy = _grid(0.2, {})  # scatter 0.2 m: 3 × that is above 0.3 m, the scale stays
+    assert noisy.initial_m is not None
+    _, scale, fits = tighten(noisy, noisy.initial_m, opts)
+    assert scale == opts.loss_scale_m and fits == 0
