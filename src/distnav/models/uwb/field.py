@@ -11,7 +11,10 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
    robust fit of every link is first run from several starts (:func:`choose_start`: the lowest Cauchy cost of
    all the links wins) and the exclusions start from there; exclusions that leave a solution fitting all the
    links more than :data:`DISAGREE_RATIO` × worse are rejected (``revert``). σ admit the antenna delays the
-   model does not estimate (:mod:`distnav.models.uwb.precision`, ``delay_sigma_m``).
+   model does not estimate (:mod:`distnav.models.uwb.precision`, ``delay_sigma_m``). With LM in metres and the
+   Cauchy loss (``FieldOptions.nlos_aware``, the default) every fit uses the *one-sided* Cauchy loss (NLOS only
+   lengthens a range), its scale is tightened after the choice of start (:func:`tighten`), the exclusions and
+   costs work at that scale and the kept links are re-fitted at ``loss_scale_m`` at the end (:func:`_polish`).
 3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
 
 The solve call goes to :func:`distnav.algorithms.csg.solve` by name, with ``objective`` passed when the solver
