@@ -114,6 +114,31 @@ def test_robust_weights_values():
     assert obj == pytest.approx(np.sum(4 * np.log1p((g / 2) ** 2)))
 
 
+def test_one_sided_cauchy_weights_and_minimum():
+    """``cauchy_long``: Cauchy where the range reads long (g < 0), linear where it reads short; LM (metres) lands
+    where the gradient of that objective, written here independently and differentiated numerically, vanishes."""
+    g = np.array([0.5, -2.0, 3.0, -0.0])
+    w, obj = robust_weights(g, 2.0, "cauchy_long")
+    np.testing.assert_allclose(w, [1.0, 1 / (1 + 1.0), 1.0, 1.0])
+    assert obj == pytest.approx(0.25 + 4 * np.log1p(1.0) + 9.0)
+    rng = np.random.default_rng(8)
+    p = well_posed(rng, sigma_m=0.02)
+    bad = p.range_m.copy()
+    bad[[3, 25]] += [1.5, 2.0]  # two NLOS ranges, long
+    p_bad = p.with_ranges(bad)
+    r = solve_lm(p_bad, objective="metres", sigma_m=0.05, loss="cauchy_long", loss_scale_m=0.1, quality=False)
+    s = 0.1 / 0.05
+
+    def f(x: np.ndarray) -> float:
+        e = (p_bad.distances(p_bad.to_positions(x)) - bad) / 0.05
+        return float(np.sum(np.where(e < 0, s * s * np.log1p((e / s) ** 2), e * e)))
+
+    x = p_bad.to_vector(r.estimates)
+    grad = np.array([(f(x + h) - f(x - h)) / 2e-6 for h in np.eye(x.size) * 1e-6])
+    assert np.max(np.abs(grad)) < 1e-3 * max(1.0, f(x))
+    assert rmse_m(p, r.estimates) < 0.5 * rmse_m(p, solve_lm(p_bad, objective="metres", sigma_m=0.05).estimates)
+
+
 def test_lm_validation_and_padding():
     p = generate_problem("GC", np.random.default_rng(0))
     with pytest.raises(ModelError, match="unknown loss"):

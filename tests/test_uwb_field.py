@@ -226,9 +226,11 @@ def test_default_sigma_is_calibrated_on_plant_like_halls_with_antenna_delays():
 
 
 def test_a_folded_hall_is_never_worse_than_the_careful_fit_and_says_so():
-    """Plant-like hall (seed [0, 1200], corner): the MDS start is 2 m off and the robust fit of every link folds
-    (2.44 m, as the careful fit); the exclusions then made it worse (6.7 m RMSE) and are now rejected (they raise
-    the robust cost of all the links 1.8 ×). The run must not present any anchor as determined."""
+    """Plant-like hall (seed [0, 1200], corner): the MDS start is 2 m off and the symmetric Cauchy fit of every
+    link folds (2.44 m, as the careful fit; the Cauchy cost prefers the fold). With the symmetric loss
+    (``nlos_loss=False``) the exclusions made it worse (6.7 m) and are rejected, every anchor reported weak. The
+    default one-sided loss (tightened) unfolds it: below 0.5 m (the oracle: 0.26 m), and any anchor still more
+    than 0.5 m off is reported weak."""
     from distnav.experiments.uwb_field import careful_fit, hall_problem
     from distnav.models.uwb.field import FieldOptions, prepare, solve_field
     from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
@@ -236,15 +238,22 @@ def test_a_folded_hall_is_never_worse_than_the_careful_fit_and_says_so():
 
     h = simulate_hall(np.random.default_rng([0, 1200]), HallConfig().with_(known="corner", **PLANT_LIKE))
     sub, geo = prepare(hall_problem(h)[0])
+    careful = rmse_m(sub, careful_fit(sub))
+    assert careful > 2.0
     sol = solve_field(sub, FieldOptions(), geometry=geo)
-    assert rmse_m(sub, sol.positions_m) <= rmse_m(sub, careful_fit(sub)) + 1e-3  # never worse than that ...
-    assert rmse_m(sub, sol.positions_m) > 1.0  # ... but still wrong: the lowest robust cost is folded here
-    assert not sol.excluded.any() and "exclusions were rejected" in sol.message
-    old = solve_field(sub, FieldOptions(revert=False), geometry=geo)
+    assert rmse_m(sub, sol.positions_m) < 0.5 and "one-sided Cauchy loss" in sol.message
+    assert sub.truth_m is not None
+    off = np.linalg.norm(sol.positions_m - sub.truth_m, axis=1) > 0.5
+    assert off.any() and {sub.ids[i] for i in np.flatnonzero(off)} <= set(sol.weak)
+    assert sol.status == "weakly_determined"
+    sym = solve_field(sub, FieldOptions(nlos_loss=False), geometry=geo)
+    assert rmse_m(sub, sym.positions_m) <= careful + 1e-3  # never worse than the careful fit ...
+    assert rmse_m(sub, sym.positions_m) > 1.0  # ... but still wrong: the lowest symmetric Cauchy cost is folded
+    assert not sym.excluded.any() and "exclusions were rejected" in sym.message
+    old = solve_field(sub, FieldOptions(revert=False, nlos_loss=False), geometry=geo)
     assert rmse_m(sub, old.positions_m) > 5.0  # what keeping the exclusions gave
-    assert sol.status == "weakly_determined" and "every anchor reported weak" in sol.message  # ... but says so
-    assert set(sol.weak) == {sub.ids[i] for i in np.flatnonzero(sub.estimated)}
-
+    assert sym.status == "weakly_determined" and "every anchor reported weak" in sym.message  # ... but says so
+    assert set(sym.weak) == {sub.ids[i] for i in np.flatnonzero(sub.estimated)}
 
 
 def _scrambled():
@@ -270,7 +279,7 @@ def test_multi_start_finds_the_solution_a_start_in_a_wrong_basin_misses():
     from distnav.models.uwb.problems import rmse_m
 
     p = _scrambled()
-    opts = FieldOptions(range_offsets="none")
+    opts = FieldOptions(range_offsets="none", nlos_loss=False)  # the symmetric Cauchy loss: multi-start needed
     stuck = solve_lm(p, objective="metres", loss="cauchy", loss_scale_m=0.3, sigma_m=0.1, quality=False)
     assert rmse_m(p, stuck.estimates) > 1.0  # the precondition: that start's basin is wrong
     names = [n for n, _ in candidate_starts(p)]
@@ -281,3 +290,37 @@ def test_multi_start_finds_the_solution_a_start_in_a_wrong_basin_misses():
     refit = solve_lm(p.with_initial(best), objective="metres", loss="cauchy", loss_scale_m=0.3, sigma_m=0.1,
                      quality=False)
     assert all_links_cost(p, refit, opts) < all_links_cost(p, stuck, opts)
+
+
+def _grid(noise_m: float, nlos: dict[int, float]):
+    """The 4 × 4 grid of :func:`_scrambled`, started at the truth, ranges with N(0, noise²) and ``nlos`` (link
+    index → metres too long)."""
+    from distnav.models.uwb.problems import build_problem
+
+    rng = np.random.default_rng(3)
+    g = np.array([[5.0 * i, 5.0 * j] for i in range(4) for j in range(4)]) + rng.uniform(-0.8, 0.8, (16, 2))
+    ids = [f"A{k:02d}" for k in range(16)]
+    known = {ids[k]: g[k] for k in (0, 3, 12, 15)}
+    links = [(a, b) for a in range(16) for b in range(a + 1, 16) if np.linalg.norm(g[a] - g[b]) < 8.0]
+    r = np.array([float(np.linalg.norm(g[a] - g[b])) for a, b in links]) + noise_m * rng.standard_normal(len(links))
+    for k, v in nlos.items():
+        r[k] += v
+    return build_problem(ids, links, list(r), fixed=known, dim=2, truth_m=g, initial_m=g)
+
+
+def test_tighten_halves_the_one_sided_scale_down_to_three_times_the_scatter():
+    from distnav.models.uwb.field import TIGHT_SCALE_FLOOR_M, FieldOptions, tighten
+
+    opts = FieldOptions(range_offsets="none")
+    assert opts.nlos_aware and not FieldOptions(nlos_loss=False).nlos_aware
+    assert not FieldOptions(loss="huber").nlos_aware and not FieldOptions(solver="N-CLM").nlos_aware
+    clean = _grid(0.002, {5: 1.2, 20: 0.8})
+    assert clean.initial_m is not None
+    pos, scale, fits = tighten(clean, clean.initial_m, opts)
+    assert scale == TIGHT_SCALE_FLOOR_M and fits == 3  # 0.15, 0.075, then the floor
+    assert clean.truth_m is not None
+    assert np.max(np.linalg.norm(pos - clean.truth_m, axis=1)) < 0.01  # the two long links did not move it
+    noisy = _grid(0.2, {})  # scatter 0.2 m: 3 × that is above 0.3 m, the scale stays
+    assert noisy.initial_m is not None
+    _, scale, fits = tighten(noisy, noisy.initial_m, opts)
+    assert scale == opts.loss_scale_m and fits == 0

@@ -42,7 +42,7 @@ from distnav.exchange.base import CommTotals
 __all__ = ["single_threaded_blas", "levenberg_marquardt", "LMControls", "LMOptions", "LMResult", "solve_lm", "LOSSES",
            "OBJECTIVES", "loss_terms", "robust_weights", "range_loss_scale"]
 
-LOSSES = ("linear", "huber", "soft_l1", "cauchy")
+LOSSES = ("linear", "huber", "soft_l1", "cauchy", "cauchy_long")
 OBJECTIVES = ("squared", "metres")
 
 
@@ -120,6 +120,10 @@ def loss_terms(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple[np.
 
     scipy's conventions (``least_squares(loss=...)``): Huber ``ρ(z) = z`` for ``z ≤ 1`` else ``2√z − 1``;
     soft-L1 ``ρ(z) = 2(√(1 + z) − 1)``; Cauchy ``ρ(z) = ln(1 + z)``.
+
+    ``"cauchy_long"`` is one-sided: Cauchy where the range reads *long* (``g < 0``, with ``g`` = fitted − measured)
+    and linear (Gaussian) where it reads short. NLOS and multipath only lengthen a UWB range, so a link measured
+    much shorter than the fit is evidence against the fit, not an outlier to ignore. Weight and ``ρ`` are C¹ at 0.
     """
     if loss == "linear":
         return np.ones_like(g), g * g
@@ -136,6 +140,10 @@ def loss_terms(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple[np.
     elif loss == "cauchy":
         rz = np.log1p(z)
         w = 1.0 / (1.0 + z)
+    elif loss == "cauchy_long":
+        long = g < 0
+        rz = np.where(long, np.log1p(z), z)
+        w = np.where(long, 1.0 / (1.0 + z), 1.0)
     else:
         raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
     return np.asarray(w), np.asarray(s * s * rz)

@@ -4,7 +4,8 @@ Each instance is one :func:`~distnav.models.uwb.hall.simulate_hall` network (28 
 60 m × 30 m hall, surveyed heights, NLOS links whose every sample is 0.5–2.5 m long, likelier with length,
 per-node antenna offsets, multipath minority, 5–60 samples per link), solved exactly as ``uwb solve`` does
 (median per pair, heights held, geometry checks, MDS start, objective in metres where the solver has it, Cauchy
-loss, link exclusion: :mod:`distnav.models.uwb.field`), with the 4 known anchors in the middle and in a corner.
+loss — for LM the one-sided Cauchy loss, tightened (``FieldOptions.nlos_aware``) — link exclusion:
+:mod:`distnav.models.uwb.field`), with the 4 known anchors in the middle and in a corner.
 
 Two hall **scenarios**: ``dense`` (the :class:`~distnav.models.uwb.hall.HallConfig` defaults: ~130 links, 9.3
 per anchor, 12 % NLOS) and ``plant`` (:data:`~distnav.models.uwb.hall.PLANT_LIKE`: ~105 links, 7.5 per anchor,
@@ -176,7 +177,8 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "settings": {"instances_per_placement": n_inst, "solvers": solvers, "iterations": iterations,
                      "anchors": n_anchors, "placements": list(PLACEMENTS),
                      "scenarios": {k: dict(v) for k, v in SCENARIOS.items()},
-                     "options": "FieldOptions defaults (metres where available, Cauchy 0.3 m, exclusion at 0.001)"},
+                     "options": "FieldOptions defaults (metres where available; LM: one-sided Cauchy 0.3 m "
+                                "tightened to max(0.05 m, 3 x scatter); exclusion at 0.001)"},
         "targets": {k: list(v) if isinstance(v, tuple) else v for k, v in TARGETS.items()},
         "table": table,
         "runs": rows,
