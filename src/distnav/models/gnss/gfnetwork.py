@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import DataFileError, ModelError
+from distnav.models.gnss.arcprecision import arc_variance_factor, postfit_residuals
 from distnav.models.gnss.gfbias import (
     TEC_RW_M_PER_SQRT_S,
     BiasGeometryFreeSeries,
@@ -63,6 +64,9 @@ class BiasNetworkData:
     notes: list[str] = field(default_factory=list)
     levelled: dict[str, Any] = field(default_factory=dict)
     levelled_svs: dict[str, list[str]] = field(default_factory=dict)
+    arc_id: np.ndarray | None = None
+    """(T, n, S) the levelled arc of every observation (per station; −1: raw code), ``None`` without levelling
+    (:mod:`~distnav.models.gnss.arcprecision`)."""
 
     def series_for(self, reference: str) -> BiasGeometryFreeSeries:
         """The same data in the basis of another reference receiver."""
@@ -252,11 +256,16 @@ class DatumSeries:
     correlation_inflation: float = 1.0
     precision: Any = None
     innovation_tests: Any = None
+    arc_variance_factor: float | None = None
 
     @property
     def realistic_factor(self) -> float:
-        """``√(σ̂² (1 + ρ)/(1 − ρ))``: the formal σ times this accounts for the misfit and for the epoch-to-epoch
-        correlation ``ρ`` of the standardized predicted residuals (variance of a mean of AR(1) errors)."""
+        """The formal σ times this is the realistic σ: ``√σ̂²_arc`` (the arcs' variance factor,
+        :mod:`~distnav.models.gnss.arcprecision`: the levelling error is common to all epochs of an arc) where the
+        filter has one, else ``√(σ̂² (1 + ρ)/(1 − ρ))`` (the misfit and the epoch-to-epoch correlation ``ρ`` of the
+        standardized predicted residuals: variance of a mean of AR(1) errors)."""
+        if self.arc_variance_factor is not None:
+            return float(np.sqrt(self.arc_variance_factor))
         return float(np.sqrt((self.variance_factor or 1.0) * self.correlation_inflation))
 
 
@@ -445,30 +454,9 @@ def satellite_fit(data: BiasNetworkData, final: DatumSeries) -> SatelliteFit:
     biases (datum-free sums ``b_i + b^s``), and the residuals collected per satellite. A satellite whose code
     bias depends on the elevation (SVN49) fits worst: no constant DCB absorbs it, while the levelled code of the
     other satellites leaves only the arcs' level errors."""
-    geo, lay = data.geometry, data.layout
-    T, n, S = data.obs_m.shape
-    scale = gf_m_per_dsb_ns(data.band)
-    dsb = final.dsb_ns[-1]
-    b_m = -(dsb[:n, None] + dsb[None, n:]) * scale                       # (n, S) b_i + b^s [m]
-    ok = geo.tracked & np.isfinite(data.obs_m) & np.isfinite(b_m)[None]
-    w = np.where(ok, 1.0 / np.where(ok, data.sigma_m, 1.0) ** 2, 0.0)
-    y = np.where(ok, data.obs_m - np.where(np.isfinite(b_m), b_m, 0.0)[None], 0.0)
-    a = np.where(ok[..., None], geo.coefficients, 0.0)                    # (T, n, S, 3 or 6)
-    G = lay.n_ionospheres
-    onehot = np.eye(G)[np.asarray(geo.groups, np.int64)]                   # (n, G)
-    N = np.einsum("ng,tns,tnsk,tnsl->tgkl", onehot, w, a, a)
-    r = np.einsum("ng,tns,tnsk,tns->tgk", onehot, w, a, y)
-    nk = a.shape[-1]                                                       # 3 or 6 TEC terms
-    if nk == 3:
-        good = np.linalg.det(N) > 1e-12 * np.maximum(np.einsum("tgkk->tg", N), 1e-300) ** 3
-    else:                        # the curvature terms are small (Δφ² ≪ 1): judge by the eigenvalue spread
-        ev = np.linalg.eigvalsh(N)
-        good = ev[..., 0] > 1e-12 * np.maximum(ev[..., -1], 1e-300)
-    nu = np.zeros((T, G, nk))
-    if good.any():
-        nu[good] = np.linalg.solve(N[good], r[good][..., None])[..., 0]
-    e = y - np.einsum("tnsk,tnk->tns", a, nu[:, np.asarray(geo.groups, np.int64)])
-    use = ok & good[:, np.asarray(geo.groups, np.int64)][..., None]
+    lay = data.layout
+    S = data.obs_m.shape[2]
+    e, w, use = postfit_residuals(data, final.dsb_ns[-1])
     cnt = use.sum(axis=(0, 1))
     with np.errstate(invalid="ignore", divide="ignore"):
         rms_m = np.sqrt(np.where(use, e**2, 0.0).sum(axis=(0, 1)) / cnt)
@@ -502,6 +490,17 @@ def innovation_summary(series: Sequence[DatumSeries], stations: Sequence[str]) -
                             for i, sta in enumerate(stations)}}
 
 
+def _with_arc_factor(s: DatumSeries, data: BiasNetworkData, nodes: list[int] | None) -> DatumSeries:
+    """``s`` with the arcs' variance factor (:func:`~distnav.models.gnss.arcprecision.arc_variance_factor`) of
+    its last epoch's biases over the arcs of ``nodes``, and its precision payload's a-posteriori factor set to it;
+    unchanged where there is none (raw code, too few arcs)."""
+    arc = arc_variance_factor(data, s.dsb_ns[-1], nodes)
+    if arc is None:
+        return s
+    prec = None if s.precision is None else replace(s.precision, variance_factor=arc.factor)
+    return replace(s, arc_variance_factor=arc.factor, precision=prec)
+
+
 def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: str | None = None,
                      reference: str | None = None, graph: Any = None, kn: int = 4, exchange: Any = None,
                      local: bool = True, innovation_level: float | None = None) -> tuple[list[DatumSeries], Any]:
@@ -526,7 +525,7 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
         c.innovations(st.epoch, data.series, everyone, data.dynamics, st.estimates[0], st.estimable[0],
                       st.covariance[0])
         c.add(st.epoch, lay, st.estimates[0], st.estimable[0], st.covariance[0], datum, pivot, reference, scale)
-    out.append(c.done())
+    out.append(_with_arc_factor(c.done(), data, None))
     if local:
         for i, sta in enumerate(data.stations):
             si = data.series_for(sta)
@@ -536,7 +535,7 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
                               st.covariance[0])
                 c.add(st.epoch, si.layout, st.estimates[0], st.estimable[0], st.covariance[0], datum, pivot,
                       None if datum != "receiver" else sta, scale)
-            out.append(c.done())
+            out.append(_with_arc_factor(c.done(), data, [i]))
     comm = None
     if graph is not None:
         from distnav.exchange import make_exchange
