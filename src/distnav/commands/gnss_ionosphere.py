@@ -135,11 +135,12 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
                               levelling: bool = True, min_arc_epochs: int = 10, gf_threshold_m: float = 0.05,
                               screen: bool = True, tec_rw_m_per_sqrt_s: float | None = None,
                               min_satellite_obs: int | None = None, arc_correlation_s: float | None = None,
-                              tec_order: int = 1, mapping: str = "slm", station_weights: bool = True) -> Any:
+                              tec_order: int = 1, mapping: str = "slm", station_weights: str = "auto") -> Any:
     """:func:`network_data` from observations already read (:class:`~distnav.models.gnss.rinex.CodeObservations`
     with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid).
     ``arc_correlation_s``: the levelled code's σ per arc from :func:`~distnav.models.gnss.gfnetwork.arc_sigma_scale`
-    (default :data:`ARC_CORRELATION_S`; 0: independent epochs)."""
+    (default :data:`ARC_CORRELATION_S`; 0: independent epochs). ``station_weights`` "auto" | "on" | "off": σ
+    factors from each station's levelling residuals ("auto": with a common ionosphere only; bias_network_model)."""
     from distnav.models.gnss.arcprecision import arc_ids_on_grid
     from distnav.models.gnss.gfbias import geometry_free_band_m
     from distnav.models.gnss.gfnetwork import (
@@ -147,6 +148,7 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
         arc_sigma_scale,
         bias_network_model,
     )
+    from distnav.models.gnss.levelling import station_sigma_factors
     from distnav.models.gnss.orbits import gps_seconds
 
     band = int(l2_code[1])
@@ -169,11 +171,7 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
     T, n, S = t_all.size, len(obs), len(svs_all)
     gf = np.full((T, n, S), np.nan)
     corr_s = ARC_CORRELATION_S if arc_correlation_s is None else float(arc_correlation_s)
-    scale = np.ones((T, n, S)) if levelling and (corr_s > 0 or station_weights) else None
-    if scale is not None and station_weights:
-        from distnav.models.gnss.levelling import station_sigma_factors
-
-        scale *= station_sigma_factors([levelled[o.station] for o in obs])[None, :, None]
+    scale = np.ones((T, n, S)) if levelling and corr_s > 0 else None
     for i, o in enumerate(obs):
         keep_t = grids[o.station]
         ti = np.searchsorted(t_all, gps_seconds(o.time[keep_t]))
@@ -204,7 +202,9 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
                               vtec_rw_m_per_sqrt_s=TEC_RW_M_PER_SQRT_S if tec_rw_m_per_sqrt_s is None
                               else tec_rw_m_per_sqrt_s,
                               min_satellite_obs=min_satellite_obs, sigma_scale=scale, tec_order=tec_order,
-                              mapping=mapping)
+                              mapping=mapping, station_weighting=station_weights,
+                              station_sigma=station_sigma_factors([levelled[o.station] for o in obs]) if levelling
+                              else None)
     arc_id = arc_ids_on_grid(obs, levelled, grids, data.t_gps_s, data.layout.svs) if levelling else None
     return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs}, arc_id=arc_id)
 

@@ -118,7 +118,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
                        weighting: str = "sin", reference: str | None = None, notes: list[str] | None = None,
                        paths: list[str] | None = None, vtec_rw_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
                        min_satellite_obs: int | None = None, sigma_scale: np.ndarray | None = None,
-                       tec_order: int = 1, mapping: str = "slm") -> BiasNetworkData:
+                       tec_order: int = 1, mapping: str = "slm", station_sigma: np.ndarray | None = None,
+                       station_weighting: str = "auto") -> BiasNetworkData:
     """The model from undifferenced geometry-free observations ``gf_m`` (T, n, S) [m] (NaN = not observed).
 
     ``sigma_zenith_m`` defaults to the paper's 65.6 cm scaled to the band (√2·30 cm/(μ_b − 1)). The estimation
@@ -135,6 +136,9 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     (T, n, S): factors on the elevation-dependent σ (the levelled code's arc correlation, see
     :func:`arc_sigma_scale`). ``tec_order`` 2: a second-order VTEC field per ionosphere (six parameters);
     ``mapping`` ``"mslm"``: the modified single-layer mapping (both off by default; docs/gnss.md, low latitudes).
+    ``station_sigma`` (n,): per-station σ factors (:func:`~distnav.models.gnss.levelling.station_sigma_factors`),
+    applied with ``station_weighting`` "on", or "auto" when the stations share one ionosphere (docs/gnss.md: with
+    per-station layers each station's own ionosphere error, not its code noise, limits it).
     """
     from distnav.models.gnss.constants import mu
     from distnav.models.gnss.ionosphere import ionosphere_geometry
@@ -198,6 +202,10 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     sig = elevation_sigma(el, sig0, weighting)
     if sigma_scale is not None:
         sig = sig * np.where(geo.tracked, np.asarray(sigma_scale, float)[:, :, keep], 1.0)
+    if station_sigma is not None and (station_weighting == "on" or (station_weighting == "auto" and mode == "common")):
+        sig = sig * np.asarray(station_sigma, float)[None, :, None]
+        notes.append("station σ factors from the levelling: " + ", ".join(
+            f"{s} {f:.2f}" for s, f in zip(stations, np.asarray(station_sigma, float).tolist(), strict=True)))
     obs = gf[:, :, keep]
     series = BiasGeometryFreeSeries(layout, geo.coefficients, sig, obs_m=obs, tracked=geo.tracked,
                                     groups=geo.groups)
