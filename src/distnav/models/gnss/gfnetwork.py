@@ -250,7 +250,8 @@ class DatumSeries:
     ``precision``: a :class:`~distnav.algorithms.result.Precision` of the last epoch's DSBs ``[receivers, satellites]``
     [ns²] in the output datum (one block: the filter's own state), ``variance_factor`` = σ̂²·(1 + ρ)/(1 − ρ) so that
     ``precision.std(a_posteriori=True)`` is the realistic σ (a departure from the plain σ̂² of the payload: the
-    AR(1) inflation is folded in), ``redundancy`` = predicted residuals − states; ``None`` for the CKF (its
+    AR(1) inflation is folded in), ``redundancy`` = predicted residuals − states — with levelled arcs both are the
+    arcs' (``arc_variance_factor`` σ̂²_arc, :mod:`~distnav.models.gnss.arcprecision`); ``None`` for the CKF (its
     covariance comes from the Fig. 7 recursion of one node's view, not a centralized one)."""
 
     label: str
@@ -500,12 +501,12 @@ def innovation_summary(series: Sequence[DatumSeries], stations: Sequence[str]) -
 
 def _with_arc_factor(s: DatumSeries, data: BiasNetworkData, nodes: list[int] | None) -> DatumSeries:
     """``s`` with the arcs' variance factor (:func:`~distnav.models.gnss.arcprecision.arc_variance_factor`) of
-    its last epoch's biases over the arcs of ``nodes``, and its precision payload's a-posteriori factor set to it;
-    unchanged where there is none (raw code, too few arcs)."""
+    its last epoch's biases over the arcs of ``nodes``, its precision payload's a-posteriori factor and redundancy
+    those; unchanged where there is none (raw code, too few arcs)."""
     arc = arc_variance_factor(data, s.dsb_ns[-1], nodes)
     if arc is None:
         return s
-    prec = None if s.precision is None else replace(s.precision, variance_factor=arc.factor)
+    prec = None if s.precision is None else replace(s.precision, variance_factor=arc.factor, redundancy=arc.redundancy)
     return replace(s, arc_variance_factor=arc.factor, precision=prec)
 
 
