@@ -70,8 +70,10 @@ def _new(obs: list[Any], orbit: Any, options: dict[str, Any] | None = None
 
 def _old(obs: list[Any], orbit: Any) -> dict[str, float]:
     """The first-wave model on the same levelled data: between-satellite differences (receiver bias eliminated
-    per epoch), pivot G10 or the most tracked satellite, paper 003's random walk (1 mm/√s), independent epochs."""
-    data = network_from_observations(obs, orbit, l2_code="C2W", interval_s=60.0, arc_correlation_s=0.0)
+    per epoch), pivot G10 or the most tracked satellite, paper 003's random walk (1 mm/√s), independent epochs, one σ
+    for all stations."""
+    data = network_from_observations(obs, orbit, l2_code="C2W", interval_s=60.0, arc_correlation_s=0.0,
+                                     station_weights="off")
     geo, svs = data.geometry, data.layout.svs
     piv = "G10" if "G10" in svs else svs[int(np.argmax(geo.tracked.sum(axis=(0, 1))))]
     lay = IonosphereStateLayout(svs, piv, data.layout.n_ionospheres)
