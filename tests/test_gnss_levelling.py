@@ -103,3 +103,19 @@ def test_real_rinex_levelled_noise_far_below_raw(shared_data: Path) -> None:
     for a in lev.arcs:
         diff = (lev.gf_m - raw)[a.first:a.last + 1, o.svs.index(a.sv)]
         assert abs(np.nanmean(diff)) < 5 * a.code_rms_m / np.sqrt(a.n_epochs) + 0.05
+
+
+def test_station_sigma_factors_recover_the_noise_ratio(rng: np.random.Generator) -> None:
+    """Three stations whose code noise is 0.2, 0.4 and 0.2 m: the factors from their own levelling residuals are
+    their noise over the geometric mean (0.794, 1.587, 0.794) within 5 %; one station alone gets 1."""
+    from distnav.models.gnss.levelling import station_sigma_factors
+
+    levs = []
+    for sigma in (0.2, 0.4, 0.2):
+        t, rho, iono, p1, p2, n1, n2 = _one_satellite(rng, T=2000, code_sigma=sigma)
+        phi1 = rho - iono + n1 + 0.002 * rng.standard_normal(t.size)
+        phi2 = rho - mu(2) * iono + n2 + 0.002 * rng.standard_normal(t.size)
+        levs.append(level_station(t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None]))
+    truth = np.array([0.2, 0.4, 0.2]) / np.exp(np.mean(np.log([0.2, 0.4, 0.2])))
+    np.testing.assert_allclose(station_sigma_factors(levs), truth, rtol=0.05)
+    assert station_sigma_factors(levs[:1]).tolist() == [1.0]

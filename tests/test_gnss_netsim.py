@@ -189,3 +189,21 @@ def test_arc_sigma_scale_counts_effective_observations() -> None:
     np.testing.assert_allclose(sc[:60, 0], np.sqrt(60 / 5.9))
     np.testing.assert_allclose(sc[60:65, 1], np.sqrt(5.0))
     assert (sc[arc < 0] == 1.0).all() and (arc_sigma_scale(arc, t, 0.0) == 1.0).all()
+
+
+def test_station_weights_follow_the_stations_noise() -> None:
+    """SIMB with 2× the code noise and multipath of SIMA: with one common ionosphere ("auto") its σ factor from its
+    own levelling residuals is larger (the ratio near 2); "off" or per-station ionospheres ("auto") leave the σ."""
+    from distnav.commands.gnss_ionosphere import network_from_observations
+
+    orbit, sim = _sim(hours=2.0, station_noise_scale=(1.0, 2.0))
+    on = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0)
+    off = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, station_weights="off")
+    per = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, ionosphere="per-receiver")
+    ratio = on.sigma_m / off.sigma_m
+    tr = on.geometry.tracked
+    fa, fb = float(np.median(ratio[:, 0][tr[:, 0]])), float(np.median(ratio[:, 1][tr[:, 1]]))
+    assert 1.6 < fb / fa < 2.4 and abs(fa * fb - 1.0) < 1e-9                 # geometric mean 1
+    assert any(n.startswith("station σ factors") for n in on.notes)
+    assert not any(n.startswith("station σ factors") for n in off.notes + per.notes)
+    np.testing.assert_array_equal(per.sigma_m, off.sigma_m)

@@ -135,17 +135,20 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
                               levelling: bool = True, min_arc_epochs: int = 10, gf_threshold_m: float = 0.05,
                               screen: bool = True, tec_rw_m_per_sqrt_s: float | None = None,
                               min_satellite_obs: int | None = None, arc_correlation_s: float | None = None,
-                              tec_order: int = 1, mapping: str = "slm") -> Any:
+                              tec_order: int = 1, mapping: str = "slm", station_weights: str = "auto") -> Any:
     """:func:`network_data` from observations already read (:class:`~distnav.models.gnss.rinex.CodeObservations`
     with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid).
     ``arc_correlation_s``: the levelled code's σ per arc from :func:`~distnav.models.gnss.gfnetwork.arc_sigma_scale`
-    (default :data:`ARC_CORRELATION_S`; 0: independent epochs)."""
+    (default :data:`ARC_CORRELATION_S`; 0: independent epochs). ``station_weights`` "auto" | "on" | "off": σ
+    factors from each station's levelling residuals ("auto": with a common ionosphere only; bias_network_model)."""
+    from distnav.models.gnss.arcprecision import arc_ids_on_grid
     from distnav.models.gnss.gfbias import geometry_free_band_m
     from distnav.models.gnss.gfnetwork import (
         TEC_RW_M_PER_SQRT_S,
         arc_sigma_scale,
         bias_network_model,
     )
+    from distnav.models.gnss.levelling import station_sigma_factors
     from distnav.models.gnss.orbits import gps_seconds
 
     band = int(l2_code[1])
@@ -177,9 +180,9 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
         full = levelled[o.station].gf_m if levelling else geometry_free_band_m(o.range_m[1], o.range_m[band], band)
         g = full[keep_t][:, cols]
         gf[np.ix_(ti, np.array([i]), si)] = g[:, None, :]
-        if scale is not None:
+        if scale is not None and corr_s > 0:
             arcs = levelled[o.station].arc[keep_t][:, cols]
-            scale[np.ix_(ti, np.array([i]), si)] = arc_sigma_scale(arcs, t_all[ti], corr_s)[:, None, :]
+            scale[np.ix_(ti, np.array([i]), si)] *= arc_sigma_scale(arcs, t_all[ti], corr_s)[:, None, :]
         if not (np.isfinite(o.range_m[1]) & np.isfinite(o.range_m[band])).any():
             raise DataFileError(f"{o.path}: no epoch with a GPS satellite on both {o.codes[1]} and {o.codes[band]} "
                                 f"(missing frequency?)")
@@ -199,8 +202,11 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
                               vtec_rw_m_per_sqrt_s=TEC_RW_M_PER_SQRT_S if tec_rw_m_per_sqrt_s is None
                               else tec_rw_m_per_sqrt_s,
                               min_satellite_obs=min_satellite_obs, sigma_scale=scale, tec_order=tec_order,
-                              mapping=mapping)
-    return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs})
+                              mapping=mapping, station_weighting=station_weights,
+                              station_sigma=station_sigma_factors([levelled[o.station] for o in obs]) if levelling
+                              else None)
+    arc_id = arc_ids_on_grid(obs, levelled, grids, data.t_gps_s, data.layout.svs) if levelling else None
+    return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs}, arc_id=arc_id)
 
 
 def _level(o: Any, orbit: Any, band: int, mask_deg: float, min_arc_epochs: int, gf_threshold_m: float,

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import DataFileError, ModelError
+from distnav.models.gnss.arcprecision import arc_variance_factor, postfit_residuals
 from distnav.models.gnss.gfbias import (
     TEC_RW_M_PER_SQRT_S,
     BiasGeometryFreeSeries,
@@ -63,6 +64,9 @@ class BiasNetworkData:
     notes: list[str] = field(default_factory=list)
     levelled: dict[str, Any] = field(default_factory=dict)
     levelled_svs: dict[str, list[str]] = field(default_factory=dict)
+    arc_id: np.ndarray | None = None
+    """(T, n, S) the levelled arc of every observation (per station; −1: raw code), ``None`` without levelling
+    (:mod:`~distnav.models.gnss.arcprecision`)."""
 
     def series_for(self, reference: str) -> BiasGeometryFreeSeries:
         """The same data in the basis of another reference receiver."""
@@ -114,7 +118,8 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
                        weighting: str = "sin", reference: str | None = None, notes: list[str] | None = None,
                        paths: list[str] | None = None, vtec_rw_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
                        min_satellite_obs: int | None = None, sigma_scale: np.ndarray | None = None,
-                       tec_order: int = 1, mapping: str = "slm") -> BiasNetworkData:
+                       tec_order: int = 1, mapping: str = "slm", station_sigma: np.ndarray | None = None,
+                       station_weighting: str = "auto") -> BiasNetworkData:
     """The model from undifferenced geometry-free observations ``gf_m`` (T, n, S) [m] (NaN = not observed).
 
     ``sigma_zenith_m`` defaults to the paper's 65.6 cm scaled to the band (√2·30 cm/(μ_b − 1)). The estimation
@@ -131,6 +136,9 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     (T, n, S): factors on the elevation-dependent σ (the levelled code's arc correlation, see
     :func:`arc_sigma_scale`). ``tec_order`` 2: a second-order VTEC field per ionosphere (six parameters);
     ``mapping`` ``"mslm"``: the modified single-layer mapping (both off by default; docs/gnss.md, low latitudes).
+    ``station_sigma`` (n,): per-station σ factors (:func:`~distnav.models.gnss.levelling.station_sigma_factors`),
+    applied with ``station_weighting`` "on", or "auto" when the stations share one ionosphere (docs/gnss.md: with
+    per-station layers each station's own ionosphere error, not its code noise, limits it).
     """
     from distnav.models.gnss.constants import mu
     from distnav.models.gnss.ionosphere import ionosphere_geometry
@@ -194,6 +202,10 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     sig = elevation_sigma(el, sig0, weighting)
     if sigma_scale is not None:
         sig = sig * np.where(geo.tracked, np.asarray(sigma_scale, float)[:, :, keep], 1.0)
+    if station_sigma is not None and (station_weighting == "on" or (station_weighting == "auto" and mode == "common")):
+        sig = sig * np.asarray(station_sigma, float)[None, :, None]
+        notes.append("station σ factors from the levelling: " + ", ".join(
+            f"{s} {f:.2f}" for s, f in zip(stations, np.asarray(station_sigma, float).tolist(), strict=True)))
     obs = gf[:, :, keep]
     series = BiasGeometryFreeSeries(layout, geo.coefficients, sig, obs_m=obs, tracked=geo.tracked,
                                     groups=geo.groups)
@@ -238,7 +250,8 @@ class DatumSeries:
     ``precision``: a :class:`~distnav.algorithms.result.Precision` of the last epoch's DSBs ``[receivers, satellites]``
     [ns²] in the output datum (one block: the filter's own state), ``variance_factor`` = σ̂²·(1 + ρ)/(1 − ρ) so that
     ``precision.std(a_posteriori=True)`` is the realistic σ (a departure from the plain σ̂² of the payload: the
-    AR(1) inflation is folded in), ``redundancy`` = predicted residuals − states; ``None`` for the CKF (its
+    AR(1) inflation is folded in), ``redundancy`` = predicted residuals − states — with levelled arcs both are the
+    arcs' (``arc_variance_factor`` σ̂²_arc, :mod:`~distnav.models.gnss.arcprecision`); ``None`` for the CKF (its
     covariance comes from the Fig. 7 recursion of one node's view, not a centralized one)."""
 
     label: str
@@ -252,11 +265,16 @@ class DatumSeries:
     correlation_inflation: float = 1.0
     precision: Any = None
     innovation_tests: Any = None
+    arc_variance_factor: float | None = None
 
     @property
     def realistic_factor(self) -> float:
-        """``√(σ̂² (1 + ρ)/(1 − ρ))``: the formal σ times this accounts for the misfit and for the epoch-to-epoch
-        correlation ``ρ`` of the standardized predicted residuals (variance of a mean of AR(1) errors)."""
+        """The formal σ times this is the realistic σ: ``√σ̂²_arc`` (the arcs' variance factor,
+        :mod:`~distnav.models.gnss.arcprecision`: the levelling error is common to all epochs of an arc) where the
+        filter has one, else ``√(σ̂² (1 + ρ)/(1 − ρ))`` (the misfit and the epoch-to-epoch correlation ``ρ`` of the
+        standardized predicted residuals: variance of a mean of AR(1) errors)."""
+        if self.arc_variance_factor is not None:
+            return float(np.sqrt(self.arc_variance_factor))
         return float(np.sqrt((self.variance_factor or 1.0) * self.correlation_inflation))
 
 
@@ -445,30 +463,9 @@ def satellite_fit(data: BiasNetworkData, final: DatumSeries) -> SatelliteFit:
     biases (datum-free sums ``b_i + b^s``), and the residuals collected per satellite. A satellite whose code
     bias depends on the elevation (SVN49) fits worst: no constant DCB absorbs it, while the levelled code of the
     other satellites leaves only the arcs' level errors."""
-    geo, lay = data.geometry, data.layout
-    T, n, S = data.obs_m.shape
-    scale = gf_m_per_dsb_ns(data.band)
-    dsb = final.dsb_ns[-1]
-    b_m = -(dsb[:n, None] + dsb[None, n:]) * scale                       # (n, S) b_i + b^s [m]
-    ok = geo.tracked & np.isfinite(data.obs_m) & np.isfinite(b_m)[None]
-    w = np.where(ok, 1.0 / np.where(ok, data.sigma_m, 1.0) ** 2, 0.0)
-    y = np.where(ok, data.obs_m - np.where(np.isfinite(b_m), b_m, 0.0)[None], 0.0)
-    a = np.where(ok[..., None], geo.coefficients, 0.0)                    # (T, n, S, 3 or 6)
-    G = lay.n_ionospheres
-    onehot = np.eye(G)[np.asarray(geo.groups, np.int64)]                   # (n, G)
-    N = np.einsum("ng,tns,tnsk,tnsl->tgkl", onehot, w, a, a)
-    r = np.einsum("ng,tns,tnsk,tns->tgk", onehot, w, a, y)
-    nk = a.shape[-1]                                                       # 3 or 6 TEC terms
-    if nk == 3:
-        good = np.linalg.det(N) > 1e-12 * np.maximum(np.einsum("tgkk->tg", N), 1e-300) ** 3
-    else:                        # the curvature terms are small (Δφ² ≪ 1): judge by the eigenvalue spread
-        ev = np.linalg.eigvalsh(N)
-        good = ev[..., 0] > 1e-12 * np.maximum(ev[..., -1], 1e-300)
-    nu = np.zeros((T, G, nk))
-    if good.any():
-        nu[good] = np.linalg.solve(N[good], r[good][..., None])[..., 0]
-    e = y - np.einsum("tnsk,tnk->tns", a, nu[:, np.asarray(geo.groups, np.int64)])
-    use = ok & good[:, np.asarray(geo.groups, np.int64)][..., None]
+    lay = data.layout
+    S = data.obs_m.shape[2]
+    e, w, use = postfit_residuals(data, final.dsb_ns[-1])
     cnt = use.sum(axis=(0, 1))
     with np.errstate(invalid="ignore", divide="ignore"):
         rms_m = np.sqrt(np.where(use, e**2, 0.0).sum(axis=(0, 1)) / cnt)
@@ -502,6 +499,17 @@ def innovation_summary(series: Sequence[DatumSeries], stations: Sequence[str]) -
                             for i, sta in enumerate(stations)}}
 
 
+def _with_arc_factor(s: DatumSeries, data: BiasNetworkData, nodes: list[int] | None) -> DatumSeries:
+    """``s`` with the arcs' variance factor (:func:`~distnav.models.gnss.arcprecision.arc_variance_factor`) of
+    its last epoch's biases over the arcs of ``nodes``, its precision payload's a-posteriori factor and redundancy
+    those; unchanged where there is none (raw code, too few arcs)."""
+    arc = arc_variance_factor(data, s.dsb_ns[-1], nodes)
+    if arc is None:
+        return s
+    prec = None if s.precision is None else replace(s.precision, variance_factor=arc.factor, redundancy=arc.redundancy)
+    return replace(s, arc_variance_factor=arc.factor, precision=prec)
+
+
 def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: str | None = None,
                      reference: str | None = None, graph: Any = None, kn: int = 4, exchange: Any = None,
                      local: bool = True, innovation_level: float | None = None) -> tuple[list[DatumSeries], Any]:
@@ -526,7 +534,7 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
         c.innovations(st.epoch, data.series, everyone, data.dynamics, st.estimates[0], st.estimable[0],
                       st.covariance[0])
         c.add(st.epoch, lay, st.estimates[0], st.estimable[0], st.covariance[0], datum, pivot, reference, scale)
-    out.append(c.done())
+    out.append(_with_arc_factor(c.done(), data, None))
     if local:
         for i, sta in enumerate(data.stations):
             si = data.series_for(sta)
@@ -536,7 +544,7 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
                               st.covariance[0])
                 c.add(st.epoch, si.layout, st.estimates[0], st.estimable[0], st.covariance[0], datum, pivot,
                       None if datum != "receiver" else sta, scale)
-            out.append(c.done())
+            out.append(_with_arc_factor(c.done(), data, [i]))
     comm = None
     if graph is not None:
         from distnav.exchange import make_exchange

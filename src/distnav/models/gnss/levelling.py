@@ -42,7 +42,7 @@ from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
 
 __all__ = ["ArcStatistics", "LevelledStation", "geometry_free_phase_m", "melbourne_wubbena_cycles", "find_arcs",
-           "level_station", "screen_arc"]
+           "level_station", "screen_arc", "station_sigma_factors"]
 
 
 @dataclass(frozen=True)
@@ -281,3 +281,18 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
                              flagged=np.abs(np.nan_to_num(flat_w)) > k,
                              removed=tuple(np.flatnonzero(removed[tested]).tolist()))
     return LevelledStation(out, arc_id, arcs, removed, starts, dropped, tests, fit_wss, fit_n)
+
+
+def station_sigma_factors(levelled: Sequence[LevelledStation]) -> np.ndarray:
+    """Relative σ factors of the stations' levelled code (n,): each station's RMS of the weighted code minus
+    levelled phase within its arcs, ``√(Σ fit_wss / Σ fit_n)`` (its own code noise and multipath, from its own
+    data), over their geometric mean. Stations without levelled arcs get 1; the factors keep the network's
+    overall σ (their geometric mean is 1), so only the stations' relative weights change."""
+    rms = np.array([np.sqrt(float(lev.fit_wss.sum()) / float(lev.fit_n.sum()))
+                    if lev.fit_wss is not None and lev.fit_n is not None and lev.fit_n.sum() > 0 else np.nan
+                    for lev in levelled])
+    ok = np.isfinite(rms) & (rms > 0)
+    out = np.ones(rms.size)
+    if ok.sum() >= 2:
+        out[ok] = rms[ok] / np.exp(np.mean(np.log(rms[ok])))
+    return out
