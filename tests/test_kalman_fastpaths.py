@@ -2,7 +2,8 @@
 
 Each shortcut must give exactly what the general computation gives: the system noise placed by its selected
 rows/columns vs ``H S̃ Hᵀ``, the single-filter pseudo-inverse vs the grouped batch path, the node-subset design
-rows vs building them for those nodes alone, and the cheap node-id check still rejecting bad ids.
+rows vs building them for those nodes alone, the cheap node-id check still rejecting bad ids, and the kernel's
+decompositions on one BLAS thread vs the same code under the caller's thread count.
 """
 
 from __future__ import annotations
@@ -10,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.kalman import DynamicModel, pseudo_inverse_psd
+from distnav.algorithms.kalman import DynamicModel, InformationKernel, pseudo_inverse_psd
+from distnav.algorithms.nlsq import _openblas_handles
 from distnav.errors import ModelError
 from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
 
@@ -92,3 +94,52 @@ def test_node_id_fast_path_still_rejects_bad_ids() -> None:
     with pytest.raises(ModelError, match="0..2"):
         ser.node_ids(np.array([-1], np.int64))
     np.testing.assert_array_equal(ser.node_ids(np.array([2, 0], np.int64)), [2, 0])
+
+
+def _blas_threads() -> list[int]:
+    return [int(get()) for _set, get in _openblas_handles()]
+
+
+def test_one_blas_thread_pseudo_inverse_equals_default_threads() -> None:
+    """Regular, singular (the eigen-decomposition fallback) and partly unseen rows, as in a session's first epochs:
+    the single-threaded kernel gives what the undecorated function gives under the default thread count."""
+    rng = np.random.default_rng(5)
+    p = 31
+    rows = []
+    for rank in (p + 5, p - 1, p - 3):
+        a = rng.standard_normal((rank, p)) * rng.uniform(0.1, 10.0, p)
+        rows.append(a.T @ a)
+    info = np.stack(rows)
+    before = _blas_threads()
+    inv, est = pseudo_inverse_psd(info)
+    assert _blas_threads() == before                      # the caller's thread count is restored
+    inv_ref, est_ref = pseudo_inverse_psd.__wrapped__(info)  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(est, est_ref)
+    assert est[0].all() and not est[1].all()              # both paths taken
+    np.testing.assert_allclose(inv, inv_ref, rtol=1e-12, atol=1e-12 * np.abs(inv_ref).max())
+    partly = info.copy()
+    partly[1, 7, :] = partly[1, :, 7] = 0.0
+    inv, est = pseudo_inverse_psd(partly)
+    inv_ref, est_ref = pseudo_inverse_psd.__wrapped__(partly)  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(est, est_ref)
+    assert not est[1, 7]
+    np.testing.assert_allclose(inv, inv_ref, rtol=1e-12, atol=1e-12 * np.abs(inv_ref).max())
+
+
+def test_one_blas_thread_time_update_equals_default_threads() -> None:
+    rng = np.random.default_rng(6)
+    p, q = 12, 5
+    F = np.eye(p) + 0.01 * rng.standard_normal((p, p))
+    m = rng.standard_normal((q, q))
+    dyn = DynamicModel(p, transition=F, noise_map=np.eye(p)[:, 2:2 + q], noise_reduced_cov=m @ m.T + np.eye(q))
+    kers = [InformationKernel(2, p, track_error=True) for _ in range(2)]
+    a = rng.standard_normal((2, 3 * p, p))
+    N, r = np.swapaxes(a, 1, 2) @ a, rng.standard_normal((2, p))
+    for ker in kers:
+        ker.measurement_update(N, r, extra_error=2.0 * N)
+    before = _blas_threads()
+    kers[0].time_update(dyn, 1)
+    assert _blas_threads() == before
+    InformationKernel.time_update.__wrapped__(kers[1], dyn, 1)  # type: ignore[attr-defined]
+    for got, ref in ((kers[0].I, kers[1].I), (kers[0].i, kers[1].i), (kers[0].Qs[0], kers[1].Qs[0])):
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
