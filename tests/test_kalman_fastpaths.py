@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.kalman import DynamicModel, InformationKernel, pseudo_inverse_psd
+from distnav.algorithms.kalman import DynamicModel, pseudo_inverse_psd
 from distnav.algorithms.nlsq import _openblas_handles
 from distnav.errors import ModelError
 from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
@@ -100,9 +100,10 @@ def _blas_threads() -> list[int]:
     return [int(get()) for _set, get in _openblas_handles()]
 
 
-def test_one_blas_thread_pseudo_inverse_equals_default_threads() -> None:
-    """Regular, singular (the eigen-decomposition fallback) and partly unseen rows, as in a session's first epochs:
-    the single-threaded kernel gives what the undecorated function gives under the default thread count."""
+def test_pseudo_inverse_fallback_on_one_blas_thread_equals_svd_reference() -> None:
+    """Regular, singular (the eigen-decomposition fallback, run on one BLAS thread) and partly unseen rows, as in a
+    session's first epochs, against an SVD pseudo-inverse of the scaled matrix (another LAPACK path); the caller's
+    BLAS thread count is restored."""
     rng = np.random.default_rng(5)
     p = 31
     rows = []
@@ -110,36 +111,20 @@ def test_one_blas_thread_pseudo_inverse_equals_default_threads() -> None:
         a = rng.standard_normal((rank, p)) * rng.uniform(0.1, 10.0, p)
         rows.append(a.T @ a)
     info = np.stack(rows)
+    info[2, 7, :] = info[2, :, 7] = 0.0
     before = _blas_threads()
     inv, est = pseudo_inverse_psd(info)
-    assert _blas_threads() == before                      # the caller's thread count is restored
-    inv_ref, est_ref = pseudo_inverse_psd.__wrapped__(info)  # type: ignore[attr-defined]
-    np.testing.assert_array_equal(est, est_ref)
-    assert est[0].all() and not est[1].all()              # both paths taken
-    np.testing.assert_allclose(inv, inv_ref, rtol=1e-12, atol=1e-12 * np.abs(inv_ref).max())
-    partly = info.copy()
-    partly[1, 7, :] = partly[1, :, 7] = 0.0
-    inv, est = pseudo_inverse_psd(partly)
-    inv_ref, est_ref = pseudo_inverse_psd.__wrapped__(partly)  # type: ignore[attr-defined]
-    np.testing.assert_array_equal(est, est_ref)
-    assert not est[1, 7]
-    np.testing.assert_allclose(inv, inv_ref, rtol=1e-12, atol=1e-12 * np.abs(inv_ref).max())
-
-
-def test_one_blas_thread_time_update_equals_default_threads() -> None:
-    rng = np.random.default_rng(6)
-    p, q = 12, 5
-    F = np.eye(p) + 0.01 * rng.standard_normal((p, p))
-    m = rng.standard_normal((q, q))
-    dyn = DynamicModel(p, transition=F, noise_map=np.eye(p)[:, 2:2 + q], noise_reduced_cov=m @ m.T + np.eye(q))
-    kers = [InformationKernel(2, p, track_error=True) for _ in range(2)]
-    a = rng.standard_normal((2, 3 * p, p))
-    N, r = np.swapaxes(a, 1, 2) @ a, rng.standard_normal((2, p))
-    for ker in kers:
-        ker.measurement_update(N, r, extra_error=2.0 * N)
-    before = _blas_threads()
-    kers[0].time_update(dyn, 1)
     assert _blas_threads() == before
-    InformationKernel.time_update.__wrapped__(kers[1], dyn, 1)  # type: ignore[attr-defined]
-    for got, ref in ((kers[0].I, kers[1].I), (kers[0].i, kers[1].i), (kers[0].Qs[0], kers[1].Qs[0])):
-        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+    for k, rank in enumerate((p, p - 1, p - 3)):
+        seen = np.flatnonzero(np.diagonal(info[k]) > 0)
+        sub = info[k][np.ix_(seen, seen)]
+        d = 1.0 / np.sqrt(np.diagonal(sub))
+        C = sub * d[:, None] * d[None, :]
+        ref = np.linalg.pinv(C, rcond=1e-10, hermitian=False) * d[:, None] * d[None, :]
+        u, sv, _ = np.linalg.svd(C)
+        null = u[:, sv <= 1e-10 * sv[0]]
+        est_ref = (null**2).sum(axis=1) < 1e-8
+        assert np.linalg.matrix_rank(C) == min(rank, seen.size)
+        np.testing.assert_array_equal(est[k, seen], est_ref)
+        assert est[k].sum() < p if k else est[k].all()       # both paths taken
+        np.testing.assert_allclose(inv[k][np.ix_(seen, seen)], ref, rtol=1e-8, atol=1e-9 * np.abs(ref).max())
