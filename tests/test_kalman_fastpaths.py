@@ -128,3 +128,41 @@ def test_pseudo_inverse_fallback_on_one_blas_thread_equals_svd_reference() -> No
         np.testing.assert_array_equal(est[k, seen], est_ref)
         assert est[k].sum() < p if k else est[k].all()       # both paths taken
         np.testing.assert_allclose(inv[k][np.ix_(seen, seen)], ref, rtol=1e-8, atol=1e-9 * np.abs(ref).max())
+
+
+def test_per_epoch_model_reusing_repeated_inputs_equals_direct_computation() -> None:
+    """A per-epoch noise model given one ``H`` object and equal ``S̃`` (equal intervals) reuses the previous
+    epoch's checks, selection and inverse; every accessor equals the quantity computed directly for that epoch
+    (``S̃⁻¹`` by its own inverse, ``S = H S̃ Hᵀ``), for a selection ``H`` and a general one."""
+    rng = np.random.default_rng(7)
+    p, T = 8, 9
+    for H, sel in ((np.eye(p)[:, [0, 2, 3]], [0, 2, 3]), (rng.standard_normal((p, 3)), None)):
+        m = rng.standard_normal((3, 3))
+        base = m @ m.T + np.eye(3)
+        St = [base * (2.0 if t in (4, 5) else 1.0) for t in range(T)]   # runs of equal values, distinct objects
+        dyn = DynamicModel(p, noise_map=[H] * T, noise_reduced_cov=St)
+        for t in range(1, T):
+            Ht, St_t, St_inv = dyn.noise_factor_at(t)
+            assert Ht is H
+            np.testing.assert_array_equal(St_t, 0.5 * (St[t] + St[t].T))
+            np.testing.assert_array_equal(St_inv, np.linalg.inv(St[t]))
+            np.testing.assert_allclose(dyn.noise_cov_at(t), H @ St[t] @ H.T, rtol=1e-14, atol=1e-14)
+            got = dyn.noise_selection_at(t)
+            if sel is None:
+                assert got is None
+            else:
+                assert got is not None and np.array_equal(got, sel)
+
+
+def test_per_epoch_model_still_checks_changed_inputs() -> None:
+    p, T = 6, 4
+    H = np.eye(p)[:, [1, 2]]
+    good = np.eye(2)
+    with pytest.raises(ModelError, match="epoch 2 is not positive definite"):
+        DynamicModel(p, noise_map=[H] * T, noise_reduced_cov=[good, good, -good, good])
+    H3 = np.eye(p)[:, [1, 2, 4]]
+    with pytest.raises(ModelError, match=r"epoch 1 must be 3×3"):   # a new H of other rank, the same S̃
+        DynamicModel(p, noise_map=[H, H3, H3, H3], noise_reduced_cov=[good] * T)
+    flat = np.ones((p, 2))                                        # not identity columns, rank 1
+    with pytest.raises(ModelError, match="epoch 1 must have full column rank"):
+        DynamicModel(p, noise_map=[H, flat, flat, flat], noise_reduced_cov=[good] * T)
