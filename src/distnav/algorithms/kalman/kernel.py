@@ -38,20 +38,21 @@ def pseudo_inverse_psd(info: FloatArray, *, rtol: float = RANK_RTOL) -> tuple[Fl
     estimable entries every generalized inverse gives the same estimates and variances.
     """
     k, p, _ = info.shape
-    inv = np.zeros_like(info)
-    est = np.zeros((k, p), bool)
     if k == 0:
-        return inv, est
+        return np.zeros_like(info), np.zeros((k, p), bool)
     d = np.diagonal(info, axis1=1, axis2=2)
     seen = d > 0  # exactly zero: no information ever (structural); the rest is decided scale-free below
     if seen.all():
         return _inv_or_pinv(info, rtol)
+    inv = np.zeros_like(info)
+    est = np.zeros((k, p), bool)
     if k == 1:                   # one filter (central, single-receiver): the observed entries by one grid
-        grid = np.ix_(np.flatnonzero(seen[0]), np.flatnonzero(seen[0]))
-        if grid[0].size:
+        cols = np.flatnonzero(seen[0])
+        if cols.size:
+            grid = np.ix_(cols, cols)
             sub_inv, sub_est = _inv_or_pinv(info[0][grid][None], rtol)
             inv[0][grid] = sub_inv[0]
-            est[0, grid[0][:, 0]] = sub_est[0]
+            est[0, cols] = sub_est[0]
         return inv, est
     if (seen == seen[0]).all():
         groups: list[tuple[np.ndarray, BoolArray]] = [(np.arange(k), seen[0])]
@@ -76,7 +77,7 @@ def _inv_or_pinv(sub: FloatArray, rtol: float) -> tuple[FloatArray, BoolArray]:
         inv = np.linalg.inv(sub)
         # well-conditioned PD check: 1 ≤ (I⁻¹)_jj I_jj (Cauchy–Schwarz), large values flag near-singularity
         vif = np.diagonal(inv, axis1=1, axis2=2) * np.diagonal(sub, axis1=1, axis2=2)
-        if np.all(vif >= 1.0 - 1e-6) and np.all(vif < 1e-3 / rtol) and np.all(np.isfinite(inv)):
+        if ((vif >= 1.0 - 1e-6) & (vif < 1e-3 / rtol)).all() and np.isfinite(inv).all():  # one reduction each
             sym: np.ndarray = 0.5 * (inv + np.swapaxes(inv, 1, 2))
             return sym, np.ones((k, m), bool)
     except np.linalg.LinAlgError:
