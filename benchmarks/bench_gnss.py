@@ -5,7 +5,9 @@
 * reading a full day of 30-s RINEX 3 (BELE, Hatanaka + gzip, 2880 epochs) with distnav's reader against georinex
   alone on the same observation types: distnav should add little (quick: a 1-hour window);
 * ``gnss ionosphere`` on a full day of 3 stations at 30 s (read, levelling + screening + model, central + local
-  + CKF filters): goal ≤ 30 s (quick: 2 hours);
+  + CKF filters): goal ≤ 30 s CPU; and on a 2-h session of the same (06–08 h): the filters within 150× a bare
+  Cholesky floor (415–545× with OpenBLAS's threads in the eigen-decomposition fallback, 55–100× without; quick:
+  the session);
 * orbit evaluation: broadcast (IS-GPS-200) and SP3 (9th-order Lagrange) positions of 31 satellites at 2880 epochs.
 Reading tests need ``../shared/data``; they are skipped (row with a note) when it is absent.
 """
@@ -16,6 +18,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +36,7 @@ SHARED = next((c / "data" / "gnss" for c in (_REPO.parent / "shared", _REPO.pare
                if (c / "data" / "gnss").exists()), _REPO.parent / "shared" / "data" / "gnss")
 
 
-def _codebias(epochs: int, iterations: int) -> dict:
+def _codebias(epochs: int, iterations: int) -> dict[str, Any]:
     t0 = time.perf_counter()
     net = synthetic_igs_network(np.random.default_rng([0, 1]))
     C = choose_constraint_nodes(net.graph, "min_cover")
@@ -59,7 +62,7 @@ def _codebias(epochs: int, iterations: int) -> dict:
             "max_dist_rho_0.5_m": finals[1]}
 
 
-def _reading(quick: bool) -> list[dict]:
+def _reading(quick: bool) -> list[dict[str, Any]]:
     f = SHARED / "igs_2024010_bele_dgar" / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"
     if not f.exists():
         return [{"name": "read RINEX 3 day", "note": f"skipped: {f} absent"}]
@@ -88,12 +91,22 @@ def _reading(quick: bool) -> list[dict]:
              "goal": "≤ 1.2 × georinex", "meets_goal": bool(t_ours <= 1.2 * t_ref)}]
 
 
-def _ionosphere_day(quick: bool) -> list[dict]:
+def _ionosphere_day(quick: bool) -> list[dict[str, Any]]:
     """Full day, 3 stations at 30 s (BELE, DGAR and a clone of DGAR moved by 30 km): read, level + screen + model,
-    central + local + CKF filters; floor: one p×p Cholesky factorization per epoch and filter row in bare numpy."""
+    central + local + CKF filters; and a 2-h session (06–08 h) of the same, the short-session case where the
+    filters' information is singular for the first hour (eigen-decomposition fallbacks). Quick: the session only.
+    Floor: one p×p Cholesky factorization per epoch and filter row in bare numpy, in the same run."""
     d = SHARED / "igs_2024010_bele_dgar"
     if not d.exists():
         return [{"name": "ionosphere day", "note": "skipped: shared data absent"}]
+    rows = [] if quick else [_ionosphere_run(d, None, "full day", "≤ 30 s CPU (full day)", 30.0)]
+    rows.append(_ionosphere_run(d, ("2024-01-10T06:00", "2024-01-10T08:00"), "2-h session",
+                                "filters ≤ 150× floor (2-h session)", None))
+    return rows
+
+
+def _ionosphere_run(d: Path, tlim: tuple[str, str] | None, label: str, goal: str,
+                    cpu_goal_s: float | None) -> dict[str, Any]:
     from dataclasses import replace
 
     from distnav.commands.gnss import default_graph
@@ -101,13 +114,13 @@ def _ionosphere_day(quick: bool) -> list[dict]:
     from distnav.models.gnss.gfnetwork import read_stations, run_bias_filters
     from distnav.models.gnss.rinex import read_navigation
 
-    tlim = ("2024-01-10T06:00", "2024-01-10T08:00") if quick else None
     t0, c0 = time.perf_counter(), time.process_time()
     obs = read_stations([d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", d / "dgar0100.24o.gz"], l1_code="C1C",
                         l2_code="C2W", phases=True, tlim=tlim)
     obs.append(replace(read_stations([d / "dgar0100.24o.gz"], l1_code="C1C", l2_code="C2W", phases=True,
                                      tlim=tlim)[0], station="DGR2"))
     obs[-1] = replace(obs[-1], position_ecef_m=obs[-1].position_ecef_m + np.array([3.0e4, 0.0, 0.0]))
+    c_obs = time.process_time() - c0
     nav = read_navigation(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz", max_age_s=4 * 3600.0)
     t_read, c_read = time.perf_counter() - t0, time.process_time() - c0
     t1, c1 = time.perf_counter(), time.process_time()
@@ -117,23 +130,26 @@ def _ionosphere_day(quick: bool) -> list[dict]:
     series, _ = run_bias_filters(data, graph=default_graph(data.positions_ecef_m, data.stations), kn=4)
     t_filt, c_filt = time.perf_counter() - t2, time.process_time() - c2
     total, c_total = time.perf_counter() - t0, time.process_time() - c0
-    T, p, rows = data.series.n_epochs, data.layout.n_states, len(series)
+    T, p, n_rows = data.series.n_epochs, data.layout.n_states, len(series)
     m = np.random.default_rng(0).standard_normal((p, p))
     info = m @ m.T
-    t3 = time.process_time()
-    for _ in range(T * rows):
-        np.linalg.cholesky(info)
-    t_floor = time.process_time() - t3
-    return [{"name": "ionosphere 3 stations " + ("2 h" if quick else "full day") + " at 30 s", "epochs": T,
-             "states": p, "filters": rows, "read_s": round(t_read, 2), "level_model_s": round(t_model, 2),
-             "filters_s": round(t_filt, 2), "seconds": total, "cpu_read_s": round(c_read, 2),
-             "cpu_level_model_s": round(c_model, 2), "cpu_filters_s": round(c_filt, 2), "cpu_s": round(c_total, 2),
-             "floor_cholesky_cpu_s": round(t_floor, 2), "filters_vs_floor": round(c_filt / t_floor, 2),
-             "goal": "≤ 30 s CPU (full day)",
-             "meets_goal": bool(c_total <= 30.0)}]
+    t_floor = float("inf")
+    for _ in range(3):         # best of 3: a 2-h session's floor is only ~20 ms of CPU, noisy on a loaded machine
+        t3 = time.process_time()
+        for _ in range(T * n_rows):
+            np.linalg.cholesky(info)
+        t_floor = min(t_floor, time.process_time() - t3)
+    ratio = c_filt / t_floor
+    return {"name": f"ionosphere 3 stations {label} at 30 s", "epochs": T, "states": p, "filters": n_rows,
+            "read_s": round(t_read, 2), "level_model_s": round(t_model, 2), "filters_s": round(t_filt, 2),
+            "seconds": total, "cpu_read_s": round(c_read, 2), "cpu_read_obs_s": round(c_obs, 2),
+            "cpu_read_nav_s": round(c_read - c_obs, 2), "cpu_level_model_s": round(c_model, 2),
+            "cpu_filters_s": round(c_filt, 2), "cpu_s": round(c_total, 2),
+            "floor_cholesky_cpu_s": round(t_floor, 3), "filters_vs_floor": round(ratio, 1), "goal": goal,
+            "meets_goal": bool(c_total <= cpu_goal_s) if cpu_goal_s is not None else bool(ratio <= 150.0)}
 
 
-def _orbits() -> list[dict]:
+def _orbits() -> list[dict[str, Any]]:
     d = SHARED / "esbc_2020177_single_station_L5_sp3"
     if not d.exists():
         return [{"name": "orbits", "note": "skipped: shared data absent"}]
@@ -151,7 +167,7 @@ def _orbits() -> list[dict]:
              "goal": "(no goal)"}]
 
 
-def run(quick: bool) -> list[dict]:
+def run(quick: bool) -> list[dict[str, Any]]:
     rows = [_codebias(120, 300) if quick else _codebias(300, 1000)]
     rows += _reading(quick)
     rows += _ionosphere_day(quick)

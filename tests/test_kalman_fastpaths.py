@@ -2,7 +2,8 @@
 
 Each shortcut must give exactly what the general computation gives: the system noise placed by its selected
 rows/columns vs ``H S̃ Hᵀ``, the single-filter pseudo-inverse vs the grouped batch path, the node-subset design
-rows vs building them for those nodes alone, and the cheap node-id check still rejecting bad ids.
+rows vs building them for those nodes alone, the cheap node-id check still rejecting bad ids, and the kernel's
+decompositions on one BLAS thread vs the same code under the caller's thread count.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from distnav.algorithms.kalman import DynamicModel, pseudo_inverse_psd
+from distnav.algorithms.nlsq import _openblas_handles
 from distnav.errors import ModelError
 from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
 
@@ -92,3 +94,75 @@ def test_node_id_fast_path_still_rejects_bad_ids() -> None:
     with pytest.raises(ModelError, match="0..2"):
         ser.node_ids(np.array([-1], np.int64))
     np.testing.assert_array_equal(ser.node_ids(np.array([2, 0], np.int64)), [2, 0])
+
+
+def _blas_threads() -> list[int]:
+    return [int(get()) for _set, get in _openblas_handles()]
+
+
+def test_pseudo_inverse_fallback_on_one_blas_thread_equals_svd_reference() -> None:
+    """Regular, singular (the eigen-decomposition fallback, run on one BLAS thread) and partly unseen rows, as in a
+    session's first epochs, against an SVD pseudo-inverse of the scaled matrix (another LAPACK path); the caller's
+    BLAS thread count is restored."""
+    rng = np.random.default_rng(5)
+    p = 31
+    rows = []
+    for rank in (p + 5, p - 1, p - 3):
+        a = rng.standard_normal((rank, p)) * rng.uniform(0.1, 10.0, p)
+        rows.append(a.T @ a)
+    info = np.stack(rows)
+    info[2, 7, :] = info[2, :, 7] = 0.0
+    before = _blas_threads()
+    inv, est = pseudo_inverse_psd(info)
+    assert _blas_threads() == before
+    for k, rank in enumerate((p, p - 1, p - 3)):
+        seen = np.flatnonzero(np.diagonal(info[k]) > 0)
+        sub = info[k][np.ix_(seen, seen)]
+        d = 1.0 / np.sqrt(np.diagonal(sub))
+        C = sub * d[:, None] * d[None, :]
+        ref = np.linalg.pinv(C, rcond=1e-10, hermitian=False) * d[:, None] * d[None, :]
+        u, sv, _ = np.linalg.svd(C)
+        null = u[:, sv <= 1e-10 * sv[0]]
+        est_ref = (null**2).sum(axis=1) < 1e-8
+        assert np.linalg.matrix_rank(C) == min(rank, seen.size)
+        np.testing.assert_array_equal(est[k, seen], est_ref)
+        assert est[k].sum() < p if k else est[k].all()       # both paths taken
+        np.testing.assert_allclose(inv[k][np.ix_(seen, seen)], ref, rtol=1e-8, atol=1e-9 * np.abs(ref).max())
+
+
+def test_per_epoch_model_reusing_repeated_inputs_equals_direct_computation() -> None:
+    """A per-epoch noise model given one ``H`` object and equal ``S̃`` (equal intervals) reuses the previous
+    epoch's checks, selection and inverse; every accessor equals the quantity computed directly for that epoch
+    (``S̃⁻¹`` by its own inverse, ``S = H S̃ Hᵀ``), for a selection ``H`` and a general one."""
+    rng = np.random.default_rng(7)
+    p, T = 8, 9
+    for H, sel in ((np.eye(p)[:, [0, 2, 3]], [0, 2, 3]), (rng.standard_normal((p, 3)), None)):
+        m = rng.standard_normal((3, 3))
+        base = m @ m.T + np.eye(3)
+        St = [base * (2.0 if t in (4, 5) else 1.0) for t in range(T)]   # runs of equal values, distinct objects
+        dyn = DynamicModel(p, noise_map=[H] * T, noise_reduced_cov=St)
+        for t in range(1, T):
+            Ht, St_t, St_inv = dyn.noise_factor_at(t)
+            assert Ht is H
+            np.testing.assert_array_equal(St_t, 0.5 * (St[t] + St[t].T))
+            np.testing.assert_array_equal(St_inv, np.linalg.inv(St[t]))
+            np.testing.assert_allclose(dyn.noise_cov_at(t), H @ St[t] @ H.T, rtol=1e-14, atol=1e-14)
+            got = dyn.noise_selection_at(t)
+            if sel is None:
+                assert got is None
+            else:
+                assert got is not None and np.array_equal(got, sel)
+
+
+def test_per_epoch_model_still_checks_changed_inputs() -> None:
+    p, T = 6, 4
+    H = np.eye(p)[:, [1, 2]]
+    good = np.eye(2)
+    with pytest.raises(ModelError, match="epoch 2 is not positive definite"):
+        DynamicModel(p, noise_map=[H] * T, noise_reduced_cov=[good, good, -good, good])
+    H3 = np.eye(p)[:, [1, 2, 4]]
+    with pytest.raises(ModelError, match=r"epoch 1 must be 3×3"):   # a new H of other rank, the same S̃
+        DynamicModel(p, noise_map=[H, H3, H3, H3], noise_reduced_cov=[good] * T)
+    flat = np.ones((p, 2))                                        # not identity columns, rank 1
+    with pytest.raises(ModelError, match="epoch 1 must have full column rank"):
+        DynamicModel(p, noise_map=[H, flat, flat, flat], noise_reduced_cov=[good] * T)

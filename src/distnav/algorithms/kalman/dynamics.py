@@ -144,31 +144,45 @@ class DynamicModel:
         self._sel_grid: list[tuple[np.ndarray, ...] | None] = []   # np.ix_(sel, sel), for noise_cov_at
         self._St: list[np.ndarray] = []
         self._St_inv: list[np.ndarray] = []
-        for t, (H, St) in enumerate(pairs):
+        prev_H: np.ndarray | None = None       # the previous epoch's inputs: a per-epoch model usually repeats
+        prev_St: np.ndarray | None = None      # them (one H object, equal S̃ for equal intervals), and their
+        for t, (H, St) in enumerate(pairs):    # checks, selection and inverse are then the previous epoch's
             e = "" if self._noise_const else f" of epoch {t}"
-            if H.ndim != 2 or H.shape[0] != p:
-                raise ModelError(f"noise_map{e} must have {p} rows, got shape {H.shape}")
-            q = H.shape[1]
-            if St.shape != (q, q):
-                raise ModelError(f"noise_reduced_cov{e} must be {q}×{q} to match noise_map, got {St.shape}")
-            if not (np.all(np.isfinite(H)) and np.all(np.isfinite(St))):
-                raise ModelError(f"system-noise factor{e} is not finite")
-            if q:
-                if np.linalg.matrix_rank(H) < q:
+            if H is prev_H:
+                q = H.shape[1]
+                self._sel.append(self._sel[-1])
+                self._sel_grid.append(self._sel_grid[-1])
+            else:
+                if H.ndim != 2 or H.shape[0] != p:
+                    raise ModelError(f"noise_map{e} must have {p} rows, got shape {H.shape}")
+                q = H.shape[1]
+                if not np.all(np.isfinite(H)):
+                    raise ModelError(f"system-noise factor{e} is not finite")
+                sel = _identity_columns(H)   # distinct unit columns: full column rank without an SVD
+                if q and sel is None and np.linalg.matrix_rank(H) < q:
                     raise ModelError(f"noise_map{e} must have full column rank (paper 003 eq. (19))")
-                if not np.allclose(St, St.T, rtol=0, atol=1e-12 * np.abs(St).max()):
-                    raise ModelError(f"noise_reduced_cov{e} is not symmetric")
-                try:
-                    np.linalg.cholesky(St)
-                except np.linalg.LinAlgError:
-                    raise ModelError(f"noise_reduced_cov{e} is not positive definite (paper 003 eq. (19) needs "
-                                     f"S̃ invertible)") from None
+                self._sel.append(sel)
+                self._sel_grid.append(None if sel is None else np.ix_(sel, sel))
             self._H.append(H)
-            self._sel.append(_identity_columns(H))
-            sel = self._sel[-1]
-            self._sel_grid.append(None if sel is None else np.ix_(sel, sel))
-            self._St.append(0.5 * (St + St.T))
-            self._St_inv.append(np.linalg.inv(St) if q else St.copy())
+            if prev_St is not None and St.shape == (q, q) == prev_St.shape and np.array_equal(St, prev_St):
+                self._St.append(self._St[-1])
+                self._St_inv.append(self._St_inv[-1])
+            else:
+                if St.shape != (q, q):
+                    raise ModelError(f"noise_reduced_cov{e} must be {q}×{q} to match noise_map, got {St.shape}")
+                if not np.all(np.isfinite(St)):
+                    raise ModelError(f"system-noise factor{e} is not finite")
+                if q:
+                    if not np.allclose(St, St.T, rtol=0, atol=1e-12 * np.abs(St).max()):
+                        raise ModelError(f"noise_reduced_cov{e} is not symmetric")
+                    try:
+                        np.linalg.cholesky(St)
+                    except np.linalg.LinAlgError:
+                        raise ModelError(f"noise_reduced_cov{e} is not positive definite (paper 003 eq. (19) needs "
+                                         f"S̃ invertible)") from None
+                self._St.append(0.5 * (St + St.T))
+                self._St_inv.append(np.linalg.inv(St) if q else St.copy())
+            prev_H, prev_St = H, St
 
     # -- accessors: epoch t ≥ 1 (the step t−1 → t)
     def _idx(self, const: bool, n: int, t: int, what: str) -> int:

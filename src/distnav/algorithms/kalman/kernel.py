@@ -13,6 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from distnav.algorithms.kalman.dynamics import DynamicModel
+from distnav.algorithms.nlsq import single_threaded_blas
 from distnav.typing import BoolArray, FloatArray
 
 __all__ = ["EST_TOL", "RANK_RTOL", "InformationKernel", "masked_std", "pseudo_inverse_psd"]
@@ -28,26 +29,30 @@ def pseudo_inverse_psd(info: FloatArray, *, rtol: float = RANK_RTOL) -> tuple[Fl
 
     Entries with zero diagonal (never observed) are dropped first; the rest is tried with a batched inverse
     (accepted when every variance-inflation factor ``(I⁻¹)_jj I_jj`` lies in [1, 1e7)) and otherwise falls back to
-    an eigen-decomposition of the unit-diagonal scaled matrix (eigenvalues below ``rtol·λ_max`` are zero), where
-    entry ``j`` is estimable when its squared projection on the null space is below 1e-8. The returned matrix is a
+    an eigen-decomposition of the unit-diagonal scaled matrix (eigenvalues below ``rtol·λ_max`` are zero; on one
+    BLAS thread), where entry ``j`` is estimable when its squared projection on the null space is below 1e-8.
+    The fallback is taken only for singular or ill-conditioned information (BELE + DGAR from 06:00: 347 of 1,205
+    calls in the first 2 h, each with one zero eigenvalue; 5 calls in the full day from 00:00); a Cholesky test
+    would not spare it (it also succeeds on some of those singular matrices). The returned matrix is a
     generalized inverse (the pseudo-inverse when ``I`` is invertible or its singular part is unit-free); on the
     estimable entries every generalized inverse gives the same estimates and variances.
     """
     k, p, _ = info.shape
-    inv = np.zeros_like(info)
-    est = np.zeros((k, p), bool)
     if k == 0:
-        return inv, est
+        return np.zeros_like(info), np.zeros((k, p), bool)
     d = np.diagonal(info, axis1=1, axis2=2)
     seen = d > 0  # exactly zero: no information ever (structural); the rest is decided scale-free below
     if seen.all():
         return _inv_or_pinv(info, rtol)
+    inv = np.zeros_like(info)
+    est = np.zeros((k, p), bool)
     if k == 1:                   # one filter (central, single-receiver): the observed entries by one grid
-        grid = np.ix_(np.flatnonzero(seen[0]), np.flatnonzero(seen[0]))
-        if grid[0].size:
+        cols = np.flatnonzero(seen[0])
+        if cols.size:
+            grid = np.ix_(cols, cols)
             sub_inv, sub_est = _inv_or_pinv(info[0][grid][None], rtol)
             inv[0][grid] = sub_inv[0]
-            est[0, grid[0][:, 0]] = sub_est[0]
+            est[0, cols] = sub_est[0]
         return inv, est
     if (seen == seen[0]).all():
         groups: list[tuple[np.ndarray, BoolArray]] = [(np.arange(k), seen[0])]
@@ -72,7 +77,7 @@ def _inv_or_pinv(sub: FloatArray, rtol: float) -> tuple[FloatArray, BoolArray]:
         inv = np.linalg.inv(sub)
         # well-conditioned PD check: 1 ≤ (I⁻¹)_jj I_jj (Cauchy–Schwarz), large values flag near-singularity
         vif = np.diagonal(inv, axis1=1, axis2=2) * np.diagonal(sub, axis1=1, axis2=2)
-        if np.all(vif >= 1.0 - 1e-6) and np.all(vif < 1e-3 / rtol) and np.all(np.isfinite(inv)):
+        if ((vif >= 1.0 - 1e-6) & (vif < 1e-3 / rtol)).all() and np.isfinite(inv).all():  # one reduction each
             sym: np.ndarray = 0.5 * (inv + np.swapaxes(inv, 1, 2))
             return sym, np.ones((k, m), bool)
     except np.linalg.LinAlgError:
@@ -83,7 +88,8 @@ def _inv_or_pinv(sub: FloatArray, rtol: float) -> tuple[FloatArray, BoolArray]:
     dsq = np.sqrt(np.diagonal(sub, axis1=1, axis2=2))
     scale = 1.0 / np.where(dsq > 0, dsq, 1.0)
     C = sub * scale[:, :, None] * scale[:, None, :]
-    w, U = np.linalg.eigh(C)
+    with single_threaded_blas():  # OpenBLAS's 2 threads make this p ≲ 50 eigh 15–60× dearer in CPU (measured)
+        w, U = np.linalg.eigh(C)
     keep = w > rtol * np.maximum(w[:, -1:], 1e-300)
     winv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
     inv = ((U * winv[:, None, :]) @ np.swapaxes(U, 1, 2)) * scale[:, :, None] * scale[:, None, :]
