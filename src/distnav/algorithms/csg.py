@@ -40,6 +40,7 @@ from distnav.algorithms.neighbourhood import (
     iterate_neighbourhood,
     mixing_weights,
 )
+from distnav.algorithms.neighbourhood_offsets import offset_precision, sample_bias
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, solve_lm
 from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.ranging_objective import range_sigma
@@ -216,6 +217,8 @@ class _Setup:
     test_level: float = 0.001
     test_scale: str = "robust"
     monitor_every: int = 1
+    range_offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
 
     def check(self) -> None:
         _check_monitor(self.monitor_every)
@@ -307,9 +310,15 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                    key: np.asarray(step)})
     final_cost = cost[-1]
     scale = _loss_scale(problem, setup, sigma)
+    offsets = offsets_std = None
+    if last.offset_m is not None and status != "diverged":
+        offsets, offsets_std = _offsets(problem, ex, last, setup, sigma, scale, None)
+    bias = sample_bias(problem.meas_a, problem.meas_b, offsets)
     with np.errstate(over="ignore", invalid="ignore"):
-        res_final = ((problem.distances(own) - problem.range_m) / sigma if setup.objective == "metres"
+        res_final = ((problem.distances(own) + bias - problem.range_m) / sigma if setup.objective == "metres"
                      else problem.residuals(own))
+        if offsets is not None:
+            final_cost = float(res_final @ res_final)
         objective = final_cost if setup.loss == "linear" else float(np.sum(loss_terms(res_final, scale,
                                                                                         setup.loss)[1]))
     precision = tests = None
@@ -317,6 +326,8 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
         own = np.full_like(own, np.nan)  # never present a blown-up iterate as a result
     elif setup.quality and last.half_owner is not None:
         precision, tests = _local_qc(problem, ex, last, setup, sigma, scale)
+        if offsets is not None:
+            offsets, offsets_std = _offsets(problem, ex, last, setup, sigma, scale, precision.variance_factor)
     tail = f" ({why})" if why else ""
     return RangingResult(
         estimates=own,
@@ -335,7 +346,21 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
         objective_kind=setup.objective,
         precision=precision,
         tests=tests,
+        offsets_m=offsets,
+        offsets_std_m=offsets_std,
     )
+
+
+def _offsets(problem: RangingData, ex: Exchange, st: IterationState, setup: _Setup, sigma: np.ndarray,
+             scale: np.ndarray, vf: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """The anchors' offsets and their conditional σ (:func:`~.neighbourhood_offsets.offset_precision`)."""
+    assert st.half_owner is not None and st.half_sample is not None and st.half_offset_m is not None
+    samp, owner = st.half_sample, st.half_owner
+    diff = st.own_m[owner] - np.asarray(st.half_other_m)
+    r = (np.linalg.norm(diff, axis=1) + st.half_offset_m - problem.range_m[samp]) / sigma[samp]
+    w = loss_terms(r, scale[samp], setup.loss)[0]
+    return offset_precision(ex, st, problem.free[ex.nodes[owner]], np.asarray(w), sigma[samp],
+                            setup.range_offsets, setup.offset_prior_sigma_m, vf)
 
 
 def _loss_scale(problem: RangingData, setup: _Setup, sigma: np.ndarray) -> np.ndarray:
@@ -350,7 +375,8 @@ def _local_qc(problem: RangingData, ex: Exchange, st: IterationState, setup: _Se
     for the result only); each sample is reported by the lower-indexed of its two anchors."""
     assert st.half_owner is not None and st.half_sample is not None and st.half_other_m is not None
     owner, samp = st.half_owner, st.half_sample
-    cov, w_half, wssr = local_quality(problem.range_m[samp], owner, problem.free[ex.nodes[owner]],
+    rng = problem.range_m[samp] - (0.0 if st.half_offset_m is None else st.half_offset_m)  # the holder's bias
+    cov, w_half, wssr = local_quality(rng, owner, problem.free[ex.nodes[owner]],
                                       st.own_m[owner], st.half_other_m, sigma[samp], ex.n_local, setup.objective,
                                       loss=setup.loss, loss_scale=scale[samp], scale=setup.test_scale)
     # pack per anchor (padded) so the result can be gathered over blocks
@@ -423,7 +449,8 @@ def solve_ncsg(problem: RangingData, *, line_search: str | None = None, exchange
                armijo_slope: str = "subgradient", loss: str = "linear", loss_scale_m: float = 0.3,
                monitor_every: int = 1, objective: str = "squared", sigma_m: float | np.ndarray = 1.0,
                graduated: int | None = None, stop: StopRule | None = StopRule(), quality: bool = True,
-               test_level: float = 0.001, test_scale: str = "robust") -> RangingResult:
+               test_level: float = 0.001, test_scale: str = "robust", range_offsets: str = "none",
+               offset_prior_sigma_m: float = 0.1) -> RangingResult:
     """N-CSG (eqs. (14)–(18)); ``line_search="BLS"`` (eqs. (19)–(20)) or ``"TBLS"`` (eq. (21)).
 
     Trace, ``stop``, ``quality`` and ``monitor_every`` as :func:`solve_csg`; ``step_size`` is the mean ``α`` over
@@ -431,7 +458,8 @@ def solve_ncsg(problem: RangingData, *, line_search: str | None = None, exchange
     ``alpha = 0.8``, ``alpha0 = 2`` (the Armijo test keeps it safe; 4 oscillates) relative to each anchor's
     information (see :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`). ``graduated``: iterations
     with the linear loss before the robust one (default: a quarter of ``iterations`` for metres with a robust loss,
-    else 0).
+    else 0). ``range_offsets`` ``"common"`` / ``"per_anchor"`` (metres; prior σ ``offset_prior_sigma_m``):
+    range offsets estimated with the positions (:mod:`distnav.algorithms.neighbourhood_offsets`).
     ``armijo_slope="subgradient"`` (default, the papers README's eq. (19): ``d = −∇f``, "the subgradient") puts
     the subgradient ``G⁽ⁱ⁾ᵀg⁽ⁱ⁾`` of eq. (10) in place of ``∇f⁽ⁱ⁾`` in the Armijo test, i.e. requires
     ``f⁽ⁱ⁾(x + αd) ≤ f⁽ⁱ⁾(x) − γα‖d‖²``; this reproduces the paper's Fig. 6 step sizes (≈1.2e-3 on RC/RM).
@@ -455,13 +483,14 @@ def _ncsg_parts(args: dict[str, Any]) -> tuple[_Setup, dict[str, Any], dict[str,
     grad_its = _graduated(objective, loss, args["graduated"], iterations)
     setup = _Setup(objective=objective, sigma_m=args["sigma_m"], loss=loss, loss_scale_m=args["loss_scale_m"],
                    stop=args["stop"], graduated=grad_its, quality=args["quality"], test_level=args["test_level"],
-                   test_scale=args["test_scale"], monitor_every=args["monitor_every"])
+                   test_scale=args["test_scale"], monitor_every=args["monitor_every"],
+                   range_offsets=args["range_offsets"], offset_prior_sigma_m=args["offset_prior_sigma_m"])
     setup.check()
     a = (1e-3 if objective == "squared" else 0.8) if args["alpha"] is None else args["alpha"]
     a0 = (1e-2 if objective == "squared" else 2.0) if args["alpha0"] is None else args["alpha0"]
     options = {k: args[k] for k in ("iterations", "beta", "gamma", "consensus_rounds", "weights", "initial_m",
                                     "max_backtracks", "armijo_slope", "loss", "loss_scale_m", "objective",
-                                    "sigma_m")}
+                                    "sigma_m", "range_offsets", "offset_prior_sigma_m")}
     options.update(alpha=a, alpha0=a0, graduated=grad_its)
     settings = {"alpha": a, "alpha0": a0, "beta": args["beta"], "gamma": args["gamma"],
                 "consensus_rounds": args["consensus_rounds"], "armijo_slope": args["armijo_slope"], "loss": loss}
@@ -479,6 +508,8 @@ def solve_line_search_pair(problem: RangingData, *, exchanges: tuple[Exchange, E
     bound = inspect.signature(solve_ncsg).bind(problem, **options)
     bound.apply_defaults()
     setup, opts, settings = _ncsg_parts(dict(bound.arguments))
+    if opts["range_offsets"] != "none":
+        raise ModelError("solve_line_search_pair has no range offsets: run solve_ncsg for BLS and TBLS")
     pair = exchanges or (exchange_for(problem, None), exchange_for(problem, None))
     ex_b, ex_t = exchange_for(problem, pair[0]), exchange_for(problem, pair[1])
     bls_states, tbls_states = iterate_line_search_pair(problem, exchanges=(ex_b, ex_t), **opts)
@@ -494,9 +525,10 @@ def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterat
                loss_scale_m: float = 0.3, lambda_min: float = 0.1, monitor_every: int = 1,
                objective: str = "squared", sigma_m: float | np.ndarray = 1.0, graduated: int | None = None,
                stop: StopRule | None = StopRule(), quality: bool = True, test_level: float = 0.001,
-               test_scale: str = "robust") -> RangingResult:
-    """N-CLM (eq. (22)); trace, ``objective``, ``graduated``, ``stop``, ``quality`` and ``monitor_every`` as
-    :func:`solve_ncsg`, with the mean ``lambda`` instead of ``step_size``.
+               test_scale: str = "robust", range_offsets: str = "none",
+               offset_prior_sigma_m: float = 0.1) -> RangingResult:
+    """N-CLM (eq. (22)); trace, ``objective``, ``graduated``, ``stop``, ``quality``, ``monitor_every`` and
+    ``range_offsets`` as :func:`solve_ncsg`, with the mean ``lambda`` instead of ``step_size``.
 
     ``damping="fletcher"`` is eq. (22) read literally with eq. (8)'s ``λ diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾)``. On the partial cost
     this stalls: anchor ``i`` has ``d_i`` ranges but ``(d_i + 1)·dim`` unknowns, and a neighbour's coordinates
@@ -513,13 +545,15 @@ def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterat
     grad_its = _graduated(objective, loss, graduated, iterations)
     setup = _Setup(objective=objective, sigma_m=sigma_m, loss=loss, loss_scale_m=loss_scale_m, stop=stop,
                    graduated=grad_its, quality=quality, test_level=test_level, test_scale=test_scale,
-                   monitor_every=monitor_every)
+                   monitor_every=monitor_every, range_offsets=range_offsets,
+                   offset_prior_sigma_m=offset_prior_sigma_m)
     setup.check()
     ex = exchange_for(problem, exchange)
     states = iterate_neighbourhood(problem, method="N-CLM", exchange=ex, iterations=iterations, lambda0=lambda0,
                                    consensus_rounds=consensus_rounds, weights=weights, initial_m=initial_m,
                                    damping=damping, loss=loss, loss_scale_m=loss_scale_m, lambda_min=lambda_min,
-                                   objective=objective, sigma_m=sigma_m, graduated=grad_its)
+                                   objective=objective, sigma_m=sigma_m, graduated=grad_its,
+                                   range_offsets=range_offsets, offset_prior_sigma_m=offset_prior_sigma_m)
     return _run(problem, states, ex, "N-CLM", iterations,
                 {"lambda0": lambda0, "consensus_rounds": consensus_rounds, "damping": damping, "loss": loss}, setup)
 
