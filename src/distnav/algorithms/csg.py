@@ -40,7 +40,7 @@ from distnav.algorithms.neighbourhood import (
     iterate_neighbourhood,
     mixing_weights,
 )
-from distnav.algorithms.neighbourhood_offsets import offset_precision, sample_bias
+from distnav.algorithms.neighbourhood_offsets import check_offsets, offset_precision, sample_bias
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, solve_lm
 from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.ranging_objective import range_sigma
@@ -129,11 +129,17 @@ def iterate_csg(
     initial_m: np.ndarray | None = None,
     objective: str = "squared",
     sigma_m: float | np.ndarray = 1.0,
+    range_offsets: str = "none",
+    offset_prior_sigma_m: float = 0.1,
 ) -> Iterator[IterationState]:
     """Yield the CSG state after iterations 0 (start), 1, …, ``iterations`` (paper 002 eqs. (10)–(12)).
 
     ``objective="metres"``: the residuals are ``(‖r_a − r_b‖ − d)/σ`` and ``α`` is relative to each anchor's
-    information ``Σ_{l∈E(i)} σ_l⁻²`` (as in :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`)."""
+    information ``Σ_{l∈E(i)} σ_l⁻²`` (as in :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`).
+    ``range_offsets`` (metres): every anchor also holds every anchor's offset (``"per_anchor"``, prior counted
+    twice in its own partial cost) or its copy of the common one, mixed in the same round (the conventions of
+    :mod:`distnav.algorithms.neighbourhood_offsets`)."""
+    check_offsets(range_offsets, offset_prior_sigma_m, objective)
     init = check_start(problem, iterations, consensus_rounds, initial_m)
     if not alpha > 0:
         raise ModelError(f"alpha must be positive, got {alpha}")
@@ -157,30 +163,47 @@ def iterate_csg(
     Q = sp.csr_matrix((np.concatenate([np.ones(nh), -np.ones(nh)]),
                        (np.concatenate([fl_self, fl_other]), np.concatenate([np.arange(nh)] * 2))),
                       shape=(nl * n, nh))
+    per = range_offsets == "per_anchor"
+    prior_w = 2.0 / offset_prior_sigma_m**2 if per else 0.0  # b_i² in f⁽ⁱ⁾, counted twice (see above)
+    Bo = np.zeros((nl, n if per else 1))  # every anchor's offsets (per anchor) or its copy of the common one
+    b_self, b_other = (fl_self, fl_other) if per else (own_idx, own_idx)
+    mine = np.arange(nl), (ex.nodes if per else np.zeros(nl, np.int64))
     if metres:
         info = np.bincount(own_idx, 1.0 / sig**2, minlength=nl)
         alpha_local = alpha / np.where(info > 0, info, 1.0)
+        ratio = info / np.maximum(info + prior_w, 1e-300)  # offset step / position step
     else:
         alpha_local = np.full(nl, float(alpha))
 
+    def bias() -> np.ndarray | float:
+        flat_b = Bo.reshape(-1)
+        return 0.0 if range_offsets == "none" else np.asarray(flat_b[b_self] + (flat_b[b_other] if per else 0.0))
+
     def residual(diff: np.ndarray) -> np.ndarray:
         if metres:
-            return np.asarray((np.linalg.norm(diff, axis=1) - rng_m) / sig)
+            return np.asarray((np.linalg.norm(diff, axis=1) + bias() - rng_m) / sig)
         return np.asarray(np.einsum("ij,ij->i", diff, diff) - d2)
 
     def partial_cost(Fc: np.ndarray) -> np.ndarray:
         flat = Fc.reshape(nl * n, dim)
         g = residual(flat[fl_self] - flat[fl_other])
-        return np.bincount(own_idx, g * g, minlength=nl)
+        return np.asarray(np.bincount(own_idx, g * g, minlength=nl) + prior_w * Bo[mine] ** 2)
 
-    flat = F.reshape(nl * n, dim)
-    yield IterationState(0, flat[ex.nodes[np.arange(nl)] + np.arange(nl) * n].copy(), alpha_local,
-                         partial_cost(F))
+    def state(k: int, pc: np.ndarray) -> IterationState:
+        flat = F.reshape(nl * n, dim)
+        own = flat[ex.nodes + np.arange(nl) * n].copy()
+        if range_offsets == "none":
+            return IterationState(k, own, alpha_local, pc, own_idx, samp, flat[fl_other])
+        return IterationState(k, own, alpha_local, pc, own_idx, samp, flat[fl_other], Bo[mine].copy(),
+                              np.broadcast_to(bias(), own_idx.shape).copy())
+
+    yield state(0, partial_cost(F))
     for k in range(1, iterations + 1):
         flat = F.reshape(nl * n, dim)
         diff = flat[fl_self] - flat[fl_other]
         g = residual(diff)
         pc = np.bincount(own_idx, g * g, minlength=nl)
+        pc = pc + prior_w * Bo[mine] ** 2 if prior_w else pc
         if metres:
             norm = np.linalg.norm(diff, axis=1)
             jr = diff / (np.where(norm > 0, norm, np.inf) * sig)[:, None]
@@ -189,12 +212,19 @@ def iterate_csg(
         else:
             grad = csr_times(Q, 2.0 * g[:, None] * diff).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
             U = np.where(free, F - alpha * grad, known)
-        for _ in range(consensus_rounds):  # eq. (11)
-            U = mixer.apply(U)
+        if range_offsets == "none":
+            for _ in range(consensus_rounds):  # eq. (11)
+                U = mixer.apply(U)
+        else:  # the offsets' gradient, step and consensus (in the same messages: n·dim + n or + 1 floats)
+            gB = (np.bincount(b_self, g / sig, minlength=Bo.size) + (np.bincount(b_other, g / sig, minlength=Bo.size)
+                                                                      if per else 0.0)).reshape(Bo.shape)
+            gB[mine] = gB[mine] + prior_w * Bo[mine]
+            V = np.concatenate([U.reshape(nl, n * dim), Bo - (alpha_local * ratio)[:, None] * gB], axis=1)
+            for _ in range(consensus_rounds):
+                V = mixer.apply(V)
+            U, Bo = V[:, :n * dim].reshape(nl, n, dim), V[:, n * dim:]
         F = np.where(free, U, known)
-        flat = F.reshape(nl * n, dim)
-        yield IterationState(k, flat[ex.nodes + np.arange(nl) * n].copy(), alpha_local, pc, own_idx, samp,
-                             flat[fl_other])
+        yield state(k, pc)
 
 
 # ---------------------------------------------------------------------- run-to-end front doors
@@ -311,8 +341,9 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
     final_cost = cost[-1]
     scale = _loss_scale(problem, setup, sigma)
     offsets = offsets_std = None
+    off_args = (setup.range_offsets, setup.offset_prior_sigma_m, setup.loss, sigma, scale)
     if last.offset_m is not None and status != "diverged":
-        offsets, offsets_std = _offsets(problem, ex, last, setup, sigma, scale, None)
+        offsets, offsets_std = offset_precision(problem, ex, last, *off_args, None)
     bias = sample_bias(problem.meas_a, problem.meas_b, offsets)
     with np.errstate(over="ignore", invalid="ignore"):
         res_final = ((problem.distances(own) + bias - problem.range_m) / sigma if setup.objective == "metres"
@@ -327,7 +358,7 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
     elif setup.quality and last.half_owner is not None:
         precision, tests = _local_qc(problem, ex, last, setup, sigma, scale)
         if offsets is not None:
-            offsets, offsets_std = _offsets(problem, ex, last, setup, sigma, scale, precision.variance_factor)
+            offsets, offsets_std = offset_precision(problem, ex, last, *off_args, precision.variance_factor)
     tail = f" ({why})" if why else ""
     return RangingResult(
         estimates=own,
@@ -349,18 +380,6 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
         offsets_m=offsets,
         offsets_std_m=offsets_std,
     )
-
-
-def _offsets(problem: RangingData, ex: Exchange, st: IterationState, setup: _Setup, sigma: np.ndarray,
-             scale: np.ndarray, vf: float | None) -> tuple[np.ndarray, np.ndarray]:
-    """The anchors' offsets and their conditional σ (:func:`~.neighbourhood_offsets.offset_precision`)."""
-    assert st.half_owner is not None and st.half_sample is not None and st.half_offset_m is not None
-    samp, owner = st.half_sample, st.half_owner
-    diff = st.own_m[owner] - np.asarray(st.half_other_m)
-    r = (np.linalg.norm(diff, axis=1) + st.half_offset_m - problem.range_m[samp]) / sigma[samp]
-    w = loss_terms(r, scale[samp], setup.loss)[0]
-    return offset_precision(ex, st, problem.free[ex.nodes[owner]], np.asarray(w), sigma[samp],
-                            setup.range_offsets, setup.offset_prior_sigma_m, vf)
 
 
 def _loss_scale(problem: RangingData, setup: _Setup, sigma: np.ndarray) -> np.ndarray:
@@ -420,7 +439,8 @@ def solve_csg(problem: RangingData, *, exchange: Exchange | None = None, iterati
               alpha: float | None = None, consensus_rounds: int = 1, weights: str | ConsensusWeights = "MH",
               initial_m: np.ndarray | None = None, monitor_every: int = 1, objective: str = "squared",
               sigma_m: float | np.ndarray = 1.0, stop: StopRule | None = StopRule(), quality: bool = True,
-              test_level: float = 0.001, test_scale: str = "robust") -> RangingResult:
+              test_level: float = 0.001, test_scale: str = "robust", range_offsets: str = "none",
+              offset_prior_sigma_m: float = 0.1) -> RangingResult:
     """CSG (paper 002 eqs. (10)–(12)); trace: ``rmse_m``, ``cost`` (global f at the anchors' own estimates),
     ``partial_cost`` (Σ_i f⁽ⁱ⁾(x⁽ⁱ⁾)), ``step_size``; row 0 is the start.
 
@@ -433,12 +453,14 @@ def solve_csg(problem: RangingData, *, exchange: Exchange | None = None, iterati
     ``monitor_every = k`` gathers the estimates for the trace (and the stopping and divergence tests) only every
     ``k``-th iteration (NaN rows otherwise; 0: start and end only); see :func:`_run`."""
     setup = _Setup(objective=objective, sigma_m=sigma_m, stop=stop, quality=quality, test_level=test_level,
-                   test_scale=test_scale, monitor_every=monitor_every)
+                   test_scale=test_scale, monitor_every=monitor_every, range_offsets=range_offsets,
+                   offset_prior_sigma_m=offset_prior_sigma_m)
     setup.check()
     a = (1e-3 if objective == "squared" else 0.8) if alpha is None else alpha
     ex = exchange_for(problem, exchange)
     states = iterate_csg(problem, exchange=ex, iterations=iterations, alpha=a, consensus_rounds=consensus_rounds,
-                         weights=weights, initial_m=initial_m, objective=objective, sigma_m=sigma_m)
+                         weights=weights, initial_m=initial_m, objective=objective, sigma_m=sigma_m,
+                         range_offsets=range_offsets, offset_prior_sigma_m=offset_prior_sigma_m)
     return _run(problem, states, ex, "CSG", iterations, {"alpha": a, "consensus_rounds": consensus_rounds}, setup)
 
 

@@ -35,7 +35,8 @@ import numpy as np
 
 from distnav._sparse import csr_times
 from distnav.algorithms.neighbourhood import ArmijoTest, IterationState, Mixing, Neighbourhoods
-from distnav.algorithms.nlsq import single_threaded_blas
+from distnav.algorithms.nlsq import loss_terms, single_threaded_blas
+from distnav.algorithms.ranging import RangingData
 from distnav.algorithms.ranging_qc import free_block_inverses
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -269,17 +270,20 @@ def sample_bias(meas_a: np.ndarray, meas_b: np.ndarray, offsets_m: np.ndarray | 
     return np.asarray(offsets_m[meas_a] + offsets_m[meas_b])
 
 
-def offset_precision(ex: Exchange, st: IterationState, free_own: np.ndarray, weight: np.ndarray,
-                     sigma_half: np.ndarray, mode: str, prior_sigma_m: float, variance_factor: float | None
+def offset_precision(problem: RangingData, ex: Exchange, st: IterationState, mode: str, prior_sigma_m: float,
+                     loss: str, sigma: np.ndarray, scale: np.ndarray, variance_factor: float | None
                      ) -> tuple[np.ndarray, np.ndarray]:
-    """``(offsets, σ)`` reported by the anchors (module docstring): per anchor, or one common (the mean of the
-    anchors' copies). ``free_own`` ``(h, dim)`` the holder's free coordinates, ``weight`` the final IRLS weight and
-    ``sigma_half`` the σ of every half-measurement ``st`` holds."""
+    """``(offsets, σ)`` reported by the anchors at the state ``st`` (module docstring): per anchor, or one common
+    (the mean of the anchors' copies); ``sigma`` / ``scale``: every sample's range σ and loss scale."""
     assert st.half_owner is not None and st.half_other_m is not None and st.offset_m is not None
-    owner, nl = st.half_owner, ex.n_local
+    assert st.half_sample is not None and st.half_offset_m is not None
+    owner, samp, nl = st.half_owner, st.half_sample, ex.n_local
     dim = st.own_m.shape[1]
+    sigma_half, free_own = sigma[samp], problem.free[ex.nodes[owner]]
     diff = st.own_m[owner] - st.half_other_m
     norm = np.linalg.norm(diff, axis=1)
+    r = (norm + st.half_offset_m - problem.range_m[samp]) / sigma_half
+    weight = loss_terms(r, scale[samp], loss)[0]  # the final IRLS weights
     j = np.concatenate([diff / (np.where(norm > 0, norm, np.inf) * sigma_half)[:, None] * free_own,
                         (1.0 / sigma_half)[:, None]], axis=1)
     info = np.zeros((nl, dim + 1, dim + 1))
@@ -299,4 +303,3 @@ def offset_precision(ex: Exchange, st: IterationState, free_own: np.ndarray, wei
     total = float(ex.allreduce(float(eliminated.sum()), "sum")) / 2.0  # every range in two anchors' information
     mean = float(ex.allreduce(float(st.offset_m.sum()), "sum")) / max(float(ex.allreduce(nl, "sum")), 1.0)
     return np.array([mean]), np.array([np.sqrt(s2 / total) if total > 0 else np.nan])
-
