@@ -164,11 +164,11 @@ def _solver_kwargs(opts: FieldOptions) -> dict[str, Any]:
         kw.update(objective=opts.objective)
         if opts.objective == "metres":
             kw.update(sigma_m=opts.sigma_m)
-            if key == "LM":
+            if opts.offsets_used != "none":  # LM and every distributed solver (neighbourhood_offsets)
                 kw.update(range_offsets=opts.offsets_used, offset_prior_sigma_m=opts.offset_prior_sigma_m)
         kw.update(test_level=opts.level)
-    elif opts.offsets_used != "none":
-        raise ModelError(f"range offsets are estimated by LM with the metres objective, not by {key}")
+    if opts.offsets_used != "none" and opts.objective != "metres":
+        raise ModelError(f"range offsets are estimated with the metres objective, not with {opts.objective!r}")
     return kw
 
 
