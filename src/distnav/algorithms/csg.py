@@ -76,9 +76,10 @@ class StopRule:
 
     At every monitored iteration (after the graduated linear stage): converged when, for ``patience`` checks in a
     row, the global objective changed by at most ``ftol`` (relative) since the previous check and no anchor's own
-    estimate moved by more than ``xtol_m`` metres. Diverged when the cost is not finite or an own estimate is
-    farther than ``divergence_factor`` × the extent of the start from its centre. The tests use network totals
-    (``ex.allreduce``), like ADMM's; a deployment without them runs a fixed count (``stop=None``, the paper's mode).
+    estimate (nor its range offset) moved by more than ``xtol_m`` metres. Diverged when the cost is not finite or
+    an own estimate is farther than ``divergence_factor`` × the extent of the start from its centre. The tests use
+    network totals (``ex.allreduce``), like ADMM's; a deployment without them runs a fixed count (``stop=None``, the
+    paper's mode).
     """
 
     ftol: float = 1e-6
@@ -228,11 +229,6 @@ def iterate_csg(
 
 
 # ---------------------------------------------------------------------- run-to-end front doors
-def _check_monitor(monitor_every: int) -> None:
-    if monitor_every < 0:
-        raise ModelError(f"monitor_every must be ≥ 0, got {monitor_every}")
-
-
 @dataclass(frozen=True)
 class _Setup:
     """What :func:`_run` needs besides the states: objective, loss, stopping rule and QC options."""
@@ -251,7 +247,8 @@ class _Setup:
     offset_prior_sigma_m: float = 0.1
 
     def check(self) -> None:
-        _check_monitor(self.monitor_every)
+        if self.monitor_every < 0:
+            raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
         if self.test_scale not in TEST_SCALES:
             raise ModelError(f"test_scale must be one of {', '.join(TEST_SCALES)}, got {self.test_scale!r}")
         if self.loss not in LOSSES:
@@ -284,6 +281,7 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
     own: np.ndarray | None = None
     last: IterationState | None = None
     prev_local: np.ndarray | None = None
+    prev_off: np.ndarray | None = None
     prev_pcost = nan = float("nan")
     centre, extent = np.zeros(problem.dim), 1.0
     status: SolverStatus = "max_iterations"
@@ -324,6 +322,8 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                 break
             if prev_local is not None and k > setup.graduated + 1:  # vs the previous monitored iteration
                 local_move = np.linalg.norm(st.own_m - prev_local, axis=1)
+                if st.offset_m is not None and prev_off is not None:  # the offsets must have settled too
+                    local_move = np.maximum(local_move, np.abs(st.offset_m - prev_off))
                 moved = float(ex.allreduce(float(local_move.max(initial=0.0)), "max"))
                 change = abs(pcost[-1] - prev_pcost)
                 small = change <= stop.ftol * max(abs(pcost[-1]), 1e-9 * abs(pcost[0]), 1e-300) and moved <= stop.xtol_m
@@ -333,7 +333,7 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                     why = (f"objective change ≤ {stop.ftol:g} (relative) and steps ≤ {stop.xtol_m:g} m "
                            f"for {stop.patience} checks")
                     break
-            prev_local, prev_pcost = st.own_m, pcost[-1]
+            prev_local, prev_pcost, prev_off = st.own_m, pcost[-1], st.offset_m
     assert own is not None and last is not None
     key = "lambda" if name == "N-CLM" else "step_size"
     trace = Trace({"rmse_m": np.asarray(rm), "cost": np.asarray(cost), "partial_cost": np.asarray(pcost),
