@@ -17,6 +17,7 @@ exchange (:mod:`distnav.exchange`); all arrays below are local to the exchange's
   when the estimates blow up).
 
 Fixed anchors take part (they measure and relay) but their coordinates, and any held coordinate, are never changed.
+Range offsets (``range_offsets``, metres objective): :mod:`distnav.algorithms.neighbourhood_offsets`.
 Paper defaults: 500 iterations, ``α = 1e-3``, ``α₀ = 1e-2``, ``β = γ = 1/2``, one consensus round.
 """
 
