@@ -243,8 +243,8 @@ def test_diverged_run_exits_non_zero_and_writes_no_positions(tmp_path, capsys, m
 @pytest.mark.parametrize("extra, match", [
     (("--sigma-m", "0"), "--sigma-m must be a positive"), (("--sigma-m", "nan"), "--sigma-m must be a positive"),
     (("--level", "0.7"), "--level must lie in"), (("--offset-prior-sigma-m", "-1"), "--offset-prior-sigma-m"),
-    (("--range-offsets", "common", "--solver", "N-CLM"), "--range-offsets is estimated by LM"),
-    (("--range-offsets", "common", "--objective", "squared"), "--range-offsets is estimated by LM"),
+    (("--range-offsets", "common", "--objective", "squared"), "estimated with --objective metres only"),
+    (("--range-offsets", "per_anchor", "--solver", "N-CLM", "--objective", "squared"), "with --objective metres"),
     (("--objective", "cubed"), "invalid choice"), (("--range-offsets", "all"), "invalid choice"),
     (("--level", "x"), "invalid float"),
 ])

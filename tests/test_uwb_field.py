@@ -190,7 +190,8 @@ def test_default_range_offsets_resolve_per_solver():
     from distnav.models.uwb.field import FieldOptions
 
     assert FieldOptions().offsets_used == "common"
-    assert FieldOptions(solver="N-CLM").offsets_used == "none"
+    assert FieldOptions(solver="N-CLM").offsets_used == "common"  # every solver estimates offsets (issue 13 item 5)
+    assert FieldOptions(solver="CSG", range_offsets="per_anchor").offsets_used == "per_anchor"
     assert FieldOptions(objective="squared").offsets_used == "none"
     assert FieldOptions(range_offsets="per_anchor").offsets_used == "per_anchor"
     assert FieldOptions().considers_delays  # LM, metres, common offset: the delays left are considered in σ

@@ -347,3 +347,31 @@ def ncsg_neighbourhood_precision(backend: str) -> dict[str, np.ndarray]:
             "bytes": out.precision.comm.bytes_sent, "subnetwork_covariance": ball.covariance(a_posteriori=True),
             "subnetwork_factor": np.nan_to_num(ball.variance_factor_nodes, nan=-1.0),
             "subnetwork_bytes": ball.precision.comm.bytes_sent}
+
+
+@case
+def range_offsets_distributed(backend: str) -> dict[str, np.ndarray]:
+    """Range offsets (issue 13 item 5): per-anchor by N-CLM and N-CSG-TBLS with drops, common by CSG."""
+    import dataclasses
+
+    from distnav.algorithms.csg import solve
+
+    problem = _uwb_problem()
+    delays = np.random.default_rng(8).normal(0.0, 0.05, problem.n_anchors)
+    problem = dataclasses.replace(problem, range_m=problem.range_m + 0.2 + delays[problem.meas_a]
+                                  + delays[problem.meas_b])
+    node: list[np.ndarray] = []  # per-anchor results: bit for bit
+    total: list[np.ndarray] = []  # the common offset and every σ use network sums (allreduce): equal to rounding
+    sent: list[np.ndarray] = []
+    for solver, mode, faults in (("N-CLM", "per_anchor", None), ("N-CSG-TBLS", "per_anchor", 0.1),
+                                 ("N-CSG-TBLS", "common", None), ("CSG", "common", None)):
+        ex = make_exchange(problem.graph, backend=backend,
+                           faults=None if faults is None else FaultSchedule(drop_probability=faults, seed=5))
+        robust = {} if solver == "CSG" else {"loss": "cauchy"}
+        res = solve(problem, solver, iterations=25, exchange=ex, objective="metres", sigma_m=0.15, **robust,
+                    range_offsets=mode, offset_prior_sigma_m=0.1)
+        node.append(res.estimates.ravel())
+        (node if mode == "per_anchor" else total).append(res.offsets_m)
+        total.append(np.nan_to_num(res.offsets_std_m, posinf=-1.0))  # σ: × the variance factor (a network sum)
+        sent.append(res.comm.bytes_sent)
+    return {"estimates": np.concatenate(node), "offsets": np.concatenate(total), "bytes": np.concatenate(sent)}

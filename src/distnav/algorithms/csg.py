@@ -17,6 +17,7 @@ exchange (:mod:`distnav.exchange`); all arrays below are local to the exchange's
   when the estimates blow up).
 
 Fixed anchors take part (they measure and relay) but their coordinates, and any held coordinate, are never changed.
+Range offsets (``range_offsets``, metres objective): :mod:`distnav.algorithms.neighbourhood_offsets`.
 Paper defaults: 500 iterations, ``α = 1e-3``, ``α₀ = 1e-2``, ``β = γ = 1/2``, one consensus round.
 """
 
@@ -40,6 +41,7 @@ from distnav.algorithms.neighbourhood import (
     iterate_neighbourhood,
     mixing_weights,
 )
+from distnav.algorithms.neighbourhood_offsets import check_offsets, offset_precision, sample_bias
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, solve_lm
 from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.ranging_objective import range_sigma
@@ -75,9 +77,10 @@ class StopRule:
 
     At every monitored iteration (after the graduated linear stage): converged when, for ``patience`` checks in a
     row, the global objective changed by at most ``ftol`` (relative) since the previous check and no anchor's own
-    estimate moved by more than ``xtol_m`` metres. Diverged when the cost is not finite or an own estimate is
-    farther than ``divergence_factor`` × the extent of the start from its centre. The tests use network totals
-    (``ex.allreduce``), like ADMM's; a deployment without them runs a fixed count (``stop=None``, the paper's mode).
+    estimate (nor its range offset) moved by more than ``xtol_m`` metres. Diverged when the cost is not finite or
+    an own estimate is farther than ``divergence_factor`` × the extent of the start from its centre. The tests use
+    network totals (``ex.allreduce``), like ADMM's; a deployment without them runs a fixed count (``stop=None``, the
+    paper's mode).
     """
 
     ftol: float = 1e-6
@@ -128,11 +131,17 @@ def iterate_csg(
     initial_m: np.ndarray | None = None,
     objective: str = "squared",
     sigma_m: float | np.ndarray = 1.0,
+    range_offsets: str = "none",
+    offset_prior_sigma_m: float = 0.1,
 ) -> Iterator[IterationState]:
     """Yield the CSG state after iterations 0 (start), 1, …, ``iterations`` (paper 002 eqs. (10)–(12)).
 
     ``objective="metres"``: the residuals are ``(‖r_a − r_b‖ − d)/σ`` and ``α`` is relative to each anchor's
-    information ``Σ_{l∈E(i)} σ_l⁻²`` (as in :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`)."""
+    information ``Σ_{l∈E(i)} σ_l⁻²`` (as in :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`).
+    ``range_offsets`` (metres): every anchor also holds every anchor's offset (``"per_anchor"``, prior counted
+    twice in its own partial cost) or its copy of the common one, mixed in the same round (the conventions of
+    :mod:`distnav.algorithms.neighbourhood_offsets`)."""
+    check_offsets(range_offsets, offset_prior_sigma_m, objective)
     init = check_start(problem, iterations, consensus_rounds, initial_m)
     if not alpha > 0:
         raise ModelError(f"alpha must be positive, got {alpha}")
@@ -156,30 +165,47 @@ def iterate_csg(
     Q = sp.csr_matrix((np.concatenate([np.ones(nh), -np.ones(nh)]),
                        (np.concatenate([fl_self, fl_other]), np.concatenate([np.arange(nh)] * 2))),
                       shape=(nl * n, nh))
+    per = range_offsets == "per_anchor"
+    prior_w = 2.0 / offset_prior_sigma_m**2 if per else 0.0  # b_i² in f⁽ⁱ⁾, counted twice (see above)
+    Bo = np.zeros((nl, n if per else 1))  # every anchor's offsets (per anchor) or its copy of the common one
+    b_self, b_other = (fl_self, fl_other) if per else (own_idx, own_idx)
+    mine = np.arange(nl), (ex.nodes if per else np.zeros(nl, np.int64))
     if metres:
         info = np.bincount(own_idx, 1.0 / sig**2, minlength=nl)
         alpha_local = alpha / np.where(info > 0, info, 1.0)
+        ratio = info / np.maximum(info + prior_w, 1e-300)  # offset step / position step
     else:
         alpha_local = np.full(nl, float(alpha))
 
+    def bias() -> np.ndarray | float:
+        flat_b = Bo.reshape(-1)
+        return 0.0 if range_offsets == "none" else np.asarray(flat_b[b_self] + (flat_b[b_other] if per else 0.0))
+
     def residual(diff: np.ndarray) -> np.ndarray:
         if metres:
-            return np.asarray((np.linalg.norm(diff, axis=1) - rng_m) / sig)
+            return np.asarray((np.linalg.norm(diff, axis=1) + bias() - rng_m) / sig)
         return np.asarray(np.einsum("ij,ij->i", diff, diff) - d2)
 
     def partial_cost(Fc: np.ndarray) -> np.ndarray:
         flat = Fc.reshape(nl * n, dim)
         g = residual(flat[fl_self] - flat[fl_other])
-        return np.bincount(own_idx, g * g, minlength=nl)
+        return np.asarray(np.bincount(own_idx, g * g, minlength=nl) + prior_w * Bo[mine] ** 2)
 
-    flat = F.reshape(nl * n, dim)
-    yield IterationState(0, flat[ex.nodes[np.arange(nl)] + np.arange(nl) * n].copy(), alpha_local,
-                         partial_cost(F))
+    def state(k: int, pc: np.ndarray) -> IterationState:
+        flat = F.reshape(nl * n, dim)
+        own = flat[ex.nodes + np.arange(nl) * n].copy()
+        if range_offsets == "none":
+            return IterationState(k, own, alpha_local, pc, own_idx, samp, flat[fl_other])
+        return IterationState(k, own, alpha_local, pc, own_idx, samp, flat[fl_other], Bo[mine].copy(),
+                              np.broadcast_to(bias(), own_idx.shape).copy())
+
+    yield state(0, partial_cost(F))
     for k in range(1, iterations + 1):
         flat = F.reshape(nl * n, dim)
         diff = flat[fl_self] - flat[fl_other]
         g = residual(diff)
         pc = np.bincount(own_idx, g * g, minlength=nl)
+        pc = pc + prior_w * Bo[mine] ** 2 if prior_w else pc
         if metres:
             norm = np.linalg.norm(diff, axis=1)
             jr = diff / (np.where(norm > 0, norm, np.inf) * sig)[:, None]
@@ -188,20 +214,22 @@ def iterate_csg(
         else:
             grad = csr_times(Q, 2.0 * g[:, None] * diff).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
             U = np.where(free, F - alpha * grad, known)
-        for _ in range(consensus_rounds):  # eq. (11)
-            U = mixer.apply(U)
+        if range_offsets == "none":
+            for _ in range(consensus_rounds):  # eq. (11)
+                U = mixer.apply(U)
+        else:  # the offsets' gradient, step and consensus (in the same messages: n·dim + n or + 1 floats)
+            gB = (np.bincount(b_self, g / sig, minlength=Bo.size) + (np.bincount(b_other, g / sig, minlength=Bo.size)
+                                                                      if per else 0.0)).reshape(Bo.shape)
+            gB[mine] = gB[mine] + prior_w * Bo[mine]
+            V = np.concatenate([U.reshape(nl, n * dim), Bo - (alpha_local * ratio)[:, None] * gB], axis=1)
+            for _ in range(consensus_rounds):
+                V = mixer.apply(V)
+            U, Bo = V[:, :n * dim].reshape(nl, n, dim), V[:, n * dim:]
         F = np.where(free, U, known)
-        flat = F.reshape(nl * n, dim)
-        yield IterationState(k, flat[ex.nodes + np.arange(nl) * n].copy(), alpha_local, pc, own_idx, samp,
-                             flat[fl_other])
+        yield state(k, pc)
 
 
 # ---------------------------------------------------------------------- run-to-end front doors
-def _check_monitor(monitor_every: int) -> None:
-    if monitor_every < 0:
-        raise ModelError(f"monitor_every must be ≥ 0, got {monitor_every}")
-
-
 @dataclass(frozen=True)
 class _Setup:
     """What :func:`_run` needs besides the states: objective, loss, stopping rule and QC options."""
@@ -216,9 +244,12 @@ class _Setup:
     test_level: float = 0.001
     test_scale: str = "robust"
     monitor_every: int = 1
+    range_offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
 
     def check(self) -> None:
-        _check_monitor(self.monitor_every)
+        if self.monitor_every < 0:
+            raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
         if self.test_scale not in TEST_SCALES:
             raise ModelError(f"test_scale must be one of {', '.join(TEST_SCALES)}, got {self.test_scale!r}")
         if self.loss not in LOSSES:
@@ -251,6 +282,7 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
     own: np.ndarray | None = None
     last: IterationState | None = None
     prev_local: np.ndarray | None = None
+    prev_off: np.ndarray | None = None
     prev_pcost = nan = float("nan")
     centre, extent = np.zeros(problem.dim), 1.0
     status: SolverStatus = "max_iterations"
@@ -291,6 +323,8 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                 break
             if prev_local is not None and k > setup.graduated + 1:  # vs the previous monitored iteration
                 local_move = np.linalg.norm(st.own_m - prev_local, axis=1)
+                if st.offset_m is not None and prev_off is not None:  # the offsets must have settled too
+                    local_move = np.maximum(local_move, np.abs(st.offset_m - prev_off))
                 moved = float(ex.allreduce(float(local_move.max(initial=0.0)), "max"))
                 change = abs(pcost[-1] - prev_pcost)
                 small = change <= stop.ftol * max(abs(pcost[-1]), 1e-9 * abs(pcost[0]), 1e-300) and moved <= stop.xtol_m
@@ -300,16 +334,23 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                     why = (f"objective change ≤ {stop.ftol:g} (relative) and steps ≤ {stop.xtol_m:g} m "
                            f"for {stop.patience} checks")
                     break
-            prev_local, prev_pcost = st.own_m, pcost[-1]
+            prev_local, prev_pcost, prev_off = st.own_m, pcost[-1], st.offset_m
     assert own is not None and last is not None
     key = "lambda" if name == "N-CLM" else "step_size"
     trace = Trace({"rmse_m": np.asarray(rm), "cost": np.asarray(cost), "partial_cost": np.asarray(pcost),
                    key: np.asarray(step)})
     final_cost = cost[-1]
     scale = _loss_scale(problem, setup, sigma)
+    offsets = offsets_std = None
+    off_args = (setup.range_offsets, setup.offset_prior_sigma_m, setup.loss, sigma, scale)
+    if last.offset_m is not None and status != "diverged":
+        offsets, offsets_std = offset_precision(problem, ex, last, *off_args, None)
+    bias = sample_bias(problem.meas_a, problem.meas_b, offsets)
     with np.errstate(over="ignore", invalid="ignore"):
-        res_final = ((problem.distances(own) - problem.range_m) / sigma if setup.objective == "metres"
+        res_final = ((problem.distances(own) + bias - problem.range_m) / sigma if setup.objective == "metres"
                      else problem.residuals(own))
+        if offsets is not None:
+            final_cost = float(res_final @ res_final)
         objective = final_cost if setup.loss == "linear" else float(np.sum(loss_terms(res_final, scale,
                                                                                         setup.loss)[1]))
     precision = tests = None
@@ -317,6 +358,8 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
         own = np.full_like(own, np.nan)  # never present a blown-up iterate as a result
     elif setup.quality and last.half_owner is not None:
         precision, tests = _local_qc(problem, ex, last, setup, sigma, scale)
+        if offsets is not None:
+            offsets, offsets_std = offset_precision(problem, ex, last, *off_args, precision.variance_factor)
     tail = f" ({why})" if why else ""
     return RangingResult(
         estimates=own,
@@ -335,6 +378,8 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
         objective_kind=setup.objective,
         precision=precision,
         tests=tests,
+        offsets_m=offsets,
+        offsets_std_m=offsets_std,
     )
 
 
@@ -350,7 +395,8 @@ def _local_qc(problem: RangingData, ex: Exchange, st: IterationState, setup: _Se
     for the result only); each sample is reported by the lower-indexed of its two anchors."""
     assert st.half_owner is not None and st.half_sample is not None and st.half_other_m is not None
     owner, samp = st.half_owner, st.half_sample
-    cov, w_half, wssr = local_quality(problem.range_m[samp], owner, problem.free[ex.nodes[owner]],
+    rng = problem.range_m[samp] - (0.0 if st.half_offset_m is None else st.half_offset_m)  # the holder's bias
+    cov, w_half, wssr = local_quality(rng, owner, problem.free[ex.nodes[owner]],
                                       st.own_m[owner], st.half_other_m, sigma[samp], ex.n_local, setup.objective,
                                       loss=setup.loss, loss_scale=scale[samp], scale=setup.test_scale)
     # pack per anchor (padded) so the result can be gathered over blocks
@@ -394,7 +440,8 @@ def solve_csg(problem: RangingData, *, exchange: Exchange | None = None, iterati
               alpha: float | None = None, consensus_rounds: int = 1, weights: str | ConsensusWeights = "MH",
               initial_m: np.ndarray | None = None, monitor_every: int = 1, objective: str = "squared",
               sigma_m: float | np.ndarray = 1.0, stop: StopRule | None = StopRule(), quality: bool = True,
-              test_level: float = 0.001, test_scale: str = "robust") -> RangingResult:
+              test_level: float = 0.001, test_scale: str = "robust", range_offsets: str = "none",
+              offset_prior_sigma_m: float = 0.1) -> RangingResult:
     """CSG (paper 002 eqs. (10)–(12)); trace: ``rmse_m``, ``cost`` (global f at the anchors' own estimates),
     ``partial_cost`` (Σ_i f⁽ⁱ⁾(x⁽ⁱ⁾)), ``step_size``; row 0 is the start.
 
@@ -407,12 +454,14 @@ def solve_csg(problem: RangingData, *, exchange: Exchange | None = None, iterati
     ``monitor_every = k`` gathers the estimates for the trace (and the stopping and divergence tests) only every
     ``k``-th iteration (NaN rows otherwise; 0: start and end only); see :func:`_run`."""
     setup = _Setup(objective=objective, sigma_m=sigma_m, stop=stop, quality=quality, test_level=test_level,
-                   test_scale=test_scale, monitor_every=monitor_every)
+                   test_scale=test_scale, monitor_every=monitor_every, range_offsets=range_offsets,
+                   offset_prior_sigma_m=offset_prior_sigma_m)
     setup.check()
     a = (1e-3 if objective == "squared" else 0.8) if alpha is None else alpha
     ex = exchange_for(problem, exchange)
     states = iterate_csg(problem, exchange=ex, iterations=iterations, alpha=a, consensus_rounds=consensus_rounds,
-                         weights=weights, initial_m=initial_m, objective=objective, sigma_m=sigma_m)
+                         weights=weights, initial_m=initial_m, objective=objective, sigma_m=sigma_m,
+                         range_offsets=range_offsets, offset_prior_sigma_m=offset_prior_sigma_m)
     return _run(problem, states, ex, "CSG", iterations, {"alpha": a, "consensus_rounds": consensus_rounds}, setup)
 
 
@@ -423,7 +472,8 @@ def solve_ncsg(problem: RangingData, *, line_search: str | None = None, exchange
                armijo_slope: str = "subgradient", loss: str = "linear", loss_scale_m: float = 0.3,
                monitor_every: int = 1, objective: str = "squared", sigma_m: float | np.ndarray = 1.0,
                graduated: int | None = None, stop: StopRule | None = StopRule(), quality: bool = True,
-               test_level: float = 0.001, test_scale: str = "robust") -> RangingResult:
+               test_level: float = 0.001, test_scale: str = "robust", range_offsets: str = "none",
+               offset_prior_sigma_m: float = 0.1) -> RangingResult:
     """N-CSG (eqs. (14)–(18)); ``line_search="BLS"`` (eqs. (19)–(20)) or ``"TBLS"`` (eq. (21)).
 
     Trace, ``stop``, ``quality`` and ``monitor_every`` as :func:`solve_csg`; ``step_size`` is the mean ``α`` over
@@ -431,7 +481,8 @@ def solve_ncsg(problem: RangingData, *, line_search: str | None = None, exchange
     ``alpha = 0.8``, ``alpha0 = 2`` (the Armijo test keeps it safe; 4 oscillates) relative to each anchor's
     information (see :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`). ``graduated``: iterations
     with the linear loss before the robust one (default: a quarter of ``iterations`` for metres with a robust loss,
-    else 0).
+    else 0). ``range_offsets`` ``"common"`` / ``"per_anchor"`` (metres; prior σ ``offset_prior_sigma_m``):
+    range offsets estimated with the positions (:mod:`distnav.algorithms.neighbourhood_offsets`).
     ``armijo_slope="subgradient"`` (default, the papers README's eq. (19): ``d = −∇f``, "the subgradient") puts
     the subgradient ``G⁽ⁱ⁾ᵀg⁽ⁱ⁾`` of eq. (10) in place of ``∇f⁽ⁱ⁾`` in the Armijo test, i.e. requires
     ``f⁽ⁱ⁾(x + αd) ≤ f⁽ⁱ⁾(x) − γα‖d‖²``; this reproduces the paper's Fig. 6 step sizes (≈1.2e-3 on RC/RM).
@@ -455,13 +506,14 @@ def _ncsg_parts(args: dict[str, Any]) -> tuple[_Setup, dict[str, Any], dict[str,
     grad_its = _graduated(objective, loss, args["graduated"], iterations)
     setup = _Setup(objective=objective, sigma_m=args["sigma_m"], loss=loss, loss_scale_m=args["loss_scale_m"],
                    stop=args["stop"], graduated=grad_its, quality=args["quality"], test_level=args["test_level"],
-                   test_scale=args["test_scale"], monitor_every=args["monitor_every"])
+                   test_scale=args["test_scale"], monitor_every=args["monitor_every"],
+                   range_offsets=args["range_offsets"], offset_prior_sigma_m=args["offset_prior_sigma_m"])
     setup.check()
     a = (1e-3 if objective == "squared" else 0.8) if args["alpha"] is None else args["alpha"]
     a0 = (1e-2 if objective == "squared" else 2.0) if args["alpha0"] is None else args["alpha0"]
     options = {k: args[k] for k in ("iterations", "beta", "gamma", "consensus_rounds", "weights", "initial_m",
                                     "max_backtracks", "armijo_slope", "loss", "loss_scale_m", "objective",
-                                    "sigma_m")}
+                                    "sigma_m", "range_offsets", "offset_prior_sigma_m")}
     options.update(alpha=a, alpha0=a0, graduated=grad_its)
     settings = {"alpha": a, "alpha0": a0, "beta": args["beta"], "gamma": args["gamma"],
                 "consensus_rounds": args["consensus_rounds"], "armijo_slope": args["armijo_slope"], "loss": loss}
@@ -479,6 +531,8 @@ def solve_line_search_pair(problem: RangingData, *, exchanges: tuple[Exchange, E
     bound = inspect.signature(solve_ncsg).bind(problem, **options)
     bound.apply_defaults()
     setup, opts, settings = _ncsg_parts(dict(bound.arguments))
+    if opts["range_offsets"] != "none":
+        raise ModelError("solve_line_search_pair has no range offsets: run solve_ncsg for BLS and TBLS")
     pair = exchanges or (exchange_for(problem, None), exchange_for(problem, None))
     ex_b, ex_t = exchange_for(problem, pair[0]), exchange_for(problem, pair[1])
     bls_states, tbls_states = iterate_line_search_pair(problem, exchanges=(ex_b, ex_t), **opts)
@@ -494,9 +548,10 @@ def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterat
                loss_scale_m: float = 0.3, lambda_min: float = 0.1, monitor_every: int = 1,
                objective: str = "squared", sigma_m: float | np.ndarray = 1.0, graduated: int | None = None,
                stop: StopRule | None = StopRule(), quality: bool = True, test_level: float = 0.001,
-               test_scale: str = "robust") -> RangingResult:
-    """N-CLM (eq. (22)); trace, ``objective``, ``graduated``, ``stop``, ``quality`` and ``monitor_every`` as
-    :func:`solve_ncsg`, with the mean ``lambda`` instead of ``step_size``.
+               test_scale: str = "robust", range_offsets: str = "none",
+               offset_prior_sigma_m: float = 0.1) -> RangingResult:
+    """N-CLM (eq. (22)); trace, ``objective``, ``graduated``, ``stop``, ``quality``, ``monitor_every`` and
+    ``range_offsets`` as :func:`solve_ncsg`, with the mean ``lambda`` instead of ``step_size``.
 
     ``damping="fletcher"`` is eq. (22) read literally with eq. (8)'s ``λ diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾)``. On the partial cost
     this stalls: anchor ``i`` has ``d_i`` ranges but ``(d_i + 1)·dim`` unknowns, and a neighbour's coordinates
@@ -513,13 +568,15 @@ def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterat
     grad_its = _graduated(objective, loss, graduated, iterations)
     setup = _Setup(objective=objective, sigma_m=sigma_m, loss=loss, loss_scale_m=loss_scale_m, stop=stop,
                    graduated=grad_its, quality=quality, test_level=test_level, test_scale=test_scale,
-                   monitor_every=monitor_every)
+                   monitor_every=monitor_every, range_offsets=range_offsets,
+                   offset_prior_sigma_m=offset_prior_sigma_m)
     setup.check()
     ex = exchange_for(problem, exchange)
     states = iterate_neighbourhood(problem, method="N-CLM", exchange=ex, iterations=iterations, lambda0=lambda0,
                                    consensus_rounds=consensus_rounds, weights=weights, initial_m=initial_m,
                                    damping=damping, loss=loss, loss_scale_m=loss_scale_m, lambda_min=lambda_min,
-                                   objective=objective, sigma_m=sigma_m, graduated=grad_its)
+                                   objective=objective, sigma_m=sigma_m, graduated=grad_its,
+                                   range_offsets=range_offsets, offset_prior_sigma_m=offset_prior_sigma_m)
     return _run(problem, states, ex, "N-CLM", iterations,
                 {"lambda0": lambda0, "consensus_rounds": consensus_rounds, "damping": damping, "loss": loss}, setup)
 

@@ -46,6 +46,17 @@ class LocalLM:
         self.n_free = self.fo.sum(axis=1) + np.asarray(self.O @ self.fs.sum(axis=1).astype(float))
         self.eye = np.eye(nb.dim)
 
+    def gain_update(self, f0: np.ndarray, f_new: np.ndarray, pred: np.ndarray, lam: np.ndarray, nu: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each anchor's step accepted where its partial cost fell (gain ratio ``ρ > 0``), and its new ``(λ, ν)``
+        (Nielsen's update, floored at ``lambda_min``)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.where(pred > 0, (f0 - f_new) / pred, -1.0)
+        acc = (rho > 0) & np.isfinite(f_new)
+        new_lam = np.where(acc, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), lam * nu)
+        new_nu = np.where(acc, 2.0, nu * 2.0)
+        return acc, np.clip(new_lam, self.lambda_min, 1e12), new_nu
+
     def step(self, P: np.ndarray, diff: np.ndarray, g: np.ndarray, f0: np.ndarray, grad: np.ndarray, lam: np.ndarray,
              nu: np.ndarray, wt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         nb = self.nb
@@ -112,11 +123,6 @@ class LocalLM:
             pred = np.bincount(nb.h_own, wt * (a * a - lin * lin), minlength=nl)
         else:
             pred = f0 - np.bincount(nb.h_own, lin * lin, minlength=nl)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rho = np.where(pred > 0, (f0 - f_new) / pred, -1.0)
-        acc = (rho > 0) & np.isfinite(f_new)
-        new_lam = np.where(acc, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), lam * nu)
-        new_nu = np.where(acc, 2.0, nu * 2.0)
-        new_lam = np.clip(new_lam, self.lambda_min, 1e12)
+        acc, new_lam, new_nu = self.gain_update(f0, f_new, pred, lam, nu)
         U = P + np.where(acc[:, None, None], delta, 0.0)
         return U, new_lam, new_nu

@@ -61,6 +61,8 @@ class IterationState:
     ``λ``) each local anchor used; ``partial_cost``: ``f⁽ⁱ⁾(x⁽ⁱ⁾)`` of every local anchor before the update.
     ``half_owner`` / ``half_sample`` / ``half_other_m``: for every range sample an anchor of this block holds, the
     holder (local index), the sample and the holder's estimate of the other end (for local precision and tests).
+    ``offset_m``: each local anchor's own range offset (its copy of the common one), ``half_offset_m``: the bias
+    ``b_l`` the holder puts on each half-measurement (None without offsets; :mod:`.neighbourhood_offsets`).
     """
 
     iteration: int
@@ -70,6 +72,8 @@ class IterationState:
     half_owner: np.ndarray | None = None
     half_sample: np.ndarray | None = None
     half_other_m: np.ndarray | None = None
+    offset_m: np.ndarray | None = None
+    half_offset_m: np.ndarray | None = None
 
 
 # ---------------------------------------------------------------------- checks and set-up
@@ -464,6 +468,8 @@ def plan_neighbourhood(
     objective: str = "squared",
     sigma_m: float | np.ndarray = 1.0,
     graduated: int = 0,
+    range_offsets: str = "none",
+    offset_prior_sigma_m: float = 0.1,
 ) -> tuple[NeighbourhoodPlan, np.ndarray, np.ndarray]:
     """Check the options of :func:`iterate_neighbourhood` and set up its loop: ``(plan, P₀, step₀)``."""
     method = method.upper()
@@ -484,6 +490,9 @@ def plan_neighbourhood(
         raise ModelError(f"objective must be 'squared' or 'metres', got {objective!r}")
     if graduated < 0:
         raise ModelError(f"graduated must be ≥ 0 iterations, got {graduated}")
+    from distnav.algorithms.neighbourhood_offsets import check_offsets
+
+    check_offsets(range_offsets, offset_prior_sigma_m, objective)
     ex = exchange_for(problem, exchange)
     nb = Neighbourhoods(problem, ex, loss, loss_scale_m, objective, sigma_m)
     w = mixing_weights(problem, weights)
@@ -514,7 +523,9 @@ def iterate_neighbourhood(problem: RangingData, **options: Any) -> Iterator[Iter
     ``iterations`` (500), ``alpha`` (1e-3), ``alpha0`` (1e-2), ``beta`` and ``gamma`` (1/2), ``lambda0`` (1e-3),
     ``consensus_rounds`` (1), ``weights`` ("MH"), ``initial_m``, ``max_backtracks`` (40), ``damping``
     ("levenberg"), ``armijo_slope`` ("subgradient"), ``loss`` ("linear"), ``loss_scale_m`` (0.3), ``lambda_min``
-    (0.1), ``objective`` ("squared"), ``sigma_m`` (1) and ``graduated`` (0).
+    (0.1), ``objective`` ("squared"), ``sigma_m`` (1), ``graduated`` (0), ``range_offsets`` ("none", or
+    "common" / "per_anchor" with the metres objective: :mod:`distnav.algorithms.neighbourhood_offsets`) and
+    ``offset_prior_sigma_m`` (0.1).
 
     See the module docstring for the equations (paper 002 eqs. (14)–(22)). ``loss="huber"|"cauchy"`` makes every
     anchor minimise the robust partial objective ``Σ_{l∈E(i)} s_l² ρ((g_l/s_l)²)`` (``s_l = 2 d_l σ``,
@@ -530,6 +541,13 @@ def iterate_neighbourhood(problem: RangingData, **options: Any) -> Iterator[Iter
     """
     plan, P, step = plan_neighbourhood(problem, **options)
     nb = plan.nb
+    mode = options.get("range_offsets", "none")
+    if mode != "none":
+        from distnav.algorithms.neighbourhood_offsets import NeighbourhoodOffsets, loop_with_offsets
+
+        off = NeighbourhoodOffsets(nb, mode, float(options.get("offset_prior_sigma_m", 0.1)))
+        yield from loop_with_offsets(plan, off, P, step, np.full(nb.nl, 2.0))
+        return
     diff, g = nb.geometry(P)
     yield IterationState(0, P[:, 0].copy(), step.copy(), nb.partial_cost(g))
     yield from plan.loop(P, step, np.full(nb.nl, 2.0), 1)

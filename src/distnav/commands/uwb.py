@@ -21,7 +21,12 @@
   considered there (:mod:`distnav.algorithms.ranging_precision`; ``summary.json`` names the kind and counts its
   messages).
 
-Outputs in OUT_DIR: ``positions.csv`` (every anchor), ``summary.json`` and ``positions.png``.
+* ``--range-offsets common|per_anchor`` (every solver, metres objective) estimates one range offset or per-anchor
+  antenna delays with the positions; ``auto`` (default):
+  :attr:`~distnav.models.uwb.field.FieldOptions.offsets_used`.
+
+Outputs in OUT_DIR: ``positions.csv`` (every anchor), ``links.csv``, ``summary.json``, ``positions.png`` and,
+when offsets were estimated, ``offsets.csv`` (``id,offset_m,sigma_m``).
 """
 
 from __future__ import annotations
@@ -91,8 +96,8 @@ def register(subparsers: Any) -> None:
                         "w-test and the network stays determined, and re-solve)")
     s.add_argument("--level", type=float, default=0.001, help="false-alarm probability of one link test (0.001)")
     s.add_argument("--range-offsets", default="auto", choices=["auto", "none", "common", "per_anchor"],
-                   help="estimate a common range offset or per-anchor antenna delays (LM, metres objective); "
-                        "auto (default): common where LM with the metres objective solves, none otherwise")
+                   help="estimate a common range offset or per-anchor antenna delays (metres objective, every "
+                        "solver); auto (default): common with the metres objective, none with the squared one")
     s.add_argument("--offset-prior-sigma-m", type=float, default=0.1,
                    help="prior σ of each per-anchor offset (m, default 0.1)")
     s.add_argument("--delay-sigma-m", type=float, default=DELAY_SIGMA_M,
@@ -144,8 +149,8 @@ def _validate(opts: FieldOptions) -> None:
         raise ModelError(f"--delay-sigma-m must be a number of metres ≥ 0, got {opts.delay_sigma_m}")
     if not 0.0 < opts.level < 0.5:
         raise ModelError(f"--level must lie in (0, 0.5), got {opts.level}")
-    if opts.range_offsets not in ("none", "auto") and (opts.solver.upper() != "LM" or opts.objective != "metres"):
-        raise ModelError("--range-offsets is estimated by LM with --objective metres")
+    if opts.range_offsets not in ("none", "auto") and opts.objective != "metres":
+        raise ModelError(f"--range-offsets {opts.range_offsets} is estimated with --objective metres only")
 
 
 def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, truth: Path | None = None,
@@ -299,6 +304,19 @@ def write_links(path: Path, sol: FieldSolution, comb: CombinedRanges) -> None:
     atomic_write_text(path, "\n".join(rows) + "\n")
 
 
+def write_offsets(path: Path, sol: FieldSolution) -> None:
+    """``offsets.csv`` (only when offsets were estimated): ``id,offset_m,sigma_m`` — one row ``common`` or one per
+    anchor (its antenna delay: every range it takes part in reads ``b_a + b_b`` long); σ a-posteriori."""
+    off = getattr(sol.result, "offsets_m", None)
+    if off is None:
+        return
+    std = getattr(sol.result, "offsets_std_m", None)
+    std = np.full(len(off), np.nan) if std is None else np.asarray(std)
+    names = ["common"] if len(off) == 1 else list(sol.problem.ids)
+    rows = ["id,offset_m,sigma_m"] + [f"{k},{o:.6f},{s:.6f}" for k, o, s in zip(names, off, std, strict=True)]
+    atomic_write_text(path, "\n".join(rows) + "\n")
+
+
 def _positions_table(path: Path, sol: FieldSolution) -> None:
     """``positions.csv``: every anchor with σ per axis and a status (known, estimated, ambiguous, unsolved)."""
     p = sol.problem
@@ -396,6 +414,7 @@ def _handler(args: argparse.Namespace) -> int:
             return 1
         _positions_table(out / "positions.csv", sol)
         write_links(out / "links.csv", sol, comb)
+        write_offsets(out / "offsets.csv", sol)
         try:
             _plot(out / "positions.png", sol)
         except ImportError as exc:  # pragma: no cover - plot extra missing
