@@ -30,14 +30,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import shortest_path
 
 from distnav.algorithms import csg
 from distnav.algorithms.nlsq import single_threaded_blas, solve_lm
 from distnav.algorithms.ranging_precision import neighbourhood_precision
 from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
+from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
@@ -48,8 +47,6 @@ from distnav.typing import BoolArray, FloatArray
 __all__ = ["FieldOptions", "FieldSolution", "prepare", "solve_field", "gather_cost", "RANGE_RECORD_BYTES",
            "supports_objective", "subset_measurements", "anchor_precision", "AnchorPrecision"]
 
-RANGE_RECORD_BYTES = 16  # two int32 anchor ids + one float64 range
-POSITION_BYTES = 8
 DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions were right, 1.80 on the folded one
 REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
@@ -321,18 +318,24 @@ def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: Bool
     return tuple(problem.ids[i] for i in np.flatnonzero(problem.estimated & ((touched & (rms > limit)) | thin)))
 
 
+def offset_bias_m(problem: RangingProblem, res: Any) -> FloatArray | float:
+    """What the solution's range offsets add to every modelled range (``b`` common, or ``b_a + b_b`` per anchor;
+    0 without offsets): the residual of a link is ``problem.residuals_m(positions) + offset_bias_m(...)``."""
+    off = getattr(res, "offsets_m", None)
+    if off is None:
+        return 0.0
+    off = np.asarray(off, float)
+    if off.size == 1:
+        return float(off[0])
+    return np.asarray(off[problem.meas_a] + off[problem.meas_b])
+
+
 def all_links_cost(problem: RangingProblem, res: Any, opts: FieldOptions) -> float:
     """Σ log(1 + (e/s)²) over *every* link, excluded ones too (e in metres with the solution's range offsets,
     s = ``loss_scale_m``): the Cauchy cost of all the data, the same yardstick for two solutions that excluded
     different links. A per-anchor repair is kept only if it lowers it (it must explain the ranges better, NLOS
     ones included at their bounded cost)."""
-    pos = np.asarray(res.estimates, float)
-    e = problem.residuals_m(pos)
-    off = getattr(res, "offsets_m", None)
-    if off is not None and len(off) == 1:
-        e = e + float(off[0])
-    elif off is not None and len(off) == problem.n_anchors:
-        e = e + np.asarray(off)[problem.meas_a] + np.asarray(off)[problem.meas_b]
+    e = problem.residuals_m(np.asarray(res.estimates, float)) + offset_bias_m(problem, res)
     z = (e / opts.loss_scale_m) ** 2
     if opts.nlos_aware:  # one-sided: a range read short costs its square, one read long the Cauchy cost
         return float(np.sum(np.where(e < 0, np.log1p(z), z)))
@@ -486,7 +489,7 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     total[1] += prec_out.messages
     total[2] += prec_out.bytes
     note += prec_out.note
-    residual = problem.residuals_m(pos)
+    residual = problem.residuals_m(pos) + offset_bias_m(problem, res)  # with the solution's offsets
     weak = weak_anchors(problem, residual, excluded, flagged)
     if not reverted and excluded.any() and no_exclusion and no_exclusion[0].usable:
         reverted = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
@@ -543,6 +546,9 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
     prec = res.precision
     kept = subset_measurements(problem, ~excluded)
     if opts.solver.upper() != "LM":
+        bias = offset_bias_m(kept, res)  # the neighbourhood precision knows no offsets: ranges corrected by them
+        if not np.isscalar(bias) or bias != 0.0:
+            kept = kept.with_ranges(kept.range_m - bias)
         try:
             out = neighbourhood_precision(kept, np.asarray(res.estimates, float),
                                           exchange=None if exchange is None else exchange(kept), objective=objective,
@@ -572,31 +578,6 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
         if considered is not None:
             sigma = considered
     return AnchorPrecision(sigma_m=sigma, covariance_m2=prec.covariance * vf, kind=prec.kind, note=note)
-
-
-def gather_cost(problem: RangingProblem) -> dict[str, Any]:
-    """Messages and bytes to gather every range at one anchor over the range graph and send the positions back.
-
-    Convergecast along a shortest-path tree to the anchor that minimizes the bytes: every link's record
-    (:data:`RANGE_RECORD_BYTES`) travels from the nearer of its two anchors one hop per tree edge, one message
-    per tree edge carries a subtree's records; the estimated positions (``dim × 8`` B each) go back the same way.
-    """
-    lk = problem.links
-    n = problem.n_anchors
-    g = csr_matrix((np.ones(2 * lk.shape[0]), (np.concatenate([lk[:, 0], lk[:, 1]]),
-                                                 np.concatenate([lk[:, 1], lk[:, 0]]))), shape=(n, n))
-    hops = shortest_path(g, directed=False, unweighted=True)
-    if not np.all(np.isfinite(hops)):
-        raise ModelError("the range graph is not connected: no single anchor can gather every range")
-    own = np.minimum(hops[:, lk[:, 0]], hops[:, lk[:, 1]])  # sink × link: hops of the link's record
-    up = own.sum(axis=1) * RANGE_RECORD_BYTES
-    down = hops[:, problem.estimated].sum(axis=1) * problem.dim * POSITION_BYTES
-    total = up + down
-    sink = int(np.argmin(total))
-    return {"sink": problem.ids[sink], "messages": int(2 * (n - 1)), "bytes": int(total[sink]),
-            "bytes_ranges": int(up[sink]), "bytes_positions": int(down[sink]),
-            "record_bytes": RANGE_RECORD_BYTES, "links": int(lk.shape[0]),
-            "max_hops": int(hops[sink].max())}
 
 
 def subset_measurements(problem: RangingProblem, keep: BoolArray) -> RangingProblem:
