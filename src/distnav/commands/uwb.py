@@ -250,6 +250,7 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "range_residual_rms_m": rms,
         "rms_cost": float(np.sqrt(np.mean(p.residuals(sol.positions_m) ** 2))) if usable else None,
         "loss": opts.loss,
+        "loss_used": "cauchy_long" if opts.nlos_aware else opts.loss,  # one-sided: NLOS only lengthens a range
         "loss_scale_m": opts.loss_scale_m if opts.loss != "linear" else None,
         "sigma_m": opts.sigma_m,
         "variance_factor": None if prec is None else prec.variance_factor,
@@ -423,7 +424,7 @@ def _handler(args: argparse.Namespace) -> int:
         return 1
     rm = summary["rmse_m"]
     rr = summary["range_residual_rms_m"]
-    print(f"{summary['solver']} ({summary['objective']}, {summary['loss']}): {summary['iterations']} iterations, "
+    print(f"{summary['solver']} ({summary['objective']}, {summary['loss_used']}): {summary['iterations']} iterations, "
           f"status {summary['status']}, {summary['n_excluded']} link(s) excluded"
           + (f", range residual RMS {rr:.3f} m" if rr is not None else "")
           + (f", RMSE {rm:.3f} m" if rm is not None else "") + f" -> {out}")
