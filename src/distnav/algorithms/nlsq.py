@@ -247,7 +247,14 @@ class _DampedSolver:
             qs.append((base + b_idx.ravel()[None, :]).ravel())
         p = np.concatenate(ps) if ps else np.zeros(0, np.int64)
         q = np.concatenate(qs) if qs else np.zeros(0, np.int64)
-        if self.mode == "banded":
+        if self.mode == "sparse":
+            self._sparse_pattern(jac)
+            order = np.argsort(rows[p], kind="stable")  # every sum in row order, as scipy's GᵀG product adds
+            p, q = p[order], q[order]
+            keep = np.ones(p.size, bool)
+            self._target = np.searchsorted(self._sp_keys, jac.indices[q] * self.n + jac.indices[p])
+            self._size = self._sp_keys.size
+        elif self.mode == "banded":
             r, c = self.inv[jac.indices[p]], self.inv[jac.indices[q]]
             keep = r <= c
             self._target = (self.band + r[keep] - c[keep]) * self.n + c[keep]
@@ -273,14 +280,31 @@ class _DampedSolver:
         self._rows = rows
         self._pattern = (jac.indptr.copy(), jac.indices.copy())
 
+    def _sparse_pattern(self, jac: sp.csr_matrix) -> None:
+        """The CSC pattern of ``GᵀG`` (canonical: rows ascending in every column), its entry keys
+        ``column·n + row`` and the positions of the diagonal (``_sp_fast`` False if a diagonal entry is missing:
+        then the damping adds entries and the generic path runs)."""
+        n = self.n
+        pat = sp.csr_matrix((np.ones(jac.nnz), jac.indices, jac.indptr), shape=jac.shape)
+        struct = sp.csc_matrix(pat.T @ pat)
+        struct.sort_indices()
+        self._sp_indptr, self._sp_indices = struct.indptr, struct.indices
+        self._sp_col = np.repeat(np.arange(n), np.diff(struct.indptr))
+        self._sp_keys = self._sp_col * n + struct.indices
+        diag_keys = np.arange(n) * (n + 1)
+        self._sp_diag = np.minimum(np.searchsorted(self._sp_keys, diag_keys), max(self._sp_keys.size - 1, 0))
+        self._sp_fast = bool(self._sp_keys.size) and bool(np.array_equal(self._sp_keys[self._sp_diag], diag_keys))
+
     def normal(self, jac: Any, w: np.ndarray | None, g: np.ndarray) -> tuple[Any, np.ndarray]:
         """``(GᵀWG, GᵀWg)``, the matrix in the form :meth:`solve` needs (banded storage, dense or sparse)."""
-        if sp.issparse(jac) and self.mode in ("banded", "bordered", "dense"):
+        if sp.issparse(jac) and (self.mode in ("banded", "bordered", "dense") or (self.mode == "sparse" and w is None)):
             jac = jac.tocsr()
             pat = getattr(self, "_pattern", None)
             if pat is None or pat[0].size != jac.indptr.size or pat[1].size != jac.indices.size or not (
                     np.array_equal(pat[0], jac.indptr) and np.array_equal(pat[1], jac.indices)):
                 self._pairs(jac)
+            if self.mode == "sparse" and not self._sp_fast:
+                return self._normal_generic(jac, w, g)
             d = jac.data
             prod = d[self._p] * d[self._q]
             wd = d if w is None else d * w[self._rows]
@@ -288,6 +312,8 @@ class _DampedSolver:
                 prod = prod * w[self._prow]
             a = np.bincount(self._target, prod, minlength=self._size)
             grad = np.bincount(jac.indices, wd * g[self._rows], minlength=self.n)
+            if self.mode == "sparse":  # the values of GᵀG on its CSC pattern: what scipy's product gives, bit for bit
+                return a, grad
             if self.mode == "banded":
                 return a.reshape(self.band + 1, self.n), grad
             if self.mode == "bordered":
@@ -296,6 +322,9 @@ class _DampedSolver:
                 return (a[:off_c].reshape(self.band + 1, nb), a[off_c:off_c + nb * k].reshape(nb, k),
                         a[off_c + nb * k:].reshape(k, k)), grad
             return a.reshape(self.n, self.n), grad
+        return self._normal_generic(jac, w, g)
+
+    def _normal_generic(self, jac: Any, w: np.ndarray | None, g: np.ndarray) -> tuple[Any, np.ndarray]:
         jw = jac if w is None else (jac.multiply(w[:, None]).tocsr() if sp.issparse(jac) else jac * w[:, None])
         a = jw.T @ jac
         if self.mode == "dense":
@@ -347,14 +376,33 @@ class _DampedSolver:
                 return np.asarray(sla.cho_solve(sla.cho_factor(m, check_finite=False), b, check_finite=False))
             except (np.linalg.LinAlgError, ValueError):
                 return None
-        d = a.diagonal()
-        floor = 1e-12 * max(float(d.max(initial=0.0)), 1e-300)
-        m = (a + sp.diags(lam * np.maximum(d, floor))).tocsc()
+        if isinstance(a, np.ndarray):  # GᵀG's values on its CSC pattern (see normal)
+            m = self._damped_csc(a, lam)
+        else:
+            d = a.diagonal()
+            floor = 1e-12 * max(float(d.max(initial=0.0)), 1e-300)
+            m = (a + sp.diags(lam * np.maximum(d, floor))).tocsc()
         try:
             out = spla.spsolve(m, b)
         except RuntimeError:
             return None
         return None if not np.all(np.isfinite(out)) else np.asarray(out)
+
+
+    def _damped_csc(self, a: np.ndarray, lam: float) -> sp.csc_matrix:
+        """``(A + diags(λ max(d, floor))).tocsc()`` built from A's values on its CSC pattern: the same entries, values
+        and order (an entry that is exactly 0 is left out, as scipy's sums leave it out), without the sparse
+        additions and conversions."""
+        d = a[self._sp_diag]
+        floor = 1e-12 * max(float(d.max(initial=0.0)), 1e-300)
+        data = a.copy()
+        data[self._sp_diag] = d + lam * np.maximum(d, floor)
+        nz = data != 0
+        if nz.all():
+            return sp.csc_matrix((data, self._sp_indices, self._sp_indptr), shape=(self.n, self.n))
+        counts = np.bincount(self._sp_col[nz], minlength=self.n)
+        indptr = np.concatenate([[0], np.cumsum(counts)]).astype(self._sp_indptr.dtype)
+        return sp.csc_matrix((data[nz], self._sp_indices[nz], indptr), shape=(self.n, self.n))
 
 
 def _band(struct: sp.csr_matrix, perm: np.ndarray) -> int:
