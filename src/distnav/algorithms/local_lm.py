@@ -44,6 +44,8 @@ class LocalLM:
         self.fs = nb.free_slot[self.ls_own, self.ls_slot, :]
         self.mo = self.fo[:, :, None] & self.fo[:, None, :]
         self.n_free = self.fo.sum(axis=1) + np.asarray(self.O @ self.fs.sum(axis=1).astype(float))
+        self.n_free_1 = np.maximum(self.n_free, 1)
+        self.fo_ls = self.fo[self.ls_own]  # the own anchor's free columns, per link
         self.eye = np.eye(nb.dim)
 
     def step(self, P: np.ndarray, diff: np.ndarray, g: np.ndarray, f0: np.ndarray, grad: np.ndarray, lam: np.ndarray,
@@ -60,28 +62,27 @@ class LocalLM:
             c = np.bincount(self.inv, wt, minlength=self.count.size) if robust else self.count  # Σ sample weights
             v = 2.0 * diff[self.first]  # (links, d): the same for every sample of a link
         u = v * self.fs  # neighbour columns that are free
-        w = v * self.fo[self.ls_own]  # own columns that are free
+        w = v * self.fo_ls  # own columns that are free
         A0 = csr_times(self.O, (c[:, None, None] * v[:, :, None] * v[:, None, :]).reshape(-1, d * d))
         A0 = A0.reshape(nl, d, d)
-        dA = np.einsum("kii->ki", A0) * self.fo
+        dA = A0.reshape(nl, d * d)[:, :: d + 1] * self.fo  # the diagonals
         dB = c[:, None] * u * u
         if self.damping == "fletcher":  # eq. (8) literally: λ diag(GᵀG)
             floor = 1e-12 * np.maximum(dA.max(axis=1), 1e-300)
-            sA = np.maximum(dA, floor[:, None])
-            sB = np.maximum(dB, floor[self.ls_own][:, None])
-        else:  # Levenberg: λ · mean free diagonal · I
-            mean = (dA.sum(axis=1) + csr_times(self.O, dB.sum(axis=1))) / np.maximum(self.n_free, 1)
-            mean = np.maximum(mean, 1e-300)
-            sA = np.broadcast_to(mean[:, None], dA.shape)
-            sB = np.broadcast_to(mean[self.ls_own][:, None], dB.shape)
-        t = np.where(self.fs, lam[self.ls_own][:, None] * sB, 1.0)  # D_s = diag(t) + c u uᵀ
+            lam_a = lam[:, None] * np.maximum(dA, floor[:, None])
+            lam_b = lam[self.ls_own][:, None] * np.maximum(dB, floor[self.ls_own][:, None])
+        else:  # Levenberg: λ · mean free diagonal · I (one value per anchor, broadcast over its columns)
+            mean = (dA.sum(axis=1) + csr_times(self.O, dB.sum(axis=1))) / self.n_free_1
+            lam_mean = lam * np.maximum(mean, 1e-300)
+            lam_a, lam_b = lam_mean[:, None], lam_mean[self.ls_own][:, None]
+        t = np.where(self.fs, lam_b, 1.0)  # D_s = diag(t) + c u uᵀ
         tu = u / t
         q = np.einsum("ij,ij->i", u, tu)
         den = 1.0 + c * q
         b0 = -grad[:, 0, :]
         bs = -grad[self.ls_own, self.ls_slot, :]
         # Schur complement: S = A − Σ_s C_s D_s⁻¹ C_sᵀ with C_s = −c w uᵀ  ⇒  C D⁻¹ Cᵀ = c² q/(1+cq) w wᵀ
-        Am = A0 * self.mo + self.eye * np.where(self.fo, lam[:, None] * sA, 1.0)[:, :, None]
+        Am = A0 * self.mo + self.eye * np.where(self.fo, lam_a, 1.0)[:, :, None]
         coef = c * c * q / den
         S = Am - csr_times(self.O, (coef[:, None, None] * w[:, :, None] * w[:, None, :]).reshape(-1, d * d)
                               ).reshape(nl, d, d)
@@ -117,6 +118,6 @@ class LocalLM:
         acc = (rho > 0) & np.isfinite(f_new)
         new_lam = np.where(acc, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), lam * nu)
         new_nu = np.where(acc, 2.0, nu * 2.0)
-        new_lam = np.clip(new_lam, self.lambda_min, 1e12)
+        new_lam = np.minimum(np.maximum(new_lam, self.lambda_min), 1e12)  # np.clip's values, without its wrapper
         U = P + np.where(acc[:, None, None], delta, 0.0)
         return U, new_lam, new_nu
