@@ -275,6 +275,9 @@ class Mixing:
                                shape=(ex.n_local, ex.in_edges.size))
         self.fill_w = self._fill_weights(np.ones(ex.in_edges.size, bool))
         self._msg = np.zeros((nb.n_out * nb.K, nb.dim))  # the entries outside msg_flat stay zero
+        # msg_flat / msg_src as element indices of the flat arrays: a 1-D copy, ~4× faster than one of rows
+        self._msg_e = (nb.msg_flat[:, None] * nb.dim + np.arange(nb.dim)).ravel()
+        self._src_e = (nb.msg_src[:, None] * nb.dim + np.arange(nb.dim)).ravel()
 
     def _fill_weights(self, delivered: np.ndarray) -> np.ndarray:
         nb = self.nb
@@ -287,7 +290,7 @@ class Mixing:
         nb, ex = self.nb, self.ex
         K, dim = nb.K, nb.dim
         msg = self._msg  # consumed by the round below before the next one overwrites it
-        msg[nb.msg_flat] = U.reshape(-1, dim)[nb.msg_src]
+        msg.reshape(-1)[self._msg_e] = U.reshape(-1)[self._src_e]  # msg[msg_flat] = U's rows msg_src
         inbox = ex.send(msg.reshape(nb.n_out, K, dim))
         if echo is not None:
             echo.send(msg.reshape(nb.n_out, K, dim))
