@@ -56,7 +56,6 @@ class LocalLM:
         self.e_first = _elements(first, d)  # diff[first]
         self.e_ls = _elements(self.ls_own * nb.K + self.ls_slot, d)  # [ls_own, ls_slot, :] of a (nl, K, d) array
         self.e_own = _elements(self.ls_own, d)  # d0[ls_own]
-        self.e_self, self.e_other = _elements(nb.h_flat_self, d), _elements(nb.h_flat_other, d)
         self.eye = np.eye(nb.dim)
 
     def step(self, P: np.ndarray, diff: np.ndarray, g: np.ndarray, f0: np.ndarray, grad: np.ndarray, lam: np.ndarray,
@@ -108,8 +107,7 @@ class LocalLM:
         delta.reshape(-1)[self.e_ls] = ds.reshape(-1)  # delta[ls_own, ls_slot, :] = ds
         delta = np.where(nb.free_slot, delta, 0.0)
         # gain ratio of each anchor's own partial cost (local evaluation, like the line searches)
-        dflat = delta.reshape(-1, d)
-        dd = (dflat.reshape(-1)[self.e_self] - dflat.reshape(-1)[self.e_other]).reshape(-1, d)
+        dd = nb.differences(delta)
         if nb.metres:
             a = g
             lin = a + np.einsum("ij,ij->i", nb.jrows(diff), dd)  # r + Jδ
