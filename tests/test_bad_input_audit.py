@@ -70,8 +70,9 @@ def _derived_cases(path: tuple[str, ...], parser: argparse.ArgumentParser) -> li
     name = "-".join(path)
     prefix = (*path, "--quick") if path[0] == "reproduce" else path
     o = ("--out", "{tmp}/out")
-    cases = [Cli(f"{name}-unknown-option", (*prefix, *o, "--frobnicate"), "unrecognized arguments"),
-             Cli(f"{name}-ranks-inprocess", (*prefix, *o, "--ranks", "2"), "applies only with --backend mpi")]
+    cases = [Cli(f"{name}-unknown-option", (*prefix, *o, "--frobnicate"), "unrecognized arguments")]
+    if any("--ranks" in a.option_strings for a in _options(parser)):  # reproduce-all has no backend options
+        cases.append(Cli(f"{name}-ranks-inprocess", (*prefix, *o, "--ranks", "2"), "applies only with --backend mpi"))
     for action in _options(parser):
         flag = action.option_strings[0]
         rest = () if flag == "--out" else o
@@ -97,7 +98,7 @@ def _experiment_cases() -> list[Cli]:
              Cli("demo-jobs-mpi", ("demo", "--out", "{tmp}/out", "--jobs", "2", "--backend", "mpi"),
                  "--jobs 2 applies only with the in-process backend")]
     for path, parser in _subparsers(build_parser()):
-        if path and path[0] in {"demo", "reproduce"} and (path[0] == "demo" or len(path) == 2):
+        if path and path[0] in {"demo", "reproduce", "reproduce-all"} and (path[0] != "reproduce" or len(path) == 2):
             cases += _derived_cases(path, parser)
     return cases
 

@@ -188,3 +188,34 @@ def test_bordered_path_with_a_dense_column_matches_scipy():
     np.testing.assert_allclose(ours.x, ref.x, atol=1e-6)
     huge = levenberg_marquardt(fun, lambda x: jac(x).toarray(), x0, **tight)  # dense path
     np.testing.assert_allclose(ours.x, huge.x, atol=1e-8)
+
+
+def test_sparse_path_is_scipys_damped_solve_bit_for_bit():
+    """The SuperLU path builds the damped CSC matrix from GᵀG's values on its pattern (no sparse product,
+    addition or conversion per solve): the solution must be, bit for bit, spsolve of scipy's own
+    ``(GᵀG + diags(λ max(d, floor))).tocsc()`` — also where an entry of GᵀG is exactly 0 (a height column
+    whose Jacobian entries vanish: scipy's product leaves it out)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from distnav.algorithms.nlsq import _DampedSolver
+
+    p = generate_problem("RC", np.random.default_rng([0, 7000]))  # `reproduce uwb`'s first RC instance
+    x = p.x0()
+    zero_heights = x.copy()
+    zero_heights[2::3] = 0.0  # every free height equal: the z entries of G, and GᵀG's z block, are exactly 0
+    for xv in (x, zero_heights):
+        jac = p.jacobian_of(xv)
+        g = p.residual_vector(xv)
+        solver = _DampedSolver(jac, 200)
+        assert solver.mode == "sparse"
+        a, grad = solver.normal(jac, None, g)
+        ref_a = sp.csr_matrix(jac.T @ jac)
+        np.testing.assert_array_equal(grad, np.asarray(jac.T @ g).ravel())
+        for lam in (1e-3, 0.7, 1e4):
+            d = ref_a.diagonal()
+            floor = 1e-12 * max(float(d.max(initial=0.0)), 1e-300)
+            ref = spla.spsolve((ref_a + sp.diags(lam * np.maximum(d, floor))).tocsc(), -grad)
+            ours = solver.solve(a, -grad, lam)
+            assert ours is not None
+            assert np.array_equal(ours.view(np.uint64), ref.view(np.uint64))

@@ -20,6 +20,12 @@ if TYPE_CHECKING:
 __all__ = ["LocalLM"]
 
 
+def _elements(rows: np.ndarray, d: int) -> np.ndarray:
+    """The flat element indices of ``rows`` of a C-contiguous ``(·, d)`` array: gathering them from the flat array
+    copies the same values as ``a[rows]``, several times faster on these short rows."""
+    return (rows[:, None] * d + np.arange(d)).ravel()
+
+
 class LocalLM:
     """Batched per-anchor LM steps on the partial costs (paper 002 eq. (22)).
 
@@ -44,6 +50,12 @@ class LocalLM:
         self.fs = nb.free_slot[self.ls_own, self.ls_slot, :]
         self.mo = self.fo[:, :, None] & self.fo[:, None, :]
         self.n_free = self.fo.sum(axis=1) + np.asarray(self.O @ self.fs.sum(axis=1).astype(float))
+        self.n_free_1 = np.maximum(self.n_free, 1)
+        self.fo_ls = self.fo[self.ls_own]  # the own anchor's free columns, per link
+        d = nb.dim
+        self.e_first = _elements(first, d)  # diff[first]
+        self.e_ls = _elements(self.ls_own * nb.K + self.ls_slot, d)  # [ls_own, ls_slot, :] of a (nl, K, d) array
+        self.e_own = _elements(self.ls_own, d)  # d0[ls_own]
         self.eye = np.eye(nb.dim)
 
     def gain_update(self, f0: np.ndarray, f_new: np.ndarray, pred: np.ndarray, lam: np.ndarray, nu: np.ndarray
@@ -55,7 +67,7 @@ class LocalLM:
         acc = (rho > 0) & np.isfinite(f_new)
         new_lam = np.where(acc, lam * np.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), lam * nu)
         new_nu = np.where(acc, 2.0, nu * 2.0)
-        return acc, np.clip(new_lam, self.lambda_min, 1e12), new_nu
+        return acc, np.minimum(np.maximum(new_lam, self.lambda_min), 1e12), new_nu  # np.clip without its wrapper
 
     def step(self, P: np.ndarray, diff: np.ndarray, g: np.ndarray, f0: np.ndarray, grad: np.ndarray, lam: np.ndarray,
              nu: np.ndarray, wt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -69,30 +81,29 @@ class LocalLM:
             v = diff[self.first] / np.where(norm > 0, norm, np.inf)[:, None]
         else:
             c = np.bincount(self.inv, wt, minlength=self.count.size) if robust else self.count  # Σ sample weights
-            v = 2.0 * diff[self.first]  # (links, d): the same for every sample of a link
+            v = 2.0 * diff.reshape(-1)[self.e_first].reshape(-1, d)  # diff[first] (links, d): one per link
         u = v * self.fs  # neighbour columns that are free
-        w = v * self.fo[self.ls_own]  # own columns that are free
+        w = v * self.fo_ls  # own columns that are free
         A0 = csr_times(self.O, (c[:, None, None] * v[:, :, None] * v[:, None, :]).reshape(-1, d * d))
         A0 = A0.reshape(nl, d, d)
-        dA = np.einsum("kii->ki", A0) * self.fo
+        dA = A0.reshape(nl, d * d)[:, :: d + 1] * self.fo  # the diagonals
         dB = c[:, None] * u * u
         if self.damping == "fletcher":  # eq. (8) literally: λ diag(GᵀG)
             floor = 1e-12 * np.maximum(dA.max(axis=1), 1e-300)
-            sA = np.maximum(dA, floor[:, None])
-            sB = np.maximum(dB, floor[self.ls_own][:, None])
-        else:  # Levenberg: λ · mean free diagonal · I
-            mean = (dA.sum(axis=1) + csr_times(self.O, dB.sum(axis=1))) / np.maximum(self.n_free, 1)
-            mean = np.maximum(mean, 1e-300)
-            sA = np.broadcast_to(mean[:, None], dA.shape)
-            sB = np.broadcast_to(mean[self.ls_own][:, None], dB.shape)
-        t = np.where(self.fs, lam[self.ls_own][:, None] * sB, 1.0)  # D_s = diag(t) + c u uᵀ
+            lam_a = lam[:, None] * np.maximum(dA, floor[:, None])
+            lam_b = lam[self.ls_own][:, None] * np.maximum(dB, floor[self.ls_own][:, None])
+        else:  # Levenberg: λ · mean free diagonal · I (one value per anchor, broadcast over its columns)
+            mean = (dA.sum(axis=1) + csr_times(self.O, dB.sum(axis=1))) / self.n_free_1
+            lam_mean = lam * np.maximum(mean, 1e-300)
+            lam_a, lam_b = lam_mean[:, None], lam_mean[self.ls_own][:, None]
+        t = np.where(self.fs, lam_b, 1.0)  # D_s = diag(t) + c u uᵀ
         tu = u / t
         q = np.einsum("ij,ij->i", u, tu)
         den = 1.0 + c * q
         b0 = -grad[:, 0, :]
-        bs = -grad[self.ls_own, self.ls_slot, :]
+        bs = -grad.reshape(-1)[self.e_ls].reshape(-1, d)  # grad[ls_own, ls_slot, :]
         # Schur complement: S = A − Σ_s C_s D_s⁻¹ C_sᵀ with C_s = −c w uᵀ  ⇒  C D⁻¹ Cᵀ = c² q/(1+cq) w wᵀ
-        Am = A0 * self.mo + self.eye * np.where(self.fo, lam[:, None] * sA, 1.0)[:, :, None]
+        Am = A0 * self.mo + self.eye * np.where(self.fo, lam_a, 1.0)[:, :, None]
         coef = c * c * q / den
         S = Am - csr_times(self.O, (coef[:, None, None] * w[:, :, None] * w[:, None, :]).reshape(-1, d * d)
                               ).reshape(nl, d, d)
@@ -100,15 +111,14 @@ class LocalLM:
         r0 = b0 + csr_times(self.O, (c * tub / den)[:, None] * w)
         with single_threaded_blas():
             d0 = np.linalg.solve(S, r0[:, :, None])[:, :, 0]
-        x = bs + (c * np.einsum("ij,ij->i", w, d0[self.ls_own]))[:, None] * u  # b_s − C_sᵀ δ0
+        x = bs + (c * np.einsum("ij,ij->i", w, d0.reshape(-1)[self.e_own].reshape(-1, d)))[:, None] * u  # b_s − C_sᵀ δ0
         ds = x / t - (c * np.einsum("ij,ij->i", tu, x) / den)[:, None] * tu  # D_s⁻¹ x (Sherman–Morrison)
-        delta = np.zeros_like(P)
+        delta = np.zeros(P.shape)  # C-contiguous: written through its flat view below
         delta[:, 0, :] = d0
-        delta[self.ls_own, self.ls_slot, :] = ds
+        delta.reshape(-1)[self.e_ls] = ds.reshape(-1)  # delta[ls_own, ls_slot, :] = ds
         delta = np.where(nb.free_slot, delta, 0.0)
         # gain ratio of each anchor's own partial cost (local evaluation, like the line searches)
-        dflat = delta.reshape(-1, d)
-        dd = dflat[nb.h_flat_self] - dflat[nb.h_flat_other]
+        dd = nb.differences(delta)
         if nb.metres:
             a = g
             lin = a + np.einsum("ij,ij->i", nb.jrows(diff), dd)  # r + Jδ

@@ -187,6 +187,9 @@ class Neighbourhoods:
         self.h_slot = position(ex.nodes[own_idx], other)
         self.h_flat_self = own_idx * self.K
         self.h_flat_other = own_idx * self.K + self.h_slot
+        # the same rows as flat element indices (a 1-D gather copies the same values, ~4× faster on short rows)
+        self.e_self = (self.h_flat_self[:, None] * self.dim + np.arange(self.dim)).ravel()
+        self.e_other = (self.h_flat_other[:, None] * self.dim + np.arange(self.dim)).ravel()
         nh = own_idx.size
         self.Q = sp.csr_matrix((np.concatenate([np.ones(nh), -np.ones(nh)]),
                                 (np.concatenate([self.h_flat_self, self.h_flat_other]),
@@ -221,9 +224,13 @@ class Neighbourhoods:
     def geometry(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(r_own − r_other, residual)`` of every half-measurement: ``g = ‖·‖² − d²`` (squared) or the whitened
         ``(‖·‖ − d)/σ`` (metres)."""
-        flat = P.reshape(-1, self.dim)
-        diff = flat[self.h_flat_self] - flat[self.h_flat_other]
+        diff = self.differences(P)
         return diff, self.residual_of(np.einsum("ij,ij->i", diff, diff))
+
+    def differences(self, P: np.ndarray) -> np.ndarray:
+        """``P[own] − P[other]`` of every half-measurement, ``(halves, dim)``, for a slot-layout array ``P``."""
+        flat = P.reshape(-1)
+        return np.asarray(flat[self.e_self] - flat[self.e_other]).reshape(-1, self.dim)
 
     def residual_of(self, sq_norm: np.ndarray) -> np.ndarray:
         """The residual from ``‖r_own − r_other‖²``."""
@@ -279,6 +286,9 @@ class Mixing:
                                shape=(ex.n_local, ex.in_edges.size))
         self.fill_w = self._fill_weights(np.ones(ex.in_edges.size, bool))
         self._msg = np.zeros((nb.n_out * nb.K, nb.dim))  # the entries outside msg_flat stay zero
+        # msg_flat / msg_src as element indices of the flat arrays: a 1-D copy, ~4× faster than one of rows
+        self._msg_e = (nb.msg_flat[:, None] * nb.dim + np.arange(nb.dim)).ravel()
+        self._src_e = (nb.msg_src[:, None] * nb.dim + np.arange(nb.dim)).ravel()
 
     def _fill_weights(self, delivered: np.ndarray) -> np.ndarray:
         nb = self.nb
@@ -291,7 +301,7 @@ class Mixing:
         nb, ex = self.nb, self.ex
         K, dim = nb.K, nb.dim
         msg = self._msg  # consumed by the round below before the next one overwrites it
-        msg[nb.msg_flat] = U.reshape(-1, dim)[nb.msg_src]
+        msg.reshape(-1)[self._msg_e] = U.reshape(-1)[self._src_e]  # msg[msg_flat] = U's rows msg_src
         inbox = ex.send(msg.reshape(nb.n_out, K, dim))
         if echo is not None:
             echo.send(msg.reshape(nb.n_out, K, dim))
@@ -307,8 +317,7 @@ class ArmijoTest:
 
     def __init__(self, nb: Neighbourhoods, diff: np.ndarray, d: np.ndarray, f0: np.ndarray, gamma: float,
                  slope_factor: float) -> None:
-        flat = d.reshape(-1, nb.dim)
-        dd = flat[nb.h_flat_self] - flat[nb.h_flat_other]
+        dd = nb.differences(d)
         self.nb, self.f0, self.gamma = nb, f0, gamma
         self.a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
         self.b = 2.0 * np.einsum("ij,ij->i", diff, dd)
@@ -423,7 +432,7 @@ class NeighbourhoodPlan:
     def state(self, k: int, P: np.ndarray, step: np.ndarray, f0: np.ndarray) -> IterationState:
         nb = self.nb
         return IterationState(k, P[:, 0].copy(), step.copy(), f0, nb.h_own, nb.h_samp,
-                              P.reshape(-1, nb.dim)[nb.h_flat_other])
+                              P.reshape(-1)[nb.e_other].reshape(-1, nb.dim))
 
     def loop(self, P: np.ndarray, step: np.ndarray, nu: np.ndarray, first: int) -> Iterator[IterationState]:
         """Iterations ``first``, …, ``iterations`` from the state ``(P, step, nu)`` (eqs. (14)–(22))."""
