@@ -21,14 +21,11 @@ sources, every launch would compile distnav again (≈ 0.2 s more, docs/scale.md
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import main_for  # noqa: E402
@@ -80,50 +77,6 @@ def _launch_seconds(ranks: int, code: str, env: dict[str, str]) -> float:
     subprocess.run([str(mpiexec), "-n", str(ranks), sys.executable, "-m", "mpi4py", "-c", code], check=True,
                    stdin=subprocess.DEVNULL, capture_output=True, timeout=120, env=env)
     return time.perf_counter() - t0
-
-
-def _startup_note(added_min: float, added_median: float, own_median: float, load: float) -> str:
-    return (f"added {added_min:.2f}–{added_median:.2f} s (min–median), {own_median:.2f} s of it over a numpy-only "
-            f"job; load {load:.1f} on {os.cpu_count()} cores")
-
-
-def _cached_env(cache: Path) -> dict[str, str]:
-    """The launch environment with the bytecode cache in ``cache``."""
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env["PYTHONPYCACHEPREFIX"] = str(cache)
-    return env
-
-
-def startup_rows(ranks: tuple[int, ...] = (1, 2, 4), repeat: int = 5) -> list[dict[str, Any]]:
-    """MPI start-up of a distnav job against an empty mpi4py job, launched interleaved."""
-    import tempfile
-
-    rows: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix="distnav-pyc-") as tmp:
-        cached = _cached_env(Path(tmp))
-        for r in ranks:
-            for code in (_EMPTY_JOB, _NUMPY_JOB, _DISTNAV_JOB, _SPARSE_JOB):  # warm the file cache, write the bytecode
-                _launch_seconds(r, code, cached)
-            empty, base, ours, sparse = [], [], [], []
-            for _ in range(repeat):
-                empty.append(_launch_seconds(r, _EMPTY_JOB, cached))
-                base.append(_launch_seconds(r, _NUMPY_JOB, cached))
-                ours.append(_launch_seconds(r, _DISTNAV_JOB, cached))
-                sparse.append(_launch_seconds(r, _SPARSE_JOB, cached))
-            added = np.asarray(ours) - np.asarray(empty)
-            own = np.asarray(ours) - np.asarray(base)
-            load = os.getloadavg()[0]
-            rows.append({
-                "name": "MPI start-up (launch + import), seconds over an empty mpi4py job", "ranks": r,
-                "distnav_s": float(np.median(ours)), "bare_setup_s": float(np.median(empty)),
-                "floor": "empty mpi4py job (import mpi4py.MPI, barrier)",
-                "added_s_min": float(added.min()), "added_s_median": float(np.median(added)),
-                "numpy_job_s": float(np.median(base)), "added_over_numpy_s_median": float(np.median(own)),
-                "scipy_sparse_on_first_use_s_median": float(np.median(np.asarray(sparse) - np.asarray(base))),
-                "ratio": float(np.median(ours) / np.median(empty)), "repeats": repeat, "load_1min": load,
-                "note": _startup_note(float(added.min()), float(np.median(added)), float(np.median(own)), load),
-                "goal": "≤ 0.3 s added", "meets_goal": bool(np.median(added) <= 0.3)})
-    return rows
 
 
 def run(quick: bool) -> list[dict[str, Any]]:

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from distnav._blas import _openblas_handles
 from distnav.algorithms.kalman import DynamicModel, pseudo_inverse_psd
-from distnav.algorithms.nlsq import _openblas_handles
 from distnav.errors import ModelError
 from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
 

@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
+from distnav._blas import single_threaded_blas
 from distnav._sparse import csr_times
-from distnav.algorithms.nlsq import single_threaded_blas
 
 if TYPE_CHECKING:
     from distnav.algorithms.neighbourhood import Neighbourhoods

@@ -33,9 +33,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from distnav._blas import single_threaded_blas
 from distnav._sparse import csr_times
 from distnav.algorithms.neighbourhood import ArmijoTest, IterationState, Mixing, Neighbourhoods
-from distnav.algorithms.nlsq import loss_terms, single_threaded_blas
+from distnav.algorithms.nlsq import loss_terms
 from distnav.algorithms.ranging import RangingData
 from distnav.algorithms.ranging_qc import free_block_inverses
 from distnav.errors import ModelError

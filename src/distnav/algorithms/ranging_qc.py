@@ -34,7 +34,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from distnav.algorithms.nlsq import loss_terms, single_threaded_blas
+from distnav._blas import single_threaded_blas
+from distnav.algorithms.nlsq import loss_terms
 from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, variance_factor, w_statistics

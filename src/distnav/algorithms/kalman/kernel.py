@@ -12,8 +12,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from distnav._blas import single_threaded_blas
 from distnav.algorithms.kalman.dynamics import DynamicModel
-from distnav.algorithms.nlsq import single_threaded_blas
 from distnav.typing import BoolArray, FloatArray
 
 __all__ = ["EST_TOL", "RANK_RTOL", "InformationKernel", "masked_std", "pseudo_inverse_psd"]

@@ -31,8 +31,9 @@ from typing import Any
 
 import numpy as np
 
+from distnav._blas import single_threaded_blas
 from distnav.algorithms import csg
-from distnav.algorithms.nlsq import single_threaded_blas, solve_lm
+from distnav.algorithms.nlsq import solve_lm
 from distnav.algorithms.ranging_precision import neighbourhood_precision
 from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError

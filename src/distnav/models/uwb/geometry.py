@@ -39,7 +39,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, reverse_cuthill_mckee
 
-from distnav.algorithms.nlsq import single_threaded_blas
+from distnav._blas import single_threaded_blas
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray, IntArray
