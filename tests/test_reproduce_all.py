@@ -50,3 +50,24 @@ def test_the_default_set_is_what_the_claims_table_reads_and_options_are_checked(
     with pytest.raises(SystemExit) as exc:
         main(["reproduce-all", "--out", str(tmp_path), "--only", "nonsense"])
     assert exc.value.code == 2
+
+
+def test_every_reproduction_gets_one_blas_thread_unless_the_user_set_it(tmp_path, monkeypatch, src_on_path):
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    assert reproduce_all.child_environment({"PATH": "/bin", "MKL_NUM_THREADS": "2"}) == {
+        "PATH": "/bin", "MKL_NUM_THREADS": "2", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    probe = Run("probe", "consensus", cpu_s=1.0)
+    monkeypatch.setattr(reproduce_all, "RUNS", {"probe": probe})
+    seen: dict[str, str | None] = {}
+    real_popen = reproduce_all.subprocess.Popen
+
+    def spy(cmd, **kw):
+        seen.update({k: kw["env"].get(k) for k in reproduce_all.BLAS_THREAD_VARIABLES})
+        return real_popen(cmd, **kw)
+
+    monkeypatch.setattr(reproduce_all.subprocess, "Popen", spy)
+    summary = run_all(["probe"], tmp_path, jobs=1, quick=True, echo=io.StringIO())
+    assert seen == {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "3", "MKL_NUM_THREADS": "1"}
+    assert summary["blas_threads"] == seen and summary["failed"] == []
