@@ -54,6 +54,7 @@ def test_solve_writes_positions_summary_and_plot(tmp_path, capsys):
     assert run(f, out, "--truth", str(f["truth"])) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == "LM" and summary["iterations"] >= 1
+    assert summary["loss"] == "cauchy" and summary["loss_used"] == "cauchy_long"  # LM in metres: one-sided
     assert summary["rmse_m"] < 1e-3 and summary["rms_cost"] < 1e-2  # noise-free, well-posed 3-D
     assert summary["initial_guess"].startswith("classical MDS")
     assert summary["range_combination"].startswith("median")
@@ -73,6 +74,7 @@ def test_distributed_solver_with_initial_guess(tmp_path):
                "--iterations", "600") == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == "N-CLM" and summary["objective"] == "metres"
+    assert summary["loss_used"] == summary["loss"] == "cauchy"  # the one-sided loss is LM's only
     assert summary["messages"] > 0 and summary["bytes"] > 0  # anchor-to-anchor messages of the distributed run
     assert summary["rmse_m"] < 0.05
 

@@ -325,3 +325,27 @@ def test_tighten_halves_the_one_sided_scale_down_to_three_times_the_scatter():
     assert noisy.initial_m is not None
     _, scale, fits = tighten(noisy, noisy.initial_m, opts)
     assert scale == opts.loss_scale_m and fits == 0
+
+
+def test_link_residuals_and_distributed_sigma_include_the_estimated_common_offset():
+    """Every range reads 0.35 m long: the residuals written to links.csv (and used by the weak-anchor test) are those
+    of the model with the estimated offset (≈ 0), not the raw ``‖r_a − r_b‖ − d`` (≈ −0.35 m); the distributed
+    solver's node-local σ are computed on the offset-corrected ranges (with the raw ones they absorb the offset)."""
+    import dataclasses
+
+    from distnav.models.uwb.field import FieldOptions, offset_bias_m, solve_field
+
+    base = _grid(0.02, {})
+    p = dataclasses.replace(base, range_m=base.range_m + 0.35)
+    for solver in ("LM", "N-CLM"):
+        sol = solve_field(p, FieldOptions(solver=solver, range_offsets="common", exclude=False,
+                                          iterations=500 if solver == "LM" else 3000))
+        off = np.asarray(sol.result.offsets_m)
+        assert off.shape == (1,) and abs(off[0] - 0.35) < 0.03, (solver, off)
+        assert offset_bias_m(p, sol.result) == off[0]
+        assert abs(np.median(sol.residual_m)) < 0.02, solver
+        assert np.median(p.residuals_m(sol.positions_m)) < -0.3  # what the residuals were before the fix
+        if solver == "N-CLM":
+            assert sol.precision_kind == "neighbourhood"
+            free = p.free
+            assert np.all(sol.sigma_m[free] < 0.1), sol.sigma_m[free]  # σ of 2-cm ranges, not of a 0.35-m misfit
