@@ -54,3 +54,27 @@ def test_consider_sigma_matches_monte_carlo_with_antenna_delays():
     assert 0.90 <= np.mean(e[:, free] <= 2 * sc[:, free]) <= 0.98
     ratio = np.array(errs).std(axis=0)[free] / sc.mean(axis=0)[free]
     assert np.all((ratio > 0.8) & (ratio < 1.15)), ratio
+
+
+def test_consider_blocks_are_lms_own_without_delays_and_carry_the_sigma_with_them():
+    """The covariance blocks the plot draws: LM's own a-posteriori blocks without delays; with delays, symmetric,
+    positive semi-definite, wider than without, and their diagonal is the σ written."""
+    from distnav.models.uwb.precision import consider_precision
+
+    rng, g, ids, known, links = _network()
+    la, lb = (np.array(c) for c in zip(*links, strict=True))
+    r = np.linalg.norm(g[la] - g[lb], axis=1) + rng.normal(0, 0.02, len(links))
+    p = build_problem(ids, links, r, fixed=known, dim=2, truth_m=g, initial_m=g)
+    res = solve_lm(p, objective="metres", sigma_m=0.05, range_offsets="common", loss="linear")
+    kw = dict(sigma_m=0.05, offsets="common", loss="linear", loss_scale_m=0.3)
+    plain = consider_precision(p, res, delay_sigma_m=0.0, **kw)
+    with_delays = consider_precision(p, res, delay_sigma_m=0.02, **kw)
+    assert plain is not None and with_delays is not None
+    own = res.precision.covariance * res.precision.variance_factor
+    assert np.allclose(plain[1], own, rtol=1e-6, atol=1e-14)
+    sigma, blocks = with_delays
+    assert np.allclose(np.sqrt(np.diagonal(blocks, axis1=1, axis2=2)), sigma, rtol=1e-9, atol=1e-15)
+    assert np.allclose(blocks, blocks.transpose(0, 2, 1))
+    assert np.all(np.linalg.eigvalsh(blocks) > -1e-15)
+    assert np.all(sigma[p.free] > plain[0][p.free])
+    assert np.all(blocks[~p.estimated] == 0.0)

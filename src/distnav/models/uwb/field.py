@@ -33,6 +33,7 @@ import numpy as np
 
 from distnav._blas import single_threaded_blas
 from distnav.algorithms import csg
+from distnav.algorithms.neighbourhood_offsets import sample_bias
 from distnav.algorithms.nlsq import solve_lm
 from distnav.algorithms.ranging_precision import neighbourhood_precision
 from distnav.algorithms.ranging_qc import exclude_links
@@ -41,7 +42,7 @@ from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
-from distnav.models.uwb.precision import consider_sigma
+from distnav.models.uwb.precision import consider_precision
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray
 
@@ -323,12 +324,7 @@ def offset_bias_m(problem: RangingProblem, res: Any) -> FloatArray | float:
     """What the solution's range offsets add to every modelled range (``b`` common, or ``b_a + b_b`` per anchor;
     0 without offsets): the residual of a link is ``problem.residuals_m(positions) + offset_bias_m(...)``."""
     off = getattr(res, "offsets_m", None)
-    if off is None:
-        return 0.0
-    off = np.asarray(off, float)
-    if off.size == 1:
-        return float(off[0])
-    return np.asarray(off[problem.meas_a] + off[problem.meas_b])
+    return sample_bias(problem.meas_a, problem.meas_b, None if off is None else np.asarray(off, float))
 
 
 def all_links_cost(problem: RangingProblem, res: Any, opts: FieldOptions) -> float:
@@ -572,13 +568,14 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
         return AnchorPrecision(sigma_m=nan_pos, covariance_m2=None, kind=None, note=note)
     vf = prec.variance_factor if prec.variance_factor is not None else 1.0
     sigma = np.where(problem.free, prec.std(a_posteriori=True), 0.0)
+    cov = prec.covariance * vf
     if opts.considers_delays:
-        considered = consider_sigma(kept, res, sigma_m=opts.sigma_m, offsets=opts.offsets_used,
-                                    loss=_solver_kwargs(opts).get("loss", "linear"),
-                                    loss_scale_m=opts.loss_scale_m, delay_sigma_m=opts.delay_sigma_m)
+        considered = consider_precision(kept, res, sigma_m=opts.sigma_m, offsets=opts.offsets_used,
+                                        loss=_solver_kwargs(opts).get("loss", "linear"),
+                                        loss_scale_m=opts.loss_scale_m, delay_sigma_m=opts.delay_sigma_m)
         if considered is not None:
-            sigma = considered
-    return AnchorPrecision(sigma_m=sigma, covariance_m2=prec.covariance * vf, kind=prec.kind, note=note)
+            sigma, cov = considered  # the ellipses of the σ written, delays considered
+    return AnchorPrecision(sigma_m=sigma, covariance_m2=cov, kind=prec.kind, note=note)
 
 
 def subset_measurements(problem: RangingProblem, keep: BoolArray) -> RangingProblem:

@@ -37,7 +37,7 @@ from distnav.algorithms.ranging_objective import RangeObjective
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 
-__all__ = ["consider_sigma", "MIN_NOISE_SHARE"]
+__all__ = ["consider_sigma", "consider_precision", "MIN_NOISE_SHARE"]
 
 MIN_NOISE_SHARE = 0.1  # the noise part keeps at least this share of σ̂² (the delays' prior may be too large)
 
@@ -49,6 +49,17 @@ def consider_sigma(problem: RangingProblem, result: Any, *, sigma_m: float, offs
     ``problem`` (the links it was fitted on), with per-anchor delays of σ ``delay_sigma_m`` considered (module
     docstring). None when the result carries no free vector or variance factor, or the normal matrix is singular.
     """
+    out = consider_precision(problem, result, sigma_m=sigma_m, offsets=offsets, loss=loss, loss_scale_m=loss_scale_m,
+                             delay_sigma_m=delay_sigma_m, offset_prior_sigma_m=offset_prior_sigma_m)
+    return None if out is None else out[0]
+
+
+def consider_precision(problem: RangingProblem, result: Any, *, sigma_m: float, offsets: str, loss: str,
+                       loss_scale_m: float, delay_sigma_m: float, offset_prior_sigma_m: float = 0.1
+                       ) -> tuple[FloatArray, FloatArray] | None:
+    """``(σ, covariance blocks)`` of :func:`consider_sigma`: σ ``(n, dim)`` and each anchor's ``dim × dim`` block
+    ``(n, dim, dim)`` of ``C = σ̂²_noise Q + σ_δ² B Bᵀ`` in m² (zero rows and columns at known coordinates), so
+    the ellipses drawn from the blocks are those of the σ written."""
     x = getattr(result, "x", None)
     prec = getattr(result, "precision", None)
     if x is None or prec is None or prec.variance_factor is None:
@@ -83,4 +94,12 @@ def consider_sigma(problem: RangingProblem, result: Any, *, sigma_m: float, offs
     var = s2 * np.diag(Q) + delay_sigma_m**2 * np.einsum("ij,ij->i", B, B)
     out = np.zeros(problem.free.shape)
     out[problem.free] = np.sqrt(np.maximum(var[:problem.n_free], 0.0))
-    return out
+    idx = np.full(problem.free.shape, -1)
+    idx[problem.free] = np.arange(problem.n_free)  # the free coordinates lead x, anchor by anchor
+    valid = idx >= 0
+    at = np.where(valid, idx, 0)
+    pair = valid[:, :, None] & valid[:, None, :]
+    Bq = B[at] * valid[..., None]  # (n, dim, n_anchors)
+    blocks = np.where(pair, s2 * Q[at[:, :, None], at[:, None, :]], 0.0) + delay_sigma_m**2 * (
+        Bq @ Bq.transpose(0, 2, 1))
+    return out, blocks
