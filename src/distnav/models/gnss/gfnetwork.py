@@ -25,9 +25,9 @@ from distnav.models.gnss.gfbias import (
     BiasGeometryFreeSeries,
     BiasStateLayout,
     bias_dynamics,
-    datum_transform,
     gf_m_per_dsb_ns,
 )
+from distnav.models.gnss.gfcollector import Collector, DatumSeries
 from distnav.models.gnss.rinex import CodeObservations
 from distnav.models.gnss.rinex_obs import ProgressCallback
 
@@ -239,169 +239,6 @@ def arc_sigma_scale(arc_id: np.ndarray, t_s: np.ndarray, correlation_s: float) -
     return out
 
 
-@dataclass(frozen=True, eq=False)
-class DatumSeries:
-    """One filter's per-epoch outputs in the output datum: ``tec`` / ``tec_std`` (T, n_tec) [m],
-    ``dsb_ns`` / ``dsb_std_ns`` (T, n + S) DSBs ``C1 − C_b`` [ns] of the receivers then the satellites (formal:
-    σ² = 1); ``variance_factor`` σ̂² from the filter's own predicted residuals (``Σ vᵀQ_v⁻¹v / Σ m``, each
-    filter on the observations it uses: a local quantity in the CKF too) and the number of them;
-    ``lag1_correlation`` ρ of the standardized predicted residuals of the same receiver–satellite pair at
-    consecutive epochs and the inflation ``(1 + ρ)/(1 − ρ)`` it implies for the variance of constant parameters.
-    ``precision``: a :class:`~distnav.algorithms.result.Precision` of the last epoch's DSBs ``[receivers, satellites]``
-    [ns²] in the output datum (one block: the filter's own state), ``variance_factor`` = σ̂²·(1 + ρ)/(1 − ρ) so that
-    ``precision.std(a_posteriori=True)`` is the realistic σ (a departure from the plain σ̂² of the payload: the
-    AR(1) inflation is folded in), ``redundancy`` = predicted residuals − states — with levelled arcs both are the
-    arcs' (``arc_variance_factor`` σ̂²_arc, :mod:`~distnav.models.gnss.arcprecision`); ``None`` for the CKF (its
-    covariance comes from the Fig. 7 recursion of one node's view, not a centralized one)."""
-
-    label: str
-    tec: np.ndarray
-    tec_std: np.ndarray
-    dsb_ns: np.ndarray
-    dsb_std_ns: np.ndarray
-    variance_factor: float | None = None
-    n_innovations: int = 0
-    lag1_correlation: float = 0.0
-    correlation_inflation: float = 1.0
-    precision: Any = None
-    innovation_tests: Any = None
-    arc_variance_factor: float | None = None
-
-    @property
-    def realistic_factor(self) -> float:
-        """The formal σ times this is the realistic σ: ``√σ̂²_arc`` (the arcs' variance factor,
-        :mod:`~distnav.models.gnss.arcprecision`: the levelling error is common to all epochs of an arc) where the
-        filter has one, else ``√(σ̂² (1 + ρ)/(1 − ρ))`` (the misfit and the epoch-to-epoch correlation ``ρ`` of the
-        standardized predicted residuals: variance of a mean of AR(1) errors)."""
-        if self.arc_variance_factor is not None:
-            return float(np.sqrt(self.arc_variance_factor))
-        return float(np.sqrt((self.variance_factor or 1.0) * self.correlation_inflation))
-
-
-@dataclass(frozen=True, eq=False)
-class _DatumRows:
-    """An S-transformation prepared once per estimable pattern: :func:`in_datum` without re-masking ``T``."""
-
-    Tz: np.ndarray
-    bad: np.ndarray
-
-    @classmethod
-    def of(cls, T: np.ndarray) -> _DatumRows:
-        return cls(np.where(np.isfinite(T), T, 0.0), ~np.isfinite(T).all(axis=1))
-
-    def apply(self, x: np.ndarray, P: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """``in_datum(T, x, P)`` (the diagonal by a product and a row sum: equal to rounding)."""
-        val = self.Tz @ np.where(np.isfinite(x), x, 0.0)
-        if P is None:
-            sd = np.full(val.shape, np.nan)
-        else:
-            Pz = np.where(np.isfinite(P), P, 0.0)
-            sd = np.sqrt(np.maximum(((self.Tz @ Pz) * self.Tz).sum(axis=1), 0.0))   # diag(T P Tᵀ)
-        val[self.bad] = np.nan
-        sd[self.bad] = np.nan
-        return val, sd
-
-
-class _Collector:
-    def __init__(self, label: str, T: int, n_tec: int, q: int) -> None:
-        self.label = label
-        self.ssr = 0.0
-        self.m = 0
-        self.zt: np.ndarray | None = None       # (nodes, S) epoch of the last standardized residual
-        self.zv: np.ndarray | None = None       # (nodes, S) its value
-        self.zz = self.zlag = 0.0
-        self.T_cache: dict[bytes, tuple[np.ndarray, _DatumRows]] = {}
-        self.last: tuple[np.ndarray, np.ndarray, float] | None = None   # T, P, scale of the last epoch
-        self.n_states = 0
-        self.prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.tec = np.full((T, n_tec), np.nan)
-        self.tec_std = np.full((T, n_tec), np.nan)
-        self.dsb = np.full((T, q), np.nan)
-        self.dsb_std = np.full((T, q), np.nan)
-
-    def add(self, t: int, layout: BiasStateLayout, x: np.ndarray, est: np.ndarray, P: np.ndarray | None,
-            datum: str, pivot: str | None, reference: str | None, scale: float) -> None:
-        nt = layout.n_tec
-        self.tec[t] = np.where(est[:nt], x[:nt], np.nan)
-        if P is not None:
-            self.tec_std[t] = np.where(est[:nt], np.sqrt(np.maximum(np.diag(P)[:nt], 0.0)), np.nan)
-        key = est.tobytes()
-        cached = self.T_cache.get(key)
-        if cached is None:
-            try:
-                T = datum_transform(layout, datum, estimable=est, pivot=pivot, reference=reference)
-            except ModelError:
-                return
-            cached = self.T_cache[key] = (T, _DatumRows.of(T))
-        T, rows = cached
-        v, s = rows.apply(x, P)
-        self.dsb[t] = -v / scale
-        self.dsb_std[t] = s / scale
-        if P is not None:
-            self.last = (T, P, scale)
-            self.n_states = layout.n_states
-
-    def innovations(self, t: int, series: BiasGeometryFreeSeries, nodes: np.ndarray, dynamics: Any,
-                    x: np.ndarray, est: np.ndarray, P: np.ndarray | None) -> None:
-        """Accumulate the predicted residuals ``v = y − A x̂_{t−1}`` of ``nodes`` with ``Q_v = R + A P⁻ Aᵀ``
-        (``P⁻ = P_{t−1} + S_t``; all the nodes' observations jointly: they share the state) over the observations
-        whose parameters were all estimable before epoch ``t``."""
-        if self.prev is not None and t > 0:
-            xp, ep, Pp = self.prev
-            A, w = series.design(t, nodes)
-            y = series._y[t, nodes] if series._y is not None else np.zeros(w.shape)
-            inest = np.flatnonzero(~ep)
-            rows = w > 0
-            if inest.size:                                   # no coefficient on an inestimable parameter
-                rows &= ~(A.take(inest, axis=2) != 0).any(axis=2)
-            if rows.any():
-                kk, ss = np.nonzero(rows)                    # all observations of all nodes together
-                Ar = A[kk, ss]
-                used = np.flatnonzero(Ar.any(axis=0))        # the parameters observed (all estimable)
-                Ar = Ar[:, used]
-                grid = np.ix_(used, used)
-                Pm = Pp[grid] + dynamics.noise_cov_at(t)[grid]
-                v = y[kk, ss] - Ar @ xp[used]
-                Qv = Ar @ Pm @ Ar.T
-                dq = np.arange(kk.size)
-                Qv[dq, dq] += 1.0 / w[kk, ss]                # R + A P⁻ Aᵀ
-                self.ssr += float(v @ np.linalg.solve(Qv, v))
-                self.m += int(kk.size)
-                z = v / np.sqrt(Qv[dq, dq])
-                if self.zt is None or self.zv is None:
-                    self.zt = np.full((series.n_nodes, series.n_satellites), -2, np.int64)
-                    self.zv = np.zeros((series.n_nodes, series.n_satellites))
-                node = np.asarray(nodes)[kk]
-                follows = self.zt[node, ss] == t - 1
-                self.zlag += float((z[follows] * self.zv[node, ss][follows]).sum())
-                self.zz += float(z @ z)
-                self.zt[node, ss] = t
-                self.zv[node, ss] = z
-        if P is not None:
-            self.prev = (x.copy(), est.copy(), P.copy())
-
-    def done(self) -> DatumSeries:
-        from distnav.algorithms.statistics import variance_factor
-
-        vf = variance_factor(self.ssr, self.m) if self.m else None
-        rho = min(max(self.zlag / self.zz, 0.0), 0.999) if self.zz > 0 else 0.0
-        precision = None
-        if self.last is not None:
-            from distnav.algorithms.result import Precision
-
-            T, P, scale = self.last
-            bad = ~np.isfinite(T).all(axis=1)
-            Tz = np.where(np.isfinite(T), T, 0.0)
-            cov = Tz @ np.where(np.isfinite(P), P, 0.0) @ Tz.T / scale**2
-            cov[bad] = np.nan
-            cov[:, bad] = np.nan
-            inflation = (1.0 + rho) / (1.0 - rho)
-            precision = Precision(covariance=cov[None], variance_factor=None if vf is None else vf * inflation,
-                                  redundancy=float(self.m - self.n_states), kind="centralized")
-        return DatumSeries(self.label, self.tec, self.tec_std, self.dsb, self.dsb_std, vf, self.m, rho,
-                           (1.0 + rho) / (1.0 - rho), precision)
-
-
 def final_dsbs(data: BiasNetworkData, s: DatumSeries) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
     """A filter's last-epoch DSBs [ns]: satellites (estimated ones), receivers, and the realistic σ of every
     object (``rx:STA`` or the PRN; formal σ × :attr:`DatumSeries.realistic_factor`)."""
@@ -525,32 +362,29 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
     from distnav.algorithms.kalman import iterate_information_filter
 
     lay, T = data.layout, data.series.n_epochs
-    q = len(lay.receivers) + len(lay.svs)
     scale = gf_m_per_dsb_ns(data.band)
     out: list[DatumSeries] = []
-    c = _Collector("central", T, lay.n_tec, q)
+    opts: dict[str, Any] = {"datum": datum, "pivot": pivot, "reference": reference, "scale": scale}
     everyone = np.arange(len(data.stations))
+    c = Collector("central", T, lay, data.series, everyone, data.dynamics, **opts)
     for st in iterate_information_filter(data.dynamics, data.series, mode="central"):
-        c.innovations(st.epoch, data.series, everyone, data.dynamics, st.estimates[0], st.estimable[0],
-                      st.covariance[0])
-        c.add(st.epoch, lay, st.estimates[0], st.estimable[0], st.covariance[0], datum, pivot, reference, scale)
+        c.step(st.epoch, st.estimates[0], st.estimable[0], st.covariance[0])
     out.append(_with_arc_factor(c.done(), data, None))
     if local:
         for i, sta in enumerate(data.stations):
             si = data.series_for(sta)
-            c = _Collector(f"local:{sta}", T, lay.n_tec, q)
+            c = Collector(f"local:{sta}", T, si.layout, si, np.array([i]), data.dynamics,
+                          **{**opts, "reference": None if datum != "receiver" else sta})
             for st in iterate_information_filter(data.dynamics, si, mode="central", nodes=[i]):
-                c.innovations(st.epoch, si, np.array([i]), data.dynamics, st.estimates[0], st.estimable[0],
-                              st.covariance[0])
-                c.add(st.epoch, si.layout, st.estimates[0], st.estimable[0], st.covariance[0], datum, pivot,
-                      None if datum != "receiver" else sta, scale)
+                c.step(st.epoch, st.estimates[0], st.estimable[0], st.covariance[0])
             out.append(_with_arc_factor(c.done(), data, [i]))
     comm = None
     if graph is not None:
         from distnav.exchange import make_exchange
 
         ex = exchange if exchange is not None else make_exchange(graph)
-        cs = [_Collector(f"ckf:{s}", T, lay.n_tec, q) for s in data.stations]
+        cs = [Collector(f"ckf:{s}", T, lay, data.series, np.array([i]), data.dynamics, **opts)
+              for i, s in enumerate(data.stations)]
         tests = None
         if innovation_level is not None:
             from distnav.algorithms.ckf_qc import InnovationCollector
@@ -566,9 +400,7 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
             est = ex.gather_nodes(cst.estimable)
             P = ex.gather_nodes(cst.covariance) if cst.covariance is not None else None
             for i, col in enumerate(cs):
-                col.innovations(cst.epoch, data.series, np.array([i]), data.dynamics, x[i], est[i],
-                                None if P is None else P[i])
-                col.add(cst.epoch, lay, x[i], est[i], None if P is None else P[i], datum, pivot, reference, scale)
+                col.step(cst.epoch, x[i], est[i], None if P is None else P[i])
         built = tests.build() if tests is not None else None
         out += [replace(col.done(), precision=None, innovation_tests=built) for col in cs]
         comm = ex.comm_totals()
