@@ -7,7 +7,7 @@ Where a source has no valid position (no ephemeris record close enough, satellit
 outside the SP3 time span) the position is NaN; downstream code treats NaN as "not visible".
 
 * :class:`BroadcastOrbit` — Keplerian propagation of the broadcast elements, IS-GPS-200 Table 20-IV, from a
-  navigation dataset read by georinex (:func:`distnav.models.gnss.rinex.read_navigation`).
+  navigation file (:func:`distnav.models.gnss.rinex.read_navigation`) or a georinex dataset.
 * :class:`SP3Orbit` — Lagrange interpolation (order 9 = 10 samples, the usual choice for 15-min samples).
 * :class:`SyntheticConstellation` — circular orbits from nominal GPS elements (a ≈ 26,560 km, i = 55°, six
   planes), 31 satellites with GPS PRN numbers and the 12 block IIF (L1/L2/L5) satellites marked, so every
@@ -145,16 +145,27 @@ class BroadcastOrbit:
         if not svs:
             raise DataFileError(f"{source or 'navigation dataset'}: no GPS ephemeris records")
         toc = gps_seconds(nav.time.values)
-        records: dict[str, dict[str, np.ndarray]] = {}
+        columns: dict[str, dict[str, np.ndarray]] = {}
         for sv in svs:
             sub = nav.sel(sv=sv)
-            cols = {f: np.asarray(sub[f].values, dtype=float) for f in _NAV_FIELDS}
+            columns[sv] = {f: np.asarray(sub[f].values, dtype=float) for f in _NAV_FIELDS}
+            columns[sv]["toc_s"] = toc
+        return cls.from_records(columns, max_age_s=max_age_s, source=source)
+
+    @classmethod
+    def from_records(cls, columns: dict[str, dict[str, np.ndarray]], *, max_age_s: float = 4 * 3600.0,
+                     source: str = "") -> BroadcastOrbit:
+        """From per-satellite columns (the fields of ``_NAV_FIELDS`` and ``toc_s``, in time-of-clock order; NaN rows
+        are skipped), as :func:`distnav.models.gnss.rinex_nav.read_gps_ephemerides` gives them: the healthy
+        records with a complete orbit, ordered by the time of ephemeris."""
+        records: dict[str, dict[str, np.ndarray]] = {}
+        for sv, cols in columns.items():
             ok = np.isfinite(cols["sqrtA"]) & np.isfinite(cols["Toe"]) & np.isfinite(cols["GPSWeek"])
             ok &= cols["health"] == 0
             if not ok.any():
                 continue
-            rec = {f: v[ok] for f, v in cols.items()}
-            rec["toc_s"] = toc[ok]
+            rec = {f: cols[f][ok] for f in _NAV_FIELDS}
+            rec["toc_s"] = cols["toc_s"][ok]
             toe_abs = rec["GPSWeek"] * SECONDS_PER_WEEK + rec["Toe"]
             # the week of Toe may differ from the week of Toc near a week boundary: bring Toe within ±½ week
             toe_abs += SECONDS_PER_WEEK * np.round((rec["toc_s"] - toe_abs) / SECONDS_PER_WEEK)

@@ -1,4 +1,4 @@
-"""Reading RINEX observation (2.11 / 3.x, Hatanaka and gzip too), navigation and SP3 files through georinex.
+"""Reading RINEX observation (2.11 / 3.x, Hatanaka and gzip too), navigation and SP3 files.
 
 :func:`read_code_observations` picks, per GPS band, the first code observation type present in the file from a
 preference list and returns a :class:`CodeObservations` (pseudo-ranges in metres, NaN where missing):
@@ -12,7 +12,8 @@ make to the RINEX 3 attribute (Septentrio: L2C = C2L, L5 = C5Q — as CAS lists 
 Trimble: C2X, C5X), and the choice is recorded in ``CodeObservations.notes``.
 
 Observation files are read by :mod:`distnav.models.gnss.rinex_obs` (own reader, latin-1, ≈ 2 s per full day of
-30-s data, progress callback); navigation and SP3 files by georinex.
+30-s data, progress callback), navigation files by :mod:`distnav.models.gnss.rinex_nav` (own reader, one pass),
+SP3 files by georinex.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import numpy as np
 from distnav._optional import require
 from distnav.errors import DataFileError
 from distnav.models.gnss.orbits import BroadcastOrbit, SP3Orbit
+from distnav.models.gnss.rinex_nav import _ints, check_navigation_file, read_gps_ephemerides
 from distnav.models.gnss.rinex_obs import (
     COMPRESSED_MAGIC,
     ProgressCallback,
@@ -240,86 +242,6 @@ def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5)
         phase_types={b: t for b, t in phase_types.items()}, time_system=hdr.time_system)
 
 
-_NUMBER = "a number such as ' 5.153693731310D+03'"
-_RECORD_LINES = {"R": 4, "S": 4}  # at least this many lines per RINEX 3 navigation record (others 8)
-
-
-def _fortran_fields(p: Path, no: int, line: str, starts: Sequence[int], width: int = 19) -> None:
-    """Every non-blank ``D19.12``/``E19.12`` field of a navigation line parses as a number."""
-    for a in starts:
-        f = line[a:a + width]
-        if not f.strip():
-            continue
-        try:
-            float(f.replace("D", "E").replace("d", "e"))
-        except ValueError:
-            raise DataFileError(f"{p}, line {no}: columns {a + 1}-{a + width}: expected {_NUMBER}, got "
-                                f"{f.strip()!r}") from None
-
-
-def _ints(p: Path, no: int, line: str, spans: Sequence[tuple[int, int]], what: str, example: str) -> None:
-    for a, b in spans:
-        if not line[a:b].strip().isdigit():
-            raise DataFileError(f"{p}, line {no}: {what} (columns {a + 1}-{b}): expected {example}, got "
-                                f"{line[a:b].strip()!r}")
-
-
-def check_navigation_file(path: str | Path) -> None:
-    """The format checks of a RINEX 2/3 navigation file before georinex reads it, so a bad file is named with its
-    line and what was expected (georinex's own messages quote Python internals): the version / type line, the
-    end of the header, every record's epoch fields and numbers, and records cut short by a truncated file."""
-    p = Path(path)
-    lines = read_text_file(p, whole_lines=True)
-    first = lines[0] if lines else ""
-    try:
-        version = float(first[:9])
-    except ValueError:
-        version = 0.0
-    if first[60:80].strip() != "RINEX VERSION / TYPE" or not 2.0 <= version < 5.0 or first[20:21] not in "NG":
-        raise DataFileError(f"{p}, line 1: expected a RINEX navigation file: 'RINEX VERSION / TYPE' with a version "
-                            f"such as 2.11 or 3.04 in columns 1-9 and type N in column 21, got {first[:80]!r}")
-    end = next((k for k, line in enumerate(lines) if line[60:73] == "END OF HEADER"), None)
-    if end is None:
-        raise DataFileError(f"{p}: no END OF HEADER line (the header is incomplete or the file is not RINEX)")
-    k = end + 1
-    while k < len(lines):
-        line = lines[k]
-        if not line.strip():
-            k += 1
-            continue
-        if version >= 3:
-            if not (line[:1].isalpha() and line[1:3].isdigit()):
-                raise DataFileError(f"{p}, line {k + 1}: expected a record starting with a satellite id such as "
-                                    f"G05 in columns 1-3, got {line[:12]!r}")
-            n = 1  # RINEX 3: continuation lines start with 4 blanks (3.05 GLONASS records have 5 lines, not 4)
-            while k + n < len(lines) and lines[k + n][:4] == "    " and lines[k + n].strip():
-                n += 1
-            if n < _RECORD_LINES.get(line[0], 8):
-                raise DataFileError(f"{p}, line {k + 1}: the record of {line[:3]} has {n} of "
-                                    f"{_RECORD_LINES.get(line[0], 8)} lines: the file is truncated or a line is "
-                                    f"missing")
-            _ints(p, k + 1, line, [(4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23)], "the epoch",
-                  "year month day hour minute second as in 'G05 2024 01 10 00 00 00'")
-            first_starts, starts = (23, 42, 61), (4, 23, 42, 61)
-        else:
-            n = 8 if first[20:21] == "N" else 4
-            _ints(p, k + 1, line, [(0, 2)], "the satellite number", "a PRN such as ' 5'")
-            _ints(p, k + 1, line, [(3, 5), (6, 8), (9, 11), (12, 14), (15, 17)], "the epoch",
-                  "year month day hour minute as in ' 5 24  1 10  0  0  0.0'")
-            first_starts, starts = (22, 41, 60), (3, 22, 41, 60)
-        if k + n > len(lines):
-            raise DataFileError(f"{p}, line {k + 1}: the record of {line[:3].strip()} has {len(lines) - k} of "
-                                f"{n} lines: the file is truncated")
-        _fortran_fields(p, k + 1, line, first_starts)
-        for j in range(1, n):
-            _fortran_fields(p, k + 1 + j, lines[k + j], starts)
-            if lines[k + j][:1].strip():
-                raise DataFileError(f"{p}, line {k + 1 + j}: expected a continuation line of the record of "
-                                    f"{line[:3].strip()} (line {k + 1}) starting with blanks, got "
-                                    f"{lines[k + j][:12]!r}")
-        k += n
-
-
 def check_sp3_file(path: str | Path) -> None:
     """The format checks of an SP3 file before georinex reads it (see :func:`check_navigation_file`): the first
     line (``#a``–``#d``, the start epoch), every epoch line and position record, and the closing ``EOF``."""
@@ -351,21 +273,14 @@ def check_sp3_file(path: str | Path) -> None:
 
 
 def read_navigation(path: str | Path, *, max_age_s: float = 2 * 3600.0) -> BroadcastOrbit:
-    """GPS broadcast ephemerides of a RINEX 2 or 3 navigation file (gzip too; multi-GNSS files read with
-    ``use='G'``). ``max_age_s`` bounds |t − toe| (the ±2 h fit interval by default)."""
+    """GPS broadcast ephemerides of a RINEX 2 or 3 navigation file (gzip too; of multi-GNSS files
+    their GPS records; :mod:`distnav.models.gnss.rinex_nav`). ``max_age_s`` bounds |t − toe| (the ±2 h fit
+    interval by default)."""
     p = Path(path)
-    check_navigation_file(p)
-    gr = _georinex()
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            nav = gr.load(p, use="G")
-    except Exception:  # georinex's messages quote Python internals; the checks above found nothing specific
-        raise DataFileError(f"{p}: could not be read as RINEX navigation data although its header and records "
-                            f"look well-formed (expected RINEX 2.11/3.x navigation records)") from None
-    if nav is None or "sv" not in getattr(nav, "dims", {}):
+    columns = read_gps_ephemerides(p)
+    if not columns:
         raise DataFileError(f"{p}: no GPS navigation records")
-    return BroadcastOrbit.from_dataset(nav, max_age_s=max_age_s, source=str(p))
+    return BroadcastOrbit.from_records(columns, max_age_s=max_age_s, source=str(p))
 
 
 def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3Orbit:
