@@ -29,6 +29,19 @@ def test_critical_value_is_the_two_sided_normal_quantile() -> None:
         critical_value(0.0)
 
 
+@pytest.mark.parametrize("level", [1e-6, 0.001, 0.01, 0.05, 0.3])
+def test_quantiles_equal_scipy_stats(level: float) -> None:
+    """The quantiles come from scipy.special (importing scipy.stats costs ~1.3 s CPU per run): the same values as
+    scipy.stats's distributions, to the last bit."""
+    from scipy import stats
+
+    assert critical_value(level) == float(stats.norm.isf(level / 2.0))
+    for r in (1, 2, 7.5, 40, 1000, 60_000):
+        _, (lo, hi), _ = variance_factor_test(float(r), r, level)
+        assert lo == float(stats.chi2.ppf(level / 2.0, r) / r)
+        assert hi == float(stats.chi2.isf(level / 2.0, r) / r)
+
+
 def test_w_equals_the_deletion_residual_over_its_standard_deviation() -> None:
     """Independent form (uncorrelated observations): w_i = (y_i − a_i x̂₍ᵢ₎) / sqrt(σ_i² + a_i Q₍ᵢ₎ a_iᵀ),
     with x̂₍ᵢ₎ the BLUE without observation i."""

@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from distnav.errors import ModelError
 from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
@@ -45,7 +45,7 @@ def critical_value(level: float) -> float:
     """
     if not 0.0 < level < 1.0:
         raise ModelError(f"test level must lie in (0, 1), got {level!r}")
-    return float(stats.norm.isf(level / 2.0))
+    return float(-special.ndtri(level / 2.0))      # N(0, 1) upper quantile (scipy.stats.norm.isf's own formula)
 
 
 def w_statistics(weighted_residual: ArrayLike, variance: ArrayLike, *, relative_floor: float = _TINY_VARIANCE
@@ -87,8 +87,9 @@ def variance_factor_test(weighted_ssr: float, redundancy: float, level: float = 
     s2 = variance_factor(weighted_ssr, redundancy)
     if s2 is None:
         return None, (float("nan"), float("nan")), True
-    lo = float(stats.chi2.ppf(level / 2.0, redundancy) / redundancy)
-    hi = float(stats.chi2.isf(level / 2.0, redundancy) / redundancy)
+    # χ²(r) quantiles by scipy.stats.chi2's own formulas (scipy.special: importing scipy.stats costs ~1.3 s CPU)
+    lo = float(2.0 * special.gammaincinv(redundancy / 2.0, level / 2.0) / redundancy)
+    hi = float(special.chdtri(redundancy, level / 2.0) / redundancy)
     return s2, (lo, hi), bool(lo <= s2 <= hi)
 
 
