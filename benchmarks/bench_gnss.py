@@ -4,10 +4,12 @@
   solution, 4 ADMM runs of 1,000 iterations): goal ≤ 20 s (quick: 120 epochs, 300 iterations);
 * reading a full day of 30-s RINEX 3 (BELE, Hatanaka + gzip, 2880 epochs) with distnav's reader against georinex
   alone on the same observation types: distnav should add little (quick: a 1-hour window);
+* reading the merged broadcast file of the day (BRDC, RINEX 3, all systems) with distnav's reader against
+  ``georinex.load(use="G")`` alone (imported beforehand): the own reader should be much faster;
 * ``gnss ionosphere`` on a full day of 3 stations at 30 s (read, levelling + screening + model, central + local
-  + CKF filters): goal ≤ 30 s CPU; and on a 2-h session of the same (06–08 h): the filters within 150× a bare
-  Cholesky floor (415–545× with OpenBLAS's threads in the eigen-decomposition fallback, 55–100× without; quick:
-  the session);
+  + CKF filters): goal ≤ 20 s CPU (issue 14 asked ≤ 30 s; 20 s leaves room for a loaded machine); and on a
+  2-h session of the same (06–08 h): the filters within 150× a bare Cholesky floor (415–545× with OpenBLAS's
+  threads in the eigen-decomposition fallback, 55–100× without; quick: the session);
 * orbit evaluation: broadcast (IS-GPS-200) and SP3 (9th-order Lagrange) positions of 31 satellites at 2880 epochs.
 Reading tests need ``../shared/data``; they are skipped (row with a note) when it is absent.
 """
@@ -88,7 +90,36 @@ def _reading(quick: bool) -> list[dict[str, Any]]:
         t_ours = min(t_ours, best_time(ours, repeat=1))
     return [{"name": "read RINEX 3 BELE " + ("1 h" if quick else "full day"), "epochs": 121 if quick else 2880,
              "seconds": t_ours, "reference_seconds": t_ref, "ratio": t_ours / t_ref,
-             "goal": "≤ 1.2 × georinex", "meets_goal": bool(t_ours <= 1.2 * t_ref)}]
+             "goal": "≤ 1.2 × georinex", "meets_goal": bool(t_ours <= 1.2 * t_ref)}, _reading_navigation()]
+
+
+def _reading_navigation() -> dict[str, Any]:
+    """The day's merged broadcast file: distnav's one-pass reader (format checks + GPS records) against
+    ``georinex.load`` alone (imported before timing; the import itself is ≈ 1.5 s CPU more), CPU time."""
+    import georinex as gr
+
+    from distnav.models.gnss.rinex import read_navigation
+
+    f = SHARED / "igs_2024010_bele_dgar" / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"
+
+    def plain() -> None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            gr.load(f, use="G")
+
+    t_ref = t_ours = float("inf")
+    for _ in range(3):
+        c0 = time.process_time()
+        plain()
+        c1 = time.process_time()
+        read_navigation(f, max_age_s=4 * 3600.0)
+        c2 = time.process_time()
+        t_ref, t_ours = min(t_ref, c1 - c0), min(t_ours, c2 - c1)
+    return {"name": "read RINEX 3 broadcast day (BRDC, all systems)", "seconds": t_ours, "cpu_s": t_ours,
+            "reference_cpu_s": t_ref, "ratio": t_ours / t_ref, "goal": "≤ 0.5 × georinex.load",
+            "meets_goal": bool(t_ours <= 0.5 * t_ref)}
+
+
 
 
 def _ionosphere_day(quick: bool) -> list[dict[str, Any]]:
@@ -99,7 +130,7 @@ def _ionosphere_day(quick: bool) -> list[dict[str, Any]]:
     d = SHARED / "igs_2024010_bele_dgar"
     if not d.exists():
         return [{"name": "ionosphere day", "note": "skipped: shared data absent"}]
-    rows = [] if quick else [_ionosphere_run(d, None, "full day", "≤ 30 s CPU (full day)", 30.0)]
+    rows = [] if quick else [_ionosphere_run(d, None, "full day", "≤ 20 s CPU (full day)", 20.0)]
     rows.append(_ionosphere_run(d, ("2024-01-10T06:00", "2024-01-10T08:00"), "2-h session",
                                 "filters ≤ 150× floor (2-h session)", None))
     return rows
