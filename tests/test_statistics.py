@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from distnav.algorithms.ckf_qc import chi2_critical
 from distnav.algorithms.statistics import (
     critical_value,
     data_snooping,
@@ -40,6 +41,10 @@ def test_quantiles_equal_scipy_stats(level: float) -> None:
         _, (lo, hi), _ = variance_factor_test(float(r), r, level)
         assert lo == float(stats.chi2.ppf(level / 2.0, r) / r)
         assert hi == float(stats.chi2.isf(level / 2.0, r) / r)
+    dof = np.array([0, 1, 3, 40, 900])
+    got = chi2_critical(dof, level)
+    assert np.isnan(got[0])
+    np.testing.assert_array_equal(got[1:], stats.chi2.isf(level, dof[1:]))
 
 
 def test_w_equals_the_deletion_residual_over_its_standard_deviation() -> None:

@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from distnav.algorithms.kalman import InnovationTests
 from distnav.algorithms.statistics import w_statistics
@@ -103,9 +103,10 @@ def innovation_test(A: FloatArray, y: FloatArray, x_pred: FloatArray, P_pred: Fl
 
 
 def chi2_critical(dof: IntArray, level: float) -> FloatArray:
-    """Upper critical values of χ²(dof) at ``level`` (NaN where dof = 0)."""
+    """Upper critical values of χ²(dof) at ``level`` (NaN where dof = 0; scipy.stats.chi2.isf's own formula, without
+    importing scipy.stats: 1.3 s CPU)."""
     d = np.asarray(dof)
-    out: FloatArray = np.where(d > 0, stats.chi2.isf(level, np.maximum(d, 1)), np.nan)
+    out: FloatArray = np.where(d > 0, special.chdtri(np.maximum(d, 1), level), np.nan)
     return out
 
 
