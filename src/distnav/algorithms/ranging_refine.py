@@ -3,10 +3,12 @@ inner solve, every product through the exchange (issue 13 item 3).
 
 Why: N-CLM and N-CSG-TBLS are consensus methods whose rate is set by the network's slowest mode. On plant-like
 halls with the known anchors in a corner that mode is a swing of the far part of the network about the known
-corner; after 500 iterations they were still 0.4–2.4 m (1.7–11 σ) from LM's solution on the same links, and after
-5000 iterations N-CLM still 0.98 m (docs/uwb.md, "Distributed solvers vs LM"). Conjugate gradients solve the
-Gauss–Newton system ``(N + μD) δ = −g`` of the *whole* network in at most as many iterations as it has unknowns
-(56–60 on a 28-anchor hall) whatever its conditioning, and each iteration needs only the neighbours' values:
+corner; after 500 iterations per fit their worst coordinate was a median 1.8–5.1 σ (up to 13.5 σ, 2.6 m) from LM's
+solution on the same links, and N-CLM was still 0.99 m RMS from it after 5000 iterations (docs/uwb.md,
+"Distributed solvers vs LM"). Conjugate gradients solve the Gauss–Newton system ``(N + μD) δ = −g`` of the
+*whole* network in at most as many iterations as it has unknowns (about 50 on a 28-anchor hall with heights held)
+whatever its conditioning — with the forcing term :data:`CG_RTOL` far fewer, 8–17 per round there — and each
+iteration needs only the neighbours' values:
 
 * a **matrix–vector product** ``(N v)_i = Σ_{l∈E(i)} w_l a_l (a_lᵀ v_i + c_lᵀ v_j + e_l v_c)`` — anchor ``i``'s
   link rows ``a_l`` (its own parameters), ``c_l`` (the neighbour's) and ``e_l`` (a common offset), the IRLS weights
@@ -41,8 +43,8 @@ from distnav.exchange import Exchange
 
 __all__ = ["Refinement", "refine", "refine_state", "MAX_ROUNDS"]
 
-MAX_ROUNDS = 60  # outer LM rounds; 28-anchor halls converge in 4–15
-CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); measured below
+MAX_ROUNDS = 60  # outer LM rounds; plant-like halls: a median 4–6 after the exclusions, 16–36 with NLOS links kept
+CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
 MU0 = 1e-3  # initial Marquardt damping (relative to diag N)
 
 
