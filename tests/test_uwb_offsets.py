@@ -28,7 +28,9 @@ def test_april_distributed_common_offset_matches_a_scipy_fit(shared_data, tmp_pa
     assert main(["uwb", "import-april", str(log), "--out", str(files)]) == 0
     ref, ref_offset = _reference_fit(log, "cauchy")
     plain = _solve(files, tmp_path / "plain", "--solver", "N-CLM", "--range-offsets", "none")
-    for solver, tol_m, tol_offset_m in (("N-CSG-TBLS", 0.05, 0.01), ("N-CLM", 0.2, 0.1)):  # N-CLM: 0.14 m
+    # the reference fits every link; uwb solve excludes one on dataset5, which moves LM's own offset on the kept
+    # links from 0.298 to 0.285 m — where the distributed solvers now land (their final LM phase; checked to 1e-5)
+    for solver, tol_m, tol_offset_m in (("N-CSG-TBLS", 0.05, 0.02), ("N-CLM", 0.05, 0.02)):  # N-CLM was 0.14 m off
         s = _solve(files, tmp_path / solver, "--solver", solver, "--loss", "cauchy")  # auto: the common offset
         got = {r["id"]: r for r in csv.DictReader((tmp_path / solver / "positions.csv").open())}
         diff = max(float(np.hypot(float(got[str(k)]["x_m"]) - v[0], float(got[str(k)]["y_m"]) - v[1]))

@@ -26,7 +26,7 @@ from __future__ import annotations
 import inspect
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -45,9 +45,9 @@ from distnav.algorithms.neighbourhood_offsets import check_offsets, offset_preci
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, solve_lm
 from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.ranging_objective import range_sigma
-from distnav.algorithms.ranging_qc import TEST_SCALES, local_quality
-from distnav.algorithms.result import ObservationTests, Precision, SolverStatus, Trace
-from distnav.algorithms.statistics import critical_value, variance_factor
+from distnav.algorithms.ranging_qc import TEST_SCALES, distributed_quality
+from distnav.algorithms.ranging_refine import refine_state
+from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.weights import ConsensusWeights
@@ -246,6 +246,13 @@ class _Setup:
     monitor_every: int = 1
     range_offsets: str = "none"
     offset_prior_sigma_m: float = 0.1
+    refine: bool | None = None
+
+    @property
+    def refines(self) -> bool:
+        """Whether a final distributed LM phase runs (:mod:`distnav.algorithms.ranging_refine`): ``refine``, by
+        default with the metres objective and a stopping rule (never in the paper's mode)."""
+        return bool(self.refine) if self.refine is not None else self.objective == "metres" and self.stop is not None
 
     def check(self) -> None:
         if self.monitor_every < 0:
@@ -341,6 +348,25 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                    key: np.asarray(step)})
     final_cost = cost[-1]
     scale = _loss_scale(problem, setup, sigma)
+    if setup.refines and status != "diverged":  # a final LM phase through the exchange (ranging_refine)
+        rule = stop or StopRule()
+        try:
+            refined = refine_state(problem, ex, last, sigma=sigma, scale=scale, loss=setup.loss,
+                                   range_offsets=setup.range_offsets,
+                                   offset_prior_sigma_m=setup.offset_prior_sigma_m, ftol=rule.ftol,
+                                   xtol_m=rule.xtol_m)
+        except ModelError as err:  # e.g. a lost message: the refinement needs every link each round
+            why = (why + "; " if why else "") + f"no distributed LM phase ({err})"
+        else:
+            last, ref = refined
+            if status == "max_iterations":
+                why = (why + "; " if why else "") + f"the {last.iteration} iterations ran out"
+            own, status = ex.gather_nodes(last.own_m), cast(SolverStatus, ref.status)
+            final_cost = cost_of(own)
+            why = (why + "; " if why else "") + (f"then distributed LM: {ref.status.replace('_', ' ')} after "
+                                                 f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations")
+            settings = {**settings, "refine": {"rounds": ref.rounds, "cg_iterations": ref.cg_iterations,
+                                               "reductions": ref.reductions, "status": ref.status}}
     offsets = offsets_std = None
     off_args = (setup.range_offsets, setup.offset_prior_sigma_m, setup.loss, sigma, scale)
     if last.offset_m is not None and status != "diverged":
@@ -357,7 +383,9 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
     if status == "diverged":
         own = np.full_like(own, np.nan)  # never present a blown-up iterate as a result
     elif setup.quality and last.half_owner is not None:
-        precision, tests = _local_qc(problem, ex, last, setup, sigma, scale)
+        precision, tests = distributed_quality(problem, ex, last, sigma, scale, objective=setup.objective,
+                                               loss=setup.loss, test_scale=setup.test_scale,
+                                               test_level=setup.test_level)
         if offsets is not None:
             offsets, offsets_std = offset_precision(problem, ex, last, *off_args, precision.variance_factor)
     tail = f" ({why})" if why else ""
@@ -389,47 +417,6 @@ def _loss_scale(problem: RangingData, setup: _Setup, sigma: np.ndarray) -> np.nd
     return range_loss_scale(problem, setup.loss_scale_m) if setup.loss != "linear" else np.ones(problem.n_meas)
 
 
-def _local_qc(problem: RangingData, ex: Exchange, st: IterationState, setup: _Setup, sigma: np.ndarray,
-              scale: np.ndarray) -> tuple[Precision, ObservationTests]:
-    """Every anchor's conditional covariance and the w-tests of its own links (computed locally, then gathered
-    for the result only); each sample is reported by the lower-indexed of its two anchors."""
-    assert st.half_owner is not None and st.half_sample is not None and st.half_other_m is not None
-    owner, samp = st.half_owner, st.half_sample
-    rng = problem.range_m[samp] - (0.0 if st.half_offset_m is None else st.half_offset_m)  # the holder's bias
-    cov, w_half, wssr = local_quality(rng, owner, problem.free[ex.nodes[owner]],
-                                      st.own_m[owner], st.half_other_m, sigma[samp], ex.n_local, setup.objective,
-                                      loss=setup.loss, loss_scale=scale[samp], scale=setup.test_scale)
-    # pack per anchor (padded) so the result can be gathered over blocks
-    per = np.bincount(owner, minlength=ex.n_local)
-    K = max(int(ex.allreduce(int(per.max(initial=0)), "max")), 1)
-    order = np.argsort(owner, kind="stable")
-    slot = np.empty(owner.size, np.int64)
-    slot[order] = np.arange(owner.size) - np.repeat(np.cumsum(per) - per, per)
-    w_pack = np.full((ex.n_local, K), np.nan)
-    s_pack = np.full((ex.n_local, K), -1.0)
-    w_pack[owner, slot] = w_half
-    s_pack[owner, slot] = samp
-    cov_all = ex.gather_nodes(cov)
-    w_all_half = ex.gather_nodes(w_pack)
-    s_all = ex.gather_nodes(s_pack).astype(np.int64)
-    holder = np.repeat(np.arange(problem.n_anchors), K)
-    smp = s_all.ravel()
-    ok = smp >= 0
-    tester = np.minimum(problem.meas_a, problem.meas_b)
-    mine = ok & (holder == tester[np.maximum(smp, 0)])
-    w = np.full(problem.n_meas, np.nan)
-    w[smp[mine]] = w_all_half.ravel()[mine]
-    wssr_total = float(ex.allreduce(float(wssr.sum()), "sum")) / 2.0  # every sample is held twice
-    links = np.bincount(np.concatenate([problem.meas_a, problem.meas_b]), minlength=problem.n_anchors)
-    red = float(np.sum(np.maximum(links - problem.free.sum(axis=1), 0)[problem.estimated]))
-    k = critical_value(setup.test_level)
-    precision = Precision(covariance=cov_all, variance_factor=variance_factor(
-        wssr_total, max(problem.n_meas - problem.n_free, 0)), redundancy=red, kind="conditional")
-    tests = ObservationTests(node=tester, w=w, critical_value=k, level=setup.test_level,
-                             flagged=np.abs(np.nan_to_num(w)) > k)
-    return precision, tests
-
-
 def _graduated(setup_objective: str, loss: str, graduated: int | None, iterations: int) -> int:
     if graduated is not None:
         return int(graduated)
@@ -441,7 +428,7 @@ def solve_csg(problem: RangingData, *, exchange: Exchange | None = None, iterati
               initial_m: np.ndarray | None = None, monitor_every: int = 1, objective: str = "squared",
               sigma_m: float | np.ndarray = 1.0, stop: StopRule | None = StopRule(), quality: bool = True,
               test_level: float = 0.001, test_scale: str = "robust", range_offsets: str = "none",
-              offset_prior_sigma_m: float = 0.1) -> RangingResult:
+              offset_prior_sigma_m: float = 0.1, refine: bool | None = None) -> RangingResult:
     """CSG (paper 002 eqs. (10)–(12)); trace: ``rmse_m``, ``cost`` (global f at the anchors' own estimates),
     ``partial_cost`` (Σ_i f⁽ⁱ⁾(x⁽ⁱ⁾)), ``step_size``; row 0 is the start.
 
@@ -455,7 +442,7 @@ def solve_csg(problem: RangingData, *, exchange: Exchange | None = None, iterati
     ``k``-th iteration (NaN rows otherwise; 0: start and end only); see :func:`_run`."""
     setup = _Setup(objective=objective, sigma_m=sigma_m, stop=stop, quality=quality, test_level=test_level,
                    test_scale=test_scale, monitor_every=monitor_every, range_offsets=range_offsets,
-                   offset_prior_sigma_m=offset_prior_sigma_m)
+                   offset_prior_sigma_m=offset_prior_sigma_m, refine=refine)
     setup.check()
     a = (1e-3 if objective == "squared" else 0.8) if alpha is None else alpha
     ex = exchange_for(problem, exchange)
@@ -473,7 +460,7 @@ def solve_ncsg(problem: RangingData, *, line_search: str | None = None, exchange
                monitor_every: int = 1, objective: str = "squared", sigma_m: float | np.ndarray = 1.0,
                graduated: int | None = None, stop: StopRule | None = StopRule(), quality: bool = True,
                test_level: float = 0.001, test_scale: str = "robust", range_offsets: str = "none",
-               offset_prior_sigma_m: float = 0.1) -> RangingResult:
+               offset_prior_sigma_m: float = 0.1, refine: bool | None = None) -> RangingResult:
     """N-CSG (eqs. (14)–(18)); ``line_search="BLS"`` (eqs. (19)–(20)) or ``"TBLS"`` (eq. (21)).
 
     Trace, ``stop``, ``quality`` and ``monitor_every`` as :func:`solve_csg`; ``step_size`` is the mean ``α`` over
@@ -507,7 +494,8 @@ def _ncsg_parts(args: dict[str, Any]) -> tuple[_Setup, dict[str, Any], dict[str,
     setup = _Setup(objective=objective, sigma_m=args["sigma_m"], loss=loss, loss_scale_m=args["loss_scale_m"],
                    stop=args["stop"], graduated=grad_its, quality=args["quality"], test_level=args["test_level"],
                    test_scale=args["test_scale"], monitor_every=args["monitor_every"],
-                   range_offsets=args["range_offsets"], offset_prior_sigma_m=args["offset_prior_sigma_m"])
+                   range_offsets=args["range_offsets"], offset_prior_sigma_m=args["offset_prior_sigma_m"],
+                   refine=args["refine"])
     setup.check()
     a = (1e-3 if objective == "squared" else 0.8) if args["alpha"] is None else args["alpha"]
     a0 = (1e-2 if objective == "squared" else 2.0) if args["alpha0"] is None else args["alpha0"]
@@ -549,7 +537,7 @@ def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterat
                objective: str = "squared", sigma_m: float | np.ndarray = 1.0, graduated: int | None = None,
                stop: StopRule | None = StopRule(), quality: bool = True, test_level: float = 0.001,
                test_scale: str = "robust", range_offsets: str = "none",
-               offset_prior_sigma_m: float = 0.1) -> RangingResult:
+               offset_prior_sigma_m: float = 0.1, refine: bool | None = None) -> RangingResult:
     """N-CLM (eq. (22)); trace, ``objective``, ``graduated``, ``stop``, ``quality``, ``monitor_every`` and
     ``range_offsets`` as :func:`solve_ncsg`, with the mean ``lambda`` instead of ``step_size``.
 
@@ -569,7 +557,7 @@ def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterat
     setup = _Setup(objective=objective, sigma_m=sigma_m, loss=loss, loss_scale_m=loss_scale_m, stop=stop,
                    graduated=grad_its, quality=quality, test_level=test_level, test_scale=test_scale,
                    monitor_every=monitor_every, range_offsets=range_offsets,
-                   offset_prior_sigma_m=offset_prior_sigma_m)
+                   offset_prior_sigma_m=offset_prior_sigma_m, refine=refine)
     setup.check()
     ex = exchange_for(problem, exchange)
     states = iterate_neighbourhood(problem, method="N-CLM", exchange=ex, iterations=iterations, lambda0=lambda0,

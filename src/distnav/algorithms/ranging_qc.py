@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg as sla
@@ -40,6 +41,10 @@ from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, variance_factor, w_statistics
 from distnav.errors import ModelError
+from distnav.exchange import Exchange
+
+if TYPE_CHECKING:
+    from distnav.algorithms.neighbourhood import IterationState
 
 __all__ = ["TEST_SCALES", "centralized_quality", "exclude_links", "free_block_inverses", "local_quality",
            "robust_scale"]
@@ -261,3 +266,45 @@ def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResu
     tests = ObservationTests(node=node, w=w_all, critical_value=final.critical_value, level=final.level,
                              flagged=flagged, removed=tuple(removed), iterations=0, comm=None)
     return res, sub, tests
+
+
+def distributed_quality(problem: RangingData, ex: Exchange, st: IterationState, sigma: np.ndarray,
+                        scale: np.ndarray, *, objective: str, loss: str, test_scale: str, test_level: float
+                        ) -> tuple[Precision, ObservationTests]:
+    """Every anchor's conditional covariance and the w-tests of its own links (computed locally, then gathered
+    for the result only); each sample is reported by the lower-indexed of its two anchors."""
+    assert st.half_owner is not None and st.half_sample is not None and st.half_other_m is not None
+    owner, samp = st.half_owner, st.half_sample
+    rng = problem.range_m[samp] - (0.0 if st.half_offset_m is None else st.half_offset_m)  # the holder's bias
+    cov, w_half, wssr = local_quality(rng, owner, problem.free[ex.nodes[owner]],
+                                      st.own_m[owner], st.half_other_m, sigma[samp], ex.n_local, objective,
+                                      loss=loss, loss_scale=scale[samp], scale=test_scale)
+    # pack per anchor (padded) so the result can be gathered over blocks
+    per = np.bincount(owner, minlength=ex.n_local)
+    K = max(int(ex.allreduce(int(per.max(initial=0)), "max")), 1)
+    order = np.argsort(owner, kind="stable")
+    slot = np.empty(owner.size, np.int64)
+    slot[order] = np.arange(owner.size) - np.repeat(np.cumsum(per) - per, per)
+    w_pack = np.full((ex.n_local, K), np.nan)
+    s_pack = np.full((ex.n_local, K), -1.0)
+    w_pack[owner, slot] = w_half
+    s_pack[owner, slot] = samp
+    cov_all = ex.gather_nodes(cov)
+    w_all_half = ex.gather_nodes(w_pack)
+    s_all = ex.gather_nodes(s_pack).astype(np.int64)
+    holder = np.repeat(np.arange(problem.n_anchors), K)
+    smp = s_all.ravel()
+    ok = smp >= 0
+    tester = np.minimum(problem.meas_a, problem.meas_b)
+    mine = ok & (holder == tester[np.maximum(smp, 0)])
+    w = np.full(problem.n_meas, np.nan)
+    w[smp[mine]] = w_all_half.ravel()[mine]
+    wssr_total = float(ex.allreduce(float(wssr.sum()), "sum")) / 2.0  # every sample is held twice
+    links = np.bincount(np.concatenate([problem.meas_a, problem.meas_b]), minlength=problem.n_anchors)
+    red = float(np.sum(np.maximum(links - problem.free.sum(axis=1), 0)[problem.estimated]))
+    k = critical_value(test_level)
+    precision = Precision(covariance=cov_all, variance_factor=variance_factor(
+        wssr_total, max(problem.n_meas - problem.n_free, 0)), redundancy=red, kind="conditional")
+    tests = ObservationTests(node=tester, w=w, critical_value=k, level=test_level,
+                             flagged=np.abs(np.nan_to_num(w)) > k)
+    return precision, tests

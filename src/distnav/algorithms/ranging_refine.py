@@ -1,0 +1,308 @@
+"""A final refinement phase of the distributed UWB solvers: distributed Levenberg–Marquardt with a conjugate-gradient
+inner solve, every product through the exchange (issue 13 item 3).
+
+Why: N-CLM and N-CSG-TBLS are consensus methods whose rate is set by the network's slowest mode. On plant-like
+halls with the known anchors in a corner that mode is a swing of the far part of the network about the known
+corner; after 500 iterations per fit their worst coordinate was a median 1.8–5.1 σ (up to 13.5 σ, 2.6 m) from LM's
+solution on the same links, and N-CLM was still 0.99 m RMS from it after 5000 iterations (docs/uwb.md,
+"Distributed solvers vs LM"). Conjugate gradients solve the Gauss–Newton system ``(N + μD) δ = −g`` of the
+*whole* network in at most as many iterations as it has unknowns (about 50 on a 28-anchor hall with heights held)
+whatever its conditioning — with the forcing term :data:`CG_RTOL` far fewer, 8–17 per round there — and each
+iteration needs only the neighbours' values:
+
+* a **matrix–vector product** ``(N v)_i = Σ_{l∈E(i)} w_l a_l (a_lᵀ v_i + c_lᵀ v_j + e_l v_c)`` — anchor ``i``'s
+  link rows ``a_l`` (its own parameters), ``c_l`` (the neighbour's) and ``e_l`` (a common offset), the IRLS weights
+  ``w_l = ρ'(r_l²)`` of the loss — is one broadcast of ``v`` (``P`` floats per link: the coordinates and, with
+  per-anchor offsets, the offset);
+* the **scalars** of CG (two dot products), the cost of a trial step, the common offset's row and the step's
+  largest move are network totals, as the solvers' :class:`~distnav.algorithms.csg.StopRule` uses: each is a
+  sum over the anchors assembled in the anchors' order (``gather_nodes``, so that in-process and MPI agree bit
+  for bit; a deployment would run a spanning-tree reduction, ``2(n − 1)`` messages of one float). They are
+  counted in :attr:`Refinement.reductions`.
+
+The outer loop is Levenberg–Marquardt (Madsen, Nielsen & Tingleff 2004, §3.2: Marquardt's diagonal damping
+``μ·diag(N)``, μ ÷ 3 after an accepted step, × 4 after a rejected one) on the objective LM minimises, ``F = Σ_l
+ρ(r_l²) + Σ_i b_i²/σ_b²`` (:func:`~distnav.algorithms.nlsq.loss_terms`; the metres residual ``r_l = (‖x_a − x_b‖ +
+b_l − d_l)/σ_l``), preconditioned by each anchor's own damped block (block Jacobi, local). Its fixed point is
+LM's (IRLS weights: the stationary point of the robust objective). It stops ``converged`` when an accepted step
+moved no parameter by more than ``xtol_m`` and changed ``F`` by at most ``ftol`` (relative) — the solvers'
+stopping thresholds — and says ``max_iterations`` after ``max_rounds`` outer rounds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from distnav.algorithms.neighbourhood import IterationState, half_measurements
+from distnav.algorithms.nlsq import loss_terms
+from distnav.algorithms.ranging import RangingData
+from distnav.errors import ModelError
+from distnav.exchange import Exchange
+
+__all__ = ["Refinement", "refine", "refine_state", "MAX_ROUNDS"]
+
+MAX_ROUNDS = 60  # outer LM rounds; plant-like halls: a median 4–6 after the exclusions, 16–36 with NLOS links kept
+CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
+MU0 = 1e-3  # initial Marquardt damping (relative to diag N)
+
+
+@dataclass(frozen=True, eq=False)
+class Refinement:
+    """The refined state of one exchange block: own estimates ``(n_local, dim)``, own offsets (per anchor, or
+    every anchor's copy of the common one; None without offsets), the neighbours' estimates and offsets per
+    half-measurement (as :class:`~distnav.algorithms.neighbourhood.IterationState`), the objective ``F``, the
+    status, outer rounds (accepted or not), CG iterations and network reductions."""
+
+    own_m: np.ndarray
+    offset_m: np.ndarray | None
+    half_other_m: np.ndarray
+    half_offset_m: np.ndarray | None
+    objective: float
+    status: str
+    rounds: int
+    cg_iterations: int
+    reductions: int
+
+
+class _Links:
+    """The half-measurements of one block, their neighbour rows in a broadcast, and the network totals."""
+
+    def __init__(self, problem: RangingData, ex: Exchange) -> None:
+        self.ex, self.n = ex, problem.n_anchors
+        self.owner, self.other, _, self.samp = half_measurements(problem, ex)
+        self.reductions = 0
+        self._pos: np.ndarray | None = None
+
+    def neighbours(self, values: np.ndarray) -> np.ndarray:
+        """Each half-measurement's other end's row of ``values`` (one broadcast)."""
+        box = self.ex.broadcast(values)
+        if self._pos is None:
+            key = box.dst * self.n + box.src
+            order = np.argsort(key, kind="stable")
+            want = self.owner * self.n + self.other
+            pos = order[np.minimum(np.searchsorted(key[order], want), max(order.size - 1, 0))]
+            if order.size == 0 or not np.all(key[pos] == want):
+                raise ModelError("a ranged pair is not an edge of the exchange's graph")
+            self._pos = pos
+        if not np.all(box.delivered[self._pos]):
+            raise ModelError("refinement: a neighbour's message was lost (it needs every link each round)")
+        return np.asarray(box.values[self._pos])
+
+    def total(self, per_node: np.ndarray) -> np.ndarray:
+        """Network sum of a per-anchor array ``(n_local, ...)``, in the anchors' order (the same bits everywhere)."""
+        return np.asarray(np.sum(self.gathered(per_node), axis=0))
+
+    def gathered(self, per_node: np.ndarray) -> np.ndarray:
+        """Every anchor's row of ``per_node`` (a reduction's worth of data: sums and maxima taken from it)."""
+        self.reductions += 1
+        return np.asarray(self.ex.gather_nodes(per_node))
+
+
+def refine(problem: RangingData, ex: Exchange, own_m: np.ndarray, offset_m: np.ndarray | None, *, sigma: np.ndarray,
+           scale: np.ndarray, loss: str, range_offsets: str, offset_prior_sigma_m: float, ftol: float,
+           xtol_m: float, max_rounds: int = MAX_ROUNDS) -> Refinement:
+    """Refine the block's own estimates (and offsets) to the network's least-squares solution (module docstring).
+
+    ``sigma`` / ``scale``: every sample's range σ and loss scale (whitened), as the solver's; ``offset_m``: the
+    block's own offsets (``range_offsets="per_anchor"``) or its copies of the common one (their network mean is
+    the start)."""
+    links = _Links(problem, ex)
+    owner, other, samp = links.owner, links.other, links.samp
+    nl, dim = ex.n_local, problem.dim
+    per, common = range_offsets == "per_anchor", range_offsets == "common"
+    P = dim + (1 if per else 0)
+    sig, sc, rng_m = sigma[samp], scale[samp], problem.range_m[samp]
+    free = np.ones((nl, P), bool)
+    free[:, :dim] = problem.free[ex.nodes]
+    free_nb = np.ones((samp.size, P), bool)
+    free_nb[:, :dim] = problem.free[other]
+    prior = 1.0 / offset_prior_sigma_m**2 if per else 0.0
+    x = np.zeros((nl, P))
+    x[:, :dim] = own_m
+    if per:
+        assert offset_m is not None
+        x[:, dim] = offset_m
+    c = float(links.total(np.asarray(offset_m, float))) / problem.n_anchors if common and offset_m is not None \
+        else 0.0
+    n_unknowns = int(links.total(free.sum(axis=1).astype(float))) + (1 if common else 0)
+    cg_max = min(n_unknowns + 10, 2000)
+
+    def evaluate(xv: np.ndarray, cv: float, step: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, float]:
+        """Neighbour rows, F, the per-half residuals at ``(xv, cv)`` and the largest move of ``step`` (one
+        broadcast and one reduction)."""
+        nb = links.neighbours(xv)
+        diff = xv[owner, :dim] - nb[:, :dim]
+        bias = (xv[owner, dim] + nb[:, dim]) if per else cv
+        r = (np.linalg.norm(diff, axis=1) + bias - rng_m) / sig
+        terms = loss_terms(r, sc, loss)[1]
+        f_node = 0.5 * np.bincount(owner, terms, minlength=nl) + (prior * xv[:, dim] ** 2 if per else 0.0)
+        both = links.gathered(np.c_[f_node, np.max(np.abs(step), axis=1, initial=0.0)])
+        return nb, float(np.sum(both[:, 0])), r, float(np.max(both[:, 1], initial=0.0))
+
+    nb, F, r, _ = evaluate(x, c, np.zeros_like(x))
+    mu = MU0
+    status, rounds, cg_total = "max_iterations", 0, 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        while rounds < max_rounds:
+            rounds += 1
+            diff = x[owner, :dim] - nb[:, :dim]
+            dist = np.linalg.norm(diff, axis=1)
+            u = diff / (np.where(dist > 0, dist, np.inf) * sig)[:, None]
+            a = np.zeros((samp.size, P))
+            a[:, :dim] = u
+            cn = -a
+            if per:
+                a[:, dim] = cn[:, dim] = 1.0 / sig
+            a *= free[owner]
+            cn *= free_nb
+            e = 1.0 / sig if common else np.zeros(samp.size)
+            w = loss_terms(r, sc, loss)[0]
+            g = _rows(owner, (w * r)[:, None] * a, nl)
+            if per:
+                g[:, dim] += prior * x[:, dim]
+            gc = dc = 0.0
+            if common:  # the common offset's gradient and curvature: one reduction
+                gc, dc = (float(t) for t in links.total(0.5 * np.c_[np.bincount(owner, w * r * e, minlength=nl),
+                                                                   np.bincount(owner, w * e * e, minlength=nl)]))
+            diag = _rows(owner, w[:, None] * a * a, nl) + (np.c_[np.zeros((nl, dim)), np.full(nl, prior)]
+                                                             if per else 0.0)
+            block = np.einsum("h,ha,hb->hab", w, a, a)
+            own_block = np.zeros((nl, P, P))
+            np.add.at(own_block, owner, block)
+            if per:
+                own_block[:, dim, dim] += prior
+            while True:  # inner: solve the damped system, try the step
+                damp = mu * np.maximum(diag, 1e-12)
+                damp_c = mu * max(dc, 1e-12)
+                pre = (own_block + damp[:, :, None] * np.eye(P)) * (free[:, :, None] & free[:, None, :])
+                idx = np.nonzero(~free)
+                pre[idx[0], idx[1], idx[1]] = 1.0
+                pre_inv = np.linalg.inv(pre)
+
+                system = _System(links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common)
+                dx, dcv, its = _pcg(system, -np.where(free, g, 0.0), -gc, pre_inv,
+                                    dc + damp_c if common else 1.0, links, cg_max)
+                cg_total += its
+                x_new, c_new = x + dx, c + dcv
+                nb_new, F_new, r_new, moved = evaluate(x_new, c_new, dx)
+                moved = max(moved, abs(dcv))
+                if np.isfinite(F_new) and F_new <= F:
+                    change = F - F_new
+                    x, c, nb, r = x_new, c_new, nb_new, r_new
+                    F_old, F = F, F_new
+                    mu = max(mu / 3.0, 1e-12)
+                    if change <= ftol * max(abs(F_old), 1e-300) and moved <= xtol_m:
+                        status = "converged"
+                    break
+                if moved <= xtol_m * 1e-3 and mu <= 1.0:  # a nearly undamped GN step of < 0.1 µm: F is at its
+                    status = "converged"  # minimum up to rounding (the step no longer lowers it)
+                    break
+                mu *= 4.0
+                if mu > 1e12:  # stalled: no decrease along ever shorter steps, status stays max_iterations
+                    break
+                rounds += 1
+                if rounds >= max_rounds:
+                    break
+            if status == "converged":
+                break
+    offsets = None
+    half_off = None
+    if per:
+        offsets = x[:, dim].copy()
+        half_off = x[owner, dim] + nb[:, dim]
+    elif common:
+        offsets = np.full(nl, c)
+        half_off = np.full(samp.size, c)
+    return Refinement(own_m=x[:, :dim].copy(), offset_m=offsets, half_other_m=nb[:, :dim].copy(),
+                      half_offset_m=half_off, objective=F, status=status, rounds=rounds, cg_iterations=cg_total,
+                      reductions=links.reductions)
+
+
+def _rows(owner: np.ndarray, values: np.ndarray, nl: int) -> np.ndarray:
+    """Σ over each anchor's half-measurements of ``values`` ``(h, P)`` → ``(n_local, P)``."""
+    out = np.zeros((nl, values.shape[1]))
+    np.add.at(out, owner, values)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class _System:
+    """The damped normal matrix of one round, applied through the exchange (module docstring)."""
+
+    links: _Links
+    owner: np.ndarray
+    a: np.ndarray  # (h, P) ∂r/∂(own parameters) of every half-measurement
+    cn: np.ndarray  # (h, P) ∂r/∂(the other end's parameters)
+    e: np.ndarray  # (h,) ∂r/∂(common offset), zeros without one
+    w: np.ndarray  # (h,) IRLS weights
+    damp: np.ndarray  # (n_local, P) μ·diag N
+    damp_c: float
+    prior: float  # 1/σ_b² on per-anchor offsets (0 otherwise)
+    free: np.ndarray  # (n_local, P)
+    common: bool
+
+    def matvec(self, v: np.ndarray, vc: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(N + μD) v`` on the block's rows, and each anchor's share of the common offset's row (summed over the
+        network by the caller, together with its dot product: one reduction per CG iteration less)."""
+        vn = self.links.neighbours(v)
+        jv = np.einsum("hp,hp->h", self.a, v[self.owner]) + np.einsum("hp,hp->h", self.cn, vn) + self.e * vc
+        out = _rows(self.owner, (self.w * jv)[:, None] * self.a, v.shape[0]) + self.damp * v
+        if self.prior:
+            out[:, -1] += self.prior * v[:, -1]
+        half = 0.5 * np.bincount(self.owner, self.w * jv * self.e, minlength=v.shape[0])
+        return np.where(self.free, out, 0.0), half
+
+
+def _pcg(system: _System, b: np.ndarray, bc: float, pre_inv: np.ndarray, pre_c: float, links: _Links,
+         max_its: int) -> tuple[np.ndarray, float, int]:
+    """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P)`` and the
+    common parameter ``bc`` (0 without one); the dot products are network totals."""
+    x = np.zeros_like(b)
+    xc = 0.0
+    res, rc = b.copy(), bc
+    z = np.einsum("nab,nb->na", pre_inv, res)
+    zc = rc / pre_c
+    t = links.total(np.c_[np.einsum("na,na->n", res, z), np.einsum("na,na->n", res, res)])
+    rz, rr0 = float(t[0]) + rc * zc, float(t[1]) + rc * rc
+    p, pc = z.copy(), zc
+    its = 0
+    if rr0 == 0.0:
+        return x, xc, 0
+    while its < max_its:
+        its += 1
+        q, q_share = system.matvec(p, pc)
+        t = links.total(np.c_[np.einsum("na,na->n", p, q), q_share])
+        qc = float(t[1]) + system.damp_c * pc if system.common else 0.0
+        pq = float(t[0]) + pc * qc
+        if not pq > 0:
+            break
+        alpha = rz / pq
+        x += alpha * p
+        xc += alpha * pc
+        res -= alpha * q
+        rc -= alpha * qc
+        z = np.einsum("nab,nb->na", pre_inv, res)
+        zc = rc / pre_c
+        t = links.total(np.c_[np.einsum("na,na->n", res, z), np.einsum("na,na->n", res, res)])
+        rz_new, rr = float(t[0]) + rc * zc, float(t[1]) + rc * rc
+        if rr <= CG_RTOL**2 * rr0:
+            break
+        p = z + (rz_new / rz) * p
+        pc = zc + (rz_new / rz) * pc
+        rz = rz_new
+    return x, xc, its
+
+
+def refine_state(problem: RangingData, ex: Exchange, st: IterationState, *, sigma: np.ndarray, scale: np.ndarray,
+                 loss: str, range_offsets: str, offset_prior_sigma_m: float, ftol: float, xtol_m: float
+                 ) -> tuple[IterationState, Refinement]:
+    """:func:`refine` from a solver's last state; the refined state (same iteration count, the neighbours' refined
+    estimates and offsets on every half-measurement, for the local QC) and the refinement's record."""
+    ref = refine(problem, ex, st.own_m, st.offset_m, sigma=sigma, scale=scale, loss=loss, range_offsets=range_offsets,
+                 offset_prior_sigma_m=offset_prior_sigma_m, ftol=ftol, xtol_m=xtol_m)
+    owner, _, _, samp = half_measurements(problem, ex)
+    out = IterationState(st.iteration, ref.own_m, st.step_size, st.partial_cost, owner, samp, ref.half_other_m,
+                         ref.offset_m, ref.half_offset_m)
+    return out, ref
