@@ -2,7 +2,8 @@
 
 :class:`XUpdate` is the linear x-update (eqs. (20)/(21)); :class:`AdmmState` what an iteration yields; the private
 ``_Kernel`` runs the iterations as message rounds (per-pair messages exactly as Fig. 6, or aggregated ones) and
-holds the last value received on every edge when messages are lost. The front doors are
+holds the last value received on every edge when messages are lost. The x-update lives in
+:mod:`distnav.algorithms.admm_xupdate` (re-exported here). The front doors are
 :func:`distnav.algorithms.admm.admm` and :func:`~distnav.algorithms.admm.iterate_admm`; the module docstring of
 :mod:`distnav.algorithms.admm` describes the iteration and the weighting of the x-update.
 """
@@ -12,12 +13,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from distnav._optional import lazy
-from distnav.algorithms.lsq import LinearProblem
+from distnav.algorithms.admm_xupdate import XUpdate, XUpdateMethod
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.constraint_nodes import ConstraintNodes
@@ -29,114 +30,6 @@ else:  # imported on first use (start-up of an MPI job)
 
 __all__ = ["AdmmState", "Multipliers", "XUpdate", "XUpdateMethod"]
 
-XUpdateMethod = Literal["auto", "normal", "observation", "cholesky"]
-
-
-# ----------------------------------------------------------------------------------------------- x-update
-class XUpdate:
-    """The linear x-update of Fig. 6 for a block of nodes, prepared once.
-
-    ``method``: ``"normal"`` — ``G_i = (N_i + W_i)⁻¹ A_iᵀR_i⁻¹`` (first form of eq. (20), a ``p × p`` inverse);
-    ``"observation"`` — ``G_i = W_i⁻¹ A_iᵀ (R_i + A_i W_i⁻¹ A_iᵀ)⁻¹`` (second form, an ``m_i × m_i`` inverse);
-    ``"cholesky"`` — ``N_i + W_i = L Lᵀ`` factored once, ``δ`` from eq. (21) by forward and backward substitution
-    (vectorized over nodes, looping over the ``p`` rows only); ``"auto"`` — the first form when ``p ≤ m``, else the
-    second (paper 000 §4.3). ``W_i = c_i W`` (see the module docstring).
-    """
-
-    def __init__(self, problem: LinearProblem, W: np.ndarray, c: np.ndarray, method: XUpdateMethod = "auto") -> None:
-        if method not in ("auto", "normal", "observation", "cholesky"):
-            raise ModelError(f"unknown x-update method {method!r}; choose 'auto', 'normal', 'observation' or "
-                             f"'cholesky'")
-        if method == "auto":
-            method = "normal" if problem.n_params <= problem.max_rows else "observation"
-        self.method = method
-        self.A = np.ascontiguousarray(problem.A)
-        self.y = np.ascontiguousarray(problem.y)
-        n, m, p = self.A.shape
-        if method == "normal":
-            N_i, _ = problem.normal_equations
-            R_inv = problem.R_inv
-            r_diag = _diagonal_or_none(R_inv)
-            if r_diag is None:
-                AtRi = np.einsum("nmp,nmk->npk", problem.A, R_inv)
-            else:  # the same products without the zero terms (bitwise equal, see _diagonal_or_none)
-                AtRi = np.swapaxes(problem.A * r_diag[:, :, None], 1, 2)
-            self.G = np.linalg.solve(N_i + c[:, None, None] * W[None], AtRi)  # (n, p, m): W_i = c_i W
-        elif method == "observation":
-            Winv1 = np.linalg.inv(W)
-            w_diag = _diagonal_or_none(Winv1[None])
-            if w_diag is None:
-                Winv = Winv1[None] / c[:, None, None]
-                S = problem.R + np.einsum("nmp,npq,nkq->nmk", problem.A, Winv, problem.A)
-                WinvAt = np.einsum("npq,nmq->npm", Winv, problem.A)
-            else:  # W⁻¹ diagonal (W = ρI): A_i W_i⁻¹ A_iᵀ term by term in the einsum's order, ~10× faster
-                w = w_diag[0][None, :] / c[:, None]  # (n, p): the diagonal of W_i⁻¹
-                Aw = self.A * w[:, None, :]  # (n, m, p)
-                S = _sum_outer_products(Aw, self.A)
-                np.add(S, problem.R, out=S)  # R + acc in place (the same sums: + commutes)
-                WinvAt = np.swapaxes(Aw, 1, 2)
-            self.G = WinvAt @ np.linalg.inv(S)
-        else:
-            N_i, r_i = problem.normal_equations
-            self.L = np.linalg.cholesky(N_i + c[:, None, None] * W[None])
-            self.N = N_i
-            self.r = r_i
-
-    def __call__(self, l: np.ndarray, x_prev: np.ndarray | None = None) -> np.ndarray:
-        """``x_i = l_i + G_i (y_i − A_i l_i)`` for every node of the block."""
-        if self.method == "cholesky":
-            rhs = self.r - (self.N @ l[..., None])[..., 0]  # A_iᵀR_i⁻¹(y_i − A_i l_i), eq. (21)
-            x: np.ndarray = l + _cholesky_solve(self.L, rhs)
-            return x
-        res = self.y - (self.A @ l[..., None])[..., 0]
-        x = l + (self.G @ res[..., None])[..., 0]
-        return x
-
-
-def _sum_outer_products(X: np.ndarray, Y: np.ndarray, block: int = 1024) -> np.ndarray:
-    """``S[i, a, b] = Σ_j X[i, a, j] Y[i, b, j]`` for stacks ``(n, m, p)``, term by term from ``+0`` in ``j`` order
-    (bitwise the sums of ``einsum("nmp,nkp->nmk")`` written as a loop over ``j``). Each block of nodes is turned
-    node-last (``(p, m, block)``, in cache) so every product and sum runs over a contiguous node axis instead of
-    ``m``-long rows."""
-    n, m, p = X.shape
-    out = np.empty((n, m, m))
-    acc = np.empty((m, m, min(block, n)))
-    prod = np.empty_like(acc)
-    for a in range(0, n, block):
-        k = min(block, n - a)
-        Xb = np.ascontiguousarray(X[a:a + k].transpose(2, 1, 0))  # (p, m, k)
-        Yb = np.ascontiguousarray(Y[a:a + k].transpose(2, 1, 0))
-        acc_b, prod_b = acc[:, :, :k], prod[:, :, :k]
-        acc_b.fill(0.0)
-        for j in range(p):
-            np.multiply(Xb[j][:, None, :], Yb[j][None, :, :], out=prod_b)
-            acc_b += prod_b
-        out[a:a + k] = acc_b.transpose(2, 0, 1)
-    return out
-
-
-def _diagonal_or_none(M: np.ndarray) -> np.ndarray | None:
-    """The diagonals ``(n, k)`` of a stack ``(n, k, k)`` whose off-diagonal entries are all exactly zero, else None.
-
-    Then every product with an off-diagonal entry in an einsum over ``M`` is ±0 and adding it leaves the (finite)
-    running sum unchanged, so the sums without those terms are bitwise those of the einsum (the x-update set-up
-    stays bitwise equal to the einsum form; tests/test_admm_setup.py checks it)."""
-    k = M.shape[-1]
-    d = np.diagonal(M, axis1=-2, axis2=-1)
-    off = M.reshape(M.shape[0], -1)[:, :-1].reshape(M.shape[0], k - 1, k + 1)[:, :, 1:]  # entries off the diagonal
-    return np.ascontiguousarray(d) if not off.any() else None
-
-
-def _cholesky_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve ``L Lᵀ δ = b`` for a stack of lower-triangular ``L`` ``(n, p, p)``: forward then backward substitution."""
-    p = L.shape[-1]
-    w = np.empty_like(b)
-    for j in range(p):
-        w[:, j] = (b[:, j] - np.einsum("nk,nk->n", L[:, j, :j], w[:, :j])) / L[:, j, j]
-    d = np.empty_like(b)
-    for j in range(p - 1, -1, -1):
-        d[:, j] = (w[:, j] - np.einsum("nk,nk->n", L[:, j + 1:, j], d[:, j + 1:])) / L[:, j, j]
-    return d
 
 
 # ----------------------------------------------------------------------------------------------- kernel
