@@ -160,7 +160,11 @@ class _Kernel:
         # Per-pair state is compact (one row per pair); the routes deliver straight into it. Without faults every
         # message on a route arrives and the received array *is* the held value; with faults a preallocated held
         # buffer takes the delivered rows in place. Sums run over the same entries in the same order as over the
-        # full in-edge arrays of before (bitwise equal).
+        # full in-edge arrays of before (bitwise equal). Three pair-sized arrays (u, z_buf, x_p) serve as the
+        # four of the iteration's pair values: x_p holds x_i, then x_i − z_s, then u_{i,s} + x_i − z_s (a monitored
+        # state forms the next u there, and the u-update swaps it in) or z_s − u_{i,s}; z_buf holds z_s and, between
+        # its last read and the next broadcast, z_{i,s} = x_i + u_{i,s} (same values, one 100 MB array less at 10⁵
+        # nodes for the first iteration to fault in).
         n_pairs = self.ip.size
         u = np.zeros((n_pairs, self.p))
         u_self = np.zeros_like(x)  # u_{s,s}; zero on rows of non-constraint nodes, and stays so
@@ -183,23 +187,28 @@ class _Kernel:
         # buffer (one pair-sized array less to allocate and touch)
         diff = np.subtract(x_p, z_recv, out=x_p)
         diff_self = (x - z) * cm
-        tmp = np.empty((n_pairs, self.p))  # scratch: z_s − u_{i,s}, then z_{i,s}, then u_{i,s} + x_i − z_s
-        yield self._state(0, x, z, diff, diff_self, np.zeros_like(z), u, u_self, None if u0 is None else tmp)
+        pre_added = u0 is not None  # the state formed u + (x_i − z_s) in diff's buffer (a cold start: u = 0)
+        yield self._state(0, x, z, diff, diff_self, np.zeros_like(z), u, u_self, add_in_place=pre_added)
         k = 0
         while True:
             k += 1
             # step 1: u-update, l, x-update, send z_{i,s} = x_i + u_{i,s} to constraint neighbours
-            u += diff
+            if pre_added:  # u + (x_i − z_s), formed by the monitored state: the u-update, bitwise
+                u, x_p = x_p, u
+                self._u = (u, u_self)
+            else:
+                u += diff
             u_self += diff_self
-            np.subtract(z_recv, u, out=tmp)
-            l = self.S_pairs @ tmp
+            np.subtract(z_recv, u, out=x_p)  # x_p is free until the x-update
+            l = self.S_pairs @ x_p
             l += z
             l -= u_self
             l *= inv_count
             x = self.x_update(l, x)
             _take(x, self.pair_dst, out=x_p)
-            np.add(x_p, u, out=tmp)
-            zin_c = _held(held_c, *self.x_route.send(tmp))
+            # z_buf is free between the last read of z_s (above) and the broadcast below
+            np.add(x_p, u, out=z_buf)
+            zin_c = _held(held_c, *self.x_route.send(z_buf))
             # step 2: z-update at constraint nodes, broadcast z_s
             if self.z_weight is None:
                 z_new = self.S_c @ zin_c
@@ -214,11 +223,12 @@ class _Kernel:
             dz = z_new - z
             z = z_new
             z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
-            np.subtract(x_p, z_recv, out=diff)  # diff is x_p's buffer
+            diff = np.subtract(x_p, z_recv, out=x_p)
             np.subtract(x, z, out=diff_self)
             diff_self *= cm
-            if monitor_every and k % monitor_every == 0:  # tmp is free until the next u-update
-                yield self._state(k, x, z, diff, diff_self, dz, u, u_self, tmp)
+            pre_added = bool(monitor_every) and k % monitor_every == 0
+            if pre_added:
+                yield self._state(k, x, z, diff, diff_self, dz, u, u_self, add_in_place=True)
             else:
                 yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
 
@@ -349,14 +359,16 @@ class _Kernel:
         return a * self.w_iso if self.w_iso is not None else np.einsum("ij,jk->ik", a, self.W)
 
     def _state(self, k: int, x: np.ndarray, z: np.ndarray, diff_pair: np.ndarray, diff_self: np.ndarray,
-               dz: np.ndarray, u: np.ndarray, u_self: np.ndarray, scratch: np.ndarray | None) -> AdmmState:
-        """The monitored state; ``scratch`` a free pair-sized buffer for ``u + diff_pair``, or None when ``u`` is
-        all zero (the first state of a cold start: ``0 + d`` is ``d`` bitwise but for the sign of a zero, which the
-        sum into rows, started at +0, and the square both drop)."""
-        u_next = diff_pair if scratch is None else np.add(u, diff_pair, out=scratch)
+               dz: np.ndarray, u: np.ndarray, u_self: np.ndarray, add_in_place: bool) -> AdmmState:
+        """The monitored state. ``add_in_place``: ``u + diff_pair`` is formed in ``diff_pair``'s buffer (the run's
+        next u-update takes it from there); else ``u`` is all zero (the first state of a cold start: ``0 + d`` is
+        ``d`` bitwise but for the sign of a zero, which the sum into rows, started at +0, and the square both drop)
+        and ``diff_pair`` is used as it is. The residual sums are taken before it is overwritten."""
+        primal_sq = np.einsum("ij,ij->", diff_pair, diff_pair) + np.einsum("ij,ij->", diff_self, diff_self)
+        u_next = np.add(u, diff_pair, out=diff_pair) if add_in_place else diff_pair
         # einsum, not BLAS: tiny BLAS calls are slow when the BLAS thread pool is contended
         sums = np.array([
-            np.einsum("ij,ij->", diff_pair, diff_pair) + np.einsum("ij,ij->", diff_self, diff_self),
+            primal_sq,
             self._dual_sq(dz),
             np.einsum("i,ij,ij->", self.count_f, x, x),
             np.einsum("i,ij,ij->", self.size_c, z, z),
