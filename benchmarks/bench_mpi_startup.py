@@ -4,11 +4,16 @@ Four jobs are launched interleaved as ``mpiexec -n R python -m mpi4py -c CODE``,
 
 * ``empty``: ``from mpi4py import MPI``, a barrier — the launch itself (mpiexec, R interpreters, MPI init);
 * ``numpy``: ``empty`` + ``import numpy`` — the floor of any numpy library;
+* ``numpy_1thread``: ``numpy`` with ``OPENBLAS_NUM_THREADS=1`` — numpy's import without OpenBLAS's thread pool;
 * ``distnav``: ``empty`` + the imports of a distnav MPI job (the MPI exchange, consensus and ADMM), numpy with them;
+  ``import distnav`` sets one BLAS thread under an MPI launch (:mod:`distnav._threads`);
+* ``distnav_pool``: ``distnav`` with ``OPENBLAS_NUM_THREADS`` = the core count set by the job (OpenBLAS's own
+  default, what a distnav job paid before it chose one thread) — the before/after of that choice in one run;
 * ``setup``: ``distnav`` + an MPI exchange built on a 1,000-node ring and one broadcast round (what the first
   set-up pays on top of the imports, scipy.sparse among it: it is imported on first use).
 
-The parts are the differences of consecutive jobs (launch, numpy import, distnav's own import, exchange set-up),
+The parts are differences of jobs (launch, numpy import, the BLAS pool = numpy − numpy_1thread, distnav's own
+import = distnav − numpy_1thread, exchange set-up),
 as medians of the per-repeat differences, in **CPU seconds** of everything launched (``RUSAGE_CHILDREN`` around
 ``mpiexec``: the launcher and every rank; the machine's 2 cores are shared, so wall time says more about the
 neighbours) and in wall seconds. Goal: ≤ 0.3 s added over the empty job (wall, as the issue states it; the CPU
@@ -47,13 +52,18 @@ _DISTNAV_IMPORTS = ("from distnav.exchange.mpi import MPIExchange; "
 _SETUP = ("; import numpy as np; from distnav.network.graph import Graph; from distnav.exchange import make_exchange; "
           "n = 1000; g = Graph.from_links(n, [(i, (i + 1) % n) for i in range(n)]); "
           "ex = make_exchange(g, backend='mpi'); ex.broadcast(np.ones(ex.n_local))")
+_ONE = "import os; os.environ.update(OPENBLAS_NUM_THREADS='1', OMP_NUM_THREADS='1'); "
+_POOL = "import os; os.environ['OPENBLAS_NUM_THREADS'] = str(os.cpu_count()); "  # OpenBLAS's own default
 JOBS = {
     "empty": _MPI + "pass" + _END,
     "numpy": _MPI + "import numpy" + _END,
+    "numpy_1thread": _MPI + _ONE + "import numpy" + _END,
     "distnav": _MPI + _DISTNAV_IMPORTS + _END,
+    "distnav_pool": _MPI + _POOL + _DISTNAV_IMPORTS + _END,
     "setup": _MPI + _DISTNAV_IMPORTS + _SETUP + _END,
 }
-PARTS = (("launch", None, "empty"), ("numpy import", "empty", "numpy"), ("distnav import", "numpy", "distnav"),
+PARTS = (("launch", None, "empty"), ("numpy import", "empty", "numpy"),
+         ("BLAS pool", "numpy_1thread", "numpy"), ("distnav import", "numpy_1thread", "distnav"),
          ("exchange set-up", "distnav", "setup"))
 
 
@@ -108,6 +118,7 @@ def startup_rows(ranks: tuple[int, ...] = (1, 2, 4), repeat: int = 5) -> list[di
             parts_wall = {name: float(np.median(Wl[hi] - (Wl[lo] if lo else 0.0))) for name, lo, hi in PARTS}
             added_wall = Wl["distnav"] - Wl["empty"]
             added_cpu = C["distnav"] - C["empty"]
+            pool_wall = Wl["distnav_pool"] - Wl["empty"]
             load = os.getloadavg()[0]
             med = {k: float(np.median(v)) for k, v in Wl.items()}
             medc = {k: float(np.median(v)) for k, v in C.items()}
@@ -118,6 +129,9 @@ def startup_rows(ranks: tuple[int, ...] = (1, 2, 4), repeat: int = 5) -> list[di
                 "added_s_min": float(added_wall.min()), "added_s_median": float(np.median(added_wall)),
                 "added_cpu_s_median": float(np.median(added_cpu)),
                 "numpy_job_s": med["numpy"], "added_over_numpy_s_median": float(np.median(Wl["distnav"] - Wl["numpy"])),
+                "added_with_pool_s_min": float(pool_wall.min()),
+                "added_with_pool_s_median": float(np.median(pool_wall)),
+                "added_with_pool_cpu_s_median": float(np.median(C["distnav_pool"] - C["empty"])),
                 **{f"{k}_job_cpu_s": v for k, v in medc.items()},
                 **{f"{name.replace(' ', '_').replace('-', '')}_cpu_s": v for name, v in parts.items()},
                 **{f"{name.replace(' ', '_').replace('-', '')}_wall_s": v for name, v in parts_wall.items()},
@@ -126,9 +140,11 @@ def startup_rows(ranks: tuple[int, ...] = (1, 2, 4), repeat: int = 5) -> list[di
                 "repeats": repeat, "load_1min": load, "goal": "≤ 0.3 s added",
                 "meets_goal": bool(np.median(added_wall) <= 0.3),
                 "note": (f"added {added_wall.min():.2f}–{np.median(added_wall):.2f} s wall (min–median), "
-                         f"{np.median(added_cpu):.2f} s CPU: numpy import {parts['numpy import']:.2f}, distnav's own "
-                         f"{parts['distnav import']:.2f} (CPU s); ×{med['distnav'] / med['numpy']:.2f} the numpy-only "
-                         f"job; load {load:.1f} on {os.cpu_count()} cores"),
+                         f"{np.median(added_cpu):.2f} s CPU: numpy import {parts['numpy import']:.2f} of which BLAS "
+                         f"pool {parts['BLAS pool']:.2f}, distnav's own {parts['distnav import']:.2f} (CPU s); "
+                         f"with the BLAS pool {pool_wall.min():.2f}–{np.median(pool_wall):.2f} s wall; "
+                         f"×{med['distnav'] / med['numpy']:.2f} the numpy-only job; load {load:.1f} on "
+                         f"{os.cpu_count()} cores"),
             })
     return rows
 

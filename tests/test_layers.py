@@ -15,9 +15,9 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "distnav"
 
-RANK = {"errors": 0, "_optional": 0.5, "_sparse": 0.5, "_blas": 0.5, "typing": 0.5, "network": 1, "exchange": 2,
-        "algorithms": 3, "models": 4, "output": 4.5, "options": 4.5, "experiments": 5, "commands": 5, "cli": 6,
-        "__main__": 7, "__init__": 7}
+RANK = {"errors": 0, "_optional": 0.5, "_sparse": 0.5, "_blas": 0.5, "_threads": 0.5, "typing": 0.5, "network": 1,
+        "exchange": 2, "algorithms": 3, "models": 4, "output": 4.5, "options": 4.5, "experiments": 5, "commands": 5,
+        "cli": 6, "__main__": 7, "__init__": 7}
 # ``import distnav`` / ``from distnav import __version__``: the package root only re-exports distnav.errors
 
 

@@ -9,6 +9,10 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
+from distnav._threads import one_blas_thread_under_mpi  # noqa: E402
+
+one_blas_thread_under_mpi()  # before any distnav module imports numpy (docs/scale.md, "Start-up")
+
 from distnav import errors  # noqa: E402
 from distnav.errors import *  # noqa: E402, F403 (the error types, listed once: distnav.errors.__all__)
 

@@ -14,15 +14,8 @@ from typing import Any, Literal, TypedDict, get_args
 
 import numpy as np
 
-from distnav.algorithms.admm_kernel import (
-    AdmmState,
-    Multipliers,
-    XUpdate,
-    XUpdateMethod,
-    _diagonal_or_none,
-    _Kernel,
-    _per_node,
-)
+from distnav.algorithms.admm_kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
+from distnav.algorithms.admm_xupdate import _diagonal_or_none
 from distnav.algorithms.lsq import LinearProblem, inestimable_directions, weight_matrix
 from distnav.algorithms.result import ObservationTests, Precision, SolverResult, SolverStatus, TraceBuilder
 from distnav.errors import ModelError

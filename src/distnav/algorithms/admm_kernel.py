@@ -2,7 +2,8 @@
 
 :class:`XUpdate` is the linear x-update (eqs. (20)/(21)); :class:`AdmmState` what an iteration yields; the private
 ``_Kernel`` runs the iterations as message rounds (per-pair messages exactly as Fig. 6, or aggregated ones) and
-holds the last value received on every edge when messages are lost. The front doors are
+holds the last value received on every edge when messages are lost. The x-update lives in
+:mod:`distnav.algorithms.admm_xupdate` (re-exported here). The front doors are
 :func:`distnav.algorithms.admm.admm` and :func:`~distnav.algorithms.admm.iterate_admm`; the module docstring of
 :mod:`distnav.algorithms.admm` describes the iteration and the weighting of the x-update.
 """
@@ -12,12 +13,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from distnav._optional import lazy
-from distnav.algorithms.lsq import LinearProblem
+from distnav.algorithms.admm_xupdate import XUpdate, XUpdateMethod
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.constraint_nodes import ConstraintNodes
@@ -29,114 +30,6 @@ else:  # imported on first use (start-up of an MPI job)
 
 __all__ = ["AdmmState", "Multipliers", "XUpdate", "XUpdateMethod"]
 
-XUpdateMethod = Literal["auto", "normal", "observation", "cholesky"]
-
-
-# ----------------------------------------------------------------------------------------------- x-update
-class XUpdate:
-    """The linear x-update of Fig. 6 for a block of nodes, prepared once.
-
-    ``method``: ``"normal"`` — ``G_i = (N_i + W_i)⁻¹ A_iᵀR_i⁻¹`` (first form of eq. (20), a ``p × p`` inverse);
-    ``"observation"`` — ``G_i = W_i⁻¹ A_iᵀ (R_i + A_i W_i⁻¹ A_iᵀ)⁻¹`` (second form, an ``m_i × m_i`` inverse);
-    ``"cholesky"`` — ``N_i + W_i = L Lᵀ`` factored once, ``δ`` from eq. (21) by forward and backward substitution
-    (vectorized over nodes, looping over the ``p`` rows only); ``"auto"`` — the first form when ``p ≤ m``, else the
-    second (paper 000 §4.3). ``W_i = c_i W`` (see the module docstring).
-    """
-
-    def __init__(self, problem: LinearProblem, W: np.ndarray, c: np.ndarray, method: XUpdateMethod = "auto") -> None:
-        if method not in ("auto", "normal", "observation", "cholesky"):
-            raise ModelError(f"unknown x-update method {method!r}; choose 'auto', 'normal', 'observation' or "
-                             f"'cholesky'")
-        if method == "auto":
-            method = "normal" if problem.n_params <= problem.max_rows else "observation"
-        self.method = method
-        self.A = np.ascontiguousarray(problem.A)
-        self.y = np.ascontiguousarray(problem.y)
-        n, m, p = self.A.shape
-        if method == "normal":
-            N_i, _ = problem.normal_equations
-            R_inv = problem.R_inv
-            r_diag = _diagonal_or_none(R_inv)
-            if r_diag is None:
-                AtRi = np.einsum("nmp,nmk->npk", problem.A, R_inv)
-            else:  # the same products without the zero terms (bitwise equal, see _diagonal_or_none)
-                AtRi = np.swapaxes(problem.A * r_diag[:, :, None], 1, 2)
-            self.G = np.linalg.solve(N_i + c[:, None, None] * W[None], AtRi)  # (n, p, m): W_i = c_i W
-        elif method == "observation":
-            Winv1 = np.linalg.inv(W)
-            w_diag = _diagonal_or_none(Winv1[None])
-            if w_diag is None:
-                Winv = Winv1[None] / c[:, None, None]
-                S = problem.R + np.einsum("nmp,npq,nkq->nmk", problem.A, Winv, problem.A)
-                WinvAt = np.einsum("npq,nmq->npm", Winv, problem.A)
-            else:  # W⁻¹ diagonal (W = ρI): A_i W_i⁻¹ A_iᵀ term by term in the einsum's order, ~10× faster
-                w = w_diag[0][None, :] / c[:, None]  # (n, p): the diagonal of W_i⁻¹
-                Aw = self.A * w[:, None, :]  # (n, m, p)
-                S = _sum_outer_products(Aw, self.A)
-                np.add(S, problem.R, out=S)  # R + acc in place (the same sums: + commutes)
-                WinvAt = np.swapaxes(Aw, 1, 2)
-            self.G = WinvAt @ np.linalg.inv(S)
-        else:
-            N_i, r_i = problem.normal_equations
-            self.L = np.linalg.cholesky(N_i + c[:, None, None] * W[None])
-            self.N = N_i
-            self.r = r_i
-
-    def __call__(self, l: np.ndarray, x_prev: np.ndarray | None = None) -> np.ndarray:
-        """``x_i = l_i + G_i (y_i − A_i l_i)`` for every node of the block."""
-        if self.method == "cholesky":
-            rhs = self.r - (self.N @ l[..., None])[..., 0]  # A_iᵀR_i⁻¹(y_i − A_i l_i), eq. (21)
-            x: np.ndarray = l + _cholesky_solve(self.L, rhs)
-            return x
-        res = self.y - (self.A @ l[..., None])[..., 0]
-        x = l + (self.G @ res[..., None])[..., 0]
-        return x
-
-
-def _sum_outer_products(X: np.ndarray, Y: np.ndarray, block: int = 1024) -> np.ndarray:
-    """``S[i, a, b] = Σ_j X[i, a, j] Y[i, b, j]`` for stacks ``(n, m, p)``, term by term from ``+0`` in ``j`` order
-    (bitwise the sums of ``einsum("nmp,nkp->nmk")`` written as a loop over ``j``). Each block of nodes is turned
-    node-last (``(p, m, block)``, in cache) so every product and sum runs over a contiguous node axis instead of
-    ``m``-long rows."""
-    n, m, p = X.shape
-    out = np.empty((n, m, m))
-    acc = np.empty((m, m, min(block, n)))
-    prod = np.empty_like(acc)
-    for a in range(0, n, block):
-        k = min(block, n - a)
-        Xb = np.ascontiguousarray(X[a:a + k].transpose(2, 1, 0))  # (p, m, k)
-        Yb = np.ascontiguousarray(Y[a:a + k].transpose(2, 1, 0))
-        acc_b, prod_b = acc[:, :, :k], prod[:, :, :k]
-        acc_b.fill(0.0)
-        for j in range(p):
-            np.multiply(Xb[j][:, None, :], Yb[j][None, :, :], out=prod_b)
-            acc_b += prod_b
-        out[a:a + k] = acc_b.transpose(2, 0, 1)
-    return out
-
-
-def _diagonal_or_none(M: np.ndarray) -> np.ndarray | None:
-    """The diagonals ``(n, k)`` of a stack ``(n, k, k)`` whose off-diagonal entries are all exactly zero, else None.
-
-    Then every product with an off-diagonal entry in an einsum over ``M`` is ±0 and adding it leaves the (finite)
-    running sum unchanged, so the sums without those terms are bitwise those of the einsum (the x-update set-up
-    stays bitwise equal to the einsum form; tests/test_admm_setup.py checks it)."""
-    k = M.shape[-1]
-    d = np.diagonal(M, axis1=-2, axis2=-1)
-    off = M.reshape(M.shape[0], -1)[:, :-1].reshape(M.shape[0], k - 1, k + 1)[:, :, 1:]  # entries off the diagonal
-    return np.ascontiguousarray(d) if not off.any() else None
-
-
-def _cholesky_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve ``L Lᵀ δ = b`` for a stack of lower-triangular ``L`` ``(n, p, p)``: forward then backward substitution."""
-    p = L.shape[-1]
-    w = np.empty_like(b)
-    for j in range(p):
-        w[:, j] = (b[:, j] - np.einsum("nk,nk->n", L[:, j, :j], w[:, :j])) / L[:, j, j]
-    d = np.empty_like(b)
-    for j in range(p - 1, -1, -1):
-        d[:, j] = (w[:, j] - np.einsum("nk,nk->n", L[:, j + 1:, j], d[:, j + 1:])) / L[:, j, j]
-    return d
 
 
 # ----------------------------------------------------------------------------------------------- kernel
@@ -267,7 +160,11 @@ class _Kernel:
         # Per-pair state is compact (one row per pair); the routes deliver straight into it. Without faults every
         # message on a route arrives and the received array *is* the held value; with faults a preallocated held
         # buffer takes the delivered rows in place. Sums run over the same entries in the same order as over the
-        # full in-edge arrays of before (bitwise equal).
+        # full in-edge arrays of before (bitwise equal). Three pair-sized arrays (u, z_buf, x_p) serve as the
+        # four of the iteration's pair values: x_p holds x_i, then x_i − z_s, then u_{i,s} + x_i − z_s (a monitored
+        # state forms the next u there, and the u-update swaps it in) or z_s − u_{i,s}; z_buf holds z_s and, between
+        # its last read and the next broadcast, z_{i,s} = x_i + u_{i,s} (same values, one 100 MB array less at 10⁵
+        # nodes for the first iteration to fault in).
         n_pairs = self.ip.size
         u = np.zeros((n_pairs, self.p))
         u_self = np.zeros_like(x)  # u_{s,s}; zero on rows of non-constraint nodes, and stays so
@@ -290,23 +187,28 @@ class _Kernel:
         # buffer (one pair-sized array less to allocate and touch)
         diff = np.subtract(x_p, z_recv, out=x_p)
         diff_self = (x - z) * cm
-        tmp = np.empty((n_pairs, self.p))  # scratch: z_s − u_{i,s}, then z_{i,s}, then u_{i,s} + x_i − z_s
-        yield self._state(0, x, z, diff, diff_self, np.zeros_like(z), u, u_self, None if u0 is None else tmp)
+        pre_added = u0 is not None  # the state formed u + (x_i − z_s) in diff's buffer (a cold start: u = 0)
+        yield self._state(0, x, z, diff, diff_self, np.zeros_like(z), u, u_self, add_in_place=pre_added)
         k = 0
         while True:
             k += 1
             # step 1: u-update, l, x-update, send z_{i,s} = x_i + u_{i,s} to constraint neighbours
-            u += diff
+            if pre_added:  # u + (x_i − z_s), formed by the monitored state: the u-update, bitwise
+                u, x_p = x_p, u
+                self._u = (u, u_self)
+            else:
+                u += diff
             u_self += diff_self
-            np.subtract(z_recv, u, out=tmp)
-            l = self.S_pairs @ tmp
+            np.subtract(z_recv, u, out=x_p)  # x_p is free until the x-update
+            l = self.S_pairs @ x_p
             l += z
             l -= u_self
             l *= inv_count
             x = self.x_update(l, x)
             _take(x, self.pair_dst, out=x_p)
-            np.add(x_p, u, out=tmp)
-            zin_c = _held(held_c, *self.x_route.send(tmp))
+            # z_buf is free between the last read of z_s (above) and the broadcast below
+            np.add(x_p, u, out=z_buf)
+            zin_c = _held(held_c, *self.x_route.send(z_buf))
             # step 2: z-update at constraint nodes, broadcast z_s
             if self.z_weight is None:
                 z_new = self.S_c @ zin_c
@@ -321,11 +223,12 @@ class _Kernel:
             dz = z_new - z
             z = z_new
             z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
-            np.subtract(x_p, z_recv, out=diff)  # diff is x_p's buffer
+            diff = np.subtract(x_p, z_recv, out=x_p)
             np.subtract(x, z, out=diff_self)
             diff_self *= cm
-            if monitor_every and k % monitor_every == 0:  # tmp is free until the next u-update
-                yield self._state(k, x, z, diff, diff_self, dz, u, u_self, tmp)
+            pre_added = bool(monitor_every) and k % monitor_every == 0
+            if pre_added:
+                yield self._state(k, x, z, diff, diff_self, dz, u, u_self, add_in_place=True)
             else:
                 yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
 
@@ -456,14 +359,16 @@ class _Kernel:
         return a * self.w_iso if self.w_iso is not None else np.einsum("ij,jk->ik", a, self.W)
 
     def _state(self, k: int, x: np.ndarray, z: np.ndarray, diff_pair: np.ndarray, diff_self: np.ndarray,
-               dz: np.ndarray, u: np.ndarray, u_self: np.ndarray, scratch: np.ndarray | None) -> AdmmState:
-        """The monitored state; ``scratch`` a free pair-sized buffer for ``u + diff_pair``, or None when ``u`` is
-        all zero (the first state of a cold start: ``0 + d`` is ``d`` bitwise but for the sign of a zero, which the
-        sum into rows, started at +0, and the square both drop)."""
-        u_next = diff_pair if scratch is None else np.add(u, diff_pair, out=scratch)
+               dz: np.ndarray, u: np.ndarray, u_self: np.ndarray, add_in_place: bool) -> AdmmState:
+        """The monitored state. ``add_in_place``: ``u + diff_pair`` is formed in ``diff_pair``'s buffer (the run's
+        next u-update takes it from there); else ``u`` is all zero (the first state of a cold start: ``0 + d`` is
+        ``d`` bitwise but for the sign of a zero, which the sum into rows, started at +0, and the square both drop)
+        and ``diff_pair`` is used as it is. The residual sums are taken before it is overwritten."""
+        primal_sq = np.einsum("ij,ij->", diff_pair, diff_pair) + np.einsum("ij,ij->", diff_self, diff_self)
+        u_next = np.add(u, diff_pair, out=diff_pair) if add_in_place else diff_pair
         # einsum, not BLAS: tiny BLAS calls are slow when the BLAS thread pool is contended
         sums = np.array([
-            np.einsum("ij,ij->", diff_pair, diff_pair) + np.einsum("ij,ij->", diff_self, diff_self),
+            primal_sq,
             self._dual_sq(dz),
             np.einsum("i,ij,ij->", self.count_f, x, x),
             np.einsum("i,ij,ij->", self.size_c, z, z),
