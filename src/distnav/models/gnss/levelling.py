@@ -256,7 +256,8 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
                   level: float = 0.001,
                   fallback_raw: bool = False, node: int = 0) -> LevelledStation:
     """Level one station's geometry-free code (T, S) per arc (module doc). ``sigma_m`` (T, S) σ of the code
-    ``g_P`` (default 1: equal weights); ``max_gap_s`` defaults to 3 × the median sampling interval."""
+    ``g_P`` (default 1: equal weights); ``max_gap_s`` defaults to 3 × the median sampling interval;
+    ``gf_threshold_m`` / ``gf_sigmas``: the GF slip limit of :func:`find_arcs`."""
     t = np.asarray(t_s, float)
     if t.ndim != 1 or np.any(np.diff(t) <= 0):
         raise ModelError("epoch times must be one increasing series")
