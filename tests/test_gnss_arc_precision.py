@@ -6,7 +6,9 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
+from distnav.errors import ModelError
 from distnav.models.gnss.arcprecision import arc_variance_factor
 from distnav.models.gnss.geometry import geodetic_to_ecef
 from distnav.models.gnss.gfbias import gf_m_per_dsb_ns
@@ -104,3 +106,18 @@ def test_no_arcs_no_factor() -> None:
     assert arc_variance_factor(data, c.dsb_ns[-1]) is None
     one = replace(data, arc_id=np.where(data.geometry.tracked, 0, -1))   # one "arc" per station: no redundancy
     assert arc_variance_factor(one, c.dsb_ns[-1]) is None
+
+
+def test_median_arc_factor_below_the_mean_on_gaussian_arcs() -> None:
+    """Gaussian arc errors (0.25 m per arc): the robust (median) σ̂²_arc, the default, is 20–30 % below the mean
+    ratio of the module doc (measured 0.71–0.81 over 4 runs: with a constant per arc, ``W_a ē_a²`` grows with
+    ``W_a``, a scale mixture whose median/0.455 is below its mean) — the realistic σ 10–16 % smaller, still
+    within the Monte Carlo band above; an unknown estimator is refused."""
+    for seed in range(4):
+        _, _, _, (data, c) = _run(200 + seed, 0.25)
+        med = arc_variance_factor(data, c.dsb_ns[-1])
+        mean = arc_variance_factor(data, c.dsb_ns[-1], estimator="mean")
+        assert med is not None and mean is not None and med.factor > 2.0
+        assert 0.6 < med.factor / mean.factor < 0.95
+    with pytest.raises(ModelError, match="estimator"):
+        arc_variance_factor(data, c.dsb_ns[-1], estimator="trimmed")

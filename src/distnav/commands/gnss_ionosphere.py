@@ -567,7 +567,8 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--min-arc", type=int, default=10, metavar="EPOCHS",
                    help="shortest arc kept for levelling, in epochs of the file (default 10)")
     p.add_argument("--gf-threshold", type=float, default=0.05, metavar="M",
-                   help="cycle-slip threshold on the geometry-free phase [m] (default 0.05)")
+                   help="smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x "
+                        "the satellite's recent prediction-error RMS where the ionosphere is noisier)")
     p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
     p.add_argument("--allow-other-day", action="store_true",
                    help="compare with a product of another day than the data")

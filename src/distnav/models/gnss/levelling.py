@@ -9,8 +9,11 @@ Per receiver and satellite, with code ``P_1, P_b`` and phase ``Φ_1, Φ_b`` (met
 
 Arcs end at a data gap longer than ``max_gap_s``, a loss-of-lock indicator (bit 0), or a cycle slip:
 
-* geometry-free phase: ``|g_Φ,k − (2g_Φ,k−1 − g_Φ,k−2)| > gf_threshold_m`` (a linear ionosphere predicted
-  over the two previous epochs; 0.05 m catches the L1 = L2 one-cycle slip of 0.083 m on L2, 0.071 m on L5);
+* geometry-free phase: ``|g_Φ,k − (2g_Φ,k−1 − g_Φ,k−2)| > max(gf_threshold_m, gf_sigmas·s)`` (a linear
+  ionosphere predicted over the two previous epochs; 0.05 m catches the L1 = L2 one-cycle slip of 0.083 m on L2,
+  0.071 m on L5; ``s`` the RMS of the satellite's recent prediction errors, so that ionospheric irregularities
+  at low elevation, several cm per 30 s, do not cut the arcs every few minutes — a slip smaller than 4·s with
+  equal cycles on both bands goes unseen there, one with unequal cycles still changes the wide-lane);
 * Melbourne–Wübbena wide-lane ``N_w = (Φ_1/λ_1 − Φ_b/λ_b) − (f_1P_1 + f_bP_b)/((f_1 + f_b)λ_w)`` [cycles]:
   a jump of more than ``max(mw_sigmas × σ, mw_min_cycles)`` from the arc's running mean, confirmed by the next
   epoch (an unconfirmed jump is an outlier of one epoch and is removed instead).
@@ -101,6 +104,17 @@ class LevelledStation:
                 "removed": int(self.removed.sum()), "removed_per_satellite": per_sat, **tests}
 
 
+GF_SIGMAS = 4.0
+"""Multiple of the recent RMS GF prediction error above which the geometry-free test flags a slip (when larger
+than ``gf_threshold_m``): ionospheric irregularities make the prediction error of a low satellite several cm
+per 30 s, a fixed 5 cm then cuts arcs every few minutes (docs/gnss.md). 0 = the fixed threshold alone."""
+GF_WINDOW_EPOCHS = 40
+"""Epochs of the exponentially weighted mean square GF prediction error (20 min at 30 s)."""
+GF_MIN_ERRORS = 10
+"""A satellite's first prediction errors (slips or not) whose median starts the mean square; the adaptive limit
+is used from the third one on (before it: the fixed threshold)."""
+
+
 def geometry_free_phase_m(phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2) -> np.ndarray:
     """``(Φ_1 − Φ_b)/(μ_b − 1)`` [m]: the L1 ionospheric delay plus a constant per arc."""
     out: np.ndarray = (np.asarray(phi1_m, float) - np.asarray(phib_m, float)) / (mu(band) - 1.0)
@@ -120,9 +134,14 @@ def melbourne_wubbena_cycles(p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndar
 
 def find_arcs(t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, lli: np.ndarray | None = None, *,
               max_gap_s: float = 90.0, gf_threshold_m: float = 0.05, mw_sigmas: float = 4.0,
-              mw_min_cycles: float = 1.0) -> tuple[np.ndarray, np.ndarray, list[str]]:
+              mw_min_cycles: float = 1.0, gf_sigmas: float = GF_SIGMAS,
+              gf_window_epochs: int = GF_WINDOW_EPOCHS) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Split one satellite's series into arcs. Returns ``arc`` (T,) (−1 where no data), ``outlier`` (T,) one-epoch
-    MW outliers, and the start reason of every arc (``first``, ``gap``, ``lli``, ``gf``, ``mw``)."""
+    MW outliers, and the start reason of every arc (``first``, ``gap``, ``lli``, ``gf``, ``mw``).
+
+    The geometry-free test's limit is ``max(gf_threshold_m, gf_sigmas × s)``, ``s`` the RMS of the satellite's
+    recent prediction errors (exponentially weighted over ``gf_window_epochs``, slips excluded; module doc);
+    ``gf_sigmas`` 0: the fixed threshold alone."""
     t = np.asarray(t_s, float)
     g = np.asarray(gf_phase_m, float)
     w = np.asarray(mw_cycles, float)
@@ -134,6 +153,9 @@ def find_arcs(t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, ll
     cur = -1
     hist: list[int] = []            # epochs of the current arc
     mw_sum = mw_sq = 0.0
+    gf_ms = 0.0                     # the satellite's recent mean square GF prediction error (kept across arcs)
+    warm: list[float] = []
+    lam = 1.0 / max(int(gf_window_epochs), 1)
     for pos, k in enumerate(idx.tolist()):
         reason = ""
         if cur < 0:
@@ -146,8 +168,17 @@ def find_arcs(t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, ll
             if len(hist) >= 2:
                 k1, k2 = hist[-1], hist[-2]
                 pred = g[k1] + (g[k1] - g[k2]) * (t[k] - t[k1]) / max(t[k1] - t[k2], 1e-9)
-                if abs(g[k] - pred) > gf_threshold_m:
+                err = g[k] - pred
+                lim_gf = gf_threshold_m
+                if gf_sigmas > 0 and len(warm) >= 3:
+                    lim_gf = max(gf_threshold_m, gf_sigmas * np.sqrt(gf_ms))
+                if abs(err) > lim_gf:
                     reason = "gf"
+                if len(warm) < GF_MIN_ERRORS:       # the first errors, slips or not: a robust start (median)
+                    warm.append(err * err)
+                    gf_ms = float(np.median(warm)) / 0.455      # median of χ²₁ = 0.455
+                elif not reason:
+                    gf_ms += lam * (err * err - gf_ms)
             if not reason and len(hist) >= 3:
                 m = mw_sum / len(hist)
                 sd = np.sqrt(max(mw_sq / len(hist) - m * m, 0.0))
@@ -221,10 +252,12 @@ def screen_arc(d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, sc
 def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray,
                   phib_m: np.ndarray, *, band: int = 2, lli: np.ndarray | None = None,
                   sigma_m: np.ndarray | None = None, min_arc_epochs: int = 10, max_gap_s: float | None = None,
-                  gf_threshold_m: float = 0.05, screen: bool = True, level: float = 0.001,
+                  gf_threshold_m: float = 0.05, gf_sigmas: float = GF_SIGMAS, screen: bool = True,
+                  level: float = 0.001,
                   fallback_raw: bool = False, node: int = 0) -> LevelledStation:
     """Level one station's geometry-free code (T, S) per arc (module doc). ``sigma_m`` (T, S) σ of the code
-    ``g_P`` (default 1: equal weights); ``max_gap_s`` defaults to 3 × the median sampling interval."""
+    ``g_P`` (default 1: equal weights); ``max_gap_s`` defaults to 3 × the median sampling interval;
+    ``gf_threshold_m`` / ``gf_sigmas``: the GF slip limit of :func:`find_arcs`."""
     t = np.asarray(t_s, float)
     if t.ndim != 1 or np.any(np.diff(t) <= 0):
         raise ModelError("epoch times must be one increasing series")
@@ -247,7 +280,7 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
         ok = np.isfinite(gp[:, s]) & np.isfinite(gphi[:, s])
         a, outl, reasons = find_arcs(t, np.where(ok, gphi[:, s], np.nan), np.where(ok, mw[:, s], np.nan),
                                      None if lli is None else lli[:, s], max_gap_s=gap,
-                                     gf_threshold_m=gf_threshold_m)
+                                     gf_threshold_m=gf_threshold_m, gf_sigmas=gf_sigmas)
         removed[:, s] |= outl
         for j, why in enumerate(reasons):
             starts[why] = starts.get(why, 0) + 1
