@@ -84,6 +84,7 @@ class FieldOptions:
     delay_sigma_m: float = DELAY_SIGMA_M  # antenna delays considered in σ (models/uwb/precision.py); 0: off
     nlos_loss: bool = True  # LM in metres with the Cauchy loss: one-sided ("cauchy_long"), tightened (nlos_aware)
     polish: bool = True  # with nlos_aware: the kept links re-fitted at loss_scale_m at the end (_polish)
+    estimate_delays: bool = True  # σ: delay_sigma_m is a floor, larger delays the residuals show are used
 
     @property
     def considers_delays(self) -> bool:
@@ -578,7 +579,8 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
     if opts.considers_delays:
         considered = consider_precision(kept, res, sigma_m=opts.sigma_m, offsets=opts.offsets_used,
                                         loss=_solver_kwargs(opts).get("loss", "linear"),
-                                        loss_scale_m=opts.loss_scale_m, delay_sigma_m=opts.delay_sigma_m)
+                                        loss_scale_m=opts.loss_scale_m, delay_sigma_m=opts.delay_sigma_m,
+                                        estimate_delays=opts.estimate_delays)
         if considered is not None:
             sigma, cov = considered  # the ellipses of the σ written, delays considered
     return AnchorPrecision(sigma_m=sigma, covariance_m2=cov, kind=prec.kind, note=note)

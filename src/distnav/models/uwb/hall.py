@@ -27,6 +27,13 @@ draw from one seeded :class:`numpy.random.Generator`):
   range: the delay × c); a range between a and b is long by ``(δ_a + δ_b) / 2`` (the DS-TWR model
   ``t = d/c + (delay_a + delay_b)/2``, as in the APRIL data's PROVENANCE).
 
+* **Stress-test variations** (``benchmarks/bench_uwb_stress.py``; every one draws nothing at its default, so a
+  seed gives the same hall as before they existed): ``nlos_long_fraction`` < 1 (bimodal NLOS links: each sample
+  takes the long path with that probability, the others are LOS-like), ``gross_link_fraction`` (that share of the
+  links gets ``gross_samples`` samples off by ± ``U(gross_excess_m)``), ``asymmetry_sd_m`` (a→b and b→a samples
+  differ by a per-link ``N(0, s²)``, half each way) and ``known_on_wall`` (the known anchors taken from the row
+  along the wall ``y = 0``, nearest its middle or its corner: nearly collinear).
+
 :meth:`HallNetwork.write` writes the CSV files ``distnav uwb solve`` reads (``ranges.csv`` ``a,b,range_m``;
 ``known.csv``, ``truth.csv`` ``id,x_m,y_m,z_m``; ``heights.csv`` ``id,z_m``) plus the labels a user never has
 (``links_truth.csv``: ``a,b,distance_m,nlos,bias_m``; ``delays.csv``: ``id,offset_m``).
