@@ -349,3 +349,24 @@ def test_link_residuals_and_distributed_sigma_include_the_estimated_common_offse
             assert sol.precision_kind == "neighbourhood"
             free = p.free
             assert np.all(sol.sigma_m[free] < 0.1), sol.sigma_m[free]  # σ of 2-cm ranges, not of a 0.35-m misfit
+
+
+def test_a_hall_whose_exclusion_loop_gets_no_link_tests_reports_every_anchor_weak():
+    """A long narrow plant-like hall (120 m × 14 m, two rows of anchors, known in a corner; seed [2026, 16, 1, 0]
+    of benchmarks/bench_uwb_stress.py): LM's normal matrix turns singular in the exclusion loop, so nothing is
+    tested or excluded and the answer is tens of metres off with σ of decimetres. Before, only 16 of the 24
+    anchors were reported weak (8 anchors metres off looked right); now the message says why and every anchor is
+    weak."""
+    from distnav.experiments.uwb_field import hall_problem
+    from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+    from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+
+    cfg = HallConfig().with_(**{**PLANT_LIKE, "known": "corner", "length_m": 120.0, "width_m": 14.0})
+    h = simulate_hall(np.random.default_rng([2026, 16, 1, 0]), cfg)
+    sub, geo = prepare(hall_problem(h)[0])
+    sol = solve_field(sub, FieldOptions(), geometry=geo)
+    assert sub.truth_m is not None
+    off = np.linalg.norm(sol.positions_m - sub.truth_m, axis=1) > 1.0
+    assert off.sum() >= 10 and not sol.excluded.any()
+    assert "no link tests" in sol.message and sol.status == "weakly_determined"
+    assert set(sol.weak) == {sub.ids[i] for i in np.flatnonzero(sub.estimated)}

@@ -115,7 +115,9 @@ def test_written_files_read_back(tmp_path):
 
 
 @pytest.mark.parametrize("bad", [dict(n_anchors=3), dict(nlos_p1=1.5), dict(nlos_bias_m=(2.0, 1.0)),
-                                 dict(known="edge"), dict(min_samples=0), dict(n_known=1)])
+                                 dict(known="edge"), dict(min_samples=0), dict(n_known=1),
+                                 dict(nlos_long_fraction=1.2), dict(gross_link_fraction=-0.1),
+                                 dict(gross_excess_m=(3.0, 2.0)), dict(gross_samples=0), dict(asymmetry_sd_m=-0.1)])
 def test_bad_configuration_is_a_model_error(bad):
     with pytest.raises(ModelError):
         HallConfig(**bad)
@@ -136,3 +138,49 @@ def test_plant_like_halls_have_the_real_plants_counts():
     assert all(a.links.shape[0] >= b.links.shape[0] for a, b in zip(halls, plain, strict=True))
     with pytest.raises(ModelError, match="min_links"):
         HallConfig(min_links=-1)
+
+
+def test_default_halls_unchanged_by_the_stress_fields():
+    """The stress-test fields (bimodal NLOS, gross samples, asymmetric pairs, known anchors on a wall) draw nothing
+    at their defaults: seed 7 gives the hall the simulator gave before they existed (sums pinned from that code)."""
+    for kw, total, n, n_nlos, n_swapped in (({}, 65867.23403908321, 5322, 16, 2647),
+                                            (PLANT_LIKE, 54489.80430220595, 4613, 9, 2297)):
+        h = simulate_hall(np.random.default_rng(7), **kw)
+        assert h.range_m.size == n and int(h.nlos.sum()) == n_nlos and int(h.swapped.sum()) == n_swapped
+        assert float(h.range_m.sum()) == pytest.approx(total, rel=1e-13)
+        assert float(h.truth_m.sum()) == pytest.approx(1503.7290906609028, rel=1e-13)
+
+
+def _excess(h) -> np.ndarray:
+    link = h.sample_link
+    return h.range_m - h.distance_m[link] - 0.5 * (h.offset_m[h.links[link, 0]] + h.offset_m[h.links[link, 1]])
+
+
+def test_bimodal_nlos_links_only_partly_long():
+    for h in _pooled(range(4), nlos_long_fraction=0.4):
+        e, on = _excess(h), h.nlos[h.sample_link]
+        long = e[on] > 0.5 * h.bias_m[h.sample_link[on]]
+        assert 0.3 < long.mean() < 0.5  # 40 % of an NLOS link's samples take the long path
+        assert np.all(np.abs(e[on][~long]) < 5 * h.config.sigma_m)  # the others are LOS-like
+
+
+def test_gross_samples_and_asymmetric_pairs():
+    h = simulate_hall(np.random.default_rng(1), gross_link_fraction=0.2, gross_samples=2)
+    e = np.abs(_excess(h))
+    gross = (e > 1.9) & ~h.nlos[h.sample_link]
+    hit = np.unique(h.sample_link[gross])
+    assert 0.1 * h.links.shape[0] < hit.size < 0.3 * h.links.shape[0]
+    assert np.all(np.bincount(h.sample_link[gross]) <= 2) and np.all(e[gross] < 5.0 + 0.5)
+    a = simulate_hall(np.random.default_rng(1), asymmetry_sd_m=0.3, multipath_fraction=0.0, nlos_p1=0.0)
+    e = _excess(a)
+    diff = [np.mean(e[(a.sample_link == k) & a.swapped]) - np.mean(e[(a.sample_link == k) & ~a.swapped])
+            for k in range(a.links.shape[0]) if 0 < a.swapped[a.sample_link == k].sum() < (a.sample_link == k).sum()]
+    assert 0.2 < np.std(diff) < 0.4  # a→b and b→a differ by N(0, 0.3²) per link
+
+
+def test_known_anchors_on_one_wall_are_nearly_collinear():
+    for known in ("middle", "corner"):
+        h = simulate_hall(np.random.default_rng(2), known=known, known_on_wall=True)
+        k = h.truth_m[h.known, :2]
+        sv = np.linalg.svd(k - k.mean(0), compute_uv=False)
+        assert sv[1] < 0.25 * sv[0] and k[:, 1].max() < 10.0  # along y ≈ 0, spread along x

@@ -84,6 +84,7 @@ class FieldOptions:
     delay_sigma_m: float = DELAY_SIGMA_M  # antenna delays considered in σ (models/uwb/precision.py); 0: off
     nlos_loss: bool = True  # LM in metres with the Cauchy loss: one-sided ("cauchy_long"), tightened (nlos_aware)
     polish: bool = True  # with nlos_aware: the kept links re-fitted at loss_scale_m at the end (_polish)
+    estimate_delays: bool = True  # σ: delay_sigma_m is a floor, larger delays the residuals show are used
 
     @property
     def considers_delays(self) -> bool:
@@ -414,6 +415,7 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             note += (f"; one-sided Cauchy loss (ranges read long), scale tightened to {tight:.3g} m"
                      if tight < given.loss_scale_m else "; one-sided Cauchy loss (ranges read long)")
     excluded = np.zeros(problem.n_meas, bool)
+    untested = False  # LM's exclusion loop got no link tests (a singular normal matrix): no QC, nothing determined
     # exclusions tested at the robust solution (an NLOS link does not drag it); every re-fit robust too
     first = _exclude(problem, fit, opts) if opts.exclude else None
     if first is not None:
@@ -457,6 +459,7 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             w, flagged, crit = np.full(problem.n_meas, np.nan), np.zeros(problem.n_meas, bool), None
         if opts.exclude and res.usable:
             note += f"; {opts.solver}: no per-link tests (or they failed on a re-fit): no link excluded"
+            untested = opts.solver.upper() == "LM"
     reverted = 0.0
     if excluded.any() and no_exclusion and no_exclusion[0].usable and res.usable and opts.revert:
         worse = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
@@ -488,6 +491,10 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     note += prec_out.note
     residual = problem.residuals_m(pos) + offset_bias_m(problem, res)  # with the solution's offsets
     weak = weak_anchors(problem, residual, excluded, flagged)
+    if untested:  # nothing was tested, nothing excluded: a wrong answer would look right (docs/uwb.md, stress test)
+        weak = tuple(problem.ids[i] for i in np.flatnonzero(problem.estimated))
+        note += ("; LM's normal matrix was singular in the exclusion loop (no link tests, no exclusions): the "
+                 "positions are not determined there (a fold or a flexible part) — every anchor reported weak")
     if not reverted and excluded.any() and no_exclusion and no_exclusion[0].usable:
         reverted = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
         reverted = reverted if reverted > DISAGREE_RATIO else 0.0
@@ -572,7 +579,8 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
     if opts.considers_delays:
         considered = consider_precision(kept, res, sigma_m=opts.sigma_m, offsets=opts.offsets_used,
                                         loss=_solver_kwargs(opts).get("loss", "linear"),
-                                        loss_scale_m=opts.loss_scale_m, delay_sigma_m=opts.delay_sigma_m)
+                                        loss_scale_m=opts.loss_scale_m, delay_sigma_m=opts.delay_sigma_m,
+                                        estimate_delays=opts.estimate_delays)
         if considered is not None:
             sigma, cov = considered  # the ellipses of the σ written, delays considered
     return AnchorPrecision(sigma_m=sigma, covariance_m2=cov, kind=prec.kind, note=note)

@@ -27,6 +27,13 @@ draw from one seeded :class:`numpy.random.Generator`):
   range: the delay × c); a range between a and b is long by ``(δ_a + δ_b) / 2`` (the DS-TWR model
   ``t = d/c + (delay_a + delay_b)/2``, as in the APRIL data's PROVENANCE).
 
+* **Stress-test variations** (``benchmarks/bench_uwb_stress.py``; every one draws nothing at its default, so a
+  seed gives the same hall as before they existed): ``nlos_long_fraction`` < 1 (bimodal NLOS links: each sample
+  takes the long path with that probability, the others are LOS-like), ``gross_link_fraction`` (that share of the
+  links gets ``gross_samples`` samples off by ± ``U(gross_excess_m)``), ``asymmetry_sd_m`` (a→b and b→a samples
+  differ by a per-link ``N(0, s²)``, half each way) and ``known_on_wall`` (the known anchors taken from the row
+  along the wall ``y = 0``, nearest its middle or its corner: nearly collinear).
+
 :meth:`HallNetwork.write` writes the CSV files ``distnav uwb solve`` reads (``ranges.csv`` ``a,b,range_m``;
 ``known.csv``, ``truth.csv`` ``id,x_m,y_m,z_m``; ``heights.csv`` ``id,z_m``) plus the labels a user never has
 (``links_truth.csv``: ``a,b,distance_m,nlos,bias_m``; ``delays.csv``: ``id,offset_m``).
@@ -78,6 +85,12 @@ class HallConfig:
     antenna_delay_sd_m: float = 0.03
     n_known: int = 4
     known: str = "middle"
+    nlos_long_fraction: float = 1.0
+    gross_link_fraction: float = 0.0
+    gross_samples: int = 3
+    gross_excess_m: tuple[float, float] = (2.0, 5.0)
+    asymmetry_sd_m: float = 0.0
+    known_on_wall: bool = False
 
     def __post_init__(self) -> None:
         if self.n_anchors < 4:
@@ -85,12 +98,20 @@ class HallConfig:
         for name in ("length_m", "width_m", "ceiling_m", "range_limit_m"):
             if not getattr(self, name) > 0:
                 raise ModelError(f"HallConfig.{name} must be positive, got {getattr(self, name)}")
-        for name in ("link_loss", "sample_loss", "multipath_fraction", "nlos_p0", "nlos_p1"):
+        for name in ("link_loss", "sample_loss", "multipath_fraction", "nlos_p0", "nlos_p1", "nlos_long_fraction",
+                     "gross_link_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ModelError(f"HallConfig.{name} must be a probability in [0, 1], got {getattr(self, name)}")
         lo, hi = self.nlos_bias_m
         if not 0 <= lo <= hi:
             raise ModelError(f"HallConfig.nlos_bias_m must be (low, high) with 0 ≤ low ≤ high, got {self.nlos_bias_m}")
+        glo, ghi = self.gross_excess_m
+        if not 0 <= glo <= ghi:
+            raise ModelError(f"HallConfig.gross_excess_m must be (low, high) with 0 ≤ low ≤ high, got "
+                             f"{self.gross_excess_m}")
+        if self.gross_samples < 1 or self.asymmetry_sd_m < 0:
+            raise ModelError(f"need gross_samples ≥ 1 and asymmetry_sd_m ≥ 0, got {self.gross_samples}, "
+                             f"{self.asymmetry_sd_m}")
         if self.min_links < 0:
             raise ModelError(f"HallConfig.min_links must be ≥ 0, got {self.min_links}")
         if self.attempts < 1 or not 1 <= self.min_samples <= self.attempts:
@@ -196,6 +217,13 @@ def _layout(cfg: HallConfig, rng: np.random.Generator) -> FloatArray:
 
 def _known(cfg: HallConfig, truth: FloatArray) -> IntArray:
     xy = truth[:, :2]
+    if cfg.known_on_wall and cfg.known != "spread":  # nearly collinear: the row of anchors along the wall y = 0
+        ny = max(1, int(round(np.sqrt(cfg.n_anchors * cfg.width_m / cfg.length_m))))
+        row = np.argsort(xy[:, 1], kind="stable")[: max(cfg.n_known, cfg.n_anchors // ny)]
+        x = xy[row, 0]
+        key = np.abs(x - 0.5 * cfg.length_m) if cfg.known == "middle" else x
+        wall: IntArray = np.sort(row[np.argsort(key, kind="stable")[: cfg.n_known]]).astype(np.int64)
+        return wall
     if cfg.known == "spread":  # one per corner region, then the middle
         corners = np.array([[0, 0], [cfg.length_m, 0], [cfg.length_m, cfg.width_m], [0, cfg.width_m]], float)
         chosen: list[int] = []
@@ -261,9 +289,20 @@ def simulate_hall(rng: np.random.Generator, config: HallConfig | None = None, **
     noise = rng.normal(0.0, cfg.sigma_m, m)
     multipath = (rng.random(m) < cfg.multipath_fraction) * rng.exponential(cfg.multipath_excess_m, m)
     excess = np.abs(rng.normal(0.0, cfg.nlos_spread_m, m))
-    r = base + noise + np.where(nlos[link], bias[link] + excess, multipath)
+    long = nlos[link]
+    if cfg.nlos_long_fraction < 1.0:  # bimodal NLOS links: only some samples take the long path (no draw at 1)
+        long = long & (rng.random(m) < cfg.nlos_long_fraction)
+    r = base + noise + np.where(long, bias[link] + excess, np.where(nlos[link], 0.0, multipath))
+    if cfg.gross_link_fraction > 0.0:  # a few gross samples (± a few metres) on some links
+        for k in np.flatnonzero(rng.random(n_links) < cfg.gross_link_fraction):
+            mine = np.flatnonzero(link == k)
+            hit = rng.choice(mine, min(cfg.gross_samples, mine.size), replace=False)
+            r[hit] += rng.choice([-1.0, 1.0], hit.size) * rng.uniform(*cfg.gross_excess_m, hit.size)
     r = np.maximum(r, 1e-3)  # a range is never logged ≤ 0 by a DW1000 on these distances
     swapped = rng.random(m) < 0.5
+    if cfg.asymmetry_sd_m > 0.0:  # a→b and b→a differ by a per-link amount (e.g. SS-TWR clock drift)
+        asym = rng.normal(0.0, cfg.asymmetry_sd_m, n_links)
+        r = np.maximum(r + np.where(swapped, 0.5, -0.5) * asym[link], 1e-3)
     return HallNetwork(config=cfg, ids=ids, truth_m=truth, surveyed_z_m=surveyed, known=_known(cfg, truth),
                        links=pairs.astype(np.int64), distance_m=dist, nlos=nlos, bias_m=bias, offset_m=offset,
                        sample_link=link.astype(np.int64), range_m=r, swapped=swapped)

@@ -21,7 +21,11 @@ sum, ``σ_δ² tr(Gᵀ Pᵀ W P G) / redundancy`` (``P = I − J Q JᵀW``; a va
 of 2σ instead of 95 %).
 
 The estimates do not change (no RMSE is traded), only their σ. ``σ_δ`` is a prior (``FieldOptions.delay_sigma_m``;
-0 switches it off); its default was chosen by Monte Carlo over simulated halls (docs/uwb.md, "Precision").
+0 switches it off); its default was chosen by Monte Carlo over simulated halls (docs/uwb.md, "Precision"). With
+``estimate_delays`` (``FieldOptions.estimate_delays``, the default in ``uwb solve``) the prior is a floor: the
+delays' σ is also estimated from the residuals (:func:`delay_sigma_estimate`, a two-component variance estimate)
+and the larger is used — uncalibrated hardware with 5 cm delays per anchor no longer gets 1.5 cm σ
+(docs/uwb.md, "Stress test").
 """
 
 from __future__ import annotations
@@ -37,26 +41,53 @@ from distnav.algorithms.ranging_objective import RangeObjective
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 
-__all__ = ["consider_sigma", "consider_precision", "MIN_NOISE_SHARE"]
+__all__ = ["consider_sigma", "consider_precision", "MIN_NOISE_SHARE", "delay_sigma_estimate"]
 
 MIN_NOISE_SHARE = 0.1  # the noise part keeps at least this share of σ̂² (the delays' prior may be too large)
 
 
 def consider_sigma(problem: RangingProblem, result: Any, *, sigma_m: float, offsets: str, loss: str,
-                   loss_scale_m: float, delay_sigma_m: float, offset_prior_sigma_m: float = 0.1
-                   ) -> FloatArray | None:
+                   loss_scale_m: float, delay_sigma_m: float, offset_prior_sigma_m: float = 0.1,
+                   estimate_delays: bool = False) -> FloatArray | None:
     """σ per anchor and axis ``(n, dim)`` (0 at known coordinates) of an LM metres-objective ``result`` on
     ``problem`` (the links it was fitted on), with per-anchor delays of σ ``delay_sigma_m`` considered (module
     docstring). None when the result carries no free vector or variance factor, or the normal matrix is singular.
     """
     out = consider_precision(problem, result, sigma_m=sigma_m, offsets=offsets, loss=loss, loss_scale_m=loss_scale_m,
-                             delay_sigma_m=delay_sigma_m, offset_prior_sigma_m=offset_prior_sigma_m)
+                             delay_sigma_m=delay_sigma_m, offset_prior_sigma_m=offset_prior_sigma_m,
+                             estimate_delays=estimate_delays)
     return None if out is None else out[0]
 
 
+def delay_sigma_estimate(J: Any, G: Any, r: FloatArray, w: FloatArray, Q: FloatArray) -> float:
+    """σ_δ (m) of the per-anchor delays from the residuals by a two-component variance estimate (MINQUE-like
+    moment equations; Koch, *Parameter Estimation and Hypothesis Testing in Linear Models*, 1999, §3.6): with the
+    whitened residual maker ``M = I − W½ J Q Jᵀ W½`` and ``G̃ = W½ G``, ``ẽ = W½ r`` has ``E ẽᵀẽ = s² tr M + σ_δ²
+    tr A`` and ``E ‖G̃ᵀẽ‖² = s² tr A + σ_δ² tr A²`` (``A = G̃ᵀ M G̃``): delays show as residuals that share an
+    anchor. Returns 0 when the system is singular or σ_δ² < 0. Dense (``m × m``): small networks only."""
+    sw = np.sqrt(np.asarray(w, float))
+    Jt = np.asarray(J.toarray() if sp.issparse(J) else J) * sw[:, None]
+    Gt = np.asarray(G.toarray() if sp.issparse(G) else G) * sw[:, None]
+    e = sw * np.asarray(r, float)
+    M = np.eye(e.size) - Jt @ Q @ Jt.T
+    A = Gt.T @ M @ Gt
+    lhs = np.array([[np.trace(M), np.trace(A)], [np.trace(A), float(np.sum(A * A))]])
+    rhs = np.array([float(e @ e), float(np.sum((Gt.T @ e) ** 2))])
+    try:
+        s2, d2 = np.linalg.solve(lhs, rhs)
+    except np.linalg.LinAlgError:
+        return 0.0
+    if d2 > 0 and s2 <= 0:  # the delays explain all the scatter (the noise weight σ was set too large)
+        d2 = rhs[1] / lhs[1, 1]
+    return float(np.sqrt(d2)) if d2 > 0 else 0.0
+
+
+ESTIMATE_MAX_ROWS = 2000  # the delay estimate forms an m × m residual maker: skipped on larger networks
+
+
 def consider_precision(problem: RangingProblem, result: Any, *, sigma_m: float, offsets: str, loss: str,
-                       loss_scale_m: float, delay_sigma_m: float, offset_prior_sigma_m: float = 0.1
-                       ) -> tuple[FloatArray, FloatArray] | None:
+                       loss_scale_m: float, delay_sigma_m: float, offset_prior_sigma_m: float = 0.1,
+                       estimate_delays: bool = False) -> tuple[FloatArray, FloatArray] | None:
     """``(σ, covariance blocks)`` of :func:`consider_sigma`: σ ``(n, dim)`` and each anchor's ``dim × dim`` block
     ``(n, dim, dim)`` of ``C = σ̂²_noise Q + σ_δ² B Bᵀ`` in m² (zero rows and columns at known coordinates), so
     the ellipses drawn from the blocks are those of the σ written."""
@@ -82,6 +113,8 @@ def consider_precision(problem: RangingProblem, result: Any, *, sigma_m: float, 
     G = sp.csr_matrix((np.concatenate([inv_sigma, inv_sigma]),
                        (np.concatenate([np.arange(m)] * 2), np.concatenate([problem.meas_a, problem.meas_b]))),
                       shape=(J.shape[0], n))
+    if estimate_delays and J.shape[0] <= ESTIMATE_MAX_ROWS:  # the prior is a floor: larger delays seen are used
+        delay_sigma_m = max(delay_sigma_m, delay_sigma_estimate(J, G, r, w, Q))
     JWG = np.asarray((JW @ G).toarray())  # n_x × n
     B = Q @ JWG
     # the variance factor σ̂² = Σ w r² / redundancy also holds the delays' share of the residuals,
