@@ -140,6 +140,8 @@ def _uwb_cases() -> list[Cli]:
         Cli("uwb-solve-delay-sigma-nan", (*base, *o, "--delay-sigma-m", "nan"), "--delay-sigma-m"),
         Cli("uwb-solve-allow-planar-value", (*base, *o, "--allow-planar-3d=yes"), "ignored explicit"),
         Cli("uwb-solve-strict-value", (*base, *o, "--strict=yes"), "ignored explicit"),
+        Cli("uwb-solve-no-refine-value", (*base, *o, "--no-refine=yes"), "ignored explicit"),
+        Cli("uwb-solve-no-refine-lm", (*base, *o, "--no-refine"), "--no-refine"),
         Cli("uwb-import-april-no-log", ("uwb", "import-april", *o), "required: log"),
         Cli("uwb-import-april-missing", ("uwb", "import-april", "{tmp}/none.txt", *o), "none.txt"),
         Cli("uwb-import-april-no-out", ("uwb", "import-april", "{file}"), "required: --out"),

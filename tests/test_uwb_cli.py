@@ -295,3 +295,14 @@ def test_weak_anchors_are_named_on_the_console_and_in_positions_csv(tmp_path, ca
     assert s["status"] == "weakly_determined" and weak and sorted(s["weakly_determined_anchors"]) == weak
     err = capsys.readouterr().err
     assert "weakly determined" in err and all(k in err for k in weak)
+
+
+def test_no_refine_skips_the_final_distributed_lm_phase(tmp_path):
+    f = hall(tmp_path, ceiling=False)
+    common = ("--solver", "N-CSG-TBLS", "--iterations", "60", "--initial", str(f["initial"]))
+    assert run(f, tmp_path / "refined", *common) in (0, 1)
+    assert run(f, tmp_path / "plain", *common, "--no-refine") in (0, 1)
+    refined = json.loads((tmp_path / "refined" / "summary.json").read_text())["communication"]["distributed"]
+    plain = json.loads((tmp_path / "plain" / "summary.json").read_text())["communication"]["distributed"]
+    assert refined["final_lm_phase"]["rounds"] >= 1 and plain["final_lm_phase"] is None
+    assert plain["messages"] < refined["messages"]

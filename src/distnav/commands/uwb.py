@@ -106,6 +106,10 @@ def register(subparsers: Any) -> None:
                         f"the distributed solvers; default {DELAY_SIGMA_M}, 0 = off)")
     s.add_argument("--allow-planar-3d", action="store_true",
                    help="solve a nearly planar network in 3-D with free heights anyway (refused by default)")
+    s.add_argument("--no-refine", dest="refine", action="store_false",
+                   help="distributed solvers: stop after the neighbour iterations, without the final distributed "
+                        "LM phase that takes them to LM's solution (it needs a few network-wide sums per round; "
+                        "default: run it with the metres objective)")
     s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")
     s.add_argument("--strict", action="store_true",
                    help="refuse a range log with a negative, zero or non-finite sample (default: drop and count)")
@@ -281,6 +285,7 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "communication": {
             "distributed": {"solver": opts.solver.upper(), "messages": sol.messages, "bytes": sol.bytes,
                             "precision_messages": sol.precision_messages, "precision_bytes": sol.precision_bytes,
+                            "final_lm_phase": getattr(sol.result, "settings", {}).get("refine"),
                             "note": "every re-solve of the exclusion loop and the precision included"
                             if opts.solver.upper() != "LM"
                             else "LM is centralized: it needs the ranges gathered (below)"},
@@ -393,7 +398,10 @@ def _handler(args: argparse.Namespace) -> int:
     opts = FieldOptions(solver=args.solver, objective=args.objective, loss=args.loss, loss_scale_m=args.loss_scale_m,
                         sigma_m=args.sigma_m, iterations=args.iterations, exclude=args.exclude, level=args.level,
                         range_offsets=args.range_offsets, offset_prior_sigma_m=args.offset_prior_sigma_m,
-                        allow_planar_3d=args.allow_planar_3d, delay_sigma_m=args.delay_sigma_m)
+                        allow_planar_3d=args.allow_planar_3d, delay_sigma_m=args.delay_sigma_m,
+                        solver_options={} if args.refine else {"refine": False})
+    if not args.refine and opts.solver == "LM":
+        raise ModelError("--no-refine applies to the distributed solvers (--solver N-CLM, N-CSG-TBLS, ...), not to LM")
     _validate(opts)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
