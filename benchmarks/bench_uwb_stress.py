@@ -4,9 +4,10 @@ time, then a few combined), with the 4 known anchors in the middle and in a corn
 
 Per hall: the hall is written to files (``HallNetwork.write``) and solved by the command's own path
 (:func:`distnav.commands.uwb.solve_range_log`, default options, ``--heights``), beside two references written
-here, independently of distnav's solvers:
+independently of distnav's solvers:
 
-* the **careful fit** (issue 13's "careful centralized scipy fit"): medians per pair, classical MDS of the
+* the **careful fit** (issue 13's "careful centralized scipy fit", ``experiments.uwb_field.careful_fit``, the one
+  ``reproduce uwb-field`` uses; bit-identical to the copy this bench first had): medians per pair, classical MDS of the
   horizontal ranges (shortest paths for missing pairs), Procrustes (SVD, reflection allowed) onto the known
   anchors, ``scipy.optimize.least_squares`` on the residual in metres, linear then Cauchy ``f_scale`` 0.3 m;
 * the **oracle**: the LOS links only (NLOS removed by the truth), linear least squares with one common range
@@ -36,11 +37,10 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import shortest_path
 
 from distnav._blas import single_threaded_blas
 from distnav.commands.uwb import solve_range_log
+from distnav.experiments import uwb_field
 from distnav.models.uwb.field import FieldOptions
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, HallNetwork, simulate_hall
 
@@ -96,33 +96,10 @@ def _heights(h: HallNetwork) -> np.ndarray:
     return z
 
 
-def careful_fit(h: HallNetwork, f_scale_m: float = 0.3) -> np.ndarray:
-    """Issue 13's careful centralized fit (module docstring); positions ``(n, 3)``, surveyed heights held."""
-    n, (i, j), d = h.n_anchors, h.links.T, _medians(h)
-    z = _heights(h)
-    dh = np.sqrt(np.maximum(d**2 - (z[i] - z[j]) ** 2, 0.0))
-    g = shortest_path(csr_matrix((np.r_[dh, dh], (np.r_[i, j], np.r_[j, i])), shape=(n, n)), directed=False)
-    g[~np.isfinite(g)] = np.max(g[np.isfinite(g)])
-    c = np.eye(n) - 1.0 / n
-    val, vec = np.linalg.eigh(-0.5 * c @ (g**2) @ c)
-    xy = vec[:, -2:] * np.sqrt(np.maximum(val[-2:], 0.0))
-    k = h.known
-    a, b = xy[k] - xy[k].mean(0), h.truth_m[k, :2] - h.truth_m[k, :2].mean(0)
-    u, _, vt = np.linalg.svd(a.T @ b)
-    xy = (xy - xy[k].mean(0)) @ (u @ vt) + h.truth_m[k, :2].mean(0)
-    est = np.setdiff1d(np.arange(n), k)
-
-    def pos(x: np.ndarray) -> np.ndarray:
-        out = np.column_stack([h.truth_m[:, :2], z])
-        out[est, :2] = x.reshape(-1, 2)
-        return out
-
-    def res(x: np.ndarray) -> np.ndarray:
-        q = pos(x)
-        return np.asarray(np.linalg.norm(q[i] - q[j], axis=1) - d)
-
-    lin = least_squares(res, xy[est].ravel(), method="trf")
-    return pos(least_squares(res, lin.x, loss="cauchy", f_scale=f_scale_m, method="trf").x)
+def careful_fit(h: HallNetwork) -> np.ndarray:
+    """Issue 13's careful centralized fit (``experiments.uwb_field.careful_fit``, written independently of distnav's
+    solvers) on the problem ``uwb solve`` builds from the hall's files; positions ``(n, 3)``, surveyed heights held."""
+    return uwb_field.careful_fit(uwb_field.hall_problem(h)[0])
 
 
 def oracle_fit(h: HallNetwork) -> np.ndarray:
