@@ -148,11 +148,14 @@ def test_two_days_of_rinex2_with_sp3_and_ionex(heldout: dict[str, object], capsy
     assert "worst-fitting satellite: G01" in text
     multi = json.loads((out / "multiday.json").read_text())
     assert sorted(multi["days"]) == list(DAYS)
-    assert multi["worst_fitting"]["satellite"] == "G01"
+    assert multi["worst_fitting"]["satellite"] == "G01" and multi["worst_fitting"]["stands_out_days"] == 2
+    assert "IONEX" in multi["worst_fitting_vs_product"]                    # G01 left out there: another one
+    assert "worst-fitting satellite over the days (own residuals): G01 (2 of 2 days, standing out on 2)" in text
     for day, doy in zip(DAYS, (10, 11), strict=True):
         s = json.loads((out / day / "summary.json").read_text())
         assert s["codes"] == {"L1": "C1W", "L2": "C2W"}
         assert s["satellite_fit"]["worst_fitting"]["satellite"] == "G01"
+        assert s["satellite_fit"]["worst_fitting"]["stands_out"]          # robust z 7–21 (real data: ≤ 2.1)
         (name,) = [k for k in s["comparison"] if k.startswith("IONEX")]
         assert f"codg{doy:03d}0.24i" in name                           # each day against its own product
         c = s["comparison"][name]["central"]

@@ -356,6 +356,7 @@ def _run_compare_dsb(args: argparse.Namespace, path: Path) -> int:
 
 
 def _compare_dsb(args: argparse.Namespace, path: Path, bias: list[str]) -> dict[str, Any]:
+    from distnav.commands.gnss_report import print_worst_vs_product
     from distnav.models.gnss.products import compare_in_datum, product_dsbs, read_estimates
 
     est = read_estimates(path, filter_label=args.filter)
@@ -380,6 +381,9 @@ def _compare_dsb(args: argparse.Namespace, path: Path, bias: list[str]) -> dict[
               f"{r['max_abs_zero_mean_ns']:.3f} ({r['worst']})")
         for sta, d in r.get("receivers", {}).get("difference_ns", {}).items():
             print(f"  receiver {sta}  {d:+8.3f}")
+        if r.get("receivers_not_in_product"):
+            print(f"  no receiver DSB in the product for {' '.join(r['receivers_not_in_product'])}")
+        print_worst_vs_product(prod.name, r, exclude_option="--exclude")
     return result
 
 

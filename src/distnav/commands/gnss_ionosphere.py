@@ -63,6 +63,11 @@ def validate_arguments(args: argparse.Namespace) -> None:
     """Check every option value before any file is read (errors name the option; the CLI exits with 2)."""
     if args.pivot is not None and not _PRN.match(str(args.pivot).upper()):
         raise ModelError(f"--pivot {args.pivot}: not a GPS satellite (G01 … G32)")
+    if args.datum == "pivot" and args.pivot is None:
+        raise ModelError("--datum pivot needs --pivot PRN (e.g. --pivot G10)")
+    if args.pivot is not None and args.datum != "pivot":
+        raise ModelError(f"--pivot {args.pivot} is the pivot of --datum pivot; the datum is {args.datum} (add "
+                         f"--datum pivot, or leave --pivot out)")
     if args.l1_code is not None and not _L1_CODE.match(args.l1_code.upper()):
         raise ModelError(f"--l1-code {args.l1_code}: not a GPS L1 code (C1C, C1W, C1L, C1X …)")
     if not _LB_CODE.match(args.l2_code.upper()):
@@ -93,6 +98,23 @@ def validate_arguments(args: argparse.Namespace) -> None:
     from distnav.commands.gnss import check_data_arguments  # gnss.py registers this module: import lazily
 
     check_data_arguments(args)  # the shared data options, then whether the named files exist
+    _check_tlim_days(args)
+
+
+def _check_tlim_days(args: argparse.Namespace) -> None:
+    """``--tlim`` against the days the observation files' names give (IGS long or short names), before any
+    file is read: a window outside every file's day is an error, not a read of the whole files."""
+    from distnav.models.gnss.products import product_day
+
+    if not args.tlim:
+        return
+    days = [product_day(f) for f in args.obs]
+    if any(d is None for d in days):
+        return                                   # a name without a day: the reader finds out
+    t0, t1 = (np.datetime64(t, "s") for t in args.tlim)
+    if not any(t0 < d + np.timedelta64(1, "D") and t1 > d for d in days if d is not None):
+        raise ModelError(f"--tlim {' '.join(args.tlim)}: outside the day(s) of the --obs files "
+                         f"({', '.join(sorted({str(d) for d in days}))})")
 
 
 def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = "C1C", l2_code: str = "C2W",
@@ -239,22 +261,15 @@ def _iso(t_gps_s: float) -> str:
     return str(datetime_from_gps_seconds(t_gps_s))[:19]
 
 
-def _l1_code(args: argparse.Namespace) -> tuple[str, str | None]:
-    """The L1 code: given, or matched to the comparison products (IONEX DCBs are P1−P2 → C1W), else C1C."""
-    if args.l1_code:
-        return args.l1_code.upper(), None
-    if args.bias and all(Path(b).name.lower().rstrip(".gz").endswith(("i", "inx")) for b in args.bias):
-        return "C1W", "--l1-code C1W chosen to match the IONEX products (P1-P2 DCBs)"
-    return "C1C", None
-
-
-C1C_WARNING = ("WARNING: L1 code C1C (RINEX 2 C1). The satellites' C1C-C1W biases (up to 1-2 ns) go into the DCBs: "
-               "compare only with C1C-{l2} products (CAS), not with P1-P2 / C1W-{l2} ones (IONEX, GFZ), or use "
-               "--l1-code C1W where every station tracks P1.")
-
-
 def run_ionosphere(args: argparse.Namespace) -> int:
     """Handler of ``distnav gnss ionosphere``."""
+    from distnav.commands.gnss_report import (
+        C1C_WARNING,
+        choose_l1_code,
+        print_data_report,
+        print_summary,
+        print_worst_own,
+    )
     from distnav.commands.gnss_sinex_out import write_sinex
     from distnav.models.gnss.gfnetwork import innovation_summary, run_bias_filters, satellite_fit
     from distnav.models.gnss.ionosphere import TEC_NAMES_QUADRATIC, TECU_L1_M
@@ -266,10 +281,10 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     days = _split_days(args)
     if len(days) > 1:
         return _run_days(args, days)
-    l1, l1_note = _l1_code(args)
+    l1, l1_note = choose_l1_code(args)
     l2 = args.l2_code.upper()
     if l1_note:
-        _say(args, l1_note)
+        print(f"NOTE: {l1_note}", file=sys.stderr, flush=True)
     if l1 == "C1C" and not args.c1_corrections:
         print(C1C_WARNING.format(l2=l2), file=sys.stderr, flush=True)
     if args.bias:
@@ -284,22 +299,25 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     def progress(label: str, fraction: float) -> None:
         _say(args, f"reading {label}: {100 * fraction:3.0f} %")
 
-    data = network_data(args.obs, orbit, l1_code=l1, l2_code=l2, tlim=tlim,
-                        interval_s=args.interval, mask_deg=args.mask, ionosphere=args.ionosphere,
-                        regional_km=args.regional_km, sigma_zenith_m=args.sigma, weighting=args.weighting,
-                        reference=args.reference, progress=progress, exclude=args.exclude or (),
-                        levelling=args.levelling == "arc", min_arc_epochs=args.min_arc,
-                        gf_threshold_m=args.gf_threshold, screen=not args.no_screening,
-                        c1_corrections=args.c1_corrections, tec_rw_m_per_sqrt_s=args.tec_rw,
-                        min_satellite_obs=args.min_satellite_obs, mapping=args.mapping,
-                        tec_order=2 if args.tec_field == "quadratic" else 1)
+    try:
+        data = network_data(args.obs, orbit, l1_code=l1, l2_code=l2, tlim=tlim,
+                            interval_s=args.interval, mask_deg=args.mask, ionosphere=args.ionosphere,
+                            regional_km=args.regional_km, sigma_zenith_m=args.sigma, weighting=args.weighting,
+                            reference=args.reference, progress=progress, exclude=args.exclude or (),
+                            levelling=args.levelling == "arc", min_arc_epochs=args.min_arc,
+                            gf_threshold_m=args.gf_threshold, screen=not args.no_screening,
+                            c1_corrections=args.c1_corrections, tec_rw_m_per_sqrt_s=args.tec_rw,
+                            min_satellite_obs=args.min_satellite_obs, mapping=args.mapping,
+                            tec_order=2 if args.tec_field == "quadratic" else 1)
+    except DataFileError as exc:
+        if l1_note and f"({l1})" in str(exc):
+            raise DataFileError(f"{exc} ({l1_note})") from None
+        raise
     if args.c1_corrections:
         l1 = "C1W"
     stations, layout = data.stations, data.layout
     pivot = args.pivot.upper() if args.pivot else None
     if args.datum == "pivot":
-        if pivot is None:
-            raise ModelError("--datum pivot needs --pivot PRN")
         if pivot not in layout.svs:
             raise ModelError(f"--pivot {pivot}: not tracked above the mask by any station (tracked: "
                              f"{' '.join(layout.svs)})")
@@ -410,15 +428,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     post = (finals["central"][0], {k: v * fac for k, v in finals["central"][1].items()})
     summary["bias_sinex"] = str(write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times))
     atomic_write_json(out / "summary.json", summary)
-    _print_summary(stations, comparison, finals)
-    wf = summary["satellite_fit"]["worst_fitting"]
-    if wf is not None:
-        what = summary["satellite_fit"]["statistic"]
-        ratio = wf["ratio_to_median"] or float("nan")
-        tail = (f"it stands out, e.g. an elevation-dependent code bias as SVN49's; --compare-exclude {wf['satellite']} "
-                "leaves it out of the comparison" if ratio > 1.2 else "none stands out")
-        print(f"worst-fitting satellite: {wf['satellite']} ({what} {wf['value']:.3f}, {ratio:.2f}× the median "
-              f"satellite: {tail})")
+    print_data_report(summary)
+    print_summary(stations, comparison, finals, fac)
+    print_worst_own(summary["satellite_fit"])
     c0 = series[0]
     print(f"precision: variance factor {c0.variance_factor or float('nan'):.2f}, lag-1 correlation of the predicted "
           f"residuals {c0.lag1_correlation:.3f}: realistic σ = formal σ × {fac:.2f} (used in distnav_dsb.bia)")
@@ -442,6 +454,7 @@ def _split_days(args: argparse.Namespace) -> dict[str, list[str]]:
 def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
     """Several days: one solution per day (``DIR/YYYY-MM-DD/``), the combined one and the day-to-day
     repeatability (``DIR/multiday.json``, ``DIR/distnav_dsb_combined.bia``)."""
+    from distnav.commands.gnss_report import worst_over_days
     from distnav.commands.gnss_sinex_out import write_combined_sinex
     from distnav.models.gnss.multiday import combine_days
     from distnav.models.gnss.products import product_day
@@ -473,18 +486,15 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
             return rc
         summaries[day] = json.loads((out / day / "summary.json").read_text())
     result = combine_days(summaries)
-    wf = {d: (s.get("satellite_fit") or {}).get("worst_fitting") for d, s in summaries.items()}
-    names = [w["satellite"] for w in wf.values() if w]
-    if names:
-        top = max(sorted(set(names)), key=names.count)
-        result["worst_fitting"] = {"satellite": top, "days": names.count(top), "per_day": wf}
-        print(f"worst-fitting satellite over the days: {top} ({names.count(top)} of {len(summaries)} days)")
+    worst_over_days(result, summaries)
     atomic_write_json(out / "multiday.json", result)
     write_combined_sinex(out / "distnav_dsb_combined.bia", result, summaries)
     rep = result["repeatability_ns"]
     med = np.nanmedian([v for v in rep.values() if v is not None]) if rep else float("nan")
+    rx = ", ".join(f"{k[3:]} {v:.3f}" for k, v in sorted(rep.items()) if k.startswith("rx:") and v is not None)
     print(f"combined {len(summaries)} days: {len(result['combined_ns'])} DSBs; day-to-day repeatability (std) median "
-          f"{med:.3f} ns; written {out / 'multiday.json'}, {out / 'distnav_dsb_combined.bia'}")
+          f"{med:.3f} ns over the satellites" + (f", receivers {rx} ns" if rx else "") +
+          f"; written {out / 'multiday.json'}, {out / 'distnav_dsb_combined.bia'}")
     return 0
 
 
@@ -503,27 +513,6 @@ def _default_graph(xyz: np.ndarray, stations: list[str]) -> Any:
     from distnav.commands.gnss import default_graph
 
     return default_graph(xyz, stations)
-
-
-def _print_summary(stations: list[str], comparison: dict[str, Any],
-                   finals: dict[str, tuple[dict[str, float], dict[str, float]]]) -> None:
-    c = finals["central"]
-    sd = np.array([v for k, v in c[1].items() if not k.startswith("rx:") and np.isfinite(v)])
-    rx = ", ".join(f"{k[3:]} {v:+.2f} ± {c[1][k]:.2f}" for k, v in c[0].items() if k.startswith("rx:"))
-    print(f"central filter: {sd.size} satellite DSBs, median std {np.median(sd):.2f} ns; receivers: {rx} ns")
-    for pname, comp in comparison.items():
-        print(f"vs {pname}:")
-        for label in ["central"] + [f"ckf:{s}" for s in stations] + [f"local:{s}" for s in stations]:
-            r = comp.get(label, {})
-            if r.get("n"):
-                line = (f"  {label:<12} n={r['n']:2d}  offset {r['datum_offset_ns']:+7.2f}  RMS (zero-mean) "
-                        f"{r['rms_zero_mean_ns']:5.2f}  max {r['max_abs_zero_mean_ns']:5.2f} ns ({r['worst']})")
-                if "receivers" in r:
-                    line += "; receivers " + ", ".join(f"{k} {v:+.2f}" for k, v in
-                                                       r["receivers"]["difference_ns"].items())
-                print(line)
-            elif label in comp:
-                print(f"  {label:<12} {r.get('note', 'no comparison')}")
 
 
 def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:

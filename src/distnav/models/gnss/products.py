@@ -20,7 +20,10 @@ import numpy as np
 from distnav.errors import DataFileError, ModelError
 
 __all__ = ["ProductDSB", "product_dsbs", "compare_in_datum", "product_day", "DSBEstimates", "read_estimates",
-           "correct_c1"]
+           "correct_c1", "worst_satellite", "WORST_LEVEL"]
+
+WORST_LEVEL = 0.05
+"""Family-wise level of :func:`worst_satellite`'s "stands out" flag (Bonferroni over the compared satellites)."""
 
 
 @dataclass(frozen=True)
@@ -34,6 +37,7 @@ class ProductDSB:
     station: dict[str, float]
     notes: list[str] = field(default_factory=list)
     day: np.datetime64 | None = None
+    pair: str = ""
 
 
 def product_day(path: str | Path) -> np.datetime64 | None:
@@ -104,13 +108,36 @@ def product_dsbs(paths: Sequence[str | Path], svs: Sequence[str], stations: Sequ
             if (obs1, obs2) != ("C1W", "C2W"):
                 notes.append(f"IONEX DCBs are P1-P2 (C1W-C2W); estimates are {obs1}-{obs2}: differences include "
                              f"the satellites' {obs1}-C1W biases")
-        out.append(ProductDSB(name, path, kind, sat, sta, notes, product_day(path)))
+        out.append(ProductDSB(name, path, kind, sat, sta, notes, product_day(path),
+                              f"{obs1}-{obs2}" if kind == "sinex" else "C1W-C2W"))
     return out
 
 
 def _stats(d: np.ndarray) -> dict[str, float]:
     return {"mean_ns": float(d.mean()), "rms_ns": float(np.sqrt(np.mean(d**2))),
             "max_abs_ns": float(np.abs(d).max())}
+
+
+def worst_satellite(difference_ns: Mapping[str, float], *, level: float = WORST_LEVEL) -> dict[str, Any] | None:
+    """The worst-fitting satellite of a product comparison: the largest |d| of the datum-aligned differences
+    ``difference_ns``, set against the RMS of the *other* satellites' differences. It ``stands_out`` when
+    ``|d| > k · RMS(others)`` with ``k`` the two-sided normal quantile at ``level`` divided over the n satellites
+    (Bonferroni: ``k = Φ⁻¹(1 − level/(2n))``, 3.14 for n = 30 at 5 %) — the outlier test of the largest of n
+    normal differences whose σ is estimated from the others. None with fewer than 3 satellites."""
+    from statistics import NormalDist
+
+    names = [k for k, v in difference_ns.items() if np.isfinite(v)]
+    if len(names) < 3:
+        return None
+    d = np.array([difference_ns[k] for k in names])
+    j = int(np.argmax(np.abs(d)))
+    others = np.delete(d, j)
+    rms_others = float(np.sqrt(np.mean(others**2)))
+    k = NormalDist().inv_cdf(1.0 - level / (2.0 * len(names)))
+    ratio = float(abs(d[j]) / rms_others) if rms_others > 0 else float("inf")
+    return {"satellite": names[j], "difference_ns": float(d[j]), "rms_others_ns": rms_others,
+            "ratio_to_rms_others": ratio, "critical_ratio": float(k), "stands_out": bool(ratio > k),
+            "level": level, "n": len(names)}
 
 
 def compare_in_datum(sat_ns: dict[str, float], rx_ns: dict[str, float], product: ProductDSB, *,
@@ -124,7 +151,9 @@ def compare_in_datum(sat_ns: dict[str, float], rx_ns: dict[str, float], product:
     """
     common = sorted(s for s in sat_ns if s in product.satellite and np.isfinite(sat_ns[s]) and s not in exclude)
     if not common:
-        return {"n": 0, "note": f"no satellite in common with {product.name}"}
+        what = (f"{product.name} has no {product.pair} satellite DSB" if not product.satellite and product.pair
+                else f"no satellite in common with {product.name}")
+        return {"n": 0, "note": what}
     raw = np.array([sat_ns[s] - product.satellite[s] for s in common])
     c = float(raw.mean())
     d = raw - c
@@ -133,10 +162,14 @@ def compare_in_datum(sat_ns: dict[str, float], rx_ns: dict[str, float], product:
                            float(np.abs(d).max()), "worst": common[int(np.argmax(np.abs(d)))],
                            "difference_ns": dict(zip(common, d.tolist(), strict=True)),
                            "reference_ns": {s: product.satellite[s] for s in common}}
+    out["worst_fitting"] = worst_satellite(out["difference_ns"])
     rx = {r: rx_ns[r] - product.station[r] + c for r in rx_ns if r in product.station and np.isfinite(rx_ns[r])}
     if rx:
         out["receivers"] = {"difference_ns": rx, "reference_ns": {r: product.station[r] for r in rx},
                             **_stats(np.array(list(rx.values())))}
+    missing = sorted(r for r in rx_ns if r not in product.station and np.isfinite(rx_ns[r]))
+    if missing:
+        out["receivers_not_in_product"] = missing
     return out
 
 

@@ -1,0 +1,107 @@
+"""Issue 14 acceptance audit: the gaps found running every Deliver item through the command line — the
+worst-fitting satellite from a product comparison (and from the satellites' own residuals, with a robust
+"stands out" test), the L1 code matched to a product that has only C1W DSBs (GFZ), and the comparison saying
+when a product lacks the code pair or a receiver."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from distnav.cli import main
+from distnav.commands.gnss_report import choose_l1_code
+from distnav.models.gnss.gfnetwork import SatelliteFit
+from distnav.models.gnss.products import ProductDSB, compare_in_datum, worst_satellite
+
+IGS = "gnss/igs_2024010_bele_dgar"
+CAS = "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"
+GFZ = "GFZ0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"
+
+
+def test_worst_satellite_against_the_bonferroni_normal_limit() -> None:
+    others = {f"G{k:02d}": (-1.0) ** k * 0.5 for k in range(2, 21)}           # 19 satellites, RMS 0.5 ns
+    n = len(others) + 1
+    k = stats.norm.ppf(1.0 - 0.05 / (2 * n))                                   # independent quantile: scipy
+    for d, out in ((2.0, True), (1.2, False)):                                 # 4× and 2.4× the others' RMS
+        w = worst_satellite({**others, "G01": d})
+        assert w is not None and w["satellite"] == "G01" and w["n"] == n
+        assert w["rms_others_ns"] == pytest.approx(0.5)
+        assert w["ratio_to_rms_others"] == pytest.approx(d / 0.5)
+        assert w["critical_ratio"] == pytest.approx(k, rel=1e-9)
+        assert w["stands_out"] is out
+    assert worst_satellite({"G01": 1.0, "G02": -1.0}) is None                  # too few to say
+
+
+def test_comparison_names_a_missing_pair_and_missing_receivers() -> None:
+    empty = ProductDSB("GFZ", Path("GFZ.BIA"), "sinex", {}, {}, pair="C1C-C2W")
+    r = compare_in_datum({"G01": 1.0}, {}, empty)
+    assert r["n"] == 0 and "has no C1C-C2W satellite DSB" in r["note"]
+    prod = ProductDSB("CAS", Path("CAS.BIA"), "sinex", {"G01": 1.0, "G02": 2.0, "G03": -3.0}, {"BELE": 0.5},
+                      pair="C1C-C2W")
+    r = compare_in_datum({"G01": 1.1, "G02": 1.9, "G03": -3.0}, {"BELE": 0.4, "DGAR": 1.0}, prod)
+    assert r["receivers_not_in_product"] == ["DGAR"] and set(r["receivers"]["difference_ns"]) == {"BELE"}
+    d = r["difference_ns"]
+    assert r["worst_fitting"]["satellite"] == max(d, key=lambda s: abs(d[s]))
+
+
+def test_satellite_fit_robust_z() -> None:
+    code = np.array([0.30, 0.31, 0.29, 0.32, 0.30, 0.28, 0.31, 0.45])          # the last: SVN49-like
+    fit = SatelliteFit(tuple(f"G{k:02d}" for k in range(1, 9)), np.zeros(8), np.zeros(8), np.full(8, 100),
+                       code_rms_m=code, code_n=np.full(8, 100))
+    med = np.median(code)
+    mad = 1.4826 * np.median(np.abs(code - med))                               # by hand
+    w = fit.as_dict()["worst_fitting"]
+    assert w["satellite"] == "G08" and w["robust_z"] == pytest.approx((0.45 - med) / mad)
+    assert w["stands_out"] and w["ratio_to_median"] == pytest.approx(0.45 / med)
+    mild = code.copy()
+    mild[-1] = 0.35                                                            # 1.17× the median: not flagged
+    w = SatelliteFit(fit.svs, fit.rms_m, fit.rms_w, fit.n, code_rms_m=mild, code_n=fit.code_n).as_dict()
+    assert w["worst_fitting"]["satellite"] == "G08" and not w["worst_fitting"]["stands_out"]
+
+
+def _ns(bias: list[str] | None, l1: str | None = None) -> argparse.Namespace:
+    return argparse.Namespace(l1_code=l1, l2_code="C2W", bias=bias)
+
+
+def test_l1_code_follows_the_products(shared_data: Path) -> None:
+    d = shared_data / IGS
+    cas, gfz = str(d / CAS), str(d / GFZ)
+    assert choose_l1_code(_ns(None)) == ("C1C", None)
+    assert choose_l1_code(_ns([cas])) == ("C1C", None)
+    assert choose_l1_code(_ns([gfz, cas])) == ("C1C", None)                  # GFZ C1W-C2W chained with CAS C1C-C1W
+    code, note = choose_l1_code(_ns([gfz]))                                   # GFZ alone: only C1W-C2W
+    assert code == "C1W" and note is not None and "GFZ" in note
+    assert choose_l1_code(_ns([gfz], "c1c")) == ("C1C", None)                 # given: kept
+
+
+def test_cli_worst_fitting_vs_product_and_gfz_on_c1w(shared_data: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    d = shared_data / IGS
+    common = ["gnss", "ionosphere", "--obs", str(d / "dgar0100.24o.gz"), "--nav", str(d / "brdc0100.24n.gz"),
+              "--tlim", "2024-01-10T06:00", "2024-01-10T08:00", "--interval", "60", "--no-progress"]
+    assert main([*common, "--bias", str(d / CAS), "--out", str(tmp_path / "cas")]) == 0
+    text = capsys.readouterr().out
+    s = json.loads((tmp_path / "cas" / "summary.json").read_text())
+    ((name, comp),) = s["comparison"].items()
+    diff = comp["central"]["difference_ns"]
+    worst = max(diff, key=lambda k: abs(diff[k]))
+    assert comp["central"]["worst_fitting"]["satellite"] == worst
+    assert f"worst-fitting satellite vs CAS: {worst} ({diff[worst]:+.2f} ns" in text
+    assert "worst-fitting satellite: " in text and "own residuals" in text
+    assert "realistic: formal ×" in text
+    assert main(["gnss", "compare", "--estimates", str(tmp_path / "cas"), "--bias", str(d / CAS)]) == 0
+    text = capsys.readouterr().out
+    assert f"worst-fitting satellite vs CAS: {worst}" in text and "--compare-exclude" not in text
+    # GFZ alone gives C1W-C2W only: the default L1 code follows it (DGAR tracks P1), and the run is compared
+    assert main([*common, "--bias", str(d / GFZ), "--out", str(tmp_path / "gfz")]) == 0
+    err = capsys.readouterr().err
+    assert "--l1-code C1W chosen to match the products" in err and "WARNING: L1 code C1C" not in err
+    s = json.loads((tmp_path / "gfz" / "summary.json").read_text())
+    assert s["codes"]["L1"] == "C1W"
+    (comp,) = s["comparison"].values()
+    assert comp["central"]["n"] >= 8 and "DGAR" in comp["central"]["receivers"]["difference_ns"]
