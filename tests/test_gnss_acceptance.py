@@ -105,3 +105,22 @@ def test_cli_worst_fitting_vs_product_and_gfz_on_c1w(shared_data: Path, tmp_path
     assert s["codes"]["L1"] == "C1W"
     (comp,) = s["comparison"].values()
     assert comp["central"]["n"] >= 8 and "DGAR" in comp["central"]["receivers"]["difference_ns"]
+
+
+def test_raw_code_kept_where_no_arc_is_long_enough_is_counted() -> None:
+    from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ
+    from distnav.models.gnss.levelling import level_station
+    from distnav.models.gnss.observables import mu
+
+    t = 30.0 * np.arange(40)
+    rho, iono = 2.2e7 + 100.0 * t / 30.0, 3.0 + 0.001 * t
+    p1, p2 = rho + iono, rho + mu(2) * iono
+    phi1 = rho - iono + 1.0e6 * C_M_S / GPS_FREQUENCIES_HZ[1]
+    phi2 = rho - mu(2) * iono + 1.1e6 * C_M_S / GPS_FREQUENCIES_HZ[2]
+    cols = [np.stack([x, x], axis=1) for x in (p1, p2, phi1, phi2)]
+    for c in cols:
+        c[6:, 1] = np.nan                                        # G02: 6 epochs, shorter than the 10 kept
+    for fallback, raw in ((True, 6), (False, 0)):
+        lev = level_station(t, ("G01", "G02"), *cols, screen=False, fallback_raw=fallback)
+        a = lev.arc_summary()
+        assert a["arcs"] == 1 and a["dropped_short"] == 1 and a["raw_code_observations"] == raw

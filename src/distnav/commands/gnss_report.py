@@ -67,6 +67,10 @@ def print_summary(stations: Sequence[str], comparison: Mapping[str, Any],
     rx = ", ".join(f"{k[3:]} {v:+.2f} ± {c[1][k] * f:.2f}" for k, v in c[0].items() if k.startswith("rx:"))
     print(f"central filter: {sd.size} satellite DSBs, median σ {np.median(sd):.2f} ns (realistic: formal × "
           f"{f:.2f}); receivers: {rx} ns")
+    for label, (val, _) in finals.items():
+        if label != "central" and not any(np.isfinite(v) for v in val.values()):
+            print(f"note: {label} has no final DSB estimate: its data and those of the stations within --kn "
+                  f"consensus rounds do not determine them (raise --kn, or add links with --graph)")
     for pname, comp in comparison.items():
         print(f"vs {pname}:")
         for label in ["central"] + [f"ckf:{s}" for s in stations] + [f"local:{s}" for s in stations]:
@@ -125,9 +129,11 @@ def print_data_report(summary: Mapping[str, Any]) -> None:
         s = scr.get(sta, {})
         top = sorted((s.get("removed_per_satellite") or {}).items(), key=lambda kv: (-kv[1], kv[0]))[:3]
         most = f" (most: {', '.join(f'{k} {v}' for k, v in top)})" if top else ""
+        raw = (f"; {a['raw_code_observations']} raw (unlevelled) code observations used where no arc was long "
+               f"enough" if a.get("raw_code_observations") else "")
         print(f"{sta}: {a['arcs']} levelled arcs, median {a['median_epochs']:.0f} epochs (new arcs: "
-              f"{starts or 'none'}; {a['dropped_short']} short arcs dropped); w-test removed {s.get('removed', 0)} of "
-              f"{s.get('tested', 0)} code observations{most}")
+              f"{starts or 'none'}; {a['dropped_short']} short arcs dropped{raw}); w-test removed "
+              f"{s.get('removed', 0)} of {s.get('tested', 0)} code observations{most}")
     if tests := summary.get("ckf_innovation_tests"):
         per = ", ".join(f"{k} {v['removed']} of {v['tested']}" for k, v in tests["per_station"].items())
         print(f"CKF innovation test at {tests['level']:g} (|w| > {tests['critical_value']:.2f}), each receiver on its "

@@ -85,13 +85,15 @@ class LevelledStation:
     fit_n: np.ndarray | None = None
 
     def arc_summary(self) -> dict[str, Any]:
-        """Counts of arcs, starts by reason, short arcs dropped, median arc length and code RMS."""
+        """Counts of arcs, starts by reason, short arcs dropped, median arc length and code RMS, and the raw
+        (unlevelled) code observations kept where no arc was long enough (``fallback_raw``)."""
         n = np.array([a.n_epochs for a in self.arcs])
         rms = np.array([a.code_rms_m for a in self.arcs])
         return {"arcs": len(self.arcs), "starts": self.starts, "dropped_short": self.dropped_short,
                 "median_epochs": float(np.median(n)) if n.size else 0.0,
                 "median_code_rms_m": float(np.median(rms)) if rms.size else float("nan"),
-                "removed_by_screening": int(self.removed.sum())}
+                "removed_by_screening": int(self.removed.sum()),
+                "raw_code_observations": int(((self.arc < 0) & np.isfinite(self.gf_m)).sum())}
 
     def screening_summary(self, svs: Sequence[str]) -> dict[str, Any]:
         """What the station's own screening removed (per satellite) and its w-test summary."""
