@@ -245,6 +245,8 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-tlim-other-day", ("gnss", "ionosphere", "--obs", "{obsday}", "--nav", "{nav}", *o,
                                                "--tlim", "2024-01-11T00:00", "2024-01-11T02:00"),
             "outside the day(s) of the --obs files (2024-01-10)"),
+        Cli("gnss-ionosphere-nav-of-one-day-for-two", ("gnss", "ionosphere", "--obs", "{obsday}", "{obsday2}", "--nav",
+                                                       "{navday}", *o), "no --nav file of 2024-01-11"),
         Cli("gnss-ionosphere-levelling", (*io, *o, "--levelling", "smooth"), "invalid choice"),
         Cli("gnss-ionosphere-min-arc", (*io, *o, "--min-arc", "0"), "--min-arc"),
         Cli("gnss-ionosphere-gf-threshold", (*io, *o, "--gf-threshold", "0"), "--gf-threshold"),
@@ -271,11 +273,12 @@ def _expand(argv: tuple[str, ...], tmp: Path) -> list[str]:
     (tmp / "afile.txt").write_text("not a folder\n")
     (tmp / "ranges.csv").write_text(GOOD_RANGES)
     (tmp / "known.csv").write_text(GOOD_KNOWN)
-    for name in ("obs.rnx", "obs2.rnx", "nav.rnx", "dgar0100.24o"):
+    for name in ("obs.rnx", "obs2.rnx", "nav.rnx", "dgar0100.24o", "dgar0110.24o", "brdc0100.24n"):
         (tmp / name).write_text("dummy\n")
     subs = {"{tmp}": str(tmp), "{file}": str(tmp / "afile.txt"), "{ranges}": str(tmp / "ranges.csv"),
             "{known}": str(tmp / "known.csv"), "{obs}": str(tmp / "obs.rnx"), "{obs2}": str(tmp / "obs2.rnx"),
-            "{nav}": str(tmp / "nav.rnx"), "{obsday}": str(tmp / "dgar0100.24o")}
+            "{nav}": str(tmp / "nav.rnx"), "{obsday}": str(tmp / "dgar0100.24o"),
+            "{obsday2}": str(tmp / "dgar0110.24o"), "{navday}": str(tmp / "brdc0100.24n")}
     out = []
     for a in argv:
         if a.startswith("{write:"):

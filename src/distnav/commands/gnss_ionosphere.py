@@ -465,10 +465,11 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
     navs: dict[str, str] = {}
     for f in args.nav or []:
         navs.setdefault(str(product_day(f)), f)
-    if args.nav and len(args.nav) > 1:
+    if args.nav and (len(args.nav) > 1 or all(product_day(f) is not None for f in args.nav)):
         missing = [d for d in days if d not in navs]
-        if missing:
-            raise DataFileError(f"no --nav file of {', '.join(missing)} (navigation files: {', '.join(args.nav)})")
+        if missing:                              # a broadcast file of another day leaves most satellites out
+            raise DataFileError(f"no --nav file of {', '.join(missing)} (navigation files: {', '.join(args.nav)}): "
+                                f"give one per day")
         if len(navs) < len(args.nav):
             raise DataFileError(f"two --nav files of the same day among {', '.join(args.nav)}")
     out = Path(args.out)
