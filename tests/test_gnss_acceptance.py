@@ -107,17 +107,36 @@ def test_cli_worst_fitting_vs_product_and_gfz_on_c1w(shared_data: Path, tmp_path
     assert comp["central"]["n"] >= 8 and "DGAR" in comp["central"]["receivers"]["difference_ns"]
 
 
-def test_raw_code_kept_where_no_arc_is_long_enough_is_counted() -> None:
+def _two_satellites(T: int = 40) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Noise-free codes and phases (metres) of two satellites with the same range and ionosphere, 30 s."""
     from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ
-    from distnav.models.gnss.levelling import level_station
     from distnav.models.gnss.observables import mu
 
-    t = 30.0 * np.arange(40)
+    t = 30.0 * np.arange(T)
     rho, iono = 2.2e7 + 100.0 * t / 30.0, 3.0 + 0.001 * t
     p1, p2 = rho + iono, rho + mu(2) * iono
     phi1 = rho - iono + 1.0e6 * C_M_S / GPS_FREQUENCIES_HZ[1]
     phi2 = rho - mu(2) * iono + 1.1e6 * C_M_S / GPS_FREQUENCIES_HZ[2]
-    cols = [np.stack([x, x], axis=1) for x in (p1, p2, phi1, phi2)]
+    return t, [np.stack([x, x], axis=1) for x in (p1, p2, phi1, phi2)]
+
+
+def test_screening_report_tells_the_w_test_from_the_slip_detector() -> None:
+    from distnav.models.gnss.levelling import level_station
+
+    t, cols = _two_satellites(60)
+    cols[0][30, 0] += 15.0                                      # one wild code value: an MW outlier, not a slip
+    off = level_station(t, ("G01", "G02"), *cols, screen=False).screening_summary(["G01", "G02"])
+    assert off["removed"] == 1 and off["removed_mw_outliers"] == 1
+    assert off["removed_w_test"] == 0 and off["w_tested"] == 0
+    on = level_station(t, ("G01", "G02"), *cols, screen=True).screening_summary(["G01", "G02"])
+    assert on["removed_mw_outliers"] == 1 and on["w_tested"] == 2 * 60 - 1    # every other code value w-tested
+    assert on["removed"] == on["removed_w_test"] + 1
+
+
+def test_raw_code_kept_where_no_arc_is_long_enough_is_counted() -> None:
+    from distnav.models.gnss.levelling import level_station
+
+    t, cols = _two_satellites()
     for c in cols:
         c[6:, 1] = np.nan                                        # G02: 6 epochs, shorter than the 10 kept
     for fallback, raw in ((True, 6), (False, 0)):

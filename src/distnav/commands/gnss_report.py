@@ -128,12 +128,15 @@ def print_data_report(summary: Mapping[str, Any]) -> None:
         starts = ", ".join(f"{k} {v}" for k, v in sorted(a["starts"].items()) if k != "first")
         s = scr.get(sta, {})
         top = sorted((s.get("removed_per_satellite") or {}).items(), key=lambda kv: (-kv[1], kv[0]))[:3]
-        most = f" (most: {', '.join(f'{k} {v}' for k, v in top)})" if top else ""
+        most = f" (most removed: {', '.join(f'{k} {v}' for k, v in top)})" if top else ""
         raw = (f"; {a['raw_code_observations']} raw (unlevelled) code observations used where no arc was long "
                f"enough" if a.get("raw_code_observations") else "")
+        mw = (f", {s['removed_mw_outliers']} code outliers at the Melbourne–Wübbena test"
+              if s.get("removed_mw_outliers") else "")
+        wt = (f"w-test removed {s.get('removed_w_test', s.get('removed', 0))} of {s.get('w_tested', 0)} levelled "
+              f"code observations" if s.get("w_tested") else "no w-test screening")
         print(f"{sta}: {a['arcs']} levelled arcs, median {a['median_epochs']:.0f} epochs (new arcs: "
-              f"{starts or 'none'}; {a['dropped_short']} short arcs dropped{raw}); w-test removed "
-              f"{s.get('removed', 0)} of {s.get('tested', 0)} code observations{most}")
+              f"{starts or 'none'}; {a['dropped_short']} short arcs dropped{raw}); {wt}{mw}{most}")
     if tests := summary.get("ckf_innovation_tests"):
         per = ", ".join(f"{k} {v['removed']} of {v['tested']}" for k, v in tests["per_station"].items())
         print(f"CKF innovation test at {tests['level']:g} (|w| > {tests['critical_value']:.2f}), each receiver on its "

@@ -83,6 +83,7 @@ class LevelledStation:
     tests: ObservationTests | None = None
     fit_wss: np.ndarray | None = None
     fit_n: np.ndarray | None = None
+    mw_outlier: np.ndarray | None = None
 
     def arc_summary(self) -> dict[str, Any]:
         """Counts of arcs, starts by reason, short arcs dropped, median arc length and code RMS, and the raw
@@ -102,8 +103,12 @@ class LevelledStation:
             per_sat[svs[s]] = per_sat.get(svs[s], 0) + 1
         tests = self.tests.summary() if self.tests is not None else {}
         tests.pop("removed", None)
+        mw = int(self.mw_outlier.sum()) if self.mw_outlier is not None else 0
+        w_tested = int(np.isfinite(self.tests.w).sum()) if self.tests is not None else 0
         return {"tested": int(self.tests.w.size) if self.tests is not None else 0,
-                "removed": int(self.removed.sum()), "removed_per_satellite": per_sat, **tests}
+                "removed": int(self.removed.sum()), "removed_per_satellite": per_sat,
+                "w_tested": w_tested, "removed_w_test": int(self.removed.sum()) - mw, "removed_mw_outliers": mw,
+                **tests}
 
 
 GF_SIGMAS = 4.0
@@ -272,6 +277,7 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
     out = np.full((T, S), np.nan)
     arc_id = np.full((T, S), -1, np.int64)
     removed = np.zeros((T, S), bool)
+    mw_out = np.zeros((T, S), bool)
     w_all = np.full((T, S), np.nan)
     arcs: list[ArcStatistics] = []
     starts: dict[str, int] = {}
@@ -284,6 +290,7 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
                                      None if lli is None else lli[:, s], max_gap_s=gap,
                                      gf_threshold_m=gf_threshold_m, gf_sigmas=gf_sigmas)
         removed[:, s] |= outl
+        mw_out[:, s] = outl
         for j, why in enumerate(reasons):
             starts[why] = starts.get(why, 0) + 1
             ep = np.flatnonzero(a == j)
@@ -315,7 +322,7 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
     tests = ObservationTests(node=np.full(flat_w.size, node, np.int64), w=flat_w, critical_value=k, level=level,
                              flagged=np.abs(np.nan_to_num(flat_w)) > k,
                              removed=tuple(np.flatnonzero(removed[tested]).tolist()))
-    return LevelledStation(out, arc_id, arcs, removed, starts, dropped, tests, fit_wss, fit_n)
+    return LevelledStation(out, arc_id, arcs, removed, starts, dropped, tests, fit_wss, fit_n, mw_out)
 
 
 def station_sigma_factors(levelled: Sequence[LevelledStation]) -> np.ndarray:
