@@ -1,26 +1,29 @@
-"""``distnav gnss ionosphere``: TEC and between-satellite DCBs of a receiver network from real RINEX code data, by
+"""``distnav gnss ionosphere``: TEC and receiver + satellite DCBs of a receiver network from real RINEX code data, by
 the central filter, the single-receiver (local) filters and the consensus Kalman filter (paper 003 §5).
 
     distnav gnss ionosphere --obs FILE... (--nav FILE | --sp3 FILE...) [--graph EDGES.csv] [--kn K]
                             [--bias FILE...] [--out DIR]
 
-Per station the geometry-free code ``(P2 − P1)/(μ2 − μ1)`` is formed from the chosen L1/L2 codes (default C1C and
-C2W; RINEX 2 ``C1`` = C1C, ``P1`` = C1W, ``P2`` = C2W — use ``--l1-code C1W`` for P1/P2, the pair of IONEX DCBs);
-the model is :mod:`distnav.models.gnss.ionosphere` (paper 003 eq. (49): vertical delay ν_o and gradients ν_φ, ν_ψ
-of a regional single layer — one per receiver when the network spans more than ``--regional-km`` — plus
-between-satellite DCBs relative to a pivot satellite, PRN 10 by default). Outputs in ``DIR``:
+Per station the geometry-free code ``(P_b − P_1)/(μ_b − 1)`` is formed from the chosen codes (default C1C and C2W,
+or C1W when no ``--bias`` product gives C1C DSBs; RINEX 2 ``C1`` = C1C, ``P1`` = C1W, ``P2`` = C2W; C5Q/C5X use
+the L5 factor), levelled to the carrier per arc (slips by geometry-free phase and Melbourne–Wübbena) and
+w-tested by each station on its own data. The model (:mod:`distnav.models.gnss.gfbias`, docs/ionosphere.md):
+a regional single-layer VTEC field per ionosphere (one per receiver when the network spans more than
+``--regional-km``) plus receiver *and* satellite DSBs, output in the ``--datum`` S-basis (zero-mean satellites by
+default; a ``--pivot`` satellite; a ``--reference`` receiver). Outputs in ``DIR``:
 
 * ``tec_dcb_per_epoch.csv`` — per epoch, filter (``central``, ``local:STA``, ``ckf:STA``) and parameter: value
-  and standard deviation (TEC in metres of L1 delay and in TECU, DCBs in ns of ``DSB^s − DSB^p``). The CKF
-  standard deviations come from the error-variance recursion of paper 003 Fig. 7.
-* ``dcb_final.csv`` — the last-epoch DCBs of every filter and, with ``--bias``, of each product aligned to the
-  same pivot (``DSB^s − DSB^p`` of the same code pair), with the differences.
-* ``summary.json`` — settings, stations, codes, pivot, graph, final TEC, comparison statistics (mean, RMS, RMS
-  after removing the mean difference = a zero-mean datum, max) per filter and product.
+  and formal standard deviation (TEC in metres of L1 delay and in TECU, DSBs in ns).
+* ``dcb_final.csv`` — the last-epoch DSBs of every filter and, with ``--bias``, each product's.
+* ``arcs.csv`` — every levelled arc (start reason, offset, code RMS, removed observations).
+* ``distnav_dsb.bia`` — Bias-SINEX 1.00 of the central filter (realistic σ).
+* ``summary.json`` — settings, codes, arcs, screening, precision, the satellites' fit, and per filter and product
+  the datum-aligned comparison (mean, RMS, max, per satellite and receiver, the worst-fitting satellite).
 
-``--bias`` accepts Bias-SINEX files (CAS/GFZ ``.BIA``; DSBs chained across files as in ``distnav gnss compare``)
-and IONEX files whose header carries the DCB block between ``START OF AUX DATA`` and ``END OF AUX DATA``
-(P1−P2, i.e. C1W−C2W satellite DCBs). Sign convention of both: biases add to the observations.
+Files of several days (IGS names) give one folder per day, ``multiday.json`` (combined, repeatability) and
+``distnav_dsb_combined.bia``. ``--bias`` takes Bias-SINEX (CAS/GFZ ``.BIA``; DSBs chained across the files as in
+``distnav gnss compare``) and IONEX files with a DCB block (``START OF AUX DATA``, P1−P2 = C1W−C2W); a product of
+another day is refused unless ``--allow-other-day``. Sign convention of both: biases add to the observations.
 """
 
 from __future__ import annotations
@@ -519,7 +522,7 @@ def _default_graph(xyz: np.ndarray, stations: list[str]) -> Any:
 def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     """Add ``distnav gnss ionosphere`` to the ``gnss`` sub-command group (``set_defaults(func=run_ionosphere)``)."""
     p = gnss_subparsers.add_parser(
-        "ionosphere", help="TEC and between-satellite DCBs by central, local and consensus Kalman filters "
+        "ionosphere", help="TEC and receiver + satellite DCBs by central, local and consensus Kalman filters "
                            "(paper 003 §5)", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     from distnav.commands.gnss import add_data_arguments  # gnss.py registers this module: import lazily
 
