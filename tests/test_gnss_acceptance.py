@@ -143,3 +143,21 @@ def test_raw_code_kept_where_no_arc_is_long_enough_is_counted() -> None:
         lev = level_station(t, ("G01", "G02"), *cols, screen=False, fallback_raw=fallback)
         a = lev.arc_summary()
         assert a["arcs"] == 1 and a["dropped_short"] == 1 and a["raw_code_observations"] == raw
+
+
+def test_console_names_a_ckf_node_without_estimates_and_prints_realistic_sigma(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from distnav.commands.gnss_report import print_summary
+
+    nan = float("nan")
+    finals = {"central": ({"rx:A": 1.0, "rx:B": -1.0, "G01": 0.5, "G02": -0.5}, {"rx:A": 0.1, "rx:B": 0.2,
+                                                                               "G01": 0.1, "G02": 0.3}),
+              "ckf:A": ({"rx:A": 1.0, "rx:B": -1.0, "G01": 0.5, "G02": -0.5}, {"rx:A": 0.1, "rx:B": 0.2,
+                                                                             "G01": 0.1, "G02": 0.3}),
+              "ckf:B": ({"rx:A": nan, "rx:B": nan, "G01": nan, "G02": nan}, {k: nan for k in ("rx:A", "rx:B",
+                                                                                           "G01", "G02")})}
+    print_summary(["A", "B"], {}, finals, 3.0)
+    out = capsys.readouterr().out
+    assert "median σ 0.60 ns (realistic: formal × 3.00)" in out          # median(0.1, 0.3) × 3
+    assert "A +1.00 ± 0.30, B -1.00 ± 0.60" in out
+    assert "note: ckf:B has no final DSB estimate" in out and "note: ckf:A" not in out
