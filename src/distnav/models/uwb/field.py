@@ -11,10 +11,14 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
    robust fit of every link is first run from several starts (:func:`choose_start`: the lowest Cauchy cost of
    all the links wins) and the exclusions start from there; exclusions that leave a solution fitting all the
    links more than :data:`DISAGREE_RATIO` × worse are rejected (``revert``). σ admit the antenna delays the
-   model does not estimate (:mod:`distnav.models.uwb.precision`, ``delay_sigma_m``). With LM in metres and the
-   Cauchy loss (``FieldOptions.nlos_aware``, the default) every fit uses the *one-sided* Cauchy loss (NLOS only
-   lengthens a range), its scale is tightened after the choice of start (:func:`tighten`), the exclusions and
-   costs work at that scale and the kept links are re-fitted at ``loss_scale_m`` at the end (:func:`_polish`).
+   model does not estimate (:mod:`distnav.models.uwb.precision`, ``delay_sigma_m``). In metres with the
+   Cauchy loss (``FieldOptions.nlos_aware``, the default; LM and every distributed solver but CSG) every fit uses
+   the *one-sided* Cauchy loss (NLOS only lengthens a range), its scale is tightened after the choice of start
+   (:func:`tighten`), the exclusions and costs work at that scale and the kept links are re-fitted at
+   ``loss_scale_m`` at the end (:func:`_polish`). The distributed solvers take the same steps through the
+   exchange (:mod:`distnav.models.uwb.field_fits`: their warm re-fits are the final distributed LM phase from the
+   last solution) but not the multi-start (LM fits); network totals: the residual scatter that sets the tight
+   scale, the costs of all the links (revert, per-anchor check, polish), the link tests' robust scale.
 3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
 
 The solve call goes to :func:`distnav.algorithms.csg.solve` by name, with ``objective`` passed when the solver
@@ -533,8 +537,8 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
         try:
             out = neighbourhood_precision(kept, np.asarray(res.estimates, float),
                                           exchange=None if exchange is None else exchange(kept), objective=objective,
-                                          sigma_m=opts.sigma_m, loss="linear" if opts.solver.upper() == "CSG"
-                                          else opts.loss, loss_scale_m=opts.loss_scale_m, hops=PRECISION_HOPS,
+                                          sigma_m=opts.sigma_m, loss=_solver_kwargs(opts).get("loss", "linear"),
+                                          loss_scale_m=opts.loss_scale_m, hops=PRECISION_HOPS,
                                           delay_sigma_m=opts.delay_sigma_m if opts.considers_delays
                                           and objective == "metres" else 0.0)
         except ModelError as err:
