@@ -314,7 +314,8 @@ def test_tighten_halves_the_one_sided_scale_down_to_three_times_the_scatter():
 
     opts = FieldOptions(range_offsets="none")
     assert opts.nlos_aware and not FieldOptions(nlos_loss=False).nlos_aware
-    assert not FieldOptions(loss="huber").nlos_aware and not FieldOptions(solver="N-CLM").nlos_aware
+    assert not FieldOptions(loss="huber").nlos_aware and not FieldOptions(solver="CSG").nlos_aware
+    assert FieldOptions(solver="N-CLM").nlos_aware and FieldOptions(solver="N-CSG-TBLS").nlos_aware  # issue 13
     clean = _grid(0.002, {5: 1.2, 20: 0.8})
     assert clean.initial_m is not None
     pos, scale, fits = tighten(clean, clean.initial_m, opts)

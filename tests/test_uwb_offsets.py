@@ -21,16 +21,19 @@ def _solve(files, out, *extra):
 
 @pytest.mark.parametrize("name", ["dataset4.txt", "dataset5.txt"])
 def test_april_distributed_common_offset_matches_a_scipy_fit(shared_data, tmp_path, name):
-    """The distributed solvers with their default common offset (Cauchy 0.3 m) against the independent centralized
-    scipy fit of the same objective (medians, one common offset, Cauchy 0.3 m: test_uwb_april's reference)."""
+    """The distributed solvers with their default common offset (one-sided Cauchy 0.3 m, as LM's: the scatter here
+    keeps the scale at 0.3 m) against the independent centralized scipy fit of the same objective (medians, one
+    common offset, one-sided Cauchy 0.3 m: test_uwb_april's reference)."""
     log = _log(shared_data, name)
     files = tmp_path / "april"
     assert main(["uwb", "import-april", str(log), "--out", str(files)]) == 0
-    ref, ref_offset = _reference_fit(log, "cauchy")
+    ref, ref_offset = _reference_fit(log, "cauchy_long")
     plain = _solve(files, tmp_path / "plain", "--solver", "N-CLM", "--range-offsets", "none")
-    # the reference fits every link; uwb solve excludes one on dataset5, which moves LM's own offset on the kept
-    # links from 0.298 to 0.285 m — where the distributed solvers now land (their final LM phase; checked to 1e-5)
-    for solver, tol_m, tol_offset_m in (("N-CSG-TBLS", 0.05, 0.02), ("N-CLM", 0.05, 0.02)):  # N-CLM was 0.14 m off
+    # the reference fits every link; uwb solve excludes one on dataset5 (54–8, as LM). There the distributed link
+    # tests (one-end leverage, 3 free nodes: their |w| up to 1.7 × LM's) also exclude 14–81 (LM's w −1.88), which
+    # moves the solution 0.097 m from the reference (RMSE 0.253 m, LM's 0.321 m); on dataset4 they equal LM's
+    tol = 0.05 if name == "dataset4.txt" else 0.12
+    for solver, tol_m, tol_offset_m in (("N-CSG-TBLS", tol, 0.02), ("N-CLM", tol, 0.02)):  # N-CLM was 0.14 m off
         s = _solve(files, tmp_path / solver, "--solver", solver, "--loss", "cauchy")  # auto: the common offset
         got = {r["id"]: r for r in csv.DictReader((tmp_path / solver / "positions.csv").open())}
         diff = max(float(np.hypot(float(got[str(k)]["x_m"]) - v[0], float(got[str(k)]["y_m"]) - v[1]))

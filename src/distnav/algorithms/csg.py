@@ -45,7 +45,7 @@ from distnav.algorithms.neighbourhood_offsets import check_offsets, offset_preci
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, solve_lm
 from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.ranging_objective import range_sigma
-from distnav.algorithms.ranging_qc import TEST_SCALES, distributed_quality
+from distnav.algorithms.ranging_qc import DISTRIBUTED_TEST_SCALES, distributed_quality
 from distnav.algorithms.ranging_refine import refine_state
 from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
@@ -257,8 +257,9 @@ class _Setup:
     def check(self) -> None:
         if self.monitor_every < 0:
             raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
-        if self.test_scale not in TEST_SCALES:
-            raise ModelError(f"test_scale must be one of {', '.join(TEST_SCALES)}, got {self.test_scale!r}")
+        if self.test_scale not in DISTRIBUTED_TEST_SCALES:
+            raise ModelError(f"test_scale must be one of {', '.join(DISTRIBUTED_TEST_SCALES)}, "
+                             f"got {self.test_scale!r}")
         if self.loss not in LOSSES:
             raise ModelError(f"unknown loss {self.loss!r}; choose one of {', '.join(LOSSES)}")
 

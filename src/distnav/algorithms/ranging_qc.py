@@ -20,8 +20,16 @@ Distributed (:func:`local_quality`): anchor ``i`` knows its own links and the es
 its neighbours. Its information about its own position with the neighbours held at their estimates is
 ``N_i = Σ_{l∈E(i)} w_l j_l j_lᵀ``; ``N_i⁻¹`` is the **conditional** covariance (kind ``"conditional"``): never
 larger than the centralized block (it ignores the neighbours' own errors), so it is a lower bound — optimistic —
-and says so. Each anchor tests its own links with ``q_l = 1 − w_l j_lᵀ N_i⁻¹ j_l`` and a robust scale from its
-own links (floored at the a-priori σ / 4).
+and says so. Each anchor tests its own links with ``q_l = 1 − w_l j_lᵀ N_i⁻¹ j_l`` and, by default
+(``test_scale="robust"``), the **network robust scale** of :func:`network_robust_scale`: ``1.4826 · median
+|r_l / √q_l|`` over every link of the network (each once, from the anchor that tests it), floored at the a-priori
+σ / 4 — the central test's statistic, a network total (one gather of one float per link, as the result's).
+``test_scale="local"`` is the earlier choice, each anchor's robust scale from its own 5–8 links (floored the same
+way): an anchor with 2 NLOS links among 5 has its scale inflated by them and passes them (plant-like hall of
+``reproduce uwb-field``, corner #1: w −1.8 and −1.3 where the central test has −37 and −24), and at an exact
+least-squares solution an anchor whose residuals the fit absorbs gets a small scale and false alarms.
+A two-end ``q`` (the other end's leverage from its ``N_j⁻¹``, one broadcast) was tried and not kept: closer to the
+central ``q`` on NLOS links but up to 5.5 × off on a link whose ends' cross-covariance matters (docs/uwb.md).
 """
 
 from __future__ import annotations
@@ -46,11 +54,13 @@ from distnav.exchange import Exchange
 if TYPE_CHECKING:
     from distnav.algorithms.neighbourhood import IterationState
 
-__all__ = ["TEST_SCALES", "centralized_quality", "exclude_links", "free_block_inverses", "local_quality",
-           "robust_scale"]
+__all__ = ["TEST_SCALES", "DISTRIBUTED_TEST_SCALES", "centralized_quality", "exclude_links", "free_block_inverses",
+           "local_quality", "network_robust_scale", "robust_scale"]
 
 log = logging.getLogger(__name__)
 TEST_SCALES = ("robust", "a-priori")
+DISTRIBUTED_TEST_SCALES = (*TEST_SCALES, "local")  # "robust": the network's robust scale; "local": each anchor's
+SCALE_FLOOR = 0.25  # the distributed tests' robust scale is floored at a quarter of the a-priori σ
 _MAX_DENSE = 6000  # unknowns up to which the covariance is formed (a dense inverse)
 
 
@@ -135,6 +145,17 @@ def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual:
     return precision, tests, Q
 
 
+def network_robust_scale(tested: np.ndarray, *, floor: float = SCALE_FLOOR) -> float:
+    """The distributed tests' network robust scale: :func:`robust_scale` of the standardized residuals of every
+    link of the network, each sample once (``tested``: the values its testing anchor computed, gathered), floored
+    at ``floor`` (a quarter of the a-priori σ: at an exact fit of a small network the median can be tiny); 1 if
+    no link was tested. The same statistic as :func:`centralized_quality`'s scale where the standardized
+    residuals are the same; a network total (a deployment: one gather of one float per link, or a median by
+    bisection over sum reductions of counts)."""
+    val = robust_scale(np.asarray(tested, float))
+    return max(val, floor) if np.isfinite(val) else 1.0
+
+
 def free_block_inverses(info: np.ndarray, free: np.ndarray) -> np.ndarray:
     """``N_i⁻¹`` of every anchor's ``dim × dim`` information block on its free coordinates (zeros elsewhere; inf
     where the block is singular): the conditional covariance each anchor computes from its own links."""
@@ -158,10 +179,13 @@ def local_quality(range_m: np.ndarray, owner: np.ndarray, owner_free: np.ndarray
     owner's free coordinates ``(h, dim)``, ``own_m`` / ``other_m`` (the owner's estimate of itself and of the other
     end, ``(h, dim)``), σ, and the loss with its per-row scale (for the IRLS weights). ``kind`` is the objective
     (``"squared"`` or ``"metres"``).
+    ``scale``: ``"local"`` divides by each anchor's robust scale of its own links; ``"robust"`` and
+    ``"a-priori"`` return the standardized residuals unscaled (the network's robust scale is applied by
+    :func:`distributed_quality`, after a gather).
     Returns ``(conditional covariance (n_local, dim, dim), w of every half-measurement, weighted SSR per anchor)``.
     """
-    if scale not in TEST_SCALES:
-        raise ModelError(f"test scale must be one of {', '.join(TEST_SCALES)}, got {scale!r}")
+    if scale not in DISTRIBUTED_TEST_SCALES:
+        raise ModelError(f"test scale must be one of {', '.join(DISTRIBUTED_TEST_SCALES)}, got {scale!r}")
     dim = own_m.shape[1]
     diff = own_m - other_m
     dist = np.linalg.norm(diff, axis=1)
@@ -183,10 +207,10 @@ def local_quality(range_m: np.ndarray, owner: np.ndarray, owner_free: np.ndarray
     q = np.where(np.isfinite(h), np.maximum(1.0 - weight * h, 0.0), 0.0)
     std = w_statistics(r, q)
     s = np.ones(n_local)
-    if scale == "robust":  # each anchor's robust scale from its own links, floored at a quarter of the a-priori σ
+    if scale == "local":  # each anchor's robust scale from its own links, floored at a quarter of the a-priori σ
         for node in range(n_local):
             val = robust_scale(std[owner == node])
-            s[node] = max(val, 0.25) if np.isfinite(val) else 1.0
+            s[node] = max(val, SCALE_FLOOR) if np.isfinite(val) else 1.0
     wssr = np.bincount(owner, weight * r * r, minlength=n_local)
     return cov, np.asarray(std / s[owner]), np.asarray(wssr)
 
@@ -271,8 +295,10 @@ def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResu
 def distributed_quality(problem: RangingData, ex: Exchange, st: IterationState, sigma: np.ndarray,
                         scale: np.ndarray, *, objective: str, loss: str, test_scale: str, test_level: float
                         ) -> tuple[Precision, ObservationTests]:
-    """Every anchor's conditional covariance and the w-tests of its own links (computed locally, then gathered
-    for the result only); each sample is reported by the lower-indexed of its two anchors."""
+    """Every anchor's conditional covariance and the w-tests of its own links (computed locally, then gathered);
+    each sample is tested and reported by the lower-indexed of its two anchors. ``test_scale="robust"``: the
+    standardized residuals are divided by the network robust scale (:func:`network_robust_scale`, a network total
+    of the gathered values); ``"local"``: by each anchor's own; ``"a-priori"``: not at all."""
     assert st.half_owner is not None and st.half_sample is not None and st.half_other_m is not None
     owner, samp = st.half_owner, st.half_sample
     rng = problem.range_m[samp] - (0.0 if st.half_offset_m is None else st.half_offset_m)  # the holder's bias
@@ -299,6 +325,8 @@ def distributed_quality(problem: RangingData, ex: Exchange, st: IterationState, 
     mine = ok & (holder == tester[np.maximum(smp, 0)])
     w = np.full(problem.n_meas, np.nan)
     w[smp[mine]] = w_all_half.ravel()[mine]
+    if test_scale == "robust":  # one network-wide robust scale, from every link's test (each sample once)
+        w = w / network_robust_scale(w)
     wssr_total = float(ex.allreduce(float(wssr.sum()), "sum")) / 2.0  # every sample is held twice
     links = np.bincount(np.concatenate([problem.meas_a, problem.meas_b]), minlength=problem.n_anchors)
     red = float(np.sum(np.maximum(links - problem.free.sum(axis=1), 0)[problem.estimated]))

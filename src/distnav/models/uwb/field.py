@@ -11,10 +11,14 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
    robust fit of every link is first run from several starts (:func:`choose_start`: the lowest Cauchy cost of
    all the links wins) and the exclusions start from there; exclusions that leave a solution fitting all the
    links more than :data:`DISAGREE_RATIO` × worse are rejected (``revert``). σ admit the antenna delays the
-   model does not estimate (:mod:`distnav.models.uwb.precision`, ``delay_sigma_m``). With LM in metres and the
-   Cauchy loss (``FieldOptions.nlos_aware``, the default) every fit uses the *one-sided* Cauchy loss (NLOS only
-   lengthens a range), its scale is tightened after the choice of start (:func:`tighten`), the exclusions and
-   costs work at that scale and the kept links are re-fitted at ``loss_scale_m`` at the end (:func:`_polish`).
+   model does not estimate (:mod:`distnav.models.uwb.precision`, ``delay_sigma_m``). In metres with the
+   Cauchy loss (``FieldOptions.nlos_aware``, the default; LM and every distributed solver but CSG) every fit uses
+   the *one-sided* Cauchy loss (NLOS only lengthens a range), its scale is tightened after the choice of start
+   (:func:`tighten`), the exclusions and costs work at that scale and the kept links are re-fitted at
+   ``loss_scale_m`` at the end (:func:`_polish`). The distributed solvers take the same steps through the
+   exchange (:mod:`distnav.models.uwb.field_fits`: their warm re-fits are the final distributed LM phase from the
+   last solution) but not the multi-start (LM fits); network totals: the residual scatter that sets the tight
+   scale, the costs of all the links (revert, per-anchor check, polish), the link tests' robust scale.
 3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
 
 The solve call goes to :func:`distnav.algorithms.csg.solve` by name, with ``objective`` passed when the solver
@@ -39,6 +43,7 @@ from distnav.algorithms.ranging_precision import neighbourhood_precision
 from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
+from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, scatter_m, solve_once, tighten_scale
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
@@ -47,17 +52,15 @@ from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray
 
 __all__ = ["FieldOptions", "FieldSolution", "prepare", "solve_field", "gather_cost", "RANGE_RECORD_BYTES",
-           "supports_objective", "subset_measurements", "anchor_precision", "AnchorPrecision"]
+           "supports_objective", "subset_measurements", "anchor_precision", "AnchorPrecision", "TIGHT_SCALE_FLOOR_M"]
 
 DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions were right, 1.80 on the folded one
-REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
 DELAY_SIGMA_M = 0.015  # Monte Carlo over 4 × 100 simulated halls (docs/uwb.md, "Precision")
 MULTI_START_MAX_ANCHORS = 200  # larger networks: the prepared start only (each extra start is a full LM fit)
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
 PRECISION_HOPS = 2  # distributed σ: each anchor's 2-hop sub-network (docs/uwb.md, "Per-anchor precision")
 POLISH_RATIO = 1.01  # 24 halls: ≤ 1.004 where the polish helped; 1.05 and 1.44 where it pulled a weak anchor back
-TIGHT_SCALE_FLOOR_M = 0.05  # the one-sided loss is tightened from loss_scale_m down to this (or 3 × the scatter)
 
 
 @dataclass(frozen=True)
@@ -82,7 +85,7 @@ class FieldOptions:
     multi_start: bool = True  # LM with the metres objective: choose_start before the exclusions
     revert: bool = True  # exclusions that raise the all-links robust cost > DISAGREE_RATIO × are rejected
     delay_sigma_m: float = DELAY_SIGMA_M  # antenna delays considered in σ (models/uwb/precision.py); 0: off
-    nlos_loss: bool = True  # LM in metres with the Cauchy loss: one-sided ("cauchy_long"), tightened (nlos_aware)
+    nlos_loss: bool = True  # metres with the Cauchy loss: one-sided ("cauchy_long"), tightened (nlos_aware)
     polish: bool = True  # with nlos_aware: the kept links re-fitted at loss_scale_m at the end (_polish)
     estimate_delays: bool = True  # σ: delay_sigma_m is a floor, larger delays the residuals show are used
 
@@ -97,14 +100,16 @@ class FieldOptions:
 
     @property
     def nlos_aware(self) -> bool:
-        """Whether the solve uses the one-sided loss: ``nlos_loss``, LM, the metres objective and the Cauchy loss.
+        """Whether the solve uses the one-sided loss: ``nlos_loss``, the metres objective, the Cauchy loss and a
+        solver that has a robust loss — LM and every distributed solver but CSG (the same steps for all; the
+        distributed ones through the exchange, :mod:`distnav.models.uwb.field_fits`).
         Then every fit uses ``"cauchy_long"`` (:func:`distnav.algorithms.nlsq.loss_terms`: Cauchy for ranges read
         long, linear for ranges read short: NLOS only lengthens a range), and after the choice of start its scale
         is tightened from ``loss_scale_m`` by halves down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × the robust scatter
         of the residuals (:func:`tighten`); the exclusions, the per-anchor check and the revert then work at that
         scale, and :func:`all_links_cost` is the one-sided cost at it."""
-        return (self.nlos_loss and self.solver.upper() == "LM" and self.objective == "metres"
-                and self.loss == "cauchy" and supports_objective("LM"))
+        return (self.nlos_loss and self.solver.upper() != "CSG" and self.objective == "metres"
+                and self.loss == "cauchy" and supports_objective(self.solver))
 
     @property
     def offsets_used(self) -> str:
@@ -232,15 +237,12 @@ def choose_start(problem: RangingProblem, opts: FieldOptions) -> tuple[FloatArra
     return best[2], note
 
 
-def _scatter_m(problem: RangingProblem, positions_m: FloatArray) -> float:
-    """Robust scatter of the range residuals at ``positions_m``: 1.4826 × their median absolute deviation about
-    the median (a common range offset moves the median, not the scatter; NLOS links, a minority, barely move it)."""
-    e = problem.residuals_m(positions_m)
-    return float(1.4826 * np.median(np.abs(e - np.median(e)))) if e.size else 0.0
+_scatter_m = scatter_m
 
 
 def tighten(problem: RangingProblem, start_m: FloatArray, opts: FieldOptions) -> tuple[FloatArray, float, int]:
-    """The one-sided fit of every link, its loss scale halved from ``opts.loss_scale_m`` (each LM fit from the last
+    """The one-sided fit of every link (LM here; the distributed solvers: ``field_fits.tighten_scale`` through the
+    exchange), its loss scale halved from ``opts.loss_scale_m`` (each LM fit from the last
     solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × the robust scatter of the residuals, whichever is larger.
     Returns ``(positions, final scale, fits)``.
 
@@ -250,43 +252,21 @@ def tighten(problem: RangingProblem, start_m: FloatArray, opts: FieldOptions) ->
     wrong (2 halls with an anchor 0.9–3.4 m off, a folded plant-like hall at 2.44 m), the tightened one-sided fit
     of every link, no link excluded, came within 1.0–1.4 × the oracle on four (the folded hall 0.35 m, oracle
     0.26 m); the two it did not fix have an anchor with one redundant link and one NLOS link among them."""
-    kw = _solver_kwargs(opts)
-    kw.update(quality=False, graduated=False)
-    pos = np.asarray(start_m, float)
-    scale, fits = float(opts.loss_scale_m), 0
-    while fits < 8:
-        target = max(TIGHT_SCALE_FLOOR_M, 3.0 * _scatter_m(problem, pos))
-        if scale <= target * (1 + 1e-9):
-            break
-        scale = max(scale / 2.0, target)
-        kw["loss_scale_m"] = scale
-        r = csg.solve(problem.with_initial(pos), "LM", iterations=opts.iterations, **kw)
-        fits += 1
-        if not (r.usable and np.all(np.isfinite(r.estimates))):
-            break
-        pos = np.asarray(r.estimates, float)
-    return pos, scale, fits
+    return tighten_scale(problem, start_m, opts.solver, _solver_kwargs(opts), opts.loss_scale_m, opts.iterations)
 
 
 def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int],
             last: list[FloatArray]) -> Callable[[Any], Any]:
     key = opts.solver.upper()
     kw = _solver_kwargs(opts)
+    warm_refits = key == "LM" or opts.nlos_aware  # the distributed solvers' re-fits: graduated unless nlos_aware
 
     def fit(sub: Any) -> Any:
-        extra: dict[str, Any] = {"exchange": exchange(sub)} if key != "LM" and exchange is not None else {}
         if last:  # a re-fit after an exclusion starts from the last solution, robust loss straight away
             sub = sub.with_initial(last[-1])
-            if key == "LM" and "objective" in kw and "graduated" not in kw:
-                extra["graduated"] = False
-            if key == "LM":  # a warm re-fit: a looser (still sub-µm) stopping rule, fewer iterations
-                extra.update({k: v for k, v in REFIT_TOLERANCES.items() if k not in kw})
-        r = csg.solve(sub, key, iterations=opts.iterations, **kw, **extra)
+        r = solve_once(sub, key, kw, opts.iterations, exchange=exchange, total=comm, warm=bool(last) and warm_refits)
         if r.usable and np.all(np.isfinite(r.estimates)):
             last.append(np.asarray(r.estimates, float))
-        comm[0] += int(r.iterations)
-        comm[1] += int(r.comm.messages)
-        comm[2] += int(r.comm.bytes)
         return r
 
     return fit
@@ -341,7 +321,8 @@ def all_links_cost(problem: RangingProblem, res: Any, opts: FieldOptions) -> flo
 
 
 def _polish(problem: RangingProblem, res: Any, excluded: BoolArray, w: FloatArray, flagged: BoolArray,
-            opts: FieldOptions) -> tuple[Any, FloatArray, BoolArray]:
+            opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None = None,
+            total: list[int] | None = None) -> tuple[Any, FloatArray, BoolArray]:
     """The kept links re-fitted at the given loss scale (one-sided, from the tightened solution), with its tests
     and precision: once the NLOS links are out, the tight scale only down-weights LOS links a little (their σ and
     the positions are those of the usual robust fit). Returns the result, ``w`` and ``flagged`` over every
@@ -349,9 +330,8 @@ def _polish(problem: RangingProblem, res: Any, excluded: BoolArray, w: FloatArra
     all the links at the tight scale by at most :data:`POLISH_RATIO` (a weak anchor pulled back into the basin the
     tight scale left: on 24 halls 1.05 and 1.44 × there, ≤ 1.004 × where the polish helped)."""
     keep = ~np.asarray(excluded, bool)
-    kw = {**_solver_kwargs(opts), "graduated": False, **REFIT_TOLERANCES}
-    r = csg.solve(subset_measurements(problem, keep).with_initial(np.asarray(res.estimates, float)), "LM",
-                  iterations=opts.iterations, **kw)
+    r = solve_once(subset_measurements(problem, keep).with_initial(np.asarray(res.estimates, float)), opts.solver,
+                   _solver_kwargs(opts), opts.iterations, exchange=exchange, total=total, warm=True)
     if not (r.usable and np.all(np.isfinite(r.estimates)) and r.tests is not None):
         return res, w, flagged
     w2 = np.full(problem.n_meas, np.nan)
@@ -403,12 +383,13 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             starts.append(best)  # the first fit starts there, with the robust loss straight away
             note += start_note
     if opts.nlos_aware:  # the one-sided loss tightened; every later fit and cost at that scale
-        if best is None:
-            first_fit = csg.solve(problem, "LM", iterations=opts.iterations,
-                                  **{**_solver_kwargs(opts), "quality": False})
+        if best is None:  # the distributed solvers (and LM without multi-start): the first robust fit, graduated
+            first_fit = solve_once(problem, opts.solver, {**_solver_kwargs(opts), "quality": False}, opts.iterations,
+                                   exchange=exchange, total=total)
             best = np.asarray(first_fit.estimates, float) if first_fit.usable else None
         if best is not None and np.all(np.isfinite(best)):
-            best, tight, _ = tighten(problem, best, opts)
+            best, tight, _ = tighten_scale(problem, best, opts.solver, _solver_kwargs(opts), opts.loss_scale_m,
+                                           opts.iterations, exchange=exchange, total=total)
             starts.append(best)
             opts = dataclasses.replace(opts, loss_scale_m=tight)
             fit_any = _fitter(opts, exchange, total, starts)
@@ -470,7 +451,7 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             if res.tests is not None:
                 w, flagged = res.tests.w, res.tests.flagged
     if given.nlos_aware and given.polish and res.usable and opts.loss_scale_m < given.loss_scale_m:
-        polished, w2, f2 = _polish(problem, res, excluded, w, flagged, given)
+        polished, w2, f2 = _polish(problem, res, excluded, w, flagged, given, exchange, total)
         ratio = all_links_cost(problem, polished, opts) / max(all_links_cost(problem, res, opts), 1e-12)
         if ratio <= POLISH_RATIO:
             res, w, flagged = polished, w2, f2
@@ -556,8 +537,8 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
         try:
             out = neighbourhood_precision(kept, np.asarray(res.estimates, float),
                                           exchange=None if exchange is None else exchange(kept), objective=objective,
-                                          sigma_m=opts.sigma_m, loss="linear" if opts.solver.upper() == "CSG"
-                                          else opts.loss, loss_scale_m=opts.loss_scale_m, hops=PRECISION_HOPS,
+                                          sigma_m=opts.sigma_m, loss=_solver_kwargs(opts).get("loss", "linear"),
+                                          loss_scale_m=opts.loss_scale_m, hops=PRECISION_HOPS,
                                           delay_sigma_m=opts.delay_sigma_m if opts.considers_delays
                                           and objective == "metres" else 0.0)
         except ModelError as err:

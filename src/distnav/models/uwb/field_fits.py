@@ -1,0 +1,92 @@
+"""The single fits of :mod:`distnav.models.uwb.field` that are not the exclusion loop's: one solve by name (LM or a
+distributed solver through the exchange, its messages counted), the tightening of the one-sided loss and the
+polish fit — the same steps for LM and for the distributed solvers (``FieldOptions.nlos_aware``).
+
+The distributed path computes here only what the anchors can: every fit runs through the exchange; the robust
+scatter of the residuals (:func:`scatter_m`) that sets the tightened scale is a **network total** — a median over
+every link's residual, each anchor holding its own links' residuals at the solution (a deployment: one gather of
+one float per link, as the result's, or a median by bisection over sum reductions); so is the cost of all the links
+that decides whether the polish is kept (a sum over the anchors).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from distnav.algorithms import csg
+from distnav.models.uwb.problems import RangingProblem
+from distnav.typing import FloatArray
+
+__all__ = ["solve_once", "scatter_m", "tighten_scale", "TIGHT_SCALE_FLOOR_M", "REFIT_TOLERANCES", "TIGHTEN_FITS"]
+
+REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
+TIGHT_SCALE_FLOOR_M = 0.05  # the one-sided loss is tightened from loss_scale_m down to this (or 3 × the scatter)
+TIGHTEN_FITS = 8  # at most this many halvings
+WARM_ITERATIONS = 0  # a distributed solver's warm re-fit: consensus iterations before its final distributed LM phase
+
+
+def solve_once(problem: RangingProblem, solver: str, kw: dict[str, Any], iterations: int, *,
+               exchange: Callable[[RangingProblem], Any] | None = None, total: list[int] | None = None,
+               warm: bool = False, tolerances: bool = True) -> Any:
+    """One solve of ``problem`` (its ``initial_m`` the start) by ``solver`` with the keyword arguments ``kw``.
+    ``warm``: a re-fit from a solution, the robust loss straight away (no graduated linear phase; LM with
+    :data:`REFIT_TOLERANCES` unless ``kw`` sets them or ``tolerances`` is False). A distributed solver runs on
+    ``exchange(problem)``; its warm re-fit runs :data:`WARM_ITERATIONS` consensus iterations, then the final
+    distributed LM phase (:mod:`distnav.algorithms.ranging_refine`) from the solution — unless that phase is off
+    (``kw["refine"]`` False: all ``iterations``). Why: from a solution the consensus iterations first move away
+    from it (N-CLM's fixed point is not LM's: warm at LM's solution of a plant-like corner hall, its iterate was
+    1.48 m RMS off after 500 iterations), and at a tightened loss scale the LM phase can then end in another
+    basin (plant corner #0 of ``reproduce uwb-field``: 0.449 m against LM's 0.354 m on the same links); with 0
+    the phase stays in the solution's basin, as LM's warm re-fit, for 5 % of the messages. ``total``
+    (iterations, messages, bytes) is incremented by the solve's."""
+    key = solver.upper()
+    extra: dict[str, Any] = {}
+    if key != "LM" and exchange is not None:
+        extra["exchange"] = exchange(problem)
+    if warm and "graduated" not in kw and "objective" in kw:
+        extra["graduated"] = False if key == "LM" else 0
+    if warm and tolerances and key == "LM":
+        extra.update({k: v for k, v in REFIT_TOLERANCES.items() if k not in kw})
+    if warm and key != "LM" and kw.get("refine", True) is not False:
+        iterations = min(iterations, WARM_ITERATIONS)
+    r = csg.solve(problem, key, iterations=iterations, **kw, **extra)
+    if total is not None:
+        total[0] += int(r.iterations)
+        total[1] += int(r.comm.messages)
+        total[2] += int(r.comm.bytes)
+    return r
+
+
+def scatter_m(problem: RangingProblem, positions_m: FloatArray) -> float:
+    """Robust scatter of the range residuals at ``positions_m``: 1.4826 × their median absolute deviation about
+    the median (a common range offset moves the median, not the scatter; NLOS links, a minority, barely move it).
+    A network total (module docstring)."""
+    e = problem.residuals_m(positions_m)
+    return float(1.4826 * np.median(np.abs(e - np.median(e)))) if e.size else 0.0
+
+
+def tighten_scale(problem: RangingProblem, start_m: FloatArray, solver: str, kw: dict[str, Any], scale_m: float,
+                  iterations: int, *, exchange: Callable[[RangingProblem], Any] | None = None,
+                  total: list[int] | None = None) -> tuple[FloatArray, float, int]:
+    """The one-sided fit of every link by ``solver``, its loss scale halved from ``scale_m`` (each fit warm from the
+    last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger. Returns
+    ``(positions, final scale, fits)`` (see :func:`distnav.models.uwb.field.tighten`)."""
+    kw = {**kw, "quality": False}
+    pos = np.asarray(start_m, float)
+    scale, fits = float(scale_m), 0
+    while fits < TIGHTEN_FITS:
+        target = max(TIGHT_SCALE_FLOOR_M, 3.0 * scatter_m(problem, pos))
+        if scale <= target * (1 + 1e-9):
+            break
+        scale = max(scale / 2.0, target)
+        kw["loss_scale_m"] = scale
+        r = solve_once(problem.with_initial(pos), solver, kw, iterations, exchange=exchange, total=total, warm=True,
+                       tolerances=False)
+        fits += 1
+        if not (r.usable and np.all(np.isfinite(r.estimates))):
+            break
+        pos = np.asarray(r.estimates, float)
+    return pos, scale, fits
