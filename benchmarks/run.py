@@ -43,8 +43,8 @@ def _num(v: Any, unit: str = "") -> str:
 #: are shown from their own keys rather than as "–".
 DISTNAV_KEYS = (("distnav_mb", " MB"), ("distnav_ms", " ms"), ("distnav_s", " s"), ("ms_per_iteration", " ms"),
                 ("seconds", " s"))
-FLOOR_KEYS = (("floor_ms", " ms"), ("bare_setup_s", " s"), ("bare_mb", " MB"), ("csr_product_ms", " ms"),
-              ("reference_seconds", " s"))
+FLOOR_KEYS = (("floor_ms", " ms"), ("floor_s", " s"), ("bare_setup_s", " s"), ("bare_mb", " MB"),
+              ("csr_product_ms", " ms"), ("reference_seconds", " s"))
 
 
 def _first(row: dict[str, Any], keys: tuple[tuple[str, str], ...]) -> str:
@@ -75,11 +75,15 @@ def _size(row: dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
+def _r(v: float) -> str:
+    return f"{v:.2f}" if abs(v) >= 0.01 else f"{v:.2g}"  # a peer hundreds of times slower is not "0.00×"
+
+
 def _ratio(row: dict[str, Any]) -> str:
     if "ratio_min" in row and "ratio_median" in row:
-        return f"{row['ratio_min']:.2f}–{row['ratio_median']:.2f}×"
+        return f"{_r(float(row['ratio_min']))}–{_r(float(row['ratio_median']))}×"
     if row.get("ratio") is not None:
-        return f"{float(row['ratio']):.2f}×"
+        return f"{_r(float(row['ratio']))}×"
     return "–"
 
 

@@ -41,6 +41,7 @@ def test_rows_in_the_older_keys_show_their_figures() -> None:
         {"name": "ADMM under MPI", "n_nodes": 99_856, "ranks": 2, "ms_per_iteration": 765.0},
         {"name": "new style", "n_nodes": 10, "distnav_ms": 2.0, "floor_ms": 1.0, "floor": "bare",
          "ratio_min": 1.5, "ratio_median": 2.0},
+        {"name": "vs a slow peer", "distnav_ms": 0.1, "floor_ms": 50.0, "ratio_min": 0.0008, "ratio_median": 0.0023},
     ]}
     md = run.markdown({"demo": payload})
     # columns: workload, size, distnav, floor, floor is, ratio, goal, met, set-up, exponent
@@ -48,6 +49,7 @@ def test_rows_in_the_older_keys_show_their_figures() -> None:
     assert _table_row(md, "CKF paper workload")[2:4] == ["2.75 s", "72.3 s"]
     assert _table_row(md, "ADMM under MPI")[2] == "765 ms"
     assert _table_row(md, "new style")[2:6] == ["2 ms", "1 ms", "bare", "1.50–2.00×"]
+    assert _table_row(md, "vs a slow peer")[5] == "0.0008–0.0023×"
 
 
 def test_scaling_exponent_reads_the_older_keys_too() -> None:
