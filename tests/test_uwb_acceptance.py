@@ -79,3 +79,84 @@ def test_fixed_step_squared_form_diverges_on_a_hall_and_says_so(tmp_path, capsys
         assert s["status"] == "diverged" and not s["usable"] and "diverged" in s["message"]
         assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
         assert "no positions written" in capsys.readouterr().err
+
+
+def _april_medians(log) -> dict[tuple[int, int], float]:
+    """Median range per pair from the raw APRIL log, written from its PROVENANCE.md (as tests/test_uwb_april.py)."""
+    from test_uwb_april import DELAY_US, TRUTH_FT, C
+
+    raw = np.loadtxt(log, usecols=(0, 1, 2))
+    pairs: dict[tuple[int, int], list[float]] = {}
+    for t, a, b in raw:
+        a, b = int(a), int(b)
+        if a in TRUTH_FT and b in TRUTH_FT:
+            d = (t - 0.5 * (DELAY_US[a] + DELAY_US[b])) * C
+            if d > 0:
+                pairs.setdefault((min(a, b), max(a, b)), []).append(d)
+    return {k: float(np.median(v)) for k, v in pairs.items()}
+
+
+def test_april_nearly_collinear_known_nodes_are_ambiguous_not_a_confident_mirror(shared_data, tmp_path, capsys):
+    """Known nodes 8, 61, 12 of the real APRIL network: 12 is 0.13 m off the line of the three. Before this audit
+    distnav returned the mirror image (RMSE 4.15 m) as ``converged``, exit 0. An independent scipy fit (medians,
+    common offset, Cauchy 0.3 m) from either side of the line finds two solutions > 2 m apart whose costs differ
+    by less than 1.5×: the ranges cannot choose. distnav must say ``ambiguous`` (exit 1) and name the line."""
+    from scipy.optimize import least_squares
+
+    from test_uwb_april import TRUTH_FT, _log
+
+    log = _log(shared_data)
+    med = _april_medians(log)
+    known = {k: 0.3048 * np.array(TRUTH_FT[k], float) for k in (8, 61, 12)}
+    free = sorted(set(TRUTH_FT) - set(known))
+    keys = sorted(med)
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        pos = dict(known) | {k: x[2 * i: 2 * i + 2] for i, k in enumerate(free)}
+        return np.array([np.linalg.norm(pos[a] - pos[b]) for a, b in keys]) + x[-1] - np.array([med[k] for k in keys])
+
+    fits = []
+    for side in (1.0, -1.0):  # start every free node 2 m above / below the known nodes' line (y ≈ 0)
+        x0 = np.concatenate([[1.0 + 1.2 * i, 2.0 * side] for i in range(len(free))] + [[0.0]])
+        fits.append(least_squares(resid, x0, loss="cauchy", f_scale=0.3, xtol=1e-12, ftol=1e-12))
+    apart = np.sqrt(np.mean((fits[0].x[:-1] - fits[1].x[:-1]) ** 2) * 2)
+    costs = sorted(f.cost for f in fits)
+    assert apart > 2.0 and costs[1] < 1.5 * costs[0], (apart, costs)  # the reference: two equally good sides
+
+    files = tmp_path / "col"
+    assert main(["uwb", "import-april", str(log), "--known", "8,61,12", "--out", str(files)]) == 0
+    out = tmp_path / "out"
+    code = main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
+                 "--truth", str(files / "truth.csv"), "--out", str(out)])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "lie nearly on one line" in err and "mirror image" in err and "ambiguous" in err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "ambiguous" and [i["kind"] for i in s["geometry"]["issues"]] == ["mirror"]
+    rows = (out / "positions.csv").read_text().splitlines()[1:]
+    assert {r.split(",")[0]: r.split(",")[-1] for r in rows if r.split(",")[0] not in ("8", "61", "12")} == {
+        k: "ambiguous" for k in ("14", "54", "81", "87")}
+
+
+def test_known_anchors_along_a_wall_are_checked_and_not_flagged(tmp_path):
+    """Nearly collinear known anchors on a hall wall (0.2–1.5 m off their line, 5 cm noise): the mirror test
+    re-fits from the mirror image, finds the true side clearly better and reports no ambiguity (a note)."""
+    from distnav.models.uwb.hall import PLANT_LIKE
+
+    h = simulate_hall(np.random.default_rng([2026, 99, 0]), known="middle", known_on_wall=True, **PLANT_LIKE)
+    f = h.write(tmp_path / "wall")
+    out = tmp_path / "out"
+    assert main(["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--heights",
+                 str(f["heights"]), "--truth", str(f["truth"]), "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "converged" and s["geometry"]["issues"] == [] and s["rmse_m"] < 0.2
+    assert any("lie nearly on one line" in n and "the ranges choose the side" in n for n in s["geometry"]["notes"])
+
+
+def test_reflection_through_the_known_line():
+    from distnav.models.uwb.mirror import reflect_through_known_line
+
+    p = np.array([[0.0, 0.0], [10.0, 0.0], [5.0, 0.0], [3.0, 2.0], [7.0, -1.0]])
+    fixed = np.array([True, True, True, False, False])
+    got = reflect_through_known_line(p, fixed, np.repeat(~fixed[:, None], 2, axis=1))
+    np.testing.assert_allclose(got, [[0, 0], [10, 0], [5, 0], [3, -2], [7, 1]], atol=1e-12)

@@ -49,7 +49,6 @@ from distnav.models.uwb.field import (
     FieldSolution,
     gather_cost,
     prepare,
-    solve_field,
 )
 from distnav.models.uwb.geometry import planarity
 from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_initial_guess, smacof  # noqa: F401
@@ -62,6 +61,7 @@ from distnav.models.uwb.io import (
     read_ranges,
     single_link_anchors,
 )
+from distnav.models.uwb.mirror import solve_with_mirror_test
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 from distnav.output import atomic_write_text
 
@@ -209,12 +209,12 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
     init_source = str(initial) if initial is not None else \
         "classical MDS of the range graph + SMACOF, aligned to the known anchors"
     sub, geometry = prepare(problem, initial_m=init, allow_planar_3d=opts.allow_planar_3d)
-    warnings += [i.message for i in geometry.issues]
     exchange = None
     if opts.solver.upper() != "LM":
         def exchange(p: RangingProblem) -> Any:
             return make_exchange(p.graph, backend=backend)
-    sol = solve_field(sub, opts, geometry=geometry, exchange=exchange)
+    sol = solve_with_mirror_test(sub, opts, geometry, exchange)  # solve_field, + the mirror test if needed
+    warnings += [i.message for i in sol.geometry.issues]
     summary = _summary(sol, opts, comb, log.range_m.size, log.n_dropped, dict(log.dropped), units_note,
                        init_source, len(held), warnings)
     return sol, comb, summary
@@ -270,7 +270,7 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "offsets_std_m": None if offsets_std is None else np.asarray(offsets_std).tolist(),
         "geometry": sol.geometry.as_dict(),
         "unsolved": list(sol.geometry.unsolved),
-        "weakly_determined_anchors": list(sol.weak),
+        "weakly_determined_anchors": _weak_names(sol),
         "n_anchors": len(sol.geometry.ids),
         "n_solved": p.n_anchors,
         "n_known": int(p.fixed.sum()),
@@ -323,6 +323,14 @@ def write_offsets(path: Path, sol: FieldSolution) -> None:
     atomic_write_text(path, "\n".join(rows) + "\n")
 
 
+def _weak_names(sol: FieldSolution) -> list[str]:
+    """The anchors reported weak: by the solve (``sol.weak``) and by a weakly determined geometry (a nearly
+    collinear / coplanar set of known anchors, a planar network solved in 3-D when asked), not ambiguous ones."""
+    amb = sol.geometry.ambiguous_anchors()
+    geo = {k for i in sol.geometry.issues if i.severity == "weakly_determined" for k in i.anchors}
+    return list(sol.weak) + sorted(geo - set(sol.weak) - amb)
+
+
 def _positions_table(path: Path, sol: FieldSolution) -> None:
     """``positions.csv``: every anchor with σ per axis and a status (known, estimated, ambiguous, unsolved)."""
     p = sol.problem
@@ -331,13 +339,13 @@ def _positions_table(path: Path, sol: FieldSolution) -> None:
     rows = ["id," + ",".join(f"{a}_m" for a in axes) + "," + ",".join(f"s{a}_m" for a in axes) + ",status"]
     index = {k: i for i, k in enumerate(p.ids)}
     amb = sol.geometry.ambiguous_anchors()
+    weak = set(_weak_names(sol))
     for name in sol.geometry.ids:
         if name not in index:
             rows.append(name + "," * (2 * dim) + ",unsolved")
             continue
         i = index[name]
-        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in sol.weak
-                                          else "estimated")
+        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in weak else "estimated")
         rows.append(name + "," + ",".join(f"{v:.6f}" for v in sol.positions_m[i]) + ","
                     + ",".join(f"{v:.6f}" for v in sol.sigma_m[i]) + f",{st}")
     atomic_write_text(path, "\n".join(rows) + "\n")

@@ -17,7 +17,11 @@ pure functions say beforehand which anchors the ranges can locate, and how well:
 * **Mirror of the whole network** (``mirror``): the known anchors of a part lie on one line (2-D, or 3-D with the
   heights held: their horizontal positions), or in 3-D with free heights on one plane (always the case with 3
   known anchors): the reflection through that line / plane keeps every range and every known position, so the
-  ranges cannot choose between the solution and its mirror image. *Ambiguous*.
+  ranges cannot choose between the solution and its mirror image. *Ambiguous*. Known anchors *nearly* on one
+  line (``near_mirror``: second over first principal spread below ``planar_tol``) make the solve *weakly
+  determined*: on the APRIL lab data with known nodes 8, 61, 12 (node 12 0.3 m off the line of the other two,
+  ratio 0.049) the mirror image fits the real ranges *better* (Cauchy cost 84 against 108 near the truth) and
+  LM returned it, 4.1 m RMSE, as ``converged``.
 * **Nearly planar network solved in 3-D** (``planar``): anchors under a ceiling lie within decimetres of one
   plane; with free heights the ranges constrain the heights only to second order and each anchor can fold
   through the plane. Measured by :func:`planarity` (smallest / largest principal spread) of the known anchors
@@ -159,6 +163,13 @@ def _line_ratio(points: FloatArray) -> float:
         return 0.0
     s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
     return float(s[1] / s[0]) if s[0] > 0 else 0.0
+
+
+def _off_line_m(points: FloatArray) -> float:
+    """Largest distance of 2-D points from their principal (best-fit) line."""
+    c = points - points.mean(axis=0)
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    return float(np.abs(c @ vt[-1]).max())
 
 
 def rigidity_matrix(problem: RangingProblem, positions_m: FloatArray) -> sp.csr_matrix:
@@ -304,13 +315,21 @@ def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, pl
         kf = comp[fixed[comp]]
         if not z_free:
             ratio = _line_ratio(problem.positions_m[kf][:, :2])
+            what = "2-D" if problem.dim == 2 else "3-D with the heights held"
             if ratio <= EXACT_TOL:
-                what = "2-D" if problem.dim == 2 else "3-D with the heights held"
                 issues.append(GeometryIssue(
                     "mirror", "ambiguous", tuple(problem.ids[i] for i in comp if problem.estimated[i]),
                     f"the {kf.size} known anchor(s) {_names(problem, kf.tolist())} lie on one line ({what}): the "
                     f"mirror image of the network through that line fits every range equally (ambiguous); add a "
                     f"known anchor off the line"))
+            elif ratio < planar_tol:
+                issues.append(GeometryIssue(
+                    "near_line", "weakly_determined", tuple(problem.ids[i] for i in comp if problem.estimated[i]),
+                    f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie nearly on one line ({what}; "
+                    f"none more than {_off_line_m(problem.positions_m[kf][:, :2]):.2f} m off it, line ratio "
+                    f"{ratio:.3f} < {planar_tol}): the mirror image of the network through that line fits the "
+                    f"ranges almost as well, range errors can choose it (weakly determined); add a known anchor "
+                    f"farther off the line"))
             continue
         pk_c = planarity(problem.positions_m[kf])
         pk = pk_c if pk is None else min(pk, pk_c)
