@@ -18,7 +18,8 @@ there, and the two solutions are compared by the robust cost of *all* links
 than ``MIRROR_DISTINCT_M`` RMS away) whose cost is below ``MIRROR_COST_RATIO`` × the other's, the network is
 **ambiguous** (issue ``mirror``, exit 1 in ``uwb solve``) and the lower-cost solution is reported; otherwise the
 ``near_line`` warning is replaced by a note of the costs (the ranges chose the side). One more solve, only when
-the known anchors are nearly collinear.
+the known anchors are nearly collinear (its messages and bytes, for a distributed solver, are added to the
+reported ones).
 """
 
 from __future__ import annotations
@@ -79,6 +80,7 @@ def solve_with_mirror_test(problem: RangingProblem, opts: FieldOptions, geometry
     est = problem.estimated
     apart = float(np.sqrt(np.mean(np.sum((sol.positions_m[est] - other.positions_m[est]) ** 2, axis=1))))
     best, cb, cw = (sol, c0, c1) if c0 <= c1 else (other, c1, c0)
+    best = dataclasses.replace(best, messages=sol.messages + other.messages, bytes=sol.bytes + other.bytes)  # both
     if apart > MIRROR_DISTINCT_M and cw < MIRROR_COST_RATIO * cb:
         issue = GeometryIssue(
             "mirror", "ambiguous", near[0].anchors,
