@@ -270,7 +270,7 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "offsets_std_m": None if offsets_std is None else np.asarray(offsets_std).tolist(),
         "geometry": sol.geometry.as_dict(),
         "unsolved": list(sol.geometry.unsolved),
-        "weakly_determined_anchors": _weak_names(sol),
+        "weakly_determined_anchors": list(sol.weak),
         "n_anchors": len(sol.geometry.ids),
         "n_solved": p.n_anchors,
         "n_known": int(p.fixed.sum()),
@@ -323,14 +323,6 @@ def write_offsets(path: Path, sol: FieldSolution) -> None:
     atomic_write_text(path, "\n".join(rows) + "\n")
 
 
-def _weak_names(sol: FieldSolution) -> list[str]:
-    """The anchors reported weak: by the solve (``sol.weak``) and by a weakly determined geometry (a nearly
-    collinear / coplanar set of known anchors, a planar network solved in 3-D when asked), not ambiguous ones."""
-    amb = sol.geometry.ambiguous_anchors()
-    geo = {k for i in sol.geometry.issues if i.severity == "weakly_determined" for k in i.anchors}
-    return list(sol.weak) + sorted(geo - set(sol.weak) - amb)
-
-
 def _positions_table(path: Path, sol: FieldSolution) -> None:
     """``positions.csv``: every anchor with σ per axis and a status (known, estimated, ambiguous, unsolved)."""
     p = sol.problem
@@ -339,13 +331,13 @@ def _positions_table(path: Path, sol: FieldSolution) -> None:
     rows = ["id," + ",".join(f"{a}_m" for a in axes) + "," + ",".join(f"s{a}_m" for a in axes) + ",status"]
     index = {k: i for i, k in enumerate(p.ids)}
     amb = sol.geometry.ambiguous_anchors()
-    weak = set(_weak_names(sol))
     for name in sol.geometry.ids:
         if name not in index:
             rows.append(name + "," * (2 * dim) + ",unsolved")
             continue
         i = index[name]
-        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in weak else "estimated")
+        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in sol.weak
+                                          else "estimated")
         rows.append(name + "," + ",".join(f"{v:.6f}" for v in sol.positions_m[i]) + ","
                     + ",".join(f"{v:.6f}" for v in sol.sigma_m[i]) + f",{st}")
     atomic_write_text(path, "\n".join(rows) + "\n")
