@@ -49,7 +49,6 @@ from distnav.models.uwb.field import (
     FieldSolution,
     gather_cost,
     prepare,
-    solve_field,
 )
 from distnav.models.uwb.geometry import planarity
 from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_initial_guess, smacof  # noqa: F401
@@ -62,6 +61,7 @@ from distnav.models.uwb.io import (
     read_ranges,
     single_link_anchors,
 )
+from distnav.models.uwb.mirror import solve_with_mirror_test
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 from distnav.output import atomic_write_text
 
@@ -209,12 +209,12 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
     init_source = str(initial) if initial is not None else \
         "classical MDS of the range graph + SMACOF, aligned to the known anchors"
     sub, geometry = prepare(problem, initial_m=init, allow_planar_3d=opts.allow_planar_3d)
-    warnings += [i.message for i in geometry.issues]
     exchange = None
     if opts.solver.upper() != "LM":
         def exchange(p: RangingProblem) -> Any:
             return make_exchange(p.graph, backend=backend)
-    sol = solve_field(sub, opts, geometry=geometry, exchange=exchange)
+    sol = solve_with_mirror_test(sub, opts, geometry, exchange)  # solve_field, + the mirror test if needed
+    warnings += [i.message for i in sol.geometry.issues]
     summary = _summary(sol, opts, comb, log.range_m.size, log.n_dropped, dict(log.dropped), units_note,
                        init_source, len(held), warnings)
     return sol, comb, summary

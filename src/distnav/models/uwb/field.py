@@ -182,7 +182,7 @@ def prepare(problem: RangingProblem, *, initial_m: FloatArray | None = None, all
     carried = tuple(i for i in first.issues if i.severity == "unsolved")
     report = GeometryReport(ids=problem.ids, solvable=first.solvable, issues=carried + second.issues,
                             planarity_known=second.planarity_known, planarity_network=second.planarity_network,
-                            notes=first.notes + second.notes)
+                            notes=first.notes + second.notes, planar_fit_ratio=second.planar_fit_ratio)
     report.raise_if_refused()
     return sub, report
 
