@@ -125,7 +125,7 @@ def test_uwb_redundancy_mdb_and_shift_against_refits(offset):
         x2, _ = _fit(p, biased, p.truth_m, offset)
         col = 2 * int(np.flatnonzero(free == i)[0])
         moved = float(np.linalg.norm(x2[col:col + 2] - x[col:col + 2]))
-        assert moved == pytest.approx(rel.shift_m[i], rel=0.03), (i, k)
+        assert moved == pytest.approx(rel.shift_m[i], rel=0.01), (i, k)  # seen: ≤ 0.5 %
     assert np.all(rel.shift_m[~p.estimated] == 0.0)
 
 

@@ -451,11 +451,12 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             excluded = np.zeros(problem.n_meas, bool)
             if res.tests is not None:
                 w, flagged = res.tests.w, res.tests.flagged
+    fit_scale = opts.loss_scale_m  # the loss scale of the final fit (its w-tests; the reliability test's weights)
     if given.nlos_aware and given.polish and res.usable and opts.loss_scale_m < given.loss_scale_m:
         polished, w2, f2 = _polish(problem, res, excluded, w, flagged, given)
         ratio = all_links_cost(problem, polished, opts) / max(all_links_cost(problem, res, opts), 1e-12)
         if ratio <= POLISH_RATIO:
-            res, w, flagged = polished, w2, f2
+            res, w, flagged, fit_scale = polished, w2, f2, given.loss_scale_m
     geo = geometry if geometry is not None else check_geometry(problem)
     nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
     if not res.usable or not np.all(np.isfinite(res.estimates)):
@@ -477,7 +478,7 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     if opts.reliability_limit_m > 0 and opts.solver.upper() == "LM" and objective == "metres":
         rel_weak, reliability, rel_note = check_reliability(
             subset_measurements(problem, ~excluded), res, sigma, sigma_m=opts.sigma_m, offsets=opts.offsets_used,
-            loss=_solver_kwargs(opts).get("loss", "linear"), loss_scale_m=opts.loss_scale_m, level=opts.level,
+            loss=_solver_kwargs(opts).get("loss", "linear"), loss_scale_m=fit_scale, level=opts.level,
             limit_m=opts.reliability_limit_m, offset_prior_sigma_m=opts.offset_prior_sigma_m)
         reasons.update({k: v for k, v in rel_weak.items() if k not in reasons})
         note += rel_note
