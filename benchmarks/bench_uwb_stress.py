@@ -18,10 +18,13 @@ the careful fit by > 1 cm, NLOS recall and false alarms of the exclusions, 2σ c
 and **silent misses**: anchors > 0.3 m and > 3 × their horizontal σ off that distnav reports as plainly
 ``estimated`` (a wrong answer that looks right).
 
-    python benchmarks/bench_uwb_stress.py [--quick] [--halls N] [--only NAME ...] [--jobs J] [--out FILE.json]
+    python benchmarks/bench_uwb_stress.py [--quick] [--halls N] [--seed-base K] [--only NAME ...] [--jobs J]
+                                          [--out FILE.json]
 
 ``--delay-sigma-m``: ``uwb solve --delay-sigma-m`` instead of its default. ``--quick``: 3 halls per variation and
-placement (default 12). CPU time per solve is listed (shared machine).
+placement (default 12). ``--seed-base K``: halls ``K … K+N−1`` of each row (seed ``[2026, variation, placement,
+hall]``; default 0, the bench seeds; 100 with ``--halls 6`` gives the held-out seeds rules are checked on). CPU
+time per solve is listed (shared machine).
 """
 
 from __future__ import annotations
@@ -225,6 +228,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="3 halls per variation and placement")
     ap.add_argument("--halls", type=int, default=None, help="halls per variation and placement (default 12)")
+    ap.add_argument("--seed-base", type=int, default=0,
+                    help="first hall seed of each row (default 0; held-out checks: 100)")
     ap.add_argument("--only", nargs="+", default=None, help="variations whose name starts with one of these")
     ap.add_argument("--delay-sigma-m", type=float, default=None,
                     help="uwb solve's --delay-sigma-m (default: its own default)")
@@ -233,7 +238,8 @@ def main() -> None:
     args = ap.parse_args()
     n = args.halls or (3 if args.quick else 12)
     names = [v for v in VARIATIONS if not args.only or any(v.startswith(o) for o in args.only)]
-    jobs = [(v, pl, k, args.delay_sigma_m) for v in names for pl in PLACEMENTS for k in range(n)]
+    seeds = range(args.seed_base, args.seed_base + n)
+    jobs = [(v, pl, k, args.delay_sigma_m) for v in names for pl in PLACEMENTS for k in seeds]
     c0, w0 = time.process_time(), time.perf_counter()
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as pool:
@@ -241,7 +247,8 @@ def main() -> None:
     else:
         rows = [one_hall(j) for j in jobs]
     agg = aggregate(rows)
-    args.out.write_text(json.dumps({"halls_per_group": n, "bad_m": BAD_M, "table": agg, "runs": rows,
+    args.out.write_text(json.dumps({"halls_per_group": n, "seed_base": args.seed_base, "bad_m": BAD_M, "table": agg,
+                                    "runs": rows,
                                     "wall_s": time.perf_counter() - w0, "cpu_s_main": time.process_time() - c0,
                                     "load_average": os.getloadavg()}, indent=1) + "\n")
     print(table(agg))

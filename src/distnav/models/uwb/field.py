@@ -43,6 +43,7 @@ from distnav.algorithms.ranging_precision import neighbourhood_precision
 from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
+from distnav.models.uwb.cuts import cut_weak
 from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, scatter_m, solve_once, tighten_scale
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
@@ -97,6 +98,7 @@ class FieldOptions:
     polish: bool = True  # with nlos_aware: the kept links re-fitted at loss_scale_m at the end (_polish)
     estimate_delays: bool = True  # σ: delay_sigma_m is a floor, larger delays the residuals show are used
     reliability_limit_m: float = RELIABILITY_LIMIT_M  # LM: weak if one undetected link moves it more (reliability.py)
+    cut_test: bool = True  # weak: a part whose excluded cut links exceed the cut's redundancy (cuts.py)
 
     @property
     def considers_delays(self) -> bool:
@@ -463,6 +465,8 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             limit_m=opts.reliability_limit_m, offset_prior_sigma_m=opts.offset_prior_sigma_m)
         reasons.update({k: v for k, v in rel_weak.items() if k not in reasons})
         note += rel_note
+    if opts.cut_test:  # a group of anchors the exclusions cut off: placed by fewer checks than they took (cuts.py)
+        reasons.update({k: v for k, v in cut_weak(problem, excluded).items() if k not in reasons})
     every = [problem.ids[i] for i in np.flatnonzero(problem.estimated)]
     if untested:  # nothing was tested, nothing excluded: a wrong answer would look right (docs/uwb.md, stress test)
         reasons = dict.fromkeys(every, "untested: LM's normal matrix was singular in the exclusion loop")
@@ -486,8 +490,9 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
         msg = (f"weakly determined: anchors {', '.join(repr(k) for k in weak[:12])} still misfit their kept links "
                f"by more than {WEAK_RMS_M} m RMS (or 3 × the network's robust residual scale) after the "
                f"exclusions (too few consistent links to tell which are NLOS), keep at most one redundant link "
-               f"(one NLOS link there would move them unseen), or one link's undetectable bias would move them more "
-               f"than {opts.reliability_limit_m:g} m and 3σ (external reliability; reasons in positions.csv) — {msg}")
+               f"(one NLOS link there would move them unseen), one link's undetectable bias would move them more "
+               f"than {opts.reliability_limit_m:g} m and 3σ (external reliability), or they belong to a part placed "
+               f"by fewer redundant links than the exclusions took off its cut (reasons in positions.csv) — {msg}")
     if geo.status is not None:
         msg = f"{geo.status}: " + "; ".join(i.message for i in geo.issues if i.severity != "unsolved") + f" — {msg}"
     return FieldSolution(problem=problem, geometry=geo, positions_m=pos, sigma_m=sigma,
