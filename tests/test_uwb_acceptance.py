@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import json
 
@@ -135,8 +136,9 @@ def test_april_nearly_collinear_known_nodes_are_ambiguous_not_a_confident_mirror
     assert "lie nearly on one line" in err and "mirror image" in err and "ambiguous" in err
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "ambiguous" and [i["kind"] for i in s["geometry"]["issues"]] == ["mirror"]
-    rows = (out / "positions.csv").read_text().splitlines()[1:]
-    assert {r.split(",")[0]: r.split(",")[-1] for r in rows if r.split(",")[0] not in ("8", "61", "12")} == {
+    with (out / "positions.csv").open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["id"]: r["status"] for r in rows if r["id"] not in ("8", "61", "12")} == {
         k: "ambiguous" for k in ("14", "54", "81", "87")}
 
 
