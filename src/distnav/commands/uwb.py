@@ -337,7 +337,8 @@ def write_offsets(path: Path, sol: FieldSolution) -> None:
 def _positions_table(path: Path, sol: FieldSolution) -> None:
     """``positions.csv``: every anchor with σ per axis, a status (known, estimated, weak, ambiguous, unsolved) and,
     for a weak one, why (``weak_reason``: misfit, thin, reliability — which link would go undetected and how far
-    it would move the anchor —, untested or disagree; no commas)."""
+    it would move the anchor —, cut — a part placed by fewer checks than the exclusions took off its cut —, untested
+    or disagree; no commas)."""
     p = sol.problem
     dim = p.dim
     axes = ["x", "y", "z"][:dim]
@@ -454,7 +455,8 @@ def _handler(args: argparse.Namespace) -> int:
     if sol.weak:
         print(f"warning: {len(sol.weak)} anchor(s) weakly determined, their positions may be metres off: "
               f"{', '.join(sol.weak)} (positions.csv status 'weak'; too few consistent links to tell which are NLOS, "
-              "at most one redundant link, or one undetectable NLOS link would move them: weak_reason)",
+              "at most one redundant link, one undetectable NLOS link would move them, or their part of the network "
+              "lost more links to the exclusions than it has checks left: weak_reason)",
               file=sys.stderr)
         for k in sol.weak[:5]:
             print(f"  {k}: {sol.weak_reasons.get(k, '')}", file=sys.stderr)
