@@ -158,26 +158,36 @@ class BarePairKernel:
         self.d_self *= self.cm
 
 
+def floor_case(n: int, messages: str, kernel: Any, rho: float, repeat: int) -> dict[str, Any]:
+    """distnav's iteration (``messages``, no monitoring) against a bare kernel class ``kernel(prob, g, C, rho)``
+    with ``.step()`` and ``.x`` (user order) on the strip-numbered graph of ``n`` nodes, timed interleaved after
+    3 iterations on both sides (their relative deviation then is returned with the timings)."""
+    rng = np.random.default_rng(7)
+    g = strip_ordered_rgg(n, 15.0, rng)
+    prob = peers_problem(rng, n)
+    C = choose_constraint_nodes(g, "min_cover")
+    t0 = time.perf_counter()
+    ex = make_exchange(g)
+    gen = iterate_admm(prob, g, constraint_nodes=C, W=rho, messages=messages,  # type: ignore[arg-type]
+                       monitor_every=0, exchange=ex)
+    next(gen)
+    t_setup = time.perf_counter() - t0
+    bare = kernel(prob, g, C, rho)
+    for _ in range(3):  # warm-up, and the same iterate on both sides
+        st = next(gen)
+        bare.step()
+    dev = float(np.max(np.abs(st.x - bare.x[ex.nodes])) / max(float(np.max(np.abs(bare.x))), 1e-300))
+    number = max(2, int(2e5 // n))
+    t = paired_times({"ours": gen.__next__, "floor": bare.step}, repeat=repeat, number=number)
+    return {"g": g, "C": C, "bare": bare, "t": t, "t_setup": t_setup, "dev": dev, "number": number}
+
+
 def pair_floor_rows(sizes: tuple[int, ...], rho: float = 3.0, repeat: int = 5) -> list[dict[str, Any]]:
     """distnav's per-pair iteration (no monitoring) against :class:`BarePairKernel`, timed interleaved."""
     rows: list[dict[str, Any]] = []
     for n in sizes:
-        rng = np.random.default_rng(7)
-        g = strip_ordered_rgg(n, 15.0, rng)
-        prob = peers_problem(rng, n)
-        C = choose_constraint_nodes(g, "min_cover")
-        t0 = time.perf_counter()
-        ex = make_exchange(g)
-        gen = iterate_admm(prob, g, constraint_nodes=C, W=rho, messages="pairs", monitor_every=0, exchange=ex)
-        next(gen)
-        t_setup = time.perf_counter() - t0
-        bare = BarePairKernel(prob, g, C, rho)
-        for _ in range(3):  # warm-up, and the same iterate on both sides
-            st = next(gen)
-            bare.step()
-        dev = float(np.max(np.abs(st.x - bare.x[ex.nodes])) / max(float(np.max(np.abs(bare.x))), 1e-300))
-        number = max(2, int(2e5 // n))
-        t = paired_times({"ours": gen.__next__, "floor": bare.step}, repeat=repeat, number=number)
+        case = floor_case(n, "pairs", BarePairKernel, rho, repeat)
+        g, C, bare, t, t_setup, dev, number = (case[k] for k in ("g", "C", "bare", "t", "t_setup", "dev", "number"))
         rows.append({
             "name": "ADMM iteration, per-pair messages (Fig. 6), no monitoring", "n_nodes": n,
             "n_links": g.n_links, "pairs": int(bare.pi.size), "n_constraint_nodes": C.size,

@@ -16,6 +16,11 @@ a process pays the page faults of memory the process never touched: on this VM �
 process, far less once freed memory is reused). Iterations 1 and 2 after the set-up are timed but not counted in it
 (``iteration_1_s``, ``iteration_2_s``): the first writes of the pair arrays allocated empty or as zero pages fall in
 iteration 1, so its excess over iteration 2 is set-up work the set-up time does not show.
+A second row per size reports the **first repeat apart** (its CPU and system seconds against the bare set-up's
+first repeat), and both rows give the memory one set-up allocates at its peak (``setup_traced_peak_mb``:
+tracemalloc over one extra, untimed set-up including the first state): on a freshly booted VM the first touch of
+memory the machine has not used since boot costs ≈ 2.4 ms of system time per MB against 0.1–0.3 ms once it has
+been used (docs/scale.md), so that figure times the machine's rate is what the first call pays.
 ``python benchmarks/bench_setup.py --profile N`` prints a cProfile of one set-up at ``N`` nodes (after one warm-up
 set-up) instead.
 """
@@ -29,6 +34,7 @@ import pstats
 import resource
 import sys
 import time
+import tracemalloc
 from pathlib import Path
 from typing import Any
 
@@ -90,6 +96,20 @@ def _one_setup(g: Graph, prob: LinearProblem) -> tuple[dict[str, tuple[float, fl
     return {k: (float(d[i, 0]), float(d[i, 1]), float(d[i, 2])) for i, k in enumerate((*PHASES, *ITERATIONS))}, C
 
 
+def _traced_peak_mb(g: Graph, prob: LinearProblem) -> float:
+    """Peak memory allocated by one set-up (cover, exchange, kernel, first state; tracemalloc, not timed), MB."""
+    g._cache.clear()
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    C = choose_constraint_nodes(g, "min_cover")
+    gen = iterate_admm(prob, g, constraint_nodes=C, W=1.0, exchange=make_exchange(g))
+    next(gen)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    getattr(gen, "close", lambda: None)()
+    return (peak - base) / 1e6
+
+
 def run(quick: bool) -> list[dict[str, Any]]:
     return setup_rows((1_000, 10_000) if quick else (1_000, 10_000, 100_000))
 
@@ -100,7 +120,7 @@ def setup_rows(sizes: tuple[int, ...], repeat: int = 3) -> list[dict[str, Any]]:
     for n in sizes:
         g, A, prob = _case(n)
         best: dict[str, float] = {}
-        ratios, walls, systems, totals = [], [], [], []
+        ratios, walls, systems, totals, bares = [], [], [], [], []
         for _ in range(repeat):
             phases, C = _one_setup(g, prob)
             c0, w0 = time.process_time(), time.perf_counter()
@@ -108,6 +128,7 @@ def setup_rows(sizes: tuple[int, ...], repeat: int = 3) -> list[dict[str, Any]]:
             bare_cpu, bare_wall = time.process_time() - c0, time.perf_counter() - w0
             total = sum(phases[k][0] for k in PHASES)
             ratios.append(total / bare_cpu)
+            bares.append(bare_cpu)
             totals.append(total)
             walls.append((sum(phases[k][1] for k in PHASES), bare_wall))
             systems.append(sum(phases[k][2] for k in PHASES))
@@ -116,11 +137,12 @@ def setup_rows(sizes: tuple[int, ...], repeat: int = 3) -> list[dict[str, Any]]:
             best["total"] = min(best.get("total", np.inf), total)
             best["bare"] = min(best.get("bare", np.inf), bare_cpu)
         r = np.asarray(ratios)
+        peak_mb = _traced_peak_mb(g, prob)
         rows.append({
             "name": "ADMM set-up (constraint nodes + exchange + kernel)", "n_nodes": n, "n_links": g.n_links,
             "distnav_s": best["total"], "cover_s": best["cover"], "exchange_s": best["exchange"],
             "kernel_s": best["kernel"], "first_round_s": best["first"], "bare_setup_s": best["bare"],
-            "first_repeat_s": totals[0], "system_s_min": min(systems),
+            "first_repeat_s": totals[0], "setup_traced_peak_mb": peak_mb, "system_s_min": min(systems),
             "system_s_first_repeat": systems[0], "iteration_1_s": best["iteration_1"],
             "iteration_2_s": best["iteration_2"],
             "ratio_min": float(r.min()), "ratio_median": float(np.median(r)), "ratio": best["total"] / best["bare"],
@@ -135,6 +157,14 @@ def setup_rows(sizes: tuple[int, ...], repeat: int = 3) -> list[dict[str, Any]]:
                      f"{best['iteration_1']:.3g}, 2 {best['iteration_2']:.3g}; "
                      f"cover {C.size:,} ≤ {C.ratio_bound or 1:.2f}× the minimum (lower bound {C.lower_bound or 0:,}: "
                      f"{C.method.partition('lower bound: ')[2] or C.method}); load {os.getloadavg()[0]:.1f}"),
+        })
+        rows.append({  # the first repeat apart: it pays the first touch of the memory the set-up allocates
+            "name": "ADMM set-up, first of the repeats (fresh memory)", "n_nodes": n, "distnav_s": totals[0],
+            "bare_setup_s": bares[0], "ratio": totals[0] / bares[0], "system_s": systems[0],
+            "setup_traced_peak_mb": peak_mb, "clock": "CPU s", "floor": BARE + " (its first repeat)",
+            "goal": "≤ 1 s", "meets_goal": bool(totals[0] <= 1.0),
+            "note": (f"CPU s, of which system {systems[0]:.3g} s; best repeat {best['total']:.3g} s; the set-up "
+                     f"allocates {peak_mb:.0f} MB at its peak (tracemalloc), first state included"),
         })
     return rows
 

@@ -38,12 +38,30 @@ def _num(v: Any, unit: str = "") -> str:
     return f"{v}{unit}"
 
 
-def _time(row: dict[str, Any], key_ms: str, key_s: str) -> str:
-    if row.get(key_ms) is not None:
-        return _num(float(row[key_ms]), " ms")
-    if row.get(key_s) is not None:
-        return _num(float(row[key_s]), " s")
+#: where each column's figure is read from, first present key first (unit per key). Areas written before the
+#: ``distnav_ms``/``floor_ms`` convention (admm, ckf, uwb: ``ms_per_iteration``, ``seconds``, ``reference_seconds``)
+#: are shown from their own keys rather than as "–".
+DISTNAV_KEYS = (("distnav_mb", " MB"), ("distnav_ms", " ms"), ("distnav_s", " s"), ("ms_per_iteration", " ms"),
+                ("seconds", " s"))
+FLOOR_KEYS = (("floor_ms", " ms"), ("floor_s", " s"), ("bare_setup_s", " s"), ("bare_mb", " MB"),
+              ("csr_product_ms", " ms"), ("reference_seconds", " s"))
+
+
+def _first(row: dict[str, Any], keys: tuple[tuple[str, str], ...]) -> str:
+    for key, unit in keys:
+        v = row.get(key)
+        if v is not None and not (isinstance(v, float) and not math.isfinite(v)):
+            return _num(float(v), unit)
     return "–"
+
+
+def _seconds(row: dict[str, Any], keys: tuple[tuple[str, str], ...]) -> float | None:
+    """The first time figure of ``keys`` present in ``row``, in seconds (None if none)."""
+    for key, unit in keys:
+        v = row.get(key)
+        if v is not None and unit in (" ms", " s") and isinstance(v, (int, float)) and math.isfinite(v):
+            return float(v) / (1e3 if unit == " ms" else 1.0)
+    return None
 
 
 def _size(row: dict[str, Any]) -> str:
@@ -57,11 +75,15 @@ def _size(row: dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
+def _r(v: float) -> str:
+    return f"{v:.2f}" if abs(v) >= 0.01 else f"{v:.2g}"  # a peer hundreds of times slower is not "0.00×"
+
+
 def _ratio(row: dict[str, Any]) -> str:
     if "ratio_min" in row and "ratio_median" in row:
-        return f"{row['ratio_min']:.2f}–{row['ratio_median']:.2f}×"
+        return f"{_r(float(row['ratio_min']))}–{_r(float(row['ratio_median']))}×"
     if row.get("ratio") is not None:
-        return f"{float(row['ratio']):.2f}×"
+        return f"{_r(float(row['ratio']))}×"
     return "–"
 
 
@@ -69,8 +91,7 @@ def _exponents(rows: list[dict[str, Any]]) -> dict[tuple[str, Any], float]:
     """Log-log slope of distnav's time over n, per (workload, payload), from the smallest to the largest n."""
     series: dict[tuple[str, Any], list[tuple[int, float]]] = defaultdict(list)
     for r in rows:
-        t = r.get("distnav_ms", None)
-        t = float(t) if t is not None else (float(r["distnav_s"]) if r.get("distnav_s") is not None else None)
+        t = _seconds(r, DISTNAV_KEYS)
         if t and r.get("n_nodes") and "ranks" not in r:
             series[(r["name"], r.get("payload_floats"))].append((int(r["n_nodes"]), t))
     out = {}
@@ -123,11 +144,8 @@ def markdown(results: dict[str, dict[str, Any]], keep: dict[str, str] | None = N
             setup = r.get("setup_s", r.get("setup_seconds"))
             lines.append("| " + " | ".join([
                 str(r["name"]) + (f" ({r['note']})" if r.get("note") else ""), _size(r),
-                _num(float(r["distnav_mb"]), " MB") if "distnav_mb" in r else _time(r, "distnav_ms", "distnav_s"),
-                _time(r, "floor_ms", "bare_setup_s") if ("floor_ms" in r or "bare_setup_s" in r)
-                else (_num(float(r["bare_mb"]), " MB") if "bare_mb" in r
-                      else _time(r, "csr_product_ms", "reference_seconds")),
-                str(r.get("floor", "")), _ratio(r), str(r.get("goal", "")),
+                _first(r, DISTNAV_KEYS), _first(r, FLOOR_KEYS),
+                str(r.get("floor", r.get("reference", ""))), _ratio(r), str(r.get("goal", "")),
                 "✓" if met is True else ("✗" if met is False else ""),
                 _num(float(setup), " s") if setup is not None else "", f"{k:.2f}" if k is not None else "",
             ]) + " |")

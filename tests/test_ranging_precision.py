@@ -157,9 +157,9 @@ def test_uwb_solve_writes_lms_central_sigma_for_a_distributed_solver(tmp_path):
     dist = summary["communication"]["distributed"]
     assert 0 < dist["precision_bytes"] < dist["bytes"] and dist["precision_messages"] > 0
     rows = (out / "positions.csv").read_text().splitlines()
-    assert rows[0] == "id,x_m,y_m,z_m,sx_m,sy_m,sz_m,status"
+    assert rows[0] == "id,x_m,y_m,z_m,sx_m,sy_m,sz_m,status,weak_reason"
     written = {r.split(",")[0]: np.array([float(v) for v in r.split(",")[4:7]]) for r in rows[1:]
-               if r.endswith(",estimated")}
+               if r.split(",")[7] == "estimated"}
     pos, _ = read_positions(out / "positions.csv")
     sol, _, _ = solve_range_log(f["ranges"], f["known"], initial=f["initial"],
                                 options=FieldOptions(solver="N-CLM", iterations=400, exclude=False))

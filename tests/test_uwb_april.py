@@ -97,7 +97,13 @@ def test_april_common_offset_matches_a_scipy_fit(shared_data, tmp_path, name):
         assert max(diff) < tol, (loss, diff, s["excluded_links"])
         assert s["offsets_m"][0] == pytest.approx(ref_offset, abs=tol)
     assert s["n_dropped_samples"] > 100 and s["dropped_samples"].keys() == {"negative"}  # clock-wrap garbage
-    assert s["status"] == "converged" and s["objective"] == "metres"
+    assert s["objective"] == "metres"
+    # converged; with 0.2–0.4 m of multipath scatter the link tests find only biases of 2–3 m (Baarda's MDB), and one
+    # that large, undetected, would move some of the 3 free nodes more than 0.3 m and 3σ: reported weak for that
+    # reason only (external reliability), the positions as before
+    assert s["status"] in ("converged", "weakly_determined") and s["reliability"]["tested"]
+    assert all(r.startswith("reliability: ") for r in s["weak_reasons"].values())
+    assert (s["status"] == "weakly_determined") == bool(s["weak_reasons"])
     # with a common offset the fit is better than without (issue 13: 0.41 → 0.25 m on a centralized fit)
     plain = tmp_path / "plain"
     assert main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),

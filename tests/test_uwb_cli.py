@@ -306,3 +306,37 @@ def test_no_refine_skips_the_final_distributed_lm_phase(tmp_path):
     plain = json.loads((tmp_path / "plain" / "summary.json").read_text())["communication"]["distributed"]
     assert refined["final_lm_phase"]["rounds"] >= 1 and plain["final_lm_phase"] is None
     assert plain["messages"] < refined["messages"]
+
+
+def test_reliability_weak_anchors_carry_their_reason_and_the_limit_switches_it_off(tmp_path, capsys):
+    """A narrow simulated hall (120 m × 14 m, two rows): anchors one undetected link could move by metres are
+    reported weak with the link and the shift in positions.csv, summary.json and on the console;
+    ``--reliability-limit-m 0`` turns that test off (those anchors are then plainly estimated)."""
+    import csv
+    import json
+
+    from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+
+    cfg = HallConfig().with_(**{**PLANT_LIKE, "known": "middle", "length_m": 120.0, "width_m": 14.0})
+    simulate_hall(np.random.default_rng([0, 5]), cfg).write(tmp_path / "hall")
+    h = tmp_path / "hall"
+    base = ["uwb", "solve", "--ranges", str(h / "ranges.csv"), "--known", str(h / "known.csv"),
+            "--heights", str(h / "heights.csv")]
+    assert main([*base, "--out", str(tmp_path / "on")]) == 0
+    s = json.loads((tmp_path / "on" / "summary.json").read_text())
+    with (tmp_path / "on" / "positions.csv").open() as f:
+        rows = {r["id"]: r for r in csv.DictReader(f)}
+    rel = {k: r["weak_reason"] for k, r in rows.items() if r["weak_reason"].startswith("reliability: ")}
+    assert rel and all(rows[k]["status"] == "weak" for k in rel)
+    assert {k: v.replace(",", ";") for k, v in s["weak_reasons"].items() if k in rel} == rel
+    assert s["reliability"]["tested"] and s["reliability"]["limit_m"] == 0.3
+    assert set(rel) <= set(s["reliability"]["weak"])
+    assert all(" on link " in v and " would move it " in v for v in rel.values())
+    assert all(r["weak_reason"] == "" for r in rows.values() if r["status"] != "weak")
+    err = capsys.readouterr().err
+    assert any(f"{k}: reliability" in err for k in rel)
+    assert main([*base, "--reliability-limit-m", "0", "--out", str(tmp_path / "off")]) == 0
+    off = json.loads((tmp_path / "off" / "summary.json").read_text())
+    assert off["reliability"] == {"tested": False} and not set(rel) & set(off["weakly_determined_anchors"])
+    with (tmp_path / "off" / "positions.csv").open() as f:
+        assert {r["id"]: r["status"] for r in csv.DictReader(f) if r["id"] in rel} == dict.fromkeys(rel, "estimated")

@@ -437,7 +437,7 @@ def central_precision_distributed(backend: str) -> dict[str, np.ndarray]:
     out = central_precision(sub, lm.estimates, offset_m=lm.offsets_m, exchange=make_exchange(sub.graph,
                                                                                               backend=backend),
                             sigma_m=0.1, loss="cauchy_long", loss_scale_m=0.1, range_offsets="common",
-                            delay_sigma_m=0.005, estimate_delays=True, variance_scale_m=0.3)
+                            delay_sigma_m=0.005, estimate_delays=True, variance_scale_m=0.3, delay_upper_z=1.645)
     assert out.precision.comm is not None
     return {"estimates": out.covariance(a_posteriori=True).ravel(), "sent": out.precision.comm.messages_sent,
             "count": np.asarray([out.cg_iterations, out.reductions, out.reduced_floats])}

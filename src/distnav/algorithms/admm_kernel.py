@@ -115,15 +115,20 @@ class _Kernel:
         self.count = np.bincount(self.pair_dst, minlength=nl) + self.inC_loc  # c_i = |N_i ∩ C|
         # outgoing z_{i,s} on edges i→s, s ∈ C: the pair's row is that of the reverse in-edge s→i
         op = np.flatnonzero(self.to_c[ex.out_edges])
-        lookup = np.full(g.n_edges, -1, dtype=np.int64)
-        lookup[ex.in_edges[self.ip]] = np.arange(n_pairs)
+        idx = _index_dtype(n_pairs)  # set-up temporaries in int32 where they fit (half the memory to touch)
+        lookup = np.full(g.n_edges, -1, dtype=idx)
+        lookup[ex.in_edges[self.ip]] = np.arange(n_pairs, dtype=idx)
         op_pair = lookup[g.reverse_edge[ex.out_edges[op]]]
+        del lookup
         if op.size != n_pairs or (op_pair < 0).any():  # pragma: no cover - guaranteed by symmetric graphs
             raise ModelError("pair edges are not symmetric in this exchange block")
         send_rows = np.empty(n_pairs, dtype=np.int64)
         send_rows[op_pair] = op  # the out-edge row of each pair, in pair order: z_{i,s} is sent as it is computed
         self.x_route = ex.route(self.to_c, out_rows=send_rows)  # step 1: z_{i,s} to the constraint nodes
-        self.S_pairs = _rows_in_order(self.pair_dst, nl)
+        # one array of ones serves as the data of both 0/1 summing matrices (never written)
+        ones = np.ones(max(n_pairs, self.x_route.in_rows.size))
+        ones.setflags(write=False)
+        self.S_pairs = _rows_in_order(self.pair_dst, nl, ones=ones)
         self._u: tuple[np.ndarray, np.ndarray] | None = None
         # at constraint node s: z_{i,s} arrives on in-edges i→s (rows of x_route.in_rows); each row of the z-update
         # sums them in in-edge order (senders ascending), whatever order the route returns them in
@@ -135,7 +140,7 @@ class _Kernel:
             by_edge = np.arange(recv_rows.size)
         else:  # routes return ascending rows or the caller's order; anything else is sorted
             by_edge = np.argsort(recv_rows, kind="stable")
-        self.S_c = _rows_in_order(self.recv_dst[by_edge], nl, by_edge)
+        self.S_c = _rows_in_order(self.recv_dst[by_edge], nl, by_edge, ones=ones)
         self.size_s = (np.bincount(self.recv_dst, minlength=nl) + 1).astype(float)  # |N_s|
         self.w_iso = float(W[0, 0]) if np.array_equal(W, W[0, 0] * np.eye(p)) else None
         self.size_c = self.size_s * self.inC_loc
@@ -378,14 +383,21 @@ class _Kernel:
         return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
 
 
-def _rows_in_order(rows: np.ndarray, n_rows: int, columns: np.ndarray | None = None) -> sp.csr_matrix:
+def _index_dtype(size: int) -> type[np.signedinteger[Any]]:
+    return np.int32 if size < 2**31 - 1 else np.int64
+
+
+def _rows_in_order(rows: np.ndarray, n_rows: int, columns: np.ndarray | None = None,
+                   ones: np.ndarray | None = None) -> sp.csr_matrix:
     """0/1 CSR matrix ``(n_rows, len(rows))`` summing entry ``q`` (column ``columns[q]``, default ``q``) into row
-    ``rows[q]``; ``rows`` ascending. Each row keeps its entries in the given order, and a product sums them in it."""
-    cols = np.arange(rows.size, dtype=np.int64) if columns is None else np.asarray(columns, np.int64)
+    ``rows[q]``; ``rows`` ascending. Each row keeps its entries in the given order, and a product sums them in it.
+    ``ones``: a read-only array of at least ``len(rows)`` ones to take the data from (shared, not copied)."""
+    idx = _index_dtype(rows.size)
+    cols = np.arange(rows.size, dtype=idx) if columns is None else np.asarray(columns, idx)
     ptr = np.zeros(n_rows + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=n_rows), out=ptr[1:])
-    idx = np.int32 if rows.size < 2**31 - 1 else np.int64
-    return sp.csr_matrix((np.ones(rows.size), cols.astype(idx), ptr.astype(idx)), shape=(n_rows, rows.size))
+    data = np.ones(rows.size) if ones is None else ones[:rows.size]
+    return sp.csr_matrix((data, cols, ptr.astype(idx)), shape=(n_rows, rows.size))
 
 
 def _held(held: np.ndarray | None, values: np.ndarray, delivered: np.ndarray) -> np.ndarray:

@@ -99,15 +99,17 @@ def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m
                       exchange: Exchange | None = None, sigma_m: float | np.ndarray = 1.0, loss: str = "linear",
                       loss_scale_m: float = 0.3, range_offsets: str = "none", offset_prior_sigma_m: float = 0.1,
                       delay_sigma_m: float = 0.0, estimate_delays: bool = False, rtol: float = CG_RTOL,
-                      max_iterations: int | None = None, variance_scale_m: float | None = None
-                      ) -> CentralPrecision:
+                      max_iterations: int | None = None, variance_scale_m: float | None = None,
+                      delay_upper_z: float = 0.0) -> CentralPrecision:
     """Every anchor's block of LM's central a-posteriori covariance through the exchange (module docstring).
 
     ``estimates_m`` ``(n_anchors, dim)``: the anchors' own estimates (each block reads its rows); ``offset_m``:
     the common offset (``range_offsets="common"``) or every anchor's own (``"per_anchor"``, prior σ
     ``offset_prior_sigma_m``), as the solver estimated them. ``sigma_m`` / ``loss`` / ``loss_scale_m``: the fit's.
     ``delay_sigma_m`` > 0 (not with per-anchor offsets): delays considered; ``estimate_delays``: that σ is a floor,
-    the residuals' estimate is used where larger (as LM, :func:`distnav.models.uwb.precision.consider_precision`).
+    the residuals' estimate is used where larger (as LM, :func:`distnav.models.uwb.precision.consider_precision`;
+    ``delay_upper_z``: the estimate plus that many of its standard deviations, LM's ``DELAY_UPPER_Z`` in the
+    field workflow).
     ``variance_scale_m``: the loss scale of σ̂²'s weights where the fit's own differs from ``loss_scale_m`` (LM's
     σ̂² is its fit's; the field workflow's polish fits at 0.3 m, its σ at the tight scale); default ``loss_scale_m``.
     ``max_iterations``: CG rounds (default ``2 n_unknowns + 20``); a column not converged raises ModelError."""
@@ -218,7 +220,8 @@ def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m
         if estimate_delays and n <= ESTIMATE_MAX_ANCHORS:
             used = max(delay_sigma_m, _delay_estimate(problem, ex, links, owner, other, w, r, sig, H, B,
                                                       bc[problem.n_free:], Xc[problem.n_free:], tr_a,
-                                                      float(totals[2]), float(m_rows - n_unknowns)))
+                                                      float(totals[2]), float(m_rows - n_unknowns),
+                                                      delay_upper_z))
         share = used**2 * tr_a / redundancy if redundancy > 0 else 0.0
         s2 = max(s2 - share, MIN_NOISE_SHARE * s2)
         Bp = B[:, :dim, :] * free[:, :dim, None]
@@ -233,10 +236,11 @@ def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m
 
 def _delay_estimate(problem: RangingData, ex: Exchange, links: Links, owner: np.ndarray, other: np.ndarray,
                     w: np.ndarray, r: np.ndarray, sig: np.ndarray, H: np.ndarray, B: np.ndarray, hc: np.ndarray,
-                    bc_row: np.ndarray, tr_a: float, ete: float, tr_m: float) -> float:
+                    bc_row: np.ndarray, tr_a: float, ete: float, tr_m: float, upper_z: float) -> float:
     """σ_δ from the residuals as :func:`distnav.models.uwb.precision.delay_sigma_estimate`, from network totals:
     ``A = GᵀWG − (JᵀWG)ᵀB`` (``n²`` floats per anchor: its own rows of both), ``‖GᵀWr‖²`` (anchor ``k``'s entry is
-    a sum over its own links), ``ẽᵀẽ = Σ w r²`` and ``tr M = m − n_x``."""
+    a sum over its own links), ``ẽᵀẽ = Σ w r²`` and ``tr M = m − n_x``; ``√(σ̂_δ² + upper_z · sd)`` with the
+    estimate's standard deviation as :func:`~distnav.models.uwb.precision.delay_variance_estimate`'s."""
     n, nl = problem.n_anchors, ex.n_local
     me = ex.nodes[owner]
     part = -np.einsum("npk,npl->nkl", H, B)
@@ -248,12 +252,23 @@ def _delay_estimate(problem: RangingData, ex: Exchange, links: Links, owner: np.
     tot = links.total(np.concatenate([part.reshape(nl, n * n), gwr], axis=1))
     A = tot[:n * n].reshape(n, n) - np.outer(hc, bc_row)  # the common offset's row of JᵀWG and B, once
     gwr_all = tot[n * n:]
-    lhs = np.array([[tr_m, tr_a], [tr_a, float(np.sum(A * A))]])
+    A2 = A @ A
+    tr_a2, tr_a3, tr_a4 = float(np.sum(A * A)), float(np.sum(A2 * A)), float(np.sum(A2 * A2))
+    lhs = np.array([[tr_m, tr_a], [tr_a, tr_a2]])
     rhs = np.array([ete, float(gwr_all @ gwr_all)])
     try:
-        s2, d2 = np.linalg.solve(lhs, rhs)
+        inv = np.linalg.inv(lhs)
     except np.linalg.LinAlgError:
         return 0.0
+    s2, d2 = inv @ rhs
     if d2 > 0 and s2 <= 0:
-        d2 = rhs[1] / lhs[1, 1]
-    return float(np.sqrt(d2)) if d2 > 0 else 0.0
+        d2, s2 = rhs[1] / lhs[1, 1], 0.0
+    # its standard deviation for normal errors, 2 tr(Bᵢ Σ Bⱼ Σ) with Σ = s² M + σ_δ² M G̃G̃ᵀ M, from A alone
+    # (M² = M): tr Σ² = s⁴ tr M + 2s²σ_δ² tr A + σ_δ⁴ tr A², and likewise one and two powers of A higher
+    sp, dp = max(float(s2), 0.0), max(float(d2), 0.0)
+    c = [sp * sp * t0 + 2.0 * sp * dp * t1 + dp * dp * t2
+         for t0, t1, t2 in ((tr_m, tr_a, tr_a2), (tr_a, tr_a2, tr_a3), (tr_a2, tr_a3, tr_a4))]
+    C = 2.0 * np.array([[c[0], c[1]], [c[1], c[2]]])
+    sd = float(np.sqrt(max(float((inv @ C @ inv.T)[1, 1]), 0.0)))
+    v = float(d2) + upper_z * sd
+    return float(np.sqrt(v)) if v > 0 else 0.0

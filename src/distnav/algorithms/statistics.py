@@ -13,6 +13,14 @@ deficient: ``Q_ê`` below does not depend on which), residuals ``ê = y − A x�
 
 which for uncorrelated observations is ``ê_i / sqrt((Q_ê)_ii)``; under H0 it is N(0, 1). The a-posteriori variance
 factor is ``σ̂² = êᵀ R⁻¹ ê / r`` with redundancy ``r = m − rank(A)``; under H0, ``r σ̂²`` is χ²(r).
+
+Reliability (Baarda, *A testing procedure for use in geodetic networks*, 1968; Teunissen 2006 §4.4): for
+uncorrelated observations with weights ``p_i = 1/σ_i²`` the **redundancy number** ``r_i = 1 − p_i a_i Q_x̂ a_iᵀ``
+(the diagonal of ``Q_ê R⁻¹``; ``Σ r_i = m − rank(A)``) is the share of a gross error ``∇_i`` that shows in its own
+residual. The **minimal detectable bias** ``∇_i = σ_i √(λ0 / r_i)`` is the error the w-test finds with probability
+``power`` at level α, ``λ0 = (k_α + Φ⁻¹(power))²`` (17.07 for α = 0.001, power 0.8: Baarda's δ0 = 4.13). Its
+effect on the estimate, ``∇x̂_i = Q_x̂ a_iᵀ p_i ∇_i``, is the **external reliability**: what an error just too small
+to be found does to the unknowns. ``r_i ≈ 0``: nothing checks observation i (∇_i infinite).
 """
 
 from __future__ import annotations
@@ -29,6 +37,9 @@ __all__ = [
     "SnoopingOutcome",
     "critical_value",
     "data_snooping",
+    "minimal_detectable_bias",
+    "noncentrality",
+    "redundancy_numbers",
     "residual_covariance",
     "variance_factor",
     "variance_factor_test",
@@ -91,6 +102,48 @@ def variance_factor_test(weighted_ssr: float, redundancy: float, level: float = 
     lo = float(2.0 * special.gammaincinv(redundancy / 2.0, level / 2.0) / redundancy)
     hi = float(special.chdtri(redundancy, level / 2.0) / redundancy)
     return s2, (lo, hi), bool(lo <= s2 <= hi)
+
+
+def noncentrality(level: float = 0.001, power: float = 0.8) -> float:
+    """``λ0 = (k_α + Φ⁻¹(power))²``: the non-centrality of the (two-sided, one-dimensional) w-test at false-alarm
+    probability ``level`` that a gross error must reach to be found with probability ``power`` (the far tail of
+    the two-sided test neglected, as in Baarda's tables: 17.07 for 0.001 / 0.8)."""
+    if not 0.0 < power < 1.0:
+        raise ModelError(f"test power must lie in (0, 1), got {power!r}")
+    return float((critical_value(level) + special.ndtri(power)) ** 2)
+
+
+def redundancy_numbers(A: ArrayLike, weight: ArrayLike, Qx: ArrayLike) -> FloatArray:
+    """Redundancy numbers ``r_i = 1 − p_i a_i Q_x̂ a_iᵀ`` of uncorrelated observations with weights ``p_i`` (the
+    diagonal of ``I − A Q_x̂ Aᵀ P``, module docstring), clipped to [0, 1]; ``A`` dense or scipy sparse."""
+    p = np.asarray(weight, dtype=float)
+    Q = np.asarray(Qx, dtype=float)
+    if hasattr(A, "toarray"):
+        AQ = np.asarray(A @ Q)
+        h = np.asarray(A.multiply(AQ).sum(axis=1)).ravel()  # type: ignore[union-attr]
+    else:
+        A_ = np.atleast_2d(np.asarray(A, dtype=float))
+        h = np.einsum("ij,jk,ik->i", A_, Q, A_)
+    if h.shape != p.shape:
+        raise ModelError(f"{h.size} observations but {p.size} weights")
+    return np.asarray(np.clip(1.0 - p * h, 0.0, 1.0))
+
+
+def minimal_detectable_bias(sigma: ArrayLike, redundancy: ArrayLike, lam0: float, *,
+                            residual_variance: ArrayLike | None = None, min_redundancy: float = 1e-6) -> FloatArray:
+    """Minimal detectable bias ``∇_i = σ_i √λ0 √q_i / r_i`` (module docstring): the gross error that moves observation
+    i's w-statistic ``ê_i / (σ_i √q_i)`` by ``√λ0``. ``q_i`` is the variance of its standardized residual the test
+    divides by: ``r_i`` itself for least squares with the weights of the model (the default; then
+    ``∇_i = σ_i √(λ0 / r_i)``), otherwise e.g. that of a robust fit with fixed weights. Infinite where
+    ``r_i < min_redundancy`` (an observation nothing else checks)."""
+    s = np.asarray(sigma, dtype=float)
+    r = np.asarray(redundancy, dtype=float)
+    q = r if residual_variance is None else np.asarray(residual_variance, dtype=float)
+    s, r, q = np.broadcast_arrays(s, r, q)
+    out = np.full(r.shape, np.inf)
+    ok = r >= min_redundancy
+    out[ok] = s[ok] * np.sqrt(lam0 * np.maximum(q[ok], 0.0)) / r[ok]
+    return out
 
 
 def residual_covariance(A: FloatArray, R: FloatArray, Qx: FloatArray) -> FloatArray:

@@ -16,7 +16,9 @@
   A 3-D solve of a nearly planar network without it prints a warning.
 * LM in metres: the robust fit of every link from several starts (the lowest cost wins) before the exclusions;
   exclusions that fit all the links much worse are rejected; ``--delay-sigma-m`` (default 0.015 m) widens the
-  reported σ by the antenna delays left after the common offset (:mod:`distnav.models.uwb.precision`).
+  reported σ by the antenna delays left after the common offset (:mod:`distnav.models.uwb.precision`);
+  ``--reliability-limit-m`` (default 0.3 m): an anchor that one link's undetectable bias (Baarda's MDB) would move
+  further than that and 3σ is reported weak (:mod:`distnav.models.uwb.reliability`).
 * The distributed solvers' σ are node-local: every anchor's 2-hop sub-network covariance, with the delays
   considered there (:mod:`distnav.algorithms.ranging_precision`; ``summary.json`` names the kind and counts its
   messages).
@@ -45,11 +47,11 @@ from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange
 from distnav.models.uwb.field import (
     DELAY_SIGMA_M,
+    RELIABILITY_LIMIT_M,
     FieldOptions,
     FieldSolution,
     gather_cost,
     prepare,
-    solve_field,
 )
 from distnav.models.uwb.geometry import planarity
 from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_initial_guess, smacof  # noqa: F401
@@ -62,6 +64,7 @@ from distnav.models.uwb.io import (
     read_ranges,
     single_link_anchors,
 )
+from distnav.models.uwb.mirror import solve_with_mirror_test
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 from distnav.output import atomic_write_text
 
@@ -104,6 +107,10 @@ def register(subparsers: Any) -> None:
                    help="σ (m) of each anchor's antenna delay left after the common offset, admitted in the "
                         f"reported σ without estimating it (metres objective, offsets auto/none/common; LM and "
                         f"the distributed solvers; default {DELAY_SIGMA_M}, 0 = off)")
+    s.add_argument("--reliability-limit-m", type=float, default=RELIABILITY_LIMIT_M,
+                   help="LM: report an anchor weak when one link's minimal detectable bias, undetected, would move "
+                        f"it more than this (m) and 3σ (external reliability; default {RELIABILITY_LIMIT_M}, "
+                        "0 = off)")
     s.add_argument("--allow-planar-3d", action="store_true",
                    help="solve a nearly planar network in 3-D with free heights anyway (refused by default)")
     s.add_argument("--no-refine", dest="refine", action="store_false",
@@ -151,6 +158,8 @@ def _validate(opts: FieldOptions) -> None:
             raise ModelError(f"{name} must be a positive number of metres, got {v}")
     if not (np.isfinite(opts.delay_sigma_m) and opts.delay_sigma_m >= 0):
         raise ModelError(f"--delay-sigma-m must be a number of metres ≥ 0, got {opts.delay_sigma_m}")
+    if not (np.isfinite(opts.reliability_limit_m) and opts.reliability_limit_m >= 0):
+        raise ModelError(f"--reliability-limit-m must be a number of metres ≥ 0, got {opts.reliability_limit_m}")
     if not 0.0 < opts.level < 0.5:
         raise ModelError(f"--level must lie in (0, 0.5), got {opts.level}")
     if opts.range_offsets not in ("none", "auto") and opts.objective != "metres":
@@ -209,12 +218,12 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
     init_source = str(initial) if initial is not None else \
         "classical MDS of the range graph + SMACOF, aligned to the known anchors"
     sub, geometry = prepare(problem, initial_m=init, allow_planar_3d=opts.allow_planar_3d)
-    warnings += [i.message for i in geometry.issues]
     exchange = None
     if opts.solver.upper() != "LM":
         def exchange(p: RangingProblem) -> Any:
             return make_exchange(p.graph, backend=backend)
-    sol = solve_field(sub, opts, geometry=geometry, exchange=exchange)
+    sol = solve_with_mirror_test(sub, opts, geometry, exchange)  # solve_field, + the mirror test if needed
+    warnings += [i.message for i in sol.geometry.issues]
     summary = _summary(sol, opts, comb, log.range_m.size, log.n_dropped, dict(log.dropped), units_note,
                        init_source, len(held), warnings)
     return sol, comb, summary
@@ -271,6 +280,8 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "geometry": sol.geometry.as_dict(),
         "unsolved": list(sol.geometry.unsolved),
         "weakly_determined_anchors": list(sol.weak),
+        "weak_reasons": dict(sol.weak_reasons),
+        "reliability": sol.reliability,
         "n_anchors": len(sol.geometry.ids),
         "n_solved": p.n_anchors,
         "n_known": int(p.fixed.sum()),
@@ -324,22 +335,25 @@ def write_offsets(path: Path, sol: FieldSolution) -> None:
 
 
 def _positions_table(path: Path, sol: FieldSolution) -> None:
-    """``positions.csv``: every anchor with σ per axis and a status (known, estimated, ambiguous, unsolved)."""
+    """``positions.csv``: every anchor with σ per axis, a status (known, estimated, weak, ambiguous, unsolved) and,
+    for a weak one, why (``weak_reason``: misfit, thin, reliability — which link would go undetected and how far
+    it would move the anchor —, untested or disagree; no commas)."""
     p = sol.problem
     dim = p.dim
     axes = ["x", "y", "z"][:dim]
-    rows = ["id," + ",".join(f"{a}_m" for a in axes) + "," + ",".join(f"s{a}_m" for a in axes) + ",status"]
+    rows = ["id," + ",".join(f"{a}_m" for a in axes) + "," + ",".join(f"s{a}_m" for a in axes) + ",status,weak_reason"]
     index = {k: i for i, k in enumerate(p.ids)}
     amb = sol.geometry.ambiguous_anchors()
     for name in sol.geometry.ids:
         if name not in index:
-            rows.append(name + "," * (2 * dim) + ",unsolved")
+            rows.append(name + "," * (2 * dim) + ",unsolved,")
             continue
         i = index[name]
         st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in sol.weak
                                           else "estimated")
         rows.append(name + "," + ",".join(f"{v:.6f}" for v in sol.positions_m[i]) + ","
-                    + ",".join(f"{v:.6f}" for v in sol.sigma_m[i]) + f",{st}")
+                    + ",".join(f"{v:.6f}" for v in sol.sigma_m[i]) + f",{st},"
+                    + (sol.weak_reasons.get(name, "").replace(",", ";") if st == "weak" else ""))
     atomic_write_text(path, "\n".join(rows) + "\n")
 
 
@@ -399,6 +413,7 @@ def _handler(args: argparse.Namespace) -> int:
                         sigma_m=args.sigma_m, iterations=args.iterations, exclude=args.exclude, level=args.level,
                         range_offsets=args.range_offsets, offset_prior_sigma_m=args.offset_prior_sigma_m,
                         allow_planar_3d=args.allow_planar_3d, delay_sigma_m=args.delay_sigma_m,
+                        reliability_limit_m=args.reliability_limit_m,
                         solver_options={} if args.refine else {"refine": False})
     if not args.refine and opts.solver == "LM":
         raise ModelError("--no-refine applies to the distributed solvers (--solver N-CLM, N-CSG-TBLS, ...), not to LM")
@@ -439,7 +454,10 @@ def _handler(args: argparse.Namespace) -> int:
     if sol.weak:
         print(f"warning: {len(sol.weak)} anchor(s) weakly determined, their positions may be metres off: "
               f"{', '.join(sol.weak)} (positions.csv status 'weak'; too few consistent links to tell which are NLOS, "
-              "or at most one redundant link)", file=sys.stderr)
+              "at most one redundant link, or one undetectable NLOS link would move them: weak_reason)",
+              file=sys.stderr)
+        for k in sol.weak[:5]:
+            print(f"  {k}: {sol.weak_reasons.get(k, '')}", file=sys.stderr)
     if sol.status == "ambiguous":
         print(f"error: the solution is ambiguous ({sol.message}); positions written with status 'ambiguous'",
               file=sys.stderr)

@@ -73,6 +73,8 @@ class Route:
             self.in_rows = self.out_rows
             if not np.array_equal(self._act_in, self._act_out):  # pragma: no cover - same edges in-process
                 raise ExchangeError("in-process route with different incoming and outgoing edges")
+        elif in_rows is None and out_rows is None and self._act_in is self._act_out:
+            self.in_rows = self.out_rows  # in-process: the same rows ascending (one array, not two equal ones)
         else:
             self.in_rows = _rows_or_default(in_rows, self._act_in, "in_rows")
         self._gather = np.ascontiguousarray(ex.in_src_col[self.in_rows])

@@ -49,11 +49,18 @@ from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
 from distnav.models.uwb.precision import consider_precision
 from distnav.models.uwb.problems import RangingProblem
+from distnav.models.uwb.reliability import (
+    RELIABILITY_LIMIT_M,
+    WEAK_RMS_M,
+    check_reliability,
+    weak_anchor_reasons,
+    weak_anchors,
+)
 from distnav.typing import BoolArray, FloatArray
 
 __all__ = ["FieldOptions", "FieldSolution", "prepare", "solve_field", "gather_cost", "RANGE_RECORD_BYTES",
            "supports_objective", "subset_measurements", "anchor_precision", "AnchorPrecision", "TIGHT_SCALE_FLOOR_M",
-           "PRECISION_HOPS"]
+           "RELIABILITY_LIMIT_M", "weak_anchors", "PRECISION_HOPS"]
 
 DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions were right, 1.80 on the folded one
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
@@ -88,6 +95,7 @@ class FieldOptions:
     nlos_loss: bool = True  # metres with the Cauchy loss: one-sided ("cauchy_long"), tightened (nlos_aware)
     polish: bool = True  # with nlos_aware: the kept links re-fitted at loss_scale_m at the end (_polish)
     estimate_delays: bool = True  # σ: delay_sigma_m is a floor, larger delays the residuals show are used
+    reliability_limit_m: float = RELIABILITY_LIMIT_M  # LM: weak if one undetected link moves it more (reliability.py)
     distributed_precision: str = "auto"  # distributed σ: "central" / "subnetwork" / "auto" (field_precision.py)
 
     @property
@@ -148,6 +156,8 @@ class FieldSolution:
     bytes: int
     critical_value: float | None
     weak: tuple[str, ...] = ()
+    weak_reasons: dict[str, str] = field(default_factory=dict)  # why each weak anchor is weak (positions.csv)
+    reliability: dict[str, Any] = field(default_factory=dict)  # external reliability (summary.json; reliability.py)
     covariance_m2: FloatArray | None = None  # per-anchor blocks (a-posteriori) whose diagonal gives sigma_m
     precision_kind: str | None = None  # Precision.kind of sigma_m ("centralized", "neighbourhood", …)
     precision_messages: int = 0  # of messages / bytes: those of the precision (distributed solvers)
@@ -183,7 +193,7 @@ def prepare(problem: RangingProblem, *, initial_m: FloatArray | None = None, all
     carried = tuple(i for i in first.issues if i.severity == "unsolved")
     report = GeometryReport(ids=problem.ids, solvable=first.solvable, issues=carried + second.issues,
                             planarity_known=second.planarity_known, planarity_network=second.planarity_network,
-                            notes=first.notes + second.notes)
+                            notes=first.notes + second.notes, planar_fit_ratio=second.planar_fit_ratio)
     report.raise_if_refused()
     return sub, report
 
@@ -271,35 +281,6 @@ def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None
         return r
 
     return fit
-
-
-WEAK_RMS_M = 0.15
-
-
-def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: BoolArray, flagged: BoolArray, *,
-                 limit_m: float = WEAK_RMS_M) -> tuple[str, ...]:
-    """Anchors with an excluded or flagged link whose kept links still misfit by more than ``limit_m`` RMS (or 3 ×
-    the network's robust residual scale, if larger) at the solution: the exclusions could not find a consistent
-    subset of their links; and anchors with at most one redundant link left (3 links for 2 coordinates, with or
-    without exclusions: one NLOS link among them moves the anchor by metres while its residuals stay at a few cm,
-    and 4 links of which 2 are NLOS fit the wrong pair exactly)."""
-    kept = ~np.asarray(excluded, bool)
-    n = problem.n_anchors
-    a, b = problem.meas_a, problem.meas_b
-    e2 = np.where(kept, residual_m**2, 0.0)
-    ssr = np.bincount(a, e2, minlength=n) + np.bincount(b, e2, minlength=n)
-    cnt = np.bincount(a[kept], minlength=n) + np.bincount(b[kept], minlength=n)
-    touched = np.zeros(n, bool)
-    bad = ~kept | np.asarray(flagged, bool)
-    touched[a[bad]] = True
-    touched[b[bad]] = True
-    rms = np.sqrt(ssr / np.maximum(cnt, 1))
-    scale = 1.4826 * float(np.median(np.abs(residual_m[kept]))) if kept.any() else 0.0
-    limit = max(limit_m, 3.0 * scale)  # a network whose every link misfits (range bias) is not "weak" here
-    # at most one redundant link (kept): one NLOS link there shifts the anchor with residuals too small to test,
-    # and could not be located if it were detected
-    thin = cnt <= problem.free.sum(axis=1) + 1
-    return tuple(problem.ids[i] for i in np.flatnonzero(problem.estimated & ((touched & (rms > limit)) | thin)))
 
 
 def offset_bias_m(problem: RangingProblem, res: Any) -> FloatArray | float:
@@ -445,7 +426,7 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
         if opts.exclude and res.usable:
             note += f"; {opts.solver}: no per-link tests (or they failed on a re-fit): no link excluded"
             untested = opts.solver.upper() == "LM"
-    reverted, fit_scale_m = 0.0, opts.loss_scale_m
+    reverted = 0.0
     if excluded.any() and no_exclusion and no_exclusion[0].usable and res.usable and opts.revert:
         worse = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
         if worse > DISAGREE_RATIO:  # the exclusions raised the robust cost of all the data: rejected
@@ -454,12 +435,13 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             excluded = np.zeros(problem.n_meas, bool)
             if res.tests is not None:
                 w, flagged = res.tests.w, res.tests.flagged
+    fit_scale = opts.loss_scale_m  # the loss scale of the final fit (its w-tests, the reliability test's weights,
+    # the distributed σ's variance factor as LM's own)
     if given.nlos_aware and given.polish and res.usable and opts.loss_scale_m < given.loss_scale_m:
         polished, w2, f2 = _polish(problem, res, excluded, w, flagged, given, exchange, total)
         ratio = all_links_cost(problem, polished, opts) / max(all_links_cost(problem, res, opts), 1e-12)
         if ratio <= POLISH_RATIO:
-            res, w, flagged = polished, w2, f2
-            fit_scale_m = given.loss_scale_m  # the fit's own scale, for its variance factor (as LM's)
+            res, w, flagged, fit_scale = polished, w2, f2, given.loss_scale_m
     geo = geometry if geometry is not None else check_geometry(problem)
     nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
     if not res.usable or not np.all(np.isfinite(res.estimates)):
@@ -470,41 +452,53 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
                              objective_used=objective, iterations=total[0], messages=total[1], bytes=total[2],
                              critical_value=crit)
     pos = np.asarray(res.estimates, float)
-    prec_out = anchor_precision(problem, res, opts, excluded, objective, exchange, fit_scale_m=fit_scale_m)
+    prec_out = anchor_precision(problem, res, opts, excluded, objective, exchange, fit_scale_m=fit_scale)
     sigma = prec_out.sigma_m
     total[1] += prec_out.messages
     total[2] += prec_out.bytes
     note += prec_out.note
     residual = problem.residuals_m(pos) + offset_bias_m(problem, res)  # with the solution's offsets
-    weak = weak_anchors(problem, residual, excluded, flagged)
+    reasons = weak_anchor_reasons(problem, residual, excluded, flagged)
+    reliability: dict[str, Any] = {"tested": False}
+    if opts.reliability_limit_m > 0 and opts.solver.upper() == "LM" and objective == "metres":
+        rel_weak, reliability, rel_note = check_reliability(
+            subset_measurements(problem, ~excluded), res, sigma, sigma_m=opts.sigma_m, offsets=opts.offsets_used,
+            loss=_solver_kwargs(opts).get("loss", "linear"), loss_scale_m=fit_scale, level=opts.level,
+            limit_m=opts.reliability_limit_m, offset_prior_sigma_m=opts.offset_prior_sigma_m)
+        reasons.update({k: v for k, v in rel_weak.items() if k not in reasons})
+        note += rel_note
+    every = [problem.ids[i] for i in np.flatnonzero(problem.estimated)]
     if untested:  # nothing was tested, nothing excluded: a wrong answer would look right (docs/uwb.md, stress test)
-        weak = tuple(problem.ids[i] for i in np.flatnonzero(problem.estimated))
+        reasons = dict.fromkeys(every, "untested: LM's normal matrix was singular in the exclusion loop")
         note += ("; LM's normal matrix was singular in the exclusion loop (no link tests, no exclusions): the "
                  "positions are not determined there (a fold or a flexible part) — every anchor reported weak")
     if not reverted and excluded.any() and no_exclusion and no_exclusion[0].usable:
         reverted = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
         reverted = reverted if reverted > DISAGREE_RATIO else 0.0
     if reverted:  # the exclusions and the robust fit of all links disagree: trust neither
-        weak = tuple(problem.ids[i] for i in np.flatnonzero(problem.estimated))
+        reasons = dict.fromkeys(every, "disagree: the exclusions and the robust fit of every link disagree")
         note += (f"; the solution after the exclusions fitted all the ranges {reverted:.2f} × worse (Cauchy cost) "
                  "than the robust fit of every link: a folded start or a swamped exclusion — "
                  + ("the exclusions were rejected (the robust fit of every link is reported, its flagged links "
                     "named, none excluded) and " if opts.revert else "")
                  + "every anchor reported weak")
+    weak = tuple(k for k in problem.ids if k in reasons)
     status = geo.status or ("weakly_determined" if weak and res.status in ("converged", "max_iterations")
                             else res.status)
     msg = res.message + note
     if weak:
         msg = (f"weakly determined: anchors {', '.join(repr(k) for k in weak[:12])} still misfit their kept links "
                f"by more than {WEAK_RMS_M} m RMS (or 3 × the network's robust residual scale) after the "
-               f"exclusions (too few consistent links to tell which are NLOS), or keep at most one redundant link "
-               f"(one NLOS link there would move them unseen) — {msg}")
+               f"exclusions (too few consistent links to tell which are NLOS), keep at most one redundant link "
+               f"(one NLOS link there would move them unseen), or one link's undetectable bias would move them more "
+               f"than {opts.reliability_limit_m:g} m and 3σ (external reliability; reasons in positions.csv) — {msg}")
     if geo.status is not None:
         msg = f"{geo.status}: " + "; ".join(i.message for i in geo.issues if i.severity != "unsolved") + f" — {msg}"
     return FieldSolution(problem=problem, geometry=geo, positions_m=pos, sigma_m=sigma,
                          residual_m=residual, w=w, flagged=flagged, excluded=excluded, result=res,
                          status=status, message=msg, objective_used=objective, iterations=total[0],
                          messages=total[1], bytes=total[2], critical_value=crit, weak=weak,
+                         weak_reasons={k: reasons[k] for k in weak}, reliability=reliability,
                          covariance_m2=prec_out.covariance_m2, precision_kind=prec_out.kind,
                          precision_messages=prec_out.messages, precision_bytes=prec_out.bytes)
 

@@ -22,6 +22,7 @@ from distnav.algorithms.neighbourhood_offsets import sample_bias
 from distnav.algorithms.ranging_covariance import CENTRAL_MAX_ANCHORS, central_precision
 from distnav.algorithms.ranging_precision import neighbourhood_precision
 from distnav.errors import ModelError
+from distnav.models.uwb.precision import DELAY_UPPER_Z
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 
@@ -63,7 +64,8 @@ def distributed_sigma(kept: RangingProblem, res: Any, *, exchange: Any, objectiv
                                     exchange=None if exchange is None else exchange(kept), sigma_m=sigma_m,
                                     loss=loss, loss_scale_m=loss_scale_m, range_offsets=offsets,
                                     offset_prior_sigma_m=offset_prior_sigma_m, delay_sigma_m=delay_sigma_m,
-                                    estimate_delays=estimate_delays, variance_scale_m=fit_scale_m)
+                                    estimate_delays=estimate_delays, variance_scale_m=fit_scale_m,
+                                    delay_upper_z=DELAY_UPPER_Z)
         except ModelError as err:
             if mode == "central":
                 raise

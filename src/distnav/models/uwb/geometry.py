@@ -17,15 +17,24 @@ pure functions say beforehand which anchors the ranges can locate, and how well:
 * **Mirror of the whole network** (``mirror``): the known anchors of a part lie on one line (2-D, or 3-D with the
   heights held: their horizontal positions), or in 3-D with free heights on one plane (always the case with 3
   known anchors): the reflection through that line / plane keeps every range and every known position, so the
-  ranges cannot choose between the solution and its mirror image. *Ambiguous*.
+  ranges cannot choose between the solution and its mirror image. *Ambiguous*. Known anchors *nearly* on one
+  line (``near_mirror``: second over first principal spread below ``planar_tol``) make the solve *weakly
+  determined*: on the APRIL lab data with known nodes 8, 61, 12 (node 12 0.3 m off the line of the other two,
+  ratio 0.049) the mirror image fits the real ranges *better* (Cauchy cost 84 against 108 near the truth) and
+  LM returned it, 4.1 m RMSE, as ``converged``.
 * **Nearly planar network solved in 3-D** (``planar``): anchors under a ceiling lie within decimetres of one
   plane; with free heights the ranges constrain the heights only to second order and each anchor can fold
   through the plane. Measured by :func:`planarity` (smallest / largest principal spread) of the known anchors
   and of the initial guess of the whole network; below ``planar_tol`` (0.1 by default: a 2 m height span across
   20 m is planar) the solve is *refused* unless ``allow_planar_3d=True`` (then *weakly determined*). The remedy
   is to hold the surveyed heights (``--heights``). The network's planarity is that of the initial guess (an
-  MDS of the ranges) where there is one, else that of the known anchors. Known anchors that are nearly but not
-  exactly coplanar in a network that is not planar (``near_mirror``) make the solve *weakly determined*.
+  MDS of the ranges) where there is one, else that of the known anchors. The MDS start of a planar network is
+  not planar itself (heights enter the ranges to second order only, so its third dimension carries noise and NLOS:
+  0.07–0.18 on simulated halls whose truth is 0.01), so a network is also called planar when its ranges fit a
+  plane about as well as 3-D space (:func:`planar_fit_ratio`: median |range residual| of a 2-D SMACOF embedding
+  over that of the 3-D one below ``PLANAR_FIT_RATIO`` = 3; simulated halls 1.0–2.1, volumetric networks 18–52).
+  Known anchors that are nearly but not exactly coplanar in a network that is not planar (``near_mirror``) make
+  the solve *weakly determined*.
 """
 
 from __future__ import annotations
@@ -41,13 +50,15 @@ from scipy.sparse.csgraph import connected_components, reverse_cuthill_mckee
 
 from distnav._blas import single_threaded_blas
 from distnav.errors import ModelError
+from distnav.models.uwb.initial import classical_mds, completed, link_distances, smacof
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray, IntArray
 
 __all__ = ["GeometryIssue", "GeometryReport", "check_geometry", "rigidity_matrix", "flexible_anchors",
-           "planarity", "PLANAR_TOL", "MAX_DENSE_RIGIDITY"]
+           "planarity", "planar_fit_ratio", "PLANAR_TOL", "PLANAR_FIT_RATIO", "MAX_DENSE_RIGIDITY"]
 
 PLANAR_TOL = 0.1
+PLANAR_FIT_RATIO = 3.0
 EXACT_TOL = 1e-6
 MAX_DENSE_RIGIDITY = 6000
 NULL_TOL = 1e-9  # eigenvalues of RᵀR at most this × the largest span its null space
@@ -80,6 +91,7 @@ class GeometryReport:
     planarity_known: float | None = None
     planarity_network: float | None = None
     notes: tuple[str, ...] = field(default=())
+    planar_fit_ratio: float | None = None
 
     @property
     def unsolved(self) -> tuple[str, ...]:
@@ -116,7 +128,7 @@ class GeometryReport:
     def as_dict(self) -> dict[str, Any]:
         return {"status": self.status, "unsolved": list(self.unsolved), "issues": [i.as_dict() for i in self.issues],
                 "planarity_known": self.planarity_known, "planarity_network": self.planarity_network,
-                "notes": list(self.notes)}
+                "planar_fit_ratio": self.planar_fit_ratio, "notes": list(self.notes)}
 
 
 def planarity(points_m: FloatArray) -> float:
@@ -128,12 +140,36 @@ def planarity(points_m: FloatArray) -> float:
     return float(s[-1] / s[0]) if s[0] > 0 else 0.0
 
 
+def planar_fit_ratio(problem: RangingProblem, keep: BoolArray | None = None) -> float:
+    """How much better the ranges fit 3-D space than a plane: median |‖x_a − x_b‖ − d_ab| over the measured pairs
+    of a 2-D SMACOF embedding over that of a 3-D one (classical MDS start, :mod:`distnav.models.uwb.initial`; the
+    3-D median floored at 2 cm, about the scatter of a UWB range, so that exact simulated ranges do not make a
+    ceiling network volumetric). ≈ 1 when the ranges cannot see the heights (anchors under a ceiling), ≫ 1 for a
+    volumetric network. ``keep`` restricts it to the anchors kept."""
+    sub = problem if keep is None or keep.all() else problem.subset(keep, check=False)
+    links, d = link_distances(sub, False)
+    full = completed(sub, links, d)
+    med = []
+    with single_threaded_blas():
+        for k in (2, 3):
+            x = smacof(links, d, classical_mds(full, k))
+            med.append(float(np.median(np.abs(np.linalg.norm(x[links[:, 0]] - x[links[:, 1]], axis=1) - d))))
+    return med[0] / max(med[1], 0.02)
+
+
 def _line_ratio(points: FloatArray) -> float:
     """Second over first principal spread (0 = collinear; 0 for fewer than 3 points)."""
     if points.shape[0] < 3:
         return 0.0
     s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
     return float(s[1] / s[0]) if s[0] > 0 else 0.0
+
+
+def _off_line_m(points: FloatArray) -> float:
+    """Largest distance of 2-D points from their principal (best-fit) line."""
+    c = points - points.mean(axis=0)
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    return float(np.abs(c @ vt[-1]).max())
 
 
 def rigidity_matrix(problem: RangingProblem, positions_m: FloatArray) -> sp.csr_matrix:
@@ -279,13 +315,21 @@ def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, pl
         kf = comp[fixed[comp]]
         if not z_free:
             ratio = _line_ratio(problem.positions_m[kf][:, :2])
+            what = "2-D" if problem.dim == 2 else "3-D with the heights held"
             if ratio <= EXACT_TOL:
-                what = "2-D" if problem.dim == 2 else "3-D with the heights held"
                 issues.append(GeometryIssue(
                     "mirror", "ambiguous", tuple(problem.ids[i] for i in comp if problem.estimated[i]),
                     f"the {kf.size} known anchor(s) {_names(problem, kf.tolist())} lie on one line ({what}): the "
                     f"mirror image of the network through that line fits every range equally (ambiguous); add a "
                     f"known anchor off the line"))
+            elif ratio < planar_tol:
+                issues.append(GeometryIssue(
+                    "near_line", "weakly_determined", tuple(problem.ids[i] for i in comp if problem.estimated[i]),
+                    f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie nearly on one line ({what}; "
+                    f"none more than {_off_line_m(problem.positions_m[kf][:, :2]):.2f} m off it, line ratio "
+                    f"{ratio:.3f} < {planar_tol}): the mirror image of the network through that line fits the "
+                    f"ranges almost as well, range errors can choose it (weakly determined); add a known anchor "
+                    f"farther off the line"))
             continue
         pk_c = planarity(problem.positions_m[kf])
         pk = pk_c if pk is None else min(pk, pk_c)
@@ -299,19 +343,28 @@ def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, pl
                 f"free: the mirror image of the network through that plane fits every range equally (ambiguous); "
                 f"hold the surveyed heights (--heights) or add a known anchor off the plane"))
     network_planar = pn if pn is not None else pk
-    if z_free and network_planar is not None and network_planar < planar_tol:
+    fit_ratio: float | None = None
+    if z_free and pn is not None and pn >= planar_tol:  # a planar network's MDS start need not be planar
+        try:
+            fit_ratio = planar_fit_ratio(problem, keep)
+        except ModelError:  # not connected: no embedding
+            fit_ratio = None
+    fits_plane = fit_ratio is not None and fit_ratio < PLANAR_FIT_RATIO
+    if z_free and network_planar is not None and (network_planar < planar_tol or fits_plane):
         sev: Severity = "weakly_determined" if allow_planar_3d else "refused"
         tail = ("solved as asked: heights are weakly determined" if allow_planar_3d else
                 "refused: hold the surveyed heights (--heights HEIGHTS.csv) or ask for it with --allow-planar-3d")
         issues.append(GeometryIssue(
             "planar", sev, tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
             f"the network is nearly planar (planarity of the known anchors {pk if pk is not None else float('nan'):.3f}"
-            f", of the initial guess {pn if pn is not None else float('nan'):.3f}, < {planar_tol}) and is solved in "
-            f"3-D with free heights: the ranges cannot tell above from below its plane; {tail}"))
+            f", of the initial guess {pn if pn is not None else float('nan'):.3f}"
+            + (f"; its ranges fit a plane about as well as 3-D space: median residual ratio {fit_ratio:.2f} < "
+               f"{PLANAR_FIT_RATIO:g}" if fits_plane else f", < {planar_tol}")
+            + f") and is solved in 3-D with free heights: the ranges cannot tell above from below its plane; {tail}"))
     elif z_free and pk is not None and EXACT_TOL < pk < planar_tol:
         issues.append(GeometryIssue(
             "near_mirror", "weakly_determined", tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
             f"the known anchors are nearly coplanar (planarity {pk:.3f} < {planar_tol}) and the heights are free: "
             f"the mirror image through their plane fits the ranges almost as well (weakly determined)"))
     return GeometryReport(ids=problem.ids, solvable=keep, issues=tuple(issues), planarity_known=pk,
-                          planarity_network=pn, notes=tuple(notes))
+                          planarity_network=pn, notes=tuple(notes), planar_fit_ratio=fit_ratio)

@@ -13,7 +13,8 @@ from scipy.sparse.csgraph import shortest_path
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
 
-__all__ = ["classical_mds", "smacof", "mds_initial_guess", "height_spread_ratio", "candidate_starts"]
+__all__ = ["classical_mds", "smacof", "mds_initial_guess", "height_spread_ratio", "candidate_starts", "link_distances",
+           "completed"]
 
 
 def classical_mds(dist_m: np.ndarray, dim: int) -> np.ndarray:
@@ -70,7 +71,7 @@ def _procrustes(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return r, md - ms @ r
 
 
-def _link_distances(problem: RangingProblem, horizontal: bool) -> tuple[np.ndarray, np.ndarray]:
+def link_distances(problem: RangingProblem, horizontal: bool) -> tuple[np.ndarray, np.ndarray]:
     """One distance per measured link (mean of its samples), reduced to horizontal when heights are held."""
     n = problem.n_anchors
     links = problem.links
@@ -85,7 +86,7 @@ def _link_distances(problem: RangingProblem, horizontal: bool) -> tuple[np.ndarr
     return links, d
 
 
-def _completed(problem: RangingProblem, links: np.ndarray, d: np.ndarray) -> np.ndarray:
+def completed(problem: RangingProblem, links: np.ndarray, d: np.ndarray) -> np.ndarray:
     n = problem.n_anchors
     g = csr_matrix((np.concatenate([d, d]) + 1e-9, (np.concatenate([links[:, 0], links[:, 1]]),
                                                     np.concatenate([links[:, 1], links[:, 0]]))), shape=(n, n))
@@ -103,8 +104,8 @@ def mds_initial_guess(problem: RangingProblem) -> np.ndarray:
     """
     dim = problem.dim
     horizontal = dim == 3 and bool(np.all(~problem.free[:, 2]))
-    links, d = _link_distances(problem, horizontal)
-    full = _completed(problem, links, d)
+    links, d = link_distances(problem, horizontal)
+    full = completed(problem, links, d)
     k = 2 if horizontal else dim
     coords = smacof(links, d, classical_mds(full, k))
     fixed = problem.fixed
@@ -154,8 +155,8 @@ def candidate_starts(problem: RangingProblem, *, max_flips: int = 8) -> list[tup
     horizontal = dim == 3 and bool(np.all(~problem.free[:, 2]))
     planar = horizontal or dim == 2
     try:
-        links, d = _link_distances(problem, horizontal)
-        full = _completed(problem, links, d)
+        links, d = link_distances(problem, horizontal)
+        full = completed(problem, links, d)
     except ModelError:
         return []
     k = 2 if horizontal else dim

@@ -25,7 +25,9 @@ The estimates do not change (no RMSE is traded), only their σ. ``σ_δ`` is a p
 ``estimate_delays`` (``FieldOptions.estimate_delays``, the default in ``uwb solve``) the prior is a floor: the
 delays' σ is also estimated from the residuals (:func:`delay_sigma_estimate`, a two-component variance estimate)
 and the larger is used — uncalibrated hardware with 5 cm delays per anchor no longer gets 1.5 cm σ
-(docs/uwb.md, "Stress test").
+(docs/uwb.md, "Stress test"). What is used is the estimate's one-sided 95 % upper bound (:data:`DELAY_UPPER_Z`):
+the estimate from one network of 28 anchors scatters widely (0.023–0.062 m for true 0.038–0.059 m), and one too
+low leaves σ too small — anchors 3σ off reported plainly ``estimated`` (docs/uwb.md, "External reliability").
 """
 
 from __future__ import annotations
@@ -41,7 +43,8 @@ from distnav.algorithms.ranging_objective import RangeObjective
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 
-__all__ = ["consider_sigma", "consider_precision", "MIN_NOISE_SHARE", "delay_sigma_estimate"]
+__all__ = ["consider_sigma", "consider_precision", "DELAY_UPPER_Z", "MIN_NOISE_SHARE", "delay_sigma_estimate",
+           "delay_variance_estimate"]
 
 MIN_NOISE_SHARE = 0.1  # the noise part keeps at least this share of σ̂² (the delays' prior may be too large)
 
@@ -59,12 +62,15 @@ def consider_sigma(problem: RangingProblem, result: Any, *, sigma_m: float, offs
     return None if out is None else out[0]
 
 
-def delay_sigma_estimate(J: Any, G: Any, r: FloatArray, w: FloatArray, Q: FloatArray) -> float:
-    """σ_δ (m) of the per-anchor delays from the residuals by a two-component variance estimate (MINQUE-like
-    moment equations; Koch, *Parameter Estimation and Hypothesis Testing in Linear Models*, 1999, §3.6): with the
-    whitened residual maker ``M = I − W½ J Q Jᵀ W½`` and ``G̃ = W½ G``, ``ẽ = W½ r`` has ``E ẽᵀẽ = s² tr M + σ_δ²
-    tr A`` and ``E ‖G̃ᵀẽ‖² = s² tr A + σ_δ² tr A²`` (``A = G̃ᵀ M G̃``): delays show as residuals that share an
-    anchor. Returns 0 when the system is singular or σ_δ² < 0. Dense (``m × m``): small networks only."""
+def delay_variance_estimate(J: Any, G: Any, r: FloatArray, w: FloatArray, Q: FloatArray) -> tuple[float, float]:
+    """``(σ̂_δ², its standard deviation)`` (m²) of the per-anchor delays from the residuals by a two-component
+    variance estimate (MINQUE-like moment equations; Koch, *Parameter Estimation and Hypothesis Testing in Linear
+    Models*, 1999, §3.6): with the whitened residual maker ``M = I − W½ J Q Jᵀ W½`` and ``G̃ = W½ G``, ``ẽ = W½ r``
+    has ``E ẽᵀẽ = s² tr M + σ_δ² tr A`` and ``E ‖G̃ᵀẽ‖² = s² tr A + σ_δ² tr A²`` (``A = G̃ᵀ M G̃``): delays show as
+    residuals that share an anchor. The standard deviation is that of the moment estimate for normal errors:
+    ``Cov(ẽᵀBᵢẽ, ẽᵀBⱼẽ) = 2 tr(Bᵢ Σ Bⱼ Σ)`` with ``B₁ = I``, ``B₂ = G̃G̃ᵀ`` and ``Σ = s² M + σ_δ² M G̃ G̃ᵀ M`` at the
+    estimates (negative components as 0), mapped through the inverse of the 2 × 2 system. σ̂_δ² may be negative
+    (no delays seen); ``(0, 0)`` when the system is singular. Dense (``m × m``): small networks only."""
     sw = np.sqrt(np.asarray(w, float))
     Jt = np.asarray(J.toarray() if sp.issparse(J) else J) * sw[:, None]
     Gt = np.asarray(G.toarray() if sp.issparse(G) else G) * sw[:, None]
@@ -74,12 +80,30 @@ def delay_sigma_estimate(J: Any, G: Any, r: FloatArray, w: FloatArray, Q: FloatA
     lhs = np.array([[np.trace(M), np.trace(A)], [np.trace(A), float(np.sum(A * A))]])
     rhs = np.array([float(e @ e), float(np.sum((Gt.T @ e) ** 2))])
     try:
-        s2, d2 = np.linalg.solve(lhs, rhs)
+        inv = np.linalg.inv(lhs)
     except np.linalg.LinAlgError:
-        return 0.0
+        return 0.0, 0.0
+    s2, d2 = inv @ rhs
     if d2 > 0 and s2 <= 0:  # the delays explain all the scatter (the noise weight σ was set too large)
-        d2 = rhs[1] / lhs[1, 1]
-    return float(np.sqrt(d2)) if d2 > 0 else 0.0
+        d2, s2 = rhs[1] / lhs[1, 1], 0.0
+    MG = M @ Gt
+    S = max(s2, 0.0) * M + max(d2, 0.0) * (MG @ MG.T)
+    SB = (S, Gt @ (Gt.T @ S))  # Σ B₁, B₂ Σ (symmetric factors: tr(Bᵢ Σ Bⱼ Σ) = Σ (BᵢΣ) ∘ (BⱼΣ)ᵀ)
+    C = np.array([[2.0 * float(np.sum(SB[i] * SB[j].T)) for j in range(2)] for i in range(2)])
+    var = inv @ C @ inv.T
+    return float(d2), float(np.sqrt(max(var[1, 1], 0.0)))
+
+
+def delay_sigma_estimate(J: Any, G: Any, r: FloatArray, w: FloatArray, Q: FloatArray, *, upper_z: float = 0.0
+                         ) -> float:
+    """σ_δ (m) of the per-anchor delays from :func:`delay_variance_estimate`: ``√(σ̂_δ² + upper_z · sd)``
+    (``upper_z`` 0: the point estimate; 1.645: its one-sided 95 % upper bound); 0 when that is ≤ 0."""
+    d2, sd = delay_variance_estimate(J, G, r, w, Q)
+    v = d2 + upper_z * sd
+    return float(np.sqrt(v)) if v > 0 else 0.0
+
+
+DELAY_UPPER_Z = 1.645  # σ_δ from the residuals: the one-sided 95 % upper bound of the estimate, not the estimate
 
 
 ESTIMATE_MAX_ROWS = 2000  # the delay estimate forms an m × m residual maker: skipped on larger networks
@@ -114,7 +138,7 @@ def consider_precision(problem: RangingProblem, result: Any, *, sigma_m: float, 
                        (np.concatenate([np.arange(m)] * 2), np.concatenate([problem.meas_a, problem.meas_b]))),
                       shape=(J.shape[0], n))
     if estimate_delays and J.shape[0] <= ESTIMATE_MAX_ROWS:  # the prior is a floor: larger delays seen are used
-        delay_sigma_m = max(delay_sigma_m, delay_sigma_estimate(J, G, r, w, Q))
+        delay_sigma_m = max(delay_sigma_m, delay_sigma_estimate(J, G, r, w, Q, upper_z=DELAY_UPPER_Z))
     JWG = np.asarray((JW @ G).toarray())  # n_x × n
     B = Q @ JWG
     # the variance factor σ̂² = Σ w r² / redundancy also holds the delays' share of the residuals,

@@ -1,0 +1,206 @@
+"""External reliability of an LM field solve: which anchors one undetected bad link could move unseen.
+
+The link tests (w-tests, :mod:`distnav.algorithms.ranging_qc`) find an NLOS link only when its bias shows in its
+own residual. Baarda's reliability (:mod:`distnav.algorithms.statistics`, module docstring) says how large a bias
+must be to be found — the **minimal detectable bias** of link l, ``∇_l = σ_l ŝ √λ0 √q_l / r_l`` — and what a bias
+of that size, still undetected, does to the anchors: ``∇x̂_l = Q J_lᵀ w_l ∇_l / σ_l`` (``J`` the whitened Jacobian
+of the metres objective at the solution, ``W`` the final IRLS weights of the robust loss, ``Q = (JᵀWJ)⁻¹``,
+``r_l = 1 − w_l j_l Q j_lᵀ`` the redundancy number, ``q_l`` the residual variance the w-test divides by, ``ŝ`` the
+test's robust scale, ``λ0`` the non-centrality of α = ``FieldOptions.level`` and power 0.8). This is the
+linearization at the solution; the tests check it against re-fitting with the bias added to the range.
+
+An anchor is reported **weak** (reason ``reliability``) when the largest such shift over all kept links,
+measured on its free coordinates, exceeds both ``limit_m`` (``FieldOptions.reliability_limit_m``: the error a user
+would call wrong, default 0.3 m — the stress bench's definition of an anchor "off") and 3 × its own σ (σ already
+warns of a shift within 3σ). The rule has a statistical reason (a bias the test misses with 20 % probability moves
+the anchor further than its σ and the limit admit), no threshold fitted to the halls reported (docs/uwb.md, "External
+reliability"). A link with ``r_l ≈ 0`` is checked by nothing: its MDB is infinite and every anchor it moves is weak.
+
+Departures: Baarda's MDB is for least squares with known weights; here the weights are the robust loss's at the
+solution (for a link inside the loss scale ≈ 1) and σ is scaled by the test's robust scale ``ŝ`` (the w-tests use
+it). Per-anchor antenna delays are not in this model (the precision *considers* them; a delay is a bias on every
+link of one anchor, not one link's). Dense ``Q``: skipped with a note above :data:`MAX_FREE` free coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from distnav._blas import single_threaded_blas
+from distnav.algorithms.nlsq import loss_terms
+from distnav.algorithms.ranging_objective import RangeObjective
+from distnav.algorithms.ranging_qc import robust_scale
+from distnav.algorithms.statistics import minimal_detectable_bias, noncentrality, redundancy_numbers, w_statistics
+from distnav.models.uwb.problems import RangingProblem
+from distnav.typing import BoolArray, FloatArray, IntArray
+
+__all__ = ["MAX_FREE", "POWER", "RELIABILITY_LIMIT_M", "WEAK_RMS_M", "ExternalReliability", "external_reliability",
+           "reliability_weak", "weak_anchor_reasons", "weak_anchors"]
+
+MAX_FREE = 1500  # free coordinates above which the dense Q is not formed (the test is skipped, with a note)
+POWER = 0.8  # Baarda's β: the probability that a bias of the MDB is found
+RELIABILITY_LIMIT_M = 0.3  # default shift one undetected link may cause before the anchor is reported weak
+_SENSITIVE = 1e-9  # |∂x/∂range| below this (whitened) counts as "this link does not move the anchor"
+
+
+@dataclass(frozen=True, eq=False)
+class ExternalReliability:
+    """Per kept link (``problem``'s measurements): redundancy number ``r``, ``mdb_m`` (inf: unchecked); per anchor:
+    ``shift_m`` the largest shift of its free coordinates by one link's undetected MDB (0 for known anchors, inf
+    when an unchecked link moves it) and ``worst_link`` that link's index (-1 if none); ``lam0`` and ``scale`` ŝ."""
+
+    r: FloatArray
+    mdb_m: FloatArray
+    shift_m: FloatArray
+    worst_link: IntArray
+    lam0: float
+    scale: float
+
+    @property
+    def redundancy(self) -> float:
+        """``Σ r_l`` over the range rows (= rows − unknowns with least-squares weights, less prior rows' share)."""
+        return float(np.sum(self.r))
+
+
+def external_reliability(problem: RangingProblem, x: FloatArray, *, sigma_m: float, offsets: str, loss: str,
+                         loss_scale_m: float, level: float, offset_prior_sigma_m: float = 0.1,
+                         power: float = POWER) -> ExternalReliability | None:
+    """The reliability numbers (module docstring) of the LM metres-objective solution with free vector ``x`` on
+    ``problem`` (the kept links). None when the normal matrix is singular or the problem has more than
+    :data:`MAX_FREE` free coordinates."""
+    obj = RangeObjective(problem, "metres", sigma_m, offsets, offset_prior_sigma_m)
+    x = np.asarray(x, float)
+    if x.size != obj.n_x or problem.n_free > MAX_FREE or problem.n_free == 0:
+        return None
+    m = problem.n_meas
+    J = sp.csr_matrix(obj.jacobian(x))
+    res = obj.residual(x)
+    w = loss_terms(res, obj.loss_scale(loss_scale_m), loss)[0] if loss != "linear" else np.ones_like(res)
+    with single_threaded_blas():
+        N = np.asarray((J.T @ sp.diags(w) @ J).toarray())
+        try:
+            Q = sla.cho_solve(sla.cho_factor(N, check_finite=False), np.eye(obj.n_x), check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+        Jr = J[:m]
+        r = redundancy_numbers(Jr, w[:m], Q)
+        JQ = np.asarray(Jr @ Q)  # (m, n_x): row l is j_l Q
+        # the w-test's residual variance, fixed weights (ranging_qc.centralized_quality): 1 − 2wh + j Q JᵀW²J Q jᵀ
+        h = np.einsum("ij,ij->i", JQ, np.asarray(Jr.toarray()))
+        JW2J = np.asarray((J.T @ sp.diags(w * w) @ J).toarray())
+        q = np.maximum(1.0 - 2.0 * w[:m] * h + np.einsum("ij,jk,ik->i", JQ, JW2J, JQ), 0.0)
+    std = w_statistics(res[:m], q)
+    s = robust_scale(std)
+    s = s if np.isfinite(s) and s > 0 else 1.0
+    lam0 = noncentrality(level, power)
+    sigma = obj.sigma
+    mdb = minimal_detectable_bias(sigma * s, r, lam0, residual_variance=q)
+    # ∂x / ∂(range bias of l) in metres per metre: Q j_lᵀ w_l / σ_l (the whitened residual moves by ∇/σ)
+    gain = (JQ * (w[:m] / sigma)[:, None]).T[:problem.n_free]  # (n_free, m)
+    col = np.full(problem.free.shape, -1, np.int64)
+    col[problem.free] = np.arange(problem.n_free)
+    n = problem.n_anchors
+    shift = np.zeros(n)
+    worst = np.full(n, -1, np.int64)
+    finite = np.isfinite(mdb)
+    for i in np.flatnonzero(problem.free.any(axis=1)):
+        g = gain[col[i][col[i] >= 0]]  # (free coords of i, m)
+        gn = np.sqrt(np.sum(g * g, axis=0))
+        eff = np.where(finite, gn * np.where(finite, mdb, 0.0), np.where(gn > _SENSITIVE, np.inf, 0.0))
+        k = int(np.argmax(eff))
+        shift[i], worst[i] = float(eff[k]), (k if eff[k] > 0 else -1)
+    return ExternalReliability(r=r, mdb_m=mdb, shift_m=shift, worst_link=worst, lam0=lam0, scale=s)
+
+
+def reliability_weak(problem: RangingProblem, rel: ExternalReliability, sigma_m: FloatArray, *,
+                     limit_m: float = RELIABILITY_LIMIT_M) -> dict[str, str]:
+    """Anchors whose worst undetected-link shift exceeds ``limit_m`` and 3 × their σ (the norm of σ over their free
+    coordinates), each with its reason: which link would go undetected, its MDB, and how far it would move it."""
+    sig = np.sqrt(np.nansum(np.where(problem.free, np.asarray(sigma_m, float), 0.0) ** 2, axis=1))
+    out: dict[str, str] = {}
+    for i in np.flatnonzero(problem.estimated & (rel.shift_m > np.maximum(limit_m, 3.0 * sig))):
+        k = int(rel.worst_link[i])
+        a, b = problem.ids[problem.meas_a[k]], problem.ids[problem.meas_b[k]]
+        mdb = float(rel.mdb_m[k])
+        out[problem.ids[i]] = (f"reliability: link {a}-{b} is checked by nothing else (redundancy number "
+                               f"{rel.r[k]:.2g})" if not np.isfinite(mdb) else
+                               f"reliability: an undetected bias of {mdb:.2f} m on link {a}-{b} (its minimal "
+                               f"detectable bias; redundancy number {rel.r[k]:.2f}) would move it "
+                               f"{rel.shift_m[i]:.2f} m")
+    return out
+
+
+def describe(rel: ExternalReliability | None, weak: dict[str, str], limit_m: float) -> dict[str, Any]:
+    """The summary.json entry: what was tested and what it found."""
+    if rel is None:
+        return {"tested": False}
+    fin = rel.shift_m[np.isfinite(rel.shift_m) & (rel.shift_m > 0)]
+    return {"tested": True, "lambda0": rel.lam0, "power": POWER, "robust_scale": rel.scale, "limit_m": limit_m,
+            "max_shift_m": float(fin.max()) if fin.size else None,
+            "unchecked_links": int(np.sum(~np.isfinite(rel.mdb_m))), "weak": sorted(weak)}
+
+
+WEAK_RMS_M = 0.15
+
+
+def weak_anchor_reasons(problem: RangingProblem, residual_m: FloatArray, excluded: BoolArray, flagged: BoolArray, *,
+                        limit_m: float = WEAK_RMS_M) -> dict[str, str]:
+    """Anchors with an excluded or flagged link whose kept links still misfit by more than ``limit_m`` RMS (or 3 ×
+    the network's robust residual scale, if larger) at the solution: the exclusions could not find a consistent
+    subset of their links; and anchors with at most one redundant link left (3 links for 2 coordinates, with or
+    without exclusions: one NLOS link among them moves the anchor by metres while its residuals stay at a few cm,
+    and 4 links of which 2 are NLOS fit the wrong pair exactly). Each with its reason (``misfit: …``, ``thin: …``)."""
+    kept = ~np.asarray(excluded, bool)
+    n = problem.n_anchors
+    a, b = problem.meas_a, problem.meas_b
+    e2 = np.where(kept, residual_m**2, 0.0)
+    ssr = np.bincount(a, e2, minlength=n) + np.bincount(b, e2, minlength=n)
+    cnt = np.bincount(a[kept], minlength=n) + np.bincount(b[kept], minlength=n)
+    touched = np.zeros(n, bool)
+    bad = ~kept | np.asarray(flagged, bool)
+    touched[a[bad]] = True
+    touched[b[bad]] = True
+    rms = np.sqrt(ssr / np.maximum(cnt, 1))
+    scale = 1.4826 * float(np.median(np.abs(residual_m[kept]))) if kept.any() else 0.0
+    limit = max(limit_m, 3.0 * scale)  # a network whose every link misfits (range bias) is not "weak" here
+    # at most one redundant link (kept): one NLOS link there shifts the anchor with residuals too small to test,
+    # and could not be located if it were detected
+    need = problem.free.sum(axis=1)
+    thin = cnt <= need + 1
+    misfit = touched & (rms > limit)
+    out: dict[str, str] = {}
+    for i in np.flatnonzero(problem.estimated & (misfit | thin)):
+        out[problem.ids[i]] = (f"misfit: its kept links misfit by {rms[i]:.2f} m RMS after the exclusions (limit "
+                               f"{limit:.2f} m)" if misfit[i] else
+                               f"thin: {int(cnt[i])} kept links for {int(need[i])} coordinates")
+    return out
+
+
+def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: BoolArray, flagged: BoolArray, *,
+                 limit_m: float = WEAK_RMS_M) -> tuple[str, ...]:
+    """The anchors of :func:`weak_anchor_reasons`, in problem order."""
+    return tuple(weak_anchor_reasons(problem, residual_m, excluded, flagged, limit_m=limit_m))
+
+
+def check_reliability(problem: RangingProblem, result: Any, anchor_sigma_m: FloatArray, *, sigma_m: float,
+                      offsets: str, loss: str, loss_scale_m: float, level: float, limit_m: float,
+                      offset_prior_sigma_m: float = 0.1) -> tuple[dict[str, str], dict[str, Any], str]:
+    """:func:`external_reliability` and :func:`reliability_weak` of an LM result on ``problem`` (the kept links):
+    ``(weak anchors with reasons, the summary.json entry, a note for the message)``."""
+    x = getattr(result, "x", None)
+    if x is None:
+        return {}, {"tested": False}, "; external reliability not tested (the solver gives no free vector)"
+    if problem.n_free > MAX_FREE:
+        return {}, {"tested": False}, (f"; external reliability not tested: {problem.n_free} free coordinates "
+                                       f"(> {MAX_FREE}, the dense covariance it needs)")
+    rel = external_reliability(problem, np.asarray(x, float), sigma_m=sigma_m, offsets=offsets, loss=loss,
+                               loss_scale_m=loss_scale_m, level=level, offset_prior_sigma_m=offset_prior_sigma_m)
+    if rel is None:
+        return {}, {"tested": False}, "; external reliability not tested (singular normal matrix)"
+    weak = reliability_weak(problem, rel, anchor_sigma_m, limit_m=limit_m)
+    return weak, describe(rel, weak, limit_m), ""
