@@ -11,6 +11,7 @@ from scipy.sparse.csgraph import shortest_path
 
 from distnav.algorithms.csg import solve
 from distnav.algorithms.nlsq import solve_lm
+from distnav.algorithms.ranging_covariance import central_precision
 from distnav.algorithms.ranging_precision import neighbourhood_precision
 from distnav.cli import main
 from distnav.commands.uwb import solve_range_log
@@ -69,12 +70,13 @@ def test_two_sigma_coverage_by_monte_carlo():
     """2σ coverage of N-CLM's own errors over 20 noise draws (no delays, no NLOS; 20 anchors, 3-D): the
     1-hop neighbourhood σ covers clearly more than the conditional one, the 2-hop sub-network's 90–98 %. Over
     100 draws (docs/uwb.md): conditional 0.763, 1-hop 0.839, 2-hop 0.939; LM's central σ covers 0.940 of N-CLM's
-    errors (its own convergence error)."""
+    errors (its own convergence error). LM's central blocks through the exchange (ranging_covariance, uwb19) cover
+    0.967 over these 20 draws."""
     rng = np.random.default_rng(7)
     base = network(rng, n=20)
     d_true = np.linalg.norm(base.truth_m[base.meas_a] - base.truth_m[base.meas_b], axis=1)
     f = base.free
-    new_in = old_in = sub_in = total = 0
+    new_in = old_in = sub_in = cen_in = total = 0
     for _ in range(20):
         p = base.with_ranges(d_true + rng.normal(0, SIGMA_M, d_true.size))
         res = solve(p, "N-CLM", iterations=400, objective="metres", sigma_m=SIGMA_M, initial_m=base.truth_m)
@@ -84,11 +86,14 @@ def test_two_sigma_coverage_by_monte_carlo():
         old_in += int(np.sum(err <= 2.0 * res.precision.std()[f]))
         sub = neighbourhood_precision(p, res.estimates, objective="metres", sigma_m=SIGMA_M, hops=2)
         sub_in += int(np.sum(err <= 2.0 * sub.std()[f]))
+        cen = central_precision(p, res.estimates, sigma_m=SIGMA_M)
+        cen_in += int(np.sum(err <= 2.0 * cen.std()[f]))
         total += int(f.sum())
     new_cov, old_cov, sub_cov = new_in / total, old_in / total, sub_in / total
     assert 0.82 <= new_cov <= 0.99, new_cov
     assert new_cov >= old_cov + 0.04, (new_cov, old_cov)
     assert 0.90 <= sub_cov <= 0.98, sub_cov  # the 2-hop sub-network: calibrated (100 draws: 0.939)
+    assert 0.90 <= cen_in / total <= 0.98, cen_in / total  # LM's central blocks through the exchange (uwb19)
 
 
 def test_two_hop_subnetwork_is_exact_where_it_spans_the_network_and_considers_delays_as_lm():
@@ -137,17 +142,18 @@ def test_bad_input_is_refused():
         neighbourhood_precision(p, p.truth_m, hops=1, delay_sigma_m=-0.01)
 
 
-def test_uwb_solve_writes_the_neighbourhood_sigma_for_a_distributed_solver(tmp_path):
-    """``uwb solve --solver N-CLM``: positions.csv carries the 2-hop sub-network σ (kind named in summary.json, its
-    messages counted), not the solver's conditional N_i⁻¹ — which an independent run of the same workflow gives,
-    and which is at least 5 % smaller for most anchors on this network — and is near LM's central σ."""
+def test_uwb_solve_writes_lms_central_sigma_for_a_distributed_solver(tmp_path):
+    """``uwb solve --solver N-CLM``: positions.csv carries LM's central σ computed through the exchange (kind
+    "central" named in summary.json, its messages counted; since uwb19, before the 2-hop sub-network σ), not the
+    solver's conditional N_i⁻¹ — which an independent run of the same workflow gives, and which is at least 5 %
+    smaller for most anchors on this network — and equals LM's central σ on the same links."""
     f = hall(tmp_path, ceiling=False, sigma_m=0.05, seed=2)
     out = tmp_path / "out"
     args = ["--initial", str(f["initial"]), "--solver", "N-CLM", "--iterations", "400", "--no-exclude"]
     assert main(["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--out", str(out),
                  *args]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["precision_kind"] == "neighbourhood"
+    assert summary["precision_kind"] == "central"
     dist = summary["communication"]["distributed"]
     assert 0 < dist["precision_bytes"] < dist["bytes"] and dist["precision_messages"] > 0
     rows = (out / "positions.csv").read_text().splitlines()
@@ -164,6 +170,6 @@ def test_uwb_solve_writes_the_neighbourhood_sigma_for_a_distributed_solver(tmp_p
     assert summary["delay_sigma_m_considered"] == pytest.approx(0.015)
     central = solve_range_log(f["ranges"], f["known"], initial=f["initial"], options=FieldOptions(exclude=False))[0]
     to_lm = np.array([written[k] / central.sigma_m[central.problem.ids.index(k)] for k in written])
-    assert 0.7 < np.median(to_lm) < 1.6, to_lm  # LM's central σ (delays considered too) on the same links
+    assert np.all(np.abs(to_lm - 1.0) < 0.01), to_lm  # LM's central σ (delays considered too) on the same links
     np.testing.assert_allclose([pos[k] for k in written],
                                [sol.positions_m[sol.problem.ids.index(k)] for k in written], atol=1e-6)

@@ -331,7 +331,7 @@ def test_tighten_halves_the_one_sided_scale_down_to_three_times_the_scatter():
 def test_link_residuals_and_distributed_sigma_include_the_estimated_common_offset():
     """Every range reads 0.35 m long: the residuals written to links.csv (and used by the weak-anchor test) are those
     of the model with the estimated offset (≈ 0), not the raw ``‖r_a − r_b‖ − d`` (≈ −0.35 m); the distributed
-    solver's node-local σ are computed on the offset-corrected ranges (with the raw ones they absorb the offset)."""
+    solver's σ are computed with the estimated offset (with the raw ranges they absorb the offset)."""
     import dataclasses
 
     from distnav.models.uwb.field import FieldOptions, offset_bias_m, solve_field
@@ -347,7 +347,7 @@ def test_link_residuals_and_distributed_sigma_include_the_estimated_common_offse
         assert abs(np.median(sol.residual_m)) < 0.02, solver
         assert np.median(p.residuals_m(sol.positions_m)) < -0.3  # what the residuals were before the fix
         if solver == "N-CLM":
-            assert sol.precision_kind == "neighbourhood"
+            assert sol.precision_kind == "central"  # LM's blocks through the exchange, the offset a parameter
             free = p.free
             assert np.all(sol.sigma_m[free] < 0.1), sol.sigma_m[free]  # σ of 2-cm ranges, not of a 0.35-m misfit
 

@@ -417,3 +417,27 @@ def uwb_field_workflow_distributed(backend: str) -> dict[str, np.ndarray]:
                       exchange=lambda p: make_exchange(p.graph, backend=backend))
     return {"positions": sol.positions_m, "sigma": sol.sigma_m, "w": np.nan_to_num(sol.w, nan=-99.0),
             "excluded": sol.excluded.astype(float), "messages": np.asarray([sol.messages, sol.bytes], float)}
+
+
+@case
+def central_precision_distributed(backend: str) -> dict[str, np.ndarray]:
+    """LM's central blocks through the exchange (uwb19): multi-column CG, delays considered and estimated from
+    the residuals (the n × n reduction), one-sided Cauchy, common offset, on a 16-anchor plant-like hall."""
+    from distnav.algorithms.nlsq import solve_lm
+    from distnav.algorithms.ranging_covariance import central_precision
+    from distnav.experiments.uwb_field import hall_problem
+    from distnav.models.uwb.field import prepare
+    from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+
+    h = simulate_hall(np.random.default_rng([0, 1201]), HallConfig().with_(n_anchors=16, known="corner",
+                                                                          **PLANT_LIKE))
+    sub, _ = prepare(hall_problem(h)[0])
+    lm = solve_lm(sub, objective="metres", sigma_m=0.1, range_offsets="common", loss="cauchy_long",
+                  loss_scale_m=0.1)
+    out = central_precision(sub, lm.estimates, offset_m=lm.offsets_m, exchange=make_exchange(sub.graph,
+                                                                                              backend=backend),
+                            sigma_m=0.1, loss="cauchy_long", loss_scale_m=0.1, range_offsets="common",
+                            delay_sigma_m=0.005, estimate_delays=True, variance_scale_m=0.3, delay_upper_z=1.645)
+    assert out.precision.comm is not None
+    return {"estimates": out.covariance(a_posteriori=True).ravel(), "sent": out.precision.comm.messages_sent,
+            "count": np.asarray([out.cg_iterations, out.reductions, out.reduced_floats])}

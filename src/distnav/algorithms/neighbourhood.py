@@ -92,6 +92,14 @@ def check_start(problem: RangingData, iterations: int, consensus_rounds: int,
     return np.where(problem.free, init, problem.positions_m)
 
 
+def checked_estimates(problem: RangingData, estimates_m: np.ndarray) -> np.ndarray:
+    """``estimates_m`` as floats of shape ``(n_anchors, dim)`` (ModelError otherwise)."""
+    est = np.asarray(estimates_m, float)
+    if est.shape != (problem.n_anchors, problem.dim):
+        raise ModelError(f"estimates must have shape ({problem.n_anchors}, {problem.dim}), got {est.shape}")
+    return est
+
+
 def exchange_for(problem: RangingData, exchange: Exchange | None) -> Exchange:
     g = problem.graph
     ex = exchange if exchange is not None else make_exchange(g)

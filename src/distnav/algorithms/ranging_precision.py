@@ -65,7 +65,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from distnav.algorithms.neighbourhood import exchange_for, half_measurements
+from distnav.algorithms.neighbourhood import checked_estimates, exchange_for, half_measurements
 from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale
 from distnav.algorithms.ranging import RangingData
 from distnav.algorithms.ranging_objective import range_sigma
@@ -143,9 +143,7 @@ def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, ex
         raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
     if rounds < 0:
         raise ModelError(f"rounds must be ≥ 0, got {rounds}")
-    est = np.asarray(estimates_m, float)
-    if est.shape != (problem.n_anchors, problem.dim):
-        raise ModelError(f"estimates must have shape ({problem.n_anchors}, {problem.dim}), got {est.shape}")
+    est = checked_estimates(problem, estimates_m)
     ex = exchange_for(problem, exchange)
     before = ex.comm_totals().snapshot()
     dim, n, nl = problem.dim, problem.n_anchors, ex.n_local

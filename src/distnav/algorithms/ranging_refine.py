@@ -41,7 +41,8 @@ from distnav.algorithms.ranging import RangingData
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
-__all__ = ["Refinement", "refine", "refine_state", "MAX_ROUNDS"]
+__all__ = ["Refinement", "refine", "refine_state", "MAX_ROUNDS", "Links", "NormalSystem", "pcg", "jacobian_rows",
+           "block_preconditioner"]
 
 MAX_ROUNDS = 60  # outer LM rounds; plant-like halls: a median 4–6 after the exclusions, 16–36 with NLOS links kept
 CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
@@ -66,13 +67,14 @@ class Refinement:
     reductions: int
 
 
-class _Links:
+class Links:
     """The half-measurements of one block, their neighbour rows in a broadcast, and the network totals."""
 
     def __init__(self, problem: RangingData, ex: Exchange) -> None:
         self.ex, self.n = ex, problem.n_anchors
         self.owner, self.other, _, self.samp = half_measurements(problem, ex)
         self.reductions = 0
+        self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
         self._pos: np.ndarray | None = None
 
     def neighbours(self, values: np.ndarray) -> np.ndarray:
@@ -97,6 +99,7 @@ class _Links:
     def gathered(self, per_node: np.ndarray) -> np.ndarray:
         """Every anchor's row of ``per_node`` (a reduction's worth of data: sums and maxima taken from it)."""
         self.reductions += 1
+        self.reduced_floats += int(np.prod(per_node.shape[1:], dtype=np.int64))
         return np.asarray(self.ex.gather_nodes(per_node))
 
 
@@ -108,7 +111,7 @@ def refine(problem: RangingData, ex: Exchange, own_m: np.ndarray, offset_m: np.n
     ``sigma`` / ``scale``: every sample's range σ and loss scale (whitened), as the solver's; ``offset_m``: the
     block's own offsets (``range_offsets="per_anchor"``) or its copies of the common one (their network mean is
     the start)."""
-    links = _Links(problem, ex)
+    links = Links(problem, ex)
     owner, other, samp = links.owner, links.other, links.samp
     nl, dim = ex.n_local, problem.dim
     per, common = range_offsets == "per_anchor", range_offsets == "common"
@@ -147,17 +150,7 @@ def refine(problem: RangingData, ex: Exchange, own_m: np.ndarray, offset_m: np.n
     with np.errstate(invalid="ignore", divide="ignore"):
         while rounds < max_rounds:
             rounds += 1
-            diff = x[owner, :dim] - nb[:, :dim]
-            dist = np.linalg.norm(diff, axis=1)
-            u = diff / (np.where(dist > 0, dist, np.inf) * sig)[:, None]
-            a = np.zeros((samp.size, P))
-            a[:, :dim] = u
-            cn = -a
-            if per:
-                a[:, dim] = cn[:, dim] = 1.0 / sig
-            a *= free[owner]
-            cn *= free_nb
-            e = 1.0 / sig if common else np.zeros(samp.size)
+            a, cn, e = jacobian_rows(x, nb, owner, sig, dim, per, common, free, free_nb)
             w = loss_terms(r, sc, loss)[0]
             g = _rows(owner, (w * r)[:, None] * a, nl)
             if per:
@@ -176,14 +169,11 @@ def refine(problem: RangingData, ex: Exchange, own_m: np.ndarray, offset_m: np.n
             while True:  # inner: solve the damped system, try the step
                 damp = mu * np.maximum(diag, 1e-12)
                 damp_c = mu * max(dc, 1e-12)
-                pre = (own_block + damp[:, :, None] * np.eye(P)) * (free[:, :, None] & free[:, None, :])
-                idx = np.nonzero(~free)
-                pre[idx[0], idx[1], idx[1]] = 1.0
-                pre_inv = np.linalg.inv(pre)
-
-                system = _System(links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common)
-                dx, dcv, its = _pcg(system, -np.where(free, g, 0.0), -gc, pre_inv,
+                pre_inv = block_preconditioner(own_block, damp, free)
+                system = NormalSystem(links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common)
+                dxk, dck, its = pcg(system, -np.where(free, g, 0.0)[:, :, None], np.array([-gc]), pre_inv,
                                     dc + damp_c if common else 1.0, links, cg_max)
+                dx, dcv = dxk[:, :, 0], float(dck[0])
                 cg_total += its
                 x_new, c_new = x + dx, c + dcv
                 nb_new, F_new, r_new, moved = evaluate(x_new, c_new, dx)
@@ -227,11 +217,39 @@ def _rows(owner: np.ndarray, values: np.ndarray, nl: int) -> np.ndarray:
     return out
 
 
-@dataclass(frozen=True, eq=False)
-class _System:
-    """The damped normal matrix of one round, applied through the exchange (module docstring)."""
+def jacobian_rows(x: np.ndarray, nb: np.ndarray, owner: np.ndarray, sig: np.ndarray, dim: int, per: bool,
+                  common: bool, free: np.ndarray, free_nb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every half-measurement's whitened Jacobian rows at ``x`` (own rows ``(n_local, P)``) and its neighbours'
+    rows ``nb``: ``a`` (own parameters), ``cn`` (the other end's) and ``e`` (the common offset; zeros without)."""
+    diff = x[owner, :dim] - nb[:, :dim]
+    dist = np.linalg.norm(diff, axis=1)
+    u = diff / (np.where(dist > 0, dist, np.inf) * sig)[:, None]
+    a = np.zeros((sig.size, x.shape[1]))
+    a[:, :dim] = u
+    cn = -a
+    if per:
+        a[:, dim] = cn[:, dim] = 1.0 / sig
+    a *= free[owner]
+    cn *= free_nb
+    e = 1.0 / sig if common else np.zeros(sig.size)
+    return a, cn, e
 
-    links: _Links
+
+def block_preconditioner(own_block: np.ndarray, damp: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """The inverse of every anchor's own (damped) block over its free parameters (identity at fixed ones)."""
+    P = free.shape[1]
+    pre = (own_block + damp[:, :, None] * np.eye(P)) * (free[:, :, None] & free[:, None, :])
+    idx = np.nonzero(~free)
+    pre[idx[0], idx[1], idx[1]] = 1.0
+    return np.asarray(np.linalg.inv(pre))
+
+
+@dataclass(frozen=True, eq=False)
+class NormalSystem:
+    """The (damped) normal matrix of one linearization, applied through the exchange (module docstring); shared
+    by :func:`refine` and :func:`distnav.algorithms.ranging_covariance.central_precision`."""
+
+    links: Links
     owner: np.ndarray
     a: np.ndarray  # (h, P) ∂r/∂(own parameters) of every half-measurement
     cn: np.ndarray  # (h, P) ∂r/∂(the other end's parameters)
@@ -243,54 +261,72 @@ class _System:
     free: np.ndarray  # (n_local, P)
     common: bool
 
-    def matvec(self, v: np.ndarray, vc: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(N + μD) v`` on the block's rows, and each anchor's share of the common offset's row (summed over the
-        network by the caller, together with its dot product: one reduction per CG iteration less)."""
-        vn = self.links.neighbours(v)
-        jv = np.einsum("hp,hp->h", self.a, v[self.owner]) + np.einsum("hp,hp->h", self.cn, vn) + self.e * vc
-        out = _rows(self.owner, (self.w * jv)[:, None] * self.a, v.shape[0]) + self.damp * v
+    def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
+        common offset's row ``(k,)``; one broadcast of ``P·k`` floats per link), and each anchor's share of the
+        common offset's row ``(n_local, k)`` (summed over the network by the caller, together with its dot
+        products: one reduction per CG iteration less)."""
+        nl, P, k = v.shape
+        vn = self.links.neighbours(v.reshape(nl, P * k)).reshape(-1, P, k)
+        jv = (np.einsum("hp,hpk->hk", self.a, v[self.owner]) + np.einsum("hp,hpk->hk", self.cn, vn)
+              + self.e[:, None] * vc[None, :])
+        wjv = self.w[:, None] * jv
+        out = np.zeros_like(v)
+        np.add.at(out, self.owner, wjv[:, None, :] * self.a[:, :, None])
+        out += self.damp[:, :, None] * v
         if self.prior:
             out[:, -1] += self.prior * v[:, -1]
-        half = 0.5 * np.bincount(self.owner, self.w * jv * self.e, minlength=v.shape[0])
-        return np.where(self.free, out, 0.0), half
+        half = np.zeros((nl, k))
+        np.add.at(half, self.owner, 0.5 * wjv * self.e[:, None])
+        return np.where(self.free[:, :, None], out, 0.0), half
 
 
-def _pcg(system: _System, b: np.ndarray, bc: float, pre_inv: np.ndarray, pre_c: float, links: _Links,
-         max_its: int) -> tuple[np.ndarray, float, int]:
-    """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P)`` and the
-    common parameter ``bc`` (0 without one); the dot products are network totals."""
+def pcg(system: NormalSystem, b: np.ndarray, bc: np.ndarray, pre_inv: np.ndarray, pre_c: float, links: Links,
+        max_its: int, rtol: float = CG_RTOL) -> tuple[np.ndarray, np.ndarray, int]:
+    """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P, k)`` for ``k``
+    right-hand sides at once (independent CG recurrences sharing every broadcast and reduction) and the common
+    parameter's row ``bc`` ``(k,)`` (zeros without one); the dot products are network totals. It stops when every
+    column's residual is below ``rtol`` of its start, or one column's curvature ``pᵀNp`` is not positive."""
+    k = b.shape[2]
     x = np.zeros_like(b)
-    xc = 0.0
-    res, rc = b.copy(), bc
-    z = np.einsum("nab,nb->na", pre_inv, res)
+    xc = np.zeros(k)
+    res, rc = b.copy(), np.asarray(bc, float).copy()
+
+    def dots(u: np.ndarray, v: np.ndarray, extra: np.ndarray) -> np.ndarray:
+        return np.asarray(links.total(np.concatenate([np.einsum("nak,nak->nk", u, v), extra], axis=1)))
+
+    z = np.einsum("nab,nbk->nak", pre_inv, res)
     zc = rc / pre_c
-    t = links.total(np.c_[np.einsum("na,na->n", res, z), np.einsum("na,na->n", res, res)])
-    rz, rr0 = float(t[0]) + rc * zc, float(t[1]) + rc * rc
-    p, pc = z.copy(), zc
+    t = dots(res, z, np.einsum("nak,nak->nk", res, res))
+    rz, rr0 = t[:k] + rc * zc, t[k:] + rc * rc
+    p, pc = z.copy(), zc.copy()
     its = 0
-    if rr0 == 0.0:
+    live = rr0 > 0.0
+    if not live.any():
         return x, xc, 0
     while its < max_its:
         its += 1
         q, q_share = system.matvec(p, pc)
-        t = links.total(np.c_[np.einsum("na,na->n", p, q), q_share])
-        qc = float(t[1]) + system.damp_c * pc if system.common else 0.0
-        pq = float(t[0]) + pc * qc
-        if not pq > 0:
+        t = dots(p, q, q_share)
+        qc = t[k:] + system.damp_c * pc if system.common else np.zeros(k)
+        pq = t[:k] + pc * qc
+        if not np.all(pq[live] > 0):
             break
-        alpha = rz / pq
+        alpha = np.where(live, rz / np.where(live, pq, 1.0), 0.0)
         x += alpha * p
         xc += alpha * pc
         res -= alpha * q
         rc -= alpha * qc
-        z = np.einsum("nab,nb->na", pre_inv, res)
+        z = np.einsum("nab,nbk->nak", pre_inv, res)
         zc = rc / pre_c
-        t = links.total(np.c_[np.einsum("na,na->n", res, z), np.einsum("na,na->n", res, res)])
-        rz_new, rr = float(t[0]) + rc * zc, float(t[1]) + rc * rc
-        if rr <= CG_RTOL**2 * rr0:
+        t = dots(res, z, np.einsum("nak,nak->nk", res, res))
+        rz_new, rr = t[:k] + rc * zc, t[k:] + rc * rc
+        live &= rr > rtol**2 * rr0
+        if not live.any():
             break
-        p = z + (rz_new / rz) * p
-        pc = zc + (rz_new / rz) * pc
+        beta = np.where(live, rz_new / np.where(live, rz, 1.0), 0.0)
+        p = z + beta * p
+        pc = zc + beta * pc
         rz = rz_new
     return x, xc, its
 

@@ -88,7 +88,7 @@ class Precision:
     covariance: np.ndarray
     variance_factor: float | None
     redundancy: float
-    kind: Literal["exact", "bound", "centralized", "conditional", "neighbourhood"]
+    kind: Literal["exact", "bound", "centralized", "conditional", "neighbourhood", "central"]
     iterations: int = 0
     comm: CommTotals | None = None
 

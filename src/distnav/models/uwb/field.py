@@ -39,12 +39,12 @@ from distnav._blas import single_threaded_blas
 from distnav.algorithms import csg
 from distnav.algorithms.neighbourhood_offsets import sample_bias
 from distnav.algorithms.nlsq import solve_lm
-from distnav.algorithms.ranging_precision import neighbourhood_precision
 from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.cuts import cut_weak
 from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, scatter_m, solve_once, tighten_scale
+from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, distributed_sigma
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
@@ -61,14 +61,13 @@ from distnav.typing import BoolArray, FloatArray
 
 __all__ = ["FieldOptions", "FieldSolution", "prepare", "solve_field", "gather_cost", "RANGE_RECORD_BYTES",
            "supports_objective", "subset_measurements", "anchor_precision", "AnchorPrecision", "TIGHT_SCALE_FLOOR_M",
-           "RELIABILITY_LIMIT_M", "weak_anchors"]
+           "RELIABILITY_LIMIT_M", "weak_anchors", "PRECISION_HOPS"]
 
 DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions were right, 1.80 on the folded one
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
 DELAY_SIGMA_M = 0.015  # Monte Carlo over 4 × 100 simulated halls (docs/uwb.md, "Precision")
 MULTI_START_MAX_ANCHORS = 200  # larger networks: the prepared start only (each extra start is a full LM fit)
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
-PRECISION_HOPS = 2  # distributed σ: each anchor's 2-hop sub-network (docs/uwb.md, "Per-anchor precision")
 POLISH_RATIO = 1.01  # 24 halls: ≤ 1.004 where the polish helped; 1.05 and 1.44 where it pulled a weak anchor back
 
 
@@ -99,12 +98,14 @@ class FieldOptions:
     estimate_delays: bool = True  # σ: delay_sigma_m is a floor, larger delays the residuals show are used
     reliability_limit_m: float = RELIABILITY_LIMIT_M  # LM: weak if one undetected link moves it more (reliability.py)
     cut_test: bool = True  # weak: a part whose excluded cut links exceed the cut's redundancy (cuts.py)
+    distributed_precision: str = "auto"  # distributed σ: "central" / "subnetwork" / "auto" (field_precision.py)
 
     @property
     def considers_delays(self) -> bool:
         """Whether σ admit the per-anchor delays: the metres objective, delays not estimated (``range_offsets``
         none or common), ``delay_sigma_m`` > 0 — LM by :mod:`distnav.models.uwb.precision`, the distributed solvers
-        (metres) over each anchor's 2-hop sub-network (:mod:`distnav.algorithms.ranging_precision`)."""
+        (metres) by :mod:`distnav.models.uwb.field_precision` (central blocks through the exchange, or each
+        anchor's 2-hop sub-network)."""
         return (self.delay_sigma_m > 0 and self.objective == "metres" and supports_objective(self.solver)
                 and self.offsets_used in ("none", "common"))
     solver_options: dict[str, Any] = field(default_factory=dict)
@@ -346,6 +347,9 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     given = opts
     if problem.initial_m is None:
         raise ModelError("solve_field needs a prepared problem with an initial guess (see prepare)")
+    if opts.distributed_precision not in PRECISION_MODES:
+        raise ModelError(f"distributed_precision must be one of {', '.join(PRECISION_MODES)}, "
+                         f"got {opts.distributed_precision!r}")
     objective = opts.objective if supports_objective(opts.solver) else "squared"
     note = "" if objective == opts.objective else f" ({opts.solver} has no {opts.objective} objective: squared used)"
     total = [0, 0, 0]
@@ -434,7 +438,8 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             excluded = np.zeros(problem.n_meas, bool)
             if res.tests is not None:
                 w, flagged = res.tests.w, res.tests.flagged
-    fit_scale = opts.loss_scale_m  # the loss scale of the final fit (its w-tests; the reliability test's weights)
+    fit_scale = opts.loss_scale_m  # the loss scale of the final fit (its w-tests, the reliability test's weights,
+    # the distributed σ's variance factor as LM's own)
     if given.nlos_aware and given.polish and res.usable and opts.loss_scale_m < given.loss_scale_m:
         polished, w2, f2 = _polish(problem, res, excluded, w, flagged, given, exchange, total)
         ratio = all_links_cost(problem, polished, opts) / max(all_links_cost(problem, res, opts), 1e-12)
@@ -450,7 +455,7 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
                              objective_used=objective, iterations=total[0], messages=total[1], bytes=total[2],
                              critical_value=crit)
     pos = np.asarray(res.estimates, float)
-    prec_out = anchor_precision(problem, res, opts, excluded, objective, exchange)
+    prec_out = anchor_precision(problem, res, opts, excluded, objective, exchange, fit_scale_m=fit_scale)
     sigma = prec_out.sigma_m
     total[1] += prec_out.messages
     total[2] += prec_out.bytes
@@ -518,38 +523,34 @@ class AnchorPrecision:
 
 
 def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excluded: BoolArray, objective: str,
-                     exchange: Callable[[RangingProblem], Any] | None) -> AnchorPrecision:
-    """σ of every anchor after the solve, on the links kept (``~excluded``).
+                     exchange: Callable[[RangingProblem], Any] | None, *, fit_scale_m: float | None = None
+                     ) -> AnchorPrecision:
+    """σ of every anchor after the solve, on the links kept (``~excluded``); ``fit_scale_m``: the loss scale
+    ``res`` was fitted at (its variance factor's, as LM's own; default ``opts.loss_scale_m``).
 
     LM: its central ``σ̂² (JᵀWJ)⁻¹`` (kind ``"centralized"``), with the antenna delays considered where
-    ``opts.considers_delays`` (:mod:`distnav.models.uwb.precision`). The distributed solvers: the node-local
-    **neighbourhood** precision (:func:`distnav.algorithms.ranging_precision.neighbourhood_precision`, through the
-    exchange, its messages counted) over every anchor's :data:`PRECISION_HOPS`-hop sub-network, a-posteriori
-    with the sub-network's own variance factor, the delays considered there too; the solvers' own conditional
+    ``opts.considers_delays`` (:mod:`distnav.models.uwb.precision`). The distributed solvers (through the
+    exchange, its messages counted; ``opts.distributed_precision``, :mod:`distnav.models.uwb.field_precision`):
+    by default LM's central blocks by CG (kind ``"central"``, up to 100 anchors), else every anchor's
+    :data:`PRECISION_HOPS`-hop sub-network (kind ``"neighbourhood"``, its own variance factor), the delays
+    considered; the solvers' own conditional
     ``N_i⁻¹`` (a lower bound) is used only if that fails, and the note says so."""
     nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
     prec = res.precision
     kept = subset_measurements(problem, ~excluded)
     if opts.solver.upper() != "LM":
-        bias = offset_bias_m(kept, res)  # the neighbourhood precision knows no offsets: ranges corrected by them
-        if not np.isscalar(bias) or bias != 0.0:
-            kept = kept.with_ranges(kept.range_m - bias)
         try:
-            out = neighbourhood_precision(kept, np.asarray(res.estimates, float),
-                                          exchange=None if exchange is None else exchange(kept), objective=objective,
-                                          sigma_m=opts.sigma_m, loss=_solver_kwargs(opts).get("loss", "linear"),
-                                          loss_scale_m=opts.loss_scale_m, hops=PRECISION_HOPS,
-                                          delay_sigma_m=opts.delay_sigma_m if opts.considers_delays
-                                          and objective == "metres" else 0.0)
+            out = distributed_sigma(kept, res, exchange=exchange, objective=objective, sigma_m=opts.sigma_m,
+                                    loss=_solver_kwargs(opts).get("loss", "linear"), loss_scale_m=opts.loss_scale_m,
+                                    offsets=opts.offsets_used, offset_prior_sigma_m=opts.offset_prior_sigma_m,
+                                    delay_sigma_m=opts.delay_sigma_m if opts.considers_delays
+                                    and objective == "metres" else 0.0, estimate_delays=opts.estimate_delays,
+                                    mode=opts.distributed_precision, fit_scale_m=fit_scale_m)
         except ModelError as err:
             note = f"; neighbourhood precision failed ({err}): σ are the conditional ones (a lower bound)"
         else:
-            comm = out.precision.comm
-            cov = out.covariance(a_posteriori=True)
-            return AnchorPrecision(sigma_m=np.where(problem.free, out.std(a_posteriori=True), 0.0),
-                                   covariance_m2=cov, kind=out.precision.kind,
-                                   messages=0 if comm is None else int(comm.messages),
-                                   bytes=0 if comm is None else int(comm.bytes))
+            return AnchorPrecision(sigma_m=out.sigma_m, covariance_m2=out.covariance_m2, kind=out.kind,
+                                   messages=out.messages, bytes=out.bytes)
     else:
         note = ""
     if prec is None:

@@ -1,0 +1,274 @@
+"""LM's central per-anchor covariance, computed by the anchors through the exchange (issue 13 item 3).
+
+The 2-hop sub-network σ of :mod:`distnav.algorithms.ranging_precision` cut the chain to the known anchors: on
+plant-like halls with the known anchors in a corner they were 0.67–0.88 × LM's central σ and covered 2σ in 85 %
+(docs/uwb.md, "Distributed solvers in the workflow"). Here every anchor obtains its own block of LM's
+
+    ``C = σ̂²_noise Q + σ_δ² B Bᵀ``,   ``Q = (JᵀWJ)⁻¹``,   ``B = Q JᵀW G``
+
+(:mod:`distnav.models.uwb.precision`: the a-posteriori variance factor, the per-anchor antenna delays
+*considered*, Tapley, Schutz & Born 2004 §6.4; the unknowns are LM's: the free coordinates and the common or
+per-anchor range offsets) by solving ``N X = [E, JᵀWG]`` with **conjugate gradients on all the right-hand sides
+at once**: ``E`` holds one unit column per free coordinate of the network (anchor ``i`` needs ``X``'s rows of its
+own coordinates in its own columns, ``Q_ii``), ``JᵀWG`` one column per anchor's delay (each anchor's rows are its
+own links: local). Every CG iteration is one matrix–product round of :class:`~distnav.algorithms.ranging_refine.
+NormalSystem` (the final distributed LM phase's product, undamped) — a broadcast of ``P · k`` floats per link,
+``k = n_free + n`` columns — plus two network totals of ``2k`` floats per anchor (the CG scalars of every column;
+in-process and MPI assemble them in the anchors' order, so the bits agree). Each anchor then holds ``X``'s rows of
+its own parameters: ``Q_ii`` and ``B_i`` directly, so ``C_ii`` is local. Network totals besides: ``Σ w r²``
+(σ̂²), the delays' share ``tr GᵀWG − tr (JᵀWG)ᵀB`` and, with ``estimate_delays``, the two-component variance
+estimate of :func:`~distnav.models.uwb.precision.delay_sigma_estimate` (Koch 1999 §3.6), whose ``tr A²`` needs
+the whole ``n × n`` matrix ``A = GᵀWG − (JᵀWG)ᵀB``: one reduction of ``n²`` floats.
+
+**Cost** (the reason for :data:`CENTRAL_MAX_ANCHORS`): a message of ``P (n_free + n)`` floats (the held heights
+travel as zeros) for about ``n_free`` CG rounds (CG ends within as many iterations as unknowns in exact arithmetic;
+:data:`CG_RTOL` per column), i.e. ``O(n²)`` floats per link and ``O(n³)`` over the network. Measured on plant
+corner #0 of ``reproduce uwb-field`` (28 anchors, 3-D, heights held, ``3 · 84 · 8 = 2.0 kB`` per message): 40 CG
+rounds, 14 k messages, 22 MB with the reductions (the 2-hop σ: 2.3 k, 4.0 MB; the solve itself 62 MB). At 100
+anchors about 7 kB × 160 rounds × 750 links ≈ 0.9 GB; at 1,000 anchors 72 kB × 1,600 rounds × 15,000 links ≈ 2 TB.
+Above the limit the caller keeps the 2-hop sub-network σ (``O(degree²)`` floats per link in a few rounds).
+Why not a probing / Lanczos estimate of ``diag Q``: it gives the variances only approximately (a Hutchinson
+estimate's error falls as 1/√probes, each probe a CG solve of its own) and not the delays' ``B``; the exact
+columns are affordable for tens of anchors, which is where a central σ matters (the chain to the known ones).
+Linearized at the anchors' estimates with the fit's loss weights (fixed IRLS weights), the metres objective only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from distnav.algorithms.neighbourhood import checked_estimates, exchange_for
+from distnav.algorithms.nlsq import LOSSES, loss_terms
+from distnav.algorithms.ranging import RangingData
+from distnav.algorithms.ranging_objective import range_sigma
+from distnav.algorithms.ranging_refine import Links, NormalSystem, block_preconditioner, jacobian_rows, pcg
+from distnav.algorithms.result import Precision
+from distnav.algorithms.statistics import variance_factor
+from distnav.errors import ModelError
+from distnav.exchange import Exchange
+
+__all__ = ["CentralPrecision", "central_precision", "CENTRAL_MAX_ANCHORS", "CG_RTOL"]
+
+CENTRAL_MAX_ANCHORS = 100  # above: messages of > 2.4 kB for > 200 rounds; the 2-hop σ instead (module docstring)
+CG_RTOL = 1e-10  # per column, relative to its right-hand side
+MIN_NOISE_SHARE = 0.1  # as distnav.models.uwb.precision
+ESTIMATE_MAX_ANCHORS = 200  # the n × n reduction of the delay estimate (LM: m ≤ 2000 rows)
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class CentralPrecision:
+    """The result of :func:`central_precision`. ``precision``: kind ``"central"``, the blocks of ``Q`` (σ² = 1),
+    gathered for the result (each computed by its anchor), ``variance_factor`` σ̂², ``comm`` the exchange's
+    broadcasts. ``delay_covariance``: ``σ_δ² B_i B_iᵀ`` per anchor (None without delays), ``noise_factor``
+    σ̂²_noise, ``delay_sigma_m`` the σ_δ used (the prior or the larger estimate). ``cg_iterations``, ``columns``
+    and the network ``reductions`` with their ``reduced_floats`` (per anchor) for the cost."""
+
+    precision: Precision
+    delay_covariance: np.ndarray | None
+    noise_factor: float
+    delay_sigma_m: float
+    cg_iterations: int
+    columns: int
+    reductions: int
+    reduced_floats: int
+
+    def covariance(self, *, a_posteriori: bool = False) -> np.ndarray:
+        """Every anchor's covariance ``(n_anchors, dim, dim)``: ``Q_ii`` (a-posteriori: ``σ̂²_noise Q_ii`` plus
+        the considered delays' part)."""
+        cov = self.precision.covariance
+        if not a_posteriori:
+            return np.asarray(cov)
+        cov = cov * self.noise_factor
+        return np.asarray(cov if self.delay_covariance is None else cov + self.delay_covariance)
+
+    def std(self, *, a_posteriori: bool = False) -> np.ndarray:
+        """σ per anchor and axis ``(n_anchors, dim)`` from :meth:`covariance`."""
+        cov = self.covariance(a_posteriori=a_posteriori)
+        return np.asarray(np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)))
+
+    def reduction_cost(self, n_anchors: int) -> tuple[int, int]:
+        """Messages and bytes of the network totals as spanning-tree reductions (up and down: ``2(n − 1)``
+        messages each, carrying the reduced floats)."""
+        per = 2 * max(n_anchors - 1, 0)
+        return self.reductions * per, 8 * self.reduced_floats * per
+
+
+def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m: float | np.ndarray | None = None,
+                      exchange: Exchange | None = None, sigma_m: float | np.ndarray = 1.0, loss: str = "linear",
+                      loss_scale_m: float = 0.3, range_offsets: str = "none", offset_prior_sigma_m: float = 0.1,
+                      delay_sigma_m: float = 0.0, estimate_delays: bool = False, rtol: float = CG_RTOL,
+                      max_iterations: int | None = None, variance_scale_m: float | None = None,
+                      delay_upper_z: float = 0.0) -> CentralPrecision:
+    """Every anchor's block of LM's central a-posteriori covariance through the exchange (module docstring).
+
+    ``estimates_m`` ``(n_anchors, dim)``: the anchors' own estimates (each block reads its rows); ``offset_m``:
+    the common offset (``range_offsets="common"``) or every anchor's own (``"per_anchor"``, prior σ
+    ``offset_prior_sigma_m``), as the solver estimated them. ``sigma_m`` / ``loss`` / ``loss_scale_m``: the fit's.
+    ``delay_sigma_m`` > 0 (not with per-anchor offsets): delays considered; ``estimate_delays``: that σ is a floor,
+    the residuals' estimate is used where larger (as LM, :func:`distnav.models.uwb.precision.consider_precision`;
+    ``delay_upper_z``: the estimate plus that many of its standard deviations, LM's ``DELAY_UPPER_Z`` in the
+    field workflow).
+    ``variance_scale_m``: the loss scale of σ̂²'s weights where the fit's own differs from ``loss_scale_m`` (LM's
+    σ̂² is its fit's; the field workflow's polish fits at 0.3 m, its σ at the tight scale); default ``loss_scale_m``.
+    ``max_iterations``: CG rounds (default ``2 n_unknowns + 20``); a column not converged raises ModelError."""
+    if loss not in LOSSES:
+        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    if range_offsets not in ("none", "common", "per_anchor"):
+        raise ModelError(f"range_offsets must be 'none', 'common' or 'per_anchor', got {range_offsets!r}")
+    per, common = range_offsets == "per_anchor", range_offsets == "common"
+    if not (np.isfinite(delay_sigma_m) and delay_sigma_m >= 0) or (delay_sigma_m > 0 and per):
+        raise ModelError(f"delay_sigma_m must be ≥ 0 m (and not with per-anchor offsets), got {delay_sigma_m}")
+    if not loss_scale_m > 0:
+        raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
+    est = checked_estimates(problem, estimates_m)
+    ex = exchange_for(problem, exchange)
+    before = ex.comm_totals().snapshot()
+    links = Links(problem, ex)
+    owner, other, samp = links.owner, links.other, links.samp
+    dim, n, nl = problem.dim, problem.n_anchors, ex.n_local
+    P = dim + (1 if per else 0)
+    x = np.zeros((nl, P))
+    x[:, :dim] = est[ex.nodes]
+    c = 0.0
+    if per:
+        off = np.asarray(offset_m, float) if offset_m is not None else np.zeros(0)
+        if off.shape != (n,):
+            raise ModelError(f"per-anchor offsets must have shape ({n},), got {off.shape}")
+        x[:, dim] = off[ex.nodes]
+    elif common:
+        c = float(np.mean(np.asarray(offset_m if offset_m is not None else 0.0, float)))
+    if not (np.all(np.isfinite(x)) and np.isfinite(c)):
+        raise ModelError("estimates are not finite (a diverged run has no precision)")
+    free = np.ones((nl, P), bool)
+    free[:, :dim] = problem.free[ex.nodes]
+    free_nb = np.ones((samp.size, P), bool)
+    free_nb[:, :dim] = problem.free[other]
+    prior = 1.0 / offset_prior_sigma_m**2 if per else 0.0
+    sig_all = range_sigma(problem, sigma_m)
+    sig = sig_all[samp]
+    nb = links.neighbours(x)  # one broadcast: the neighbours' estimates (and offsets)
+    bias = (x[owner, dim] + nb[:, dim]) if per else c
+    r = (np.linalg.norm(x[owner, :dim] - nb[:, :dim], axis=1) + bias - problem.range_m[samp]) / sig
+    w = loss_terms(r, loss_scale_m / sig, loss)[0]
+    a, cn, e = jacobian_rows(x, nb, owner, sig, dim, per, common, free, free_nb)
+    own_block = np.zeros((nl, P, P))
+    np.add.at(own_block, owner, np.einsum("h,ha,hb->hab", w, a, a))
+    if per:
+        own_block[:, dim, dim] += prior
+    try:
+        pre_inv = block_preconditioner(own_block, np.zeros((nl, P)), free)
+    except np.linalg.LinAlgError as err:
+        raise ModelError("an anchor's own normal block is singular (too few links): no central precision") from err
+    # columns: every free coordinate of the network (anchor by anchor, as LM's x), then every anchor's delay
+    col = np.full((n, dim), -1, np.int64)
+    col[problem.free] = np.arange(problem.n_free)
+    delays = delay_sigma_m > 0
+    k = problem.n_free + (n if delays else 0)
+    b = np.zeros((nl, P, k))
+    li, ai = np.nonzero(problem.free[ex.nodes])
+    b[li, ai, col[ex.nodes[li], ai]] = 1.0
+    bc = np.zeros(k)
+    if delays:  # JᵀWG: a link's row at both ends' delays (1/σ at each), the anchor's own rows; c's row a total
+        wa = (w / sig)[:, None] * a
+        for p_ in range(P):
+            np.add.at(b[:, p_, :], (owner, problem.n_free + ex.nodes[owner]), wa[:, p_])
+            np.add.at(b[:, p_, :], (owner, problem.n_free + other), wa[:, p_])
+        if common:
+            hc = np.zeros((nl, n))
+            np.add.at(hc, (owner, ex.nodes[owner]), 0.5 * w * e / sig)
+            np.add.at(hc, (owner, other), 0.5 * w * e / sig)
+            bc[problem.n_free:] = links.total(hc)
+        b = np.where(free[:, :, None], b, 0.0)
+    dc = float(links.total(0.5 * np.bincount(owner, w * e * e, minlength=nl))) if common else 1.0
+    n_unknowns = int(links.total(free.sum(axis=1).astype(float))) + (1 if common else 0)
+    system = NormalSystem(links, owner, a, cn, e, w, np.zeros((nl, P)), 0.0, prior, free, common)
+    its_max = 2 * n_unknowns + 20 if max_iterations is None else max_iterations
+    X, Xc, its = pcg(system, b, bc, pre_inv, dc, links, its_max, rtol)
+    # the columns' final residuals (one product more: the check that every column reached rtol)
+    q, q_share = system.matvec(X, Xc)
+    resid = np.where(free[:, :, None], b - q, 0.0)
+    t = links.total(np.concatenate([np.einsum("nak,nak->nk", resid, resid), np.einsum("nak,nak->nk", b, b),
+                                    q_share], axis=1))
+    rc = bc - t[2 * k:] if common else np.zeros(k)
+    worst = float(np.max(np.sqrt((t[:k] + rc * rc) / np.maximum(t[k:2 * k] + bc * bc, 1e-300)), initial=0.0))
+    if not worst <= max(100.0 * rtol, 1e-8):
+        raise ModelError(f"central precision: CG did not converge (relative residual {worst:.2g} after {its})")
+    blocks = np.zeros((nl, dim, dim))
+    for a_ in range(dim):
+        for b_ in range(dim):
+            ok = free[:, a_] & free[:, b_]
+            blocks[ok, a_, b_] = X[np.flatnonzero(ok), a_, col[ex.nodes[ok], b_]]
+    blocks = 0.5 * (blocks + blocks.transpose(0, 2, 1))
+    # a-posteriori variance factor over LM's rows (the ranges and, per anchor, the offsets' priors)
+    w_vf = w if variance_scale_m is None else loss_terms(r, variance_scale_m / sig, loss)[0]
+    wssr_node = 0.5 * np.bincount(owner, w_vf * r * r, minlength=nl) + (prior * x[:, dim] ** 2 if per else 0.0)
+    m_rows = problem.n_meas + (n if per else 0)
+    redundancy = float(m_rows - n_unknowns)
+    totals = links.total(np.c_[wssr_node, np.bincount(owner, w / sig**2, minlength=nl),
+                               0.5 * np.bincount(owner, w * r * r, minlength=nl)])  # σ̂²'s, tr GᵀWG, ẽᵀẽ
+    vf = variance_factor(float(totals[0]), redundancy)
+    s2 = 1.0 if vf is None else vf
+    delay_cov = None
+    used = delay_sigma_m
+    if delays:
+        B = X[:, :, problem.n_free:]  # (n_local, P, n): rows of B = Q JᵀWG, the anchor's own
+        H = b[:, :, problem.n_free:]
+        hb = np.einsum("npk,npk->n", H, B)
+        tr_a = float(totals[1]) - float(links.total(hb)) - float(bc[problem.n_free:] @ Xc[problem.n_free:])
+        if estimate_delays and n <= ESTIMATE_MAX_ANCHORS:
+            used = max(delay_sigma_m, _delay_estimate(problem, ex, links, owner, other, w, r, sig, H, B,
+                                                      bc[problem.n_free:], Xc[problem.n_free:], tr_a,
+                                                      float(totals[2]), float(m_rows - n_unknowns),
+                                                      delay_upper_z))
+        share = used**2 * tr_a / redundancy if redundancy > 0 else 0.0
+        s2 = max(s2 - share, MIN_NOISE_SHARE * s2)
+        Bp = B[:, :dim, :] * free[:, :dim, None]
+        delay_cov = used**2 * np.einsum("nak,nbk->nab", Bp, Bp)
+    precision = Precision(covariance=ex.gather_nodes(blocks), variance_factor=vf, redundancy=redundancy,
+                          kind="central", iterations=its + 2, comm=ex.comm_totals().since(before))
+    return CentralPrecision(precision=precision,
+                            delay_covariance=None if delay_cov is None else ex.gather_nodes(delay_cov),
+                            noise_factor=s2, delay_sigma_m=used, cg_iterations=its, columns=k,
+                            reductions=links.reductions, reduced_floats=links.reduced_floats)
+
+
+def _delay_estimate(problem: RangingData, ex: Exchange, links: Links, owner: np.ndarray, other: np.ndarray,
+                    w: np.ndarray, r: np.ndarray, sig: np.ndarray, H: np.ndarray, B: np.ndarray, hc: np.ndarray,
+                    bc_row: np.ndarray, tr_a: float, ete: float, tr_m: float, upper_z: float) -> float:
+    """σ_δ from the residuals as :func:`distnav.models.uwb.precision.delay_sigma_estimate`, from network totals:
+    ``A = GᵀWG − (JᵀWG)ᵀB`` (``n²`` floats per anchor: its own rows of both), ``‖GᵀWr‖²`` (anchor ``k``'s entry is
+    a sum over its own links), ``ẽᵀẽ = Σ w r²`` and ``tr M = m − n_x``; ``√(σ̂_δ² + upper_z · sd)`` with the
+    estimate's standard deviation as :func:`~distnav.models.uwb.precision.delay_variance_estimate`'s."""
+    n, nl = problem.n_anchors, ex.n_local
+    me = ex.nodes[owner]
+    part = -np.einsum("npk,npl->nkl", H, B)
+    gwg = w / sig**2
+    np.add.at(part, (owner, me, me), gwg)  # row k of GᵀWG from k's own links: the diagonal and its neighbours
+    np.add.at(part, (owner, me, other), gwg)
+    gwr = np.zeros((nl, n))
+    np.add.at(gwr, (owner, me), w * r / sig)
+    tot = links.total(np.concatenate([part.reshape(nl, n * n), gwr], axis=1))
+    A = tot[:n * n].reshape(n, n) - np.outer(hc, bc_row)  # the common offset's row of JᵀWG and B, once
+    gwr_all = tot[n * n:]
+    A2 = A @ A
+    tr_a2, tr_a3, tr_a4 = float(np.sum(A * A)), float(np.sum(A2 * A)), float(np.sum(A2 * A2))
+    lhs = np.array([[tr_m, tr_a], [tr_a, tr_a2]])
+    rhs = np.array([ete, float(gwr_all @ gwr_all)])
+    try:
+        inv = np.linalg.inv(lhs)
+    except np.linalg.LinAlgError:
+        return 0.0
+    s2, d2 = inv @ rhs
+    if d2 > 0 and s2 <= 0:
+        d2, s2 = rhs[1] / lhs[1, 1], 0.0
+    # its standard deviation for normal errors, 2 tr(Bᵢ Σ Bⱼ Σ) with Σ = s² M + σ_δ² M G̃G̃ᵀ M, from A alone
+    # (M² = M): tr Σ² = s⁴ tr M + 2s²σ_δ² tr A + σ_δ⁴ tr A², and likewise one and two powers of A higher
+    sp, dp = max(float(s2), 0.0), max(float(d2), 0.0)
+    c = [sp * sp * t0 + 2.0 * sp * dp * t1 + dp * dp * t2
+         for t0, t1, t2 in ((tr_m, tr_a, tr_a2), (tr_a, tr_a2, tr_a3), (tr_a2, tr_a3, tr_a4))]
+    C = 2.0 * np.array([[c[0], c[1]], [c[1], c[2]]])
+    sd = float(np.sqrt(max(float((inv @ C @ inv.T)[1, 1]), 0.0)))
+    v = float(d2) + upper_z * sd
+    return float(np.sqrt(v)) if v > 0 else 0.0
