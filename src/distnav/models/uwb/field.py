@@ -130,7 +130,7 @@ class FieldOptions:
         coverage of LM's σ from 0.72–0.94 to 0.83–0.97 and lowers the RMSE a little. The distributed solvers
         (docs/uwb.md, "Range offsets"): on plant-like halls whose ranges carry a 0.3 m common offset it halves
         their RMSE and removes most false exclusions; without one it costs them 5–10 % RMSE (noisy, 3 halls);
-        on the APRIL lab logs it helps N-CLM on both (0.38 → 0.27, 0.46 → 0.40 m)."""
+        on the APRIL lab logs it helps N-CLM on both (0.326 → 0.244, 0.342 → 0.253 m, docs/uwb.md)."""
         if self.range_offsets != "auto":
             return self.range_offsets
         return "common" if self.objective == "metres" else "none"
