@@ -43,3 +43,10 @@ def test_refine_thresholds_checked() -> None:
     from distnav.errors import ModelError
     with pytest.raises(ModelError):
         StopRule(refine_ftol=-1.0)
+
+
+def test_phase_tolerances_follow_a_tighter_rule_only() -> None:
+    assert StopRule().phase_tolerances == (1e-6, 1e-4)
+    assert StopRule(ftol=1e-2, xtol_m=0.5).phase_tolerances == (1e-6, 1e-4)  # a loose hand-over: the phase stays
+    assert StopRule(ftol=1e-9, xtol_m=1e-6).phase_tolerances == (1e-9, 1e-6)  # a tighter rule tightens it
+    assert StopRule(ftol=1e-2, refine_ftol=1e-3, refine_xtol_m=1e-2).phase_tolerances == (1e-3, 1e-2)

@@ -47,6 +47,7 @@ from distnav.algorithms.ranging import RangingData, RangingResult
 from distnav.algorithms.ranging_objective import range_sigma
 from distnav.algorithms.ranging_qc import DISTRIBUTED_TEST_SCALES, distributed_quality
 from distnav.algorithms.ranging_refine import refine_state
+from distnav.algorithms.ranging_stop import StopRule
 from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -69,38 +70,6 @@ __all__ = [
 
 SOLVERS = ("LM", "CSG", "N-CSG", "N-CSG-BLS", "N-CSG-TBLS", "N-CLM")
 DISTRIBUTED_SOLVERS = SOLVERS[1:]
-
-
-@dataclass(frozen=True)
-class StopRule:
-    """When a distributed run stops (paper 002 §5 suggests the cost and the step size; a network-total test).
-
-    At every monitored iteration (after the graduated linear stage): converged when, for ``patience`` checks in a
-    row, the global objective changed by at most ``ftol`` (relative) since the previous check and no anchor's own
-    estimate (nor its range offset) moved by more than ``xtol_m`` metres. Diverged when the cost is not finite or
-    an own estimate is farther than ``divergence_factor`` × the extent of the start from its centre. The tests use
-    network totals (``ex.allreduce``), like ADMM's; a deployment without them runs a fixed count (``stop=None``, the
-    paper's mode).
-
-    With the final distributed LM phase (``refine``) the iterations only have to hand over a start in LM's basin,
-    and the phase then stops by its own thresholds ``refine_ftol`` / ``refine_xtol_m`` (the defaults: the same
-    values as ``ftol`` / ``xtol_m``). A looser hand-over (e.g. ``StopRule(ftol=1e-2, xtol_m=0.5)``) cuts the
-    iterations without loosening the answer: on the 32 × 32 grid of ``benchmarks/bench_uwb_scaling.py`` it stops
-    after 23–36 iterations instead of 500 and ends at the same point (0.5 mm from LM); before the two were
-    separate, a loose rule also loosened the LM phase, which then said ``converged`` 6.5 m from LM's solution.
-    """
-
-    ftol: float = 1e-6
-    xtol_m: float = 1e-4
-    patience: int = 3
-    divergence_factor: float = 100.0
-    refine_ftol: float = 1e-6
-    refine_xtol_m: float = 1e-4
-
-    def __post_init__(self) -> None:
-        if not (self.ftol >= 0 and self.xtol_m >= 0 and self.patience >= 1 and self.divergence_factor > 1
-                and self.refine_ftol >= 0 and self.refine_xtol_m >= 0):
-            raise ModelError(f"invalid stopping rule {self}")
 
 
 PAPER_MODE: dict[str, Any] = {"stop": None, "quality": False}
@@ -364,8 +333,8 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
         try:
             refined = refine_state(problem, ex, last, sigma=sigma, scale=scale, loss=setup.loss,
                                    range_offsets=setup.range_offsets,
-                                   offset_prior_sigma_m=setup.offset_prior_sigma_m, ftol=rule.refine_ftol,
-                                   xtol_m=rule.refine_xtol_m)
+                                   offset_prior_sigma_m=setup.offset_prior_sigma_m, ftol=rule.phase_tolerances[0],
+                                   xtol_m=rule.phase_tolerances[1])
         except ModelError as err:  # e.g. a lost message: the refinement needs every link each round
             why = (why + "; " if why else "") + f"no distributed LM phase ({err})"
         else:

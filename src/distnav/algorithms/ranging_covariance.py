@@ -22,7 +22,7 @@ the whole ``n × n`` matrix ``A = GᵀWG − (JᵀWG)ᵀB``: one reduction of ``
 
 **Cost** (the reason for :data:`CENTRAL_MAX_ANCHORS`): a message of ``P (n_free + n)`` floats (the held heights
 travel as zeros) for about ``n_free`` CG rounds (CG ends within as many iterations as unknowns in exact arithmetic;
-:data:`CG_RTOL` per column), i.e. ``O(n²)`` floats per link and ``O(n³)`` over the network. Measured on plant
+:data:`COVARIANCE_CG_RTOL` per column), i.e. ``O(n²)`` floats per link and ``O(n³)`` over the network. Measured on plant
 corner #0 of ``reproduce uwb-field`` (28 anchors, 3-D, heights held, ``3 · 84 · 8 = 2.0 kB`` per message): 40 CG
 rounds, 14 k messages, 22 MB with the reductions (the 2-hop σ: 2.3 k, 4.0 MB; the solve itself 62 MB). At 100
 anchors about 7 kB × 160 rounds × 750 links ≈ 0.9 GB; at 1,000 anchors 72 kB × 1,600 rounds × 15,000 links ≈ 2 TB.
@@ -49,11 +49,11 @@ from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
-__all__ = ["CentralPrecision", "central_precision", "CENTRAL_MAX_ANCHORS", "CG_RTOL"]
+__all__ = ["CentralPrecision", "central_precision", "CENTRAL_MAX_ANCHORS", "COVARIANCE_CG_RTOL"]
 
-CENTRAL_MAX_ANCHORS = 100  # above: messages of > 2.4 kB for > 200 rounds; the 2-hop σ instead (module docstring)
-CG_RTOL = 1e-10  # per column, relative to its right-hand side
-MIN_NOISE_SHARE = 0.1  # as distnav.models.uwb.precision
+CENTRAL_MAX_ANCHORS = 100  # above: messages of > 7 kB for > 160 rounds (≈ 0.9 GB); the 2-hop σ instead (docstring)
+COVARIANCE_CG_RTOL = 1e-10  # per column, relative to its right-hand side
+MIN_NOISE_SHARE = 0.1  # the noise part keeps at least this share of σ̂² (also LM's: models/uwb/precision.py)
 ESTIMATE_MAX_ANCHORS = 200  # the n × n reduction of the delay estimate (LM: m ≤ 2000 rows)
 
 
@@ -98,7 +98,7 @@ class CentralPrecision:
 def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m: float | np.ndarray | None = None,
                       exchange: Exchange | None = None, sigma_m: float | np.ndarray = 1.0, loss: str = "linear",
                       loss_scale_m: float = 0.3, range_offsets: str = "none", offset_prior_sigma_m: float = 0.1,
-                      delay_sigma_m: float = 0.0, estimate_delays: bool = False, rtol: float = CG_RTOL,
+                      delay_sigma_m: float = 0.0, estimate_delays: bool = False, rtol: float = COVARIANCE_CG_RTOL,
                       max_iterations: int | None = None, variance_scale_m: float | None = None,
                       delay_upper_z: float = 0.0) -> CentralPrecision:
     """Every anchor's block of LM's central a-posteriori covariance through the exchange (module docstring).
@@ -211,26 +211,26 @@ def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m
     vf = variance_factor(float(totals[0]), redundancy)
     s2 = 1.0 if vf is None else vf
     delay_cov = None
-    used = delay_sigma_m
+    delay_sigma_used_m = delay_sigma_m
     if delays:
         B = X[:, :, problem.n_free:]  # (n_local, P, n): rows of B = Q JᵀWG, the anchor's own
         H = b[:, :, problem.n_free:]
         hb = np.einsum("npk,npk->n", H, B)
         tr_a = float(totals[1]) - float(links.total(hb)) - float(bc[problem.n_free:] @ Xc[problem.n_free:])
         if estimate_delays and n <= ESTIMATE_MAX_ANCHORS:
-            used = max(delay_sigma_m, _delay_estimate(problem, ex, links, owner, other, w, r, sig, H, B,
-                                                      bc[problem.n_free:], Xc[problem.n_free:], tr_a,
-                                                      float(totals[2]), float(m_rows - n_unknowns),
-                                                      delay_upper_z))
-        share = used**2 * tr_a / redundancy if redundancy > 0 else 0.0
+            estimate_m = _delay_estimate(problem, ex, links, owner, other, w, r, sig, H, B, bc[problem.n_free:],
+                                         Xc[problem.n_free:], tr_a, float(totals[2]), float(m_rows - n_unknowns),
+                                         delay_upper_z)
+            delay_sigma_used_m = max(delay_sigma_m, estimate_m)
+        share = delay_sigma_used_m**2 * tr_a / redundancy if redundancy > 0 else 0.0
         s2 = max(s2 - share, MIN_NOISE_SHARE * s2)
         Bp = B[:, :dim, :] * free[:, :dim, None]
-        delay_cov = used**2 * np.einsum("nak,nbk->nab", Bp, Bp)
+        delay_cov = delay_sigma_used_m**2 * np.einsum("nak,nbk->nab", Bp, Bp)
     precision = Precision(covariance=ex.gather_nodes(blocks), variance_factor=vf, redundancy=redundancy,
                           kind="central", iterations=its + 2, comm=ex.comm_totals().since(before))
     return CentralPrecision(precision=precision,
                             delay_covariance=None if delay_cov is None else ex.gather_nodes(delay_cov),
-                            noise_factor=s2, delay_sigma_m=used, cg_iterations=its, columns=k,
+                            noise_factor=s2, delay_sigma_m=delay_sigma_used_m, cg_iterations=its, columns=k,
                             reductions=links.reductions, reduced_floats=links.reduced_floats)
 
 

@@ -15,7 +15,8 @@ threshold; docs/uwb.md ("External reliability") gives the numbers on the bench a
 The parts tested are grown greedily from every estimated anchor with an excluded link: the neighbour (by any link,
 estimated anchors only) that most raises the ratio ``e / k`` of the cut joins while the ratio rises. Parts of one
 anchor are left to the per-anchor rules (``thin``, ``reliability``: an anchor's own redundancy is what they test);
-parts holding a known anchor are not a free rigid body and are skipped. Above :data:`MAX_ANCHORS` anchors the test
+a part never holds a known anchor (it would not be a free rigid body): the growth admits estimated anchors
+only. Above :data:`MAX_ANCHORS` anchors the test
 is skipped (the greedy growth is quadratic in a part's neighbours). Every anchor can compute its links' exclusion
 flags; the growth itself is a computation on the link graph with one bit per link (a network total, as the
 all-links cost of :mod:`distnav.models.uwb.field`), not a node-local test.
@@ -90,7 +91,7 @@ def cut_weak(problem: RangingProblem, excluded: BoolArray) -> dict[str, str]:
         return {}
     out: dict[str, str] = {}
     for part, e, k in cut_parts(problem, excluded):
-        if part.sum() < 2 or not problem.estimated[part].all():
+        if part.sum() < 2:  # parts grow over estimated anchors only
             continue
         dof = _rigid_dof(problem, part)
         if e <= k - dof:

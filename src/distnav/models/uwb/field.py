@@ -43,7 +43,7 @@ from distnav.algorithms.ranging_qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.cuts import cut_weak
-from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, scatter_m, solve_once, tighten_scale
+from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, solve_once, tighten_scale
 from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, distributed_sigma
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
@@ -251,7 +251,6 @@ def choose_start(problem: RangingProblem, opts: FieldOptions) -> tuple[FloatArra
     return best[2], note
 
 
-_scatter_m = scatter_m
 
 
 def tighten(problem: RangingProblem, start_m: FloatArray, opts: FieldOptions) -> tuple[FloatArray, float, int]:
@@ -438,13 +437,13 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
             excluded = np.zeros(problem.n_meas, bool)
             if res.tests is not None:
                 w, flagged = res.tests.w, res.tests.flagged
-    fit_scale = opts.loss_scale_m  # the loss scale of the final fit (its w-tests, the reliability test's weights,
+    fit_scale_m = opts.loss_scale_m  # the loss scale of the final fit (its w-tests, the reliability test's weights,
     # the distributed σ's variance factor as LM's own)
     if given.nlos_aware and given.polish and res.usable and opts.loss_scale_m < given.loss_scale_m:
         polished, w2, f2 = _polish(problem, res, excluded, w, flagged, given, exchange, total)
         ratio = all_links_cost(problem, polished, opts) / max(all_links_cost(problem, res, opts), 1e-12)
         if ratio <= POLISH_RATIO:
-            res, w, flagged, fit_scale = polished, w2, f2, given.loss_scale_m
+            res, w, flagged, fit_scale_m = polished, w2, f2, given.loss_scale_m
     geo = geometry if geometry is not None else check_geometry(problem)
     nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
     if not res.usable or not np.all(np.isfinite(res.estimates)):
@@ -455,7 +454,7 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
                              objective_used=objective, iterations=total[0], messages=total[1], bytes=total[2],
                              critical_value=crit)
     pos = np.asarray(res.estimates, float)
-    prec_out = anchor_precision(problem, res, opts, excluded, objective, exchange, fit_scale_m=fit_scale)
+    prec_out = anchor_precision(problem, res, opts, excluded, objective, exchange, fit_scale_m=fit_scale_m)
     sigma = prec_out.sigma_m
     total[1] += prec_out.messages
     total[2] += prec_out.bytes
@@ -466,7 +465,7 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     if opts.reliability_limit_m > 0 and opts.solver.upper() == "LM" and objective == "metres":
         rel_weak, reliability, rel_note = check_reliability(
             subset_measurements(problem, ~excluded), res, sigma, sigma_m=opts.sigma_m, offsets=opts.offsets_used,
-            loss=_solver_kwargs(opts).get("loss", "linear"), loss_scale_m=fit_scale, level=opts.level,
+            loss=_solver_kwargs(opts).get("loss", "linear"), loss_scale_m=fit_scale_m, level=opts.level,
             limit_m=opts.reliability_limit_m, offset_prior_sigma_m=opts.offset_prior_sigma_m)
         reasons.update({k: v for k, v in rel_weak.items() if k not in reasons})
         note += rel_note

@@ -58,6 +58,8 @@ def distributed_sigma(kept: RangingProblem, res: Any, *, exchange: Any, objectiv
         raise ModelError(f"distributed precision must be one of {', '.join(PRECISION_MODES)}, got {mode!r}")
     est = np.asarray(res.estimates, float)
     off = getattr(res, "offsets_m", None)
+    if mode == "central" and objective != "metres":
+        raise ModelError(f"distributed precision 'central' models the metres objective only, not {objective!r}")
     if mode == "central" or (mode == "auto" and objective == "metres" and kept.n_anchors <= CENTRAL_MAX_ANCHORS):
         try:
             out = central_precision(kept, est, offset_m=None if off is None else np.asarray(off, float),

@@ -18,10 +18,11 @@ pure functions say beforehand which anchors the ranges can locate, and how well:
   heights held: their horizontal positions), or in 3-D with free heights on one plane (always the case with 3
   known anchors): the reflection through that line / plane keeps every range and every known position, so the
   ranges cannot choose between the solution and its mirror image. *Ambiguous*. Known anchors *nearly* on one
-  line (``near_mirror``: second over first principal spread below ``planar_tol``) make the solve *weakly
-  determined*: on the APRIL lab data with known nodes 8, 61, 12 (node 12 0.3 m off the line of the other two,
-  ratio 0.049) the mirror image fits the real ranges *better* (Cauchy cost 84 against 108 near the truth) and
-  LM returned it, 4.1 m RMSE, as ``converged``.
+  line (``near_line``: second over first principal spread below ``planar_tol``; ``near_mirror`` for
+  known anchors nearly on one plane with free heights) make the solve *weakly determined*, and ``uwb solve``
+  then runs the mirror test (:mod:`distnav.models.uwb.mirror`): on the APRIL lab data with known nodes 8, 61,
+  12 (node 12 0.3 m off the line of the other two, ratio 0.049) the mirror image fits the real ranges *better*
+  (Cauchy cost 84 against 108 near the truth) and LM returned it, 4.1 m RMSE, as ``converged``.
 * **Nearly planar network solved in 3-D** (``planar``): anchors under a ceiling lie within decimetres of one
   plane; with free heights the ranges constrain the heights only to second order and each anchor can fold
   through the plane. Measured by :func:`planarity` (smallest / largest principal spread) of the known anchors

@@ -3,7 +3,7 @@
 Known anchors exactly on one line make a 2-D network (or a 3-D one with its heights held) ambiguous: its mirror
 image through that line fits every range (:func:`~distnav.models.uwb.geometry.check_geometry`, ``mirror``).
 Nearly on one line (``near_line``: line ratio below 0.1), the mirror image fits almost as well, and whether the
-ranges can still tell the two apart depends on their errors, not on the geometry alone:
+ranges can still tell the two apart_m depends on their errors, not on the geometry alone:
 
 * APRIL lab data (real DW1000 ranges, scatter 0.2–0.3 m) with known nodes 8, 61, 12 — node 12 is 0.13 m off
   the best-fit line of the three: the mirror image fits the ranges *better* (Cauchy cost of all links 84 against
@@ -78,13 +78,14 @@ def solve_with_mirror_test(problem: RangingProblem, opts: FieldOptions, geometry
     c0 = all_links_cost(problem, sol.result, opts)
     c1 = all_links_cost(problem, other.result, opts)
     est = problem.estimated
-    apart = float(np.sqrt(np.mean(np.sum((sol.positions_m[est] - other.positions_m[est]) ** 2, axis=1))))
+    apart_m = float(np.sqrt(np.mean(np.sum((sol.positions_m[est] - other.positions_m[est]) ** 2, axis=1))))
     best, cb, cw = (sol, c0, c1) if c0 <= c1 else (other, c1, c0)
-    best = dataclasses.replace(best, messages=sol.messages + other.messages, bytes=sol.bytes + other.bytes)  # both
-    if apart > MIRROR_DISTINCT_M and cw < MIRROR_COST_RATIO * cb:
+    best = dataclasses.replace(best, iterations=sol.iterations + other.iterations, messages=sol.messages
+                               + other.messages, bytes=sol.bytes + other.bytes)  # both fits
+    if apart_m > MIRROR_DISTINCT_M and cw < MIRROR_COST_RATIO * cb:
         issue = GeometryIssue(
             "mirror", "ambiguous", near[0].anchors,
-            f"{line}: the fit started from the mirror image through that line lands {apart:.2f} m RMS away and fits "
+            f"{line}: the fit started from the mirror image through that line lands {apart_m:.2f} m RMS away and fits "
             f"all the links about as well (robust cost {cw:.1f} against {cb:.1f}, < {MIRROR_COST_RATIO:g}×): the "
             f"ranges cannot tell the network from its mirror image (ambiguous; the lower-cost one is reported); add "
             f"a known anchor farther off the line")
@@ -92,6 +93,6 @@ def solve_with_mirror_test(problem: RangingProblem, opts: FieldOptions, geometry
                                    status="ambiguous", message=f"ambiguous: {issue.message} — {best.message}")
     note = (f"{line}: checked — the fit started from the mirror image through that line "
             + (f"fits all the links {cw / cb:.2f}× worse (robust cost {cw:.1f} against {cb:.1f})"
-               if apart > MIRROR_DISTINCT_M else f"returns to the same solution ({apart:.2f} m RMS)")
+               if apart_m > MIRROR_DISTINCT_M else f"returns to the same solution ({apart_m:.2f} m RMS)")
             + ": the ranges choose the side")
     return dataclasses.replace(best, geometry=dataclasses.replace(plain, notes=plain.notes + (note,)))

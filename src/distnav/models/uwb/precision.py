@@ -39,6 +39,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from distnav.algorithms.nlsq import robust_weights
+from distnav.algorithms.ranging_covariance import MIN_NOISE_SHARE
 from distnav.algorithms.ranging_objective import RangeObjective
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
@@ -46,7 +47,6 @@ from distnav.typing import FloatArray
 __all__ = ["consider_sigma", "consider_precision", "DELAY_UPPER_Z", "MIN_NOISE_SHARE", "delay_sigma_estimate",
            "delay_variance_estimate"]
 
-MIN_NOISE_SHARE = 0.1  # the noise part keeps at least this share of σ̂² (the delays' prior may be too large)
 
 
 def consider_sigma(problem: RangingProblem, result: Any, *, sigma_m: float, offsets: str, loss: str,

@@ -166,7 +166,7 @@ def weak_anchor_reasons(problem: RangingProblem, residual_m: FloatArray, exclude
     touched[a[bad]] = True
     touched[b[bad]] = True
     rms = np.sqrt(ssr / np.maximum(cnt, 1))
-    scale = 1.4826 * float(np.median(np.abs(residual_m[kept]))) if kept.any() else 0.0
+    scale = robust_scale(residual_m[kept]) if kept.any() else 0.0
     limit = max(limit_m, 3.0 * scale)  # a network whose every link misfits (range bias) is not "weak" here
     # at most one redundant link (kept): one NLOS link there shifts the anchor with residuals too small to test,
     # and could not be located if it were detected
