@@ -68,6 +68,15 @@ def _ns(bias: list[str] | None, l1: str | None = None) -> argparse.Namespace:
     return argparse.Namespace(l1_code=l1, l2_code="C2W", bias=bias)
 
 
+def test_an_unreadable_product_is_named_not_taken_for_ionex(tmp_path: Path) -> None:
+    """A --bias file that is neither Bias-SINEX nor IONEX must not switch the L1 code (it was taken for IONEX)."""
+    from distnav.errors import DataFileError
+    bad = tmp_path / "garbage.BIA"
+    bad.write_text("this is not a bias product\n")
+    with pytest.raises(DataFileError, match="garbage.BIA"):
+        choose_l1_code(_ns([str(bad)]))
+
+
 def test_l1_code_follows_the_products(shared_data: Path) -> None:
     d = shared_data / IGS
     cas, gfz = str(d / CAS), str(d / GFZ)

@@ -16,17 +16,17 @@ from distnav.models.uwb.hall import simulate_hall
 from distnav.models.uwb.problems import build_problem
 
 
-def _written_hall(tmp_path, seed: int, *, known_z_span: float | None = None, **cfg):
-    """A simulated hall written to CSV files, optionally with its known anchors re-hung to span ``known_z_span``
+def _written_hall(tmp_path, seed: int, *, known_z_span_m: float | None = None, **cfg):
+    """A simulated hall written to CSV files, optionally with its known anchors re-hung to span ``known_z_span_m``
     metres in height (every range sample moved by the change of its true distance)."""
     h = simulate_hall(np.random.default_rng([seed, 5]), **cfg)
-    if known_z_span is not None:
+    if known_z_span_m is not None:
         t = h.truth_m.copy()
-        t[h.known, 2] = h.config.ceiling_m - np.linspace(0, known_z_span, h.known.size)
+        t[h.known, 2] = h.config.ceiling_m - np.linspace(0, known_z_span_m, h.known.size)
         new = np.linalg.norm(t[h.links[:, 0]] - t[h.links[:, 1]], axis=1)
         h = dataclasses.replace(h, truth_m=t, surveyed_z_m=t[:, 2].copy(), distance_m=new,
                                 range_m=h.range_m + (new - h.distance_m)[h.sample_link])
-    return h.write(tmp_path / f"hall{seed}-{known_z_span}")
+    return h.write(tmp_path / f"hall{seed}-{known_z_span_m}")
 
 
 @pytest.mark.parametrize("seed, span, cfg", [(0, None, {}), (1, None, {}), (3, None, {}), (1, 2.0, {}),
@@ -36,7 +36,7 @@ def test_heights_free_hall_is_refused_through_the_cli_whatever_its_mds_start(tmp
     0.10–0.18 against the truth's 0.01), which let a heights-free solve through with metres of error (seed 1:
     1.48 m RMSE, exit 0) before the plane-fit test; the 2 m height span of the known anchors is the first wave's
     10.8 m case. Refused with the remedy named; solved (weakly determined) when asked; exact with --heights."""
-    f = _written_hall(tmp_path, seed, known_z_span=span, **cfg)
+    f = _written_hall(tmp_path, seed, known_z_span_m=span, **cfg)
     base = ["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--truth", str(f["truth"])]
     assert main([*base, "--out", str(tmp_path / "free")]) == 2
     err = capsys.readouterr().err

@@ -24,7 +24,7 @@ def choose_l1_code(args: argparse.Namespace) -> tuple[str, str | None]:
     ``--bias`` product gives a C1C−L2 satellite DSB, even chained (IONEX DCBs, GFZ's C1W−C2W alone), else C1C.
     Returns the code and a note saying why (None when given or C1C by default)."""
     from distnav.errors import DataFileError, ModelError
-    from distnav.models.gnss.bias_sinex import read_bias_sinex, resolve_dsb
+    from distnav.models.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, resolve_dsb
 
     if args.l1_code:
         return str(args.l1_code).upper(), None
@@ -37,7 +37,8 @@ def choose_l1_code(args: argparse.Namespace) -> tuple[str, str | None]:
         try:
             sinex.append(read_bias_sinex(b))
         except DataFileError:
-            ionex.append(Path(b).name)            # IONEX (or unreadable: product_dsbs names it later)
+            read_ionex_dcb(b)  # not Bias-SINEX: IONEX, or a DataFileError naming the file before any choice
+            ionex.append(Path(b).name)
 
     def gives(l1: str) -> bool:
         for p in sinex:
@@ -68,7 +69,7 @@ def print_summary(stations: Sequence[str], comparison: Mapping[str, Any],
     print(f"central filter: {sd.size} satellite DSBs, median σ {np.median(sd):.2f} ns (realistic: formal × "
           f"{f:.2f}); receivers: {rx} ns")
     for label, (val, _) in finals.items():
-        if label != "central" and not any(np.isfinite(v) for v in val.values()):
+        if label.startswith("ckf:") and not any(np.isfinite(v) for v in val.values()):
             print(f"note: {label} has no final DSB estimate: its data and those of the stations within --kn "
                   f"consensus rounds do not determine them (raise --kn, or add links with --graph)")
     for pname, comp in comparison.items():
