@@ -44,7 +44,8 @@ demo: $(DEMO_STAMP)
 	$(BIN)/distnav demo --out $(DEMO_OUT) --jobs $(DEMO_JOBS)
 
 lint: $(DEV_STAMP)
-	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks scripts
+	$(BIN)/ruff format --check src tests benchmarks scripts
 
 typecheck: $(DEV_STAMP)
 	$(BIN)/mypy

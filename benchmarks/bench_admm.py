@@ -168,8 +168,15 @@ def floor_case(n: int, messages: str, kernel: Any, rho: float, repeat: int) -> d
     C = choose_constraint_nodes(g, "min_cover")
     t0 = time.perf_counter()
     ex = make_exchange(g)
-    gen = iterate_admm(prob, g, constraint_nodes=C, W=rho, messages=messages,  # type: ignore[arg-type]
-                       monitor_every=0, exchange=ex)
+    gen = iterate_admm(
+        prob,
+        g,
+        constraint_nodes=C,
+        W=rho,
+        messages=messages,  # type: ignore[arg-type]
+        monitor_every=0,
+        exchange=ex,
+    )
     next(gen)
     t_setup = time.perf_counter() - t0
     bare = kernel(prob, g, C, rho)
@@ -188,15 +195,25 @@ def pair_floor_rows(sizes: tuple[int, ...], rho: float = 3.0, repeat: int = 5) -
     for n in sizes:
         case = floor_case(n, "pairs", BarePairKernel, rho, repeat)
         g, C, bare, t, t_setup, dev, number = (case[k] for k in ("g", "C", "bare", "t", "t_setup", "dev", "number"))
-        rows.append({
-            "name": "ADMM iteration, per-pair messages (Fig. 6), no monitoring", "n_nodes": n,
-            "n_links": g.n_links, "pairs": int(bare.pi.size), "n_constraint_nodes": C.size,
-            "distnav_ms": float(np.median(t["ours"])) * 1e3, "floor_ms": float(np.median(t["floor"])) * 1e3,
-            "floor": "bare numpy per-pair kernel of the same iteration (no exchange)",
-            **ratio_stats(t["ours"], t["floor"]), "repeats": repeat, "iterations_per_repeat": number,
-            "setup_s": t_setup, "floor_relative_deviation_after_3_iterations": dev,
-            "goal": "≤ 1.5", "meets_goal": bool(ratio_stats(t["ours"], t["floor"])["ratio_median"] <= 1.5),
-        })
+        rows.append(
+            {
+                "name": "ADMM iteration, per-pair messages (Fig. 6), no monitoring",
+                "n_nodes": n,
+                "n_links": g.n_links,
+                "pairs": int(bare.pi.size),
+                "n_constraint_nodes": C.size,
+                "distnav_ms": float(np.median(t["ours"])) * 1e3,
+                "floor_ms": float(np.median(t["floor"])) * 1e3,
+                "floor": "bare numpy per-pair kernel of the same iteration (no exchange)",
+                **ratio_stats(t["ours"], t["floor"]),
+                "repeats": repeat,
+                "iterations_per_repeat": number,
+                "setup_s": t_setup,
+                "floor_relative_deviation_after_3_iterations": dev,
+                "goal": "≤ 1.5",
+                "meets_goal": bool(ratio_stats(t["ours"], t["floor"])["ratio_median"] <= 1.5),
+            }
+        )
     return rows
 
 
@@ -213,39 +230,76 @@ def run(quick: bool) -> list[dict[str, Any]]:
     rhos = (3.0, 10.0) if quick else (1.0, 2.0, 3.0, 5.0, 10.0, 20.0)
     sweep = {}
     for rho in rhos:
-        res = admm(prob, g, constraint_nodes=C, W=rho, max_iterations=3000, tol=0.0, reference=xh,
-                   stop_at_reference=1e-8, record_nodes=False)
+        res = admm(
+            prob,
+            g,
+            constraint_nodes=C,
+            W=rho,
+            max_iterations=3000,
+            tol=0.0,
+            reference=xh,
+            stop_at_reference=1e-8,
+            record_nodes=False,
+        )
         sweep[rho] = res.iterations_to["1e-08"] or 10**9
     rho = min(sweep, key=lambda r: sweep[r])
     t_naive = naive_fig6(prob, g, C, rho, 3 if quick else 10)
-    for label, cset, messages, mon in (("min cover, per-pair messages (Fig. 6), residuals every it.", C, "pairs", 1),
-                                       ("min cover, per-pair messages (Fig. 6), no monitoring", C, "pairs", 0),
-                                       ("min cover, aggregated messages, residuals every it.", C, "aggregated", 1),
-                                       ("min cover, aggregated messages, no monitoring", C, "aggregated", 0),
-                                       ("all nodes, per-pair messages, residuals every it.", C_all, "pairs", 1)):
-        full = admm(prob, g, constraint_nodes=cset, W=rho, max_iterations=3000, tol=0.0, reference=xh,
-                    stop_at_reference=1e-10, record_nodes=False, messages=messages)  # type: ignore[arg-type]
-        gen = iterate_admm(prob, g, constraint_nodes=cset, W=rho, messages=messages,  # type: ignore[arg-type]
-                           monitor_every=mon)
+    for label, cset, messages, mon in (
+        ("min cover, per-pair messages (Fig. 6), residuals every it.", C, "pairs", 1),
+        ("min cover, per-pair messages (Fig. 6), no monitoring", C, "pairs", 0),
+        ("min cover, aggregated messages, residuals every it.", C, "aggregated", 1),
+        ("min cover, aggregated messages, no monitoring", C, "aggregated", 0),
+        ("all nodes, per-pair messages, residuals every it.", C_all, "pairs", 1),
+    ):
+        full = admm(
+            prob,
+            g,
+            constraint_nodes=cset,
+            W=rho,
+            max_iterations=3000,
+            tol=0.0,
+            reference=xh,
+            stop_at_reference=1e-10,
+            record_nodes=False,
+            messages=messages,
+        )  # type: ignore[arg-type]
+        gen = iterate_admm(
+            prob,
+            g,
+            constraint_nodes=cset,
+            W=rho,
+            messages=messages,  # type: ignore[arg-type]
+            monitor_every=mon,
+        )
         ms, cpu = ms_per_iteration(gen, 100 if quick else 300, 3 if quick else 7)
         its = full.iterations_to
-        rows.append({
-            "name": f"n=200, p=10, m_i=5: {label}",
-            "seconds": ms / 1e3, "ms_per_iteration": ms, "cpu_ms_per_iteration": cpu,
-            "reference_seconds": t_blue, "reference": "centralized BLUE solve (same run)",
-            "ratio": ms / 1e3 / t_blue,
-            "naive_loop_ms_per_iteration": t_naive * 1e3, "speedup_vs_naive_loop": t_naive * 1e3 / ms,
-            "rho": rho, "iterations_to_1e-6": its["1e-06"], "iterations_to_1e-8": its["1e-08"],
-            "final_relative_error": float(full.trace["relative_max_distance"][-1]),
-            "n_links": g.n_links, "n_constraint_nodes": cset.size, "messages_per_iteration":
-                int(full.comm.messages_per_round[-2:].sum()),
-            **{f"peer {k} ms/it (quoted)": v for k, v in PEERS.items()},
-            "peer decent-bench / ours": PEERS["decent-bench (n=200)"] / ms,
-            "goal": "≤ 0.5 ms/iteration, 1e-8 reachable",
-            "meets_goal": bool(ms <= 0.5 and its["1e-08"] is not None),
-        })
-    rows.append({"name": "n=200: ρ sweep (min cover), iterations to 1e-8", **{f"rho={k:g}": v for k, v in
-                                                                              sweep.items()}})
+        rows.append(
+            {
+                "name": f"n=200, p=10, m_i=5: {label}",
+                "seconds": ms / 1e3,
+                "ms_per_iteration": ms,
+                "cpu_ms_per_iteration": cpu,
+                "reference_seconds": t_blue,
+                "reference": "centralized BLUE solve (same run)",
+                "ratio": ms / 1e3 / t_blue,
+                "naive_loop_ms_per_iteration": t_naive * 1e3,
+                "speedup_vs_naive_loop": t_naive * 1e3 / ms,
+                "rho": rho,
+                "iterations_to_1e-6": its["1e-06"],
+                "iterations_to_1e-8": its["1e-08"],
+                "final_relative_error": float(full.trace["relative_max_distance"][-1]),
+                "n_links": g.n_links,
+                "n_constraint_nodes": cset.size,
+                "messages_per_iteration": int(full.comm.messages_per_round[-2:].sum()),
+                **{f"peer {k} ms/it (quoted)": v for k, v in PEERS.items()},
+                "peer decent-bench / ours": PEERS["decent-bench (n=200)"] / ms,
+                "goal": "≤ 0.5 ms/iteration, 1e-8 reachable",
+                "meets_goal": bool(ms <= 0.5 and its["1e-08"] is not None),
+            }
+        )
+    rows.append(
+        {"name": "n=200: ρ sweep (min cover), iterations to 1e-8", **{f"rho={k:g}": v for k, v in sweep.items()}}
+    )
     # ---------------------------------------------------------------- large network
     n_big = 10_000 if quick else 100_000
     rng = np.random.default_rng(7)
@@ -259,25 +313,44 @@ def run(quick: bool) -> list[dict[str, Any]]:
     t_blue_b = best_time(lambda: blue(pb), repeat=2)
     xhb = blue(pb).x
     reps = 5 if quick else 10
-    variants: list[tuple[str, str, int]] = [("aggregated, no monitoring", "aggregated", 0),
-                                            ("aggregated, residuals every 10 it.", "aggregated", 10),
-                                            ("per-pair messages (Fig. 6), no monitoring", "pairs", 0)]
+    variants: list[tuple[str, str, int]] = [
+        ("aggregated, no monitoring", "aggregated", 0),
+        ("aggregated, residuals every 10 it.", "aggregated", 10),
+        ("per-pair messages (Fig. 6), no monitoring", "pairs", 0),
+    ]
     for label, messages, mon in variants:
         t0 = time.perf_counter()
-        gen = iterate_admm(pb, gb, constraint_nodes=Cb, W=rho, messages=messages,  # type: ignore[arg-type]
-                           monitor_every=mon)
+        gen = iterate_admm(
+            pb,
+            gb,
+            constraint_nodes=Cb,
+            W=rho,
+            messages=messages,  # type: ignore[arg-type]
+            monitor_every=mon,
+        )
         next(gen)
         t_setup = time.perf_counter() - t0
         ms, cpu = ms_per_iteration(gen, reps if mon != 10 else 10, 2)
-        rows.append({
-            "name": f"n={n_big:,}: {label}", "seconds": ms / 1e3, "ms_per_iteration": ms, "cpu_ms_per_iteration": cpu,
-            "reference_seconds": t_blue_b, "reference": "centralized BLUE solve (same run)",
-            "ratio": ms / 1e3 / t_blue_b, "setup_seconds": t_setup, "n_links": gb.n_links,
-            "n_constraint_nodes": Cb.size, "cover_method": Cb.method, "cover_lower_bound": Cb.lower_bound,
-            "graph_seconds": t_graph, "cover_seconds": t_cover,
-            "goal": "≤ 300 ms/iteration" if n_big == 100_000 else "(quick: 10,000 nodes)",
-            "meets_goal": bool(ms <= 300) if n_big == 100_000 else None,
-        })
+        rows.append(
+            {
+                "name": f"n={n_big:,}: {label}",
+                "seconds": ms / 1e3,
+                "ms_per_iteration": ms,
+                "cpu_ms_per_iteration": cpu,
+                "reference_seconds": t_blue_b,
+                "reference": "centralized BLUE solve (same run)",
+                "ratio": ms / 1e3 / t_blue_b,
+                "setup_seconds": t_setup,
+                "n_links": gb.n_links,
+                "n_constraint_nodes": Cb.size,
+                "cover_method": Cb.method,
+                "cover_lower_bound": Cb.lower_bound,
+                "graph_seconds": t_graph,
+                "cover_seconds": t_cover,
+                "goal": "≤ 300 ms/iteration" if n_big == 100_000 else "(quick: 10,000 nodes)",
+                "meets_goal": bool(ms <= 300) if n_big == 100_000 else None,
+            }
+        )
     if not quick:  # convergence at 100,000 nodes: deviation every 10 iterations, up to 2000
         gen = iterate_admm(pb, gb, constraint_nodes=Cb, W=rho, messages="aggregated", monitor_every=0)
         t0 = time.perf_counter()
@@ -295,8 +368,15 @@ def run(quick: bool) -> list[dict[str, Any]]:
                     break
             if st.iteration >= 2000:
                 break
-        rows.append({"name": f"n={n_big:,}: iterations to 1e-6 (checked every 10, at most 2000)",
-                     "iterations_to_1e-6": reached, "seconds": time.perf_counter() - t0, "rho": rho, **at})
+        rows.append(
+            {
+                "name": f"n={n_big:,}: iterations to 1e-6 (checked every 10, at most 2000)",
+                "iterations_to_1e-6": reached,
+                "seconds": time.perf_counter() - t0,
+                "rho": rho,
+                **at,
+            }
+        )
     return rows
 
 

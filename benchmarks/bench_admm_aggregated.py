@@ -71,15 +71,24 @@ def run(quick: bool, rho: float = 3.0, repeat: int = 5) -> list[dict[str, Any]]:
         case = floor_case(n, "aggregated", BareAggregatedKernel, rho, repeat)
         g, C, t, t_setup, dev, number = (case[k] for k in ("g", "C", "t", "t_setup", "dev", "number"))
         stats = ratio_stats(t["ours"], t["floor"])
-        rows.append({
-            "name": "ADMM iteration, aggregated messages, no monitoring", "n_nodes": n, "n_links": g.n_links,
-            "n_constraint_nodes": C.size, "distnav_ms": float(np.median(t["ours"])) * 1e3,
-            "floor_ms": float(np.median(t["floor"])) * 1e3,
-            "floor": "bare numpy/scipy aggregated kernel of the same iteration (no exchange)", **stats,
-            "repeats": repeat, "iterations_per_repeat": number, "setup_s": t_setup,
-            "floor_relative_deviation_after_3_iterations": dev, "goal": f"≤ {GOAL} (keep)",
-            "meets_goal": bool(stats["ratio_median"] <= GOAL and dev < 1e-9),
-        })
+        rows.append(
+            {
+                "name": "ADMM iteration, aggregated messages, no monitoring",
+                "n_nodes": n,
+                "n_links": g.n_links,
+                "n_constraint_nodes": C.size,
+                "distnav_ms": float(np.median(t["ours"])) * 1e3,
+                "floor_ms": float(np.median(t["floor"])) * 1e3,
+                "floor": "bare numpy/scipy aggregated kernel of the same iteration (no exchange)",
+                **stats,
+                "repeats": repeat,
+                "iterations_per_repeat": number,
+                "setup_s": t_setup,
+                "floor_relative_deviation_after_3_iterations": dev,
+                "goal": f"≤ {GOAL} (keep)",
+                "meets_goal": bool(stats["ratio_median"] <= GOAL and dev < 1e-9),
+            }
+        )
     return rows
 
 

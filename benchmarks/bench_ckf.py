@@ -116,7 +116,7 @@ def recursion_scaling(quick: bool) -> list[dict]:
     """Fig. 7 recursion alone (``ckf_error_variance``) against :func:`batched_reference`, 50 epochs, p = 33."""
     rows: list[dict] = []
     T, kn = 50, 12
-    for n in ((100, 300) if quick else (100, 300, 1000)):
+    for n in (100, 300) if quick else (100, 300, 1000):
         dyn, fs, _ = synthetic_model(n_nodes=n, n_epochs=T, n_random_walk=3, n_biases=30, seed=3, rw_std=0.05)
         ms = _precompute(fs)
         g = builders.connected_random_geometric(n, mean_degree=8.0, rng=np.random.default_rng(4))
@@ -127,10 +127,21 @@ def recursion_scaling(quick: bool) -> list[dict]:
         lib = ckf_error_variance(dyn, ms, L).std[-1]
         ref = batched_reference(dyn, ms, L)
         ok = np.isfinite(lib)
-        rows.append({"name": "Fig. 7 recursion vs batched numpy", "n_nodes": n, "p": 33, "epochs": T, "k_n": kn,
-                     "seconds": t_lib, "reference_seconds": t_ref, "ratio": t_lib / t_ref, "goal": "≤ 2×",
-                     "meets_goal": bool(t_lib <= 2.0 * t_ref),
-                     "max_rel_diff_vs_reference": float(np.max(np.abs(lib[ok] / ref[ok] - 1.0)))})
+        rows.append(
+            {
+                "name": "Fig. 7 recursion vs batched numpy",
+                "n_nodes": n,
+                "p": 33,
+                "epochs": T,
+                "k_n": kn,
+                "seconds": t_lib,
+                "reference_seconds": t_ref,
+                "ratio": t_lib / t_ref,
+                "goal": "≤ 2×",
+                "meets_goal": bool(t_lib <= 2.0 * t_ref),
+                "max_rel_diff_vs_reference": float(np.max(np.abs(lib[ok] / ref[ok] - 1.0))),
+            }
+        )
     return rows
 
 
@@ -138,16 +149,16 @@ def run(quick: bool) -> list[dict]:
     rows: list[dict] = []
     # --- the paper's workload
     n, T, kn = 13, (240 if quick else 960), 12
-    dyn, fs, _ = synthetic_model(n_nodes=n, n_epochs=T, n_random_walk=3, n_biases=30, seed=1,
-                                 rw_std=0.05, late_fraction=0.5)
+    dyn, fs, _ = synthetic_model(
+        n_nodes=n, n_epochs=T, n_random_walk=3, n_biases=30, seed=1, rw_std=0.05, late_fraction=0.5
+    )
     ms = _precompute(fs)
     g = builders.connected_random_geometric(n, mean_degree=4.0, rng=np.random.default_rng(2))
     sched = consensus_schedule(g, "P3")
     L = consensus_product(sched, kn)
     repeat = 2 if quick else 3
     t_ckf = best_time(lambda: ckf(dyn, ms, schedule=sched, rounds=kn), repeat=repeat)
-    t_novar = best_time(lambda: ckf(dyn, ms, schedule=sched, rounds=kn, variance=False, monitor=False),
-                        repeat=repeat)
+    t_novar = best_time(lambda: ckf(dyn, ms, schedule=sched, rounds=kn, variance=False, monitor=False), repeat=repeat)
     t_alone = best_time(lambda: ckf_error_variance(dyn, ms, L), repeat=repeat)
     res = ckf(dyn, ms, schedule=sched, rounds=kn, store_matrices=False)
     t0 = time.perf_counter()
@@ -155,15 +166,36 @@ def run(quick: bool) -> list[dict]:
     t_ref = time.perf_counter() - t0
     P_last = res.covariance
     agree = float(np.abs(P_last - P_ref).max() / np.abs(P_ref).max())
-    rows.append({"name": "CKF + Fig. 7, paper workload", "n_nodes": n, "p": 33, "epochs": T, "k_n": kn,
-                 "seconds": t_ckf, "reference_seconds": t_ref, "ratio": t_ckf / t_ref,
-                 "goal": "≤ 2 s" if not quick else "(quick: 1/4 of the epochs)",
-                 "meets_goal": bool(t_ckf <= 2.0), "max_rel_diff_vs_reference": agree,
-                 "messages": res.comm.messages, "megabytes": res.comm.bytes / 1e6})
-    rows.append({"name": "CKF without variance/monitoring", "n_nodes": n, "p": 33, "epochs": T, "k_n": kn,
-                 "seconds": t_novar})
-    rows.append({"name": "Fig. 7 recursion alone (design tool)", "n_nodes": n, "p": 33, "epochs": T, "k_n": kn,
-                 "seconds": t_alone})
+    rows.append(
+        {
+            "name": "CKF + Fig. 7, paper workload",
+            "n_nodes": n,
+            "p": 33,
+            "epochs": T,
+            "k_n": kn,
+            "seconds": t_ckf,
+            "reference_seconds": t_ref,
+            "ratio": t_ckf / t_ref,
+            "goal": "≤ 2 s" if not quick else "(quick: 1/4 of the epochs)",
+            "meets_goal": bool(t_ckf <= 2.0),
+            "max_rel_diff_vs_reference": agree,
+            "messages": res.comm.messages,
+            "megabytes": res.comm.bytes / 1e6,
+        }
+    )
+    rows.append(
+        {"name": "CKF without variance/monitoring", "n_nodes": n, "p": 33, "epochs": T, "k_n": kn, "seconds": t_novar}
+    )
+    rows.append(
+        {
+            "name": "Fig. 7 recursion alone (design tool)",
+            "n_nodes": n,
+            "p": 33,
+            "epochs": T,
+            "k_n": kn,
+            "seconds": t_alone,
+        }
+    )
     # --- 1,000 nodes
     n2, T2 = (200, 20) if quick else (1000, 100)
     dyn2, fs2, _ = synthetic_model(n_nodes=n2, n_epochs=T2, n_random_walk=3, n_biases=30, seed=3, rw_std=0.05)
@@ -176,9 +208,21 @@ def run(quick: bool) -> list[dict]:
     t0 = time.perf_counter()
     res2 = ckf(dyn2, fs2, schedule=sched2, rounds=kn)
     t_big = time.perf_counter() - t0
-    rows.append({"name": "CKF + Fig. 7, large network", "n_nodes": n2, "p": 33, "epochs": T2, "k_n": kn,
-                 "seconds": t_big, "data_generation_seconds": t_data, "filter_seconds": t_big - t_data,
-                 "goal": "(reported)", "messages": res2.comm.messages, "megabytes": res2.comm.bytes / 1e6})
+    rows.append(
+        {
+            "name": "CKF + Fig. 7, large network",
+            "n_nodes": n2,
+            "p": 33,
+            "epochs": T2,
+            "k_n": kn,
+            "seconds": t_big,
+            "data_generation_seconds": t_data,
+            "filter_seconds": t_big - t_data,
+            "goal": "(reported)",
+            "messages": res2.comm.messages,
+            "megabytes": res2.comm.bytes / 1e6,
+        }
+    )
     rows.extend(recursion_scaling(quick))
     return rows
 

@@ -33,33 +33,50 @@ def run(quick: bool) -> list[dict]:
     repeat = 1 if quick else 3
     rows: list[dict] = []
     full = best_time(lambda: exp.precision_analysis(T), repeat=repeat)
-    rows.append({"name": f"Perth precision analysis ({T} epochs, 13 rx, k_n 4/6/12, DCB times)",
-                 "seconds": full, "goal": GOAL_S if not quick else None,
-                 "meets_goal": bool(full <= GOAL_S) if not quick else None})
+    rows.append(
+        {
+            "name": f"Perth precision analysis ({T} epochs, 13 rx, k_n 4/6/12, DCB times)",
+            "seconds": full,
+            "goal": GOAL_S if not quick else None,
+            "meets_goal": bool(full <= GOAL_S) if not quick else None,
+        }
+    )
     # the parts
     t0 = time.perf_counter()
     geo, layout, series, dyn = exp.perth_scenario(T)
-    rows.append({"name": "  scenario: orbits, az/el, pierce points, coefficients", "seconds": time.perf_counter() - t0,
-                 "p": layout.n_states})
+    rows.append(
+        {
+            "name": "  scenario: orbits, az/el, pierce points, coefficients",
+            "seconds": time.perf_counter() - t0,
+            "p": layout.n_states,
+        }
+    )
     rows.append({"name": "  central filter", "seconds": best_time(lambda: central_filter(dyn, series), repeat=repeat)})
-    rows.append({"name": "  13 local filters", "seconds": best_time(lambda: local_filters(dyn, series),
-                                                                     repeat=repeat)})
+    rows.append({"name": "  13 local filters", "seconds": best_time(lambda: local_filters(dyn, series), repeat=repeat)})
     g = exp.perth_network()
     sched = consensus_schedule(g, exp.PROTOCOL)
     L = consensus_product(sched, 4)
-    rows.append({"name": "  Fig. 7 recursion, one k_n", "seconds": best_time(lambda: ckf_error_variance(dyn, series, L),
-                                                                              repeat=repeat)})
+    rows.append(
+        {
+            "name": "  Fig. 7 recursion, one k_n",
+            "seconds": best_time(lambda: ckf_error_variance(dyn, series, L), repeat=repeat),
+        }
+    )
     truth, obs, _ = simulate_geometry_free(geo, layout, exp.INTERVAL_S, rng=np.random.default_rng(1))
     ds = geometry_free_series(geo, layout, obs_m=obs)
-    rows.append({"name": "CKF with data, k_n = 4, Fig. 7 variance, in-process exchange",
-                 "seconds": best_time(lambda: ckf(dyn, ds, graph=g, rounds=4, monitor=False), repeat=1)})
+    rows.append(
+        {
+            "name": "CKF with data, k_n = 4, Fig. 7 variance, in-process exchange",
+            "seconds": best_time(lambda: ckf(dyn, ds, graph=g, rounds=4, monitor=False), repeat=1),
+        }
+    )
     with tempfile.TemporaryDirectory() as tmp:
-        ctx = ExperimentContext(out_dir=Path(tmp), quick=quick, progress=Progress(enabled=False),
-                                options={"epochs": T})
+        ctx = ExperimentContext(out_dir=Path(tmp), quick=quick, progress=Progress(enabled=False), options={"epochs": T})
         t0 = time.perf_counter()
         exp.run(ctx)
-        rows.append({"name": "distnav reproduce ckf-ionosphere (all of it, with figures)",
-                     "seconds": time.perf_counter() - t0})
+        rows.append(
+            {"name": "distnav reproduce ckf-ionosphere (all of it, with figures)", "seconds": time.perf_counter() - t0}
+        )
     return rows
 
 

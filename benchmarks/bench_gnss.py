@@ -34,8 +34,14 @@ from distnav.models.gnss.orbits import gps_seconds  # noqa: E402
 from distnav.network.constraint_nodes import choose_constraint_nodes  # noqa: E402
 
 _REPO = Path(__file__).resolve().parents[1]
-SHARED = next((c / "data" / "gnss" for c in (_REPO.parent / "shared", _REPO.parent.parent / "shared")
-               if (c / "data" / "gnss").exists()), _REPO.parent / "shared" / "data" / "gnss")
+SHARED = next(
+    (
+        c / "data" / "gnss"
+        for c in (_REPO.parent / "shared", _REPO.parent.parent / "shared")
+        if (c / "data" / "gnss").exists()
+    ),
+    _REPO.parent / "shared" / "data" / "gnss",
+)
 
 
 def _codebias(epochs: int, iterations: int) -> dict[str, Any]:
@@ -54,14 +60,30 @@ def _codebias(epochs: int, iterations: int) -> dict[str, Any]:
     t_setup = time.perf_counter() - t0
     finals = []
     for rho in RHOS:
-        res = admm(problem, net.graph, constraint_nodes=C, W=rho, max_iterations=iterations, tol=0.0,
-                   reference=x_hat, record_nodes=True)
+        res = admm(
+            problem,
+            net.graph,
+            constraint_nodes=C,
+            W=rho,
+            max_iterations=iterations,
+            tol=0.0,
+            reference=x_hat,
+            record_nodes=True,
+        )
         finals.append(float(res.trace["max_distance_to_reference"][-1]))
     total = time.perf_counter() - t0
     assert np.allclose(sol.x_m, x_hat, atol=1e-9)
-    return {"name": "codebias 110 stations", "epochs": epochs, "admm_runs": len(RHOS), "iterations": iterations,
-            "setup_s": round(t_setup, 2), "seconds": total, "goal": "≤ 20 s", "meets_goal": bool(total <= 20.0),
-            "max_dist_rho_0.5_m": finals[1]}
+    return {
+        "name": "codebias 110 stations",
+        "epochs": epochs,
+        "admm_runs": len(RHOS),
+        "iterations": iterations,
+        "setup_s": round(t_setup, 2),
+        "seconds": total,
+        "goal": "≤ 20 s",
+        "meets_goal": bool(total <= 20.0),
+        "max_dist_rho_0.5_m": finals[1],
+    }
 
 
 def _reading(quick: bool) -> list[dict[str, Any]]:
@@ -88,9 +110,18 @@ def _reading(quick: bool) -> list[dict[str, Any]]:
     for _ in range(3 if quick else 2):
         t_ref = min(t_ref, best_time(plain, repeat=1))
         t_ours = min(t_ours, best_time(ours, repeat=1))
-    return [{"name": "read RINEX 3 BELE " + ("1 h" if quick else "full day"), "epochs": 121 if quick else 2880,
-             "seconds": t_ours, "reference_seconds": t_ref, "ratio": t_ours / t_ref,
-             "goal": "≤ 1.2 × georinex", "meets_goal": bool(t_ours <= 1.2 * t_ref)}, _reading_navigation()]
+    return [
+        {
+            "name": "read RINEX 3 BELE " + ("1 h" if quick else "full day"),
+            "epochs": 121 if quick else 2880,
+            "seconds": t_ours,
+            "reference_seconds": t_ref,
+            "ratio": t_ours / t_ref,
+            "goal": "≤ 1.2 × georinex",
+            "meets_goal": bool(t_ours <= 1.2 * t_ref),
+        },
+        _reading_navigation(),
+    ]
 
 
 def _reading_navigation() -> dict[str, Any]:
@@ -115,11 +146,15 @@ def _reading_navigation() -> dict[str, Any]:
         read_navigation(f, max_age_s=4 * 3600.0)
         c2 = time.process_time()
         t_ref, t_ours = min(t_ref, c1 - c0), min(t_ours, c2 - c1)
-    return {"name": "read RINEX 3 broadcast day (BRDC, all systems)", "seconds": t_ours, "cpu_s": t_ours,
-            "reference_cpu_s": t_ref, "ratio": t_ours / t_ref, "goal": "≤ 0.5 × georinex.load",
-            "meets_goal": bool(t_ours <= 0.5 * t_ref)}
-
-
+    return {
+        "name": "read RINEX 3 broadcast day (BRDC, all systems)",
+        "seconds": t_ours,
+        "cpu_s": t_ours,
+        "reference_cpu_s": t_ref,
+        "ratio": t_ours / t_ref,
+        "goal": "≤ 0.5 × georinex.load",
+        "meets_goal": bool(t_ours <= 0.5 * t_ref),
+    }
 
 
 def _ionosphere_day(quick: bool) -> list[dict[str, Any]]:
@@ -131,13 +166,17 @@ def _ionosphere_day(quick: bool) -> list[dict[str, Any]]:
     if not d.exists():
         return [{"name": "ionosphere day", "note": "skipped: shared data absent"}]
     rows = [] if quick else [_ionosphere_run(d, None, "full day", "≤ 20 s CPU (full day)", 20.0)]
-    rows.append(_ionosphere_run(d, ("2024-01-10T06:00", "2024-01-10T08:00"), "2-h session",
-                                "filters ≤ 150× floor (2-h session)", None))
+    rows.append(
+        _ionosphere_run(
+            d, ("2024-01-10T06:00", "2024-01-10T08:00"), "2-h session", "filters ≤ 150× floor (2-h session)", None
+        )
+    )
     return rows
 
 
-def _ionosphere_run(d: Path, tlim: tuple[str, str] | None, label: str, goal: str,
-                    cpu_goal_s: float | None) -> dict[str, Any]:
+def _ionosphere_run(
+    d: Path, tlim: tuple[str, str] | None, label: str, goal: str, cpu_goal_s: float | None
+) -> dict[str, Any]:
     from dataclasses import replace
 
     from distnav.commands.gnss import default_graph
@@ -146,10 +185,19 @@ def _ionosphere_run(d: Path, tlim: tuple[str, str] | None, label: str, goal: str
     from distnav.models.gnss.rinex import read_navigation
 
     t0, c0 = time.perf_counter(), time.process_time()
-    obs = read_stations([d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", d / "dgar0100.24o.gz"], l1_code="C1C",
-                        l2_code="C2W", phases=True, tlim=tlim)
-    obs.append(replace(read_stations([d / "dgar0100.24o.gz"], l1_code="C1C", l2_code="C2W", phases=True,
-                                     tlim=tlim)[0], station="DGR2"))
+    obs = read_stations(
+        [d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", d / "dgar0100.24o.gz"],
+        l1_code="C1C",
+        l2_code="C2W",
+        phases=True,
+        tlim=tlim,
+    )
+    obs.append(
+        replace(
+            read_stations([d / "dgar0100.24o.gz"], l1_code="C1C", l2_code="C2W", phases=True, tlim=tlim)[0],
+            station="DGR2",
+        )
+    )
     obs[-1] = replace(obs[-1], position_ecef_m=obs[-1].position_ecef_m + np.array([3.0e4, 0.0, 0.0]))
     c_obs = time.process_time() - c0
     nav = read_navigation(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz", max_age_s=4 * 3600.0)
@@ -165,19 +213,32 @@ def _ionosphere_run(d: Path, tlim: tuple[str, str] | None, label: str, goal: str
     m = np.random.default_rng(0).standard_normal((p, p))
     info = m @ m.T
     t_floor = float("inf")
-    for _ in range(3):         # best of 3: a 2-h session's floor is only ~20 ms of CPU, noisy on a loaded machine
+    for _ in range(3):  # best of 3: a 2-h session's floor is only ~20 ms of CPU, noisy on a loaded machine
         t3 = time.process_time()
         for _ in range(T * n_rows):
             np.linalg.cholesky(info)
         t_floor = min(t_floor, time.process_time() - t3)
     ratio = c_filt / t_floor
-    return {"name": f"ionosphere 3 stations {label} at 30 s", "epochs": T, "states": p, "filters": n_rows,
-            "read_s": round(t_read, 2), "level_model_s": round(t_model, 2), "filters_s": round(t_filt, 2),
-            "seconds": total, "cpu_read_s": round(c_read, 2), "cpu_read_obs_s": round(c_obs, 2),
-            "cpu_read_nav_s": round(c_read - c_obs, 2), "cpu_level_model_s": round(c_model, 2),
-            "cpu_filters_s": round(c_filt, 2), "cpu_s": round(c_total, 2),
-            "floor_cholesky_cpu_s": round(t_floor, 3), "filters_vs_floor": round(ratio, 1), "goal": goal,
-            "meets_goal": bool(c_total <= cpu_goal_s) if cpu_goal_s is not None else bool(ratio <= 150.0)}
+    return {
+        "name": f"ionosphere 3 stations {label} at 30 s",
+        "epochs": T,
+        "states": p,
+        "filters": n_rows,
+        "read_s": round(t_read, 2),
+        "level_model_s": round(t_model, 2),
+        "filters_s": round(t_filt, 2),
+        "seconds": total,
+        "cpu_read_s": round(c_read, 2),
+        "cpu_read_obs_s": round(c_obs, 2),
+        "cpu_read_nav_s": round(c_read - c_obs, 2),
+        "cpu_level_model_s": round(c_model, 2),
+        "cpu_filters_s": round(c_filt, 2),
+        "cpu_s": round(c_total, 2),
+        "floor_cholesky_cpu_s": round(t_floor, 3),
+        "filters_vs_floor": round(ratio, 1),
+        "goal": goal,
+        "meets_goal": bool(c_total <= cpu_goal_s) if cpu_goal_s is not None else bool(ratio <= 150.0),
+    }
 
 
 def _orbits() -> list[dict[str, Any]]:
@@ -192,10 +253,10 @@ def _orbits() -> list[dict[str, Any]]:
     svs = [s for s in sp3.svs if s.startswith("G")]
     tb = best_time(lambda: nav.positions_ecef(t, svs), repeat=3)
     ts = best_time(lambda: sp3.positions_ecef(t, svs), repeat=3)
-    return [{"name": "broadcast positions", "satellites": len(svs), "epochs": 2880, "seconds": tb,
-             "goal": "(no goal)"},
-            {"name": "SP3 Lagrange positions", "satellites": len(svs), "epochs": 2880, "seconds": ts,
-             "goal": "(no goal)"}]
+    return [
+        {"name": "broadcast positions", "satellites": len(svs), "epochs": 2880, "seconds": tb, "goal": "(no goal)"},
+        {"name": "SP3 Lagrange positions", "satellites": len(svs), "epochs": 2880, "seconds": ts, "goal": "(no goal)"},
+    ]
 
 
 def run(quick: bool) -> list[dict[str, Any]]:

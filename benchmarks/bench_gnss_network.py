@@ -54,15 +54,24 @@ def _cut(obs: list[Any], h0: float, h1: float) -> list[Any]:
     for o in obs:
         s = (o.time - o.time[0]).astype("timedelta64[s]").astype(float)
         k = (s >= h0 * 3600.0) & (s < h1 * 3600.0)
-        out.append(replace(o, time=o.time[k], range_m={b: v[k] for b, v in o.range_m.items()},
-                           phase_m={b: v[k] for b, v in o.phase_m.items()}, lli={b: v[k] for b, v in o.lli.items()}))
+        out.append(
+            replace(
+                o,
+                time=o.time[k],
+                range_m={b: v[k] for b, v in o.range_m.items()},
+                phase_m={b: v[k] for b, v in o.phase_m.items()},
+                lli={b: v[k] for b, v in o.lli.items()},
+            )
+        )
     return out
 
 
-def _new(obs: list[Any], orbit: Any, options: dict[str, Any] | None = None
-         ) -> tuple[dict[str, float], dict[str, float], dict[str, float], Any]:
-    data = network_from_observations(obs, orbit, l2_code="C2W", interval_s=60.0,
-                                     **(NEW_OPTIONS if options is None else options))
+def _new(
+    obs: list[Any], orbit: Any, options: dict[str, Any] | None = None
+) -> tuple[dict[str, float], dict[str, float], dict[str, float], Any]:
+    data = network_from_observations(
+        obs, orbit, l2_code="C2W", interval_s=60.0, **(NEW_OPTIONS if options is None else options)
+    )
     series, _ = run_bias_filters(data, local=False)
     sat, rx, sd = final_dsbs(data, series[0])
     return sat, rx, sd, (series[0], data)
@@ -72,25 +81,33 @@ def _old(obs: list[Any], orbit: Any) -> dict[str, float]:
     """The first-wave model on the same levelled data: between-satellite differences (receiver bias eliminated
     per epoch), pivot G10 or the most tracked satellite, paper 003's random walk (1 mm/√s), independent epochs, one σ
     for all stations."""
-    data = network_from_observations(obs, orbit, l2_code="C2W", interval_s=60.0, arc_correlation_s=0.0,
-                                     station_weights="off")
+    data = network_from_observations(
+        obs, orbit, l2_code="C2W", interval_s=60.0, arc_correlation_s=0.0, station_weights="off"
+    )
     geo, svs = data.geometry, data.layout.svs
     piv = "G10" if "G10" in svs else svs[int(np.argmax(geo.tracked.sum(axis=(0, 1))))]
     lay = IonosphereStateLayout(svs, piv, data.layout.n_ionospheres)
-    ser = GeometryFreeSeries(lay, geo.coefficients, data.sigma_m, obs_m=data.obs_m, tracked=geo.tracked,
-                             groups=geo.groups)
+    ser = GeometryFreeSeries(
+        lay, geo.coefficients, data.sigma_m, obs_m=data.obs_m, tracked=geo.tracked, groups=geo.groups
+    )
     dyn = ionosphere_dynamics(lay, np.concatenate([[np.nan], np.diff(data.t_gps_s)]))
     last = list(iterate_information_filter(dyn, ser, mode="central"))[-1]
     x, est, col = last.estimates[0], last.estimable[0], lay.dcb_column()
     scale = gf_m_per_dsb_ns(2)
-    return {s: (0.0 if col[j] < 0 else -float(x[col[j]]) / scale) for j, s in enumerate(svs)
-            if col[j] < 0 or est[col[j]]}
+    return {
+        s: (0.0 if col[j] < 0 else -float(x[col[j]]) / scale) for j, s in enumerate(svs) if col[j] < 0 or est[col[j]]
+    }
 
 
 def _score(sat: dict[str, float], rx: dict[str, float], prod: Any) -> dict[str, Any]:
     c = compare_in_datum(sat, rx, prod, exclude=EXCLUDE)
-    out = {"n": c["n"], "rms_ns": c["rms_zero_mean_ns"], "max_ns": c["max_abs_zero_mean_ns"], "worst": c["worst"],
-           "difference_ns": c["difference_ns"]}
+    out = {
+        "n": c["n"],
+        "rms_ns": c["rms_zero_mean_ns"],
+        "max_ns": c["max_abs_zero_mean_ns"],
+        "worst": c["worst"],
+        "difference_ns": c["difference_ns"],
+    }
     if "receivers" in c:
         out["receivers_ns"] = c["receivers"]["difference_ns"]
     return out
@@ -101,9 +118,14 @@ def _z_rms(sc: dict[str, Any], sd: dict[str, float]) -> float:
     return float(np.sqrt(np.mean((errs / np.array([sd[s] for s in sc["difference_ns"]])) ** 2)))
 
 
-def run(quick: bool, preset: str = "default", models: tuple[str, ...] = ("new", "old"),
-        days: int | None = None, options: dict[str, Any] | None = None, label: str = "new default"
-        ) -> list[dict[str, Any]]:
+def run(
+    quick: bool,
+    preset: str = "default",
+    models: tuple[str, ...] = ("new", "old"),
+    days: int | None = None,
+    options: dict[str, Any] | None = None,
+    label: str = "new default",
+) -> list[dict[str, Any]]:
     """The rows of the table; ``preset`` "realistic" simulates with :data:`~distnav.models.gnss.netsim.REALISTIC`
     (``bench_gnss_realistic.py``), ``models`` / ``days`` narrow the run (calibration); ``options`` replace
     :data:`NEW_OPTIONS` of the new model (e.g. ``{"tec_order": 2}``), named ``label`` in the row."""
@@ -128,8 +150,15 @@ def run(quick: bool, preset: str = "default", models: tuple[str, ...] = ("new", 
         day = np.datetime64("2024-01-10") + np.timedelta64(d, "D")
         amp = 1.0 + 0.1 * np.random.default_rng([d, 99]).standard_normal()
         fld = VtecField(day_tecu=16.0 * amp, night_tecu=4.0 * amp)
-        sim = simulate_network(orbit, day, rng=np.random.default_rng([d, 1]), field=fld,
-                               satellite_dsb_ns=sat_truth, receiver_dsb_ns=rx_truth, **knobs)
+        sim = simulate_network(
+            orbit,
+            day,
+            rng=np.random.default_rng([d, 1]),
+            field=fld,
+            satellite_dsb_ns=sat_truth,
+            receiver_dsb_ns=rx_truth,
+            **knobs,
+        )
         prod = truth_product(sim)
         if "new" in models:
             sat, rx, sd, (c, data) = _new(sim.observations, orbit, options)
@@ -159,9 +188,16 @@ def run(quick: bool, preset: str = "default", models: tuple[str, ...] = ("new", 
                     sess[m].append(sc_m["rms_ns"])
                     sess_n[m].append(int(sc_m["n"]))
         if d == 0 and "new" in models:
-            dirty = simulate_network(orbit, day, rng=np.random.default_rng([d, 1]), field=fld,
-                                     satellite_dsb_ns=sat_truth, receiver_dsb_ns=rx_truth, gross_fraction=0.002,
-                                     **knobs)
+            dirty = simulate_network(
+                orbit,
+                day,
+                rng=np.random.default_rng([d, 1]),
+                field=fld,
+                satellite_dsb_ns=sat_truth,
+                receiver_dsb_ns=rx_truth,
+                gross_fraction=0.002,
+                **knobs,
+            )
             g_sat, g_rx, _, _ = _new(dirty.observations, orbit, options)
             common = [s for s in sat if s in g_sat]
             gross_move = max(abs(g_sat[s] - sat[s]) for s in common)
@@ -174,24 +210,35 @@ def run(quick: bool, preset: str = "default", models: tuple[str, ...] = ("new", 
         rep = np.median(list(spread.values()))
         row: dict[str, Any] = {
             "name": f"simulated network{' (realistic)' if knobs else ''}, "
-                    f"{label if model == 'new' else 'first-wave model'}",
-            "days": days, "full_day_rms_ns": [round(v, 3) for v in fr],
+            f"{label if model == 'new' else 'first-wave model'}",
+            "days": days,
+            "full_day_rms_ns": [round(v, 3) for v in fr],
             "six_hour_rms_ns": [round(v, 3) for v in sess[model]],
             "six_hour_median_ns": round(float(np.median(sess[model])), 3),
             "six_hour_satellites_compared": sess_n[model],
-            "repeatability_median_ns": round(float(rep), 3)}
+            "repeatability_median_ns": round(float(rep), 3),
+        }
         if model == "new":
             scatter = np.sqrt(np.mean([(spread[s] / np.median([sd[s] for sd in sigmas])) ** 2 for s in common]))
-            row.update({"receiver_dsb_error_ns": [round(v, 3) for v in rx_err],
-                        "realistic_sigma_vs_truth_error": [round(v, 2) for v in sigma_ratio],
-                        "error_over_sigma_rms": [round(v, 2) for v in sigma_z],
-                        "six_hour_error_over_sigma_rms_median": round(float(np.median(sess_z)), 2),
-                        "day_to_day_scatter_over_sigma_rms": round(float(scatter), 2),
-                        "worst_fitting": worst, "gross_errors_max_change_ns": round(float(gross_move), 4),
-                        "seconds": round(seconds, 1)})
-            row["meets_goal"] = bool(max(fr) <= 0.30 and np.median(sess[model]) <= 0.45
-                                     and max(abs(v) for v in rx_err) <= 0.7 and rep <= 0.12
-                                     and gross_move <= 0.1)
+            row.update(
+                {
+                    "receiver_dsb_error_ns": [round(v, 3) for v in rx_err],
+                    "realistic_sigma_vs_truth_error": [round(v, 2) for v in sigma_ratio],
+                    "error_over_sigma_rms": [round(v, 2) for v in sigma_z],
+                    "six_hour_error_over_sigma_rms_median": round(float(np.median(sess_z)), 2),
+                    "day_to_day_scatter_over_sigma_rms": round(float(scatter), 2),
+                    "worst_fitting": worst,
+                    "gross_errors_max_change_ns": round(float(gross_move), 4),
+                    "seconds": round(seconds, 1),
+                }
+            )
+            row["meets_goal"] = bool(
+                max(fr) <= 0.30
+                and np.median(sess[model]) <= 0.45
+                and max(abs(v) for v in rx_err) <= 0.7
+                and rep <= 0.12
+                and gross_move <= 0.1
+            )
             row["goal"] = "full ≤ 0.30, 6-h ≤ 0.45, receivers ≤ 0.7, repeatability ≤ 0.12, gross ≤ 0.1 ns"
         rows.append(row)
     return rows

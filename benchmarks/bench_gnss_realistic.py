@@ -17,8 +17,10 @@ from _common import main_for  # noqa: E402
 from bench_gnss_network import run as run_network  # noqa: E402
 
 VARIANTS: tuple[tuple[str, dict[str, Any]], ...] = (
-    ("--tec-field quadratic", {"tec_order": 2}), ("--mapping mslm", {"mapping": "mslm"}),
-    ("--tec-field quadratic --mapping mslm", {"tec_order": 2, "mapping": "mslm"}))
+    ("--tec-field quadratic", {"tec_order": 2}),
+    ("--mapping mslm", {"mapping": "mslm"}),
+    ("--tec-field quadratic --mapping mslm", {"tec_order": 2, "mapping": "mslm"}),
+)
 
 
 def run(quick: bool) -> list[dict[str, Any]]:

@@ -50,32 +50,59 @@ def _rows(r: dict[str, Any]) -> list[dict[str, Any]]:
     peak = max(p["end_mb"] for p in per_rank)
     common = {"n_nodes": r["n_nodes"], "ranks": r["ranks"], "payload_floats": r["payload_floats"]}
     return [
-        {"name": "MPI halo transport", **common, "distnav_ms": r["transport_ms"], "floor_ms": r["bare_alltoallv_ms"],
-         "floor": "bare mpi4py Neighbor_alltoallv", "ratio_min": r["transport_ratio_min"],
-         "ratio_median": r["transport_ratio_median"], "goal": "≤ 1.3",
-         "meets_goal": bool(r["transport_ratio_median"] <= 1.3), "persistent": r["persistent"],
-         "setup_s": r["setup_s"]},
-        {"name": "MPI consensus round", **common, "distnav_ms": r["round_ms"], "floor_ms": r["bare_round_ms"],
-         "floor": "bare Neighbor_alltoallv + scipy CSR product of the block", "ratio_min": r["round_ratio_min"],
-         "ratio_median": r["round_ratio_median"], "goal": "≤ 1.2", "meets_goal": bool(r["round_ratio_median"] <= 1.2),
-         "setup_s": r["setup_s"], "graph_build_s": r["graph_s"], "peak_rss_mb_per_rank": peak,
-         "cut_edges_fraction": r["cut_edges_fraction"], "per_rank": per_rank},
+        {
+            "name": "MPI halo transport",
+            **common,
+            "distnav_ms": r["transport_ms"],
+            "floor_ms": r["bare_alltoallv_ms"],
+            "floor": "bare mpi4py Neighbor_alltoallv",
+            "ratio_min": r["transport_ratio_min"],
+            "ratio_median": r["transport_ratio_median"],
+            "goal": "≤ 1.3",
+            "meets_goal": bool(r["transport_ratio_median"] <= 1.3),
+            "persistent": r["persistent"],
+            "setup_s": r["setup_s"],
+        },
+        {
+            "name": "MPI consensus round",
+            **common,
+            "distnav_ms": r["round_ms"],
+            "floor_ms": r["bare_round_ms"],
+            "floor": "bare Neighbor_alltoallv + scipy CSR product of the block",
+            "ratio_min": r["round_ratio_min"],
+            "ratio_median": r["round_ratio_median"],
+            "goal": "≤ 1.2",
+            "meets_goal": bool(r["round_ratio_median"] <= 1.2),
+            "setup_s": r["setup_s"],
+            "graph_build_s": r["graph_s"],
+            "peak_rss_mb_per_rank": peak,
+            "cut_edges_fraction": r["cut_edges_fraction"],
+            "per_rank": per_rank,
+        },
     ]
 
 
 _EMPTY_JOB = "from mpi4py import MPI; MPI.COMM_WORLD.Barrier()"
 _NUMPY_JOB = "from mpi4py import MPI; import numpy; MPI.COMM_WORLD.Barrier()"
 _SPARSE_JOB = "from mpi4py import MPI; import numpy, scipy.sparse; MPI.COMM_WORLD.Barrier()"
-_DISTNAV_JOB = ("from mpi4py import MPI; from distnav.exchange.mpi import MPIExchange; "
-                "from distnav.algorithms.consensus import average_consensus; from distnav.algorithms.admm import admm; "
-                "MPI.COMM_WORLD.Barrier()")
+_DISTNAV_JOB = (
+    "from mpi4py import MPI; from distnav.exchange.mpi import MPIExchange; "
+    "from distnav.algorithms.consensus import average_consensus; from distnav.algorithms.admm import admm; "
+    "MPI.COMM_WORLD.Barrier()"
+)
 
 
 def _launch_seconds(ranks: int, code: str, env: dict[str, str]) -> float:
     mpiexec = Path(sys.executable).parent / "mpiexec"
     t0 = time.perf_counter()
-    subprocess.run([str(mpiexec), "-n", str(ranks), sys.executable, "-m", "mpi4py", "-c", code], check=True,
-                   stdin=subprocess.DEVNULL, capture_output=True, timeout=120, env=env)
+    subprocess.run(
+        [str(mpiexec), "-n", str(ranks), sys.executable, "-m", "mpi4py", "-c", code],
+        check=True,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        timeout=120,
+        env=env,
+    )
     return time.perf_counter() - t0
 
 

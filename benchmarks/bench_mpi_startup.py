@@ -46,12 +46,16 @@ from _common import main_for  # noqa: E402
 SRC = Path(__file__).resolve().parents[1] / "src"
 _MPI = "from mpi4py import MPI; "
 _END = "; MPI.COMM_WORLD.Barrier()"
-_DISTNAV_IMPORTS = ("from distnav.exchange.mpi import MPIExchange; "
-                    "from distnav.algorithms.consensus import average_consensus; "
-                    "from distnav.algorithms.admm import admm")
-_SETUP = ("; import numpy as np; from distnav.network.graph import Graph; from distnav.exchange import make_exchange; "
-          "n = 1000; g = Graph.from_links(n, [(i, (i + 1) % n) for i in range(n)]); "
-          "ex = make_exchange(g, backend='mpi'); ex.broadcast(np.ones(ex.n_local))")
+_DISTNAV_IMPORTS = (
+    "from distnav.exchange.mpi import MPIExchange; "
+    "from distnav.algorithms.consensus import average_consensus; "
+    "from distnav.algorithms.admm import admm"
+)
+_SETUP = (
+    "; import numpy as np; from distnav.network.graph import Graph; from distnav.exchange import make_exchange; "
+    "n = 1000; g = Graph.from_links(n, [(i, (i + 1) % n) for i in range(n)]); "
+    "ex = make_exchange(g, backend='mpi'); ex.broadcast(np.ones(ex.n_local))"
+)
 _ONE = "import os; os.environ.update(OPENBLAS_NUM_THREADS='1', OMP_NUM_THREADS='1'); "
 _POOL = "import os; os.environ['OPENBLAS_NUM_THREADS'] = str(os.cpu_count()); "  # OpenBLAS's own default
 JOBS = {
@@ -62,9 +66,13 @@ JOBS = {
     "distnav_pool": _MPI + _POOL + _DISTNAV_IMPORTS + _END,
     "setup": _MPI + _DISTNAV_IMPORTS + _SETUP + _END,
 }
-PARTS = (("launch", None, "empty"), ("numpy import", "empty", "numpy"),
-         ("BLAS pool", "numpy_1thread", "numpy"), ("distnav import", "numpy_1thread", "distnav"),
-         ("exchange set-up", "distnav", "setup"))
+PARTS = (
+    ("launch", None, "empty"),
+    ("numpy import", "empty", "numpy"),
+    ("BLAS pool", "numpy_1thread", "numpy"),
+    ("distnav import", "numpy_1thread", "distnav"),
+    ("exchange set-up", "distnav", "setup"),
+)
 
 
 def _env(cache: Path) -> dict[str, str]:
@@ -89,8 +97,14 @@ def _launch(ranks: int, code: str, env: dict[str, str]) -> tuple[float, float]:
     mpiexec = Path(sys.executable).parent / "mpiexec"
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run([str(mpiexec), "-n", str(ranks), sys.executable, "-m", "mpi4py", "-c", code], check=True,
-                   stdin=subprocess.DEVNULL, capture_output=True, timeout=120, env=env)
+    subprocess.run(
+        [str(mpiexec), "-n", str(ranks), sys.executable, "-m", "mpi4py", "-c", code],
+        check=True,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        timeout=120,
+        env=env,
+    )
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     return (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), wall
@@ -122,30 +136,42 @@ def startup_rows(ranks: tuple[int, ...] = (1, 2, 4), repeat: int = 5) -> list[di
             load = os.getloadavg()[0]
             med = {k: float(np.median(v)) for k, v in Wl.items()}
             medc = {k: float(np.median(v)) for k, v in C.items()}
-            rows.append({
-                "name": "MPI start-up (launch + import), seconds over an empty mpi4py job", "ranks": r,
-                "distnav_s": med["distnav"], "bare_setup_s": med["empty"],
-                "floor": "empty mpi4py job (import mpi4py.MPI, barrier); bytecode precompiled (compileall)",
-                "added_s_min": float(added_wall.min()), "added_s_median": float(np.median(added_wall)),
-                "added_cpu_s_median": float(np.median(added_cpu)),
-                "numpy_job_s": med["numpy"], "added_over_numpy_s_median": float(np.median(Wl["distnav"] - Wl["numpy"])),
-                "added_with_pool_s_min": float(pool_wall.min()),
-                "added_with_pool_s_median": float(np.median(pool_wall)),
-                "added_with_pool_cpu_s_median": float(np.median(C["distnav_pool"] - C["empty"])),
-                **{f"{k}_job_cpu_s": v for k, v in medc.items()},
-                **{f"{name.replace(' ', '_').replace('-', '')}_cpu_s": v for name, v in parts.items()},
-                **{f"{name.replace(' ', '_').replace('-', '')}_wall_s": v for name, v in parts_wall.items()},
-                "ratio": med["distnav"] / med["empty"], "ratio_to_numpy_job": med["distnav"] / med["numpy"],
-                "cpu_ratio": medc["distnav"] / medc["empty"], "cpu_ratio_to_numpy_job": medc["distnav"] / medc["numpy"],
-                "repeats": repeat, "load_1min": load, "goal": "≤ 0.3 s added",
-                "meets_goal": bool(np.median(added_wall) <= 0.3),
-                "note": (f"added {added_wall.min():.2f}–{np.median(added_wall):.2f} s wall (min–median), "
-                         f"{np.median(added_cpu):.2f} s CPU: numpy import {parts['numpy import']:.2f} of which BLAS "
-                         f"pool {parts['BLAS pool']:.2f}, distnav's own {parts['distnav import']:.2f} (CPU s); "
-                         f"with the BLAS pool {pool_wall.min():.2f}–{np.median(pool_wall):.2f} s wall; "
-                         f"×{med['distnav'] / med['numpy']:.2f} the numpy-only job; load {load:.1f} on "
-                         f"{os.cpu_count()} cores"),
-            })
+            rows.append(
+                {
+                    "name": "MPI start-up (launch + import), seconds over an empty mpi4py job",
+                    "ranks": r,
+                    "distnav_s": med["distnav"],
+                    "bare_setup_s": med["empty"],
+                    "floor": "empty mpi4py job (import mpi4py.MPI, barrier); bytecode precompiled (compileall)",
+                    "added_s_min": float(added_wall.min()),
+                    "added_s_median": float(np.median(added_wall)),
+                    "added_cpu_s_median": float(np.median(added_cpu)),
+                    "numpy_job_s": med["numpy"],
+                    "added_over_numpy_s_median": float(np.median(Wl["distnav"] - Wl["numpy"])),
+                    "added_with_pool_s_min": float(pool_wall.min()),
+                    "added_with_pool_s_median": float(np.median(pool_wall)),
+                    "added_with_pool_cpu_s_median": float(np.median(C["distnav_pool"] - C["empty"])),
+                    **{f"{k}_job_cpu_s": v for k, v in medc.items()},
+                    **{f"{name.replace(' ', '_').replace('-', '')}_cpu_s": v for name, v in parts.items()},
+                    **{f"{name.replace(' ', '_').replace('-', '')}_wall_s": v for name, v in parts_wall.items()},
+                    "ratio": med["distnav"] / med["empty"],
+                    "ratio_to_numpy_job": med["distnav"] / med["numpy"],
+                    "cpu_ratio": medc["distnav"] / medc["empty"],
+                    "cpu_ratio_to_numpy_job": medc["distnav"] / medc["numpy"],
+                    "repeats": repeat,
+                    "load_1min": load,
+                    "goal": "≤ 0.3 s added",
+                    "meets_goal": bool(np.median(added_wall) <= 0.3),
+                    "note": (
+                        f"added {added_wall.min():.2f}–{np.median(added_wall):.2f} s wall (min–median), "
+                        f"{np.median(added_cpu):.2f} s CPU: numpy import {parts['numpy import']:.2f} of which BLAS "
+                        f"pool {parts['BLAS pool']:.2f}, distnav's own {parts['distnav import']:.2f} (CPU s); "
+                        f"with the BLAS pool {pool_wall.min():.2f}–{np.median(pool_wall):.2f} s wall; "
+                        f"×{med['distnav'] / med['numpy']:.2f} the numpy-only job; load {load:.1f} on "
+                        f"{os.cpu_count()} cores"
+                    ),
+                }
+            )
     return rows
 
 

@@ -48,8 +48,10 @@ ENV = "DISTNAV_PEERS_PYTHON"
 DEFAULT_VENV = HERE / ".peers-venv" / "bin" / "python"
 #: recorded figures (issue 3's author, this machine, the peers' own packages; not re-run): nodes, ms/iteration,
 #: error after 200 iterations
-RECORDED: dict[str, tuple[int, float, float | None]] = {"decent-bench": (200, 49.5, 2.4e-3),
-                                                         "disropt": (50, 189.0, None)}
+RECORDED: dict[str, tuple[int, float, float | None]] = {
+    "decent-bench": (200, 49.5, 2.4e-3),
+    "disropt": (50, 189.0, None),
+}
 MODULES = {"decent-bench": "decent_bench", "disropt": "disropt"}
 DB_PENALTIES = (0.3, 1.0, 3.0)
 DISROPT_N = 20
@@ -78,15 +80,33 @@ def _rho_sweep(prob: LinearProblem, g: Graph, xh: np.ndarray, rhos: tuple[float,
     C = choose_constraint_nodes(g, "min_cover")
     its = {}
     for rho in rhos:
-        res = admm(prob, g, constraint_nodes=C, W=rho, max_iterations=3000, tol=0.0, reference=xh,
-                   stop_at_reference=1e-8, record_nodes=False, messages="pairs")
+        res = admm(
+            prob,
+            g,
+            constraint_nodes=C,
+            W=rho,
+            max_iterations=3000,
+            tol=0.0,
+            reference=xh,
+            stop_at_reference=1e-8,
+            record_nodes=False,
+            messages="pairs",
+        )
         its[rho] = res.iterations_to["1e-08"] or 10**9
     return min(its, key=lambda r: its[r])
 
 
 def _distnav_error(prob: LinearProblem, g: Graph, rho: float, iterations: int, xh: np.ndarray) -> float:
-    res = admm(prob, g, constraint_nodes="min_cover", W=rho, max_iterations=iterations, tol=0.0,
-               record_nodes=False, messages="pairs")
+    res = admm(
+        prob,
+        g,
+        constraint_nodes="min_cover",
+        W=rho,
+        max_iterations=iterations,
+        tol=0.0,
+        record_nodes=False,
+        messages="pairs",
+    )
     assert res.iterations == iterations, res.message
     return float(np.linalg.norm(res.estimates - xh, axis=1).max() / np.linalg.norm(xh))
 
@@ -100,20 +120,39 @@ def _save(path: Path, prob: LinearProblem, g: Graph, xh: np.ndarray) -> None:
     np.savez(path, A=prob.A, y=prob.y, links=g.links, x_ref=xh)
 
 
-def _row(peer: str, n: int, ours_ms: list[float], peer_ms: list[float], errs: tuple[float, float | None],
-         iterations: int, rho: float, floor: str, note: str, extra: dict[str, Any]) -> dict[str, Any]:
+def _row(
+    peer: str,
+    n: int,
+    ours_ms: list[float],
+    peer_ms: list[float],
+    errs: tuple[float, float | None],
+    iterations: int,
+    rho: float,
+    floor: str,
+    note: str,
+    extra: dict[str, Any],
+) -> dict[str, Any]:
     r = np.asarray(ours_ms) / np.asarray(peer_ms)
     ours_err, peer_err = errs
     faster = bool(np.median(r) < 1.0)
     return {
-        "name": f"ADMM vs {peer}", "n_nodes": n, "distnav_ms": float(np.median(ours_ms)),
-        "floor_ms": float(np.median(peer_ms)), "floor": floor, "ratio_min": float(r.min()),
-        "ratio_median": float(np.median(r)), "peer_over_distnav_median": float(np.median(1.0 / r)),
-        "repeats": int(r.size), "iterations": iterations, "rho": rho,
-        "distnav_error_after_iterations": ours_err, "peer_error_after_iterations": peer_err,
+        "name": f"ADMM vs {peer}",
+        "n_nodes": n,
+        "distnav_ms": float(np.median(ours_ms)),
+        "floor_ms": float(np.median(peer_ms)),
+        "floor": floor,
+        "ratio_min": float(r.min()),
+        "ratio_median": float(np.median(r)),
+        "peer_over_distnav_median": float(np.median(1.0 / r)),
+        "repeats": int(r.size),
+        "iterations": iterations,
+        "rho": rho,
+        "distnav_error_after_iterations": ours_err,
+        "peer_error_after_iterations": peer_err,
         "goal": "faster per iteration, no larger error after the same iterations (keep)",
         "meets_goal": None if peer_err is None else bool(faster and ours_err <= peer_err),
-        "note": note, **extra,
+        "note": note,
+        **extra,
     }
 
 
@@ -131,10 +170,19 @@ def decent_bench_row(quick: bool, python: str | None) -> dict[str, Any]:
     if missing:
         ms = [_distnav_ms(prob, g, rho)]
         # the recorded error is not of this run: no goal verdict from it (the note quotes it)
-        return _row("decent-bench", n, ms, [rec_ms], (ours_err, None),
-                    iterations, rho, f"decent-bench ADMM, RECORDED figure (n = {rec_n}; not run here)",
-                    f"{missing}; recorded figures, labelled as such: {rec_ms} ms/it, error {rec_err} after 200 "
-                    f"iterations; distnav {ours_err:.2g} after {iterations}", {"peer_status": "recorded"})
+        return _row(
+            "decent-bench",
+            n,
+            ms,
+            [rec_ms],
+            (ours_err, None),
+            iterations,
+            rho,
+            f"decent-bench ADMM, RECORDED figure (n = {rec_n}; not run here)",
+            f"{missing}; recorded figures, labelled as such: {rec_ms} ms/it, error {rec_err} after 200 "
+            f"iterations; distnav {ours_err:.2g} after {iterations}",
+            {"peer_status": "recorded"},
+        )
     assert python is not None
     ours_ms, peer_ms, runs = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
@@ -142,22 +190,42 @@ def decent_bench_row(quick: bool, python: str | None) -> dict[str, Any]:
         _save(path, prob, g, xh)
         for pen in DB_PENALTIES[:1] if quick else DB_PENALTIES:
             ours_ms.append(_distnav_ms(prob, g, rho))
-            out = subprocess.run([python, str(HERE / "peers" / "decent_bench_admm.py"), str(path), str(iterations),
-                                  "1", str(pen)], capture_output=True, text=True, timeout=3600, check=True)
+            out = subprocess.run(
+                [python, str(HERE / "peers" / "decent_bench_admm.py"), str(path), str(iterations), "1", str(pen)],
+                capture_output=True,
+                text=True,
+                timeout=3600,
+                check=True,
+            )
             res = json.loads(out.stdout.strip().splitlines()[-1])
             runs += res["runs"]
             peer_ms.append(res["runs"][0]["ms_per_iteration"])
     best = min(runs, key=lambda r: r["final_relative_error"])
     pens = ", ".join(f"{r['penalty']:g}" for r in runs)
-    note = (f"its own package {res['package']} {res['version']} (Python {res['python']}, numpy {res['numpy']}), "
-            f"same problem, same run; peer / distnav {np.median(np.asarray(peer_ms) / ours_ms):.0f}× per iteration; "
-            f"error after {iterations} iterations: distnav {ours_err:.2g} (ρ = {rho:g}), decent-bench "
-            f"{best['final_relative_error']:.2g} (best of penalties "
-            f"{pens}: {best['penalty']:g})")
-    return _row("decent-bench", n, ours_ms, peer_ms, (ours_err, best["final_relative_error"]), iterations, rho,
-                "decent-bench ADMM (run from its own package, same problem)", note,
-                {"peer_status": "run", "peer_version": res["version"], "peer_runs": runs,
-                 "peer_x_ref_check": res["x_ref_check"]})
+    note = (
+        f"its own package {res['package']} {res['version']} (Python {res['python']}, numpy {res['numpy']}), "
+        f"same problem, same run; peer / distnav {np.median(np.asarray(peer_ms) / ours_ms):.0f}× per iteration; "
+        f"error after {iterations} iterations: distnav {ours_err:.2g} (ρ = {rho:g}), decent-bench "
+        f"{best['final_relative_error']:.2g} (best of penalties "
+        f"{pens}: {best['penalty']:g})"
+    )
+    return _row(
+        "decent-bench",
+        n,
+        ours_ms,
+        peer_ms,
+        (ours_err, best["final_relative_error"]),
+        iterations,
+        rho,
+        "decent-bench ADMM (run from its own package, same problem)",
+        note,
+        {
+            "peer_status": "run",
+            "peer_version": res["version"],
+            "peer_runs": runs,
+            "peer_x_ref_check": res["x_ref_check"],
+        },
+    )
 
 
 def disropt_row(quick: bool, python: str | None) -> dict[str, Any]:
@@ -172,35 +240,84 @@ def disropt_row(quick: bool, python: str | None) -> dict[str, Any]:
     missing = peer_missing(python, "disropt")
     rec_n, rec_ms, _ = RECORDED["disropt"]
     if missing:
-        return _row("disropt", n, [_distnav_ms(prob, g, rho)], [rec_ms], (ours_err, None), iterations, rho,
-                    f"disropt ADMM, RECORDED figure (n = {rec_n}; not run here)",
-                    f"{missing}; recorded figure, labelled as such: {rec_ms} ms/it at n = {rec_n}",
-                    {"peer_status": "recorded"})
+        return _row(
+            "disropt",
+            n,
+            [_distnav_ms(prob, g, rho)],
+            [rec_ms],
+            (ours_err, None),
+            iterations,
+            rho,
+            f"disropt ADMM, RECORDED figure (n = {rec_n}; not run here)",
+            f"{missing}; recorded figure, labelled as such: {rec_ms} ms/it at n = {rec_n}",
+            {"peer_status": "recorded"},
+        )
     assert python is not None
     mpiexec = Path(python).parent / "mpiexec"
     if not mpiexec.exists():
-        return _row("disropt", n, [_distnav_ms(prob, g, rho)], [rec_ms], (ours_err, None), iterations, rho,
-                    f"disropt ADMM, RECORDED figure (n = {rec_n}; not run here)",
-                    f"not run: no {mpiexec} beside the peers' Python (pip install mpich there); recorded figure, "
-                    f"labelled as such: {rec_ms} ms/it at n = {rec_n}", {"peer_status": "recorded"})
+        return _row(
+            "disropt",
+            n,
+            [_distnav_ms(prob, g, rho)],
+            [rec_ms],
+            (ours_err, None),
+            iterations,
+            rho,
+            f"disropt ADMM, RECORDED figure (n = {rec_n}; not run here)",
+            f"not run: no {mpiexec} beside the peers' Python (pip install mpich there); recorded figure, "
+            f"labelled as such: {rec_ms} ms/it at n = {rec_n}",
+            {"peer_status": "recorded"},
+        )
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "problem.npz"
         _save(path, prob, g, xh)
         ours_ms = [_distnav_ms(prob, g, rho)]
-        out = subprocess.run([str(mpiexec), "-n", str(n), python, str(HERE / "peers" / "disropt_admm.py"), str(path),
-                              str(iterations), str(2 * rho)], capture_output=True, text=True, timeout=3600, check=True)
+        out = subprocess.run(
+            [
+                str(mpiexec),
+                "-n",
+                str(n),
+                python,
+                str(HERE / "peers" / "disropt_admm.py"),
+                str(path),
+                str(iterations),
+                str(2 * rho),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=3600,
+            check=True,
+        )
         res = json.loads(out.stdout.strip().splitlines()[-1])
     fell_back = "Trying with CVXOPT" in out.stderr
-    note = (f"its own package {res['package']} {res['version']} (Python {res['python']}), {n} MPI ranks on 2 cores, "
-            f"same problem, same run; peer / distnav {res['ms_per_iteration'] / ours_ms[0]:.0f}× per iteration; "
-            f"error after {iterations} iterations: distnav {ours_err:.2g} (ρ = {rho:g}), disropt "
-            f"{res['final_relative_error']:.2g} (penalty {2 * rho:g})"
-            + ("; its cvxpy path failed on every x-update (cvxpy's quad_form error), disropt fell back to CVXOPT"
-               if fell_back else ""))
-    return _row("disropt", n, ours_ms, [res["ms_per_iteration"]], (ours_err, res["final_relative_error"]),
-                iterations, rho, "disropt ADMM (run from its own package under MPI, same problem)", note,
-                {"peer_status": "run", "peer_version": res["version"], "peer_cost_check": res["cost_check"],
-                 "peer_fell_back_to_cvxopt": fell_back})
+    note = (
+        f"its own package {res['package']} {res['version']} (Python {res['python']}), {n} MPI ranks on 2 cores, "
+        f"same problem, same run; peer / distnav {res['ms_per_iteration'] / ours_ms[0]:.0f}× per iteration; "
+        f"error after {iterations} iterations: distnav {ours_err:.2g} (ρ = {rho:g}), disropt "
+        f"{res['final_relative_error']:.2g} (penalty {2 * rho:g})"
+        + (
+            "; its cvxpy path failed on every x-update (cvxpy's quad_form error), disropt fell back to CVXOPT"
+            if fell_back
+            else ""
+        )
+    )
+    return _row(
+        "disropt",
+        n,
+        ours_ms,
+        [res["ms_per_iteration"]],
+        (ours_err, res["final_relative_error"]),
+        iterations,
+        rho,
+        "disropt ADMM (run from its own package under MPI, same problem)",
+        note,
+        {
+            "peer_status": "run",
+            "peer_version": res["version"],
+            "peer_cost_check": res["cost_check"],
+            "peer_fell_back_to_cvxopt": fell_back,
+        },
+    )
 
 
 def run(quick: bool) -> list[dict[str, Any]]:

@@ -52,20 +52,28 @@ def precision_rows(quick: bool) -> list[dict[str, Any]]:
         it_cov = run.covariance_run.iterations_to["1e-06"]
         ratio = None if it_est is None or it_cov is None else it_cov / it_est
         P = run.precision
-        rows.append({
-            "name": f"precision, 24 nodes, p=6, m_i=3, seed {seed}", "seconds": t_prec,
-            "reference_seconds": t_floor, "reference": "centralized numpy inverse of N (same run)",
-            "ratio": t_prec / t_floor, "estimate_seconds": t_est,
-            "estimate_iterations_to_1e-6": it_est, "covariance_iterations_to_1e-6": it_cov,
-            "covariance_over_estimate_iterations": ratio,
-            "covariance_final_relative_error": float(np.abs(P.covariance - b.covariance).max()
-                                                     / np.abs(b.covariance).max()),
-            "variance_factor_relative_error": abs(float(P.variance_factor or np.nan) / s2 - 1),
-            "sums_run_iterations": run.sums_run.iterations, "precision_messages": P.comm.messages if P.comm else None,
-            "estimate_messages": est.comm.messages,
-            "goal": "covariance to 1e-6 within 2× the estimate's iterations",
-            "meets_goal": bool(ratio is not None and ratio <= 2.0),
-        })
+        rows.append(
+            {
+                "name": f"precision, 24 nodes, p=6, m_i=3, seed {seed}",
+                "seconds": t_prec,
+                "reference_seconds": t_floor,
+                "reference": "centralized numpy inverse of N (same run)",
+                "ratio": t_prec / t_floor,
+                "estimate_seconds": t_est,
+                "estimate_iterations_to_1e-6": it_est,
+                "covariance_iterations_to_1e-6": it_cov,
+                "covariance_over_estimate_iterations": ratio,
+                "covariance_final_relative_error": float(
+                    np.abs(P.covariance - b.covariance).max() / np.abs(b.covariance).max()
+                ),
+                "variance_factor_relative_error": abs(float(P.variance_factor or np.nan) / s2 - 1),
+                "sums_run_iterations": run.sums_run.iterations,
+                "precision_messages": P.comm.messages if P.comm else None,
+                "estimate_messages": est.comm.messages,
+                "goal": "covariance to 1e-6 within 2× the estimate's iterations",
+                "meets_goal": bool(ratio is not None and ratio <= 2.0),
+            }
+        )
     return rows
 
 
@@ -94,17 +102,24 @@ def snooping_rows(quick: bool) -> list[dict[str, Any]]:
         extra_msgs.append(res.tests.comm.messages)
         first_msgs.append(res.comm.messages - res.tests.comm.messages)
     power = detected / injected
-    return [{
-        "name": f"data snooping, {draws} problems of 20 nodes, 2 gross errors of 6σ, level 0.1 %",
-        "seconds": t_dist / draws, "reference_seconds": t_cent / draws,
-        "reference": "centralized statistics.data_snooping (same run)", "ratio": t_dist / t_cent,
-        "same_removals_as_centralized": same, "problems": draws, "power": power,
-        "false_removals": false_removed, "median_extra_iterations": float(np.median(extra_its)),
-        "median_extra_messages": float(np.median(extra_msgs)),
-        "median_messages_first_solution": float(np.median(first_msgs)),
-        "goal": "same removals on every problem; power ≥ 80 %",
-        "meets_goal": bool(same == draws and power >= 0.8),
-    }]
+    return [
+        {
+            "name": f"data snooping, {draws} problems of 20 nodes, 2 gross errors of 6σ, level 0.1 %",
+            "seconds": t_dist / draws,
+            "reference_seconds": t_cent / draws,
+            "reference": "centralized statistics.data_snooping (same run)",
+            "ratio": t_dist / t_cent,
+            "same_removals_as_centralized": same,
+            "problems": draws,
+            "power": power,
+            "false_removals": false_removed,
+            "median_extra_iterations": float(np.median(extra_its)),
+            "median_extra_messages": float(np.median(extra_msgs)),
+            "median_messages_first_solution": float(np.median(first_msgs)),
+            "goal": "same removals on every problem; power ≥ 80 %",
+            "meets_goal": bool(same == draws and power >= 0.8),
+        }
+    ]
 
 
 def run(quick: bool) -> list[dict[str, Any]]:

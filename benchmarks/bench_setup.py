@@ -138,34 +138,68 @@ def setup_rows(sizes: tuple[int, ...], repeat: int = 3) -> list[dict[str, Any]]:
             best["bare"] = min(best.get("bare", np.inf), bare_cpu)
         r = np.asarray(ratios)
         peak_mb = _traced_peak_mb(g, prob)
-        rows.append({
-            "name": "ADMM set-up (constraint nodes + exchange + kernel)", "n_nodes": n, "n_links": g.n_links,
-            "distnav_s": best["total"], "cover_s": best["cover"], "exchange_s": best["exchange"],
-            "kernel_s": best["kernel"], "first_round_s": best["first"], "bare_setup_s": best["bare"],
-            "first_repeat_s": totals[0], "setup_traced_peak_mb": peak_mb, "system_s_min": min(systems),
-            "system_s_first_repeat": systems[0], "iteration_1_s": best["iteration_1"],
-            "iteration_2_s": best["iteration_2"],
-            "ratio_min": float(r.min()), "ratio_median": float(np.median(r)), "ratio": best["total"] / best["bare"],
-            "wall_s": min(w for w, _ in walls), "bare_wall_s": min(b for _, b in walls), "clock": "CPU s",
-            "floor": BARE, "repeats": repeat, "pairs": int(C.per_node_count.sum()) - C.size,
-            "cover_method": C.method, "cover_size": C.size, "cover_lower_bound": C.lower_bound,
-            "cover_ratio_bound": C.ratio_bound, "goal": "≤ 1 s", "meets_goal": bool(best["total"] <= 1.0),
-            "load_1min": os.getloadavg()[0],
-            "note": (f"CPU s; cover {best['cover']:.3g} + exchange {best['exchange']:.3g} + kernel "
-                     f"{best['kernel']:.3g} + first state {best['first']:.3g}; wall {min(w for w, _ in walls):.3g} s; "
-                     f"first repeat {totals[0]:.3g} (system {systems[0]:.3g}); then iteration 1 "
-                     f"{best['iteration_1']:.3g}, 2 {best['iteration_2']:.3g}; "
-                     f"cover {C.size:,} ≤ {C.ratio_bound or 1:.2f}× the minimum (lower bound {C.lower_bound or 0:,}: "
-                     f"{C.method.partition('lower bound: ')[2] or C.method}); load {os.getloadavg()[0]:.1f}"),
-        })
-        rows.append({  # the first repeat apart: it pays the first touch of the memory the set-up allocates
-            "name": "ADMM set-up, first of the repeats (fresh memory)", "n_nodes": n, "distnav_s": totals[0],
-            "bare_setup_s": bares[0], "ratio": totals[0] / bares[0], "system_s": systems[0],
-            "setup_traced_peak_mb": peak_mb, "clock": "CPU s", "floor": BARE + " (its first repeat)",
-            "goal": "≤ 1 s", "meets_goal": bool(totals[0] <= 1.0),
-            "note": (f"CPU s, of which system {systems[0]:.3g} s; best repeat {best['total']:.3g} s; the set-up "
-                     f"allocates {peak_mb:.0f} MB at its peak (tracemalloc), first state included"),
-        })
+        rows.append(
+            {
+                "name": "ADMM set-up (constraint nodes + exchange + kernel)",
+                "n_nodes": n,
+                "n_links": g.n_links,
+                "distnav_s": best["total"],
+                "cover_s": best["cover"],
+                "exchange_s": best["exchange"],
+                "kernel_s": best["kernel"],
+                "first_round_s": best["first"],
+                "bare_setup_s": best["bare"],
+                "first_repeat_s": totals[0],
+                "setup_traced_peak_mb": peak_mb,
+                "system_s_min": min(systems),
+                "system_s_first_repeat": systems[0],
+                "iteration_1_s": best["iteration_1"],
+                "iteration_2_s": best["iteration_2"],
+                "ratio_min": float(r.min()),
+                "ratio_median": float(np.median(r)),
+                "ratio": best["total"] / best["bare"],
+                "wall_s": min(w for w, _ in walls),
+                "bare_wall_s": min(b for _, b in walls),
+                "clock": "CPU s",
+                "floor": BARE,
+                "repeats": repeat,
+                "pairs": int(C.per_node_count.sum()) - C.size,
+                "cover_method": C.method,
+                "cover_size": C.size,
+                "cover_lower_bound": C.lower_bound,
+                "cover_ratio_bound": C.ratio_bound,
+                "goal": "≤ 1 s",
+                "meets_goal": bool(best["total"] <= 1.0),
+                "load_1min": os.getloadavg()[0],
+                "note": (
+                    f"CPU s; cover {best['cover']:.3g} + exchange {best['exchange']:.3g} + kernel "
+                    f"{best['kernel']:.3g} + first state {best['first']:.3g}; wall {min(w for w, _ in walls):.3g} s; "
+                    f"first repeat {totals[0]:.3g} (system {systems[0]:.3g}); then iteration 1 "
+                    f"{best['iteration_1']:.3g}, 2 {best['iteration_2']:.3g}; "
+                    f"cover {C.size:,} ≤ {C.ratio_bound or 1:.2f}× the minimum (lower bound {C.lower_bound or 0:,}: "
+                    f"{C.method.partition('lower bound: ')[2] or C.method}); load {os.getloadavg()[0]:.1f}"
+                ),
+            }
+        )
+        rows.append(
+            {  # the first repeat apart: it pays the first touch of the memory the set-up allocates
+                "name": "ADMM set-up, first of the repeats (fresh memory)",
+                "n_nodes": n,
+                "distnav_s": totals[0],
+                "bare_setup_s": bares[0],
+                "ratio": totals[0] / bares[0],
+                "system_s": systems[0],
+                "setup_traced_peak_mb": peak_mb,
+                "clock": "CPU s",
+                "floor": BARE + " (its first repeat)",
+                "goal": "≤ 1 s",
+                "meets_goal": bool(totals[0] <= 1.0),
+                "note": (
+                    f"CPU s, of which system {systems[0]:.3g} s; best repeat {best['total']:.3g} s; the set-up "
+                    f"allocates {peak_mb:.0f} MB at its peak (tracemalloc), first state included"
+                ),
+            }
+        )
     return rows
 
 
@@ -177,8 +211,10 @@ def profile(n: int, top: int = 40) -> None:
     pr.enable()
     phases, C = _one_setup(g, prob)
     pr.disable()
-    print(", ".join(f"{k} {c:.3f} s" for k, (c, _, _) in phases.items()), f"(CPU; cover: {C.method}, {C.size} "
-          f"nodes, lower bound {C.lower_bound}, ratio bound {C.ratio_bound})")
+    print(
+        ", ".join(f"{k} {c:.3f} s" for k, (c, _, _) in phases.items()),
+        f"(CPU; cover: {C.method}, {C.size} nodes, lower bound {C.lower_bound}, ratio bound {C.ratio_bound})",
+    )
     pstats.Stats(pr).sort_stats("cumulative").print_stats(top)
 
 

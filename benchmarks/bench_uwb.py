@@ -51,9 +51,16 @@ def _random_3d(rng: np.random.Generator, n: int = 100) -> Any:
         if np.bincount(np.concatenate([a[k], b[k]]), minlength=n).min() < 5:
             continue
         ids = [str(i) for i in range(n)]
-        return build_problem(ids, np.stack([a[k], b[k]], 1), d[k] + rng.normal(0, 0.15, int(k.sum())),
-                             fixed={ids[i]: t[i] for i in range(3)}, dim=3,
-                             initial_m=t + rng.uniform(-1, 1, t.shape), truth_m=t, name="random 3-D")
+        return build_problem(
+            ids,
+            np.stack([a[k], b[k]], 1),
+            d[k] + rng.normal(0, 0.15, int(k.sum())),
+            fixed={ids[i]: t[i] for i in range(3)},
+            dim=3,
+            initial_m=t + rng.uniform(-1, 1, t.shape),
+            truth_m=t,
+            name="random 3-D",
+        )
     raise RuntimeError("no well-posed random network drawn")
 
 
@@ -71,11 +78,25 @@ def run(quick: bool) -> list[dict[str, Any]]:
         wall, cpu, res = _timed(lambda s=s, paper=paper: solve(p, s, iterations=iterations, **paper))
         wall_total += wall
         cpu_total += cpu
-        per.append({"name": f"GC {s} × {iterations} it.", "seconds": wall, "cpu_seconds": cpu,
-                    "final_rmse_m": float(res.trace["rmse_m"][-1]), "messages": res.comm.messages,
-                    "bytes": res.comm.bytes})
-    rows.append({"name": f"six solvers × {iterations} it. (100-anchor GC)", "seconds": wall_total,
-                 "cpu_seconds": cpu_total, "goal": "≤ 2 s", "meets_goal": bool(min(wall_total, cpu_total) <= 2.0)})
+        per.append(
+            {
+                "name": f"GC {s} × {iterations} it.",
+                "seconds": wall,
+                "cpu_seconds": cpu,
+                "final_rmse_m": float(res.trace["rmse_m"][-1]),
+                "messages": res.comm.messages,
+                "bytes": res.comm.bytes,
+            }
+        )
+    rows.append(
+        {
+            "name": f"six solvers × {iterations} it. (100-anchor GC)",
+            "seconds": wall_total,
+            "cpu_seconds": cpu_total,
+            "goal": "≤ 2 s",
+            "meets_goal": bool(min(wall_total, cpu_total) <= 2.0),
+        }
+    )
     rows += per
 
     problems = [generate_problem("GC", np.random.default_rng(1), dim=2), _random_3d(np.random.default_rng(2))]
@@ -86,33 +107,63 @@ def run(quick: bool) -> list[dict[str, Any]]:
         ours_t = best_time(lambda q=q: solve(q, "LM", iterations=1000), repeat=repeat)
 
         def scipy_run(q: Any = q, x0: np.ndarray = x0) -> Any:
-            return least_squares(q.residual_vector, x0, jac=lambda x: q.jacobian_of(x).toarray(), method="lm",
-                                 xtol=1e-12, ftol=1e-12, gtol=1e-12)
+            return least_squares(
+                q.residual_vector,
+                x0,
+                jac=lambda x: q.jacobian_of(x).toarray(),
+                method="lm",
+                xtol=1e-12,
+                ftol=1e-12,
+                gtol=1e-12,
+            )
 
         ref = scipy_run()
         ref_t = best_time(scipy_run, repeat=repeat)
         ours_cost = float(ours_res.cost)
         ref_cost = float(ref.fun @ ref.fun)
         rel = abs(ours_cost - ref_cost) / ref_cost
-        rows.append({"name": f"LM vs scipy lm, {q.name or 'GC'} {q.dim}-D ({q.n_free} unknowns)",
-                     "seconds": ours_t, "reference_seconds": ref_t, "ratio": ours_t / ref_t,
-                     "cost": ours_cost, "reference_cost": ref_cost, "relative_cost_difference": rel,
-                     "iterations": ours_res.iterations, "reference_nfev": int(ref.nfev),
-                     "goal": "ratio ≤ 1.5 at equal cost", "meets_goal": bool(ours_t / ref_t <= 1.5 and rel < 1e-8)})
+        rows.append(
+            {
+                "name": f"LM vs scipy lm, {q.name or 'GC'} {q.dim}-D ({q.n_free} unknowns)",
+                "seconds": ours_t,
+                "reference_seconds": ref_t,
+                "ratio": ours_t / ref_t,
+                "cost": ours_cost,
+                "reference_cost": ref_cost,
+                "relative_cost_difference": rel,
+                "iterations": ours_res.iterations,
+                "reference_nfev": int(ref.nfev),
+                "goal": "ratio ≤ 1.5 at equal cost",
+                "meets_goal": bool(ours_t / ref_t <= 1.5 and rel < 1e-8),
+            }
+        )
 
     side = 50 if quick else 100
     pos, links = generate_layout("G", n_anchors=side * side)
     truth = np.column_stack([pos, np.zeros(side * side)])
     d = np.linalg.norm(truth[links[:, 0]] - truth[links[:, 1]], axis=1) + rng.normal(0, 0.15, links.shape[0])
     ids = [str(i) for i in range(side * side)]
-    big = build_problem(ids, links, d, fixed={ids[i]: truth[i] for i in (0, 1, side)}, dim=3,
-                        initial_m=truth + rng.uniform(-5, 5, truth.shape), truth_m=truth)
+    big = build_problem(
+        ids,
+        links,
+        d,
+        fixed={ids[i]: truth[i] for i in (0, 1, side)},
+        dim=3,
+        initial_m=truth + rng.uniform(-5, 5, truth.shape),
+        truth_m=truth,
+    )
     its = 20
     wall, cpu, res = _timed(lambda: solve(big, "N-CSG-TBLS", iterations=its, **PAPER_MODE))
-    rows.append({"name": f"N-CSG-TBLS on a {side}×{side} grid ({side * side} anchors), {its} it.",
-                 "seconds": wall, "cpu_seconds": cpu, "ms_per_iteration": 1e3 * wall / its,
-                 "bytes_per_message": res.comm.bytes / max(res.comm.messages, 1),
-                 "csg_bytes_per_message": side * side * 3 * 8})
+    rows.append(
+        {
+            "name": f"N-CSG-TBLS on a {side}×{side} grid ({side * side} anchors), {its} it.",
+            "seconds": wall,
+            "cpu_seconds": cpu,
+            "ms_per_iteration": 1e3 * wall / its,
+            "bytes_per_message": res.comm.bytes / max(res.comm.messages, 1),
+            "csg_bytes_per_message": side * side * 3 * 8,
+        }
+    )
     rows += _real_log_rows(np.random.default_rng(5), quick)
     return rows
 
@@ -129,8 +180,9 @@ def _hall(n: int, rng: np.random.Generator) -> tuple[Any, np.ndarray]:
     ids = [f"A{i}" for i in range(n)]
     held = {ids[i]: {2: float(t[i, 2])} for i in range(4, n)}
     init = t + rng.uniform(-1, 1, t.shape) * np.array([1.0, 1.0, 0.0])
-    return build_problem(ids, pairs, d, fixed={ids[i]: t[i] for i in range(4)}, dim=3, held=held,
-                         initial_m=init, truth_m=t), nlos
+    return build_problem(
+        ids, pairs, d, fixed={ids[i]: t[i] for i in range(4)}, dim=3, held=held, initial_m=init, truth_m=t
+    ), nlos
 
 
 def _real_log_rows(rng: np.random.Generator, quick: bool) -> list[dict[str, Any]]:
@@ -146,19 +198,38 @@ def _real_log_rows(rng: np.random.Generator, quick: bool) -> list[dict[str, Any]
         if n <= 100:  # scipy's trf takes minutes on the larger hall (measured: 316 s dense, 58 s lsmr at 300 anchors)
             o = RangeObjective(q, "metres", 0.05)
             start = solve_lm(q, objective="metres", sigma_m=0.05, quality=False).x
-            ref_wall, _, ref = _timed(lambda o=o, start=start: least_squares(
-                o.residual, start, jac=lambda x: o.jacobian(x).toarray(), loss="cauchy", f_scale=3.0, method="trf",
-                xtol=1e-12, ftol=1e-12, gtol=1e-12))
+            ref_wall, _, ref = _timed(
+                lambda o=o, start=start: least_squares(
+                    o.residual,
+                    start,
+                    jac=lambda x: o.jacobian(x).toarray(),
+                    loss="cauchy",
+                    f_scale=3.0,
+                    method="trf",
+                    xtol=1e-12,
+                    ftol=1e-12,
+                    gtol=1e-12,
+                )
+            )
             ref_obj = 2.0 * float(ref.cost)
         flagged = res.tests.flagged
         e = (res.estimates - q.truth_m)[q.estimated]
-        rows.append({"name": f"LM metres + Cauchy + QC, {n}-anchor hall", "seconds": wall, "cpu_seconds": cpu,
-                     "reference_seconds": ref_wall, "ratio": wall / ref_wall, "objective": res.objective,
-                     "reference_objective": ref_obj,
-                     "final_rmse_m": float(np.sqrt(np.mean(np.sum(e * e, axis=1)))),
-                     "nlos_recall": float((flagged & nlos).sum() / max(int(nlos.sum()), 1)),
-                     "false_alarm_rate": float((flagged & ~nlos).sum() / max(int((~nlos).sum()), 1)),
-                     "goal": f"≤ {goal:g} s", "meets_goal": bool(min(wall, cpu) <= goal)})
+        rows.append(
+            {
+                "name": f"LM metres + Cauchy + QC, {n}-anchor hall",
+                "seconds": wall,
+                "cpu_seconds": cpu,
+                "reference_seconds": ref_wall,
+                "ratio": wall / ref_wall,
+                "objective": res.objective,
+                "reference_objective": ref_obj,
+                "final_rmse_m": float(np.sqrt(np.mean(np.sum(e * e, axis=1)))),
+                "nlos_recall": float((flagged & nlos).sum() / max(int(nlos.sum()), 1)),
+                "false_alarm_rate": float((flagged & ~nlos).sum() / max(int((~nlos).sum()), 1)),
+                "goal": f"≤ {goal:g} s",
+                "meets_goal": bool(min(wall, cpu) <= goal),
+            }
+        )
     return rows
 
 

@@ -32,8 +32,14 @@ from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 from distnav.models.uwb.problems import RangingProblem
 
 _REPO = Path(__file__).resolve().parents[1]
-APRIL = next((c / "shared" / "data" / "uwb" / "april-dw1000-8node" / "dataset4.txt" for c in (_REPO.parent,
-              _REPO.parent.parent) if (c / "shared" / "data").is_dir()), Path("absent"))
+APRIL = next(
+    (
+        c / "shared" / "data" / "uwb" / "april-dw1000-8node" / "dataset4.txt"
+        for c in (_REPO.parent, _REPO.parent.parent)
+        if (c / "shared" / "data").is_dir()
+    ),
+    Path("absent"),
+)
 
 
 SPARSE_FLOOR_ANCHORS = 200
@@ -96,10 +102,20 @@ def _row(name: str, p: RangingProblem, profile: bool = False) -> dict[str, Any]:
     if prof is not None:
         prof.disable()
     floor = _scipy_floor(sub)
-    return {"case": name, "anchors": p.n_anchors, "links": p.n_meas, "wall_s": w_prep + w_sol,
-            "cpu_s": c_prep + c_sol, "cpu_prepare_s": c_prep, "cpu_solve_qc_s": c_sol, "scipy_floor_cpu_s": floor,
-            "ratio_to_floor": (c_prep + c_sol) / max(floor, 1e-9), "excluded": int(sol.excluded.sum()),
-            "status": sol.status, **({"profiled_cpu_s": _split(prof)} if prof is not None else {})}
+    return {
+        "case": name,
+        "anchors": p.n_anchors,
+        "links": p.n_meas,
+        "wall_s": w_prep + w_sol,
+        "cpu_s": c_prep + c_sol,
+        "cpu_prepare_s": c_prep,
+        "cpu_solve_qc_s": c_sol,
+        "scipy_floor_cpu_s": floor,
+        "ratio_to_floor": (c_prep + c_sol) / max(floor, 1e-9),
+        "excluded": int(sol.excluded.sum()),
+        "status": sol.status,
+        **({"profiled_cpu_s": _split(prof)} if prof is not None else {}),
+    }
 
 
 def main() -> None:
@@ -115,11 +131,20 @@ def main() -> None:
 
         with tempfile.TemporaryDirectory() as d:
             f = write_april_csvs(APRIL, d, known=[8, 12, 54, 87])
-            (_, _, s), w, c = _timed(lambda: solve_range_log(f["ranges"], f["known"], options=FieldOptions(
-                range_offsets="common")))
-            rows.append({"case": "APRIL dataset4, uwb solve incl. reading 21,504 samples", "anchors": 7,
-                         "links": s["n_pairs"], "wall_s": w, "cpu_s": c, "status": s["status"],
-                         "excluded": s["n_excluded"]})
+            (_, _, s), w, c = _timed(
+                lambda: solve_range_log(f["ranges"], f["known"], options=FieldOptions(range_offsets="common"))
+            )
+            rows.append(
+                {
+                    "case": "APRIL dataset4, uwb solve incl. reading 21,504 samples",
+                    "anchors": 7,
+                    "links": s["n_pairs"],
+                    "wall_s": w,
+                    "cpu_s": c,
+                    "status": s["status"],
+                    "excluded": s["n_excluded"],
+                }
+            )
     rows.append(_row("hall, 28 anchors (middle), dense", hall_problem(simulate_hall(np.random.default_rng(1)))[0]))
     for seed in (1, 2, 3):
         plant = simulate_hall(np.random.default_rng(seed), HallConfig().with_(**PLANT_LIKE))
@@ -131,8 +156,10 @@ def main() -> None:
     print(f"{'case':55s} {'wall s':>8s} {'CPU s':>8s} {'floor CPU s':>12s} {'ratio':>7s}")
     for r in rows:
         fl = r.get("scipy_floor_cpu_s")
-        print(f"{r['case']:55s} {r['wall_s']:8.2f} {r['cpu_s']:8.2f} {fl if fl is not None else float('nan'):12.3f} "
-              f"{r.get('ratio_to_floor', float('nan')):7.1f}")
+        print(
+            f"{r['case']:55s} {r['wall_s']:8.2f} {r['cpu_s']:8.2f} {fl if fl is not None else float('nan'):12.3f} "
+            f"{r.get('ratio_to_floor', float('nan')):7.1f}"
+        )
         for part, cpu in r.get("profiled_cpu_s", {}).items():
             print(f"    {part:51s} {'':8s} {cpu:8.2f}  (under cProfile)")
 

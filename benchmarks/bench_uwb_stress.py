@@ -77,12 +77,23 @@ VARIATIONS: dict[str, dict[str, object]] = {
     "known anchors along one wall (near-collinear)": {"known_on_wall": True},
     "20 anchors": _scaled(20),
     "40 anchors": _scaled(40),
-    "combined: NLOS 20 % + bimodal + short": {"nlos_p1": 0.33, "nlos_long_fraction": 0.7, "attempts": 10,
-                                               "min_samples": 3},
+    "combined: NLOS 20 % + bimodal + short": {
+        "nlos_p1": 0.33,
+        "nlos_long_fraction": 0.7,
+        "attempts": 10,
+        "min_samples": 3,
+    },
     "combined: delays 10 cm + 0.3 m + heights 5 cm + noise 0.1": {
-        "antenna_delay_sd_m": 0.10, "common_offset_m": 0.3, "height_survey_sd_m": 0.05, "sigma_m": 0.10},
-    "combined: gross + asymmetric + excess 0.3-3 m": {"gross_link_fraction": 0.1, "asymmetry_sd_m": 0.2,
-                                                      "nlos_bias_m": (0.3, 3.0)},
+        "antenna_delay_sd_m": 0.10,
+        "common_offset_m": 0.3,
+        "height_survey_sd_m": 0.05,
+        "sigma_m": 0.10,
+    },
+    "combined: gross + asymmetric + excess 0.3-3 m": {
+        "gross_link_fraction": 0.1,
+        "asymmetry_sd_m": 0.2,
+        "nlos_bias_m": (0.3, 3.0),
+    },
 }
 
 
@@ -146,11 +157,18 @@ def _one_hall(job: tuple[str, str, int, float | None]) -> dict[str, Any]:
         f = h.write(d)
         c0 = time.process_time()
         try:
-            sol, _, summ = solve_range_log(f["ranges"], f["known"], heights=f["heights"], truth=f["truth"],
-                                              options=opts)
+            sol, _, summ = solve_range_log(
+                f["ranges"], f["known"], heights=f["heights"], truth=f["truth"], options=opts
+            )
         except Exception as err:  # a refused geometry is an answer too (exit 2): count it, keep going
-            return {"variation": name, "placement": placement, "hall": k, "error": f"{type(err).__name__}: {err}",
-                    "careful_rmse_m": _rmse(h, careful_fit(h), est), "oracle_rmse_m": _rmse(h, oracle_fit(h), est)}
+            return {
+                "variation": name,
+                "placement": placement,
+                "hall": k,
+                "error": f"{type(err).__name__}: {err}",
+                "careful_rmse_m": _rmse(h, careful_fit(h), est),
+                "oracle_rmse_m": _rmse(h, oracle_fit(h), est),
+            }
         cpu = time.process_time() - c0
     ids = list(h.ids)
     pos = np.full((h.n_anchors, 3), np.nan)
@@ -162,10 +180,13 @@ def _one_hall(job: tuple[str, str, int, float | None]) -> dict[str, Any]:
     amb = set(sol.geometry.ambiguous_anchors())
     marked = np.array([x in sol.weak or x in amb or x not in p.ids for x in ids])
     err = np.linalg.norm(pos - h.truth_m, axis=1)
-    link_of = {(min(ids.index(p.ids[a]), ids.index(p.ids[b])), max(ids.index(p.ids[a]), ids.index(p.ids[b]))): m
-               for m, (a, b) in enumerate(zip(p.meas_a, p.meas_b, strict=True))}
-    nlos = np.array([bool(h.nlos[np.flatnonzero((h.links[:, 0] == a) & (h.links[:, 1] == b))[0]])
-                     for (a, b) in link_of])
+    link_of = {
+        (min(ids.index(p.ids[a]), ids.index(p.ids[b])), max(ids.index(p.ids[a]), ids.index(p.ids[b]))): m
+        for m, (a, b) in enumerate(zip(p.meas_a, p.meas_b, strict=True))
+    }
+    nlos = np.array(
+        [bool(h.nlos[np.flatnonzero((h.links[:, 0] == a) & (h.links[:, 1] == b))[0]]) for (a, b) in link_of]
+    )
     ex = np.array([bool(sol.excluded[m]) for m in link_of.values()])
     solved = np.isfinite(err) & ~np.isin(np.arange(h.n_anchors), h.known)
     ok = solved[:, None] & (sig > 0) & np.isfinite(sig)
@@ -173,14 +194,27 @@ def _one_hall(job: tuple[str, str, int, float | None]) -> dict[str, Any]:
     hit = np.abs(pos - h.truth_m) <= 2.0 * sig
     sig_h = np.nan_to_num(np.hypot(sig[:, 0], sig[:, 1]), nan=0.0)
     careful, oracle = careful_fit(h), oracle_fit(h)
-    return {"variation": name, "placement": placement, "hall": k, "status": sol.status, "cpu_s": cpu,
-            "rmse_m": _rmse(h, pos, est) if sol.usable else float("nan"),
-            "careful_rmse_m": _rmse(h, careful, est), "oracle_rmse_m": _rmse(h, oracle, est),
-            "links": int(h.links.shape[0]), "nlos": int(h.nlos.sum()), "tp": int((ex & nlos).sum()),
-            "fp": int((ex & ~nlos).sum()), "cov_hit": int(hit[ok].sum()), "cov_n": int(ok.sum()),
-            "weak": int(marked[est].sum()), "bad": int((err[est] > BAD_M).sum()),
-            "silent_bad": int(((err > BAD_M) & (err > 3.0 * sig_h) & ~marked)[est].sum()),
-            "unsolved": len(ids) - len(p.ids), "excluded": int(summ["n_excluded"])}
+    return {
+        "variation": name,
+        "placement": placement,
+        "hall": k,
+        "status": sol.status,
+        "cpu_s": cpu,
+        "rmse_m": _rmse(h, pos, est) if sol.usable else float("nan"),
+        "careful_rmse_m": _rmse(h, careful, est),
+        "oracle_rmse_m": _rmse(h, oracle, est),
+        "links": int(h.links.shape[0]),
+        "nlos": int(h.nlos.sum()),
+        "tp": int((ex & nlos).sum()),
+        "fp": int((ex & ~nlos).sum()),
+        "cov_hit": int(hit[ok].sum()),
+        "cov_n": int(ok.sum()),
+        "weak": int(marked[est].sum()),
+        "bad": int((err[est] > BAD_M).sum()),
+        "silent_bad": int(((err > BAD_M) & (err > 3.0 * sig_h) & ~marked)[est].sum()),
+        "unsolved": len(ids) - len(p.ids),
+        "excluded": int(summ["n_excluded"]),
+    }
 
 
 def aggregate(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -197,30 +231,44 @@ def aggregate(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 return float(np.mean(v)) if v else float("nan")
 
             nl, los = sum(r["nlos"] for r in ok), sum(r["links"] - r["nlos"] for r in ok)
-            out.append({"variation": name, "placement": pl, "halls": len(g), "refused": len(g) - len(ok),
-                        "rmse_m": mean("rmse_m"), "careful_rmse_m": mean("careful_rmse_m", g),
-                        "oracle_rmse_m": mean("oracle_rmse_m", g),
-                        "worse_than_careful": sum(r["rmse_m"] > r["careful_rmse_m"] + 0.01 for r in ok),
-                        "recall": sum(r["tp"] for r in ok) / max(nl, 1),
-                        "false_alarm": sum(r["fp"] for r in ok) / max(los, 1),
-                        "coverage_2s": sum(r["cov_hit"] for r in ok) / max(sum(r["cov_n"] for r in ok), 1),
-                        "weak": sum(r["weak"] for r in ok), "bad": sum(r["bad"] for r in ok),
-                        "silent_bad": sum(r["silent_bad"] for r in ok), "cpu_s": mean("cpu_s")})
+            out.append(
+                {
+                    "variation": name,
+                    "placement": pl,
+                    "halls": len(g),
+                    "refused": len(g) - len(ok),
+                    "rmse_m": mean("rmse_m"),
+                    "careful_rmse_m": mean("careful_rmse_m", g),
+                    "oracle_rmse_m": mean("oracle_rmse_m", g),
+                    "worse_than_careful": sum(r["rmse_m"] > r["careful_rmse_m"] + 0.01 for r in ok),
+                    "recall": sum(r["tp"] for r in ok) / max(nl, 1),
+                    "false_alarm": sum(r["fp"] for r in ok) / max(los, 1),
+                    "coverage_2s": sum(r["cov_hit"] for r in ok) / max(sum(r["cov_n"] for r in ok), 1),
+                    "weak": sum(r["weak"] for r in ok),
+                    "bad": sum(r["bad"] for r in ok),
+                    "silent_bad": sum(r["silent_bad"] for r in ok),
+                    "cpu_s": mean("cpu_s"),
+                }
+            )
     return out
 
 
 def table(agg: list[dict[str, Any]]) -> str:
-    head = ("| variation | known | distnav RMSE [m] | careful fit [m] | oracle [m] | ratio to oracle | halls worse "
-            "than careful (> 1 cm) | recall | false alarms | 2σ coverage | weak | anchors > 0.3 m off | of them "
-            "silent | CPU s |")
+    head = (
+        "| variation | known | distnav RMSE [m] | careful fit [m] | oracle [m] | ratio to oracle | halls worse "
+        "than careful (> 1 cm) | recall | false alarms | 2σ coverage | weak | anchors > 0.3 m off | of them "
+        "silent | CPU s |"
+    )
     lines = [head, "|" + "---|" * 14]
     for r in agg:
-        lines.append(f"| {r['variation']} | {r['placement']} | {r['rmse_m']:.3f} | {r['careful_rmse_m']:.3f} | "
-                     f"{r['oracle_rmse_m']:.3f} | {r['rmse_m'] / max(r['oracle_rmse_m'], 1e-9):.2f} | "
-                     f"{r['worse_than_careful']} of {r['halls']}"
-                     + (f" ({r['refused']} refused)" if r["refused"] else "")
-                     + f" | {r['recall']:.2f} | {r['false_alarm']:.3f} | {r['coverage_2s']:.2f} | {r['weak']} | "
-                     f"{r['bad']} | {r['silent_bad']} | {r['cpu_s']:.2f} |")
+        lines.append(
+            f"| {r['variation']} | {r['placement']} | {r['rmse_m']:.3f} | {r['careful_rmse_m']:.3f} | "
+            f"{r['oracle_rmse_m']:.3f} | {r['rmse_m'] / max(r['oracle_rmse_m'], 1e-9):.2f} | "
+            f"{r['worse_than_careful']} of {r['halls']}"
+            + (f" ({r['refused']} refused)" if r["refused"] else "")
+            + f" | {r['recall']:.2f} | {r['false_alarm']:.3f} | {r['coverage_2s']:.2f} | {r['weak']} | "
+            f"{r['bad']} | {r['silent_bad']} | {r['cpu_s']:.2f} |"
+        )
     return "\n".join(lines)
 
 
@@ -228,11 +276,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="3 halls per variation and placement")
     ap.add_argument("--halls", type=int, default=None, help="halls per variation and placement (default 12)")
-    ap.add_argument("--seed-base", type=int, default=0,
-                    help="first hall seed of each row (default 0; held-out checks: 100)")
+    ap.add_argument(
+        "--seed-base", type=int, default=0, help="first hall seed of each row (default 0; held-out checks: 100)"
+    )
     ap.add_argument("--only", nargs="+", default=None, help="variations whose name starts with one of these")
-    ap.add_argument("--delay-sigma-m", type=float, default=None,
-                    help="uwb solve's --delay-sigma-m (default: its own default)")
+    ap.add_argument(
+        "--delay-sigma-m", type=float, default=None, help="uwb solve's --delay-sigma-m (default: its own default)"
+    )
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--out", type=Path, default=Path("bench_uwb_stress.json"))
     args = ap.parse_args()
@@ -247,10 +297,22 @@ def main() -> None:
     else:
         rows = [one_hall(j) for j in jobs]
     agg = aggregate(rows)
-    args.out.write_text(json.dumps({"halls_per_group": n, "seed_base": args.seed_base, "bad_m": BAD_M, "table": agg,
-                                    "runs": rows,
-                                    "wall_s": time.perf_counter() - w0, "cpu_s_main": time.process_time() - c0,
-                                    "load_average": os.getloadavg()}, indent=1) + "\n")
+    args.out.write_text(
+        json.dumps(
+            {
+                "halls_per_group": n,
+                "seed_base": args.seed_base,
+                "bad_m": BAD_M,
+                "table": agg,
+                "runs": rows,
+                "wall_s": time.perf_counter() - w0,
+                "cpu_s_main": time.process_time() - c0,
+                "load_average": os.getloadavg(),
+            },
+            indent=1,
+        )
+        + "\n"
+    )
     print(table(agg))
 
 

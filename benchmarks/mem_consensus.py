@@ -57,8 +57,10 @@ def bare(n: int, payload: int, rounds: int, drop: float) -> dict[str, float]:
     w = 1.0 / (1.0 + np.maximum(deg[pairs[:, 0]], deg[pairs[:, 1]]))
     self_w = 1.0 - np.bincount(pairs.ravel(), weights=np.repeat(w, 2), minlength=n)
     i, j = pairs[:, 0], pairs[:, 1]
-    W = sp.csr_matrix((np.concatenate([w, w, self_w]), (np.concatenate([i, j, np.arange(n)]),
-                                                        np.concatenate([j, i, np.arange(n)]))), shape=(n, n))
+    W = sp.csr_matrix(
+        (np.concatenate([w, w, self_w]), (np.concatenate([i, j, np.arange(n)]), np.concatenate([j, i, np.arange(n)]))),
+        shape=(n, n),
+    )
     del pairs, i, j, w, self_w, deg
     perm = reverse_cuthill_mckee(W, symmetric_mode=True)
     W = W[perm][:, perm].tocsr()
@@ -136,8 +138,12 @@ def mpi_run(n: int, payload: int, rounds: int, drop: float, path: str, whole: bo
         part = builders.random_geometric_part(n, radius, rng=rng, nodes=np.flatnonzero(owner == rank))
         del owner
         mem["graph_mb"] = rss_mb()
-        info = {"part_mb": part.nbytes / 2**20, "owned_nodes": part.n_local, "in_edges": part.n_local_edges,
-                "halo_nodes": int(part.halo.size)}
+        info = {
+            "part_mb": part.nbytes / 2**20,
+            "owned_nodes": part.n_local,
+            "in_edges": part.n_local_edges,
+            "halo_nodes": int(part.halo.size),
+        }
         ex = make_exchange(part, backend="mpi", faults=faults, partition=path)
         w = part_weights(part, "MH")  # type: ignore[assignment]
     mixer = ex.mixer(w)
@@ -149,9 +155,20 @@ def mpi_run(n: int, payload: int, rounds: int, drop: float, path: str, whole: bo
     mem["end_mb"] = rss_mb()
     rows = comm.gather({"rank": rank, **mem, **info, "setup_cpu_s": setup_cpu}, root=0)
     if rank == 0:
-        print(json.dumps({"mode": "mpi-whole" if whole else "mpi-part", "n_nodes": n, "ranks": size,
-                          "payload_floats": payload, "rounds": rounds, "drop": drop, "per_rank": rows,
-                          "max_end_mb": max(r["end_mb"] for r in rows)}))
+        print(
+            json.dumps(
+                {
+                    "mode": "mpi-whole" if whole else "mpi-part",
+                    "n_nodes": n,
+                    "ranks": size,
+                    "payload_floats": payload,
+                    "rounds": rounds,
+                    "drop": drop,
+                    "per_rank": rows,
+                    "max_end_mb": max(r["end_mb"] for r in rows),
+                }
+            )
+        )
 
 
 def main() -> None:
@@ -159,15 +176,32 @@ def main() -> None:
         write_owner(int(sys.argv[2]), int(sys.argv[3]), sys.argv[4])
         return
     if sys.argv[1] in ("mpi-part", "mpi-whole"):
-        mpi_run(int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5]), sys.argv[6],
-                sys.argv[1] == "mpi-whole")
+        mpi_run(
+            int(sys.argv[2]),
+            int(sys.argv[3]),
+            int(sys.argv[4]),
+            float(sys.argv[5]),
+            sys.argv[6],
+            sys.argv[1] == "mpi-whole",
+        )
         return
     mode, n, payload, rounds = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
     drop = float(sys.argv[5]) if len(sys.argv) > 5 else 0.0
     t0 = time.perf_counter()
     mem = {"distnav": distnav, "bare": bare}[mode](n, payload, rounds, drop)
-    print(json.dumps({"mode": mode, "n_nodes": n, "payload_floats": payload, "rounds": rounds, "drop": drop,
-                      "seconds": time.perf_counter() - t0, **mem}))
+    print(
+        json.dumps(
+            {
+                "mode": mode,
+                "n_nodes": n,
+                "payload_floats": payload,
+                "rounds": rounds,
+                "drop": drop,
+                "seconds": time.perf_counter() - t0,
+                **mem,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -30,11 +30,29 @@ problem = LinearProblem.from_stacked(A, y)
 ex = MPIExchange(g)
 comm.Barrier()
 t0 = time.perf_counter()
-res = admm(problem, g, constraint_nodes="min_cover", W=5.0, messages="aggregated", max_iterations=iterations,
-           tol=0.0, record_nodes=False, exchange=ex)
+res = admm(
+    problem,
+    g,
+    constraint_nodes="min_cover",
+    W=5.0,
+    messages="aggregated",
+    max_iterations=iterations,
+    tol=0.0,
+    record_nodes=False,
+    exchange=ex,
+)
 comm.Barrier()
 elapsed = time.perf_counter() - t0
 if comm.Get_rank() == 0:
-    print(json.dumps({"name": "ADMM (aggregated) under MPI", "ranks": comm.Get_size(), "n_nodes": n,
-                      "iterations": iterations, "ms_per_iteration": elapsed / iterations * 1e3,
-                      "messages": res.comm.messages}))
+    print(
+        json.dumps(
+            {
+                "name": "ADMM (aggregated) under MPI",
+                "ranks": comm.Get_size(),
+                "n_nodes": n,
+                "iterations": iterations,
+                "ms_per_iteration": elapsed / iterations * 1e3,
+                "messages": res.comm.messages,
+            }
+        )
+    )

@@ -60,9 +60,13 @@ bare_send = np.empty((int(ex._node_send_counts.sum()), payload))
 bare_recv = np.empty((int(ex._node_recv_counts.sum()), payload))
 send_spec = [bare_send, (sc.tolist(), displs(sc))]
 recv_spec = [bare_recv, (rc.tolist(), displs(rc))]
-W_block = sp.csr_matrix((np.concatenate([w.edge_weight[ex.in_edges], w.self_weight[ex.nodes]]),
-                         (np.concatenate([ex.in_dst, np.arange(ex.n_local)]),
-                          np.concatenate([ex.in_src_col, ex.local_col]))), shape=(ex.n_local, ex.n_columns))
+W_block = sp.csr_matrix(
+    (
+        np.concatenate([w.edge_weight[ex.in_edges], w.self_weight[ex.nodes]]),
+        (np.concatenate([ex.in_dst, np.arange(ex.n_local)]), np.concatenate([ex.in_src_col, ex.local_col])),
+    ),
+    shape=(ex.n_local, ex.n_columns),
+)
 bare_cols = np.empty((ex.n_columns, payload))
 
 
@@ -75,7 +79,7 @@ def bare_transport() -> None:
 def bare_round() -> None:
     bare_transport()
     bare_cols[: ex.n_local] = x
-    bare_cols[ex.n_local:] = bare_recv
+    bare_cols[ex.n_local :] = bare_recv
     W_block @ bare_cols
 
 
@@ -100,21 +104,35 @@ def paired(fns: dict, repeat: int = 5) -> dict[str, np.ndarray]:
     return {k: np.asarray(v) for k, v in out.items()}
 
 
-t = paired({"transport": distnav_transport, "bare_transport": bare_transport,
-            "round": distnav_round, "bare_round": bare_round})
+t = paired(
+    {"transport": distnav_transport, "bare_transport": bare_transport, "round": distnav_round, "bare_round": bare_round}
+)
 mem["end_mb"] = rss_mb()
 tr = t["transport"] / t["bare_transport"]
 rr = t["round"] / t["bare_round"]
 cut = comm.allreduce(ex.n_cut_edges, op=MPI.SUM)
 per_rank = comm.gather({**mem, "n_local": ex.n_local, "in_edges": int(ex.in_edges.size), "halo": ex.n_halo}, root=0)
 if comm.Get_rank() == 0:
-    print(json.dumps({
-        "ranks": comm.Get_size(), "n_nodes": n, "n_edges": g.n_edges, "payload_floats": payload,
-        "persistent": ex.persistent,
-        "transport_ms": float(np.median(t["transport"])) * 1e3,
-        "bare_alltoallv_ms": float(np.median(t["bare_transport"])) * 1e3,
-        "transport_ratio_min": float(tr.min()), "transport_ratio_median": float(np.median(tr)),
-        "round_ms": float(np.median(t["round"])) * 1e3, "bare_round_ms": float(np.median(t["bare_round"])) * 1e3,
-        "round_ratio_min": float(rr.min()), "round_ratio_median": float(np.median(rr)),
-        "cut_edges_fraction": cut / g.n_edges, "graph_s": graph_s, "setup_s": setup, "per_rank": per_rank,
-    }))
+    print(
+        json.dumps(
+            {
+                "ranks": comm.Get_size(),
+                "n_nodes": n,
+                "n_edges": g.n_edges,
+                "payload_floats": payload,
+                "persistent": ex.persistent,
+                "transport_ms": float(np.median(t["transport"])) * 1e3,
+                "bare_alltoallv_ms": float(np.median(t["bare_transport"])) * 1e3,
+                "transport_ratio_min": float(tr.min()),
+                "transport_ratio_median": float(np.median(tr)),
+                "round_ms": float(np.median(t["round"])) * 1e3,
+                "bare_round_ms": float(np.median(t["bare_round"])) * 1e3,
+                "round_ratio_min": float(rr.min()),
+                "round_ratio_median": float(np.median(rr)),
+                "cut_edges_fraction": cut / g.n_edges,
+                "graph_s": graph_s,
+                "setup_s": setup,
+                "per_rank": per_rank,
+            }
+        )
+    )

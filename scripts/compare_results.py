@@ -38,6 +38,8 @@ def _experiments() -> tuple[str, ...]:
     except ImportError:
         return EXPERIMENTS
     return tuple(available())
+
+
 VOLATILE = ("solver_seconds",)
 
 
@@ -53,8 +55,7 @@ def run_all(out: Path, names: list[str]) -> int:
     """Run every quick reproduction into ``out/NAME``; returns the number that failed."""
     failed = 0
     for name in names:
-        cmd = [sys.executable, "-m", "distnav", "reproduce", name, "--quick", "--out", str(out / name),
-               "--no-progress"]
+        cmd = [sys.executable, "-m", "distnav", "reproduce", name, "--quick", "--out", str(out / name), "--no-progress"]
         print("$ " + " ".join(cmd), flush=True)
         rc = subprocess.run(cmd, env=os.environ.copy(), check=False).returncode
         if rc != 0:
@@ -125,9 +126,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("dirs", nargs="*", type=Path, help="DIR_A DIR_B to compare")
     parser.add_argument("--run", type=Path, metavar="OUT_DIR", help="run every quick reproduction into OUT_DIR")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="with --run: only these experiments")
-    parser.add_argument("--volatile", nargs="*", default=list(VOLATILE), metavar="KEY",
-                        help="JSON keys holding wall-clock timings, ignored in the comparison (default: "
-                             f"{' '.join(VOLATILE)}; give none to compare every byte)")
+    parser.add_argument(
+        "--volatile",
+        nargs="*",
+        default=list(VOLATILE),
+        metavar="KEY",
+        help="JSON keys holding wall-clock timings, ignored in the comparison (default: "
+        f"{' '.join(VOLATILE)}; give none to compare every byte)",
+    )
     args = parser.parse_args(argv)
     if args.run is not None:
         if args.dirs:

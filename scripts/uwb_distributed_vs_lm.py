@@ -40,28 +40,49 @@ def measure(first: int, last: int, solvers: list[str], places: list[str]) -> lis
                 t0 = time.process_time()
                 sol = solve_field(sub, opts, geometry=geo)
                 r = sol.result
-                row = dict(place=place, k=k, solver=s, status=r.status, its=int(r.iterations), tot_its=sol.iterations,
-                           msgs=sol.messages, bytes=sol.bytes, prec_msgs=sol.precision_messages,
-                           cpu=time.process_time() - t0, tp=int((sol.excluded & nl).sum()),
-                           fp=int((sol.excluded & ~nl).sum()), refine=r.settings.get("refine"))
+                row = dict(
+                    place=place,
+                    k=k,
+                    solver=s,
+                    status=r.status,
+                    its=int(r.iterations),
+                    tot_its=sol.iterations,
+                    msgs=sol.messages,
+                    bytes=sol.bytes,
+                    prec_msgs=sol.precision_messages,
+                    cpu=time.process_time() - t0,
+                    tp=int((sol.excluded & nl).sum()),
+                    fp=int((sol.excluded & ~nl).sum()),
+                    refine=r.settings.get("refine"),
+                )
                 free = sub.free
                 weak = np.isin(np.array(sub.ids), list(sol.weak))
                 err = np.abs(sol.positions_m - sub.truth_m)
                 ok = free & ~weak[:, None] & np.isfinite(sol.sigma_m) & (sol.sigma_m > 0)
                 d_est = (sol.positions_m - sub.truth_m)[sub.estimated]
-                row.update(cov_hit=int(np.sum(err[ok] <= 2 * sol.sigma_m[ok])), cov_n=int(ok.sum()),
-                           rmse=float(np.sqrt(np.mean(np.sum(d_est**2, 1)))))
+                row.update(
+                    cov_hit=int(np.sum(err[ok] <= 2 * sol.sigma_m[ok])),
+                    cov_n=int(ok.sum()),
+                    rmse=float(np.sqrt(np.mean(np.sum(d_est**2, 1)))),
+                )
                 if s != "LM":
                     kw = {**_solver_kwargs(FieldOptions(solver="LM")), "loss": opts.loss}
                     kept = subset_measurements(sub, ~sol.excluded).with_initial(np.asarray(r.estimates))
                     lm = csg.solve(kept, "LM", iterations=500, graduated=False, **kw)
                     sig, sig_post = lm.precision.std(a_posteriori=False), lm.precision.std(a_posteriori=True)
-                    z = np.where(free, np.abs(np.asarray(r.estimates) - lm.estimates) / np.where(sig > 0, sig, np.inf),
-                                 0.0)
+                    z = np.where(
+                        free, np.abs(np.asarray(r.estimates) - lm.estimates) / np.where(sig > 0, sig, np.inf), 0.0
+                    )
                     okl = ok & (sig_post > 0)
-                    row.update(zmax=float(z.max()), obj=float(r.objective), obj_lm=float(lm.objective),
-                               lm_status=lm.status, lm_cov_hit=int(np.sum(err[okl] <= 2 * sig_post[okl])),
-                               lm_cov_n=int(okl.sum()), ratio_med=float(np.median(sol.sigma_m[okl] / sig_post[okl])))
+                    row.update(
+                        zmax=float(z.max()),
+                        obj=float(r.objective),
+                        obj_lm=float(lm.objective),
+                        lm_status=lm.status,
+                        lm_cov_hit=int(np.sum(err[okl] <= 2 * sig_post[okl])),
+                        lm_cov_n=int(okl.sum()),
+                        ratio_med=float(np.median(sol.sigma_m[okl] / sig_post[okl])),
+                    )
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     return rows
@@ -77,23 +98,29 @@ def summary(paths: list[str]) -> None:
                 if not R:
                     continue
                 cov = sum(r["cov_hit"] for r in R) / max(sum(r["cov_n"] for r in R), 1)
-                line = (f"{place:6s} {s:10s} n={len(R)} cov {cov:.3f} rmse {np.mean([r['rmse'] for r in R]):.3f} "
-                        f"converged {sum(r['status'] == 'converged' for r in R)} msgs(median) "
-                        f"{np.median([r['msgs'] for r in R]) / 1e3:.0f}k "
-                        f"MB {np.median([r['bytes'] for r in R]) / 1e6:.0f}"
-                        f" iterations {np.median([r['tot_its'] for r in R]):.0f} tp {sum(r['tp'] for r in R)} "
-                        f"fp {sum(r['fp'] for r in R)}")
+                line = (
+                    f"{place:6s} {s:10s} n={len(R)} cov {cov:.3f} rmse {np.mean([r['rmse'] for r in R]):.3f} "
+                    f"converged {sum(r['status'] == 'converged' for r in R)} msgs(median) "
+                    f"{np.median([r['msgs'] for r in R]) / 1e3:.0f}k "
+                    f"MB {np.median([r['bytes'] for r in R]) / 1e6:.0f}"
+                    f" iterations {np.median([r['tot_its'] for r in R]):.0f} tp {sum(r['tp'] for r in R)} "
+                    f"fp {sum(r['fp'] for r in R)}"
+                )
                 if s != "LM":
                     z = np.array([r["zmax"] for r in R])
                     lmc = sum(r["lm_cov_hit"] for r in R) / max(sum(r["lm_cov_n"] for r in R), 1)
-                    line += (f" | max z median {np.median(z):.3g} max {z.max():.3g} | F/F_LM median "
-                             f"{np.median([r['obj'] / r['obj_lm'] for r in R]):.3f} | LM σ cov {lmc:.3f} | σ/σ_LM "
-                             f"{np.median([r['ratio_med'] for r in R]):.2f}")
+                    line += (
+                        f" | max z median {np.median(z):.3g} max {z.max():.3g} | F/F_LM median "
+                        f"{np.median([r['obj'] / r['obj_lm'] for r in R]):.3f} | LM σ cov {lmc:.3f} | σ/σ_LM "
+                        f"{np.median([r['ratio_med'] for r in R]):.2f}"
+                    )
                     rf = [r["refine"] for r in R if r["refine"]]
                     if rf:
-                        line += (f" | refine rounds {np.median([x['rounds'] for x in rf]):.0f} CG "
-                                 f"{np.median([x['cg_iterations'] for x in rf]):.0f} reductions "
-                                 f"{np.median([x['reductions'] for x in rf]):.0f}")
+                        line += (
+                            f" | refine rounds {np.median([x['rounds'] for x in rf]):.0f} CG "
+                            f"{np.median([x['cg_iterations'] for x in rf]):.0f} reductions "
+                            f"{np.median([x['reductions'] for x in rf]):.0f}"
+                        )
                 print(line)
 
 

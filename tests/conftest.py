@@ -28,9 +28,11 @@ SHARED = _shared_root()
 def shared_data() -> Path:
     """``../shared/data``; tests using it skip (with the reason) on a clone without it."""
     if SHARED is None:
-        pytest.skip("../shared/data is absent (a fresh clone without it): the real GNSS RINEX/bias files and the UWB "
-                    "logs come from public archives named in each data folder's PROVENANCE.md; put them in "
-                    "../shared/data or point DISTNAV_SHARED at the folder holding data/")
+        pytest.skip(
+            "../shared/data is absent (a fresh clone without it): the real GNSS RINEX/bias files and the UWB "
+            "logs come from public archives named in each data folder's PROVENANCE.md; put them in "
+            "../shared/data or point DISTNAV_SHARED at the folder holding data/"
+        )
     return SHARED / "data"
 
 

@@ -86,8 +86,10 @@ def test_x_update_forms_agree(case):
     for method in ("normal", "observation", "cholesky"):
         np.testing.assert_allclose(XUpdate(prob, W, c, method)(lvals), ref, rtol=1e-10, atol=1e-12)
     assert XUpdate(prob, W, c, "auto").method == "observation"  # m = 3 < p = 6
-    runs = {m: admm(prob, g, constraint_nodes=C, W=W, x_update=m, max_iterations=60, tol=0.0)
-            for m in ("normal", "observation", "cholesky")}
+    runs = {
+        m: admm(prob, g, constraint_nodes=C, W=W, x_update=m, max_iterations=60, tol=0.0)
+        for m in ("normal", "observation", "cholesky")
+    }
     np.testing.assert_allclose(runs["normal"].estimates, runs["observation"].estimates, rtol=1e-9, atol=1e-11)
     np.testing.assert_allclose(runs["normal"].estimates, runs["cholesky"].estimates, rtol=1e-9, atol=1e-11)
 
@@ -137,16 +139,16 @@ def test_literal_fig6_weighting_is_biased_on_irregular_graphs_but_not_on_regular
     rng = np.random.default_rng(5)
     prob_r = singular_problem(rng, 10, 2, 4)
     xr = blue(prob_r).x
-    ring = admm(prob_r, builders.ring(10), constraint_nodes="all", W=1.0, x_weight="fig6", max_iterations=8000,
-                tol=1e-13)
+    ring = admm(
+        prob_r, builders.ring(10), constraint_nodes="all", W=1.0, x_weight="fig6", max_iterations=8000, tol=1e-13
+    )
     assert np.linalg.norm(ring.estimates - xr, axis=1).max() / np.linalg.norm(xr) < 1e-8
 
 
 def test_initial_values_given_and_previous_solution(case):
     g, prob, xh = case
     cold = admm(prob, g, W=20.0, max_iterations=5000, tol=0.0, stop_at_reference=1e-8, reference=xh)
-    near = admm(prob, g, W=20.0, max_iterations=5000, tol=0.0, stop_at_reference=1e-8, reference=xh,
-                init=xh + 1e-3)
+    near = admm(prob, g, W=20.0, max_iterations=5000, tol=0.0, stop_at_reference=1e-8, reference=xh, init=xh + 1e-3)
     assert near.iterations < cold.iterations
     # warm start from a previous run's solution (§4.3): continues from where it stopped
     first = admm(prob, g, W=20.0, max_iterations=100, tol=0.0, reference=xh)
@@ -164,8 +166,9 @@ def test_message_drops_still_converge_and_are_reproducible(case):
     faults = FaultSchedule(drop_probability=0.2, seed=4)
     a = admm(prob, g, W=20.0, max_iterations=400, tol=0.0, reference=xh, faults=faults)
     b = admm(prob, g, W=20.0, max_iterations=400, tol=0.0, reference=xh, exchange=make_exchange(g, faults=faults))
-    c = admm(prob, g, W=20.0, max_iterations=400, tol=0.0, reference=xh,
-             faults=FaultSchedule(drop_probability=0.2, seed=5))
+    c = admm(
+        prob, g, W=20.0, max_iterations=400, tol=0.0, reference=xh, faults=FaultSchedule(drop_probability=0.2, seed=5)
+    )
     np.testing.assert_array_equal(a.estimates, b.estimates)
     assert not np.array_equal(a.estimates, c.estimates)
     assert a.comm.messages_dropped > 0.15 * a.comm.messages
@@ -179,8 +182,7 @@ def test_message_drops_still_converge_and_are_reproducible(case):
 
 def test_silent_node_runs(case):
     g, prob, xh = case
-    res = admm(prob, g, W=20.0, max_iterations=50, tol=0.0, reference=xh,
-               faults=FaultSchedule(silent_nodes=((3, 10),)))
+    res = admm(prob, g, W=20.0, max_iterations=50, tol=0.0, reference=xh, faults=FaultSchedule(silent_nodes=((3, 10),)))
     assert np.all(np.isfinite(res.estimates))
 
 
@@ -234,8 +236,13 @@ def test_gauss_newton_matches_scipy(ranges):
     g, prob, x0 = ranges
     gn = gauss_newton(prob, x0)
     nodes = np.arange(g.n_nodes)
-    ls = least_squares(lambda x: (prob.y - prob.model.predict(np.broadcast_to(x, (g.n_nodes, 4)), nodes)).ravel() / 0.5,
-                       x0, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    ls = least_squares(
+        lambda x: (prob.y - prob.model.predict(np.broadcast_to(x, (g.n_nodes, 4)), nodes)).ravel() / 0.5,
+        x0,
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-15,
+    )
     assert gn.converged
     np.testing.assert_allclose(gn.estimates[0], ls.x, atol=1e-7)
 

@@ -39,8 +39,10 @@ def _assert_gain_close(G: np.ndarray, G_ref: np.ndarray, cond: np.ndarray) -> No
 
 @pytest.mark.parametrize("variances", [False, True])
 @pytest.mark.parametrize("W", [3.0, "diag", "full"])
-@pytest.mark.parametrize(("m", "p", "scale"), [(5, 10, 1.0), (5, 10, 30.0), (1, 3, 1.0), (3, 7, 0.01), (11, 12, 3.0),
-                                               (SMALL_M + 2, SMALL_M + 4, 1.0)])
+@pytest.mark.parametrize(
+    ("m", "p", "scale"),
+    [(5, 10, 1.0), (5, 10, 30.0), (1, 3, 1.0), (3, 7, 0.01), (11, 12, 3.0), (SMALL_M + 2, SMALL_M + 4, 1.0)],
+)
 def test_observation_form_gain_equals_lapack(variances: bool, W: str | float, m: int, p: int, scale: float) -> None:
     rng = np.random.default_rng(11 + m)
     n = 4500 if m <= 5 else 700  # m ≤ 5: several blocks of 2048 nodes
@@ -131,8 +133,7 @@ def test_cold_start_states_equal_those_from_explicit_zero_multipliers(order: str
     rng = np.random.default_rng(21)
     g = builders.connected_random_geometric(300, mean_degree=7, rng=rng)
     prob = _problem(rng, g.n_nodes, 4, 3, True)
-    first = admm(prob, g, W=5.0, max_iterations=1, tol=0.0, record_nodes=False,
-                 exchange=make_exchange(g, order=order))
+    first = admm(prob, g, W=5.0, max_iterations=1, tol=0.0, record_nodes=False, exchange=make_exchange(g, order=order))
     assert first.multipliers is not None
     zero = Multipliers(np.zeros_like(first.multipliers.pairs), np.zeros_like(first.multipliers.self_pairs))
     cold = iterate_admm(prob, g, W=5.0, exchange=make_exchange(g, order=order))
@@ -141,7 +142,12 @@ def test_cold_start_states_equal_those_from_explicit_zero_multipliers(order: str
     for _ in range(6):
         a, b = next(cold), next(warm)
         assert np.array_equal(a.x, b.x) and np.array_equal(a.z, b.z)
-        assert (a.primal_residual, a.dual_residual, a.x_norm, a.z_norm, a.u_norm) == \
-            (b.primal_residual, b.dual_residual, b.x_norm, b.z_norm, b.u_norm)
+        assert (a.primal_residual, a.dual_residual, a.x_norm, a.z_norm, a.u_norm) == (
+            b.primal_residual,
+            b.dual_residual,
+            b.x_norm,
+            b.z_norm,
+            b.u_norm,
+        )
         u_norms.append(a.u_norm)
     assert max(u_norms) > 0  # the compared multiplier norms are not trivially zero

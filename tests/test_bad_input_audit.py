@@ -37,21 +37,36 @@ class Cli:
 
 # bad values by option type: every option of demo and reproduce is covered from the parser itself
 BAD_VALUES: dict[Callable[[str], Any], list[tuple[str, str]]] = {
-    options.positive_int: [("0", "must be at least 1"), ("-3", "must be at least 1"), ("x", "expected a whole number"),
-                           ("2.5", "expected a whole number")],
+    options.positive_int: [
+        ("0", "must be at least 1"),
+        ("-3", "must be at least 1"),
+        ("x", "expected a whole number"),
+        ("2.5", "expected a whole number"),
+    ],
     options.nonnegative_int: [("-1", "must be 0 or more"), ("four", "expected a whole number")],
-    options.seed: [("-1", "seed must be 0 or more"), ("abc", "expected a whole number"),
-                   ("1.5", "expected a whole number")],
+    options.seed: [
+        ("-1", "seed must be 0 or more"),
+        ("abc", "expected a whole number"),
+        ("1.5", "expected a whole number"),
+    ],
     options.existing_file: [("{tmp}/none.rnx", "no such file"), ("{tmp}", "not a file")],
-    options.iso_datetime: [("not-a-date", "expected an ISO date"), ("2024-13-01T00:00", "expected an ISO date"),
-                           ("", "expected an ISO date")],
-    options.output_folder: [("{file}", "is an existing file"), ("{file}/sub", "is a file, not a folder"),
-                            ("/proc/distnav-audit/x", "cannot create output folder"), ("", "empty path")],
+    options.iso_datetime: [
+        ("not-a-date", "expected an ISO date"),
+        ("2024-13-01T00:00", "expected an ISO date"),
+        ("", "expected an ISO date"),
+    ],
+    options.output_folder: [
+        ("{file}", "is an existing file"),
+        ("{file}/sub", "is a file, not a folder"),
+        ("/proc/distnav-audit/x", "cannot create output folder"),
+        ("", "empty path"),
+    ],
 }
 
 
-def _subparsers(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
-                ) -> Iterator[tuple[tuple[str, ...], argparse.ArgumentParser]]:
+def _subparsers(
+    parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
+) -> Iterator[tuple[tuple[str, ...], argparse.ArgumentParser]]:
     yield path, parser
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
@@ -60,8 +75,11 @@ def _subparsers(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
 
 
 def _options(parser: argparse.ArgumentParser) -> list[argparse.Action]:
-    return [a for a in parser._actions if a.option_strings and not isinstance(a, (argparse._HelpAction,
-                                                                                  argparse._VersionAction))]
+    return [
+        a
+        for a in parser._actions
+        if a.option_strings and not isinstance(a, (argparse._HelpAction, argparse._VersionAction))
+    ]
 
 
 def _derived_cases(path: tuple[str, ...], parser: argparse.ArgumentParser) -> list[Cli]:
@@ -92,11 +110,16 @@ def _derived_cases(path: tuple[str, ...], parser: argparse.ArgumentParser) -> li
 def _experiment_cases() -> list[Cli]:
     from distnav.cli import build_parser
 
-    cases = [Cli("reproduce-unknown", ("reproduce", "nonsense", "--out", "{tmp}/out"), "invalid choice"),
-             Cli("reproduce-none", ("reproduce",), "required"),
-             Cli("demo-only-empty", ("demo", "--out", "{tmp}/out", "--only"), "expected at least one argument"),
-             Cli("demo-jobs-mpi", ("demo", "--out", "{tmp}/out", "--jobs", "2", "--backend", "mpi"),
-                 "--jobs 2 applies only with the in-process backend")]
+    cases = [
+        Cli("reproduce-unknown", ("reproduce", "nonsense", "--out", "{tmp}/out"), "invalid choice"),
+        Cli("reproduce-none", ("reproduce",), "required"),
+        Cli("demo-only-empty", ("demo", "--out", "{tmp}/out", "--only"), "expected at least one argument"),
+        Cli(
+            "demo-jobs-mpi",
+            ("demo", "--out", "{tmp}/out", "--jobs", "2", "--backend", "mpi"),
+            "--jobs 2 applies only with the in-process backend",
+        ),
+    ]
     for path, parser in _subparsers(build_parser()):
         if path and path[0] in {"demo", "reproduce", "reproduce-all"} and (path[0] != "reproduce" or len(path) == 2):
             cases += _derived_cases(path, parser)
@@ -134,12 +157,16 @@ def _uwb_cases() -> list[Cli]:
         Cli("uwb-solve-level-zero", (*base, *o, "--level", "0"), "level"),
         Cli("uwb-solve-level-one", (*base, *o, "--level", "1.5"), "level"),
         Cli("uwb-solve-range-offsets", (*base, *o, "--range-offsets", "all"), "invalid choice"),
-        Cli("uwb-solve-offset-prior-negative", (*base, *o, "--range-offsets", "per_anchor",
-                                                 "--offset-prior-sigma-m", "-1"), "offset-prior-sigma-m"),
+        Cli(
+            "uwb-solve-offset-prior-negative",
+            (*base, *o, "--range-offsets", "per_anchor", "--offset-prior-sigma-m", "-1"),
+            "offset-prior-sigma-m",
+        ),
         Cli("uwb-solve-delay-sigma-negative", (*base, *o, "--delay-sigma-m", "-0.01"), "--delay-sigma-m"),
         Cli("uwb-solve-delay-sigma-nan", (*base, *o, "--delay-sigma-m", "nan"), "--delay-sigma-m"),
-        Cli("uwb-solve-reliability-limit-negative", (*base, *o, "--reliability-limit-m", "-1"),
-            "--reliability-limit-m"),
+        Cli(
+            "uwb-solve-reliability-limit-negative", (*base, *o, "--reliability-limit-m", "-1"), "--reliability-limit-m"
+        ),
         Cli("uwb-solve-reliability-limit-inf", (*base, *o, "--reliability-limit-m", "inf"), "--reliability-limit-m"),
         Cli("uwb-solve-allow-planar-value", (*base, *o, "--allow-planar-3d=yes"), "ignored explicit"),
         Cli("uwb-solve-strict-value", (*base, *o, "--strict=yes"), "ignored explicit"),
@@ -158,10 +185,14 @@ def _uwb_cases() -> list[Cli]:
         cases.append(Cli(f"uwb-solve-{key}-missing", (*argv, *o), "missing.csv"))
     # malformed files: each error names the file
     for key, content, expect, owner in [
-        ("ranges", "", "empty", None), ("ranges", "a,b\nA00,A01\n", "range_m", None),
-        ("ranges", "a,b,range_m\nA00,A01,far\n", ":2", None), ("ranges", "a,b,range_m\nA00,A01,-3\n", ":2", None),
-        ("ranges", "a,b,range_m\nA00,A00,3\n", ":2", None), ("ranges", "a,b,range_m\nA00,A01,nan\n", ":2", None),
-        ("known", "id,x_m\nA00,1\n", "y_m", None), ("known", "id,x_m,y_m,z_m\nA00,1,2,zz\n", ":2", None),
+        ("ranges", "", "empty", None),
+        ("ranges", "a,b\nA00,A01\n", "range_m", None),
+        ("ranges", "a,b,range_m\nA00,A01,far\n", ":2", None),
+        ("ranges", "a,b,range_m\nA00,A01,-3\n", ":2", None),
+        ("ranges", "a,b,range_m\nA00,A00,3\n", ":2", None),
+        ("ranges", "a,b,range_m\nA00,A01,nan\n", ":2", None),
+        ("known", "id,x_m\nA00,1\n", "y_m", None),
+        ("known", "id,x_m,y_m,z_m\nA00,1,2,zz\n", ":2", None),
         ("known", "id,x_m,y_m,z_m\nZZ9,1,2,3\n", "ZZ9", None),
         ("known", "id,x_m,y_m,z_m\nA00,1,2,3\nA00,1,2,3\n", "twice", None),
     ]:
@@ -185,29 +216,40 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-codebias-ranks-inprocess", (*cb, *o, "--ranks", "2"), "applies only with --backend mpi"),
         Cli("gnss-codebias-weighting", (*cb, *o, "--weighting", "cos"), "invalid choice"),
         Cli("gnss-codebias-sigma-text", (*cb, *o, "--sigma", "small"), "invalid float value"),
-        Cli("gnss-codebias-obs-missing", ("gnss", "codebias", "--obs", "{tmp}/no.rnx", "--nav", "{nav}", *o),
-            "no.rnx"),
+        Cli("gnss-codebias-obs-missing", ("gnss", "codebias", "--obs", "{tmp}/no.rnx", "--nav", "{nav}", *o), "no.rnx"),
         Cli("gnss-codebias-tlim-one", (*cb, *o, "--tlim", "2024-01-10T00:00"), "expected 2 arguments"),
         Cli("gnss-compare-no-bias", ("gnss", "compare", "--estimates", "{file}"), "required: --bias"),
-        Cli("gnss-compare-out-file", ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}", "--out",
-                                      "{file}"), "is an existing file"),
-        Cli("gnss-compare-estimates-missing", ("gnss", "compare", "--estimates", "{tmp}/none.json", "--bias",
-                                               "{nav}"), "none.json"),
-        Cli("gnss-compare-estimates-not-json", ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}"),
-            "file"),
+        Cli(
+            "gnss-compare-out-file",
+            ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}", "--out", "{file}"),
+            "is an existing file",
+        ),
+        Cli(
+            "gnss-compare-estimates-missing",
+            ("gnss", "compare", "--estimates", "{tmp}/none.json", "--bias", "{nav}"),
+            "none.json",
+        ),
+        Cli("gnss-compare-estimates-not-json", ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}"), "file"),
         Cli("gnss-ionosphere-out-file", (*io, "--out", "{file}"), "is an existing file"),
         Cli("gnss-ionosphere-ranks-zero", (*io, *o, "--ranks", "0"), "must be at least 1"),
         Cli("gnss-ionosphere-ionosphere", (*io, *o, "--ionosphere", "global"), "invalid choice"),
         Cli("gnss-ionosphere-kn-text", (*io, *o, "--kn", "x"), "invalid int value"),
     ]
     for cmd, argv in (("codebias", cb), ("ionosphere", io)):
-        for opt, value in [("--sigma", "0"), ("--sigma", "-1"), ("--interval", "0"), ("--interval", "-30"),
-                           ("--mask", "-5"), ("--mask", "95"), ("--nav-max-age", "0"),
-                           ("--tlim", "2024-01-10T02:00 2024-01-10T01:00"), ("--tlim", "yesterday today")]:
+        for opt, value in [
+            ("--sigma", "0"),
+            ("--sigma", "-1"),
+            ("--interval", "0"),
+            ("--interval", "-30"),
+            ("--mask", "-5"),
+            ("--mask", "95"),
+            ("--nav-max-age", "0"),
+            ("--tlim", "2024-01-10T02:00 2024-01-10T01:00"),
+            ("--tlim", "yesterday today"),
+        ]:
             if cmd == "ionosphere" and opt == "--sigma" and value == "-1":
                 continue
-            cases.append(Cli(f"gnss-{cmd}-{opt[2:]}-{value.split()[0]}", (*argv, *o, opt, *value.split()),
-                             opt))
+            cases.append(Cli(f"gnss-{cmd}-{opt[2:]}-{value.split()[0]}", (*argv, *o, opt, *value.split()), opt))
     cases += [
         Cli("gnss-codebias-rho-zero", (*cb, *o, "--rho", "0"), "--rho"),
         Cli("gnss-codebias-iterations-zero", (*cb, *o, "--iterations", "0"), "--iterations"),
@@ -239,34 +281,70 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-reference", (*io, *o, "--reference", "BELE00BRA"), "--reference"),
         Cli("gnss-ionosphere-exclude", (*io, *o, "--exclude", "TOOLONG"), "--exclude"),
         Cli("gnss-ionosphere-compare-exclude", (*io, *o, "--compare-exclude", "X1"), "exclude"),
-        Cli("gnss-ionosphere-c1-corrections-missing", (*io, *o, "--c1-corrections", "{tmp}/none.bia"),
-            "--c1-corrections"),
-        Cli("gnss-ionosphere-c1-corrections-c1w", (*io, *o, "--l1-code", "C1W", "--c1-corrections", "{file}"),
-            "--c1-corrections"),
+        Cli(
+            "gnss-ionosphere-c1-corrections-missing",
+            (*io, *o, "--c1-corrections", "{tmp}/none.bia"),
+            "--c1-corrections",
+        ),
+        Cli(
+            "gnss-ionosphere-c1-corrections-c1w",
+            (*io, *o, "--l1-code", "C1W", "--c1-corrections", "{file}"),
+            "--c1-corrections",
+        ),
         Cli("gnss-ionosphere-datum-pivot-without-pivot", (*io, *o, "--datum", "pivot"), "--datum pivot needs --pivot"),
         Cli("gnss-ionosphere-pivot-without-datum-pivot", (*io, *o, "--pivot", "G10"), "--datum pivot"),
-        Cli("gnss-ionosphere-tlim-other-day", ("gnss", "ionosphere", "--obs", "{obsday}", "--nav", "{nav}", *o,
-                                               "--tlim", "2024-01-11T00:00", "2024-01-11T02:00"),
-            "outside the day(s) of the --obs files (2024-01-10)"),
-        Cli("gnss-ionosphere-nav-of-one-day-for-two", ("gnss", "ionosphere", "--obs", "{obsday}", "{obsday2}", "--nav",
-                                                       "{navday}", *o), "no --nav file of 2024-01-11"),
+        Cli(
+            "gnss-ionosphere-tlim-other-day",
+            (
+                "gnss",
+                "ionosphere",
+                "--obs",
+                "{obsday}",
+                "--nav",
+                "{nav}",
+                *o,
+                "--tlim",
+                "2024-01-11T00:00",
+                "2024-01-11T02:00",
+            ),
+            "outside the day(s) of the --obs files (2024-01-10)",
+        ),
+        Cli(
+            "gnss-ionosphere-nav-of-one-day-for-two",
+            ("gnss", "ionosphere", "--obs", "{obsday}", "{obsday2}", "--nav", "{navday}", *o),
+            "no --nav file of 2024-01-11",
+        ),
         Cli("gnss-ionosphere-levelling", (*io, *o, "--levelling", "smooth"), "invalid choice"),
         Cli("gnss-ionosphere-min-arc", (*io, *o, "--min-arc", "0"), "--min-arc"),
         Cli("gnss-ionosphere-gf-threshold", (*io, *o, "--gf-threshold", "0"), "--gf-threshold"),
         Cli("gnss-ionosphere-no-screening-value", (*io, *o, "--no-screening=yes"), "ignored explicit"),
         Cli("gnss-ionosphere-allow-other-day-value", (*io, *o, "--allow-other-day=yes"), "ignored explicit"),
-        Cli("gnss-compare-filter", ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}", "--filter",
-                                    "best"), "--filter"),
-        Cli("gnss-compare-exclude", ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}", "--exclude",
-                                     "G99"), "--exclude"),
-        Cli("gnss-compare-allow-other-day-value", ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}",
-                                                   "--allow-other-day=yes"), "ignored explicit"),
+        Cli(
+            "gnss-compare-filter",
+            ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}", "--filter", "best"),
+            "--filter",
+        ),
+        Cli(
+            "gnss-compare-exclude",
+            ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}", "--exclude", "G99"),
+            "--exclude",
+        ),
+        Cli(
+            "gnss-compare-allow-other-day-value",
+            ("gnss", "compare", "--estimates", "{file}", "--bias", "{nav}", "--allow-other-day=yes"),
+            "ignored explicit",
+        ),
     ]
     return cases
 
 
-CLI_CASES = [Cli("no-command", (), "required"), Cli("unknown-command", ("fly",), "invalid choice"),
-             *_experiment_cases(), *_uwb_cases(), *_gnss_cases()]
+CLI_CASES = [
+    Cli("no-command", (), "required"),
+    Cli("unknown-command", ("fly",), "invalid choice"),
+    *_experiment_cases(),
+    *_uwb_cases(),
+    *_gnss_cases(),
+]
 
 GOOD_RANGES = "a,b,range_m\nA00,A01,5.0\nA00,A02,5.0\nA01,A02,5.0\nA00,A03,5.0\nA01,A03,5.0\nA02,A03,7.07\n"
 GOOD_KNOWN = "id,x_m,y_m,z_m\nA00,0,0,0\nA01,5,0,0\nA02,0,5,0\n"
@@ -278,14 +356,22 @@ def _expand(argv: tuple[str, ...], tmp: Path) -> list[str]:
     (tmp / "known.csv").write_text(GOOD_KNOWN)
     for name in ("obs.rnx", "obs2.rnx", "nav.rnx", "dgar0100.24o", "dgar0110.24o", "brdc0100.24n"):
         (tmp / name).write_text("dummy\n")
-    subs = {"{tmp}": str(tmp), "{file}": str(tmp / "afile.txt"), "{ranges}": str(tmp / "ranges.csv"),
-            "{known}": str(tmp / "known.csv"), "{obs}": str(tmp / "obs.rnx"), "{obs2}": str(tmp / "obs2.rnx"),
-            "{nav}": str(tmp / "nav.rnx"), "{obsday}": str(tmp / "dgar0100.24o"),
-            "{obsday2}": str(tmp / "dgar0110.24o"), "{navday}": str(tmp / "brdc0100.24n")}
+    subs = {
+        "{tmp}": str(tmp),
+        "{file}": str(tmp / "afile.txt"),
+        "{ranges}": str(tmp / "ranges.csv"),
+        "{known}": str(tmp / "known.csv"),
+        "{obs}": str(tmp / "obs.rnx"),
+        "{obs2}": str(tmp / "obs2.rnx"),
+        "{nav}": str(tmp / "nav.rnx"),
+        "{obsday}": str(tmp / "dgar0100.24o"),
+        "{obsday2}": str(tmp / "dgar0110.24o"),
+        "{navday}": str(tmp / "brdc0100.24n"),
+    }
     out = []
     for a in argv:
         if a.startswith("{write:"):
-            key, content = a[len("{write:"):-1].split(":", 1)
+            key, content = a[len("{write:") : -1].split(":", 1)
             path = tmp / f"bad_{key}.csv"
             path.write_text(content)
             out.append(str(path))
@@ -306,8 +392,9 @@ def _outputs(tmp: Path) -> list[Path]:
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, id=c.id, marks=_marks(c.owner)) for c in CLI_CASES])
-def test_cli_bad_input(case: Cli, tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                       monkeypatch: pytest.MonkeyPatch) -> None:
+def test_cli_bad_input(
+    case: Cli, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     argv = _expand(case.argv, tmp_path)
     monkeypatch.chdir(tmp_path)  # commands with a default --out write here
     try:
@@ -322,15 +409,25 @@ def test_cli_bad_input(case: Cli, tmp_path: Path, capsys: pytest.CaptureFixture[
     assert not _outputs(tmp_path), "output written although the input was refused"
 
 
-def test_mpi_backend_without_the_extra(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                       monkeypatch: pytest.MonkeyPatch) -> None:
+def test_mpi_backend_without_the_extra(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The hint names the distribution's extra (not ``pip install mpi4py.MPI``), before any work."""
     monkeypatch.setitem(sys.modules, "mpi4py", None)  # import mpi4py → ImportError
     monkeypatch.setitem(sys.modules, "mpi4py.MPI", None)
-    for argv in (["reproduce", "consensus", "--quick", "--out", str(tmp_path / "out"), "--backend", "mpi"],
-                 ["demo", "--out", str(tmp_path / "out"), "--backend", "mpi", "--ranks", "2"],
-                 ["uwb", "solve", *_expand(("--ranges", "{ranges}", "--known", "{known}"), tmp_path),
-                  "--out", str(tmp_path / "out"), "--backend", "mpi"]):
+    for argv in (
+        ["reproduce", "consensus", "--quick", "--out", str(tmp_path / "out"), "--backend", "mpi"],
+        ["demo", "--out", str(tmp_path / "out"), "--backend", "mpi", "--ranks", "2"],
+        [
+            "uwb",
+            "solve",
+            *_expand(("--ranges", "{ranges}", "--known", "{known}"), tmp_path),
+            "--out",
+            str(tmp_path / "out"),
+            "--backend",
+            "mpi",
+        ],
+    ):
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert "pip install 'distnav-estimation[mpi]'" in err and "mpi4py.MPI]" not in err
@@ -338,8 +435,9 @@ def test_mpi_backend_without_the_extra(tmp_path: Path, capsys: pytest.CaptureFix
         assert not (tmp_path / "out").exists()
 
 
-def test_out_folder_not_left_behind(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                    monkeypatch: pytest.MonkeyPatch) -> None:
+def test_out_folder_not_left_behind(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A run refused after the folder check leaves no (empty) output folder: the probe removes what it made."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "obs.rnx").write_text("dummy\n")
@@ -378,8 +476,11 @@ def _api_cases() -> list[Api]:
         Api("check-out-file", lambda: options.check_output_folder(__file__), "is an existing file"),
         Api("check-out-empty", lambda: options.check_output_folder(""), "empty path"),
         Api("probe-out-proc", lambda: options.probe_output_folder("/proc/distnav-audit/x"), "cannot create"),
-        Api("require-missing", lambda: require("distnav_no_such_module", "plot"),
-            "pip install 'distnav-estimation[plot]'"),
+        Api(
+            "require-missing",
+            lambda: require("distnav_no_such_module", "plot"),
+            "pip install 'distnav-estimation[plot]'",
+        ),
         Api("load-unknown-experiment", lambda: load("nonsense"), "unknown experiment"),
         Api("ring-too-small", lambda: builders.ring(1), "ring"),
         Api("graph-bad-link", lambda: Graph.from_links(3, [(0, 5)]), "5"),
@@ -392,10 +493,10 @@ def _api_cases() -> list[Api]:
         Api("consensus-nan", lambda: average_consensus(np.full(5, np.nan), graph=ring, rounds=3), "finite"),
         Api("consensus-product-rounds", lambda: consensus_product(consensus_weights(ring, "P3"), -2), "rounds"),
         Api("lsq-shapes", lambda: LinearProblem.from_blocks([np.eye(2)], [np.zeros(3)]), "node 0"),
-        Api("lsq-R-not-pd", lambda: LinearProblem.from_blocks([np.eye(2)], [np.zeros(2)], [-np.eye(2)]),
-            "node 0"),
-        Api("blue-rank-deficient", lambda: blue(LinearProblem.from_blocks([np.ones((2, 2))], [np.ones(2)])),
-            "estimable"),
+        Api("lsq-R-not-pd", lambda: LinearProblem.from_blocks([np.eye(2)], [np.zeros(2)], [-np.eye(2)]), "node 0"),
+        Api(
+            "blue-rank-deficient", lambda: blue(LinearProblem.from_blocks([np.ones((2, 2))], [np.ones(2)])), "estimable"
+        ),
         Api("stat-level", lambda: statistics.critical_value(1.5), "level"),
         Api("stat-w-shapes", lambda: statistics.w_statistics(np.ones(3), np.ones(2)), "shape"),
         Api("stat-vf-negative", lambda: statistics.variance_factor(-1.0, 3), "weighted residual"),
@@ -410,8 +511,11 @@ def _api_cases() -> list[Api]:
     from distnav.experiments.uwb import instance_problem
     from distnav.models.uwb.io import read_positions, read_ranges
 
-    cases.append(Api("uwb-reproduce-start", lambda: instance_problem("GC", np.random.default_rng(0),
-                                                                      start="vertical"), "--start"))
+    cases.append(
+        Api(
+            "uwb-reproduce-start", lambda: instance_problem("GC", np.random.default_rng(0), start="vertical"), "--start"
+        )
+    )
 
     cases += [
         Api("uwb-read-ranges-missing", lambda: read_ranges("/nonexistent/r.csv"), "r.csv"),
@@ -445,11 +549,13 @@ def test_every_option_has_a_case() -> None:
     from distnav.cli import build_parser
 
     used = {(_command_path(c.argv), a.split("=")[0]) for c in CLI_CASES for a in c.argv if a.startswith("--")}
-    missing = [f"{' '.join(path)} {action.option_strings[0]}"
-               for path, parser in _subparsers(build_parser())
-               if path and not any(isinstance(a, argparse._SubParsersAction) for a in parser._actions)
-               for action in _options(parser)
-               if not any((path, f) in used for f in action.option_strings)]
+    missing = [
+        f"{' '.join(path)} {action.option_strings[0]}"
+        for path, parser in _subparsers(build_parser())
+        if path and not any(isinstance(a, argparse._SubParsersAction) for a in parser._actions)
+        for action in _options(parser)
+        if not any((path, f) in used for f in action.option_strings)
+    ]
     assert not missing, missing
 
 

@@ -34,15 +34,41 @@ def _table_row(md: str, start: str) -> list[str]:
 
 def test_rows_in_the_older_keys_show_their_figures() -> None:
     run = _load("run")
-    payload = {"time": "T", "numpy": "2", "python": "3", "rows": [
-        {"name": "n=200: per-pair", "seconds": 1e-4, "ms_per_iteration": 0.104, "reference_seconds": 9.8e-5,
-         "reference": "centralized BLUE solve", "ratio": 1.06, "goal": "≤ 0.5 ms", "meets_goal": True},
-        {"name": "CKF paper workload", "n_nodes": 13, "seconds": 2.75, "reference_seconds": 72.3, "ratio": 0.038},
-        {"name": "ADMM under MPI", "n_nodes": 99_856, "ranks": 2, "ms_per_iteration": 765.0},
-        {"name": "new style", "n_nodes": 10, "distnav_ms": 2.0, "floor_ms": 1.0, "floor": "bare",
-         "ratio_min": 1.5, "ratio_median": 2.0},
-        {"name": "vs a slow peer", "distnav_ms": 0.1, "floor_ms": 50.0, "ratio_min": 0.0008, "ratio_median": 0.0023},
-    ]}
+    payload = {
+        "time": "T",
+        "numpy": "2",
+        "python": "3",
+        "rows": [
+            {
+                "name": "n=200: per-pair",
+                "seconds": 1e-4,
+                "ms_per_iteration": 0.104,
+                "reference_seconds": 9.8e-5,
+                "reference": "centralized BLUE solve",
+                "ratio": 1.06,
+                "goal": "≤ 0.5 ms",
+                "meets_goal": True,
+            },
+            {"name": "CKF paper workload", "n_nodes": 13, "seconds": 2.75, "reference_seconds": 72.3, "ratio": 0.038},
+            {"name": "ADMM under MPI", "n_nodes": 99_856, "ranks": 2, "ms_per_iteration": 765.0},
+            {
+                "name": "new style",
+                "n_nodes": 10,
+                "distnav_ms": 2.0,
+                "floor_ms": 1.0,
+                "floor": "bare",
+                "ratio_min": 1.5,
+                "ratio_median": 2.0,
+            },
+            {
+                "name": "vs a slow peer",
+                "distnav_ms": 0.1,
+                "floor_ms": 50.0,
+                "ratio_min": 0.0008,
+                "ratio_median": 0.0023,
+            },
+        ],
+    }
     md = run.markdown({"demo": payload})
     # columns: workload, size, distnav, floor, floor is, ratio, goal, met, set-up, exponent
     assert _table_row(md, "n=200: per-pair")[2:6] == ["0.104 ms", "9.8e-05 s", "centralized BLUE solve", "1.06×"]
@@ -54,8 +80,12 @@ def test_rows_in_the_older_keys_show_their_figures() -> None:
 
 def test_scaling_exponent_reads_the_older_keys_too() -> None:
     run = _load("run")
-    rows = [{"name": "w", "n_nodes": 100, "seconds": 1.0}, {"name": "w", "n_nodes": 10_000, "seconds": 100.0},
-            {"name": "v", "n_nodes": 100, "distnav_ms": 1.0}, {"name": "v", "n_nodes": 10_000, "distnav_ms": 10.0}]
+    rows = [
+        {"name": "w", "n_nodes": 100, "seconds": 1.0},
+        {"name": "w", "n_nodes": 10_000, "seconds": 100.0},
+        {"name": "v", "n_nodes": 100, "distnav_ms": 1.0},
+        {"name": "v", "n_nodes": 10_000, "distnav_ms": 10.0},
+    ]
     k = run._exponents(rows)
     assert k[("w", None)] == pytest.approx(1.0)
     assert k[("v", None)] == pytest.approx(0.5)

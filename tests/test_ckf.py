@@ -34,8 +34,9 @@ from distnav.network.graph import Graph, SwitchingGraph
 from distnav.network.weights import ConsensusWeights
 
 
-def observed_model(seed: int, *, n: int = 6, p: int = 4, T: int = 10, late_until: int = 3,
-                   identity_transition: bool = False) -> tuple[DynamicModel, ObservationSeries, np.ndarray]:
+def observed_model(
+    seed: int, *, n: int = 6, p: int = 4, T: int = 10, late_until: int = 3, identity_transition: bool = False
+) -> tuple[DynamicModel, ObservationSeries, np.ndarray]:
     """Random model with singular system noise; entry p−1 unobserved before ``late_until``."""
     rng = np.random.default_rng(seed)
     F = None if identity_transition else np.eye(p) + 0.05 * rng.standard_normal((p, p))
@@ -133,8 +134,9 @@ def test_stationary_closed_form(kn):
     np.testing.assert_allclose(res.alpha, alpha, rtol=1e-12)
     # the nominal variance I_i⁻¹ = (t n N)⁻¹ is the central one: it understates the error by √α
     s = res.series
-    np.testing.assert_allclose(s.std / s.nominal_std, np.broadcast_to(np.sqrt(alpha)[None, :, None], s.std.shape),
-                               rtol=1e-10)
+    np.testing.assert_allclose(
+        s.std / s.nominal_std, np.broadcast_to(np.sqrt(alpha)[None, :, None], s.std.shape), rtol=1e-10
+    )
 
 
 @pytest.mark.parametrize("graph_kind", ["static", "switching"])

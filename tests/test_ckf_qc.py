@@ -19,8 +19,15 @@ from distnav.exchange import FaultSchedule, make_exchange
 from distnav.network import builders
 
 
-def raw_data(seed: int, *, n: int = 6, p: int = 4, T: int = 10, m: int = 3, late_until: int = 2,
-             ) -> tuple[DynamicModel, list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]], np.ndarray]:
+def raw_data(
+    seed: int,
+    *,
+    n: int = 6,
+    p: int = 4,
+    T: int = 10,
+    m: int = 3,
+    late_until: int = 2,
+) -> tuple[DynamicModel, list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]], np.ndarray]:
     """Random model with singular system noise, ``m`` observations per node and epoch, entry p−1 unobserved
     before ``late_until`` (the BLUP start with singular information)."""
     rng = np.random.default_rng(seed)
@@ -66,8 +73,9 @@ def test_exact_local_precision_equals_fig7(graph_kind):
     np.testing.assert_allclose(res.precision.covariance, res.series.covariance[-1], rtol=1e-8, atol=1e-12)
     # the estimates do not depend on the precision bookkeeping
     plain = ckf(dyn, ms, graph=g, rounds=3, exchange=make_exchange(g, faults=ex.faults))
-    np.testing.assert_allclose(np.nan_to_num(res.series.estimates), np.nan_to_num(plain.series.estimates),
-                               rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(
+        np.nan_to_num(res.series.estimates), np.nan_to_num(plain.series.estimates), rtol=1e-12, atol=1e-12
+    )
 
 
 def test_local_precision_costs_bytes_not_messages():
@@ -117,8 +125,10 @@ def test_local_precision_against_monte_carlo():
     err = np.empty((R, n, p))
     for k in range(R):
         x = simulate_states(dyn, T, rng=rng, initial_state=rng.standard_normal(p) * 3)
-        eps = [[(A, var, A @ x[t] + np.sqrt(var) * rng.standard_normal(var.size)) for (A, var, _y) in row]
-               for t, row in enumerate(epochs)]
+        eps = [
+            [(A, var, A @ x[t] + np.sqrt(var) * rng.standard_normal(var.size)) for (A, var, _y) in row]
+            for t, row in enumerate(epochs)
+        ]
         *_, last = iterate_ckf(dyn, series_of(eps, p), rounds=kn, schedule=sched, variance=False, monitor=False)
         err[k] = x[T - 1] - last.estimates
     s2 = (err**2).mean(axis=0)
@@ -200,8 +210,10 @@ def test_false_alarm_rate_matches_the_level(kind):
     chi_flag = chi_n = 0
     for _ in range(R):
         x = simulate_states(dyn, len(epochs), rng=rng, initial_state=rng.standard_normal(4))
-        eps = [[(A, var, A @ x[t] + np.sqrt(var) * rng.standard_normal(var.size)) for (A, var, _y) in row]
-               for t, row in enumerate(epochs)]
+        eps = [
+            [(A, var, A @ x[t] + np.sqrt(var) * rng.standard_normal(var.size)) for (A, var, _y) in row]
+            for t, row in enumerate(epochs)
+        ]
         res = ckf(dyn, series_of(eps, 4), graph=g, rounds=4, local_precision=kind, test_level=level, monitor=False)
         assert res.tests is not None
         flagged += int(res.tests.flagged.sum())

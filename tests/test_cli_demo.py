@@ -40,8 +40,9 @@ def test_parallel_demo_same_results_as_sequential(tmp_path: Path, capfd: pytest.
             assert f"{name}/{png.name}" in index
 
 
-def test_parallel_demo_error_is_a_user_error(tmp_path: Path, capfd: pytest.CaptureFixture[str],
-                                             monkeypatch: pytest.MonkeyPatch) -> None:
+def test_parallel_demo_error_is_a_user_error(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     """An experiment option refused in a worker ends the demo with ``error: ...`` and exit code 2, no traceback."""
     from distnav.errors import UsageError
     from distnav.experiments import load
@@ -52,8 +53,7 @@ def test_parallel_demo_error_is_a_user_error(tmp_path: Path, capfd: pytest.Captu
         raise UsageError("refused in the worker")
 
     monkeypatch.setattr(mod, "run", refuse)  # the forked worker inherits the patched module
-    code = main(["demo", "--out", str(tmp_path / "out"), "--only", "consensus", "ckf", "--jobs", "2",
-                 "--no-progress"])
+    code = main(["demo", "--out", str(tmp_path / "out"), "--only", "consensus", "ckf", "--jobs", "2", "--no-progress"])
     err = capfd.readouterr().err
     assert code == 2
     assert "error: refused in the worker" in err and "Traceback" not in err

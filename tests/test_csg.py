@@ -29,8 +29,20 @@ def paper_fig1_network(dim: int = 3, sigma_m: float = 0.2, seed: int = 0):
     truth = np.array([[0, 0, 1], [8, 1, 0], [-6, 5, 2], [3, 9, 1], [12, 8, 0], [10, -6, 2], [16, 0, 1]], float)
     truth = truth[:, :dim]
     ids = ["1", "2", "3", "4", "5", "6", "7"]
-    links = [("1", "2"), ("1", "3"), ("1", "4"), ("2", "4"), ("2", "5"), ("4", "5"), ("2", "6"), ("5", "7"),
-             ("6", "7"), ("2", "7"), ("1", "6"), ("4", "7")]
+    links = [
+        ("1", "2"),
+        ("1", "3"),
+        ("1", "4"),
+        ("2", "4"),
+        ("2", "5"),
+        ("4", "5"),
+        ("2", "6"),
+        ("5", "7"),
+        ("6", "7"),
+        ("2", "7"),
+        ("1", "6"),
+        ("4", "7"),
+    ]
     d = np.array([np.linalg.norm(truth[int(a) - 1] - truth[int(b) - 1]) for a, b in links])
     links.append(("5", "7"))  # a second sample of one pair
     d = np.append(d, d[7])
@@ -56,8 +68,21 @@ def partial(p, X_i, i):
     return f, {k: np.where(p.free[k], v, 0.0) for k, v in grad.items()}
 
 
-def ref_run(p, method, iterations, weights="MH", alpha=1e-3, alpha0=1e-2, beta=0.5, gamma=0.5, lam0=1e-3,
-            damping="levenberg", rounds=1, slope=1.0, lam_min=0.1):
+def ref_run(
+    p,
+    method,
+    iterations,
+    weights="MH",
+    alpha=1e-3,
+    alpha0=1e-2,
+    beta=0.5,
+    gamma=0.5,
+    lam0=1e-3,
+    damping="levenberg",
+    rounds=1,
+    slope=1.0,
+    lam_min=0.1,
+):
     """Plain-loop N-CSG / BLS / TBLS / N-CLM / CSG straight from the equations; returns own estimates and α/λ."""
     n = p.n_anchors
     g = p.graph
@@ -202,8 +227,15 @@ def complete_network(dim: int, seed: int = 7, n: int = 8):
     a, b = np.triu_indices(n, 1)
     d = np.linalg.norm(truth[a] - truth[b], axis=1)
     ids = [f"A{i}" for i in range(n)]
-    return build_problem(ids, np.stack([a, b], 1), d, fixed={ids[i]: truth[i] for i in range(3)}, dim=dim,
-                         initial_m=truth + rng.uniform(-1, 1, truth.shape), truth_m=truth)
+    return build_problem(
+        ids,
+        np.stack([a, b], 1),
+        d,
+        fixed={ids[i]: truth[i] for i in range(3)},
+        dim=dim,
+        initial_m=truth + rng.uniform(-1, 1, truth.shape),
+        truth_m=truth,
+    )
 
 
 def test_neighbourhood_csg_equals_csg_on_a_complete_graph():
@@ -232,8 +264,15 @@ def test_noise_free_sparse_3d_network_converges():
     d = np.linalg.norm(truth[a] - truth[b], axis=1)
     k = d < 18
     ids = [str(i) for i in range(n)]
-    p = build_problem(ids, np.stack([a[k], b[k]], 1), d[k], fixed={ids[i]: truth[i] for i in range(3)}, dim=3,
-                      initial_m=truth + rng.uniform(-1, 1, truth.shape), truth_m=truth)
+    p = build_problem(
+        ids,
+        np.stack([a[k], b[k]], 1),
+        d[k],
+        fixed={ids[i]: truth[i] for i in range(3)},
+        dim=3,
+        initial_m=truth + rng.uniform(-1, 1, truth.shape),
+        truth_m=truth,
+    )
     assert p.graph.degrees.min() < n - 1  # not complete
     for solver, iterations, tol in (("N-CLM", 800, 1e-6), ("LM", 800, 1e-8), ("N-CSG-TBLS", 1500, 3e-3)):
         res = solve(p, solver, iterations=iterations, **({} if solver == "LM" else {"stop": None}))
@@ -247,8 +286,15 @@ def test_koppanyi_problem_distributed_close_to_centralized_cost(shared_data):
     ref_res = float(np.asarray(m["chk_prob"]["res"][0, 0]).ravel()[0])  # centralized (lsqnonlin) ‖r‖
     ids = [str(i + 1) for i in range(coors.shape[0])]
     control = [int(v) for v in m["cont_agents"].ravel()]
-    p = build_problem(ids, [(str(int(i)), str(int(j))) for i, j, _ in meas], np.abs(meas[:, 2]),
-                      fixed={str(c): coors[c - 1] for c in control}, dim=2, initial_m=m["x0_mat"].T, truth_m=coors)
+    p = build_problem(
+        ids,
+        [(str(int(i)), str(int(j))) for i, j, _ in meas],
+        np.abs(meas[:, 2]),
+        fixed={str(c): coors[c - 1] for c in control},
+        dim=2,
+        initial_m=m["x0_mat"].T,
+        truth_m=coors,
+    )
     res = solve(p, "N-CSG-TBLS", iterations=600, alpha0=1e-3, weights="Koppanyi")
     ratio = np.sqrt(res.trace["cost"][-1]) / ref_res
     assert 0.999 < ratio < 1.03  # Koppanyi's own metric (‖r‖/‖r*‖ − 1)·100 % below 3 %
@@ -266,8 +312,15 @@ def nlos_network():
     d[5] += 3.0  # two NLOS pairs, metres too long
     d[20] += 2.0
     ids = [str(i) for i in range(n)]
-    return build_problem(ids, np.stack([a[k], b[k]], 1), d, fixed={ids[i]: truth[i] for i in range(3)}, dim=3,
-                         initial_m=truth + rng.uniform(-1, 1, truth.shape), truth_m=truth)
+    return build_problem(
+        ids,
+        np.stack([a[k], b[k]], 1),
+        d,
+        fixed={ids[i]: truth[i] for i in range(3)},
+        dim=3,
+        initial_m=truth + rng.uniform(-1, 1, truth.shape),
+        truth_m=truth,
+    )
 
 
 @pytest.mark.parametrize("loss", ["huber", "cauchy"])
@@ -314,8 +367,15 @@ def ladder_problem(n: int):
     truth = np.column_stack([pos, np.zeros(n)])
     d = np.linalg.norm(truth[links[:, 0]] - truth[links[:, 1]], axis=1)
     ids = [str(i) for i in range(n)]
-    return build_problem(ids, links, d, fixed={ids[i]: truth[i] for i in select_fixed(pos, "C")}, dim=3,
-                         initial_m=truth + 0.5, truth_m=truth)
+    return build_problem(
+        ids,
+        links,
+        d,
+        fixed={ids[i]: truth[i] for i in select_fixed(pos, "C")},
+        dim=3,
+        initial_m=truth + 0.5,
+        truth_m=truth,
+    )
 
 
 def test_messages_grow_with_neighbourhood_not_network():

@@ -21,9 +21,16 @@ def _grid(side: int) -> object:
     ids = [str(i) for i in range(side * side)]
     fixed = (0, 1, side)  # one corner: the far corner is weakly tied, the slow mode of the consensus iterations
     start = truth + np.column_stack([rng.uniform(-1, 1, (side * side, 2)), np.zeros(side * side)])
-    return build_problem(ids, links, d, fixed={ids[i]: truth[i] for i in fixed}, dim=3,
-                         held={ids[i]: {2: 0.0} for i in range(side * side) if i not in fixed},
-                         initial_m=start, truth_m=truth)
+    return build_problem(
+        ids,
+        links,
+        d,
+        fixed={ids[i]: truth[i] for i in fixed},
+        dim=3,
+        held={ids[i]: {2: 0.0} for i in range(side * side) if i not in fixed},
+        initial_m=start,
+        truth_m=truth,
+    )
 
 
 @pytest.mark.parametrize("solver", ["N-CSG-TBLS", "N-CLM"])
@@ -41,6 +48,7 @@ def test_loose_handover_keeps_the_lm_phase_tight(solver: str) -> None:
 
 def test_refine_thresholds_checked() -> None:
     from distnav.errors import ModelError
+
     with pytest.raises(ModelError):
         StopRule(refine_ftol=-1.0)
 

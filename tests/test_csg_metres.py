@@ -16,8 +16,7 @@ from distnav.models.uwb.problems import build_problem, rmse_m
 from test_csg import check_partial_gradient
 
 
-def hall(seed: int = 4, n: int = 16, sigma_m: float = 0.0, nlos: dict[int, float] | None = None,
-         limit_m: float = 18.0):
+def hall(seed: int = 4, n: int = 16, sigma_m: float = 0.0, nlos: dict[int, float] | None = None, limit_m: float = 18.0):
     """Anchors at spread heights in a 24 m × 24 m × 10 m volume, links up to ``limit_m``."""
     rng = np.random.default_rng(seed)
     truth = np.column_stack([rng.uniform(0, 24, (n, 2)), rng.uniform(0, 10, n)])
@@ -28,8 +27,15 @@ def hall(seed: int = 4, n: int = 16, sigma_m: float = 0.0, nlos: dict[int, float
     for s, bias in (nlos or {}).items():
         d[s] += bias
     ids = [str(i) for i in range(n)]
-    return build_problem(ids, np.stack([a[k], b[k]], 1), d, fixed={ids[i]: truth[i] for i in range(4)}, dim=3,
-                         initial_m=truth + rng.uniform(-1, 1, truth.shape), truth_m=truth)
+    return build_problem(
+        ids,
+        np.stack([a[k], b[k]], 1),
+        d,
+        fixed={ids[i]: truth[i] for i in range(4)},
+        dim=3,
+        initial_m=truth + rng.uniform(-1, 1, truth.shape),
+        truth_m=truth,
+    )
 
 
 @pytest.mark.parametrize("loss", ["linear", "huber", "soft_l1", "cauchy"])
@@ -40,8 +46,9 @@ def test_metres_partial_gradient_matches_finite_differences(loss):
     diff, r = nb.geometry(P)
     w, _ = nb.rho(r)
     grad = nb.gradient(diff, r, None if loss == "linear" else w)  # Jᵀ W r = ½ ∇F⁽ⁱ⁾
-    assert check_partial_gradient(nb, P, grad, [(5, 0, 0), (5, 2, 1), (9, 1, 2), (13, 3, 0), (7, 0, 2)],
-                                  abs_tol=1e-5) >= 3
+    assert (
+        check_partial_gradient(nb, P, grad, [(5, 0, 0), (5, 2, 1), (9, 1, 2), (13, 3, 0), (7, 0, 2)], abs_tol=1e-5) >= 3
+    )
 
 
 @pytest.mark.parametrize("solver", SOLVERS[1:])
@@ -136,8 +143,9 @@ def test_exclusion_loop_with_a_distributed_fit():
 
     nlos = {3: 1.5, 17: 2.0, 40: 1.0}
     p = hall(seed=6, n=18, sigma_m=0.05, nlos=nlos)
-    fit = lambda q: solve(q, "N-CLM", iterations=2000, objective="metres", sigma_m=0.05, loss="cauchy",
-                          loss_scale_m=0.15, refine=False)
+    fit = lambda q: solve(
+        q, "N-CLM", iterations=2000, objective="metres", sigma_m=0.05, loss="cauchy", loss_scale_m=0.15, refine=False
+    )
     res, sub, tests = exclude_links(p, fit)
     assert set(nlos) <= set(tests.removed) and len(tests.removed) <= len(nlos) + 2
     # refined to LM's solution (the default): with the a-priori σ the local tests find exactly the NLOS links, as
@@ -146,8 +154,16 @@ def test_exclusion_loop_with_a_distributed_fit():
     # ("local": a median over its 5-8 links, residuals absorbed by the exact fit) is small at that solution and
     # adds 4 false exclusions here (docs/uwb.md, "Distributed solvers vs LM")
     for scale, extra in (("a-priori", 0), ("robust", 1), ("local", 4)):
-        refined = lambda q, s=scale: solve(q, "N-CLM", iterations=2000, objective="metres", sigma_m=0.05,
-                                           loss="cauchy", loss_scale_m=0.15, test_scale=s)
+        refined = lambda q, s=scale: solve(
+            q,
+            "N-CLM",
+            iterations=2000,
+            objective="metres",
+            sigma_m=0.05,
+            loss="cauchy",
+            loss_scale_m=0.15,
+            test_scale=s,
+        )
         _, _, t2 = exclude_links(p, refined)
         assert set(nlos) <= set(t2.removed) and len(t2.removed) == len(nlos) + extra, (scale, t2.removed)
     assert res.usable and sub.n_meas == p.n_meas - len(tests.removed)

@@ -31,8 +31,16 @@ def biased(p, common=0.0, per=None):
 @pytest.mark.parametrize("loss", ["linear", "cauchy"])
 def test_offset_partial_gradient_matches_finite_differences(mode, loss):
     p = biased(hall(sigma_m=0.05, nlos={5: 2.0}), 0.2)
-    plan, P, _ = plan_neighbourhood(p, method="N-CSG-BLS", objective="metres", sigma_m=SIGMA, loss=loss,
-                                    loss_scale_m=0.1, range_offsets=mode, offset_prior_sigma_m=0.05)
+    plan, P, _ = plan_neighbourhood(
+        p,
+        method="N-CSG-BLS",
+        objective="metres",
+        sigma_m=SIGMA,
+        loss=loss,
+        loss_scale_m=0.1,
+        range_offsets=mode,
+        offset_prior_sigma_m=0.05,
+    )
     off = NeighbourhoodOffsets(plan.nb, mode, 0.05)
     B = np.where(off.free, np.random.default_rng(1).normal(0, 0.1, off.free.shape), 0.0)
     k = plan.iterations  # after the graduated stage: the robust loss
@@ -71,8 +79,16 @@ def test_per_anchor_offsets_approach_lm_on_noisy_ranges():
     delays = rng.normal(0, 0.05, 18)
     p = biased(hall(seed=6, n=18, sigma_m=0.02), per=delays)
     lm = solve_lm(p, objective="metres", sigma_m=SIGMA, range_offsets="per_anchor", offset_prior_sigma_m=0.05)
-    res = solve(p, "N-CSG-TBLS", iterations=3000, objective="metres", sigma_m=SIGMA, range_offsets="per_anchor",
-                offset_prior_sigma_m=0.05, monitor_every=10)
+    res = solve(
+        p,
+        "N-CSG-TBLS",
+        iterations=3000,
+        objective="metres",
+        sigma_m=SIGMA,
+        range_offsets="per_anchor",
+        offset_prior_sigma_m=0.05,
+        monitor_every=10,
+    )
     assert res.usable and res.offsets_m.shape == (18,)
     assert np.abs(res.estimates - lm.estimates).max() < 0.03
     assert np.abs(res.offsets_m - lm.offsets_m).max() < 0.01
@@ -85,8 +101,9 @@ def test_csg_estimates_offsets(mode):
     delays = np.random.default_rng(5).normal(0, 0.05, 16)
     p = biased(hall(), 0.3) if mode == "common" else biased(hall(sigma_m=0.01), per=delays)
     lm = solve_lm(p, objective="metres", sigma_m=SIGMA, range_offsets=mode, offset_prior_sigma_m=0.05)
-    res = solve(p, "CSG", iterations=2000, objective="metres", sigma_m=SIGMA, range_offsets=mode,
-                offset_prior_sigma_m=0.05)
+    res = solve(
+        p, "CSG", iterations=2000, objective="metres", sigma_m=SIGMA, range_offsets=mode, offset_prior_sigma_m=0.05
+    )
     plain = solve(p, "CSG", iterations=2000, objective="metres", sigma_m=SIGMA)
     assert np.abs(res.offsets_m - lm.offsets_m).max() < 0.03
     assert rmse_m(p, res.estimates) < rmse_m(p, plain.estimates)

@@ -49,12 +49,15 @@ def test_pair_equals_the_separate_runs_when_the_searches_split():
     assert np.abs(bls.estimates - tbls.estimates).max() > 0.5
 
 
-@pytest.mark.parametrize("options", [
-    {"beta": 0.3},  # not a power of two: no sharing, two independent runs
-    {"armijo_slope": "gradient"},
-    {"objective": "metres", "sigma_m": 0.15, "loss": "cauchy"},
-    {"stop": None},  # with the QC of the final state
-])
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"beta": 0.3},  # not a power of two: no sharing, two independent runs
+        {"armijo_slope": "gradient"},
+        {"objective": "metres", "sigma_m": 0.15, "loss": "cauchy"},
+        {"stop": None},  # with the QC of the final state
+    ],
+)
 def test_pair_equals_the_separate_runs_with_other_options(grid, options):
     _check(grid, 40, **{"quality": False, **options})
 

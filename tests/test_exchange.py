@@ -197,8 +197,16 @@ def test_graph_without_links_rounds_are_empty_not_errors():
     assert ex.comm_totals().messages == 0
 
 
-@pytest.mark.parametrize("name", ["consensus_with_faults", "raw_send_and_broadcast", "admm_constraint_nodes",
-                                  "admm_with_drops", "ncsg_tbls_with_drops"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "consensus_with_faults",
+        "raw_send_and_broadcast",
+        "admm_constraint_nodes",
+        "admm_with_drops",
+        "ncsg_tbls_with_drops",
+    ],
+)
 def test_locality_order_changes_no_result(name):
     """Renumbering the exchange's nodes (RCM) is invisible: node results bit for bit, results in the user's ids."""
     import sys
@@ -249,8 +257,12 @@ def test_fault_plan_drops_exactly_the_scheduled_messages():
     link = g.links[0]
     schedules = [
         FaultSchedule(drop_probability=0.1, seed=3),
-        FaultSchedule(drop_probability=0.37, seed=2**63 + 5, failed_links=((int(link[0]), int(link[1]), 3),),
-                      silent_nodes=((5, 2), (7, 9))),
+        FaultSchedule(
+            drop_probability=0.37,
+            seed=2**63 + 5,
+            failed_links=((int(link[0]), int(link[1]), 3),),
+            silent_nodes=((5, 2), (7, 9)),
+        ),
         FaultSchedule(failed_links=((int(g.links[3, 0]), int(g.links[3, 1]), 1),), silent_nodes=((5, 0),)),
     ]
     edges = np.random.default_rng(1).permutation(g.n_edges)[: g.n_edges // 2]  # any subset, any order
@@ -277,8 +289,13 @@ def test_drop_only_fault_plan_reads_no_endpoints_and_holds_no_per_edge_fault_arr
     for k in (0, 1, 77, 5):
         assert np.array_equal(plan.delivered(k), fs.delivered(k, g.src, g.dst, edges)), k
     with pytest.raises(AssertionError, match="endpoints"):  # failed links do need them
-        FaultPlan(FaultSchedule(failed_links=((int(g.links[0, 0]), int(g.links[0, 1]), 1),)), unread, unread, edges,
-                  is_self=g.src == g.dst)
+        FaultPlan(
+            FaultSchedule(failed_links=((int(g.links[0, 0]), int(g.links[0, 1]), 1),)),
+            unread,
+            unread,
+            edges,
+            is_self=g.src == g.dst,
+        )
 
 
 def test_fault_mixer_restores_its_weights_after_every_round():
@@ -342,8 +359,9 @@ def test_route_rounds_equal_masked_rounds(order):
     rows (in the order asked for), same deliveries and dropped messages, same counts."""
     g = builders.connected_random_geometric(40, mean_degree=5, rng=np.random.default_rng(4))
     active = np.random.default_rng(5).random(g.n_edges) < 0.6
-    faults = FaultSchedule(drop_probability=0.25, failed_links=((int(g.src[3]), int(g.dst[3]), 2),),
-                           silent_nodes=((7, 3),), seed=11)
+    faults = FaultSchedule(
+        drop_probability=0.25, failed_links=((int(g.src[3]), int(g.dst[3]), 2),), silent_nodes=((7, 3),), seed=11
+    )
     for fs in (None, faults):
         plain, prepared = (make_exchange(g, faults=fs, order=order) for _ in range(2))
         in_rows = np.flatnonzero(active[prepared.in_edges])[::-1].copy()  # any order of the active in-edges

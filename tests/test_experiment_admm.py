@@ -33,8 +33,13 @@ def test_results_schema_and_figures(quick_run):
     assert isinstance(data["final_max_deviation"], float)
     assert data["final_max_deviation"] < 1e-9  # 400 iterations at ρ = 1 on the Fig. 5 graph
     assert isinstance(data["headline"], dict) and data["headline"]
-    for name in ("fig3_method_of_multipliers.png", "fig4_admm_vs_multipliers.png", "fig5_constraint_nodes.png",
-                 "fig9_rho.png", "fig_nonlinear_ranges.png"):
+    for name in (
+        "fig3_method_of_multipliers.png",
+        "fig4_admm_vs_multipliers.png",
+        "fig5_constraint_nodes.png",
+        "fig9_rho.png",
+        "fig_nonlinear_ranges.png",
+    ):
         assert (out / name).stat().st_size > 10_000
     assert res["fig5"]["C_reduced"]["unused_links"] == [[4, 5], [5, 6]]  # (5,6), (6,7) in the paper's numbering
 
@@ -62,8 +67,10 @@ def test_fig5_study_structure(quick_run):
     _, res = quick_run
     f5 = res["fig5"]
     assert f5["C_full"]["n_unused_links"] == 0
-    assert f5["C_full"]["communication"]["messages_per_iteration"] > f5["C_reduced"]["communication"][
-        "messages_per_iteration"]
+    assert (
+        f5["C_full"]["communication"]["messages_per_iteration"]
+        > f5["C_reduced"]["communication"]["messages_per_iteration"]
+    )
     assert {r: v["reduced_slower_than_full"] for r, v in f5["rho_study"].items()} == {"0.3": 3, "1": 1, "3": 0}
     assert fig5_graph().n_links == 12
     sweep = res["rho_sweep"]
@@ -89,8 +96,12 @@ def test_fig5_reduced_set_is_slower_at_small_rho_and_faster_at_large_rho(tmp_pat
     problems, refs = fig5_problems(ctx, 40)
     found = {}
     for rho in (0.3, 3.0):
-        its = {key: np.array([iterations_to_1e6(ctx, pr, xh, g, sets[key], rho, 3000)
-                              for pr, xh in zip(problems, refs, strict=True)]) for key in ("C_full", "C_reduced")}
+        its = {
+            key: np.array(
+                [iterations_to_1e6(ctx, pr, xh, g, sets[key], rho, 3000) for pr, xh in zip(problems, refs, strict=True)]
+            )
+            for key in ("C_full", "C_reduced")
+        }
         assert (its["C_full"] < 3000).all() and (its["C_reduced"] < 3000).all()
         found[rho] = (int((its["C_reduced"] > its["C_full"]).sum()), int((its["C_reduced"] < its["C_full"]).sum()))
     assert found == {0.3: (37, 3), 3.0: (2, 37)}

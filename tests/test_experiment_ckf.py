@@ -56,8 +56,7 @@ def test_paper_findings(quick_run):
 
 
 def test_synthetic_model_normals_do_not_depend_on_the_node_subset():
-    dyn, ms, truth = synthetic_model(n_nodes=5, n_epochs=6, n_random_walk=2, n_biases=4, seed=3,
-                                     see_probability=0.5)
+    dyn, ms, truth = synthetic_model(n_nodes=5, n_epochs=6, n_random_walk=2, n_biases=4, seed=3, see_probability=0.5)
     N_all, r_all = ms.normals(4)
     N_sub, r_sub = ms.normals(4, np.array([3, 1]))
     np.testing.assert_array_equal(N_sub, N_all[[3, 1]])

@@ -26,7 +26,7 @@ def test_perth_network_matches_fig8_description():
     fewest, most = min(deg.values()), max(deg.values())
     assert {k for k, v in deg.items() if v == fewest} == {1, 3, 13}
     assert {k for k, v in deg.items() if v == most} == {4, 7, 8, 9}
-    assert sorted(int(j) + 1 for j in g.neighbors(0)) == [2, 6]           # "receiver 1 ... to receivers 2 and 6"
+    assert sorted(int(j) + 1 for j in g.neighbors(0)) == [2, 6]  # "receiver 1 ... to receivers 2 and 6"
     en = exp.PERTH_EAST_NORTH_KM
     assert np.linalg.norm(en[0] - en[2]) == pytest.approx(8.0, abs=0.1)  # "1 and 3 about 8 km"
     d = np.linalg.norm(en[g.links[:, 0]] - en[g.links[:, 1]], axis=1)
@@ -80,8 +80,9 @@ def test_ckf_with_many_rounds_equals_central_on_perth_data():
     c = central_filter(dyn, ser).series
     k = ckf(dyn, ser, graph=g, rounds=300, monitor=False).series
     est = c.estimable[-1, 0]
-    np.testing.assert_allclose(k.estimates[-1][:, est], np.broadcast_to(c.estimates[-1, 0, est], (13, est.sum())),
-                               rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(
+        k.estimates[-1][:, est], np.broadcast_to(c.estimates[-1, 0, est], (13, est.sum())), rtol=1e-6, atol=1e-6
+    )
     np.testing.assert_allclose(k.std[-1][:, est], np.broadcast_to(c.std[-1, 0, est], (13, est.sum())), rtol=1e-6)
 
 
@@ -119,6 +120,5 @@ def test_quick_reproduction(quick_run):
     assert set(central) >= {"min", "p25", "median", "p75", "max"}
     assert data["ckf_simulated_data"]["fraction_within_3sigma"] > 0.99
     assert "headline" in data
-    for f in ("fig11_central_vs_local.png", "fig12_ckf_to_central.png", "fig13_dcb_time_boxplots.png",
-              "ckf_truth.png"):
+    for f in ("fig11_central_vs_local.png", "fig12_ckf_to_central.png", "fig13_dcb_time_boxplots.png", "ckf_truth.png"):
         assert (tmp_path / f).stat().st_size > 1000

@@ -33,8 +33,9 @@ def test_network_matches_paper_counts() -> None:
 def test_small_reproduction(tmp_path: Path) -> None:
     from distnav.experiments import codebias
 
-    ctx = ExperimentContext(out_dir=tmp_path, quick=True, progress=Progress(enabled=False),
-                            options={"epochs": 60, "iterations": 300})
+    ctx = ExperimentContext(
+        out_dir=tmp_path, quick=True, progress=Progress(enabled=False), options={"epochs": 60, "iterations": 300}
+    )
     res = codebias.run(ctx)
     saved = json.loads((tmp_path / "results.json").read_text())
     assert saved["n_nodes"] == 110 and saved["n_links"] == 118 and saved["n_constraint_nodes"] == 9
@@ -67,10 +68,30 @@ def test_mpi_backend_gives_the_same_numbers(tmp_path: Path) -> None:
     if exe is None:
         pytest.skip("no mpiexec")
     opts = ["--quick", "--epochs", "40", "--iterations", "250", "--no-progress"]
-    proc = subprocess.run([exe, "-n", "2", sys.executable, "-m", "mpi4py", "-m", "distnav", "reproduce", "codebias",
-                           "--backend", "mpi", "--out", str(tmp_path / "mpi"), *opts],
-                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=240,
-                          env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    proc = subprocess.run(
+        [
+            exe,
+            "-n",
+            "2",
+            sys.executable,
+            "-m",
+            "mpi4py",
+            "-m",
+            "distnav",
+            "reproduce",
+            "codebias",
+            "--backend",
+            "mpi",
+            "--out",
+            str(tmp_path / "mpi"),
+            *opts,
+        ],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=240,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     from distnav.cli import main
 
@@ -88,8 +109,9 @@ def test_real_constellation_option(shared_data: Path) -> None:
     from distnav.models.gnss.orbits import datetime_from_gps_seconds
 
     orbit, svs, t0, text = constellation(
-        str(shared_data / "gnss/igs_2024010_bele_dgar/BRDC00IGS_R_20240100000_01D_MN.rnx.gz"))
-    assert "G01" not in svs                      # flagged unhealthy all day in the broadcast file
+        str(shared_data / "gnss/igs_2024010_bele_dgar/BRDC00IGS_R_20240100000_01D_MN.rnx.gz")
+    )
+    assert "G01" not in svs  # flagged unhealthy all day in the broadcast file
     assert set(svs) <= {"G03", "G06", "G08", "G09", "G10", "G24", "G25", "G26", "G27", "G30", "G32"}
     assert len(svs) >= 8 and "BRDC00IGS" in text
     assert datetime_from_gps_seconds(np.array(t0)) == np.datetime64("2024-01-10T01:00:00")

@@ -24,8 +24,12 @@ def _dense_protocols(links: list[list[int]], n: int = 20) -> dict[str, np.ndarra
     d = A.sum(1)
     lap = np.diag(d) - A
     M = A / (1.0 + np.maximum.outer(d, d))
-    return {"P1": np.eye(n) - lap / d.max(), "P2": np.eye(n) - lap / n, "P3": M + np.diag(1.0 - M.sum(1)),
-            "P4": np.eye(n) - lap / 2.0}  # P4 only on a matching: w_ij = w_ii = 1/2
+    return {
+        "P1": np.eye(n) - lap / d.max(),
+        "P2": np.eye(n) - lap / n,
+        "P3": M + np.diag(1.0 - M.sum(1)),
+        "P4": np.eye(n) - lap / 2.0,
+    }  # P4 only on a matching: w_ij = w_ii = 1/2
 
 
 def _product(mats: list[np.ndarray], kn: int) -> np.ndarray:
@@ -138,8 +142,12 @@ def test_cli_reproduce_and_errors(tmp_path, capsys):
 
 
 def test_cli_network_random_keeps_the_random_draw(tmp_path):
-    assert main(["reproduce", "consensus", "--network", "random", "--out", str(tmp_path / "r"), "--quick",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            ["reproduce", "consensus", "--network", "random", "--out", str(tmp_path / "r"), "--quick", "--no-progress"]
+        )
+        == 0
+    )
     data = json.loads((tmp_path / "r" / "results.json").read_text())
     ref = static_network(np.random.default_rng([0, 1]))
     assert data["network"]["kind"] == "random" and data["network"]["search"] is None

@@ -17,15 +17,23 @@ from distnav.models.uwb.problems import PAPER_PROBLEMS, generate_layout
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
     out = tmp_path_factory.mktemp("uwb")
-    ctx = ExperimentContext(out_dir=out, quick=True, progress=Progress(enabled=False),
-                            options={"instances": 1, "iterations": 12})
+    ctx = ExperimentContext(
+        out_dir=out, quick=True, progress=Progress(enabled=False), options={"instances": 1, "iterations": 12}
+    )
     return out, uwb.run(ctx)
 
 
 def test_files_and_table_shape(results):
     out, res = results
-    for name in ("results.json", "table.csv", "table.md", "fig3_rmse.png", "fig4_cost.png", "fig5_examples.png",
-                 "fig6_step_size.png"):
+    for name in (
+        "results.json",
+        "table.csv",
+        "table.md",
+        "fig3_rmse.png",
+        "fig4_cost.png",
+        "fig5_examples.png",
+        "fig6_step_size.png",
+    ):
         assert (out / name).stat().st_size > 0, name
     on_disk = json.loads((out / "results.json").read_text())
     rows = on_disk["table"]
@@ -77,11 +85,18 @@ def test_worker_processes_give_the_serial_results(results, tmp_path):
     """``--jobs 1`` (no worker processes) and the default (the fixture: one worker per core, 2 here) agree
     exactly: every instance seeds its own draws and the means are summed in instance order."""
     _, res = results
-    ctx = ExperimentContext(out_dir=tmp_path, quick=True, progress=Progress(enabled=False),
-                            options={"instances": 1, "iterations": 12, "jobs": 1})
+    ctx = ExperimentContext(
+        out_dir=tmp_path,
+        quick=True,
+        progress=Progress(enabled=False),
+        options={"instances": 1, "iterations": 12, "jobs": 1},
+    )
     serial = uwb.run(ctx)
-    strip = lambda r: json.dumps({k: v for k, v in r.items() if k != "solver_seconds"}, sort_keys=True,  # noqa: E731
-                                 default=lambda a: np.asarray(a).tolist())
+    strip = lambda r: json.dumps(
+        {k: v for k, v in r.items() if k != "solver_seconds"},
+        sort_keys=True,  # noqa: E731
+        default=lambda a: np.asarray(a).tolist(),
+    )
     assert strip(serial) == strip(res)
 
 

@@ -18,7 +18,7 @@ from distnav.models.gnss.orbits import gps_seconds, synthetic_gps_constellation
 
 NAMES = ["A", "B", "C"]
 GPS = synthetic_gps_constellation()
-T_S = gps_seconds(np.datetime64("2016-06-02T00:00")) + 60.0 * np.arange(240)       # 4 h of 60-s epochs
+T_S = gps_seconds(np.datetime64("2016-06-02T00:00")) + 60.0 * np.arange(240)  # 4 h of 60-s epochs
 XYZ = geodetic_to_ecef(np.deg2rad([49.1, 50.8, 48.1]), np.deg2rad([12.9, 10.2, 16.4]), np.zeros(3))
 GEO = ionosphere_geometry(GPS, T_S, receivers_ecef_m=XYZ, names=NAMES, mask_deg=10)
 
@@ -55,8 +55,13 @@ def _run(seed: int, arc_sigma_m: float, with_arcs: bool = True) -> tuple[np.ndar
     sig = 0.3 / np.sin(np.where(GEO.tracked, GEO.el_rad, np.pi / 2))
     delta = rng.normal(0.0, arc_sigma_m, ARCS.max() + 1 + n * 1000)
     arc_err = np.where(ARCS >= 0, delta[np.maximum(ARCS, 0) + 1000 * np.arange(n)[None, :, None]], 0.0)
-    y = GEO.coefficients[..., 0] * tec[:, None, None] + b_rx[None, :, None] + b_s[None, None, :] + arc_err \
+    y = (
+        GEO.coefficients[..., 0] * tec[:, None, None]
+        + b_rx[None, :, None]
+        + b_s[None, None, :]
+        + arc_err
         + sig * rng.standard_normal((T, n, S))
+    )
     y[~GEO.tracked] = np.nan
     data = bias_network_model(NAMES, T_S, XYZ, y, list(GPS.svs), GPS, ionosphere="common", sigma_zenith_m=0.3)
     if with_arcs:
@@ -94,7 +99,7 @@ def test_realistic_sigma_with_arc_constant_errors() -> None:
         epochwise.append(_run(100 + seed, 0.25, with_arcs=False)[2])
     e, f, r, w = (np.concatenate(a) for a in (err, formal, real, epochwise))
     assert np.sqrt(np.mean((e / f) ** 2)) > 2.0
-    assert np.sqrt(np.mean((e / w) ** 2)) > 1.5                      # the epoch-wise factor misses the arc error
+    assert np.sqrt(np.mean((e / w) ** 2)) > 1.5  # the epoch-wise factor misses the arc error
     ratio = float(np.sqrt(np.mean((e / r) ** 2)))
     assert 1 / 1.5 < ratio < 1.5
 
@@ -104,7 +109,7 @@ def test_no_arcs_no_factor() -> None:
     _, _, _, (data, c) = _run(7, 0.0, with_arcs=False)
     assert data.arc_id is None and c.arc_variance_factor is None
     assert arc_variance_factor(data, c.dsb_ns[-1]) is None
-    one = replace(data, arc_id=np.where(data.geometry.tracked, 0, -1))   # one "arc" per station: no redundancy
+    one = replace(data, arc_id=np.where(data.geometry.tracked, 0, -1))  # one "arc" per station: no redundancy
     assert arc_variance_factor(one, c.dsb_ns[-1]) is None
 
 

@@ -17,8 +17,10 @@ IGS = "gnss/igs_2024010_bele_dgar"
 @pytest.fixture(scope="module")
 def products(shared_data: Path):  # type: ignore[no-untyped-def]
     d = shared_data / IGS
-    return (read_bias_sinex(d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"),
-            read_bias_sinex(d / "GFZ0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"))
+    return (
+        read_bias_sinex(d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"),
+        read_bias_sinex(d / "GFZ0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"),
+    )
 
 
 def test_values_quoted_in_provenance(products) -> None:  # type: ignore[no-untyped-def]
@@ -42,8 +44,9 @@ def test_cas_gfz_agreement_yardstick(products) -> None:  # type: ignore[no-untyp
     """PROVENANCE: CAS and GFZ satellite C1W−C2W agree to about 0.05–1.4 ns (measured: RMS 0.75 ns, largest
     1.64 ns, G14). Both use a zero-mean satellite datum, so the mean difference vanishes."""
     cas, gfz = products
-    diffs = np.array([cas.satellite_dsb_ns(s, "C1W", "C2W") - gfz.satellite_dsb_ns(s, "C1W", "C2W")
-                      for s in cas.satellites("G")])
+    diffs = np.array(
+        [cas.satellite_dsb_ns(s, "C1W", "C2W") - gfz.satellite_dsb_ns(s, "C1W", "C2W") for s in cas.satellites("G")]
+    )
     assert abs(diffs.mean()) < 1e-3
     assert 0.5 < np.sqrt(np.mean(diffs**2)) < 1.0
     assert 1.3 < np.abs(diffs).max() < 1.7
@@ -52,9 +55,9 @@ def test_cas_gfz_agreement_yardstick(products) -> None:  # type: ignore[no-untyp
 def test_resolve_dsb_chains(products) -> None:  # type: ignore[no-untyped-def]
     cas, gfz = products
     v, chain = resolve_dsb([cas], "C1C", "C2W", prn="G01")
-    assert v == pytest.approx(-7.984) and chain == ["CAS C1C-C2W"]          # direct pair, one product
+    assert v == pytest.approx(-7.984) and chain == ["CAS C1C-C2W"]  # direct pair, one product
     v, chain = resolve_dsb([gfz, cas], "C1C", "C2W", prn="G01")
-    assert chain == ["CAS C1C-C1W", "GFZ C1W-C2W"]                            # GFZ used wherever it can be
+    assert chain == ["CAS C1C-C1W", "GFZ C1W-C2W"]  # GFZ used wherever it can be
     assert v == pytest.approx(-0.903 + -7.23137571560645)
     v, _ = resolve_dsb([cas], "C2W", "C5Q", station="DGAR")
     assert v == pytest.approx(cas.station_dsb_ns("DGAR", "C1C", "C5Q") - cas.station_dsb_ns("DGAR", "C1C", "C2W"))
@@ -65,9 +68,11 @@ def test_resolve_dsb_chains(products) -> None:  # type: ignore[no-untyped-def]
         resolve_dsb([cas], "C1C", "C2W")
 
 
-HEAD = ("%=BIA 1.00 TST 24:012:00000 TST 2024:010:00000 2024:011:00000 R 00000002\n"
-        "+BIAS/SOLUTION\n"
-        "*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____ BIAS_END______ UNIT __ESTIMATED_VALUE____ _STD_DEV___\n")
+HEAD = (
+    "%=BIA 1.00 TST 24:012:00000 TST 2024:010:00000 2024:011:00000 R 00000002\n"
+    "+BIAS/SOLUTION\n"
+    "*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____ BIAS_END______ UNIT __ESTIMATED_VALUE____ _STD_DEV___\n"
+)
 SAT = " DSB  G063 G01           C1C  C1W  2024:010:00000 2024:011:00000 ns                 -0.9030      0.0060\n"
 STA = " DSB  G    G   DGAR      C1C  C1W  2024:010:00000 2024:011:00000 ns                  2.3170      0.0140\n"
 

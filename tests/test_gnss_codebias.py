@@ -32,9 +32,17 @@ def _network(rng: np.random.Generator, n: int = 5, epochs: int = 60, lat_span: f
 
 def _visible_only(d: CodeBiasData) -> CodeBiasData:
     keep = np.nonzero(d.observed.any(axis=(0, 1)))[0]
-    return CodeBiasData(d.stations, tuple(d.svs[k] for k in keep), d.t_gps_s, d.y_m[..., keep],
-                        d.sigma_m[..., keep], d.reference, None,
-                        None if d.truth_m is None else d.truth_m[keep], d.positions_ecef_m)
+    return CodeBiasData(
+        d.stations,
+        tuple(d.svs[k] for k in keep),
+        d.t_gps_s,
+        d.y_m[..., keep],
+        d.sigma_m[..., keep],
+        d.reference,
+        None,
+        None if d.truth_m is None else d.truth_m[keep],
+        d.positions_ecef_m,
+    )
 
 
 def test_normals_equal_explicit_design_eq24_26(rng: np.random.Generator) -> None:
@@ -61,7 +69,7 @@ def test_pivot_choice_does_not_matter(rng: np.random.Generator) -> None:
         vis = np.nonzero(d.observed[i, t])[0]
         if vis.size < 2:
             continue
-        m = vis.size   # last visible satellite as pivot: rows e_k − e_last
+        m = vis.size  # last visible satellite as pivot: rows e_k − e_last
         Dt = np.hstack([np.eye(m - 1), -np.ones((m - 1, 1))])
         A = Dt @ np.eye(d.n_sats)[vis]
         R = Dt @ np.diag(d.sigma_m[i, t, vis] ** 2) @ Dt.T
@@ -98,7 +106,7 @@ def test_recursive_solution_ends_at_centralized(rng: np.random.Generator) -> Non
     sol = d.centralized()
     assert np.allclose(x[-1], sol.x_m, atol=1e-9) and np.allclose(s[-1], sol.sigma_m, atol=1e-12)
     ok = np.isfinite(s[10]) & np.isfinite(s[-1])
-    assert np.all(s[-1][ok] < s[10][ok])                                 # precision improves with epochs
+    assert np.all(s[-1][ok] < s[10][ok])  # precision improves with epochs
     assert sol.x_ns == pytest.approx(sol.x_m / 0.299792458)
     # the first 40 epochs alone give the recursive solution after epoch 40
     w = d.window(slice(0, 40))
@@ -123,8 +131,14 @@ def test_combination_sigma_is_propagated() -> None:
 
 def _data(y: np.ndarray, ref: int = 0) -> CodeBiasData:
     n, T, p = y.shape
-    return CodeBiasData(tuple(f"R{i}" for i in range(n)), tuple(f"G{k + 1:02d}" for k in range(p)),
-                        np.arange(T, dtype=float), y, np.where(np.isfinite(y), 0.3, np.nan), ref)
+    return CodeBiasData(
+        tuple(f"R{i}" for i in range(n)),
+        tuple(f"G{k + 1:02d}" for k in range(p)),
+        np.arange(T, dtype=float),
+        y,
+        np.where(np.isfinite(y), 0.3, np.nan),
+        ref,
+    )
 
 
 def test_estimability_errors_name_the_culprit() -> None:
@@ -134,7 +148,16 @@ def test_estimability_errors_name_the_culprit() -> None:
     with pytest.raises(ModelError, match="station R2 shares no satellites"):
         _data(y).check()
     # R2 sees a single satellite at every epoch: no between-satellite difference at all
-    y = np.array([[[1, 2, nan, nan]], [[nan, 2, 3, nan]], [[nan, 2, nan, nan], ]], dtype=float)
+    y = np.array(
+        [
+            [[1, 2, nan, nan]],
+            [[nan, 2, 3, nan]],
+            [
+                [nan, 2, nan, nan],
+            ],
+        ],
+        dtype=float,
+    )
     with pytest.raises(ModelError, match="station R2 never observes two satellites"):
         _data(y).check()
     # nobody observes G04: its bias is not estimable, and the message names it

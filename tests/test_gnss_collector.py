@@ -33,24 +33,45 @@ def _data(epochs: int = 60) -> object:
     tec = 2.0 + np.cumsum(rng.normal(0, 1e-3 * np.sqrt(60.0), T))
     sig = 0.3 / np.sin(np.where(geo.tracked, geo.el_rad, np.pi / 2))
     e = rng.standard_normal((T, n, S))
-    for k in range(1, T):                               # AR(1) errors (ρ = 0.8): a positive lag-1 correlation
+    for k in range(1, T):  # AR(1) errors (ρ = 0.8): a positive lag-1 correlation
         e[k] = 0.8 * e[k - 1] + 0.6 * e[k]
-    y = geo.coefficients[..., 0] * tec[:, None, None] + rng.normal(0, 3, n)[None, :, None] \
-        + rng.normal(0, 1.5, S)[None, None, :] + sig * e
+    y = (
+        geo.coefficients[..., 0] * tec[:, None, None]
+        + rng.normal(0, 3, n)[None, :, None]
+        + rng.normal(0, 1.5, S)[None, None, :]
+        + sig * e
+    )
     y[~geo.tracked] = np.nan
-    y[: T // 3, 2] = np.nan                             # station C joins later: inestimable entries early on
-    return bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3,
-                              reference="A", min_satellite_obs=1)
+    y[: T // 3, 2] = np.nan  # station C joins later: inestimable entries early on
+    return bias_network_model(
+        NAMES,
+        t,
+        xyz,
+        y,
+        list(gps.svs),
+        gps,
+        ionosphere="common",
+        sigma_zenith_m=0.3,
+        reference="A",
+        min_satellite_obs=1,
+    )
 
 
 def _reference(data: object, datum: str) -> dict[str, object]:
     """Epoch-by-epoch outputs of the central filter (the definitions of the module doc)."""
-    ser, dyn, lay = data.series, data.dynamics, data.layout          # type: ignore[attr-defined]
-    scale = gf_m_per_dsb_ns(data.band)                                # type: ignore[attr-defined]
+    ser, dyn, lay = data.series, data.dynamics, data.layout  # type: ignore[attr-defined]
+    scale = gf_m_per_dsb_ns(data.band)  # type: ignore[attr-defined]
     T, nt = ser.n_epochs, lay.n_tec
     nodes = np.arange(ser.n_nodes)
-    out = {k: np.full((T, w), np.nan) for k, w in (("tec", nt), ("tec_std", nt), ("dsb", ser.n_nodes + len(lay.svs)),
-                                                   ("dsb_std", ser.n_nodes + len(lay.svs)))}
+    out = {
+        k: np.full((T, w), np.nan)
+        for k, w in (
+            ("tec", nt),
+            ("tec_std", nt),
+            ("dsb", ser.n_nodes + len(lay.svs)),
+            ("dsb_std", ser.n_nodes + len(lay.svs)),
+        )
+    }
     ssr, m, zz, zlag = 0.0, 0, 0.0, 0.0
     z_prev: dict[tuple[int, int], tuple[int, float]] = {}
     prev = None
@@ -60,8 +81,12 @@ def _reference(data: object, datum: str) -> dict[str, object]:
             xp, ep, Pp = prev
             A, w = ser.design(t, nodes)
             y = ser._y[t]
-            keep = [(i, s) for i in range(A.shape[0]) for s in range(A.shape[1])
-                    if w[i, s] > 0 and not (A[i, s][~ep] != 0).any()]
+            keep = [
+                (i, s)
+                for i in range(A.shape[0])
+                for s in range(A.shape[1])
+                if w[i, s] > 0 and not (A[i, s][~ep] != 0).any()
+            ]
             if keep:
                 Ar = np.array([A[i, s] for i, s in keep])
                 used = np.flatnonzero(Ar.any(axis=0))
@@ -96,9 +121,13 @@ def test_block_outputs_equal_the_epoch_by_epoch_reference(monkeypatch: pytest.Mo
     monkeypatch.setattr(gfcollector, "BLOCK", 7)
     series, _ = run_bias_filters(data, datum=datum, local=False)
     got, ref = series[0], _reference(data, datum)
-    assert np.isnan(ref["dsb"][:10, 2]).all() and np.isfinite(ref["dsb"][-1]).all()   # C inestimable at first
-    for name, a, b in (("tec", got.tec, ref["tec"]), ("tec_std", got.tec_std, ref["tec_std"]),
-                       ("dsb", got.dsb_ns, ref["dsb"]), ("dsb_std", got.dsb_std_ns, ref["dsb_std"])):
+    assert np.isnan(ref["dsb"][:10, 2]).all() and np.isfinite(ref["dsb"][-1]).all()  # C inestimable at first
+    for name, a, b in (
+        ("tec", got.tec, ref["tec"]),
+        ("tec_std", got.tec_std, ref["tec_std"]),
+        ("dsb", got.dsb_ns, ref["dsb"]),
+        ("dsb_std", got.dsb_std_ns, ref["dsb_std"]),
+    ):
         np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=name)
         np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-12, err_msg=name)
     assert got.n_innovations == ref["m"] > 0

@@ -21,10 +21,25 @@ def run_dir(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path
     """BELE (RINEX 3, C5X) + DGAR (RINEX 2, C5Q), 2024-01-10 00:00–03:00, broadcast orbits, compared with CAS."""
     d = shared_data / IGS
     out = tmp_path_factory.mktemp("codebias")
-    rc = main(["gnss", "codebias", "--obs", str(d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"),
-               str(d / "dgar0100.24o.gz"), "--nav", str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"),
-               "--tlim", "2024-01-10T00:00", "2024-01-10T03:00", "--out", str(out),
-               "--bias", str(d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"), "--no-progress"])
+    rc = main(
+        [
+            "gnss",
+            "codebias",
+            "--obs",
+            str(d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"),
+            str(d / "dgar0100.24o.gz"),
+            "--nav",
+            str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"),
+            "--tlim",
+            "2024-01-10T00:00",
+            "2024-01-10T03:00",
+            "--out",
+            str(out),
+            "--bias",
+            str(d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"),
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     return out
 
@@ -35,7 +50,7 @@ def test_codebias_outputs(run_dir: Path) -> None:
     assert est["codes"]["BELE"] == {"L1": "C1C", "L2": "C2W", "L5": "C5X"}
     assert est["codes"]["DGAR"]["L5"] == "C5Q"
     assert len(est["satellites"]) >= 8
-    assert "G01" in est["no_orbit"] and "G01" not in est["satellites"]   # G01 flagged unhealthy in BRDC all day
+    assert "G01" in est["no_orbit"] and "G01" not in est["satellites"]  # G01 flagged unhealthy in BRDC all day
     assert est["admm"]["max_distance_to_centralized_ns"] < 1e-6
     rows = (run_dir / "codebias.csv").read_text().splitlines()
     assert rows[0].startswith("satellite,x_m,x_ns,sigma_ns") and len(rows) == len(est["satellites"]) + 1
@@ -51,11 +66,12 @@ def test_agreement_with_cas(run_dir: Path) -> None:
     assert cmp_["zero_mean"]["rms_ns"] < 2.0
     assert abs(cmp_["s_basis"]["mean_ns"]) < 1.0
     assert cmp_["s_basis"]["rms_ns"] < 2.0
-    assert "warning" in cmp_          # DGAR tracks C5Q, BELE C5X
+    assert "warning" in cmp_  # DGAR tracks C5Q, BELE C5X
 
 
-def test_compare_command_gfz_completed_with_cas(shared_data: Path, run_dir: Path, tmp_path: Path,
-                                                capsys: pytest.CaptureFixture[str]) -> None:
+def test_compare_command_gfz_completed_with_cas(
+    shared_data: Path, run_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     d = shared_data / IGS
     gfz, cas = d / "GFZ0OPSRAP_20240100000_01D_01D_DCB.BIA.gz", d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"
     rc = main(["gnss", "compare", "--estimates", str(run_dir), "--bias", str(gfz), str(cas), "--out", str(tmp_path)])
@@ -69,8 +85,12 @@ def test_compare_command_gfz_completed_with_cas(shared_data: Path, run_dir: Path
 
 def test_compare_errors(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     d = shared_data / IGS
-    est = {"x_ns": {"G99": 1.0}, "codes": {"X": {"L1": "C1C", "L2": "C2W", "L5": "C5X"}},
-           "reference_station": "X", "coefficients": [0.226, -1.226, 1.0]}
+    est = {
+        "x_ns": {"G99": 1.0},
+        "codes": {"X": {"L1": "C1C", "L2": "C2W", "L5": "C5X"}},
+        "reference_station": "X",
+        "coefficients": [0.226, -1.226, 1.0],
+    }
     with pytest.raises(ModelError, match="no satellite in common"):
         compare_with_products(est, [d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"])
     bad = tmp_path / "codebias.json"
@@ -94,8 +114,18 @@ def test_codebias_command_errors(shared_data: Path, tmp_path: Path, capsys: pyte
     assert main(["gnss", "codebias", "--obs", str(junk), "--nav", nav, "--out", str(tmp_path)]) == 2
     assert "junk.21o" in capsys.readouterr().err
     # unknown reference station, malformed --codes
-    args = ["gnss", "codebias", "--obs", str(nl / "zegv0010.21o"), str(nl / "rovn0010.21o"), "--nav", nav,
-            "--out", str(tmp_path), "--no-progress"]
+    args = [
+        "gnss",
+        "codebias",
+        "--obs",
+        str(nl / "zegv0010.21o"),
+        str(nl / "rovn0010.21o"),
+        "--nav",
+        nav,
+        "--out",
+        str(tmp_path),
+        "--no-progress",
+    ]
     assert main([*args, "--reference", "XXXX"]) == 2
     assert "not one of the stations" in capsys.readouterr().err
     assert main([*args, "--codes", "L7=C7Q"]) == 2
@@ -106,9 +136,28 @@ def test_small_dutch_network_runs(shared_data: Path, tmp_path: Path) -> None:
     nl = shared_data / NL
     edges = tmp_path / "edges.csv"
     edges.write_text("a,b\nZEGV,ROVN\n")
-    rc = main(["gnss", "codebias", "--obs", str(nl / "zegv0010.21o"), str(nl / "rovn0010.21o"), "--nav",
-               str(nl / "cbw10010.21n.gz"), "--graph", str(edges), "--out", str(tmp_path), "--no-progress",
-               "--iterations", "50", "--reference", "ROVN", "--nav-max-age", "24"])
+    rc = main(
+        [
+            "gnss",
+            "codebias",
+            "--obs",
+            str(nl / "zegv0010.21o"),
+            str(nl / "rovn0010.21o"),
+            "--nav",
+            str(nl / "cbw10010.21n.gz"),
+            "--graph",
+            str(edges),
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+            "--iterations",
+            "50",
+            "--reference",
+            "ROVN",
+            "--nav-max-age",
+            "24",
+        ]
+    )
     assert rc == 0
     est = json.loads((tmp_path / "codebias.json").read_text())
     assert est["reference_station"] == "ROVN" and est["graph"]["links"] == [["ROVN", "ZEGV"]]
@@ -117,8 +166,21 @@ def test_small_dutch_network_runs(shared_data: Path, tmp_path: Path) -> None:
 def test_single_station(shared_data: Path, tmp_path: Path) -> None:
     """One receiver: the S-basis solution is its own undifferenced observable; no network, no ADMM."""
     nl = shared_data / NL
-    rc = main(["gnss", "codebias", "--obs", str(nl / "zegv0010.21o"), "--nav", str(nl / "cbw10010.21n.gz"),
-               "--out", str(tmp_path), "--no-progress", "--nav-max-age", "24"])
+    rc = main(
+        [
+            "gnss",
+            "codebias",
+            "--obs",
+            str(nl / "zegv0010.21o"),
+            "--nav",
+            str(nl / "cbw10010.21n.gz"),
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+            "--nav-max-age",
+            "24",
+        ]
+    )
     assert rc == 0
     est = json.loads((tmp_path / "codebias.json").read_text())
     assert est["stations"] == ["ZEGV"] and "skipped" in est["admm"]
@@ -157,12 +219,43 @@ def test_sp3_and_broadcast_orbits_give_the_same_biases(shared_data: Path, tmp_pa
     """ESBC 2020-177, one hour: the orbits only set elevations (mask and weights), so precise SP3 and broadcast
     orbits must give the same code biases to far below their σ."""
     d = shared_data / "gnss/esbc_2020177_single_station_L5_sp3"
-    common = ["gnss", "codebias", "--obs", str(d / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz"),
-              "--tlim", "2020-06-25T00:00", "2020-06-25T01:00", "--no-progress"]
-    assert main([*common, "--sp3", str(d / "GRG0MGXFIN_20201760000_01D_15M_ORB.SP3.gz"),
-                 str(d / "GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz"), "--out", str(tmp_path / "sp3")]) == 0
-    assert main([*common, "--nav", str(d / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"), "--nav-max-age", "6",
-                 "--out", str(tmp_path / "nav")]) == 0
+    common = [
+        "gnss",
+        "codebias",
+        "--obs",
+        str(d / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz"),
+        "--tlim",
+        "2020-06-25T00:00",
+        "2020-06-25T01:00",
+        "--no-progress",
+    ]
+    assert (
+        main(
+            [
+                *common,
+                "--sp3",
+                str(d / "GRG0MGXFIN_20201760000_01D_15M_ORB.SP3.gz"),
+                str(d / "GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz"),
+                "--out",
+                str(tmp_path / "sp3"),
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                *common,
+                "--nav",
+                str(d / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"),
+                "--nav-max-age",
+                "6",
+                "--out",
+                str(tmp_path / "nav"),
+            ]
+        )
+        == 0
+    )
     a = json.loads((tmp_path / "sp3" / "codebias.json").read_text())
     b = json.loads((tmp_path / "nav" / "codebias.json").read_text())
     assert a["codes"]["ESBC"] == {"L1": "C1C", "L2": "C2W", "L5": "C5Q"}

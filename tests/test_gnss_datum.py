@@ -34,8 +34,12 @@ def _simulate(seed: int, epochs: int = 40) -> tuple[object, np.ndarray, np.ndarr
     b_rx, b_s = rng.normal(0, 3, n), rng.normal(0, 1.5, S)
     tec = 2.0 + np.cumsum(rng.normal(0, 1e-3 * np.sqrt(60.0), T))
     sig = 0.3 / np.sin(np.where(geo.tracked, geo.el_rad, np.pi / 2))
-    y = geo.coefficients[..., 0] * tec[:, None, None] + b_rx[None, :, None] + b_s[None, None, :] \
+    y = (
+        geo.coefficients[..., 0] * tec[:, None, None]
+        + b_rx[None, :, None]
+        + b_s[None, None, :]
         + sig * rng.standard_normal((T, n, S))
+    )
     y[~geo.tracked] = np.nan
     return gps, t, xyz, y, np.concatenate([b_rx, b_s])
 
@@ -51,16 +55,17 @@ def test_bases_and_datums_give_the_same_estimable_functions() -> None:
     """The same data in the receiver basis and in the pivot basis: every estimable function (satellite − satellite,
     receiver − receiver, receiver + satellite) agrees, and the three output datums are S-transforms of each other."""
     gps, t, xyz, y, _ = _simulate(3)
-    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3,
-                              reference="A")
+    data = bias_network_model(
+        NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3, reference="A"
+    )
     lay_r = data.layout
     piv = lay_r.svs[int(np.argmax(data.geometry.tracked.sum(axis=(0, 1))))]
     lay_p = BiasStateLayout(lay_r.svs, lay_r.receivers, 1, "pivot", piv)
-    ser_p = BiasGeometryFreeSeries(lay_p, data.geometry.coefficients, data.sigma_m, obs_m=data.obs_m,
-                                   tracked=data.geometry.tracked)
+    ser_p = BiasGeometryFreeSeries(
+        lay_p, data.geometry.coefficients, data.sigma_m, obs_m=data.obs_m, tracked=data.geometry.tracked
+    )
     last_r = list(iterate_information_filter(data.dynamics, data.series))[-1]
-    last_p = list(iterate_information_filter(bias_dynamics(lay_p, np.concatenate([[np.nan], np.diff(t)])),
-                                             ser_p))[-1]
+    last_p = list(iterate_information_filter(bias_dynamics(lay_p, np.concatenate([[np.nan], np.diff(t)])), ser_p))[-1]
     assert last_r.estimable.all() and last_p.estimable.all()
     outs = {}
     for datum in ("zero-mean", "pivot", "receiver"):
@@ -75,8 +80,8 @@ def test_bases_and_datums_give_the_same_estimable_functions() -> None:
     for a, b in (("zero-mean", "pivot"), ("pivot", "receiver")):
         sat_shift = v[a][n:] - v[b][n:]
         rx_shift = v[a][:n] - v[b][:n]
-        np.testing.assert_allclose(sat_shift, sat_shift[0], atol=1e-8)        # one common shift …
-        np.testing.assert_allclose(rx_shift, -sat_shift[0], atol=1e-8)        # … the other way for receivers
+        np.testing.assert_allclose(sat_shift, sat_shift[0], atol=1e-8)  # one common shift …
+        np.testing.assert_allclose(rx_shift, -sat_shift[0], atol=1e-8)  # … the other way for receivers
     assert abs(v["zero-mean"][n:].mean()) < 1e-10
     assert v["pivot"][n + lay_r.svs.index(piv)] == pytest.approx(0.0, abs=1e-12)
     assert v["receiver"][1] == pytest.approx(0.0, abs=1e-12)
@@ -115,7 +120,7 @@ def test_ckf_with_many_rounds_equals_central() -> None:
         np.testing.assert_allclose(s.dsb_ns[-1][ok], central.dsb_ns[-1][ok], atol=1e-6)
         np.testing.assert_allclose(s.tec[-1], central.tec[-1], atol=1e-6)
     few, _ = run_bias_filters(data, datum="zero-mean", graph=graph, kn=1, local=False)
-    assert np.nanmax(np.abs(few[1].dsb_ns[-1] - central.dsb_ns[-1])) > 1e-4   # one round is not the average
+    assert np.nanmax(np.abs(few[1].dsb_ns[-1] - central.dsb_ns[-1])) > 1e-4  # one round is not the average
 
 
 def test_layout_errors() -> None:
@@ -167,6 +172,6 @@ def test_realistic_sigma_with_time_correlated_errors() -> None:
         formal.append(c.dsb_std_ns[-1][ok])
         real.append(c.dsb_std_ns[-1][ok] * c.realistic_factor)
     err, f, r = (np.concatenate(a) for a in (z, formal, real))
-    assert np.sqrt(np.mean((err / f) ** 2)) > 1.8                 # formal σ: optimistic
+    assert np.sqrt(np.mean((err / f) ** 2)) > 1.8  # formal σ: optimistic
     ratio = np.sqrt(np.mean((err / r) ** 2))
     assert 1 / 1.5 < ratio < 1.5

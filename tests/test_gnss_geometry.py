@@ -49,8 +49,9 @@ def test_ecef_to_geodetic_bad_shape() -> None:
 def test_azimuth_elevation_against_pymap3d(rng: np.random.Generator) -> None:
     rx_lat, rx_lon, rx_h = 52.0, 4.4, 50.0
     rx = geodetic_to_ecef(np.deg2rad(rx_lat), np.deg2rad(rx_lon), rx_h)
-    sats = geodetic_to_ecef(np.deg2rad(rng.uniform(-60, 80, (5, 7))), np.deg2rad(rng.uniform(-60, 70, (5, 7))),
-                            20_200_000.0)
+    sats = geodetic_to_ecef(
+        np.deg2rad(rng.uniform(-60, 80, (5, 7))), np.deg2rad(rng.uniform(-60, 70, (5, 7))), 20_200_000.0
+    )
     az, el = azimuth_elevation(rx, sats)
     raz, rel, _ = pymap3d.ecef2aer(sats[..., 0], sats[..., 1], sats[..., 2], rx_lat, rx_lon, rx_h)
     assert az.shape == (5, 7)
@@ -100,8 +101,10 @@ def _ray_sphere_reference(lat: float, lon: float, az: float, el: float, R: float
     return float(np.arcsin(hit[2] / np.linalg.norm(hit))), float(np.arctan2(hit[1], hit[0])), float(z)
 
 
-@pytest.mark.parametrize("lat,lon,az,el", [(-32.0, 116.0, 30.0, 15.0), (52.0, 4.4, 200.0, 45.0),
-                                           (80.0, -170.0, 10.0, 11.0), (-5.0, 179.5, 90.0, 20.0)])
+@pytest.mark.parametrize(
+    "lat,lon,az,el",
+    [(-32.0, 116.0, 30.0, 15.0), (52.0, 4.4, 200.0, 45.0), (80.0, -170.0, 10.0, 11.0), (-5.0, 179.5, 90.0, 20.0)],
+)
 def test_pierce_point_against_vector_geometry(lat: float, lon: float, az: float, el: float) -> None:
     R, H = 6_378_137.0, 450_000.0
     args = np.deg2rad([lat, lon, az, el])

@@ -31,17 +31,20 @@ from distnav.models.gnss.orbits import gps_seconds, synthetic_gps_constellation
 LAT0, LON0 = np.deg2rad(-32.0), np.deg2rad(116.0)
 
 
-def _geometry(n_epochs: int = 12, n_rx: int = 3, spread_km: float = 5.0, ionosphere: str = "common",
-              step_s: float = 60.0):
+def _geometry(
+    n_epochs: int = 12, n_rx: int = 3, spread_km: float = 5.0, ionosphere: str = "common", step_s: float = 60.0
+):
     const = synthetic_gps_constellation()
     t = float(gps_seconds(np.datetime64("2016-06-02T00:00:00", "ns"))) + step_s * np.arange(n_epochs)
     off = np.linspace(-spread_km, spread_km, n_rx) * 1e3 / 6.371e6
-    geo = ionosphere_geometry(const, t, lat_rad=LAT0 + off, lon_rad=LON0 + off[::-1], mask_deg=10.0,
-                              ionosphere=ionosphere)
+    geo = ionosphere_geometry(
+        const, t, lat_rad=LAT0 + off, lon_rad=LON0 + off[::-1], mask_deg=10.0, ionosphere=ionosphere
+    )
     seen = np.asarray(geo.tracked.any(axis=(0, 1))).tolist()
     svs = tuple(s for s, k in zip(geo.svs, seen, strict=True) if k)
-    geo = ionosphere_geometry(const, t, lat_rad=LAT0 + off, lon_rad=LON0 + off[::-1], mask_deg=10.0, svs=svs,
-                              ionosphere=ionosphere)
+    geo = ionosphere_geometry(
+        const, t, lat_rad=LAT0 + off, lon_rad=LON0 + off[::-1], mask_deg=10.0, svs=svs, ionosphere=ionosphere
+    )
     return geo
 
 
@@ -102,11 +105,11 @@ def _random_series(rng, with_obs=True, pivot_seen=True, per_receiver=False):
     tracked = rng.random((T, n, S)) < 0.7
     tracked[:, :, :2] = True
     tracked[1, 2] = False
-    tracked[1, 2, 5] = True            # one satellite alone: no difference
+    tracked[1, 2, 5] = True  # one satellite alone: no difference
     if not pivot_seen:
         tracked[:, :, 2] = False
     else:
-        tracked[2, 0, 2] = False       # pivot not tracked by node 0 at epoch 2
+        tracked[2, 0, 2] = False  # pivot not tracked by node 0 at epoch 2
     obs = rng.normal(size=(T, n, S)) * 5 if with_obs else None
     groups = np.array([2, 0, 1]) if per_receiver else None
     return GeometryFreeSeries(layout, coef, sig, obs_m=obs, tracked=tracked, groups=groups), layout
@@ -142,10 +145,16 @@ def test_normals_of_a_node_subset(rng):
 def test_receiver_bias_is_eliminated(rng):
     ser, layout = _random_series(rng)
     y = rng.normal(size=(4, 3, 7))
-    s1 = GeometryFreeSeries(layout, ser._a, 1 / np.sqrt(np.where(ser._w > 0, ser._w, 1.0)), obs_m=y,
-                            tracked=ser.tracked)
-    s2 = GeometryFreeSeries(layout, ser._a, 1 / np.sqrt(np.where(ser._w > 0, ser._w, 1.0)),
-                            obs_m=y + np.array([10.0, -3.0, 7.0])[None, :, None], tracked=ser.tracked)
+    s1 = GeometryFreeSeries(
+        layout, ser._a, 1 / np.sqrt(np.where(ser._w > 0, ser._w, 1.0)), obs_m=y, tracked=ser.tracked
+    )
+    s2 = GeometryFreeSeries(
+        layout,
+        ser._a,
+        1 / np.sqrt(np.where(ser._w > 0, ser._w, 1.0)),
+        obs_m=y + np.array([10.0, -3.0, 7.0])[None, :, None],
+        tracked=ser.tracked,
+    )
     for t in range(4):
         np.testing.assert_allclose(s1.normals(t)[1], s2.normals(t)[1], atol=1e-9)
 
@@ -260,8 +269,9 @@ def test_validation_errors():
     with pytest.raises(ModelError, match="lat_rad/lon_rad or receivers_ecef_m"):
         ionosphere_geometry(const, [0.0])
     with pytest.raises(ModelError, match="reference must be"):
-        differenced_observations(GeometryFreeSeries(layout, np.zeros((1, 1, 3, 3)), np.ones((1, 1, 3))),
-                                 reference="best")
+        differenced_observations(
+            GeometryFreeSeries(layout, np.zeros((1, 1, 3, 3)), np.ones((1, 1, 3))), reference="best"
+        )
 
 
 def test_docs_example_runs(capsys):

@@ -33,15 +33,36 @@ def test_dutch_network_ckf_equals_central(shared_data: Path, tmp_path: Path) -> 
     d, obs = _nl(shared_data)
     edges = tmp_path / "edges.csv"
     edges.write_text("a,b\nDELF,EIJS\nEIJS,ZEGV\nZEGV,WSRA\nWSRA,ROVN\n")  # a path: 4 hops end to end
-    args = _parser().parse_args(["ionosphere", "--obs", *obs, "--nav", str(d / "cbw10010.21n.gz"),
-                                 "--nav-max-age", "24", "--kn", "60", "--graph", str(edges), "--out", str(tmp_path),
-                                 "--no-progress", "--tec-rw", "0.001"])
+    args = _parser().parse_args(
+        [
+            "ionosphere",
+            "--obs",
+            *obs,
+            "--nav",
+            str(d / "cbw10010.21n.gz"),
+            "--nav-max-age",
+            "24",
+            "--kn",
+            "60",
+            "--graph",
+            str(edges),
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+            "--tec-rw",
+            "0.001",
+        ]
+    )
     # 52 minutes of data: paper 003's stiff random walk; the default 0.01 m/√s (made for full days) leaves
     # ν_o ± 0.6 m after 52 minutes, not enough to tell night-time TEC from the receiver biases
     assert args.func(args) == 0
     s = json.loads((tmp_path / "summary.json").read_text())
-    assert sorted(map(sorted, s["graph_links"])) == [["DELF", "EIJS"], ["EIJS", "ZEGV"], ["ROVN", "WSRA"],
-                                                     ["WSRA", "ZEGV"]]
+    assert sorted(map(sorted, s["graph_links"])) == [
+        ["DELF", "EIJS"],
+        ["EIJS", "ZEGV"],
+        ["ROVN", "WSRA"],
+        ["WSRA", "ZEGV"],
+    ]
     assert s["stations"] == ["DELF", "EIJS", "WSRA", "ZEGV", "ROVN"]
     assert s["datum"] == "zero-mean" and s["ionosphere"] == "common" and s["codes"] == {"L1": "C1C", "L2": "C2W"}
     v = s["final_tec_m"]["central"]["vtec_m"]
@@ -52,7 +73,7 @@ def test_dutch_network_ckf_equals_central(shared_data: Path, tmp_path: Path) -> 
             if np.isfinite(x):
                 assert s["final_dsb_ns"][f"ckf:{sta}"][k] == pytest.approx(x, abs=1e-3)
     sats = [x for k, x in s["final_dsb_ns"]["central"].items() if not k.startswith("rx:") and np.isfinite(x)]
-    assert abs(np.mean(sats)) < 1e-6            # zero-mean datum
+    assert abs(np.mean(sats)) < 1e-6  # zero-mean datum
     with (tmp_path / "dcb_final.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == len(s["stations"]) + len(s["satellites"]) and rows[0]["object"] == "rx:DELF"
@@ -60,11 +81,26 @@ def test_dutch_network_ckf_equals_central(shared_data: Path, tmp_path: Path) -> 
 
 def test_bele_dgar_receivers_and_satellites_against_cas(shared_data: Path, tmp_path: Path) -> None:
     d = shared_data / IGS
-    args = _parser().parse_args([
-        "ionosphere", "--obs", str(d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"), str(d / "dgar0100.24o.gz"),
-        "--nav", str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"), "--tlim", "2024-01-10T00:00",
-        "2024-01-10T03:00", "--interval", "120", "--bias", str(d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"),
-        "--out", str(tmp_path), "--no-progress"])
+    args = _parser().parse_args(
+        [
+            "ionosphere",
+            "--obs",
+            str(d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"),
+            str(d / "dgar0100.24o.gz"),
+            "--nav",
+            str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"),
+            "--tlim",
+            "2024-01-10T00:00",
+            "2024-01-10T03:00",
+            "--interval",
+            "120",
+            "--bias",
+            str(d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"),
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+        ]
+    )
     assert args.func(args) == 0
     s = json.loads((tmp_path / "summary.json").read_text())
     assert s["ionosphere"] == "per-receiver" and s["graph_links"] == [["BELE", "DGAR"]]
@@ -72,7 +108,7 @@ def test_bele_dgar_receivers_and_satellites_against_cas(shared_data: Path, tmp_p
     assert comp["n"] >= 15 and set(comp["receivers"]["difference_ns"]) == {"BELE", "DGAR"}
     ref = np.array([comp["reference_ns"][k] for k in comp["difference_ns"]])
     est = ref + np.array(list(comp["difference_ns"].values()))
-    assert np.corrcoef(ref, est)[0, 1] > 0.6      # three hours of code: the DCBs follow CAS's (spread ≈ 5 ns)
+    assert np.corrcoef(ref, est)[0, 1] > 0.6  # three hours of code: the DCBs follow CAS's (spread ≈ 5 ns)
     # no pivot to wait for: the receivers and every satellite tracked at the start are estimable from the second
     # epoch (at the first, one epoch of per-receiver ionospheres and biases is rank deficient)
     first = s["first_estimable_epoch"]
@@ -82,8 +118,18 @@ def test_bele_dgar_receivers_and_satellites_against_cas(shared_data: Path, tmp_p
 
 def test_pivot_datum_and_day_check(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     d = shared_data / IGS
-    common = ["gnss", "ionosphere", "--obs", str(d / "dgar0100.24o.gz"), "--nav", str(d / "brdc0100.24n.gz"),
-              "--tlim", "2024-01-10T00:00", "2024-01-10T00:30", "--no-progress"]
+    common = [
+        "gnss",
+        "ionosphere",
+        "--obs",
+        str(d / "dgar0100.24o.gz"),
+        "--nav",
+        str(d / "brdc0100.24n.gz"),
+        "--tlim",
+        "2024-01-10T00:00",
+        "2024-01-10T00:30",
+        "--no-progress",
+    ]
     assert main([*common, "--datum", "pivot", "--pivot", "G10", "--out", str(tmp_path / "p")]) == 0
     s = json.loads((tmp_path / "p" / "summary.json").read_text())
     assert s["final_dsb_ns"]["central"]["G10"] == pytest.approx(0.0, abs=1e-9)
@@ -95,47 +141,88 @@ def test_pivot_datum_and_day_check(shared_data: Path, tmp_path: Path, capsys: py
     assert main([*common, "--bias", str(other), "--allow-other-day", "--out", str(tmp_path / "r")]) == 0
 
 
-@pytest.mark.parametrize("option,message", [
-    (["--pivot", "hello"], "--pivot hello: not a GPS satellite"),
-    (["--pivot", "G99"], "--pivot G99: not a GPS satellite"),
-    (["--sigma", "0"], "--sigma 0: must be a positive number"),
-    (["--interval", "0"], "--interval 0: must be a positive number"),
-    (["--tlim", "2024-01-10T03:00", "2024-01-10T01:00"], "the start must be before the stop"),
-    (["--tlim", "yesterday", "2024-01-10T01:00"], "not ISO date/times"),
-    (["--l2-code", "C9X"], "--l2-code C9X: not a GPS L2 or L5 code"),
-    (["--l1-code", "C2W"], "--l1-code C2W: not a GPS L1 code"),
-    (["--exclude", "G1"], "--exclude G1: neither"),
-    (["--mask", "95"], "--mask 95"),
-])
-def test_options_validated_before_reading(tmp_path: Path, capsys: pytest.CaptureFixture[str], option: list[str],
-                                          message: str) -> None:
-    rc = main(["gnss", "ionosphere", "--obs", str(tmp_path / "absent.24o"), "--nav", str(tmp_path / "absent.nav"),
-               *option, "--out", str(tmp_path / "o")])
+@pytest.mark.parametrize(
+    "option,message",
+    [
+        (["--pivot", "hello"], "--pivot hello: not a GPS satellite"),
+        (["--pivot", "G99"], "--pivot G99: not a GPS satellite"),
+        (["--sigma", "0"], "--sigma 0: must be a positive number"),
+        (["--interval", "0"], "--interval 0: must be a positive number"),
+        (["--tlim", "2024-01-10T03:00", "2024-01-10T01:00"], "the start must be before the stop"),
+        (["--tlim", "yesterday", "2024-01-10T01:00"], "not ISO date/times"),
+        (["--l2-code", "C9X"], "--l2-code C9X: not a GPS L2 or L5 code"),
+        (["--l1-code", "C2W"], "--l1-code C2W: not a GPS L1 code"),
+        (["--exclude", "G1"], "--exclude G1: neither"),
+        (["--mask", "95"], "--mask 95"),
+    ],
+)
+def test_options_validated_before_reading(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], option: list[str], message: str
+) -> None:
+    rc = main(
+        [
+            "gnss",
+            "ionosphere",
+            "--obs",
+            str(tmp_path / "absent.24o"),
+            "--nav",
+            str(tmp_path / "absent.nav"),
+            *option,
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
     assert rc == 2
     err = capsys.readouterr().err
-    assert message in err and "absent" not in err       # failed on the option, not on the (missing) files
+    assert message in err and "absent" not in err  # failed on the option, not on the (missing) files
 
 
 def test_l5_code_and_c1c_warning(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     d = shared_data / IGS
-    rc = main(["gnss", "ionosphere", "--obs", str(d / "dgar0100.24o.gz"), "--nav", str(d / "brdc0100.24n.gz"),
-               "--tlim", "2024-01-10T00:00", "2024-01-10T00:30", "--l2-code", "C5Q", "--out", str(tmp_path)])
+    rc = main(
+        [
+            "gnss",
+            "ionosphere",
+            "--obs",
+            str(d / "dgar0100.24o.gz"),
+            "--nav",
+            str(d / "brdc0100.24n.gz"),
+            "--tlim",
+            "2024-01-10T00:00",
+            "2024-01-10T00:30",
+            "--l2-code",
+            "C5Q",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert rc == 0
     err = capsys.readouterr().err
     assert "WARNING: L1 code C1C" in err and "reading DGAR:" in err
     s = json.loads((tmp_path / "summary.json").read_text())
     assert s["band"] == 5 and s["codes"] == {"L1": "C1C", "L5": "C5Q"}
     vals = [v for k, v in s["final_dsb_ns"]["central"].items() if not k.startswith("rx:")]
-    assert len(vals) >= 5 and all(np.isfinite(vals))        # L5 satellites only, no NaN
+    assert len(vals) >= 5 and all(np.isfinite(vals))  # L5 satellites only, no NaN
     assert all(abs(v) < 60 for v in vals)
 
 
 def test_single_station_with_sp3(shared_data: Path, tmp_path: Path) -> None:
     d = shared_data / "gnss" / "esbc_2020177_single_station_L5_sp3"
-    args = _parser().parse_args([
-        "ionosphere", "--obs", str(d / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz"),
-        "--sp3", str(d / "GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz"),
-        "--tlim", "2020-06-25T10:00", "2020-06-25T10:20", "--out", str(tmp_path), "--no-progress"])
+    args = _parser().parse_args(
+        [
+            "ionosphere",
+            "--obs",
+            str(d / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz"),
+            "--sp3",
+            str(d / "GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz"),
+            "--tlim",
+            "2020-06-25T10:00",
+            "2020-06-25T10:20",
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+        ]
+    )
     assert args.func(args) == 0
     s = json.loads((tmp_path / "summary.json").read_text())
     assert s["stations"] == ["ESBC"] and s["epochs"] == 41
@@ -176,13 +263,45 @@ def test_c1_corrections_from_a_product(shared_data: Path, tmp_path: Path, capsys
     c = correct_c1(o, cas)
     assert c.codes[1] == "C1W" and "C1C corrected to C1W" in c.notes[-1]
     k = o.svs.index("G01")
-    dsb = read_bias_sinex(cas).satellite_dsb_ns("G01", "C1C", "C1W")   # CAS: −0.903 ns
+    dsb = read_bias_sinex(cas).satellite_dsb_ns("G01", "C1C", "C1W")  # CAS: −0.903 ns
     assert dsb == pytest.approx(-0.903)
     np.testing.assert_allclose(o.range_m[1][:, k] - c.range_m[1][:, k], 0.299792458 * dsb, atol=1e-6)
-    rc = main(["gnss", "ionosphere", "--obs", str(d / "dgar0100.24o.gz"), "--nav", str(d / "brdc0100.24n.gz"),
-               "--tlim", "2024-01-10T06:00", "2024-01-10T06:30", "--c1-corrections", str(cas), "--out",
-               str(tmp_path), "--no-progress"])
+    rc = main(
+        [
+            "gnss",
+            "ionosphere",
+            "--obs",
+            str(d / "dgar0100.24o.gz"),
+            "--nav",
+            str(d / "brdc0100.24n.gz"),
+            "--tlim",
+            "2024-01-10T06:00",
+            "2024-01-10T06:30",
+            "--c1-corrections",
+            str(cas),
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     assert "WARNING: L1 code C1C" not in capsys.readouterr().err
-    assert main(["gnss", "ionosphere", "--obs", str(d / "dgar0100.24o.gz"), "--nav", str(d / "brdc0100.24n.gz"),
-                 "--l1-code", "C1W", "--c1-corrections", str(cas), "--out", str(tmp_path)]) == 2
+    assert (
+        main(
+            [
+                "gnss",
+                "ionosphere",
+                "--obs",
+                str(d / "dgar0100.24o.gz"),
+                "--nav",
+                str(d / "brdc0100.24n.gz"),
+                "--l1-code",
+                "C1W",
+                "--c1-corrections",
+                str(cas),
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 2
+    )

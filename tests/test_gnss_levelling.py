@@ -18,7 +18,7 @@ def _one_satellite(rng: np.random.Generator, T: int = 240, code_sigma: float = 0
     """Range, a smooth ionosphere, codes with noise, phases with ambiguities (metres) for one satellite, 30 s."""
     t = 30.0 * np.arange(T)
     rho = 2.2e7 + 500.0 * np.sin(t / 3000.0)
-    iono = 3.0 + 1.5 * np.sin(t / 5000.0)                     # L1 slant delay [m]
+    iono = 3.0 + 1.5 * np.sin(t / 5000.0)  # L1 slant delay [m]
     p1 = rho + iono + 1.0 + code_sigma * rng.standard_normal(T)
     p2 = rho + mu(2) * iono - 2.0 + code_sigma * rng.standard_normal(T)
     n1, n2 = np.full(T, 1.0e6 * L1), np.full(T, 1.1e6 * L2)
@@ -39,7 +39,7 @@ def test_slips_start_new_arcs(rng: np.random.Generator, slip: tuple[int, int]) -
     truth = iono + (-2.0 - 1.0) / (mu(2) - 1.0)
     err = lev.gf_m[:, 0] - truth
     for a in lev.arcs:
-        seg = err[a.first:a.last + 1]
+        seg = err[a.first : a.last + 1]
         assert abs(seg.mean()) < 4 * a.offset_std_m + 1e-3 and seg.std() < 0.01
 
 
@@ -51,7 +51,7 @@ def test_no_false_slips_gaps_and_lli(rng: np.random.Generator) -> None:
     arc, outlier, reasons = find_arcs(t, g, mw)
     assert reasons == ["first"] and (arc == 0).all() and not outlier.any()
     g2 = g.copy()
-    g2[100:110] = np.nan                                       # a 5-minute gap
+    g2[100:110] = np.nan  # a 5-minute gap
     lli = np.zeros(t.size, np.int8)
     lli[200] = 1
     arc, _, reasons = find_arcs(t, g2, mw, lli)
@@ -61,7 +61,7 @@ def test_no_false_slips_gaps_and_lli(rng: np.random.Generator) -> None:
 def test_short_arcs_dropped_and_mw_outlier_removed(rng: np.random.Generator) -> None:
     t, rho, iono, p1, p2, n1, n2 = _one_satellite(rng, T=60)
     phi1, phi2 = rho - iono + n1, rho - mu(2) * iono + n2
-    p1[30] += 15.0                                              # one wild code value: an MW outlier, not a slip
+    p1[30] += 15.0  # one wild code value: an MW outlier, not a slip
     lev = level_station(t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None], screen=False)
     assert len(lev.arcs) == 1 and lev.removed[30, 0] and np.isnan(lev.gf_m[30, 0])
     lev = level_station(t[:8], ("G01",), p1[:8, None], p2[:8, None], phi1[:8, None], phi2[:8, None])
@@ -90,18 +90,23 @@ def test_real_rinex_levelled_noise_far_below_raw(shared_data: Path) -> None:
     from distnav.models.gnss.orbits import gps_seconds
     from distnav.models.gnss.rinex import read_code_observations
 
-    o = read_code_observations(shared_data / "gnss/igs_2024010_bele_dgar/dgar0100.24o.gz", bands=(1, 2),
-                               phases=True, tlim=("2024-01-10T06:00", "2024-01-10T09:00"))
-    lev = level_station(gps_seconds(o.time), o.svs, o.range_m[1], o.range_m[2], o.phase_m[1], o.phase_m[2],
-                        lli=o.lli[1] | o.lli[2])
+    o = read_code_observations(
+        shared_data / "gnss/igs_2024010_bele_dgar/dgar0100.24o.gz",
+        bands=(1, 2),
+        phases=True,
+        tlim=("2024-01-10T06:00", "2024-01-10T09:00"),
+    )
+    lev = level_station(
+        gps_seconds(o.time), o.svs, o.range_m[1], o.range_m[2], o.phase_m[1], o.phase_m[2], lli=o.lli[1] | o.lli[2]
+    )
     raw = (o.range_m[2] - o.range_m[1]) / (mu(2) - 1.0)
     step_raw = np.sqrt(np.nanmean(np.diff(raw, axis=0) ** 2))
     step_lev = np.sqrt(np.nanmean(np.diff(lev.gf_m, axis=0) ** 2))
-    assert step_lev < step_raw / 10                         # measured: 0.02–0.04 m vs ≈ 0.9 m
+    assert step_lev < step_raw / 10  # measured: 0.02–0.04 m vs ≈ 0.9 m
     assert len(lev.arcs) >= 10 and np.isfinite(lev.gf_m).sum() > 0.8 * np.isfinite(raw).sum()
     # the level of each arc is the code's: levelled minus raw averages to ~0 per arc
     for a in lev.arcs:
-        diff = (lev.gf_m - raw)[a.first:a.last + 1, o.svs.index(a.sv)]
+        diff = (lev.gf_m - raw)[a.first : a.last + 1, o.svs.index(a.sv)]
         assert abs(np.nanmean(diff)) < 5 * a.code_rms_m / np.sqrt(a.n_epochs) + 0.05
 
 

@@ -14,8 +14,11 @@ from distnav.models.gnss.multiday import combine_days
 
 def _summary(sat: dict[str, float], rx: dict[str, float], sd: float) -> dict[str, object]:
     vals = {**{f"rx:{k}": v for k, v in rx.items()}, **sat}
-    return {"final_dsb_ns": {"central": vals}, "final_dsb_std_realistic_ns": {"central": {k: sd for k in vals}},
-            "final_dsb_std_ns": {"central": {k: sd / 4 for k in vals}}}
+    return {
+        "final_dsb_ns": {"central": vals},
+        "final_dsb_std_realistic_ns": {"central": {k: sd for k in vals}},
+        "final_dsb_std_ns": {"central": {k: sd / 4 for k in vals}},
+    }
 
 
 def test_combination_aligns_datums_and_gives_repeatability() -> None:
@@ -40,13 +43,51 @@ def test_combination_aligns_datums_and_gives_repeatability() -> None:
 def test_days_need_their_navigation_file(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     d = shared_data / "gnss/igs_2024010_bele_dgar"
     days = [str(d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"), str(d / "BELE00BRA_R_20240110000_01D_30S_MO.crx.gz")]
-    rc = main(["gnss", "ionosphere", "--obs", *days, "--nav", str(d / "brdc0100.24n.gz"),
-               str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"),
-               "--out", str(tmp_path), "--no-progress"])
+    rc = main(
+        [
+            "gnss",
+            "ionosphere",
+            "--obs",
+            *days,
+            "--nav",
+            str(d / "brdc0100.24n.gz"),
+            str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"),
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+        ]
+    )
     assert rc == 2 and "no --nav file of 2024-01-11" in capsys.readouterr().err
-    rc = main(["gnss", "ionosphere", "--obs", *days, "--nav", str(d / "brdc0100.24n.gz"), "--tlim",
-               "2024-01-10T00:00", "2024-01-10T01:00", "--out", str(tmp_path), "--no-progress"])
+    rc = main(
+        [
+            "gnss",
+            "ionosphere",
+            "--obs",
+            *days,
+            "--nav",
+            str(d / "brdc0100.24n.gz"),
+            "--tlim",
+            "2024-01-10T00:00",
+            "2024-01-10T01:00",
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+        ]
+    )
     assert rc == 2 and "--tlim selects a window of one day" in capsys.readouterr().err
-    rc = main(["gnss", "ionosphere", "--obs", *days, "--nav", str(d / "brdc0100.24n.gz"), str(d / "brdc0110.24n.gz"),
-               str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"), "--out", str(tmp_path), "--no-progress"])
+    rc = main(
+        [
+            "gnss",
+            "ionosphere",
+            "--obs",
+            *days,
+            "--nav",
+            str(d / "brdc0100.24n.gz"),
+            str(d / "brdc0110.24n.gz"),
+            str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"),
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+        ]
+    )
     assert rc == 2 and "two --nav files of the same day" in capsys.readouterr().err

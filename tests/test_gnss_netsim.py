@@ -34,17 +34,19 @@ def test_observables_carry_the_ionosphere_and_the_biases() -> None:
     f = mu(2) - 1.0
     gp = (o.range_m[2] - o.range_m[1]) / f
     gphi = (o.phase_m[1] - o.phase_m[2]) / f
-    j = int(np.argmax(np.isfinite(gp).sum(axis=0)))              # the longest-tracked satellite
+    j = int(np.argmax(np.isfinite(gp).sum(axis=0)))  # the longest-tracked satellite
     ok = np.isfinite(gp[:, j])
     d_code, d_phase = np.diff(gp[ok, j]), np.diff(gphi[ok, j])
     run = np.diff(np.flatnonzero(ok)) == 1
-    assert np.median(np.abs(d_code[run] - d_phase[run])) < 0.05      # 1 cm code noise (/sin θ) …
-    assert np.abs(d_code[run] - d_phase[run]).max() < 1.0            # … and no cycle slip within the arc
-    assert np.abs(gp[ok, j]).max() > 0.3                             # the ionosphere is there (metres of L1 delay)
+    assert np.median(np.abs(d_code[run] - d_phase[run])) < 0.05  # 1 cm code noise (/sin θ) …
+    assert np.abs(d_code[run] - d_phase[run]).max() < 1.0  # … and no cycle slip within the arc
+    assert np.abs(gp[ok, j]).max() > 0.3  # the ionosphere is there (metres of L1 delay)
     # the slant delay stays within the VTEC field's range × the largest slant factor (≈ 3 at 5°)
     fld = VtecField()
-    assert np.nanmax(gp[:, j] + 1e-9 * 299792458.0 * (sim.satellite_dsb_ns[o.svs[j]] + 4.0) / f) \
+    assert (
+        np.nanmax(gp[:, j] + 1e-9 * 299792458.0 * (sim.satellite_dsb_ns[o.svs[j]] + 4.0) / f)
         < 3.1 * (fld.night_tecu + fld.day_tecu) * TECU_L1_M * 1.2
+    )
 
 
 def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
@@ -57,25 +59,26 @@ def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
     data = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, min_satellite_obs=30)
     assert set(strict.layout.svs) < set(data.layout.svs)
     assert all(s in named[0] for s in set(data.layout.svs) - set(strict.layout.svs))
-    assert data.ionosphere == "common"                               # 200 km apart: one regional layer
+    assert data.ionosphere == "common"  # 200 km apart: one regional layer
     series, _ = run_bias_filters(data, local=False)
     c = series[0]
     sat, rx, sd = final_dsbs(data, c)
     names = [f"rx:{r}" for r in data.stations] + list(data.layout.svs)
     r = compare_in_datum(sat, rx, truth_product(sim), exclude=["G01"])
     assert r["n"] >= 12
-    assert r["rms_zero_mean_ns"] < 0.6                               # 4 h, two receivers
+    assert r["rms_zero_mean_ns"] < 0.6  # 4 h, two receivers
     assert max(abs(v) for v in r["receivers"]["difference_ns"].values()) < 0.7
     z = np.array([d / sd[s] for s, d in r["difference_ns"].items()])
-    assert np.sqrt(np.mean(z**2)) < 3.0                              # the realistic σ is not wildly optimistic
+    assert np.sqrt(np.mean(z**2)) < 3.0  # the realistic σ is not wildly optimistic
     # the Precision payload: its diagonal is the formal σ², the a-posteriori σ the realistic one, and the
     # zero-mean datum makes the sum of the satellite DSBs a constant (no variance)
     prec = c.precision
     assert prec is not None and prec.kind == "centralized" and prec.covariance.shape == (1, len(names), len(names))
     np.testing.assert_allclose(prec.std()[0], c.dsb_std_ns[-1], rtol=1e-9, equal_nan=True)
-    np.testing.assert_allclose(prec.std(a_posteriori=True)[0], c.dsb_std_ns[-1] * c.realistic_factor, rtol=1e-9,
-                               equal_nan=True)
-    C = prec.covariance[0][len(data.stations):, len(data.stations):]
+    np.testing.assert_allclose(
+        prec.std(a_posteriori=True)[0], c.dsb_std_ns[-1] * c.realistic_factor, rtol=1e-9, equal_nan=True
+    )
+    C = prec.covariance[0][len(data.stations) :, len(data.stations) :]
     ok = np.isfinite(np.diag(C))
     assert abs(C[np.ix_(ok, ok)].sum()) < 1e-9 * np.trace(C[np.ix_(ok, ok)])
     worst = satellite_fit(data, c).worst()
@@ -113,8 +116,9 @@ def test_ckf_receivers_screen_their_own_innovations() -> None:
     from distnav.commands.gnss import default_graph
 
     orbit, sim = _sim(hours=2.0, gross_fraction=0.01, gross_station="SIMB", svn49=None)
-    data = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, levelling=False,
-                                     screen=False)
+    data = network_from_observations(
+        sim.observations, orbit, l2_code="C2W", interval_s=60.0, levelling=False, screen=False
+    )
     graph = default_graph(data.positions_ecef_m, data.stations)
     truth = truth_product(sim)
     rms = {}
@@ -127,8 +131,8 @@ def test_ckf_receivers_screen_their_own_innovations() -> None:
         if level is not None:
             it = ckf.innovation_tests
             removed = it.node[np.asarray(it.removed, np.int64)]
-            assert (removed == 1).sum() >= 5                          # found at SIMB, which holds the errors …
-            assert (removed == 1).sum() > 3 * (removed == 0).sum()      # … far more than at the clean SIMA
+            assert (removed == 1).sum() >= 5  # found at SIMB, which holds the errors …
+            assert (removed == 1).sum() > 3 * (removed == 0).sum()  # … far more than at the clean SIMA
     assert rms[0.001] < rms[None]
 
 
@@ -151,7 +155,7 @@ def test_realistic_preset_is_noisier_but_consistent() -> None:
     """The realistic preset: the TIDs and irregularities are ionosphere (the geometry-free code follows the phase
     epoch to epoch as before, no slips), the multipath left after levelling is larger, the second station's
     (×1.4) larger than the first's, and part of the multipath differs from one day to the next."""
-    orbit, plain = _sim(code_sigma_m=(0.0, 0.0), svn49=None)                    # multipath only
+    orbit, plain = _sim(code_sigma_m=(0.0, 0.0), svn49=None)  # multipath only
     _, real = _sim(**{**REALISTIC, "code_sigma_m": (0.0, 0.0), "svn49": None})
     o = real.observations[0]
     f = mu(2) - 1.0
@@ -165,9 +169,17 @@ def test_realistic_preset_is_noisier_but_consistent() -> None:
     quiet = {"code_sigma_m": (0.0, 0.0), "svn49": None, "multipath_el_scale_deg": 20.0}
 
     def code(seed: int, fraction: float) -> np.ndarray:
-        s = simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(seed), stations=TWO, hours=1.0,
-                             satellite_dsb_ns=dict.fromkeys(orbit.svs, 0.0), receiver_dsb_ns={"SIMA": 0, "SIMB": 0},
-                             multipath_day_fraction=fraction, **quiet)
+        s = simulate_network(
+            orbit,
+            "2024-01-10",
+            rng=np.random.default_rng(seed),
+            stations=TWO,
+            hours=1.0,
+            satellite_dsb_ns=dict.fromkeys(orbit.svs, 0.0),
+            receiver_dsb_ns={"SIMA": 0, "SIMB": 0},
+            multipath_day_fraction=fraction,
+            **quiet,
+        )
         return s.observations[0].range_m[1]
 
     assert np.nanmax(np.abs(code(1, 0.0) - code(2, 0.0))) < 1e-9
@@ -203,7 +215,7 @@ def test_station_weights_follow_the_stations_noise() -> None:
     ratio = on.sigma_m / off.sigma_m
     tr = on.geometry.tracked
     fa, fb = float(np.median(ratio[:, 0][tr[:, 0]])), float(np.median(ratio[:, 1][tr[:, 1]]))
-    assert 1.6 < fb / fa < 2.4 and abs(fa * fb - 1.0) < 1e-9                 # geometric mean 1
+    assert 1.6 < fb / fa < 2.4 and abs(fa * fb - 1.0) < 1e-9  # geometric mean 1
     assert any(n.startswith("station σ factors") for n in on.notes)
     assert not any(n.startswith("station σ factors") for n in off.notes + per.notes)
     np.testing.assert_array_equal(per.sigma_m, off.sigma_m)

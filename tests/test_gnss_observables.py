@@ -55,10 +55,11 @@ def test_variance_propagation_monte_carlo(rng: np.random.Generator) -> None:
     C = combination_matrix()
     Q = combination_covariance(C, q)
     assert np.allclose(Q, Q.T)
-    assert abs(Q[0, 1]) > 0.1 * np.sqrt(Q[0, 0] * Q[1, 1])           # IF and GF are correlated
+    assert abs(Q[0, 1]) > 0.1 * np.sqrt(Q[0, 0] * Q[1, 1])  # IF and GF are correlated
     e = rng.normal(size=(200_000, 3)) * sig
-    samples = np.stack([ionosphere_free(e[:, 0], e[:, 1]), geometry_free(e[:, 0], e[:, 1]),
-                        codebias_observable(*e.T)], axis=1)
+    samples = np.stack(
+        [ionosphere_free(e[:, 0], e[:, 1]), geometry_free(e[:, 0], e[:, 1]), codebias_observable(*e.T)], axis=1
+    )
     emp = np.cov(samples.T)
     assert np.allclose(emp, Q, rtol=0.02, atol=2e-4)
     # vector-of-variances input and stacked input give the same
@@ -72,7 +73,7 @@ def test_between_satellite_operator_eq26() -> None:
     assert np.array_equal(between_satellite_operator(3).T, [[-1, 1, 0], [-1, 0, 1]])
     assert np.array_equal(between_satellite_operator(4).T, [[-1, 1, 0, 0], [-1, 0, 1, 0], [-1, 0, 0, 1]])
     d = between_satellite_operator(5)
-    assert np.allclose(np.ones(5) @ d, 0.0)                              # receiver terms cancel
+    assert np.allclose(np.ones(5) @ d, 0.0)  # receiver terms cancel
     with pytest.raises(ModelError, match="at least one satellite"):
         between_satellite_operator(0)
 

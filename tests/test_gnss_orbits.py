@@ -74,8 +74,9 @@ def test_synthetic_subset_and_unknown() -> None:
     sc = synthetic_gps_constellation()
     sub = sc.subset(["G24", "G01"])
     assert sub.svs == ("G24", "G01")
-    assert np.allclose(sub.positions_ecef(np.array([sc.epoch_gps_s])),
-                       sc.positions_ecef(np.array([sc.epoch_gps_s]), ["G24", "G01"]))
+    assert np.allclose(
+        sub.positions_ecef(np.array([sc.epoch_gps_s])), sc.positions_ecef(np.array([sc.epoch_gps_s]), ["G24", "G01"])
+    )
     with pytest.raises(ModelError, match="unknown satellites"):
         sc.subset(["G01", "G99"])
     assert np.isnan(sc.positions_ecef(np.array([sc.epoch_gps_s]), ["G01", "G99"])[0, 1]).all()
@@ -94,12 +95,13 @@ def test_broadcast_against_sp3_metres(esbc_orbits: tuple[BroadcastOrbit, SP3Orbi
     interval. Broadcast orbits refer to the antenna phase centre, SP3 to the centre of mass (≈1 m apart) and
     the broadcast orbit error is ~1 m: metres-level agreement expected."""
     nav, sp3 = esbc_orbits
-    t = gps_seconds(np.arange(np.datetime64("2020-06-25T00:00"), np.datetime64("2020-06-25T23:50"),
-                              np.timedelta64(7, "m")))
+    t = gps_seconds(
+        np.arange(np.datetime64("2020-06-25T00:00"), np.datetime64("2020-06-25T23:50"), np.timedelta64(7, "m"))
+    )
     gps = [s for s in sp3.svs if s.startswith("G")]
     d = np.linalg.norm(nav.positions_ecef(t, gps) - sp3.positions_ecef(t, gps), axis=-1)
     ok = np.isfinite(d)
-    assert ok.sum() > 3000                          # most satellite-epochs have a record within 2 h
+    assert ok.sum() > 3000  # most satellite-epochs have a record within 2 h
     rms = float(np.sqrt(np.mean(d[ok] ** 2)))
     assert 0.3 < rms < 2.5
     assert d[ok].max() < 6.0
@@ -116,8 +118,8 @@ def test_broadcast_clock_against_sp3(shared_data: Path, esbc_orbits: tuple[Broad
         ds = gr.load(shared_data / ESBC / "GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz")
     t = gps_seconds(ds.time.values)
     svs = [s for s in ds.sv.values.tolist() if s.startswith("G")]
-    clk_sp3 = np.asarray(ds["clock"].sel(sv=svs).values) * 1e-6          # µs → s
-    clk_brd = nav.clock_offsets_s(t, svs, relativistic=False)   # IGS clocks exclude the periodic term
+    clk_sp3 = np.asarray(ds["clock"].sel(sv=svs).values) * 1e-6  # µs → s
+    clk_brd = nav.clock_offsets_s(t, svs, relativistic=False)  # IGS clocks exclude the periodic term
     diff = clk_brd - clk_sp3
     ok = np.isfinite(diff) & (np.abs(clk_sp3) < 1e-2)
     # SP3 clocks and broadcast clocks differ by a constellation-wide datum offset plus ~ns errors
@@ -135,8 +137,9 @@ def test_rinex2_and_rinex3_navigation_agree(shared_data: Path) -> None:
     d = shared_data / IGS
     n3 = read_navigation(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz")
     n2 = read_navigation(d / "brdc0100.24n.gz")
-    t = gps_seconds(np.arange(np.datetime64("2024-01-10T01:00"), np.datetime64("2024-01-10T23:00"),
-                              np.timedelta64(10, "m")))
+    t = gps_seconds(
+        np.arange(np.datetime64("2024-01-10T01:00"), np.datetime64("2024-01-10T23:00"), np.timedelta64(10, "m"))
+    )
     common = [s for s in n2.svs if s in n3.svs]
     assert len(common) >= 28
     p2, p3 = n2.positions_ecef(t, common), n3.positions_ecef(t, common)
@@ -173,14 +176,39 @@ def test_orbit_validation_errors(esbc_orbits: tuple[BroadcastOrbit, SP3Orbit]) -
     with pytest.raises(ModelError, match="none of the satellites"):
         sp3.positions_ecef(t, ["G99", "E99"])
     # BroadcastOrbit: missing fields, no GPS satellite, no healthy record
-    ds = xr.Dataset({"sqrtA": (("time", "sv"), np.ones((1, 1)))},
-                    coords={"time": [np.datetime64("2020-06-25T00:00")], "sv": ["G01"]})
+    ds = xr.Dataset(
+        {"sqrtA": (("time", "sv"), np.ones((1, 1)))},
+        coords={"time": [np.datetime64("2020-06-25T00:00")], "sv": ["G01"]},
+    )
     with pytest.raises(DataFileError, match="not a GPS navigation file"):
         BroadcastOrbit.from_dataset(ds, source="x.nav")
-    fields = {f: (("time", "sv"), np.ones((1, 1))) for f in
-              ("Toe", "GPSWeek", "sqrtA", "Eccentricity", "M0", "DeltaN", "omega", "Omega0", "OmegaDot", "Io",
-               "IDOT", "Cuc", "Cus", "Crc", "Crs", "Cic", "Cis", "SVclockBias", "SVclockDrift", "SVclockDriftRate",
-               "TGD", "health")}
+    fields = {
+        f: (("time", "sv"), np.ones((1, 1)))
+        for f in (
+            "Toe",
+            "GPSWeek",
+            "sqrtA",
+            "Eccentricity",
+            "M0",
+            "DeltaN",
+            "omega",
+            "Omega0",
+            "OmegaDot",
+            "Io",
+            "IDOT",
+            "Cuc",
+            "Cus",
+            "Crc",
+            "Crs",
+            "Cic",
+            "Cis",
+            "SVclockBias",
+            "SVclockDrift",
+            "SVclockDriftRate",
+            "TGD",
+            "health",
+        )
+    }
     sick = xr.Dataset(fields, coords={"time": [np.datetime64("2020-06-25T00:00")], "sv": ["G01"]})
     with pytest.raises(DataFileError, match="no healthy GPS ephemeris"):
         BroadcastOrbit.from_dataset(sick, source="x.nav")

@@ -41,9 +41,16 @@ def _independent_parse(text: str) -> tuple[list[str], dict[str, tuple[float, flo
 
 
 def test_bias_sinex_round_trip_two_parsers(tmp_path: Path) -> None:
-    path = write_bias_sinex(tmp_path / "x.bia.gz", obs1="C1C", obs2="C2W", start="2024-01-10T00:00",
-                            end="2024-01-11T00:00", satellites=SATS, stations={**STAS, "XXXX": (np.nan, 1.0)},
-                            created="2024-01-12T13:45:56")
+    path = write_bias_sinex(
+        tmp_path / "x.bia.gz",
+        obs1="C1C",
+        obs2="C2W",
+        start="2024-01-10T00:00",
+        end="2024-01-11T00:00",
+        satellites=SATS,
+        stations={**STAS, "XXXX": (np.nan, 1.0)},
+        created="2024-01-12T13:45:56",
+    )
     text = gzip.decompress(path.read_bytes()).decode("ascii")
     first = text.splitlines()[0]
     assert first == "%=BIA 1.00 DNV 2024:012:49556 DNV 2024:010:00000 2024:011:00000 R 00000005"
@@ -54,7 +61,7 @@ def test_bias_sinex_round_trip_two_parsers(tmp_path: Path) -> None:
     assert {"FILE/REFERENCE", "FILE/COMMENT", "BIAS/DESCRIPTION", "BIAS/SOLUTION"} <= set(info)
     assert sat == {k: (round(v, 4), round(s, 4)) for k, (v, s) in SATS.items()}
     assert sta == STAS
-    prod = read_bias_sinex(path)                           # the project's fixed-column reader
+    prod = read_bias_sinex(path)  # the project's fixed-column reader
     assert prod.agency == "DNV"
     for k, (v, _) in SATS.items():
         assert prod.satellite_dsb_ns(k, "C1C", "C2W") == pytest.approx(round(v, 4), abs=1e-12)
@@ -74,14 +81,16 @@ def _ionex(tmp_path: Path) -> Path:
     def line(content: str, label: str) -> str:
         return f"{content:<60}{label}\n"
 
-    text = (line("     1.0            IONOSPHERE MAPS     GPS", "IONEX VERSION / TYPE")
-            + line("DIFFERENTIAL CODE BIASES", "START OF AUX DATA")
-            + line("   G01    -7.187     0.010", "PRN / BIAS / RMS")
-            + line("   G05     2.500     0.012", "PRN / BIAS / RMS")
-            + line("   G32    -1.000     0.011", "PRN / BIAS / RMS")
-            + line("   G  BELE 41622M001         1.200     0.050", "STATION / BIAS / RMS")
-            + line("DIFFERENTIAL CODE BIASES", "END OF AUX DATA")
-            + line("", "END OF HEADER"))
+    text = (
+        line("     1.0            IONOSPHERE MAPS     GPS", "IONEX VERSION / TYPE")
+        + line("DIFFERENTIAL CODE BIASES", "START OF AUX DATA")
+        + line("   G01    -7.187     0.010", "PRN / BIAS / RMS")
+        + line("   G05     2.500     0.012", "PRN / BIAS / RMS")
+        + line("   G32    -1.000     0.011", "PRN / BIAS / RMS")
+        + line("   G  BELE 41622M001         1.200     0.050", "STATION / BIAS / RMS")
+        + line("DIFFERENTIAL CODE BIASES", "END OF AUX DATA")
+        + line("", "END OF HEADER")
+    )
     path = tmp_path / "codg0100.24i"
     path.write_text(text)
     return path
@@ -106,19 +115,52 @@ def test_ionex_aux_block_and_datum_alignment(tmp_path: Path) -> None:
     assert compare_in_datum(est_sat, est_rx, empty)["n"] == 0
 
 
-def test_compare_command_on_ionosphere_output(shared_data: Path, tmp_path: Path,
-                                              capsys: pytest.CaptureFixture[str]) -> None:
+def test_compare_command_on_ionosphere_output(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     d = shared_data / "gnss/igs_2024010_bele_dgar"
     out = tmp_path / "iono"
-    assert main(["gnss", "ionosphere", "--obs", str(d / "dgar0100.24o.gz"), "--nav", str(d / "brdc0100.24n.gz"),
-                 "--tlim", "2024-01-10T06:00", "2024-01-10T07:00", "--interval", "60", "--out", str(out),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "gnss",
+                "ionosphere",
+                "--obs",
+                str(d / "dgar0100.24o.gz"),
+                "--nav",
+                str(d / "brdc0100.24n.gz"),
+                "--tlim",
+                "2024-01-10T06:00",
+                "2024-01-10T07:00",
+                "--interval",
+                "60",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert (out / "distnav_dsb.bia").exists()
     cas = d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"
     summary = json.loads((out / "summary.json").read_text())
     for est in (out, out / "distnav_dsb.bia"):
-        assert main(["gnss", "compare", "--estimates", str(est), "--bias", str(cas), str(_ionex(tmp_path)),
-                     "--out", str(tmp_path / "cmp")]) == 0
+        assert (
+            main(
+                [
+                    "gnss",
+                    "compare",
+                    "--estimates",
+                    str(est),
+                    "--bias",
+                    str(cas),
+                    str(_ionex(tmp_path)),
+                    "--out",
+                    str(tmp_path / "cmp"),
+                ]
+            )
+            == 0
+        )
         res = json.loads((tmp_path / "cmp" / "comparison.json").read_text())
         r = res["products"][next(k for k in res["products"] if k.startswith("CAS"))]
         assert r["n"] >= 8 and "DGAR" in r["receivers"]["difference_ns"]
@@ -126,8 +168,9 @@ def test_compare_command_on_ionosphere_output(shared_data: Path, tmp_path: Path,
         common = [s for s in r["difference_ns"]]
         ref = np.array([r["reference_ns"][s] for s in common])
         back = np.array([ours[s] for s in common])
-        np.testing.assert_allclose(back - ref - r["datum_offset_ns"], [r["difference_ns"][s] for s in common],
-                                   atol=2e-4)        # the Bias-SINEX file rounds to 0.1 ps
+        np.testing.assert_allclose(
+            back - ref - r["datum_offset_ns"], [r["difference_ns"][s] for s in common], atol=2e-4
+        )  # the Bias-SINEX file rounds to 0.1 ps
     capsys.readouterr()
     other = d / "CAS0OPSRAP_20240110000_01D_01D_DCB.BIA.gz"
     assert main(["gnss", "compare", "--estimates", str(out), "--bias", str(other)]) == 2

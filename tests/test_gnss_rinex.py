@@ -19,7 +19,7 @@ def test_rinex2_values_match_the_file_text(shared_data: Path) -> None:
     G07: C1 24178026.635, P1 24178026.139, P2 24178024.181, no C5; G08: C5 21866747.537."""
     o = read_code_observations(shared_data / NL / "zegv0010.21o")
     assert o.station == "ZEGV"
-    assert o.codes == {1: "C1C", 2: "C2W", 5: "C5Q"}               # Septentrio: RINEX 2 C5 = C5Q
+    assert o.codes == {1: "C1C", 2: "C2W", 5: "C5Q"}  # Septentrio: RINEX 2 C5 = C5Q
     assert any("C5 read as C5Q" in n for n in o.notes)
     assert o.time[0] == np.datetime64("2021-01-01T00:00:00")
     g07, g08 = o.svs.index("G07"), o.svs.index("G08")
@@ -44,17 +44,38 @@ def test_hatanaka_rinex2_and_two_bands(shared_data: Path) -> None:
 
 
 def test_rinex3_hatanaka_gzip_time_window(shared_data: Path) -> None:
-    o = read_code_observations(shared_data / IGS / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz",
-                               tlim=("2024-01-10T00:00", "2024-01-10T00:20"))
+    o = read_code_observations(
+        shared_data / IGS / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", tlim=("2024-01-10T00:00", "2024-01-10T00:20")
+    )
     assert o.station == "BELE"
     assert o.codes == {1: "C1C", 2: "C2W", 5: "C5X"}
     assert o.rinex_version == pytest.approx(3.05)
     assert o.n_epochs == 41
-    assert set(o.satellites_with_all_bands()) <= {"G01", "G03", "G04", "G06", "G08", "G09", "G10", "G11", "G14",
-                                                  "G18", "G23", "G24", "G25", "G26", "G28", "G30", "G32"}
+    assert set(o.satellites_with_all_bands()) <= {
+        "G01",
+        "G03",
+        "G04",
+        "G06",
+        "G08",
+        "G09",
+        "G10",
+        "G11",
+        "G14",
+        "G18",
+        "G23",
+        "G24",
+        "G25",
+        "G26",
+        "G28",
+        "G30",
+        "G32",
+    }
     assert len(o.satellites_with_all_bands()) >= 5
-    dec = read_code_observations(shared_data / IGS / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz",
-                                 tlim=("2024-01-10T00:00", "2024-01-10T00:20"), interval_s=300)
+    dec = read_code_observations(
+        shared_data / IGS / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz",
+        tlim=("2024-01-10T00:00", "2024-01-10T00:20"),
+        interval_s=300,
+    )
     assert dec.n_epochs == 5
 
 
@@ -62,8 +83,11 @@ def test_missing_band_names_file_and_types(shared_data: Path) -> None:
     with pytest.raises(DataFileError, match=r"delf0010\.21o: no L5 code observation.*types present"):
         read_code_observations(shared_data / NL / "delf0010.21o")
     with pytest.raises(DataFileError, match=r"BELE.*no L1 code observation \(C1W\)"):
-        read_code_observations(shared_data / IGS / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz",
-                               codes={1: "C1W"}, tlim=("2024-01-10T00:00", "2024-01-10T00:01"))
+        read_code_observations(
+            shared_data / IGS / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz",
+            codes={1: "C1W"},
+            tlim=("2024-01-10T00:00", "2024-01-10T00:01"),
+        )
 
 
 def test_unreadable_files(tmp_path: Path) -> None:

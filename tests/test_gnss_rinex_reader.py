@@ -18,10 +18,13 @@ NL = "gnss/nl_2021001_short_network_snapshot"
 WINDOW = (np.datetime64("2024-01-10T03:00"), np.datetime64("2024-01-10T03:30"))
 
 
-@pytest.mark.parametrize("name,types", [
-    ("BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", ["C1C", "C2W", "C5X", "L1C", "L2W"]),   # RINEX 3, Hatanaka
-    ("dgar0100.24o.gz", ["C1", "P1", "P2", "C5", "L1", "L2"]),                             # RINEX 2.11, mixed
-])
+@pytest.mark.parametrize(
+    "name,types",
+    [
+        ("BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", ["C1C", "C2W", "C5X", "L1C", "L2W"]),  # RINEX 3, Hatanaka
+        ("dgar0100.24o.gz", ["C1", "P1", "P2", "C5", "L1", "L2"]),  # RINEX 2.11, mixed
+    ],
+)
 def test_values_equal_georinex(shared_data: Path, name: str, types: list[str]) -> None:
     gr = pytest.importorskip("georinex")
     path = shared_data / IGS / name
@@ -54,8 +57,9 @@ def test_latin1_byte_in_header_is_accepted(shared_data: Path, tmp_path: Path) ->
 
 def test_progress_callback_and_phases(shared_data: Path) -> None:
     seen: list[tuple[str, float]] = []
-    o = read_code_observations(shared_data / NL / "zegv0010.21o", phases=True,
-                               progress=lambda label, f: seen.append((label, f)))
+    o = read_code_observations(
+        shared_data / NL / "zegv0010.21o", phases=True, progress=lambda label, f: seen.append((label, f))
+    )
     assert seen and seen[-1] == ("ZEGV", 1.0) and all(0 <= f <= 1 for _, f in seen)
     assert o.phase_types == {1: "L1", 2: "L2", 5: "L5"}
     # geometry-free phase and code of the same satellite agree up to a constant of metres, never kilometres
@@ -67,9 +71,11 @@ def test_progress_callback_and_phases(shared_data: Path) -> None:
 
 
 def test_bad_records_name_the_line(tmp_path: Path) -> None:
-    head = ("     3.04           OBSERVATION DATA    G                   RINEX VERSION / TYPE\n"
-            "G    2 C1C C2W                                              SYS / # / OBS TYPES\n"
-            "                                                            END OF HEADER\n")
+    head = (
+        "     3.04           OBSERVATION DATA    G                   RINEX VERSION / TYPE\n"
+        "G    2 C1C C2W                                              SYS / # / OBS TYPES\n"
+        "                                                            END OF HEADER\n"
+    )
     p = tmp_path / "bad.rnx"
     p.write_text(head + "> 2024 01 10 00 00 xx.0000000  0  1\nG01  22000000.000    22000001.000\n")
     with pytest.raises(DataFileError, match=r"bad\.rnx, line 4: the epoch: expected year month day"):
@@ -81,30 +87,34 @@ def test_bad_records_name_the_line(tmp_path: Path) -> None:
         read_observation_types(p, ["C1C"])
 
 
-@pytest.mark.parametrize("types", [["C1", "P1", "P2", "L1", "L2"],
-                                   ["C1", "P1", "P2", "L1", "L2", "S1", "S2", "C2", "C5", "L5"]])
+@pytest.mark.parametrize(
+    "types", [["C1", "P1", "P2", "L1", "L2"], ["C1", "P1", "P2", "L1", "L2", "S1", "S2", "C2", "C5", "L5"]]
+)
 def test_rinex2_types_stop_at_the_label(tmp_path: Path, types: list[str]) -> None:
     """5 or 10 RINEX 2 types (a full last line): the header label is not read as an extra type (it was: '# /',
     and every record of the file was then misaligned by one line per satellite)."""
+
     def line(content: str, label: str) -> str:
         return f"{content:<60}{label}\n"
 
-    rows = [types[i:i + 9] for i in range(0, len(types), 9)]
+    rows = [types[i : i + 9] for i in range(0, len(types), 9)]
     head = line("     2.11           OBSERVATION DATA    G (GPS)", "RINEX VERSION / TYPE")
     for k, row in enumerate(rows):
-        head += line((f"{len(types):6d}" if k == 0 else " " * 6) + "".join(f"{t:>6}" for t in row),
-                     "# / TYPES OF OBSERV")
+        head += line(
+            (f"{len(types):6d}" if k == 0 else " " * 6) + "".join(f"{t:>6}" for t in row), "# / TYPES OF OBSERV"
+        )
     head += line("", "END OF HEADER")
     n_lines = (len(types) + 4) // 5
     rec = ""
-    for base in (21e6, 22e6):                                     # G01, G07
+    for base in (21e6, 22e6):  # G01, G07
         vals = [base + 10.0 * j for j in range(len(types))]
         fields = "".join(f"{v:14.3f}  " for v in vals)
-        rec += "".join(fields[80 * i:80 * (i + 1)] + "\n" for i in range(n_lines))
+        rec += "".join(fields[80 * i : 80 * (i + 1)] + "\n" for i in range(n_lines))
     p = tmp_path / "site0100.24o"
-    p.write_text(head + " 24  1 10  0  0  0.0000000  0  2G01G07\n" + rec
-                 + " 24  1 10  0  0 30.0000000  0  2G01G07\n" + rec)
+    p.write_text(
+        head + " 24  1 10  0  0  0.0000000  0  2G01G07\n" + rec + " 24  1 10  0  0 30.0000000  0  2G01G07\n" + rec
+    )
     o = read_code_observations(p, bands=(1, 2), codes={1: "C1W", 2: "C2W"})
     assert o.n_epochs == 2 and o.svs[:2] == ("G01", "G07")
-    np.testing.assert_allclose(o.range_m[1][:, 0], 21e6 + 10.0)     # P1 is the 2nd type
-    np.testing.assert_allclose(o.range_m[2][:, 1], 22e6 + 20.0)     # P2 the 3rd
+    np.testing.assert_allclose(o.range_m[1][:, 0], 21e6 + 10.0)  # P1 is the 2nd type
+    np.testing.assert_allclose(o.range_m[2][:, 1], 22e6 + 20.0)  # P2 the 3rd

@@ -17,13 +17,18 @@ def test_gross_errors_at_one_station_move_no_dcb_by_more_than_0_1_ns(shared_data
 
     d = shared_data / IGS
     nav = read_navigation(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz", max_age_s=4 * 3600.0)
-    obs = read_stations([d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", d / "dgar0100.24o.gz"], l1_code="C1C",
-                        l2_code="C2W", phases=True, tlim=("2024-01-10T06:00", "2024-01-10T08:00"))
+    obs = read_stations(
+        [d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", d / "dgar0100.24o.gz"],
+        l1_code="C1C",
+        l2_code="C2W",
+        phases=True,
+        tlim=("2024-01-10T06:00", "2024-01-10T08:00"),
+    )
     rng = np.random.default_rng(7)
     dgar = obs[1]
     p1 = dgar.range_m[1].copy()
     ok = np.flatnonzero((np.isfinite(p1) & np.isfinite(dgar.range_m[2])).ravel())
-    pick = rng.choice(ok, size=max(int(0.002 * ok.size), 8), replace=False)   # 0.2 % (at least 8)
+    pick = rng.choice(ok, size=max(int(0.002 * ok.size), 8), replace=False)  # 0.2 % (at least 8)
     p1.ravel()[pick] += rng.choice([-1.0, 1.0], pick.size) * rng.uniform(3.0, 30.0, pick.size)
     bad = [obs[0], replace(dgar, range_m={1: p1, 2: dgar.range_m[2]})]
 
@@ -40,8 +45,8 @@ def test_gross_errors_at_one_station_move_no_dcb_by_more_than_0_1_ns(shared_data
     lev = data.levelled["DGAR"]
     t_bad, s_bad = np.unravel_index(pick, p1.shape)
     caught = lev.removed[t_bad, s_bad] | np.isnan(lev.gf_m[t_bad, s_bad])
-    assert caught.mean() > 0.9              # removed by the MW outlier test or the w-test screening
+    assert caught.mean() > 0.9  # removed by the MW outlier test or the w-test screening
     raw_clean, _ = dsb(obs, levelling=False)
     raw_dirty, _ = dsb(bad, levelling=False)
     raw_moved = np.array([raw_dirty[k] - raw_clean[k] for k in raw_clean if np.isfinite(raw_clean[k])])
-    assert np.abs(raw_moved).max() > np.abs(moved).max()    # without levelling + screening they do move
+    assert np.abs(raw_moved).max() > np.abs(moved).max()  # without levelling + screening they do move

@@ -24,10 +24,9 @@ def test_second_order_coefficients_and_mslm_mapping() -> None:
     orbit = synthetic_gps_constellation(epoch="2024-01-10T00:00:00")
     t = gps_seconds(np.datetime64("2024-01-10T00:00")) + 600.0 * np.arange(6)
     xyz = geodetic_to_ecef(np.deg2rad([-7.3]), np.deg2rad([72.4]), 0.0)
-    g = ionosphere_geometry(orbit, t, receivers_ecef_m=xyz, mask_deg=10.0, ionosphere="per-receiver",
-                            mapping="mslm")
+    g = ionosphere_geometry(orbit, t, receivers_ecef_m=xyz, mask_deg=10.0, ionosphere="per-receiver", mapping="mslm")
     el = g.el_rad[g.tracked]
-    z = np.arcsin(6378.137 / (6378.137 + 506.7) * np.sin(0.9782 * (np.pi / 2 - el)))   # CODE's MSLM
+    z = np.arcsin(6378.137 / (6378.137 + 506.7) * np.sin(0.9782 * (np.pi / 2 - el)))  # CODE's MSLM
     np.testing.assert_allclose(g.coefficients[g.tracked][:, 0], 1.0 / np.cos(z), rtol=1e-12)
     with pytest.raises(ModelError, match="mapping"):
         ionosphere_geometry(orbit, t, receivers_ecef_m=xyz, mapping="flat")
@@ -35,12 +34,13 @@ def test_second_order_coefficients_and_mslm_mapping() -> None:
 
 def test_curved_field_biases_the_linear_receiver_dsb_not_the_quadratic() -> None:
     orbit = synthetic_gps_constellation(epoch="2024-01-10T00:00:00")
-    t = gps_seconds(np.datetime64("2024-01-10T00:00")) + 120.0 * np.arange(360)        # 12 h
+    t = gps_seconds(np.datetime64("2024-01-10T00:00")) + 120.0 * np.arange(360)  # 12 h
     lat, lon = np.deg2rad([-7.3, -1.4]), np.deg2rad([72.4, -48.5])
     xyz = geodetic_to_ecef(lat, lon, 0.0)
     svs = list(orbit.svs)
-    g = ionosphere_geometry(orbit, t, receivers_ecef_m=xyz, svs=svs, mask_deg=10.0, ionosphere="per-receiver",
-                            tec_order=2)
+    g = ionosphere_geometry(
+        orbit, t, receivers_ecef_m=xyz, svs=svs, mask_deg=10.0, ionosphere="per-receiver", tec_order=2
+    )
     # VTEC 8 m (≈ 50 TECU) at each station, a crest: −60 m/rad² in latitude (−1.8 TECU at 2° off), none in lon
     truth = np.array([8.0, 0.3, -0.2, -60.0, 0.0, -20.0])
     rng = np.random.default_rng(3)
@@ -52,13 +52,14 @@ def test_curved_field_biases_the_linear_receiver_dsb_not_the_quadratic() -> None
     gf = np.where(g.tracked, gf + rng.normal(0.0, 0.02, gf.shape), np.nan)
     err = {}
     for order in (1, 2):
-        data = bias_network_model(["DGAR", "BELE"], t, xyz, gf, svs, orbit, ionosphere="per-receiver",
-                                  tec_order=order, min_satellite_obs=30)
+        data = bias_network_model(
+            ["DGAR", "BELE"], t, xyz, gf, svs, orbit, ionosphere="per-receiver", tec_order=order, min_satellite_obs=30
+        )
         series, _ = run_bias_filters(data, local=False)
         sat, rx, _ = final_dsbs(data, series[0])
-        c = np.mean([sat[s] - sat_ns[svs.index(s)] for s in sat])          # datum offset over the satellites
+        c = np.mean([sat[s] - sat_ns[svs.index(s)] for s in sat])  # datum offset over the satellites
         err[order] = np.array([rx["DGAR"] - rx_ns[0] + c, rx["BELE"] - rx_ns[1] + c])
-        fit = satellite_fit(data, series[0])                  # the per-satellite fit works on six TEC terms too
+        fit = satellite_fit(data, series[0])  # the per-satellite fit works on six TEC terms too
         assert fit.worst() is not None and np.isfinite(fit.rms_m).any()
     assert np.abs(err[2]).max() < 0.1, err
     assert np.abs(err[1]).max() > 0.5, err

@@ -219,12 +219,17 @@ def test_partition_file_round_trip_and_errors(tmp_path):
 def test_from_links_edge_order_matches_a_sorted_list(n_nodes: int, n_links: int, self_loops: bool) -> None:
     # the counting placement against the definition: both directions of every link (and i→i), sorted by (dst, src)
     rng = np.random.default_rng(n_nodes + n_links)
-    pairs = {tuple(sorted(map(int, rng.choice(n_nodes, 2, replace=False)))) for _ in range(n_links)} if n_nodes > 1 \
+    pairs = (
+        {tuple(sorted(map(int, rng.choice(n_nodes, 2, replace=False)))) for _ in range(n_links)}
+        if n_nodes > 1
         else set()
+    )
     links = [(j, i) if rng.random() < 0.5 else (i, j) for i, j in pairs]  # either order, as given
     g = Graph.from_links(n_nodes, np.array(links, dtype=np.int64).reshape(-1, 2), self_loops=self_loops)
-    want = sorted({(d, s) for i, j in pairs for s, d in ((i, j), (j, i))}
-                  | ({(i, i) for i in range(n_nodes)} if self_loops else set()))
+    want = sorted(
+        {(d, s) for i, j in pairs for s, d in ((i, j), (j, i))}
+        | ({(i, i) for i in range(n_nodes)} if self_loops else set())
+    )
     assert g.dst.tolist() == [d for d, _ in want]
     assert g.src.tolist() == [s for _, s in want]
     assert g.src.dtype == g.dst.dtype == np.int64

@@ -97,8 +97,9 @@ def test_single_rank_exchange_on_a_part_equals_the_whole_graph() -> None:
     with pytest.raises(ExchangeError, match="built from a graph part"):
         _ = ex.graph
     with pytest.raises(ExchangeError, match="holds other nodes than the partition"):
-        make_exchange(GraphPart.from_graph(g, np.arange(n // 2)), backend="mpi", partition=np.zeros(n, int),
-                      comm=mpi.COMM_SELF)
+        make_exchange(
+            GraphPart.from_graph(g, np.arange(n // 2)), backend="mpi", partition=np.zeros(n, int), comm=mpi.COMM_SELF
+        )
     with pytest.raises(ExchangeError, match="needs the partition the parts were built from"):
         make_exchange(part, backend="mpi", comm=mpi.COMM_SELF)
     ex.free()

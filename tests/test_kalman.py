@@ -31,9 +31,17 @@ from distnav.algorithms.kalman import (
 from distnav.errors import ModelError
 
 
-def random_model(seed: int, *, p: int = 5, n: int = 4, T: int = 14, late_entry: int | None = 4,
-                 late_until: int = 6, general_noise: bool = False, identity_transition: bool = False
-                 ) -> tuple[DynamicModel, ObservationSeries]:
+def random_model(
+    seed: int,
+    *,
+    p: int = 5,
+    n: int = 4,
+    T: int = 14,
+    late_entry: int | None = 4,
+    late_until: int = 6,
+    general_noise: bool = False,
+    identity_transition: bool = False,
+) -> tuple[DynamicModel, ObservationSeries]:
     """A random linear model: singular system noise, one state entry unobserved before ``late_until``,
     varying numbers of observations, some nodes without data, full and diagonal R."""
     rng = np.random.default_rng(seed)
@@ -120,8 +128,9 @@ def test_exact_average_filters_reproduce_central():
     assert e.estimates.shape == (ms.n_epochs, ms.n_nodes, ms.n_states)
     for i in range(ms.n_nodes):
         assert np.array_equal(e.estimable[:, i], c.estimable[:, 0])
-        np.testing.assert_allclose(np.nan_to_num(e.estimates[:, i]), np.nan_to_num(c.estimates[:, 0]),
-                                   atol=1e-10, rtol=0)
+        np.testing.assert_allclose(
+            np.nan_to_num(e.estimates[:, i]), np.nan_to_num(c.estimates[:, 0]), atol=1e-10, rtol=0
+        )
         np.testing.assert_allclose(np.nan_to_num(e.std[:, i]), np.nan_to_num(c.std[:, 0]), atol=1e-10)
 
 
@@ -131,8 +140,7 @@ def test_local_filters_equal_single_node_covariance_form():
     for i in range(ms.n_nodes):
         ref = kalman_filter(dyn, ms, nodes=[i]).series
         assert np.array_equal(loc.estimable[:, i], ref.estimable[:, 0])
-        np.testing.assert_allclose(np.nan_to_num(loc.estimates[:, i]), np.nan_to_num(ref.estimates[:, 0]),
-                                   atol=1e-9)
+        np.testing.assert_allclose(np.nan_to_num(loc.estimates[:, i]), np.nan_to_num(ref.estimates[:, 0]), atol=1e-9)
         np.testing.assert_allclose(np.nan_to_num(loc.std[:, i]), np.nan_to_num(ref.std[:, 0]), atol=1e-9)
 
 
@@ -377,8 +385,9 @@ def test_filter_entry_point_validation():
     with pytest.raises(ModelError, match="needs an ObservationSeries"):
         kalman_filter(DynamicModel(2), NormalSeries(np.zeros((3, 1, 2, 2))))
     with pytest.raises(ModelError, match="not estimable after 2 epochs"):
-        kalman_filter(DynamicModel(2), ObservationSeries(2, [[(np.array([[1.0, 0.0]]), np.ones(1))]] * 5),
-                      max_batch_epochs=2)
+        kalman_filter(
+            DynamicModel(2), ObservationSeries(2, [[(np.array([[1.0, 0.0]]), np.ones(1))]] * 5), max_batch_epochs=2
+        )
     c = central_filter(dyn, ms).series
     short = local_filters(dyn, ObservationSeries(ms.n_states, [[None] * 2] * 3)).series
     with pytest.raises(ModelError, match="do not match"):

@@ -39,7 +39,7 @@ def test_single_filter_pseudo_inverse_equals_batched_path(singular: bool) -> Non
     p = 6
     a = rng.standard_normal((4 if singular else 9, p))
     info = a.T @ a
-    info[2, :] = info[:, 2] = 0.0               # never observed: dropped before the inverse
+    info[2, :] = info[:, 2] = 0.0  # never observed: dropped before the inverse
     inv1, est1 = pseudo_inverse_psd(info[None])
     # the same matrix twice, with a second row that has another unseen pattern: the grouped path
     other = info.copy()
@@ -48,18 +48,18 @@ def test_single_filter_pseudo_inverse_equals_batched_path(singular: bool) -> Non
     np.testing.assert_array_equal(inv1[0], inv2[0])
     np.testing.assert_array_equal(est1[0], est2[0])
     assert not est1[0, 2]
-    assert (est1[0].sum() < p - 1) if singular else (est1[0].sum() == p - 1)   # rank 4 of 5 seen: a null space
+    assert (est1[0].sum() < p - 1) if singular else (est1[0].sum() == p - 1)  # rank 4 of 5 seen: a null space
     if not singular:
         seen = np.r_[0:2, 3:p]
-        np.testing.assert_allclose(inv1[0][np.ix_(seen, seen)], np.linalg.inv(info[np.ix_(seen, seen)]),
-                                   rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(
+            inv1[0][np.ix_(seen, seen)], np.linalg.inv(info[np.ix_(seen, seen)]), rtol=1e-10, atol=1e-12
+        )
 
 
 def _series(seed: int) -> BiasGeometryFreeSeries:
     rng = np.random.default_rng(seed)
     T, n, S = 5, 3, 6
-    lay = BiasStateLayout(tuple(f"G{k:02d}" for k in range(S)), ("A", "B", "C"), n_ionospheres=2,
-                          reference="B")
+    lay = BiasStateLayout(tuple(f"G{k:02d}" for k in range(S)), ("A", "B", "C"), n_ionospheres=2, reference="B")
     coef = rng.standard_normal((T, n, S, 3))
     sig = rng.uniform(0.2, 1.0, (T, n, S))
     tracked = rng.random((T, n, S)) > 0.3
@@ -72,7 +72,7 @@ def test_subset_design_equals_design_built_for_those_nodes() -> None:
     for t in range(ser.n_epochs):
         A_all, w_all = ser.design(t)
         for nodes in ([0], [2], [1, 2], [2, 0]):
-            fresh = _series(2)                  # nothing cached: built for these nodes directly
+            fresh = _series(2)  # nothing cached: built for these nodes directly
             A, w = fresh.design(t, np.array(nodes))
             np.testing.assert_array_equal(A, A_all[nodes])
             np.testing.assert_array_equal(w, w_all[nodes])
@@ -126,7 +126,7 @@ def test_pseudo_inverse_fallback_on_one_blas_thread_equals_svd_reference() -> No
         est_ref = (null**2).sum(axis=1) < 1e-8
         assert np.linalg.matrix_rank(C) == min(rank, seen.size)
         np.testing.assert_array_equal(est[k, seen], est_ref)
-        assert est[k].sum() < p if k else est[k].all()       # both paths taken
+        assert est[k].sum() < p if k else est[k].all()  # both paths taken
         np.testing.assert_allclose(inv[k][np.ix_(seen, seen)], ref, rtol=1e-8, atol=1e-9 * np.abs(ref).max())
 
 
@@ -139,7 +139,7 @@ def test_per_epoch_model_reusing_repeated_inputs_equals_direct_computation() -> 
     for H, sel in ((np.eye(p)[:, [0, 2, 3]], [0, 2, 3]), (rng.standard_normal((p, 3)), None)):
         m = rng.standard_normal((3, 3))
         base = m @ m.T + np.eye(3)
-        St = [base * (2.0 if t in (4, 5) else 1.0) for t in range(T)]   # runs of equal values, distinct objects
+        St = [base * (2.0 if t in (4, 5) else 1.0) for t in range(T)]  # runs of equal values, distinct objects
         dyn = DynamicModel(p, noise_map=[H] * T, noise_reduced_cov=St)
         for t in range(1, T):
             Ht, St_t, St_inv = dyn.noise_factor_at(t)
@@ -161,8 +161,8 @@ def test_per_epoch_model_still_checks_changed_inputs() -> None:
     with pytest.raises(ModelError, match="epoch 2 is not positive definite"):
         DynamicModel(p, noise_map=[H] * T, noise_reduced_cov=[good, good, -good, good])
     H3 = np.eye(p)[:, [1, 2, 4]]
-    with pytest.raises(ModelError, match=r"epoch 1 must be 3×3"):   # a new H of other rank, the same S̃
+    with pytest.raises(ModelError, match=r"epoch 1 must be 3×3"):  # a new H of other rank, the same S̃
         DynamicModel(p, noise_map=[H, H3, H3, H3], noise_reduced_cov=[good] * T)
-    flat = np.ones((p, 2))                                        # not identity columns, rank 1
+    flat = np.ones((p, 2))  # not identity columns, rank 1
     with pytest.raises(ModelError, match="epoch 1 must have full column rank"):
         DynamicModel(p, noise_map=[H, flat, flat, flat], noise_reduced_cov=[good] * T)

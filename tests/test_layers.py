@@ -15,9 +15,25 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "distnav"
 
-RANK = {"errors": 0, "_optional": 0.5, "_sparse": 0.5, "_blas": 0.5, "_threads": 0.5, "typing": 0.5, "network": 1,
-        "exchange": 2, "algorithms": 3, "models": 4, "output": 4.5, "options": 4.5, "experiments": 5, "commands": 5,
-        "cli": 6, "__main__": 7, "__init__": 7}
+RANK = {
+    "errors": 0,
+    "_optional": 0.5,
+    "_sparse": 0.5,
+    "_blas": 0.5,
+    "_threads": 0.5,
+    "typing": 0.5,
+    "network": 1,
+    "exchange": 2,
+    "algorithms": 3,
+    "models": 4,
+    "output": 4.5,
+    "options": 4.5,
+    "experiments": 5,
+    "commands": 5,
+    "cli": 6,
+    "__main__": 7,
+    "__init__": 7,
+}
 # ``import distnav`` / ``from distnav import __version__``: the package root only re-exports distnav.errors
 
 
@@ -67,13 +83,19 @@ def test_imports_point_downwards(path: Path) -> None:
 def test_the_check_catches_upward_and_sideways_imports(tmp_path: Path) -> None:
     """The checker itself: lazy imports inside functions count; up and sideways are refused, down is allowed."""
     f = tmp_path / "x.py"
-    f.write_text("import numpy\nfrom distnav.network.graph import Graph\n\n\ndef g():\n"
-                 "    from distnav.experiments.common import atomic_write_json\n", encoding="utf-8")
+    f.write_text(
+        "import numpy\nfrom distnav.network.graph import Graph\n\n\ndef g():\n"
+        "    from distnav.experiments.common import atomic_write_json\n",
+        encoding="utf-8",
+    )
     assert _imports(f) == [(2, "distnav.network.graph"), (6, "distnav.experiments.common")]
     assert _violations(f, "algorithms") == [
-        "x.py:6 imports distnav.experiments.common (algorithms may not import experiments)"]
+        "x.py:6 imports distnav.experiments.common (algorithms may not import experiments)"
+    ]
     assert _violations(f, "commands") == [
-        "x.py:6 imports distnav.experiments.common (commands may not import experiments)"]
+        "x.py:6 imports distnav.experiments.common (commands may not import experiments)"
+    ]
     assert _violations(f, "cli") == []
     assert _violations(f, "network") == [
-        "x.py:6 imports distnav.experiments.common (network may not import experiments)"]
+        "x.py:6 imports distnav.experiments.common (network may not import experiments)"
+    ]

@@ -17,20 +17,31 @@ _HEAVY = ("scipy", "networkx", "matplotlib", "georinex")
 
 
 def _modules_after(code: str) -> list[str]:
-    script = (f"import sys\n{code}\nimport json\n"
-              f"print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in {_HEAVY!r})))")
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
-                          env={"PYTHONPATH": str(SRC), "PATH": ""}, stdin=subprocess.DEVNULL)
+    script = (
+        f"import sys\n{code}\nimport json\n"
+        f"print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in {_HEAVY!r})))"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={"PYTHONPATH": str(SRC), "PATH": ""},
+        stdin=subprocess.DEVNULL,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     loaded: list[str] = json.loads(proc.stdout.strip().splitlines()[-1])
     return loaded
 
 
-@pytest.mark.parametrize("code", [
-    "from distnav.exchange.mpi import MPIExchange\nfrom distnav.algorithms.consensus import average_consensus\n"
-    "from distnav.algorithms.admm import admm",
-    "import distnav.cli",
-])
+@pytest.mark.parametrize(
+    "code",
+    [
+        "from distnav.exchange.mpi import MPIExchange\nfrom distnav.algorithms.consensus import average_consensus\n"
+        "from distnav.algorithms.admm import admm",
+        "import distnav.cli",
+    ],
+)
 def test_mpi_path_imports_no_scipy_networkx_or_matplotlib(code: str) -> None:
     assert _modules_after(code) == []
 
@@ -38,24 +49,34 @@ def test_mpi_path_imports_no_scipy_networkx_or_matplotlib(code: str) -> None:
 def test_mpi_path_imports_no_logging_pathlib_or_nonlinear_admm() -> None:
     """Start-up work the MPI path never needs: logging (only the exact cover's time-limit warning logs), pathlib
     (partition files) and the nonlinear ADMM variants (re-exported from distnav.algorithms.admm on first use)."""
-    code = ("import sys\nfrom distnav.exchange.mpi import MPIExchange\n"
-            "from distnav.algorithms.consensus import average_consensus\nfrom distnav.algorithms.admm import admm\n"
-            "print(sorted(m for m in ('logging', 'pathlib', 'distnav.algorithms.admm_nonlinear')\n"
-            "             if m in sys.modules))\n"
-            "from distnav.algorithms.admm import admm_nonlinear, gauss_newton\n"
-            "print(admm_nonlinear.__module__, gauss_newton.__module__)")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          env={"PYTHONPATH": str(SRC), "PATH": ""}, stdin=subprocess.DEVNULL)
+    code = (
+        "import sys\nfrom distnav.exchange.mpi import MPIExchange\n"
+        "from distnav.algorithms.consensus import average_consensus\nfrom distnav.algorithms.admm import admm\n"
+        "print(sorted(m for m in ('logging', 'pathlib', 'distnav.algorithms.admm_nonlinear')\n"
+        "             if m in sys.modules))\n"
+        "from distnav.algorithms.admm import admm_nonlinear, gauss_newton\n"
+        "print(admm_nonlinear.__module__, gauss_newton.__module__)"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={"PYTHONPATH": str(SRC), "PATH": ""},
+        stdin=subprocess.DEVNULL,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.splitlines() == ["[]", "distnav.algorithms.admm_nonlinear distnav.algorithms.admm_nonlinear"]
 
 
 def test_first_use_imports_scipy_sparse_and_runs() -> None:
-    code = ("import numpy as np\nfrom distnav.algorithms.admm import admm\nfrom distnav.algorithms.lsq import "
-            "LinearProblem\nfrom distnav.network.graph import Graph\n"
-            "g = Graph.from_links(4, [(0, 1), (1, 2), (2, 3)])\n"
-            "A = np.ones((4, 1, 1)); r = admm(LinearProblem.from_stacked(A, np.arange(4.0)[:, None]), g, "
-            "max_iterations=300, tol=1e-12)\nassert abs(r.estimates[0, 0] - 1.5) < 1e-8, r.estimates")
+    code = (
+        "import numpy as np\nfrom distnav.algorithms.admm import admm\nfrom distnav.algorithms.lsq import "
+        "LinearProblem\nfrom distnav.network.graph import Graph\n"
+        "g = Graph.from_links(4, [(0, 1), (1, 2), (2, 3)])\n"
+        "A = np.ones((4, 1, 1)); r = admm(LinearProblem.from_stacked(A, np.arange(4.0)[:, None]), g, "
+        "max_iterations=300, tol=1e-12)\nassert abs(r.estimates[0, 0] - 1.5) < 1e-8, r.estimates"
+    )
     assert "scipy.sparse" in _modules_after(code)
 
 

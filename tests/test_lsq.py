@@ -95,8 +95,10 @@ def test_rank_check_is_unit_free(rng):
         (dict(A=[np.ones((2, 3))], y=[np.ones(2)], R=[np.array([1.0, -1.0])]), "node 0: variances R_i must be"),
         (dict(A=[np.ones((2, 3))], y=[np.ones(2)], R=[np.eye(3)]), r"node 0: R_i must be \(2, 2\)"),
         (dict(A=[np.ones((2, 3))], y=[np.ones(2)], R=[np.array([[1.0, 0.5], [0.0, 1.0]])]), "not symmetric"),
-        (dict(A=[np.ones((2, 3))], y=[np.ones(2)], R=[np.array([[1.0, 2.0], [2.0, 1.0]])]),
-         "node 0: R_i is not positive definite"),
+        (
+            dict(A=[np.ones((2, 3))], y=[np.ones(2)], R=[np.array([[1.0, 2.0], [2.0, 1.0]])]),
+            "node 0: R_i is not positive definite",
+        ),
         (dict(A=[np.ones((2, 3))], y=[np.array([1.0, np.nan])]), "node 0: y_i has non-finite"),
         (dict(A=[np.ones((2, 3))], y=[np.ones(2)], parameter_names=["a"]), "1 parameter names for p = 3"),
         (dict(A=[np.ones((2, 3))], y=[np.ones(2)], node_names=["a", "b"]), "2 node names for 1 nodes"),
@@ -110,8 +112,9 @@ def test_from_blocks_validation(kwargs, pattern):
 def test_validation_names_the_node_by_name():
     R_bad = np.array([[1.0, 2.0], [2.0, 1.0]])
     with pytest.raises(ModelError, match="node station-B: R_i is not positive definite"):
-        LinearProblem.from_blocks([np.ones((2, 2))] * 2, [np.ones(2)] * 2, [np.eye(2), R_bad],
-                                  node_names=["station-A", "station-B"])
+        LinearProblem.from_blocks(
+            [np.ones((2, 2))] * 2, [np.ones(2)] * 2, [np.eye(2), R_bad], node_names=["station-A", "station-B"]
+        )
 
 
 def test_from_stacked_validation():
@@ -127,11 +130,15 @@ def test_from_stacked_validation():
 
 def test_weight_matrix_validation():
     np.testing.assert_array_equal(weight_matrix(2.0, 3), 2.0 * np.eye(3))
-    for bad, pattern in [(0.0, "must be finite and > 0"), (np.inf, "must be finite"), (np.ones((2, 2)), "shape"),
-                         (np.array([[1.0, 1.0], [0.0, 1.0], [0.0, 0.0]]), "shape"),
-                         (np.array([[1.0, 0.3, 0], [0.0, 1.0, 0], [0, 0, 1]]), "not symmetric"),
-                         (np.diag([1.0, -1.0, 1.0]), "not positive definite"),
-                         (np.diag([1.0, np.nan, 1.0]), "non-finite")]:
+    for bad, pattern in [
+        (0.0, "must be finite and > 0"),
+        (np.inf, "must be finite"),
+        (np.ones((2, 2)), "shape"),
+        (np.array([[1.0, 1.0], [0.0, 1.0], [0.0, 0.0]]), "shape"),
+        (np.array([[1.0, 0.3, 0], [0.0, 1.0, 0], [0, 0, 1]]), "not symmetric"),
+        (np.diag([1.0, -1.0, 1.0]), "not positive definite"),
+        (np.diag([1.0, np.nan, 1.0]), "non-finite"),
+    ]:
         with pytest.raises(ModelError, match=pattern):
             weight_matrix(bad, 3)
 

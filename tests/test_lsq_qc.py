@@ -109,8 +109,7 @@ def test_distributed_snooping_equals_centralized(seed):
 def test_snooping_without_gross_errors_removes_nothing_and_max_removals():
     case = gross_error_problem(np.random.default_rng(5), n_outliers=0)
     res = admm_data_snooping(case.problem, case.graph, W=3.0, tol=1e-11, level=1e-6)
-    ref = data_snooping(case.problem.A.reshape(-1, 6), case.problem.y.ravel(), block_diag(*case.problem.R),
-                        level=1e-6)
+    ref = data_snooping(case.problem.A.reshape(-1, 6), case.problem.y.ravel(), block_diag(*case.problem.R), level=1e-6)
     assert res.tests.removed == ref.removed == ()
     assert res.tests.iterations == 0
     bad = gross_error_problem(np.random.default_rng([12, 0]))

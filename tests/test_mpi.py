@@ -37,8 +37,14 @@ def _mpiexec() -> str:
 
 def _launch(args: list[str], *, n: int = N_RANKS, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    return subprocess.run([_mpiexec(), "-n", str(n), sys.executable, "-m", "mpi4py", *args],
-                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout, env=env)
+    return subprocess.run(
+        [_mpiexec(), "-n", str(n), sys.executable, "-m", "mpi4py", *args],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -67,8 +73,22 @@ def test_mpi_equals_inprocess(name, mpi_results):
 def test_cli_reproduce_under_mpi_writes_the_same_file(tmp_path):
     from distnav.cli import main
 
-    proc = _launch(["-m", "distnav", "reproduce", "consensus", "--backend", "mpi", "--ranks", str(N_RANKS),
-                    "--quick", "--no-progress", "--out", str(tmp_path / "mpi")])
+    proc = _launch(
+        [
+            "-m",
+            "distnav",
+            "reproduce",
+            "consensus",
+            "--backend",
+            "mpi",
+            "--ranks",
+            str(N_RANKS),
+            "--quick",
+            "--no-progress",
+            "--out",
+            str(tmp_path / "mpi"),
+        ]
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert main(["reproduce", "consensus", "--quick", "--no-progress", "--out", str(tmp_path / "local")]) == 0
     a = (tmp_path / "mpi" / "results.json").read_bytes()
@@ -84,10 +104,35 @@ def test_hostfile_launch_as_in_the_slurm_recipe(tmp_path):
     hosts = tmp_path / "hosts"
     hosts.write_text("localhost:4\n")
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.run([_mpiexec(), "-f", str(hosts), "-n", "4", sys.executable, "-m", "mpi4py", "-m", "distnav",
-                           "reproduce", "consensus", "--backend", "mpi", "--ranks", "4", "--quick", "--no-progress",
-                           "--out", str(tmp_path / "mpi")],
-                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=180, env=env)
+    proc = subprocess.run(
+        [
+            _mpiexec(),
+            "-f",
+            str(hosts),
+            "-n",
+            "4",
+            sys.executable,
+            "-m",
+            "mpi4py",
+            "-m",
+            "distnav",
+            "reproduce",
+            "consensus",
+            "--backend",
+            "mpi",
+            "--ranks",
+            "4",
+            "--quick",
+            "--no-progress",
+            "--out",
+            str(tmp_path / "mpi"),
+        ],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=180,
+        env=env,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert main(["reproduce", "consensus", "--quick", "--no-progress", "--out", str(tmp_path / "local")]) == 0
     assert (tmp_path / "mpi" / "results.json").read_bytes() == (tmp_path / "local" / "results.json").read_bytes()
@@ -109,8 +154,23 @@ def test_failing_rank_ends_whole_job(tmp_path, mode):
 
 
 def test_rank_count_mismatch_is_reported(tmp_path):
-    proc = _launch(["-m", "distnav", "reproduce", "consensus", "--backend", "mpi", "--ranks", "3", "--quick",
-                    "--no-progress", "--out", str(tmp_path)], n=2)
+    proc = _launch(
+        [
+            "-m",
+            "distnav",
+            "reproduce",
+            "consensus",
+            "--backend",
+            "mpi",
+            "--ranks",
+            "3",
+            "--quick",
+            "--no-progress",
+            "--out",
+            str(tmp_path),
+        ],
+        n=2,
+    )
     assert proc.returncode != 0
     assert "--ranks 3 was asked for but MPI reports 2 rank(s)" in proc.stderr
 
@@ -154,10 +214,20 @@ def test_real_data_command_under_mpi_writes_the_same_files(shared_data, tmp_path
 
     d = shared_data / "gnss" / "nl_2021001_short_network_snapshot"
     obs = [str(d / f) for f in ("delf0010.21o", "eijs0010.21d", "wsra0010.21o", "zegv0010.21o", "rovn0010.21o")]
-    common = ["gnss", "ionosphere", "--obs", *obs, "--nav", str(d / "cbw10010.21n.gz"), "--nav-max-age", "24",
-              "--kn", "4", "--no-progress"]
-    proc = _launch(["-m", "distnav", *common, "--backend", "mpi", "--ranks", "2", "--out", str(tmp_path / "mpi")],
-                   n=2)
+    common = [
+        "gnss",
+        "ionosphere",
+        "--obs",
+        *obs,
+        "--nav",
+        str(d / "cbw10010.21n.gz"),
+        "--nav-max-age",
+        "24",
+        "--kn",
+        "4",
+        "--no-progress",
+    ]
+    proc = _launch(["-m", "distnav", *common, "--backend", "mpi", "--ranks", "2", "--out", str(tmp_path / "mpi")], n=2)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert main([*common, "--out", str(tmp_path / "local")]) == 0
     for name in ("tec_dcb_per_epoch.csv", "dcb_final.csv"):

@@ -24,9 +24,15 @@ def well_posed(rng: np.random.Generator, *, sigma_m: float = 0.15, dim: int = 3,
         ids = [str(i) for i in range(n)]
         if np.bincount(np.concatenate([a[k], b[k]]), minlength=n).min() < dim + 2:
             continue
-        return build_problem(ids, np.stack([a[k], b[k]], 1), np.abs(d[k] + rng.normal(0, sigma_m, k.sum())),
-                             fixed={ids[i]: t[i] for i in range(3)}, dim=dim,
-                             initial_m=t + rng.uniform(-1.0, 1.0, t.shape), truth_m=t)
+        return build_problem(
+            ids,
+            np.stack([a[k], b[k]], 1),
+            np.abs(d[k] + rng.normal(0, sigma_m, k.sum())),
+            fixed={ids[i]: t[i] for i in range(3)},
+            dim=dim,
+            initial_m=t + rng.uniform(-1.0, 1.0, t.shape),
+            truth_m=t,
+        )
     raise AssertionError("no well-posed network drawn")
 
 
@@ -34,8 +40,15 @@ def well_posed(rng: np.random.Generator, *, sigma_m: float = 0.15, dim: int = 3,
 def test_lm_reaches_scipy_lm_cost(dim):
     p = well_posed(np.random.default_rng(11), dim=dim)
     ours = solve_lm(p)
-    ref = least_squares(p.residual_vector, p.x0(), jac=lambda x: p.jacobian_of(x).toarray(), method="lm",
-                        xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    ref = least_squares(
+        p.residual_vector,
+        p.x0(),
+        jac=lambda x: p.jacobian_of(x).toarray(),
+        method="lm",
+        xtol=1e-14,
+        ftol=1e-14,
+        gtol=1e-14,
+    )
     ref_cost = float(ref.fun @ ref.fun)
     assert ours.converged
     assert ours.cost == pytest.approx(ref_cost, rel=1e-9)
@@ -76,8 +89,15 @@ def test_koppanyi_published_problem_reaches_centralized_cost(shared_data):
     # the file holds one negative range (noise on a short pair); the cost uses d², so |d| is the same problem
     with pytest.raises(ModelError, match="negative"):
         build_problem(ids, links, meas[:, 2], fixed={str(c): coors[c - 1] for c in control}, dim=2)
-    p = build_problem(ids, links, np.abs(meas[:, 2]), fixed={str(c): coors[c - 1] for c in control}, dim=2,
-                      initial_m=m["x0_mat"].T, truth_m=coors)
+    p = build_problem(
+        ids,
+        links,
+        np.abs(meas[:, 2]),
+        fixed={str(c): coors[c - 1] for c in control},
+        dim=2,
+        initial_m=m["x0_mat"].T,
+        truth_m=coors,
+    )
     assert np.sqrt(p.cost(sol)) == pytest.approx(ref_res, rel=1e-12)  # same residual definition as theirs
     res = solve_lm(p)
     ours = np.sqrt(res.cost)
@@ -146,9 +166,17 @@ def test_lm_validation_and_padding():
     with pytest.raises(ModelError, match="loss_scale_m"):
         solve_lm(p, loss="huber", loss_scale_m=0.0)
     with pytest.raises(ModelError, match="initial guess"):
-        solve_lm(p.__class__(**{**{f: getattr(p, f) for f in ("ids", "dim", "positions_m", "free", "meas_a",
-                                                                  "meas_b", "range_m", "truth_m", "name")},
-                                "initial_m": None}))
+        solve_lm(
+            p.__class__(
+                **{
+                    **{
+                        f: getattr(p, f)
+                        for f in ("ids", "dim", "positions_m", "free", "meas_a", "meas_b", "range_m", "truth_m", "name")
+                    },
+                    "initial_m": None,
+                }
+            )
+        )
     res = solve_lm(p, max_iterations=30, pad_trace=True)
     assert res.trace["rmse_m"].shape == (31,) and res.comm.messages == 0
 
@@ -167,9 +195,15 @@ def test_bordered_path_with_a_dense_column_matches_scipy():
     d = np.linalg.norm(t[a] - t[b], axis=1)
     k = d < 16.0
     ids = [str(i) for i in range(n)]
-    p = build_problem(ids, np.stack([a[k], b[k]], 1), d[k] + 0.4 + rng.normal(0, 0.05, k.sum()),
-                      fixed={ids[i]: t[i] for i in (0, 1, n // 2, n - 1)}, dim=2,
-                      initial_m=t + rng.uniform(-0.5, 0.5, t.shape), truth_m=t)
+    p = build_problem(
+        ids,
+        np.stack([a[k], b[k]], 1),
+        d[k] + 0.4 + rng.normal(0, 0.05, k.sum()),
+        fixed={ids[i]: t[i] for i in (0, 1, n // 2, n - 1)},
+        dim=2,
+        initial_m=t + rng.uniform(-0.5, 0.5, t.shape),
+        truth_m=t,
+    )
 
     def fun(x):
         return p.residual_vector(x[:-1]) - x[-1]

@@ -80,16 +80,28 @@ def test_non_writer_writes_nothing(tmp_path: Path) -> None:
 
 
 def test_to_jsonable() -> None:
-    data = {1: np.array([1.5, np.nan]), "b": (np.int64(3), np.bool_(True)), "p": Path("x/y"), "f": np.float32(0.5),
-            "inf": math.inf}
+    data = {
+        1: np.array([1.5, np.nan]),
+        "b": (np.int64(3), np.bool_(True)),
+        "p": Path("x/y"),
+        "f": np.float32(0.5),
+        "inf": math.inf,
+    }
     assert output.to_jsonable(data) == {"1": [1.5, None], "b": [3, True], "p": "x/y", "f": 0.5, "inf": None}
 
 
 def test_old_import_path_is_the_same_object() -> None:
     from distnav.experiments import common
 
-    for name in ("to_jsonable", "atomic_write_text", "atomic_write_json", "save_figure_file", "set_file_writer",
-                 "is_file_writer", "pyplot"):
+    for name in (
+        "to_jsonable",
+        "atomic_write_text",
+        "atomic_write_json",
+        "save_figure_file",
+        "set_file_writer",
+        "is_file_writer",
+        "pyplot",
+    ):
         assert getattr(common, name) is getattr(output, name), name
 
 

@@ -31,8 +31,12 @@ def test_distribution_name_and_metadata() -> None:
 def test_every_install_line_uses_the_distribution_name() -> None:
     """``pip install distnav`` / ``'distnav[mpi]'`` would install the index's unrelated ``distnav``."""
     wrong = re.compile(r"pip install\s+(?:-\S+\s+)*['\"]?distnav(?:\[|['\"\s]|$)")
-    bad = [f"{path.name}:{number}: {line.strip()}" for path in DOCS
-           for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1) if wrong.search(line)]
+    bad = [
+        f"{path.name}:{number}: {line.strip()}"
+        for path in DOCS
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+        if wrong.search(line)
+    ]
     assert not bad, bad
     assert wrong.search("pip install 'distnav[mpi]'") and wrong.search("pip install distnav")
     assert not wrong.search("pip install 'distnav-estimation[mpi]'")

@@ -35,24 +35,43 @@ def test_blocks_equal_lms_central_covariance_on_a_plant_like_hall(loss):
     from them (the chain to the known corner)."""
     sub, _, nlos = _plant_corner()
     p = subset_measurements(sub, ~nlos)
-    lm = solve_lm(p, objective="metres", sigma_m=0.1, range_offsets="common", loss=loss, loss_scale_m=0.1,
-                  initial_m=p.truth_m)
+    lm = solve_lm(
+        p, objective="metres", sigma_m=0.1, range_offsets="common", loss=loss, loss_scale_m=0.1, initial_m=p.truth_m
+    )
     f = p.free.any(axis=1)
-    got = central_precision(p, lm.estimates, offset_m=lm.offsets_m, sigma_m=0.1, loss=loss, loss_scale_m=0.1,
-                            range_offsets="common")
+    got = central_precision(
+        p, lm.estimates, offset_m=lm.offsets_m, sigma_m=0.1, loss=loss, loss_scale_m=0.1, range_offsets="common"
+    )
     assert got.precision.kind == "central"
     np.testing.assert_allclose(got.precision.covariance[f], lm.precision.covariance[f], rtol=1e-7, atol=1e-12)
     assert got.precision.variance_factor == pytest.approx(lm.precision.variance_factor, rel=1e-10)
-    want = consider_precision(p, lm, sigma_m=0.1, offsets="common", loss=loss, loss_scale_m=0.1,
-                              delay_sigma_m=0.015, estimate_delays=True)
+    want = consider_precision(
+        p, lm, sigma_m=0.1, offsets="common", loss=loss, loss_scale_m=0.1, delay_sigma_m=0.015, estimate_delays=True
+    )
     assert want is not None
-    considered = central_precision(p, lm.estimates, offset_m=lm.offsets_m, sigma_m=0.1, loss=loss, loss_scale_m=0.1,
-                                   range_offsets="common", delay_sigma_m=0.015, estimate_delays=True,
-                                   delay_upper_z=DELAY_UPPER_Z)
+    considered = central_precision(
+        p,
+        lm.estimates,
+        offset_m=lm.offsets_m,
+        sigma_m=0.1,
+        loss=loss,
+        loss_scale_m=0.1,
+        range_offsets="common",
+        delay_sigma_m=0.015,
+        estimate_delays=True,
+        delay_upper_z=DELAY_UPPER_Z,
+    )
     np.testing.assert_allclose(considered.covariance(a_posteriori=True)[f], want[1][f], rtol=1e-6, atol=1e-12)
     np.testing.assert_allclose(considered.std(a_posteriori=True)[p.free], want[0][p.free], rtol=1e-7)
-    sub2 = neighbourhood_precision(p.with_ranges(p.range_m - float(lm.offsets_m[0])), lm.estimates,
-                                   objective="metres", sigma_m=0.1, loss=loss, loss_scale_m=0.1, hops=2)
+    sub2 = neighbourhood_precision(
+        p.with_ranges(p.range_m - float(lm.offsets_m[0])),
+        lm.estimates,
+        objective="metres",
+        sigma_m=0.1,
+        loss=loss,
+        loss_scale_m=0.1,
+        hops=2,
+    )
     ratio = sub2.std()[p.free] / got.std()[p.free]
     assert np.median(ratio) < 0.9, np.median(ratio)
 
@@ -60,10 +79,12 @@ def test_blocks_equal_lms_central_covariance_on_a_plant_like_hall(loss):
 def test_per_anchor_offsets_are_lms_unknowns_too():
     sub, _, nlos = _plant_corner()
     p = subset_measurements(sub, ~nlos)
-    lm = solve_lm(p, objective="metres", sigma_m=0.1, range_offsets="per_anchor", offset_prior_sigma_m=0.05,
-                  initial_m=p.truth_m)
-    got = central_precision(p, lm.estimates, offset_m=lm.offsets_m, sigma_m=0.1, range_offsets="per_anchor",
-                            offset_prior_sigma_m=0.05)
+    lm = solve_lm(
+        p, objective="metres", sigma_m=0.1, range_offsets="per_anchor", offset_prior_sigma_m=0.05, initial_m=p.truth_m
+    )
+    got = central_precision(
+        p, lm.estimates, offset_m=lm.offsets_m, sigma_m=0.1, range_offsets="per_anchor", offset_prior_sigma_m=0.05
+    )
     f = p.free.any(axis=1)
     np.testing.assert_allclose(got.precision.covariance[f], lm.precision.covariance[f], rtol=1e-7, atol=1e-12)
     assert got.precision.variance_factor == pytest.approx(lm.precision.variance_factor, rel=1e-10)
@@ -76,8 +97,9 @@ def test_uwb_solve_workflow_gives_the_distributed_solvers_lms_sigma_and_counts_t
     sub, geo, _ = _plant_corner()
     lm = solve_field(sub, FieldOptions(solver="LM", loss="cauchy"), geometry=geo)
     d = solve_field(sub, FieldOptions(solver="N-CLM", loss="cauchy"), geometry=geo)
-    two_hop = solve_field(sub, FieldOptions(solver="N-CLM", loss="cauchy", distributed_precision="subnetwork"),
-                          geometry=geo)
+    two_hop = solve_field(
+        sub, FieldOptions(solver="N-CLM", loss="cauchy", distributed_precision="subnetwork"), geometry=geo
+    )
     assert np.array_equal(lm.excluded, d.excluded) and np.max(np.abs(lm.positions_m - d.positions_m)) < 1e-3
     f = sub.free
     assert d.precision_kind == "central" and two_hop.precision_kind == "neighbourhood"
@@ -121,8 +143,7 @@ def test_bad_input_is_refused():
     with pytest.raises(ModelError, match="range_offsets"):
         central_precision(p, p.truth_m, range_offsets="both")
     with pytest.raises(ModelError, match="delay_sigma_m"):
-        central_precision(p, p.truth_m, range_offsets="per_anchor", offset_m=np.zeros(p.n_anchors),
-                          delay_sigma_m=0.01)
+        central_precision(p, p.truth_m, range_offsets="per_anchor", offset_m=np.zeros(p.n_anchors), delay_sigma_m=0.01)
     with pytest.raises(ModelError, match="per-anchor offsets"):
         central_precision(p, p.truth_m, range_offsets="per_anchor", offset_m=np.zeros(3))
     with pytest.raises(ModelError, match="loss_scale_m"):

@@ -54,8 +54,12 @@ def test_close_to_the_central_sigma_on_a_rigid_network():
     """20 anchors in 3-D at the truth: the new σ is never below the conditional one and its median ratio to
     LM's central σ is near 1 (the conditional one is ≈ 0.67×, docs/uwb.md)."""
     p = network(np.random.default_rng(7), n=20)
-    central = solve_lm(p.with_ranges(np.linalg.norm(p.truth_m[p.meas_a] - p.truth_m[p.meas_b], axis=1)),
-                       objective="metres", sigma_m=SIGMA_M, initial_m=p.truth_m).precision.std()
+    central = solve_lm(
+        p.with_ranges(np.linalg.norm(p.truth_m[p.meas_a] - p.truth_m[p.meas_b], axis=1)),
+        objective="metres",
+        sigma_m=SIGMA_M,
+        initial_m=p.truth_m,
+    ).precision.std()
     out = neighbourhood_precision(p, p.truth_m, objective="metres", sigma_m=SIGMA_M)
     f = p.free
     new = out.std()[f] / central[f]
@@ -106,16 +110,15 @@ def test_two_hop_subnetwork_is_exact_where_it_spans_the_network_and_considers_de
     lm = solve_lm(p, objective="metres", sigma_m=SIGMA_M, range_offsets="none", initial_m=p.truth_m)
     out = neighbourhood_precision(p, lm.estimates, objective="metres", sigma_m=SIGMA_M, hops=2)
     f = p.free
-    np.testing.assert_allclose(out.precision.covariance[f.any(axis=1)], lm.precision.covariance[f.any(axis=1)],
-                               rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(
+        out.precision.covariance[f.any(axis=1)], lm.precision.covariance[f.any(axis=1)], rtol=1e-7, atol=1e-12
+    )
     vf = out.variance_factor_nodes[f.any(axis=1)]
     np.testing.assert_allclose(vf, lm.precision.variance_factor, rtol=1e-9)
     plain = neighbourhood_precision(p, lm.estimates, objective="metres", sigma_m=SIGMA_M)
     assert np.min(plain.std()[f] / out.std()[f]) < 0.95  # the 1-hop iteration is not exact here
-    want = consider_sigma(p, lm, sigma_m=SIGMA_M, offsets="none", loss="linear", loss_scale_m=0.3,
-                          delay_sigma_m=0.03)
-    got = neighbourhood_precision(p, lm.estimates, objective="metres", sigma_m=SIGMA_M, hops=2,
-                                  delay_sigma_m=0.03)
+    want = consider_sigma(p, lm, sigma_m=SIGMA_M, offsets="none", loss="linear", loss_scale_m=0.3, delay_sigma_m=0.03)
+    got = neighbourhood_precision(p, lm.estimates, objective="metres", sigma_m=SIGMA_M, hops=2, delay_sigma_m=0.03)
     assert want is not None and got.delay_covariance is not None
     np.testing.assert_allclose(got.std(a_posteriori=True)[f], want[f], rtol=1e-7)
     # the delays' term matters here (it moves σ both ways: the noise factor loses their share of the residuals)
@@ -150,19 +153,27 @@ def test_uwb_solve_writes_lms_central_sigma_for_a_distributed_solver(tmp_path):
     f = hall(tmp_path, ceiling=False, sigma_m=0.05, seed=2)
     out = tmp_path / "out"
     args = ["--initial", str(f["initial"]), "--solver", "N-CLM", "--iterations", "400", "--no-exclude"]
-    assert main(["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--out", str(out),
-                 *args]) == 0
+    assert (
+        main(["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--out", str(out), *args]) == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["precision_kind"] == "central"
     dist = summary["communication"]["distributed"]
     assert 0 < dist["precision_bytes"] < dist["bytes"] and dist["precision_messages"] > 0
     rows = (out / "positions.csv").read_text().splitlines()
     assert rows[0] == "id,x_m,y_m,z_m,sx_m,sy_m,sz_m,status,weak_reason"
-    written = {r.split(",")[0]: np.array([float(v) for v in r.split(",")[4:7]]) for r in rows[1:]
-               if r.split(",")[7] == "estimated"}
+    written = {
+        r.split(",")[0]: np.array([float(v) for v in r.split(",")[4:7]])
+        for r in rows[1:]
+        if r.split(",")[7] == "estimated"
+    }
     pos, _ = read_positions(out / "positions.csv")
-    sol, _, _ = solve_range_log(f["ranges"], f["known"], initial=f["initial"],
-                                options=FieldOptions(solver="N-CLM", iterations=400, exclude=False))
+    sol, _, _ = solve_range_log(
+        f["ranges"],
+        f["known"],
+        initial=f["initial"],
+        options=FieldOptions(solver="N-CLM", iterations=400, exclude=False),
+    )
     conditional = np.where(sol.problem.free, sol.result.precision.std(a_posteriori=True), 0.0)
     assert sol.result.precision.kind == "conditional"
     ratio = np.array([written[k] / conditional[sol.problem.ids.index(k)] for k in written])
@@ -171,5 +182,6 @@ def test_uwb_solve_writes_lms_central_sigma_for_a_distributed_solver(tmp_path):
     central = solve_range_log(f["ranges"], f["known"], initial=f["initial"], options=FieldOptions(exclude=False))[0]
     to_lm = np.array([written[k] / central.sigma_m[central.problem.ids.index(k)] for k in written])
     assert np.all(np.abs(to_lm - 1.0) < 0.01), to_lm  # LM's central σ (delays considered too) on the same links
-    np.testing.assert_allclose([pos[k] for k in written],
-                               [sol.positions_m[sol.problem.ids.index(k)] for k in written], atol=1e-6)
+    np.testing.assert_allclose(
+        [pos[k] for k in written], [sol.positions_m[sol.problem.ids.index(k)] for k in written], atol=1e-6
+    )

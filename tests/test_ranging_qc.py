@@ -17,8 +17,15 @@ from distnav.errors import ModelError
 from distnav.models.uwb.problems import build_problem
 
 
-def network(rng: np.random.Generator, *, sigma_m: float = 0.1, n: int = 30, dim: int = 3, offset_m: float = 0.0,
-            delays_m: np.ndarray | None = None):
+def network(
+    rng: np.random.Generator,
+    *,
+    sigma_m: float = 0.1,
+    n: int = 30,
+    dim: int = 3,
+    offset_m: float = 0.0,
+    delays_m: np.ndarray | None = None,
+):
     """Anchors in a 30 m × 30 m × 8 m hall, links up to 16 m, rigid (every anchor ≥ dim + 2 links)."""
     for _ in range(100):
         t = rng.uniform(0.0, 30.0, (n, dim))
@@ -33,8 +40,15 @@ def network(rng: np.random.Generator, *, sigma_m: float = 0.1, n: int = 30, dim:
         bias = offset_m + (0.0 if delays_m is None else delays_m[a] + delays_m[b])
         r = d + bias + rng.normal(0, sigma_m, d.size)
         ids = [f"A{i}" for i in range(n)]
-        return build_problem(ids, np.stack([a, b], 1), r, fixed={ids[i]: t[i] for i in range(4)}, dim=dim,
-                             initial_m=t + rng.uniform(-1.0, 1.0, t.shape), truth_m=t)
+        return build_problem(
+            ids,
+            np.stack([a, b], 1),
+            r,
+            fixed={ids[i]: t[i] for i in range(4)},
+            dim=dim,
+            initial_m=t + rng.uniform(-1.0, 1.0, t.shape),
+            truth_m=t,
+        )
     raise AssertionError("no rigid network drawn")
 
 
@@ -57,8 +71,17 @@ def test_metres_objective_matches_scipy_least_squares(loss):
     assert ours.converged and ours.objective_kind == "metres"
     o = RangeObjective(p, "metres", 0.1)
     start = solve_lm(p, objective="metres", sigma_m=0.1).x  # scipy from the linear fit (our graduated start)
-    ref = least_squares(o.residual, start, jac=lambda x: o.jacobian(x).toarray(), loss=loss, f_scale=0.2 / 0.1,
-                        method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    ref = least_squares(
+        o.residual,
+        start,
+        jac=lambda x: o.jacobian(x).toarray(),
+        loss=loss,
+        f_scale=0.2 / 0.1,
+        method="trf",
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-15,
+    )
     assert ours.objective == pytest.approx(2.0 * ref.cost, rel=1e-9)  # scipy's cost is ½ Σ s²ρ
     np.testing.assert_allclose(ours.x, ref.x, atol=1e-6)
 
@@ -85,9 +108,12 @@ def test_w_tests_match_dense_residual_covariance():
     Qe = residual_covariance(A, np.eye(A.shape[0]), Qx)
     w_ref = o.residual(res.x) / np.sqrt(np.diag(Qe))
     np.testing.assert_allclose(res.tests.w, w_ref, rtol=1e-7, atol=1e-9)
-    np.testing.assert_allclose(res.precision.covariance[~p.fixed],
-                               np.stack([Qx[3 * k:3 * k + 3, 3 * k:3 * k + 3] for k in range(p.n_anchors - 4)]),
-                               rtol=1e-8, atol=1e-14)
+    np.testing.assert_allclose(
+        res.precision.covariance[~p.fixed],
+        np.stack([Qx[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] for k in range(p.n_anchors - 4)]),
+        rtol=1e-8,
+        atol=1e-14,
+    )
     assert res.precision.kind == "centralized" and res.precision.redundancy == p.n_meas - p.n_free
 
 
@@ -197,8 +223,15 @@ def _ring():
     pos = np.vstack([np.column_stack([10 * np.cos(ang), 10 * np.sin(ang)]), [[0.0, 0.0], [3.0, 1.0]]])
     links = [(i, j) for i in range(10) for j in range(i + 1, 10) if np.linalg.norm(pos[i] - pos[j]) < 16]
     d = [float(np.linalg.norm(pos[i] - pos[j])) for i, j in links]
-    return build_problem(ids, [(ids[i], ids[j]) for i, j in links], d, fixed={"K0": pos[8], "K1": pos[9]}, dim=2,
-                         truth_m=pos, initial_m=pos)
+    return build_problem(
+        ids,
+        [(ids[i], ids[j]) for i, j in links],
+        d,
+        fixed={"K0": pos[8], "K1": pos[9]},
+        dim=2,
+        truth_m=pos,
+        initial_m=pos,
+    )
 
 
 def test_exclusion_rounds_take_links_of_different_anchors_together():
@@ -241,6 +274,6 @@ def test_robust_w_tests_and_covariance_match_the_dense_formula(offsets):
     A = J.toarray()
     Q_ref = np.linalg.inv(A.T @ (wt[:, None] * A))
     R = np.eye(A.shape[0]) - A @ Q_ref @ A.T @ np.diag(wt)
-    q_ref = np.diag(R @ R.T)[:p.n_meas]
+    q_ref = np.diag(R @ R.T)[: p.n_meas]
     np.testing.assert_allclose(Q, Q_ref, rtol=1e-10, atol=1e-10 * np.abs(Q_ref).max())
-    np.testing.assert_allclose(tests.w, r[:p.n_meas] / np.sqrt(q_ref), rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(tests.w, r[: p.n_meas] / np.sqrt(q_ref), rtol=1e-10, atol=1e-10)

@@ -15,8 +15,14 @@ from distnav.exchange import make_exchange
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 from distnav.models.uwb.problems import build_problem
 
-OPTS = {"objective": "metres", "sigma_m": 0.1, "loss": "cauchy", "loss_scale_m": 0.3, "range_offsets": "common",
-        "offset_prior_sigma_m": 0.1}
+OPTS = {
+    "objective": "metres",
+    "sigma_m": 0.1,
+    "loss": "cauchy",
+    "loss_scale_m": 0.3,
+    "range_offsets": "common",
+    "offset_prior_sigma_m": 0.1,
+}
 
 
 def corner_hall():
@@ -58,8 +64,15 @@ def test_refinement_matches_lm_for_every_offset_mode(offsets, loss):
     rng_m = d[k] + rng.normal(0, 0.05, int(k.sum())) + 0.2 + delays[a[k]] + delays[b[k]]
     rng_m[3] += 1.2  # one NLOS link
     ids = [str(i) for i in range(n)]
-    p = build_problem(ids, np.stack([a[k], b[k]], 1), rng_m, fixed={ids[i]: truth[i] for i in range(4)}, dim=3,
-                      initial_m=truth + rng.uniform(-1, 1, truth.shape), truth_m=truth)
+    p = build_problem(
+        ids,
+        np.stack([a[k], b[k]], 1),
+        rng_m,
+        fixed={ids[i]: truth[i] for i in range(4)},
+        dim=3,
+        initial_m=truth + rng.uniform(-1, 1, truth.shape),
+        truth_m=truth,
+    )
     opts = {**OPTS, "loss": loss, "sigma_m": 0.05, "range_offsets": offsets}
     lm = solve_lm(p, **opts)
     res = solve(p, "N-CSG-TBLS", iterations=20, **opts)  # 20 iterations: far from the solution
@@ -78,11 +91,34 @@ def test_refinement_says_max_iterations_when_its_rounds_run_out():
     ex = make_exchange(p.graph)
     sigma = range_sigma(p, 0.1)
     assert p.initial_m is not None
-    out = refine(p, ex, p.initial_m[ex.nodes], np.zeros(ex.n_local), sigma=sigma, scale=0.3 / sigma, loss="cauchy",
-                 range_offsets="common", offset_prior_sigma_m=0.1, ftol=1e-6, xtol_m=1e-4, max_rounds=1)
+    out = refine(
+        p,
+        ex,
+        p.initial_m[ex.nodes],
+        np.zeros(ex.n_local),
+        sigma=sigma,
+        scale=0.3 / sigma,
+        loss="cauchy",
+        range_offsets="common",
+        offset_prior_sigma_m=0.1,
+        ftol=1e-6,
+        xtol_m=1e-4,
+        max_rounds=1,
+    )
     assert out.status == "max_iterations" and out.rounds == 1
-    full = refine(p, ex, p.initial_m[ex.nodes], np.zeros(ex.n_local), sigma=sigma, scale=0.3 / sigma,
-                  loss="cauchy", range_offsets="common", offset_prior_sigma_m=0.1, ftol=1e-6, xtol_m=1e-4)
+    full = refine(
+        p,
+        ex,
+        p.initial_m[ex.nodes],
+        np.zeros(ex.n_local),
+        sigma=sigma,
+        scale=0.3 / sigma,
+        loss="cauchy",
+        range_offsets="common",
+        offset_prior_sigma_m=0.1,
+        ftol=1e-6,
+        xtol_m=1e-4,
+    )
     assert full.status == "converged" and full.objective < out.objective
 
 

@@ -25,7 +25,9 @@ def test_python_examples_run(path, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # examples that write files write them here
     blocks = _python_blocks(path)
     for block in blocks:
-        exec(compile(block, str(path), "exec", dont_inherit=True),  # run as a user would: no inherited __future__
-             {"__name__": "__doc_example__"})  # noqa: S102
+        exec(
+            compile(block, str(path), "exec", dont_inherit=True),  # run as a user would: no inherited __future__
+            {"__name__": "__doc_example__"},
+        )  # noqa: S102
     if any("print(" in b for b in blocks):
         assert capsys.readouterr().out.strip(), f"the examples of {path.name} print their results"

@@ -61,6 +61,7 @@ def test_mdb_moves_the_w_statistic_by_sqrt_lambda0_and_redundancy_sums_to_m_minu
     r = redundancy_numbers(A, p, Q)
     assert r.sum() == pytest.approx(12 - 4)
     import scipy.sparse as sp
+
     assert np.allclose(redundancy_numbers(sp.csr_matrix(A), p, Q), r)  # the sparse path
     lam0 = noncentrality(0.001, 0.8)
     mdb = minimal_detectable_bias(sigma, r, lam0)
@@ -79,8 +80,12 @@ def _network(seed: int, noise_m: float = 0.03):
     free = rng.uniform(2.0, 18.0, (6, 2))
     ids = [*known, *(f"F{k}" for k in range(6))]
     pos = np.vstack([np.array(list(known.values())), free])
-    links = [(ids[i], ids[j]) for i in range(10) for j in range(i + 1, 10)
-             if (i >= 4 or j >= 4) and np.linalg.norm(pos[i] - pos[j]) < 25.0 and rng.random() < 0.9]
+    links = [
+        (ids[i], ids[j])
+        for i in range(10)
+        for j in range(i + 1, 10)
+        if (i >= 4 or j >= 4) and np.linalg.norm(pos[i] - pos[j]) < 25.0 and rng.random() < 0.9
+    ]
     d = np.array([np.linalg.norm(pos[ids.index(a)] - pos[ids.index(b)]) for a, b in links])
     ranges = d + rng.normal(0.0, noise_m, d.size)
     return build_problem(ids, links, ranges, fixed=known, dim=2, truth_m=pos, initial_m=pos), pos
@@ -93,7 +98,7 @@ def _fit(p, ranges, start, offset: bool):
 
     def res(v):
         q = p.truth_m.copy()
-        q[free] = v[:2 * free.size].reshape(-1, 2)
+        q[free] = v[: 2 * free.size].reshape(-1, 2)
         return (np.linalg.norm(q[a] - q[b], axis=1) + (v[-1] if offset else 0.0) - ranges) / 0.1
 
     v0 = np.r_[start[free].ravel(), [0.0] if offset else []]
@@ -104,8 +109,9 @@ def _fit(p, ranges, start, offset: bool):
 def test_uwb_redundancy_mdb_and_shift_against_refits(offset):
     p, pos = _network(3)
     x, res = _fit(p, p.range_m, pos, offset)
-    rel = external_reliability(p, x, sigma_m=0.1, offsets="common" if offset else "none", loss="linear",
-                               loss_scale_m=0.3, level=0.001)
+    rel = external_reliability(
+        p, x, sigma_m=0.1, offsets="common" if offset else "none", loss="linear", loss_scale_m=0.3, level=0.001
+    )
     assert rel is not None
     n_x = x.size
     # redundancy numbers against a finite-difference hat matrix of the independent residual function
@@ -124,7 +130,7 @@ def test_uwb_redundancy_mdb_and_shift_against_refits(offset):
         biased[k] += rel.mdb_m[k]
         x2, _ = _fit(p, biased, p.truth_m, offset)
         col = 2 * int(np.flatnonzero(free == i)[0])
-        moved = float(np.linalg.norm(x2[col:col + 2] - x[col:col + 2]))
+        moved = float(np.linalg.norm(x2[col : col + 2] - x[col : col + 2]))
         assert moved == pytest.approx(rel.shift_m[i], rel=0.01), (i, k)  # seen: ≤ 0.5 %
     assert np.all(rel.shift_m[~p.estimated] == 0.0)
 

@@ -51,10 +51,16 @@ def assert_links_resolve(out: Path) -> _Links:
 def _png(path: Path, width: int, height: int = 10) -> None:
     """A valid tiny PNG of the given size (one grey row repeated)."""
     raw = b"".join(b"\x00" + b"\x80" * width for _ in range(height))
+
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
-                     + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+        + chunk(b"IDAT", zlib.compress(raw))
+        + chunk(b"IEND", b"")
+    )
 
 
 class _Ctx:
@@ -62,13 +68,16 @@ class _Ctx:
         self.figures = figures
 
 
-@pytest.mark.parametrize(("label", "expected"), [
-    ("λ_(n-1) P1 (paper 0.92)", ("λ_(n-1) P1", "0.92")),
-    ("hardest class (paper: L)", ("hardest class", "L")),
-    ("links / constraint nodes (paper 118 / 9)", ("links / constraint nodes", "118 / 9")),
-    ("mean α at the end, RC (paper ≈1.2e-03)", ("mean α at the end, RC", "≈1.2e-03")),
-    ("initial ratio (receiver 1; √13 = 3.606)", ("initial ratio (receiver 1; √13 = 3.606)", None)),
-])
+@pytest.mark.parametrize(
+    ("label", "expected"),
+    [
+        ("λ_(n-1) P1 (paper 0.92)", ("λ_(n-1) P1", "0.92")),
+        ("hardest class (paper: L)", ("hardest class", "L")),
+        ("links / constraint nodes (paper 118 / 9)", ("links / constraint nodes", "118 / 9")),
+        ("mean α at the end, RC (paper ≈1.2e-03)", ("mean α at the end, RC", "≈1.2e-03")),
+        ("initial ratio (receiver 1; √13 = 3.606)", ("initial ratio (receiver 1; √13 = 3.606)", None)),
+    ],
+)
 def test_split_paper_value(label, expected):
     assert split_paper_value(label) == expected
 
@@ -86,9 +95,19 @@ def test_report_summary_captions_paper_column_and_links(tmp_path):
     (tmp_path / "exp" / "results.json").write_text("{}")
     results = {
         "headline": {"λ P1 (paper 0.92)": 0.9175, "a number the paper does not give": 3},
-        "claims": [claim(paper="003", where="Fig. 4", text="P1 ≈ 80 %", paper_value="≈ 0.80", distnav_value=0.78,
-                         ok=True, why="w", test="t"),
-                   claim(paper="003", where="Fig. 3", text="x", paper_value=1, distnav_value=2, ok=False, why="w")],
+        "claims": [
+            claim(
+                paper="003",
+                where="Fig. 4",
+                text="P1 ≈ 80 %",
+                paper_value="≈ 0.80",
+                distnav_value=0.78,
+                ok=True,
+                why="w",
+                test="t",
+            ),
+            claim(paper="003", where="Fig. 3", text="x", paper_value=1, distnav_value=2, ok=False, why="w"),
+        ],
     }
     index = write_report(tmp_path, [("exp", "An experiment", _Ctx(["wide.png", "small.png"]), results, 1.5)])
     text = index.read_text()

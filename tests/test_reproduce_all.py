@@ -23,8 +23,10 @@ def src_on_path(monkeypatch):
 
 
 def test_runs_every_reproduction_and_reports_a_failure(tmp_path, monkeypatch, src_on_path):
-    runs = {"consensus": Run("consensus", "consensus", cpu_s=1.0),
-            "bad": Run("bad", "consensus", ("--no-such-option",), cpu_s=5.0)}
+    runs = {
+        "consensus": Run("consensus", "consensus", cpu_s=1.0),
+        "bad": Run("bad", "consensus", ("--no-such-option",), cpu_s=5.0),
+    }
     monkeypatch.setattr(reproduce_all, "RUNS", runs)
     echo = io.StringIO()
     summary = run_all(["consensus", "bad"], tmp_path, jobs=1, quick=True, echo=echo)
@@ -41,11 +43,27 @@ def test_runs_every_reproduction_and_reports_a_failure(tmp_path, monkeypatch, sr
 
 
 def test_the_default_set_is_what_the_claims_table_reads_and_options_are_checked(tmp_path, capsys):
-    assert set(reproduce_all.RUNS) == {"consensus", "admm", "ckf", "uwb", "uwb-horizontal", "codebias",
-                                       "ckf-ionosphere"}
+    assert set(reproduce_all.RUNS) == {
+        "consensus",
+        "admm",
+        "ckf",
+        "uwb",
+        "uwb-horizontal",
+        "codebias",
+        "ckf-ionosphere",
+    }
     assert reproduce_all._command(reproduce_all.RUNS["uwb"], tmp_path, 2, False, 0)[2:] == [
-        "distnav", "reproduce", "uwb", "--out", str(tmp_path / "uwb"), "--seed", "0", "--no-progress",
-        "--jobs", "2"]
+        "distnav",
+        "reproduce",
+        "uwb",
+        "--out",
+        str(tmp_path / "uwb"),
+        "--seed",
+        "0",
+        "--no-progress",
+        "--jobs",
+        "2",
+    ]
     assert "--jobs" not in reproduce_all._command(reproduce_all.RUNS["ckf"], tmp_path, 2, False, 0)
     with pytest.raises(SystemExit) as exc:
         main(["reproduce-all", "--out", str(tmp_path), "--only", "nonsense"])
@@ -57,7 +75,11 @@ def test_every_reproduction_gets_one_blas_thread_unless_the_user_set_it(tmp_path
     monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
     assert reproduce_all.child_environment({"PATH": "/bin", "MKL_NUM_THREADS": "2"}) == {
-        "PATH": "/bin", "MKL_NUM_THREADS": "2", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+        "PATH": "/bin",
+        "MKL_NUM_THREADS": "2",
+        "OPENBLAS_NUM_THREADS": "1",
+        "OMP_NUM_THREADS": "1",
+    }
     probe = Run("probe", "consensus", cpu_s=1.0)
     monkeypatch.setattr(reproduce_all, "RUNS", {"probe": probe})
     seen: dict[str, str | None] = {}

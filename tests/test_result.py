@@ -13,12 +13,19 @@ from distnav.network import builders
 def test_unknown_status_is_refused_and_usable_follows_status() -> None:
     res = average_consensus(np.arange(5.0), graph=builders.ring(5), rounds=3)
     assert isinstance(res, ConsensusResult) and res.usable
-    kw = {"estimates": res.estimates, "converged": False, "iterations": 1, "message": "", "trace": Trace(),
-          "comm": res.comm}
+    kw = {
+        "estimates": res.estimates,
+        "converged": False,
+        "iterations": 1,
+        "message": "",
+        "trace": Trace(),
+        "comm": res.comm,
+    }
     with pytest.raises(ValueError, match="unknown solver status"):
         SolverResult(status="done", **kw)  # type: ignore[arg-type]
     assert {"converged", "max_iterations", "stopped", "diverged", "ambiguous", "weakly_determined"} == set(
-        SOLVER_STATUSES)
+        SOLVER_STATUSES
+    )
     assert not SolverResult(status="diverged", **kw).usable
     assert not SolverResult(status="ambiguous", **kw).usable
 

@@ -24,13 +24,26 @@ def _written_hall(tmp_path, seed: int, *, known_z_span_m: float | None = None, *
         t = h.truth_m.copy()
         t[h.known, 2] = h.config.ceiling_m - np.linspace(0, known_z_span_m, h.known.size)
         new = np.linalg.norm(t[h.links[:, 0]] - t[h.links[:, 1]], axis=1)
-        h = dataclasses.replace(h, truth_m=t, surveyed_z_m=t[:, 2].copy(), distance_m=new,
-                                range_m=h.range_m + (new - h.distance_m)[h.sample_link])
+        h = dataclasses.replace(
+            h,
+            truth_m=t,
+            surveyed_z_m=t[:, 2].copy(),
+            distance_m=new,
+            range_m=h.range_m + (new - h.distance_m)[h.sample_link],
+        )
     return h.write(tmp_path / f"hall{seed}-{known_z_span_m}")
 
 
-@pytest.mark.parametrize("seed, span, cfg", [(0, None, {}), (1, None, {}), (3, None, {}), (1, 2.0, {}),
-                                             (1, None, {"link_loss": 0.7, "nlos_p1": 0.15, "min_links": 4})])
+@pytest.mark.parametrize(
+    "seed, span, cfg",
+    [
+        (0, None, {}),
+        (1, None, {}),
+        (3, None, {}),
+        (1, 2.0, {}),
+        (1, None, {"link_loss": 0.7, "nlos_p1": 0.15, "min_links": 4}),
+    ],
+)
 def test_heights_free_hall_is_refused_through_the_cli_whatever_its_mds_start(tmp_path, capsys, seed, span, cfg):
     """Issue 13's named case, end to end: the MDS start of these ceiling halls is *not* planar (planarity
     0.10–0.18 against the truth's 0.01), which let a heights-free solve through with metres of error (seed 1:
@@ -45,7 +58,8 @@ def test_heights_free_hall_is_refused_through_the_cli_whatever_its_mds_start(tmp
     assert main([*base, "--allow-planar-3d", "--out", str(tmp_path / "asked")]) in (0, 1)
     asked = json.loads((tmp_path / "asked" / "summary.json").read_text())
     assert asked["status"] in ("weakly_determined", "ambiguous") and "planar" in [
-        i["kind"] for i in asked["geometry"]["issues"]]
+        i["kind"] for i in asked["geometry"]["issues"]
+    ]
     assert main([*base, "--heights", str(f["heights"]), "--out", str(tmp_path / "held")]) in (0, 1)
     held = json.loads((tmp_path / "held" / "summary.json").read_text())
     assert "planar" not in [i["kind"] for i in held["geometry"]["issues"]] and held["rmse_m"] < 0.6
@@ -54,8 +68,14 @@ def test_heights_free_hall_is_refused_through_the_cli_whatever_its_mds_start(tmp
 def test_plane_fit_ratio_separates_ceiling_halls_from_volumetric_networks():
     h = simulate_hall(np.random.default_rng([1, 5]))
     d = np.array([np.median(h.range_m[h.sample_link == k]) for k in range(h.links.shape[0])])
-    hall = build_problem(list(h.ids), [tuple(x) for x in h.links.tolist()], d,
-                         fixed={h.ids[k]: h.truth_m[k] for k in h.known}, dim=3, check_determined=False)
+    hall = build_problem(
+        list(h.ids),
+        [tuple(x) for x in h.links.tolist()],
+        d,
+        fixed={h.ids[k]: h.truth_m[k] for k in h.known},
+        dim=3,
+        check_determined=False,
+    )
     assert planar_fit_ratio(hall) < PLANAR_FIT_RATIO
     rng = np.random.default_rng(7)
     pos = rng.uniform(0, 20, (10, 3))  # a volumetric network, ranges with 5 cm noise
@@ -72,9 +92,26 @@ def test_fixed_step_squared_form_diverges_on_a_hall_and_says_so(tmp_path, capsys
     f = simulate_hall(np.random.default_rng(1)).write(tmp_path / "hall")
     for solver in ("N-CSG", "CSG"):
         out = tmp_path / solver
-        code = main(["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--heights",
-                     str(f["heights"]), "--objective", "squared", "--loss", "linear", "--solver", solver,
-                     "--out", str(out)])
+        code = main(
+            [
+                "uwb",
+                "solve",
+                "--ranges",
+                str(f["ranges"]),
+                "--known",
+                str(f["known"]),
+                "--heights",
+                str(f["heights"]),
+                "--objective",
+                "squared",
+                "--loss",
+                "linear",
+                "--solver",
+                solver,
+                "--out",
+                str(out),
+            ]
+        )
         assert code == 1
         s = json.loads((out / "summary.json").read_text())
         assert s["status"] == "diverged" and not s["usable"] and "diverged" in s["message"]
@@ -98,8 +135,7 @@ def _april_medians(log) -> dict[tuple[int, int], float]:
 
 
 @pytest.mark.parametrize("solver", ["LM", "N-CLM"])
-def test_april_nearly_collinear_known_nodes_are_ambiguous_not_a_confident_mirror(shared_data, tmp_path, capsys,
-                                                                                  solver):
+def test_april_nearly_collinear_known_nodes_are_ambiguous_not_a_confident_mirror(shared_data, tmp_path, capsys, solver):
     """Known nodes 8, 61, 12 of the real APRIL network: 12 is 0.13 m off the line of the three. Before this audit
     distnav returned the mirror image (RMSE 4.15 m) as ``converged``, exit 0. An independent scipy fit (medians,
     common offset, Cauchy 0.3 m) from either side of the line finds two solutions > 2 m apart whose costs differ
@@ -115,7 +151,7 @@ def test_april_nearly_collinear_known_nodes_are_ambiguous_not_a_confident_mirror
     keys = sorted(med)
 
     def resid(x: np.ndarray) -> np.ndarray:
-        pos = dict(known) | {k: x[2 * i: 2 * i + 2] for i, k in enumerate(free)}
+        pos = dict(known) | {k: x[2 * i : 2 * i + 2] for i, k in enumerate(free)}
         return np.array([np.linalg.norm(pos[a] - pos[b]) for a, b in keys]) + x[-1] - np.array([med[k] for k in keys])
 
     fits = []
@@ -129,8 +165,22 @@ def test_april_nearly_collinear_known_nodes_are_ambiguous_not_a_confident_mirror
     files = tmp_path / "col"
     assert main(["uwb", "import-april", str(log), "--known", "8,61,12", "--out", str(files)]) == 0
     out = tmp_path / "out"
-    code = main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
-                 "--truth", str(files / "truth.csv"), "--solver", solver, "--out", str(out)])
+    code = main(
+        [
+            "uwb",
+            "solve",
+            "--ranges",
+            str(files / "ranges.csv"),
+            "--known",
+            str(files / "known.csv"),
+            "--truth",
+            str(files / "truth.csv"),
+            "--solver",
+            solver,
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 1
     err = capsys.readouterr().err
     assert "lie nearly on one line" in err and "mirror image" in err and "ambiguous" in err
@@ -139,7 +189,8 @@ def test_april_nearly_collinear_known_nodes_are_ambiguous_not_a_confident_mirror
     with (out / "positions.csv").open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert {r["id"]: r["status"] for r in rows if r["id"] not in ("8", "61", "12")} == {
-        k: "ambiguous" for k in ("14", "54", "81", "87")}
+        k: "ambiguous" for k in ("14", "54", "81", "87")
+    }
 
 
 def test_known_anchors_along_a_wall_are_checked_and_not_flagged(tmp_path):
@@ -150,8 +201,25 @@ def test_known_anchors_along_a_wall_are_checked_and_not_flagged(tmp_path):
     h = simulate_hall(np.random.default_rng([2026, 99, 0]), known="middle", known_on_wall=True, **PLANT_LIKE)
     f = h.write(tmp_path / "wall")
     out = tmp_path / "out"
-    assert main(["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--heights",
-                 str(f["heights"]), "--truth", str(f["truth"]), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "uwb",
+                "solve",
+                "--ranges",
+                str(f["ranges"]),
+                "--known",
+                str(f["known"]),
+                "--heights",
+                str(f["heights"]),
+                "--truth",
+                str(f["truth"]),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "converged" and s["geometry"]["issues"] == [] and s["rmse_m"] < 0.2
     assert any("lie nearly on one line" in n and "the ranges choose the side" in n for n in s["geometry"]["notes"])

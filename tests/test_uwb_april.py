@@ -15,8 +15,16 @@ from scipy.optimize import least_squares
 from distnav.cli import main
 
 # PROVENANCE.md: hand-calibrated antenna delays (µs), c in m/µs, ground truth in feet
-DELAY_US = {8: 0.515375, 12: 0.515547, 14: 0.515818, 16: 0.515717, 54: 0.515316, 61: 0.515541, 81: 0.515397,
-            87: 0.515345}
+DELAY_US = {
+    8: 0.515375,
+    12: 0.515547,
+    14: 0.515818,
+    16: 0.515717,
+    54: 0.515316,
+    61: 0.515541,
+    81: 0.515397,
+    87: 0.515345,
+}
 C = 299.792458
 TRUTH_FT = {8: (0, 0), 12: (15, 1), 14: (2, 9), 54: (20, 3), 61: (10, 0), 81: (17, 7), 87: (8, 8)}
 KNOWN = (8, 12, 54, 87)
@@ -50,7 +58,7 @@ def _reference_fit(log: Path, loss: str) -> tuple[dict[int, np.ndarray], float]:
     def unpack(x: np.ndarray) -> dict[int, np.ndarray]:
         pos = dict(known)
         for i, k in enumerate(free):
-            pos[k] = x[2 * i: 2 * i + 2]
+            pos[k] = x[2 * i : 2 * i + 2]
         return pos
 
     def resid(x: np.ndarray) -> np.ndarray:
@@ -81,8 +89,25 @@ def test_april_common_offset_matches_a_scipy_fit(shared_data, tmp_path, name):
     files = tmp_path / "april"
     assert main(["uwb", "import-april", str(log), "--out", str(files)]) == 0
     out = tmp_path / "out"
-    assert main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
-                 "--truth", str(files / "truth.csv"), "--range-offsets", "common", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "uwb",
+                "solve",
+                "--ranges",
+                str(files / "ranges.csv"),
+                "--known",
+                str(files / "known.csv"),
+                "--truth",
+                str(files / "truth.csv"),
+                "--range-offsets",
+                "common",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     s = json.loads((out / "summary.json").read_text())
     got = _positions(out / "positions.csv")
     # distnav's default is the one-sided Cauchy loss at 0.3 m (ranges read long; the scatter here, 0.3–0.4 m, keeps
@@ -90,8 +115,9 @@ def test_april_common_offset_matches_a_scipy_fit(shared_data, tmp_path, name):
     # the large multipath residuals (0.4 m RMS) differently (looser tolerance)
     for loss, tol in (("cauchy_long", 0.05), ("cauchy", 0.2), ("soft_l1", 0.2)):
         ref, ref_offset = _reference_fit(log, loss)
-        diff = [np.linalg.norm([float(got[str(k)]["x_m"]) - v[0], float(got[str(k)]["y_m"]) - v[1]])
-                for k, v in ref.items()]
+        diff = [
+            np.linalg.norm([float(got[str(k)]["x_m"]) - v[0], float(got[str(k)]["y_m"]) - v[1]]) for k, v in ref.items()
+        ]
         print(name, loss, "max position difference [m]", round(max(diff), 4), "offset", s["offsets_m"][0], ref_offset)
         assert max(diff) < tol, (loss, diff, s["excluded_links"])
         assert s["offsets_m"][0] == pytest.approx(ref_offset, abs=tol)
@@ -104,8 +130,25 @@ def test_april_common_offset_matches_a_scipy_fit(shared_data, tmp_path, name):
     assert all(r.startswith("reliability: ") for r in s["weak_reasons"].values())
     # with a common offset the fit is better than without (issue 13: 0.41 → 0.25 m on a centralized fit)
     plain = tmp_path / "plain"
-    assert main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
-                 "--truth", str(files / "truth.csv"), "--range-offsets", "none", "--out", str(plain)]) == 0
+    assert (
+        main(
+            [
+                "uwb",
+                "solve",
+                "--ranges",
+                str(files / "ranges.csv"),
+                "--known",
+                str(files / "known.csv"),
+                "--truth",
+                str(files / "truth.csv"),
+                "--range-offsets",
+                "none",
+                "--out",
+                str(plain),
+            ]
+        )
+        == 0
+    )
     assert s["rmse_m"] < json.loads((plain / "summary.json").read_text())["rmse_m"]
     sig = [float(got[str(k)]["sx_m"]) for k in ref]
     assert all(0.0 < v < 1.0 for v in sig)
@@ -116,8 +159,22 @@ def test_april_two_known_nodes_are_flagged_ambiguous(shared_data, tmp_path, caps
     files = tmp_path / "april2"
     assert main(["uwb", "import-april", str(log), "--known", "8,54", "--out", str(files)]) == 0
     out = tmp_path / "out"
-    code = main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
-                 "--truth", str(files / "truth.csv"), "--range-offsets", "common", "--out", str(out)])
+    code = main(
+        [
+            "uwb",
+            "solve",
+            "--ranges",
+            str(files / "ranges.csv"),
+            "--known",
+            str(files / "known.csv"),
+            "--truth",
+            str(files / "truth.csv"),
+            "--range-offsets",
+            "common",
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 1
     err = capsys.readouterr().err
     assert "ambiguous" in err and "mirror image" in err
@@ -134,8 +191,24 @@ def test_april_default_estimates_the_common_offset(shared_data, tmp_path):
     assert main(["uwb", "import-april", str(log), "--out", str(files)]) == 0
     runs = {}
     for name, extra in (("default", []), ("common", ["--range-offsets", "common"])):
-        assert main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
-                     "--truth", str(files / "truth.csv"), *extra, "--out", str(tmp_path / name)]) == 0
+        assert (
+            main(
+                [
+                    "uwb",
+                    "solve",
+                    "--ranges",
+                    str(files / "ranges.csv"),
+                    "--known",
+                    str(files / "known.csv"),
+                    "--truth",
+                    str(files / "truth.csv"),
+                    *extra,
+                    "--out",
+                    str(tmp_path / name),
+                ]
+            )
+            == 0
+        )
         runs[name] = json.loads((tmp_path / name / "summary.json").read_text())
     assert runs["default"]["range_offsets"] == "common" and len(runs["default"]["offsets_m"]) == 1
     assert runs["default"]["offsets_m"] == runs["common"]["offsets_m"]

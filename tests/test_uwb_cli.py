@@ -15,8 +15,16 @@ from distnav.errors import DataFileError
 from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
 
 
-def hall(tmp_path: Path, *, seed: int = 0, n: int = 14, sigma_m: float = 0.0, samples: int = 3,
-         nlos: dict[tuple[int, int], float] | None = None, ceiling: bool = True) -> dict[str, Path]:
+def hall(
+    tmp_path: Path,
+    *,
+    seed: int = 0,
+    n: int = 14,
+    sigma_m: float = 0.0,
+    samples: int = 3,
+    nlos: dict[tuple[int, int], float] | None = None,
+    ceiling: bool = True,
+) -> dict[str, Path]:
     """Anchors in a 40 m × 20 m hall (under a 3 m ceiling, or at spread heights), ranges up to 22 m."""
     rng = np.random.default_rng(seed)
     xy = np.column_stack([rng.uniform(0, 40, n), rng.uniform(0, 20, n)])
@@ -34,8 +42,9 @@ def hall(tmp_path: Path, *, seed: int = 0, n: int = 14, sigma_m: float = 0.0, sa
                 rows.append(f"{ids[i]},{ids[j]},{r:.4f}" if s % 2 else f"{ids[j]},{ids[i]},{r:.4f}")
     files = {k: tmp_path / f"{k}.csv" for k in ("ranges", "known", "truth", "heights", "initial")}
     files["ranges"].write_text("\n".join(rows) + "\n")
-    pos = lambda ks, arr: "id,x_m,y_m,z_m\n" + "".join(f"{ids[k]},{arr[k, 0]:.4f},{arr[k, 1]:.4f},{arr[k, 2]:.4f}\n"
-                                                      for k in ks)
+    pos = lambda ks, arr: (
+        "id,x_m,y_m,z_m\n" + "".join(f"{ids[k]},{arr[k, 0]:.4f},{arr[k, 1]:.4f},{arr[k, 2]:.4f}\n" for k in ks)
+    )
     files["known"].write_text(pos([0, 1, 2, 3], t))
     files["truth"].write_text(pos(range(n), t))
     files["initial"].write_text(pos(range(n), t + rng.uniform(-1, 1, t.shape)))
@@ -44,8 +53,9 @@ def hall(tmp_path: Path, *, seed: int = 0, n: int = 14, sigma_m: float = 0.0, sa
 
 
 def run(files: dict[str, Path], out: Path, *extra: str) -> int:
-    return main(["uwb", "solve", "--ranges", str(files["ranges"]), "--known", str(files["known"]),
-                 "--out", str(out), *extra])
+    return main(
+        ["uwb", "solve", "--ranges", str(files["ranges"]), "--known", str(files["known"]), "--out", str(out), *extra]
+    )
 
 
 def test_solve_writes_positions_summary_and_plot(tmp_path, capsys):
@@ -70,8 +80,21 @@ def test_solve_writes_positions_summary_and_plot(tmp_path, capsys):
 def test_distributed_solver_with_initial_guess(tmp_path):
     f = hall(tmp_path, ceiling=False)
     out = tmp_path / "out"
-    assert run(f, out, "--initial", str(f["initial"]), "--truth", str(f["truth"]), "--solver", "n-clm",
-               "--iterations", "600") == 0
+    assert (
+        run(
+            f,
+            out,
+            "--initial",
+            str(f["initial"]),
+            "--truth",
+            str(f["truth"]),
+            "--solver",
+            "n-clm",
+            "--iterations",
+            "600",
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == "N-CLM" and summary["objective"] == "metres"
     assert summary["loss"] == "cauchy" and summary["loss_used"] == "cauchy_long"  # one-sided, as LM's (issue 13)
@@ -109,8 +132,22 @@ def test_robust_loss_and_exclusion_handle_nlos_pairs(tmp_path):
     f = hall(tmp_path, sigma_m=0.02, ceiling=False, nlos={(4, 5): 3.0, (6, 9): 3.0}, seed=1)
     rm = {}
     for loss in ("linear", "cauchy"):
-        assert run(f, tmp_path / loss, "--truth", str(f["truth"]), "--initial", str(f["initial"]),
-                   "--loss", loss, "--loss-scale-m", "0.1", "--no-exclude") == 0
+        assert (
+            run(
+                f,
+                tmp_path / loss,
+                "--truth",
+                str(f["truth"]),
+                "--initial",
+                str(f["initial"]),
+                "--loss",
+                loss,
+                "--loss-scale-m",
+                "0.1",
+                "--no-exclude",
+            )
+            == 0
+        )
         rm[loss] = json.loads((tmp_path / loss / "summary.json").read_text())["rmse_m"]
     assert rm["cauchy"] < 0.05 < rm["linear"]
     assert run(f, tmp_path / "default", "--truth", str(f["truth"])) == 0  # metres, Cauchy, exclusion
@@ -121,8 +158,26 @@ def test_robust_loss_and_exclusion_handle_nlos_pairs(tmp_path):
     assert links[0] == "a,b,samples,median_range_m,mad_m,residual_m,w,flagged,excluded"
     excluded = {tuple(sorted(r.split(",")[:2])): float(r.split(",")[5]) for r in links[1:] if r.endswith(",1")}
     assert list(excluded) == [("A04", "A05")] and excluded["A04", "A05"] == pytest.approx(-3.0, abs=0.1)
-    assert run(f, tmp_path / "tbls", "--truth", str(f["truth"]), "--initial", str(f["initial"]), "--loss", "cauchy",
-               "--loss-scale-m", "0.1", "--solver", "N-CSG-TBLS", "--iterations", "800", "--no-exclude") == 0
+    assert (
+        run(
+            f,
+            tmp_path / "tbls",
+            "--truth",
+            str(f["truth"]),
+            "--initial",
+            str(f["initial"]),
+            "--loss",
+            "cauchy",
+            "--loss-scale-m",
+            "0.1",
+            "--solver",
+            "N-CSG-TBLS",
+            "--iterations",
+            "800",
+            "--no-exclude",
+        )
+        == 0
+    )
     tbls = json.loads((tmp_path / "tbls" / "summary.json").read_text())["rmse_m"]
     assert tbls < 0.5 * rm["linear"]
 
@@ -140,8 +195,9 @@ def test_classical_mds_and_planarity():
     rng = np.random.default_rng(0)
     x = rng.uniform(0, 10, (9, 3))
     y = classical_mds(np.linalg.norm(x[:, None] - x[None], axis=2), 3)
-    np.testing.assert_allclose(np.linalg.norm(y[:, None] - y[None], axis=2),
-                               np.linalg.norm(x[:, None] - x[None], axis=2), atol=1e-8)
+    np.testing.assert_allclose(
+        np.linalg.norm(y[:, None] - y[None], axis=2), np.linalg.norm(x[:, None] - x[None], axis=2), atol=1e-8
+    )
     assert planarity(np.column_stack([x[:, :2], np.zeros(9)])) < 1e-12 < planarity(x)
 
 
@@ -214,11 +270,44 @@ def test_distributed_solve_under_mpi_writes_the_same_positions(tmp_path):
     if mpiexec is None:
         pytest.skip("no mpiexec")
     f = hall(tmp_path, ceiling=False)
-    args = ["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--initial", str(f["initial"]),
-            "--solver", "N-CSG-TBLS", "--iterations", "100"]
-    proc = subprocess.run([mpiexec, "-n", "2", sys.executable, "-m", "mpi4py", "-m", "distnav", *args, "--backend",
-                           "mpi", "--ranks", "2", "--out", str(tmp_path / "mpi")], stdin=subprocess.DEVNULL,
-                          capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    args = [
+        "uwb",
+        "solve",
+        "--ranges",
+        str(f["ranges"]),
+        "--known",
+        str(f["known"]),
+        "--initial",
+        str(f["initial"]),
+        "--solver",
+        "N-CSG-TBLS",
+        "--iterations",
+        "100",
+    ]
+    proc = subprocess.run(
+        [
+            mpiexec,
+            "-n",
+            "2",
+            sys.executable,
+            "-m",
+            "mpi4py",
+            "-m",
+            "distnav",
+            *args,
+            "--backend",
+            "mpi",
+            "--ranks",
+            "2",
+            "--out",
+            str(tmp_path / "mpi"),
+        ],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert main([*args, "--out", str(tmp_path / "local")]) == 0
     assert (tmp_path / "mpi" / "positions.csv").read_bytes() == (tmp_path / "local" / "positions.csv").read_bytes()
@@ -235,21 +324,42 @@ def test_diverged_run_exits_non_zero_and_writes_no_positions(tmp_path, capsys, m
     monkeypatch.setattr(field.csg, "solve", lambda *a, **kw: real(*a, **{**kw, "alpha": 1.0}))  # blows up
     f = hall(tmp_path, ceiling=False)
     out = tmp_path / "out"
-    assert run(f, out, "--solver", "CSG", "--loss", "linear", "--objective", "squared", "--iterations", "50",
-               "--initial", str(f["initial"])) == 1
+    assert (
+        run(
+            f,
+            out,
+            "--solver",
+            "CSG",
+            "--loss",
+            "linear",
+            "--objective",
+            "squared",
+            "--iterations",
+            "50",
+            "--initial",
+            str(f["initial"]),
+        )
+        == 1
+    )
     assert json.loads((out / "summary.json").read_text())["status"] == "diverged"
     assert not (out / "positions.csv").exists() and not (out / "positions.png").exists()
     assert "diverged" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("extra, match", [
-    (("--sigma-m", "0"), "--sigma-m must be a positive"), (("--sigma-m", "nan"), "--sigma-m must be a positive"),
-    (("--level", "0.7"), "--level must lie in"), (("--offset-prior-sigma-m", "-1"), "--offset-prior-sigma-m"),
-    (("--range-offsets", "common", "--objective", "squared"), "estimated with --objective metres only"),
-    (("--range-offsets", "per_anchor", "--solver", "N-CLM", "--objective", "squared"), "with --objective metres"),
-    (("--objective", "cubed"), "invalid choice"), (("--range-offsets", "all"), "invalid choice"),
-    (("--level", "x"), "invalid float"),
-])
+@pytest.mark.parametrize(
+    "extra, match",
+    [
+        (("--sigma-m", "0"), "--sigma-m must be a positive"),
+        (("--sigma-m", "nan"), "--sigma-m must be a positive"),
+        (("--level", "0.7"), "--level must lie in"),
+        (("--offset-prior-sigma-m", "-1"), "--offset-prior-sigma-m"),
+        (("--range-offsets", "common", "--objective", "squared"), "estimated with --objective metres only"),
+        (("--range-offsets", "per_anchor", "--solver", "N-CLM", "--objective", "squared"), "with --objective metres"),
+        (("--objective", "cubed"), "invalid choice"),
+        (("--range-offsets", "all"), "invalid choice"),
+        (("--level", "x"), "invalid float"),
+    ],
+)
 def test_new_option_errors_before_any_work(tmp_path, capsys, extra, match):
     f = hall(tmp_path)
     out = tmp_path / "o"
@@ -286,8 +396,20 @@ def test_weak_anchors_are_named_on_the_console_and_in_positions_csv(tmp_path, ca
 
     simulate_hall(np.random.default_rng([0, 105]), known="middle").write(tmp_path / "hall")
     h = tmp_path / "hall"
-    code = main(["uwb", "solve", "--ranges", str(h / "ranges.csv"), "--known", str(h / "known.csv"),
-                 "--heights", str(h / "heights.csv"), "--out", str(tmp_path / "out")])
+    code = main(
+        [
+            "uwb",
+            "solve",
+            "--ranges",
+            str(h / "ranges.csv"),
+            "--known",
+            str(h / "known.csv"),
+            "--heights",
+            str(h / "heights.csv"),
+            "--out",
+            str(tmp_path / "out"),
+        ]
+    )
     assert code == 0
     s = json.loads((tmp_path / "out" / "summary.json").read_text())
     with (tmp_path / "out" / "positions.csv").open() as f:
@@ -320,8 +442,16 @@ def test_reliability_weak_anchors_carry_their_reason_and_the_limit_switches_it_o
     cfg = HallConfig().with_(**{**PLANT_LIKE, "known": "middle", "length_m": 120.0, "width_m": 14.0})
     simulate_hall(np.random.default_rng([0, 5]), cfg).write(tmp_path / "hall")
     h = tmp_path / "hall"
-    base = ["uwb", "solve", "--ranges", str(h / "ranges.csv"), "--known", str(h / "known.csv"),
-            "--heights", str(h / "heights.csv")]
+    base = [
+        "uwb",
+        "solve",
+        "--ranges",
+        str(h / "ranges.csv"),
+        "--known",
+        str(h / "known.csv"),
+        "--heights",
+        str(h / "heights.csv"),
+    ]
     assert main([*base, "--out", str(tmp_path / "on")]) == 0
     s = json.loads((tmp_path / "on" / "summary.json").read_text())
     with (tmp_path / "on" / "positions.csv").open() as f:

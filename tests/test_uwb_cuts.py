@@ -16,8 +16,17 @@ from distnav.models.uwb.field import FieldOptions, prepare, solve_field
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 from distnav.models.uwb.problems import build_problem
 
-CUT = [("S0", "R0"), ("S0", "R3"), ("S0", "R4"), ("S1", "R0"), ("S1", "R1"), ("S1", "R5"),
-       ("S2", "R2"), ("S2", "R3"), ("S2", "R6")]
+CUT = [
+    ("S0", "R0"),
+    ("S0", "R3"),
+    ("S0", "R4"),
+    ("S1", "R0"),
+    ("S1", "R1"),
+    ("S1", "R5"),
+    ("S2", "R2"),
+    ("S2", "R3"),
+    ("S2", "R6"),
+]
 
 
 def _network(excluded_cut: set[tuple[str, str]]):
@@ -25,15 +34,27 @@ def _network(excluded_cut: set[tuple[str, str]]):
     pair within 12 m). A part S of 3 estimated anchors near the centre, linked among themselves, has 9 links to
     the ring (:data:`CUT`, each S anchor to 3 ring anchors); those in ``excluded_cut`` are excluded."""
     known = {"K0": [0.0, 0.0], "K1": [20.0, 0.0], "K2": [20.0, 20.0], "K3": [0.0, 20.0]}
-    ring = {"R0": [10.0, 0.0], "R1": [20.0, 10.0], "R2": [10.0, 20.0], "R3": [0.0, 10.0],
-            "R4": [5.0, 0.0], "R5": [20.0, 15.0], "R6": [15.0, 20.0], "R7": [0.0, 5.0]}
+    ring = {
+        "R0": [10.0, 0.0],
+        "R1": [20.0, 10.0],
+        "R2": [10.0, 20.0],
+        "R3": [0.0, 10.0],
+        "R4": [5.0, 0.0],
+        "R5": [20.0, 15.0],
+        "R6": [15.0, 20.0],
+        "R7": [0.0, 5.0],
+    }
     part = {"S0": [9.0, 9.0], "S1": [11.0, 9.5], "S2": [10.0, 11.0]}
     pos_d = {**known, **ring, **part}
     ids = list(pos_d)
     pos = np.array(list(pos_d.values()))
     outer = [*known, *ring]
-    links = [(u, v) for i, u in enumerate(outer) for v in outer[i + 1:]
-             if np.linalg.norm(pos[ids.index(u)] - pos[ids.index(v)]) <= 12.0]
+    links = [
+        (u, v)
+        for i, u in enumerate(outer)
+        for v in outer[i + 1 :]
+        if np.linalg.norm(pos[ids.index(u)] - pos[ids.index(v)]) <= 12.0
+    ]
     links += [("S0", "S1"), ("S0", "S2"), ("S1", "S2"), *CUT]
     d = np.array([np.linalg.norm(pos[ids.index(a)] - pos[ids.index(b)]) for a, b in links])
     p = build_problem(ids, links, d, fixed=known, dim=2, truth_m=pos, initial_m=pos)
@@ -101,8 +122,9 @@ def test_the_shifted_cluster_of_the_nlos_20_hall_is_reported_weak(tmp_path):
     f = h.write(tmp_path / "hall")
     silent = {}
     for on in (True, False):
-        sol, _, _ = solve_range_log(f["ranges"], f["known"], heights=f["heights"], truth=f["truth"],
-                                    options=FieldOptions(cut_test=on))
+        sol, _, _ = solve_range_log(
+            f["ranges"], f["known"], heights=f["heights"], truth=f["truth"], options=FieldOptions(cut_test=on)
+        )
         ids = list(h.ids)
         idx = np.array([ids.index(x) for x in sol.problem.ids])
         err = np.linalg.norm(sol.positions_m - h.truth_m[idx], axis=1)

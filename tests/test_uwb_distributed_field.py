@@ -20,8 +20,15 @@ def _star(seed: int = 2, sigma_m: float = 0.05):
     r = np.array([np.linalg.norm(t[i] - t[k]) for i, k in links]) + rng.normal(0.0, sigma_m, len(links))
     r[7] += 1.2  # anchor 1's link to anchor 5 reads long
     ids = [f"A{i}" for i in range(10)]
-    return build_problem(ids, links, list(r), fixed={ids[k]: t[k] for k in range(4, 10)}, dim=2, truth_m=t,
-                         initial_m=t + rng.uniform(-0.5, 0.5, t.shape))
+    return build_problem(
+        ids,
+        links,
+        list(r),
+        fixed={ids[k]: t[k] for k in range(4, 10)},
+        dim=2,
+        truth_m=t,
+        initial_m=t + rng.uniform(-0.5, 0.5, t.shape),
+    )
 
 
 @pytest.mark.parametrize("solver", ["N-CLM", "N-CSG-TBLS"])

@@ -51,8 +51,7 @@ def _star4(long_on: dict[int, float]):
     x = np.array([4.0, 3.0])
     r = [float(np.linalg.norm(x - q)) + long_on.get(k, 0.0) for k, q in enumerate(known.values())]
     pos = np.array([x, *known.values()])
-    return build_problem(["X", *known], [("X", k) for k in known], r, fixed=known, dim=2, truth_m=pos,
-                         initial_m=pos)
+    return build_problem(["X", *known], [("X", k) for k in known], r, fixed=known, dim=2, truth_m=pos, initial_m=pos)
 
 
 def test_repair_never_drops_a_link_measured_short():
@@ -74,7 +73,8 @@ def test_repair_never_drops_a_link_measured_short():
     new, notes, moved = repair_exclusions(p, est, current, np.zeros(4, bool))
     assert new.tolist() == [False, False, True, True] and "X-K2" in notes[0] and "X-K3" in notes[0]
     mirror = np.array([4.0, 3.0]) - 2 * (np.array([4.0, 3.0]) @ np.array([1.0, -12.0])) / 145.0 * np.array(
-        [1.0, -12.0])  # X mirrored through the line K0–K1: K2, K3 read long there too, so it fits as well
+        [1.0, -12.0]
+    )  # X mirrored through the line K0–K1: K2, K3 read long there too, so it fits as well
     assert np.allclose(moved[0], x, atol=1e-6) or np.allclose(moved[0], mirror, atol=1e-6)
     kept, notes, _ = repair_exclusions(p, est, current, np.zeros(4, bool), one_sided=False)
     assert kept.tolist() == current.tolist() and notes == []
@@ -173,8 +173,14 @@ def test_careful_fit_reference_is_exact_on_noise_free_ranges_and_robust_to_one_n
     from distnav.experiments.uwb_field import careful_fit, hall_problem
     from distnav.models.uwb.hall import simulate_hall
 
-    h = simulate_hall(np.random.default_rng(5), sigma_m=1e-9, nlos_p1=0.0, multipath_fraction=0.0,
-                      antenna_delay_sd_m=0.0, height_survey_sd_m=0.0)
+    h = simulate_hall(
+        np.random.default_rng(5),
+        sigma_m=1e-9,
+        nlos_p1=0.0,
+        multipath_fraction=0.0,
+        antenna_delay_sd_m=0.0,
+        height_survey_sd_m=0.0,
+    )
     p, _ = hall_problem(h)
     est = careful_fit(p)
     assert np.max(np.abs(est - p.truth_m)) < 1e-4
@@ -288,8 +294,9 @@ def test_multi_start_finds_the_solution_a_start_in_a_wrong_basin_misses():
     best, note = choose_start(p, opts)
     assert best is not None and rmse_m(p, best) < 1e-4
     assert "multi-start" in note and "prepared" not in note
-    refit = solve_lm(p.with_initial(best), objective="metres", loss="cauchy", loss_scale_m=0.3, sigma_m=0.1,
-                     quality=False)
+    refit = solve_lm(
+        p.with_initial(best), objective="metres", loss="cauchy", loss_scale_m=0.3, sigma_m=0.1, quality=False
+    )
     assert all_links_cost(p, refit, opts) < all_links_cost(p, stuck, opts)
 
 
@@ -339,8 +346,12 @@ def test_link_residuals_and_distributed_sigma_include_the_estimated_common_offse
     base = _grid(0.02, {})
     p = dataclasses.replace(base, range_m=base.range_m + 0.35)
     for solver in ("LM", "N-CLM"):
-        sol = solve_field(p, FieldOptions(solver=solver, range_offsets="common", exclude=False,
-                                          iterations=500 if solver == "LM" else 3000))
+        sol = solve_field(
+            p,
+            FieldOptions(
+                solver=solver, range_offsets="common", exclude=False, iterations=500 if solver == "LM" else 3000
+            ),
+        )
         off = np.asarray(sol.result.offsets_m)
         assert off.shape == (1,) and abs(off[0] - 0.35) < 0.03, (solver, off)
         assert offset_bias_m(p, sol.result) == off[0]

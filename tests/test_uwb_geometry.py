@@ -14,14 +14,24 @@ from distnav.models.uwb.hall import simulate_hall
 from distnav.models.uwb.problems import build_problem
 
 
-def _problem(pos: np.ndarray, links: list[tuple[int, int]], known: list[int], *, held_z: bool = False,
-             initial: bool = True):
+def _problem(
+    pos: np.ndarray, links: list[tuple[int, int]], known: list[int], *, held_z: bool = False, initial: bool = True
+):
     n, dim = pos.shape
     ids = [f"N{i}" for i in range(n)]
     d = [float(np.linalg.norm(pos[a] - pos[b])) for a, b in links]
     held = {ids[i]: {2: float(pos[i, 2])} for i in range(n) if i not in known} if held_z else None
-    return build_problem(ids, links, d, fixed={ids[k]: pos[k] for k in known}, dim=dim, held=held,
-                         truth_m=pos, initial_m=pos if initial else None, check_determined=False)
+    return build_problem(
+        ids,
+        links,
+        d,
+        fixed={ids[k]: pos[k] for k in known},
+        dim=dim,
+        held=held,
+        truth_m=pos,
+        initial_m=pos if initial else None,
+        check_determined=False,
+    )
 
 
 def _complete(idx: list[int]) -> list[tuple[int, int]]:
@@ -146,8 +156,14 @@ def test_fast_rigidity_test_agrees_with_the_eigendecomposition():
         a, b = np.triu_indices(n, 1)
         k = np.linalg.norm(t[a] - t[b], axis=1) < rng.uniform(4.0, 12.0)
         ids = [f"A{i}" for i in range(n)]
-        p = build_problem(ids, np.stack([a[k], b[k]], 1), np.ones(int(k.sum())),
-                          fixed={ids[i]: t[i] for i in range(dim + 1)}, dim=dim, check_determined=False)
+        p = build_problem(
+            ids,
+            np.stack([a[k], b[k]], 1),
+            np.ones(int(k.sum())),
+            fixed={ids[i]: t[i] for i in range(dim + 1)},
+            dim=dim,
+            check_determined=False,
+        )
         pos = np.random.default_rng(100 + seed).normal(0.0, 1.0, size=(n, dim))
         r = rigidity_matrix(p, pos)
         w, v = np.linalg.eigh((r.T @ r).toarray())

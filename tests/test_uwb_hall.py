@@ -114,10 +114,22 @@ def test_written_files_read_back(tmp_path):
     assert truth_lines[0] == "a,b,distance_m,nlos,bias_m" and len(truth_lines) == h.links.shape[0] + 1
 
 
-@pytest.mark.parametrize("bad", [dict(n_anchors=3), dict(nlos_p1=1.5), dict(nlos_bias_m=(2.0, 1.0)),
-                                 dict(known="edge"), dict(min_samples=0), dict(n_known=1),
-                                 dict(nlos_long_fraction=1.2), dict(gross_link_fraction=-0.1),
-                                 dict(gross_excess_m=(3.0, 2.0)), dict(gross_samples=0), dict(asymmetry_sd_m=-0.1)])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(n_anchors=3),
+        dict(nlos_p1=1.5),
+        dict(nlos_bias_m=(2.0, 1.0)),
+        dict(known="edge"),
+        dict(min_samples=0),
+        dict(n_known=1),
+        dict(nlos_long_fraction=1.2),
+        dict(gross_link_fraction=-0.1),
+        dict(gross_excess_m=(3.0, 2.0)),
+        dict(gross_samples=0),
+        dict(asymmetry_sd_m=-0.1),
+    ],
+)
 def test_bad_configuration_is_a_model_error(bad):
     with pytest.raises(ModelError):
         HallConfig(**bad)
@@ -143,8 +155,10 @@ def test_plant_like_halls_have_the_real_plants_counts():
 def test_default_halls_unchanged_by_the_stress_fields():
     """The stress-test fields (bimodal NLOS, gross samples, asymmetric pairs, known anchors on a wall) draw nothing
     at their defaults: seed 7 gives the hall the simulator gave before they existed (sums pinned from that code)."""
-    for kw, total, n, n_nlos, n_swapped in (({}, 65867.23403908321, 5322, 16, 2647),
-                                            (PLANT_LIKE, 54489.80430220595, 4613, 9, 2297)):
+    for kw, total, n, n_nlos, n_swapped in (
+        ({}, 65867.23403908321, 5322, 16, 2647),
+        (PLANT_LIKE, 54489.80430220595, 4613, 9, 2297),
+    ):
         h = simulate_hall(np.random.default_rng(7), **kw)
         assert h.range_m.size == n and int(h.nlos.sum()) == n_nlos and int(h.swapped.sum()) == n_swapped
         assert float(h.range_m.sum()) == pytest.approx(total, rel=1e-13)
@@ -173,8 +187,11 @@ def test_gross_samples_and_asymmetric_pairs():
     assert np.all(np.bincount(h.sample_link[gross]) <= 2) and np.all(e[gross] < 5.0 + 0.5)
     a = simulate_hall(np.random.default_rng(1), asymmetry_sd_m=0.3, multipath_fraction=0.0, nlos_p1=0.0)
     e = _excess(a)
-    diff = [np.mean(e[(a.sample_link == k) & a.swapped]) - np.mean(e[(a.sample_link == k) & ~a.swapped])
-            for k in range(a.links.shape[0]) if 0 < a.swapped[a.sample_link == k].sum() < (a.sample_link == k).sum()]
+    diff = [
+        np.mean(e[(a.sample_link == k) & a.swapped]) - np.mean(e[(a.sample_link == k) & ~a.swapped])
+        for k in range(a.links.shape[0])
+        if 0 < a.swapped[a.sample_link == k].sum() < (a.sample_link == k).sum()
+    ]
     assert 0.2 < np.std(diff) < 0.4  # a→b and b→a differ by N(0, 0.3²) per link
 
 

@@ -17,8 +17,9 @@ from distnav.models.uwb.io import check_units, combine_ranges, read_positions, r
 
 
 def _hall(tmp_path: Path) -> dict[str, Path]:
-    return simulate_hall(np.random.default_rng(11), n_anchors=16, length_m=30.0, width_m=15.0, nlos_p1=0.0,
-                         antenna_delay_sd_m=0.0).write(tmp_path)
+    return simulate_hall(
+        np.random.default_rng(11), n_anchors=16, length_m=30.0, width_m=15.0, nlos_p1=0.0, antenna_delay_sd_m=0.0
+    ).write(tmp_path)
 
 
 def _append(path: Path, rows: list[str]) -> None:
@@ -26,8 +27,23 @@ def _append(path: Path, rows: list[str]) -> None:
 
 
 def _solve(f: dict[str, Path], out: Path, *extra: str) -> int:
-    return main(["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--heights",
-                 str(f["heights"]), "--truth", str(f["truth"]), "--out", str(out), *extra])
+    return main(
+        [
+            "uwb",
+            "solve",
+            "--ranges",
+            str(f["ranges"]),
+            "--known",
+            str(f["known"]),
+            "--heights",
+            str(f["heights"]),
+            "--truth",
+            str(f["truth"]),
+            "--out",
+            str(out),
+            *extra,
+        ]
+    )
 
 
 def test_bad_samples_are_dropped_counted_and_logged(tmp_path, caplog):
@@ -68,8 +84,7 @@ def test_id_typo_single_link_anchor_is_reported(tmp_path):
     assert good == []
 
 
-@pytest.mark.parametrize("factor, unit", [(1000.0, "millimetres"), (100.0, "centimetres"),
-                                          (1 / 0.3048, "feet")])
+@pytest.mark.parametrize("factor, unit", [(1000.0, "millimetres"), (100.0, "centimetres"), (1 / 0.3048, "feet")])
 def test_ranges_in_other_units_are_refused(tmp_path, capsys, factor, unit):
     f = _hall(tmp_path)
     log = read_ranges(f["ranges"])

@@ -50,8 +50,9 @@ def test_jacobian_matches_finite_differences(dim):
     x = p.x0()
     J = p.jacobian_of(x).toarray()
     eps = 1e-6
-    num = np.column_stack([(p.residual_vector(x + eps * e) - p.residual_vector(x - eps * e)) / (2 * eps)
-                           for e in np.eye(x.size)])
+    num = np.column_stack(
+        [(p.residual_vector(x + eps * e) - p.residual_vector(x - eps * e)) / (2 * eps) for e in np.eye(x.size)]
+    )
     np.testing.assert_allclose(J, num, rtol=1e-6, atol=1e-5)
     assert p.jacobian_of(x).nnz <= 2 * dim * p.n_meas  # sparse: two blocks per row
 
@@ -68,8 +69,9 @@ def test_held_coordinates_are_not_unknowns():
     links = [("0", "1"), ("0", "2"), ("1", "3"), ("2", "3"), ("0", "3"), ("1", "2")]
     d = [np.linalg.norm(truth[int(a)] - truth[int(b)]) for a, b in links]
     # 3-D with only two fixed anchors is allowed when every estimated height is held
-    p = build_problem(ids, links, d, fixed={"0": truth[0], "1": truth[1]}, dim=3,
-                      held={"2": {2: 2.5}, "3": {2: 2.8}}, truth_m=truth)
+    p = build_problem(
+        ids, links, d, fixed={"0": truth[0], "1": truth[1]}, dim=3, held={"2": {2: 2.5}, "3": {2: 2.8}}, truth_m=truth
+    )
     assert p.n_free == 4
     pos = p.to_positions(np.array([1.0, 2.0, 3.0, 4.0]))
     np.testing.assert_allclose(pos[2], [1, 2, 2.5])
@@ -102,10 +104,18 @@ FIX2 = {"a": [0.0, 0.0], "b": [10.0, 0.0]}
         ([("a", "c"), ("b", "c")], [np.inf, 3.0], {"fixed": FIX2, "dim": 2}, "not finite"),
         ([("a", "c"), ("b", "c")], [5.0], {"fixed": FIX2, "dim": 2}, "2 links but 1 ranges"),
         ([("a", "c")], [5.0], {"fixed": {"a": [0.0, 0.0]}, "dim": 2}, "at least 2 fixed"),
-        ([("a", "c"), ("b", "c")], [5.0, 5.0], {"fixed": {"a": [0, 0, 0], "b": [1, 0, 0]}, "dim": 3},
-         "3 non-collinear"),
-        ([("a", "d"), ("b", "d")], [5.0, 5.0],
-         {"fixed": {"a": [0, 0, 0], "b": [1, 0, 0], "c": [2, 0, 0]}, "dim": 3}, "collinear"),
+        (
+            [("a", "c"), ("b", "c")],
+            [5.0, 5.0],
+            {"fixed": {"a": [0, 0, 0], "b": [1, 0, 0]}, "dim": 3},
+            "3 non-collinear",
+        ),
+        (
+            [("a", "d"), ("b", "d")],
+            [5.0, 5.0],
+            {"fixed": {"a": [0, 0, 0], "b": [1, 0, 0], "c": [2, 0, 0]}, "dim": 3},
+            "collinear",
+        ),
         ([("a", "c"), ("b", "c")], [5.0, 5.0], {"fixed": FIX2, "dim": 2}, "'d'"),  # d has no link to fixed
         ([("a", "c")], [5.0], {"fixed": {"a": [0.0, 0.0], "z": [1.0, 1.0]}, "dim": 2}, "fixed anchor 'z'"),
         ([("a", "c")], [5.0], {"fixed": {"a": [0.0, 0.0], "b": [np.nan, 1.0]}, "dim": 2}, "finite coordinates"),
@@ -129,11 +139,13 @@ def test_duplicate_ids_and_bad_held_coordinate():
     with pytest.raises(ModelError, match="used twice"):
         build_problem(["a", "a", "b"], [("a", "b")], [1.0], fixed=FIX2, dim=2)
     with pytest.raises(ModelError, match="held coordinate"):
-        build_problem(IDS, [("a", "c"), ("b", "c"), ("c", "d")], [5.0, 5.0, 5.0], fixed=FIX2, dim=2,
-                      held={"c": {2: 1.0}})
+        build_problem(
+            IDS, [("a", "c"), ("b", "c"), ("c", "d")], [5.0, 5.0, 5.0], fixed=FIX2, dim=2, held={"c": {2: 1.0}}
+        )
     with pytest.raises(ModelError, match="held coordinate of anchor 'q'"):
-        build_problem(IDS, [("a", "c"), ("b", "c"), ("c", "d")], [5.0, 5.0, 5.0], fixed=FIX2, dim=2,
-                      held={"q": {0: 1.0}})
+        build_problem(
+            IDS, [("a", "c"), ("b", "c"), ("c", "d")], [5.0, 5.0, 5.0], fixed=FIX2, dim=2, held={"q": {0: 1.0}}
+        )
 
 
 def test_bad_initial_guess_and_positions_shape():

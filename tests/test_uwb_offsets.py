@@ -14,8 +14,24 @@ from test_uwb_april import _log, _reference_fit
 
 
 def _solve(files, out, *extra):
-    assert main(["uwb", "solve", "--ranges", str(files / "ranges.csv"), "--known", str(files / "known.csv"),
-                 "--truth", str(files / "truth.csv"), *extra, "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "uwb",
+                "solve",
+                "--ranges",
+                str(files / "ranges.csv"),
+                "--known",
+                str(files / "known.csv"),
+                "--truth",
+                str(files / "truth.csv"),
+                *extra,
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return json.loads((out / "summary.json").read_text())
 
 
@@ -36,10 +52,20 @@ def test_april_distributed_common_offset_matches_a_scipy_fit(shared_data, tmp_pa
     for solver, tol_m, tol_offset_m in (("N-CSG-TBLS", tol, 0.02), ("N-CLM", tol, 0.02)):  # N-CLM was 0.14 m off
         s = _solve(files, tmp_path / solver, "--solver", solver, "--loss", "cauchy")  # auto: the common offset
         got = {r["id"]: r for r in csv.DictReader((tmp_path / solver / "positions.csv").open())}
-        diff = max(float(np.hypot(float(got[str(k)]["x_m"]) - v[0], float(got[str(k)]["y_m"]) - v[1]))
-                   for k, v in ref.items())
-        print(name, solver, "max position difference [m]", round(diff, 4), "offset", s["offsets_m"], ref_offset,
-              "RMSE", s["rmse_m"])
+        diff = max(
+            float(np.hypot(float(got[str(k)]["x_m"]) - v[0], float(got[str(k)]["y_m"]) - v[1])) for k, v in ref.items()
+        )
+        print(
+            name,
+            solver,
+            "max position difference [m]",
+            round(diff, 4),
+            "offset",
+            s["offsets_m"],
+            ref_offset,
+            "RMSE",
+            s["rmse_m"],
+        )
         assert s["range_offsets"] == "common" and len(s["offsets_m"]) == 1
         assert diff < tol_m
         assert s["offsets_m"][0] == pytest.approx(ref_offset, abs=tol_offset_m)

@@ -42,13 +42,21 @@ def test_consider_sigma_matches_monte_carlo_with_antenna_delays():
     errs, plain, considered = [], [], []
     for _ in range(200):
         delay = rng.normal(0, 0.02, 12)
-        p = build_problem(ids, links, d + rng.normal(0, 0.01, d.size) + delay[la] + delay[lb], fixed=known, dim=2,
-                          truth_m=g, initial_m=g)
+        p = build_problem(
+            ids,
+            links,
+            d + rng.normal(0, 0.01, d.size) + delay[la] + delay[lb],
+            fixed=known,
+            dim=2,
+            truth_m=g,
+            initial_m=g,
+        )
         res = solve_lm(p, objective="metres", sigma_m=0.01, range_offsets="common")
         errs.append(res.estimates - g)
         plain.append(res.precision.std(a_posteriori=True))
-        considered.append(consider_sigma(p, res, sigma_m=0.01, offsets="common", loss="linear", loss_scale_m=0.3,
-                                         delay_sigma_m=0.02))
+        considered.append(
+            consider_sigma(p, res, sigma_m=0.01, offsets="common", loss="linear", loss_scale_m=0.3, delay_sigma_m=0.02)
+        )
     e, sp, sc = np.abs(np.array(errs)), np.array(plain), np.array(considered)
     free = p.free
     assert np.mean(e[:, free] <= 2 * sp[:, free]) < 0.88
@@ -96,18 +104,44 @@ def test_delays_estimated_from_the_residuals_when_the_prior_is_too_small():
     ratio_no_delays = []
     for _ in range(100):
         delay = rng.normal(0, 0.03, 12)
-        p = build_problem(ids, links, d + rng.normal(0, 0.01, d.size) + delay[la] + delay[lb], fixed=known, dim=2,
-                          truth_m=g, initial_m=g)
+        p = build_problem(
+            ids,
+            links,
+            d + rng.normal(0, 0.01, d.size) + delay[la] + delay[lb],
+            fixed=known,
+            dim=2,
+            truth_m=g,
+            initial_m=g,
+        )
         res = solve_lm(p, objective="metres", sigma_m=0.01, range_offsets="common")
         for name in hit:
-            s = consider_sigma(p, res, sigma_m=0.01, offsets="common", loss="linear", loss_scale_m=0.3,
-                               delay_sigma_m=0.015, estimate_delays=name == "estimated")
+            s = consider_sigma(
+                p,
+                res,
+                sigma_m=0.01,
+                offsets="common",
+                loss="linear",
+                loss_scale_m=0.3,
+                delay_sigma_m=0.015,
+                estimate_delays=name == "estimated",
+            )
             assert s is not None
             hit[name] += (np.abs(res.estimates - g)[p.free] <= 2 * s[p.free]).tolist()
         q = build_problem(ids, links, d + rng.normal(0, 0.01, d.size), fixed=known, dim=2, truth_m=g, initial_m=g)
         rq = solve_lm(q, objective="metres", sigma_m=0.01, range_offsets="common")
-        s0, s1 = (consider_sigma(q, rq, sigma_m=0.01, offsets="common", loss="linear", loss_scale_m=0.3,
-                                 delay_sigma_m=0.015, estimate_delays=e) for e in (False, True))
+        s0, s1 = (
+            consider_sigma(
+                q,
+                rq,
+                sigma_m=0.01,
+                offsets="common",
+                loss="linear",
+                loss_scale_m=0.3,
+                delay_sigma_m=0.015,
+                estimate_delays=e,
+            )
+            for e in (False, True)
+        )
         assert s0 is not None and s1 is not None
         ratio_no_delays.append(np.mean(s1[q.free] / s0[q.free]))
     cover = {k: float(np.mean(v)) for k, v in hit.items()}
@@ -161,12 +195,19 @@ def test_distributed_central_sigma_matches_monte_carlo_with_antenna_delays():
     errs, sig = [], []
     for _ in range(200):
         delay = rng.normal(0, 0.02, 12)
-        p = build_problem(ids, links, d + rng.normal(0, 0.01, d.size) + delay[la] + delay[lb], fixed=known, dim=2,
-                          truth_m=g, initial_m=g)
-        res = solve(p, "N-CLM", iterations=100, objective="metres", sigma_m=0.01, range_offsets="common",
-                    initial_m=g)
-        out = central_precision(p, res.estimates, offset_m=res.offsets_m, sigma_m=0.01, range_offsets="common",
-                                delay_sigma_m=0.02)
+        p = build_problem(
+            ids,
+            links,
+            d + rng.normal(0, 0.01, d.size) + delay[la] + delay[lb],
+            fixed=known,
+            dim=2,
+            truth_m=g,
+            initial_m=g,
+        )
+        res = solve(p, "N-CLM", iterations=100, objective="metres", sigma_m=0.01, range_offsets="common", initial_m=g)
+        out = central_precision(
+            p, res.estimates, offset_m=res.offsets_m, sigma_m=0.01, range_offsets="common", delay_sigma_m=0.02
+        )
         errs.append(res.estimates - g)
         sig.append(out.std(a_posteriori=True))
     e, s = np.abs(np.array(errs)), np.array(sig)

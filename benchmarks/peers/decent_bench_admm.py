@@ -44,9 +44,13 @@ def main(argv: list[str]) -> None:
     graph.add_edges_from(map(tuple, links.tolist()))
 
     def network() -> tuple[P2PNetwork, list[Agent]]:
-        agents = [Agent(LinearRegressionCost([(iop.from_numpy(A[i, k]), iop.from_numpy(y[i, k:k + 1]))
-                                              for k in range(m)]), state_snapshot_period=iterations)
-                  for i in range(n)]
+        agents = [
+            Agent(
+                LinearRegressionCost([(iop.from_numpy(A[i, k]), iop.from_numpy(y[i, k : k + 1])) for k in range(m)]),
+                state_snapshot_period=iterations,
+            )
+            for i in range(n)
+        ]
         return P2PNetwork(graph, agents), agents
 
     runs = []
@@ -59,12 +63,28 @@ def main(argv: list[str]) -> None:
             t2 = time.perf_counter()
             x = np.stack([iop.to_numpy(a.x) for a in agents])
             err = float(np.linalg.norm(x - x_ref, axis=1).max() / np.linalg.norm(x_ref))
-            runs.append({"penalty": penalty, "setup_s": t1 - t0, "ms_per_iteration": (t2 - t1) / iterations * 1e3,
-                         "final_relative_error": err})
-    print(json.dumps({"package": "decent-bench", "version": version("decent-bench"),
-                      "python": sys.version.split()[0], "numpy": np.__version__, "n_nodes": n,
-                      "iterations": iterations, "x_ref_check": float(np.abs(check - x_ref).max()
-                                                                     / np.abs(x_ref).max()), "runs": runs}))
+            runs.append(
+                {
+                    "penalty": penalty,
+                    "setup_s": t1 - t0,
+                    "ms_per_iteration": (t2 - t1) / iterations * 1e3,
+                    "final_relative_error": err,
+                }
+            )
+    print(
+        json.dumps(
+            {
+                "package": "decent-bench",
+                "version": version("decent-bench"),
+                "python": sys.version.split()[0],
+                "numpy": np.__version__,
+                "n_nodes": n,
+                "iterations": iterations,
+                "x_ref_check": float(np.abs(check - x_ref).max() / np.abs(x_ref).max()),
+                "runs": runs,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -44,8 +44,7 @@ def main(argv: list[str]) -> None:
     got = float(np.asarray(f.eval(probe)).ravel()[0])
     agent = Agent(in_neighbors=nbrs, out_neighbors=nbrs)
     agent.set_problem(Problem(f))
-    alg = ADMM(agent=agent, initial_lambda={j: np.zeros((p, 1)) for j in [*nbrs, rank]},
-               initial_z=np.zeros((p, 1)))
+    alg = ADMM(agent=agent, initial_lambda={j: np.zeros((p, 1)) for j in [*nbrs, rank]}, initial_z=np.zeros((p, 1)))
     comm.Barrier()
     t0 = time.perf_counter()
     alg.run(iterations=iterations, penalty=penalty)
@@ -58,10 +57,22 @@ def main(argv: list[str]) -> None:
     if rank == 0:
         X = np.stack(xs)  # type: ignore[arg-type]
         err = float(np.linalg.norm(X - x_ref, axis=1).max() / np.linalg.norm(x_ref))
-        print(json.dumps({"package": "disropt", "version": version("disropt"), "python": sys.version.split()[0],
-                          "numpy": np.__version__, "n_nodes": n, "iterations": iterations, "penalty": penalty,
-                          "ms_per_iteration": max(walls) / iterations * 1e3,  # type: ignore[arg-type]
-                          "final_relative_error": err, "cost_check": max(checks)}))  # type: ignore[arg-type]
+        print(
+            json.dumps(
+                {
+                    "package": "disropt",
+                    "version": version("disropt"),
+                    "python": sys.version.split()[0],
+                    "numpy": np.__version__,
+                    "n_nodes": n,
+                    "iterations": iterations,
+                    "penalty": penalty,
+                    "ms_per_iteration": max(walls) / iterations * 1e3,  # type: ignore[arg-type]
+                    "final_relative_error": err,
+                    "cost_check": max(checks),
+                }
+            )
+        )  # type: ignore[arg-type]
 
 
 if __name__ == "__main__":

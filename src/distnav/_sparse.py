@@ -39,8 +39,15 @@ def _kernels() -> tuple[Any, Any]:
 def csr_times(mat: sp.csr_matrix, x: np.ndarray) -> np.ndarray:
     """``mat @ x`` for a CSR ``mat`` and a 1-D or 2-D ``x``: the same result as scipy's ``@``, bit for bit."""
     matvec, matvecs = _kernels()
-    if (matvec is None or matvecs is None or getattr(mat, "format", None) != "csr" or mat.dtype != np.float64
-            or x.dtype != np.float64 or x.ndim not in (1, 2) or x.shape[0] != mat.shape[1]):
+    if (
+        matvec is None
+        or matvecs is None
+        or getattr(mat, "format", None) != "csr"
+        or mat.dtype != np.float64
+        or x.dtype != np.float64
+        or x.ndim not in (1, 2)
+        or x.shape[0] != mat.shape[1]
+    ):
         return np.asarray(mat @ x)
     xc = np.ascontiguousarray(x)
     rows, cols = mat.shape

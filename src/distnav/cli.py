@@ -48,12 +48,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="run the quick variant of every reproduction and write a report")
-    demo.add_argument("--out", type=output_folder, default=Path("distnav-demo"),
-                      help="report folder (default distnav-demo)")
+    demo.add_argument(
+        "--out", type=output_folder, default=Path("distnav-demo"), help="report folder (default distnav-demo)"
+    )
     demo.add_argument("--only", nargs="+", choices=list(EXPERIMENTS), help="run only these experiments")
-    demo.add_argument("--jobs", type=positive_int, default=1,
-                      help="run the experiments in this many processes (default 1; `make demo` uses 2); "
-                           "in-process backend only")
+    demo.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=1,
+        help="run the experiments in this many processes (default 1; `make demo` uses 2); in-process backend only",
+    )
     _add_common(demo)
 
     rep = sub.add_parser("reproduce", help="reproduce a paper experiment (figures + results.json)")
@@ -74,17 +78,46 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _context(args: argparse.Namespace, out_dir: Path, quick: bool) -> ExperimentContext:
-    opts = {k: v for k, v in vars(args).items()
-            if k not in {"command", "experiment", "out", "quick", "seed", "backend", "no_progress", "only", "func",
-                         "ranks", "jobs"}}
-    return ExperimentContext(out_dir=out_dir, quick=quick, backend=args.backend, seed=args.seed,
-                             progress=Progress(enabled=not args.no_progress), options=opts)
+    opts = {
+        k: v
+        for k, v in vars(args).items()
+        if k
+        not in {
+            "command",
+            "experiment",
+            "out",
+            "quick",
+            "seed",
+            "backend",
+            "no_progress",
+            "only",
+            "func",
+            "ranks",
+            "jobs",
+        }
+    }
+    return ExperimentContext(
+        out_dir=out_dir,
+        quick=quick,
+        backend=args.backend,
+        seed=args.seed,
+        progress=Progress(enabled=not args.no_progress),
+        options=opts,
+    )
 
 
 #: Seconds each quick variant took in ``distnav demo --jobs 2`` (the project's shared 2-core machine, loaded): the
 #: demo starts the longest first, so two processes finish close together. Only the order matters.
-DEMO_SECONDS: dict[str, float] = {"qc": 48, "uwb-field": 38, "uwb": 21, "admm": 19, "ckf-ionosphere": 12,
-                                  "codebias": 10, "consensus": 6, "ckf": 5}
+DEMO_SECONDS: dict[str, float] = {
+    "qc": 48,
+    "uwb-field": 38,
+    "uwb": 21,
+    "admm": 19,
+    "ckf-ionosphere": 12,
+    "codebias": 10,
+    "consensus": 6,
+    "ckf": 5,
+}
 
 
 class _LineStream:
@@ -145,8 +178,12 @@ def _run_demo(args: argparse.Namespace) -> int:
             done[job[2]] = _demo_one(job)
     else:
         if not args.no_progress:
-            print(f"loading {len(names)} experiments (numpy, scipy, matplotlib), then running them in {n_workers} "
-                  f"processes", file=sys.stderr, flush=True)
+            print(
+                f"loading {len(names)} experiments (numpy, scipy, matplotlib), then running them in {n_workers} "
+                f"processes",
+                file=sys.stderr,
+                flush=True,
+            )
         for name in names:
             load(name)  # import every experiment (numpy, scipy, matplotlib) once, before the workers fork
         import multiprocessing
@@ -157,8 +194,11 @@ def _run_demo(args: argparse.Namespace) -> int:
             for result in pool.imap_unordered(_demo_one, order, chunksize=1):
                 done[result[0]] = result
                 if not args.no_progress:
-                    print(f"  ✓ {result[0]} done, {len(done)} of {len(names)} ({result[3]:.1f} s)",
-                          file=sys.stderr, flush=True)
+                    print(
+                        f"  ✓ {result[0]} done, {len(done)} of {len(names)} ({result[3]:.1f} s)",
+                        file=sys.stderr,
+                        flush=True,
+                    )
     entries = []
     for name in names:
         _, results, figures, seconds, _ = done[name]
@@ -168,8 +208,11 @@ def _run_demo(args: argparse.Namespace) -> int:
     if entries and entries[0][2].is_root:
         index = write_report(args.out, entries)
         cpu = sum(d[4] for d in done.values())
-        print(f"report: {index} ({time.perf_counter() - t_all:.1f} s; experiments {cpu:.1f} CPU s in "
-              f"{max(n_workers, 1)} process(es))", flush=True)
+        print(
+            f"report: {index} ({time.perf_counter() - t_all:.1f} s; experiments {cpu:.1f} CPU s in "
+            f"{max(n_workers, 1)} process(es))",
+            flush=True,
+        )
     return 0
 
 
@@ -192,8 +235,10 @@ def _check_mpi_launch(args: argparse.Namespace) -> None:
             f"does not match this MPI (use the mpiexec of the same installation, e.g. .venv/bin/mpiexec)"
         )
     if size == 1 and world_rank() == 0:
-        print("warning: --backend mpi with a single rank; launch with mpiexec -n N python -m mpi4py -m distnav ...",
-              file=sys.stderr)
+        print(
+            "warning: --backend mpi with a single rank; launch with mpiexec -n N python -m mpi4py -m distnav ...",
+            file=sys.stderr,
+        )
 
 
 def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None:
@@ -206,8 +251,9 @@ def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None
     if getattr(args, "ranks", None) is not None and backend != "mpi":
         raise UsageError(f"--ranks {args.ranks} applies only with --backend mpi (launched with mpiexec -n N)")
     if (getattr(args, "jobs", None) or 1) > 1 and backend == "mpi":
-        raise UsageError(f"--jobs {args.jobs} applies only with the in-process backend (under MPI the ranks "
-                         "share the work)")
+        raise UsageError(
+            f"--jobs {args.jobs} applies only with the in-process backend (under MPI the ranks share the work)"
+        )
     if backend == "mpi":
         from distnav._optional import require
 
@@ -232,8 +278,11 @@ def _main_mpi(args: argparse.Namespace) -> int:
         return _dispatch(args)
     except BaseException as exc:  # noqa: BLE001 - every failure must end all ranks
         code = 2 if isinstance(exc, DistnavError) else 1
-        print(f"error on MPI rank {rank} of {MPI.COMM_WORLD.Get_size()}: {type(exc).__name__}: {exc}",
-              file=sys.stderr, flush=True)
+        print(
+            f"error on MPI rank {rank} of {MPI.COMM_WORLD.Get_size()}: {type(exc).__name__}: {exc}",
+            file=sys.stderr,
+            flush=True,
+        )
         MPI.COMM_WORLD.Abort(code)
         return code  # pragma: no cover - Abort does not return
 
@@ -280,8 +329,14 @@ def _configure_logging() -> Callable[[], None]:
     return undo
 
 
-def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                  file: object = None, line: str | None = None) -> None:
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object = None,
+    line: str | None = None,
+) -> None:
     """Library warnings (e.g. :class:`~distnav.algorithms.consensus.ConsensusWarning`) as ``warning: ...`` lines,
     without the source location a user cannot act on."""
     print(f"warning: {message}", file=sys.stderr)

@@ -102,8 +102,9 @@ def iso_datetime(text: str) -> str:
     try:
         datetime.fromisoformat(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an ISO date and time such as 2024-01-10T06:00, got {text!r}"
-                                         ) from None
+        raise argparse.ArgumentTypeError(
+            f"expected an ISO date and time such as 2024-01-10T06:00, got {text!r}"
+        ) from None
     return text
 
 

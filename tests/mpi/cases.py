@@ -32,26 +32,41 @@ def consensus_static(backend: str) -> dict[str, np.ndarray]:
     g = _graph()
     vals = np.random.default_rng(2).normal(size=(60, 2, 2))
     res = average_consensus(vals, graph=g, protocol="P3", rounds=25, exchange=make_exchange(g, backend=backend))
-    return {"estimates": res.estimates, "trace": res.trace["max_abs_deviation"],
-            "sent": res.comm.messages_sent, "bytes": res.comm.bytes_sent}
+    return {
+        "estimates": res.estimates,
+        "trace": res.trace["max_abs_deviation"],
+        "sent": res.comm.messages_sent,
+        "bytes": res.comm.bytes_sent,
+    }
 
 
 @case
 def consensus_with_faults(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
     g = _graph()
-    faults = FaultSchedule(drop_probability=0.2, failed_links=((int(g.links[0, 0]), int(g.links[0, 1]), 3),),
-                           silent_nodes=((5, 10),), seed=4)
+    faults = FaultSchedule(
+        drop_probability=0.2,
+        failed_links=((int(g.links[0, 0]), int(g.links[0, 1]), 3),),
+        silent_nodes=((5, 10),),
+        seed=4,
+    )
     vals = np.random.default_rng(3).normal(size=60)
     ex = make_exchange(g, backend=backend, faults=faults, order=order)
     res = average_consensus(vals, graph=g, protocol="MH", rounds=20, exchange=ex)
-    return {"estimates": res.estimates, "sent": res.comm.messages_sent, "received": res.comm.messages_received,
-            "per_round": res.comm.messages_per_round}
+    return {
+        "estimates": res.estimates,
+        "sent": res.comm.messages_sent,
+        "received": res.comm.messages_received,
+        "per_round": res.comm.messages_per_round,
+    }
 
 
 @case
 def consensus_switching(backend: str) -> dict[str, np.ndarray]:
-    sessions = (Graph.from_links(8, [(0, 1), (2, 3), (4, 5), (6, 7)]), Graph.from_links(8, [(1, 2), (3, 4), (5, 6)]),
-                Graph.from_links(8, [(7, 0)]))
+    sessions = (
+        Graph.from_links(8, [(0, 1), (2, 3), (4, 5), (6, 7)]),
+        Graph.from_links(8, [(1, 2), (3, 4), (5, 6)]),
+        Graph.from_links(8, [(7, 0)]),
+    )
     sw = SwitchingGraph(sessions)
     ex = make_exchange(sw.union, backend=backend)
     res = average_consensus(np.arange(8.0), graph=sw, protocol="P4", rounds=13, exchange=ex)
@@ -70,9 +85,13 @@ def raw_send_and_broadcast(backend: str, order: str = "auto") -> dict[str, np.nd
     b = ex.broadcast(ex.local(np.arange(60.0) ** 2))
     w = consensus_weights(g, "P3")
     mixed = ex.mixer(w).apply(ex.local(np.arange(60.0)))
-    return {"edge_sum": ex.gather_nodes(inbox.sum()), "count": ex.gather_nodes(inbox.count()),
-            "bcast_sum": ex.gather_nodes(b.sum()), "mixed": ex.gather_nodes(mixed),
-            "sent": ex.comm_totals().messages_sent}
+    return {
+        "edge_sum": ex.gather_nodes(inbox.sum()),
+        "count": ex.gather_nodes(inbox.count()),
+        "bcast_sum": ex.gather_nodes(b.sum()),
+        "mixed": ex.gather_nodes(mixed),
+        "sent": ex.comm_totals().messages_sent,
+    }
 
 
 @case
@@ -83,17 +102,21 @@ def route_send_and_broadcast(backend: str) -> dict[str, np.ndarray]:
     active = (g.src + 2 * g.dst) % 3 != 0
     send_rows = np.flatnonzero(active[ex.out_edges])[::-1].copy()
     snd, bro = ex.route(active, out_rows=send_rows), ex.route(active)
-    vals, ok = snd.send(np.stack([g.src[ex.out_edges], g.dst[ex.out_edges], ex.out_edges], axis=1)[send_rows]
-                        .astype(float))
+    vals, ok = snd.send(
+        np.stack([g.src[ex.out_edges], g.dst[ex.out_edges], ex.out_edges], axis=1)[send_rows].astype(float)
+    )
     rows = snd.in_rows
     assert np.array_equal(vals[ok], np.stack([snd.src, ex.nodes[snd.dst], ex.in_edges[rows]], 1)[ok])
     assert not vals[~ok].any()
     bv, bok = bro.broadcast(ex.local(np.arange(60.0) ** 2))
-    assert np.array_equal(bv[bok], (bro.src ** 2.0)[bok])
+    assert np.array_equal(bv[bok], (bro.src**2.0)[bok])
     per_node = np.bincount(bro.dst[bok], weights=bv[bok], minlength=ex.n_local)  # integer values: exact in any order
-    return {"bcast_sum": ex.gather_nodes(per_node), "count": ex.gather_nodes(np.bincount(snd.dst[ok],
-                                                                                         minlength=ex.n_local)),
-            "sent": ex.comm_totals().messages_sent, "received": ex.comm_totals().messages_received}
+    return {
+        "bcast_sum": ex.gather_nodes(per_node),
+        "count": ex.gather_nodes(np.bincount(snd.dst[ok], minlength=ex.n_local)),
+        "sent": ex.comm_totals().messages_sent,
+        "received": ex.comm_totals().messages_received,
+    }
 
 
 def _linear_problem(n: int, p: int = 4, m: int = 2):
@@ -114,8 +137,12 @@ def admm_constraint_nodes(backend: str, order: str = "auto") -> dict[str, np.nda
     problem = _linear_problem(g.n_nodes)
     ex = make_exchange(g, backend=backend, order=order)
     res = admm(problem, g, constraint_nodes="min_cover", W=1.0, max_iterations=40, tol=0.0, exchange=ex)
-    return {"estimates": res.estimates, "sent": res.comm.messages_sent, "bytes": res.comm.bytes_sent,
-            "primal": res.trace["primal_residual"]}
+    return {
+        "estimates": res.estimates,
+        "sent": res.comm.messages_sent,
+        "bytes": res.comm.bytes_sent,
+        "primal": res.trace["primal_residual"],
+    }
 
 
 @case
@@ -166,11 +193,24 @@ def ckf_local_precision_and_tests(backend: str) -> dict[str, np.ndarray]:
             row.append((A, np.ones(3), y))
         epochs.append(row)
     dyn = DynamicModel(p, noise_cov=np.diag([0.1, 0.05, 0.0]))
-    res = ckf(dyn, ObservationSeries(p, epochs), graph=g, protocol="P3", rounds=4, local_precision="exact",
-              test_level=0.001, exchange=make_exchange(g, backend=backend))
+    res = ckf(
+        dyn,
+        ObservationSeries(p, epochs),
+        graph=g,
+        protocol="P3",
+        rounds=4,
+        local_precision="exact",
+        test_level=0.001,
+        exchange=make_exchange(g, backend=backend),
+    )
     assert res.tests is not None and res.local_std is not None
-    return {"estimates": res.estimates, "local_std": res.local_std, "w": res.tests.w,
-            "removed": np.array(res.tests.removed), "sent": res.comm.bytes_sent}
+    return {
+        "estimates": res.estimates,
+        "local_std": res.local_std,
+        "w": res.tests.w,
+        "removed": np.array(res.tests.removed),
+        "sent": res.comm.bytes_sent,
+    }
 
 
 @case
@@ -180,8 +220,9 @@ def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
     g = _graph()
     problem = _linear_problem(g.n_nodes)
     ex = make_exchange(g, backend=backend)
-    res = admm(problem, g, constraint_nodes="min_cover", W=2.0, messages="aggregated", max_iterations=30, tol=0.0,
-               exchange=ex)
+    res = admm(
+        problem, g, constraint_nodes="min_cover", W=2.0, messages="aggregated", max_iterations=30, tol=0.0, exchange=ex
+    )
     return {"estimates": res.estimates, "sent": res.comm.messages_sent}
 
 
@@ -193,9 +234,14 @@ def admm_precision_and_snooping(backend: str) -> dict[str, np.ndarray]:
     pb = gross_error_problem(np.random.default_rng([12, 0]))
     res = admm_data_snooping(pb.problem, pb.graph, W=3.0, tol=1e-11, exchange=make_exchange(pb.graph, backend=backend))
     assert res.precision is not None and res.tests is not None and res.precision.variance_factor is not None
-    return {"estimates": res.estimates, "covariance": res.precision.covariance, "w": res.tests.w,
-            "removed": np.array(res.tests.removed), "variance_factor": np.array(res.precision.variance_factor),
-            "sent": res.comm.messages_sent}
+    return {
+        "estimates": res.estimates,
+        "covariance": res.precision.covariance,
+        "w": res.tests.w,
+        "removed": np.array(res.tests.removed),
+        "variance_factor": np.array(res.precision.variance_factor),
+        "sent": res.comm.messages_sent,
+    }
 
 
 def _uwb_problem():
@@ -210,8 +256,12 @@ def ncsg_tbls(backend: str) -> dict[str, np.ndarray]:
 
     problem = _uwb_problem()
     res = solve_ncsg(problem, line_search="TBLS", iterations=30, exchange=make_exchange(problem.graph, backend=backend))
-    return {"estimates": res.estimates, "sent": res.comm.messages_sent, "bytes": res.comm.bytes_sent,
-            "cost": res.trace["cost"]}
+    return {
+        "estimates": res.estimates,
+        "sent": res.comm.messages_sent,
+        "bytes": res.comm.bytes_sent,
+        "cost": res.trace["cost"],
+    }
 
 
 @case
@@ -221,8 +271,10 @@ def csg_and_nclm(backend: str) -> dict[str, np.ndarray]:
     problem = _uwb_problem()
     csg = solve_csg(problem, iterations=20, exchange=make_exchange(problem.graph, backend=backend), alpha=1e-4)
     nclm = solve_nclm(problem, iterations=10, exchange=make_exchange(problem.graph, backend=backend))
-    return {"estimates": np.concatenate([csg.estimates.ravel(), nclm.estimates.ravel()]),
-            "sent": csg.comm.messages_sent + nclm.comm.messages_sent}
+    return {
+        "estimates": np.concatenate([csg.estimates.ravel(), nclm.estimates.ravel()]),
+        "sent": csg.comm.messages_sent + nclm.comm.messages_sent,
+    }
 
 
 @case
@@ -231,11 +283,14 @@ def ncsg_tbls_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndar
     from distnav.models.uwb.problems import generate_problem
 
     problem = generate_problem("RM", np.random.default_rng(3), n_anchors=40)
-    ex = make_exchange(problem.graph, backend=backend, faults=FaultSchedule(drop_probability=0.1, seed=2),
-                       order=order)
+    ex = make_exchange(problem.graph, backend=backend, faults=FaultSchedule(drop_probability=0.1, seed=2), order=order)
     res = solve(problem, "N-CSG-TBLS", iterations=30, exchange=ex, monitor_every=7)  # gathers at 0, 7, …, 28, 30
-    return {"estimates": res.estimates, "bytes": res.comm.bytes_sent, "received": res.comm.messages_received,
-            "cost": res.trace["cost"]}
+    return {
+        "estimates": res.estimates,
+        "bytes": res.comm.bytes_sent,
+        "received": res.comm.messages_received,
+        "cost": res.trace["cost"],
+    }
 
 
 @case
@@ -243,16 +298,31 @@ def ncsg_metres_with_local_qc(backend: str) -> dict[str, np.ndarray]:
     from distnav.algorithms.csg import solve_ncsg
 
     problem = _uwb_problem()
-    res = solve_ncsg(problem, line_search="TBLS", iterations=40, objective="metres", sigma_m=0.15, loss="cauchy",
-                     exchange=make_exchange(problem.graph, backend=backend))
-    return {"estimates": res.estimates, "w": np.nan_to_num(res.tests.w, nan=-99.0),
-            "covariance": res.precision.covariance}
+    res = solve_ncsg(
+        problem,
+        line_search="TBLS",
+        iterations=40,
+        objective="metres",
+        sigma_m=0.15,
+        loss="cauchy",
+        exchange=make_exchange(problem.graph, backend=backend),
+    )
+    return {
+        "estimates": res.estimates,
+        "w": np.nan_to_num(res.tests.w, nan=-99.0),
+        "covariance": res.precision.covariance,
+    }
 
 
 # the same runs with the exchange's nodes renumbered by reverse Cuthill–McKee (issue 17 item 0): on the small graphs
 # above "auto" keeps the user's order, so these exercise the locality order on both backends
-for _fn in (consensus_with_faults, raw_send_and_broadcast, admm_constraint_nodes, admm_with_drops,
-            ncsg_tbls_with_drops):
+for _fn in (
+    consensus_with_faults,
+    raw_send_and_broadcast,
+    admm_constraint_nodes,
+    admm_with_drops,
+    ncsg_tbls_with_drops,
+):
     CASES[f"{_fn.__name__}_rcm"] = partial(_fn, order="rcm")
 
 
@@ -274,8 +344,12 @@ def transport_options(backend: str) -> dict[str, np.ndarray]:
         path = write_partition(os.path.join(tmp, "owner.txt"), owner)
         ex = make_exchange(g, backend=backend, faults=faults, partition=path)
         inbox = ex.send(np.stack([g.src[ex.out_edges], ex.out_edges], axis=1).astype(float))
-    return {"estimates": res.estimates, "received": res.comm.messages_received,
-            "edge_sum": ex.gather_nodes(inbox.sum()), "count": ex.gather_nodes(inbox.count())}
+    return {
+        "estimates": res.estimates,
+        "received": res.comm.messages_received,
+        "edge_sum": ex.gather_nodes(inbox.sum()),
+        "count": ex.gather_nodes(inbox.count()),
+    }
 
 
 @case
@@ -305,8 +379,9 @@ def consensus_on_graph_parts(backend: str) -> dict[str, np.ndarray]:
         if rank == 0:
             write_partition(path, owner)
         comm.Barrier()
-        part: GraphPart = builders.random_geometric_part(n, radius, rng=np.random.default_rng(0),
-                                                         nodes=np.flatnonzero(owner == rank))
+        part: GraphPart = builders.random_geometric_part(
+            n, radius, rng=np.random.default_rng(0), nodes=np.flatnonzero(owner == rank)
+        )
         ex = make_exchange(part, backend="mpi", faults=faults, partition=path)
         mixer = ex.mixer(part_weights(part, "MH"))
         comm.Barrier()
@@ -323,9 +398,14 @@ def consensus_on_graph_parts(backend: str) -> dict[str, np.ndarray]:
     bcast = ex.broadcast(ex.local(x0[:, 0])).sum()
     edge = ex.send(ex.out_edges.astype(float)).sum()
     comm_totals = ex.comm_totals()
-    return {"estimates": ex.gather_nodes(x), "bcast_sum": ex.gather_nodes(bcast), "edge_sum": ex.gather_nodes(edge),
-            "sent": comm_totals.messages_sent, "received": comm_totals.messages_received,
-            "per_round": comm_totals.messages_per_round}
+    return {
+        "estimates": ex.gather_nodes(x),
+        "bcast_sum": ex.gather_nodes(bcast),
+        "edge_sum": ex.gather_nodes(edge),
+        "sent": comm_totals.messages_sent,
+        "received": comm_totals.messages_received,
+        "per_round": comm_totals.messages_per_round,
+    }
 
 
 @case
@@ -335,18 +415,43 @@ def ncsg_neighbourhood_precision(backend: str) -> dict[str, np.ndarray]:
     from distnav.algorithms.ranging_precision import neighbourhood_precision
 
     problem = _uwb_problem()
-    res = solve_ncsg(problem, line_search="TBLS", iterations=40, objective="metres", sigma_m=0.15, quality=False,
-                     exchange=make_exchange(problem.graph, backend=backend))
-    out = neighbourhood_precision(problem, res.estimates, exchange=make_exchange(problem.graph, backend=backend),
-                                  objective="metres", sigma_m=0.15, rounds=6)
-    ball = neighbourhood_precision(problem, res.estimates, exchange=make_exchange(problem.graph, backend=backend),
-                                   objective="metres", sigma_m=0.15, rounds=6, hops=2, delay_sigma_m=0.015)
+    res = solve_ncsg(
+        problem,
+        line_search="TBLS",
+        iterations=40,
+        objective="metres",
+        sigma_m=0.15,
+        quality=False,
+        exchange=make_exchange(problem.graph, backend=backend),
+    )
+    out = neighbourhood_precision(
+        problem,
+        res.estimates,
+        exchange=make_exchange(problem.graph, backend=backend),
+        objective="metres",
+        sigma_m=0.15,
+        rounds=6,
+    )
+    ball = neighbourhood_precision(
+        problem,
+        res.estimates,
+        exchange=make_exchange(problem.graph, backend=backend),
+        objective="metres",
+        sigma_m=0.15,
+        rounds=6,
+        hops=2,
+        delay_sigma_m=0.015,
+    )
     assert out.precision.comm is not None and ball.precision.comm is not None
-    return {"covariance": out.precision.covariance, "conditional": out.conditional,
-            "variance_factor_nodes": np.nan_to_num(out.variance_factor_nodes, nan=-1.0),
-            "bytes": out.precision.comm.bytes_sent, "subnetwork_covariance": ball.covariance(a_posteriori=True),
-            "subnetwork_factor": np.nan_to_num(ball.variance_factor_nodes, nan=-1.0),
-            "subnetwork_bytes": ball.precision.comm.bytes_sent}
+    return {
+        "covariance": out.precision.covariance,
+        "conditional": out.conditional,
+        "variance_factor_nodes": np.nan_to_num(out.variance_factor_nodes, nan=-1.0),
+        "bytes": out.precision.comm.bytes_sent,
+        "subnetwork_covariance": ball.covariance(a_posteriori=True),
+        "subnetwork_factor": np.nan_to_num(ball.variance_factor_nodes, nan=-1.0),
+        "subnetwork_bytes": ball.precision.comm.bytes_sent,
+    }
 
 
 @case
@@ -358,18 +463,35 @@ def range_offsets_distributed(backend: str) -> dict[str, np.ndarray]:
 
     problem = _uwb_problem()
     delays = np.random.default_rng(8).normal(0.0, 0.05, problem.n_anchors)
-    problem = dataclasses.replace(problem, range_m=problem.range_m + 0.2 + delays[problem.meas_a]
-                                  + delays[problem.meas_b])
+    problem = dataclasses.replace(
+        problem, range_m=problem.range_m + 0.2 + delays[problem.meas_a] + delays[problem.meas_b]
+    )
     node: list[np.ndarray] = []  # per-anchor results: bit for bit
     total: list[np.ndarray] = []  # the common offset and every σ use network sums (allreduce): equal to rounding
     sent: list[np.ndarray] = []
-    for solver, mode, faults in (("N-CLM", "per_anchor", None), ("N-CSG-TBLS", "per_anchor", 0.1),
-                                 ("N-CSG-TBLS", "common", None), ("CSG", "common", None)):
-        ex = make_exchange(problem.graph, backend=backend,
-                           faults=None if faults is None else FaultSchedule(drop_probability=faults, seed=5))
+    for solver, mode, faults in (
+        ("N-CLM", "per_anchor", None),
+        ("N-CSG-TBLS", "per_anchor", 0.1),
+        ("N-CSG-TBLS", "common", None),
+        ("CSG", "common", None),
+    ):
+        ex = make_exchange(
+            problem.graph,
+            backend=backend,
+            faults=None if faults is None else FaultSchedule(drop_probability=faults, seed=5),
+        )
         robust = {} if solver == "CSG" else {"loss": "cauchy"}
-        res = solve(problem, solver, iterations=25, exchange=ex, objective="metres", sigma_m=0.15, **robust,
-                    range_offsets=mode, offset_prior_sigma_m=0.1)
+        res = solve(
+            problem,
+            solver,
+            iterations=25,
+            exchange=ex,
+            objective="metres",
+            sigma_m=0.15,
+            **robust,
+            range_offsets=mode,
+            offset_prior_sigma_m=0.1,
+        )
         node.append(res.estimates.ravel())
         (node if mode == "per_anchor" else total).append(res.offsets_m)
         total.append(np.nan_to_num(res.offsets_std_m, posinf=-1.0))  # σ: × the variance factor (a network sum)
@@ -387,14 +509,24 @@ def distributed_lm_refinement(backend: str) -> dict[str, np.ndarray]:
 
     problem = _uwb_problem()
     delays = np.random.default_rng(9).normal(0.0, 0.05, problem.n_anchors)
-    problem = dataclasses.replace(problem, range_m=problem.range_m + 0.2 + delays[problem.meas_a]
-                                  + delays[problem.meas_b])
+    problem = dataclasses.replace(
+        problem, range_m=problem.range_m + 0.2 + delays[problem.meas_a] + delays[problem.meas_b]
+    )
     est: list[np.ndarray] = []
     sent: list[np.ndarray] = []
     rounds: list[float] = []
     for solver, mode in (("N-CLM", "common"), ("N-CSG-TBLS", "per_anchor")):
-        res = solve(problem, solver, iterations=15, exchange=make_exchange(problem.graph, backend=backend),
-                    objective="metres", sigma_m=0.15, loss="cauchy", range_offsets=mode, offset_prior_sigma_m=0.1)
+        res = solve(
+            problem,
+            solver,
+            iterations=15,
+            exchange=make_exchange(problem.graph, backend=backend),
+            objective="metres",
+            sigma_m=0.15,
+            loss="cauchy",
+            range_offsets=mode,
+            offset_prior_sigma_m=0.1,
+        )
         assert "refine" in res.settings, res.message
         est.append(res.estimates.ravel())
         sent.append(res.comm.messages_sent)
@@ -410,13 +542,21 @@ def uwb_field_workflow_distributed(backend: str) -> dict[str, np.ndarray]:
     from distnav.models.uwb.field import FieldOptions, prepare, solve_field
     from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 
-    h = simulate_hall(np.random.default_rng([0, 1201]), HallConfig().with_(n_anchors=16, known="corner",
-                                                                          **PLANT_LIKE))
+    h = simulate_hall(np.random.default_rng([0, 1201]), HallConfig().with_(n_anchors=16, known="corner", **PLANT_LIKE))
     sub, geo = prepare(hall_problem(h)[0])
-    sol = solve_field(sub, FieldOptions(solver="N-CLM", iterations=60), geometry=geo,
-                      exchange=lambda p: make_exchange(p.graph, backend=backend))
-    return {"positions": sol.positions_m, "sigma": sol.sigma_m, "w": np.nan_to_num(sol.w, nan=-99.0),
-            "excluded": sol.excluded.astype(float), "messages": np.asarray([sol.messages, sol.bytes], float)}
+    sol = solve_field(
+        sub,
+        FieldOptions(solver="N-CLM", iterations=60),
+        geometry=geo,
+        exchange=lambda p: make_exchange(p.graph, backend=backend),
+    )
+    return {
+        "positions": sol.positions_m,
+        "sigma": sol.sigma_m,
+        "w": np.nan_to_num(sol.w, nan=-99.0),
+        "excluded": sol.excluded.astype(float),
+        "messages": np.asarray([sol.messages, sol.bytes], float),
+    }
 
 
 @case
@@ -429,15 +569,26 @@ def central_precision_distributed(backend: str) -> dict[str, np.ndarray]:
     from distnav.models.uwb.field import prepare
     from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 
-    h = simulate_hall(np.random.default_rng([0, 1201]), HallConfig().with_(n_anchors=16, known="corner",
-                                                                          **PLANT_LIKE))
+    h = simulate_hall(np.random.default_rng([0, 1201]), HallConfig().with_(n_anchors=16, known="corner", **PLANT_LIKE))
     sub, _ = prepare(hall_problem(h)[0])
-    lm = solve_lm(sub, objective="metres", sigma_m=0.1, range_offsets="common", loss="cauchy_long",
-                  loss_scale_m=0.1)
-    out = central_precision(sub, lm.estimates, offset_m=lm.offsets_m, exchange=make_exchange(sub.graph,
-                                                                                              backend=backend),
-                            sigma_m=0.1, loss="cauchy_long", loss_scale_m=0.1, range_offsets="common",
-                            delay_sigma_m=0.005, estimate_delays=True, variance_scale_m=0.3, delay_upper_z=1.645)
+    lm = solve_lm(sub, objective="metres", sigma_m=0.1, range_offsets="common", loss="cauchy_long", loss_scale_m=0.1)
+    out = central_precision(
+        sub,
+        lm.estimates,
+        offset_m=lm.offsets_m,
+        exchange=make_exchange(sub.graph, backend=backend),
+        sigma_m=0.1,
+        loss="cauchy_long",
+        loss_scale_m=0.1,
+        range_offsets="common",
+        delay_sigma_m=0.005,
+        estimate_delays=True,
+        variance_scale_m=0.3,
+        delay_upper_z=1.645,
+    )
     assert out.precision.comm is not None
-    return {"estimates": out.covariance(a_posteriori=True).ravel(), "sent": out.precision.comm.messages_sent,
-            "count": np.asarray([out.cg_iterations, out.reductions, out.reduced_floats])}
+    return {
+        "estimates": out.covariance(a_posteriori=True).ravel(),
+        "sent": out.precision.comm.messages_sent,
+        "count": np.asarray([out.cg_iterations, out.reductions, out.reduced_floats]),
+    }

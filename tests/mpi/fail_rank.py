@@ -1,6 +1,6 @@
 """Run ``distnav reproduce consensus --backend mpi`` with rank ``argv[1]`` made to fail (``raise`` or ``die``).
 
-    mpiexec -n 4 python -m mpi4py tests/mpi/fail_rank.py RANK MODE OUT_DIR
+mpiexec -n 4 python -m mpi4py tests/mpi/fail_rank.py RANK MODE OUT_DIR
 """
 
 from __future__ import annotations

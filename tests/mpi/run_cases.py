@@ -1,6 +1,6 @@
 """Run every case of ``cases.py`` with the MPI backend; rank 0 writes the arrays to the .npz given as argv[1].
 
-    mpiexec -n 4 python -m mpi4py tests/mpi/run_cases.py OUT.npz [case ...]
+mpiexec -n 4 python -m mpi4py tests/mpi/run_cases.py OUT.npz [case ...]
 """
 
 from __future__ import annotations

@@ -72,8 +72,18 @@ if TYPE_CHECKING:
         range_positioning_problem,
     )
 
-_NONLINEAR = frozenset({"LinearizedAdmmResult", "NonlinearModel", "NonlinearProblem", "RangeModel", "admm_linearized",
-                        "admm_nonlinear", "gauss_newton", "range_positioning_problem"})
+_NONLINEAR = frozenset(
+    {
+        "LinearizedAdmmResult",
+        "NonlinearModel",
+        "NonlinearProblem",
+        "RangeModel",
+        "admm_linearized",
+        "admm_nonlinear",
+        "gauss_newton",
+        "range_positioning_problem",
+    }
+)
 
 
 def __getattr__(name: str) -> Any:
@@ -84,6 +94,7 @@ def __getattr__(name: str) -> Any:
 
         return getattr(module, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "AdmmOptions",
@@ -106,8 +117,9 @@ __all__ = [
 ]
 
 
-def iterate_admm(problem: LinearProblem, graph: Graph, *, exchange: Exchange | None = None,
-                 **options: Unpack[AdmmOptions]) -> Iterator[AdmmState]:
+def iterate_admm(
+    problem: LinearProblem, graph: Graph, *, exchange: Exchange | None = None, **options: Unpack[AdmmOptions]
+) -> Iterator[AdmmState]:
     """Yield the ADMM state of Fig. 6 (paper 000) after iterations ``0, 1, 2, …`` (endless: stop it yourself).
 
     Options (:class:`~distnav.algorithms.admm_driver.AdmmOptions`, validated before the first iteration):
@@ -167,11 +179,20 @@ def admm(
     check_stopping(max_iterations, tol, atol)
     init = options.get("init", "zero")
     if max_iterations == 0 and (init is None or isinstance(init, str)):
-        raise ModelError("max_iterations=0 from a cold start returns the initial values, not a solution: give "
-                         "max_iterations ≥ 1, or init= a previous result or values to evaluate them")
+        raise ModelError(
+            "max_iterations=0 from a cold start returns the initial values, not a solution: give "
+            "max_iterations ≥ 1, or init= a previous result or values to evaluate them"
+        )
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm(), not both")
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
     run = prepare(problem, graph, ex, options)
-    return drive(run, max_iterations=max_iterations, tol=tol, atol=atol, reference=reference,
-                 stop_at_reference=stop_at_reference, record_nodes=record_nodes)
+    return drive(
+        run,
+        max_iterations=max_iterations,
+        tol=tol,
+        atol=atol,
+        reference=reference,
+        stop_at_reference=stop_at_reference,
+        record_nodes=record_nodes,
+    )

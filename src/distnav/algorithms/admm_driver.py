@@ -122,8 +122,9 @@ def initial_values(init: Any, z0: Any, n: int, p: int) -> tuple[FloatArray, Floa
         z_default = x0 if prev_z is None else _per_node(prev_z, n, p, "the previous solution's z")
     elif isinstance(init, str):
         if init != "zero":
-            raise ModelError(f"init must be 'zero', a vector, a per-node array or a previous SolverResult, "
-                             f"got {init!r}")
+            raise ModelError(
+                f"init must be 'zero', a vector, a per-node array or a previous SolverResult, got {init!r}"
+            )
         x0 = np.zeros((n, p))
         z_default = x0
     else:
@@ -167,8 +168,9 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
     """Validate the options (unknown names too) and build the Fig. 6 state generator for this exchange block."""
     unknown = sorted(set(options) - AdmmOptions.__optional_keys__)
     if unknown:
-        raise ModelError(f"unknown ADMM option(s) {', '.join(unknown)}; expected "
-                         f"{', '.join(sorted(AdmmOptions.__optional_keys__))}")
+        raise ModelError(
+            f"unknown ADMM option(s) {', '.join(unknown)}; expected {', '.join(sorted(AdmmOptions.__optional_keys__))}"
+        )
     messages = options.get("messages", "pairs")
     monitor_every = options.get("monitor_every", 1)
     x_weight = options.get("x_weight", "lagrangian")
@@ -192,8 +194,10 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
     c_weight = count if x_weight == "lagrangian" else np.ones_like(count)
     xu = XUpdate(local, Wm, c_weight, options.get("x_update", "auto"))
     if messages == "aggregated" and ex.faults.active:
-        raise ModelError("messages='aggregated' keeps multiplier sums that lost messages corrupt for good (the run "
-                         "converges to a wrong point); use messages='pairs' with a fault schedule")
+        raise ModelError(
+            "messages='aggregated' keeps multiplier sums that lost messages corrupt for good (the run "
+            "converges to a wrong point); use messages='pairs' with a fault schedule"
+        )
     if messages == "aggregated" and x_weight == "fig6-zweighted":
         raise ModelError("x_weight='fig6-zweighted' weights the z-update per pair: use messages='pairs'")
     _check_estimable(problem, local, ex, need_blocks=xu.method != "observation")
@@ -206,12 +210,28 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
         if u0 is not None:
             raise ModelError("multipliers can only be continued with messages='pairs'")
         states = kernel.run_aggregated(x0[ex.nodes], zz0[ex.nodes], monitor_every)
-    return PreparedRun(states=states, exchange=ex, constraint_nodes=C, p=p, x_update=xu.method, x_weight=x_weight,
-                       messages=messages, kernel=kernel if messages == "pairs" else None)
+    return PreparedRun(
+        states=states,
+        exchange=ex,
+        constraint_nodes=C,
+        p=p,
+        x_update=xu.method,
+        x_weight=x_weight,
+        messages=messages,
+        kernel=kernel if messages == "pairs" else None,
+    )
 
 
-def drive(run: PreparedRun, *, max_iterations: int, tol: float, atol: float, reference: np.ndarray | None,
-          stop_at_reference: float | None, record_nodes: bool) -> AdmmResult:
+def drive(
+    run: PreparedRun,
+    *,
+    max_iterations: int,
+    tol: float,
+    atol: float,
+    reference: np.ndarray | None,
+    stop_at_reference: float | None,
+    record_nodes: bool,
+) -> AdmmResult:
     """Run a prepared state generator to the stopping rule of :func:`~distnav.algorithms.admm.admm`, tracing as it
     goes."""
     gen, ex, C, p = run.states, run.exchange, run.constraint_nodes, run.p
@@ -260,13 +280,27 @@ def drive(run: PreparedRun, *, max_iterations: int, tol: float, atol: float, ref
     u = getattr(run.kernel, "multipliers", None) if run.kernel is not None else None
     x_all = ex.gather_nodes(state.x)
     z_all = ex.gather_nodes(state.z)
-    msg = (f"{state.iteration} iterations, primal residual {state.primal_residual:.3g}, "
-           f"dual residual {state.dual_residual:.3g}")
+    msg = (
+        f"{state.iteration} iterations, primal residual {state.primal_residual:.3g}, "
+        f"dual residual {state.dual_residual:.3g}"
+    )
     if ref is not None:
         msg += f", max_i ‖x_i − x̂‖/‖x̂‖ = {float(np.max(np.linalg.norm(x_all - ref, axis=1))) / ref_norm:.3g}"
     return AdmmResult(
-        estimates=x_all, converged=converged, iterations=state.iteration, status=status, message=msg,
-        trace=tb.build(), comm=ex.comm_totals(), z=z_all[C.nodes], z_nodes=z_all, constraint_nodes=C,
-        iterations_to=reached, pairs=n_pairs, x_update=run.x_update, x_weight=run.x_weight, messages=run.messages,
+        estimates=x_all,
+        converged=converged,
+        iterations=state.iteration,
+        status=status,
+        message=msg,
+        trace=tb.build(),
+        comm=ex.comm_totals(),
+        z=z_all[C.nodes],
+        z_nodes=z_all,
+        constraint_nodes=C,
+        iterations_to=reached,
+        pairs=n_pairs,
+        x_update=run.x_update,
+        x_weight=run.x_weight,
+        messages=run.messages,
         multipliers=None if u is None else u.copy(),
     )

@@ -31,7 +31,6 @@ else:  # imported on first use (start-up of an MPI job)
 __all__ = ["AdmmState", "Multipliers", "XUpdate", "XUpdateMethod"]
 
 
-
 # ----------------------------------------------------------------------------------------------- kernel
 @dataclass(frozen=True, eq=False)
 class Multipliers:
@@ -87,9 +86,15 @@ class _Kernel:
     are structural (the constraint neighbours' ``c_i``), known from the graph like the pairs themselves.
     """
 
-    def __init__(self, ex: Exchange, C: ConstraintNodes, W: np.ndarray, p: int,
-                 x_update: Callable[[np.ndarray, np.ndarray], np.ndarray],
-                 z_weight: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        ex: Exchange,
+        C: ConstraintNodes,
+        W: np.ndarray,
+        p: int,
+        x_update: Callable[[np.ndarray, np.ndarray], np.ndarray],
+        z_weight: np.ndarray | None = None,
+    ) -> None:
         g = ex.graph
         self.ex = ex
         self.W = W
@@ -153,8 +158,9 @@ class _Kernel:
             inv_total = np.divide(1.0, total, out=np.zeros_like(total), where=self.inC_loc)
             self.z_weight = (w_in[:, None], w_self[:, None], inv_total[:, None])
 
-    def run(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int = 1,
-            u0: Multipliers | None = None) -> Iterator[AdmmState]:
+    def run(
+        self, x0: np.ndarray, z0: np.ndarray, monitor_every: int = 1, u0: Multipliers | None = None
+    ) -> Iterator[AdmmState]:
         """Fig. 6 with per-pair messages from ``x0``, ``z0`` and multipliers ``u0`` (default ``u^[−1] = 0``, §4.3);
         :attr:`multipliers` follows the run (a warm start of a changed problem continues from them)."""
         cm = self.inC_loc[:, None].astype(float)  # 1 on constraint-node rows
@@ -175,8 +181,10 @@ class _Kernel:
         u_self = np.zeros_like(x)  # u_{s,s}; zero on rows of non-constraint nodes, and stays so
         if u0 is not None:
             if u0.pairs.shape != u.shape or u0.self_pairs.shape != u_self.shape:
-                raise ModelError("the multipliers to continue from belong to another exchange block, constraint-"
-                                 "node set or parameter count")
+                raise ModelError(
+                    "the multipliers to continue from belong to another exchange block, constraint-"
+                    "node set or parameter count"
+                )
             u[:] = u0.pairs
             u_self[:] = u0.self_pairs
         self._u = (u, u_self)
@@ -263,8 +271,9 @@ class _Kernel:
         if fused:
             inC_f = self.inC_global.astype(float)
             mix_x = ex.mixer(ConsensusWeights(g, self.to_c.astype(float), inC_f, name="sum into C"), active=self.to_c)
-            mix_z = ex.mixer(ConsensusWeights(g, self.from_c.astype(float), inC_f, name="sum from C"),
-                             active=self.from_c)
+            mix_z = ex.mixer(
+                ConsensusWeights(g, self.from_c.astype(float), inC_f, name="sum from C"), active=self.from_c
+            )
         cm = self.inC_loc[:, None].astype(float)
         inv_count = 1.0 / self.count[:, None]
         inv_size = cm / self.size_s[:, None]
@@ -327,44 +336,57 @@ class _Kernel:
     def S_c_in(self) -> sp.csr_matrix:
         """Sum over the in-edges ``i→s`` at each constraint node (full-length inbox, aggregated form)."""
         ex = self.ex
-        return sp.csr_matrix((np.ones(self.ic.size), (ex.in_dst[self.ic], self.ic)), shape=(ex.n_local,
-                                                                                          ex.in_edges.size))
+        return sp.csr_matrix(
+            (np.ones(self.ic.size), (ex.in_dst[self.ic], self.ic)), shape=(ex.n_local, ex.in_edges.size)
+        )
 
     @cached_property
     def S_pairs_in(self) -> sp.csr_matrix:
         """Sum over the pair in-edges ``s→i`` at each node (full-length inbox, aggregated form)."""
         ex = self.ex
-        return sp.csr_matrix((np.ones(self.ip.size), (self.pair_dst, self.ip)), shape=(ex.n_local,
-                                                                                     ex.in_edges.size))
+        return sp.csr_matrix((np.ones(self.ip.size), (self.pair_dst, self.ip)), shape=(ex.n_local, ex.in_edges.size))
 
-    def _state_agg(self, k: int, x: np.ndarray, z: np.ndarray, xvals: np.ndarray | None, dz: np.ndarray,
-                   U_next: np.ndarray) -> AdmmState:
+    def _state_agg(
+        self, k: int, x: np.ndarray, z: np.ndarray, xvals: np.ndarray | None, dz: np.ndarray, U_next: np.ndarray
+    ) -> AdmmState:
         assert xvals is not None
         d = xvals[self.ic] - z[self.ex.in_dst[self.ic]]  # at constraint node s: x_i − z_s for i ∈ N_s
         ds = (x - z) * self.inC_loc[:, None]
         WU = self._times_W(U_next)
-        sums = np.array([
-            np.einsum("ij,ij->", d, d) + np.einsum("ij,ij->", ds, ds),
-            self._dual_sq(dz),
-            np.einsum("i,ij,ij->", self.count_f, x, x),
-            np.einsum("i,ij,ij->", self.size_c, z, z),
-            np.einsum("ij,ij->", WU, WU),
-        ])
+        sums = np.array(
+            [
+                np.einsum("ij,ij->", d, d) + np.einsum("ij,ij->", ds, ds),
+                self._dual_sq(dz),
+                np.einsum("i,ij,ij->", self.count_f, x, x),
+                np.einsum("i,ij,ij->", self.size_c, z, z),
+                np.einsum("ij,ij->", WU, WU),
+            ]
+        )
         tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
         return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
 
     def _dual_sq(self, dz: np.ndarray) -> float:
         """``Σ_pairs ‖W (z_s^[k] − z_s^[k−1])‖²`` (every constraint node ``s`` is in ``|N_s|`` pairs)."""
         if self.w_iso is not None:
-            return float(self.w_scale ** 2 * np.einsum("i,ij,ij->", self.size_c, dz, dz))
+            return float(self.w_scale**2 * np.einsum("i,ij,ij->", self.size_c, dz, dz))
         Wdz = self._times_W(dz)
         return float(np.einsum("i,ij,ij->", self.size_c, Wdz, Wdz))
 
     def _times_W(self, a: np.ndarray) -> np.ndarray:
         return a * self.w_iso if self.w_iso is not None else np.einsum("ij,jk->ik", a, self.W)
 
-    def _state(self, k: int, x: np.ndarray, z: np.ndarray, diff_pair: np.ndarray, diff_self: np.ndarray,
-               dz: np.ndarray, u: np.ndarray, u_self: np.ndarray, add_in_place: bool) -> AdmmState:
+    def _state(
+        self,
+        k: int,
+        x: np.ndarray,
+        z: np.ndarray,
+        diff_pair: np.ndarray,
+        diff_self: np.ndarray,
+        dz: np.ndarray,
+        u: np.ndarray,
+        u_self: np.ndarray,
+        add_in_place: bool,
+    ) -> AdmmState:
         """The monitored state. ``add_in_place``: ``u + diff_pair`` is formed in ``diff_pair``'s buffer (the run's
         next u-update takes it from there); else ``u`` is all zero (the first state of a cold start: ``0 + d`` is
         ``d`` bitwise but for the sign of a zero, which the sum into rows, started at +0, and the square both drop)
@@ -372,13 +394,15 @@ class _Kernel:
         primal_sq = np.einsum("ij,ij->", diff_pair, diff_pair) + np.einsum("ij,ij->", diff_self, diff_self)
         u_next = np.add(u, diff_pair, out=diff_pair) if add_in_place else diff_pair
         # einsum, not BLAS: tiny BLAS calls are slow when the BLAS thread pool is contended
-        sums = np.array([
-            primal_sq,
-            self._dual_sq(dz),
-            np.einsum("i,ij,ij->", self.count_f, x, x),
-            np.einsum("i,ij,ij->", self.size_c, z, z),
-            _sq_rows(self._times_W(self.S_pairs @ u_next + u_self + diff_self)),
-        ])
+        sums = np.array(
+            [
+                primal_sq,
+                self._dual_sq(dz),
+                np.einsum("i,ij,ij->", self.count_f, x, x),
+                np.einsum("i,ij,ij->", self.size_c, z, z),
+                _sq_rows(self._times_W(self.S_pairs @ u_next + u_self + diff_self)),
+            ]
+        )
         tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
         return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
 
@@ -387,8 +411,9 @@ def _index_dtype(size: int) -> type[np.signedinteger[Any]]:
     return np.int32 if size < 2**31 - 1 else np.int64
 
 
-def _rows_in_order(rows: np.ndarray, n_rows: int, columns: np.ndarray | None = None,
-                   ones: np.ndarray | None = None) -> sp.csr_matrix:
+def _rows_in_order(
+    rows: np.ndarray, n_rows: int, columns: np.ndarray | None = None, ones: np.ndarray | None = None
+) -> sp.csr_matrix:
     """0/1 CSR matrix ``(n_rows, len(rows))`` summing entry ``q`` (column ``columns[q]``, default ``q``) into row
     ``rows[q]``; ``rows`` ascending. Each row keeps its entries in the given order, and a product sums them in it.
     ``ones``: a read-only array of at least ``len(rows)`` ones to take the data from (shared, not copied)."""
@@ -396,7 +421,7 @@ def _rows_in_order(rows: np.ndarray, n_rows: int, columns: np.ndarray | None = N
     cols = np.arange(rows.size, dtype=idx) if columns is None else np.asarray(columns, idx)
     ptr = np.zeros(n_rows + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=n_rows), out=ptr[1:])
-    data = np.ones(rows.size) if ones is None else ones[:rows.size]
+    data = np.ones(rows.size) if ones is None else ones[: rows.size]
     return sp.csr_matrix((data, cols, ptr.astype(idx)), shape=(n_rows, rows.size))
 
 
@@ -430,8 +455,7 @@ class _Held:
         self.own = False
         self.shape = (n_in, p)
 
-    def update(self, values: np.ndarray, delivered: np.ndarray, pos: np.ndarray,
-               fill: np.ndarray | None) -> np.ndarray:
+    def update(self, values: np.ndarray, delivered: np.ndarray, pos: np.ndarray, fill: np.ndarray | None) -> np.ndarray:
         ok = delivered[pos]
         if not self.own and ok.all():
             self.prev = values
@@ -444,4 +468,3 @@ class _Held:
         keep = pos[ok]
         self.prev[keep] = values[keep]
         return self.prev
-

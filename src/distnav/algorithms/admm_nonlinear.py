@@ -34,8 +34,16 @@ from distnav.network.constraint_nodes import ConstraintNodes, ConstraintNodeSpec
 from distnav.network.graph import Graph
 from distnav.typing import ArrayLike, FloatArray
 
-__all__ = ["LinearizedAdmmResult", "NonlinearModel", "NonlinearProblem", "RangeModel", "admm_linearized",
-           "admm_nonlinear", "gauss_newton", "range_positioning_problem"]
+__all__ = [
+    "LinearizedAdmmResult",
+    "NonlinearModel",
+    "NonlinearProblem",
+    "RangeModel",
+    "admm_linearized",
+    "admm_nonlinear",
+    "gauss_newton",
+    "range_positioning_problem",
+]
 
 
 class NonlinearModel(Protocol):
@@ -96,7 +104,7 @@ class RangeModel:
             raise ModelError("a target estimate coincides with a node position: the range Jacobian is undefined")
         J = np.zeros((n, self.n_targets, self.n_params))
         for t in range(self.n_targets):
-            J[:, t, t * self.dim:(t + 1) * self.dim] = d[:, t, :] / rng[:, t, None]
+            J[:, t, t * self.dim : (t + 1) * self.dim] = d[:, t, :] / rng[:, t, None]
         return J
 
 
@@ -143,8 +151,9 @@ class NonlinearProblem:
         n = self.n_nodes
         xo = _per_node(x_approx, n, self.n_params, "x_approx")
         nodes = np.arange(n)
-        return LinearProblem.from_stacked(self.model.jacobian(xo, nodes), self.y - self.model.predict(xo, nodes),
-                                          self.R)
+        return LinearProblem.from_stacked(
+            self.model.jacobian(xo, nodes), self.y - self.model.predict(xo, nodes), self.R
+        )
 
     def cost(self, x: np.ndarray) -> float:
         """``Σ_i ½‖y_i − F_i(x)‖²_{R_i⁻¹}`` at a common ``x``."""
@@ -153,8 +162,9 @@ class NonlinearProblem:
         return float(0.5 * np.einsum("nm,nmk,nk->", e, np.linalg.inv(self.R), e))
 
 
-def range_positioning_problem(node_positions_m: np.ndarray, targets_m: np.ndarray, *, sigma_m: float,
-                              rng: np.random.Generator) -> NonlinearProblem:
+def range_positioning_problem(
+    node_positions_m: np.ndarray, targets_m: np.ndarray, *, sigma_m: float, rng: np.random.Generator
+) -> NonlinearProblem:
     """Every node measures its range to every target with noise ``N(0, σ²)``: a :class:`NonlinearProblem` on a
     :class:`RangeModel` (``targets_m`` is ``(T, d)``; the true ``x`` is ``targets_m.ravel()``)."""
     tg = np.atleast_2d(np.asarray(targets_m, dtype=float))
@@ -166,12 +176,13 @@ def range_positioning_problem(node_positions_m: np.ndarray, targets_m: np.ndarra
         raise ModelError(f"targets have {tg.shape[1]} coordinates, nodes have {model.dim}")
     truth = np.broadcast_to(tg.ravel(), (n, model.n_params))
     y = model.predict(truth, np.arange(n)) + sigma_m * rng.standard_normal((n, tg.shape[0]))
-    R = np.broadcast_to(sigma_m ** 2 * np.eye(tg.shape[0]), (n, tg.shape[0], tg.shape[0])).copy()
+    R = np.broadcast_to(sigma_m**2 * np.eye(tg.shape[0]), (n, tg.shape[0], tg.shape[0])).copy()
     return NonlinearProblem(model, y, R)
 
 
-def gauss_newton(problem: NonlinearProblem, x0: FloatArray, *, max_iterations: int = 50,
-                 tol: float = 1e-12) -> SolverResult:
+def gauss_newton(
+    problem: NonlinearProblem, x0: FloatArray, *, max_iterations: int = 50, tol: float = 1e-12
+) -> SolverResult:
     """Centralized Gauss–Newton on ``Σ_i ½‖y_i − F_i(x)‖²_{R_i⁻¹}`` (the fusion-centre reference, Teunissen 1990):
     ``x ← x + (Σ J_iᵀR_i⁻¹J_i)⁻¹ Σ J_iᵀR_i⁻¹(y_i − F_i(x))`` until ``‖Δx‖ ≤ tol·(1 + ‖x‖)``."""
     p = problem.n_params
@@ -198,18 +209,33 @@ def gauss_newton(problem: NonlinearProblem, x0: FloatArray, *, max_iterations: i
         if np.linalg.norm(dx) <= tol * (1 + np.linalg.norm(x)):
             converged = True
             break
-    return SolverResult(estimates=x[None, :], converged=converged, iterations=k,
-                        status="converged" if converged else "max_iterations",
-                        message=f"Gauss-Newton: {k} iterations, cost {problem.cost(x):.6g}", trace=tb.build(),
-                        comm=CommTotals.empty(n))
+    return SolverResult(
+        estimates=x[None, :],
+        converged=converged,
+        iterations=k,
+        status="converged" if converged else "max_iterations",
+        message=f"Gauss-Newton: {k} iterations, cost {problem.cost(x):.6g}",
+        trace=tb.build(),
+        comm=CommTotals.empty(n),
+    )
 
 
-def admm_linearized(problem: NonlinearProblem, graph: Graph, x_approx: FloatArray, *,
-                    constraint_nodes: ConstraintNodeSpec = "min_cover", W: ArrayLike = 1.0, outer_iterations: int = 10,
-                    inner_max_iterations: int = 2000, inner_tol: float = 1e-12, inner_atol: float = 1e-12,
-                    tol: float = 1e-10,
-                    reference: np.ndarray | None = None, messages: Literal["pairs", "aggregated"] = "pairs",
-                    exchange: Exchange | None = None) -> LinearizedAdmmResult:
+def admm_linearized(
+    problem: NonlinearProblem,
+    graph: Graph,
+    x_approx: FloatArray,
+    *,
+    constraint_nodes: ConstraintNodeSpec = "min_cover",
+    W: ArrayLike = 1.0,
+    outer_iterations: int = 10,
+    inner_max_iterations: int = 2000,
+    inner_tol: float = 1e-12,
+    inner_atol: float = 1e-12,
+    tol: float = 1e-10,
+    reference: np.ndarray | None = None,
+    messages: Literal["pairs", "aggregated"] = "pairs",
+    exchange: Exchange | None = None,
+) -> LinearizedAdmmResult:
     """The linearized case of paper 000 §4.3: all nodes start from the same approximate value ``x^o``, linearize
     their models there, run Fig. 6 on the increments from ``Δx_i^[0] = z_s^[0] = 0`` until it converges, then set
     ``x_i^o ← x_i^o + Δx_i``; repeated until ``max_i ‖Δx_i‖ ≤ tol·(1 + ‖x^o‖)`` or ``outer_iterations``.
@@ -231,25 +257,40 @@ def admm_linearized(problem: NonlinearProblem, graph: Graph, x_approx: FloatArra
     t = 0
     while t < outer_iterations:
         t += 1
-        inner = drive(prepare(problem.linearize(xo), graph, ex, options), max_iterations=inner_max_iterations,
-                      tol=inner_tol, atol=inner_atol, reference=None, stop_at_reference=None, record_nodes=False)
+        inner = drive(
+            prepare(problem.linearize(xo), graph, ex, options),
+            max_iterations=inner_max_iterations,
+            tol=inner_tol,
+            atol=inner_atol,
+            reference=None,
+            stop_at_reference=None,
+            record_nodes=False,
+        )
         dx = inner.estimates
         xo = xo + dx
         total_inner += inner.iterations
         step = float(np.linalg.norm(dx, axis=1).max())
-        tb.add(max_step=step, inner_iterations=inner.iterations,
-               spread=float(np.linalg.norm(xo - xo.mean(axis=0), axis=1).max()))
+        tb.add(
+            max_step=step,
+            inner_iterations=inner.iterations,
+            spread=float(np.linalg.norm(xo - xo.mean(axis=0), axis=1).max()),
+        )
         if reference is not None:
             tb.add(max_distance_to_reference=float(np.linalg.norm(xo - np.asarray(reference)[None, :], axis=1).max()))
         if step <= tol * (1 + float(np.linalg.norm(xo.mean(axis=0)))):
             converged = True
             break
-    return LinearizedAdmmResult(estimates=xo, converged=converged, iterations=t,
-                                status="converged" if converged else "max_iterations",
-                                message=f"linearized ADMM: {t} outer iterations, {total_inner} ADMM iterations "
-                                        "in all",
-                                trace=tb.build(), comm=ex.comm_totals(), inner_iterations_total=total_inner,
-                                constraint_nodes=C)
+    return LinearizedAdmmResult(
+        estimates=xo,
+        converged=converged,
+        iterations=t,
+        status="converged" if converged else "max_iterations",
+        message=f"linearized ADMM: {t} outer iterations, {total_inner} ADMM iterations in all",
+        trace=tb.build(),
+        comm=ex.comm_totals(),
+        inner_iterations_total=total_inner,
+        constraint_nodes=C,
+    )
 
 
 class _NonlinearXUpdate:
@@ -276,11 +317,21 @@ class _NonlinearXUpdate:
         return x
 
 
-def admm_nonlinear(problem: NonlinearProblem, graph: Graph, x0: FloatArray, *,
-                   constraint_nodes: ConstraintNodeSpec = "min_cover", W: ArrayLike = 1.0, gn_steps: int = 2,
-                   max_iterations: int = 2000, tol: float = 1e-10,
-                   atol: float = 0.0, reference: np.ndarray | None = None, record_nodes: bool = True,
-                   exchange: Exchange | None = None) -> AdmmResult:
+def admm_nonlinear(
+    problem: NonlinearProblem,
+    graph: Graph,
+    x0: FloatArray,
+    *,
+    constraint_nodes: ConstraintNodeSpec = "min_cover",
+    W: ArrayLike = 1.0,
+    gn_steps: int = 2,
+    max_iterations: int = 2000,
+    tol: float = 1e-10,
+    atol: float = 0.0,
+    reference: np.ndarray | None = None,
+    record_nodes: bool = True,
+    exchange: Exchange | None = None,
+) -> AdmmResult:
     """ADMM with constraint nodes and the nonlinear x-update of paper 000 eq. (23): each node solves its regularized
     nonlinear least-squares problem (``gn_steps`` Gauss–Newton steps warm-started at its previous ``x_i`` per
     iteration; exact at convergence). ``x0``: common ``(p,)`` or per-node ``(n, p)`` start (also ``z_s^[0]``).
@@ -296,8 +347,21 @@ def admm_nonlinear(problem: NonlinearProblem, graph: Graph, x0: FloatArray, *,
     count = C.per_node_count[ex.nodes].astype(float)
     xu = _NonlinearXUpdate(problem, ex.nodes, Wm, count, gn_steps)
     kernel = _Kernel(ex, C, Wm, p, xu)
-    run = PreparedRun(states=kernel.run(x_init[ex.nodes], z_init[ex.nodes]), exchange=ex, constraint_nodes=C, p=p,
-                      x_update=f"nonlinear (eq. 23, {gn_steps} Gauss-Newton steps)", x_weight="lagrangian",
-                      messages="pairs")
-    return drive(run, max_iterations=max_iterations, tol=tol, atol=atol, reference=reference,
-                 stop_at_reference=None, record_nodes=record_nodes)
+    run = PreparedRun(
+        states=kernel.run(x_init[ex.nodes], z_init[ex.nodes]),
+        exchange=ex,
+        constraint_nodes=C,
+        p=p,
+        x_update=f"nonlinear (eq. 23, {gn_steps} Gauss-Newton steps)",
+        x_weight="lagrangian",
+        messages="pairs",
+    )
+    return drive(
+        run,
+        max_iterations=max_iterations,
+        tol=tol,
+        atol=atol,
+        reference=reference,
+        stop_at_reference=None,
+        record_nodes=record_nodes,
+    )

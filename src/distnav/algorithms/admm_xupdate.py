@@ -42,8 +42,9 @@ class XUpdate:
 
     def __init__(self, problem: LinearProblem, W: np.ndarray, c: np.ndarray, method: XUpdateMethod = "auto") -> None:
         if method not in ("auto", "normal", "observation", "cholesky"):
-            raise ModelError(f"unknown x-update method {method!r}; choose 'auto', 'normal', 'observation' or "
-                             f"'cholesky'")
+            raise ModelError(
+                f"unknown x-update method {method!r}; choose 'auto', 'normal', 'observation' or 'cholesky'"
+            )
         if method == "auto":
             method = "normal" if problem.n_params <= problem.max_rows else "observation"
         self.method = method
@@ -116,16 +117,16 @@ def _diagonal_w_gain(A: np.ndarray, R: np.ndarray, w: np.ndarray, block: int = _
     work = _Work(m, p, k_max)
     for a in range(0, n, block):
         k = min(block, n - a)
-        Ab = np.ascontiguousarray(A[a:a + k].transpose(2, 1, 0))  # (p, m, k)
-        Bb = Ab * np.ascontiguousarray(w[a:a + k].T)[:, None, :]  # (p, m, k): A_i W_i⁻¹, transposed
+        Ab = np.ascontiguousarray(A[a : a + k].transpose(2, 1, 0))  # (p, m, k)
+        Bb = Ab * np.ascontiguousarray(w[a : a + k].T)[:, None, :]  # (p, m, k): A_i W_i⁻¹, transposed
         L, pr = acc[:, :, :k], prod[:, :, :k]
-        np.copyto(L, R[a:a + k].transpose(1, 2, 0))
+        np.copyto(L, R[a : a + k].transpose(1, 2, 0))
         for j in range(p):
             np.multiply(Bb[j][:, None, :], Ab[j][None, :, :], out=pr)
             L += pr
         Y = np.ascontiguousarray(Bb.transpose(1, 0, 2))  # (m, p, k)
         _cholesky_solve_block(L, Y, work, k)
-        out[a:a + k] = Y.transpose(2, 1, 0)
+        out[a : a + k] = Y.transpose(2, 1, 0)
     return out
 
 
@@ -137,10 +138,10 @@ def _spd_solve_nodes_last(S: np.ndarray, B: np.ndarray, block: int = _BLOCK) -> 
     work = _Work(m, p, min(block, n))
     for a in range(0, n, block):
         k = min(block, n - a)
-        L = np.ascontiguousarray(S[a:a + k].transpose(1, 2, 0))  # (m, m, k)
-        Y = np.ascontiguousarray(B[a:a + k].transpose(1, 2, 0))  # (m, p, k)
+        L = np.ascontiguousarray(S[a : a + k].transpose(1, 2, 0))  # (m, m, k)
+        Y = np.ascontiguousarray(B[a : a + k].transpose(1, 2, 0))  # (m, p, k)
         _cholesky_solve_block(L, Y, work, k)
-        out[a:a + k] = Y.transpose(2, 1, 0)
+        out[a : a + k] = Y.transpose(2, 1, 0)
     return out
 
 
@@ -165,8 +166,10 @@ def _cholesky_solve_block(L: np.ndarray, Y: np.ndarray, work: _Work, k: int) -> 
             np.multiply(L[j, q], L[j, q], out=t)
             L[j, j] -= t
         if not bool((L[j, j] > 0).all()):
-            raise ModelError("the observation-form x-update matrix R_i + A_i W_i⁻¹ A_iᵀ is not positive definite at "
-                             "some node (check R_i)")
+            raise ModelError(
+                "the observation-form x-update matrix R_i + A_i W_i⁻¹ A_iᵀ is not positive definite at "
+                "some node (check R_i)"
+            )
         np.sqrt(L[j, j], out=L[j, j])
         np.divide(1.0, L[j, j], out=d[j])
         for i in range(j + 1, m):
@@ -206,6 +209,5 @@ def _cholesky_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
         w[:, j] = (b[:, j] - np.einsum("nk,nk->n", L[:, j, :j], w[:, :j])) / L[:, j, j]
     d = np.empty_like(b)
     for j in range(p - 1, -1, -1):
-        d[:, j] = (w[:, j] - np.einsum("nk,nk->n", L[:, j + 1:, j], d[:, j + 1:])) / L[:, j, j]
+        d[:, j] = (w[:, j] - np.einsum("nk,nk->n", L[:, j + 1 :, j], d[:, j + 1 :])) / L[:, j, j]
     return d
-

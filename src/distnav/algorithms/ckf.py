@@ -89,8 +89,10 @@ def consensus_rounds(sampling_interval_s: float, sending_interval_s: float) -> i
     if not (math.isfinite(d) and d > 0):
         raise ModelError(f"sending interval δ must be positive, got {sending_interval_s} s")
     if d > D:
-        raise ModelError(f"sending interval δ = {d} s exceeds the sampling interval Δ = {D} s: no consensus round "
-                         f"fits in an epoch (the CKF needs δ ≤ Δ, paper 003 §4.1)")
+        raise ModelError(
+            f"sending interval δ = {d} s exceeds the sampling interval Δ = {D} s: no consensus round "
+            f"fits in an epoch (the CKF needs δ ≤ Δ, paper 003 §4.1)"
+        )
     return int(math.floor(D / d + 1e-9))
 
 
@@ -115,8 +117,9 @@ def _resolve_rounds(rounds: int | None, sampling_interval_s: float | None, sendi
     return consensus_rounds(sampling_interval_s, sending_interval_s)
 
 
-def _schedule(graph: Graph | SwitchingGraph | None, protocol: ConsensusProtocol,
-              schedule: ConsensusSchedule | None, n_nodes: int) -> ConsensusSchedule:
+def _schedule(
+    graph: Graph | SwitchingGraph | None, protocol: ConsensusProtocol, schedule: ConsensusSchedule | None, n_nodes: int
+) -> ConsensusSchedule:
     if schedule is None:
         if graph is None:
             raise ModelError("give a graph (static or switching) or a consensus schedule")
@@ -164,14 +167,22 @@ class CKFState:
     tests: tuple[NodeEpochTest | None, ...] = ()
 
 
-def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
-                graph: Graph | SwitchingGraph | None = None,
-                protocol: ConsensusProtocol = "P3",
-                rounds: int | None = None, sampling_interval_s: float | None = None,
-                sending_interval_s: float | None = None, exchange: Exchange | None = None,
-                schedule: ConsensusSchedule | None = None, variance: bool = True,
-                monitor: bool = True, local_precision: LocalPrecision | None = None,
-                test_level: float | None = None) -> Iterator[CKFState]:
+def iterate_ckf(
+    dynamics: DynamicModel,
+    measurements: MeasurementSeries,
+    *,
+    graph: Graph | SwitchingGraph | None = None,
+    protocol: ConsensusProtocol = "P3",
+    rounds: int | None = None,
+    sampling_interval_s: float | None = None,
+    sending_interval_s: float | None = None,
+    exchange: Exchange | None = None,
+    schedule: ConsensusSchedule | None = None,
+    variance: bool = True,
+    monitor: bool = True,
+    local_precision: LocalPrecision | None = None,
+    test_level: float | None = None,
+) -> Iterator[CKFState]:
     """Yield the CKF state (paper 003 Fig. 6) of this block's nodes after every epoch.
 
     ``rounds`` (= k_n) or the two time scales ``sampling_interval_s`` (Δ) and ``sending_interval_s`` (δ).
@@ -203,12 +214,16 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     critical = None
     if test_level is not None:
         if local_precision is None:
-            raise ModelError("innovation tests need the node-local precision: give local_precision='exact' or "
-                             "'bound' with test_level")
+            raise ModelError(
+                "innovation tests need the node-local precision: give local_precision='exact' or "
+                "'bound' with test_level"
+            )
         critical = critical_value(test_level)
         if type(measurements).observations is MeasurementSeries.observations:
-            raise ModelError(f"innovation tests need the raw observations; {type(measurements).__name__} holds "
-                             f"normal equations only (use an ObservationSeries)")
+            raise ModelError(
+                f"innovation tests need the raw observations; {type(measurements).__name__} holds "
+                f"normal equations only (use an ObservationSeries)"
+            )
     track_L = (variance and ex.faults.active) or local_precision is not None
     L_nominal = consensus_product(sched, kn) if (variance and not ex.faults.active) else None
     L2_nominal = L_nominal[nodes] ** 2 if L_nominal is not None else None  # once, not every epoch
@@ -236,9 +251,9 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         for k in range(kn):
             payload = mixers[k % len(mixers)].apply(payload)
         Nk = _symmetric(payload[:, :n_tri], up, lo, k_loc, p)
-        rk = payload[:, n_tri:n_tri + p]
+        rk = payload[:, n_tri : n_tri + p]
         extra = None
-        L_mixed = payload[:, n_tri + p:n_tri + p + n] if track_L else None
+        L_mixed = payload[:, n_tri + p : n_tri + p + n] if track_L else None
         if variance:
             if L_mixed is not None and ex.faults.active:
                 L2_rows = L_mixed**2
@@ -252,7 +267,7 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         else:
             assert L_mixed is not None
             if local_precision == "exact":
-                E = local_extra_exact(L_mixed, payload[:, n_tri + p + n:].reshape(k_loc, n, n_tri))
+                E = local_extra_exact(L_mixed, payload[:, n_tri + p + n :].reshape(k_loc, n, n_tri))
             else:
                 E = local_extra_bound(L_mixed, payload[:, :n_tri])
             local_extra = _symmetric((n * n) * E, up, lo, k_loc, p)
@@ -270,9 +285,16 @@ def iterate_ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         yield CKFState(t, nodes, ker.I, ker.i, x, est, P, inv, dev, P_local, tests)
 
 
-def _tested_normals(ker: InformationKernel, measurements: MeasurementSeries, t: int, nodes: IntArray,
-                    N: FloatArray, r: FloatArray, i_local: int, critical: float,
-                    ) -> tuple[FloatArray, FloatArray, tuple[NodeEpochTest | None, ...]]:
+def _tested_normals(
+    ker: InformationKernel,
+    measurements: MeasurementSeries,
+    t: int,
+    nodes: IntArray,
+    N: FloatArray,
+    r: FloatArray,
+    i_local: int,
+    critical: float,
+) -> tuple[FloatArray, FloatArray, tuple[NodeEpochTest | None, ...]]:
     """Innovation tests of every local node at epoch ``t`` (after the time update); normals of the kept rows."""
     A, y, row_node = measurements.observations(t, nodes)
     tests: list[NodeEpochTest | None] = [None] * nodes.size
@@ -295,14 +317,23 @@ def _tested_normals(ker: InformationKernel, measurements: MeasurementSeries, t: 
     return N, r, tuple(tests)
 
 
-def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
-        graph: Graph | SwitchingGraph | None = None,
-        protocol: ConsensusProtocol = "P3",
-        rounds: int | None = None, sampling_interval_s: float | None = None,
-        sending_interval_s: float | None = None, exchange: Exchange | None = None,
-        schedule: ConsensusSchedule | None = None, variance: bool = True, monitor: bool = True,
-        store_matrices: bool = False, local_precision: LocalPrecision | None = None,
-        test_level: float | None = None) -> FilterResult:
+def ckf(
+    dynamics: DynamicModel,
+    measurements: MeasurementSeries,
+    *,
+    graph: Graph | SwitchingGraph | None = None,
+    protocol: ConsensusProtocol = "P3",
+    rounds: int | None = None,
+    sampling_interval_s: float | None = None,
+    sending_interval_s: float | None = None,
+    exchange: Exchange | None = None,
+    schedule: ConsensusSchedule | None = None,
+    variance: bool = True,
+    monitor: bool = True,
+    store_matrices: bool = False,
+    local_precision: LocalPrecision | None = None,
+    test_level: float | None = None,
+) -> FilterResult:
     """Run the CKF (paper 003 Fig. 6) over all epochs; see :func:`iterate_ckf` for the arguments.
 
     Returns a :class:`FilterResult` (``mode="ckf"``): ``estimates`` = last-epoch ``x̂_i,t|t`` (n×p),
@@ -331,10 +362,18 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     lstds: list[FloatArray] = []
     tb = TraceBuilder()
     last: CKFState | None = None
-    collector = (InnovationCollector(ex, n, test_level, critical_value(test_level))
-                 if test_level is not None else None)
-    for st in iterate_ckf(dynamics, measurements, rounds=kn, exchange=ex, schedule=sched, variance=variance,
-                          monitor=monitor, local_precision=local_precision, test_level=test_level):
+    collector = InnovationCollector(ex, n, test_level, critical_value(test_level)) if test_level is not None else None
+    for st in iterate_ckf(
+        dynamics,
+        measurements,
+        rounds=kn,
+        exchange=ex,
+        schedule=sched,
+        variance=variance,
+        monitor=monitor,
+        local_precision=local_precision,
+        test_level=test_level,
+    ):
         xs.append(ex.gather_nodes(st.estimates))
         if st.local_covariance is not None:
             lstds.append(ex.gather_nodes(masked_std(st.local_covariance, st.estimable)))
@@ -353,32 +392,46 @@ def ckf(dynamics: DynamicModel, measurements: MeasurementSeries, *,
     assert last is not None
     nominal = np.stack(nstds)
     series = FilterSeries(
-        estimates=np.stack(xs), std=np.stack(stds) if stds else np.full_like(nominal, np.nan),
-        estimable=np.stack(ests), nodes=np.arange(n), nominal_std=nominal,
-        covariance=np.stack(covs) if covs else None, information=np.stack(infos) if infos else None,
+        estimates=np.stack(xs),
+        std=np.stack(stds) if stds else np.full_like(nominal, np.nan),
+        estimable=np.stack(ests),
+        nodes=np.arange(n),
+        nominal_std=nominal,
+        covariance=np.stack(covs) if covs else None,
+        information=np.stack(infos) if infos else None,
     )
     L = consensus_product(sched, kn) if variance else None  # dense n×n: only with the variance recursion
     comm: CommTotals = ex.comm_totals()
     est_last = series.estimable[-1]
     complete = bool(est_last.all())
     return FilterResult(
-        estimates=series.estimates[-1], converged=complete, iterations=measurements.n_epochs,
+        estimates=series.estimates[-1],
+        converged=complete,
+        iterations=measurements.n_epochs,
         status="converged" if complete else "stopped",
-        message=(f"CKF over {measurements.n_epochs} epochs with k_n = {kn} consensus rounds each; "
-                 f"{int(est_last.sum())}/{est_last.size} node-entries estimable at the last epoch"),
-        trace=tb.build(), comm=comm,
-        series=series, mode="ckf", information=ex.gather_nodes(last.information),
+        message=(
+            f"CKF over {measurements.n_epochs} epochs with k_n = {kn} consensus rounds each; "
+            f"{int(est_last.sum())}/{est_last.size} node-entries estimable at the last epoch"
+        ),
+        trace=tb.build(),
+        comm=comm,
+        series=series,
+        mode="ckf",
+        information=ex.gather_nodes(last.information),
         info_vector=ex.gather_nodes(last.info_vector),
         covariance=ex.gather_nodes(last.covariance) if last.covariance is not None else None,
-        rounds=kn, product=L, alpha=alpha_factor(L) if L is not None else None,
+        rounds=kn,
+        product=L,
+        alpha=alpha_factor(L) if L is not None else None,
         precision=_local_precision(ex, last, local_precision, comm, measurements.n_states, variance),
         local_std=np.stack(lstds) if lstds else None,
         tests=collector.build() if collector is not None else None,
     )
 
 
-def _local_precision(ex: Exchange, last: CKFState, kind: LocalPrecision | None, comm: CommTotals, p: int,
-                     variance: bool) -> Precision | None:
+def _local_precision(
+    ex: Exchange, last: CKFState, kind: LocalPrecision | None, comm: CommTotals, p: int, variance: bool
+) -> Precision | None:
     """The node-local :class:`Precision` of the last epoch; ``comm`` = the bytes it added to the messages."""
     if kind is None or last.local_covariance is None:
         return None
@@ -387,17 +440,28 @@ def _local_precision(ex: Exchange, last: CKFState, kind: LocalPrecision | None, 
     base = n_tri + p + (n if (variance and ex.faults.active) else 0)
     width = n_tri + p + n + (n * n_tri if kind == "exact" else 0)
     share = (width - base) / width
-    extra = CommTotals(0, np.zeros_like(comm.messages_sent), np.rint(comm.bytes_sent * share).astype(np.int64),
-                       np.zeros_like(comm.messages_received),
-                       np.rint(comm.bytes_received * share).astype(np.int64),
-                       np.zeros_like(comm.messages_per_round),
-                       np.rint(comm.bytes_per_round * share).astype(np.int64))
-    return Precision(covariance=ex.gather_nodes(last.local_covariance), variance_factor=None,
-                     redundancy=float("nan"), kind=kind, iterations=0, comm=extra)
+    extra = CommTotals(
+        0,
+        np.zeros_like(comm.messages_sent),
+        np.rint(comm.bytes_sent * share).astype(np.int64),
+        np.zeros_like(comm.messages_received),
+        np.rint(comm.bytes_received * share).astype(np.int64),
+        np.zeros_like(comm.messages_per_round),
+        np.rint(comm.bytes_per_round * share).astype(np.int64),
+    )
+    return Precision(
+        covariance=ex.gather_nodes(last.local_covariance),
+        variance_factor=None,
+        redundancy=float("nan"),
+        kind=kind,
+        iterations=0,
+        comm=extra,
+    )
 
 
-def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, product: ArrayLike, *,
-                       store_matrices: bool = False) -> FilterSeries:
+def ckf_error_variance(
+    dynamics: DynamicModel, measurements: MeasurementSeries, product: ArrayLike, *, store_matrices: bool = False
+) -> FilterSeries:
     """The CKF error-variance recursion of Fig. 7 alone, for every node and epoch, from ``L`` (= ``W^(k_n)``).
 
     No data and no messages: the consensus normals are ``N_i^(k_n) = Σ_j l_ij N_j`` (eq. (35)), so ``I_i,t|t``
@@ -448,10 +512,15 @@ def ckf_error_variance(dynamics: DynamicModel, measurements: MeasurementSeries, 
             covs.append(0.5 * (P + np.swapaxes(P, 1, 2)))
             infos.append(ker.I)
     std = np.stack(stds)
-    return FilterSeries(estimates=np.full_like(std, np.nan), std=std, estimable=np.stack(ests),
-                        nodes=np.arange(n), nominal_std=np.stack(nstds),
-                        covariance=np.stack(covs) if store_matrices else None,
-                        information=np.stack(infos) if store_matrices else None)
+    return FilterSeries(
+        estimates=np.full_like(std, np.nan),
+        std=std,
+        estimable=np.stack(ests),
+        nodes=np.arange(n),
+        nominal_std=np.stack(nstds),
+        covariance=np.stack(covs) if store_matrices else None,
+        information=np.stack(infos) if store_matrices else None,
+    )
 
 
 def ckf_std_ratio(ckf_series: FilterSeries, central_series: FilterSeries) -> FloatArray:

@@ -35,8 +35,14 @@ from distnav.exchange import Exchange
 from distnav.exchange.base import CommTotals
 from distnav.typing import BoolArray, FloatArray, IntArray
 
-__all__ = ["InnovationCollector", "NodeEpochTest", "chi2_critical", "innovation_test", "local_extra_bound",
-           "local_extra_exact"]
+__all__ = [
+    "InnovationCollector",
+    "NodeEpochTest",
+    "chi2_critical",
+    "innovation_test",
+    "local_extra_bound",
+    "local_extra_exact",
+]
 
 
 def local_extra_exact(L_rows: FloatArray, tagged: FloatArray) -> FloatArray:
@@ -48,8 +54,10 @@ def local_extra_exact(L_rows: FloatArray, tagged: FloatArray) -> FloatArray:
 def local_extra_bound(L_rows: FloatArray, consensus_tri: FloatArray) -> FloatArray:
     """``(max_j l_ij) N_i^(k_n)`` (upper triangles), an upper bound of ``Σ_j l_ij² N_j`` for ``l_ij ≥ 0``."""
     if L_rows.size and float(L_rows.min()) < -1e-12:
-        raise ModelError("the node-local precision bound needs non-negative consensus weights (the product L has "
-                         f"an entry {float(L_rows.min()):.3g}); use local_precision='exact'")
+        raise ModelError(
+            "the node-local precision bound needs non-negative consensus weights (the product L has "
+            f"an entry {float(L_rows.min()):.3g}); use local_precision='exact'"
+        )
     out: FloatArray = L_rows.max(axis=1, initial=0.0)[:, None] * consensus_tri
     return out
 
@@ -69,8 +77,9 @@ class NodeEpochTest:
     dof: int
 
 
-def innovation_test(A: FloatArray, y: FloatArray, x_pred: FloatArray, P_pred: FloatArray, est_pred: BoolArray,
-                    critical: float) -> NodeEpochTest:
+def innovation_test(
+    A: FloatArray, y: FloatArray, x_pred: FloatArray, P_pred: FloatArray, est_pred: BoolArray, critical: float
+) -> NodeEpochTest:
     """Iterative w-tests of one node's whitened predicted residuals (module docstring)."""
     m = A.shape[0]
     w_first = np.full(m, np.nan)
@@ -136,7 +145,7 @@ class InnovationCollector:
         for a, t in enumerate(tests):
             if t is None:
                 continue
-            w[a, :t.w.size] = t.w
+            w[a, : t.w.size] = t.w
             for j, row in enumerate(t.removed):
                 rank[a, row] = j
             chi2[a], dof[a] = t.chi2, t.dof
@@ -164,7 +173,17 @@ class InnovationCollector:
         chi2 = np.stack(self._chi2) if self._chi2 else np.zeros((0, self.n))
         dof = np.stack(self._dof) if self._dof else np.zeros((0, self.n), np.int64)
         return InnovationTests(
-            node=node, w=w_all, critical_value=self.critical, level=self.level,
-            flagged=np.abs(w_all) > self.critical, removed=tuple(int(j) for j in order), iterations=0,
-            comm=CommTotals.empty(self.n), epoch=epoch, row=row, chi2=chi2, chi2_dof=dof,
-            chi2_flagged=chi2 > chi2_critical(dof, self.level))
+            node=node,
+            w=w_all,
+            critical_value=self.critical,
+            level=self.level,
+            flagged=np.abs(w_all) > self.critical,
+            removed=tuple(int(j) for j in order),
+            iterations=0,
+            comm=CommTotals.empty(self.n),
+            epoch=epoch,
+            row=row,
+            chi2=chi2,
+            chi2_dof=dof,
+            chi2_flagged=chi2 > chi2_critical(dof, self.level),
+        )

@@ -113,8 +113,11 @@ def consensus_schedule(
                 raise WeightsError(f"weights of session {k} ({w.name}) unusable: {rep.message}")
             if len(sessions) == 1 and not rep.guaranteed:
                 warnings.warn(f"weights {w.name}: {rep.message}", ConsensusWarning, stacklevel=2)
-        out.append(w if m is None and w.graph is union else _on_union(union, w, m if m is not None else
-                                                                       np.ones(union.n_edges, bool)))
+        out.append(
+            w
+            if m is None and w.graph is union
+            else _on_union(union, w, m if m is not None else np.ones(union.n_edges, bool))
+        )
     return ConsensusSchedule(graph=union, weights=tuple(out), active=tuple(masks))
 
 
@@ -129,9 +132,7 @@ class ConsensusState:
 def _as_node_array(values: np.ndarray, n_nodes: int) -> np.ndarray:
     arr = np.asarray(values, dtype=float)
     if arr.ndim == 0 or arr.shape[0] != n_nodes:
-        raise WeightsError(
-            f"values must have one row per node (leading axis {n_nodes}), got shape {arr.shape}"
-        )
+        raise WeightsError(f"values must have one row per node (leading axis {n_nodes}), got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         bad = np.flatnonzero(~np.isfinite(arr.reshape(n_nodes, -1)).all(axis=1))
         raise WeightsError(f"values of nodes {bad[:10].tolist()} are not finite")

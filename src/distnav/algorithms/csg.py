@@ -78,15 +78,23 @@ PAPER_MODE: dict[str, Any] = {"stop": None, "quality": False}
 
 def _cost_of(problem: RangingData, objective: str, sigma: np.ndarray) -> Callable[[np.ndarray], float]:
     if objective == "metres":
+
         def cost(pos: np.ndarray) -> float:
             r = (problem.distances(pos) - problem.range_m) / sigma
             return float(r @ r)
+
         return cost
     return problem.cost
 
 
-def _summarize(problem: RangingData, ex: Exchange, own_local: np.ndarray, truth: np.ndarray | None,
-               est: np.ndarray, cost_of: Callable[[np.ndarray], float]) -> tuple[np.ndarray, float, float]:
+def _summarize(
+    problem: RangingData,
+    ex: Exchange,
+    own_local: np.ndarray,
+    truth: np.ndarray | None,
+    est: np.ndarray,
+    cost_of: Callable[[np.ndarray], float],
+) -> tuple[np.ndarray, float, float]:
     """Monitoring only (gathers): all own estimates, global cost (eq. (2), or Σ e²/σ²) and RMSE (eq. (24))."""
     own = ex.gather_nodes(own_local)
     cost = cost_of(own)
@@ -141,9 +149,13 @@ def iterate_csg(
     fl_self = own_idx * n + me
     fl_other = own_idx * n + other
     nh = own_idx.size
-    Q = sp.csr_matrix((np.concatenate([np.ones(nh), -np.ones(nh)]),
-                       (np.concatenate([fl_self, fl_other]), np.concatenate([np.arange(nh)] * 2))),
-                      shape=(nl * n, nh))
+    Q = sp.csr_matrix(
+        (
+            np.concatenate([np.ones(nh), -np.ones(nh)]),
+            (np.concatenate([fl_self, fl_other]), np.concatenate([np.arange(nh)] * 2)),
+        ),
+        shape=(nl * n, nh),
+    )
     per = range_offsets == "per_anchor"
     prior_w = 2.0 / offset_prior_sigma_m**2 if per else 0.0  # b_i² in f⁽ⁱ⁾, counted twice (see above)
     Bo = np.zeros((nl, n if per else 1))  # every anchor's offsets (per anchor) or its copy of the common one
@@ -175,8 +187,17 @@ def iterate_csg(
         own = flat[ex.nodes + np.arange(nl) * n].copy()
         if range_offsets == "none":
             return IterationState(k, own, alpha_local, pc, own_idx, samp, flat[fl_other])
-        return IterationState(k, own, alpha_local, pc, own_idx, samp, flat[fl_other], Bo[mine].copy(),
-                              np.broadcast_to(bias(), own_idx.shape).copy())
+        return IterationState(
+            k,
+            own,
+            alpha_local,
+            pc,
+            own_idx,
+            samp,
+            flat[fl_other],
+            Bo[mine].copy(),
+            np.broadcast_to(bias(), own_idx.shape).copy(),
+        )
 
     yield state(0, partial_cost(F))
     for k in range(1, iterations + 1):
@@ -197,13 +218,15 @@ def iterate_csg(
             for _ in range(consensus_rounds):  # eq. (11)
                 U = mixer.apply(U)
         else:  # the offsets' gradient, step and consensus (in the same messages: n·dim + n or + 1 floats)
-            gB = (np.bincount(b_self, g / sig, minlength=Bo.size) + (np.bincount(b_other, g / sig, minlength=Bo.size)
-                                                                      if per else 0.0)).reshape(Bo.shape)
+            gB = (
+                np.bincount(b_self, g / sig, minlength=Bo.size)
+                + (np.bincount(b_other, g / sig, minlength=Bo.size) if per else 0.0)
+            ).reshape(Bo.shape)
             gB[mine] = gB[mine] + prior_w * Bo[mine]
             V = np.concatenate([U.reshape(nl, n * dim), Bo - (alpha_local * ratio)[:, None] * gB], axis=1)
             for _ in range(consensus_rounds):
                 V = mixer.apply(V)
-            U, Bo = V[:, :n * dim].reshape(nl, n, dim), V[:, n * dim:]
+            U, Bo = V[:, : n * dim].reshape(nl, n, dim), V[:, n * dim :]
         F = np.where(free, U, known)
         yield state(k, pc)
 
@@ -237,15 +260,21 @@ class _Setup:
         if self.monitor_every < 0:
             raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
         if self.test_scale not in DISTRIBUTED_TEST_SCALES:
-            raise ModelError(f"test_scale must be one of {', '.join(DISTRIBUTED_TEST_SCALES)}, "
-                             f"got {self.test_scale!r}")
+            raise ModelError(f"test_scale must be one of {', '.join(DISTRIBUTED_TEST_SCALES)}, got {self.test_scale!r}")
         if self.loss not in LOSSES:
             raise ModelError(f"unknown loss {self.loss!r}; choose one of {', '.join(LOSSES)}")
 
 
-def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, name: str, iterations: int,
-         settings: dict[str, Any], setup: _Setup,
-         seen: dict[int, tuple[np.ndarray, np.ndarray, float, float]] | None = None) -> RangingResult:
+def _run(
+    problem: RangingData,
+    states: Iterator[IterationState],
+    ex: Exchange,
+    name: str,
+    iterations: int,
+    settings: dict[str, Any],
+    setup: _Setup,
+    seen: dict[int, tuple[np.ndarray, np.ndarray, float, float]] | None = None,
+) -> RangingResult:
     """Drive a state generator until the stopping rule or the budget, monitoring every ``monitor_every``-th
     iteration (and the first and last). ``seen``: the monitoring of states whose ``own_m`` another run shares
     (the same array object: :func:`solve_line_search_pair`), filled by the first run and reused by the second.
@@ -318,23 +347,34 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                 calm = calm + 1 if small else 0
                 if calm >= stop.patience:
                     status = "converged"
-                    why = (f"objective change ≤ {stop.ftol:g} (relative) and steps ≤ {stop.xtol_m:g} m "
-                           f"for {stop.patience} checks")
+                    why = (
+                        f"objective change ≤ {stop.ftol:g} (relative) and steps ≤ {stop.xtol_m:g} m "
+                        f"for {stop.patience} checks"
+                    )
                     break
             prev_local, prev_pcost, prev_off = st.own_m, pcost[-1], st.offset_m
     assert own is not None and last is not None
     key = "lambda" if name == "N-CLM" else "step_size"
-    trace = Trace({"rmse_m": np.asarray(rm), "cost": np.asarray(cost), "partial_cost": np.asarray(pcost),
-                   key: np.asarray(step)})
+    trace = Trace(
+        {"rmse_m": np.asarray(rm), "cost": np.asarray(cost), "partial_cost": np.asarray(pcost), key: np.asarray(step)}
+    )
     final_cost = cost[-1]
     scale = _loss_scale(problem, setup, sigma)
     if setup.refines and status != "diverged":  # a final LM phase through the exchange (ranging_refine)
         rule = stop or StopRule()
         try:
-            refined = refine_state(problem, ex, last, sigma=sigma, scale=scale, loss=setup.loss,
-                                   range_offsets=setup.range_offsets,
-                                   offset_prior_sigma_m=setup.offset_prior_sigma_m, ftol=rule.phase_tolerances[0],
-                                   xtol_m=rule.phase_tolerances[1])
+            refined = refine_state(
+                problem,
+                ex,
+                last,
+                sigma=sigma,
+                scale=scale,
+                loss=setup.loss,
+                range_offsets=setup.range_offsets,
+                offset_prior_sigma_m=setup.offset_prior_sigma_m,
+                ftol=rule.phase_tolerances[0],
+                xtol_m=rule.phase_tolerances[1],
+            )
         except ModelError as err:  # e.g. a lost message: the refinement needs every link each round
             why = (why + "; " if why else "") + f"no distributed LM phase ({err})"
         else:
@@ -343,29 +383,48 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
                 why = (why + "; " if why else "") + f"the {last.iteration} iterations ran out"
             own, status = ex.gather_nodes(last.own_m), cast(SolverStatus, ref.status)
             final_cost = cost_of(own)
-            why = (why + "; " if why else "") + (f"then distributed LM: {ref.status.replace('_', ' ')} after "
-                                                 f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations")
-            settings = {**settings, "refine": {"rounds": ref.rounds, "cg_iterations": ref.cg_iterations,
-                                               "reductions": ref.reductions, "status": ref.status}}
+            why = (why + "; " if why else "") + (
+                f"then distributed LM: {ref.status.replace('_', ' ')} after "
+                f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations"
+            )
+            settings = {
+                **settings,
+                "refine": {
+                    "rounds": ref.rounds,
+                    "cg_iterations": ref.cg_iterations,
+                    "reductions": ref.reductions,
+                    "status": ref.status,
+                },
+            }
     offsets = offsets_std = None
     off_args = (setup.range_offsets, setup.offset_prior_sigma_m, setup.loss, sigma, scale)
     if last.offset_m is not None and status != "diverged":
         offsets, offsets_std = offset_precision(problem, ex, last, *off_args, None)
     bias = sample_bias(problem.meas_a, problem.meas_b, offsets)
     with np.errstate(over="ignore", invalid="ignore"):
-        res_final = ((problem.distances(own) + bias - problem.range_m) / sigma if setup.objective == "metres"
-                     else problem.residuals(own))
+        res_final = (
+            (problem.distances(own) + bias - problem.range_m) / sigma
+            if setup.objective == "metres"
+            else problem.residuals(own)
+        )
         if offsets is not None:
             final_cost = float(res_final @ res_final)
-        objective = final_cost if setup.loss == "linear" else float(np.sum(loss_terms(res_final, scale,
-                                                                                        setup.loss)[1]))
+        objective = final_cost if setup.loss == "linear" else float(np.sum(loss_terms(res_final, scale, setup.loss)[1]))
     precision = tests = None
     if status == "diverged":
         own = np.full_like(own, np.nan)  # never present a blown-up iterate as a result
     elif setup.quality and last.half_owner is not None:
-        precision, tests = distributed_quality(problem, ex, last, sigma, scale, objective=setup.objective,
-                                               loss=setup.loss, test_scale=setup.test_scale,
-                                               test_level=setup.test_level)
+        precision, tests = distributed_quality(
+            problem,
+            ex,
+            last,
+            sigma,
+            scale,
+            objective=setup.objective,
+            loss=setup.loss,
+            test_scale=setup.test_scale,
+            test_level=setup.test_level,
+        )
         if offsets is not None:
             offsets, offsets_std = offset_precision(problem, ex, last, *off_args, precision.variance_factor)
     tail = f" ({why})" if why else ""
@@ -375,7 +434,7 @@ def _run(problem: RangingData, states: Iterator[IterationState], ex: Exchange, n
         iterations=last.iteration,
         status=status,
         message=f"{name}: {status.replace('_', ' ')} after {last.iteration} iterations{tail}, cost {final_cost:.6g}"
-                + (f", RMSE {rm[-1]:.3f} m" if truth is not None and status != "diverged" else ""),
+        + (f", RMSE {rm[-1]:.3f} m" if truth is not None and status != "diverged" else ""),
         trace=trace,
         comm=ex.comm_totals(),
         solver=name,
@@ -403,12 +462,26 @@ def _graduated(setup_objective: str, loss: str, graduated: int | None, iteration
     return iterations // 4 if setup_objective == "metres" and loss != "linear" else 0
 
 
-def solve_csg(problem: RangingData, *, exchange: Exchange | None = None, iterations: int = 500,
-              alpha: float | None = None, consensus_rounds: int = 1, weights: str | ConsensusWeights = "MH",
-              initial_m: np.ndarray | None = None, monitor_every: int = 1, objective: str = "squared",
-              sigma_m: float | np.ndarray = 1.0, stop: StopRule | None = StopRule(), quality: bool = True,
-              test_level: float = 0.001, test_scale: str = "robust", range_offsets: str = "none",
-              offset_prior_sigma_m: float = 0.1, refine: bool | None = None) -> RangingResult:
+def solve_csg(
+    problem: RangingData,
+    *,
+    exchange: Exchange | None = None,
+    iterations: int = 500,
+    alpha: float | None = None,
+    consensus_rounds: int = 1,
+    weights: str | ConsensusWeights = "MH",
+    initial_m: np.ndarray | None = None,
+    monitor_every: int = 1,
+    objective: str = "squared",
+    sigma_m: float | np.ndarray = 1.0,
+    stop: StopRule | None = StopRule(),
+    quality: bool = True,
+    test_level: float = 0.001,
+    test_scale: str = "robust",
+    range_offsets: str = "none",
+    offset_prior_sigma_m: float = 0.1,
+    refine: bool | None = None,
+) -> RangingResult:
     """CSG (paper 002 eqs. (10)–(12)); trace: ``rmse_m``, ``cost`` (global f at the anchors' own estimates),
     ``partial_cost`` (Σ_i f⁽ⁱ⁾(x⁽ⁱ⁾)), ``step_size``; row 0 is the start.
 
@@ -420,27 +493,66 @@ def solve_csg(problem: RangingData, *, exchange: Exchange | None = None, iterati
     per-anchor covariance and the w-tests of every anchor's own links (:mod:`distnav.algorithms.ranging_qc`).
     ``monitor_every = k`` gathers the estimates for the trace (and the stopping and divergence tests) only every
     ``k``-th iteration (NaN rows otherwise; 0: start and end only); see :func:`_run`."""
-    setup = _Setup(objective=objective, sigma_m=sigma_m, stop=stop, quality=quality, test_level=test_level,
-                   test_scale=test_scale, monitor_every=monitor_every, range_offsets=range_offsets,
-                   offset_prior_sigma_m=offset_prior_sigma_m, refine=refine)
+    setup = _Setup(
+        objective=objective,
+        sigma_m=sigma_m,
+        stop=stop,
+        quality=quality,
+        test_level=test_level,
+        test_scale=test_scale,
+        monitor_every=monitor_every,
+        range_offsets=range_offsets,
+        offset_prior_sigma_m=offset_prior_sigma_m,
+        refine=refine,
+    )
     setup.check()
     a = (1e-3 if objective == "squared" else 0.8) if alpha is None else alpha
     ex = exchange_for(problem, exchange)
-    states = iterate_csg(problem, exchange=ex, iterations=iterations, alpha=a, consensus_rounds=consensus_rounds,
-                         weights=weights, initial_m=initial_m, objective=objective, sigma_m=sigma_m,
-                         range_offsets=range_offsets, offset_prior_sigma_m=offset_prior_sigma_m)
+    states = iterate_csg(
+        problem,
+        exchange=ex,
+        iterations=iterations,
+        alpha=a,
+        consensus_rounds=consensus_rounds,
+        weights=weights,
+        initial_m=initial_m,
+        objective=objective,
+        sigma_m=sigma_m,
+        range_offsets=range_offsets,
+        offset_prior_sigma_m=offset_prior_sigma_m,
+    )
     return _run(problem, states, ex, "CSG", iterations, {"alpha": a, "consensus_rounds": consensus_rounds}, setup)
 
 
-def solve_ncsg(problem: RangingData, *, line_search: str | None = None, exchange: Exchange | None = None,
-               iterations: int = 500, alpha: float | None = None, alpha0: float | None = None, beta: float = 0.5,
-               gamma: float = 0.5, consensus_rounds: int = 1, weights: str | ConsensusWeights = "MH",
-               initial_m: np.ndarray | None = None, max_backtracks: int = 40,
-               armijo_slope: str = "subgradient", loss: str = "linear", loss_scale_m: float = 0.3,
-               monitor_every: int = 1, objective: str = "squared", sigma_m: float | np.ndarray = 1.0,
-               graduated: int | None = None, stop: StopRule | None = StopRule(), quality: bool = True,
-               test_level: float = 0.001, test_scale: str = "robust", range_offsets: str = "none",
-               offset_prior_sigma_m: float = 0.1, refine: bool | None = None) -> RangingResult:
+def solve_ncsg(
+    problem: RangingData,
+    *,
+    line_search: str | None = None,
+    exchange: Exchange | None = None,
+    iterations: int = 500,
+    alpha: float | None = None,
+    alpha0: float | None = None,
+    beta: float = 0.5,
+    gamma: float = 0.5,
+    consensus_rounds: int = 1,
+    weights: str | ConsensusWeights = "MH",
+    initial_m: np.ndarray | None = None,
+    max_backtracks: int = 40,
+    armijo_slope: str = "subgradient",
+    loss: str = "linear",
+    loss_scale_m: float = 0.3,
+    monitor_every: int = 1,
+    objective: str = "squared",
+    sigma_m: float | np.ndarray = 1.0,
+    graduated: int | None = None,
+    stop: StopRule | None = StopRule(),
+    quality: bool = True,
+    test_level: float = 0.001,
+    test_scale: str = "robust",
+    range_offsets: str = "none",
+    offset_prior_sigma_m: float = 0.1,
+    refine: bool | None = None,
+) -> RangingResult:
     """N-CSG (eqs. (14)–(18)); ``line_search="BLS"`` (eqs. (19)–(20)) or ``"TBLS"`` (eq. (21)).
 
     Trace, ``stop``, ``quality`` and ``monitor_every`` as :func:`solve_csg`; ``step_size`` is the mean ``α`` over
@@ -471,31 +583,66 @@ def _ncsg_parts(args: dict[str, Any]) -> tuple[_Setup, dict[str, Any], dict[str,
     """From :func:`solve_ncsg`'s arguments: the run's set-up, the iteration's options and the result's settings."""
     objective, loss, iterations = args["objective"], args["loss"], args["iterations"]
     grad_its = _graduated(objective, loss, args["graduated"], iterations)
-    setup = _Setup(objective=objective, sigma_m=args["sigma_m"], loss=loss, loss_scale_m=args["loss_scale_m"],
-                   stop=args["stop"], graduated=grad_its, quality=args["quality"], test_level=args["test_level"],
-                   test_scale=args["test_scale"], monitor_every=args["monitor_every"],
-                   range_offsets=args["range_offsets"], offset_prior_sigma_m=args["offset_prior_sigma_m"],
-                   refine=args["refine"])
+    setup = _Setup(
+        objective=objective,
+        sigma_m=args["sigma_m"],
+        loss=loss,
+        loss_scale_m=args["loss_scale_m"],
+        stop=args["stop"],
+        graduated=grad_its,
+        quality=args["quality"],
+        test_level=args["test_level"],
+        test_scale=args["test_scale"],
+        monitor_every=args["monitor_every"],
+        range_offsets=args["range_offsets"],
+        offset_prior_sigma_m=args["offset_prior_sigma_m"],
+        refine=args["refine"],
+    )
     setup.check()
     a = (1e-3 if objective == "squared" else 0.8) if args["alpha"] is None else args["alpha"]
     a0 = (1e-2 if objective == "squared" else 2.0) if args["alpha0"] is None else args["alpha0"]
-    options = {k: args[k] for k in ("iterations", "beta", "gamma", "consensus_rounds", "weights", "initial_m",
-                                    "max_backtracks", "armijo_slope", "loss", "loss_scale_m", "objective",
-                                    "sigma_m", "range_offsets", "offset_prior_sigma_m")}
+    options = {
+        k: args[k]
+        for k in (
+            "iterations",
+            "beta",
+            "gamma",
+            "consensus_rounds",
+            "weights",
+            "initial_m",
+            "max_backtracks",
+            "armijo_slope",
+            "loss",
+            "loss_scale_m",
+            "objective",
+            "sigma_m",
+            "range_offsets",
+            "offset_prior_sigma_m",
+        )
+    }
     options.update(alpha=a, alpha0=a0, graduated=grad_its)
-    settings = {"alpha": a, "alpha0": a0, "beta": args["beta"], "gamma": args["gamma"],
-                "consensus_rounds": args["consensus_rounds"], "armijo_slope": args["armijo_slope"], "loss": loss}
+    settings = {
+        "alpha": a,
+        "alpha0": a0,
+        "beta": args["beta"],
+        "gamma": args["gamma"],
+        "consensus_rounds": args["consensus_rounds"],
+        "armijo_slope": args["armijo_slope"],
+        "loss": loss,
+    }
     return setup, options, settings
 
 
-def solve_line_search_pair(problem: RangingData, *, exchanges: tuple[Exchange, Exchange] | None = None,
-                           **options: Any) -> tuple[RangingResult, RangingResult]:
+def solve_line_search_pair(
+    problem: RangingData, *, exchanges: tuple[Exchange, Exchange] | None = None, **options: Any
+) -> tuple[RangingResult, RangingResult]:
     """N-CSG-BLS and N-CSG-TBLS: the results of ``solve_ncsg(problem, line_search="BLS", exchange=exchanges[0],
     **options)`` and of ``line_search="TBLS"`` on ``exchanges[1]``, computing the work the two runs provably share
     once (:mod:`distnav.algorithms.line_search_pair`). ``options``: those of :func:`solve_ncsg`."""
     if "line_search" in options or "exchange" in options:
-        raise ModelError("solve_line_search_pair runs BLS and TBLS: pass exchanges=(bls, tbls), not line_search "
-                         "or exchange")
+        raise ModelError(
+            "solve_line_search_pair runs BLS and TBLS: pass exchanges=(bls, tbls), not line_search or exchange"
+        )
     bound = inspect.signature(solve_ncsg).bind(problem, **options)
     bound.apply_defaults()
     setup, opts, settings = _ncsg_parts(dict(bound.arguments))
@@ -510,14 +657,31 @@ def solve_line_search_pair(problem: RangingData, *, exchanges: tuple[Exchange, E
     return res_b, _run(problem, tbls_states, ex_t, "N-CSG-TBLS", its, settings, setup, seen)
 
 
-def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterations: int = 500,
-               lambda0: float = 1e-3, consensus_rounds: int = 1, weights: str | ConsensusWeights = "MH",
-               initial_m: np.ndarray | None = None, damping: str = "levenberg", loss: str = "linear",
-               loss_scale_m: float = 0.3, lambda_min: float = 0.1, monitor_every: int = 1,
-               objective: str = "squared", sigma_m: float | np.ndarray = 1.0, graduated: int | None = None,
-               stop: StopRule | None = StopRule(), quality: bool = True, test_level: float = 0.001,
-               test_scale: str = "robust", range_offsets: str = "none",
-               offset_prior_sigma_m: float = 0.1, refine: bool | None = None) -> RangingResult:
+def solve_nclm(
+    problem: RangingData,
+    *,
+    exchange: Exchange | None = None,
+    iterations: int = 500,
+    lambda0: float = 1e-3,
+    consensus_rounds: int = 1,
+    weights: str | ConsensusWeights = "MH",
+    initial_m: np.ndarray | None = None,
+    damping: str = "levenberg",
+    loss: str = "linear",
+    loss_scale_m: float = 0.3,
+    lambda_min: float = 0.1,
+    monitor_every: int = 1,
+    objective: str = "squared",
+    sigma_m: float | np.ndarray = 1.0,
+    graduated: int | None = None,
+    stop: StopRule | None = StopRule(),
+    quality: bool = True,
+    test_level: float = 0.001,
+    test_scale: str = "robust",
+    range_offsets: str = "none",
+    offset_prior_sigma_m: float = 0.1,
+    refine: bool | None = None,
+) -> RangingResult:
     """N-CLM (eq. (22)); trace, ``objective``, ``graduated``, ``stop``, ``quality``, ``monitor_every`` and
     ``range_offsets`` as :func:`solve_ncsg`, with the mean ``lambda`` instead of ``step_size``.
 
@@ -534,23 +698,56 @@ def solve_nclm(problem: RangingData, *, exchange: Exchange | None = None, iterat
     RMSE 3.15 m with the floor 1e-9, 0.30 m with 0.1 and a Cauchy loss; RM with heights held: 0.78 → 0.51 m).
     """
     grad_its = _graduated(objective, loss, graduated, iterations)
-    setup = _Setup(objective=objective, sigma_m=sigma_m, loss=loss, loss_scale_m=loss_scale_m, stop=stop,
-                   graduated=grad_its, quality=quality, test_level=test_level, test_scale=test_scale,
-                   monitor_every=monitor_every, range_offsets=range_offsets,
-                   offset_prior_sigma_m=offset_prior_sigma_m, refine=refine)
+    setup = _Setup(
+        objective=objective,
+        sigma_m=sigma_m,
+        loss=loss,
+        loss_scale_m=loss_scale_m,
+        stop=stop,
+        graduated=grad_its,
+        quality=quality,
+        test_level=test_level,
+        test_scale=test_scale,
+        monitor_every=monitor_every,
+        range_offsets=range_offsets,
+        offset_prior_sigma_m=offset_prior_sigma_m,
+        refine=refine,
+    )
     setup.check()
     ex = exchange_for(problem, exchange)
-    states = iterate_neighbourhood(problem, method="N-CLM", exchange=ex, iterations=iterations, lambda0=lambda0,
-                                   consensus_rounds=consensus_rounds, weights=weights, initial_m=initial_m,
-                                   damping=damping, loss=loss, loss_scale_m=loss_scale_m, lambda_min=lambda_min,
-                                   objective=objective, sigma_m=sigma_m, graduated=grad_its,
-                                   range_offsets=range_offsets, offset_prior_sigma_m=offset_prior_sigma_m)
-    return _run(problem, states, ex, "N-CLM", iterations,
-                {"lambda0": lambda0, "consensus_rounds": consensus_rounds, "damping": damping, "loss": loss}, setup)
+    states = iterate_neighbourhood(
+        problem,
+        method="N-CLM",
+        exchange=ex,
+        iterations=iterations,
+        lambda0=lambda0,
+        consensus_rounds=consensus_rounds,
+        weights=weights,
+        initial_m=initial_m,
+        damping=damping,
+        loss=loss,
+        loss_scale_m=loss_scale_m,
+        lambda_min=lambda_min,
+        objective=objective,
+        sigma_m=sigma_m,
+        graduated=grad_its,
+        range_offsets=range_offsets,
+        offset_prior_sigma_m=offset_prior_sigma_m,
+    )
+    return _run(
+        problem,
+        states,
+        ex,
+        "N-CLM",
+        iterations,
+        {"lambda0": lambda0, "consensus_rounds": consensus_rounds, "damping": damping, "loss": loss},
+        setup,
+    )
 
 
-def solve(problem: RangingData, solver: str, *, iterations: int = 500, exchange: Exchange | None = None,
-          **options: Any) -> RangingResult:
+def solve(
+    problem: RangingData, solver: str, *, iterations: int = 500, exchange: Exchange | None = None, **options: Any
+) -> RangingResult:
     """Run one of :data:`SOLVERS` by name with paper defaults (``options`` go to the solver's front door)."""
     key = str(solver).upper()
     if key == "LM":
@@ -560,8 +757,9 @@ def solve(problem: RangingData, solver: str, *, iterations: int = 500, exchange:
     if key == "N-CSG":
         return solve_ncsg(problem, iterations=iterations, exchange=exchange, **options)
     if key in ("N-CSG-BLS", "N-CSG-TBLS"):
-        return solve_ncsg(problem, line_search=key.rsplit("-", 1)[1], iterations=iterations, exchange=exchange,
-                          **options)
+        return solve_ncsg(
+            problem, line_search=key.rsplit("-", 1)[1], iterations=iterations, exchange=exchange, **options
+        )
     if key == "N-CLM":
         return solve_nclm(problem, iterations=iterations, exchange=exchange, **options)
     raise ModelError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")

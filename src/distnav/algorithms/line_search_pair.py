@@ -48,8 +48,11 @@ def _shareable(ex_b: Exchange, ex_t: Exchange, beta: float) -> bool:
     def plain(ex: Exchange) -> bool:
         return ex.backend == "inprocess" and not ex.faults.active and ex.n_local == ex.n_nodes
 
-    same_order = (np.array_equal(ex_b.nodes, ex_t.nodes) and np.array_equal(ex_b.out_edges, ex_t.out_edges)
-                  and np.array_equal(ex_b.in_edges, ex_t.in_edges))
+    same_order = (
+        np.array_equal(ex_b.nodes, ex_t.nodes)
+        and np.array_equal(ex_b.out_edges, ex_t.out_edges)
+        and np.array_equal(ex_b.in_edges, ex_t.in_edges)
+    )
     return plain(ex_b) and plain(ex_t) and same_order and math.frexp(beta)[0] == 0.5
 
 
@@ -82,8 +85,9 @@ class _Runs:
                     return
 
 
-def iterate_line_search_pair(problem: RangingData, *, exchanges: tuple[Exchange, Exchange],
-                             **options: Any) -> tuple[Iterator[IterationState], Iterator[IterationState]]:
+def iterate_line_search_pair(
+    problem: RangingData, *, exchanges: tuple[Exchange, Exchange], **options: Any
+) -> tuple[Iterator[IterationState], Iterator[IterationState]]:
     """The BLS and the TBLS states after iterations 0, 1, …, ``iterations``: the same states as
     ``iterate_neighbourhood(problem, method="N-CSG-BLS", exchange=exchanges[0], **options)`` and ``…"N-CSG-TBLS",
     exchange=exchanges[1]…`` (see the module docstring); ``options`` as
@@ -99,9 +103,15 @@ def iterate_line_search_pair(problem: RangingData, *, exchanges: tuple[Exchange,
     return runs.run(0), runs.run(1)
 
 
-def _lockstep(runs: _Runs, plan_b: NeighbourhoodPlan, plan_t: NeighbourhoodPlan, P: np.ndarray,
-              step_b: np.ndarray, step_t: np.ndarray, shareable: bool,
-              ) -> Iterator[tuple[IterationState, IterationState]]:
+def _lockstep(
+    runs: _Runs,
+    plan_b: NeighbourhoodPlan,
+    plan_t: NeighbourhoodPlan,
+    P: np.ndarray,
+    step_b: np.ndarray,
+    step_t: np.ndarray,
+    shareable: bool,
+) -> Iterator[tuple[IterationState, IterationState]]:
     nb = plan_b.nb
     diff, g = nb.geometry(P)
     f0 = nb.partial_cost(g)
@@ -127,5 +137,7 @@ def _lockstep(runs: _Runs, plan_b: NeighbourhoodPlan, plan_t: NeighbourhoodPlan,
             return
         P = plan_b.mix.apply(U_b, echo=ex_t)
         st_b = plan_b.state(k, P, step_b, f0)
-        yield st_b, IterationState(k, st_b.own_m, step_t.copy(), f0, st_b.half_owner, st_b.half_sample,
-                                   st_b.half_other_m)
+        yield (
+            st_b,
+            IterationState(k, st_b.own_m, step_t.copy(), f0, st_b.half_owner, st_b.half_sample, st_b.half_other_m),
+        )

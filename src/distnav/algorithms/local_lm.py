@@ -58,8 +58,9 @@ class LocalLM:
         self.e_own = _elements(self.ls_own, d)  # d0[ls_own]
         self.eye = np.eye(nb.dim)
 
-    def gain_update(self, f0: np.ndarray, f_new: np.ndarray, pred: np.ndarray, lam: np.ndarray, nu: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def gain_update(
+        self, f0: np.ndarray, f_new: np.ndarray, pred: np.ndarray, lam: np.ndarray, nu: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Each anchor's step accepted where its partial cost fell (gain ratio ``ρ > 0``), and its new ``(λ, ν)``
         (Nielsen's update, floored at ``lambda_min``)."""
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -69,8 +70,17 @@ class LocalLM:
         new_nu = np.where(acc, 2.0, nu * 2.0)
         return acc, np.minimum(np.maximum(new_lam, self.lambda_min), 1e12), new_nu  # np.clip without its wrapper
 
-    def step(self, P: np.ndarray, diff: np.ndarray, g: np.ndarray, f0: np.ndarray, grad: np.ndarray, lam: np.ndarray,
-             nu: np.ndarray, wt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def step(
+        self,
+        P: np.ndarray,
+        diff: np.ndarray,
+        g: np.ndarray,
+        f0: np.ndarray,
+        grad: np.ndarray,
+        lam: np.ndarray,
+        nu: np.ndarray,
+        wt: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         nb = self.nb
         nl, d = nb.nl, nb.dim
         robust = nb.loss != "linear" and wt is not None
@@ -105,8 +115,9 @@ class LocalLM:
         # Schur complement: S = A − Σ_s C_s D_s⁻¹ C_sᵀ with C_s = −c w uᵀ  ⇒  C D⁻¹ Cᵀ = c² q/(1+cq) w wᵀ
         Am = A0 * self.mo + self.eye * np.where(self.fo, lam_a, 1.0)[:, :, None]
         coef = c * c * q / den
-        S = Am - csr_times(self.O, (coef[:, None, None] * w[:, :, None] * w[:, None, :]).reshape(-1, d * d)
-                              ).reshape(nl, d, d)
+        S = Am - csr_times(self.O, (coef[:, None, None] * w[:, :, None] * w[:, None, :]).reshape(-1, d * d)).reshape(
+            nl, d, d
+        )
         tub = np.einsum("ij,ij->i", tu, bs)
         r0 = b0 + csr_times(self.O, (c * tub / den)[:, None] * w)
         with single_threaded_blas():

@@ -172,8 +172,15 @@ class LinearProblem:
         return cls._validated(A_s, y_s, R_s, np.full(n, m, dtype=np.int64), parameter_names, names)
 
     @classmethod
-    def _validated(cls, A: np.ndarray, y: np.ndarray, R: np.ndarray, rows: np.ndarray,
-                   parameter_names: Sequence[str] | None, names: tuple[str, ...] | None) -> LinearProblem:
+    def _validated(
+        cls,
+        A: np.ndarray,
+        y: np.ndarray,
+        R: np.ndarray,
+        rows: np.ndarray,
+        parameter_names: Sequence[str] | None,
+        names: tuple[str, ...] | None,
+    ) -> LinearProblem:
         n, m, p = A.shape
         for what, arr in (("A_i", A), ("y_i", y), ("R_i", R)):
             finite = np.isfinite(arr.reshape(n, -1)).all(axis=1)
@@ -190,8 +197,10 @@ class LinearProblem:
         except np.linalg.LinAlgError:
             for i in range(n):  # only on failure: find and name the offending node
                 if np.linalg.eigvalsh(R[i]).min() <= 0:
-                    raise ModelError(f"{_node(names, i)}: R_i is not positive definite "
-                                     f"(smallest eigenvalue {np.linalg.eigvalsh(R[i]).min():.3g})") from None
+                    raise ModelError(
+                        f"{_node(names, i)}: R_i is not positive definite "
+                        f"(smallest eigenvalue {np.linalg.eigvalsh(R[i]).min():.3g})"
+                    ) from None
             raise
         pn = None
         if parameter_names is not None:
@@ -247,8 +256,14 @@ class LinearProblem:
         """The blocks of the given nodes (e.g. an exchange block's ``ex.nodes``)."""
         idx = np.asarray(nodes, dtype=np.int64)
         names = None if self.node_names is None else tuple(self.node_names[i] for i in idx)
-        return LinearProblem(A=self.A[idx], y=self.y[idx], R=self.R[idx], rows=self.rows[idx],
-                             parameter_names=self.parameter_names, node_names=names)
+        return LinearProblem(
+            A=self.A[idx],
+            y=self.y[idx],
+            R=self.R[idx],
+            rows=self.rows[idx],
+            parameter_names=self.parameter_names,
+            node_names=names,
+        )
 
 
 # ----------------------------------------------------------------------------------------------- W and rank
@@ -316,8 +331,10 @@ def inestimable_directions(N: np.ndarray, label: Callable[[int], str], *, rcond:
     p = N.shape[0]
     dirs = "; ".join(_describe_direction(null[:, k], label) for k in range(min(null.shape[1], 8)))
     more = f" (and {null.shape[1] - 8} more)" if null.shape[1] > 8 else ""
-    return (f"rank(A) = {p - null.shape[1]} < p = {p} (paper 000, eq. (2)): x is not estimable from all nodes' "
-            f"data; inestimable directions: {dirs}{more}")
+    return (
+        f"rank(A) = {p - null.shape[1]} < p = {p} (paper 000, eq. (2)): x is not estimable from all nodes' "
+        f"data; inestimable directions: {dirs}{more}"
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -358,8 +375,7 @@ def blue(problem: LinearProblem, *, rcond: float = 1e-10, W: ArrayLike | None = 
     if W is not None:
         Wm = weight_matrix(W, problem.n_params)
         u = np.linalg.solve(Wm, (r_i - N_i @ x).T).T
-    return BlueSolution(x=x, covariance=cov, normal_matrix=N, rhs=r, cost=float(problem.cost(x).sum()),
-                        multipliers=u)
+    return BlueSolution(x=x, covariance=cov, normal_matrix=N, rhs=r, cost=float(problem.cost(x).sum()), multipliers=u)
 
 
 # ----------------------------------------------------------------------------------------------- §3 reference
@@ -417,8 +433,9 @@ def dual_function(problem: LinearProblem, u: np.ndarray, W: ArrayLike) -> float:
     u = _check_u(problem, u)
     x, z = multiplier_step(problem, u, Wm)
     d = x - (z[None, :] - u)
-    return float(problem.cost(x).sum() + 0.5 * np.einsum("np,pq,nq->", d, Wm, d)
-                 - 0.5 * np.einsum("np,pq,nq->", u, Wm, u))
+    return float(
+        problem.cost(x).sum() + 0.5 * np.einsum("np,pq,nq->", d, Wm, d) - 0.5 * np.einsum("np,pq,nq->", u, Wm, u)
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -437,8 +454,9 @@ def _init_u(problem: LinearProblem, u0: ArrayLike | None) -> np.ndarray:
     return _check_u(problem, u0).copy()
 
 
-def iterate_method_of_multipliers(problem: LinearProblem, *, W: ArrayLike, iterations: int,
-                                  u0: ArrayLike | None = None) -> Iterator[MultiplierState]:
+def iterate_method_of_multipliers(
+    problem: LinearProblem, *, W: ArrayLike, iterations: int, u0: ArrayLike | None = None
+) -> Iterator[MultiplierState]:
     """The method of multipliers (paper 000, eq. (13)): step 1 solves ``∂_{x_i}L_W = 0, ∂_zL_W = 0`` jointly
     (eq. (15)), step 2 moves ``u`` along the ascent direction ``d_i = x_i − z`` (eq. (14)).
     Needs a fusion centre (``z^[k]`` uses all nodes' data). Yields states ``k = 1..iterations``."""
@@ -452,8 +470,9 @@ def iterate_method_of_multipliers(problem: LinearProblem, *, W: ArrayLike, itera
         yield MultiplierState(k, x, z, u)
 
 
-def iterate_single_consensus_admm(problem: LinearProblem, *, W: ArrayLike, iterations: int, z0: ArrayLike,
-                                  u0: ArrayLike | None = None) -> Iterator[MultiplierState]:
+def iterate_single_consensus_admm(
+    problem: LinearProblem, *, W: ArrayLike, iterations: int, z0: ArrayLike, u0: ArrayLike | None = None
+) -> Iterator[MultiplierState]:
     """ADMM with one consensus state (paper 000, eq. (16)):
     ``x_i^[k] = z^[k−1] − u_i^[k−1] + G_i(y_i − A_i[z^[k−1] − u_i^[k−1]])``, ``z^[k] = (1/n) Σ (x_i^[k] + u_i^[k−1])``,
     ``u_i^[k] = u_i^[k−1] + x_i^[k] − z^[k]``. The average over all nodes needs a fusion centre.
@@ -487,16 +506,27 @@ class MultiplierResult(SolverResult):
     dual_value_initial: float
 
 
-def _run(problem: LinearProblem, states: Iterator[MultiplierState], W: ArrayLike, u0: ArrayLike | None,
-         reference: np.ndarray | None, name: str) -> MultiplierResult:
+def _run(
+    problem: LinearProblem,
+    states: Iterator[MultiplierState],
+    W: ArrayLike,
+    u0: ArrayLike | None,
+    reference: np.ndarray | None,
+    name: str,
+) -> MultiplierResult:
     Wm = weight_matrix(W, problem.n_params)
     tb = TraceBuilder()
     u_start = _init_u(problem, u0)
     dual0 = dual_function(problem, u_start, Wm)
     last: MultiplierState | None = None
     for st in states:
-        tb.add(x=st.x, z=st.z, u=st.u, dual_value=dual_function(problem, st.u, Wm),
-               primal_residual=float(np.linalg.norm(st.x - st.z[None, :])))
+        tb.add(
+            x=st.x,
+            z=st.z,
+            u=st.u,
+            dual_value=dual_function(problem, st.u, Wm),
+            primal_residual=float(np.linalg.norm(st.x - st.z[None, :])),
+        )
         if reference is not None:
             tb.add(distance_to_reference=np.linalg.norm(st.x - reference[None, :], axis=1))
         last = st
@@ -507,15 +537,27 @@ def _run(problem: LinearProblem, states: Iterator[MultiplierState], W: ArrayLike
     else:
         x_final, k = last.x, last.iteration
     return MultiplierResult(
-        estimates=x_final, converged=False, iterations=k, status="max_iterations",
+        estimates=x_final,
+        converged=False,
+        iterations=k,
+        status="max_iterations",
         message=f"{name}: {k} iterations (reference solver: needs a fusion centre)",
-        trace=trace, comm=CommTotals.empty(problem.n_nodes),
-        z=None if last is None else last.z, u=u_start if last is None else last.u, dual_value_initial=dual0,
+        trace=trace,
+        comm=CommTotals.empty(problem.n_nodes),
+        z=None if last is None else last.z,
+        u=u_start if last is None else last.u,
+        dual_value_initial=dual0,
     )
 
 
-def method_of_multipliers(problem: LinearProblem, *, W: ArrayLike, iterations: int, u0: ArrayLike | None = None,
-                          reference: np.ndarray | None = None) -> MultiplierResult:
+def method_of_multipliers(
+    problem: LinearProblem,
+    *,
+    W: ArrayLike,
+    iterations: int,
+    u0: ArrayLike | None = None,
+    reference: np.ndarray | None = None,
+) -> MultiplierResult:
     """Run :func:`iterate_method_of_multipliers`; the trace holds ``x`` (k × n × p), ``z``, ``u``, ``dual_value``
     ``g(u^[k])`` (eq. (10)) and, with ``reference``, ``distance_to_reference``. ``dual_value_initial`` is
     ``g(u^[0])``. Reference solver: it needs a fusion centre (no communication is modelled)."""
@@ -523,8 +565,15 @@ def method_of_multipliers(problem: LinearProblem, *, W: ArrayLike, iterations: i
     return _run(problem, states, W, u0, reference, "method of multipliers")
 
 
-def single_consensus_admm(problem: LinearProblem, *, W: ArrayLike, iterations: int, z0: ArrayLike,
-                          u0: ArrayLike | None = None, reference: np.ndarray | None = None) -> MultiplierResult:
+def single_consensus_admm(
+    problem: LinearProblem,
+    *,
+    W: ArrayLike,
+    iterations: int,
+    z0: ArrayLike,
+    u0: ArrayLike | None = None,
+    reference: np.ndarray | None = None,
+) -> MultiplierResult:
     """Run :func:`iterate_single_consensus_admm` (eq. (16)); same trace as :func:`method_of_multipliers`.
     Reference solver: the z-average needs a fusion centre."""
     states = iterate_single_consensus_admm(problem, W=W, iterations=iterations, z0=z0, u0=u0)

@@ -66,11 +66,19 @@ class _NormalXUpdate:
         return X.reshape(-1, self.p * self.k)
 
 
-
-
-def _normal_run(ex: Exchange, C: ConstraintNodes, N: FloatArray, B: FloatArray, W: FloatArray,
-                init: AdmmResult | None, *, max_iterations: int, tol: float, atol: float,
-                reference: FloatArray | None) -> AdmmResult:
+def _normal_run(
+    ex: Exchange,
+    C: ConstraintNodes,
+    N: FloatArray,
+    B: FloatArray,
+    W: FloatArray,
+    init: AdmmResult | None,
+    *,
+    max_iterations: int,
+    tol: float,
+    atol: float,
+    reference: FloatArray | None,
+) -> AdmmResult:
     """Fig. 6 on ``min Σ_i ½ tr(Xᵀ N_i X) − tr(B_iᵀ X)`` for this block's ``N`` ``(nl, p, p)``, ``B`` ``(nl, p, k)``."""
     p, k = B.shape[1], B.shape[2]
     count = C.per_node_count[ex.nodes].astype(float)
@@ -83,12 +91,25 @@ def _normal_run(ex: Exchange, C: ConstraintNodes, N: FloatArray, B: FloatArray, 
         x0 = init.estimates[ex.nodes]
         z0 = init.z_nodes[ex.nodes]
     u0 = None if init is None else init.multipliers
-    run = PreparedRun(states=kernel.run(x0, z0, u0=u0), exchange=ex, constraint_nodes=C, p=p * k,
-                      x_update="normal equations (matrix right-hand side)", x_weight="lagrangian", messages="pairs",
-                      kernel=kernel)
-    return drive(run, max_iterations=max_iterations, tol=tol, atol=atol,
-                 reference=None if reference is None else reference.ravel(), stop_at_reference=None,
-                 record_nodes=False)
+    run = PreparedRun(
+        states=kernel.run(x0, z0, u0=u0),
+        exchange=ex,
+        constraint_nodes=C,
+        p=p * k,
+        x_update="normal equations (matrix right-hand side)",
+        x_weight="lagrangian",
+        messages="pairs",
+        kernel=kernel,
+    )
+    return drive(
+        run,
+        max_iterations=max_iterations,
+        tol=tol,
+        atol=atol,
+        reference=None if reference is None else reference.ravel(),
+        stop_at_reference=None,
+        record_nodes=False,
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,12 +122,22 @@ class PrecisionRun:
     variance_factor_nodes: FloatArray
 
 
-def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, *, W: ArrayLike = 1.0,
-                   constraint_nodes: ConstraintNodeSpec = "min_cover", active: BoolArray | None = None,
-                   max_iterations: int = 5000,
-                   tol: float = 1e-12, atol: float = 0.0, init: PrecisionRun | None = None,
-                   reference_covariance: FloatArray | None = None, exchange: Exchange | None = None,
-                   faults: FaultSchedule | None = None) -> PrecisionRun:
+def admm_precision(
+    problem: LinearProblem,
+    graph: Graph,
+    estimates: FloatArray,
+    *,
+    W: ArrayLike = 1.0,
+    constraint_nodes: ConstraintNodeSpec = "min_cover",
+    active: BoolArray | None = None,
+    max_iterations: int = 5000,
+    tol: float = 1e-12,
+    atol: float = 0.0,
+    init: PrecisionRun | None = None,
+    reference_covariance: FloatArray | None = None,
+    exchange: Exchange | None = None,
+    faults: FaultSchedule | None = None,
+) -> PrecisionRun:
     """Each node's covariance block ``Q_x̂ = N⁻¹`` and the a-posteriori variance factor, by message rounds only.
 
     ``estimates`` ``(n, p)``: every node's converged ``x_i`` (e.g. ``admm(...).estimates``; a node reads its own
@@ -140,9 +171,18 @@ def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, 
     e = local.y - np.einsum("nmp,np->nm", local.A, x_all[nodes])
     ssr = np.einsum("nm,nmk,nk->n", e, local.R_inv, e)
     values = np.stack([ssr, act.sum(axis=1).astype(float), (nodes == 0).astype(float)], axis=1)
-    sums = _normal_run(ex, C, np.broadcast_to(np.eye(3), (nodes.size, 3, 3)), values[:, :, None], np.eye(3),
-                       None if init is None else init.sums_run, max_iterations=max_iterations, tol=tol, atol=atol,
-                       reference=None)
+    sums = _normal_run(
+        ex,
+        C,
+        np.broadcast_to(np.eye(3), (nodes.size, 3, 3)),
+        values[:, :, None],
+        np.eye(3),
+        None if init is None else init.sums_run,
+        max_iterations=max_iterations,
+        tol=tol,
+        atol=atol,
+        reference=None,
+    )
     mean = sums.estimates  # (n, 3) gathered for the result; node i uses its own row
     n_est = 1.0 / mean[:, 2]
     weighted_ssr = mean[:, 0] * n_est
@@ -150,13 +190,28 @@ def admm_precision(problem: LinearProblem, graph: Graph, estimates: FloatArray, 
     vf = np.where(redundancy > 0, weighted_ssr / np.maximum(redundancy, 1.0), np.nan)
     N_local = local.normal_equations[0]
     B = np.broadcast_to(np.eye(p), (nodes.size, p, p)) * (1.0 / n_est[nodes])[:, None, None]
-    cov = _normal_run(ex, C, N_local, B, Wm, None if init is None else init.covariance_run,
-                      max_iterations=max_iterations, tol=tol, atol=atol, reference=reference_covariance)
+    cov = _normal_run(
+        ex,
+        C,
+        N_local,
+        B,
+        Wm,
+        None if init is None else init.covariance_run,
+        max_iterations=max_iterations,
+        tol=tol,
+        atol=atol,
+        reference=reference_covariance,
+    )
     Q = cov.estimates.reshape(n, p, p)
     Q = 0.5 * (Q + np.swapaxes(Q, 1, 2))
-    precision = Precision(covariance=Q, variance_factor=None if not np.isfinite(vf[0]) else float(vf[0]),
-                          redundancy=float(redundancy[0]), kind="exact",
-                          iterations=sums.iterations + cov.iterations, comm=ex.comm_totals().since(before))
+    precision = Precision(
+        covariance=Q,
+        variance_factor=None if not np.isfinite(vf[0]) else float(vf[0]),
+        redundancy=float(redundancy[0]),
+        kind="exact",
+        iterations=sums.iterations + cov.iterations,
+        comm=ex.comm_totals().since(before),
+    )
     return PrecisionRun(precision=precision, covariance_run=cov, sums_run=sums, variance_factor_nodes=vf)
 
 
@@ -179,8 +234,9 @@ def remove_observation(problem: LinearProblem, node: int, row: int) -> LinearPro
     R[node, row, :] = 0.0
     R[node, :, row] = 0.0
     R[node, row, row] = 1.0
-    return LinearProblem(A=A, y=y, R=R, rows=problem.rows, parameter_names=problem.parameter_names,
-                         node_names=problem.node_names)
+    return LinearProblem(
+        A=A, y=y, R=R, rows=problem.rows, parameter_names=problem.parameter_names, node_names=problem.node_names
+    )
 
 
 def _local_w(local: LinearProblem, x: FloatArray, Q: FloatArray, act: BoolArray) -> FloatArray:
@@ -211,10 +267,19 @@ def _flood_max(ex: Exchange, key: FloatArray, rounds: int) -> FloatArray:
     return best
 
 
-def admm_data_snooping(problem: LinearProblem, graph: Graph, *, level: float = 0.001, max_removals: int | None = None,
-                       max_iterations: int = 5000, tol: float = 1e-12, atol: float = 0.0,
-                       exchange: Exchange | None = None, faults: FaultSchedule | None = None,
-                       **options: Unpack[AdmmOptions]) -> AdmmResult:
+def admm_data_snooping(
+    problem: LinearProblem,
+    graph: Graph,
+    *,
+    level: float = 0.001,
+    max_removals: int | None = None,
+    max_iterations: int = 5000,
+    tol: float = 1e-12,
+    atol: float = 0.0,
+    exchange: Exchange | None = None,
+    faults: FaultSchedule | None = None,
+    **options: Unpack[AdmmOptions],
+) -> AdmmResult:
     """Distributed iterative data snooping (module docstring): the final ADMM estimate with ``precision`` and
     ``tests`` filled in. ``tests.removed`` are flat observation indices (node-major over each node's rows, as in
     :func:`distnav.algorithms.statistics.data_snooping` on the stacked data); ``tests.iterations`` and ``tests.comm``
@@ -232,10 +297,27 @@ def admm_data_snooping(problem: LinearProblem, graph: Graph, *, level: float = 0
     act = _active_rows(problem, None)
     offsets = np.concatenate([[0], np.cumsum(problem.rows)])
     prob = problem
-    est = drive(driver.prepare(prob, graph, ex, opts), reference=None, stop_at_reference=None, record_nodes=False,
-               max_iterations=max_iterations, tol=tol, atol=atol)
-    prec = admm_precision(prob, graph, est.estimates, W=W, constraint_nodes=C, active=act, exchange=ex,
-                          max_iterations=max_iterations, tol=tol, atol=atol)
+    est = drive(
+        driver.prepare(prob, graph, ex, opts),
+        reference=None,
+        stop_at_reference=None,
+        record_nodes=False,
+        max_iterations=max_iterations,
+        tol=tol,
+        atol=atol,
+    )
+    prec = admm_precision(
+        prob,
+        graph,
+        est.estimates,
+        W=W,
+        constraint_nodes=C,
+        active=act,
+        exchange=ex,
+        max_iterations=max_iterations,
+        tol=tol,
+        atol=atol,
+    )
     first_iterations = est.iterations + prec.precision.iterations
     after_first = ex.comm_totals().snapshot()
     removed: list[int] = []
@@ -250,9 +332,19 @@ def admm_data_snooping(problem: LinearProblem, graph: Graph, *, level: float = 0
         key = np.stack([np.where(val > k_crit, val, -np.inf), -(nodes * prob.max_rows + row).astype(float)], axis=1)
         worst = _flood_max(ex, key, flood_rounds)
         # monitoring only: every node must hold the same worst observation after the flood
-        agree = np.asarray(ex.allreduce(np.array([worst[:, 0].max(initial=-np.inf), -worst[:, 0].min(initial=np.inf),
-                                                  worst[:, 1].max(initial=-np.inf), -worst[:, 1].min(initial=np.inf)]),
-                                        "max"))
+        agree = np.asarray(
+            ex.allreduce(
+                np.array(
+                    [
+                        worst[:, 0].max(initial=-np.inf),
+                        -worst[:, 0].min(initial=np.inf),
+                        worst[:, 1].max(initial=-np.inf),
+                        -worst[:, 1].min(initial=np.inf),
+                    ]
+                ),
+                "max",
+            )
+        )
         if agree[0] != -agree[1] or (np.isfinite(agree[0]) and agree[2] != -agree[3]):
             raise ModelError(f"the max-flood of {flood_rounds} rounds did not reach every node (message losses)")
         if not np.isfinite(agree[0]) or (max_removals is not None and len(removed) >= max_removals):
@@ -264,17 +356,44 @@ def admm_data_snooping(problem: LinearProblem, graph: Graph, *, level: float = 0
         act[node, r] = False
         prob = remove_observation(prob, node, r)
         warm = AdmmOptions(**{**opts, "init": est, "multipliers": est.multipliers})  # x, z and u carried over
-        est = drive(driver.prepare(prob, graph, ex, warm), reference=None, stop_at_reference=None, record_nodes=False,
-                    max_iterations=max_iterations, tol=tol, atol=atol)
-        prec = admm_precision(prob, graph, est.estimates, W=W, constraint_nodes=C, active=act, init=prec,
-                              exchange=ex, max_iterations=max_iterations, tol=tol, atol=atol)
+        est = drive(
+            driver.prepare(prob, graph, ex, warm),
+            reference=None,
+            stop_at_reference=None,
+            record_nodes=False,
+            max_iterations=max_iterations,
+            tol=tol,
+            atol=atol,
+        )
+        prec = admm_precision(
+            prob,
+            graph,
+            est.estimates,
+            W=W,
+            constraint_nodes=C,
+            active=act,
+            init=prec,
+            exchange=ex,
+            max_iterations=max_iterations,
+            tol=tol,
+            atol=atol,
+        )
         extra_iterations += est.iterations + prec.precision.iterations
     w_all = ex.gather_nodes(w_local)
-    flat = np.concatenate([w_all[i, :problem.rows[i]] for i in range(problem.n_nodes)])
+    flat = np.concatenate([w_all[i, : problem.rows[i]] for i in range(problem.n_nodes)])
     owner = np.repeat(np.arange(problem.n_nodes), problem.rows)
-    tests = ObservationTests(node=owner, w=flat, critical_value=k_crit, level=level,
-                             flagged=np.nan_to_num(np.abs(flat)) > k_crit, removed=tuple(removed),
-                             iterations=extra_iterations, comm=ex.comm_totals().since(after_first))
-    msg = (f"data snooping: {len(removed)} observation(s) removed, {extra_iterations} extra iterations after the "
-           f"first solution ({first_iterations} for estimate and precision); {est.message}")
+    tests = ObservationTests(
+        node=owner,
+        w=flat,
+        critical_value=k_crit,
+        level=level,
+        flagged=np.nan_to_num(np.abs(flat)) > k_crit,
+        removed=tuple(removed),
+        iterations=extra_iterations,
+        comm=ex.comm_totals().since(after_first),
+    )
+    msg = (
+        f"data snooping: {len(removed)} observation(s) removed, {extra_iterations} extra iterations after the "
+        f"first solution ({first_iterations} for estimate and precision); {est.message}"
+    )
     return dataclasses.replace(est, precision=prec.precision, tests=tests, message=msg, comm=ex.comm_totals())

@@ -49,9 +49,23 @@ from distnav.exchange import Exchange, make_exchange
 from distnav.network.weights import ConsensusWeights, consensus_weights
 from distnav.typing import ArrayLike
 
-__all__ = ["ArmijoTest", "IterationState", "LocalLM", "Mixing", "NeighbourhoodPlan", "Neighbourhoods", "armijo_details",
-           "armijo_search", "check_start", "exchange_for", "half_measurements", "iterate_neighbourhood",
-           "mixing_weights", "plan_neighbourhood"]
+__all__ = [
+    "ArmijoTest",
+    "IterationState",
+    "LocalLM",
+    "Mixing",
+    "NeighbourhoodPlan",
+    "Neighbourhoods",
+    "armijo_details",
+    "armijo_search",
+    "check_start",
+    "exchange_for",
+    "half_measurements",
+    "iterate_neighbourhood",
+    "mixing_weights",
+    "plan_neighbourhood",
+]
+
 
 @dataclass(frozen=True, eq=False)
 class IterationState:
@@ -77,8 +91,9 @@ class IterationState:
 
 
 # ---------------------------------------------------------------------- checks and set-up
-def check_start(problem: RangingData, iterations: int, consensus_rounds: int,
-                initial_m: ArrayLike | None) -> np.ndarray:
+def check_start(
+    problem: RangingData, iterations: int, consensus_rounds: int, initial_m: ArrayLike | None
+) -> np.ndarray:
     if iterations < 0:
         raise ModelError(f"iterations must be ≥ 0, got {iterations}")
     if consensus_rounds < 1:
@@ -103,8 +118,11 @@ def checked_estimates(problem: RangingData, estimates_m: np.ndarray) -> np.ndarr
 def exchange_for(problem: RangingData, exchange: Exchange | None) -> Exchange:
     g = problem.graph
     ex = exchange if exchange is not None else make_exchange(g)
-    if ex.graph.n_nodes != g.n_nodes or ex.graph.n_edges != g.n_edges or not (
-            np.array_equal(ex.graph.src, g.src) and np.array_equal(ex.graph.dst, g.dst)):
+    if (
+        ex.graph.n_nodes != g.n_nodes
+        or ex.graph.n_edges != g.n_edges
+        or not (np.array_equal(ex.graph.src, g.src) and np.array_equal(ex.graph.dst, g.dst))
+    ):
         raise ModelError("the exchange must be built on the problem's measurement graph (problem.graph)")
     return ex
 
@@ -143,8 +161,15 @@ class Neighbourhoods:
     neighbours' neighbour lists when the network is set up).
     """
 
-    def __init__(self, problem: RangingData, ex: Exchange, loss: str = "linear", loss_scale_m: float = 0.3,
-                 objective: str = "squared", sigma_m: float | np.ndarray = 1.0) -> None:
+    def __init__(
+        self,
+        problem: RangingData,
+        ex: Exchange,
+        loss: str = "linear",
+        loss_scale_m: float = 0.3,
+        objective: str = "squared",
+        sigma_m: float | np.ndarray = 1.0,
+    ) -> None:
         g = problem.graph
         n = g.n_nodes
         self.n, self.dim = n, problem.dim
@@ -190,8 +215,7 @@ class Neighbourhoods:
                 raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
             self.h_scale = loss_scale_m / self.h_sigma
         else:
-            self.h_scale = (range_loss_scale(problem, loss_scale_m)[samp] if loss != "linear"
-                            else np.ones(samp.size))
+            self.h_scale = range_loss_scale(problem, loss_scale_m)[samp] if loss != "linear" else np.ones(samp.size)
         self.h_slot = position(ex.nodes[own_idx], other)
         self.h_flat_self = own_idx * self.K
         self.h_flat_other = own_idx * self.K + self.h_slot
@@ -199,9 +223,13 @@ class Neighbourhoods:
         self.e_self = (self.h_flat_self[:, None] * self.dim + np.arange(self.dim)).ravel()
         self.e_other = (self.h_flat_other[:, None] * self.dim + np.arange(self.dim)).ravel()
         nh = own_idx.size
-        self.Q = sp.csr_matrix((np.concatenate([np.ones(nh), -np.ones(nh)]),
-                                (np.concatenate([self.h_flat_self, self.h_flat_other]),
-                                 np.concatenate([np.arange(nh)] * 2))), shape=(nl * self.K, nh))
+        self.Q = sp.csr_matrix(
+            (
+                np.concatenate([np.ones(nh), -np.ones(nh)]),
+                (np.concatenate([self.h_flat_self, self.h_flat_other]), np.concatenate([np.arange(nh)] * 2)),
+            ),
+            shape=(nl * self.K, nh),
+        )
         # outgoing messages: sender slot s of node k goes to receiver i at position(i, k) when k ∈ N(i) ∪ {i}
         oe = np.arange(ex.out_edges.size)
         send_local = ex.out_src
@@ -290,8 +318,7 @@ class Mixing:
         self.self_w = w.self_weight[ex.nodes]
         ew_in = w.edge_weight[ex.in_edges]
         self.ew_in = ew_in
-        self.S = sp.csr_matrix((ew_in, (ex.in_dst, np.arange(ex.in_edges.size))),
-                               shape=(ex.n_local, ex.in_edges.size))
+        self.S = sp.csr_matrix((ew_in, (ex.in_dst, np.arange(ex.in_edges.size))), shape=(ex.n_local, ex.in_edges.size))
         self.fill_w = self._fill_weights(np.ones(ex.in_edges.size, bool))
         self._msg = np.zeros((nb.n_out * nb.K, nb.dim))  # the entries outside msg_flat stay zero
         # msg_flat / msg_src as element indices of the flat arrays: a 1-D copy, ~4× faster than one of rows
@@ -323,8 +350,9 @@ class ArmijoTest:
     """The Armijo test of every anchor along ``x + α d`` (eqs. (19)–(21)): every residual is the quartic
     ``a + 2αb + α²c − d²`` in ``α`` with ``a, b, c`` computed once per iteration."""
 
-    def __init__(self, nb: Neighbourhoods, diff: np.ndarray, d: np.ndarray, f0: np.ndarray, gamma: float,
-                 slope_factor: float) -> None:
+    def __init__(
+        self, nb: Neighbourhoods, diff: np.ndarray, d: np.ndarray, f0: np.ndarray, gamma: float, slope_factor: float
+    ) -> None:
         dd = nb.differences(d)
         self.nb, self.f0, self.gamma = nb, f0, gamma
         self.a = np.einsum("ij,ij->i", diff, diff) - nb.h_d2
@@ -343,19 +371,42 @@ class ArmijoTest:
         return np.asarray(fa <= self.f0 + self.gamma * alpha * self.slope)
 
 
-def armijo_search(nb: Neighbourhoods, diff: np.ndarray, g: np.ndarray, d: np.ndarray, f0: np.ndarray,
-                  alpha_start: np.ndarray, alpha0: float | np.ndarray, beta: float, gamma: float, two_way: bool,
-                  max_backtracks: int, slope_factor: float = 2.0) -> np.ndarray:
+def armijo_search(
+    nb: Neighbourhoods,
+    diff: np.ndarray,
+    g: np.ndarray,
+    d: np.ndarray,
+    f0: np.ndarray,
+    alpha_start: np.ndarray,
+    alpha0: float | np.ndarray,
+    beta: float,
+    gamma: float,
+    two_way: bool,
+    max_backtracks: int,
+    slope_factor: float = 2.0,
+) -> np.ndarray:
     """Per-anchor step sizes by BLS (eqs. (19)–(20)) or TBLS (eq. (21)), vectorized over the block's anchors."""
-    return armijo_details(nb, diff, g, d, f0, alpha_start, alpha0, beta, gamma, two_way, max_backtracks,
-                          slope_factor)[0]
+    return armijo_details(nb, diff, g, d, f0, alpha_start, alpha0, beta, gamma, two_way, max_backtracks, slope_factor)[
+        0
+    ]
 
 
-def armijo_details(nb: Neighbourhoods, diff: np.ndarray, g: np.ndarray, d: np.ndarray, f0: np.ndarray,
-                   alpha_start: np.ndarray, alpha0: float | np.ndarray, beta: float, gamma: float, two_way: bool,
-                   max_backtracks: int, slope_factor: float = 2.0,
-                   known: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                   reuse: ArmijoTest | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def armijo_details(
+    nb: Neighbourhoods,
+    diff: np.ndarray,
+    g: np.ndarray,
+    d: np.ndarray,
+    f0: np.ndarray,
+    alpha_start: np.ndarray,
+    alpha0: float | np.ndarray,
+    beta: float,
+    gamma: float,
+    two_way: bool,
+    max_backtracks: int,
+    slope_factor: float = 2.0,
+    known: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    reuse: ArmijoTest | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`armijo_search`'s ``(steps, ok, moving)``: whether the Armijo condition holds at the returned step,
     and which anchors have a descent direction (the others keep ``alpha_start``).
 
@@ -431,16 +482,39 @@ class NeighbourhoodPlan:
         grad = nb.gradient(diff, g, None if nb.loss == "linear" else w)
         return diff, g, w, f0, grad
 
-    def search(self, diff: np.ndarray, g: np.ndarray, grad: np.ndarray, f0: np.ndarray, start: np.ndarray,
-               two_way: bool, known: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-               reuse: ArmijoTest | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return armijo_details(self.nb, diff, g, -grad, f0, start, self.alpha0_i, self.beta, self.gamma,
-                              two_way, self.max_backtracks, self.slope_factor, known, reuse)
+    def search(
+        self,
+        diff: np.ndarray,
+        g: np.ndarray,
+        grad: np.ndarray,
+        f0: np.ndarray,
+        start: np.ndarray,
+        two_way: bool,
+        known: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+        reuse: ArmijoTest | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return armijo_details(
+            self.nb,
+            diff,
+            g,
+            -grad,
+            f0,
+            start,
+            self.alpha0_i,
+            self.beta,
+            self.gamma,
+            two_way,
+            self.max_backtracks,
+            self.slope_factor,
+            known,
+            reuse,
+        )
 
     def state(self, k: int, P: np.ndarray, step: np.ndarray, f0: np.ndarray) -> IterationState:
         nb = self.nb
-        return IterationState(k, P[:, 0].copy(), step.copy(), f0, nb.h_own, nb.h_samp,
-                              P.reshape(-1)[nb.e_other].reshape(-1, nb.dim))
+        return IterationState(
+            k, P[:, 0].copy(), step.copy(), f0, nb.h_own, nb.h_samp, P.reshape(-1)[nb.e_other].reshape(-1, nb.dim)
+        )
 
     def loop(self, P: np.ndarray, step: np.ndarray, nu: np.ndarray, first: int) -> Iterator[IterationState]:
         """Iterations ``first``, …, ``iterations`` from the state ``(P, step, nu)`` (eqs. (14)–(22))."""
@@ -521,9 +595,24 @@ def plan_neighbourhood(
         alpha0_i: float | np.ndarray = alpha0 * unit
     else:
         alpha_i, alpha0_i = alpha, alpha0
-    plan = NeighbourhoodPlan(nb, Mixing(nb, ex, w), w, method, iterations, alpha, alpha_i, alpha0_i, beta, gamma,
-                 max_backtracks, 2.0 if armijo_slope == "gradient" else 1.0, loss, graduated, consensus_rounds,
-                 LocalLM(nb, damping, lambda_min) if method == "N-CLM" else None)
+    plan = NeighbourhoodPlan(
+        nb,
+        Mixing(nb, ex, w),
+        w,
+        method,
+        iterations,
+        alpha,
+        alpha_i,
+        alpha0_i,
+        beta,
+        gamma,
+        max_backtracks,
+        2.0 if armijo_slope == "gradient" else 1.0,
+        loss,
+        graduated,
+        consensus_rounds,
+        LocalLM(nb, damping, lambda_min) if method == "N-CLM" else None,
+    )
     if method == "N-CSG":
         step = np.full(nl, float(alpha)) if not nb.metres else np.asarray(alpha_i, float).copy()
     elif method == "N-CLM":

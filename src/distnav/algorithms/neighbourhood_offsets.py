@@ -46,8 +46,14 @@ if TYPE_CHECKING:
     from distnav.algorithms.local_lm import LocalLM
     from distnav.algorithms.neighbourhood import NeighbourhoodPlan
 
-__all__ = ["OFFSET_MODES", "NeighbourhoodOffsets", "check_offsets", "loop_with_offsets", "offset_precision",
-           "sample_bias"]
+__all__ = [
+    "OFFSET_MODES",
+    "NeighbourhoodOffsets",
+    "check_offsets",
+    "loop_with_offsets",
+    "offset_precision",
+    "sample_bias",
+]
 
 OFFSET_MODES = ("none", "common", "per_anchor")
 
@@ -105,8 +111,18 @@ class NeighbourhoodOffsets:
 class OffsetArmijoTest(ArmijoTest):
     """:class:`~distnav.algorithms.neighbourhood.ArmijoTest` with the offsets moving along ``α·dB`` too."""
 
-    def __init__(self, off: NeighbourhoodOffsets, diff: np.ndarray, d: np.ndarray, B: np.ndarray, dB: np.ndarray,
-                 gB: np.ndarray, f0: np.ndarray, gamma: float, slope_factor: float) -> None:
+    def __init__(
+        self,
+        off: NeighbourhoodOffsets,
+        diff: np.ndarray,
+        d: np.ndarray,
+        B: np.ndarray,
+        dB: np.ndarray,
+        gB: np.ndarray,
+        f0: np.ndarray,
+        gamma: float,
+        slope_factor: float,
+    ) -> None:
         nb = off.nb
         flat = d.reshape(-1, nb.dim)
         dd = flat[nb.h_flat_self] - flat[nb.h_flat_other]
@@ -127,8 +143,9 @@ class OffsetArmijoTest(ArmijoTest):
         return np.asarray(fa <= self.f0 + self.gamma * alpha * self.slope)
 
 
-def mix_with_offsets(mix: Mixing, U: np.ndarray, B: np.ndarray, off: NeighbourhoodOffsets) -> tuple[np.ndarray,
-                                                                                                     np.ndarray]:
+def mix_with_offsets(
+    mix: Mixing, U: np.ndarray, B: np.ndarray, off: NeighbourhoodOffsets
+) -> tuple[np.ndarray, np.ndarray]:
     """One consensus round (eqs. (15), (18)) of the positions and the offsets in the same messages."""
     nb, ex = mix.nb, mix.ex
     K, dim = nb.K, nb.dim
@@ -146,13 +163,14 @@ def mix_with_offsets(mix: Mixing, U: np.ndarray, B: np.ndarray, off: Neighbourho
     inbox = ex.send(np.concatenate([msg.reshape(nb.n_out, K * dim), B[ex.out_src, :1]], axis=1))
     fill = mix.fill_w if inbox.delivered.all() else mix._fill_weights(inbox.delivered)
     vals = inbox.values
-    mixed = fill[:, :, None] * U + csr_times(mix.S, vals[:, :K * dim]).reshape(U.shape)
-    c = fill[:, 0] * B[:, 0] + csr_times(mix.S, vals[:, K * dim:])[:, 0]  # every neighbour holds slot 0's node
+    mixed = fill[:, :, None] * U + csr_times(mix.S, vals[:, : K * dim]).reshape(U.shape)
+    c = fill[:, 0] * B[:, 0] + csr_times(mix.S, vals[:, K * dim :])[:, 0]  # every neighbour holds slot 0's node
     return np.where(nb.free_slot, mixed, nb.known_slot), np.where(nb.valid, c[:, None], 0.0)
 
 
-def _linearize(plan: NeighbourhoodPlan, off: NeighbourhoodOffsets, P: np.ndarray, B: np.ndarray,
-               k: int) -> tuple[np.ndarray, ...]:
+def _linearize(
+    plan: NeighbourhoodPlan, off: NeighbourhoodOffsets, P: np.ndarray, B: np.ndarray, k: int
+) -> tuple[np.ndarray, ...]:
     """``(diff, r, bias, w, f⁽ⁱ⁾, ½∇_P f⁽ⁱ⁾, ½∇_B f⁽ⁱ⁾)`` at the start of iteration ``k``."""
     nb = plan.nb
     nb.loss = "linear" if k <= plan.graduated else plan.loss
@@ -168,9 +186,21 @@ def _linearize(plan: NeighbourhoodPlan, off: NeighbourhoodOffsets, P: np.ndarray
     return diff, r, bias, w, f0, gP, gB
 
 
-def _lm_step(lm: LocalLM, off: NeighbourhoodOffsets, P: np.ndarray, B: np.ndarray, diff: np.ndarray, r: np.ndarray,
-             bias: np.ndarray, f0: np.ndarray, gP: np.ndarray, gB: np.ndarray, lam: np.ndarray, nu: np.ndarray,
-             wt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _lm_step(
+    lm: LocalLM,
+    off: NeighbourhoodOffsets,
+    P: np.ndarray,
+    B: np.ndarray,
+    diff: np.ndarray,
+    r: np.ndarray,
+    bias: np.ndarray,
+    f0: np.ndarray,
+    gP: np.ndarray,
+    gB: np.ndarray,
+    lam: np.ndarray,
+    nu: np.ndarray,
+    wt: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:meth:`LocalLM.step` with one more parameter per slot (module docstring)."""
     nb = lm.nb
     nl, d = nb.nl, nb.dim
@@ -232,15 +262,25 @@ def _lm_step(lm: LocalLM, off: NeighbourhoodOffsets, P: np.ndarray, B: np.ndarra
     return (P + np.where(acc[:, None, None], dP, 0.0), B + np.where(acc[:, None], dBo, 0.0), new_lam, new_nu)
 
 
-def loop_with_offsets(plan: NeighbourhoodPlan, off: NeighbourhoodOffsets, P: np.ndarray, step: np.ndarray,
-                      nu: np.ndarray) -> Iterator[IterationState]:
+def loop_with_offsets(
+    plan: NeighbourhoodPlan, off: NeighbourhoodOffsets, P: np.ndarray, step: np.ndarray, nu: np.ndarray
+) -> Iterator[IterationState]:
     """Iterations 0, 1, …, ``plan.iterations`` of the plan's method with the offsets estimated too."""
     nb, method = plan.nb, plan.method
     B = off.initial()
 
     def state(k: int, step: np.ndarray, f0: np.ndarray) -> IterationState:
-        return IterationState(k, P[:, 0].copy(), step.copy(), f0, nb.h_own, nb.h_samp,
-                              P.reshape(-1, nb.dim)[nb.h_flat_other], B[:, 0].copy(), off.half(B))
+        return IterationState(
+            k,
+            P[:, 0].copy(),
+            step.copy(),
+            f0,
+            nb.h_own,
+            nb.h_samp,
+            P.reshape(-1, nb.dim)[nb.h_flat_other],
+            B[:, 0].copy(),
+            off.half(B),
+        )
 
     yield state(0, step, _linearize(plan, off, P, B, 0)[4])
     for k in range(1, plan.iterations + 1):
@@ -271,9 +311,17 @@ def sample_bias(meas_a: np.ndarray, meas_b: np.ndarray, offsets_m: np.ndarray | 
     return np.asarray(offsets_m[meas_a] + offsets_m[meas_b])
 
 
-def offset_precision(problem: RangingData, ex: Exchange, st: IterationState, mode: str, prior_sigma_m: float,
-                     loss: str, sigma: np.ndarray, scale: np.ndarray, variance_factor: float | None
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def offset_precision(
+    problem: RangingData,
+    ex: Exchange,
+    st: IterationState,
+    mode: str,
+    prior_sigma_m: float,
+    loss: str,
+    sigma: np.ndarray,
+    scale: np.ndarray,
+    variance_factor: float | None,
+) -> tuple[np.ndarray, np.ndarray]:
     """``(offsets, σ)`` reported by the anchors at the state ``st`` (module docstring): per anchor, or one common
     (the mean of the anchors' copies); ``sigma`` / ``scale``: every sample's range σ and loss scale."""
     assert st.half_owner is not None and st.half_other_m is not None and st.offset_m is not None
@@ -285,8 +333,10 @@ def offset_precision(problem: RangingData, ex: Exchange, st: IterationState, mod
     norm = np.linalg.norm(diff, axis=1)
     r = (norm + st.half_offset_m - problem.range_m[samp]) / sigma_half
     weight = loss_terms(r, scale[samp], loss)[0]  # the final IRLS weights
-    j = np.concatenate([diff / (np.where(norm > 0, norm, np.inf) * sigma_half)[:, None] * free_own,
-                        (1.0 / sigma_half)[:, None]], axis=1)
+    j = np.concatenate(
+        [diff / (np.where(norm > 0, norm, np.inf) * sigma_half)[:, None] * free_own, (1.0 / sigma_half)[:, None]],
+        axis=1,
+    )
     info = np.zeros((nl, dim + 1, dim + 1))
     np.add.at(info, owner, weight[:, None, None] * j[:, :, None] * j[:, None, :])
     per_anchor = mode == "per_anchor"

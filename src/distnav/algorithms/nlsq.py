@@ -37,8 +37,19 @@ from distnav.algorithms.result import Trace
 from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
 
-__all__ = ["single_threaded_blas", "levenberg_marquardt", "LMControls", "LMOptions", "LMResult", "solve_lm", "LOSSES",
-           "OBJECTIVES", "loss_terms", "robust_weights", "range_loss_scale"]
+__all__ = [
+    "single_threaded_blas",
+    "levenberg_marquardt",
+    "LMControls",
+    "LMOptions",
+    "LMResult",
+    "solve_lm",
+    "LOSSES",
+    "OBJECTIVES",
+    "loss_terms",
+    "robust_weights",
+    "range_loss_scale",
+]
 
 LOSSES = ("linear", "huber", "soft_l1", "cauchy", "cauchy_long")
 OBJECTIVES = ("squared", "metres")
@@ -48,8 +59,11 @@ def __getattr__(name: str) -> Any:
     if name == "RangingLike":  # the protocol that restated RangingProblem; one definition now: RangingData
         import warnings
 
-        warnings.warn("distnav.algorithms.nlsq.RangingLike is deprecated: use distnav.algorithms.ranging.RangingData",
-                      DeprecationWarning, stacklevel=2)
+        warnings.warn(
+            "distnav.algorithms.nlsq.RangingLike is deprecated: use distnav.algorithms.ranging.RangingData",
+            DeprecationWarning,
+            stacklevel=2,
+        )
         return RangingData
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
@@ -232,8 +246,15 @@ def levenberg_marquardt(
             callback(k, x)
     else:
         k = max_iterations
-    return LMResult(x=x, cost=float(g @ g), objective=obj, iterations=k, converged=converged, message=message,
-                    trace={key: np.asarray(v) for key, v in tb.items()})
+    return LMResult(
+        x=x,
+        cost=float(g @ g),
+        objective=obj,
+        iterations=k,
+        converged=converged,
+        message=message,
+        trace={key: np.asarray(v) for key, v in tb.items()},
+    )
 
 
 def range_loss_scale(problem: RangingData, loss_scale_m: float) -> np.ndarray:
@@ -309,8 +330,9 @@ def solve_lm(
         first = levenberg_marquardt(obj.residual, obj.jacobian, x0, callback=callback, **options)
         stages.append(first)
         x_start = first.x
-    res = levenberg_marquardt(obj.residual, obj.jacobian, x_start, loss=loss, loss_scale=scale, callback=callback,
-                              **options)
+    res = levenberg_marquardt(
+        obj.residual, obj.jacobian, x_start, loss=loss, loss_scale=scale, callback=callback, **options
+    )
     stages.append(res)
     g0 = obj.residual(x0)
     cost = np.concatenate([[float(g0 @ g0)]] + [st.trace["cost"] for st in stages])
@@ -333,11 +355,12 @@ def solve_lm(
     if quality:
         r = obj.residual(res.x)
         w = robust_weights(r, scale, loss)[0]
-        precision, tests, Q = centralized_quality(problem, obj.jacobian(res.x), r, w, problem.n_meas,
-                                                  level=test_level, scale=test_scale)
+        precision, tests, Q = centralized_quality(
+            problem, obj.jacobian(res.x), r, w, problem.n_meas, level=test_level, scale=test_scale
+        )
         if Q is not None and obj.n_offsets:
             s2 = precision.variance_factor if precision is not None and precision.variance_factor else 1.0
-            off_std = np.sqrt(np.diag(Q)[problem.n_free:] * s2)
+            off_std = np.sqrt(np.diag(Q)[problem.n_free :] * s2)
     iterations = sum(st.iterations for st in stages)
     return RangingResult(
         estimates=pos,
@@ -352,8 +375,15 @@ def solve_lm(
         objective=res.objective,
         loss=loss,
         x=res.x,
-        settings={"lambda0": c.lambda0, "ftol": c.ftol, "xtol": c.xtol, "gtol": c.gtol, "sigma_m": sigma_m,
-                  "range_offsets": range_offsets, "graduated": len(stages) > 1},
+        settings={
+            "lambda0": c.lambda0,
+            "ftol": c.ftol,
+            "xtol": c.xtol,
+            "gtol": c.gtol,
+            "sigma_m": sigma_m,
+            "range_offsets": range_offsets,
+            "graduated": len(stages) > 1,
+        },
         objective_kind=objective,
         precision=precision,
         tests=tests,

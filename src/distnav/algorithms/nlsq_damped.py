@@ -17,6 +17,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 __all__ = ["DampedSolver"]
 
+
 class DampedSolver:
     """Solves ``(A + λ diag(A)) δ = b`` for the normal matrix ``A = GᵀWG`` of one fixed sparsity pattern.
 
@@ -101,8 +102,9 @@ class DampedSolver:
             in_e = (dr >= 0) & (dc >= 0)
             keep = in_b | in_c | in_e
             off_c, off_e = (self.band + 1) * nb, (self.band + 1) * nb + nb * k
-            target = np.where(in_b, (self.band + r - c) * nb + c,
-                              np.where(in_c, off_c + r * k + dc, off_e + dr * k + dc))
+            target = np.where(
+                in_b, (self.band + r - c) * nb + c, np.where(in_c, off_c + r * k + dc, off_e + dr * k + dc)
+            )
             self._target = target[keep]
             self._size = off_e + k * k
         else:
@@ -133,8 +135,12 @@ class DampedSolver:
         if sp.issparse(jac) and (self.mode in ("banded", "bordered", "dense") or (self.mode == "sparse" and w is None)):
             jac = jac.tocsr()
             pat = getattr(self, "_pattern", None)
-            if pat is None or pat[0].size != jac.indptr.size or pat[1].size != jac.indices.size or not (
-                    np.array_equal(pat[0], jac.indptr) and np.array_equal(pat[1], jac.indices)):
+            if (
+                pat is None
+                or pat[0].size != jac.indptr.size
+                or pat[1].size != jac.indices.size
+                or not (np.array_equal(pat[0], jac.indptr) and np.array_equal(pat[1], jac.indices))
+            ):
                 self._pairs(jac)
             if self.mode == "sparse" and not self._sp_fast:
                 return self._normal_generic(jac, w, g)
@@ -152,8 +158,11 @@ class DampedSolver:
             if self.mode == "bordered":
                 nb, k = self.perm.size, self.dense_cols.size
                 off_c = (self.band + 1) * nb
-                return (a[:off_c].reshape(self.band + 1, nb), a[off_c:off_c + nb * k].reshape(nb, k),
-                        a[off_c + nb * k:].reshape(k, k)), grad
+                return (
+                    a[:off_c].reshape(self.band + 1, nb),
+                    a[off_c : off_c + nb * k].reshape(nb, k),
+                    a[off_c + nb * k :].reshape(k, k),
+                ), grad
             return a.reshape(self.n, self.n), grad
         return self._normal_generic(jac, w, g)
 
@@ -166,8 +175,9 @@ class DampedSolver:
             a = sp.csr_matrix(a)
         return a, np.asarray(jw.T @ g).ravel()
 
-    def _solve_bordered(self, a: tuple[np.ndarray, np.ndarray, np.ndarray], b: np.ndarray, lam: float
-                        ) -> np.ndarray | None:
+    def _solve_bordered(
+        self, a: tuple[np.ndarray, np.ndarray, np.ndarray], b: np.ndarray, lam: float
+    ) -> np.ndarray | None:
         ab, cm, em = a
         d, de = ab[self.band], np.diag(em)
         floor = 1e-12 * max(float(d.max(initial=0.0)), float(de.max(initial=0.0)), 1e-300)
@@ -220,7 +230,6 @@ class DampedSolver:
         except RuntimeError:
             return None
         return None if not np.all(np.isfinite(out)) else np.asarray(out)
-
 
     def _damped_csc(self, a: np.ndarray, lam: float) -> sp.csc_matrix:
         """``(A + diags(λ max(d, floor))).tocsc()`` built from A's values on its CSC pattern: the same entries, values

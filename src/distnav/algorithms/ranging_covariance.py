@@ -95,12 +95,24 @@ class CentralPrecision:
         return self.reductions * per, 8 * self.reduced_floats * per
 
 
-def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m: float | np.ndarray | None = None,
-                      exchange: Exchange | None = None, sigma_m: float | np.ndarray = 1.0, loss: str = "linear",
-                      loss_scale_m: float = 0.3, range_offsets: str = "none", offset_prior_sigma_m: float = 0.1,
-                      delay_sigma_m: float = 0.0, estimate_delays: bool = False, rtol: float = COVARIANCE_CG_RTOL,
-                      max_iterations: int | None = None, variance_scale_m: float | None = None,
-                      delay_upper_z: float = 0.0) -> CentralPrecision:
+def central_precision(
+    problem: RangingData,
+    estimates_m: np.ndarray,
+    *,
+    offset_m: float | np.ndarray | None = None,
+    exchange: Exchange | None = None,
+    sigma_m: float | np.ndarray = 1.0,
+    loss: str = "linear",
+    loss_scale_m: float = 0.3,
+    range_offsets: str = "none",
+    offset_prior_sigma_m: float = 0.1,
+    delay_sigma_m: float = 0.0,
+    estimate_delays: bool = False,
+    rtol: float = COVARIANCE_CG_RTOL,
+    max_iterations: int | None = None,
+    variance_scale_m: float | None = None,
+    delay_upper_z: float = 0.0,
+) -> CentralPrecision:
     """Every anchor's block of LM's central a-posteriori covariance through the exchange (module docstring).
 
     ``estimates_m`` ``(n_anchors, dim)``: the anchors' own estimates (each block reads its rows); ``offset_m``:
@@ -179,7 +191,7 @@ def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m
             hc = np.zeros((nl, n))
             np.add.at(hc, (owner, ex.nodes[owner]), 0.5 * w * e / sig)
             np.add.at(hc, (owner, other), 0.5 * w * e / sig)
-            bc[problem.n_free:] = links.total(hc)
+            bc[problem.n_free :] = links.total(hc)
         b = np.where(free[:, :, None], b, 0.0)
     dc = float(links.total(0.5 * np.bincount(owner, w * e * e, minlength=nl))) if common else 1.0
     n_unknowns = int(links.total(free.sum(axis=1).astype(float))) + (1 if common else 0)
@@ -189,10 +201,11 @@ def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m
     # the columns' final residuals (one product more: the check that every column reached rtol)
     q, q_share = system.matvec(X, Xc)
     resid = np.where(free[:, :, None], b - q, 0.0)
-    t = links.total(np.concatenate([np.einsum("nak,nak->nk", resid, resid), np.einsum("nak,nak->nk", b, b),
-                                    q_share], axis=1))
-    rc = bc - t[2 * k:] if common else np.zeros(k)
-    worst = float(np.max(np.sqrt((t[:k] + rc * rc) / np.maximum(t[k:2 * k] + bc * bc, 1e-300)), initial=0.0))
+    t = links.total(
+        np.concatenate([np.einsum("nak,nak->nk", resid, resid), np.einsum("nak,nak->nk", b, b), q_share], axis=1)
+    )
+    rc = bc - t[2 * k :] if common else np.zeros(k)
+    worst = float(np.max(np.sqrt((t[:k] + rc * rc) / np.maximum(t[k : 2 * k] + bc * bc, 1e-300)), initial=0.0))
     if not worst <= max(100.0 * rtol, 1e-8):
         raise ModelError(f"central precision: CG did not converge (relative residual {worst:.2g} after {its})")
     blocks = np.zeros((nl, dim, dim))
@@ -206,37 +219,82 @@ def central_precision(problem: RangingData, estimates_m: np.ndarray, *, offset_m
     wssr_node = 0.5 * np.bincount(owner, w_vf * r * r, minlength=nl) + (prior * x[:, dim] ** 2 if per else 0.0)
     m_rows = problem.n_meas + (n if per else 0)
     redundancy = float(m_rows - n_unknowns)
-    totals = links.total(np.c_[wssr_node, np.bincount(owner, w / sig**2, minlength=nl),
-                               0.5 * np.bincount(owner, w * r * r, minlength=nl)])  # σ̂²'s, tr GᵀWG, ẽᵀẽ
+    totals = links.total(
+        np.c_[
+            wssr_node, np.bincount(owner, w / sig**2, minlength=nl), 0.5 * np.bincount(owner, w * r * r, minlength=nl)
+        ]
+    )  # σ̂²'s, tr GᵀWG, ẽᵀẽ
     vf = variance_factor(float(totals[0]), redundancy)
     s2 = 1.0 if vf is None else vf
     delay_cov = None
     delay_sigma_used_m = delay_sigma_m
     if delays:
-        B = X[:, :, problem.n_free:]  # (n_local, P, n): rows of B = Q JᵀWG, the anchor's own
-        H = b[:, :, problem.n_free:]
+        B = X[:, :, problem.n_free :]  # (n_local, P, n): rows of B = Q JᵀWG, the anchor's own
+        H = b[:, :, problem.n_free :]
         hb = np.einsum("npk,npk->n", H, B)
-        tr_a = float(totals[1]) - float(links.total(hb)) - float(bc[problem.n_free:] @ Xc[problem.n_free:])
+        tr_a = float(totals[1]) - float(links.total(hb)) - float(bc[problem.n_free :] @ Xc[problem.n_free :])
         if estimate_delays and n <= ESTIMATE_MAX_ANCHORS:
-            estimate_m = _delay_estimate(problem, ex, links, owner, other, w, r, sig, H, B, bc[problem.n_free:],
-                                         Xc[problem.n_free:], tr_a, float(totals[2]), float(m_rows - n_unknowns),
-                                         delay_upper_z)
+            estimate_m = _delay_estimate(
+                problem,
+                ex,
+                links,
+                owner,
+                other,
+                w,
+                r,
+                sig,
+                H,
+                B,
+                bc[problem.n_free :],
+                Xc[problem.n_free :],
+                tr_a,
+                float(totals[2]),
+                float(m_rows - n_unknowns),
+                delay_upper_z,
+            )
             delay_sigma_used_m = max(delay_sigma_m, estimate_m)
         share = delay_sigma_used_m**2 * tr_a / redundancy if redundancy > 0 else 0.0
         s2 = max(s2 - share, MIN_NOISE_SHARE * s2)
         Bp = B[:, :dim, :] * free[:, :dim, None]
         delay_cov = delay_sigma_used_m**2 * np.einsum("nak,nbk->nab", Bp, Bp)
-    precision = Precision(covariance=ex.gather_nodes(blocks), variance_factor=vf, redundancy=redundancy,
-                          kind="central", iterations=its + 2, comm=ex.comm_totals().since(before))
-    return CentralPrecision(precision=precision,
-                            delay_covariance=None if delay_cov is None else ex.gather_nodes(delay_cov),
-                            noise_factor=s2, delay_sigma_m=delay_sigma_used_m, cg_iterations=its, columns=k,
-                            reductions=links.reductions, reduced_floats=links.reduced_floats)
+    precision = Precision(
+        covariance=ex.gather_nodes(blocks),
+        variance_factor=vf,
+        redundancy=redundancy,
+        kind="central",
+        iterations=its + 2,
+        comm=ex.comm_totals().since(before),
+    )
+    return CentralPrecision(
+        precision=precision,
+        delay_covariance=None if delay_cov is None else ex.gather_nodes(delay_cov),
+        noise_factor=s2,
+        delay_sigma_m=delay_sigma_used_m,
+        cg_iterations=its,
+        columns=k,
+        reductions=links.reductions,
+        reduced_floats=links.reduced_floats,
+    )
 
 
-def _delay_estimate(problem: RangingData, ex: Exchange, links: Links, owner: np.ndarray, other: np.ndarray,
-                    w: np.ndarray, r: np.ndarray, sig: np.ndarray, H: np.ndarray, B: np.ndarray, hc: np.ndarray,
-                    bc_row: np.ndarray, tr_a: float, ete: float, tr_m: float, upper_z: float) -> float:
+def _delay_estimate(
+    problem: RangingData,
+    ex: Exchange,
+    links: Links,
+    owner: np.ndarray,
+    other: np.ndarray,
+    w: np.ndarray,
+    r: np.ndarray,
+    sig: np.ndarray,
+    H: np.ndarray,
+    B: np.ndarray,
+    hc: np.ndarray,
+    bc_row: np.ndarray,
+    tr_a: float,
+    ete: float,
+    tr_m: float,
+    upper_z: float,
+) -> float:
     """σ_δ from the residuals as :func:`distnav.models.uwb.precision.delay_sigma_estimate`, from network totals:
     ``A = GᵀWG − (JᵀWG)ᵀB`` (``n²`` floats per anchor: its own rows of both), ``‖GᵀWr‖²`` (anchor ``k``'s entry is
     a sum over its own links), ``ẽᵀẽ = Σ w r²`` and ``tr M = m − n_x``; ``√(σ̂_δ² + upper_z · sd)`` with the
@@ -250,8 +308,8 @@ def _delay_estimate(problem: RangingData, ex: Exchange, links: Links, owner: np.
     gwr = np.zeros((nl, n))
     np.add.at(gwr, (owner, me), w * r / sig)
     tot = links.total(np.concatenate([part.reshape(nl, n * n), gwr], axis=1))
-    A = tot[:n * n].reshape(n, n) - np.outer(hc, bc_row)  # the common offset's row of JᵀWG and B, once
-    gwr_all = tot[n * n:]
+    A = tot[: n * n].reshape(n, n) - np.outer(hc, bc_row)  # the common offset's row of JᵀWG and B, once
+    gwr_all = tot[n * n :]
     A2 = A @ A
     tr_a2, tr_a3, tr_a4 = float(np.sum(A * A)), float(np.sum(A2 * A)), float(np.sum(A2 * A2))
     lhs = np.array([[tr_m, tr_a], [tr_a, tr_a2]])
@@ -266,8 +324,10 @@ def _delay_estimate(problem: RangingData, ex: Exchange, links: Links, owner: np.
     # its standard deviation for normal errors, 2 tr(Bᵢ Σ Bⱼ Σ) with Σ = s² M + σ_δ² M G̃G̃ᵀ M, from A alone
     # (M² = M): tr Σ² = s⁴ tr M + 2s²σ_δ² tr A + σ_δ⁴ tr A², and likewise one and two powers of A higher
     sp, dp = max(float(s2), 0.0), max(float(d2), 0.0)
-    c = [sp * sp * t0 + 2.0 * sp * dp * t1 + dp * dp * t2
-         for t0, t1, t2 in ((tr_m, tr_a, tr_a2), (tr_a, tr_a2, tr_a3), (tr_a2, tr_a3, tr_a4))]
+    c = [
+        sp * sp * t0 + 2.0 * sp * dp * t1 + dp * dp * t2
+        for t0, t1, t2 in ((tr_m, tr_a, tr_a2), (tr_a, tr_a2, tr_a3), (tr_a2, tr_a3, tr_a4))
+    ]
     C = 2.0 * np.array([[c[0], c[1]], [c[1], c[2]]])
     sd = float(np.sqrt(max(float((inv @ C @ inv.T)[1, 1]), 0.0)))
     v = float(d2) + upper_z * sd

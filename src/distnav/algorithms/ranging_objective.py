@@ -113,13 +113,18 @@ class RangeObjective:
         else:
             m, n = p.n_meas, p.n_anchors
             rows = np.concatenate([np.arange(m)] * 2)
-            cols = sp.csr_matrix((np.concatenate([1.0 / self.sigma] * 2), (rows, np.concatenate([p.meas_a, p.meas_b]))),
-                                 shape=(m, n))
+            cols = sp.csr_matrix(
+                (np.concatenate([1.0 / self.sigma] * 2), (rows, np.concatenate([p.meas_a, p.meas_b]))), shape=(m, n)
+            )
         top = sp.hstack([jac, cols])
         if not self.n_prior:
             return sp.csr_matrix(top)
-        prior = sp.hstack([sp.csr_matrix((self.n_prior, p.n_free)),
-                           sp.identity(self.n_prior, format="csr") / self.offset_prior_sigma_m])
+        prior = sp.hstack(
+            [
+                sp.csr_matrix((self.n_prior, p.n_free)),
+                sp.identity(self.n_prior, format="csr") / self.offset_prior_sigma_m,
+            ]
+        )
         return sp.csr_matrix(sp.vstack([top, prior]))
 
     def loss_scale(self, loss_scale_m: float) -> np.ndarray:

@@ -116,10 +116,20 @@ class NeighbourhoodPrecision:
         return np.asarray(np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)))
 
 
-def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, exchange: Exchange | None = None,
-                            objective: str = "metres", sigma_m: float | np.ndarray = 1.0, loss: str = "linear",
-                            loss_scale_m: float = 0.3, rounds: int = 20, rtol: float = 1e-3, hops: int = 0,
-                            delay_sigma_m: float = 0.0) -> NeighbourhoodPrecision:
+def neighbourhood_precision(
+    problem: RangingData,
+    estimates_m: np.ndarray,
+    *,
+    exchange: Exchange | None = None,
+    objective: str = "metres",
+    sigma_m: float | np.ndarray = 1.0,
+    loss: str = "linear",
+    loss_scale_m: float = 0.3,
+    rounds: int = 20,
+    rtol: float = 1e-3,
+    hops: int = 0,
+    delay_sigma_m: float = 0.0,
+) -> NeighbourhoodPrecision:
     """Every anchor's covariance from its own links and its neighbours' blocks (module docstring).
 
     ``estimates_m``: the anchors' estimates of themselves ``(n_anchors, dim)`` (a distributed solver's
@@ -208,23 +218,44 @@ def neighbourhood_precision(problem: RangingData, estimates_m: np.ndarray, *, ex
         log.info("neighbourhood precision: σ still changing by %.3g after %d rounds", change, done)
     delay_cov = noise_f = None
     if hops:
-        cov, vf_i, delay_cov, noise_f = _subnetwork(problem, ex, hops, cov, cond, pos, pos_in.values.shape[0],
-                                                    j_own, w, r, free, delay_sigma_m)
+        cov, vf_i, delay_cov, noise_f = _subnetwork(
+            problem, ex, hops, cov, cond, pos, pos_in.values.shape[0], j_own, w, r, free, delay_sigma_m
+        )
         done += 1 + hops
     wssr = float(ex.allreduce(float(np.sum(w * r * r)), "sum")) / 2.0  # every sample is held twice
     m_red = float(max(problem.n_meas - problem.n_free, 0))
-    precision = Precision(covariance=ex.gather_nodes(cov), variance_factor=variance_factor(wssr, m_red),
-                          redundancy=m_red, kind="neighbourhood", iterations=done + 1,
-                          comm=ex.comm_totals().since(before))
-    return NeighbourhoodPrecision(precision=precision, variance_factor_nodes=ex.gather_nodes(vf_i),
-                                  conditional=ex.gather_nodes(cond), change=change,
-                                  delay_covariance=None if delay_cov is None else ex.gather_nodes(delay_cov),
-                                  noise_factor_nodes=None if noise_f is None else ex.gather_nodes(noise_f))
+    precision = Precision(
+        covariance=ex.gather_nodes(cov),
+        variance_factor=variance_factor(wssr, m_red),
+        redundancy=m_red,
+        kind="neighbourhood",
+        iterations=done + 1,
+        comm=ex.comm_totals().since(before),
+    )
+    return NeighbourhoodPrecision(
+        precision=precision,
+        variance_factor_nodes=ex.gather_nodes(vf_i),
+        conditional=ex.gather_nodes(cond),
+        change=change,
+        delay_covariance=None if delay_cov is None else ex.gather_nodes(delay_cov),
+        noise_factor_nodes=None if noise_f is None else ex.gather_nodes(noise_f),
+    )
 
 
-def _subnetwork(problem: RangingData, ex: Exchange, hops: int, cov: np.ndarray, cond: np.ndarray, pos: np.ndarray,
-                n_in: int, j_own: np.ndarray, w: np.ndarray, r: np.ndarray, free: np.ndarray, delay_sigma_m: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+def _subnetwork(
+    problem: RangingData,
+    ex: Exchange,
+    hops: int,
+    cov: np.ndarray,
+    cond: np.ndarray,
+    pos: np.ndarray,
+    n_in: int,
+    j_own: np.ndarray,
+    w: np.ndarray,
+    r: np.ndarray,
+    free: np.ndarray,
+    delay_sigma_m: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The k-hop sub-network covariance and variance factor of every local anchor (module docstring).
 
     Link record of in-edge (i ← v), held by i: ``[v, u (dim), c, Σ w r², samples, Σ_v (dim²)]`` with ``c u uᵀ``
@@ -244,8 +275,17 @@ def _subnetwork(problem: RangingData, ex: Exchange, hops: int, cov: np.ndarray, 
     nz = norm2 > 0
     u_in[pos[nz]] = j_own[nz] / np.sqrt(norm2[nz])[:, None]  # same direction for every sample of a pair
     width = 4 + dim + bsz
-    link = np.concatenate([nb.src[:, None].astype(float), u_in, c_in[:, None], wr2_in[:, None], cnt_in[:, None],
-                           np.where(nb.delivered[:, None], nb.values, np.nan)], axis=1)
+    link = np.concatenate(
+        [
+            nb.src[:, None].astype(float),
+            u_in,
+            c_in[:, None],
+            wr2_in[:, None],
+            cnt_in[:, None],
+            np.where(nb.delivered[:, None], nb.values, np.nan),
+        ],
+        axis=1,
+    )
     rows = np.full((nl, 1 + k_max * width), -1.0)
     rows[:, 0] = ex.nodes
     starts = np.flatnonzero(np.r_[True, nb.dst[1:] != nb.dst[:-1]]) if n_in else np.zeros(0, np.int64)
@@ -275,9 +315,16 @@ def _subnetwork(problem: RangingData, ex: Exchange, hops: int, cov: np.ndarray, 
     return out, vf, delay, noise
 
 
-def _solve_ball(problem: RangingData, me: int, records: list[np.ndarray], k_max: int, width: int,
-                cond: np.ndarray, n: int, delay_sigma_m: float = 0.0
-                ) -> tuple[np.ndarray, float, np.ndarray, float]:
+def _solve_ball(
+    problem: RangingData,
+    me: int,
+    records: list[np.ndarray],
+    k_max: int,
+    width: int,
+    cond: np.ndarray,
+    n: int,
+    delay_sigma_m: float = 0.0,
+) -> tuple[np.ndarray, float, np.ndarray, float]:
     """Anchor ``me``'s block of ``Q_SS = N_SS⁻¹ + N_SS⁻¹ N_SR (⊕_v Σ_v) N_RS N_SS⁻¹`` over the anchors whose link
     records it holds (``S``, free ones), the ring ``R`` behind their links considered with its blocks ``Σ_v``,
     and the variance factor of the sub-network's links (shares as the local one); with ``delay_sigma_m`` the
@@ -309,9 +356,9 @@ def _solve_ball(problem: RangingData, me: int, records: list[np.ndarray], k_max:
         cu = col[u][free[u]]
         for row in lk:
             v = int(row[0])
-            d_u = row[1:1 + dim] * free[u]
+            d_u = row[1 : 1 + dim] * free[u]
             c = float(row[1 + dim])
-            info = c * np.outer(d_u, row[1:1 + dim])  # c u uᵀ, rows of u's free coordinates
+            info = c * np.outer(d_u, row[1 : 1 + dim])  # c u uᵀ, rows of u's free coordinates
             nss[np.ix_(cu, cu)] += info[np.ix_(free[u], free[u])]
             if not free[v].any():
                 sh = 1.0
@@ -322,12 +369,12 @@ def _solve_ball(problem: RangingData, me: int, records: list[np.ndarray], k_max:
             else:
                 sh = 0.5
                 ring.setdefault(v, []).append((u, info))
-                sigma_ring.setdefault(v, row[4 + dim:].reshape(dim, dim))
+                sigma_ring.setdefault(v, row[4 + dim :].reshape(dim, dim))
             wssr += sh * float(row[2 + dim])
             share_sum += sh * float(row[3 + dim])
             if delay_sigma_m > 0:
                 g = np.zeros(cnt)
-                g[cu] = c * row[1:1 + dim][free[u]]
+                g[cu] = c * row[1 : 1 + dim][free[u]]
                 for k in (u, v):
                     g_cols[k] = g_cols[k] + g if k in g_cols else g.copy()
                 trace_g += sh * 2.0 * c

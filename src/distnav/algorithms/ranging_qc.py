@@ -54,8 +54,16 @@ from distnav.exchange import Exchange
 if TYPE_CHECKING:
     from distnav.algorithms.neighbourhood import IterationState
 
-__all__ = ["TEST_SCALES", "DISTRIBUTED_TEST_SCALES", "centralized_quality", "exclude_links", "free_block_inverses",
-           "local_quality", "network_robust_scale", "robust_scale"]
+__all__ = [
+    "TEST_SCALES",
+    "DISTRIBUTED_TEST_SCALES",
+    "centralized_quality",
+    "exclude_links",
+    "free_block_inverses",
+    "local_quality",
+    "network_robust_scale",
+    "robust_scale",
+]
 
 log = logging.getLogger(__name__)
 TEST_SCALES = ("robust", "a-priori")
@@ -80,12 +88,11 @@ def _inverse_spd(n_mat: np.ndarray) -> np.ndarray | None:
     if info != 0:
         return None
     out = inv + inv.T
-    out.flat[::out.shape[0] + 1] *= 0.5
+    out.flat[:: out.shape[0] + 1] *= 0.5
     return np.asarray(out)
 
 
-def _hat_terms(J: sp.csr_matrix, Q: np.ndarray, weight: np.ndarray, n_ranges: int
-               ) -> tuple[np.ndarray, np.ndarray]:
+def _hat_terms(J: sp.csr_matrix, Q: np.ndarray, weight: np.ndarray, n_ranges: int) -> tuple[np.ndarray, np.ndarray]:
     """``h_l = j_l Q j_lᵀ`` and ``j_l Q (JᵀW²J) Q j_lᵀ = Σ_k w_k² (j_l Q j_kᵀ)²`` of the first ``n_ranges`` rows,
     from blocks of ``J Q Jᵀ`` (``z = J_l Q`` for a chunk of rows, then ``J zᵀ``; never the n × n product
     ``Q JᵀW²J Q``)."""
@@ -95,16 +102,23 @@ def _hat_terms(J: sp.csr_matrix, Q: np.ndarray, weight: np.ndarray, n_ranges: in
     h = np.empty(n_ranges)
     qmq = np.empty(n_ranges)
     for lo in range(0, n_ranges, 512):
-        z = np.asarray(Jr[lo:lo + 512] @ Q)  # (chunk, n)
+        z = np.asarray(Jr[lo : lo + 512] @ Q)  # (chunk, n)
         y = np.asarray(JT @ z.T)  # (m, chunk): j_k Q j_lᵀ
-        h[lo:lo + 512] = y[np.arange(lo, lo + z.shape[0]), np.arange(z.shape[0])]
-        qmq[lo:lo + 512] = w2 @ (y * y)
+        h[lo : lo + 512] = y[np.arange(lo, lo + z.shape[0]), np.arange(z.shape[0])]
+        qmq[lo : lo + 512] = w2 @ (y * y)
     return h, qmq
 
 
-def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual: np.ndarray, weight: np.ndarray,
-                        n_ranges: int, *, level: float = 0.001, scale: str = "robust"
-                        ) -> tuple[Precision | None, ObservationTests | None, np.ndarray | None]:
+def centralized_quality(
+    problem: RangingData,
+    jacobian: sp.csr_matrix,
+    residual: np.ndarray,
+    weight: np.ndarray,
+    n_ranges: int,
+    *,
+    level: float = 0.001,
+    scale: str = "robust",
+) -> tuple[Precision | None, ObservationTests | None, np.ndarray | None]:
     """Precision of every anchor and w-tests of every range sample at an LM solution (module docstring).
 
     ``jacobian`` / ``residual`` / ``weight`` are the whitened rows at the solution (the first ``n_ranges`` rows are
@@ -140,8 +154,9 @@ def centralized_quality(problem: RangingData, jacobian: sp.csr_matrix, residual:
     s = robust_scale(std) if scale == "robust" else 1.0
     w = std / s if s > 0 else std
     k = critical_value(level)
-    tests = ObservationTests(node=np.asarray(problem.meas_a), w=w, critical_value=k, level=level,
-                             flagged=np.abs(np.nan_to_num(w)) > k)
+    tests = ObservationTests(
+        node=np.asarray(problem.meas_a), w=w, critical_value=k, level=level, flagged=np.abs(np.nan_to_num(w)) > k
+    )
     return precision, tests, Q
 
 
@@ -169,10 +184,20 @@ def free_block_inverses(info: np.ndarray, free: np.ndarray) -> np.ndarray:
     return cov
 
 
-def local_quality(range_m: np.ndarray, owner: np.ndarray, owner_free: np.ndarray, own_m: np.ndarray,
-                  other_m: np.ndarray, sigma: np.ndarray, n_local: int, kind: str, *, loss: str = "linear",
-                  loss_scale: np.ndarray | float = 1.0, scale: str = "robust"
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def local_quality(
+    range_m: np.ndarray,
+    owner: np.ndarray,
+    owner_free: np.ndarray,
+    own_m: np.ndarray,
+    other_m: np.ndarray,
+    sigma: np.ndarray,
+    n_local: int,
+    kind: str,
+    *,
+    loss: str = "linear",
+    loss_scale: np.ndarray | float = 1.0,
+    scale: str = "robust",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What every anchor of one exchange block computes from its own links (module docstring); no messages.
 
     One row per half-measurement the block holds: its measured range, ``owner`` (local anchor index) and the
@@ -223,9 +248,14 @@ def _links_left(problem: RangingData, keep: np.ndarray) -> np.ndarray:
     return np.bincount(np.concatenate([key // n, key % n]), minlength=n)
 
 
-def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResult], *,
-                  max_exclusions: int | None = None, one_sided: bool = False, per_round: int | None = 1
-                  ) -> tuple[RangingResult, RangingData, ObservationTests]:
+def exclude_links(
+    problem: RangingData,
+    fit: Callable[[RangingData], RangingResult],
+    *,
+    max_exclusions: int | None = None,
+    one_sided: bool = False,
+    per_round: int | None = 1,
+) -> tuple[RangingResult, RangingData, ObservationTests]:
     """Iterative exclusion: while a link is flagged, remove the link (all its samples) with the largest |w| whose
     two anchors keep more links than free coordinates (the network stays determined with a check), and re-fit.
 
@@ -276,8 +306,9 @@ def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResu
             n_links += 1
             taken += 1
             blocked[[lo, hi]] = True
-        sub = dataclasses.replace(problem, meas_a=problem.meas_a[keep], meas_b=problem.meas_b[keep],
-                                  range_m=problem.range_m[keep])
+        sub = dataclasses.replace(
+            problem, meas_a=problem.meas_a[keep], meas_b=problem.meas_b[keep], range_m=problem.range_m[keep]
+        )
         res = fit(sub)
     w_all = np.full(problem.n_meas, np.nan)
     flagged = np.zeros(problem.n_meas, bool)
@@ -287,14 +318,31 @@ def exclude_links(problem: RangingData, fit: Callable[[RangingData], RangingResu
     w_all[keep] = final.w
     flagged[keep] = final.flagged
     node = np.minimum(problem.meas_a, problem.meas_b)
-    tests = ObservationTests(node=node, w=w_all, critical_value=final.critical_value, level=final.level,
-                             flagged=flagged, removed=tuple(removed), iterations=0, comm=None)
+    tests = ObservationTests(
+        node=node,
+        w=w_all,
+        critical_value=final.critical_value,
+        level=final.level,
+        flagged=flagged,
+        removed=tuple(removed),
+        iterations=0,
+        comm=None,
+    )
     return res, sub, tests
 
 
-def distributed_quality(problem: RangingData, ex: Exchange, st: IterationState, sigma: np.ndarray,
-                        scale: np.ndarray, *, objective: str, loss: str, test_scale: str, test_level: float
-                        ) -> tuple[Precision, ObservationTests]:
+def distributed_quality(
+    problem: RangingData,
+    ex: Exchange,
+    st: IterationState,
+    sigma: np.ndarray,
+    scale: np.ndarray,
+    *,
+    objective: str,
+    loss: str,
+    test_scale: str,
+    test_level: float,
+) -> tuple[Precision, ObservationTests]:
     """Every anchor's conditional covariance and the w-tests of its own links (computed locally, then gathered);
     each sample is tested and reported by the lower-indexed of its two anchors. ``test_scale="robust"``: the
     standardized residuals are divided by the network robust scale (:func:`network_robust_scale`, a network total
@@ -302,9 +350,19 @@ def distributed_quality(problem: RangingData, ex: Exchange, st: IterationState, 
     assert st.half_owner is not None and st.half_sample is not None and st.half_other_m is not None
     owner, samp = st.half_owner, st.half_sample
     rng = problem.range_m[samp] - (0.0 if st.half_offset_m is None else st.half_offset_m)  # the holder's bias
-    cov, w_half, wssr = local_quality(rng, owner, problem.free[ex.nodes[owner]],
-                                      st.own_m[owner], st.half_other_m, sigma[samp], ex.n_local, objective,
-                                      loss=loss, loss_scale=scale[samp], scale=test_scale)
+    cov, w_half, wssr = local_quality(
+        rng,
+        owner,
+        problem.free[ex.nodes[owner]],
+        st.own_m[owner],
+        st.half_other_m,
+        sigma[samp],
+        ex.n_local,
+        objective,
+        loss=loss,
+        loss_scale=scale[samp],
+        scale=test_scale,
+    )
     # pack per anchor (padded) so the result can be gathered over blocks
     per = np.bincount(owner, minlength=ex.n_local)
     K = max(int(ex.allreduce(int(per.max(initial=0)), "max")), 1)
@@ -331,8 +389,11 @@ def distributed_quality(problem: RangingData, ex: Exchange, st: IterationState, 
     links = np.bincount(np.concatenate([problem.meas_a, problem.meas_b]), minlength=problem.n_anchors)
     red = float(np.sum(np.maximum(links - problem.free.sum(axis=1), 0)[problem.estimated]))
     k = critical_value(test_level)
-    precision = Precision(covariance=cov_all, variance_factor=variance_factor(
-        wssr_total, max(problem.n_meas - problem.n_free, 0)), redundancy=red, kind="conditional")
-    tests = ObservationTests(node=tester, w=w, critical_value=k, level=test_level,
-                             flagged=np.abs(np.nan_to_num(w)) > k)
+    precision = Precision(
+        covariance=cov_all,
+        variance_factor=variance_factor(wssr_total, max(problem.n_meas - problem.n_free, 0)),
+        redundancy=red,
+        kind="conditional",
+    )
+    tests = ObservationTests(node=tester, w=w, critical_value=k, level=test_level, flagged=np.abs(np.nan_to_num(w)) > k)
     return precision, tests

@@ -41,8 +41,17 @@ from distnav.algorithms.ranging import RangingData
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
-__all__ = ["Refinement", "refine", "refine_state", "MAX_ROUNDS", "Links", "NormalSystem", "pcg", "jacobian_rows",
-           "block_preconditioner"]
+__all__ = [
+    "Refinement",
+    "refine",
+    "refine_state",
+    "MAX_ROUNDS",
+    "Links",
+    "NormalSystem",
+    "pcg",
+    "jacobian_rows",
+    "block_preconditioner",
+]
 
 MAX_ROUNDS = 60  # outer LM rounds; plant-like halls: a median 4–6 after the exclusions, 16–36 with NLOS links kept
 CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
@@ -103,9 +112,21 @@ class Links:
         return np.asarray(self.ex.gather_nodes(per_node))
 
 
-def refine(problem: RangingData, ex: Exchange, own_m: np.ndarray, offset_m: np.ndarray | None, *, sigma: np.ndarray,
-           scale: np.ndarray, loss: str, range_offsets: str, offset_prior_sigma_m: float, ftol: float,
-           xtol_m: float, max_rounds: int = MAX_ROUNDS) -> Refinement:
+def refine(
+    problem: RangingData,
+    ex: Exchange,
+    own_m: np.ndarray,
+    offset_m: np.ndarray | None,
+    *,
+    sigma: np.ndarray,
+    scale: np.ndarray,
+    loss: str,
+    range_offsets: str,
+    offset_prior_sigma_m: float,
+    ftol: float,
+    xtol_m: float,
+    max_rounds: int = MAX_ROUNDS,
+) -> Refinement:
     """Refine the block's own estimates (and offsets) to the network's least-squares solution (module docstring).
 
     ``sigma`` / ``scale``: every sample's range σ and loss scale (whitened), as the solver's; ``offset_m``: the
@@ -127,8 +148,7 @@ def refine(problem: RangingData, ex: Exchange, own_m: np.ndarray, offset_m: np.n
     if per:
         assert offset_m is not None
         x[:, dim] = offset_m
-    c = float(links.total(np.asarray(offset_m, float))) / problem.n_anchors if common and offset_m is not None \
-        else 0.0
+    c = float(links.total(np.asarray(offset_m, float))) / problem.n_anchors if common and offset_m is not None else 0.0
     n_unknowns = int(links.total(free.sum(axis=1).astype(float))) + (1 if common else 0)
     cg_max = min(n_unknowns + 10, 2000)
 
@@ -157,10 +177,18 @@ def refine(problem: RangingData, ex: Exchange, own_m: np.ndarray, offset_m: np.n
                 g[:, dim] += prior * x[:, dim]
             gc = dc = 0.0
             if common:  # the common offset's gradient and curvature: one reduction
-                gc, dc = (float(t) for t in links.total(0.5 * np.c_[np.bincount(owner, w * r * e, minlength=nl),
-                                                                   np.bincount(owner, w * e * e, minlength=nl)]))
-            diag = _rows(owner, w[:, None] * a * a, nl) + (np.c_[np.zeros((nl, dim)), np.full(nl, prior)]
-                                                             if per else 0.0)
+                gc, dc = (
+                    float(t)
+                    for t in links.total(
+                        0.5
+                        * np.c_[
+                            np.bincount(owner, w * r * e, minlength=nl), np.bincount(owner, w * e * e, minlength=nl)
+                        ]
+                    )
+                )
+            diag = _rows(owner, w[:, None] * a * a, nl) + (
+                np.c_[np.zeros((nl, dim)), np.full(nl, prior)] if per else 0.0
+            )
             block = np.einsum("h,ha,hb->hab", w, a, a)
             own_block = np.zeros((nl, P, P))
             np.add.at(own_block, owner, block)
@@ -171,8 +199,15 @@ def refine(problem: RangingData, ex: Exchange, own_m: np.ndarray, offset_m: np.n
                 damp_c = mu * max(dc, 1e-12)
                 pre_inv = block_preconditioner(own_block, damp, free)
                 system = NormalSystem(links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common)
-                dxk, dck, its = pcg(system, -np.where(free, g, 0.0)[:, :, None], np.array([-gc]), pre_inv,
-                                    dc + damp_c if common else 1.0, links, cg_max)
+                dxk, dck, its = pcg(
+                    system,
+                    -np.where(free, g, 0.0)[:, :, None],
+                    np.array([-gc]),
+                    pre_inv,
+                    dc + damp_c if common else 1.0,
+                    links,
+                    cg_max,
+                )
                 dx, dcv = dxk[:, :, 0], float(dck[0])
                 cg_total += its
                 x_new, c_new = x + dx, c + dcv
@@ -205,9 +240,17 @@ def refine(problem: RangingData, ex: Exchange, own_m: np.ndarray, offset_m: np.n
     elif common:
         offsets = np.full(nl, c)
         half_off = np.full(samp.size, c)
-    return Refinement(own_m=x[:, :dim].copy(), offset_m=offsets, half_other_m=nb[:, :dim].copy(),
-                      half_offset_m=half_off, objective=F, status=status, rounds=rounds, cg_iterations=cg_total,
-                      reductions=links.reductions)
+    return Refinement(
+        own_m=x[:, :dim].copy(),
+        offset_m=offsets,
+        half_other_m=nb[:, :dim].copy(),
+        half_offset_m=half_off,
+        objective=F,
+        status=status,
+        rounds=rounds,
+        cg_iterations=cg_total,
+        reductions=links.reductions,
+    )
 
 
 def _rows(owner: np.ndarray, values: np.ndarray, nl: int) -> np.ndarray:
@@ -217,8 +260,17 @@ def _rows(owner: np.ndarray, values: np.ndarray, nl: int) -> np.ndarray:
     return out
 
 
-def jacobian_rows(x: np.ndarray, nb: np.ndarray, owner: np.ndarray, sig: np.ndarray, dim: int, per: bool,
-                  common: bool, free: np.ndarray, free_nb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def jacobian_rows(
+    x: np.ndarray,
+    nb: np.ndarray,
+    owner: np.ndarray,
+    sig: np.ndarray,
+    dim: int,
+    per: bool,
+    common: bool,
+    free: np.ndarray,
+    free_nb: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every half-measurement's whitened Jacobian rows at ``x`` (own rows ``(n_local, P)``) and its neighbours'
     rows ``nb``: ``a`` (own parameters), ``cn`` (the other end's) and ``e`` (the common offset; zeros without)."""
     diff = x[owner, :dim] - nb[:, :dim]
@@ -268,8 +320,11 @@ class NormalSystem:
         products: one reduction per CG iteration less)."""
         nl, P, k = v.shape
         vn = self.links.neighbours(v.reshape(nl, P * k)).reshape(-1, P, k)
-        jv = (np.einsum("hp,hpk->hk", self.a, v[self.owner]) + np.einsum("hp,hpk->hk", self.cn, vn)
-              + self.e[:, None] * vc[None, :])
+        jv = (
+            np.einsum("hp,hpk->hk", self.a, v[self.owner])
+            + np.einsum("hp,hpk->hk", self.cn, vn)
+            + self.e[:, None] * vc[None, :]
+        )
         wjv = self.w[:, None] * jv
         out = np.zeros_like(v)
         np.add.at(out, self.owner, wjv[:, None, :] * self.a[:, :, None])
@@ -281,8 +336,16 @@ class NormalSystem:
         return np.where(self.free[:, :, None], out, 0.0), half
 
 
-def pcg(system: NormalSystem, b: np.ndarray, bc: np.ndarray, pre_inv: np.ndarray, pre_c: float, links: Links,
-        max_its: int, rtol: float = CG_RTOL) -> tuple[np.ndarray, np.ndarray, int]:
+def pcg(
+    system: NormalSystem,
+    b: np.ndarray,
+    bc: np.ndarray,
+    pre_inv: np.ndarray,
+    pre_c: float,
+    links: Links,
+    max_its: int,
+    rtol: float = CG_RTOL,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P, k)`` for ``k``
     right-hand sides at once (independent CG recurrences sharing every broadcast and reduction) and the common
     parameter's row ``bc`` ``(k,)`` (zeros without one); the dot products are network totals. It stops when every
@@ -331,14 +394,44 @@ def pcg(system: NormalSystem, b: np.ndarray, bc: np.ndarray, pre_inv: np.ndarray
     return x, xc, its
 
 
-def refine_state(problem: RangingData, ex: Exchange, st: IterationState, *, sigma: np.ndarray, scale: np.ndarray,
-                 loss: str, range_offsets: str, offset_prior_sigma_m: float, ftol: float, xtol_m: float
-                 ) -> tuple[IterationState, Refinement]:
+def refine_state(
+    problem: RangingData,
+    ex: Exchange,
+    st: IterationState,
+    *,
+    sigma: np.ndarray,
+    scale: np.ndarray,
+    loss: str,
+    range_offsets: str,
+    offset_prior_sigma_m: float,
+    ftol: float,
+    xtol_m: float,
+) -> tuple[IterationState, Refinement]:
     """:func:`refine` from a solver's last state; the refined state (same iteration count, the neighbours' refined
     estimates and offsets on every half-measurement, for the local QC) and the refinement's record."""
-    ref = refine(problem, ex, st.own_m, st.offset_m, sigma=sigma, scale=scale, loss=loss, range_offsets=range_offsets,
-                 offset_prior_sigma_m=offset_prior_sigma_m, ftol=ftol, xtol_m=xtol_m)
+    ref = refine(
+        problem,
+        ex,
+        st.own_m,
+        st.offset_m,
+        sigma=sigma,
+        scale=scale,
+        loss=loss,
+        range_offsets=range_offsets,
+        offset_prior_sigma_m=offset_prior_sigma_m,
+        ftol=ftol,
+        xtol_m=xtol_m,
+    )
     owner, _, _, samp = half_measurements(problem, ex)
-    out = IterationState(st.iteration, ref.own_m, st.step_size, st.partial_cost, owner, samp, ref.half_other_m,
-                         ref.offset_m, ref.half_offset_m)
+    out = IterationState(
+        st.iteration,
+        ref.own_m,
+        st.step_size,
+        st.partial_cost,
+        owner,
+        samp,
+        ref.half_other_m,
+        ref.offset_m,
+        ref.half_offset_m,
+    )
     return out, ref

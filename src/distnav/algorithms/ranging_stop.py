@@ -37,12 +37,17 @@ class StopRule:
     refine_xtol_m: float | None = None
 
     def __post_init__(self) -> None:
-        if not (min(self.ftol, self.xtol_m, *self.phase_tolerances) >= 0 and self.patience >= 1
-                and self.divergence_factor > 1):
+        if not (
+            min(self.ftol, self.xtol_m, *self.phase_tolerances) >= 0
+            and self.patience >= 1
+            and self.divergence_factor > 1
+        ):
             raise ModelError(f"invalid stopping rule {self}")
 
     @property
     def phase_tolerances(self) -> tuple[float, float]:
         """``(ftol, xtol_m)`` of the final distributed LM phase (see the class docstring)."""
-        return (min(self.ftol, REFINE_FTOL) if self.refine_ftol is None else self.refine_ftol,
-                min(self.xtol_m, REFINE_XTOL_M) if self.refine_xtol_m is None else self.refine_xtol_m)
+        return (
+            min(self.ftol, REFINE_FTOL) if self.refine_ftol is None else self.refine_ftol,
+            min(self.xtol_m, REFINE_XTOL_M) if self.refine_xtol_m is None else self.refine_xtol_m,
+        )

@@ -100,9 +100,13 @@ class Precision:
         return diag
 
     def summary(self) -> dict[str, Any]:
-        return {"variance_factor": self.variance_factor, "redundancy": self.redundancy, "kind": self.kind,
-                "iterations": self.iterations,
-                "communication": None if self.comm is None else self.comm.as_dict()}
+        return {
+            "variance_factor": self.variance_factor,
+            "redundancy": self.redundancy,
+            "kind": self.kind,
+            "iterations": self.iterations,
+            "communication": None if self.comm is None else self.comm.as_dict(),
+        }
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,10 +136,14 @@ class ObservationTests:
     comm: CommTotals | None = None
 
     def summary(self) -> dict[str, Any]:
-        return {"level": self.level, "critical_value": self.critical_value,
-                "flagged": int(np.count_nonzero(self.flagged)), "removed": list(self.removed),
-                "iterations": self.iterations,
-                "communication": None if self.comm is None else self.comm.as_dict()}
+        return {
+            "level": self.level,
+            "critical_value": self.critical_value,
+            "flagged": int(np.count_nonzero(self.flagged)),
+            "removed": list(self.removed),
+            "iterations": self.iterations,
+            "communication": None if self.comm is None else self.comm.as_dict(),
+        }
 
 
 _BASE_FIELDS = ("estimates", "converged", "iterations", "status", "message", "trace", "comm")
@@ -179,8 +187,11 @@ class SolverResult:
     @property
     def extras(self) -> Mapping[str, Any]:
         """Deprecated: the family-specific fields by name. Read the typed attributes instead."""
-        warnings.warn("SolverResult.extras is deprecated: read the typed fields of the result "
-                      f"({type(self).__name__}) instead", DeprecationWarning, stacklevel=2)
+        warnings.warn(
+            f"SolverResult.extras is deprecated: read the typed fields of the result ({type(self).__name__}) instead",
+            DeprecationWarning,
+            stacklevel=2,
+        )
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in _BASE_FIELDS}
 
     def summary(self) -> dict[str, Any]:
@@ -192,4 +203,3 @@ class SolverResult:
             "message": self.message,
             "communication": self.comm.as_dict(),
         }
-

@@ -56,11 +56,12 @@ def critical_value(level: float) -> float:
     """
     if not 0.0 < level < 1.0:
         raise ModelError(f"test level must lie in (0, 1), got {level!r}")
-    return float(-special.ndtri(level / 2.0))      # N(0, 1) upper quantile (scipy.stats.norm.isf's own formula)
+    return float(-special.ndtri(level / 2.0))  # N(0, 1) upper quantile (scipy.stats.norm.isf's own formula)
 
 
-def w_statistics(weighted_residual: ArrayLike, variance: ArrayLike, *, relative_floor: float = _TINY_VARIANCE
-                 ) -> FloatArray:
+def w_statistics(
+    weighted_residual: ArrayLike, variance: ArrayLike, *, relative_floor: float = _TINY_VARIANCE
+) -> FloatArray:
     """w-test statistics ``w_i = v_i / sqrt(q_i)`` (NaN where ``q_i`` is zero: an observation nobody else checks).
 
     Parameters
@@ -92,8 +93,9 @@ def variance_factor(weighted_ssr: float, redundancy: float) -> float | None:
     return float(weighted_ssr / redundancy)
 
 
-def variance_factor_test(weighted_ssr: float, redundancy: float, level: float = 0.05
-                         ) -> tuple[float | None, tuple[float, float], bool]:
+def variance_factor_test(
+    weighted_ssr: float, redundancy: float, level: float = 0.05
+) -> tuple[float | None, tuple[float, float], bool]:
     """Two-sided χ² test of ``σ̂²`` against 1: returns ``(σ̂², (lower, upper) bounds for σ̂², accepted)``."""
     s2 = variance_factor(weighted_ssr, redundancy)
     if s2 is None:
@@ -129,8 +131,14 @@ def redundancy_numbers(A: ArrayLike, weight: ArrayLike, Qx: ArrayLike) -> FloatA
     return np.asarray(np.clip(1.0 - p * h, 0.0, 1.0))
 
 
-def minimal_detectable_bias(sigma: ArrayLike, redundancy: ArrayLike, lam0: float, *,
-                            residual_variance: ArrayLike | None = None, min_redundancy: float = 1e-6) -> FloatArray:
+def minimal_detectable_bias(
+    sigma: ArrayLike,
+    redundancy: ArrayLike,
+    lam0: float,
+    *,
+    residual_variance: ArrayLike | None = None,
+    min_redundancy: float = 1e-6,
+) -> FloatArray:
     """Minimal detectable bias ``∇_i = σ_i √λ0 √q_i / r_i`` (module docstring): the gross error that moves observation
     i's w-statistic ``ê_i / (σ_i √q_i)`` by ``√λ0``. ``q_i`` is the variance of its standardized residual the test
     divides by: ``r_i`` itself for least squares with the weights of the model (the default; then
@@ -180,8 +188,16 @@ def _blue(A: FloatArray, y: FloatArray, R: FloatArray, rcond: float) -> tuple[Fl
     return Qx @ (A.T @ Ri @ y), Qx, rank
 
 
-def data_snooping(A: ArrayLike, y: ArrayLike, R: ArrayLike, *, level: float = 0.001, max_removals: int | None = None,
-                  keep: ArrayLike | None = None, rcond: float = 1e-10) -> SnoopingOutcome:
+def data_snooping(
+    A: ArrayLike,
+    y: ArrayLike,
+    R: ArrayLike,
+    *,
+    level: float = 0.001,
+    max_removals: int | None = None,
+    keep: ArrayLike | None = None,
+    rcond: float = 1e-10,
+) -> SnoopingOutcome:
     """Centralized iterative data snooping: remove the observation with the largest |w| above the critical value,
     re-solve, repeat until nothing is flagged (or ``max_removals``, or no observation may go without losing rank).
 
@@ -223,6 +239,13 @@ def data_snooping(A: ArrayLike, y: ArrayLike, R: ArrayLike, *, level: float = 0.
     flagged = np.zeros(m, dtype=bool)
     flagged[active] = np.abs(np.nan_to_num(w)) > k
     redundancy = len(active) - rank
-    return SnoopingOutcome(x=x, covariance=Qx, w=w_all, removed=tuple(removed), flagged=flagged,
-                           variance_factor=variance_factor(float(e @ Ri @ e), redundancy), redundancy=redundancy,
-                           critical_value=k)
+    return SnoopingOutcome(
+        x=x,
+        covariance=Qx,
+        w=w_all,
+        removed=tuple(removed),
+        flagged=flagged,
+        variance_factor=variance_factor(float(e @ Ri @ e), redundancy),
+        redundancy=redundancy,
+        critical_value=k,
+    )

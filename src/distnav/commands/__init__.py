@@ -17,12 +17,20 @@ from distnav.options import positive_int
 def add_backend_arguments(parser: argparse.ArgumentParser) -> None:
     """``--backend`` and ``--ranks``, the same for ``distnav reproduce``, ``demo`` and the commands (the CLI checks
     that ``--ranks`` comes with ``--backend mpi`` and that the ``mpi`` extra is installed before any work)."""
-    parser.add_argument("--backend", choices=["inprocess", "mpi"], default="inprocess",
-                        help="message transport: in-process simulator (default) or MPI "
-                             "(launch with mpiexec -n N python -m mpi4py -m distnav ...)")
-    parser.add_argument("--ranks", type=positive_int, default=None,
-                        help="with --backend mpi: the number of ranks you launched; distnav stops if MPI reports "
-                             "another (a mismatched mpiexec silently starts N one-process jobs)")
+    parser.add_argument(
+        "--backend",
+        choices=["inprocess", "mpi"],
+        default="inprocess",
+        help="message transport: in-process simulator (default) or MPI "
+        "(launch with mpiexec -n N python -m mpi4py -m distnav ...)",
+    )
+    parser.add_argument(
+        "--ranks",
+        type=positive_int,
+        default=None,
+        help="with --backend mpi: the number of ranks you launched; distnav stops if MPI reports "
+        "another (a mismatched mpiexec silently starts N one-process jobs)",
+    )
 
 
 def command_exchange(args: argparse.Namespace, graph: Graph) -> Exchange:

@@ -60,8 +60,9 @@ def load_edges(path: Path, stations: list[str]) -> Any:
                 if no == 1:
                     continue  # header line
                 unknown = [c for c in (a, b) if c not in index]
-                raise DataFileError(f"{path}, line {no}: unknown station {', '.join(unknown)} "
-                                    f"(stations: {', '.join(stations)})")
+                raise DataFileError(
+                    f"{path}, line {no}: unknown station {', '.join(unknown)} (stations: {', '.join(stations)})"
+                )
             if a == b:
                 raise DataFileError(f"{path}, line {no}: a link from {a} to itself")
             links.append((index[a], index[b]))
@@ -85,7 +86,7 @@ def default_graph(positions_ecef_m: np.ndarray, stations: list[str], k: int = 2)
         mst = minimum_spanning_tree(d + 1e-9 * (1 - np.eye(n))).tocoo()
         links |= {(min(i, j), max(i, j)) for i, j in zip(mst.row.tolist(), mst.col.tolist(), strict=True)}
         for i in range(n):
-            for j in np.argsort(d[i])[1:k + 1].tolist():
+            for j in np.argsort(d[i])[1 : k + 1].tolist():
                 links.add((min(i, j), max(i, j)))
     return Graph.from_links(n, sorted(links), names=stations)
 
@@ -119,9 +120,12 @@ def _run_codebias(args: argparse.Namespace) -> int:
     obs = []
     for f in args.obs:
         o = read_code_observations(Path(f), bands=(1, 2, 5), codes=codes, tlim=tlim, interval_s=args.interval)
-        _say(args, f"read {o.station}: {o.n_epochs} epochs, codes "
-                   f"{' '.join(o.codes[b] for b in (1, 2, 5))}, {len(o.satellites_with_all_bands())} satellites "
-                   f"with L1/L2/L5" + (f" ({'; '.join(o.notes)})" if o.notes else ""))
+        _say(
+            args,
+            f"read {o.station}: {o.n_epochs} epochs, codes "
+            f"{' '.join(o.codes[b] for b in (1, 2, 5))}, {len(o.satellites_with_all_bands())} satellites "
+            f"with L1/L2/L5" + (f" ({'; '.join(o.notes)})" if o.notes else ""),
+        )
         obs.append(o)
     if args.reference:
         names = [o.station for o in obs]
@@ -131,13 +135,16 @@ def _run_codebias(args: argparse.Namespace) -> int:
         obs.insert(0, obs.pop(names.index(ref)))
     if args.nav and len(args.nav) > 1:
         raise ModelError("gnss codebias takes one --nav file")
-    orbit = (read_navigation(Path(args.nav[0]), max_age_s=args.nav_max_age * 3600.0) if args.nav
-             else read_sp3([Path(p) for p in args.sp3]))
-    data = codebias_data_from_observations(obs, orbit, sigma0_m=args.sigma, weighting=args.weighting,
-                                           mask_rad=np.deg2rad(args.mask))
+    orbit = (
+        read_navigation(Path(args.nav[0]), max_age_s=args.nav_max_age * 3600.0)
+        if args.nav
+        else read_sp3([Path(p) for p in args.sp3])
+    )
+    data = codebias_data_from_observations(
+        obs, orbit, sigma0_m=args.sigma, weighting=args.weighting, mask_rad=np.deg2rad(args.mask)
+    )
     if data.meta.get("no_orbit"):
-        _say(args, f"no valid orbit (unhealthy or missing ephemeris) for {', '.join(data.meta['no_orbit'])}: "
-                   f"not used")
+        _say(args, f"no valid orbit (unhealthy or missing ephemeris) for {', '.join(data.meta['no_orbit'])}: not used")
     data.check()
     stations = list(data.stations)
     sol = data.centralized(check=False)
@@ -148,13 +155,25 @@ def _run_codebias(args: argparse.Namespace) -> int:
     admm_x = np.broadcast_to(sol.x_m, (len(stations), len(data.svs)))
     admm_info: dict[str, Any] = {"skipped": "a single station has no network to iterate over"}
     if len(stations) > 1:
-        res = admm(problem, graph, W=args.rho, max_iterations=args.iterations, tol=0.0, reference=x_blue,
-                   record_nodes=False, exchange=command_exchange(args, graph))
+        res = admm(
+            problem,
+            graph,
+            W=args.rho,
+            max_iterations=args.iterations,
+            tol=0.0,
+            reference=x_blue,
+            record_nodes=False,
+            exchange=command_exchange(args, graph),
+        )
         dist_m = float(res.trace["max_distance_to_reference"][-1])
         admm_x = res.estimates
-        admm_info = {"rho": args.rho, "rho_scale": "epoch", "iterations": res.iterations,
-                     "max_distance_to_centralized_ns": dist_m / NS_TO_M,
-                     "constraint_nodes": [stations[i] for i in res.constraint_nodes.nodes]}
+        admm_info = {
+            "rho": args.rho,
+            "rho_scale": "epoch",
+            "iterations": res.iterations,
+            "max_distance_to_centralized_ns": dist_m / NS_TO_M,
+            "constraint_nodes": [stations[i] for i in res.constraint_nodes.nodes],
+        }
     counts = data.observation_counts()
     c = codebias_coefficients()
     out = Path(args.out)
@@ -170,11 +189,13 @@ def _run_codebias(args: argparse.Namespace) -> int:
         "no_orbit": data.meta.get("no_orbit", []),
         "epochs": data.n_epochs,
         "first_epoch": str(np.asarray(obs[0].time)[0]) if obs[0].n_epochs else None,
-        "mask_deg": args.mask, "sigma0_m": args.sigma, "weighting": args.weighting,
+        "mask_deg": args.mask,
+        "sigma0_m": args.sigma,
+        "weighting": args.weighting,
         "mu": mu_coefficients((1, 2, 5)).tolist(),
         "coefficients": c.tolist(),
         "definition": "x_s = b^s + b_ref with b = c1*d1 + c2*d2 + d3 = -c2*DSB(L1-L2) - DSB(L1-L5) "
-                      "(paper 000 eq. (24), S-basis of Sect. 5.1; additive code biases as in Bias-SINEX)",
+        "(paper 000 eq. (24), S-basis of Sect. 5.1; additive code biases as in Bias-SINEX)",
         "satellites": list(data.svs),
         "x_ns": dict(zip(data.svs, sol.x_ns.tolist(), strict=True)),
         "sigma_ns": dict(zip(data.svs, sol.sigma_ns.tolist(), strict=True)),
@@ -184,11 +205,15 @@ def _run_codebias(args: argparse.Namespace) -> int:
     }
     atomic_write_text(out / "codebias.csv", "\n".join(rows) + "\n")
     atomic_write_json(out / "codebias.json", report)
-    msg = (f"{len(data.svs)} satellite code biases (reference {stations[data.reference]}), σ "
-           f"{np.median(sol.sigma_ns):.3f} ns median")
+    msg = (
+        f"{len(data.svs)} satellite code biases (reference {stations[data.reference]}), σ "
+        f"{np.median(sol.sigma_ns):.3f} ns median"
+    )
     if "iterations" in admm_info:
-        msg += (f"; ADMM ({admm_info['iterations']} it., ρ = {args.rho}) within "
-                f"{admm_info['max_distance_to_centralized_ns']:.2g} ns of the centralized solution")
+        msg += (
+            f"; ADMM ({admm_info['iterations']} it., ρ = {args.rho}) within "
+            f"{admm_info['max_distance_to_centralized_ns']:.2g} ns of the centralized solution"
+        )
     _say(args, msg)
     print(f"written {out / 'codebias.csv'} and {out / 'codebias.json'}")
     if args.bias:
@@ -227,9 +252,10 @@ def compare_with_products(estimates: dict[str, Any], bias_files: list[Path]) -> 
             continue
         per_sat[sv] = {"estimate_ns": x, "product_ns": float(-c[1] * d12 - d15), "chain": ch12 + ch15}
     if not per_sat:
-        raise ModelError(f"no satellite in common between the estimates ({', '.join(x_ns)}) and "
-                         f"{', '.join(p.name for p in products)} for {l1}/{l2}/{l5}: " + "; ".join(
-                             list(missing.values())[:3]))
+        raise ModelError(
+            f"no satellite in common between the estimates ({', '.join(x_ns)}) and "
+            f"{', '.join(p.name for p in products)} for {l1}/{l2}/{l5}: " + "; ".join(list(missing.values())[:3])
+        )
     svs = sorted(per_sat)
     diff = np.array([per_sat[s]["estimate_ns"] - per_sat[s]["product_ns"] for s in svs])
     zm = diff - diff.mean()
@@ -239,23 +265,31 @@ def compare_with_products(estimates: dict[str, Any], bias_files: list[Path]) -> 
         "codes": codes,
         "n_common": len(svs),
         "missing": missing,
-        "zero_mean": {"offset_ns": float(diff.mean()),
-                      "differences_ns": dict(zip(svs, zm.tolist(), strict=True)),
-                      "rms_ns": float(np.sqrt(np.mean(zm**2))), "max_abs_ns": float(np.abs(zm).max())},
+        "zero_mean": {
+            "offset_ns": float(diff.mean()),
+            "differences_ns": dict(zip(svs, zm.tolist(), strict=True)),
+            "rms_ns": float(np.sqrt(np.mean(zm**2))),
+            "max_abs_ns": float(np.abs(zm).max()),
+        },
         "satellites": per_sat,
     }
     other_codes = {s: v for s, v in estimates["codes"].items() if v != codes}
     if other_codes:
-        out["warning"] = (f"stations track other codes than the reference ({other_codes}); the estimates mix their "
-                          f"satellite biases")
+        out["warning"] = (
+            f"stations track other codes than the reference ({other_codes}); the estimates mix their satellite biases"
+        )
     try:
         r12, _ = resolve_dsb(products, l1, l2, station=ref)
         r15, _ = resolve_dsb(products, l1, l5, station=ref)
         b_ref = float(-c[1] * r12 - r15)
         sb = diff - b_ref
-        out["s_basis"] = {"reference_bias_ns": b_ref, "differences_ns": dict(zip(svs, sb.tolist(), strict=True)),
-                          "rms_ns": float(np.sqrt(np.mean(sb**2))), "mean_ns": float(sb.mean()),
-                          "max_abs_ns": float(np.abs(sb).max())}
+        out["s_basis"] = {
+            "reference_bias_ns": b_ref,
+            "differences_ns": dict(zip(svs, sb.tolist(), strict=True)),
+            "rms_ns": float(np.sqrt(np.mean(sb**2))),
+            "mean_ns": float(sb.mean()),
+            "max_abs_ns": float(np.abs(sb).max()),
+        }
     except ModelError as exc:
         out["s_basis"] = {"unavailable": str(exc)}
     return out
@@ -264,15 +298,19 @@ def compare_with_products(estimates: dict[str, Any], bias_files: list[Path]) -> 
 def _print_comparison(summary: dict[str, Any]) -> None:
     names = ", ".join(Path(p).name[:3] for p in summary["products"])
     codes = summary["codes"]
-    print(f"\ncomparison with {names} ({codes['L1']}/{codes['L2']}/{codes['L5']}, reference "
-          f"{summary['reference_station']}, {summary['n_common']} common satellites; estimate − product, ns)")
+    print(
+        f"\ncomparison with {names} ({codes['L1']}/{codes['L2']}/{codes['L5']}, reference "
+        f"{summary['reference_station']}, {summary['n_common']} common satellites; estimate − product, ns)"
+    )
     zm = summary["zero_mean"]["differences_ns"]
     sb = summary["s_basis"].get("differences_ns", {})
     print("  sat    zero-mean   S-basis")
     for s in sorted(zm):
         print(f"  {s}  {zm[s]:9.3f}  {sb[s]:9.3f}" if s in sb else f"  {s}  {zm[s]:9.3f}        -")
-    print(f"  RMS    {summary['zero_mean']['rms_ns']:7.3f}  " + (f"{summary['s_basis']['rms_ns']:9.3f}" if sb else
-                                                              "        -"))
+    print(
+        f"  RMS    {summary['zero_mean']['rms_ns']:7.3f}  "
+        + (f"{summary['s_basis']['rms_ns']:9.3f}" if sb else "        -")
+    )
     if "warning" in summary:
         print(f"  note: {summary['warning']}")
 
@@ -292,8 +330,12 @@ def _run_compare(args: argparse.Namespace) -> int:
     path = Path(args.estimates)
     if path.is_dir() and (path / "multiday.json").exists():
         return _run_compare_days(args, path)
-    if (path.is_dir() and (path / "summary.json").exists()) or path.name == "summary.json" or \
-            ".bia" in path.name.lower() or ".bsx" in path.name.lower():
+    if (
+        (path.is_dir() and (path / "summary.json").exists())
+        or path.name == "summary.json"
+        or ".bia" in path.name.lower()
+        or ".bsx" in path.name.lower()
+    ):
         return _run_compare_dsb(args, path)
     if path.is_dir():
         path = path / "codebias.json"
@@ -336,8 +378,9 @@ def _run_compare_days(args: argparse.Namespace, path: Path) -> int:
                 rms.setdefault(name.split()[0], []).append(c["rms_zero_mean_ns"])
     result["median_rms_zero_mean_ns"] = {k: float(np.median(v)) for k, v in rms.items()}
     for k, v in rms.items():
-        print(f"{k}: RMS (zero-mean) median over {len(v)} days {np.median(v):.3f} ns "
-              f"(range {min(v):.3f} – {max(v):.3f})")
+        print(
+            f"{k}: RMS (zero-mean) median over {len(v)} days {np.median(v):.3f} ns (range {min(v):.3f} – {max(v):.3f})"
+        )
     if args.out:
         atomic_write_json(Path(args.out) / "comparison.json", result)
         print(f"written {Path(args.out) / 'comparison.json'}")
@@ -361,24 +404,34 @@ def _compare_dsb(args: argparse.Namespace, path: Path, bias: list[str]) -> dict[
 
     est = read_estimates(path, filter_label=args.filter)
     products = product_dsbs(bias, sorted(est.satellite), sorted(est.station), est.obs1, est.obs2)
-    result: dict[str, Any] = {"estimates": est.source, "codes": [est.obs1, est.obs2], "filter": args.filter,
-                              "products": {}}
+    result: dict[str, Any] = {
+        "estimates": est.source,
+        "codes": [est.obs1, est.obs2],
+        "filter": args.filter,
+        "products": {},
+    }
     for prod in products:
         if prod.day is not None and est.days and prod.day not in est.days and not args.allow_other_day:
-            raise ModelError(f"{prod.path.name}: a product of {prod.day}, the estimates are of "
-                             f"{', '.join(str(d) for d in est.days)} (--allow-other-day to compare anyway)")
+            raise ModelError(
+                f"{prod.path.name}: a product of {prod.day}, the estimates are of "
+                f"{', '.join(str(d) for d in est.days)} (--allow-other-day to compare anyway)"
+            )
         r = compare_in_datum(est.satellite, est.station, prod, exclude=[e.upper() for e in args.exclude or []])
         r["notes"] = prod.notes
         result["products"][prod.name] = r
-        print(f"\n{est.obs1}-{est.obs2} DSBs vs {prod.name} (estimate − product after aligning the datum over "
-              f"{r.get('n', 0)} common satellites, ns)")
+        print(
+            f"\n{est.obs1}-{est.obs2} DSBs vs {prod.name} (estimate − product after aligning the datum over "
+            f"{r.get('n', 0)} common satellites, ns)"
+        )
         if not r.get("n"):
             print(f"  {r.get('note')}")
             continue
         for sv, d in sorted(r["difference_ns"].items()):
             print(f"  {sv}  {d:+8.3f}")
-        print(f"  datum offset {r['datum_offset_ns']:+.3f}   RMS {r['rms_zero_mean_ns']:.3f}   max "
-              f"{r['max_abs_zero_mean_ns']:.3f} ({r['worst']})")
+        print(
+            f"  datum offset {r['datum_offset_ns']:+.3f}   RMS {r['rms_zero_mean_ns']:.3f}   max "
+            f"{r['max_abs_zero_mean_ns']:.3f} ({r['worst']})"
+        )
         for sta, d in r.get("receivers", {}).get("difference_ns", {}).items():
             print(f"  receiver {sta}  {d:+8.3f}")
         if r.get("receivers_not_in_product"):
@@ -396,15 +449,29 @@ def _say(args: argparse.Namespace, text: str) -> None:
 def add_data_arguments(parser: argparse.ArgumentParser, *, obs_note: str = "") -> None:
     """The data options every real-data GNSS command shares: --obs, --nav | --sp3, --nav-max-age, --graph,
     --tlim, --interval, --mask."""
-    parser.add_argument("--obs", nargs="+", required=True, metavar="FILE",
-                        help=f"RINEX 2.11/3.x observation files (.o/.d/.crx, gzip ok), one per station{obs_note}")
+    parser.add_argument(
+        "--obs",
+        nargs="+",
+        required=True,
+        metavar="FILE",
+        help=f"RINEX 2.11/3.x observation files (.o/.d/.crx, gzip ok), one per station{obs_note}",
+    )
     orbit = parser.add_mutually_exclusive_group(required=True)
-    orbit.add_argument("--nav", nargs="+", metavar="FILE",
-                       help="RINEX navigation file (broadcast ephemerides); one per day for several days")
+    orbit.add_argument(
+        "--nav",
+        nargs="+",
+        metavar="FILE",
+        help="RINEX navigation file (broadcast ephemerides); one per day for several days",
+    )
     orbit.add_argument("--sp3", nargs="+", metavar="FILE", help="SP3 orbit files")
-    parser.add_argument("--nav-max-age", type=float, default=4.0, metavar="HOURS",
-                        help="use a broadcast record up to this far from its toe (default 4 h; elevations only need "
-                             "km accuracy, so a sparse station nav file may need more)")
+    parser.add_argument(
+        "--nav-max-age",
+        type=float,
+        default=4.0,
+        metavar="HOURS",
+        help="use a broadcast record up to this far from its toe (default 4 h; elevations only need "
+        "km accuracy, so a sparse station nav file may need more)",
+    )
     parser.add_argument("--graph", metavar="EDGES.csv", help="links as station-name pairs (default: MST + 2 nearest)")
     parser.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")
     parser.add_argument("--interval", type=float, default=None, help="keep epochs on this grid [s] (e.g. 60)")
@@ -426,9 +493,13 @@ def check_data_arguments(args: argparse.Namespace) -> None:
             raise ModelError(f"--tlim {' '.join(args.tlim)}: not ISO date/times (e.g. 2024-01-10T06:00)") from None
         if not t0 < t1:
             raise ModelError(f"--tlim {' '.join(args.tlim)}: the start must be before the stop")
-    for opt, files in (("--obs", args.obs), ("--nav", args.nav), ("--sp3", args.sp3),
-                       ("--graph", [args.graph] if args.graph else None),
-                       ("--bias", getattr(args, "bias", None))):
+    for opt, files in (
+        ("--obs", args.obs),
+        ("--nav", args.nav),
+        ("--sp3", args.sp3),
+        ("--graph", [args.graph] if args.graph else None),
+        ("--bias", getattr(args, "bias", None)),
+    ):
         for f in files or []:
             if not Path(f).is_file():
                 raise DataFileError(f"{opt} {f}: file not found")
@@ -454,8 +525,12 @@ def register(subparsers: Any) -> None:
     gnss = subparsers.add_parser("gnss", help="real-data GNSS commands (code biases, ionosphere)")
     sub = gnss.add_subparsers(dest="gnss_command", required=True)
 
-    cb = sub.add_parser("codebias", help="satellite code biases from L1/L2/L5 RINEX code data (paper 000 §5)",
-                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    cb = sub.add_parser(
+        "codebias",
+        help="satellite code biases from L1/L2/L5 RINEX code data (paper 000 §5)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     add_data_arguments(cb, obs_note="; the first is the S-basis reference unless --reference")
     cb.add_argument("--out", default="distnav-codebias", help="output folder (default distnav-codebias)")
     add_backend_arguments(cb)
@@ -470,15 +545,26 @@ def register(subparsers: Any) -> None:
     cb.set_defaults(func=_run_codebias)
 
     cmp_ = sub.add_parser("compare", help="compare estimated code biases with Bias-SINEX products")
-    cmp_.add_argument("--estimates", required=True,
-                      help="codebias.json (or its folder) of `distnav gnss codebias`, the output folder or "
-                           "summary.json of `distnav gnss ionosphere`, or a Bias-SINEX file (e.g. its distnav_dsb.bia)")
-    cmp_.add_argument("--bias", nargs="+", required=True, metavar="FILE",
-                      help="Bias-SINEX files (.BIA/.BSX, gzip ok) or IONEX files with a DCB block; DSBs missing "
-                           "from the first are taken from the next (e.g. GFZ C1W-C2W completed with CAS C1C-C1W)")
+    cmp_.add_argument(
+        "--estimates",
+        required=True,
+        help="codebias.json (or its folder) of `distnav gnss codebias`, the output folder or "
+        "summary.json of `distnav gnss ionosphere`, or a Bias-SINEX file (e.g. its distnav_dsb.bia)",
+    )
+    cmp_.add_argument(
+        "--bias",
+        nargs="+",
+        required=True,
+        metavar="FILE",
+        help="Bias-SINEX files (.BIA/.BSX, gzip ok) or IONEX files with a DCB block; DSBs missing "
+        "from the first are taken from the next (e.g. GFZ C1W-C2W completed with CAS C1C-C1W)",
+    )
     cmp_.add_argument("--out", help="write comparison.json here")
-    cmp_.add_argument("--filter", default="central",
-                      help="which filter of a `gnss ionosphere` output to compare (central, ckf:STA, local:STA)")
+    cmp_.add_argument(
+        "--filter",
+        default="central",
+        help="which filter of a `gnss ionosphere` output to compare (central, ckf:STA, local:STA)",
+    )
     cmp_.add_argument("--exclude", nargs="+", metavar="SAT", help="satellites left out of the statistics (e.g. G01)")
     cmp_.add_argument("--allow-other-day", action="store_true", help="compare with a product of another day")
     cmp_.set_defaults(func=_run_compare)

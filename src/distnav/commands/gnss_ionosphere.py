@@ -69,8 +69,10 @@ def validate_arguments(args: argparse.Namespace) -> None:
     if args.datum == "pivot" and args.pivot is None:
         raise ModelError("--datum pivot needs --pivot PRN (e.g. --pivot G10)")
     if args.pivot is not None and args.datum != "pivot":
-        raise ModelError(f"--pivot {args.pivot} is the pivot of --datum pivot; the datum is {args.datum} (add "
-                         f"--datum pivot, or leave --pivot out)")
+        raise ModelError(
+            f"--pivot {args.pivot} is the pivot of --datum pivot; the datum is {args.datum} (add "
+            f"--datum pivot, or leave --pivot out)"
+        )
     if args.l1_code is not None and not _L1_CODE.match(args.l1_code.upper()):
         raise ModelError(f"--l1-code {args.l1_code}: not a GPS L1 code (C1C, C1W, C1L, C1X …)")
     if not _LB_CODE.match(args.l2_code.upper()):
@@ -113,21 +115,40 @@ def _check_tlim_days(args: argparse.Namespace) -> None:
         return
     days = [product_day(f) for f in args.obs]
     if any(d is None for d in days):
-        return                                   # a name without a day: the reader finds out
+        return  # a name without a day: the reader finds out
     t0, t1 = (np.datetime64(t, "s") for t in args.tlim)
     if not any(t0 < d + np.timedelta64(1, "D") and t1 > d for d in days if d is not None):
-        raise ModelError(f"--tlim {' '.join(args.tlim)}: outside the day(s) of the --obs files "
-                         f"({', '.join(sorted({str(d) for d in days}))})")
+        raise ModelError(
+            f"--tlim {' '.join(args.tlim)}: outside the day(s) of the --obs files "
+            f"({', '.join(sorted({str(d) for d in days}))})"
+        )
 
 
-def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = "C1C", l2_code: str = "C2W",
-                 tlim: tuple[str, str] | None = None, interval_s: float | None = None, mask_deg: float = 10.0,
-                 ionosphere: str = "auto", regional_km: float = REGIONAL_KM, sigma_zenith_m: float | None = None,
-                 weighting: str = "sin", reference: str | None = None, progress: Any = None,
-                 exclude: Sequence[str] = (), levelling: bool = True, min_arc_epochs: int = 10,
-                 gf_threshold_m: float = 0.05, screen: bool = True, c1_corrections: str | None = None,
-                 tec_rw_m_per_sqrt_s: float | None = None, min_satellite_obs: int | None = None,
-                 **model: Any) -> Any:
+def network_data(
+    obs_files: Sequence[str | Path],
+    orbit: Any,
+    *,
+    l1_code: str = "C1C",
+    l2_code: str = "C2W",
+    tlim: tuple[str, str] | None = None,
+    interval_s: float | None = None,
+    mask_deg: float = 10.0,
+    ionosphere: str = "auto",
+    regional_km: float = REGIONAL_KM,
+    sigma_zenith_m: float | None = None,
+    weighting: str = "sin",
+    reference: str | None = None,
+    progress: Any = None,
+    exclude: Sequence[str] = (),
+    levelling: bool = True,
+    min_arc_epochs: int = 10,
+    gf_threshold_m: float = 0.05,
+    screen: bool = True,
+    c1_corrections: str | None = None,
+    tec_rw_m_per_sqrt_s: float | None = None,
+    min_satellite_obs: int | None = None,
+    **model: Any,
+) -> Any:
     """Read the stations, form the geometry-free code on the union of their epochs and build the bias model
     (:func:`distnav.models.gnss.gfnetwork.bias_network_model`). ``exclude``: satellites (``G01``) and stations
     (``BELE``) left out. ``levelling``: carrier-to-code levelling per arc on the full-rate data, then the
@@ -136,31 +157,68 @@ def network_data(obs_files: Sequence[str | Path], orbit: Any, *, l1_code: str = 
     without any epoch with both codes."""
     from distnav.models.gnss.gfnetwork import read_stations
 
-    obs = read_stations(list(obs_files), l1_code=l1_code, l2_code=l2_code, tlim=tlim,
-                        interval_s=None if levelling else interval_s, phases=levelling, progress=progress,
-                        l1_fallback="C1W" if c1_corrections else None)
-    own = {o.station: dict(o.codes) for o in obs}          # the receivers' own codes (their DSBs' code pair)
+    obs = read_stations(
+        list(obs_files),
+        l1_code=l1_code,
+        l2_code=l2_code,
+        tlim=tlim,
+        interval_s=None if levelling else interval_s,
+        phases=levelling,
+        progress=progress,
+        l1_fallback="C1W" if c1_corrections else None,
+    )
+    own = {o.station: dict(o.codes) for o in obs}  # the receivers' own codes (their DSBs' code pair)
     if c1_corrections:
         from distnav.models.gnss.products import correct_c1
 
         obs = [correct_c1(o, c1_corrections) if o.codes.get(1) == "C1C" else o for o in obs]
-    data = network_from_observations(obs, orbit, l2_code=l2_code, interval_s=interval_s, mask_deg=mask_deg,
-                                     ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
-                                     weighting=weighting, reference=reference, exclude=exclude, levelling=levelling,
-                                     min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen,
-                                     tec_rw_m_per_sqrt_s=tec_rw_m_per_sqrt_s, min_satellite_obs=min_satellite_obs,
-                                     **model)
+    data = network_from_observations(
+        obs,
+        orbit,
+        l2_code=l2_code,
+        interval_s=interval_s,
+        mask_deg=mask_deg,
+        ionosphere=ionosphere,
+        regional_km=regional_km,
+        sigma_zenith_m=sigma_zenith_m,
+        weighting=weighting,
+        reference=reference,
+        exclude=exclude,
+        levelling=levelling,
+        min_arc_epochs=min_arc_epochs,
+        gf_threshold_m=gf_threshold_m,
+        screen=screen,
+        tec_rw_m_per_sqrt_s=tec_rw_m_per_sqrt_s,
+        min_satellite_obs=min_satellite_obs,
+        **model,
+    )
     return replace(data, codes={s: own[s] for s in data.stations})
 
 
-def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = "C2W",
-                              interval_s: float | None = None, mask_deg: float = 10.0, ionosphere: str = "auto",
-                              regional_km: float = REGIONAL_KM, sigma_zenith_m: float | None = None,
-                              weighting: str = "sin", reference: str | None = None, exclude: Sequence[str] = (),
-                              levelling: bool = True, min_arc_epochs: int = 10, gf_threshold_m: float = 0.05,
-                              screen: bool = True, tec_rw_m_per_sqrt_s: float | None = None,
-                              min_satellite_obs: int | None = None, arc_correlation_s: float | None = None,
-                              tec_order: int = 1, mapping: str = "slm", station_weights: str = "auto") -> Any:
+def network_from_observations(
+    obs: Sequence[Any],
+    orbit: Any,
+    *,
+    l2_code: str = "C2W",
+    interval_s: float | None = None,
+    mask_deg: float = 10.0,
+    ionosphere: str = "auto",
+    regional_km: float = REGIONAL_KM,
+    sigma_zenith_m: float | None = None,
+    weighting: str = "sin",
+    reference: str | None = None,
+    exclude: Sequence[str] = (),
+    levelling: bool = True,
+    min_arc_epochs: int = 10,
+    gf_threshold_m: float = 0.05,
+    screen: bool = True,
+    tec_rw_m_per_sqrt_s: float | None = None,
+    min_satellite_obs: int | None = None,
+    arc_correlation_s: float | None = None,
+    tec_order: int = 1,
+    mapping: str = "slm",
+    station_weights: str = "auto",
+) -> Any:
     """:func:`network_data` from observations already read (:class:`~distnav.models.gnss.rinex.CodeObservations`
     with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid).
     ``arc_correlation_s``: the levelled code's σ per arc from :func:`~distnav.models.gnss.gfnetwork.arc_sigma_scale`
@@ -183,8 +241,14 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
         raise DataFileError("every station is excluded")
     stations = [o.station for o in obs]
     notes = [f"{o.station}: {n}" for o in obs for n in o.notes]
-    levelled = {o.station: _level(o, orbit, band, mask_deg, min_arc_epochs, gf_threshold_m, screen, i)
-                for i, o in enumerate(obs)} if levelling else {}
+    levelled = (
+        {
+            o.station: _level(o, orbit, band, mask_deg, min_arc_epochs, gf_threshold_m, screen, i)
+            for i, o in enumerate(obs)
+        }
+        if levelling
+        else {}
+    )
     if levelling and interval_s:
         from distnav.models.gnss.rinex_obs import on_grid
 
@@ -209,33 +273,52 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, *, l2_code: str = 
             arcs = levelled[o.station].arc[keep_t][:, cols]
             scale[np.ix_(ti, np.array([i]), si)] *= arc_sigma_scale(arcs, t_all[ti], corr_s)[:, None, :]
         if not (np.isfinite(o.range_m[1]) & np.isfinite(o.range_m[band])).any():
-            raise DataFileError(f"{o.path}: no epoch with a GPS satellite on both {o.codes[1]} and {o.codes[band]} "
-                                f"(missing frequency?)")
+            raise DataFileError(
+                f"{o.path}: no epoch with a GPS satellite on both {o.codes[1]} and {o.codes[band]} (missing frequency?)"
+            )
     if excl:
         notes.append(f"excluded: {' '.join(sorted(excl))}")
     codes = {o.station: dict(o.codes) for o in obs}
     xyz = np.stack([o.position_ecef_m for o in obs])
     for sta, lev in levelled.items():
         n_rm = int(lev.removed.sum())
-        notes.append(f"{sta}: levelled {len(lev.arcs)} arcs (starts: "
-                     f"{', '.join(f'{k} {v}' for k, v in sorted(lev.starts.items()))}; {lev.dropped_short} shorter "
-                     f"than {min_arc_epochs} epochs dropped); screening removed {n_rm} code observations")
-    data = bias_network_model(stations, t_all, xyz, gf, svs_all, orbit, band=band, codes=codes, mask_deg=mask_deg,
-                              ionosphere=ionosphere, regional_km=regional_km, sigma_zenith_m=sigma_zenith_m,
-                              weighting=weighting, reference=reference, notes=notes,
-                              paths=[str(o.path) for o in obs],
-                              vtec_rw_m_per_sqrt_s=TEC_RW_M_PER_SQRT_S if tec_rw_m_per_sqrt_s is None
-                              else tec_rw_m_per_sqrt_s,
-                              min_satellite_obs=min_satellite_obs, sigma_scale=scale, tec_order=tec_order,
-                              mapping=mapping, station_weighting=station_weights,
-                              station_sigma=station_sigma_factors([levelled[o.station] for o in obs]) if levelling
-                              else None)
+        notes.append(
+            f"{sta}: levelled {len(lev.arcs)} arcs (starts: "
+            f"{', '.join(f'{k} {v}' for k, v in sorted(lev.starts.items()))}; {lev.dropped_short} shorter "
+            f"than {min_arc_epochs} epochs dropped); screening removed {n_rm} code observations"
+        )
+    data = bias_network_model(
+        stations,
+        t_all,
+        xyz,
+        gf,
+        svs_all,
+        orbit,
+        band=band,
+        codes=codes,
+        mask_deg=mask_deg,
+        ionosphere=ionosphere,
+        regional_km=regional_km,
+        sigma_zenith_m=sigma_zenith_m,
+        weighting=weighting,
+        reference=reference,
+        notes=notes,
+        paths=[str(o.path) for o in obs],
+        vtec_rw_m_per_sqrt_s=TEC_RW_M_PER_SQRT_S if tec_rw_m_per_sqrt_s is None else tec_rw_m_per_sqrt_s,
+        min_satellite_obs=min_satellite_obs,
+        sigma_scale=scale,
+        tec_order=tec_order,
+        mapping=mapping,
+        station_weighting=station_weights,
+        station_sigma=station_sigma_factors([levelled[o.station] for o in obs]) if levelling else None,
+    )
     arc_id = arc_ids_on_grid(obs, levelled, grids, data.t_gps_s, data.layout.svs) if levelling else None
     return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs}, arc_id=arc_id)
 
 
-def _level(o: Any, orbit: Any, band: int, mask_deg: float, min_arc_epochs: int, gf_threshold_m: float,
-           screen: bool, node: int) -> Any:
+def _level(
+    o: Any, orbit: Any, band: int, mask_deg: float, min_arc_epochs: int, gf_threshold_m: float, screen: bool, node: int
+) -> Any:
     """Level one station's geometry-free code per arc (σ of the code from the elevation: σ₀/sin θ)."""
     from distnav.models.gnss.geometry import azimuth_elevation
     from distnav.models.gnss.levelling import level_station
@@ -253,9 +336,22 @@ def _level(o: Any, orbit: Any, band: int, mask_deg: float, min_arc_epochs: int, 
     p1, pb = np.where(above, o.range_m[1], np.nan), np.where(above, o.range_m[band], np.nan)
     sigma = 1.0 / np.sin(np.where(above, el, 0.5 * np.pi))
     lli = o.lli.get(1, np.zeros(p1.shape, np.int8)) | o.lli.get(band, np.zeros(p1.shape, np.int8))
-    return level_station(t, o.svs, p1, pb, o.phase_m[1], o.phase_m[band], band=band, lli=lli, sigma_m=sigma,
-                         min_arc_epochs=min_arc_epochs, gf_threshold_m=gf_threshold_m, screen=screen,
-                         fallback_raw=True, node=node)
+    return level_station(
+        t,
+        o.svs,
+        p1,
+        pb,
+        o.phase_m[1],
+        o.phase_m[band],
+        band=band,
+        lli=lli,
+        sigma_m=sigma,
+        min_arc_epochs=min_arc_epochs,
+        gf_threshold_m=gf_threshold_m,
+        screen=screen,
+        fallback_raw=True,
+        node=node,
+    )
 
 
 def _iso(t_gps_s: float) -> str:
@@ -296,22 +392,38 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                 raise DataFileError(f"{b}: file not found")
     if args.nav and len(args.nav) > 1:
         raise ModelError(f"{len(args.nav)} --nav files for one day of observations: give one")
-    orbit = (read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0) if args.nav else read_sp3(args.sp3))
+    orbit = read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0) if args.nav else read_sp3(args.sp3)
     tlim = tuple(args.tlim) if args.tlim else None
 
     def progress(label: str, fraction: float) -> None:
         _say(args, f"reading {label}: {100 * fraction:3.0f} %")
 
     try:
-        data = network_data(args.obs, orbit, l1_code=l1, l2_code=l2, tlim=tlim,
-                            interval_s=args.interval, mask_deg=args.mask, ionosphere=args.ionosphere,
-                            regional_km=args.regional_km, sigma_zenith_m=args.sigma, weighting=args.weighting,
-                            reference=args.reference, progress=progress, exclude=args.exclude or (),
-                            levelling=args.levelling == "arc", min_arc_epochs=args.min_arc,
-                            gf_threshold_m=args.gf_threshold, screen=not args.no_screening,
-                            c1_corrections=args.c1_corrections, tec_rw_m_per_sqrt_s=args.tec_rw,
-                            min_satellite_obs=args.min_satellite_obs, mapping=args.mapping,
-                            tec_order=2 if args.tec_field == "quadratic" else 1)
+        data = network_data(
+            args.obs,
+            orbit,
+            l1_code=l1,
+            l2_code=l2,
+            tlim=tlim,
+            interval_s=args.interval,
+            mask_deg=args.mask,
+            ionosphere=args.ionosphere,
+            regional_km=args.regional_km,
+            sigma_zenith_m=args.sigma,
+            weighting=args.weighting,
+            reference=args.reference,
+            progress=progress,
+            exclude=args.exclude or (),
+            levelling=args.levelling == "arc",
+            min_arc_epochs=args.min_arc,
+            gf_threshold_m=args.gf_threshold,
+            screen=not args.no_screening,
+            c1_corrections=args.c1_corrections,
+            tec_rw_m_per_sqrt_s=args.tec_rw,
+            min_satellite_obs=args.min_satellite_obs,
+            mapping=args.mapping,
+            tec_order=2 if args.tec_field == "quadratic" else 1,
+        )
     except DataFileError as exc:
         if l1_note and f"({l1})" in str(exc):
             raise DataFileError(f"{exc} ({l1_note})") from None
@@ -322,8 +434,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     pivot = args.pivot.upper() if args.pivot else None
     if args.datum == "pivot":
         if pivot not in layout.svs:
-            raise ModelError(f"--pivot {pivot}: not tracked above the mask by any station (tracked: "
-                             f"{' '.join(layout.svs)})")
+            raise ModelError(
+                f"--pivot {pivot}: not tracked above the mask by any station (tracked: {' '.join(layout.svs)})"
+            )
     n = len(stations)
     if args.graph:
         from distnav.commands.gnss import load_edges
@@ -331,12 +444,22 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         graph = load_edges(Path(args.graph), stations)
     else:
         graph = _default_graph(data.positions_ecef_m, stations)
-    _say(args, f"{n} station(s), {data.series.n_epochs} epochs, {len(layout.svs)} satellites, datum {args.datum}, "
-               f"estimation basis: receiver {layout.reference}; ionosphere {data.ionosphere}; graph links "
-               f"{[(stations[i], stations[j]) for i, j in graph.links]}")
-    series, comm = run_bias_filters(data, datum=args.datum, pivot=pivot, reference=args.reference,
-                                    graph=graph, kn=args.kn, exchange=command_exchange(args, graph),
-                                    innovation_level=args.innovation_test)
+    _say(
+        args,
+        f"{n} station(s), {data.series.n_epochs} epochs, {len(layout.svs)} satellites, datum {args.datum}, "
+        f"estimation basis: receiver {layout.reference}; ionosphere {data.ionosphere}; graph links "
+        f"{[(stations[i], stations[j]) for i, j in graph.links]}",
+    )
+    series, comm = run_bias_filters(
+        data,
+        datum=args.datum,
+        pivot=pivot,
+        reference=args.reference,
+        graph=graph,
+        kn=args.kn,
+        exchange=command_exchange(args, graph),
+        innovation_level=args.innovation_test,
+    )
     obj = [f"rx:{r}" for r in stations] + list(layout.svs)
     out = Path(args.out)
     buf = io.StringIO()
@@ -344,8 +467,11 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     w.writerow(["time_gps", "filter", "parameter", "value", "std"])
     times = [_iso(t) for t in data.t_gps_s]
     nt = layout.n_tec_terms
-    tec_names = [nm for g in range(layout.n_ionospheres) for nm in ((f"{stations[g]}:" if layout.n_ionospheres > 1
-                                                                     else "") + t for t in TEC_NAMES_QUADRATIC[:nt])]
+    tec_names = [
+        nm
+        for g in range(layout.n_ionospheres)
+        for nm in ((f"{stations[g]}:" if layout.n_ionospheres > 1 else "") + t for t in TEC_NAMES_QUADRATIC[:nt])
+    ]
     for t, tt in enumerate(times):
         for s in series:
             for k, nm in enumerate(tec_names):
@@ -353,16 +479,28 @@ def run_ionosphere(args: argparse.Namespace) -> int:
                 if np.isfinite(x):
                     w.writerow([tt, s.label, nm, f"{x:.5f}", f"{sd:.5f}"])
                     if k % nt == 0:
-                        w.writerow([tt, s.label, nm.replace("vtec_m", "vtec_tecu"), f"{x / TECU_L1_M:.4f}",
-                                    f"{sd / TECU_L1_M:.4f}"])
+                        w.writerow(
+                            [
+                                tt,
+                                s.label,
+                                nm.replace("vtec_m", "vtec_tecu"),
+                                f"{x / TECU_L1_M:.4f}",
+                                f"{sd / TECU_L1_M:.4f}",
+                            ]
+                        )
             for k, nm in enumerate(obj):
                 x, sd = s.dsb_ns[t, k], s.dsb_std_ns[t, k]
                 if np.isfinite(x):
                     w.writerow([tt, s.label, f"dsb_ns:{nm}", f"{x:.4f}", f"{sd:.4f}"])
     atomic_write_text(out / "tec_dcb_per_epoch.csv", buf.getvalue())
 
-    finals = {s.label: ({o: float(v) for o, v in zip(obj, s.dsb_ns[-1].tolist(), strict=True)},
-                        {o: float(v) for o, v in zip(obj, s.dsb_std_ns[-1].tolist(), strict=True)}) for s in series}
+    finals = {
+        s.label: (
+            {o: float(v) for o, v in zip(obj, s.dsb_ns[-1].tolist(), strict=True)},
+            {o: float(v) for o, v in zip(obj, s.dsb_std_ns[-1].tolist(), strict=True)},
+        )
+        for s in series
+    }
     own = {sta: (c.get(1, l1), c.get(data.band, l2)) for sta, c in data.codes.items()}
     products = product_dsbs(args.bias, layout.svs, stations, l1, l2, station_codes=own) if args.bias else []
     _check_days(products, data.t_gps_s, args.allow_other_day)
@@ -376,8 +514,11 @@ def run_ionosphere(args: argparse.Namespace) -> int:
             comparison[prod.name][label] = compare_in_datum(sat, rx, prod, exclude=excl)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["object"] + [f"{s.label} {q}" for s in series for q in ("dsb_ns", "std_ns")] +
-               [f"{p.name} dsb_ns" for p in products])
+    w.writerow(
+        ["object"]
+        + [f"{s.label} {q}" for s in series for q in ("dsb_ns", "std_ns")]
+        + [f"{p.name} dsb_ns" for p in products]
+    )
     for o in obj:
         row_out = [o]
         for s in series:
@@ -391,37 +532,57 @@ def run_ionosphere(args: argparse.Namespace) -> int:
 
     c = series[0]
     summary: dict[str, Any] = {
-        "stations": stations, "codes": {"L1": l1, f"L{data.band}": l2}, "band": data.band,
-        "epochs": data.series.n_epochs, "first_epoch": times[0], "last_epoch": times[-1],
-        "satellites": list(layout.svs), "datum": args.datum, "pivot": pivot, "estimation_basis": layout.reference,
-        "ionosphere": data.ionosphere, "tec_parameters": tec_names,
-        "graph_links": [[stations[i], stations[j]] for i, j in graph.links], "kn": args.kn, "protocol": "P3",
-        "mask_deg": args.mask, "notes": data.notes, "station_codes": own,
-        "dcb_convention": f"DSB {l1}-{l2} in ns (Bias-SINEX sign: biases add to the observations), "
-                          f"datum {args.datum}",
-        "final_tec_m": {s.label: {nm: (float(s.tec[-1, k]), float(s.tec_std[-1, k]))
-                                  for k, nm in enumerate(tec_names)} for s in series},
+        "stations": stations,
+        "codes": {"L1": l1, f"L{data.band}": l2},
+        "band": data.band,
+        "epochs": data.series.n_epochs,
+        "first_epoch": times[0],
+        "last_epoch": times[-1],
+        "satellites": list(layout.svs),
+        "datum": args.datum,
+        "pivot": pivot,
+        "estimation_basis": layout.reference,
+        "ionosphere": data.ionosphere,
+        "tec_parameters": tec_names,
+        "graph_links": [[stations[i], stations[j]] for i, j in graph.links],
+        "kn": args.kn,
+        "protocol": "P3",
+        "mask_deg": args.mask,
+        "notes": data.notes,
+        "station_codes": own,
+        "dcb_convention": f"DSB {l1}-{l2} in ns (Bias-SINEX sign: biases add to the observations), datum {args.datum}",
+        "final_tec_m": {
+            s.label: {nm: (float(s.tec[-1, k]), float(s.tec_std[-1, k])) for k, nm in enumerate(tec_names)}
+            for s in series
+        },
         "final_dsb_ns": {label: v for label, (v, _) in finals.items()},
         "final_dsb_std_ns": {label: sd for label, (_, sd) in finals.items()},
         "variance_factor": {s.label: s.variance_factor for s in series},
         "innovations": {s.label: s.n_innovations for s in series},
         "lag1_correlation": {s.label: s.lag1_correlation for s in series},
-        "final_dsb_std_realistic_ns": {s.label: {k: v * s.realistic_factor for k, v in finals[s.label][1].items()}
-                                       for s in series},
-        "comparison": comparison, "messages": comm.as_dict() if comm is not None else {},
-        "first_estimable_epoch": {o: (times[int(np.argmax(np.isfinite(c.dsb_ns[:, k])))]
-                                      if np.isfinite(c.dsb_ns[:, k]).any() else None) for k, o in enumerate(obj)},
+        "final_dsb_std_realistic_ns": {
+            s.label: {k: v * s.realistic_factor for k, v in finals[s.label][1].items()} for s in series
+        },
+        "comparison": comparison,
+        "messages": comm.as_dict() if comm is not None else {},
+        "first_estimable_epoch": {
+            o: (times[int(np.argmax(np.isfinite(c.dsb_ns[:, k])))] if np.isfinite(c.dsb_ns[:, k]).any() else None)
+            for k, o in enumerate(obj)
+        },
     }
     if data.levelled:
         rows = ["station,satellite,first_epoch,last_epoch,n_epochs,start,offset_m,offset_std_m,code_rms_m,removed"]
         for sta, lev in data.levelled.items():
             for a in lev.arcs:
-                rows.append(f"{sta},{a.sv},{a.first},{a.last},{a.n_epochs},{a.start_reason},{a.offset_m:.4f},"
-                            f"{a.offset_std_m:.4f},{a.code_rms_m:.4f},{a.removed}")
+                rows.append(
+                    f"{sta},{a.sv},{a.first},{a.last},{a.n_epochs},{a.start_reason},{a.offset_m:.4f},"
+                    f"{a.offset_std_m:.4f},{a.code_rms_m:.4f},{a.removed}"
+                )
         atomic_write_text(out / "arcs.csv", "\n".join(rows) + "\n")
         summary["arcs"] = {sta: lev.arc_summary() for sta, lev in data.levelled.items()}
-        summary["screening"] = {sta: lev.screening_summary(data.levelled_svs[sta])
-                                for sta, lev in data.levelled.items()}
+        summary["screening"] = {
+            sta: lev.screening_summary(data.levelled_svs[sta]) for sta, lev in data.levelled.items()
+        }
     summary["precision"] = {s.label: s.precision.summary() for s in series if s.precision is not None}
     if (tests := innovation_summary(series, stations)) is not None:
         summary["ckf_innovation_tests"] = tests
@@ -435,8 +596,10 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     print_summary(stations, comparison, finals, fac)
     print_worst_own(summary["satellite_fit"])
     c0 = series[0]
-    print(f"precision: variance factor {c0.variance_factor or float('nan'):.2f}, lag-1 correlation of the predicted "
-          f"residuals {c0.lag1_correlation:.3f}: realistic σ = formal σ × {fac:.2f} (used in distnav_dsb.bia)")
+    print(
+        f"precision: variance factor {c0.variance_factor or float('nan'):.2f}, lag-1 correlation of the predicted "
+        f"residuals {c0.lag1_correlation:.3f}: realistic σ = formal σ × {fac:.2f} (used in distnav_dsb.bia)"
+    )
     print(f"written {out / 'tec_dcb_per_epoch.csv'}, {out / 'dcb_final.csv'}, {out / 'summary.json'}")
     return 0
 
@@ -450,7 +613,7 @@ def _split_days(args: argparse.Namespace) -> dict[str, list[str]]:
         d = product_day(f)
         by.setdefault(str(d) if d is not None else "", []).append(f)
     if "" in by and len(by) > 1:
-        raise ModelError(f"cannot tell the day of {', '.join(by['']) }: use IGS file names or one day per run")
+        raise ModelError(f"cannot tell the day of {', '.join(by[''])}: use IGS file names or one day per run")
     return by
 
 
@@ -470,9 +633,10 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
         navs.setdefault(str(product_day(f)), f)
     if args.nav and (len(args.nav) > 1 or all(product_day(f) is not None for f in args.nav)):
         missing = [d for d in days if d not in navs]
-        if missing:                              # a broadcast file of another day leaves most satellites out
-            raise DataFileError(f"no --nav file of {', '.join(missing)} (navigation files: {', '.join(args.nav)}): "
-                                f"give one per day")
+        if missing:  # a broadcast file of another day leaves most satellites out
+            raise DataFileError(
+                f"no --nav file of {', '.join(missing)} (navigation files: {', '.join(args.nav)}): give one per day"
+            )
         if len(navs) < len(args.nav):
             raise DataFileError(f"two --nav files of the same day among {', '.join(args.nav)}")
     out = Path(args.out)
@@ -496,21 +660,27 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
     rep = result["repeatability_ns"]
     med = np.nanmedian([v for v in rep.values() if v is not None]) if rep else float("nan")
     rx = ", ".join(f"{k[3:]} {v:.3f}" for k, v in sorted(rep.items()) if k.startswith("rx:") and v is not None)
-    print(f"combined {len(summaries)} days: {len(result['combined_ns'])} DSBs; day-to-day repeatability (std) median "
-          f"{med:.3f} ns over the satellites" + (f", receivers {rx} ns" if rx else "") +
-          f"; written {out / 'multiday.json'}, {out / 'distnav_dsb_combined.bia'}")
+    print(
+        f"combined {len(summaries)} days: {len(result['combined_ns'])} DSBs; day-to-day repeatability (std) median "
+        f"{med:.3f} ns over the satellites"
+        + (f", receivers {rx} ns" if rx else "")
+        + f"; written {out / 'multiday.json'}, {out / 'distnav_dsb_combined.bia'}"
+    )
     return 0
 
 
 def _check_days(products: Sequence[Any], t_gps_s: np.ndarray, allow: bool) -> None:
     from distnav.models.gnss.orbits import datetime_from_gps_seconds
 
-    days = {np.asarray(datetime_from_gps_seconds(float(t))).astype("datetime64[D]")[()]
-            for t in (t_gps_s[0], t_gps_s[-1])}
+    days = {
+        np.asarray(datetime_from_gps_seconds(float(t))).astype("datetime64[D]")[()] for t in (t_gps_s[0], t_gps_s[-1])
+    }
     for p in products:
         if p.day is not None and p.day not in days and not allow:
-            raise ModelError(f"{p.path.name}: a product of {p.day}, the data are of "
-                             f"{', '.join(str(d) for d in sorted(days))} (--allow-other-day to compare anyway)")
+            raise ModelError(
+                f"{p.path.name}: a product of {p.day}, the data are of "
+                f"{', '.join(str(d) for d in sorted(days))} (--allow-other-day to compare anyway)"
+            )
 
 
 def _default_graph(xyz: np.ndarray, stations: list[str]) -> Any:
@@ -522,67 +692,145 @@ def _default_graph(xyz: np.ndarray, stations: list[str]) -> Any:
 def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     """Add ``distnav gnss ionosphere`` to the ``gnss`` sub-command group (``set_defaults(func=run_ionosphere)``)."""
     p = gnss_subparsers.add_parser(
-        "ionosphere", help="TEC and receiver + satellite DCBs by central, local and consensus Kalman filters "
-                           "(paper 003 §5)", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+        "ionosphere",
+        help="TEC and receiver + satellite DCBs by central, local and consensus Kalman filters (paper 003 §5)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     from distnav.commands.gnss import add_data_arguments  # gnss.py registers this module: import lazily
 
     add_data_arguments(p)
     p.add_argument("--kn", type=int, default=4, help="consensus rounds per epoch (default 4 = δ 15 s at Δ 60 s)")
-    p.add_argument("--bias", nargs="+", metavar="FILE",
-                   help="published products to compare with: Bias-SINEX (.BIA) and/or IONEX with a DCB block")
+    p.add_argument(
+        "--bias",
+        nargs="+",
+        metavar="FILE",
+        help="published products to compare with: Bias-SINEX (.BIA) and/or IONEX with a DCB block",
+    )
     p.add_argument("--out", default="distnav-ionosphere", help="output folder (default distnav-ionosphere)")
     add_backend_arguments(p)
-    p.add_argument("--l1-code", default=None,
-                   help="L1 code (C1C = RINEX 2 C1, C1W = P1; default C1C, or C1W when every --bias is IONEX)")
-    p.add_argument("--l2-code", default="C2W",
-                   help="second code (default C2W = RINEX 2 P2; C5Q/C5X use the L5 frequency factor)")
-    p.add_argument("--datum", choices=["zero-mean", "pivot", "receiver"], default="zero-mean",
-                   help="S-basis of the output DSBs: zero-mean satellites (IGS products; default), a pivot "
-                        "satellite (--pivot) or a reference receiver (--reference)")
+    p.add_argument(
+        "--l1-code",
+        default=None,
+        help="L1 code (C1C = RINEX 2 C1, C1W = P1; default C1C, or C1W when every --bias is IONEX)",
+    )
+    p.add_argument(
+        "--l2-code", default="C2W", help="second code (default C2W = RINEX 2 P2; C5Q/C5X use the L5 frequency factor)"
+    )
+    p.add_argument(
+        "--datum",
+        choices=["zero-mean", "pivot", "receiver"],
+        default="zero-mean",
+        help="S-basis of the output DSBs: zero-mean satellites (IGS products; default), a pivot "
+        "satellite (--pivot) or a reference receiver (--reference)",
+    )
     p.add_argument("--pivot", default=None, help="pivot satellite of --datum pivot (e.g. G10)")
-    p.add_argument("--reference", default=None, metavar="STATION",
-                   help="reference receiver (--datum receiver; also the estimation basis; default: the station "
-                        "observing at the first epoch)")
+    p.add_argument(
+        "--reference",
+        default=None,
+        metavar="STATION",
+        help="reference receiver (--datum receiver; also the estimation basis; default: the station "
+        "observing at the first epoch)",
+    )
     p.add_argument("--exclude", nargs="+", metavar="SAT|STA", help="satellites (G01) or stations (BELE) left out")
-    p.add_argument("--compare-exclude", nargs="+", metavar="SAT",
-                   help="satellites left out of the product comparison statistics (e.g. G01)")
-    p.add_argument("--c1-corrections", metavar="BIA",
-                   help="with --l1-code C1C: remove each satellite's C1C-C1W DSB of this Bias-SINEX product from C1C "
-                        "(satellites then refer to C1W, the P1 of IONEX/GFZ; a file without C1C uses its C1W; each "
-                        "receiver's DSB stays C1C-C2W, compared and written as such)")
-    p.add_argument("--tec-field", choices=["linear", "quadratic"], default="linear",
-                   help="VTEC field of each ionosphere: paper 003's ν and two gradients, or second order too "
-                        "(low-latitude stations: docs/gnss.md)")
-    p.add_argument("--mapping", choices=["slm", "mslm"], default="slm",
-                   help="single-layer mapping: 450-km thin shell (paper 003) or modified (506.7 km, α = 0.9782)")
-    p.add_argument("--levelling", choices=["arc", "none"], default="arc",
-                   help="carrier-to-code levelling per continuous arc (default) or raw code")
-    p.add_argument("--min-arc", type=int, default=10, metavar="EPOCHS",
-                   help="shortest arc kept for levelling, in epochs of the file (default 10)")
-    p.add_argument("--gf-threshold", type=float, default=0.05, metavar="M",
-                   help="smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x "
-                        "the satellite's recent prediction-error RMS where the ionosphere is noisier)")
+    p.add_argument(
+        "--compare-exclude",
+        nargs="+",
+        metavar="SAT",
+        help="satellites left out of the product comparison statistics (e.g. G01)",
+    )
+    p.add_argument(
+        "--c1-corrections",
+        metavar="BIA",
+        help="with --l1-code C1C: remove each satellite's C1C-C1W DSB of this Bias-SINEX product from C1C "
+        "(satellites then refer to C1W, the P1 of IONEX/GFZ; a file without C1C uses its C1W; each "
+        "receiver's DSB stays C1C-C2W, compared and written as such)",
+    )
+    p.add_argument(
+        "--tec-field",
+        choices=["linear", "quadratic"],
+        default="linear",
+        help="VTEC field of each ionosphere: paper 003's ν and two gradients, or second order too "
+        "(low-latitude stations: docs/gnss.md)",
+    )
+    p.add_argument(
+        "--mapping",
+        choices=["slm", "mslm"],
+        default="slm",
+        help="single-layer mapping: 450-km thin shell (paper 003) or modified (506.7 km, α = 0.9782)",
+    )
+    p.add_argument(
+        "--levelling",
+        choices=["arc", "none"],
+        default="arc",
+        help="carrier-to-code levelling per continuous arc (default) or raw code",
+    )
+    p.add_argument(
+        "--min-arc",
+        type=int,
+        default=10,
+        metavar="EPOCHS",
+        help="shortest arc kept for levelling, in epochs of the file (default 10)",
+    )
+    p.add_argument(
+        "--gf-threshold",
+        type=float,
+        default=0.05,
+        metavar="M",
+        help="smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x "
+        "the satellite's recent prediction-error RMS where the ionosphere is noisier)",
+    )
     p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
-    p.add_argument("--allow-other-day", action="store_true",
-                   help="compare with a product of another day than the data")
-    p.add_argument("--ionosphere", choices=["auto", "common", "per-receiver"], default="auto",
-                   help="one regional ionosphere for all stations, one per station, or auto (by --regional-km)")
-    p.add_argument("--regional-km", type=float, default=REGIONAL_KM,
-                   help=f"auto: one common ionosphere if the longest baseline is below this (default {REGIONAL_KM:g})")
-    p.add_argument("--sigma", type=float, default=None,
-                   help="zenith σ of the geometry-free code [m] (default 0.656, paper 003 §5.1)")
-    p.add_argument("--weighting", choices=["sin", "euler-goad", "constant"], default="sin",
-                   help="elevation weighting (default sin: σ/sin θ)")
-    p.add_argument("--tec-rw", type=float, default=None, metavar="M_PER_SQRT_S",
-                   help="random walk of the vertical L1 delay [m/√s] (gradients 5× per radian; default 0.01, "
-                        "10× paper 003's: docs/ionosphere.md)")
-    p.add_argument("--min-satellite-obs", type=int, default=None, metavar="N",
-                   help="satellites with fewer station-epochs (filter grid) are not estimated and named in the "
-                        "notes (default 240 = 4 station-hours at 60 s, at most a quarter of the best-tracked "
-                        "satellite's, at least 30)")
-    p.add_argument("--innovation-test", type=float, default=None, metavar="LEVEL",
-                   help="CKF: each receiver w-tests its own predicted residuals at this level and rejects outliers "
-                        "before the consensus (e.g. 0.001)")
+    p.add_argument("--allow-other-day", action="store_true", help="compare with a product of another day than the data")
+    p.add_argument(
+        "--ionosphere",
+        choices=["auto", "common", "per-receiver"],
+        default="auto",
+        help="one regional ionosphere for all stations, one per station, or auto (by --regional-km)",
+    )
+    p.add_argument(
+        "--regional-km",
+        type=float,
+        default=REGIONAL_KM,
+        help=f"auto: one common ionosphere if the longest baseline is below this (default {REGIONAL_KM:g})",
+    )
+    p.add_argument(
+        "--sigma",
+        type=float,
+        default=None,
+        help="zenith σ of the geometry-free code [m] (default 0.656, paper 003 §5.1)",
+    )
+    p.add_argument(
+        "--weighting",
+        choices=["sin", "euler-goad", "constant"],
+        default="sin",
+        help="elevation weighting (default sin: σ/sin θ)",
+    )
+    p.add_argument(
+        "--tec-rw",
+        type=float,
+        default=None,
+        metavar="M_PER_SQRT_S",
+        help="random walk of the vertical L1 delay [m/√s] (gradients 5× per radian; default 0.01, "
+        "10× paper 003's: docs/ionosphere.md)",
+    )
+    p.add_argument(
+        "--min-satellite-obs",
+        type=int,
+        default=None,
+        metavar="N",
+        help="satellites with fewer station-epochs (filter grid) are not estimated and named in the "
+        "notes (default 240 = 4 station-hours at 60 s, at most a quarter of the best-tracked "
+        "satellite's, at least 30)",
+    )
+    p.add_argument(
+        "--innovation-test",
+        type=float,
+        default=None,
+        metavar="LEVEL",
+        help="CKF: each receiver w-tests its own predicted residuals at this level and rejects outliers "
+        "before the consensus (e.g. 0.001)",
+    )
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_ionosphere)
     parser: argparse.ArgumentParser = p
@@ -591,4 +839,3 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
 
 add_parser = add_ionosphere_parser
 """Alias used by :mod:`distnav.commands.gnss` (``_SUBCOMMAND_MODULES``)."""
-

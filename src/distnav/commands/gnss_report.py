@@ -11,12 +11,21 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["C1C_WARNING", "choose_l1_code", "print_data_report", "print_summary", "print_worst_vs_product",
-           "print_worst_own", "worst_over_days"]
+__all__ = [
+    "C1C_WARNING",
+    "choose_l1_code",
+    "print_data_report",
+    "print_summary",
+    "print_worst_vs_product",
+    "print_worst_own",
+    "worst_over_days",
+]
 
-C1C_WARNING = ("WARNING: L1 code C1C (RINEX 2 C1). The satellites' C1C-C1W biases (up to 1-2 ns) go into the DCBs: "
-               "compare only with C1C-{l2} products (CAS), not with P1-P2 / C1W-{l2} ones (IONEX, GFZ), or use "
-               "--l1-code C1W where every station tracks P1.")
+C1C_WARNING = (
+    "WARNING: L1 code C1C (RINEX 2 C1). The satellites' C1C-C1W biases (up to 1-2 ns) go into the DCBs: "
+    "compare only with C1C-{l2} products (CAS), not with P1-P2 / C1W-{l2} ones (IONEX, GFZ), or use "
+    "--l1-code C1W where every station tracks P1."
+)
 
 
 def choose_l1_code(args: argparse.Namespace) -> tuple[str, str | None]:
@@ -54,34 +63,47 @@ def choose_l1_code(args: argparse.Namespace) -> tuple[str, str | None]:
         return "C1C", None
     if ionex and l2 == "C2W" or gives("C1W"):
         names = ", ".join([p.name for p in sinex] + ionex)
-        return "C1W", (f"--l1-code C1W chosen to match the products ({names}: C1W-{l2} DSBs, no C1C-{l2}); a "
-                       f"station without P1 needs --l1-code C1C with --c1-corrections CAS…BIA")
+        return "C1W", (
+            f"--l1-code C1W chosen to match the products ({names}: C1W-{l2} DSBs, no C1C-{l2}); a "
+            f"station without P1 needs --l1-code C1C with --c1-corrections CAS…BIA"
+        )
     return "C1C", None
 
 
-def print_summary(stations: Sequence[str], comparison: Mapping[str, Any],
-                  finals: Mapping[str, tuple[dict[str, float], dict[str, float]]], realistic_factor: float) -> None:
+def print_summary(
+    stations: Sequence[str],
+    comparison: Mapping[str, Any],
+    finals: Mapping[str, tuple[dict[str, float], dict[str, float]]],
+    realistic_factor: float,
+) -> None:
     """The central filter's DSBs (σ realistic: formal × the a-posteriori factor) and every product comparison."""
     c = finals["central"]
     f = realistic_factor if np.isfinite(realistic_factor) and realistic_factor > 0 else 1.0
     sd = np.array([v for k, v in c[1].items() if not k.startswith("rx:") and np.isfinite(v)]) * f
     rx = ", ".join(f"{k[3:]} {v:+.2f} ± {c[1][k] * f:.2f}" for k, v in c[0].items() if k.startswith("rx:"))
-    print(f"central filter: {sd.size} satellite DSBs, median σ {np.median(sd):.2f} ns (realistic: formal × "
-          f"{f:.2f}); receivers: {rx} ns")
+    print(
+        f"central filter: {sd.size} satellite DSBs, median σ {np.median(sd):.2f} ns (realistic: formal × "
+        f"{f:.2f}); receivers: {rx} ns"
+    )
     for label, (val, _) in finals.items():
         if label.startswith("ckf:") and not any(np.isfinite(v) for v in val.values()):
-            print(f"note: {label} has no final DSB estimate: its data and those of the stations within --kn "
-                  f"consensus rounds do not determine them (raise --kn, or add links with --graph)")
+            print(
+                f"note: {label} has no final DSB estimate: its data and those of the stations within --kn "
+                f"consensus rounds do not determine them (raise --kn, or add links with --graph)"
+            )
     for pname, comp in comparison.items():
         print(f"vs {pname}:")
         for label in ["central"] + [f"ckf:{s}" for s in stations] + [f"local:{s}" for s in stations]:
             r = comp.get(label, {})
             if r.get("n"):
-                line = (f"  {label:<12} n={r['n']:2d}  offset {r['datum_offset_ns']:+7.2f}  RMS (zero-mean) "
-                        f"{r['rms_zero_mean_ns']:5.2f}  max {r['max_abs_zero_mean_ns']:5.2f} ns ({r['worst']})")
+                line = (
+                    f"  {label:<12} n={r['n']:2d}  offset {r['datum_offset_ns']:+7.2f}  RMS (zero-mean) "
+                    f"{r['rms_zero_mean_ns']:5.2f}  max {r['max_abs_zero_mean_ns']:5.2f} ns ({r['worst']})"
+                )
                 if "receivers" in r:
-                    line += "; receivers " + ", ".join(f"{k} {v:+.2f}" for k, v in
-                                                       r["receivers"]["difference_ns"].items())
+                    line += "; receivers " + ", ".join(
+                        f"{k} {v:+.2f}" for k, v in r["receivers"]["difference_ns"].items()
+                    )
                 if r.get("receivers_not_in_product"):
                     line += "; no receiver DSB in the product for " + " ".join(r["receivers_not_in_product"])
                 print(line)
@@ -97,13 +119,17 @@ def print_worst_vs_product(pname: str, r: Mapping[str, Any], *, exclude_option: 
     if not w:
         return
     short = pname.split()[0]
-    verdict = (f"it stands out (> {w['critical_ratio']:.2f}×, the {100 * w['level']:g} % outlier limit for "
-               f"{w['n']} satellites); {exclude_option} {w['satellite']} leaves it out of the statistics"
-               if w["stands_out"] else f"within the {100 * w['level']:g} % outlier limit "
-                                       f"{w['critical_ratio']:.2f}× for {w['n']} satellites")
-    print(f"worst-fitting satellite vs {short}: {w['satellite']} ({w['difference_ns']:+.2f} ns, "
-          f"{w['ratio_to_rms_others']:.2f}× the RMS {w['rms_others_ns']:.2f} ns of the other {w['n'] - 1}: "
-          f"{verdict})")
+    verdict = (
+        f"it stands out (> {w['critical_ratio']:.2f}×, the {100 * w['level']:g} % outlier limit for "
+        f"{w['n']} satellites); {exclude_option} {w['satellite']} leaves it out of the statistics"
+        if w["stands_out"]
+        else f"within the {100 * w['level']:g} % outlier limit {w['critical_ratio']:.2f}× for {w['n']} satellites"
+    )
+    print(
+        f"worst-fitting satellite vs {short}: {w['satellite']} ({w['difference_ns']:+.2f} ns, "
+        f"{w['ratio_to_rms_others']:.2f}× the RMS {w['rms_others_ns']:.2f} ns of the other {w['n'] - 1}: "
+        f"{verdict})"
+    )
 
 
 def print_worst_own(fit: Mapping[str, Any]) -> None:
@@ -113,11 +139,17 @@ def print_worst_own(fit: Mapping[str, Any]) -> None:
         return
     ratio = wf["ratio_to_median"] or float("nan")
     z = wf.get("robust_z")
-    tail = (f"it stands out, e.g. an elevation-dependent code bias as SVN49's; --compare-exclude {wf['satellite']} "
-            "leaves it out of the comparison" if wf.get("stands_out") else "none stands out")
+    tail = (
+        f"it stands out, e.g. an elevation-dependent code bias as SVN49's; --compare-exclude {wf['satellite']} "
+        "leaves it out of the comparison"
+        if wf.get("stands_out")
+        else "none stands out"
+    )
     zs = f", {z:.1f} robust σ above them" if z is not None else ""
-    print(f"worst-fitting satellite: {wf['satellite']} (own residuals: {fit['statistic']} {wf['value']:.3f}, "
-          f"{ratio:.2f}× the median satellite{zs}: {tail})")
+    print(
+        f"worst-fitting satellite: {wf['satellite']} (own residuals: {fit['statistic']} {wf['value']:.3f}, "
+        f"{ratio:.2f}× the median satellite{zs}: {tail})"
+    )
 
 
 def print_data_report(summary: Mapping[str, Any]) -> None:
@@ -130,18 +162,32 @@ def print_data_report(summary: Mapping[str, Any]) -> None:
         s = scr.get(sta, {})
         top = sorted((s.get("removed_per_satellite") or {}).items(), key=lambda kv: (-kv[1], kv[0]))[:3]
         most = f" (most removed: {', '.join(f'{k} {v}' for k, v in top)})" if top else ""
-        raw = (f"; {a['raw_code_observations']} raw (unlevelled) code observations used where no arc was long "
-               f"enough" if a.get("raw_code_observations") else "")
-        mw = (f", {s['removed_mw_outliers']} code outliers at the Melbourne–Wübbena test"
-              if s.get("removed_mw_outliers") else "")
-        wt = (f"w-test removed {s.get('removed_w_test', s.get('removed', 0))} of {s.get('w_tested', 0)} levelled "
-              f"code observations" if s.get("w_tested") else "no w-test screening")
-        print(f"{sta}: {a['arcs']} levelled arcs, median {a['median_epochs']:.0f} epochs (new arcs: "
-              f"{starts or 'none'}; {a['dropped_short']} short arcs dropped{raw}); {wt}{mw}{most}")
+        raw = (
+            f"; {a['raw_code_observations']} raw (unlevelled) code observations used where no arc was long enough"
+            if a.get("raw_code_observations")
+            else ""
+        )
+        mw = (
+            f", {s['removed_mw_outliers']} code outliers at the Melbourne–Wübbena test"
+            if s.get("removed_mw_outliers")
+            else ""
+        )
+        wt = (
+            f"w-test removed {s.get('removed_w_test', s.get('removed', 0))} of {s.get('w_tested', 0)} levelled "
+            f"code observations"
+            if s.get("w_tested")
+            else "no w-test screening"
+        )
+        print(
+            f"{sta}: {a['arcs']} levelled arcs, median {a['median_epochs']:.0f} epochs (new arcs: "
+            f"{starts or 'none'}; {a['dropped_short']} short arcs dropped{raw}); {wt}{mw}{most}"
+        )
     if tests := summary.get("ckf_innovation_tests"):
         per = ", ".join(f"{k} {v['removed']} of {v['tested']}" for k, v in tests["per_station"].items())
-        print(f"CKF innovation test at {tests['level']:g} (|w| > {tests['critical_value']:.2f}), each receiver on its "
-              f"own predicted residuals: rejected {per}")
+        print(
+            f"CKF innovation test at {tests['level']:g} (|w| > {tests['critical_value']:.2f}), each receiver on its "
+            f"own predicted residuals: rejected {per}"
+        )
     for note in summary.get("notes") or []:
         if ": levelled " not in note:
             print(f"note: {note}")
@@ -155,10 +201,16 @@ def worst_over_days(result: dict[str, Any], summaries: Mapping[str, Mapping[str,
     if names:
         top = max(sorted(set(names)), key=names.count)
         out_own = sum(bool(w.get("stands_out")) for w in wf.values() if w and w["satellite"] == top)
-        result["worst_fitting"] = {"satellite": top, "days": names.count(top), "stands_out_days": out_own,
-                                   "per_day": wf}
-        print(f"worst-fitting satellite over the days (own residuals): {top} ({names.count(top)} of "
-              f"{len(summaries)} days, standing out on {out_own})")
+        result["worst_fitting"] = {
+            "satellite": top,
+            "days": names.count(top),
+            "stands_out_days": out_own,
+            "per_day": wf,
+        }
+        print(
+            f"worst-fitting satellite over the days (own residuals): {top} ({names.count(top)} of "
+            f"{len(summaries)} days, standing out on {out_own})"
+        )
     vs: dict[str, list[tuple[str, bool]]] = {}
     for s in summaries.values():
         for pname, comp in (s.get("comparison") or {}).items():
@@ -168,7 +220,12 @@ def worst_over_days(result: dict[str, Any], summaries: Mapping[str, Mapping[str,
         names_p = [h[0] for h in hits]
         top = max(sorted(set(names_p)), key=names_p.count)
         out_n = sum(h[1] for h in hits if h[0] == top)
-        result.setdefault("worst_fitting_vs_product", {})[pname] = {"satellite": top, "days": names_p.count(top),
-                                                                    "stands_out_days": out_n}
-        print(f"worst-fitting satellite vs {pname} over the days: {top} ({names_p.count(top)} of {len(hits)} days, "
-              f"standing out on {out_n})")
+        result.setdefault("worst_fitting_vs_product", {})[pname] = {
+            "satellite": top,
+            "days": names_p.count(top),
+            "stands_out_days": out_n,
+        }
+        print(
+            f"worst-fitting satellite vs {pname} over the days: {top} ({names_p.count(top)} of {len(hits)} days, "
+            f"standing out on {out_n})"
+        )

@@ -20,19 +20,32 @@ def write_combined_sinex(path: Path, result: dict[str, Any], summaries: dict[str
     first = summaries[min(summaries)]
     codes = list(first["codes"].values())
     comb, sd = result["combined_ns"], result["combined_std_ns"]
-    text = write_bias_sinex(None, obs1=codes[0], obs2=codes[1], start=f"{min(summaries)}T00:00:00",
-                     end=np.datetime64(max(summaries)) + np.timedelta64(1, "D"),
-                     satellites={k: (v, sd[k]) for k, v in comb.items() if not k.startswith("rx:")},
-                     stations={k[3:]: (v, sd[k]) for k, v in comb.items() if k.startswith("rx:")},
-                     station_codes={k: tuple(v) for s in summaries.values()
-                                    for k, v in (s.get("station_codes") or {}).items()},
-                     comments=[f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
-                               "zero-mean satellite datum over the satellites common to the days"])
+    text = write_bias_sinex(
+        None,
+        obs1=codes[0],
+        obs2=codes[1],
+        start=f"{min(summaries)}T00:00:00",
+        end=np.datetime64(max(summaries)) + np.timedelta64(1, "D"),
+        satellites={k: (v, sd[k]) for k, v in comb.items() if not k.startswith("rx:")},
+        stations={k[3:]: (v, sd[k]) for k, v in comb.items() if k.startswith("rx:")},
+        station_codes={k: tuple(v) for s in summaries.values() for k, v in (s.get("station_codes") or {}).items()},
+        comments=[
+            f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
+            "zero-mean satellite datum over the satellites common to the days",
+        ],
+    )
     atomic_write_text(path, str(text))
 
 
-def write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str, float]], l1: str, l2: str,
-                 datum: str, times: list[str]) -> Path:
+def write_sinex(
+    path: Path,
+    data: Any,
+    final: tuple[dict[str, float], dict[str, float]],
+    l1: str,
+    l2: str,
+    datum: str,
+    times: list[str],
+) -> Path:
     """The central filter's final DSBs as Bias-SINEX 1.00 (satellites and receivers with σ)."""
     from distnav.models.gnss.bias_sinex import write_bias_sinex
 
@@ -42,15 +55,23 @@ def write_sinex(path: Path, data: Any, final: tuple[dict[str, float], dict[str, 
     from distnav.output import atomic_write_text
 
     text = write_bias_sinex(
-        None, obs1=l1, obs2=l2, start=times[0], end=end, sampling_s=step,
+        None,
+        obs1=l1,
+        obs2=l2,
+        start=times[0],
+        end=end,
+        sampling_s=step,
         satellites={k: (v, sd[k]) for k, v in val.items() if not k.startswith("rx:")},
         stations={k[3:]: (v, sd[k]) for k, v in val.items() if k.startswith("rx:")},
         station_codes={s: (c.get(1, l1), c.get(data.band, l2)) for s, c in data.codes.items()},
-        comments=[f"distnav gnss ionosphere, central filter, datum {datum} "
-                  f"({'IGS convention' if datum == 'zero-mean' else 'not the IGS convention'})",
-                  f"stations: {' '.join(data.stations)}; geometry-free {l1}-{l2} code, "
-                  f"{'carrier-levelled' if data.levelled else 'raw'}",
-                  "sigma: formal x sqrt(variance factor x (1+rho)/(1-rho)) of the predicted residuals",
-                  "satellite SVN field holds the system letter only"])
+        comments=[
+            f"distnav gnss ionosphere, central filter, datum {datum} "
+            f"({'IGS convention' if datum == 'zero-mean' else 'not the IGS convention'})",
+            f"stations: {' '.join(data.stations)}; geometry-free {l1}-{l2} code, "
+            f"{'carrier-levelled' if data.levelled else 'raw'}",
+            "sigma: formal x sqrt(variance factor x (1+rho)/(1-rho)) of the predicted residuals",
+            "satellite SVN field holds the system letter only",
+        ],
+    )
     atomic_write_text(path, str(text))
     return path

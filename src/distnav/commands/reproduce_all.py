@@ -57,15 +57,18 @@ class Run:
     cpu_s: float = 0.0
 
 
-RUNS: dict[str, Run] = {r.name: r for r in (
-    Run("uwb", "uwb", jobs=True, cpu_s=1310.0),
-    Run("uwb-horizontal", "uwb", ("--instances", "5", "--start", "horizontal"), jobs=True, cpu_s=130.0),
-    Run("admm", "admm", jobs=True, cpu_s=52.0),
-    Run("ckf-ionosphere", "ckf-ionosphere", cpu_s=18.0),
-    Run("codebias", "codebias", cpu_s=13.0),
-    Run("ckf", "ckf", cpu_s=8.0),
-    Run("consensus", "consensus", cpu_s=7.5),
-)}
+RUNS: dict[str, Run] = {
+    r.name: r
+    for r in (
+        Run("uwb", "uwb", jobs=True, cpu_s=1310.0),
+        Run("uwb-horizontal", "uwb", ("--instances", "5", "--start", "horizontal"), jobs=True, cpu_s=130.0),
+        Run("admm", "admm", jobs=True, cpu_s=52.0),
+        Run("ckf-ionosphere", "ckf-ionosphere", cpu_s=18.0),
+        Run("codebias", "codebias", cpu_s=13.0),
+        Run("ckf", "ckf", cpu_s=8.0),
+        Run("consensus", "consensus", cpu_s=7.5),
+    )
+}
 
 
 @dataclass
@@ -77,8 +80,19 @@ class _Running:
 
 
 def _command(run: Run, out: Path, jobs: int, quick: bool, seed_: int) -> list[str]:
-    cmd = [sys.executable, "-m", "distnav", "reproduce", run.experiment, "--out", str(out / run.name),
-           "--seed", str(seed_), "--no-progress", *run.options]
+    cmd = [
+        sys.executable,
+        "-m",
+        "distnav",
+        "reproduce",
+        run.experiment,
+        "--out",
+        str(out / run.name),
+        "--seed",
+        str(seed_),
+        "--no-progress",
+        *run.options,
+    ]
     if run.jobs:
         cmd += ["--jobs", str(jobs)]
     if quick:
@@ -86,8 +100,9 @@ def _command(run: Run, out: Path, jobs: int, quick: bool, seed_: int) -> list[st
     return cmd
 
 
-def run_all(names: list[str], out: Path, *, jobs: int = 2, quick: bool = False, seed_: int = 0,
-            echo: IO[str] = sys.stdout) -> dict[str, Any]:
+def run_all(
+    names: list[str], out: Path, *, jobs: int = 2, quick: bool = False, seed_: int = 0, echo: IO[str] = sys.stdout
+) -> dict[str, Any]:
     """Run the reproductions ``names`` (keys of :data:`RUNS`), longest first, ``jobs`` at a time; returns (and
     writes to ``out/timing.json``) the wall and CPU seconds of each and of the whole run."""
     out.mkdir(parents=True, exist_ok=True)
@@ -119,14 +134,22 @@ def run_all(names: list[str], out: Path, *, jobs: int = 2, quick: bool = False, 
         done.log.close()
         wall = now - done.t0
         cpu = usage.ru_utime + usage.ru_stime
-        results[done.run.name] = {"command": _command(done.run, out, jobs, quick, seed_)[2:], "wall_s": wall,
-                                  "cpu_user_s": usage.ru_utime, "cpu_sys_s": usage.ru_stime, "cpu_s": cpu,
-                                  "returncode": done.proc.returncode}
+        results[done.run.name] = {
+            "command": _command(done.run, out, jobs, quick, seed_)[2:],
+            "wall_s": wall,
+            "cpu_user_s": usage.ru_utime,
+            "cpu_sys_s": usage.ru_stime,
+            "cpu_s": cpu,
+            "returncode": done.proc.returncode,
+        }
         mark = "✓" if done.proc.returncode == 0 else f"✗ (exit {done.proc.returncode}, see {done.run.name}.log)"
         print(f"  {mark} {done.run.name}: {wall:.1f} s wall, {cpu:.1f} CPU s", file=echo, flush=True)
     loads.append(os.getloadavg()[0])
     summary: dict[str, Any] = {
-        "jobs": jobs, "quick": quick, "seed": seed_, "wall_s": time.perf_counter() - t_start,
+        "jobs": jobs,
+        "quick": quick,
+        "seed": seed_,
+        "wall_s": time.perf_counter() - t_start,
         "blas_threads": {name: env[name] for name in BLAS_THREAD_VARIABLES},
         "cpu_s": sum(r["cpu_s"] for r in results.values()),
         "load_average_1min": {"start": loads[0], "mean": sum(loads) / len(loads), "max": max(loads)},
@@ -140,12 +163,14 @@ def run_all(names: list[str], out: Path, *, jobs: int = 2, quick: bool = False, 
 def _table(summary: dict[str, Any]) -> str:
     lines = ["| reproduction | wall [s] | CPU [s] |", "|---|---|---|"]
     for name, r in summary["runs"].items():
-        lines.append(f"| {name} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} |" + ("" if r["returncode"] == 0 else
-                                                                            " failed |"))
+        lines.append(
+            f"| {name} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} |" + ("" if r["returncode"] == 0 else " failed |")
+        )
     la = summary["load_average_1min"]
     lines.append(f"| **all** ({summary['jobs']} at a time) | {summary['wall_s']:.1f} | {summary['cpu_s']:.1f} |")
-    lines.append(f"load average (1 min) during the run: start {la['start']:.2f}, mean {la['mean']:.2f}, "
-                 f"max {la['max']:.2f}")
+    lines.append(
+        f"load average (1 min) during the run: start {la['start']:.2f}, mean {la['mean']:.2f}, max {la['max']:.2f}"
+    )
     return "\n".join(lines)
 
 
@@ -159,11 +184,19 @@ def _main(args: argparse.Namespace) -> int:
 
 def register(subparsers: Any) -> None:
     """Add ``distnav reproduce-all`` to the CLI."""
-    p = subparsers.add_parser("reproduce-all", help="every paper reproduction at full size, with their run times",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = subparsers.add_parser(
+        "reproduce-all",
+        help="every paper reproduction at full size, with their run times",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--out", type=output_folder, required=True, help="run folder (one sub-folder per reproduction)")
-    p.add_argument("--jobs", type=positive_int, default=2,
-                   help="reproductions at once, and the workers of those that take --jobs (default 2)")
+    p.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=2,
+        help="reproductions at once, and the workers of those that take --jobs (default 2)",
+    )
     p.add_argument("--only", nargs="+", choices=list(RUNS), help="run only these")
     p.add_argument("--quick", action="store_true", help="the quick variants (a smoke test of the runner)")
     p.add_argument("--seed", type=seed, default=0, help="seed of every reproduction (default 0)")

@@ -68,8 +68,15 @@ from distnav.models.uwb.mirror import solve_with_mirror_test
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 from distnav.output import atomic_write_text
 
-__all__ = ["register", "classical_mds", "smacof", "mds_initial_guess", "planarity", "height_spread_ratio",
-           "solve_range_log"]
+__all__ = [
+    "register",
+    "classical_mds",
+    "smacof",
+    "mds_initial_guess",
+    "planarity",
+    "height_spread_ratio",
+    "solve_range_log",
+]
 
 PLANAR_RATIO = 0.05
 
@@ -78,57 +85,111 @@ def register(subparsers: Any) -> None:
     """Add ``distnav uwb solve`` to the CLI."""
     uwb = subparsers.add_parser("uwb", help="UWB anchor self-localization from inter-anchor range logs")
     sub = uwb.add_subparsers(dest="uwb_command", required=True)
-    s = sub.add_parser("solve", help="estimate anchor positions from RANGES.csv and the known anchors",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    s = sub.add_parser(
+        "solve",
+        help="estimate anchor positions from RANGES.csv and the known anchors",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     s.add_argument("--ranges", type=Path, required=True, help="CSV a,b,range_m (many rows per pair allowed)")
     s.add_argument("--known", type=Path, required=True, help="CSV id,x_m,y_m,z_m of the fixed (known) anchors")
     s.add_argument("--initial", type=Path, help="CSV id,x_m,y_m,z_m initial guess (default: MDS of the ranges)")
     s.add_argument("--truth", type=Path, help="CSV id,x_m,y_m,z_m true positions, for rmse_m")
     s.add_argument("--heights", type=Path, help="CSV id,z_m heights to hold fixed (anchors under a ceiling)")
-    s.add_argument("--solver", default="LM", type=str.upper, choices=list(SOLVERS),
-                   help="LM (centralized, default) or a distributed solver of paper 002")
-    s.add_argument("--objective", default="metres", choices=["metres", "squared"],
-                   help="residual in metres e = |r_a - r_b| - d (default) or the paper's squared form")
-    s.add_argument("--loss", default="cauchy", choices=list(LOSSES),
-                   help="robust loss (default cauchy; LM and the N-CSG/N-CLM solvers; not CSG)")
-    s.add_argument("--loss-scale-m", type=float, default=0.3,
-                   help="range error (m) beyond which the robust loss down-weights a range (default 0.3)")
+    s.add_argument(
+        "--solver",
+        default="LM",
+        type=str.upper,
+        choices=list(SOLVERS),
+        help="LM (centralized, default) or a distributed solver of paper 002",
+    )
+    s.add_argument(
+        "--objective",
+        default="metres",
+        choices=["metres", "squared"],
+        help="residual in metres e = |r_a - r_b| - d (default) or the paper's squared form",
+    )
+    s.add_argument(
+        "--loss",
+        default="cauchy",
+        choices=list(LOSSES),
+        help="robust loss (default cauchy; LM and the N-CSG/N-CLM solvers; not CSG)",
+    )
+    s.add_argument(
+        "--loss-scale-m",
+        type=float,
+        default=0.3,
+        help="range error (m) beyond which the robust loss down-weights a range (default 0.3)",
+    )
     s.add_argument("--sigma-m", type=float, default=0.1, help="a-priori range σ in metres (default 0.1)")
-    s.add_argument("--no-exclude", dest="exclude", action="store_false",
-                   help="test the links but exclude none (default: exclude the worst link while it fails its "
-                        "w-test and the network stays determined, and re-solve)")
+    s.add_argument(
+        "--no-exclude",
+        dest="exclude",
+        action="store_false",
+        help="test the links but exclude none (default: exclude the worst link while it fails its "
+        "w-test and the network stays determined, and re-solve)",
+    )
     s.add_argument("--level", type=float, default=0.001, help="false-alarm probability of one link test (0.001)")
-    s.add_argument("--range-offsets", default="auto", choices=["auto", "none", "common", "per_anchor"],
-                   help="estimate a common range offset or per-anchor antenna delays (metres objective, every "
-                        "solver); auto (default): common with the metres objective, none with the squared one")
-    s.add_argument("--offset-prior-sigma-m", type=float, default=0.1,
-                   help="prior σ of each per-anchor offset (m, default 0.1)")
-    s.add_argument("--delay-sigma-m", type=float, default=DELAY_SIGMA_M,
-                   help="σ (m) of each anchor's antenna delay left after the common offset, admitted in the "
-                        f"reported σ without estimating it (metres objective, offsets auto/none/common; LM and "
-                        f"the distributed solvers; default {DELAY_SIGMA_M}, 0 = off)")
-    s.add_argument("--reliability-limit-m", type=float, default=RELIABILITY_LIMIT_M,
-                   help="LM: report an anchor weak when one link's minimal detectable bias, undetected, would move "
-                        f"it more than this (m) and 3σ (external reliability; default {RELIABILITY_LIMIT_M}, "
-                        "0 = off)")
-    s.add_argument("--allow-planar-3d", action="store_true",
-                   help="solve a nearly planar network in 3-D with free heights anyway (refused by default)")
-    s.add_argument("--no-refine", dest="refine", action="store_false",
-                   help="distributed solvers: stop after the neighbour iterations, without the final distributed "
-                        "LM phase that takes them to LM's solution (it needs a few network-wide sums per round; "
-                        "default: run it with the metres objective)")
+    s.add_argument(
+        "--range-offsets",
+        default="auto",
+        choices=["auto", "none", "common", "per_anchor"],
+        help="estimate a common range offset or per-anchor antenna delays (metres objective, every "
+        "solver); auto (default): common with the metres objective, none with the squared one",
+    )
+    s.add_argument(
+        "--offset-prior-sigma-m", type=float, default=0.1, help="prior σ of each per-anchor offset (m, default 0.1)"
+    )
+    s.add_argument(
+        "--delay-sigma-m",
+        type=float,
+        default=DELAY_SIGMA_M,
+        help="σ (m) of each anchor's antenna delay left after the common offset, admitted in the "
+        f"reported σ without estimating it (metres objective, offsets auto/none/common; LM and "
+        f"the distributed solvers; default {DELAY_SIGMA_M}, 0 = off)",
+    )
+    s.add_argument(
+        "--reliability-limit-m",
+        type=float,
+        default=RELIABILITY_LIMIT_M,
+        help="LM: report an anchor weak when one link's minimal detectable bias, undetected, would move "
+        f"it more than this (m) and 3σ (external reliability; default {RELIABILITY_LIMIT_M}, "
+        "0 = off)",
+    )
+    s.add_argument(
+        "--allow-planar-3d",
+        action="store_true",
+        help="solve a nearly planar network in 3-D with free heights anyway (refused by default)",
+    )
+    s.add_argument(
+        "--no-refine",
+        dest="refine",
+        action="store_false",
+        help="distributed solvers: stop after the neighbour iterations, without the final distributed "
+        "LM phase that takes them to LM's solution (it needs a few network-wide sums per round; "
+        "default: run it with the metres objective)",
+    )
     s.add_argument("--iterations", type=int, default=500, help="iterations (default 500)")
-    s.add_argument("--strict", action="store_true",
-                   help="refuse a range log with a negative, zero or non-finite sample (default: drop and count)")
+    s.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse a range log with a negative, zero or non-finite sample (default: drop and count)",
+    )
     s.add_argument("--out", type=Path, required=True, help="output folder")
     add_backend_arguments(s)
     s.set_defaults(func=_handler)
-    imp = sub.add_parser("import-april", help="convert an APRIL DW1000 log (../shared/data/uwb/april-dw1000-8node) "
-                                              "to ranges.csv, known.csv, truth.csv")
+    imp = sub.add_parser(
+        "import-april",
+        help="convert an APRIL DW1000 log (../shared/data/uwb/april-dw1000-8node) to ranges.csv, known.csv, truth.csv",
+    )
     imp.add_argument("log", type=Path, help="dataset4.txt or dataset5.txt")
     imp.add_argument("--known", default="8,12,54,87", help="comma-separated known node ids (default 8,12,54,87)")
-    imp.add_argument("--delays", default="manual", choices=["manual", "default"],
-                     help="subtract the lab's hand-calibrated antenna delays (default) or one 0.516 µs for all")
+    imp.add_argument(
+        "--delays",
+        default="manual",
+        choices=["manual", "default"],
+        help="subtract the lab's hand-calibrated antenna delays (default) or one 0.516 µs for all",
+    )
     imp.add_argument("--out", type=Path, required=True, help="output folder")
     imp.set_defaults(func=_import_april)
 
@@ -148,12 +209,16 @@ def _import_april(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------- the solve
 def _validate(opts: FieldOptions) -> None:
     if opts.loss != "linear" and opts.solver.upper() == "CSG":
-        raise ModelError(f"--loss {opts.loss} is implemented for LM and the neighbourhood solvers, not CSG "
-                         f"(pass --loss linear)")
+        raise ModelError(
+            f"--loss {opts.loss} is implemented for LM and the neighbourhood solvers, not CSG (pass --loss linear)"
+        )
     if opts.iterations < 1:
         raise ModelError(f"--iterations must be ≥ 1, got {opts.iterations}")
-    for name, v in (("--sigma-m", opts.sigma_m), ("--loss-scale-m", opts.loss_scale_m),
-                    ("--offset-prior-sigma-m", opts.offset_prior_sigma_m)):
+    for name, v in (
+        ("--sigma-m", opts.sigma_m),
+        ("--loss-scale-m", opts.loss_scale_m),
+        ("--offset-prior-sigma-m", opts.offset_prior_sigma_m),
+    ):
         if not (np.isfinite(v) and v > 0):
             raise ModelError(f"{name} must be a positive number of metres, got {v}")
     if not (np.isfinite(opts.delay_sigma_m) and opts.delay_sigma_m >= 0):
@@ -166,9 +231,17 @@ def _validate(opts: FieldOptions) -> None:
         raise ModelError(f"--range-offsets {opts.range_offsets} is estimated with --objective metres only")
 
 
-def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, truth: Path | None = None,
-                    heights: Path | None = None, options: FieldOptions | None = None, backend: str = "inprocess",
-                    strict: bool = False) -> tuple[FieldSolution, CombinedRanges, dict[str, Any]]:
+def solve_range_log(
+    ranges: Path,
+    known: Path,
+    *,
+    initial: Path | None = None,
+    truth: Path | None = None,
+    heights: Path | None = None,
+    options: FieldOptions | None = None,
+    backend: str = "inprocess",
+    strict: bool = False,
+) -> tuple[FieldSolution, CombinedRanges, dict[str, Any]]:
     """Read the files, check the geometry, solve with QC; returns ``(solution, ranges, summary)`` (no files).
 
     A distributed solver runs on an exchange of ``backend`` (``"mpi"`` under ``mpiexec``); LM is centralized."""
@@ -198,8 +271,10 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
                 held[k] = {2: z}
     fixed = {k: v for k, v in known_pos.items() if k in index}
     if not fixed:
-        raise DataFileError(f"{known}: none of the known anchors ({', '.join(unused_known[:10])}) appears in "
-                            f"{ranges} (whose anchors are {', '.join(ids[:10])}{' …' if len(ids) > 10 else ''})")
+        raise DataFileError(
+            f"{known}: none of the known anchors ({', '.join(unused_known[:10])}) appears in "
+            f"{ranges} (whose anchors are {', '.join(ids[:10])}{' …' if len(ids) > 10 else ''})"
+        )
 
     def full_array(path: Path, what: str) -> np.ndarray:
         pos, d = read_positions(path)
@@ -211,21 +286,45 @@ def solve_range_log(ranges: Path, known: Path, *, initial: Path | None = None, t
         return np.array([pos[k] for k in ids])
 
     truth_m = full_array(truth, "truth") if truth is not None else None
-    problem = build_problem(ids, list(comb.pairs), comb.range_m, fixed=fixed, dim=dim, held=held or None,
-                            truth_m=truth_m, name=Path(ranges).stem, check_determined=False)
+    problem = build_problem(
+        ids,
+        list(comb.pairs),
+        comb.range_m,
+        fixed=fixed,
+        dim=dim,
+        held=held or None,
+        truth_m=truth_m,
+        name=Path(ranges).stem,
+        check_determined=False,
+    )
     _check_gauge(problem)
     init = full_array(initial, "initial guess") if initial is not None else None
-    init_source = str(initial) if initial is not None else \
-        "classical MDS of the range graph + SMACOF, aligned to the known anchors"
+    init_source = (
+        str(initial)
+        if initial is not None
+        else "classical MDS of the range graph + SMACOF, aligned to the known anchors"
+    )
     sub, geometry = prepare(problem, initial_m=init, allow_planar_3d=opts.allow_planar_3d)
     exchange = None
     if opts.solver.upper() != "LM":
+
         def exchange(p: RangingProblem) -> Any:
             return make_exchange(p.graph, backend=backend)
+
     sol = solve_with_mirror_test(sub, opts, geometry, exchange)  # solve_field, + the mirror test if needed
     warnings += [i.message for i in sol.geometry.issues]
-    summary = _summary(sol, opts, comb, log.range_m.size, log.n_dropped, dict(log.dropped), units_note,
-                       init_source, len(held), warnings)
+    summary = _summary(
+        sol,
+        opts,
+        comb,
+        log.range_m.size,
+        log.n_dropped,
+        dict(log.dropped),
+        units_note,
+        init_source,
+        len(held),
+        warnings,
+    )
     return sol, comb, summary
 
 
@@ -235,14 +334,24 @@ def _check_gauge(problem: RangingProblem) -> None:
     planar = problem.dim == 2 or bool(np.all(~problem.free[~fixed, 2]))
     need = 2 if planar else 3
     if int(fixed.sum()) < need:
-        what = ("2 fixed anchors (2-D, or 3-D with every height held)" if planar
-                else "3 non-collinear fixed anchors in 3-D")
+        what = (
+            "2 fixed anchors (2-D, or 3-D with every height held)" if planar else "3 non-collinear fixed anchors in 3-D"
+        )
         raise ModelError(f"the problem is not determined: it needs at least {what}, got {int(fixed.sum())}")
 
 
-def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ranges: int, n_dropped: int,
-             dropped: dict[str, int], units_note: str, init_source: str, n_held: int,
-             warnings: list[str]) -> dict[str, Any]:
+def _summary(
+    sol: FieldSolution,
+    opts: FieldOptions,
+    comb: CombinedRanges,
+    n_ranges: int,
+    n_dropped: int,
+    dropped: dict[str, int],
+    units_note: str,
+    init_source: str,
+    n_held: int,
+    warnings: list[str],
+) -> dict[str, Any]:
     p = sol.problem
     res = sol.result
     usable = sol.status != "diverged"
@@ -294,12 +403,17 @@ def _summary(sol: FieldSolution, opts: FieldOptions, comb: CombinedRanges, n_ran
         "range_combination": "median of the samples of each pair",
         "initial_guess": init_source,
         "communication": {
-            "distributed": {"solver": opts.solver.upper(), "messages": sol.messages, "bytes": sol.bytes,
-                            "precision_messages": sol.precision_messages, "precision_bytes": sol.precision_bytes,
-                            "final_lm_phase": getattr(sol.result, "settings", {}).get("refine"),
-                            "note": "every re-solve of the exclusion loop and the precision included"
-                            if opts.solver.upper() != "LM"
-                            else "LM is centralized: it needs the ranges gathered (below)"},
+            "distributed": {
+                "solver": opts.solver.upper(),
+                "messages": sol.messages,
+                "bytes": sol.bytes,
+                "precision_messages": sol.precision_messages,
+                "precision_bytes": sol.precision_bytes,
+                "final_lm_phase": getattr(sol.result, "settings", {}).get("refine"),
+                "note": "every re-solve of the exclusion loop and the precision included"
+                if opts.solver.upper() != "LM"
+                else "LM is centralized: it needs the ranges gathered (below)",
+            },
             "gather_at_one_anchor": gather,
         },
         "messages": sol.messages,
@@ -316,8 +430,10 @@ def write_links(path: Path, sol: FieldSolution, comb: CombinedRanges) -> None:
     for k in range(p.n_meas):
         a, b = p.ids[p.meas_a[k]], p.ids[p.meas_b[k]]
         cnt, mad = stats.get((a, b)) or stats.get((b, a)) or (0, float("nan"))
-        rows.append(f"{a},{b},{cnt},{p.range_m[k]:.4f},{mad:.4f},{sol.residual_m[k]:.4f},{sol.w[k]:.3f},"
-                    f"{int(sol.flagged[k])},{int(sol.excluded[k])}")
+        rows.append(
+            f"{a},{b},{cnt},{p.range_m[k]:.4f},{mad:.4f},{sol.residual_m[k]:.4f},{sol.w[k]:.3f},"
+            f"{int(sol.flagged[k])},{int(sol.excluded[k])}"
+        )
     atomic_write_text(path, "\n".join(rows) + "\n")
 
 
@@ -350,11 +466,16 @@ def _positions_table(path: Path, sol: FieldSolution) -> None:
             rows.append(name + "," * (2 * dim) + ",unsolved,")
             continue
         i = index[name]
-        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in sol.weak
-                                          else "estimated")
-        rows.append(name + "," + ",".join(f"{v:.6f}" for v in sol.positions_m[i]) + ","
-                    + ",".join(f"{v:.6f}" for v in sol.sigma_m[i]) + f",{st},"
-                    + (sol.weak_reasons.get(name, "").replace(",", ";") if st == "weak" else ""))
+        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in sol.weak else "estimated")
+        rows.append(
+            name
+            + ","
+            + ",".join(f"{v:.6f}" for v in sol.positions_m[i])
+            + ","
+            + ",".join(f"{v:.6f}" for v in sol.sigma_m[i])
+            + f",{st},"
+            + (sol.weak_reasons.get(name, "").replace(",", ";") if st == "weak" else "")
+        )
     atomic_write_text(path, "\n".join(rows) + "\n")
 
 
@@ -374,8 +495,16 @@ def _plot(path: Path, sol: FieldSolution) -> None:
     ax.add_collection(lc)
     fig.colorbar(lc, ax=ax, label="|range residual| [m]")
     if sol.excluded.any():
-        ax.add_collection(LineCollection(list(seg[sol.excluded]), colors="tab:red", linestyles="dashed", linewidths=1.0,
-                                         zorder=1, label="excluded (NLOS?)"))
+        ax.add_collection(
+            LineCollection(
+                list(seg[sol.excluded]),
+                colors="tab:red",
+                linestyles="dashed",
+                linewidths=1.0,
+                zorder=1,
+                label="excluded (NLOS?)",
+            )
+        )
     if p.truth_m is not None:
         t = p.truth_m
         ax.plot(t[:, 0], t[:, 1], "x", color="tab:green", label="truth", zorder=2)
@@ -391,9 +520,18 @@ def _plot(path: Path, sol: FieldSolution) -> None:
         for i in np.flatnonzero(e):
             w, v = np.linalg.eigh(cov[i])
             ang = float(np.degrees(np.arctan2(v[1, 1], v[0, 1])))
-            ax.add_patch(Ellipse(tuple(est[i, :2]), 2 * 2 * scale * np.sqrt(max(w[1], 0.0)),
-                                 2 * 2 * scale * np.sqrt(max(w[0], 0.0)), angle=ang, fill=False,
-                                 color="tab:orange", lw=0.8, zorder=3))
+            ax.add_patch(
+                Ellipse(
+                    tuple(est[i, :2]),
+                    2 * 2 * scale * np.sqrt(max(w[1], 0.0)),
+                    2 * 2 * scale * np.sqrt(max(w[0], 0.0)),
+                    angle=ang,
+                    fill=False,
+                    color="tab:orange",
+                    lw=0.8,
+                    zorder=3,
+                )
+            )
     for idx, name in enumerate(p.ids):
         ax.annotate(name, est[idx, :2], fontsize=6, xytext=(3, 3), textcoords="offset points")
     ax.set_aspect("equal")
@@ -402,29 +540,47 @@ def _plot(path: Path, sol: FieldSolution) -> None:
     ax.set_ylabel("y [m]")
     ax.legend(fontsize=7, loc="best")
     ell = f"; 2σ ellipses × {scale:g}" if scale else ""
-    ax.set_title(f"{p.n_anchors} anchors, {p.links.shape[0]} links ({int(sol.excluded.sum())} excluded){ell}",
-                 fontsize=9)
+    ax.set_title(
+        f"{p.n_anchors} anchors, {p.links.shape[0]} links ({int(sol.excluded.sum())} excluded){ell}", fontsize=9
+    )
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
 
 
 @np.errstate(over="ignore", invalid="ignore")  # a diverged run's summary reads huge estimates
 def _handler(args: argparse.Namespace) -> int:
-    opts = FieldOptions(solver=args.solver, objective=args.objective, loss=args.loss, loss_scale_m=args.loss_scale_m,
-                        sigma_m=args.sigma_m, iterations=args.iterations, exclude=args.exclude, level=args.level,
-                        range_offsets=args.range_offsets, offset_prior_sigma_m=args.offset_prior_sigma_m,
-                        allow_planar_3d=args.allow_planar_3d, delay_sigma_m=args.delay_sigma_m,
-                        reliability_limit_m=args.reliability_limit_m,
-                        solver_options={} if args.refine else {"refine": False})
+    opts = FieldOptions(
+        solver=args.solver,
+        objective=args.objective,
+        loss=args.loss,
+        loss_scale_m=args.loss_scale_m,
+        sigma_m=args.sigma_m,
+        iterations=args.iterations,
+        exclude=args.exclude,
+        level=args.level,
+        range_offsets=args.range_offsets,
+        offset_prior_sigma_m=args.offset_prior_sigma_m,
+        allow_planar_3d=args.allow_planar_3d,
+        delay_sigma_m=args.delay_sigma_m,
+        reliability_limit_m=args.reliability_limit_m,
+        solver_options={} if args.refine else {"refine": False},
+    )
     if not args.refine and opts.solver == "LM":
         raise ModelError("--no-refine applies to the distributed solvers (--solver N-CLM, N-CSG-TBLS, ...), not to LM")
     _validate(opts)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise DataFileError(f"{out}: --out must be a folder, and this is a file")
-    sol, comb, summary = solve_range_log(args.ranges, args.known, initial=args.initial, truth=args.truth,
-                                         heights=args.heights, options=opts,
-                                         backend=getattr(args, "backend", "inprocess"), strict=args.strict)
+    sol, comb, summary = solve_range_log(
+        args.ranges,
+        args.known,
+        initial=args.initial,
+        truth=args.truth,
+        heights=args.heights,
+        options=opts,
+        backend=getattr(args, "backend", "inprocess"),
+        strict=args.strict,
+    )
     from distnav.output import atomic_write_json, is_file_writer
 
     usable = sol.status != "diverged"
@@ -434,8 +590,10 @@ def _handler(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(out / "summary.json", summary)
         if not usable:  # the estimates are not a result; write no positions
-            print(f"error: {sol.message} (status {sol.status}); no positions written, see "
-                  f"{out / 'summary.json'}", file=sys.stderr)
+            print(
+                f"error: {sol.message} (status {sol.status}); no positions written, see {out / 'summary.json'}",
+                file=sys.stderr,
+            )
             return 1
         _positions_table(out / "positions.csv", sol)
         write_links(out / "links.csv", sol, comb)
@@ -448,20 +606,27 @@ def _handler(args: argparse.Namespace) -> int:
         return 1
     rm = summary["rmse_m"]
     rr = summary["range_residual_rms_m"]
-    print(f"{summary['solver']} ({summary['objective']}, {summary['loss_used']}): {summary['iterations']} iterations, "
-          f"status {summary['status']}, {summary['n_excluded']} link(s) excluded"
-          + (f", range residual RMS {rr:.3f} m" if rr is not None else "")
-          + (f", RMSE {rm:.3f} m" if rm is not None else "") + f" -> {out}")
+    print(
+        f"{summary['solver']} ({summary['objective']}, {summary['loss_used']}): {summary['iterations']} iterations, "
+        f"status {summary['status']}, {summary['n_excluded']} link(s) excluded"
+        + (f", range residual RMS {rr:.3f} m" if rr is not None else "")
+        + (f", RMSE {rm:.3f} m" if rm is not None else "")
+        + f" -> {out}"
+    )
     if sol.weak:
-        print(f"warning: {len(sol.weak)} anchor(s) weakly determined, their positions may be metres off: "
-              f"{', '.join(sol.weak)} (positions.csv status 'weak'; too few consistent links to tell which are NLOS, "
-              "at most one redundant link, one undetectable NLOS link would move them, or their part of the network "
-              "lost more links to the exclusions than it has checks left: weak_reason)",
-              file=sys.stderr)
+        print(
+            f"warning: {len(sol.weak)} anchor(s) weakly determined, their positions may be metres off: "
+            f"{', '.join(sol.weak)} (positions.csv status 'weak'; too few consistent links to tell which are NLOS, "
+            "at most one redundant link, one undetectable NLOS link would move them, or their part of the network "
+            "lost more links to the exclusions than it has checks left: weak_reason)",
+            file=sys.stderr,
+        )
         for k in sol.weak[:5]:
             print(f"  {k}: {sol.weak_reasons.get(k, '')}", file=sys.stderr)
     if sol.status == "ambiguous":
-        print(f"error: the solution is ambiguous ({sol.message}); positions written with status 'ambiguous'",
-              file=sys.stderr)
+        print(
+            f"error: the solution is ambiguous ({sol.message}); positions written with status 'ambiguous'",
+            file=sys.stderr,
+        )
         return 1
     return 0

@@ -12,8 +12,9 @@ from distnav.network.graph_part import GraphPart
 __all__ = ["Exchange", "Inbox", "Mixer", "CommTotals", "FaultSchedule", "InProcessExchange", "make_exchange"]
 
 
-def make_exchange(graph: Graph | GraphPart, *, backend: str = "inprocess", faults: FaultSchedule | None = None,
-                  **options: object) -> Exchange:
+def make_exchange(
+    graph: Graph | GraphPart, *, backend: str = "inprocess", faults: FaultSchedule | None = None, **options: object
+) -> Exchange:
     """Create an exchange for ``graph``: ``backend="inprocess"`` (default) or ``"mpi"`` (needs the mpi extra
     and a launch under ``mpiexec -n N python -m mpi4py``). ``order=`` (both backends) picks the local node order
     (:func:`distnav.network.partition.locality_order`); MPI also takes ``partition=``, and instead of the whole

@@ -17,8 +17,9 @@ else:  # imported on first use (start-up of an MPI job)
 __all__: list[str] = []
 
 
-def _segment_matrix(dst_local: np.ndarray, n_rows: int, n_cols: int, data: np.ndarray,
-                    col_index: np.ndarray | None = None) -> sp.csr_matrix:
+def _segment_matrix(
+    dst_local: np.ndarray, n_rows: int, n_cols: int, data: np.ndarray, col_index: np.ndarray | None = None
+) -> sp.csr_matrix:
     """CSR matrix with one entry per edge at (dst_local[e], col_index[e]); rows must be sorted."""
     counts = _masked_count(dst_local, None, n_rows)
     ptr = np.zeros(n_rows + 1, dtype=np.int64)
@@ -34,9 +35,9 @@ def _masked_count(index: np.ndarray, mask: np.ndarray | None, n: int) -> np.ndar
     whole-array bincount casts an int32 index to a 64-bit copy, and a weighted one makes a float copy too)."""
     counts = np.zeros(n, np.int64)
     for a in range(0, int(index.size), _COUNT_CHUNK):
-        part = index[a:a + _COUNT_CHUNK]
+        part = index[a : a + _COUNT_CHUNK]
         if mask is not None:
-            part = part[mask[a:a + _COUNT_CHUNK]]
+            part = part[mask[a : a + _COUNT_CHUNK]]
         counts += np.bincount(part, minlength=n)
     return counts
 

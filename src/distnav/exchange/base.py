@@ -89,16 +89,27 @@ class CommTotals:
 
     def snapshot(self) -> CommTotals:
         """A copy of these totals (an in-process exchange hands out its live counters, updated in place)."""
-        return CommTotals(self.rounds, self.messages_sent.copy(), self.bytes_sent.copy(),
-                          self.messages_received.copy(), self.bytes_received.copy(),
-                          self.messages_per_round.copy(), self.bytes_per_round.copy())
+        return CommTotals(
+            self.rounds,
+            self.messages_sent.copy(),
+            self.bytes_sent.copy(),
+            self.messages_received.copy(),
+            self.bytes_received.copy(),
+            self.messages_per_round.copy(),
+            self.bytes_per_round.copy(),
+        )
 
     def since(self, before: CommTotals) -> CommTotals:
         """The communication between ``before`` (an earlier :meth:`snapshot` of the same exchange) and these."""
-        return CommTotals(self.rounds - before.rounds, self.messages_sent - before.messages_sent,
-                          self.bytes_sent - before.bytes_sent, self.messages_received - before.messages_received,
-                          self.bytes_received - before.bytes_received, self.messages_per_round[before.rounds:],
-                          self.bytes_per_round[before.rounds:])
+        return CommTotals(
+            self.rounds - before.rounds,
+            self.messages_sent - before.messages_sent,
+            self.bytes_sent - before.bytes_sent,
+            self.messages_received - before.messages_received,
+            self.bytes_received - before.bytes_received,
+            self.messages_per_round[before.rounds :],
+            self.bytes_per_round[before.rounds :],
+        )
 
     @staticmethod
     def empty(n_nodes: int) -> CommTotals:
@@ -210,8 +221,10 @@ class Exchange(ABC):
     def graph(self) -> Graph:
         """The whole communication graph (not held by an exchange built from a :class:`GraphPart`)."""
         if not isinstance(self._graph, Graph):
-            raise ExchangeError("this exchange was built from a graph part: the whole graph is on no rank (use "
-                                "n_nodes / n_edges, or build the exchange from a Graph)")
+            raise ExchangeError(
+                "this exchange was built from a graph part: the whole graph is on no rank (use "
+                "n_nodes / n_edges, or build the exchange from a Graph)"
+            )
         return self._graph
 
     @property
@@ -270,8 +283,13 @@ class Exchange(ABC):
     def _fault_plan(self) -> FaultPlan:
         """The fault schedule compiled for this block's incoming edges (once)."""
         real = self._real_in  # not a self-loop: the plan needs the endpoints only for failed links / silent nodes
-        return FaultPlan(self.faults, lambda: self.in_src, lambda: self.nodes[self.in_dst], self.in_edges,
-                         is_self=~real if not real.all() else np.zeros(real.size, bool))
+        return FaultPlan(
+            self.faults,
+            lambda: self.in_src,
+            lambda: self.nodes[self.in_dst],
+            self.in_edges,
+            is_self=~real if not real.all() else np.zeros(real.size, bool),
+        )
 
     def _delivered(self, active_in: np.ndarray) -> np.ndarray:
         if not self.faults.active:
@@ -308,8 +326,9 @@ class Exchange(ABC):
         self._round_bytes.append(sent_total * msg_bytes)
         self.round_index += 1
 
-    def _account_dropped(self, sent: np.ndarray, sent_total: int, received_all: np.ndarray, lost_dst: np.ndarray,
-                         msg_bytes: int) -> None:
+    def _account_dropped(
+        self, sent: np.ndarray, sent_total: int, received_all: np.ndarray, lost_dst: np.ndarray, msg_bytes: int
+    ) -> None:
         """Count a fault round from its lost messages: ``sent`` a reused count array (folded in lazily),
         ``received_all`` what would arrive without losses, ``lost_dst`` the local receiver of each lost message."""
         received = received_all - np.bincount(lost_dst, minlength=self.n_local)
@@ -365,8 +384,15 @@ class Exchange(ABC):
             raise ExchangeError(f"active must be a mask over the {self.n_edges} directed edges, got {act.shape}")
         return act[self.out_edges] & self._real_out, act[self.in_edges] & self._real_in
 
-    def _finish_round(self, values_in: np.ndarray, act_out: np.ndarray, act_in: np.ndarray,
-                      tail: tuple[int, ...], msg_bytes: int, owned: bool = False) -> Inbox:
+    def _finish_round(
+        self,
+        values_in: np.ndarray,
+        act_out: np.ndarray,
+        act_in: np.ndarray,
+        tail: tuple[int, ...],
+        msg_bytes: int,
+        owned: bool = False,
+    ) -> Inbox:
         if self.faults.active:
             delivered = self._delivered(act_in)
             sent, total = self._sent_counts(act_out, cache=act_out is self._real_out)
@@ -381,15 +407,22 @@ class Exchange(ABC):
         self._account(sent, recv, msg_bytes)
         return self._inbox(values_in, delivered, tail, owned=owned)
 
-    def _inbox(self, values_in: np.ndarray, delivered: np.ndarray, tail: tuple[int, ...], *,
-               owned: bool = False) -> Inbox:
+    def _inbox(
+        self, values_in: np.ndarray, delivered: np.ndarray, tail: tuple[int, ...], *, owned: bool = False
+    ) -> Inbox:
         if not delivered.all():
             if owned:  # a fresh array of this round: zero the undelivered rows in place
                 values_in[~delivered] = 0.0
             else:
                 values_in = np.where(delivered[:, None], values_in, 0.0)
-        return Inbox(values=values_in.reshape((values_in.shape[0], *tail)), delivered=delivered,
-                     dst=self.in_dst, src=self.in_src, edges=self.in_edges, n_local=self.n_local)
+        return Inbox(
+            values=values_in.reshape((values_in.shape[0], *tail)),
+            delivered=delivered,
+            dst=self.in_dst,
+            src=self.in_src,
+            edges=self.in_edges,
+            n_local=self.n_local,
+        )
 
     def broadcast(self, node_values: np.ndarray, *, active: np.ndarray | None = None) -> Inbox:
         """Each local node sends its row of ``node_values`` along its (active) outgoing edges.
@@ -404,8 +437,7 @@ class Exchange(ABC):
         act_out, act_in = self._active_slices(active)
         cols = self._columns(flat, active)
         gathered = np.take(cols, self.in_src_col, axis=0, mode="clip")  # valid indices; "clip" skips a temporary
-        return self._finish_round(gathered, act_out, act_in, tail, flat.shape[1] * flat.itemsize,
-                                  owned=True)
+        return self._finish_round(gathered, act_out, act_in, tail, flat.shape[1] * flat.itemsize, owned=True)
 
     def send(self, edge_values: np.ndarray, *, active: np.ndarray | None = None) -> Inbox:
         """Send one value per outgoing edge (rows in :attr:`out_edges` order); receive one per incoming edge."""
@@ -417,11 +449,13 @@ class Exchange(ABC):
         flat, tail = _flat(x)
         act_out, act_in = self._active_slices(active)
         moved = self._move_edges(flat, active)
-        return self._finish_round(moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize,
-                                  owned=not np.may_share_memory(moved, x))
+        return self._finish_round(
+            moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize, owned=not np.may_share_memory(moved, x)
+        )
 
-    def route(self, active: np.ndarray, *, in_rows: np.ndarray | None = None,
-              out_rows: np.ndarray | None = None) -> Route:
+    def route(
+        self, active: np.ndarray, *, in_rows: np.ndarray | None = None, out_rows: np.ndarray | None = None
+    ) -> Route:
         """Prepare rounds over the edges of ``active`` on compact arrays (:class:`~distnav.exchange.route.Route`):
         the same messages, counts and faults as :meth:`broadcast`/:meth:`send` with that mask, without the
         full-length arrays."""

@@ -131,8 +131,15 @@ class FaultPlan:
 
     _CHUNK = 1 << 15  # uint64 elements per pass: 256 KB stays in cache
 
-    def __init__(self, schedule: FaultSchedule, src: Endpoints, dst: Endpoints, edge_ids: np.ndarray, *,
-                 is_self: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        schedule: FaultSchedule,
+        src: Endpoints,
+        dst: Endpoints,
+        edge_ids: np.ndarray,
+        *,
+        is_self: np.ndarray | None = None,
+    ) -> None:
         self.schedule = schedule
         self.n_edges = int(np.shape(edge_ids)[0])
         # the edge ids as given (int32 in-process), turned into uint64 a chunk at a time by the draw: no

@@ -26,8 +26,7 @@ class InProcessExchange(Exchange):
     backend = "inprocess"
     _moves_rows_in_place = True
 
-    def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *,
-                 order: str | np.ndarray = "auto") -> None:
+    def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *, order: str | np.ndarray = "auto") -> None:
         super().__init__(graph, faults)
         perm = locality_order(graph, order)
         self._identity = perm is None

@@ -23,9 +23,15 @@ else:  # imported on first use (start-up of an MPI job)
 __all__ = ["Mixer"]
 
 
-def _block_csr(in_dst: np.ndarray, below: np.ndarray, in_src_col: np.ndarray,
-               edge_w: Callable[[int, int], np.ndarray], local_col: np.ndarray, self_w: np.ndarray,
-               n_cols: int) -> sp.csr_matrix:
+def _block_csr(
+    in_dst: np.ndarray,
+    below: np.ndarray,
+    in_src_col: np.ndarray,
+    edge_w: Callable[[int, int], np.ndarray],
+    local_col: np.ndarray,
+    self_w: np.ndarray,
+    n_cols: int,
+) -> sp.csr_matrix:
     """The local block of ``W`` in CSR, each row's entries stored by ascending *global* sender id (the diagonal
     merged in at its place), whatever the column numbering. A row's product then sums its terms in the same order
     on every backend and in every local node order, so results agree bitwise; explicit zeros are left out (as
@@ -76,8 +82,15 @@ class Mixer:
     product. With faults, a lost message's weight moves to the receiver's self-weight.
     """
 
-    def __init__(self, exchange: Exchange, edge_weight: np.ndarray, self_weight: np.ndarray,
-                 active: np.ndarray | None, *, rows: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    def __init__(
+        self,
+        exchange: Exchange,
+        edge_weight: np.ndarray,
+        self_weight: np.ndarray,
+        active: np.ndarray | None,
+        *,
+        rows: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> None:
         ex = exchange
         self.exchange = ex
         self._edge_weight = edge_weight  # kept by reference (the caller's weights hold it): no copy
@@ -94,11 +107,19 @@ class Mixer:
         self._w_full: sp.csr_matrix | None = None
         self._w_masked: sp.csr_matrix | None = None
         if ex.faults.active:
-            self._w_masked = _segment_matrix(ex.in_dst, ex.n_local, ex.n_columns, self._in_edge_weights(),
-                                             ex.in_src_col)
+            self._w_masked = _segment_matrix(
+                ex.in_dst, ex.n_local, ex.n_columns, self._in_edge_weights(), ex.in_src_col
+            )
         else:
-            self._w_full = _block_csr(ex.in_dst, ex._sender_below(), ex.in_src_col, self._in_edge_weights,
-                                      ex.local_col, self._self_w, ex.n_columns)
+            self._w_full = _block_csr(
+                ex.in_dst,
+                ex._sender_below(),
+                ex.in_src_col,
+                self._in_edge_weights,
+                ex.local_col,
+                self._self_w,
+                ex.n_columns,
+            )
         if active is None:  # the exchange's own counts over its real edges (the same mask: the same numbers)
             self._sent_counts, self._recv_counts = ex._all_sent, ex._all_recv
         else:

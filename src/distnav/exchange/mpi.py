@@ -69,9 +69,16 @@ class MPIExchange(Exchange):
 
     backend = "mpi"
 
-    def __init__(self, graph: Graph | GraphPart, faults: FaultSchedule | None = None, *, comm: Any = None,
-                 partition: str | np.ndarray | os.PathLike[str] | None = None, order: str | np.ndarray = "auto",
-                 persistent: bool = True) -> None:
+    def __init__(
+        self,
+        graph: Graph | GraphPart,
+        faults: FaultSchedule | None = None,
+        *,
+        comm: Any = None,
+        partition: str | np.ndarray | os.PathLike[str] | None = None,
+        order: str | np.ndarray = "auto",
+        persistent: bool = True,
+    ) -> None:
         super().__init__(graph, faults)
         MPI = _mpi()
         self._MPI = MPI
@@ -81,14 +88,18 @@ class MPIExchange(Exchange):
         me = self.rank
         if isinstance(graph, GraphPart):  # this rank's part only: the partition must be given, not computed
             if partition is None or (isinstance(partition, str) and partition == "rcm"):
-                raise ExchangeError("an exchange on a graph part needs the partition the parts were built from "
-                                    "(an owner array, a partition file or 'block'): 'rcm' needs the whole graph")
+                raise ExchangeError(
+                    "an exchange on a graph part needs the partition the parts were built from "
+                    "(an owner array, a partition file or 'block'): 'rcm' needs the whole graph"
+                )
             self.owner = partition_nodes(graph, self.size, partition)
             part = graph
             if not np.array_equal(part.nodes, np.flatnonzero(self.owner == me)):
-                raise ExchangeError(f"rank {me}: the graph part holds other nodes than the partition gives this "
-                                    f"rank ({part.n_local} nodes in the part, "
-                                    f"{int(np.count_nonzero(self.owner == me))} in the partition)")
+                raise ExchangeError(
+                    f"rank {me}: the graph part holds other nodes than the partition gives this "
+                    f"rank ({part.n_local} nodes in the part, "
+                    f"{int(np.count_nonzero(self.owner == me))} in the partition)"
+                )
             perm = _part_order(part, order)  # a locality order of the part's own links (results do not depend
             # on it: every row sums its terms in global sender order)
         else:
@@ -163,13 +174,12 @@ class MPIExchange(Exchange):
         in_by_id = np.argsort(self.in_edges, kind="stable")
         local_out_rows = np.flatnonzero(own_out_dst == me)
         self._local_out_pos = local_out_rows.astype(idx)
-        self._local_in_pos = in_by_id[np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])
-                                      ].astype(idx)
+        self._local_in_pos = in_by_id[np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])].astype(
+            idx
+        )
         del in_by_id, local_out_rows, own_in_src, own_out_dst
-        self._edge_send_pos: np.ndarray = (np.concatenate(send_rows) if nbr.size else np.zeros(0, np.int64)
-                                           ).astype(idx)
-        self._edge_recv_pos: np.ndarray = (np.concatenate(recv_rows) if nbr.size else np.zeros(0, np.int64)
-                                           ).astype(idx)
+        self._edge_send_pos: np.ndarray = (np.concatenate(send_rows) if nbr.size else np.zeros(0, np.int64)).astype(idx)
+        self._edge_recv_pos: np.ndarray = (np.concatenate(recv_rows) if nbr.size else np.zeros(0, np.int64)).astype(idx)
         self._edge_send_counts = np.array([e.size for e in send_rows], dtype=np.int64)
         self._edge_recv_counts = np.array([e.size for e in recv_rows], dtype=np.int64)
 
@@ -196,8 +206,9 @@ class MPIExchange(Exchange):
             np.cumsum(counts[:-1], out=d[1:])
         return d
 
-    def _alltoallv(self, send: np.ndarray, send_counts: np.ndarray, recv_counts: np.ndarray,
-                   width: int, dtype: np.dtype) -> np.ndarray:
+    def _alltoallv(
+        self, send: np.ndarray, send_counts: np.ndarray, recv_counts: np.ndarray, width: int, dtype: np.dtype
+    ) -> np.ndarray:
         recv = np.empty((int(recv_counts.sum()), width), dtype=dtype)
         if self.neighbour_ranks.size == 0:
             return recv
@@ -206,20 +217,24 @@ class MPIExchange(Exchange):
         layout = self._layouts.get(key)
         if layout is None:  # counts and displacements per payload width, computed once
             sc, rc = send_counts * width, recv_counts * width
-            layout = self._layouts[key] = ((sc.tolist(), self._displs(sc).tolist()),
-                                           (rc.tolist(), self._displs(rc).tolist()))
+            layout = self._layouts[key] = (
+                (sc.tolist(), self._displs(sc).tolist()),
+                (rc.tolist(), self._displs(rc).tolist()),
+            )
         self.dist_comm.Neighbor_alltoallv([send, layout[0]], [recv, layout[1]])
         return recv
 
-    def _persistent_request(self, send: np.ndarray, send_counts: np.ndarray, recv: np.ndarray,
-                            recv_counts: np.ndarray) -> Any:
+    def _persistent_request(
+        self, send: np.ndarray, send_counts: np.ndarray, recv: np.ndarray, recv_counts: np.ndarray
+    ) -> Any:
         """A persistent ``Neighbor_alltoallv`` on fixed buffers (MPI-4), or None where the library lacks it."""
         if not self.persistent:
             return None
         width = send.shape[1] if send.ndim == 2 else recv.shape[1]
         sc, rc = send_counts * width, recv_counts * width
-        req = self.dist_comm.Neighbor_alltoallv_init([send, (sc.tolist(), self._displs(sc).tolist())],
-                                                     [recv, (rc.tolist(), self._displs(rc).tolist())])
+        req = self.dist_comm.Neighbor_alltoallv_init(
+            [send, (sc.tolist(), self._displs(sc).tolist())], [recv, (rc.tolist(), self._displs(rc).tolist())]
+        )
         self._requests.append(req)
         return req
 
@@ -232,7 +247,7 @@ class MPIExchange(Exchange):
         if self.n_halo == 0:
             return flat_local
         cols, req = self._start_halo(flat_local)
-        cols[:self.n_local] = flat_local
+        cols[: self.n_local] = flat_local
         if req is not None:
             req.Wait()
         return cols
@@ -245,7 +260,7 @@ class MPIExchange(Exchange):
         cols, req = self._start_halo(flat_local)
         if req is not None:
             req.Wait()
-        return cols[self.n_local:]
+        return cols[self.n_local :]
 
     def _start_halo(self, flat_local: np.ndarray) -> tuple[np.ndarray, Any]:
         """Send this block's boundary values and start receiving the halo into the column buffer's tail; returns
@@ -256,15 +271,16 @@ class MPIExchange(Exchange):
         if bufs is None:
             send = np.empty((self._send_node_idx.size, width), dtype=flat_local.dtype)
             cols = np.empty((self.n_columns, width), dtype=flat_local.dtype)
-            req = self._persistent_request(send, self._node_send_counts, cols[self.n_local:], self._node_recv_counts)
+            req = self._persistent_request(send, self._node_send_counts, cols[self.n_local :], self._node_recv_counts)
             bufs = self._column_buffers[key] = (send, cols, req)
         send, cols, req = bufs
         np.take(flat_local, self._send_node_idx, axis=0, out=send)
         if req is not None:
             req.Start()
             return cols, req
-        cols[self.n_local:] = self._alltoallv(send, self._node_send_counts, self._node_recv_counts, width,
-                                              flat_local.dtype)
+        cols[self.n_local :] = self._alltoallv(
+            send, self._node_send_counts, self._node_recv_counts, width, flat_local.dtype
+        )
         return cols, None
 
     def _move_edges(self, flat_out: np.ndarray, active: np.ndarray | None) -> np.ndarray:
@@ -286,8 +302,9 @@ class MPIExchange(Exchange):
             out[self._edge_recv_pos] = recv
             return out
         out[self._local_in_pos] = flat_out[self._local_out_pos]
-        recv = self._alltoallv(flat_out[self._edge_send_pos], self._edge_send_counts,
-                               self._edge_recv_counts, width, flat_out.dtype)
+        recv = self._alltoallv(
+            flat_out[self._edge_send_pos], self._edge_send_counts, self._edge_recv_counts, width, flat_out.dtype
+        )
         out[self._edge_recv_pos] = recv
         return out
 

@@ -45,8 +45,10 @@ def _rows_or_default(rows: np.ndarray | None, mask: np.ndarray, what: str) -> np
         seen[rows] = True
         ok = bool(mask[rows].all()) and int(np.count_nonzero(seen)) == n_active
     if not ok:
-        raise ExchangeError(f"route {what} must list each of the {n_active} active {what.split('_')[0]}-edge "
-                            f"rows of this block once, got {rows.size} rows")
+        raise ExchangeError(
+            f"route {what} must list each of the {n_active} active {what.split('_')[0]}-edge "
+            f"rows of this block once, got {rows.size} rows"
+        )
     return rows
 
 
@@ -54,15 +56,22 @@ class Route:
     """A prepared round over the edges of ``active`` (a mask over the graph's directed edges); see the module
     docstring. ``in_rows``/``out_rows``: the order of the compact arrays (default: ascending edge rows)."""
 
-    def __init__(self, exchange: Exchange, active: np.ndarray, *, in_rows: np.ndarray | None = None,
-                 out_rows: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        exchange: Exchange,
+        active: np.ndarray,
+        *,
+        in_rows: np.ndarray | None = None,
+        out_rows: np.ndarray | None = None,
+    ) -> None:
         ex = exchange
         self.exchange = ex
         self.active = np.asarray(active, bool)
         if ex._moves_rows_in_place and ex.out_edges is ex.in_edges:  # in-process: one edge order, one mask
             if self.active.shape != (ex.n_edges,):
-                raise ExchangeError(f"active must be a mask over the {ex.n_edges} directed edges, got "
-                                    f"{self.active.shape}")
+                raise ExchangeError(
+                    f"active must be a mask over the {ex.n_edges} directed edges, got {self.active.shape}"
+                )
             self._act_in = self.active[ex.in_edges] & ex._real_in
             self._act_out = self._act_in
         else:
@@ -116,10 +125,13 @@ class Route:
         tail = x.shape[1:]
         flat = x.reshape(x.shape[0], math.prod(tail))
         cols = ex._columns(flat, self.active)
-        if out is not None and (out.shape != (self.in_rows.size, *tail) or out.dtype != cols.dtype
-                                or not out.flags.c_contiguous):
-            raise ExchangeError(f"out must be a contiguous {cols.dtype} array of shape "
-                                f"{(self.in_rows.size, *tail)}, got {out.dtype} {out.shape}")
+        if out is not None and (
+            out.shape != (self.in_rows.size, *tail) or out.dtype != cols.dtype or not out.flags.c_contiguous
+        ):
+            raise ExchangeError(
+                f"out must be a contiguous {cols.dtype} array of shape "
+                f"{(self.in_rows.size, *tail)}, got {out.dtype} {out.shape}"
+            )
         flat_out = None if out is None else out.reshape(self.in_rows.size, flat.shape[1])
         values = np.take(cols, self._gather, axis=0, out=flat_out, mode="clip")  # indices valid by construction
         ok = self._count(flat.shape[1] * flat.itemsize)
@@ -133,8 +145,9 @@ class Route:
         ex = self.exchange
         x = np.asarray(edge_values)
         if x.ndim == 0 or x.shape[0] != self.out_rows.size:
-            raise ExchangeError(f"route send needs one row per route out-edge ({self.out_rows.size}), got array "
-                                f"of shape {x.shape}")
+            raise ExchangeError(
+                f"route send needs one row per route out-edge ({self.out_rows.size}), got array of shape {x.shape}"
+            )
         tail = x.shape[1:]
         flat = x.reshape(x.shape[0], math.prod(tail))
         if self._in_place:

@@ -49,8 +49,17 @@ TITLE = "Distributed least squares by ADMM with constraint nodes (paper 000 Figs
 
 # Fig. 5, 1-based as in the paper
 FIG5_LINKS = ((1, 2), (2, 3), (3, 5), (3, 6), (3, 7), (3, 8), (5, 6), (6, 7), (4, 5), (4, 8), (7, 9), (8, 9))
-FIG5_POSITIONS = ((0.0, 2.0), (1.0, 2.2), (2.0, 1.6), (4.0, 0.0), (3.0, 0.6), (3.2, 1.8), (3.0, 2.8), (2.6, -0.2),
-                  (4.2, 2.0))
+FIG5_POSITIONS = (
+    (0.0, 2.0),
+    (1.0, 2.2),
+    (2.0, 1.6),
+    (4.0, 0.0),
+    (3.0, 0.6),
+    (3.2, 1.8),
+    (3.0, 2.8),
+    (2.6, -0.2),
+    (4.2, 2.0),
+)
 C_FULL = (1, 3, 4, 6, 9)
 C_REDUCED = (1, 3, 4, 9)
 TWO_NODE: dict[str, Any] = {"a": (1.0, 2.0), "R": (1.0, 1.0), "y": (-1.0, 4.0), "W": 1.0}
@@ -78,14 +87,31 @@ def _iterations_of(run: _Run, exchange: Callable[[Graph], Exchange] | None = Non
     """Iterations of Fig. 6 until ``max_i ‖x_i − x̂‖/‖x̂‖ ≤ 1e-6`` (None if never within ``max_iterations``; the
     residuals are not monitored: only the distance to x̂ stops the run)."""
     make = exchange or (lambda graph: make_exchange(graph))
-    res = admm(run.problem, run.graph, constraint_nodes=run.constraint_nodes, W=run.rho,
-               max_iterations=run.max_iterations, tol=0.0, reference=run.reference, stop_at_reference=1e-6,
-               record_nodes=False, exchange=make(run.graph), monitor_every=run.monitor_every)
+    res = admm(
+        run.problem,
+        run.graph,
+        constraint_nodes=run.constraint_nodes,
+        W=run.rho,
+        max_iterations=run.max_iterations,
+        tol=0.0,
+        reference=run.reference,
+        stop_at_reference=1e-6,
+        record_nodes=False,
+        exchange=make(run.graph),
+        monitor_every=run.monitor_every,
+    )
     return _iters(res)
 
 
-def iterations_to_1e6(ctx: ExperimentContext, problem: LinearProblem, x_hat: np.ndarray, g: Graph,
-                      C: ConstraintNodes, rho: float, max_iterations: int) -> int:
+def iterations_to_1e6(
+    ctx: ExperimentContext,
+    problem: LinearProblem,
+    x_hat: np.ndarray,
+    g: Graph,
+    C: ConstraintNodes,
+    rho: float,
+    max_iterations: int,
+) -> int:
     """Iterations of Fig. 6 until ``max_i ‖x_i − x̂‖/‖x̂‖ ≤ 1e-6`` (``max_iterations`` if never)."""
     v = _iterations_of(_Run(problem, g, C, rho, max_iterations, x_hat, monitor_every=0), ctx.exchange)
     return max_iterations if v is None else v
@@ -100,14 +126,21 @@ def _study(ctx: ExperimentContext, runs: list[_Run], advance: Callable[[int], No
 
 def fig5_graph() -> Graph:
     """The 9-node graph of paper 000 Fig. 5 (node names 1..9, ids 0..8)."""
-    return Graph.from_links(9, [(a - 1, b - 1) for a, b in FIG5_LINKS], names=[str(k) for k in range(1, 10)],
-                            positions=np.array(FIG5_POSITIONS))
+    return Graph.from_links(
+        9,
+        [(a - 1, b - 1) for a, b in FIG5_LINKS],
+        names=[str(k) for k in range(1, 10)],
+        positions=np.array(FIG5_POSITIONS),
+    )
 
 
 def two_node_problem() -> LinearProblem:
     a, R, y = (tuple(float(v) for v in TWO_NODE[k]) for k in ("a", "R", "y"))
-    return LinearProblem.from_blocks([np.array([[a[0]]]), np.array([[a[1]]])], [np.array([y[0]]), np.array([y[1]])],
-                                     [np.array([[R[0]]]), np.array([[R[1]]])])
+    return LinearProblem.from_blocks(
+        [np.array([[a[0]]]), np.array([[a[1]]])],
+        [np.array([y[0]]), np.array([y[1]])],
+        [np.array([[R[0]]]), np.array([[R[1]]])],
+    )
 
 
 def random_problem(rng: np.random.Generator, n: int, m: int, p: int, sigma: float = 0.1) -> LinearProblem:
@@ -132,23 +165,32 @@ def part_a() -> dict[str, Any]:
     runs = {"method_of_multipliers": mom}
     for z0 in (3.0, -7.0):
         runs[f"admm_z0={z0:g}"] = single_consensus_admm(prob, W=W, iterations=ITERATIONS_2D, z0=z0)
-    out: dict[str, Any] = {"x_hat": float(sol.x[0]), "optimal_value": sol.cost,
-                           "u_hat": sol.multipliers[:, 0].tolist() if sol.multipliers is not None else None}
+    out: dict[str, Any] = {
+        "x_hat": float(sol.x[0]),
+        "optimal_value": sol.cost,
+        "u_hat": sol.multipliers[:, 0].tolist() if sol.multipliers is not None else None,
+    }
     for name, r in runs.items():
         g = np.concatenate([[r.dual_value_initial], r.trace["dual_value"]])
-        out[name] = {"x": r.trace["x"][:, :, 0].tolist(), "z": r.trace["z"][:, 0].tolist(),
-                     "u": r.trace["u"][:, :, 0].tolist(), "dual_value": g.tolist(),
-                     "dual_increasing": bool(np.all(np.diff(g) >= -1e-12)),
-                     "final_error": float(np.abs(r.trace["x"][-1, :, 0] - sol.x[0]).max())}
+        out[name] = {
+            "x": r.trace["x"][:, :, 0].tolist(),
+            "z": r.trace["z"][:, 0].tolist(),
+            "u": r.trace["u"][:, :, 0].tolist(),
+            "dual_value": g.tolist(),
+            "dual_increasing": bool(np.all(np.diff(g) >= -1e-12)),
+            "final_error": float(np.abs(r.trace["x"][-1, :, 0] - sol.x[0]).max()),
+        }
     return out
 
 
 # ----------------------------------------------------------------------------------------------- (b)
 def fig5_sets(g: Graph) -> dict[str, ConstraintNodes]:
     """The constraint-node sets of the Fig. 5 study: the paper's two and all nodes."""
-    return {"C_full": choose_constraint_nodes(g, [k - 1 for k in C_FULL]),
-            "C_reduced": choose_constraint_nodes(g, [k - 1 for k in C_REDUCED]),
-            "C_all": choose_constraint_nodes(g, "all")}
+    return {
+        "C_full": choose_constraint_nodes(g, [k - 1 for k in C_FULL]),
+        "C_reduced": choose_constraint_nodes(g, [k - 1 for k in C_REDUCED]),
+        "C_all": choose_constraint_nodes(g, "all"),
+    }
 
 
 def fig5_problems(ctx: ExperimentContext, draws: int) -> tuple[list[LinearProblem], list[np.ndarray]]:
@@ -158,8 +200,9 @@ def fig5_problems(ctx: ExperimentContext, draws: int) -> tuple[list[LinearProble
     return problems, [blue(pr).x for pr in problems]
 
 
-def part_b(ctx: ExperimentContext, draws: int, iterations: int, rho: float,
-           rho_grid: tuple[float, ...]) -> dict[str, Any]:
+def part_b(
+    ctx: ExperimentContext, draws: int, iterations: int, rho: float, rho_grid: tuple[float, ...]
+) -> dict[str, Any]:
     g = fig5_graph()
     sets = fig5_sets(g)
     problems, refs = fig5_problems(ctx, draws)
@@ -168,35 +211,55 @@ def part_b(ctx: ExperimentContext, draws: int, iterations: int, rho: float,
     comm: dict[str, Any] = {}
     first: dict[str, int | None] = {}
     for key, C in sets.items():  # the primary runs: first problem, ρ = rho, full length
-        res = admm(problems[0], g, constraint_nodes=C, W=rho, max_iterations=iterations, tol=0.0, reference=refs[0],
-                   exchange=ctx.exchange(g))
+        res = admm(
+            problems[0],
+            g,
+            constraint_nodes=C,
+            W=rho,
+            max_iterations=iterations,
+            tol=0.0,
+            reference=refs[0],
+            exchange=ctx.exchange(g),
+        )
         curves[key] = res.trace["relative_max_distance"]
         finals[key] = float(res.trace["relative_max_distance"][-1])
         first[key] = _iters(res)
         comm[key] = {**res.comm.as_dict(), "messages_per_iteration": int(res.comm.messages_per_round[1:3].sum())}
     # the study: every problem, every ρ of the grid, iterations to 1e-6
     table: dict[str, dict[str, list[int]]] = {f"{r:g}": {k: [] for k in sets} for r in rho_grid}
-    cells = [(f"{r:g}", key, _Run(pr, g, C, r, iterations * 3, xh, monitor_every=0))
-             for pr, xh in zip(problems, refs, strict=True) for r in rho_grid for key, C in sets.items()]
-    with ctx.progress.task(f"admm: Fig. 5 graph, {draws} problems × {len(rho_grid)} ρ × {len(sets)} constraint "
-                           "sets", total=len(cells)) as adv:
+    cells = [
+        (f"{r:g}", key, _Run(pr, g, C, r, iterations * 3, xh, monitor_every=0))
+        for pr, xh in zip(problems, refs, strict=True)
+        for r in rho_grid
+        for key, C in sets.items()
+    ]
+    with ctx.progress.task(
+        f"admm: Fig. 5 graph, {draws} problems × {len(rho_grid)} ρ × {len(sets)} constraint sets", total=len(cells)
+    ) as adv:
         its = _study(ctx, [c[2] for c in cells], adv)
     for (label, key, run), v in zip(cells, its, strict=True):
         table[label][key].append(run.max_iterations if v is None else v)
     study: dict[str, dict[str, Any]] = {}
     for label, row in table.items():
         full, red = np.array(row["C_full"]), np.array(row["C_reduced"])
-        study[label] = {"median_iterations_to_1e-6": {k: float(np.median(v)) for k, v in row.items()},
-                    "reduced_slower_than_full": int((red > full).sum()),
-                    "reduced_faster_than_full": int((red < full).sum())}
+        study[label] = {
+            "median_iterations_to_1e-6": {k: float(np.median(v)) for k, v in row.items()},
+            "reduced_slower_than_full": int((red > full).sum()),
+            "reduced_faster_than_full": int((red < full).sum()),
+        }
     best = {k: min(float(v["median_iterations_to_1e-6"][k]) for v in study.values()) for k in sets}
     return {
-        "rho": rho, "draws": draws, "rho_grid": list(rho_grid),
-        **{key: {"iterations_to_1e-6": first[key], **sets[key].summary(), "communication": comm[key]}
-           for key in sets},
-        "rho_study": study, "best_median_over_rho": best,
+        "rho": rho,
+        "draws": draws,
+        "rho_grid": list(rho_grid),
+        **{key: {"iterations_to_1e-6": first[key], **sets[key].summary(), "communication": comm[key]} for key in sets},
+        "rho_study": study,
+        "best_median_over_rho": best,
         "min_cover": choose_constraint_nodes(g, "min_cover").summary(),
-        "_curves": curves, "_finals": finals, "_graph": g, "_sets": sets,
+        "_curves": curves,
+        "_finals": finals,
+        "_graph": g,
+        "_sets": sets,
     }
 
 
@@ -210,8 +273,9 @@ def part_c(ctx: ExperimentContext, n: int, rhos: np.ndarray, iterations: int) ->
     sweep: dict[str, list[int | None]] = {k: [] for k in sets}
     # monitor_every=0: with tol=0 the residuals never stop a run (only the distance to x̂ does), so not computing
     # them leaves every count unchanged
-    cells = [(key, _Run(prob, g, C, float(rho), iterations, xh, monitor_every=0))
-             for rho in rhos for key, C in sets.items()]
+    cells = [
+        (key, _Run(prob, g, C, float(rho), iterations, xh, monitor_every=0)) for rho in rhos for key, C in sets.items()
+    ]
     with ctx.progress.task(f"admm: ρ sweep on a {n}-node random network", total=len(cells)) as adv:
         its = _study(ctx, [c[1] for c in cells], adv)
     for (key, _), v in zip(cells, its, strict=True):
@@ -222,8 +286,16 @@ def part_c(ctx: ExperimentContext, n: int, rhos: np.ndarray, iterations: int) ->
     show = [best] if ctx.quick else sorted({best / 10, best, best * 10})
     curves = {}
     for rho in show:
-        res = admm(prob, g, constraint_nodes=sets["min_cover"], W=rho, max_iterations=iterations, tol=0.0,
-                   reference=xh, exchange=ctx.exchange(g))
+        res = admm(
+            prob,
+            g,
+            constraint_nodes=sets["min_cover"],
+            W=rho,
+            max_iterations=iterations,
+            tol=0.0,
+            reference=xh,
+            exchange=ctx.exchange(g),
+        )
         curves[f"{rho:.3g}"] = res.trace["distance_to_reference"]
     # a previous experiment: same nodes and parameters, fresh noise (σ = 0.1); its BLUE starts this run (§4.3)
     y_prev = np.einsum("nmp,p->nm", prob.A, xh) + 0.1 * rng.normal(size=prob.y.shape)
@@ -231,20 +303,50 @@ def part_c(ctx: ExperimentContext, n: int, rhos: np.ndarray, iterations: int) ->
     inits = {"zero": "zero", "previous": x_prev}
     init_runs = {}
     for label, init in inits.items():
-        res = admm(prob, g, constraint_nodes=sets["min_cover"], W=best, init=init, max_iterations=iterations,
-                   tol=0.0, reference=xh, exchange=ctx.exchange(g), record_nodes=False)
-        init_runs[label] = {"iterations_to_1e-6": _iters(res), "iterations_to_1e-8": _iters(res, "1e-08"),
-                            "initial_relative_distance": float(res.trace["relative_max_distance"][0]),
-                            "final_relative_distance": float(res.trace["relative_max_distance"][-1])}
-    final = admm(prob, g, constraint_nodes=sets["min_cover"], W=best, max_iterations=iterations, tol=1e-12,
-                 reference=xh, record_nodes=False, exchange=ctx.exchange(g))
+        res = admm(
+            prob,
+            g,
+            constraint_nodes=sets["min_cover"],
+            W=best,
+            init=init,
+            max_iterations=iterations,
+            tol=0.0,
+            reference=xh,
+            exchange=ctx.exchange(g),
+            record_nodes=False,
+        )
+        init_runs[label] = {
+            "iterations_to_1e-6": _iters(res),
+            "iterations_to_1e-8": _iters(res, "1e-08"),
+            "initial_relative_distance": float(res.trace["relative_max_distance"][0]),
+            "final_relative_distance": float(res.trace["relative_max_distance"][-1]),
+        }
+    final = admm(
+        prob,
+        g,
+        constraint_nodes=sets["min_cover"],
+        W=best,
+        max_iterations=iterations,
+        tol=1e-12,
+        reference=xh,
+        record_nodes=False,
+        exchange=ctx.exchange(g),
+    )
     return {
-        "n_nodes": n, "n_links": g.n_links, "p": 6, "m_i": 3,
-        "rho": rhos.tolist(), "iterations_to_1e-6": sweep, "best_rho_min_cover": best,
+        "n_nodes": n,
+        "n_links": g.n_links,
+        "p": 6,
+        "m_i": 3,
+        "rho": rhos.tolist(),
+        "iterations_to_1e-6": sweep,
+        "best_rho_min_cover": best,
         "constraint_nodes": {k: {"n": c.size, "method": c.method, "optimal": c.optimal} for k, c in sets.items()},
         "initial_values": init_runs,
-        "final_run": {"rho": best, **final.summary(),
-                      "relative_max_distance": float(final.trace["relative_max_distance"][-1])},
+        "final_run": {
+            "rho": best,
+            **final.summary(),
+            "relative_max_distance": float(final.trace["relative_max_distance"][-1]),
+        },
         "_curves": curves,
     }
 
@@ -263,21 +365,47 @@ def part_d(ctx: ExperimentContext, rho: float = 3.0) -> dict[str, Any]:
     xg = gn.estimates[0]
     C = choose_constraint_nodes(g, "min_cover")
     with ctx.progress.task("admm: nonlinear range positioning (linearized and eq. 23)"):
-        lin = admm_linearized(prob, g, x0, constraint_nodes=C, W=rho, reference=xg, inner_tol=1e-10,
-                              exchange=ctx.exchange(g))
-        nl = admm_nonlinear(prob, g, x0, constraint_nodes=C, W=rho, reference=xg, max_iterations=3000, tol=1e-10,
-                            exchange=ctx.exchange(g))
+        lin = admm_linearized(
+            prob, g, x0, constraint_nodes=C, W=rho, reference=xg, inner_tol=1e-10, exchange=ctx.exchange(g)
+        )
+        nl = admm_nonlinear(
+            prob,
+            g,
+            x0,
+            constraint_nodes=C,
+            W=rho,
+            reference=xg,
+            max_iterations=3000,
+            tol=1e-10,
+            exchange=ctx.exchange(g),
+        )
     return {
-        "n_nodes": g.n_nodes, "targets_m": targets.tolist(), "sigma_m": 0.5, "rho": rho, "x0": x0.tolist(),
-        "gauss_newton": {"x": xg.tolist(), "iterations": gn.iterations,
-                         "error_vs_truth_m": float(np.abs(xg - targets.ravel()).max())},
-        "linearized": {"outer_iterations": lin.iterations, "admm_iterations": lin.inner_iterations_total,
-                       "max_deviation_from_gauss_newton_m": float(np.abs(lin.estimates - xg).max()),
-                       "messages": lin.comm.messages},
-        "nonlinear_eq23": {"iterations": nl.iterations, "converged": nl.converged,
-                           "max_deviation_from_gauss_newton_m": float(np.abs(nl.estimates - xg).max()),
-                           "messages": nl.comm.messages},
-        "_graph": g, "_lin": lin, "_nl": nl, "_xg": xg,
+        "n_nodes": g.n_nodes,
+        "targets_m": targets.tolist(),
+        "sigma_m": 0.5,
+        "rho": rho,
+        "x0": x0.tolist(),
+        "gauss_newton": {
+            "x": xg.tolist(),
+            "iterations": gn.iterations,
+            "error_vs_truth_m": float(np.abs(xg - targets.ravel()).max()),
+        },
+        "linearized": {
+            "outer_iterations": lin.iterations,
+            "admm_iterations": lin.inner_iterations_total,
+            "max_deviation_from_gauss_newton_m": float(np.abs(lin.estimates - xg).max()),
+            "messages": lin.comm.messages,
+        },
+        "nonlinear_eq23": {
+            "iterations": nl.iterations,
+            "converged": nl.converged,
+            "max_deviation_from_gauss_newton_m": float(np.abs(nl.estimates - xg).max()),
+            "messages": nl.comm.messages,
+        },
+        "_graph": g,
+        "_lin": lin,
+        "_nl": nl,
+        "_xg": xg,
     }
 
 
@@ -285,8 +413,13 @@ def part_d(ctx: ExperimentContext, rho: float = 3.0) -> dict[str, Any]:
 def run(ctx: ExperimentContext) -> dict[str, Any]:
     quick = ctx.quick
     a = part_a()
-    b = part_b(ctx, draws=3 if quick else 40, iterations=400 if quick else 1000, rho=1.0,
-               rho_grid=(0.3, 1.0, 3.0) if quick else (0.3, 1.0, 3.0, 10.0))
+    b = part_b(
+        ctx,
+        draws=3 if quick else 40,
+        iterations=400 if quick else 1000,
+        rho=1.0,
+        rho_grid=(0.3, 1.0, 3.0) if quick else (0.3, 1.0, 3.0, 10.0),
+    )
     rhos = np.array([0.3, 1.0, 3.0, 10.0]) if quick else np.geomspace(0.1, 30, 11)
     c = part_c(ctx, n=20 if quick else 100, rhos=rhos, iterations=600 if quick else 5000)
     d = part_d(ctx)
@@ -301,18 +434,22 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "headline": {
             "Fig. 5, C={1,3,4,6,9}: iterations to 1e-6": b["C_full"]["iterations_to_1e-6"],
             "Fig. 5, C={1,3,4,9}: iterations to 1e-6": b["C_reduced"]["iterations_to_1e-6"],
-            **{f"Fig. 5, ρ={r}: reduced C slower than full in draws (of {b['draws']})": v["reduced_slower_than_full"]
-               for r, v in b["rho_study"].items()},
+            **{
+                f"Fig. 5, ρ={r}: reduced C slower than full in draws (of {b['draws']})": v["reduced_slower_than_full"]
+                for r, v in b["rho_study"].items()
+            },
             "Fig. 5: final max_i ‖x_i − x̂‖/‖x̂‖ (C full)": final_dev,
             "2-node: method of multipliers g(u) increasing": a["method_of_multipliers"]["dual_increasing"],
             "2-node: ADMM z0=−7 g(u) increasing": a["admm_z0=-7"]["dual_increasing"],
             f"{c['n_nodes']}-node net: best ρ (min cover)": c["best_rho_min_cover"],
-            f"{c['n_nodes']}-node net: iterations to 1e-6 at best ρ (min cover)":
-                min(v for v in c["iterations_to_1e-6"]["min_cover"] if v is not None),
+            f"{c['n_nodes']}-node net: iterations to 1e-6 at best ρ (min cover)": min(
+                v for v in c["iterations_to_1e-6"]["min_cover"] if v is not None
+            ),
             f"{c['n_nodes']}-node net: final relative deviation (tol 1e-12)": c["final_run"]["relative_max_distance"],
             "ranges: linearized ADMM − Gauss-Newton [m]": d["linearized"]["max_deviation_from_gauss_newton_m"],
-            "ranges: nonlinear x-update (eq. 23) − Gauss-Newton [m]":
-                d["nonlinear_eq23"]["max_deviation_from_gauss_newton_m"],
+            "ranges: nonlinear x-update (eq. 23) − Gauss-Newton [m]": d["nonlinear_eq23"][
+                "max_deviation_from_gauss_newton_m"
+            ],
         },
     }
     ctx.write_json("results.json", results)
@@ -353,8 +490,11 @@ def _figures(ctx: ExperimentContext, a: dict[str, Any], b: dict[str, Any], c: di
     F = 0.5 * (yy[0] - aa[0] * X1) ** 2 / RR[0] + 0.5 * (yy[1] - aa[1] * X2) ** 2 / RR[1]
     # dual feasibility: a1(a1 x1 − y1)/R1 + a2(a2 x2 − y2)/R2 = 0
     x2_dual = (aa[1] * yy[1] / RR[1] - aa[0] * (aa[0] * g1 - yy[0]) / RR[0]) / (aa[1] ** 2 / RR[1])
-    styles = {"method_of_multipliers": ("o", "tab:red", "method of multipliers"),
-              "admm_z0=3": ("s", "tab:green", "ADMM, z⁰ = 3"), "admm_z0=-7": ("^", "m", "ADMM, z⁰ = −7")}
+    styles = {
+        "method_of_multipliers": ("o", "tab:red", "method of multipliers"),
+        "admm_z0=3": ("s", "tab:green", "ADMM, z⁰ = 3"),
+        "admm_z0=-7": ("^", "m", "ADMM, z⁰ = −7"),
+    }
 
     def primal_axes(ax: Any, keys: list[str]) -> None:
         ax.contour(X1, X2, F, levels=15, colors="0.7", linewidths=0.7)
@@ -422,8 +562,9 @@ def _figures(ctx: ExperimentContext, a: dict[str, Any], b: dict[str, Any], c: di
         ax.axis("off")
     for key, col in (("C_full", "tab:red"), ("C_reduced", "tab:gray"), ("C_all", "tab:blue")):
         curve = b["_curves"][key]
-        axes[2].semilogy(np.arange(curve.size), curve, color=col, label=f"{key}: {b[key]['iterations_to_1e-6']} it. "
-                         "to 1e-6")
+        axes[2].semilogy(
+            np.arange(curve.size), curve, color=col, label=f"{key}: {b[key]['iterations_to_1e-6']} it. to 1e-6"
+        )
     axes[2].axhline(1e-6, color="k", ls=":", lw=0.8)
     axes[2].set_xlabel("iteration k")
     axes[2].set_ylabel("max_i ‖x_i − x̂‖ / ‖x̂‖")

@@ -46,9 +46,18 @@ DROP_PROBABILITY = 0.1
 DROP_KN = 4
 
 
-def synthetic_model(*, n_nodes: int, n_epochs: int, n_random_walk: int, n_biases: int, seed: int,
-                    see_probability: float = 1.0, rw_std: float = 0.1, noise_std: float = 1.0,
-                    late_fraction: float = 0.3) -> tuple[DynamicModel, FunctionSeries, np.ndarray]:
+def synthetic_model(
+    *,
+    n_nodes: int,
+    n_epochs: int,
+    n_random_walk: int,
+    n_biases: int,
+    seed: int,
+    see_probability: float = 1.0,
+    rw_std: float = 0.1,
+    noise_std: float = 1.0,
+    late_fraction: float = 0.3,
+) -> tuple[DynamicModel, FunctionSeries, np.ndarray]:
     """A GNSS-like linear network model: ``n_random_walk`` random-walk entries common to all nodes plus
     ``n_biases`` constant biases that rise and set (visible windows), each seen by a node with
     ``see_probability``. Row of node i for bias s at epoch t: ``[a_rw, e_s]`` with ``a_rw ~ U(0.5, 1.5)`` for the
@@ -60,15 +69,14 @@ def synthetic_model(*, n_nodes: int, n_epochs: int, n_random_walk: int, n_biases
     """
     p = n_random_walk + n_biases
     rng = np.random.default_rng([seed, 0])
-    dyn = DynamicModel(p, noise_map=np.eye(p)[:, :n_random_walk],
-                       noise_reduced_cov=np.eye(n_random_walk) * rw_std**2)
+    dyn = DynamicModel(p, noise_map=np.eye(p)[:, :n_random_walk], noise_reduced_cov=np.eye(n_random_walk) * rw_std**2)
     truth = simulate_states(dyn, n_epochs, rng=rng, initial_state=rng.normal(0.0, 3.0, p))
     rise = np.zeros(n_biases, np.int64)
     n_late = int(round(n_biases / 3))
     rise[:n_late] = rng.integers(1, max(2, int(late_fraction * n_epochs)), n_late)
     set_ = np.full(n_biases, n_epochs)
     n_set = int(round(n_biases / 3))
-    set_[n_late:n_late + n_set] = rng.integers(int(0.6 * n_epochs), n_epochs + 1, n_set)
+    set_[n_late : n_late + n_set] = rng.integers(int(0.6 * n_epochs), n_epochs + 1, n_set)
     sees = rng.random((n_nodes, n_biases)) < see_probability
     sees[np.arange(n_biases) % n_nodes, np.arange(n_biases)] = True  # every bias seen by someone
 
@@ -111,8 +119,14 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     n_epochs = 40 if ctx.quick else 240
     graph = static_network(ctx.rng(1))
     n = graph.n_nodes
-    dyn, ms, truth = synthetic_model(n_nodes=n, n_epochs=n_epochs, n_random_walk=3, n_biases=9,
-                                     seed=int(ctx.rng(2).integers(2**31)), see_probability=0.7)
+    dyn, ms, truth = synthetic_model(
+        n_nodes=n,
+        n_epochs=n_epochs,
+        n_random_walk=3,
+        n_biases=9,
+        seed=int(ctx.rng(2).integers(2**31)),
+        see_probability=0.7,
+    )
     sched = consensus_schedule(graph, PROTOCOL)
 
     runs: dict[int, Any] = {}
@@ -156,22 +170,33 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         z = (truth[:, None, :] - s.estimates) / s.std
         consistency[str(kn)] = float(np.sqrt(np.nanmean(z**2)))
     lossy_ratio = ckf_std_ratio(lossy.series, cs)
-    drops_result = {"k_n": DROP_KN, "drop_probability": DROP_PROBABILITY,
-                    "std_ratio_final": final_max(lossy_ratio),
-                    "messages_dropped": lossy.comm.messages_dropped, "messages": lossy.comm.messages}
+    drops_result = {
+        "k_n": DROP_KN,
+        "drop_probability": DROP_PROBABILITY,
+        "std_ratio_final": final_max(lossy_ratio),
+        "messages_dropped": lossy.comm.messages_dropped,
+        "messages": lossy.comm.messages,
+    }
     not_estimable = {str(kn): int((~r.series.estimable[-1]).sum()) for kn, r in runs.items()}
     degrees = graph.degrees
     results: dict[str, Any] = {
-        "network": {"n_nodes": n, "n_links": graph.n_links, "links": graph.links.tolist(),
-                    "degrees": degrees.tolist()},
-        "model": {"n_states": ms.n_states, "n_random_walk": 3, "n_biases": 9, "n_epochs": n_epochs,
-                  "protocol": PROTOCOL, "see_probability": 0.7},
+        "network": {"n_nodes": n, "n_links": graph.n_links, "links": graph.links.tolist(), "degrees": degrees.tolist()},
+        "model": {
+            "n_states": ms.n_states,
+            "n_random_walk": 3,
+            "n_biases": 9,
+            "n_epochs": n_epochs,
+            "protocol": PROTOCOL,
+            "see_probability": 0.7,
+        },
         "alpha": alpha,
         "std_ratio_final": std_ratio_final,
         "std_ratio_final_note": "largest CKF/central std ratio over nodes and estimable parameters at the last epoch",
         "std_ratio_final_per_node": {str(kn): np.nanmax(ratios[kn][-1], axis=1).tolist() for kn in KN_VALUES},
-        "local_to_central_final": {"max": final_max(local_ratio),
-                                   "per_node": np.nanmax(local_ratio[-1], axis=1).tolist()},
+        "local_to_central_final": {
+            "max": final_max(local_ratio),
+            "per_node": np.nanmax(local_ratio[-1], axis=1).tolist(),
+        },
         "rms_standardized_error": consistency,
         "not_estimable_final": not_estimable,
         "communication": {str(kn): r.comm.as_dict() for kn, r in runs.items()},
@@ -179,8 +204,9 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "headline": {
             **{f"max CKF/central std ratio, last epoch, k_n={kn}": std_ratio_final[str(kn)] for kn in KN_VALUES},
             "max local/central std ratio, last epoch": final_max(local_ratio),
-            f"max CKF/central std ratio, k_n={DROP_KN}, {DROP_PROBABILITY:.0%} messages lost":
-                drops_result["std_ratio_final"],
+            f"max CKF/central std ratio, k_n={DROP_KN}, {DROP_PROBABILITY:.0%} messages lost": drops_result[
+                "std_ratio_final"
+            ],
             **{f"α max over nodes, k_n={kn}": alpha["max_over_nodes"][ALPHA_KN.index(kn)] for kn in KN_VALUES},
             "eq. (47) closed form, max rel. error": max(alpha["stationary_closed_form_max_rel_error"].values()),
             "RMS (x−x̂)/σ of one realization, central": consistency["central"],
@@ -194,8 +220,15 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     return results
 
 
-def _figures(ctx: ExperimentContext, graph: Graph, ratios: dict[int, np.ndarray], local_ratio: np.ndarray,
-             alpha: dict[str, Any], degrees: np.ndarray, results: dict[str, Any]) -> None:
+def _figures(
+    ctx: ExperimentContext,
+    graph: Graph,
+    ratios: dict[int, np.ndarray],
+    local_ratio: np.ndarray,
+    alpha: dict[str, Any],
+    degrees: np.ndarray,
+    results: dict[str, Any],
+) -> None:
     plt = pyplot()
     T = local_ratio.shape[0]
     ep = np.arange(1, T + 1)

@@ -63,10 +63,23 @@ TITLE = "GNSS ionosphere + DCB network by consensus Kalman filter, 13 receivers 
 PERTH_LAT_DEG = -32.0
 PERTH_LON_DEG = 116.0
 PERTH_HEIGHT_M = 20.0
-PERTH_EAST_NORTH_KM = np.array([
-    [0.00, 7.88], [0.03, 4.39], [8.00, 7.98], [6.20, 5.99], [8.09, 5.03], [3.35, 7.19], [3.38, 4.87],
-    [5.17, 4.47], [4.62, 1.49], [1.32, 2.00], [7.55, 3.04], [3.39, -0.22], [4.75, -1.30],
-])
+PERTH_EAST_NORTH_KM = np.array(
+    [
+        [0.00, 7.88],
+        [0.03, 4.39],
+        [8.00, 7.98],
+        [6.20, 5.99],
+        [8.09, 5.03],
+        [3.35, 7.19],
+        [3.38, 4.87],
+        [5.17, 4.47],
+        [4.62, 1.49],
+        [1.32, 2.00],
+        [7.55, 3.04],
+        [3.39, -0.22],
+        [4.75, -1.30],
+    ]
+)
 """Receiver layout (east, north) in km, receivers 1..13; chosen so that the 4-km link rule reproduces the
 neighbourhood pattern described for the paper's Fig. 8 (degrees 2, 3, 2, 6, 4, 4, 6, 6, 6, 4, 4, 3, 2)."""
 LINK_RANGE_KM = 4.0
@@ -94,10 +107,18 @@ PAPER = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--epochs", type=positive_int, default=None,
-                        help=f"number of 60-s epochs (default {N_EPOCHS}; --quick {QUICK_EPOCHS})")
-    parser.add_argument("--data-kn", type=nonnegative_int, default=4,
-                        help="consensus rounds of the CKF run on simulated data (default 4 = δ 15 s)")
+    parser.add_argument(
+        "--epochs",
+        type=positive_int,
+        default=None,
+        help=f"number of 60-s epochs (default {N_EPOCHS}; --quick {QUICK_EPOCHS})",
+    )
+    parser.add_argument(
+        "--data-kn",
+        type=nonnegative_int,
+        default=4,
+        help="consensus rounds of the CKF run on simulated data (default 4 = δ 15 s)",
+    )
 
 
 # ----------------------------------------------------------------------------------------------- scenario
@@ -118,14 +139,18 @@ def perth_network(link_range_km: float = LINK_RANGE_KM) -> Graph:
     en = PERTH_EAST_NORTH_KM
     d = np.linalg.norm(en[:, None] - en[None], axis=2)
     a, b = np.nonzero(np.triu(d <= link_range_km, 1))
-    g = Graph.from_links(len(en), np.stack([a, b], axis=1), names=[str(i + 1) for i in range(len(en))],
-                         positions=en * 1e3)
+    g = Graph.from_links(
+        len(en), np.stack([a, b], axis=1), names=[str(i + 1) for i in range(len(en))], positions=en * 1e3
+    )
     g.require_connected()
     return g
 
 
-def perth_scenario(n_epochs: int = N_EPOCHS, *, colocated: bool = False,
-                   ) -> tuple[IonosphereGeometry, IonosphereStateLayout, GeometryFreeSeries, DynamicModel]:
+def perth_scenario(
+    n_epochs: int = N_EPOCHS,
+    *,
+    colocated: bool = False,
+) -> tuple[IonosphereGeometry, IonosphereStateLayout, GeometryFreeSeries, DynamicModel]:
     """Geometry, state layout (satellites tracked at least once; pivot PRN 10), variance-only measurement series
     and dynamic model of the Perth network over ``n_epochs`` one-minute epochs."""
     if n_epochs < 2:
@@ -136,8 +161,7 @@ def perth_scenario(n_epochs: int = N_EPOCHS, *, colocated: bool = False,
     geo0 = ionosphere_geometry(const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, mask_deg=MASK_DEG)
     seen = np.asarray(geo0.tracked.any(axis=(0, 1))).tolist()
     svs = tuple(s for s, k in zip(geo0.svs, seen, strict=True) if k)
-    geo = ionosphere_geometry(const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, mask_deg=MASK_DEG,
-                              svs=svs)
+    geo = ionosphere_geometry(const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, mask_deg=MASK_DEG, svs=svs)
     pivot = PIVOT if PIVOT in svs else svs[int(np.argmax(geo.tracked.sum(axis=(0, 1))))]
     layout = IonosphereStateLayout(svs, pivot)
     return geo, layout, geometry_free_series(geo, layout), ionosphere_dynamics(layout, INTERVAL_S)
@@ -150,9 +174,15 @@ def first_tracked_epoch(series: GeometryFreeSeries) -> np.ndarray:
     return first
 
 
-def dcb_time_to_threshold(std_m: np.ndarray, layout: IonosphereStateLayout, start_epoch: np.ndarray, *,
-                          threshold_ns: float = DCB_THRESHOLD_NS, interval_s: float = INTERVAL_S,
-                          m_per_ns: float = GF_M_PER_DSB_NS) -> np.ndarray:
+def dcb_time_to_threshold(
+    std_m: np.ndarray,
+    layout: IonosphereStateLayout,
+    start_epoch: np.ndarray,
+    *,
+    threshold_ns: float = DCB_THRESHOLD_NS,
+    interval_s: float = INTERVAL_S,
+    m_per_ns: float = GF_M_PER_DSB_NS,
+) -> np.ndarray:
     """Minutes from a satellite's first tracked epoch until its DCB's standard deviation drops below
     ``threshold_ns`` (``std_m`` (T, k, p) in metres of the observable; ``inf`` if never). Returns (k, m−1) in the
     order of ``layout.dcb_svs``."""
@@ -179,8 +209,15 @@ def box_stats(minutes: np.ndarray) -> dict[str, Any]:
     if fin.size == 0:
         return {"min": None, "p25": None, "median": None, "p75": None, "max": None, "n": 0, "never": int(v.size)}
     q = np.percentile(fin, [0, 25, 50, 75, 100])
-    return {"min": float(q[0]), "p25": float(q[1]), "median": float(q[2]), "p75": float(q[3]), "max": float(q[4]),
-            "n": int(fin.size), "never": int(v.size - fin.size)}
+    return {
+        "min": float(q[0]),
+        "p25": float(q[1]),
+        "median": float(q[2]),
+        "p75": float(q[3]),
+        "max": float(q[4]),
+        "n": int(fin.size),
+        "never": int(v.size - fin.size),
+    }
 
 
 def initial_ratio(local: FilterSeries, central: FilterSeries, node: int = 0, param: int = 0) -> tuple[float, int]:
@@ -212,8 +249,9 @@ class PrecisionAnalysis:
     dcb_minutes_ckf: dict[int, np.ndarray]
 
 
-def precision_analysis(n_epochs: int = N_EPOCHS, *,
-                       progress: Callable[[int], object] | None = None) -> PrecisionAnalysis:
+def precision_analysis(
+    n_epochs: int = N_EPOCHS, *, progress: Callable[[int], object] | None = None
+) -> PrecisionAnalysis:
     """Central, local and CKF (Fig. 7, k_n = 4, 6, 12, protocol 3) standard deviations of the Perth network and the
     DCB times to 0.5 ns (paper 003 §5.3–5.4)."""
     graph = perth_network()
@@ -232,9 +270,19 @@ def precision_analysis(n_epochs: int = N_EPOCHS, *,
         progress(1)
     start = first_tracked_epoch(series)
     return PrecisionAnalysis(
-        graph, geo, layout, series, dyn, kns, central, local, ckf_series,
-        dcb_time_to_threshold(central.std, layout, start)[0], dcb_time_to_threshold(local.std, layout, start),
-        {k: dcb_time_to_threshold(s.std, layout, start) for k, s in ckf_series.items()})
+        graph,
+        geo,
+        layout,
+        series,
+        dyn,
+        kns,
+        central,
+        local,
+        ckf_series,
+        dcb_time_to_threshold(central.std, layout, start)[0],
+        dcb_time_to_threshold(local.std, layout, start),
+        {k: dcb_time_to_threshold(s.std, layout, start) for k, s in ckf_series.items()},
+    )
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
@@ -269,8 +317,15 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     truth, obs, _ = simulate_geometry_free(geo, layout, INTERVAL_S, rng=rng)
     data_series = geometry_free_series(geo, layout, obs_m=obs)
     with ctx.progress.task(f"ckf-ionosphere: CKF with k_n = {data_kn} on simulated data", total=1) as adv:
-        res = ckf(dyn, data_series, graph=graph, protocol=PROTOCOL, rounds=data_kn, exchange=ctx.exchange(graph),
-                  monitor=False)
+        res = ckf(
+            dyn,
+            data_series,
+            graph=graph,
+            protocol=PROTOCOL,
+            rounds=data_kn,
+            exchange=ctx.exchange(graph),
+            monitor=False,
+        )
         adv(1)
     ds = res.series
     with np.errstate(invalid="ignore"):
@@ -289,15 +344,26 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     dcb_central = box_stats(t_central)
     results: dict[str, Any] = {
         "scenario": {
-            "receivers": n, "links": graph.links.tolist(), "degrees": degrees.tolist(),
-            "layout_east_north_km": PERTH_EAST_NORTH_KM.tolist(), "n_epochs": n_epochs, "interval_s": INTERVAL_S,
-            "start_gps": START_GPS, "constellation": "synthetic 31-satellite GPS (PRN 4 absent)",
-            "satellites_tracked": list(layout.svs), "n_satellites": len(layout.svs), "pivot": layout.pivot,
-            "mask_deg": MASK_DEG, "protocol": PROTOCOL, "kn": kns,
+            "receivers": n,
+            "links": graph.links.tolist(),
+            "degrees": degrees.tolist(),
+            "layout_east_north_km": PERTH_EAST_NORTH_KM.tolist(),
+            "n_epochs": n_epochs,
+            "interval_s": INTERVAL_S,
+            "start_gps": START_GPS,
+            "constellation": "synthetic 31-satellite GPS (PRN 4 absent)",
+            "satellites_tracked": list(layout.svs),
+            "n_satellites": len(layout.svs),
+            "pivot": layout.pivot,
+            "mask_deg": MASK_DEG,
+            "protocol": PROTOCOL,
+            "kn": kns,
             "sending_intervals_s": list(SENDING_INTERVALS_S),
             "satellites_rising_twice": _rerising(series, layout),
-            "units": {"tec": f"metres of L1 delay (vertical); 1 TECU = {TECU_L1_M:.4f} m",
-                      "dcb": "ns of the L1-L2 DSB difference DSB^s - DSB^p (0.4634 m of observable per ns)"},
+            "units": {
+                "tec": f"metres of L1 delay (vertical); 1 TECU = {TECU_L1_M:.4f} m",
+                "dcb": "ns of the L1-L2 DSB difference DSB^s - DSB^p (0.4634 m of observable per ns)",
+            },
         },
         "initial_local_to_central_ratio": r0,
         "initial_local_to_central_epoch": t0,
@@ -305,13 +371,17 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "initial_local_to_central_epoch_colocated": t0_col,
         "sqrt_n": float(np.sqrt(n)),
         "local_to_central_after_1h": {
-            "vtec": steady_range(local_ratio[:, 0, 0]), "grad_lat": steady_range(local_ratio[:, 0, 1]),
+            "vtec": steady_range(local_ratio[:, 0, 0]),
+            "grad_lat": steady_range(local_ratio[:, 0, 1]),
             "grad_lon": steady_range(local_ratio[:, 0, 2]),
             "median_receiver1": np.nanmedian(local_ratio[steady:, 0], axis=0).tolist(),
             "all_receivers_range": [float(np.nanmin(local_ratio[steady:])), float(np.nanmax(local_ratio[steady:]))],
         },
-        "central_std_after_1h_m": {"vtec": steady_range(cs[:, 0, 0]), "grad_lat": steady_range(cs[:, 0, 1]),
-                                   "grad_lon": steady_range(cs[:, 0, 2])},
+        "central_std_after_1h_m": {
+            "vtec": steady_range(cs[:, 0, 0]),
+            "grad_lat": steady_range(cs[:, 0, 1]),
+            "grad_lon": steady_range(cs[:, 0, 2]),
+        },
         "ckf_to_central_ratio_max": kmax,
         "ckf_to_central_ratio_max_note": "max over receivers, ν_o/ν_φ/ν_ψ and epochs from 1 h on (Fig. 7 recursion)",
         "ckf_to_central_vtec_max_per_receiver": per_rx_vtec,
@@ -322,9 +392,13 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
             "central_if_ns_means_c": box_stats(t_central_c),
             "per_dcb_central": dict(zip(layout.dcb_svs, t_central.tolist(), strict=True)),
         },
-        "ckf_simulated_data": {"kn": data_kn, "fraction_within_3sigma": within3, "rms_standardized_error": rms_z,
-                               "n_values": int(zf.size),
-                               "messages": res.comm.as_dict() if hasattr(res.comm, "as_dict") else None},
+        "ckf_simulated_data": {
+            "kn": data_kn,
+            "fraction_within_3sigma": within3,
+            "rms_standardized_error": rms_z,
+            "n_values": int(zf.size),
+            "messages": res.comm.as_dict() if hasattr(res.comm, "as_dict") else None,
+        },
         "paper": PAPER,
     }
     worst = max(per_rx_vtec[str(kns[0])])
@@ -341,8 +415,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     }
     ctx.write_json("results.json", results)
     if ctx.is_root:
-        _figures(ctx, graph, geo, layout, central, local, ckf_ratio, local_ratio, t_central, t_ckf, ds, truth,
-                 steady)
+        _figures(ctx, graph, geo, layout, central, local, ckf_ratio, local_ratio, t_central, t_ckf, ds, truth, steady)
     return results
 
 
@@ -352,10 +425,21 @@ def _rerising(series: GeometryFreeSeries, layout: IonosphereStateLayout) -> list
     return [s for s, k in zip(layout.svs, rises, strict=True) if k >= 2]
 
 
-def _figures(ctx: ExperimentContext, graph: Graph, geo: IonosphereGeometry, layout: IonosphereStateLayout,
-             central: FilterSeries, local: FilterSeries, ckf_ratio: dict[int, np.ndarray], local_ratio: np.ndarray,
-             t_central: np.ndarray, t_ckf: dict[int, np.ndarray], ds: FilterSeries, truth: np.ndarray,
-             steady: int) -> None:
+def _figures(
+    ctx: ExperimentContext,
+    graph: Graph,
+    geo: IonosphereGeometry,
+    layout: IonosphereStateLayout,
+    central: FilterSeries,
+    local: FilterSeries,
+    ckf_ratio: dict[int, np.ndarray],
+    local_ratio: np.ndarray,
+    t_central: np.ndarray,
+    t_ckf: dict[int, np.ndarray],
+    ds: FilterSeries,
+    truth: np.ndarray,
+    steady: int,
+) -> None:
     plt = pyplot()
     T = central.std.shape[0]
     hours = 8.0 + np.arange(T) * INTERVAL_S / 3600.0  # Perth local time
@@ -406,8 +490,9 @@ def _figures(ctx: ExperimentContext, graph: Graph, geo: IonosphereGeometry, layo
     for c, kn in enumerate(kshow):
         for k in range(3):
             for i in range(n):
-                axes[k, c].plot(hours[sl], ckf_ratio[kn][sl, i, k], color=cmap(i), lw=0.9,
-                                label=f"rx {i + 1}" if k == 0 else None)
+                axes[k, c].plot(
+                    hours[sl], ckf_ratio[kn][sl, i, k], color=cmap(i), lw=0.9, label=f"rx {i + 1}" if k == 0 else None
+                )
             axes[k, c].set_ylabel(f"CKF/central {labels[k].split()[0]}")
             axes[k, c].grid(alpha=0.3)
         axes[0, c].set_title(f"k_n = {kn} (δ = {INTERVAL_S / kn:.0f} s)")
@@ -440,8 +525,15 @@ def _figures(ctx: ExperimentContext, graph: Graph, geo: IonosphereGeometry, layo
     xs = np.arange(e_dcb.shape[1])
     for i in range(n):
         axes[1].plot(xs + 0.03 * (i - n / 2), -e_dcb[i], ".", ms=3)
-    axes[1].errorbar(xs, np.zeros_like(xs, dtype=float), yerr=3 * np.nanmax(s_dcb, axis=0), fmt="none", ecolor="k",
-                     capsize=2, label="±3σ (largest over receivers)")
+    axes[1].errorbar(
+        xs,
+        np.zeros_like(xs, dtype=float),
+        yerr=3 * np.nanmax(s_dcb, axis=0),
+        fmt="none",
+        ecolor="k",
+        capsize=2,
+        label="±3σ (largest over receivers)",
+    )
     axes[1].set_xticks(xs)
     axes[1].set_xticklabels([s[1:] for s in layout.dcb_svs], fontsize=6)
     axes[1].set_ylabel("DCB error at the end [ns]")

@@ -28,8 +28,25 @@ def verdict(ok: bool | None) -> str:
     return NOT_CHECKABLE if ok is None else (AGREE if ok else DIFFER)
 
 
-def claim(*, paper: str, where: str, text: str, paper_value: Any, distnav_value: Any, ok: bool | None,
-          why: str = "", test: str = "") -> dict[str, Any]:
+def claim(
+    *,
+    paper: str,
+    where: str,
+    text: str,
+    paper_value: Any,
+    distnav_value: Any,
+    ok: bool | None,
+    why: str = "",
+    test: str = "",
+) -> dict[str, Any]:
     """One row of the claims table (see the module docstring); ``ok`` gives the verdict."""
-    return {"paper": paper, "where": where, "claim": text, "paper_value": paper_value,
-            "distnav_value": distnav_value, "verdict": verdict(ok), "why": why, "test": test}
+    return {
+        "paper": paper,
+        "where": where,
+        "claim": text,
+        "paper_value": paper_value,
+        "distnav_value": distnav_value,
+        "verdict": verdict(ok),
+        "why": why,
+        "test": test,
+    }

@@ -55,7 +55,7 @@ N_LINKS = 118
 RHOS = (5.0, 0.5, 0.05, 0.005)
 THRESHOLD_M = 1e-3
 EPOCH_S = 30.0
-SESSION_EPOCHS = 300          # 2.5 h of 30-s data
+SESSION_EPOCHS = 300  # 2.5 h of 30-s data
 PAPER = {"n_links": 118, "n_constraint_nodes": 9}
 
 # IGS-like regional clusters: (name, lat°, lon°, stations, spread°)
@@ -73,25 +73,44 @@ REGIONS: tuple[tuple[str, float, float, int, float], ...] = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--iterations", type=positive_int, default=None,
-                        help="ADMM iterations per run (default 1000; 300 with --quick)")
-    parser.add_argument("--epochs", type=positive_int, default=None,
-                        help="30-s epochs of the session (default 300 = 2.5 h; 120 with --quick)")
-    parser.add_argument("--nav", type=existing_file, default=None, metavar="FILE",
-                        help="use the block IIF satellites of this RINEX navigation file instead of the synthetic "
-                             "constellation")
-    parser.add_argument("--start", type=iso_datetime, default=None, metavar="ISO",
-                        help="session start (GPS time), e.g. 2024-01-10T06:00 (default: synthetic epoch, or one hour "
-                             "after the navigation file's first ephemeris)")
-    parser.add_argument("--rho-scale", choices=["epoch", "session"], default="epoch",
-                        help="W = ρI against the information of one epoch (default: normals divided by the number "
-                             "of epochs) or of the whole session")
+    parser.add_argument(
+        "--iterations", type=positive_int, default=None, help="ADMM iterations per run (default 1000; 300 with --quick)"
+    )
+    parser.add_argument(
+        "--epochs",
+        type=positive_int,
+        default=None,
+        help="30-s epochs of the session (default 300 = 2.5 h; 120 with --quick)",
+    )
+    parser.add_argument(
+        "--nav",
+        type=existing_file,
+        default=None,
+        metavar="FILE",
+        help="use the block IIF satellites of this RINEX navigation file instead of the synthetic constellation",
+    )
+    parser.add_argument(
+        "--start",
+        type=iso_datetime,
+        default=None,
+        metavar="ISO",
+        help="session start (GPS time), e.g. 2024-01-10T06:00 (default: synthetic epoch, or one hour "
+        "after the navigation file's first ephemeris)",
+    )
+    parser.add_argument(
+        "--rho-scale",
+        choices=["epoch", "session"],
+        default="epoch",
+        help="W = ρI against the information of one epoch (default: normals divided by the number "
+        "of epochs) or of the whole session",
+    )
 
 
-def _great_circle(lat1: FloatArray | float, lon1: FloatArray | float, lat2: FloatArray | float,
-                  lon2: FloatArray | float) -> FloatArray:
+def _great_circle(
+    lat1: FloatArray | float, lon1: FloatArray | float, lat2: FloatArray | float, lon2: FloatArray | float
+) -> FloatArray:
     a = np.deg2rad
-    c = (np.sin(a(lat1)) * np.sin(a(lat2)) + np.cos(a(lat1)) * np.cos(a(lat2)) * np.cos(a(lon1 - lon2)))
+    c = np.sin(a(lat1)) * np.sin(a(lat2)) + np.cos(a(lat1)) * np.cos(a(lat2)) * np.cos(a(lon1 - lon2))
     angle: FloatArray = np.arccos(np.clip(c, -1.0, 1.0))
     return angle
 
@@ -108,9 +127,13 @@ class StationNetwork:
     graph: Graph
 
 
-def synthetic_igs_network(rng: np.random.Generator, *, n_links: int = N_LINKS,
-                          regions: tuple[tuple[str, float, float, int, float], ...] = REGIONS,
-                          extra_hub_links: int = 4) -> StationNetwork:
+def synthetic_igs_network(
+    rng: np.random.Generator,
+    *,
+    n_links: int = N_LINKS,
+    regions: tuple[tuple[str, float, float, int, float], ...] = REGIONS,
+    extra_hub_links: int = 4,
+) -> StationNetwork:
     """110 stations in the regional clusters of :data:`REGIONS`, hub-and-spoke links (see the module docstring).
 
     ``n_links`` = (stations − hubs) spokes + (hubs − 1) tree links + ``extra_hub_links`` + second-hub spokes.
@@ -205,11 +228,28 @@ def constellation(nav: str | None = None, start: str | None = None) -> tuple[Any
     return orbit, svs, t0, f"broadcast ephemerides of {Path(nav).name}"
 
 
-def _simulate(net: StationNetwork, orbit: Any, svs: tuple[str, ...], t0: float, epochs: int,
-              rng: np.random.Generator, sat_biases_m: np.ndarray, rx_biases_m: np.ndarray) -> CodeBiasData:
+def _simulate(
+    net: StationNetwork,
+    orbit: Any,
+    svs: tuple[str, ...],
+    t0: float,
+    epochs: int,
+    rng: np.random.Generator,
+    sat_biases_m: np.ndarray,
+    rx_biases_m: np.ndarray,
+) -> CodeBiasData:
     t = t0 + np.arange(epochs) * EPOCH_S
-    return simulate_codebias_data(net.positions_ecef_m, orbit, t, svs, rng=rng, sat_biases_m=sat_biases_m,
-                                  rx_biases_m=rx_biases_m, stations=net.graph.names, reference=int(net.hubs[0]))
+    return simulate_codebias_data(
+        net.positions_ecef_m,
+        orbit,
+        t,
+        svs,
+        rng=rng,
+        sat_biases_m=sat_biases_m,
+        rx_biases_m=rx_biases_m,
+        stations=net.graph.names,
+        reference=int(net.hubs[0]),
+    )
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
@@ -251,37 +291,69 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     runs: dict[str, Any] = {}
     with ctx.progress.task(f"codebias: ADMM, ρ ∈ {list(RHOS)}, {iterations} iterations", total=len(RHOS)) as adv:
         for rho in RHOS:
-            runs[f"{rho:g}"] = admm(problem, graph, constraint_nodes=C, W=rho, init="zero",
-                                    max_iterations=iterations, tol=0.0, reference=x_hat,
-                                    exchange=ctx.exchange(graph))
+            runs[f"{rho:g}"] = admm(
+                problem,
+                graph,
+                constraint_nodes=C,
+                W=rho,
+                init="zero",
+                max_iterations=iterations,
+                tol=0.0,
+                reference=x_hat,
+                exchange=ctx.exchange(graph),
+            )
             adv(1)
     other_scale = "session" if rho_scale == "epoch" else "epoch"
     problem_other = data.linear_problem(per_epoch=other_scale == "epoch")
     other: dict[str, int | None] = {}
     with ctx.progress.task(f"codebias: ADMM with ρ against the {other_scale}'s information", total=len(RHOS)) as adv:
-        for rho in ([] if ctx.quick else RHOS):
-            r_o = admm(problem_other, graph, constraint_nodes=C, W=rho, init="zero", max_iterations=iterations,
-                       tol=0.0, reference=x_hat, record_nodes=False, exchange=ctx.exchange(graph))
+        for rho in [] if ctx.quick else RHOS:
+            r_o = admm(
+                problem_other,
+                graph,
+                constraint_nodes=C,
+                W=rho,
+                init="zero",
+                max_iterations=iterations,
+                tol=0.0,
+                reference=x_hat,
+                record_nodes=False,
+                exchange=ctx.exchange(graph),
+            )
             other[f"{rho:g}"] = _iterations_to(r_o.trace["max_distance_to_reference"], THRESHOLD_M)
             adv(1)
-    inits: dict[str, np.ndarray] = {"0": np.zeros(data.n_sats), "+5 m": np.full(data.n_sats, 5.0),
-                                    "-5 m": np.full(data.n_sats, -5.0), "prev.": x_prev}
+    inits: dict[str, np.ndarray] = {
+        "0": np.zeros(data.n_sats),
+        "+5 m": np.full(data.n_sats, 5.0),
+        "-5 m": np.full(data.n_sats, -5.0),
+        "prev.": x_prev,
+    }
     init_runs: dict[str, Any] = {}
     with ctx.progress.task("codebias: ADMM ρ = 0.5 from different initial values", total=len(inits)) as adv:
         for label, x0 in inits.items():
-            if label == "0":                      # identical to the ρ = 0.5 run of Fig. 9
+            if label == "0":  # identical to the ρ = 0.5 run of Fig. 9
                 init_runs[label] = runs["0.5"]
                 adv(1)
                 continue
-            init_runs[label] = admm(problem, graph, constraint_nodes=C, W=0.5, init=x0,
-                                    max_iterations=iterations, tol=0.0, reference=x_hat,
-                                    exchange=ctx.exchange(graph))
+            init_runs[label] = admm(
+                problem,
+                graph,
+                constraint_nodes=C,
+                W=0.5,
+                init=x0,
+                max_iterations=iterations,
+                tol=0.0,
+                reference=x_hat,
+                exchange=ctx.exchange(graph),
+            )
             adv(1)
 
     with ctx.progress.task("codebias: per-node tracks of two satellites (ρ = 0.5, x⁰ = prev.)"):
         tracks = _tracks(problem, graph, C, x_prev, iterations, [best, worst], ctx)
-    per_sat = {data.svs[k]: _iterations_to(np.abs(tracks[:, :, c] - x_hat[k]).max(axis=1), THRESHOLD_M)
-               for c, k in enumerate((best, worst))}
+    per_sat = {
+        data.svs[k]: _iterations_to(np.abs(tracks[:, :, c] - x_hat[k]).max(axis=1), THRESHOLD_M)
+        for c, k in enumerate((best, worst))
+    }
     it_rho = {k: _iterations_to(r.trace["max_distance_to_reference"], THRESHOLD_M) for k, r in runs.items()}
     it_init = {k: _iterations_to(r.trace["max_distance_to_reference"], THRESHOLD_M) for k, r in init_runs.items()}
     it_init_cm = {k: _iterations_to(r.trace["max_distance_to_reference"], 1e-2) for k, r in init_runs.items()}
@@ -321,19 +393,27 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "truth_m": dict(zip(data.svs, truth.tolist(), strict=True)),
         "chi2_per_dof_vs_truth": chi2,
         "previous_session_offset_max_m": float(np.abs(x_prev - x_hat).max()),
-        "network": {"lat_deg": net.lat_deg.tolist(), "lon_deg": net.lon_deg.tolist(),
-                    "links": graph.links.tolist(), "hubs": net.hubs.tolist()},
+        "network": {
+            "lat_deg": net.lat_deg.tolist(),
+            "lon_deg": net.lon_deg.tolist(),
+            "links": graph.links.tolist(),
+            "hubs": net.hubs.tolist(),
+        },
         "communication": {k: r.comm.as_dict() for k, r in runs.items()},
-        "paper": {**PAPER, "finding": "ρ = 5 converges very slowly from 0; ρ = 0.5 fastest; smaller ρ not faster; "
-                                      "a previous solution as initial value converges fastest; the well-tracked "
-                                      "satellite (PRN 1) converges faster than the poorly tracked one (PRN 24)"},
+        "paper": {
+            **PAPER,
+            "finding": "ρ = 5 converges very slowly from 0; ρ = 0.5 fastest; smaller ρ not faster; "
+            "a previous solution as initial value converges fastest; the well-tracked "
+            "satellite (PRN 1) converges faster than the poorly tracked one (PRN 24)",
+        },
         "headline": {
             "links / constraint nodes (paper 118 / 9)": f"{graph.n_links} / {C.size}",
             **{f"iterations to 1 mm, ρ = {k}": (v if v is not None else f"> {iterations}") for k, v in it_rho.items()},
             "iterations to 1 mm, ρ = 0.5, x⁰ = prev.": it_init["prev."],
             "iterations to 1 cm, ρ = 0.5, x⁰ = 0 / prev.": f"{it_init_cm['0']} / {it_init_cm['prev.']}",
-            f"σ of x̂ {data.svs[best]} / {data.svs[worst]} [cm]":
-                f"{100 * sol.sigma_m[best]:.2f} / {100 * sol.sigma_m[worst]:.2f}",
+            f"σ of x̂ {data.svs[best]} / {data.svs[worst]} [cm]": (
+                f"{100 * sol.sigma_m[best]:.2f} / {100 * sol.sigma_m[worst]:.2f}"
+            ),
         },
     }
     ctx.write_json("results.json", results)
@@ -342,8 +422,9 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     return results
 
 
-def _tracks(problem: Any, graph: Graph, C: Any, x0: np.ndarray, iterations: int, cols: list[int],
-            ctx: ExperimentContext) -> np.ndarray:
+def _tracks(
+    problem: Any, graph: Graph, C: Any, x0: np.ndarray, iterations: int, cols: list[int], ctx: ExperimentContext
+) -> np.ndarray:
     """``x_i^[k]`` of every node for the satellites ``cols``: ``(iterations + 1, n, len(cols))``."""
     from distnav.algorithms.admm import iterate_admm
 
@@ -390,9 +471,21 @@ def _set_ylim(ax: Any, bounds: list[tuple[float, float]], log: bool) -> None:
         ax.set_ylim(lo - pad, hi + pad)
 
 
-def _figures(ctx: ExperimentContext, net: StationNetwork, cnodes: np.ndarray, data: CodeBiasData,
-             x_rec: np.ndarray, s_rec: np.ndarray, runs: dict[str, Any], init_runs: dict[str, Any],
-             tracks: np.ndarray, x_hat: np.ndarray, sigma: np.ndarray, best: int, worst: int) -> None:
+def _figures(
+    ctx: ExperimentContext,
+    net: StationNetwork,
+    cnodes: np.ndarray,
+    data: CodeBiasData,
+    x_rec: np.ndarray,
+    s_rec: np.ndarray,
+    runs: dict[str, Any],
+    init_runs: dict[str, Any],
+    tracks: np.ndarray,
+    x_hat: np.ndarray,
+    sigma: np.ndarray,
+    best: int,
+    worst: int,
+) -> None:
     plt = pyplot()
     g = net.graph
     # Fig. 7: network

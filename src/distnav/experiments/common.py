@@ -48,10 +48,21 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 R = TypeVar("R")
 
-__all__ = ["ExperimentContext", "Progress", "add_jobs_argument", "available_cores", "parallel_map",
-           # and, re-exported from distnav.output:
-           "to_jsonable", "atomic_write_text", "atomic_write_json", "save_figure_file", "set_file_writer",
-           "is_file_writer", "pyplot"]
+__all__ = [
+    "ExperimentContext",
+    "Progress",
+    "add_jobs_argument",
+    "available_cores",
+    "parallel_map",
+    # and, re-exported from distnav.output:
+    "to_jsonable",
+    "atomic_write_text",
+    "atomic_write_json",
+    "save_figure_file",
+    "set_file_writer",
+    "is_file_writer",
+    "pyplot",
+]
 
 
 def _noop(n: int = 1) -> None:
@@ -80,13 +91,19 @@ class Progress:
                 from rich.progress import BarColumn, TimeElapsedColumn
                 from rich.progress import Progress as RichProgress
 
-                bar = RichProgress("[bold]{task.description}", BarColumn(), "{task.completed}/{task.total}",
-                                   TimeElapsedColumn(), transient=True)
+                bar = RichProgress(
+                    "[bold]{task.description}",
+                    BarColumn(),
+                    "{task.completed}/{task.total}",
+                    TimeElapsedColumn(),
+                    transient=True,
+                )
             except ImportError:  # pragma: no cover
                 bar = None
         if bar is not None:
             with bar:
                 tid = bar.add_task(description, total=total)
+
                 def advance(n: int = 1) -> None:
                     bar.advance(tid, n)
 
@@ -118,13 +135,18 @@ def available_cores() -> int:
 
 def add_jobs_argument(parser: argparse.ArgumentParser) -> None:
     """``--jobs N``: worker processes for an experiment's independent runs (:meth:`ExperimentContext.workers`)."""
-    parser.add_argument("--jobs", type=positive_int, default=None,
-                        help="worker processes for the independent runs (default: the available cores; 1: none); "
-                             "the results do not depend on it")
+    parser.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=None,
+        help="worker processes for the independent runs (default: the available cores; 1: none); "
+        "the results do not depend on it",
+    )
 
 
-def parallel_map(fn: Callable[[T], R], tasks: Sequence[T], jobs: int,
-                 advance: Callable[[int], None] = _noop) -> list[R]:
+def parallel_map(
+    fn: Callable[[T], R], tasks: Sequence[T], jobs: int, advance: Callable[[int], None] = _noop
+) -> list[R]:
     """``[fn(t) for t in tasks]``, in ``jobs`` worker processes when ``jobs > 1`` (and there is more than one task).
 
     The results come back in the order of ``tasks`` whatever the order the workers finish in, so a reduction over
@@ -141,8 +163,7 @@ def parallel_map(fn: Callable[[T], R], tasks: Sequence[T], jobs: int,
             advance(1)
         return out
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)),
-                             mp_context=multiprocessing.get_context(method)) as pool:
+    with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=multiprocessing.get_context(method)) as pool:
         out = []
         for r in pool.map(fn, tasks):
             out.append(r)
@@ -232,4 +253,3 @@ class ExperimentContext:
             self.figures.append(name)
         plt.close(fig)
         return name
-

@@ -46,13 +46,17 @@ ITERATIONS = 30
 KN_VALUES = (10, 20, 30)
 PAPER_SLEM = {"P1": 0.92, "P2": 0.97, "P3": 0.91}
 #: Fig. 4 values the paper states at q = 0.2 (§3.3).
-PAPER_AT_Q02: dict[int, dict[str, str]] = {10: {"P1": "≈ 80 %", "P2": "< 5 %"}, 20: {},
-                                           30: {"P1": "≈ 100 %", "P2": "≈ 80 %", "P3": "≈ 100 %"}}
+PAPER_AT_Q02: dict[int, dict[str, str]] = {
+    10: {"P1": "≈ 80 %", "P2": "< 5 %"},
+    20: {},
+    30: {"P1": "≈ 100 %", "P2": "≈ 80 %", "P3": "≈ 100 %"},
+}
 NETWORKS = ("paper-like", "random")
 
 
-def static_network(rng: np.random.Generator, n_nodes: int = N_NODES, n_links: int = STATIC_LINKS,
-                   max_tries: int = 200) -> Graph:
+def static_network(
+    rng: np.random.Generator, n_nodes: int = N_NODES, n_links: int = STATIC_LINKS, max_tries: int = 200
+) -> Graph:
     """``n_nodes`` uniform points in a 100 m square linked by their ``n_links`` shortest pairs, connected."""
     for _ in range(max_tries):
         pos = rng.uniform(0, 100, size=(n_nodes, 2))
@@ -65,9 +69,14 @@ def static_network(rng: np.random.Generator, n_nodes: int = N_NODES, n_links: in
     raise GraphError(f"no connected {n_nodes}-node network with {n_links} links in {max_tries} draws")
 
 
-def switching_network(rng: np.random.Generator, n_nodes: int = N_NODES,
-                      session_links: tuple[int, ...] = SESSION_LINKS, max_tries: int = 2000, *,
-                      positions: np.ndarray | None = None) -> SwitchingGraph:
+def switching_network(
+    rng: np.random.Generator,
+    n_nodes: int = N_NODES,
+    session_links: tuple[int, ...] = SESSION_LINKS,
+    max_tries: int = 2000,
+    *,
+    positions: np.ndarray | None = None,
+) -> SwitchingGraph:
     """Sessions that are matchings (each node ≤ 1 neighbour, Protocol 4) of nearby pairs; union connected.
 
     New uniform points are drawn for every try unless ``positions`` (``(n_nodes, 2)`` m) are given."""
@@ -108,9 +117,13 @@ def twenty_values(rng: np.random.Generator, n_nodes: int = N_NODES, average: flo
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--network", choices=NETWORKS, default="paper-like",
-                        help="paper-like: the stored networks matching the paper's numbers (found by "
-                             "distnav.experiments.consensus_network); random: fresh random networks from --seed")
+    parser.add_argument(
+        "--network",
+        choices=NETWORKS,
+        default="paper-like",
+        help="paper-like: the stored networks matching the paper's numbers (found by "
+        "distnav.experiments.consensus_network); random: fresh random networks from --seed",
+    )
 
 
 def networks(ctx: ExperimentContext) -> tuple[str, Graph, SwitchingGraph]:
@@ -142,14 +155,14 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     with ctx.progress.task("consensus: protocols P1-P4, 30 iterations + Monte Carlo", total=4) as advance:
         for p, (graph, sched) in schedules.items():
             ex = ctx.exchange(sched.graph)
-            res = average_consensus(values, graph=graph, protocol=p, rounds=ITERATIONS, exchange=ex,
-                                    record_values=True)
+            res = average_consensus(values, graph=graph, protocol=p, rounds=ITERATIONS, exchange=ex, record_values=True)
             runs[p] = res
             if p != "P4":
                 slem[p] = sched.weights[0].slem
             probability[p] = {
-                str(kn): consensus_probability(consensus_product(sched, kn), q, samples=samples,
-                                               rng=ctx.rng(10 + kn)).tolist()
+                str(kn): consensus_probability(
+                    consensus_product(sched, kn), q, samples=samples, rng=ctx.rng(10 + kn)
+                ).tolist()
                 for kn in KN_VALUES
             }
             advance(1)
@@ -161,11 +174,12 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "network": {
             "kind": kind,
             "search": PAPER_LIKE["search"] if kind == "paper-like" else None,
-            "static": {"n_nodes": g_static.n_nodes, "n_links": g_static.n_links,
-                       "links": g_static.links.tolist()},
-            "switching": {"n_nodes": g_switch.n_nodes,
-                          "links_per_session": [s.n_links for s in g_switch.sessions],
-                          "sessions": [s.links.tolist() for s in g_switch.sessions]},
+            "static": {"n_nodes": g_static.n_nodes, "n_links": g_static.n_links, "links": g_static.links.tolist()},
+            "switching": {
+                "n_nodes": g_switch.n_nodes,
+                "links_per_session": [s.n_links for s in g_switch.sessions],
+                "sessions": [s.links.tolist() for s in g_switch.sessions],
+            },
         },
         "values": values.tolist(),
         "average": float(values.mean()),
@@ -180,9 +194,12 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "headline": {
             **{f"λ_(n-1) {p} (paper {PAPER_SLEM[p]})": v for p, v in slem.items()},
             **{f"max |r_i − r̄| after 30 it., {p} (paper: P1, P3 fastest)": v for p, v in final_dev.items()},
-            **{f"P(max dev ≤ 0.2σ), k_n={kn}, {p}" + (f" (paper {PAPER_AT_Q02[kn][p]})" if p in PAPER_AT_Q02[kn]
-                                                       else ""): at[p][kn]
-               for kn in (10, 30) for p in probability},
+            **{
+                f"P(max dev ≤ 0.2σ), k_n={kn}, {p}"
+                + (f" (paper {PAPER_AT_Q02[kn][p]})" if p in PAPER_AT_Q02[kn] else ""): at[p][kn]
+                for kn in (10, 30)
+                for p in probability
+            },
         },
         "claims": _claims(kind, slem, probability, at, final_dev),
     }
@@ -195,57 +212,130 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
 _TEST = "tests/test_experiment_consensus.py::"
 
 
-def _claims(kind: str, slem: dict[str, float], probability: dict[str, dict[str, list[float]]],
-            at: dict[str, dict[int, float]], final_dev: dict[str, float]) -> list[dict[str, Any]]:
+def _claims(
+    kind: str,
+    slem: dict[str, float],
+    probability: dict[str, dict[str, list[float]]],
+    at: dict[str, dict[int, float]],
+    final_dev: dict[str, float],
+) -> list[dict[str, Any]]:
     """The statements of paper 003 §3.3 on distnav's numbers (tolerances of :mod:`consensus_network`)."""
     net = "paper-like network (docs/claims.md)" if kind == "paper-like" else "random network (--network random)"
     curves = {p: {k: np.asarray(v) for k, v in c.items()} for p, c in probability.items()}
     p3_best = all(np.all(curves["P3"][k] >= curves[p][k] - SLACK) for k in curves["P3"] for p in curves)
     p2_worst = all(np.all(curves["P2"][k] <= curves[p][k] + SLACK) for k in curves["P2"] for p in curves)
-    p4_gt_p2 = all(np.all(curves["P4"][k] >= curves["P2"][k] - SLACK) and
-                   float(np.mean(curves["P4"][k] - curves["P2"][k])) > 0 for k in curves["P4"])
+    p4_gt_p2 = all(
+        np.all(curves["P4"][k] >= curves["P2"][k] - SLACK) and float(np.mean(curves["P4"][k] - curves["P2"][k])) > 0
+        for k in curves["P4"]
+    )
     fast, slow = max(final_dev["P1"], final_dev["P3"]), min(final_dev["P2"], final_dev["P4"])
     rows = [
-        claim(paper="003", where="§3.3 eq. (38)", text=f"λ_(n−1) of Protocol {p[1]} ≈ {v}", paper_value=v,
-              distnav_value=round(slem[p], 4), ok=round(slem[p], 2) == v,
-              why=f"eigenvalues of W, {net}; to two decimals", test=_TEST + "test_paper_like_slem")
+        claim(
+            paper="003",
+            where="§3.3 eq. (38)",
+            text=f"λ_(n−1) of Protocol {p[1]} ≈ {v}",
+            paper_value=v,
+            distnav_value=round(slem[p], 4),
+            ok=round(slem[p], 2) == v,
+            why=f"eigenvalues of W, {net}; to two decimals",
+            test=_TEST + "test_paper_like_slem",
+        )
         for p, v in PAPER_SLEM.items()
     ]
     rows += [
-        claim(paper="003", where="§3.3", text="Protocol 3 has the smallest λ_(n−1) (expected best)",
-              paper_value="P3", distnav_value=min(slem, key=lambda p: slem[p]), ok=min(slem, key=slem.__getitem__)
-              == "P3", why=net, test=_TEST + "test_paper_like_slem"),
-        claim(paper="003", where="Fig. 4", text="P1 ≈ 80 % at k_n = 10 (q = 0.2)", paper_value="≈ 0.80",
-              distnav_value=round(at["P1"][10], 4), ok=abs(at["P1"][10] - 0.8) <= ABOUT,
-              why=f"Monte Carlo of eq. (40), {net}; 'about' read as ± {ABOUT:.0%}",
-              test=_TEST + "test_paper_like_probabilities"),
-        claim(paper="003", where="Fig. 4", text="P2 < 5 % at k_n = 10 (q = 0.2)", paper_value="< 0.05",
-              distnav_value=round(at["P2"][10], 4), ok=at["P2"][10] < 0.05, why=net,
-              test=_TEST + "test_paper_like_probabilities"),
-        claim(paper="003", where="Fig. 4", text="P2 ≈ 80 % at k_n = 30 (q = 0.2)", paper_value="≈ 0.80",
-              distnav_value=round(at["P2"][30], 4), ok=abs(at["P2"][30] - 0.8) <= ABOUT, why=net,
-              test=_TEST + "test_paper_like_probabilities"),
-        claim(paper="003", where="Fig. 4", text="P1 and P3 close to 100 % at k_n = 30 (q = 0.2)",
-              paper_value="≈ 1", distnav_value=f"{at['P1'][30]:.4f} / {at['P3'][30]:.4f}",
-              ok=min(at["P1"][30], at["P3"][30]) >= CLOSE_TO_ONE, why=f"{net}; 'close to' read as ≥ {CLOSE_TO_ONE}",
-              test=_TEST + "test_paper_like_probabilities"),
-        claim(paper="003", where="Fig. 4", text="Protocol 3 gives the highest, Protocol 2 the lowest probabilities",
-              paper_value="P3 highest, P2 lowest", distnav_value=f"P3 highest: {p3_best}, P2 lowest: {p2_worst}",
-              ok=p3_best and p2_worst, why=f"every q and k_n = 10, 20, 30, within {SLACK:.0%} Monte Carlo slack; {net}",
-              test=_TEST + "test_protocol_ordering"),
-        claim(paper="003", where="Fig. 4", text="Protocol 4 (network (b)) is clearly better than Protocol 2",
-              paper_value="P4 > P2", distnav_value=f"k_n=10: {at['P4'][10]:.3f} vs {at['P2'][10]:.3f}",
-              ok=p4_gt_p2, why=f"curves at every k_n; {net}", test=_TEST + "test_protocol_ordering"),
-        claim(paper="003", where="Fig. 3", text="P1 and P3 converge at about the same rate, faster than P2 and P4",
-              paper_value="P1 ≈ P3 < P2, P4", distnav_value=", ".join(f"{p} {v:.3f}" for p, v in final_dev.items()),
-              ok=fast < slow, why="max |r_i − r̄| after 30 iterations of one realization of the twenty values (the "
-              "paper's values are not printed)", test=_TEST + "test_protocol_ordering"),
+        claim(
+            paper="003",
+            where="§3.3",
+            text="Protocol 3 has the smallest λ_(n−1) (expected best)",
+            paper_value="P3",
+            distnav_value=min(slem, key=lambda p: slem[p]),
+            ok=min(slem, key=slem.__getitem__) == "P3",
+            why=net,
+            test=_TEST + "test_paper_like_slem",
+        ),
+        claim(
+            paper="003",
+            where="Fig. 4",
+            text="P1 ≈ 80 % at k_n = 10 (q = 0.2)",
+            paper_value="≈ 0.80",
+            distnav_value=round(at["P1"][10], 4),
+            ok=abs(at["P1"][10] - 0.8) <= ABOUT,
+            why=f"Monte Carlo of eq. (40), {net}; 'about' read as ± {ABOUT:.0%}",
+            test=_TEST + "test_paper_like_probabilities",
+        ),
+        claim(
+            paper="003",
+            where="Fig. 4",
+            text="P2 < 5 % at k_n = 10 (q = 0.2)",
+            paper_value="< 0.05",
+            distnav_value=round(at["P2"][10], 4),
+            ok=at["P2"][10] < 0.05,
+            why=net,
+            test=_TEST + "test_paper_like_probabilities",
+        ),
+        claim(
+            paper="003",
+            where="Fig. 4",
+            text="P2 ≈ 80 % at k_n = 30 (q = 0.2)",
+            paper_value="≈ 0.80",
+            distnav_value=round(at["P2"][30], 4),
+            ok=abs(at["P2"][30] - 0.8) <= ABOUT,
+            why=net,
+            test=_TEST + "test_paper_like_probabilities",
+        ),
+        claim(
+            paper="003",
+            where="Fig. 4",
+            text="P1 and P3 close to 100 % at k_n = 30 (q = 0.2)",
+            paper_value="≈ 1",
+            distnav_value=f"{at['P1'][30]:.4f} / {at['P3'][30]:.4f}",
+            ok=min(at["P1"][30], at["P3"][30]) >= CLOSE_TO_ONE,
+            why=f"{net}; 'close to' read as ≥ {CLOSE_TO_ONE}",
+            test=_TEST + "test_paper_like_probabilities",
+        ),
+        claim(
+            paper="003",
+            where="Fig. 4",
+            text="Protocol 3 gives the highest, Protocol 2 the lowest probabilities",
+            paper_value="P3 highest, P2 lowest",
+            distnav_value=f"P3 highest: {p3_best}, P2 lowest: {p2_worst}",
+            ok=p3_best and p2_worst,
+            why=f"every q and k_n = 10, 20, 30, within {SLACK:.0%} Monte Carlo slack; {net}",
+            test=_TEST + "test_protocol_ordering",
+        ),
+        claim(
+            paper="003",
+            where="Fig. 4",
+            text="Protocol 4 (network (b)) is clearly better than Protocol 2",
+            paper_value="P4 > P2",
+            distnav_value=f"k_n=10: {at['P4'][10]:.3f} vs {at['P2'][10]:.3f}",
+            ok=p4_gt_p2,
+            why=f"curves at every k_n; {net}",
+            test=_TEST + "test_protocol_ordering",
+        ),
+        claim(
+            paper="003",
+            where="Fig. 3",
+            text="P1 and P3 converge at about the same rate, faster than P2 and P4",
+            paper_value="P1 ≈ P3 < P2, P4",
+            distnav_value=", ".join(f"{p} {v:.3f}" for p, v in final_dev.items()),
+            ok=fast < slow,
+            why="max |r_i − r̄| after 30 iterations of one realization of the twenty values (the "
+            "paper's values are not printed)",
+            test=_TEST + "test_protocol_ordering",
+        ),
     ]
     return rows
 
 
-def _figures(ctx: ExperimentContext, g_static: Graph, g_switch: SwitchingGraph, runs: dict[str, Any],
-             probability: dict[str, dict[str, list[float]]], q: np.ndarray) -> None:
+def _figures(
+    ctx: ExperimentContext,
+    g_static: Graph,
+    g_switch: SwitchingGraph,
+    runs: dict[str, Any],
+    probability: dict[str, dict[str, list[float]]],
+    q: np.ndarray,
+) -> None:
     plt = pyplot()
     # Fig. 2: the two networks
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
@@ -262,8 +352,14 @@ def _figures(ctx: ExperimentContext, g_static: Graph, g_switch: SwitchingGraph, 
     assert pos2 is not None
     for s, (sg, c) in enumerate(zip(g_switch.sessions, colours, strict=False)):
         for n_, (i, j) in enumerate(sg.links):
-            axes[1].plot(pos2[[i, j], 0], pos2[[i, j], 1], "-", color=c, lw=2,
-                         label=f"session {s + 1} ({sg.n_links} links)" if n_ == 0 else None)
+            axes[1].plot(
+                pos2[[i, j], 0],
+                pos2[[i, j], 1],
+                "-",
+                color=c,
+                lw=2,
+                label=f"session {s + 1} ({sg.n_links} links)" if n_ == 0 else None,
+            )
     axes[1].plot(pos2[:, 0], pos2[:, 1], "o", color="k")
     axes[1].legend(fontsize=7)
     axes[1].set_title("(b) switching, 4 sessions")

@@ -46,8 +46,12 @@ KN = (10, 20, 30)
 #: What paper 003 §3 states about its Fig. 2 networks (λ to two decimals; probabilities at q = 0.2).
 PAPER: dict[str, Any] = {
     "slem": {"P1": 0.92, "P2": 0.97, "P3": 0.91},
-    "P1@10": 0.80, "P2@10 below": 0.05, "P2@30": 0.80, "P1,P3@30": 1.0,
-    "degrees": {"node 1": 4, "node 14": 7}, "neighbours of node 2": (1, 3, 4, 5),
+    "P1@10": 0.80,
+    "P2@10 below": 0.05,
+    "P2@30": 0.80,
+    "P1,P3@30": 1.0,
+    "degrees": {"node 1": 4, "node 14": 7},
+    "neighbours of node 2": (1, 3, 4, 5),
 }
 #: "about 80 %" is taken as 80 ± 5 %, "close to 100 %" as ≥ 98 %; curves are compared with a 1 % Monte Carlo slack.
 ABOUT = 0.05
@@ -73,23 +77,29 @@ def _slems_dense(links: np.ndarray) -> tuple[float, float, float]:
     d = A.sum(1)
     lap = np.diag(d) - A
     M = A / (1.0 + np.maximum(d[:, None], d[None, :]))
-    mats = np.stack([np.eye(N_NODES) - lap / d.max(), np.eye(N_NODES) - lap / N_NODES,
-                     M + np.diag(1.0 - M.sum(1))])
+    mats = np.stack([np.eye(N_NODES) - lap / d.max(), np.eye(N_NODES) - lap / N_NODES, M + np.diag(1.0 - M.sum(1))])
     mod = np.sort(np.abs(np.linalg.eigvalsh(mats)), axis=1)
     return float(mod[0, -2]), float(mod[1, -2]), float(mod[2, -2])
 
 
-def evaluate(static: Graph, switching: SwitchingGraph | None, *, samples: int, seed: int = 0,
-             q: np.ndarray | None = None) -> dict[str, Any]:
+def evaluate(
+    static: Graph, switching: SwitchingGraph | None, *, samples: int, seed: int = 0, q: np.ndarray | None = None
+) -> dict[str, Any]:
     """λ_{n−1} (eq. (38)) and probability curves (eq. (40)) of P1–P3 on ``static`` and P4 on ``switching``."""
     qs = np.round(np.linspace(0.0, 1.0, 41), 6) if q is None else np.asarray(q, float)
     schedules = {p: consensus_schedule(static, p) for p in ("P1", "P2", "P3")}
     if switching is not None:
         schedules["P4"] = consensus_schedule(switching, "P4")
     slem = {p: float(schedules[p].weights[0].slem) for p in ("P1", "P2", "P3")}
-    prob = {p: {str(kn): consensus_probability(consensus_product(s, kn), qs, samples=samples,
-                                               rng=np.random.default_rng([seed, 10 + kn]))
-                for kn in KN} for p, s in schedules.items()}
+    prob = {
+        p: {
+            str(kn): consensus_probability(
+                consensus_product(s, kn), qs, samples=samples, rng=np.random.default_rng([seed, 10 + kn])
+            )
+            for kn in KN
+        }
+        for p, s in schedules.items()
+    }
     return {"slem": slem, "probability": prob, "q": qs}
 
 
@@ -109,12 +119,15 @@ def criteria(stats: dict[str, Any]) -> dict[str, bool]:
         "P1, P3 ≈ 100 % at k_n = 30": min(_at(stats, "P1", 30), _at(stats, "P3", 30)) >= CLOSE_TO_ONE,
         "P3 highest, P2 lowest (every q, k_n)": all(
             np.all(prob["P3"][k] >= prob[p][k] - SLACK) and np.all(prob["P2"][k] <= prob[p][k] + SLACK)
-            for k in prob["P3"] for p in prob),
+            for k in prob["P3"]
+            for p in prob
+        ),
     }
     if "P4" in prob:
         out["P4 better than P2 (every k_n)"] = all(
             bool(np.all(prob["P4"][k] >= prob["P2"][k] - SLACK)) and float(np.mean(prob["P4"][k] - prob["P2"][k])) > 0
-            for k in prob["P4"])
+            for k in prob["P4"]
+        )
     return out
 
 
@@ -143,12 +156,13 @@ def relabel_like_paper(links: np.ndarray) -> np.ndarray | None:
                 continue
             head = [u, v, *sorted(nbr[v] - {u})]
             rest = [w for w in range(N_NODES) if w not in head and w != sevens[0]]
-            return np.array(head + rest[:13 - len(head)] + [sevens[0]] + rest[13 - len(head):])
+            return np.array(head + rest[: 13 - len(head)] + [sevens[0]] + rest[13 - len(head) :])
     return None
 
 
-def build(seed: int, index: int, *, max_draws: int = 200,
-          samples: int = SEARCH_SAMPLES) -> tuple[Graph, SwitchingGraph, dict[str, Any]]:
+def build(
+    seed: int, index: int, *, max_draws: int = 200, samples: int = SEARCH_SAMPLES
+) -> tuple[Graph, SwitchingGraph, dict[str, Any]]:
     """Candidate ``index`` relabelled like the paper, and network (b) on its points: the first draw
     ``default_rng([seed, index, t])``, t = 0, 1, … of 4 matchings of nearby pairs (7, 6, 8, 7 links, see
     :func:`distnav.experiments.consensus.switching_network`) for which every criterion, P4's included, holds."""
@@ -172,8 +186,12 @@ def build(seed: int, index: int, *, max_draws: int = 200,
 
 def _p1_plausible(graph: Graph, seed: int, samples: int = 4000) -> bool:
     """Quick screen before the full evaluation: P1 at k_n = 10, q = 0.2 within 80 ± 7 % on a few samples."""
-    p = consensus_probability(consensus_product(consensus_schedule(graph, "P1"), 10), np.array([Q_STAR]),
-                              samples=samples, rng=np.random.default_rng([seed, 9]))
+    p = consensus_probability(
+        consensus_product(consensus_schedule(graph, "P1"), 10),
+        np.array([Q_STAR]),
+        samples=samples,
+        rng=np.random.default_rng([seed, 9]),
+    )
     return bool(abs(float(p[0]) - PAPER["P1@10"]) <= ABOUT + 0.02)
 
 
@@ -190,8 +208,7 @@ class SearchReport:
     best_score: float = float("inf")
 
 
-def search(seed: int = 0, candidates: int = 100_000, *, start: int = 0,
-           samples: int = SEARCH_SAMPLES) -> SearchReport:
+def search(seed: int = 0, candidates: int = 100_000, *, start: int = 0, samples: int = SEARCH_SAMPLES) -> SearchReport:
     """Draw candidates ``start … start + candidates − 1``; keep those meeting every static criterion and
     relabelable like the paper.
 
@@ -227,35 +244,105 @@ def search(seed: int = 0, candidates: int = 100_000, *, start: int = 0,
 #: (0-based node ids, positions in metres rounded to 1 mm). ``failed`` counts, among the λ-matched candidates,
 #: the failures of each criterion (a candidate failing the P1 screen is not evaluated further).
 PAPER_LIKE: dict[str, Any] = {
- 'links': [[0, 1], [0, 4], [0, 11], [0, 12], [1, 2], [1, 3], [1, 4], [2, 3], [2, 4], [2, 8], [2, 9], [2, 13],
-           [3, 4], [3, 13], [3, 14], [4, 11], [4, 12], [5, 11], [5, 12], [5, 15], [5, 16], [5, 17], [6, 8], [6, 9],
-           [6, 13], [6, 14], [6, 18], [6, 19], [7, 9], [7, 15], [7, 19], [8, 9], [8, 13], [8, 18], [9, 15], [9, 19],
-           [10, 13], [10, 14], [10, 18], [11, 12], [11, 16], [11, 17], [12, 16], [13, 14], [13, 18], [14, 18],
-           [15, 16], [15, 17], [16, 17]],
- 'positions_m': [[45.692, 20.165], [37.02, 33.195], [53.805, 53.147], [22.341, 58.313], [35.012, 28.013],
-                 [82.87, 13.003], [65.072, 93.089], [92.128, 54.727], [59.315, 65.606], [76.35, 65.171],
-                 [23.429, 93.604], [58.559, 5.477], [55.29, 4.763], [44.457, 79.639], [33.227, 89.166],
-                 [92.115, 37.297], [82.538, 17.349], [89.646, 5.944], [45.449, 91.551], [87.325, 82.769]],
- 'search': {'candidates': 100000,
-            'failed': {'P1 ≈ 80 % at k_n = 10': 719, 'P2 < 5 % at k_n = 10': 1, 'P2 ≈ 80 % at k_n = 30': 1},
-            'index': 59922,
-            'matched': 3,
-            'matched_indices': [59922, 67420, 69998],
-            'seed': 0,
-            'slem_matched': 722,
-            'switching_draw': 0},
- 'sessions': [[[0, 1], [2, 8], [5, 15], [6, 10], [7, 16], [12, 17], [13, 18]],
-              [[1, 3], [2, 6], [4, 12], [7, 15], [9, 18], [16, 17]],
-              [[1, 8], [2, 4], [3, 14], [5, 11], [6, 18], [7, 9], [13, 19], [15, 17]],
-              [[2, 19], [3, 4], [5, 7], [6, 14], [8, 13], [10, 18], [11, 16]]]}
+    "links": [
+        [0, 1],
+        [0, 4],
+        [0, 11],
+        [0, 12],
+        [1, 2],
+        [1, 3],
+        [1, 4],
+        [2, 3],
+        [2, 4],
+        [2, 8],
+        [2, 9],
+        [2, 13],
+        [3, 4],
+        [3, 13],
+        [3, 14],
+        [4, 11],
+        [4, 12],
+        [5, 11],
+        [5, 12],
+        [5, 15],
+        [5, 16],
+        [5, 17],
+        [6, 8],
+        [6, 9],
+        [6, 13],
+        [6, 14],
+        [6, 18],
+        [6, 19],
+        [7, 9],
+        [7, 15],
+        [7, 19],
+        [8, 9],
+        [8, 13],
+        [8, 18],
+        [9, 15],
+        [9, 19],
+        [10, 13],
+        [10, 14],
+        [10, 18],
+        [11, 12],
+        [11, 16],
+        [11, 17],
+        [12, 16],
+        [13, 14],
+        [13, 18],
+        [14, 18],
+        [15, 16],
+        [15, 17],
+        [16, 17],
+    ],
+    "positions_m": [
+        [45.692, 20.165],
+        [37.02, 33.195],
+        [53.805, 53.147],
+        [22.341, 58.313],
+        [35.012, 28.013],
+        [82.87, 13.003],
+        [65.072, 93.089],
+        [92.128, 54.727],
+        [59.315, 65.606],
+        [76.35, 65.171],
+        [23.429, 93.604],
+        [58.559, 5.477],
+        [55.29, 4.763],
+        [44.457, 79.639],
+        [33.227, 89.166],
+        [92.115, 37.297],
+        [82.538, 17.349],
+        [89.646, 5.944],
+        [45.449, 91.551],
+        [87.325, 82.769],
+    ],
+    "search": {
+        "candidates": 100000,
+        "failed": {"P1 ≈ 80 % at k_n = 10": 719, "P2 < 5 % at k_n = 10": 1, "P2 ≈ 80 % at k_n = 30": 1},
+        "index": 59922,
+        "matched": 3,
+        "matched_indices": [59922, 67420, 69998],
+        "seed": 0,
+        "slem_matched": 722,
+        "switching_draw": 0,
+    },
+    "sessions": [
+        [[0, 1], [2, 8], [5, 15], [6, 10], [7, 16], [12, 17], [13, 18]],
+        [[1, 3], [2, 6], [4, 12], [7, 15], [9, 18], [16, 17]],
+        [[1, 8], [2, 4], [3, 14], [5, 11], [6, 18], [7, 9], [13, 19], [15, 17]],
+        [[2, 19], [3, 4], [5, 7], [6, 14], [8, 13], [10, 18], [11, 16]],
+    ],
+}
 
 
 def paper_like_networks() -> tuple[Graph, SwitchingGraph]:
     """Networks (a) and (b) of :data:`PAPER_LIKE` as graphs (positions in metres)."""
     pos = np.asarray(PAPER_LIKE["positions_m"], dtype=float)
     static = Graph.from_links(N_NODES, np.asarray(PAPER_LIKE["links"]), positions=pos)
-    sessions = tuple(Graph.from_links(N_NODES, np.asarray(s).reshape(-1, 2), positions=pos)
-                     for s in PAPER_LIKE["sessions"])
+    sessions = tuple(
+        Graph.from_links(N_NODES, np.asarray(s).reshape(-1, 2), positions=pos) for s in PAPER_LIKE["sessions"]
+    )
     return static, SwitchingGraph(sessions)
 
 
@@ -265,16 +352,25 @@ def main(argv: list[str] | None = None) -> int:  # pragma: no cover - the search
     ap.add_argument("--candidates", type=int, default=100_000)
     args = ap.parse_args(argv)
     rep = search(args.seed, args.candidates)
-    print(f"# seed {rep.seed}: {rep.examined} candidates, {rep.slem_matched} match the λ values, "
-          f"{len(rep.matched)} match everything: {rep.matched}; best {rep.best} (score {rep.best_score:.3f})")
+    print(
+        f"# seed {rep.seed}: {rep.examined} candidates, {rep.slem_matched} match the λ values, "
+        f"{len(rep.matched)} match everything: {rep.matched}; best {rep.best} (score {rep.best_score:.3f})"
+    )
     print(f"# λ-matched candidates failing each further criterion: {rep.failed}")
     if rep.best is None:
         return 1
     static, switching, stats = build(rep.seed, rep.best)
     stored = {
-        "search": {"seed": rep.seed, "candidates": rep.examined, "slem_matched": rep.slem_matched,
-                   "matched": len(rep.matched), "matched_indices": rep.matched, "index": rep.best,
-                   "switching_draw": stats["switching_draw"], "failed": rep.failed},
+        "search": {
+            "seed": rep.seed,
+            "candidates": rep.examined,
+            "slem_matched": rep.slem_matched,
+            "matched": len(rep.matched),
+            "matched_indices": rep.matched,
+            "index": rep.best,
+            "switching_draw": stats["switching_draw"],
+            "failed": rep.failed,
+        },
         "positions_m": np.round(static.positions, 3).tolist() if static.positions is not None else None,
         "links": static.links.tolist(),
         "sessions": [s.links.tolist() for s in switching.sessions],

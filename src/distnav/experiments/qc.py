@@ -45,8 +45,16 @@ class GrossErrorProblem:
     x: np.ndarray
 
 
-def gross_error_problem(rng: np.random.Generator, *, n: int = 20, m: int = 3, p: int = 6, n_outliers: int = 2,
-                        size_sigma: float = 6.0, mean_degree: float = 5.0) -> GrossErrorProblem:
+def gross_error_problem(
+    rng: np.random.Generator,
+    *,
+    n: int = 20,
+    m: int = 3,
+    p: int = 6,
+    n_outliers: int = 2,
+    size_sigma: float = 6.0,
+    mean_degree: float = 5.0,
+) -> GrossErrorProblem:
     """``m < p`` rows per node (every ``N_i`` singular), standard-normal design, σ_j ~ U(0.5, 2) per observation
     (diagonal ``R_i``), and ``n_outliers`` observations shifted by ``± size_sigma·σ_j``."""
     g = builders.connected_random_geometric(n, mean_degree=mean_degree, rng=rng)
@@ -57,8 +65,13 @@ def gross_error_problem(rng: np.random.Generator, *, n: int = 20, m: int = 3, p:
     bad = np.sort(rng.choice(n * m, n_outliers, replace=False))
     y_bad = y.copy().ravel()
     y_bad[bad] += size_sigma * sigma.ravel()[bad] * rng.choice([-1.0, 1.0], n_outliers)
-    return GrossErrorProblem(graph=g, problem=LinearProblem.from_stacked(A, y_bad.reshape(n, m), sigma ** 2),
-                             clean=LinearProblem.from_stacked(A, y, sigma ** 2), outliers=bad, x=x)
+    return GrossErrorProblem(
+        graph=g,
+        problem=LinearProblem.from_stacked(A, y_bad.reshape(n, m), sigma**2),
+        clean=LinearProblem.from_stacked(A, y, sigma**2),
+        outliers=bad,
+        x=x,
+    )
 
 
 # ----------------------------------------------------------------------------------------------- reproduction
@@ -68,14 +81,14 @@ TITLE = "Distributed precision and data snooping: ADMM on the code-bias network 
 #: Captions for the demo report (the CKF half's figures come from ``qc_ckf``).
 FIGURE_CAPTIONS = {
     "fig_qc_snooping.png": "Left: |w| of every observation of the code-bias network in the first distributed solution, "
-                           "the injected 6σ errors (circles), what distributed data snooping removed (crosses) and the "
-                           "critical value. Right: largest distance of any node's estimate to the clean centralized "
-                           "solution without snooping, after distributed and after centralized snooping (log scale).",
+    "the injected 6σ errors (circles), what distributed data snooping removed (crosses) and the "
+    "critical value. Right: largest distance of any node's estimate to the clean centralized "
+    "solution without snooping, after distributed and after centralized snooping (log scale).",
     "ckf_detection.png": "CKF half: detection and false-alarm rates of the nodes' local innovation tests against a "
-                         "central tested filter (left), and the final distance to the clean central filter of the "
-                         "tested CKF, the tested central filter and the untested CKF (right).",
+    "central tested filter (left), and the final distance to the clean central filter of the "
+    "tested CKF, the tested central filter and the untested CKF (right).",
     "ckf_distance_trace.png": "CKF half: per epoch, the largest distance of a node's estimate to the clean CKF, with "
-                              "and without local tests; red lines mark epochs with an injected gross error.",
+    "and without local tests; red lines mark epochs with an injected gross error.",
 }
 LEVEL = 0.001
 GROSS_SIGMA = 6.0
@@ -91,13 +104,27 @@ def codebias_qc_problem(ctx: ExperimentContext, epochs: int, n_errors: int) -> d
     sat = ctx.rng(2).normal(0.0, 3.0 * NS_TO_M, size=(len(svs), 3))
     rx = ctx.rng(4).normal(0.0, 5.0 * NS_TO_M, size=(net.graph.n_nodes, 3))
     t = t0 + np.arange(epochs) * EPOCH_S
-    data = simulate_codebias_data(net.positions_ecef_m, orbit, t, svs, rng=ctx.rng(3), sat_biases_m=sat,
-                                  rx_biases_m=rx, stations=net.graph.names, reference=int(net.hubs[0]))
+    data = simulate_codebias_data(
+        net.positions_ecef_m,
+        orbit,
+        t,
+        svs,
+        rng=ctx.rng(3),
+        sat_biases_m=sat,
+        rx_biases_m=rx,
+        stations=net.graph.names,
+        reference=int(net.hubs[0]),
+    )
     data = data.estimable_subset()
     data.check()
     blocks = [data.node_system(i) for i in range(data.n_stations)]
-    clean = LinearProblem.from_blocks([b[0] for b in blocks], [b[2] for b in blocks], [b[1] for b in blocks],
-                                      parameter_names=data.svs, node_names=data.stations)
+    clean = LinearProblem.from_blocks(
+        [b[0] for b in blocks],
+        [b[2] for b in blocks],
+        [b[1] for b in blocks],
+        parameter_names=data.svs,
+        node_names=data.stations,
+    )
     rows = clean.rows
     offsets = np.concatenate([[0], np.cumsum(rows)])
     rng = ctx.rng(6)
@@ -107,16 +134,28 @@ def codebias_qc_problem(ctx: ExperimentContext, epochs: int, n_errors: int) -> d
         i = int(np.searchsorted(offsets, k, side="right") - 1)
         j = int(k - offsets[i])
         y[i, j] += GROSS_SIGMA * np.sqrt(clean.R[i, j, j]) * rng.choice([-1.0, 1.0])
-    problem = LinearProblem.from_blocks([b[0] for b in blocks], [y[i, :rows[i]] for i in range(len(blocks))],
-                                        [b[1] for b in blocks], parameter_names=data.svs, node_names=data.stations)
-    return {"graph": net.graph, "problem": problem, "clean": clean, "outliers": bad, "epochs": data.n_epochs,
-            "satellites": list(data.svs), "constellation": orbit_text}
+    problem = LinearProblem.from_blocks(
+        [b[0] for b in blocks],
+        [y[i, : rows[i]] for i in range(len(blocks))],
+        [b[1] for b in blocks],
+        parameter_names=data.svs,
+        node_names=data.stations,
+    )
+    return {
+        "graph": net.graph,
+        "problem": problem,
+        "clean": clean,
+        "outliers": bad,
+        "epochs": data.n_epochs,
+        "satellites": list(data.svs),
+        "constellation": orbit_text,
+    }
 
 
 def _stacked(problem: LinearProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(A, y, R)`` of all real rows, node-major (``R`` block diagonal)."""
     keep = np.concatenate([i * problem.max_rows + np.arange(problem.rows[i]) for i in range(problem.n_nodes)])
-    R = block_diag(*[problem.R[i, :problem.rows[i], :problem.rows[i]] for i in range(problem.n_nodes)])
+    R = block_diag(*[problem.R[i, : problem.rows[i], : problem.rows[i]] for i in range(problem.n_nodes)])
     return problem.A.reshape(-1, problem.n_params)[keep], problem.y.ravel()[keep], R
 
 
@@ -131,34 +170,55 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     x_raw = blue(prob).x
     W = RHO_PER_EPOCH * case["epochs"]  # ρ against one epoch's information, as in `reproduce codebias`
     with ctx.progress.task("qc: distributed data snooping (ADMM estimate, precision, w-tests, removals)"):
-        res = admm_data_snooping(prob, g, W=W, level=LEVEL, tol=1e-10, max_iterations=20000,
-                                 exchange=ctx.exchange(g))
+        res = admm_data_snooping(prob, g, W=W, level=LEVEL, tol=1e-10, max_iterations=20000, exchange=ctx.exchange(g))
     with ctx.progress.task("qc: centralized data snooping (the reference)"):
         A, y, R = _stacked(prob)
         ref = data_snooping(A, y, R, level=LEVEL)
     assert res.tests is not None and res.precision is not None and res.tests.comm is not None
     removed = set(res.tests.removed)
     blue_cov = np.linalg.inv(A.T @ np.linalg.solve(R, A))
-    dist = {"no_snooping": float(np.abs(x_raw - x_clean).max()),
-            "distributed": float(np.abs(res.estimates - x_clean[None]).max()),
-            "centralized": float(np.abs(ref.x - x_clean).max())}
+    dist = {
+        "no_snooping": float(np.abs(x_raw - x_clean).max()),
+        "distributed": float(np.abs(res.estimates - x_clean[None]).max()),
+        "centralized": float(np.abs(ref.x - x_clean).max()),
+    }
     results: dict[str, Any] = {
-        "network": {"n_nodes": g.n_nodes, "n_links": g.n_links, "observations": int(prob.rows.sum()),
-                    "epochs": case["epochs"], "satellites": case["satellites"], "constellation": case["constellation"]},
-        "level": LEVEL, "critical_value": res.tests.critical_value, "gross_error_sigma": GROSS_SIGMA,
-        "rho": W, "injected": sorted(bad),
-        "distributed": {"removed": list(res.tests.removed), "detected": len(removed & bad),
-                        "false_alarms": len(removed - bad), "variance_factor": res.precision.variance_factor,
-                        "redundancy": res.precision.redundancy,
-                        "extra_iterations": res.tests.iterations, "extra_messages": res.tests.comm.messages,
-                        "iterations_last_solution": res.iterations, "messages_total": res.comm.messages},
-        "centralized": {"removed": list(ref.removed), "detected": len(set(ref.removed) & bad),
-                        "false_alarms": len(set(ref.removed) - bad), "variance_factor": ref.variance_factor,
-                        "redundancy": ref.redundancy},
+        "network": {
+            "n_nodes": g.n_nodes,
+            "n_links": g.n_links,
+            "observations": int(prob.rows.sum()),
+            "epochs": case["epochs"],
+            "satellites": case["satellites"],
+            "constellation": case["constellation"],
+        },
+        "level": LEVEL,
+        "critical_value": res.tests.critical_value,
+        "gross_error_sigma": GROSS_SIGMA,
+        "rho": W,
+        "injected": sorted(bad),
+        "distributed": {
+            "removed": list(res.tests.removed),
+            "detected": len(removed & bad),
+            "false_alarms": len(removed - bad),
+            "variance_factor": res.precision.variance_factor,
+            "redundancy": res.precision.redundancy,
+            "extra_iterations": res.tests.iterations,
+            "extra_messages": res.tests.comm.messages,
+            "iterations_last_solution": res.iterations,
+            "messages_total": res.comm.messages,
+        },
+        "centralized": {
+            "removed": list(ref.removed),
+            "detected": len(set(ref.removed) & bad),
+            "false_alarms": len(set(ref.removed) - bad),
+            "variance_factor": ref.variance_factor,
+            "redundancy": ref.redundancy,
+        },
         "same_removals": res.tests.removed == ref.removed,
         "max_abs_w_difference": float(np.nanmax(np.abs(res.tests.w - ref.w))),
         "covariance_relative_error_vs_final_centralized": float(
-            np.abs(res.precision.covariance - ref.covariance[None]).max() / np.abs(ref.covariance).max()),
+            np.abs(res.precision.covariance - ref.covariance[None]).max() / np.abs(ref.covariance).max()
+        ),
         "max_distance_to_clean_centralized_m": dist,
         "sigma_clean_centralized_m": np.sqrt(np.diag(blue_cov)).tolist(),
     }
@@ -167,15 +227,16 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         results["ckf"] = ckf_part
     results["headline"] = {
         "gross errors injected / detected (distributed)": f"{len(bad)} / {len(removed & bad)}",
-        "false alarms (distributed / centralized)":
-            f"{results['distributed']['false_alarms']} / {results['centralized']['false_alarms']}",
+        "false alarms (distributed / centralized)": (
+            f"{results['distributed']['false_alarms']} / {results['centralized']['false_alarms']}"
+        ),
         "same removals as centralized data snooping": results["same_removals"],
         "max |w| distributed − centralized": results["max_abs_w_difference"],
-        "distance to clean solution [m]: none / distributed / centralized":
-            f"{dist['no_snooping']:.3g} / {dist['distributed']:.3g} / {dist['centralized']:.3g}",
+        "distance to clean solution [m]: none / distributed / centralized": (
+            f"{dist['no_snooping']:.3g} / {dist['distributed']:.3g} / {dist['centralized']:.3g}"
+        ),
         "σ̂² (distributed / centralized)": f"{res.precision.variance_factor:.6g} / {ref.variance_factor:.6g}",
-        "extra iterations / messages after the first solution":
-            f"{res.tests.iterations} / {res.tests.comm.messages}",
+        "extra iterations / messages after the first solution": f"{res.tests.iterations} / {res.tests.comm.messages}",
     }
     if ckf_part is not None:
         results["headline"].update({f"CKF: {k}": v for k, v in ckf_part.get("headline", {}).items()})
@@ -197,8 +258,9 @@ def _ckf_half(ctx: ExperimentContext) -> dict[str, Any] | None:
     return out
 
 
-def _figures(ctx: ExperimentContext, prob: LinearProblem, res: Any, ref: Any, bad: set[int],
-             dist: dict[str, float]) -> None:
+def _figures(
+    ctx: ExperimentContext, prob: LinearProblem, res: Any, ref: Any, bad: set[int], dist: dict[str, float]
+) -> None:
     plt = pyplot()
     A, y, R = _stacked(prob)
     first = data_snooping(A, y, R, level=LEVEL, max_removals=0)  # the w of the first solution
@@ -210,8 +272,13 @@ def _figures(ctx: ExperimentContext, prob: LinearProblem, res: Any, ref: Any, ba
     rem = np.array(res.tests.removed, dtype=int)
     if rem.size:
         axes[0].plot(rem, np.abs(first.w[rem]), "x", color="k", ms=7, label="removed (distributed)")
-    axes[0].axhline(res.tests.critical_value, color="tab:blue", ls="--", lw=1,
-                    label=f"critical value {res.tests.critical_value:.2f} (level {LEVEL:g})")
+    axes[0].axhline(
+        res.tests.critical_value,
+        color="tab:blue",
+        ls="--",
+        lw=1,
+        label=f"critical value {res.tests.critical_value:.2f} (level {LEVEL:g})",
+    )
     axes[0].set_xlabel("observation (node-major)")
     axes[0].set_ylabel("|w|")
     axes[0].legend(fontsize=7)

@@ -66,8 +66,11 @@ def _epochs(A: np.ndarray, sig: np.ndarray, y: np.ndarray) -> Epochs:
     return [[(A[t, i], sig[t, i] ** 2, y[t, i]) for i in range(A.shape[1])] for t in range(A.shape[0])]
 
 
-def central_tested_filter(dyn: DynamicModel, epochs: Epochs, level: float,
-                          ) -> tuple[np.ndarray, set[tuple[int, int, int]]]:
+def central_tested_filter(
+    dyn: DynamicModel,
+    epochs: Epochs,
+    level: float,
+) -> tuple[np.ndarray, set[tuple[int, int, int]]]:
     """Central information filter that tests every node's predicted residuals with the central prediction.
 
     Returns the last-epoch estimate (p,) and the rejected observations as ``(epoch, node, row)``.
@@ -96,8 +99,16 @@ def central_tested_filter(dyn: DynamicModel, epochs: Epochs, level: float,
     return x[0], removed
 
 
-def _trial(ctx: ExperimentContext, graph: Graph, dyn: DynamicModel, A: np.ndarray, sig: np.ndarray,
-           rng: np.random.Generator, *, trace: bool) -> dict[str, Any]:
+def _trial(
+    ctx: ExperimentContext,
+    graph: Graph,
+    dyn: DynamicModel,
+    A: np.ndarray,
+    sig: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    trace: bool,
+) -> dict[str, Any]:
     T = A.shape[0]
     x = simulate_states(dyn, T, rng=rng, initial_state=rng.normal(0.0, 3.0, dyn.n_states))
     y_clean = np.einsum("tnmp,tp->tnm", A, x) + sig * rng.standard_normal(sig.shape)
@@ -110,12 +121,27 @@ def _trial(ctx: ExperimentContext, graph: Graph, dyn: DynamicModel, A: np.ndarra
     sched = consensus_schedule(graph, "P3")
     clean_c = central_filter(dyn, ObservationSeries(dyn.n_states, _epochs(A, sig, y_clean))).estimates[0]
     ms_bad = ObservationSeries(dyn.n_states, _epochs(A, sig, y_bad))
-    tested = ckf(dyn, ms_bad, schedule=sched, rounds=KN, exchange=ctx.exchange(graph), local_precision="exact",
-                 test_level=LEVEL, variance=False, monitor=False)
-    plain = ckf(dyn, ms_bad, schedule=sched, rounds=KN, exchange=ctx.exchange(graph), variance=False,
-                monitor=False)
-    clean_ckf = ckf(dyn, ObservationSeries(dyn.n_states, _epochs(A, sig, y_clean)), schedule=sched, rounds=KN,
-                    exchange=ctx.exchange(graph), variance=False, monitor=False)
+    tested = ckf(
+        dyn,
+        ms_bad,
+        schedule=sched,
+        rounds=KN,
+        exchange=ctx.exchange(graph),
+        local_precision="exact",
+        test_level=LEVEL,
+        variance=False,
+        monitor=False,
+    )
+    plain = ckf(dyn, ms_bad, schedule=sched, rounds=KN, exchange=ctx.exchange(graph), variance=False, monitor=False)
+    clean_ckf = ckf(
+        dyn,
+        ObservationSeries(dyn.n_states, _epochs(A, sig, y_clean)),
+        schedule=sched,
+        rounds=KN,
+        exchange=ctx.exchange(graph),
+        variance=False,
+        monitor=False,
+    )
     xc, removed_c = central_tested_filter(dyn, _epochs(A, sig, y_bad), LEVEL)
     tests = tested.tests
     assert tests is not None
@@ -125,13 +151,19 @@ def _trial(ctx: ExperimentContext, graph: Graph, dyn: DynamicModel, A: np.ndarra
     def dist(est: np.ndarray) -> float:
         return float(np.max(np.linalg.norm(np.atleast_2d(est) - clean_c, axis=-1)))
 
-    out: dict[str, Any] = {"injected": len(injected), "tested": n_tested,
-           "detected_distributed": len(removed_d & injected), "false_distributed": len(removed_d - injected),
-           "detected_central": len(removed_c & injected), "false_central": len(removed_c - injected),
-           "distance_distributed": dist(tested.estimates), "distance_untested": dist(plain.estimates),
-           "distance_central": dist(xc),
-           "ckf_distance_distributed": float(np.linalg.norm(tested.estimates - clean_ckf.estimates, axis=1).max()),
-           "ckf_distance_untested": float(np.linalg.norm(plain.estimates - clean_ckf.estimates, axis=1).max())}
+    out: dict[str, Any] = {
+        "injected": len(injected),
+        "tested": n_tested,
+        "detected_distributed": len(removed_d & injected),
+        "false_distributed": len(removed_d - injected),
+        "detected_central": len(removed_c & injected),
+        "false_central": len(removed_c - injected),
+        "distance_distributed": dist(tested.estimates),
+        "distance_untested": dist(plain.estimates),
+        "distance_central": dist(xc),
+        "ckf_distance_distributed": float(np.linalg.norm(tested.estimates - clean_ckf.estimates, axis=1).max()),
+        "ckf_distance_untested": float(np.linalg.norm(plain.estimates - clean_ckf.estimates, axis=1).max()),
+    }
     if trace:
         ref = clean_ckf.series.estimates
         out["trace"] = {
@@ -142,15 +174,15 @@ def _trial(ctx: ExperimentContext, graph: Graph, dyn: DynamicModel, A: np.ndarra
     return out
 
 
-def _precision_check(ctx: ExperimentContext, graph: Graph, dyn: DynamicModel, A: np.ndarray,
-                     sig: np.ndarray) -> dict[str, float]:
+def _precision_check(
+    ctx: ExperimentContext, graph: Graph, dyn: DynamicModel, A: np.ndarray, sig: np.ndarray
+) -> dict[str, float]:
     y = np.zeros(sig.shape)
     ms = ObservationSeries(dyn.n_states, _epochs(A, sig, y))
     sched = consensus_schedule(graph, "P3")
     out: dict[str, float] = {}
     for kind in ("exact", "bound"):
-        r = ckf(dyn, ms, schedule=sched, rounds=KN, exchange=ctx.exchange(graph), local_precision=kind,
-                monitor=False)
+        r = ckf(dyn, ms, schedule=sched, rounds=KN, exchange=ctx.exchange(graph), local_precision=kind, monitor=False)
         m = r.series.estimable
         assert r.local_std is not None and r.precision is not None and r.precision.comm is not None
         ratio = r.local_std[m] / r.series.std[m]
@@ -182,20 +214,34 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     dist = {k: [t[f"distance_{k}"] for t in trials] for k in ("distributed", "central", "untested")}
     ckf_dist = {k: [t[f"ckf_distance_{k}"] for t in trials] for k in ("distributed", "untested")}
     results: dict[str, Any] = {
-        "setup": {"n_nodes": N_NODES, "n_links": graph.n_links, "n_states": dyn.n_states, "n_obs_per_node": N_OBS,
-                  "n_epochs": T, "k_n": KN, "protocol": "P3", "level": LEVEL,
-                  "critical_value": critical_value(LEVEL), "gross_error_sigma": GROSS_SIGMA,
-                  "gross_errors_per_trial": N_GROSS, "trials": n_trials},
+        "setup": {
+            "n_nodes": N_NODES,
+            "n_links": graph.n_links,
+            "n_states": dyn.n_states,
+            "n_obs_per_node": N_OBS,
+            "n_epochs": T,
+            "k_n": KN,
+            "protocol": "P3",
+            "level": LEVEL,
+            "critical_value": critical_value(LEVEL),
+            "gross_error_sigma": GROSS_SIGMA,
+            "gross_errors_per_trial": N_GROSS,
+            "trials": n_trials,
+        },
         "detection_rate": {"distributed": rate("detected_distributed", inj), "central": rate("detected_central", inj)},
-        "false_alarm_rate": {"distributed": rate("false_distributed", clean_tested),
-                             "central": rate("false_central", clean_tested)},
-        "final_distance_to_clean_central": {k: {"median": float(np.median(v)), "max": float(np.max(v))}
-                                            for k, v in dist.items()},
-        "final_distance_to_clean_ckf": {k: {"median": float(np.median(v)), "max": float(np.max(v))}
-                                        for k, v in ckf_dist.items()},
+        "false_alarm_rate": {
+            "distributed": rate("false_distributed", clean_tested),
+            "central": rate("false_central", clean_tested),
+        },
+        "final_distance_to_clean_central": {
+            k: {"median": float(np.median(v)), "max": float(np.max(v))} for k, v in dist.items()
+        },
+        "final_distance_to_clean_ckf": {
+            k: {"median": float(np.median(v)), "max": float(np.max(v))} for k, v in ckf_dist.items()
+        },
         "final_distance_note": "max over nodes of ‖x̂_i − x̂_clean‖ at the last epoch; clean = the same filter on the "
-                               "data without gross errors and without tests (the CKF with k_n = 6 is itself "
-                               "away from the central filter, so the clean-CKF distance isolates the gross errors)",
+        "data without gross errors and without tests (the CKF with k_n = 6 is itself "
+        "away from the central filter, so the clean-CKF distance isolates the gross errors)",
         "node_local_precision": precision,
     }
     results["headline"] = {
@@ -204,15 +250,20 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "CKF local tests: false-alarm rate (level 0.1 %)": results["false_alarm_rate"]["distributed"],
         "central tests: false-alarm rate (level 0.1 %)": results["false_alarm_rate"]["central"],
         "median final distance to clean central, CKF with tests": results["final_distance_to_clean_central"][
-            "distributed"]["median"],
+            "distributed"
+        ]["median"],
         "median final distance to clean central, CKF without tests": results["final_distance_to_clean_central"][
-            "untested"]["median"],
+            "untested"
+        ]["median"],
         "median final distance to clean central, central with tests": results["final_distance_to_clean_central"][
-            "central"]["median"],
-        "median final distance to clean CKF, CKF with tests": results["final_distance_to_clean_ckf"][
-            "distributed"]["median"],
-        "median final distance to clean CKF, CKF without tests": results["final_distance_to_clean_ckf"][
-            "untested"]["median"],
+            "central"
+        ]["median"],
+        "median final distance to clean CKF, CKF with tests": results["final_distance_to_clean_ckf"]["distributed"][
+            "median"
+        ],
+        "median final distance to clean CKF, CKF without tests": results["final_distance_to_clean_ckf"]["untested"][
+            "median"
+        ],
         "node-local precision exact / Fig. 7, max": precision["exact_max_ratio"],
         "node-local precision bound / Fig. 7, max (std)": precision["bound_max_ratio"],
     }
@@ -221,15 +272,15 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     return results
 
 
-def _figures(ctx: ExperimentContext, results: dict[str, Any], trace: dict[str, Any],
-             dist: dict[str, list[float]]) -> None:
+def _figures(
+    ctx: ExperimentContext, results: dict[str, Any], trace: dict[str, Any], dist: dict[str, list[float]]
+) -> None:
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     ax = axes[0]
     kinds = ["distributed", "central"]
     ax.bar(np.arange(2) - 0.2, [results["detection_rate"][k] for k in kinds], 0.4, label="detection rate")
-    ax.bar(np.arange(2) + 0.2, [100 * results["false_alarm_rate"][k] for k in kinds], 0.4,
-           label="false alarms × 100")
+    ax.bar(np.arange(2) + 0.2, [100 * results["false_alarm_rate"][k] for k in kinds], 0.4, label="false alarms × 100")
     ax.axhline(100 * LEVEL, color="k", ls="--", lw=0.8, label="level × 100")
     ax.set_xticks(range(2), ["CKF (local tests)", "central filter"])
     ax.legend(fontsize=8)

@@ -20,8 +20,15 @@ from distnav.experiments.claims import AGREE, DIFFER, NOT_CHECKABLE
 from distnav.experiments.claims_table import claims_for, counts, html_table, markdown_table
 from distnav.output import atomic_write_text, to_jsonable
 
-__all__ = ["write_report", "FIGURE_CAPTIONS", "QUICK_NOTES", "PAPER_VALUES", "paper_value", "split_paper_value",
-           "caption"]
+__all__ = [
+    "write_report",
+    "FIGURE_CAPTIONS",
+    "QUICK_NOTES",
+    "PAPER_VALUES",
+    "paper_value",
+    "split_paper_value",
+    "caption",
+]
 
 #: One caption per figure an experiment writes (an experiment module may define its own ``FIGURE_CAPTIONS``).
 FIGURE_CAPTIONS: dict[str, dict[str, str]] = {
@@ -96,15 +103,15 @@ FIGURE_CAPTIONS: dict[str, dict[str, str]] = {
 QUICK_NOTES: dict[str, str] = {
     "consensus": "20,000 Monte Carlo samples instead of 100,000 (probabilities within about ±0.3 %).",
     "admm": "Fig. 5 study on 3 random problems at ρ = 0.3, 1, 3 instead of 40 at 0.3–10; ρ sweep on a 20-node "
-            "network at 4 values instead of 100 nodes at 11 — counts such as 'slower in 3 of 3' are not the full "
-            "run's.",
+    "network at 4 values instead of 100 nodes at 11 — counts such as 'slower in 3 of 3' are not the full "
+    "run's.",
     "ckf": "40 epochs instead of 240: ratios at the last epoch are further from their limits.",
     "uwb": "1 instance per class and 60 iterations instead of 50 / 50 / 100 instances and 500 iterations: RMSE, "
-           "cost and step-size numbers are far from converged and do not match the paper's setting.",
+    "cost and step-size numbers are far from converged and do not match the paper's setting.",
     "codebias": "120 epochs and 300 iterations instead of 300 and 1000, and no ρ-scale comparison: several "
-                "'iterations to 1 mm' are not reached within the run.",
+    "'iterations to 1 mm' are not reached within the run.",
     "ckf-ionosphere": "150 one-minute epochs instead of 960: the DCB times and the after-1-h ratios cover only the "
-                      "first 2.5 h of the day.",
+    "first 2.5 h of the day.",
 }
 
 #: The paper's value for headline labels that do not carry a ``(paper …)`` part: (experiment, regex, value).
@@ -167,7 +174,7 @@ def split_paper_value(label: str) -> tuple[str, str | None]:
     if not m:
         return label, None
     value = re.sub(r"^paper\s*[:=]?\s*", "", m.group(1)).strip()
-    return (label[:m.start()] + label[m.end():]).strip(), value or None
+    return (label[: m.start()] + label[m.end() :]).strip(), value or None
 
 
 def caption(name: str, figure: str, module_captions: dict[str, str] | None = None) -> str:
@@ -220,8 +227,9 @@ _CSS = (
 )
 
 
-def write_report(out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any], float]], *,
-                 quick: bool = True) -> Path:
+def write_report(
+    out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any], float]], *, quick: bool = True
+) -> Path:
     """Write ``out_dir/index.html`` and ``out_dir/REPORT.md``; returns the HTML path.
 
     ``entries`` are ``(name, title, context, results, seconds)``; ``context.figures`` lists the PNGs written in
@@ -234,12 +242,18 @@ def write_report(out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any
     out_dir = Path(out_dir)
     rows = [r for name, _, _, results, _ in entries if isinstance(results, dict) for r in claims_for(name, results)]
     c = counts(rows)
-    summary = (f"{len(rows)} paper claims checked by this run: <b>{c[AGREE]} agree</b>, <b>{c[DIFFER]} differ"
-               f"</b>, {c[NOT_CHECKABLE]} not checkable.")
-    variant = ("These are the <b>quick variants</b> of every reproduction (what changes is said under each "
-               "heading), so some numbers differ from the full runs quoted in the README; "
-               "<code>docs/claims.md</code> has the same table from a full run. Run <code>distnav reproduce NAME "
-               "--out DIR</code> for a full one." if quick else "Full reproductions.")
+    summary = (
+        f"{len(rows)} paper claims checked by this run: <b>{c[AGREE]} agree</b>, <b>{c[DIFFER]} differ"
+        f"</b>, {c[NOT_CHECKABLE]} not checkable."
+    )
+    variant = (
+        "These are the <b>quick variants</b> of every reproduction (what changes is said under each "
+        "heading), so some numbers differ from the full runs quoted in the README; "
+        "<code>docs/claims.md</code> has the same table from a full run. Run <code>distnav reproduce NAME "
+        "--out DIR</code> for a full one."
+        if quick
+        else "Full reproductions."
+    )
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'><title>distnav demo report</title>",
         f"<style>{_CSS}</style></head><body>",
@@ -249,13 +263,22 @@ def write_report(out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any
         f"<p class='caveat'>{variant}</p>",
         f"<h2 id='summary'>Summary: what the papers claim and what distnav measured</h2><p>{summary}</p>",
         html_table(rows),
-        "<p>Contents: " + " · ".join(f"<a href='#{html.escape(n)}'>{html.escape(t)}</a>"
-                                     for n, t, *_ in entries) + "</p>",
+        "<p>Contents: "
+        + " · ".join(f"<a href='#{html.escape(n)}'>{html.escape(t)}</a>" for n, t, *_ in entries)
+        + "</p>",
     ]
-    md = [f"# distnav demo report (distnav {__version__})", "",
-          re.sub(r"</?(b|code)>", "", variant).replace("&amp;", "&"), "",
-          "## Summary: what the papers claim and what distnav measured", "",
-          re.sub(r"</?b>", "", summary), "", markdown_table(rows), ""]
+    md = [
+        f"# distnav demo report (distnav {__version__})",
+        "",
+        re.sub(r"</?(b|code)>", "", variant).replace("&amp;", "&"),
+        "",
+        "## Summary: what the papers claim and what distnav measured",
+        "",
+        re.sub(r"</?b>", "", summary),
+        "",
+        markdown_table(rows),
+        "",
+    ]
     for name, title, ctx, results, seconds in entries:
         mod_caps: dict[str, str] | None = None
         if name in EXPERIMENTS:
@@ -274,17 +297,21 @@ def write_report(out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any
             for k, v in headline.items():
                 label = split_paper_value(str(k))[0]
                 paper_txt = paper_value(name, str(k))
-                parts.append(f"<tr><td>{html.escape(label)}</td><td>{html.escape(_fmt(v))}</td>"
-                             f"<td>{html.escape(paper_txt)}</td></tr>")
+                parts.append(
+                    f"<tr><td>{html.escape(label)}</td><td>{html.escape(_fmt(v))}</td>"
+                    f"<td>{html.escape(paper_txt)}</td></tr>"
+                )
                 md.append(f"| {label.replace('|', chr(92) + '|')} | {_fmt(v)} | {paper_txt.replace('|', '/')} |")
             parts.append("</table>")
             md.append("")
         for fig in ctx.figures:
             cap = caption(name, fig, mod_caps)
             cls = _figure_class(_png_size(out_dir / rel / fig))
-            parts.append(f"<figure{cls}><a href='{rel}/{fig}' title='open full size'><img src='{rel}/{fig}' "
-                         f"alt='{html.escape(fig)}' loading='lazy'></a><figcaption>{html.escape(cap)} "
-                         f"<a href='{rel}/{fig}'>[full size]</a></figcaption></figure>")
+            parts.append(
+                f"<figure{cls}><a href='{rel}/{fig}' title='open full size'><img src='{rel}/{fig}' "
+                f"alt='{html.escape(fig)}' loading='lazy'></a><figcaption>{html.escape(cap)} "
+                f"<a href='{rel}/{fig}'>[full size]</a></figcaption></figure>"
+            )
             md += [f"[![{fig}]({rel}/{fig})]({rel}/{fig})", "", f"*{cap}*", ""]
         md.append("")
     parts.append("</body></html>")
@@ -292,4 +319,3 @@ def write_report(out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any
     atomic_write_text(index, "\n".join(parts))
     atomic_write_text(out_dir / "REPORT.md", "\n".join(md) + "\n")
     return index
-

@@ -50,18 +50,37 @@ STARTS = ("paper", "horizontal")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--instances", type=positive_int, default=None,
-                        help="instances per problem (default: the paper's 50 for G and L, 100 for R; --quick: 1)")
-    parser.add_argument("--iterations", type=positive_int, default=None,
-                        help=f"iterations of every solver (default {PAPER_ITERATIONS}; --quick: {QUICK_ITERATIONS})")
-    parser.add_argument("--armijo-slope", choices=["gradient", "subgradient"], default="subgradient",
-                        help="slope in the BLS/TBLS Armijo test: the subgradient Gᵀg as in the paper (default) "
-                             "or the true gradient 2Gᵀg of f")
-    parser.add_argument("--hold-heights", action="store_true",
-                        help="hold every estimated anchor's height at its true value (solve x, y only)")
-    parser.add_argument("--start", choices=list(STARTS), default="paper",
-                        help="initial guess: truth + U(-5, 5) m in every coordinate (paper: eq. (23), default) or "
-                             "in x and y only, the heights started at the truth (horizontal)")
+    parser.add_argument(
+        "--instances",
+        type=positive_int,
+        default=None,
+        help="instances per problem (default: the paper's 50 for G and L, 100 for R; --quick: 1)",
+    )
+    parser.add_argument(
+        "--iterations",
+        type=positive_int,
+        default=None,
+        help=f"iterations of every solver (default {PAPER_ITERATIONS}; --quick: {QUICK_ITERATIONS})",
+    )
+    parser.add_argument(
+        "--armijo-slope",
+        choices=["gradient", "subgradient"],
+        default="subgradient",
+        help="slope in the BLS/TBLS Armijo test: the subgradient Gᵀg as in the paper (default) "
+        "or the true gradient 2Gᵀg of f",
+    )
+    parser.add_argument(
+        "--hold-heights",
+        action="store_true",
+        help="hold every estimated anchor's height at its true value (solve x, y only)",
+    )
+    parser.add_argument(
+        "--start",
+        choices=list(STARTS),
+        default="paper",
+        help="initial guess: truth + U(-5, 5) m in every coordinate (paper: eq. (23), default) or "
+        "in x and y only, the heights started at the truth (horizontal)",
+    )
     add_jobs_argument(parser)
 
 
@@ -91,8 +110,9 @@ def _layout(cls: str) -> tuple[np.ndarray, np.ndarray] | None:
     return generate_layout(cls) if cls in "GL" else None
 
 
-def instance_problem(name: str, rng: np.random.Generator, *, hold_heights: bool = False,
-                     start: str = "paper") -> RangingProblem:
+def instance_problem(
+    name: str, rng: np.random.Generator, *, hold_heights: bool = False, start: str = "paper"
+) -> RangingProblem:
     """The reproduction's instance of problem ``name``: :func:`generate_problem` with the fixed G / L placement;
     ``start="horizontal"`` keeps its initial guess's horizontal perturbation and starts every height at the
     truth (the random draws are the same, so the two starts are paired instance by instance)."""
@@ -122,13 +142,22 @@ def _run_instance(task: _Task, exchange: Callable[[Graph], Exchange] | None = No
         elif s in line_searches:
             res = line_searches[s]
         elif "LS" in s:  # the paper's mode: a fixed iteration count, no QC; BLS and TBLS share what they can
-            pair = solve_line_search_pair(problem, iterations=its, armijo_slope=task.armijo_slope,
-                                          exchanges=(make(problem.graph), make(problem.graph)), **PAPER_MODE)
+            pair = solve_line_search_pair(
+                problem,
+                iterations=its,
+                armijo_slope=task.armijo_slope,
+                exchanges=(make(problem.graph), make(problem.graph)),
+                **PAPER_MODE,
+            )
             res, line_searches["N-CSG-TBLS"] = pair
         else:
             res = solve(problem, s, iterations=its, exchange=make(problem.graph), **PAPER_MODE)
-        run: dict[str, Any] = {"seconds": time.perf_counter() - t0, "messages": res.comm.messages,
-                               "bytes": res.comm.bytes, "diverged": False}
+        run: dict[str, Any] = {
+            "seconds": time.perf_counter() - t0,
+            "messages": res.comm.messages,
+            "bytes": res.comm.bytes,
+            "diverged": False,
+        }
         out["runs"][s] = run
         if res.status == "diverged" or not np.all(np.isfinite(res.trace["rmse_m"])):
             run["diverged"] = True
@@ -139,8 +168,13 @@ def _run_instance(task: _Task, exchange: Callable[[Graph], Exchange] | None = No
             run["step"] = res.trace["step_size"][: its + 1]
         run["xy"], run["z"] = _errors(problem, res.estimates)
         if task.instance == 0 and s == "N-CSG-TBLS" and task.name in ("GO", "LC", "RM"):
-            out["example"] = {"truth": problem.truth_m, "initial": problem.initial_m, "estimate": res.estimates,
-                              "fixed": problem.fixed, "links": problem.links}
+            out["example"] = {
+                "truth": problem.truth_m,
+                "initial": problem.initial_m,
+                "estimate": res.estimates,
+                "fixed": problem.fixed,
+                "links": problem.links,
+            }
     return out
 
 
@@ -159,18 +193,26 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     table: list[dict[str, Any]] = []
     examples: dict[str, Any] = {}
     timing: dict[str, float] = {s: 0.0 for s in SOLVERS}
-    tasks = [_Task(ctx.seed, pi, name, inst, iterations, armijo_slope, hold_heights, start)
-             for pi, name in enumerate(PAPER_PROBLEMS) for inst in range(n_inst[name[0]])]
+    tasks = [
+        _Task(ctx.seed, pi, name, inst, iterations, armijo_slope, hold_heights, start)
+        for pi, name in enumerate(PAPER_PROBLEMS)
+        for inst in range(n_inst[name[0]])
+    ]
     workers = min(jobs, len(tasks)) if parallel else 1
-    with ctx.progress.task(f"uwb: {len(tasks)} instances of {len(PAPER_PROBLEMS)} problems × {len(SOLVERS)} "
-                           f"solvers, {workers} process(es)", total=len(tasks)) as advance:
+    with ctx.progress.task(
+        f"uwb: {len(tasks)} instances of {len(PAPER_PROBLEMS)} problems × {len(SOLVERS)} "
+        f"solvers, {workers} process(es)",
+        total=len(tasks),
+    ) as advance:
         if parallel:
             runs = parallel_map(_run_instance, tasks, jobs, advance)
         else:
             runs = parallel_map(partial(_run_instance, exchange=ctx.exchange), tasks, 1, advance)
     for name in PAPER_PROBLEMS:
-        acc: dict[str, dict[str, Any]] = {s: {"rmse": [], "cost": [], "step": [], "msg": [], "bytes": [],
-                                              "xy": [], "z": [], "diverged": 0} for s in SOLVERS}
+        acc: dict[str, dict[str, Any]] = {
+            s: {"rmse": [], "cost": [], "step": [], "msg": [], "bytes": [], "xy": [], "z": [], "diverged": 0}
+            for s in SOLVERS
+        }
         done = [r for t, r in zip(tasks, runs, strict=True) if t.name == name]
         for one in done:  # in instance order: the means are the serial loop's sums
             for s, r in one["runs"].items():
@@ -196,22 +238,43 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                 curves[name][s]["step_size"] = np.mean(a["step"], axis=0)
             finals = np.array([r[-1] for r in a["rmse"]]) if a["rmse"] else np.full(1, np.nan)
             finals_c = np.array([c[-1] for c in a["cost"]]) if a["cost"] else np.full(1, np.nan)
-            table.append({
-                "problem": name, "solver": s, "rmse_m": float(rm[-1]), "rms_cost": float(rc[-1]),
-                "rmse_m_median": float(np.median(finals)), "rms_cost_median": float(np.median(finals_c)),
-                "messages": int(round(float(np.mean(a["msg"])))), "bytes": int(round(float(np.mean(a["bytes"])))),
-                "rmse_xy_m": float(np.mean(a["xy"])) if a["xy"] else float("nan"),
-                "rmse_z_m": float(np.mean(a["z"])) if a["z"] else float("nan"),
-                "instances": n_inst[name[0]], "diverged": a["diverged"], "iterations": iterations,
-            })
+            table.append(
+                {
+                    "problem": name,
+                    "solver": s,
+                    "rmse_m": float(rm[-1]),
+                    "rms_cost": float(rc[-1]),
+                    "rmse_m_median": float(np.median(finals)),
+                    "rms_cost_median": float(np.median(finals_c)),
+                    "messages": int(round(float(np.mean(a["msg"])))),
+                    "bytes": int(round(float(np.mean(a["bytes"])))),
+                    "rmse_xy_m": float(np.mean(a["xy"])) if a["xy"] else float("nan"),
+                    "rmse_z_m": float(np.mean(a["z"])) if a["z"] else float("nan"),
+                    "instances": n_inst[name[0]],
+                    "diverged": a["diverged"],
+                    "iterations": iterations,
+                }
+            )
 
     results: dict[str, Any] = {
-        "settings": {"iterations": iterations, "instances": n_inst, "alpha": 1e-3, "alpha0": 1e-2, "beta": 0.5,
-                     "gamma": 0.5, "armijo_slope": armijo_slope, "hold_heights": hold_heights,
-                     "consensus_rounds": 1, "weights": "MH",
-                     "sigma_m": 0.15,
-                     "init_halfwidth_m": 5.0, "dim": 3, "anchors": 100, "fixed": 3,
-                     **({"start": start} if start != "paper" else {})},
+        "settings": {
+            "iterations": iterations,
+            "instances": n_inst,
+            "alpha": 1e-3,
+            "alpha0": 1e-2,
+            "beta": 0.5,
+            "gamma": 0.5,
+            "armijo_slope": armijo_slope,
+            "hold_heights": hold_heights,
+            "consensus_rounds": 1,
+            "weights": "MH",
+            "sigma_m": 0.15,
+            "init_halfwidth_m": 5.0,
+            "dim": 3,
+            "anchors": 100,
+            "fixed": 3,
+            **({"start": start} if start != "paper" else {}),
+        },
         "table": table,
         "curves": {p: {s: {k: v.tolist() for k, v in d.items()} for s, d in sv.items()} for p, sv in curves.items()},
         "paper_claims": {
@@ -239,17 +302,28 @@ def _final(table: list[dict[str, Any]], problem: str, solver: str, key: str) -> 
 def _checks(table: list[dict[str, Any]], curves: dict[str, Any]) -> dict[str, Any]:
     """The paper's qualitative claims evaluated on distnav's numbers (see docs/uwb.md)."""
     dist = [s for s in SOLVERS if s != "LM"]
-    lm_lowest = [p for p in PAPER_PROBLEMS
-                 if all(not _final(table, p, "LM", "rms_cost") > _final(table, p, s, "rms_cost") for s in dist)]
-    lm_lowest_median = [p for p in PAPER_PROBLEMS if all(
-        not _final(table, p, "LM", "rms_cost_median") > _final(table, p, s, "rms_cost_median") for s in dist)]
-    dist_better = {p: [s for s in dist if _final(table, p, s, "rmse_m") < _final(table, p, "LM", "rmse_m")]
-                   for p in PAPER_PROBLEMS}
-    by_class = {c: float(np.nanmean([_final(table, p, s, "rmse_m") for p in PAPER_PROBLEMS if p[0] == c
-                                     for s in dist])) for c in "GLR"}
+    lm_lowest = [
+        p
+        for p in PAPER_PROBLEMS
+        if all(not _final(table, p, "LM", "rms_cost") > _final(table, p, s, "rms_cost") for s in dist)
+    ]
+    lm_lowest_median = [
+        p
+        for p in PAPER_PROBLEMS
+        if all(not _final(table, p, "LM", "rms_cost_median") > _final(table, p, s, "rms_cost_median") for s in dist)
+    ]
+    dist_better = {
+        p: [s for s in dist if _final(table, p, s, "rmse_m") < _final(table, p, "LM", "rmse_m")] for p in PAPER_PROBLEMS
+    }
+    by_class = {
+        c: float(np.nanmean([_final(table, p, s, "rmse_m") for p in PAPER_PROBLEMS if p[0] == c for s in dist]))
+        for c in "GLR"
+    }
     ls = ("N-CSG-BLS", "N-CSG-TBLS")
-    by_class_ls = {c: float(np.nanmean([_final(table, p, s, "rmse_m") for p in PAPER_PROBLEMS if p[0] == c
-                                        for s in ls])) for c in "GLR"}
+    by_class_ls = {
+        c: float(np.nanmean([_final(table, p, s, "rmse_m") for p in PAPER_PROBLEMS if p[0] == c for s in ls]))
+        for c in "GLR"
+    }
     step = {s: {p: float(curves[p][s]["step_size"][-1]) for p in ("RC", "RM")} for s in ls}
     return {
         "problems_where_LM_has_lowest_cost": lm_lowest,
@@ -272,20 +346,35 @@ def _headline(table: list[dict[str, Any]], curves: dict[str, Any], checks: dict[
     h["problems where LM has the lowest mean cost (paper: all 8)"] = len(checks["problems_where_LM_has_lowest_cost"])
     h["problems where LM has the lowest median cost"] = len(checks["problems_where_LM_has_lowest_median_cost"])
     h["problems where N-CSG-TBLS beats LM in RMSE (paper: all)"] = sum(
-        "N-CSG-TBLS" in v for v in checks["distributed_solvers_with_lower_RMSE_than_LM"].values())
+        "N-CSG-TBLS" in v for v in checks["distributed_solvers_with_lower_RMSE_than_LM"].values()
+    )
     h["hardest class, all distributed solvers (paper: L)"] = checks["hardest_class"]
     h["hardest class, N-CSG-BLS/TBLS (paper: L)"] = checks["hardest_class_line_search"]
     for s, v in checks["final_mean_step_size"].items():
         h[f"{s} mean α at the end, RC (paper ≈{PAPER_TBLS_FINAL_STEP[s]:.1e})"] = v["RC"]
     h["bytes per message, CSG"] = _final(table, "GC", "CSG", "bytes") / max(_final(table, "GC", "CSG", "messages"), 1)
-    h["bytes per message, N-CSG"] = (_final(table, "GC", "N-CSG", "bytes")
-                                     / max(_final(table, "GC", "N-CSG", "messages"), 1))
+    h["bytes per message, N-CSG"] = _final(table, "GC", "N-CSG", "bytes") / max(
+        _final(table, "GC", "N-CSG", "messages"), 1
+    )
     return h
 
 
 def _table_csv(table: list[dict[str, Any]]) -> str:
-    cols = ["problem", "solver", "rmse_m", "rms_cost", "rmse_m_median", "rms_cost_median", "messages", "bytes",
-            "rmse_xy_m", "rmse_z_m", "instances", "diverged", "iterations"]
+    cols = [
+        "problem",
+        "solver",
+        "rmse_m",
+        "rms_cost",
+        "rmse_m_median",
+        "rms_cost_median",
+        "messages",
+        "bytes",
+        "rmse_xy_m",
+        "rmse_z_m",
+        "instances",
+        "diverged",
+        "iterations",
+    ]
     lines = [",".join(cols)]
     for r in table:
         lines.append(",".join(f"{r[c]:.6g}" if isinstance(r[c], float) else str(r[c]) for c in cols))
@@ -293,27 +382,44 @@ def _table_csv(table: list[dict[str, Any]]) -> str:
 
 
 def _table_md(table: list[dict[str, Any]]) -> str:
-    out = ["# Table 1 analogue (paper 002): final mean RMSE [m] / RMS cost [m²]", "",
-           "| problem | " + " | ".join(SOLVERS) + " |", "|---|" + "---|" * len(SOLVERS)]
+    out = [
+        "# Table 1 analogue (paper 002): final mean RMSE [m] / RMS cost [m²]",
+        "",
+        "| problem | " + " | ".join(SOLVERS) + " |",
+        "|---|" + "---|" * len(SOLVERS),
+    ]
     for p in PAPER_PROBLEMS:
         cells = [f"{_final(table, p, s, 'rmse_m'):.3f} / {_final(table, p, s, 'rms_cost'):.3g}" for s in SOLVERS]
         out.append(f"| {p} | " + " | ".join(cells) + " |")
-    out += ["", "Messages / bytes per instance:", "", "| problem | " + " | ".join(SOLVERS) + " |",
-            "|---|" + "---|" * len(SOLVERS)]
+    out += [
+        "",
+        "Messages / bytes per instance:",
+        "",
+        "| problem | " + " | ".join(SOLVERS) + " |",
+        "|---|" + "---|" * len(SOLVERS),
+    ]
     for p in PAPER_PROBLEMS:
         cells = [f"{int(_final(table, p, s, 'messages'))} / {int(_final(table, p, s, 'bytes'))}" for s in SOLVERS]
         out.append(f"| {p} | " + " | ".join(cells) + " |")
     return "\n".join(out) + "\n"
 
 
-STYLE = {"LM": ("k", "-"), "CSG": ("tab:gray", "--"), "N-CSG": ("tab:blue", "-"), "N-CSG-BLS": ("tab:orange", "-"),
-         "N-CSG-TBLS": ("tab:green", "--"), "N-CLM": ("tab:red", ":")}
+STYLE = {
+    "LM": ("k", "-"),
+    "CSG": ("tab:gray", "--"),
+    "N-CSG": ("tab:blue", "-"),
+    "N-CSG-BLS": ("tab:orange", "-"),
+    "N-CSG-TBLS": ("tab:green", "--"),
+    "N-CLM": ("tab:red", ":"),
+}
 
 
 def _figures(ctx: ExperimentContext, curves: dict[str, Any], examples: dict[str, Any]) -> None:
     plt = pyplot()
-    for key, fname, label in (("rmse_m", "fig3_rmse.png", "mean RMSE [m]"),
-                              ("rms_cost", "fig4_cost.png", "mean RMS cost [m²]")):
+    for key, fname, label in (
+        ("rmse_m", "fig3_rmse.png", "mean RMSE [m]"),
+        ("rms_cost", "fig4_cost.png", "mean RMS cost [m²]"),
+    ):
         fig, axes = plt.subplots(2, 4, figsize=(16, 7), sharex=True)
         for ax, p in zip(axes.ravel(), PAPER_PROBLEMS, strict=True):
             for s in SOLVERS:
@@ -327,8 +433,9 @@ def _figures(ctx: ExperimentContext, curves: dict[str, Any], examples: dict[str,
         axes[0, 0].legend(fontsize=7)
         ctx.save_figure(fig, fname)
     if examples:
-        fig, axes = plt.subplots(2, len(examples), figsize=(6 * len(examples), 8), squeeze=False,
-                                 gridspec_kw={"height_ratios": [3, 1]})
+        fig, axes = plt.subplots(
+            2, len(examples), figsize=(6 * len(examples), 8), squeeze=False, gridspec_kw={"height_ratios": [3, 1]}
+        )
         for col, (p, ex) in enumerate(examples.items()):
             ax, axz = axes[0, col], axes[1, col]
             t, e, f = ex["truth"], ex["estimate"], ex["fixed"]

@@ -49,25 +49,40 @@ from distnav.options import positive_int
 NAME = "uwb-field"
 TITLE = "UWB anchors in a simulated industrial hall: NLOS exclusion, precision, every solver vs the oracle"
 
-TARGETS: dict[str, Any] = {"rmse_ratio_max": 1.15, "recall_min": 0.90, "false_alarm_max": 0.05,
-                           "coverage": (0.90, 0.98)}
+TARGETS: dict[str, Any] = {
+    "rmse_ratio_max": 1.15,
+    "recall_min": 0.90,
+    "false_alarm_max": 0.05,
+    "coverage": (0.90, 0.98),
+}
 PLACEMENTS = ("middle", "corner")
 SCENARIOS: dict[str, dict[str, object]] = {"dense": {}, "plant": dict(PLANT_LIKE)}
 CAREFUL_F_SCALE_M = 0.3
 FIGURE_CAPTIONS = {
     "fig_uwb_field.png": "Simulated industrial halls: mean RMSE of each solver (uwb solve's workflow: metres "
-                         "objective, Cauchy loss, NLOS link exclusion) against the oracle that drops the NLOS links "
-                         "by the truth; right, the first hall with its NLOS links in red.",
+    "objective, Cauchy loss, NLOS link exclusion) against the oracle that drops the NLOS links "
+    "by the truth; right, the first hall with its NLOS links in red.",
 }
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--instances", type=positive_int, default=None,
-                        help="halls per placement (default 20; --quick 1)")
-    parser.add_argument("--solvers", nargs="+", type=str.upper, choices=list(SOLVERS), default=None,
-                        help="solvers to run (default all; --quick LM and N-CSG-TBLS)")
-    parser.add_argument("--iterations", type=positive_int, default=None,
-                        help="iterations of the distributed solvers (default 500; --quick 200)")
+    parser.add_argument(
+        "--instances", type=positive_int, default=None, help="halls per placement (default 20; --quick 1)"
+    )
+    parser.add_argument(
+        "--solvers",
+        nargs="+",
+        type=str.upper,
+        choices=list(SOLVERS),
+        default=None,
+        help="solvers to run (default all; --quick LM and N-CSG-TBLS)",
+    )
+    parser.add_argument(
+        "--iterations",
+        type=positive_int,
+        default=None,
+        help="iterations of the distributed solvers (default 500; --quick 200)",
+    )
     parser.add_argument("--anchors", type=positive_int, default=28, help="anchors per hall (default 28)")
 
 
@@ -75,16 +90,29 @@ def hall_problem(h: HallNetwork, *, heights: bool = True) -> tuple[RangingProble
     """The problem ``uwb solve`` builds from the hall's files (median per pair, surveyed heights held), and the
     NLOS truth of each of its links."""
     a, b = h.sample_pairs()
-    comb = combine_ranges(RangeLog(Path("simulated"), tuple(a), tuple(b), h.range_m,
-                                   np.arange(h.range_m.size, dtype=np.int64)))
+    comb = combine_ranges(
+        RangeLog(Path("simulated"), tuple(a), tuple(b), h.range_m, np.arange(h.range_m.size, dtype=np.int64))
+    )
     known = set(h.known.tolist())
-    held = ({h.ids[i]: {2: float(h.surveyed_z_m[i])} for i in range(h.n_anchors) if i not in known}
-            if heights else None)
-    p = build_problem(list(h.ids), list(comb.pairs), comb.range_m, fixed={h.ids[k]: h.truth_m[k] for k in known},
-                      dim=3, held=held, truth_m=h.truth_m, check_determined=False, name="hall")
+    held = {h.ids[i]: {2: float(h.surveyed_z_m[i])} for i in range(h.n_anchors) if i not in known} if heights else None
+    p = build_problem(
+        list(h.ids),
+        list(comb.pairs),
+        comb.range_m,
+        fixed={h.ids[k]: h.truth_m[k] for k in known},
+        dim=3,
+        held=held,
+        truth_m=h.truth_m,
+        check_determined=False,
+        name="hall",
+    )
     label = {(h.ids[i], h.ids[j]): bool(f) for (i, j), f in zip(h.links.tolist(), h.nlos, strict=True)}
-    nlos = np.array([label.get((p.ids[x], p.ids[y]), label.get((p.ids[y], p.ids[x]), False))
-                     for x, y in zip(p.meas_a, p.meas_b, strict=True)])
+    nlos = np.array(
+        [
+            label.get((p.ids[x], p.ids[y]), label.get((p.ids[y], p.ids[x]), False))
+            for x, y in zip(p.meas_a, p.meas_b, strict=True)
+        ]
+    )
     return p, nlos
 
 
@@ -128,10 +156,12 @@ def _coverage(sub: RangingProblem, pos: np.ndarray, sigma: np.ndarray) -> tuple[
     return int(np.sum(err[ok] <= 2.0 * sigma[ok])), int(ok.sum())
 
 
-def _solve(sub: RangingProblem, geo: GeometryReport, nlos: np.ndarray, solver: str, iterations: int,
-           ctx: ExperimentContext) -> dict[str, Any]:
-    opts = FieldOptions(solver=solver, loss="linear" if solver == "CSG" else "cauchy",
-                        iterations=500 if solver == "LM" else iterations)
+def _solve(
+    sub: RangingProblem, geo: GeometryReport, nlos: np.ndarray, solver: str, iterations: int, ctx: ExperimentContext
+) -> dict[str, Any]:
+    opts = FieldOptions(
+        solver=solver, loss="linear" if solver == "CSG" else "cauchy", iterations=500 if solver == "LM" else iterations
+    )
     t0 = time.process_time()
     sol = solve_field(sub, opts, geometry=geo, exchange=lambda p: ctx.exchange(p.graph) if solver != "LM" else None)
     dt = time.process_time() - t0
@@ -139,12 +169,24 @@ def _solve(sub: RangingProblem, geo: GeometryReport, nlos: np.ndarray, solver: s
     hit, n_cov = _coverage(sub, sol.positions_m, sol.sigma_m) if sol.usable else (0, 0)
     strong = np.where(np.isin(np.array(sub.ids), list(sol.weak))[:, None], np.nan, sol.sigma_m)
     hit_s, n_s = _coverage(sub, sol.positions_m, strong) if sol.usable else (0, 0)
-    return {"rmse_m": rmse_m(sub, sol.positions_m) if sol.usable else float("nan"), "status": sol.status,
-            "tp": int((ex & nlos).sum()), "fp": int((ex & ~nlos).sum()), "nlos": int(nlos.sum()),
-            "los": int((~nlos).sum()), "cov_hit": hit, "cov_n": n_cov, "cov_hit_not_weak": hit_s,
-            "cov_n_not_weak": n_s, "messages": sol.messages, "bytes": sol.bytes,
-            "cpu_s": dt, "objective": sol.objective_used, "weak": len(sol.weak),
-            "rmse_m_not_weak": _rmse_without(sub, sol) if sol.usable else float("nan")}
+    return {
+        "rmse_m": rmse_m(sub, sol.positions_m) if sol.usable else float("nan"),
+        "status": sol.status,
+        "tp": int((ex & nlos).sum()),
+        "fp": int((ex & ~nlos).sum()),
+        "nlos": int(nlos.sum()),
+        "los": int((~nlos).sum()),
+        "cov_hit": hit,
+        "cov_n": n_cov,
+        "cov_hit_not_weak": hit_s,
+        "cov_n_not_weak": n_s,
+        "messages": sol.messages,
+        "bytes": sol.bytes,
+        "cpu_s": dt,
+        "objective": sol.objective_used,
+        "weak": len(sol.weak),
+        "rmse_m_not_weak": _rmse_without(sub, sol) if sol.usable else float("nan"),
+    }
 
 
 def _rmse_without(sub: RangingProblem, sol: Any) -> float:
@@ -166,25 +208,39 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     example: dict[str, Any] = {}
     for si, (scenario, changes) in enumerate(SCENARIOS.items()):
         for pi, placement in enumerate(PLACEMENTS):
-            with ctx.progress.task(f"uwb-field: {scenario} {placement}, {n_inst} hall(s) × {len(solvers)} "
-                                   "solver(s) + careful fit + oracle", total=n_inst):
+            with ctx.progress.task(
+                f"uwb-field: {scenario} {placement}, {n_inst} hall(s) × {len(solvers)} "
+                "solver(s) + careful fit + oracle",
+                total=n_inst,
+            ):
                 for inst in range(n_inst):
                     cfg = HallConfig().with_(n_anchors=n_anchors, known=placement, **changes)
                     h = simulate_hall(ctx.rng(1000 * si + 100 * (pi + 1) + inst), cfg)
                     rows += _instance(ctx, h, scenario, placement, inst, solvers, iterations, example)
     table = _aggregate(rows, solvers)
     results: dict[str, Any] = {
-        "settings": {"instances_per_placement": n_inst, "solvers": solvers, "iterations": iterations,
-                     "anchors": n_anchors, "placements": list(PLACEMENTS),
-                     "scenarios": {k: dict(v) for k, v in SCENARIOS.items()},
-                     "options": "FieldOptions defaults (metres where available; LM: one-sided Cauchy 0.3 m "
-                                "tightened to max(0.05 m, 3 x scatter); exclusion at 0.001)"},
+        "settings": {
+            "instances_per_placement": n_inst,
+            "solvers": solvers,
+            "iterations": iterations,
+            "anchors": n_anchors,
+            "placements": list(PLACEMENTS),
+            "scenarios": {k: dict(v) for k, v in SCENARIOS.items()},
+            "options": "FieldOptions defaults (metres where available; LM: one-sided Cauchy 0.3 m "
+            "tightened to max(0.05 m, 3 x scatter); exclusion at 0.001)",
+        },
         "targets": {k: list(v) if isinstance(v, tuple) else v for k, v in TARGETS.items()},
         "table": table,
         "runs": rows,
     }
-    results["headline"] = {f"{r['scenario']} {r['placement']} {r['solver']}: RMSE / oracle / careful fit [m]":
-                           [r["rmse_m"], r["oracle_rmse_m"], r["careful_rmse_m"]] for r in table}
+    results["headline"] = {
+        f"{r['scenario']} {r['placement']} {r['solver']}: RMSE / oracle / careful fit [m]": [
+            r["rmse_m"],
+            r["oracle_rmse_m"],
+            r["careful_rmse_m"],
+        ]
+        for r in table
+    }
     ctx.write_json("results.json", results)
     ctx.write_text("table.md", _table_md(table))
     if ctx.is_root:
@@ -192,21 +248,45 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     return results
 
 
-def _instance(ctx: ExperimentContext, h: HallNetwork, scenario: str, placement: str, inst: int, solvers: list[str],
-              iterations: int, example: dict[str, Any]) -> list[dict[str, Any]]:
+def _instance(
+    ctx: ExperimentContext,
+    h: HallNetwork,
+    scenario: str,
+    placement: str,
+    inst: int,
+    solvers: list[str],
+    iterations: int,
+    example: dict[str, Any],
+) -> list[dict[str, Any]]:
     p, nlos_full = hall_problem(h)
     sub, geo = prepare(p)
     keep = geo.solvable
     nlos = nlos_full[keep[p.meas_a] & keep[p.meas_b]]
     assert sub.truth_m is not None
-    oracle = solve_field(subset_measurements(sub, ~nlos).with_initial(sub.truth_m),
-                         FieldOptions(loss="linear", exclude=False, multi_start=False), geometry=geo)
-    base = {"scenario": scenario, "placement": placement, "instance": inst,
-            "oracle_rmse_m": rmse_m(sub, oracle.positions_m), "careful_rmse_m": rmse_m(sub, careful_fit(sub)),
-            "gather_bytes": gather_cost(sub)["bytes"], "links": sub.n_meas, "nlos_links": int(nlos.sum())}
+    oracle = solve_field(
+        subset_measurements(sub, ~nlos).with_initial(sub.truth_m),
+        FieldOptions(loss="linear", exclude=False, multi_start=False),
+        geometry=geo,
+    )
+    base = {
+        "scenario": scenario,
+        "placement": placement,
+        "instance": inst,
+        "oracle_rmse_m": rmse_m(sub, oracle.positions_m),
+        "careful_rmse_m": rmse_m(sub, careful_fit(sub)),
+        "gather_bytes": gather_cost(sub)["bytes"],
+        "links": sub.n_meas,
+        "nlos_links": int(nlos.sum()),
+    }
     if not example and ctx.is_root:
-        example.update({"truth": h.truth_m, "links": np.stack([sub.meas_a, sub.meas_b], 1), "nlos": nlos,
-                        "known": np.flatnonzero(sub.fixed)})
+        example.update(
+            {
+                "truth": h.truth_m,
+                "links": np.stack([sub.meas_a, sub.meas_b], 1),
+                "nlos": nlos,
+                "known": np.flatnonzero(sub.fixed),
+            }
+        )
     return [{**base, "solver": s, **_solve(sub, geo, nlos, s, iterations, ctx)} for s in solvers]
 
 
@@ -231,28 +311,40 @@ def _aggregate(rows: list[dict[str, Any]], solvers: list[str]) -> list[dict[str,
             statuses[r["status"]] = statuses.get(r["status"], 0) + 1
         ratio = rm / orc if orc > 0 else float("nan")
         cov = ch / cn if cn else None
-        out.append({
-            "scenario": scenario, "placement": placement, "solver": s, "instances": len(rs), "rmse_m": rm,
-            "rmse_m_median": float(np.median([r["rmse_m"] for r in ok])) if ok else float("nan"),
-            "rmse_m_not_weak": not_weak, "weak_anchors": int(sum(r["weak"] for r in rs)),
-            "oracle_rmse_m": orc, "rmse_ratio": ratio, "careful_rmse_m": careful,
-            "rmse_vs_careful": rm / careful if careful > 0 else float("nan"),
-            "rmse_ratio_not_weak": not_weak / orc if orc > 0 else float("nan"),
-            "not_worse_than_careful": int(sum(r["rmse_m"] <= r["careful_rmse_m"] + 1e-3 for r in ok)),
-            "recall": tp / nl if nl else None,
-            "false_alarm": fp / los if los else None, "coverage_2sigma": cov,
-            "coverage_2sigma_not_weak": chs / cns if cns else None, "statuses": statuses,
-            "objective": rs[0]["objective"], "messages": float(np.mean([r["messages"] for r in rs])),
-            "bytes": float(np.mean([r["bytes"] for r in rs])),
-            "gather_bytes": float(np.mean([r["gather_bytes"] for r in rs])),
-            "cpu_s_per_solve": float(np.mean([r["cpu_s"] for r in rs])),
-            "meets": {
-                "rmse": bool(ratio <= TARGETS["rmse_ratio_max"]),
-                "recall": bool(nl and tp / nl >= TARGETS["recall_min"]),
-                "false_alarm": bool(los and fp / los <= TARGETS["false_alarm_max"]),
-                "coverage": None if cov is None else bool(TARGETS["coverage"][0] <= cov <= TARGETS["coverage"][1]),
-            },
-        })
+        out.append(
+            {
+                "scenario": scenario,
+                "placement": placement,
+                "solver": s,
+                "instances": len(rs),
+                "rmse_m": rm,
+                "rmse_m_median": float(np.median([r["rmse_m"] for r in ok])) if ok else float("nan"),
+                "rmse_m_not_weak": not_weak,
+                "weak_anchors": int(sum(r["weak"] for r in rs)),
+                "oracle_rmse_m": orc,
+                "rmse_ratio": ratio,
+                "careful_rmse_m": careful,
+                "rmse_vs_careful": rm / careful if careful > 0 else float("nan"),
+                "rmse_ratio_not_weak": not_weak / orc if orc > 0 else float("nan"),
+                "not_worse_than_careful": int(sum(r["rmse_m"] <= r["careful_rmse_m"] + 1e-3 for r in ok)),
+                "recall": tp / nl if nl else None,
+                "false_alarm": fp / los if los else None,
+                "coverage_2sigma": cov,
+                "coverage_2sigma_not_weak": chs / cns if cns else None,
+                "statuses": statuses,
+                "objective": rs[0]["objective"],
+                "messages": float(np.mean([r["messages"] for r in rs])),
+                "bytes": float(np.mean([r["bytes"] for r in rs])),
+                "gather_bytes": float(np.mean([r["gather_bytes"] for r in rs])),
+                "cpu_s_per_solve": float(np.mean([r["cpu_s"] for r in rs])),
+                "meets": {
+                    "rmse": bool(ratio <= TARGETS["rmse_ratio_max"]),
+                    "recall": bool(nl and tp / nl >= TARGETS["recall_min"]),
+                    "false_alarm": bool(los and fp / los <= TARGETS["false_alarm_max"]),
+                    "coverage": None if cov is None else bool(TARGETS["coverage"][0] <= cov <= TARGETS["coverage"][1]),
+                },
+            }
+        )
     return out
 
 
@@ -261,24 +353,29 @@ def _fmt(v: Any, spec: str) -> str:
 
 
 def _table_md(table: list[dict[str, Any]]) -> str:
-    out = ["# uwb-field: simulated industrial halls (targets: RMSE ≤ 1.15 × oracle, recall ≥ 90 %, false alarms "
-           "≤ 5 %, 2σ coverage 90–98 %)", "",
-           "| scenario | known | solver | objective | RMSE [m] | careful scipy fit [m] | halls ≤ careful | "
-           "oracle [m] | "
-           "ratio | ratio without weak | recall | false alarms | 2σ coverage | 2σ coverage without weak | "
-           "statuses | weak anchors | RMSE without them [m] | messages | bytes | gather bytes | CPU s |",
-           "|---" * 21 + "|"]
+    out = [
+        "# uwb-field: simulated industrial halls (targets: RMSE ≤ 1.15 × oracle, recall ≥ 90 %, false alarms "
+        "≤ 5 %, 2σ coverage 90–98 %)",
+        "",
+        "| scenario | known | solver | objective | RMSE [m] | careful scipy fit [m] | halls ≤ careful | "
+        "oracle [m] | "
+        "ratio | ratio without weak | recall | false alarms | 2σ coverage | 2σ coverage without weak | "
+        "statuses | weak anchors | RMSE without them [m] | messages | bytes | gather bytes | CPU s |",
+        "|---" * 21 + "|",
+    ]
     for r in table:
-        out.append(f"| {r['scenario']} | {r['placement']} | {r['solver']} | {r['objective']} | "
-                   f"{_fmt(r['rmse_m'], '.3f')} | {_fmt(r['careful_rmse_m'], '.3f')} | "
-                   f"{r['not_worse_than_careful']} of {r['instances']} | "
-                   f"{_fmt(r['oracle_rmse_m'], '.3f')} | {_fmt(r['rmse_ratio'], '.2f')} | "
-                   f"{_fmt(r['rmse_ratio_not_weak'], '.2f')} | {_fmt(r['recall'], '.3f')} | "
-                   f"{_fmt(r['false_alarm'], '.3f')} | {_fmt(r['coverage_2sigma'], '.3f')} | "
-                   f"{_fmt(r['coverage_2sigma_not_weak'], '.3f')} | "
-                   f"{', '.join(f'{k} {v}' for k, v in r['statuses'].items())} | {r['weak_anchors']} | "
-                   f"{_fmt(r['rmse_m_not_weak'], '.3f')} | {r['messages']:.0f} | "
-                   f"{r['bytes']:.0f} | {r['gather_bytes']:.0f} | {r['cpu_s_per_solve']:.2f} |")
+        out.append(
+            f"| {r['scenario']} | {r['placement']} | {r['solver']} | {r['objective']} | "
+            f"{_fmt(r['rmse_m'], '.3f')} | {_fmt(r['careful_rmse_m'], '.3f')} | "
+            f"{r['not_worse_than_careful']} of {r['instances']} | "
+            f"{_fmt(r['oracle_rmse_m'], '.3f')} | {_fmt(r['rmse_ratio'], '.2f')} | "
+            f"{_fmt(r['rmse_ratio_not_weak'], '.2f')} | {_fmt(r['recall'], '.3f')} | "
+            f"{_fmt(r['false_alarm'], '.3f')} | {_fmt(r['coverage_2sigma'], '.3f')} | "
+            f"{_fmt(r['coverage_2sigma_not_weak'], '.3f')} | "
+            f"{', '.join(f'{k} {v}' for k, v in r['statuses'].items())} | {r['weak_anchors']} | "
+            f"{_fmt(r['rmse_m_not_weak'], '.3f')} | {r['messages']:.0f} | "
+            f"{r['bytes']:.0f} | {r['gather_bytes']:.0f} | {r['cpu_s_per_solve']:.2f} |"
+        )
     return "\n".join(out) + "\n"
 
 

@@ -25,10 +25,18 @@ if TYPE_CHECKING:
     )
 
 _WHERE = {
-    "Graph": "graph", "SwitchingGraph": "graph", "partition_nodes": "partition", "rcm_order": "partition",
-    "ConsensusWeights": "weights", "WeightsReport": "weights", "check_weights": "weights",
-    "consensus_weights": "weights", "protocol_weights": "weights", "metropolis_hastings": "weights",
-    "koppanyi_weights": "weights", "second_largest_eigenvalue_modulus": "weights",
+    "Graph": "graph",
+    "SwitchingGraph": "graph",
+    "partition_nodes": "partition",
+    "rcm_order": "partition",
+    "ConsensusWeights": "weights",
+    "WeightsReport": "weights",
+    "check_weights": "weights",
+    "consensus_weights": "weights",
+    "protocol_weights": "weights",
+    "metropolis_hastings": "weights",
+    "koppanyi_weights": "weights",
+    "second_largest_eigenvalue_modulus": "weights",
 }
 
 __all__ = [

@@ -68,9 +68,7 @@ def star(n_nodes: int, *, self_loops: bool = False) -> Graph:
     return Graph.from_links(n, np.stack([np.zeros_like(leaves), leaves], 1), self_loops=self_loops)
 
 
-def grid(
-    rows: int, cols: int, *, spacing_m: float = 1.0, neighbourhood: int = 4, self_loops: bool = False
-) -> Graph:
+def grid(rows: int, cols: int, *, spacing_m: float = 1.0, neighbourhood: int = 4, self_loops: bool = False) -> Graph:
     """A ``rows × cols`` grid (node ``r*cols + c`` at ``(c*spacing_m, r*spacing_m)``).
 
     ``neighbourhood=4`` links horizontal/vertical neighbours; ``8`` also the diagonals
@@ -137,8 +135,7 @@ class PointOptions(TypedDict, total=False):
     self_loops: bool
 
 
-def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator,
-                     **points: Unpack[PointOptions]) -> Graph:
+def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator, **points: Unpack[PointOptions]) -> Graph:
     """Nodes uniform in ``[0, size]^dim``, linked when closer than ``radius`` (same units as ``size``); ``points``:
     :class:`PointOptions`.
 
@@ -156,8 +153,9 @@ def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator,
     return Graph.from_links(n, pairs, positions=pos, self_loops=opt.self_loops)
 
 
-def connected_random_geometric(n_nodes: int, *, mean_degree: float, rng: np.random.Generator, max_tries: int = 50,
-                               **points: Unpack[PointOptions]) -> Graph:
+def connected_random_geometric(
+    n_nodes: int, *, mean_degree: float, rng: np.random.Generator, max_tries: int = 50, **points: Unpack[PointOptions]
+) -> Graph:
     """A *connected* random geometric graph whose expected mean degree is ``mean_degree`` (``points``:
     :class:`PointOptions`).
 
@@ -195,8 +193,7 @@ def k_nearest(positions: np.ndarray, k: int, *, self_loops: bool = False) -> Gra
     _, idx = cKDTree(pos).query(pos, k=k + 1)
     src = np.repeat(np.arange(n), k)
     dst = idx[:, 1:].ravel()
-    return Graph.from_links(n, np.stack([src, dst], 1), positions=pos, allow_duplicates=True,
-                            self_loops=self_loops)
+    return Graph.from_links(n, np.stack([src, dst], 1), positions=pos, allow_duplicates=True, self_loops=self_loops)
 
 
 def from_edges(
@@ -218,8 +215,9 @@ def from_edges(
         edge_list = edges.tolist()
     else:
         edge_list = list(edges)
-        bad = next((k for k, e in enumerate(edge_list)
-                    if isinstance(e, str) or not hasattr(e, "__len__") or len(e) != 2), None)
+        bad = next(
+            (k for k, e in enumerate(edge_list) if isinstance(e, str) or not hasattr(e, "__len__") or len(e) != 2), None
+        )
         if bad is not None:
             raise GraphError(f"edge #{bad} is {edge_list[bad]!r}, not a pair of node ids or names")
     if edge_list and all(isinstance(v, str) for e in edge_list for v in e):
@@ -234,19 +232,22 @@ def from_edges(
         if missing:
             raise GraphError(f"edge list names node {missing[0]!r}, which is not among the node names")
         ids = [(index[a], index[b]) for a, b in edge_list]
-        return Graph.from_links(len(names), ids, names=names, positions=positions, self_loops=self_loops,
-                                allow_duplicates=allow_duplicates)
+        return Graph.from_links(
+            len(names), ids, names=names, positions=positions, self_loops=self_loops, allow_duplicates=allow_duplicates
+        )
     arr = np.asarray(edge_list) if edge_list else np.zeros((0, 2), int)
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise GraphError(f"edges must be pairs (shape (n_edges, 2)), got shape {arr.shape}")
     if n_nodes is None:
         n_nodes = len(names) if names is not None else (int(arr.max()) + 1 if arr.size else 1)
-    return Graph.from_links(n_nodes, arr, names=names, positions=positions, self_loops=self_loops,
-                            allow_duplicates=allow_duplicates)
+    return Graph.from_links(
+        n_nodes, arr, names=names, positions=positions, self_loops=self_loops, allow_duplicates=allow_duplicates
+    )
 
 
-def random_geometric_part(n_nodes: int, radius: float, *, rng: np.random.Generator, nodes: np.ndarray,
-                          **points: Unpack[PointOptions]) -> GraphPart:
+def random_geometric_part(
+    n_nodes: int, radius: float, *, rng: np.random.Generator, nodes: np.ndarray, **points: Unpack[PointOptions]
+) -> GraphPart:
     """The part owned by ``nodes`` of the graph :func:`random_geometric` builds from the same arguments (the same
     positions, the same links, the same global edge ids), without the whole edge list: what one MPI rank builds.
 
@@ -274,7 +275,7 @@ def random_geometric_part(n_nodes: int, radius: float, *, rng: np.random.Generat
         rows at a time: the k-d tree's structured output, 24 bytes a pair, stays small)."""
         out_i, out_j = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
         for a in range(0, rows.size, step):
-            chunk = rows[a:a + step]
+            chunk = rows[a : a + step]
             found = cKDTree(pos[chunk]).sparse_distance_matrix(tree, r, output_type="ndarray")
             i, j = chunk[found["i"]], found["j"].astype(np.int64)
             del found
@@ -288,7 +289,7 @@ def random_geometric_part(n_nodes: int, radius: float, *, rng: np.random.Generat
     degree = np.zeros(n, np.int64)
     in_tree_order = np.asarray(tree.indices, dtype=np.int64)
     for a in range(0, n, step):
-        chunk = in_tree_order[a:a + step]
+        chunk = in_tree_order[a : a + step]
         found = cKDTree(pos[chunk]).sparse_distance_matrix(tree, r, output_type="ndarray")
         row = found["i"].astype(np.int64)
         degree[chunk] = np.bincount(row[chunk[row] != found["j"]], minlength=chunk.size)

@@ -153,12 +153,16 @@ def check_conditions(graph: Graph, nodes: NodeIds, *, literal: bool = False) -> 
     if literal and C.size > 1:
         A = graph.adjacency(include_self=True)
         overlap = (A[C] @ A[:, C]).tocsr()
-        O = (overlap.toarray() > 0)
+        O = overlap.toarray() > 0
         bridged = (O.astype(np.int64) @ O.astype(np.int64)) > 0
         bad = np.argwhere(~O & ~bridged)
         unbridged = [(int(C[a]), int(C[b])) for a, b in bad if a < b]
-    return ConditionsReport(uncovered=uncovered, groups=groups if len(groups) > 1 else (tuple(C.tolist()),),
-                            unbridged_pairs=tuple(unbridged), literal=literal)
+    return ConditionsReport(
+        uncovered=uncovered,
+        groups=groups if len(groups) > 1 else (tuple(C.tolist()),),
+        unbridged_pairs=tuple(unbridged),
+        literal=literal,
+    )
 
 
 def validate_constraint_nodes(graph: Graph, nodes: NodeIds, *, literal: bool = False) -> np.ndarray:
@@ -168,12 +172,13 @@ def validate_constraint_nodes(graph: Graph, nodes: NodeIds, *, literal: bool = F
     rep = check_conditions(graph, C, literal=literal)
     problems = []
     if rep.uncovered:
-        problems.append(f"(18)-1: nodes {_names(graph, rep.uncovered)} have no constraint node in their "
-                        f"neighbourhood")
+        problems.append(f"(18)-1: nodes {_names(graph, rep.uncovered)} have no constraint node in their neighbourhood")
     if len(rep.groups) > 1:
         shown = "; ".join("{" + _names(graph, g, 8) + "}" for g in rep.groups[:4])
-        problems.append(f"(18)-2: the constraint nodes split into {len(rep.groups)} groups whose neighbourhoods "
-                        f"never overlap: {shown}")
+        problems.append(
+            f"(18)-2: the constraint nodes split into {len(rep.groups)} groups whose neighbourhoods "
+            f"never overlap: {shown}"
+        )
     if rep.unbridged_pairs:
         pairs = ", ".join(f"({graph.names[a]}, {graph.names[b]})" for a, b in rep.unbridged_pairs[:10])
         problems.append(f"(18)-2 (literal): no single constraint node bridges the pairs {pairs}")
@@ -235,7 +240,7 @@ def _maximal_matching(graph: Graph) -> np.ndarray:
     big = np.iinfo(np.int64).max
     best = np.full(n, big, np.int64)
     for start in range(0, a_all.size, _MATCH_CHUNK):
-        a, b = a_all[start:start + _MATCH_CHUNK], b_all[start:start + _MATCH_CHUNK]
+        a, b = a_all[start : start + _MATCH_CHUNK], b_all[start : start + _MATCH_CHUNK]
         live = ~(used[a] | used[b])
         a, b = a[live], b[live]
         rank = np.flatnonzero(live)
@@ -301,7 +306,7 @@ def _prune(graph: Graph, inC: np.ndarray) -> np.ndarray:
     ptr = graph.in_ptr
     gsrc = graph.src
     for v in sorted(np.flatnonzero(alive).tolist(), key=lambda k: (deg[k], k)):
-        nb = gsrc[ptr[v]:ptr[v + 1]]
+        nb = gsrc[ptr[v] : ptr[v + 1]]
         nb = nb[nb != v]
         if nb.size and inC[nb].all():
             inC[v] = False
@@ -374,9 +379,13 @@ def matching_lower_bound(graph: Graph, matching: np.ndarray) -> tuple[int, bool]
     return bound, bound >= -(-n // 2)  # the LP bound ⌈ν/2⌉ is at most ⌈n/2⌉ (ν ≤ n)
 
 
-def minimum_vertex_cover(graph: Graph, *, method: Literal["auto", "exact", "approx"] = "auto",
-                         exact_max_nodes: int = 150, time_limit_s: float = 2.0
-                         ) -> tuple[np.ndarray, bool, int, str]:
+def minimum_vertex_cover(
+    graph: Graph,
+    *,
+    method: Literal["auto", "exact", "approx"] = "auto",
+    exact_max_nodes: int = 150,
+    time_limit_s: float = 2.0,
+) -> tuple[np.ndarray, bool, int, str]:
     """A (minimum) vertex cover: every link gets at least one chosen node.
 
     Returns ``(nodes, optimal, lower_bound, method_used)``. ``"auto"`` runs the integer program only on graphs
@@ -403,19 +412,25 @@ def minimum_vertex_cover(graph: Graph, *, method: Literal["auto", "exact", "appr
         L = links.shape[0]
         rows = np.repeat(np.arange(L), 2)
         M = csr_matrix((np.ones(2 * L), (rows, links.ravel())), shape=(L, n))
-        res = milp(c=np.ones(n), integrality=np.ones(n), bounds=Bounds(0, 1),
-                   constraints=LinearConstraint(M, lb=np.ones(L), ub=np.inf),
-                   options={"time_limit": float(time_limit_s)})
+        res = milp(
+            c=np.ones(n),
+            integrality=np.ones(n),
+            bounds=Bounds(0, 1),
+            constraints=LinearConstraint(M, lb=np.ones(L), ub=np.inf),
+            options={"time_limit": float(time_limit_s)},
+        )
         if res.x is not None and res.status == 0:
             chosen = np.flatnonzero(res.x > 0.5)
             return chosen.astype(np.int64), True, int(chosen.size), "exact (integer program, HiGHS branch and bound)"
         if method == "exact":
-            raise GraphError(f"the exact vertex cover did not finish in {time_limit_s} s ({res.message}); "
-                             f"use method='approx'")
+            raise GraphError(
+                f"the exact vertex cover did not finish in {time_limit_s} s ({res.message}); use method='approx'"
+            )
         import logging  # only here: an MPI job's start-up does not import logging for this module
 
         logging.getLogger(__name__).warning(
-            "exact vertex cover not proven within %.3g s on %d nodes; using the best cover found", time_limit_s, n)
+            "exact vertex cover not proven within %.3g s on %d nodes; using the best cover found", time_limit_s, n
+        )
         if res.x is not None:
             incumbent = np.flatnonzero(res.x > 0.5).astype(np.int64)
         bound = getattr(res, "mip_dual_bound", None)
@@ -432,8 +447,12 @@ def minimum_vertex_cover(graph: Graph, *, method: Literal["auto", "exact", "appr
     lower = max(int(matching.shape[0]), bound, dual)
     how = "LP relaxation" if is_lp else "fractional matching (the LP relaxation not computed: too large)"
     if incumbent is not None and incumbent.size < chosen.size:
-        return (incumbent, False, lower,
-                f"integer program stopped at its time limit (best cover found); lower bound: {how}")
+        return (
+            incumbent,
+            False,
+            lower,
+            f"integer program stopped at its time limit (best cover found); lower bound: {how}",
+        )
     return chosen, False, lower, f"2-approximation (maximal matching, pruned); lower bound: {how}"
 
 
@@ -480,19 +499,32 @@ class ConstraintNodes:
     def _per_node_count(self) -> np.ndarray:  # a set-up reads it several times: counted once per set
         inC = self.mask
         real = self.graph.src != self.graph.dst
-        return inC.astype(np.int64) + np.bincount(self.graph.dst[real], weights=inC[self.graph.src[real]],
-                                                  minlength=self.graph.n_nodes).astype(np.int64)
+        return inC.astype(np.int64) + np.bincount(
+            self.graph.dst[real], weights=inC[self.graph.src[real]], minlength=self.graph.n_nodes
+        ).astype(np.int64)
 
     def summary(self) -> dict[str, Any]:
         ul = self.unused_links
-        return {"n_constraint_nodes": self.size, "nodes": self.nodes.tolist(), "method": self.method,
-                "optimal": self.optimal, "lower_bound": self.lower_bound, "n_unused_links": int(ul.shape[0]),
-                "unused_links": ul.tolist()}
+        return {
+            "n_constraint_nodes": self.size,
+            "nodes": self.nodes.tolist(),
+            "method": self.method,
+            "optimal": self.optimal,
+            "lower_bound": self.lower_bound,
+            "n_unused_links": int(ul.shape[0]),
+            "unused_links": ul.tolist(),
+        }
 
 
-def choose_constraint_nodes(graph: Graph, choice: Choice | Iterable[int] | np.ndarray = "min_cover", *,
-                            method: Literal["auto", "exact", "approx"] = "auto", exact_max_nodes: int = 150,
-                            time_limit_s: float = 2.0, literal: bool = False) -> ConstraintNodes:
+def choose_constraint_nodes(
+    graph: Graph,
+    choice: Choice | Iterable[int] | np.ndarray = "min_cover",
+    *,
+    method: Literal["auto", "exact", "approx"] = "auto",
+    exact_max_nodes: int = 150,
+    time_limit_s: float = 2.0,
+    literal: bool = False,
+) -> ConstraintNodes:
     """Choose and validate constraint nodes: ``"all"``, ``"min_cover"`` (every link has a constraint node, as few
     as possible) or a user set of node ids (or a boolean mask). Raises :class:`~distnav.errors.GraphError` if the
     graph is not connected or the set violates conditions (18)."""
@@ -504,8 +536,9 @@ def choose_constraint_nodes(graph: Graph, choice: Choice | Iterable[int] | np.nd
         elif choice == "min_cover":
             if graph.n_nodes == 1:
                 return ConstraintNodes(graph, np.zeros(1, np.int64), "single node", True, 1)
-            nodes, optimal, lb, used = minimum_vertex_cover(graph, method=method, exact_max_nodes=exact_max_nodes,
-                                                            time_limit_s=time_limit_s)
+            nodes, optimal, lb, used = minimum_vertex_cover(
+                graph, method=method, exact_max_nodes=exact_max_nodes, time_limit_s=time_limit_s
+            )
             out = ConstraintNodes(graph, nodes, used, optimal, lb)
         else:
             raise GraphError(f"unknown constraint-node choice {choice!r}; use 'all', 'min_cover' or a set of node ids")

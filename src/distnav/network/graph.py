@@ -124,15 +124,11 @@ class Graph:
         bad = (arr < 0) | (arr >= n_nodes)
         if bad.any():
             row = int(np.argwhere(bad.any(axis=1))[0, 0])
-            raise GraphError(
-                f"link #{row} = ({arr[row, 0]}, {arr[row, 1]}) refers to a node outside 0..{n_nodes - 1}"
-            )
+            raise GraphError(f"link #{row} = ({arr[row, 0]}, {arr[row, 1]}) refers to a node outside 0..{n_nodes - 1}")
         loops = arr[:, 0] == arr[:, 1]
         if loops.any():
             row = int(np.argmax(loops))
-            raise GraphError(
-                f"link #{row} joins node {arr[row, 0]} to itself; use self_loops=True for self-weights"
-            )
+            raise GraphError(f"link #{row} joins node {arr[row, 0]} to itself; use self_loops=True for self-weights")
         key = np.minimum(arr[:, 0], arr[:, 1])
         key *= n_nodes
         key += np.maximum(arr[:, 0], arr[:, 1])  # lo * n + hi: one int64 per link
@@ -198,9 +194,7 @@ class Graph:
         """The same links with (or without) a self-loop at every node."""
         if flag == self.self_loops:
             return self
-        return Graph.from_links(
-            self.n_nodes, self.links, names=self._names, positions=self.positions, self_loops=flag
-        )
+        return Graph.from_links(self.n_nodes, self.links, names=self._names, positions=self.positions, self_loops=flag)
 
     # ------------------------------------------------------------------ basic facts
     @property
@@ -321,9 +315,7 @@ class Graph:
         unreachable = np.flatnonzero(self.component_labels != self.component_labels[0])
         shown = ", ".join(self.names[i] for i in unreachable[:20])
         more = f" and {unreachable.size - 20} more" if unreachable.size > 20 else ""
-        raise GraphError(
-            f"{what} is not connected: nodes {shown}{more} are unreachable from node {self.names[0]}"
-        )
+        raise GraphError(f"{what} is not connected: nodes {shown}{more} are unreachable from node {self.names[0]}")
 
     # ------------------------------------------------------------------ interop
     def to_networkx(self) -> Any:
@@ -352,8 +344,7 @@ class Graph:
         pos = None
         if nodes and all("pos" in g.nodes[v] for v in nodes):
             pos = np.array([g.nodes[v]["pos"] for v in nodes], dtype=float)
-        return cls.from_links(len(nodes), links, names=[str(v) for v in nodes], positions=pos,
-                              self_loops=self_loops)
+        return cls.from_links(len(nodes), links, names=[str(v) for v in nodes], positions=pos, self_loops=self_loops)
 
     def __repr__(self) -> str:
         return f"Graph(n_nodes={self.n_nodes}, n_links={self.n_links}, self_loops={self.self_loops})"
@@ -391,8 +382,7 @@ class SwitchingGraph:
         """The union graph; its edges carry every message of every session."""
         g0 = self.sessions[0]
         links = np.concatenate([g.links for g in self.sessions], axis=0)
-        return Graph.from_links(g0.n_nodes, links, names=g0._names, positions=g0.positions,
-                                allow_duplicates=True)
+        return Graph.from_links(g0.n_nodes, links, names=g0._names, positions=g0.positions, allow_duplicates=True)
 
     def session(self, round_index: int) -> Graph:
         return self.sessions[round_index % self.n_sessions]

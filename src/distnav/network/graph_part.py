@@ -86,8 +86,10 @@ class GraphPart:
     @property
     def nbytes(self) -> int:
         """Bytes held by the part's arrays."""
-        return sum(int(getattr(self, f).nbytes) for f in ("nodes", "in_ptr", "src", "edge_ids", "out_edge_ids",
-                                                         "degree", "halo", "halo_degree"))
+        return sum(
+            int(getattr(self, f).nbytes)
+            for f in ("nodes", "in_ptr", "src", "edge_ids", "out_edge_ids", "degree", "halo", "halo_degree")
+        )
 
     def sender_degree(self) -> np.ndarray:
         """Degree of the sender of each incoming edge (owned or halo)."""
@@ -117,14 +119,31 @@ class GraphPart:
         is_own[own] = True
         halo = np.unique(src[~is_own[src]]).astype(np.int64)
         deg = graph.degrees
-        return cls(n_nodes=graph.n_nodes, n_edges=graph.n_edges, nodes=own, in_ptr=in_ptr, src=src,
-                   edge_ids=e.astype(idx), out_edge_ids=graph.reverse_edge[e].astype(idx),
-                   degree=deg[own].astype(idx), halo=halo, halo_degree=deg[halo].astype(idx),
-                   self_loops=graph.self_loops)
+        return cls(
+            n_nodes=graph.n_nodes,
+            n_edges=graph.n_edges,
+            nodes=own,
+            in_ptr=in_ptr,
+            src=src,
+            edge_ids=e.astype(idx),
+            out_edge_ids=graph.reverse_edge[e].astype(idx),
+            degree=deg[own].astype(idx),
+            halo=halo,
+            halo_degree=deg[halo].astype(idx),
+            self_loops=graph.self_loops,
+        )
 
     @classmethod
-    def from_neighbours(cls, n_nodes: int, nodes: np.ndarray, degree_all: np.ndarray, rows: np.ndarray,
-                        nbr: np.ndarray, *, self_loops: bool = False) -> GraphPart:
+    def from_neighbours(
+        cls,
+        n_nodes: int,
+        nodes: np.ndarray,
+        degree_all: np.ndarray,
+        rows: np.ndarray,
+        nbr: np.ndarray,
+        *,
+        self_loops: bool = False,
+    ) -> GraphPart:
         """Assemble a part from neighbour lists without the whole edge list.
 
         ``degree_all``: the degree of every node of the whole graph (self excluded); ``(rows, nbr)``: every link
@@ -158,8 +177,10 @@ class GraphPart:
         counts = hi - lo
         if not bool((counts == row_len[own]).all()):
             bad = int(own[np.flatnonzero(counts != row_len[own])[0]])
-            raise GraphError(f"graph part: node {bad} has {int(counts[own == bad][0])} entries in the neighbour lists, "
-                             f"its degree is {int(deg[bad])}")
+            raise GraphError(
+                f"graph part: node {bad} has {int(counts[own == bad][0])} entries in the neighbour lists, "
+                f"its degree is {int(deg[bad])}"
+            )
         in_ptr = np.zeros(own.size + 1, np.int64)
         np.cumsum(counts, out=in_ptr[1:])
         pos = _ranges(lo, hi)
@@ -188,13 +209,25 @@ class GraphPart:
         k = np.minimum(np.searchsorted(own, src), max(own.size - 1, 0))
         halo = np.unique(src[own[k] != src]).astype(np.int64) if own.size else np.zeros(0, np.int64)
         del k
-        return cls(n_nodes=n, n_edges=int(start[-1]), nodes=own, in_ptr=in_ptr, src=src, edge_ids=edge_ids,
-                   out_edge_ids=out_edge_ids, degree=deg[own].astype(idx), halo=halo, halo_degree=deg[halo].astype(idx),
-                   self_loops=bool(self_loops))
+        return cls(
+            n_nodes=n,
+            n_edges=int(start[-1]),
+            nodes=own,
+            in_ptr=in_ptr,
+            src=src,
+            edge_ids=edge_ids,
+            out_edge_ids=out_edge_ids,
+            degree=deg[own].astype(idx),
+            halo=halo,
+            halo_degree=deg[halo].astype(idx),
+            self_loops=bool(self_loops),
+        )
 
     def __repr__(self) -> str:
-        return (f"GraphPart(n_nodes={self.n_nodes}, owned={self.n_local}, in_edges={self.n_local_edges}, "
-                f"halo={self.halo.size})")
+        return (
+            f"GraphPart(n_nodes={self.n_nodes}, owned={self.n_local}, in_edges={self.n_local_edges}, "
+            f"halo={self.halo.size})"
+        )
 
 
 def ascending_unique(values: np.ndarray) -> np.ndarray:

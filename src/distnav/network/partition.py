@@ -35,8 +35,15 @@ from distnav.network.graph_part import GraphPart
 if TYPE_CHECKING:
     from pathlib import Path
 
-__all__ = ["LOCALITY_MIN_NODES", "locality_order", "partition_nodes", "rcm_order", "read_partition",
-           "space_filling_order", "write_partition"]
+__all__ = [
+    "LOCALITY_MIN_NODES",
+    "locality_order",
+    "partition_nodes",
+    "rcm_order",
+    "read_partition",
+    "space_filling_order",
+    "write_partition",
+]
 
 LOCALITY_MIN_NODES = 10_000
 """From this many nodes on, ``order="auto"`` renumbers by RCM."""
@@ -122,8 +129,11 @@ def write_partition(path: str | os.PathLike[str], owner: np.ndarray) -> Path:
     if out.suffix == ".npy":
         np.save(out, arr)
     else:
-        out.write_text(f"# distnav partition: rank of each of {arr.size} nodes, one per line\n"
-                       + "\n".join(map(str, arr.tolist())) + "\n")
+        out.write_text(
+            f"# distnav partition: rank of each of {arr.size} nodes, one per line\n"
+            + "\n".join(map(str, arr.tolist()))
+            + "\n"
+        )
     return out
 
 
@@ -159,18 +169,22 @@ def read_partition(path: str | os.PathLike[str], n_nodes: int, n_ranks: int) -> 
         raise ExchangeError(f"partition file {src} gives ranks for {owner.size} nodes, the graph has {n_nodes}")
     if owner.size and (owner.min() < 0 or owner.max() >= n_ranks):
         bad = int(np.flatnonzero((owner < 0) | (owner >= n_ranks))[0])
-        raise ExchangeError(f"partition file {src}: node {bad} is given rank {owner[bad]}, outside 0..{n_ranks - 1} "
-                            f"({n_ranks} ranks launched)")
+        raise ExchangeError(
+            f"partition file {src}: node {bad} is given rank {owner[bad]}, outside 0..{n_ranks - 1} "
+            f"({n_ranks} ranks launched)"
+        )
     return np.asarray(owner)
 
 
-def partition_nodes(graph: Graph | GraphPart, n_ranks: int, method: str | np.ndarray | os.PathLike[str] = "rcm"
-                    ) -> np.ndarray:
+def partition_nodes(
+    graph: Graph | GraphPart, n_ranks: int, method: str | np.ndarray | os.PathLike[str] = "rcm"
+) -> np.ndarray:
     """Rank owning each node: ``"rcm"``, ``"block"``, ``"node"``, an explicit owner array or a partition file
     (see module doc)."""
     n = graph.n_nodes
-    if isinstance(method, os.PathLike) or (isinstance(method, str) and method not in ("rcm", "block", "node")
-                                           and ("/" in method or "." in method)):
+    if isinstance(method, os.PathLike) or (
+        isinstance(method, str) and method not in ("rcm", "block", "node") and ("/" in method or "." in method)
+    ):
         method = read_partition(method, n, n_ranks)
     if isinstance(method, np.ndarray) or not isinstance(method, str):
         owner = np.asarray(method, dtype=np.int64)
@@ -190,8 +204,9 @@ def partition_nodes(graph: Graph | GraphPart, n_ranks: int, method: str | np.nda
         elif isinstance(graph, Graph):
             order = rcm_order(graph)
         else:
-            raise ExchangeError("partition 'rcm' needs the whole graph; a graph part takes 'block', an owner array "
-                                "or a partition file")
+            raise ExchangeError(
+                "partition 'rcm' needs the whole graph; a graph part takes 'block', an owner array or a partition file"
+            )
         owner = np.empty(n, dtype=np.int64)
         owner[order] = (np.arange(n) * n_ranks) // n
     else:

@@ -93,8 +93,9 @@ class ConsensusWeights:
         return second_largest_eigenvalue_modulus(self.to_dense())
 
     @classmethod
-    def from_matrix(cls, graph: Graph, matrix: np.ndarray | sp.spmatrix, *, name: str = "custom",
-                    atol: float = 1e-12) -> ConsensusWeights:
+    def from_matrix(
+        cls, graph: Graph, matrix: np.ndarray | sp.spmatrix, *, name: str = "custom", atol: float = 1e-12
+    ) -> ConsensusWeights:
         """Wrap a dense/sparse ``n×n`` matrix; entries off the graph's links must be zero."""
         m = sp.csr_matrix(matrix, dtype=float)
         n = graph.n_nodes
@@ -327,6 +328,15 @@ def check_weights(weights: ConsensusWeights, *, atol: float = 1e-10, raise_on_er
     message = "; ".join(problems + notes)
     if raise_on_error and (not ok or not guaranteed):
         raise WeightsError(f"{w.name} weights unusable: {message}")
-    return WeightsReport(ok=ok, nonnegative=nonneg, row_stochastic=row_ok, column_stochastic=col_ok,
-                         symmetric=symmetric, respects_graph=True, positive_diagonal=pos_diag, slem=slem,
-                         guaranteed=guaranteed, message=message)
+    return WeightsReport(
+        ok=ok,
+        nonnegative=nonneg,
+        row_stochastic=row_ok,
+        column_stochastic=col_ok,
+        symmetric=symmetric,
+        respects_graph=True,
+        positive_diagonal=pos_diag,
+        slem=slem,
+        guaranteed=guaranteed,
+        message=message,
+    )

@@ -68,8 +68,13 @@ class _Batch:
         return x, est, Psym
 
 
-def batch_blup(dynamics: DynamicModel, measurements: MeasurementSeries, epoch: int, *,
-               nodes: Sequence[int] | IntArray | None = None) -> tuple[FloatArray, BoolArray, FloatArray]:
+def batch_blup(
+    dynamics: DynamicModel,
+    measurements: MeasurementSeries,
+    epoch: int,
+    *,
+    nodes: Sequence[int] | IntArray | None = None,
+) -> tuple[FloatArray, BoolArray, FloatArray]:
     """Batch BLUP of ``x_epoch`` from all data up to ``epoch`` (paper 003 §2.3; Henderson's mixed model).
 
     ``x_0`` is a fixed effect (no prior: the BLUP start), the reduced system noises ``e_t`` (``d_t = H_t e_t``)
@@ -92,9 +97,14 @@ def batch_blup(dynamics: DynamicModel, measurements: MeasurementSeries, epoch: i
 
 
 # ----------------------------------------------------------------------------------------------- covariance form
-def kalman_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
-                  nodes: Sequence[int] | IntArray | None = None, max_batch_epochs: int = 500,
-                  store_matrices: bool = False) -> FilterResult:
+def kalman_filter(
+    dynamics: DynamicModel,
+    measurements: MeasurementSeries,
+    *,
+    nodes: Sequence[int] | IntArray | None = None,
+    max_batch_epochs: int = 500,
+    store_matrices: bool = False,
+) -> FilterResult:
     """Covariance-form Kalman filter, three-step recursion of paper 003 §2.2 with the BLUP start of §2.3.
 
     Uses the stacked raw observations of ``nodes`` (default all: the central filter; ``nodes=[i]`` gives node
@@ -124,8 +134,10 @@ def kalman_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         A, y, row_node = measurements.observations(t, idx)  # whitened: R = I
         if batch is not None:
             if t > max_batch_epochs:
-                raise ModelError(f"state not estimable after {max_batch_epochs} epochs (entries "
-                                 f"{np.flatnonzero(~ests[t - 1, 0]).tolist()[:10]} never determined)")
+                raise ModelError(
+                    f"state not estimable after {max_batch_epochs} epochs (entries "
+                    f"{np.flatnonzero(~ests[t - 1, 0]).tolist()[:10]} never determined)"
+                )
             if t > 0:
                 batch.advance(dynamics, t)
             batch.add(A.T @ A, A.T @ y)
@@ -156,13 +168,27 @@ def kalman_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
         xs[t, 0] = x
         ests[t, 0] = True
         covs[t, 0] = P
-    series = FilterSeries(estimates=xs, std=masked_std(np.nan_to_num(covs), ests), estimable=ests, nodes=np.array([-1]),
-                          covariance=covs if store_matrices else None)
+    series = FilterSeries(
+        estimates=xs,
+        std=masked_std(np.nan_to_num(covs), ests),
+        estimable=ests,
+        nodes=np.array([-1]),
+        covariance=covs if store_matrices else None,
+    )
     return FilterResult(
-        estimates=xs[-1], converged=init_epoch >= 0, iterations=T,
+        estimates=xs[-1],
+        converged=init_epoch >= 0,
+        iterations=T,
         status="converged" if init_epoch >= 0 else "stopped",
-        message=(f"covariance-form Kalman filter, BLUP start at epoch {init_epoch}" if init_epoch >= 0
-                 else "covariance-form Kalman filter: state never fully estimable"),
-        trace=TraceBuilder().build(), comm=CommTotals.empty(measurements.n_nodes),
-        series=series, mode="covariance", init_epoch=init_epoch, covariance=covs[-1, 0],
+        message=(
+            f"covariance-form Kalman filter, BLUP start at epoch {init_epoch}"
+            if init_epoch >= 0
+            else "covariance-form Kalman filter: state never fully estimable"
+        ),
+        trace=TraceBuilder().build(),
+        comm=CommTotals.empty(measurements.n_nodes),
+        series=series,
+        mode="covariance",
+        init_epoch=init_epoch,
+        covariance=covs[-1, 0],
     )

@@ -17,8 +17,9 @@ from distnav.typing import ArrayLike, FloatArray, IntArray
 __all__ = ["DynamicModel", "noise_factor", "simulate_states"]
 
 
-def noise_factor(noise_cov: ArrayLike, *, rtol: float = 1e-12,
-                 epoch: int | None = None) -> tuple[FloatArray, FloatArray]:
+def noise_factor(
+    noise_cov: ArrayLike, *, rtol: float = 1e-12, epoch: int | None = None
+) -> tuple[FloatArray, FloatArray]:
     """Factor a (possibly singular) system-noise variance ``S = H S̃ Hᵀ`` (paper 003 eq. (19)).
 
     When ``S`` is diagonal-block shaped with zero rows, ``H`` is made of the columns of the identity for the
@@ -63,8 +64,9 @@ def _per_epoch(value: ArrayLike, what: str) -> tuple[bool, list[FloatArray]]:
     arr = np.asarray(value, dtype=float)
     if arr.ndim == 2:
         return True, [arr]
-    raise ModelError(f"{what} must be a matrix, a 3-D array (one per epoch) or a sequence of matrices, "
-                     f"got shape {arr.shape}")
+    raise ModelError(
+        f"{what} must be a matrix, a 3-D array (one per epoch) or a sequence of matrices, got shape {arr.shape}"
+    )
 
 
 def _identity_columns(H: FloatArray) -> IntArray | None:
@@ -88,8 +90,15 @@ class DynamicModel:
         instead of ``noise_cov``. Neither given = no system noise (a static state).
     """
 
-    def __init__(self, n_states: int, *, transition: ArrayLike | None = None, noise_cov: ArrayLike | None = None,
-                 noise_map: ArrayLike | None = None, noise_reduced_cov: ArrayLike | None = None) -> None:
+    def __init__(
+        self,
+        n_states: int,
+        *,
+        transition: ArrayLike | None = None,
+        noise_cov: ArrayLike | None = None,
+        noise_map: ArrayLike | None = None,
+        noise_reduced_cov: ArrayLike | None = None,
+    ) -> None:
         p = int(n_states)
         if p < 1:
             raise ModelError(f"n_states must be ≥ 1, got {n_states}")
@@ -132,8 +141,9 @@ class DynamicModel:
             assert noise_reduced_cov is not None  # checked above: both or neither
             cS, Ss = _per_epoch(noise_reduced_cov, "noise_reduced_cov")
             if cH != cS or len(Hs) != len(Ss):
-                raise ModelError("noise_map and noise_reduced_cov must both be constant or both per epoch "
-                                 "with the same length")
+                raise ModelError(
+                    "noise_map and noise_reduced_cov must both be constant or both per epoch with the same length"
+                )
             self._noise_const = cH
             pairs = list(zip(Hs, Ss, strict=True))
         else:
@@ -141,12 +151,12 @@ class DynamicModel:
             pairs = [(np.zeros((p, 0)), np.zeros((0, 0)))]
         self._H: list[np.ndarray] = []
         self._sel: list[IntArray | None] = []
-        self._sel_grid: list[tuple[np.ndarray, ...] | None] = []   # np.ix_(sel, sel), for noise_cov_at
+        self._sel_grid: list[tuple[np.ndarray, ...] | None] = []  # np.ix_(sel, sel), for noise_cov_at
         self._St: list[np.ndarray] = []
         self._St_inv: list[np.ndarray] = []
-        prev_H: np.ndarray | None = None       # the previous epoch's inputs: a per-epoch model usually repeats
-        prev_St: np.ndarray | None = None      # them (one H object, equal S̃ for equal intervals), and their
-        for t, (H, St) in enumerate(pairs):    # checks, selection and inverse are then the previous epoch's
+        prev_H: np.ndarray | None = None  # the previous epoch's inputs: a per-epoch model usually repeats
+        prev_St: np.ndarray | None = None  # them (one H object, equal S̃ for equal intervals), and their
+        for t, (H, St) in enumerate(pairs):  # checks, selection and inverse are then the previous epoch's
             e = "" if self._noise_const else f" of epoch {t}"
             if H is prev_H:
                 q = H.shape[1]
@@ -158,7 +168,7 @@ class DynamicModel:
                 q = H.shape[1]
                 if not np.all(np.isfinite(H)):
                     raise ModelError(f"system-noise factor{e} is not finite")
-                sel = _identity_columns(H)   # distinct unit columns: full column rank without an SVD
+                sel = _identity_columns(H)  # distinct unit columns: full column rank without an SVD
                 if q and sel is None and np.linalg.matrix_rank(H) < q:
                     raise ModelError(f"noise_map{e} must have full column rank (paper 003 eq. (19))")
                 self._sel.append(sel)
@@ -178,8 +188,9 @@ class DynamicModel:
                     try:
                         np.linalg.cholesky(St)
                     except np.linalg.LinAlgError:
-                        raise ModelError(f"noise_reduced_cov{e} is not positive definite (paper 003 eq. (19) needs "
-                                         f"S̃ invertible)") from None
+                        raise ModelError(
+                            f"noise_reduced_cov{e} is not positive definite (paper 003 eq. (19) needs S̃ invertible)"
+                        ) from None
                 self._St.append(0.5 * (St + St.T))
                 self._St_inv.append(np.linalg.inv(St) if q else St.copy())
             prev_H, prev_St = H, St
@@ -213,7 +224,7 @@ class DynamicModel:
         """``S_t = H_t S̃_t H_tᵀ``."""
         k = self._idx(self._noise_const, len(self._H), t, "system noise")
         grid = self._sel_grid[k]
-        if grid is not None:   # H = identity columns: S̃ placed in the rows/columns `sel` (exactly H S̃ Hᵀ)
+        if grid is not None:  # H = identity columns: S̃ placed in the rows/columns `sel` (exactly H S̃ Hᵀ)
             S: FloatArray = np.zeros((self.n_states, self.n_states))
             S[grid] = self._St[k]
             return S
@@ -240,8 +251,9 @@ class DynamicModel:
         return f"DynamicModel(n_states={self.n_states}, noise rank={q}{'' if self._noise_const else ' (varying)'})"
 
 
-def simulate_states(dynamics: DynamicModel, n_epochs: int, *, rng: np.random.Generator,
-                    initial_state: ArrayLike | None = None) -> FloatArray:
+def simulate_states(
+    dynamics: DynamicModel, n_epochs: int, *, rng: np.random.Generator, initial_state: ArrayLike | None = None
+) -> FloatArray:
     """One realization ``x_0..x_{T−1}`` (T×p) of the dynamic model; ``x_0 = initial_state`` (default zeros)."""
     p = dynamics.n_states
     x = np.zeros((n_epochs, p))
@@ -251,4 +263,3 @@ def simulate_states(dynamics: DynamicModel, n_epochs: int, *, rng: np.random.Gen
         d = H @ (np.linalg.cholesky(St) @ rng.standard_normal(St.shape[0])) if St.size else 0.0
         x[t] = dynamics.transition_at(t) @ x[t - 1] + d
     return x
-

@@ -20,8 +20,14 @@ from distnav.errors import ModelError
 from distnav.exchange.base import CommTotals
 from distnav.typing import BoolArray, FloatArray, IntArray
 
-__all__ = ["FilterState", "central_filter", "exact_average_filters", "information_filter",
-           "iterate_information_filter", "local_filters"]
+__all__ = [
+    "FilterState",
+    "central_filter",
+    "exact_average_filters",
+    "information_filter",
+    "iterate_information_filter",
+    "local_filters",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,9 +45,13 @@ class FilterState:
 _MODES = ("central", "local", "exact_average")
 
 
-def iterate_information_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
-                               mode: FilterMode = "central", nodes: Sequence[int] | IntArray | None = None,
-                               ) -> Iterator[FilterState]:
+def iterate_information_filter(
+    dynamics: DynamicModel,
+    measurements: MeasurementSeries,
+    *,
+    mode: FilterMode = "central",
+    nodes: Sequence[int] | IntArray | None = None,
+) -> Iterator[FilterState]:
     """Yield the information filter state (paper 003 Fig. 1) after each epoch's measurement update.
 
     mode "central": one filter fed ``N_t = Σ_i N_i,t``, ``r_t = Σ_i r_i,t`` over ``nodes`` (default all; eq. (25));
@@ -67,14 +77,21 @@ def iterate_information_filter(dynamics: DynamicModel, measurements: Measurement
             ker.measurement_update(N, r)
         else:
             n = idx.size
-            ker.measurement_update(np.broadcast_to(N.mean(axis=0), N.shape), np.broadcast_to(r.mean(axis=0), r.shape),
-                                   scale=float(n))
+            ker.measurement_update(
+                np.broadcast_to(N.mean(axis=0), N.shape), np.broadcast_to(r.mean(axis=0), r.shape), scale=float(n)
+            )
         x, est, inv, _ = ker.estimates()
         yield FilterState(t, ker.I, ker.i, x, est, inv)
 
 
-def information_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *, mode: FilterMode = "central",
-                       nodes: Sequence[int] | IntArray | None = None, store_matrices: bool = False) -> FilterResult:
+def information_filter(
+    dynamics: DynamicModel,
+    measurements: MeasurementSeries,
+    *,
+    mode: FilterMode = "central",
+    nodes: Sequence[int] | IntArray | None = None,
+    store_matrices: bool = False,
+) -> FilterResult:
     """Run :func:`iterate_information_filter` over all epochs.
 
     Returns a :class:`FilterResult`: ``estimates`` = last-epoch estimates (rows = filters), ``iterations`` =
@@ -100,38 +117,58 @@ def information_filter(dynamics: DynamicModel, measurements: MeasurementSeries, 
         last = st
     assert last is not None
     series = FilterSeries(
-        estimates=np.stack(xs), std=np.stack(stds), estimable=np.stack(ests),
+        estimates=np.stack(xs),
+        std=np.stack(stds),
+        estimable=np.stack(ests),
         nodes=np.array([-1]) if mode == "central" else idx,
         covariance=np.stack(covs) if store_matrices else None,
         information=np.stack(infos) if store_matrices else None,
     )
     complete = bool(last.estimable.all())
     return FilterResult(
-        estimates=last.estimates, converged=complete, iterations=measurements.n_epochs,
+        estimates=last.estimates,
+        converged=complete,
+        iterations=measurements.n_epochs,
         status="converged" if complete else "stopped",
         message=f"{mode} information filter over {measurements.n_epochs} epochs; "
-                f"{int(last.estimable.sum())}/{last.estimable.size} entries estimable at the last epoch",
-        trace=tb.build(), comm=CommTotals.empty(measurements.n_nodes),
-        series=series, information=last.information, info_vector=last.info_vector, mode=mode,
+        f"{int(last.estimable.sum())}/{last.estimable.size} entries estimable at the last epoch",
+        trace=tb.build(),
+        comm=CommTotals.empty(measurements.n_nodes),
+        series=series,
+        information=last.information,
+        info_vector=last.info_vector,
+        mode=mode,
     )
 
 
-def central_filter(dynamics: DynamicModel, measurements: MeasurementSeries, *,
-                   nodes: Sequence[int] | IntArray | None = None, store_matrices: bool = False) -> FilterResult:
+def central_filter(
+    dynamics: DynamicModel,
+    measurements: MeasurementSeries,
+    *,
+    nodes: Sequence[int] | IntArray | None = None,
+    store_matrices: bool = False,
+) -> FilterResult:
     """The central (network, fusion-centre) information filter (eq. (25)); one row."""
     return information_filter(dynamics, measurements, mode="central", nodes=nodes, store_matrices=store_matrices)
 
 
-def local_filters(dynamics: DynamicModel, measurements: MeasurementSeries, *,
-                  nodes: Sequence[int] | IntArray | None = None, store_matrices: bool = False) -> FilterResult:
+def local_filters(
+    dynamics: DynamicModel,
+    measurements: MeasurementSeries,
+    *,
+    nodes: Sequence[int] | IntArray | None = None,
+    store_matrices: bool = False,
+) -> FilterResult:
     """Single-node filters, each with its own data only (paper 003 §5.3); one row per node."""
     return information_filter(dynamics, measurements, mode="local", nodes=nodes, store_matrices=store_matrices)
 
 
-def exact_average_filters(dynamics: DynamicModel, measurements: MeasurementSeries, *,
-                          nodes: Sequence[int] | IntArray | None = None,
-                          store_matrices: bool = False) -> FilterResult:
+def exact_average_filters(
+    dynamics: DynamicModel,
+    measurements: MeasurementSeries,
+    *,
+    nodes: Sequence[int] | IntArray | None = None,
+    store_matrices: bool = False,
+) -> FilterResult:
     """Local filters fed with the exact averages ``n N̄_t``, ``n r̄_t`` (eqs. (26)–(28)): equal to the central one."""
-    return information_filter(dynamics, measurements, mode="exact_average", nodes=nodes,
-                              store_matrices=store_matrices)
-
+    return information_filter(dynamics, measurements, mode="exact_average", nodes=nodes, store_matrices=store_matrices)

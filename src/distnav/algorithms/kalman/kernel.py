@@ -46,7 +46,7 @@ def pseudo_inverse_psd(info: FloatArray, *, rtol: float = RANK_RTOL) -> tuple[Fl
         return _inv_or_pinv(info, rtol)
     inv = np.zeros_like(info)
     est = np.zeros((k, p), bool)
-    if k == 1:                   # one filter (central, single-receiver): the observed entries by one grid
+    if k == 1:  # one filter (central, single-receiver): the observed entries by one grid
         cols = np.flatnonzero(seen[0])
         if cols.size:
             grid = np.ix_(cols, cols)
@@ -174,9 +174,14 @@ class InformationKernel:
             new.append(0.5 * (Q_new + np.swapaxes(Q_new, 1, 2)))
         self.Qs = new
 
-    def measurement_update(self, N: FloatArray, r: FloatArray, scale: float = 1.0,
-                           extra_error: FloatArray | None = None,
-                           extra_errors: Sequence[FloatArray | None] = ()) -> None:
+    def measurement_update(
+        self,
+        N: FloatArray,
+        r: FloatArray,
+        scale: float = 1.0,
+        extra_error: FloatArray | None = None,
+        extra_errors: Sequence[FloatArray | None] = (),
+    ) -> None:
         """``I += scale N``, ``i += scale r`` (Fig. 1 / Fig. 6); ``Q += extra_error`` (Fig. 7).
 
         ``extra_errors`` gives one term per propagated variance (:attr:`Qs`) instead (``None`` entries: nothing).

@@ -18,8 +18,16 @@ from distnav.algorithms.kalman.dynamics import DynamicModel
 from distnav.errors import ModelError
 from distnav.typing import ArrayLike, FloatArray, IntArray
 
-__all__ = ["FunctionSeries", "MeasurementSeries", "NodeData", "NodeEpoch", "NormalSeries", "ObservationSeries",
-           "check_model", "normal_equations"]
+__all__ = [
+    "FunctionSeries",
+    "MeasurementSeries",
+    "NodeData",
+    "NodeEpoch",
+    "NormalSeries",
+    "ObservationSeries",
+    "check_model",
+    "normal_equations",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,8 +48,9 @@ NodeData = NodeEpoch | tuple[ArrayLike, ArrayLike] | tuple[ArrayLike, ArrayLike,
 or ``None`` (no data)."""
 
 
-def _whiten(design: ArrayLike, cov: ArrayLike, obs: ArrayLike | None, p: int,
-            where: str) -> tuple[FloatArray, FloatArray]:
+def _whiten(
+    design: ArrayLike, cov: ArrayLike, obs: ArrayLike | None, p: int, where: str
+) -> tuple[FloatArray, FloatArray]:
     A = np.asarray(design, dtype=float)
     if A.ndim != 2 or A.shape[1] != p:
         raise ModelError(f"{where}: design must be m×{p}, got shape {A.shape}")
@@ -76,8 +85,11 @@ def _whiten(design: ArrayLike, cov: ArrayLike, obs: ArrayLike | None, p: int,
     return Aw, yw
 
 
-def normal_equations(design: ArrayLike, cov: ArrayLike, obs: ArrayLike | None = None,
-                     ) -> tuple[FloatArray, FloatArray]:
+def normal_equations(
+    design: ArrayLike,
+    cov: ArrayLike,
+    obs: ArrayLike | None = None,
+) -> tuple[FloatArray, FloatArray]:
     """``N = Aᵀ R⁻¹ A`` and ``r = Aᵀ R⁻¹ y`` (paper 003 eq. (24)); ``cov`` is a matrix or a variance vector."""
     A = np.asarray(design, dtype=float)
     if A.ndim != 2:
@@ -108,15 +120,16 @@ class MeasurementSeries:
 
         Whitened means ``R = I``; only series built from raw observations have them.
         """
-        raise ModelError(f"{type(self).__name__} holds normal equations only; the covariance-form filter needs "
-                         f"an ObservationSeries")
+        raise ModelError(
+            f"{type(self).__name__} holds normal equations only; the covariance-form filter needs an ObservationSeries"
+        )
 
     def node_ids(self, nodes: ArrayLike | None = None) -> IntArray:
         """The selected global node ids as an int64 vector (default all), validated against ``n_nodes``."""
         if nodes is None:
             return np.arange(self.n_nodes)
         given = np.asarray(nodes)
-        if given.dtype == np.int64 and given.ndim == 1 and given.size:   # the common case, checked cheaply
+        if given.dtype == np.int64 and given.ndim == 1 and given.size:  # the common case, checked cheaply
             if given.min() < 0 or given.max() >= self.n_nodes:
                 raise ModelError(f"node ids must lie in 0..{self.n_nodes - 1}, got {given.min()}..{given.max()}")
             return given
@@ -175,8 +188,9 @@ class ObservationSeries(MeasurementSeries):
                     A, R = item[0], item[1]
                     y = item[2] if len(item) == 3 else None
                 else:
-                    raise ModelError(f"epoch {t}, node {i}: expected NodeEpoch, (A, R[, y]) or None, "
-                                     f"got {type(item).__name__}")
+                    raise ModelError(
+                        f"epoch {t}, node {i}: expected NodeEpoch, (A, R[, y]) or None, got {type(item).__name__}"
+                    )
                 Aw, yw = _whiten(A, R, y, p, f"epoch {t}, node {i}")
                 Ar.append(Aw)
                 yr.append(yw)
@@ -201,10 +215,16 @@ class ObservationSeries(MeasurementSeries):
         idx = self.node_ids(nodes)
         A = [self._A[t][i] for i in idx]
         y = [self._y[t][i] for i in idx]
-        node = np.concatenate([np.full(a.shape[0], i, np.int64) for a, i in zip(A, idx, strict=True)]) \
-            if idx.size else np.zeros(0, np.int64)
-        return (np.concatenate(A, axis=0) if A else np.zeros((0, self.n_states)),
-                np.concatenate(y) if y else np.zeros(0), node)
+        node = (
+            np.concatenate([np.full(a.shape[0], i, np.int64) for a, i in zip(A, idx, strict=True)])
+            if idx.size
+            else np.zeros(0, np.int64)
+        )
+        return (
+            np.concatenate(A, axis=0) if A else np.zeros((0, self.n_states)),
+            np.concatenate(y) if y else np.zeros(0),
+            node,
+        )
 
 
 class NormalSeries(MeasurementSeries):
@@ -243,8 +263,9 @@ class NormalSeries(MeasurementSeries):
 class FunctionSeries(MeasurementSeries):
     """Normals computed on demand by ``fn(epoch, nodes) -> (N (k×p×p), r (k×p))`` (large runs, streaming data)."""
 
-    def __init__(self, n_nodes: int, n_epochs: int, n_states: int,
-                 fn: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray]]) -> None:
+    def __init__(
+        self, n_nodes: int, n_epochs: int, n_states: int, fn: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray]]
+    ) -> None:
         if min(n_nodes, n_epochs, n_states) < 1:
             raise ModelError("n_nodes, n_epochs and n_states must be ≥ 1")
         self.n_nodes, self.n_epochs, self.n_states = int(n_nodes), int(n_epochs), int(n_states)
@@ -256,10 +277,11 @@ class FunctionSeries(MeasurementSeries):
         N, r = self._fn(t, idx)
         p = self.n_states
         if np.shape(N) != (idx.size, p, p) or np.shape(r) != (idx.size, p):
-            raise ModelError(f"epoch {t}: fn returned shapes {np.shape(N)}, {np.shape(r)}; expected "
-                             f"{(idx.size, p, p)}, {(idx.size, p)}")
+            raise ModelError(
+                f"epoch {t}: fn returned shapes {np.shape(N)}, {np.shape(r)}; expected "
+                f"{(idx.size, p, p)}, {(idx.size, p)}"
+            )
         return np.asarray(N, float), np.asarray(r, float)
-
 
 
 def check_model(dynamics: DynamicModel, measurements: MeasurementSeries) -> None:

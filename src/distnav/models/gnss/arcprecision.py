@@ -42,8 +42,14 @@ import numpy as np
 from distnav.errors import ModelError
 from distnav.models.gnss.gfbias import gf_m_per_dsb_ns
 
-__all__ = ["ARC_FACTOR_ESTIMATOR", "ArcVarianceFactor", "MIN_ARC_REDUNDANCY", "arc_ids_on_grid", "arc_variance_factor",
-           "postfit_residuals"]
+__all__ = [
+    "ARC_FACTOR_ESTIMATOR",
+    "ArcVarianceFactor",
+    "MIN_ARC_REDUNDANCY",
+    "arc_ids_on_grid",
+    "arc_variance_factor",
+    "postfit_residuals",
+]
 
 MIN_ARC_REDUNDANCY = 8
 """Fewest degrees of freedom (arcs − biases) for an arc variance factor; below it the epoch-wise one is used."""
@@ -65,8 +71,13 @@ class ArcVarianceFactor:
     ssr: float
 
 
-def arc_ids_on_grid(obs: Sequence[Any], levelled: Mapping[str, Any], grids: Mapping[str, np.ndarray],
-                    t_gps_s: np.ndarray, svs: Sequence[str]) -> np.ndarray:
+def arc_ids_on_grid(
+    obs: Sequence[Any],
+    levelled: Mapping[str, Any],
+    grids: Mapping[str, np.ndarray],
+    t_gps_s: np.ndarray,
+    svs: Sequence[str],
+) -> np.ndarray:
     """The levelled arc (per station: :attr:`~distnav.models.gnss.levelling.LevelledStation.arc`, −1 = raw code)
     of every observation of the filter's grid (T, n, S): stations ``obs`` (``CodeObservations``), ``grids`` the
     full-rate epochs each keeps, the filter's epochs ``t_gps_s`` and satellites ``svs``."""
@@ -83,14 +94,12 @@ def arc_ids_on_grid(obs: Sequence[Any], levelled: Mapping[str, Any], grids: Mapp
     return out
 
 
-def postfit_residuals(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray, np.ndarray,
-                                                                                 np.ndarray]:
+def postfit_residuals(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     e, w, use, _ = _refit(data, dsb_ns, nodes)
     return e, w, use
 
 
-def _refit(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                                     np.ndarray]:
+def _refit(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Residuals ``e`` (T, n, S) [m] of the observations minus the biases ``dsb_ns`` (receivers then satellites,
     a filter's last epoch in any datum) minus the TEC re-fitted per epoch and ionosphere by weighted least
     squares; the weights ``w`` (T, n, S) and the mask ``use`` of the residuals computed (observed, biases
@@ -99,7 +108,7 @@ def _refit(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray
     geo, lay = data.geometry, data.layout
     T, n, S = data.obs_m.shape
     dsb = np.asarray(dsb_ns, float)
-    b_m = -(dsb[:n, None] + dsb[None, n:]) * gf_m_per_dsb_ns(data.band)            # (n, S) b_i + b^s [m]
+    b_m = -(dsb[:n, None] + dsb[None, n:]) * gf_m_per_dsb_ns(data.band)  # (n, S) b_i + b^s [m]
     ok = geo.tracked & np.isfinite(data.obs_m) & np.isfinite(b_m)[None]
     if nodes is not None:
         sel = np.zeros(n, bool)
@@ -107,14 +116,14 @@ def _refit(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray
         ok &= sel[None, :, None]
     w = np.where(ok, 1.0 / np.where(ok, data.sigma_m, 1.0) ** 2, 0.0)
     y = np.where(ok, data.obs_m - np.where(np.isfinite(b_m), b_m, 0.0)[None], 0.0)
-    a = np.where(ok[..., None], geo.coefficients, 0.0)                              # (T, n, S, 3 or 6)
+    a = np.where(ok[..., None], geo.coefficients, 0.0)  # (T, n, S, 3 or 6)
     groups = np.asarray(geo.groups, np.int64)
-    onehot = np.eye(lay.n_ionospheres)[groups]                                      # (n, G)
+    onehot = np.eye(lay.n_ionospheres)[groups]  # (n, G)
     N = np.einsum("ng,tns,tnsk,tnsl->tgkl", onehot, w, a, a)
     r = np.einsum("ng,tns,tnsk,tns->tgk", onehot, w, a, y)
     if a.shape[-1] == 3:
         good = np.linalg.det(N) > 1e-12 * np.maximum(np.einsum("tgkk->tg", N), 1e-300) ** 3
-    else:                        # the curvature terms are small (Δφ² ≪ 1): judge by the eigenvalue spread
+    else:  # the curvature terms are small (Δφ² ≪ 1): judge by the eigenvalue spread
         ev = np.linalg.eigvalsh(N)
         good = ev[..., 0] > 1e-12 * np.maximum(ev[..., -1], 1e-300)
     nu = np.zeros(r.shape)
@@ -125,13 +134,18 @@ def _refit(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray
     Ninv = np.zeros(N.shape)
     if good.any():
         Ninv[good] = np.linalg.inv(N[good])
-    h = w * np.einsum("tnsk,tnkl,tnsl->tns", a, Ninv[:, groups], a)                # the TEC fit's leverage
+    h = w * np.einsum("tnsk,tnkl,tnsl->tns", a, Ninv[:, groups], a)  # the TEC fit's leverage
     return e, w, use, np.where(use, h, 0.0)
 
 
-def arc_variance_factor(data: Any, dsb_ns: np.ndarray, nodes: Any = None, *,
-                        min_redundancy: int = MIN_ARC_REDUNDANCY,
-                        estimator: str = ARC_FACTOR_ESTIMATOR) -> ArcVarianceFactor | None:
+def arc_variance_factor(
+    data: Any,
+    dsb_ns: np.ndarray,
+    nodes: Any = None,
+    *,
+    min_redundancy: int = MIN_ARC_REDUNDANCY,
+    estimator: str = ARC_FACTOR_ESTIMATOR,
+) -> ArcVarianceFactor | None:
     """σ̂²_arc of the module doc for the biases ``dsb_ns`` (a filter's last epoch) over the arcs of ``nodes``
     (default all stations); ``None`` without arcs (no levelling: ``data.arc_id`` is ``None``) or with fewer than
     ``min_redundancy`` degrees of freedom. Each station's sums are its own (arcs do not span stations).
@@ -147,7 +161,7 @@ def arc_variance_factor(data: Any, dsb_ns: np.ndarray, nodes: Any = None, *,
     arcs = np.where(use, np.asarray(arc_id, np.int64), -1)
     ssr = 0.0
     n_arcs = 0
-    scaled: list[np.ndarray] = []                                                  # W_a ē_a² / (1 − h̄_a)
+    scaled: list[np.ndarray] = []  # W_a ē_a² / (1 − h̄_a)
     for i in range(n):
         a = arcs[:, i].ravel()
         k = a >= 0
@@ -157,12 +171,12 @@ def arc_variance_factor(data: Any, dsb_ns: np.ndarray, nodes: Any = None, *,
         W = np.bincount(inv, weights=w[:, i].ravel()[k], minlength=ids.size)
         we = np.bincount(inv, weights=(w[:, i] * e[:, i]).ravel()[k], minlength=ids.size)
         fine = W > 0
-        ssr += float((we[fine] ** 2 / W[fine]).sum())                             # Σ W_a ē_a²
+        ssr += float((we[fine] ** 2 / W[fine]).sum())  # Σ W_a ē_a²
         wh = np.bincount(inv, weights=(w[:, i] * h[:, i]).ravel()[k], minlength=ids.size)
-        kept += float((1.0 - wh[fine] / W[fine]).sum())                            # 1 − the arc's mean leverage
+        kept += float((1.0 - wh[fine] / W[fine]).sum())  # 1 − the arc's mean leverage
         n_arcs += int(fine.sum())
         scaled.append(we[fine] ** 2 / W[fine] / np.maximum(1.0 - wh[fine] / W[fine], 1e-6))
-    seen = np.asarray(np.asarray(use, bool).sum(axis=0) > 0)                      # (n, S)
+    seen = np.asarray(np.asarray(use, bool).sum(axis=0) > 0)  # (n, S)
     n_biases = int(seen.any(axis=1).sum() + seen.any(axis=0).sum()) - 1
     red = kept - n_biases
     if red < min_redundancy:

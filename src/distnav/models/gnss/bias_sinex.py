@@ -41,8 +41,10 @@ def _read_text_lines(path: Path) -> list[str]:
     return read_text_file(path, whole_lines=True)
 
 
-_COLUMNS = ("the fixed columns of '*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____ BIAS_END______ UNIT "
-            "__ESTIMATED_VALUE____ _STD_DEV___'")
+_COLUMNS = (
+    "the fixed columns of '*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____ BIAS_END______ UNIT "
+    "__ESTIMATED_VALUE____ _STD_DEV___'"
+)
 
 
 @dataclass(frozen=True)
@@ -130,8 +132,10 @@ def read_bias_sinex(path: str | Path) -> BiasProduct:
     p = Path(path)
     lines = _read_text_lines(p)
     if not lines or not lines[0].startswith("%=BIA"):
-        raise DataFileError(f"{p}, line 1: not a Bias-SINEX file: expected a first line starting with '%=BIA', got "
-                            f"{(lines[0] if lines else '')[:20]!r}")
+        raise DataFileError(
+            f"{p}, line 1: not a Bias-SINEX file: expected a first line starting with '%=BIA', got "
+            f"{(lines[0] if lines else '')[:20]!r}"
+        )
     head = lines[0].split()
     agency = head[2] if len(head) > 2 else ""
     records: list[BiasRecord] = []
@@ -161,21 +165,28 @@ def read_bias_sinex(path: str | Path) -> BiasProduct:
         std = _number(p, no, line, 92, 103, "the standard deviation") if line[92:103].strip() else float("nan")
         expected = 11 if station else 10
         if not obs2:
-            expected -= 1     # OSB lines have no second observation code
+            expected -= 1  # OSB lines have no second observation code
         if kind not in ("DSB", "OSB", "ISB") or tokens[0] != kind:
-            raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line: expected DSB, OSB or ISB in "
-                                f"columns 2-4 ({_COLUMNS}), got {line.strip()[:40]!r}")
+            raise DataFileError(
+                f"{p}, line {no}: malformed +BIAS/SOLUTION line: expected DSB, OSB or ISB in "
+                f"columns 2-4 ({_COLUMNS}), got {line.strip()[:40]!r}"
+            )
         if len(tokens) != expected:
-            raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line: {len(tokens)} fields where a "
-                                f"{'station' if station else 'satellite'} line has {expected} ({_COLUMNS}): "
-                                f"{line.strip()!r}")
-        records.append(BiasRecord(kind, svn, prn if len(prn) == 3 else "", station, obs1, obs2, start, end,
-                                  unit, value, std, no))
+            raise DataFileError(
+                f"{p}, line {no}: malformed +BIAS/SOLUTION line: {len(tokens)} fields where a "
+                f"{'station' if station else 'satellite'} line has {expected} ({_COLUMNS}): "
+                f"{line.strip()!r}"
+            )
+        records.append(
+            BiasRecord(kind, svn, prn if len(prn) == 3 else "", station, obs1, obs2, start, end, unit, value, std, no)
+        )
     if not seen_block:
         raise DataFileError(f"{p}: no +BIAS/SOLUTION block")
     if inside:
-        raise DataFileError(f"{p}, line {len(lines)}: the +BIAS/SOLUTION block of line {opened} is not closed by "
-                            f"-BIAS/SOLUTION: the file is truncated")
+        raise DataFileError(
+            f"{p}, line {len(lines)}: the +BIAS/SOLUTION block of line {opened} is not closed by "
+            f"-BIAS/SOLUTION: the file is truncated"
+        )
     return BiasProduct(path=p, agency=agency, records=tuple(records))
 
 
@@ -183,8 +194,10 @@ def _number(p: Path, no: int, line: str, a: int, b: int, what: str) -> float:
     try:
         return float(line[a:b])
     except ValueError:
-        raise DataFileError(f"{p}, line {no}: malformed +BIAS/SOLUTION line: {what} (columns {a + 1}-{b}): expected "
-                            f"a number, got {line[a:b].strip()!r}") from None
+        raise DataFileError(
+            f"{p}, line {no}: malformed +BIAS/SOLUTION line: {what} (columns {a + 1}-{b}): expected "
+            f"a number, got {line[a:b].strip()!r}"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -239,20 +252,34 @@ def read_ionex_dcb(path: str | Path) -> IonexDCB:
                 key, _, obs = content.partition(":")
                 ref[key.replace("Reference observables for", "").strip()] = obs.strip()
         except (ValueError, IndexError):
-            example = ("'   G01    -7.722     0.020' (satellite, bias ns, rms ns)" if label == "PRN / BIAS / RMS"
-                       else "'   G  ALIC    21.005     0.071' (system, station, bias ns, rms ns)")
-            raise DataFileError(f"{p}, line {no}: malformed IONEX DCB line: expected {example} in columns 1-60, "
-                                f"got {content.rstrip()!r}") from None
+            example = (
+                "'   G01    -7.722     0.020' (satellite, bias ns, rms ns)"
+                if label == "PRN / BIAS / RMS"
+                else "'   G  ALIC    21.005     0.071' (system, station, bias ns, rms ns)"
+            )
+            raise DataFileError(
+                f"{p}, line {no}: malformed IONEX DCB line: expected {example} in columns 1-60, "
+                f"got {content.rstrip()!r}"
+            ) from None
     if not found:
         raise DataFileError(f"{p}: no 'DIFFERENTIAL CODE BIASES / START OF AUX DATA' block in the IONEX header")
     if inside:
-        raise DataFileError(f"{p}, line {len(lines)}: the DCB block of line {found} is not closed by "
-                            f"'END OF AUX DATA' before the end of the header: the file is truncated or malformed")
+        raise DataFileError(
+            f"{p}, line {len(lines)}: the DCB block of line {found} is not closed by "
+            f"'END OF AUX DATA' before the end of the header: the file is truncated or malformed"
+        )
     return IonexDCB(path=p, satellite=sat, station=sta, reference=ref)
 
 
-def resolve_dsb(products: Sequence[BiasProduct], obs1: str, obs2: str, *, prn: str | None = None,
-                station: str | None = None, system: str = "G") -> tuple[float, list[str]]:
+def resolve_dsb(
+    products: Sequence[BiasProduct],
+    obs1: str,
+    obs2: str,
+    *,
+    prn: str | None = None,
+    station: str | None = None,
+    system: str = "G",
+) -> tuple[float, list[str]]:
     """The DSB ``obs1 − obs2`` [ns] of a satellite (``prn``) or station, chained through the DSBs of the products.
 
     Among all chains ``obs1 → … → obs2`` (a path in the graph of available code pairs), the one with the fewest
@@ -313,19 +340,30 @@ def sinex_time(t: object) -> str:
     return f"{year:04d}:{doy:03d}:{sec:05d}"
 
 
-def _solution_line(prn: str, station: str, obs1: str, obs2: str, start: str, end: str, value: float,
-                   std: float) -> str:
+def _solution_line(prn: str, station: str, obs1: str, obs2: str, start: str, end: str, value: float, std: float) -> str:
     svn = prn[:1] if prn else "G"
-    std = std if std == std else 0.0          # NaN σ (not estimable) written as 0
-    return (f" DSB  {svn:<4} {prn or 'G':<3} {station:<9} {obs1:<4} {obs2:<4} {start} {end} ns   "
-            f"{value:21.4f} {std:11.4f}")
+    std = std if std == std else 0.0  # NaN σ (not estimable) written as 0
+    return (
+        f" DSB  {svn:<4} {prn or 'G':<3} {station:<9} {obs1:<4} {obs2:<4} {start} {end} ns   {value:21.4f} {std:11.4f}"
+    )
 
 
-def write_bias_sinex(path: str | Path | None, *, obs1: str, obs2: str, start: object, end: object,
-                     satellites: Mapping[str, tuple[float, float]], stations: Mapping[str, tuple[float, float]],
-                     agency: str = "DNV", created: object = None, description: str = "",
-                     sampling_s: float = 30.0, comments: Sequence[str] = (),
-                     station_codes: Mapping[str, tuple[str, str]] | None = None) -> Path | str:
+def write_bias_sinex(
+    path: str | Path | None,
+    *,
+    obs1: str,
+    obs2: str,
+    start: object,
+    end: object,
+    satellites: Mapping[str, tuple[float, float]],
+    stations: Mapping[str, tuple[float, float]],
+    agency: str = "DNV",
+    created: object = None,
+    description: str = "",
+    sampling_s: float = 30.0,
+    comments: Sequence[str] = (),
+    station_codes: Mapping[str, tuple[str, str]] | None = None,
+) -> Path | str:
     """Write satellite and station DSBs ``obs1 − obs2`` [ns] with σ as a Bias-SINEX 1.00 file (gzip if the name
     ends in ``.gz``): header line, ``FILE/REFERENCE``, ``FILE/COMMENT``, ``BIAS/DESCRIPTION`` (relative biases,
     GPS time) and ``BIAS/SOLUTION`` in the fixed columns of the format (those :func:`read_bias_sinex` reads).
@@ -340,26 +378,47 @@ def write_bias_sinex(path: str | Path | None, *, obs1: str, obs2: str, start: ob
     t_end, t_start = (np.asarray(x).astype("datetime64[s]")[()] for x in (end, start))
     spacing = int(round(float((t_end - t_start).astype(int))))
     made = sinex_time(created if created is not None else np.datetime64("now", "s"))
-    rows = [_solution_line(prn, "", obs1, obs2, t0, t1, v, sd) for prn, (v, sd) in sorted(satellites.items())
-            if math.isfinite(v)]
+    rows = [
+        _solution_line(prn, "", obs1, obs2, t0, t1, v, sd)
+        for prn, (v, sd) in sorted(satellites.items())
+        if math.isfinite(v)
+    ]
     own = station_codes or {}
-    rows += [_solution_line("", sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
-             for sta, (v, sd) in sorted(stations.items()) if math.isfinite(v)]
+    rows += [
+        _solution_line("", sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
+        for sta, (v, sd) in sorted(stations.items())
+        if math.isfinite(v)
+    ]
     bar = "*" + "-" * 79
-    lines = [f"%=BIA 1.00 {agency:<3} {made} {agency:<3} {t0} {t1} R {len(rows):08d}", bar,
-             "+FILE/REFERENCE", "*INFO_TYPE_________ INFO" + "_" * 56,
-             f" DESCRIPTION        {description or 'distnav geometry-free code DCBs (receivers and satellites)'}"[:80],
-             " OUTPUT             daily DSBs of satellites and receivers, zero-mean satellite datum",
-             " SOFTWARE           distnav", "-FILE/REFERENCE", bar, "+FILE/COMMENT",
-             *[f" {c}"[:80] for c in comments], "-FILE/COMMENT", bar, "+BIAS/DESCRIPTION",
-             "*KEYWORD________________________________ VALUE(S)" + "_" * 31,
-             f" OBSERVATION_SAMPLING                    {int(round(sampling_s))}",
-             f" PARAMETER_SPACING                       {spacing}",
-             " DETERMINATION_METHOD                    INTER-FREQUENCY_BIAS_ESTIMATION",
-             " BIAS_MODE                               RELATIVE", " TIME_SYSTEM                             G",
-             "-BIAS/DESCRIPTION", bar, "+BIAS/SOLUTION",
-             "*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____ BIAS_END______ UNIT __ESTIMATED_VALUE____ _STD_DEV___",
-             *rows, "-BIAS/SOLUTION", "%=ENDBIA"]
+    lines = [
+        f"%=BIA 1.00 {agency:<3} {made} {agency:<3} {t0} {t1} R {len(rows):08d}",
+        bar,
+        "+FILE/REFERENCE",
+        "*INFO_TYPE_________ INFO" + "_" * 56,
+        f" DESCRIPTION        {description or 'distnav geometry-free code DCBs (receivers and satellites)'}"[:80],
+        " OUTPUT             daily DSBs of satellites and receivers, zero-mean satellite datum",
+        " SOFTWARE           distnav",
+        "-FILE/REFERENCE",
+        bar,
+        "+FILE/COMMENT",
+        *[f" {c}"[:80] for c in comments],
+        "-FILE/COMMENT",
+        bar,
+        "+BIAS/DESCRIPTION",
+        "*KEYWORD________________________________ VALUE(S)" + "_" * 31,
+        f" OBSERVATION_SAMPLING                    {int(round(sampling_s))}",
+        f" PARAMETER_SPACING                       {spacing}",
+        " DETERMINATION_METHOD                    INTER-FREQUENCY_BIAS_ESTIMATION",
+        " BIAS_MODE                               RELATIVE",
+        " TIME_SYSTEM                             G",
+        "-BIAS/DESCRIPTION",
+        bar,
+        "+BIAS/SOLUTION",
+        "*BIAS SVN_ PRN STATION__ OBS1 OBS2 BIAS_START____ BIAS_END______ UNIT __ESTIMATED_VALUE____ _STD_DEV___",
+        *rows,
+        "-BIAS/SOLUTION",
+        "%=ENDBIA",
+    ]
     text = "\n".join(lines) + "\n"
     if path is None:
         return text

@@ -51,16 +51,18 @@ __all__ = [
 ]
 
 
-def combination_sigma(el_rad: np.ndarray, sigma0_m: float, weighting: str = "euler-goad",
-                      mus: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
+def combination_sigma(
+    el_rad: np.ndarray, sigma0_m: float, weighting: str = "euler-goad", mus: Sequence[float] | np.ndarray | None = None
+) -> np.ndarray:
     """Standard deviation of the code-bias observable (24) from three uncorrelated codes with the same
     elevation-dependent σ(θ): ``σ_y = σ(θ)·‖c‖`` (c the combination coefficients, ‖c‖ ≈ 1.60 for GPS L1/L2/L5)."""
     c = codebias_coefficients(mus)
     return elevation_sigma(el_rad, sigma0_m, weighting) * float(np.sqrt(np.sum(c * c)))
 
 
-def sat_bias_combination(dsb12: np.ndarray | float, dsb13: np.ndarray | float,
-                         mus: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
+def sat_bias_combination(
+    dsb12: np.ndarray | float, dsb13: np.ndarray | float, mus: Sequence[float] | np.ndarray | None = None
+) -> np.ndarray:
     """The code-bias combination ``b = c₁d₁ + c₂d₂ + d₃`` from DSBs ``d₁−d₂`` and ``d₁−d₃`` (any unit).
 
     Since ``c₁ + c₂ + 1 = 0``: ``b = −c₂ (d₁ − d₂) − (d₁ − d₃)``. Used to turn published DSBs (Bias-SINEX, additive
@@ -117,16 +119,20 @@ class CodeBiasData:
         n, p = len(self.stations), len(self.svs)
         t = np.asarray(self.t_gps_s)
         if self.y_m.shape != (n, t.size, p) or self.sigma_m.shape != self.y_m.shape:
-            raise ModelError(f"y_m/sigma_m must be (stations, epochs, satellites) = {(n, t.size, p)}, got "
-                             f"{self.y_m.shape} and {self.sigma_m.shape}")
+            raise ModelError(
+                f"y_m/sigma_m must be (stations, epochs, satellites) = {(n, t.size, p)}, got "
+                f"{self.y_m.shape} and {self.sigma_m.shape}"
+            )
         if not 0 <= self.reference < n:
             raise ModelError(f"reference station index {self.reference} out of range 0..{n - 1}")
         ok = np.isfinite(self.y_m)
         bad = ok & ~(np.isfinite(self.sigma_m) & (self.sigma_m > 0))
         if bad.any():
             i, k, s = (int(v[0]) for v in np.nonzero(bad))
-            raise ModelError(f"station {self.stations[i]}, epoch {k}, {self.svs[s]}: observation without a "
-                             f"positive standard deviation")
+            raise ModelError(
+                f"station {self.stations[i]}, epoch {k}, {self.svs[s]}: observation without a "
+                f"positive standard deviation"
+            )
 
     # ------------------------------------------------------------------ shape
     @property
@@ -148,10 +154,18 @@ class CodeBiasData:
 
     def window(self, epochs: slice | np.ndarray) -> CodeBiasData:
         """The same network over a subset of epochs."""
-        return CodeBiasData(self.stations, self.svs, np.asarray(self.t_gps_s)[epochs], self.y_m[:, epochs],
-                            self.sigma_m[:, epochs], self.reference,
-                            None if self.elevation_rad is None else self.elevation_rad[:, epochs],
-                            self.truth_m, self.positions_ecef_m, dict(self.meta))
+        return CodeBiasData(
+            self.stations,
+            self.svs,
+            np.asarray(self.t_gps_s)[epochs],
+            self.y_m[:, epochs],
+            self.sigma_m[:, epochs],
+            self.reference,
+            None if self.elevation_rad is None else self.elevation_rad[:, epochs],
+            self.truth_m,
+            self.positions_ecef_m,
+            dict(self.meta),
+        )
 
     # ------------------------------------------------------------------ checks
     def check(self) -> None:
@@ -167,15 +181,19 @@ class CodeBiasData:
             if i == self.reference:
                 continue
             if not (obs[i].sum(axis=1) >= 2).any():
-                raise ModelError(f"station {self.stations[i]} never observes two satellites at one epoch: its "
-                                 f"between-satellite differences are empty")
+                raise ModelError(
+                    f"station {self.stations[i]} never observes two satellites at one epoch: its "
+                    f"between-satellite differences are empty"
+                )
             others = np.asarray(np.delete(seen, i, axis=0).any(axis=0))
             if n > 1 and not bool(np.any(seen[i] & others)):
                 raise ModelError(f"station {self.stations[i]} shares no satellites with the rest of the network")
         unlinked = self.unestimable()
         if unlinked:
-            raise ModelError(f"satellite code biases not estimable (never linked to the reference station "
-                             f"{self.stations[self.reference]} through common observations): {', '.join(unlinked)}")
+            raise ModelError(
+                f"satellite code biases not estimable (never linked to the reference station "
+                f"{self.stations[self.reference]} through common observations): {', '.join(unlinked)}"
+            )
 
     def estimable_subset(self) -> CodeBiasData:
         """The same network restricted to the satellites whose biases are estimable (see :meth:`unestimable`)."""
@@ -183,11 +201,18 @@ class CodeBiasData:
         idx = np.flatnonzero(keep)
         if idx.size == 0:
             raise ModelError("no satellite code bias is estimable from these data")
-        return CodeBiasData(self.stations, tuple(self.svs[k] for k in idx), self.t_gps_s, self.y_m[..., idx],
-                            self.sigma_m[..., idx], self.reference,
-                            None if self.elevation_rad is None else self.elevation_rad[..., idx],
-                            None if self.truth_m is None else self.truth_m[idx], self.positions_ecef_m,
-                            dict(self.meta))
+        return CodeBiasData(
+            self.stations,
+            tuple(self.svs[k] for k in idx),
+            self.t_gps_s,
+            self.y_m[..., idx],
+            self.sigma_m[..., idx],
+            self.reference,
+            None if self.elevation_rad is None else self.elevation_rad[..., idx],
+            None if self.truth_m is None else self.truth_m[idx],
+            self.positions_ecef_m,
+            dict(self.meta),
+        )
 
     def unestimable(self, epochs: int | None = None) -> list[str]:
         """Satellites whose bias is not estimable from the first ``epochs`` epochs (all by default)."""
@@ -200,11 +225,11 @@ class CodeBiasData:
         cached = self._cache.get("anchored")
         if isinstance(cached, np.ndarray):
             return cached
-        obs = self.observed.astype(np.int64)                          # (n, T, p)
+        obs = self.observed.astype(np.int64)  # (n, T, p)
         others = np.delete(obs, self.reference, axis=0)
-        co = np.einsum("ntp,ntq->tpq", others, others) > 0             # co-observed at epoch t
-        adj = np.cumsum(co, axis=0) > 0                                # links known after epoch t
-        datum = np.cumsum(obs[self.reference], axis=0) > 0            # (T, p)
+        co = np.einsum("ntp,ntq->tpq", others, others) > 0  # co-observed at epoch t
+        adj = np.cumsum(co, axis=0) > 0  # links known after epoch t
+        datum = np.cumsum(obs[self.reference], axis=0) > 0  # (T, p)
         reach = datum.copy()
         for _ in range(self.n_sats):
             new = reach | (np.einsum("tpq,tq->tp", adj.astype(np.int64), reach.astype(np.int64)) > 0)
@@ -218,11 +243,11 @@ class CodeBiasData:
     def epoch_normals(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-station, per-epoch normals ``N (n, T, p, p)`` and ``r (n, T, p)`` (see the module docstring)."""
         obs = self.observed
-        w = np.where(obs, 1.0 / np.where(obs, self.sigma_m, 1.0) ** 2, 0.0)          # (n, T, p)
+        w = np.where(obs, 1.0 / np.where(obs, self.sigma_m, 1.0) ** 2, 0.0)  # (n, T, p)
         wy = np.where(obs, w * np.nan_to_num(self.y_m), 0.0)
-        N = w[..., :, None] * np.eye(self.n_sats)                                      # diag(w)
+        N = w[..., :, None] * np.eye(self.n_sats)  # diag(w)
         r = wy.copy()
-        sw = w.sum(axis=-1)                                                            # (n, T)
+        sw = w.sum(axis=-1)  # (n, T)
         diff = np.ones(self.n_stations, dtype=bool)
         diff[self.reference] = False
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -266,7 +291,7 @@ class CodeBiasData:
         R = np.zeros((m, m))
         k = 0
         for b in blocks_r:
-            R[k:k + b.shape[0], k:k + b.shape[0]] = b
+            R[k : k + b.shape[0], k : k + b.shape[0]] = b
             k += b.shape[0]
         return np.vstack(blocks_a), R, np.concatenate(blocks_y)
 
@@ -278,7 +303,7 @@ class CodeBiasData:
         decomposition ``N_i = V Λ Vᵀ``: ``A_i = Λ^½ Vᵀ``, ``y_i = Λ^{−½} Vᵀ r_i`` (zero rows for null directions).
         """
         N, r = self.node_normals()
-        lam, V = np.linalg.eigh(N)                                     # (n, p), (n, p, p)
+        lam, V = np.linalg.eigh(N)  # (n, p), (n, p, p)
         tol = 1e-10 * np.maximum(lam.max(axis=1, keepdims=True), 1e-300)
         keep = lam > tol
         sq = np.where(keep, np.sqrt(np.where(keep, lam, 0.0)), 0.0)
@@ -344,9 +369,10 @@ class CodeBiasData:
 
 
 # ----------------------------------------------------------------------------------------------- building
-def _elevations(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, t_gps_s: np.ndarray,
-                svs: Sequence[str]) -> np.ndarray:
-    sat = orbit.positions_ecef(t_gps_s, list(svs))                     # (T, p, 3)
+def _elevations(
+    positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, t_gps_s: np.ndarray, svs: Sequence[str]
+) -> np.ndarray:
+    sat = orbit.positions_ecef(t_gps_s, list(svs))  # (T, p, 3)
     out = np.empty((positions_ecef_m.shape[0], t_gps_s.size, len(svs)))
     for i, rx in enumerate(positions_ecef_m):
         _, el = azimuth_elevation(rx, sat)
@@ -354,8 +380,9 @@ def _elevations(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, t_gps_s: np
     return out
 
 
-def _given_or_drawn(value: Any, shape: tuple[int, int], sigma_m: float, rng: np.random.Generator, name: str,
-                    rows: str) -> np.ndarray:
+def _given_or_drawn(
+    value: Any, shape: tuple[int, int], sigma_m: float, rng: np.random.Generator, name: str, rows: str
+) -> np.ndarray:
     """The biases a caller gave (checked for shape), or a draw from N(0, sigma_m²) when ``value`` is None."""
     if value is None:
         return rng.normal(0.0, sigma_m, size=shape)
@@ -364,12 +391,24 @@ def _given_or_drawn(value: Any, shape: tuple[int, int], sigma_m: float, rng: np.
         raise ModelError(f"{name} must be ({rows}, 3) = {shape}, got {out.shape}")
     return out
 
-def simulate_codebias_data(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, t_gps_s: np.ndarray,
-                           svs: Sequence[str], *, rng: np.random.Generator, sigma0_m: float = 0.20,
-                           weighting: str = "euler-goad", mask_rad: float = np.deg2rad(10.0),
-                           sat_dsb_sigma_ns: float = 3.0, rx_dsb_sigma_ns: float = 5.0,
-                           sat_biases_m: np.ndarray | None = None, rx_biases_m: np.ndarray | None = None,
-                           stations: Sequence[str] | None = None, reference: int = 0) -> CodeBiasData:
+
+def simulate_codebias_data(
+    positions_ecef_m: np.ndarray,
+    orbit: SatelliteOrbit,
+    t_gps_s: np.ndarray,
+    svs: Sequence[str],
+    *,
+    rng: np.random.Generator,
+    sigma0_m: float = 0.20,
+    weighting: str = "euler-goad",
+    mask_rad: float = np.deg2rad(10.0),
+    sat_dsb_sigma_ns: float = 3.0,
+    rx_dsb_sigma_ns: float = 5.0,
+    sat_biases_m: np.ndarray | None = None,
+    rx_biases_m: np.ndarray | None = None,
+    stations: Sequence[str] | None = None,
+    reference: int = 0,
+) -> CodeBiasData:
     """Simulate L1/L2/L5 code observations of a network and form the observable (24).
 
     Per station, epoch and visible satellite: ``ȳ_j = ρ + μ_j I + d_{r,j} + d^s_j + e_j`` with a geometric range
@@ -397,23 +436,45 @@ def simulate_codebias_data(positions_ecef_m: np.ndarray, orbit: SatelliteOrbit, 
         rng_m = np.linalg.norm(sat - pos[i], axis=-1) + clk_rx[i][:, None] - clk_sat
         iono = rng.uniform(1.0, 30.0, size=(T, p))
         s_code = elevation_sigma(np.where(vis, el, np.pi / 2), sigma0_m, weighting)
-        ybar = [rng_m + mus[j] * iono + d_rx[i, j] + d_sat[None, :, j] + rng.normal(size=(T, p)) * s_code
-                for j in range(3)]
+        ybar = [
+            rng_m + mus[j] * iono + d_rx[i, j] + d_sat[None, :, j] + rng.normal(size=(T, p)) * s_code for j in range(3)
+        ]
         yi = codebias_observable(ybar[0], ybar[1], ybar[2], mus=mus)
         y[i] = np.where(vis, yi, np.nan)
         sig[i] = np.where(vis, combination_sigma(np.where(vis, el, np.pi / 2), sigma0_m, weighting, mus), np.nan)
     c = codebias_coefficients(mus)
     truth = d_sat @ c + d_rx[reference] @ c
     names = tuple(stations) if stations is not None else tuple(f"S{i + 1:03d}" for i in range(n))
-    return CodeBiasData(names, tuple(svs), t, y, sig, reference, elev, truth, pos,
-                        {"sigma0_m": sigma0_m, "weighting": weighting, "mask_deg": float(np.rad2deg(mask_rad)),
-                         "sat_biases_m": d_sat, "rx_biases_m": d_rx})
+    return CodeBiasData(
+        names,
+        tuple(svs),
+        t,
+        y,
+        sig,
+        reference,
+        elev,
+        truth,
+        pos,
+        {
+            "sigma0_m": sigma0_m,
+            "weighting": weighting,
+            "mask_deg": float(np.rad2deg(mask_rad)),
+            "sat_biases_m": d_sat,
+            "rx_biases_m": d_rx,
+        },
+    )
 
 
-def codebias_data_from_observations(observations: Sequence[CodeObservations], orbit: SatelliteOrbit, *,
-                                    sigma0_m: float = 0.20, weighting: str = "euler-goad",
-                                    mask_rad: float = np.deg2rad(10.0), reference: int = 0,
-                                    svs: Sequence[str] | None = None) -> CodeBiasData:
+def codebias_data_from_observations(
+    observations: Sequence[CodeObservations],
+    orbit: SatelliteOrbit,
+    *,
+    sigma0_m: float = 0.20,
+    weighting: str = "euler-goad",
+    mask_rad: float = np.deg2rad(10.0),
+    reference: int = 0,
+    svs: Sequence[str] | None = None,
+) -> CodeBiasData:
     """Form the observable (24) of real RINEX code observations (:func:`~distnav.models.gnss.rinex.
     read_code_observations` with bands 1, 2, 5) on the union of their epochs, with elevations from ``orbit`` at
     each file's approximate position. ``svs`` defaults to the satellites observed on all three bands above the
@@ -424,8 +485,10 @@ def codebias_data_from_observations(observations: Sequence[CodeObservations], or
     for o in observations:
         missing = [b for b in (1, 2, 5) if b not in o.range_m]
         if missing:
-            raise ModelError(f"{o.path}: the code-bias observable needs L1, L2 and L5 codes; missing "
-                             f"{', '.join('L' + str(b) for b in missing)}")
+            raise ModelError(
+                f"{o.path}: the code-bias observable needs L1, L2 and L5 codes; missing "
+                f"{', '.join('L' + str(b) for b in missing)}"
+            )
         if not np.all(np.isfinite(o.position_ecef_m)) or np.linalg.norm(o.position_ecef_m) < 6.0e6:
             raise ModelError(f"{o.path}: no usable approximate position in the header ({o.position_ecef_m})")
     names = [o.station for o in observations]
@@ -472,12 +535,27 @@ def codebias_data_from_observations(observations: Sequence[CodeObservations], or
     seen = np.isfinite(y).any(axis=1)
     for i, o in enumerate(observations):
         if not seen[i].any():
-            raise ModelError(f"{o.path}: no satellite observed on L1, L2 and L5 above the "
-                             f"{np.rad2deg(mask_rad):.0f}° mask (among {', '.join(svs[:8])}...)")
-    data = CodeBiasData(tuple(names), tuple(svs), t_gps, y, sig, reference, elev, None, pos,
-                        {"sigma0_m": sigma0_m, "weighting": weighting, "mask_deg": float(np.rad2deg(mask_rad)),
-                         "codes": {o.station: {f"L{b}": c for b, c in o.codes.items()} for o in observations},
-                         "no_orbit": no_orbit,
-                         "notes": {o.station: list(o.notes) for o in observations}})
+            raise ModelError(
+                f"{o.path}: no satellite observed on L1, L2 and L5 above the "
+                f"{np.rad2deg(mask_rad):.0f}° mask (among {', '.join(svs[:8])}...)"
+            )
+    data = CodeBiasData(
+        tuple(names),
+        tuple(svs),
+        t_gps,
+        y,
+        sig,
+        reference,
+        elev,
+        None,
+        pos,
+        {
+            "sigma0_m": sigma0_m,
+            "weighting": weighting,
+            "mask_deg": float(np.rad2deg(mask_rad)),
+            "codes": {o.station: {f"L{b}": c for b, c in o.codes.items()} for o in observations},
+            "no_orbit": no_orbit,
+            "notes": {o.station: list(o.notes) for o in observations},
+        },
+    )
     return data
-

@@ -27,8 +27,9 @@ __all__ = [
 ]
 
 
-def geodetic_to_ecef(lat_rad: np.ndarray | float, lon_rad: np.ndarray | float,
-                     height_m: np.ndarray | float = 0.0) -> np.ndarray:
+def geodetic_to_ecef(
+    lat_rad: np.ndarray | float, lon_rad: np.ndarray | float, height_m: np.ndarray | float = 0.0
+) -> np.ndarray:
     """WGS 84 geodetic latitude, longitude, ellipsoidal height → ECEF ``(..., 3)`` metres."""
     lat = np.asarray(lat_rad, dtype=float)
     lon = np.asarray(lon_rad, dtype=float)
@@ -114,8 +115,9 @@ def elevation_mask(el_rad: np.ndarray, mask_rad: float) -> np.ndarray:
         return np.asarray(np.isfinite(el) & (el >= mask_rad))
 
 
-def pierce_zenith_angle(el_rad: np.ndarray | float, *, height_m: float = IONO_HEIGHT_M,
-                        radius_m: float = IONO_EARTH_RADIUS_M) -> np.ndarray:
+def pierce_zenith_angle(
+    el_rad: np.ndarray | float, *, height_m: float = IONO_HEIGHT_M, radius_m: float = IONO_EARTH_RADIUS_M
+) -> np.ndarray:
     """Zenith angle z' of the line of sight at the single-layer pierce point: sin z' = R/(R+H) · cos θ.
 
     Paper 003 §5 (layer height H = 450 km, R = 6378.137 km); the slant factor of the layer is 1/cos z'.
@@ -124,9 +126,15 @@ def pierce_zenith_angle(el_rad: np.ndarray | float, *, height_m: float = IONO_HE
     return np.asarray(np.arcsin(radius_m / (radius_m + height_m) * np.cos(el)))
 
 
-def pierce_point(lat_rad: np.ndarray | float, lon_rad: np.ndarray | float, az_rad: np.ndarray,
-                 el_rad: np.ndarray, *, height_m: float = IONO_HEIGHT_M,
-                 radius_m: float = IONO_EARTH_RADIUS_M) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pierce_point(
+    lat_rad: np.ndarray | float,
+    lon_rad: np.ndarray | float,
+    az_rad: np.ndarray,
+    el_rad: np.ndarray,
+    *,
+    height_m: float = IONO_HEIGHT_M,
+    radius_m: float = IONO_EARTH_RADIUS_M,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Single-layer ionospheric pierce point: ``(lat_ipp_rad, lon_ipp_rad, zenith_ipp_rad)``.
 
     Spherical Earth of radius ``radius_m`` with the layer at ``height_m`` (paper 003 §5: 450 km, 6378.137 km).

@@ -38,8 +38,17 @@ from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, mu
 from distnav.models.gnss.ionosphere import TEC_NAMES, TEC_NAMES_QUADRATIC, VTEC_RW_STD_M_PER_SQRT_S, series_inputs
 
-__all__ = ["DATUMS", "TEC_RW_M_PER_SQRT_S", "gf_m_per_dsb_ns", "geometry_free_band_m", "BiasStateLayout",
-           "BiasGeometryFreeSeries", "bias_dynamics", "datum_transform", "in_datum"]
+__all__ = [
+    "DATUMS",
+    "TEC_RW_M_PER_SQRT_S",
+    "gf_m_per_dsb_ns",
+    "geometry_free_band_m",
+    "BiasStateLayout",
+    "BiasGeometryFreeSeries",
+    "bias_dynamics",
+    "datum_transform",
+    "in_datum",
+]
 
 TEC_RW_M_PER_SQRT_S = 10.0 * VTEC_RW_STD_M_PER_SQRT_S
 """Default random walk of the vertical L1 delay in the bias model, 0.01 m/√s (gradients: 5× per radian): 10×
@@ -135,17 +144,21 @@ class BiasStateLayout:
         return names + [f"sat_gf_m:{s}" for s, c in zip(self.svs, self.satellite_column(), strict=True) if c >= 0]
 
 
-def bias_dynamics(layout: BiasStateLayout, interval_s: float | np.ndarray, *,
-                  vtec_std_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
-                  gradient_std_m_per_rad_sqrt_s: float = 5.0 * TEC_RW_M_PER_SQRT_S) -> DynamicModel:
+def bias_dynamics(
+    layout: BiasStateLayout,
+    interval_s: float | np.ndarray,
+    *,
+    vtec_std_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
+    gradient_std_m_per_rad_sqrt_s: float = 5.0 * TEC_RW_M_PER_SQRT_S,
+) -> DynamicModel:
     """Paper 003 eq. (53) for this layout: random walk on the TEC parameters, constant receiver and satellite
     biases — the form of :func:`~distnav.models.gnss.ionosphere.ionosphere_dynamics`, but by default 10× its
     random walk (:data:`TEC_RW_M_PER_SQRT_S`: why)."""
     per = [vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s]
-    if layout.n_tec_terms == 6:      # curvature [m/rad²]: 5× the gradients' random walk per radian, as they to ν_o
+    if layout.n_tec_terms == 6:  # curvature [m/rad²]: 5× the gradients' random walk per radian, as they to ν_o
         per += [5.0 * gradient_std_m_per_rad_sqrt_s] * 3
     q2 = np.tile(per, layout.n_ionospheres) ** 2
-    H = np.eye(layout.n_states)[:, :layout.n_tec]
+    H = np.eye(layout.n_states)[:, : layout.n_tec]
     dt = np.asarray(interval_s, dtype=float)
     if dt.ndim == 0:
         if not (np.isfinite(dt) and dt > 0):
@@ -167,15 +180,25 @@ class BiasGeometryFreeSeries(MeasurementSeries):
     observed), ``tracked`` (T, n, S), ``groups`` (n,).
     """
 
-    def __init__(self, layout: BiasStateLayout, coefficients: np.ndarray, sigma_m: np.ndarray, *,
-                 obs_m: np.ndarray | None = None, tracked: np.ndarray | None = None,
-                 groups: np.ndarray | None = None) -> None:
-        a, sig, ok, y, g = series_inputs(coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres,
-                                         layout.n_tec_terms)
+    def __init__(
+        self,
+        layout: BiasStateLayout,
+        coefficients: np.ndarray,
+        sigma_m: np.ndarray,
+        *,
+        obs_m: np.ndarray | None = None,
+        tracked: np.ndarray | None = None,
+        groups: np.ndarray | None = None,
+    ) -> None:
+        a, sig, ok, y, g = series_inputs(
+            coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres, layout.n_tec_terms
+        )
         T, n, S, _ = a.shape
         if S != len(layout.svs) or n != len(layout.receivers):
-            raise ModelError(f"coefficients for {n} receivers × {S} satellites, the layout has "
-                             f"{len(layout.receivers)} × {len(layout.svs)}")
+            raise ModelError(
+                f"coefficients for {n} receivers × {S} satellites, the layout has "
+                f"{len(layout.receivers)} × {len(layout.svs)}"
+            )
         self.layout = layout
         self.n_epochs, self.n_nodes, self.n_states, self.n_satellites = T, n, layout.n_states, S
         self._a = np.where(ok[..., None], a, 0.0)
@@ -206,7 +229,7 @@ class BiasGeometryFreeSeries(MeasurementSeries):
             A, w = A_all, w_all
         else:
             A, w = A_all[idx], w_all[idx]
-        self._last_design = (key, A, w)          # the filter and the residual statistics ask twice per epoch
+        self._last_design = (key, A, w)  # the filter and the residual statistics ask twice per epoch
         return A, w
 
     def _epoch_design(self, t: int) -> tuple[np.ndarray, np.ndarray]:
@@ -214,12 +237,12 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         and the residual statistics of each node ask for their rows of the same epoch)."""
         if self._epoch_cache is not None and self._epoch_cache[0] == t:
             return self._epoch_cache[1], self._epoch_cache[2]
-        A = self._static.copy()                  # receiver and satellite columns (constant)
+        A = self._static.copy()  # receiver and satellite columns (constant)
         nt = self.layout.n_tec_terms
         a = self._a[t]
-        for i in range(self.n_nodes):            # the node's TEC block: nt contiguous columns
+        for i in range(self.n_nodes):  # the node's TEC block: nt contiguous columns
             g = int(self._groups[i])
-            A[i, :, nt * g:nt * (g + 1)] = a[i]
+            A[i, :, nt * g : nt * (g + 1)] = a[i]
         w = self._w[t]
         A *= (w > 0)[..., None]
         self._epoch_cache = (t, A, w)
@@ -245,9 +268,15 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         return (A * sq[..., None])[keep], (y * sq)[keep], node.astype(np.int64)
 
 
-def datum_transform(layout: BiasStateLayout, datum: str, *, estimable: np.ndarray | None = None,
-                    pivot: str | None = None, reference: str | None = None,
-                    mean_over: Sequence[str] | None = None) -> np.ndarray:
+def datum_transform(
+    layout: BiasStateLayout,
+    datum: str,
+    *,
+    estimable: np.ndarray | None = None,
+    pivot: str | None = None,
+    reference: str | None = None,
+    mean_over: Sequence[str] | None = None,
+) -> np.ndarray:
     """The S-transformation ``T`` (n + S, p) from the state to ``[b̃_receivers (n), b̃^s (S)]`` in ``datum``.
 
     ``datum``: ``"zero-mean"`` (mean of the satellites in ``mean_over`` — default: those ``estimable`` — is zero),
@@ -276,7 +305,7 @@ def datum_transform(layout: BiasStateLayout, datum: str, *, estimable: np.ndarra
         members = sat_ok.copy() if mean_over is None else np.isin(np.array(layout.svs), list(mean_over)) & sat_ok
         if not members.any():
             return np.full((n + S, p), np.nan)
-        shift = B[n:][members].mean(axis=0)          # c = mean of the satellites → b̃^s = b^s − c
+        shift = B[n:][members].mean(axis=0)  # c = mean of the satellites → b̃^s = b^s − c
         defined = np.ones(n + S, bool)
     elif datum == "pivot":
         name = pivot or (layout.reference if layout.basis == "pivot" else "")
@@ -290,7 +319,7 @@ def datum_transform(layout: BiasStateLayout, datum: str, *, estimable: np.ndarra
         if name not in layout.receivers:
             raise ModelError(f"reference receiver {name!r} is not one of {', '.join(layout.receivers)}")
         k = layout.receivers.index(name)
-        shift = -B[k]                               # b̃_k = b_k − b_k = 0 → c = −b_k
+        shift = -B[k]  # b̃_k = b_k − b_k = 0 → c = −b_k
         defined = np.full(n + S, bool(ok[k]))
     T = B.copy()
     T[:n] += shift

@@ -64,7 +64,6 @@ class DatumSeries:
         return float(np.sqrt((self.variance_factor or 1.0) * self.correlation_inflation))
 
 
-
 @dataclass(frozen=True, eq=False)
 class _DatumRows:
     """An S-transformation prepared once per estimable pattern: ``T`` with NaN rows zeroed, and those rows."""
@@ -86,9 +85,20 @@ class Collector:
     the output datum; ``scale``: metres of geometry-free code per ns of DSB.
     """
 
-    def __init__(self, label: str, n_epochs: int, layout: BiasStateLayout, series: BiasGeometryFreeSeries,
-                 nodes: np.ndarray, dynamics: Any, *, datum: str, pivot: str | None, reference: str | None,
-                 scale: float) -> None:
+    def __init__(
+        self,
+        label: str,
+        n_epochs: int,
+        layout: BiasStateLayout,
+        series: BiasGeometryFreeSeries,
+        nodes: np.ndarray,
+        dynamics: Any,
+        *,
+        datum: str,
+        pivot: str | None,
+        reference: str | None,
+        scale: float,
+    ) -> None:
         self.label, self.layout, self.series, self.dynamics = label, layout, series, dynamics
         self.nodes = np.asarray(nodes, np.int64)
         self.datum, self.pivot, self.reference, self.scale = datum, pivot, reference, scale
@@ -96,10 +106,10 @@ class Collector:
         self.ssr = self.zz = self.zlag = 0.0
         self.m = 0
         self._buf: list[tuple[int, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]] = []
-        self._prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None   # x, est, P of the last state with P
-        self._z_last: tuple[int, np.ndarray] | None = None      # epoch and standardized residuals (NaN: none)
+        self._prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # x, est, P of the last state with P
+        self._z_last: tuple[int, np.ndarray] | None = None  # epoch and standardized residuals (NaN: none)
         self._rows: dict[bytes, _DatumRows | None] = {}
-        self.last: tuple[np.ndarray, np.ndarray] | None = None   # T, P of the last epoch with both
+        self.last: tuple[np.ndarray, np.ndarray] | None = None  # T, P of the last epoch with both
         self.n_states = 0
         self.tec = np.full((n_epochs, nt), np.nan)
         self.tec_std = np.full((n_epochs, nt), np.nan)
@@ -108,7 +118,7 @@ class Collector:
 
     def step(self, t: int, x: np.ndarray, est: np.ndarray, P: np.ndarray | None) -> None:
         """The filter's state after the measurement update of epoch ``t`` (copied: filters may reuse arrays)."""
-        A, w = self.series.design(t, self.nodes)     # the filter has just asked for them: cached
+        A, w = self.series.design(t, self.nodes)  # the filter has just asked for them: cached
         self._buf.append((t, x.copy(), est.copy(), None if P is None else P.copy(), A, w))
         if len(self._buf) >= BLOCK:
             self._flush()
@@ -137,14 +147,14 @@ class Collector:
             w = np.stack([buf[j][5] for j in jj]).reshape(len(jj), kS)
             t_in = ts[jj]
             ser = self.series
-            y = (np.zeros(w.shape) if ser._y is None else ser._y[t_in][:, self.nodes].reshape(len(jj), kS))
-            xp = np.stack([prevs[j][0] for j in jj])       # type: ignore[index]
-            ep = np.stack([prevs[j][1] for j in jj])       # type: ignore[index]
-            Pp = np.stack([prevs[j][2] for j in jj])       # type: ignore[index]
-            rows = (w > 0) & ~((A != 0) & ~ep[:, None, :]).any(axis=2)   # no coefficient on an inestimable entry
+            y = np.zeros(w.shape) if ser._y is None else ser._y[t_in][:, self.nodes].reshape(len(jj), kS)
+            xp = np.stack([prevs[j][0] for j in jj])  # type: ignore[index]
+            ep = np.stack([prevs[j][1] for j in jj])  # type: ignore[index]
+            Pp = np.stack([prevs[j][2] for j in jj])  # type: ignore[index]
+            rows = (w > 0) & ~((A != 0) & ~ep[:, None, :]).any(axis=2)  # no coefficient on an inestimable entry
             M = int(rows.sum(axis=1).max())
             if M:
-                order = np.argsort(~rows, axis=1, kind="stable")[:, :M]      # each epoch's rows first, padded
+                order = np.argsort(~rows, axis=1, kind="stable")[:, :M]  # each epoch's rows first, padded
                 kept = np.take_along_axis(rows, order, axis=1)
                 Ar = np.take_along_axis(A, order[..., None], axis=1) * kept[..., None]
                 wr = np.take_along_axis(w, order, axis=1)
@@ -154,12 +164,12 @@ class Collector:
                 v = np.where(kept, yr - (Ar @ np.where(ep, xp, 0.0)[..., None])[..., 0], 0.0)
                 Qv = Ar @ Pm @ np.swapaxes(Ar, 1, 2)
                 dq = np.arange(M)
-                Qv[:, dq, dq] += np.where(kept, 1.0 / np.where(kept, wr, 1.0), 1.0)   # R + A P⁻ Aᵀ (padding: 1)
+                Qv[:, dq, dq] += np.where(kept, 1.0 / np.where(kept, wr, 1.0), 1.0)  # R + A P⁻ Aᵀ (padding: 1)
                 self.ssr += float((v * np.linalg.solve(Qv, v[..., None])[..., 0]).sum())
                 self.m += int(kept.sum())
                 z = np.where(kept, v / np.sqrt(Qv[:, dq, dq]), np.nan)
                 Zi = np.full((len(jj), kS), np.nan)
-                np.put_along_axis(Zi, order, z, axis=1)        # padding rows write NaN onto unused rows
+                np.put_along_axis(Zi, order, z, axis=1)  # padding rows write NaN onto unused rows
                 Z[jj] = Zi
         zf = np.where(np.isnan(Z), 0.0, Z)
         self.zz += float((zf * zf).sum())
@@ -168,7 +178,7 @@ class Collector:
             Zp = np.concatenate([np.where(np.isnan(self._z_last[1]), 0.0, self._z_last[1])[None], zf])
         else:
             t_all, Zp = ts, zf
-        follows = np.diff(t_all) == 1                                  # the same pair at consecutive epochs
+        follows = np.diff(t_all) == 1  # the same pair at consecutive epochs
         self.zlag += float((Zp[1:][follows] * Zp[:-1][follows]).sum())
         self._z_last = (int(ts[-1]), Z[-1])
 
@@ -191,9 +201,10 @@ class Collector:
         for key, js in groups.items():
             if key not in self._rows:
                 try:
-                    T = datum_transform(self.layout, self.datum, estimable=E[js[0]], pivot=self.pivot,
-                                        reference=self.reference)
-                except ModelError:        # e.g. the pivot not estimable yet: no DSBs at these epochs
+                    T = datum_transform(
+                        self.layout, self.datum, estimable=E[js[0]], pivot=self.pivot, reference=self.reference
+                    )
+                except ModelError:  # e.g. the pivot not estimable yet: no DSBs at these epochs
                     self._rows[key] = None
                 else:
                     self._rows[key] = _DatumRows.of(T)
@@ -206,7 +217,7 @@ class Collector:
             if withP:
                 Pz = np.stack([buf[j][3] for j in withP])
                 Pz = np.where(np.isfinite(Pz), Pz, 0.0)
-                sd[hasP[js]] = np.sqrt(np.maximum(((rows.Tz @ Pz) * rows.Tz).sum(axis=2), 0.0))   # diag(T P Tᵀ)
+                sd[hasP[js]] = np.sqrt(np.maximum(((rows.Tz @ Pz) * rows.Tz).sum(axis=2), 0.0))  # diag(T P Tᵀ)
                 if withP[-1] > last_j:
                     last_j, last_rows = withP[-1], rows
             val[:, rows.bad] = np.nan
@@ -236,7 +247,21 @@ class Collector:
             cov[bad] = np.nan
             cov[:, bad] = np.nan
             inflation = (1.0 + rho) / (1.0 - rho)
-            precision = Precision(covariance=cov[None], variance_factor=None if vf is None else vf * inflation,
-                                  redundancy=float(self.m - self.n_states), kind="centralized")
-        return DatumSeries(self.label, self.tec, self.tec_std, self.dsb, self.dsb_std, vf, self.m, rho,
-                           (1.0 + rho) / (1.0 - rho), precision)
+            precision = Precision(
+                covariance=cov[None],
+                variance_factor=None if vf is None else vf * inflation,
+                redundancy=float(self.m - self.n_states),
+                kind="centralized",
+            )
+        return DatumSeries(
+            self.label,
+            self.tec,
+            self.tec_std,
+            self.dsb,
+            self.dsb_std,
+            vf,
+            self.m,
+            rho,
+            (1.0 + rho) / (1.0 - rho),
+            precision,
+        )

@@ -31,8 +31,19 @@ from distnav.models.gnss.gfcollector import Collector, DatumSeries
 from distnav.models.gnss.rinex import CodeObservations
 from distnav.models.gnss.rinex_obs import ProgressCallback
 
-__all__ = ["BiasNetworkData", "DatumSeries", "SatelliteFit", "final_dsbs", "innovation_summary", "satellite_fit",
-           "MIN_SATELLITE_OBS", "TEC_RW_M_PER_SQRT_S", "read_stations", "bias_network_model", "run_bias_filters"]
+__all__ = [
+    "BiasNetworkData",
+    "DatumSeries",
+    "SatelliteFit",
+    "final_dsbs",
+    "innovation_summary",
+    "satellite_fit",
+    "MIN_SATELLITE_OBS",
+    "TEC_RW_M_PER_SQRT_S",
+    "read_stations",
+    "bias_network_model",
+    "run_bias_filters",
+]
 
 log = logging.getLogger(__name__)
 
@@ -70,15 +81,35 @@ class BiasNetworkData:
 
     def series_for(self, reference: str) -> BiasGeometryFreeSeries:
         """The same data in the basis of another reference receiver."""
-        lay = BiasStateLayout(self.layout.svs, self.layout.receivers, self.layout.n_ionospheres, "receiver",
-                              reference, self.layout.n_tec_terms)
-        return BiasGeometryFreeSeries(lay, self.geometry.coefficients, self.sigma_m, obs_m=self.obs_m,
-                                      tracked=self.geometry.tracked, groups=self.geometry.groups)
+        lay = BiasStateLayout(
+            self.layout.svs,
+            self.layout.receivers,
+            self.layout.n_ionospheres,
+            "receiver",
+            reference,
+            self.layout.n_tec_terms,
+        )
+        return BiasGeometryFreeSeries(
+            lay,
+            self.geometry.coefficients,
+            self.sigma_m,
+            obs_m=self.obs_m,
+            tracked=self.geometry.tracked,
+            groups=self.geometry.groups,
+        )
 
 
-def read_stations(paths: Sequence[str | Path], *, l1_code: str, l2_code: str, tlim: tuple[str, str] | None = None,
-                  interval_s: float | None = None, phases: bool = False,
-                  progress: ProgressCallback | None = None, l1_fallback: str | None = None) -> list[CodeObservations]:
+def read_stations(
+    paths: Sequence[str | Path],
+    *,
+    l1_code: str,
+    l2_code: str,
+    tlim: tuple[str, str] | None = None,
+    interval_s: float | None = None,
+    phases: bool = False,
+    progress: ProgressCallback | None = None,
+    l1_fallback: str | None = None,
+) -> list[CodeObservations]:
     """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of every station; a file without
     ``l1_code`` on L1 is read with ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
     from distnav.models.gnss.rinex import read_code_observations
@@ -90,13 +121,21 @@ def read_stations(paths: Sequence[str | Path], *, l1_code: str, l2_code: str, tl
 
     def read(p: str | Path) -> CodeObservations:
         try:
-            return read_code_observations(p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s,
-                                          phases=phases, progress=progress)
+            return read_code_observations(
+                p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s, phases=phases, progress=progress
+            )
         except DataFileError as exc:
             if l1_fallback is None or "no L1 code observation" not in str(exc):
                 raise
-        return read_code_observations(p, bands=(1, band), codes={**codes, 1: l1_fallback.upper()}, tlim=tlim,
-                                      interval_s=interval_s, phases=phases, progress=progress)
+        return read_code_observations(
+            p,
+            bands=(1, band),
+            codes={**codes, 1: l1_fallback.upper()},
+            tlim=tlim,
+            interval_s=interval_s,
+            phases=phases,
+            progress=progress,
+        )
 
     obs = [read(p) for p in paths]
     stations = [o.station for o in obs]
@@ -111,15 +150,32 @@ def read_stations(paths: Sequence[str | Path], *, l1_code: str, l2_code: str, tl
     return obs
 
 
-def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray, gf_m: np.ndarray,
-                       svs_all: Sequence[str], orbit: Any, *, band: int = 2,
-                       codes: dict[str, dict[int, str]] | None = None, mask_deg: float = 10.0,
-                       ionosphere: str = "auto", regional_km: float = 1000.0, sigma_zenith_m: float | None = None,
-                       weighting: str = "sin", reference: str | None = None, notes: list[str] | None = None,
-                       paths: list[str] | None = None, vtec_rw_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
-                       min_satellite_obs: int | None = None, sigma_scale: np.ndarray | None = None,
-                       tec_order: int = 1, mapping: str = "slm", station_sigma: np.ndarray | None = None,
-                       station_weighting: str = "auto") -> BiasNetworkData:
+def bias_network_model(
+    stations: list[str],
+    t_gps_s: np.ndarray,
+    xyz: np.ndarray,
+    gf_m: np.ndarray,
+    svs_all: Sequence[str],
+    orbit: Any,
+    *,
+    band: int = 2,
+    codes: dict[str, dict[int, str]] | None = None,
+    mask_deg: float = 10.0,
+    ionosphere: str = "auto",
+    regional_km: float = 1000.0,
+    sigma_zenith_m: float | None = None,
+    weighting: str = "sin",
+    reference: str | None = None,
+    notes: list[str] | None = None,
+    paths: list[str] | None = None,
+    vtec_rw_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
+    min_satellite_obs: int | None = None,
+    sigma_scale: np.ndarray | None = None,
+    tec_order: int = 1,
+    mapping: str = "slm",
+    station_sigma: np.ndarray | None = None,
+    station_weighting: str = "auto",
+) -> BiasNetworkData:
     """The model from undifferenced geometry-free observations ``gf_m`` (T, n, S) [m] (NaN = not observed).
 
     ``sigma_zenith_m`` defaults to the paper's 65.6 cm scaled to the band (√2·30 cm/(μ_b − 1)). The estimation
@@ -155,22 +211,37 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
     if mode == "auto":
         mode = "common" if base_km <= regional_km else "per-receiver"
         notes.append(f"ionosphere: {mode} (longest baseline {base_km:.0f} km, regional limit {regional_km:.0f} km)")
-    geo = ionosphere_geometry(orbit, t_all, receivers_ecef_m=xyz, names=stations, svs=svs_all, mask_deg=mask_deg,
-                              ionosphere=mode, tec_order=tec_order, mapping=mapping)
+    geo = ionosphere_geometry(
+        orbit,
+        t_all,
+        receivers_ecef_m=xyz,
+        names=stations,
+        svs=svs_all,
+        mask_deg=mask_deg,
+        ionosphere=mode,
+        tec_order=tec_order,
+        mapping=mapping,
+    )
     if not np.isfinite(geo.el_rad).any():
         span = f"{str(datetime_from_gps_seconds(t_all[0]))[:19]} – {str(datetime_from_gps_seconds(t_all[-1]))[:19]}"
-        raise ModelError(f"the orbit gives no satellite position at the observation epochs ({span}): "
-                         f"wrong navigation/SP3 file?")
-    no_orbit = [svs_all[k] for k in range(S)
-                if np.isfinite(gf[:, :, k]).any() and not np.isfinite(geo.el_rad[:, :, k]).any()]
+        raise ModelError(
+            f"the orbit gives no satellite position at the observation epochs ({span}): wrong navigation/SP3 file?"
+        )
+    no_orbit = [
+        svs_all[k] for k in range(S) if np.isfinite(gf[:, :, k]).any() and not np.isfinite(geo.el_rad[:, :, k]).any()
+    ]
     if no_orbit:
-        notes.append(f"no orbit at the observation epochs for {' '.join(no_orbit)} (dropped; unhealthy or a sparse "
-                     f"broadcast file: try a larger --nav-max-age)")
+        notes.append(
+            f"no orbit at the observation epochs for {' '.join(no_orbit)} (dropped; unhealthy or a sparse "
+            f"broadcast file: try a larger --nav-max-age)"
+        )
     geo = geo.with_tracked(np.isfinite(gf))
     for i in range(n):
         if not geo.tracked[:, i].any():
-            raise DataFileError(f"{paths[i]}: no observation above the {mask_deg:g}° mask with both codes "
-                                f"(or no orbit for the satellites)")
+            raise DataFileError(
+                f"{paths[i]}: no observation above the {mask_deg:g}° mask with both codes "
+                f"(or no orbit for the satellites)"
+            )
     if n > 1 and not (np.asarray(geo.tracked.any(axis=0)).sum(axis=0) >= 2).any():
         raise ModelError("no satellite is tracked by two or more stations: the stations share no parameter")
     n_obs = geo.tracked.sum(axis=(0, 1))
@@ -178,25 +249,35 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
         min_satellite_obs = int(max(30, min(MIN_SATELLITE_OBS, 0.25 * float(n_obs.max()))))
     few = [svs_all[k] for k in range(S) if 0 < n_obs[k] < min_satellite_obs]
     if few:
-        notes.append(f"not estimated, fewer than {min_satellite_obs} station-epochs: "
-                     + " ".join(f"{s} ({int(n_obs[svs_all.index(s)])})" for s in few))
+        notes.append(
+            f"not estimated, fewer than {min_satellite_obs} station-epochs: "
+            + " ".join(f"{s} ({int(n_obs[svs_all.index(s)])})" for s in few)
+        )
     keep = np.flatnonzero(n_obs >= max(min_satellite_obs, 1))
     if keep.size < 2:
         raise ModelError(f"fewer than two satellites with {min_satellite_obs} station-epochs or more")
     svs = tuple(svs_all[k] for k in keep.tolist())
-    geo = replace(geo, svs=svs, el_rad=geo.el_rad[:, :, keep], az_rad=geo.az_rad[:, :, keep],
-                  tracked=geo.tracked[:, :, keep], coefficients=geo.coefficients[:, :, keep])
+    geo = replace(
+        geo,
+        svs=svs,
+        el_rad=geo.el_rad[:, :, keep],
+        az_rad=geo.az_rad[:, :, keep],
+        tracked=geo.tracked[:, :, keep],
+        coefficients=geo.coefficients[:, :, keep],
+    )
     counts = geo.tracked.sum(axis=(0, 2))
     if reference is None:
-        first = np.flatnonzero(geo.tracked.any(axis=2).any(axis=0) & geo.tracked[np.argmax(
-            geo.tracked.any(axis=(1, 2)))].any(axis=1))
+        first = np.flatnonzero(
+            geo.tracked.any(axis=2).any(axis=0) & geo.tracked[np.argmax(geo.tracked.any(axis=(1, 2)))].any(axis=1)
+        )
         ref = stations[int(first[np.argmax(counts[first])])] if first.size else stations[int(np.argmax(counts))]
     else:
         ref = reference.upper()
         if ref not in stations:
             raise ModelError(f"reference receiver {reference}: not one of the stations {', '.join(stations)}")
-    layout = BiasStateLayout(svs, tuple(stations), 1 if mode == "common" else n, "receiver", ref,
-                             3 if tec_order == 1 else 6)
+    layout = BiasStateLayout(
+        svs, tuple(stations), 1 if mode == "common" else n, "receiver", ref, 3 if tec_order == 1 else 6
+    )
     sig0 = (np.sqrt(2.0) * 0.30 / (mu(band) - 1.0)) if sigma_zenith_m is None else float(sigma_zenith_m)
     el = np.where(geo.tracked, geo.el_rad, 0.5 * np.pi)
     sig = elevation_sigma(el, sig0, weighting)
@@ -204,18 +285,38 @@ def bias_network_model(stations: list[str], t_gps_s: np.ndarray, xyz: np.ndarray
         sig = sig * np.where(geo.tracked, np.asarray(sigma_scale, float)[:, :, keep], 1.0)
     if station_sigma is not None and (station_weighting == "on" or (station_weighting == "auto" and mode == "common")):
         sig = sig * np.asarray(station_sigma, float)[None, :, None]
-        notes.append("station σ factors from the levelling: " + ", ".join(
-            f"{s} {f:.2f}" for s, f in zip(stations, np.asarray(station_sigma, float).tolist(), strict=True)))
+        notes.append(
+            "station σ factors from the levelling: "
+            + ", ".join(
+                f"{s} {f:.2f}" for s, f in zip(stations, np.asarray(station_sigma, float).tolist(), strict=True)
+            )
+        )
     obs = gf[:, :, keep]
-    series = BiasGeometryFreeSeries(layout, geo.coefficients, sig, obs_m=obs, tracked=geo.tracked,
-                                    groups=geo.groups)
+    series = BiasGeometryFreeSeries(layout, geo.coefficients, sig, obs_m=obs, tracked=geo.tracked, groups=geo.groups)
     dt = np.concatenate([[np.nan], np.diff(t_all)]) if T > 1 else np.array([30.0])
     if not (np.isfinite(vtec_rw_m_per_sqrt_s) and vtec_rw_m_per_sqrt_s > 0):
         raise ModelError(f"the TEC random walk must be positive, got {vtec_rw_m_per_sqrt_s} m/√s")
-    dyn = bias_dynamics(layout, dt if T > 1 else 30.0, vtec_std_m_per_sqrt_s=vtec_rw_m_per_sqrt_s,
-                        gradient_std_m_per_rad_sqrt_s=5.0 * vtec_rw_m_per_sqrt_s)
-    return BiasNetworkData(stations, dict(codes or {}), band, t_all, geo, layout, series, dyn, mode,
-                           np.asarray(xyz, float), obs, sig, notes)
+    dyn = bias_dynamics(
+        layout,
+        dt if T > 1 else 30.0,
+        vtec_std_m_per_sqrt_s=vtec_rw_m_per_sqrt_s,
+        gradient_std_m_per_rad_sqrt_s=5.0 * vtec_rw_m_per_sqrt_s,
+    )
+    return BiasNetworkData(
+        stations,
+        dict(codes or {}),
+        band,
+        t_all,
+        geo,
+        layout,
+        series,
+        dyn,
+        mode,
+        np.asarray(xyz, float),
+        obs,
+        sig,
+        notes,
+    )
 
 
 def arc_sigma_scale(arc_id: np.ndarray, t_s: np.ndarray, correlation_s: float) -> np.ndarray:
@@ -277,8 +378,11 @@ class SatelliteFit:
 
     def worst(self, *, min_residuals: int = 30) -> tuple[str, float] | None:
         """The worst-fitting satellite and its statistic (among those with ``min_residuals`` or more)."""
-        stat, cnt = ((self.code_rms_m, self.code_n) if self.code_rms_m is not None and self.code_n is not None
-                     else (self.rms_w, self.n))
+        stat, cnt = (
+            (self.code_rms_m, self.code_n)
+            if self.code_rms_m is not None and self.code_n is not None
+            else (self.rms_w, self.n)
+        )
         ok = (cnt >= min_residuals) & np.isfinite(stat)
         if not ok.any():
             return None
@@ -290,25 +394,39 @@ class SatelliteFit:
         stat = "code_minus_phase_rms_zenith_m" if self.code_rms_m is not None else "postfit_rms_weighted"
         per: dict[str, Any] = {}
         for k, s in enumerate(self.svs):
-            row: dict[str, Any] = {"postfit_rms_m": float(self.rms_m[k]), "postfit_rms_weighted": float(self.rms_w[k]),
-                                   "postfit_n": int(self.n[k])}
+            row: dict[str, Any] = {
+                "postfit_rms_m": float(self.rms_m[k]),
+                "postfit_rms_weighted": float(self.rms_w[k]),
+                "postfit_n": int(self.n[k]),
+            }
             if self.code_rms_m is not None and self.code_n is not None:
                 row.update({"code_minus_phase_rms_zenith_m": float(self.code_rms_m[k]), "code_n": int(self.code_n[k])})
             per[s] = row
         med = float(np.nanmedian(self.code_rms_m if self.code_rms_m is not None else self.rms_w))
         z = self.robust_z(w[1]) if w is not None else None
-        return {"statistic": stat, "median": med,
-                "worst_fitting": None if w is None else {
-                    "satellite": w[0], "value": w[1], "ratio_to_median": w[1] / med if med > 0 else None,
-                    "robust_z": z, "stands_out": bool(z is not None and z > STANDS_OUT_Z and med > 0
-                                                      and w[1] / med > STANDS_OUT_RATIO)},
-                "per_satellite": per}
+        return {
+            "statistic": stat,
+            "median": med,
+            "worst_fitting": None
+            if w is None
+            else {
+                "satellite": w[0],
+                "value": w[1],
+                "ratio_to_median": w[1] / med if med > 0 else None,
+                "robust_z": z,
+                "stands_out": bool(z is not None and z > STANDS_OUT_Z and med > 0 and w[1] / med > STANDS_OUT_RATIO),
+            },
+            "per_satellite": per,
+        }
 
     def robust_z(self, value: float, *, min_residuals: int = 30) -> float | None:
         """``(value − median) / (1.4826 · MAD)`` over the satellites' statistics (those with ``min_residuals``
         or more): how far the worst satellite lies from the others in units of their robust spread."""
-        stat, cnt = ((self.code_rms_m, self.code_n) if self.code_rms_m is not None and self.code_n is not None
-                     else (self.rms_w, self.n))
+        stat, cnt = (
+            (self.code_rms_m, self.code_n)
+            if self.code_rms_m is not None and self.code_n is not None
+            else (self.rms_w, self.n)
+        )
         v = stat[(cnt >= min_residuals) & np.isfinite(stat)]
         if v.size < 5:
             return None
@@ -344,8 +462,9 @@ def satellite_fit(data: BiasNetworkData, final: DatumSeries) -> SatelliteFit:
                     code_n[lay.svs.index(sv)] += lev.fit_n[k]
         with np.errstate(invalid="ignore", divide="ignore"):
             code_rms = np.where(code_n > 0, np.sqrt(wss / np.maximum(code_n, 1)), np.nan)
-    return SatelliteFit(tuple(lay.svs), np.where(cnt > 0, rms_m, np.nan), np.where(cnt > 0, rms_w, np.nan), cnt,
-                        code_rms, code_n)
+    return SatelliteFit(
+        tuple(lay.svs), np.where(cnt > 0, rms_m, np.nan), np.where(cnt > 0, rms_w, np.nan), cnt, code_rms, code_n
+    )
 
 
 def innovation_summary(series: Sequence[DatumSeries], stations: Sequence[str]) -> dict[str, Any] | None:
@@ -354,9 +473,14 @@ def innovation_summary(series: Sequence[DatumSeries], stations: Sequence[str]) -
     if it is None:
         return None
     rm = np.asarray(it.removed, np.int64)
-    return {"level": it.level, "critical_value": it.critical_value,
-            "per_station": {sta: {"tested": int((it.node == i).sum()), "removed": int((it.node[rm] == i).sum())}
-                            for i, sta in enumerate(stations)}}
+    return {
+        "level": it.level,
+        "critical_value": it.critical_value,
+        "per_station": {
+            sta: {"tested": int((it.node == i).sum()), "removed": int((it.node[rm] == i).sum())}
+            for i, sta in enumerate(stations)
+        },
+    }
 
 
 def _with_arc_factor(s: DatumSeries, data: BiasNetworkData, nodes: list[int] | None) -> DatumSeries:
@@ -370,9 +494,18 @@ def _with_arc_factor(s: DatumSeries, data: BiasNetworkData, nodes: list[int] | N
     return replace(s, arc_variance_factor=arc.factor, precision=prec)
 
 
-def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: str | None = None,
-                     reference: str | None = None, graph: Any = None, kn: int = 4, exchange: Any = None,
-                     local: bool = True, innovation_level: float | None = None) -> tuple[list[DatumSeries], Any]:
+def run_bias_filters(
+    data: BiasNetworkData,
+    *,
+    datum: str = "zero-mean",
+    pivot: str | None = None,
+    reference: str | None = None,
+    graph: Any = None,
+    kn: int = 4,
+    exchange: Any = None,
+    local: bool = True,
+    innovation_level: float | None = None,
+) -> tuple[list[DatumSeries], Any]:
     """Central, single-receiver and CKF filters over the network, every epoch S-transformed into ``datum``.
 
     Returns the series (labels ``central``, ``local:STA``, ``ckf:STA``) and the communication totals of the CKF
@@ -396,8 +529,15 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
     if local:
         for i, sta in enumerate(data.stations):
             si = data.series_for(sta)
-            c = Collector(f"local:{sta}", T, si.layout, si, np.array([i]), data.dynamics,
-                          **{**opts, "reference": None if datum != "receiver" else sta})
+            c = Collector(
+                f"local:{sta}",
+                T,
+                si.layout,
+                si,
+                np.array([i]),
+                data.dynamics,
+                **{**opts, "reference": None if datum != "receiver" else sta},
+            )
             for st in iterate_information_filter(data.dynamics, si, mode="central", nodes=[i]):
                 c.step(st.epoch, st.estimates[0], st.estimable[0], st.covariance[0])
             out.append(_with_arc_factor(c.done(), data, [i]))
@@ -406,17 +546,27 @@ def run_bias_filters(data: BiasNetworkData, *, datum: str = "zero-mean", pivot: 
         from distnav.exchange import make_exchange
 
         ex = exchange if exchange is not None else make_exchange(graph)
-        cs = [Collector(f"ckf:{s}", T, lay, data.series, np.array([i]), data.dynamics, **opts)
-              for i, s in enumerate(data.stations)]
+        cs = [
+            Collector(f"ckf:{s}", T, lay, data.series, np.array([i]), data.dynamics, **opts)
+            for i, s in enumerate(data.stations)
+        ]
         tests = None
         if innovation_level is not None:
             from distnav.algorithms.ckf_qc import InnovationCollector
             from distnav.algorithms.statistics import critical_value
 
             tests = InnovationCollector(ex, len(data.stations), innovation_level, critical_value(innovation_level))
-        for cst in iterate_ckf(data.dynamics, data.series, graph=graph, protocol="P3", rounds=kn, exchange=ex,
-                               monitor=False, local_precision=None if tests is None else "bound",
-                               test_level=innovation_level):
+        for cst in iterate_ckf(
+            data.dynamics,
+            data.series,
+            graph=graph,
+            protocol="P3",
+            rounds=kn,
+            exchange=ex,
+            monitor=False,
+            local_precision=None if tests is None else "bound",
+            test_level=innovation_level,
+        ):
             if tests is not None:
                 tests.add(cst.tests)
             x = ex.gather_nodes(cst.estimates)

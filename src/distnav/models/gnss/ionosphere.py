@@ -103,8 +103,12 @@ GRADIENT_RW_STD_M_PER_RAD_SQRT_S = 5e-3
 TEC_NAMES = ("vtec_m", "vtec_grad_lat_m_per_rad", "vtec_grad_lon_m_per_rad")
 """Names (with units) of the three TEC parameters ν_o, ν_φ, ν_ψ of one ionosphere."""
 
-TEC_NAMES_QUADRATIC = (*TEC_NAMES, "vtec_curv_lat_m_per_rad2", "vtec_curv_latlon_m_per_rad2",
-                       "vtec_curv_lon_m_per_rad2")
+TEC_NAMES_QUADRATIC = (
+    *TEC_NAMES,
+    "vtec_curv_lat_m_per_rad2",
+    "vtec_curv_latlon_m_per_rad2",
+    "vtec_curv_lon_m_per_rad2",
+)
 """The six TEC parameters of a second-order field (``tec_order=2``): ν_o, the gradients, then the coefficients of
 Δφ², Δφ·Δψ and Δψ² — a departure from paper 003's linear field, for low-latitude stations (docs/gnss.md)."""
 
@@ -128,9 +132,15 @@ def geometry_free_m(p1_m: np.ndarray, p2_m: np.ndarray) -> np.ndarray:
     return np.asarray((np.asarray(p2_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(2) - 1.0))
 
 
-def ionosphere_coefficients(lat_ipp_rad: np.ndarray, lon_ipp_rad: np.ndarray, zenith_ipp_rad: np.ndarray,
-                            ref_lat_rad: np.ndarray | float, ref_lon_rad: np.ndarray | float, *,
-                            order: int = 1) -> np.ndarray:
+def ionosphere_coefficients(
+    lat_ipp_rad: np.ndarray,
+    lon_ipp_rad: np.ndarray,
+    zenith_ipp_rad: np.ndarray,
+    ref_lat_rad: np.ndarray | float,
+    ref_lon_rad: np.ndarray | float,
+    *,
+    order: int = 1,
+) -> np.ndarray:
     """Coefficients ``(a_o, a_φ, a_ψ)`` of paper 003 eq. (49) on a new last axis.
 
     ``a_o = 1/cos z'``, ``a_φ = (φ_IPP − φ_o)/cos z'``, ``a_ψ = (ψ_IPP − ψ_o)/cos z'`` (radians; the longitude
@@ -189,16 +199,39 @@ class IonosphereGeometry:
         tr = np.asarray(tracked, dtype=bool)
         if tr.shape != self.tracked.shape:
             raise ModelError(f"tracked mask of shape {tr.shape}, geometry has {self.tracked.shape}")
-        return IonosphereGeometry(self.t_gps_s, self.svs, self.names, self.lat_rad, self.lon_rad, self.height_m,
-                                  self.el_rad, self.az_rad, self.tracked & tr, self.coefficients, self.ref_lat_rad,
-                                  self.ref_lon_rad, self.groups, self.mask_rad)
+        return IonosphereGeometry(
+            self.t_gps_s,
+            self.svs,
+            self.names,
+            self.lat_rad,
+            self.lon_rad,
+            self.height_m,
+            self.el_rad,
+            self.az_rad,
+            self.tracked & tr,
+            self.coefficients,
+            self.ref_lat_rad,
+            self.ref_lon_rad,
+            self.groups,
+            self.mask_rad,
+        )
 
 
-def ionosphere_geometry(orbit: SatelliteOrbit, t_gps_s: np.ndarray, *, lat_rad: np.ndarray | None = None,
-                        lon_rad: np.ndarray | None = None, height_m: np.ndarray | float = 0.0,
-                        receivers_ecef_m: np.ndarray | None = None, names: Sequence[str] | None = None,
-                        svs: Sequence[str] | None = None, mask_deg: float = 10.0,
-                        ionosphere: str = "common", tec_order: int = 1, mapping: str = "slm") -> IonosphereGeometry:
+def ionosphere_geometry(
+    orbit: SatelliteOrbit,
+    t_gps_s: np.ndarray,
+    *,
+    lat_rad: np.ndarray | None = None,
+    lon_rad: np.ndarray | None = None,
+    height_m: np.ndarray | float = 0.0,
+    receivers_ecef_m: np.ndarray | None = None,
+    names: Sequence[str] | None = None,
+    svs: Sequence[str] | None = None,
+    mask_deg: float = 10.0,
+    ionosphere: str = "common",
+    tec_order: int = 1,
+    mapping: str = "slm",
+) -> IonosphereGeometry:
     """Elevations, pierce points and eq.-(49) coefficients of every receiver–satellite pair at every epoch.
 
     Receivers by geodetic ``lat_rad``/``lon_rad``/``height_m`` or by ``receivers_ecef_m`` (n, 3). ``ionosphere``:
@@ -254,17 +287,21 @@ def ionosphere_geometry(orbit: SatelliteOrbit, t_gps_s: np.ndarray, *, lat_rad: 
     el_safe = np.where(tracked, el, 0.5 * np.pi)
     az_safe = np.where(tracked, az, 0.0)
     if mapping == "mslm":
-        lat_ipp, lon_ipp, _ = pierce_point(lat[None, :, None], lon[None, :, None], az_safe, el_safe,
-                                           height_m=MSLM_HEIGHT_M)
-        z_ipp = np.arcsin(IONO_EARTH_RADIUS_M / (IONO_EARTH_RADIUS_M + MSLM_HEIGHT_M)
-                          * np.sin(MSLM_ALPHA * (0.5 * np.pi - el_safe)))
+        lat_ipp, lon_ipp, _ = pierce_point(
+            lat[None, :, None], lon[None, :, None], az_safe, el_safe, height_m=MSLM_HEIGHT_M
+        )
+        z_ipp = np.arcsin(
+            IONO_EARTH_RADIUS_M / (IONO_EARTH_RADIUS_M + MSLM_HEIGHT_M) * np.sin(MSLM_ALPHA * (0.5 * np.pi - el_safe))
+        )
     else:
         lat_ipp, lon_ipp, z_ipp = pierce_point(lat[None, :, None], lon[None, :, None], az_safe, el_safe)
-    coef = ionosphere_coefficients(lat_ipp, lon_ipp, z_ipp, ref_lat[None, :, None], ref_lon[None, :, None],
-                                   order=tec_order)
+    coef = ionosphere_coefficients(
+        lat_ipp, lon_ipp, z_ipp, ref_lat[None, :, None], ref_lon[None, :, None], order=tec_order
+    )
     coef[~tracked] = 0.0
-    return IonosphereGeometry(t, sv_names, rx_names, lat, lon, h, el, az, tracked, coef, ref_lat, ref_lon, groups,
-                              float(mask))
+    return IonosphereGeometry(
+        t, sv_names, rx_names, lat, lon, h, el, az, tracked, coef, ref_lat, ref_lon, groups, float(mask)
+    )
 
 
 # ----------------------------------------------------------------------------------------------- state + dynamics
@@ -319,9 +356,13 @@ class IonosphereStateLayout:
         return names + [f"dcb_gf_m:{s}-{self.pivot}" for s in self.dcb_svs]
 
 
-def ionosphere_dynamics(layout: IonosphereStateLayout, interval_s: float | np.ndarray, *,
-                        vtec_std_m_per_sqrt_s: float = VTEC_RW_STD_M_PER_SQRT_S,
-                        gradient_std_m_per_rad_sqrt_s: float = GRADIENT_RW_STD_M_PER_RAD_SQRT_S) -> DynamicModel:
+def ionosphere_dynamics(
+    layout: IonosphereStateLayout,
+    interval_s: float | np.ndarray,
+    *,
+    vtec_std_m_per_sqrt_s: float = VTEC_RW_STD_M_PER_SQRT_S,
+    gradient_std_m_per_rad_sqrt_s: float = GRADIENT_RW_STD_M_PER_RAD_SQRT_S,
+) -> DynamicModel:
     """Paper 003 eq. (53): ``Φ = I``; random walk on every ionosphere's ν_o, ν_φ, ν_ψ with variances
     ``q² Δ`` per epoch (q = 1 mm/√s, 5 mm/rad/√s), DCBs constant. ``S = H S̃ Hᵀ`` with ``H`` the TEC columns
     (eq. (20)): the system noise is singular.
@@ -329,10 +370,14 @@ def ionosphere_dynamics(layout: IonosphereStateLayout, interval_s: float | np.nd
     ``interval_s`` is the sampling interval Δ, or one interval per epoch (entry ``t`` = time from epoch ``t−1`` to
     ``t``; entry 0 unused) for an irregular epoch grid (real data with gaps).
     """
-    q2 = np.tile([vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s],
-                 layout.n_ionospheres) ** 2
+    q2 = (
+        np.tile(
+            [vtec_std_m_per_sqrt_s, gradient_std_m_per_rad_sqrt_s, gradient_std_m_per_rad_sqrt_s], layout.n_ionospheres
+        )
+        ** 2
+    )
     p = layout.n_states
-    H = np.eye(p)[:, :layout.n_tec]
+    H = np.eye(p)[:, : layout.n_tec]
     dt = np.asarray(interval_s, dtype=float)
     if dt.ndim == 0:
         if not (np.isfinite(dt) and dt > 0):
@@ -360,9 +405,15 @@ def choose_pivot(svs: Sequence[str], tracked: np.ndarray, preferred: str | None 
 
 
 # ----------------------------------------------------------------------------------------------- measurements
-def series_inputs(coefficients: ArrayLike, sigma_m: ArrayLike, obs_m: ArrayLike | None, tracked: ArrayLike | None,
-                  groups: ArrayLike | None, n_ionospheres: int, n_terms: int = 3
-                  ) -> tuple[FloatArray, FloatArray, BoolArray, FloatArray | None, IntArray]:
+def series_inputs(
+    coefficients: ArrayLike,
+    sigma_m: ArrayLike,
+    obs_m: ArrayLike | None,
+    tracked: ArrayLike | None,
+    groups: ArrayLike | None,
+    n_ionospheres: int,
+    n_terms: int = 3,
+) -> tuple[FloatArray, FloatArray, BoolArray, FloatArray | None, IntArray]:
     """Check the inputs of a geometry-free series: ``coefficients`` (T epochs, n nodes, S satellites, 3);
     ``sigma_m``, ``obs_m`` and ``tracked`` (T, n, S); ``groups`` (n,) ionosphere indices. Returns ``(coefficients,
     σ, usable mask, y or None, groups)``; a value is usable where σ > 0 and everything is finite and tracked."""
@@ -407,9 +458,16 @@ class GeometryFreeSeries(MeasurementSeries):
     eliminated. A node tracking fewer than two satellites contributes nothing.
     """
 
-    def __init__(self, layout: IonosphereStateLayout, coefficients: np.ndarray, sigma_m: np.ndarray, *,
-                 obs_m: np.ndarray | None = None, tracked: np.ndarray | None = None,
-                 groups: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        layout: IonosphereStateLayout,
+        coefficients: np.ndarray,
+        sigma_m: np.ndarray,
+        *,
+        obs_m: np.ndarray | None = None,
+        tracked: np.ndarray | None = None,
+        groups: np.ndarray | None = None,
+    ) -> None:
         a, sig, ok, y, g = series_inputs(coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres)
         T, n, S, _ = a.shape
         if S != len(layout.svs):
@@ -434,7 +492,7 @@ class GeometryFreeSeries(MeasurementSeries):
         A = np.zeros((k, S, p))
         a = self._a[t, idx]
         for j, gi in enumerate(self._groups[idx]):
-            A[j, :, 3 * gi:3 * gi + 3] = a[j]
+            A[j, :, 3 * gi : 3 * gi + 3] = a[j]
         sv = np.flatnonzero(self._col >= 0)
         A[:, sv, self._col[sv]] = 1.0
         return A, self._w[t, idx]
@@ -445,13 +503,13 @@ class GeometryFreeSeries(MeasurementSeries):
         t = self._epoch(epoch)
         idx = self._nodes(nodes)
         k, p, n_tec = idx.size, self.n_states, self.layout.n_tec
-        a = self._a[t, idx]                      # (k, S, 3)
-        w = self._w[t, idx]                      # (k, S)
+        a = self._a[t, idx]  # (k, S, 3)
+        w = self._w[t, idx]  # (k, S)
         sw = w.sum(axis=1)
         inv_sw = np.where(sw > 0, 1.0 / np.where(sw > 0, sw, 1.0), 0.0)[:, None]
         aw = a * w[..., None]
-        awT = np.swapaxes(aw, 1, 2)              # (k, 3, S)
-        ua = aw.sum(axis=1)                      # aᵀw (k, 3)
+        awT = np.swapaxes(aw, 1, 2)  # (k, 3, S)
+        ua = aw.sum(axis=1)  # aᵀw (k, 3)
         sv = self._sv
         ntt = awT @ a - ua[:, :, None] * (ua * inv_sw)[:, None, :]
         ntb = awT[:, :, sv] - ua[:, :, None] * (w[:, sv] * inv_sw)[:, None, :]
@@ -464,9 +522,9 @@ class GeometryFreeSeries(MeasurementSeries):
         off = 3 * self._groups[idx]
         if np.all(off == off[0]):
             o = int(off[0])
-            N[:, o:o + 3, o:o + 3] = ntt
-            N[:, o:o + 3, n_tec:] = ntb
-            N[:, n_tec:, o:o + 3] = np.swapaxes(ntb, 1, 2)
+            N[:, o : o + 3, o : o + 3] = ntt
+            N[:, o : o + 3, n_tec:] = ntb
+            N[:, n_tec:, o : o + 3] = np.swapaxes(ntb, 1, 2)
         else:
             rows = np.arange(k)[:, None, None]
             tec = (off[:, None] + np.arange(3)[None, :])[:, :, None]
@@ -478,12 +536,12 @@ class GeometryFreeSeries(MeasurementSeries):
             return N, np.zeros((k, p))
         y = self._y[t, idx]
         wy = w * y
-        m = wy.sum(axis=1, keepdims=True) * inv_sw   # weighted mean of y
+        m = wy.sum(axis=1, keepdims=True) * inv_sw  # weighted mean of y
         r = np.zeros((k, p))
         r[:, n_tec:] = wy[:, sv] - wv * m
         rt = (awT @ y[..., None])[..., 0] - ua * m
         if np.all(off == off[0]):
-            r[:, int(off[0]):int(off[0]) + 3] = rt
+            r[:, int(off[0]) : int(off[0]) + 3] = rt
         else:
             r[np.arange(k)[:, None], off[:, None] + np.arange(3)[None, :]] = rt
         return N, r
@@ -505,17 +563,23 @@ class GeometryFreeSeries(MeasurementSeries):
         return rows_A, rows_y, node.astype(np.int64)
 
 
-def geometry_free_series(geometry: IonosphereGeometry, layout: IonosphereStateLayout, *,
-                         sigma_zenith_m: float = GF_SIGMA_ZENITH_M, weighting: str = "sin",
-                         obs_m: np.ndarray | None = None) -> GeometryFreeSeries:
+def geometry_free_series(
+    geometry: IonosphereGeometry,
+    layout: IonosphereStateLayout,
+    *,
+    sigma_zenith_m: float = GF_SIGMA_ZENITH_M,
+    weighting: str = "sin",
+    obs_m: np.ndarray | None = None,
+) -> GeometryFreeSeries:
     """:class:`GeometryFreeSeries` of a geometry: ``σ_s = elevation_sigma(θ_s, σ)`` (``"sin"``: σ/sin θ as in the
     papers README; ``"euler-goad"`` or ``"constant"`` also), tracked = the geometry's mask."""
     if tuple(layout.svs) != tuple(geometry.svs):
         raise ModelError("the state layout and the geometry list different satellites")
     el = np.where(geometry.tracked, geometry.el_rad, 0.5 * np.pi)
     sig = elevation_sigma(el, sigma_zenith_m, weighting)
-    return GeometryFreeSeries(layout, geometry.coefficients, sig, obs_m=obs_m, tracked=geometry.tracked,
-                              groups=geometry.groups)
+    return GeometryFreeSeries(
+        layout, geometry.coefficients, sig, obs_m=obs_m, tracked=geometry.tracked, groups=geometry.groups
+    )
 
 
 def differenced_observations(series: GeometryFreeSeries, *, reference: str = "pivot") -> ObservationSeries:
@@ -550,10 +614,18 @@ def differenced_observations(series: GeometryFreeSeries, *, reference: str = "pi
     return ObservationSeries(series.n_states, epochs)
 
 
-def simulate_geometry_free(geometry: IonosphereGeometry, layout: IonosphereStateLayout, interval_s: float, *,
-                           rng: np.random.Generator, sigma_zenith_m: float = GF_SIGMA_ZENITH_M,
-                           weighting: str = "sin", vtec0_m: float = 2.0, satellite_dsb_std_ns: float = 3.0,
-                           receiver_dsb_std_ns: float = 10.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def simulate_geometry_free(
+    geometry: IonosphereGeometry,
+    layout: IonosphereStateLayout,
+    interval_s: float,
+    *,
+    rng: np.random.Generator,
+    sigma_zenith_m: float = GF_SIGMA_ZENITH_M,
+    weighting: str = "sin",
+    vtec0_m: float = 2.0,
+    satellite_dsb_std_ns: float = 3.0,
+    receiver_dsb_std_ns: float = 10.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Simulate undifferenced geometry-free observations of the model (paper 003 eqs. (49), (53)).
 
     Truth: TEC parameters start at ``(vtec0_m, 0, 0)`` per ionosphere and follow the random walk; satellite DSBs
@@ -565,7 +637,7 @@ def simulate_geometry_free(geometry: IonosphereGeometry, layout: IonosphereState
     dyn = ionosphere_dynamics(layout, interval_s)
     T, n, S = geometry.tracked.shape
     x0 = np.zeros(layout.n_states)
-    x0[0:layout.n_tec:3] = vtec0_m
+    x0[0 : layout.n_tec : 3] = vtec0_m
     sat_dsb_ns = rng.normal(0.0, satellite_dsb_std_ns, S)
     b_sat_m = gf_m_from_dcb_ns(sat_dsb_ns)
     col = layout.dcb_column()
@@ -577,7 +649,7 @@ def simulate_geometry_free(geometry: IonosphereGeometry, layout: IonosphereState
     b_rx_m = gf_m_from_dcb_ns(rng.normal(0.0, receiver_dsb_std_ns, n))
     el = np.where(geometry.tracked, geometry.el_rad, 0.5 * np.pi)
     sig = elevation_sigma(el, sigma_zenith_m, weighting)
-    tec = truth[:, :layout.n_tec].reshape(T, layout.n_ionospheres, 3)[:, geometry.groups]  # (T, n, 3)
+    tec = truth[:, : layout.n_tec].reshape(T, layout.n_ionospheres, 3)[:, geometry.groups]  # (T, n, 3)
     iono = np.einsum("tnsk,tnk->tns", geometry.coefficients, tec)
     y = iono + b_rx_m[None, :, None] + b_sat_m[None, None, :] + sig * rng.standard_normal((T, n, S))
     y[~geometry.tracked] = np.nan

@@ -44,8 +44,16 @@ from distnav.algorithms.statistics import critical_value, w_statistics
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
 
-__all__ = ["ArcStatistics", "LevelledStation", "geometry_free_phase_m", "melbourne_wubbena_cycles", "find_arcs",
-           "level_station", "screen_arc", "station_sigma_factors"]
+__all__ = [
+    "ArcStatistics",
+    "LevelledStation",
+    "geometry_free_phase_m",
+    "melbourne_wubbena_cycles",
+    "find_arcs",
+    "level_station",
+    "screen_arc",
+    "station_sigma_factors",
+]
 
 
 @dataclass(frozen=True)
@@ -90,11 +98,15 @@ class LevelledStation:
         (unlevelled) code observations kept where no arc was long enough (``fallback_raw``)."""
         n = np.array([a.n_epochs for a in self.arcs])
         rms = np.array([a.code_rms_m for a in self.arcs])
-        return {"arcs": len(self.arcs), "starts": self.starts, "dropped_short": self.dropped_short,
-                "median_epochs": float(np.median(n)) if n.size else 0.0,
-                "median_code_rms_m": float(np.median(rms)) if rms.size else float("nan"),
-                "removed_by_screening": int(self.removed.sum()),
-                "raw_code_observations": int(((self.arc < 0) & np.isfinite(self.gf_m)).sum())}
+        return {
+            "arcs": len(self.arcs),
+            "starts": self.starts,
+            "dropped_short": self.dropped_short,
+            "median_epochs": float(np.median(n)) if n.size else 0.0,
+            "median_code_rms_m": float(np.median(rms)) if rms.size else float("nan"),
+            "removed_by_screening": int(self.removed.sum()),
+            "raw_code_observations": int(((self.arc < 0) & np.isfinite(self.gf_m)).sum()),
+        }
 
     def screening_summary(self, svs: Sequence[str]) -> dict[str, Any]:
         """What the station's own screening removed (per satellite) and its w-test summary."""
@@ -105,10 +117,15 @@ class LevelledStation:
         tests.pop("removed", None)
         mw = int(self.mw_outlier.sum()) if self.mw_outlier is not None else 0
         w_tested = int(np.isfinite(self.tests.w).sum()) if self.tests is not None else 0
-        return {"tested": int(self.tests.w.size) if self.tests is not None else 0,
-                "removed": int(self.removed.sum()), "removed_per_satellite": per_sat,
-                "w_tested": w_tested, "removed_w_test": int(self.removed.sum()) - mw, "removed_mw_outliers": mw,
-                **tests}
+        return {
+            "tested": int(self.tests.w.size) if self.tests is not None else 0,
+            "removed": int(self.removed.sum()),
+            "removed_per_satellite": per_sat,
+            "w_tested": w_tested,
+            "removed_w_test": int(self.removed.sum()) - mw,
+            "removed_mw_outliers": mw,
+            **tests,
+        }
 
 
 GF_SIGMAS = 4.0
@@ -128,8 +145,9 @@ def geometry_free_phase_m(phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2)
     return out
 
 
-def melbourne_wubbena_cycles(p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray, phib_m: np.ndarray,
-                             band: int = 2) -> np.ndarray:
+def melbourne_wubbena_cycles(
+    p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2
+) -> np.ndarray:
     """Melbourne–Wübbena wide-lane [cycles of ``λ_w = c/(f_1 − f_b)``]: constant per arc up to code noise."""
     f1, fb = GPS_FREQUENCIES_HZ[1], GPS_FREQUENCIES_HZ[band]
     lw = C_M_S / (f1 - fb)
@@ -139,10 +157,19 @@ def melbourne_wubbena_cycles(p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndar
     return phase_wl - code_nl
 
 
-def find_arcs(t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, lli: np.ndarray | None = None, *,
-              max_gap_s: float = 90.0, gf_threshold_m: float = 0.05, mw_sigmas: float = 4.0,
-              mw_min_cycles: float = 1.0, gf_sigmas: float = GF_SIGMAS,
-              gf_window_epochs: int = GF_WINDOW_EPOCHS) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def find_arcs(
+    t_s: np.ndarray,
+    gf_phase_m: np.ndarray,
+    mw_cycles: np.ndarray,
+    lli: np.ndarray | None = None,
+    *,
+    max_gap_s: float = 90.0,
+    gf_threshold_m: float = 0.05,
+    mw_sigmas: float = 4.0,
+    mw_min_cycles: float = 1.0,
+    gf_sigmas: float = GF_SIGMAS,
+    gf_window_epochs: int = GF_WINDOW_EPOCHS,
+) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Split one satellite's series into arcs. Returns ``arc`` (T,) (−1 where no data), ``outlier`` (T,) one-epoch
     MW outliers, and the start reason of every arc (``first``, ``gap``, ``lli``, ``gf``, ``mw``).
 
@@ -158,9 +185,9 @@ def find_arcs(t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, ll
     reasons: list[str] = []
     idx = np.flatnonzero(ok)
     cur = -1
-    hist: list[int] = []            # epochs of the current arc
+    hist: list[int] = []  # epochs of the current arc
     mw_sum = mw_sq = 0.0
-    gf_ms = 0.0                     # the satellite's recent mean square GF prediction error (kept across arcs)
+    gf_ms = 0.0  # the satellite's recent mean square GF prediction error (kept across arcs)
     warm: list[float] = []
     lam = 1.0 / max(int(gf_window_epochs), 1)
     for pos, k in enumerate(idx.tolist()):
@@ -181,9 +208,9 @@ def find_arcs(t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, ll
                     lim_gf = max(gf_threshold_m, gf_sigmas * np.sqrt(gf_ms))
                 if abs(err) > lim_gf:
                     reason = "gf"
-                if len(warm) < GF_MIN_ERRORS:       # the first errors, slips or not: a robust start (median)
+                if len(warm) < GF_MIN_ERRORS:  # the first errors, slips or not: a robust start (median)
                     warm.append(err * err)
-                    gf_ms = float(np.median(warm)) / 0.455      # median of χ²₁ = 0.455
+                    gf_ms = float(np.median(warm)) / 0.455  # median of χ²₁ = 0.455
                 elif not reason:
                     gf_ms += lam * (err * err - gf_ms)
             if not reason and len(hist) >= 3:
@@ -210,8 +237,9 @@ def find_arcs(t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, ll
     return arc, outlier, reasons
 
 
-def screen_arc(d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, scale: str = "arc",
-               max_fraction: float = 0.2) -> tuple[np.ndarray, float, float, np.ndarray]:
+def screen_arc(
+    d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, scale: str = "arc", max_fraction: float = 0.2
+) -> tuple[np.ndarray, float, float, np.ndarray]:
     """Iterative w-test screening of ``d = g_P − g_Φ = offset + e`` over one arc (module doc).
 
     Returns (kept mask, offset [m], σ of the offset [m], w of every observation in the final solution — NaN
@@ -234,7 +262,7 @@ def screen_arc(d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, sc
             break
         off = float((wts * np.where(keep, d, 0.0)).sum() / sw)
         e = np.where(keep, d - off, 0.0)
-        var_e = np.where(keep, s2 - 1.0 / sw, 0.0)       # Q_ê of a weighted mean: σ_k² − 1/Σw
+        var_e = np.where(keep, s2 - 1.0 / sw, 0.0)  # Q_ê of a weighted mean: σ_k² − 1/Σw
         factor = 1.0
         if scale == "arc":
             r = keep.sum() - 1
@@ -256,12 +284,26 @@ def screen_arc(d_m: np.ndarray, sigma_m: np.ndarray, *, level: float = 0.001, sc
     return keep, off, float(np.sqrt(s0 / sw)), w_out
 
 
-def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray,
-                  phib_m: np.ndarray, *, band: int = 2, lli: np.ndarray | None = None,
-                  sigma_m: np.ndarray | None = None, min_arc_epochs: int = 10, max_gap_s: float | None = None,
-                  gf_threshold_m: float = 0.05, gf_sigmas: float = GF_SIGMAS, screen: bool = True,
-                  level: float = 0.001,
-                  fallback_raw: bool = False, node: int = 0) -> LevelledStation:
+def level_station(
+    t_s: np.ndarray,
+    svs: tuple[str, ...],
+    p1_m: np.ndarray,
+    pb_m: np.ndarray,
+    phi1_m: np.ndarray,
+    phib_m: np.ndarray,
+    *,
+    band: int = 2,
+    lli: np.ndarray | None = None,
+    sigma_m: np.ndarray | None = None,
+    min_arc_epochs: int = 10,
+    max_gap_s: float | None = None,
+    gf_threshold_m: float = 0.05,
+    gf_sigmas: float = GF_SIGMAS,
+    screen: bool = True,
+    level: float = 0.001,
+    fallback_raw: bool = False,
+    node: int = 0,
+) -> LevelledStation:
     """Level one station's geometry-free code (T, S) per arc (module doc). ``sigma_m`` (T, S) σ of the code
     ``g_P`` (default 1: equal weights); ``max_gap_s`` defaults to 3 × the median sampling interval;
     ``gf_threshold_m`` / ``gf_sigmas``: the GF slip limit of :func:`find_arcs`."""
@@ -286,9 +328,15 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
     fit_n = np.zeros(S, np.int64)
     for s in range(S):
         ok = np.isfinite(gp[:, s]) & np.isfinite(gphi[:, s])
-        a, outl, reasons = find_arcs(t, np.where(ok, gphi[:, s], np.nan), np.where(ok, mw[:, s], np.nan),
-                                     None if lli is None else lli[:, s], max_gap_s=gap,
-                                     gf_threshold_m=gf_threshold_m, gf_sigmas=gf_sigmas)
+        a, outl, reasons = find_arcs(
+            t,
+            np.where(ok, gphi[:, s], np.nan),
+            np.where(ok, mw[:, s], np.nan),
+            None if lli is None else lli[:, s],
+            max_gap_s=gap,
+            gf_threshold_m=gf_threshold_m,
+            gf_sigmas=gf_sigmas,
+        )
         removed[:, s] |= outl
         mw_out[:, s] = outl
         for j, why in enumerate(reasons):
@@ -311,17 +359,33 @@ def level_station(t_s: np.ndarray, svs: tuple[str, ...], p1_m: np.ndarray, pb_m:
             fit_wss[s] += float((((d[keep] - off) / sig[ep, s][keep]) ** 2).sum())
             fit_n[s] += int(keep.sum())
             arc_id[ep, s] = len(arcs)
-            arcs.append(ArcStatistics(svs[s], int(ep[0]), int(ep[-1]), int(ep.size), why, off, off_sd,
-                                      float(np.sqrt(np.mean((d[keep] - off) ** 2))), int((~keep).sum())))
+            arcs.append(
+                ArcStatistics(
+                    svs[s],
+                    int(ep[0]),
+                    int(ep[-1]),
+                    int(ep.size),
+                    why,
+                    off,
+                    off_sd,
+                    float(np.sqrt(np.mean((d[keep] - off) ** 2))),
+                    int((~keep).sum()),
+                )
+            )
     if fallback_raw:
         raw = np.isnan(out) & np.isfinite(gp) & ~removed
         out[raw] = gp[raw]
     tested = np.isfinite(w_all) | removed
     k = critical_value(level)
     flat_w = w_all[tested]
-    tests = ObservationTests(node=np.full(flat_w.size, node, np.int64), w=flat_w, critical_value=k, level=level,
-                             flagged=np.abs(np.nan_to_num(flat_w)) > k,
-                             removed=tuple(np.flatnonzero(removed[tested]).tolist()))
+    tests = ObservationTests(
+        node=np.full(flat_w.size, node, np.int64),
+        w=flat_w,
+        critical_value=k,
+        level=level,
+        flagged=np.abs(np.nan_to_num(flat_w)) > k,
+        removed=tuple(np.flatnonzero(removed[tested]).tolist()),
+    )
     return LevelledStation(out, arc_id, arcs, removed, starts, dropped, tests, fit_wss, fit_n, mw_out)
 
 
@@ -330,9 +394,14 @@ def station_sigma_factors(levelled: Sequence[LevelledStation]) -> np.ndarray:
     levelled phase within its arcs, ``√(Σ fit_wss / Σ fit_n)`` (its own code noise and multipath, from its own
     data), over their geometric mean. Stations without levelled arcs get 1; the factors keep the network's
     overall σ (their geometric mean is 1), so only the stations' relative weights change."""
-    rms = np.array([np.sqrt(float(lev.fit_wss.sum()) / float(lev.fit_n.sum()))
-                    if lev.fit_wss is not None and lev.fit_n is not None and lev.fit_n.sum() > 0 else np.nan
-                    for lev in levelled])
+    rms = np.array(
+        [
+            np.sqrt(float(lev.fit_wss.sum()) / float(lev.fit_n.sum()))
+            if lev.fit_wss is not None and lev.fit_n is not None and lev.fit_n.sum() > 0
+            else np.nan
+            for lev in levelled
+        ]
+    )
     ok = np.isfinite(rms) & (rms > 0)
     out = np.ones(rms.size)
     if ok.sum() >= 2:

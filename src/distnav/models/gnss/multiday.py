@@ -19,16 +19,21 @@ from distnav.errors import ModelError
 __all__ = ["combine_days"]
 
 
-def combine_days(summaries: Mapping[str, Mapping[str, Any]], *, filter_label: str = "central",
-                 std_key: str = "final_dsb_std_realistic_ns") -> dict[str, Any]:
+def combine_days(
+    summaries: Mapping[str, Mapping[str, Any]],
+    *,
+    filter_label: str = "central",
+    std_key: str = "final_dsb_std_realistic_ns",
+) -> dict[str, Any]:
     """Combine the final DSBs of several ``gnss ionosphere`` summaries (``{day: summary}``)."""
     if len(summaries) < 2:
         raise ModelError("combining days needs at least two")
     days = sorted(summaries)
     vals = {d: summaries[d]["final_dsb_ns"][filter_label] for d in days}
     sds = {d: summaries[d].get(std_key, summaries[d]["final_dsb_std_ns"])[filter_label] for d in days}
-    sats = [k for k in vals[days[0]] if not k.startswith("rx:")
-            and all(np.isfinite(vals[d].get(k, np.nan)) for d in days)]
+    sats = [
+        k for k in vals[days[0]] if not k.startswith("rx:") and all(np.isfinite(vals[d].get(k, np.nan)) for d in days)
+    ]
     if not sats:
         raise ModelError(f"no satellite is estimated on all of {', '.join(days)}")
     shift = {d: float(np.mean([vals[d][k] for k in sats])) for d in days}
@@ -47,7 +52,15 @@ def combine_days(summaries: Mapping[str, Mapping[str, Any]], *, filter_label: st
         rep[k] = float(np.std(v, ddof=1)) if v.size > 1 else None
     sat_rep = [v for k, v in rep.items() if v is not None and not k.startswith("rx:")]
     sat_sd = [float(np.median([sds[d].get(k, np.nan) for d in days])) for k in sats]
-    return {"days": days, "filter": filter_label, "common_satellites": sats, "datum_shift_ns": shift,
-            "daily_ns": aligned, "combined_ns": comb, "combined_std_ns": comb_sd, "repeatability_ns": rep,
-            "median_satellite_repeatability_ns": float(np.median(sat_rep)) if sat_rep else None,
-            "median_satellite_daily_std_ns": float(np.nanmedian(sat_sd)) if sat_sd else None}
+    return {
+        "days": days,
+        "filter": filter_label,
+        "common_satellites": sats,
+        "datum_shift_ns": shift,
+        "daily_ns": aligned,
+        "combined_ns": comb,
+        "combined_std_ns": comb_sd,
+        "repeatability_ns": rep,
+        "median_satellite_repeatability_ns": float(np.median(sat_rep)) if sat_rep else None,
+        "median_satellite_daily_std_ns": float(np.nanmedian(sat_sd)) if sat_sd else None,
+    }

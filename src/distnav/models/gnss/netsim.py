@@ -66,16 +66,26 @@ TECU_L1_M = 40.3e16 / GPS_FREQUENCIES_HZ[1] ** 2
 """L1 delay of 1 TECU [m] (0.1624 m)."""
 
 EUROPEAN_STATIONS: dict[str, tuple[float, float, float]] = {
-    "SIMA": (49.14, 12.88, 650.0), "SIMB": (50.80, 10.20, 400.0), "SIMC": (48.10, 16.40, 200.0)}
+    "SIMA": (49.14, 12.88, 650.0),
+    "SIMB": (50.80, 10.20, 400.0),
+    "SIMC": (48.10, 16.40, 200.0),
+}
 """Three mid-latitude receivers (degrees, metres) 200–450 km apart, about the layout of a small central-European
 IGS cluster."""
 
 _SHELLS_M = ((300e3, 0.30), (400e3, 0.45), (550e3, 0.25))
 
 REALISTIC: dict[str, Any] = {
-    "multipath_m": 0.9, "multipath_el_scale_deg": 20.0, "multipath_day_fraction": 0.6,
-    "station_noise_scale": (1.0, 1.4, 0.8), "tid_tecu": 0.5, "n_tid": 3, "irregularity_tecu": 0.15,
-    "irregularity_tau_s": 600.0, "shell_jitter_km": 40.0}
+    "multipath_m": 0.9,
+    "multipath_el_scale_deg": 20.0,
+    "multipath_day_fraction": 0.6,
+    "station_noise_scale": (1.0, 1.4, 0.8),
+    "tid_tecu": 0.5,
+    "n_tid": 3,
+    "irregularity_tecu": 0.15,
+    "irregularity_tau_s": 600.0,
+    "shell_jitter_km": 40.0,
+}
 """Keyword arguments of :func:`simulate_network` for the "realistic" preset (module doc; the calibration is in
 ``docs/ionosphere.md``): ``simulate_network(orbit, day, rng=rng, **REALISTIC)``."""
 
@@ -100,8 +110,9 @@ class VtecField:
     wave_period_s: float = 3000.0
 
     def tecu(self, lat_rad: np.ndarray, lon_rad: np.ndarray, t_gps_s: np.ndarray) -> np.ndarray:
-        lat, lon, t = np.broadcast_arrays(np.asarray(lat_rad, float), np.asarray(lon_rad, float),
-                                          np.asarray(t_gps_s, float))
+        lat, lon, t = np.broadcast_arrays(
+            np.asarray(lat_rad, float), np.asarray(lon_rad, float), np.asarray(t_gps_s, float)
+        )
         lt_h = np.mod(t / 3600.0 + np.rad2deg(lon) / 15.0, 24.0)
         dh = np.mod(lt_h - self.peak_local_h + 12.0, 24.0) - 12.0
         bump = np.where(np.abs(dh) < self.width_h, np.cos(0.5 * np.pi * dh / self.width_h) ** 2, 0.0)
@@ -125,8 +136,9 @@ class SimulatedNetwork:
     gross_errors: dict[str, int] = dataclass_field(default_factory=dict)
 
 
-def _given_or_drawn(names: Sequence[str], given: Mapping[str, float] | None, std: float,
-                    rng: np.random.Generator) -> dict[str, float]:
+def _given_or_drawn(
+    names: Sequence[str], given: Mapping[str, float] | None, std: float, rng: np.random.Generator
+) -> dict[str, float]:
     if given is not None:
         missing = [n for n in names if n not in given]
         if missing:
@@ -135,18 +147,34 @@ def _given_or_drawn(names: Sequence[str], given: Mapping[str, float] | None, std
     return {n: float(v) for n, v in zip(names, rng.normal(0.0, std, len(names)), strict=True)}
 
 
-def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Generator,
-                     stations: Mapping[str, tuple[float, float, float]] | None = None,
-                     interval_s: float = 30.0, hours: float = 24.0, field: VtecField | None = None,
-                     satellite_dsb_ns: Mapping[str, float] | None = None,
-                     receiver_dsb_ns: Mapping[str, float] | None = None, svn49: str | None = "G01",
-                     code_sigma_m: tuple[float, float] = (0.15, 0.18), multipath_m: float = 0.5,
-                     phase_sigma_m: float = 0.002, record_mask_deg: float = 5.0,
-                     gross_fraction: float = 0.0, gross_station: str | None = None,
-                     multipath_seed: int = 7, multipath_el_scale_deg: float = 15.0,
-                     multipath_day_fraction: float = 0.0, station_noise_scale: Sequence[float] = (1.0,),
-                     tid_tecu: float = 0.0, n_tid: int = 3, irregularity_tecu: float = 0.0,
-                     irregularity_tau_s: float = 600.0, shell_jitter_km: float = 0.0) -> SimulatedNetwork:
+def simulate_network(
+    orbit: Any,
+    day: str | np.datetime64,
+    *,
+    rng: np.random.Generator,
+    stations: Mapping[str, tuple[float, float, float]] | None = None,
+    interval_s: float = 30.0,
+    hours: float = 24.0,
+    field: VtecField | None = None,
+    satellite_dsb_ns: Mapping[str, float] | None = None,
+    receiver_dsb_ns: Mapping[str, float] | None = None,
+    svn49: str | None = "G01",
+    code_sigma_m: tuple[float, float] = (0.15, 0.18),
+    multipath_m: float = 0.5,
+    phase_sigma_m: float = 0.002,
+    record_mask_deg: float = 5.0,
+    gross_fraction: float = 0.0,
+    gross_station: str | None = None,
+    multipath_seed: int = 7,
+    multipath_el_scale_deg: float = 15.0,
+    multipath_day_fraction: float = 0.0,
+    station_noise_scale: Sequence[float] = (1.0,),
+    tid_tecu: float = 0.0,
+    n_tid: int = 3,
+    irregularity_tecu: float = 0.0,
+    irregularity_tau_s: float = 600.0,
+    shell_jitter_km: float = 0.0,
+) -> SimulatedNetwork:
     """Simulate a day (or ``hours`` of it from 00:00 GPS) of the network (module doc) with ``orbit``
     (``positions_ecef(t, svs)``, e.g. :func:`~distnav.models.gnss.orbits.synthetic_gps_constellation`).
 
@@ -162,8 +190,12 @@ def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Gen
         raise ModelError(f"gross_fraction {gross_fraction}: must lie in [0, 0.5)")
     if not 0.0 <= multipath_day_fraction <= 1.0:
         raise ModelError(f"multipath_day_fraction {multipath_day_fraction}: must lie in [0, 1]")
-    if not station_noise_scale or min(station_noise_scale) <= 0 or irregularity_tau_s <= 0 \
-            or multipath_el_scale_deg <= 0:
+    if (
+        not station_noise_scale
+        or min(station_noise_scale) <= 0
+        or irregularity_tau_s <= 0
+        or multipath_el_scale_deg <= 0
+    ):
         raise ModelError("station_noise_scale, irregularity_tau_s and multipath_el_scale_deg must be positive")
     sta = dict(EUROPEAN_STATIONS if stations is None else stations)
     fld = field or VtecField()
@@ -180,14 +212,16 @@ def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Gen
     gross_at = gross_station or names[-1]
     obs: list[CodeObservations] = []
     gross: dict[str, int] = {}
-    shells = [(height + 1e3 * shell_jitter_km * rng.standard_normal() if shell_jitter_km > 0 else height, weight)
-              for height, weight in _SHELLS_M]
+    shells = [
+        (height + 1e3 * shell_jitter_km * rng.standard_normal() if shell_jitter_km > 0 else height, weight)
+        for height, weight in _SHELLS_M
+    ]
     tids = _draw_tids(rng, tid_tecu, n_tid)
     for ri, name in enumerate(names):
         lat_d, lon_d, h = sta[name]
         lat, lon = np.deg2rad(lat_d), np.deg2rad(lon_d)
         xyz = np.asarray(geodetic_to_ecef(lat, lon, h), float).reshape(3)
-        az, el = azimuth_elevation(xyz, sat_xyz)                      # (T, S)
+        az, el = azimuth_elevation(xyz, sat_xyz)  # (T, S)
         up = el > np.deg2rad(record_mask_deg)
         el_s = np.where(up, el, 0.5 * np.pi)
         az_s = np.where(up, az, 0.0)
@@ -204,21 +238,28 @@ def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Gen
         unit = _multipath(np.random.default_rng([multipath_seed, ri]), len(svs), el_s, az_s)
         if multipath_day_fraction > 0:
             today = _multipath(rng, len(svs), el_s, az_s)
-            unit = [np.sqrt(1.0 - multipath_day_fraction**2) * u + multipath_day_fraction * v
-                    for u, v in zip(unit, today, strict=True)]
+            unit = [
+                np.sqrt(1.0 - multipath_day_fraction**2) * u + multipath_day_fraction * v
+                for u, v in zip(unit, today, strict=True)
+            ]
         amp = scale * multipath_m * np.exp(-np.rad2deg(el_s) / multipath_el_scale_deg)
         ranges: dict[int, np.ndarray] = {}
         phases: dict[int, np.ndarray] = {}
         for k, (band, mu_k) in enumerate(((1, 1.0), (2, mu2))):
             mp = (1.0 + 0.3 * k) * amp * unit[k]
             dsb_part = np.array([sat_dsb[s] for s in svs]) + rx_dsb[name] if band == 1 else 0.0
-            p = rho + mu_k * iono + C_M_S * 1e-9 * dsb_part + mp + scale * code_sigma_m[k] / np.sin(el_s) * \
-                rng.standard_normal(el.shape)
+            p = (
+                rho
+                + mu_k * iono
+                + C_M_S * 1e-9 * dsb_part
+                + mp
+                + scale * code_sigma_m[k] / np.sin(el_s) * rng.standard_normal(el.shape)
+            )
             if svn49 in svs:
                 j = svs.index(svn49)
                 p[:, j] += (0.9 if band == 1 else -0.3) * np.cos(el_s[:, j]) ** 2
             ambiguity = np.zeros(el.shape)
-            for j in range(len(svs)):                                   # a new integer ambiguity per pass
+            for j in range(len(svs)):  # a new integer ambiguity per pass
                 starts = np.flatnonzero(np.diff(np.concatenate([[False], up[:, j]]).astype(int)) == 1)
                 if starts.size == 0:
                     continue
@@ -235,10 +276,23 @@ def simulate_network(orbit: Any, day: str | np.datetime64, *, rng: np.random.Gen
             ranges[1] = flat.reshape(el.shape)
             gross[name] = int(hit.size)
         lli = {b: np.zeros(el.shape, np.int8) for b in (1, 2)}
-        obs.append(CodeObservations(name, Path(f"simulated-{name}"), time, tuple(svs), {1: "C1W", 2: "C2W"},
-                                    ranges, xyz, receiver="SIMULATED", rinex_version=2.11,
-                                    notes=("simulated by distnav.models.gnss.netsim",), phase_m=phases, lli=lli,
-                                    phase_types={1: "L1W", 2: "L2W"}))
+        obs.append(
+            CodeObservations(
+                name,
+                Path(f"simulated-{name}"),
+                time,
+                tuple(svs),
+                {1: "C1W", 2: "C2W"},
+                ranges,
+                xyz,
+                receiver="SIMULATED",
+                rinex_version=2.11,
+                notes=("simulated by distnav.models.gnss.netsim",),
+                phase_m=phases,
+                lli=lli,
+                phase_types={1: "L1W", 2: "L2W"},
+            )
+        )
     return SimulatedNetwork(obs, sat_dsb, rx_dsb, fld, svn49 if svn49 in svs else None, gross)
 
 
@@ -255,19 +309,29 @@ def _draw_tids(rng: np.random.Generator, tecu: float, n: int) -> list[tuple[floa
     """``n`` plane waves (amplitude TECU, direction rad, wavelength km, period s, phase) or none."""
     if tecu <= 0 or n <= 0:
         return []
-    return [(tecu * rng.uniform(0.5, 1.0), rng.uniform(0, 2 * np.pi), rng.uniform(150.0, 400.0),
-             rng.uniform(900.0, 3600.0), rng.uniform(0, 2 * np.pi)) for _ in range(n)]
+    return [
+        (
+            tecu * rng.uniform(0.5, 1.0),
+            rng.uniform(0, 2 * np.pi),
+            rng.uniform(150.0, 400.0),
+            rng.uniform(900.0, 3600.0),
+            rng.uniform(0, 2 * np.pi),
+        )
+        for _ in range(n)
+    ]
 
 
-def _tid_tecu(tids: Sequence[tuple[float, float, float, float, float]], lat: np.ndarray, lon: np.ndarray,
-              t: np.ndarray) -> np.ndarray | float:
+def _tid_tecu(
+    tids: Sequence[tuple[float, float, float, float, float]], lat: np.ndarray, lon: np.ndarray, t: np.ndarray
+) -> np.ndarray | float:
     if not tids:
         return 0.0
     north_km = np.rad2deg(lat) * 111.2
     east_km = np.rad2deg(lon) * 111.2 * np.cos(lat)
-    out: np.ndarray = sum(a * np.sin(2 * np.pi * ((np.cos(d) * north_km + np.sin(d) * east_km) / lam_km
-                                                  - t / period_s) + ph)
-                          for a, d, lam_km, period_s, ph in tids)
+    out: np.ndarray = sum(
+        a * np.sin(2 * np.pi * ((np.cos(d) * north_km + np.sin(d) * east_km) / lam_km - t / period_s) + ph)
+        for a, d, lam_km, period_s, ph in tids
+    )
     return out
 
 
@@ -286,5 +350,12 @@ def truth_product(sim: SimulatedNetwork, day: str | np.datetime64 | None = None)
     """The truth as a product (C1W − C2W DSBs) for :func:`~distnav.models.gnss.products.compare_in_datum`."""
     from distnav.models.gnss.products import ProductDSB
 
-    return ProductDSB("truth", Path("simulation"), "truth", dict(sim.satellite_dsb_ns), dict(sim.receiver_dsb_ns),
-                      [], None if day is None else np.datetime64(str(day)[:10]))
+    return ProductDSB(
+        "truth",
+        Path("simulation"),
+        "truth",
+        dict(sim.satellite_dsb_ns),
+        dict(sim.receiver_dsb_ns),
+        [],
+        None if day is None else np.datetime64(str(day)[:10]),
+    )

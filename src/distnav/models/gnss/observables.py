@@ -61,18 +61,19 @@ def geometry_free(y1: np.ndarray, y2: np.ndarray, mu1: float = 1.0, mu2: float |
 
 def codebias_coefficients(mus: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
     """Coefficients ``(c₁, c₂, c₃)`` of ``y = ȳ₃ − ȳ_IF − μ₃ ȳ_GF`` (paper 000 eq. (24)) for ``(μ₁, μ₂, μ₃)``."""
-    m1, m2, m3 = (mu_coefficients((1, 2, 5)) if mus is None else np.asarray(mus, dtype=float))
+    m1, m2, m3 = mu_coefficients((1, 2, 5)) if mus is None else np.asarray(mus, dtype=float)
     d = m2 - m1
     return np.array([(m3 - m2) / d, (m1 - m3) / d, 1.0])
 
 
-def codebias_observable(y1: np.ndarray, y2: np.ndarray, y3: np.ndarray,
-                        mus: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
+def codebias_observable(
+    y1: np.ndarray, y2: np.ndarray, y3: np.ndarray, mus: Sequence[float] | np.ndarray | None = None
+) -> np.ndarray:
     """The triple-frequency code-bias observable of paper 000 eq. (24): ``ȳ₃ − ȳ_IF − μ₃ ȳ_GF``.
 
     ``y1, y2, y3`` are code observations on f₁, f₂, f₃ (GPS L1, L2, L5) in metres; NaN propagates.
     """
-    m1, m2, m3 = (mu_coefficients((1, 2, 5)) if mus is None else np.asarray(mus, dtype=float))
+    m1, m2, m3 = mu_coefficients((1, 2, 5)) if mus is None else np.asarray(mus, dtype=float)
     y_if = ionosphere_free(y1, y2, m1, m2)
     y_gf = geometry_free(y1, y2, m1, m2)
     return np.asarray(np.asarray(y3) - y_if - m3 * y_gf)
@@ -80,13 +81,15 @@ def codebias_observable(y1: np.ndarray, y2: np.ndarray, y3: np.ndarray,
 
 def combination_matrix(mus: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
     """Rows mapping ``[ȳ₁, ȳ₂, ȳ₃]`` to ``[ȳ_IF, ȳ_GF, y]`` (IF, GF of eq. (25), code-bias observable of (24))."""
-    m1, m2, m3 = (mu_coefficients((1, 2, 5)) if mus is None else np.asarray(mus, dtype=float))
+    m1, m2, m3 = mu_coefficients((1, 2, 5)) if mus is None else np.asarray(mus, dtype=float)
     d = m2 - m1
-    return np.array([
-        [m2 / d, -m1 / d, 0.0],
-        [-1.0 / d, 1.0 / d, 0.0],
-        codebias_coefficients((m1, m2, m3)),
-    ])
+    return np.array(
+        [
+            [m2 / d, -m1 / d, 0.0],
+            [-1.0 / d, 1.0 / d, 0.0],
+            codebias_coefficients((m1, m2, m3)),
+        ]
+    )
 
 
 def combination_covariance(coefficients: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -132,8 +135,9 @@ def sbasis_design(visible: np.ndarray, n_satellites: int, *, reference_receiver:
     return np.asarray(between_satellite_operator(vis.size).T @ a_bar)
 
 
-def euler_goad_sigma(el_rad: np.ndarray, sigma0_m: float, *, a: float = 10.0,
-                     el0_rad: float = np.deg2rad(10.0)) -> np.ndarray:
+def euler_goad_sigma(
+    el_rad: np.ndarray, sigma0_m: float, *, a: float = 10.0, el0_rad: float = np.deg2rad(10.0)
+) -> np.ndarray:
     """Elevation-dependent standard deviation of Euler & Goad (1991): ``σ(θ) = σ₀ (1 + a·exp(−θ/θ₀))``.
 
     With a = 10 and θ₀ = 10° (paper 000 §5.1 via the papers README), σ(90°) ≈ σ₀ (zenith-referenced).

@@ -92,13 +92,33 @@ def _select_svs(known: Sequence[str], svs: Sequence[str] | None, what: str) -> l
 
 
 # ----------------------------------------------------------------------------------------------- broadcast
-_NAV_FIELDS = ("Toe", "GPSWeek", "sqrtA", "Eccentricity", "M0", "DeltaN", "omega", "Omega0", "OmegaDot",
-               "Io", "IDOT", "Cuc", "Cus", "Crc", "Crs", "Cic", "Cis", "SVclockBias", "SVclockDrift",
-               "SVclockDriftRate", "TGD", "health")
+_NAV_FIELDS = (
+    "Toe",
+    "GPSWeek",
+    "sqrtA",
+    "Eccentricity",
+    "M0",
+    "DeltaN",
+    "omega",
+    "Omega0",
+    "OmegaDot",
+    "Io",
+    "IDOT",
+    "Cuc",
+    "Cus",
+    "Crc",
+    "Crs",
+    "Cic",
+    "Cis",
+    "SVclockBias",
+    "SVclockDrift",
+    "SVclockDriftRate",
+    "TGD",
+    "health",
+)
 
 
-def _kepler_position(p: dict[str, np.ndarray], tk: np.ndarray,
-                     toe_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _kepler_position(p: dict[str, np.ndarray], tk: np.ndarray, toe_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """IS-GPS-200 Table 20-IV: ECEF position at ``toe + tk``; also the eccentric anomaly (for the clock)."""
     a = p["sqrtA"] ** 2
     n0 = np.sqrt(GM_M3_S2 / a**3)
@@ -139,8 +159,9 @@ class BroadcastOrbit:
     def from_dataset(cls, nav: Any, *, max_age_s: float = 4 * 3600.0, source: str = "") -> BroadcastOrbit:
         missing = [f for f in _NAV_FIELDS if f not in nav.data_vars]
         if missing:
-            raise DataFileError(f"{source or 'navigation dataset'}: not a GPS navigation file "
-                                f"(missing fields {missing[:5]})")
+            raise DataFileError(
+                f"{source or 'navigation dataset'}: not a GPS navigation file (missing fields {missing[:5]})"
+            )
         svs = [str(s) for s in nav.sv.values if str(s).startswith("G")]
         if not svs:
             raise DataFileError(f"{source or 'navigation dataset'}: no GPS ephemeris records")
@@ -153,8 +174,9 @@ class BroadcastOrbit:
         return cls.from_records(columns, max_age_s=max_age_s, source=source)
 
     @classmethod
-    def from_records(cls, columns: dict[str, dict[str, np.ndarray]], *, max_age_s: float = 4 * 3600.0,
-                     source: str = "") -> BroadcastOrbit:
+    def from_records(
+        cls, columns: dict[str, dict[str, np.ndarray]], *, max_age_s: float = 4 * 3600.0, source: str = ""
+    ) -> BroadcastOrbit:
         """From per-satellite columns (the fields of ``_NAV_FIELDS`` and ``toc_s``, in time-of-clock order; NaN rows
         are skipped), as :func:`distnav.models.gnss.rinex_nav.read_gps_ephemerides` gives them: the healthy
         records with a complete orbit, ordered by the time of ephemeris."""
@@ -198,8 +220,9 @@ class BroadcastOrbit:
             out[:, k] = pos
         return out
 
-    def _kepler_per_satellite(self, t: np.ndarray, names: Sequence[str]
-                              ) -> Iterator[tuple[int, dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]]:
+    def _kepler_per_satellite(
+        self, t: np.ndarray, names: Sequence[str]
+    ) -> Iterator[tuple[int, dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]]:
         """For every named satellite with records: its column, the records picked for ``t``, their validity, and
         the Kepler position and eccentric anomaly at ``t``."""
         for k, sv in enumerate(names):
@@ -209,8 +232,14 @@ class BroadcastOrbit:
             pos, ecc = _kepler_position(sel, t - sel["toe_abs_s"], sel["Toe"])
             yield k, sel, valid, pos, ecc
 
-    def clock_offsets_s(self, t_gps_s: np.ndarray, svs: Sequence[str] | None = None,
-                        *, relativistic: bool = True, include_tgd: bool = False) -> np.ndarray:
+    def clock_offsets_s(
+        self,
+        t_gps_s: np.ndarray,
+        svs: Sequence[str] | None = None,
+        *,
+        relativistic: bool = True,
+        include_tgd: bool = False,
+    ) -> np.ndarray:
         """Satellite clock offsets ``(T, S)`` [s]: the broadcast polynomial, plus the periodic relativistic term
         ``F e √A sin E`` (IS-GPS-200 20.3.3.3.3.1; omit it to compare with IGS/SP3 clocks, which exclude it),
         minus TGD for single-frequency L1 P(Y) users when ``include_tgd``."""
@@ -244,15 +273,15 @@ def lagrange_interpolate(t_nodes: np.ndarray, values: np.ndarray, t: np.ndarray,
         raise ModelError(f"Lagrange interpolation of order {order} needs {npts} samples, got {tn.size}")
     i0 = np.searchsorted(tn, tq) - (npts // 2)
     i0 = np.clip(i0, 0, tn.size - npts)
-    idx = i0[:, None] + np.arange(npts)[None, :]              # (T, npts)
+    idx = i0[:, None] + np.arange(npts)[None, :]  # (T, npts)
     tt = tn[idx]
     scale = max(float(np.median(np.diff(tn))), 1e-9)
-    x = (tq[:, None] - tt) / scale                             # (T, npts)  t − t_j
-    xj = (tt[:, :, None] - tt[:, None, :]) / scale             # (T, k, j)  t_k − t_j
+    x = (tq[:, None] - tt) / scale  # (T, npts)  t − t_j
+    xj = (tt[:, :, None] - tt[:, None, :]) / scale  # (T, k, j)  t_k − t_j
     eye = np.eye(npts, dtype=bool)[None]
-    num = np.where(eye, 1.0, x[:, None, :])                    # ∏_{j≠k} (t − t_j)
+    num = np.where(eye, 1.0, x[:, None, :])  # ∏_{j≠k} (t − t_j)
     den = np.where(eye, 1.0, xj)
-    w = np.prod(num, axis=2) / np.prod(den, axis=2)            # (T, npts)
+    w = np.prod(num, axis=2) / np.prod(den, axis=2)  # (T, npts)
     out = np.einsum("tk,tk...->t...", w, v[idx])
     outside = (tq < tn[0]) | (tq > tn[-1])
     out[outside] = np.nan
@@ -275,8 +304,7 @@ class SP3Orbit:
     source: str = ""
 
     @classmethod
-    def from_datasets(cls, datasets: Sequence[Any], *, system: str = "G", order: int = 9,
-                      source: str = "") -> SP3Orbit:
+    def from_datasets(cls, datasets: Sequence[Any], *, system: str = "G", order: int = 9, source: str = "") -> SP3Orbit:
         if not datasets:
             raise DataFileError("no SP3 file given")
         svs = sorted({str(s) for ds in datasets for s in ds.sv.values if str(s).startswith(system)})
@@ -344,9 +372,16 @@ class SyntheticConstellation:
         idx = _select_svs(self.svs, svs, "synthetic constellation")
         if any(k < 0 for k in idx):
             raise ModelError(f"unknown satellites {[s for s, k in zip(svs, idx, strict=True) if k < 0]}")
-        return SyntheticConstellation(tuple(self.svs[k] for k in idx), self.a_m[idx], self.inc_rad[idx],
-                                      self.raan_rad[idx], self.u0_rad[idx], self.iif[idx], self.epoch_gps_s,
-                                      self.plane[idx] if self.plane.size else self.plane)
+        return SyntheticConstellation(
+            tuple(self.svs[k] for k in idx),
+            self.a_m[idx],
+            self.inc_rad[idx],
+            self.raan_rad[idx],
+            self.u0_rad[idx],
+            self.iif[idx],
+            self.epoch_gps_s,
+            self.plane[idx] if self.plane.size else self.plane,
+        )
 
     def positions_ecef(self, t_gps_s: np.ndarray, svs: Sequence[str] | None = None) -> np.ndarray:
         cols = _select_svs(self.svs, svs, "synthetic constellation")
@@ -354,8 +389,8 @@ class SyntheticConstellation:
         k = np.array([c if c >= 0 else 0 for c in cols], dtype=int)
         a, inc, raan, u0 = self.a_m[k], self.inc_rad[k], self.raan_rad[k], self.u0_rad[k]
         n = np.sqrt(GM_M3_S2 / a**3)
-        u = u0 + n * t                                        # (T, S)
-        om = raan - OMEGA_E_RAD_S * t                         # node longitude in the rotating frame
+        u = u0 + n * t  # (T, S)
+        om = raan - OMEGA_E_RAD_S * t  # node longitude in the rotating frame
         xp, yp = a * np.cos(u), a * np.sin(u)
         ci, si = np.cos(inc), np.sin(inc)
         co, so = np.cos(om), np.sin(om)
@@ -365,9 +400,14 @@ class SyntheticConstellation:
         return pos
 
 
-def synthetic_gps_constellation(*, epoch: str | np.datetime64 = "2018-01-10T00:00:00",
-                                a_m: float | None = None, inc_deg: float = 55.0,
-                                raan0_deg: float = 0.0, plane_phase_deg: float = 15.0) -> SyntheticConstellation:
+def synthetic_gps_constellation(
+    *,
+    epoch: str | np.datetime64 = "2018-01-10T00:00:00",
+    a_m: float | None = None,
+    inc_deg: float = 55.0,
+    raan0_deg: float = 0.0,
+    plane_phase_deg: float = 15.0,
+) -> SyntheticConstellation:
     """A 31-satellite GPS-like constellation from nominal elements: six planes 60° apart in node (55°
     inclination), 6 + 5 × 5 satellites evenly spaced in each plane, adjacent planes shifted by ``plane_phase_deg``
     in argument of latitude. ``a_m`` defaults to the Keplerian semi-major axis of a period of exactly half a

@@ -19,8 +19,17 @@ import numpy as np
 
 from distnav.errors import DataFileError, ModelError
 
-__all__ = ["ProductDSB", "product_dsbs", "compare_in_datum", "product_day", "DSBEstimates", "read_estimates",
-           "correct_c1", "worst_satellite", "WORST_LEVEL"]
+__all__ = [
+    "ProductDSB",
+    "product_dsbs",
+    "compare_in_datum",
+    "product_day",
+    "DSBEstimates",
+    "read_estimates",
+    "correct_c1",
+    "worst_satellite",
+    "WORST_LEVEL",
+]
 
 WORST_LEVEL = 0.05
 """Family-wise level of :func:`worst_satellite`'s "stands out" flag (Bonferroni over the compared satellites)."""
@@ -56,8 +65,15 @@ def product_day(path: str | Path) -> np.datetime64 | None:
     return None
 
 
-def product_dsbs(paths: Sequence[str | Path], svs: Sequence[str], stations: Sequence[str], obs1: str,
-                 obs2: str, *, station_codes: Mapping[str, tuple[str, str]] | None = None) -> list[ProductDSB]:
+def product_dsbs(
+    paths: Sequence[str | Path],
+    svs: Sequence[str],
+    stations: Sequence[str],
+    obs1: str,
+    obs2: str,
+    *,
+    station_codes: Mapping[str, tuple[str, str]] | None = None,
+) -> list[ProductDSB]:
     """Satellite and station DSBs ``obs1 − obs2`` [ns] of each product file (Bias-SINEX or IONEX).
 
     ``station_codes``: a station's own code pair where it differs from the satellites' (a C1C station corrected
@@ -73,8 +89,9 @@ def product_dsbs(paths: Sequence[str | Path], svs: Sequence[str], stations: Sequ
             try:
                 kinds.append(("ionex", read_ionex_dcb(path), path))
             except DataFileError as exc_ionex:
-                raise DataFileError(f"{path}: neither a Bias-SINEX file ({exc_sinex}) nor an IONEX file with a DCB "
-                                    f"block ({exc_ionex})") from None
+                raise DataFileError(
+                    f"{path}: neither a Bias-SINEX file ({exc_sinex}) nor an IONEX file with a DCB block ({exc_ionex})"
+                ) from None
     sinex = [prod for kind, prod, _ in kinds if kind == "sinex"]
     out: list[ProductDSB] = []
     for kind, prod, path in kinds:
@@ -102,20 +119,27 @@ def product_dsbs(paths: Sequence[str | Path], svs: Sequence[str], stations: Sequ
             name = f"{prod.name} {path.name}"
         else:
             sat = {s: prod.satellite[s][0] for s in svs if s in prod.satellite}
-            sta = {r: prod.station[("G", r.upper())][0] for r in stations if ("G", r.upper()) in prod.station
-                   and (station_codes or {}).get(r, ("C1W", "C2W")) == ("C1W", "C2W")}
+            sta = {
+                r: prod.station[("G", r.upper())][0]
+                for r in stations
+                if ("G", r.upper()) in prod.station and (station_codes or {}).get(r, ("C1W", "C2W")) == ("C1W", "C2W")
+            }
             name = f"IONEX {path.name}"
             if (obs1, obs2) != ("C1W", "C2W"):
-                notes.append(f"IONEX DCBs are P1-P2 (C1W-C2W); estimates are {obs1}-{obs2}: differences include "
-                             f"the satellites' {obs1}-C1W biases")
-        out.append(ProductDSB(name, path, kind, sat, sta, notes, product_day(path),
-                              f"{obs1}-{obs2}" if kind == "sinex" else "C1W-C2W"))
+                notes.append(
+                    f"IONEX DCBs are P1-P2 (C1W-C2W); estimates are {obs1}-{obs2}: differences include "
+                    f"the satellites' {obs1}-C1W biases"
+                )
+        out.append(
+            ProductDSB(
+                name, path, kind, sat, sta, notes, product_day(path), f"{obs1}-{obs2}" if kind == "sinex" else "C1W-C2W"
+            )
+        )
     return out
 
 
 def _stats(d: np.ndarray) -> dict[str, float]:
-    return {"mean_ns": float(d.mean()), "rms_ns": float(np.sqrt(np.mean(d**2))),
-            "max_abs_ns": float(np.abs(d).max())}
+    return {"mean_ns": float(d.mean()), "rms_ns": float(np.sqrt(np.mean(d**2))), "max_abs_ns": float(np.abs(d).max())}
 
 
 def worst_satellite(difference_ns: Mapping[str, float], *, level: float = WORST_LEVEL) -> dict[str, Any] | None:
@@ -135,13 +159,21 @@ def worst_satellite(difference_ns: Mapping[str, float], *, level: float = WORST_
     rms_others = float(np.sqrt(np.mean(others**2)))
     k = NormalDist().inv_cdf(1.0 - level / (2.0 * len(names)))
     ratio = float(abs(d[j]) / rms_others) if rms_others > 0 else float("inf")
-    return {"satellite": names[j], "difference_ns": float(d[j]), "rms_others_ns": rms_others,
-            "ratio_to_rms_others": ratio, "critical_ratio": float(k), "stands_out": bool(ratio > k),
-            "level": level, "n": len(names)}
+    return {
+        "satellite": names[j],
+        "difference_ns": float(d[j]),
+        "rms_others_ns": rms_others,
+        "ratio_to_rms_others": ratio,
+        "critical_ratio": float(k),
+        "stands_out": bool(ratio > k),
+        "level": level,
+        "n": len(names),
+    }
 
 
-def compare_in_datum(sat_ns: dict[str, float], rx_ns: dict[str, float], product: ProductDSB, *,
-                     exclude: Sequence[str] = ()) -> dict[str, Any]:
+def compare_in_datum(
+    sat_ns: dict[str, float], rx_ns: dict[str, float], product: ProductDSB, *, exclude: Sequence[str] = ()
+) -> dict[str, Any]:
     """Estimate − product after aligning the product's datum to the estimates' over the common satellites.
 
     Satellites: ``d^s = est^s − prod^s − c`` with ``c`` the mean of ``est^s − prod^s`` over the common satellites
@@ -151,22 +183,33 @@ def compare_in_datum(sat_ns: dict[str, float], rx_ns: dict[str, float], product:
     """
     common = sorted(s for s in sat_ns if s in product.satellite and np.isfinite(sat_ns[s]) and s not in exclude)
     if not common:
-        what = (f"{product.name} has no {product.pair} satellite DSB" if not product.satellite and product.pair
-                else f"no satellite in common with {product.name}")
+        what = (
+            f"{product.name} has no {product.pair} satellite DSB"
+            if not product.satellite and product.pair
+            else f"no satellite in common with {product.name}"
+        )
         return {"n": 0, "note": what}
     raw = np.array([sat_ns[s] - product.satellite[s] for s in common])
     c = float(raw.mean())
     d = raw - c
-    out: dict[str, Any] = {"n": len(common), "datum_offset_ns": c, **_stats(raw),
-                           "rms_zero_mean_ns": float(np.sqrt(np.mean(d**2))), "max_abs_zero_mean_ns":
-                           float(np.abs(d).max()), "worst": common[int(np.argmax(np.abs(d)))],
-                           "difference_ns": dict(zip(common, d.tolist(), strict=True)),
-                           "reference_ns": {s: product.satellite[s] for s in common}}
+    out: dict[str, Any] = {
+        "n": len(common),
+        "datum_offset_ns": c,
+        **_stats(raw),
+        "rms_zero_mean_ns": float(np.sqrt(np.mean(d**2))),
+        "max_abs_zero_mean_ns": float(np.abs(d).max()),
+        "worst": common[int(np.argmax(np.abs(d)))],
+        "difference_ns": dict(zip(common, d.tolist(), strict=True)),
+        "reference_ns": {s: product.satellite[s] for s in common},
+    }
     out["worst_fitting"] = worst_satellite(out["difference_ns"])
     rx = {r: rx_ns[r] - product.station[r] + c for r in rx_ns if r in product.station and np.isfinite(rx_ns[r])}
     if rx:
-        out["receivers"] = {"difference_ns": rx, "reference_ns": {r: product.station[r] for r in rx},
-                            **_stats(np.array(list(rx.values())))}
+        out["receivers"] = {
+            "difference_ns": rx,
+            "reference_ns": {r: product.station[r] for r in rx},
+            **_stats(np.array(list(rx.values()))),
+        }
     missing = sorted(r for r in rx_ns if r not in product.station and np.isfinite(rx_ns[r]))
     if missing:
         out["receivers_not_in_product"] = missing
@@ -204,10 +247,18 @@ def read_estimates(path: str | Path, *, filter_label: str = "central") -> DSBEst
             codes = list(s["codes"].values())
             days = tuple(sorted({np.datetime64(s["first_epoch"], "D"), np.datetime64(s["last_epoch"], "D")}))
         except (ValueError, KeyError, TypeError) as exc:
-            raise DataFileError(f"{p}: not a `distnav gnss ionosphere` summary.json with filter {filter_label!r} "
-                                f"({type(exc).__name__}: {exc})") from None
-        return DSBEstimates(str(p), codes[0], codes[1], {k: v for k, v in vals.items() if not k.startswith("rx:")},
-                            {k[3:]: v for k, v in vals.items() if k.startswith("rx:")}, days)
+            raise DataFileError(
+                f"{p}: not a `distnav gnss ionosphere` summary.json with filter {filter_label!r} "
+                f"({type(exc).__name__}: {exc})"
+            ) from None
+        return DSBEstimates(
+            str(p),
+            codes[0],
+            codes[1],
+            {k: v for k, v in vals.items() if not k.startswith("rx:")},
+            {k[3:]: v for k, v in vals.items() if k.startswith("rx:")},
+            days,
+        )
     prod = read_bias_sinex(p)
     pairs: dict[tuple[str, str], int] = {}
     for r in prod.records:
@@ -216,10 +267,16 @@ def read_estimates(path: str | Path, *, filter_label: str = "central") -> DSBEst
     if not pairs:
         raise DataFileError(f"{p}: no GPS satellite DSB")
     o1, o2 = max(pairs, key=lambda k: pairs[k])
-    sat = {r.prn: r.value for r in prod.records if r.kind == "DSB" and r.prn.startswith("G")
-           and (r.obs1, r.obs2) == (o1, o2)}
-    sta = {r.station[:4].upper(): r.value for r in prod.records if r.kind == "DSB" and r.station
-           and r.system == "G" and (r.obs1, r.obs2) == (o1, o2)}
+    sat = {
+        r.prn: r.value
+        for r in prod.records
+        if r.kind == "DSB" and r.prn.startswith("G") and (r.obs1, r.obs2) == (o1, o2)
+    }
+    sta = {
+        r.station[:4].upper(): r.value
+        for r in prod.records
+        if r.kind == "DSB" and r.station and r.system == "G" and (r.obs1, r.obs2) == (o1, o2)
+    }
     starts = {r.start for r in prod.records if r.start}
     found = [_sinex_day(t) for t in starts]
     days = tuple(sorted({d for d in found if d is not None}))
@@ -255,6 +312,7 @@ def correct_c1(o: Any, product: str | Path) -> Any:
             missing.append(sv)
         else:
             p1[:, k] -= C_M_S * 1e-9 * dsb
-    note = f"C1C corrected to C1W with {prod.name} C1C-C1W satellite DSBs" + \
-        (f" (none for {' '.join(missing)}: dropped)" if missing else "")
+    note = f"C1C corrected to C1W with {prod.name} C1C-C1W satellite DSBs" + (
+        f" (none for {' '.join(missing)}: dropped)" if missing else ""
+    )
     return replace(o, range_m={**o.range_m, 1: p1}, codes={**o.codes, 1: "C1W"}, notes=(*o.notes, note))

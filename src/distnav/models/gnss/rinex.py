@@ -147,11 +147,16 @@ def _to_datetime64(t: Any) -> np.datetime64:
         raise DataFileError(f"time {t!r} is not an ISO date/time (e.g. 2024-01-10T06:00)") from None
 
 
-def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5),
-                           codes: Mapping[int, str] | None = None,
-                           tlim: tuple[Any, Any] | None = None,
-                           interval_s: float | None = None, phases: bool = False,
-                           progress: ProgressCallback | None = None) -> CodeObservations:
+def read_code_observations(
+    path: str | Path,
+    *,
+    bands: Sequence[int] = (1, 2, 5),
+    codes: Mapping[int, str] | None = None,
+    tlim: tuple[Any, Any] | None = None,
+    interval_s: float | None = None,
+    phases: bool = False,
+    progress: ProgressCallback | None = None,
+) -> CodeObservations:
     """Read the GPS code observations of one RINEX 2.11/3.x observation file (``.o``, ``.d``, ``.crx``, ``.gz``).
 
     ``codes`` forces the RINEX 3 code of a band (e.g. ``{1: "C1W"}``); otherwise :data:`CODE_PREFERENCE`
@@ -173,7 +178,7 @@ def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5)
     notes: list[str] = []
     forced = dict(codes or {})
     chosen: dict[int, str] = {}
-    file_types: dict[int, str] = {}   # band -> the type name as stored in the file
+    file_types: dict[int, str] = {}  # band -> the type name as stored in the file
     gps_types = list(hdr.gps_types)
     if not gps_types:
         raise DataFileError(f"{p}: no GPS observation types in the header")
@@ -184,7 +189,8 @@ def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5)
             if hit is None:
                 raise DataFileError(
                     f"{p}: no L{b} code observation ({'/'.join(prefs)}) for GPS; "
-                    f"types present: {' '.join(t for t in gps_types if t.startswith('C'))}")
+                    f"types present: {' '.join(t for t in gps_types if t.startswith('C'))}"
+                )
             chosen[b] = hit
             file_types[b] = hit
     else:
@@ -207,11 +213,14 @@ def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5)
                 r2_names = [r2 for c3 in prefs for r2 in inverse.get(c3, [])]
                 raise DataFileError(
                     f"{p}: no L{b} code observation ({'/'.join(r2_names) or '/'.join(prefs)}) in this RINEX 2 "
-                    f"file; types present: {' '.join(types)}")
+                    f"file; types present: {' '.join(types)}"
+                )
             chosen[b], file_types[b] = pair
             if pair[1] in ("C2", "C5"):
-                notes.append(f"RINEX 2 {pair[1]} read as {pair[0]} "
-                             f"({'receiver ' + make if make else 'unknown receiver make: default'})")
+                notes.append(
+                    f"RINEX 2 {pair[1]} read as {pair[0]} "
+                    f"({'receiver ' + make if make else 'unknown receiver make: default'})"
+                )
     phase_types: dict[int, str] = {}
     if phases:
         for b in bands:
@@ -220,13 +229,14 @@ def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5)
                 phase_types[b] = ph
     window = None if tlim is None else (_to_datetime64(tlim[0]), _to_datetime64(tlim[1]))
     wanted = sorted(set(file_types.values()) | set(phase_types.values()))
-    raw = read_observation_types(p, wanted, tlim=window, interval_s=interval_s, progress=progress,
-                                 label=_station_name(hdr.marker, p))
+    raw = read_observation_types(
+        p, wanted, tlim=window, interval_s=interval_s, progress=progress, label=_station_name(hdr.marker, p)
+    )
     ranges: dict[int, np.ndarray] = {}
     for b, name in file_types.items():
         arr = raw.values[name].copy()
         with np.errstate(invalid="ignore"):
-            arr[(arr < 1.0e7) | (arr > 5.0e7)] = np.nan   # blanks / zeros / garbage are not GPS ranges
+            arr[(arr < 1.0e7) | (arr > 5.0e7)] = np.nan  # blanks / zeros / garbage are not GPS ranges
         ranges[b] = arr
     phase_m: dict[int, np.ndarray] = {}
     lli: dict[int, np.ndarray] = {}
@@ -236,10 +246,21 @@ def read_code_observations(path: str | Path, *, bands: Sequence[int] = (1, 2, 5)
         phase_m[b] = arr
         lli[b] = raw.lli[name]
     return CodeObservations(
-        station=_station_name(hdr.marker, p), path=p, time=raw.time, svs=raw.svs,
-        codes=chosen, range_m=ranges, position_ecef_m=hdr.position_ecef_m, receiver=receiver,
-        rinex_version=version, notes=tuple(notes), phase_m=phase_m, lli=lli,
-        phase_types={b: t for b, t in phase_types.items()}, time_system=hdr.time_system)
+        station=_station_name(hdr.marker, p),
+        path=p,
+        time=raw.time,
+        svs=raw.svs,
+        codes=chosen,
+        range_m=ranges,
+        position_ecef_m=hdr.position_ecef_m,
+        receiver=receiver,
+        rinex_version=version,
+        notes=tuple(notes),
+        phase_m=phase_m,
+        lli=lli,
+        phase_types={b: t for b, t in phase_types.items()},
+        time_system=hdr.time_system,
+    )
 
 
 def check_sp3_file(path: str | Path) -> None:
@@ -249,23 +270,32 @@ def check_sp3_file(path: str | Path) -> None:
     lines = read_text_file(p, whole_lines=True)
     first = lines[0] if lines else ""
     if first[:2] not in ("#a", "#b", "#c", "#d"):
-        raise DataFileError(f"{p}, line 1: expected an SP3 file starting with '#a', '#b', '#c' or '#d', got "
-                            f"{first[:20]!r}")
+        raise DataFileError(
+            f"{p}, line 1: expected an SP3 file starting with '#a', '#b', '#c' or '#d', got {first[:20]!r}"
+        )
     _ints(p, 1, first, [(3, 7), (8, 10), (11, 13)], "the start date", "year month day as in '#dP2020  6 25'")
     epochs = 0
     for no, line in enumerate(lines, start=1):
         if line.startswith("*"):
             epochs += 1
-            _ints(p, no, line, [(3, 7), (8, 10), (11, 13), (14, 16), (17, 19)], "the epoch",
-                  "year month day hour minute as in '*  2020  6 25  0  0  0.00000000'")
+            _ints(
+                p,
+                no,
+                line,
+                [(3, 7), (8, 10), (11, 13), (14, 16), (17, 19)],
+                "the epoch",
+                "year month day hour minute as in '*  2020  6 25  0  0  0.00000000'",
+            )
         elif line.startswith("P"):
             for a in (4, 18, 32):
-                f = line[a:a + 14]
+                f = line[a : a + 14]
                 try:
                     float(f)
                 except ValueError:
-                    raise DataFileError(f"{p}, line {no}: columns {a + 1}-{a + 14} of {line[1:4]}: expected a "
-                                        f"coordinate in km such as ' -11562.163582', got {f.strip()!r}") from None
+                    raise DataFileError(
+                        f"{p}, line {no}: columns {a + 1}-{a + 14} of {line[1:4]}: expected a "
+                        f"coordinate in km such as ' -11562.163582', got {f.strip()!r}"
+                    ) from None
     if not epochs:
         raise DataFileError(f"{p}: no epoch lines ('*  YYYY MM DD ...'): not an SP3 orbit file")
     if lines[-1].strip() != "EOF":
@@ -296,7 +326,7 @@ def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                if magic.startswith(COMPRESSED_MAGIC):      # .Z / bzip2 / zip: georinex needs unlzw3 for .Z
+                if magic.startswith(COMPRESSED_MAGIC):  # .Z / bzip2 / zip: georinex needs unlzw3 for .Z
                     import io
 
                     from georinex.sp3 import load_sp3
@@ -305,8 +335,10 @@ def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3
                 else:
                     ds = gr.load(p)
         except Exception:  # georinex's messages quote Python internals; the checks above found nothing specific
-            raise DataFileError(f"{p}: could not be read as SP3 orbits although its epochs and records look "
-                                f"well-formed (expected SP3-c/d position records)") from None
+            raise DataFileError(
+                f"{p}: could not be read as SP3 orbits although its epochs and records look "
+                f"well-formed (expected SP3-c/d position records)"
+            ) from None
         if ds is None or "position" not in getattr(ds, "data_vars", {}):
             raise DataFileError(f"{p}: not an SP3 orbit file")
         datasets.append(ds)

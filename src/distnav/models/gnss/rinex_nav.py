@@ -29,14 +29,35 @@ from distnav.models.gnss.rinex_obs import read_text_file
 __all__ = ["GPS_NAV_FIELDS", "check_navigation_file", "read_gps_ephemerides"]
 
 GPS_NAV_FIELDS: tuple[str, ...] = (
-    "SVclockBias", "SVclockDrift", "SVclockDriftRate",
-    "IODE", "Crs", "DeltaN", "M0",
-    "Cuc", "Eccentricity", "Cus", "sqrtA",
-    "Toe", "Cic", "Omega0", "Cis",
-    "Io", "Crc", "omega", "OmegaDot",
-    "IDOT", "CodesL2", "GPSWeek", "L2Pflag",
-    "SVacc", "health", "TGD", "IODC",
-    "TransTime", "FitIntvl",
+    "SVclockBias",
+    "SVclockDrift",
+    "SVclockDriftRate",
+    "IODE",
+    "Crs",
+    "DeltaN",
+    "M0",
+    "Cuc",
+    "Eccentricity",
+    "Cus",
+    "sqrtA",
+    "Toe",
+    "Cic",
+    "Omega0",
+    "Cis",
+    "Io",
+    "Crc",
+    "omega",
+    "OmegaDot",
+    "IDOT",
+    "CodesL2",
+    "GPSWeek",
+    "L2Pflag",
+    "SVacc",
+    "health",
+    "TGD",
+    "IODC",
+    "TransTime",
+    "FitIntvl",
 )
 """The GPS record's fields in file order (IS-GPS-200 names as georinex gives them; 8 lines, the spares left out)."""
 
@@ -48,29 +69,38 @@ _WIDTH = 19
 def _ints(p: Path, no: int, line: str, spans: Sequence[tuple[int, int]], what: str, example: str) -> None:
     for a, b in spans:
         if not line[a:b].strip().isdigit():
-            raise DataFileError(f"{p}, line {no}: {what} (columns {a + 1}-{b}): expected {example}, got "
-                                f"{line[a:b].strip()!r}")
+            raise DataFileError(
+                f"{p}, line {no}: {what} (columns {a + 1}-{b}): expected {example}, got {line[a:b].strip()!r}"
+            )
 
 
 def _numbers(p: Path, no: int, line: str, starts: Sequence[int], out: list[float]) -> None:
     """Append the ``D19.12`` fields of a line at ``starts`` to ``out`` (blank: NaN), naming a bad one."""
     for a in starts:
-        f = line[a:a + _WIDTH]
+        f = line[a : a + _WIDTH]
         if not f.strip():
             out.append(np.nan)
             continue
         try:
             out.append(float(f.replace("D", "E").replace("d", "e")))
         except ValueError:
-            raise DataFileError(f"{p}, line {no}: columns {a + 1}-{a + _WIDTH}: expected {_NUMBER}, got "
-                                f"{f.strip()!r}") from None
+            raise DataFileError(
+                f"{p}, line {no}: columns {a + 1}-{a + _WIDTH}: expected {_NUMBER}, got {f.strip()!r}"
+            ) from None
 
 
 def _rinex2_time(line: str) -> datetime:
     yy = int(line[3:5])
     sec = float(line[17:22])
-    return datetime(yy + (1900 if yy >= 80 else 2000), int(line[6:8]), int(line[9:11]), int(line[12:14]),
-                    int(line[15:17]), int(sec), int(sec % 1 * 1_000_000))
+    return datetime(
+        yy + (1900 if yy >= 80 else 2000),
+        int(line[6:8]),
+        int(line[9:11]),
+        int(line[12:14]),
+        int(line[15:17]),
+        int(sec),
+        int(sec % 1 * 1_000_000),
+    )
 
 
 def read_gps_ephemerides(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
@@ -91,13 +121,15 @@ def read_gps_ephemerides(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
     except ValueError:
         version = 0.0
     if first[60:80].strip() != "RINEX VERSION / TYPE" or not 2.0 <= version < 5.0 or first[20:21] not in "NG":
-        raise DataFileError(f"{p}, line 1: expected a RINEX navigation file: 'RINEX VERSION / TYPE' with a version "
-                            f"such as 2.11 or 3.04 in columns 1-9 and type N in column 21, got {first[:80]!r}")
+        raise DataFileError(
+            f"{p}, line 1: expected a RINEX navigation file: 'RINEX VERSION / TYPE' with a version "
+            f"such as 2.11 or 3.04 in columns 1-9 and type N in column 21, got {first[:80]!r}"
+        )
     end = next((k for k, line in enumerate(lines) if line[60:73] == "END OF HEADER"), None)
     if end is None:
         raise DataFileError(f"{p}: no END OF HEADER line (the header is incomplete or the file is not RINEX)")
     rinex3 = version >= 3
-    gps_file = first[20:21] == "N"               # RINEX 2: N = GPS, G = GLONASS
+    gps_file = first[20:21] == "N"  # RINEX 2: N = GPS, G = GLONASS
     found: dict[str, list[tuple[datetime, list[float]]]] = {}
     k, n_lines = end + 1, len(lines)
     while k < n_lines:
@@ -107,34 +139,54 @@ def read_gps_ephemerides(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
             continue
         if rinex3:
             if not (line[:1].isalpha() and line[1:3].isdigit()):
-                raise DataFileError(f"{p}, line {k + 1}: expected a record starting with a satellite id such as "
-                                    f"G05 in columns 1-3, got {line[:12]!r}")
+                raise DataFileError(
+                    f"{p}, line {k + 1}: expected a record starting with a satellite id such as "
+                    f"G05 in columns 1-3, got {line[:12]!r}"
+                )
             n = 1  # RINEX 3: continuation lines start with 4 blanks (3.05 GLONASS records have 5 lines, not 4)
             while k + n < n_lines and lines[k + n][:4] == "    " and lines[k + n].strip():
                 n += 1
             need = _RECORD_LINES.get(line[0], 8)
             if n < need:
-                raise DataFileError(f"{p}, line {k + 1}: the record of {line[:3]} has {n} of {need} lines: the file "
-                                    f"is truncated or a line is missing")
-            _ints(p, k + 1, line, [(4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23)], "the epoch",
-                  "year month day hour minute second as in 'G05 2024 01 10 00 00 00'")
+                raise DataFileError(
+                    f"{p}, line {k + 1}: the record of {line[:3]} has {n} of {need} lines: the file "
+                    f"is truncated or a line is missing"
+                )
+            _ints(
+                p,
+                k + 1,
+                line,
+                [(4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23)],
+                "the epoch",
+                "year month day hour minute second as in 'G05 2024 01 10 00 00 00'",
+            )
             first_starts, starts = (23, 42, 61), (4, 23, 42, 61)
             gps = line[0] == "G"
         else:
             n = 8 if gps_file else 4
             _ints(p, k + 1, line, [(0, 2)], "the satellite number", "a PRN such as ' 5'")
-            _ints(p, k + 1, line, [(3, 5), (6, 8), (9, 11), (12, 14), (15, 17)], "the epoch",
-                  "year month day hour minute as in ' 5 24  1 10  0  0  0.0'")
+            _ints(
+                p,
+                k + 1,
+                line,
+                [(3, 5), (6, 8), (9, 11), (12, 14), (15, 17)],
+                "the epoch",
+                "year month day hour minute as in ' 5 24  1 10  0  0  0.0'",
+            )
             first_starts, starts = (22, 41, 60), (3, 22, 41, 60)
             gps = gps_file
         if k + n > n_lines:
-            raise DataFileError(f"{p}, line {k + 1}: the record of {line[:3].strip()} has {n_lines - k} of "
-                                f"{n} lines: the file is truncated")
+            raise DataFileError(
+                f"{p}, line {k + 1}: the record of {line[:3].strip()} has {n_lines - k} of "
+                f"{n} lines: the file is truncated"
+            )
         for j in range(1, n):
             if lines[k + j][:1].strip():
-                raise DataFileError(f"{p}, line {k + 1 + j}: expected a continuation line of the record of "
-                                    f"{line[:3].strip()} (line {k + 1}) starting with blanks, got "
-                                    f"{lines[k + j][:12]!r}")
+                raise DataFileError(
+                    f"{p}, line {k + 1 + j}: expected a continuation line of the record of "
+                    f"{line[:3].strip()} (line {k + 1}) starting with blanks, got "
+                    f"{lines[k + j][:12]!r}"
+                )
         if gps:
             vals: list[float] = []
             _numbers(p, k + 1, line, first_starts, vals)
@@ -142,20 +194,28 @@ def read_gps_ephemerides(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
                 _numbers(p, k + 1 + j, lines[k + j], starts, vals)
             if rinex3:
                 sv = "G" + line[1:3].replace(" ", "0")
-                toc = datetime(int(line[4:8]), int(line[9:11]), int(line[12:14]), int(line[15:17]),
-                               int(line[18:20]), int(line[21:23]))
+                toc = datetime(
+                    int(line[4:8]),
+                    int(line[9:11]),
+                    int(line[12:14]),
+                    int(line[15:17]),
+                    int(line[18:20]),
+                    int(line[21:23]),
+                )
             else:
                 sv = f"G{int(line[:2]):02d}"
                 try:
                     toc = _rinex2_time(line)
                 except ValueError:
-                    raise DataFileError(f"{p}, line {k + 1}: the epoch second (columns 18-22): expected a number "
-                                        f"such as ' 0.0', got {line[17:22].strip()!r}") from None
-            found.setdefault(sv, []).append((toc, vals[:len(GPS_NAV_FIELDS)]))
+                    raise DataFileError(
+                        f"{p}, line {k + 1}: the epoch second (columns 18-22): expected a number "
+                        f"such as ' 0.0', got {line[17:22].strip()!r}"
+                    ) from None
+            found.setdefault(sv, []).append((toc, vals[: len(GPS_NAV_FIELDS)]))
         k += n
     out: dict[str, dict[str, np.ndarray]] = {}
     for sv, recs in found.items():
-        recs.sort(key=lambda r: r[0])            # stable: a repeated time of clock keeps its first record
+        recs.sort(key=lambda r: r[0])  # stable: a repeated time of clock keeps its first record
         keep = [r for i, r in enumerate(recs) if i == 0 or r[0] != recs[i - 1][0]]
         vals_arr = np.array([r[1] for r in keep], dtype=float)
         cols = {f: vals_arr[:, i] for i, f in enumerate(GPS_NAV_FIELDS)}

@@ -28,15 +28,24 @@ import numpy as np
 
 from distnav.errors import DataFileError
 
-__all__ = ["RinexHeader", "RawObservations", "read_header", "read_observation_types", "on_grid", "ProgressCallback",
-           "read_bytes", "read_text_file", "COMPRESSED_MAGIC"]
+__all__ = [
+    "RinexHeader",
+    "RawObservations",
+    "read_header",
+    "read_observation_types",
+    "on_grid",
+    "ProgressCallback",
+    "read_bytes",
+    "read_text_file",
+    "COMPRESSED_MAGIC",
+]
 
 log = logging.getLogger(__name__)
 
 ProgressCallback = Callable[[str, float], None]
 """``callback(label, fraction_done)`` — called about ten times while a file is read."""
 
-_N_PRN = 40   # GPS PRNs 1..32 in use; room for test PRNs
+_N_PRN = 40  # GPS PRNs 1..32 in use; room for test PRNs
 
 
 @dataclass(frozen=True)
@@ -65,7 +74,7 @@ class RawObservations:
     lli: dict[str, np.ndarray]
 
 
-COMPRESSED_MAGIC = (b"\x1f\x9d", b"BZh", b"PK\x03\x04")   # Unix compress (.Z), bzip2, zip
+COMPRESSED_MAGIC = (b"\x1f\x9d", b"BZh", b"PK\x03\x04")  # Unix compress (.Z), bzip2, zip
 
 
 def _unix_decompress(raw: bytes, path: Path) -> bytes:
@@ -74,8 +83,9 @@ def _unix_decompress(raw: bytes, path: Path) -> bytes:
     except ImportError:
         from distnav._optional import install_hint
 
-        raise DataFileError(f"{path}: Unix-compressed (.Z); install the 'ncompress' package "
-                            f"({install_hint('gnss')})") from None
+        raise DataFileError(
+            f"{path}: Unix-compressed (.Z); install the 'ncompress' package ({install_hint('gnss')})"
+        ) from None
     out: bytes = ncompress.decompress(raw)
     return out
 
@@ -87,11 +97,11 @@ def _decompress(path: Path, raw: bytes) -> bytes:
         try:
             raw = gzip.decompress(raw)
         except EOFError:
-            raise DataFileError(f"{path}: the gzip data end early (the file is truncated; download it again)"
-                                ) from None
+            raise DataFileError(f"{path}: the gzip data end early (the file is truncated; download it again)") from None
         except OSError:  # gzip.BadGzipFile and zlib errors
-            raise DataFileError(f"{path}: starts like gzip but is not valid gzip data (expected a .gz file written "
-                                f"by gzip)") from None
+            raise DataFileError(
+                f"{path}: starts like gzip but is not valid gzip data (expected a .gz file written by gzip)"
+            ) from None
     if raw.startswith(COMPRESSED_MAGIC):
         kind = "Unix compress (.Z)" if raw[:2] == b"\x1f\x9d" else "bzip2" if raw[:3] == b"BZh" else "zip"
         try:
@@ -108,8 +118,10 @@ def _decompress(path: Path, raw: bytes) -> bytes:
                         raise DataFileError(f"{path}: a zip archive of {len(names)} files (one expected)")
                     raw = z.read(names[0])
         except (OSError, ValueError, EOFError, zipfile.BadZipFile):
-            raise DataFileError(f"{path}: starts like {kind} data but could not be decompressed (truncated or "
-                                f"not {kind}; download it again)") from None
+            raise DataFileError(
+                f"{path}: starts like {kind} data but could not be decompressed (truncated or "
+                f"not {kind}; download it again)"
+            ) from None
     return raw
 
 
@@ -129,8 +141,10 @@ def _text_lines(path: Path, raw: bytes) -> list[str]:
     nul = raw.find(b"\x00")
     if nul >= 0:
         line = raw.count(b"\n", 0, nul) + 1
-        raise DataFileError(f"{path}, line {line}: binary data (NUL bytes): expected a plain ASCII text file "
-                            f"(not UTF-16, not a binary format)")
+        raise DataFileError(
+            f"{path}, line {line}: binary data (NUL bytes): expected a plain ASCII text file "
+            f"(not UTF-16, not a binary format)"
+        )
     return raw.decode("latin-1").splitlines()
 
 
@@ -161,11 +175,13 @@ def _read_lines(path: Path) -> list[str]:
         except ImportError:
             from distnav._optional import install_hint
 
-            raise DataFileError(f"{path}: Hatanaka-compressed; install the 'hatanaka' package "
-                                f"({install_hint('gnss')})") from None
+            raise DataFileError(
+                f"{path}: Hatanaka-compressed; install the 'hatanaka' package ({install_hint('gnss')})"
+            ) from None
         except Exception:  # the hatanaka package raises its own and OS errors
-            raise DataFileError(f"{path}: not valid Compact RINEX (Hatanaka) data: expected a .crx/.d file as "
-                                f"written by rnx2crx") from None
+            raise DataFileError(
+                f"{path}: not valid Compact RINEX (Hatanaka) data: expected a .crx/.d file as written by rnx2crx"
+            ) from None
         if isinstance(raw, str):
             raw = raw.encode("latin-1")
     return _text_lines(path, raw)
@@ -188,8 +204,10 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
             try:
                 version = float(line[:9])
             except ValueError:
-                raise DataFileError(f"{path}, line {k + 1}: the RINEX version (columns 1-9): expected a number such "
-                                    f"as 2.11 or 3.04, got {line[:9].strip()!r}") from None
+                raise DataFileError(
+                    f"{path}, line {k + 1}: the RINEX version (columns 1-9): expected a number such "
+                    f"as 2.11 or 3.04, got {line[:9].strip()!r}"
+                ) from None
             ftype = line[20:21]
         elif label == "REC # / TYPE / VERS":
             receiver = line[20:40].strip()
@@ -197,14 +215,16 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
             marker = line[:60].strip()
         elif label == "APPROX POSITION XYZ":
             try:
-                pos = np.array([float(line[i:i + 14]) for i in (0, 14, 28)])
+                pos = np.array([float(line[i : i + 14]) for i in (0, 14, 28)])
             except ValueError:
                 pos = np.full(3, np.nan)
         elif label == "# / TYPES OF OBSERV":
             if line[:6].strip():
                 if not line[:6].strip().isdigit():
-                    raise DataFileError(f"{path}, line {k + 1}: the number of observation types (columns 1-6): "
-                                        f"expected a whole number, got {line[:6].strip()!r}")
+                    raise DataFileError(
+                        f"{path}, line {k + 1}: the number of observation types (columns 1-6): "
+                        f"expected a whole number, got {line[:6].strip()!r}"
+                    )
                 r2_count = int(line[:6])
             # 9(4X,A2) in columns 7–60: the label (from column 61) is not a type
             r2_types += line[6:60].split()
@@ -212,7 +232,7 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
             if line[0] != " ":
                 r3_sys = line[0]
                 r3_types[r3_sys] = []
-            r3_types.setdefault(r3_sys, []).extend(line[7 + 4 * i:10 + 4 * i].strip() for i in range(13))
+            r3_types.setdefault(r3_sys, []).extend(line[7 + 4 * i : 10 + 4 * i].strip() for i in range(13))
         elif label == "TIME OF FIRST OBS":
             tsys = line[48:51].strip() or "GPS"
     if end < 0:
@@ -236,10 +256,15 @@ def _epoch_time(y: int, mo: int, d: int, h: int, mi: int, sec: float) -> np.date
     return base + np.timedelta64(int(round(sec * 1e9)), "ns")
 
 
-def read_observation_types(path: str | Path, types: Sequence[str], *,
-                           tlim: tuple[np.datetime64, np.datetime64] | None = None,
-                           interval_s: float | None = None, progress: ProgressCallback | None = None,
-                           label: str | None = None) -> RawObservations:
+def read_observation_types(
+    path: str | Path,
+    types: Sequence[str],
+    *,
+    tlim: tuple[np.datetime64, np.datetime64] | None = None,
+    interval_s: float | None = None,
+    progress: ProgressCallback | None = None,
+    label: str | None = None,
+) -> RawObservations:
     """Read the GPS observations of ``types`` (names as in the file: RINEX 3 ``C1C``, RINEX 2 ``C1``/``P2``…).
 
     ``tlim`` (inclusive datetime64 bounds) and ``interval_s`` (keep epochs whose time of day is a multiple) select
@@ -252,8 +277,9 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
         raise DataFileError(f"{p}: not a RINEX observation file (type {hdr.file_type!r})")
     missing = [t for t in types if t not in hdr.gps_types]
     if missing:
-        raise DataFileError(f"{p}: observation types {' '.join(missing)} not in the header "
-                            f"(GPS types: {' '.join(hdr.gps_types)})")
+        raise DataFileError(
+            f"{p}: observation types {' '.join(missing)} not in the header (GPS types: {' '.join(hdr.gps_types)})"
+        )
     idx = [hdr.gps_types.index(t) for t in types]
     name = label or p.name
     lo = hi = None
@@ -286,7 +312,7 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
                     k += 1 + (nsat if flag in (2, 3, 4, 5, 6) else 0)
                     continue
                 epoch = t = _epoch(line[2:6], line[7:9], line[10:12], line[13:15], line[16:18], line[18:29])
-                sat_lines = lines[k + 1:k + 1 + nsat]
+                sat_lines = lines[k + 1 : k + 1 + nsat]
                 _complete(len(sat_lines), nsat, "satellite lines")
                 start = k + 1
                 k += 1 + nsat
@@ -297,8 +323,9 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
                 for i, sl in enumerate(sat_lines):
                     k = start + i
                     if not (sl[:1].isalpha() and sl[1:3].strip().isdigit()):
-                        raise _Bad(f"expected a satellite line starting with its id (e.g. G01) in columns 1-3, got "
-                                   f"{sl[:12]!r}")
+                        raise _Bad(
+                            f"expected a satellite line starting with its id (e.g. G01) in columns 1-3, got {sl[:12]!r}"
+                        )
                     if sl[:1] != "G":
                         continue
                     prn = _prn(sl[1:3])
@@ -315,17 +342,18 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
                 if flag > 1:
                     k += 1 + (nsat if flag in (2, 3, 4, 5, 6) else 0)
                     continue
-                sats = [line[32 + 3 * i:35 + 3 * i] for i in range(min(nsat, 12))]
+                sats = [line[32 + 3 * i : 35 + 3 * i] for i in range(min(nsat, 12))]
                 yy = _int(line[1:3], "the year (columns 2-3)", "two digits")
-                epoch = t = _epoch(str(yy + (2000 if yy < 80 else 1900)), line[4:6], line[7:9], line[10:12],
-                                   line[13:15], line[15:26])
+                epoch = t = _epoch(
+                    str(yy + (2000 if yy < 80 else 1900)), line[4:6], line[7:9], line[10:12], line[13:15], line[15:26]
+                )
                 k += 1
                 while len(sats) < nsat:
                     _complete(n_lines - k, 1, "satellite continuation lines")
                     cont = lines[k]
-                    sats += [cont[32 + 3 * i:35 + 3 * i] for i in range(min(nsat - len(sats), 12))]
+                    sats += [cont[32 + 3 * i : 35 + 3 * i] for i in range(min(nsat - len(sats), 12))]
                     k += 1
-                block = lines[k:k + nsat * n_per_sat]
+                block = lines[k : k + nsat * n_per_sat]
                 if k + nsat * n_per_sat - n_lines in range(1, n_per_sat):
                     block += [""] * (k + nsat * n_per_sat - n_lines)  # the last satellite's blank lines left out
                 start, k = k, k0
@@ -354,16 +382,20 @@ def read_observation_types(path: str | Path, types: Sequence[str], *,
         progress(name, 1.0)
     if not times:
         raise DataFileError(f"{p}: no GPS observation epochs" + (f" in {tlim}" if tlim is not None else ""))
-    V = np.stack(rows)          # (T, PRN, types)
+    V = np.stack(rows)  # (T, PRN, types)
     L = np.stack(lrows)
     seen = np.flatnonzero(np.isfinite(V).any(axis=(0, 2)))
     if seen.size == 0:
         raise DataFileError(f"{p}: no GPS satellites observed with {' '.join(types)}")
     svs = tuple(f"G{prn:02d}" for prn in seen.tolist())
     log.debug("%s: %d epochs, %d GPS satellites, types %s", name, len(times), len(svs), types)
-    return RawObservations(hdr, np.array(times, dtype="datetime64[ns]"), svs,
-                           {t: V[:, seen, j] for j, t in enumerate(types)},
-                           {t: L[:, seen, j] for j, t in enumerate(types)})
+    return RawObservations(
+        hdr,
+        np.array(times, dtype="datetime64[ns]"),
+        svs,
+        {t: V[:, seen, j] for j, t in enumerate(types)},
+        {t: L[:, seen, j] for j, t in enumerate(types)},
+    )
 
 
 class _Bad(Exception):
@@ -395,8 +427,9 @@ def _epoch(year: str, month: str, day: str, hour: str, minute: str, second: str)
         return _epoch_time(y, mo, d, h, mi, sec)
     except ValueError:
         got = " ".join(f.strip() for f in (*fields, second))
-        raise _Bad(f"the epoch: expected year month day hour minute second (e.g. 2024 01 10 00 00 30.0000000), "
-                   f"got {got!r}") from None
+        raise _Bad(
+            f"the epoch: expected year month day hour minute second (e.g. 2024 01 10 00 00 30.0000000), got {got!r}"
+        ) from None
 
 
 def _complete(have: int, need: int, what: str) -> None:
@@ -406,7 +439,7 @@ def _complete(have: int, need: int, what: str) -> None:
 
 def _value(line: str, start: int, vals: np.ndarray, lli: np.ndarray, prn: int, j: int, obs_type: str) -> None:
     """One F14.3 observation (columns ``start``+1..+14) and its loss-of-lock digit into ``vals``/``lli``."""
-    f = line[start:start + 14]
+    f = line[start : start + 14]
     if not f.strip():
         return
     ok = len(f) == 14 and f[10] == "."
@@ -415,14 +448,18 @@ def _value(line: str, start: int, vals: np.ndarray, lli: np.ndarray, prn: int, j
     except ValueError:
         ok = False
     if not ok:
-        raise _Bad(f"{obs_type} of G{prn:02d} (columns {start + 1}-{start + 14}): expected a number in F14.3 "
-                   f"(e.g. '  22000000.123'), got {f!r}")
+        raise _Bad(
+            f"{obs_type} of G{prn:02d} (columns {start + 1}-{start + 14}): expected a number in F14.3 "
+            f"(e.g. '  22000000.123'), got {f!r}"
+        )
     vals[prn, j] = value
-    ll = line[start + 14:start + 15]
+    ll = line[start + 14 : start + 15]
     if ll.strip():
         if not ll.isdigit():
-            raise _Bad(f"loss-of-lock indicator of {obs_type}, G{prn:02d} (column {start + 15}): expected a digit "
-                       f"0-7, got {ll!r}")
+            raise _Bad(
+                f"loss-of-lock indicator of {obs_type}, G{prn:02d} (column {start + 15}): expected a digit "
+                f"0-7, got {ll!r}"
+            )
         lli[prn, j] = int(ll)
 
 

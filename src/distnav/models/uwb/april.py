@@ -22,10 +22,25 @@ __all__ = ["C_M_PER_US", "MANUAL_DELAYS_US", "DEFAULT_DELAY_US", "TRUTH_FT", "re
 
 C_M_PER_US = 299.792458
 DEFAULT_DELAY_US = 0.516
-MANUAL_DELAYS_US = {8: 0.515375, 12: 0.515547, 14: 0.515818, 16: 0.515717, 54: 0.515316, 61: 0.515541,
-                    81: 0.515397, 87: 0.515345}
-TRUTH_FT = {8: (0.0, 0.0), 12: (15.0, 1.0), 14: (2.0, 9.0), 54: (20.0, 3.0), 61: (10.0, 0.0), 81: (17.0, 7.0),
-            87: (8.0, 8.0)}
+MANUAL_DELAYS_US = {
+    8: 0.515375,
+    12: 0.515547,
+    14: 0.515818,
+    16: 0.515717,
+    54: 0.515316,
+    61: 0.515541,
+    81: 0.515397,
+    87: 0.515345,
+}
+TRUTH_FT = {
+    8: (0.0, 0.0),
+    12: (15.0, 1.0),
+    14: (2.0, 9.0),
+    54: (20.0, 3.0),
+    61: (10.0, 0.0),
+    81: (17.0, 7.0),
+    87: (8.0, 8.0),
+}
 FT_M = 0.3048
 
 
@@ -49,8 +64,7 @@ def read_april(path: str | Path, *, delays: str = "manual") -> tuple[np.ndarray,
     return a, b, (rows[:, 0] - 0.5 * (da + db)) * C_M_PER_US
 
 
-def write_april_csvs(path: str | Path, out: str | Path, *, known: list[int], delays: str = "manual"
-                     ) -> dict[str, Path]:
+def write_april_csvs(path: str | Path, out: str | Path, *, known: list[int], delays: str = "manual") -> dict[str, Path]:
     """Write ``ranges.csv``, ``known.csv`` (the ``known`` nodes' true positions) and ``truth.csv`` (2-D, metres)."""
     for k in known:
         if k not in TRUTH_FT:
@@ -64,8 +78,7 @@ def write_april_csvs(path: str | Path, out: str | Path, *, known: list[int], del
     files["ranges"].write_text("\n".join(lines) + "\n", encoding="utf-8")
 
     def table(nodes: list[int]) -> str:
-        return "id,x_m,y_m\n" + "".join(f"{k},{TRUTH_FT[k][0] * FT_M:.4f},{TRUTH_FT[k][1] * FT_M:.4f}\n"
-                                        for k in nodes)
+        return "id,x_m,y_m\n" + "".join(f"{k},{TRUTH_FT[k][0] * FT_M:.4f},{TRUTH_FT[k][1] * FT_M:.4f}\n" for k in nodes)
 
     files["known"].write_text(table(sorted(known)), encoding="utf-8")
     files["truth"].write_text(table(sorted(TRUTH_FT)), encoding="utf-8")
@@ -85,23 +98,26 @@ def _parse_log(p: Path) -> np.ndarray:
         text = raw.decode("ascii")
     except UnicodeDecodeError as exc:
         line = raw.count(b"\n", 0, exc.start) + 1
-        raise DataFileError(f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not plain ASCII text: expected an "
-                            f"APRIL range log (whitespace-separated numbers)") from None
+        raise DataFileError(
+            f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not plain ASCII text: expected an "
+            f"APRIL range log (whitespace-separated numbers)"
+        ) from None
     out: list[tuple[float, float, float]] = []
     for number, text_line in enumerate(text.splitlines(), start=1):
         fields = text_line.split()
         if not fields:
             continue
         if len(fields) < 3:
-            raise DataFileError(f"{p}, line {number}: {len(fields)} field(s): expected at least 3 (time of "
-                                f"propagation in µs, node a, node b)")
+            raise DataFileError(
+                f"{p}, line {number}: {len(fields)} field(s): expected at least 3 (time of "
+                f"propagation in µs, node a, node b)"
+            )
         try:
             t_us = float(fields[0])
         except ValueError:
             raise DataFileError(f"{p}, line {number}: time of propagation {fields[0]!r} is not a number") from None
         if not (fields[1].isdigit() and fields[2].isdigit()):
-            raise DataFileError(f"{p}, line {number}: node ids {fields[1]!r} {fields[2]!r}: expected two whole "
-                                f"numbers")
+            raise DataFileError(f"{p}, line {number}: node ids {fields[1]!r} {fields[2]!r}: expected two whole numbers")
         out.append((t_us, float(fields[1]), float(fields[2])))
     if not out:
         raise DataFileError(f"{p}: no samples (an empty APRIL range log)")

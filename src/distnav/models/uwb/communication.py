@@ -27,8 +27,10 @@ def gather_cost(problem: RangingProblem) -> dict[str, Any]:
     """
     lk = problem.links
     n = problem.n_anchors
-    g = csr_matrix((np.ones(2 * lk.shape[0]), (np.concatenate([lk[:, 0], lk[:, 1]]),
-                                                 np.concatenate([lk[:, 1], lk[:, 0]]))), shape=(n, n))
+    g = csr_matrix(
+        (np.ones(2 * lk.shape[0]), (np.concatenate([lk[:, 0], lk[:, 1]]), np.concatenate([lk[:, 1], lk[:, 0]]))),
+        shape=(n, n),
+    )
     hops = shortest_path(g, directed=False, unweighted=True)
     if not np.all(np.isfinite(hops)):
         raise ModelError("the range graph is not connected: no single anchor can gather every range")
@@ -37,7 +39,13 @@ def gather_cost(problem: RangingProblem) -> dict[str, Any]:
     down = hops[:, problem.estimated].sum(axis=1) * problem.dim * POSITION_BYTES
     total = up + down
     sink = int(np.argmin(total))
-    return {"sink": problem.ids[sink], "messages": int(2 * (n - 1)), "bytes": int(total[sink]),
-            "bytes_ranges": int(up[sink]), "bytes_positions": int(down[sink]),
-            "record_bytes": RANGE_RECORD_BYTES, "links": int(lk.shape[0]),
-            "max_hops": int(hops[sink].max())}
+    return {
+        "sink": problem.ids[sink],
+        "messages": int(2 * (n - 1)),
+        "bytes": int(total[sink]),
+        "bytes_ranges": int(up[sink]),
+        "bytes_positions": int(down[sink]),
+        "record_bytes": RANGE_RECORD_BYTES,
+        "links": int(lk.shape[0]),
+        "max_hops": int(hops[sink].max()),
+    }

@@ -98,9 +98,11 @@ def cut_weak(problem: RangingProblem, excluded: BoolArray) -> dict[str, str]:
             continue
         names = [problem.ids[i] for i in np.flatnonzero(part)]
         listed = " ".join(names[:8]) + (" ..." if len(names) > 8 else "")
-        reason = (f"cut: its part of {len(names)} anchors ({listed}) is placed by {k} kept links to the rest and "
-                  f"{e} of its links to the rest were excluded: more than the {max(k - dof, 0)} redundant ones left "
-                  f"({k} - {dof} for its rigid placement); the excluded links could place it as well")
+        reason = (
+            f"cut: its part of {len(names)} anchors ({listed}) is placed by {k} kept links to the rest and "
+            f"{e} of its links to the rest were excluded: more than the {max(k - dof, 0)} redundant ones left "
+            f"({k} - {dof} for its rigid placement); the excluded links could place it as well"
+        )
         for nm in names:
             out.setdefault(nm, reason)
     return out

@@ -59,9 +59,22 @@ from distnav.models.uwb.reliability import (
 )
 from distnav.typing import BoolArray, FloatArray
 
-__all__ = ["FieldOptions", "FieldSolution", "prepare", "solve_field", "gather_cost", "RANGE_RECORD_BYTES",
-           "supports_objective", "subset_measurements", "anchor_precision", "AnchorPrecision", "TIGHT_SCALE_FLOOR_M",
-           "RELIABILITY_LIMIT_M", "weak_anchors", "PRECISION_HOPS"]
+__all__ = [
+    "FieldOptions",
+    "FieldSolution",
+    "prepare",
+    "solve_field",
+    "gather_cost",
+    "RANGE_RECORD_BYTES",
+    "supports_objective",
+    "subset_measurements",
+    "anchor_precision",
+    "AnchorPrecision",
+    "TIGHT_SCALE_FLOOR_M",
+    "RELIABILITY_LIMIT_M",
+    "weak_anchors",
+    "PRECISION_HOPS",
+]
 
 DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions were right, 1.80 on the folded one
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
@@ -106,8 +119,13 @@ class FieldOptions:
         none or common), ``delay_sigma_m`` > 0 — LM by :mod:`distnav.models.uwb.precision`, the distributed solvers
         (metres) by :mod:`distnav.models.uwb.field_precision` (central blocks through the exchange, or each
         anchor's 2-hop sub-network)."""
-        return (self.delay_sigma_m > 0 and self.objective == "metres" and supports_objective(self.solver)
-                and self.offsets_used in ("none", "common"))
+        return (
+            self.delay_sigma_m > 0
+            and self.objective == "metres"
+            and supports_objective(self.solver)
+            and self.offsets_used in ("none", "common")
+        )
+
     solver_options: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -120,8 +138,13 @@ class FieldOptions:
         is tightened from ``loss_scale_m`` by halves down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × the robust scatter
         of the residuals (:func:`tighten`); the exclusions, the per-anchor check and the revert then work at that
         scale, and :func:`all_links_cost` is the one-sided cost at it."""
-        return (self.nlos_loss and self.solver.upper() != "CSG" and self.objective == "metres"
-                and self.loss == "cauchy" and supports_objective(self.solver))
+        return (
+            self.nlos_loss
+            and self.solver.upper() != "CSG"
+            and self.objective == "metres"
+            and self.loss == "cauchy"
+            and supports_objective(self.solver)
+        )
 
     @property
     def offsets_used(self) -> str:
@@ -174,13 +197,21 @@ class FieldSolution:
 def supports_objective(solver: str) -> bool:
     """Whether the solver front door takes ``objective=`` (the metres objective of issue 13)."""
     key = solver.upper()
-    fn: Callable[..., Any] = solve_lm if key == "LM" else (csg.solve_csg if key == "CSG" else
-                                                               csg.solve_nclm if key == "N-CLM" else csg.solve_ncsg)
+    fn: Callable[..., Any] = (
+        solve_lm
+        if key == "LM"
+        else (csg.solve_csg if key == "CSG" else csg.solve_nclm if key == "N-CLM" else csg.solve_ncsg)
+    )
     return "objective" in inspect.signature(fn).parameters
 
 
-def prepare(problem: RangingProblem, *, initial_m: FloatArray | None = None, allow_planar_3d: bool = False,
-            rng: np.random.Generator | None = None) -> tuple[RangingProblem, GeometryReport]:
+def prepare(
+    problem: RangingProblem,
+    *,
+    initial_m: FloatArray | None = None,
+    allow_planar_3d: bool = False,
+    rng: np.random.Generator | None = None,
+) -> tuple[RangingProblem, GeometryReport]:
     """Geometry checks, the determined part, its initial guess (see the module docstring)."""
     first = check_geometry(problem, allow_planar_3d=allow_planar_3d, rng=rng)
     if not (first.solvable & problem.estimated).any():
@@ -194,9 +225,15 @@ def prepare(problem: RangingProblem, *, initial_m: FloatArray | None = None, all
     sub = sub.with_initial(init)
     second = check_geometry(sub, allow_planar_3d=allow_planar_3d, rng=rng)
     carried = tuple(i for i in first.issues if i.severity == "unsolved")
-    report = GeometryReport(ids=problem.ids, solvable=first.solvable, issues=carried + second.issues,
-                            planarity_known=second.planarity_known, planarity_network=second.planarity_network,
-                            notes=first.notes + second.notes, planar_fit_ratio=second.planar_fit_ratio)
+    report = GeometryReport(
+        ids=problem.ids,
+        solvable=first.solvable,
+        issues=carried + second.issues,
+        planarity_known=second.planarity_known,
+        planarity_network=second.planarity_network,
+        notes=first.notes + second.notes,
+        planar_fit_ratio=second.planar_fit_ratio,
+    )
     report.raise_if_refused()
     return sub, report
 
@@ -246,11 +283,15 @@ def choose_start(problem: RangingProblem, opts: FieldOptions) -> tuple[FloatArra
             best = (cost, name, np.asarray(r.estimates, float))
     if best is None:
         return None, ""
-    note = "" if best[1] == "prepared" else (f"; multi-start: the {best[1]} start of {len(tried)} gave the lowest "
-                                             f"robust cost of all the links ({best[0]:.4g})")
+    note = (
+        ""
+        if best[1] == "prepared"
+        else (
+            f"; multi-start: the {best[1]} start of {len(tried)} gave the lowest "
+            f"robust cost of all the links ({best[0]:.4g})"
+        )
+    )
     return best[2], note
-
-
 
 
 def tighten(problem: RangingProblem, start_m: FloatArray, opts: FieldOptions) -> tuple[FloatArray, float, int]:
@@ -268,8 +309,9 @@ def tighten(problem: RangingProblem, start_m: FloatArray, opts: FieldOptions) ->
     return tighten_scale(problem, start_m, opts.solver, _solver_kwargs(opts), opts.loss_scale_m, opts.iterations)
 
 
-def _fitter(opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int],
-            last: list[FloatArray]) -> Callable[[Any], Any]:
+def _fitter(
+    opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int], last: list[FloatArray]
+) -> Callable[[Any], Any]:
     key = opts.solver.upper()
     kw = _solver_kwargs(opts)
     warm_refits = key == "LM" or opts.nlos_aware  # the distributed solvers' re-fits: graduated unless nlos_aware
@@ -304,9 +346,16 @@ def all_links_cost(problem: RangingProblem, res: Any, opts: FieldOptions) -> flo
     return float(np.sum(np.log1p(z)))
 
 
-def _polish(problem: RangingProblem, res: Any, excluded: BoolArray, w: FloatArray, flagged: BoolArray,
-            opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None = None,
-            total: list[int] | None = None) -> tuple[Any, FloatArray, BoolArray]:
+def _polish(
+    problem: RangingProblem,
+    res: Any,
+    excluded: BoolArray,
+    w: FloatArray,
+    flagged: BoolArray,
+    opts: FieldOptions,
+    exchange: Callable[[RangingProblem], Any] | None = None,
+    total: list[int] | None = None,
+) -> tuple[Any, FloatArray, BoolArray]:
     """The kept links re-fitted at the given loss scale (one-sided, from the tightened solution), with its tests
     and precision: once the NLOS links are out, the tight scale only down-weights LOS links a little (their σ and
     the positions are those of the usual robust fit). Returns the result, ``w`` and ``flagged`` over every
@@ -314,8 +363,15 @@ def _polish(problem: RangingProblem, res: Any, excluded: BoolArray, w: FloatArra
     all the links at the tight scale by at most :data:`POLISH_RATIO` (a weak anchor pulled back into the basin the
     tight scale left: on 24 halls 1.05 and 1.44 × there, ≤ 1.004 × where the polish helped)."""
     keep = ~np.asarray(excluded, bool)
-    r = solve_once(subset_measurements(problem, keep).with_initial(np.asarray(res.estimates, float)), opts.solver,
-                   _solver_kwargs(opts), opts.iterations, exchange=exchange, total=total, warm=True)
+    r = solve_once(
+        subset_measurements(problem, keep).with_initial(np.asarray(res.estimates, float)),
+        opts.solver,
+        _solver_kwargs(opts),
+        opts.iterations,
+        exchange=exchange,
+        total=total,
+        warm=True,
+    )
     if not (r.usable and np.all(np.isfinite(r.estimates)) and r.tests is not None):
         return res, w, flagged
     w2 = np.full(problem.n_meas, np.nan)
@@ -331,24 +387,30 @@ def _exclude(problem: RangingProblem, fit: Callable[[Any], Any], opts: FieldOpti
         per_round = opts.exclusions_per_round
         if per_round is not None:  # 3 on a 28-anchor plant; grows with the network (1000 anchors: 250 per re-fit)
             per_round = max(per_round, problem.n_anchors // 4)
-        res, _, tests = exclude_links(problem, fit, max_exclusions=opts.max_exclusions, one_sided=opts.one_sided,
-                                      per_round=per_round)
+        res, _, tests = exclude_links(
+            problem, fit, max_exclusions=opts.max_exclusions, one_sided=opts.one_sided, per_round=per_round
+        )
     except ModelError:
         return None
     return res, tests
 
 
-def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
-                geometry: GeometryReport | None = None,
-                exchange: Callable[[RangingProblem], Any] | None = None) -> FieldSolution:
+def solve_field(
+    problem: RangingProblem,
+    options: FieldOptions | None = None,
+    *,
+    geometry: GeometryReport | None = None,
+    exchange: Callable[[RangingProblem], Any] | None = None,
+) -> FieldSolution:
     """Solve a prepared problem (from :func:`prepare`) with QC; see the module docstring."""
     opts = options or FieldOptions()
     given = opts
     if problem.initial_m is None:
         raise ModelError("solve_field needs a prepared problem with an initial guess (see prepare)")
     if opts.distributed_precision not in PRECISION_MODES:
-        raise ModelError(f"distributed_precision must be one of {', '.join(PRECISION_MODES)}, "
-                         f"got {opts.distributed_precision!r}")
+        raise ModelError(
+            f"distributed_precision must be one of {', '.join(PRECISION_MODES)}, got {opts.distributed_precision!r}"
+        )
     objective = opts.objective if supports_objective(opts.solver) else "squared"
     note = "" if objective == opts.objective else f" ({opts.solver} has no {opts.objective} objective: squared used)"
     total = [0, 0, 0]
@@ -363,25 +425,46 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
         return r
 
     best: FloatArray | None = None
-    if (opts.multi_start and opts.solver.upper() == "LM" and objective == "metres"
-            and problem.n_anchors <= MULTI_START_MAX_ANCHORS):
+    if (
+        opts.multi_start
+        and opts.solver.upper() == "LM"
+        and objective == "metres"
+        and problem.n_anchors <= MULTI_START_MAX_ANCHORS
+    ):
         best, start_note = choose_start(problem, opts)
         if best is not None:
             starts.append(best)  # the first fit starts there, with the robust loss straight away
             note += start_note
     if opts.nlos_aware:  # the one-sided loss tightened; every later fit and cost at that scale
         if best is None:  # the distributed solvers (and LM without multi-start): the first robust fit, graduated
-            first_fit = solve_once(problem, opts.solver, {**_solver_kwargs(opts), "quality": False}, opts.iterations,
-                                   exchange=exchange, total=total)
+            first_fit = solve_once(
+                problem,
+                opts.solver,
+                {**_solver_kwargs(opts), "quality": False},
+                opts.iterations,
+                exchange=exchange,
+                total=total,
+            )
             best = np.asarray(first_fit.estimates, float) if first_fit.usable else None
         if best is not None and np.all(np.isfinite(best)):
-            best, tight, _ = tighten_scale(problem, best, opts.solver, _solver_kwargs(opts), opts.loss_scale_m,
-                                           opts.iterations, exchange=exchange, total=total)
+            best, tight, _ = tighten_scale(
+                problem,
+                best,
+                opts.solver,
+                _solver_kwargs(opts),
+                opts.loss_scale_m,
+                opts.iterations,
+                exchange=exchange,
+                total=total,
+            )
             starts.append(best)
             opts = dataclasses.replace(opts, loss_scale_m=tight)
             fit_any = _fitter(opts, exchange, total, starts)
-            note += (f"; one-sided Cauchy loss (ranges read long), scale tightened to {tight:.3g} m"
-                     if tight < given.loss_scale_m else "; one-sided Cauchy loss (ranges read long)")
+            note += (
+                f"; one-sided Cauchy loss (ranges read long), scale tightened to {tight:.3g} m"
+                if tight < given.loss_scale_m
+                else "; one-sided Cauchy loss (ranges read long)"
+            )
     excluded = np.zeros(problem.n_meas, bool)
     untested = False  # LM's exclusion loop got no link tests (a singular normal matrix): no QC, nothing determined
     # exclusions tested at the robust solution (an NLOS link does not drag it); every re-fit robust too
@@ -393,8 +476,9 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
         for _ in range(2 if opts.repair else 0):
             if not res.usable:
                 break
-            repaired, notes, moved = repair_exclusions(problem, np.asarray(res.estimates, float), excluded, flagged,
-                                                       one_sided=opts.one_sided)
+            repaired, notes, moved = repair_exclusions(
+                problem, np.asarray(res.estimates, float), excluded, flagged, one_sided=opts.one_sided
+            )
             if not notes:
                 break
             if notes:  # re-fit without the links each anchor chose, then test (and exclude) again
@@ -447,12 +531,24 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     geo = geometry if geometry is not None else check_geometry(problem)
     nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
     if not res.usable or not np.all(np.isfinite(res.estimates)):
-        return FieldSolution(problem=problem, geometry=geo, positions_m=nan_pos, sigma_m=nan_pos.copy(),
-                             residual_m=np.full(problem.n_meas, np.nan), w=w, flagged=flagged, excluded=excluded,
-                             result=res, status="diverged",
-                             message=f"diverged: {res.message} (no positions are reported)",
-                             objective_used=objective, iterations=total[0], messages=total[1], bytes=total[2],
-                             critical_value=crit)
+        return FieldSolution(
+            problem=problem,
+            geometry=geo,
+            positions_m=nan_pos,
+            sigma_m=nan_pos.copy(),
+            residual_m=np.full(problem.n_meas, np.nan),
+            w=w,
+            flagged=flagged,
+            excluded=excluded,
+            result=res,
+            status="diverged",
+            message=f"diverged: {res.message} (no positions are reported)",
+            objective_used=objective,
+            iterations=total[0],
+            messages=total[1],
+            bytes=total[2],
+            critical_value=crit,
+        )
     pos = np.asarray(res.estimates, float)
     prec_out = anchor_precision(problem, res, opts, excluded, objective, exchange, fit_scale_m=fit_scale_m)
     sigma = prec_out.sigma_m
@@ -464,9 +560,17 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     reliability: dict[str, Any] = {"tested": False}
     if opts.reliability_limit_m > 0 and opts.solver.upper() == "LM" and objective == "metres":
         rel_weak, reliability, rel_note = check_reliability(
-            subset_measurements(problem, ~excluded), res, sigma, sigma_m=opts.sigma_m, offsets=opts.offsets_used,
-            loss=_solver_kwargs(opts).get("loss", "linear"), loss_scale_m=fit_scale_m, level=opts.level,
-            limit_m=opts.reliability_limit_m, offset_prior_sigma_m=opts.offset_prior_sigma_m)
+            subset_measurements(problem, ~excluded),
+            res,
+            sigma,
+            sigma_m=opts.sigma_m,
+            offsets=opts.offsets_used,
+            loss=_solver_kwargs(opts).get("loss", "linear"),
+            loss_scale_m=fit_scale_m,
+            level=opts.level,
+            limit_m=opts.reliability_limit_m,
+            offset_prior_sigma_m=opts.offset_prior_sigma_m,
+        )
         reasons.update({k: v for k, v in rel_weak.items() if k not in reasons})
         note += rel_note
     if opts.cut_test:  # a group of anchors the exclusions cut off: placed by fewer checks than they took (cuts.py)
@@ -474,38 +578,67 @@ def solve_field(problem: RangingProblem, options: FieldOptions | None = None, *,
     every = [problem.ids[i] for i in np.flatnonzero(problem.estimated)]
     if untested:  # nothing was tested, nothing excluded: a wrong answer would look right (docs/uwb.md, stress test)
         reasons = dict.fromkeys(every, "untested: LM's normal matrix was singular in the exclusion loop")
-        note += ("; LM's normal matrix was singular in the exclusion loop (no link tests, no exclusions): the "
-                 "positions are not determined there (a fold or a flexible part) — every anchor reported weak")
+        note += (
+            "; LM's normal matrix was singular in the exclusion loop (no link tests, no exclusions): the "
+            "positions are not determined there (a fold or a flexible part) — every anchor reported weak"
+        )
     if not reverted and excluded.any() and no_exclusion and no_exclusion[0].usable:
         reverted = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
         reverted = reverted if reverted > DISAGREE_RATIO else 0.0
     if reverted:  # the exclusions and the robust fit of all links disagree: trust neither
         reasons = dict.fromkeys(every, "disagree: the exclusions and the robust fit of every link disagree")
-        note += (f"; the solution after the exclusions fitted all the ranges {reverted:.2f} × worse (Cauchy cost) "
-                 "than the robust fit of every link: a folded start or a swamped exclusion — "
-                 + ("the exclusions were rejected (the robust fit of every link is reported, its flagged links "
-                    "named, none excluded) and " if opts.revert else "")
-                 + "every anchor reported weak")
+        note += (
+            f"; the solution after the exclusions fitted all the ranges {reverted:.2f} × worse (Cauchy cost) "
+            "than the robust fit of every link: a folded start or a swamped exclusion — "
+            + (
+                "the exclusions were rejected (the robust fit of every link is reported, its flagged links "
+                "named, none excluded) and "
+                if opts.revert
+                else ""
+            )
+            + "every anchor reported weak"
+        )
     weak = tuple(k for k in problem.ids if k in reasons)
-    status = geo.status or ("weakly_determined" if weak and res.status in ("converged", "max_iterations")
-                            else res.status)
+    status = geo.status or (
+        "weakly_determined" if weak and res.status in ("converged", "max_iterations") else res.status
+    )
     msg = res.message + note
     if weak:
-        msg = (f"weakly determined: anchors {', '.join(repr(k) for k in weak[:12])} still misfit their kept links "
-               f"by more than {WEAK_RMS_M} m RMS (or 3 × the network's robust residual scale) after the "
-               f"exclusions (too few consistent links to tell which are NLOS), keep at most one redundant link "
-               f"(one NLOS link there would move them unseen), one link's undetectable bias would move them more "
-               f"than {opts.reliability_limit_m:g} m and 3σ (external reliability), or they belong to a part placed "
-               f"by fewer redundant links than the exclusions took off its cut (reasons in positions.csv) — {msg}")
+        msg = (
+            f"weakly determined: anchors {', '.join(repr(k) for k in weak[:12])} still misfit their kept links "
+            f"by more than {WEAK_RMS_M} m RMS (or 3 × the network's robust residual scale) after the "
+            f"exclusions (too few consistent links to tell which are NLOS), keep at most one redundant link "
+            f"(one NLOS link there would move them unseen), one link's undetectable bias would move them more "
+            f"than {opts.reliability_limit_m:g} m and 3σ (external reliability), or they belong to a part placed "
+            f"by fewer redundant links than the exclusions took off its cut (reasons in positions.csv) — {msg}"
+        )
     if geo.status is not None:
         msg = f"{geo.status}: " + "; ".join(i.message for i in geo.issues if i.severity != "unsolved") + f" — {msg}"
-    return FieldSolution(problem=problem, geometry=geo, positions_m=pos, sigma_m=sigma,
-                         residual_m=residual, w=w, flagged=flagged, excluded=excluded, result=res,
-                         status=status, message=msg, objective_used=objective, iterations=total[0],
-                         messages=total[1], bytes=total[2], critical_value=crit, weak=weak,
-                         weak_reasons={k: reasons[k] for k in weak}, reliability=reliability,
-                         covariance_m2=prec_out.covariance_m2, precision_kind=prec_out.kind,
-                         precision_messages=prec_out.messages, precision_bytes=prec_out.bytes)
+    return FieldSolution(
+        problem=problem,
+        geometry=geo,
+        positions_m=pos,
+        sigma_m=sigma,
+        residual_m=residual,
+        w=w,
+        flagged=flagged,
+        excluded=excluded,
+        result=res,
+        status=status,
+        message=msg,
+        objective_used=objective,
+        iterations=total[0],
+        messages=total[1],
+        bytes=total[2],
+        critical_value=crit,
+        weak=weak,
+        weak_reasons={k: reasons[k] for k in weak},
+        reliability=reliability,
+        covariance_m2=prec_out.covariance_m2,
+        precision_kind=prec_out.kind,
+        precision_messages=prec_out.messages,
+        precision_bytes=prec_out.bytes,
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -521,9 +654,16 @@ class AnchorPrecision:
     note: str = ""
 
 
-def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excluded: BoolArray, objective: str,
-                     exchange: Callable[[RangingProblem], Any] | None, *, fit_scale_m: float | None = None
-                     ) -> AnchorPrecision:
+def anchor_precision(
+    problem: RangingProblem,
+    res: Any,
+    opts: FieldOptions,
+    excluded: BoolArray,
+    objective: str,
+    exchange: Callable[[RangingProblem], Any] | None,
+    *,
+    fit_scale_m: float | None = None,
+) -> AnchorPrecision:
     """σ of every anchor after the solve, on the links kept (``~excluded``); ``fit_scale_m``: the loss scale
     ``res`` was fitted at (its variance factor's, as LM's own; default ``opts.loss_scale_m``).
 
@@ -539,17 +679,31 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
     kept = subset_measurements(problem, ~excluded)
     if opts.solver.upper() != "LM":
         try:
-            out = distributed_sigma(kept, res, exchange=exchange, objective=objective, sigma_m=opts.sigma_m,
-                                    loss=_solver_kwargs(opts).get("loss", "linear"), loss_scale_m=opts.loss_scale_m,
-                                    offsets=opts.offsets_used, offset_prior_sigma_m=opts.offset_prior_sigma_m,
-                                    delay_sigma_m=opts.delay_sigma_m if opts.considers_delays
-                                    and objective == "metres" else 0.0, estimate_delays=opts.estimate_delays,
-                                    mode=opts.distributed_precision, fit_scale_m=fit_scale_m)
+            out = distributed_sigma(
+                kept,
+                res,
+                exchange=exchange,
+                objective=objective,
+                sigma_m=opts.sigma_m,
+                loss=_solver_kwargs(opts).get("loss", "linear"),
+                loss_scale_m=opts.loss_scale_m,
+                offsets=opts.offsets_used,
+                offset_prior_sigma_m=opts.offset_prior_sigma_m,
+                delay_sigma_m=opts.delay_sigma_m if opts.considers_delays and objective == "metres" else 0.0,
+                estimate_delays=opts.estimate_delays,
+                mode=opts.distributed_precision,
+                fit_scale_m=fit_scale_m,
+            )
         except ModelError as err:
             note = f"; neighbourhood precision failed ({err}): σ are the conditional ones (a lower bound)"
         else:
-            return AnchorPrecision(sigma_m=out.sigma_m, covariance_m2=out.covariance_m2, kind=out.kind,
-                                   messages=out.messages, bytes=out.bytes)
+            return AnchorPrecision(
+                sigma_m=out.sigma_m,
+                covariance_m2=out.covariance_m2,
+                kind=out.kind,
+                messages=out.messages,
+                bytes=out.bytes,
+            )
     else:
         note = ""
     if prec is None:
@@ -558,10 +712,16 @@ def anchor_precision(problem: RangingProblem, res: Any, opts: FieldOptions, excl
     sigma = np.where(problem.free, prec.std(a_posteriori=True), 0.0)
     cov = prec.covariance * vf
     if opts.considers_delays:
-        considered = consider_precision(kept, res, sigma_m=opts.sigma_m, offsets=opts.offsets_used,
-                                        loss=_solver_kwargs(opts).get("loss", "linear"),
-                                        loss_scale_m=opts.loss_scale_m, delay_sigma_m=opts.delay_sigma_m,
-                                        estimate_delays=opts.estimate_delays)
+        considered = consider_precision(
+            kept,
+            res,
+            sigma_m=opts.sigma_m,
+            offsets=opts.offsets_used,
+            loss=_solver_kwargs(opts).get("loss", "linear"),
+            loss_scale_m=opts.loss_scale_m,
+            delay_sigma_m=opts.delay_sigma_m,
+            estimate_delays=opts.estimate_delays,
+        )
         if considered is not None:
             sigma, cov = considered  # the ellipses of the σ written, delays considered
     return AnchorPrecision(sigma_m=sigma, covariance_m2=cov, kind=prec.kind, note=note)

@@ -28,9 +28,17 @@ TIGHTEN_FITS = 8  # at most this many halvings
 WARM_ITERATIONS = 0  # a distributed solver's warm re-fit: consensus iterations before its final distributed LM phase
 
 
-def solve_once(problem: RangingProblem, solver: str, kw: dict[str, Any], iterations: int, *,
-               exchange: Callable[[RangingProblem], Any] | None = None, total: list[int] | None = None,
-               warm: bool = False, tolerances: bool = True) -> Any:
+def solve_once(
+    problem: RangingProblem,
+    solver: str,
+    kw: dict[str, Any],
+    iterations: int,
+    *,
+    exchange: Callable[[RangingProblem], Any] | None = None,
+    total: list[int] | None = None,
+    warm: bool = False,
+    tolerances: bool = True,
+) -> Any:
     """One solve of ``problem`` (its ``initial_m`` the start) by ``solver`` with the keyword arguments ``kw``.
     ``warm``: a re-fit from a solution, the robust loss straight away (no graduated linear phase; LM with
     :data:`REFIT_TOLERANCES` unless ``kw`` sets them or ``tolerances`` is False). A distributed solver runs on
@@ -68,9 +76,17 @@ def scatter_m(problem: RangingProblem, positions_m: FloatArray) -> float:
     return float(1.4826 * np.median(np.abs(e - np.median(e)))) if e.size else 0.0
 
 
-def tighten_scale(problem: RangingProblem, start_m: FloatArray, solver: str, kw: dict[str, Any], scale_m: float,
-                  iterations: int, *, exchange: Callable[[RangingProblem], Any] | None = None,
-                  total: list[int] | None = None) -> tuple[FloatArray, float, int]:
+def tighten_scale(
+    problem: RangingProblem,
+    start_m: FloatArray,
+    solver: str,
+    kw: dict[str, Any],
+    scale_m: float,
+    iterations: int,
+    *,
+    exchange: Callable[[RangingProblem], Any] | None = None,
+    total: list[int] | None = None,
+) -> tuple[FloatArray, float, int]:
     """The one-sided fit of every link by ``solver``, its loss scale halved from ``scale_m`` (each fit warm from the
     last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger. Returns
     ``(positions, final scale, fits)`` (see :func:`distnav.models.uwb.field.tighten`)."""
@@ -83,8 +99,16 @@ def tighten_scale(problem: RangingProblem, start_m: FloatArray, solver: str, kw:
             break
         scale = max(scale / 2.0, target)
         kw["loss_scale_m"] = scale
-        r = solve_once(problem.with_initial(pos), solver, kw, iterations, exchange=exchange, total=total, warm=True,
-                       tolerances=False)
+        r = solve_once(
+            problem.with_initial(pos),
+            solver,
+            kw,
+            iterations,
+            exchange=exchange,
+            total=total,
+            warm=True,
+            tolerances=False,
+        )
         fits += 1
         if not (r.usable and np.all(np.isfinite(r.estimates))):
             break

@@ -46,10 +46,22 @@ class DistributedSigma:
     bytes: int
 
 
-def distributed_sigma(kept: RangingProblem, res: Any, *, exchange: Any, objective: str, sigma_m: float, loss: str,
-                      loss_scale_m: float, offsets: str, offset_prior_sigma_m: float, delay_sigma_m: float,
-                      estimate_delays: bool, mode: str = "auto",
-                      fit_scale_m: float | None = None) -> DistributedSigma:
+def distributed_sigma(
+    kept: RangingProblem,
+    res: Any,
+    *,
+    exchange: Any,
+    objective: str,
+    sigma_m: float,
+    loss: str,
+    loss_scale_m: float,
+    offsets: str,
+    offset_prior_sigma_m: float,
+    delay_sigma_m: float,
+    estimate_delays: bool,
+    mode: str = "auto",
+    fit_scale_m: float | None = None,
+) -> DistributedSigma:
     """The distributed solvers' σ on the links ``kept`` at the solution ``res`` (module docstring); ``exchange``
     builds the exchange of a problem (None: in-process). ``delay_sigma_m`` 0: no delays considered; ``fit_scale_m``
     the loss scale ``res`` was fitted at (the central σ̂² at it, as LM's). Raises
@@ -62,12 +74,21 @@ def distributed_sigma(kept: RangingProblem, res: Any, *, exchange: Any, objectiv
         raise ModelError(f"distributed precision 'central' models the metres objective only, not {objective!r}")
     if mode == "central" or (mode == "auto" and objective == "metres" and kept.n_anchors <= CENTRAL_MAX_ANCHORS):
         try:
-            out = central_precision(kept, est, offset_m=None if off is None else np.asarray(off, float),
-                                    exchange=None if exchange is None else exchange(kept), sigma_m=sigma_m,
-                                    loss=loss, loss_scale_m=loss_scale_m, range_offsets=offsets,
-                                    offset_prior_sigma_m=offset_prior_sigma_m, delay_sigma_m=delay_sigma_m,
-                                    estimate_delays=estimate_delays, variance_scale_m=fit_scale_m,
-                                    delay_upper_z=DELAY_UPPER_Z)
+            out = central_precision(
+                kept,
+                est,
+                offset_m=None if off is None else np.asarray(off, float),
+                exchange=None if exchange is None else exchange(kept),
+                sigma_m=sigma_m,
+                loss=loss,
+                loss_scale_m=loss_scale_m,
+                range_offsets=offsets,
+                offset_prior_sigma_m=offset_prior_sigma_m,
+                delay_sigma_m=delay_sigma_m,
+                estimate_delays=estimate_delays,
+                variance_scale_m=fit_scale_m,
+                delay_upper_z=DELAY_UPPER_Z,
+            )
         except ModelError as err:
             if mode == "central":
                 raise
@@ -75,19 +96,34 @@ def distributed_sigma(kept: RangingProblem, res: Any, *, exchange: Any, objectiv
         else:
             comm = out.precision.comm
             red_msg, red_bytes = out.reduction_cost(kept.n_anchors)
-            return DistributedSigma(np.where(kept.free, out.std(a_posteriori=True), 0.0),
-                                    out.covariance(a_posteriori=True), "central",
-                                    red_msg + (0 if comm is None else int(comm.messages)),
-                                    red_bytes + (0 if comm is None else int(comm.bytes)))
+            return DistributedSigma(
+                np.where(kept.free, out.std(a_posteriori=True), 0.0),
+                out.covariance(a_posteriori=True),
+                "central",
+                red_msg + (0 if comm is None else int(comm.messages)),
+                red_bytes + (0 if comm is None else int(comm.bytes)),
+            )
     bias = 0.0 if off is None else _bias(kept, np.asarray(off, float))  # the sub-network σ know no offsets
     sub = kept.with_ranges(kept.range_m - bias) if not np.isscalar(bias) or bias != 0.0 else kept
-    nb = neighbourhood_precision(sub, est, exchange=None if exchange is None else exchange(sub), objective=objective,
-                                 sigma_m=sigma_m, loss=loss, loss_scale_m=loss_scale_m, hops=PRECISION_HOPS,
-                                 delay_sigma_m=delay_sigma_m)
+    nb = neighbourhood_precision(
+        sub,
+        est,
+        exchange=None if exchange is None else exchange(sub),
+        objective=objective,
+        sigma_m=sigma_m,
+        loss=loss,
+        loss_scale_m=loss_scale_m,
+        hops=PRECISION_HOPS,
+        delay_sigma_m=delay_sigma_m,
+    )
     comm = nb.precision.comm
-    return DistributedSigma(np.where(kept.free, nb.std(a_posteriori=True), 0.0), nb.covariance(a_posteriori=True),
-                            nb.precision.kind, 0 if comm is None else int(comm.messages),
-                            0 if comm is None else int(comm.bytes))
+    return DistributedSigma(
+        np.where(kept.free, nb.std(a_posteriori=True), 0.0),
+        nb.covariance(a_posteriori=True),
+        nb.precision.kind,
+        0 if comm is None else int(comm.messages),
+        0 if comm is None else int(comm.bytes),
+    )
 
 
 def _bias(problem: RangingProblem, off: FloatArray) -> FloatArray | float:

@@ -55,8 +55,18 @@ from distnav.models.uwb.initial import classical_mds, completed, link_distances,
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray, IntArray
 
-__all__ = ["GeometryIssue", "GeometryReport", "check_geometry", "rigidity_matrix", "flexible_anchors",
-           "planarity", "planar_fit_ratio", "PLANAR_TOL", "PLANAR_FIT_RATIO", "MAX_DENSE_RIGIDITY"]
+__all__ = [
+    "GeometryIssue",
+    "GeometryReport",
+    "check_geometry",
+    "rigidity_matrix",
+    "flexible_anchors",
+    "planarity",
+    "planar_fit_ratio",
+    "PLANAR_TOL",
+    "PLANAR_FIT_RATIO",
+    "MAX_DENSE_RIGIDITY",
+]
 
 PLANAR_TOL = 0.1
 PLANAR_FIT_RATIO = 3.0
@@ -127,9 +137,15 @@ class GeometryReport:
             raise ModelError("; ".join(i.message for i in self.refused))
 
     def as_dict(self) -> dict[str, Any]:
-        return {"status": self.status, "unsolved": list(self.unsolved), "issues": [i.as_dict() for i in self.issues],
-                "planarity_known": self.planarity_known, "planarity_network": self.planarity_network,
-                "planar_fit_ratio": self.planar_fit_ratio, "notes": list(self.notes)}
+        return {
+            "status": self.status,
+            "unsolved": list(self.unsolved),
+            "issues": [i.as_dict() for i in self.issues],
+            "planarity_known": self.planarity_known,
+            "planarity_network": self.planarity_network,
+            "planar_fit_ratio": self.planar_fit_ratio,
+            "notes": list(self.notes),
+        }
 
 
 def planarity(points_m: FloatArray) -> float:
@@ -256,8 +272,14 @@ def _names(problem: RangingProblem, idx: IntArray | list[int], limit: int = 12) 
     return shown + (f" and {len(idx) - limit} more" if len(idx) > limit else "")
 
 
-def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, planar_tol: float = PLANAR_TOL,
-                   initial_m: FloatArray | None = None, rng: np.random.Generator | None = None) -> GeometryReport:
+def check_geometry(
+    problem: RangingProblem,
+    *,
+    allow_planar_3d: bool = False,
+    planar_tol: float = PLANAR_TOL,
+    initial_m: FloatArray | None = None,
+    rng: np.random.Generator | None = None,
+) -> GeometryReport:
     """Run every check of the module docstring on ``problem`` (built with ``check_determined=False`` if it may
     be undetermined). ``initial_m`` (default ``problem.initial_m``) is used for the network's planarity."""
     n = problem.n_anchors
@@ -273,9 +295,14 @@ def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, pl
             lost += comp.tolist()
     if lost:
         keep[lost] = False
-        issues.append(GeometryIssue("disconnected", "unsolved", tuple(problem.ids[i] for i in lost),
-                                    f"anchors {_names(problem, lost)} have no chain of measured links to a known "
-                                    f"anchor: left unsolved"))
+        issues.append(
+            GeometryIssue(
+                "disconnected",
+                "unsolved",
+                tuple(problem.ids[i] for i in lost),
+                f"anchors {_names(problem, lost)} have no chain of measured links to a known anchor: left unsolved",
+            )
+        )
     # 2. non-rigid parts (repeat: removing a flexible anchor can leave another flexible)
     for _ in range(4):
         if not (keep & problem.estimated).any():
@@ -289,9 +316,15 @@ def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, pl
             break
         flex = np.flatnonzero(keep)[flex_sub]
         keep[flex] = False
-        issues.append(GeometryIssue("non_rigid", "unsolved", tuple(problem.ids[i] for i in flex),
-                                    f"anchors {_names(problem, flex)} can move without changing any range (not "
-                                    f"rigid: too few links, or a part hinged on too few anchors): left unsolved"))
+        issues.append(
+            GeometryIssue(
+                "non_rigid",
+                "unsolved",
+                tuple(problem.ids[i] for i in flex),
+                f"anchors {_names(problem, flex)} can move without changing any range (not "
+                f"rigid: too few links, or a part hinged on too few anchors): left unsolved",
+            )
+        )
     # 3. flips: exactly as many neighbours as free coordinates
     lk = problem.links
     m = keep[lk[:, 0]] & keep[lk[:, 1]]
@@ -300,11 +333,16 @@ def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, pl
     flips = np.flatnonzero(keep & (k_free > 0) & (degree == k_free))
     for i in flips:
         nb = np.concatenate([lk[m & (lk[:, 0] == i), 1], lk[m & (lk[:, 1] == i), 0]])
-        issues.append(GeometryIssue(
-            "flip", "ambiguous", (problem.ids[i],),
-            f"anchor {problem.ids[i]!r} has only {degree[i]} links (to {_names(problem, nb.tolist())}) for "
-            f"{k_free[i]} free coordinates: its mirror image through them fits the ranges as well (ambiguous); "
-            f"it needs at least {k_free[i] + 1}"))
+        issues.append(
+            GeometryIssue(
+                "flip",
+                "ambiguous",
+                (problem.ids[i],),
+                f"anchor {problem.ids[i]!r} has only {degree[i]} links (to {_names(problem, nb.tolist())}) for "
+                f"{k_free[i]} free coordinates: its mirror image through them fits the ranges as well (ambiguous); "
+                f"it needs at least {k_free[i] + 1}",
+            )
+        )
     # 4. mirror of a whole part, nearly planar 3-D solve
     z_free = problem.dim == 3 and bool(problem.free[keep & problem.estimated, 2].any())
     init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
@@ -318,19 +356,29 @@ def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, pl
             ratio = _line_ratio(problem.positions_m[kf][:, :2])
             what = "2-D" if problem.dim == 2 else "3-D with the heights held"
             if ratio <= EXACT_TOL:
-                issues.append(GeometryIssue(
-                    "mirror", "ambiguous", tuple(problem.ids[i] for i in comp if problem.estimated[i]),
-                    f"the {kf.size} known anchor(s) {_names(problem, kf.tolist())} lie on one line ({what}): the "
-                    f"mirror image of the network through that line fits every range equally (ambiguous); add a "
-                    f"known anchor off the line"))
+                issues.append(
+                    GeometryIssue(
+                        "mirror",
+                        "ambiguous",
+                        tuple(problem.ids[i] for i in comp if problem.estimated[i]),
+                        f"the {kf.size} known anchor(s) {_names(problem, kf.tolist())} lie on one line ({what}): the "
+                        f"mirror image of the network through that line fits every range equally (ambiguous); add a "
+                        f"known anchor off the line",
+                    )
+                )
             elif ratio < planar_tol:
-                issues.append(GeometryIssue(
-                    "near_line", "weakly_determined", tuple(problem.ids[i] for i in comp if problem.estimated[i]),
-                    f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie nearly on one line ({what}; "
-                    f"none more than {_off_line_m(problem.positions_m[kf][:, :2]):.2f} m off it, line ratio "
-                    f"{ratio:.3f} < {planar_tol}): the mirror image of the network through that line fits the "
-                    f"ranges almost as well, range errors can choose it (weakly determined); add a known anchor "
-                    f"farther off the line"))
+                issues.append(
+                    GeometryIssue(
+                        "near_line",
+                        "weakly_determined",
+                        tuple(problem.ids[i] for i in comp if problem.estimated[i]),
+                        f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie nearly on one line ({what}; "
+                        f"none more than {_off_line_m(problem.positions_m[kf][:, :2]):.2f} m off it, line ratio "
+                        f"{ratio:.3f} < {planar_tol}): the mirror image of the network through that line fits the "
+                        f"ranges almost as well, range errors can choose it (weakly determined); add a known anchor "
+                        f"farther off the line",
+                    )
+                )
             continue
         pk_c = planarity(problem.positions_m[kf])
         pk = pk_c if pk is None else min(pk, pk_c)
@@ -338,11 +386,16 @@ def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, pl
             pn_c = planarity(np.asarray(init)[comp])
             pn = pn_c if pn is None else min(pn, pn_c)
         if pk_c <= EXACT_TOL:
-            issues.append(GeometryIssue(
-                "mirror", "ambiguous", tuple(problem.ids[i] for i in comp if problem.estimated[i]),
-                f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie in one plane and the heights are "
-                f"free: the mirror image of the network through that plane fits every range equally (ambiguous); "
-                f"hold the surveyed heights (--heights) or add a known anchor off the plane"))
+            issues.append(
+                GeometryIssue(
+                    "mirror",
+                    "ambiguous",
+                    tuple(problem.ids[i] for i in comp if problem.estimated[i]),
+                    f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie in one plane and the heights are "
+                    f"free: the mirror image of the network through that plane fits every range equally (ambiguous); "
+                    f"hold the surveyed heights (--heights) or add a known anchor off the plane",
+                )
+            )
     network_planar = pn if pn is not None else pk
     fit_ratio: float | None = None
     if z_free and pn is not None and pn >= planar_tol:  # a planar network's MDS start need not be planar
@@ -353,19 +406,45 @@ def check_geometry(problem: RangingProblem, *, allow_planar_3d: bool = False, pl
     fits_plane = fit_ratio is not None and fit_ratio < PLANAR_FIT_RATIO
     if z_free and network_planar is not None and (network_planar < planar_tol or fits_plane):
         sev: Severity = "weakly_determined" if allow_planar_3d else "refused"
-        tail = ("solved as asked: heights are weakly determined" if allow_planar_3d else
-                "refused: hold the surveyed heights (--heights HEIGHTS.csv) or ask for it with --allow-planar-3d")
-        issues.append(GeometryIssue(
-            "planar", sev, tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
-            f"the network is nearly planar (planarity of the known anchors {pk if pk is not None else float('nan'):.3f}"
-            f", of the initial guess {pn if pn is not None else float('nan'):.3f}"
-            + (f"; its ranges fit a plane about as well as 3-D space: median residual ratio {fit_ratio:.2f} < "
-               f"{PLANAR_FIT_RATIO:g}" if fits_plane else f", < {planar_tol}")
-            + f") and is solved in 3-D with free heights: the ranges cannot tell above from below its plane; {tail}"))
+        tail = (
+            "solved as asked: heights are weakly determined"
+            if allow_planar_3d
+            else "refused: hold the surveyed heights (--heights HEIGHTS.csv) or ask for it with --allow-planar-3d"
+        )
+        issues.append(
+            GeometryIssue(
+                "planar",
+                sev,
+                tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
+                "the network is nearly planar (planarity of the known anchors "
+                f"{pk if pk is not None else float('nan'):.3f}"
+                f", of the initial guess {pn if pn is not None else float('nan'):.3f}"
+                + (
+                    f"; its ranges fit a plane about as well as 3-D space: median residual ratio {fit_ratio:.2f} < "
+                    f"{PLANAR_FIT_RATIO:g}"
+                    if fits_plane
+                    else f", < {planar_tol}"
+                )
+                + ") and is solved in 3-D with free heights: the ranges cannot tell above from below its plane; "
+                + tail,
+            )
+        )
     elif z_free and pk is not None and EXACT_TOL < pk < planar_tol:
-        issues.append(GeometryIssue(
-            "near_mirror", "weakly_determined", tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
-            f"the known anchors are nearly coplanar (planarity {pk:.3f} < {planar_tol}) and the heights are free: "
-            f"the mirror image through their plane fits the ranges almost as well (weakly determined)"))
-    return GeometryReport(ids=problem.ids, solvable=keep, issues=tuple(issues), planarity_known=pk,
-                          planarity_network=pn, notes=tuple(notes), planar_fit_ratio=fit_ratio)
+        issues.append(
+            GeometryIssue(
+                "near_mirror",
+                "weakly_determined",
+                tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
+                f"the known anchors are nearly coplanar (planarity {pk:.3f} < {planar_tol}) and the heights are free: "
+                f"the mirror image through their plane fits the ranges almost as well (weakly determined)",
+            )
+        )
+    return GeometryReport(
+        ids=problem.ids,
+        solvable=keep,
+        issues=tuple(issues),
+        planarity_known=pk,
+        planarity_network=pn,
+        notes=tuple(notes),
+        planar_fit_ratio=fit_ratio,
+    )

@@ -98,8 +98,15 @@ class HallConfig:
         for name in ("length_m", "width_m", "ceiling_m", "range_limit_m"):
             if not getattr(self, name) > 0:
                 raise ModelError(f"HallConfig.{name} must be positive, got {getattr(self, name)}")
-        for name in ("link_loss", "sample_loss", "multipath_fraction", "nlos_p0", "nlos_p1", "nlos_long_fraction",
-                     "gross_link_fraction"):
+        for name in (
+            "link_loss",
+            "sample_loss",
+            "multipath_fraction",
+            "nlos_p0",
+            "nlos_p1",
+            "nlos_long_fraction",
+            "gross_link_fraction",
+        ):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ModelError(f"HallConfig.{name} must be a probability in [0, 1], got {getattr(self, name)}")
         lo, hi = self.nlos_bias_m
@@ -107,11 +114,13 @@ class HallConfig:
             raise ModelError(f"HallConfig.nlos_bias_m must be (low, high) with 0 ≤ low ≤ high, got {self.nlos_bias_m}")
         glo, ghi = self.gross_excess_m
         if not 0 <= glo <= ghi:
-            raise ModelError(f"HallConfig.gross_excess_m must be (low, high) with 0 ≤ low ≤ high, got "
-                             f"{self.gross_excess_m}")
+            raise ModelError(
+                f"HallConfig.gross_excess_m must be (low, high) with 0 ≤ low ≤ high, got {self.gross_excess_m}"
+            )
         if self.gross_samples < 1 or self.asymmetry_sd_m < 0:
-            raise ModelError(f"need gross_samples ≥ 1 and asymmetry_sd_m ≥ 0, got {self.gross_samples}, "
-                             f"{self.asymmetry_sd_m}")
+            raise ModelError(
+                f"need gross_samples ≥ 1 and asymmetry_sd_m ≥ 0, got {self.gross_samples}, {self.asymmetry_sd_m}"
+            )
         if self.min_links < 0:
             raise ModelError(f"HallConfig.min_links must be ≥ 0, got {self.min_links}")
         if self.attempts < 1 or not 1 <= self.min_samples <= self.attempts:
@@ -175,8 +184,9 @@ class HallNetwork:
         out.mkdir(parents=True, exist_ok=True)
         files = {k: out / f"{k}.csv" for k in ("ranges", "known", "truth", "heights", "links_truth", "delays")}
         a, b = self.sample_pairs()
-        _write(files["ranges"], ["a,b,range_m"] + [f"{x},{y},{r:.4f}" for x, y, r in zip(a, b, self.range_m,
-                                                                                        strict=True)])
+        _write(
+            files["ranges"], ["a,b,range_m"] + [f"{x},{y},{r:.4f}" for x, y, r in zip(a, b, self.range_m, strict=True)]
+        )
 
         def table(rows: IntArray | range) -> list[str]:
             t = self.truth_m
@@ -184,13 +194,20 @@ class HallNetwork:
 
         _write(files["known"], table(self.known))
         _write(files["truth"], table(range(self.n_anchors)))
-        _write(files["heights"], ["id,z_m"] + [f"{k},{z:.4f}" for k, z in zip(self.ids, self.surveyed_z_m,
-                                                                               strict=True)])
-        _write(files["links_truth"], ["a,b,distance_m,nlos,bias_m"] + [
-            f"{self.ids[i]},{self.ids[j]},{d:.4f},{int(f)},{bm:.4f}"
-            for (i, j), d, f, bm in zip(self.links, self.distance_m, self.nlos, self.bias_m, strict=True)])
-        _write(files["delays"], ["id,offset_m"] + [f"{k},{o:.4f}" for k, o in zip(self.ids, self.offset_m,
-                                                                                   strict=True)])
+        _write(
+            files["heights"], ["id,z_m"] + [f"{k},{z:.4f}" for k, z in zip(self.ids, self.surveyed_z_m, strict=True)]
+        )
+        _write(
+            files["links_truth"],
+            ["a,b,distance_m,nlos,bias_m"]
+            + [
+                f"{self.ids[i]},{self.ids[j]},{d:.4f},{int(f)},{bm:.4f}"
+                for (i, j), d, f, bm in zip(self.links, self.distance_m, self.nlos, self.bias_m, strict=True)
+            ],
+        )
+        _write(
+            files["delays"], ["id,offset_m"] + [f"{k},{o:.4f}" for k, o in zip(self.ids, self.offset_m, strict=True)]
+        )
         return files
 
 
@@ -240,8 +257,9 @@ def _known(cfg: HallConfig, truth: FloatArray) -> IntArray:
     return np.asarray(select_fixed(xy, "M" if cfg.known == "middle" else "C", cfg.n_known), np.int64)
 
 
-def _restore_links(pairs: IntArray, dist: FloatArray, kept: BoolArray, possible: BoolArray, n: int,
-                   min_links: int) -> BoolArray:
+def _restore_links(
+    pairs: IntArray, dist: FloatArray, kept: BoolArray, possible: BoolArray, n: int, min_links: int
+) -> BoolArray:
     """``kept`` with the shortest dropped (but measurable) pairs of every anchor below ``min_links`` restored."""
     kept = kept.copy()
     for i in range(n):
@@ -258,7 +276,7 @@ def _restore_links(pairs: IntArray, dist: FloatArray, kept: BoolArray, possible:
 
 def simulate_hall(rng: np.random.Generator, config: HallConfig | None = None, **changes: object) -> HallNetwork:
     """Draw one hall network (see the module docstring); ``changes`` override fields of ``config``."""
-    cfg = (config or HallConfig())
+    cfg = config or HallConfig()
     if changes:
         cfg = cfg.with_(**changes)
     truth = _layout(cfg, rng)
@@ -303,6 +321,18 @@ def simulate_hall(rng: np.random.Generator, config: HallConfig | None = None, **
     if cfg.asymmetry_sd_m > 0.0:  # a→b and b→a differ by a per-link amount (e.g. SS-TWR clock drift)
         asym = rng.normal(0.0, cfg.asymmetry_sd_m, n_links)
         r = np.maximum(r + np.where(swapped, 0.5, -0.5) * asym[link], 1e-3)
-    return HallNetwork(config=cfg, ids=ids, truth_m=truth, surveyed_z_m=surveyed, known=_known(cfg, truth),
-                       links=pairs.astype(np.int64), distance_m=dist, nlos=nlos, bias_m=bias, offset_m=offset,
-                       sample_link=link.astype(np.int64), range_m=r, swapped=swapped)
+    return HallNetwork(
+        config=cfg,
+        ids=ids,
+        truth_m=truth,
+        surveyed_z_m=surveyed,
+        known=_known(cfg, truth),
+        links=pairs.astype(np.int64),
+        distance_m=dist,
+        nlos=nlos,
+        bias_m=bias,
+        offset_m=offset,
+        sample_link=link.astype(np.int64),
+        range_m=r,
+        swapped=swapped,
+    )

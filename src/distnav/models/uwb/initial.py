@@ -13,8 +13,15 @@ from scipy.sparse.csgraph import shortest_path
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
 
-__all__ = ["classical_mds", "smacof", "mds_initial_guess", "height_spread_ratio", "candidate_starts", "link_distances",
-           "completed"]
+__all__ = [
+    "classical_mds",
+    "smacof",
+    "mds_initial_guess",
+    "height_spread_ratio",
+    "candidate_starts",
+    "link_distances",
+    "completed",
+]
 
 
 def classical_mds(dist_m: np.ndarray, dim: int) -> np.ndarray:
@@ -88,8 +95,13 @@ def link_distances(problem: RangingProblem, horizontal: bool) -> tuple[np.ndarra
 
 def completed(problem: RangingProblem, links: np.ndarray, d: np.ndarray) -> np.ndarray:
     n = problem.n_anchors
-    g = csr_matrix((np.concatenate([d, d]) + 1e-9, (np.concatenate([links[:, 0], links[:, 1]]),
-                                                    np.concatenate([links[:, 1], links[:, 0]]))), shape=(n, n))
+    g = csr_matrix(
+        (
+            np.concatenate([d, d]) + 1e-9,
+            (np.concatenate([links[:, 0], links[:, 1]]), np.concatenate([links[:, 1], links[:, 0]])),
+        ),
+        shape=(n, n),
+    )
     full = shortest_path(g, directed=False)
     if not np.all(np.isfinite(full)):
         raise ModelError("the range graph is not connected: no MDS initial guess (pass --initial)")
@@ -172,8 +184,9 @@ def candidate_starts(problem: RangingProblem, *, max_flips: int = 8) -> list[tup
     base = _aligned(problem, sm, horizontal, fixed)
     n = problem.n_anchors
     deg = np.bincount(links[:, 0], minlength=n) + np.bincount(links[:, 1], minlength=n)
-    weak = [i for i in np.argsort(deg, kind="stable")
-            if problem.estimated[i] and deg[i] <= int(problem.free[i].sum()) + 2][:max_flips]
+    weak = [
+        i for i in np.argsort(deg, kind="stable") if problem.estimated[i] and deg[i] <= int(problem.free[i].sum()) + 2
+    ][:max_flips]
     for i in weak:
         partners = np.concatenate([links[links[:, 0] == i, 1], links[links[:, 1] == i, 0]])
         if partners.size < 2:

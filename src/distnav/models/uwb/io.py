@@ -32,8 +32,18 @@ import numpy as np
 
 from distnav.errors import DataFileError
 
-__all__ = ["RangeLog", "CombinedRanges", "read_ranges", "combine_ranges", "read_positions", "read_heights",
-           "write_positions", "check_units", "single_link_anchors", "DROP_REASONS"]
+__all__ = [
+    "RangeLog",
+    "CombinedRanges",
+    "read_ranges",
+    "combine_ranges",
+    "read_positions",
+    "read_heights",
+    "write_positions",
+    "check_units",
+    "single_link_anchors",
+    "DROP_REASONS",
+]
 
 log_ = logging.getLogger(__name__)
 
@@ -65,8 +75,10 @@ class RangeLog:
             return ""
         what = ", ".join(f"{v} {k}" for k, v in self.dropped.items() if v)
         shown = ", ".join(str(x) for x in self.dropped_lines[:5]) + (" …" if len(self.dropped_lines) > 5 else "")
-        return (f"{self.path}: dropped {self.n_dropped} bad range sample(s) of {self.n_dropped + self.range_m.size} "
-                f"({what}; lines {shown})")
+        return (
+            f"{self.path}: dropped {self.n_dropped} bad range sample(s) of {self.n_dropped + self.range_m.size} "
+            f"({what}; lines {shown})"
+        )
 
     @property
     def ids(self) -> list[str]:
@@ -97,9 +109,11 @@ def _rows(path: Path, required: Sequence[str]) -> tuple[list[str], list[tuple[in
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         line = raw.count(b"\n", 0, exc.start) + 1
-        raise DataFileError(f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 text: expected a CSV text "
-                            f"file in UTF-8 (this looks like binary data, a gzip archive, or text saved as UTF-16 "
-                            f"or in a local code page: save it as UTF-8 CSV)") from None
+        raise DataFileError(
+            f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 text: expected a CSV text "
+            f"file in UTF-8 (this looks like binary data, a gzip archive, or text saved as UTF-16 "
+            f"or in a local code page: save it as UTF-8 CSV)"
+        ) from None
     if "\x00" in text:
         line = text.count("\n", 0, text.index("\x00")) + 1
         raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected a CSV text file in UTF-8")
@@ -116,7 +130,8 @@ def _rows(path: Path, required: Sequence[str]) -> tuple[list[str], list[tuple[in
             if missing:
                 raise DataFileError(
                     f"{p}:{number}: header must name the columns {','.join(required)}; missing {', '.join(missing)} "
-                    f"(got {','.join(fields)})")
+                    f"(got {','.join(fields)})"
+                )
             continue
         rows.append((number, fields))
     if header is None:
@@ -174,8 +189,10 @@ def read_ranges(path: str | Path, *, strict: bool = False) -> RangeLog:
         v, bad = _sample(p, number, f[ir])
         if bad:
             if strict:
-                raise DataFileError(f"{p}:{number}: {bad} range {f[ir]!r} between {f[ia]!r} and {f[ib]!r} "
-                                    f"(without --strict such samples are dropped and counted)")
+                raise DataFileError(
+                    f"{p}:{number}: {bad} range {f[ir]!r} between {f[ia]!r} and {f[ib]!r} "
+                    f"(without --strict such samples are dropped and counted)"
+                )
             dropped[bad] += 1
             dropped_lines.append(number)
             continue
@@ -184,10 +201,19 @@ def read_ranges(path: str | Path, *, strict: bool = False) -> RangeLog:
         r.append(v)
         ln.append(number)
     if not r:
-        raise DataFileError(f"{p}:{dropped_lines[0]}: no usable range sample ({len(dropped_lines)} bad one(s) "
-                            f"dropped: {', '.join(f'{v} {k}' for k, v in dropped.items() if v)})")
-    out = RangeLog(p, tuple(a), tuple(b), np.asarray(r, float), np.asarray(ln, np.int64),
-                   {k: v for k, v in dropped.items() if v}, tuple(dropped_lines))
+        raise DataFileError(
+            f"{p}:{dropped_lines[0]}: no usable range sample ({len(dropped_lines)} bad one(s) "
+            f"dropped: {', '.join(f'{v} {k}' for k, v in dropped.items() if v)})"
+        )
+    out = RangeLog(
+        p,
+        tuple(a),
+        tuple(b),
+        np.asarray(r, float),
+        np.asarray(ln, np.int64),
+        {k: v for k, v in dropped.items() if v},
+        tuple(dropped_lines),
+    )
     if out.n_dropped:
         log_.warning("%s", out.drop_message())
     return out
@@ -210,8 +236,9 @@ UNIT_FACTORS = {"millimetres": 1000.0, "centimetres": 100.0, "feet": 1.0 / 0.304
 MAX_PLAUSIBLE_RANGE_M = 300.0
 
 
-def check_units(comb: CombinedRanges, known_m: Mapping[str, np.ndarray], *,
-                where: str = "ranges") -> tuple[str, str | None]:
+def check_units(
+    comb: CombinedRanges, known_m: Mapping[str, np.ndarray], *, where: str = "ranges"
+) -> tuple[str, str | None]:
     """Refuse ranges that are not in metres; returns ``(note on what was compared, warning or None)``.
 
     Compares the median ranges of links between two known anchors with the distance of their positions: a
@@ -231,16 +258,21 @@ def check_units(comb: CombinedRanges, known_m: Mapping[str, np.ndarray], *,
             if abs(np.log(q / f)) < np.log(1.15):
                 raise DataFileError(
                     f"{where}: the ranges look like {unit}: between known anchors they are {q:.4g}× the distance "
-                    f"of the known positions (median of {len(ratios)} link(s)); convert range_m to metres")
+                    f"of the known positions (median of {len(ratios)} link(s)); convert range_m to metres"
+                )
         note = f"ranges / known distances = {q:.3f} (median of {len(ratios)} link(s) between known anchors)"
         if not 0.5 < q < 2.0:
-            return note, (f"between known anchors the ranges are {q:.3g}× the distance of the known positions "
-                          f"(median of {len(ratios)} link(s)): check the known positions and the units of range_m")
+            return note, (
+                f"between known anchors the ranges are {q:.3g}× the distance of the known positions "
+                f"(median of {len(ratios)} link(s)): check the known positions and the units of range_m"
+            )
         return note, None
     med = float(np.median(comb.range_m))
     if med > MAX_PLAUSIBLE_RANGE_M:
-        raise DataFileError(f"{where}: median range {med:.4g} m is beyond UWB reach; the ranges look like "
-                            f"millimetres (convert range_m to metres)")
+        raise DataFileError(
+            f"{where}: median range {med:.4g} m is beyond UWB reach; the ranges look like "
+            f"millimetres (convert range_m to metres)"
+        )
     return "", None
 
 
@@ -257,8 +289,9 @@ def single_link_anchors(comb: CombinedRanges) -> list[str]:
             continue
         near = _closest_ids(k, many)
         hint = f"; an id typo for {' or '.join(repr(x) for x in near)}?" if near else ""
-        out.append(f"anchor {k!r} has a single measured link (to {next(iter(v))!r}): it cannot be located from "
-                   f"ranges{hint}")
+        out.append(
+            f"anchor {k!r} has a single measured link (to {next(iter(v))!r}): it cannot be located from ranges{hint}"
+        )
     return out
 
 

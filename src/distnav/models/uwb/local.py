@@ -79,8 +79,7 @@ def _gauss_newton_2d(y: FloatArray, qf: FloatArray, dh: FloatArray) -> FloatArra
     return y
 
 
-def fit_anchor(problem: RangingProblem, i: int, positions_m: FloatArray, links: list[int]
-               ) -> tuple[FloatArray, float]:
+def fit_anchor(problem: RangingProblem, i: int, positions_m: FloatArray, links: list[int]) -> tuple[FloatArray, float]:
     """Position of anchor ``i`` from the measurements ``links`` (indices) with every other anchor held at
     ``positions_m``; returns ``(position, RMS range residual)``."""
     p = np.asarray(positions_m, float)
@@ -148,16 +147,22 @@ def _candidates(problem: RangingProblem, i: int, positions_m: FloatArray, kept: 
     return _intersections(problem, i, positions_m, kept)
 
 
-def _misfit(problem: RangingProblem, i: int, positions_m: FloatArray, at: FloatArray, links: list[int]
-            ) -> FloatArray:
+def _misfit(problem: RangingProblem, i: int, positions_m: FloatArray, at: FloatArray, links: list[int]) -> FloatArray:
     """Fitted − measured range of ``links`` of anchor ``i`` placed at ``at`` (the others at ``positions_m``)."""
     p = np.asarray(positions_m, float)
     other = np.where(problem.meas_a[links] == i, problem.meas_b[links], problem.meas_a[links])
     return np.asarray(np.linalg.norm(p[other] - at, axis=1) - problem.range_m[links])
 
 
-def _judge(problem: RangingProblem, i: int, positions_m: FloatArray, kept: list[int], drop: list[int],
-           one_sided: bool, long_m: float) -> list[tuple[float, FloatArray]]:
+def _judge(
+    problem: RangingProblem,
+    i: int,
+    positions_m: FloatArray,
+    kept: list[int],
+    drop: list[int],
+    one_sided: bool,
+    long_m: float,
+) -> list[tuple[float, FloatArray]]:
     """(RMS on ``kept``, position) of anchor ``i`` at every candidate position whose dropped links are all measured
     longer than the fit by more than ``long_m`` (with ``one_sided``: NLOS only lengthens a range)."""
     out = []
@@ -169,9 +174,17 @@ def _judge(problem: RangingProblem, i: int, positions_m: FloatArray, kept: list[
     return out
 
 
-def repair_exclusions(problem: RangingProblem, positions_m: FloatArray, excluded: BoolArray, flagged: BoolArray,
-                      *, improvement: float = 2.0, good_rms_m: float = 0.15, max_subsets: int = 200,
-                      one_sided: bool = True) -> tuple[BoolArray, list[str], dict[int, FloatArray]]:
+def repair_exclusions(
+    problem: RangingProblem,
+    positions_m: FloatArray,
+    excluded: BoolArray,
+    flagged: BoolArray,
+    *,
+    improvement: float = 2.0,
+    good_rms_m: float = 0.15,
+    max_subsets: int = 200,
+    one_sided: bool = True,
+) -> tuple[BoolArray, list[str], dict[int, FloatArray]]:
     """New exclusions after the per-anchor check (module docstring), one note per anchor changed, and the
     position each changed anchor fits best from its chosen links (a start for the network re-solve)."""
     ex = np.asarray(excluded, bool).copy()
@@ -189,8 +202,11 @@ def repair_exclusions(problem: RangingProblem, positions_m: FloatArray, excluded
         n_bad = sum(1 for m in mine if bad_any[m])
         current = [m for m in mine if not ex[m]]
 
-        now = (_judge(problem, ii, positions_m, current, sorted(now_out), one_sided, good_rms_m)
-               if len(current) > k_free[i] else [])
+        now = (
+            _judge(problem, ii, positions_m, current, sorted(now_out), one_sided, good_rms_m)
+            if len(current) > k_free[i]
+            else []
+        )
         rms_now = min((v[0] for v in now), default=np.inf)
         if rms_now <= good_rms_m:  # the current choice is consistent (and its dropped links are long): kept
             continue
@@ -203,10 +219,13 @@ def repair_exclusions(problem: RangingProblem, positions_m: FloatArray, excluded
             for count, drop in enumerate(itertools.combinations(mine, r)):
                 if count >= max_subsets:
                     break
-                valid += [(rms, drop, at) for rms, at in _judge(problem, ii, positions_m,
-                                                    [m for m in mine if m not in drop], list(drop),
-                                                    one_sided, good_rms_m)
-                          if rms <= good_rms_m]
+                valid += [
+                    (rms, drop, at)
+                    for rms, at in _judge(
+                        problem, ii, positions_m, [m for m in mine if m not in drop], list(drop), one_sided, good_rms_m
+                    )
+                    if rms <= good_rms_m
+                ]
             if not valid:
                 continue
             valid.sort(key=lambda v: v[0])
@@ -223,6 +242,7 @@ def repair_exclusions(problem: RangingProblem, positions_m: FloatArray, excluded
         ex[list(chosen[1])] = True
         moved[ii] = chosen[2]
         names = ", ".join(f"{problem.ids[problem.meas_a[m]]}-{problem.ids[problem.meas_b[m]]}" for m in chosen[1])
-        notes.append(f"anchor {problem.ids[i]!r}: its links fit best without {names} "
-                     f"(RMS {chosen[0]:.3f} m vs {rms_now:.3f} m)")
+        notes.append(
+            f"anchor {problem.ids[i]!r}: its links fit best without {names} (RMS {chosen[0]:.3f} m vs {rms_now:.3f} m)"
+        )
     return ex, notes, moved

@@ -55,8 +55,9 @@ def reflect_through_known_line(positions_m: FloatArray, fixed: np.ndarray, free:
     return p
 
 
-def solve_with_mirror_test(problem: RangingProblem, opts: FieldOptions, geometry: GeometryReport,
-                           exchange: Callable[[Any], Any] | None = None) -> FieldSolution:
+def solve_with_mirror_test(
+    problem: RangingProblem, opts: FieldOptions, geometry: GeometryReport, exchange: Callable[[Any], Any] | None = None
+) -> FieldSolution:
     """:func:`~distnav.models.uwb.field.solve_field`, plus the mirror test of the module docstring where
     ``geometry`` has a ``near_line`` issue (both fits are then made without it; it is kept, weakly determined,
     only when the test cannot be made)."""
@@ -73,26 +74,46 @@ def solve_with_mirror_test(problem: RangingProblem, opts: FieldOptions, geometry
     line = near[0].message.split(":")[0]
     if not other.usable:
         weak = "weakly_determined" if sol.status in ("converged", "max_iterations") else sol.status
-        return dataclasses.replace(sol, geometry=geometry, status=weak,
-                                   message=f"{weak}: {near[0].message} (the mirror test diverged) — {sol.message}")
+        return dataclasses.replace(
+            sol,
+            geometry=geometry,
+            status=weak,
+            message=f"{weak}: {near[0].message} (the mirror test diverged) — {sol.message}",
+        )
     c0 = all_links_cost(problem, sol.result, opts)
     c1 = all_links_cost(problem, other.result, opts)
     est = problem.estimated
     apart_m = float(np.sqrt(np.mean(np.sum((sol.positions_m[est] - other.positions_m[est]) ** 2, axis=1))))
     best, cb, cw = (sol, c0, c1) if c0 <= c1 else (other, c1, c0)
-    best = dataclasses.replace(best, iterations=sol.iterations + other.iterations, messages=sol.messages
-                               + other.messages, bytes=sol.bytes + other.bytes)  # both fits
+    best = dataclasses.replace(
+        best,
+        iterations=sol.iterations + other.iterations,
+        messages=sol.messages + other.messages,
+        bytes=sol.bytes + other.bytes,
+    )  # both fits
     if apart_m > MIRROR_DISTINCT_M and cw < MIRROR_COST_RATIO * cb:
         issue = GeometryIssue(
-            "mirror", "ambiguous", near[0].anchors,
+            "mirror",
+            "ambiguous",
+            near[0].anchors,
             f"{line}: the fit started from the mirror image through that line lands {apart_m:.2f} m RMS away and fits "
             f"all the links about as well (robust cost {cw:.1f} against {cb:.1f}, < {MIRROR_COST_RATIO:g}×): the "
             f"ranges cannot tell the network from its mirror image (ambiguous; the lower-cost one is reported); add "
-            f"a known anchor farther off the line")
-        return dataclasses.replace(best, geometry=dataclasses.replace(geometry, issues=rest + (issue,)),
-                                   status="ambiguous", message=f"ambiguous: {issue.message} — {best.message}")
-    note = (f"{line}: checked — the fit started from the mirror image through that line "
-            + (f"fits all the links {cw / cb:.2f}× worse (robust cost {cw:.1f} against {cb:.1f})"
-               if apart_m > MIRROR_DISTINCT_M else f"returns to the same solution ({apart_m:.2f} m RMS)")
-            + ": the ranges choose the side")
+            f"a known anchor farther off the line",
+        )
+        return dataclasses.replace(
+            best,
+            geometry=dataclasses.replace(geometry, issues=rest + (issue,)),
+            status="ambiguous",
+            message=f"ambiguous: {issue.message} — {best.message}",
+        )
+    note = (
+        f"{line}: checked — the fit started from the mirror image through that line "
+        + (
+            f"fits all the links {cw / cb:.2f}× worse (robust cost {cw:.1f} against {cb:.1f})"
+            if apart_m > MIRROR_DISTINCT_M
+            else f"returns to the same solution ({apart_m:.2f} m RMS)"
+        )
+        + ": the ranges choose the side"
+    )
     return dataclasses.replace(best, geometry=dataclasses.replace(plain, notes=plain.notes + (note,)))

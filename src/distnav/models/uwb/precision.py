@@ -44,21 +44,43 @@ from distnav.algorithms.ranging_objective import RangeObjective
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 
-__all__ = ["consider_sigma", "consider_precision", "DELAY_UPPER_Z", "MIN_NOISE_SHARE", "delay_sigma_estimate",
-           "delay_variance_estimate"]
+__all__ = [
+    "consider_sigma",
+    "consider_precision",
+    "DELAY_UPPER_Z",
+    "MIN_NOISE_SHARE",
+    "delay_sigma_estimate",
+    "delay_variance_estimate",
+]
 
 
-
-def consider_sigma(problem: RangingProblem, result: Any, *, sigma_m: float, offsets: str, loss: str,
-                   loss_scale_m: float, delay_sigma_m: float, offset_prior_sigma_m: float = 0.1,
-                   estimate_delays: bool = False) -> FloatArray | None:
+def consider_sigma(
+    problem: RangingProblem,
+    result: Any,
+    *,
+    sigma_m: float,
+    offsets: str,
+    loss: str,
+    loss_scale_m: float,
+    delay_sigma_m: float,
+    offset_prior_sigma_m: float = 0.1,
+    estimate_delays: bool = False,
+) -> FloatArray | None:
     """σ per anchor and axis ``(n, dim)`` (0 at known coordinates) of an LM metres-objective ``result`` on
     ``problem`` (the links it was fitted on), with per-anchor delays of σ ``delay_sigma_m`` considered (module
     docstring). None when the result carries no free vector or variance factor, or the normal matrix is singular.
     """
-    out = consider_precision(problem, result, sigma_m=sigma_m, offsets=offsets, loss=loss, loss_scale_m=loss_scale_m,
-                             delay_sigma_m=delay_sigma_m, offset_prior_sigma_m=offset_prior_sigma_m,
-                             estimate_delays=estimate_delays)
+    out = consider_precision(
+        problem,
+        result,
+        sigma_m=sigma_m,
+        offsets=offsets,
+        loss=loss,
+        loss_scale_m=loss_scale_m,
+        delay_sigma_m=delay_sigma_m,
+        offset_prior_sigma_m=offset_prior_sigma_m,
+        estimate_delays=estimate_delays,
+    )
     return None if out is None else out[0]
 
 
@@ -94,8 +116,7 @@ def delay_variance_estimate(J: Any, G: Any, r: FloatArray, w: FloatArray, Q: Flo
     return float(d2), float(np.sqrt(max(var[1, 1], 0.0)))
 
 
-def delay_sigma_estimate(J: Any, G: Any, r: FloatArray, w: FloatArray, Q: FloatArray, *, upper_z: float = 0.0
-                         ) -> float:
+def delay_sigma_estimate(J: Any, G: Any, r: FloatArray, w: FloatArray, Q: FloatArray, *, upper_z: float = 0.0) -> float:
     """σ_δ (m) of the per-anchor delays from :func:`delay_variance_estimate`: ``√(σ̂_δ² + upper_z · sd)``
     (``upper_z`` 0: the point estimate; 1.645: its one-sided 95 % upper bound); 0 when that is ≤ 0."""
     d2, sd = delay_variance_estimate(J, G, r, w, Q)
@@ -109,9 +130,18 @@ DELAY_UPPER_Z = 1.645  # σ_δ from the residuals: the one-sided 95 % upper boun
 ESTIMATE_MAX_ROWS = 2000  # the delay estimate forms an m × m residual maker: skipped on larger networks
 
 
-def consider_precision(problem: RangingProblem, result: Any, *, sigma_m: float, offsets: str, loss: str,
-                       loss_scale_m: float, delay_sigma_m: float, offset_prior_sigma_m: float = 0.1,
-                       estimate_delays: bool = False) -> tuple[FloatArray, FloatArray] | None:
+def consider_precision(
+    problem: RangingProblem,
+    result: Any,
+    *,
+    sigma_m: float,
+    offsets: str,
+    loss: str,
+    loss_scale_m: float,
+    delay_sigma_m: float,
+    offset_prior_sigma_m: float = 0.1,
+    estimate_delays: bool = False,
+) -> tuple[FloatArray, FloatArray] | None:
     """``(σ, covariance blocks)`` of :func:`consider_sigma`: σ ``(n, dim)`` and each anchor's ``dim × dim`` block
     ``(n, dim, dim)`` of ``C = σ̂²_noise Q + σ_δ² B Bᵀ`` in m² (zero rows and columns at known coordinates), so
     the ellipses drawn from the blocks are those of the σ written."""
@@ -134,9 +164,13 @@ def consider_precision(problem: RangingProblem, result: Any, *, sigma_m: float, 
         return None
     m, n = problem.n_meas, problem.n_anchors
     inv_sigma = 1.0 / obj.sigma
-    G = sp.csr_matrix((np.concatenate([inv_sigma, inv_sigma]),
-                       (np.concatenate([np.arange(m)] * 2), np.concatenate([problem.meas_a, problem.meas_b]))),
-                      shape=(J.shape[0], n))
+    G = sp.csr_matrix(
+        (
+            np.concatenate([inv_sigma, inv_sigma]),
+            (np.concatenate([np.arange(m)] * 2), np.concatenate([problem.meas_a, problem.meas_b])),
+        ),
+        shape=(J.shape[0], n),
+    )
     if estimate_delays and J.shape[0] <= ESTIMATE_MAX_ROWS:  # the prior is a floor: larger delays seen are used
         delay_sigma_m = max(delay_sigma_m, delay_sigma_estimate(J, G, r, w, Q, upper_z=DELAY_UPPER_Z))
     JWG = np.asarray((JW @ G).toarray())  # n_x × n
@@ -150,7 +184,7 @@ def consider_precision(problem: RangingProblem, result: Any, *, sigma_m: float, 
     s2 = max(float(prec.variance_factor) - share, MIN_NOISE_SHARE * float(prec.variance_factor))
     var = s2 * np.diag(Q) + delay_sigma_m**2 * np.einsum("ij,ij->i", B, B)
     out = np.zeros(problem.free.shape)
-    out[problem.free] = np.sqrt(np.maximum(var[:problem.n_free], 0.0))
+    out[problem.free] = np.sqrt(np.maximum(var[: problem.n_free], 0.0))
     idx = np.full(problem.free.shape, -1)
     idx[problem.free] = np.arange(problem.n_free)  # the free coordinates lead x, anchor by anchor
     valid = idx >= 0
@@ -158,5 +192,6 @@ def consider_precision(problem: RangingProblem, result: Any, *, sigma_m: float, 
     pair = valid[:, :, None] & valid[:, None, :]
     Bq = B[at] * valid[..., None]  # (n, dim, n_anchors)
     blocks = np.where(pair, s2 * Q[at[:, :, None], at[:, None, :]], 0.0) + delay_sigma_m**2 * (
-        Bq @ Bq.transpose(0, 2, 1))
+        Bq @ Bq.transpose(0, 2, 1)
+    )
     return out, blocks

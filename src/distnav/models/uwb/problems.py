@@ -120,22 +120,46 @@ class RangingProblem(RangingData):
             raise ModelError("the kept anchors have no range between them")
         info = dict(self.info)
         info["subset_of"] = idx.tolist()
-        out = _replace(self, ids=tuple(self.ids[i] for i in idx), positions_m=self.positions_m[idx],
-                       free=self.free[idx], meas_a=new[self.meas_a[m]], meas_b=new[self.meas_b[m]],
-                       range_m=self.range_m[m], truth_m=None if self.truth_m is None else self.truth_m[idx],
-                       initial_m=None if self.initial_m is None else self.initial_m[idx], info=info)
+        out = _replace(
+            self,
+            ids=tuple(self.ids[i] for i in idx),
+            positions_m=self.positions_m[idx],
+            free=self.free[idx],
+            meas_a=new[self.meas_a[m]],
+            meas_b=new[self.meas_b[m]],
+            range_m=self.range_m[m],
+            truth_m=None if self.truth_m is None else self.truth_m[idx],
+            initial_m=None if self.initial_m is None else self.initial_m[idx],
+            info=info,
+        )
         if check:
             _check_determined(out.ids, out.dim, out.positions_m, out.free, out.fixed, out.meas_a, out.meas_b)
         return out
 
     def describe(self) -> str:
-        return (f"{self.name or 'problem'}: {self.n_anchors} anchors ({int(self.fixed.sum())} fixed), "
-                f"{self.dim}-D, {self.links.shape[0]} links, {self.n_meas} ranges, {self.n_free} unknowns")
+        return (
+            f"{self.name or 'problem'}: {self.n_anchors} anchors ({int(self.fixed.sum())} fixed), "
+            f"{self.dim}-D, {self.links.shape[0]} links, {self.n_meas} ranges, {self.n_free} unknowns"
+        )
 
 
 def _replace(p: RangingProblem, **changes: Any) -> RangingProblem:
-    kw = {f: getattr(p, f) for f in ("ids", "dim", "positions_m", "free", "meas_a", "meas_b", "range_m",
-                                      "truth_m", "initial_m", "name", "info")}
+    kw = {
+        f: getattr(p, f)
+        for f in (
+            "ids",
+            "dim",
+            "positions_m",
+            "free",
+            "meas_a",
+            "meas_b",
+            "range_m",
+            "truth_m",
+            "initial_m",
+            "name",
+            "info",
+        )
+    }
     kw.update(changes)
     return RangingProblem(**kw)
 
@@ -258,12 +282,30 @@ def build_problem(
     if initial_m is not None:
         init = _check_positions(initial_m, n, dim, "initial guess", ids_t)
         init = np.where(free, init, positions)
-    return RangingProblem(ids=ids_t, dim=dim, positions_m=positions, free=free, meas_a=a, meas_b=b, range_m=r,
-                          truth_m=truth, initial_m=init, name=name, info=dict(info or {}))
+    return RangingProblem(
+        ids=ids_t,
+        dim=dim,
+        positions_m=positions,
+        free=free,
+        meas_a=a,
+        meas_b=b,
+        range_m=r,
+        truth_m=truth,
+        initial_m=init,
+        name=name,
+        info=dict(info or {}),
+    )
 
 
-def _check_determined(ids: tuple[str, ...], dim: int, positions: np.ndarray, free: np.ndarray,
-                      fixed_mask: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
+def _check_determined(
+    ids: tuple[str, ...],
+    dim: int,
+    positions: np.ndarray,
+    free: np.ndarray,
+    fixed_mask: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+) -> None:
     n = len(ids)
     n_fixed = int(fixed_mask.sum())
     heights_held = dim == 3 and bool(np.all(~free[~fixed_mask, 2]))
@@ -271,8 +313,11 @@ def _check_determined(ids: tuple[str, ...], dim: int, positions: np.ndarray, fre
     need = 2 if planar_gauge else 3
     fpos = positions[fixed_mask]
     if n_fixed < need:
-        what = ("2 fixed anchors (2-D, or 3-D with every height held)" if planar_gauge
-                else "3 non-collinear fixed anchors in 3-D")
+        what = (
+            "2 fixed anchors (2-D, or 3-D with every height held)"
+            if planar_gauge
+            else "3 non-collinear fixed anchors in 3-D"
+        )
         raise ModelError(f"the problem is not determined: it needs at least {what}, got {n_fixed}")
     if planar_gauge:
         spread = np.ptp(fpos[:, :2], axis=0).max()
@@ -297,9 +342,15 @@ def _check_determined(ids: tuple[str, ...], dim: int, positions: np.ndarray, fre
 
 
 # ---------------------------------------------------------------------- generators (paper 002 §4)
-def generate_layout(cls: str, rng: np.random.Generator | None = None, *, n_anchors: int = 100,
-                    spacing_m: float = 10.0, range_limit_m: float = 18.0, max_tries: int = 200
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def generate_layout(
+    cls: str,
+    rng: np.random.Generator | None = None,
+    *,
+    n_anchors: int = 100,
+    spacing_m: float = 10.0,
+    range_limit_m: float = 18.0,
+    max_tries: int = 200,
+) -> tuple[np.ndarray, np.ndarray]:
     """True 2-D anchor positions and measured links of class G, L or R (paper 002 §4, Fig. 2).
 
     G: a square grid (``√n × √n``) with ``spacing_m`` spacing, links to the 8 nearest (horizontal, vertical,
@@ -360,7 +411,7 @@ def _nearest_noncollinear(pos: np.ndarray, target: np.ndarray, count: int, chose
         if len(trial) >= 3 and _collinear(pos[trial]):
             continue
         out.append(int(i))
-    return out[len(chosen):]
+    return out[len(chosen) :]
 
 
 def select_fixed(pos: np.ndarray, selection: str, n_fixed: int = 3) -> np.ndarray:
@@ -410,8 +461,11 @@ def generate_problem(
         raise ModelError(f"unknown problem {problem!r}; choose one of {', '.join(PAPER_PROBLEMS)}")
     if sigma_m < 0 or init_halfwidth_m < 0:
         raise ModelError("sigma_m and init_halfwidth_m must be ≥ 0")
-    pos2, links = layout if layout is not None else generate_layout(
-        name[0], rng, n_anchors=n_anchors, spacing_m=spacing_m, range_limit_m=range_limit_m)
+    pos2, links = (
+        layout
+        if layout is not None
+        else generate_layout(name[0], rng, n_anchors=n_anchors, spacing_m=spacing_m, range_limit_m=range_limit_m)
+    )
     n = pos2.shape[0]
     truth = np.zeros((n, dim))
     truth[:, :2] = pos2[:, :2]
@@ -426,7 +480,15 @@ def generate_problem(
         if dim != 3:
             raise ModelError("hold_heights needs dim=3")
         held = {ids[i]: {2: float(truth[i, 2])} for i in range(n) if i not in set(fixed_idx.tolist())}
-    return build_problem(ids, np.stack([a, b], 1), ranges, fixed={ids[i]: truth[i] for i in fixed_idx}, dim=dim,
-                         held=held, initial_m=init, truth_m=truth, name=name,
-                         info={"class": name[0], "selection": name[1], "sigma_m": sigma_m,
-                               "fixed": fixed_idx.tolist()})
+    return build_problem(
+        ids,
+        np.stack([a, b], 1),
+        ranges,
+        fixed={ids[i]: truth[i] for i in fixed_idx},
+        dim=dim,
+        held=held,
+        initial_m=init,
+        truth_m=truth,
+        name=name,
+        info={"class": name[0], "selection": name[1], "sigma_m": sigma_m, "fixed": fixed_idx.tolist()},
+    )

@@ -39,8 +39,17 @@ from distnav.algorithms.statistics import minimal_detectable_bias, noncentrality
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray, IntArray
 
-__all__ = ["MAX_FREE", "POWER", "RELIABILITY_LIMIT_M", "WEAK_RMS_M", "ExternalReliability", "external_reliability",
-           "reliability_weak", "weak_anchor_reasons", "weak_anchors"]
+__all__ = [
+    "MAX_FREE",
+    "POWER",
+    "RELIABILITY_LIMIT_M",
+    "WEAK_RMS_M",
+    "ExternalReliability",
+    "external_reliability",
+    "reliability_weak",
+    "weak_anchor_reasons",
+    "weak_anchors",
+]
 
 MAX_FREE = 1500  # free coordinates above which the dense Q is not formed (the test is skipped, with a note)
 POWER = 0.8  # Baarda's β: the probability that a bias of the MDB is found
@@ -67,9 +76,18 @@ class ExternalReliability:
         return float(np.sum(self.r))
 
 
-def external_reliability(problem: RangingProblem, x: FloatArray, *, sigma_m: float, offsets: str, loss: str,
-                         loss_scale_m: float, level: float, offset_prior_sigma_m: float = 0.1,
-                         power: float = POWER) -> ExternalReliability | None:
+def external_reliability(
+    problem: RangingProblem,
+    x: FloatArray,
+    *,
+    sigma_m: float,
+    offsets: str,
+    loss: str,
+    loss_scale_m: float,
+    level: float,
+    offset_prior_sigma_m: float = 0.1,
+    power: float = POWER,
+) -> ExternalReliability | None:
     """The reliability numbers (module docstring) of the LM metres-objective solution with free vector ``x`` on
     ``problem`` (the kept links). None when the normal matrix is singular or the problem has more than
     :data:`MAX_FREE` free coordinates."""
@@ -101,7 +119,7 @@ def external_reliability(problem: RangingProblem, x: FloatArray, *, sigma_m: flo
     sigma = obj.sigma
     mdb = minimal_detectable_bias(sigma * s, r, lam0, residual_variance=q)
     # ∂x / ∂(range bias of l) in metres per metre: Q j_lᵀ w_l / σ_l (the whitened residual moves by ∇/σ)
-    gain = (JQ * (w[:m] / sigma)[:, None]).T[:problem.n_free]  # (n_free, m)
+    gain = (JQ * (w[:m] / sigma)[:, None]).T[: problem.n_free]  # (n_free, m)
     col = np.full(problem.free.shape, -1, np.int64)
     col[problem.free] = np.arange(problem.n_free)
     n = problem.n_anchors
@@ -117,8 +135,9 @@ def external_reliability(problem: RangingProblem, x: FloatArray, *, sigma_m: flo
     return ExternalReliability(r=r, mdb_m=mdb, shift_m=shift, worst_link=worst, lam0=lam0, scale=s)
 
 
-def reliability_weak(problem: RangingProblem, rel: ExternalReliability, sigma_m: FloatArray, *,
-                     limit_m: float = RELIABILITY_LIMIT_M) -> dict[str, str]:
+def reliability_weak(
+    problem: RangingProblem, rel: ExternalReliability, sigma_m: FloatArray, *, limit_m: float = RELIABILITY_LIMIT_M
+) -> dict[str, str]:
     """Anchors whose worst undetected-link shift exceeds ``limit_m`` and 3 × their σ (the norm of σ over their free
     coordinates), each with its reason: which link would go undetected, its MDB, and how far it would move it."""
     sig = np.sqrt(np.nansum(np.where(problem.free, np.asarray(sigma_m, float), 0.0) ** 2, axis=1))
@@ -127,11 +146,13 @@ def reliability_weak(problem: RangingProblem, rel: ExternalReliability, sigma_m:
         k = int(rel.worst_link[i])
         a, b = problem.ids[problem.meas_a[k]], problem.ids[problem.meas_b[k]]
         mdb = float(rel.mdb_m[k])
-        out[problem.ids[i]] = (f"reliability: link {a}-{b} is checked by nothing else (redundancy number "
-                               f"{rel.r[k]:.2g})" if not np.isfinite(mdb) else
-                               f"reliability: an undetected bias of {mdb:.2f} m on link {a}-{b} (its minimal "
-                               f"detectable bias; redundancy number {rel.r[k]:.2f}) would move it "
-                               f"{rel.shift_m[i]:.2f} m")
+        out[problem.ids[i]] = (
+            f"reliability: link {a}-{b} is checked by nothing else (redundancy number {rel.r[k]:.2g})"
+            if not np.isfinite(mdb)
+            else f"reliability: an undetected bias of {mdb:.2f} m on link {a}-{b} (its minimal "
+            f"detectable bias; redundancy number {rel.r[k]:.2f}) would move it "
+            f"{rel.shift_m[i]:.2f} m"
+        )
     return out
 
 
@@ -140,16 +161,29 @@ def describe(rel: ExternalReliability | None, weak: dict[str, str], limit_m: flo
     if rel is None:
         return {"tested": False}
     fin = rel.shift_m[np.isfinite(rel.shift_m) & (rel.shift_m > 0)]
-    return {"tested": True, "lambda0": rel.lam0, "power": POWER, "robust_scale": rel.scale, "limit_m": limit_m,
-            "max_shift_m": float(fin.max()) if fin.size else None,
-            "unchecked_links": int(np.sum(~np.isfinite(rel.mdb_m))), "weak": sorted(weak)}
+    return {
+        "tested": True,
+        "lambda0": rel.lam0,
+        "power": POWER,
+        "robust_scale": rel.scale,
+        "limit_m": limit_m,
+        "max_shift_m": float(fin.max()) if fin.size else None,
+        "unchecked_links": int(np.sum(~np.isfinite(rel.mdb_m))),
+        "weak": sorted(weak),
+    }
 
 
 WEAK_RMS_M = 0.15
 
 
-def weak_anchor_reasons(problem: RangingProblem, residual_m: FloatArray, excluded: BoolArray, flagged: BoolArray, *,
-                        limit_m: float = WEAK_RMS_M) -> dict[str, str]:
+def weak_anchor_reasons(
+    problem: RangingProblem,
+    residual_m: FloatArray,
+    excluded: BoolArray,
+    flagged: BoolArray,
+    *,
+    limit_m: float = WEAK_RMS_M,
+) -> dict[str, str]:
     """Anchors with an excluded or flagged link whose kept links still misfit by more than ``limit_m`` RMS (or 3 ×
     the network's robust residual scale, if larger) at the solution: the exclusions could not find a consistent
     subset of their links; and anchors with at most one redundant link left (3 links for 2 coordinates, with or
@@ -175,31 +209,63 @@ def weak_anchor_reasons(problem: RangingProblem, residual_m: FloatArray, exclude
     misfit = touched & (rms > limit)
     out: dict[str, str] = {}
     for i in np.flatnonzero(problem.estimated & (misfit | thin)):
-        out[problem.ids[i]] = (f"misfit: its kept links misfit by {rms[i]:.2f} m RMS after the exclusions (limit "
-                               f"{limit:.2f} m)" if misfit[i] else
-                               f"thin: {int(cnt[i])} kept links for {int(need[i])} coordinates")
+        out[problem.ids[i]] = (
+            f"misfit: its kept links misfit by {rms[i]:.2f} m RMS after the exclusions (limit {limit:.2f} m)"
+            if misfit[i]
+            else f"thin: {int(cnt[i])} kept links for {int(need[i])} coordinates"
+        )
     return out
 
 
-def weak_anchors(problem: RangingProblem, residual_m: FloatArray, excluded: BoolArray, flagged: BoolArray, *,
-                 limit_m: float = WEAK_RMS_M) -> tuple[str, ...]:
+def weak_anchors(
+    problem: RangingProblem,
+    residual_m: FloatArray,
+    excluded: BoolArray,
+    flagged: BoolArray,
+    *,
+    limit_m: float = WEAK_RMS_M,
+) -> tuple[str, ...]:
     """The anchors of :func:`weak_anchor_reasons`, in problem order."""
     return tuple(weak_anchor_reasons(problem, residual_m, excluded, flagged, limit_m=limit_m))
 
 
-def check_reliability(problem: RangingProblem, result: Any, anchor_sigma_m: FloatArray, *, sigma_m: float,
-                      offsets: str, loss: str, loss_scale_m: float, level: float, limit_m: float,
-                      offset_prior_sigma_m: float = 0.1) -> tuple[dict[str, str], dict[str, Any], str]:
+def check_reliability(
+    problem: RangingProblem,
+    result: Any,
+    anchor_sigma_m: FloatArray,
+    *,
+    sigma_m: float,
+    offsets: str,
+    loss: str,
+    loss_scale_m: float,
+    level: float,
+    limit_m: float,
+    offset_prior_sigma_m: float = 0.1,
+) -> tuple[dict[str, str], dict[str, Any], str]:
     """:func:`external_reliability` and :func:`reliability_weak` of an LM result on ``problem`` (the kept links):
     ``(weak anchors with reasons, the summary.json entry, a note for the message)``."""
     x = getattr(result, "x", None)
     if x is None:
         return {}, {"tested": False}, "; external reliability not tested (the solver gives no free vector)"
     if problem.n_free > MAX_FREE:
-        return {}, {"tested": False}, (f"; external reliability not tested: {problem.n_free} free coordinates "
-                                       f"(> {MAX_FREE}, the dense covariance it needs)")
-    rel = external_reliability(problem, np.asarray(x, float), sigma_m=sigma_m, offsets=offsets, loss=loss,
-                               loss_scale_m=loss_scale_m, level=level, offset_prior_sigma_m=offset_prior_sigma_m)
+        return (
+            {},
+            {"tested": False},
+            (
+                f"; external reliability not tested: {problem.n_free} free coordinates "
+                f"(> {MAX_FREE}, the dense covariance it needs)"
+            ),
+        )
+    rel = external_reliability(
+        problem,
+        np.asarray(x, float),
+        sigma_m=sigma_m,
+        offsets=offsets,
+        loss=loss,
+        loss_scale_m=loss_scale_m,
+        level=level,
+        offset_prior_sigma_m=offset_prior_sigma_m,
+    )
     if rel is None:
         return {}, {"tested": False}, "; external reliability not tested (singular normal matrix)"
     weak = reliability_weak(problem, rel, anchor_sigma_m, limit_m=limit_m)
