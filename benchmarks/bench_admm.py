@@ -33,8 +33,8 @@ from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, main_for, paired_times, ratio_stats  # noqa: E402
-from distnav.algorithms.admm import admm, iterate_admm  # noqa: E402
-from distnav.algorithms.lsq import LinearProblem, blue  # noqa: E402
+from distnav.algorithms.lsq.admm import admm, iterate_admm  # noqa: E402
+from distnav.algorithms.lsq.blue import LinearProblem, blue  # noqa: E402
 from distnav.exchange import make_exchange  # noqa: E402
 from distnav.network import builders  # noqa: E402
 from distnav.network.constraint_nodes import ConstraintNodes, choose_constraint_nodes  # noqa: E402

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import main_for, ratio_stats  # noqa: E402
 from bench_admm import P, floor_case  # noqa: E402
-from distnav.algorithms.lsq import LinearProblem  # noqa: E402
+from distnav.algorithms.lsq.blue import LinearProblem  # noqa: E402
 from distnav.network.constraint_nodes import ConstraintNodes  # noqa: E402
 from distnav.network.graph import Graph  # noqa: E402
 

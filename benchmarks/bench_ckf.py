@@ -22,9 +22,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, main_for  # noqa: E402
-from distnav.algorithms.ckf import ckf, ckf_error_variance  # noqa: E402
-from distnav.algorithms.consensus import consensus_product, consensus_schedule  # noqa: E402
+from distnav.algorithms.consensus.averaging import consensus_product, consensus_schedule  # noqa: E402
 from distnav.algorithms.kalman import DynamicModel, MeasurementSeries, NormalSeries  # noqa: E402
+from distnav.algorithms.kalman.ckf import ckf, ckf_error_variance  # noqa: E402
 from distnav.experiments.ckf import synthetic_model  # noqa: E402
 from distnav.network import builders  # noqa: E402
 

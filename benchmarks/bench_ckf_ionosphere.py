@@ -18,9 +18,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, main_for  # noqa: E402
-from distnav.algorithms.ckf import ckf, ckf_error_variance  # noqa: E402
-from distnav.algorithms.consensus import consensus_product, consensus_schedule  # noqa: E402
+from distnav.algorithms.consensus.averaging import consensus_product, consensus_schedule  # noqa: E402
 from distnav.algorithms.kalman import central_filter, local_filters  # noqa: E402
+from distnav.algorithms.kalman.ckf import ckf, ckf_error_variance  # noqa: E402
 from distnav.experiments import ckf_ionosphere as exp  # noqa: E402
 from distnav.experiments.common import ExperimentContext, Progress  # noqa: E402
 from distnav.models.gnss.ionosphere import geometry_free_series, simulate_geometry_free  # noqa: E402

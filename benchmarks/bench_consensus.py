@@ -34,7 +34,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, main_for, paired_times, ratio_stats  # noqa: E402
-from distnav.algorithms.consensus import consensus_probability, consensus_product, consensus_schedule  # noqa: E402
+from distnav.algorithms.consensus.averaging import consensus_probability, consensus_product, consensus_schedule  # noqa: E402
 from distnav.exchange import FaultSchedule, make_exchange  # noqa: E402
 from distnav.network import builders, consensus_weights  # noqa: E402
 

@@ -26,8 +26,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, main_for  # noqa: E402
-from distnav.algorithms.admm import admm  # noqa: E402
-from distnav.algorithms.lsq import blue  # noqa: E402
+from distnav.algorithms.lsq.admm import admm  # noqa: E402
+from distnav.algorithms.lsq.blue import blue  # noqa: E402
 from distnav.experiments.codebias import RHOS, _simulate, constellation, synthetic_igs_network  # noqa: E402
 from distnav.models.gnss.constants import NS_TO_M  # noqa: E402
 from distnav.models.gnss.orbits import gps_seconds  # noqa: E402

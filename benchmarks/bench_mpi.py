@@ -87,7 +87,8 @@ _NUMPY_JOB = "from mpi4py import MPI; import numpy; MPI.COMM_WORLD.Barrier()"
 _SPARSE_JOB = "from mpi4py import MPI; import numpy, scipy.sparse; MPI.COMM_WORLD.Barrier()"
 _DISTNAV_JOB = (
     "from mpi4py import MPI; from distnav.exchange.mpi import MPIExchange; "
-    "from distnav.algorithms.consensus import average_consensus; from distnav.algorithms.admm import admm; "
+    "from distnav.algorithms.consensus.averaging import average_consensus; "
+    "from distnav.algorithms.lsq.admm import admm; "
     "MPI.COMM_WORLD.Barrier()"
 )
 

@@ -48,8 +48,8 @@ _MPI = "from mpi4py import MPI; "
 _END = "; MPI.COMM_WORLD.Barrier()"
 _DISTNAV_IMPORTS = (
     "from distnav.exchange.mpi import MPIExchange; "
-    "from distnav.algorithms.consensus import average_consensus; "
-    "from distnav.algorithms.admm import admm"
+    "from distnav.algorithms.consensus.averaging import average_consensus; "
+    "from distnav.algorithms.lsq.admm import admm"
 )
 _SETUP = (
     "; import numpy as np; from distnav.network.graph import Graph; from distnav.exchange import make_exchange; "

@@ -37,8 +37,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import main_for  # noqa: E402
 from bench_admm import ms_per_iteration, peers_problem  # noqa: E402
-from distnav.algorithms.admm import admm, iterate_admm  # noqa: E402
-from distnav.algorithms.lsq import LinearProblem, blue  # noqa: E402
+from distnav.algorithms.lsq.admm import admm, iterate_admm  # noqa: E402
+from distnav.algorithms.lsq.blue import LinearProblem, blue  # noqa: E402
 from distnav.network import builders  # noqa: E402
 from distnav.network.constraint_nodes import choose_constraint_nodes  # noqa: E402
 from distnav.network.graph import Graph  # noqa: E402

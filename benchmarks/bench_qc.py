@@ -23,9 +23,9 @@ from scipy.linalg import block_diag
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, main_for  # noqa: E402
-from distnav.algorithms.admm import admm  # noqa: E402
-from distnav.algorithms.lsq import blue  # noqa: E402
-from distnav.algorithms.lsq_qc import admm_data_snooping, admm_precision  # noqa: E402
+from distnav.algorithms.lsq.admm import admm  # noqa: E402
+from distnav.algorithms.lsq.blue import blue  # noqa: E402
+from distnav.algorithms.lsq.qc import admm_data_snooping, admm_precision  # noqa: E402
 from distnav.algorithms.statistics import data_snooping  # noqa: E402
 from distnav.experiments.qc import gross_error_problem  # noqa: E402
 

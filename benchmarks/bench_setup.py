@@ -43,8 +43,8 @@ import scipy.sparse as sp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import main_for  # noqa: E402
-from distnav.algorithms.admm import iterate_admm  # noqa: E402
-from distnav.algorithms.lsq import LinearProblem  # noqa: E402
+from distnav.algorithms.lsq.admm import iterate_admm  # noqa: E402
+from distnav.algorithms.lsq.blue import LinearProblem  # noqa: E402
 from distnav.exchange import make_exchange  # noqa: E402
 from distnav.network import builders  # noqa: E402
 from distnav.network.constraint_nodes import ConstraintNodes, choose_constraint_nodes  # noqa: E402

@@ -30,9 +30,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import best_time, main_for  # noqa: E402
-from distnav.algorithms.csg import PAPER_MODE, SOLVERS, solve  # noqa: E402
-from distnav.algorithms.nlsq import solve_lm  # noqa: E402
-from distnav.algorithms.ranging_objective import RangeObjective  # noqa: E402
+from distnav.algorithms.ranging.csg import PAPER_MODE, SOLVERS, solve  # noqa: E402
+from distnav.algorithms.ranging.lm import solve_lm  # noqa: E402
+from distnav.algorithms.ranging.objective import RangeObjective  # noqa: E402
 from distnav.models.uwb.problems import build_problem, generate_layout, generate_problem  # noqa: E402
 
 

@@ -25,8 +25,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import main_for  # noqa: E402
-from distnav.algorithms.csg import PAPER_MODE, StopRule, solve  # noqa: E402
-from distnav.algorithms.nlsq import solve_lm  # noqa: E402
+from distnav.algorithms.ranging.csg import PAPER_MODE, StopRule, solve  # noqa: E402
+from distnav.algorithms.ranging.lm import solve_lm  # noqa: E402
 from distnav.models.uwb.problems import build_problem, generate_layout  # noqa: E402
 
 ITERATIONS = 20

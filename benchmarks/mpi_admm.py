@@ -13,8 +13,8 @@ import time
 import numpy as np
 from mpi4py import MPI
 
-from distnav.algorithms.admm import admm
-from distnav.algorithms.lsq import LinearProblem
+from distnav.algorithms.lsq.admm import admm
+from distnav.algorithms.lsq.blue import LinearProblem
 from distnav.exchange.mpi import MPIExchange
 from distnav.network import builders
 

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from distnav.algorithms import csg
+from distnav.algorithms.ranging import csg
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.field import FieldOptions, _solver_kwargs, prepare, solve_field, subset_measurements
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from distnav.algorithms.admm import (
+from distnav.algorithms.lsq.admm import (
     XUpdate,
     admm,
     admm_linearized,
@@ -15,7 +15,7 @@ from distnav.algorithms.admm import (
     iterate_admm,
     range_positioning_problem,
 )
-from distnav.algorithms.lsq import LinearProblem, blue, single_consensus_admm
+from distnav.algorithms.lsq.blue import LinearProblem, blue, single_consensus_admm
 from distnav.errors import ModelError
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.network import builders
@@ -283,7 +283,7 @@ def test_range_model_validation():
 
 
 def test_nonlinear_problem_validation():
-    from distnav.algorithms.admm import NonlinearProblem, RangeModel
+    from distnav.algorithms.lsq.admm import NonlinearProblem, RangeModel
 
     with pytest.raises(ModelError, match="node positions must be"):
         RangeModel(np.zeros(3), 1)

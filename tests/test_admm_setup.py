@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.admm import admm, iterate_admm
-from distnav.algorithms.admm_kernel import Multipliers, XUpdate
-from distnav.algorithms.admm_xupdate import SMALL_M, _diagonal_or_none
-from distnav.algorithms.lsq import LinearProblem
+from distnav.algorithms.lsq.admm import admm, iterate_admm
+from distnav.algorithms.lsq.blue import LinearProblem
+from distnav.algorithms.lsq.kernel import Multipliers, XUpdate
+from distnav.algorithms.lsq.xupdate import SMALL_M, _diagonal_or_none
 from distnav.errors import ModelError
 from distnav.exchange import make_exchange
 from distnav.network import builders

@@ -459,8 +459,8 @@ class Api:
 def _api_cases() -> list[Api]:
     from distnav._optional import require
     from distnav.algorithms import statistics
-    from distnav.algorithms.consensus import average_consensus, consensus_product
-    from distnav.algorithms.lsq import LinearProblem, blue
+    from distnav.algorithms.consensus.averaging import average_consensus, consensus_product
+    from distnav.algorithms.lsq.blue import LinearProblem, blue
     from distnav.exchange import FaultSchedule, make_exchange
     from distnav.experiments import load
     from distnav.experiments.common import ExperimentContext
@@ -501,7 +501,7 @@ def _api_cases() -> list[Api]:
         Api("stat-w-shapes", lambda: statistics.w_statistics(np.ones(3), np.ones(2)), "shape"),
         Api("stat-vf-negative", lambda: statistics.variance_factor(-1.0, 3), "weighted residual"),
     ]
-    from distnav.algorithms.admm import admm
+    from distnav.algorithms.lsq.admm import admm
 
     cases += [
         Api("admm-graph-size", lambda: admm(good, builders.ring(4)), "4"),

@@ -11,21 +11,21 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from distnav.algorithms.ckf import (
-    alpha_factor,
-    ckf,
-    ckf_error_variance,
-    ckf_std_ratio,
-    consensus_rounds,
-    iterate_ckf,
-)
-from distnav.algorithms.consensus import consensus_product, consensus_schedule
+from distnav.algorithms.consensus.averaging import consensus_product, consensus_schedule
 from distnav.algorithms.kalman import (
     DynamicModel,
     NormalSeries,
     ObservationSeries,
     central_filter,
     simulate_states,
+)
+from distnav.algorithms.kalman.ckf import (
+    alpha_factor,
+    ckf,
+    ckf_error_variance,
+    ckf_std_ratio,
+    consensus_rounds,
+    iterate_ckf,
 )
 from distnav.errors import ModelError, WeightsError
 from distnav.exchange import FaultSchedule, make_exchange

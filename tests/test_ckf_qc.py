@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from distnav.algorithms.ckf import ckf, iterate_ckf
-from distnav.algorithms.consensus import consensus_schedule
+from distnav.algorithms.consensus.averaging import consensus_schedule
 from distnav.algorithms.kalman import DynamicModel, NormalSeries, ObservationSeries, simulate_states
+from distnav.algorithms.kalman.ckf import ckf, iterate_ckf
 from distnav.errors import ModelError
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.network import builders

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.csg import solve
+from distnav.algorithms.ranging.csg import solve
 from distnav.models.uwb.problems import generate_problem
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.csg import (
+from distnav.algorithms.ranging.csg import (
     SOLVERS,
     iterate_csg,
     iterate_neighbourhood,
@@ -325,7 +325,7 @@ def nlos_network():
 
 @pytest.mark.parametrize("loss", ["huber", "cauchy"])
 def test_robust_partial_gradient_matches_finite_differences(loss):
-    from distnav.algorithms.neighbourhood import Neighbourhoods
+    from distnav.algorithms.ranging.neighbourhoods import Neighbourhoods
 
     p = nlos_network()
     nb = Neighbourhoods(p, make_exchange(p.graph), loss, 0.1)
@@ -456,7 +456,7 @@ def test_tbls_alpha0_cap_binds():
 
 
 def test_results_are_typed_and_diverged_is_reported():
-    from distnav.algorithms.ranging import RangingResult
+    from distnav.algorithms.ranging.data import RangingResult
 
     p = paper_fig1_network(3)
     res = solve_ncsg(p, line_search="TBLS", iterations=20, loss="huber", loss_scale_m=0.01)
@@ -492,10 +492,10 @@ def test_monitor_every_changes_only_the_trace(solver):
         solve(p, solver, iterations=10, monitor_every=-1, **kw)
 
 
-def test_ranging_like_is_a_deprecated_alias():
-    import distnav.algorithms.nlsq as nlsq
-    from distnav.algorithms.ranging import RangingData
+def test_the_deprecated_ranging_like_alias_is_gone():
+    """0.x: the RangingLike alias (deprecated since the first wave) left with the move to algorithms/ranging/."""
+    import distnav.algorithms.ranging.lm as lm
+    from distnav.algorithms.ranging.data import RangingData
 
-    with pytest.warns(DeprecationWarning, match="RangingData"):
-        assert nlsq.RangingLike is RangingData
+    assert not hasattr(lm, "RangingLike")
     assert isinstance(paper_fig1_network(2), RangingData)

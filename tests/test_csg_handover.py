@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.csg import StopRule, solve
-from distnav.algorithms.nlsq import solve_lm
+from distnav.algorithms.ranging.csg import StopRule, solve
+from distnav.algorithms.ranging.lm import solve_lm
 from distnav.models.uwb.problems import build_problem, generate_layout
 
 

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.csg import SOLVERS, StopRule, solve, solve_csg, solve_ncsg
-from distnav.algorithms.neighbourhood import Neighbourhoods
-from distnav.algorithms.nlsq import solve_lm
+from distnav.algorithms.ranging.csg import SOLVERS, StopRule, solve, solve_csg, solve_ncsg
+from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.neighbourhoods import Neighbourhoods
 from distnav.errors import ModelError
 from distnav.exchange import make_exchange
 from distnav.models.uwb.problems import build_problem, rmse_m
@@ -139,7 +139,7 @@ def test_options_are_validated():
 
 
 def test_exclusion_loop_with_a_distributed_fit():
-    from distnav.algorithms.ranging_qc import exclude_links
+    from distnav.algorithms.ranging.qc import exclude_links
 
     nlos = {3: 1.5, 17: 2.0, 40: 1.0}
     p = hall(seed=6, n=18, sigma_m=0.05, nlos=nlos)

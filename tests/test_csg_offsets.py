@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from distnav.algorithms.csg import solve, solve_line_search_pair, solve_nclm, solve_ncsg
-from distnav.algorithms.neighbourhood import plan_neighbourhood
-from distnav.algorithms.neighbourhood_offsets import NeighbourhoodOffsets, _linearize
-from distnav.algorithms.nlsq import solve_lm
+from distnav.algorithms.ranging.csg import solve, solve_line_search_pair, solve_nclm, solve_ncsg
+from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.neighbourhood_offsets import NeighbourhoodOffsets, _linearize
+from distnav.algorithms.ranging.plan import plan_neighbourhood
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import rmse_m
 from test_csg_metres import hall

@@ -1,12 +1,12 @@
-"""N-CSG-BLS and N-CSG-TBLS run side by side (distnav.algorithms.line_search_pair) give, bit for bit, the results
-of the two separate runs: estimates, every trace row, status, message and message counts."""
+"""N-CSG-BLS and N-CSG-TBLS run side by side (distnav.algorithms.ranging.line_search_pair) give, bit for bit, the
+results of the two separate runs: estimates, every trace row, status, message and message counts."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from distnav.algorithms.csg import PAPER_MODE, StopRule, solve, solve_line_search_pair
+from distnav.algorithms.ranging.csg import PAPER_MODE, StopRule, solve, solve_line_search_pair
 from distnav.errors import ModelError
 from distnav.exchange import make_exchange
 from distnav.models.uwb.problems import generate_problem

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from distnav.algorithms.ckf import ckf
 from distnav.algorithms.kalman import central_filter, local_filters
+from distnav.algorithms.kalman.ckf import ckf
 from distnav.experiments import ckf_ionosphere as exp
 from distnav.experiments.common import ExperimentContext, Progress
 from distnav.models.gnss.ionosphere import (

@@ -41,7 +41,7 @@ def test_small_reproduction(tmp_path: Path) -> None:
     assert saved["n_nodes"] == 110 and saved["n_links"] == 118 and saved["n_constraint_nodes"] == 9
     assert set(saved["iterations_to_1e-3"]) == {"5", "0.5", "0.05", "0.005"}
     assert all(v is None or isinstance(v, int) for v in saved["iterations_to_1e-3"].values())
-    # the model's centralized solution is the BLUE of distnav.algorithms.lsq on the compressed problem
+    # the model's centralized solution is the BLUE of distnav.algorithms.lsq.blue on the compressed problem
     assert res["model_vs_lsq_blue_max_abs_m"] < 1e-9
     # ADMM with ρ = 0.5 (per-epoch scale) reaches the centralized solution to 1 mm within the run
     assert saved["iterations_to_1e-3"]["0.5"] is not None

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from distnav.algorithms.csg import SOLVERS
+from distnav.algorithms.ranging.csg import SOLVERS
 from distnav.cli import main
 from distnav.experiments import uwb
 from distnav.experiments.common import ExperimentContext, Progress
@@ -118,7 +118,7 @@ def test_sixty_centimetres_only_from_a_horizontal_start(name, bound_m):
     a planar truth is a saddle point of the 3-D cost and N-CSG-BLS ends with metres of error; perturbed
     horizontally only, the same first instance ends below 0.6 m on GC and RC and at 0.81 m on LC (the means over
     5 instances: G 0.33, R 0.70, L 0.77 m; docs/uwb.md, docs/claims.md)."""
-    from distnav.algorithms.csg import PAPER_MODE, solve
+    from distnav.algorithms.ranging.csg import PAPER_MODE, solve
 
     rng = lambda: np.random.default_rng([0, 1000 * (PAPER_PROBLEMS.index(name) + 1)])  # noqa: E731
     final = {}
@@ -132,7 +132,7 @@ def test_sixty_centimetres_only_from_a_horizontal_start(name, bound_m):
 def first_instances():
     """LM and N-CSG-BLS (= TBLS, tests/test_claims.py) on the first instance of GC, LC and RC, the paper's 500
     iterations and start: the reproduction's own draws (seed 0)."""
-    from distnav.algorithms.csg import PAPER_MODE, solve
+    from distnav.algorithms.ranging.csg import PAPER_MODE, solve
 
     out = {}
     for name in ("GC", "LC", "RC"):

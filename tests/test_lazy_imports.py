@@ -37,8 +37,9 @@ def _modules_after(code: str) -> list[str]:
 @pytest.mark.parametrize(
     "code",
     [
-        "from distnav.exchange.mpi import MPIExchange\nfrom distnav.algorithms.consensus import average_consensus\n"
-        "from distnav.algorithms.admm import admm",
+        "from distnav.exchange.mpi import MPIExchange\n"
+        "from distnav.algorithms.consensus.averaging import average_consensus\n"
+        "from distnav.algorithms.lsq.admm import admm",
         "import distnav.cli",
     ],
 )
@@ -48,13 +49,14 @@ def test_mpi_path_imports_no_scipy_networkx_or_matplotlib(code: str) -> None:
 
 def test_mpi_path_imports_no_logging_pathlib_or_nonlinear_admm() -> None:
     """Start-up work the MPI path never needs: logging (only the exact cover's time-limit warning logs), pathlib
-    (partition files) and the nonlinear ADMM variants (re-exported from distnav.algorithms.admm on first use)."""
+    (partition files) and the nonlinear ADMM variants (re-exported from distnav.algorithms.lsq.admm on first use)."""
     code = (
         "import sys\nfrom distnav.exchange.mpi import MPIExchange\n"
-        "from distnav.algorithms.consensus import average_consensus\nfrom distnav.algorithms.admm import admm\n"
-        "print(sorted(m for m in ('logging', 'pathlib', 'distnav.algorithms.admm_nonlinear')\n"
+        "from distnav.algorithms.consensus.averaging import average_consensus\n"
+        "from distnav.algorithms.lsq.admm import admm\n"
+        "print(sorted(m for m in ('logging', 'pathlib', 'distnav.algorithms.lsq.nonlinear')\n"
         "             if m in sys.modules))\n"
-        "from distnav.algorithms.admm import admm_nonlinear, gauss_newton\n"
+        "from distnav.algorithms.lsq.admm import admm_nonlinear, gauss_newton\n"
         "print(admm_nonlinear.__module__, gauss_newton.__module__)"
     )
     proc = subprocess.run(
@@ -66,12 +68,12 @@ def test_mpi_path_imports_no_logging_pathlib_or_nonlinear_admm() -> None:
         stdin=subprocess.DEVNULL,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.splitlines() == ["[]", "distnav.algorithms.admm_nonlinear distnav.algorithms.admm_nonlinear"]
+    assert proc.stdout.splitlines() == ["[]", "distnav.algorithms.lsq.nonlinear distnav.algorithms.lsq.nonlinear"]
 
 
 def test_first_use_imports_scipy_sparse_and_runs() -> None:
     code = (
-        "import numpy as np\nfrom distnav.algorithms.admm import admm\nfrom distnav.algorithms.lsq import "
+        "import numpy as np\nfrom distnav.algorithms.lsq.admm import admm\nfrom distnav.algorithms.lsq.blue import "
         "LinearProblem\nfrom distnav.network.graph import Graph\n"
         "g = Graph.from_links(4, [(0, 1), (1, 2), (2, 3)])\n"
         "A = np.ones((4, 1, 1)); r = admm(LinearProblem.from_stacked(A, np.arange(4.0)[:, None]), g, "

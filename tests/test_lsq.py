@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.lsq import (
+from distnav.algorithms.lsq.blue import (
     LinearProblem,
     blue,
     dual_function,

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.linalg import block_diag
 
-from distnav.algorithms.admm import admm
-from distnav.algorithms.lsq import LinearProblem, blue
-from distnav.algorithms.lsq_qc import admm_data_snooping, admm_precision, remove_observation
+from distnav.algorithms.lsq.admm import admm
+from distnav.algorithms.lsq.blue import LinearProblem, blue
+from distnav.algorithms.lsq.qc import admm_data_snooping, admm_precision, remove_observation
 from distnav.algorithms.statistics import data_snooping
 from distnav.errors import ModelError
 from distnav.exchange import FaultSchedule

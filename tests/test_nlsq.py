@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from distnav.algorithms.nlsq import levenberg_marquardt, robust_weights, solve_lm
+from distnav.algorithms.ranging.lm import levenberg_marquardt, solve_lm
+from distnav.algorithms.ranging.losses import robust_weights
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import build_problem, generate_problem, rmse_m
 
@@ -186,7 +187,7 @@ def test_bordered_path_with_a_dense_column_matches_scipy():
     narrow, the offset is eliminated by its Schur complement; the answer is scipy's."""
     import scipy.sparse as sp
 
-    from distnav.algorithms.nlsq import _DampedSolver
+    from distnav.algorithms.ranging.damped import DampedSolver as _DampedSolver
 
     rng = np.random.default_rng(8)
     n = 150
@@ -232,7 +233,7 @@ def test_sparse_path_is_scipys_damped_solve_bit_for_bit():
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    from distnav.algorithms.nlsq import _DampedSolver
+    from distnav.algorithms.ranging.damped import DampedSolver as _DampedSolver
 
     p = generate_problem("RC", np.random.default_rng([0, 7000]))  # `reproduce uwb`'s first RC instance
     x = p.x0()

@@ -1,4 +1,4 @@
-"""LM's central per-anchor covariance through the exchange (distnav.algorithms.ranging_covariance): against the
+"""LM's central per-anchor covariance through the exchange (distnav.algorithms.ranging.covariance): against the
 dense implementations of LM's (distnav.models.uwb.precision, ranging_qc) on a plant-like hall, in uwb solve's
 workflow, its cost, and bad input."""
 
@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.nlsq import solve_lm
-from distnav.algorithms.ranging_covariance import central_precision
-from distnav.algorithms.ranging_precision import neighbourhood_precision
+from distnav.algorithms.ranging.covariance import central_precision
+from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.precision import neighbourhood_precision
 from distnav.errors import ModelError
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field, subset_measurements

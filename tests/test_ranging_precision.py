@@ -1,4 +1,4 @@
-"""Neighbourhood precision of the distributed UWB solvers (distnav.algorithms.ranging_precision): against the
+"""Neighbourhood precision of the distributed UWB solvers (distnav.algorithms.ranging.precision): against the
 central (JᵀWJ)⁻¹ of LM and against Monte Carlo, and that it is not the conditional covariance."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import shortest_path
 
-from distnav.algorithms.csg import solve
-from distnav.algorithms.nlsq import solve_lm
-from distnav.algorithms.ranging_covariance import central_precision
-from distnav.algorithms.ranging_precision import neighbourhood_precision
+from distnav.algorithms.ranging.covariance import central_precision
+from distnav.algorithms.ranging.csg import solve
+from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.precision import neighbourhood_precision
 from distnav.cli import main
 from distnav.commands.uwb import solve_range_log
 from distnav.errors import ModelError

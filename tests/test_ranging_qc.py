@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from distnav.algorithms.nlsq import solve_lm
-from distnav.algorithms.ranging_objective import RangeObjective
-from distnav.algorithms.ranging_qc import exclude_links
+from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.objective import RangeObjective
+from distnav.algorithms.ranging.qc import exclude_links
 from distnav.algorithms.statistics import residual_covariance
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import build_problem
@@ -259,8 +259,8 @@ def test_exclusion_rounds_take_links_of_different_anchors_together():
 def test_robust_w_tests_and_covariance_match_the_dense_formula(offsets):
     """IRLS weights (Cauchy), offset columns and prior rows: ``q_l`` of ``(I − JQJᵀW)(I − JQJᵀW)ᵀ`` and
     ``Q = (JᵀWJ)⁻¹`` formed densely, against :func:`centralized_quality` (chunked ``J Q Jᵀ``, ``potri``)."""
-    from distnav.algorithms.nlsq import robust_weights
-    from distnav.algorithms.ranging_qc import centralized_quality
+    from distnav.algorithms.ranging.losses import robust_weights
+    from distnav.algorithms.ranging.qc import centralized_quality
 
     p = network(np.random.default_rng(4), n=18, offset_m=0.3)
     p = dataclasses.replace(p, range_m=p.range_m + np.where(np.arange(p.n_meas) % 17 == 0, 1.5, 0.0))  # NLOS

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.csg import solve
-from distnav.algorithms.nlsq import solve_lm
-from distnav.algorithms.ranging_objective import range_sigma
-from distnav.algorithms.ranging_refine import refine
+from distnav.algorithms.ranging.csg import solve
+from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.objective import range_sigma
+from distnav.algorithms.ranging.refine import refine
 from distnav.exchange import make_exchange
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 from distnav.models.uwb.problems import build_problem

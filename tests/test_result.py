@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.consensus import ConsensusResult, average_consensus
+from distnav.algorithms.consensus.averaging import ConsensusResult, average_consensus
 from distnav.algorithms.result import SOLVER_STATUSES, Precision, SolverResult, Trace
 from distnav.network import builders
 

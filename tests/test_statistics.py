@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.ckf_qc import chi2_critical
+from distnav.algorithms.kalman.ckf_qc import chi2_critical
 from distnav.algorithms.statistics import (
     critical_value,
     data_snooping,

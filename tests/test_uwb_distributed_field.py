@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.csg import solve
+from distnav.algorithms.ranging.csg import solve
 from distnav.models.uwb.problems import build_problem
 
 

@@ -280,7 +280,7 @@ def _scrambled():
 
 
 def test_multi_start_finds_the_solution_a_start_in_a_wrong_basin_misses():
-    from distnav.algorithms.nlsq import solve_lm
+    from distnav.algorithms.ranging.lm import solve_lm
     from distnav.models.uwb.field import FieldOptions, all_links_cost, choose_start
     from distnav.models.uwb.initial import candidate_starts
     from distnav.models.uwb.problems import rmse_m

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.algorithms.nlsq import solve_lm
+from distnav.algorithms.ranging.lm import solve_lm
 from distnav.models.uwb.precision import consider_sigma
 from distnav.models.uwb.problems import build_problem
 
@@ -184,10 +184,10 @@ def test_delay_variance_estimate_sd_against_monte_carlo():
 def test_distributed_central_sigma_matches_monte_carlo_with_antenna_delays():
     """The distributed case of the Monte Carlo above (same network, noise and delays, 200 draws): N-CLM (with its
     final distributed LM phase) and its σ from LM's central blocks through the exchange
-    (distnav.algorithms.ranging_covariance), delays considered — the empirical spread over the reported σ is
+    (distnav.algorithms.ranging.covariance), delays considered — the empirical spread over the reported σ is
     0.8–1.15 per coordinate and 2σ covers 90–98 % (measured 0.963; LM 0.90–0.98 above)."""
-    from distnav.algorithms.csg import solve
-    from distnav.algorithms.ranging_covariance import central_precision
+    from distnav.algorithms.ranging.covariance import central_precision
+    from distnav.algorithms.ranging.csg import solve
 
     rng, g, ids, known, links = _network()
     la, lb = (np.array(c) for c in zip(*links, strict=True))

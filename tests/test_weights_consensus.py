@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from distnav.algorithms.consensus import (
+from distnav.algorithms.consensus.averaging import (
     ConsensusWarning,
     average_consensus,
     consensus_probability,

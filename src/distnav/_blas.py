@@ -4,7 +4,7 @@ The solvers factorise many small matrices (UWB banded Cholesky, Kalman pseudo-in
 2-core machine OpenBLAS's worker threads make them many times dearer in CPU (measured: a 290×290 banded Cholesky
 47 ms instead of 0.4 ms; a p ≲ 50 ``eigh`` 15–60×). :func:`single_threaded_blas` sets the thread count of the
 OpenBLAS copies numpy and scipy load to one for a block and restores it after; a no-op where OpenBLAS is not found.
-Moved here from :mod:`distnav.algorithms.nlsq` (which re-exports it) when the Kalman kernel came to need it too.
+Moved here from :mod:`distnav.algorithms.ranging.lm` (which re-exports it) when the Kalman kernel came to need it too.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ from functools import partial
 
 import numpy as np
 
-from distnav.algorithms.consensus import average_consensus
+from distnav.algorithms.consensus.averaging import average_consensus
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.network import Graph, SwitchingGraph, builders, consensus_weights
 
@@ -120,7 +120,7 @@ def route_send_and_broadcast(backend: str) -> dict[str, np.ndarray]:
 
 
 def _linear_problem(n: int, p: int = 4, m: int = 2):
-    from distnav.algorithms.lsq import LinearProblem
+    from distnav.algorithms.lsq.blue import LinearProblem
 
     rng = np.random.default_rng(21)
     A = rng.normal(size=(n, m, p))  # m < p: every N_i singular
@@ -131,7 +131,7 @@ def _linear_problem(n: int, p: int = 4, m: int = 2):
 
 @case
 def admm_constraint_nodes(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
-    from distnav.algorithms.admm import admm
+    from distnav.algorithms.lsq.admm import admm
 
     g = _graph()
     problem = _linear_problem(g.n_nodes)
@@ -147,7 +147,7 @@ def admm_constraint_nodes(backend: str, order: str = "auto") -> dict[str, np.nda
 
 @case
 def admm_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
-    from distnav.algorithms.admm import admm
+    from distnav.algorithms.lsq.admm import admm
 
     g = _graph()
     problem = _linear_problem(g.n_nodes)
@@ -158,8 +158,8 @@ def admm_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
 
 @case
 def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
-    from distnav.algorithms.ckf import ckf
     from distnav.algorithms.kalman import DynamicModel, NormalSeries
+    from distnav.algorithms.kalman.ckf import ckf
 
     g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
     n, p, T = g.n_nodes, 3, 6
@@ -176,8 +176,8 @@ def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
 
 @case
 def ckf_local_precision_and_tests(backend: str) -> dict[str, np.ndarray]:
-    from distnav.algorithms.ckf import ckf
     from distnav.algorithms.kalman import DynamicModel, ObservationSeries
+    from distnav.algorithms.kalman.ckf import ckf
 
     g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
     n, p, T = g.n_nodes, 3, 6
@@ -215,7 +215,7 @@ def ckf_local_precision_and_tests(backend: str) -> dict[str, np.ndarray]:
 
 @case
 def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
-    from distnav.algorithms.admm import admm
+    from distnav.algorithms.lsq.admm import admm
 
     g = _graph()
     problem = _linear_problem(g.n_nodes)
@@ -228,7 +228,7 @@ def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
 
 @case
 def admm_precision_and_snooping(backend: str) -> dict[str, np.ndarray]:
-    from distnav.algorithms.lsq_qc import admm_data_snooping
+    from distnav.algorithms.lsq.qc import admm_data_snooping
     from distnav.experiments.qc import gross_error_problem
 
     pb = gross_error_problem(np.random.default_rng([12, 0]))
@@ -252,7 +252,7 @@ def _uwb_problem():
 
 @case
 def ncsg_tbls(backend: str) -> dict[str, np.ndarray]:
-    from distnav.algorithms.csg import solve_ncsg
+    from distnav.algorithms.ranging.csg import solve_ncsg
 
     problem = _uwb_problem()
     res = solve_ncsg(problem, line_search="TBLS", iterations=30, exchange=make_exchange(problem.graph, backend=backend))
@@ -266,7 +266,7 @@ def ncsg_tbls(backend: str) -> dict[str, np.ndarray]:
 
 @case
 def csg_and_nclm(backend: str) -> dict[str, np.ndarray]:
-    from distnav.algorithms.csg import solve_csg, solve_nclm
+    from distnav.algorithms.ranging.csg import solve_csg, solve_nclm
 
     problem = _uwb_problem()
     csg = solve_csg(problem, iterations=20, exchange=make_exchange(problem.graph, backend=backend), alpha=1e-4)
@@ -279,7 +279,7 @@ def csg_and_nclm(backend: str) -> dict[str, np.ndarray]:
 
 @case
 def ncsg_tbls_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndarray]:
-    from distnav.algorithms.csg import solve
+    from distnav.algorithms.ranging.csg import solve
     from distnav.models.uwb.problems import generate_problem
 
     problem = generate_problem("RM", np.random.default_rng(3), n_anchors=40)
@@ -295,7 +295,7 @@ def ncsg_tbls_with_drops(backend: str, order: str = "auto") -> dict[str, np.ndar
 
 @case
 def ncsg_metres_with_local_qc(backend: str) -> dict[str, np.ndarray]:
-    from distnav.algorithms.csg import solve_ncsg
+    from distnav.algorithms.ranging.csg import solve_ncsg
 
     problem = _uwb_problem()
     res = solve_ncsg(
@@ -411,8 +411,8 @@ def consensus_on_graph_parts(backend: str) -> dict[str, np.ndarray]:
 @case
 def ncsg_neighbourhood_precision(backend: str) -> dict[str, np.ndarray]:
     """The node-local "neighbourhood" precision (block broadcasts) at an N-CSG-TBLS solution."""
-    from distnav.algorithms.csg import solve_ncsg
-    from distnav.algorithms.ranging_precision import neighbourhood_precision
+    from distnav.algorithms.ranging.csg import solve_ncsg
+    from distnav.algorithms.ranging.precision import neighbourhood_precision
 
     problem = _uwb_problem()
     res = solve_ncsg(
@@ -459,7 +459,7 @@ def range_offsets_distributed(backend: str) -> dict[str, np.ndarray]:
     """Range offsets (issue 13 item 5): per-anchor by N-CLM and N-CSG-TBLS with drops, common by CSG."""
     import dataclasses
 
-    from distnav.algorithms.csg import solve
+    from distnav.algorithms.ranging.csg import solve
 
     problem = _uwb_problem()
     delays = np.random.default_rng(8).normal(0.0, 0.05, problem.n_anchors)
@@ -505,7 +505,7 @@ def distributed_lm_refinement(backend: str) -> dict[str, np.ndarray]:
     after 15 iterations of N-CLM (common offset) and N-CSG-TBLS (per-anchor offsets), Cauchy loss, metres."""
     import dataclasses
 
-    from distnav.algorithms.csg import solve
+    from distnav.algorithms.ranging.csg import solve
 
     problem = _uwb_problem()
     delays = np.random.default_rng(9).normal(0.0, 0.05, problem.n_anchors)
@@ -563,8 +563,8 @@ def uwb_field_workflow_distributed(backend: str) -> dict[str, np.ndarray]:
 def central_precision_distributed(backend: str) -> dict[str, np.ndarray]:
     """LM's central blocks through the exchange (uwb19): multi-column CG, delays considered and estimated from
     the residuals (the n × n reduction), one-sided Cauchy, common offset, on a 16-anchor plant-like hall."""
-    from distnav.algorithms.nlsq import solve_lm
-    from distnav.algorithms.ranging_covariance import central_precision
+    from distnav.algorithms.ranging.covariance import central_precision
+    from distnav.algorithms.ranging.lm import solve_lm
     from distnav.experiments.uwb_field import hall_problem
     from distnav.models.uwb.field import prepare
     from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall

@@ -9,7 +9,7 @@ from typing import Any, Literal, get_args
 
 import numpy as np
 
-from distnav.exchange.base import CommTotals
+from distnav.exchange.core import CommTotals
 
 __all__ = ["ObservationTests", "Precision", "SOLVER_STATUSES", "SolverResult", "SolverStatus", "Trace", "TraceBuilder"]
 
@@ -80,7 +80,7 @@ class Precision:
         bound, never optimistic), ``"centralized"`` (computed at one place) or ``"conditional"`` (each node's
         covariance with its neighbours held at their estimates: a lower bound, optimistic, and said so) or
         ``"neighbourhood"`` (each node's covariance with its neighbours' errors propagated through its links from
-        their own blocks, :mod:`distnav.algorithms.ranging_precision`: an approximation, neither bound).
+        their own blocks, :mod:`distnav.algorithms.ranging.precision`: an approximation, neither bound).
     iterations : message rounds or iterations spent on the precision (beyond those of the estimate).
     comm : the messages and bytes they cost (``None`` for centralized values).
     """

@@ -106,8 +106,8 @@ def _parse_codes(text: str | None) -> dict[int, str]:
 
 # ----------------------------------------------------------------------------------------------- codebias
 def _run_codebias(args: argparse.Namespace) -> int:
-    from distnav.algorithms.admm import admm
-    from distnav.algorithms.lsq import blue
+    from distnav.algorithms.lsq.admm import admm
+    from distnav.algorithms.lsq.blue import blue
     from distnav.models.gnss.codebias import codebias_data_from_observations
     from distnav.models.gnss.constants import NS_TO_M
     from distnav.models.gnss.observables import codebias_coefficients, mu_coefficients

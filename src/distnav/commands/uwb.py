@@ -20,7 +20,7 @@
   ``--reliability-limit-m`` (default 0.3 m): an anchor that one link's undetectable bias (Baarda's MDB) would move
   further than that and 3σ is reported weak (:mod:`distnav.models.uwb.reliability`).
 * The distributed solvers' σ are node-local: every anchor's 2-hop sub-network covariance, with the delays
-  considered there (:mod:`distnav.algorithms.ranging_precision`; ``summary.json`` names the kind and counts its
+  considered there (:mod:`distnav.algorithms.ranging.precision`; ``summary.json`` names the kind and counts its
   messages).
 
 * ``--range-offsets common|per_anchor`` (every solver, metres objective) estimates one range offset or per-anchor
@@ -40,8 +40,8 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.csg import SOLVERS
-from distnav.algorithms.nlsq import LOSSES
+from distnav.algorithms.ranging.csg import SOLVERS
+from distnav.algorithms.ranging.losses import LOSSES
 from distnav.commands import add_backend_arguments
 from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange

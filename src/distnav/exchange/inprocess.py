@@ -11,7 +11,8 @@ from functools import cached_property
 
 import numpy as np
 
-from distnav.exchange.base import Exchange, ReduceOp, Reducible, incoming_edges
+from distnav.exchange.base import Exchange
+from distnav.exchange.core import ReduceOp, Reducible, incoming_edges
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
 from distnav.network.partition import locality_order

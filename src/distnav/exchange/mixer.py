@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 
     import scipy.sparse as sp
 
-    from distnav.exchange.base import Exchange
+    from distnav.exchange.core import ExchangeCore
 else:  # imported on first use (start-up of an MPI job)
     sp = lazy("scipy.sparse")
 
@@ -84,7 +84,7 @@ class Mixer:
 
     def __init__(
         self,
-        exchange: Exchange,
+        exchange: ExchangeCore,
         edge_weight: np.ndarray,
         self_weight: np.ndarray,
         active: np.ndarray | None,

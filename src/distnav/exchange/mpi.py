@@ -24,7 +24,8 @@ import numpy as np
 
 from distnav._optional import require
 from distnav.errors import ExchangeError
-from distnav.exchange.base import Exchange, ReduceOp, Reducible
+from distnav.exchange.base import Exchange
+from distnav.exchange.core import ReduceOp, Reducible
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
 from distnav.network.graph_part import GraphPart, incoming_positions

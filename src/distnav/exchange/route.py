@@ -28,7 +28,7 @@ import numpy as np
 from distnav.errors import ExchangeError
 
 if TYPE_CHECKING:
-    from distnav.exchange.base import Exchange
+    from distnav.exchange.core import ExchangeCore
 
 __all__ = ["Route"]
 
@@ -58,7 +58,7 @@ class Route:
 
     def __init__(
         self,
-        exchange: Exchange,
+        exchange: ExchangeCore,
         active: np.ndarray,
         *,
         in_rows: np.ndarray | None = None,

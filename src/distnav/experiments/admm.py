@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.admm import (
+from distnav.algorithms.lsq.admm import (
     AdmmResult,
     admm,
     admm_linearized,
@@ -31,13 +31,7 @@ from distnav.algorithms.admm import (
     gauss_newton,
     range_positioning_problem,
 )
-from distnav.algorithms.lsq import (
-    LinearProblem,
-    blue,
-    dual_function,
-    method_of_multipliers,
-    single_consensus_admm,
-)
+from distnav.algorithms.lsq.blue import LinearProblem, blue, dual_function, method_of_multipliers, single_consensus_admm
 from distnav.exchange import Exchange, make_exchange
 from distnav.experiments.common import ExperimentContext, add_jobs_argument, parallel_map, pyplot
 from distnav.network import builders

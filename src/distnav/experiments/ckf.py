@@ -20,8 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.ckf import alpha_factor, ckf, ckf_error_variance, ckf_std_ratio
-from distnav.algorithms.consensus import consensus_product, consensus_schedule
+from distnav.algorithms.consensus.averaging import consensus_product, consensus_schedule
 from distnav.algorithms.kalman import (
     DynamicModel,
     FunctionSeries,
@@ -31,6 +30,7 @@ from distnav.algorithms.kalman import (
     simulate_states,
     std_ratio,
 )
+from distnav.algorithms.kalman.ckf import alpha_factor, ckf, ckf_error_variance, ckf_std_ratio
 from distnav.exchange import FaultSchedule
 from distnav.experiments.common import ExperimentContext, pyplot
 from distnav.experiments.consensus import static_network

@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.ckf import ckf, ckf_error_variance, consensus_rounds
-from distnav.algorithms.consensus import consensus_product, consensus_schedule
+from distnav.algorithms.consensus.averaging import consensus_product, consensus_schedule
 from distnav.algorithms.kalman import DynamicModel, FilterSeries, central_filter, local_filters
+from distnav.algorithms.kalman.ckf import ckf, ckf_error_variance, consensus_rounds
 from distnav.errors import ModelError
 from distnav.experiments.common import ExperimentContext, pyplot
 from distnav.models.gnss.ionosphere import (

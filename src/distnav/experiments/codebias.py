@@ -11,7 +11,7 @@
 * Fig. 10: the same for ρ = 0.5 and different initial values, including the solution of a previous 2.5-h session;
 * Fig. 11: per-node differences ``x_i^[k] − x̂`` of the two satellites with the 3σ band of x̂.
 
-The ADMM is :func:`distnav.algorithms.admm.admm` (constraint nodes, Fig. 6) on the compressed per-station normal
+The ADMM is :func:`distnav.algorithms.lsq.admm.admm` (constraint nodes, Fig. 6) on the compressed per-station normal
 equations (:meth:`~distnav.models.gnss.codebias.CodeBiasData.linear_problem`).
 
 **Scale of ρ.** ADMM's speed depends on ``W = ρI`` relative to the stations' normal matrices, and the paper does not
@@ -253,8 +253,8 @@ def _simulate(
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
-    from distnav.algorithms.admm import admm
-    from distnav.algorithms.lsq import blue
+    from distnav.algorithms.lsq.admm import admm
+    from distnav.algorithms.lsq.blue import blue
     from distnav.network.constraint_nodes import choose_constraint_nodes
 
     epochs = int(ctx.option("epochs", 120 if ctx.quick else SESSION_EPOCHS, minimum=1))
@@ -426,7 +426,7 @@ def _tracks(
     problem: Any, graph: Graph, C: Any, x0: np.ndarray, iterations: int, cols: list[int], ctx: ExperimentContext
 ) -> np.ndarray:
     """``x_i^[k]`` of every node for the satellites ``cols``: ``(iterations + 1, n, len(cols))``."""
-    from distnav.algorithms.admm import iterate_admm
+    from distnav.algorithms.lsq.admm import iterate_admm
 
     ex = ctx.exchange(graph)
     out = np.empty((iterations + 1, graph.n_nodes, len(cols)))

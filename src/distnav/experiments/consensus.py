@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.consensus import (
+from distnav.algorithms.consensus.averaging import (
     average_consensus,
     consensus_probability,
     consensus_product,
@@ -30,18 +30,18 @@ from distnav.experiments.common import ExperimentContext, pyplot
 from distnav.experiments.consensus_network import (
     ABOUT,
     CLOSE_TO_ONE,
+    N_NODES,
     PAPER_LIKE,
     SLACK,
     paper_like_networks,
+    switching_network,
 )
 from distnav.network.graph import Graph, SwitchingGraph
 
 NAME = "consensus"
 TITLE = "Average consensus protocols 1-4 (paper 003 Figs. 2-4)"
 
-N_NODES = 20
 STATIC_LINKS = 49
-SESSION_LINKS = (7, 6, 8, 7)
 ITERATIONS = 30
 KN_VALUES = (10, 20, 30)
 PAPER_SLEM = {"P1": 0.92, "P2": 0.97, "P3": 0.91}
@@ -67,47 +67,6 @@ def static_network(
         if g.is_connected:
             return g
     raise GraphError(f"no connected {n_nodes}-node network with {n_links} links in {max_tries} draws")
-
-
-def switching_network(
-    rng: np.random.Generator,
-    n_nodes: int = N_NODES,
-    session_links: tuple[int, ...] = SESSION_LINKS,
-    max_tries: int = 2000,
-    *,
-    positions: np.ndarray | None = None,
-) -> SwitchingGraph:
-    """Sessions that are matchings (each node ≤ 1 neighbour, Protocol 4) of nearby pairs; union connected.
-
-    New uniform points are drawn for every try unless ``positions`` (``(n_nodes, 2)`` m) are given."""
-    for _ in range(max_tries):
-        pos = rng.uniform(0, 100, size=(n_nodes, 2)) if positions is None else np.asarray(positions, float)
-        a, b = np.triu_indices(n_nodes, 1)
-        d = np.linalg.norm(pos[a] - pos[b], axis=1)
-        near = np.argsort(d)[: 4 * n_nodes]
-        sessions = []
-        used: set[tuple[int, int]] = set()
-        for count in session_links:
-            busy: set[int] = set()
-            links: list[tuple[int, int]] = []
-            for e in rng.permutation(near):
-                i, j = int(a[e]), int(b[e])
-                if i in busy or j in busy or (i, j) in used:
-                    continue
-                links.append((i, j))
-                busy |= {i, j}
-                if len(links) == count:
-                    break
-            if len(links) < count:
-                break
-            used |= set(links)
-            sessions.append(Graph.from_links(n_nodes, links, positions=pos))
-        if len(sessions) == len(session_links):
-            try:
-                return SwitchingGraph(tuple(sessions))
-            except GraphError:
-                continue
-    raise GraphError("could not draw a connected switching network; try another seed")
 
 
 def twenty_values(rng: np.random.Generator, n_nodes: int = N_NODES, average: float = 5.0) -> np.ndarray:

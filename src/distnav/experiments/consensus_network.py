@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.consensus import consensus_probability, consensus_product, consensus_schedule
+from distnav.algorithms.consensus.averaging import consensus_probability, consensus_product, consensus_schedule
+from distnav.errors import GraphError
 from distnav.network.graph import Graph, SwitchingGraph
 
 __all__ = [
@@ -59,6 +60,51 @@ CLOSE_TO_ONE = 0.98
 SLACK = 0.01
 SEARCH_SAMPLES = 20_000
 _P1_NAME = "P1 ≈ 80 % at k_n = 10"
+
+
+N_NODES = 20  # the paper's networks (a) and (b)
+SESSION_LINKS = (7, 6, 8, 7)  # links per session of the switching network (b)
+
+
+def switching_network(
+    rng: np.random.Generator,
+    n_nodes: int = N_NODES,
+    session_links: tuple[int, ...] = SESSION_LINKS,
+    max_tries: int = 2000,
+    *,
+    positions: np.ndarray | None = None,
+) -> SwitchingGraph:
+    """Sessions that are matchings (each node ≤ 1 neighbour, Protocol 4) of nearby pairs; union connected.
+
+    New uniform points are drawn for every try unless ``positions`` (``(n_nodes, 2)`` m) are given."""
+    for _ in range(max_tries):
+        pos = rng.uniform(0, 100, size=(n_nodes, 2)) if positions is None else np.asarray(positions, float)
+        a, b = np.triu_indices(n_nodes, 1)
+        d = np.linalg.norm(pos[a] - pos[b], axis=1)
+        near = np.argsort(d)[: 4 * n_nodes]
+        sessions = []
+        used: set[tuple[int, int]] = set()
+        for count in session_links:
+            busy: set[int] = set()
+            links: list[tuple[int, int]] = []
+            for e in rng.permutation(near):
+                i, j = int(a[e]), int(b[e])
+                if i in busy or j in busy or (i, j) in used:
+                    continue
+                links.append((i, j))
+                busy |= {i, j}
+                if len(links) == count:
+                    break
+            if len(links) < count:
+                break
+            used |= set(links)
+            sessions.append(Graph.from_links(n_nodes, links, positions=pos))
+        if len(sessions) == len(session_links):
+            try:
+                return SwitchingGraph(tuple(sessions))
+            except GraphError:
+                continue
+    raise GraphError("could not draw a connected switching network; try another seed")
 
 
 def candidate(seed: int, index: int) -> tuple[np.ndarray, np.ndarray]:
@@ -165,9 +211,7 @@ def build(
 ) -> tuple[Graph, SwitchingGraph, dict[str, Any]]:
     """Candidate ``index`` relabelled like the paper, and network (b) on its points: the first draw
     ``default_rng([seed, index, t])``, t = 0, 1, … of 4 matchings of nearby pairs (7, 6, 8, 7 links, see
-    :func:`distnav.experiments.consensus.switching_network`) for which every criterion, P4's included, holds."""
-    from distnav.experiments.consensus import switching_network
-
+    :func:`switching_network`) for which every criterion, P4's included, holds."""
     pos, links = candidate(seed, index)
     perm = relabel_like_paper(links)
     if perm is None:

@@ -4,7 +4,7 @@ Paper 000 ends (§6) asking how to compute the precision of the solution and how
 manner. This run answers it on the 110-station code-bias network of ``reproduce codebias`` (explicit observation
 equations (24)/(26), correlated differenced observations; 2 epochs, 8 gross errors; ``--quick``: 1 epoch, 3
 errors): gross errors of ±6σ are injected into observation rows, and distributed data snooping
-(:func:`distnav.algorithms.lsq_qc.admm_data_snooping`: ADMM estimate, distributed covariance, local w-tests,
+(:func:`distnav.algorithms.lsq.qc.admm_data_snooping`: ADMM estimate, distributed covariance, local w-tests,
 removal of the worst, warm-started re-convergence) is compared with centralized iterative data snooping
 (:func:`distnav.algorithms.statistics.data_snooping`) on the same data: detections, false alarms, the distance of
 the final solution to the clean centralized one, the messages it costs. The CKF half (local innovation tests) is
@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 from scipy.linalg import block_diag
 
-from distnav.algorithms.lsq import LinearProblem, blue
-from distnav.algorithms.lsq_qc import admm_data_snooping
+from distnav.algorithms.lsq.blue import LinearProblem, blue
+from distnav.algorithms.lsq.qc import admm_data_snooping
 from distnav.algorithms.statistics import data_snooping
 from distnav.experiments.codebias import EPOCH_S, constellation, synthetic_igs_network
 from distnav.experiments.common import ExperimentContext, pyplot

@@ -8,7 +8,8 @@ so that every node can predict). Each node runs the CKF with the exact node-loca
 predicted residuals at level ``LEVEL`` before its normals enter the consensus (``ckf(..., test_level=...)``).
 
 Reference: the central information filter fed every node's data, testing the same per-node predicted residuals
-with the central prediction and its covariance (written here, on :func:`distnav.algorithms.ckf_qc.innovation_test`
+with the central prediction and its covariance (written here, on
+:func:`distnav.algorithms.kalman.ckf_qc.innovation_test`
 and the information kernel). Reported, distributed vs central: detection rate (injected errors rejected), false
 alarms (clean observations rejected, per clean observation tested), the final distance of the estimates to the
 *clean* central filter (no gross errors, no tests), and the same for the untested CKF. Also the node-local
@@ -23,9 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.ckf import ckf
-from distnav.algorithms.ckf_qc import innovation_test
-from distnav.algorithms.consensus import consensus_schedule
+from distnav.algorithms.consensus.averaging import consensus_schedule
 from distnav.algorithms.kalman import (
     DynamicModel,
     InformationKernel,
@@ -34,6 +33,8 @@ from distnav.algorithms.kalman import (
     pseudo_inverse_psd,
     simulate_states,
 )
+from distnav.algorithms.kalman.ckf import ckf
+from distnav.algorithms.kalman.ckf_qc import innovation_test
 from distnav.algorithms.statistics import critical_value
 from distnav.experiments.common import ExperimentContext, pyplot
 from distnav.network import builders

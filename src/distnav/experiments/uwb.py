@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.csg import PAPER_MODE, SOLVERS, solve, solve_line_search_pair
-from distnav.algorithms.ranging import RangingResult
+from distnav.algorithms.ranging.csg import PAPER_MODE, SOLVERS, solve, solve_line_search_pair
+from distnav.algorithms.ranging.data import RangingResult
 from distnav.errors import UsageError
 from distnav.exchange import Exchange, make_exchange
 from distnav.experiments.common import ExperimentContext, add_jobs_argument, parallel_map, pyplot

@@ -37,7 +37,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
-from distnav.algorithms.csg import SOLVERS
+from distnav.algorithms.ranging.csg import SOLVERS
 from distnav.experiments.common import ExperimentContext, pyplot
 from distnav.models.uwb.field import FieldOptions, gather_cost, prepare, solve_field, subset_measurements
 from distnav.models.uwb.geometry import GeometryReport

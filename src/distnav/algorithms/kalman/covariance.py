@@ -23,7 +23,7 @@ from distnav.algorithms.kalman.measurements import MeasurementSeries, check_mode
 from distnav.algorithms.kalman.results import FilterResult, FilterSeries
 from distnav.algorithms.result import TraceBuilder
 from distnav.errors import ModelError
-from distnav.exchange.base import CommTotals
+from distnav.exchange.core import CommTotals
 from distnav.typing import BoolArray, FloatArray, IntArray
 
 __all__ = ["batch_blup", "kalman_filter"]

@@ -313,14 +313,14 @@ class CodeBiasData:
         return A, y
 
     def linear_problem(self, *, per_epoch: bool = False) -> Any:
-        """The network as a :class:`distnav.algorithms.lsq.LinearProblem` in the compressed square-root form
+        """The network as a :class:`distnav.algorithms.lsq.blue.LinearProblem` in the compressed square-root form
         (``p`` rows per station, unit weights; same BLUE and ADMM iterates as the full eqs. (24)/(26)).
 
         ``per_epoch=True`` divides every station's normal equations by the number of epochs (``N_i/T``,
         ``r_i/T``): the same BLUE, but the information per epoch, so that an ADMM weight ``W = ρI`` is measured
         against one epoch's information (equivalently ``W = ρ·T·I`` on the session's normals).
         """
-        from distnav.algorithms.lsq import LinearProblem
+        from distnav.algorithms.lsq.blue import LinearProblem
 
         A, y = self.compressed_problem()
         if per_epoch:

@@ -510,12 +510,12 @@ def run_bias_filters(
 
     Returns the series (labels ``central``, ``local:STA``, ``ckf:STA``) and the communication totals of the CKF
     (``None`` without a graph). ``innovation_level``: in the CKF every receiver tests its own predicted residuals
-    (w-tests at this level with its node-local "bound" precision, :mod:`distnav.algorithms.ckf_qc`) and rejects
+    (w-tests at this level with its node-local "bound" precision, :mod:`distnav.algorithms.kalman.ckf_qc`) and rejects
     outliers before its normals enter the consensus; the tests (network-wide
     :class:`~distnav.algorithms.kalman.InnovationTests`) are on every ``ckf:STA`` series as ``innovation_tests``.
     """
-    from distnav.algorithms.ckf import iterate_ckf
     from distnav.algorithms.kalman import iterate_information_filter
+    from distnav.algorithms.kalman.ckf import iterate_ckf
 
     lay, T = data.layout, data.series.n_epochs
     scale = gf_m_per_dsb_ns(data.band)
@@ -552,7 +552,7 @@ def run_bias_filters(
         ]
         tests = None
         if innovation_level is not None:
-            from distnav.algorithms.ckf_qc import InnovationCollector
+            from distnav.algorithms.kalman.ckf_qc import InnovationCollector
             from distnav.algorithms.statistics import critical_value
 
             tests = InnovationCollector(ex, len(data.stations), innovation_level, critical_value(innovation_level))

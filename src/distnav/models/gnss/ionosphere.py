@@ -32,7 +32,7 @@ and the model is invariant to the choice of ``q``. Noise: the undifferenced ``y_
 differences have the full covariance ``D_mᵀ diag(σ_s²) D_m``. :class:`GeometryFreeSeries` gives the normals of the
 differenced model with that full covariance in closed form (they equal the normals of the undifferenced model
 with the receiver bias eliminated), for any subset of nodes, epoch by epoch — the input of
-:mod:`distnav.algorithms.kalman` and :mod:`distnav.algorithms.ckf`. :func:`differenced_observations` builds the
+:mod:`distnav.algorithms.kalman` and :mod:`distnav.algorithms.kalman.ckf`. :func:`differenced_observations` builds the
 explicit differences and their covariance (the reference of the tests).
 
 Dynamic model (paper 003 eqs. (52)–(53)): random walk on ``ν_o`` (1 mm/√s) and on ``ν_φ, ν_ψ`` (5 mm/rad/√s),

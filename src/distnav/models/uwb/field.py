@@ -6,8 +6,8 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
    (:mod:`distnav.models.uwb.initial`) and the planar / mirror checks; a refused geometry raises ModelError.
 2. :func:`solve_field`: the solver with the metres objective and a robust loss (default Cauchy at 0.3 m, LM's
    graduated start: linear first, then robust), per-link w-tests and per-anchor precision from the solver
-   (:mod:`distnav.algorithms.ranging_qc`), and with ``exclude`` its iterative exclusion of the worst link while
-   the network stays determined (:func:`distnav.algorithms.ranging_qc.exclude_links`). With LM in metres the
+   (:mod:`distnav.algorithms.ranging.qc`), and with ``exclude`` its iterative exclusion of the worst link while
+   the network stays determined (:func:`distnav.algorithms.ranging.qc.exclude_links`). With LM in metres the
    robust fit of every link is first run from several starts (:func:`choose_start`: the lowest Cauchy cost of
    all the links wins) and the exclusions start from there; exclusions that leave a solution fitting all the
    links more than :data:`DISAGREE_RATIO` × worse are rejected (``revert``). σ admit the antenna delays the
@@ -21,7 +21,7 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
    scale, the costs of all the links (revert, per-anchor check, polish), the link tests' robust scale.
 3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
 
-The solve call goes to :func:`distnav.algorithms.csg.solve` by name, with ``objective`` passed when the solver
+The solve call goes to :func:`distnav.algorithms.ranging.csg.solve` by name, with ``objective`` passed when the solver
 takes it (the metres objective of issue 13; until then the paper's squared form) — ``objective_used`` says which.
 """
 
@@ -36,10 +36,10 @@ from typing import Any
 import numpy as np
 
 from distnav._blas import single_threaded_blas
-from distnav.algorithms import csg
-from distnav.algorithms.neighbourhood_offsets import sample_bias
-from distnav.algorithms.nlsq import solve_lm
-from distnav.algorithms.ranging_qc import exclude_links
+from distnav.algorithms.ranging import csg
+from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.neighbourhood_offsets import sample_bias
+from distnav.algorithms.ranging.qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.cuts import cut_weak
@@ -133,7 +133,8 @@ class FieldOptions:
         """Whether the solve uses the one-sided loss: ``nlos_loss``, the metres objective, the Cauchy loss and a
         solver that has a robust loss — LM and every distributed solver but CSG (the same steps for all; the
         distributed ones through the exchange, :mod:`distnav.models.uwb.field_fits`).
-        Then every fit uses ``"cauchy_long"`` (:func:`distnav.algorithms.nlsq.loss_terms`: Cauchy for ranges read
+        Then every fit uses ``"cauchy_long"`` (:func:`distnav.algorithms.ranging.losses.loss_terms`: Cauchy for
+        ranges read
         long, linear for ranges read short: NLOS only lengthens a range), and after the choice of start its scale
         is tightened from ``loss_scale_m`` by halves down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × the robust scatter
         of the residuals (:func:`tighten`); the exclusions, the per-anchor check and the revert then work at that

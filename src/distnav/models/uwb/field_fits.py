@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms import csg
+from distnav.algorithms.ranging import csg
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 
@@ -43,7 +43,7 @@ def solve_once(
     ``warm``: a re-fit from a solution, the robust loss straight away (no graduated linear phase; LM with
     :data:`REFIT_TOLERANCES` unless ``kw`` sets them or ``tolerances`` is False). A distributed solver runs on
     ``exchange(problem)``; its warm re-fit runs :data:`WARM_ITERATIONS` consensus iterations, then the final
-    distributed LM phase (:mod:`distnav.algorithms.ranging_refine`) from the solution — unless that phase is off
+    distributed LM phase (:mod:`distnav.algorithms.ranging.refine`) from the solution — unless that phase is off
     (``kw["refine"]`` False: all ``iterations``). Why: from a solution the consensus iterations first move away
     from it (N-CLM's fixed point is not LM's: warm at LM's solution of a plant-like corner hall, its iterate was
     1.48 m RMS off after 500 iterations), and at a tightened loss scale the LM phase can then end in another

@@ -1,12 +1,12 @@
 """Which per-anchor σ the distributed solvers report in the field workflow, and what it costs (issue 13 item 3).
 
-``"central"`` (:func:`distnav.algorithms.ranging_covariance.central_precision`): every anchor's block of LM's
+``"central"`` (:func:`distnav.algorithms.ranging.covariance.central_precision`): every anchor's block of LM's
 central a-posteriori covariance, the antenna delays considered and estimated as LM does, by CG over the exchange —
 messages of ``P (n_free + n)`` floats for ``≈ n_free`` rounds. ``"subnetwork"``
-(:func:`distnav.algorithms.ranging_precision.neighbourhood_precision` with :data:`PRECISION_HOPS` hops): each
+(:func:`distnav.algorithms.ranging.precision.neighbourhood_precision` with :data:`PRECISION_HOPS` hops): each
 anchor's 2-hop sub-network, ``O(degree²)`` floats per link in ``3 + hops`` rounds, but 0.67–0.88 × LM's σ where the
 chain to the known anchors is long (docs/uwb.md). ``"auto"`` (the default): central for the metres objective up
-to :data:`~distnav.algorithms.ranging_covariance.CENTRAL_MAX_ANCHORS` anchors, else the sub-network; the
+to :data:`~distnav.algorithms.ranging.covariance.CENTRAL_MAX_ANCHORS` anchors, else the sub-network; the
 sub-network is also the fallback where the central solve fails (a singular own block, CG not converged).
 """
 
@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.neighbourhood_offsets import sample_bias
-from distnav.algorithms.ranging_covariance import CENTRAL_MAX_ANCHORS, central_precision
-from distnav.algorithms.ranging_precision import neighbourhood_precision
+from distnav.algorithms.ranging.covariance import CENTRAL_MAX_ANCHORS, central_precision
+from distnav.algorithms.ranging.neighbourhood_offsets import sample_bias
+from distnav.algorithms.ranging.precision import neighbourhood_precision
 from distnav.errors import ModelError
 from distnav.models.uwb.precision import DELAY_UPPER_Z
 from distnav.models.uwb.problems import RangingProblem
@@ -37,7 +37,7 @@ PRECISION_MODES = ("auto", "central", "subnetwork")
 class DistributedSigma:
     """σ ``(n, dim)``, the a-posteriori covariance blocks (m²), the kind (``"central"`` or ``"neighbourhood"``)
     and the cost: the exchange's messages / bytes plus, for the central σ, its network totals as spanning-tree
-    reductions (:meth:`~distnav.algorithms.ranging_covariance.CentralPrecision.reduction_cost`)."""
+    reductions (:meth:`~distnav.algorithms.ranging.covariance.CentralPrecision.reduction_cost`)."""
 
     sigma_m: FloatArray
     covariance_m2: FloatArray

@@ -1,6 +1,6 @@
 """Per-anchor precision that admits the antenna delays the model does not estimate (a *consider* covariance).
 
-LM's a-posteriori covariance ``σ̂² (JᵀWJ)⁻¹`` (:func:`distnav.algorithms.ranging_qc.centralized_quality`) treats
+LM's a-posteriori covariance ``σ̂² (JᵀWJ)⁻¹`` (:func:`distnav.algorithms.ranging.qc.centralized_quality`) treats
 the range errors as independent. Per-node antenna delays are not: anchor ``i``'s delay ``δ_i`` lengthens every
 range it takes part in, ``d_ab + δ_a + δ_b`` (the convention of ``range_offsets="per_anchor"``). A common offset
 (the default) removes their mean; what is left moves the anchors coherently, and on simulated halls with
@@ -38,9 +38,9 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from distnav.algorithms.nlsq import robust_weights
-from distnav.algorithms.ranging_covariance import MIN_NOISE_SHARE
-from distnav.algorithms.ranging_objective import RangeObjective
+from distnav.algorithms.ranging.covariance import MIN_NOISE_SHARE
+from distnav.algorithms.ranging.losses import robust_weights
+from distnav.algorithms.ranging.objective import RangeObjective
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 

@@ -37,7 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from distnav.algorithms.ranging import RangingData
+from distnav.algorithms.ranging.data import RangingData
 from distnav.errors import ModelError
 
 __all__ = [
@@ -74,7 +74,7 @@ class RangingProblem(RangingData):
     """An anchor network with measured ranges; see the module docstring for the model.
 
     Build with :func:`build_problem` (validates) or :func:`generate_problem`. The arrays and the model
-    (residuals, cost, Jacobian, graph) are those of :class:`~distnav.algorithms.ranging.RangingData` (``ids``,
+    (residuals, cost, Jacobian, graph) are those of :class:`~distnav.algorithms.ranging.data.RangingData` (``ids``,
     ``dim``, ``positions_m``, ``free``, ``meas_a``, ``meas_b``, ``range_m``, ``truth_m``, ``initial_m``); this
     class adds a label and free-form information.
 

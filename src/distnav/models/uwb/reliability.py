@@ -1,6 +1,6 @@
 """External reliability of an LM field solve: which anchors one undetected bad link could move unseen.
 
-The link tests (w-tests, :mod:`distnav.algorithms.ranging_qc`) find an NLOS link only when its bias shows in its
+The link tests (w-tests, :mod:`distnav.algorithms.ranging.qc`) find an NLOS link only when its bias shows in its
 own residual. Baarda's reliability (:mod:`distnav.algorithms.statistics`, module docstring) says how large a bias
 must be to be found — the **minimal detectable bias** of link l, ``∇_l = σ_l ŝ √λ0 √q_l / r_l`` — and what a bias
 of that size, still undetected, does to the anchors: ``∇x̂_l = Q J_lᵀ w_l ∇_l / σ_l`` (``J`` the whitened Jacobian
@@ -32,9 +32,9 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from distnav._blas import single_threaded_blas
-from distnav.algorithms.nlsq import loss_terms
-from distnav.algorithms.ranging_objective import RangeObjective
-from distnav.algorithms.ranging_qc import robust_scale
+from distnav.algorithms.ranging.losses import loss_terms
+from distnav.algorithms.ranging.objective import RangeObjective
+from distnav.algorithms.ranging.qc import robust_scale
 from distnav.algorithms.statistics import minimal_detectable_bias, noncentrality, redundancy_numbers, w_statistics
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray, IntArray

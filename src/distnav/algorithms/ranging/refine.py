@@ -15,14 +15,15 @@ iteration needs only the neighbours' values:
   ``w_l = ρ'(r_l²)`` of the loss — is one broadcast of ``v`` (``P`` floats per link: the coordinates and, with
   per-anchor offsets, the offset);
 * the **scalars** of CG (two dot products), the cost of a trial step, the common offset's row and the step's
-  largest move are network totals, as the solvers' :class:`~distnav.algorithms.csg.StopRule` uses: each is a
+  largest move are network totals, as the solvers' :class:`~distnav.algorithms.ranging.csg.StopRule` uses: each is a
   sum over the anchors assembled in the anchors' order (``gather_nodes``, so that in-process and MPI agree bit
   for bit; a deployment would run a spanning-tree reduction, ``2(n − 1)`` messages of one float). They are
   counted in :attr:`Refinement.reductions`.
 
 The outer loop is Levenberg–Marquardt (Madsen, Nielsen & Tingleff 2004, §3.2: Marquardt's diagonal damping
 ``μ·diag(N)``, μ ÷ 3 after an accepted step, × 4 after a rejected one) on the objective LM minimises, ``F = Σ_l
-ρ(r_l²) + Σ_i b_i²/σ_b²`` (:func:`~distnav.algorithms.nlsq.loss_terms`; the metres residual ``r_l = (‖x_a − x_b‖ +
+ρ(r_l²) + Σ_i b_i²/σ_b²`` (:func:`~distnav.algorithms.ranging.losses.loss_terms`;
+the metres residual ``r_l = (‖x_a − x_b‖ +
 b_l − d_l)/σ_l``), preconditioned by each anchor's own damped block (block Jacobi, local). Its fixed point is
 LM's (IRLS weights: the stationary point of the robust objective). It stops ``converged`` when an accepted step
 moved no parameter by more than ``xtol_m`` and changed ``F`` by at most ``ftol`` (relative) — the solvers'
@@ -35,9 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from distnav.algorithms.neighbourhood import IterationState, half_measurements
-from distnav.algorithms.nlsq import loss_terms
-from distnav.algorithms.ranging import RangingData
+from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.losses import loss_terms
+from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
@@ -62,7 +63,7 @@ MU0 = 1e-3  # initial Marquardt damping (relative to diag N)
 class Refinement:
     """The refined state of one exchange block: own estimates ``(n_local, dim)``, own offsets (per anchor, or
     every anchor's copy of the common one; None without offsets), the neighbours' estimates and offsets per
-    half-measurement (as :class:`~distnav.algorithms.neighbourhood.IterationState`), the objective ``F``, the
+    half-measurement (as :class:`~distnav.algorithms.ranging.neighbourhoods.IterationState`), the objective ``F``, the
     status, outer rounds (accepted or not), CG iterations and network reductions."""
 
     own_m: np.ndarray
@@ -299,7 +300,7 @@ def block_preconditioner(own_block: np.ndarray, damp: np.ndarray, free: np.ndarr
 @dataclass(frozen=True, eq=False)
 class NormalSystem:
     """The (damped) normal matrix of one linearization, applied through the exchange (module docstring); shared
-    by :func:`refine` and :func:`distnav.algorithms.ranging_covariance.central_precision`."""
+    by :func:`refine` and :func:`distnav.algorithms.ranging.covariance.central_precision`."""
 
     links: Links
     owner: np.ndarray

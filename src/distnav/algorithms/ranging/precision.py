@@ -1,6 +1,6 @@
 """Node-local precision of a distributed UWB solution that admits the neighbours' errors ("neighbourhood").
 
-The conditional covariance of :func:`distnav.algorithms.ranging_qc.local_quality` is ``N_i⁻¹``, anchor ``i``'s
+The conditional covariance of :func:`distnav.algorithms.ranging.qc.local_quality` is ``N_i⁻¹``, anchor ``i``'s
 own information ``N_i = Σ_{l∈E(i)} w_l j_l j_lᵀ`` inverted with its neighbours held at their estimates: a lower
 bound (on an 18-anchor hall 0.73× the central σ). The central covariance is ``Q = N⁻¹`` of the whole normal
 matrix ``N = D + O`` (``D`` = the block diagonal ``N_i``, ``O`` = the cross blocks ``O_ij = −Σ_{l∈(i,j)} w_l
@@ -26,7 +26,7 @@ approximation (neither bound): the dropped ``Q_jk`` are mostly positive (neighbo
 network's far part) and make it optimistic for anchors far from the known ones; ``Q_jj`` of a neighbour with
 neighbours of its own in common with ``i`` counts ``i``'s own noise again. Monte Carlo numbers: docs/uwb.md,
 "Per-anchor precision". Linearized at the anchors' own estimates with the final weights of the solver's loss
-(fixed IRLS weights, as :func:`~distnav.algorithms.ranging_qc.local_quality`).
+(fixed IRLS weights, as :func:`~distnav.algorithms.ranging.qc.local_quality`).
 
 **k-hop sub-network** (``hops`` = 1 or 2; ``uwb solve`` uses 2). The same identity holds for any split of the
 anchors into ``S`` and the rest ``R``: with ``N_SS`` the principal block of ``S`` (its anchors' own blocks and the
@@ -65,11 +65,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from distnav.algorithms.neighbourhood import checked_estimates, exchange_for, half_measurements
-from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale
-from distnav.algorithms.ranging import RangingData
-from distnav.algorithms.ranging_objective import range_sigma
-from distnav.algorithms.ranging_qc import free_block_inverses
+from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.losses import LOSSES, loss_terms, range_loss_scale
+from distnav.algorithms.ranging.neighbourhoods import checked_estimates, exchange_for, half_measurements
+from distnav.algorithms.ranging.objective import range_sigma
+from distnav.algorithms.ranging.qc import free_block_inverses
 from distnav.algorithms.result import Precision
 from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
@@ -136,7 +136,7 @@ def neighbourhood_precision(
     ``result.estimates``); each block reads only its own rows and learns its neighbours' positions by one
     broadcast. ``objective`` / ``sigma_m`` / ``loss`` / ``loss_scale_m`` as the solver that produced them.
     ``rounds``: at most this many rounds of block messages; they stop early when no σ changed by more than
-    ``rtol`` relative (a one-float max allreduce per round, like the solvers' :class:`~distnav.algorithms.csg.
+    ``rtol`` relative (a one-float max allreduce per round, like the solvers' :class:`~distnav.algorithms.ranging.csg.
     StopRule`; ``rtol=0`` runs all ``rounds``). ``precision.iterations`` counts the message rounds including the
     broadcast of the positions. ``hops`` ≥ 1: then the **k-hop sub-network** covariance (module docstring) from
     one more broadcast of the blocks and ``hops`` relay rounds of link records (kind ``"neighbourhood"`` still;

@@ -10,7 +10,7 @@ Every node ``i`` holds ``y_i = A_i x + e_i`` with ``C(e_i) = R_i`` (paper 000, e
   iterative schemes of paper 000 §3, with the dual function ``g(u)`` of eq. (10) (:func:`dual_function`).
   **Both need a fusion centre**: (15) needs every node's data for ``z^[k]``, and (16) averages over all nodes.
   They are reference solvers for the 2-node illustration (Figs. 3–4); the distributed algorithm, with
-  constraint nodes and message rounds, is :func:`distnav.algorithms.admm.admm` (Fig. 6).
+  constraint nodes and message rounds, is :func:`distnav.algorithms.lsq.admm.admm` (Fig. 6).
 
 Conventions: ``f_i(x) = ½‖y_i − A_i x‖²_{R_i⁻¹}`` (eq. (3)); multipliers ``u_i`` are the *scaled* ones of eq. (8)
 (the penalty is ``½‖x_i − (z − u_i)‖²_W``), so ``W û_i = r_i − N_i x̂`` at the solution (eq. (9)).
@@ -27,7 +27,7 @@ import numpy as np
 
 from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
-from distnav.exchange.base import CommTotals
+from distnav.exchange.core import CommTotals
 from distnav.typing import ArrayLike, FloatArray
 
 __all__ = [

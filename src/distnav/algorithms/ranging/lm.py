@@ -16,9 +16,9 @@ and acceptance is judged on the robust objective ``F = Σ s_l² ρ((g_l/s_l)²)`
 Huber ``ρ(z) = z`` for ``z ≤ 1`` else ``2√z − 1``; Cauchy ``ρ(z) = ln(1 + z)``). The gradients of the weighted
 model and of ``F`` agree, so the fixed points are those of ``F``.
 
-:func:`solve_lm` applies it to a UWB ranging problem (:class:`~distnav.algorithms.ranging.RangingData`, which
+:func:`solve_lm` applies it to a UWB ranging problem (:class:`~distnav.algorithms.ranging.data.RangingData`, which
 :class:`distnav.models.uwb.problems.RangingProblem` extends) and returns a
-:class:`~distnav.algorithms.ranging.RangingResult`.
+:class:`~distnav.algorithms.ranging.data.RangingResult`.
 """
 
 from __future__ import annotations
@@ -31,11 +31,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from distnav._blas import single_threaded_blas
-from distnav.algorithms.nlsq_damped import DampedSolver as _DampedSolver
-from distnav.algorithms.ranging import RangingData, RangingResult
+from distnav.algorithms.ranging.damped import DampedSolver as _DampedSolver
+from distnav.algorithms.ranging.data import RangingData, RangingResult
+from distnav.algorithms.ranging.losses import LOSSES, robust_weights
 from distnav.algorithms.result import Trace
 from distnav.errors import ModelError
-from distnav.exchange.base import CommTotals
+from distnav.exchange.core import CommTotals
 
 __all__ = [
     "single_threaded_blas",
@@ -44,70 +45,7 @@ __all__ = [
     "LMOptions",
     "LMResult",
     "solve_lm",
-    "LOSSES",
-    "OBJECTIVES",
-    "loss_terms",
-    "robust_weights",
-    "range_loss_scale",
 ]
-
-LOSSES = ("linear", "huber", "soft_l1", "cauchy", "cauchy_long")
-OBJECTIVES = ("squared", "metres")
-
-
-def __getattr__(name: str) -> Any:
-    if name == "RangingLike":  # the protocol that restated RangingProblem; one definition now: RangingData
-        import warnings
-
-        warnings.warn(
-            "distnav.algorithms.nlsq.RangingLike is deprecated: use distnav.algorithms.ranging.RangingData",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return RangingData
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def loss_terms(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple[np.ndarray, np.ndarray]:
-    """Per-residual IRLS weights ``ρ'((g/s)²)`` and objective terms ``s² ρ((g/s)²)`` (linear: 1 and ``g²``).
-
-    scipy's conventions (``least_squares(loss=...)``): Huber ``ρ(z) = z`` for ``z ≤ 1`` else ``2√z − 1``;
-    soft-L1 ``ρ(z) = 2(√(1 + z) − 1)``; Cauchy ``ρ(z) = ln(1 + z)``.
-
-    ``"cauchy_long"`` is one-sided: Cauchy where the range reads *long* (``g < 0``, with ``g`` = fitted − measured)
-    and linear (Gaussian) where it reads short. NLOS and multipath only lengthen a UWB range, so a link measured
-    much shorter than the fit is evidence against the fit, not an outlier to ignore. Weight and ``ρ`` are C¹ at 0.
-    """
-    if loss == "linear":
-        return np.ones_like(g), g * g
-    s = np.broadcast_to(np.asarray(scale, float), g.shape)
-    z = (g / s) ** 2
-    if loss == "huber":
-        small = z <= 1.0
-        rz = np.where(small, z, 2.0 * np.sqrt(z) - 1.0)
-        w = np.where(small, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))
-    elif loss == "soft_l1":
-        t = np.sqrt(1.0 + z)
-        rz = 2.0 * (t - 1.0)
-        w = 1.0 / t
-    elif loss == "cauchy":
-        rz = np.log1p(z)
-        w = 1.0 / (1.0 + z)
-    elif loss == "cauchy_long":
-        long = g < 0
-        rz = np.where(long, np.log1p(z), z)
-        w = np.where(long, 1.0 / (1.0 + z), 1.0)
-    else:
-        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-    return np.asarray(w), np.asarray(s * s * rz)
-
-
-def robust_weights(g: np.ndarray, scale: np.ndarray | float, loss: str) -> tuple[np.ndarray, float]:
-    """Per-residual IRLS weights ``ρ'((g/s)²)`` and the objective ``Σ s² ρ((g/s)²)`` (linear: 1 and ``Σ g²``)."""
-    if loss == "linear":
-        return np.ones_like(g), float(g @ g)
-    w, terms = loss_terms(g, scale, loss)
-    return w, float(np.sum(terms))
 
 
 class LMOptions(TypedDict, total=False):
@@ -257,14 +195,6 @@ def levenberg_marquardt(
     )
 
 
-def range_loss_scale(problem: RangingData, loss_scale_m: float) -> np.ndarray:
-    """Residual scale ``s_l = 2 d_l σ`` of ``g_l = ‖r_a − r_b‖² − d_l²`` for a range error of ``σ`` metres
-    (``g ≈ 2 d (‖r_a − r_b‖ − d)``), so the robust loss switches at range errors of about ``loss_scale_m``."""
-    if not loss_scale_m > 0:
-        raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
-    return np.asarray(2.0 * np.maximum(problem.range_m, loss_scale_m) * loss_scale_m)
-
-
 def solve_lm(
     problem: RangingData,
     *,
@@ -292,16 +222,16 @@ def solve_lm(
     No messages are counted: gathering the ranges at a centre is not modelled (``comm`` is empty).
 
     ``objective="metres"`` fits ``e = ‖r_a − r_b‖ − d`` with weight ``1/sigma_m²`` instead of paper 002's squared
-    form (:mod:`distnav.algorithms.ranging_objective`); ``graduated`` (default: on for metres) first fits the linear
+    form (:mod:`distnav.algorithms.ranging.objective`); ``graduated`` (default: on for metres) first fits the linear
     loss, then the robust one from there. ``range_offsets="common"|"per_anchor"`` (metres only) estimates a common
     range offset or per-anchor antenna delays (prior σ ``offset_prior_sigma_m``) jointly with the positions.
     ``quality`` adds the per-anchor covariance (``precision``) and per-sample w-tests (``tests``) at the solution
-    (:func:`distnav.algorithms.ranging_qc.centralized_quality`; ``test_level``, ``test_scale``).
+    (:func:`distnav.algorithms.ranging.qc.centralized_quality`; ``test_level``, ``test_scale``).
     ``options`` (:class:`LMOptions`: ``max_iterations``, ``ftol``, ``xtol``, ``gtol``, ``lambda0``) go to
     :func:`levenberg_marquardt` (defaults :class:`LMControls`).
     """
-    from distnav.algorithms.ranging_objective import RangeObjective
-    from distnav.algorithms.ranging_qc import centralized_quality
+    from distnav.algorithms.ranging.objective import RangeObjective
+    from distnav.algorithms.ranging.qc import centralized_quality
 
     c = LMControls(**options)  # checks the option names first; the values the iteration uses, for trace and settings
     init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)

@@ -33,9 +33,9 @@ triangular solves), three segment sums over pairs, two message rounds. No Python
 
 :func:`admm_linearized` (paper 000 §4.3, the linearized case) and :func:`admm_nonlinear` (eq. (23)) handle
 nonlinear models ``y_i = F_i(x) + e_i`` given as a :class:`NonlinearProblem`; :func:`gauss_newton` is the centralized
-reference (all in :mod:`distnav.algorithms.admm_nonlinear`, re-exported here). The kernel is
-:mod:`distnav.algorithms.admm_kernel`; the options, their validation and the stopping rule are
-:mod:`distnav.algorithms.admm_driver`.
+reference (all in :mod:`distnav.algorithms.lsq.nonlinear`, re-exported here). The kernel is
+:mod:`distnav.algorithms.lsq.kernel`; the options, their validation and the stopping rule are
+:mod:`distnav.algorithms.lsq.driver`.
 """
 
 from __future__ import annotations
@@ -45,23 +45,15 @@ from typing import TYPE_CHECKING, Any, Unpack
 
 import numpy as np
 
-from distnav.algorithms.admm_driver import (
-    AdmmOptions,
-    AdmmResult,
-    MessageMode,
-    XWeight,
-    check_stopping,
-    drive,
-    prepare,
-)
-from distnav.algorithms.admm_kernel import AdmmState, XUpdate, XUpdateMethod
-from distnav.algorithms.lsq import LinearProblem
+from distnav.algorithms.lsq.blue import LinearProblem
+from distnav.algorithms.lsq.driver import AdmmOptions, AdmmResult, MessageMode, XWeight, check_stopping, drive, prepare
+from distnav.algorithms.lsq.kernel import AdmmState, XUpdate, XUpdateMethod
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
 
 if TYPE_CHECKING:
-    from distnav.algorithms.admm_nonlinear import (
+    from distnav.algorithms.lsq.nonlinear import (
         LinearizedAdmmResult,
         NonlinearModel,
         NonlinearProblem,
@@ -87,10 +79,10 @@ _NONLINEAR = frozenset(
 
 
 def __getattr__(name: str) -> Any:
-    """The nonlinear variants, re-exported from :mod:`distnav.algorithms.admm_nonlinear` on first use (PEP 562): an
+    """The nonlinear variants, re-exported from :mod:`distnav.algorithms.lsq.nonlinear` on first use (PEP 562): an
     MPI job of the linear kernel does not import them at start-up."""
     if name in _NONLINEAR:
-        from distnav.algorithms import admm_nonlinear as module
+        from distnav.algorithms.lsq import nonlinear as module
 
         return getattr(module, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -122,7 +114,7 @@ def iterate_admm(
 ) -> Iterator[AdmmState]:
     """Yield the ADMM state of Fig. 6 (paper 000) after iterations ``0, 1, 2, …`` (endless: stop it yourself).
 
-    Options (:class:`~distnav.algorithms.admm_driver.AdmmOptions`, validated before the first iteration):
+    Options (:class:`~distnav.algorithms.lsq.driver.AdmmOptions`, validated before the first iteration):
     ``constraint_nodes``: ``"min_cover"`` (default), ``"all"``, node ids, or a
     :class:`~distnav.network.constraint_nodes.ConstraintNodes`. ``W``: ``ρ`` (default 1) or an SPD ``(p, p)``
     matrix. ``x_update``: see :class:`XUpdate`. ``x_weight``: ``"lagrangian"`` (default), ``"fig6"`` or
@@ -172,7 +164,7 @@ def admm(
     Trace (leading axis = iteration ``0..k``): ``primal_residual``, ``dual_residual``; with ``reference`` (x̂)
     ``max_distance_to_reference`` and ``relative_max_distance`` (``max_i ‖x_i − x̂‖/‖x̂‖``) and, with
     ``record_nodes``, ``distance_to_reference`` (``k × n``: ``‖x_i^[k] − x̂‖`` per node). The result
-    (:class:`~distnav.algorithms.admm_driver.AdmmResult`) has ``z`` (per constraint node), ``z_nodes`` (per node,
+    (:class:`~distnav.algorithms.lsq.driver.AdmmResult`) has ``z`` (per constraint node), ``z_nodes`` (per node,
     zero rows off ``C``), ``constraint_nodes``, ``x_update``, ``x_weight``, ``messages``, ``pairs`` and
     ``iterations_to`` (first iteration with relative distance ≤ 1e-4, 1e-6, 1e-8 when a reference is given).
     """

@@ -44,15 +44,15 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from distnav._blas import single_threaded_blas
-from distnav.algorithms.nlsq import loss_terms
-from distnav.algorithms.ranging import RangingData, RangingResult
+from distnav.algorithms.ranging.data import RangingData, RangingResult
+from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, variance_factor, w_statistics
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
 if TYPE_CHECKING:
-    from distnav.algorithms.neighbourhood import IterationState
+    from distnav.algorithms.ranging.neighbourhoods import IterationState
 
 __all__ = [
     "TEST_SCALES",

@@ -1,70 +1,25 @@
-"""The neighbourhood machinery of N-CSG and N-CLM (paper 002 §3.3–3.4), and the set-up shared with CSG.
-
-Every anchor is a node of the measurement graph and talks only to the anchors it ranges with, through the
-exchange (:mod:`distnav.exchange`); all arrays below are local to the exchange's block of anchors. The front doors
-(:func:`~distnav.algorithms.csg.solve_ncsg`, :func:`~distnav.algorithms.csg.solve_nclm`) are in
-:mod:`distnav.algorithms.csg`; here are the index maps of the neighbourhood vectors (:class:`Neighbourhoods`), the
-consensus round (:class:`Mixing`), the line searches (:func:`armijo_search`), the local LM step (:class:`LocalLM`)
-and the iteration itself (:func:`iterate_neighbourhood`).
-
-* **N-CSG** (eqs. (14)–(18)): ``x⁽ⁱ⁾`` holds only anchor ``i`` and its neighbours; the update minimises the
-  partial cost ``f⁽ⁱ⁾ = Σ_{l∈E(i)} g_l²`` (eq. (14)). In the consensus phase anchor ``j`` sends to each neighbour
-  ``i`` the entries of ``u⁽ʲ⁾`` that ``i`` also holds (a message of at most ``max degree + 1`` positions: its size
-  grows with the *neighbourhood*); anchor ``i`` stacks them row-wise, fills the entries a neighbour does not hold
-  (non-common neighbours) with its own ``u⁽ⁱ⁾`` (eq. (18)) and mixes with row ``i`` of ``W`` (eq. (15)).
-* **N-CSG + BLS** (eqs. (19)–(20)): each anchor picks its own step by backtracking from ``α₀`` until the Armijo
-  condition ``f⁽ⁱ⁾(x + α d) ≤ f⁽ⁱ⁾(x) + γ α ∇f⁽ⁱ⁾ᵀ d`` holds, ``d = −G⁽ⁱ⁾ᵀ g⁽ⁱ⁾`` (the subgradient direction of
-  eq. (10)) and, as in the paper, the subgradient ``G⁽ⁱ⁾ᵀ g⁽ⁱ⁾`` in the role of ``∇f⁽ⁱ⁾`` (``armijo_slope``
-  selects the true gradient ``2 G⁽ⁱ⁾ᵀ g⁽ⁱ⁾`` instead), ``α ← β α``.
-  **N-CSG + TBLS** (eq. (21), Truong & Nguyen 2020): start from the anchor's previous ``α``; if Armijo fails,
-  shrink by ``β``; otherwise grow by ``1/β`` while Armijo holds and ``α ≤ α₀``. The line searches evaluate each
-  anchor's own partial cost locally — no messages — vectorized over anchors: along ``x + α d`` every residual
-  is the quartic ``(a + 2αb + α²c − d²)`` with ``a, b, c`` computed once per iteration.
-* **N-CLM** (eq. (22)): the N-CSG step with the subgradient step replaced by the Levenberg–Marquardt step of
-  eq. (8) on the partial cost, ``u⁽ⁱ⁾ = x⁽ⁱ⁾ − (G⁽ⁱ⁾ᵀG⁽ⁱ⁾ + λ_i D_i)⁻¹ G⁽ⁱ⁾ᵀ g⁽ⁱ⁾``; each anchor adapts its own
-  ``λ_i`` from the gain ratio of its partial cost (a rejected step leaves ``x⁽ⁱ⁾`` unchanged this iteration);
-  the consensus phase is that of N-CSG. ``D_i = mean(diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾))·I`` by default — a deviation from eq. (8)'s
-  Fletcher scaling ``diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾)`` (``damping="fletcher"``), which stalls on the rank-deficient partial
-  problems (see :func:`~distnav.algorithms.csg.solve_nclm`).
-
-Fixed anchors take part (they measure and relay) but their coordinates, and any held coordinate, are never changed.
-"""
+"""The shared machinery of the neighbourhood solvers N-CSG and N-CLM (paper 002 §3.3–3.4) and of CSG: the
+iteration state, the index maps of the neighbourhood vectors (:class:`Neighbourhoods`), the consensus round
+(:class:`Mixing`) and the per-anchor line searches (:func:`armijo_search`). The bottom of the neighbourhood
+rooms: :mod:`~distnav.algorithms.ranging.local_lm`, :mod:`~distnav.algorithms.ranging.plan` and
+:mod:`~distnav.algorithms.ranging.neighbourhood` build on it. See :mod:`distnav.algorithms.ranging.neighbourhood`
+for the equations."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
 from distnav._sparse import csr_times
-from distnav.algorithms.local_lm import LocalLM
-from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale
-from distnav.algorithms.ranging import RangingData
-from distnav.algorithms.ranging_objective import range_sigma
+from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.losses import loss_terms, range_loss_scale
+from distnav.algorithms.ranging.objective import range_sigma
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.weights import ConsensusWeights, consensus_weights
 from distnav.typing import ArrayLike
-
-__all__ = [
-    "ArmijoTest",
-    "IterationState",
-    "LocalLM",
-    "Mixing",
-    "NeighbourhoodPlan",
-    "Neighbourhoods",
-    "armijo_details",
-    "armijo_search",
-    "check_start",
-    "exchange_for",
-    "half_measurements",
-    "iterate_neighbourhood",
-    "mixing_weights",
-    "plan_neighbourhood",
-]
 
 
 @dataclass(frozen=True, eq=False)
@@ -444,216 +399,3 @@ def armijo_details(
             grow = step_up & (alpha / beta <= alpha0 * (1 + 1e-12))
             ok = ok | step_up
     return np.where(moving, alpha, alpha_start), ok, moving
-
-
-@dataclass
-class NeighbourhoodPlan:
-    """Everything the iteration loop of one neighbourhood solver needs besides its state (set up once)."""
-
-    nb: Neighbourhoods
-    mix: Mixing
-    weights: ConsensusWeights
-    method: str
-    iterations: int
-    alpha: float
-    alpha_i: float | np.ndarray
-    alpha0_i: float | np.ndarray
-    beta: float
-    gamma: float
-    max_backtracks: int
-    slope_factor: float
-    loss: str
-    graduated: int
-    consensus_rounds: int
-    lm: LocalLM | None
-
-    def bls_start(self) -> np.ndarray:
-        """BLS's start in every iteration: ``α₀`` (per anchor for metres)."""
-        nb = self.nb
-        return np.full(nb.nl, float(self.alpha0_i)) if not nb.metres else np.asarray(self.alpha0_i, float).copy()
-
-    def linearize(self, P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(diff, g, IRLS weights, f⁽ⁱ⁾(x⁽ⁱ⁾), G⁽ⁱ⁾ᵀ g⁽ⁱ⁾)`` at the start of iteration ``k``."""
-        nb = self.nb
-        nb.loss = "linear" if k <= self.graduated else self.loss
-        diff, g = nb.geometry(P)
-        w, terms = nb.rho(g)
-        f0 = np.bincount(nb.h_own, terms, minlength=nb.nl)
-        grad = nb.gradient(diff, g, None if nb.loss == "linear" else w)
-        return diff, g, w, f0, grad
-
-    def search(
-        self,
-        diff: np.ndarray,
-        g: np.ndarray,
-        grad: np.ndarray,
-        f0: np.ndarray,
-        start: np.ndarray,
-        two_way: bool,
-        known: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-        reuse: ArmijoTest | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return armijo_details(
-            self.nb,
-            diff,
-            g,
-            -grad,
-            f0,
-            start,
-            self.alpha0_i,
-            self.beta,
-            self.gamma,
-            two_way,
-            self.max_backtracks,
-            self.slope_factor,
-            known,
-            reuse,
-        )
-
-    def state(self, k: int, P: np.ndarray, step: np.ndarray, f0: np.ndarray) -> IterationState:
-        nb = self.nb
-        return IterationState(
-            k, P[:, 0].copy(), step.copy(), f0, nb.h_own, nb.h_samp, P.reshape(-1)[nb.e_other].reshape(-1, nb.dim)
-        )
-
-    def loop(self, P: np.ndarray, step: np.ndarray, nu: np.ndarray, first: int) -> Iterator[IterationState]:
-        """Iterations ``first``, …, ``iterations`` from the state ``(P, step, nu)`` (eqs. (14)–(22))."""
-        nb, method = self.nb, self.method
-        for k in range(first, self.iterations + 1):
-            diff, g, w, f0, grad = self.linearize(P, k)
-            if method == "N-CSG":
-                U = P - self.alpha * grad if not nb.metres else P - step[:, None, None] * grad
-            elif method == "N-CLM":
-                assert self.lm is not None
-                U, step, nu = self.lm.step(P, diff, g, f0, grad, step, nu, w)
-            else:
-                start = self.bls_start() if method == "N-CSG-BLS" else step
-                step = self.search(diff, g, grad, f0, start, method == "N-CSG-TBLS")[0]
-                U = P - step[:, None, None] * grad
-            for _ in range(self.consensus_rounds):
-                U = self.mix.apply(U)
-            P = U
-            yield self.state(k, P, step, f0)
-
-
-def plan_neighbourhood(
-    problem: RangingData,
-    *,
-    method: str = "N-CSG",
-    exchange: Exchange | None = None,
-    iterations: int = 500,
-    alpha: float = 1e-3,
-    alpha0: float = 1e-2,
-    beta: float = 0.5,
-    gamma: float = 0.5,
-    lambda0: float = 1e-3,
-    consensus_rounds: int = 1,
-    weights: str | ConsensusWeights = "MH",
-    initial_m: np.ndarray | None = None,
-    max_backtracks: int = 40,
-    damping: str = "levenberg",
-    armijo_slope: str = "subgradient",
-    loss: str = "linear",
-    loss_scale_m: float = 0.3,
-    lambda_min: float = 0.1,
-    objective: str = "squared",
-    sigma_m: float | np.ndarray = 1.0,
-    graduated: int = 0,
-    range_offsets: str = "none",
-    offset_prior_sigma_m: float = 0.1,
-) -> tuple[NeighbourhoodPlan, np.ndarray, np.ndarray]:
-    """Check the options of :func:`iterate_neighbourhood` and set up its loop: ``(plan, P₀, step₀)``."""
-    method = method.upper()
-    if method not in ("N-CSG", "N-CSG-BLS", "N-CSG-TBLS", "N-CLM"):
-        raise ModelError(f"unknown neighbourhood method {method!r}")
-    init = check_start(problem, iterations, consensus_rounds, initial_m)
-    if not (alpha > 0 and alpha0 > 0 and lambda0 > 0 and lambda_min > 0):
-        raise ModelError("alpha, alpha0, lambda0 and lambda_min must be positive")
-    if loss not in LOSSES:
-        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-    if armijo_slope not in ("gradient", "subgradient"):
-        raise ModelError(f"armijo_slope must be 'gradient' or 'subgradient', got {armijo_slope!r}")
-    if damping not in ("levenberg", "fletcher"):
-        raise ModelError(f"damping must be 'levenberg' or 'fletcher', got {damping!r}")
-    if not (0 < beta < 1 and 0 < gamma < 1):
-        raise ModelError(f"beta and gamma must lie in (0, 1), got beta={beta}, gamma={gamma}")
-    if objective not in ("squared", "metres"):
-        raise ModelError(f"objective must be 'squared' or 'metres', got {objective!r}")
-    if graduated < 0:
-        raise ModelError(f"graduated must be ≥ 0 iterations, got {graduated}")
-    from distnav.algorithms.neighbourhood_offsets import check_offsets
-
-    check_offsets(range_offsets, offset_prior_sigma_m, objective)
-    ex = exchange_for(problem, exchange)
-    nb = Neighbourhoods(problem, ex, loss, loss_scale_m, objective, sigma_m)
-    w = mixing_weights(problem, weights)
-    nl = nb.nl
-    if nb.metres:  # steps relative to each anchor's information Σ σ⁻² (1 for an anchor without links)
-        info = np.bincount(nb.h_own, 1.0 / nb.h_sigma**2, minlength=nl)
-        unit = 1.0 / np.where(info > 0, info, 1.0)
-        alpha_i: float | np.ndarray = alpha * unit
-        alpha0_i: float | np.ndarray = alpha0 * unit
-    else:
-        alpha_i, alpha0_i = alpha, alpha0
-    plan = NeighbourhoodPlan(
-        nb,
-        Mixing(nb, ex, w),
-        w,
-        method,
-        iterations,
-        alpha,
-        alpha_i,
-        alpha0_i,
-        beta,
-        gamma,
-        max_backtracks,
-        2.0 if armijo_slope == "gradient" else 1.0,
-        loss,
-        graduated,
-        consensus_rounds,
-        LocalLM(nb, damping, lambda_min) if method == "N-CLM" else None,
-    )
-    if method == "N-CSG":
-        step = np.full(nl, float(alpha)) if not nb.metres else np.asarray(alpha_i, float).copy()
-    elif method == "N-CLM":
-        step = np.full(nl, float(lambda0))
-    else:
-        step = plan.bls_start()
-    return plan, nb.initial(init), step
-
-
-def iterate_neighbourhood(problem: RangingData, **options: Any) -> Iterator[IterationState]:
-    """Yield the state of N-CSG / N-CSG-BLS / N-CSG-TBLS / N-CLM after iterations 0, 1, …, ``iterations``.
-
-    The options (checked by :func:`plan_neighbourhood`) are ``method`` (``"N-CSG"`` default), ``exchange``,
-    ``iterations`` (500), ``alpha`` (1e-3), ``alpha0`` (1e-2), ``beta`` and ``gamma`` (1/2), ``lambda0`` (1e-3),
-    ``consensus_rounds`` (1), ``weights`` ("MH"), ``initial_m``, ``max_backtracks`` (40), ``damping``
-    ("levenberg"), ``armijo_slope`` ("subgradient"), ``loss`` ("linear"), ``loss_scale_m`` (0.3), ``lambda_min``
-    (0.1), ``objective`` ("squared"), ``sigma_m`` (1), ``graduated`` (0), ``range_offsets`` ("none", or
-    "common" / "per_anchor" with the metres objective: :mod:`distnav.algorithms.neighbourhood_offsets`) and
-    ``offset_prior_sigma_m`` (0.1).
-
-    See the module docstring for the equations (paper 002 eqs. (14)–(22)). ``loss="huber"|"cauchy"`` makes every
-    anchor minimise the robust partial objective ``Σ_{l∈E(i)} s_l² ρ((g_l/s_l)²)`` (``s_l = 2 d_l σ``,
-    ``σ = loss_scale_m``, as :func:`distnav.algorithms.nlsq.solve_lm`): the subgradient becomes ``G⁽ⁱ⁾ᵀW g⁽ⁱ⁾``
-    with IRLS weights ``w_l = ρ'`` computed by the anchor from its own estimates, the line searches test the
-    robust objective, and N-CLM solves the weighted normal equations.
-
-    ``objective="metres"``: every anchor fits the whitened range residuals ``(‖r_i − r_j‖ − d)/σ`` of its links
-    instead of ``g`` (the loss scale ``loss_scale_m`` then is in metres of range error for every link), and the
-    steps ``alpha`` / ``alpha0`` are relative to each anchor's own information, ``α_i = alpha / Σ_{l∈E(i)} σ_l⁻²``
-    (a gradient step of ``alpha ≤ 1`` is stable for the partial cost's Gauss–Newton curvature, whose largest
-    eigenvalue is at most ``2 Σ σ_l⁻²``); ``graduated = k`` runs the first ``k`` iterations with the linear loss.
-    """
-    plan, P, step = plan_neighbourhood(problem, **options)
-    nb = plan.nb
-    mode = options.get("range_offsets", "none")
-    if mode != "none":
-        from distnav.algorithms.neighbourhood_offsets import NeighbourhoodOffsets, loop_with_offsets
-
-        off = NeighbourhoodOffsets(nb, mode, float(options.get("offset_prior_sigma_m", 0.1)))
-        yield from loop_with_offsets(plan, off, P, step, np.full(nb.nl, 2.0))
-        return
-    diff, g = nb.geometry(P)
-    yield IterationState(0, P[:, 0].copy(), step.copy(), nb.partial_cost(g))
-    yield from plan.loop(P, step, np.full(nb.nl, 2.0), 1)

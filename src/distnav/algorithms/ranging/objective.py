@@ -2,7 +2,7 @@
 range-bias calibration (a common offset or per-anchor antenna delays with a prior).
 
 * ``"squared"`` (paper 002 eq. (6)): ``g_l = ‖r_a − r_b‖² − d_l²``, unweighted; a robust loss acts on ``g`` with the
-  scale ``s_l = 2 d_l σ_loss`` (:func:`~distnav.algorithms.nlsq.range_loss_scale`).
+  scale ``s_l = 2 d_l σ_loss`` (:func:`~distnav.algorithms.ranging.losses.range_loss_scale`).
 * ``"metres"``: ``e_l = ‖r_a − r_b‖ + b_l − d_l`` whitened by the range σ, ``r_l = e_l / σ_l`` (weight ``1/σ²``), a
   robust loss on ``r`` with the scale ``σ_loss / σ_l`` — i.e. it switches at range errors of about ``σ_loss``
   metres whatever the link's length. ``b_l`` is the range bias: 0, a common offset ``b`` (every range reads ``b``
@@ -21,7 +21,7 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from distnav.algorithms.ranging import RangingData
+from distnav.algorithms.ranging.data import RangingData
 from distnav.errors import ModelError
 
 __all__ = ["OFFSETS", "RangeObjective", "range_sigma"]

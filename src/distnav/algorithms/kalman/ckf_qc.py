@@ -32,7 +32,7 @@ from distnav.algorithms.kalman import InnovationTests
 from distnav.algorithms.statistics import w_statistics
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
-from distnav.exchange.base import CommTotals
+from distnav.exchange.core import CommTotals
 from distnav.typing import BoolArray, FloatArray, IntArray
 
 __all__ = [

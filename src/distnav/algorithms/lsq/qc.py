@@ -2,7 +2,7 @@
 
 **Precision.** The covariance of the BLUE is ``Q_x̂ = N⁻¹``, ``N = Σ_i N_i``: the solution ``X`` of
 ``Σ_i N_i X = I``. That is again a sum of per-node quadratic problems, ``min Σ_i ½ tr(Xᵀ N_i X) − tr(B_iᵀ X)`` with
-any split ``Σ_i B_i = I``, so the same constraint-node ADMM (Fig. 6, :mod:`distnav.algorithms.admm_kernel`) solves
+any split ``Σ_i B_i = I``, so the same constraint-node ADMM (Fig. 6, :mod:`distnav.algorithms.lsq.kernel`) solves
 it for all ``p`` columns at once: node ``i`` holds ``X_i`` (``p × p``), its x-update is the normal-equation form
 ``X_i = (N_i + c_i W)⁻¹ (B_i + c_i W L_i)`` (eq. (20) with a matrix right-hand side), and every message carries
 ``p²`` numbers instead of ``p``. The split is ``B_i = I/n`` (``n`` from the same consensus as below), so no node is
@@ -34,10 +34,10 @@ from typing import Unpack
 import numpy as np
 import scipy.sparse.csgraph as csgraph
 
-from distnav.algorithms import admm_driver as driver
-from distnav.algorithms.admm_driver import AdmmOptions, AdmmResult, PreparedRun, drive
-from distnav.algorithms.admm_kernel import _Kernel
-from distnav.algorithms.lsq import LinearProblem, weight_matrix
+from distnav.algorithms.lsq import driver as driver
+from distnav.algorithms.lsq.blue import LinearProblem, weight_matrix
+from distnav.algorithms.lsq.driver import AdmmOptions, AdmmResult, PreparedRun, drive
+from distnav.algorithms.lsq.kernel import _Kernel
 from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, w_statistics
 from distnav.errors import ModelError
@@ -142,7 +142,7 @@ def admm_precision(
 
     ``estimates`` ``(n, p)``: every node's converged ``x_i`` (e.g. ``admm(...).estimates``; a node reads its own
     row). ``active`` ``(n, m)``: observations still in the model (default: the problem's rows). ``W`` and
-    ``constraint_nodes`` as for :func:`~distnav.algorithms.admm.admm` (the same ρ suits both: the same ``N_i``).
+    ``constraint_nodes`` as for :func:`~distnav.algorithms.lsq.admm.admm` (the same ρ suits both: the same ``N_i``).
     ``init``: a previous :class:`PrecisionRun` to warm-start from (data snooping). ``reference_covariance``
     ``(p, p)``: the centralized ``N⁻¹``, for the trace and ``iterations_to`` of ``covariance_run`` only.
     The result's :class:`~distnav.algorithms.result.Precision` has ``kind="exact"`` (equal to the centralized value

@@ -1,6 +1,6 @@
 """The local Levenberg–Marquardt step of N-CLM (paper 002 eq. (22)), batched over a block's anchors.
 
-Split from :mod:`distnav.algorithms.neighbourhood` (which re-exports :class:`LocalLM`); see its docstring for
+Split from :mod:`distnav.algorithms.ranging.neighbourhood` (which re-exports :class:`LocalLM`); see its docstring for
 N-CLM as a whole.
 """
 
@@ -15,7 +15,7 @@ from distnav._blas import single_threaded_blas
 from distnav._sparse import csr_times
 
 if TYPE_CHECKING:
-    from distnav.algorithms.neighbourhood import Neighbourhoods
+    from distnav.algorithms.ranging.neighbourhoods import Neighbourhoods
 
 __all__ = ["LocalLM"]
 

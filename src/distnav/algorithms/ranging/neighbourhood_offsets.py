@@ -3,7 +3,7 @@
 The link model of the metres objective gains a bias: ``e_l = ‖r_a − r_b‖ + b_l − d_l`` (whitened by σ_l), with
 
 * ``"per_anchor"``: ``b_l = b_a + b_b``, every anchor's antenna delay ``b_i`` with the prior ``N(0, σ_b²)`` (the
-  convention of LM's ``range_offsets="per_anchor"``, :mod:`distnav.algorithms.ranging_objective`). Anchor ``i``
+  convention of LM's ``range_offsets="per_anchor"``, :mod:`distnav.algorithms.ranging.objective`). Anchor ``i``
   holds, next to its neighbourhood positions, an estimate of the offsets of itself and of its neighbours (one
   more float per slot of the neighbourhood vector; a message carries ``K·(dim + 1)`` floats instead of
   ``K·dim``) and mixes them with the positions in the same consensus round (eqs. (15), (18));
@@ -35,36 +35,22 @@ import numpy as np
 
 from distnav._blas import single_threaded_blas
 from distnav._sparse import csr_times
-from distnav.algorithms.neighbourhood import ArmijoTest, IterationState, Mixing, Neighbourhoods
-from distnav.algorithms.nlsq import loss_terms
-from distnav.algorithms.ranging import RangingData
-from distnav.algorithms.ranging_qc import free_block_inverses
-from distnav.errors import ModelError
+from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.losses import loss_terms
+from distnav.algorithms.ranging.neighbourhoods import ArmijoTest, IterationState, Mixing, Neighbourhoods
+from distnav.algorithms.ranging.qc import free_block_inverses
 from distnav.exchange import Exchange
 
 if TYPE_CHECKING:
-    from distnav.algorithms.local_lm import LocalLM
-    from distnav.algorithms.neighbourhood import NeighbourhoodPlan
+    from distnav.algorithms.ranging.local_lm import LocalLM
+    from distnav.algorithms.ranging.plan import NeighbourhoodPlan
 
 __all__ = [
-    "OFFSET_MODES",
     "NeighbourhoodOffsets",
-    "check_offsets",
     "loop_with_offsets",
     "offset_precision",
     "sample_bias",
 ]
-
-OFFSET_MODES = ("none", "common", "per_anchor")
-
-
-def check_offsets(range_offsets: str, offset_prior_sigma_m: float, objective: str) -> None:
-    if range_offsets not in OFFSET_MODES:
-        raise ModelError(f"range offsets must be one of {', '.join(OFFSET_MODES)}, got {range_offsets!r}")
-    if range_offsets != "none" and objective != "metres":
-        raise ModelError("range offsets are estimated with objective='metres' only")
-    if range_offsets == "per_anchor" and not offset_prior_sigma_m > 0:
-        raise ModelError(f"offset_prior_sigma_m must be positive, got {offset_prior_sigma_m}")
 
 
 class NeighbourhoodOffsets:
@@ -109,7 +95,7 @@ class NeighbourhoodOffsets:
 
 
 class OffsetArmijoTest(ArmijoTest):
-    """:class:`~distnav.algorithms.neighbourhood.ArmijoTest` with the offsets moving along ``α·dB`` too."""
+    """:class:`~distnav.algorithms.ranging.neighbourhoods.ArmijoTest` with the offsets moving along ``α·dB`` too."""
 
     def __init__(
         self,

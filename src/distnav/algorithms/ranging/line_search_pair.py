@@ -30,14 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.neighbourhood import (
-    ArmijoTest,
-    IterationState,
-    Mixing,
-    NeighbourhoodPlan,
-    plan_neighbourhood,
-)
-from distnav.algorithms.ranging import RangingData
+from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.neighbourhoods import ArmijoTest, IterationState, Mixing
+from distnav.algorithms.ranging.plan import NeighbourhoodPlan, plan_neighbourhood
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
@@ -91,7 +86,7 @@ def iterate_line_search_pair(
     """The BLS and the TBLS states after iterations 0, 1, …, ``iterations``: the same states as
     ``iterate_neighbourhood(problem, method="N-CSG-BLS", exchange=exchanges[0], **options)`` and ``…"N-CSG-TBLS",
     exchange=exchanges[1]…`` (see the module docstring); ``options`` as
-    :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood` without ``method``. The two iterators may
+    :func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood` without ``method``. The two iterators may
     be consumed in any order (the states one is ahead by are buffered)."""
     ex_b, ex_t = exchanges
     if ex_b is ex_t:

@@ -34,14 +34,7 @@ from typing import Literal
 
 import numpy as np
 
-from distnav.algorithms.ckf_qc import (
-    InnovationCollector,
-    NodeEpochTest,
-    innovation_test,
-    local_extra_bound,
-    local_extra_exact,
-)
-from distnav.algorithms.consensus import ConsensusSchedule, consensus_product, consensus_schedule
+from distnav.algorithms.consensus.averaging import ConsensusSchedule, consensus_product, consensus_schedule
 from distnav.algorithms.kalman import (
     DynamicModel,
     FilterResult,
@@ -53,17 +46,24 @@ from distnav.algorithms.kalman import (
     pseudo_inverse_psd,
     std_ratio,
 )
+from distnav.algorithms.kalman.ckf_qc import (
+    InnovationCollector,
+    NodeEpochTest,
+    innovation_test,
+    local_extra_bound,
+    local_extra_exact,
+)
 from distnav.algorithms.result import Precision, TraceBuilder
 from distnav.algorithms.statistics import critical_value
 from distnav.errors import ModelError, WeightsError
 from distnav.exchange import Exchange, make_exchange
-from distnav.exchange.base import CommTotals
+from distnav.exchange.core import CommTotals
 from distnav.network.graph import Graph, SwitchingGraph
 from distnav.network.weights import ConsensusWeights
 from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
 
 LocalPrecision = Literal["exact", "bound"]
-"""Node-local form of the Fig. 7 variance (:mod:`distnav.algorithms.ckf_qc`)."""
+"""Node-local form of the Fig. 7 variance (:mod:`distnav.algorithms.kalman.ckf_qc`)."""
 ConsensusProtocol = str | int | ConsensusWeights | Sequence[ConsensusWeights]
 """A consensus protocol: a Table 1 name or number (``"P1"``…``"P4"``), one weight object, or one per session."""
 
@@ -148,7 +148,7 @@ class CKFState:
     information, info_vector : ``I_i,t|t`` (k×p×p), ``i_i,t|t`` (k×p).
     estimates : ``x̂_i,t|t`` (NaN where not estimable); estimable : (k×p).
     covariance : ``P_i,t|t`` from Fig. 7 (k×p×p) or ``None`` without the variance recursion.
-    local_covariance : the node-local ``P_i,t|t`` (exact or bound, :mod:`distnav.algorithms.ckf_qc`) or ``None``.
+    local_covariance : the node-local ``P_i,t|t`` (exact or bound, :mod:`distnav.algorithms.kalman.ckf_qc`) or ``None``.
     tests : per local node, its innovation tests at this epoch (``None``: nothing tested); empty without tests.
     nominal_covariance : ``I_i,t|t⁺``. consensus_deviation : max over local nodes and entries of
     ``|N_i^(k_n) − N̄|``, ``|r_i^(k_n) − r̄|`` (monitoring).
@@ -192,7 +192,7 @@ def iterate_ckf(
     ``r_i^(k)`` (p(p+1)/2 + p floats).
 
     ``local_precision`` ("exact" or "bound") runs the node-local form of Fig. 7 from the messages alone
-    (:mod:`distnav.algorithms.ckf_qc`; it adds ``n (p(p+1)/2 + 1)`` resp. ``n`` floats to every message).
+    (:mod:`distnav.algorithms.kalman.ckf_qc`; it adds ``n (p(p+1)/2 + 1)`` resp. ``n`` floats to every message).
     ``test_level`` (needs ``local_precision`` and raw observations) makes every node test its predicted residuals
     at that level and reject outliers before they enter its consensus.
     """

@@ -1,7 +1,7 @@
 """Setting up and driving a Fig. 6 run: the options shared by every ADMM front door, written once, and the result.
 
-:class:`AdmmOptions` names the kernel options that :func:`~distnav.algorithms.admm.iterate_admm`,
-:func:`~distnav.algorithms.admm.admm` and the QC runs accept as keywords; :func:`prepare` validates them (before any
+:class:`AdmmOptions` names the kernel options that :func:`~distnav.algorithms.lsq.admm.iterate_admm`,
+:func:`~distnav.algorithms.lsq.admm.admm` and the QC runs accept as keywords; :func:`prepare` validates them (before any
 iteration) and builds the kernel's state generator; :func:`drive` runs a generator to the stopping rule and returns
 an :class:`AdmmResult`.
 """
@@ -14,9 +14,9 @@ from typing import Any, Literal, TypedDict, get_args
 
 import numpy as np
 
-from distnav.algorithms.admm_kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
-from distnav.algorithms.admm_xupdate import _diagonal_or_none
-from distnav.algorithms.lsq import LinearProblem, inestimable_directions, weight_matrix
+from distnav.algorithms.lsq.blue import LinearProblem, inestimable_directions, weight_matrix
+from distnav.algorithms.lsq.kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
+from distnav.algorithms.lsq.xupdate import _diagonal_or_none
 from distnav.algorithms.result import ObservationTests, Precision, SolverResult, SolverStatus, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
@@ -33,13 +33,14 @@ THRESHOLDS = (1e-4, 1e-6, 1e-8)
 
 
 class AdmmOptions(TypedDict, total=False):
-    """Keyword options of the Fig. 6 kernel (default in brackets); see :func:`~distnav.algorithms.admm.iterate_admm`.
+    """Keyword options of the Fig. 6 kernel (default in brackets); see
+    :func:`~distnav.algorithms.lsq.admm.iterate_admm`.
 
     ``constraint_nodes`` [``"min_cover"``]: ``"min_cover"``, ``"all"``, node ids or a
     :class:`~distnav.network.constraint_nodes.ConstraintNodes`. ``W`` [1.0]: ``ρ`` or an SPD ``(p, p)`` matrix.
-    ``x_update`` [``"auto"``]: see :class:`~distnav.algorithms.admm_kernel.XUpdate`. ``x_weight``
+    ``x_update`` [``"auto"``]: see :class:`~distnav.algorithms.lsq.kernel.XUpdate`. ``x_weight``
     [``"lagrangian"``]: ``"lagrangian"``, ``"fig6"`` or ``"fig6-zweighted"`` (module docstring of
-    :mod:`distnav.algorithms.admm`). ``messages`` [``"pairs"``]: ``"pairs"`` or ``"aggregated"``. ``init``
+    :mod:`distnav.algorithms.lsq.admm`). ``messages`` [``"pairs"``]: ``"pairs"`` or ``"aggregated"``. ``init``
     [``"zero"``] and ``z0`` [None]: initial values. ``monitor_every`` [1]: residuals every that many iterations.
     ``multipliers`` [None: ``u^[−1] = 0``]: a previous per-pair run's :attr:`AdmmResult.multipliers` (same exchange
     and constraint nodes) to continue from — a warm start of a changed problem (data snooping).
@@ -58,7 +59,7 @@ class AdmmOptions(TypedDict, total=False):
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class AdmmResult(SolverResult):
-    """Outcome of :func:`~distnav.algorithms.admm.admm` (and :func:`~distnav.algorithms.admm.admm_nonlinear`).
+    """Outcome of :func:`~distnav.algorithms.lsq.admm.admm` (and :func:`~distnav.algorithms.lsq.admm.admm_nonlinear`).
 
     Attributes (beyond :class:`~distnav.algorithms.result.SolverResult`)
     ----------
@@ -71,8 +72,8 @@ class AdmmResult(SolverResult):
     x_update : the x-update method run (``"normal"``, ``"observation"``, ``"cholesky"`` or the nonlinear one).
     x_weight : the weighting of the x-update (``"lagrangian"``, ``"fig6"``, ``"fig6-zweighted"``).
     messages : ``"pairs"`` or ``"aggregated"``.
-    precision : the covariance blocks and variance factor when computed (:mod:`distnav.algorithms.lsq_qc`).
-    tests : the observation tests when data snooping ran (:mod:`distnav.algorithms.lsq_qc`).
+    precision : the covariance blocks and variance factor when computed (:mod:`distnav.algorithms.lsq.qc`).
+    tests : the observation tests when data snooping ran (:mod:`distnav.algorithms.lsq.qc`).
     multipliers : this exchange block's final ``u_{i,s}`` (per-pair runs; None for aggregated messages), for a
         warm start that keeps them (option ``multipliers``).
     """
@@ -232,7 +233,7 @@ def drive(
     stop_at_reference: float | None,
     record_nodes: bool,
 ) -> AdmmResult:
-    """Run a prepared state generator to the stopping rule of :func:`~distnav.algorithms.admm.admm`, tracing as it
+    """Run a prepared state generator to the stopping rule of :func:`~distnav.algorithms.lsq.admm.admm`, tracing as it
     goes."""
     gen, ex, C, p = run.states, run.exchange, run.constraint_nodes, run.p
     ref = None

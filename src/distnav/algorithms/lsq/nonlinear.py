@@ -4,7 +4,7 @@ A :class:`NonlinearProblem` holds ``y_i = F_i(x) + e_i`` per node with a model g
 (:class:`RangeModel`: ranges from known nodes to unknown targets). :func:`gauss_newton` is the centralized
 (fusion-centre) reference; :func:`admm_linearized` runs Fig. 6 on the increments of a common linearization and
 updates it; :func:`admm_nonlinear` replaces the linear x-update by a few regularized Gauss–Newton steps (eq. (23))
-on the same kernel (:mod:`distnav.algorithms.admm_kernel`).
+on the same kernel (:mod:`distnav.algorithms.lsq.kernel`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from typing import Literal, Protocol
 
 import numpy as np
 
-from distnav.algorithms.admm_driver import (
+from distnav.algorithms.lsq.blue import LinearProblem, weight_matrix
+from distnav.algorithms.lsq.driver import (
     AdmmOptions,
     AdmmResult,
     PreparedRun,
@@ -24,12 +25,11 @@ from distnav.algorithms.admm_driver import (
     initial_values,
     prepare,
 )
-from distnav.algorithms.admm_kernel import _Kernel, _per_node
-from distnav.algorithms.lsq import LinearProblem, weight_matrix
+from distnav.algorithms.lsq.kernel import _Kernel, _per_node
 from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
-from distnav.exchange.base import CommTotals
+from distnav.exchange.core import CommTotals
 from distnav.network.constraint_nodes import ConstraintNodes, ConstraintNodeSpec
 from distnav.network.graph import Graph
 from distnav.typing import ArrayLike, FloatArray

@@ -11,13 +11,13 @@ exchange (:mod:`distnav.exchange`); all arrays below are local to the exchange's
   whole vector: its size grows with the *network*.
 * **N-CSG** (eqs. (14)–(18)), **N-CSG + BLS / TBLS** (eqs. (19)–(21)) and **N-CLM** (eq. (22)): every anchor holds
   only itself and its neighbours (messages grow with the *neighbourhood*); the equations and the machinery
-  (index maps, mixing, line searches, local LM) are in :mod:`distnav.algorithms.neighbourhood`. This module has
+  (index maps, mixing, line searches, local LM) are in :mod:`distnav.algorithms.ranging.neighbourhood`. This module has
   CSG and the front doors (:func:`solve_csg`, :func:`solve_ncsg`, :func:`solve_nclm`, :func:`solve`), which
-  return a :class:`~distnav.algorithms.ranging.RangingResult` (status ``"max_iterations"``, or ``"diverged"``
+  return a :class:`~distnav.algorithms.ranging.data.RangingResult` (status ``"max_iterations"``, or ``"diverged"``
   when the estimates blow up).
 
 Fixed anchors take part (they measure and relay) but their coordinates, and any held coordinate, are never changed.
-Range offsets (``range_offsets``, metres objective): :mod:`distnav.algorithms.neighbourhood_offsets`.
+Range offsets (``range_offsets``, metres objective): :mod:`distnav.algorithms.ranging.neighbourhood_offsets`.
 Paper defaults: 500 iterations, ``α = 1e-3``, ``α₀ = 1e-2``, ``β = γ = 1/2``, one consensus round.
 """
 
@@ -32,22 +32,24 @@ import numpy as np
 import scipy.sparse as sp
 
 from distnav._sparse import csr_times
-from distnav.algorithms.line_search_pair import iterate_line_search_pair
-from distnav.algorithms.neighbourhood import (
+from distnav.algorithms.ranging.data import RangingData, RangingResult
+from distnav.algorithms.ranging.line_search_pair import iterate_line_search_pair
+from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.losses import LOSSES, loss_terms, range_loss_scale
+from distnav.algorithms.ranging.neighbourhood import iterate_neighbourhood
+from distnav.algorithms.ranging.neighbourhood_offsets import offset_precision, sample_bias
+from distnav.algorithms.ranging.neighbourhoods import (
     IterationState,
     check_start,
     exchange_for,
     half_measurements,
-    iterate_neighbourhood,
     mixing_weights,
 )
-from distnav.algorithms.neighbourhood_offsets import check_offsets, offset_precision, sample_bias
-from distnav.algorithms.nlsq import LOSSES, loss_terms, range_loss_scale, solve_lm
-from distnav.algorithms.ranging import RangingData, RangingResult
-from distnav.algorithms.ranging_objective import range_sigma
-from distnav.algorithms.ranging_qc import DISTRIBUTED_TEST_SCALES, distributed_quality
-from distnav.algorithms.ranging_refine import refine_state
-from distnav.algorithms.ranging_stop import StopRule
+from distnav.algorithms.ranging.objective import range_sigma
+from distnav.algorithms.ranging.plan import check_offsets
+from distnav.algorithms.ranging.qc import DISTRIBUTED_TEST_SCALES, distributed_quality
+from distnav.algorithms.ranging.refine import refine_state
+from distnav.algorithms.ranging.stop import StopRule
 from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -124,10 +126,10 @@ def iterate_csg(
     """Yield the CSG state after iterations 0 (start), 1, …, ``iterations`` (paper 002 eqs. (10)–(12)).
 
     ``objective="metres"``: the residuals are ``(‖r_a − r_b‖ − d)/σ`` and ``α`` is relative to each anchor's
-    information ``Σ_{l∈E(i)} σ_l⁻²`` (as in :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`).
+    information ``Σ_{l∈E(i)} σ_l⁻²`` (as in :func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood`).
     ``range_offsets`` (metres): every anchor also holds every anchor's offset (``"per_anchor"``, prior counted
     twice in its own partial cost) or its copy of the common one, mixed in the same round (the conventions of
-    :mod:`distnav.algorithms.neighbourhood_offsets`)."""
+    :mod:`distnav.algorithms.ranging.neighbourhood_offsets`)."""
     check_offsets(range_offsets, offset_prior_sigma_m, objective)
     init = check_start(problem, iterations, consensus_rounds, initial_m)
     if not alpha > 0:
@@ -252,7 +254,7 @@ class _Setup:
 
     @property
     def refines(self) -> bool:
-        """Whether a final distributed LM phase runs (:mod:`distnav.algorithms.ranging_refine`): ``refine``, by
+        """Whether a final distributed LM phase runs (:mod:`distnav.algorithms.ranging.refine`): ``refine``, by
         default with the metres objective and a stopping rule (never in the paper's mode)."""
         return bool(self.refine) if self.refine is not None else self.objective == "metres" and self.stop is not None
 
@@ -490,7 +492,7 @@ def solve_csg(
     stability bound 1 of the Gauss–Newton curvature).
     CSG has no robust loss (Koppanyi's algorithm; the neighbourhood solvers do). ``stop``: the stopping rule
     (:class:`StopRule`; ``None`` runs all ``iterations`` as in the paper). ``quality`` adds the conditional
-    per-anchor covariance and the w-tests of every anchor's own links (:mod:`distnav.algorithms.ranging_qc`).
+    per-anchor covariance and the w-tests of every anchor's own links (:mod:`distnav.algorithms.ranging.qc`).
     ``monitor_every = k`` gathers the estimates for the trace (and the stopping and divergence tests) only every
     ``k``-th iteration (NaN rows otherwise; 0: start and end only); see :func:`_run`."""
     setup = _Setup(
@@ -558,10 +560,10 @@ def solve_ncsg(
     Trace, ``stop``, ``quality`` and ``monitor_every`` as :func:`solve_csg`; ``step_size`` is the mean ``α`` over
     anchors (paper 002 Fig. 6). Steps: squared ``alpha = 1e-3``, ``alpha0 = 1e-2`` (the paper's), metres
     ``alpha = 0.8``, ``alpha0 = 2`` (the Armijo test keeps it safe; 4 oscillates) relative to each anchor's
-    information (see :func:`~distnav.algorithms.neighbourhood.iterate_neighbourhood`). ``graduated``: iterations
+    information (see :func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood`). ``graduated``: iterations
     with the linear loss before the robust one (default: a quarter of ``iterations`` for metres with a robust loss,
     else 0). ``range_offsets`` ``"common"`` / ``"per_anchor"`` (metres; prior σ ``offset_prior_sigma_m``):
-    range offsets estimated with the positions (:mod:`distnav.algorithms.neighbourhood_offsets`).
+    range offsets estimated with the positions (:mod:`distnav.algorithms.ranging.neighbourhood_offsets`).
     ``armijo_slope="subgradient"`` (default, the papers README's eq. (19): ``d = −∇f``, "the subgradient") puts
     the subgradient ``G⁽ⁱ⁾ᵀg⁽ⁱ⁾`` of eq. (10) in place of ``∇f⁽ⁱ⁾`` in the Armijo test, i.e. requires
     ``f⁽ⁱ⁾(x + αd) ≤ f⁽ⁱ⁾(x) − γα‖d‖²``; this reproduces the paper's Fig. 6 step sizes (≈1.2e-3 on RC/RM).
@@ -638,7 +640,7 @@ def solve_line_search_pair(
 ) -> tuple[RangingResult, RangingResult]:
     """N-CSG-BLS and N-CSG-TBLS: the results of ``solve_ncsg(problem, line_search="BLS", exchange=exchanges[0],
     **options)`` and of ``line_search="TBLS"`` on ``exchanges[1]``, computing the work the two runs provably share
-    once (:mod:`distnav.algorithms.line_search_pair`). ``options``: those of :func:`solve_ncsg`."""
+    once (:mod:`distnav.algorithms.ranging.line_search_pair`). ``options``: those of :func:`solve_ncsg`."""
     if "line_search" in options or "exchange" in options:
         raise ModelError(
             "solve_line_search_pair runs BLS and TBLS: pass exchanges=(bls, tbls), not line_search or exchange"

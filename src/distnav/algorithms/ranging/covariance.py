@@ -1,6 +1,6 @@
 """LM's central per-anchor covariance, computed by the anchors through the exchange (issue 13 item 3).
 
-The 2-hop sub-network σ of :mod:`distnav.algorithms.ranging_precision` cut the chain to the known anchors: on
+The 2-hop sub-network σ of :mod:`distnav.algorithms.ranging.precision` cut the chain to the known anchors: on
 plant-like halls with the known anchors in a corner they were 0.67–0.88 × LM's central σ and covered 2σ in 85 %
 (docs/uwb.md, "Distributed solvers in the workflow"). Here every anchor obtains its own block of LM's
 
@@ -11,7 +11,7 @@ plant-like halls with the known anchors in a corner they were 0.67–0.88 × LM'
 per-anchor range offsets) by solving ``N X = [E, JᵀWG]`` with **conjugate gradients on all the right-hand sides
 at once**: ``E`` holds one unit column per free coordinate of the network (anchor ``i`` needs ``X``'s rows of its
 own coordinates in its own columns, ``Q_ii``), ``JᵀWG`` one column per anchor's delay (each anchor's rows are its
-own links: local). Every CG iteration is one matrix–product round of :class:`~distnav.algorithms.ranging_refine.
+own links: local). Every CG iteration is one matrix–product round of :class:`~distnav.algorithms.ranging.refine.
 NormalSystem` (the final distributed LM phase's product, undamped) — a broadcast of ``P · k`` floats per link,
 ``k = n_free + n`` columns — plus two network totals of ``2k`` floats per anchor (the CG scalars of every column;
 in-process and MPI assemble them in the anchors' order, so the bits agree). Each anchor then holds ``X``'s rows of
@@ -39,11 +39,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from distnav.algorithms.neighbourhood import checked_estimates, exchange_for
-from distnav.algorithms.nlsq import LOSSES, loss_terms
-from distnav.algorithms.ranging import RangingData
-from distnav.algorithms.ranging_objective import range_sigma
-from distnav.algorithms.ranging_refine import Links, NormalSystem, block_preconditioner, jacobian_rows, pcg
+from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.losses import LOSSES, loss_terms
+from distnav.algorithms.ranging.neighbourhoods import checked_estimates, exchange_for
+from distnav.algorithms.ranging.objective import range_sigma
+from distnav.algorithms.ranging.refine import Links, NormalSystem, block_preconditioner, jacobian_rows, pcg
 from distnav.algorithms.result import Precision
 from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError

@@ -1,5 +1,5 @@
-"""When the distributed UWB solvers stop (:class:`StopRule`; used by :mod:`distnav.algorithms.csg` and re-exported
-there)."""
+"""When the distributed UWB solvers stop (:class:`StopRule`; used by :mod:`distnav.algorithms.ranging.csg`
+and re-exported there)."""
 
 from __future__ import annotations
 

@@ -6,7 +6,7 @@
 vectors instead of 10⁵ LAPACK calls. The gains equal those of LAPACK's ``inv`` to rounding (≈ 1e-15 relative,
 growing with the condition number of ``S_i``; tests/test_admm_setup.py), not bitwise; every node's arithmetic is
 elementwise over the node axis, so they do not depend on how the nodes are split into ranks or blocks (the MPI and
-in-process backends stay bitwise equal). Split from :mod:`distnav.algorithms.admm_kernel`, which re-exports it.
+in-process backends stay bitwise equal). Split from :mod:`distnav.algorithms.lsq.kernel`, which re-exports it.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Literal
 
 import numpy as np
 
-from distnav.algorithms.lsq import LinearProblem
+from distnav.algorithms.lsq.blue import LinearProblem
 from distnav.errors import ModelError
 
 __all__ = ["SMALL_M", "XUpdate", "XUpdateMethod", "observation_gain"]

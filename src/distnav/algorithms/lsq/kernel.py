@@ -3,9 +3,9 @@
 :class:`XUpdate` is the linear x-update (eqs. (20)/(21)); :class:`AdmmState` what an iteration yields; the private
 ``_Kernel`` runs the iterations as message rounds (per-pair messages exactly as Fig. 6, or aggregated ones) and
 holds the last value received on every edge when messages are lost. The x-update lives in
-:mod:`distnav.algorithms.admm_xupdate` (re-exported here). The front doors are
-:func:`distnav.algorithms.admm.admm` and :func:`~distnav.algorithms.admm.iterate_admm`; the module docstring of
-:mod:`distnav.algorithms.admm` describes the iteration and the weighting of the x-update.
+:mod:`distnav.algorithms.lsq.xupdate` (re-exported here). The front doors are
+:func:`distnav.algorithms.lsq.admm.admm` and :func:`~distnav.algorithms.lsq.admm.iterate_admm`; the module docstring of
+:mod:`distnav.algorithms.lsq.admm` describes the iteration and the weighting of the x-update.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from distnav._optional import lazy
-from distnav.algorithms.admm_xupdate import XUpdate, XUpdateMethod
+from distnav.algorithms.lsq.xupdate import XUpdate, XUpdateMethod
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.constraint_nodes import ConstraintNodes

@@ -1,8 +1,8 @@
-"""The damped normal-equation solves of global LM (:func:`~distnav.algorithms.nlsq.levenberg_marquardt`).
+"""The damped normal-equation solves of global LM (:func:`~distnav.algorithms.ranging.lm.levenberg_marquardt`).
 
 ``(GᵀWG + λ diag(GᵀWG)) δ = −GᵀWg`` (paper 002 eq. (8), Fletcher's scaling) for one fixed sparsity pattern of ``G``:
 banded Cholesky (reverse Cuthill–McKee order), bordered (a few dense columns by their Schur complement), dense
-Cholesky or SuperLU. Split from :mod:`distnav.algorithms.nlsq` (which uses :class:`DampedSolver`).
+Cholesky or SuperLU. Split from :mod:`distnav.algorithms.ranging.lm` (which uses :class:`DampedSolver`).
 """
 
 from __future__ import annotations

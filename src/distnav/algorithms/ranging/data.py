@@ -3,8 +3,8 @@
 :class:`RangingData` is the one definition of what a UWB solver needs from a ranging problem: the arrays (anchor
 positions, free coordinates, range samples) and the model of paper 002 computed from them (residuals eq. (6),
 cost eqs. (2), (5), Jacobian eq. (9), the measurement graph). :class:`distnav.models.uwb.problems.RangingProblem`
-extends it with validation, a name and the generators; the solvers in :mod:`distnav.algorithms.nlsq` and
-:mod:`distnav.algorithms.csg` take any :class:`RangingData` (``algorithms`` never imports ``models``).
+extends it with validation, a name and the generators; the solvers in :mod:`distnav.algorithms.ranging.lm` and
+:mod:`distnav.algorithms.ranging.csg` take any :class:`RangingData` (``algorithms`` never imports ``models``).
 
 :class:`RangingResult` is what LM and the CSG family return.
 """
@@ -192,7 +192,7 @@ class RangingData:
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class RangingResult(SolverResult):
-    """Outcome of LM (:func:`~distnav.algorithms.nlsq.solve_lm`) or a CSG-family solver (:mod:`~.csg`).
+    """Outcome of LM (:func:`~distnav.algorithms.ranging.lm.solve_lm`) or a CSG-family solver (:mod:`~.csg`).
 
     ``estimates`` are the ``(n, dim)`` anchor positions (for the distributed solvers: every anchor's estimate of
     itself). ``status`` is ``"converged"`` (LM's stopping rule met), ``"max_iterations"`` (the iteration budget
