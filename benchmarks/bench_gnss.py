@@ -92,7 +92,7 @@ def _reading(quick: bool) -> list[dict[str, Any]]:
         return [{"name": "read RINEX 3 day", "note": f"skipped: {f} absent"}]
     import georinex as gr
 
-    from distnav.models.gnss.rinex import read_code_observations
+    from distnav.formats.gnss.rinex import read_code_observations
 
     tlim = ("2024-01-10T00:00", "2024-01-10T01:00") if quick else None
     kw = {"tlim": tlim} if tlim else {}
@@ -129,7 +129,7 @@ def _reading_navigation() -> dict[str, Any]:
     ``georinex.load`` alone (imported before timing; the import itself is ≈ 1.5 s CPU more), CPU time."""
     import georinex as gr
 
-    from distnav.models.gnss.rinex import read_navigation
+    from distnav.formats.gnss.rinex import read_navigation
 
     f = SHARED / "igs_2024010_bele_dgar" / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"
 
@@ -181,8 +181,8 @@ def _ionosphere_run(
 
     from distnav.commands.gnss import default_graph
     from distnav.commands.gnss_ionosphere import network_from_observations
-    from distnav.models.gnss.gfnetwork import read_stations, run_bias_filters
-    from distnav.models.gnss.rinex import read_navigation
+    from distnav.formats.gnss.rinex import read_navigation, read_stations
+    from distnav.models.gnss.gfnetwork import run_bias_filters
 
     t0, c0 = time.perf_counter(), time.process_time()
     obs = read_stations(
@@ -245,7 +245,7 @@ def _orbits() -> list[dict[str, Any]]:
     d = SHARED / "esbc_2020177_single_station_L5_sp3"
     if not d.exists():
         return [{"name": "orbits", "note": "skipped: shared data absent"}]
-    from distnav.models.gnss.rinex import read_navigation, read_sp3
+    from distnav.formats.gnss.rinex import read_navigation, read_sp3
 
     nav = read_navigation(d / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz")
     sp3 = read_sp3([d / "GRG0MGXFIN_20201760000_01D_15M_ORB.SP3.gz", d / "GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz"])

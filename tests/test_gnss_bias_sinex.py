@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from distnav.errors import DataFileError, ModelError
-from distnav.models.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, resolve_dsb
+from distnav.formats.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, resolve_dsb
 
 IGS = "gnss/igs_2024010_bele_dgar"
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from distnav.errors import ModelError
+from distnav.formats.gnss.rinex import read_code_observations, read_navigation
 from distnav.models.gnss.codebias import (
     CodeBiasData,
     codebias_data_from_observations,
@@ -19,7 +20,6 @@ from distnav.models.gnss.codebias import (
 from distnav.models.gnss.geometry import geodetic_to_ecef
 from distnav.models.gnss.observables import codebias_coefficients
 from distnav.models.gnss.orbits import synthetic_gps_constellation
-from distnav.models.gnss.rinex import read_code_observations, read_navigation
 
 
 def _network(rng: np.random.Generator, n: int = 5, epochs: int = 60, lat_span: float = 40.0) -> CodeBiasData:

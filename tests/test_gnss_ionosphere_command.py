@@ -235,7 +235,7 @@ def test_single_station_with_sp3(shared_data: Path, tmp_path: Path) -> None:
 def test_errors_name_the_file(shared_data: Path, tmp_path: Path) -> None:
     from distnav.commands.gnss_ionosphere import network_data
     from distnav.errors import DataFileError, ModelError
-    from distnav.models.gnss.rinex import read_navigation
+    from distnav.formats.gnss.rinex import read_navigation
 
     d, obs = _nl(shared_data)
     nav = read_navigation(d / "cbw10010.21n.gz", max_age_s=24 * 3600.0)
@@ -253,9 +253,9 @@ def test_errors_name_the_file(shared_data: Path, tmp_path: Path) -> None:
 
 
 def test_c1_corrections_from_a_product(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from distnav.models.gnss.bias_sinex import read_bias_sinex
-    from distnav.models.gnss.products import correct_c1
-    from distnav.models.gnss.rinex import read_code_observations
+    from distnav.formats.gnss.bias_sinex import read_bias_sinex
+    from distnav.formats.gnss.product_files import correct_c1
+    from distnav.formats.gnss.rinex import read_code_observations
 
     d = shared_data / IGS
     cas = d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"

@@ -87,8 +87,8 @@ def test_screening_equals_centralized_data_snooping(rng: np.random.Generator) ->
 
 
 def test_real_rinex_levelled_noise_far_below_raw(shared_data: Path) -> None:
+    from distnav.formats.gnss.rinex import read_code_observations
     from distnav.models.gnss.orbits import gps_seconds
-    from distnav.models.gnss.rinex import read_code_observations
 
     o = read_code_observations(
         shared_data / "gnss/igs_2024010_bele_dgar/dgar0100.24o.gz",

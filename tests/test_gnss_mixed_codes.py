@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 
 from distnav.commands.gnss_ionosphere import network_from_observations
-from distnav.models.gnss.bias_sinex import read_bias_sinex, write_bias_sinex
+from distnav.formats.gnss.bias_sinex import read_bias_sinex, write_bias_sinex
+from distnav.formats.gnss.product_files import correct_c1, product_dsbs
 from distnav.models.gnss.constants import C_M_S
 from distnav.models.gnss.gfnetwork import final_dsbs, run_bias_filters
 from distnav.models.gnss.netsim import simulate_network
 from distnav.models.gnss.orbits import synthetic_gps_constellation
-from distnav.models.gnss.products import compare_in_datum, correct_c1, product_dsbs
+from distnav.models.gnss.products import compare_in_datum
 
 TWO = {"SIMA": (49.14, 12.88, 650.0), "SIMB": (50.80, 10.20, 400.0)}
 RX_C1C_C1W_NS = 2.3  # SIMB's own C1C−C1W (as CAS gives DGAR 2.317 ns)

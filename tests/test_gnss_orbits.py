@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from distnav.errors import DataFileError, ModelError
+from distnav.formats.gnss.rinex import read_navigation, read_sp3
 from distnav.models.gnss.constants import GM_M3_S2
 from distnav.models.gnss.geometry import ecef_to_geodetic
 from distnav.models.gnss.orbits import (
@@ -20,7 +21,6 @@ from distnav.models.gnss.orbits import (
     lagrange_interpolate,
     synthetic_gps_constellation,
 )
-from distnav.models.gnss.rinex import read_navigation, read_sp3
 
 ESBC = "gnss/esbc_2020177_single_station_L5_sp3"
 IGS = "gnss/igs_2024010_bele_dgar"

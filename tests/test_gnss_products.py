@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from distnav.cli import main
-from distnav.models.gnss.bias_sinex import read_bias_sinex, sinex_time, write_bias_sinex
-from distnav.models.gnss.products import ProductDSB, compare_in_datum, product_day, product_dsbs
+from distnav.formats.gnss.bias_sinex import read_bias_sinex, sinex_time, write_bias_sinex
+from distnav.formats.gnss.product_files import product_day, product_dsbs
+from distnav.models.gnss.products import ProductDSB, compare_in_datum
 
 SATS = {"G01": (-7.1874, 0.0123), "G05": (2.5, 0.02), "G32": (-0.0004, 0.3)}
 STAS = {"BELE": (0.019, 0.15), "DGAR": (3.521, 0.0735)}

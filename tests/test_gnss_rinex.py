@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from distnav.errors import DataFileError
-from distnav.models.gnss.rinex import read_code_observations
+from distnav.formats.gnss.rinex import read_code_observations
 
 NL = "gnss/nl_2021001_short_network_snapshot"
 IGS = "gnss/igs_2024010_bele_dgar"

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from distnav.errors import DataFileError
+from distnav.formats.gnss.rinex_nav import GPS_NAV_FIELDS, read_gps_ephemerides
 from distnav.models.gnss.orbits import BroadcastOrbit, gps_seconds
-from distnav.models.gnss.rinex_nav import GPS_NAV_FIELDS, read_gps_ephemerides
 
 NAV_FILES = (
     "gnss/igs_2024010_bele_dgar/BRDC00IGS_R_20240100000_01D_MN.rnx.gz",  # RINEX 3.04, merged multi-GNSS

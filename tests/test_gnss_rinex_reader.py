@@ -1,4 +1,4 @@
-"""The own RINEX observation reader (distnav.models.gnss.rinex_obs) against georinex, latin-1 headers, progress."""
+"""The own RINEX observation reader (distnav.formats.gnss.rinex_obs) against georinex, latin-1 headers, progress."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from distnav.errors import DataFileError
-from distnav.models.gnss.rinex import read_code_observations
-from distnav.models.gnss.rinex_obs import read_observation_types
+from distnav.formats.gnss.rinex import read_code_observations
+from distnav.formats.gnss.rinex_obs import read_observation_types
 
 IGS = "gnss/igs_2024010_bele_dgar"
 NL = "gnss/nl_2021001_short_network_snapshot"

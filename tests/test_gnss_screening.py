@@ -12,8 +12,8 @@ IGS = "gnss/igs_2024010_bele_dgar"
 
 def test_gross_errors_at_one_station_move_no_dcb_by_more_than_0_1_ns(shared_data: Path) -> None:
     from distnav.commands.gnss_ionosphere import network_from_observations
-    from distnav.models.gnss.gfnetwork import read_stations, run_bias_filters
-    from distnav.models.gnss.rinex import read_navigation
+    from distnav.formats.gnss.rinex import read_navigation, read_stations
+    from distnav.models.gnss.gfnetwork import run_bias_filters
 
     d = shared_data / IGS
     nav = read_navigation(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz", max_age_s=4 * 3600.0)

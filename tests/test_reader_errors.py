@@ -86,7 +86,7 @@ APRIL = (
 
 
 def _bias_sinex() -> str:
-    from distnav.models.gnss.bias_sinex import write_bias_sinex
+    from distnav.formats.gnss.bias_sinex import write_bias_sinex
 
     text = write_bias_sinex(
         None,
@@ -132,31 +132,31 @@ def _sp3_head(text: list[str]) -> int:
 
 # ------------------------------------------------------------------------------------------------- readers
 def _read_r2(p: Path) -> Any:
-    from distnav.models.gnss.rinex import read_code_observations
+    from distnav.formats.gnss.rinex import read_code_observations
 
     return read_code_observations(p, bands=(1, 2))
 
 
 def _read_nav(p: Path) -> Any:
-    from distnav.models.gnss.rinex import read_navigation
+    from distnav.formats.gnss.rinex import read_navigation
 
     return read_navigation(p)
 
 
 def _read_sp3(p: Path) -> Any:
-    from distnav.models.gnss.rinex import read_sp3
+    from distnav.formats.gnss.rinex import read_sp3
 
     return read_sp3(p)
 
 
 def _read_bia(p: Path) -> Any:
-    from distnav.models.gnss.bias_sinex import read_bias_sinex
+    from distnav.formats.gnss.bias_sinex import read_bias_sinex
 
     return read_bias_sinex(p)
 
 
 def _read_ionex(p: Path) -> Any:
-    from distnav.models.gnss.bias_sinex import read_ionex_dcb
+    from distnav.formats.gnss.bias_sinex import read_ionex_dcb
 
     return read_ionex_dcb(p)
 
@@ -481,7 +481,7 @@ def test_enough_cases() -> None:
 # ------------------------------------------------------------------------------------------------------ CLI
 def _cli_cases(tmp: Path, shared: Path | None) -> list[tuple[str, list[str], Path]]:
     """(id, argv, the corrupted file) through the commands that read each format."""
-    from distnav.models.gnss.bias_sinex import write_bias_sinex
+    from distnav.formats.gnss.bias_sinex import write_bias_sinex
 
     good_bia = tmp / "good.bia"
     write_bias_sinex(

@@ -4,7 +4,7 @@
     distnav gnss compare --estimates DIR/codebias.json --bias FILE [FILE...] [--out DIR]
 
 ``codebias`` reads RINEX 2.11/3.x observation files (Hatanaka/gzip too), forms the triple-frequency code-bias
-observable of paper 000 eq. (24) per station (L1/L2/L5 codes chosen per :data:`~distnav.models.gnss.rinex.
+observable of paper 000 eq. (24) per station (L1/L2/L5 codes chosen per :data:`~distnav.formats.gnss.rinex.
 CODE_PREFERENCE`), estimates the satellite code biases in the S-basis of §5.1 (the first station's bias lumped into
 the satellites) centrally and by ADMM over the given (or a default nearest-neighbour) graph, and writes
 ``codebias.csv`` and ``codebias.json``. ``compare`` turns the DSBs of published Bias-SINEX products into the same
@@ -108,10 +108,10 @@ def _parse_codes(text: str | None) -> dict[int, str]:
 def _run_codebias(args: argparse.Namespace) -> int:
     from distnav.algorithms.lsq.admm import admm
     from distnav.algorithms.lsq.blue import blue
+    from distnav.formats.gnss.rinex import read_code_observations, read_navigation, read_sp3
     from distnav.models.gnss.codebias import codebias_data_from_observations
     from distnav.models.gnss.constants import NS_TO_M
     from distnav.models.gnss.observables import codebias_coefficients, mu_coefficients
-    from distnav.models.gnss.rinex import read_code_observations, read_navigation, read_sp3
     from distnav.output import atomic_write_json, atomic_write_text
 
     _check_codebias_arguments(args)
@@ -228,12 +228,12 @@ def compare_with_products(estimates: dict[str, Any], bias_files: list[Path]) -> 
     """Compare estimated satellite code biases (``codebias.json`` content) with Bias-SINEX products.
 
     The product value of satellite s is ``b^s = −c₂·DSB(L1−L2) − DSB(L1−L5)`` with the reference station's codes,
-    DSBs chained across the products by :func:`~distnav.models.gnss.bias_sinex.resolve_dsb` (first product
+    DSBs chained across the products by :func:`~distnav.formats.gnss.bias_sinex.resolve_dsb` (first product
     preferred). Datum alignment: ``zero_mean`` removes the mean of the differences over the common satellites;
     ``s_basis`` adds the product's DSB combination of the reference station (``x_s = b^s + b_ref``), when the
     product has it. Differences are estimate − product, in ns.
     """
-    from distnav.models.gnss.bias_sinex import read_bias_sinex, resolve_dsb
+    from distnav.formats.gnss.bias_sinex import read_bias_sinex, resolve_dsb
 
     products = [read_bias_sinex(p) for p in bias_files]
     c = np.asarray(estimates["coefficients"], dtype=float)
@@ -357,7 +357,7 @@ def _run_compare(args: argparse.Namespace) -> int:
 def _run_compare_days(args: argparse.Namespace, path: Path) -> int:
     """``gnss compare`` of a several-day ``gnss ionosphere`` output: each day's solution against the products of
     that day (a product whose name tells no day is used for every day)."""
-    from distnav.models.gnss.products import product_day
+    from distnav.formats.gnss.product_files import product_day
     from distnav.output import atomic_write_json
 
     days = sorted(p.name for p in path.iterdir() if p.is_dir() and (p / "summary.json").exists())
@@ -400,7 +400,8 @@ def _run_compare_dsb(args: argparse.Namespace, path: Path) -> int:
 
 def _compare_dsb(args: argparse.Namespace, path: Path, bias: list[str]) -> dict[str, Any]:
     from distnav.commands.gnss_report import print_worst_vs_product
-    from distnav.models.gnss.products import compare_in_datum, product_dsbs, read_estimates
+    from distnav.formats.gnss.product_files import product_dsbs, read_estimates
+    from distnav.models.gnss.products import compare_in_datum
 
     est = read_estimates(path, filter_label=args.filter)
     products = product_dsbs(bias, sorted(est.satellite), sorted(est.station), est.obs1, est.obs2)

@@ -109,7 +109,7 @@ def validate_arguments(args: argparse.Namespace) -> None:
 def _check_tlim_days(args: argparse.Namespace) -> None:
     """``--tlim`` against the days the observation files' names give (IGS long or short names), before any
     file is read: a window outside every file's day is an error, not a read of the whole files."""
-    from distnav.models.gnss.products import product_day
+    from distnav.formats.gnss.product_files import product_day
 
     if not args.tlim:
         return
@@ -155,7 +155,7 @@ def network_data(
     ``interval_s`` grid (:func:`~distnav.models.gnss.levelling.level_station`; ``screen`` runs each station's
     w-test screening of its own code). Errors name the file: unreadable files, missing code types, a station
     without any epoch with both codes."""
-    from distnav.models.gnss.gfnetwork import read_stations
+    from distnav.formats.gnss.rinex import read_stations
 
     obs = read_stations(
         list(obs_files),
@@ -169,7 +169,7 @@ def network_data(
     )
     own = {o.station: dict(o.codes) for o in obs}  # the receivers' own codes (their DSBs' code pair)
     if c1_corrections:
-        from distnav.models.gnss.products import correct_c1
+        from distnav.formats.gnss.product_files import correct_c1
 
         obs = [correct_c1(o, c1_corrections) if o.codes.get(1) == "C1C" else o for o in obs]
     data = network_from_observations(
@@ -219,8 +219,9 @@ def network_from_observations(
     mapping: str = "slm",
     station_weights: str = "auto",
 ) -> Any:
-    """:func:`network_data` from observations already read (:class:`~distnav.models.gnss.rinex.CodeObservations`
-    with phases when ``levelling``; the full-rate data, ``interval_s`` selects the filter's grid).
+    """:func:`network_data` from observations already read
+    (:class:`~distnav.models.gnss.code_observations.CodeObservations` with phases when ``levelling``; the
+    full-rate data, ``interval_s`` selects the filter's grid).
     ``arc_correlation_s``: the levelled code's σ per arc from :func:`~distnav.models.gnss.gfnetwork.arc_sigma_scale`
     (default :data:`ARC_CORRELATION_S`; 0: independent epochs). ``station_weights`` "auto" | "on" | "off": σ
     factors from each station's levelling residuals ("auto": with a common ionosphere only; bias_network_model)."""
@@ -250,7 +251,7 @@ def network_from_observations(
         else {}
     )
     if levelling and interval_s:
-        from distnav.models.gnss.rinex_obs import on_grid
+        from distnav.formats.gnss.rinex_obs import on_grid
 
         grids = {o.station: on_grid(o.time, interval_s) for o in obs}
     else:
@@ -370,10 +371,11 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         print_worst_own,
     )
     from distnav.commands.gnss_sinex_out import write_sinex
+    from distnav.formats.gnss.product_files import product_dsbs
+    from distnav.formats.gnss.rinex import read_navigation, read_sp3
     from distnav.models.gnss.gfnetwork import innovation_summary, run_bias_filters, satellite_fit
     from distnav.models.gnss.ionosphere import TEC_NAMES_QUADRATIC, TECU_L1_M
-    from distnav.models.gnss.products import compare_in_datum, product_dsbs
-    from distnav.models.gnss.rinex import read_navigation, read_sp3
+    from distnav.models.gnss.products import compare_in_datum
     from distnav.output import atomic_write_json, atomic_write_text
 
     validate_arguments(args)
@@ -606,7 +608,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
 
 def _split_days(args: argparse.Namespace) -> dict[str, list[str]]:
     """Observation files by day (from the IGS file names; a name without a day goes with the first)."""
-    from distnav.models.gnss.products import product_day
+    from distnav.formats.gnss.product_files import product_day
 
     by: dict[str, list[str]] = {}
     for f in args.obs:
@@ -622,8 +624,8 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
     repeatability (``DIR/multiday.json``, ``DIR/distnav_dsb_combined.bia``)."""
     from distnav.commands.gnss_report import worst_over_days
     from distnav.commands.gnss_sinex_out import write_combined_sinex
+    from distnav.formats.gnss.product_files import product_day
     from distnav.models.gnss.multiday import combine_days
-    from distnav.models.gnss.products import product_day
     from distnav.output import atomic_write_json
 
     if args.tlim:

@@ -33,7 +33,7 @@ def choose_l1_code(args: argparse.Namespace) -> tuple[str, str | None]:
     ``--bias`` product gives a C1C−L2 satellite DSB, even chained (IONEX DCBs, GFZ's C1W−C2W alone), else C1C.
     Returns the code and a note saying why (None when given or C1C by default)."""
     from distnav.errors import DataFileError, ModelError
-    from distnav.models.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, resolve_dsb
+    from distnav.formats.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, resolve_dsb
 
     if args.l1_code:
         return str(args.l1_code).upper(), None

@@ -14,7 +14,7 @@ __all__ = ["write_sinex", "write_combined_sinex"]
 
 def write_combined_sinex(path: Path, result: dict[str, Any], summaries: dict[str, Any]) -> None:
     """The combined solution of several days (``multiday.json``) as Bias-SINEX 1.00, receivers on their own codes."""
-    from distnav.models.gnss.bias_sinex import write_bias_sinex
+    from distnav.formats.gnss.bias_sinex import write_bias_sinex
     from distnav.output import atomic_write_text
 
     first = summaries[min(summaries)]
@@ -47,7 +47,7 @@ def write_sinex(
     times: list[str],
 ) -> Path:
     """The central filter's final DSBs as Bias-SINEX 1.00 (satellites and receivers with σ)."""
-    from distnav.models.gnss.bias_sinex import write_bias_sinex
+    from distnav.formats.gnss.bias_sinex import write_bias_sinex
 
     val, sd = final
     step = float(np.median(np.diff(data.t_gps_s))) if data.t_gps_s.size > 1 else 30.0

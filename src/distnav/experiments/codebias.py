@@ -214,7 +214,7 @@ def constellation(nav: str | None = None, start: str | None = None) -> tuple[Any
         l5 = sc.subset(sc.l5_svs)
         t0 = sc.epoch_gps_s if start is None else float(gps_seconds(np.array(start, dtype="datetime64[ns]")))
         return l5, l5.svs, t0, "synthetic constellation (nominal elements)"
-    from distnav.models.gnss.rinex import read_navigation
+    from distnav.formats.gnss.rinex import read_navigation
 
     orbit = read_navigation(Path(nav), max_age_s=4 * 3600.0)
     svs = tuple(f"G{p:02d}" for p in BLOCK_IIF_PRNS if f"G{p:02d}" in orbit.svs)

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import ModelError
+from distnav.models.gnss.code_observations import CodeObservations
 from distnav.models.gnss.constants import NS_TO_M
 from distnav.models.gnss.geometry import azimuth_elevation, elevation_mask
 from distnav.models.gnss.observables import (
@@ -39,7 +40,6 @@ from distnav.models.gnss.observables import (
     sbasis_design,
 )
 from distnav.models.gnss.orbits import SatelliteOrbit, gps_seconds
-from distnav.models.gnss.rinex import CodeObservations
 
 __all__ = [
     "CodeBiasData",
@@ -475,7 +475,7 @@ def codebias_data_from_observations(
     reference: int = 0,
     svs: Sequence[str] | None = None,
 ) -> CodeBiasData:
-    """Form the observable (24) of real RINEX code observations (:func:`~distnav.models.gnss.rinex.
+    """Form the observable (24) of real RINEX code observations (:func:`~distnav.formats.gnss.rinex.
     read_code_observations` with bands 1, 2, 5) on the union of their epochs, with elevations from ``orbit`` at
     each file's approximate position. ``svs`` defaults to the satellites observed on all three bands above the
     mask by some station. Raises :class:`~distnav.errors.ModelError` for a missing band, a station without

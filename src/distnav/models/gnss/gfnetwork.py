@@ -1,6 +1,6 @@
 """A receiver network's geometry-free code as one bias + ionosphere model, and the filters run in a chosen datum.
 
-:func:`read_stations` reads the RINEX files (codes, and phases for levelling); :func:`bias_network_model` puts
+The stations' observations are read by :func:`distnav.formats.gnss.rinex.read_stations`; :func:`bias_network_model` puts
 the stations' undifferenced geometry-free observations on the union of their epochs into the model of
 :mod:`distnav.models.gnss.gfbias` (estimation basis: a reference receiver observing at the first epoch);
 :func:`run_bias_filters` runs the central filter, the single-receiver filters (each in its own receiver's basis,
@@ -13,7 +13,6 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,8 +27,6 @@ from distnav.models.gnss.gfbias import (
     gf_m_per_dsb_ns,
 )
 from distnav.models.gnss.gfcollector import Collector, DatumSeries
-from distnav.models.gnss.rinex import CodeObservations
-from distnav.models.gnss.rinex_obs import ProgressCallback
 
 __all__ = [
     "BiasNetworkData",
@@ -40,7 +37,6 @@ __all__ = [
     "satellite_fit",
     "MIN_SATELLITE_OBS",
     "TEC_RW_M_PER_SQRT_S",
-    "read_stations",
     "bias_network_model",
     "run_bias_filters",
 ]
@@ -97,57 +93,6 @@ class BiasNetworkData:
             tracked=self.geometry.tracked,
             groups=self.geometry.groups,
         )
-
-
-def read_stations(
-    paths: Sequence[str | Path],
-    *,
-    l1_code: str,
-    l2_code: str,
-    tlim: tuple[str, str] | None = None,
-    interval_s: float | None = None,
-    phases: bool = False,
-    progress: ProgressCallback | None = None,
-    l1_fallback: str | None = None,
-) -> list[CodeObservations]:
-    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of every station; a file without
-    ``l1_code`` on L1 is read with ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
-    from distnav.models.gnss.rinex import read_code_observations
-
-    if not paths:
-        raise DataFileError("no observation file given")
-    band = int(l2_code[1])
-    codes = {1: l1_code.upper(), band: l2_code.upper()}
-
-    def read(p: str | Path) -> CodeObservations:
-        try:
-            return read_code_observations(
-                p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s, phases=phases, progress=progress
-            )
-        except DataFileError as exc:
-            if l1_fallback is None or "no L1 code observation" not in str(exc):
-                raise
-        return read_code_observations(
-            p,
-            bands=(1, band),
-            codes={**codes, 1: l1_fallback.upper()},
-            tlim=tlim,
-            interval_s=interval_s,
-            phases=phases,
-            progress=progress,
-        )
-
-    obs = [read(p) for p in paths]
-    stations = [o.station for o in obs]
-    dup = sorted({s for s in stations if stations.count(s) > 1})
-    if dup:
-        twice = ", ".join(str(o.path) for o in obs if o.station == dup[0])
-        raise DataFileError(f"station {dup[0]} is given twice ({twice})")
-    for o in obs:
-        pos = o.position_ecef_m
-        if not (np.all(np.isfinite(pos)) and np.linalg.norm(pos) > 6.0e6):
-            raise DataFileError(f"{o.path}: no usable APPROX POSITION XYZ in the header ({pos.tolist()})")
-    return obs
 
 
 def bias_network_model(

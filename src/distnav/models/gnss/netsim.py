@@ -1,6 +1,6 @@
 """A realistic simulator of a small mid-latitude receiver network: RINEX-like code and phase observations.
 
-The observations are :class:`~distnav.models.gnss.rinex.CodeObservations` (P1 = C1W, P2 = C2W and the L1/L2
+The observations are :class:`~distnav.models.gnss.code_observations.CodeObservations` (P1 = C1W, P2 = C2W and the L1/L2
 phases), so everything downstream — carrier levelling, screening, the bias model, the filters, the comparison
 with a product — runs exactly as on real files. What is simulated, per receiver *i*, satellite *s*, band *k*
 (μ₁ = 1, μ₂ = (f₁/f₂)²):
@@ -56,9 +56,9 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import ModelError
+from distnav.models.gnss.code_observations import CodeObservations
 from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
 from distnav.models.gnss.geometry import azimuth_elevation, geodetic_to_ecef, pierce_point
-from distnav.models.gnss.rinex import CodeObservations
 
 __all__ = ["EUROPEAN_STATIONS", "REALISTIC", "VtecField", "SimulatedNetwork", "simulate_network", "truth_product"]
 

@@ -7,7 +7,7 @@ Where a source has no valid position (no ephemeris record close enough, satellit
 outside the SP3 time span) the position is NaN; downstream code treats NaN as "not visible".
 
 * :class:`BroadcastOrbit` — Keplerian propagation of the broadcast elements, IS-GPS-200 Table 20-IV, from a
-  navigation file (:func:`distnav.models.gnss.rinex.read_navigation`) or a georinex dataset.
+  navigation file (:func:`distnav.formats.gnss.rinex.read_navigation`) or a georinex dataset.
 * :class:`SP3Orbit` — Lagrange interpolation (order 9 = 10 samples, the usual choice for 15-min samples).
 * :class:`SyntheticConstellation` — circular orbits from nominal GPS elements (a ≈ 26,560 km, i = 55°, six
   planes), 31 satellites with GPS PRN numbers and the 12 block IIF (L1/L2/L5) satellites marked, so every
@@ -146,7 +146,7 @@ class BroadcastOrbit:
     """GPS broadcast ephemerides: one table of records per satellite (IS-GPS-200 Keplerian elements).
 
     Build with :meth:`from_dataset` (a georinex navigation dataset) or
-    :func:`distnav.models.gnss.rinex.read_navigation`. For each epoch the healthy record with the nearest
+    :func:`distnav.formats.gnss.rinex.read_navigation`. For each epoch the healthy record with the nearest
     time of ephemeris within ``max_age_s`` is used (default 4 h, the curve-fit interval of the IGS merged files).
     """
 
@@ -178,7 +178,7 @@ class BroadcastOrbit:
         cls, columns: dict[str, dict[str, np.ndarray]], *, max_age_s: float = 4 * 3600.0, source: str = ""
     ) -> BroadcastOrbit:
         """From per-satellite columns (the fields of ``_NAV_FIELDS`` and ``toc_s``, in time-of-clock order; NaN rows
-        are skipped), as :func:`distnav.models.gnss.rinex_nav.read_gps_ephemerides` gives them: the healthy
+        are skipped), as :func:`distnav.formats.gnss.rinex_nav.read_gps_ephemerides` gives them: the healthy
         records with a complete orbit, ordered by the time of ephemeris."""
         records: dict[str, dict[str, np.ndarray]] = {}
         for sv, cols in columns.items():
@@ -294,7 +294,7 @@ class SP3Orbit:
 
     ``t_gps_s`` (N,) sample epochs, ``positions_m`` (N, S, 3) ECEF metres with NaN for missing samples.
     Build with :meth:`from_datasets` (georinex SP3 datasets, several days concatenated) or
-    :func:`distnav.models.gnss.rinex.read_sp3`.
+    :func:`distnav.formats.gnss.rinex.read_sp3`.
     """
 
     svs: tuple[str, ...]

@@ -1,11 +1,10 @@
 """Comparing estimated receiver and satellite DSBs with published products (Bias-SINEX, IONEX DCB blocks).
 
-:func:`product_dsbs` reads each product's satellite and station DSBs of one code pair (Bias-SINEX chained across
-the given files by :func:`~distnav.models.gnss.bias_sinex.resolve_dsb`; IONEX gives P1−P2 = C1W−C2W);
-:func:`compare_in_datum` aligns the datum — the S-transformation that makes the product's satellites zero-mean
-over the satellites common with the estimates, i.e. a shift ``c`` subtracted from every satellite and added to
-every receiver — and reports mean, RMS, max and per-object differences; :func:`product_day` gives the day a
-product is valid for, so a product of another day can be refused.
+A product's DSBs of one code pair are a :class:`ProductDSB` (read by
+:func:`distnav.formats.gnss.product_files.product_dsbs`); :func:`compare_in_datum` aligns the datum — the
+S-transformation that makes the product's satellites zero-mean over the satellites common with the estimates, i.e.
+a shift ``c`` subtracted from every satellite and added to every receiver — and reports mean, RMS, max and
+per-object differences.
 """
 
 from __future__ import annotations
@@ -17,16 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from distnav.errors import DataFileError, ModelError
-
 __all__ = [
     "ProductDSB",
-    "product_dsbs",
     "compare_in_datum",
-    "product_day",
     "DSBEstimates",
-    "read_estimates",
-    "correct_c1",
     "worst_satellite",
     "WORST_LEVEL",
 ]
@@ -47,95 +40,6 @@ class ProductDSB:
     notes: list[str] = field(default_factory=list)
     day: np.datetime64 | None = None
     pair: str = ""
-
-
-def product_day(path: str | Path) -> np.datetime64 | None:
-    """The day of a product or RINEX file from an IGS long file name (``..._YYYYDDDHHMM_01D_...``) or a short
-    name (``codgDDD0.YYi``, ``dgarDDD0.YYo``/``.YYd``/``.YYn``); ``None`` when the name does not say."""
-    import re
-
-    name = Path(path).name
-    m = re.search(r"_(\d{4})(\d{3})\d{4}_", name)
-    if m:
-        return np.datetime64(f"{m.group(1)}-01-01") + np.timedelta64(int(m.group(2)) - 1, "D")
-    m = re.match(r"^[a-zA-Z0-9]{4}(\d{3})[0-9a-xA-X]\.(\d{2})[iIoOdDnNgG]", name)
-    if m:
-        year = 2000 + int(m.group(2)) if int(m.group(2)) < 80 else 1900 + int(m.group(2))
-        return np.datetime64(f"{year}-01-01") + np.timedelta64(int(m.group(1)) - 1, "D")
-    return None
-
-
-def product_dsbs(
-    paths: Sequence[str | Path],
-    svs: Sequence[str],
-    stations: Sequence[str],
-    obs1: str,
-    obs2: str,
-    *,
-    station_codes: Mapping[str, tuple[str, str]] | None = None,
-) -> list[ProductDSB]:
-    """Satellite and station DSBs ``obs1 − obs2`` [ns] of each product file (Bias-SINEX or IONEX).
-
-    ``station_codes``: a station's own code pair where it differs from the satellites' (a C1C station corrected
-    to C1W with the satellites' C1C−C1W DSBs keeps its receiver's C1C in its bias: its DSB is C1C−C2W)."""
-    from distnav.models.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, resolve_dsb
-
-    kinds: list[tuple[str, Any, Path]] = []
-    for p in paths:
-        path = Path(p)
-        try:
-            kinds.append(("sinex", read_bias_sinex(path), path))
-        except DataFileError as exc_sinex:
-            try:
-                kinds.append(("ionex", read_ionex_dcb(path), path))
-            except DataFileError as exc_ionex:
-                raise DataFileError(
-                    f"{path}: neither a Bias-SINEX file ({exc_sinex}) nor an IONEX file with a DCB block ({exc_ionex})"
-                ) from None
-    sinex = [prod for kind, prod, _ in kinds if kind == "sinex"]
-    out: list[ProductDSB] = []
-    for kind, prod, path in kinds:
-        sat: dict[str, float] = {}
-        sta: dict[str, float] = {}
-        notes: list[str] = []
-        if kind == "sinex":
-            order = [prod] + [q for q in sinex if q is not prod]
-            for s in svs:
-                try:
-                    v, chain = resolve_dsb(order, obs1, obs2, prn=s)
-                except ModelError:
-                    continue
-                sat[s] = v
-                if len(chain) > 1 or (chain and not chain[0].endswith(f"{obs1}-{obs2}")):
-                    notes.append(f"{s}: {' + '.join(chain)}")
-            for r in stations:
-                o1, o2 = (station_codes or {}).get(r, (obs1, obs2))
-                try:
-                    sta[r], chain = resolve_dsb(order, o1, o2, station=r)
-                except ModelError:
-                    continue
-                if len(chain) > 1:
-                    notes.append(f"{r}: {' + '.join(chain)}")
-            name = f"{prod.name} {path.name}"
-        else:
-            sat = {s: prod.satellite[s][0] for s in svs if s in prod.satellite}
-            sta = {
-                r: prod.station[("G", r.upper())][0]
-                for r in stations
-                if ("G", r.upper()) in prod.station and (station_codes or {}).get(r, ("C1W", "C2W")) == ("C1W", "C2W")
-            }
-            name = f"IONEX {path.name}"
-            if (obs1, obs2) != ("C1W", "C2W"):
-                notes.append(
-                    f"IONEX DCBs are P1-P2 (C1W-C2W); estimates are {obs1}-{obs2}: differences include "
-                    f"the satellites' {obs1}-C1W biases"
-                )
-        out.append(
-            ProductDSB(
-                name, path, kind, sat, sta, notes, product_day(path), f"{obs1}-{obs2}" if kind == "sinex" else "C1W-C2W"
-            )
-        )
-    return out
 
 
 def _stats(d: np.ndarray) -> dict[str, float]:
@@ -226,93 +130,3 @@ class DSBEstimates:
     satellite: dict[str, float]
     station: dict[str, float]
     days: tuple[np.datetime64, ...]
-
-
-def read_estimates(path: str | Path, *, filter_label: str = "central") -> DSBEstimates:
-    """The DSBs of a ``distnav gnss ionosphere`` output (its folder or ``summary.json``) or of a Bias-SINEX file
-    (one code pair: the most frequent satellite pair in it)."""
-    import json
-
-    from distnav.models.gnss.bias_sinex import read_bias_sinex
-
-    p = Path(path)
-    if p.is_dir():
-        p = p / "summary.json"
-    if not p.exists():
-        raise DataFileError(f"{p}: file not found")
-    if p.suffix == ".json":
-        try:
-            s = json.loads(p.read_text())
-            vals = s["final_dsb_ns"][filter_label]
-            codes = list(s["codes"].values())
-            days = tuple(sorted({np.datetime64(s["first_epoch"], "D"), np.datetime64(s["last_epoch"], "D")}))
-        except (ValueError, KeyError, TypeError) as exc:
-            raise DataFileError(
-                f"{p}: not a `distnav gnss ionosphere` summary.json with filter {filter_label!r} "
-                f"({type(exc).__name__}: {exc})"
-            ) from None
-        return DSBEstimates(
-            str(p),
-            codes[0],
-            codes[1],
-            {k: v for k, v in vals.items() if not k.startswith("rx:")},
-            {k[3:]: v for k, v in vals.items() if k.startswith("rx:")},
-            days,
-        )
-    prod = read_bias_sinex(p)
-    pairs: dict[tuple[str, str], int] = {}
-    for r in prod.records:
-        if r.kind == "DSB" and r.prn.startswith("G"):
-            pairs[(r.obs1, r.obs2)] = pairs.get((r.obs1, r.obs2), 0) + 1
-    if not pairs:
-        raise DataFileError(f"{p}: no GPS satellite DSB")
-    o1, o2 = max(pairs, key=lambda k: pairs[k])
-    sat = {
-        r.prn: r.value
-        for r in prod.records
-        if r.kind == "DSB" and r.prn.startswith("G") and (r.obs1, r.obs2) == (o1, o2)
-    }
-    sta = {
-        r.station[:4].upper(): r.value
-        for r in prod.records
-        if r.kind == "DSB" and r.station and r.system == "G" and (r.obs1, r.obs2) == (o1, o2)
-    }
-    starts = {r.start for r in prod.records if r.start}
-    found = [_sinex_day(t) for t in starts]
-    days = tuple(sorted({d for d in found if d is not None}))
-    return DSBEstimates(str(p), o1, o2, sat, sta, days)
-
-
-def _sinex_day(t: str) -> np.datetime64 | None:
-    try:
-        y, d, _ = t.split(":")
-        year = int(y) + (2000 if len(y) == 2 else 0)
-        return np.datetime64(f"{year:04d}-01-01") + np.timedelta64(int(d) - 1, "D")
-    except ValueError:
-        return None
-
-
-def correct_c1(o: Any, product: str | Path) -> Any:
-    """C1C corrected to C1W with the satellites' C1C−C1W DSBs of a Bias-SINEX product: ``P1 = C1C − c·DSB``
-    (biases add to the observations). Satellites the product lacks lose their L1 code (noted)."""
-    from dataclasses import replace
-
-    from distnav.models.gnss.bias_sinex import read_bias_sinex
-    from distnav.models.gnss.constants import C_M_S
-
-    if o.codes.get(1) != "C1C":
-        raise ModelError(f"{o.path}: --c1-corrections needs C1C on L1, the file gives {o.codes.get(1)}")
-    prod = read_bias_sinex(product)
-    p1 = o.range_m[1].copy()
-    missing = []
-    for k, sv in enumerate(o.svs):
-        dsb = prod.satellite_dsb_ns(sv, "C1C", "C1W")
-        if dsb is None:
-            p1[:, k] = np.nan
-            missing.append(sv)
-        else:
-            p1[:, k] -= C_M_S * 1e-9 * dsb
-    note = f"C1C corrected to C1W with {prod.name} C1C-C1W satellite DSBs" + (
-        f" (none for {' '.join(missing)}: dropped)" if missing else ""
-    )
-    return replace(o, range_m={**o.range_m, 1: p1}, codes={**o.codes, 1: "C1W"}, notes=(*o.notes, note))

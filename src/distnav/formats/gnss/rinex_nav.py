@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from distnav.errors import DataFileError
-from distnav.models.gnss.rinex_obs import read_text_file
+from distnav.formats.gnss.rinex_obs import read_text_file
 
 __all__ = ["GPS_NAV_FIELDS", "check_navigation_file", "read_gps_ephemerides"]
 

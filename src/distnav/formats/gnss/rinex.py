@@ -11,8 +11,8 @@ RINEX 2 does not say which tracking mode ``C2``/``C5`` are; :data:`RINEX2_RECEIV
 make to the RINEX 3 attribute (Septentrio: L2C = C2L, L5 = C5Q — as CAS lists DGAR's receiver DSB as C1C−C5Q;
 Trimble: C2X, C5X), and the choice is recorded in ``CodeObservations.notes``.
 
-Observation files are read by :mod:`distnav.models.gnss.rinex_obs` (own reader, latin-1, ≈ 2 s per full day of
-30-s data, progress callback), navigation files by :mod:`distnav.models.gnss.rinex_nav` (own reader, one pass),
+Observation files are read by :mod:`distnav.formats.gnss.rinex_obs` (own reader, latin-1, ≈ 2 s per full day of
+30-s data, progress callback), navigation files by :mod:`distnav.formats.gnss.rinex_nav` (own reader, one pass),
 SP3 files by georinex.
 """
 
@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +27,8 @@ import numpy as np
 
 from distnav._optional import require
 from distnav.errors import DataFileError
-from distnav.models.gnss.orbits import BroadcastOrbit, SP3Orbit
-from distnav.models.gnss.rinex_nav import _ints, check_navigation_file, read_gps_ephemerides
-from distnav.models.gnss.rinex_obs import (
+from distnav.formats.gnss.rinex_nav import _ints, check_navigation_file, read_gps_ephemerides
+from distnav.formats.gnss.rinex_obs import (
     COMPRESSED_MAGIC,
     ProgressCallback,
     read_bytes,
@@ -38,10 +36,13 @@ from distnav.models.gnss.rinex_obs import (
     read_observation_types,
     read_text_file,
 )
+from distnav.models.gnss.code_observations import CodeObservations
+from distnav.models.gnss.orbits import BroadcastOrbit, SP3Orbit
 
 __all__ = [
     "CodeObservations",
     "read_code_observations",
+    "read_stations",
     "read_navigation",
     "read_sp3",
     "check_navigation_file",
@@ -67,44 +68,6 @@ RINEX2_RECEIVER_ATTRIBUTES: dict[str, dict[str, str]] = {
 }
 """RINEX 2 ``C2``/``C5`` → RINEX 3 code by receiver make (substring of the receiver type, upper case)."""
 _RINEX2_DEFAULT = {"C2": "C2X", "C5": "C5X"}
-
-
-@dataclass(frozen=True)
-class CodeObservations:
-    """GPS code observations of one receiver on up to three bands.
-
-    ``time`` (T,) ``datetime64[ns]`` (GPS time), ``svs`` (S,) ``"G01"``..., ``codes[band]`` the RINEX 3 code
-    used for the band (e.g. ``{1: "C1C", 2: "C2W", 5: "C5X"}``), ``range_m[band]`` (T, S) pseudo-ranges in
-    metres with NaN where not observed, ``position_ecef_m`` the header's approximate position. With
-    ``phases=True``: ``phase_m[band]`` (T, S) carrier phase in metres (cycles × λ; NaN where the code is missing),
-    ``lli[band]`` its loss-of-lock indicators, ``phase_types[band]`` the phase type read.
-    """
-
-    station: str
-    path: Path
-    time: np.ndarray
-    svs: tuple[str, ...]
-    codes: dict[int, str]
-    range_m: dict[int, np.ndarray]
-    position_ecef_m: np.ndarray
-    receiver: str = ""
-    rinex_version: float = 0.0
-    notes: tuple[str, ...] = field(default_factory=tuple)
-    phase_m: dict[int, np.ndarray] = field(default_factory=dict)
-    lli: dict[int, np.ndarray] = field(default_factory=dict)
-    phase_types: dict[int, str] = field(default_factory=dict)
-    time_system: str = "GPS"
-
-    @property
-    def n_epochs(self) -> int:
-        return int(self.time.size)
-
-    def satellites_with_all_bands(self) -> tuple[str, ...]:
-        """Satellites observed on every band at one epoch at least."""
-        have = np.ones((self.time.size, len(self.svs)), dtype=bool)
-        for arr in self.range_m.values():
-            have &= np.isfinite(arr)
-        return tuple(s for s, h in zip(self.svs, np.asarray(have.any(axis=0)).tolist(), strict=True) if h)
 
 
 def _georinex() -> Any:
@@ -163,7 +126,7 @@ def read_code_observations(
     decides. ``tlim=(start, stop)`` reads a time window (ISO strings or datetimes, inclusive), ``interval_s`` keeps
     only epochs on that grid. ``phases=True`` also reads a carrier phase per band (``phase_m``, metres, and the
     loss-of-lock indicators ``lli``; a band without phase is left out of ``phase_m``). ``progress(label, fraction)``
-    is called while reading (see :mod:`distnav.models.gnss.rinex_obs`, the reader). Raises
+    is called while reading (see :mod:`distnav.formats.gnss.rinex_obs`, the reader). Raises
     :class:`~distnav.errors.DataFileError` naming the file for an unreadable file, a file without GPS data, or a
     band with none of the accepted codes.
     """
@@ -304,7 +267,7 @@ def check_sp3_file(path: str | Path) -> None:
 
 def read_navigation(path: str | Path, *, max_age_s: float = 2 * 3600.0) -> BroadcastOrbit:
     """GPS broadcast ephemerides of a RINEX 2 or 3 navigation file (gzip too; of multi-GNSS files
-    their GPS records; :mod:`distnav.models.gnss.rinex_nav`). ``max_age_s`` bounds |t − toe| (the ±2 h fit
+    their GPS records; :mod:`distnav.formats.gnss.rinex_nav`). ``max_age_s`` bounds |t − toe| (the ±2 h fit
     interval by default)."""
     p = Path(path)
     columns = read_gps_ephemerides(p)
@@ -343,3 +306,52 @@ def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3
             raise DataFileError(f"{p}: not an SP3 orbit file")
         datasets.append(ds)
     return SP3Orbit.from_datasets(datasets, order=order, source=", ".join(str(i) for i in items))
+
+
+def read_stations(
+    paths: Sequence[str | Path],
+    *,
+    l1_code: str,
+    l2_code: str,
+    tlim: tuple[str, str] | None = None,
+    interval_s: float | None = None,
+    phases: bool = False,
+    progress: ProgressCallback | None = None,
+    l1_fallback: str | None = None,
+) -> list[CodeObservations]:
+    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of every station; a file without
+    ``l1_code`` on L1 is read with ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
+    if not paths:
+        raise DataFileError("no observation file given")
+    band = int(l2_code[1])
+    codes = {1: l1_code.upper(), band: l2_code.upper()}
+
+    def read(p: str | Path) -> CodeObservations:
+        try:
+            return read_code_observations(
+                p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s, phases=phases, progress=progress
+            )
+        except DataFileError as exc:
+            if l1_fallback is None or "no L1 code observation" not in str(exc):
+                raise
+        return read_code_observations(
+            p,
+            bands=(1, band),
+            codes={**codes, 1: l1_fallback.upper()},
+            tlim=tlim,
+            interval_s=interval_s,
+            phases=phases,
+            progress=progress,
+        )
+
+    obs = [read(p) for p in paths]
+    stations = [o.station for o in obs]
+    dup = sorted({s for s in stations if stations.count(s) > 1})
+    if dup:
+        twice = ", ".join(str(o.path) for o in obs if o.station == dup[0])
+        raise DataFileError(f"station {dup[0]} is given twice ({twice})")
+    for o in obs:
+        pos = o.position_ecef_m
+        if not (np.all(np.isfinite(pos)) and np.linalg.norm(pos) > 6.0e6):
+            raise DataFileError(f"{o.path}: no usable APPROX POSITION XYZ in the header ({pos.tolist()})")
+    return obs

@@ -19,7 +19,7 @@ import gzip
 import io
 import logging
 import zipfile
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import DataFileError
+from distnav.models.gnss.code_observations import ProgressCallback
 
 __all__ = [
     "RinexHeader",
@@ -42,8 +43,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-ProgressCallback = Callable[[str, float], None]
-"""``callback(label, fraction_done)`` — called about ten times while a file is read."""
 
 _N_PRN = 40  # GPS PRNs 1..32 in use; room for test PRNs
 

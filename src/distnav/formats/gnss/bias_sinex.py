@@ -36,7 +36,7 @@ __all__ = [
 
 
 def _read_text_lines(path: Path) -> list[str]:
-    from distnav.models.gnss.rinex_obs import read_text_file  # gzip, .Z, bzip2, zip by content
+    from distnav.formats.gnss.rinex_obs import read_text_file  # gzip, .Z, bzip2, zip by content
 
     return read_text_file(path, whole_lines=True)
 
