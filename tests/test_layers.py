@@ -1,8 +1,8 @@
 """The layers of ARCHITECTURE.md / docs/DEVELOPING.md, checked on every import statement under src/distnav.
 
-network → exchange → algorithms → models → experiments | commands → cli: a module may import its own layer and the
-layers below it, never a layer above or beside (experiments and commands do not import each other). The utilities
-(errors, _optional, _sparse, typing) sit below everything; ``output`` (file writing, figures) and ``options`` (checked
+network → exchange → algorithms → models → formats → experiments | commands → cli: a module may import its own
+layer and the layers below it, never a layer above or beside (experiments and commands do not import each other).
+The utilities (errors, _optional, _sparse, typing) sit below everything; ``output`` (file writing, figures) and ``options`` (checked
 CLI option types) are for experiments, commands and the CLI only.
 """
 
@@ -26,6 +26,7 @@ RANK = {
     "exchange": 2,
     "algorithms": 3,
     "models": 4,
+    "formats": 4.2,
     "output": 4.5,
     "options": 4.5,
     "experiments": 5,
