@@ -2,8 +2,8 @@
 
 network → exchange → algorithms → models → formats → experiments | commands → cli: a module may import its own
 layer and the layers below it, never a layer above or beside (experiments and commands do not import each other).
-The utilities (errors, _optional, _sparse, typing) sit below everything; ``output`` (file writing, figures) and ``options`` (checked
-CLI option types) are for experiments, commands and the CLI only.
+The utilities (errors, _optional, _sparse, typing) sit below everything; ``output`` (file writing, figures) and
+``options`` (checked CLI option types) are for experiments, commands and the CLI only.
 """
 
 from __future__ import annotations
