@@ -230,24 +230,8 @@ def _file_writes(path: Path) -> list[str]:
     return found
 
 
-# Writers still in models, each being moved to distnav.formats: strict xfail, so a move that lands fails here until
-# its entry is removed (the list can only shrink).
-STILL_WRITING = {"models/uwb/april.py", "models/uwb/hall.py", "models/uwb/io.py"}
-
-
 @pytest.mark.parametrize(
-    "path",
-    [
-        pytest.param(
-            p,
-            marks=pytest.mark.xfail(strict=True, reason="writer not yet moved to distnav.formats")
-            if str(p.relative_to(SRC)) in STILL_WRITING
-            else (),
-        )
-        for p in FILES
-        if _layer(_module_name(p)) in PURE_LAYERS
-    ],
-    ids=lambda p: str(p.relative_to(SRC)),
+    "path", [p for p in FILES if _layer(_module_name(p)) in PURE_LAYERS], ids=lambda p: str(p.relative_to(SRC))
 )
 def test_layers_below_formats_write_no_files(path: Path) -> None:
     """Models (and everything below them) are pure: file writers live in ``distnav.formats`` (or return text for
