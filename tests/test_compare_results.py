@@ -32,8 +32,16 @@ def test_identical_and_timings_only(tmp_path: Path, capsys) -> None:
     a, b = _trees(tmp_path, {"x": [1.0, 0.1], "n": 3}, {"rmse_m": 0.5, "solver_seconds": {"LM": 1.9}})
     assert compare_results.main([str(a), str(b)]) == 0
     out = capsys.readouterr().out
-    assert "identical  admm" in out and "except wall-clock solver_seconds" in out
+    assert "identical  admm" in out and "except wall-clock" in out and "solver_seconds" in out
     assert compare_results.main([str(a), str(b), "--volatile"]) == 1  # every byte: the timing differs
+
+
+def test_cpu_timings_are_volatile_too(tmp_path: Path) -> None:
+    a, b = tmp_path / "a", tmp_path / "b"
+    _write(a, "uwb-field", {"rmse_m": 0.5, "runs": [{"cpu_s": 0.33, "cpu_s_per_solve": 0.1, "wall_s": 1.0}]})
+    _write(b, "uwb-field", {"rmse_m": 0.5, "runs": [{"cpu_s": 0.49, "cpu_s_per_solve": 0.2, "wall_s": 2.0}]})
+    assert compare_results.main([str(a), str(b)]) == 0
+    assert compare_results.main([str(a), str(b), "--volatile"]) == 1
 
 
 def test_last_digit_differs(tmp_path: Path, capsys) -> None:

@@ -4,28 +4,5 @@ The front doors live in :mod:`distnav.algorithms.consensus.averaging` and are re
 ``from distnav.algorithms.consensus import average_consensus`` works.
 """
 
-from distnav.algorithms.consensus.averaging import (
-    ConsensusResult,
-    ConsensusSchedule,
-    ConsensusState,
-    ConsensusWarning,
-    average_consensus,
-    consensus_probability,
-    consensus_product,
-    consensus_schedule,
-    iterate_average_consensus,
-    second_largest_eigenvalue_modulus,
-)
-
-__all__ = [
-    "ConsensusResult",
-    "ConsensusWarning",
-    "ConsensusSchedule",
-    "ConsensusState",
-    "consensus_schedule",
-    "iterate_average_consensus",
-    "average_consensus",
-    "consensus_product",
-    "consensus_probability",
-    "second_largest_eigenvalue_modulus",
-]
+from distnav.algorithms.consensus.averaging import *  # noqa: F403  (the front doors, re-exported)
+from distnav.algorithms.consensus.averaging import __all__ as __all__

@@ -8,36 +8,5 @@ door), :mod:`~distnav.algorithms.lsq.nonlinear` (linearized and nonlinear ADMM) 
 (distributed precision and data snooping). The problem and the BLUE are re-exported here.
 """
 
-from distnav.algorithms.lsq.blue import (
-    BlueSolution,
-    LinearProblem,
-    MultiplierResult,
-    MultiplierState,
-    blue,
-    dual_function,
-    inestimable_directions,
-    iterate_method_of_multipliers,
-    iterate_single_consensus_admm,
-    method_of_multipliers,
-    multiplier_step,
-    null_space_directions,
-    single_consensus_admm,
-    weight_matrix,
-)
-
-__all__ = [
-    "LinearProblem",
-    "BlueSolution",
-    "weight_matrix",
-    "null_space_directions",
-    "inestimable_directions",
-    "blue",
-    "MultiplierResult",
-    "dual_function",
-    "multiplier_step",
-    "MultiplierState",
-    "iterate_method_of_multipliers",
-    "method_of_multipliers",
-    "iterate_single_consensus_admm",
-    "single_consensus_admm",
-]
+from distnav.algorithms.lsq.blue import *  # noqa: F403  (the front doors, re-exported)
+from distnav.algorithms.lsq.blue import __all__ as __all__
