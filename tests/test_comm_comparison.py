@@ -90,3 +90,39 @@ def test_format_count_and_ratio() -> None:
         "0.41×",
         "∞×",
     ]
+
+
+def test_node_data_bytes_takes_the_smaller_of_observations_and_normals() -> None:
+    from distnav.algorithms.lsq.blue import LinearProblem
+    from distnav.algorithms.lsq.gather_data import node_data_bytes
+
+    # node 0: 2 rows touching 1 of 3 unknowns, diagonal R: observations 2·8 + 2·8 + 2·12 = 56 B,
+    # normals (1 + 1)·8 + 4 = 20 B -> 20. Node 1: 1 row touching all 3: observations 8 + 8 + 3·12 = 52 B,
+    # normals (6 + 3)·8 + 3·4 = 84 B -> 52. Node 2: 2 rows on 2 unknowns, full R: observations
+    # 2·8 + 3·8 + 4·12 = 88 B, normals (3 + 2)·8 + 2·4 = 48 B -> 48.
+    prob = LinearProblem.from_blocks(
+        [np.array([[1.0, 0, 0], [2.0, 0, 0]]), np.array([[1.0, 1.0, 1.0]]), np.array([[1.0, 2.0, 0], [3.0, 1, 0]])],
+        [np.zeros(2), np.zeros(1), np.zeros(2)],
+        [np.ones(2), 1.0, np.array([[2.0, 0.5], [0.5, 2.0]])],
+    )
+    assert node_data_bytes(prob).tolist() == [20, 52, 48]
+
+
+def test_normal_bytes_per_node_counts_the_observed_states_of_each_epoch() -> None:
+    from distnav.algorithms.kalman.gather_data import normal_bytes_per_node
+    from distnav.algorithms.kalman.measurements import NormalSeries
+
+    # 2 epochs, 2 nodes, 3 states. Node 0 observes states {0, 1} then {0}; node 1 nothing then {0, 1, 2}.
+    N = np.zeros((2, 2, 3, 3))
+    N[0, 0, :2, :2] = [[2.0, 1.0], [1.0, 2.0]]
+    N[1, 0, 0, 0] = 1.0
+    N[1, 1] = np.eye(3)
+    # q = 2: (3 + 2)·8 + 2·4 = 48 B; q = 1: (1 + 1)·8 + 4 = 20 B; q = 3: (6 + 3)·8 + 3·4 = 84 B
+    assert normal_bytes_per_node(NormalSeries(N)).tolist() == [48 + 20, 84]
+
+
+def test_report_lists_the_communication_lines() -> None:
+    from distnav.experiments.report import communication_lines
+
+    assert communication_lines({"communication_vs_gather": {"P1": {"line": "sent 1 kB"}}}) == ["P1: sent 1 kB"]
+    assert communication_lines({"headline": {}}) == [] and communication_lines(None) == []

@@ -320,9 +320,10 @@ class CommComparison:
                 f"median {format_bytes(float(np.median(self.bytes_sent)))})"
             )
         g = self.gather
+        hops = f"{format_count(g.messages)} relay hop{'' if g.messages == 1 else 's'}"
         return (
             f"{sent}; gathering {self.data} at {label} {self._name(g.sink)} would cost "
-            f"{format_bytes(g.total_hop_bytes)} over {format_count(g.messages)} relay hops "
+            f"{format_bytes(g.total_hop_bytes)} over {hops} "
             f"(busiest relay {format_bytes(g.busiest_relay_bytes)}): {format_ratio(self.ratio_bytes)} the bytes"
         )
 
