@@ -126,3 +126,17 @@ def test_report_lists_the_communication_lines() -> None:
 
     assert communication_lines({"communication_vs_gather": {"P1": {"line": "sent 1 kB"}}}) == ["P1: sent 1 kB"]
     assert communication_lines({"headline": {}}) == [] and communication_lines(None) == []
+
+
+def test_record_and_observation_bytes_per_node() -> None:
+    from distnav.algorithms.kalman.gather_data import observation_bytes_per_node, record_bytes_per_node
+    from distnav.algorithms.kalman.measurements import ObservationSeries
+
+    tracked = np.zeros((3, 2, 4), bool)  # 3 epochs, 2 nodes, 4 satellites
+    tracked[:, 0, :2] = True  # node 0: 6 observations
+    tracked[1, 1, 3] = True  # node 1: 1
+    assert record_bytes_per_node(tracked).tolist() == [6 * 20, 20]
+    # one epoch, node 0 two rows (one and two non-zero design entries), node 1 no data:
+    # rows of 16 B (value, σ) + 12 B per non-zero entry -> 28 + 40
+    series = ObservationSeries(2, [[(np.array([[1.0, 0.0], [1.0, 2.0]]), np.eye(2), np.zeros(2)), None]])
+    assert observation_bytes_per_node(series).tolist() == [68, 0]

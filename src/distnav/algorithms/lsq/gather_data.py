@@ -39,8 +39,9 @@ OBSERVATION_RECORD_BYTES = 2 * FLOAT_BYTES + INDEX_BYTES
 GATHER_DATA = "observations or packed normals, the smaller"
 
 
-def node_data_bytes(problem: LinearProblem) -> np.ndarray:
-    """Bytes each node would send a fusion centre (module docstring): ``min(observations, normals)``."""
+def node_data_bytes(problem: LinearProblem, *, normals: bool = True) -> np.ndarray:
+    """Bytes each node would send a fusion centre (module docstring): ``min(observations, normals)``, or the
+    observations alone with ``normals=False`` (a centre that tests the observations needs them)."""
     n = problem.A.shape[0]
     out = np.zeros(n, np.int64)
     for i in range(n):
@@ -50,8 +51,8 @@ def node_data_bytes(problem: LinearProblem) -> np.ndarray:
         diagonal = bool(np.count_nonzero(r - np.diag(np.diag(r))) == 0)
         r_bytes = m * FLOAT_BYTES if diagonal else m * (m + 1) // 2 * FLOAT_BYTES
         observations = m * FLOAT_BYTES + r_bytes + int(np.count_nonzero(a)) * (FLOAT_BYTES + INDEX_BYTES)
-        normals = int(packed_normal_bytes(np.count_nonzero(np.any(a != 0, axis=0))))
-        out[i] = min(observations, normals)
+        packed = int(packed_normal_bytes(np.count_nonzero(np.any(a != 0, axis=0))))
+        out[i] = min(observations, packed) if normals else observations
     return out
 
 
