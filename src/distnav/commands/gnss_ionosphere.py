@@ -852,15 +852,14 @@ add_parser = add_ionosphere_parser
 
 def _comm_comparison(comm: CommTotals, graph: Graph, data: BiasNetworkData, stations: list[str]) -> CommComparison:
     """The consensus filters' traffic beside gathering every epoch's observations at one station (issue 27)."""
-    from distnav.algorithms.lsq.gather_data import OBSERVATION_RECORD_BYTES
+    from distnav.algorithms.kalman.gather_data import RECORDS_DATA, record_bytes_per_node
     from distnav.algorithms.result import compare_with_gather
 
-    per_station = data.series.tracked.sum(axis=(0, 2)) * OBSERVATION_RECORD_BYTES
     return compare_with_gather(
         comm,
         graph,
-        per_station,
-        data=f"every epoch's observations ({OBSERVATION_RECORD_BYTES} B each: value, σ, satellite)",
+        record_bytes_per_node(data.series.tracked),
+        data=RECORDS_DATA,
         node_label="station",
         node_names=stations,
     )

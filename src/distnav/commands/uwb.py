@@ -46,7 +46,7 @@ from distnav.algorithms.result import CommComparison, compare_with_gather
 from distnav.commands import add_backend_arguments
 from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange
-from distnav.models.uwb.communication import RANGE_RECORD_BYTES
+from distnav.models.uwb.communication import RANGES_DATA, range_bytes_per_anchor
 from distnav.models.uwb.field import (
     DELAY_SIGMA_M,
     RELIABILITY_LIMIT_M,
@@ -430,12 +430,11 @@ def _comparison(sol: FieldSolution) -> CommComparison:
     gathering every range at one anchor over the range graph (each link's record held by its lower-numbered
     anchor, :data:`RANGE_RECORD_BYTES` each; issue 27)."""
     p = sol.problem
-    held = np.bincount(p.links[:, 0], minlength=p.n_anchors) * RANGE_RECORD_BYTES
     return compare_with_gather(
         (sol.bytes, sol.messages),
         p.graph,
-        held,
-        data=f"the ranges ({RANGE_RECORD_BYTES} B each)",
+        range_bytes_per_anchor(p),
+        data=RANGES_DATA,
         node_label="anchor",
         node_names=p.ids,
     )
