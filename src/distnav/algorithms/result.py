@@ -5,14 +5,16 @@ from __future__ import annotations
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, fields
-from typing import Any, Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
 from distnav.exchange.core import CommTotals
-from distnav.network.gather import GatherCost, gather_cost
-from distnav.network.graph import Graph
 from distnav.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from distnav.network.gather import GatherCost
+    from distnav.network.graph import Graph
 
 __all__ = [
     "CommComparison",
@@ -341,6 +343,8 @@ def compare_with_gather(
     """The :class:`CommComparison` of a run: ``comm`` its :class:`CommTotals` (or ``(bytes, messages)`` totals
     when per-node counts were not kept), ``graph`` the communication graph, ``data_bytes_per_node`` the bytes of
     the data each node holds (what a fusion centre would need; ``data`` says what it is)."""
+    from distnav.network.gather import gather_cost  # scipy's csgraph: imported on use (the MPI path stays light)
+
     gather = gather_cost(graph, data_bytes_per_node, sink=sink)
     names = None if node_names is None else tuple(str(v) for v in node_names)
     if isinstance(comm, CommTotals):
