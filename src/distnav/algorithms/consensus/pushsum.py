@@ -33,8 +33,10 @@ exchange's :class:`~distnav.exchange.faults.FaultSchedule`. With every rate 1 an
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from dataclasses import dataclass
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -45,7 +47,17 @@ from distnav.exchange import Exchange, make_exchange
 from distnav.exchange.faults import uniform_hash
 from distnav.network.graph import Graph
 
-__all__ = ["Clock", "PushSumState", "PushSumResult", "iterate_push_sum", "mass_in_flight", "push_sum"]
+__all__ = [
+    "Clock",
+    "PushSumState",
+    "PushSumResult",
+    "iterate_push_sum",
+    "mass_in_flight",
+    "push_sum",
+    "PushSumLink",
+    "NodeOutcome",
+    "run_push_sum_node",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -228,3 +240,83 @@ def push_sum(
         ticks_per_node=ex.gather_nodes(ticks_done),
         mass_error=worst,
     )
+
+
+# --------------------------------------------------------------------------- one node on its own timer (field)
+class PushSumLink(Protocol):
+    """What a node running on its own timer needs from the network (no rounds, no barrier).
+
+    ``post`` sends this node's running sum, stamped with its own tick count, to every out-neighbour without
+    waiting; ``drain`` returns the ``(sender, tick, running_sum)`` messages that have arrived, waiting at most
+    ``timeout_s`` for the first one. A message may be lost, late or overtaken: the running sums make that harmless.
+    """
+
+    def post(self, tick: int, running_sum: np.ndarray) -> None: ...
+
+    def drain(self, timeout_s: float) -> list[tuple[int, int, np.ndarray]]: ...
+
+
+@dataclass(frozen=True, eq=False)
+class NodeOutcome:
+    """How one node's asynchronous run ended: its ratio (estimate of the average), its own tick count, the final
+    mass and running sum, and per in-neighbour the last tick whose running sum it used; ``refused`` counts
+    messages not used (``stale``: an older running sum than one already used; ``shape``; ``not_a_neighbour``)."""
+
+    ratio: np.ndarray
+    ticks: int
+    mass: np.ndarray
+    sent: np.ndarray
+    last_tick_from: dict[int, int]
+    refused: dict[str, int] = field(default_factory=dict)
+
+
+def run_push_sum_node(
+    value: np.ndarray,
+    *,
+    out_degree: int,
+    in_neighbours: list[int],
+    link: PushSumLink,
+    period_s: float,
+    duration_s: float,
+    now: Callable[[], float] = time.monotonic,
+) -> NodeOutcome:
+    """Running-sum push-sum (module docstring) at one node, ticking every ``period_s`` seconds of its own clock for
+    ``duration_s`` seconds, with no barrier: between ticks it uses whatever running sums have arrived.
+
+    A received running sum older than the last one used from that sender (reordered or replayed) is skipped: its
+    mass is contained in the newer one already used. ``out_degree`` is the number of out-neighbours ``D_i``.
+    """
+    if not period_s > 0 or not duration_s > 0:
+        raise WeightsError(f"period_s and duration_s must be > 0, got {period_s}, {duration_s}")
+    mass = np.concatenate([np.asarray(value, dtype=float).reshape(-1), [1.0]])
+    sent = np.zeros_like(mass)
+    share = 1.0 / (int(out_degree) + 1.0)
+    known = set(in_neighbours)
+    received: dict[int, np.ndarray] = {}
+    last: dict[int, int] = {}
+    refused = {"stale": 0, "shape": 0, "not_a_neighbour": 0}
+    start = now()
+    end, next_tick, tick = start + duration_s, start, 0
+    while (t := now()) < end:
+        if t >= next_tick:
+            tick += 1
+            mass *= share
+            sent += mass
+            link.post(tick, sent.copy())
+            next_tick = max(next_tick + period_s, t)  # a late timer does not make up ticks in a burst
+        for sender, k, arr in link.drain(max(0.0, min(next_tick, end) - now())):
+            reason = (
+                "not_a_neighbour"
+                if sender not in known
+                else "shape"
+                if arr.shape != mass.shape
+                else "stale"
+                if k <= last.get(sender, 0)
+                else ""
+            )
+            if reason:
+                refused[reason] += 1
+                continue
+            mass += arr - received.get(sender, 0.0)
+            received[sender], last[sender] = arr, k
+    return NodeOutcome(mass[:-1] / mass[-1], tick, mass, sent, last, refused)
