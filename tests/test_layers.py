@@ -26,6 +26,7 @@ RANK = {
     "exchange": 2,
     "algorithms": 3,
     "models": 4,
+    "formats": 4.2,
     "output": 4.5,
     "options": 4.5,
     "experiments": 5,

@@ -1,0 +1,1 @@
+"""File formats: readers and writers, nothing else (above models, below commands and experiments)."""
