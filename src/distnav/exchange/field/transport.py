@@ -217,6 +217,24 @@ class Transport:
             self.bytes_received += len(frame.buffer)
             yield frame
 
+    def receive_any(self, timeout_s: float) -> list[Message]:
+        """Every message that has arrived, waiting at most ``timeout_s`` for the first: checked (sender, size,
+        format, CURVE key; refusals counted) but not matched to a step — for nodes that run without steps (the
+        asynchronous mode, :mod:`distnav.commands.field_async`)."""
+        out: list[Message] = []
+        if not self.pull.poll(max(0, int(timeout_s * 1000))):
+            return out
+        while True:
+            try:
+                frame = self.pull.recv(self._zmq.NOBLOCK, copy=False)
+            except self._zmq.Again:
+                return out
+            self.frames_received += 1
+            self.bytes_received += len(frame.buffer)
+            msg = self._checked(frame)
+            if msg is not None and msg.kind != Kind.HELLO:
+                out.append(msg)
+
     def _drain(self, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
         for frame in self._frames():
             msg = self._checked(frame)
@@ -325,6 +343,16 @@ class Transport:
             self._held.setdefault(msg.step, {})[msg.sender] = msg
             return msg
         return msg
+
+    def wire_counts(self) -> dict[str, int]:
+        """Real bytes and frames this node put on and took off the wire, and the sends that could not be queued."""
+        return {
+            "bytes_sent": self.bytes_sent,
+            "bytes_received": self.bytes_received,
+            "frames_sent": self.frames_sent,
+            "frames_received": self.frames_received,
+            "send_failures": self.send_failures,
+        }
 
     @property
     def refusals(self) -> int:

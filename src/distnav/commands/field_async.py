@@ -1,0 +1,129 @@
+"""Asynchronous push-sum at one field node: its own timer, no rounds, no barrier (issue 26 item 5).
+
+``python -m distnav.commands.field_async --config NET --id ID --out DIR [--period-ms P] [--duration-s D]`` runs
+node ``ID`` of a network description (:mod:`distnav.formats.field_config`): it reads only its own data file, binds
+its address, greets its neighbours, then every ``P`` ms of its own clock pushes its running sum to its neighbours
+and, between ticks, uses whatever running sums have arrived (:func:`~distnav.algorithms.consensus.pushsum.
+run_push_sum_node`). Nodes may tick at different rates; a lost or late message costs nothing (running sums). After
+``D`` seconds it writes ``node-ID.json``: its estimate of the network average, its ticks, the messages it refused
+and the real bytes on the wire.
+
+The messages are the field transport's frames (:mod:`distnav.exchange.field.wire`, kind ``COLUMN``, the step field
+carrying the sender's own tick count), checked by the transport on arrival (sender, size, format, CURVE key).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from distnav.algorithms.consensus.pushsum import NodeOutcome, run_push_sum_node
+from distnav.errors import DistnavError, UsageError
+from distnav.exchange.field import Kind, Transport
+from distnav.formats.field_config import NetworkDescription, read_description, read_node_values
+from distnav.options import existing_file, nonnegative_int, positive_float
+from distnav.output import atomic_write_json
+
+__all__ = ["TransportLink", "run_async_node", "main"]
+
+LOG = logging.getLogger("distnav.field")
+
+
+class TransportLink:
+    """A :class:`~distnav.algorithms.consensus.pushsum.PushSumLink` over the field transport."""
+
+    def __init__(self, transport: Transport, neighbours: list[int]) -> None:
+        self.transport = transport
+        self.neighbours = neighbours
+
+    def post(self, tick: int, running_sum: np.ndarray) -> None:
+        for peer in self.neighbours:
+            self.transport.post(peer, Kind.COLUMN, tick, running_sum)
+
+    def drain(self, timeout_s: float) -> list[tuple[int, int, np.ndarray]]:
+        msgs = self.transport.receive_any(timeout_s)
+        return [(m.sender, m.step, np.asarray(m.array, dtype=float)) for m in msgs if m.kind == Kind.COLUMN]
+
+
+def run_async_node(
+    desc: NetworkDescription, node_id: int, out_dir: Path, *, period_s: float, duration_s: float
+) -> NodeOutcome:
+    """Run node ``node_id`` (module docstring) and write ``out_dir/node-ID.json``."""
+    from distnav.commands.field_node import load_keys
+
+    entry = desc.node(node_id)
+    if entry.data is None:
+        raise UsageError(f"{desc._where()}: node {node_id}: key 'data' (its value file) is needed by push-sum")
+    value = read_node_values(entry.data, node_id)
+    neighbours = sorted(entry.neighbours)
+    transport = Transport(
+        node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=load_keys(desc, node_id)
+    )
+    try:
+        missing = transport.handshake()
+        t0 = time.monotonic()
+        outcome = run_push_sum_node(
+            value,
+            out_degree=len(neighbours),
+            in_neighbours=neighbours,
+            link=TransportLink(transport, neighbours),
+            period_s=period_s,
+            duration_s=duration_s,
+        )
+        elapsed = time.monotonic() - t0
+        atomic_write_json(
+            out_dir / f"node-{node_id}.json",
+            {
+                "node": node_id,
+                "algorithm": "pushsum",
+                "estimate": outcome.ratio,
+                "initial": value,
+                "weight": float(outcome.mass[-1]),
+                "ticks": outcome.ticks,
+                "period_s": period_s,
+                "seconds": elapsed,
+                "last_tick_from": {str(k): v for k, v in sorted(outcome.last_tick_from.items())},
+                "not_used": outcome.refused,
+                "refused": transport.refusal_counts(),
+                "missing_at_start": missing,
+                "wire": transport.wire_counts(),
+            },
+        )
+        return outcome
+    finally:
+        transport.close()
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m distnav.commands.field_async", description=__doc__.split("\n")[0])
+    p.add_argument("--config", type=existing_file, required=True, help="the network description (TOML)")
+    p.add_argument("--id", type=nonnegative_int, required=True, help="this node's id")
+    p.add_argument("--out", type=Path, required=True, help="folder for node-ID.json (must exist)")
+    p.add_argument("--period-ms", type=positive_float, default=10.0, help="tick period of this node (default 10)")
+    p.add_argument("--duration-s", type=positive_float, default=5.0, help="how long the node ticks (default 5)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format=f"node {args.id} %(levelname)s %(message)s")
+    try:
+        desc = read_description(args.config)
+        if not 0 <= args.id < desc.n_nodes:
+            raise UsageError(f"--id {args.id}: the description has nodes 0..{desc.n_nodes - 1}")
+        if not args.out.is_dir():
+            raise UsageError(f"--out {args.out}: no such folder")
+        run_async_node(desc, args.id, args.out, period_s=args.period_ms / 1000.0, duration_s=args.duration_s)
+    except DistnavError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
