@@ -122,7 +122,11 @@ def describe(plan: InitPlan, *, hosts: list[str] | None, base_port: int, out: Pa
         for i in range(g.n_nodes)
     )
     text = format_description(NetworkDescription(nodes=nodes, name=name), relative_to=out.parent)
-    head = [f"# written by `distnav field init` from {plan.source}", "# node id = name:"]
+    head = [
+        f"# written by `distnav field init` from {plan.source}",
+        "# [algorithm] is the runtime's default: set it for what the nodes should compute with these data files.",
+        "# node id = name:",
+    ]
     head += [f"#   {i} = {n}" for i, n in enumerate(plan.names)]
     return "\n".join(head) + "\n\n" + text
 
