@@ -65,7 +65,9 @@ def test_eight_processes_one_slow_reach_the_mean(tmp_path: Path) -> None:
             cmd = [
                 sys.executable,
                 "-m",
-                "distnav.commands.field_async",
+                "distnav",
+                "field",
+                "pushsum-node",
                 "--config",
                 str(net),
                 "--id",
@@ -78,7 +80,7 @@ def test_eight_processes_one_slow_reach_the_mean(tmp_path: Path) -> None:
                 "6",
             ]
             procs.append(subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE))
-        outs = [p.communicate(timeout=150) for p in procs]
+        outs = [p.communicate(timeout=400) for p in procs]
     finally:
         for p in procs:
             if p.poll() is None:

@@ -54,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     keys.add_argument("--out", type=Path, required=True, help="the new description (keys go to OUT.keys/)")
     keys.set_defaults(func=_keys)
     # registered here by the asynchronous mode and the demo when present (distnav.commands.field_*)
-    for name in ("field_init", "field_demo"):
+    for name in ("field_init", "field_demo", "field_async"):
         try:
             mod = __import__(f"distnav.commands.{name}", fromlist=["register"])
         except ModuleNotFoundError:

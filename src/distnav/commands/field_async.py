@@ -1,6 +1,6 @@
 """Asynchronous push-sum at one field node: its own timer, no rounds, no barrier (issue 26 item 5).
 
-``python -m distnav.commands.field_async --config NET --id ID --out DIR [--period-ms P] [--duration-s D]`` runs
+``distnav field pushsum-node --config NET --id ID --out DIR [--period-ms P] [--duration-s D]`` runs
 node ``ID`` of a network description (:mod:`distnav.formats.field_config`): it reads only its own data file, binds
 its address, greets its neighbours, then every ``P`` ms of its own clock pushes its running sum to its neighbours
 and, between ticks, uses whatever running sums have arrived (:func:`~distnav.algorithms.consensus.pushsum.
@@ -15,23 +15,20 @@ carrying the sender's own tick count), checked by the transport on arrival (send
 from __future__ import annotations
 
 import argparse
-import logging
-import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from distnav.algorithms.consensus.pushsum import NodeOutcome, run_push_sum_node
-from distnav.errors import DistnavError, UsageError
+from distnav.errors import UsageError
 from distnav.exchange.field import Kind, Transport
 from distnav.formats.field_config import NetworkDescription, read_description, read_node_values
-from distnav.options import existing_file, nonnegative_int, positive_float
+from distnav.options import existing_file, nonnegative_int, output_folder, positive_float
 from distnav.output import atomic_write_json
 
-__all__ = ["TransportLink", "run_async_node", "main"]
-
-LOG = logging.getLogger("distnav.field")
+__all__ = ["TransportLink", "run_async_node", "register"]
 
 
 class TransportLink:
@@ -99,31 +96,24 @@ def run_async_node(
         transport.close()
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m distnav.commands.field_async", description=__doc__.split("\n")[0])
+def register(field_sub: Any) -> None:
+    """Add ``pushsum-node`` to the ``distnav field`` sub-commands."""
+    p = field_sub.add_parser("pushsum-node", help="run one node of an asynchronous push-sum network (own timer)")
     p.add_argument("--config", type=existing_file, required=True, help="the network description (TOML)")
     p.add_argument("--id", type=nonnegative_int, required=True, help="this node's id")
-    p.add_argument("--out", type=Path, required=True, help="folder for node-ID.json (must exist)")
+    p.add_argument("--out", type=output_folder, required=True, help="folder for node-ID.json")
     p.add_argument("--period-ms", type=positive_float, default=10.0, help="tick period of this node (default 10)")
     p.add_argument("--duration-s", type=positive_float, default=5.0, help="how long the node ticks (default 5)")
-    return p
+    p.set_defaults(func=_handler)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format=f"node {args.id} %(levelname)s %(message)s")
-    try:
-        desc = read_description(args.config)
-        if not 0 <= args.id < desc.n_nodes:
-            raise UsageError(f"--id {args.id}: the description has nodes 0..{desc.n_nodes - 1}")
-        if not args.out.is_dir():
-            raise UsageError(f"--out {args.out}: no such folder")
-        run_async_node(desc, args.id, args.out, period_s=args.period_ms / 1000.0, duration_s=args.duration_s)
-    except DistnavError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+def _handler(args: argparse.Namespace) -> int:
+    desc = read_description(args.config)
+    if not 0 <= args.id < desc.n_nodes:
+        raise UsageError(f"--id {args.id}: the description has nodes 0..{desc.n_nodes - 1}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    from distnav.commands.field import _setup_log
+
+    _setup_log(args.out, args.id)
+    run_async_node(desc, args.id, args.out, period_s=args.period_ms / 1000.0, duration_s=args.duration_s)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -10,7 +10,7 @@ they computed with an independent reference:
    ``--kill-round``; reference: numpy's mean of the data of the nodes that remain →
    ``lost_nodes`` (as noticed by their neighbours) and ``max_abs_diff_vs_central_of_remaining``;
 3. **push-sum, asynchronous** — every node on its own timer, node 0 three times slower, no barrier
-   (:mod:`distnav.commands.field_async`); reference: numpy's mean → ``pushsum_max_abs_diff_vs_mean``.
+   (``distnav field pushsum-node``); reference: numpy's mean → ``pushsum_max_abs_diff_vs_mean``.
 
 ``DIR/results.json`` holds those numbers, ``wire_bytes`` (real bytes sent on the wire by all runs), each run's
 summary, and a ``uwb_hall`` entry saying whether a UWB hall was run (the field runtime has no UWB node program yet, so
@@ -92,7 +92,7 @@ def _victim(graph: Graph) -> int:
 def launch_async(
     desc_path: Path, out_dir: Path, *, periods_ms: list[float], duration_s: float, timeout_s: float
 ) -> dict[str, Any]:
-    """Start one :mod:`distnav.commands.field_async` process per node (node ``i`` ticking every ``periods_ms[i]``),
+    """Start one ``distnav field pushsum-node`` process per node (node ``i`` ticking every ``periods_ms[i]``),
     wait at most ``timeout_s`` (then kill the rest, process group and all) and collect their ``node-ID.json``."""
     from distnav.commands.field import _kill_group
 
@@ -108,7 +108,9 @@ def launch_async(
             cmd = [
                 sys.executable,
                 "-m",
-                "distnav.commands.field_async",
+                "distnav",
+                "field",
+                "pushsum-node",
                 "--config",
                 str(desc_path),
                 "--id",
