@@ -19,15 +19,16 @@ the wire bytes); node code that should scale avoids them.
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, cast
+from functools import cached_property
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from distnav._sparse import csr_times
 from distnav.errors import ExchangeError
 from distnav.exchange.base import Exchange
-from distnav.exchange.core import ReduceOp, Reducible
-from distnav.exchange.faults import FaultSchedule
+from distnav.exchange.core import ExchangeCore, ReduceOp, Reducible
+from distnav.exchange.faults import FaultPlan, FaultSchedule
 from distnav.exchange.field.transport import Transport
 from distnav.exchange.field.wire import Kind
 from distnav.exchange.mixer import Mixer
@@ -88,12 +89,13 @@ class FieldExchange(Exchange):
         return step
 
     def _received_rows(
-        self, got: dict[int, np.ndarray], senders: np.ndarray, shape: tuple[int, ...], dtype: np.dtype
+        self, got: dict[int, np.ndarray], shape: tuple[int, ...], dtype: np.dtype | None
     ) -> dict[int, np.ndarray]:
-        """The arrays of ``got`` that have the expected shape and dtype (others refused as malformed)."""
+        """The arrays of ``got`` that have the expected shape and dtype (any dtype: None); others refused as
+        malformed."""
         ok: dict[int, np.ndarray] = {}
         for s, arr in got.items():
-            if arr.shape != shape or arr.dtype != dtype:
+            if arr.shape != shape or (dtype is not None and arr.dtype != dtype):
                 self.transport._refuse(
                     "malformed", f"node {s} sent {arr.dtype}{arr.shape}, expected {dtype}{shape} at step {self.step}"
                 )
@@ -108,7 +110,7 @@ class FieldExchange(Exchange):
         for t in np.unique(self.out_dst[act_out]).tolist():
             self.transport.post(t, Kind.COLUMN, step, row)
         senders = np.unique(self.in_src[act_in])
-        got = self._received_rows(self.transport.collect(Kind.COLUMN, step, senders), senders, row.shape, row.dtype)
+        got = self._received_rows(self.transport.collect(Kind.COLUMN, step, senders), row.shape, row.dtype)
         cols = np.zeros((self.n_columns, row.size), dtype=flat_local.dtype)
         cols[0] = row
         for s, arr in got.items():
@@ -123,7 +125,7 @@ class FieldExchange(Exchange):
             self.transport.post(int(self.out_dst[r]), Kind.EDGE, step, flat_out[r])
         senders = np.unique(self.in_src[act_in])
         width = flat_out.shape[1]
-        got = self._received_rows(self.transport.collect(Kind.EDGE, step, senders), senders, (width,), flat_out.dtype)
+        got = self._received_rows(self.transport.collect(Kind.EDGE, step, senders), (width,), flat_out.dtype)
         out = np.zeros((self.in_edges.size, width), dtype=flat_out.dtype)
         if self._self_in.size and self._self_out.size:
             out[self._self_in] = flat_out[self._self_out]
@@ -134,7 +136,8 @@ class FieldExchange(Exchange):
 
     def _finish_round(self, values_in, act_out, act_in, tail, msg_bytes, owned=False):  # type: ignore[no-untyped-def]
         lost = self._lost_in & act_in
-        if lost.any():  # lost on the network: not delivered, counted from the masks
+        # lost on the network: not delivered, counted from the masks (under a schedule the plan already says so)
+        if lost.any() and not self.faults.active:
             act_in = act_in & ~lost
             act_out = act_out.copy()
         return super()._finish_round(values_in, act_out, act_in, tail, msg_bytes, owned)
@@ -153,35 +156,53 @@ class FieldExchange(Exchange):
         return _FieldRoute(self, active, in_rows=in_rows, out_rows=out_rows)
 
     # ------------------------------------------------------------- global operations (over the network)
-    def _all_to_all(self, kind: Kind, array: np.ndarray) -> dict[int, np.ndarray]:
+    def _all_to_all(self, kind: Kind, array: np.ndarray, *, any_number: bool = False) -> dict[int, np.ndarray]:
+        """Send ``array`` to every other node and receive theirs (same shape; with ``any_number`` float64 or int64,
+        else the same dtype)."""
         step = self._next_step()
         others = [n for n in range(self.n_nodes) if n != self.me]
+        missing = [n for n in others if n not in self.transport.peers]
+        if missing:
+            raise ExchangeError(
+                f"node {self.me}: a global operation needs every node as a peer; no address for nodes {missing[:10]}"
+            )
         for t in others:
             if t not in self.transport.lost:
                 self.transport.post(t, kind, step, array)
-        got = self._received_rows(
-            self.transport.collect(kind, step, others), np.asarray(others), array.shape, array.dtype
-        )
+        arrived = self.transport.collect(kind, step, others)
+        if any_number:
+            arrived = {s: a for s, a in arrived.items() if a.dtype.kind in "fi" or self._refuse_number(s, a)}
+            got = self._received_rows(arrived, array.shape, None)
+        else:
+            got = self._received_rows(arrived, array.shape, array.dtype)
         got[self.me] = array
         return got
 
+    def _refuse_number(self, sender: int, arr: np.ndarray) -> bool:
+        self.transport._refuse("malformed", f"node {sender} sent {arr.dtype} to a reduction at step {self.step}")
+        return False
+
     def allreduce(self, value: Reducible, op: ReduceOp = "sum") -> Reducible:
-        """Every node's contribution to every node, reduced in node-id order (nodes declared lost left out)."""
+        """Every node's contribution to every node, reduced in node-id order (nodes declared lost left out); the
+        result has the type every node computes alike (float when any contribution is)."""
         arr = np.asarray(value)
         wire = arr.astype(np.float64) if arr.dtype.kind in "fb" else arr.astype(np.int64)
-        got = self._all_to_all(Kind.REDUCE, np.ascontiguousarray(wire))
+        got = self._all_to_all(Kind.REDUCE, np.array(wire, order="C"), any_number=True)
         parts = [got[n] for n in sorted(got)]
-        total = functools.reduce(_REDUCERS[op], parts)
+        dtype = np.result_type(*parts)
+        total = functools.reduce(_REDUCERS[op], [p.astype(dtype, copy=False) for p in parts])
         if isinstance(value, np.ndarray):
-            return cast(Reducible, total.astype(value.dtype, copy=False))
-        return cast(Reducible, type(value)(total))
+            return cast(Reducible, total.astype(np.result_type(value.dtype, dtype), copy=False))
+        return cast(Reducible, float(total) if dtype.kind == "f" else int(total))
 
     def gather_nodes(self, local: np.ndarray) -> np.ndarray:
-        """Every node's rows on every node; rows of nodes that did not answer hold NaN (integers: -1)."""
+        """Every node's rows on every node, in this node's dtype (as the MPI exchange casts); rows of nodes that did
+        not answer hold NaN (integers: -1). Float or integer rows only (bools travel as floats)."""
         arr = np.asarray(local)
         if arr.shape[0] != 1:
             raise ExchangeError(f"gather_nodes needs 1 local row, got shape {arr.shape}")
-        got = self._all_to_all(Kind.GATHER, np.ascontiguousarray(arr))
+        wire = arr.astype(np.float64) if arr.dtype.kind in "fb" else arr.astype(np.int64)
+        got = self._all_to_all(Kind.GATHER, np.ascontiguousarray(wire), any_number=True)  # cast as MPI's does
         fill = np.nan if arr.dtype.kind == "f" else -1
         out = np.full((self.n_nodes, *arr.shape[1:]), fill, dtype=arr.dtype)
         for n, rows in got.items():
@@ -195,16 +216,12 @@ class FieldExchange(Exchange):
     def is_root(self) -> bool:
         return self.me == 0
 
-    def _delivery(
-        self, act_in: np.ndarray, act_out: np.ndarray, sent: np.ndarray, sent_total: int
-    ) -> tuple[np.ndarray, np.ndarray, int]:
-        """This round's delivered in-edges among ``act_in`` (neither lost on the network nor dropped by the fault
-        schedule) and the sent counts to book (the schedule's silent nodes send nothing)."""
-        ok = act_in & ~self._lost_in
-        if self.faults.active:
-            ok &= self._fault_plan.delivered(self.round_index)
-            sent, sent_total = self._sent_counts(act_out, cache=True)
-        return ok, sent, sent_total
+    @cached_property
+    def _fault_plan(self) -> FaultPlan:
+        """The fault schedule's plan, with the messages lost on the network in this step also not delivered: every
+        round under a schedule then runs the in-process code (bitwise as in-process when the network lost nothing)."""
+        base = cast(Any, ExchangeCore.__dict__["_fault_plan"]).func(self)  # the core's plan, built as in-process
+        return cast(FaultPlan, _NetworkPlan(base, self))
 
     @property
     def lost_nodes(self) -> dict[int, int]:
@@ -212,11 +229,24 @@ class FieldExchange(Exchange):
         return dict(self.transport.lost)
 
 
+class _NetworkPlan:
+    """A :class:`FaultPlan` whose ``delivered`` also leaves out this step's messages lost on the network."""
+
+    def __init__(self, plan: FaultPlan, exchange: FieldExchange) -> None:
+        self._plan, self._ex = plan, exchange
+
+    def delivered(self, round_index: int) -> np.ndarray:
+        return np.asarray(self._plan.delivered(round_index) & ~self._ex._lost_in)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._plan, name)
+
+
 class _FieldMixer(Mixer):
-    """The consensus round on the field. Every message arrived: the fused product, bitwise as in-process. Some lost
-    (deadline or fault schedule): their columns are zeroed in this round's fresh column array and their weight is
-    added to the self-weight, ``x_i ← Σ_{j delivered} w_ij x_j + (w_ii + Σ_{j lost} w_ij) x_i`` (row sums stay 1,
-    as in-process)."""
+    """The consensus round on the field. Under a fault schedule: the in-process fault round (its plan also drops what
+    the network lost). Without one: the fused product when every message arrived (bitwise as in-process); when some
+    missed the deadline, their columns are zeroed in this round's fresh column array and their weight is added to
+    the self-weight, ``x_i ← Σ_{j delivered} w_ij x_j + (w_ii + Σ_{j lost} w_ij) x_i`` (row sums stay 1)."""
 
     _fused: sp.csr_matrix | None = None
 
@@ -229,17 +259,18 @@ class _FieldMixer(Mixer):
     def apply(self, x_local: np.ndarray) -> np.ndarray:
         ex, x = self.exchange, np.asarray(x_local, dtype=float)
         assert isinstance(ex, FieldExchange)
+        if ex.faults.active:
+            return super().apply(x)
         if x.shape[0] != 1:
             raise ExchangeError(f"mixer needs 1 local row, got array of shape {x.shape}")
         flat = x.reshape(1, -1)
         cols, msg_bytes = ex._columns(flat, self._active_global), flat.shape[1] * flat.itemsize
-        ok, sent, sent_total = ex._delivery(self._act_in, self._act_out, self._sent_counts, self._sent_total)
-        lost_e = np.flatnonzero(self._act_in > ok)
+        lost_e = np.flatnonzero(self._act_in & ex._lost_in)
         if lost_e.size == 0:
             ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
             return csr_times(self._fused_block(), cols.ravel() if x.ndim == 1 else cols).reshape(x.shape)
         lost_dst = ex.in_dst[lost_e]
-        ex._account_dropped(sent, sent_total, self._recv_counts, lost_dst, msg_bytes)
+        ex._account_dropped(self._sent_counts, self._sent_total, self._recv_counts, lost_dst, msg_bytes)
         cols[ex.in_src_col[lost_e]] = 0.0  # a one-node block: one column per neighbour
         moved = np.bincount(lost_dst, weights=self._in_edge_weights()[lost_e], minlength=ex.n_local)
         out: np.ndarray = np.asarray(csr_times(self._fused_block(), cols)) + moved[:, None] * flat
@@ -266,8 +297,9 @@ class _FieldRoute(Route):
     def _count(self, msg_bytes: int) -> np.ndarray:
         ex = self.exchange
         assert isinstance(ex, FieldExchange)
-        if not (ex._lost_in & self._act_in).any():
+        lost = ex._lost_in & self._act_in
+        if ex.faults.active or not lost.any():  # under a schedule the plan includes the network's losses
             return super()._count(msg_bytes)
-        ok, sent, total = ex._delivery(self._act_in, self._act_out, self._sent, self._sent_total)
-        ex._account_faulty(sent, total, ok, msg_bytes)
+        ok = self._act_in & ~lost
+        ex._account_faulty(self._sent, self._sent_total, ok, msg_bytes)
         return np.asarray(ok[self.in_rows])

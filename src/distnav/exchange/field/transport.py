@@ -113,6 +113,7 @@ class Transport:
         *,
         options: TransportOptions | None = None,
         keys: CurveKeys | None = None,
+        context: Any = None,
     ) -> None:
         zmq = _zmq()
         self._zmq = zmq
@@ -125,7 +126,8 @@ class Transport:
         if self.curve and any(p.public_key is None for p in peers):
             missing = sorted(p.node for p in peers if p.public_key is None)
             raise ExchangeError(f"CURVE needs every peer's public key; missing for nodes {missing}")
-        self.ctx = zmq.Context()
+        self._owns_context = context is None  # threads of one process may share one (inproc:// addresses)
+        self.ctx = zmq.Context() if context is None else context
         self.refused: Counter[str] = Counter()
         self._auth: Any = None
         self._admission: _Admission | None = None
@@ -371,4 +373,5 @@ class Transport:
         self.pull.close()
         if self._auth is not None:
             self._auth.stop()
-        self.ctx.term()
+        if self._owns_context:
+            self.ctx.term()
