@@ -34,6 +34,8 @@ def test_demo_on_four_processes(tmp_path: Path, capsys: pytest.CaptureFixture[st
             "15",
             "--pushsum-seconds",
             "4",
+            "--uwb-iterations",
+            "10",
             "--timeout",
             "200",
             "--out",
@@ -58,6 +60,8 @@ def test_demo_on_four_processes(tmp_path: Path, capsys: pytest.CaptureFixture[st
     ps = [json.loads((out / "pushsum_async" / f"node-{i}.json").read_text()) for i in range(4)]
     assert np.abs(np.array([r["estimate"] for r in ps]) - data.mean(axis=0)).max() <= 1e-6
     assert ps[0]["ticks"] < 0.6 * min(r["ticks"] for r in ps[1:])  # node 0 ticks 3x slower
+    assert res["uwb_max_abs_diff_vs_inprocess_m"] == 0.0  # N-CSG-TBLS on node processes: bitwise
+    assert res["runs"]["uwb_clean"]["finished"] == [0, 1, 2, 3]
     assert res["wire_bytes"] == sum(r["wire_bytes"] for r in res["runs"].values()) > 0
     assert "consensus, 1 killed" in printed and "FAIL" not in printed
     # the demo report picks the section up

@@ -28,7 +28,7 @@ from distnav.formats.field_config import NetworkDescription, read_description, r
 from distnav.options import existing_file, nonnegative_int, output_folder, positive_float
 from distnav.output import atomic_write_json
 
-__all__ = ["TransportLink", "run_async_node", "register"]
+__all__ = ["TransportLink", "add_node_arguments", "open_node", "run_async_node", "register"]
 
 
 class TransportLink:
@@ -96,24 +96,35 @@ def run_async_node(
         transport.close()
 
 
+def add_node_arguments(p: argparse.ArgumentParser) -> None:
+    """``--config``, ``--id`` and ``--out`` of a node program started by a field command."""
+    p.add_argument("--config", type=existing_file, required=True, help="the network description (TOML)")
+    p.add_argument("--id", type=nonnegative_int, required=True, help="this node's id")
+    p.add_argument("--out", type=output_folder, required=True, help="folder for node-ID.json and node-ID.log")
+
+
+def open_node(args: argparse.Namespace) -> NetworkDescription:
+    """The description of a node program's ``--config``, its ``--id`` checked, its log opened in ``--out``."""
+    from distnav.commands.field import _setup_log
+
+    desc = read_description(args.config)
+    if not 0 <= args.id < desc.n_nodes:
+        raise UsageError(f"--id {args.id}: the description has nodes 0..{desc.n_nodes - 1}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    _setup_log(args.out, args.id)
+    return desc
+
+
 def register(field_sub: Any) -> None:
     """Add ``pushsum-node`` to the ``distnav field`` sub-commands."""
     p = field_sub.add_parser("pushsum-node", help="run one node of an asynchronous push-sum network (own timer)")
-    p.add_argument("--config", type=existing_file, required=True, help="the network description (TOML)")
-    p.add_argument("--id", type=nonnegative_int, required=True, help="this node's id")
-    p.add_argument("--out", type=output_folder, required=True, help="folder for node-ID.json")
+    add_node_arguments(p)
     p.add_argument("--period-ms", type=positive_float, default=10.0, help="tick period of this node (default 10)")
     p.add_argument("--duration-s", type=positive_float, default=5.0, help="how long the node ticks (default 5)")
     p.set_defaults(func=_handler)
 
 
 def _handler(args: argparse.Namespace) -> int:
-    desc = read_description(args.config)
-    if not 0 <= args.id < desc.n_nodes:
-        raise UsageError(f"--id {args.id}: the description has nodes 0..{desc.n_nodes - 1}")
-    args.out.mkdir(parents=True, exist_ok=True)
-    from distnav.commands.field import _setup_log
-
-    _setup_log(args.out, args.id)
+    desc = open_node(args)
     run_async_node(desc, args.id, args.out, period_s=args.period_ms / 1000.0, duration_s=args.duration_s)
     return 0
