@@ -153,6 +153,12 @@ def _port(text: str) -> int:
     return value
 
 
+def _network_name(text: str) -> str:
+    if not text.strip() or not text.isprintable():
+        raise argparse.ArgumentTypeError(f"must be a non-empty printable name, got {text!r}")
+    return text
+
+
 def _new_file(text: str) -> Path:
     p = Path(text)
     if p.exists():
@@ -172,7 +178,7 @@ def register(field_sub: Any) -> None:
     p.add_argument("--min-ranges", type=positive_int, default=1, help="UWB: samples a pair needs for a link")
     p.add_argument("--hosts", type=_hosts, help="comma-separated hosts: one for all nodes or one per node")
     p.add_argument("--base-port", type=_port, default=47000, help="node i listens on base port + i (default 47000)")
-    p.add_argument("--name", default="network", help="the network's name in the description")
+    p.add_argument("--name", type=_network_name, default="network", help="the network's name in the description")
     p.add_argument("--out", type=_new_file, required=True, help="the description file to write (must not exist)")
     p.set_defaults(func=_handler)
 
