@@ -338,10 +338,37 @@ def _gnss_cases() -> list[Cli]:
     return cases
 
 
-_NET2 = (
-    "{write:net2:version = 1\n[[node]]\nid = 0\naddress = 'tcp://127.0.0.1:47990'\nneighbours = [1]\n"
-    "[[node]]\nid = 1\naddress = 'tcp://127.0.0.1:47991'\nneighbours = [0]\n}"
+_NET = (
+    "{write:net:version = 1\n[[node]]\nid = 0\naddress = 'tcp://127.0.0.1:5000'\nneighbours = [1]\n"
+    "[[node]]\nid = 1\naddress = 'tcp://127.0.0.1:5001'\nneighbours = [0]\n}"
 )
+
+
+def _field_cases() -> list[Cli]:
+    """``distnav node`` and ``distnav field launch|keys`` (issue 26)."""
+    o = ("--out", "{tmp}/out")
+    node = ("node", "--config", _NET)
+    launch = ("field", "launch", "--config", _NET)
+    return [
+        Cli("field-none", ("field",), "required"),
+        Cli("node-no-config", ("node", "--id", "0", *o), "required: --config"),
+        Cli("node-config-absent", ("node", "--config", "{tmp}/none.toml", "--id", "0", *o), "no such file"),
+        Cli("node-config-not-toml", ("node", "--config", "{write:bad:version = [}", "--id", "0", *o), "valid TOML"),
+        Cli(
+            "node-config-asymmetric",
+            ("node", "--config", _NET.replace("neighbours = [0]", "neighbours = []"), "--id", "0", *o),
+            "node 0 lists neighbour 1, but node 1 does not list 0",
+        ),
+        Cli("node-id-negative", (*node, "--id", "-1", *o), "must be 0 or more"),
+        Cli("node-id-absent", (*node, "--id", "5", *o), "--id 5: the description has nodes 0..1"),
+        Cli("node-id-missing", (*node, *o), "required: --id"),
+        Cli("node-out-file", (*node, "--id", "0", "--out", "{file}"), "is an existing file"),
+        Cli("field-launch-no-config", ("field", "launch", *o), "required: --config"),
+        Cli("field-launch-out-file", (*launch, "--out", "{file}"), "is an existing file"),
+        Cli("field-launch-timeout", (*launch, *o, "--timeout", "0"), "must be"),
+        Cli("field-keys-no-config", ("field", "keys", *o), "required: --config"),
+        Cli("field-keys-out-file", ("field", "keys", "--config", _NET, "--out", "{file}"), "is an existing file"),
+    ]
 
 
 def _field_async_cases() -> list[Cli]:
@@ -378,7 +405,7 @@ def _field_async_cases() -> list[Cli]:
         Cli("field-demo-out-file", ("field", "demo", "--out", "{file}"), "is an existing file"),
     ]
     for cmd in ("pushsum-node", "demo-uwb-node"):
-        node = ("field", cmd, "--config", _NET2, "--id", "0", "--out", "{tmp}/out")
+        node = ("field", cmd, "--config", _NET, "--id", "0", "--out", "{tmp}/out")
         cases += [
             Cli(
                 f"field-{cmd}-config",
@@ -389,8 +416,8 @@ def _field_async_cases() -> list[Cli]:
             Cli(f"field-{cmd}-id-range", (*node, "--id", "2"), "the description has nodes 0..1"),
             Cli(f"field-{cmd}-out-file", (*node, "--out", "{file}"), "is an existing file"),
         ]
-    node = ("field", "pushsum-node", "--config", _NET2, "--id", "0", "--out", "{tmp}/out")
-    uwb = ("field", "demo-uwb-node", "--config", _NET2, "--id", "0", "--out", "{tmp}/out")
+    node = ("field", "pushsum-node", "--config", _NET, "--id", "0", "--out", "{tmp}/out")
+    uwb = ("field", "demo-uwb-node", "--config", _NET, "--id", "0", "--out", "{tmp}/out")
     return [
         *cases,
         Cli("field-pushsum-node-period", (*node, "--period-ms", "0"), "must be greater than 0"),
@@ -407,6 +434,7 @@ CLI_CASES = [
     *_uwb_cases(),
     *_gnss_cases(),
     *_field_async_cases(),
+    *_field_cases(),
 ]
 
 GOOD_RANGES = "a,b,range_m\nA00,A01,5.0\nA00,A02,5.0\nA01,A02,5.0\nA00,A03,5.0\nA01,A03,5.0\nA02,A03,7.07\n"

@@ -4,7 +4,6 @@ the launcher's timeout, process groups killed in the launcher's `finally`)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -98,11 +97,23 @@ def test_bad_descriptions_exit_2_naming_node_and_key(tmp_path: Path, capsys: pyt
 
 def test_keys_writes_a_curve_description_and_never_overwrites(tmp_path: Path) -> None:
     net = write_loopback_network(tmp_path / "net", [(0, 1), (1, 2)], np.zeros((3, 1)))
-    out = tmp_path / "net" / "curve.toml"
+    out = tmp_path / "curve"
     assert main(["field", "keys", "--config", str(net), "--out", str(out)]) == 0
-    text = out.read_text()
+    text = (out / "network.toml").read_text()
     assert 'security = "curve"' in text and text.count("public_key") == 3 and text.count("secret_key") == 3
-    assert (out.parent / "curve.toml.keys" / "node-1.key_secret").stat().st_mode & 0o077 == 0
-    assert main(["field", "keys", "--config", str(net), "--out", str(out)]) == 2  # exists
-    assert main(["field", "keys", "--config", str(net), "--out", str(net)]) == 2  # its own input
-    assert json.loads("{}") == {}
+    assert (out / "keys" / "node-1.key_secret").stat().st_mode & 0o077 == 0
+    assert main(["field", "keys", "--config", str(net), "--out", str(out)]) == 2  # exists: never overwritten
+    assert main(["field", "keys", "--config", str(net), "--out", str(net.parent)]) == 2  # its own input
+
+
+def test_curve_network_runs_and_equals_the_plain_one(tmp_path: Path) -> None:
+    g = _graph(5, seed=6)
+    values = np.random.default_rng(7).normal(size=(5, 1))
+    algo = {"name": "consensus", "rounds": 30, "protocol": "MH", "patience": 20}
+    net = write_loopback_network(tmp_path / "net", g.links, values, algorithm=algo, deadline_ms=20000)
+    assert main(["field", "keys", "--config", str(net), "--out", str(tmp_path / "curve")]) == 0
+    summary = launch(tmp_path / "curve" / "network.toml", tmp_path / "run", timeout_s=240, quiet=True)
+    assert summary["finished"] == list(range(5)), summary["failed"]
+    field = np.array([summary["nodes"][str(i)]["estimate"] for i in range(5)])
+    assert np.array_equal(field, _last(iterate_average_consensus(values, graph=g, protocol="MH", rounds=30)))
+    assert summary["refused"] == 0

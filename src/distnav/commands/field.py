@@ -3,8 +3,8 @@
 * ``distnav node --config NET --id ID --out DIR`` — one node (:mod:`distnav.commands.field_node`);
 * ``distnav field launch --config NET --out DIR`` — every node of NET on this machine as separate processes,
   bounded in time; collects the nodes' results into ``DIR/results.json`` and their logs;
-* ``distnav field keys --config NET --out NEW.toml`` — a CURVE key pair per node (secret keys in ``NEW.keys/``,
-  mode 0600) and a copy of the description with ``security = "curve"`` and the keys filled in.
+* ``distnav field keys --config NET --out DIR`` — a CURVE key pair per node (secret keys in ``DIR/keys/``, mode
+  0600) and ``DIR/network.toml``: the description with ``security = "curve"`` and the keys filled in.
 
 docs/field.md describes the description file, the wire format and how to run nodes on separate hosts.
 """
@@ -51,7 +51,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     la.set_defaults(func=_launch)
     keys = fsub.add_parser("keys", help="make a CURVE key pair per node and a description that uses them")
     keys.add_argument("--config", type=existing_file, required=True, help="the network description (TOML)")
-    keys.add_argument("--out", type=Path, required=True, help="the new description (keys go to OUT.keys/)")
+    keys.add_argument(
+        "--out",
+        type=output_folder,
+        required=True,
+        help="folder for network.toml (the description using the keys) and keys/",
+    )
     keys.set_defaults(func=_keys)
     # registered here by the asynchronous mode and the demo when present (distnav.commands.field_*)
     for name in ("field_init", "field_demo", "field_async"):
@@ -195,26 +200,25 @@ def _launch(args: argparse.Namespace) -> int:
 
 def _keys(args: argparse.Namespace) -> int:
     desc = _description(args.config)
-    out: Path = args.out
+    out_dir: Path = args.out
+    out, key_dir = out_dir / "network.toml", out_dir / "keys"
     if out.resolve() == Path(args.config).resolve():
-        raise UsageError(f"--out {out}: would overwrite the input description")
-    if out.exists():
-        raise UsageError(f"--out {out}: exists; choose a new file (keys are never overwritten)")
-    key_dir = out.with_name(out.name + ".keys")
-    if key_dir.exists():
-        raise UsageError(f"{key_dir}: exists; choose another --out (keys are never overwritten)")
-    if not out.parent.is_dir():
-        raise UsageError(f"--out {out}: folder {out.parent} does not exist")
+        raise UsageError(f"--out {out_dir}: would overwrite the input description {out}")
+    for existing in (out, key_dir):
+        if existing.exists():
+            raise UsageError(f"--out {out_dir}: {existing} exists; choose a new folder (keys are never overwritten)")
     auth = require("zmq.auth", "field")
+    out_dir.mkdir(parents=True, exist_ok=True)
     key_dir.mkdir(mode=0o700)
     nodes = []
     for n in desc.nodes:
         public_file, secret_file = auth.create_certificates(str(key_dir), f"node-{n.id}")
         os.chmod(secret_file, 0o600)
         public, _ = auth.load_certificate(public_file)
-        nodes.append(dataclasses.replace(n, public_key=public.decode(), secret_key=Path(secret_file)))
+        data = None if n.data is None else n.data.resolve()  # the data stay where they are
+        nodes.append(dataclasses.replace(n, public_key=public.decode(), secret_key=Path(secret_file), data=data))
     new = dataclasses.replace(desc, nodes=tuple(nodes), security="curve")
-    atomic_write_text(out, format_description(new, relative_to=out.parent))
+    atomic_write_text(out, format_description(new, relative_to=out_dir))
     print(
         f"{len(nodes)} key pairs in {key_dir} (secret keys mode 0600: copy each to its node's host only); "
         f'description with security = "curve" -> {out}'
@@ -250,6 +254,9 @@ def write_loopback_network(
     crash: dict[int, int] | None = None,
     deadline_ms: float = 2000.0,
     miss_limit: int = 3,
+    drop_probability: float = 0.0,
+    latency_max_ms: float = 0.0,
+    seed: int = 0,
 ) -> Path:
     """Write ``folder/network.toml`` and one data file per node (``values[i]``) for a network on loopback with free
     ports: what tests, benchmarks and demos launch."""
@@ -278,6 +285,9 @@ def write_loopback_network(
         miss_limit=miss_limit,
         algorithm=algorithm or {"name": "consensus", "rounds": 200, "protocol": "MH", "patience": 20},
         crash=crash or {},
+        drop_probability=drop_probability,
+        drop_seed=seed,
+        latency_max_ms=latency_max_ms,
     )
     path = folder / "network.toml"
     atomic_write_text(path, format_description(desc, relative_to=folder))

@@ -20,6 +20,7 @@ from distnav._optional import require
 from distnav.algorithms.consensus.averaging import iterate_average_consensus
 from distnav.algorithms.consensus.flows import iterate_flow_consensus
 from distnav.errors import DataFileError, UsageError
+from distnav.exchange import FaultSchedule
 from distnav.exchange.field import CurveKeys, FieldExchange, Transport
 from distnav.formats.field_config import NetworkDescription, read_node_values
 from distnav.output import atomic_write_json
@@ -74,7 +75,8 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path) -> int:
         missing = transport.handshake()
         if missing:
             LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
-        ex = FieldExchange(desc.graph(), node_id, transport)
+        schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
+        ex = FieldExchange(desc.graph(), node_id, transport, schedule)
         t_start = time.monotonic()
         full = np.zeros((desc.n_nodes, values.size))
         full[node_id] = values  # the other rows are placeholders: only this node's row is read (ex.local)
@@ -109,6 +111,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path) -> int:
             "missing_at_start": missing,
             "wire": transport.wire_counts(),
             "model_bytes_sent": int(ex.bytes_sent.sum()),
+            "messages_received_model": int(ex.messages_received.sum()),
             "refused": transport.refusal_counts(),
             "seconds": elapsed,
             "seconds_total": time.monotonic() - t0,

@@ -26,8 +26,11 @@ with :func:`format_description` (a string; the command writes it atomically). Th
     public_key = "…40 Z85 characters…"      # with security = "curve"
     secret_key = "keys/node-0.key_secret"   # this node's secret key file (needed only on its own host)
 
-    [faults]                   # for tests and demos: node 3 crashes (exits at once) at round 20
+    [faults]                   # for tests and demos: node 3 crashes (exits at once) at round 20,
     crash = [{ node = 3, round = 20 }]
+    drop_probability = 0.1     # each message dropped (the simulator's seeded FaultSchedule: the same drops)
+    seed = 0
+    latency_max_ms = 50        # each received message held back Uniform(0, 50) ms
 
 Node ids are ``0..n-1``; neighbour lists must be symmetric; addresses distinct.
 """
@@ -88,6 +91,9 @@ class NetworkDescription:
         default_factory=lambda: {"name": "consensus", "rounds": 200, "protocol": "MH", "patience": 20}
     )
     crash: dict[int, int] = field(default_factory=dict)
+    drop_probability: float = 0.0
+    drop_seed: int = 0
+    latency_max_ms: float = 0.0
     path: Path | None = None
 
     @property
@@ -112,7 +118,11 @@ class NetworkDescription:
 
     def transport_options(self) -> TransportOptions:
         return TransportOptions(
-            deadline_s=self.deadline_ms / 1000.0, miss_limit=self.miss_limit, start_timeout_s=self.start_timeout_s
+            deadline_s=self.deadline_ms / 1000.0,
+            miss_limit=self.miss_limit,
+            start_timeout_s=self.start_timeout_s,
+            latency_max_s=self.latency_max_ms / 1000.0,
+            latency_seed=self.drop_seed,
         )
 
     def _where(self) -> str:
@@ -187,7 +197,19 @@ def parse_description(raw: dict[str, Any], *, path: Path | None = None) -> Netwo
     base = path.parent if path is not None else Path.cwd()
     nodes = [_node(t, k, len(tables), base, f"{where} [[node]] #{k + 1}", security) for k, t in enumerate(tables)]
     _check_network(nodes, where)
-    crash = _crashes(_get(raw, "faults", dict, where, {}), len(nodes), f"{where} [faults]")
+    faults = _get(raw, "faults", dict, where, {})
+    wf = f"{where} [faults]"
+    crash = _crashes(faults, len(nodes), wf)
+    unknown_f = set(faults) - {"crash", "drop_probability", "seed", "latency_max_ms"}
+    if unknown_f:
+        raise _fail(wf, f"unknown keys {sorted(unknown_f)}")
+    drop = float(_get(faults, "drop_probability", (int, float), wf, 0.0))
+    if not 0.0 <= drop < 1.0:
+        raise _fail(wf, f"key 'drop_probability' must be in [0, 1), got {drop!r}")
+    latency = float(_get(faults, "latency_max_ms", (int, float), wf, 0.0))
+    if not latency >= 0.0:
+        raise _fail(wf, f"key 'latency_max_ms' must be >= 0, got {latency!r}")
+    drop_seed = _get(faults, "seed", int, wf, 0)
     return NetworkDescription(
         nodes=tuple(sorted(nodes, key=lambda n: n.id)),
         name=_get(net, "name", str, w, "network"),
@@ -197,6 +219,9 @@ def parse_description(raw: dict[str, Any], *, path: Path | None = None) -> Netwo
         start_timeout_s=start_timeout,
         algorithm=algorithm,
         crash=crash,
+        drop_probability=drop,
+        drop_seed=drop_seed,
+        latency_max_ms=latency,
         path=path,
     )
 
@@ -320,8 +345,15 @@ def format_description(desc: NetworkDescription, *, relative_to: Path | None = N
         "algorithm": dict(desc.algorithm),
         "node": nodes,
     }
+    faults: dict[str, Any] = {}
     if desc.crash:
-        doc["faults"] = {"crash": [{"node": k, "round": v} for k, v in sorted(desc.crash.items())]}
+        faults["crash"] = [{"node": k, "round": v} for k, v in sorted(desc.crash.items())]
+    if desc.drop_probability:
+        faults.update(drop_probability=desc.drop_probability, seed=desc.drop_seed)
+    if desc.latency_max_ms:
+        faults.update(latency_max_ms=desc.latency_max_ms, seed=desc.drop_seed)
+    if faults:
+        doc["faults"] = faults
     return str(tomli_w.dumps(doc))
 
 

@@ -20,6 +20,7 @@ the transport stops waiting for it. A lost peer whose messages arrive again (a r
 
 from __future__ import annotations
 
+import heapq
 import logging
 import time
 from collections import Counter
@@ -67,14 +68,20 @@ class TransportOptions:
     miss_limit : consecutive steps without a message after which a peer is declared lost.
     start_timeout_s : how long the start-up handshake waits for every peer's hello.
     max_message_bytes : larger frames are refused unread.
+    latency_max_s : tests and benchmarks: every received message is held back a further Uniform(0, latency_max_s)
+        seconds (drawn from ``latency_seed``) before the step may use it, as if the network had delayed it.
     """
 
     deadline_s: float = 2.0
     miss_limit: int = 3
     start_timeout_s: float = 60.0
     max_message_bytes: int = 16 * 1024 * 1024
+    latency_max_s: float = 0.0
+    latency_seed: int = 0
 
     def __post_init__(self) -> None:
+        if not self.latency_max_s >= 0:
+            raise ExchangeError(f"latency_max_s must be >= 0, got {self.latency_max_s}")
         if not self.deadline_s > 0:
             raise ExchangeError(f"deadline_s must be > 0, got {self.deadline_s}")
         if self.miss_limit < 1:
@@ -168,6 +175,8 @@ class Transport:
         self.frames_sent = 0
         self.frames_received = 0
         self.send_failures = 0
+        self._delayed: list[tuple[float, int, Message]] = []  # (release time, arrival number, message)
+        self._latency = np.random.default_rng(self.options.latency_seed + 7919 * self.me)
 
     # ------------------------------------------------------------- sending
     def post(self, peer: int, kind: Kind, step: int, array: np.ndarray) -> None:
@@ -194,16 +203,15 @@ class Transport:
         waiting = {s for s in want if s not in got and s not in self.lost}
         limit = self.options.deadline_s if deadline_s is None else deadline_s
         end = time.monotonic() + limit
-        poller_timeout = 0
-        while waiting:
-            remaining = end - time.monotonic()
-            if remaining <= 0:
-                break
-            poller_timeout = max(1, int(remaining * 1000))
-            if not self.pull.poll(poller_timeout):
-                continue
-            self._drain(kind, step, got)
+        while True:
+            self._release(kind, step, got)
             waiting -= got.keys()
+            now = time.monotonic()
+            if not waiting or now >= end:
+                break
+            until = min(end, self._delayed[0][0]) if self._delayed else end
+            if self.pull.poll(max(1, int((until - now) * 1000))):
+                self._drain(kind, step, got)
         self._note_missing(want, got, step)
         return got
 
@@ -242,10 +250,23 @@ class Transport:
             msg = self._checked(frame)
             if msg is None or msg.kind == Kind.HELLO:  # a repeated hello of the start-up: nothing to use
                 continue
-            if msg.step > step:
-                self._held.setdefault(msg.step, {})[msg.sender] = msg
-            else:
-                self._accept(msg, kind, step, got)
+            if self.options.latency_max_s > 0:  # injected latency: usable only from its release time on
+                delay = float(self._latency.uniform(0.0, self.options.latency_max_s))
+                heapq.heappush(self._delayed, (time.monotonic() + delay, self.frames_received, msg))
+                continue
+            self._route(msg, kind, step, got)
+
+    def _release(self, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
+        """Hand on the delayed messages whose release time has come (injected latency only)."""
+        now = time.monotonic()
+        while self._delayed and self._delayed[0][0] <= now:
+            self._route(heapq.heappop(self._delayed)[2], kind, step, got)
+
+    def _route(self, msg: Message, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
+        if msg.step > step:
+            self._held.setdefault(msg.step, {})[msg.sender] = msg
+        else:
+            self._accept(msg, kind, step, got)
 
     def _checked(self, frame: Any) -> Message | None:
         try:
