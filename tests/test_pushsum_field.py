@@ -30,7 +30,7 @@ def _free_ports(n: int) -> list[int]:
             s.close()
 
 
-def _write_network(folder: Path, values: np.ndarray, graph) -> Path:  # type: ignore[no-untyped-def]
+def _write_network(folder: Path, values: np.ndarray, graph, loss: float) -> Path:  # type: ignore[no-untyped-def]
     from distnav.formats.field_config import NetworkDescription, NodeEntry, format_description
 
     ports = _free_ports(graph.n_nodes)
@@ -47,15 +47,18 @@ def _write_network(folder: Path, values: np.ndarray, graph) -> Path:  # type: ig
             )
         )
     path = folder / "net.toml"
-    desc = NetworkDescription(nodes=tuple(nodes), name="pushsum-8", start_timeout_s=60.0)
+    desc = NetworkDescription(
+        nodes=tuple(nodes), name="pushsum-8", start_timeout_s=60.0, drop_probability=loss, drop_seed=5
+    )
     path.write_text(format_description(desc, relative_to=folder))
     return path
 
 
-def test_eight_processes_one_slow_reach_the_mean(tmp_path: Path) -> None:
+@pytest.mark.parametrize("loss", [0.0, 0.2])
+def test_eight_processes_one_slow_reach_the_mean(tmp_path: Path, loss: float) -> None:
     g = builders.connected_random_geometric(8, mean_degree=3, rng=np.random.default_rng(11))
     x = np.random.default_rng(12).normal(10.0, 4.0, size=(8, 2))
-    net = _write_network(tmp_path, x, g)
+    net = _write_network(tmp_path, x, g, loss)
     slow = 3
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     procs = []
@@ -94,3 +97,6 @@ def test_eight_processes_one_slow_reach_the_mean(tmp_path: Path) -> None:
     ticks = np.array([r["ticks"] for r in res])
     assert ticks[slow] < 0.6 * np.median(np.delete(ticks, slow)), ticks  # it really ticked slower
     assert all(r["wire"]["bytes_sent"] > 0 and not r["refused"] for r in res)
+    received = sum(r["wire"]["frames_received"] for r in res)
+    dropped = sum(r["dropped_on_purpose"] for r in res)
+    assert (dropped == 0) if loss == 0 else (0.1 * received < dropped < 0.3 * received), (dropped, received)

@@ -23,6 +23,7 @@ import numpy as np
 
 from distnav.algorithms.consensus.pushsum import NodeOutcome, run_push_sum_node
 from distnav.errors import UsageError
+from distnav.exchange.faults import uniform_hash
 from distnav.exchange.field import Kind, Transport
 from distnav.formats.field_config import NetworkDescription, read_description, read_node_values
 from distnav.options import existing_file, nonnegative_int, output_folder, positive_float
@@ -32,19 +33,33 @@ __all__ = ["TransportLink", "add_node_arguments", "open_node", "run_async_node",
 
 
 class TransportLink:
-    """A :class:`~distnav.algorithms.consensus.pushsum.PushSumLink` over the field transport."""
+    """A :class:`~distnav.algorithms.consensus.pushsum.PushSumLink` over the field transport.
 
-    def __init__(self, transport: Transport, neighbours: list[int]) -> None:
+    With ``drop_probability`` > 0 (the description's ``[faults]``, for tests and demos) the receiver drops each
+    arrived message with that probability, decided by ``uniform_hash(seed, tick, sender)``: lost messages in the
+    field, on top of whatever the network loses. ``dropped`` counts them."""
+
+    def __init__(
+        self, transport: Transport, neighbours: list[int], *, drop_probability: float = 0.0, seed: int = 0
+    ) -> None:
         self.transport = transport
         self.neighbours = neighbours
+        self.drop_probability = float(drop_probability)
+        self.seed = int(seed) * 1_000_003 + transport.me  # a different draw at every receiver
+        self.dropped = 0
 
     def post(self, tick: int, running_sum: np.ndarray) -> None:
         for peer in self.neighbours:
             self.transport.post(peer, Kind.COLUMN, tick, running_sum)
 
     def drain(self, timeout_s: float) -> list[tuple[int, int, np.ndarray]]:
-        msgs = self.transport.receive_any(timeout_s)
-        return [(m.sender, m.step, np.asarray(m.array, dtype=float)) for m in msgs if m.kind == Kind.COLUMN]
+        msgs = [m for m in self.transport.receive_any(timeout_s) if m.kind == Kind.COLUMN]
+        if self.drop_probability > 0 and msgs:
+            u = [float(uniform_hash(self.seed, m.step, np.array([m.sender]))[0]) for m in msgs]
+            kept = [m for m, x in zip(msgs, u, strict=True) if x >= self.drop_probability]
+            self.dropped += len(msgs) - len(kept)
+            msgs = kept
+        return [(m.sender, m.step, np.asarray(m.array, dtype=float)) for m in msgs]
 
 
 def run_async_node(
@@ -64,11 +79,12 @@ def run_async_node(
     try:
         missing = transport.handshake()
         t0 = time.monotonic()
+        link = TransportLink(transport, neighbours, drop_probability=desc.drop_probability, seed=desc.drop_seed)
         outcome = run_push_sum_node(
             value,
             out_degree=len(neighbours),
             in_neighbours=neighbours,
-            link=TransportLink(transport, neighbours),
+            link=link,
             period_s=period_s,
             duration_s=duration_s,
         )
@@ -86,6 +102,7 @@ def run_async_node(
                 "seconds": elapsed,
                 "last_tick_from": {str(k): v for k, v in sorted(outcome.last_tick_from.items())},
                 "not_used": outcome.refused,
+                "dropped_on_purpose": link.dropped,
                 "refused": transport.refusal_counts(),
                 "missing_at_start": missing,
                 "wire": transport.wire_counts(),
