@@ -223,6 +223,11 @@ class FieldExchange(Exchange):
         base = cast(Any, ExchangeCore.__dict__["_fault_plan"]).func(self)  # the core's plan, built as in-process
         return cast(FaultPlan, _NetworkPlan(base, self))
 
+    def start_at(self, step: int) -> None:
+        """Continue a running network from ``step`` (a rejoining node, after :meth:`Transport.join`): for node code
+        with one message round per step (consensus), round ``step`` is the next (the fault schedule follows)."""
+        self.step = self.round_index = int(step)
+
     @property
     def lost_nodes(self) -> dict[int, int]:
         """Peers declared lost and the step at which they were."""
