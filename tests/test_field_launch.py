@@ -52,14 +52,21 @@ def test_consensus_on_node_processes_is_bitwise_the_inprocess_run(tmp_path: Path
         assert r["wire"]["bytes_sent"] >= r["model_bytes_sent"] + 32 * 60 * g.degrees[i]
 
 
-def test_a_node_killed_at_round_20_leaves_the_mean_of_the_remaining_data(tmp_path: Path) -> None:
+def _crash_network(tmp_path: Path, rounds: int, width: int, seed: int, deadline_ms: float):  # type: ignore[no-untyped-def]
+    """8 nodes running consensus_flows; the best-connected node whose loss leaves the rest connected crashes at round
+    20. Returns (graph, that node, the data, the description's path)."""
     g = _graph(8, seed=3, degree=5)
     dead = _victim(g)
-    values = np.random.default_rng(4).normal(size=(8, 2))
-    algo = {"name": "consensus_flows", "rounds": 400, "protocol": "MH", "patience": 5}
+    values = np.random.default_rng(seed).normal(size=(8, width))
+    algo = {"name": "consensus_flows", "rounds": rounds, "protocol": "MH", "patience": 5}
     net = write_loopback_network(
-        tmp_path / "net", g.links, values, algorithm=algo, crash={dead: 20}, deadline_ms=1500, miss_limit=3
+        tmp_path / "net", g.links, values, algorithm=algo, crash={dead: 20}, deadline_ms=deadline_ms, miss_limit=3
     )
+    return g, dead, values, net
+
+
+def test_a_node_killed_at_round_20_leaves_the_mean_of_the_remaining_data(tmp_path: Path) -> None:
+    g, dead, values, net = _crash_network(tmp_path, 400, 2, 4, 1500)
     summary = launch(net, tmp_path / "run", timeout_s=240, quiet=True)
     assert summary["crashed_on_purpose"] == [dead] and not summary["failed"], summary["failed"]
     assert summary["finished"] == [i for i in range(8) if i != dead]
@@ -117,3 +124,22 @@ def test_curve_network_runs_and_equals_the_plain_one(tmp_path: Path) -> None:
     field = np.array([summary["nodes"][str(i)]["estimate"] for i in range(5)])
     assert np.array_equal(field, _last(iterate_average_consensus(values, graph=g, protocol="MH", rounds=30)))
     assert summary["refused"] == 0
+
+
+def test_a_restarted_node_rejoins_and_its_data_count_again(tmp_path: Path) -> None:
+    g, dead, values, net = _crash_network(tmp_path, 1200, 1, 8, 1000)
+    text = net.read_text().replace(
+        f"{{ node = {dead}, round = 20 }}", f"{{ node = {dead}, round = 20, restart_after_s = 0.2 }}"
+    )
+    assert "restart_after_s" in text
+    net.write_text(text)
+    summary = launch(net, tmp_path / "run", timeout_s=300, quiet=True)
+    assert summary["rejoined"] == [dead] and summary["finished"] == list(range(8)), summary["failed"]
+    back = summary["nodes"][str(dead)]["rejoined_at_step"]
+    assert 20 < back < 1200
+    for i in g.neighbors(dead):  # its neighbours lost it, then took it back
+        r = summary["nodes"][str(int(i))]
+        assert str(dead) in r["readmitted_nodes"] and not r["lost_nodes"]
+    # every node's data count again: the mean of all the data (numpy's), to 1e-6
+    est = np.array([summary["nodes"][str(i)]["estimate"] for i in range(8)])
+    assert np.abs(est - values.mean(axis=0)).max() <= 1e-6

@@ -38,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     node.add_argument("--config", type=existing_file, required=True, help="the network description (TOML)")
     node.add_argument("--id", type=nonnegative_int, required=True, help="this node's id in the description")
     node.add_argument("--out", type=output_folder, required=True, help="folder for node-ID.json and node-ID.log")
+    node.add_argument(
+        "--rejoin", action="store_true", help="a restarted node: join the running network at its neighbours' step"
+    )
     node.set_defaults(func=_node)
 
     field = sub.add_parser("field", help="field networks: launch every node on this machine, make keys")
@@ -85,7 +88,7 @@ def _node(args: argparse.Namespace) -> int:
     desc = _description(args.config)
     check_node_id(desc, args.id)
     _setup_log(args.out, args.id)
-    return run_node(desc, args.id, args.out)
+    return run_node(desc, args.id, args.out, rejoin=args.rejoin)
 
 
 def launch(desc_path: Path, out_dir: Path, *, timeout_s: float = 300.0, quiet: bool = False) -> dict[str, Any]:
@@ -94,41 +97,48 @@ def launch(desc_path: Path, out_dir: Path, *, timeout_s: float = 300.0, quiet: b
     desc = _description(desc_path)
     out_dir.mkdir(parents=True, exist_ok=True)
     procs: dict[int, subprocess.Popen[bytes]] = {}
+    from distnav.commands.field_node import CRASH_EXIT
+
     env = dict(os.environ)
     src = str(Path(__file__).resolve().parents[2])  # the distnav this process runs, first on the children's path
     env["PYTHONPATH"] = src + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     t0 = time.monotonic()
+
+    def start(node_id: int, *extra: str) -> subprocess.Popen[bytes]:
+        cmd = [sys.executable, "-m", "distnav", "node", "--config", str(desc_path), "--id", str(node_id)]
+        with open(out_dir / f"node-{node_id}.stderr", "ab") as err:
+            return subprocess.Popen(
+                [*cmd, "--out", str(out_dir), *extra],
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+                env=env,
+                start_new_session=True,
+            )
+
+    codes: dict[int, int | None] = {}
+    rejoined: list[int] = []
+    restart_at: dict[int, float] = {}
     try:
-        for n in desc.nodes:
-            cmd = [
-                sys.executable,
-                "-m",
-                "distnav",
-                "node",
-                "--config",
-                str(desc_path),
-                "--id",
-                str(n.id),
-                "--out",
-                str(out_dir),
-            ]
-            with open(out_dir / f"node-{n.id}.stderr", "wb") as err:
-                procs[n.id] = subprocess.Popen(
-                    cmd, stdout=subprocess.DEVNULL, stderr=err, env=env, start_new_session=True
-                )
-        codes: dict[int, int | None] = {}
-        for node_id, p in procs.items():
-            remaining = max(0.1, timeout_s - (time.monotonic() - t0))
-            try:
-                codes[node_id] = p.wait(timeout=remaining)
-            except subprocess.TimeoutExpired:
-                codes[node_id] = None
+        procs = {n.id: start(n.id) for n in desc.nodes}
+        while len(codes) < len(procs) and time.monotonic() - t0 < timeout_s:
+            for node_id, p in procs.items():
+                if node_id in codes or p.poll() is None:
+                    continue
+                if p.returncode == CRASH_EXIT and node_id in desc.restart_after_s and node_id not in rejoined:
+                    restart_at.setdefault(node_id, time.monotonic() + desc.restart_after_s[node_id])
+                    if time.monotonic() >= restart_at[node_id]:  # the crashed node comes back and rejoins
+                        procs[node_id] = start(node_id, "--rejoin")
+                        rejoined.append(node_id)
+                    continue
+                codes[node_id] = p.returncode
+            time.sleep(0.05)
+        codes.update({i: None for i in procs if i not in codes})  # still running at the timeout
     finally:
         for p in procs.values():
             if p.poll() is None:
                 _kill_group(p)
     elapsed = time.monotonic() - t0
-    return _collect(desc, out_dir, codes, elapsed, quiet=quiet)
+    return _collect(desc, out_dir, codes, elapsed, quiet=quiet, rejoined=rejoined)
 
 
 def _kill_group(p: subprocess.Popen[bytes]) -> None:
@@ -140,7 +150,13 @@ def _kill_group(p: subprocess.Popen[bytes]) -> None:
 
 
 def _collect(
-    desc: NetworkDescription, out_dir: Path, codes: dict[int, int | None], elapsed: float, *, quiet: bool
+    desc: NetworkDescription,
+    out_dir: Path,
+    codes: dict[int, int | None],
+    elapsed: float,
+    *,
+    quiet: bool,
+    rejoined: list[int],
 ) -> dict[str, Any]:
     import json
 
@@ -163,6 +179,7 @@ def _collect(
         "n_nodes": desc.n_nodes,
         "finished": finished,
         "crashed_on_purpose": crashed,
+        "rejoined": rejoined,
         "failed": failed,
         "seconds": elapsed,
         "wire_bytes": int(sum(r["wire"]["bytes_sent"] for r in nodes.values())),

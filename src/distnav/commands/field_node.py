@@ -61,38 +61,48 @@ def node_values(desc: NetworkDescription, node_id: int) -> np.ndarray:
     return read_node_values(entry.data, node_id)
 
 
-def run_node(desc: NetworkDescription, node_id: int, out_dir: Path) -> int:
-    """Run node ``node_id`` to the end (see the module docstring); returns the exit code."""
+def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: bool = False) -> int:
+    """Run node ``node_id`` to the end (see the module docstring); returns the exit code. ``rejoin``: a restarted
+    node joining a running network (from its initial data, at the step its neighbours are at; no crash again)."""
     entry = desc.node(node_id)
     values = node_values(desc, node_id)
     keys = load_keys(desc, node_id)
     algo = desc.algorithm
     rounds = int(algo["rounds"])
-    crash_round = desc.crash.get(node_id)
+    crash_round = None if rejoin else desc.crash.get(node_id)
     transport = Transport(node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=keys)
     t0 = time.monotonic()
     try:
-        missing = transport.handshake()
+        first = transport.join() if rejoin else 0
+        missing = [] if rejoin else transport.handshake()
         if missing:
             LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
         schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
         ex = FieldExchange(desc.graph(), node_id, transport, schedule)
+        if rejoin:
+            ex.start_at(first)
+            LOG.warning("node %d: rejoining at step %d", node_id, first)
         t_start = time.monotonic()
         full = np.zeros((desc.n_nodes, values.size))
         full[node_id] = values  # the other rows are placeholders: only this node's row is read (ex.local)
         states: Any
         if algo["name"] == "consensus":
             states = iterate_average_consensus(
-                full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds, exchange=ex
+                full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds - first, exchange=ex
             )
         else:
             states = iterate_flow_consensus(
-                full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds, exchange=ex, patience=algo["patience"]
+                full,
+                graph=ex.graph,
+                protocol=algo["protocol"],
+                rounds=rounds - first,
+                exchange=ex,
+                patience=algo["patience"],
             )
         last = None
         for state in states:
             last = state
-            if crash_round is not None and state.round == crash_round:
+            if crash_round is not None and state.round + first == crash_round:
                 LOG.warning("node %d: crashing on purpose at round %d ([faults] crash)", node_id, crash_round)
                 logging.shutdown()
                 os._exit(CRASH_EXIT)
@@ -109,6 +119,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path) -> int:
             "lost_nodes": {str(k): v for k, v in sorted(transport.lost.items())},
             "readmitted_nodes": {str(k): v for k, v in sorted(transport.readmitted.items())},
             "missing_at_start": missing,
+            "rejoined_at_step": first if rejoin else None,
             "wire": transport.wire_counts(),
             "model_bytes_sent": int(ex.bytes_sent.sum()),
             "messages_received_model": int(ex.messages_received.sum()),

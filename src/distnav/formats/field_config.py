@@ -27,7 +27,7 @@ with :func:`format_description` (a string; the command writes it atomically). Th
     secret_key = "keys/node-0.key_secret"   # this node's secret key file (needed only on its own host)
 
     [faults]                   # for tests and demos: node 3 crashes (exits at once) at round 20,
-    crash = [{ node = 3, round = 20 }]
+    crash = [{ node = 3, round = 20 }]     # add restart_after_s = 2 to restart it (it rejoins)
     drop_probability = 0.1     # each message dropped (the simulator's seeded FaultSchedule: the same drops)
     seed = 0
     latency_max_ms = 50        # each received message held back Uniform(0, 50) ms
@@ -91,6 +91,7 @@ class NetworkDescription:
         default_factory=lambda: {"name": "consensus", "rounds": 200, "protocol": "MH", "patience": 20}
     )
     crash: dict[int, int] = field(default_factory=dict)
+    restart_after_s: dict[int, float] = field(default_factory=dict)
     drop_probability: float = 0.0
     drop_seed: int = 0
     latency_max_ms: float = 0.0
@@ -199,7 +200,7 @@ def parse_description(raw: dict[str, Any], *, path: Path | None = None) -> Netwo
     _check_network(nodes, where)
     faults = _get(raw, "faults", dict, where, {})
     wf = f"{where} [faults]"
-    crash = _crashes(faults, len(nodes), wf)
+    crash, restart = _crashes(faults, len(nodes), wf)
     unknown_f = set(faults) - {"crash", "drop_probability", "seed", "latency_max_ms"}
     if unknown_f:
         raise _fail(wf, f"unknown keys {sorted(unknown_f)}")
@@ -219,6 +220,7 @@ def parse_description(raw: dict[str, Any], *, path: Path | None = None) -> Netwo
         start_timeout_s=start_timeout,
         algorithm=algorithm,
         crash=crash,
+        restart_after_s=restart,
         drop_probability=drop,
         drop_seed=drop_seed,
         latency_max_ms=latency,
@@ -299,9 +301,10 @@ def _check_network(nodes: list[NodeEntry], where: str) -> None:
                 raise _fail(where, f"node {n.id} lists neighbour {j}, but node {j} does not list {n.id}")
 
 
-def _crashes(table: dict[str, Any], n: int, where: str) -> dict[int, int]:
+def _crashes(table: dict[str, Any], n: int, where: str) -> tuple[dict[int, int], dict[int, float]]:
     entries = _get(table, "crash", list, where, [])
     out: dict[int, int] = {}
+    restart: dict[int, float] = {}
     for e in entries:
         if not isinstance(e, dict):
             raise _fail(where, f"key 'crash': entries are tables {{ node = N, round = R }}, got {e!r}")
@@ -309,7 +312,12 @@ def _crashes(table: dict[str, Any], n: int, where: str) -> dict[int, int]:
         if not 0 <= node < n or rnd < 0:
             raise _fail(where, f"key 'crash': node {node} round {rnd} (node in 0..{n - 1}, round >= 0)")
         out[node] = rnd
-    return out
+        after = _get(e, "restart_after_s", (int, float), where, None)
+        if after is not None:
+            if not after >= 0:
+                raise _fail(where, f"key 'crash': node {node}: restart_after_s must be >= 0, got {after!r}")
+            restart[node] = float(after)
+    return out, restart
 
 
 def format_description(desc: NetworkDescription, *, relative_to: Path | None = None) -> str:
@@ -347,7 +355,14 @@ def format_description(desc: NetworkDescription, *, relative_to: Path | None = N
     }
     faults: dict[str, Any] = {}
     if desc.crash:
-        faults["crash"] = [{"node": k, "round": v} for k, v in sorted(desc.crash.items())]
+        faults["crash"] = [
+            {
+                "node": k,
+                "round": v,
+                **({"restart_after_s": desc.restart_after_s[k]} if k in desc.restart_after_s else {}),
+            }
+            for k, v in sorted(desc.crash.items())
+        ]
     if desc.drop_probability:
         faults.update(drop_probability=desc.drop_probability, seed=desc.drop_seed)
     if desc.latency_max_ms:

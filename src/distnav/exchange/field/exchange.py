@@ -80,7 +80,13 @@ class FieldExchange(Exchange):
         self._self_out = np.flatnonzero(self.out_dst == me)
         self._init_accounting()
         self.step = 0
-        self._lost_in = np.zeros(e.size, bool)
+        self._no_loss = np.zeros(e.size, bool)
+        self._no_loss.setflags(write=False)
+        self._lost_in = self._no_loss
+        others_idx = np.flatnonzero(others)
+        self._in_edge_of = {int(self.in_src[k]): int(k) for k in others_idx}
+        self._column_of = {int(self.in_src[k]): int(col[k]) for k in others_idx}
+        self._peer_cache: dict[int | None, tuple[list[int], list[int], np.ndarray, np.ndarray | None]] = {}
 
     # ------------------------------------------------------------- transport
     def _next_step(self) -> int:
@@ -103,19 +109,38 @@ class FieldExchange(Exchange):
             ok[s] = arr
         return ok
 
+    def _peers_of(self, active: np.ndarray | None) -> tuple[list[int], list[int], np.ndarray]:
+        """(receivers of this block's active out-edges, senders of its active in-edges, the in-edge mask), cached
+        per mask (a run uses a handful: all edges, a session, ADMM's pair edges)."""
+        key = None if active is None else id(active)
+        hit = self._peer_cache.get(key)
+        if hit is None or (active is not None and hit[3] is not active):
+            act_out, act_in = self._active_slices(active)
+            targets = np.unique(self.out_dst[act_out]).tolist()
+            senders = np.unique(self.in_src[act_in]).tolist()
+            hit = (targets, senders, act_in, active)
+            self._peer_cache[key] = hit  # the mask is kept alive with its entry, so its id stays unique
+        return hit[0], hit[1], hit[2]
+
+    def _lost_mask(self, act_in: np.ndarray, got: dict[int, np.ndarray]) -> np.ndarray:
+        if len(got) == len(self._in_edge_of):
+            return self._no_loss
+        arrived = np.zeros(self.in_edges.size, bool)
+        arrived[[self._in_edge_of[s] for s in got]] = True
+        return act_in & ~arrived
+
     def _columns(self, flat_local: np.ndarray, active: np.ndarray | None) -> np.ndarray:
-        act_out, act_in = self._active_slices(active)
+        targets, senders, act_in = self._peers_of(active)
         step = self._next_step()
         row = np.ascontiguousarray(flat_local[0])
-        for t in np.unique(self.out_dst[act_out]).tolist():
+        for t in targets:
             self.transport.post(t, Kind.COLUMN, step, row)
-        senders = np.unique(self.in_src[act_in])
         got = self._received_rows(self.transport.collect(Kind.COLUMN, step, senders), row.shape, row.dtype)
         cols = np.zeros((self.n_columns, row.size), dtype=flat_local.dtype)
         cols[0] = row
         for s, arr in got.items():
-            cols[1 + int(np.searchsorted(self.neighbours, s))] = arr
-        self._lost_in = act_in & ~np.isin(self.in_src, list(got))
+            cols[self._column_of[s]] = arr
+        self._lost_in = self._lost_mask(act_in, got)
         return cols
 
     def _move_edges(self, flat_out: np.ndarray, active: np.ndarray | None) -> np.ndarray:
@@ -130,8 +155,8 @@ class FieldExchange(Exchange):
         if self._self_in.size and self._self_out.size:
             out[self._self_in] = flat_out[self._self_out]
         for s, arr in got.items():
-            out[int(np.flatnonzero(self.in_src == s)[0])] = arr
-        self._lost_in = act_in & ~np.isin(self.in_src, list(got))
+            out[self._in_edge_of[s]] = arr
+        self._lost_in = self._lost_mask(act_in, got)
         return out
 
     def _finish_round(self, values_in, act_out, act_in, tail, msg_bytes, owned=False):  # type: ignore[no-untyped-def]
@@ -222,6 +247,11 @@ class FieldExchange(Exchange):
         round under a schedule then runs the in-process code (bitwise as in-process when the network lost nothing)."""
         base = cast(Any, ExchangeCore.__dict__["_fault_plan"]).func(self)  # the core's plan, built as in-process
         return cast(FaultPlan, _NetworkPlan(base, self))
+
+    def start_at(self, step: int) -> None:
+        """Continue a running network from ``step`` (a rejoining node, after :meth:`Transport.join`): for node code
+        with one message round per step (consensus), round ``step`` is the next (the fault schedule follows)."""
+        self.step = self.round_index = int(step)
 
     @property
     def lost_nodes(self) -> dict[int, int]:

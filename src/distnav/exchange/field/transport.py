@@ -234,21 +234,18 @@ class Transport:
         out: list[Message] = []
         if not self.pull.poll(max(0, int(timeout_s * 1000))):
             return out
-        while True:
-            try:
-                frame = self.pull.recv(self._zmq.NOBLOCK, copy=False)
-            except self._zmq.Again:
-                return out
-            self.frames_received += 1
-            self.bytes_received += len(frame.buffer)
+        for frame in self._frames():
             msg = self._checked(frame)
             if msg is not None and msg.kind != Kind.HELLO:
                 out.append(msg)
+        return out
 
     def _drain(self, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
         for frame in self._frames():
             msg = self._checked(frame)
-            if msg is None or msg.kind == Kind.HELLO:  # a repeated hello of the start-up: nothing to use
+            if msg is not None and msg.kind == Kind.HELLO:
+                self._hello(msg.sender, step)
+            if msg is None or msg.kind == Kind.HELLO:
                 continue
             if self.options.latency_max_s > 0:  # injected latency: usable only from its release time on
                 delay = float(self._latency.uniform(0.0, self.options.latency_max_s))
@@ -267,6 +264,45 @@ class Transport:
             self._held.setdefault(msg.step, {})[msg.sender] = msg
         else:
             self._accept(msg, kind, step, got)
+
+    def _hello(self, sender: int, step: int) -> None:
+        """A hello during the run: a repeated one of the start-up, or a restarted peer (lost, or its process new)
+        asking to rejoin: readmitted, its steps counted afresh, waited for again from the next step on."""
+        if sender in self.lost:
+            del self.lost[sender]
+            self.readmitted[sender] = step
+            self._last_step[sender] = -1
+            self._missed[sender] = 0
+            LOG.warning("node %d: node %d rejoins at step %d", self.me, sender, step)
+
+    def join(self) -> int:
+        """Rejoin a running network (a restarted node): greet the neighbours until one of them sends a step
+        message, and return the latest step seen (the step to run next); messages of earlier steps are dropped."""
+        zmq = self._zmq
+        end = time.monotonic() + self.options.start_timeout_s
+        hello, next_send, seen = np.zeros(0, np.uint8), 0.0, -1
+        while time.monotonic() < end:  # until a step message, then half a second more (queued old steps first)
+            if time.monotonic() >= next_send:
+                for p in self.push.values():
+                    try:
+                        p.send(encode(Kind.HELLO, self.me, 0, hello), zmq.NOBLOCK)
+                    except zmq.Again:
+                        pass
+                next_send = time.monotonic() + 0.2
+            if self.pull.poll(50):
+                for frame in self._frames():
+                    msg = self._checked_hello(frame)
+                    if msg is not None and msg.kind != Kind.HELLO:
+                        seen = max(seen, msg.step)
+            if seen >= 0:
+                end = min(end, time.monotonic() + 0.5) if end - time.monotonic() > 0.5 else end
+                if time.monotonic() >= end:
+                    break
+        if seen < 0:
+            raise ExchangeError(f"node {self.me}: no neighbour answered within {self.options.start_timeout_s} s")
+        for k in [k for k in self._held if k < seen]:
+            del self._held[k]
+        return seen
 
     def _checked(self, frame: Any) -> Message | None:
         try:
