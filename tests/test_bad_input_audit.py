@@ -338,12 +338,103 @@ def _gnss_cases() -> list[Cli]:
     return cases
 
 
+_NET = (
+    "{write:net:version = 1\n[[node]]\nid = 0\naddress = 'tcp://127.0.0.1:5000'\nneighbours = [1]\n"
+    "[[node]]\nid = 1\naddress = 'tcp://127.0.0.1:5001'\nneighbours = [0]\n}"
+)
+
+
+def _field_cases() -> list[Cli]:
+    """``distnav node`` and ``distnav field launch|keys`` (issue 26)."""
+    o = ("--out", "{tmp}/out")
+    node = ("node", "--config", _NET)
+    launch = ("field", "launch", "--config", _NET)
+    return [
+        Cli("field-none", ("field",), "required"),
+        Cli("node-no-config", ("node", "--id", "0", *o), "required: --config"),
+        Cli("node-config-absent", ("node", "--config", "{tmp}/none.toml", "--id", "0", *o), "no such file"),
+        Cli("node-config-not-toml", ("node", "--config", "{write:bad:version = [}", "--id", "0", *o), "valid TOML"),
+        Cli(
+            "node-config-asymmetric",
+            ("node", "--config", _NET.replace("neighbours = [0]", "neighbours = []"), "--id", "0", *o),
+            "node 0 lists neighbour 1, but node 1 does not list 0",
+        ),
+        Cli("node-id-negative", (*node, "--id", "-1", *o), "must be 0 or more"),
+        Cli("node-id-absent", (*node, "--id", "5", *o), "--id 5: the description has nodes 0..1"),
+        Cli("node-id-missing", (*node, *o), "required: --id"),
+        Cli("node-out-file", (*node, "--id", "0", "--out", "{file}"), "is an existing file"),
+        Cli("field-launch-no-config", ("field", "launch", *o), "required: --config"),
+        Cli("field-launch-out-file", (*launch, "--out", "{file}"), "is an existing file"),
+        Cli("field-launch-timeout", (*launch, *o, "--timeout", "0"), "must be"),
+        Cli("field-keys-no-config", ("field", "keys", *o), "required: --config"),
+        Cli("field-keys-out-file", ("field", "keys", "--config", _NET, "--out", "{file}"), "is an existing file"),
+    ]
+
+
+def _field_async_cases() -> list[Cli]:
+    """field init, field demo and the node programs they start (issue 26 items 3, 5, 8)."""
+    init = ("field", "init", "--ranges", "{ranges}")
+    out = ("--out", "{tmp}/n.toml")
+    demo = ("field", "demo", "--out", "{tmp}/out")
+    cases = [
+        Cli("field-init-no-source", ("field", "init", *out), "one of the arguments --ranges --rinex is required"),
+        Cli("field-init-both-sources", (*init, "--rinex", "{obs}", *out), "not allowed with argument"),
+        Cli("field-init-ranges-missing", ("field", "init", "--ranges", "{tmp}/none.csv", *out), "no such file"),
+        Cli("field-init-rinex-missing", ("field", "init", "--rinex", "{tmp}/none.rnx", *out), "no such file"),
+        Cli("field-init-rinex-one", ("field", "init", "--rinex", "{obs}", *out), "at least 2 station files"),
+        Cli("field-init-k-zero", (*init, "--k", "0", *out), "must be at least 1"),
+        Cli("field-init-min-ranges-zero", (*init, "--min-ranges", "0", *out), "must be at least 1"),
+        Cli("field-init-min-ranges-high", (*init, "--min-ranges", "2", *out), "no partner with at least 2"),
+        Cli("field-init-hosts-bad", (*init, "--hosts", "a b", *out), "not a host name"),
+        Cli("field-init-hosts-count", (*init, "--hosts", "h1,h2", *out), "2 hosts for 4 nodes"),
+        Cli("field-init-base-port-low", (*init, "--base-port", "80", *out), "1024..65535"),
+        Cli("field-init-base-port-high", (*init, "--base-port", "65534", *out), "passes port 65535"),
+        Cli("field-init-name-empty", (*init, "--name", " ", *out), "non-empty printable name"),
+        Cli("field-init-out-exists", (*init, "--out", "{file}"), "never overwrites"),
+        Cli("field-init-out-no-folder", (*init, "--out", "{tmp}/nowhere/n.toml"), "does not exist"),
+        Cli("field-demo-nodes-few", (*demo, "--nodes", "3"), "at least 4"),
+        Cli("field-demo-nodes-many", (*demo, "--nodes", "65"), "at most 64"),
+        Cli("field-demo-rounds-zero", (*demo, "--rounds", "0"), "must be at least 1"),
+        Cli("field-demo-kill-round-zero", (*demo, "--kill-round", "0"), "must be at least 1"),
+        Cli("field-demo-kill-round-late", (*demo, "--rounds", "10", "--kill-round", "10"), "--kill-round must be"),
+        Cli("field-demo-pushsum-seconds", (*demo, "--pushsum-seconds", "0"), "must be greater than 0"),
+        Cli("field-demo-timeout", (*demo, "--timeout", "soon"), "expected a number"),
+        Cli("field-demo-seed", (*demo, "--seed", "-1"), "seed must be 0 or more"),
+        Cli("field-demo-uwb-iterations", (*demo, "--uwb-iterations", "0"), "must be at least 1"),
+        Cli("field-demo-deadline", (*demo, "--deadline-ms", "-5"), "must be greater than 0"),
+        Cli("field-demo-out-file", ("field", "demo", "--out", "{file}"), "is an existing file"),
+    ]
+    for cmd in ("pushsum-node", "demo-uwb-node"):
+        node = ("field", cmd, "--config", _NET, "--id", "0", "--out", "{tmp}/out")
+        cases += [
+            Cli(
+                f"field-{cmd}-config",
+                ("field", cmd, "--config", "{tmp}/none.toml", "--id", "0", "--out", "{tmp}/o"),
+                "no such file",
+            ),
+            Cli(f"field-{cmd}-id-text", (*node, "--id", "one"), "expected a whole number"),
+            Cli(f"field-{cmd}-id-range", (*node, "--id", "2"), "the description has nodes 0..1"),
+            Cli(f"field-{cmd}-out-file", (*node, "--out", "{file}"), "is an existing file"),
+        ]
+    node = ("field", "pushsum-node", "--config", _NET, "--id", "0", "--out", "{tmp}/out")
+    uwb = ("field", "demo-uwb-node", "--config", _NET, "--id", "0", "--out", "{tmp}/out")
+    return [
+        *cases,
+        Cli("field-pushsum-node-period", (*node, "--period-ms", "0"), "must be greater than 0"),
+        Cli("field-pushsum-node-duration", (*node, "--duration-s", "long"), "expected a number"),
+        Cli("field-demo-uwb-node-seed", (*uwb, "--seed", "-2"), "seed must be 0 or more"),
+        Cli("field-demo-uwb-node-iterations", (*uwb, "--iterations", "0"), "must be at least 1"),
+    ]
+
+
 CLI_CASES = [
     Cli("no-command", (), "required"),
     Cli("unknown-command", ("fly",), "invalid choice"),
     *_experiment_cases(),
     *_uwb_cases(),
     *_gnss_cases(),
+    *_field_async_cases(),
+    *_field_cases(),
 ]
 
 GOOD_RANGES = "a,b,range_m\nA00,A01,5.0\nA00,A02,5.0\nA01,A02,5.0\nA00,A03,5.0\nA01,A03,5.0\nA02,A03,7.07\n"

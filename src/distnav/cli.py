@@ -33,7 +33,12 @@ from distnav.options import output_folder, positive_int, probe_output_folder, se
 from distnav.output import set_file_writer
 
 # real-data command groups; each module defines ``register(subparsers)``
-COMMAND_MODULES = ("distnav.commands.uwb", "distnav.commands.gnss", "distnav.commands.reproduce_all")
+COMMAND_MODULES = (
+    "distnav.commands.uwb",
+    "distnav.commands.gnss",
+    "distnav.commands.reproduce_all",
+    "distnav.commands.field",
+)
 
 
 def _add_common(p: argparse.ArgumentParser) -> None:

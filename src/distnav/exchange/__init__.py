@@ -43,4 +43,8 @@ def make_exchange(
         from distnav.exchange.mpi import MPIExchange  # lazy: mpi4py is an optional extra
 
         return MPIExchange(graph, faults, **options)  # type: ignore[arg-type]
-    raise ExchangeError(f"unknown exchange backend {backend!r}; choose 'inprocess' or 'mpi'")
+    if backend == "field":  # this thread's node of a field network (distnav.exchange.field.session)
+        from distnav.exchange.field.session import session_exchange
+
+        return session_exchange(graph, faults, **options)  # type: ignore[arg-type]
+    raise ExchangeError(f"unknown exchange backend {backend!r}; choose 'inprocess', 'mpi' or 'field'")

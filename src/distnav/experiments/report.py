@@ -235,6 +235,28 @@ def communication_lines(results: Any) -> list[str]:
     return [f"{k}: {v['line']}" for k, v in block.items() if isinstance(v, dict) and "line" in v]
 
 
+def _field_section(out_dir: Path) -> tuple[list[str], list[str]]:
+    """The section for ``out_dir/field/results.json`` (written by ``distnav field demo --out DIR/field``), if any:
+    its headline numbers and verdicts; nothing when the file is absent."""
+    path = out_dir / "field" / "results.json"
+    if not path.is_file():
+        return [], []
+    res = json.loads(path.read_text(encoding="utf-8"))
+    title = f"Field runtime: {res.get('nodes', '?')} node processes on loopback (distnav field demo)"
+    rows = [(str(k), _fmt(v)) for k, v in res.get("headline", {}).items()]
+    rows += [(str(k), "ok" if v else "FAIL") for k, v in res.get("verdicts", {}).items()]
+    parts = [
+        f"<h2 id='field'>{html.escape(title)}</h2>",
+        "<p><a href='field/results.json'>results.json</a></p>",
+        "<table><tr><th>quantity</th><th>distnav</th></tr>",
+    ]
+    parts += [f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in rows]
+    parts.append("</table>")
+    md = [f"## {title}", "", "[field/results.json](field/results.json)", "", "| quantity | distnav |", "|---|---|"]
+    md += [f"| {k.replace('|', chr(92) + '|')} | {v.replace('|', '/')} |" for k, v in rows]
+    return parts, [*md, ""]
+
+
 def write_report(
     out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any], float]], *, quick: bool = True
 ) -> Path:
@@ -330,6 +352,9 @@ def write_report(
             )
             md += [f"[![{fig}]({rel}/{fig})]({rel}/{fig})", "", f"*{cap}*", ""]
         md.append("")
+    field_html, field_md = _field_section(out_dir)
+    parts += field_html
+    md += field_md
     parts.append("</body></html>")
     index = out_dir / "index.html"
     atomic_write_text(index, "\n".join(parts))

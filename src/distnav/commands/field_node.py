@@ -1,0 +1,140 @@
+"""``distnav node --config NET --id ID``: one node of a field network as its own program.
+
+The node reads the description, loads only its own data file, binds its address, greets its neighbours, runs the
+algorithm over a :class:`~distnav.exchange.field.FieldExchange` (the same node code as in-process and under MPI) and
+writes ``node-ID.json`` (its estimate, status, rounds, the peers it lost and when, real wire bytes and refusals) and
+``node-ID.log`` into ``--out``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from distnav._optional import require
+from distnav.algorithms.consensus.averaging import iterate_average_consensus
+from distnav.algorithms.consensus.flows import iterate_flow_consensus
+from distnav.errors import DataFileError, UsageError
+from distnav.exchange import FaultSchedule
+from distnav.exchange.field import CurveKeys, FieldExchange, Transport
+from distnav.formats.field_config import NetworkDescription, read_node_values
+from distnav.output import atomic_write_json
+
+__all__ = ["CRASH_EXIT", "load_keys", "run_node", "node_values"]
+
+#: Exit code of a node that crashes on purpose (``[faults] crash`` in the description).
+CRASH_EXIT = 70
+LOG = logging.getLogger("distnav.field")
+
+
+def load_keys(desc: NetworkDescription, node_id: int) -> CurveKeys | None:
+    """This node's CURVE key pair from its secret key file (None without CURVE); the public half must be the one
+    the description lists."""
+    if desc.security != "curve":
+        return None
+    entry = desc.node(node_id)
+    if entry.secret_key is None:
+        raise DataFileError(f"{desc._where()}: node {node_id}: key 'secret_key' is needed with security = \"curve\"")
+    auth = require("zmq.auth", "field")
+    try:
+        public, secret = auth.load_certificate(str(entry.secret_key))
+    except (OSError, ValueError) as exc:
+        raise DataFileError(f"{entry.secret_key}: node {node_id}: cannot read the secret key ({exc})") from None
+    if secret is None:
+        raise DataFileError(f"{entry.secret_key}: node {node_id}: holds no secret key (a public key file?)")
+    if entry.public_key is not None and public.decode() != entry.public_key:
+        raise DataFileError(
+            f"{entry.secret_key}: node {node_id}: this key pair's public key is not the one the description lists"
+        )
+    return CurveKeys(public=public, secret=secret)
+
+
+def node_values(desc: NetworkDescription, node_id: int) -> np.ndarray:
+    entry = desc.node(node_id)
+    if entry.data is None:
+        raise DataFileError(f"{desc._where()}: node {node_id}: key 'data' (its data file) is needed by consensus")
+    return read_node_values(entry.data, node_id)
+
+
+def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: bool = False) -> int:
+    """Run node ``node_id`` to the end (see the module docstring); returns the exit code. ``rejoin``: a restarted
+    node joining a running network (from its initial data, at the step its neighbours are at; no crash again)."""
+    entry = desc.node(node_id)
+    values = node_values(desc, node_id)
+    keys = load_keys(desc, node_id)
+    algo = desc.algorithm
+    rounds = int(algo["rounds"])
+    crash_round = None if rejoin else desc.crash.get(node_id)
+    transport = Transport(node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=keys)
+    t0 = time.monotonic()
+    try:
+        first = transport.join() if rejoin else 0
+        missing = [] if rejoin else transport.handshake()
+        if missing:
+            LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
+        schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
+        ex = FieldExchange(desc.graph(), node_id, transport, schedule)
+        if rejoin:
+            ex.start_at(first)
+            LOG.warning("node %d: rejoining at step %d", node_id, first)
+        t_start = time.monotonic()
+        full = np.zeros((desc.n_nodes, values.size))
+        full[node_id] = values  # the other rows are placeholders: only this node's row is read (ex.local)
+        states: Any
+        if algo["name"] == "consensus":
+            states = iterate_average_consensus(
+                full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds - first, exchange=ex
+            )
+        else:
+            states = iterate_flow_consensus(
+                full,
+                graph=ex.graph,
+                protocol=algo["protocol"],
+                rounds=rounds - first,
+                exchange=ex,
+                patience=algo["patience"],
+            )
+        last = None
+        for state in states:
+            last = state
+            if crash_round is not None and state.round + first == crash_round:
+                LOG.warning("node %d: crashing on purpose at round %d ([faults] crash)", node_id, crash_round)
+                logging.shutdown()
+                os._exit(CRASH_EXIT)
+        assert last is not None
+        elapsed = time.monotonic() - t_start
+        ex._flush()  # this node's model counters (comm_totals would gather over the network)
+        result = {
+            "node": node_id,
+            "algorithm": algo["name"],
+            "estimate": last.values[0],
+            "initial": values,
+            "rounds": rounds,
+            "status": "completed" if not transport.lost else "completed_with_lost_neighbours",
+            "lost_nodes": {str(k): v for k, v in sorted(transport.lost.items())},
+            "readmitted_nodes": {str(k): v for k, v in sorted(transport.readmitted.items())},
+            "missing_at_start": missing,
+            "rejoined_at_step": first if rejoin else None,
+            "wire": transport.wire_counts(),
+            "model_bytes_sent": int(ex.bytes_sent.sum()),
+            "messages_received_model": int(ex.messages_received.sum()),
+            "refused": transport.refusal_counts(),
+            "seconds": elapsed,
+            "seconds_total": time.monotonic() - t0,
+            "rounds_per_second": rounds / elapsed if elapsed > 0 else None,
+        }
+        atomic_write_json(out_dir / f"node-{node_id}.json", result)
+        LOG.info("node %d: %d rounds in %.2f s, lost %s", node_id, rounds, elapsed, sorted(transport.lost))
+        return 0
+    finally:
+        transport.close()
+
+
+def check_node_id(desc: NetworkDescription, node_id: int) -> None:
+    if not 0 <= node_id < desc.n_nodes:
+        raise UsageError(f"--id {node_id}: the description has nodes 0..{desc.n_nodes - 1}")

@@ -1,0 +1,434 @@
+"""The field runtime's transport: ZeroMQ sockets between node processes, with deadlines, checks and real byte counts.
+
+Each node binds one ``PULL`` socket on its own address and connects one ``PUSH`` socket to every peer it talks to.
+A *step* is one collective call of the run (a consensus round, an edge round, a reduction, a gather); every node
+counts steps alike, so a message is identified by ``(sender, step)``. :meth:`Transport.collect` waits for one
+message per expected sender of a step until the deadline; a message that misses it is lost (the exchange's
+``delivered`` mask shows it). A message of a future step is kept for later (a faster neighbour); one of a past step
+is refused: as a *replay* when that sender's step was already accepted, else as *late*.
+
+Refusals (unknown sender or key, malformed, oversize, replayed, late, out of sequence) are logged and counted in
+:attr:`Transport.refused`; the node keeps running. With CURVE (:class:`CurveKeys`) the ZAP handler admits only the
+public keys of the description, and a message's claimed sender must be the owner of the key it arrived under.
+
+A peer that sends nothing for ``miss_limit`` consecutive steps is declared lost (a late message proves its sender
+alive and restarts the count: a node that waited for a dead neighbour delays its own messages, and its neighbours
+must not take it for dead) (:attr:`Transport.lost`, with the
+step): with a deadline ``d`` a dead neighbour is noticed within ``miss_limit × d`` seconds of its last message, and
+the transport stops waiting for it. A lost peer whose messages arrive again (a restarted node) is readmitted.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import time
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from distnav._optional import require
+from distnav.errors import ExchangeError
+from distnav.exchange.field.wire import Kind, Message, WireError, decode, encode
+
+__all__ = ["CurveKeys", "Peer", "Transport", "TransportOptions"]
+
+LOG = logging.getLogger("distnav.field")
+
+
+def _zmq() -> Any:
+    return require("zmq", "field")
+
+
+@dataclass(frozen=True)
+class Peer:
+    """Another node process: its node id, ``tcp://host:port`` and (with CURVE) its Z85 public key."""
+
+    node: int
+    address: str
+    public_key: bytes | None = None
+
+
+@dataclass(frozen=True)
+class CurveKeys:
+    """This node's CURVE key pair (Z85, as written by ``zmq.curve_keypair``)."""
+
+    public: bytes
+    secret: bytes
+
+
+@dataclass(frozen=True)
+class TransportOptions:
+    """Timing and limits of a node's transport (documented defaults; validated once).
+
+    deadline_s : how long a step waits for its messages before the missing ones count as lost.
+    miss_limit : consecutive steps without a message after which a peer is declared lost.
+    start_timeout_s : how long the start-up handshake waits for every peer's hello.
+    max_message_bytes : larger frames are refused unread.
+    latency_max_s : tests and benchmarks: every received message is held back a further Uniform(0, latency_max_s)
+        seconds (drawn from ``latency_seed``) before the step may use it, as if the network had delayed it.
+    """
+
+    deadline_s: float = 2.0
+    miss_limit: int = 3
+    start_timeout_s: float = 60.0
+    max_message_bytes: int = 16 * 1024 * 1024
+    latency_max_s: float = 0.0
+    latency_seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.latency_max_s >= 0:
+            raise ExchangeError(f"latency_max_s must be >= 0, got {self.latency_max_s}")
+        if not self.deadline_s > 0:
+            raise ExchangeError(f"deadline_s must be > 0, got {self.deadline_s}")
+        if self.miss_limit < 1:
+            raise ExchangeError(f"miss_limit must be >= 1, got {self.miss_limit}")
+        if not self.start_timeout_s > 0:
+            raise ExchangeError(f"start_timeout_s must be > 0, got {self.start_timeout_s}")
+        if self.max_message_bytes < 64:
+            raise ExchangeError(f"max_message_bytes must be >= 64, got {self.max_message_bytes}")
+
+
+@dataclass
+class _Admission:
+    """ZAP credentials check: only the listed public keys connect; refusals are logged and counted."""
+
+    allowed: dict[bytes, int]
+    refused: Counter[str] = field(default_factory=Counter)
+
+    def callback(self, domain: str, key: bytes) -> bool:
+        zmq = _zmq()
+        z85 = zmq.utils.z85.encode(key) if len(key) == 32 else key
+        if z85 in self.allowed:
+            return True
+        self.refused["unknown_key"] += 1
+        LOG.warning("refused a connection from unknown CURVE key %s", z85.decode(errors="replace"))
+        return False
+
+
+class Transport:
+    """One node's sockets (see the module docstring)."""
+
+    def __init__(
+        self,
+        me: int,
+        address: str,
+        peers: list[Peer],
+        *,
+        options: TransportOptions | None = None,
+        keys: CurveKeys | None = None,
+        context: Any = None,
+    ) -> None:
+        zmq = _zmq()
+        self._zmq = zmq
+        self.me = int(me)
+        self.options = options if options is not None else TransportOptions()
+        self.peers = {p.node: p for p in peers}
+        if self.me in self.peers:
+            raise ExchangeError(f"node {me} lists itself as a peer")
+        self.curve = keys is not None
+        if self.curve and any(p.public_key is None for p in peers):
+            missing = sorted(p.node for p in peers if p.public_key is None)
+            raise ExchangeError(f"CURVE needs every peer's public key; missing for nodes {missing}")
+        self._owns_context = context is None  # threads of one process may share one (inproc:// addresses)
+        self.ctx = zmq.Context() if context is None else context
+        self.refused: Counter[str] = Counter()
+        self._auth: Any = None
+        self._admission: _Admission | None = None
+        self._key_owner: dict[str, int] = {}
+        self.pull = self.ctx.socket(zmq.PULL)
+        self.pull.linger = 0
+        if keys is not None:
+            from zmq.auth.thread import ThreadAuthenticator
+
+            allowed = {p.public_key: p.node for p in peers if p.public_key is not None}
+            self._key_owner = {k.decode(): n for k, n in allowed.items()}
+            self._admission = _Admission(allowed)
+            self._auth = ThreadAuthenticator(self.ctx, log=LOG.getChild("zap"))
+            self._auth.start()
+            self._auth.configure_curve_callback(domain="*", credentials_provider=self._admission)
+            self.pull.curve_secretkey = keys.secret
+            self.pull.curve_publickey = keys.public
+            self.pull.curve_server = True
+        self.pull.bind(address)
+        self.push: dict[int, Any] = {}
+        for p in peers:
+            s = self.ctx.socket(zmq.PUSH)
+            s.linger = 2000  # queued messages still leave after close (a node that finished)
+            s.sndhwm = 10_000
+            if keys is not None:
+                s.curve_secretkey = keys.secret
+                s.curve_publickey = keys.public
+                s.curve_serverkey = p.public_key
+            s.connect(p.address)
+            self.push[p.node] = s
+        self._held: dict[int, dict[int, Message]] = {}  # step → sender → message (arrived early)
+        self._last_step = dict.fromkeys(self.peers, -1)
+        self._missed = dict.fromkeys(self.peers, 0)
+        self.lost: dict[int, int] = {}  # peer → step at which it was declared lost
+        self.readmitted: dict[int, int] = {}
+        self.bytes_sent = 0
+        self.bytes_received = 0
+        self.frames_sent = 0
+        self.frames_received = 0
+        self.send_failures = 0
+        self._delayed: list[tuple[float, int, Message]] = []  # (release time, arrival number, message)
+        self._latency = np.random.default_rng(self.options.latency_seed + 7919 * self.me)
+
+    # ------------------------------------------------------------- sending
+    def post(self, peer: int, kind: Kind, step: int, array: np.ndarray) -> None:
+        """Queue one message to ``peer`` without blocking (a full queue to a dead peer drops it, counted)."""
+        frame = encode(kind, self.me, step, array)
+        try:
+            self.push[peer].send(frame, self._zmq.NOBLOCK, copy=len(frame) < 65536)
+        except self._zmq.Again:
+            self.send_failures += 1
+            return
+        self.bytes_sent += len(frame)
+        self.frames_sent += 1
+
+    # ------------------------------------------------------------- receiving
+    def collect(
+        self, kind: Kind, step: int, senders: list[int] | np.ndarray, *, deadline_s: float | None = None
+    ) -> dict[int, np.ndarray]:
+        """The arrays of ``step`` from ``senders`` that arrive before the deadline (peers declared lost are not
+        waited for, but still accepted if they arrive)."""
+        want = {int(s) for s in senders}
+        got: dict[int, np.ndarray] = {}
+        for msg in self._held.pop(step, {}).values():
+            self._accept(msg, kind, step, got)
+        waiting = {s for s in want if s not in got and s not in self.lost}
+        limit = self.options.deadline_s if deadline_s is None else deadline_s
+        end = time.monotonic() + limit
+        while True:
+            self._release(kind, step, got)
+            waiting -= got.keys()
+            now = time.monotonic()
+            if not waiting or now >= end:
+                break
+            until = min(end, self._delayed[0][0]) if self._delayed else end
+            if self.pull.poll(max(1, int((until - now) * 1000))):
+                self._drain(kind, step, got)
+        self._note_missing(want, got, step)
+        return got
+
+    def _frames(self) -> Iterator[Any]:
+        """Every frame waiting on the socket now (counted as received bytes)."""
+        zmq = self._zmq
+        while True:
+            try:
+                frame = self.pull.recv(zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                return
+            self.frames_received += 1
+            self.bytes_received += len(frame.buffer)
+            yield frame
+
+    def receive_any(self, timeout_s: float) -> list[Message]:
+        """Every message that has arrived, waiting at most ``timeout_s`` for the first: checked (sender, size,
+        format, CURVE key; refusals counted) but not matched to a step — for nodes that run without steps (the
+        asynchronous mode, :mod:`distnav.commands.field_async`)."""
+        out: list[Message] = []
+        if not self.pull.poll(max(0, int(timeout_s * 1000))):
+            return out
+        for frame in self._frames():
+            msg = self._checked(frame)
+            if msg is not None and msg.kind != Kind.HELLO:
+                out.append(msg)
+        return out
+
+    def _drain(self, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
+        for frame in self._frames():
+            msg = self._checked(frame)
+            if msg is not None and msg.kind == Kind.HELLO:
+                self._hello(msg.sender, step)
+            if msg is None or msg.kind == Kind.HELLO:
+                continue
+            if self.options.latency_max_s > 0:  # injected latency: usable only from its release time on
+                delay = float(self._latency.uniform(0.0, self.options.latency_max_s))
+                heapq.heappush(self._delayed, (time.monotonic() + delay, self.frames_received, msg))
+                continue
+            self._route(msg, kind, step, got)
+
+    def _release(self, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
+        """Hand on the delayed messages whose release time has come (injected latency only)."""
+        now = time.monotonic()
+        while self._delayed and self._delayed[0][0] <= now:
+            self._route(heapq.heappop(self._delayed)[2], kind, step, got)
+
+    def _route(self, msg: Message, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
+        if msg.step > step:
+            self._held.setdefault(msg.step, {})[msg.sender] = msg
+        else:
+            self._accept(msg, kind, step, got)
+
+    def _hello(self, sender: int, step: int) -> None:
+        """A hello during the run: a repeated one of the start-up, or a restarted peer (lost, or its process new)
+        asking to rejoin: readmitted, its steps counted afresh, waited for again from the next step on."""
+        if sender in self.lost:
+            del self.lost[sender]
+            self.readmitted[sender] = step
+            self._last_step[sender] = -1
+            self._missed[sender] = 0
+            LOG.warning("node %d: node %d rejoins at step %d", self.me, sender, step)
+
+    def join(self) -> int:
+        """Rejoin a running network (a restarted node): greet the neighbours until one of them sends a step
+        message, and return the latest step seen (the step to run next); messages of earlier steps are dropped."""
+        zmq = self._zmq
+        end = time.monotonic() + self.options.start_timeout_s
+        hello, next_send, seen = np.zeros(0, np.uint8), 0.0, -1
+        while time.monotonic() < end:  # until a step message, then half a second more (queued old steps first)
+            if time.monotonic() >= next_send:
+                for p in self.push.values():
+                    try:
+                        p.send(encode(Kind.HELLO, self.me, 0, hello), zmq.NOBLOCK)
+                    except zmq.Again:
+                        pass
+                next_send = time.monotonic() + 0.2
+            if self.pull.poll(50):
+                for frame in self._frames():
+                    msg = self._checked_hello(frame)
+                    if msg is not None and msg.kind != Kind.HELLO:
+                        seen = max(seen, msg.step)
+            if seen >= 0:
+                end = min(end, time.monotonic() + 0.5) if end - time.monotonic() > 0.5 else end
+                if time.monotonic() >= end:
+                    break
+        if seen < 0:
+            raise ExchangeError(f"node {self.me}: no neighbour answered within {self.options.start_timeout_s} s")
+        for k in [k for k in self._held if k < seen]:
+            del self._held[k]
+        return seen
+
+    def _checked(self, frame: Any) -> Message | None:
+        try:
+            msg = decode(frame.buffer, max_bytes=self.options.max_message_bytes)
+        except WireError as exc:
+            reason = "oversize" if str(exc).startswith("oversize") else "malformed"
+            return self._refuse(reason, str(exc))
+        if msg.sender not in self.peers:
+            return self._refuse("unknown_sender", f"message from node {msg.sender}, not a peer of node {self.me}")
+        if msg.kind == Kind.HELLO:
+            return msg
+        if self.curve:
+            owner = self._key_owner.get(frame.get("User-Id"))
+            if owner != msg.sender:
+                return self._refuse(
+                    "forged_sender", f"message claims node {msg.sender} but came under the key of node {owner}"
+                )
+        if msg.step <= self._last_step[msg.sender]:
+            return self._refuse(
+                "replay", f"replay of step {msg.step} from node {msg.sender} (already at {self._last_step[msg.sender]})"
+            )
+        return msg
+
+    def _accept(self, msg: Message, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
+        if msg.step < step:  # lost for its step, but its sender is alive: no step towards declaring it lost
+            self._missed[msg.sender] = -1
+            self._refuse("late", f"late message of step {msg.step} from node {msg.sender} (now at step {step})")
+            return
+        if msg.kind != kind:
+            self._refuse(
+                "out_of_sequence", f"node {msg.sender} sent {msg.kind.name} at step {step}, expected {kind.name}"
+            )
+            return
+        self._last_step[msg.sender] = msg.step
+        if msg.sender in self.lost:
+            self.readmitted[msg.sender] = step
+            del self.lost[msg.sender]
+            LOG.warning("node %d: node %d is back at step %d", self.me, msg.sender, step)
+        got[msg.sender] = msg.array
+
+    def _note_missing(self, want: set[int], got: dict[int, np.ndarray], step: int) -> None:
+        for s in want:
+            if s in got:
+                self._missed[s] = 0
+                continue
+            self._missed[s] += 1
+            if s not in self.lost and self._missed[s] >= self.options.miss_limit:
+                self.lost[s] = step
+                LOG.warning(
+                    "node %d: node %d lost at step %d (%d steps without a message)", self.me, s, step, self._missed[s]
+                )
+
+    def _refuse(self, reason: str, text: str) -> Message | None:
+        """Count and log a refused message; returns None (what the checks hand on instead of the message)."""
+        self.refused[reason] += 1
+        LOG.warning("node %d refused a message: %s", self.me, text)
+        return None
+
+    # ------------------------------------------------------------- start-up, shutdown
+    def handshake(self, peers: list[int] | None = None) -> list[int]:
+        """Send a hello (step -1 is not a step: hellos use kind HELLO at step 0 of a separate count) to every peer and
+        wait for theirs; returns the peers that never answered within ``start_timeout_s``."""
+        targets = sorted(self.peers) if peers is None else sorted(peers)
+        zmq = self._zmq
+        seen: set[int] = set()
+        end = time.monotonic() + self.options.start_timeout_s
+        hello = np.zeros(0, np.uint8)
+        next_send = 0.0
+        while len(seen) < len(targets) and time.monotonic() < end:
+            now = time.monotonic()
+            if now >= next_send:  # repeat until answered: a peer that binds late missed nothing
+                for p in targets:
+                    frame = encode(Kind.HELLO, self.me, 0, hello)
+                    try:
+                        self.push[p].send(frame, zmq.NOBLOCK)
+                        self.bytes_sent += len(frame)
+                        self.frames_sent += 1
+                    except zmq.Again:
+                        pass
+                next_send = now + 0.5
+            if self.pull.poll(50):
+                for frame in self._frames():
+                    msg = self._checked_hello(frame)
+                    if msg is not None:
+                        seen.add(msg.sender)
+        # hellos still in flight are discarded by kind at step 0 (they are HELLO, never a step message)
+        return [p for p in targets if p not in seen]
+
+    def _checked_hello(self, frame: Any) -> Message | None:
+        try:
+            msg = decode(frame.buffer, max_bytes=self.options.max_message_bytes)
+        except WireError as exc:
+            return self._refuse("malformed", str(exc))
+        if msg.sender not in self.peers:
+            return self._refuse("unknown_sender", f"hello from node {msg.sender}, not a peer of node {self.me}")
+        if msg.kind != Kind.HELLO:  # a fast peer already in step 0: keep it
+            self._held.setdefault(msg.step, {})[msg.sender] = msg
+            return msg
+        return msg
+
+    def wire_counts(self) -> dict[str, int]:
+        """Real bytes and frames this node put on and took off the wire, and the sends that could not be queued."""
+        return {
+            "bytes_sent": self.bytes_sent,
+            "bytes_received": self.bytes_received,
+            "frames_sent": self.frames_sent,
+            "frames_received": self.frames_received,
+            "send_failures": self.send_failures,
+        }
+
+    @property
+    def refusals(self) -> int:
+        total = sum(self.refused.values())
+        return total + (sum(self._admission.refused.values()) if self._admission is not None else 0)
+
+    def refusal_counts(self) -> dict[str, int]:
+        out = dict(self.refused)
+        if self._admission is not None:
+            out.update(self._admission.refused)
+        return out
+
+    def close(self) -> None:
+        for s in self.push.values():
+            s.close()
+        self.pull.close()
+        if self._auth is not None:
+            self._auth.stop()
+        if self._owns_context:
+            self.ctx.term()

@@ -1,0 +1,115 @@
+"""The field runtime's wire format: one message = one ZeroMQ frame, a fixed little-endian header then raw bytes.
+
+Versioned and language-neutral (no pickle): any program that can pack a C struct can talk to a distnav node.
+
+========  =====  ==========================================================================================
+offset    type   field
+========  =====  ==========================================================================================
+0         4s     magic ``b"DNF1"``
+4         u1     version (:data:`VERSION`)
+5         u1     kind (:class:`Kind`: a consensus column, an edge value, a reduction, a gather, a hello)
+6         u1     dtype code (:data:`DTYPES`: 1 = float64, 2 = float32, 3 = int64, 4 = uint8)
+7         u1     ndim (0…4)
+8         u4     sender node id
+12        u8     step (every collective call of the run is one step, counted from 0 by every node alike)
+20        u8     payload length in bytes
+28        ndim×u4  shape
+…         bytes  payload: the array in C order, little-endian
+========  =====  ==========================================================================================
+
+:func:`decode` checks every field against what the receiver expects before the payload is used (length consistent
+with dtype × shape, size limit, known kind and dtype) and raises :class:`WireError` naming the problem; the
+exchange logs and counts such refusals and keeps running.
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from distnav.errors import ExchangeError
+
+__all__ = ["MAGIC", "VERSION", "DTYPES", "Kind", "Message", "WireError", "encode", "decode", "HEADER"]
+
+MAGIC = b"DNF1"
+VERSION = 1
+HEADER = struct.Struct("<4sBBBBIQQ")
+_DIM = struct.Struct("<I")
+MAX_NDIM = 4
+#: dtype code → numpy dtype (little-endian on the wire whatever the host)
+DTYPES: dict[int, np.dtype] = {
+    1: np.dtype("<f8"),
+    2: np.dtype("<f4"),
+    3: np.dtype("<i8"),
+    4: np.dtype("u1"),
+}
+
+
+class Kind(enum.IntEnum):
+    """What a message carries."""
+
+    COLUMN = 1  #: a node's value for a consensus round / broadcast (the same to every neighbour)
+    EDGE = 2  #: a value for one directed edge (``Exchange.send``)
+    REDUCE = 3  #: a contribution to an all-reduce (monitoring)
+    GATHER = 4  #: a node's rows for gather_nodes (results)
+    HELLO = 5  #: "I am up" (start-up and rejoin)
+    BYE = 6  #: "I am done" (a neighbour that finished is not a lost one)
+
+
+class WireError(ExchangeError):
+    """A received message that is not a valid distnav field message."""
+
+
+@dataclass(frozen=True)
+class Message:
+    kind: Kind
+    sender: int
+    step: int
+    array: np.ndarray
+
+
+def encode(kind: Kind, sender: int, step: int, array: np.ndarray) -> bytes:
+    """One frame: header, shape, payload (C order, little-endian)."""
+    a = np.asarray(array)
+    code = next((c for c, dt in DTYPES.items() if (a.dtype.kind, a.dtype.itemsize) == (dt.kind, dt.itemsize)), None)
+    if code is None:
+        raise WireError(f"cannot send dtype {a.dtype} (float64, float32, int64 or uint8 only)")
+    if a.ndim > MAX_NDIM:
+        raise WireError(f"cannot send an array of {a.ndim} dimensions (at most {MAX_NDIM})")
+    payload = np.ascontiguousarray(a, dtype=DTYPES[code]).tobytes()
+    head = HEADER.pack(MAGIC, VERSION, int(kind), code, a.ndim, int(sender), int(step), len(payload))
+    return head + b"".join(_DIM.pack(int(d)) for d in a.shape) + payload
+
+
+def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
+    """Parse and check one frame (see the module docstring); :class:`WireError` names what is wrong."""
+    buf = memoryview(frame)
+    if len(buf) > max_bytes:
+        raise WireError(f"oversize message: {len(buf)} bytes (limit {max_bytes})")
+    if len(buf) < HEADER.size:
+        raise WireError(f"malformed message: {len(buf)} bytes, shorter than the {HEADER.size}-byte header")
+    magic, version, kind, code, ndim, sender, step, length = HEADER.unpack_from(buf)
+    if magic != MAGIC:
+        raise WireError(f"malformed message: magic {bytes(magic)!r}, expected {MAGIC!r}")
+    if version != VERSION:
+        raise WireError(f"message of wire version {version}; this node speaks version {VERSION}")
+    try:
+        kind_ = Kind(kind)
+    except ValueError:
+        raise WireError(f"malformed message: unknown kind {kind}") from None
+    dtype = DTYPES.get(code)
+    if dtype is None:
+        raise WireError(f"malformed message: unknown dtype code {code}")
+    if ndim > MAX_NDIM:
+        raise WireError(f"malformed message: ndim {ndim} > {MAX_NDIM}")
+    start = HEADER.size + ndim * _DIM.size
+    if len(buf) != start + length:
+        raise WireError(f"malformed message: {len(buf)} bytes, the header announces {start + length}")
+    shape = tuple(_DIM.unpack_from(buf, HEADER.size + k * _DIM.size)[0] for k in range(ndim))
+    if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize != length:
+        raise WireError(f"malformed message: shape {shape} of {dtype} is not {length} bytes")
+    arr = np.frombuffer(buf[start:], dtype=dtype).reshape(shape)
+    return Message(kind_, int(sender), int(step), arr.astype(dtype.newbyteorder("="), copy=False))
