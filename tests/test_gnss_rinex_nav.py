@@ -1,4 +1,4 @@
-"""distnav's own navigation-file reader (``models/gnss/rinex_nav``) against georinex, the reader it replaces.
+"""distnav's own navigation-file reader (``formats/gnss/rinex_nav``) against georinex, the reader it replaces.
 
 On every shared RINEX 2 / 3 navigation file with GPS records: the same records (satellite, time of clock) and
 every field of every GPS record equal to georinex's, and the broadcast orbit built from either identical. Then

@@ -1,6 +1,6 @@
 """``distnav field init``: write a field network description (TOML) from what a user has.
 
-* ``--ranges ranges.csv`` — a UWB range log (``a,b,range_m``, :mod:`distnav.models.uwb.io`): one node per anchor,
+* ``--ranges ranges.csv`` — a UWB range log (``a,b,range_m``, :mod:`distnav.formats.uwb.io`): one node per anchor,
   neighbours are the anchors it ranged with (a link when at least ``--min-ranges`` samples of the pair were read);
 * ``--rinex FILE ...`` — one RINEX observation file per GNSS station: one node per station, placed at its
   ``APPROX POSITION XYZ``, neighbours are the ``--k`` nearest stations (symmetrised: a link when either picks the
@@ -53,7 +53,7 @@ def _id_order(ids: set[str]) -> list[str]:
 
 def plan_from_ranges(path: Path, *, min_ranges: int = 1) -> InitPlan:
     """Anchors and who ranges with whom, from a range log (see the module docstring)."""
-    from distnav.models.uwb.io import read_ranges
+    from distnav.formats.uwb.io import read_ranges
 
     log = read_ranges(path)
     if log.range_m.size == 0:
@@ -76,7 +76,7 @@ def plan_from_ranges(path: Path, *, min_ranges: int = 1) -> InitPlan:
 
 def plan_from_rinex(paths: list[Path], *, k: int = 3) -> InitPlan:
     """Stations at their approximate positions, each linked to its ``k`` nearest (see the module docstring)."""
-    from distnav.models.gnss.rinex_obs import read_header
+    from distnav.formats.gnss.rinex_obs import read_header
 
     if len(paths) < 2:
         raise UsageError(f"--rinex needs at least 2 station files for a network, got {len(paths)}")
