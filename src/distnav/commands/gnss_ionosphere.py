@@ -101,7 +101,9 @@ def validate_arguments(args: argparse.Namespace) -> None:
     if args.reference is not None and not re.match(r"^[A-Za-z0-9]{4}$", args.reference):
         raise ModelError(f"--reference {args.reference}: not a 4-character station name")
     from distnav.commands.gnss import check_data_arguments  # gnss.py registers this module: import lazily
+    from distnav.commands.gnss_datum import check_datum_option
 
+    check_datum_option(args)
     check_data_arguments(args)  # the shared data options, then whether the named files exist
     _check_tlim_days(args)
 
@@ -371,7 +373,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         print_worst_own,
     )
     from distnav.commands.gnss_sinex_out import write_sinex
-    from distnav.formats.gnss.product_files import product_dsbs
+    from distnav.formats.gnss.product_files import product_dsbs, satellite_svns
     from distnav.formats.gnss.rinex import read_navigation, read_sp3
     from distnav.models.gnss.gfnetwork import innovation_summary, run_bias_filters, satellite_fit
     from distnav.models.gnss.ionosphere import TEC_NAMES_QUADRATIC, TECU_L1_M
@@ -446,6 +448,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         graph = load_edges(Path(args.graph), stations)
     else:
         graph = _default_graph(data.positions_ecef_m, stations)
+    from distnav.commands.gnss_datum import datum_choice
+
+    fixed = datum_choice(args, l1, l2)
     _say(
         args,
         f"{n} station(s), {data.series.n_epochs} epochs, {len(layout.svs)} satellites, datum {args.datum}, "
@@ -461,8 +466,12 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         kn=args.kn,
         exchange=command_exchange(args, graph),
         innovation_level=args.innovation_test,
+        datum_satellites=fixed.members,
+        datum_reference_ns=fixed.reference_ns,
     )
     obj = [f"rx:{r}" for r in stations] + list(layout.svs)
+    datum_text = _datum_text(args.datum, pivot, args.reference or layout.reference, series[0], layout, fixed)
+    print(f"datum: {datum_text}")
     out = Path(args.out)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -542,6 +551,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         "last_epoch": times[-1],
         "satellites": list(layout.svs),
         "datum": args.datum,
+        "datum_statement": datum_text,
+        "datum_satellites": list(fixed.members) if fixed.members is not None else None,
+        "datum_reference": fixed.reference_name,
         "pivot": pivot,
         "estimation_basis": layout.reference,
         "ionosphere": data.ionosphere,
@@ -552,7 +564,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         "mask_deg": args.mask,
         "notes": data.notes,
         "station_codes": own,
-        "dcb_convention": f"DSB {l1}-{l2} in ns (Bias-SINEX sign: biases add to the observations), datum {args.datum}",
+        "dcb_convention": f"DSB {l1}-{l2} in ns (Bias-SINEX sign: biases add to the observations), datum {datum_text}",
         "final_tec_m": {
             s.label: {nm: (float(s.tec[-1, k]), float(s.tec_std[-1, k])) for k, nm in enumerate(tec_names)}
             for s in series
@@ -592,7 +604,10 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     summary["satellite_fit"] = fit.as_dict()
     fac = series[0].realistic_factor
     post = (finals["central"][0], {k: v * fac for k, v in finals["central"][1].items()})
-    summary["bias_sinex"] = str(write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times))
+    svns = satellite_svns([*(args.bias or []), *([args.datum_satellites] if fixed.reference_name else [])])
+    summary["bias_sinex"] = str(
+        write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times, datum_text=datum_text, svns=svns)
+    )
     atomic_write_json(out / "summary.json", summary)
     print_data_report(summary)
     print_summary(stations, comparison, finals, fac)
@@ -604,6 +619,19 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     )
     print(f"written {out / 'tec_dcb_per_epoch.csv'}, {out / 'dcb_final.csv'}, {out / 'summary.json'}")
     return 0
+
+
+def _datum_text(datum: str, pivot: str | None, reference: str, central: Any, layout: Any, fixed: Any) -> str:
+    """The datum in words with the satellites it runs over at the final epoch (console, summary, Bias-SINEX)."""
+    from distnav.models.gnss.datum import datum_statement
+
+    if datum == "pivot":
+        return f"pivot satellite {pivot} (its DSB is zero)"
+    if datum == "receiver":
+        return f"reference receiver {reference} (its DSB is zero)"
+    n = len(layout.receivers)
+    present = [s for s, v in zip(layout.svs, central.dsb_ns[-1, n:].tolist(), strict=True) if np.isfinite(v)]
+    return datum_statement(present, fixed.members, fixed.reference_name)
 
 
 def _split_days(args: argparse.Namespace) -> dict[str, list[str]]:
@@ -658,7 +686,10 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
     result = combine_days(summaries)
     worst_over_days(result, summaries)
     atomic_write_json(out / "multiday.json", result)
-    write_combined_sinex(out / "distnav_dsb_combined.bia", result, summaries)
+    from distnav.formats.gnss.product_files import satellite_svns
+
+    svns = satellite_svns([*(args.bias or []), *([args.datum_satellites] if args.datum_satellites else [])])
+    write_combined_sinex(out / "distnav_dsb_combined.bia", result, summaries, svns)
     rep = result["repeatability_ns"]
     med = np.nanmedian([v for v in rep.values() if v is not None]) if rep else float("nan")
     rx = ", ".join(f"{k[3:]} {v:.3f}" for k, v in sorted(rep.items()) if k.startswith("rx:") and v is not None)
@@ -727,6 +758,13 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         "satellite (--pivot) or a reference receiver (--reference)",
     )
     p.add_argument("--pivot", default=None, help="pivot satellite of --datum pivot (e.g. G10)")
+    p.add_argument(
+        "--datum-satellites",
+        default=None,
+        metavar="LIST|PRODUCT",
+        help="fixed satellite set of the zero-mean datum: G01,G02,... or a Bias-SINEX product (its satellites; a "
+        "missing one is held at the product's value, so it moves no other; output in the product's datum)",
+    )
     p.add_argument(
         "--reference",
         default=None,
