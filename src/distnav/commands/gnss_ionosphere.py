@@ -2,7 +2,7 @@
 the central filter, the single-receiver (local) filters and the consensus Kalman filter (paper 003 §5).
 
     distnav gnss ionosphere --obs FILE... (--nav FILE | --sp3 FILE...) [--graph EDGES.csv] [--kn K]
-                            [--bias FILE...] [--out DIR]
+                            [--bias FILE...] [--datum-satellites LIST|PRODUCT] [--out DIR]
 
 Per station the geometry-free code ``(P_b − P_1)/(μ_b − 1)`` is formed from the chosen codes (default C1C and C2W,
 or C1W when no ``--bias`` product gives C1C DSBs; RINEX 2 ``C1`` = C1C, ``P1`` = C1W, ``P2`` = C2W; C5Q/C5X use
@@ -10,7 +10,8 @@ the L5 factor), levelled to the carrier per arc (slips by geometry-free phase an
 w-tested by each station on its own data. The model (:mod:`distnav.models.gnss.gfbias`, docs/ionosphere.md):
 a regional single-layer VTEC field per ionosphere (one per receiver when the network spans more than
 ``--regional-km``) plus receiver *and* satellite DSBs, output in the ``--datum`` S-basis (zero-mean satellites by
-default; a ``--pivot`` satellite; a ``--reference`` receiver). Outputs in ``DIR``:
+default, over the satellites estimated or a fixed ``--datum-satellites`` set; a ``--pivot`` satellite; a
+``--reference`` receiver; the datum and its satellites are printed and written). Outputs in ``DIR``:
 
 * ``tec_dcb_per_epoch.csv`` — per epoch, filter (``central``, ``local:STA``, ``ckf:STA``) and parameter: value
   and formal standard deviation (TEC in metres of L1 delay and in TECU, DSBs in ns).
@@ -697,6 +698,7 @@ def _run_days(args: argparse.Namespace, days: dict[str, list[str]]) -> int:
         f"combined {len(summaries)} days: {len(result['combined_ns'])} DSBs; day-to-day repeatability (std) median "
         f"{med:.3f} ns over the satellites"
         + (f", receivers {rx} ns" if rx else "")
+        + f"; {100 * result['repeating_share']:.0f} % of the daily variance repeats (kept in the combined σ)"
         + f"; written {out / 'multiday.json'}, {out / 'distnav_dsb_combined.bia'}"
     )
     return 0

@@ -35,6 +35,9 @@ def write_combined_sinex(
             f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
             "datum: zero-mean satellite datum over the satellites common to the days; each day's: "
             + "; ".join(f"{d}: {s.get('datum_statement', s.get('datum', ''))}" for d, s in sorted(summaries.items())),
+            f"sigma: rho x mean daily variance + (1 - rho) x that of independent days, rho = "
+            f"{result.get('repeating_share', 0.0):.2f} the share of the daily variance that repeats (from the "
+            "repeatability; averaging days does not reduce it)",
         ],
         svns=svns,
     )
