@@ -317,7 +317,13 @@ def network_from_observations(
         station_sigma=station_sigma_factors([levelled[o.station] for o in obs]) if levelling else None,
     )
     arc_id = arc_ids_on_grid(obs, levelled, grids, data.t_gps_s, data.layout.svs) if levelling else None
-    return replace(data, levelled=levelled, levelled_svs={o.station: list(o.svs) for o in obs}, arc_id=arc_id)
+    return replace(
+        data,
+        levelled=levelled,
+        levelled_svs={o.station: list(o.svs) for o in obs},
+        levelled_times={o.station: o.time for o in obs},
+        arc_id=arc_id,
+    )
 
 
 def _level(
@@ -596,7 +602,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         atomic_write_text(out / "arcs.csv", "\n".join(rows) + "\n")
         summary["arcs"] = {sta: lev.arc_summary() for sta, lev in data.levelled.items()}
         summary["screening"] = {
-            sta: lev.screening_summary(data.levelled_svs[sta]) for sta, lev in data.levelled.items()
+            sta: lev.screening_summary(data.levelled_svs[sta], data.levelled_times.get(sta))
+            for sta, lev in data.levelled.items()
         }
     summary["precision"] = {s.label: s.precision.summary() for s in series if s.precision is not None}
     if (tests := innovation_summary(series, stations)) is not None:

@@ -71,6 +71,8 @@ class BiasNetworkData:
     notes: list[str] = field(default_factory=list)
     levelled: dict[str, Any] = field(default_factory=dict)
     levelled_svs: dict[str, list[str]] = field(default_factory=dict)
+    levelled_times: dict[str, np.ndarray] = field(default_factory=dict)
+    """Per station the epochs (``datetime64``) of the levelled rows (screening reports name them)."""
     arc_id: np.ndarray | None = None
     """(T, n, S) the levelled arc of every observation (per station; −1: raw code), ``None`` without levelling
     (:mod:`~distnav.models.gnss.arcprecision`)."""
