@@ -126,8 +126,7 @@ def main() -> None:
     args = ap.parse_args()
     rows = []
     if APRIL.is_file():
-        from distnav.commands.uwb import solve_range_log
-        from distnav.models.uwb.april import write_april_csvs
+        from distnav.commands.uwb import solve_range_log, write_april_csvs
 
         with tempfile.TemporaryDirectory() as d:
             f = write_april_csvs(APRIL, d, known=[8, 12, 54, 87])

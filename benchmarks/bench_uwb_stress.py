@@ -44,6 +44,7 @@ from scipy.optimize import least_squares
 from distnav._blas import single_threaded_blas
 from distnav.commands.uwb import solve_range_log
 from distnav.experiments import uwb_field
+from distnav.experiments.uwb_field import write_hall
 from distnav.models.uwb.field import FieldOptions
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, HallNetwork, simulate_hall
 
@@ -154,7 +155,7 @@ def _one_hall(job: tuple[str, str, int, float | None]) -> dict[str, Any]:
     h = simulate_hall(np.random.default_rng([2026, vi, PLACEMENTS.index(placement), k]), cfg)
     est = np.setdiff1d(np.arange(h.n_anchors), h.known)
     with tempfile.TemporaryDirectory() as d:
-        f = h.write(d)
+        f = write_hall(h, d)
         c0 = time.process_time()
         try:
             sol, _, summ = solve_range_log(

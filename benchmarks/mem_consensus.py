@@ -104,7 +104,8 @@ def distnav(n: int, payload: int, rounds: int, drop: float) -> dict[str, float]:
 
 
 def write_owner(n: int, ranks: int, path: str) -> None:
-    from distnav.network.partition import space_filling_order, write_partition
+    from distnav.formats.partition import write_partition
+    from distnav.network.partition import space_filling_order
 
     pos = np.random.default_rng(0).uniform(0.0, 1.0, size=(n, 2))  # the builder's draw (seed 0, unit square)
     owner = np.empty(n, np.int64)

@@ -40,7 +40,7 @@ def _experiments() -> tuple[str, ...]:
     return tuple(available())
 
 
-VOLATILE = ("solver_seconds",)
+VOLATILE = ("solver_seconds", "cpu_s", "cpu_s_per_solve", "wall_s")  # timings: they cannot repeat
 
 
 def _without(data: Any, keys: frozenset[str]) -> Any:

@@ -511,7 +511,7 @@ def _api_cases() -> list[Api]:
         Api("admm-iterations-zero", lambda: admm(good, ring, max_iterations=0), "max_iterations=0"),
     ]
     from distnav.experiments.uwb import instance_problem
-    from distnav.models.uwb.io import read_positions, read_ranges
+    from distnav.formats.uwb.io import read_positions, read_ranges
 
     cases.append(
         Api(

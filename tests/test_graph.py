@@ -190,7 +190,8 @@ def test_switching_graph_union_and_masks():
 
 def test_partition_file_round_trip_and_errors(tmp_path):
     from distnav.errors import ExchangeError
-    from distnav.network.partition import partition_nodes, read_partition, write_partition
+    from distnav.formats.partition import write_partition
+    from distnav.network.partition import partition_nodes, read_partition
 
     g = builders.path(8)
     owner = partition_nodes(g, 3, "rcm")

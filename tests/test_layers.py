@@ -26,9 +26,9 @@ RANK = {
     "exchange": 2,
     "algorithms": 3,
     "models": 4,
-    "formats": 4.2,
     "output": 4.5,
     "options": 4.5,
+    "formats": 4.7,
     "experiments": 5,
     "commands": 5,
     "cli": 6,
@@ -173,3 +173,83 @@ def test_no_import_circles() -> None:
 def test_the_circle_check_finds_a_circle() -> None:
     assert _circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _circles({"a": {"b"}, "b": set()}) == []
+
+
+# ------------------------------------------------------------------------------------------- no file writing below
+WRITER_CALLS = {
+    "write_text",
+    "write_bytes",
+    "save",
+    "savez",
+    "savez_compressed",
+    "savetxt",
+    "savefig",
+    "to_csv",
+    "dump",
+    "atomic_write_text",
+    "atomic_write_json",
+    "atomic_write_bytes",
+    "mkdir",
+    "unlink",
+    "rename",
+    "replace",
+    "rmtree",
+}
+PURE_LAYERS = ("network", "exchange", "algorithms", "models")
+
+
+def _file_writes(path: Path) -> list[str]:
+    """Calls under ``path`` that write, move or delete files: the writer methods above, ``open`` with a w/a/x/+
+    mode. ``str.replace`` has the name of ``Path.replace``: a call with two string-like arguments is a string's."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    found = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Call):
+            continue
+        name = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
+        if name == "open":
+            mode = (
+                node.args[1] if len(node.args) > 1 else next((k.value for k in node.keywords if k.arg == "mode"), None)
+            )
+            if isinstance(mode, ast.Constant) and isinstance(mode.value, str) and set(mode.value) & set("wax+"):
+                found.append(f"{path.name}:{node.lineno} open(..., {mode.value!r})")
+        elif name in WRITER_CALLS:
+            if name == "replace" and not (
+                isinstance(node.func, ast.Attribute) and len(node.args) == 1 and not node.keywords
+            ):
+                continue  # str.replace(old, new), dataclasses.replace(obj, field=...): not Path.replace(target)
+            if name == "dump" and not (
+                isinstance(node.func, ast.Attribute) and getattr(node.func.value, "id", "") in ("json", "pickle", "np")
+            ):
+                continue
+            if name == "save" and not (
+                isinstance(node.func, ast.Attribute) and getattr(node.func.value, "id", "") == "np"
+            ):
+                continue
+            found.append(f"{path.name}:{node.lineno} {name}(...)")
+    return found
+
+
+@pytest.mark.parametrize(
+    "path", [p for p in FILES if _layer(_module_name(p)) in PURE_LAYERS], ids=lambda p: str(p.relative_to(SRC))
+)
+def test_layers_below_formats_write_no_files(path: Path) -> None:
+    """Models (and everything below them) are pure: file writers live in ``distnav.formats`` (or return text for
+    ``distnav.output``), and only formats, experiments, commands and the CLI touch the file system."""
+    assert _file_writes(path) == []
+
+
+def test_the_file_write_check_catches_writers(tmp_path: Path) -> None:
+    f = tmp_path / "m.py"
+    f.write_text(
+        "import json\nimport numpy as np\n\n\ndef w(p, a, s):\n    p.write_text(s)\n"
+        "    np.save(p, a)\n    open(p, 'w')\n    json.dump(a, p)\n    s.replace('a', 'b')\n"
+        "    open(p)\n",
+        encoding="utf-8",
+    )
+    assert _file_writes(f) == [
+        "m.py:6 write_text(...)",
+        "m.py:7 save(...)",
+        "m.py:8 open(..., 'w')",
+        "m.py:9 dump(...)",
+    ]

@@ -16,8 +16,8 @@ from distnav.algorithms.ranging.precision import neighbourhood_precision
 from distnav.cli import main
 from distnav.commands.uwb import solve_range_log
 from distnav.errors import ModelError
+from distnav.formats.uwb.io import read_positions
 from distnav.models.uwb.field import FieldOptions, subset_measurements
-from distnav.models.uwb.io import read_positions
 from distnav.models.uwb.precision import consider_sigma
 from distnav.models.uwb.problems import build_problem
 from test_ranging_qc import network

@@ -162,19 +162,19 @@ def _read_ionex(p: Path) -> Any:
 
 
 def _read_ranges(p: Path) -> Any:
-    from distnav.models.uwb.io import read_ranges
+    from distnav.formats.uwb.io import read_ranges
 
     return read_ranges(p)
 
 
 def _read_positions(p: Path) -> Any:
-    from distnav.models.uwb.io import read_positions
+    from distnav.formats.uwb.io import read_positions
 
     return read_positions(p)
 
 
 def _read_april(p: Path) -> Any:
-    from distnav.models.uwb.april import read_april
+    from distnav.formats.uwb.april import read_april
 
     return read_april(p)
 

@@ -1,5 +1,5 @@
 """Issue 13 acceptance audit: the named failure cases end to end through ``distnav uwb solve`` on simulated halls
-(``simulate_hall(...).write()``), where a library-level test existed but the command-line path differed."""
+(``write_hall(simulate_hall(...), folder)``), where a library-level test existed but the command-line path differed."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from distnav.cli import main
+from distnav.experiments.uwb_field import write_hall
 from distnav.models.uwb.geometry import PLANAR_FIT_RATIO, planar_fit_ratio
 from distnav.models.uwb.hall import simulate_hall
 from distnav.models.uwb.problems import build_problem
@@ -31,7 +32,7 @@ def _written_hall(tmp_path, seed: int, *, known_z_span_m: float | None = None, *
             distance_m=new,
             range_m=h.range_m + (new - h.distance_m)[h.sample_link],
         )
-    return h.write(tmp_path / f"hall{seed}-{known_z_span_m}")
+    return write_hall(h, tmp_path / f"hall{seed}-{known_z_span_m}")
 
 
 @pytest.mark.parametrize(
@@ -89,7 +90,7 @@ def test_plane_fit_ratio_separates_ceiling_halls_from_volumetric_networks():
 def test_fixed_step_squared_form_diverges_on_a_hall_and_says_so(tmp_path, capsys):
     """No monkeypatch: the paper's fixed step (α = 1e-3) on the squared form blows up on a hall's 20 m links; the
     run exits 1, names the divergence and writes summary.json only (the first wave wrote 1e219 m positions)."""
-    f = simulate_hall(np.random.default_rng(1)).write(tmp_path / "hall")
+    f = write_hall(simulate_hall(np.random.default_rng(1)), tmp_path / "hall")
     for solver in ("N-CSG", "CSG"):
         out = tmp_path / solver
         code = main(
@@ -199,7 +200,7 @@ def test_known_anchors_along_a_wall_are_checked_and_not_flagged(tmp_path):
     from distnav.models.uwb.hall import PLANT_LIKE
 
     h = simulate_hall(np.random.default_rng([2026, 99, 0]), known="middle", known_on_wall=True, **PLANT_LIKE)
-    f = h.write(tmp_path / "wall")
+    f = write_hall(h, tmp_path / "wall")
     out = tmp_path / "out"
     assert (
         main(

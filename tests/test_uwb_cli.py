@@ -12,7 +12,8 @@ import pytest
 from distnav.cli import main
 from distnav.commands.uwb import classical_mds, planarity
 from distnav.errors import DataFileError
-from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
+from distnav.experiments.uwb_field import write_hall
+from distnav.formats.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
 
 
 def hall(
@@ -394,7 +395,7 @@ def test_weak_anchors_are_named_on_the_console_and_in_positions_csv(tmp_path, ca
 
     from distnav.models.uwb.hall import simulate_hall
 
-    simulate_hall(np.random.default_rng([0, 105]), known="middle").write(tmp_path / "hall")
+    write_hall(simulate_hall(np.random.default_rng([0, 105]), known="middle"), tmp_path / "hall")
     h = tmp_path / "hall"
     code = main(
         [
@@ -440,7 +441,7 @@ def test_reliability_weak_anchors_carry_their_reason_and_the_limit_switches_it_o
     from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 
     cfg = HallConfig().with_(**{**PLANT_LIKE, "known": "middle", "length_m": 120.0, "width_m": 14.0})
-    simulate_hall(np.random.default_rng([0, 5]), cfg).write(tmp_path / "hall")
+    write_hall(simulate_hall(np.random.default_rng([0, 5]), cfg), tmp_path / "hall")
     h = tmp_path / "hall"
     base = [
         "uwb",

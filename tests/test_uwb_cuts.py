@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from distnav.commands.uwb import solve_range_log
-from distnav.experiments.uwb_field import hall_problem
+from distnav.experiments.uwb_field import hall_problem, write_hall
 from distnav.models.uwb.cuts import cut_parts, cut_weak
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
@@ -119,7 +119,7 @@ def test_the_shifted_cluster_of_the_nlos_20_hall_is_reported_weak(tmp_path):
     cut test; with ``cut_test=False`` six of them are plainly estimated (the code before it)."""
     cfg = HallConfig().with_(**{**PLANT_LIKE, "known": "middle", "nlos_p1": 0.33})
     h = simulate_hall(np.random.default_rng([2026, 2, 0, 2]), cfg)
-    f = h.write(tmp_path / "hall")
+    f = write_hall(h, tmp_path / "hall")
     silent = {}
     for on in (True, False):
         sol, _, _ = solve_range_log(

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from distnav.errors import ModelError
+from distnav.experiments.uwb_field import write_hall
+from distnav.formats.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
-from distnav.models.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
 
 
 def _pooled(seeds: range, **changes: object) -> list:
@@ -98,7 +99,7 @@ def test_sample_counts_realistic_and_fewer_on_long_links():
 
 def test_written_files_read_back(tmp_path):
     h = simulate_hall(np.random.default_rng(5))
-    files = h.write(tmp_path)
+    files = write_hall(h, tmp_path)
     log = read_ranges(files["ranges"])
     comb = combine_ranges(log)
     assert log.range_m.size == h.range_m.size

@@ -12,14 +12,16 @@ import pytest
 
 from distnav.cli import main
 from distnav.errors import DataFileError
+from distnav.experiments.uwb_field import write_hall
+from distnav.formats.uwb.io import check_units, combine_ranges, read_positions, read_ranges, single_link_anchors
 from distnav.models.uwb.hall import simulate_hall
-from distnav.models.uwb.io import check_units, combine_ranges, read_positions, read_ranges, single_link_anchors
 
 
 def _hall(tmp_path: Path) -> dict[str, Path]:
-    return simulate_hall(
+    h = simulate_hall(
         np.random.default_rng(11), n_anchors=16, length_m=30.0, width_m=15.0, nlos_p1=0.0, antenna_delay_sd_m=0.0
-    ).write(tmp_path)
+    )
+    return write_hall(h, tmp_path)
 
 
 def _append(path: Path, rows: list[str]) -> None:
@@ -50,7 +52,7 @@ def test_bad_samples_are_dropped_counted_and_logged(tmp_path, caplog):
     f = _hall(tmp_path)
     n_good = len(f["ranges"].read_text().splitlines()) - 1
     _append(f["ranges"], ["A00,A01,-0.3", "A01,A02,0", "A02,A03,nan", "A03,A04,inf", "A04,A05,-inf", "A00,A01,0.0"])
-    with caplog.at_level(logging.WARNING, logger="distnav.models.uwb.io"):
+    with caplog.at_level(logging.WARNING, logger="distnav.formats.uwb.io"):
         log = read_ranges(f["ranges"])
     assert log.range_m.size == n_good
     assert log.dropped == {"negative": 1, "zero": 2, "not finite": 3}

@@ -332,7 +332,8 @@ def transport_options(backend: str) -> dict[str, np.ndarray]:
     import os
     import tempfile
 
-    from distnav.network.partition import partition_nodes, write_partition
+    from distnav.formats.partition import write_partition
+    from distnav.network.partition import partition_nodes
 
     g = _graph()
     faults = FaultSchedule(drop_probability=0.2, seed=6)
@@ -360,8 +361,8 @@ def consensus_on_graph_parts(backend: str) -> dict[str, np.ndarray]:
     import os
     import tempfile
 
+    from distnav.formats.partition import write_partition
     from distnav.network.graph_part import GraphPart
-    from distnav.network.partition import write_partition
     from distnav.network.weights import part_weights
 
     n, radius = 3000, float(np.sqrt(8 / (np.pi * 3000)))

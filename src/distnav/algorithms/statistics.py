@@ -53,6 +53,12 @@ def critical_value(level: float) -> float:
     """Two-sided critical value of the w-test: |w| > k_α rejects at false-alarm probability ``level``.
 
     ``level`` = 0.001 gives 3.29 (Baarda's choice; with power 80 % it detects a gross error that shifts w by 4.13).
+
+    Examples
+    --------
+    >>> from distnav.algorithms.statistics import critical_value
+    >>> round(critical_value(0.001), 2), round(critical_value(0.05), 2)
+    (3.29, 1.96)
     """
     if not 0.0 < level < 1.0:
         raise ModelError(f"test level must lie in (0, 1), got {level!r}")
@@ -85,7 +91,14 @@ def w_statistics(
 
 
 def variance_factor(weighted_ssr: float, redundancy: float) -> float | None:
-    """A-posteriori variance factor ``σ̂² = êᵀ R⁻¹ ê / r``; ``None`` without redundancy (nothing to estimate it from)."""
+    """A-posteriori variance factor ``σ̂² = êᵀ R⁻¹ ê / r``; ``None`` without redundancy (nothing to estimate it from).
+
+    Examples
+    --------
+    >>> from distnav.algorithms.statistics import variance_factor
+    >>> variance_factor(12.0, 10), variance_factor(3.0, 0) is None
+    (1.2, True)
+    """
     if weighted_ssr < 0.0 or not np.isfinite(weighted_ssr):
         raise ModelError(f"weighted residual sum of squares must be finite and ≥ 0, got {weighted_ssr!r}")
     if redundancy <= 0:

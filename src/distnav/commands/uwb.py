@@ -45,6 +45,15 @@ from distnav.algorithms.ranging.losses import LOSSES
 from distnav.commands import add_backend_arguments
 from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange
+from distnav.formats.uwb.io import (
+    CombinedRanges,
+    check_units,
+    combine_ranges,
+    read_heights,
+    read_positions,
+    read_ranges,
+    single_link_anchors,
+)
 from distnav.models.uwb.field import (
     DELAY_SIGMA_M,
     RELIABILITY_LIMIT_M,
@@ -55,15 +64,6 @@ from distnav.models.uwb.field import (
 )
 from distnav.models.uwb.geometry import planarity
 from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_initial_guess, smacof  # noqa: F401
-from distnav.models.uwb.io import (
-    CombinedRanges,
-    check_units,
-    combine_ranges,
-    read_heights,
-    read_positions,
-    read_ranges,
-    single_link_anchors,
-)
 from distnav.models.uwb.mirror import solve_with_mirror_test
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 from distnav.output import atomic_write_text
@@ -76,6 +76,7 @@ __all__ = [
     "planarity",
     "height_spread_ratio",
     "solve_range_log",
+    "write_april_csvs",
 ]
 
 PLANAR_RATIO = 0.05
@@ -194,9 +195,21 @@ def register(subparsers: Any) -> None:
     imp.set_defaults(func=_import_april)
 
 
-def _import_april(args: argparse.Namespace) -> int:
-    from distnav.models.uwb.april import write_april_csvs
+def write_april_csvs(log: Path, out: Path, *, known: list[int], delays: str = "manual") -> dict[str, Path]:
+    """Write ``ranges.csv``, ``known.csv`` and ``truth.csv`` of one APRIL log into ``out``
+    (:func:`distnav.formats.uwb.april.april_csv_texts`); returns ``{stem: path}``."""
+    from distnav.formats.uwb.april import april_csv_texts
 
+    texts = april_csv_texts(log, known=known, delays=delays)
+    o = Path(out)
+    o.mkdir(parents=True, exist_ok=True)
+    files = {stem: o / f"{stem}.csv" for stem in texts}
+    for stem, text in texts.items():
+        atomic_write_text(files[stem], text)
+    return files
+
+
+def _import_april(args: argparse.Namespace) -> int:
     try:
         known = [int(k) for k in str(args.known).split(",") if k.strip()]
     except ValueError:

@@ -39,12 +39,14 @@ from scipy.sparse.csgraph import shortest_path
 
 from distnav.algorithms.ranging.csg import SOLVERS
 from distnav.experiments.common import ExperimentContext, pyplot
+from distnav.formats.uwb.hall_files import hall_csv_texts
+from distnav.formats.uwb.io import RangeLog, combine_ranges
 from distnav.models.uwb.field import FieldOptions, gather_cost, prepare, solve_field, subset_measurements
 from distnav.models.uwb.geometry import GeometryReport
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, HallNetwork, simulate_hall
-from distnav.models.uwb.io import RangeLog, combine_ranges
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 from distnav.options import positive_int
+from distnav.output import atomic_write_text
 
 NAME = "uwb-field"
 TITLE = "UWB anchors in a simulated industrial hall: NLOS exclusion, precision, every solver vs the oracle"
@@ -63,6 +65,18 @@ FIGURE_CAPTIONS = {
     "objective, Cauchy loss, NLOS link exclusion) against the oracle that drops the NLOS links "
     "by the truth; right, the first hall with its NLOS links in red.",
 }
+
+
+def write_hall(net: HallNetwork, folder: str | Path) -> dict[str, Path]:
+    """Write the CSV files of a simulated hall into ``folder`` (:mod:`distnav.formats.uwb.hall_files`: what
+    ``uwb solve`` reads plus the truth labels); returns ``{stem: path}``."""
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for stem, text in hall_csv_texts(net).items():
+        files[stem] = out / f"{stem}.csv"
+        atomic_write_text(files[stem], text)
+    return files
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

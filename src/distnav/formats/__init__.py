@@ -1,5 +1,8 @@
-"""File formats: readers and writers of the files distnav reads and writes (RINEX, SP3, Bias-SINEX, IONEX, ...).
+"""File formats: readers and writers, above the models (a reader may build a model's object from a file) and below
+the commands and experiments that call them.
 
-Above the models (a reader returns the models' types; models never import formats), below experiments and
-commands (which do the writing with :func:`distnav.output.atomic_write_text`).
+The layers below — network, exchange, algorithms, models — write no files (``tests/test_layers.py`` checks it);
+writers live here (or return the text, ``format_…``, for :func:`distnav.output.atomic_write_text`). One reader stays
+below on purpose: :func:`distnav.network.partition.read_partition`, which every MPI rank calls at start-up inside
+the exchange, before any model exists (it only reads).
 """

@@ -41,7 +41,15 @@ def _need(n: int, minimum: int, what: str) -> int:
 
 
 def ring(n_nodes: int, *, self_loops: bool = False) -> Graph:
-    """Cycle 0-1-...-(n-1)-0."""
+    """Cycle 0-1-...-(n-1)-0.
+
+    Examples
+    --------
+    >>> from distnav.network import builders
+    >>> g = builders.ring(5)
+    >>> g.n_nodes, len(g.links), g.degrees.tolist()
+    (5, 5, [2, 2, 2, 2, 2])
+    """
     n = _need(n_nodes, 3, "a ring")
     i = np.arange(n)
     return Graph.from_links(n, np.stack([i, (i + 1) % n], 1), self_loops=self_loops)

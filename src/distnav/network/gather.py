@@ -120,7 +120,18 @@ def _best_sink(adj: sp.csr_matrix, data: np.ndarray, degrees: np.ndarray) -> int
 
 def gather_cost(graph: Graph, bytes_per_node: ArrayLike, *, sink: int | None = None) -> GatherCost:
     """The cost of gathering ``bytes_per_node[i]`` bytes from every node ``i`` at one sink over ``graph``
-    (module docstring). ``sink=None`` picks the node with the least total hop-bytes."""
+    (module docstring). ``sink=None`` picks the node with the least total hop-bytes.
+
+    Examples
+    --------
+    Five nodes in a chain, 100 bytes each: the middle node is the best sink, its two neighbours relay 200 bytes each.
+
+    >>> from distnav.network import builders
+    >>> from distnav.network.gather import gather_cost
+    >>> cost = gather_cost(builders.path(5), [100] * 5)
+    >>> cost.sink, cost.total_hop_bytes, cost.busiest_relay_bytes, cost.relay_bytes.tolist()
+    (2, 600, 200, [100, 200, 0, 200, 100])
+    """
     data = np.asarray(bytes_per_node)
     if data.shape != (graph.n_nodes,):
         raise GraphError(f"bytes_per_node needs one entry per node ({graph.n_nodes}), got shape {data.shape}")

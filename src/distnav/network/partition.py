@@ -33,7 +33,7 @@ from distnav.network.graph import Graph
 from distnav.network.graph_part import GraphPart
 
 if TYPE_CHECKING:
-    from pathlib import Path
+    pass
 
 __all__ = [
     "LOCALITY_MIN_NODES",
@@ -42,7 +42,6 @@ __all__ = [
     "rcm_order",
     "read_partition",
     "space_filling_order",
-    "write_partition",
 ]
 
 LOCALITY_MIN_NODES = 10_000
@@ -120,25 +119,9 @@ def locality_order(graph: Graph, method: str | np.ndarray = "auto") -> np.ndarra
     raise ExchangeError(f"unknown node order {method!r}; choose 'auto', 'rcm', 'hilbert', 'none' or a permutation")
 
 
-def write_partition(path: str | os.PathLike[str], owner: np.ndarray) -> Path:
-    """Write an owner array (rank of every node): ``.npy`` binary, anything else as text, one rank per line."""
-    from pathlib import Path  # here, not at import (the start-up of an MPI job)
-
-    out = Path(path)
-    arr = np.asarray(owner, dtype=np.int64)
-    if out.suffix == ".npy":
-        np.save(out, arr)
-    else:
-        out.write_text(
-            f"# distnav partition: rank of each of {arr.size} nodes, one per line\n"
-            + "\n".join(map(str, arr.tolist()))
-            + "\n"
-        )
-    return out
-
-
 def read_partition(path: str | os.PathLike[str], n_nodes: int, n_ranks: int) -> np.ndarray:
-    """Read an owner array written by :func:`write_partition` (or any tool) and check it against the run."""
+    """Read an owner array written by :func:`distnav.formats.partition.write_partition` (or any tool) and check it
+    against the run. It stays in the network layer because every MPI rank reads it inside the exchange at start-up."""
     from pathlib import Path
 
     src = Path(path)

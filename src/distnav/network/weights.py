@@ -184,7 +184,20 @@ PROTOCOLS = ("P1", "P2", "P3", "P4", "MH", "Koppanyi")
 
 
 def consensus_weights(graph: Graph, protocol: str | int) -> ConsensusWeights:
-    """Weights by name: ``"P1"``–``"P4"`` (or 1–4), ``"MH"``/``"metropolis"``, ``"Koppanyi"``."""
+    """Weights by name: ``"P1"``–``"P4"`` (or 1–4), ``"MH"``/``"metropolis"``, ``"Koppanyi"``.
+
+    Examples
+    --------
+    Metropolis–Hastings weights on a 4-node path: every row of ``W`` sums to one, and the spectrum says how fast
+    consensus converges (paper 003 §3, λ_{n−1} below one):
+
+    >>> from distnav.network import builders, consensus_weights
+    >>> w = consensus_weights(builders.path(4), "MH")
+    >>> w.to_dense().sum(axis=1).round(12).tolist()
+    [1.0, 1.0, 1.0, 1.0]
+    >>> bool(w.slem < 1)
+    True
+    """
     key = str(protocol).strip().lower()
     if key in {"1", "2", "3", "4"}:
         return protocol_weights(graph, int(key))

@@ -34,16 +34,14 @@ draw from one seeded :class:`numpy.random.Generator`):
   differ by a per-link ``N(0, s²)``, half each way) and ``known_on_wall`` (the known anchors taken from the row
   along the wall ``y = 0``, nearest its middle or its corner: nearly collinear).
 
-:meth:`HallNetwork.write` writes the CSV files ``distnav uwb solve`` reads (``ranges.csv`` ``a,b,range_m``;
-``known.csv``, ``truth.csv`` ``id,x_m,y_m,z_m``; ``heights.csv`` ``id,z_m``) plus the labels a user never has
-(``links_truth.csv``: ``a,b,distance_m,nlos,bias_m``; ``delays.csv``: ``id,offset_m``).
+:func:`distnav.formats.uwb.hall_files.hall_csv_texts` gives the CSV files ``distnav uwb solve`` reads
+(``ranges.csv`` ``a,b,range_m``; ``known.csv``, ``truth.csv`` ``id,x_m,y_m,z_m``; ``heights.csv`` ``id,z_m``) plus
+the labels a user never has (``links_truth.csv``: ``a,b,distance_m,nlos,bias_m``; ``delays.csv``: ``id,offset_m``).
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -177,44 +175,6 @@ class HallNetwork:
         a = np.where(self.swapped, j, i)
         b = np.where(self.swapped, i, j)
         return [self.ids[k] for k in a], [self.ids[k] for k in b]
-
-    def write(self, folder: str | Path) -> dict[str, Path]:
-        """Write the CSV files of the module docstring into ``folder``; returns ``{name: path}``."""
-        out = Path(folder)
-        out.mkdir(parents=True, exist_ok=True)
-        files = {k: out / f"{k}.csv" for k in ("ranges", "known", "truth", "heights", "links_truth", "delays")}
-        a, b = self.sample_pairs()
-        _write(
-            files["ranges"], ["a,b,range_m"] + [f"{x},{y},{r:.4f}" for x, y, r in zip(a, b, self.range_m, strict=True)]
-        )
-
-        def table(rows: IntArray | range) -> list[str]:
-            t = self.truth_m
-            return ["id,x_m,y_m,z_m"] + [f"{self.ids[k]},{t[k, 0]:.4f},{t[k, 1]:.4f},{t[k, 2]:.4f}" for k in rows]
-
-        _write(files["known"], table(self.known))
-        _write(files["truth"], table(range(self.n_anchors)))
-        _write(
-            files["heights"], ["id,z_m"] + [f"{k},{z:.4f}" for k, z in zip(self.ids, self.surveyed_z_m, strict=True)]
-        )
-        _write(
-            files["links_truth"],
-            ["a,b,distance_m,nlos,bias_m"]
-            + [
-                f"{self.ids[i]},{self.ids[j]},{d:.4f},{int(f)},{bm:.4f}"
-                for (i, j), d, f, bm in zip(self.links, self.distance_m, self.nlos, self.bias_m, strict=True)
-            ],
-        )
-        _write(
-            files["delays"], ["id,offset_m"] + [f"{k},{o:.4f}" for k, o in zip(self.ids, self.offset_m, strict=True)]
-        )
-        return files
-
-
-def _write(path: Path, lines: list[str]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def _layout(cfg: HallConfig, rng: np.random.Generator) -> FloatArray:

@@ -1,5 +1,5 @@
 """The APRIL lab DW1000 range logs (``../shared/data/uwb/april-dw1000-8node``, read in place): conversion to the
-CSV files ``uwb solve`` reads.
+texts of the CSV files ``uwb solve`` reads (``uwb import-april`` writes them).
 
 The logs hold one double-sided two-way-ranging exchange per line, whitespace separated: the raw time of
 propagation in **microseconds including the antenna delays**, the two node ids, then DW1000 diagnostics (see the
@@ -18,7 +18,7 @@ import numpy as np
 
 from distnav.errors import DataFileError
 
-__all__ = ["C_M_PER_US", "MANUAL_DELAYS_US", "DEFAULT_DELAY_US", "TRUTH_FT", "read_april", "write_april_csvs"]
+__all__ = ["C_M_PER_US", "MANUAL_DELAYS_US", "DEFAULT_DELAY_US", "TRUTH_FT", "read_april", "april_csv_texts"]
 
 C_M_PER_US = 299.792458
 DEFAULT_DELAY_US = 0.516
@@ -64,25 +64,20 @@ def read_april(path: str | Path, *, delays: str = "manual") -> tuple[np.ndarray,
     return a, b, (rows[:, 0] - 0.5 * (da + db)) * C_M_PER_US
 
 
-def write_april_csvs(path: str | Path, out: str | Path, *, known: list[int], delays: str = "manual") -> dict[str, Path]:
-    """Write ``ranges.csv``, ``known.csv`` (the ``known`` nodes' true positions) and ``truth.csv`` (2-D, metres)."""
+def april_csv_texts(path: str | Path, *, known: list[int], delays: str = "manual") -> dict[str, str]:
+    """The texts of ``ranges.csv``, ``known.csv`` (the ``known`` nodes' true positions) and ``truth.csv`` (2-D,
+    metres) for one APRIL log, by file stem (``uwb import-april`` writes them)."""
     for k in known:
         if k not in TRUTH_FT:
             raise DataFileError(f"known node {k} has no ground truth; choose from {sorted(TRUTH_FT)}")
     a, b, r = read_april(path, delays=delays)
     keep = np.isin(a, list(TRUTH_FT)) & np.isin(b, list(TRUTH_FT))  # node 16: no truth, left out
-    o = Path(out)
-    o.mkdir(parents=True, exist_ok=True)
-    files = {k: o / f"{k}.csv" for k in ("ranges", "known", "truth")}
     lines = ["a,b,range_m"] + [f"{x},{y},{v:.6f}" for x, y, v in zip(a[keep], b[keep], r[keep], strict=True)]
-    files["ranges"].write_text("\n".join(lines) + "\n", encoding="utf-8")
 
     def table(nodes: list[int]) -> str:
         return "id,x_m,y_m\n" + "".join(f"{k},{TRUTH_FT[k][0] * FT_M:.4f},{TRUTH_FT[k][1] * FT_M:.4f}\n" for k in nodes)
 
-    files["known"].write_text(table(sorted(known)), encoding="utf-8")
-    files["truth"].write_text(table(sorted(TRUTH_FT)), encoding="utf-8")
-    return files
+    return {"ranges": "\n".join(lines) + "\n", "known": table(sorted(known)), "truth": table(sorted(TRUTH_FT))}
 
 
 def _parse_log(p: Path) -> np.ndarray:

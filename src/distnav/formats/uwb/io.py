@@ -23,7 +23,6 @@ from __future__ import annotations
 import csv
 import difflib
 import logging
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,7 +38,7 @@ __all__ = [
     "combine_ranges",
     "read_positions",
     "read_heights",
-    "write_positions",
+    "format_positions",
     "check_units",
     "single_link_anchors",
     "DROP_REASONS",
@@ -346,15 +345,12 @@ def read_heights(path: str | Path) -> tuple[dict[str, float], dict[str, int]]:
     return out, lines
 
 
-def write_positions(path: str | Path, ids: Sequence[str], positions_m: np.ndarray) -> None:
-    """Write ``id,x_m,y_m,z_m`` (without ``z_m`` for 2-D), micrometre resolution, via a temporary file + rename."""
+def format_positions(ids: Sequence[str], positions_m: np.ndarray) -> str:
+    """The text of a positions file, ``id,x_m,y_m,z_m`` (without ``z_m`` for 2-D), micrometre resolution: what
+    :func:`read_positions` reads back (the caller writes it, e.g. with :func:`distnav.output.atomic_write_text`)."""
     pos = np.asarray(positions_m, float)
     cols = ["x_m", "y_m", "z_m"][: pos.shape[1]]
     lines = ["id," + ",".join(cols)]
     for k, row in zip(ids, pos, strict=True):
         lines.append(k + "," + ",".join(f"{v:.6f}" for v in row))
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp")
-    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    os.replace(tmp, p)
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,31 @@
+"""The ``Examples`` sections of the public front doors' docstrings run as written (doctest) and print what they
+say. A front door listed here without an example fails: the list is the promise of issue 25."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+
+import pytest
+
+FRONT_DOORS = [
+    ("distnav.network.builders", "ring"),
+    ("distnav.network.weights", "consensus_weights"),
+    ("distnav.network.gather", "gather_cost"),
+    ("distnav.exchange", "make_exchange"),
+    ("distnav.algorithms.statistics", "critical_value"),
+    ("distnav.algorithms.statistics", "variance_factor"),
+]
+
+
+@pytest.mark.parametrize(("module", "name"), FRONT_DOORS, ids=lambda x: str(x))
+def test_front_door_example_runs(module: str, name: str) -> None:
+    obj = getattr(importlib.import_module(module), name)
+    tests = doctest.DocTestFinder(recurse=False).find(obj, name=f"{module}.{name}", globs={})
+    examples = [t for t in tests if t.examples]
+    assert examples, f"{module}.{name} has no runnable Examples section"
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    for t in examples:
+        runner.run(t)
+    result = runner.summarize(verbose=False)
+    assert result.failed == 0, f"{result.failed} of {result.attempted} examples of {module}.{name} failed"
