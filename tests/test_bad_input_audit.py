@@ -257,6 +257,8 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-codebias-graph-missing", (*cb, *o, "--graph", "{tmp}/none.csv"), "none.csv"),
         Cli("gnss-ionosphere-kn-negative", (*io, *o, "--kn", "-1"), "--kn"),
         Cli("gnss-ionosphere-pivot-garbage", (*io, *o, "--pivot", "XYZ"), "--pivot"),
+        Cli("gnss-ionosphere-datum-satellites-prn", (*io, *o, "--datum-satellites", "G01,G40"), "--datum-satellites"),
+        Cli("gnss-ionosphere-datum-satellites-file", (*io, *o, "--datum-satellites", "{tmp}/no.bia"), "no.bia"),
         Cli("gnss-ionosphere-l1-code", (*io, *o, "--l1-code", "Q9"), "--l1-code"),
         Cli("gnss-ionosphere-regional-zero", (*io, *o, "--regional-km", "0"), "--regional-km"),
         Cli("gnss-ionosphere-tec-rw-zero", (*io, *o, "--tec-rw", "0"), "--tec-rw"),

@@ -161,6 +161,11 @@ def test_screening_report_tells_the_w_test_from_the_slip_detector() -> None:
     on = level_station(t, ("G01", "G02"), *cols, screen=True).screening_summary(["G01", "G02"])
     assert on["removed_mw_outliers"] == 1 and on["w_tested"] == 2 * 60 - 1  # every other code value w-tested
     assert on["removed"] == on["removed_w_test"] + 1
+    # with the epochs of the rows the report names the epoch of the wild value (issue 32: epochs, not only satellites)
+    times = np.datetime64("2024-01-10T00:00:00") + (t * 1e9).astype("timedelta64[ns]")
+    named = level_station(t, ("G01", "G02"), *cols, screen=False).screening_summary(["G01", "G02"], times)
+    assert named["removed_epochs"] == {"2024-01-10T00:15:00": ["G01"]}
+    assert named["epochs_with_removals"] == 1 and named["most_removed_epoch"] == "2024-01-10T00:15:00"
 
 
 def test_raw_code_kept_where_no_arc_is_long_enough_is_counted() -> None:

@@ -24,7 +24,9 @@ from distnav.network.graph import Graph
 NAMES = ["A", "B", "C"]
 
 
-def _simulate(seed: int, epochs: int = 40) -> tuple[object, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _simulate(
+    seed: int, epochs: int = 40, noise_m: float = 0.3
+) -> tuple[object, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     gps = synthetic_gps_constellation()
     t = gps_seconds(np.datetime64("2016-06-02T00:00")) + 60.0 * np.arange(epochs)
@@ -33,7 +35,7 @@ def _simulate(seed: int, epochs: int = 40) -> tuple[object, np.ndarray, np.ndarr
     T, n, S = geo.tracked.shape
     b_rx, b_s = rng.normal(0, 3, n), rng.normal(0, 1.5, S)
     tec = 2.0 + np.cumsum(rng.normal(0, 1e-3 * np.sqrt(60.0), T))
-    sig = 0.3 / np.sin(np.where(geo.tracked, geo.el_rad, np.pi / 2))
+    sig = noise_m / np.sin(np.where(geo.tracked, geo.el_rad, np.pi / 2))
     y = (
         geo.coefficients[..., 0] * tec[:, None, None]
         + b_rx[None, :, None]
@@ -175,3 +177,58 @@ def test_realistic_sigma_with_time_correlated_errors() -> None:
     assert np.sqrt(np.mean((err / f) ** 2)) > 1.8  # formal σ: optimistic
     ratio = np.sqrt(np.mean((err / r) ** 2))
     assert 1 / 1.5 < ratio < 1.5
+
+
+# ------------------------------------------------------------------------------ the datum over a fixed satellite set
+def _session_dsbs(y: np.ndarray, gps: object, t: np.ndarray, xyz: np.ndarray, **datum: object) -> dict[str, float]:
+    """Final central satellite DSBs [ns] by name (NaN satellites left out)."""
+    data = bias_network_model(
+        NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.01, min_satellite_obs=20
+    )
+    (c,), _ = run_bias_filters(data, local=False, **datum)  # type: ignore[arg-type]
+    n = len(NAMES)
+    return {s: float(v) for s, v in zip(data.layout.svs, c.dsb_ns[-1, n:], strict=True) if np.isfinite(v)}
+
+
+def test_a_missing_satellite_moves_no_other_under_the_fixed_set_datum() -> None:
+    """A 6-h session (2-min epochs, 3 receivers, independent noise) with and without one satellite: under the
+    zero-mean datum over the estimated satellites every other DSB moves (by the removed satellite's distance from
+    the mean over S − 1); over the fixed set held at a reference product's values (here the truth plus 0.1 ns
+    noise, as a product's error) none moves by more than 0.01 ns; a fixed set without the removed satellite does
+    not move either."""
+    gps, t, xyz, y, truth = _simulate(21, epochs=360, noise_m=0.01)
+    svs = list(gps.svs)
+    n = len(NAMES)
+    seen = np.isfinite(y).sum(axis=(0, 1)) >= 60
+    truth_ns = truth[n:] / -gf_m_per_dsb_ns(2)
+    # the removed satellite: the seen one farthest from the mean (the case that moves the zero-mean datum most)
+    k = max((j for j in range(len(svs)) if seen[j]), key=lambda j: abs(truth_ns[j] - truth_ns[seen].mean()))
+    gone = y.copy()
+    gone[:, :, k] = np.nan
+    rng = np.random.default_rng(5)
+    members = [svs[j] for j in range(len(svs)) if seen[j]]
+    product = {s: float(truth_ns[svs.index(s)] - truth_ns[seen].mean() + rng.normal(0, 0.1)) for s in members}
+
+    def moved(**datum: object) -> float:
+        a, b = _session_dsbs(y, gps, t, xyz, **datum), _session_dsbs(gone, gps, t, xyz, **datum)
+        assert svs[k] in a and svs[k] not in b
+        return max(abs(a[s] - b[s]) for s in b)
+
+    default = moved()
+    assert default > 0.05  # the problem: the mean over the estimated satellites moves every DSB
+    fixed = moved(datum_satellites=members, datum_reference_ns=product)
+    assert fixed < 0.01, (default, fixed)
+    others = [s for s in members if s != svs[k]]
+    assert moved(datum_satellites=others) < 0.01
+    # in the product's datum: the mean over the fixed set is the product's
+    full = _session_dsbs(y, gps, t, xyz, datum_satellites=members, datum_reference_ns=product)
+    assert np.mean([full[s] for s in members]) == pytest.approx(np.mean(list(product.values())), abs=1e-9)
+
+
+def test_datum_statement_names_the_satellites() -> None:
+    from distnav.models.gnss.datum import datum_statement
+
+    assert datum_statement(["G01", "G02"]).startswith("zero mean over the 2 satellites estimated (G01 G02)")
+    s = datum_statement(["G01", "G02"], ["G01", "G02", "G03"], "CAS")
+    assert "fixed set of 3 satellites (G01 G02 G03)" in s and "CAS" in s and "1 missing (G03)" in s
+    assert "differs from the full set" in datum_statement(["G01"], ["G01", "G03"])

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from distnav.cli import main
+from distnav.formats.gnss.bias_sinex import read_bias_sinex
 
 IGS = "gnss/igs_2024010_bele_dgar"
 
@@ -141,6 +142,33 @@ def test_pivot_datum_and_day_check(shared_data: Path, tmp_path: Path, capsys: py
     assert main([*common, "--bias", str(other), "--allow-other-day", "--out", str(tmp_path / "r")]) == 0
 
 
+def test_datum_satellites_from_a_product(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--datum-satellites PRODUCT``: the datum is stated (console, summary, Bias-SINEX), the estimates are in the
+    product's datum (mean over the present members = the product's mean over them), SVNs come from the product."""
+    d = shared_data / IGS
+    cas = d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"
+    argv = ["gnss", "ionosphere", "--obs", str(d / "dgar0100.24o.gz"), "--nav", str(d / "brdc0100.24n.gz")]
+    argv += ["--tlim", "2024-01-10T00:00", "2024-01-10T00:30", "--no-progress", "--l1-code", "C1W"]
+    assert main([*argv, "--datum-satellites", str(cas), "--out", str(tmp_path / "f")]) == 0
+    out = capsys.readouterr().out
+    s = json.loads((tmp_path / "f" / "summary.json").read_text())
+    assert "datum: zero mean over the fixed set of" in out and "aligned to CAS" in out
+    assert s["datum_statement"] in out and "missing" in s["datum_statement"]  # 30 min: most members not up
+    members = s["datum_satellites"]
+    prod = read_bias_sinex(cas)
+    final = s["final_dsb_ns"]["central"]
+    here = [m for m in members if np.isfinite(final.get(m, np.nan))]
+    assert 3 <= len(here) < len(members)
+    ref = [prod.satellite_dsb_ns(m, "C1W", "C2W") for m in here]
+    assert np.mean([final[m] for m in here]) == pytest.approx(np.mean(ref), abs=1e-6)
+    bia = (tmp_path / "f" / "distnav_dsb.bia").read_text()
+    assert " DSB  G063 G01 " in bia or "G01" not in here
+    assert "aligned to CAS" in " ".join(bia.split())
+    assert " 0.0000\n" not in bia  # no σ = 0
+    assert main([*argv, "--out", str(tmp_path / "z")]) == 0  # the default datum says what it runs over
+    assert "datum: zero mean over the " in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(
     "option,message",
     [
@@ -154,6 +182,10 @@ def test_pivot_datum_and_day_check(shared_data: Path, tmp_path: Path, capsys: py
         (["--l1-code", "C2W"], "--l1-code C2W: not a GPS L1 code"),
         (["--exclude", "G1"], "--exclude G1: neither"),
         (["--mask", "95"], "--mask 95"),
+        (["--datum-satellites", "G01,G99"], "--datum-satellites: G99 not GPS satellites"),
+        (["--datum-satellites", "G01"], "at least two satellites"),
+        (["--datum-satellites", "nofile.bia"], "neither a list of satellites"),
+        (["--datum", "receiver", "--datum-satellites", "G01,G02"], "fixes the set of the zero-mean datum"),
     ],
 )
 def test_options_validated_before_reading(

@@ -216,6 +216,6 @@ def test_station_weights_follow_the_stations_noise() -> None:
     tr = on.geometry.tracked
     fa, fb = float(np.median(ratio[:, 0][tr[:, 0]])), float(np.median(ratio[:, 1][tr[:, 1]]))
     assert 1.6 < fb / fa < 2.4 and abs(fa * fb - 1.0) < 1e-9  # geometric mean 1
-    assert any(n.startswith("station σ factors") for n in on.notes)
-    assert not any(n.startswith("station σ factors") for n in off.notes + per.notes)
+    assert any(n.startswith("model choice: station σ factors") for n in on.notes)
+    assert not any(n.startswith("model choice: station σ factors") for n in off.notes + per.notes)
     np.testing.assert_array_equal(per.sigma_m, off.sigma_m)

@@ -19,11 +19,15 @@ SATS = {"G01": (-7.1874, 0.0123), "G05": (2.5, 0.02), "G32": (-0.0004, 0.3)}
 STAS = {"BELE": (0.019, 0.15), "DGAR": (3.521, 0.0735)}
 
 
+svn: dict[str, str] = {}  # the SVN field of each satellite line of the last parse
+
+
 def _independent_parse(text: str) -> tuple[list[str], dict[str, tuple[float, float]], dict[str, tuple[float, float]]]:
     """A second parser: whitespace tokens only (10 = satellite line, 11 = station line), blocks by their labels."""
     lines = text.splitlines()
     head = lines[0].split()
     inside, sat, sta = False, {}, {}
+    svn.clear()
     blocks = [ln[1:].strip() for ln in lines if ln[:1] == "+"]
     for ln in lines:
         if ln.startswith("+BIAS/SOLUTION"):
@@ -34,11 +38,48 @@ def _independent_parse(text: str) -> tuple[list[str], dict[str, tuple[float, flo
             tok = ln.split()
             if len(tok) == 10:
                 sat[tok[2]] = (float(tok[8]), float(tok[9]))
+                svn[tok[2]] = tok[1]
             elif len(tok) == 11:
+                assert tok[1] == tok[2] == "G", ln  # a station's GPS bias: system letter in SVN and PRN
                 sta[tok[3]] = (float(tok[9]), float(tok[10]))
             else:
                 raise AssertionError(f"unexpected line {ln!r}")
     return head + blocks, sat, sta
+
+
+def test_bias_sinex_no_zero_sigma_svns_comments_session(tmp_path: Path) -> None:
+    """Issue 32: a bias without σ is left out (never σ = 0) and named; SVNs from the given table in the format's
+    ANNN field (the system letter and a note where unknown); comments wrapped at word boundaries, none cut; the
+    header's OUTPUT line says a 6-h session is 6-hour, not daily."""
+    long = "the datum is zero mean over the fixed set of satellites " + " ".join(f"G{k:02d}" for k in range(1, 33))
+    text = write_bias_sinex(
+        None,
+        obs1="C1C",
+        obs2="C2W",
+        start="2024-01-10T06:00",
+        end="2024-01-10T12:00",
+        satellites={**SATS, "G07": (1.0, float("nan"))},
+        stations=STAS,
+        svns={"G01": "G063", "G05": "G050"},
+        comments=[long],
+    )
+    assert isinstance(text, str)
+    _, sat, _ = _independent_parse(text)
+    assert "G07" not in sat and all(sd > 0 for _, sd in sat.values())
+    assert svn == {"G01": "G063", "G05": "G050", "G32": "G"}
+    lines = text.splitlines()
+    block = lines[lines.index("+FILE/COMMENT") + 1 : lines.index("-FILE/COMMENT")]
+    assert all(len(ln) <= 80 for ln in block)
+    words = " ".join(ln.strip() for ln in block).split()
+    assert " ".join(words[: len(long.split())]) == long  # every word whole, in order
+    assert "not estimated (left out, no value or sigma): G07" in " ".join(ln.strip() for ln in block)
+    assert "SVN unknown" in " ".join(block) and "G32" in " ".join(block)
+    output = next(ln for ln in lines if ln.startswith(" OUTPUT"))
+    assert "6-hour" in output and "daily" not in output
+    (tmp_path / "x.bia").write_text(text)
+    prod = read_bias_sinex(tmp_path / "x.bia")  # the project's fixed-column reader agrees
+    assert {r.prn: r.svn for r in prod.records if r.prn} == svn
+    assert prod.satellite_dsb_ns("G07", "C1C", "C2W") is None
 
 
 def test_bias_sinex_round_trip_two_parsers(tmp_path: Path) -> None:

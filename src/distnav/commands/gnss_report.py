@@ -162,6 +162,11 @@ def print_data_report(summary: Mapping[str, Any]) -> None:
         s = scr.get(sta, {})
         top = sorted((s.get("removed_per_satellite") or {}).items(), key=lambda kv: (-kv[1], kv[0]))[:3]
         most = f" (most removed: {', '.join(f'{k} {v}' for k, v in top)})" if top else ""
+        if s.get("most_removed_epoch"):
+            ep = s["most_removed_epoch"]
+            most += (
+                f"; removals at {s['epochs_with_removals']} epochs, most at {ep} ({' '.join(s['removed_epochs'][ep])})"
+            )
         raw = (
             f"; {a['raw_code_observations']} raw (unlevelled) code observations used where no arc was long enough"
             if a.get("raw_code_observations")

@@ -31,6 +31,7 @@ __all__ = [
     "read_ionex_dcb",
     "resolve_dsb",
     "sinex_time",
+    "session_length",
     "write_bias_sinex",
 ]
 
@@ -340,12 +341,30 @@ def sinex_time(t: object) -> str:
     return f"{year:04d}:{doy:03d}:{sec:05d}"
 
 
-def _solution_line(prn: str, station: str, obs1: str, obs2: str, start: str, end: str, value: float, std: float) -> str:
-    svn = prn[:1] if prn else "G"
-    std = std if std == std else 0.0  # NaN σ (not estimable) written as 0
-    return (
-        f" DSB  {svn:<4} {prn or 'G':<3} {station:<9} {obs1:<4} {obs2:<4} {start} {end} ns   {value:21.4f} {std:11.4f}"
-    )
+def _solution_line(
+    svn: str, prn: str, station: str, obs1: str, obs2: str, start: str, end: str, value: float, std: float
+) -> str:
+    return f" DSB  {svn:<4} {prn:<3} {station:<9} {obs1:<4} {obs2:<4} {start} {end} ns   {value:21.4f} {std:11.4f}"
+
+
+def session_length(seconds: float) -> str:
+    """A session's length in words for the header: ``daily``, ``5-day``, ``6-hour``, ``90-minute``."""
+    if seconds > 0 and seconds % 86400 == 0:
+        days = int(seconds // 86400)
+        return "daily" if days == 1 else f"{days}-day"
+    if seconds > 0 and seconds % 3600 == 0:
+        return f"{int(seconds // 3600)}-hour"
+    return f"{seconds / 60:g}-minute"
+
+
+def _comment_lines(comments: Sequence[str]) -> list[str]:
+    """Comments wrapped at word boundaries to the 80 columns of a SINEX line (continuations indented)."""
+    import textwrap
+
+    out: list[str] = []
+    for c in comments:
+        out += textwrap.wrap(c, width=79, initial_indent=" ", subsequent_indent="   ", break_long_words=True) or [" "]
+    return out
 
 
 def write_bias_sinex(
@@ -363,11 +382,17 @@ def write_bias_sinex(
     sampling_s: float = 30.0,
     comments: Sequence[str] = (),
     station_codes: Mapping[str, tuple[str, str]] | None = None,
+    svns: Mapping[str, str] | None = None,
+    datum: str = "zero-mean satellite datum",
 ) -> Path | str:
     """Write satellite and station DSBs ``obs1 − obs2`` [ns] with σ as a Bias-SINEX 1.00 file (gzip if the name
     ends in ``.gz``): header line, ``FILE/REFERENCE``, ``FILE/COMMENT``, ``BIAS/DESCRIPTION`` (relative biases,
     GPS time) and ``BIAS/SOLUTION`` in the fixed columns of the format (those :func:`read_bias_sinex` reads).
-    distnav does not know satellite SVNs: the SVN field holds the system letter only. NaN values are skipped.
+    A bias without a value or a σ (not estimated) is left out and named in a comment — never written with σ = 0.
+    ``svns``: each satellite's SVN (``G01`` → ``G063``, e.g. from a reference product: the SVN field is
+    ``ANNN``); a satellite without one gets the system letter and a comment says so. Station biases carry the
+    system letter in the SVN and PRN fields (as CAS and DLR write them). The header's ``OUTPUT`` line states the
+    session length (:func:`session_length`) and ``datum``; comments are wrapped at word boundaries.
     ``path=None`` returns the text instead (for an atomic write by the caller). ``station_codes``: a station's own
     code pair where it differs from the satellites' (C1C receivers corrected to C1W)."""
     import math
@@ -378,17 +403,29 @@ def write_bias_sinex(
     t_end, t_start = (np.asarray(x).astype("datetime64[s]")[()] for x in (end, start))
     spacing = int(round(float((t_end - t_start).astype(int))))
     made = sinex_time(created if created is not None else np.datetime64("now", "s"))
+    sv_ids = svns or {}
+
+    def known(v: float, sd: float) -> bool:
+        return math.isfinite(v) and math.isfinite(sd)
+
     rows = [
-        _solution_line(prn, "", obs1, obs2, t0, t1, v, sd)
+        _solution_line(sv_ids.get(prn, prn[:1]), prn, "", obs1, obs2, t0, t1, v, sd)
         for prn, (v, sd) in sorted(satellites.items())
-        if math.isfinite(v)
+        if known(v, sd)
     ]
     own = station_codes or {}
     rows += [
-        _solution_line("", sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
+        _solution_line("G", "G", sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
         for sta, (v, sd) in sorted(stations.items())
-        if math.isfinite(v)
+        if known(v, sd)
     ]
+    notes = list(comments)
+    left_out = [k for k, (v, sd) in sorted({**satellites, **stations}.items()) if not known(v, sd)]
+    if left_out:
+        notes.append(f"not estimated (left out, no value or sigma): {' '.join(left_out)}")
+    no_svn = [prn for prn, (v, sd) in sorted(satellites.items()) if known(v, sd) and prn not in sv_ids]
+    if no_svn:
+        notes.append(f"SVN unknown (no reference product gave it; SVN field = system letter): {' '.join(no_svn)}")
     bar = "*" + "-" * 79
     lines = [
         f"%=BIA 1.00 {agency:<3} {made} {agency:<3} {t0} {t1} R {len(rows):08d}",
@@ -396,12 +433,12 @@ def write_bias_sinex(
         "+FILE/REFERENCE",
         "*INFO_TYPE_________ INFO" + "_" * 56,
         f" DESCRIPTION        {description or 'distnav geometry-free code DCBs (receivers and satellites)'}"[:80],
-        " OUTPUT             daily DSBs of satellites and receivers, zero-mean satellite datum",
+        f" OUTPUT             {session_length(spacing)} DSBs of satellites and receivers, {datum}"[:80],
         " SOFTWARE           distnav",
         "-FILE/REFERENCE",
         bar,
         "+FILE/COMMENT",
-        *[f" {c}"[:80] for c in comments],
+        *_comment_lines(notes),
         "-FILE/COMMENT",
         bar,
         "+BIAS/DESCRIPTION",

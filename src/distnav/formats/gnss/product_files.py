@@ -20,7 +20,7 @@ from distnav.formats.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, res
 from distnav.models.gnss.constants import C_M_S
 from distnav.models.gnss.products import DSBEstimates, ProductDSB
 
-__all__ = ["product_dsbs", "product_day", "read_estimates", "correct_c1"]
+__all__ = ["product_dsbs", "product_day", "read_estimates", "correct_c1", "satellite_svns"]
 
 
 def product_day(path: str | Path) -> np.datetime64 | None:
@@ -193,3 +193,18 @@ def correct_c1(o: Any, product: str | Path) -> Any:
         f" (none for {' '.join(missing)}: dropped)" if missing else ""
     )
     return replace(o, range_m={**o.range_m, 1: p1}, codes={**o.codes, 1: "C1W"}, notes=(*o.notes, note))
+
+
+def satellite_svns(paths: Sequence[str | Path]) -> dict[str, str]:
+    """PRN → SVN (``G01`` → ``G063``) from the satellite records of the Bias-SINEX files among ``paths`` (IONEX
+    and unreadable files are passed over: the SVNs are a courtesy of the output, not a requirement)."""
+    out: dict[str, str] = {}
+    for p in paths:
+        try:
+            prod = read_bias_sinex(p)
+        except DataFileError:
+            continue
+        for r in prod.records:
+            if r.prn and len(r.svn) == 4 and r.svn[1:].isdigit():
+                out.setdefault(r.prn, r.svn)
+    return out

@@ -11,12 +11,14 @@ batching only removes the per-epoch overhead of small numpy calls (issue 14, tim
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from distnav.errors import ModelError
+from distnav.models.gnss.datum import datum_offset_ns
 from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout, datum_transform
 
 __all__ = ["BLOCK", "Collector", "DatumSeries"]
@@ -71,10 +73,11 @@ class _DatumRows:
     T: np.ndarray
     Tz: np.ndarray
     bad: np.ndarray
+    offset_ns: np.ndarray | None = None
 
     @classmethod
-    def of(cls, T: np.ndarray) -> _DatumRows:
-        return cls(T, np.where(np.isfinite(T), T, 0.0), ~np.isfinite(T).all(axis=1))
+    def of(cls, T: np.ndarray, offset_ns: np.ndarray | None = None) -> _DatumRows:
+        return cls(T, np.where(np.isfinite(T), T, 0.0), ~np.isfinite(T).all(axis=1), offset_ns)
 
 
 class Collector:
@@ -82,7 +85,10 @@ class Collector:
 
     ``series`` / ``nodes``: the measurements the filter uses (its basis and its nodes: the predicted residuals are
     those of these nodes' observations, jointly — they share the state); ``datum`` / ``pivot`` / ``reference``:
-    the output datum; ``scale``: metres of geometry-free code per ns of DSB.
+    the output datum; ``scale``: metres of geometry-free code per ns of DSB. ``datum_satellites``: the fixed set
+    the zero-mean datum runs over (default: the satellites estimable at the epoch); ``datum_reference_ns``: a
+    reference product's DSBs of its members, which puts the estimates in the product's datum
+    (:mod:`distnav.models.gnss.datum`).
     """
 
     def __init__(
@@ -98,7 +104,11 @@ class Collector:
         pivot: str | None,
         reference: str | None,
         scale: float,
+        datum_satellites: Sequence[str] | None = None,
+        datum_reference_ns: Mapping[str, float] | None = None,
     ) -> None:
+        self.mean_over = None if datum_satellites is None else tuple(datum_satellites)
+        self.fill_ns = datum_reference_ns
         self.label, self.layout, self.series, self.dynamics = label, layout, series, dynamics
         self.nodes = np.asarray(nodes, np.int64)
         self.datum, self.pivot, self.reference, self.scale = datum, pivot, reference, scale
@@ -202,12 +212,20 @@ class Collector:
             if key not in self._rows:
                 try:
                     T = datum_transform(
-                        self.layout, self.datum, estimable=E[js[0]], pivot=self.pivot, reference=self.reference
+                        self.layout,
+                        self.datum,
+                        estimable=E[js[0]],
+                        pivot=self.pivot,
+                        reference=self.reference,
+                        mean_over=self.mean_over,
                     )
                 except ModelError:  # e.g. the pivot not estimable yet: no DSBs at these epochs
                     self._rows[key] = None
                 else:
-                    self._rows[key] = _DatumRows.of(T)
+                    off = None
+                    if self.fill_ns is not None and self.mean_over is not None:
+                        off = datum_offset_ns(self.layout, E[js[0]], self.mean_over, self.fill_ns)
+                    self._rows[key] = _DatumRows.of(T, off)
             rows = self._rows[key]
             if rows is None:
                 continue
@@ -222,7 +240,7 @@ class Collector:
                     last_j, last_rows = withP[-1], rows
             val[:, rows.bad] = np.nan
             sd[:, rows.bad] = np.nan
-            self.dsb[ts[js]] = -val / self.scale
+            self.dsb[ts[js]] = -val / self.scale + (0.0 if rows.offset_ns is None else rows.offset_ns)
             self.dsb_std[ts[js]] = sd / self.scale
         if last_rows is not None:
             P_last = buf[last_j][3]

@@ -11,7 +11,7 @@ epoch's estimates and covariance into the output datum (:func:`~distnav.models.g
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -71,6 +71,8 @@ class BiasNetworkData:
     notes: list[str] = field(default_factory=list)
     levelled: dict[str, Any] = field(default_factory=dict)
     levelled_svs: dict[str, list[str]] = field(default_factory=dict)
+    levelled_times: dict[str, np.ndarray] = field(default_factory=dict)
+    """Per station the epochs (``datetime64``) of the levelled rows (screening reports name them)."""
     arc_id: np.ndarray | None = None
     """(T, n, S) the levelled arc of every observation (per station; −1: raw code), ``None`` without levelling
     (:mod:`~distnav.models.gnss.arcprecision`)."""
@@ -155,7 +157,12 @@ def bias_network_model(
     mode = ionosphere
     if mode == "auto":
         mode = "common" if base_km <= regional_km else "per-receiver"
-        notes.append(f"ionosphere: {mode} (longest baseline {base_km:.0f} km, regional limit {regional_km:.0f} km)")
+        rule = "≤" if mode == "common" else ">"
+        notes.append(
+            f"model choice: ionosphere {mode}, because the longest baseline {base_km:.0f} km {rule} the regional "
+            f"limit {regional_km:.0f} km (one VTEC field is valid within it); receiver DSBs depend on this choice "
+            "(--ionosphere common|per-receiver fixes it)"
+        )
     geo = ionosphere_geometry(
         orbit,
         t_all,
@@ -230,8 +237,9 @@ def bias_network_model(
         sig = sig * np.where(geo.tracked, np.asarray(sigma_scale, float)[:, :, keep], 1.0)
     if station_sigma is not None and (station_weighting == "on" or (station_weighting == "auto" and mode == "common")):
         sig = sig * np.asarray(station_sigma, float)[None, :, None]
+        why = "station weighting on" if station_weighting == "on" else "the stations share one ionosphere"
         notes.append(
-            "station σ factors from the levelling: "
+            f"model choice: station σ factors from the levelling ({why}): "
             + ", ".join(
                 f"{s} {f:.2f}" for s, f in zip(stations, np.asarray(station_sigma, float).tolist(), strict=True)
             )
@@ -450,6 +458,8 @@ def run_bias_filters(
     exchange: Any = None,
     local: bool = True,
     innovation_level: float | None = None,
+    datum_satellites: Sequence[str] | None = None,
+    datum_reference_ns: Mapping[str, float] | None = None,
 ) -> tuple[list[DatumSeries], Any]:
     """Central, single-receiver and CKF filters over the network, every epoch S-transformed into ``datum``.
 
@@ -458,6 +468,8 @@ def run_bias_filters(
     (w-tests at this level with its node-local "bound" precision, :mod:`distnav.algorithms.kalman.ckf_qc`) and rejects
     outliers before its normals enter the consensus; the tests (network-wide
     :class:`~distnav.algorithms.kalman.InnovationTests`) are on every ``ckf:STA`` series as ``innovation_tests``.
+    ``datum_satellites`` / ``datum_reference_ns``: the zero-mean datum over a fixed set of satellites, held in a
+    reference product's datum when its DSBs are given (:mod:`distnav.models.gnss.datum`).
     """
     from distnav.algorithms.kalman import iterate_information_filter
     from distnav.algorithms.kalman.ckf import iterate_ckf
@@ -465,7 +477,14 @@ def run_bias_filters(
     lay, T = data.layout, data.series.n_epochs
     scale = gf_m_per_dsb_ns(data.band)
     out: list[DatumSeries] = []
-    opts: dict[str, Any] = {"datum": datum, "pivot": pivot, "reference": reference, "scale": scale}
+    opts: dict[str, Any] = {
+        "datum": datum,
+        "pivot": pivot,
+        "reference": reference,
+        "scale": scale,
+        "datum_satellites": datum_satellites,
+        "datum_reference_ns": datum_reference_ns,
+    }
     everyone = np.arange(len(data.stations))
     c = Collector("central", T, lay, data.series, everyone, data.dynamics, **opts)
     for st in iterate_information_filter(data.dynamics, data.series, mode="central"):

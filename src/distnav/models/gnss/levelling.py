@@ -108,11 +108,18 @@ class LevelledStation:
             "raw_code_observations": int(((self.arc < 0) & np.isfinite(self.gf_m)).sum()),
         }
 
-    def screening_summary(self, svs: Sequence[str]) -> dict[str, Any]:
-        """What the station's own screening removed (per satellite) and its w-test summary."""
+    def screening_summary(self, svs: Sequence[str], times: np.ndarray | None = None) -> dict[str, Any]:
+        """What the station's own screening removed (per satellite; with ``times`` (T,) the epochs of the rows,
+        also per epoch: ``removed_epochs`` {ISO time: satellites}, and the epoch with most removals, where a
+        receiver problem of one epoch shows) and its w-test summary."""
         per_sat: dict[str, int] = {}
-        for s in np.nonzero(self.removed)[1].tolist():
+        rows, cols = np.nonzero(self.removed)
+        for s in cols.tolist():
             per_sat[svs[s]] = per_sat.get(svs[s], 0) + 1
+        per_epoch: dict[str, list[str]] = {}
+        if times is not None and len(times) == self.removed.shape[0]:
+            for r, s in zip(rows.tolist(), cols.tolist(), strict=True):
+                per_epoch.setdefault(str(np.datetime64(times[r], "s")), []).append(svs[s])
         tests = self.tests.summary() if self.tests is not None else {}
         tests.pop("removed", None)
         mw = int(self.mw_outlier.sum()) if self.mw_outlier is not None else 0
@@ -121,6 +128,15 @@ class LevelledStation:
             "tested": int(self.tests.w.size) if self.tests is not None else 0,
             "removed": int(self.removed.sum()),
             "removed_per_satellite": per_sat,
+            **(
+                {
+                    "removed_epochs": per_epoch,
+                    "epochs_with_removals": len(per_epoch),
+                    "most_removed_epoch": max(per_epoch, key=lambda k: (len(per_epoch[k]), k)) if per_epoch else None,
+                }
+                if times is not None
+                else {}
+            ),
             "w_tested": w_tested,
             "removed_w_test": int(self.removed.sum()) - mw,
             "removed_mw_outliers": mw,
