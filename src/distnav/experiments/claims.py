@@ -110,7 +110,7 @@ def checked(
             why=f"results.json lacks {exc}",
             test="",
         )
-    if not test and FULL_ONLY not in why:
+    if not test and ok is not None and FULL_ONLY not in why:
         why += "; no test pins it yet"
     return claim(
         paper=paper, where=where, text=text, paper_value=paper_value, distnav_value=value, ok=ok, why=why, test=test

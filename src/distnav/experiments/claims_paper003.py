@@ -165,11 +165,11 @@ def ckf_extra(r: dict[str, Any]) -> list[Row]:
         )
         return value, est < EXACT_TOL and std < EXACT_TOL, why
 
-    return [
+    return setup_rows() + [
         checked(
             paper="003",
-            where="§4 eq. (28)",
-            text="with exact averages every local filter delivers the central filter's results",
+            where="§4 eq. (28), Fig. 6",
+            text="with exact averages every local filter (Fig. 6's CKF) delivers the central filter's results",
             paper_value="identical",
             test="tests/test_experiment_ckf.py::test_paper_findings",
             measure=exact,
@@ -248,7 +248,21 @@ def ionosphere_extra(r: dict[str, Any]) -> list[Row]:
     def row(where: str, text: str, paper_value: Any, test: str, measure: Any) -> Row:
         return checked(paper="003", where=where, text=text, paper_value=paper_value, test=test, measure=measure)
 
+    def perth() -> tuple[Any, bool | None, str]:
+        links = {tuple(sorted(int(v) + 1 for v in link)) for link in get(r, "scenario", "links")}
+        n = int(get(r, "scenario", "receivers"))
+        of1 = sorted(b if a == 1 else a for a, b in links if 1 in (a, b))
+        value = f"{n} receivers; receiver 1 linked to {', '.join(map(str, of1))}"
+        return value, n == 13 and of1 == [2, 6], "links of the stored layout (inter-station distance ≤ 4 km)"
+
     return [
+        row(
+            "Fig. 8",
+            "13 receivers; receiver 1 is linked to 2 and 6, not to 3",
+            "13; 2, 6",
+            t + "test_perth_network_matches_fig8_description",
+            perth,
+        ),
         row("Fig. 10", "PRNs 2, 6, 16, 17, 19, 26, 32 set and re-rise", "7 satellites", "", rerising),
         row("Fig. 10", "PRN 22 is visible longest, PRN 21 shortest", "G22 / G21", "", longest),
         row(
@@ -330,3 +344,52 @@ def qc_ckf(r: dict[str, Any]) -> list[Row]:
         row("local innovation tests in the CKF detect gross errors as well as central tests", tests),
         row("the tested CKF ends closer to the clean CKF than the untested one", repair),
     ]
+
+
+def setup_rows() -> list[Row]:
+    """Paper 003's algorithm boxes and illustrations: pinned by unit tests against an independent form, or
+    "not checkable" when they carry no quantity."""
+    tested = (
+        (
+            "Fig. 1",
+            "the information filter recursion (BLUP start) is the Kalman filter",
+            "tests/test_kalman.py::test_information_form_equals_covariance_form",
+            "against the covariance-form filter and the batch BLUP (test_information_filter_equals_batch_blup)",
+        ),
+        (
+            "Table 1",
+            "the weights of Protocols 1–4",
+            "tests/test_weights_consensus.py::test_table1_values_on_hand_graph",
+            "by hand on a small graph; rows sum to one (test_weights_doubly_stochastic_and_respect_graph)",
+        ),
+    )
+    rows = [
+        claim(
+            paper="003",
+            where=where,
+            text=text,
+            paper_value="algorithm",
+            distnav_value="implemented",
+            ok=True,
+            why="not in results.json: a unit test compares it " + how,
+            test=test,
+        )
+        for where, text, test, how in tested
+    ]
+    rows += [
+        claim(
+            paper="003",
+            where=where,
+            text=text,
+            paper_value="illustration",
+            distnav_value=None,
+            ok=None,
+            why="not in results.json: an illustration without a quantity",
+            test="",
+        )
+        for where, text in (
+            ("Fig. 5", "the two time scales of the CKF (sampling Δ, sending δ)"),
+            ("Fig. 9", "longitude and latitude of an ionospheric pierce point"),
+        )
+    ]
+    return rows
