@@ -248,9 +248,11 @@ def _oscillation(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
         found[p] = sorted(s for s, k in counts.items() if k >= OSCILLATION_SHARE * max(its - 10, 1))
     value = "; ".join(f"{p}: {', '.join(v) or 'none'}" for p, v in found.items())
     ok = all(v == ["N-CSG", "N-CSG-TBLS"] for v in found.values())
+    blew = [f"{p} {s}" for p in ("RC", "RM") for s in DISTRIBUTED if np.isnan(curve(r, p, s, "rms_cost")).all()]
     why = (
         f"'oscillates' read as: the mean cost rises at ≥ {OSCILLATION_SHARE:.0%} of the iterations after the tenth; "
         "BLS and TBLS give identical runs (the §4 row)"
+        + (f"; blew up in every instance (no curve): {', '.join(blew)}" if blew else "")
     )
     return value, ok, why
 

@@ -241,9 +241,12 @@ def ionosphere_extra(r: dict[str, Any]) -> list[Row]:
 
     def longest() -> tuple[Any, bool | None, str]:
         vis = {k: int(v) for k, v in get(r, "scenario", "visibility_epochs").items()}
-        lo, hi = min(vis, key=lambda k: vis[k]), max(vis, key=lambda k: vis[k])
-        value = f"longest {hi} ({vis[hi]} epochs), shortest {lo} ({vis[lo]})"
-        return value, (hi, lo) == (PAPER_LONGEST, PAPER_SHORTEST), "epochs tracked by any receiver; " + full
+        top, bottom = max(vis.values()), min(vis.values())
+        hi = [k for k, v in vis.items() if v == top]
+        lo = [k for k, v in vis.items() if v == bottom]
+        value = f"longest {', '.join(hi)} ({top} epochs), shortest {', '.join(lo)} ({bottom})"
+        ok = hi == [PAPER_LONGEST] and lo == [PAPER_SHORTEST]
+        return value, ok, "epochs tracked by any receiver (ties listed); " + full
 
     def row(where: str, text: str, paper_value: Any, test: str, measure: Any) -> Row:
         return checked(paper="003", where=where, text=text, paper_value=paper_value, test=test, measure=measure)

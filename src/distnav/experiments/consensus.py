@@ -232,7 +232,7 @@ def _claims(
                 distnav_value=f"{shape[0]}; {shape[1]}, {shape[2]}; " + "/".join(map(str, shape[3])),
                 ok=shape == (49, 4, 7, [7, 6, 8, 7]),
                 why=net,
-                test="tests/test_consensus_network.py::test_paper_like_network_shapes_and_node_facts",
+                test=_TEST + "test_paper_like_network_has_the_fig2_facts",
             )
         )
     rows += [
