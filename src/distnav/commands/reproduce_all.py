@@ -6,9 +6,10 @@ Runs what ``docs/claims.md`` is generated from: ``consensus``, ``admm``, ``ckf``
 instances), ``uwb-horizontal`` (``uwb --instances 5 --start horizontal``: the second "< 60 cm" row), ``codebias``,
 ``qc`` (distributed precision and data snooping: the claims table's §6 rows) and ``ckf-ionosphere``, each
 ``distnav reproduce NAME --out RUN/NAME`` in its own process (its output in ``RUN/NAME.log``). The longest starts
-first and ``--jobs`` of them run at once; the ones that take ``--jobs`` (``uwb``, ``admm``) get it too, so the cores stay busy to the end. ``RUN/timing.json`` and the printed table give,
-per reproduction, the wall time and the CPU seconds of its process and its workers (``wait4``), with the load
-average over the run. Then ``python -m distnav.experiments.claims_table RUN --out docs/claims.md`` rebuilds the
+first and ``--jobs`` of them run at once; the ones that take ``--jobs`` (``uwb``, ``admm``) get it too, so the cores
+stay busy to the end. ``RUN/timing.json`` and the printed table give, per reproduction, the wall time and the CPU
+seconds of its process and its workers (``wait4``), with the load average over the run. Then
+``python -m distnav.experiments.claims_table RUN --out docs/claims.md`` rebuilds the
 table. Exit code 1 if any reproduction failed (the others still run).
 
 The reproductions run in parallel processes, so each gets one BLAS thread (``OPENBLAS_NUM_THREADS``,
