@@ -52,7 +52,8 @@ def test_claims_table_reads_the_horizontal_start_run_after_uwb(tmp_path):
         settings = {"iterations": 500, "instances": {"G": 1}, **({"start": start} if start else {})}
         (tmp_path / folder / "results.json").write_text(json.dumps({"settings": settings, "checks": checks}))
     rows = collect(tmp_path)
-    assert [r["experiment"] for r in rows] == ["uwb-horizontal"]
+    assert [r["experiment"] for r in rows] == ["uwb-horizontal", "uwb-horizontal"]  # < 60 cm, then < 50 cm
+    assert rows[1]["verdict"] == "not checkable" and "results.json lacks 'table'" in rows[1]["why"]
     assert rows[0]["verdict"] == "agree" and rows[0]["distnav_value"] == "G: 0.35 m, L: 0.80 m, R: 0.50 m"
     (tmp_path / "uwb-horizontal" / "results.json").write_text(json.dumps({"settings": {}, "checks": checks}))
     assert collect(tmp_path)[0]["verdict"] == "not checkable"

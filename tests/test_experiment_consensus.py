@@ -101,6 +101,18 @@ def test_networks_have_paper_shapes():
     assert sw.union.is_connected
 
 
+def test_paper_like_network_has_the_fig2_facts(quick_run):
+    """Fig. 2 (paper 003): network (a) has 49 links, node 1 four and node 14 seven neighbours; network (b) 7, 6, 8
+    and 7 links per session — counted here from the links written to results.json."""
+    _, res = quick_run
+    links = np.asarray(res["network"]["static"]["links"])
+    assert len(links) == 49
+    assert int((links == 0).sum()) == 4 and int((links == 13).sum()) == 7
+    assert [len(s) for s in res["network"]["switching"]["sessions"]] == [7, 6, 8, 7]
+    fig2 = next(c for c in res["claims"] if c["where"] == "Fig. 2")
+    assert fig2["verdict"] == "agree" and "candidate 59922 of 100,000" in fig2["why"]
+
+
 def test_reproduce_consensus_writes_results(quick_run):
     tmp_path, res = quick_run
     data = json.loads((tmp_path / "results.json").read_text())
@@ -131,7 +143,7 @@ def test_cli_demo_writes_report(tmp_path, capsys):
     assert main(["demo", "--out", str(out), "--only", "consensus", "--no-progress"]) == 0
     html = (out / "index.html").read_text()
     assert "consensus/fig4_probability.png" in html and "λ_(n-1) P3" in html
-    assert "11 paper claims checked by this run: <b>11 agree</b>" in html
+    assert "12 paper claims checked by this run: <b>12 agree</b>" in html
     from test_report import assert_links_resolve  # tests/ is on sys.path (pytest prepend mode)
 
     parser = assert_links_resolve(out)

@@ -172,7 +172,7 @@ def test_claims_table_command_rewrites_only_its_block(tmp_path, capsys):
 
 
 def test_every_test_the_claims_table_names_exists():
-    source = (SRC / "claims_table.py").read_text(encoding="utf-8")
+    source = "\n".join(p.read_text(encoding="utf-8") for p in SRC.glob("claims*.py"))  # the table and its adapters
     named = set(re.findall(r"(?<![\w/])test_\w+(?![\w.])", source))  # test functions, not test_*.py files
     tests = "\n".join(p.read_text(encoding="utf-8") for p in (SRC.parents[2] / "tests").glob("test_*.py"))
     defined = set(re.findall(r"^def (test_\w+)", tests, flags=re.M))

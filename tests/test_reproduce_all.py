@@ -50,6 +50,7 @@ def test_the_default_set_is_what_the_claims_table_reads_and_options_are_checked(
         "uwb",
         "uwb-horizontal",
         "codebias",
+        "qc",
         "ckf-ionosphere",
     }
     assert reproduce_all._command(reproduce_all.RUNS["uwb"], tmp_path, 2, False, 0)[2:] == [

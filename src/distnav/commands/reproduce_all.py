@@ -3,12 +3,13 @@
     distnav reproduce-all --out RUN [--jobs 2] [--only NAME ...] [--quick] [--seed 0]
 
 Runs what ``docs/claims.md`` is generated from: ``consensus``, ``admm``, ``ckf``, ``uwb`` (the paper's 50 / 50 / 100
-instances), ``uwb-horizontal`` (``uwb --instances 5 --start horizontal``: the second "< 60 cm" row), ``codebias``
-and ``ckf-ionosphere``, each ``distnav reproduce NAME --out RUN/NAME`` in its own process (its output in
-``RUN/NAME.log``). The longest starts first and ``--jobs`` of them run at once; the ones that take ``--jobs``
-(``uwb``, ``admm``) get it too, so the cores stay busy to the end. ``RUN/timing.json`` and the printed table give,
-per reproduction, the wall time and the CPU seconds of its process and its workers (``wait4``), with the load
-average over the run. Then ``python -m distnav.experiments.claims_table RUN --out docs/claims.md`` rebuilds the
+instances), ``uwb-horizontal`` (``uwb --instances 5 --start horizontal``: the second "< 60 cm" row), ``codebias``,
+``qc`` (distributed precision and data snooping: the claims table's §6 rows) and ``ckf-ionosphere``, each
+``distnav reproduce NAME --out RUN/NAME`` in its own process (its output in ``RUN/NAME.log``). The longest starts
+first and ``--jobs`` of them run at once; the ones that take ``--jobs`` (``uwb``, ``admm``) get it too, so the cores
+stay busy to the end. ``RUN/timing.json`` and the printed table give, per reproduction, the wall time and the CPU
+seconds of its process and its workers (``wait4``), with the load average over the run. Then
+``python -m distnav.experiments.claims_table RUN --out docs/claims.md`` rebuilds the
 table. Exit code 1 if any reproduction failed (the others still run).
 
 The reproductions run in parallel processes, so each gets one BLAS thread (``OPENBLAS_NUM_THREADS``,
@@ -65,6 +66,7 @@ RUNS: dict[str, Run] = {
         Run("admm", "admm", jobs=True, cpu_s=52.0),
         Run("ckf-ionosphere", "ckf-ionosphere", cpu_s=18.0),
         Run("codebias", "codebias", cpu_s=13.0),
+        Run("qc", "qc", cpu_s=20.0),
         Run("ckf", "ckf", cpu_s=8.0),
         Run("consensus", "consensus", cpu_s=7.5),
     )

@@ -33,6 +33,7 @@ from distnav.algorithms.lsq.admm import (
 )
 from distnav.algorithms.lsq.blue import LinearProblem, blue, dual_function, method_of_multipliers, single_consensus_admm
 from distnav.exchange import Exchange, make_exchange
+from distnav.experiments.admm_checks import fig5_conditions, fig6_as_printed
 from distnav.experiments.common import ExperimentContext, add_jobs_argument, parallel_map, pyplot
 from distnav.network import builders
 from distnav.network.constraint_nodes import ConstraintNodes, choose_constraint_nodes
@@ -434,6 +435,10 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "final_max_deviation": final_dev,
         "final_max_deviation_reduced": b["_finals"]["C_reduced"],
         "communication_vs_gather": b["_vs_gather"],
+        "fig5_conditions_18": fig5_conditions(b["_graph"], b["_sets"], b["_finals"]),
+        "fig6_as_printed": fig6_as_printed(
+            ctx, b["_graph"], b["_sets"]["C_full"], fig5_problems(ctx, 1)[0][0], 1.0, 400 if quick else 2000
+        ),
         "headline": {
             "Fig. 5, C={1,3,4,6,9}: iterations to 1e-6": b["C_full"]["iterations_to_1e-6"],
             "Fig. 5, C={1,3,4,9}: iterations to 1e-6": b["C_reduced"]["iterations_to_1e-6"],

@@ -363,6 +363,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
             "kn": kns,
             "sending_intervals_s": list(SENDING_INTERVALS_S),
             "satellites_rising_twice": _rerising(series, layout),
+            "visibility_epochs": _visibility(series, layout),
             "units": {
                 "tec": f"metres of L1 delay (vertical); 1 TECU = {TECU_L1_M:.4f} m",
                 "dcb": "ns of the L1-L2 DSB difference DSB^s - DSB^p (0.4634 m of observable per ns)",
@@ -431,6 +432,12 @@ def _rerising(series: GeometryFreeSeries, layout: IonosphereStateLayout) -> list
     tr = np.asarray(series.tracked.any(axis=1), dtype=np.int8)  # (T, S)
     rises = (np.diff(tr, axis=0) == 1).sum(axis=0) + tr[0]
     return [s for s, k in zip(layout.svs, rises, strict=True) if k >= 2]
+
+
+def _visibility(series: GeometryFreeSeries, layout: IonosphereStateLayout) -> dict[str, int]:
+    """Epochs at which each satellite is tracked by at least one receiver (Fig. 10, left)."""
+    tr = np.asarray(series.tracked.any(axis=1))  # (T, S)
+    return {s: int(k) for s, k in zip(layout.svs, tr.sum(axis=0), strict=True)}
 
 
 def _figures(

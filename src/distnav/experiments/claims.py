@@ -13,9 +13,25 @@ cannot be checked; ``test`` names the test that fails if the claim changes ("" w
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
-__all__ = ["AGREE", "DIFFER", "NOT_CHECKABLE", "VERDICTS", "claim", "verdict"]
+__all__ = [
+    "AGREE",
+    "DIFFER",
+    "NOT_CHECKABLE",
+    "VERDICTS",
+    "FULL_ONLY",
+    "Missing",
+    "Row",
+    "checked",
+    "claim",
+    "get",
+    "rows_of",
+    "verdict",
+]
+
+Row = dict[str, Any]
 
 AGREE = "agree"
 DIFFER = "differ"
@@ -50,3 +66,77 @@ def claim(
         "why": why,
         "test": test,
     }
+
+
+# ------------------------------------------------------------------------------------------------ reading a run
+class Missing(KeyError):
+    """A field a claim needs is absent from the run's ``results.json`` (the row becomes "not checkable")."""
+
+
+def get(d: Any, *keys: str) -> Any:
+    """``d[k1][k2]…``; :class:`Missing` naming the dotted path if any level is absent."""
+    for k in keys:
+        if not isinstance(d, dict) or k not in d:
+            raise Missing(".".join(keys))
+        d = d[k]
+    return d
+
+
+#: The stated reason of a row no unit test pins: its number exists only at the full run's size (docs/claims.md).
+FULL_ONLY = "no unit test: only the full run decides it — "
+
+
+def checked(
+    *,
+    paper: str,
+    where: str,
+    text: str,
+    paper_value: Any,
+    test: str,
+    measure: Callable[[], tuple[Any, bool | None, str]],
+) -> dict[str, Any]:
+    """One row whose ``(distnav_value, ok, why)`` come from ``measure()`` (which reads the run's results); if a
+    field is missing the row keeps its claim and says "not checkable: results.json lacks …"."""
+    try:
+        value, ok, why = measure()
+    except (Missing, KeyError, TypeError, ValueError, IndexError, ZeroDivisionError) as exc:
+        return claim(
+            paper=paper,
+            where=where,
+            text=text,
+            paper_value=paper_value,
+            distnav_value=None,
+            ok=None,
+            why=f"results.json lacks {exc}",
+            test="",
+        )
+    if not test and ok is not None and FULL_ONLY not in why:
+        why += "; no test pins it yet"
+    return claim(
+        paper=paper, where=where, text=text, paper_value=paper_value, distnav_value=value, ok=ok, why=why, test=test
+    )
+
+
+def rows_of(makers: list[Callable[[], Row]], paper: str) -> list[Row]:
+    """The rows the ``makers`` build; one that finds a field missing gives a "not checkable" row instead."""
+    out = []
+    for make in makers:
+        try:
+            row = make()
+            if not row["test"] and FULL_ONLY not in row["why"]:
+                row["why"] += "; no test pins it yet"
+            out.append(row)
+        except (Missing, KeyError, TypeError, ValueError) as exc:
+            out.append(
+                claim(
+                    paper=paper,
+                    where="—",
+                    text="(a claim this run cannot evaluate)",
+                    paper_value=None,
+                    distnav_value=None,
+                    ok=None,
+                    why=f"results.json lacks {exc}",
+                    test="",
+                )
+            )
+    return out
