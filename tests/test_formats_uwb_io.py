@@ -1,5 +1,6 @@
-"""Real range logs in (issue 13, item 6): bad samples dropped and counted (``--strict`` refuses), an id typo that
-leaves an anchor with a single link reported, ranges in millimetres / centimetres / feet caught."""
+"""distnav.formats.uwb.io — real range logs in (issue 13, item 6): bad samples dropped and counted (``--strict``
+refuses), an id typo that leaves an anchor with a single link reported, ranges in millimetres / centimetres / feet
+caught."""
 
 from __future__ import annotations
 
