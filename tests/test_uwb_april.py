@@ -89,25 +89,22 @@ def test_april_common_offset_matches_a_scipy_fit(shared_data, tmp_path, name):
     files = tmp_path / "april"
     assert main(["uwb", "import-april", str(log), "--out", str(files)]) == 0
     out = tmp_path / "out"
-    assert (
-        main(
-            [
-                "uwb",
-                "solve",
-                "--ranges",
-                str(files / "ranges.csv"),
-                "--known",
-                str(files / "known.csv"),
-                "--truth",
-                str(files / "truth.csv"),
-                "--range-offsets",
-                "common",
-                "--out",
-                str(out),
-            ]
-        )
-        == 0
-    )
+    assert main(
+        [
+            "uwb",
+            "solve",
+            "--ranges",
+            str(files / "ranges.csv"),
+            "--known",
+            str(files / "known.csv"),
+            "--truth",
+            str(files / "truth.csv"),
+            "--range-offsets",
+            "common",
+            "--out",
+            str(out),
+        ]
+    ) in (0, 3)
     s = json.loads((out / "summary.json").read_text())
     got = _positions(out / "positions.csv")
     # distnav's default is the one-sided Cauchy loss at 0.3 m (ranges read long; the scatter here, 0.3–0.4 m, keeps
@@ -130,25 +127,22 @@ def test_april_common_offset_matches_a_scipy_fit(shared_data, tmp_path, name):
     assert all(r.startswith("reliability: ") for r in s["weak_reasons"].values())
     # with a common offset the fit is better than without (issue 13: 0.41 → 0.25 m on a centralized fit)
     plain = tmp_path / "plain"
-    assert (
-        main(
-            [
-                "uwb",
-                "solve",
-                "--ranges",
-                str(files / "ranges.csv"),
-                "--known",
-                str(files / "known.csv"),
-                "--truth",
-                str(files / "truth.csv"),
-                "--range-offsets",
-                "none",
-                "--out",
-                str(plain),
-            ]
-        )
-        == 0
-    )
+    assert main(
+        [
+            "uwb",
+            "solve",
+            "--ranges",
+            str(files / "ranges.csv"),
+            "--known",
+            str(files / "known.csv"),
+            "--truth",
+            str(files / "truth.csv"),
+            "--range-offsets",
+            "none",
+            "--out",
+            str(plain),
+        ]
+    ) in (0, 3)
     assert s["rmse_m"] < json.loads((plain / "summary.json").read_text())["rmse_m"]
     sig = [float(got[str(k)]["sx_m"]) for k in ref]
     assert all(0.0 < v < 1.0 for v in sig)
@@ -175,7 +169,7 @@ def test_april_two_known_nodes_are_flagged_ambiguous(shared_data, tmp_path, caps
             str(out),
         ]
     )
-    assert code == 1
+    assert code == 4  # ambiguous
     err = capsys.readouterr().err
     assert "ambiguous" in err and "mirror image" in err
     s = json.loads((out / "summary.json").read_text())
@@ -191,24 +185,21 @@ def test_april_default_estimates_the_common_offset(shared_data, tmp_path):
     assert main(["uwb", "import-april", str(log), "--out", str(files)]) == 0
     runs = {}
     for name, extra in (("default", []), ("common", ["--range-offsets", "common"])):
-        assert (
-            main(
-                [
-                    "uwb",
-                    "solve",
-                    "--ranges",
-                    str(files / "ranges.csv"),
-                    "--known",
-                    str(files / "known.csv"),
-                    "--truth",
-                    str(files / "truth.csv"),
-                    *extra,
-                    "--out",
-                    str(tmp_path / name),
-                ]
-            )
-            == 0
-        )
+        assert main(
+            [
+                "uwb",
+                "solve",
+                "--ranges",
+                str(files / "ranges.csv"),
+                "--known",
+                str(files / "known.csv"),
+                "--truth",
+                str(files / "truth.csv"),
+                *extra,
+                "--out",
+                str(tmp_path / name),
+            ]
+        ) in (0, 3)
         runs[name] = json.loads((tmp_path / name / "summary.json").read_text())
     assert runs["default"]["range_offsets"] == "common" and len(runs["default"]["offsets_m"]) == 1
     assert runs["default"]["offsets_m"] == runs["common"]["offsets_m"]

@@ -53,6 +53,9 @@ def hall(
     return files
 
 
+USABLE = (0, 3)  # exit 0: every anchor meets --required-accuracy-m; 3: a usable map, some anchors short of it
+
+
 def run(files: dict[str, Path], out: Path, *extra: str) -> int:
     return main(
         ["uwb", "solve", "--ranges", str(files["ranges"]), "--known", str(files["known"]), "--out", str(out), *extra]
@@ -62,7 +65,7 @@ def run(files: dict[str, Path], out: Path, *extra: str) -> int:
 def test_solve_writes_positions_summary_and_plot(tmp_path, capsys):
     f = hall(tmp_path, ceiling=False)
     out = tmp_path / "out"
-    assert run(f, out, "--truth", str(f["truth"])) == 0
+    assert run(f, out, "--truth", str(f["truth"])) in USABLE
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == "LM" and summary["iterations"] >= 1
     assert summary["loss"] == "cauchy" and summary["loss_used"] == "cauchy_long"  # LM in metres: one-sided
@@ -99,7 +102,7 @@ def test_distributed_solver_with_initial_guess(tmp_path, capsys):
             "--iterations",
             "600",
         )
-        == 0
+        in USABLE
     )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == "N-CLM" and summary["objective"] == "metres"
@@ -126,7 +129,7 @@ def test_distributed_solver_with_initial_guess(tmp_path, capsys):
 
 def test_without_truth_rmse_is_null(tmp_path):
     f = hall(tmp_path, ceiling=False)
-    assert run(f, tmp_path / "o") == 0
+    assert run(f, tmp_path / "o") in USABLE
     assert json.loads((tmp_path / "o" / "summary.json").read_text())["rmse_m"] is None
 
 
@@ -136,11 +139,11 @@ def test_heights_fix_the_ceiling_mirror_and_planar_refusal(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "nearly planar" in err and "--heights" in err and "--allow-planar-3d" in err
     assert not (tmp_path / "free").exists()
-    assert run(f, tmp_path / "asked", "--truth", str(f["truth"]), "--allow-planar-3d") == 0
+    assert run(f, tmp_path / "asked", "--truth", str(f["truth"]), "--allow-planar-3d") in USABLE
     assert "nearly planar" in capsys.readouterr().err
     free = json.loads((tmp_path / "asked" / "summary.json").read_text())
     assert free["status"] == "weakly_determined" and any("nearly planar" in w for w in free["warnings"])
-    assert run(f, tmp_path / "held", "--truth", str(f["truth"]), "--heights", str(f["heights"])) == 0
+    assert run(f, tmp_path / "held", "--truth", str(f["truth"]), "--heights", str(f["heights"])) in USABLE
     assert "nearly planar" not in capsys.readouterr().err
     held = json.loads((tmp_path / "held" / "summary.json").read_text())
     assert held["n_heights_held"] == 10  # the 14 anchors minus the 4 known ones
@@ -168,11 +171,11 @@ def test_robust_loss_and_exclusion_handle_nlos_pairs(tmp_path):
                 "0.1",
                 "--no-exclude",
             )
-            == 0
+            in USABLE
         )
         rm[loss] = json.loads((tmp_path / loss / "summary.json").read_text())["rmse_m"]
     assert rm["cauchy"] < 0.05 < rm["linear"]
-    assert run(f, tmp_path / "default", "--truth", str(f["truth"])) == 0  # metres, Cauchy, exclusion
+    assert run(f, tmp_path / "default", "--truth", str(f["truth"])) in USABLE  # metres, Cauchy, exclusion
     s = json.loads((tmp_path / "default" / "summary.json").read_text())
     assert sorted(sorted(x) for x in s["excluded_links"]) == [["A04", "A05"]]
     assert s["rmse_m"] < 0.05
@@ -198,7 +201,7 @@ def test_robust_loss_and_exclusion_handle_nlos_pairs(tmp_path):
             "800",
             "--no-exclude",
         )
-        == 0
+        in USABLE
     )
     tbls = json.loads((tmp_path / "tbls" / "summary.json").read_text())["rmse_m"]
     assert tbls < 0.5 * rm["linear"]
@@ -269,11 +272,11 @@ def test_bad_position_and_height_files(tmp_path, capsys):
 
 def test_not_determined_and_option_errors(tmp_path, capsys):
     f = hall(tmp_path)
-    f["known"].write_text("id,x_m,y_m,z_m\nA00,0,0,3\nA01,1,1,3\n")  # 2 known anchors in 3-D
+    f["known"].write_text("\n".join(f["truth"].read_text().splitlines()[:3]) + "\n")  # 2 known anchors in 3-D
     assert run(f, tmp_path / "o") == 2
     assert "3 non-collinear fixed anchors" in capsys.readouterr().err
     f = hall(tmp_path)
-    assert run(f, tmp_path / "o", "--solver", "CSG") == 2  # the default Cauchy loss: not for CSG
+    assert run(f, tmp_path / "o", "--solver", "CSG", "--loss", "cauchy") == 2  # CSG has no robust loss
     assert "not CSG" in capsys.readouterr().err
     with pytest.raises(DataFileError, match="missing"):
         read_heights(f["ranges"])
@@ -330,8 +333,8 @@ def test_distributed_solve_under_mpi_writes_the_same_positions(tmp_path):
         timeout=120,
         env=dict(os.environ, PYTHONUNBUFFERED="1"),
     )
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert main([*args, "--out", str(tmp_path / "local")]) == 0
+    assert proc.returncode in USABLE, proc.stderr[-2000:]
+    assert main([*args, "--out", str(tmp_path / "local")]) in USABLE
     assert (tmp_path / "mpi" / "positions.csv").read_bytes() == (tmp_path / "local" / "positions.csv").read_bytes()
     a = json.loads((tmp_path / "mpi" / "summary.json").read_text())
     b = json.loads((tmp_path / "local" / "summary.json").read_text())
@@ -432,20 +435,20 @@ def test_weak_anchors_are_named_on_the_console_and_in_positions_csv(tmp_path, ca
             str(tmp_path / "out"),
         ]
     )
-    assert code == 0
+    assert code in USABLE
     s = json.loads((tmp_path / "out" / "summary.json").read_text())
     with (tmp_path / "out" / "positions.csv").open() as f:
         weak = sorted(r["id"] for r in csv.DictReader(f) if r["status"] == "weak")
     assert s["status"] == "weakly_determined" and weak and sorted(s["weakly_determined_anchors"]) == weak
     err = capsys.readouterr().err
-    assert "weakly determined" in err and all(k in err for k in weak)
+    assert "do not meet the required accuracy" in err and all(f"{k}: weak: " in err for k in weak)
 
 
 def test_no_refine_skips_the_final_distributed_lm_phase(tmp_path):
     f = hall(tmp_path, ceiling=False)
     common = ("--solver", "N-CSG-TBLS", "--iterations", "60", "--initial", str(f["initial"]))
-    assert run(f, tmp_path / "refined", *common) in (0, 1)
-    assert run(f, tmp_path / "plain", *common, "--no-refine") in (0, 1)
+    assert run(f, tmp_path / "refined", *common) in (*USABLE, 1)
+    assert run(f, tmp_path / "plain", *common, "--no-refine") in (*USABLE, 1)
     refined = json.loads((tmp_path / "refined" / "summary.json").read_text())["communication"]["distributed"]
     plain = json.loads((tmp_path / "plain" / "summary.json").read_text())["communication"]["distributed"]
     assert refined["final_lm_phase"]["rounds"] >= 1 and plain["final_lm_phase"] is None
@@ -474,7 +477,7 @@ def test_reliability_weak_anchors_carry_their_reason_and_the_limit_switches_it_o
         "--heights",
         str(h / "heights.csv"),
     ]
-    assert main([*base, "--out", str(tmp_path / "on")]) == 0
+    assert main([*base, "--out", str(tmp_path / "on")]) in USABLE
     s = json.loads((tmp_path / "on" / "summary.json").read_text())
     with (tmp_path / "on" / "positions.csv").open() as f:
         rows = {r["id"]: r for r in csv.DictReader(f)}
@@ -486,8 +489,8 @@ def test_reliability_weak_anchors_carry_their_reason_and_the_limit_switches_it_o
     assert all(" on link " in v and " would move it " in v for v in rel.values())
     assert all(r["weak_reason"] == "" for r in rows.values() if r["status"] != "weak")
     err = capsys.readouterr().err
-    assert any(f"{k}: reliability" in err for k in rel)
-    assert main([*base, "--reliability-limit-m", "0", "--out", str(tmp_path / "off")]) == 0
+    assert any(f"{k}: weak: reliability" in err for k in rel)
+    assert main([*base, "--reliability-limit-m", "0", "--out", str(tmp_path / "off")]) in USABLE
     off = json.loads((tmp_path / "off" / "summary.json").read_text())
     assert off["reliability"] == {"tested": False} and not set(rel) & set(off["weakly_determined_anchors"])
     with (tmp_path / "off" / "positions.csv").open() as f:

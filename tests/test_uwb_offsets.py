@@ -30,7 +30,7 @@ def _solve(files, out, *extra):
                 str(out),
             ]
         )
-        == 0
+        in (0, 3)  # 3: a usable map whose anchors miss --required-accuracy-m (APRIL: 0.3 m)
     )
     return json.loads((out / "summary.json").read_text())
 

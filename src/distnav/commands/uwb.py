@@ -2,7 +2,8 @@
 
     distnav uwb solve --ranges RANGES.csv --known KNOWN.csv [--initial INIT.csv] [--solver NAME]
                       [--truth TRUTH.csv] [--heights HEIGHTS.csv] [--loss linear|huber|cauchy]
-                      [--loss-scale-m 0.3] [--iterations 500] [--backend inprocess|mpi] --out OUT_DIR
+                      [--loss-scale-m 0.3] [--required-accuracy-m 0.3] [--iterations 500]
+                      [--backend inprocess|mpi] --out OUT_DIR
 
 * Repeated ranges of a pair are combined by their **median** (robust to a minority of NLOS ranges).
 * Without ``--initial`` the initial guess is classical multidimensional scaling (MDS) of the range graph
@@ -27,8 +28,20 @@
   antenna delays with the positions; ``auto`` (default):
   :attr:`~distnav.models.uwb.field.FieldOptions.offsets_used`.
 
-Outputs in OUT_DIR: ``positions.csv`` (every anchor), ``links.csv``, ``summary.json``, ``positions.png`` and,
-when offsets were estimated, ``offsets.csv`` (``id,offset_m,sigma_m``).
+Outputs in OUT_DIR: ``positions.csv`` (every anchor, with its accuracy radius and whether it meets
+``--required-accuracy-m``), ``links.csv``, ``summary.json`` (``run``: the verdict), ``positions.png``, when offsets
+were estimated ``offsets.csv`` (``id,offset_m,sigma_m``) and, when the ranges cannot tell the network from its
+mirror image, ``positions_mirror.csv`` (the other map).
+
+Exit codes (:mod:`distnav.models.uwb.verdict`):
+  0  every anchor meets --required-accuracy-m (default 0.3 m; its radius holds the errors of all anchors jointly
+     with 99 % probability by the reported σ, and it is not weak): the map can be used
+  1  unusable: diverged (no positions written), or the log is inconsistent with the model (more than 25 % of the
+     links excluded, exclusions and the robust fit disagree everywhere, or ranges 5 × noisier than --sigma-m)
+  2  bad input or a refused geometry (nothing solved)
+  3  a usable map, but the listed anchors do not meet --required-accuracy-m (weak, too large a radius, unsolved)
+  4  ambiguous: the network and its mirror image (or an anchor and its flip) fit the ranges alike; both maps
+     written (positions.csv, positions_mirror.csv)
 """
 
 from __future__ import annotations
@@ -44,6 +57,14 @@ from distnav.algorithms.ranging.csg import SOLVERS
 from distnav.algorithms.ranging.losses import LOSSES
 from distnav.algorithms.result import CommComparison, compare_with_gather
 from distnav.commands import add_backend_arguments
+from distnav.commands.uwb_outputs import (
+    plot,
+    positions_table,
+    report,
+    write_links,
+    write_mirror_positions,
+    write_offsets,
+)
 from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange
 from distnav.formats.uwb.io import (
@@ -68,6 +89,8 @@ from distnav.models.uwb.geometry import planarity
 from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_initial_guess, smacof  # noqa: F401
 from distnav.models.uwb.mirror import solve_with_mirror_test
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
+from distnav.models.uwb.verdict import EXIT_NOT_ACCURATE, EXIT_OK, REQUIRED_ACCURACY_M, RunVerdict, run_verdict
+from distnav.options import positive_float
 from distnav.output import atomic_write_text
 
 __all__ = [
@@ -82,6 +105,12 @@ __all__ = [
 ]
 
 PLANAR_RATIO = 0.05
+
+
+def default_loss(solver: str) -> str:
+    """The solver's own default loss: ``linear`` for CSG (its only one), ``cauchy`` for LM and the neighbourhood
+    solvers."""
+    return "linear" if solver.upper() == "CSG" else "cauchy"
 
 
 def register(subparsers: Any) -> None:
@@ -114,9 +143,9 @@ def register(subparsers: Any) -> None:
     )
     s.add_argument(
         "--loss",
-        default="cauchy",
+        default=None,
         choices=list(LOSSES),
-        help="robust loss (default cauchy; LM and the N-CSG/N-CLM solvers; not CSG)",
+        help="robust loss (default: cauchy for LM and the N-CSG/N-CLM solvers, linear for CSG, which has no other)",
     )
     s.add_argument(
         "--loss-scale-m",
@@ -158,6 +187,14 @@ def register(subparsers: Any) -> None:
         help="LM: report an anchor weak when one link's minimal detectable bias, undetected, would move "
         f"it more than this (m) and 3σ (external reliability; default {RELIABILITY_LIMIT_M}, "
         "0 = off)",
+    )
+    s.add_argument(
+        "--required-accuracy-m",
+        type=positive_float,
+        default=REQUIRED_ACCURACY_M,
+        help="the accuracy (m) every anchor must meet for exit 0: its radius (99 %% of all anchors jointly, from "
+        f"the reported σ) within it and not weak (default {REQUIRED_ACCURACY_M}); exit 3 lists the anchors that "
+        "do not",
     )
     s.add_argument(
         "--allow-planar-3d",
@@ -453,137 +490,12 @@ def _comparison(sol: FieldSolution) -> CommComparison:
     )
 
 
-def write_links(path: Path, sol: FieldSolution, comb: CombinedRanges) -> None:
-    """``links.csv``: a, b, samples, median range, MAD, residual, w, flagged, excluded (one row per pair)."""
-    p = sol.problem
-    stats = {k: (int(c), float(m)) for k, c, m in zip(comb.pairs, comb.count, comb.mad_m, strict=True)}
-    rows = ["a,b,samples,median_range_m,mad_m,residual_m,w,flagged,excluded"]
-    for k in range(p.n_meas):
-        a, b = p.ids[p.meas_a[k]], p.ids[p.meas_b[k]]
-        cnt, mad = stats.get((a, b)) or stats.get((b, a)) or (0, float("nan"))
-        rows.append(
-            f"{a},{b},{cnt},{p.range_m[k]:.4f},{mad:.4f},{sol.residual_m[k]:.4f},{sol.w[k]:.3f},"
-            f"{int(sol.flagged[k])},{int(sol.excluded[k])}"
-        )
-    atomic_write_text(path, "\n".join(rows) + "\n")
-
-
-def write_offsets(path: Path, sol: FieldSolution) -> None:
-    """``offsets.csv`` (only when offsets were estimated): ``id,offset_m,sigma_m`` — one row ``common`` or one per
-    anchor (its antenna delay: every range it takes part in reads ``b_a + b_b`` long); σ a-posteriori."""
-    off = getattr(sol.result, "offsets_m", None)
-    if off is None:
-        return
-    std = getattr(sol.result, "offsets_std_m", None)
-    std = np.full(len(off), np.nan) if std is None else np.asarray(std)
-    names = ["common"] if len(off) == 1 else list(sol.problem.ids)
-    rows = ["id,offset_m,sigma_m"] + [f"{k},{o:.6f},{s:.6f}" for k, o, s in zip(names, off, std, strict=True)]
-    atomic_write_text(path, "\n".join(rows) + "\n")
-
-
-def _positions_table(path: Path, sol: FieldSolution) -> None:
-    """``positions.csv``: every anchor with σ per axis, a status (known, estimated, weak, ambiguous, unsolved) and,
-    for a weak one, why (``weak_reason``: misfit, thin, reliability — which link would go undetected and how far
-    it would move the anchor —, cut — a part placed by fewer checks than the exclusions took off its cut —, untested
-    or disagree; no commas)."""
-    p = sol.problem
-    dim = p.dim
-    axes = ["x", "y", "z"][:dim]
-    rows = ["id," + ",".join(f"{a}_m" for a in axes) + "," + ",".join(f"s{a}_m" for a in axes) + ",status,weak_reason"]
-    index = {k: i for i, k in enumerate(p.ids)}
-    amb = sol.geometry.ambiguous_anchors()
-    for name in sol.geometry.ids:
-        if name not in index:
-            rows.append(name + "," * (2 * dim) + ",unsolved,")
-            continue
-        i = index[name]
-        st = "known" if p.fixed[i] else ("ambiguous" if name in amb else "weak" if name in sol.weak else "estimated")
-        rows.append(
-            name
-            + ","
-            + ",".join(f"{v:.6f}" for v in sol.positions_m[i])
-            + ","
-            + ",".join(f"{v:.6f}" for v in sol.sigma_m[i])
-            + f",{st},"
-            + (sol.weak_reasons.get(name, "").replace(",", ";") if st == "weak" else "")
-        )
-    atomic_write_text(path, "\n".join(rows) + "\n")
-
-
-def _plot(path: Path, sol: FieldSolution) -> None:
-    from distnav.output import pyplot
-
-    plt = pyplot()
-    from matplotlib.collections import LineCollection
-    from matplotlib.patches import Ellipse
-
-    p, est = sol.problem, sol.positions_m
-    fig, ax = plt.subplots(figsize=(8, 6))
-    seg = np.stack([est[p.meas_a, :2], est[p.meas_b, :2]], axis=1)
-    res = np.abs(np.nan_to_num(sol.residual_m))
-    kept = ~sol.excluded
-    lc = LineCollection(list(seg[kept]), array=res[kept], cmap="viridis_r", linewidths=1.2, zorder=1)
-    ax.add_collection(lc)
-    fig.colorbar(lc, ax=ax, label="|range residual| [m]")
-    if sol.excluded.any():
-        ax.add_collection(
-            LineCollection(
-                list(seg[sol.excluded]),
-                colors="tab:red",
-                linestyles="dashed",
-                linewidths=1.0,
-                zorder=1,
-                label="excluded (NLOS?)",
-            )
-        )
-    if p.truth_m is not None:
-        t = p.truth_m
-        ax.plot(t[:, 0], t[:, 1], "x", color="tab:green", label="truth", zorder=2)
-    e = p.estimated
-    ax.plot(est[e, 0], est[e, 1], "o", color="tab:blue", ms=4, label="estimated", zorder=3)
-    ax.plot(est[~e, 0], est[~e, 1], "^", color="k", ms=8, label="known", zorder=4)
-    scale = 0.0
-    if sol.covariance_m2 is not None:
-        cov = sol.covariance_m2[:, :2, :2]
-        sig = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2), 0.0))
-        span = float(np.ptp(est[:, :2], axis=0).max())
-        scale = max(1.0, round(0.03 * span / max(float(sig[e].max(initial=0.0)), 1e-9)))  # ellipses visible
-        for i in np.flatnonzero(e):
-            w, v = np.linalg.eigh(cov[i])
-            ang = float(np.degrees(np.arctan2(v[1, 1], v[0, 1])))
-            ax.add_patch(
-                Ellipse(
-                    tuple(est[i, :2]),
-                    2 * 2 * scale * np.sqrt(max(w[1], 0.0)),
-                    2 * 2 * scale * np.sqrt(max(w[0], 0.0)),
-                    angle=ang,
-                    fill=False,
-                    color="tab:orange",
-                    lw=0.8,
-                    zorder=3,
-                )
-            )
-    for idx, name in enumerate(p.ids):
-        ax.annotate(name, est[idx, :2], fontsize=6, xytext=(3, 3), textcoords="offset points")
-    ax.set_aspect("equal")
-    ax.autoscale_view()
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.legend(fontsize=7, loc="best")
-    ell = f"; 2σ ellipses × {scale:g}" if scale else ""
-    ax.set_title(
-        f"{p.n_anchors} anchors, {p.links.shape[0]} links ({int(sol.excluded.sum())} excluded){ell}", fontsize=9
-    )
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-
-
 @np.errstate(over="ignore", invalid="ignore")  # a diverged run's summary reads huge estimates
 def _handler(args: argparse.Namespace) -> int:
     opts = FieldOptions(
         solver=args.solver,
         objective=args.objective,
-        loss=args.loss,
+        loss=args.loss or default_loss(args.solver),
         loss_scale_m=args.loss_scale_m,
         sigma_m=args.sigma_m,
         iterations=args.iterations,
@@ -614,6 +526,8 @@ def _handler(args: argparse.Namespace) -> int:
     )
     from distnav.output import atomic_write_json, is_file_writer
 
+    verdict = run_verdict(sol, args.required_accuracy_m)
+    summary = with_verdict(summary, verdict)
     usable = sol.status != "diverged"
     if is_file_writer():  # under MPI only rank 0 writes (and prints)
         for w in summary["warnings"]:
@@ -625,41 +539,27 @@ def _handler(args: argparse.Namespace) -> int:
                 f"error: {sol.message} (status {sol.status}); no positions written, see {out / 'summary.json'}",
                 file=sys.stderr,
             )
-            return 1
-        _positions_table(out / "positions.csv", sol)
+            return verdict.exit_code
+        positions_table(out / "positions.csv", sol, verdict)
+        write_mirror_positions(out / "positions_mirror.csv", sol)
         write_links(out / "links.csv", sol, comb)
         write_offsets(out / "offsets.csv", sol)
         try:
-            _plot(out / "positions.png", sol)
+            plot(out / "positions.png", sol)
         except ImportError as exc:  # pragma: no cover - plot extra missing
             print(f"warning: no plot ({exc})", file=sys.stderr)
-    if not usable:
-        return 1
-    rm = summary["rmse_m"]
-    rr = summary["range_residual_rms_m"]
-    print(
-        f"{summary['solver']} ({summary['objective']}, {summary['loss_used']}): {summary['iterations']} iterations, "
-        f"status {summary['status']}, {summary['n_excluded']} link(s) excluded"
-        + (f", range residual RMS {rr:.3f} m" if rr is not None else "")
-        + (f", RMSE {rm:.3f} m" if rm is not None else "")
-        + f" -> {out}"
-    )
-    if (comparison := summary["communication"]["comparison"]) is not None:
-        print(comparison["line"])
-    if sol.weak:
-        print(
-            f"warning: {len(sol.weak)} anchor(s) weakly determined, their positions may be metres off: "
-            f"{', '.join(sol.weak)} (positions.csv status 'weak'; too few consistent links to tell which are NLOS, "
-            "at most one redundant link, one undetectable NLOS link would move them, or their part of the network "
-            "lost more links to the exclusions than it has checks left: weak_reason)",
-            file=sys.stderr,
-        )
-        for k in sol.weak[:5]:
-            print(f"  {k}: {sol.weak_reasons.get(k, '')}", file=sys.stderr)
-    if sol.status == "ambiguous":
-        print(
-            f"error: the solution is ambiguous ({sol.message}); positions written with status 'ambiguous'",
-            file=sys.stderr,
-        )
-        return 1
-    return 0
+        report(summary, sol, verdict, out)
+        return verdict.exit_code
+    return EXIT_OK  # another MPI rank: rank 0 speaks for the run (a non-zero exit here would abort it mid-write)
+
+
+def with_verdict(summary: dict[str, Any], verdict: RunVerdict) -> dict[str, Any]:
+    """``summary`` with the run's verdict: ``status`` the run's (``solver_status`` the solve's), ``usable`` (exit 0
+    or 3: a map to use, with or without anchors short of the accuracy) and ``run`` (the verdict, exit code)."""
+    return {
+        **summary,
+        "status": verdict.status,
+        "solver_status": summary["status"],
+        "usable": verdict.exit_code in (EXIT_OK, EXIT_NOT_ACCURATE),
+        "run": verdict.as_dict(),
+    }

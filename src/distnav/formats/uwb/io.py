@@ -233,6 +233,8 @@ def combine_ranges(log: RangeLog) -> CombinedRanges:
 
 UNIT_FACTORS = {"millimetres": 1000.0, "centimetres": 100.0, "feet": 1.0 / 0.3048}
 MAX_PLAUSIBLE_RANGE_M = 300.0
+MIN_PLAUSIBLE_RANGE_M = 0.05  # anchors are mounted farther apart than 5 cm: smaller medians are kilometres
+MAX_UNIT_CONTRADICTION = 3.0  # ranges vs known distances beyond 3× either way: not one unit (feet: 3.28×)
 
 
 def check_units(
@@ -242,9 +244,11 @@ def check_units(
 
     Compares the median ranges of links between two known anchors with the distance of their positions: a
     median ratio within 15 % of 1000, 100 or 3.28 means millimetres, centimetres or feet (a
-    :class:`DataFileError`); a ratio outside 0.5–2 is returned as a warning (a wrong known position, or a unit
-    we do not guess). Without such a link, a median range above :data:`MAX_PLAUSIBLE_RANGE_M` (UWB does not
-    range that far) is refused as probably millimetres."""
+    :class:`DataFileError`), and so does any ratio beyond :data:`MAX_UNIT_CONTRADICTION` (3×) either way (ranges
+    in km with positions in feet: the two files contradict each other, issue 28); a ratio outside 0.5–2 but
+    within that is returned as a warning (a wrong known position, or a unit we do not guess). Without such a
+    link, a median range above :data:`MAX_PLAUSIBLE_RANGE_M` (UWB does not range that far) is refused as probably
+    millimetres, one below :data:`MIN_PLAUSIBLE_RANGE_M` as probably kilometres."""
     ratios = []
     for (x, y), r in zip(comb.pairs, comb.range_m, strict=True):
         if x in known_m and y in known_m:
@@ -260,6 +264,13 @@ def check_units(
                     f"of the known positions (median of {len(ratios)} link(s)); convert range_m to metres"
                 )
         note = f"ranges / known distances = {q:.3f} (median of {len(ratios)} link(s) between known anchors)"
+        if not 1.0 / MAX_UNIT_CONTRADICTION < q < MAX_UNIT_CONTRADICTION:
+            raise DataFileError(
+                f"{where}: between known anchors the ranges are {q:.4g}× the distance of the known positions "
+                f"(median of {len(ratios)} link(s)): ranges and known positions are not in the same unit (e.g. "
+                f"ranges in km, positions in feet) or the known anchors' ids do not match the log; convert both "
+                f"to metres"
+            )
         if not 0.5 < q < 2.0:
             return note, (
                 f"between known anchors the ranges are {q:.3g}× the distance of the known positions "
@@ -267,6 +278,11 @@ def check_units(
             )
         return note, None
     med = float(np.median(comb.range_m))
+    if med < MIN_PLAUSIBLE_RANGE_M:
+        raise DataFileError(
+            f"{where}: median range {med:.4g} m is shorter than any two UWB anchors are mounted apart; the ranges "
+            f"look like kilometres (convert range_m to metres)"
+        )
     if med > MAX_PLAUSIBLE_RANGE_M:
         raise DataFileError(
             f"{where}: median range {med:.4g} m is beyond UWB reach; the ranges look like "

@@ -189,6 +189,8 @@ class FieldSolution:
     precision_kind: str | None = None  # Precision.kind of sigma_m ("centralized", "neighbourhood", …)
     precision_messages: int = 0  # of messages / bytes: those of the precision (distributed solvers)
     precision_bytes: int = 0
+    mirror: dict[str, Any] | None = None  # the mirror test (mirror.py), where the known anchors are nearly collinear
+    mirror_positions_m: FloatArray | None = None  # the other side's map, when the mirror test cannot choose
 
     @property
     def usable(self) -> bool:
@@ -559,7 +561,7 @@ def solve_field(
     residual = problem.residuals_m(pos) + offset_bias_m(problem, res)  # with the solution's offsets
     reasons = weak_anchor_reasons(problem, residual, excluded, flagged)
     reliability: dict[str, Any] = {"tested": False}
-    if opts.reliability_limit_m > 0 and opts.solver.upper() == "LM" and objective == "metres":
+    if opts.reliability_limit_m > 0 and objective == "metres":  # every solver (reliability.check_reliability)
         rel_weak, reliability, rel_note = check_reliability(
             subset_measurements(problem, ~excluded),
             res,

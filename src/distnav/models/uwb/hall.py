@@ -32,7 +32,8 @@ draw from one seeded :class:`numpy.random.Generator`):
   takes the long path with that probability, the others are LOS-like), ``gross_link_fraction`` (that share of the
   links gets ``gross_samples`` samples off by ± ``U(gross_excess_m)``), ``asymmetry_sd_m`` (a→b and b→a samples
   differ by a per-link ``N(0, s²)``, half each way) and ``known_on_wall`` (the known anchors taken from the row
-  along the wall ``y = 0``, nearest its middle or its corner: nearly collinear).
+  along the wall ``y = 0``, nearest its middle or its corner: nearly collinear); with ``known_wall_band_m`` they
+  are mounted on that wall, ``y ~ U(0, band)`` (collinear within the band: 0.02 m is issue 28's mirror case).
 
 :func:`distnav.formats.uwb.hall_files.hall_csv_texts` gives the CSV files ``distnav uwb solve`` reads
 (``ranges.csv`` ``a,b,range_m``; ``known.csv``, ``truth.csv`` ``id,x_m,y_m,z_m``; ``heights.csv`` ``id,z_m``) plus
@@ -89,6 +90,7 @@ class HallConfig:
     gross_excess_m: tuple[float, float] = (2.0, 5.0)
     asymmetry_sd_m: float = 0.0
     known_on_wall: bool = False
+    known_wall_band_m: float | None = None
 
     def __post_init__(self) -> None:
         if self.n_anchors < 4:
@@ -118,6 +120,10 @@ class HallConfig:
         if self.gross_samples < 1 or self.asymmetry_sd_m < 0:
             raise ModelError(
                 f"need gross_samples ≥ 1 and asymmetry_sd_m ≥ 0, got {self.gross_samples}, {self.asymmetry_sd_m}"
+            )
+        if self.known_wall_band_m is not None and not (self.known_on_wall and self.known_wall_band_m >= 0):
+            raise ModelError(
+                f"HallConfig.known_wall_band_m needs known_on_wall and a band ≥ 0 m, got {self.known_wall_band_m}"
             )
         if self.min_links < 0:
             raise ModelError(f"HallConfig.min_links must be ≥ 0, got {self.min_links}")
@@ -241,6 +247,8 @@ def simulate_hall(rng: np.random.Generator, config: HallConfig | None = None, **
         cfg = cfg.with_(**changes)
     truth = _layout(cfg, rng)
     n = cfg.n_anchors
+    if cfg.known_wall_band_m is not None:  # the known anchors mounted on the wall y = 0 (within the band)
+        truth[_known(cfg, truth), 1] = rng.uniform(0.0, cfg.known_wall_band_m, cfg.n_known)
     ids = tuple(f"A{k:02d}" if n <= 100 else f"A{k:04d}" for k in range(n))
     surveyed = truth[:, 2] + rng.normal(0.0, cfg.height_survey_sd_m, n)
     offset = cfg.common_offset_m + rng.normal(0.0, cfg.antenna_delay_sd_m, n)

@@ -45,6 +45,8 @@ __all__ = [
     "RELIABILITY_LIMIT_M",
     "WEAK_RMS_M",
     "ExternalReliability",
+    "check_reliability",
+    "distributed_free_vector",
     "external_reliability",
     "reliability_weak",
     "weak_anchor_reasons",
@@ -229,6 +231,18 @@ def weak_anchors(
     return tuple(weak_anchor_reasons(problem, residual_m, excluded, flagged, limit_m=limit_m))
 
 
+def distributed_free_vector(problem: RangingProblem, result: Any) -> FloatArray | None:
+    """``x = [free coordinates, offsets]`` (:class:`~distnav.algorithms.ranging.objective.RangeObjective`'s layout)
+    of a distributed solver's result (``estimates``, ``offsets_m``); None without estimates."""
+    est = getattr(result, "estimates", None)
+    if est is None:
+        return None
+    off = getattr(result, "offsets_m", None)
+    tail = np.zeros(0) if off is None else np.atleast_1d(np.asarray(off, float))
+    x: FloatArray = np.concatenate([problem.to_vector(np.asarray(est, float)), tail])
+    return x
+
+
 def check_reliability(
     problem: RangingProblem,
     result: Any,
@@ -242,9 +256,18 @@ def check_reliability(
     limit_m: float,
     offset_prior_sigma_m: float = 0.1,
 ) -> tuple[dict[str, str], dict[str, Any], str]:
-    """:func:`external_reliability` and :func:`reliability_weak` of an LM result on ``problem`` (the kept links):
-    ``(weak anchors with reasons, the summary.json entry, a note for the message)``."""
+    """:func:`external_reliability` and :func:`reliability_weak` of an LM result — or of a distributed solver's,
+    from its estimates and offsets (:func:`distributed_free_vector`; computed centrally, the same numbers as LM's
+    where the solutions agree) — on ``problem`` (the kept links): ``(weak anchors with reasons, the summary.json
+    entry, a note for the message)``."""
     x = getattr(result, "x", None)
+    computed = "centrally on LM's solution"
+    if x is None:  # a distributed solver: its free vector from its estimates and offsets (the same as LM's layout)
+        x = distributed_free_vector(problem, result)
+        computed = (
+            "centrally on the distributed solution (the kept links and the solution gathered at one place; "
+            "not from the anchors' own message rounds)"
+        )
     if x is None:
         return {}, {"tested": False}, "; external reliability not tested (the solver gives no free vector)"
     if problem.n_free > MAX_FREE:
@@ -269,4 +292,10 @@ def check_reliability(
     if rel is None:
         return {}, {"tested": False}, "; external reliability not tested (singular normal matrix)"
     weak = reliability_weak(problem, rel, anchor_sigma_m, limit_m=limit_m)
-    return weak, describe(rel, weak, limit_m), ""
+    entry = describe(rel, weak, limit_m)
+    entry["computed"] = computed
+    entry["shift_m"] = {  # per estimated anchor: its worst undetected-link shift (None: an unchecked link moves it)
+        problem.ids[i]: (float(rel.shift_m[i]) if np.isfinite(rel.shift_m[i]) else None)
+        for i in np.flatnonzero(problem.estimated)
+    }
+    return weak, entry, ""

@@ -1,5 +1,6 @@
-"""Real range logs in (issue 13, item 6): bad samples dropped and counted (``--strict`` refuses), an id typo that
-leaves an anchor with a single link reported, ranges in millimetres / centimetres / feet caught."""
+"""distnav.formats.uwb.io — real range logs in (issue 13, item 6): bad samples dropped and counted (``--strict``
+refuses), an id typo that leaves an anchor with a single link reported, ranges in millimetres / centimetres / feet
+caught."""
 
 from __future__ import annotations
 
@@ -102,9 +103,27 @@ def test_ranges_in_other_units_are_refused(tmp_path, capsys, factor, unit):
 def test_known_positions_disagreeing_with_ranges_warn(tmp_path):
     f = _hall(tmp_path)
     known, _ = read_positions(f["known"])
-    squeezed = {k: v * 0.15 for k, v in known.items()}
+    squeezed = {k: v * 0.4 for k, v in known.items()}  # ranges 2.5 × the known distances: a warning
     note, warn = check_units(combine_ranges(read_ranges(f["ranges"])), squeezed)
     assert warn is not None and "check the known positions" in warn
+
+
+@pytest.mark.parametrize("factor", [0.15, 10.0, 1000.0 * 0.3048])  # ranges 6.7×, 0.1× (tenfold), 0.0033×
+def test_known_positions_contradicting_ranges_beyond_threefold_are_refused(tmp_path, factor):
+    """Issue 28, item 5: contradictions the small-unit factors do not name (ranges in km, positions in feet) were
+    a warning and exit 0; refused like millimetres now."""
+    f = _hall(tmp_path)
+    known, _ = read_positions(f["known"])
+    scaled = {k: v * factor for k, v in known.items()}
+    with pytest.raises(DataFileError, match="not in the same unit"):
+        check_units(combine_ranges(read_ranges(f["ranges"])), scaled)
+
+
+def test_ranges_in_kilometres_without_known_pairs_are_refused(tmp_path):
+    comb = combine_ranges(read_ranges(_hall(tmp_path)["ranges"]))
+    km = type(comb)(comb.pairs, comb.range_m / 1000.0, comb.count, comb.mad_m)
+    with pytest.raises(DataFileError, match="look like kilometres"):
+        check_units(km, {})
 
 
 def test_units_without_known_pairs_fall_back_to_plausible_reach(tmp_path):

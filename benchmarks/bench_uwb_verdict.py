@@ -1,0 +1,134 @@
+"""Issue 28's targets for ``distnav uwb solve``'s verdict, on simulated halls (the command's own path,
+:func:`distnav.commands.uwb.solve_range_log` + :func:`distnav.models.uwb.verdict.run_verdict`, default options,
+heights given):
+
+* **wall mirror**: four known anchors along one wall — mounted within 2 cm of a line (``known_wall_band_m`` 0.02,
+  issue 28's case) or the simulator's wall row (0.2–1.5 m off it), known anchors in the middle and the corner of
+  the wall. Counted: mirror maps with exit 0 (a written map > 2 m RMSE off the truth with exit 0; goal 0),
+  ambiguous runs (exit 4, both maps written: one of them must be the truth), runs where the side test chose and
+  chose wrong (goal 0), and where it chose right;
+* **plant verdict**: plant-like halls (:data:`~distnav.models.uwb.hall.PLANT_LIKE`), known anchors in the middle
+  and a corner. Counted: exit codes, and the share of exit-0 runs whose worst anchor is worse than the required
+  accuracy (goal ≤ 1 %); also the share of anchors reported as meeting it that do not (goal: none).
+
+    python benchmarks/bench_uwb_verdict.py [--quick]      # quick: 4 halls per row (default 25 per case: 50 a row)
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import main_for  # noqa: E402
+from distnav.commands.uwb import solve_range_log  # noqa: E402
+from distnav.experiments.uwb_field import write_hall  # noqa: E402
+from distnav.models.uwb.hall import PLANT_LIKE, simulate_hall  # noqa: E402
+from distnav.models.uwb.verdict import REQUIRED_ACCURACY_M, run_verdict  # noqa: E402
+
+MIRROR_M = 2.0  # a written map this far (RMSE) from the truth is the mirror image
+
+
+def _wall(job: tuple[int, float | None]) -> dict[str, Any]:
+    seed, band = job
+    h = simulate_hall(
+        np.random.default_rng([28, seed]),
+        None,
+        **PLANT_LIKE,
+        known_on_wall=True,
+        known_wall_band_m=band,
+        known="middle" if seed % 2 else "corner",
+    )
+    with tempfile.TemporaryDirectory() as d:
+        f = write_hall(h, d)
+        sol, _, _ = solve_range_log(f["ranges"], f["known"], heights=f["heights"], truth=f["truth"])
+    v = run_verdict(sol)
+    est = sol.problem.estimated
+    truth = sol.problem.truth_m
+    assert truth is not None
+
+    def rmse(pos: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum((pos[est, :2] - truth[est, :2]) ** 2, axis=1))))
+
+    main = rmse(sol.positions_m)
+    other = rmse(sol.mirror_positions_m) if sol.mirror_positions_m is not None else None
+    m = sol.mirror or {}
+    return {
+        "exit": v.exit_code,
+        "rmse_m": main,
+        "other_m": other,
+        "chosen": bool(m.get("chosen")) and m.get("apart_m", 0.0) > 0.5,
+        "power": m.get("power"),
+    }
+
+
+def _plant(seed: int) -> dict[str, Any]:
+    h = simulate_hall(np.random.default_rng([30, seed]), None, **PLANT_LIKE, known="middle" if seed % 2 else "corner")
+    with tempfile.TemporaryDirectory() as d:
+        f = write_hall(h, d)
+        sol, _, _ = solve_range_log(f["ranges"], f["known"], heights=f["heights"], truth=f["truth"])
+    v = run_verdict(sol)
+    p = sol.problem
+    assert p.truth_m is not None
+    err = np.linalg.norm(sol.positions_m - p.truth_m, axis=1)
+    ids = [p.ids[i] for i in np.flatnonzero(p.estimated)]
+    errs = {k: float(err[p.ids.index(k)]) for k in ids}
+    meeting = [k for k in ids if k not in v.failing]
+    return {
+        "exit": v.exit_code,
+        "worst_m": max(errs.values()),
+        "n_meeting": len(meeting),
+        "n_meeting_wrong": sum(errs[k] > REQUIRED_ACCURACY_M for k in meeting),
+    }
+
+
+def run(quick: bool) -> list[dict[str, Any]]:
+    n = 2 if quick else 25
+    jobs = [(s, 0.02) for s in range(n)] + [(s, None) for s in range(n)]
+    with ProcessPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+        wall = list(pool.map(_wall, jobs))
+        plant = list(pool.map(_plant, range(2 * n)))
+    silent = sum(r["exit"] == 0 and r["rmse_m"] > MIRROR_M for r in wall)
+    amb = [r for r in wall if r["exit"] == 4]
+    amb_bad = sum(not (r["other_m"] is not None and min(r["rmse_m"], r["other_m"]) < MIRROR_M) for r in amb)
+    chosen = [r for r in wall if r["chosen"]]
+    wrong = sum(r["rmse_m"] > MIRROR_M for r in chosen)
+    ok = [r for r in plant if r["exit"] == 0]
+    ok_bad = sum(r["worst_m"] > REQUIRED_ACCURACY_M for r in ok)
+    meeting = sum(r["n_meeting"] for r in plant)
+    meeting_wrong = sum(r["n_meeting_wrong"] for r in plant)
+    codes = {c: sum(r["exit"] == c for r in plant) for c in (0, 1, 3, 4)}
+    return [
+        {
+            "name": "wall mirror (known anchors on one wall)",
+            "halls": len(wall),
+            "mirror_maps_exit_0": silent,
+            "ambiguous_exit_4": len(amb),
+            "ambiguous_without_the_truth": amb_bad,
+            "side_chosen": len(chosen),
+            "side_chosen_wrong": wrong,
+            "goal": "0 mirror maps with exit 0, 0 wrong choices",
+            "meets_goal": silent == 0 and wrong == 0 and amb_bad == 0,
+        },
+        {
+            "name": f"plant verdict (required accuracy {REQUIRED_ACCURACY_M:.2g} m)",
+            "halls": len(plant),
+            "exit_codes": codes,
+            "exit_0_worse_than_required": ok_bad,
+            "share_exit_0_worse": ok_bad / len(ok) if ok else 0.0,
+            "anchors_meeting": meeting,
+            "anchors_meeting_but_worse": meeting_wrong,
+            "goal": "≤ 1 % of exit-0 runs with an anchor worse than required",
+            "meets_goal": (ok_bad / len(ok) if ok else 0.0) <= 0.01,
+        },
+    ]
+
+
+if __name__ == "__main__":
+    main_for(__file__, run)

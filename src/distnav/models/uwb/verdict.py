@@ -1,0 +1,157 @@
+"""The run's answer to an installer: is this anchor map good enough to position tags at the accuracy I need?
+(issue 28, item 2).
+
+Per anchor (``positions.csv`` keeps its status: known / estimated / weak with a reason / ambiguous / unsolved) an
+**accuracy radius** ``accuracy_m = k · √(σx² + σy² [+ σz²])`` (the a-posteriori σ the solve reports): the radius
+that holds the anchor's error with probability ``1 − (1 − JOINT_CONFIDENCE) / n`` if its error is Gaussian with
+that covariance (``k² = χ²_q`` quantile, ``q`` its free coordinates, ``n`` the estimated anchors), so that every
+anchor lies within its radius **jointly** with probability ≥ ``JOINT_CONFIDENCE`` (0.99; Bonferroni; the trace
+bounds the largest eigenvalue, so the radius is conservative for an elongated ellipse). An anchor **meets** the
+required accuracy when it is estimated (not weak, ambiguous or unsolved; a weak anchor's σ do not cover what may
+be wrong with it — except a ``thin`` one whose worst undetected-link shift, from the external reliability test, is
+within the required accuracy) and its radius is at most ``required_accuracy_m``.
+
+The run (exit code of ``uwb solve``):
+
+* ``ok`` (exit 0, status ``converged`` / ``max_iterations``): every anchor meets the required accuracy;
+* ``unusable`` (exit 1): nothing solved (``diverged``, no positions written) or data inconsistent with the
+  model: more than :data:`MAX_EXCLUDED_SHARE` of the links excluded as NLOS (a heavily corrupted log: 30 % of the
+  links +5 m excludes 30–42 % on simulated plant halls, a clean one 7–14 %), every anchor weak because the
+  exclusions and the robust fit of every link disagree, or an a-posteriori variance factor above
+  :data:`MAX_VARIANCE_FACTOR` (range errors over 5 × ``--sigma-m``); positions are written for diagnosis, status
+  ``weakly_determined``;
+* ``not_accurate`` (exit 3, status ``weakly_determined``): a usable map, but the listed anchors do not meet the
+  required accuracy (and why: weak, radius, unsolved, …);
+* ``ambiguous`` (exit 4): the ranges cannot tell the network from its mirror image (``positions_mirror.csv``
+  holds the other map) or an anchor from its flip;
+* exit 2 is bad input or a refused geometry (the CLI's rule).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+from scipy import special
+
+from distnav.models.uwb.field import FieldSolution
+from distnav.typing import FloatArray
+
+__all__ = [
+    "EXIT_AMBIGUOUS",
+    "EXIT_NOT_ACCURATE",
+    "EXIT_OK",
+    "EXIT_UNUSABLE",
+    "JOINT_CONFIDENCE",
+    "MAX_EXCLUDED_SHARE",
+    "MAX_VARIANCE_FACTOR",
+    "REQUIRED_ACCURACY_M",
+    "RunVerdict",
+    "accuracy_radius_m",
+    "run_verdict",
+]
+
+REQUIRED_ACCURACY_M = 0.3  # what UWB tag positioning is usually asked for (decimetres): an anchor worse spoils it
+JOINT_CONFIDENCE = 0.99
+MAX_EXCLUDED_SHARE = 0.25
+MAX_VARIANCE_FACTOR = 25.0
+EXIT_OK, EXIT_UNUSABLE, EXIT_NOT_ACCURATE, EXIT_AMBIGUOUS = 0, 1, 3, 4
+
+
+@dataclasses.dataclass(frozen=True)
+class RunVerdict:
+    """What :func:`run_verdict` decided: ``verdict`` (ok / not_accurate / unusable / ambiguous), ``exit_code``,
+    the run ``status``, the required accuracy, each estimated anchor's accuracy radius, the anchors that do not
+    meet it (``failing``: id → why) and the run-level ``reasons`` of an unusable or ambiguous map."""
+
+    verdict: str
+    exit_code: int
+    status: str
+    required_accuracy_m: float
+    accuracy_m: dict[str, float]
+    failing: dict[str, str]
+    reasons: tuple[str, ...] = ()
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def accuracy_radius_m(sigma_m: FloatArray, free: np.ndarray, *, confidence: float = JOINT_CONFIDENCE) -> FloatArray:
+    """Per anchor, the radius of the module docstring (0 for an anchor without a free coordinate, NaN where a σ of
+    a free coordinate is unknown)."""
+    s = np.where(free, np.asarray(sigma_m, float), 0.0)
+    q = free.sum(axis=1)
+    n = max(int((q > 0).sum()), 1)
+    alpha = (1.0 - confidence) / n
+    k = np.sqrt(np.where(q > 0, special.chdtri(np.maximum(q, 1), alpha), 0.0))
+    out: FloatArray = k * np.sqrt(np.sum(s**2, axis=1))
+    return out
+
+
+def _thin_but_reliable(sol: FieldSolution, name: str, required_accuracy_m: float) -> bool:
+    """A ``thin`` anchor (one redundant link: one NLOS link there could go unseen) whose external reliability was
+    tested and whose worst undetected-link shift (Baarda's MDB carried to its position) is within the required
+    accuracy: the risk ``thin`` warns of is bounded, so the anchor is judged by its radius like any other."""
+    shift = (sol.reliability or {}).get("shift_m", {}).get(name, None)
+    reason = sol.weak_reasons.get(name, "")
+    return reason.startswith("thin") and shift is not None and shift <= required_accuracy_m
+
+
+def run_verdict(sol: FieldSolution, required_accuracy_m: float = REQUIRED_ACCURACY_M) -> RunVerdict:
+    """The run's verdict (module docstring) for one solution of ``uwb solve``."""
+    if not sol.usable:
+        return RunVerdict("unusable", EXIT_UNUSABLE, sol.status, required_accuracy_m, {}, {}, (sol.message,))
+    p = sol.problem
+    radius = accuracy_radius_m(sol.sigma_m, p.free)
+    amb = sol.geometry.ambiguous_anchors()
+    geo_weak = {a: i.kind for i in sol.geometry.issues if i.severity == "weakly_determined" for a in i.anchors}
+    accuracy: dict[str, float] = {}
+    failing: dict[str, str] = {}
+    for i in np.flatnonzero(p.estimated):
+        name = p.ids[i]
+        accuracy[name] = float(radius[i])
+        if name in amb:
+            failing[name] = "ambiguous"
+        elif name in sol.weak and not _thin_but_reliable(sol, name, required_accuracy_m):
+            failing[name] = "weak: " + sol.weak_reasons.get(name, "")
+        elif name in geo_weak:
+            failing[name] = f"geometry: {geo_weak[name]}"
+        elif not np.isfinite(radius[i]):
+            failing[name] = "no σ"
+        elif radius[i] > required_accuracy_m:
+            failing[name] = f"accuracy radius {radius[i]:.3f} m > {required_accuracy_m:g} m"
+    for name in sol.geometry.unsolved:
+        failing[name] = "unsolved: the ranges cannot locate it"
+    n_links = max(p.n_meas, 1)
+    share = float(sol.excluded.sum()) / n_links
+    vf = getattr(getattr(sol.result, "precision", None), "variance_factor", None)
+    reasons: list[str] = []
+    if share > MAX_EXCLUDED_SHARE:
+        reasons.append(
+            f"{int(sol.excluded.sum())} of {p.n_meas} links ({share:.0%}) excluded as NLOS, more than "
+            f"{MAX_EXCLUDED_SHARE:.0%}: the log is corrupted or the anchors' ids / positions do not match it"
+        )
+    n_est = int(p.estimated.sum())
+    disagree = [k for k, v in sol.weak_reasons.items() if v.startswith("disagree")]
+    if n_est and len(disagree) == n_est:
+        reasons.append("the exclusions and the robust fit of every link disagree: no consistent set of links")
+    if vf is not None and np.isfinite(vf) and vf > MAX_VARIANCE_FACTOR:
+        reasons.append(
+            f"a-posteriori variance factor {vf:.3g} > {MAX_VARIANCE_FACTOR:g}: the ranges scatter more than 5 × "
+            "the a-priori σ (--sigma-m)"
+        )
+    if sol.status == "ambiguous":
+        return RunVerdict(
+            "ambiguous", EXIT_AMBIGUOUS, "ambiguous", required_accuracy_m, accuracy, failing, tuple(reasons)
+        )
+    if reasons:
+        return RunVerdict(
+            "unusable", EXIT_UNUSABLE, "weakly_determined", required_accuracy_m, accuracy, failing, tuple(reasons)
+        )
+    if failing:
+        return RunVerdict(
+            "not_accurate", EXIT_NOT_ACCURATE, "weakly_determined", required_accuracy_m, accuracy, failing
+        )
+    status = sol.status if sol.status in ("converged", "max_iterations") else "converged"
+    return RunVerdict("ok", EXIT_OK, status, required_accuracy_m, accuracy, failing)
