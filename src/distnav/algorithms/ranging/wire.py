@@ -43,7 +43,7 @@ PLAIN = False  # True: every row in full, float64, from every anchor (as before 
 
 class Wire:
     """The packed rounds of one exchange block (module docstring). ``owner`` / ``other``: every half-measurement's
-    local holder and the other end's global id; ``extra_free``: parameter columns beyond ``dim`` that every anchor
+    local holder and the other end's global id; ``extra``: parameter columns beyond ``dim`` that every anchor
     estimates (a per-anchor range offset)."""
 
     def __init__(self, problem: RangingData, ex: Exchange, owner: np.ndarray, other: np.ndarray, extra: int) -> None:
