@@ -49,10 +49,19 @@ from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
-__all__ = ["CentralPrecision", "central_precision", "CENTRAL_MAX_ANCHORS", "COVARIANCE_CG_RTOL"]
+__all__ = [
+    "CentralPrecision",
+    "central_precision",
+    "CENTRAL_MAX_ANCHORS",
+    "COVARIANCE_CG_RTOL",
+    "ECONOMY_CG_RTOL",
+    "ECONOMY_WIRE_DTYPE",
+]
 
 CENTRAL_MAX_ANCHORS = 100  # above: messages of > 7 kB for > 160 rounds (≈ 0.9 GB); the 2-hop σ instead (docstring)
 COVARIANCE_CG_RTOL = 1e-10  # per column, relative to its right-hand side
+ECONOMY_CG_RTOL = 1e-6  # the field workflow's σ (issue 27): float32 directions reach it, σ within 1e-5 relative
+ECONOMY_WIRE_DTYPE = np.float32
 MIN_NOISE_SHARE = 0.1  # the noise part keeps at least this share of σ̂² (also LM's: models/uwb/precision.py)
 ESTIMATE_MAX_ANCHORS = 200  # the n × n reduction of the delay estimate (LM: m ≤ 2000 rows)
 
@@ -112,6 +121,7 @@ def central_precision(
     max_iterations: int | None = None,
     variance_scale_m: float | None = None,
     delay_upper_z: float = 0.0,
+    wire_dtype: type[np.floating] = np.float64,
 ) -> CentralPrecision:
     """Every anchor's block of LM's central a-posteriori covariance through the exchange (module docstring).
 
@@ -124,7 +134,11 @@ def central_precision(
     field workflow).
     ``variance_scale_m``: the loss scale of σ̂²'s weights where the fit's own differs from ``loss_scale_m`` (LM's
     σ̂² is its fit's; the field workflow's polish fits at 0.3 m, its σ at the tight scale); default ``loss_scale_m``.
-    ``max_iterations``: CG rounds (default ``2 n_unknowns + 20``); a column not converged raises ModelError."""
+    ``max_iterations``: CG rounds (default ``2 n_unknowns + 20``); a column not converged raises ModelError.
+    ``wire_dtype``: the CG vectors on the wire (:mod:`~distnav.algorithms.ranging.wire`); the field workflow uses
+    :data:`ECONOMY_WIRE_DTYPE` with ``rtol`` :data:`ECONOMY_CG_RTOL` (issue 27: 0.64 × the bytes of float64 at
+    ``1e-10``, σ within 1e-5 relative of it on plant-like halls, docs/economy_uwb.md); where its CG does not
+    converge the columns are solved once more in float64 to :data:`COVARIANCE_CG_RTOL` (both runs counted)."""
     if loss not in LOSSES:
         raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
     if range_offsets not in ("none", "common", "per_anchor"):
@@ -137,7 +151,7 @@ def central_precision(
     est = checked_estimates(problem, estimates_m)
     ex = exchange_for(problem, exchange)
     before = ex.comm_totals().snapshot()
-    links = Links(problem, ex)
+    links = Links(problem, ex, per_anchor_offsets=per)
     owner, other, samp = links.owner, links.other, links.samp
     dim, n, nl = problem.dim, problem.n_anchors, ex.n_local
     P = dim + (1 if per else 0)
@@ -195,18 +209,23 @@ def central_precision(
         b = np.where(free[:, :, None], b, 0.0)
     dc = float(links.total(0.5 * np.bincount(owner, w * e * e, minlength=nl))) if common else 1.0
     n_unknowns = int(links.total(free.sum(axis=1).astype(float))) + (1 if common else 0)
-    system = NormalSystem(links, owner, a, cn, e, w, np.zeros((nl, P)), 0.0, prior, free, common)
     its_max = 2 * n_unknowns + 20 if max_iterations is None else max_iterations
-    X, Xc, its = pcg(system, b, bc, pre_inv, dc, links, its_max, rtol)
-    # the columns' final residuals (one product more: the check that every column reached rtol)
-    q, q_share = system.matvec(X, Xc)
-    resid = np.where(free[:, :, None], b - q, 0.0)
-    t = links.total(
-        np.concatenate([np.einsum("nak,nak->nk", resid, resid), np.einsum("nak,nak->nk", b, b), q_share], axis=1)
-    )
-    rc = bc - t[2 * k :] if common else np.zeros(k)
-    worst = float(np.max(np.sqrt((t[:k] + rc * rc) / np.maximum(t[k : 2 * k] + bc * bc, 1e-300)), initial=0.0))
-    if not worst <= max(100.0 * rtol, 1e-8):
+    # float32 directions whose CG does not converge: once more in float64 to COVARIANCE_CG_RTOL (both runs counted)
+    tries = [(wire_dtype, rtol)] + ([(np.float64, COVARIANCE_CG_RTOL)] if wire_dtype != np.float64 else [])
+    for dtype, tol in tries:
+        system = NormalSystem(links, owner, a, cn, e, w, np.zeros((nl, P)), 0.0, prior, free, common, dtype)
+        X, Xc, its = pcg(system, b, bc, pre_inv, dc, links, its_max, tol)
+        # the columns' final residuals (one product more: the check that every column reached tol)
+        q, q_share = system.matvec(X, Xc)
+        resid = np.where(free[:, :, None], b - q, 0.0)
+        t = links.total(
+            np.concatenate([np.einsum("nak,nak->nk", resid, resid), np.einsum("nak,nak->nk", b, b), q_share], axis=1)
+        )
+        rc = bc - t[2 * k :] if common else np.zeros(k)
+        worst = float(np.max(np.sqrt((t[:k] + rc * rc) / np.maximum(t[k : 2 * k] + bc * bc, 1e-300)), initial=0.0))
+        if worst <= max(100.0 * tol, 1e-8):
+            break
+    else:
         raise ModelError(f"central precision: CG did not converge (relative residual {worst:.2g} after {its})")
     blocks = np.zeros((nl, dim, dim))
     for a_ in range(dim):

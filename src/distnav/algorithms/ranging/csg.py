@@ -50,6 +50,7 @@ from distnav.algorithms.ranging.plan import check_offsets
 from distnav.algorithms.ranging.qc import DISTRIBUTED_TEST_SCALES, distributed_quality
 from distnav.algorithms.ranging.refine import refine_state
 from distnav.algorithms.ranging.stop import StopRule
+from distnav.algorithms.ranging.wire import comm_mark, comm_phases
 from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -362,6 +363,7 @@ def _run(
     )
     final_cost = cost[-1]
     scale = _loss_scale(problem, setup, sigma)
+    marks = {"iterations": comm_mark(ex)}  # the bytes of each phase (issue 27): settings["comm_phases"]
     if setup.refines and status != "diverged":  # a final LM phase through the exchange (ranging_refine)
         rule = stop or StopRule()
         try:
@@ -389,6 +391,7 @@ def _run(
                 f"then distributed LM: {ref.status.replace('_', ' ')} after "
                 f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations"
             )
+            marks["refine"] = comm_mark(ex)
             settings = {
                 **settings,
                 "refine": {
@@ -429,6 +432,8 @@ def _run(
         )
         if offsets is not None:
             offsets, offsets_std = offset_precision(problem, ex, last, *off_args, precision.variance_factor)
+    marks["quality"] = comm_mark(ex)
+    settings = {**settings, "comm_phases": comm_phases(marks)}
     tail = f" ({why})" if why else ""
     return RangingResult(
         estimates=own,

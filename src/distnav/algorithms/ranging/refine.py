@@ -39,7 +39,7 @@ import numpy as np
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
-from distnav.errors import ModelError
+from distnav.algorithms.ranging.wire import CG_WIRE_DTYPE, Wire
 from distnav.exchange import Exchange
 
 __all__ = [
@@ -80,27 +80,22 @@ class Refinement:
 class Links:
     """The half-measurements of one block, their neighbour rows in a broadcast, and the network totals."""
 
-    def __init__(self, problem: RangingData, ex: Exchange) -> None:
+    def __init__(self, problem: RangingData, ex: Exchange, *, per_anchor_offsets: bool = False) -> None:
         self.ex, self.n = ex, problem.n_anchors
         self.owner, self.other, _, self.samp = half_measurements(problem, ex)
         self.reductions = 0
         self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
-        self._pos: np.ndarray | None = None
+        self.wire = Wire(problem, ex, self.owner, self.other, 1 if per_anchor_offsets else 0)
 
     def neighbours(self, values: np.ndarray) -> np.ndarray:
-        """Each half-measurement's other end's row of ``values`` (one broadcast)."""
-        box = self.ex.broadcast(values)
-        if self._pos is None:
-            key = box.dst * self.n + box.src
-            order = np.argsort(key, kind="stable")
-            want = self.owner * self.n + self.other
-            pos = order[np.minimum(np.searchsorted(key[order], want), max(order.size - 1, 0))]
-            if order.size == 0 or not np.all(key[pos] == want):
-                raise ModelError("a ranged pair is not an edge of the exchange's graph")
-            self._pos = pos
-        if not np.all(box.delivered[self._pos]):
-            raise ModelError("refinement: a neighbour's message was lost (it needs every link each round)")
-        return np.asarray(box.values[self._pos])
+        """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)`` (one broadcast; after
+        the first, only what can change: :meth:`~distnav.algorithms.ranging.wire.Wire.parameters`)."""
+        return self.wire.parameters(values)
+
+    def vectors(self, v: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
+        """Each half-measurement's other end's rows of a CG vector ``(n_local, P, k)`` (one broadcast of the free
+        columns: :meth:`~distnav.algorithms.ranging.wire.Wire.vectors`)."""
+        return self.wire.vectors(v, dtype)
 
     def total(self, per_node: np.ndarray) -> np.ndarray:
         """Network sum of a per-anchor array ``(n_local, ...)``, in the anchors' order (the same bits everywhere)."""
@@ -133,10 +128,10 @@ def refine(
     ``sigma`` / ``scale``: every sample's range σ and loss scale (whitened), as the solver's; ``offset_m``: the
     block's own offsets (``range_offsets="per_anchor"``) or its copies of the common one (their network mean is
     the start)."""
-    links = Links(problem, ex)
+    per, common = range_offsets == "per_anchor", range_offsets == "common"
+    links = Links(problem, ex, per_anchor_offsets=per)
     owner, other, samp = links.owner, links.other, links.samp
     nl, dim = ex.n_local, problem.dim
-    per, common = range_offsets == "per_anchor", range_offsets == "common"
     P = dim + (1 if per else 0)
     sig, sc, rng_m = sigma[samp], scale[samp], problem.range_m[samp]
     free = np.ones((nl, P), bool)
@@ -199,7 +194,9 @@ def refine(
                 damp = mu * np.maximum(diag, 1e-12)
                 damp_c = mu * max(dc, 1e-12)
                 pre_inv = block_preconditioner(own_block, damp, free)
-                system = NormalSystem(links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common)
+                system = NormalSystem(
+                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, CG_WIRE_DTYPE
+                )
                 dxk, dck, its = pcg(
                     system,
                     -np.where(free, g, 0.0)[:, :, None],
@@ -313,6 +310,7 @@ class NormalSystem:
     prior: float  # 1/σ_b² on per-anchor offsets (0 otherwise)
     free: np.ndarray  # (n_local, P)
     common: bool
+    wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float32 in the LM phase)
 
     def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
@@ -320,7 +318,7 @@ class NormalSystem:
         common offset's row ``(n_local, k)`` (summed over the network by the caller, together with its dot
         products: one reduction per CG iteration less)."""
         nl, P, k = v.shape
-        vn = self.links.neighbours(v.reshape(nl, P * k)).reshape(-1, P, k)
+        vn = self.links.vectors(v, self.wire_dtype)
         jv = (
             np.einsum("hp,hpk->hk", self.a, v[self.owner])
             + np.einsum("hp,hpk->hk", self.cn, vn)

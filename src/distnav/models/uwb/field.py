@@ -40,6 +40,7 @@ from distnav.algorithms.ranging import csg
 from distnav.algorithms.ranging.lm import solve_lm
 from distnav.algorithms.ranging.neighbourhood_offsets import sample_bias
 from distnav.algorithms.ranging.qc import exclude_links
+from distnav.algorithms.ranging.wire import comm_phases
 from distnav.errors import ModelError
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.cuts import cut_weak
@@ -191,6 +192,7 @@ class FieldSolution:
     precision_bytes: int = 0
     mirror: dict[str, Any] | None = None  # the mirror test (mirror.py), where the known anchors are nearly collinear
     mirror_positions_m: FloatArray | None = None  # the other side's map, when the mirror test cannot choose
+    comm_phases: dict[str, dict[str, int]] = field(default_factory=dict)  # messages / bytes per phase (issue 27)
 
     @property
     def usable(self) -> bool:
@@ -417,6 +419,7 @@ def solve_field(
     objective = opts.objective if supports_objective(opts.solver) else "squared"
     note = "" if objective == opts.objective else f" ({opts.solver} has no {opts.objective} objective: squared used)"
     total = [0, 0, 0]
+    marks: dict[str, tuple[int, int]] = {}  # phase -> (messages, bytes) at its end: FieldSolution.comm_phases
     starts: list[FloatArray] = []
     fit_any = _fitter(opts, exchange, total, starts)
     no_exclusion: list[Any] = []  # the first robust fit, on every link
@@ -447,8 +450,10 @@ def solve_field(
                 opts.iterations,
                 exchange=exchange,
                 total=total,
+                first=True,
             )
             best = np.asarray(first_fit.estimates, float) if first_fit.usable else None
+            marks["first_fit"] = (total[1], total[2])
         if best is not None and np.all(np.isfinite(best)):
             best, tight, _ = tighten_scale(
                 problem,
@@ -461,6 +466,7 @@ def solve_field(
                 total=total,
             )
             starts.append(best)
+            marks["tighten"] = (total[1], total[2])
             opts = dataclasses.replace(opts, loss_scale_m=tight)
             fit_any = _fitter(opts, exchange, total, starts)
             note += (
@@ -515,6 +521,7 @@ def solve_field(
         if opts.exclude and res.usable:
             note += f"; {opts.solver}: no per-link tests (or they failed on a re-fit): no link excluded"
             untested = opts.solver.upper() == "LM"
+    marks["exclusions"] = (total[1], total[2])
     reverted = 0.0
     if excluded.any() and no_exclusion and no_exclusion[0].usable and res.usable and opts.revert:
         worse = all_links_cost(problem, res, opts) / max(all_links_cost(problem, no_exclusion[0], opts), 1e-12)
@@ -555,8 +562,10 @@ def solve_field(
     pos = np.asarray(res.estimates, float)
     prec_out = anchor_precision(problem, res, opts, excluded, objective, exchange, fit_scale_m=fit_scale_m)
     sigma = prec_out.sigma_m
+    marks["polish"] = (total[1], total[2])
     total[1] += prec_out.messages
     total[2] += prec_out.bytes
+    marks["precision"] = (total[1], total[2])
     note += prec_out.note
     residual = problem.residuals_m(pos) + offset_bias_m(problem, res)  # with the solution's offsets
     reasons = weak_anchor_reasons(problem, residual, excluded, flagged)
@@ -641,6 +650,7 @@ def solve_field(
         precision_kind=prec_out.kind,
         precision_messages=prec_out.messages,
         precision_bytes=prec_out.bytes,
+        comm_phases=comm_phases(marks),
     )
 
 

@@ -20,12 +20,21 @@ from distnav.algorithms.ranging import csg
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 
-__all__ = ["solve_once", "scatter_m", "tighten_scale", "TIGHT_SCALE_FLOOR_M", "REFIT_TOLERANCES", "TIGHTEN_FITS"]
+__all__ = [
+    "solve_once",
+    "scatter_m",
+    "tighten_scale",
+    "TIGHT_SCALE_FLOOR_M",
+    "REFIT_TOLERANCES",
+    "TIGHTEN_FITS",
+    "FIRST_ITERATIONS",
+]
 
 REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
 TIGHT_SCALE_FLOOR_M = 0.05  # the one-sided loss is tightened from loss_scale_m down to this (or 3 × the scatter)
 TIGHTEN_FITS = 8  # at most this many halvings
 WARM_ITERATIONS = 0  # a distributed solver's warm re-fit: consensus iterations before its final distributed LM phase
+FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
 
 def solve_once(
@@ -38,6 +47,7 @@ def solve_once(
     total: list[int] | None = None,
     warm: bool = False,
     tolerances: bool = True,
+    first: bool = False,
 ) -> Any:
     """One solve of ``problem`` (its ``initial_m`` the start) by ``solver`` with the keyword arguments ``kw``.
     ``warm``: a re-fit from a solution, the robust loss straight away (no graduated linear phase; LM with
@@ -48,8 +58,12 @@ def solve_once(
     from it (N-CLM's fixed point is not LM's: warm at LM's solution of a plant-like corner hall, its iterate was
     1.48 m RMS off after 500 iterations), and at a tightened loss scale the LM phase can then end in another
     basin (plant corner #0 of ``reproduce uwb-field``: 0.449 m against LM's 0.354 m on the same links); with 0
-    the phase stays in the solution's basin, as LM's warm re-fit, for 5 % of the messages. ``total``
-    (iterations, messages, bytes) is incremented by the solve's."""
+    the phase stays in the solution's basin, as LM's warm re-fit, for 5 % of the messages. ``first``: the first
+    fit of the workflow (from the prepared start) runs :data:`FIRST_ITERATIONS` consensus iterations before that
+    phase (issue 27): the 500 iterations cost 55 % of the bytes of a whole ``uwb solve`` on plant-like halls
+    (33 of 59 MB on ``[78, 0]``) and the workflow ended at the same positions without them (within 1 µm on 12
+    plant-like halls, docs/economy_uwb.md). ``total`` (iterations, messages, bytes) is incremented by the
+    solve's."""
     key = solver.upper()
     extra: dict[str, Any] = {}
     if key != "LM" and exchange is not None:
@@ -60,6 +74,8 @@ def solve_once(
         extra.update({k: v for k, v in REFIT_TOLERANCES.items() if k not in kw})
     if warm and key != "LM" and kw.get("refine", True) is not False:
         iterations = min(iterations, WARM_ITERATIONS)
+    elif first and key != "LM" and kw.get("refine", True) is not False:
+        iterations = min(iterations, FIRST_ITERATIONS)
     r = csg.solve(problem, key, iterations=iterations, **kw, **extra)
     if total is not None:
         total[0] += int(r.iterations)

@@ -18,7 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.ranging.covariance import CENTRAL_MAX_ANCHORS, central_precision
+from distnav.algorithms.ranging.covariance import (
+    CENTRAL_MAX_ANCHORS,
+    ECONOMY_CG_RTOL,
+    ECONOMY_WIRE_DTYPE,
+    central_precision,
+)
 from distnav.algorithms.ranging.neighbourhood_offsets import sample_bias
 from distnav.algorithms.ranging.precision import neighbourhood_precision
 from distnav.errors import ModelError
@@ -88,6 +93,8 @@ def distributed_sigma(
                 estimate_delays=estimate_delays,
                 variance_scale_m=fit_scale_m,
                 delay_upper_z=DELAY_UPPER_Z,
+                rtol=ECONOMY_CG_RTOL,
+                wire_dtype=ECONOMY_WIRE_DTYPE,
             )
         except ModelError as err:
             if mode == "central":

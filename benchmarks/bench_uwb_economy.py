@@ -1,0 +1,257 @@
+"""Bytes of the distributed UWB solves against a fusion centre (issue 27): where they go, what the economy saved,
+and how both grow with the network.
+
+    python benchmarks/bench_uwb_economy.py [--quick] [--plot docs/economy_uwb.png]
+
+1. **The plant-like 28-anchor hall** (``PLANT_LIKE``, seed ``[78, 0]``, known anchors in the middle and in a
+   corner; ``uwb solve``'s workflow with ``--solver N-CLM``): messages and bytes per phase (first fit, tightening
+   of the one-sided loss, exclusion loop, polish, central σ), before and after the economy, measured in the same
+   run — *before* is the same code with the economy switched off (:func:`before`: 500 consensus iterations in the
+   first fit, every row sent in full in float64, the central σ's CG to ``1e-10``); the positions of both and
+   their largest difference; the yardstick: every range gathered at one anchor
+   (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
+   of that gather over the range graph (:func:`distnav.network.gather.gather_cost`).
+2. **Bytes against network size** (halls of 10²…10⁴ anchors at the plant's anchor density, 4 known anchors in the
+   middle, heights held): one warm distributed LM fit (the final phase every re-fit of the workflow runs:
+   N-CLM with 0 consensus iterations, one-sided Cauchy at 0.3 m, common offset, no QC) from the truth displaced by
+   N(0, 0.2 m) — the total, the busiest and the median anchor's bytes sent — against gathering every anchor's
+   range records (16 B each, held by the lower-numbered anchor of the link) at one sink over the same graph
+   (total hop-bytes, busiest relay). The crossing point is where the busiest anchor of the distributed fit
+   sends less than the busiest relay of the gather.
+
+Goals (issue 27): the 28-anchor hall's total bytes ≤ 100 × the gather, median per-anchor traffic ≤ 20 kB; at 10⁴
+anchors the busiest anchor below the busiest relay. Printed as one table; JSON in benchmarks/results/uwb_economy.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import distnav.models.uwb.field_fits as field_fits
+import distnav.models.uwb.field_precision as field_precision
+from _common import print_table, write_json
+from distnav.algorithms.ranging import csg, wire
+from distnav.algorithms.ranging.covariance import COVARIANCE_CG_RTOL
+from distnav.experiments.uwb_field import hall_problem
+from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+from distnav.models.uwb.field import gather_cost as range_gather_cost
+from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+from distnav.network.gather import gather_cost
+from distnav.network.graph import Graph
+
+HALL_SEED = [78, 0]
+SIZES = (100, 300, 1000, 3000, 10000)
+QUICK_SIZES = (100, 300)
+RECORD_BYTES = 16  # two int32 ids + one float64 range (models/uwb/communication.py)
+GOAL_RATIO = 100.0
+GOAL_MEDIAN_BYTES = 20_000
+
+
+@contextlib.contextmanager
+def before() -> Iterator[None]:
+    """The workflow as it was before the economy (module docstring)."""
+    saved = field_fits.FIRST_ITERATIONS, field_precision.ECONOMY_CG_RTOL, wire.PLAIN
+    field_fits.FIRST_ITERATIONS, field_precision.ECONOMY_CG_RTOL, wire.PLAIN = 10**9, COVARIANCE_CG_RTOL, True
+    try:
+        yield
+    finally:
+        field_fits.FIRST_ITERATIONS, field_precision.ECONOMY_CG_RTOL, wire.PLAIN = saved
+
+
+def _hall_rows() -> list[dict[str, Any]]:
+    rows = []
+    for place in ("middle", "corner"):
+        h = simulate_hall(np.random.default_rng(HALL_SEED), HallConfig().with_(known=place, **PLANT_LIKE))
+        sub, geo = prepare(hall_problem(h)[0])
+        yard = range_gather_cost(sub)
+        graph = Graph.from_links(sub.n_anchors, sub.links)
+        own = np.bincount(sub.links.min(axis=1), minlength=sub.n_anchors) * RECORD_BYTES
+        relay = gather_cost(graph, own).busiest_relay_bytes
+        got = {}
+        for label in ("before", "after"):
+            with before() if label == "before" else contextlib.nullcontext():
+                t0 = time.process_time()
+                sol = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+                cpu = time.process_time() - t0
+            got[label] = sol
+            d = (sol.positions_m - sub.truth_m)[sub.estimated]
+            per_anchor = _per_anchor_bytes(sub, sol)
+            row: dict[str, Any] = {
+                "name": f"hall 28 {place}, {label}",
+                "n_anchors": sub.n_anchors,
+                "bytes": sol.bytes,
+                "messages": sol.messages,
+                **{f"bytes_{k}": v["bytes"] for k, v in sol.comm_phases.items()},
+                "gather_bytes": yard["bytes"],
+                "gather_busiest_relay_bytes": relay,
+                "ratio_to_gather": sol.bytes / yard["bytes"],
+                "median_anchor_bytes": float(np.median(per_anchor)),
+                "busiest_anchor_bytes": float(np.max(per_anchor)),
+                "rmse_m": float(np.sqrt(np.mean(np.sum(d**2, axis=1)))),
+                "status": sol.status,
+                "cpu_s": cpu,
+            }
+            if label == "after":
+                b = got["before"]
+                row["max_position_change_m"] = float(np.max(np.abs(sol.positions_m - b.positions_m)))
+                row["sigma_max_rel_change"] = float(
+                    np.max(np.abs(sol.sigma_m[sub.free] / b.sigma_m[sub.free] - 1.0), initial=0.0)
+                )
+                row["same_exclusions"] = bool(np.array_equal(sol.excluded, b.excluded))
+                row["bytes_saved_x"] = b.bytes / sol.bytes
+                row["goal"] = f"≤ {GOAL_RATIO:g}× gather, median ≤ {GOAL_MEDIAN_BYTES} B"
+                row["meets_goal"] = bool(
+                    row["ratio_to_gather"] <= GOAL_RATIO and row["median_anchor_bytes"] <= GOAL_MEDIAN_BYTES
+                )
+            rows.append(row)
+    return rows
+
+
+_SENT: list[np.ndarray] = []
+
+
+def _per_anchor_bytes(sub: Any, sol: Any) -> np.ndarray:
+    """Bytes each anchor sent over the whole workflow (the exchanges' per-node counters, summed by
+    :func:`_counting`); the central σ's reductions are spread evenly (they are spanning-tree sums)."""
+    sent = np.sum(_SENT, axis=0) if _SENT else np.zeros(sub.n_anchors)
+    _SENT.clear()
+    extra = sol.bytes - float(np.sum(sent))
+    return np.asarray(sent + extra / sub.n_anchors)
+
+
+def _counting() -> None:
+    """Record every distributed solve's per-anchor bytes (``RangingResult.comm``) and every central σ's."""
+    solve, central = csg.solve, field_precision.central_precision
+
+    def counted_solve(*args: Any, **kw: Any) -> Any:
+        r = solve(*args, **kw)
+        if r.comm is not None and r.comm.bytes_sent.size:
+            _SENT.append(np.asarray(r.comm.bytes_sent, float))
+        return r
+
+    def counted_central(*args: Any, **kw: Any) -> Any:
+        out = central(*args, **kw)
+        if out.precision.comm is not None:
+            _SENT.append(np.asarray(out.precision.comm.bytes_sent, float))
+        return out
+
+    field_fits.csg.solve = counted_solve  # type: ignore[assignment]
+    field_precision.central_precision = counted_central
+
+
+def _scaling_row(n: int) -> dict[str, Any]:
+    scale = np.sqrt(n / 28.0)
+    cfg = HallConfig().with_(**{**PLANT_LIKE, "n_anchors": n, "length_m": 60.0 * scale, "width_m": 30.0 * scale})
+    h = simulate_hall(np.random.default_rng([78, n]), cfg)
+    p = hall_problem(h)[0]
+    rng = np.random.default_rng([27, n])
+    start = np.where(p.free, p.truth_m + rng.normal(0.0, 0.2, p.truth_m.shape), p.positions_m)
+    t0 = time.process_time()
+    r = csg.solve(
+        p.with_initial(start),
+        "N-CLM",
+        iterations=0,
+        objective="metres",
+        sigma_m=0.1,
+        loss="cauchy_long",
+        loss_scale_m=0.3,
+        range_offsets="common",
+        quality=False,
+    )
+    cpu = time.process_time() - t0
+    graph = Graph.from_links(p.n_anchors, p.links)
+    own = np.bincount(p.links.min(axis=1), minlength=p.n_anchors) * RECORD_BYTES
+    g = gather_cost(graph, own)
+    sent = np.asarray(r.comm.bytes_sent, float)
+    d = (r.estimates - p.truth_m)[p.estimated]
+    return {
+        "name": f"one distributed LM fit, {n} anchors",
+        "n_anchors": n,
+        "links": int(p.links.shape[0]),
+        "bytes": r.comm.bytes,
+        "busiest_anchor_bytes": float(sent.max()),
+        "median_anchor_bytes": float(np.median(sent)),
+        "gather_total_hop_bytes": g.total_hop_bytes,
+        "gather_busiest_relay_bytes": g.busiest_relay_bytes,
+        "gather_median_bytes": g.median_node_bytes,
+        "busiest_vs_relay": float(sent.max()) / max(g.busiest_relay_bytes, 1),
+        "refine": r.settings.get("refine", {}),
+        "status": r.status,
+        "rmse_m": float(np.sqrt(np.mean(np.sum(d**2, axis=1)))),
+        "cpu_s": cpu,
+    }
+
+
+def crossing(rows: list[dict[str, Any]]) -> float | None:
+    """The network size (log-log interpolation) above which the busiest anchor sends less than the busiest relay."""
+    ns = np.array([r["n_anchors"] for r in rows], float)
+    q = np.log(np.array([r["busiest_vs_relay"] for r in rows], float))
+    for k in range(1, ns.size):
+        if q[k - 1] > 0 >= q[k]:
+            t = q[k - 1] / (q[k - 1] - q[k])
+            return float(np.exp(np.log(ns[k - 1]) + t * (np.log(ns[k]) - np.log(ns[k - 1]))))
+    return None if q[0] > 0 else float(ns[0])
+
+
+def plot(rows: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ns = [r["n_anchors"] for r in rows]
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.loglog(ns, [r["bytes"] for r in rows], "o-", color="C0", label="distributed LM fit: total")
+    ax.loglog(ns, [r["busiest_anchor_bytes"] for r in rows], "s-", color="C0", alpha=0.6, label="… busiest anchor")
+    ax.loglog(ns, [r["gather_total_hop_bytes"] for r in rows], "o--", color="C3", label="gather at one anchor: total")
+    relay = [r["gather_busiest_relay_bytes"] for r in rows]
+    ax.loglog(ns, relay, "s--", color="C3", alpha=0.6, label="… busiest relay")
+    x = crossing(rows)
+    if x is not None:
+        ax.axvline(x, color="grey", lw=0.8)
+        ax.text(x, ax.get_ylim()[0] * 2, f" busiest: {x:.0f} anchors", color="grey")
+    ax.set_xlabel("anchors (plant-like density, 4 known)")
+    ax.set_ylabel("bytes sent")
+    ax.set_title("UWB: one warm distributed LM fit vs gathering every range (multi-hop)")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(quick: bool, plot_path: Path | None = None) -> list[dict[str, Any]]:
+    _counting()
+    rows = _hall_rows()
+    scaling = [_scaling_row(n) for n in (QUICK_SIZES if quick else SIZES)]
+    x = crossing(scaling)
+    for r in scaling:
+        r["crossing_anchors"] = x
+    if not quick:
+        big = scaling[-1]
+        big["goal"] = "busiest anchor < busiest relay at 10⁴"
+        big["meets_goal"] = bool(big["busiest_vs_relay"] < 1.0)
+    if plot_path is not None:
+        plot(scaling, plot_path)
+    return rows + scaling
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description="distnav benchmark: uwb_economy")
+    ap.add_argument("--quick", action="store_true", help="sizes 100 and 300 only")
+    ap.add_argument("--plot", type=Path, default=None, help="write the bytes-vs-size figure (PNG) here")
+    args = ap.parse_args()
+    rows = run(args.quick, args.plot)
+    print_table("uwb_economy", [{k: v for k, v in r.items() if k != "refine"} for r in rows])
+    print(f"\nwritten {write_json('uwb_economy', rows)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,128 @@
+"""The message economy of the distributed UWB phases (distnav.algorithms.ranging.wire, issue 27): the packed rounds
+deliver exactly what the full rounds delivered, send fewer bytes for the stated reason, the float32 directions and
+the looser σ tolerance of the workflow stay within their stated distance of LM's dense answers, and the per-phase
+split of the bytes adds up to the totals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from distnav.algorithms.ranging import wire
+from distnav.algorithms.ranging.covariance import ECONOMY_CG_RTOL, ECONOMY_WIRE_DTYPE, central_precision
+from distnav.algorithms.ranging.csg import solve
+from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.refine import Links
+from distnav.exchange import make_exchange
+from distnav.experiments.uwb_field import hall_problem
+from distnav.models.uwb.field import FieldOptions, prepare, solve_field, subset_measurements
+from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+from distnav.network.graph import Graph
+
+OPTS = {"objective": "metres", "sigma_m": 0.1, "loss": "cauchy", "loss_scale_m": 0.3, "range_offsets": "common"}
+
+
+@pytest.fixture(scope="module")
+def hall():
+    """The plant-like 28-anchor hall [78, 0] (known anchors in the middle, heights held) and the NLOS truth."""
+    h = simulate_hall(np.random.default_rng([78, 0]), HallConfig().with_(known="middle", **PLANT_LIKE))
+    p, nlos = hall_problem(h)
+    sub, geo = prepare(p)
+    keep = geo.solvable
+    return sub, geo, nlos[keep[p.meas_a] & keep[p.meas_b]]
+
+
+def _exchange(p):
+    return make_exchange(Graph.from_links(p.n_anchors, p.links))
+
+
+def _rounds(p, values, vectors, plain):
+    """The rows two rounds deliver (parameters twice, one CG vector) and the exchange's bytes and messages."""
+    saved = wire.PLAIN
+    wire.PLAIN = plain
+    try:
+        ex = _exchange(p)
+        links = Links(p, ex)
+        first = links.neighbours(values)
+        moved = values.copy()
+        moved[p.free[ex.nodes]] += 0.25  # an LM step moves the free coordinates only
+        second = links.neighbours(moved)
+        v = links.vectors(vectors)
+        c = ex.comm_totals()
+        return (first, second, v), c
+    finally:
+        wire.PLAIN = saved
+
+
+def test_packed_rounds_deliver_exactly_what_full_rounds_did_for_fewer_bytes(hall):
+    p = hall[0]
+    rng = np.random.default_rng(3)
+    values = p.initial_m.copy()
+    vectors = rng.normal(size=(p.n_anchors, p.dim, 5)) * p.free[:, :, None]  # zero where not free (as CG's)
+    packed, c_packed = _rounds(p, values, vectors, plain=False)
+    full, c_full = _rounds(p, values, vectors, plain=True)
+    for a, b in zip(packed, full, strict=True):
+        assert np.array_equal(a, b)  # bit for bit
+    links = 2 * p.links.shape[0]
+    fixed = np.flatnonzero(~p.free.any(axis=1))
+    from_fixed = int(np.isin(p.links, fixed).sum())  # directed edges whose sender has nothing free
+    assert fixed.size == 4 and from_fixed > 0
+    cols = int(np.any(p.free, axis=0).sum())  # heights held everywhere: x and y
+    assert cols == 2
+    assert c_full.bytes == links * 8 * p.dim * (2 + 5)
+    assert c_packed.bytes == links * 8 * p.dim + (links - from_fixed) * 8 * cols * (1 + 5)
+    assert c_packed.messages == links + 2 * (links - from_fixed)
+
+
+def test_a_lost_message_from_a_talking_anchor_is_still_an_error(hall):
+    from distnav.errors import ModelError
+    from distnav.exchange import FaultSchedule
+
+    p = hall[0]
+    g = Graph.from_links(p.n_anchors, p.links)
+    ex = make_exchange(g, faults=FaultSchedule(drop_probability=0.5, seed=1))
+    links = Links(p, ex)
+    with pytest.raises(ModelError, match="lost"):
+        for _ in range(3):
+            links.vectors(np.ones((p.n_anchors, p.dim, 1)) * p.free[:, :, None])
+
+
+def test_float32_directions_reach_lms_solution(hall):
+    """The LM phase with float32 CG directions ends where LM (dense, float64) ends, as the float64 phase does."""
+    p = subset_measurements(hall[0], ~hall[2])
+    lm = solve_lm(p, **OPTS)
+    assert lm.status == "converged"
+    sigma = lm.precision.std(a_posteriori=False)
+    res = solve(p, "N-CLM", iterations=0, **OPTS)
+    assert res.status == "converged", res.message
+    z = np.abs(res.estimates - lm.estimates)[p.free] / sigma[p.free]
+    assert z.max() < 1e-3
+    assert np.abs(res.estimates - lm.estimates).max() < 1e-4  # 0.1 mm
+
+
+def test_economy_sigma_within_1e5_of_lms_dense_covariance(hall):
+    p = subset_measurements(hall[0], ~hall[2])
+    lm = solve_lm(p, **OPTS, initial_m=p.truth_m)
+    f = p.free.any(axis=1)
+    kw = {"offset_m": lm.offsets_m, "sigma_m": 0.1, "loss": "cauchy", "loss_scale_m": 0.3, "range_offsets": "common"}
+    exact = central_precision(p, lm.estimates, **kw)
+    cheap = central_precision(p, lm.estimates, **kw, rtol=ECONOMY_CG_RTOL, wire_dtype=ECONOMY_WIRE_DTYPE)
+    want = lm.precision.covariance[f]
+    np.testing.assert_allclose(cheap.precision.covariance[f], want, rtol=1e-5, atol=1e-12)
+    assert exact.precision.comm is not None and cheap.precision.comm is not None
+    assert cheap.precision.comm.bytes < 0.75 * exact.precision.comm.bytes
+
+
+def test_phases_add_up_to_the_totals(hall):
+    sub, geo, _ = hall
+    r = solve(sub, "N-CLM", iterations=5, **OPTS)
+    phases = r.settings["comm_phases"]
+    assert list(phases) == ["iterations", "refine", "quality"]
+    assert phases["iterations"]["bytes"] > 0 and phases["refine"]["bytes"] > 0  # the QC may be local (0 here)
+    assert sum(v["bytes"] for v in phases.values()) == r.comm.bytes
+    assert sum(v["messages"] for v in phases.values()) == r.comm.messages
+    sol = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    assert list(sol.comm_phases) == ["first_fit", "tighten", "exclusions", "polish", "precision"]
+    assert sum(v["bytes"] for v in sol.comm_phases.values()) == sol.bytes
+    assert sum(v["messages"] for v in sol.comm_phases.values()) == sol.messages
+    assert sol.comm_phases["precision"]["bytes"] == sol.precision_bytes
