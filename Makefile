@@ -1,7 +1,9 @@
 # distnav — set-up and checks. A fresh machine needs only Python 3.11, pip and make.
 #   make demo   create .venv (first time), install distnav with what the demo needs (numpy, scipy, matplotlib:
 #               the `plot` extra), run `distnav demo` (its experiments in 2 processes)
-#   make test   install every extra and the checkers (`.[dev]`), then ruff + mypy + the whole pytest suite
+#   make test   install every extra and the checkers (`.[dev]`), then ruff + mypy + the whole pytest suite (on every
+#               core: pytest-xdist, see the pytest target)
+#   make dist   build the sdist and the wheel into dist/ (python -m build) and check them (twine check)
 # Two stamps: .venv/.demo-stamp (the `plot` extra) and .venv/.dev-stamp (`.[dev]`, which includes it).
 PYTHON ?= python3
 VENV   ?= .venv
@@ -14,7 +16,7 @@ DEMO_JOBS ?= 2
 # imports, once. Not --quiet: pip's lines are the progress of the install.
 PIP_FLAGS = --no-compile --progress-bar off
 
-.PHONY: demo test lint typecheck pytest bench clean env demo-env
+.PHONY: demo test lint typecheck pytest bench dist clean env demo-env
 
 env: $(DEV_STAMP)
 demo-env: $(DEMO_STAMP)
@@ -50,13 +52,22 @@ lint: $(DEV_STAMP)
 typecheck: $(DEV_STAMP)
 	$(BIN)/mypy
 
+# -n auto --dist loadscope: every core (pytest-xdist), each module's tests on one worker (its fixtures built once);
+# the slowest 15 tests are listed at the end
 pytest: $(DEV_STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadscope --durations=15
 
 test: lint typecheck pytest
+
+# --no-isolation: setuptools comes with .[dev], so the build needs no download
+dist: $(DEV_STAMP)
+	rm -rf dist
+	$(BIN)/python -m build --no-isolation --outdir dist .
+	$(BIN)/python -m twine check dist/*
+	rm -rf build src/*.egg-info
 
 bench: $(DEV_STAMP)
 	$(BIN)/python benchmarks/run.py
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache .mypy_cache .ruff_cache dist build

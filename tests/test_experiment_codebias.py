@@ -66,7 +66,7 @@ def test_small_reproduction(tmp_path: Path) -> None:
 @pytest.mark.mpi
 def test_mpi_backend_gives_the_same_numbers(tmp_path: Path) -> None:
     """The reproduction under ``mpiexec -n 2 ... --backend mpi`` equals the in-process run."""
-    pytest.importorskip("mpi4py", reason="the mpi extra is not installed (pip install 'distnav-estimation[mpi]')")
+    pytest.importorskip("mpi4py", reason="the mpi extra is not installed (pip install '.[mpi]' in the clone)")
     local = Path(sys.executable).parent / "mpiexec"
     exe = str(local) if local.exists() else shutil.which("mpiexec")
     if exe is None:

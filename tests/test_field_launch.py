@@ -52,7 +52,7 @@ def test_consensus_on_node_processes_is_bitwise_the_inprocess_run(tmp_path: Path
         assert r["wire"]["bytes_sent"] >= r["model_bytes_sent"] + 32 * 60 * g.degrees[i]
 
 
-def _crash_network(tmp_path: Path, rounds: int, width: int, seed: int, deadline_ms: float):  # type: ignore[no-untyped-def]
+def _crash_network(tmp_path: Path, rounds: int, width: int, seed: int, deadline_ms: float, latency_max_ms: float = 0.0):  # type: ignore[no-untyped-def]
     """8 nodes running consensus_flows; the best-connected node whose loss leaves the rest connected crashes at round
     20. Returns (graph, that node, the data, the description's path)."""
     g = _graph(8, seed=3, degree=5)
@@ -60,7 +60,14 @@ def _crash_network(tmp_path: Path, rounds: int, width: int, seed: int, deadline_
     values = np.random.default_rng(seed).normal(size=(8, width))
     algo = {"name": "consensus_flows", "rounds": rounds, "protocol": "MH", "patience": 5}
     net = write_loopback_network(
-        tmp_path / "net", g.links, values, algorithm=algo, crash={dead: 20}, deadline_ms=deadline_ms, miss_limit=3
+        tmp_path / "net",
+        g.links,
+        values,
+        algorithm=algo,
+        crash={dead: 20},
+        deadline_ms=deadline_ms,
+        miss_limit=3,
+        latency_max_ms=latency_max_ms,
     )
     return g, dead, values, net
 
@@ -127,10 +134,12 @@ def test_curve_network_runs_and_equals_the_plain_one(tmp_path: Path) -> None:
 
 
 def test_a_restarted_node_rejoins_and_its_data_count_again(tmp_path: Path) -> None:
-    g, dead, values, net = _crash_network(tmp_path, 1200, 1, 8, 1000)
+    # rounds paced by 0-30 ms of injected latency (1,200 rounds: ≥ 15 s), so the node comes back after its neighbours
+    # declared it lost (3 steps × 1 s) and before they finish, on an idle machine as under load
+    g, dead, values, net = _crash_network(tmp_path, 1200, 1, 8, 1000, latency_max_ms=30.0)
     text = net.read_text().replace(
-        f"{{ node = {dead}, round = 20 }}", f"{{ node = {dead}, round = 20, restart_after_s = 0.2 }}"
-    )
+        f"{{ node = {dead}, round = 20 }}", f"{{ node = {dead}, round = 20, restart_after_s = 4.0 }}"
+    )  # back after its neighbours have declared it lost (miss_limit 3 × deadline 1 s), on an idle machine too
     assert "restart_after_s" in text
     net.write_text(text)
     summary = launch(net, tmp_path / "run", timeout_s=300, quiet=True)

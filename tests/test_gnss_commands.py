@@ -123,7 +123,7 @@ def test_codebias_command_errors(shared_data: Path, tmp_path: Path, capsys: pyte
         "--nav",
         nav,
         "--out",
-        str(tmp_path),
+        str(tmp_path / "out"),  # not tmp_path: it holds junk.21o, which distnav did not write (issue 29)
         "--no-progress",
     ]
     assert main([*args, "--reference", "XXXX"]) == 2
@@ -148,7 +148,7 @@ def test_small_dutch_network_runs(shared_data: Path, tmp_path: Path) -> None:
             "--graph",
             str(edges),
             "--out",
-            str(tmp_path),
+            str(tmp_path / "out"),  # not tmp_path: it holds the input edges.csv (issue 29)
             "--no-progress",
             "--iterations",
             "50",
@@ -159,7 +159,7 @@ def test_small_dutch_network_runs(shared_data: Path, tmp_path: Path) -> None:
         ]
     )
     assert rc == 0
-    est = json.loads((tmp_path / "codebias.json").read_text())
+    est = json.loads((tmp_path / "out" / "codebias.json").read_text())
     assert est["reference_station"] == "ROVN" and est["graph"]["links"] == [["ROVN", "ZEGV"]]
 
 

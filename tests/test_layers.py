@@ -2,7 +2,7 @@
 
 network → exchange → algorithms → models → formats → experiments | commands → cli: a module may import its own
 layer and the layers below it, never a layer above or beside (experiments and commands do not import each other).
-The utilities (errors, _optional, _sparse, typing) sit below everything; ``output`` (file writing, figures) and
+The utilities (errors, _optional, _sparse, _checks, typing) sit below everything; ``output`` (file writing, figures) and
 ``options`` (checked CLI option types) are for experiments, commands and the CLI only.
 """
 
@@ -21,6 +21,7 @@ RANK = {
     "_sparse": 0.5,
     "_blas": 0.5,
     "_threads": 0.5,
+    "_checks": 0.5,
     "typing": 0.5,
     "network": 1,
     "exchange": 2,

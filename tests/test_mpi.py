@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("mpi4py", reason="the mpi extra is not installed (pip install 'distnav-estimation[mpi]')")
+pytest.importorskip("mpi4py", reason="the mpi extra is not installed (pip install '.[mpi]' in the clone)")
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE / "mpi"))

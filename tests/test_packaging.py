@@ -8,7 +8,7 @@ import re
 import tomllib
 
 from conftest import REPO
-from distnav._optional import DISTRIBUTION, install_hint
+from distnav._optional import DISTRIBUTION, EXTRAS, install_hint
 
 DOCS = [REPO / "README.md", REPO / "CHANGELOG.md", *sorted((REPO / "docs").glob("*.md"))]
 
@@ -25,23 +25,38 @@ def test_distribution_name_and_metadata() -> None:
     assert all(dep.startswith(DISTRIBUTION + "[") for dep in project["optional-dependencies"]["dev"][:1])
     assert _pyproject()["tool"]["setuptools"]["package-data"]["distnav"] == ["py.typed"]
     assert (REPO / "src" / "distnav" / "py.typed").is_file()
-    assert install_hint("mpi") == "pip install 'distnav-estimation[mpi]'"
 
 
-def test_every_install_line_uses_the_distribution_name() -> None:
-    """``pip install distnav`` / ``'distnav[mpi]'`` would install the index's unrelated ``distnav``."""
-    wrong = re.compile(r"pip install\s+(?:-\S+\s+)*['\"]?distnav(?:\[|['\"\s]|$)")
+def test_install_hint_names_commands_that_work() -> None:
+    """distnav is not on the package index: the hint names the extra's packages (which are) and the clone's
+    command; the packages are exactly pyproject's extra."""
+    extras = _pyproject()["project"]["optional-dependencies"]
+    assert {k: tuple(v) for k, v in extras.items() if k != "dev"} == EXTRAS
+    assert (
+        install_hint("mpi")
+        == "pip install 'mpi4py>=4.0' 'mpich>=4.1' (the mpi extra; in a distnav clone: pip install '.[mpi]')"
+    )
+    for extra in EXTRAS:
+        assert DISTRIBUTION not in install_hint(extra)
+
+
+def test_every_install_line_works_without_the_package_index() -> None:
+    """``pip install distnav`` / ``'distnav[mpi]'`` would install the index's unrelated ``distnav``, and
+    ``distnav-estimation`` is not published: every install line installs from the clone (``.``, ``-e .``) or a
+    wheel (``dist/...whl``), or names packages that are on the index."""
+    wrong = re.compile(r"pip install\s+(?:-\S+\s+)*['\"]?distnav(?:-estimation)?(?:\[|['\"\s]|$)")
     bad = [
         f"{path.name}:{number}: {line.strip()}"
         for path in DOCS
         for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
-        if wrong.search(line)
+        if wrong.search(line) and "is not on the package index" not in line
     ]
     assert not bad, bad
     assert wrong.search("pip install 'distnav[mpi]'") and wrong.search("pip install distnav")
-    assert not wrong.search("pip install 'distnav-estimation[mpi]'")
+    assert wrong.search("pip install 'distnav-estimation[mpi]'")
+    assert not wrong.search("pip install '.[mpi]'")
     readme = (REPO / "README.md").read_text(encoding="utf-8")
-    assert "pip install 'distnav-estimation[mpi]'" in readme
+    assert "pip install '.[mpi]'" in readme and "python -m build" in readme
 
 
 def _manifest_patterns() -> list[str]:

@@ -1,4 +1,10 @@
-"""Lazy import of optional dependencies with an error that says which extra to install."""
+"""Lazy import of optional dependencies with an error that names a pip command that works.
+
+distnav is not on the package index (the index's ``distnav`` is an unrelated project, and ``distnav-estimation``
+is not published), so ``pip install 'distnav-estimation[mpi]'`` fails. A missing extra is therefore named by the
+packages it installs, which are on the index (``pip install 'mpi4py>=4.0' 'mpich>=4.1'``), and by the command that
+installs the extra from a clone of the repository (``pip install '.[mpi]'``).
+"""
 
 from __future__ import annotations
 
@@ -8,26 +14,39 @@ from types import ModuleType
 from distnav.errors import MissingExtraError
 
 DISTRIBUTION = "distnav-estimation"
-"""The name distnav is installed under (``pip install distnav-estimation``); the import package is ``distnav``."""
+"""The name distnav is installed under (``pip install .`` in a clone, or the wheel ``python -m build`` makes); the
+import package is ``distnav``."""
+
+#: What each extra installs: the same lists as ``[project.optional-dependencies]`` in pyproject.toml (a test holds
+#: the two equal). Kept here so the hint needs no package metadata (an editable checkout without it still works).
+EXTRAS: dict[str, tuple[str, ...]] = {
+    "plot": ("matplotlib>=3.8",),
+    "graph": ("networkx>=3.2",),
+    "gnss": ("georinex>=1.16", "hatanaka>=2.8", "xarray>=2023.1"),
+    "mpi": ("mpi4py>=4.0", "mpich>=4.1"),
+    "progress": ("rich>=13",),
+    "field": ("pyzmq>=26", "tomli-w>=1.0"),
+}
 
 
 def install_hint(extra: str) -> str:
-    """``pip install 'distnav-estimation[extra]'``: the command that installs an extra."""
-    return f"pip install '{DISTRIBUTION}[{extra}]'"
+    """The pip commands that install ``extra``: its packages from the index, or the extra from a clone, e.g.
+    ``pip install 'mpi4py>=4.0' 'mpich>=4.1' (the mpi extra; in a distnav clone: pip install '.[mpi]')``."""
+    packages = " ".join(f"'{p}'" for p in EXTRAS.get(extra, ()))
+    clone = f"in a distnav clone: pip install '.[{extra}]'"
+    return f"pip install {packages} (the {extra} extra; {clone})" if packages else f"{clone}"
 
 
 def require(module: str, extra: str) -> ModuleType:
-    """Import ``module`` or raise :class:`MissingExtraError` naming ``pip install 'distnav-estimation[extra]'``.
+    """Import ``module`` or raise :class:`MissingExtraError` naming :func:`install_hint` of ``extra``.
 
-    The message also names the pip package of ``module``'s top-level package (``mpi4py`` for ``mpi4py.MPI``) and
-    the import error itself (a missing shared library looks different from a missing package)."""
+    The message also names the import error itself (a missing shared library looks different from a missing
+    package)."""
     try:
         return importlib.import_module(module)
     except ImportError as exc:
-        package = module.split(".", 1)[0]
         raise MissingExtraError(
-            f"{module} is needed for this feature and could not be imported ({exc}): "
-            f"{install_hint(extra)} (or pip install {package})"
+            f"{module} is needed for this feature and could not be imported ({exc}): {install_hint(extra)}"
         ) from exc
 
 

@@ -22,15 +22,24 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from distnav import __version__
-from distnav.commands import add_backend_arguments
 from distnav.errors import DistnavError, UsageError
 from distnav.experiments import EXPERIMENTS, available, load
-from distnav.experiments.common import ExperimentContext, Progress
-from distnav.options import output_folder, positive_int, probe_output_folder, seed
-from distnav.output import set_file_writer
+from distnav.options import (
+    check_node_outputs,
+    check_output_spares,
+    input_paths,
+    output_folder,
+    positive_int,
+    probe_output_folder,
+    record_outputs,
+    seed,
+)
+
+if TYPE_CHECKING:
+    from distnav.experiments.common import ExperimentContext
 
 # real-data command groups; each module defines ``register(subparsers)``
 COMMAND_MODULES = (
@@ -40,19 +49,59 @@ COMMAND_MODULES = (
     "distnav.commands.field",
 )
 
+#: Every top-level command and its one-line help: ``distnav --help`` and ``--version`` are answered from this table
+#: without importing the commands, the experiments, numpy or scipy (issue 29: ≤ 0.3 s; the full parser costs
+#: 1.5 CPU-s). tests/test_cli_startup.py holds it equal to the full parser's; a module added to
+#: :data:`COMMAND_MODULES` without its line here makes ``--help`` take the full (slow) path, never a wrong one.
+TOP_LEVEL_HELP: dict[str, str] = {
+    "demo": "run the quick variant of every reproduction and write a report",
+    "reproduce": "reproduce a paper experiment (figures + results.json)",
+    "uwb": "UWB anchor self-localization from inter-anchor range logs",
+    "gnss": "real-data GNSS commands (code biases, ionosphere)",
+    "reproduce-all": "every paper reproduction at full size, with their run times",
+    "node": "run one node of a field network (its own program)",
+    "field": "field networks: launch every node on this machine, make keys",
+}
+#: the top-level commands each module of :data:`COMMAND_MODULES` registers
+COMMAND_NAMES: dict[str, tuple[str, ...]] = {
+    "distnav.commands.uwb": ("uwb",),
+    "distnav.commands.gnss": ("gnss",),
+    "distnav.commands.reproduce_all": ("reproduce-all",),
+    "distnav.commands.field": ("node", "field"),
+}
+
 
 def _add_common(p: argparse.ArgumentParser) -> None:
+    from distnav.commands import add_backend_arguments
+
     p.add_argument("--seed", type=seed, default=0, help="seed of every random draw, 0 or more (default 0)")
     add_backend_arguments(p)
     p.add_argument("--no-progress", action="store_true", help="do not print progress")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _top_parser() -> tuple[argparse.ArgumentParser, Any]:
     parser = argparse.ArgumentParser(prog="distnav", description="Distributed estimation over sensor networks.")
     parser.add_argument("--version", action="version", version=f"distnav {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+    return parser, parser.add_subparsers(dest="command", required=True)
 
-    demo = sub.add_parser("demo", help="run the quick variant of every reproduction and write a report")
+
+def build_top_level_parser() -> argparse.ArgumentParser | None:
+    """The top-level parser with every command named but none built (for ``--help`` / ``--version``, which need
+    no more); None when a module of :data:`COMMAND_MODULES` has no line in :data:`TOP_LEVEL_HELP`."""
+    if any(m not in COMMAND_NAMES for m in COMMAND_MODULES):
+        return None
+    parser, sub = _top_parser()
+    names = ["demo", "reproduce"] + [n for m in COMMAND_MODULES for n in COMMAND_NAMES[m]]
+    if any(n not in TOP_LEVEL_HELP for n in names):
+        return None
+    for name in names:
+        sub.add_parser(name, help=TOP_LEVEL_HELP[name])
+    return parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser, sub = _top_parser()
+    demo = sub.add_parser("demo", help=TOP_LEVEL_HELP["demo"])
     demo.add_argument(
         "--out", type=output_folder, default=Path("distnav-demo"), help="report folder (default distnav-demo)"
     )
@@ -65,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_common(demo)
 
-    rep = sub.add_parser("reproduce", help="reproduce a paper experiment (figures + results.json)")
+    rep = sub.add_parser("reproduce", help=TOP_LEVEL_HELP["reproduce"])
     rep_sub = rep.add_subparsers(dest="experiment", required=True)
     for name in available():
         mod = load(name)
@@ -83,6 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _context(args: argparse.Namespace, out_dir: Path, quick: bool) -> ExperimentContext:
+    from distnav.experiments.common import ExperimentContext, Progress
+
     opts = {
         k: v
         for k, v in vars(args).items()
@@ -251,7 +302,8 @@ def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None
 
     ``--ranks`` without ``--backend mpi`` (it would be ignored), ``--backend mpi`` without the ``mpi`` extra, and
     ``--out``: with ``probe_out``, proved creatable and writable (:func:`~distnav.options.probe_output_folder`), so a
-    folder that cannot be made stops the run now; under MPI only rank 0 probes."""
+    folder that cannot be made stops the run now (under MPI only rank 0 probes); and on every rank, no input inside
+    it and no file in it that distnav did not write (:func:`~distnav.options.check_output_spares`)."""
     backend = getattr(args, "backend", "inprocess")
     if getattr(args, "ranks", None) is not None and backend != "mpi":
         raise UsageError(f"--ranks {args.ranks} applies only with --backend mpi (launched with mpiexec -n N)")
@@ -266,30 +318,69 @@ def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None
     out = getattr(args, "out", None)
     if out is not None and probe_out:
         probe_output_folder(out)
+    inputs = input_paths(v for k, v in vars(args).items() if k not in {"out", "func", "node_files"})
+    node_files = getattr(args, "node_files", None)  # one node of a field network: a shared folder (options.py)
+    if out is not None and node_files is not None:
+        check_node_outputs(out, node_files(args), inputs)
+    elif out is not None:  # nothing written over an input or over a file distnav did not write (options.py)
+        check_output_spares(out, inputs)
+
+
+#: Seconds a failing rank waits between writing its ``error on MPI rank R of N`` line and ``MPI_Abort``: the line is
+#: in the stderr pipe at once (one unbuffered write), but mpiexec's proxy forwards it only when it next reads that
+#: pipe, and the abort tears the job down; under heavy load the line was lost (issue 29 item 5). A failure is rare,
+#: half a second is cheap. Stress-tested in tests/test_cli_mpi.py.
+ABORT_GRACE_S = 0.5
+
+
+def _error_line_then_abort(comm: Any, rank: int, exc: BaseException) -> int:
+    """Write the failing rank's error line to file descriptor 2 (not ``sys.stderr``, which is muted on ranks other
+    than 0), wait :data:`ABORT_GRACE_S`, then abort every rank with exit code 2 (a user error) or 1."""
+    code = 2 if isinstance(exc, DistnavError) else 1
+    line = f"error on MPI rank {rank} of {comm.Get_size()}: {type(exc).__name__}: {exc}\n"
+    try:
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+    os.write(2, line.encode("utf-8", "replace"))
+    time.sleep(ABORT_GRACE_S)
+    comm.Abort(code)
+    return code  # pragma: no cover - Abort does not return
 
 
 def _main_mpi(args: argparse.Namespace) -> int:
-    """Run under MPI: any failure on any rank aborts the whole job with a message naming the rank."""
+    """Run under MPI: one writer, one voice — rank 0 writes the files and prints (progress, warnings, results);
+    the other ranks' stdout and stderr are muted (they run the same computation, so they would print the same
+    lines N times). Any failure on any rank still writes ``error on MPI rank R of N: ...`` (straight to file
+    descriptor 2) and aborts the whole job."""
     from distnav._optional import require
+    from distnav.output import set_file_writer
 
     MPI = require("mpi4py.MPI", "mpi")
     rank = MPI.COMM_WORLD.Get_rank()
-    if rank != 0:  # one writer, one voice: rank 0 writes files and prints; errors still reach stderr from any rank
+    if rank != 0:
         set_file_writer(False)
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - lives for the whole process
+        sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - the error line goes to fd 2 directly
     try:
         check_arguments(args, probe_out=rank == 0)
         _check_mpi_launch(args)
-        return _dispatch(args)
+        return _dispatch_recording(args)
     except BaseException as exc:  # noqa: BLE001 - every failure must end all ranks
-        code = 2 if isinstance(exc, DistnavError) else 1
-        print(
-            f"error on MPI rank {rank} of {MPI.COMM_WORLD.Get_size()}: {type(exc).__name__}: {exc}",
-            file=sys.stderr,
-            flush=True,
-        )
-        MPI.COMM_WORLD.Abort(code)
-        return code  # pragma: no cover - Abort does not return
+        return _error_line_then_abort(MPI.COMM_WORLD, rank, exc)
+
+
+def _dispatch_recording(args: argparse.Namespace) -> int:
+    """:func:`_dispatch`, then (also after a failure) list what is now in ``--out`` as distnav's (on the writing
+    rank), so a re-run into the same folder is allowed and a file put there by hand is not."""
+    from distnav.output import is_file_writer
+
+    try:
+        return _dispatch(args)
+    finally:
+        out = getattr(args, "out", None)
+        if out is not None and is_file_writer() and getattr(args, "node_files", None) is None:
+            record_outputs(out)  # not by one node of a field network: the folder is shared, its files are its own
 
 
 def _dispatch(args: argparse.Namespace) -> int:
@@ -368,8 +459,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(argv: Sequence[str] | None) -> int:
+    words = list(sys.argv[1:] if argv is None else argv)
+    if all(w.startswith("-") for w in words):  # no command named: --help, --version or a usage error
+        top = build_top_level_parser()
+        if top is not None:
+            top.parse_args(words)  # exits (help, version, or the error that a command is required)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(words)
     if getattr(args, "backend", "inprocess") == "mpi":
         try:  # every rank fails alike here, before MPI starts
             check_arguments(args, probe_out=False)
@@ -379,7 +475,7 @@ def _main(argv: Sequence[str] | None) -> int:
         return _main_mpi(args)  # checks again inside, where a failure on one rank aborts them all
     try:
         check_arguments(args)
-        return _dispatch(args)
+        return _dispatch_recording(args)
     except DistnavError as exc:
         print(_user_error(exc), file=sys.stderr)
         return 2

@@ -43,8 +43,8 @@ class DataFileError(DistnavError, ValueError):
 
 
 class MissingExtraError(DistnavError, ImportError):
-    """An optional dependency is missing; the message says which ``pip install 'distnav-estimation[extra]'`` fixes
-    it."""
+    """An optional dependency is missing; the message names the pip command that installs it
+    (:func:`distnav._optional.install_hint`)."""
 
 
 class UsageError(DistnavError, ValueError):

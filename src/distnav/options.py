@@ -7,20 +7,33 @@ layers (it imports only :mod:`distnav.errors` and the standard library), for exp
 :func:`output_folder` checks ``--out`` when it is parsed (not an existing file, under a folder); the CLI then
 proves with :func:`probe_output_folder` that the folder can be created and written before running anything, so a
 folder that cannot be created is reported as such.
+
+No command writes over its inputs or over a file it did not create (:func:`check_output_spares`, before any work):
+no input file may lie inside ``--out`` (real paths: symbolic links and ``..`` resolved), ``--out`` may not be an
+input folder, and an existing ``--out`` may hold only files that distnav wrote there — the ones listed in its
+:data:`OUTPUT_MANIFEST`, which :func:`record_outputs` updates after every run.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import os
+from collections.abc import Iterable, Iterator
 from datetime import datetime
 from pathlib import Path
 
 from distnav.errors import UsageError
 
 __all__ = [
+    "OUTPUT_MANIFEST",
     "check_output_folder",
+    "check_output_spares",
+    "check_node_outputs",
+    "node_output_files",
+    "input_paths",
+    "record_outputs",
     "existing_file",
     "finite_float",
     "iso_datetime",
@@ -174,3 +187,91 @@ def probe_output_folder(path: str | Path) -> Path:
             if d.is_dir():
                 d.rmdir()
     return p
+
+
+OUTPUT_MANIFEST = ".distnav-written"
+"""The file in an output folder that lists (one relative path a line) the files distnav wrote there."""
+
+
+def input_paths(values: Iterable[object]) -> list[Path]:
+    """The real paths of the existing files and folders named in ``values`` (option values: strings, paths, lists of
+    them); anything else (numbers, names, comma lists) is not a path and is skipped."""
+    found: list[Path] = []
+    for value in values:
+        if isinstance(value, (list, tuple)):
+            found += input_paths(value)
+        elif isinstance(value, (str, Path)) and str(value) and os.path.exists(value):
+            found.append(Path(os.path.realpath(value)))
+    return found
+
+
+def _files_under(folder: Path) -> Iterator[str]:
+    """Every file under ``folder`` as a relative POSIX path (the manifest itself left out), lazily."""
+    for root, _, names in os.walk(folder):
+        for name in names:
+            if not (Path(root) == folder and name == OUTPUT_MANIFEST):
+                yield Path(root, name).relative_to(folder).as_posix()
+
+
+def _written_by_distnav(folder: Path) -> set[str]:
+    try:
+        return set((folder / OUTPUT_MANIFEST).read_text(encoding="utf-8").splitlines())
+    except (FileNotFoundError, UnicodeDecodeError):
+        return set()
+
+
+def check_output_spares(out: str | Path, inputs: Iterable[Path]) -> None:
+    """Refuse (:class:`UsageError`, before any work) an output folder whose writing could replace a file the user
+    did not get from distnav: an input file inside it (real paths), an input folder that is it or lies inside it,
+    or, in an existing folder, a file distnav did not write there (not in its :data:`OUTPUT_MANIFEST`; the walk
+    stops at the fourth such file, so ``--out ~`` is refused quickly)."""
+    real_out = Path(os.path.realpath(out))
+    for path in inputs:
+        if path == real_out or real_out in path.parents:
+            kind = "folder" if path.is_dir() else "file"
+            raise UsageError(
+                f"input {kind} {path} lies inside the output folder {out} ({real_out}), where its outputs could "
+                f"replace it: give another --out"
+            )
+    if not real_out.is_dir():
+        return
+    known = _written_by_distnav(real_out)
+    foreign = list(itertools.islice((f for f in _files_under(real_out) if f not in known), 4))
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (" and more" if len(foreign) > 3 else "")
+        raise UsageError(
+            f"output folder {out} holds files distnav did not write there ({shown}); its outputs could replace "
+            f"them: give a new or empty --out (or move those files away)"
+        )
+
+
+def node_output_files(args: argparse.Namespace) -> list[str]:
+    """The files one node of a field network writes in its shared ``--out`` (``node-ID.json``, ``.log``,
+    ``.stderr``): what :func:`check_node_outputs` guards."""
+    return [f"node-{args.id}.{ext}" for ext in ("json", "log", "stderr")]
+
+
+def check_node_outputs(out: str | Path, own_files: Iterable[str], inputs: Iterable[Path]) -> None:
+    """The rule of :func:`check_output_spares` for one node of a field network, whose ``--out`` is a folder it
+    shares with the other nodes of its machine (and often with their description): it writes only ``own_files``
+    (``node-ID.json``, ``node-ID.log``, ...), so it refuses (:class:`UsageError`) only an input that is one of
+    them; the other nodes' files and the description beside them are not its to replace."""
+    real_out = Path(os.path.realpath(out))
+    mine = {real_out / name for name in own_files}
+    for path in inputs:
+        if path in mine:
+            raise UsageError(
+                f"input file {path} is the file this node writes in {out} ({path.name}): give another --out"
+            )
+
+
+def record_outputs(out: str | Path) -> None:
+    """List every file now under ``out`` in its :data:`OUTPUT_MANIFEST` (after a run; all of them are distnav's,
+    as :func:`check_output_spares` refused a folder holding any other). Written atomically; a folder that does not
+    exist is left alone."""
+    folder = Path(out)
+    if not folder.is_dir():
+        return
+    tmp = folder / f".{OUTPUT_MANIFEST}.{os.getpid()}.tmp"
+    tmp.write_text("".join(f"{name}\n" for name in sorted(_files_under(folder)) if name != tmp.name), encoding="utf-8")
+    os.replace(tmp, folder / OUTPUT_MANIFEST)

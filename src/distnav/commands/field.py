@@ -27,7 +27,7 @@ import numpy as np
 from distnav._optional import require
 from distnav.errors import UsageError
 from distnav.formats.field_config import NetworkDescription, format_description, read_description
-from distnav.options import existing_file, nonnegative_int, output_folder, positive_float
+from distnav.options import existing_file, node_output_files, nonnegative_int, output_folder, positive_float
 from distnav.output import atomic_write_json, atomic_write_text
 
 __all__ = ["register", "launch"]
@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     node.add_argument(
         "--rejoin", action="store_true", help="a restarted node: join the running network at its neighbours' step"
     )
-    node.set_defaults(func=_node)
+    node.set_defaults(func=_node, node_files=node_output_files)
 
     field = sub.add_parser("field", help="field networks: launch every node on this machine, make keys")
     fsub = field.add_subparsers(dest="field_command", required=True)

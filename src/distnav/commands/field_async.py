@@ -26,7 +26,7 @@ from distnav.errors import UsageError
 from distnav.exchange.faults import uniform_hash
 from distnav.exchange.field import Kind, Transport
 from distnav.formats.field_config import NetworkDescription, read_description, read_node_values
-from distnav.options import existing_file, nonnegative_int, output_folder, positive_float
+from distnav.options import existing_file, node_output_files, nonnegative_int, output_folder, positive_float
 from distnav.output import atomic_write_json
 
 __all__ = ["TransportLink", "add_node_arguments", "open_node", "run_async_node", "register"]
@@ -138,7 +138,7 @@ def register(field_sub: Any) -> None:
     add_node_arguments(p)
     p.add_argument("--period-ms", type=positive_float, default=10.0, help="tick period of this node (default 10)")
     p.add_argument("--duration-s", type=positive_float, default=5.0, help="how long the node ticks (default 5)")
-    p.set_defaults(func=_handler)
+    p.set_defaults(func=_handler, node_files=node_output_files)
 
 
 def _handler(args: argparse.Namespace) -> int:

@@ -42,7 +42,7 @@ from distnav.commands.field_async import add_node_arguments, open_node
 from distnav.errors import UsageError
 from distnav.network import builders
 from distnav.network.graph import Graph
-from distnav.options import output_folder, positive_float, positive_int, seed
+from distnav.options import node_output_files, output_folder, positive_float, positive_int, seed
 from distnav.output import atomic_write_json
 
 __all__ = ["DemoOptions", "run_field_demo", "launch_async", "register"]
@@ -413,7 +413,7 @@ def register(field_sub: Any) -> None:
     add_node_arguments(u)
     u.add_argument("--seed", type=seed, default=0, help="the simulated network's seed (as field demo's)")
     u.add_argument("--iterations", type=positive_int, default=30, help="N-CSG-TBLS iterations")
-    u.set_defaults(func=_uwb_node)
+    u.set_defaults(func=_uwb_node, node_files=node_output_files)
 
 
 def _handler(args: argparse.Namespace) -> int:

@@ -184,10 +184,17 @@ def caption(name: str, figure: str, module_captions: dict[str, str] | None = Non
 
 
 def _fmt(v: Any) -> str:
+    """A value for a table cell: numbers to 4 significant digits, also inside lists and dicts (a list of 16-digit
+    floats made the uwb-field table unreadable), a missing value (NaN, None) as ``—``."""
+    v = to_jsonable(v)
     if isinstance(v, float):
         return f"{v:.4g}"
-    if isinstance(v, (dict, list)):
-        return json.dumps(to_jsonable(v))
+    if v is None:
+        return "—"
+    if isinstance(v, list):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k}: {_fmt(x)}" for k, x in v.items()) + "}"
     return str(v)
 
 
@@ -217,7 +224,7 @@ def _figure_class(size: tuple[int, int] | None) -> str:
 _CSS = (
     "body{font-family:system-ui,sans-serif;max-width:1200px;margin:auto;padding:0 12px;line-height:1.4}"
     "table{border-collapse:collapse;margin:6px 0;font-size:13px}td,th{border:1px solid #bbb;padding:2px 6px;"
-    "vertical-align:top}th{background:#f3f3f3}figure{display:inline-block;vertical-align:top;margin:6px;"
+    "vertical-align:top;overflow-wrap:anywhere}th{background:#f3f3f3}figure{display:inline-block;vertical-align:top;margin:6px;"
     "width:calc(33.3% - 16px)}figure.half{width:calc(50% - 16px)}"
     "figure.wide{width:calc(100% - 16px)}figure img{width:100%;max-height:400px;object-fit:contain;"
     "border:1px solid #ccc}"

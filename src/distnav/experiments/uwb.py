@@ -424,6 +424,17 @@ STYLE = {
 }
 
 
+def _sparse_log_ticks(ax: Any) -> None:
+    """At most ~5 labelled ticks per axis of a Fig. 3/4 panel: on a log axis spanning less than a decade matplotlib
+    labels every minor tick, and the 8 small panels' labels ran into each other."""
+    from matplotlib import ticker
+
+    ax.yaxis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0), numticks=6))
+    ax.yaxis.set_major_formatter(ticker.FuncFormatter(lambda y, _: f"{y:g}"))
+    ax.yaxis.set_minor_formatter(ticker.NullFormatter())
+    ax.xaxis.set_major_locator(ticker.MaxNLocator(4, integer=True))
+
+
 def _figures(ctx: ExperimentContext, curves: dict[str, Any], examples: dict[str, Any]) -> None:
     plt = pyplot()
     for key, fname, label in (
@@ -438,6 +449,7 @@ def _figures(ctx: ExperimentContext, curves: dict[str, Any], examples: dict[str,
             ax.set_title(p)
             ax.grid(alpha=0.3)
             ax.set_xlabel("iteration")
+            _sparse_log_ticks(ax)
         axes[0, 0].set_ylabel(label)
         axes[1, 0].set_ylabel(label)
         axes[0, 0].legend(fontsize=7)

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, TypedDict, Unpack
 
 import numpy as np
 
+from distnav._checks import affordable_nodes, whole_number
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
 
@@ -34,9 +35,10 @@ __all__ = [
 
 
 def _need(n: int, minimum: int, what: str) -> int:
-    n = int(n)
+    n = whole_number(n, f"the number of nodes of {what}", error=GraphError)
     if n < minimum:
         raise GraphError(f"{what} needs at least {minimum} nodes, got {n}")
+    affordable_nodes(n, what, error=GraphError)
     return n
 
 
@@ -65,6 +67,7 @@ def path(n_nodes: int, *, self_loops: bool = False) -> Graph:
 def complete(n_nodes: int, *, self_loops: bool = False) -> Graph:
     """Every pair of nodes linked."""
     n = _need(n_nodes, 1, "a complete graph")
+    affordable_nodes(n * (n - 1) // 2, "a complete graph", error=GraphError, items="links")
     a, b = np.triu_indices(n, 1)
     return Graph.from_links(n, np.stack([a, b], 1), self_loops=self_loops)
 
@@ -84,9 +87,11 @@ def grid(rows: int, cols: int, *, spacing_m: float = 1.0, neighbourhood: int = 4
     """
     if neighbourhood not in (4, 8):
         raise GraphError(f"neighbourhood must be 4 or 8, got {neighbourhood}")
-    rows, cols = int(rows), int(cols)
+    rows = whole_number(rows, "rows of a grid", error=GraphError)
+    cols = whole_number(cols, "cols of a grid", error=GraphError)
     if rows < 1 or cols < 1 or rows * cols < 2:
         raise GraphError(f"a grid needs at least 2 nodes, got {rows}×{cols}")
+    affordable_nodes(rows * cols, f"a {rows}×{cols} grid", error=GraphError)
     idx = np.arange(rows * cols).reshape(rows, cols)
     parts = [
         np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1),
@@ -106,9 +111,10 @@ def ladder(n_nodes: int, *, spacing_m: float = 1.0, diagonals: bool = True, self
     Node ``2k`` is at ``(k*spacing_m, 0)``, node ``2k+1`` at ``(k*spacing_m, spacing_m)``. With
     ``diagonals=True`` every node has degree at most 5 (paper 002 class L).
     """
-    n = int(n_nodes)
+    n = whole_number(n_nodes, "the number of nodes of a ladder", error=GraphError)
     if n < 4 or n % 2:
         raise GraphError(f"a ladder needs an even number of nodes ≥ 4, got {n}")
+    affordable_nodes(n, "a ladder", error=GraphError)
     k = n // 2
     bottom, top = np.arange(k) * 2, np.arange(k) * 2 + 1
     parts = [

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from distnav._checks import real_array, whole_number
 from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import WeightsError
 from distnav.exchange import Exchange, make_exchange
@@ -130,7 +131,7 @@ class ConsensusState:
 
 
 def _as_node_array(values: np.ndarray, n_nodes: int) -> np.ndarray:
-    arr = np.asarray(values, dtype=float)
+    arr = real_array(values, "values", error=WeightsError)
     if arr.ndim == 0 or arr.shape[0] != n_nodes:
         raise WeightsError(f"values must have one row per node (leading axis {n_nodes}), got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -153,8 +154,7 @@ def iterate_average_consensus(
     ``values`` has a leading node axis (``n_nodes``) and any payload shape (scalars, vectors, matrices).
     On an MPI exchange only this block's rows are used and yielded.
     """
-    if rounds < 0:
-        raise WeightsError(f"rounds must be ≥ 0, got {rounds}")
+    rounds = whole_number(rounds, "rounds", error=WeightsError)
     sched = schedule if schedule is not None else consensus_schedule(graph, protocol)
     ex = exchange if exchange is not None else make_exchange(sched.graph)
     if ex.graph.n_edges != sched.graph.n_edges:
@@ -191,6 +191,7 @@ def average_consensus(
     deviation is below 1e-9 × (1 + max |r̄|).
     """
     arr = _as_node_array(values, graph.n_nodes)
+    rounds = whole_number(rounds, "rounds", error=WeightsError)
     mean = arr.mean(axis=0)
     sched = consensus_schedule(graph, protocol)
     ex = exchange if exchange is not None else make_exchange(sched.graph)
@@ -225,8 +226,7 @@ def consensus_product(schedule: ConsensusSchedule | ConsensusWeights, rounds: in
     After ``rounds`` rounds every node holds ``r^(k_n) = L r``; row ``l_i`` of ``L`` is what the CKF error-variance
     recursion needs (paper 003 Fig. 7).
     """
-    if rounds < 0:
-        raise WeightsError(f"rounds must be ≥ 0, got {rounds}")
+    rounds = whole_number(rounds, "rounds", error=WeightsError)
     if isinstance(schedule, ConsensusWeights):
         schedule = ConsensusSchedule(schedule.graph, (schedule,), (None,))
     n = schedule.graph.n_nodes

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav._checks import real_array
 from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange.core import CommTotals
@@ -114,14 +115,14 @@ class LinearProblem:
         blocks = []
         p = None
         for i in range(n):
-            Ai = np.asarray(A[i], dtype=float)
+            Ai = real_array(A[i], f"{_node(names, i)}: A_i entries", error=ModelError)
             if Ai.ndim != 2:
                 raise ModelError(f"{_node(names, i)}: A_i must be a 2-D (m_i, p) array, got shape {Ai.shape}")
             if p is None:
                 p = Ai.shape[1]
             if Ai.shape[1] != p:
                 raise ModelError(f"{_node(names, i)}: A_i has {Ai.shape[1]} columns, node 0 has {p}")
-            yi = np.asarray(y[i], dtype=float)
+            yi = real_array(y[i], f"{_node(names, i)}: y_i entries", error=ModelError)
             if yi.shape != (Ai.shape[0],):
                 raise ModelError(f"{_node(names, i)}: y_i has shape {yi.shape}, A_i has {Ai.shape[0]} rows")
             blocks.append((Ai, yi, _as_R(None if R is None else R[i], Ai.shape[0], i, names)))

@@ -525,6 +525,12 @@ def codebias_data_from_observations(
         y[i, ti] = np.where(vis, block, np.nan)
         sig[i, ti] = np.where(vis, combination_sigma(np.where(vis, el, np.pi / 2), sigma0_m, weighting, mus), np.nan)
     no_orbit = [s for k, s in enumerate(svs) if not np.isfinite(elev[..., k]).any()]
+    if len(no_orbit) == len(svs):  # issue 29: said "no satellite observed above the mask" for an orbit of another day
+        raise ModelError(
+            f"the orbit file(s) give no position for any of the {len(svs)} observed satellites during the "
+            f"observations ({str(times[0])[:16]} to {str(times[-1])[:16]}): a navigation or SP3 file of another "
+            f"day? give the orbits of the observation day"
+        )
     auto_svs = svs_given is None
     if auto_svs:  # keep the satellites observed above the mask by some station
         keep = np.isfinite(y).any(axis=(0, 1))

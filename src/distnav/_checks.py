@@ -1,0 +1,78 @@
+"""Front-door checks of argument types shared by every layer (issue 29 item 2): a whole number where one is
+meant, real numbers where an array of them is meant, and a network size the machine can hold. Each raises the
+caller's own error type (``error=``) with a message naming the argument and what to change; numpy's own messages
+(``'float' object cannot be interpreted as an integer``, a ``ComplexWarning`` and a silently dropped imaginary part,
+``Unable to allocate 8.00 TiB``) never reach the user.
+"""
+
+from __future__ import annotations
+
+import numbers
+import operator
+import os
+
+import numpy as np
+
+from distnav.errors import DistnavError
+
+__all__ = ["affordable_nodes", "real_array", "whole_number"]
+
+#: Bytes every node of a network costs at the least (its links both ways in the graph's CSR arrays, its id, its
+#: value); a network above physical memory ÷ this cannot be built, so it is refused before numpy tries.
+MIN_BYTES_PER_NODE = 64
+
+
+def whole_number(value: object, name: str, *, minimum: int = 0, error: type[DistnavError]) -> int:
+    """``value`` as an ``int`` ≥ ``minimum``: an ``int``, a numpy integer or a float with no fraction (``3.0``);
+    not ``True``/``False``, not ``2.7``, not a string."""
+    if isinstance(value, (bool, np.bool_)):
+        raise error(f"{name} must be a whole number, got {value!r} (a bool)")
+    if isinstance(value, numbers.Integral):
+        number = operator.index(value)
+    elif isinstance(value, numbers.Real) and float(value).is_integer():
+        number = int(float(value))
+    else:
+        raise error(f"{name} must be a whole number, got {value!r} ({type(value).__name__})")
+    if number < minimum:
+        raise error(f"{name} must be at least {minimum}, got {number}")
+    return number
+
+
+def real_array(values: object, name: str, *, error: type[DistnavError]) -> np.ndarray:
+    """``values`` as a float64 array; complex numbers (their imaginary part would be dropped), booleans, strings
+    and objects are refused by name."""
+    arr = np.asarray(values)
+    kind = arr.dtype.kind
+    if kind == "c":
+        raise error(
+            f"{name} are complex numbers ({arr.dtype}); distnav estimates real quantities: pass the real "
+            f"and imaginary parts as separate entries"
+        )
+    if kind == "b":
+        raise error(f"{name} are booleans; pass numbers (e.g. values.astype(float) if 0/1 is meant)")
+    if kind not in "iuf":
+        raise error(
+            f"{name} must be numbers, got an array of {arr.dtype} (e.g. {arr.flat[0]!r})"
+            if arr.size
+            else f"{name} must be numbers, got an empty array of {arr.dtype}"
+        )
+    return arr.astype(float, copy=False)
+
+
+def _physical_memory_bytes() -> int | None:
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # not on every platform
+        return None
+
+
+def affordable_nodes(n_nodes: int, what: str, *, error: type[DistnavError], items: str = "nodes") -> None:
+    """Refuse a network of ``n_nodes`` (or of that many links: ``items="links"``) that cannot fit in this
+    machine's memory (at :data:`MIN_BYTES_PER_NODE` each), naming the size and the memory."""
+    memory = _physical_memory_bytes()
+    need = n_nodes * MIN_BYTES_PER_NODE
+    if memory is not None and need > memory:
+        raise error(
+            f"{what} of {n_nodes:,} {items} needs at least {need / 2**30:,.0f} GiB of memory; this machine has "
+            f"{memory / 2**30:,.1f} GiB (for networks beyond one machine: MPI across hosts, docs/scale.md)"
+        )

@@ -1,0 +1,19 @@
+"""Issue 29 item 7: the demo report's cells — numbers inside lists and dicts to 4 significant digits (the uwb-field
+table printed 16-digit floats), missing values as a dash, and long unbroken names allowed to wrap."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from distnav.experiments.report import _CSS, _fmt
+
+
+def test_numbers_in_lists_and_dicts_are_short() -> None:
+    assert _fmt([0.12345678901234567, 2.0, np.float64(1 / 3)]) == "[0.1235, 2, 0.3333]"
+    assert _fmt({"a": 1.23456789e-7, "b": [np.nan, 3]}) == "{a: 1.235e-07, b: [—, 3]}"
+    assert _fmt(np.array([1.0, 2.5])) == "[1, 2.5]"
+    assert _fmt(0.000123456) == "0.0001235" and _fmt("tests/test_x.py::test_name") == "tests/test_x.py::test_name"
+
+
+def test_long_names_wrap_in_table_cells() -> None:
+    assert "overflow-wrap:anywhere" in _CSS.split("td,th{", 1)[1].split("}", 1)[0]
