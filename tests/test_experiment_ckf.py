@@ -31,6 +31,13 @@ def test_outputs_written(quick_run):
     assert set(data["std_ratio_final"]) == {"1", "4", "12"}
     assert len(data["alpha"]["kn"]) == len(data["alpha"]["max_over_nodes"])
     assert isinstance(data["headline"], dict) and data["headline"]
+    # issue 27: every k_n beside gathering each node's per-epoch normals; more rounds, proportionally more bytes
+    cmp = data["communication_vs_gather"]
+    assert {k: v["distributed"]["bytes"] for k, v in cmp.items()} == {
+        k: v["bytes"] for k, v in data["communication"].items()
+    }
+    assert cmp["12"]["distributed"]["bytes"] == 3 * cmp["4"]["distributed"]["bytes"] > 0
+    assert len({v["gather"]["total_hop_bytes"] for v in cmp.values()}) == 1
     for name in ("std_ratio_time.png", "std_ratio_vs_degree.png", "alpha.png"):
         assert (out / name).stat().st_size > 1000
 

@@ -53,6 +53,10 @@ def test_small_reproduction(tmp_path: Path) -> None:
     its = saved["iterations_to_1e-2"]
     assert its["0.5"] is not None and all(v is None or v > its["0.5"] for k, v in its.items() if k != "0.5")
     assert "headline" in saved and saved["rho_scale"] == "epoch"
+    # issue 27: ADMM's traffic beside gathering every station's data (observations or normals) at one station
+    cmp = saved["communication_vs_gather"]["0.5"]
+    assert cmp["distributed"]["bytes"] == saved["communication"]["0.5"]["bytes"]
+    assert cmp["gather"]["unreachable_nodes"] == 0 and 0 < cmp["gather"]["data_bytes"] < cmp["distributed"]["bytes"]
     # Fig. 8: the recursive centralized solution is consistent with the truth (χ²/p of x̂ − truth near 1)
     assert 0.3 < saved["chi2_per_dof_vs_truth"] < 3.0
     for f in ("fig7_network.png", "fig8_centralized.png", "fig9_rho.png", "fig10_init.png", "fig11_per_node.png"):

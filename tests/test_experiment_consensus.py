@@ -116,6 +116,12 @@ def test_reproduce_consensus_writes_results(quick_run):
     # paper's qualitative facts on our networks: P2 is the slowest protocol; all λ < 1
     assert max(data["slem"].values()) == data["slem"]["P2"] < 1
     assert abs(res["average"] - 5.0) < 1e-12
+    # issue 27: each protocol's traffic beside gathering the 20 values (8 B each) at one node
+    for p in ("P1", "P2", "P3", "P4"):
+        cmp = data["communication_vs_gather"][p]
+        assert cmp["distributed"]["bytes"] == data["communication"][p]["bytes"]
+        assert cmp["gather"]["data_bytes"] == 8 * 20 and cmp["gather"]["unreachable_nodes"] == 0
+        assert cmp["ratio_bytes"] == pytest.approx(cmp["distributed"]["bytes"] / cmp["gather"]["total_hop_bytes"])
     for name in ("fig2_networks.png", "fig3_iterations.png", "fig4_probability.png"):
         assert (tmp_path / name).stat().st_size > 10_000
 

@@ -70,6 +70,13 @@ def test_message_accounting(results):
     csg = row[("GC", "CSG")]["bytes"] / row[("GC", "CSG")]["messages"]
     ncsg = row[("GC", "N-CSG")]["bytes"] / row[("GC", "N-CSG")]["messages"]
     assert csg == 100 * 3 * 8 and ncsg == (8 + 1) * 3 * 8  # whole network vs max degree + 1
+    # issue 27: instance 0 of the example problems beside gathering every range (16 B) at one anchor
+    vs = res["communication_vs_gather"]
+    assert set(vs) == {f"{p}, {s}, instance 0" for p in ("GO", "LC", "RM") for s in ("N-CLM", "N-CSG-TBLS")}
+    for v in vs.values():
+        assert v["gather"]["unreachable_nodes"] == 0 and v["gather"]["data_bytes"] % 16 == 0
+        assert v["distributed"]["messages"] > 0
+        assert v["ratio_bytes"] == pytest.approx(v["distributed"]["bytes"] / v["gather"]["total_hop_bytes"])
 
 
 def test_cli_registration_and_bad_instances(tmp_path, capsys):

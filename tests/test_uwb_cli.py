@@ -78,7 +78,12 @@ def test_solve_writes_positions_summary_and_plot(tmp_path, capsys):
     assert "RMSE" in capsys.readouterr().out
 
 
-def test_distributed_solver_with_initial_guess(tmp_path):
+def csv_pairs(path: Path) -> list[tuple[str, str]]:
+    rows = path.read_text().splitlines()[1:]
+    return [(r.split(",")[0], r.split(",")[1]) for r in rows if r]
+
+
+def test_distributed_solver_with_initial_guess(tmp_path, capsys):
     f = hall(tmp_path, ceiling=False)
     out = tmp_path / "out"
     assert (
@@ -101,6 +106,22 @@ def test_distributed_solver_with_initial_guess(tmp_path):
     assert summary["loss"] == "cauchy" and summary["loss_used"] == "cauchy_long"  # one-sided, as LM's (issue 13)
     assert summary["messages"] > 0 and summary["bytes"] > 0  # anchor-to-anchor messages of the distributed run
     assert summary["rmse_m"] < 0.05
+    # issue 27: the run beside gathering the ranges at one anchor, on the console and in summary.json
+    cmp = summary["communication"]["comparison"]
+    assert cmp["distributed"]["bytes"] == summary["bytes"] and cmp["distributed"]["messages"] == summary["messages"]
+    links = [tuple(sorted((a, b))) for a, b in csv_pairs(out / "links.csv")]
+    import networkx as nx
+
+    g = nx.Graph(links)
+    hops = nx.single_source_shortest_path_length(g, cmp["gather"]["sink_name"])
+    # every link's 16-byte record travels from its first anchor (in the problem's order) to the sink: independent
+    # check of the total through the per-link hop counts, any assignment of a record to an end at most one hop off
+    total = cmp["gather"]["total_hop_bytes"]
+    lo = sum(16 * min(hops[a], hops[b]) for a, b in links)
+    hi = sum(16 * max(hops[a], hops[b]) for a, b in links)
+    assert lo <= total <= hi and cmp["gather"]["data_bytes"] == 16 * len(links)
+    assert cmp["ratio_bytes"] == pytest.approx(summary["bytes"] / total)
+    assert cmp["line"] in capsys.readouterr().out
 
 
 def test_without_truth_rmse_is_null(tmp_path):

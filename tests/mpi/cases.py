@@ -213,17 +213,33 @@ def ckf_local_precision_and_tests(backend: str) -> dict[str, np.ndarray]:
     }
 
 
-@case
-def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
+def _admm_messages(backend: str, messages: str, W: float, iterations: int) -> dict[str, np.ndarray]:
     from distnav.algorithms.lsq.admm import admm
 
     g = _graph()
     problem = _linear_problem(g.n_nodes)
     ex = make_exchange(g, backend=backend)
     res = admm(
-        problem, g, constraint_nodes="min_cover", W=2.0, messages="aggregated", max_iterations=30, tol=0.0, exchange=ex
+        problem,
+        g,
+        constraint_nodes="min_cover",
+        W=W,
+        messages=messages,
+        max_iterations=iterations,
+        tol=0.0,
+        exchange=ex,
     )
-    return {"estimates": res.estimates, "sent": res.comm.messages_sent}
+    return {"estimates": res.estimates, "sent": res.comm.messages_sent, "bytes": res.comm.bytes_sent}
+
+
+@case
+def admm_aggregated_messages(backend: str) -> dict[str, np.ndarray]:
+    return _admm_messages(backend, "aggregated", 2.0, 30)
+
+
+@case
+def admm_ternary_messages(backend: str) -> dict[str, np.ndarray]:
+    return _admm_messages(backend, "ternary", 1.0, 40)
 
 
 @case

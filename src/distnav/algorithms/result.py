@@ -3,15 +3,33 @@
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, fields
-from typing import Any, Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
 from distnav.exchange.core import CommTotals
+from distnav.typing import ArrayLike
 
-__all__ = ["ObservationTests", "Precision", "SOLVER_STATUSES", "SolverResult", "SolverStatus", "Trace", "TraceBuilder"]
+if TYPE_CHECKING:
+    from distnav.network.gather import GatherCost
+    from distnav.network.graph import Graph
+
+__all__ = [
+    "CommComparison",
+    "compare_with_gather",
+    "format_bytes",
+    "format_count",
+    "format_ratio",
+    "ObservationTests",
+    "Precision",
+    "SOLVER_STATUSES",
+    "SolverResult",
+    "SolverStatus",
+    "Trace",
+    "TraceBuilder",
+]
 
 
 class Trace(Mapping[str, np.ndarray]):
@@ -203,3 +221,143 @@ class SolverResult:
             "message": self.message,
             "communication": self.comm.as_dict(),
         }
+
+
+def format_bytes(n_bytes: float) -> str:
+    """Bytes in decimal units, three significant digits: ``'41.2 MB'``, ``'2.9 kB'``, ``'512 B'``."""
+    value = float(n_bytes)
+    for unit in ("B", "kB", "MB", "GB"):
+        if abs(value) < 1000 or unit == "GB":
+            return f"{value:.0f} {unit}" if unit == "B" else f"{value:.3g} {unit}"
+        value /= 1000
+    return f"{value:.3g} TB"  # pragma: no cover - unreachable: the loop returns at GB
+
+
+def format_count(count: float) -> str:
+    """A count for a console line: ``'9,870'``, ``'326 k'``, ``'4.24 M'``."""
+    c = float(count)
+    if abs(c) < 10_000:
+        return f"{c:,.0f}"
+    if abs(c) < 1e6:
+        return f"{c / 1e3:.3g} k"
+    return f"{c / 1e6:.3g} M"
+
+
+def format_ratio(ratio: float) -> str:
+    """``'14,000×'`` (three significant digits above 100), ``'3.2×'``, ``'0.41×'``."""
+    if not np.isfinite(ratio):
+        return "∞×"
+    if ratio >= 100:
+        return f"{float(f'{ratio:.3g}'):,.0f}×"
+    return f"{ratio:.0f}×" if ratio >= 10 else f"{ratio:.2g}×"
+
+
+@dataclass(frozen=True, eq=False)
+class CommComparison:
+    """A distributed run's communication beside what a fusion centre would cost on the same graph (issue 27).
+
+    ``bytes_sent``/``messages_sent`` are per node (``None`` when the run kept totals only); ``gather`` is
+    :func:`distnav.network.gather.gather_cost` of the same data (``data``: what each node holds that a fusion
+    centre needs, in words) gathered at one sink by multi-hop relaying. The ratios compare the total bytes with the
+    gather's total hop-bytes, and the busiest node's bytes with the gather's busiest relay.
+    """
+
+    total_bytes: int
+    total_messages: int
+    rounds: int | None
+    bytes_sent: np.ndarray | None
+    messages_sent: np.ndarray | None
+    gather: GatherCost
+    data: str
+    node_label: str = "node"
+    node_names: tuple[str, ...] | None = None
+
+    @property
+    def ratio_bytes(self) -> float:
+        """Total bytes sent ÷ the gather's total hop-bytes."""
+        hop = self.gather.total_hop_bytes
+        return self.total_bytes / hop if hop else float("inf")
+
+    @property
+    def ratio_busiest_node(self) -> float | None:
+        """The busiest node's bytes ÷ the gather's busiest relay's bytes (``None`` without per-node counts)."""
+        if self.bytes_sent is None or not self.bytes_sent.size:
+            return None
+        relay = self.gather.busiest_relay_bytes
+        return float(self.bytes_sent.max()) / relay if relay else float("inf")
+
+    def _name(self, node: int) -> str:
+        return self.node_names[node] if self.node_names is not None and 0 <= node < len(self.node_names) else str(node)
+
+    def as_dict(self) -> dict[str, Any]:
+        per_node: dict[str, Any] = {}
+        for key, arr in (("bytes", self.bytes_sent), ("messages", self.messages_sent)):
+            if arr is not None and arr.size:
+                per_node[f"{key}_per_node_max"] = int(arr.max())
+                per_node[f"{key}_per_node_median"] = float(np.median(arr))
+        return {
+            "distributed": {
+                "bytes": self.total_bytes,
+                "messages": self.total_messages,
+                "rounds": self.rounds,
+                **per_node,
+            },
+            "gather": {
+                **self.gather.as_dict(),
+                "sink_name": self._name(self.gather.sink),
+                "data": self.data,
+            },
+            "ratio_bytes": self.ratio_bytes,
+            "ratio_busiest_node": self.ratio_busiest_node,
+            "line": self.line(),
+        }
+
+    def line(self) -> str:
+        """One console line: what the run sent, what gathering the data would cost, the ratio."""
+        label = self.node_label
+        sent = f"sent {format_bytes(self.total_bytes)} in {format_count(self.total_messages)} messages"
+        if self.bytes_sent is not None and self.bytes_sent.size:
+            sent += (
+                f" (per {label} max {format_bytes(self.bytes_sent.max())}, "
+                f"median {format_bytes(float(np.median(self.bytes_sent)))})"
+            )
+        g = self.gather
+        hops = f"{format_count(g.messages)} relay hop{'' if g.messages == 1 else 's'}"
+        return (
+            f"{sent}; gathering {self.data} at {label} {self._name(g.sink)} would cost "
+            f"{format_bytes(g.total_hop_bytes)} over {hops} "
+            f"(busiest relay {format_bytes(g.busiest_relay_bytes)}): {format_ratio(self.ratio_bytes)} the bytes"
+        )
+
+
+def compare_with_gather(
+    comm: CommTotals | tuple[int, int],
+    graph: Graph,
+    data_bytes_per_node: ArrayLike,
+    *,
+    data: str,
+    node_label: str = "node",
+    node_names: Sequence[object] | None = None,
+    sink: int | None = None,
+) -> CommComparison:
+    """The :class:`CommComparison` of a run: ``comm`` its :class:`CommTotals` (or ``(bytes, messages)`` totals
+    when per-node counts were not kept), ``graph`` the communication graph, ``data_bytes_per_node`` the bytes of
+    the data each node holds (what a fusion centre would need; ``data`` says what it is)."""
+    from distnav.network.gather import gather_cost  # scipy's csgraph: imported on use (the MPI path stays light)
+
+    gather = gather_cost(graph, data_bytes_per_node, sink=sink)
+    names = None if node_names is None else tuple(str(v) for v in node_names)
+    if isinstance(comm, CommTotals):
+        return CommComparison(
+            total_bytes=comm.bytes,
+            total_messages=comm.messages,
+            rounds=comm.rounds,
+            bytes_sent=np.asarray(comm.bytes_sent),
+            messages_sent=np.asarray(comm.messages_sent),
+            gather=gather,
+            data=data,
+            node_label=node_label,
+            node_names=names,
+        )
+    total_bytes, total_messages = comm
+    return CommComparison(int(total_bytes), int(total_messages), None, None, None, gather, data, node_label, names)

@@ -108,6 +108,8 @@ def _parse_codes(text: str | None) -> dict[int, str]:
 def _run_codebias(args: argparse.Namespace) -> int:
     from distnav.algorithms.lsq.admm import admm
     from distnav.algorithms.lsq.blue import blue
+    from distnav.algorithms.lsq.gather_data import GATHER_DATA, node_data_bytes
+    from distnav.algorithms.result import compare_with_gather
     from distnav.formats.gnss.rinex import read_code_observations, read_navigation, read_sp3
     from distnav.models.gnss.codebias import codebias_data_from_observations
     from distnav.models.gnss.constants import NS_TO_M
@@ -173,6 +175,14 @@ def _run_codebias(args: argparse.Namespace) -> int:
             "iterations": res.iterations,
             "max_distance_to_centralized_ns": dist_m / NS_TO_M,
             "constraint_nodes": [stations[i] for i in res.constraint_nodes.nodes],
+            "communication": compare_with_gather(
+                res.comm,
+                graph,
+                node_data_bytes(problem),
+                data=f"each station's data ({GATHER_DATA})",
+                node_label="station",
+                node_names=stations,
+            ).as_dict(),
         }
     counts = data.observation_counts()
     c = codebias_coefficients()
@@ -215,6 +225,8 @@ def _run_codebias(args: argparse.Namespace) -> int:
             f"{admm_info['max_distance_to_centralized_ns']:.2g} ns of the centralized solution"
         )
     _say(args, msg)
+    if "communication" in admm_info:
+        print("ADMM " + admm_info["communication"]["line"])
     print(f"written {out / 'codebias.csv'} and {out / 'codebias.json'}")
     if args.bias:
         summary = compare_with_products(report, [Path(b) for b in args.bias])

@@ -37,12 +37,18 @@ import sys
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from distnav.commands import add_backend_arguments, command_exchange
 from distnav.errors import DataFileError, ModelError
+
+if TYPE_CHECKING:
+    from distnav.algorithms.result import CommComparison
+    from distnav.exchange.core import CommTotals
+    from distnav.models.gnss.gfnetwork import BiasNetworkData
+    from distnav.network.graph import Graph
 
 __all__ = ["add_ionosphere_parser", "add_parser", "network_data", "run_ionosphere", "validate_arguments"]
 
@@ -567,6 +573,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         },
         "comparison": comparison,
         "messages": comm.as_dict() if comm is not None else {},
+        "communication": None if comm is None else _comm_comparison(comm, graph, data, stations).as_dict(),
         "first_estimable_epoch": {
             o: (times[int(np.argmax(np.isfinite(c.dsb_ns[:, k])))] if np.isfinite(c.dsb_ns[:, k]).any() else None)
             for k, o in enumerate(obj)
@@ -595,6 +602,8 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     summary["bias_sinex"] = str(write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times))
     atomic_write_json(out / "summary.json", summary)
     print_data_report(summary)
+    if summary["communication"] is not None:
+        print("CKF " + summary["communication"]["line"])
     print_summary(stations, comparison, finals, fac)
     print_worst_own(summary["satellite_fit"])
     c0 = series[0]
@@ -841,3 +850,18 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
 
 add_parser = add_ionosphere_parser
 """Alias used by :mod:`distnav.commands.gnss` (``_SUBCOMMAND_MODULES``)."""
+
+
+def _comm_comparison(comm: CommTotals, graph: Graph, data: BiasNetworkData, stations: list[str]) -> CommComparison:
+    """The consensus filters' traffic beside gathering every epoch's observations at one station (issue 27)."""
+    from distnav.algorithms.kalman.gather_data import RECORDS_DATA, record_bytes_per_node
+    from distnav.algorithms.result import compare_with_gather
+
+    return compare_with_gather(
+        comm,
+        graph,
+        record_bytes_per_node(data.series.tracked),
+        data=RECORDS_DATA,
+        node_label="station",
+        node_names=stations,
+    )

@@ -42,6 +42,7 @@ import numpy as np
 
 from distnav.algorithms.ranging.csg import SOLVERS
 from distnav.algorithms.ranging.losses import LOSSES
+from distnav.algorithms.result import CommComparison, compare_with_gather
 from distnav.commands import add_backend_arguments
 from distnav.errors import DataFileError, ModelError
 from distnav.exchange import make_exchange
@@ -54,6 +55,7 @@ from distnav.formats.uwb.io import (
     read_ranges,
     single_link_anchors,
 )
+from distnav.models.uwb.communication import RANGES_DATA, range_bytes_per_anchor
 from distnav.models.uwb.field import (
     DELAY_SIGMA_M,
     RELIABILITY_LIMIT_M,
@@ -428,11 +430,27 @@ def _summary(
                 else "LM is centralized: it needs the ranges gathered (below)",
             },
             "gather_at_one_anchor": gather,
+            "comparison": None if opts.solver.upper() == "LM" else _comparison(sol).as_dict(),
         },
         "messages": sol.messages,
         "bytes": sol.bytes,
         "warnings": warnings,
     }
+
+
+def _comparison(sol: FieldSolution) -> CommComparison:
+    """The distributed solve's traffic (totals: the exclusion loop's re-solves and the precision included) beside
+    gathering every range at one anchor over the range graph (each link's record held by its lower-numbered
+    anchor, :data:`RANGE_RECORD_BYTES` each; issue 27)."""
+    p = sol.problem
+    return compare_with_gather(
+        (sol.bytes, sol.messages),
+        p.graph,
+        range_bytes_per_anchor(p),
+        data=RANGES_DATA,
+        node_label="anchor",
+        node_names=p.ids,
+    )
 
 
 def write_links(path: Path, sol: FieldSolution, comb: CombinedRanges) -> None:
@@ -626,6 +644,8 @@ def _handler(args: argparse.Namespace) -> int:
         + (f", RMSE {rm:.3f} m" if rm is not None else "")
         + f" -> {out}"
     )
+    if (comparison := summary["communication"]["comparison"]) is not None:
+        print(comparison["line"])
     if sol.weak:
         print(
             f"warning: {len(sol.weak)} anchor(s) weakly determined, their positions may be metres off: "

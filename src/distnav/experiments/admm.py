@@ -197,12 +197,16 @@ def fig5_problems(ctx: ExperimentContext, draws: int) -> tuple[list[LinearProble
 def part_b(
     ctx: ExperimentContext, draws: int, iterations: int, rho: float, rho_grid: tuple[float, ...]
 ) -> dict[str, Any]:
+    from distnav.algorithms.lsq.gather_data import GATHER_DATA, node_data_bytes
+    from distnav.algorithms.result import compare_with_gather
+
     g = fig5_graph()
     sets = fig5_sets(g)
     problems, refs = fig5_problems(ctx, draws)
     curves: dict[str, Any] = {}
     finals: dict[str, float] = {}
     comm: dict[str, Any] = {}
+    vs_gather: dict[str, Any] = {}
     first: dict[str, int | None] = {}
     for key, C in sets.items():  # the primary runs: first problem, ρ = rho, full length
         res = admm(
@@ -219,6 +223,9 @@ def part_b(
         finals[key] = float(res.trace["relative_max_distance"][-1])
         first[key] = _iters(res)
         comm[key] = {**res.comm.as_dict(), "messages_per_iteration": int(res.comm.messages_per_round[1:3].sum())}
+        vs_gather[f"Fig. 5, {key}"] = compare_with_gather(
+            res.comm, g, node_data_bytes(problems[0]), data=f"each node's data ({GATHER_DATA})"
+        ).as_dict()
     # the study: every problem, every ρ of the grid, iterations to 1e-6
     table: dict[str, dict[str, list[int]]] = {f"{r:g}": {k: [] for k in sets} for r in rho_grid}
     cells = [
@@ -252,6 +259,7 @@ def part_b(
         "min_cover": choose_constraint_nodes(g, "min_cover").summary(),
         "_curves": curves,
         "_finals": finals,
+        "_vs_gather": vs_gather,
         "_graph": g,
         "_sets": sets,
     }
@@ -425,6 +433,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "nonlinear": {k: v for k, v in d.items() if not k.startswith("_")},
         "final_max_deviation": final_dev,
         "final_max_deviation_reduced": b["_finals"]["C_reduced"],
+        "communication_vs_gather": b["_vs_gather"],
         "headline": {
             "Fig. 5, C={1,3,4,6,9}: iterations to 1e-6": b["C_full"]["iterations_to_1e-6"],
             "Fig. 5, C={1,3,4,9}: iterations to 1e-6": b["C_reduced"]["iterations_to_1e-6"],

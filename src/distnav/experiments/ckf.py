@@ -116,6 +116,9 @@ def stationary_check(graph: Graph, kn: int, *, n_states: int = 3, n_epochs: int 
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
+    from distnav.algorithms.kalman.gather_data import NORMALS_DATA, normal_bytes_per_node
+    from distnav.algorithms.result import compare_with_gather
+
     n_epochs = 40 if ctx.quick else 240
     graph = static_network(ctx.rng(1))
     n = graph.n_nodes
@@ -144,6 +147,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         lossy = ckf(dyn, ms, schedule=sched, rounds=DROP_KN, exchange=ctx.exchange(graph, faults=drops))
         advance(1)
     cs = central.series
+    gathered = normal_bytes_per_node(ms)
     ls = local.series
     ratios = {kn: ckf_std_ratio(r.series, cs) for kn, r in runs.items()}
     local_ratio = std_ratio(ls, cs)
@@ -200,6 +204,9 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "rms_standardized_error": consistency,
         "not_estimable_final": not_estimable,
         "communication": {str(kn): r.comm.as_dict() for kn, r in runs.items()},
+        "communication_vs_gather": {
+            str(kn): compare_with_gather(r.comm, graph, gathered, data=NORMALS_DATA).as_dict() for kn, r in runs.items()
+        },
         "message_drops": drops_result,
         "headline": {
             **{f"max CKF/central std ratio, last epoch, k_n={kn}": std_ratio_final[str(kn)] for kn in KN_VALUES},

@@ -286,6 +286,9 @@ def precision_analysis(
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
+    from distnav.algorithms.kalman.gather_data import RECORDS_DATA, record_bytes_per_node
+    from distnav.algorithms.result import compare_with_gather
+
     n_epochs = int(ctx.option("epochs", QUICK_EPOCHS if ctx.quick else N_EPOCHS, minimum=1))
     data_kn = int(ctx.option("data_kn", 4, minimum=0))
     with ctx.progress.task("ckf-ionosphere: central, local and CKF (Fig. 7) variance recursions", total=3) as adv:
@@ -398,6 +401,11 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
             "rms_standardized_error": rms_z,
             "n_values": int(zf.size),
             "messages": res.comm.as_dict() if hasattr(res.comm, "as_dict") else None,
+        },
+        "communication_vs_gather": {
+            f"CKF on simulated data, k_n = {data_kn}": compare_with_gather(
+                res.comm, graph, record_bytes_per_node(data_series.tracked), data=RECORDS_DATA, node_label="receiver"
+            ).as_dict()
         },
         "paper": PAPER,
     }

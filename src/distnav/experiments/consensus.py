@@ -99,6 +99,8 @@ def networks(ctx: ExperimentContext) -> tuple[str, Graph, SwitchingGraph]:
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
+    from distnav.algorithms.result import compare_with_gather
+
     kind, g_static, g_switch = networks(ctx)
     values = twenty_values(ctx.rng(2))
     samples = 20_000 if ctx.quick else 100_000
@@ -150,6 +152,12 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "q": q.tolist(),
         "monte_carlo_samples": samples,
         "communication": {p: r.comm.as_dict() for p, r in runs.items()},
+        "communication_vs_gather": {
+            p: compare_with_gather(
+                r.comm, schedules[p][1].graph, np.full(values.shape[0], 8), data="each node's value (one float64)"
+            ).as_dict()
+            for p, r in runs.items()
+        },
         "headline": {
             **{f"λ_(n-1) {p} (paper {PAPER_SLEM[p]})": v for p, v in slem.items()},
             **{f"max |r_i − r̄| after 30 it., {p} (paper: P1, P3 fastest)": v for p, v in final_dev.items()},

@@ -160,6 +160,9 @@ def _stacked(problem: LinearProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
+    from distnav.algorithms.lsq.gather_data import node_data_bytes
+    from distnav.algorithms.result import compare_with_gather
+
     epochs, n_errors = (1, 3) if ctx.quick else (2, 8)
     with ctx.progress.task(f"qc: simulate the 110-station code-bias network, {epochs} epoch(s), {n_errors} errors"):
         case = codebias_qc_problem(ctx, epochs, n_errors)
@@ -206,6 +209,15 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
             "extra_messages": res.tests.comm.messages,
             "iterations_last_solution": res.iterations,
             "messages_total": res.comm.messages,
+        },
+        "communication_vs_gather": {
+            "distributed data snooping": compare_with_gather(
+                res.comm,
+                g,
+                node_data_bytes(prob, normals=False),
+                data="each station's observations (data snooping tests them)",
+                node_label="station",
+            ).as_dict()
         },
         "centralized": {
             "removed": list(ref.removed),

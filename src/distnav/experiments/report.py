@@ -227,6 +227,14 @@ _CSS = (
 )
 
 
+def communication_lines(results: Any) -> list[str]:
+    """The ``communication_vs_gather`` lines of an experiment's results (issue 27), one per run: ``'run: line'``."""
+    block = results.get("communication_vs_gather") if isinstance(results, dict) else None
+    if not isinstance(block, dict):
+        return []
+    return [f"{k}: {v['line']}" for k, v in block.items() if isinstance(v, dict) and "line" in v]
+
+
 def write_report(
     out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any], float]], *, quick: bool = True
 ) -> Path:
@@ -304,6 +312,14 @@ def write_report(
                 md.append(f"| {label.replace('|', chr(92) + '|')} | {_fmt(v)} | {paper_txt.replace('|', '/')} |")
             parts.append("</table>")
             md.append("")
+        if comm_lines := communication_lines(results):
+            parts.append(
+                "<p><b>Communication</b> (beside gathering the same data at one node by multi-hop relaying):<br>"
+                + "<br>".join(html.escape(t) for t in comm_lines)
+                + "</p>"
+            )
+            md += ["**Communication** (beside gathering the same data at one node by multi-hop relaying):", ""]
+            md += [f"- {t}" for t in comm_lines] + [""]
         for fig in ctx.figures:
             cap = caption(name, fig, mod_caps)
             cls = _figure_class(_png_size(out_dir / rel / fig))

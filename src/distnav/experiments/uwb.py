@@ -32,9 +32,11 @@ import numpy as np
 
 from distnav.algorithms.ranging.csg import PAPER_MODE, SOLVERS, solve, solve_line_search_pair
 from distnav.algorithms.ranging.data import RangingResult
+from distnav.algorithms.result import compare_with_gather
 from distnav.errors import UsageError
 from distnav.exchange import Exchange, make_exchange
 from distnav.experiments.common import ExperimentContext, add_jobs_argument, parallel_map, pyplot
+from distnav.models.uwb.communication import RANGES_DATA, range_bytes_per_anchor
 from distnav.models.uwb.problems import PAPER_PROBLEMS, RangingProblem, generate_layout, generate_problem
 from distnav.network.graph import Graph
 from distnav.options import positive_int
@@ -175,6 +177,10 @@ def _run_instance(task: _Task, exchange: Callable[[Graph], Exchange] | None = No
                 "fixed": problem.fixed,
                 "links": problem.links,
             }
+        if task.instance == 0 and s in ("N-CLM", "N-CSG-TBLS") and task.name in ("GO", "LC", "RM"):
+            out.setdefault("vs_gather", {})[s] = compare_with_gather(
+                res.comm, problem.graph, range_bytes_per_anchor(problem), data=RANGES_DATA, node_label="anchor"
+            ).as_dict()
     return out
 
 
@@ -192,6 +198,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     table: list[dict[str, Any]] = []
     examples: dict[str, Any] = {}
+    vs_gather: dict[str, Any] = {}
     timing: dict[str, float] = {s: 0.0 for s in SOLVERS}
     tasks = [
         _Task(ctx.seed, pi, name, inst, iterations, armijo_slope, hold_heights, start)
@@ -227,6 +234,8 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
                     a[key].append(r[key])
             if one["example"] is not None:
                 examples[name] = one["example"]
+            for s, v in one.get("vs_gather", {}).items():
+                vs_gather[f"{name}, {s}, instance 0"] = v
         curves[name] = {}
         for s in SOLVERS:
             a = acc[s]
@@ -257,6 +266,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
             )
 
     results: dict[str, Any] = {
+        "communication_vs_gather": vs_gather,
         "settings": {
             "iterations": iterations,
             "instances": n_inst,

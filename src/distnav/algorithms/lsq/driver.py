@@ -27,7 +27,9 @@ from distnav.typing import FloatArray
 __all__ = ["AdmmOptions", "AdmmResult", "MessageMode", "PreparedRun", "XWeight", "drive", "prepare"]
 
 XWeight = Literal["lagrangian", "fig6", "fig6-zweighted"]
-MessageMode = Literal["pairs", "aggregated"]
+MessageMode = Literal["pairs", "aggregated", "ternary"]
+#: Bits per entry of the coded deltas of ``messages="ternary"`` (:mod:`~distnav.algorithms.lsq.delta_codec`).
+TERNARY_BITS = 2
 X_WEIGHTS: tuple[str, ...] = get_args(XWeight)
 THRESHOLDS = (1e-4, 1e-6, 1e-8)
 
@@ -40,7 +42,9 @@ class AdmmOptions(TypedDict, total=False):
     :class:`~distnav.network.constraint_nodes.ConstraintNodes`. ``W`` [1.0]: ``ρ`` or an SPD ``(p, p)`` matrix.
     ``x_update`` [``"auto"``]: see :class:`~distnav.algorithms.lsq.kernel.XUpdate`. ``x_weight``
     [``"lagrangian"``]: ``"lagrangian"``, ``"fig6"`` or ``"fig6-zweighted"`` (module docstring of
-    :mod:`distnav.algorithms.lsq.admm`). ``messages`` [``"pairs"``]: ``"pairs"`` or ``"aggregated"``. ``init``
+    :mod:`distnav.algorithms.lsq.admm`). ``messages`` [``"pairs"``]: ``"pairs"``, ``"aggregated"`` or ``"ternary"``
+    (per-pair messages as 2-bit deltas with error feedback after the first, :mod:`~distnav.algorithms.lsq.delta_codec`;
+    no fault schedule). ``init``
     [``"zero"``] and ``z0`` [None]: initial values. ``monitor_every`` [1]: residuals every that many iterations.
     ``multipliers`` [None: ``u^[−1] = 0``]: a previous per-pair run's :attr:`AdmmResult.multipliers` (same exchange
     and constraint nodes) to continue from — a warm start of a changed problem (data snooping).
@@ -175,8 +179,8 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
     messages = options.get("messages", "pairs")
     monitor_every = options.get("monitor_every", 1)
     x_weight = options.get("x_weight", "lagrangian")
-    if messages not in ("pairs", "aggregated"):
-        raise ModelError(f"messages must be 'pairs' or 'aggregated', got {messages!r}")
+    if messages not in ("pairs", "aggregated", "ternary"):
+        raise ModelError(f"messages must be 'pairs', 'aggregated' or 'ternary', got {messages!r}")
     if monitor_every < 0:
         raise ModelError(f"monitor_every must be ≥ 0, got {monitor_every}")
     if problem.n_nodes != graph.n_nodes:
@@ -205,8 +209,14 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
     z_weight = 1.0 / C.per_node_count.astype(float) if x_weight == "fig6-zweighted" else None
     kernel = _Kernel(ex, C, Wm, p, xu, z_weight=z_weight)
     u0 = options.get("multipliers")
-    if messages == "pairs":
-        states = kernel.run(x0[ex.nodes], zz0[ex.nodes], monitor_every, u0=u0)
+    if messages == "ternary" and ex.faults.active:
+        raise ModelError(
+            "messages='ternary' sends deltas against a copy both ends keep: a lost message desynchronizes them "
+            "for good; use messages='pairs' with a fault schedule"
+        )
+    if messages in ("pairs", "ternary"):
+        bits = TERNARY_BITS if messages == "ternary" else None
+        states = kernel.run(x0[ex.nodes], zz0[ex.nodes], monitor_every, u0=u0, bits=bits)
     else:
         if u0 is not None:
             raise ModelError("multipliers can only be continued with messages='pairs'")
@@ -219,7 +229,7 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
         x_update=xu.method,
         x_weight=x_weight,
         messages=messages,
-        kernel=kernel if messages == "pairs" else None,
+        kernel=kernel if messages in ("pairs", "ternary") else None,
     )
 
 

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from distnav._optional import lazy
+from distnav.algorithms.lsq.delta_codec import DeltaCodec
 from distnav.algorithms.lsq.xupdate import XUpdate, XUpdateMethod
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -25,6 +26,8 @@ from distnav.network.constraint_nodes import ConstraintNodes
 
 if TYPE_CHECKING:
     import scipy.sparse as sp
+
+    from distnav.exchange.route import Route
 else:  # imported on first use (start-up of an MPI job)
     sp = lazy("scipy.sparse")
 
@@ -159,10 +162,18 @@ class _Kernel:
             self.z_weight = (w_in[:, None], w_self[:, None], inv_total[:, None])
 
     def run(
-        self, x0: np.ndarray, z0: np.ndarray, monitor_every: int = 1, u0: Multipliers | None = None
+        self,
+        x0: np.ndarray,
+        z0: np.ndarray,
+        monitor_every: int = 1,
+        u0: Multipliers | None = None,
+        *,
+        bits: int | None = None,
     ) -> Iterator[AdmmState]:
         """Fig. 6 with per-pair messages from ``x0``, ``z0`` and multipliers ``u0`` (default ``u^[−1] = 0``, §4.3);
-        :attr:`multipliers` follows the run (a warm start of a changed problem continues from them)."""
+        :attr:`multipliers` follows the run (a warm start of a changed problem continues from them). ``bits``:
+        every message after the first of each stream as ``bits``-bit deltas with error feedback
+        (:mod:`~distnav.algorithms.lsq.delta_codec`; no fault schedule)."""
         cm = self.inC_loc[:, None].astype(float)  # 1 on constraint-node rows
         inv_count = 1.0 / self.count[:, None]
         inv_size = cm / self.size_s[:, None]
@@ -194,8 +205,12 @@ class _Kernel:
         held_z = x_p.copy() if faulty else None
         held_c = _take(z, self.recv_dst) if faulty else None
         z_buf = np.empty((n_pairs, self.p))
+        coded = _CodedRoutes(self.x_route, self.z_route, bits) if bits is not None else None
         # initialization round: constraint nodes send z_s^[0] to their neighbours
-        z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
+        if coded is not None:
+            z_recv = coded.broadcast_z(z)
+        else:
+            z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
         # x_p is not read again before the next x-update overwrites it, so the pair residuals x_i − z_s take its
         # buffer (one pair-sized array less to allocate and touch)
         diff = np.subtract(x_p, z_recv, out=x_p)
@@ -221,7 +236,10 @@ class _Kernel:
             _take(x, self.pair_dst, out=x_p)
             # z_buf is free between the last read of z_s (above) and the broadcast below
             np.add(x_p, u, out=z_buf)
-            zin_c = _held(held_c, *self.x_route.send(z_buf))
+            if coded is not None:
+                zin_c = coded.send_x(z_buf)
+            else:
+                zin_c = _held(held_c, *self.x_route.send(z_buf))
             # step 2: z-update at constraint nodes, broadcast z_s
             if self.z_weight is None:
                 z_new = self.S_c @ zin_c
@@ -235,7 +253,10 @@ class _Kernel:
                 z_new *= inv_total
             dz = z_new - z
             z = z_new
-            z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
+            if coded is not None:
+                z_recv = coded.broadcast_z(z)
+            else:
+                z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
             diff = np.subtract(x_p, z_recv, out=x_p)
             np.subtract(x, z, out=diff_self)
             diff_self *= cm
@@ -468,3 +489,32 @@ class _Held:
         keep = pos[ok]
         self.prev[keep] = values[keep]
         return self.prev
+
+
+class _CodedRoutes:
+    """The two message rounds of a per-pair run with coded messages (:mod:`~distnav.algorithms.lsq.delta_codec`):
+    each stream's first message in full, then ``bits``-bit deltas; returns the receivers' reconstructions."""
+
+    def __init__(self, x_route: Route, z_route: Route, bits: int) -> None:
+        self.x_route, self.z_route = x_route, z_route
+        self.tx_x, self.rx_x = DeltaCodec(bits), DeltaCodec(bits)
+        self.tx_z, self.rx_z = DeltaCodec(bits), DeltaCodec(bits)
+
+    def send_x(self, values: np.ndarray) -> np.ndarray:
+        return _coded_round(self.tx_x, self.rx_x, values, lambda v: self.x_route.send(v)[0])
+
+    def broadcast_z(self, values: np.ndarray) -> np.ndarray:
+        return _coded_round(self.tx_z, self.rx_z, values, lambda v: self.z_route.broadcast(v)[0])
+
+
+def _coded_round(
+    tx: DeltaCodec, rx: DeltaCodec, values: np.ndarray, transmit: Callable[[np.ndarray], np.ndarray]
+) -> np.ndarray:
+    """One round of a coded stream: the first message in full, then the coded delta; the receivers' copy."""
+    if not tx.started:
+        tx.start(values)
+        rx.start(transmit(values))
+    else:
+        rx.decode(transmit(tx.encode(values)))
+    assert rx.reference is not None
+    return rx.reference

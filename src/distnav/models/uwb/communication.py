@@ -12,9 +12,11 @@ from scipy.sparse.csgraph import shortest_path
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
 
-__all__ = ["RANGE_RECORD_BYTES", "POSITION_BYTES", "gather_cost"]
+__all__ = ["RANGE_RECORD_BYTES", "RANGES_DATA", "POSITION_BYTES", "gather_cost", "range_bytes_per_anchor"]
 
 RANGE_RECORD_BYTES = 16  # two int32 anchor ids + one float64 range
+#: What :func:`range_bytes_per_anchor` counts, in words (for reports).
+RANGES_DATA = f"the ranges ({RANGE_RECORD_BYTES} B each)"
 POSITION_BYTES = 8
 
 
@@ -49,3 +51,10 @@ def gather_cost(problem: RangingProblem) -> dict[str, Any]:
         "links": int(lk.shape[0]),
         "max_hops": int(hops[sink].max()),
     }
+
+
+def range_bytes_per_anchor(problem: RangingProblem) -> np.ndarray:
+    """Bytes of the range records each anchor holds for a fusion centre: every measured pair once, held by its
+    lower-numbered anchor (the per-node data of :func:`distnav.network.gather.gather_cost`, issue 27)."""
+    held: np.ndarray = np.bincount(problem.links[:, 0], minlength=problem.n_anchors) * RANGE_RECORD_BYTES
+    return held
