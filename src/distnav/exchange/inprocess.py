@@ -1,8 +1,11 @@
 """In-process exchange: the whole network is one block; a round is a vectorized gather or sparse product.
 
-The block keeps its nodes in a locality order (``order=``, see :func:`distnav.network.partition.locality_order`;
-from 10⁴ nodes on reverse Cuthill–McKee by default), chosen once at set-up: algorithms' per-node arrays follow
-``ex.nodes``, and :meth:`~distnav.exchange.base.Exchange.gather_nodes` returns them in the user's order.
+By default the block keeps the user's node order, at every size: ``ex.mixer(w).apply(x)`` takes and returns rows
+in the user's ids. ``order=`` opts in to a locality order (``"auto"``: reverse Cuthill–McKee from 10⁴ nodes on; see
+:func:`distnav.network.partition.locality_order`), chosen once at set-up; per-node arrays then follow ``ex.nodes``
+and the caller converts at the boundary with :meth:`~distnav.exchange.core.ExchangeCore.local` and
+:meth:`~distnav.exchange.base.Exchange.gather_nodes`. The front doors that make their own exchange
+(``average_consensus``, ``admm``, ``ckf``) opt in and gather their results, so they return the user's order too.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ class InProcessExchange(Exchange):
     backend = "inprocess"
     _moves_rows_in_place = True
 
-    def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *, order: str | np.ndarray = "auto") -> None:
+    def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *, order: str | np.ndarray = "none") -> None:
         super().__init__(graph, faults)
         perm = locality_order(graph, order)
         self._identity = perm is None

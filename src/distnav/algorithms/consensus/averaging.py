@@ -193,7 +193,8 @@ def average_consensus(
     arr = _as_node_array(values, graph.n_nodes)
     mean = arr.mean(axis=0)
     sched = consensus_schedule(graph, protocol)
-    ex = exchange if exchange is not None else make_exchange(sched.graph)
+    # its own exchange keeps the locality order inside: every value handed out goes through gather_nodes
+    ex = exchange if exchange is not None else make_exchange(sched.graph, order="auto")
     tb = TraceBuilder()
     last = None
     for state in iterate_average_consensus(arr, graph=graph, rounds=rounds, exchange=ex, schedule=sched):

@@ -352,7 +352,7 @@ def ckf(
     kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
     n = measurements.n_nodes
     sched = _schedule(graph, protocol, schedule, n)
-    ex = exchange if exchange is not None else make_exchange(sched.graph)
+    ex = exchange if exchange is not None else make_exchange(sched.graph, order="auto")  # results gathered
     xs: list[FloatArray] = []
     stds: list[FloatArray] = []
     nstds: list[FloatArray] = []

@@ -177,7 +177,7 @@ def admm(
         )
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm(), not both")
-    ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
+    ex = exchange if exchange is not None else make_exchange(graph, faults=faults, order="auto")  # gathered below
     run = prepare(problem, graph, ex, options)
     return drive(
         run,
