@@ -151,7 +151,8 @@ def iterate_average_consensus(
     """Yield the state after rounds 0 (initial), 1, …, ``rounds`` of eq. (31).
 
     ``values`` has a leading node axis (``n_nodes``) and any payload shape (scalars, vectors, matrices).
-    On an MPI exchange only this block's rows are used and yielded.
+    On an MPI exchange only this block's rows are used and yielded, in the order of ``exchange.nodes``; without
+    ``exchange`` the run makes an in-process one in the user's order, so the states' rows are the user's nodes.
     """
     if rounds < 0:
         raise WeightsError(f"rounds must be ≥ 0, got {rounds}")
@@ -189,6 +190,10 @@ def average_consensus(
     Trace: ``max_abs_deviation`` (round 0..rounds, max over nodes and entries of |r_i^(k) − r̄|) and, with
     ``record_values``, ``values`` (rounds+1 × n_nodes × payload). ``converged`` is True when the final
     deviation is below 1e-9 × (1 + max |r̄|).
+
+    Results are in the user's node order at every size. Without ``exchange`` the run makes one with the locality
+    order (``order="auto"``: RCM from 10⁴ nodes on) and gathers back; an ``exchange`` of any order works the same,
+    ``make_exchange(graph, order="auto")`` being the fast one on large networks (docs/scale.md).
     """
     arr = _as_node_array(values, graph.n_nodes)
     mean = arr.mean(axis=0)
