@@ -122,3 +122,20 @@ def test_ckf_rows(n):
     assert np.array_equal(res.series.nominal_std, ref.series.nominal_std)
     *_, last = iterate_ckf(dyn, normals, **kw)
     assert np.array_equal(last.estimates, ref.estimates)
+
+
+def test_boundary_conversions_round_trip_and_name_bad_shapes():
+    from distnav.errors import ExchangeError
+
+    g = _graph(SIZES[1])
+    ex = make_exchange(g, order="auto")
+    x = np.arange(g.n_nodes * 2, dtype=float).reshape(-1, 2)
+    local = ex.local(x)
+    assert np.array_equal(local[:, 0] // 2, ex.nodes)  # row k of the local array is node ex.nodes[k]
+    assert np.array_equal(ex.gather_nodes(local), x)
+    with pytest.raises(ExchangeError, match="10000 rows"):
+        ex.local(x[:-1])
+    with pytest.raises(ExchangeError, match="10000 rows"):
+        ex.gather_nodes(local[:-1])
+    with pytest.raises(ExchangeError, match="10000 rows"):
+        ex.local(np.float64(1.0))
