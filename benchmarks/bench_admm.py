@@ -167,7 +167,7 @@ def floor_case(n: int, messages: str, kernel: Any, rho: float, repeat: int) -> d
     prob = peers_problem(rng, n)
     C = choose_constraint_nodes(g, "min_cover")
     t0 = time.perf_counter()
-    ex = make_exchange(g)
+    ex = make_exchange(g, order="auto")  # the locality order, as admm() uses inside
     gen = iterate_admm(
         prob,
         g,

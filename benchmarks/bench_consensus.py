@@ -115,7 +115,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
         w = consensus_weights(g, "P3")
         csr = w.to_sparse().tocsr()
         t0 = time.perf_counter()
-        ex = make_exchange(g)
+        ex = make_exchange(g, order="auto")  # the locality order inside; ex.local / gather_nodes at the boundary
         mixer = ex.mixer(w)
         setup_s = time.perf_counter() - t0
         perm = reverse_cuthill_mckee(csr, symmetric_mode=True)
@@ -156,7 +156,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
             )
         if n <= 100_000 or not quick:
             t0 = time.perf_counter()
-            exf = make_exchange(g, faults=FaultSchedule(drop_probability=DROP, seed=1))
+            exf = make_exchange(g, faults=FaultSchedule(drop_probability=DROP, seed=1), order="auto")
             mf = exf.mixer(w)
             setup_f = time.perf_counter() - t0
             bare = BareDropRound(csr_rcm, DROP, 2)

@@ -81,7 +81,7 @@ def _one_setup(g: Graph, prob: LinearProblem) -> tuple[dict[str, tuple[float, fl
     marks = [_mark()]
     C = choose_constraint_nodes(g, "min_cover")
     marks.append(_mark())
-    ex = make_exchange(g)
+    ex = make_exchange(g, order="auto")  # the locality order, as admm() uses inside
     marks.append(_mark())
     gen = iterate_admm(prob, g, constraint_nodes=C, W=1.0, exchange=ex)  # validation, x-update, kernel
     marks.append(_mark())
@@ -102,7 +102,7 @@ def _traced_peak_mb(g: Graph, prob: LinearProblem) -> float:
     tracemalloc.start()
     base = tracemalloc.get_traced_memory()[0]
     C = choose_constraint_nodes(g, "min_cover")
-    gen = iterate_admm(prob, g, constraint_nodes=C, W=1.0, exchange=make_exchange(g))
+    gen = iterate_admm(prob, g, constraint_nodes=C, W=1.0, exchange=make_exchange(g, order="auto"))
     next(gen)
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()

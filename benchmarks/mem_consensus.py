@@ -93,7 +93,7 @@ def distnav(n: int, payload: int, rounds: int, drop: float) -> dict[str, float]:
     g = builders.random_geometric(n, np.sqrt(8 / (np.pi * n)), rng=np.random.default_rng(0))
     mem["graph_mb"] = rss_mb()
     w = consensus_weights(g, "MH")
-    ex = make_exchange(g, faults=FaultSchedule(drop_probability=drop, seed=1) if drop else None)
+    ex = make_exchange(g, faults=FaultSchedule(drop_probability=drop, seed=1) if drop else None, order="auto")
     mixer = ex.mixer(w)
     x = ex.local(np.random.default_rng(1).normal(size=(n, payload) if payload > 1 else n))
     mem["setup_mb"] = rss_mb()

@@ -17,9 +17,13 @@ def make_exchange(
 ) -> Exchange:
     """Create an exchange for ``graph``: ``backend="inprocess"`` (default) or ``"mpi"`` (needs the mpi extra
     and a launch under ``mpiexec -n N python -m mpi4py``). ``order=`` (both backends) picks the local node order
-    (:func:`distnav.network.partition.locality_order`); MPI also takes ``partition=``, and instead of the whole
-    graph this rank's :class:`~distnav.network.graph_part.GraphPart` (``partition=`` then names the partition the
-    parts were built from: an owner array, a partition file or ``"block"``).
+    (:func:`distnav.network.partition.locality_order`): in-process the default ``"none"`` keeps the user's order at
+    every size (local arrays are the user's arrays), ``"auto"`` opts in to the locality order from 10⁴ nodes on
+    (then convert with ``ex.local`` / ``ex.gather_nodes``); under MPI local arrays are always a block's rows (in the
+    order of ``ex.nodes``, ``"auto"`` by default) and go through ``ex.local`` / ``ex.gather_nodes`` anyway. MPI
+    also takes ``partition=``, and instead of the whole graph this rank's
+    :class:`~distnav.network.graph_part.GraphPart` (``partition=`` then names the partition the parts were built
+    from: an owner array, a partition file or ``"block"``). See docs/scale.md, "Results in your order".
 
     Examples
     --------
@@ -37,7 +41,7 @@ def make_exchange(
     if backend == "inprocess":
         if not isinstance(graph, Graph):
             raise ExchangeError("the in-process exchange needs the whole graph, not a graph part")
-        order = options.get("order", "auto")  # other options (partition=, comm=) mean nothing in-process
+        order = options.get("order", "none")  # other options (partition=, comm=) mean nothing in-process
         return InProcessExchange(graph, faults, order=order)  # type: ignore[arg-type]
     if backend == "mpi":
         from distnav.exchange.mpi import MPIExchange  # lazy: mpi4py is an optional extra

@@ -1,8 +1,11 @@
 """In-process exchange: the whole network is one block; a round is a vectorized gather or sparse product.
 
-The block keeps its nodes in a locality order (``order=``, see :func:`distnav.network.partition.locality_order`;
-from 10⁴ nodes on reverse Cuthill–McKee by default), chosen once at set-up: algorithms' per-node arrays follow
-``ex.nodes``, and :meth:`~distnav.exchange.base.Exchange.gather_nodes` returns them in the user's order.
+By default the block keeps the user's node order, at every size: ``ex.mixer(w).apply(x)`` takes and returns rows
+in the user's ids. ``order=`` opts in to a locality order (``"auto"``: reverse Cuthill–McKee from 10⁴ nodes on; see
+:func:`distnav.network.partition.locality_order`), chosen once at set-up; per-node arrays then follow ``ex.nodes``
+and the caller converts at the boundary with :meth:`~distnav.exchange.core.ExchangeCore.local` and
+:meth:`~distnav.exchange.base.Exchange.gather_nodes`. The front doors that make their own exchange
+(``average_consensus``, ``admm``, ``ckf``) opt in and gather their results, so they return the user's order too.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from functools import cached_property
 
 import numpy as np
 
+from distnav.errors import ExchangeError
 from distnav.exchange.base import Exchange
 from distnav.exchange.core import ReduceOp, Reducible, incoming_edges
 from distnav.exchange.faults import FaultSchedule
@@ -27,7 +31,7 @@ class InProcessExchange(Exchange):
     backend = "inprocess"
     _moves_rows_in_place = True
 
-    def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *, order: str | np.ndarray = "auto") -> None:
+    def __init__(self, graph: Graph, faults: FaultSchedule | None = None, *, order: str | np.ndarray = "none") -> None:
         super().__init__(graph, faults)
         perm = locality_order(graph, order)
         self._identity = perm is None
@@ -86,12 +90,21 @@ class InProcessExchange(Exchange):
         return value
 
     def gather_nodes(self, local: np.ndarray) -> np.ndarray:
+        """Local order → the user's order: a gather of whole rows through the inverse of :attr:`nodes` (made once),
+        3-4x faster than a scatter ``out[nodes] = local`` on ``(n, k)`` arrays."""
         arr = np.asarray(local)
         if self._identity:
             return arr
-        out = np.empty_like(arr)
-        out[self.nodes] = arr
-        return out
+        if arr.ndim == 0 or arr.shape[0] != self.n_local:
+            raise ExchangeError(f"expected a local array with {self.n_local} rows, got shape {arr.shape}")
+        return np.take(arr, self._position, axis=0)
+
+    @cached_property
+    def _position(self) -> np.ndarray:
+        """Local row of each node (the user's id → its row): the inverse of :attr:`nodes`."""
+        position = np.empty(self.n_local, dtype=np.intp)
+        position[self.nodes] = np.arange(self.n_local, dtype=np.intp)
+        return position
 
     def barrier(self) -> None:
         return None

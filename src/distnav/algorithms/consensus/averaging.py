@@ -152,7 +152,8 @@ def iterate_average_consensus(
     """Yield the state after rounds 0 (initial), 1, …, ``rounds`` of eq. (31).
 
     ``values`` has a leading node axis (``n_nodes``) and any payload shape (scalars, vectors, matrices).
-    On an MPI exchange only this block's rows are used and yielded.
+    On an MPI exchange only this block's rows are used and yielded, in the order of ``exchange.nodes``; without
+    ``exchange`` the run makes an in-process one in the user's order, so the states' rows are the user's nodes.
     """
     rounds = whole_number(rounds, "rounds", error=WeightsError)
     sched = schedule if schedule is not None else consensus_schedule(graph, protocol)
@@ -189,12 +190,17 @@ def average_consensus(
     Trace: ``max_abs_deviation`` (round 0..rounds, max over nodes and entries of |r_i^(k) − r̄|) and, with
     ``record_values``, ``values`` (rounds+1 × n_nodes × payload). ``converged`` is True when the final
     deviation is below 1e-9 × (1 + max |r̄|).
+
+    Results are in the user's node order at every size. Without ``exchange`` the run makes one with the locality
+    order (``order="auto"``: RCM from 10⁴ nodes on) and gathers back; an ``exchange`` of any order works the same,
+    ``make_exchange(graph, order="auto")`` being the fast one on large networks (docs/scale.md).
     """
     arr = _as_node_array(values, graph.n_nodes)
     rounds = whole_number(rounds, "rounds", error=WeightsError)
     mean = arr.mean(axis=0)
     sched = consensus_schedule(graph, protocol)
-    ex = exchange if exchange is not None else make_exchange(sched.graph)
+    # its own exchange keeps the locality order inside: every value handed out goes through gather_nodes
+    ex = exchange if exchange is not None else make_exchange(sched.graph, order="auto")
     tb = TraceBuilder()
     last = None
     for state in iterate_average_consensus(arr, graph=graph, rounds=rounds, exchange=ex, schedule=sched):

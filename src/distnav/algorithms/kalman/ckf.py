@@ -347,12 +347,13 @@ def ckf(
 
     Memory: the per-epoch series are (T, n, p) arrays, and the variance recursion needs the dense n×n ``L`` and
     ``Σ_j l_ij² N_j`` (O(n² p²) work per epoch): for very large networks iterate with :func:`iterate_ckf` and
-    ``variance=False``.
+    ``variance=False``. Per-node results are in the user's node order at every size (without ``exchange`` the run
+    keeps the locality order ``"auto"`` inside and gathers back; docs/scale.md).
     """
     kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
     n = measurements.n_nodes
     sched = _schedule(graph, protocol, schedule, n)
-    ex = exchange if exchange is not None else make_exchange(sched.graph)
+    ex = exchange if exchange is not None else make_exchange(sched.graph, order="auto")  # results gathered
     xs: list[FloatArray] = []
     stds: list[FloatArray] = []
     nstds: list[FloatArray] = []

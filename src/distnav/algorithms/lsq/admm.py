@@ -167,6 +167,9 @@ def admm(
     (:class:`~distnav.algorithms.lsq.driver.AdmmResult`) has ``z`` (per constraint node), ``z_nodes`` (per node,
     zero rows off ``C``), ``constraint_nodes``, ``x_update``, ``x_weight``, ``messages``, ``pairs`` and
     ``iterations_to`` (first iteration with relative distance ≤ 1e-4, 1e-6, 1e-8 when a reference is given).
+    Every per-node result is in the user's node order at every size: without ``exchange`` the run keeps the
+    locality order (``order="auto"``) inside and gathers back; pass ``make_exchange(graph, order="auto")`` for the
+    same speed with your own exchange (docs/scale.md).
     """
     check_stopping(max_iterations, tol, atol)
     init = options.get("init", "zero")
@@ -177,7 +180,7 @@ def admm(
         )
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm(), not both")
-    ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
+    ex = exchange if exchange is not None else make_exchange(graph, faults=faults, order="auto")  # gathered below
     run = prepare(problem, graph, ex, options)
     return drive(
         run,
