@@ -153,15 +153,19 @@ def test_uwb_solve_writes_lms_central_sigma_for_a_distributed_solver(tmp_path):
     f = hall(tmp_path, ceiling=False, sigma_m=0.05, seed=2)
     out = tmp_path / "out"
     args = ["--initial", str(f["initial"]), "--solver", "N-CLM", "--iterations", "400", "--no-exclude"]
-    assert (
-        main(["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--out", str(out), *args]) == 0
+    # exit 0 or 3 (issue 28): a usable map, whether or not every anchor meets the default required accuracy
+    assert main(
+        ["uwb", "solve", "--ranges", str(f["ranges"]), "--known", str(f["known"]), "--out", str(out), *args]
+    ) in (
+        0,
+        3,
     )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["precision_kind"] == "central"
     dist = summary["communication"]["distributed"]
     assert 0 < dist["precision_bytes"] < dist["bytes"] and dist["precision_messages"] > 0
     rows = (out / "positions.csv").read_text().splitlines()
-    assert rows[0] == "id,x_m,y_m,z_m,sx_m,sy_m,sz_m,status,weak_reason"
+    assert rows[0].startswith("id,x_m,y_m,z_m,sx_m,sy_m,sz_m,status,weak_reason")  # + accuracy_m, meets_required
     written = {
         r.split(",")[0]: np.array([float(v) for v in r.split(",")[4:7]])
         for r in rows[1:]

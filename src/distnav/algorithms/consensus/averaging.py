@@ -134,6 +134,8 @@ def _as_node_array(values: np.ndarray, n_nodes: int) -> np.ndarray:
     arr = real_array(values, "values", error=WeightsError)
     if arr.ndim == 0 or arr.shape[0] != n_nodes:
         raise WeightsError(f"values must have one row per node (leading axis {n_nodes}), got shape {arr.shape}")
+    if arr.size == 0:
+        raise WeightsError(f"values hold nothing to average: shape {arr.shape} has a zero-length axis")
     if not np.all(np.isfinite(arr)):
         bad = np.flatnonzero(~np.isfinite(arr.reshape(n_nodes, -1)).all(axis=1))
         raise WeightsError(f"values of nodes {bad[:10].tolist()} are not finite")
