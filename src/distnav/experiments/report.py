@@ -224,13 +224,14 @@ def _figure_class(size: tuple[int, int] | None) -> str:
 _CSS = (
     "body{font-family:system-ui,sans-serif;max-width:1200px;margin:auto;padding:0 12px;line-height:1.4}"
     "table{border-collapse:collapse;margin:6px 0;font-size:13px}td,th{border:1px solid #bbb;padding:2px 6px;"
-    "vertical-align:top;overflow-wrap:anywhere}th{background:#f3f3f3}figure{display:inline-block;vertical-align:top;margin:6px;"
+    "vertical-align:top;overflow-wrap:break-word}th{background:#f3f3f3}figure{display:inline-block;vertical-align:top;margin:6px;"
     "width:calc(33.3% - 16px)}figure.half{width:calc(50% - 16px)}"
     "figure.wide{width:calc(100% - 16px)}figure img{width:100%;max-height:400px;object-fit:contain;"
     "border:1px solid #ccc}"
     "figcaption{font-size:13px;color:#333}.caveat{background:#fff6d6;border-left:4px solid #e0b000;padding:4px 8px}"
     "table.claims td:nth-child(4){max-width:260px}table.claims td:nth-child(6){max-width:220px}"
-    "table.claims td:nth-child(8){min-width:340px;color:#444}"
+    "table.claims td:nth-child(8){min-width:340px;color:#444;overflow-wrap:anywhere}"
+    "table.claims td:nth-child(-n+3),table.claims td:nth-child(7){white-space:nowrap}"
 )
 
 
