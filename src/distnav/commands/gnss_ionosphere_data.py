@@ -53,6 +53,7 @@ def network_data(
     ``interval_s`` grid (:func:`~distnav.models.gnss.levelling.level_station`; ``screen`` runs each station's
     w-test screening of its own code). Errors name the file: unreadable files, missing code types, a station
     without any epoch with both codes."""
+    from distnav.formats.gnss.product_files import check_orbit_day
     from distnav.formats.gnss.rinex import read_stations
 
     obs = read_stations(
@@ -65,6 +66,7 @@ def network_data(
         progress=progress,
         l1_fallback="C1W" if c1_corrections else None,
     )
+    check_orbit_day(orbit, obs)  # a navigation or SP3 file of another day is named, not left to the mask (issue 29)
     own = {o.station: dict(o.codes) for o in obs}  # the receivers' own codes (their DSBs' code pair)
     if c1_corrections:
         from distnav.formats.gnss.product_files import correct_c1
