@@ -363,6 +363,19 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--out", default="distnav-ionosphere", help="output folder (default distnav-ionosphere)")
     add_backend_arguments(p)
+    _add_code_and_datum_arguments(p)
+    _add_selection_arguments(p)
+    _add_tec_field_arguments(p)
+    _add_levelling_arguments(p)
+    _add_model_arguments(p)
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=run_ionosphere)
+    parser: argparse.ArgumentParser = p
+    return parser
+
+
+def _add_code_and_datum_arguments(p: argparse.ArgumentParser) -> None:
+    """The codes and the output datum (S-basis, pivot, fixed satellite set, reference receiver)."""
     p.add_argument(
         "--l1-code",
         default=None,
@@ -393,6 +406,10 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         help="reference receiver (--datum receiver; also the estimation basis; default: the station "
         "observing at the first epoch)",
     )
+
+
+def _add_selection_arguments(p: argparse.ArgumentParser) -> None:
+    """What is left out of the estimation and of the comparison, and the C1 corrections."""
     p.add_argument("--exclude", nargs="+", metavar="SAT|STA", help="satellites (G01) or stations (BELE) left out")
     p.add_argument(
         "--compare-exclude",
@@ -407,6 +424,10 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         "(satellites then refer to C1W, the P1 of IONEX/GFZ; a file without C1C uses its C1W; each "
         "receiver's DSB stays C1C-C2W, compared and written as such)",
     )
+
+
+def _add_tec_field_arguments(p: argparse.ArgumentParser) -> None:
+    """The model stage's VTEC field and single-layer mapping."""
     p.add_argument(
         "--tec-field",
         choices=["linear", "quadratic"],
@@ -420,29 +441,11 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         default="slm",
         help="single-layer mapping: 450-km thin shell (paper 003) or modified (506.7 km, α = 0.9782)",
     )
-    p.add_argument(
-        "--levelling",
-        choices=["arc", "none"],
-        default="arc",
-        help="carrier-to-code levelling per continuous arc (default) or raw code",
-    )
-    p.add_argument(
-        "--min-arc",
-        type=int,
-        default=10,
-        metavar="EPOCHS",
-        help="shortest arc kept for levelling, in epochs of the file (default 10)",
-    )
-    p.add_argument(
-        "--gf-threshold",
-        type=float,
-        default=0.05,
-        metavar="M",
-        help="smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x "
-        "the satellite's recent prediction-error RMS where the ionosphere is noisier)",
-    )
-    p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
-    p.add_argument("--allow-other-day", action="store_true", help="compare with a product of another day than the data")
+
+
+def _add_model_arguments(p: argparse.ArgumentParser) -> None:
+    """The model stage: ionospheres, σ and weighting, random walk, satellites estimated, and the CKF's innovation
+    tests."""
     p.add_argument(
         "--ionosphere",
         choices=["auto", "common", "per-receiver"],
@@ -492,10 +495,33 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         help="CKF: each receiver w-tests its own predicted residuals at this level and rejects outliers "
         "before the consensus (e.g. 0.001)",
     )
-    p.add_argument("--no-progress", action="store_true")
-    p.set_defaults(func=run_ionosphere)
-    parser: argparse.ArgumentParser = p
-    return parser
+
+
+def _add_levelling_arguments(p: argparse.ArgumentParser) -> None:
+    """The levelling and screening stage, and the comparison with products of another day."""
+    p.add_argument(
+        "--levelling",
+        choices=["arc", "none"],
+        default="arc",
+        help="carrier-to-code levelling per continuous arc (default) or raw code",
+    )
+    p.add_argument(
+        "--min-arc",
+        type=int,
+        default=10,
+        metavar="EPOCHS",
+        help="shortest arc kept for levelling, in epochs of the file (default 10)",
+    )
+    p.add_argument(
+        "--gf-threshold",
+        type=float,
+        default=0.05,
+        metavar="M",
+        help="smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x "
+        "the satellite's recent prediction-error RMS where the ionosphere is noisier)",
+    )
+    p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
+    p.add_argument("--allow-other-day", action="store_true", help="compare with a product of another day than the data")
 
 
 add_parser = add_ionosphere_parser
