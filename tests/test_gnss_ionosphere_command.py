@@ -265,14 +265,14 @@ def test_single_station_with_sp3(shared_data: Path, tmp_path: Path) -> None:
 
 
 def test_errors_name_the_file(shared_data: Path, tmp_path: Path) -> None:
-    from distnav.commands.gnss_ionosphere import network_data
+    from distnav.commands.gnss_ionosphere import NetworkOptions, network_data
     from distnav.errors import DataFileError
     from distnav.formats.gnss.rinex import read_navigation
 
     d, obs = _nl(shared_data)
     nav = read_navigation(d / "cbw10010.21n.gz", max_age_s=24 * 3600.0)
     with pytest.raises(DataFileError, match="delf0010.21o: no L2 code observation"):
-        network_data(obs[:1], nav, l2_code="C2L")
+        network_data(obs[:1], nav, NetworkOptions(l2_code="C2L"))
     bad = tmp_path / "junk0010.21o"
     bad.write_text("this is not RINEX\n")
     with pytest.raises(DataFileError, match="junk0010.21o"):

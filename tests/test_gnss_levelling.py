@@ -9,7 +9,13 @@ import pytest
 
 from distnav.algorithms.statistics import data_snooping
 from distnav.models.gnss.constants import C_M_S, F_L1_HZ, F_L2_HZ, mu
-from distnav.models.gnss.levelling import find_arcs, level_station, melbourne_wubbena_cycles, screen_arc
+from distnav.models.gnss.levelling import (
+    LevellingOptions,
+    find_arcs,
+    level_station,
+    melbourne_wubbena_cycles,
+    screen_arc,
+)
 
 L1, L2 = C_M_S / F_L1_HZ, C_M_S / F_L2_HZ
 
@@ -33,7 +39,9 @@ def test_slips_start_new_arcs(rng: np.random.Generator, slip: tuple[int, int]) -
     n2[k:] += slip[1] * L2
     phi1 = rho - iono + n1 + 0.002 * rng.standard_normal(t.size)
     phi2 = rho - mu(2) * iono + n2 + 0.002 * rng.standard_normal(t.size)
-    lev = level_station(t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None], screen=False)
+    lev = level_station(
+        t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None], options=LevellingOptions(screen=False)
+    )
     assert len(lev.arcs) == 2 and lev.arcs[1].first == k and lev.arcs[1].start_reason in ("gf", "mw")
     # each arc's level equals the code's: the levelled observable is the ionosphere + the code bias (−3 m/(μ−1))
     truth = iono + (-2.0 - 1.0) / (mu(2) - 1.0)
@@ -62,7 +70,9 @@ def test_short_arcs_dropped_and_mw_outlier_removed(rng: np.random.Generator) -> 
     t, rho, iono, p1, p2, n1, n2 = _one_satellite(rng, T=60)
     phi1, phi2 = rho - iono + n1, rho - mu(2) * iono + n2
     p1[30] += 15.0  # one wild code value: an MW outlier, not a slip
-    lev = level_station(t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None], screen=False)
+    lev = level_station(
+        t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None], options=LevellingOptions(screen=False)
+    )
     assert len(lev.arcs) == 1 and lev.removed[30, 0] and np.isnan(lev.gf_m[30, 0])
     lev = level_station(t[:8], ("G01",), p1[:8, None], p2[:8, None], phi1[:8, None], phi2[:8, None])
     assert lev.arcs == [] and lev.dropped_short == 1 and np.isnan(lev.gf_m).all()

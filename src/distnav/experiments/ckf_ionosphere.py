@@ -47,6 +47,7 @@ from distnav.models.gnss.ionosphere import (
     GF_M_PER_DSB_NS,
     TECU_L1_M,
     GeometryFreeSeries,
+    GeometryOptions,
     IonosphereGeometry,
     IonosphereStateLayout,
     geometry_free_series,
@@ -159,10 +160,14 @@ def perth_scenario(
     const = synthetic_gps_constellation(epoch=CONSTELLATION_EPOCH)
     t = float(gps_seconds(np.datetime64(START_GPS, "ns"))) + INTERVAL_S * np.arange(n_epochs)
     lat, lon = perth_positions(colocated=colocated)
-    geo0 = ionosphere_geometry(const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, mask_deg=MASK_DEG)
+    geo0 = ionosphere_geometry(
+        const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, options=GeometryOptions(mask_deg=MASK_DEG)
+    )
     seen = np.asarray(geo0.tracked.any(axis=(0, 1))).tolist()
     svs = tuple(s for s, k in zip(geo0.svs, seen, strict=True) if k)
-    geo = ionosphere_geometry(const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, mask_deg=MASK_DEG, svs=svs)
+    geo = ionosphere_geometry(
+        const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, svs=svs, options=GeometryOptions(mask_deg=MASK_DEG)
+    )
     pivot = PIVOT if PIVOT in svs else svs[int(np.argmax(geo.tracked.sum(axis=(0, 1))))]
     layout = IonosphereStateLayout(svs, pivot)
     return geo, layout, geometry_free_series(geo, layout), ionosphere_dynamics(layout, INTERVAL_S)
