@@ -27,7 +27,7 @@ import numpy as np
 
 from distnav._optional import require
 from distnav.errors import DataFileError
-from distnav.formats.gnss.rinex_nav import _ints, check_navigation_file, read_gps_ephemerides
+from distnav.formats.gnss.rinex_nav import _ints, check_navigation_file, read_ephemerides
 from distnav.formats.gnss.rinex_obs import (
     COMPRESSED_MAGIC,
     SYSTEM_NAMES,
@@ -309,14 +309,17 @@ def check_sp3_file(path: str | Path) -> None:
         raise DataFileError(f"{p}, line {len(lines)}: the file does not end with 'EOF': it is truncated")
 
 
-def read_navigation(path: str | Path, *, max_age_s: float = 2 * 3600.0) -> BroadcastOrbit:
-    """GPS broadcast ephemerides of a RINEX 2 or 3 navigation file (gzip too; of multi-GNSS files
-    their GPS records; :mod:`distnav.formats.gnss.rinex_nav`). ``max_age_s`` bounds |t − toe| (the ±2 h fit
-    interval by default)."""
+def read_navigation(
+    path: str | Path, *, max_age_s: float = 2 * 3600.0, systems: Sequence[str] = ("G",)
+) -> BroadcastOrbit:
+    """Broadcast ephemerides of the ``systems`` (GPS by default; ``E`` Galileo and ``C`` BeiDou from a RINEX 3
+    mixed file such as BRDC00IGS_R_…_MN.rnx) of a RINEX 2 or 3 navigation file (gzip too;
+    :mod:`distnav.formats.gnss.rinex_nav`). ``max_age_s`` bounds |t − toe| (the ±2 h fit interval by default)."""
     p = Path(path)
-    columns = read_gps_ephemerides(p)
+    columns = read_ephemerides(p, systems=systems)
     if not columns:
-        raise DataFileError(f"{p}: no GPS navigation records")
+        names = "/".join(SYSTEM_NAMES.get(s, s) for s in systems)
+        raise DataFileError(f"{p}: no {names} navigation records")
     return BroadcastOrbit.from_records(columns, max_age_s=max_age_s, source=str(p))
 
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from distnav.errors import DataFileError
 from distnav.models.gnss.code_observations import ProgressCallback
+from distnav.models.gnss.systems import SYSTEM_NAMES
 
 __all__ = [
     "RinexHeader",
@@ -365,17 +366,6 @@ def _type_columns(p: Path, hdr: RinexHeader, types: Sequence[str], system: str) 
         )
     return [have.index(t) for t in types]
 
-
-SYSTEM_NAMES: dict[str, str] = {
-    "G": "GPS",
-    "E": "Galileo",
-    "C": "BeiDou",
-    "R": "GLONASS",
-    "J": "QZSS",
-    "S": "SBAS",
-    "I": "NavIC",
-}
-"""RINEX 3 system letters and the systems' names (RINEX 3.05 §3.5)."""
 
 _MAX_PRN = {"G": _N_PRN}  # GPS keeps its 1-39 (test PRNs above 32); other systems up to 63 (BeiDou C01-C63)
 _MAX_PRN_OTHER = 64

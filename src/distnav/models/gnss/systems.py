@@ -18,6 +18,7 @@ import numpy as np
 from distnav.errors import DataFileError
 
 __all__ = [
+    "SYSTEM_NAMES",
     "CARRIER_FREQUENCIES_HZ",
     "GLONASS_FDMA_HZ",
     "ORBIT_CONSTANTS",
@@ -27,6 +28,17 @@ __all__ = [
     "carrier_frequencies_hz",
     "is_beidou_geo",
 ]
+
+SYSTEM_NAMES: dict[str, str] = {
+    "G": "GPS",
+    "E": "Galileo",
+    "C": "BeiDou",
+    "R": "GLONASS",
+    "J": "QZSS",
+    "S": "SBAS",
+    "I": "NavIC",
+}
+"""RINEX 3 system letters and the systems' names (RINEX 3.05 §3.5)."""
 
 CARRIER_FREQUENCIES_HZ: dict[str, dict[int, float]] = {
     "G": {1: 1575.42e6, 2: 1227.60e6, 5: 1176.45e6},
