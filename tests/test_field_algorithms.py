@@ -1,5 +1,6 @@
-"""ADMM (paper 000's code-bias network) and the CKF (paper 003's generic network) as separate node processes, each
-holding only its own data file, against the same front door run in-process: every node's numbers bit for bit."""
+"""ADMM (paper 000's code-bias network), the CKF (paper 003's generic network) and N-CLM (paper 002, a simulated
+hall) as separate node processes, each holding only its own data file, against the same front door run in-process:
+every node's numbers bit for bit."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ pytest.importorskip("tomli_w")
 
 from distnav.commands.field import launch  # noqa: E402
 from distnav.commands.field_processes import LoopbackOptions  # noqa: E402
-from distnav.commands.field_scenarios import ckf_scenario, codebias_scenario, write_scenario  # noqa: E402
+from distnav.commands.field_scenarios import ckf_scenario, codebias_scenario, hall_scenario, write_scenario  # noqa: E402
 from distnav.errors import DataFileError  # noqa: E402
 from distnav.exchange import make_exchange  # noqa: E402
 from distnav.formats.field_data import read_node_arrays  # noqa: E402
@@ -69,6 +70,22 @@ def test_ckf_nodes_equal_inprocess(tmp_path: Path) -> None:
     field = np.array([summary["nodes"][str(i)]["estimate"] for i in range(10)], dtype=float)
     assert np.isfinite(ref).any()
     assert np.array_equal(field, ref, equal_nan=True), np.nanmax(np.abs(field - ref))
+
+
+def test_uwb_nclm_hall_anchors_equal_inprocess(tmp_path: Path) -> None:
+    from distnav.algorithms.ranging.csg import solve_nclm
+
+    sc = hall_scenario(12, seed=4, iterations=40)
+    assert sc.ranging is not None
+    summary = _launch(tmp_path, sc)
+    ref = solve_nclm(sc.ranging, iterations=40, exchange=make_exchange(sc.graph))
+    field = np.array([summary["nodes"][str(i)]["estimate"] for i in range(12)])
+    assert np.array_equal(field, ref.estimates), np.abs(field - ref.estimates).max()
+    assert summary["nodes"]["3"]["status"] == ref.status
+    # each file held only its anchor's links: the samples of anchor 3 are those with 3 at one end
+    own = read_node_arrays(tmp_path / "net" / "data" / "node-3.npz", "uwb", 3, 12)["samples"]
+    ends = (sc.ranging.meas_a == 3) | (sc.ranging.meas_b == 3)
+    assert own.shape[0] == int(ends.sum()) < sc.ranging.n_meas
 
 
 def test_a_node_file_of_another_node_is_refused(tmp_path: Path) -> None:

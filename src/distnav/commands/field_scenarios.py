@@ -7,6 +7,10 @@
 * :func:`ckf_scenario` — paper 003 §4's generic CKF network on ``n`` nodes: three random-walk states and constant
   biases, each node observing a random ~70 % of the biases at every epoch (normals per node and epoch).
 
+* :func:`hall_scenario` — a simulated hall (:func:`~distnav.models.uwb.hall.simulate_hall`) of ``n`` anchors, 3-D,
+  the known corner anchors fixed and the surveyed heights held, every range sample kept (no median per pair); the
+  initial guess is the MDS one of ``uwb solve``, made centrally at set-up and written into every anchor's file.
+
 Each returns the graph and what the in-process front door takes, so a test runs the same problem in-process and as
 node programs; :func:`write_scenario` writes one data file per node (:mod:`distnav.formats.field_data`) and the
 description.
@@ -27,9 +31,10 @@ if TYPE_CHECKING:
     from distnav.algorithms.kalman.dynamics import DynamicModel
     from distnav.algorithms.kalman.measurements import MeasurementSeries
     from distnav.algorithms.lsq.blue import LinearProblem
+    from distnav.algorithms.ranging.data import RangingData
     from distnav.commands.field_processes import LoopbackOptions
 
-__all__ = ["Scenario", "SCENARIOS", "codebias_scenario", "ckf_scenario", "write_scenario"]
+__all__ = ["Scenario", "SCENARIOS", "codebias_scenario", "ckf_scenario", "hall_scenario", "write_scenario"]
 
 EPOCH_S = 30.0
 
@@ -44,13 +49,17 @@ class Scenario:
     problem: LinearProblem | None = None
     dynamics: DynamicModel | None = None
     series: MeasurementSeries | None = None
+    ranging: RangingData | None = None
 
     def node_arrays(self, node_id: int) -> dict[str, np.ndarray]:
-        from distnav.formats.field_data import admm_node_arrays, ckf_node_arrays
+        from distnav.formats.field_data import admm_node_arrays, ckf_node_arrays, uwb_node_arrays
 
         if self.kind == "admm":
             assert self.problem is not None
             return admm_node_arrays(self.problem, node_id)
+        if self.kind == "uwb":
+            assert self.ranging is not None
+            return uwb_node_arrays(self.ranging, node_id)
         assert self.dynamics is not None and self.series is not None
         return ckf_node_arrays(self.dynamics, self.series, node_id)
 
@@ -106,7 +115,31 @@ def ckf_scenario(n_nodes: int, seed: int = 0, *, epochs: int = 30, n_biases: int
     return Scenario(graph, "ckf", algo, dynamics=dyn, series=NormalSeries(N, r))
 
 
-SCENARIOS = {"codebias": codebias_scenario, "ckf": ckf_scenario}
+def hall_scenario(n_nodes: int = 28, seed: int = 0, *, iterations: int = 100) -> Scenario:
+    """A simulated hall of ``n_nodes`` anchors for the UWB solvers (module docstring)."""
+    from distnav.models.uwb.hall import HallConfig, simulate_hall
+    from distnav.models.uwb.initial import mds_initial_guess
+    from distnav.models.uwb.problems import build_problem
+
+    h = simulate_hall(np.random.default_rng([seed, 26002]), HallConfig().with_(n_anchors=n_nodes, known="corner"))
+    a, b = h.links[h.sample_link, 0], h.links[h.sample_link, 1]
+    known = set(h.known.tolist())
+    held = {h.ids[i]: {2: float(h.surveyed_z_m[i])} for i in range(h.n_anchors) if i not in known}
+    problem = build_problem(
+        list(h.ids),
+        np.stack([a, b], axis=1),
+        h.range_m,
+        fixed={h.ids[k]: h.truth_m[k] for k in known},
+        held=held,
+        truth_m=h.truth_m,
+        name="hall",
+    )
+    problem = problem.with_initial(mds_initial_guess(problem))  # central, at set-up: written into every file
+    algo = {"name": "uwb", "solver": "N-CLM", "iterations": iterations}
+    return Scenario(problem.graph, "uwb", algo, ranging=problem)
+
+
+SCENARIOS = {"codebias": codebias_scenario, "ckf": ckf_scenario, "hall": hall_scenario}
 
 
 def write_scenario(folder: Path, scenario: Scenario, options: LoopbackOptions | None = None) -> Path:

@@ -20,6 +20,7 @@ with :func:`format_description` (a string; the command writes it atomically). Th
     # name = "admm": rho = 1.0, max_iterations = 1000, tol = 1e-10, constraint_nodes = "min_cover",
     #   messages = "pairs" (paper 000 Fig. 6 on each node's observation block, data = node-ID.npz)
     # name = "ckf": rounds = 4 (k_n), protocol = "P3" (paper 003 Fig. 6 on each node's normals, data = node-ID.npz)
+    # name = "uwb": solver = "N-CLM", iterations = 200 (paper 002 on each anchor's own ranges, data = node-ID.npz)
 
     [[node]]
     id = 0
@@ -63,7 +64,7 @@ __all__ = [
 ]
 
 FORMAT_VERSION = 1
-ALGORITHMS = ("consensus", "consensus_flows", "admm", "ckf")
+ALGORITHMS = ("consensus", "consensus_flows", "admm", "ckf", "uwb")
 _SECURITY = ("none", "curve")
 _Z85_KEY_LEN = 40
 
@@ -249,6 +250,7 @@ def _algorithm(table: dict[str, Any], where: str) -> dict[str, Any]:
 
 
 _PROTOCOLS = ("P1", "P2", "P3", "P4", "MH")
+_UWB_SOLVERS = ("N-CLM", "N-CSG", "N-CSG-BLS", "N-CSG-TBLS", "CSG")
 _ROUNDS = (int, 200, lambda v: v >= 1, ">= 1")
 _CONSENSUS = {
     "rounds": _ROUNDS,
@@ -265,6 +267,10 @@ _SETTINGS: dict[str, dict[str, tuple[Any, Any, Any, str]]] = {
         "tol": ((int, float), 1e-10, lambda v: v >= 0, ">= 0"),
         "constraint_nodes": (str, "min_cover", lambda v: v in ("min_cover", "all"), "'min_cover' or 'all'"),
         "messages": (str, "pairs", lambda v: v in ("pairs", "ternary"), "'pairs' or 'ternary'"),
+    },
+    "uwb": {
+        "solver": (str, "N-CLM", lambda v: v in _UWB_SOLVERS, f"one of {list(_UWB_SOLVERS)}"),
+        "iterations": (int, 200, lambda v: v >= 1, ">= 1"),
     },
     "ckf": {
         "rounds": (int, 4, lambda v: v >= 1, ">= 1 (k_n, consensus rounds per epoch)"),

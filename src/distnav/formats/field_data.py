@@ -14,6 +14,10 @@ kind      arrays
 ``ckf``   ``N`` (T × p × p), ``r`` (T × p): the node's normals per epoch (paper 003 eq. (24)); the common dynamic
           model ``phi`` (p × p, or T × p × p) and its noise factor ``H/k`` (p × q_k), ``S/k`` (q_k × q_k) per stored
           epoch ``k`` (one when constant)
+``uwb``   ``samples`` (k × 4): the anchor's own range samples ``[sample index, a, b, range_m]`` (every sample of a
+          link it is an end of); the anchor table every node knows alike (as a survey would give it): ``ids``,
+          ``positions_m`` (n × dim, known coordinates), ``free`` (n × dim), ``initial_m`` (n × dim), ``n_samples``
+          and, for simulations, ``truth_m``
 ========  =====================================================================================================
 
 Every file also holds ``kind``, ``node`` (its node id) and ``n_nodes``; :func:`read_node_arrays` checks them against
@@ -36,6 +40,7 @@ if TYPE_CHECKING:
     from distnav.algorithms.kalman.dynamics import DynamicModel
     from distnav.algorithms.kalman.measurements import MeasurementSeries
     from distnav.algorithms.lsq.blue import LinearProblem
+    from distnav.algorithms.ranging.data import RangingData
 
 __all__ = [
     "KINDS",
@@ -43,11 +48,17 @@ __all__ = [
     "admm_node_problem",
     "ckf_node_arrays",
     "ckf_node_model",
+    "uwb_node_arrays",
+    "uwb_samples_problem",
     "read_node_arrays",
     "write_node_arrays",
 ]
 
-KINDS = {"admm": ("A", "y", "R", "rows"), "ckf": ("N", "r", "phi", "n_noise")}
+KINDS = {
+    "admm": ("A", "y", "R", "rows"),
+    "ckf": ("N", "r", "phi", "n_noise"),
+    "uwb": ("samples", "ids", "positions_m", "free", "initial_m", "n_samples"),
+}
 
 
 def write_node_arrays(path: Path, kind: str, node_id: int, n_nodes: int, arrays: dict[str, np.ndarray]) -> None:
@@ -90,7 +101,7 @@ def read_node_arrays(path: Path, kind: str, node_id: int, n_nodes: int) -> dict[
     missing = [k for k in KINDS[kind] if k not in arrays]
     if missing:
         raise DataFileError(f"{path}: node {node_id}: {kind} data without arrays {missing}")
-    bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v))]
+    bad = [k for k, v in arrays.items() if v.dtype.kind == "f" and not np.all(np.isfinite(v)) and k != "truth_m"]
     if bad:
         raise DataFileError(f"{path}: node {node_id}: arrays {bad} hold non-finite values")
     return arrays
@@ -186,3 +197,60 @@ def ckf_node_model(
         return N[t][None], r[t][None]
 
     return dyn, FunctionSeries(n_nodes, T, p, own_normals)
+
+
+# ----------------------------------------------------------------------------------------------- UWB
+def uwb_node_arrays(problem: RangingData, node_id: int) -> dict[str, np.ndarray]:
+    """Anchor ``node_id``'s own range samples and the common anchor table (module docstring)."""
+    i = int(node_id)
+    own = np.flatnonzero((problem.meas_a == i) | (problem.meas_b == i))
+    samples = np.stack([own, problem.meas_a[own], problem.meas_b[own], problem.range_m[own]], axis=1).astype(float)
+    initial = problem.initial_m if problem.initial_m is not None else problem.positions_m
+    out = {
+        "samples": samples,
+        "ids": np.array(problem.ids),
+        "dim": np.array(problem.dim, np.int64),
+        "positions_m": problem.positions_m,
+        "free": problem.free,
+        "initial_m": initial,
+        "n_samples": np.array(problem.n_meas, np.int64),
+    }
+    if problem.truth_m is not None:
+        out["truth_m"] = problem.truth_m
+    return out
+
+
+def uwb_samples_problem(arrays: dict[str, np.ndarray], samples: np.ndarray, path: Path) -> RangingData:
+    """The ranging problem from the anchor table of ``arrays`` and ``samples`` (rows ``[index, a, b, range_m]``,
+    every index ``0..n_samples − 1`` at least once, in any order, duplicates equal); :class:`DataFileError` names a
+    missing sample or two anchors that disagree on one."""
+    from distnav.algorithms.ranging.data import RangingData
+
+    m = int(arrays["n_samples"])
+    idx = samples[:, 0].astype(np.int64)
+    order = np.argsort(idx, kind="stable")
+    s, k = samples[order], idx[order]
+    first = np.r_[True, k[1:] != k[:-1]]
+    dup = ~first
+    if dup.any():
+        prev = np.flatnonzero(dup) - 1
+        differ = np.flatnonzero(~np.all(s[dup] == s[prev], axis=1))
+        if differ.size:
+            j = int(np.flatnonzero(dup)[differ[0]])
+            raise DataFileError(f"{path}: the two ends of range sample {int(k[j])} disagree: {s[j]} vs {s[j - 1]}")
+    s, k = s[first], k[first]
+    if k.size != m or not np.array_equal(k, np.arange(m)):
+        missing = sorted(set(range(m)) - set(k.tolist()))[:10]
+        raise DataFileError(f"{path}: range samples {missing} reached no anchor (each must be in both ends' files)")
+    truth = arrays.get("truth_m")
+    return RangingData(
+        ids=tuple(str(x) for x in arrays["ids"].tolist()),
+        dim=int(arrays["dim"]) if "dim" in arrays else int(arrays["positions_m"].shape[1]),
+        positions_m=np.asarray(arrays["positions_m"], float),
+        free=np.asarray(arrays["free"], bool),
+        meas_a=s[:, 1].astype(np.int64),
+        meas_b=s[:, 2].astype(np.int64),
+        range_m=s[:, 3].copy(),
+        truth_m=None if truth is None else np.asarray(truth, float),
+        initial_m=np.asarray(arrays["initial_m"], float),
+    )
