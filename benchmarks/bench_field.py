@@ -32,7 +32,8 @@ sys.path.insert(0, str(HERE.parent / "src"))
 
 from _common import main_for  # noqa: E402
 from distnav.algorithms.consensus.averaging import iterate_average_consensus  # noqa: E402
-from distnav.commands.field import launch, write_loopback_network  # noqa: E402
+from distnav.commands.field import launch  # noqa: E402
+from distnav.commands.field_processes import LoopbackOptions, write_loopback_network  # noqa: E402
 from distnav.exchange import FaultSchedule, make_exchange  # noqa: E402
 from distnav.network import builders  # noqa: E402
 
@@ -78,7 +79,9 @@ def run(quick: bool) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     algo = {"name": "consensus", "rounds": rounds, "protocol": "MH", "patience": 20}
     with tempfile.TemporaryDirectory() as tmp:
-        net = write_loopback_network(Path(tmp) / "net", g.links, values, algorithm=algo, deadline_ms=30000)
+        net = write_loopback_network(
+            Path(tmp) / "net", g.links, values, LoopbackOptions(algorithm=algo, deadline_ms=30000)
+        )
         load0 = _load()
         t0 = time.perf_counter()
         summary = launch(net, Path(tmp) / "run", timeout_s=900, quiet=True)
@@ -123,11 +126,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
             Path(tmp) / "net2",
             g2.links,
             v2,
-            algorithm=algo2,
-            deadline_ms=2000,
-            drop_probability=0.1,
-            latency_max_ms=50,
-            seed=5,
+            LoopbackOptions(algorithm=algo2, deadline_ms=2000, drop_probability=0.1, latency_max_ms=50, seed=5),
         )
         s2 = launch(net2, Path(tmp) / "run2", timeout_s=900, quiet=True)
         ok2 = s2["finished"] == list(range(m))

@@ -122,13 +122,13 @@ def add_node_arguments(p: argparse.ArgumentParser) -> None:
 
 def open_node(args: argparse.Namespace) -> NetworkDescription:
     """The description of a node program's ``--config``, its ``--id`` checked, its log opened in ``--out``."""
-    from distnav.commands.field import _setup_log
+    from distnav.commands.field_processes import setup_node_log
 
     desc = read_description(args.config)
     if not 0 <= args.id < desc.n_nodes:
         raise UsageError(f"--id {args.id}: the description has nodes 0..{desc.n_nodes - 1}")
     args.out.mkdir(parents=True, exist_ok=True)
-    _setup_log(args.out, args.id)
+    setup_node_log(args.out, args.id)
     return desc
 
 

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from distnav.commands.field_async import add_node_arguments, open_node
+from distnav.commands.field_processes import LoopbackOptions, kill_group, write_loopback_network
 from distnav.errors import UsageError
 from distnav.network import builders
 from distnav.network.graph import Graph
@@ -169,8 +170,6 @@ def _uwb_node(args: argparse.Namespace) -> int:
 def _launch_nodes(desc_path: Path, out_dir: Path, commands: list[list[str]], timeout_s: float) -> dict[str, Any]:
     """Start one process per ``commands[i]`` (``distnav`` arguments for node ``i``), wait at most ``timeout_s`` (then
     kill the rest, process group and all) and collect their ``node-ID.json``."""
-    from distnav.commands.field import _kill_group
-
     out_dir.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     src = str(Path(__file__).resolve().parents[2])
@@ -204,7 +203,7 @@ def _launch_nodes(desc_path: Path, out_dir: Path, commands: list[list[str]], tim
     finally:
         for p in procs:
             if p.poll() is None:
-                _kill_group(p)
+                kill_group(p)
     nodes = {str(i): json.loads((out_dir / f"node-{i}.json").read_text()) for i, c in enumerate(codes) if c == 0}
     return {
         "finished": [i for i, c in enumerate(codes) if c == 0],
@@ -276,12 +275,14 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
 def _clean_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) -> dict[str, Any]:
     """Lock-step MH consensus on node processes; reference: the same rounds in-process."""
     from distnav.algorithms.consensus.averaging import iterate_average_consensus
-    from distnav.commands.field import launch, write_loopback_network
+    from distnav.commands.field import launch
     from distnav.formats.field_config import read_description
 
     algo = {"name": "consensus", "rounds": opts.rounds, "protocol": "MH", "patience": 5}
     folder = out / "consensus_clean"
-    net = write_loopback_network(folder, graph.links, values, name="demo-clean", algorithm=algo, deadline_ms=20000)
+    net = write_loopback_network(
+        folder, graph.links, values, LoopbackOptions(name="demo-clean", algorithm=algo, deadline_ms=20000)
+    )
     run = launch(net, folder, timeout_s=opts.timeout_s, quiet=True)
     ref = values
     for state in iterate_average_consensus(
@@ -295,21 +296,15 @@ def _clean_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) -
 
 def _killed_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) -> dict[str, Any]:
     """Flow consensus with one node exiting at ``kill_round``; reference: numpy's mean of the others' data."""
-    from distnav.commands.field import launch, write_loopback_network
+    from distnav.commands.field import launch
 
     victim = _victim(graph)
     algo = {"name": "consensus_flows", "rounds": opts.rounds, "protocol": "MH", "patience": 5}
     folder = out / "consensus_killed"
-    net = write_loopback_network(
-        folder,
-        graph.links,
-        values,
-        name="demo-killed",
-        algorithm=algo,
-        crash={victim: opts.kill_round},
-        deadline_ms=opts.deadline_ms,
-        miss_limit=3,
+    killed = LoopbackOptions(
+        name="demo-killed", algorithm=algo, crash={victim: opts.kill_round}, deadline_ms=opts.deadline_ms
     )
+    net = write_loopback_network(folder, graph.links, values, killed)
     run = launch(net, folder, timeout_s=opts.timeout_s, quiet=True)
     keep = np.arange(opts.nodes) != victim
     ok = run["finished"]
@@ -325,10 +320,8 @@ def _killed_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) 
 
 def _pushsum_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) -> dict[str, Any]:
     """Asynchronous push-sum, node 0 ticking every 30 ms and the others every 10 ms; reference: numpy's mean."""
-    from distnav.commands.field import write_loopback_network
-
     folder = out / "pushsum_async"
-    net = write_loopback_network(folder, graph.links, values, name="demo-pushsum")
+    net = write_loopback_network(folder, graph.links, values, LoopbackOptions(name="demo-pushsum"))
     periods = [30.0] + [10.0] * (opts.nodes - 1)
     run = launch_async(net, folder, periods_ms=periods, duration_s=opts.pushsum_seconds, timeout_s=opts.timeout_s)
     ok = run["finished"]
@@ -340,13 +333,10 @@ def _pushsum_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path)
 def _uwb_run(opts: DemoOptions, out: Path) -> dict[str, Any]:
     """N anchors of a UWB network (paper 002 problem RC), one process each, N-CSG-TBLS over the field exchange;
     reference: the same solve in-process."""
-    from distnav.commands.field import write_loopback_network
-
     problem = _uwb_problem(opts.nodes, opts.seed)
     folder = out / "uwb_clean"
-    net = write_loopback_network(
-        folder, problem.graph.links, np.zeros((opts.nodes, 1)), name="demo-uwb", deadline_ms=60000
-    )
+    uwb = LoopbackOptions(name="demo-uwb", deadline_ms=60000)
+    net = write_loopback_network(folder, problem.graph.links, np.zeros((opts.nodes, 1)), uwb)
     cmd = ["field", "demo-uwb-node", "--seed", str(opts.seed), "--iterations", str(opts.uwb_iterations)]
     run = _launch_nodes(net, folder, [cmd] * opts.nodes, opts.timeout_s)
     ref = _solve_uwb(problem, opts.uwb_iterations, "inprocess")

@@ -55,6 +55,7 @@ def load_keys(desc: NetworkDescription, node_id: int) -> CurveKeys | None:
 
 
 def node_values(desc: NetworkDescription, node_id: int) -> np.ndarray:
+    """A consensus node's values (its data file, :func:`read_node_values`)."""
     entry = desc.node(node_id)
     if entry.data is None:
         raise DataFileError(f"{desc._where()}: node {node_id}: key 'data' (its data file) is needed by consensus")
@@ -65,11 +66,11 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
     """Run node ``node_id`` to the end (see the module docstring); returns the exit code. ``rejoin``: a restarted
     node joining a running network (from its initial data, at the step its neighbours are at; no crash again)."""
     entry = desc.node(node_id)
-    values = node_values(desc, node_id)
+    consensus = desc.algorithm["name"] in ("consensus", "consensus_flows")
+    values = node_values(desc, node_id) if consensus else None
     keys = load_keys(desc, node_id)
-    algo = desc.algorithm
-    rounds = int(algo["rounds"])
-    crash_round = None if rejoin else desc.crash.get(node_id)
+    if rejoin and not consensus:
+        raise UsageError(f"--rejoin: only consensus nodes can rejoin a running network, not {desc.algorithm['name']}")
     transport = Transport(node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=keys)
     t0 = time.monotonic()
     try:
@@ -83,39 +84,23 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             ex.start_at(first)
             LOG.warning("node %d: rejoining at step %d", node_id, first)
         t_start = time.monotonic()
-        full = np.zeros((desc.n_nodes, values.size))
-        full[node_id] = values  # the other rows are placeholders: only this node's row is read (ex.local)
-        states: Any
-        if algo["name"] == "consensus":
-            states = iterate_average_consensus(
-                full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds - first, exchange=ex
-            )
+        if values is not None:
+            outcome = _run_consensus(desc, node_id, ex, values, first, None if rejoin else desc.crash.get(node_id))
         else:
-            states = iterate_flow_consensus(
-                full,
-                graph=ex.graph,
-                protocol=algo["protocol"],
-                rounds=rounds - first,
-                exchange=ex,
-                patience=algo["patience"],
-            )
-        last = None
-        for state in states:
-            last = state
-            if crash_round is not None and state.round + first == crash_round:
-                LOG.warning("node %d: crashing on purpose at round %d ([faults] crash)", node_id, crash_round)
-                logging.shutdown()
-                os._exit(CRASH_EXIT)
-        assert last is not None
+            from distnav.commands.field_algorithms import run_algorithm
+
+            outcome = run_algorithm(desc, node_id, ex)
         elapsed = time.monotonic() - t_start
         ex._flush()  # this node's model counters (comm_totals would gather over the network)
+        rounds = int(outcome.pop("rounds"))
+        status = outcome.pop("status", "completed")
         result = {
             "node": node_id,
-            "algorithm": algo["name"],
-            "estimate": last.values[0],
-            "initial": values,
+            "algorithm": desc.algorithm["name"],
+            **outcome,
             "rounds": rounds,
-            "status": "completed" if not transport.lost else "completed_with_lost_neighbours",
+            "steps": ex.step,
+            "status": status if not transport.lost else f"{status}_with_lost_neighbours",
             "lost_nodes": {str(k): v for k, v in sorted(transport.lost.items())},
             "readmitted_nodes": {str(k): v for k, v in sorted(transport.readmitted.items())},
             "missing_at_start": missing,
@@ -133,6 +118,39 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         return 0
     finally:
         transport.close()
+
+
+def _run_consensus(
+    desc: NetworkDescription, node_id: int, ex: FieldExchange, values: np.ndarray, first: int, crash_round: int | None
+) -> dict[str, Any]:
+    """Average consensus or its flow form from round ``first`` on; exits the process at ``crash_round``."""
+    algo = desc.algorithm
+    rounds = int(algo["rounds"])
+    full = np.zeros((desc.n_nodes, values.size))
+    full[node_id] = values  # the other rows are placeholders: only this node's row is read (ex.local)
+    states: Any
+    if algo["name"] == "consensus":
+        states = iterate_average_consensus(
+            full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds - first, exchange=ex
+        )
+    else:
+        states = iterate_flow_consensus(
+            full,
+            graph=ex.graph,
+            protocol=algo["protocol"],
+            rounds=rounds - first,
+            exchange=ex,
+            patience=algo["patience"],
+        )
+    last = None
+    for state in states:
+        last = state
+        if crash_round is not None and state.round + first == crash_round:
+            LOG.warning("node %d: crashing on purpose at round %d ([faults] crash)", node_id, crash_round)
+            logging.shutdown()
+            os._exit(CRASH_EXIT)
+    assert last is not None
+    return {"estimate": last.values[0], "initial": values, "rounds": rounds}
 
 
 def check_node_id(desc: NetworkDescription, node_id: int) -> None:

@@ -7,7 +7,7 @@ offset    type   field
 ========  =====  ==========================================================================================
 0         4s     magic ``b"DNF1"``
 4         u1     version (:data:`VERSION`)
-5         u1     kind (:class:`Kind`: a consensus column, an edge value, a reduction, a gather, a hello)
+5         u1     kind (:class:`Kind`: a consensus column, an edge value, a reduction, a gather, a hello, tree)
 6         u1     dtype code (:data:`DTYPES`: 1 = float64, 2 = float32, 3 = int64, 4 = uint8)
 7         u1     ndim (0…4)
 8         u4     sender node id
@@ -57,6 +57,8 @@ class Kind(enum.IntEnum):
     GATHER = 4  #: a node's rows for gather_nodes (results)
     HELLO = 5  #: "I am up" (start-up and rejoin)
     BYE = 6  #: "I am done" (a neighbour that finished is not a lost one)
+    TREE_UP = 7  #: a subtree's rows of a global operation, child → parent (:mod:`.tree`)
+    TREE_DOWN = 8  #: every node's rows of a global operation, parent → child (:mod:`.tree`)
 
 
 class WireError(ExchangeError):
