@@ -53,6 +53,7 @@ from distnav.algorithms.kalman.ckf_qc import (
     local_extra_bound,
     local_extra_exact,
 )
+from distnav.algorithms.kalman.relay import RelayPlan, relay_plan, relay_records
 from distnav.algorithms.result import Precision, TraceBuilder
 from distnav.algorithms.statistics import critical_value
 from distnav.errors import ModelError, WeightsError
@@ -62,6 +63,8 @@ from distnav.network.graph import Graph, SwitchingGraph
 from distnav.network.weights import ConsensusWeights
 from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
 
+Transport = Literal["matrices", "relay"]
+"""How the CKF's consensus travels: the mixed matrices every round, or the raw records (:mod:`.relay`)."""
 LocalPrecision = Literal["exact", "bound"]
 """Node-local form of the Fig. 7 variance (:mod:`distnav.algorithms.kalman.ckf_qc`)."""
 ConsensusProtocol = str | int | ConsensusWeights | Sequence[ConsensusWeights]
@@ -182,6 +185,7 @@ def iterate_ckf(
     monitor: bool = True,
     local_precision: LocalPrecision | None = None,
     test_level: float | None = None,
+    transport: Transport = "matrices",
 ) -> Iterator[CKFState]:
     """Yield the CKF state (paper 003 Fig. 6) of this block's nodes after every epoch.
 
@@ -195,6 +199,12 @@ def iterate_ckf(
     (:mod:`distnav.algorithms.kalman.ckf_qc`; it adds ``n (p(p+1)/2 + 1)`` resp. ``n`` floats to every message).
     ``test_level`` (needs ``local_precision`` and raw observations) makes every node test its predicted residuals
     at that level and reject outliers before they enter its consensus.
+
+    ``transport="relay"`` (static graph, no faults, no node-local precision or tests, a series with
+    :meth:`~MeasurementSeries.records`): the same ``k_n`` consensus rounds evaluated by every node from the raw
+    observation records of the nodes within ``k_n`` hops, relayed hop by hop (20 B per record;
+    :mod:`distnav.algorithms.kalman.relay`) instead of the mixed matrices: the same filter (to the rounding of the
+    sums) for far fewer bytes when a node's observations are fewer than its normals' entries (issue 27).
     """
     check_model(dynamics, measurements)
     kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
@@ -224,6 +234,7 @@ def iterate_ckf(
                 f"innovation tests need the raw observations; {type(measurements).__name__} holds "
                 f"normal equations only (use an ObservationSeries)"
             )
+    relay = _relay_setup(transport, sched, ex, kn, local_precision, test_level)
     track_L = (variance and ex.faults.active) or local_precision is not None
     L_nominal = consensus_product(sched, kn) if (variance and not ex.faults.active) else None
     L2_nominal = L_nominal[nodes] ** 2 if L_nominal is not None else None  # once, not every epoch
@@ -248,8 +259,11 @@ def iterate_ckf(
             tagged[np.arange(k_loc), nodes] = tri
             parts.append(tagged.reshape(k_loc, n * n_tri))
         payload = np.concatenate(parts, axis=1)
-        for k in range(kn):
-            payload = mixers[k % len(mixers)].apply(payload)
+        if relay is not None:
+            payload = _relayed_consensus(ex, relay, measurements, t, up)
+        else:
+            for k in range(kn):
+                payload = mixers[k % len(mixers)].apply(payload)
         Nk = _symmetric(payload[:, :n_tri], up, lo, k_loc, p)
         rk = payload[:, n_tri : n_tri + p]
         extra = None
@@ -283,6 +297,53 @@ def iterate_ckf(
             P = None
         P_local = ker.error_covariance(inv, i_local) if local_precision is not None else None
         yield CKFState(t, nodes, ker.I, ker.i, x, est, P, inv, dev, P_local, tests)
+
+
+def _relay_setup(
+    transport: Transport,
+    sched: ConsensusSchedule,
+    ex: Exchange,
+    kn: int,
+    local_precision: LocalPrecision | None,
+    test_level: float | None,
+) -> tuple[RelayPlan, FloatArray] | None:
+    """The relay's static plan and this block's rows of ``L`` (``None`` for the matrix transport), or a
+    :class:`ModelError` naming what the relay cannot do."""
+    if transport not in ("matrices", "relay"):
+        raise ModelError(f"transport must be 'matrices' or 'relay', got {transport!r}")
+    if transport == "matrices":
+        return None
+    if len(sched.weights) != 1 or any(a is not None for a in sched.active):
+        raise ModelError("transport='relay' needs a static graph (one session); use transport='matrices'")
+    if ex.faults.active:
+        raise ModelError("transport='relay' needs every message (no fault schedule); use transport='matrices'")
+    if local_precision is not None or test_level is not None:
+        raise ModelError("transport='relay' has no node-local precision or innovation tests yet; use 'matrices'")
+    return relay_plan(sched.graph, kn), consensus_product(sched, kn)[ex.nodes]
+
+
+def _relayed_consensus(
+    ex: Exchange, relay: tuple[RelayPlan, FloatArray], measurements: MeasurementSeries, t: int, up: IntArray
+) -> FloatArray:
+    """``[tri(N_i^(k_n)), r_i^(k_n)]`` of the local nodes from the relayed records: ``Σ_j l_ij (N_j, r_j)`` over
+    the origins each node received (every origin with ``l_ij ≠ 0`` must be among them)."""
+    plan, L_rows = relay
+    values, weights = measurements.records(t, ex.nodes)
+    known = relay_records(ex, plan, values, weights)
+    decoded: dict[int, FloatArray] = {}
+    p = measurements.n_states
+    out = np.zeros((ex.n_local, up.size + p))
+    for a, got in enumerate(known):
+        need = np.flatnonzero(L_rows[a])
+        missing = set(need.tolist()) - set(got)
+        if missing:
+            raise ModelError(f"relay: node {int(ex.nodes[a])} lacks the records of nodes {sorted(missing)}")
+        for j in need.tolist():
+            if j not in decoded:
+                N_j, r_j = measurements.normals_from_records(t, j, *got[j])
+                decoded[j] = np.concatenate([N_j.reshape(p * p)[up], r_j])
+        out[a] = L_rows[a, need] @ np.stack([decoded[j] for j in need.tolist()])
+    return out
 
 
 def _tested_normals(
@@ -333,6 +394,7 @@ def ckf(
     store_matrices: bool = False,
     local_precision: LocalPrecision | None = None,
     test_level: float | None = None,
+    transport: Transport = "matrices",
 ) -> FilterResult:
     """Run the CKF (paper 003 Fig. 6) over all epochs; see :func:`iterate_ckf` for the arguments.
 
@@ -374,6 +436,7 @@ def ckf(
         monitor=monitor,
         local_precision=local_precision,
         test_level=test_level,
+        transport=transport,
     ):
         xs.append(ex.gather_nodes(st.estimates))
         if st.local_covariance is not None:
