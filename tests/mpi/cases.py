@@ -175,6 +175,30 @@ def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
 
 
 @case
+def ckf_relay_transport(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.kalman import DynamicModel
+    from distnav.algorithms.kalman.ckf import ckf
+    from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
+
+    g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
+    n, S, T = g.n_nodes, 6, 5
+    rng = np.random.default_rng(8)
+    lay = BiasStateLayout(tuple(f"G{k:02d}" for k in range(S)), tuple(f"R{i}" for i in range(n)), reference="R0")
+    ser = BiasGeometryFreeSeries(
+        lay,
+        rng.standard_normal((T, n, S, 3)),
+        rng.uniform(0.2, 1.0, (T, n, S)),
+        obs_m=rng.standard_normal((T, n, S)),
+        tracked=rng.random((T, n, S)) > 0.3,
+        groups=np.zeros(n, np.int64),
+    )
+    dyn = DynamicModel(ser.n_states, noise_cov=0.01 * np.eye(ser.n_states))
+    ex = make_exchange(g, backend=backend)
+    res = ckf(dyn, ser, graph=g, protocol="P3", rounds=3, transport="relay", exchange=ex)
+    return {"estimates": res.series.estimates, "std": res.series.std, "bytes": res.comm.bytes_sent}
+
+
+@case
 def ckf_local_precision_and_tests(backend: str) -> dict[str, np.ndarray]:
     from distnav.algorithms.kalman import DynamicModel, ObservationSeries
     from distnav.algorithms.kalman.ckf import ckf

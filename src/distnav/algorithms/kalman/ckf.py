@@ -28,9 +28,9 @@ along in the consensus payload (paid for in bytes) so that Fig. 7 uses the produ
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal, TypedDict, Unpack
 
 import numpy as np
 
@@ -53,15 +53,18 @@ from distnav.algorithms.kalman.ckf_qc import (
     local_extra_bound,
     local_extra_exact,
 )
+from distnav.algorithms.kalman.relay import RelayPlan, relay_plan, relay_records
 from distnav.algorithms.result import Precision, TraceBuilder
 from distnav.algorithms.statistics import critical_value
 from distnav.errors import ModelError, WeightsError
-from distnav.exchange import Exchange, make_exchange
+from distnav.exchange import Exchange, Mixer, make_exchange
 from distnav.exchange.core import CommTotals
 from distnav.network.graph import Graph, SwitchingGraph
 from distnav.network.weights import ConsensusWeights
 from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
 
+Transport = Literal["matrices", "relay"]
+"""How the CKF's consensus travels: the mixed matrices every round, or the raw records (:mod:`.relay`)."""
 LocalPrecision = Literal["exact", "bound"]
 """Node-local form of the Fig. 7 variance (:mod:`distnav.algorithms.kalman.ckf_qc`)."""
 ConsensusProtocol = str | int | ConsensusWeights | Sequence[ConsensusWeights]
@@ -70,6 +73,8 @@ ConsensusProtocol = str | int | ConsensusWeights | Sequence[ConsensusWeights]
 __all__ = [
     "consensus_rounds",
     "alpha_factor",
+    "CKFOptions",
+    "CKFRunOptions",
     "CKFState",
     "iterate_ckf",
     "ckf",
@@ -167,122 +172,279 @@ class CKFState:
     tests: tuple[NodeEpochTest | None, ...] = ()
 
 
+class CKFOptions(TypedDict, total=False):
+    """Keyword options of :func:`iterate_ckf` (default in brackets), validated before the first epoch.
+
+    ``protocol`` [``"P3"``]: a Table 1 name or number, one :class:`ConsensusWeights` or one per session.
+    ``rounds`` (= k_n) or both time scales ``sampling_interval_s`` (Δ) and ``sending_interval_s`` (δ), k_n = ⌊Δ/δ⌋.
+    ``variance`` [True]: the error-variance recursion of Fig. 7 alongside. ``monitor`` [True]: the consensus deviation
+    from the exact averages (a global reduction: monitoring only). ``local_precision`` [None]: ``"exact"`` or
+    ``"bound"`` node-local Fig. 7 (:mod:`distnav.algorithms.kalman.ckf_qc`). ``test_level`` [None]: innovation tests at
+    that level (needs ``local_precision`` and raw observations). ``transport`` [``"matrices"``]: or ``"relay"``
+    (:mod:`distnav.algorithms.kalman.relay`).
+    """
+
+    protocol: ConsensusProtocol
+    rounds: int | None
+    sampling_interval_s: float | None
+    sending_interval_s: float | None
+    variance: bool
+    monitor: bool
+    local_precision: LocalPrecision | None
+    test_level: float | None
+    transport: Transport
+
+
+class CKFRunOptions(CKFOptions, total=False):
+    """:class:`CKFOptions` plus ``store_matrices`` [False] of :func:`ckf`: keep ``P_i,t|t`` and ``I_i,t|t`` of every
+    epoch in the series."""
+
+    store_matrices: bool
+
+
+def _check_options(options: Mapping[str, Any], allowed: frozenset[str]) -> None:
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise ModelError(f"unknown CKF option(s) {', '.join(unknown)}; expected {', '.join(sorted(allowed))}")
+
+
+@dataclass(frozen=True, eq=False)
+class _CKFSetup:
+    """Everything :func:`iterate_ckf` fixes before the first epoch (validated options, mixers, index maps)."""
+
+    ex: Exchange
+    kn: int
+    mixers: list[Mixer]
+    p: int
+    up: IntArray  # flat indices of the upper triangle of a p×p matrix
+    lo: IntArray  # and of its mirror
+    variance: bool
+    monitor: bool
+    local_precision: LocalPrecision | None
+    critical: float | None
+    track_L: bool
+    L2_nominal: FloatArray | None
+    relay: tuple[RelayPlan, FloatArray] | None
+    n_err: int
+
+    @property
+    def n_tri(self) -> int:
+        return int(self.up.size)
+
+
+def _prepare_ckf(
+    measurements: MeasurementSeries,
+    graph: Graph | SwitchingGraph | None,
+    exchange: Exchange | None,
+    schedule: ConsensusSchedule | None,
+    options: CKFOptions,
+) -> _CKFSetup:
+    """Validate the options and build the mixers, the relay plan and the nominal ``L`` rows of this block."""
+    kn = _resolve_rounds(options.get("rounds"), options.get("sampling_interval_s"), options.get("sending_interval_s"))
+    n = measurements.n_nodes
+    sched = _schedule(graph, options.get("protocol", "P3"), schedule, n)
+    ex = exchange if exchange is not None else make_exchange(sched.graph)
+    if ex.graph.n_edges != sched.graph.n_edges or ex.graph.n_nodes != n:
+        raise ModelError("the exchange was built on a different graph than the consensus schedule")
+    variance = bool(options.get("variance", True))
+    local_precision = options.get("local_precision")
+    if local_precision not in (None, "exact", "bound"):
+        raise ModelError(f"local_precision must be 'exact', 'bound' or None, got {local_precision!r}")
+    test_level = options.get("test_level")
+    critical = _critical_level(measurements, local_precision, test_level)
+    relay = _relay_setup(options.get("transport", "matrices"), sched, ex, kn, local_precision, test_level)
+    mixers = (
+        [] if relay is not None else [ex.mixer(w, active=a) for w, a in zip(sched.weights, sched.active, strict=True)]
+    )
+    L_nominal = consensus_product(sched, kn) if (variance and not ex.faults.active) else None
+    iu = _triu(measurements.n_states)
+    p = measurements.n_states
+    return _CKFSetup(
+        ex=ex,
+        kn=kn,
+        mixers=mixers,
+        p=p,
+        up=iu[0] * p + iu[1],
+        lo=iu[1] * p + iu[0],
+        variance=variance,
+        monitor=bool(options.get("monitor", True)),
+        local_precision=local_precision,
+        critical=critical,
+        track_L=(variance and ex.faults.active) or local_precision is not None,
+        L2_nominal=L_nominal[ex.nodes] ** 2 if L_nominal is not None else None,  # once, not every epoch
+        relay=relay,
+        n_err=int(variance) + int(local_precision is not None),
+    )
+
+
+def _critical_level(
+    measurements: MeasurementSeries, local_precision: LocalPrecision | None, test_level: float | None
+) -> float | None:
+    """The innovation tests' critical value, or a :class:`ModelError` when they cannot run."""
+    if test_level is None:
+        return None
+    if local_precision is None:
+        raise ModelError(
+            "innovation tests need the node-local precision: give local_precision='exact' or 'bound' with test_level"
+        )
+    if type(measurements).observations is MeasurementSeries.observations:
+        raise ModelError(
+            f"innovation tests need the raw observations; {type(measurements).__name__} holds "
+            f"normal equations only (use an ObservationSeries)"
+        )
+    return critical_value(test_level)
+
+
 def iterate_ckf(
     dynamics: DynamicModel,
     measurements: MeasurementSeries,
     *,
     graph: Graph | SwitchingGraph | None = None,
-    protocol: ConsensusProtocol = "P3",
-    rounds: int | None = None,
-    sampling_interval_s: float | None = None,
-    sending_interval_s: float | None = None,
     exchange: Exchange | None = None,
     schedule: ConsensusSchedule | None = None,
-    variance: bool = True,
-    monitor: bool = True,
-    local_precision: LocalPrecision | None = None,
-    test_level: float | None = None,
+    **options: Unpack[CKFOptions],
 ) -> Iterator[CKFState]:
-    """Yield the CKF state (paper 003 Fig. 6) of this block's nodes after every epoch.
+    """Yield the CKF state (paper 003 Fig. 6) of this block's nodes after every epoch; options
+    :class:`CKFOptions`.
 
-    ``rounds`` (= k_n) or the two time scales ``sampling_interval_s`` (Δ) and ``sending_interval_s`` (δ).
-    ``variance`` runs the error-variance recursion of Fig. 7 alongside. ``monitor`` computes the consensus
-    deviation from the exact averages (a global reduction: monitoring only).
     Each consensus round sends one message per directed edge holding the upper triangle of ``N_i^(k)`` and
-    ``r_i^(k)`` (p(p+1)/2 + p floats).
+    ``r_i^(k)`` (p(p+1)/2 + p floats). ``local_precision`` ("exact" or "bound") runs the node-local form of Fig. 7
+    from the messages alone (:mod:`distnav.algorithms.kalman.ckf_qc`; it adds ``n (p(p+1)/2 + 1)`` resp. ``n``
+    floats to every message). ``test_level`` makes every node test its predicted residuals at that level and reject
+    outliers before they enter its consensus.
 
-    ``local_precision`` ("exact" or "bound") runs the node-local form of Fig. 7 from the messages alone
-    (:mod:`distnav.algorithms.kalman.ckf_qc`; it adds ``n (p(p+1)/2 + 1)`` resp. ``n`` floats to every message).
-    ``test_level`` (needs ``local_precision`` and raw observations) makes every node test its predicted residuals
-    at that level and reject outliers before they enter its consensus.
+    ``transport="relay"`` (static graph, no faults, no node-local precision or tests, a series with
+    :meth:`~MeasurementSeries.records`): the same ``k_n`` consensus rounds evaluated by every node from the raw
+    observation records of the nodes within ``k_n`` hops, relayed hop by hop (20 B per record;
+    :mod:`distnav.algorithms.kalman.relay`) instead of the mixed matrices: the same filter (to the rounding of the
+    sums) for far fewer bytes when a node's observations are fewer than its normals' entries (issue 27).
     """
+    _check_options(options, CKFOptions.__optional_keys__)
     check_model(dynamics, measurements)
-    kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
-    n = measurements.n_nodes
-    sched = _schedule(graph, protocol, schedule, n)
-    ex = exchange if exchange is not None else make_exchange(sched.graph)
-    if ex.graph.n_edges != sched.graph.n_edges or ex.graph.n_nodes != n:
-        raise ModelError("the exchange was built on a different graph than the consensus schedule")
-    mixers = [ex.mixer(w, active=a) for w, a in zip(sched.weights, sched.active, strict=True)]
-    p = measurements.n_states
-    iu = _triu(p)
-    n_tri = iu[0].size
-    nodes = ex.nodes
-    k_loc = nodes.size
-    if local_precision not in (None, "exact", "bound"):
-        raise ModelError(f"local_precision must be 'exact', 'bound' or None, got {local_precision!r}")
-    critical = None
-    if test_level is not None:
-        if local_precision is None:
-            raise ModelError(
-                "innovation tests need the node-local precision: give local_precision='exact' or "
-                "'bound' with test_level"
-            )
-        critical = critical_value(test_level)
-        if type(measurements).observations is MeasurementSeries.observations:
-            raise ModelError(
-                f"innovation tests need the raw observations; {type(measurements).__name__} holds "
-                f"normal equations only (use an ObservationSeries)"
-            )
-    track_L = (variance and ex.faults.active) or local_precision is not None
-    L_nominal = consensus_product(sched, kn) if (variance and not ex.faults.active) else None
-    L2_nominal = L_nominal[nodes] ** 2 if L_nominal is not None else None  # once, not every epoch
-    n_err = int(variance) + int(local_precision is not None)
-    ker = InformationKernel(k_loc, p, track_error=n_err > 0, n_errors=max(n_err, 1))
-    i_local = int(variance)  # index of the node-local variance in ker.Qs
-    up = iu[0] * p + iu[1]  # flat indices of the upper triangle and of its mirror
-    lo = iu[1] * p + iu[0]
+    s = _prepare_ckf(measurements, graph, exchange, schedule, options)
+    ex, nodes = s.ex, s.ex.nodes
+    ker = InformationKernel(nodes.size, s.p, track_error=s.n_err > 0, n_errors=max(s.n_err, 1))
+    i_local = int(s.variance)  # index of the node-local variance in ker.Qs
     for t in range(measurements.n_epochs):
         if t > 0:
             ker.time_update(dynamics, t)
         N, r = measurements.normals(t, nodes)
         tests: tuple[NodeEpochTest | None, ...] = ()
-        if critical is not None:
-            N, r, tests = _tested_normals(ker, measurements, t, nodes, N, r, i_local, critical)
-        tri = N.reshape(k_loc, p * p)[:, up]
-        parts = [tri, r]
-        if track_L:
-            parts.append(np.eye(n)[nodes])
-        if local_precision == "exact":
-            tagged = np.zeros((k_loc, n, n_tri))
-            tagged[np.arange(k_loc), nodes] = tri
-            parts.append(tagged.reshape(k_loc, n * n_tri))
-        payload = np.concatenate(parts, axis=1)
-        for k in range(kn):
-            payload = mixers[k % len(mixers)].apply(payload)
-        Nk = _symmetric(payload[:, :n_tri], up, lo, k_loc, p)
-        rk = payload[:, n_tri : n_tri + p]
-        extra = None
-        L_mixed = payload[:, n_tri + p : n_tri + p + n] if track_L else None
-        if variance:
-            if L_mixed is not None and ex.faults.active:
-                L2_rows = L_mixed**2
-            else:
-                assert L2_nominal is not None
-                L2_rows = L2_nominal
-            N_all = ex.gather_nodes(tri)  # analysis input of Fig. 7 (no node has it)
-            extra = _symmetric((n * n) * (L2_rows @ N_all), up, lo, k_loc, p)
-        if local_precision is None:
-            ker.measurement_update(Nk, rk, scale=float(n), extra_error=extra)
-        else:
-            assert L_mixed is not None
-            if local_precision == "exact":
-                E = local_extra_exact(L_mixed, payload[:, n_tri + p + n :].reshape(k_loc, n, n_tri))
-            else:
-                E = local_extra_bound(L_mixed, payload[:, :n_tri])
-            local_extra = _symmetric((n * n) * E, up, lo, k_loc, p)
-            ker.measurement_update(Nk, rk, scale=float(n), extra_errors=[extra, local_extra][-n_err:])
-        dev = 0.0
-        if monitor:
-            Nbar = ex.allreduce(N.sum(axis=0), "sum") / n
-            rbar = ex.allreduce(r.sum(axis=0), "sum") / n
-            loc = max(float(np.abs(Nk - Nbar).max(initial=0.0)), float(np.abs(rk - rbar).max(initial=0.0)))
-            dev = float(ex.allreduce(loc, "max"))
+        if s.critical is not None:
+            N, r, tests = _tested_normals(ker, measurements, t, nodes, N, r, i_local, s.critical)
+        tri = N.reshape(nodes.size, s.p * s.p)[:, s.up]
+        payload = _consensus(s, measurements, t, tri, r)
+        Nk = _symmetric(payload[:, : s.n_tri], s.up, s.lo, nodes.size, s.p)
+        rk = payload[:, s.n_tri : s.n_tri + s.p]
+        _measurement_update(s, ker, payload, tri, Nk, rk)
+        dev = _consensus_deviation(ex, N, r, Nk, rk) if s.monitor else 0.0
         x, est, inv, P = ker.estimates()
-        if not variance:
-            P = None
-        P_local = ker.error_covariance(inv, i_local) if local_precision is not None else None
-        yield CKFState(t, nodes, ker.I, ker.i, x, est, P, inv, dev, P_local, tests)
+        P_local = ker.error_covariance(inv, i_local) if s.local_precision is not None else None
+        yield CKFState(t, nodes, ker.I, ker.i, x, est, P if s.variance else None, inv, dev, P_local, tests)
+
+
+def _consensus(s: _CKFSetup, measurements: MeasurementSeries, t: int, tri: FloatArray, r: FloatArray) -> FloatArray:
+    """The payload after the epoch's ``k_n`` rounds: ``[tri(N^(k_n)), r^(k_n)]``, then (when tracked) the rows of
+    ``L`` and, for the exact node-local precision, the tagged normals."""
+    if s.relay is not None:
+        return _relayed_consensus(s.ex, s.relay, measurements, t, s.up)
+    nodes = s.ex.nodes
+    n, k_loc = measurements.n_nodes, nodes.size
+    parts = [tri, r]
+    if s.track_L:
+        parts.append(np.eye(n)[nodes])
+    if s.local_precision == "exact":
+        tagged = np.zeros((k_loc, n, s.n_tri))
+        tagged[np.arange(k_loc), nodes] = tri
+        parts.append(tagged.reshape(k_loc, n * s.n_tri))
+    payload = np.concatenate(parts, axis=1)
+    for k in range(s.kn):
+        payload = s.mixers[k % len(s.mixers)].apply(payload)
+    return payload
+
+
+def _measurement_update(
+    s: _CKFSetup, ker: InformationKernel, payload: FloatArray, tri: FloatArray, Nk: FloatArray, rk: FloatArray
+) -> None:
+    """Fig. 6's update with ``n N^(k_n)``, ``n r^(k_n)`` and Fig. 7's extra terms (gathered and/or node-local)."""
+    ex, n_tri, p = s.ex, s.n_tri, s.p
+    n, k_loc = ex.n_nodes, ex.nodes.size
+    extra = None
+    L_mixed = payload[:, n_tri + p : n_tri + p + n] if s.track_L else None
+    if s.variance:
+        if L_mixed is not None and ex.faults.active:
+            L2_rows = L_mixed**2
+        else:
+            assert s.L2_nominal is not None
+            L2_rows = s.L2_nominal
+        N_all = ex.gather_nodes(tri)  # analysis input of Fig. 7 (no node has it)
+        extra = _symmetric((n * n) * (L2_rows @ N_all), s.up, s.lo, k_loc, p)
+    if s.local_precision is None:
+        ker.measurement_update(Nk, rk, scale=float(n), extra_error=extra)
+        return
+    assert L_mixed is not None
+    if s.local_precision == "exact":
+        E = local_extra_exact(L_mixed, payload[:, n_tri + p + n :].reshape(k_loc, n, n_tri))
+    else:
+        E = local_extra_bound(L_mixed, payload[:, :n_tri])
+    local_extra = _symmetric((n * n) * E, s.up, s.lo, k_loc, p)
+    ker.measurement_update(Nk, rk, scale=float(n), extra_errors=[extra, local_extra][-s.n_err :])
+
+
+def _consensus_deviation(ex: Exchange, N: FloatArray, r: FloatArray, Nk: FloatArray, rk: FloatArray) -> float:
+    """``max |N_i^(k_n) − N̄|, |r_i^(k_n) − r̄|`` over the network (global reductions: monitoring only)."""
+    n = ex.n_nodes
+    Nbar = ex.allreduce(N.sum(axis=0), "sum") / n
+    rbar = ex.allreduce(r.sum(axis=0), "sum") / n
+    loc = max(float(np.abs(Nk - Nbar).max(initial=0.0)), float(np.abs(rk - rbar).max(initial=0.0)))
+    return float(ex.allreduce(loc, "max"))
+
+
+def _relay_setup(
+    transport: Transport,
+    sched: ConsensusSchedule,
+    ex: Exchange,
+    kn: int,
+    local_precision: LocalPrecision | None,
+    test_level: float | None,
+) -> tuple[RelayPlan, FloatArray] | None:
+    """The relay's static plan and this block's rows of ``L`` (``None`` for the matrix transport), or a
+    :class:`ModelError` naming what the relay cannot do."""
+    if transport not in ("matrices", "relay"):
+        raise ModelError(f"transport must be 'matrices' or 'relay', got {transport!r}")
+    if transport == "matrices":
+        return None
+    if len(sched.weights) != 1 or any(a is not None for a in sched.active):
+        raise ModelError("transport='relay' needs a static graph (one session); use transport='matrices'")
+    if ex.faults.active:
+        raise ModelError("transport='relay' needs every message (no fault schedule); use transport='matrices'")
+    if local_precision is not None or test_level is not None:
+        raise ModelError("transport='relay' has no node-local precision or innovation tests yet; use 'matrices'")
+    return relay_plan(sched.graph, kn), consensus_product(sched, kn)[ex.nodes]
+
+
+def _relayed_consensus(
+    ex: Exchange, relay: tuple[RelayPlan, FloatArray], measurements: MeasurementSeries, t: int, up: IntArray
+) -> FloatArray:
+    """``[tri(N_i^(k_n)), r_i^(k_n)]`` of the local nodes from the relayed records: ``Σ_j l_ij (N_j, r_j)`` over
+    the origins each node received (every origin with ``l_ij ≠ 0`` must be among them)."""
+    plan, L_rows = relay
+    values, weights = measurements.records(t, ex.nodes)
+    known = relay_records(ex, plan, values, weights)
+    decoded: dict[int, FloatArray] = {}
+    p = measurements.n_states
+    out = np.zeros((ex.n_local, up.size + p))
+    for a, got in enumerate(known):
+        need = np.flatnonzero(L_rows[a])
+        missing = set(need.tolist()) - set(got)
+        if missing:
+            raise ModelError(f"relay: node {int(ex.nodes[a])} lacks the records of nodes {sorted(missing)}")
+        for j in need.tolist():
+            if j not in decoded:
+                N_j, r_j = measurements.normals_from_records(t, j, *got[j])
+                decoded[j] = np.concatenate([N_j.reshape(p * p)[up], r_j])
+        out[a] = L_rows[a, need] @ np.stack([decoded[j] for j in need.tolist()])
+    return out
 
 
 def _tested_normals(
@@ -322,19 +484,11 @@ def ckf(
     measurements: MeasurementSeries,
     *,
     graph: Graph | SwitchingGraph | None = None,
-    protocol: ConsensusProtocol = "P3",
-    rounds: int | None = None,
-    sampling_interval_s: float | None = None,
-    sending_interval_s: float | None = None,
     exchange: Exchange | None = None,
     schedule: ConsensusSchedule | None = None,
-    variance: bool = True,
-    monitor: bool = True,
-    store_matrices: bool = False,
-    local_precision: LocalPrecision | None = None,
-    test_level: float | None = None,
+    **options: Unpack[CKFRunOptions],
 ) -> FilterResult:
-    """Run the CKF (paper 003 Fig. 6) over all epochs; see :func:`iterate_ckf` for the arguments.
+    """Run the CKF (paper 003 Fig. 6) over all epochs; options :class:`CKFRunOptions` (see :func:`iterate_ckf`).
 
     Returns a :class:`FilterResult` (``mode="ckf"``): ``estimates`` = last-epoch ``x̂_i,t|t`` (n×p),
     ``iterations`` = epochs, ``comm`` = message/byte totals of all consensus rounds, ``series``
@@ -350,61 +504,30 @@ def ckf(
     ``variance=False``. Per-node results are in the user's node order at every size (without ``exchange`` the run
     keeps the locality order ``"auto"`` inside and gathers back; docs/scale.md).
     """
-    kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
+    _check_options(options, CKFRunOptions.__optional_keys__)
+    run: CKFOptions = {k: v for k, v in options.items() if k != "store_matrices"}  # type: ignore[assignment]
+    kn = _resolve_rounds(options.get("rounds"), options.get("sampling_interval_s"), options.get("sending_interval_s"))
+    run["rounds"], run["sampling_interval_s"], run["sending_interval_s"] = kn, None, None
     n = measurements.n_nodes
-    sched = _schedule(graph, protocol, schedule, n)
+    sched = _schedule(graph, options.get("protocol", "P3"), schedule, n)
     ex = exchange if exchange is not None else make_exchange(sched.graph, order="auto")  # results gathered
-    xs: list[FloatArray] = []
-    stds: list[FloatArray] = []
-    nstds: list[FloatArray] = []
-    ests: list[BoolArray] = []
-    covs: list[FloatArray] = []
-    infos: list[FloatArray] = []
-    lstds: list[FloatArray] = []
-    tb = TraceBuilder()
-    last: CKFState | None = None
+    test_level = options.get("test_level")
     collector = InnovationCollector(ex, n, test_level, critical_value(test_level)) if test_level is not None else None
-    for st in iterate_ckf(
-        dynamics,
-        measurements,
-        rounds=kn,
-        exchange=ex,
-        schedule=sched,
-        variance=variance,
-        monitor=monitor,
-        local_precision=local_precision,
-        test_level=test_level,
-    ):
-        xs.append(ex.gather_nodes(st.estimates))
-        if st.local_covariance is not None:
-            lstds.append(ex.gather_nodes(masked_std(st.local_covariance, st.estimable)))
+    kept = _GatheredSeries(ex, bool(options.get("store_matrices", False)))
+    last: CKFState | None = None
+    for st in iterate_ckf(dynamics, measurements, exchange=ex, schedule=sched, **run):
+        kept.add(st)
         if collector is not None:
             collector.add(st.tests)
-        ests.append(ex.gather_nodes(st.estimable))
-        nstds.append(ex.gather_nodes(masked_std(st.nominal_covariance, st.estimable)))
-        if st.covariance is not None:
-            stds.append(ex.gather_nodes(masked_std(st.covariance, st.estimable)))
-        if store_matrices:
-            infos.append(ex.gather_nodes(st.information))
-            if st.covariance is not None:
-                covs.append(ex.gather_nodes(st.covariance))
-        tb.add(consensus_deviation=st.consensus_deviation)
         last = st
     assert last is not None
-    nominal = np.stack(nstds)
-    series = FilterSeries(
-        estimates=np.stack(xs),
-        std=np.stack(stds) if stds else np.full_like(nominal, np.nan),
-        estimable=np.stack(ests),
-        nodes=np.arange(n),
-        nominal_std=nominal,
-        covariance=np.stack(covs) if covs else None,
-        information=np.stack(infos) if infos else None,
-    )
+    variance = bool(options.get("variance", True))
     L = consensus_product(sched, kn) if variance else None  # dense n×n: only with the variance recursion
+    series = kept.series(n)
     comm: CommTotals = ex.comm_totals()
     est_last = series.estimable[-1]
     complete = bool(est_last.all())
+    local_precision = options.get("local_precision")
     return FilterResult(
         estimates=series.estimates[-1],
         converged=complete,
@@ -414,7 +537,7 @@ def ckf(
             f"CKF over {measurements.n_epochs} epochs with k_n = {kn} consensus rounds each; "
             f"{int(est_last.sum())}/{est_last.size} node-entries estimable at the last epoch"
         ),
-        trace=tb.build(),
+        trace=kept.trace.build(),
         comm=comm,
         series=series,
         mode="ckf",
@@ -425,9 +548,51 @@ def ckf(
         product=L,
         alpha=alpha_factor(L) if L is not None else None,
         precision=_local_precision(ex, last, local_precision, comm, measurements.n_states, variance),
-        local_std=np.stack(lstds) if lstds else None,
+        local_std=np.stack(kept.lstds) if kept.lstds else None,
         tests=collector.build() if collector is not None else None,
     )
+
+
+class _GatheredSeries:
+    """The per-epoch arrays :func:`ckf` keeps, gathered over every node in the user's order."""
+
+    def __init__(self, ex: Exchange, store_matrices: bool) -> None:
+        self.ex, self.store = ex, store_matrices
+        self.xs: list[FloatArray] = []
+        self.stds: list[FloatArray] = []
+        self.nstds: list[FloatArray] = []
+        self.ests: list[BoolArray] = []
+        self.covs: list[FloatArray] = []
+        self.infos: list[FloatArray] = []
+        self.lstds: list[FloatArray] = []
+        self.trace = TraceBuilder()
+
+    def add(self, st: CKFState) -> None:
+        g = self.ex.gather_nodes
+        self.xs.append(g(st.estimates))
+        if st.local_covariance is not None:
+            self.lstds.append(g(masked_std(st.local_covariance, st.estimable)))
+        self.ests.append(g(st.estimable))
+        self.nstds.append(g(masked_std(st.nominal_covariance, st.estimable)))
+        if st.covariance is not None:
+            self.stds.append(g(masked_std(st.covariance, st.estimable)))
+        if self.store:
+            self.infos.append(g(st.information))
+            if st.covariance is not None:
+                self.covs.append(g(st.covariance))
+        self.trace.add(consensus_deviation=st.consensus_deviation)
+
+    def series(self, n: int) -> FilterSeries:
+        nominal = np.stack(self.nstds)
+        return FilterSeries(
+            estimates=np.stack(self.xs),
+            std=np.stack(self.stds) if self.stds else np.full_like(nominal, np.nan),
+            estimable=np.stack(self.ests),
+            nodes=np.arange(n),
+            nominal_std=nominal,
+            covariance=np.stack(self.covs) if self.covs else None,
+            information=np.stack(self.infos) if self.infos else None,
+        )
 
 
 def _local_precision(
