@@ -36,10 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
-from distnav.algorithms.ranging.wire import CG_WIRE_DTYPE, Wire
+from distnav.algorithms.ranging.wire import Wire
 from distnav.exchange import Exchange
 
 __all__ = [
@@ -195,7 +196,7 @@ def refine(
                 damp_c = mu * max(dc, 1e-12)
                 pre_inv = block_preconditioner(own_block, damp, free)
                 system = NormalSystem(
-                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, CG_WIRE_DTYPE
+                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, wire.CG_WIRE_DTYPE
                 )
                 dxk, dck, its = pcg(
                     system,
@@ -310,7 +311,7 @@ class NormalSystem:
     prior: float  # 1/σ_b² on per-anchor offsets (0 otherwise)
     free: np.ndarray  # (n_local, P)
     common: bool
-    wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float32 in the LM phase)
+    wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float16 in the LM phase)
 
     def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
