@@ -17,8 +17,11 @@ iteration needs only the neighbours' values:
 * the **scalars** of CG (two dot products), the cost of a trial step, the common offset's row and the step's
   largest move are network totals, as the solvers' :class:`~distnav.algorithms.ranging.csg.StopRule` uses: each is a
   sum over the anchors assembled in the anchors' order (``gather_nodes``, so that in-process and MPI agree bit
-  for bit; a deployment would run a spanning-tree reduction, ``2(n − 1)`` messages of one float). They are
-  counted in :attr:`Refinement.reductions`.
+  for bit; a deployment would run a spanning-tree reduction, ``2(n − 1)`` messages of the reduced floats). They
+  are counted in :attr:`Refinement.reductions` / :attr:`Refinement.reduced_floats`, and their bytes
+  (:func:`~distnav.algorithms.ranging.wire.reduction_cost`) in the solver result's ``settings["refine"]``
+  and in ``uwb solve``'s totals (issue 27: before, only the broadcasts were counted — at two reductions of two
+  floats per CG iteration the reductions send about twice the bytes of the float16 broadcasts on a 28-anchor hall).
 
 The outer loop is Levenberg–Marquardt (Madsen, Nielsen & Tingleff 2004, §3.2: Marquardt's diagonal damping
 ``μ·diag(N)``, μ ÷ 3 after an accepted step, × 4 after a rejected one) on the objective LM minimises, ``F = Σ_l
@@ -65,7 +68,8 @@ class Refinement:
     """The refined state of one exchange block: own estimates ``(n_local, dim)``, own offsets (per anchor, or
     every anchor's copy of the common one; None without offsets), the neighbours' estimates and offsets per
     half-measurement (as :class:`~distnav.algorithms.ranging.neighbourhoods.IterationState`), the objective ``F``, the
-    status, outer rounds (accepted or not), CG iterations and network reductions."""
+    status, outer rounds (accepted or not), CG iterations and network reductions (with their floats per anchor,
+    summed: the cost, :func:`~distnav.algorithms.ranging.wire.reduction_cost`)."""
 
     own_m: np.ndarray
     offset_m: np.ndarray | None
@@ -76,6 +80,7 @@ class Refinement:
     rounds: int
     cg_iterations: int
     reductions: int
+    reduced_floats: int = 0
 
 
 class Links:
@@ -249,6 +254,7 @@ def refine(
         rounds=rounds,
         cg_iterations=cg_total,
         reductions=links.reductions,
+        reduced_floats=links.reduced_floats,
     )
 
 

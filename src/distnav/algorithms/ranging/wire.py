@@ -41,7 +41,16 @@ from distnav.algorithms.ranging.data import RangingData
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
-__all__ = ["Wire", "CG_WIRE_DTYPE", "PLAIN", "comm_mark", "comm_phases", "pack_half", "unpack_half"]
+__all__ = [
+    "Wire",
+    "CG_WIRE_DTYPE",
+    "PLAIN",
+    "comm_mark",
+    "comm_phases",
+    "pack_half",
+    "unpack_half",
+    "reduction_cost",
+]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
@@ -146,6 +155,15 @@ def unpack_half(packed: np.ndarray, m: int) -> np.ndarray:
     vals = np.ascontiguousarray(b[:, : 2 * m]).view(HALF).astype(float)
     e = b[:, 2 * m].view(np.int8).astype(int)
     return np.asarray(np.ldexp(vals, e[:, None]))
+
+
+def reduction_cost(n_anchors: int, reductions: int, reduced_floats: int) -> tuple[int, int]:
+    """Messages and bytes of ``reductions`` network totals as spanning-tree all-reductions (up to a root and back
+    down: ``2(n − 1)`` messages each, every message carrying the reduced floats, float64): ``reduced_floats`` is
+    their sum over the reductions (per anchor). The exchange computes these totals by gathering every anchor's row
+    (``gather_nodes``, so that in-process and MPI agree bit for bit); a deployment sends this."""
+    per = 2 * max(n_anchors - 1, 0)
+    return reductions * per, 8 * reduced_floats * per
 
 
 def comm_mark(ex: Exchange) -> tuple[int, int]:
