@@ -45,7 +45,7 @@ from distnav.errors import ModelError
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.cuts import cut_weak
 from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, solve_once, tighten_scale
-from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, distributed_sigma
+from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, SigmaModel, distributed_sigma
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
@@ -692,11 +692,7 @@ def anchor_precision(
     kept = subset_measurements(problem, ~excluded)
     if opts.solver.upper() != "LM":
         try:
-            out = distributed_sigma(
-                kept,
-                res,
-                exchange=exchange,
-                objective=objective,
+            model = SigmaModel(
                 sigma_m=opts.sigma_m,
                 loss=_solver_kwargs(opts).get("loss", "linear"),
                 loss_scale_m=opts.loss_scale_m,
@@ -704,8 +700,10 @@ def anchor_precision(
                 offset_prior_sigma_m=opts.offset_prior_sigma_m,
                 delay_sigma_m=opts.delay_sigma_m if opts.considers_delays and objective == "metres" else 0.0,
                 estimate_delays=opts.estimate_delays,
-                mode=opts.distributed_precision,
                 fit_scale_m=fit_scale_m,
+            )
+            out = distributed_sigma(
+                kept, res, model, exchange=exchange, objective=objective, mode=opts.distributed_precision
             )
         except ModelError as err:
             note = f"; neighbourhood precision failed ({err}): σ are the conditional ones (a lower bound)"

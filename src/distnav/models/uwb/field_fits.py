@@ -63,7 +63,8 @@ def solve_once(
     phase (issue 27): the 500 iterations cost 55 % of the bytes of a whole ``uwb solve`` on plant-like halls
     (33 of 59 MB on ``[78, 0]``) and the workflow ended at the same positions without them (within 1 µm on 12
     plant-like halls, docs/economy_uwb.md). ``total`` (iterations, messages, bytes) is incremented by the
-    solve's."""
+    solve's: its broadcasts and its LM phase's network totals as spanning-tree reductions (``settings["refine"]``,
+    :func:`~distnav.algorithms.ranging.wire.reduction_cost`)."""
     key = solver.upper()
     extra: dict[str, Any] = {}
     if key != "LM" and exchange is not None:
@@ -78,9 +79,10 @@ def solve_once(
         iterations = min(iterations, FIRST_ITERATIONS)
     r = csg.solve(problem, key, iterations=iterations, **kw, **extra)
     if total is not None:
+        ref = r.settings.get("refine", {})
         total[0] += int(r.iterations)
-        total[1] += int(r.comm.messages)
-        total[2] += int(r.comm.bytes)
+        total[1] += int(r.comm.messages) + int(ref.get("reduction_messages", 0))
+        total[2] += int(r.comm.bytes) + int(ref.get("reduction_bytes", 0))
     return r
 
 
