@@ -633,3 +633,24 @@ def central_precision_distributed(backend: str) -> dict[str, np.ndarray]:
         "sent": out.precision.comm.messages_sent,
         "count": np.asarray([out.cg_iterations, out.reductions, out.reduced_floats]),
     }
+
+
+@case
+def local_reliability_distributed(backend: str) -> dict[str, np.ndarray]:
+    """Issue 28 item 5: every anchor's redundancy numbers, MDB and worst shift from its 2-hop neighbourhood's link
+    records, flooded through the exchange (one-sided Cauchy, common offset) on a 40-anchor random network."""
+    from distnav.algorithms.ranging.reliability import ReliabilityOptions, local_reliability
+
+    problem = _uwb_problem()
+    assert problem.truth_m is not None
+    est = problem.truth_m + np.where(problem.free, np.random.default_rng(5).normal(0.0, 0.05, problem.truth_m.shape), 0)
+    opts = ReliabilityOptions(sigma_m=0.1, offsets="common", loss="cauchy_long", loss_scale_m=0.3)
+    rel = local_reliability(
+        problem, est, opts, offsets_m=np.array([0.02]), hops=2, exchange=make_exchange(problem.graph, backend=backend)
+    )
+    return {
+        "estimates": np.nan_to_num(np.concatenate([rel.r, rel.mdb_m, rel.shift_m]), nan=-1.0),  # NaN: not owned
+        "count": np.concatenate([rel.worst_link, rel.subnetwork_anchors]),
+        "bytes": np.asarray(rel.comm.bytes_sent),
+        "sent": np.asarray(rel.comm.messages_sent),
+    }

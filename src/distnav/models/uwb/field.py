@@ -54,6 +54,7 @@ from distnav.models.uwb.problems import RangingProblem
 from distnav.models.uwb.reliability import (
     RELIABILITY_LIMIT_M,
     WEAK_RMS_M,
+    ReliabilityOptions,
     check_reliability,
     weak_anchor_reasons,
     weak_anchors,
@@ -571,17 +572,21 @@ def solve_field(
     reasons = weak_anchor_reasons(problem, residual, excluded, flagged)
     reliability: dict[str, Any] = {"tested": False}
     if opts.reliability_limit_m > 0 and objective == "metres":  # every solver (reliability.check_reliability)
+        kept = subset_measurements(problem, ~excluded)
         rel_weak, reliability, rel_note = check_reliability(
-            subset_measurements(problem, ~excluded),
+            kept,
             res,
             sigma,
-            sigma_m=opts.sigma_m,
-            offsets=opts.offsets_used,
-            loss=_solver_kwargs(opts).get("loss", "linear"),
-            loss_scale_m=fit_scale_m,
-            level=opts.level,
+            ReliabilityOptions(
+                opts.sigma_m,
+                opts.offsets_used,
+                _solver_kwargs(opts).get("loss", "linear"),
+                fit_scale_m,
+                opts.level,
+                opts.offset_prior_sigma_m,
+            ),
             limit_m=opts.reliability_limit_m,
-            offset_prior_sigma_m=opts.offset_prior_sigma_m,
+            exchange=None if exchange is None else exchange(kept),
         )
         reasons.update({k: v for k, v in rel_weak.items() if k not in reasons})
         note += rel_note
