@@ -271,7 +271,7 @@ def random_geometric_part(
     """
     from scipy.spatial import cKDTree
 
-    from distnav.network.graph_part import GraphPart, ascending_unique
+    from distnav.network.graph_part import GraphPart, ascending_unique, edge_starts_from_degrees
 
     n = _need(n_nodes, 1, "a random geometric graph")
     if not radius > 0:
@@ -317,4 +317,5 @@ def random_geometric_part(
     r_halo, s_halo = ball_pairs(halo)
     rows, nbr = np.concatenate([r_own, r_halo]), np.concatenate([s_own, s_halo])
     del r_own, s_own, r_halo, s_halo
-    return GraphPart.from_neighbours(n, own, degree, rows, nbr, self_loops=opt.self_loops)
+    start = edge_starts_from_degrees(degree, self_loops=opt.self_loops)
+    return GraphPart.from_neighbours(n, own, rows, nbr, start, self_loops=opt.self_loops)
