@@ -64,7 +64,8 @@ def solve_once(
     (33 of 59 MB on ``[78, 0]``) and the workflow ended at the same positions without them (within 1 µm on 12
     plant-like halls, docs/economy_uwb.md). ``total`` (iterations, messages, bytes) is incremented by the
     solve's: its iterations plus its distributed LM phase's rounds, its broadcasts and its LM phase's network
-    totals as spanning-tree reductions (``settings["refine"]``, :func:`~distnav.algorithms.ranging.wire.reduction_cost`)."""
+    totals as spanning-tree reductions (``settings["refine"]``,
+    :func:`~distnav.algorithms.ranging.wire.reduction_cost`)."""
     key = solver.upper()
     extra: dict[str, Any] = {}
     if key != "LM" and exchange is not None:
