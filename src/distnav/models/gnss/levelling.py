@@ -59,8 +59,11 @@ __all__ = [
 
 @dataclass(frozen=True)
 class ArcStatistics:
-    """One continuous arc: satellite, first/last epoch index, epochs kept, why it started, offset (m) and its σ,
-    RMS of code minus levelled phase before/after screening [m], observations removed by the screening."""
+    """One continuous arc: satellite, first/last epoch index, epochs, why it started, offset (m) and its σ,
+    RMS of code minus levelled phase after screening [m], and every removal by reason: ``removed`` by the
+    screening's w-tests, ``removed_mw`` one-epoch Melbourne–Wübbena outliers within the arc's span, and
+    ``dropped_short`` (the arc's epochs, when the whole arc was shorter than the minimum and dropped; then no
+    offset: NaN)."""
 
     sv: str
     first: int
@@ -71,6 +74,8 @@ class ArcStatistics:
     offset_std_m: float
     code_rms_m: float
     removed: int
+    removed_mw: int = 0
+    dropped_short: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -93,6 +98,8 @@ class LevelledStation:
     fit_wss: np.ndarray | None = None
     fit_n: np.ndarray | None = None
     mw_outlier: np.ndarray | None = None
+    short_arcs: list[ArcStatistics] | None = None
+    """The arcs dropped as too short (their epochs counted in ``dropped_short``), for ``arcs.csv``."""
 
     def arc_summary(self) -> dict[str, Any]:
         """Counts of arcs, starts by reason, short arcs dropped, median arc length and code RMS, and the raw
@@ -347,6 +354,7 @@ class _Accumulator:
     arcs: list[ArcStatistics]
     starts: dict[str, int]
     dropped: int = 0
+    short: list[ArcStatistics] | None = None
 
     @classmethod
     def empty(cls, T: int, S: int) -> _Accumulator:
@@ -360,6 +368,8 @@ class _Accumulator:
             np.zeros(S, np.int64),
             [],
             {},
+            0,
+            [],
         )
 
 
@@ -427,7 +437,17 @@ def level_station(
         removed=tuple(np.flatnonzero(acc.removed[tested]).tolist()),
     )
     return LevelledStation(
-        acc.out, acc.arc_id, acc.arcs, acc.removed, acc.starts, acc.dropped, tests, acc.fit_wss, acc.fit_n, acc.mw_out
+        acc.out,
+        acc.arc_id,
+        acc.arcs,
+        acc.removed,
+        acc.starts,
+        acc.dropped,
+        tests,
+        acc.fit_wss,
+        acc.fit_n,
+        acc.mw_out,
+        acc.short,
     )
 
 
@@ -460,8 +480,14 @@ def _level_satellite(
     for j, why in enumerate(reasons):
         acc.starts[why] = acc.starts.get(why, 0) + 1
         ep = np.flatnonzero(a == j)
+        mw_in = int(outl[ep[0] : ep[-1] + 1].sum()) if ep.size else 0
         if ep.size < options.min_arc_epochs:
             acc.dropped += 1
+            if ep.size and acc.short is not None:
+                nan = float("nan")
+                acc.short.append(
+                    ArcStatistics(sv, int(ep[0]), int(ep[-1]), int(ep.size), why, nan, nan, nan, 0, mw_in, int(ep.size))
+                )
             continue
         d = gp[ep, s] - gphi[ep, s]
         if options.screen:
@@ -488,6 +514,7 @@ def _level_satellite(
                 off_sd,
                 float(np.sqrt(np.mean((d[keep] - off) ** 2))),
                 int((~keep).sum()),
+                mw_in,
             )
         )
 
