@@ -12,6 +12,7 @@ the datum runs over")."""
 from __future__ import annotations
 
 import json
+import os
 import sys
 import tempfile
 from pathlib import Path
@@ -22,7 +23,18 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import main_for  # noqa: E402
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "gnss" / "igs_2024010_bele_dgar"
+
+def _data_dir() -> Path:
+    """``../shared/data/gnss/igs_2024010_bele_dgar`` (``DISTNAV_SHARED`` or the repository's parent folders)."""
+    repo = Path(__file__).resolve().parents[1]
+    env = os.environ.get("DISTNAV_SHARED")
+    for root in [*([Path(env)] if env else []), repo.parent / "shared", repo.parent.parent / "shared"]:
+        if (root / "data").is_dir():
+            return root / "data" / "gnss" / "igs_2024010_bele_dgar"
+    return repo.parent / "shared" / "data" / "gnss" / "igs_2024010_bele_dgar"
+
+
+DATA = _data_dir()
 OBS = ["BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", "dgar0100.24o.gz"]
 NAV = "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"
 PRODUCTS = ["CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz", "GFZ0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"]
