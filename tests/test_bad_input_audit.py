@@ -270,6 +270,8 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-mapping-choice", (*io, *o, "--mapping", "flat"), "invalid choice"),
         Cli("gnss-ionosphere-innovation-test-one", (*io, *o, "--innovation-test", "1"), "--innovation-test"),
         Cli("gnss-ionosphere-innovation-test-zero", (*io, *o, "--innovation-test", "0"), "--innovation-test"),
+        Cli("gnss-ionosphere-between-station-one", (*io, *o, "--between-station-level", "0.5"), "--between-station"),
+        Cli("gnss-ionosphere-between-station-text", (*io, *o, "--between-station-level", "x"), "invalid float value"),
         Cli("gnss-codebias-backend", (*cb, *o, "--backend", "tcp"), "invalid choice"),
         Cli("gnss-codebias-no-progress-value", (*cb, *o, "--no-progress=yes"), "ignored explicit"),
         Cli("gnss-codebias-reference-empty", (*cb, *o, "--reference", ""), "--reference"),

@@ -186,6 +186,25 @@ def test_raw_code_kept_where_no_arc_is_long_enough_is_counted() -> None:
         assert a["arcs"] == 1 and a["dropped_short"] == 1 and a["raw_code_observations"] == raw
 
 
+def test_every_removal_is_counted_on_its_arc() -> None:
+    """Issue 32 item 6: per arc, the w-test removals, the one-epoch MW outliers in its span and a short arc dropped
+    whole (its epochs), as arcs.csv lists them; the counts add up to the station's totals."""
+    from distnav.models.gnss.levelling import LevellingOptions, level_station
+
+    t, cols = _two_satellites(60)
+    cols[0][30, 0] += 15.0  # G01: one wild code value inside its arc (an MW outlier)
+    for c in cols:
+        c[6:, 1] = np.nan  # G02: 6 epochs, an arc dropped as shorter than 10
+    lev = level_station(t, ("G01", "G02"), *cols, options=LevellingOptions(screen=True))
+    (g01,) = lev.arcs
+    (g02,) = lev.short_arcs or []
+    assert (g01.sv, g01.removed_mw, g01.dropped_short) == ("G01", 1, 0)
+    assert (g02.sv, g02.n_epochs, g02.dropped_short, g02.removed) == ("G02", 6, 6, 0) and np.isnan(g02.offset_m)
+    report = lev.screening_summary(["G01", "G02"])
+    assert g01.removed + g01.removed_mw == report["removed"]
+    assert lev.arc_summary()["dropped_short"] == 1
+
+
 def test_console_names_a_ckf_node_without_estimates_and_prints_realistic_sigma(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

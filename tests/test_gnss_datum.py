@@ -262,3 +262,49 @@ def test_datum_statement_names_the_satellites() -> None:
     s = datum_statement(["G01", "G02"], ["G01", "G02", "G03"], "CAS")
     assert "fixed set of 3 satellites (G01 G02 G03)" in s and "CAS" in s and "1 missing (G03)" in s
     assert "differs from the full set" in datum_statement(["G01"], ["G01", "G03"])
+
+
+def test_a_removed_satellite_on_a_real_session_datum_part_and_estimation_part(shared_data: object) -> None:
+    """Issue 32 item 2 on BELE + DGAR, 06–12 h: removing G08's data moves every other DSB by (a) the datum's
+    part, a uniform shift that equals G08's own zero-mean DSB / (|F| − 1) (a formula of the default run's output,
+    not of the fixed-set code) and that the fixed set without G08 removes exactly, and (b) the estimation's part,
+    which no datum can remove: it stays within what the information removed implies
+    (``Cov(x_without − x_with) = P_without − P_with`` for nested BLUEs; realistic σ), and that predicted change
+    exceeds 0.01 ns, so issue 32's 0.01-ns target cannot hold on this session for any datum."""
+    from pathlib import Path
+
+    from distnav.commands.gnss_ionosphere_data import NetworkOptions, network_data
+    from distnav.formats.gnss.rinex import read_navigation
+
+    d = Path(str(shared_data)) / "gnss" / "igs_2024010_bele_dgar"
+    obs = [d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", d / "dgar0100.24o.gz"]
+    orbit = read_navigation(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz", max_age_s=4 * 3600.0)
+    tlim = ("2024-01-10T06:00", "2024-01-10T12:00")
+    full = network_data(obs, orbit, NetworkOptions(interval_s=60.0), tlim=tlim)
+    less = network_data(obs, orbit, NetworkOptions(interval_s=60.0, exclude=("G08",)), tlim=tlim)
+    rest = [s for s in full.layout.svs if s != "G08"]
+    assert "G08" in full.layout.svs and list(less.layout.svs) == rest
+
+    def central(data: object, members: list[str] | None) -> tuple[dict[str, float], dict[str, float], float]:
+        (c,), _ = run_bias_filters(data, BiasFilterOptions(local=False, datum_satellites=members))  # type: ignore[arg-type]
+        names = list(data.stations) + list(data.layout.svs)  # type: ignore[attr-defined]
+        var = np.diag(np.asarray(c.precision.covariance[0]))
+        return (
+            dict(zip(names, c.dsb_ns[-1].tolist(), strict=True)),
+            dict(zip(names, var, strict=True)),
+            c.realistic_factor,
+        )
+
+    default, _, _ = central(full, None)  # zero mean over all 25 estimated
+    kept, var_with, factor = central(full, rest)  # G08's data kept, G08 outside the fixed set
+    removed, var_without, _ = central(less, rest)  # G08's data removed
+    datum_part = np.array([kept[s] - default[s] for s in rest])
+    assert np.ptp(datum_part) < 1e-9
+    assert datum_part[0] == pytest.approx(default["G08"] / len(rest), abs=1e-9)
+    assert abs(datum_part[0]) > 0.1  # the default datum moves every other DSB by this much
+    estimation_part = np.array([removed[s] - kept[s] for s in rest])
+    dvar = np.array([var_without[s] - var_with[s] for s in rest])
+    assert dvar.min() > -1e-12  # removing data never improves a DSB's precision
+    predicted = np.sqrt(np.maximum(dvar, 0.0)) * factor
+    assert np.all(np.abs(estimation_part) < 3.0 * predicted)
+    assert np.abs(estimation_part).max() > 0.01 and predicted.max() > 0.01

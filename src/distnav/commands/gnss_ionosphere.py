@@ -16,7 +16,9 @@ default, over the satellites estimated or a fixed ``--datum-satellites`` set; a 
 * ``tec_dcb_per_epoch.csv`` — per epoch, filter (``central``, ``local:STA``, ``ckf:STA``) and parameter: value
   and formal standard deviation (TEC in metres of L1 delay and in TECU, DSBs in ns).
 * ``dcb_final.csv`` — the last-epoch DSBs of every filter and, with ``--bias``, each product's.
-* ``arcs.csv`` — every levelled arc (start reason, offset, code RMS, removed observations).
+* ``arcs.csv`` — every arc (start reason, offset, code RMS) with every removal by reason: ``removed`` (w-test
+  screening), ``removed_mw_outliers`` (one-epoch Melbourne–Wübbena outliers in its span), ``dropped_short`` (the
+  whole arc, shorter than ``--min-arc``: no offset).
 * ``distnav_dsb.bia`` — Bias-SINEX 1.00 of the central filter (realistic σ).
 * ``summary.json`` — settings, codes, arcs, screening, precision, the satellites' fit, and per filter and product
   the datum-aligned comparison (mean, RMS, max, per satellite and receiver, the worst-fitting satellite).
@@ -86,6 +88,10 @@ def validate_arguments(args: argparse.Namespace) -> None:
             raise ModelError(f"{opt} {value:g}: must be a positive number")
     if args.kn < 0:
         raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
+    if args.between_station_level != 0 and not 0.0 < args.between_station_level < 0.5:
+        raise ModelError(
+            f"--between-station-level {args.between_station_level:g}: a test level in (0, 0.5), or 0 (off)"
+        )
     if args.innovation_test is not None and not 0.0 < args.innovation_test < 0.5:
         raise ModelError(f"--innovation-test {args.innovation_test:g}: a test level in (0, 0.5), e.g. 0.001")
     if args.min_satellite_obs is not None and args.min_satellite_obs < 1:
@@ -224,6 +230,7 @@ def filter_options(args: argparse.Namespace, pivot: str | None, fixed: Any) -> A
         innovation_level=args.innovation_test,
         datum_satellites=fixed.members,
         datum_reference_ns=fixed.reference_ns,
+        between_station_level=None if args.between_station_level == 0 else args.between_station_level,
     )
 
 
@@ -444,8 +451,16 @@ def _add_tec_field_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _add_model_arguments(p: argparse.ArgumentParser) -> None:
-    """The model stage: ionospheres, σ and weighting, random walk, satellites estimated, and the CKF's innovation
-    tests."""
+    """The model stage: ionospheres, σ and weighting, random walk, satellites estimated, the CKF's innovation
+    tests and the between-station test of the realistic σ."""
+    p.add_argument(
+        "--between-station-level",
+        type=float,
+        default=0.05,
+        metavar="LEVEL",
+        help="level of the χ² test whether the stations' single-receiver solutions agree within their realistic σ; "
+        "when rejected every σ grows by √(χ²/dof) (default 0.05; 0: off; docs/gnss.md)",
+    )
     p.add_argument(
         "--ionosphere",
         choices=["auto", "common", "per-receiver"],

@@ -53,9 +53,9 @@ log = logging.getLogger(__name__)
 
 def final_dsbs(data: BiasNetworkData, s: DatumSeries) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
     """A filter's last-epoch DSBs [ns]: satellites (estimated ones), receivers, and the realistic σ of every
-    object (``rx:STA`` or the PRN; formal σ × :attr:`DatumSeries.realistic_factor`)."""
+    object (``rx:STA`` or the PRN; :meth:`DatumSeries.realistic_std_ns`)."""
     names = [f"rx:{r}" for r in data.stations] + list(data.layout.svs)
-    sd = dict(zip(names, (s.dsb_std_ns[-1] * s.realistic_factor).tolist(), strict=True))
+    sd = dict(zip(names, s.realistic_std_ns().tolist(), strict=True))
     fin = dict(zip(names, s.dsb_ns[-1].tolist(), strict=True))
     sat = {k: v for k, v in fin.items() if not k.startswith("rx:") and np.isfinite(v)}
     return sat, {k[3:]: v for k, v in fin.items() if k.startswith("rx:")}, sd
@@ -212,6 +212,8 @@ DATUMS = ("zero-mean", "pivot", "receiver")
 class BiasFilterOptions:
     """How :func:`run_bias_filters` runs (defaults in brackets; checked once, here).
 
+    ``between_station_level`` [0.05]: the level of the between-station test of the realistic σ
+    (:mod:`~distnav.models.gnss.stationcheck`; with the single-receiver filters of two or more stations; None: off).
     ``datum`` [``"zero-mean"``]: the output S-basis, ``"zero-mean"`` satellites, a ``"pivot"`` satellite
     (``pivot``) or a ``"receiver"`` (``reference``). ``datum_satellites`` / ``datum_reference_ns`` [None]: the
     zero-mean datum over a fixed set of satellites, held in a reference product's datum when its DSBs are given
@@ -227,8 +229,11 @@ class BiasFilterOptions:
     innovation_level: float | None = None
     datum_satellites: Sequence[str] | None = None
     datum_reference_ns: Mapping[str, float] | None = None
+    between_station_level: float | None = 0.05
 
     def __post_init__(self) -> None:
+        if self.between_station_level is not None and not 0.0 < self.between_station_level < 0.5:
+            raise ModelError(f"between_station_level must lie in (0, 0.5), got {self.between_station_level}")
         if self.datum not in DATUMS:
             raise ModelError(f"datum must be one of {', '.join(DATUMS)}; got {self.datum!r}")
         if self.datum == "pivot" and self.pivot is None:
@@ -269,7 +274,46 @@ def run_bias_filters(
     if graph is not None:
         ckf, comm = _ckf_filters(data, opts, options, graph, exchange)
         out += ckf
+    test = _between_stations(data, out, options.between_station_level) if options.local else None
+    if test is not None:
+        out = _with_station_constant_errors(data, out, test)
     return out, comm
+
+
+def _with_station_constant_errors(data: BiasNetworkData, series: list[DatumSeries], test: Any) -> list[DatumSeries]:
+    """Every series with the test attached and, when it rejects, its satellites' realistic σ raised to the floor
+    the single-receiver solutions imply (:func:`~distnav.models.gnss.stationcheck.variance_floor`)."""
+    from distnav.models.gnss.stationcheck import variance_floor
+
+    n = len(data.stations)
+    local = {s.label[len("local:") :]: s.realistic_std_ns()[n:] for s in series if s.label.startswith("local:")}
+    every = np.stack([local[sta] for sta in data.stations if sta in local])
+    out = []
+    for s in series:
+        if not test.rejected:
+            out.append(replace(s, between_station=test))
+            continue
+        sta = s.label[len("local:") :] if s.label.startswith("local:") else None
+        floor = variance_floor(test.factor, every if sta is None else local[sta][None, :])
+        own = s.realistic_std_ns()[n:]
+        extra = np.zeros(n + len(data.layout.svs))
+        extra[n:] = np.where(np.isfinite(own), np.maximum(floor - own**2, 0.0), 0.0)
+        out.append(replace(s, between_station=test, extra_variance_ns2=extra))
+    return out
+
+
+def _between_stations(data: BiasNetworkData, series: Sequence[DatumSeries], level: float | None) -> Any:
+    """The between-station test (:mod:`~distnav.models.gnss.stationcheck`) on the single-receiver filters' last
+    satellite DSBs and realistic σ; None when off, with one station, or when no pair shares enough satellites."""
+    from distnav.models.gnss.stationcheck import between_station_test
+
+    local = [s for s in series if s.label.startswith("local:")]
+    if level is None or len(local) < 2:
+        return None
+    n = len(data.stations)
+    dsb = np.stack([s.dsb_ns[-1, n:] for s in local])
+    sigma = np.stack([s.realistic_std_ns()[n:] for s in local])
+    return between_station_test([s.label[len("local:") :] for s in local], dsb, sigma, level=level)
 
 
 def _central_filter(data: BiasNetworkData, opts: dict[str, Any]) -> DatumSeries:

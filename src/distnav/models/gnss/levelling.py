@@ -42,10 +42,11 @@ import numpy as np
 from distnav.algorithms.result import ObservationTests
 from distnav.algorithms.statistics import critical_value, w_statistics
 from distnav.errors import ModelError
-from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
+from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ
 
 __all__ = [
     "ArcStatistics",
+    "band_frequencies_hz",
     "LevelledStation",
     "LevellingOptions",
     "geometry_free_phase_m",
@@ -59,8 +60,11 @@ __all__ = [
 
 @dataclass(frozen=True)
 class ArcStatistics:
-    """One continuous arc: satellite, first/last epoch index, epochs kept, why it started, offset (m) and its σ,
-    RMS of code minus levelled phase before/after screening [m], observations removed by the screening."""
+    """One continuous arc: satellite, first/last epoch index, epochs, why it started, offset (m) and its σ,
+    RMS of code minus levelled phase after screening [m], and every removal by reason: ``removed`` by the
+    screening's w-tests, ``removed_mw`` one-epoch Melbourne–Wübbena outliers within the arc's span, and
+    ``dropped_short`` (the arc's epochs, when the whole arc was shorter than the minimum and dropped; then no
+    offset: NaN)."""
 
     sv: str
     first: int
@@ -71,6 +75,8 @@ class ArcStatistics:
     offset_std_m: float
     code_rms_m: float
     removed: int
+    removed_mw: int = 0
+    dropped_short: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -93,6 +99,8 @@ class LevelledStation:
     fit_wss: np.ndarray | None = None
     fit_n: np.ndarray | None = None
     mw_outlier: np.ndarray | None = None
+    short_arcs: list[ArcStatistics] | None = None
+    """The arcs dropped as too short (their epochs counted in ``dropped_short``), for ``arcs.csv``."""
 
     def arc_summary(self) -> dict[str, Any]:
         """Counts of arcs, starts by reason, short arcs dropped, median arc length and code RMS, and the raw
@@ -156,22 +164,44 @@ GF_MIN_ERRORS = 10
 is used from the third one on (before it: the fixed threshold)."""
 
 
-def geometry_free_phase_m(phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2) -> np.ndarray:
-    """``(Φ_1 − Φ_b)/(μ_b − 1)`` [m]: the L1 ionospheric delay plus a constant per arc."""
-    out: np.ndarray = (np.asarray(phi1_m, float) - np.asarray(phib_m, float)) / (mu(band) - 1.0)
+def band_frequencies_hz(band: int, frequencies_hz: tuple[Any, Any] | None = None) -> tuple[Any, Any]:
+    """``(f_1, f_b)`` [Hz]: the GPS frequencies of L1 and ``band``, or ``frequencies_hz`` — scalars or (S,)
+    arrays, one per satellite column (another system's signals, GLONASS FDMA channels), broadcast over epochs."""
+    if frequencies_hz is None:
+        return GPS_FREQUENCIES_HZ[1], GPS_FREQUENCIES_HZ[band]
+    f1, fb = (np.asarray(f, float) for f in frequencies_hz)
+    if not (np.all(f1 > 0) and np.all(fb > 0) and np.all(f1 != fb)):
+        raise ModelError("levelling: frequencies must be positive and differ between the two signals")
+    return f1, fb
+
+
+def geometry_free_phase_m(
+    phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2, *, frequencies_hz: tuple[Any, Any] | None = None
+) -> np.ndarray:
+    """``(Φ_1 − Φ_b)/(μ_b − 1)`` [m]: the L1 ionospheric delay plus a constant per arc (``μ_b = (f_1/f_b)²``,
+    :func:`band_frequencies_hz`)."""
+    f1, fb = band_frequencies_hz(band, frequencies_hz)
+    out: np.ndarray = (np.asarray(phi1_m, float) - np.asarray(phib_m, float)) / ((f1 / fb) ** 2 - 1.0)
     return out
 
 
 def melbourne_wubbena_cycles(
-    p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2
+    p1_m: np.ndarray,
+    pb_m: np.ndarray,
+    phi1_m: np.ndarray,
+    phib_m: np.ndarray,
+    band: int = 2,
+    *,
+    frequencies_hz: tuple[Any, Any] | None = None,
 ) -> np.ndarray:
     """Melbourne–Wübbena wide-lane [cycles of ``λ_w = c/(f_1 − f_b)``]: constant per arc up to code noise."""
-    f1, fb = GPS_FREQUENCIES_HZ[1], GPS_FREQUENCIES_HZ[band]
+    f1, fb = band_frequencies_hz(band, frequencies_hz)
     lw = C_M_S / (f1 - fb)
     l1, lb = C_M_S / f1, C_M_S / fb
     phase_wl = np.asarray(phi1_m, float) / l1 - np.asarray(phib_m, float) / lb
     code_nl = (f1 * np.asarray(p1_m, float) + fb * np.asarray(pb_m, float)) / ((f1 + fb) * lw)
-    return phase_wl - code_nl
+    out: np.ndarray = phase_wl - code_nl
+    return out
 
 
 def find_arcs(
@@ -309,7 +339,9 @@ class LevellingOptions:
     ``max_gap_s`` [None: 3 × the median sampling interval]: a longer gap ends an arc. ``gf_threshold_m`` [0.05] /
     ``gf_sigmas`` [:data:`GF_SIGMAS`]: the geometry-free slip limit of :func:`find_arcs`. ``screen`` [True]: the
     arcs' w-test screening at ``level`` [0.001]. ``fallback_raw`` [False]: epochs outside any kept arc keep the
-    raw code (instead of NaN). Checked once, here."""
+    raw code (instead of NaN). ``frequencies_hz`` [None: GPS L1 and ``band``]: ``(f_1, f_b)`` [Hz], scalars or
+    (S,) arrays per satellite column — the hook for other systems and GLONASS's FDMA channels. Checked once,
+    here."""
 
     band: int = 2
     min_arc_epochs: int = 10
@@ -319,6 +351,7 @@ class LevellingOptions:
     screen: bool = True
     level: float = 0.001
     fallback_raw: bool = False
+    frequencies_hz: tuple[Any, Any] | None = None
 
     def __post_init__(self) -> None:
         if self.band == 1:
@@ -347,6 +380,7 @@ class _Accumulator:
     arcs: list[ArcStatistics]
     starts: dict[str, int]
     dropped: int = 0
+    short: list[ArcStatistics] | None = None
 
     @classmethod
     def empty(cls, T: int, S: int) -> _Accumulator:
@@ -360,6 +394,8 @@ class _Accumulator:
             np.zeros(S, np.int64),
             [],
             {},
+            0,
+            [],
         )
 
 
@@ -397,10 +433,11 @@ def level_station(
     t = np.asarray(t_s, float)
     if t.ndim != 1 or np.any(np.diff(t) <= 0):
         raise ModelError("epoch times must be one increasing series")
-    band = options.band
-    gp = (np.asarray(pb_m, float) - np.asarray(p1_m, float)) / (mu(band) - 1.0)
-    gphi = geometry_free_phase_m(phi1_m, phib_m, band)
-    mw = melbourne_wubbena_cycles(p1_m, pb_m, phi1_m, phib_m, band)
+    band, freqs = options.band, options.frequencies_hz
+    f1, fb = band_frequencies_hz(band, freqs)
+    gp = (np.asarray(pb_m, float) - np.asarray(p1_m, float)) / ((f1 / fb) ** 2 - 1.0)
+    gphi = geometry_free_phase_m(phi1_m, phib_m, band, frequencies_hz=freqs)
+    mw = melbourne_wubbena_cycles(p1_m, pb_m, phi1_m, phib_m, band, frequencies_hz=freqs)
     sig = np.ones_like(gp) if sigma_m is None else np.asarray(sigma_m, float)
     gap = (
         options.max_gap_s
@@ -427,7 +464,17 @@ def level_station(
         removed=tuple(np.flatnonzero(acc.removed[tested]).tolist()),
     )
     return LevelledStation(
-        acc.out, acc.arc_id, acc.arcs, acc.removed, acc.starts, acc.dropped, tests, acc.fit_wss, acc.fit_n, acc.mw_out
+        acc.out,
+        acc.arc_id,
+        acc.arcs,
+        acc.removed,
+        acc.starts,
+        acc.dropped,
+        tests,
+        acc.fit_wss,
+        acc.fit_n,
+        acc.mw_out,
+        acc.short,
     )
 
 
@@ -460,8 +507,14 @@ def _level_satellite(
     for j, why in enumerate(reasons):
         acc.starts[why] = acc.starts.get(why, 0) + 1
         ep = np.flatnonzero(a == j)
+        mw_in = int(outl[ep[0] : ep[-1] + 1].sum()) if ep.size else 0
         if ep.size < options.min_arc_epochs:
             acc.dropped += 1
+            if ep.size and acc.short is not None:
+                nan = float("nan")
+                acc.short.append(
+                    ArcStatistics(sv, int(ep[0]), int(ep[-1]), int(ep.size), why, nan, nan, nan, 0, mw_in, int(ep.size))
+                )
             continue
         d = gp[ep, s] - gphi[ep, s]
         if options.screen:
@@ -488,6 +541,7 @@ def _level_satellite(
                 off_sd,
                 float(np.sqrt(np.mean((d[keep] - off) ** 2))),
                 int((~keep).sum()),
+                mw_in,
             )
         )
 
