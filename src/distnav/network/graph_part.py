@@ -96,12 +96,30 @@ class GraphPart:
             for f in ("nodes", "in_ptr", "src", "edge_ids", "out_edge_ids", "degree", "halo", "halo_degree")
         )
 
+    @property
+    def is_range(self) -> bool:
+        """Whether the owned nodes are a range of ids (then their in-edges' ids are a range too)."""
+        return self.n_local > 0 and int(self.nodes[-1]) - int(self.nodes[0]) + 1 == self.n_local
+
+    def owned_positions(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position in :attr:`nodes` of each id (clipped into range where not owned) and whether it is owned: by a
+        subtraction when the owned nodes are a range of ids, else by binary search."""
+        ids = np.asarray(ids, np.int64)
+        if self.n_local == 0:
+            return np.zeros(ids.size, np.int64), np.zeros(ids.size, bool)
+        if self.is_range:
+            k = ids - int(self.nodes[0])
+            own = (k >= 0) & (k < self.n_local)
+            np.clip(k, 0, self.n_local - 1, out=k)
+            return k, own
+        k = np.minimum(np.searchsorted(self.nodes, ids), self.n_local - 1)
+        return k, self.nodes[k] == ids
+
     def sender_degree(self) -> np.ndarray:
         """Degree of the sender of each incoming edge (owned or halo)."""
         src = self.src
         out = np.empty(src.size, np.int64)
-        k = np.minimum(np.searchsorted(self.nodes, src), max(self.nodes.size - 1, 0))
-        own = self.nodes[k] == src if self.nodes.size else np.zeros(src.size, bool)
+        k, own = self.owned_positions(src)
         out[own] = self.degree[k[own]]
         if (~own).any():
             out[~own] = self.halo_degree[np.searchsorted(self.halo, src[~own])]
