@@ -220,8 +220,8 @@ def tiled_random_geometric(
     n = _need(n_nodes, 1, "a tiled random geometric graph")
     til = _Tiling.make(n, radius, seed, tile_nodes)
     _, pos = til.points(np.arange(til.n_tiles))
-    pairs = _tree(pos).query_pairs(til.radius, output_type="ndarray")
-    return Graph.from_links(n, pairs, positions=pos, self_loops=self_loops)
+    pairs = [_tree(pos).query_pairs(til.radius, output_type="ndarray")]  # i < j, each pair once
+    return Graph._from_link_pairs(n, pairs, positions=pos, self_loops=self_loops)
 
 
 def _tree(pos: np.ndarray) -> Any:
