@@ -52,8 +52,7 @@ def _part_order(part: GraphPart, order: str | np.ndarray) -> np.ndarray | None:
     import scipy.sparse as sp
     from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-    k = np.minimum(np.searchsorted(part.nodes, part.src), part.n_local - 1)
-    inner = part.nodes[k] == part.src
+    k, inner = part.owned_positions(part.src)
     rows = np.repeat(np.arange(part.n_local), np.diff(part.in_ptr))[inner]
     adj = sp.csr_matrix((np.ones(rows.size), (rows, k[inner])), shape=(part.n_local, part.n_local))
     return np.asarray(reverse_cuthill_mckee(adj, symmetric_mode=True), dtype=np.int64)
@@ -139,7 +138,7 @@ class MPIExchange(Exchange):
         """Every index array of the block from its part: no array over the whole graph's edges."""
         # edge-sized index arrays in 32 bits where every index fits (as in-process); global ids stay 64-bit
         idx = np.int32 if max(self.n_nodes, self.n_edges) < 2**31 - 1 else np.int64
-        local_of_part = self._local_edges(part, perm, idx)
+        local_of_part, pos_in = self._local_edges(part, perm, idx)
         own_in_src, own_out_dst = self._owner_of(self.in_src), self._owner_of(self.out_dst)
         me = self.rank
         # neighbour ranks: those sharing cut edges (symmetric: every link is stored both ways)
@@ -152,7 +151,8 @@ class MPIExchange(Exchange):
         del cut_out_rows, cut_in_rows
         self._node_halo(part, local_of_part, send_rows, recv_rows, own_in_src == me, idx)
         del own_in_src
-        self._edge_transport(send_rows, recv_rows, own_out_dst == me, idx)
+        self._edge_transport(part, pos_in, send_rows, recv_rows, own_out_dst == me, idx)
+        del pos_in
         del own_out_dst
         self._layouts: dict[tuple[int, int, int], Any] = {}
         self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
@@ -163,9 +163,11 @@ class MPIExchange(Exchange):
         self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
         self._init_accounting()
 
-    def _local_edges(self, part: GraphPart, perm: np.ndarray | None, idx: type[np.signedinteger[Any]]) -> np.ndarray:
-        """The block's nodes in local order and its in- and out-edges; returns part position → local index.
-        ``perm[k]`` is the position in ``part.nodes`` of local node k."""
+    def _local_edges(
+        self, part: GraphPart, perm: np.ndarray | None, idx: type[np.signedinteger[Any]]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The block's nodes in local order and its in- and out-edges; returns part position → local index, and
+        the part position of every local in-edge. ``perm[k]`` is the position in ``part.nodes`` of local node k."""
         n_local = part.n_local
         rows = np.arange(n_local, dtype=np.int64) if perm is None else np.asarray(perm, np.int64)
         self.nodes = part.nodes[rows]
@@ -177,14 +179,13 @@ class MPIExchange(Exchange):
         self.in_edges = part.edge_ids[pos_in]
         self.in_src = part.src[pos_in].astype(np.int64)  # global ids stay 64-bit (as in-process): callers compute
         self.in_dst = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr)[rows])
-        del pos_in
         # out-edges: the reverse of every in-edge, in global edge order
         recv_part = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr))
-        by_id = np.argsort(part.out_edge_ids, kind="stable")
+        by_id = np.argsort(part.out_edge_ids)  # distinct ids: any sort gives this order (quicksort: 2× faster)
         self.out_edges = part.out_edge_ids[by_id]
         self.out_src = local_of_part[recv_part[by_id]]
         self.out_dst = part.src[by_id].astype(np.int64)
-        return local_of_part
+        return local_of_part, pos_in
 
     def _node_halo(
         self,
@@ -201,7 +202,7 @@ class MPIExchange(Exchange):
         bitwise with in-process whatever the column numbering."""
 
         def local_index(glob: np.ndarray) -> np.ndarray:  # owned global ids → local index
-            return np.asarray(local_of_part[np.searchsorted(part.nodes, glob)])
+            return np.asarray(local_of_part[part.owned_positions(glob)[0]])
 
         has_nbr = bool(self.neighbour_ranks.size)
         send_nodes = [np.unique(self.nodes[self.out_src[rr]]) for rr in send_rows]
@@ -223,6 +224,8 @@ class MPIExchange(Exchange):
 
     def _edge_transport(
         self,
+        part: GraphPart,
+        pos_in: np.ndarray,
         send_rows: list[np.ndarray],
         recv_rows: list[np.ndarray],
         receiver_is_mine: np.ndarray,
@@ -230,12 +233,19 @@ class MPIExchange(Exchange):
     ) -> None:
         """Edge messages: rows moved inside the block, and per neighbour rank the cut edges in global edge order on
         both sides."""
-        in_by_id = np.argsort(self.in_edges, kind="stable")
         local_out_rows = np.flatnonzero(receiver_is_mine)
         self._local_out_pos = local_out_rows.astype(idx)
-        found = np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])
-        self._local_in_pos = in_by_id[found].astype(idx)
-        del in_by_id, local_out_rows, found
+        if part.is_range:  # in-edge ids are a range: id → part position → local row, no sort
+            row_of_pos = np.empty(pos_in.size, idx)
+            row_of_pos[pos_in] = np.arange(pos_in.size, dtype=idx)
+            self._local_in_pos = row_of_pos[self.out_edges[local_out_rows] - int(part.edge_ids[0])]
+            del row_of_pos
+        else:
+            in_by_id = np.argsort(self.in_edges, kind="stable")
+            found = np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])
+            self._local_in_pos = in_by_id[found].astype(idx)
+            del in_by_id, found
+        del local_out_rows
         empty = np.zeros(0, np.int64)
         has_nbr = bool(self.neighbour_ranks.size)
         self._edge_send_pos: np.ndarray = (np.concatenate(send_rows) if has_nbr else empty).astype(idx)

