@@ -36,7 +36,8 @@ import numpy as np
 from distnav.errors import GraphError, ModelError
 from distnav.experiments.codebias_figures import figures
 from distnav.experiments.common import ExperimentContext
-from distnav.models.gnss.codebias import CodeBiasData, simulate_codebias_data
+from distnav.models.gnss.codebias import CodeBiasData
+from distnav.models.gnss.codebias_build import CodeBiasSimulation, simulate_codebias_data
 from distnav.models.gnss.constants import NS_TO_M
 from distnav.models.gnss.geometry import geodetic_to_ecef
 from distnav.models.gnss.orbits import (
@@ -252,10 +253,12 @@ def _simulate(
         t,
         svs,
         rng=rng,
-        sat_biases_m=sat_biases_m,
-        rx_biases_m=rx_biases_m,
-        stations=net.graph.names,
-        reference=int(net.hubs[0]),
+        options=CodeBiasSimulation(
+            sat_biases_m=sat_biases_m,
+            rx_biases_m=rx_biases_m,
+            stations=net.graph.names,
+            reference=int(net.hubs[0]),
+        ),
     )
 
 

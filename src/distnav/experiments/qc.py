@@ -25,9 +25,8 @@ from scipy.linalg import block_diag
 from distnav.algorithms.lsq.blue import LinearProblem, blue
 from distnav.algorithms.lsq.qc import admm_data_snooping
 from distnav.algorithms.statistics import data_snooping
-from distnav.experiments.codebias import EPOCH_S, constellation, synthetic_igs_network
+from distnav.experiments.codebias import _simulate, constellation, synthetic_igs_network
 from distnav.experiments.common import ExperimentContext, pyplot
-from distnav.models.gnss.codebias import simulate_codebias_data
 from distnav.models.gnss.constants import NS_TO_M
 from distnav.network import builders
 from distnav.network.graph import Graph
@@ -103,18 +102,7 @@ def codebias_qc_problem(ctx: ExperimentContext, epochs: int, n_errors: int) -> d
     orbit, svs, t0, orbit_text = constellation(None, None)
     sat = ctx.rng(2).normal(0.0, 3.0 * NS_TO_M, size=(len(svs), 3))
     rx = ctx.rng(4).normal(0.0, 5.0 * NS_TO_M, size=(net.graph.n_nodes, 3))
-    t = t0 + np.arange(epochs) * EPOCH_S
-    data = simulate_codebias_data(
-        net.positions_ecef_m,
-        orbit,
-        t,
-        svs,
-        rng=ctx.rng(3),
-        sat_biases_m=sat,
-        rx_biases_m=rx,
-        stations=net.graph.names,
-        reference=int(net.hubs[0]),
-    )
+    data = _simulate(net, orbit, svs, t0, epochs, ctx.rng(3), sat, rx)  # the sessions of `reproduce codebias`
     data = data.estimable_subset()
     data.check()
     blocks = [data.node_system(i) for i in range(data.n_stations)]
