@@ -236,15 +236,31 @@ def test_simulation_and_building_validation(rng: np.random.Generator, shared_dat
         ({"sigma0_m": 0.0}, "sigma0_m must be a positive number of metres"),
         ({"sigma0_m": float("nan")}, "sigma0_m must be a positive number"),
         ({"weighting": "elevation"}, "unknown elevation weighting 'elevation'"),
-        ({"mask_rad": 10.0}, r"mask_rad must lie in \[0, π/2\) \(radians, not degrees\)"),
+        ({"mask_rad": 10.0}, r"mask_rad must be below 1.5708 \(radians, not degrees\), got 10.0"),
+        ({"mask_rad": -0.1}, r"mask_rad must be 0 or more"),
+        ({"sigma0_m": 0.2 + 1j}, r"sigma0_m must be a positive number of metres, got \(0.2\+1j\) \(complex\)"),
+        ({"sigma0_m": "0.2"}, r"sigma0_m must be a positive number of metres, got '0.2' \(str\)"),
+        ({"sat_dsb_sigma_ns": None}, "sat_dsb_sigma_ns must be a number of ns, got None"),
         ({"rx_dsb_sigma_ns": -1.0}, "rx_dsb_sigma_ns must be 0 or more"),
-        ({"reference": 1.5}, "reference must be a station index"),
-        ({"reference": True}, "reference must be a station index"),
+        ({"reference": 1.5}, r"reference \(a station index\) must be a whole number, got 1.5"),
+        ({"reference": True}, r"reference \(a station index\) must be a whole number, got True \(a bool\)"),
     ],
 )
 def test_simulation_options_are_checked_when_built(options: dict[str, object], message: str) -> None:
     with pytest.raises(ModelError, match=message):
         CodeBiasSimulation(**options)  # type: ignore[arg-type]
+
+
+def test_simulation_times_and_positions_are_checked(rng: np.random.Generator) -> None:
+    sc = synthetic_gps_constellation()
+    pos = geodetic_to_ecef(np.zeros(2), np.zeros(2), 0.0)
+    t = sc.epoch_gps_s + np.zeros(1)
+    with pytest.raises(ModelError, match="t_gps_s are complex numbers"):
+        simulate_codebias_data(pos, sc, t + 1j, sc.l5_svs, rng=rng)
+    with pytest.raises(ModelError, match="t_gps_s must be a 1-D array of finite GPS seconds"):
+        simulate_codebias_data(pos, sc, t + np.inf, sc.l5_svs, rng=rng)
+    with pytest.raises(ModelError, match=r"positions_ecef_m must be finite \(stations, 3\) ECEF metres"):
+        simulate_codebias_data(pos[:, :2], sc, t, sc.l5_svs, rng=rng)
 
 
 def test_simulation_reference_must_be_a_station(rng: np.random.Generator) -> None:

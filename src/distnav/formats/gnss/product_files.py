@@ -27,8 +27,11 @@ __all__ = ["product_dsbs", "product_day", "check_orbit_day", "read_estimates", "
 def product_day(path: str | Path) -> np.datetime64 | None:
     """The day of a product or RINEX file from an IGS long file name (``..._YYYYDDDHHMM_01D_...``) or a short
     name (``codgDDD0.YYi``, ``dgarDDD0.YYo``/``.YYd``/``.YYn``); ``None`` when the name does not say."""
+    import os
     import re
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise DataFileError(f"product_day needs a file name, got {path!r} ({type(path).__name__})")
     name = Path(path).name
     m = re.search(r"_(\d{4})(\d{3})\d{4}_", name)
     if m:

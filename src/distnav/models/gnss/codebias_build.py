@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav._checks import real_array, real_number, whole_number
 from distnav.errors import ModelError
 from distnav.models.gnss.code_observations import CodeObservations
 from distnav.models.gnss.codebias import CodeBiasData, combination_sigma
@@ -48,18 +49,15 @@ class CodeBiasSimulation:
     reference: int = 0
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.sigma0_m) and self.sigma0_m > 0.0):
-            raise ModelError(f"sigma0_m must be a positive number of metres, got {self.sigma0_m!r}")
+        real_number(self.sigma0_m, "sigma0_m", positive=True, unit="metres", error=ModelError)
         if self.weighting not in WEIGHTINGS:
             raise ModelError(f"unknown elevation weighting {self.weighting!r}; use {', '.join(map(repr, WEIGHTINGS))}")
-        if not 0.0 <= self.mask_rad < np.pi / 2:
-            raise ModelError(f"mask_rad must lie in [0, π/2) (radians, not degrees), got {self.mask_rad!r}")
+        real_number(
+            self.mask_rad, "mask_rad", minimum=0.0, below=np.pi / 2, unit="radians, not degrees", error=ModelError
+        )
         for name in ("sat_dsb_sigma_ns", "rx_dsb_sigma_ns"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ModelError(f"{name} must be 0 or more (ns), got {value!r}")
-        if isinstance(self.reference, bool) or not isinstance(self.reference, (int, np.integer)) or self.reference < 0:
-            raise ModelError(f"reference must be a station index (0 or more), got {self.reference!r}")
+            real_number(getattr(self, name), name, minimum=0.0, unit="ns", error=ModelError)
+        whole_number(self.reference, "reference (a station index)", error=ModelError)
 
 
 def _given_or_drawn(
@@ -91,8 +89,12 @@ def simulate_codebias_data(
     biases and noise cancels in (24); ``truth_m`` holds the estimable ``x_s = b^s + b_ref``.
     """
     o = options if options is not None else CodeBiasSimulation()
-    pos = np.asarray(positions_ecef_m, dtype=float)
-    t = np.asarray(t_gps_s, dtype=float)
+    pos = real_array(positions_ecef_m, "positions_ecef_m", error=ModelError)
+    t = real_array(t_gps_s, "t_gps_s", error=ModelError)
+    if pos.ndim != 2 or pos.shape[1] != 3 or not np.isfinite(pos).all():
+        raise ModelError(f"positions_ecef_m must be finite (stations, 3) ECEF metres, got shape {pos.shape}")
+    if t.ndim != 1 or not np.isfinite(t).all():
+        raise ModelError(f"t_gps_s must be a 1-D array of finite GPS seconds, got shape {t.shape}")
     n, p, T = pos.shape[0], len(svs), t.size
     if o.reference >= n:
         raise ModelError(f"reference {o.reference} is not one of the {n} stations")
