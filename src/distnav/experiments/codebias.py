@@ -222,6 +222,7 @@ def constellation(nav: str | None = None, start: str | None = None) -> tuple[Any
         l5 = sc.subset(sc.l5_svs)
         t0 = sc.epoch_gps_s if start is None else float(gps_seconds(np.array(start, dtype="datetime64[ns]")))
         return l5, l5.svs, t0, "synthetic constellation (nominal elements)"
+    from distnav.formats.gnss.product_files import check_orbit_times
     from distnav.formats.gnss.rinex import read_navigation
 
     orbit = read_navigation(Path(nav), max_age_s=4 * 3600.0)
@@ -233,6 +234,7 @@ def constellation(nav: str | None = None, start: str | None = None) -> tuple[Any
         t0 = float(np.ceil(first / 3600.0) * 3600.0 + 3600.0)
     else:
         t0 = float(gps_seconds(np.array(start, dtype="datetime64[ns]")))
+        check_orbit_times(orbit, t0, f"--start {start}", verb="is on")
     return orbit, svs, t0, f"broadcast ephemerides of {Path(nav).name}"
 
 
