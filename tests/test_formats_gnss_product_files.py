@@ -65,8 +65,8 @@ def test_orbits_of_the_same_day_that_reach_no_epoch_say_when_they_reach() -> Non
     with pytest.raises(DataFileError) as err:
         check_orbit_day(_sp3("2020-06-25T00:00", 2), [_obs("2020-06-25T12:00", 1)])
     assert str(err.value) == (
-        "orbits.sp3: its orbits reach 2020-06-25 00:00 to 2020-06-25 02:00 (GPS time), none of the epochs of "
-        "abcd1770.20o (2020-06-25 12:00 to 2020-06-25 13:00): give orbits that cover the observations"
+        "orbits.sp3: its orbits reach 2020-06-25 00:00 to 2020-06-25 02:00 (GPS time), none of the observation epochs "
+        "of abcd1770.20o (2020-06-25 12:00 to 2020-06-25 13:00): give orbits that cover them"
     )
 
 
@@ -123,3 +123,16 @@ def test_the_right_days_files_pass(shared_data: Path) -> None:
     nl = shared_data / NL
     obs = read_code_observations(nl / "zegv0010.21o", bands=(1, 2, 5))
     check_orbit_day(read_navigation(nl / "cbw10010.21n.gz", max_age_s=24 * 3600.0), [obs])
+
+
+def test_reproduce_codebias_with_a_start_the_navigation_file_does_not_reach(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``reproduce codebias --nav FILE --start ISO`` reads orbits too: a start on another day is named (it said "no
+    satellite code bias is estimable from these data")."""
+    nav = shared_data / IGS / "brdc0110.24n.gz"
+    argv = ["reproduce", "codebias", "--quick", "--nav", str(nav), "--start", "2021-01-01T00:00"]
+    assert main([*argv, "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "brdc0110.24n.gz: a navigation file of 2024-01-11 (GPS time), but --start 2021-01-01T00:00 is on " in err
+    assert "2021-01-01: its orbits do not reach it; give the navigation file of 2021-01-01" in err, err

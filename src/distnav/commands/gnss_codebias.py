@@ -111,7 +111,7 @@ def read_orbit(args: argparse.Namespace, obs: list[Any]) -> Any:
 
 def codebias_data(args: argparse.Namespace, obs: list[Any], orbit: Any) -> Any:
     """The code-bias observable of every station (paper 000 eq. (24)), checked to determine the biases."""
-    from distnav.models.gnss.codebias import codebias_data_from_observations
+    from distnav.models.gnss.codebias_build import codebias_data_from_observations
 
     data = codebias_data_from_observations(
         obs, orbit, sigma0_m=args.sigma, weighting=args.weighting, mask_rad=np.deg2rad(args.mask)

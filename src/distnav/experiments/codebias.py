@@ -36,7 +36,8 @@ import numpy as np
 from distnav.errors import GraphError, ModelError
 from distnav.experiments.codebias_figures import figures
 from distnav.experiments.common import ExperimentContext
-from distnav.models.gnss.codebias import CodeBiasData, simulate_codebias_data
+from distnav.models.gnss.codebias import CodeBiasData
+from distnav.models.gnss.codebias_build import CodeBiasSimulation, simulate_codebias_data
 from distnav.models.gnss.constants import NS_TO_M
 from distnav.models.gnss.geometry import geodetic_to_ecef
 from distnav.models.gnss.orbits import (
@@ -221,6 +222,7 @@ def constellation(nav: str | None = None, start: str | None = None) -> tuple[Any
         l5 = sc.subset(sc.l5_svs)
         t0 = sc.epoch_gps_s if start is None else float(gps_seconds(np.array(start, dtype="datetime64[ns]")))
         return l5, l5.svs, t0, "synthetic constellation (nominal elements)"
+    from distnav.formats.gnss.product_files import check_orbit_times
     from distnav.formats.gnss.rinex import read_navigation
 
     orbit = read_navigation(Path(nav), max_age_s=4 * 3600.0)
@@ -232,6 +234,7 @@ def constellation(nav: str | None = None, start: str | None = None) -> tuple[Any
         t0 = float(np.ceil(first / 3600.0) * 3600.0 + 3600.0)
     else:
         t0 = float(gps_seconds(np.array(start, dtype="datetime64[ns]")))
+        check_orbit_times(orbit, t0, f"--start {start}", verb="is on")
     return orbit, svs, t0, f"broadcast ephemerides of {Path(nav).name}"
 
 
@@ -252,10 +255,12 @@ def _simulate(
         t,
         svs,
         rng=rng,
-        sat_biases_m=sat_biases_m,
-        rx_biases_m=rx_biases_m,
-        stations=net.graph.names,
-        reference=int(net.hubs[0]),
+        options=CodeBiasSimulation(
+            sat_biases_m=sat_biases_m,
+            rx_biases_m=rx_biases_m,
+            stations=net.graph.names,
+            reference=int(net.hubs[0]),
+        ),
     )
 
 

@@ -418,25 +418,14 @@ def _table_csv(table: list[dict[str, Any]]) -> str:
 
 
 def _table_md(table: list[dict[str, Any]]) -> str:
-    out = [
-        "# Table 1 analogue (paper 002): final mean RMSE [m] / RMS cost [m²]",
-        "",
-        "| problem | " + " | ".join(SOLVERS) + " |",
-        "|---|" + "---|" * len(SOLVERS),
-    ]
-    for p in PAPER_PROBLEMS:
-        cells = [f"{_final(table, p, s, 'rmse_m'):.3f} / {_final(table, p, s, 'rms_cost'):.3g}" for s in SOLVERS]
-        out.append(f"| {p} | " + " | ".join(cells) + " |")
-    out += [
-        "",
-        "Messages / bytes per instance:",
-        "",
-        "| problem | " + " | ".join(SOLVERS) + " |",
-        "|---|" + "---|" * len(SOLVERS),
-    ]
-    for p in PAPER_PROBLEMS:
-        cells = [f"{int(_final(table, p, s, 'messages'))} / {int(_final(table, p, s, 'bytes'))}" for s in SOLVERS]
-        out.append(f"| {p} | " + " | ".join(cells) + " |")
+    def block(cell: Callable[[str, str], str]) -> list[str]:
+        head = ["| problem | " + " | ".join(SOLVERS) + " |", "|---|" + "---|" * len(SOLVERS)]
+        return head + [f"| {p} | " + " | ".join(cell(p, s) for s in SOLVERS) + " |" for p in PAPER_PROBLEMS]
+
+    out = ["# Table 1 analogue (paper 002): final mean RMSE [m] / RMS cost [m²]", ""]
+    out += block(lambda p, s: f"{_final(table, p, s, 'rmse_m'):.3f} / {_final(table, p, s, 'rms_cost'):.3g}")
+    out += ["", "Messages / bytes per instance:", ""]
+    out += block(lambda p, s: f"{int(_final(table, p, s, 'messages'))} / {int(_final(table, p, s, 'bytes'))}")
     return "\n".join(out) + "\n"
 
 

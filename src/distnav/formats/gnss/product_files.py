@@ -21,14 +21,25 @@ from distnav.formats.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, res
 from distnav.models.gnss.constants import C_M_S
 from distnav.models.gnss.products import DSBEstimates, ProductDSB
 
-__all__ = ["product_dsbs", "product_day", "check_orbit_day", "read_estimates", "correct_c1", "satellite_svns"]
+__all__ = [
+    "product_dsbs",
+    "product_day",
+    "check_orbit_day",
+    "check_orbit_times",
+    "read_estimates",
+    "correct_c1",
+    "satellite_svns",
+]
 
 
 def product_day(path: str | Path) -> np.datetime64 | None:
     """The day of a product or RINEX file from an IGS long file name (``..._YYYYDDDHHMM_01D_...``) or a short
     name (``codgDDD0.YYi``, ``dgarDDD0.YYo``/``.YYd``/``.YYn``); ``None`` when the name does not say."""
+    import os
     import re
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise DataFileError(f"product_day needs a file name, got {path!r} ({type(path).__name__})")
     name = Path(path).name
     m = re.search(r"_(\d{4})(\d{3})\d{4}_", name)
     if m:
@@ -69,34 +80,43 @@ def check_orbit_day(orbit: Any, observations: Sequence[Any]) -> None:
     code_observations.CodeObservations` (``time``, ``path``); an orbit not read from a file is not checked."""
     from distnav.models.gnss.orbits import gps_seconds
 
+    for o in observations:
+        check_orbit_times(orbit, gps_seconds(o.time), Path(o.path).name)
+
+
+def check_orbit_times(
+    orbit: Any, t_gps_s: Any, name: str, *, verb: str = "observes", what: str = "observation epochs"
+) -> None:
+    """:func:`check_orbit_day` for the times ``t_gps_s`` [GPS s] of one file or option, ``name`` in the message
+    (``"dgar0100.24o observes 2024-01-10"``, ``"--start 2021-01-01T00:00 is on 2021-01-01"`` with ``verb="is on"``);
+    ``what`` the times are."""
     held = _orbit_epochs(orbit)
-    if held is None or held[0].size == 0:
+    t = np.atleast_1d(np.asarray(t_gps_s, dtype=float))
+    if held is None or held[0].size == 0 or t.size == 0:
         return
     epochs, reach_s, kind = held
     orbit_days = _days(epochs)
     first, last = float(epochs.min()) - reach_s, float(epochs.max()) + reach_s
-    for o in observations:
-        t = gps_seconds(o.time)
-        if t.size == 0:
-            continue
-        covered = (t >= first) & (t <= last)
-        obs_days = _days(t)
-        if covered.any() and set(obs_days) & set(orbit_days):
-            continue
-        source = getattr(orbit, "source", "") or f"the {kind}"
-        if set(obs_days) & set(orbit_days):
-            raise DataFileError(
-                f"{source}: its orbits reach {_minute(first)} to {_minute(last)} (GPS time), none of the epochs of "
-                f"{Path(o.path).name} ({_minute(float(t.min()))} to {_minute(float(t.max()))}): give orbits that "
-                f"cover the observations"
-            )
-        share = "none" if not covered.any() else f"only {int(covered.sum())} of {t.size}"
-        article = "an" if kind.startswith("SP3") else "a"
+    covered = (t >= first) & (t <= last)
+    days = _days(t)
+    if covered.any() and set(days) & set(orbit_days):
+        return
+    source = getattr(orbit, "source", "") or f"the {kind}"
+    if set(days) & set(orbit_days):
         raise DataFileError(
-            f"{source}: {article} {kind} of {' to '.join(dict.fromkeys([orbit_days[0], orbit_days[-1]]))} (GPS "
-            f"time), but {Path(o.path).name} observes {', '.join(obs_days)}: its orbits reach {share} of the "
-            f"observation epochs; give the {kind} of {', '.join(obs_days)}"
+            f"{source}: its orbits reach {_minute(first)} to {_minute(last)} (GPS time), none of the {what} of "
+            f"{name} ({_minute(float(t.min()))} to {_minute(float(t.max()))}): give orbits that cover them"
         )
+    if t.size == 1:
+        reach = "its orbits do not reach it"
+    else:
+        share = "none" if not covered.any() else f"only {int(covered.sum())} of {t.size}"
+        reach = f"its orbits reach {share} of the {what}"
+    article = "an" if kind.startswith("SP3") else "a"
+    raise DataFileError(
+        f"{source}: {article} {kind} of {' to '.join(dict.fromkeys([orbit_days[0], orbit_days[-1]]))} (GPS "
+        f"time), but {name} {verb} {', '.join(days)}: {reach}; give the {kind} of {', '.join(days)}"
+    )
 
 
 def _minute(t_gps_s: float) -> str:
