@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from distnav._checks import affordable_nodes, whole_number
 from distnav._optional import lazy
 from distnav.errors import GraphError
 
@@ -126,9 +127,10 @@ class Graph:
         Raises :class:`~distnav.errors.GraphError` for out-of-range ids, a link from a node to itself,
         or a link listed twice (unless ``allow_duplicates=True``, which keeps one copy).
         """
-        n_nodes = int(n_nodes)
+        n_nodes = whole_number(n_nodes, "n_nodes (a graph's node count)", error=GraphError)
         if n_nodes < 1:
             raise GraphError(f"a graph needs at least one node, got n_nodes={n_nodes}")
+        affordable_nodes(n_nodes, "a graph", error=GraphError)
         arr = np.asarray(list(links) if not isinstance(links, np.ndarray) else links)
         if arr.size == 0:
             arr = np.zeros((0, 2), dtype=np.int64)
