@@ -18,6 +18,7 @@ description.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -139,7 +140,11 @@ def hall_scenario(n_nodes: int = 28, seed: int = 0, *, iterations: int = 100) ->
     return Scenario(problem.graph, "uwb", algo, ranging=problem)
 
 
-SCENARIOS = {"codebias": codebias_scenario, "ckf": ckf_scenario, "hall": hall_scenario}
+SCENARIOS: dict[str, Callable[[int, int], Scenario]] = {
+    "codebias": codebias_scenario,
+    "ckf": ckf_scenario,
+    "hall": hall_scenario,
+}
 
 
 def write_scenario(folder: Path, scenario: Scenario, options: LoopbackOptions | None = None) -> Path:
