@@ -101,3 +101,17 @@ def test_a_node_file_of_another_node_is_refused(tmp_path: Path) -> None:
     bad.write_bytes(b"not a zip")
     with pytest.raises(DataFileError, match="not a node data file"):
         read_node_arrays(bad, "admm", 0, 4)
+
+
+def test_uwb_with_a_killed_anchor_stops_and_says_why(tmp_path: Path) -> None:
+    """An anchor process exits at step 30: no anchor presents a map; the ones that stop name the lost anchor."""
+    sc = hall_scenario(8, seed=5, iterations=40)
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=3000, crash={5: 30}))
+    summary = launch(net, tmp_path / "run", timeout_s=240, quiet=True)
+    assert summary["crashed_on_purpose"] == [5]
+    assert summary["finished"] == [] and summary["failed"] == [], summary
+    assert sorted(summary["stopped"]) == [0, 1, 2, 3, 4, 6, 7]
+    for r in summary["nodes"].values():
+        assert r["status"] == "stopped" and r["estimate"] is None
+    messages = [r["message"] for r in summary["nodes"].values()]
+    assert all("node 5" in m or "nodes [5]" in m for m in messages), messages
