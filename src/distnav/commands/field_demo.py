@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from distnav.commands.field_async import add_node_arguments, open_node
-from distnav.commands.field_processes import LoopbackOptions, kill_group, write_loopback_network
+from distnav.commands.field_processes import LoopbackOptions, kill_group, removable_node, write_loopback_network
 from distnav.errors import UsageError
 from distnav.network import builders
 from distnav.network.graph import Graph
@@ -83,18 +83,6 @@ class DemoOptions:
             raise UsageError(f"--nodes at most 64 on one machine, got {self.nodes}")
         if not 1 <= self.kill_round < self.rounds:
             raise UsageError(f"--kill-round must be in 1..{self.rounds - 1} (below --rounds), got {self.kill_round}")
-
-
-def _victim(graph: Graph) -> int:
-    """The highest-id node whose loss leaves the others connected."""
-    for v in range(graph.n_nodes - 1, -1, -1):
-        keep = [i for i in range(graph.n_nodes) if i != v]
-        links = [(a, b) for a, b in graph.links.tolist() if v not in (a, b)]
-        index = {k: n for n, k in enumerate(keep)}
-        sub = Graph.from_links(len(keep), [(index[a], index[b]) for a, b in links])
-        if sub.is_connected:
-            return v
-    raise UsageError("no node can be removed without splitting the network")  # unreachable for our graphs
 
 
 def launch_async(
@@ -298,7 +286,7 @@ def _killed_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) 
     """Flow consensus with one node exiting at ``kill_round``; reference: numpy's mean of the others' data."""
     from distnav.commands.field import launch
 
-    victim = _victim(graph)
+    victim = removable_node(graph)
     algo = {"name": "consensus_flows", "rounds": opts.rounds, "protocol": "MH", "patience": 5}
     folder = out / "consensus_killed"
     killed = LoopbackOptions(
