@@ -16,7 +16,9 @@ they computed with an independent reference:
    ``uwb_max_abs_diff_vs_inprocess_m``. Every process rebuilds the simulated problem from its seed; the solver reads
    only its own node's rows (as under MPI) and learns the rest from messages.
 
-``DIR/results.json`` holds those numbers, ``wire_bytes`` (real bytes sent on the wire by all runs), ``verdicts``,
+``DIR/results.json`` holds those numbers, ``wire_bytes`` (real bytes sent on the wire by all runs), ``vs_gather``
+(per run, its wire bytes beside what gathering the nodes' data at one node by multi-hop relaying would cost:
+:func:`~distnav.algorithms.result.compare_with_gather`, also printed), ``verdicts``,
 each run's summary, and ``uwb_killed`` saying why no UWB run with a killed anchor is made (the distributed UWB solvers
 do not yet continue without a dead node). Each run's folder keeps the description, the nodes' results and logs.
 Every process is bounded by ``--timeout`` and killed (process group) on failure or Ctrl-C. ``distnav demo --out
@@ -34,7 +36,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -45,6 +47,9 @@ from distnav.network import builders
 from distnav.network.graph import Graph
 from distnav.options import node_output_files, output_folder, positive_float, positive_int, seed
 from distnav.output import atomic_write_json
+
+if TYPE_CHECKING:
+    from distnav.algorithms.result import CommComparison
 
 __all__ = ["DemoOptions", "run_field_demo", "launch_async", "register"]
 
@@ -232,6 +237,7 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
         "every node finished (but the killed one)": not failed,
     }
     wire = int(sum(r["wire_bytes"] for r in runs.values()))
+    vs_gather = _versus_gather(runs, graph, values, _uwb_problem(opts.nodes, opts.seed))
     results: dict[str, Any] = {
         "nodes": opts.nodes,
         "links": graph.links.tolist(),
@@ -243,6 +249,7 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
         "uwb_max_abs_diff_vs_inprocess_m": uwb_diff,
         "uwb_killed": "not run: the distributed UWB solvers do not yet continue without a dead anchor",
         "wire_bytes": wire,
+        "vs_gather": {k: c.as_dict() for k, c in vs_gather.items()},
         "false_losses": sorted(set(killed["lost_nodes"]) - {victim}),
         "verdicts": verdicts,
         "failed": failed,
@@ -254,6 +261,7 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
             "async push-sum (node 0 3x slower): max |x_i - mean|": ps_diff,
             "UWB network, N-CSG-TBLS: max |field - in-process| (m)": uwb_diff,
             "wire bytes, all runs": wire,
+            **{f"{k}: wire bytes ÷ gathering the data at one node": c.ratio_bytes for k, c in vs_gather.items()},
         },
     }
     atomic_write_json(out / "results.json", results)
@@ -339,7 +347,30 @@ def _uwb_run(opts: DemoOptions, out: Path) -> dict[str, Any]:
 
 
 def _short(summary: dict[str, Any]) -> dict[str, Any]:
-    return {k: summary[k] for k in ("finished", "failed", "seconds", "wire_bytes") if k in summary}
+    out: dict[str, Any] = {k: summary[k] for k in ("finished", "failed", "seconds", "wire_bytes") if k in summary}
+    out["wire_frames"] = int(sum(r["wire"]["frames_sent"] for r in summary.get("nodes", {}).values()))
+    return out
+
+
+def _versus_gather(runs: dict[str, Any], graph: Graph, values: np.ndarray, uwb: Any) -> dict[str, CommComparison]:
+    """Each run's real wire bytes beside what gathering its data at one node by multi-hop relaying would cost
+    (:func:`~distnav.algorithms.result.compare_with_gather`): consensus nodes hold their values (float64), UWB
+    anchors the ranges they logged first (one float64 per sample, each sample once)."""
+    from distnav.algorithms.result import compare_with_gather
+
+    per_node = np.full(graph.n_nodes, 8 * values.shape[1])
+    uwb_bytes = 8 * np.bincount(uwb.meas_a, minlength=uwb.n_anchors)
+    data = {
+        "consensus_clean": (graph, per_node, "the node's values (float64)"),
+        "consensus_killed": (graph, per_node, "the node's values (float64)"),
+        "pushsum_async": (graph, per_node, "the node's values (float64)"),
+        "uwb_clean": (uwb.graph, uwb_bytes, "the anchor's range samples (float64)"),
+    }
+    return {
+        name: compare_with_gather((runs[name]["wire_bytes"], runs[name]["wire_frames"]), g, b, data=what)
+        for name, (g, b, what) in data.items()
+        if name in runs
+    }
 
 
 def _print_table(res: dict[str, Any]) -> None:
@@ -364,6 +395,8 @@ def _print_table(res: dict[str, Any]) -> None:
             f"{r['seconds']:>7.1f}"
         )
     print(f"UWB, one anchor killed: {res['uwb_killed']}")
+    for name, c in res["vs_gather"].items():
+        print(f"  {name}: {c['line']}")
     for text, ok in res["verdicts"].items():
         print(f"  {'ok  ' if ok else 'FAIL'} {text}")
 
