@@ -66,15 +66,18 @@ class Scenario:
 
 
 def _station_graph(n: int, rng: np.random.Generator) -> tuple[np.ndarray, Graph]:
-    """``n`` stations over Europe (lat 36–66°, lon −10–30°) at sea level, ECEF, linked to their 3 nearest."""
+    """``n`` stations over Europe (lat 36–66°, lon −10–30°) at sea level, ECEF, each linked to its 3 nearest (more
+    when that leaves the network in parts)."""
     from distnav.models.gnss.geometry import geodetic_to_ecef
 
     lat = rng.uniform(36.0, 66.0, n)
     lon = rng.uniform(-10.0, 30.0, n)
     xyz = np.asarray(geodetic_to_ecef(np.deg2rad(lat), np.deg2rad(lon), 0.0), float)  # (n, 3)
-    graph = builders.k_nearest(xyz, min(3, n - 1))
-    if not graph.is_connected:  # a far cluster: join the components along their closest pairs
-        graph = builders.connected_random_geometric(n, mean_degree=4, rng=rng)
+    k = min(3, n - 1)
+    graph = builders.k_nearest(xyz, k)
+    while not graph.is_connected:  # a far cluster: more neighbours each until the network is one
+        k += 1
+        graph = builders.k_nearest(xyz, k)
     return xyz, graph
 
 
@@ -100,7 +103,7 @@ def ckf_scenario(n_nodes: int, seed: int = 0, *, epochs: int = 30, n_biases: int
     from distnav.algorithms.kalman.measurements import NormalSeries
 
     rng = np.random.default_rng([seed, 26003])
-    graph = builders.connected_random_geometric(n_nodes, mean_degree=4, rng=rng)
+    graph = builders.connected_random_geometric(n_nodes, mean_degree=min(6, n_nodes - 1), rng=rng)
     p = 3 + n_biases
     sees = rng.random((n_nodes, n_biases)) < 0.7
     sees[:, rng.integers(n_biases)] = True  # every bias seen somewhere; the random walk by every node
