@@ -40,12 +40,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from distnav.commands.field_async import add_node_arguments, open_node
+from distnav.commands.field_async import add_node_program, open_node
 from distnav.commands.field_processes import LoopbackOptions, kill_group, removable_node, write_loopback_network
 from distnav.errors import UsageError
 from distnav.network import builders
 from distnav.network.graph import Graph
-from distnav.options import node_output_files, output_folder, positive_float, positive_int, seed
+from distnav.options import output_folder, positive_float, positive_int, seed
 from distnav.output import atomic_write_json
 
 if TYPE_CHECKING:
@@ -420,11 +420,11 @@ def register(field_sub: Any) -> None:
     p.add_argument("--deadline-ms", type=positive_float, default=5000.0, help="killed run's step deadline (5000)")
     p.add_argument("--out", type=output_folder, required=True, help="folder for results.json and every run's files")
     p.set_defaults(func=_handler)
-    u = field_sub.add_parser("demo-uwb-node", help="one anchor of field demo's UWB network (started by field demo)")
-    add_node_arguments(u)
-    u.add_argument("--seed", type=seed, default=0, help="the simulated network's seed (as field demo's)")
-    u.add_argument("--iterations", type=positive_int, default=30, help="N-CSG-TBLS iterations")
-    u.set_defaults(func=_uwb_node, node_files=node_output_files)
+    uwb_options = [
+        ("--seed", seed, 0, "the simulated network's seed (as field demo's)"),
+        ("--iterations", positive_int, 30, "N-CSG-TBLS iterations"),
+    ]
+    add_node_program(field_sub, "demo-uwb-node", "one anchor of field demo's UWB network", _uwb_node, uwb_options)
 
 
 def _handler(args: argparse.Namespace) -> int:
