@@ -91,14 +91,14 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         if rejoin:
             ex.start_at(first)
             LOG.warning("node %d: rejoining at step %d", node_id, first)
-        t_start = time.monotonic()
+        t_start, cpu_start = time.monotonic(), time.process_time()
         if values is not None:
             outcome = _run_consensus(desc, node_id, ex, values, first, None if rejoin else desc.crash.get(node_id))
         else:
             from distnav.commands.field_algorithms import run_algorithm
 
             outcome = run_algorithm(desc, node_id, ex, transport)
-        elapsed = time.monotonic() - t_start
+        elapsed, cpu = time.monotonic() - t_start, time.process_time() - cpu_start
         ex._flush()  # this node's model counters (comm_totals would gather over the network)
         rounds = int(outcome.pop("rounds"))
         status = outcome.pop("status", "completed")
@@ -118,6 +118,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             "messages_received_model": int(ex.messages_received.sum()),
             "refused": transport.refusal_counts(),
             "seconds": elapsed,
+            "cpu_seconds": cpu,
             "seconds_total": time.monotonic() - t0,
             "rounds_per_second": rounds / elapsed if elapsed > 0 else None,
         }
