@@ -115,3 +115,36 @@ def test_uwb_with_a_killed_anchor_stops_and_says_why(tmp_path: Path) -> None:
         assert r["status"] == "stopped" and r["estimate"] is None
     messages = [r["message"] for r in summary["nodes"].values()]
     assert all("node 5" in m or "nodes [5]" in m for m in messages), messages
+
+
+@pytest.mark.parametrize(
+    ("table", "match"),
+    [
+        ({"name": "admm", "rho": 0}, "key 'rho' must be > 0"),
+        ({"name": "admm", "rounds": 5}, "keys \\['rounds'\\] mean nothing to 'admm'"),
+        ({"name": "ckf", "protocol": "XX"}, "key 'protocol' must be one of P1"),
+        ({"name": "uwb", "solver": "LM"}, "key 'solver' must be one of"),
+        ({"name": "uwb", "iterations": 0}, "key 'iterations' must be >= 1"),
+    ],
+)
+def test_algorithm_settings_are_checked(table: dict, match: str) -> None:  # type: ignore[type-arg]
+    from distnav.formats.field_config import parse_description
+
+    raw = {"algorithm": table, "node": [{"id": 0, "address": "tcp://127.0.0.1:5000", "neighbours": []}]}
+    with pytest.raises(DataFileError, match=match):
+        parse_description(raw)
+
+
+def test_algorithm_defaults_are_filled() -> None:
+    from distnav.formats.field_config import parse_description
+
+    raw = {"algorithm": {"name": "admm"}, "node": [{"id": 0, "address": "tcp://127.0.0.1:5000", "neighbours": []}]}
+    algo = parse_description(raw).algorithm
+    assert algo == {
+        "name": "admm",
+        "rho": 1.0,
+        "max_iterations": 1000,
+        "tol": 1e-10,
+        "constraint_nodes": "min_cover",
+        "messages": "pairs",
+    }
