@@ -234,7 +234,7 @@ class Transport:
             except zmq.Again:
                 return
             self.frames_received += 1
-            self.bytes_received += len(frame.buffer)
+            self.bytes_received += len(frame)
             yield frame
 
     def receive_any(self, timeout_s: float) -> list[Message]:

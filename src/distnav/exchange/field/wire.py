@@ -27,7 +27,7 @@ from __future__ import annotations
 import enum
 import math
 import struct
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -66,8 +66,9 @@ class WireError(ExchangeError):
     """A received message that is not a valid distnav field message."""
 
 
-@dataclass(frozen=True)
-class Message:
+class Message(NamedTuple):
+    """One received message (a named tuple: made once per message, cheaply)."""
+
     kind: Kind
     sender: int
     step: int
@@ -95,10 +96,11 @@ def encode(kind: Kind, sender: int, step: int, array: np.ndarray) -> bytes:
 def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
     """Parse and check one frame (see the module docstring); :class:`WireError` names what is wrong."""
     buf = memoryview(frame)
-    if len(buf) > max_bytes:
-        raise WireError(f"oversize message: {len(buf)} bytes (limit {max_bytes})")
-    if len(buf) < HEADER.size:
-        raise WireError(f"malformed message: {len(buf)} bytes, shorter than the {HEADER.size}-byte header")
+    size = len(buf)
+    if size > max_bytes:
+        raise WireError(f"oversize message: {size} bytes (limit {max_bytes})")
+    if size < HEADER.size:
+        raise WireError(f"malformed message: {size} bytes, shorter than the {HEADER.size}-byte header")
     magic, version, kind, code, ndim, sender, step, length = HEADER.unpack_from(buf)
     if magic != MAGIC:
         raise WireError(f"malformed message: magic {bytes(magic)!r}, expected {MAGIC!r}")
@@ -113,8 +115,8 @@ def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
     if ndim > MAX_NDIM:
         raise WireError(f"malformed message: ndim {ndim} > {MAX_NDIM}")
     start = HEADER.size + ndim * _DIM.size
-    if len(buf) != start + length:
-        raise WireError(f"malformed message: {len(buf)} bytes, the header announces {start + length}")
+    if size != start + length:
+        raise WireError(f"malformed message: {size} bytes, the header announces {start + length}")
     shape = tuple(_DIM.unpack_from(buf, HEADER.size + k * _DIM.size)[0] for k in range(ndim))
     if math.prod(shape) * dtype.itemsize != length:
         raise WireError(f"malformed message: shape {shape} of {dtype} is not {length} bytes")
