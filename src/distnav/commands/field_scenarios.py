@@ -7,6 +7,7 @@
 * :func:`ckf_scenario` — paper 003 §4's generic CKF network on ``n`` nodes: three random-walk states and constant
   biases, each node observing a random ~70 % of the biases at every epoch (normals per node and epoch).
 
+* :func:`rinex_ckf_scenario` — the CKF of ``distnav gnss ionosphere`` on real RINEX stations (the NL network);
 * :func:`hall_scenario` — a simulated hall (:func:`~distnav.models.uwb.hall.simulate_hall`) of ``n`` anchors, 3-D,
   the known corner anchors fixed and the surveyed heights held, every range sample kept (no median per pair); the
   initial guess is the MDS one of ``uwb solve``, made centrally at set-up and written into every anchor's file.
@@ -35,7 +36,15 @@ if TYPE_CHECKING:
     from distnav.algorithms.ranging.data import RangingData
     from distnav.commands.field_processes import LoopbackOptions
 
-__all__ = ["Scenario", "SCENARIOS", "codebias_scenario", "ckf_scenario", "hall_scenario", "write_scenario"]
+__all__ = [
+    "Scenario",
+    "SCENARIOS",
+    "codebias_scenario",
+    "ckf_scenario",
+    "hall_scenario",
+    "rinex_ckf_scenario",
+    "write_scenario",
+]
 
 EPOCH_S = 30.0
 
@@ -141,6 +150,22 @@ def hall_scenario(n_nodes: int = 28, seed: int = 0, *, iterations: int = 100) ->
     problem = problem.with_initial(mds_initial_guess(problem))  # central, at set-up: written into every file
     algo = {"name": "uwb", "solver": "N-CLM", "iterations": iterations}
     return Scenario(problem.graph, "uwb", algo, ranging=problem)
+
+
+def rinex_ckf_scenario(obs_files: list[Path], nav_file: Path, *, kn: int = 4) -> Scenario:
+    """The CKF of ``distnav gnss ionosphere`` on real stations (e.g. the five Dutch stations of the NL snapshot):
+    the command's bias model and default graph (:func:`~distnav.commands.gnss_ionosphere_data.network_data`
+    with its defaults and a TEC random walk of 1 mm/√s, as ``benchmarks/bench_comm.py`` runs it), so each station's
+    file holds its own normals of every epoch and the common dynamic model."""
+    from distnav.commands.gnss import default_graph
+    from distnav.commands.gnss_ionosphere_data import network_data
+    from distnav.formats.gnss.rinex import read_navigation
+
+    orbit = read_navigation(nav_file, max_age_s=24 * 3600.0)
+    data = network_data(obs_files, orbit, tec_rw_m_per_sqrt_s=0.001)
+    graph = default_graph(data.positions_ecef_m, data.stations)
+    algo = {"name": "ckf", "rounds": kn, "protocol": "P3"}
+    return Scenario(graph, "ckf", algo, dynamics=data.dynamics, series=data.series)
 
 
 SCENARIOS: dict[str, Callable[[int, int], Scenario]] = {
