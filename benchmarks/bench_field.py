@@ -173,17 +173,10 @@ def _inprocess_reference(sc: Any) -> np.ndarray:
             record_nodes=False,
         ).estimates
     if sc.kind == "ckf":
-        it = iterate_ckf(
-            sc.dynamics,
-            sc.series,
-            graph=sc.graph,
-            protocol=a["protocol"],
-            rounds=a["rounds"],
-            exchange=ex,
-            variance=False,
-            monitor=False,
+        settings = {"protocol": a["protocol"], "rounds": a["rounds"], "variance": False, "monitor": False}
+        return np.asarray(
+            list(iterate_ckf(sc.dynamics, sc.series, graph=sc.graph, exchange=ex, **settings))[-1].estimates
         )
-        return np.asarray(list(it)[-1].estimates)
     return solve(sc.ranging, a["solver"], iterations=a["iterations"], exchange=ex).estimates
 
 

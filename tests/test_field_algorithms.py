@@ -48,25 +48,20 @@ def test_admm_codebias_nodes_equal_inprocess(tmp_path: Path) -> None:
     assert np.abs(field - blue(sc.problem).x).max() < 0.5
 
 
-def test_ckf_nodes_equal_inprocess(tmp_path: Path) -> None:
+def _ckf_inprocess(sc) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The reference: the CKF front door in-process, P3, k_n = 4, no variance recursion, no monitor."""
     from distnav.algorithms.kalman.ckf import iterate_ckf
 
+    options = {"protocol": "P3", "rounds": 4, "variance": False, "monitor": False}
+    states = list(iterate_ckf(sc.dynamics, sc.series, graph=sc.graph, exchange=make_exchange(sc.graph), **options))
+    return np.asarray(states[-1].estimates)
+
+
+def test_ckf_nodes_equal_inprocess(tmp_path: Path) -> None:
     sc = ckf_scenario(10, seed=2, epochs=12)
     assert sc.dynamics is not None and sc.series is not None
     summary = _launch(tmp_path, sc)
-    states = list(
-        iterate_ckf(
-            sc.dynamics,
-            sc.series,
-            graph=sc.graph,
-            protocol="P3",
-            rounds=4,
-            variance=False,
-            monitor=False,
-            exchange=make_exchange(sc.graph),
-        )
-    )
-    ref = states[-1].estimates
+    ref = _ckf_inprocess(sc)
     field = np.array([summary["nodes"][str(i)]["estimate"] for i in range(10)], dtype=float)
     assert np.isfinite(ref).any()
     assert np.array_equal(field, ref, equal_nan=True), np.nanmax(np.abs(field - ref))
@@ -75,7 +70,6 @@ def test_ckf_nodes_equal_inprocess(tmp_path: Path) -> None:
 def test_gnss_ckf_on_the_nl_network_equals_inprocess(shared_data: Path, tmp_path: Path) -> None:
     """The CKF of ``distnav gnss ionosphere`` on the five Dutch stations (109 epochs, 18 states), one process per
     station holding only its own normals: every station's final estimate bitwise the in-process one."""
-    from distnav.algorithms.kalman.ckf import iterate_ckf
     from distnav.commands.field_scenarios import rinex_ckf_scenario
 
     nl = shared_data / "gnss" / "nl_2021001_short_network_snapshot"
@@ -83,19 +77,7 @@ def test_gnss_ckf_on_the_nl_network_equals_inprocess(shared_data: Path, tmp_path
     sc = rinex_ckf_scenario(files, nl / "cbw10010.21n.gz")
     assert sc.dynamics is not None and sc.series is not None and sc.graph.n_nodes == 5
     summary = _launch(tmp_path, sc)
-    states = list(
-        iterate_ckf(
-            sc.dynamics,
-            sc.series,
-            graph=sc.graph,
-            protocol="P3",
-            rounds=4,
-            variance=False,
-            monitor=False,
-            exchange=make_exchange(sc.graph),
-        )
-    )
-    ref = states[-1].estimates
+    ref = _ckf_inprocess(sc)
     field = np.array([summary["nodes"][str(i)]["estimate"] for i in range(5)], dtype=float)
     assert np.isfinite(ref).sum() >= 5 * 10  # most of the 18 states determined at the end of the session
     assert np.array_equal(field, ref, equal_nan=True), np.nanmax(np.abs(field - ref))
