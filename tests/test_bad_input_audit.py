@@ -384,7 +384,14 @@ def _field_async_cases() -> list[Cli]:
     out = ("--out", "{tmp}/n.toml")
     demo = ("field", "demo", "--out", "{tmp}/out")
     cases = [
-        Cli("field-init-no-source", ("field", "init", *out), "one of the arguments --ranges --rinex is required"),
+        Cli(
+            "field-init-no-source",
+            ("field", "init", *out),
+            "one of the arguments --ranges --rinex --simulate is required",
+        ),
+        Cli("field-init-simulate-kind", ("field", "init", "--simulate", "x", *out), "invalid choice"),
+        Cli("field-init-simulate-nodes", ("field", "init", "--simulate", "ckf", "--nodes", "0", *out), "at least 1"),
+        Cli("field-init-simulate-hall-3", ("field", "init", "--simulate", "hall", "--nodes", "3", *out), "at least 4"),
         Cli("field-init-both-sources", (*init, "--rinex", "{obs}", *out), "not allowed with argument"),
         Cli("field-init-ranges-missing", ("field", "init", "--ranges", "{tmp}/none.csv", *out), "no such file"),
         Cli("field-init-rinex-missing", ("field", "init", "--rinex", "{tmp}/none.rnx", *out), "no such file"),

@@ -48,27 +48,38 @@ def test_admm_codebias_nodes_equal_inprocess(tmp_path: Path) -> None:
     assert np.abs(field - blue(sc.problem).x).max() < 0.5
 
 
-def test_ckf_nodes_equal_inprocess(tmp_path: Path) -> None:
+def _ckf_inprocess(sc) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The reference: the CKF front door in-process, P3, k_n = 4, no variance recursion, no monitor."""
     from distnav.algorithms.kalman.ckf import iterate_ckf
 
+    options = {"protocol": "P3", "rounds": 4, "variance": False, "monitor": False}
+    states = list(iterate_ckf(sc.dynamics, sc.series, graph=sc.graph, exchange=make_exchange(sc.graph), **options))
+    return np.asarray(states[-1].estimates)
+
+
+def test_ckf_nodes_equal_inprocess(tmp_path: Path) -> None:
     sc = ckf_scenario(10, seed=2, epochs=12)
     assert sc.dynamics is not None and sc.series is not None
     summary = _launch(tmp_path, sc)
-    states = list(
-        iterate_ckf(
-            sc.dynamics,
-            sc.series,
-            graph=sc.graph,
-            protocol="P3",
-            rounds=4,
-            variance=False,
-            monitor=False,
-            exchange=make_exchange(sc.graph),
-        )
-    )
-    ref = states[-1].estimates
+    ref = _ckf_inprocess(sc)
     field = np.array([summary["nodes"][str(i)]["estimate"] for i in range(10)], dtype=float)
     assert np.isfinite(ref).any()
+    assert np.array_equal(field, ref, equal_nan=True), np.nanmax(np.abs(field - ref))
+
+
+def test_gnss_ckf_on_the_nl_network_equals_inprocess(shared_data: Path, tmp_path: Path) -> None:
+    """The CKF of ``distnav gnss ionosphere`` on the five Dutch stations (109 epochs, 18 states), one process per
+    station holding only its own normals: every station's final estimate bitwise the in-process one."""
+    from distnav.commands.field_scenarios import rinex_ckf_scenario
+
+    nl = shared_data / "gnss" / "nl_2021001_short_network_snapshot"
+    files = [nl / f for f in ("delf0010.21o", "eijs0010.21d", "wsra0010.21o", "zegv0010.21o", "rovn0010.21o")]
+    sc = rinex_ckf_scenario(files, nl / "cbw10010.21n.gz")
+    assert sc.dynamics is not None and sc.series is not None and sc.graph.n_nodes == 5
+    summary = _launch(tmp_path, sc)
+    ref = _ckf_inprocess(sc)
+    field = np.array([summary["nodes"][str(i)]["estimate"] for i in range(5)], dtype=float)
+    assert np.isfinite(ref).sum() >= 5 * 10  # most of the 18 states determined at the end of the session
     assert np.array_equal(field, ref, equal_nan=True), np.nanmax(np.abs(field - ref))
 
 
@@ -101,3 +112,50 @@ def test_a_node_file_of_another_node_is_refused(tmp_path: Path) -> None:
     bad.write_bytes(b"not a zip")
     with pytest.raises(DataFileError, match="not a node data file"):
         read_node_arrays(bad, "admm", 0, 4)
+
+
+def test_uwb_with_a_killed_anchor_stops_and_says_why(tmp_path: Path) -> None:
+    """An anchor process exits at step 30: no anchor presents a map; the ones that stop name the lost anchor."""
+    sc = hall_scenario(8, seed=5, iterations=40)
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=3000, crash={5: 30}))
+    summary = launch(net, tmp_path / "run", timeout_s=240, quiet=True)
+    assert summary["crashed_on_purpose"] == [5]
+    assert summary["finished"] == [] and summary["failed"] == [], summary
+    assert sorted(summary["stopped"]) == [0, 1, 2, 3, 4, 6, 7]
+    for r in summary["nodes"].values():
+        assert r["status"] == "stopped" and r["estimate"] is None
+    messages = [r["message"] for r in summary["nodes"].values()]
+    assert all("node 5" in m or "nodes [5]" in m for m in messages), messages
+
+
+@pytest.mark.parametrize(
+    ("table", "match"),
+    [
+        ({"name": "admm", "rho": 0}, "key 'rho' must be > 0"),
+        ({"name": "admm", "rounds": 5}, "keys \\['rounds'\\] mean nothing to 'admm'"),
+        ({"name": "ckf", "protocol": "XX"}, "key 'protocol' must be one of P1"),
+        ({"name": "uwb", "solver": "LM"}, "key 'solver' must be one of"),
+        ({"name": "uwb", "iterations": 0}, "key 'iterations' must be >= 1"),
+    ],
+)
+def test_algorithm_settings_are_checked(table: dict, match: str) -> None:  # type: ignore[type-arg]
+    from distnav.formats.field_config import parse_description
+
+    raw = {"algorithm": table, "node": [{"id": 0, "address": "tcp://127.0.0.1:5000", "neighbours": []}]}
+    with pytest.raises(DataFileError, match=match):
+        parse_description(raw)
+
+
+def test_algorithm_defaults_are_filled() -> None:
+    from distnav.formats.field_config import parse_description
+
+    raw = {"algorithm": {"name": "admm"}, "node": [{"id": 0, "address": "tcp://127.0.0.1:5000", "neighbours": []}]}
+    algo = parse_description(raw).algorithm
+    assert algo == {
+        "name": "admm",
+        "rho": 1.0,
+        "max_iterations": 1000,
+        "tol": 1e-10,
+        "constraint_nodes": "min_cover",
+        "messages": "pairs",
+    }

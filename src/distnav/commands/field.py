@@ -143,15 +143,18 @@ def _collect(
 ) -> dict[str, Any]:
     import json
 
-    from distnav.commands.field_node import CRASH_EXIT, node_values
+    from distnav.commands.field_node import CRASH_EXIT, STOPPED_EXIT, node_values
 
     nodes: dict[str, Any] = {}
-    finished, crashed, failed = [], [], []
+    finished, crashed, failed, stopped = [], [], [], []
     for node_id, code in sorted(codes.items()):
         f = out_dir / f"node-{node_id}.json"
         if code == 0 and f.exists():
             nodes[str(node_id)] = json.loads(f.read_text(encoding="utf-8"))
             finished.append(node_id)
+        elif code == STOPPED_EXIT and f.exists():  # ended on purpose without an answer, its reason in its file
+            nodes[str(node_id)] = json.loads(f.read_text(encoding="utf-8"))
+            stopped.append(node_id)
         elif code == CRASH_EXIT and node_id in desc.crash:
             crashed.append(node_id)
         else:
@@ -162,6 +165,7 @@ def _collect(
         "n_nodes": desc.n_nodes,
         "finished": finished,
         "crashed_on_purpose": crashed,
+        "stopped": stopped,
         "rejoined": rejoined,
         "failed": failed,
         "seconds": elapsed,
@@ -169,7 +173,7 @@ def _collect(
         "refused": int(sum(sum(r["refused"].values()) for r in nodes.values())),
     }
     consensus = desc.algorithm["name"] in ("consensus", "consensus_flows")
-    if finished:
+    if nodes:
         summary["lost_nodes"] = sorted({int(k) for r in nodes.values() for k in r["lost_nodes"]})
         summary["rounds_per_second_min"] = min(r["rounds_per_second"] or 0.0 for r in nodes.values())
     if finished and consensus:
@@ -184,7 +188,10 @@ def _collect(
             f"{desc.name}: {len(finished)} of {desc.n_nodes} nodes finished in {elapsed:.1f} s"
             + (f", {len(crashed)} crashed on purpose {crashed}" if crashed else "")
             + (f", {len(failed)} FAILED {[f['node'] for f in failed]}" if failed else "")
+            + (f", {len(stopped)} stopped without an answer {stopped}" if stopped else "")
         )
+        if stopped:
+            print(f"  node {stopped[0]}: {nodes[str(stopped[0])]['message']}")
         if finished:
             central = (
                 f"max |x_i - mean of remaining data| = {summary['max_abs_diff_vs_central_of_remaining']:.3g}; "
@@ -201,7 +208,7 @@ def _collect(
 
 def _launch(args: argparse.Namespace) -> int:
     summary = launch(args.config, args.out, timeout_s=args.timeout)
-    return 0 if not summary["failed"] else 1
+    return 1 if summary["failed"] else 3 if summary["stopped"] else 0
 
 
 def _keys(args: argparse.Namespace) -> int:

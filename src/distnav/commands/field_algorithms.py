@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from distnav.exchange.field import FieldExchange
+from distnav.errors import ExchangeError
+from distnav.exchange.field import FieldExchange, Transport
 from distnav.formats.field_config import NetworkDescription
 from distnav.formats.field_data import admm_node_problem, ckf_node_model, read_node_arrays, uwb_samples_problem
 
@@ -127,7 +128,34 @@ def run_uwb(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
     }
 
 
-def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
-    """Run the description's algorithm (one of :data:`NODE_ALGORITHMS`) as node ``node_id``."""
+def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, transport: Transport) -> dict[str, Any]:
+    """Run the description's algorithm (one of :data:`NODE_ALGORITHMS`) as node ``node_id``.
+
+    These algorithms have no answer without every node's data: ADMM would keep a lost node's last message and
+    converge to a point that still holds its data, the CKF's consensus would keep weighting it, and the UWB solvers'
+    monitoring gathers every anchor. So when a node is lost (noticed by this node, or a global operation that cannot
+    be finished without it) the node ends with ``status = "stopped"``, no estimate, and a message naming the lost
+    node and the step — never an answer that looks right. (Consensus in flow form does finish: the exact mean of the
+    nodes that remain, :mod:`distnav.algorithms.consensus.flows`.)"""
     runner = {"admm": run_admm, "ckf": run_ckf, "uwb": run_uwb}[desc.algorithm["name"]]
-    return runner(desc, node_id, ex)
+    try:
+        out = runner(desc, node_id, ex)
+    except ExchangeError as exc:
+        return _stopped(desc, ex, transport, str(exc))
+    if transport.lost:
+        return _stopped(desc, ex, transport, "")
+    return out
+
+
+def _stopped(desc: NetworkDescription, ex: FieldExchange, transport: Transport, error: str) -> dict[str, Any]:
+    lost = ", ".join(f"node {k} at step {v}" for k, v in sorted(transport.lost.items()))
+    why = "; ".join(t for t in (f"lost {lost}" if lost else "", error) if t)
+    return {
+        "estimate": None,
+        "status": "stopped",
+        "message": (
+            f"{desc.algorithm['name']} cannot finish without every node's data: {why}; no estimate is given (a "
+            "restart of the whole network without the lost node gives the answer of the rest)"
+        ),
+        "rounds": ex.step,
+    }

@@ -25,10 +25,13 @@ from distnav.exchange.field import CurveKeys, FieldExchange, Transport
 from distnav.formats.field_config import NetworkDescription, read_node_values
 from distnav.output import atomic_write_json
 
-__all__ = ["CRASH_EXIT", "load_keys", "run_node", "node_values"]
+__all__ = ["CRASH_EXIT", "STOPPED_EXIT", "load_keys", "run_node", "node_values"]
 
 #: Exit code of a node that crashes on purpose (``[faults] crash`` in the description).
 CRASH_EXIT = 70
+#: Exit code of a node that stopped without an answer (a lost node its algorithm cannot do without), having written
+#: its node-ID.json with ``status = "stopped"`` and the reason.
+STOPPED_EXIT = 3
 LOG = logging.getLogger("distnav.field")
 
 
@@ -79,18 +82,23 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         if missing:
             LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
         schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
-        ex = FieldExchange(desc.graph(), node_id, transport, schedule)
+        crash_step = None if (consensus or rejoin) else desc.crash.get(node_id)
+        ex = (
+            FieldExchange(desc.graph(), node_id, transport, schedule)
+            if crash_step is None
+            else _CrashingExchange(desc.graph(), node_id, transport, schedule, crash_step=crash_step)
+        )
         if rejoin:
             ex.start_at(first)
             LOG.warning("node %d: rejoining at step %d", node_id, first)
-        t_start = time.monotonic()
+        t_start, cpu_start = time.monotonic(), time.process_time()
         if values is not None:
             outcome = _run_consensus(desc, node_id, ex, values, first, None if rejoin else desc.crash.get(node_id))
         else:
             from distnav.commands.field_algorithms import run_algorithm
 
-            outcome = run_algorithm(desc, node_id, ex)
-        elapsed = time.monotonic() - t_start
+            outcome = run_algorithm(desc, node_id, ex, transport)
+        elapsed, cpu = time.monotonic() - t_start, time.process_time() - cpu_start
         ex._flush()  # this node's model counters (comm_totals would gather over the network)
         rounds = int(outcome.pop("rounds"))
         status = outcome.pop("status", "completed")
@@ -100,7 +108,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             **outcome,
             "rounds": rounds,
             "steps": ex.step,
-            "status": status if not transport.lost else f"{status}_with_lost_neighbours",
+            "status": status if not transport.lost or status == "stopped" else f"{status}_with_lost_neighbours",
             "lost_nodes": {str(k): v for k, v in sorted(transport.lost.items())},
             "readmitted_nodes": {str(k): v for k, v in sorted(transport.readmitted.items())},
             "missing_at_start": missing,
@@ -110,14 +118,31 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             "messages_received_model": int(ex.messages_received.sum()),
             "refused": transport.refusal_counts(),
             "seconds": elapsed,
+            "cpu_seconds": cpu,
             "seconds_total": time.monotonic() - t0,
             "rounds_per_second": rounds / elapsed if elapsed > 0 else None,
         }
         atomic_write_json(out_dir / f"node-{node_id}.json", result)
         LOG.info("node %d: %d rounds in %.2f s, lost %s", node_id, rounds, elapsed, sorted(transport.lost))
-        return 0
+        return STOPPED_EXIT if status == "stopped" else 0
     finally:
         transport.close()
+
+
+class _CrashingExchange(FieldExchange):
+    """A field exchange whose process exits on purpose when it reaches step ``crash_step`` (``[faults] crash`` of an
+    algorithm node: its "round" is the exchange's step, every message round or global operation one step)."""
+
+    def __init__(self, *args: Any, crash_step: int) -> None:
+        super().__init__(*args)
+        self._crash_step = int(crash_step)
+
+    def _next_step(self) -> int:
+        if self.step == self._crash_step:
+            LOG.warning("node %d: crashing on purpose at step %d ([faults] crash)", self.me, self.step)
+            logging.shutdown()
+            os._exit(CRASH_EXIT)
+        return super()._next_step()
 
 
 def _run_consensus(

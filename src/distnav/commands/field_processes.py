@@ -16,12 +16,14 @@ import numpy as np
 
 from distnav.errors import UsageError
 from distnav.formats.field_config import NetworkDescription, NodeEntry, format_description
+from distnav.network.graph import Graph
 from distnav.output import atomic_write_text
 
 __all__ = [
     "LoopbackOptions",
     "free_loopback_ports",
     "kill_group",
+    "removable_node",
     "setup_node_log",
     "write_loopback_description",
     "write_loopback_network",
@@ -44,6 +46,17 @@ def kill_group(p: subprocess.Popen[bytes]) -> None:
     except ProcessLookupError:
         pass
     p.wait(timeout=10)
+
+
+def removable_node(graph: Graph) -> int:
+    """The highest-id node whose loss leaves the others connected (the node a demo or benchmark kills)."""
+    for v in range(graph.n_nodes - 1, -1, -1):
+        keep = [i for i in range(graph.n_nodes) if i != v]
+        index = {k: n for n, k in enumerate(keep)}
+        links = [(index[a], index[b]) for a, b in graph.links.tolist() if v not in (a, b)]
+        if Graph.from_links(len(keep), links).is_connected:
+            return v
+    raise UsageError("no node can be removed without splitting the network")
 
 
 def free_loopback_ports(count: int) -> list[int]:

@@ -7,6 +7,7 @@
 * :func:`ckf_scenario` — paper 003 §4's generic CKF network on ``n`` nodes: three random-walk states and constant
   biases, each node observing a random ~70 % of the biases at every epoch (normals per node and epoch).
 
+* :func:`rinex_ckf_scenario` — the CKF of ``distnav gnss ionosphere`` on real RINEX stations (the NL network);
 * :func:`hall_scenario` — a simulated hall (:func:`~distnav.models.uwb.hall.simulate_hall`) of ``n`` anchors, 3-D,
   the known corner anchors fixed and the surveyed heights held, every range sample kept (no median per pair); the
   initial guess is the MDS one of ``uwb solve``, made centrally at set-up and written into every anchor's file.
@@ -18,6 +19,7 @@ description.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -34,7 +36,15 @@ if TYPE_CHECKING:
     from distnav.algorithms.ranging.data import RangingData
     from distnav.commands.field_processes import LoopbackOptions
 
-__all__ = ["Scenario", "SCENARIOS", "codebias_scenario", "ckf_scenario", "hall_scenario", "write_scenario"]
+__all__ = [
+    "Scenario",
+    "SCENARIOS",
+    "codebias_scenario",
+    "ckf_scenario",
+    "hall_scenario",
+    "rinex_ckf_scenario",
+    "write_scenario",
+]
 
 EPOCH_S = 30.0
 
@@ -65,15 +75,18 @@ class Scenario:
 
 
 def _station_graph(n: int, rng: np.random.Generator) -> tuple[np.ndarray, Graph]:
-    """``n`` stations over Europe (lat 36–66°, lon −10–30°) at sea level, ECEF, linked to their 3 nearest."""
+    """``n`` stations over Europe (lat 36–66°, lon −10–30°) at sea level, ECEF, each linked to its 3 nearest (more
+    when that leaves the network in parts)."""
     from distnav.models.gnss.geometry import geodetic_to_ecef
 
     lat = rng.uniform(36.0, 66.0, n)
     lon = rng.uniform(-10.0, 30.0, n)
     xyz = np.asarray(geodetic_to_ecef(np.deg2rad(lat), np.deg2rad(lon), 0.0), float)  # (n, 3)
-    graph = builders.k_nearest(xyz, min(3, n - 1))
-    if not graph.is_connected:  # a far cluster: join the components along their closest pairs
-        graph = builders.connected_random_geometric(n, mean_degree=4, rng=rng)
+    k = min(3, n - 1)
+    graph = builders.k_nearest(xyz, k)
+    while not graph.is_connected:  # a far cluster: more neighbours each until the network is one
+        k += 1
+        graph = builders.k_nearest(xyz, k)
     return xyz, graph
 
 
@@ -99,7 +112,7 @@ def ckf_scenario(n_nodes: int, seed: int = 0, *, epochs: int = 30, n_biases: int
     from distnav.algorithms.kalman.measurements import NormalSeries
 
     rng = np.random.default_rng([seed, 26003])
-    graph = builders.connected_random_geometric(n_nodes, mean_degree=4, rng=rng)
+    graph = builders.connected_random_geometric(n_nodes, mean_degree=min(6, n_nodes - 1), rng=rng)
     p = 3 + n_biases
     sees = rng.random((n_nodes, n_biases)) < 0.7
     sees[:, rng.integers(n_biases)] = True  # every bias seen somewhere; the random walk by every node
@@ -139,7 +152,27 @@ def hall_scenario(n_nodes: int = 28, seed: int = 0, *, iterations: int = 100) ->
     return Scenario(problem.graph, "uwb", algo, ranging=problem)
 
 
-SCENARIOS = {"codebias": codebias_scenario, "ckf": ckf_scenario, "hall": hall_scenario}
+def rinex_ckf_scenario(obs_files: list[Path], nav_file: Path, *, kn: int = 4) -> Scenario:
+    """The CKF of ``distnav gnss ionosphere`` on real stations (e.g. the five Dutch stations of the NL snapshot):
+    the command's bias model and default graph (:func:`~distnav.commands.gnss_ionosphere_data.network_data`
+    with its defaults and a TEC random walk of 1 mm/√s, as ``benchmarks/bench_comm.py`` runs it), so each station's
+    file holds its own normals of every epoch and the common dynamic model."""
+    from distnav.commands.gnss import default_graph
+    from distnav.commands.gnss_ionosphere_data import network_data
+    from distnav.formats.gnss.rinex import read_navigation
+
+    orbit = read_navigation(nav_file, max_age_s=24 * 3600.0)
+    data = network_data(obs_files, orbit, tec_rw_m_per_sqrt_s=0.001)
+    graph = default_graph(data.positions_ecef_m, data.stations)
+    algo = {"name": "ckf", "rounds": kn, "protocol": "P3"}
+    return Scenario(graph, "ckf", algo, dynamics=data.dynamics, series=data.series)
+
+
+SCENARIOS: dict[str, Callable[[int, int], Scenario]] = {
+    "codebias": codebias_scenario,
+    "ckf": ckf_scenario,
+    "hall": hall_scenario,
+}
 
 
 def write_scenario(folder: Path, scenario: Scenario, options: LoopbackOptions | None = None) -> Path:

@@ -30,7 +30,7 @@ with :func:`format_description` (a string; the command writes it atomically). Th
     public_key = "…40 Z85 characters…"      # with security = "curve"
     secret_key = "keys/node-0.key_secret"   # this node's secret key file (needed only on its own host)
 
-    [faults]                   # for tests and demos: node 3 crashes (exits at once) at round 20,
+    [faults]                   # for tests and demos: node 3 crashes (exits at once) at round 20 (admm/ckf/uwb: step),
     crash = [{ node = 3, round = 20 }]     # add restart_after_s = 2 to restart it (it rejoins)
     drop_probability = 0.1     # each message dropped (the simulator's seeded FaultSchedule: the same drops)
     seed = 0

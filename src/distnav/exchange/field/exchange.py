@@ -138,8 +138,7 @@ class FieldExchange(Exchange):
         targets, senders, act_in = self._peers_of(active)
         step = self._next_step()
         row = np.ascontiguousarray(flat_local[0])
-        for t in targets:
-            self.transport.post(t, Kind.COLUMN, step, row)
+        self.transport.post_many(targets, Kind.COLUMN, step, row)
         got = self._received_rows(self.transport.collect(Kind.COLUMN, step, senders), row.shape, row.dtype)
         cols = np.zeros((self.n_columns, row.size), dtype=flat_local.dtype)
         cols[0] = row

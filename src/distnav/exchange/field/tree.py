@@ -10,14 +10,17 @@ every node from the description (neighbours visited in ascending id order):
 2. **down** — the root holds every node's row; it sends the whole block to its children (kind ``TREE_DOWN``), and
    each node forwards it to its own children.
 
-Both directions use the same step (the messages of a step go child → parent and parent → child, never twice along
-one direction of a link), so ``2 (n − 1)`` messages per global operation, ``2 × depth`` hops of latency. Every node
-ends with the same rows and reduces them in node-id order, exactly as the all-to-all form does when every node is a
-peer: the result is the same bit for bit.
+A node waits for its children up to one deadline per level below it, and for its parent's answer up to one deadline
+per hop up to the root and back (a late node delays every level above it, and no node gives up on a slow but live
+subtree). Both directions use the same step (the messages of a step go child → parent and parent → child, never
+twice along one direction of a link), so ``2 (n − 1)`` messages per global operation, ``2 × depth`` hops of
+latency. Every node ends with the same rows and reduces them in node-id order, exactly as the all-to-all form does
+when every node is a peer: the result is the same bit for bit.
 
-A child that misses the deadline leaves its subtree out (as a lost node is left out of the all-to-all form); a
-parent that misses it leaves this node without the network's answer, which is an :class:`ExchangeError` naming the
-parent (a global operation cannot be finished without it; it is never replaced by a partial answer).
+A child that misses the deadline leaves its subtree out; the root still sends the rows it has down the tree (so every
+node learns of the gap in the same step), and every node then raises :class:`ExchangeError` naming the missing nodes.
+A parent that misses the deadline leaves this node without the network's answer: :class:`ExchangeError` naming the
+parent. A global operation without every node is never replaced by a partial answer.
 """
 
 from __future__ import annotations
@@ -66,6 +69,36 @@ class SpanningTree:
     def children(self, node: int) -> list[int]:
         return np.flatnonzero(self.parent == node).tolist()
 
+    @cached_property
+    def depth(self) -> np.ndarray:
+        """Hops from the root of every node."""
+        depth = np.zeros(self.graph.n_nodes, np.int64)
+        for i in np.argsort(self._bfs_order):  # parents come first in BFS order
+            if self.parent[i] >= 0:
+                depth[i] = depth[self.parent[i]] + 1
+        return depth
+
+    @cached_property
+    def _bfs_order(self) -> np.ndarray:
+        order = np.empty(self.graph.n_nodes, np.int64)
+        queue, k = deque([0]), 0
+        while queue:
+            i = queue.popleft()
+            order[i] = k
+            k += 1
+            queue.extend(self.children(i))
+        return order
+
+    def below(self, node: int) -> int:
+        """Levels of the subtree under ``node`` (0 for a leaf)."""
+        sub = [node]
+        levels = 0
+        while True:
+            sub = [c for i in sub for c in self.children(i)]
+            if not sub:
+                return levels
+            levels += 1
+
 
 def _block(rows: dict[int, np.ndarray]) -> np.ndarray:
     """``[[node id, values…], …]`` in node order, in the common dtype of the rows (float64 or int64)."""
@@ -88,8 +121,9 @@ def tree_all(transport: Transport, tree: SpanningTree, me: int, step: int, array
     width = 1 + array.size
     rows = {me: array}
     children = tree.children(me)
+    deadline = transport.options.deadline_s  # a late leaf delays every level above it by up to one deadline
     if children:
-        got = transport.collect(Kind.TREE_UP, step, children)
+        got = transport.collect(Kind.TREE_UP, step, children, deadline_s=deadline * tree.below(me))
         for child, block in got.items():
             if block.ndim != 2 or block.shape[1] != width or block.dtype.kind not in "fi":
                 transport._refuse(
@@ -100,7 +134,8 @@ def tree_all(transport: Transport, tree: SpanningTree, me: int, step: int, array
     parent = int(tree.parent[me])
     if parent >= 0:
         transport.post(parent, Kind.TREE_UP, step, _block(rows))
-        got = transport.collect(Kind.TREE_DOWN, step, [parent])
+        wait = deadline * (tree.below(0) + int(tree.depth[me]) + 1)  # up to the root and back down to here
+        got = transport.collect(Kind.TREE_DOWN, step, [parent], deadline_s=wait)
         if parent not in got:
             lost = transport.lost.get(parent)
             when = f" (lost at step {lost})" if lost is not None else ""
@@ -115,4 +150,10 @@ def tree_all(transport: Transport, tree: SpanningTree, me: int, step: int, array
     down = _block(rows)
     for child in children:
         transport.post(child, Kind.TREE_DOWN, step, down)
+    missing = sorted(set(range(tree.graph.n_nodes)) - rows.keys())
+    if missing:
+        raise ExchangeError(
+            f"node {me}: the global operation of step {step} lacks the contributions of nodes {missing[:10]} "
+            "(lost, or cut off behind a lost node)"
+        )
     return rows
