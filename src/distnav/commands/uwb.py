@@ -56,9 +56,9 @@ import numpy as np
 
 from distnav.algorithms.ranging.csg import SOLVERS
 from distnav.algorithms.ranging.losses import LOSSES
-from distnav.algorithms.result import CommComparison, compare_with_gather
 from distnav.commands import add_backend_arguments
 from distnav.commands.uwb_outputs import (
+    communication_entry,
     plot,
     positions_table,
     report,
@@ -77,7 +77,6 @@ from distnav.formats.uwb.io import (
     read_ranges,
     single_link_anchors,
 )
-from distnav.models.uwb.communication import RANGES_DATA, range_bytes_per_anchor
 from distnav.models.uwb.field import (
     DELAY_SIGMA_M,
     RELIABILITY_LIMIT_M,
@@ -503,45 +502,11 @@ def _summary(
         "units_check": units_note,
         "range_combination": "median of the samples of each pair",
         "initial_guess": init_source,
-        "communication": _communication(sol, opts, gather),
+        "communication": communication_entry(sol, opts, gather),
         "messages": sol.messages,
         "bytes": sol.bytes,
         "warnings": warnings,
     }
-
-
-def _communication(sol: FieldSolution, opts: FieldOptions, gather: dict[str, Any]) -> dict[str, Any]:
-    """``summary.json`` ``communication``: the distributed solve's messages and bytes beside the gather."""
-    return {
-        "distributed": {
-            "solver": opts.solver.upper(),
-            "messages": sol.messages,
-            "bytes": sol.bytes,
-            "precision_messages": sol.precision_messages,
-            "precision_bytes": sol.precision_bytes,
-            "final_lm_phase": getattr(sol.result, "settings", {}).get("refine"),
-            "note": "every re-solve of the exclusion loop and the precision included"
-            if opts.solver.upper() != "LM"
-            else "LM is centralized: it needs the ranges gathered (below)",
-        },
-        "gather_at_one_anchor": gather,
-        "comparison": None if opts.solver.upper() == "LM" else _comparison(sol).as_dict(),
-    }
-
-
-def _comparison(sol: FieldSolution) -> CommComparison:
-    """The distributed solve's traffic (totals: the exclusion loop's re-solves and the precision included) beside
-    gathering every range at one anchor over the range graph (each link's record held by its lower-numbered
-    anchor, :data:`RANGE_RECORD_BYTES` each; issue 27)."""
-    p = sol.problem
-    return compare_with_gather(
-        (sol.bytes, sol.messages),
-        p.graph,
-        range_bytes_per_anchor(p),
-        data=RANGES_DATA,
-        node_label="anchor",
-        node_names=p.ids,
-    )
 
 
 @np.errstate(over="ignore", invalid="ignore")  # a diverged run's summary reads huge estimates
