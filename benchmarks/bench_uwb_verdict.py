@@ -9,7 +9,11 @@ heights given):
   chose wrong (goal 0), and where it chose right;
 * **plant verdict**: plant-like halls (:data:`~distnav.models.uwb.hall.PLANT_LIKE`), known anchors in the middle
   and a corner. Counted: exit codes, and the share of exit-0 runs whose worst anchor is worse than the required
-  accuracy (goal ≤ 1 %); also the share of anchors reported as meeting it that do not (goal: none).
+  accuracy (goal ≤ 1 %); also the share of anchors reported as meeting it that do not (goal: none); σ against
+  the actual error; the halls whose every anchor is within half the required accuracy; the side test's Δ against
+  its critical value on the walls;
+* **reliability from the anchors' neighbourhoods** (issue 28 item 5): 12 plant-like halls solved by N-CLM, the
+  numbers from 2, 3, 4, 6 hops against the central ones (the same weak anchors; bytes).
 
     python benchmarks/bench_uwb_verdict.py [--quick]      # quick: 4 halls per row (default 25 per case: 50 a row)
 """
@@ -156,7 +160,73 @@ def run(quick: bool) -> list[dict[str, Any]]:
         sigma_calibration(plant),
         margin_row(plant),
         side_test_row(wall),
+        *reliability_rows(range(2 if quick else 12)),
     ]
+
+
+def _reliability(seed: int) -> list[dict[str, Any]]:
+    """One plant-like hall solved by N-CLM (the command's path); its kept links' reliability computed by the anchors
+    from their neighbourhoods (2, 3, 4, 6 hops) against the central numbers at the same solution and options."""
+    from distnav.algorithms.ranging.reliability import ReliabilityOptions, external_reliability, local_reliability
+    from distnav.models.uwb.field import FieldOptions, subset_measurements
+    from distnav.models.uwb.reliability import distributed_free_vector, reliability_weak
+
+    h = simulate_hall(np.random.default_rng([30, seed]), None, **PLANT_LIKE, known="middle" if seed % 2 else "corner")
+    with tempfile.TemporaryDirectory() as d:
+        f = write_hall(h, d)
+        sol, _, s = solve_range_log(f["ranges"], f["known"], heights=f["heights"], options=FieldOptions(solver="N-CLM"))
+    kept = subset_measurements(sol.problem, ~sol.excluded)
+    res, est = sol.result, kept.estimated
+    x = distributed_free_vector(kept, res)
+    assert x is not None
+    opts = ReliabilityOptions(0.1, s["range_offsets"], "cauchy_long", 0.3, 0.001, 0.1)
+    cen = external_reliability(kept, x, opts)
+    assert cen is not None
+    weak_c = sorted(reliability_weak(kept, cen, sol.sigma_m))
+    out = []
+    for hops in (2, 3, 4, 6):
+        loc = local_reliability(kept, res.estimates, opts, offsets_m=res.offsets_m, hops=hops)
+        lr = loc.as_external()
+        ok = np.isfinite(cen.shift_m[est]) & np.isfinite(lr.shift_m[est])
+        out.append(
+            {
+                "hops": hops,
+                "max_shift_diff_m": float(np.max(np.abs(lr.shift_m[est][ok] - cen.shift_m[est][ok]), initial=0.0)),
+                "r_max_diff": float(np.nanmax(np.abs(loc.r - cen.r))),
+                "weak_same": sorted(reliability_weak(kept, lr, sol.sigma_m)) == weak_c,
+                "all_span": int(loc.subnetwork_anchors[est].min()) == int(est.sum()),
+                "bytes": int(loc.comm.bytes),
+                "solve_bytes": int(sol.bytes),
+            }
+        )
+    return out
+
+
+def reliability_rows(seeds: range) -> list[dict[str, Any]]:
+    """Issue 28 item 5: the anchors' reliability from their neighbourhoods against the central numbers, per hops
+    (docs/uwb.md, "Reliability from the anchors' neighbourhoods")."""
+    with ProcessPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+        per_hall = list(pool.map(_reliability, seeds))
+    rows = []
+    for k, hops in enumerate((2, 3, 4, 6)):
+        r = [hall[k] for hall in per_hall]
+        d = np.array([x["max_shift_diff_m"] for x in r])
+        rows.append(
+            {
+                "name": f"reliability from {hops}-hop neighbourhoods vs central (N-CLM, plant-like)",
+                "halls": len(r),
+                "max_shift_diff_median_m": float(np.median(d)),
+                "max_shift_diff_max_m": float(d.max()),
+                "r_max_diff": max(x["r_max_diff"] for x in r),
+                "weak_as_central": sum(x["weak_same"] for x in r),
+                "every_neighbourhood_spans": sum(x["all_span"] for x in r),
+                "bytes_median": float(np.median([x["bytes"] for x in r])),
+                "share_of_solve_bytes": float(np.median([x["bytes"] / x["solve_bytes"] for x in r])),
+                "goal": "the same weak anchors as the central computation",
+                "meets_goal": all(x["weak_same"] for x in r),
+            }
+        )
+    return rows
 
 
 def write_runs(runs: dict[str, list[dict[str, Any]]]) -> None:

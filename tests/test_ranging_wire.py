@@ -162,7 +162,8 @@ def test_phases_add_up_to_the_totals(hall):
     assert sum(v["bytes"] for v in phases.values()) == r.comm.bytes
     assert sum(v["messages"] for v in phases.values()) == r.comm.messages
     sol = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
-    assert list(sol.comm_phases) == ["first_fit", "tighten", "exclusions", "polish", "precision"]
+    assert list(sol.comm_phases) == ["first_fit", "tighten", "exclusions", "polish", "precision", "reliability"]
+    assert sol.comm_phases["reliability"]["bytes"] == sol.reliability["bytes"] > 0  # issue 28 item 5
     assert sum(v["bytes"] for v in sol.comm_phases.values()) == sol.bytes
     assert sum(v["messages"] for v in sol.comm_phases.values()) == sol.messages
     assert sol.comm_phases["precision"]["bytes"] == sol.precision_bytes

@@ -11,12 +11,16 @@ from typing import Any
 
 import numpy as np
 
+from distnav.algorithms.result import CommComparison, compare_with_gather
 from distnav.formats.uwb.io import CombinedRanges, format_positions
-from distnav.models.uwb.field import FieldSolution
+from distnav.models.uwb.communication import RANGES_DATA, range_bytes_per_anchor
+from distnav.models.uwb.field import FieldOptions, FieldSolution
 from distnav.models.uwb.verdict import RunVerdict
 from distnav.output import atomic_write_text
 
 __all__ = [
+    "communication_entry",
+    "gather_comparison",
     "map_accuracy_line",
     "positions_table",
     "report",
@@ -235,4 +239,38 @@ def map_accuracy_line(verdict: RunVerdict) -> str:
         f"  the other anchors meet {bound} m (99 % jointly); {', '.join(blocking[:12])}"
         + (f" and {len(blocking) - 12} more" if len(blocking) > 12 else "")
         + " fail at any required accuracy (weak, ambiguous or unsolved: add links to them or a known anchor near them)"
+    )
+
+
+def communication_entry(sol: FieldSolution, opts: FieldOptions, gather: dict[str, Any]) -> dict[str, Any]:
+    """``summary.json`` ``communication``: the distributed solve's messages and bytes beside the gather."""
+    return {
+        "distributed": {
+            "solver": opts.solver.upper(),
+            "messages": sol.messages,
+            "bytes": sol.bytes,
+            "precision_messages": sol.precision_messages,
+            "precision_bytes": sol.precision_bytes,
+            "final_lm_phase": getattr(sol.result, "settings", {}).get("refine"),
+            "note": "every re-solve of the exclusion loop and the precision included"
+            if opts.solver.upper() != "LM"
+            else "LM is centralized: it needs the ranges gathered (below)",
+        },
+        "gather_at_one_anchor": gather,
+        "comparison": None if opts.solver.upper() == "LM" else gather_comparison(sol).as_dict(),
+    }
+
+
+def gather_comparison(sol: FieldSolution) -> CommComparison:
+    """The distributed solve's traffic (totals: the exclusion loop's re-solves and the precision included) beside
+    gathering every range at one anchor over the range graph (each link's record held by its lower-numbered
+    anchor, :data:`RANGE_RECORD_BYTES` each; issue 27)."""
+    p = sol.problem
+    return compare_with_gather(
+        (sol.bytes, sol.messages),
+        p.graph,
+        range_bytes_per_anchor(p),
+        data=RANGES_DATA,
+        node_label="anchor",
+        node_names=p.ids,
     )

@@ -590,6 +590,9 @@ def solve_field(
         )
         reasons.update({k: v for k, v in rel_weak.items() if k not in reasons})
         note += rel_note
+        total[1] += int(reliability.get("messages", 0))  # the anchors' reliability rounds (distributed solvers)
+        total[2] += int(reliability.get("bytes", 0))
+        marks["reliability"] = (total[1], total[2])
     if opts.cut_test:  # a group of anchors the exclusions cut off: placed by fewer checks than they took (cuts.py)
         reasons.update({k: v for k, v in cut_weak(problem, excluded).items() if k not in reasons})
     every = [problem.ids[i] for i in np.flatnonzero(problem.estimated)]
