@@ -8,7 +8,14 @@ import pytest
 
 from distnav.algorithms.kalman import DynamicModel, NormalSeries
 from distnav.algorithms.kalman.ckf import ckf
-from distnav.algorithms.kalman.relay import COUNT_BYTES, RECORD_BYTES, relay_plan, relay_records
+from distnav.algorithms.kalman.relay import (
+    COUNT_BYTES,
+    RECORD_BYTES,
+    matrix_bytes,
+    relay_bytes,
+    relay_plan,
+    relay_records,
+)
 from distnav.errors import ModelError
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
@@ -132,3 +139,16 @@ def test_relay_refusals() -> None:
     normals = NormalSeries(*(np.stack(a) for a in zip(*(ser.normals(t) for t in range(ser.n_epochs)), strict=True)))
     with pytest.raises(ModelError, match="no observation records"):
         ckf(dyn, normals, graph=g, rounds=2, transport="relay")
+
+
+def test_byte_estimates_equal_what_the_transports_send() -> None:
+    g = builders.connected_random_geometric(7, mean_degree=3, rng=np.random.default_rng(9))
+    ser = _series(10, g.n_nodes, T=4)
+    dyn = DynamicModel(ser.n_states, noise_cov=0.01 * np.eye(ser.n_states))
+    records = np.stack([(ser.records(t)[1] > 0).sum(axis=1) for t in range(ser.n_epochs)])
+    for mode, predicted in (
+        ("relay", relay_bytes(relay_plan(g, 3), records)),
+        ("matrices", matrix_bytes(g, 3, ser.n_states, ser.n_epochs)),
+    ):
+        res = ckf(dyn, ser, graph=g, rounds=3, transport=mode, variance=False, monitor=False)  # type: ignore[arg-type]
+        assert res.comm.bytes == predicted, mode

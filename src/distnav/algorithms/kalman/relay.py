@@ -32,7 +32,7 @@ from distnav.exchange import Exchange
 from distnav.network.graph import Graph
 from distnav.typing import FloatArray, IntArray
 
-__all__ = ["RECORD_BYTES", "COUNT_BYTES", "RelayPlan", "relay_plan", "relay_records"]
+__all__ = ["RECORD_BYTES", "COUNT_BYTES", "RelayPlan", "matrix_bytes", "relay_bytes", "relay_plan", "relay_records"]
 
 #: One observation record on the wire: value and weight (float64) and slot index (int32).
 RECORD_BYTES = 20
@@ -83,6 +83,24 @@ def relay_plan(graph: Graph, rounds: int) -> RelayPlan:
         pairs = sorted(zip(edge_ids[m].tolist(), o_sel[m].tolist(), strict=True))
         carried.append(tuple(pairs))
     return RelayPlan(rounds, hops, tuple(carried))
+
+
+def relay_bytes(plan: RelayPlan, records: IntArray) -> int:
+    """Bytes the relay sends for ``records`` (epochs × nodes: each node's record count per epoch): every origin's
+    count and records cross each edge that carries it (:data:`COUNT_BYTES` + :data:`RECORD_BYTES` per record)."""
+    counts = np.asarray(records, np.int64)
+    crossings = np.zeros(counts.shape[1], np.int64)
+    for pairs in plan.carried:
+        for _, o in pairs:
+            crossings[o] += 1
+    return int((crossings * (COUNT_BYTES * counts.shape[0] + RECORD_BYTES * counts.sum(axis=0))).sum())
+
+
+def matrix_bytes(graph: Graph, rounds: int, n_states: int, epochs: int) -> int:
+    """Bytes the matrix transport sends: every round one message per directed link with the packed ``N`` and ``r``
+    (``p(p+1)/2 + p`` float64)."""
+    links = int((np.asarray(graph.src) != np.asarray(graph.dst)).sum())
+    return epochs * rounds * links * 8 * (n_states * (n_states + 1) // 2 + n_states)
 
 
 def relay_records(
