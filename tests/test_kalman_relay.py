@@ -152,3 +152,27 @@ def test_byte_estimates_equal_what_the_transports_send() -> None:
     ):
         res = ckf(dyn, ser, graph=g, rounds=3, transport=mode, variance=False, monitor=False)  # type: ignore[arg-type]
         assert res.comm.bytes == predicted, mode
+
+
+def test_relay_on_field_nodes_equals_inprocess() -> None:
+    """The MPI case on the field exchange (12 node threads over ZeroMQ): estimates and bytes bit for bit."""
+    pytest.importorskip("zmq")
+    import sys
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    sys.path.insert(0, str(here / "mpi"))
+    sys.path.insert(0, str(here))
+    from cases import CASES
+
+    from test_field_cases import run_on_threads
+
+    case = CASES["ckf_relay_transport"]
+    ref = case("inprocess")
+    results = run_on_threads(case, 12, timeout_s=400)
+    errors = [r for r in results if isinstance(r, BaseException)]
+    assert not errors, repr(errors[0])
+    for got in results:
+        assert np.array_equal(got["estimates"], ref["estimates"], equal_nan=True)
+        assert np.array_equal(got["bytes"], ref["bytes"])
+        np.testing.assert_allclose(got["std"], ref["std"], rtol=1e-12, atol=1e-13)
