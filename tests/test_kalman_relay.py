@@ -10,6 +10,7 @@ from distnav.algorithms.kalman import DynamicModel, NormalSeries
 from distnav.algorithms.kalman.ckf import ckf
 from distnav.algorithms.kalman.relay import (
     COUNT_BYTES,
+    MAX_RELAY_NODES,
     RECORD_BYTES,
     matrix_bytes,
     relay_bytes,
@@ -176,3 +177,8 @@ def test_relay_on_field_nodes_equals_inprocess() -> None:
         assert np.array_equal(got["estimates"], ref["estimates"], equal_nan=True)
         assert np.array_equal(got["bytes"], ref["bytes"])
         np.testing.assert_allclose(got["std"], ref["std"], rtol=1e-12, atol=1e-13)
+
+
+def test_relay_plan_refuses_networks_beyond_its_limit() -> None:
+    with pytest.raises(ModelError, match="transport='matrices'"):
+        relay_plan(_path(MAX_RELAY_NODES + 1), 1)

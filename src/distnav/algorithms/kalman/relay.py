@@ -32,7 +32,16 @@ from distnav.exchange import Exchange
 from distnav.network.graph import Graph
 from distnav.typing import FloatArray, IntArray
 
-__all__ = ["RECORD_BYTES", "COUNT_BYTES", "RelayPlan", "matrix_bytes", "relay_bytes", "relay_plan", "relay_records"]
+__all__ = [
+    "COUNT_BYTES",
+    "MAX_RELAY_NODES",
+    "RECORD_BYTES",
+    "RelayPlan",
+    "matrix_bytes",
+    "relay_bytes",
+    "relay_plan",
+    "relay_records",
+]
 
 #: One observation record on the wire: value and weight (float64) and slot index (int32).
 RECORD_BYTES = 20
@@ -54,11 +63,20 @@ class RelayPlan:
     carried: tuple[tuple[tuple[int, int], ...], ...]
 
 
+#: The largest network :func:`relay_plan` takes (its set-up holds n × n hop counts and an n × E mask).
+MAX_RELAY_NODES = 4096
+
+
 def relay_plan(graph: Graph, rounds: int) -> RelayPlan:
     """The static routing of :mod:`this module <distnav.algorithms.kalman.relay>` on ``graph`` for ``rounds`` hops."""
     n = graph.n_nodes
+    if n > MAX_RELAY_NODES:
+        raise ModelError(
+            f"the relay transport plans routes for up to {MAX_RELAY_NODES} nodes (O(n·E) set-up), the graph has {n}: "
+            f"use transport='matrices'"
+        )
     far = rounds + 1
-    hops = np.full((n, n), far, np.int64)
+    hops = np.full((n, n), far, np.int32)
     reached = np.eye(n, dtype=bool)
     np.fill_diagonal(hops, 0)
     src, dst = np.asarray(graph.src), np.asarray(graph.dst)

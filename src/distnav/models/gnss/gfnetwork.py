@@ -549,9 +549,9 @@ def _ckf_transport(plain: bool, ex: Any, graph: Any, kn: int, series: Any) -> Li
     """The CKF's transport, the cheaper in bytes (issue 27): relayed observation records (20 B each;
     :mod:`distnav.algorithms.kalman.relay`) or the mixed normals, computed from the records the run will send. Runs
     with innovation tests or a fault schedule need the matrices."""
-    from distnav.algorithms.kalman.relay import matrix_bytes, relay_bytes, relay_plan
+    from distnav.algorithms.kalman.relay import MAX_RELAY_NODES, matrix_bytes, relay_bytes, relay_plan
 
-    if not plain or ex.faults.active:
+    if not plain or ex.faults.active or graph.n_nodes > MAX_RELAY_NODES:
         return "matrices"
     records = np.asarray(series.tracked).sum(axis=2)  # (epochs, stations)
     relay = relay_bytes(relay_plan(graph, kn), records)
