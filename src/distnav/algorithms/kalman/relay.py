@@ -53,13 +53,13 @@ COUNT_BYTES = 2
 class RelayPlan:
     """Which origins' records each directed edge carries in each round (module docstring).
 
-    hops : (n, n) hop distance ``d(o, v)`` (``rounds + 1`` beyond ``rounds`` hops).
+    hops : (n, n) int32 hop distance ``d(o, v)`` (``rounds + 1`` beyond ``rounds`` hops).
     carried : per round ``k`` (0-based, round ``k + 1``), a list of ``(edge, origin)`` pairs (global ids),
         sorted by edge then origin.
     """
 
     rounds: int
-    hops: IntArray
+    hops: np.ndarray
     carried: tuple[tuple[tuple[int, int], ...], ...]
 
 
