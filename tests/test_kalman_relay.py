@@ -133,8 +133,6 @@ def test_relay_refusals() -> None:
     faulty = make_exchange(g, faults=FaultSchedule(drop_probability=0.1, seed=1))
     with pytest.raises(ModelError, match="fault"):
         ckf(dyn, ser, graph=g, rounds=2, transport="relay", exchange=faulty)
-    with pytest.raises(ModelError, match="node-local precision"):
-        ckf(dyn, ser, graph=g, rounds=2, transport="relay", local_precision="bound")
     with pytest.raises(ModelError, match="transport must be"):
         ckf(dyn, ser, graph=g, rounds=2, transport="pigeons")  # type: ignore[arg-type]
     normals = NormalSeries(*(np.stack(a) for a in zip(*(ser.normals(t) for t in range(ser.n_epochs)), strict=True)))
@@ -182,3 +180,35 @@ def test_relay_on_field_nodes_equals_inprocess() -> None:
 def test_relay_plan_refuses_networks_beyond_its_limit() -> None:
     with pytest.raises(ModelError, match="transport='matrices'"):
         relay_plan(_path(MAX_RELAY_NODES + 1), 1)
+
+
+@pytest.mark.parametrize("kind", ["exact", "bound"])
+def test_relay_with_local_precision_and_innovation_tests_equals_matrices(kind: str) -> None:
+    g = builders.connected_random_geometric(8, mean_degree=3, rng=np.random.default_rng(11))
+    rng = np.random.default_rng(12)
+    T, n, S = 7, g.n_nodes, 8
+    lay = BiasStateLayout(tuple(f"G{k:02d}" for k in range(S)), tuple(f"R{i}" for i in range(n)), reference="R0")
+    coef = rng.standard_normal((T, n, S, 3))
+    sig = rng.uniform(0.2, 0.4, (T, n, S))
+    tracked = rng.random((T, n, S)) > 0.2
+    obs = 0.3 * rng.standard_normal((T, n, S))
+    obs[5, 3, np.flatnonzero(tracked[5, 3])[1]] += 40.0  # a gross error node 3 must reject at epoch 5
+    ser = BiasGeometryFreeSeries(lay, coef, sig, obs_m=obs, tracked=tracked, groups=np.zeros(n, np.int64))
+    dyn = DynamicModel(ser.n_states, noise_cov=0.01 * np.eye(ser.n_states))
+    runs = {
+        mode: ckf(dyn, ser, graph=g, rounds=3, transport=mode, local_precision=kind, test_level=0.001)  # type: ignore[arg-type]
+        for mode in ("matrices", "relay")
+    }
+    mat, rel = runs["matrices"], runs["relay"]
+    assert mat.tests is not None and rel.tests is not None
+    assert mat.tests.n_removed > 0  # the outlier was found
+    assert rel.tests.removed == mat.tests.removed
+    np.testing.assert_array_equal(rel.tests.epoch, mat.tests.epoch)
+    est = mat.series.estimable
+    np.testing.assert_array_equal(rel.series.estimable, est)
+    np.testing.assert_allclose(rel.series.estimates[est], mat.series.estimates[est], rtol=1e-9, atol=1e-9)
+    assert mat.local_std is not None and rel.local_std is not None
+    np.testing.assert_allclose(rel.local_std[est], mat.local_std[est], rtol=1e-9, atol=1e-12)
+    assert rel.precision is not None and rel.precision.comm is not None
+    assert rel.precision.comm.bytes == 0  # static rows of L and records sent anyway: nothing extra
+    assert rel.comm.bytes < mat.comm.bytes

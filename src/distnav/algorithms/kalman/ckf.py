@@ -313,11 +313,12 @@ def iterate_ckf(
     floats to every message). ``test_level`` makes every node test its predicted residuals at that level and reject
     outliers before they enter its consensus.
 
-    ``transport="relay"`` (static graph, no faults, no node-local precision or tests, a series with
-    :meth:`~MeasurementSeries.records`): the same ``k_n`` consensus rounds evaluated by every node from the raw
-    observation records of the nodes within ``k_n`` hops, relayed hop by hop (20 B per record;
-    :mod:`distnav.algorithms.kalman.relay`) instead of the mixed matrices: the same filter (to the rounding of the
-    sums) for far fewer bytes when a node's observations are fewer than its normals' entries (issue 27).
+    ``transport="relay"`` (static graph, no faults, a series with :meth:`~MeasurementSeries.records`): the same
+    ``k_n`` consensus rounds evaluated by every node from the raw observation records of the nodes within ``k_n``
+    hops, relayed hop by hop (20 B per record; :mod:`distnav.algorithms.kalman.relay`) instead of the mixed
+    matrices: the same filter (to the rounding of the sums) for far fewer bytes when a node's observations are
+    fewer than its normals' entries (issue 27). Node-local precision then costs no bytes (``l_i`` is static, the
+    ``N_j`` are rebuilt from the records); an observation an innovation test removed is not sent.
     """
     _check_options(options, CKFOptions.__optional_keys__)
     check_model(dynamics, measurements)
@@ -333,7 +334,7 @@ def iterate_ckf(
         if s.critical is not None:
             N, r, tests = _tested_normals(ker, measurements, t, nodes, N, r, i_local, s.critical)
         tri = N.reshape(nodes.size, s.p * s.p)[:, s.up]
-        payload = _consensus(s, measurements, t, tri, r)
+        payload = _consensus(s, measurements, t, tri, r, tests)
         Nk = _symmetric(payload[:, : s.n_tri], s.up, s.lo, nodes.size, s.p)
         rk = payload[:, s.n_tri : s.n_tri + s.p]
         _measurement_update(s, ker, payload, tri, Nk, rk)
@@ -343,11 +344,18 @@ def iterate_ckf(
         yield CKFState(t, nodes, ker.I, ker.i, x, est, P if s.variance else None, inv, dev, P_local, tests)
 
 
-def _consensus(s: _CKFSetup, measurements: MeasurementSeries, t: int, tri: FloatArray, r: FloatArray) -> FloatArray:
+def _consensus(
+    s: _CKFSetup,
+    measurements: MeasurementSeries,
+    t: int,
+    tri: FloatArray,
+    r: FloatArray,
+    tests: tuple[NodeEpochTest | None, ...],
+) -> FloatArray:
     """The payload after the epoch's ``k_n`` rounds: ``[tri(N^(k_n)), r^(k_n)]``, then (when tracked) the rows of
     ``L`` and, for the exact node-local precision, the tagged normals."""
     if s.relay is not None:
-        return _relayed_consensus(s.ex, s.relay, measurements, t, s.up)
+        return _relayed_consensus(s, measurements, t, tests)
     nodes = s.ex.nodes
     n, k_loc = measurements.n_nodes, nodes.size
     parts = [tri, r]
@@ -418,22 +426,29 @@ def _relay_setup(
         raise ModelError("transport='relay' needs a static graph (one session); use transport='matrices'")
     if ex.faults.active:
         raise ModelError("transport='relay' needs every message (no fault schedule); use transport='matrices'")
-    if local_precision is not None or test_level is not None:
-        raise ModelError("transport='relay' has no node-local precision or innovation tests yet; use 'matrices'")
     return relay_plan(sched.graph, kn), consensus_product(sched, kn)[ex.nodes]
 
 
 def _relayed_consensus(
-    ex: Exchange, relay: tuple[RelayPlan, FloatArray], measurements: MeasurementSeries, t: int, up: IntArray
+    s: _CKFSetup, measurements: MeasurementSeries, t: int, tests: tuple[NodeEpochTest | None, ...]
 ) -> FloatArray:
-    """``[tri(N_i^(k_n)), r_i^(k_n)]`` of the local nodes from the relayed records: ``Σ_j l_ij (N_j, r_j)`` over
-    the origins each node received (every origin with ``l_ij ≠ 0`` must be among them)."""
-    plan, L_rows = relay
+    """The payload of the matrix transport, from the relayed records: ``[tri(N_i^(k_n)), r_i^(k_n)]`` =
+    ``Σ_j l_ij (N_j, r_j)`` over the origins each node received (every origin with ``l_ij ≠ 0`` must be among
+    them), then with node-local precision the row ``l_i`` (static knowledge here, sent nowhere) and, for the exact
+    form, the blocks ``l_ij tri(N_j)`` the tagged matrices would have carried. Observations an innovation test
+    removed are not sent (their records' weight is 0)."""
+    assert s.relay is not None
+    ex, up, p = s.ex, s.up, s.p
+    plan, L_rows = s.relay
     values, weights = measurements.records(t, ex.nodes)
+    for a, test in enumerate(tests):
+        if test is not None and test.removed:
+            weights[a, measurements.record_slots(t, ex.nodes[a : a + 1])[~test.keep]] = 0.0
     known = relay_records(ex, plan, values, weights)
     decoded: dict[int, FloatArray] = {}
-    p = measurements.n_states
-    out = np.zeros((ex.n_local, up.size + p))
+    n = measurements.n_nodes
+    tagged = np.zeros((ex.n_local, n, s.n_tri)) if s.local_precision == "exact" else None
+    out = np.zeros((ex.n_local, s.n_tri + p))
     for a, got in enumerate(known):
         need = np.flatnonzero(L_rows[a])
         missing = set(need.tolist()) - set(got)
@@ -443,8 +458,16 @@ def _relayed_consensus(
             if j not in decoded:
                 N_j, r_j = measurements.normals_from_records(t, j, *got[j])
                 decoded[j] = np.concatenate([N_j.reshape(p * p)[up], r_j])
-        out[a] = L_rows[a, need] @ np.stack([decoded[j] for j in need.tolist()])
-    return out
+        stacked = np.stack([decoded[j] for j in need.tolist()])
+        out[a] = L_rows[a, need] @ stacked
+        if tagged is not None:
+            tagged[a, need] = L_rows[a, need][:, None] * stacked[:, : s.n_tri]
+    parts = [out]
+    if s.track_L:
+        parts.append(L_rows)
+    if tagged is not None:
+        parts.append(tagged.reshape(ex.n_local, n * s.n_tri))
+    return np.concatenate(parts, axis=1)
 
 
 def _tested_normals(
@@ -547,7 +570,9 @@ def ckf(
         rounds=kn,
         product=L,
         alpha=alpha_factor(L) if L is not None else None,
-        precision=_local_precision(ex, last, local_precision, comm, measurements.n_states, variance),
+        precision=_local_precision(
+            ex, last, local_precision, comm, measurements.n_states, variance, options.get("transport") == "relay"
+        ),
         local_std=np.stack(kept.lstds) if kept.lstds else None,
         tests=collector.build() if collector is not None else None,
     )
@@ -596,16 +621,17 @@ class _GatheredSeries:
 
 
 def _local_precision(
-    ex: Exchange, last: CKFState, kind: LocalPrecision | None, comm: CommTotals, p: int, variance: bool
+    ex: Exchange, last: CKFState, kind: LocalPrecision | None, comm: CommTotals, p: int, variance: bool, relay: bool
 ) -> Precision | None:
-    """The node-local :class:`Precision` of the last epoch; ``comm`` = the bytes it added to the messages."""
+    """The node-local :class:`Precision` of the last epoch; ``comm`` = the bytes it added to the messages (none with
+    the relay transport: the records are sent anyway, the rows of ``L`` are static knowledge)."""
     if kind is None or last.local_covariance is None:
         return None
     n = ex.n_nodes
     n_tri = p * (p + 1) // 2
     base = n_tri + p + (n if (variance and ex.faults.active) else 0)
     width = n_tri + p + n + (n * n_tri if kind == "exact" else 0)
-    share = (width - base) / width
+    share = 0.0 if relay else (width - base) / width
     extra = CommTotals(
         0,
         np.zeros_like(comm.messages_sent),

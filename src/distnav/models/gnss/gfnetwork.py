@@ -530,7 +530,7 @@ def run_bias_filters(
             monitor=False,
             local_precision=None if tests is None else "bound",
             test_level=innovation_level,
-            transport=_ckf_transport(tests is None, ex, graph, kn, data.series),
+            transport=_ckf_transport(ex, graph, kn, data.series),
         ):
             if tests is not None:
                 tests.add(cst.tests)
@@ -545,13 +545,13 @@ def run_bias_filters(
     return out, comm
 
 
-def _ckf_transport(plain: bool, ex: Any, graph: Any, kn: int, series: Any) -> Literal["matrices", "relay"]:
+def _ckf_transport(ex: Any, graph: Any, kn: int, series: Any) -> Literal["matrices", "relay"]:
     """The CKF's transport, the cheaper in bytes (issue 27): relayed observation records (20 B each;
-    :mod:`distnav.algorithms.kalman.relay`) or the mixed normals, computed from the records the run will send. Runs
-    with innovation tests or a fault schedule need the matrices."""
+    :mod:`distnav.algorithms.kalman.relay`) or the mixed normals, computed from the records the run will send
+    (innovation tests can only remove some). A fault schedule needs the matrices."""
     from distnav.algorithms.kalman.relay import MAX_RELAY_NODES, matrix_bytes, relay_bytes, relay_plan
 
-    if not plain or ex.faults.active or graph.n_nodes > MAX_RELAY_NODES:
+    if ex.faults.active or graph.n_nodes > MAX_RELAY_NODES:
         return "matrices"
     records = np.asarray(series.tracked).sum(axis=2)  # (epochs, stations)
     relay = relay_bytes(relay_plan(graph, kn), records)
