@@ -27,7 +27,6 @@ along in the consensus payload (paid for in bytes) so that Fig. 7 uses the produ
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, TypedDict, Unpack
@@ -44,8 +43,8 @@ from distnav.algorithms.kalman import (
     check_model,
     masked_std,
     pseudo_inverse_psd,
-    std_ratio,
 )
+from distnav.algorithms.kalman.ckf_design import alpha_factor, ckf_error_variance, ckf_std_ratio, consensus_rounds
 from distnav.algorithms.kalman.ckf_qc import (
     InnovationCollector,
     NodeEpochTest,
@@ -53,15 +52,15 @@ from distnav.algorithms.kalman.ckf_qc import (
     local_extra_bound,
     local_extra_exact,
 )
-from distnav.algorithms.kalman.relay import RelayPlan, relay_plan, relay_records
+from distnav.algorithms.kalman.relay import RelayPlan, relay_setup, relayed_payload
 from distnav.algorithms.result import Precision, TraceBuilder
 from distnav.algorithms.statistics import critical_value
-from distnav.errors import ModelError, WeightsError
+from distnav.errors import ModelError
 from distnav.exchange import Exchange, Mixer, make_exchange
 from distnav.exchange.core import CommTotals
 from distnav.network.graph import Graph, SwitchingGraph
 from distnav.network.weights import ConsensusWeights
-from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
+from distnav.typing import BoolArray, FloatArray, IntArray
 
 Transport = Literal["matrices", "relay"]
 """How the CKF's consensus travels: the mixed matrices every round, or the raw records (:mod:`.relay`)."""
@@ -81,33 +80,6 @@ __all__ = [
     "ckf_error_variance",
     "ckf_std_ratio",
 ]
-
-
-def consensus_rounds(sampling_interval_s: float, sending_interval_s: float) -> int:
-    """``k_n = ⌊Δ/δ⌋``: consensus rounds that fit in one sampling interval (paper 003 §4.1, Fig. 5).
-
-    Δ = 60 s with δ = 15, 10, 5 s gives 4, 6, 12 (paper 003 §5.2).
-    """
-    D, d = float(sampling_interval_s), float(sending_interval_s)
-    if not (math.isfinite(D) and D > 0):
-        raise ModelError(f"sampling interval Δ must be positive, got {sampling_interval_s} s")
-    if not (math.isfinite(d) and d > 0):
-        raise ModelError(f"sending interval δ must be positive, got {sending_interval_s} s")
-    if d > D:
-        raise ModelError(
-            f"sending interval δ = {d} s exceeds the sampling interval Δ = {D} s: no consensus round "
-            f"fits in an epoch (the CKF needs δ ≤ Δ, paper 003 §4.1)"
-        )
-    return int(math.floor(D / d + 1e-9))
-
-
-def alpha_factor(product: ArrayLike) -> FloatArray:
-    """``α_i = n Σ_j l_ij²`` per node (paper 003 eq. (46)); ``α_i ≥ 1`` with equality iff ``l_i = e/n`` (eq. (48))."""
-    L = np.asarray(product, dtype=float)
-    if L.ndim != 2 or L.shape[0] != L.shape[1]:
-        raise WeightsError(f"product matrix must be square, got shape {L.shape}")
-    alpha: FloatArray = L.shape[0] * (L**2).sum(axis=1)
-    return alpha
 
 
 def _resolve_rounds(rounds: int | None, sampling_interval_s: float | None, sending_interval_s: float | None) -> int:
@@ -252,7 +224,10 @@ def _prepare_ckf(
         raise ModelError(f"local_precision must be 'exact', 'bound' or None, got {local_precision!r}")
     test_level = options.get("test_level")
     critical = _critical_level(measurements, local_precision, test_level)
-    relay = _relay_setup(options.get("transport", "matrices"), sched, ex, kn, local_precision, test_level)
+    transport = options.get("transport", "matrices")
+    if transport not in ("matrices", "relay"):
+        raise ModelError(f"transport must be 'matrices' or 'relay', got {transport!r}")
+    relay = relay_setup(sched, ex, kn) if transport == "relay" else None
     mixers = (
         [] if relay is not None else [ex.mixer(w, active=a) for w, a in zip(sched.weights, sched.active, strict=True)]
     )
@@ -408,66 +383,29 @@ def _consensus_deviation(ex: Exchange, N: FloatArray, r: FloatArray, Nk: FloatAr
     return float(ex.allreduce(loc, "max"))
 
 
-def _relay_setup(
-    transport: Transport,
-    sched: ConsensusSchedule,
-    ex: Exchange,
-    kn: int,
-    local_precision: LocalPrecision | None,
-    test_level: float | None,
-) -> tuple[RelayPlan, FloatArray] | None:
-    """The relay's static plan and this block's rows of ``L`` (``None`` for the matrix transport), or a
-    :class:`ModelError` naming what the relay cannot do."""
-    if transport not in ("matrices", "relay"):
-        raise ModelError(f"transport must be 'matrices' or 'relay', got {transport!r}")
-    if transport == "matrices":
-        return None
-    if len(sched.weights) != 1 or any(a is not None for a in sched.active):
-        raise ModelError("transport='relay' needs a static graph (one session); use transport='matrices'")
-    if ex.faults.active:
-        raise ModelError("transport='relay' needs every message (no fault schedule); use transport='matrices'")
-    return relay_plan(sched.graph, kn), consensus_product(sched, kn)[ex.nodes]
-
-
 def _relayed_consensus(
     s: _CKFSetup, measurements: MeasurementSeries, t: int, tests: tuple[NodeEpochTest | None, ...]
 ) -> FloatArray:
-    """The payload of the matrix transport, from the relayed records: ``[tri(N_i^(k_n)), r_i^(k_n)]`` =
-    ``Σ_j l_ij (N_j, r_j)`` over the origins each node received (every origin with ``l_ij ≠ 0`` must be among
-    them), then with node-local precision the row ``l_i`` (static knowledge here, sent nowhere) and, for the exact
-    form, the blocks ``l_ij tri(N_j)`` the tagged matrices would have carried. Observations an innovation test
-    removed are not sent (their records' weight is 0)."""
+    """The matrix transport's payload from the relayed records (:func:`~distnav.algorithms.kalman.relay.
+    relayed_payload`); an observation an innovation test removed is not sent (its record's weight is 0)."""
     assert s.relay is not None
-    ex, up, p = s.ex, s.up, s.p
     plan, L_rows = s.relay
-    values, weights = measurements.records(t, ex.nodes)
+    values, weights = measurements.records(t, s.ex.nodes)
     for a, test in enumerate(tests):
         if test is not None and test.removed:
-            weights[a, measurements.record_slots(t, ex.nodes[a : a + 1])[~test.keep]] = 0.0
-    known = relay_records(ex, plan, values, weights)
-    decoded: dict[int, FloatArray] = {}
-    n = measurements.n_nodes
-    tagged = np.zeros((ex.n_local, n, s.n_tri)) if s.local_precision == "exact" else None
-    out = np.zeros((ex.n_local, s.n_tri + p))
-    for a, got in enumerate(known):
-        need = np.flatnonzero(L_rows[a])
-        missing = set(need.tolist()) - set(got)
-        if missing:
-            raise ModelError(f"relay: node {int(ex.nodes[a])} lacks the records of nodes {sorted(missing)}")
-        for j in need.tolist():
-            if j not in decoded:
-                N_j, r_j = measurements.normals_from_records(t, j, *got[j])
-                decoded[j] = np.concatenate([N_j.reshape(p * p)[up], r_j])
-        stacked = np.stack([decoded[j] for j in need.tolist()])
-        out[a] = L_rows[a, need] @ stacked
-        if tagged is not None:
-            tagged[a, need] = L_rows[a, need][:, None] * stacked[:, : s.n_tri]
-    parts = [out]
-    if s.track_L:
-        parts.append(L_rows)
-    if tagged is not None:
-        parts.append(tagged.reshape(ex.n_local, n * s.n_tri))
-    return np.concatenate(parts, axis=1)
+            weights[a, measurements.record_slots(t, s.ex.nodes[a : a + 1])[~test.keep]] = 0.0
+    return relayed_payload(
+        s.ex,
+        plan,
+        L_rows,
+        measurements,
+        t,
+        values,
+        weights,
+        s.up,
+        with_rows=s.track_L,
+        tagged=s.local_precision == "exact",
+    )
 
 
 def _tested_normals(
@@ -649,72 +587,3 @@ def _local_precision(
         iterations=0,
         comm=extra,
     )
-
-
-def ckf_error_variance(
-    dynamics: DynamicModel, measurements: MeasurementSeries, product: ArrayLike, *, store_matrices: bool = False
-) -> FilterSeries:
-    """The CKF error-variance recursion of Fig. 7 alone, for every node and epoch, from ``L`` (= ``W^(k_n)``).
-
-    No data and no messages: the consensus normals are ``N_i^(k_n) = Σ_j l_ij N_j`` (eq. (35)), so ``I_i,t|t``
-    and ``P_i,t|t`` follow from the normal matrices and ``L`` — the a-priori design tool of paper 003 §4.2.
-    Returns a :class:`FilterSeries` with ``std`` = sqrt diag ``P_i,t|t`` and ``nominal_std`` = sqrt diag
-    ``I_i,t|t⁻¹`` (``estimates`` are NaN).
-
-    Cost per epoch: one dense GEMM ``[L; L∘L] · tri(N)`` of (2n × n) by (n × p(p+1)/2) — O(n² p²) flops, the
-    dominant term (≈ 1.1 GFLOP at n = 1,000, p = 33) — plus O(n p³) for the batched time update and inverses;
-    memory O(n² + n p²). Measured in ``benchmarks/bench_ckf.py`` against a bare batched-numpy implementation of the
-    same recursion (issue 17: ≤ 2×). For the node-local form that needs no global knowledge see
-    ``ckf(..., local_precision=...)``.
-    """
-    check_model(dynamics, measurements)
-    n, p = measurements.n_nodes, measurements.n_states
-    L = np.asarray(product, dtype=float)
-    if L.shape != (n, n):
-        raise ModelError(f"product matrix must be {n}×{n}, got {L.shape}")
-    LL = np.concatenate([L, L**2])  # one GEMM per epoch gives Σ_j l_ij N_j and Σ_j l_ij² N_j
-    iu = _triu(p)
-    ker = InformationKernel(n, p, track_error=True)
-    T = measurements.n_epochs
-    stds: list[FloatArray] = []
-    nstds: list[FloatArray] = []
-    ests: list[BoolArray] = []
-    covs: list[FloatArray] = []
-    infos: list[FloatArray] = []
-    for t in range(T):
-        if t > 0:
-            ker.time_update(dynamics, t)
-        N, _ = measurements.normals(t)
-        tri = N[:, iu[0], iu[1]]
-        both = LL @ tri
-        Nk = np.zeros((n, p, p))
-        Nk[:, iu[0], iu[1]] = both[:n]
-        Nk[:, iu[1], iu[0]] = both[:n]
-        extra = np.zeros((n, p, p))
-        extra[:, iu[0], iu[1]] = (n * n) * both[n:]
-        extra[:, iu[1], iu[0]] = (n * n) * both[n:]
-        ker.measurement_update(Nk, np.zeros((n, p)), scale=float(n), extra_error=extra)
-        inv, est = pseudo_inverse_psd(ker.I)
-        assert ker.Q is not None
-        P = inv @ ker.Q @ inv
-        stds.append(masked_std(P, est))
-        nstds.append(masked_std(inv, est))
-        ests.append(est)
-        if store_matrices:
-            covs.append(0.5 * (P + np.swapaxes(P, 1, 2)))
-            infos.append(ker.I)
-    std = np.stack(stds)
-    return FilterSeries(
-        estimates=np.full_like(std, np.nan),
-        std=std,
-        estimable=np.stack(ests),
-        nodes=np.arange(n),
-        nominal_std=np.stack(nstds),
-        covariance=np.stack(covs) if store_matrices else None,
-        information=np.stack(infos) if store_matrices else None,
-    )
-
-
-def ckf_std_ratio(ckf_series: FilterSeries, central_series: FilterSeries) -> FloatArray:
-    """CKF-to-central standard-deviation ratios per epoch, node and parameter (paper 003 Fig. 12), (T, n, p)."""
-    return std_ratio(ckf_series, central_series)

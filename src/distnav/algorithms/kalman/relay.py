@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from distnav.algorithms.consensus.averaging import ConsensusSchedule, consensus_product
+from distnav.algorithms.kalman.measurements import MeasurementSeries
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.graph import Graph
@@ -41,6 +43,8 @@ __all__ = [
     "relay_bytes",
     "relay_plan",
     "relay_records",
+    "relay_setup",
+    "relayed_payload",
 ]
 
 #: One observation record on the wire: value and weight (float64) and slot index (int32).
@@ -103,6 +107,16 @@ def relay_plan(graph: Graph, rounds: int) -> RelayPlan:
     return RelayPlan(rounds, hops, tuple(carried))
 
 
+def relay_setup(sched: ConsensusSchedule, ex: Exchange, kn: int) -> tuple[RelayPlan, FloatArray]:
+    """The plan of ``kn`` hops and this block's rows of ``L = W^(kn)``, or a :class:`ModelError` naming what the relay
+    cannot do (a switching graph, a fault schedule)."""
+    if len(sched.weights) != 1 or any(a is not None for a in sched.active):
+        raise ModelError("transport='relay' needs a static graph (one session); use transport='matrices'")
+    if ex.faults.active:
+        raise ModelError("transport='relay' needs every message (no fault schedule); use transport='matrices'")
+    return relay_plan(sched.graph, kn), consensus_product(sched, kn)[ex.nodes]
+
+
 def relay_bytes(plan: RelayPlan, records: IntArray) -> int:
     """Bytes the relay sends for ``records`` (epochs × nodes: each node's record count per epoch): every origin's
     count and records cross each edge that carries it (:data:`COUNT_BYTES` + :data:`RECORD_BYTES` per record)."""
@@ -162,6 +176,50 @@ def relay_records(
             for o, rec in zip(origins, _unpack(inbox.values[r_in], len(origins), slots), strict=True):
                 receiver[o] = rec
     return known
+
+
+def relayed_payload(
+    ex: Exchange,
+    plan: RelayPlan,
+    L_rows: FloatArray,
+    measurements: MeasurementSeries,
+    t: int,
+    values: FloatArray,
+    weights: FloatArray,
+    up: IntArray,
+    *,
+    with_rows: bool,
+    tagged: bool,
+) -> FloatArray:
+    """Relay this block's records of epoch ``t`` and return the CKF's payload after ``k_n`` rounds as the matrix
+    transport would hold it: ``[tri(N_i^(k_n)), r_i^(k_n)]`` = ``Σ_j l_ij (N_j, r_j)`` over the origins each node
+    received (every origin with ``l_ij ≠ 0`` must be among them; ``up``: flat indices of the upper triangle), then
+    with ``with_rows`` the row ``l_i`` (static knowledge here, sent nowhere) and with ``tagged`` the blocks
+    ``l_ij tri(N_j)`` the tagged matrices of the exact node-local precision would have carried."""
+    known = relay_records(ex, plan, values, weights)
+    decoded: dict[int, FloatArray] = {}
+    n, p, n_tri = measurements.n_nodes, measurements.n_states, up.size
+    blocks = np.zeros((ex.n_local, n, n_tri)) if tagged else None
+    out = np.zeros((ex.n_local, n_tri + p))
+    for a, got in enumerate(known):
+        need = np.flatnonzero(L_rows[a])
+        missing = set(need.tolist()) - set(got)
+        if missing:
+            raise ModelError(f"relay: node {int(ex.nodes[a])} lacks the records of nodes {sorted(missing)}")
+        for j in need.tolist():
+            if j not in decoded:
+                N_j, r_j = measurements.normals_from_records(t, j, *got[j])
+                decoded[j] = np.concatenate([N_j.reshape(p * p)[up], r_j])
+        stacked = np.stack([decoded[j] for j in need.tolist()])
+        out[a] = L_rows[a, need] @ stacked
+        if blocks is not None:
+            blocks[a, need] = L_rows[a, need][:, None] * stacked[:, :n_tri]
+    parts = [out]
+    if with_rows:
+        parts.append(L_rows)
+    if blocks is not None:
+        parts.append(blocks.reshape(ex.n_local, n * n_tri))
+    return np.concatenate(parts, axis=1)
 
 
 def _pack(row: FloatArray, records: list[tuple[FloatArray, FloatArray]], slots: int) -> int:
