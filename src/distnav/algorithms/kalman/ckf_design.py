@@ -7,16 +7,10 @@ import math
 
 import numpy as np
 
-from distnav.algorithms.kalman import (
-    DynamicModel,
-    FilterSeries,
-    InformationKernel,
-    MeasurementSeries,
-    check_model,
-    masked_std,
-    pseudo_inverse_psd,
-    std_ratio,
-)
+from distnav.algorithms.kalman.dynamics import DynamicModel
+from distnav.algorithms.kalman.kernel import InformationKernel, masked_std, pseudo_inverse_psd
+from distnav.algorithms.kalman.measurements import MeasurementSeries, check_model
+from distnav.algorithms.kalman.results import FilterSeries, std_ratio
 from distnav.errors import ModelError, WeightsError
 from distnav.typing import ArrayLike, BoolArray, FloatArray
 
