@@ -16,6 +16,7 @@ heights given):
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import tempfile
@@ -26,7 +27,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import main_for  # noqa: E402
+from _common import RESULTS, main_for  # noqa: E402
 from distnav.commands.uwb import solve_range_log  # noqa: E402
 from distnav.experiments.uwb_field import write_hall  # noqa: E402
 from distnav.models.uwb.hall import PLANT_LIKE, simulate_hall  # noqa: E402
@@ -59,12 +60,24 @@ def _wall(job: tuple[int, float | None]) -> dict[str, Any]:
     main = rmse(sol.positions_m)
     other = rmse(sol.mirror_positions_m) if sol.mirror_positions_m is not None else None
     m = sol.mirror or {}
+    # the test's side A (lower squared residuals on the links both fits kept) and whether it is the truth
+    a_map = main if m.get("written_is_a", True) else other
     return {
+        "seed": seed,
+        "band_m": band,
         "exit": v.exit_code,
         "rmse_m": main,
         "other_m": other,
         "chosen": bool(m.get("chosen")) and m.get("apart_m", 0.0) > 0.5,
+        "tested": bool(m),
         "power": m.get("power"),
+        "delta": m.get("delta"),
+        "critical": m.get("critical"),
+        "noncentrality": m.get("noncentrality"),
+        "apart_m": m.get("apart_m"),
+        "robust_cost_a": m.get("robust_cost_a"),
+        "robust_cost_b": m.get("robust_cost_b"),
+        "a_is_truth": None if a_map is None else bool(a_map < MIRROR_M),
     }
 
 
@@ -80,11 +93,23 @@ def _plant(seed: int) -> dict[str, Any]:
     ids = [p.ids[i] for i in np.flatnonzero(p.estimated)]
     errs = {k: float(err[p.ids.index(k)]) for k in ids}
     meeting = [k for k in ids if k not in v.failing]
+    anchors = [  # per estimated anchor: error and σ on its free coordinates, radius, why it fails (if it does)
+        {
+            "id": k,
+            "error_m": [float(e) for e in (sol.positions_m[i] - p.truth_m[i])[p.free[i]]],
+            "sigma_m": [float(s) for s in sol.sigma_m[i][p.free[i]]],
+            "radius_m": v.accuracy_m.get(k),
+            "failing": v.failing.get(k),
+        }
+        for i, k in ((p.ids.index(k), k) for k in ids)
+    ]
     return {
+        "seed": seed,
         "exit": v.exit_code,
         "worst_m": max(errs.values()),
         "n_meeting": len(meeting),
         "n_meeting_wrong": sum(errs[k] > REQUIRED_ACCURACY_M for k in meeting),
+        "anchors": anchors,
     }
 
 
@@ -104,6 +129,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
     meeting = sum(r["n_meeting"] for r in plant)
     meeting_wrong = sum(r["n_meeting_wrong"] for r in plant)
     codes = {c: sum(r["exit"] == c for r in plant) for c in (0, 1, 3, 4)}
+    write_runs({"wall": wall, "plant": plant})
     return [
         {
             "name": "wall mirror (known anchors on one wall)",
@@ -127,7 +153,85 @@ def run(quick: bool) -> list[dict[str, Any]]:
             "goal": "≤ 1 % of exit-0 runs with an anchor worse than required",
             "meets_goal": (ok_bad / len(ok) if ok else 0.0) <= 0.01,
         },
+        sigma_calibration(plant),
+        margin_row(plant),
+        side_test_row(wall),
     ]
+
+
+def write_runs(runs: dict[str, list[dict[str, Any]]]) -> None:
+    """Every run's record (per anchor: error, σ, radius, reason) beside the table's JSON, for the docs' analysis."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "uwb_verdict_runs.json").write_text(json.dumps(runs, indent=1, default=float) + "\n")
+
+
+def sigma_calibration(plant: list[dict[str, Any]]) -> dict[str, Any]:
+    """Is σ right? Per estimated anchor ``t = ‖e‖ / √(Σσ²)`` on its free coordinates (RMS ≈ 1 if the σ are right;
+    the truth is the simulator's) and the normalized coordinate errors ``e / σ`` pooled (RMS ≈ 1); also the share
+    of anchors outside their accuracy radius (≤ 1 % jointly per hall if σ are right)."""
+    a = [x for r in plant for x in r["anchors"] if x["sigma_m"] and all(np.isfinite(x["sigma_m"]))]
+    t = np.array([np.linalg.norm(x["error_m"]) / np.linalg.norm(x["sigma_m"]) for x in a])
+    z = np.concatenate([np.asarray(x["error_m"]) / np.asarray(x["sigma_m"]) for x in a])
+    out = np.array([np.linalg.norm(x["error_m"]) > x["radius_m"] for x in a])
+    ok = np.array([x["failing"] is None for x in a])
+    return {
+        "name": "σ vs the actual error (plant-like halls, every estimated anchor)",
+        "anchors": int(t.size),
+        "rms_error_over_sigma": float(np.sqrt(np.mean(t**2))),
+        "median_error_over_sigma": float(np.median(t)),
+        "rms_error_over_sigma_meeting": float(np.sqrt(np.mean(t[ok] ** 2))) if ok.any() else None,
+        "rms_coordinate_z": float(np.sqrt(np.mean(z**2))),
+        "share_beyond_radius": float(out.mean()),
+        "goal": "RMS error/σ ≈ 1 (0.8–1.25)",
+        "meets_goal": bool(0.8 <= np.sqrt(np.mean(t**2)) <= 1.25),
+    }
+
+
+def margin_row(plant: list[dict[str, Any]]) -> dict[str, Any]:
+    """Is the verdict useful? Halls whose every anchor is truly within half the required accuracy (a margin of 2)
+    but whose run did not exit 0, and why their anchors failed (the reason's first word, counted)."""
+    good = [r for r in plant if r["worst_m"] <= REQUIRED_ACCURACY_M / 2]
+    missed = [r for r in good if r["exit"] != 0]
+    why: dict[str, int] = {}
+    for r in missed:
+        for x in r["anchors"]:
+            if x["failing"]:
+                key = x["failing"].split(" ")[0].rstrip(":") + (
+                    ":" + x["failing"].split(" ")[1].rstrip(":") if x["failing"].startswith("weak") else ""
+                )
+                why[key] = why.get(key, 0) + 1
+    return {
+        "name": f"margin: every anchor truly within {REQUIRED_ACCURACY_M / 2:g} m",
+        "halls": len(good),
+        "exit_0": sum(r["exit"] == 0 for r in good),
+        "not_exit_0": len(missed),
+        "failing_reasons": why,
+        "goal": "exit 0 whenever every anchor meets it with margin",
+        "meets_goal": not missed,
+    }
+
+
+def side_test_row(wall: list[dict[str, Any]]) -> dict[str, Any]:
+    """The side test on the wall halls: Δ oriented to the truth (``Δ_true`` > 0 when the true side has the lower
+    squared residuals) against the critical value c; how often ``Δ_true > c`` (the test could choose the truth)
+    and the truth was chosen; the power ``Φ(√λ − z)`` of the ambiguous runs."""
+    t = [r for r in wall if r["tested"] and r["delta"] is not None and r["a_is_truth"] is not None]
+    d_true = [(r["delta"] if r["a_is_truth"] else -r["delta"]) for r in t]
+    above = [r for r, d in zip(t, d_true, strict=True) if d > r["critical"]]
+    above_chosen = sum(r["chosen"] and r["rmse_m"] < MIRROR_M for r in above)
+    amb = [r for r in t if r["exit"] == 4]
+    pw = np.array([r["power"] for r in amb], float) if amb else np.zeros(0)
+    return {
+        "name": "side test: Δ (true side) against its critical value",
+        "tested": len(t),
+        "delta_true_above_critical": len(above),
+        "of_them_truth_chosen": above_chosen,
+        "ambiguous": len(amb),
+        "ambiguous_power_median": float(np.median(pw)) if pw.size else None,
+        "ambiguous_power_max": float(pw.max()) if pw.size else None,
+        "goal": "the true side chosen whenever Δ exceeds the critical value",
+        "meets_goal": above_chosen == len(above),
+    }
 
 
 if __name__ == "__main__":

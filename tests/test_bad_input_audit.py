@@ -271,6 +271,8 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-mapping-choice", (*io, *o, "--mapping", "flat"), "invalid choice"),
         Cli("gnss-ionosphere-innovation-test-one", (*io, *o, "--innovation-test", "1"), "--innovation-test"),
         Cli("gnss-ionosphere-innovation-test-zero", (*io, *o, "--innovation-test", "0"), "--innovation-test"),
+        Cli("gnss-ionosphere-between-station-one", (*io, *o, "--between-station-level", "0.5"), "--between-station"),
+        Cli("gnss-ionosphere-between-station-text", (*io, *o, "--between-station-level", "x"), "invalid float value"),
         Cli("gnss-codebias-backend", (*cb, *o, "--backend", "tcp"), "invalid choice"),
         Cli("gnss-codebias-no-progress-value", (*cb, *o, "--no-progress=yes"), "ignored explicit"),
         Cli("gnss-codebias-reference-empty", (*cb, *o, "--reference", ""), "--reference"),
@@ -383,7 +385,14 @@ def _field_async_cases() -> list[Cli]:
     out = ("--out", "{tmp}/n.toml")
     demo = ("field", "demo", "--out", "{tmp}/out")
     cases = [
-        Cli("field-init-no-source", ("field", "init", *out), "one of the arguments --ranges --rinex is required"),
+        Cli(
+            "field-init-no-source",
+            ("field", "init", *out),
+            "one of the arguments --ranges --rinex --simulate is required",
+        ),
+        Cli("field-init-simulate-kind", ("field", "init", "--simulate", "x", *out), "invalid choice"),
+        Cli("field-init-simulate-nodes", ("field", "init", "--simulate", "ckf", "--nodes", "0", *out), "at least 1"),
+        Cli("field-init-simulate-hall-3", ("field", "init", "--simulate", "hall", "--nodes", "3", *out), "at least 4"),
         Cli("field-init-both-sources", (*init, "--rinex", "{obs}", *out), "not allowed with argument"),
         Cli("field-init-ranges-missing", ("field", "init", "--ranges", "{tmp}/none.csv", *out), "no such file"),
         Cli("field-init-rinex-missing", ("field", "init", "--rinex", "{tmp}/none.rnx", *out), "no such file"),

@@ -40,6 +40,66 @@ def test_values_equal_georinex(shared_data: Path, name: str, types: list[str]) -
         np.testing.assert_array_equal(theirs[np.isfinite(theirs)], ours.values[t][np.isfinite(theirs)])
 
 
+@pytest.mark.parametrize(
+    "system,types",
+    [
+        ("E", ["C1X", "C5X", "C7X", "L1X", "L5X"]),
+        ("C", ["C2I", "C6I", "C7I", "L2I"]),
+        ("R", ["C1C", "C1P", "C2C", "L1C"]),
+    ],
+)
+def test_other_systems_equal_georinex(shared_data: Path, system: str, types: list[str]) -> None:
+    """Galileo, BeiDou and GLONASS lines of the mixed BELE file: every value and every satellite as georinex."""
+    gr = pytest.importorskip("georinex")
+    path = shared_data / IGS / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"
+    ours = read_observation_types(path, types, tlim=WINDOW, system=system)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = gr.load(path, use=system, meas=types, tlim=tuple(str(t) for t in WINDOW))
+    assert np.array_equal(ref.time.values.astype("datetime64[ns]"), ours.time)
+    assert set(ours.svs) == {str(s) for s in ref.sv.values} and all(s[0] == system for s in ours.svs)
+    for t in types:
+        theirs = ref[t].sel(sv=list(ours.svs)).values
+        assert np.isfinite(theirs).sum() > 100
+        assert np.array_equal(np.isfinite(theirs), np.isfinite(ours.values[t]))
+        np.testing.assert_array_equal(theirs[np.isfinite(theirs)], ours.values[t][np.isfinite(theirs)])
+
+
+def test_glonass_channels_and_phase_wavelengths(shared_data: Path) -> None:
+    """The header's GLONASS SLOT / FRQ # channels (BELE: R01 +1, R02 −4, R10 −7) scale each satellite's phase:
+    code and phase in metres then move together over half an hour (Galileo too, with its E5a wavelength)."""
+    path = shared_data / IGS / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"
+    from distnav.formats.gnss.rinex_obs import read_header
+    from distnav.models.gnss.systems import carrier_frequencies_hz
+
+    hdr = read_header(path)
+    assert (hdr.glonass_channels["R01"], hdr.glonass_channels["R02"], hdr.glonass_channels["R10"]) == (1, -4, -7)
+    assert len(hdr.glonass_channels) == 24 and hdr.types_of("C") == (
+        "C2I",
+        "C6I",
+        "C7I",
+        "L2I",
+        "L6I",
+        "L7I",
+        "S2I",
+        "S6I",
+        "S7I",
+    )
+    for system, bands, codes in (("E", (1, 5), {1: "C1X", 5: "C5X"}), ("R", (1, 2), {1: "C1C", 2: "C2C"})):
+        o = read_code_observations(path, bands=bands, system=system, phases=True, tlim=WINDOW)
+        assert o.codes == codes and o.phase_types == {b: "L" + c[1:] for b, c in codes.items()}
+        for b in bands:  # code minus carrier: 2× the ionosphere's change and code noise, metres
+            spread = np.nanstd(o.range_m[b] - o.phase_m[b], axis=0)
+            assert np.isfinite(o.phase_m[b]).sum() > 100 and np.nanmedian(spread) < 2.0, (system, b, spread)
+    # the same GLONASS phases with every channel one too high: the range change × 3.5e-4 shows (tens of metres)
+    f_right = carrier_frequencies_hz("R", 1, o.svs, hdr.glonass_channels)
+    f_wrong = carrier_frequencies_hz("R", 1, o.svs, {s: k + 1 for s, k in hdr.glonass_channels.items()})
+    wrong = o.range_m[1] - o.phase_m[1] * f_right / f_wrong
+    assert np.nanmedian(np.nanstd(wrong, axis=0)) > 20.0
+    with pytest.raises(DataFileError, match="Galileo observations are read from RINEX 3 files only"):
+        read_observation_types(shared_data / IGS / "dgar0100.24o.gz", ["C1"], system="E")
+
+
 def test_latin1_byte_in_header_is_accepted(shared_data: Path, tmp_path: Path) -> None:
     text = (shared_data / NL / "zegv0010.21o").read_bytes()
     marker = b"END OF HEADER"

@@ -479,6 +479,48 @@ def consensus_on_graph_parts(backend: str) -> dict[str, np.ndarray]:
 
 
 @case
+def consensus_on_tiled_parts(backend: str) -> dict[str, np.ndarray]:
+    """MPI: each rank builds only its part of a tiled random geometric graph (no array over the whole network),
+    the partition held as node ranges; in-process: the whole tiled graph. Drops and a silent node: the same
+    numbers."""
+    from distnav.network.part_builders import (
+        radius_for_mean_degree,
+        tiled_random_geometric,
+        tiled_random_geometric_part,
+    )
+    from distnav.network.partition import block_ranges
+    from distnav.network.weights import part_weights
+
+    n = 5000
+    radius = radius_for_mean_degree(n, 8)
+    faults = FaultSchedule(drop_probability=0.1, silent_nodes=((4321, 3),), seed=9)
+    x0 = np.random.default_rng(5).normal(size=n)
+    if backend == "mpi":
+        from mpi4py import MPI
+
+        comm = MPI.COMM_WORLD
+        ranges = block_ranges(n, comm.Get_size())
+        part = tiled_random_geometric_part(
+            n, radius, seed=7, nodes=ranges.nodes_of(comm.Get_rank()), tile_nodes=128, comm=comm
+        )
+        ex = make_exchange(part, backend="mpi", faults=faults, partition=ranges)
+        mixer = ex.mixer(part_weights(part, "MH"))
+    else:
+        g = tiled_random_geometric(n, radius, seed=7, tile_nodes=128)
+        ex = make_exchange(g, faults=faults)
+        mixer = ex.mixer(consensus_weights(g, "MH"))
+    x = ex.local(x0)
+    for _ in range(12):
+        x = mixer.apply(x)
+    totals = ex.comm_totals()
+    return {
+        "estimates": ex.gather_nodes(x),
+        "received": totals.messages_received,
+        "per_round": totals.messages_per_round,
+    }
+
+
+@case
 def ncsg_neighbourhood_precision(backend: str) -> dict[str, np.ndarray]:
     """The node-local "neighbourhood" precision (block broadcasts) at an N-CSG-TBLS solution."""
     from distnav.algorithms.ranging.csg import solve_ncsg
@@ -661,4 +703,25 @@ def central_precision_distributed(backend: str) -> dict[str, np.ndarray]:
         "estimates": out.covariance(a_posteriori=True).ravel(),
         "sent": out.precision.comm.messages_sent,
         "count": np.asarray([out.cg_iterations, out.reductions, out.reduced_floats]),
+    }
+
+
+@case
+def local_reliability_distributed(backend: str) -> dict[str, np.ndarray]:
+    """Issue 28 item 5: every anchor's redundancy numbers, MDB and worst shift from its 2-hop neighbourhood's link
+    records, flooded through the exchange (one-sided Cauchy, common offset) on a 40-anchor random network."""
+    from distnav.algorithms.ranging.reliability import ReliabilityOptions, local_reliability
+
+    problem = _uwb_problem()
+    assert problem.truth_m is not None
+    est = problem.truth_m + np.where(problem.free, np.random.default_rng(5).normal(0.0, 0.05, problem.truth_m.shape), 0)
+    opts = ReliabilityOptions(sigma_m=0.1, offsets="common", loss="cauchy_long", loss_scale_m=0.3)
+    rel = local_reliability(
+        problem, est, opts, offsets_m=np.array([0.02]), hops=2, exchange=make_exchange(problem.graph, backend=backend)
+    )
+    return {
+        "estimates": np.nan_to_num(np.concatenate([rel.r, rel.mdb_m, rel.shift_m]), nan=-1.0),  # NaN: not owned
+        "count": np.concatenate([rel.worst_link, rel.subnetwork_anchors]),
+        "bytes": np.asarray(rel.comm.bytes_sent),
+        "sent": np.asarray(rel.comm.messages_sent),
     }

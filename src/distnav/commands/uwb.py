@@ -420,6 +420,11 @@ def _summary(
         "usable": sol.status in ("converged", "max_iterations", "weakly_determined"),
         "message": sol.message,
         "iterations": sol.iterations,
+        "iterations_counted": (
+            "LM iterations, every fit of the workflow"
+            if opts.solver.upper() == "LM"
+            else "neighbour iterations plus the final distributed LM phase's rounds, every fit of the workflow"
+        ),
         "rmse_m": rmse_m(p, sol.positions_m) if usable and p.truth_m is not None else None,
         "range_residual_rms_m": rms,
         "rms_cost": float(np.sqrt(np.mean(p.residuals(sol.positions_m) ** 2))) if usable else None,

@@ -4,6 +4,7 @@ lines of the verdict (:mod:`distnav.models.uwb.verdict`)."""
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,15 @@ from distnav.models.uwb.field import FieldSolution
 from distnav.models.uwb.verdict import RunVerdict
 from distnav.output import atomic_write_text
 
-__all__ = ["positions_table", "report", "write_links", "write_mirror_positions", "write_offsets", "plot"]
+__all__ = [
+    "map_accuracy_line",
+    "positions_table",
+    "report",
+    "write_links",
+    "write_mirror_positions",
+    "write_offsets",
+    "plot",
+]
 
 
 def write_links(path: Path, sol: FieldSolution, comb: CombinedRanges) -> None:
@@ -205,3 +214,25 @@ def report(summary: dict[str, Any], sol: FieldSolution, verdict: RunVerdict, out
         print(f"  {k}: {why}", file=sys.stderr)
     if n > 20:
         print(f"  … and {n - 20} more", file=sys.stderr)
+    print(map_accuracy_line(verdict), file=sys.stderr)
+
+
+def map_accuracy_line(verdict: RunVerdict) -> str:
+    """What the map does give (issue 28 item 2): the accuracy its anchors meet apart from the blocking ones (weak,
+    ambiguous, unsolved), and what to do about those."""
+    acc, blocking = verdict.map_accuracy_m, verdict.blocking
+    if acc is None:
+        return (
+            "  no anchor's accuracy can be stated: " + ", ".join(blocking[:12]) + " need more links or a known anchor"
+        )
+    bound = f"{math.ceil(acc * 1000.0) / 1000.0:.3f}"
+    if not blocking:
+        return (
+            f"  this map meets {bound} m (every anchor within its radius, 99 % jointly): "
+            f"--required-accuracy-m {bound} exits 0"
+        )
+    return (
+        f"  the other anchors meet {bound} m (99 % jointly); {', '.join(blocking[:12])}"
+        + (f" and {len(blocking) - 12} more" if len(blocking) > 12 else "")
+        + " fail at any required accuracy (weak, ambiguous or unsolved: add links to them or a known anchor near them)"
+    )

@@ -27,13 +27,16 @@ import numpy as np
 
 from distnav._optional import require
 from distnav.errors import DataFileError
-from distnav.formats.gnss.rinex_nav import _ints, check_navigation_file, read_gps_ephemerides
+from distnav.formats.gnss.rinex_nav import _ints, check_navigation_file, read_ephemerides
 from distnav.formats.gnss.rinex_obs import (
     COMPRESSED_MAGIC,
+    SYSTEM_NAMES,
+    EpochSelection,
     ProgressCallback,
+    observations_from_lines,
+    parse_header,
     read_bytes,
-    read_header,
-    read_observation_types,
+    read_lines,
     read_text_file,
 )
 from distnav.models.gnss.code_observations import CodeObservations
@@ -48,6 +51,7 @@ __all__ = [
     "check_navigation_file",
     "check_sp3_file",
     "CODE_PREFERENCE",
+    "SYSTEM_CODE_PREFERENCE",
     "RINEX2_RECEIVER_ATTRIBUTES",
 ]
 
@@ -57,6 +61,15 @@ CODE_PREFERENCE: dict[int, tuple[str, ...]] = {
     5: ("C5Q", "C5X", "C5I"),
 }
 """Default RINEX 3 code preference per GPS band (first present wins)."""
+
+SYSTEM_CODE_PREFERENCE: dict[str, dict[int, tuple[str, ...]]] = {
+    "G": CODE_PREFERENCE,
+    "E": {1: ("C1C", "C1X"), 5: ("C5Q", "C5X"), 7: ("C7Q", "C7X"), 8: ("C8Q", "C8X"), 6: ("C6C", "C6X")},
+    "C": {2: ("C2I", "C2X"), 6: ("C6I", "C6X"), 7: ("C7I", "C7X")},
+    "R": {1: ("C1C", "C1P"), 2: ("C2C", "C2P")},
+}
+"""Default RINEX 3 code preference per system and band (Galileo pilot Q before data+pilot X, as CAS's C1C−C5Q;
+BeiDou B1I/B3I/B2I; GLONASS C/A before P)."""
 
 _RINEX2_FIXED = {"C1": "C1C", "P1": "C1W", "P2": "C2W"}
 RINEX2_RECEIVER_ATTRIBUTES: dict[str, dict[str, str]] = {
@@ -119,111 +132,142 @@ def read_code_observations(
     interval_s: float | None = None,
     phases: bool = False,
     progress: ProgressCallback | None = None,
+    system: str = "G",
 ) -> CodeObservations:
-    """Read the GPS code observations of one RINEX 2.11/3.x observation file (``.o``, ``.d``, ``.crx``, ``.gz``).
+    """Read the code observations of one system (``system``: ``G`` GPS, ``E`` Galileo, ``C`` BeiDou — RINEX 3
+    only for the others) of one RINEX 2.11/3.x observation file (``.o``, ``.d``, ``.crx``, ``.gz``).
 
-    ``codes`` forces the RINEX 3 code of a band (e.g. ``{1: "C1W"}``); otherwise :data:`CODE_PREFERENCE`
-    decides. ``tlim=(start, stop)`` reads a time window (ISO strings or datetimes, inclusive), ``interval_s`` keeps
-    only epochs on that grid. ``phases=True`` also reads a carrier phase per band (``phase_m``, metres, and the
-    loss-of-lock indicators ``lli``; a band without phase is left out of ``phase_m``). ``progress(label, fraction)``
-    is called while reading (see :mod:`distnav.formats.gnss.rinex_obs`, the reader). Raises
-    :class:`~distnav.errors.DataFileError` naming the file for an unreadable file, a file without GPS data, or a
-    band with none of the accepted codes.
+    ``codes`` forces the RINEX 3 code of a band (e.g. ``{1: "C1W"}``); otherwise the system's preference list
+    (:data:`SYSTEM_CODE_PREFERENCE`) decides. ``tlim=(start, stop)`` reads a time window (ISO strings or
+    datetimes, inclusive), ``interval_s`` keeps only epochs on that grid. ``phases=True`` also reads a carrier
+    phase per band (``phase_m``, metres, and the loss-of-lock indicators ``lli``; a band without phase is left out
+    of ``phase_m``). ``progress(label, fraction)`` is called while reading (see
+    :mod:`distnav.formats.gnss.rinex_obs`, the reader). Raises :class:`~distnav.errors.DataFileError` naming the
+    file for an unreadable file, a file without data of the system, or a band with none of the accepted codes.
     """
-    from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ
-
     p = Path(path)
-    hdr = read_header(p)
-    version = hdr.version
+    lines = read_lines(p)
+    hdr = parse_header(lines, p)
     if hdr.file_type not in ("O", ""):
         raise DataFileError(f"{p}: not a RINEX observation file (type {hdr.file_type!r})")
-    receiver = hdr.receiver
-    notes: list[str] = []
+    if system not in SYSTEM_CODE_PREFERENCE:
+        raise DataFileError(f"system {system!r}: expected one of {' '.join(SYSTEM_CODE_PREFERENCE)}")
+    types = list(hdr.types_of(system))
+    if not types:
+        raise DataFileError(f"{p}: no {SYSTEM_NAMES[system]} observation types in the header")
     forced = dict(codes or {})
-    chosen: dict[int, str] = {}
-    file_types: dict[int, str] = {}  # band -> the type name as stored in the file
-    gps_types = list(hdr.gps_types)
-    if not gps_types:
-        raise DataFileError(f"{p}: no GPS observation types in the header")
-    if version >= 3:
-        for b in bands:
-            prefs = (forced[b],) if b in forced else CODE_PREFERENCE.get(b, ())
-            hit = next((c for c in prefs if c in gps_types), None)
-            if hit is None:
-                raise DataFileError(
-                    f"{p}: no L{b} code observation ({'/'.join(prefs)}) for GPS; "
-                    f"types present: {' '.join(t for t in gps_types if t.startswith('C'))}"
-                )
-            chosen[b] = hit
-            file_types[b] = hit
+    if hdr.version >= 3:
+        chosen = _rinex3_codes(p, types, bands, forced, system)
+        file_types, notes = dict(chosen), list[str]()
     else:
-        types = gps_types
-        amap, make = _rinex2_attribute_map(receiver)
-        inverse: dict[str, list[str]] = {}
-        for r2, r3 in amap.items():
-            inverse.setdefault(r3, []).append(r2)
-        for b in bands:
-            prefs = (forced[b],) if b in forced else CODE_PREFERENCE.get(b, ())
-            pair: tuple[str, str] | None = None
-            for c3 in prefs:
-                for r2 in inverse.get(c3, []):
-                    if r2 in types:
-                        pair = (c3, r2)
-                        break
-                if pair:
-                    break
-            if pair is None:
-                r2_names = [r2 for c3 in prefs for r2 in inverse.get(c3, [])]
-                raise DataFileError(
-                    f"{p}: no L{b} code observation ({'/'.join(r2_names) or '/'.join(prefs)}) in this RINEX 2 "
-                    f"file; types present: {' '.join(types)}"
-                )
-            chosen[b], file_types[b] = pair
-            if pair[1] in ("C2", "C5"):
-                notes.append(
-                    f"RINEX 2 {pair[1]} read as {pair[0]} "
-                    f"({'receiver ' + make if make else 'unknown receiver make: default'})"
-                )
+        chosen, file_types, notes = _rinex2_codes(p, types, bands, forced, hdr.receiver)
     phase_types: dict[int, str] = {}
-    if phases:
-        for b in bands:
-            ph = _phase_type(b, chosen[b], file_types[b], gps_types, version >= 3)
-            if ph is not None:
-                phase_types[b] = ph
+    for b in bands if phases else ():
+        ph = _phase_type(b, chosen[b], file_types[b], types, hdr.version >= 3)
+        if ph is not None:
+            phase_types[b] = ph
     window = None if tlim is None else (_to_datetime64(tlim[0]), _to_datetime64(tlim[1]))
     wanted = sorted(set(file_types.values()) | set(phase_types.values()))
-    raw = read_observation_types(
-        p, wanted, tlim=window, interval_s=interval_s, progress=progress, label=_station_name(hdr.marker, p)
-    )
-    ranges: dict[int, np.ndarray] = {}
-    for b, name in file_types.items():
-        arr = raw.values[name].copy()
-        with np.errstate(invalid="ignore"):
-            arr[(arr < 1.0e7) | (arr > 5.0e7)] = np.nan  # blanks / zeros / garbage are not GPS ranges
-        ranges[b] = arr
-    phase_m: dict[int, np.ndarray] = {}
-    lli: dict[int, np.ndarray] = {}
-    for b, name in phase_types.items():
-        arr = raw.values[name] * (C_M_S / GPS_FREQUENCIES_HZ[b])
-        arr[~np.isfinite(ranges[b]) | (raw.values[name] == 0.0)] = np.nan
-        phase_m[b] = arr
-        lli[b] = raw.lli[name]
+    station = _station_name(hdr.marker, p)
+    raw = observations_from_lines(p, lines, hdr, wanted, EpochSelection(window, interval_s), progress, station, system)
+    ranges = _ranges_m(raw.values, file_types)
+    phase_m, lli = _phases_m(raw, phase_types, ranges, system, hdr.glonass_channels)
     return CodeObservations(
-        station=_station_name(hdr.marker, p),
+        station=station,
         path=p,
         time=raw.time,
         svs=raw.svs,
         codes=chosen,
         range_m=ranges,
         position_ecef_m=hdr.position_ecef_m,
-        receiver=receiver,
-        rinex_version=version,
+        receiver=hdr.receiver,
+        rinex_version=hdr.version,
         notes=tuple(notes),
         phase_m=phase_m,
         lli=lli,
         phase_types={b: t for b, t in phase_types.items()},
         time_system=hdr.time_system,
     )
+
+
+def _rinex3_codes(
+    p: Path, types: Sequence[str], bands: Sequence[int], forced: Mapping[int, str], system: str
+) -> dict[int, str]:
+    """The code read per band of a RINEX 3 file: the forced one or the first of the preference list present."""
+    chosen: dict[int, str] = {}
+    for b in bands:
+        prefs = (forced[b],) if b in forced else SYSTEM_CODE_PREFERENCE[system].get(b, ())
+        hit = next((c for c in prefs if c in types), None)
+        if hit is None:
+            raise DataFileError(
+                f"{p}: no L{b} code observation ({'/'.join(prefs)}) for {SYSTEM_NAMES[system]}; "
+                f"types present: {' '.join(t for t in types if t.startswith('C'))}"
+            )
+        chosen[b] = hit
+    return chosen
+
+
+def _rinex2_codes(
+    p: Path, types: Sequence[str], bands: Sequence[int], forced: Mapping[int, str], receiver: str
+) -> tuple[dict[int, str], dict[int, str], list[str]]:
+    """The RINEX 3 code and the RINEX 2 type read per band of a RINEX 2 (GPS) file, and the notes on ``C2``/``C5``
+    read by receiver make (:data:`RINEX2_RECEIVER_ATTRIBUTES`)."""
+    amap, make = _rinex2_attribute_map(receiver)
+    inverse: dict[str, list[str]] = {}
+    for r2, r3 in amap.items():
+        inverse.setdefault(r3, []).append(r2)
+    chosen: dict[int, str] = {}
+    file_types: dict[int, str] = {}
+    notes: list[str] = []
+    for b in bands:
+        prefs = (forced[b],) if b in forced else CODE_PREFERENCE.get(b, ())
+        pair = next(((c3, r2) for c3 in prefs for r2 in inverse.get(c3, []) if r2 in types), None)
+        if pair is None:
+            r2_names = [r2 for c3 in prefs for r2 in inverse.get(c3, [])]
+            raise DataFileError(
+                f"{p}: no L{b} code observation ({'/'.join(r2_names) or '/'.join(prefs)}) in this RINEX 2 "
+                f"file; types present: {' '.join(types)}"
+            )
+        chosen[b], file_types[b] = pair
+        if pair[1] in ("C2", "C5"):
+            notes.append(
+                f"RINEX 2 {pair[1]} read as {pair[0]} "
+                f"({'receiver ' + make if make else 'unknown receiver make: default'})"
+            )
+    return chosen, file_types, notes
+
+
+def _ranges_m(values: Mapping[str, np.ndarray], file_types: Mapping[int, str]) -> dict[int, np.ndarray]:
+    """The pseudo-ranges per band; blanks, zeros and values outside 10,000–50,000 km (garbage) are NaN."""
+    ranges: dict[int, np.ndarray] = {}
+    for b, name in file_types.items():
+        arr = values[name].copy()
+        with np.errstate(invalid="ignore"):
+            arr[(arr < 1.0e7) | (arr > 5.0e7)] = np.nan  # blanks / zeros / garbage are not ranges
+        ranges[b] = arr
+    return ranges
+
+
+def _phases_m(
+    raw: Any,
+    phase_types: Mapping[int, str],
+    ranges: Mapping[int, np.ndarray],
+    system: str,
+    channels: Mapping[str, int],
+) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+    """The carrier phases per band in metres (cycles × the band's wavelength; NaN where the code is missing) and
+    their loss-of-lock indicators."""
+    from distnav.models.gnss.constants import C_M_S
+    from distnav.models.gnss.systems import carrier_frequencies_hz
+
+    phase_m: dict[int, np.ndarray] = {}
+    lli: dict[int, np.ndarray] = {}
+    for b, name in phase_types.items():
+        arr = raw.values[name] * (C_M_S / carrier_frequencies_hz(system, b, raw.svs, channels))
+        arr[~np.isfinite(ranges[b]) | (raw.values[name] == 0.0)] = np.nan
+        phase_m[b] = arr
+        lli[b] = raw.lli[name]
+    return phase_m, lli
 
 
 def check_sp3_file(path: str | Path) -> None:
@@ -265,14 +309,17 @@ def check_sp3_file(path: str | Path) -> None:
         raise DataFileError(f"{p}, line {len(lines)}: the file does not end with 'EOF': it is truncated")
 
 
-def read_navigation(path: str | Path, *, max_age_s: float = 2 * 3600.0) -> BroadcastOrbit:
-    """GPS broadcast ephemerides of a RINEX 2 or 3 navigation file (gzip too; of multi-GNSS files
-    their GPS records; :mod:`distnav.formats.gnss.rinex_nav`). ``max_age_s`` bounds |t − toe| (the ±2 h fit
-    interval by default)."""
+def read_navigation(
+    path: str | Path, *, max_age_s: float = 2 * 3600.0, systems: Sequence[str] = ("G",)
+) -> BroadcastOrbit:
+    """Broadcast ephemerides of the ``systems`` (GPS by default; ``E`` Galileo and ``C`` BeiDou from a RINEX 3
+    mixed file such as BRDC00IGS_R_…_MN.rnx) of a RINEX 2 or 3 navigation file (gzip too;
+    :mod:`distnav.formats.gnss.rinex_nav`). ``max_age_s`` bounds |t − toe| (the ±2 h fit interval by default)."""
     p = Path(path)
-    columns = read_gps_ephemerides(p)
+    columns = read_ephemerides(p, systems=systems)
     if not columns:
-        raise DataFileError(f"{p}: no GPS navigation records")
+        names = "/".join(SYSTEM_NAMES.get(s, s) for s in systems)
+        raise DataFileError(f"{p}: no {names} navigation records")
     return BroadcastOrbit.from_records(columns, max_age_s=max_age_s, source=str(p))
 
 

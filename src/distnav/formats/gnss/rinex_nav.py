@@ -3,8 +3,9 @@
 :func:`read_gps_ephemerides` checks the file's format (the checks :func:`check_navigation_file` names with the line
 and what was expected) and parses the GPS records by their fixed columns (RINEX 2.11 §A4 / RINEX 3.0x Table A6:
 ``D19.12`` fields, three on the epoch line and four per continuation line, Fortran ``D`` exponents accepted).
-Other systems' records of a multi-GNSS file are checked for their structure (satellite id, epoch, number of
-lines) but their numbers are not parsed: distnav uses GPS only.
+:func:`read_ephemerides` parses the Galileo and BeiDou records too (same layout); GLONASS and the other systems'
+records of a multi-GNSS file are checked for their structure (satellite id, epoch, number of lines) but their
+numbers are not parsed.
 
 Why not georinex (used before): a merged IGS day (BRDC, 142,000 lines, 442 GPS records) took 1.2 s in
 ``georinex.load`` (mostly per-satellite xarray merging) plus 1.5 s importing xarray/pandas, on top of the 0.9-s
@@ -26,7 +27,7 @@ import numpy as np
 from distnav.errors import DataFileError
 from distnav.formats.gnss.rinex_obs import read_text_file
 
-__all__ = ["GPS_NAV_FIELDS", "check_navigation_file", "read_gps_ephemerides"]
+__all__ = ["GPS_NAV_FIELDS", "check_navigation_file", "read_ephemerides", "read_gps_ephemerides"]
 
 GPS_NAV_FIELDS: tuple[str, ...] = (
     "SVclockBias",
@@ -111,10 +112,49 @@ def read_gps_ephemerides(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
     the end of the header, every record's epoch fields and satellite id, a GPS record's numbers, and records cut
     short by a truncated file. A file without GPS records gives an empty dict.
     """
-    from distnav.models.gnss.orbits import gps_seconds
+    return read_ephemerides(path, systems=("G",))
 
+
+def read_ephemerides(path: str | Path, *, systems: Sequence[str] = ("G",)) -> dict[str, dict[str, np.ndarray]]:
+    """The Keplerian records of the ``systems`` (``G`` GPS, ``E`` Galileo, ``C`` BeiDou; RINEX 3 files for the
+    latter two) of a navigation file, per satellite, as :func:`read_gps_ephemerides` gives GPS's.
+
+    The Galileo and BeiDou records have the GPS layout (RINEX 3.05 Tables A8, A14) with other meanings in some
+    slots, kept under the GPS names: ``GPSWeek`` is the Galileo week (= GPS week) or the BDT week + 1356 (made a
+    GPS week here), ``TGD`` is BGD E5a/E1 or TGD1 B1/B3, ``IODC`` BGD E5b/E1 or TGD2 B2/B3, ``CodesL2`` Galileo's
+    data sources. ``toc_s`` is always GPS seconds (a BeiDou time of clock is BDT, 14 s behind: +14 s here);
+    ``time_offset_s`` is the system time minus GPS time (−14 s for BeiDou, else 0) for the time of ephemeris.
+    """
     p = Path(path)
     lines = read_text_file(p, whole_lines=True)
+    version, gps_file = _check_first_line(p, lines)
+    end = next((k for k, line in enumerate(lines) if line[60:73] == "END OF HEADER"), None)
+    if end is None:
+        raise DataFileError(f"{p}: no END OF HEADER line (the header is incomplete or the file is not RINEX)")
+    rinex3 = version >= 3
+    wanted = set(systems)
+    found: dict[str, list[tuple[datetime, list[float]]]] = {}
+    k, n_lines = end + 1, len(lines)
+    while k < n_lines:
+        line = lines[k]
+        if not line.strip():
+            k += 1
+            continue
+        n = _rinex3_record_lines(p, lines, k) if rinex3 else _rinex2_record_lines(p, line, k, gps_file)
+        _check_continuation(p, lines, k, n)
+        system = line[0] if rinex3 else ("G" if gps_file else "R")
+        if system in wanted and system in _KEPLER_SYSTEMS:
+            sv, toc, vals = _kepler_record(p, lines, k, rinex3)
+            found.setdefault(sv, []).append((toc, vals))
+        k += n
+    return {sv: _columns(sv, recs) for sv, recs in found.items()}
+
+
+_KEPLER_SYSTEMS = ("G", "E", "C")
+
+
+def _check_first_line(p: Path, lines: Sequence[str]) -> tuple[float, bool]:
+    """The version of a navigation file, and whether a RINEX 2 file is GPS (type N; G is GLONASS)."""
     first = lines[0] if lines else ""
     try:
         version = float(first[:9])
@@ -125,103 +165,106 @@ def read_gps_ephemerides(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
             f"{p}, line 1: expected a RINEX navigation file: 'RINEX VERSION / TYPE' with a version "
             f"such as 2.11 or 3.04 in columns 1-9 and type N in column 21, got {first[:80]!r}"
         )
-    end = next((k for k, line in enumerate(lines) if line[60:73] == "END OF HEADER"), None)
-    if end is None:
-        raise DataFileError(f"{p}: no END OF HEADER line (the header is incomplete or the file is not RINEX)")
-    rinex3 = version >= 3
-    gps_file = first[20:21] == "N"  # RINEX 2: N = GPS, G = GLONASS
-    found: dict[str, list[tuple[datetime, list[float]]]] = {}
-    k, n_lines = end + 1, len(lines)
-    while k < n_lines:
-        line = lines[k]
-        if not line.strip():
-            k += 1
-            continue
-        if rinex3:
-            if not (line[:1].isalpha() and line[1:3].isdigit()):
-                raise DataFileError(
-                    f"{p}, line {k + 1}: expected a record starting with a satellite id such as "
-                    f"G05 in columns 1-3, got {line[:12]!r}"
-                )
-            n = 1  # RINEX 3: continuation lines start with 4 blanks (3.05 GLONASS records have 5 lines, not 4)
-            while k + n < n_lines and lines[k + n][:4] == "    " and lines[k + n].strip():
-                n += 1
-            need = _RECORD_LINES.get(line[0], 8)
-            if n < need:
-                raise DataFileError(
-                    f"{p}, line {k + 1}: the record of {line[:3]} has {n} of {need} lines: the file "
-                    f"is truncated or a line is missing"
-                )
-            _ints(
-                p,
-                k + 1,
-                line,
-                [(4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23)],
-                "the epoch",
-                "year month day hour minute second as in 'G05 2024 01 10 00 00 00'",
-            )
-            first_starts, starts = (23, 42, 61), (4, 23, 42, 61)
-            gps = line[0] == "G"
-        else:
-            n = 8 if gps_file else 4
-            _ints(p, k + 1, line, [(0, 2)], "the satellite number", "a PRN such as ' 5'")
-            _ints(
-                p,
-                k + 1,
-                line,
-                [(3, 5), (6, 8), (9, 11), (12, 14), (15, 17)],
-                "the epoch",
-                "year month day hour minute as in ' 5 24  1 10  0  0  0.0'",
-            )
-            first_starts, starts = (22, 41, 60), (3, 22, 41, 60)
-            gps = gps_file
-        if k + n > n_lines:
+    return version, first[20:21] == "N"
+
+
+def _rinex3_record_lines(p: Path, lines: Sequence[str], k: int) -> int:
+    """The number of lines of the RINEX 3 record starting at line ``k`` (its id and epoch checked)."""
+    line, n_lines = lines[k], len(lines)
+    if not (line[:1].isalpha() and line[1:3].isdigit()):
+        raise DataFileError(
+            f"{p}, line {k + 1}: expected a record starting with a satellite id such as "
+            f"G05 in columns 1-3, got {line[:12]!r}"
+        )
+    n = 1  # RINEX 3: continuation lines start with 4 blanks (3.05 GLONASS records have 5 lines, not 4)
+    while k + n < n_lines and lines[k + n][:4] == "    " and lines[k + n].strip():
+        n += 1
+    need = _RECORD_LINES.get(line[0], 8)
+    if n < need:
+        raise DataFileError(
+            f"{p}, line {k + 1}: the record of {line[:3]} has {n} of {need} lines: the file "
+            f"is truncated or a line is missing"
+        )
+    _ints(
+        p,
+        k + 1,
+        line,
+        [(4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23)],
+        "the epoch",
+        "year month day hour minute second as in 'G05 2024 01 10 00 00 00'",
+    )
+    return n
+
+
+def _rinex2_record_lines(p: Path, line: str, k: int, gps_file: bool) -> int:
+    """The number of lines of a RINEX 2 record (8 GPS, 4 GLONASS), its PRN and epoch checked."""
+    _ints(p, k + 1, line, [(0, 2)], "the satellite number", "a PRN such as ' 5'")
+    _ints(
+        p,
+        k + 1,
+        line,
+        [(3, 5), (6, 8), (9, 11), (12, 14), (15, 17)],
+        "the epoch",
+        "year month day hour minute as in ' 5 24  1 10  0  0  0.0'",
+    )
+    return 8 if gps_file else 4
+
+
+def _check_continuation(p: Path, lines: Sequence[str], k: int, n: int) -> None:
+    """The ``n`` lines of the record at ``k`` are in the file and lines 2… start with blanks."""
+    line, n_lines = lines[k], len(lines)
+    if k + n > n_lines:
+        raise DataFileError(
+            f"{p}, line {k + 1}: the record of {line[:3].strip()} has {n_lines - k} of {n} lines: the file is truncated"
+        )
+    for j in range(1, n):
+        if lines[k + j][:1].strip():
             raise DataFileError(
-                f"{p}, line {k + 1}: the record of {line[:3].strip()} has {n_lines - k} of "
-                f"{n} lines: the file is truncated"
+                f"{p}, line {k + 1 + j}: expected a continuation line of the record of "
+                f"{line[:3].strip()} (line {k + 1}) starting with blanks, got {lines[k + j][:12]!r}"
             )
-        for j in range(1, n):
-            if lines[k + j][:1].strip():
-                raise DataFileError(
-                    f"{p}, line {k + 1 + j}: expected a continuation line of the record of "
-                    f"{line[:3].strip()} (line {k + 1}) starting with blanks, got "
-                    f"{lines[k + j][:12]!r}"
-                )
-        if gps:
-            vals: list[float] = []
-            _numbers(p, k + 1, line, first_starts, vals)
-            for j in range(1, 8):
-                _numbers(p, k + 1 + j, lines[k + j], starts, vals)
-            if rinex3:
-                sv = "G" + line[1:3].replace(" ", "0")
-                toc = datetime(
-                    int(line[4:8]),
-                    int(line[9:11]),
-                    int(line[12:14]),
-                    int(line[15:17]),
-                    int(line[18:20]),
-                    int(line[21:23]),
-                )
-            else:
-                sv = f"G{int(line[:2]):02d}"
-                try:
-                    toc = _rinex2_time(line)
-                except ValueError:
-                    raise DataFileError(
-                        f"{p}, line {k + 1}: the epoch second (columns 18-22): expected a number "
-                        f"such as ' 0.0', got {line[17:22].strip()!r}"
-                    ) from None
-            found.setdefault(sv, []).append((toc, vals[: len(GPS_NAV_FIELDS)]))
-        k += n
-    out: dict[str, dict[str, np.ndarray]] = {}
-    for sv, recs in found.items():
-        recs.sort(key=lambda r: r[0])  # stable: a repeated time of clock keeps its first record
-        keep = [r for i, r in enumerate(recs) if i == 0 or r[0] != recs[i - 1][0]]
-        vals_arr = np.array([r[1] for r in keep], dtype=float)
-        cols = {f: vals_arr[:, i] for i, f in enumerate(GPS_NAV_FIELDS)}
-        cols["toc_s"] = gps_seconds(np.array([np.datetime64(r[0], "ns") for r in keep]))
-        out[sv] = cols
-    return out
+
+
+def _kepler_record(p: Path, lines: Sequence[str], k: int, rinex3: bool) -> tuple[str, datetime, list[float]]:
+    """The satellite, time of clock (the system's time scale) and fields of the 8-line record at ``k``."""
+    line = lines[k]
+    first_starts, starts = ((23, 42, 61), (4, 23, 42, 61)) if rinex3 else ((22, 41, 60), (3, 22, 41, 60))
+    vals: list[float] = []
+    _numbers(p, k + 1, line, first_starts, vals)
+    for j in range(1, 8):
+        _numbers(p, k + 1 + j, lines[k + j], starts, vals)
+    if rinex3:
+        sv = line[0] + line[1:3].replace(" ", "0")
+        y, mo, d, h, mi, sec = (int(line[a:b]) for a, b in ((4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23)))
+        toc = datetime(y, mo, d, h, mi, sec)
+        return sv, toc, vals[: len(GPS_NAV_FIELDS)]
+    try:
+        toc = _rinex2_time(line)
+    except ValueError:
+        raise DataFileError(
+            f"{p}, line {k + 1}: the epoch second (columns 18-22): expected a number such as ' 0.0', "
+            f"got {line[17:22].strip()!r}"
+        ) from None
+    return f"G{int(line[:2]):02d}", toc, vals[: len(GPS_NAV_FIELDS)]
+
+
+def _columns(sv: str, recs: list[tuple[datetime, list[float]]]) -> dict[str, np.ndarray]:
+    """One satellite's records as columns, in time-of-clock order (a repeated time of clock keeps its first
+    record); BeiDou weeks and times of clock brought to GPS (:func:`read_ephemerides`)."""
+    from distnav.models.gnss.orbits import gps_seconds
+    from distnav.models.gnss.systems import BDT_MINUS_GPST_S, BDT_WEEK_IN_GPS_WEEKS
+
+    recs.sort(key=lambda r: r[0])  # stable: a repeated time of clock keeps its first record
+    keep = [r for i, r in enumerate(recs) if i == 0 or r[0] != recs[i - 1][0]]
+    vals_arr = np.array([r[1] for r in keep], dtype=float)
+    cols = {f: vals_arr[:, i] for i, f in enumerate(GPS_NAV_FIELDS)}
+    cols["toc_s"] = gps_seconds(np.array([np.datetime64(r[0], "ns") for r in keep]))
+    offset = BDT_MINUS_GPST_S if sv[0] == "C" else 0.0
+    if offset:
+        cols["GPSWeek"] = cols["GPSWeek"] + BDT_WEEK_IN_GPS_WEEKS
+        cols["toc_s"] = cols["toc_s"] - offset
+    cols["time_offset_s"] = np.full(len(keep), offset)
+    return cols
 
 
 def check_navigation_file(path: str | Path) -> None:

@@ -20,7 +20,7 @@ import io
 import logging
 import zipfile
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +28,17 @@ import numpy as np
 
 from distnav.errors import DataFileError
 from distnav.models.gnss.code_observations import ProgressCallback
+from distnav.models.gnss.systems import SYSTEM_NAMES
 
 __all__ = [
     "RinexHeader",
     "RawObservations",
+    "SYSTEM_NAMES",
     "read_header",
+    "read_lines",
+    "parse_header",
+    "observations_from_lines",
+    "EpochSelection",
     "read_observation_types",
     "on_grid",
     "ProgressCallback",
@@ -49,7 +55,8 @@ _N_PRN = 40  # GPS PRNs 1..32 in use; room for test PRNs
 
 @dataclass(frozen=True)
 class RinexHeader:
-    """What the readers need from an observation file header."""
+    """What the readers need from an observation file header: ``gps_types`` (RINEX 2: all types), the RINEX 3
+    types of every system, and the GLONASS frequency channels of ``GLONASS SLOT / FRQ #`` (``{"R01": 1, …}``)."""
 
     version: float
     file_type: str
@@ -59,6 +66,14 @@ class RinexHeader:
     gps_types: tuple[str, ...]
     time_system: str
     header_lines: int
+    types_by_system: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    glonass_channels: dict[str, int] = field(default_factory=dict)
+
+    def types_of(self, system: str) -> tuple[str, ...]:
+        """The observation types of one system (RINEX 2: every type is shared, and only GPS is read)."""
+        if self.version < 3:
+            return self.gps_types if system == "G" else ()
+        return self.types_by_system.get(system, ())
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,6 +178,17 @@ def _ends_with_newline(path: Path, raw: bytes) -> None:
         raise DataFileError(f"{path}, line {last}: the file ends inside a line (no final newline): it is truncated")
 
 
+def read_lines(path: Path) -> list[str]:
+    """The lines of an observation file (plain, compressed, Hatanaka), decoded as latin-1; read once, then give them
+    to :func:`parse_header` and :func:`observations_from_lines` (Hatanaka decompression is most of a read)."""
+    return _read_lines(path)
+
+
+def parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
+    """The header of an observation file from its lines (:func:`read_lines`)."""
+    return _parse_header(lines, path)
+
+
 def _read_lines(path: Path) -> list[str]:
     raw = read_bytes(path)
     _ends_with_newline(path, raw)
@@ -193,6 +219,7 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     r2_count = 0
     r3_types: dict[str, list[str]] = {}
     r3_sys = ""
+    channels: dict[str, int] = {}
     end = -1
     for k, line in enumerate(lines):
         label = line[60:80].strip()
@@ -234,6 +261,8 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
             r3_types.setdefault(r3_sys, []).extend(line[7 + 4 * i : 10 + 4 * i].strip() for i in range(13))
         elif label == "TIME OF FIRST OBS":
             tsys = line[48:51].strip() or "GPS"
+        elif label == "GLONASS SLOT / FRQ #":
+            _glonass_channels(line, channels)
     if end < 0:
         raise DataFileError(f"{path}: not a RINEX file (no END OF HEADER line)")
     if not version:
@@ -241,7 +270,20 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     types = [t for t in (r3_types.get("G", []) if version >= 3 else r2_types) if t]
     if version < 3 and r2_count and len(types) > r2_count:
         types = types[:r2_count]
-    return RinexHeader(version, ftype, receiver, marker, pos, tuple(types), tsys, end + 1)
+    by_system = {k: tuple(t for t in v if t) for k, v in r3_types.items()} if version >= 3 else {}
+    return RinexHeader(version, ftype, receiver, marker, pos, tuple(types), tsys, end + 1, by_system, channels)
+
+
+def _glonass_channels(line: str, out: dict[str, int]) -> None:
+    """The ``Rnn k`` pairs (up to 8 per line, columns 5-60) of a ``GLONASS SLOT / FRQ #`` line; a malformed pair
+    is left out (the channel then comes from the navigation file)."""
+    for i in range(8):
+        sv, k = line[4 + 7 * i : 7 + 7 * i], line[8 + 7 * i : 10 + 7 * i]
+        if sv[:1] == "R" and sv[1:3].strip().isdigit():
+            try:
+                out[f"R{int(sv[1:3]):02d}"] = int(k)
+            except ValueError:
+                continue
 
 
 def read_header(path: str | Path) -> RinexHeader:
@@ -263,138 +305,226 @@ def read_observation_types(
     interval_s: float | None = None,
     progress: ProgressCallback | None = None,
     label: str | None = None,
+    system: str = "G",
 ) -> RawObservations:
-    """Read the GPS observations of ``types`` (names as in the file: RINEX 3 ``C1C``, RINEX 2 ``C1``/``P2``…).
+    """Read the observations of ``types`` of one satellite system (``system``: ``G`` GPS, ``E`` Galileo, ``C``
+    BeiDou, ``R`` GLONASS, … — RINEX 3 only for systems other than GPS), names as in the file: RINEX 3 ``C1C``,
+    RINEX 2 ``C1``/``P2``….
 
     ``tlim`` (inclusive datetime64 bounds) and ``interval_s`` (keep epochs whose time of day is a multiple) select
     epochs. Raises :class:`~distnav.errors.DataFileError` naming the file (and line) for unreadable content.
     """
     p = Path(path)
     lines = _read_lines(p)
-    hdr = _parse_header(lines, p)
+    window = EpochSelection(tlim, interval_s)
+    return observations_from_lines(p, lines, _parse_header(lines, p), types, window, progress, label, system)
+
+
+@dataclass(frozen=True)
+class EpochSelection:
+    """The epochs read: ``tlim`` inclusive datetime64 bounds, ``interval_s`` a grid of the time of day."""
+
+    tlim: tuple[np.datetime64, np.datetime64] | None = None
+    interval_s: float | None = None
+
+
+def observations_from_lines(
+    p: Path,
+    lines: Sequence[str],
+    hdr: RinexHeader,
+    types: Sequence[str],
+    window: EpochSelection = EpochSelection(),
+    progress: ProgressCallback | None = None,
+    label: str | None = None,
+    system: str = "G",
+) -> RawObservations:
+    """:func:`read_observation_types` on a file's lines already read (:func:`read_lines`) and its header."""
     if hdr.file_type not in ("O", ""):
         raise DataFileError(f"{p}: not a RINEX observation file (type {hdr.file_type!r})")
-    missing = [t for t in types if t not in hdr.gps_types]
+    scan = _Scan(p, lines, hdr, _type_columns(p, hdr, types, system), system, progress, label or p.name)
+    scan.select(window.tlim, window.interval_s)
+    try:
+        scan.run()
+    except _Bad as exc:
+        at = f" (epoch {str(scan.epoch)[:19]})" if scan.epoch is not None and "epoch" not in str(exc) else ""
+        raise DataFileError(f"{p}, line {scan.k + 1}{at}: {exc}") from None
+    if progress is not None:
+        progress(scan.name, 1.0)
+    return scan.result(window.tlim)
+
+
+def _type_columns(p: Path, hdr: RinexHeader, types: Sequence[str], system: str) -> list[int]:
+    """The index of each requested type among the system's types in the header, or the error naming the missing."""
+    name = SYSTEM_NAMES.get(system, system)
+    if system != "G" and hdr.version < 3:
+        raise DataFileError(f"{p}: {name} observations are read from RINEX 3 files only (this file is RINEX 2)")
+    have = hdr.types_of(system)
+    missing = [t for t in types if t not in have]
     if missing:
         raise DataFileError(
-            f"{p}: observation types {' '.join(missing)} not in the header (GPS types: {' '.join(hdr.gps_types)})"
+            f"{p}: observation types {' '.join(missing)} not in the header ({name} types: {' '.join(have)})"
         )
-    idx = [hdr.gps_types.index(t) for t in types]
-    name = label or p.name
-    lo = hi = None
-    if tlim is not None:
-        lo, hi = (np.asarray(t).astype("datetime64[ns]")[()] for t in tlim)
-    step_ns = int(round(interval_s * 1e9)) if interval_s else 0
-    times: list[np.datetime64] = []
-    rows: list[np.ndarray] = []
-    lrows: list[np.ndarray] = []
-    nt = len(types)
-    n_lines = len(lines)
-    next_report = 0.1
-    k = hdr.header_lines
-    rinex3 = hdr.version >= 3
-    n_per_sat = (len(hdr.gps_types) + 4) // 5
-    epoch: np.datetime64 | None = None
-    try:
-        while k < n_lines:
-            if progress is not None and k / n_lines >= next_report:
-                progress(name, k / n_lines)
+    return [have.index(t) for t in types]
+
+
+_MAX_PRN = {"G": _N_PRN}  # GPS keeps its 1-39 (test PRNs above 32); other systems up to 63 (BeiDou C01-C63)
+_MAX_PRN_OTHER = 64
+
+
+class _Scan:
+    """One pass over a file's observation records: the epochs kept and, per epoch, a (PRN, type) table of values
+    and loss-of-lock indicators of one system. ``k`` (the line being read) and ``epoch`` name the place of an
+    error (:class:`_Bad`)."""
+
+    def __init__(
+        self,
+        path: Path,
+        lines: Sequence[str],
+        hdr: RinexHeader,
+        columns: list[int],
+        system: str,
+        progress: ProgressCallback | None,
+        name: str,
+    ) -> None:
+        self.path, self.lines, self.hdr, self.columns, self.system = path, lines, hdr, columns, system
+        self.progress, self.name = progress, name
+        self.n_prn = _MAX_PRN.get(system, _MAX_PRN_OTHER)
+        self.k = hdr.header_lines
+        self.epoch: np.datetime64 | None = None
+        self.lo: Any = None
+        self.hi: Any = None
+        self.step_ns = 0
+        self.times: list[np.datetime64] = []
+        self.rows: list[np.ndarray] = []
+        self.lrows: list[np.ndarray] = []
+
+    def select(self, tlim: tuple[np.datetime64, np.datetime64] | None, interval_s: float | None) -> None:
+        if tlim is not None:
+            self.lo, self.hi = (np.asarray(t).astype("datetime64[ns]")[()] for t in tlim)
+        self.step_ns = int(round(interval_s * 1e9)) if interval_s else 0
+
+    def run(self) -> None:
+        lines, n_lines = self.lines, len(self.lines)
+        epoch_record = self._rinex3_epoch if self.hdr.version >= 3 else self._rinex2_epoch
+        next_report = 0.1
+        while self.k < n_lines:
+            if self.progress is not None and self.k / n_lines >= next_report:
+                self.progress(self.name, self.k / n_lines)
                 next_report += 0.1
-            line = lines[k]
-            if rinex3:
-                if not line.startswith(">"):
-                    k += 1
-                    continue
-                flag = _int(line[31:32] or "0", "the event flag (column 32)", "0-6")
-                nsat = _int(line[32:35], "the number of satellites (columns 33-35)", "a whole number")
-                if flag > 1:
-                    k += 1 + (nsat if flag in (2, 3, 4, 5, 6) else 0)
-                    continue
-                epoch = t = _epoch(line[2:6], line[7:9], line[10:12], line[13:15], line[16:18], line[18:29])
-                sat_lines = lines[k + 1 : k + 1 + nsat]
-                _complete(len(sat_lines), nsat, "satellite lines")
-                start = k + 1
-                k += 1 + nsat
-                if not _keep(t, lo, hi, step_ns):
-                    continue
-                vals = np.full((_N_PRN, nt), np.nan)
-                lli = np.zeros((_N_PRN, nt), np.int8)
-                for i, sl in enumerate(sat_lines):
-                    k = start + i
-                    if not (sl[:1].isalpha() and sl[1:3].strip().isdigit()):
-                        raise _Bad(
-                            f"expected a satellite line starting with its id (e.g. G01) in columns 1-3, got {sl[:12]!r}"
-                        )
-                    if sl[:1] != "G":
-                        continue
-                    prn = _prn(sl[1:3])
-                    for j, c in enumerate(idx):
-                        _value(sl, 3 + 16 * c, vals, lli, prn, j, types[j])
-                k = start + nsat
-            else:
-                if not line.strip():
-                    k += 1
-                    continue
-                k0 = k
-                flag = _int(line[28:29] or "0", "the event flag (column 29)", "0-6")
-                nsat = _int(line[29:32], "the number of satellites (columns 30-32)", "a whole number")
-                if flag > 1:
-                    k += 1 + (nsat if flag in (2, 3, 4, 5, 6) else 0)
-                    continue
-                sats = [line[32 + 3 * i : 35 + 3 * i] for i in range(min(nsat, 12))]
-                yy = _int(line[1:3], "the year (columns 2-3)", "two digits")
-                epoch = t = _epoch(
-                    str(yy + (2000 if yy < 80 else 1900)), line[4:6], line[7:9], line[10:12], line[13:15], line[15:26]
-                )
-                k += 1
-                while len(sats) < nsat:
-                    _complete(n_lines - k, 1, "satellite continuation lines")
-                    cont = lines[k]
-                    sats += [cont[32 + 3 * i : 35 + 3 * i] for i in range(min(nsat - len(sats), 12))]
-                    k += 1
-                block = lines[k : k + nsat * n_per_sat]
-                if k + nsat * n_per_sat - n_lines in range(1, n_per_sat):
-                    block += [""] * (k + nsat * n_per_sat - n_lines)  # the last satellite's blank lines left out
-                start, k = k, k0
-                _complete(len(block), nsat * n_per_sat, "observation lines")
-                k = start + nsat * n_per_sat
-                if not _keep(t, lo, hi, step_ns):
-                    continue
-                vals = np.full((_N_PRN, nt), np.nan)
-                lli = np.zeros((_N_PRN, nt), np.int8)
-                for s, sv in enumerate(sats):
-                    if sv[:1] not in ("G", " "):
-                        continue
-                    k = k0  # a bad satellite list is on the epoch line (or its continuation)
-                    prn = _prn(sv[1:3])
-                    for j, c in enumerate(idx):
-                        k = start + s * n_per_sat + c // 5
-                        _value(block[s * n_per_sat + c // 5], 16 * (c % 5), vals, lli, prn, j, types[j])
-                k = start + nsat * n_per_sat
-            times.append(t)
-            rows.append(vals)
-            lrows.append(lli)
-    except _Bad as exc:
-        at = f" (epoch {str(epoch)[:19]})" if epoch is not None and "epoch" not in str(exc) else ""
-        raise DataFileError(f"{p}, line {k + 1}{at}: {exc}") from None
-    if progress is not None:
-        progress(name, 1.0)
-    if not times:
-        raise DataFileError(f"{p}: no GPS observation epochs" + (f" in {tlim}" if tlim is not None else ""))
-    V = np.stack(rows)  # (T, PRN, types)
-    L = np.stack(lrows)
-    seen = np.flatnonzero(np.isfinite(V).any(axis=(0, 2)))
-    if seen.size == 0:
-        raise DataFileError(f"{p}: no GPS satellites observed with {' '.join(types)}")
-    svs = tuple(f"G{prn:02d}" for prn in seen.tolist())
-    log.debug("%s: %d epochs, %d GPS satellites, types %s", name, len(times), len(svs), types)
-    return RawObservations(
-        hdr,
-        np.array(times, dtype="datetime64[ns]"),
-        svs,
-        {t: V[:, seen, j] for j, t in enumerate(types)},
-        {t: L[:, seen, j] for j, t in enumerate(types)},
-    )
+            epoch_record(lines[self.k])
+
+    def _table(self) -> tuple[np.ndarray, np.ndarray]:
+        nt = len(self.columns)
+        return np.full((self.n_prn, nt), np.nan), np.zeros((self.n_prn, nt), np.int8)
+
+    def _keep(self, t: np.datetime64, vals: np.ndarray, lli: np.ndarray) -> None:
+        self.times.append(t)
+        self.rows.append(vals)
+        self.lrows.append(lli)
+
+    def _rinex3_epoch(self, line: str) -> None:
+        """One RINEX 3 epoch (``>`` line, one line per satellite), from the line ``k``."""
+        if not line.startswith(">"):
+            self.k += 1
+            return
+        flag = _int(line[31:32] or "0", "the event flag (column 32)", "0-6")
+        nsat = _int(line[32:35], "the number of satellites (columns 33-35)", "a whole number")
+        if flag > 1:
+            self.k += 1 + (nsat if flag in (2, 3, 4, 5, 6) else 0)
+            return
+        self.epoch = t = _epoch(line[2:6], line[7:9], line[10:12], line[13:15], line[16:18], line[18:29])
+        start = self.k + 1
+        sat_lines = self.lines[start : start + nsat]
+        _complete(len(sat_lines), nsat, "satellite lines")
+        self.k = start + nsat
+        if not _keep(t, self.lo, self.hi, self.step_ns):
+            return
+        vals, lli = self._table()
+        system = self.system
+        for i, sl in enumerate(sat_lines):
+            if sl[:1] != system or not sl[1:3].strip().isdigit():
+                if not (sl[:1].isalpha() and sl[1:3].strip().isdigit()):
+                    self.k = start + i
+                    raise _Bad(
+                        f"expected a satellite line starting with its id (e.g. G01) in columns 1-3, got {sl[:12]!r}"
+                    )
+                continue
+            self.k = start + i
+            prn = _prn(sl[1:3], system, self.n_prn)
+            for j, c in enumerate(self.columns):
+                _value(sl, 3 + 16 * c, vals, lli, prn, j, self._type(j), system)
+        self.k = start + nsat
+        self._keep(t, vals, lli)
+
+    def _type(self, j: int) -> str:
+        return self.hdr.types_of(self.system)[self.columns[j]]
+
+    def _rinex2_epoch(self, line: str) -> None:
+        """One RINEX 2 epoch (satellite list on the epoch line and its continuations, ⌈types/5⌉ lines per
+        satellite), from the line ``k``."""
+        lines, n_lines = self.lines, len(self.lines)
+        if not line.strip():
+            self.k += 1
+            return
+        k0 = self.k
+        flag = _int(line[28:29] or "0", "the event flag (column 29)", "0-6")
+        nsat = _int(line[29:32], "the number of satellites (columns 30-32)", "a whole number")
+        if flag > 1:
+            self.k += 1 + (nsat if flag in (2, 3, 4, 5, 6) else 0)
+            return
+        sats = [line[32 + 3 * i : 35 + 3 * i] for i in range(min(nsat, 12))]
+        yy = _int(line[1:3], "the year (columns 2-3)", "two digits")
+        self.epoch = t = _epoch(
+            str(yy + (2000 if yy < 80 else 1900)), line[4:6], line[7:9], line[10:12], line[13:15], line[15:26]
+        )
+        self.k += 1
+        while len(sats) < nsat:
+            _complete(n_lines - self.k, 1, "satellite continuation lines")
+            cont = lines[self.k]
+            sats += [cont[32 + 3 * i : 35 + 3 * i] for i in range(min(nsat - len(sats), 12))]
+            self.k += 1
+        n_per_sat = (len(self.hdr.gps_types) + 4) // 5
+        start = self.k
+        block = list(lines[start : start + nsat * n_per_sat])
+        if start + nsat * n_per_sat - n_lines in range(1, n_per_sat):
+            block += [""] * (start + nsat * n_per_sat - n_lines)  # the last satellite's blank lines left out
+        self.k = k0
+        _complete(len(block), nsat * n_per_sat, "observation lines")
+        self.k = start + nsat * n_per_sat
+        if not _keep(t, self.lo, self.hi, self.step_ns):
+            return
+        vals, lli = self._table()
+        for s, sv in enumerate(sats):
+            if sv[:1] not in ("G", " "):
+                continue
+            self.k = k0  # a bad satellite list is on the epoch line (or its continuation)
+            prn = _prn(sv[1:3], "G", self.n_prn)
+            for j, c in enumerate(self.columns):
+                self.k = start + s * n_per_sat + c // 5
+                _value(block[s * n_per_sat + c // 5], 16 * (c % 5), vals, lli, prn, j, self._type(j), "G")
+        self.k = start + nsat * n_per_sat
+        self._keep(t, vals, lli)
+
+    def result(self, tlim: Any) -> RawObservations:
+        """The epochs kept and the satellites seen with any of the types (PRN order)."""
+        p, name = self.path, SYSTEM_NAMES.get(self.system, self.system)
+        types = [self._type(j) for j in range(len(self.columns))]
+        if not self.times:
+            raise DataFileError(f"{p}: no {name} observation epochs" + (f" in {tlim}" if tlim is not None else ""))
+        V = np.stack(self.rows)  # (T, PRN, types)
+        L = np.stack(self.lrows)
+        seen = np.flatnonzero(np.isfinite(V).any(axis=(0, 2)))
+        if seen.size == 0:
+            raise DataFileError(f"{p}: no {name} satellites observed with {' '.join(types)}")
+        svs = tuple(f"{self.system}{prn:02d}" for prn in seen.tolist())
+        log.debug("%s: %d epochs, %d %s satellites, types %s", self.name, len(self.times), len(svs), name, types)
+        return RawObservations(
+            self.hdr,
+            np.array(self.times, dtype="datetime64[ns]"),
+            svs,
+            {t: V[:, seen, j] for j, t in enumerate(types)},
+            {t: L[:, seen, j] for j, t in enumerate(types)},
+        )
 
 
 class _Bad(Exception):
@@ -408,13 +538,13 @@ def _int(text: str, what: str, expected: str) -> int:
         raise _Bad(f"{what}: expected {expected}, got {text.strip()!r}") from None
 
 
-def _prn(text: str) -> int:
+def _prn(text: str, system: str = "G", n_prn: int = _N_PRN) -> int:
     try:
         prn = int(text)
     except ValueError:
         prn = -1
-    if not 0 < prn < _N_PRN:
-        raise _Bad(f"satellite number {text!r}: expected a GPS PRN 01-{_N_PRN - 1}")
+    if not 0 < prn < n_prn:
+        raise _Bad(f"satellite number {text!r}: expected a {SYSTEM_NAMES.get(system, system)} PRN 01-{n_prn - 1}")
     return prn
 
 
@@ -436,7 +566,9 @@ def _complete(have: int, need: int, what: str) -> None:
         raise _Bad(f"the epoch announces {need} {what}, the file ends after {have}: the file is truncated")
 
 
-def _value(line: str, start: int, vals: np.ndarray, lli: np.ndarray, prn: int, j: int, obs_type: str) -> None:
+def _value(
+    line: str, start: int, vals: np.ndarray, lli: np.ndarray, prn: int, j: int, obs_type: str, system: str = "G"
+) -> None:
     """One F14.3 observation (columns ``start``+1..+14) and its loss-of-lock digit into ``vals``/``lli``."""
     f = line[start : start + 14]
     if not f.strip():
@@ -448,7 +580,7 @@ def _value(line: str, start: int, vals: np.ndarray, lli: np.ndarray, prn: int, j
         ok = False
     if not ok:
         raise _Bad(
-            f"{obs_type} of G{prn:02d} (columns {start + 1}-{start + 14}): expected a number in F14.3 "
+            f"{obs_type} of {system}{prn:02d} (columns {start + 1}-{start + 14}): expected a number in F14.3 "
             f"(e.g. '  22000000.123'), got {f!r}"
         )
     vals[prn, j] = value
@@ -456,7 +588,7 @@ def _value(line: str, start: int, vals: np.ndarray, lli: np.ndarray, prn: int, j
     if ll.strip():
         if not ll.isdigit():
             raise _Bad(
-                f"loss-of-lock indicator of {obs_type}, G{prn:02d} (column {start + 15}): expected a digit "
+                f"loss-of-lock indicator of {obs_type}, {system}{prn:02d} (column {start + 15}): expected a digit "
                 f"0-7, got {ll!r}"
             )
         lli[prn, j] = int(ll)

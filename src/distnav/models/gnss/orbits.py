@@ -30,6 +30,7 @@ from distnav.models.gnss.constants import (
     OMEGA_E_RAD_S,
     SECONDS_PER_WEEK,
 )
+from distnav.models.gnss.systems import ORBIT_CONSTANTS, SYSTEM_NAMES, is_beidou_geo
 
 __all__ = [
     "SatelliteOrbit",
@@ -118,10 +119,17 @@ _NAV_FIELDS = (
 )
 
 
-def _kepler_position(p: dict[str, np.ndarray], tk: np.ndarray, toe_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """IS-GPS-200 Table 20-IV: ECEF position at ``toe + tk``; also the eccentric anomaly (for the clock)."""
+def _kepler_position(
+    p: dict[str, np.ndarray], tk: np.ndarray, toe_s: np.ndarray, system: str = "G", geo: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """IS-GPS-200 Table 20-IV: ECEF position at ``toe + tk``; also the eccentric anomaly (for the clock).
+
+    Galileo and BeiDou use the same algorithm with their own GM and Ω_E (:data:`~distnav.models.gnss.systems.
+    ORBIT_CONSTANTS`); a BeiDou GEO satellite (``geo``) is computed in its inertial-like frame and then rotated
+    by −5° about x and Ω_E·tk about z (BeiDou ICD B1I v3.0, Table 5-11)."""
+    gm, omega_e = ORBIT_CONSTANTS[system]
     a = p["sqrtA"] ** 2
-    n0 = np.sqrt(GM_M3_S2 / a**3)
+    n0 = np.sqrt(gm / a**3)
     n = n0 + p["DeltaN"]
     m = p["M0"] + n * tk
     e = p["Eccentricity"]
@@ -135,15 +143,30 @@ def _kepler_position(p: dict[str, np.ndarray], tk: np.ndarray, toe_s: np.ndarray
     r = a * (1.0 - e * np.cos(ecc)) + p["Crs"] * s2 + p["Crc"] * c2
     inc = p["Io"] + p["Cis"] * s2 + p["Cic"] * c2 + p["IDOT"] * tk
     xp, yp = r * np.cos(u), r * np.sin(u)
-    om = p["Omega0"] + (p["OmegaDot"] - OMEGA_E_RAD_S) * tk - OMEGA_E_RAD_S * toe_s
+    om = p["Omega0"] + (p["OmegaDot"] - (0.0 if geo else omega_e)) * tk - omega_e * toe_s
     co, so, ci, si = np.cos(om), np.sin(om), np.cos(inc), np.sin(inc)
     pos = np.stack([xp * co - yp * ci * so, xp * so + yp * ci * co, yp * si], axis=-1)
+    if geo:
+        pos = _beidou_geo_rotation(pos, omega_e * tk)
     return pos, ecc
+
+
+_GEO_TILT_RAD = np.deg2rad(-5.0)
+
+
+def _beidou_geo_rotation(pos: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
+    """``R_z(Ω_E tk) R_x(−5°)`` applied to GEO positions in their frame (BeiDou ICD B1I v3.0, Table 5-11)."""
+    cx, sx = np.cos(_GEO_TILT_RAD), np.sin(_GEO_TILT_RAD)
+    x, y, z = pos[..., 0], pos[..., 1], pos[..., 2]
+    y1, z1 = cx * y + sx * z, -sx * y + cx * z
+    cz, sz = np.cos(angle_rad), np.sin(angle_rad)
+    return np.stack([cz * x + sz * y1, -sz * x + cz * y1, z1], axis=-1)
 
 
 @dataclass(frozen=True)
 class BroadcastOrbit:
-    """GPS broadcast ephemerides: one table of records per satellite (IS-GPS-200 Keplerian elements).
+    """GPS, Galileo and BeiDou broadcast ephemerides: one table of records per satellite (IS-GPS-200 Keplerian
+    elements; the other systems' constants and BeiDou GEO rotation in :func:`_kepler_position`).
 
     Build with :meth:`from_dataset` (a georinex navigation dataset) or
     :func:`distnav.formats.gnss.rinex.read_navigation`. For each epoch the healthy record with the nearest
@@ -188,14 +211,16 @@ class BroadcastOrbit:
                 continue
             rec = {f: cols[f][ok] for f in _NAV_FIELDS}
             rec["toc_s"] = cols["toc_s"][ok]
-            toe_abs = rec["GPSWeek"] * SECONDS_PER_WEEK + rec["Toe"]
+            # the time of ephemeris in GPS seconds (a BeiDou Toe is BDT: 14 s behind)
+            toe_abs = rec["GPSWeek"] * SECONDS_PER_WEEK + rec["Toe"] - cols.get("time_offset_s", np.zeros(ok.size))[ok]
             # the week of Toe may differ from the week of Toc near a week boundary: bring Toe within ±½ week
             toe_abs += SECONDS_PER_WEEK * np.round((rec["toc_s"] - toe_abs) / SECONDS_PER_WEEK)
             rec["toe_abs_s"] = toe_abs
             order = np.argsort(toe_abs, kind="stable")
             records[sv] = {f: v[order] for f, v in rec.items()}
         if not records:
-            raise DataFileError(f"{source or 'navigation dataset'}: no healthy GPS ephemeris record")
+            names = "/".join(sorted({SYSTEM_NAMES.get(sv[0], sv[0]) for sv in columns}))
+            raise DataFileError(f"{source or 'navigation dataset'}: no healthy {names or 'GPS'} ephemeris record")
         return cls(svs=tuple(sorted(records)), records=records, max_age_s=max_age_s, source=source)
 
     def _pick(self, sv: str, t: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -229,7 +254,7 @@ class BroadcastOrbit:
             if sv not in self.records:
                 continue
             sel, valid = self._pick(sv, t)
-            pos, ecc = _kepler_position(sel, t - sel["toe_abs_s"], sel["Toe"])
+            pos, ecc = _kepler_position(sel, t - sel["toe_abs_s"], sel["Toe"], sv[0], is_beidou_geo(sv))
             yield k, sel, valid, pos, ecc
 
     def clock_offsets_s(

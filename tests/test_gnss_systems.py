@@ -1,0 +1,103 @@
+"""Galileo and BeiDou broadcast orbits (models/gnss/systems, orbits, formats/gnss/rinex_nav) on the shared day.
+
+Independent references: georinex's parse of the same navigation records; the published slots of the BeiDou
+GEO satellites (geostationary: 42,164 km, latitude within the ~2° inclination, longitude fixed over the day);
+and BELE's own ionosphere-free pseudo-ranges, which the broadcast orbit and clock must reproduce within the
+troposphere's metres (a 14-s BDT slip would put a satellite ~40 km off, a missed GEO rotation thousands).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from distnav.formats.gnss.rinex import read_code_observations, read_navigation
+from distnav.formats.gnss.rinex_nav import read_ephemerides
+from distnav.models.gnss.constants import C_M_S
+from distnav.models.gnss.geometry import azimuth_elevation, ecef_to_geodetic
+from distnav.models.gnss.orbits import _kepler_position, gps_seconds
+from distnav.models.gnss.systems import ORBIT_CONSTANTS, carrier_frequencies_hz, is_beidou_geo
+
+IGS = "gnss/igs_2024010_bele_dgar"
+BRDC = f"{IGS}/BRDC00IGS_R_20240100000_01D_MN.rnx.gz"
+BELE = f"{IGS}/BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"
+KEPLER = ("sqrtA", "Eccentricity", "M0", "DeltaN", "omega", "Omega0", "OmegaDot", "Io", "IDOT", "Cuc", "Cus")
+KEPLER += ("Crc", "Crs", "Cic", "Cis", "SVclockBias", "SVclockDrift", "Toe")
+
+
+@pytest.mark.parametrize("system", ["E", "C"])
+def test_records_equal_georinex(shared_data: Path, system: str) -> None:
+    gr = pytest.importorskip("georinex")
+    path = shared_data / BRDC
+    ours = read_ephemerides(path, systems=(system,))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        nav = gr.load(path, use=system)
+    toc = gps_seconds(nav.time.values) + (14.0 if system == "C" else 0.0)  # BDT time of clock → GPS seconds
+    n = 0
+    for sv, cols in ours.items():
+        sub = nav.sel(sv=sv)  # georinex's first record per time of clock (Galileo I/NAV + F/NAV: E05, E05_1 …)
+        table = np.stack([sub[f].values for f in KEPLER], axis=-1)
+        rows = np.flatnonzero(~np.isnan(table).all(axis=1))
+        np.testing.assert_array_equal(cols["toc_s"], toc[rows])
+        for j, f in enumerate(KEPLER):
+            np.testing.assert_array_equal(cols[f], table[rows, j], err_msg=f"{sv} {f}")
+        n += rows.size
+    assert len(ours) >= 25 and n > 1000
+    assert all(s[0] == system for s in ours)
+
+
+def test_beidou_geo_at_their_slots(shared_data: Path) -> None:
+    orbit = read_navigation(shared_data / BRDC, systems=("C",), max_age_s=4 * 3600.0)
+    geo = ["C01", "C02", "C03", "C04", "C05"]
+    assert all(is_beidou_geo(s) for s in geo) and not is_beidou_geo("C11")
+    t = gps_seconds(np.datetime64("2024-01-10T00:00")) + 1800.0 * np.arange(48)
+    pos = orbit.positions_ecef(t, geo)
+    lat, lon, _ = ecef_to_geodetic(pos.reshape(-1, 3))
+    lat_deg, lon_deg = np.rad2deg(lat).reshape(48, 5), np.rad2deg(lon).reshape(48, 5)
+    assert np.all(np.abs(np.linalg.norm(pos, axis=-1) - 42_164e3) < 60e3)
+    assert np.all(np.abs(lat_deg) < 2.5)
+    # published slots (CSNO): C01 140° E (drifted to ~144.5°), C02 84° E, C03 110.5° E, C04 160° E, C05 58.75° E
+    slots = np.array([144.5, 84.0, 110.5, 160.0, 58.75])
+    assert np.all(np.abs(lon_deg - slots) < 0.6)
+    # the MEO formula on the same GEO records (no −5° tilt, no GEO rotation) puts them thousands of km off
+    rec = orbit.records["C03"]
+    sel = {k: v[:1] for k, v in rec.items()}
+    tk = np.array([600.0])
+    right, _ = _kepler_position(sel, tk, sel["Toe"], "C", geo=True)
+    wrong, _ = _kepler_position(sel, tk, sel["Toe"], "C", geo=False)
+    assert np.linalg.norm(right - wrong) > 1000e3
+
+
+@pytest.mark.parametrize("system,bands", [("E", (1, 5)), ("C", (2, 6)), ("G", (1, 2))])
+def test_broadcast_orbits_reproduce_bele_pseudoranges(shared_data: Path, system: str, bands: tuple[int, int]) -> None:
+    """Ionosphere-free code − geometric range (signal travel time, Earth rotation) + satellite clock, minus the
+    receiver clock (median over the satellites of each epoch): within 15 m above 20° (troposphere, multipath)."""
+    window = (np.datetime64("2024-01-10T03:00"), np.datetime64("2024-01-10T03:10"))  # 8 BeiDou in view
+    o = read_code_observations(shared_data / BELE, bands=bands, system=system, tlim=window)
+    orbit = read_navigation(shared_data / BRDC, systems=(system,), max_age_s=4 * 3600.0)
+    f1 = carrier_frequencies_hz(system, bands[0], o.svs)
+    f2 = carrier_frequencies_hz(system, bands[1], o.svs)
+    p_if = (f1**2 * o.range_m[bands[0]] - f2**2 * o.range_m[bands[1]]) / (f1**2 - f2**2)
+    t = gps_seconds(o.time)
+    svs = [s for s in o.svs if s in orbit.records]
+    cols = [o.svs.index(s) for s in svs]
+    p_if = p_if[:, cols]
+    tau = np.where(np.isfinite(p_if), p_if, 2.2e7) / C_M_S
+    rx = o.position_ecef_m
+    pos = np.stack([orbit.positions_ecef(t - tau[:, k], [s])[:, 0] for k, s in enumerate(svs)], axis=1)
+    clk = np.stack([orbit.clock_offsets_s(t - tau[:, k], [s])[:, 0] for k, s in enumerate(svs)], axis=1)
+    ang = ORBIT_CONSTANTS[system][1] * tau  # the Earth turns while the signal travels
+    x = np.cos(ang) * pos[..., 0] + np.sin(ang) * pos[..., 1]
+    y = -np.sin(ang) * pos[..., 0] + np.cos(ang) * pos[..., 1]
+    rho = np.linalg.norm(np.stack([x, y, pos[..., 2]], axis=-1) - rx, axis=-1)
+    _, el = azimuth_elevation(rx, pos)
+    res = p_if - rho + C_M_S * clk
+    res[~(el > np.deg2rad(20.0))] = np.nan
+    res -= np.nanmedian(res, axis=1, keepdims=True)
+    n = np.isfinite(res).sum(axis=0)
+    assert (n > 10).sum() >= 4, f"{system}: too few satellites above 20°"
+    assert np.nanmax(np.abs(res)) < 15.0, dict(zip(svs, np.nanmax(np.abs(res), axis=0).round(1), strict=True))
