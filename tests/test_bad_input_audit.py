@@ -217,6 +217,7 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-codebias-ranks-zero", (*cb, *o, "--ranks", "0"), "must be at least 1"),
         Cli("gnss-codebias-ranks-inprocess", (*cb, *o, "--ranks", "2"), "applies only with --backend mpi"),
         Cli("gnss-codebias-weighting", (*cb, *o, "--weighting", "cos"), "invalid choice"),
+        Cli("gnss-codebias-admm-messages", (*cb, *o, "--admm-messages", "float16"), "invalid choice"),
         Cli("gnss-codebias-sigma-text", (*cb, *o, "--sigma", "small"), "invalid float value"),
         Cli("gnss-codebias-obs-missing", ("gnss", "codebias", "--obs", "{tmp}/no.rnx", "--nav", "{nav}", *o), "no.rnx"),
         Cli("gnss-codebias-tlim-one", (*cb, *o, "--tlim", "2024-01-10T00:00"), "expected 2 arguments"),

@@ -8,7 +8,15 @@ import pytest
 
 from distnav.algorithms.kalman import DynamicModel, NormalSeries
 from distnav.algorithms.kalman.ckf import ckf
-from distnav.algorithms.kalman.relay import COUNT_BYTES, RECORD_BYTES, relay_plan, relay_records
+from distnav.algorithms.kalman.relay import (
+    COUNT_BYTES,
+    MAX_RELAY_NODES,
+    RECORD_BYTES,
+    matrix_bytes,
+    relay_bytes,
+    relay_plan,
+    relay_records,
+)
 from distnav.errors import ModelError
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
@@ -125,10 +133,82 @@ def test_relay_refusals() -> None:
     faulty = make_exchange(g, faults=FaultSchedule(drop_probability=0.1, seed=1))
     with pytest.raises(ModelError, match="fault"):
         ckf(dyn, ser, graph=g, rounds=2, transport="relay", exchange=faulty)
-    with pytest.raises(ModelError, match="node-local precision"):
-        ckf(dyn, ser, graph=g, rounds=2, transport="relay", local_precision="bound")
     with pytest.raises(ModelError, match="transport must be"):
         ckf(dyn, ser, graph=g, rounds=2, transport="pigeons")  # type: ignore[arg-type]
     normals = NormalSeries(*(np.stack(a) for a in zip(*(ser.normals(t) for t in range(ser.n_epochs)), strict=True)))
     with pytest.raises(ModelError, match="no observation records"):
         ckf(dyn, normals, graph=g, rounds=2, transport="relay")
+
+
+def test_byte_estimates_equal_what_the_transports_send() -> None:
+    g = builders.connected_random_geometric(7, mean_degree=3, rng=np.random.default_rng(9))
+    ser = _series(10, g.n_nodes, T=4)
+    dyn = DynamicModel(ser.n_states, noise_cov=0.01 * np.eye(ser.n_states))
+    records = np.stack([(ser.records(t)[1] > 0).sum(axis=1) for t in range(ser.n_epochs)])
+    for mode, predicted in (
+        ("relay", relay_bytes(relay_plan(g, 3), records)),
+        ("matrices", matrix_bytes(g, 3, ser.n_states, ser.n_epochs)),
+    ):
+        res = ckf(dyn, ser, graph=g, rounds=3, transport=mode, variance=False, monitor=False)  # type: ignore[arg-type]
+        assert res.comm.bytes == predicted, mode
+
+
+def test_relay_on_field_nodes_equals_inprocess() -> None:
+    """The MPI case on the field exchange (12 node threads over ZeroMQ): estimates and bytes bit for bit."""
+    pytest.importorskip("zmq")
+    import sys
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    sys.path.insert(0, str(here / "mpi"))
+    sys.path.insert(0, str(here))
+    from cases import CASES
+
+    from test_field_cases import run_on_threads
+
+    case = CASES["ckf_relay_transport"]
+    ref = case("inprocess")
+    results = run_on_threads(case, 12, timeout_s=400)
+    errors = [r for r in results if isinstance(r, BaseException)]
+    assert not errors, repr(errors[0])
+    for got in results:
+        assert np.array_equal(got["estimates"], ref["estimates"], equal_nan=True)
+        assert np.array_equal(got["bytes"], ref["bytes"])
+        np.testing.assert_allclose(got["std"], ref["std"], rtol=1e-12, atol=1e-13)
+
+
+def test_relay_plan_refuses_networks_beyond_its_limit() -> None:
+    with pytest.raises(ModelError, match="transport='matrices'"):
+        relay_plan(_path(MAX_RELAY_NODES + 1), 1)
+
+
+@pytest.mark.parametrize("kind", ["exact", "bound"])
+def test_relay_with_local_precision_and_innovation_tests_equals_matrices(kind: str) -> None:
+    g = builders.connected_random_geometric(8, mean_degree=3, rng=np.random.default_rng(11))
+    rng = np.random.default_rng(12)
+    T, n, S = 7, g.n_nodes, 8
+    lay = BiasStateLayout(tuple(f"G{k:02d}" for k in range(S)), tuple(f"R{i}" for i in range(n)), reference="R0")
+    coef = rng.standard_normal((T, n, S, 3))
+    sig = rng.uniform(0.2, 0.4, (T, n, S))
+    tracked = rng.random((T, n, S)) > 0.2
+    obs = 0.3 * rng.standard_normal((T, n, S))
+    obs[5, 3, np.flatnonzero(tracked[5, 3])[1]] += 40.0  # a gross error node 3 must reject at epoch 5
+    ser = BiasGeometryFreeSeries(lay, coef, sig, obs_m=obs, tracked=tracked, groups=np.zeros(n, np.int64))
+    dyn = DynamicModel(ser.n_states, noise_cov=0.01 * np.eye(ser.n_states))
+    runs = {
+        mode: ckf(dyn, ser, graph=g, rounds=3, transport=mode, local_precision=kind, test_level=0.001)  # type: ignore[arg-type]
+        for mode in ("matrices", "relay")
+    }
+    mat, rel = runs["matrices"], runs["relay"]
+    assert mat.tests is not None and rel.tests is not None
+    assert mat.tests.n_removed > 0  # the outlier was found
+    assert rel.tests.removed == mat.tests.removed
+    np.testing.assert_array_equal(rel.tests.epoch, mat.tests.epoch)
+    est = mat.series.estimable
+    np.testing.assert_array_equal(rel.series.estimable, est)
+    np.testing.assert_allclose(rel.series.estimates[est], mat.series.estimates[est], rtol=1e-9, atol=1e-9)
+    assert mat.local_std is not None and rel.local_std is not None
+    np.testing.assert_allclose(rel.local_std[est], mat.local_std[est], rtol=1e-9, atol=1e-12)
+    assert rel.precision is not None and rel.precision.comm is not None
+    assert rel.precision.comm.bytes == 0  # static rows of L and records sent anyway: nothing extra
+    assert rel.comm.bytes < mat.comm.bytes

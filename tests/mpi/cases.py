@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from functools import partial
+from typing import Any
 
 import numpy as np
 
@@ -174,28 +175,56 @@ def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
     return {"estimates": res.estimates, "std": series.std, "sent": res.comm.messages_sent}
 
 
+def _relay_series(seed: int, n: int, outlier: bool = False) -> Any:
+    from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
+
+    S, T = 6, 5
+    rng = np.random.default_rng(seed)
+    lay = BiasStateLayout(tuple(f"G{k:02d}" for k in range(S)), tuple(f"R{i}" for i in range(n)), reference="R0")
+    tracked = rng.random((T, n, S)) > 0.3
+    obs = (0.3 if outlier else 1.0) * rng.standard_normal((T, n, S))
+    if outlier:
+        obs[3, 4, np.flatnonzero(tracked[3, 4])[0]] += 40.0  # node 4 must reject it at epoch 3
+    return BiasGeometryFreeSeries(
+        lay,
+        rng.standard_normal((T, n, S, 3)),
+        rng.uniform(0.2, 0.4 if outlier else 1.0, (T, n, S)),
+        obs_m=obs,
+        tracked=tracked,
+        groups=np.zeros(n, np.int64),
+    )
+
+
 @case
 def ckf_relay_transport(backend: str) -> dict[str, np.ndarray]:
     from distnav.algorithms.kalman import DynamicModel
     from distnav.algorithms.kalman.ckf import ckf
-    from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
 
     g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
-    n, S, T = g.n_nodes, 6, 5
-    rng = np.random.default_rng(8)
-    lay = BiasStateLayout(tuple(f"G{k:02d}" for k in range(S)), tuple(f"R{i}" for i in range(n)), reference="R0")
-    ser = BiasGeometryFreeSeries(
-        lay,
-        rng.standard_normal((T, n, S, 3)),
-        rng.uniform(0.2, 1.0, (T, n, S)),
-        obs_m=rng.standard_normal((T, n, S)),
-        tracked=rng.random((T, n, S)) > 0.3,
-        groups=np.zeros(n, np.int64),
-    )
+    ser = _relay_series(8, g.n_nodes)
     dyn = DynamicModel(ser.n_states, noise_cov=0.01 * np.eye(ser.n_states))
     ex = make_exchange(g, backend=backend)
     res = ckf(dyn, ser, graph=g, protocol="P3", rounds=3, transport="relay", exchange=ex)
     return {"estimates": res.series.estimates, "std": res.series.std, "bytes": res.comm.bytes_sent}
+
+
+@case
+def ckf_relay_with_innovation_tests(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.kalman import DynamicModel
+    from distnav.algorithms.kalman.ckf import ckf
+
+    g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
+    ser = _relay_series(9, g.n_nodes, outlier=True)
+    dyn = DynamicModel(ser.n_states, noise_cov=0.01 * np.eye(ser.n_states))
+    ex = make_exchange(g, backend=backend)
+    res = ckf(dyn, ser, graph=g, rounds=3, transport="relay", exchange=ex, local_precision="exact", test_level=0.001)
+    assert res.tests is not None and res.local_std is not None
+    return {
+        "estimates": res.series.estimates,
+        "local_std": res.local_std,
+        "removed": np.asarray(res.tests.removed),
+        "bytes": res.comm.bytes_sent,
+    }
 
 
 @case

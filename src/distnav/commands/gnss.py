@@ -192,6 +192,13 @@ def register(subparsers: Any) -> None:
     cb.add_argument("--weighting", choices=["euler-goad", "sin", "constant"], default="euler-goad")
     cb.add_argument("--rho", type=float, default=0.5, help="ADMM weight ρ, per-epoch scale (default 0.5)")
     cb.add_argument("--iterations", type=int, default=1000, help="ADMM iterations (default 1000)")
+    cb.add_argument(
+        "--admm-messages",
+        choices=["ternary", "pairs"],
+        default=None,
+        help="ternary (default without faults): per-pair messages as 2-bit deltas with error feedback, the same "
+        "fixed point for ~13x fewer bytes (docs/economy.md); pairs: float64 as paper 000 Fig. 6 (default under faults)",
+    )
     cb.add_argument("--bias", nargs="+", metavar="FILE", help="also compare with these Bias-SINEX products")
     cb.add_argument("--no-progress", action="store_true")
     cb.set_defaults(func=run_codebias)

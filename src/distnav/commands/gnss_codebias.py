@@ -158,6 +158,7 @@ def _admm(
     from distnav.algorithms.result import compare_with_gather
     from distnav.models.gnss.constants import NS_TO_M
 
+    ex = command_exchange(args, graph)
     res = admm(
         problem,
         graph,
@@ -166,12 +167,14 @@ def _admm(
         tol=0.0,
         reference=x_blue,
         record_nodes=False,
-        exchange=command_exchange(args, graph),
+        exchange=ex,
+        messages=args.admm_messages or ("pairs" if ex.faults.active else "ternary"),
     )
     dist_m = float(res.trace["max_distance_to_reference"][-1])
     return res.estimates, {
         "rho": args.rho,
         "rho_scale": "epoch",
+        "messages": res.messages,
         "iterations": res.iterations,
         "max_distance_to_centralized_ns": dist_m / NS_TO_M,
         "constraint_nodes": [stations[i] for i in res.constraint_nodes.nodes],

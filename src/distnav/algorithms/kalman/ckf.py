@@ -27,7 +27,6 @@ along in the consensus payload (paid for in bytes) so that Fig. 7 uses the produ
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, TypedDict, Unpack
@@ -44,8 +43,8 @@ from distnav.algorithms.kalman import (
     check_model,
     masked_std,
     pseudo_inverse_psd,
-    std_ratio,
 )
+from distnav.algorithms.kalman.ckf_design import alpha_factor, ckf_error_variance, ckf_std_ratio, consensus_rounds
 from distnav.algorithms.kalman.ckf_qc import (
     InnovationCollector,
     NodeEpochTest,
@@ -53,15 +52,15 @@ from distnav.algorithms.kalman.ckf_qc import (
     local_extra_bound,
     local_extra_exact,
 )
-from distnav.algorithms.kalman.relay import RelayPlan, relay_plan, relay_records
+from distnav.algorithms.kalman.relay import RelayPlan, relay_setup, relayed_payload
 from distnav.algorithms.result import Precision, TraceBuilder
 from distnav.algorithms.statistics import critical_value
-from distnav.errors import ModelError, WeightsError
+from distnav.errors import ModelError
 from distnav.exchange import Exchange, Mixer, make_exchange
 from distnav.exchange.core import CommTotals
 from distnav.network.graph import Graph, SwitchingGraph
 from distnav.network.weights import ConsensusWeights
-from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
+from distnav.typing import BoolArray, FloatArray, IntArray
 
 Transport = Literal["matrices", "relay"]
 """How the CKF's consensus travels: the mixed matrices every round, or the raw records (:mod:`.relay`)."""
@@ -81,33 +80,6 @@ __all__ = [
     "ckf_error_variance",
     "ckf_std_ratio",
 ]
-
-
-def consensus_rounds(sampling_interval_s: float, sending_interval_s: float) -> int:
-    """``k_n = ⌊Δ/δ⌋``: consensus rounds that fit in one sampling interval (paper 003 §4.1, Fig. 5).
-
-    Δ = 60 s with δ = 15, 10, 5 s gives 4, 6, 12 (paper 003 §5.2).
-    """
-    D, d = float(sampling_interval_s), float(sending_interval_s)
-    if not (math.isfinite(D) and D > 0):
-        raise ModelError(f"sampling interval Δ must be positive, got {sampling_interval_s} s")
-    if not (math.isfinite(d) and d > 0):
-        raise ModelError(f"sending interval δ must be positive, got {sending_interval_s} s")
-    if d > D:
-        raise ModelError(
-            f"sending interval δ = {d} s exceeds the sampling interval Δ = {D} s: no consensus round "
-            f"fits in an epoch (the CKF needs δ ≤ Δ, paper 003 §4.1)"
-        )
-    return int(math.floor(D / d + 1e-9))
-
-
-def alpha_factor(product: ArrayLike) -> FloatArray:
-    """``α_i = n Σ_j l_ij²`` per node (paper 003 eq. (46)); ``α_i ≥ 1`` with equality iff ``l_i = e/n`` (eq. (48))."""
-    L = np.asarray(product, dtype=float)
-    if L.ndim != 2 or L.shape[0] != L.shape[1]:
-        raise WeightsError(f"product matrix must be square, got shape {L.shape}")
-    alpha: FloatArray = L.shape[0] * (L**2).sum(axis=1)
-    return alpha
 
 
 def _resolve_rounds(rounds: int | None, sampling_interval_s: float | None, sending_interval_s: float | None) -> int:
@@ -252,7 +224,10 @@ def _prepare_ckf(
         raise ModelError(f"local_precision must be 'exact', 'bound' or None, got {local_precision!r}")
     test_level = options.get("test_level")
     critical = _critical_level(measurements, local_precision, test_level)
-    relay = _relay_setup(options.get("transport", "matrices"), sched, ex, kn, local_precision, test_level)
+    transport = options.get("transport", "matrices")
+    if transport not in ("matrices", "relay"):
+        raise ModelError(f"transport must be 'matrices' or 'relay', got {transport!r}")
+    relay = relay_setup(sched, ex, kn) if transport == "relay" else None
     mixers = (
         [] if relay is not None else [ex.mixer(w, active=a) for w, a in zip(sched.weights, sched.active, strict=True)]
     )
@@ -313,11 +288,12 @@ def iterate_ckf(
     floats to every message). ``test_level`` makes every node test its predicted residuals at that level and reject
     outliers before they enter its consensus.
 
-    ``transport="relay"`` (static graph, no faults, no node-local precision or tests, a series with
-    :meth:`~MeasurementSeries.records`): the same ``k_n`` consensus rounds evaluated by every node from the raw
-    observation records of the nodes within ``k_n`` hops, relayed hop by hop (20 B per record;
-    :mod:`distnav.algorithms.kalman.relay`) instead of the mixed matrices: the same filter (to the rounding of the
-    sums) for far fewer bytes when a node's observations are fewer than its normals' entries (issue 27).
+    ``transport="relay"`` (static graph, no faults, a series with :meth:`~MeasurementSeries.records`): the same
+    ``k_n`` consensus rounds evaluated by every node from the raw observation records of the nodes within ``k_n``
+    hops, relayed hop by hop (20 B per record; :mod:`distnav.algorithms.kalman.relay`) instead of the mixed
+    matrices: the same filter (to the rounding of the sums) for far fewer bytes when a node's observations are
+    fewer than its normals' entries (issue 27). Node-local precision then costs no bytes (``l_i`` is static, the
+    ``N_j`` are rebuilt from the records); an observation an innovation test removed is not sent.
     """
     _check_options(options, CKFOptions.__optional_keys__)
     check_model(dynamics, measurements)
@@ -333,7 +309,7 @@ def iterate_ckf(
         if s.critical is not None:
             N, r, tests = _tested_normals(ker, measurements, t, nodes, N, r, i_local, s.critical)
         tri = N.reshape(nodes.size, s.p * s.p)[:, s.up]
-        payload = _consensus(s, measurements, t, tri, r)
+        payload = _consensus(s, measurements, t, tri, r, tests)
         Nk = _symmetric(payload[:, : s.n_tri], s.up, s.lo, nodes.size, s.p)
         rk = payload[:, s.n_tri : s.n_tri + s.p]
         _measurement_update(s, ker, payload, tri, Nk, rk)
@@ -343,11 +319,18 @@ def iterate_ckf(
         yield CKFState(t, nodes, ker.I, ker.i, x, est, P if s.variance else None, inv, dev, P_local, tests)
 
 
-def _consensus(s: _CKFSetup, measurements: MeasurementSeries, t: int, tri: FloatArray, r: FloatArray) -> FloatArray:
+def _consensus(
+    s: _CKFSetup,
+    measurements: MeasurementSeries,
+    t: int,
+    tri: FloatArray,
+    r: FloatArray,
+    tests: tuple[NodeEpochTest | None, ...],
+) -> FloatArray:
     """The payload after the epoch's ``k_n`` rounds: ``[tri(N^(k_n)), r^(k_n)]``, then (when tracked) the rows of
     ``L`` and, for the exact node-local precision, the tagged normals."""
     if s.relay is not None:
-        return _relayed_consensus(s.ex, s.relay, measurements, t, s.up)
+        return _relayed_consensus(s, measurements, t, tests)
     nodes = s.ex.nodes
     n, k_loc = measurements.n_nodes, nodes.size
     parts = [tri, r]
@@ -400,51 +383,29 @@ def _consensus_deviation(ex: Exchange, N: FloatArray, r: FloatArray, Nk: FloatAr
     return float(ex.allreduce(loc, "max"))
 
 
-def _relay_setup(
-    transport: Transport,
-    sched: ConsensusSchedule,
-    ex: Exchange,
-    kn: int,
-    local_precision: LocalPrecision | None,
-    test_level: float | None,
-) -> tuple[RelayPlan, FloatArray] | None:
-    """The relay's static plan and this block's rows of ``L`` (``None`` for the matrix transport), or a
-    :class:`ModelError` naming what the relay cannot do."""
-    if transport not in ("matrices", "relay"):
-        raise ModelError(f"transport must be 'matrices' or 'relay', got {transport!r}")
-    if transport == "matrices":
-        return None
-    if len(sched.weights) != 1 or any(a is not None for a in sched.active):
-        raise ModelError("transport='relay' needs a static graph (one session); use transport='matrices'")
-    if ex.faults.active:
-        raise ModelError("transport='relay' needs every message (no fault schedule); use transport='matrices'")
-    if local_precision is not None or test_level is not None:
-        raise ModelError("transport='relay' has no node-local precision or innovation tests yet; use 'matrices'")
-    return relay_plan(sched.graph, kn), consensus_product(sched, kn)[ex.nodes]
-
-
 def _relayed_consensus(
-    ex: Exchange, relay: tuple[RelayPlan, FloatArray], measurements: MeasurementSeries, t: int, up: IntArray
+    s: _CKFSetup, measurements: MeasurementSeries, t: int, tests: tuple[NodeEpochTest | None, ...]
 ) -> FloatArray:
-    """``[tri(N_i^(k_n)), r_i^(k_n)]`` of the local nodes from the relayed records: ``Σ_j l_ij (N_j, r_j)`` over
-    the origins each node received (every origin with ``l_ij ≠ 0`` must be among them)."""
-    plan, L_rows = relay
-    values, weights = measurements.records(t, ex.nodes)
-    known = relay_records(ex, plan, values, weights)
-    decoded: dict[int, FloatArray] = {}
-    p = measurements.n_states
-    out = np.zeros((ex.n_local, up.size + p))
-    for a, got in enumerate(known):
-        need = np.flatnonzero(L_rows[a])
-        missing = set(need.tolist()) - set(got)
-        if missing:
-            raise ModelError(f"relay: node {int(ex.nodes[a])} lacks the records of nodes {sorted(missing)}")
-        for j in need.tolist():
-            if j not in decoded:
-                N_j, r_j = measurements.normals_from_records(t, j, *got[j])
-                decoded[j] = np.concatenate([N_j.reshape(p * p)[up], r_j])
-        out[a] = L_rows[a, need] @ np.stack([decoded[j] for j in need.tolist()])
-    return out
+    """The matrix transport's payload from the relayed records (:func:`~distnav.algorithms.kalman.relay.
+    relayed_payload`); an observation an innovation test removed is not sent (its record's weight is 0)."""
+    assert s.relay is not None
+    plan, L_rows = s.relay
+    values, weights = measurements.records(t, s.ex.nodes)
+    for a, test in enumerate(tests):
+        if test is not None and test.removed:
+            weights[a, measurements.record_slots(t, s.ex.nodes[a : a + 1])[~test.keep]] = 0.0
+    return relayed_payload(
+        s.ex,
+        plan,
+        L_rows,
+        measurements,
+        t,
+        values,
+        weights,
+        s.up,
+        with_rows=s.track_L,
+        tagged=s.local_precision == "exact",
+    )
 
 
 def _tested_normals(
@@ -547,7 +508,9 @@ def ckf(
         rounds=kn,
         product=L,
         alpha=alpha_factor(L) if L is not None else None,
-        precision=_local_precision(ex, last, local_precision, comm, measurements.n_states, variance),
+        precision=_local_precision(
+            ex, last, local_precision, comm, measurements.n_states, variance, options.get("transport") == "relay"
+        ),
         local_std=np.stack(kept.lstds) if kept.lstds else None,
         tests=collector.build() if collector is not None else None,
     )
@@ -596,16 +559,17 @@ class _GatheredSeries:
 
 
 def _local_precision(
-    ex: Exchange, last: CKFState, kind: LocalPrecision | None, comm: CommTotals, p: int, variance: bool
+    ex: Exchange, last: CKFState, kind: LocalPrecision | None, comm: CommTotals, p: int, variance: bool, relay: bool
 ) -> Precision | None:
-    """The node-local :class:`Precision` of the last epoch; ``comm`` = the bytes it added to the messages."""
+    """The node-local :class:`Precision` of the last epoch; ``comm`` = the bytes it added to the messages (none with
+    the relay transport: the records are sent anyway, the rows of ``L`` are static knowledge)."""
     if kind is None or last.local_covariance is None:
         return None
     n = ex.n_nodes
     n_tri = p * (p + 1) // 2
     base = n_tri + p + (n if (variance and ex.faults.active) else 0)
     width = n_tri + p + n + (n * n_tri if kind == "exact" else 0)
-    share = (width - base) / width
+    share = 0.0 if relay else (width - base) / width
     extra = CommTotals(
         0,
         np.zeros_like(comm.messages_sent),
@@ -623,72 +587,3 @@ def _local_precision(
         iterations=0,
         comm=extra,
     )
-
-
-def ckf_error_variance(
-    dynamics: DynamicModel, measurements: MeasurementSeries, product: ArrayLike, *, store_matrices: bool = False
-) -> FilterSeries:
-    """The CKF error-variance recursion of Fig. 7 alone, for every node and epoch, from ``L`` (= ``W^(k_n)``).
-
-    No data and no messages: the consensus normals are ``N_i^(k_n) = Σ_j l_ij N_j`` (eq. (35)), so ``I_i,t|t``
-    and ``P_i,t|t`` follow from the normal matrices and ``L`` — the a-priori design tool of paper 003 §4.2.
-    Returns a :class:`FilterSeries` with ``std`` = sqrt diag ``P_i,t|t`` and ``nominal_std`` = sqrt diag
-    ``I_i,t|t⁻¹`` (``estimates`` are NaN).
-
-    Cost per epoch: one dense GEMM ``[L; L∘L] · tri(N)`` of (2n × n) by (n × p(p+1)/2) — O(n² p²) flops, the
-    dominant term (≈ 1.1 GFLOP at n = 1,000, p = 33) — plus O(n p³) for the batched time update and inverses;
-    memory O(n² + n p²). Measured in ``benchmarks/bench_ckf.py`` against a bare batched-numpy implementation of the
-    same recursion (issue 17: ≤ 2×). For the node-local form that needs no global knowledge see
-    ``ckf(..., local_precision=...)``.
-    """
-    check_model(dynamics, measurements)
-    n, p = measurements.n_nodes, measurements.n_states
-    L = np.asarray(product, dtype=float)
-    if L.shape != (n, n):
-        raise ModelError(f"product matrix must be {n}×{n}, got {L.shape}")
-    LL = np.concatenate([L, L**2])  # one GEMM per epoch gives Σ_j l_ij N_j and Σ_j l_ij² N_j
-    iu = _triu(p)
-    ker = InformationKernel(n, p, track_error=True)
-    T = measurements.n_epochs
-    stds: list[FloatArray] = []
-    nstds: list[FloatArray] = []
-    ests: list[BoolArray] = []
-    covs: list[FloatArray] = []
-    infos: list[FloatArray] = []
-    for t in range(T):
-        if t > 0:
-            ker.time_update(dynamics, t)
-        N, _ = measurements.normals(t)
-        tri = N[:, iu[0], iu[1]]
-        both = LL @ tri
-        Nk = np.zeros((n, p, p))
-        Nk[:, iu[0], iu[1]] = both[:n]
-        Nk[:, iu[1], iu[0]] = both[:n]
-        extra = np.zeros((n, p, p))
-        extra[:, iu[0], iu[1]] = (n * n) * both[n:]
-        extra[:, iu[1], iu[0]] = (n * n) * both[n:]
-        ker.measurement_update(Nk, np.zeros((n, p)), scale=float(n), extra_error=extra)
-        inv, est = pseudo_inverse_psd(ker.I)
-        assert ker.Q is not None
-        P = inv @ ker.Q @ inv
-        stds.append(masked_std(P, est))
-        nstds.append(masked_std(inv, est))
-        ests.append(est)
-        if store_matrices:
-            covs.append(0.5 * (P + np.swapaxes(P, 1, 2)))
-            infos.append(ker.I)
-    std = np.stack(stds)
-    return FilterSeries(
-        estimates=np.full_like(std, np.nan),
-        std=std,
-        estimable=np.stack(ests),
-        nodes=np.arange(n),
-        nominal_std=np.stack(nstds),
-        covariance=np.stack(covs) if store_matrices else None,
-        information=np.stack(infos) if store_matrices else None,
-    )
-
-
-def ckf_std_ratio(ckf_series: FilterSeries, central_series: FilterSeries) -> FloatArray:
-    """CKF-to-central standard-deviation ratios per epoch, node and parameter (paper 003 Fig. 12), (T, n, p)."""
-    return std_ratio(ckf_series, central_series)

@@ -134,6 +134,11 @@ class MeasurementSeries:
             f"(use transport='matrices')"
         )
 
+    def record_slots(self, epoch: int, nodes: IntArray | None = None) -> IntArray:
+        """The slot of each row of :meth:`observations` (same order): how a node leaves an observation an
+        innovation test removed out of the records it sends."""
+        raise ModelError(f"{type(self).__name__} gives no observation records")
+
     def normals_from_records(
         self, epoch: int, node: int, values: FloatArray, weights: FloatArray
     ) -> tuple[FloatArray, FloatArray]:

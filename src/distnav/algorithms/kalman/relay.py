@@ -27,12 +27,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from distnav.algorithms.consensus.averaging import ConsensusSchedule, consensus_product
+from distnav.algorithms.kalman.measurements import MeasurementSeries
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 from distnav.network.graph import Graph
 from distnav.typing import FloatArray, IntArray
 
-__all__ = ["RECORD_BYTES", "COUNT_BYTES", "RelayPlan", "relay_plan", "relay_records"]
+__all__ = [
+    "COUNT_BYTES",
+    "MAX_RELAY_NODES",
+    "RECORD_BYTES",
+    "RelayPlan",
+    "matrix_bytes",
+    "relay_bytes",
+    "relay_plan",
+    "relay_records",
+    "relay_setup",
+    "relayed_payload",
+]
 
 #: One observation record on the wire: value and weight (float64) and slot index (int32).
 RECORD_BYTES = 20
@@ -44,21 +57,30 @@ COUNT_BYTES = 2
 class RelayPlan:
     """Which origins' records each directed edge carries in each round (module docstring).
 
-    hops : (n, n) hop distance ``d(o, v)`` (``rounds + 1`` beyond ``rounds`` hops).
+    hops : (n, n) int32 hop distance ``d(o, v)`` (``rounds + 1`` beyond ``rounds`` hops).
     carried : per round ``k`` (0-based, round ``k + 1``), a list of ``(edge, origin)`` pairs (global ids),
         sorted by edge then origin.
     """
 
     rounds: int
-    hops: IntArray
+    hops: np.ndarray
     carried: tuple[tuple[tuple[int, int], ...], ...]
+
+
+#: The largest network :func:`relay_plan` takes (its set-up holds n × n hop counts and an n × E mask).
+MAX_RELAY_NODES = 4096
 
 
 def relay_plan(graph: Graph, rounds: int) -> RelayPlan:
     """The static routing of :mod:`this module <distnav.algorithms.kalman.relay>` on ``graph`` for ``rounds`` hops."""
     n = graph.n_nodes
+    if n > MAX_RELAY_NODES:
+        raise ModelError(
+            f"the relay transport plans routes for up to {MAX_RELAY_NODES} nodes (O(n·E) set-up), the graph has {n}: "
+            f"use transport='matrices'"
+        )
     far = rounds + 1
-    hops = np.full((n, n), far, np.int64)
+    hops = np.full((n, n), far, np.int32)
     reached = np.eye(n, dtype=bool)
     np.fill_diagonal(hops, 0)
     src, dst = np.asarray(graph.src), np.asarray(graph.dst)
@@ -83,6 +105,34 @@ def relay_plan(graph: Graph, rounds: int) -> RelayPlan:
         pairs = sorted(zip(edge_ids[m].tolist(), o_sel[m].tolist(), strict=True))
         carried.append(tuple(pairs))
     return RelayPlan(rounds, hops, tuple(carried))
+
+
+def relay_setup(sched: ConsensusSchedule, ex: Exchange, kn: int) -> tuple[RelayPlan, FloatArray]:
+    """The plan of ``kn`` hops and this block's rows of ``L = W^(kn)``, or a :class:`ModelError` naming what the relay
+    cannot do (a switching graph, a fault schedule)."""
+    if len(sched.weights) != 1 or any(a is not None for a in sched.active):
+        raise ModelError("transport='relay' needs a static graph (one session); use transport='matrices'")
+    if ex.faults.active:
+        raise ModelError("transport='relay' needs every message (no fault schedule); use transport='matrices'")
+    return relay_plan(sched.graph, kn), consensus_product(sched, kn)[ex.nodes]
+
+
+def relay_bytes(plan: RelayPlan, records: IntArray) -> int:
+    """Bytes the relay sends for ``records`` (epochs × nodes: each node's record count per epoch): every origin's
+    count and records cross each edge that carries it (:data:`COUNT_BYTES` + :data:`RECORD_BYTES` per record)."""
+    counts = np.asarray(records, np.int64)
+    crossings = np.zeros(counts.shape[1], np.int64)
+    for pairs in plan.carried:
+        for _, o in pairs:
+            crossings[o] += 1
+    return int((crossings * (COUNT_BYTES * counts.shape[0] + RECORD_BYTES * counts.sum(axis=0))).sum())
+
+
+def matrix_bytes(graph: Graph, rounds: int, n_states: int, epochs: int) -> int:
+    """Bytes the matrix transport sends: every round one message per directed link with the packed ``N`` and ``r``
+    (``p(p+1)/2 + p`` float64)."""
+    links = int((np.asarray(graph.src) != np.asarray(graph.dst)).sum())
+    return epochs * rounds * links * 8 * (n_states * (n_states + 1) // 2 + n_states)
 
 
 def relay_records(
@@ -126,6 +176,50 @@ def relay_records(
             for o, rec in zip(origins, _unpack(inbox.values[r_in], len(origins), slots), strict=True):
                 receiver[o] = rec
     return known
+
+
+def relayed_payload(
+    ex: Exchange,
+    plan: RelayPlan,
+    L_rows: FloatArray,
+    measurements: MeasurementSeries,
+    t: int,
+    values: FloatArray,
+    weights: FloatArray,
+    up: IntArray,
+    *,
+    with_rows: bool,
+    tagged: bool,
+) -> FloatArray:
+    """Relay this block's records of epoch ``t`` and return the CKF's payload after ``k_n`` rounds as the matrix
+    transport would hold it: ``[tri(N_i^(k_n)), r_i^(k_n)]`` = ``Σ_j l_ij (N_j, r_j)`` over the origins each node
+    received (every origin with ``l_ij ≠ 0`` must be among them; ``up``: flat indices of the upper triangle), then
+    with ``with_rows`` the row ``l_i`` (static knowledge here, sent nowhere) and with ``tagged`` the blocks
+    ``l_ij tri(N_j)`` the tagged matrices of the exact node-local precision would have carried."""
+    known = relay_records(ex, plan, values, weights)
+    decoded: dict[int, FloatArray] = {}
+    n, p, n_tri = measurements.n_nodes, measurements.n_states, up.size
+    blocks = np.zeros((ex.n_local, n, n_tri)) if tagged else None
+    out = np.zeros((ex.n_local, n_tri + p))
+    for a, got in enumerate(known):
+        need = np.flatnonzero(L_rows[a])
+        missing = set(need.tolist()) - set(got)
+        if missing:
+            raise ModelError(f"relay: node {int(ex.nodes[a])} lacks the records of nodes {sorted(missing)}")
+        for j in need.tolist():
+            if j not in decoded:
+                N_j, r_j = measurements.normals_from_records(t, j, *got[j])
+                decoded[j] = np.concatenate([N_j.reshape(p * p)[up], r_j])
+        stacked = np.stack([decoded[j] for j in need.tolist()])
+        out[a] = L_rows[a, need] @ stacked
+        if blocks is not None:
+            blocks[a, need] = L_rows[a, need][:, None] * stacked[:, :n_tri]
+    parts = [out]
+    if with_rows:
+        parts.append(L_rows)
+    if blocks is not None:
+        parts.append(blocks.reshape(ex.n_local, n * n_tri))
+    return np.concatenate(parts, axis=1)
 
 
 def _pack(row: FloatArray, records: list[tuple[FloatArray, FloatArray]], slots: int) -> int:

@@ -260,6 +260,11 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         y = np.zeros((idx.size, self.n_satellites)) if self._y is None else self._y[t, idx].copy()
         return y, self._w[t, idx].copy()
 
+    def record_slots(self, epoch: int, nodes: np.ndarray | None = None) -> np.ndarray:
+        """The satellite of each row of :meth:`observations` (node-major, satellites ascending: the tracked ones)."""
+        _, slot = np.nonzero(self._w[self._epoch(epoch), self._nodes(nodes)] > 0)
+        return slot.astype(np.int64)
+
     def normals_from_records(
         self, epoch: int, node: int, values: np.ndarray, weights: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -372,7 +372,7 @@ def _ckf_filters(
         monitor=False,
         local_precision=None if tests is None else "bound",
         test_level=level,
-        transport=_ckf_transport(tests is None, ex),
+        transport=_ckf_transport(ex, graph, options.kn, data.series),
     ):
         if tests is not None:
             tests.add(cst.tests)
@@ -385,7 +385,14 @@ def _ckf_filters(
     return [replace(col.done(), precision=None, innovation_tests=built) for col in cs], ex.comm_totals()
 
 
-def _ckf_transport(plain: bool, ex: Any) -> Literal["matrices", "relay"]:
-    """The CKF's transport: relayed observation records (20 B each, far fewer bytes than the mixed normals;
-    issue 27) unless the run has innovation tests or a fault schedule, which need the matrix transport."""
-    return "relay" if plain and not ex.faults.active else "matrices"
+def _ckf_transport(ex: Any, graph: Any, kn: int, series: Any) -> Literal["matrices", "relay"]:
+    """The CKF's transport, the cheaper in bytes (issue 27): relayed observation records (20 B each;
+    :mod:`distnav.algorithms.kalman.relay`) or the mixed normals, computed from the records the run will send
+    (innovation tests can only remove some). A fault schedule needs the matrices."""
+    from distnav.algorithms.kalman.relay import MAX_RELAY_NODES, matrix_bytes, relay_bytes, relay_plan
+
+    if ex.faults.active or graph.n_nodes > MAX_RELAY_NODES:
+        return "matrices"
+    records = np.asarray(series.tracked).sum(axis=2)  # (epochs, stations)
+    relay = relay_bytes(relay_plan(graph, kn), records)
+    return "relay" if relay < matrix_bytes(graph, kn, series.n_states, series.n_epochs) else "matrices"
