@@ -112,7 +112,8 @@ class FieldOptions:
     estimate_delays: bool = True  # σ: delay_sigma_m is a floor, larger delays the residuals show are used
     reliability_limit_m: float = RELIABILITY_LIMIT_M  # LM: weak if one undetected link moves it more (reliability.py)
     cut_test: bool = True  # weak: a part whose excluded cut links exceed the cut's redundancy (cuts.py)
-    distributed_precision: str = "auto"  # distributed σ: "central" / "subnetwork" / "auto" (field_precision.py)
+    distributed_precision: str = "auto"  # distributed σ: gathered / central / subnetwork / auto (field_precision.py)
+    staged_tolerances: bool = True  # distributed fits that seed the next stop early (field_fits.STAGE_TOLERANCES)
 
     @property
     def considers_delays(self) -> bool:
@@ -314,6 +315,12 @@ def tighten(problem: RangingProblem, start_m: FloatArray, opts: FieldOptions) ->
     return tighten_scale(problem, start_m, opts.solver, _solver_kwargs(opts), opts.loss_scale_m, opts.iterations)
 
 
+def _stage(opts: FieldOptions, stage: str) -> str | None:
+    """The stage tolerances of a distributed fit (:data:`~distnav.models.uwb.field_fits.STAGE_TOLERANCES`), unless
+    ``opts.staged_tolerances`` is off (every fit to the solver's own)."""
+    return stage if opts.staged_tolerances else None
+
+
 def _fitter(
     opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int], last: list[FloatArray]
 ) -> Callable[[Any], Any]:
@@ -324,7 +331,15 @@ def _fitter(
     def fit(sub: Any) -> Any:
         if last:  # a re-fit after an exclusion starts from the last solution, robust loss straight away
             sub = sub.with_initial(last[-1])
-        r = solve_once(sub, key, kw, opts.iterations, exchange=exchange, total=comm, warm=bool(last) and warm_refits)
+        r = solve_once(
+            sub,
+            key,
+            kw,
+            opts.iterations,
+            exchange=exchange,
+            total=comm,
+            warm=bool(last) and warm_refits,
+        )
         if r.usable and np.all(np.isfinite(r.estimates)):
             last.append(np.asarray(r.estimates, float))
         return r
@@ -451,6 +466,7 @@ def solve_field(
                 exchange=exchange,
                 total=total,
                 first=True,
+                stage=_stage(given, "seed"),
             )
             best = np.asarray(first_fit.estimates, float) if first_fit.usable else None
             marks["first_fit"] = (total[1], total[2])
@@ -464,6 +480,7 @@ def solve_field(
                 opts.iterations,
                 exchange=exchange,
                 total=total,
+                stage=_stage(given, "seed"),
             )
             starts.append(best)
             marks["tighten"] = (total[1], total[2])
