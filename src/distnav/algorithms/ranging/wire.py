@@ -50,9 +50,11 @@ __all__ = [
     "pack_half",
     "unpack_half",
     "reduction_cost",
+    "CG_SCALAR_DTYPE",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
+CG_SCALAR_DTYPE: type[np.floating] = np.float32  # the LM phase's CG dot products on the wire (item 4)
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -157,13 +159,13 @@ def unpack_half(packed: np.ndarray, m: int) -> np.ndarray:
     return np.asarray(np.ldexp(vals, e[:, None]))
 
 
-def reduction_cost(n_anchors: int, reductions: int, reduced_floats: int) -> tuple[int, int]:
+def reduction_cost(n_anchors: int, reductions: int, reduced_bytes: int) -> tuple[int, int]:
     """Messages and bytes of ``reductions`` network totals as spanning-tree all-reductions (up to a root and back
-    down: ``2(n − 1)`` messages each, every message carrying the reduced floats, float64): ``reduced_floats`` is
-    their sum over the reductions (per anchor). The exchange computes these totals by gathering every anchor's row
+    down: ``2(n − 1)`` messages each, every message carrying the reduced values): ``reduced_bytes`` is their size
+    summed over the reductions (per anchor). The exchange computes these totals by gathering every anchor's row
     (``gather_nodes``, so that in-process and MPI agree bit for bit); a deployment sends this."""
     per = 2 * max(n_anchors - 1, 0)
-    return reductions * per, 8 * reduced_floats * per
+    return reductions * per, reduced_bytes * per
 
 
 def comm_mark(ex: Exchange) -> tuple[int, int]:
