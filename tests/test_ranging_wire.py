@@ -185,3 +185,12 @@ def test_lm_phase_reductions_are_counted_and_float32_scalars_halve_them(hall, mo
     per64 = got[np.float64]["reduction_bytes"] / got[np.float64]["reductions"]
     per32 = got[np.float32]["reduction_bytes"] / got[np.float32]["reductions"]
     assert 0.5 <= per32 / per64 < 0.65
+
+
+def test_float16_directions_only_up_to_half_max_anchors(monkeypatch):
+    """float16 directions up to HALF_MAX_ANCHORS anchors, float32 above (CG needed twice the iterations in float16
+    at 3,000 and 10⁴ anchors); a float32 or float64 choice is kept at every size."""
+    assert wire.cg_wire_dtype(wire.HALF_MAX_ANCHORS) == np.float16
+    assert wire.cg_wire_dtype(wire.HALF_MAX_ANCHORS + 1) == np.float32
+    monkeypatch.setattr(wire, "CG_WIRE_DTYPE", np.float64)
+    assert wire.cg_wire_dtype(28) == np.float64 and wire.cg_wire_dtype(10**4) == np.float64

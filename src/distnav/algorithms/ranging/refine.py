@@ -151,6 +151,7 @@ def refine(
     free[:, :dim] = problem.free[ex.nodes]
     free_nb = np.ones((samp.size, P), bool)
     free_nb[:, :dim] = problem.free[other]
+    wire_dtype = wire.cg_wire_dtype(problem.n_anchors)
     prior = 1.0 / offset_prior_sigma_m**2 if per else 0.0
     x = np.zeros((nl, P))
     x[:, :dim] = own_m
@@ -208,7 +209,7 @@ def refine(
                 damp_c = mu * max(dc, 1e-12)
                 pre_inv = block_preconditioner(own_block, damp, free)
                 system = NormalSystem(
-                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, wire.CG_WIRE_DTYPE
+                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, wire_dtype
                 )
                 dxk, dck, its = pcg(
                     system,
