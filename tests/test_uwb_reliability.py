@@ -1,6 +1,7 @@
 """External reliability (redundancy numbers, MDB, the worst undetected shift) for the distributed solvers of
 ``uwb solve`` (issue 28, item 5), computed by every anchor from its neighbourhood's link records
-(:data:`~distnav.models.uwb.reliability.LOCAL_HOPS` hops, which span this 16-anchor hall): the same numbers as LM's
+(:data:`~distnav.models.uwb.reliability.LOCAL_HOPS` hops, which span this 16-anchor hall; the path where σ is not
+gathered) or at the anchor that gathered the ranges for σ (the default up to 100 anchors): the same numbers as LM's
 where the network and the solution are the same."""
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ from distnav.models.uwb.field import FieldOptions
 from distnav.models.uwb.hall import simulate_hall
 
 
+@pytest.mark.parametrize("precision", ["central", "auto"])
 @pytest.mark.parametrize("solver", ["N-CLM", "N-CSG-TBLS"])
-def test_distributed_reliability_equals_lms_on_the_same_network(tmp_path, solver) -> None:
+def test_distributed_reliability_equals_lms_on_the_same_network(tmp_path, solver, precision) -> None:
     h = simulate_hall(
         np.random.default_rng([31, 4]),
         n_anchors=16,
@@ -29,15 +31,22 @@ def test_distributed_reliability_equals_lms_on_the_same_network(tmp_path, solver
     runs = {}
     for name in ("LM", solver):
         sol, _, s = solve_range_log(
-            f["ranges"], f["known"], heights=f["heights"], options=FieldOptions(solver=name, iterations=800)
+            f["ranges"],
+            f["known"],
+            heights=f["heights"],
+            options=FieldOptions(solver=name, iterations=800, distributed_precision=precision),
         )
         runs[name] = (sol, s)
     (lm, s_lm), (dist, s_d) = runs["LM"], runs[solver]
     assert np.array_equal(lm.excluded, dist.excluded)  # the same network
     assert np.max(np.abs(lm.positions_m - dist.positions_m)) < 1e-3  # the same solution (the final LM phase)
     a, b = s_lm["reliability"], s_d["reliability"]
-    assert a["tested"] and b["tested"] and "neighbourhood" in b["computed"] and b["bytes"] > 0
-    assert b["largest_subnetwork"] == int(dist.problem.estimated.sum())  # a neighbourhood spans the network
+    assert a["tested"] and b["tested"] and b["bytes"] > 0
+    if precision == "central":  # σ by CG over the network: every anchor floods its neighbourhood's link records
+        assert "neighbourhood" in b["computed"]
+        assert b["largest_subnetwork"] == int(dist.problem.estimated.sum())  # a neighbourhood spans the network
+    else:  # σ gathered at one anchor: the numbers computed there and sent back (a few hundred bytes, no message)
+        assert "gathered" in b["computed"] and b["messages"] == 0 and b["bytes"] < 2_000
     assert set(a["shift_m"]) == set(b["shift_m"])
     for k, v in a["shift_m"].items():
         assert (v is None) == (b["shift_m"][k] is None)

@@ -505,6 +505,7 @@ def solve_field(
             ),
             limit_m=opts.reliability_limit_m,
             exchange=None if exchange is None else exchange(kept),
+            gathered=prec_out.kind == "gathered",
         )
         reasons.update({k: v for k, v in rel_weak.items() if k not in reasons})
         note += rel_note

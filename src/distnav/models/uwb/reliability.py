@@ -43,7 +43,10 @@ from distnav.algorithms.ranging.reliability import (
     local_reliability,
 )
 from distnav.errors import ModelError
+from distnav.models.uwb.communication import range_bytes_per_anchor
 from distnav.models.uwb.problems import RangingProblem
+from distnav.network.gather import gather_cost
+from distnav.network.graph import Graph
 from distnav.typing import BoolArray, FloatArray
 
 __all__ = [
@@ -181,11 +184,16 @@ def check_reliability(
     limit_m: float,
     exchange: Any = None,
     hops: int = LOCAL_HOPS,
+    gathered: bool = False,
 ) -> tuple[dict[str, str], dict[str, Any], str]:
     """:func:`external_reliability` and :func:`reliability_weak` on ``problem`` (the kept links): of an LM result
     centrally; of a distributed solver's by every anchor from its ``hops``-hop neighbourhood through ``exchange``
     (:func:`~distnav.algorithms.ranging.reliability.local_reliability`; None: in-process), its messages and bytes
-    in the entry. Returns ``(weak anchors with reasons, the summary.json entry, a note for the message)``."""
+    in the entry. ``gathered``: the run's σ already gathered every kept range and estimate at one anchor
+    (``models.uwb.field_precision.gathered_precision``), which then computes the numbers exactly as LM's on this
+    network and sends each anchor its own back with its covariance block (:func:`gathered_return_bytes`) —
+    a 4-hop flood would cost a thousand times that on a plant-like hall (docs/economy_uwb.md). Returns ``(weak
+    anchors with reasons, the summary.json entry, a note for the message)``."""
     if problem.n_free > MAX_FREE:
         return (
             {},
@@ -202,6 +210,10 @@ def check_reliability(
         computed = "centrally on LM's solution"
     elif getattr(result, "estimates", None) is None:
         return {}, {"tested": False}, "; external reliability not tested (the solver gives no estimates)"
+    elif gathered:
+        rel = external_reliability(problem, distributed_free_vector(problem, result), options)
+        computed = "at the anchor that gathered the ranges for σ (the same numbers as LM's on this network)"
+        cost = {"rounds": 0, "messages": 0, "bytes": gathered_return_bytes(problem)}
     else:
         off = getattr(result, "offsets_m", None)
         try:
@@ -231,3 +243,18 @@ def check_reliability(
         for i in np.flatnonzero(problem.estimated)
     }
     return weak, entry, ""
+
+
+#: What each estimated anchor gets back from the gathering anchor: its worst undetected-link shift (one value per
+#: axis) and the smallest MDB of its links, float64.
+RETURN_VALUES = 4
+
+
+def gathered_return_bytes(problem: RangingProblem) -> int:
+    """Bytes that carry every estimated anchor's reliability numbers (:data:`RETURN_VALUES` float64) from the
+    anchor that gathered the ranges down the same shortest-path tree, relayed hop by hop; they ride on the
+    gathered σ's messages down (no message of their own)."""
+    graph = Graph.from_links(problem.n_anchors, problem.links)
+    sink = gather_cost(graph, range_bytes_per_anchor(problem)).sink
+    per_anchor = 8 * RETURN_VALUES * problem.estimated.astype(np.int64)
+    return int(gather_cost(graph, per_anchor, sink=sink).total_hop_bytes)
