@@ -100,7 +100,9 @@ def codebias_scenario(n_nodes: int, seed: int = 0, *, epochs: int = 20, rho: flo
     sc = synthetic_gps_constellation()
     orbit = sc.subset(sc.l5_svs)
     t = sc.epoch_gps_s + EPOCH_S * np.arange(epochs)
-    data = simulate_codebias_data(xyz, orbit, t, orbit.svs, rng=rng, options=CodeBiasSimulation(reference=0)).estimable_subset()
+    data = simulate_codebias_data(
+        xyz, orbit, t, orbit.svs, rng=rng, options=CodeBiasSimulation(reference=0)
+    ).estimable_subset()
     data.check()
     algo = {"name": "admm", "rho": rho, "max_iterations": 400, "tol": 1e-10}
     return Scenario(graph, "admm", algo, problem=data.linear_problem(per_epoch=True))

@@ -211,7 +211,9 @@ def check_reliability(
     elif getattr(result, "estimates", None) is None:
         return {}, {"tested": False}, "; external reliability not tested (the solver gives no estimates)"
     elif gathered:
-        rel = external_reliability(problem, distributed_free_vector(problem, result), options)
+        x_free = distributed_free_vector(problem, result)
+        assert x_free is not None  # the result has estimates (the branch above)
+        rel = external_reliability(problem, x_free, options)
         computed = "at the anchor that gathered the ranges for σ (the same numbers as LM's on this network)"
         cost = {"rounds": 0, "messages": 0, "bytes": gathered_return_bytes(problem)}
     else:
