@@ -101,3 +101,102 @@ def test_broadcast_orbits_reproduce_bele_pseudoranges(shared_data: Path, system:
     n = np.isfinite(res).sum(axis=0)
     assert (n > 10).sum() >= 4, f"{system}: too few satellites above 20°"
     assert np.nanmax(np.abs(res)) < 15.0, dict(zip(svs, np.nanmax(np.abs(res), axis=0).round(1), strict=True))
+
+
+def _whitespace_dsbs(path: Path, obs1: str, obs2: str) -> tuple[dict[str, float], dict[tuple[str, str], float]]:
+    """A second parser of a Bias-SINEX file (gzip too): whitespace tokens of +BIAS/SOLUTION only (10 tokens =
+    satellite line, 11 = station line); satellite and (station, system) DSBs ``obs1 − obs2`` [ns]."""
+    import gzip
+
+    raw = path.read_bytes()
+    text = (gzip.decompress(raw) if raw[:2] == b"\x1f\x8b" else raw).decode("latin-1")
+    inside, sat, sta = False, {}, {}
+    for ln in text.splitlines():
+        if ln.startswith("+BIAS/SOLUTION"):
+            inside = True
+        elif ln.startswith("-BIAS/SOLUTION"):
+            inside = False
+        elif inside and ln.startswith(" DSB"):
+            tok = ln.split()
+            if len(tok) == 10 and (tok[3], tok[4]) == (obs1, obs2):
+                sat[tok[2]] = float(tok[8])
+            elif len(tok) == 11 and (tok[4], tok[5]) == (obs1, obs2):
+                sta[(tok[3], tok[1])] = float(tok[9])
+    return sat, sta
+
+
+def _rms_zero_mean(a: dict[str, float], b: dict[str, float]) -> tuple[float, int]:
+    common = sorted(set(a) & set(b))
+    d = np.array([a[s] - b[s] for s in common])
+    return float(np.sqrt(np.mean((d - d.mean()) ** 2))), len(common)
+
+
+def test_compare_reports_each_system(shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``gnss compare`` of CAS day 010 against CAS day 011: one table per system, each RMS as the whitespace
+    parser's (CAS's own day-to-day repeatability: Galileo C1C−C5Q 0.18 ns, BeiDou C2I−C6I 0.11 ns)."""
+    import json
+
+    from distnav.cli import main
+
+    cas10, cas11 = (shared_data / IGS / f"CAS0OPSRAP_202401{d}0000_01D_01D_DCB.BIA.gz" for d in ("0", "1"))
+    rc = main(
+        ["gnss", "compare", "--estimates", str(cas10), "--bias", str(cas11), "--allow-other-day"]
+        + ["--out", str(tmp_path)]
+    )
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "--- Galileo (25 satellites) ---" in out and "--- BeiDou (42 satellites) ---" in out
+    result = json.loads((tmp_path / "comparison.json").read_text())
+    assert list(result["systems"]) == ["G", "R", "E", "C", "J"]
+    for system, (o1, o2) in {"E": ("C1C", "C5Q"), "C": ("C2I", "C6I"), "R": ("C1C", "C1P")}.items():
+        r = result["systems"][system]
+        assert r["codes"] == [o1, o2]
+        (cmp,) = r["products"].values()
+        a, b = (
+            {k: v for k, v in _whitespace_dsbs(f, o1, o2)[0].items() if k[0] == system} for f in (cas10, cas11)
+        )  # (GPS satellites have C1C−C5Q DSBs too)
+        ref, n = _rms_zero_mean(a, b)
+        assert cmp["n"] == n and cmp["rms_zero_mean_ns"] == pytest.approx(ref, abs=1e-9)
+    assert result["codes"] == result["systems"]["G"]["codes"]  # the first table stays GPS's, as before
+
+
+def test_galileo_dsbs_from_bele(shared_data: Path, tmp_path: Path) -> None:
+    """``gnss ionosphere --system E`` on BELE (8 h): Galileo C1X−C5X satellite and receiver DSBs, written with the
+    receiver's system letter E, compared with CAS by our own whitespace parse. One equatorial station: the
+    ionosphere and the DSBs separate poorly (GPS C1C−C5X from BELE alone: 2.2 ns RMS vs CAS on the full day),
+    so the bound is loose; a wrong frequency factor (E5b's) or a sign error gives ≥ 5 ns."""
+    from distnav.cli import main
+    from distnav.formats.gnss.product_files import read_estimates
+
+    cas = shared_data / IGS / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"
+    rc = main(
+        ["gnss", "ionosphere", "--system", "E", "--obs", str(shared_data / BELE), "--nav", str(shared_data / BRDC)]
+        + ["--l1-code", "C1X", "--l2-code", "C5X", "--tlim", "2024-01-10T00:00", "2024-01-10T08:00"]
+        + ["--out", str(tmp_path / "gal"), "--no-progress", "--kn", "0"]
+    )
+    assert rc == 0
+    sat_cas, sta_cas = _whitespace_dsbs(cas, "C1X", "C5X")
+    ours_sat, ours_sta = _whitespace_dsbs(tmp_path / "gal" / "distnav_dsb.bia", "C1X", "C5X")
+    assert set(ours_sat) and all(s.startswith("E") for s in ours_sat)
+    assert set(ours_sta) == {("BELE", "E")}  # the receiver's Galileo DSB, system letter E
+    rms, n = _rms_zero_mean(ours_sat, sat_cas)
+    assert n >= 8 and rms < 2.5, (n, rms)
+    est = read_estimates(tmp_path / "gal" / "distnav_dsb.bia", system="E")
+    assert (est.obs1, est.obs2) == ("C1X", "C5X") and est.satellite == pytest.approx(ours_sat, abs=1e-4)
+    # the receiver DSB after the same datum shift as the satellites: within a few ns of CAS's +9.97 ns
+    common = sorted(set(ours_sat) & set(sat_cas))
+    shift = float(np.mean([ours_sat[s] - sat_cas[s] for s in common]))
+    assert abs(ours_sta[("BELE", "E")] + shift - sta_cas[("BELE", "E")]) < 7.0
+
+
+def test_system_option_checks_codes_first(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from distnav.cli import main
+
+    base = ["gnss", "ionosphere", "--system", "E", "--obs", str(shared_data / BELE), "--nav", str(shared_data / BRDC)]
+    assert main([*base, "--l2-code", "C2W", "--out", str(tmp_path / "x")]) == 2
+    assert "--l2-code C2W: not a Galileo E5a, E5b or E5 code" in capsys.readouterr().err
+    assert main([*base, "--l2-code", "C5X", "--exclude", "G05", "--out", str(tmp_path / "x")]) == 2
+    assert "--exclude G05: neither a Galileo satellite" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

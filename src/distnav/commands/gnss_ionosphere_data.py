@@ -45,13 +45,15 @@ def network_data(
     c1_corrections: str | None = None,
     tec_rw_m_per_sqrt_s: float | None = None,
     min_satellite_obs: int | None = None,
+    system: str = "G",
     **model: Any,
 ) -> Any:
     """Read the stations, form the geometry-free code on the union of their epochs and build the bias model
     (:func:`distnav.models.gnss.gfnetwork.bias_network_model`). ``exclude``: satellites (``G01``) and stations
     (``BELE``) left out. ``levelling``: carrier-to-code levelling per arc on the full-rate data, then the
     ``interval_s`` grid (:func:`~distnav.models.gnss.levelling.level_station`; ``screen`` runs each station's
-    w-test screening of its own code). Errors name the file: unreadable files, missing code types, a station
+    w-test screening of its own code). ``system``: the satellite system read (``G``, or ``E`` Galileo).
+    Errors name the file: unreadable files, missing code types, a station
     without any epoch with both codes."""
     from distnav.formats.gnss.rinex import read_stations
 
@@ -64,6 +66,7 @@ def network_data(
         phases=levelling,
         progress=progress,
         l1_fallback="C1W" if c1_corrections else None,
+        system=system,
     )
     own = {o.station: dict(o.codes) for o in obs}  # the receivers' own codes (their DSBs' code pair)
     if c1_corrections:

@@ -414,8 +414,9 @@ def write_bias_sinex(
         if known(v, sd)
     ]
     own = station_codes or {}
+    system = next(iter(sorted(satellites)), "G")[:1]  # a station's DSB belongs to the satellites' system
     rows += [
-        _solution_line("G", "G", sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
+        _solution_line(system, system, sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
         for sta, (v, sd) in sorted(stations.items())
         if known(v, sd)
     ]

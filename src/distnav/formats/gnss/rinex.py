@@ -365,9 +365,11 @@ def read_stations(
     phases: bool = False,
     progress: ProgressCallback | None = None,
     l1_fallback: str | None = None,
+    system: str = "G",
 ) -> list[CodeObservations]:
-    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of every station; a file without
-    ``l1_code`` on L1 is read with ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
+    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of one system (``system``: GPS,
+    or ``E`` Galileo from RINEX 3 files) of every station; a file without ``l1_code`` on L1 is read with
+    ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
     if not paths:
         raise DataFileError("no observation file given")
     band = int(l2_code[1])
@@ -376,7 +378,14 @@ def read_stations(
     def read(p: str | Path) -> CodeObservations:
         try:
             return read_code_observations(
-                p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s, phases=phases, progress=progress
+                p,
+                bands=(1, band),
+                codes=codes,
+                tlim=tlim,
+                interval_s=interval_s,
+                phases=phases,
+                progress=progress,
+                system=system,
             )
         except DataFileError as exc:
             if l1_fallback is None or "no L1 code observation" not in str(exc):
@@ -389,6 +398,7 @@ def read_stations(
             interval_s=interval_s,
             phases=phases,
             progress=progress,
+            system=system,
         )
 
     obs = [read(p) for p in paths]
