@@ -372,9 +372,10 @@ _MAX_PRN_OTHER = 64
 
 
 class _Scan:
-    """One pass over a file's observation records: the epochs kept and, per epoch, a (PRN, type) table of values
-    and loss-of-lock indicators of one system. ``k`` (the line being read) and ``epoch`` name the place of an
-    error (:class:`_Bad`)."""
+    """One pass over a file's observation records: the epochs kept and every non-blank value of the requested
+    types of one system, collected as flat lists (epoch, PRN, type, value, loss-of-lock) and put into arrays once
+    at the end (:meth:`result`). ``k`` (the line being read) and ``epoch`` name the place of an error
+    (:class:`_Bad`)."""
 
     def __init__(
         self,
@@ -388,6 +389,7 @@ class _Scan:
     ) -> None:
         self.path, self.lines, self.hdr, self.columns, self.system = path, lines, hdr, columns, system
         self.progress, self.name = progress, name
+        self.types = [hdr.types_of(system)[c] for c in columns]
         self.n_prn = _MAX_PRN.get(system, _MAX_PRN_OTHER)
         self.k = hdr.header_lines
         self.epoch: np.datetime64 | None = None
@@ -395,8 +397,7 @@ class _Scan:
         self.hi: Any = None
         self.step_ns = 0
         self.times: list[np.datetime64] = []
-        self.rows: list[np.ndarray] = []
-        self.lrows: list[np.ndarray] = []
+        self.cells: tuple[list[int], list[int], list[int], list[float], list[int]] = ([], [], [], [], [])
 
     def select(self, tlim: tuple[np.datetime64, np.datetime64] | None, interval_s: float | None) -> None:
         if tlim is not None:
@@ -413,14 +414,37 @@ class _Scan:
                 next_report += 0.1
             epoch_record(lines[self.k])
 
-    def _table(self) -> tuple[np.ndarray, np.ndarray]:
-        nt = len(self.columns)
-        return np.full((self.n_prn, nt), np.nan), np.zeros((self.n_prn, nt), np.int8)
-
-    def _keep(self, t: np.datetime64, vals: np.ndarray, lli: np.ndarray) -> None:
-        self.times.append(t)
-        self.rows.append(vals)
-        self.lrows.append(lli)
+    def _line(self, line: str, starts: Sequence[int], prn: int) -> None:
+        """The values of one satellite's line(s) at the field ``starts`` (one per requested type; -1: not on
+        this line) into :attr:`cells`."""
+        t = len(self.times)
+        ti, pi, ji, vi, li = self.cells
+        for j, a in enumerate(starts):
+            if a < 0:
+                continue
+            f = line[a : a + 14]
+            if not f or f.isspace():
+                continue
+            try:
+                if len(f) != 14 or f[10] != ".":
+                    raise ValueError
+                value = float(f)
+            except ValueError:
+                raise _Bad(
+                    f"{self.types[j]} of {self.system}{prn:02d} (columns {a + 1}-{a + 14}): expected a number in "
+                    f"F14.3 (e.g. '  22000000.123'), got {f!r}"
+                ) from None
+            ll = line[a + 14 : a + 15]
+            if ll and ll != " " and not "0" <= ll <= "9":
+                raise _Bad(
+                    f"loss-of-lock indicator of {self.types[j]}, {self.system}{prn:02d} (column {a + 15}): "
+                    f"expected a digit 0-7, got {ll!r}"
+                )
+            ti.append(t)
+            pi.append(prn)
+            ji.append(j)
+            vi.append(value)
+            li.append(ord(ll) - 48 if ll and ll != " " else 0)
 
     def _rinex3_epoch(self, line: str) -> None:
         """One RINEX 3 epoch (``>`` line, one line per satellite), from the line ``k``."""
@@ -439,25 +463,19 @@ class _Scan:
         self.k = start + nsat
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
-        vals, lli = self._table()
         system = self.system
+        starts = [3 + 16 * c for c in self.columns]
         for i, sl in enumerate(sat_lines):
+            self.k = start + i
             if sl[:1] != system or not sl[1:3].strip().isdigit():
                 if not (sl[:1].isalpha() and sl[1:3].strip().isdigit()):
-                    self.k = start + i
                     raise _Bad(
                         f"expected a satellite line starting with its id (e.g. G01) in columns 1-3, got {sl[:12]!r}"
                     )
                 continue
-            self.k = start + i
-            prn = _prn(sl[1:3], system, self.n_prn)
-            for j, c in enumerate(self.columns):
-                _value(sl, 3 + 16 * c, vals, lli, prn, j, self._type(j), system)
+            self._line(sl, starts, _prn(sl[1:3], system, self.n_prn))
         self.k = start + nsat
-        self._keep(t, vals, lli)
-
-    def _type(self, j: int) -> str:
-        return self.hdr.types_of(self.system)[self.columns[j]]
+        self.times.append(t)
 
     def _rinex2_epoch(self, line: str) -> None:
         """One RINEX 2 epoch (satellite list on the epoch line and its continuations, ⌈types/5⌉ lines per
@@ -493,26 +511,31 @@ class _Scan:
         self.k = start + nsat * n_per_sat
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
-        vals, lli = self._table()
+        per_line = [[16 * (c % 5) if c // 5 == r else -1 for c in self.columns] for r in range(n_per_sat)]
+        used = [r for r in range(n_per_sat) if any(a >= 0 for a in per_line[r])]
         for s, sv in enumerate(sats):
             if sv[:1] not in ("G", " "):
                 continue
             self.k = k0  # a bad satellite list is on the epoch line (or its continuation)
             prn = _prn(sv[1:3], "G", self.n_prn)
-            for j, c in enumerate(self.columns):
-                self.k = start + s * n_per_sat + c // 5
-                _value(block[s * n_per_sat + c // 5], 16 * (c % 5), vals, lli, prn, j, self._type(j), "G")
+            for r in used:
+                self.k = start + s * n_per_sat + r
+                self._line(block[s * n_per_sat + r], per_line[r], prn)
         self.k = start + nsat * n_per_sat
-        self._keep(t, vals, lli)
+        self.times.append(t)
 
     def result(self, tlim: Any) -> RawObservations:
         """The epochs kept and the satellites seen with any of the types (PRN order)."""
-        p, name = self.path, SYSTEM_NAMES.get(self.system, self.system)
-        types = [self._type(j) for j in range(len(self.columns))]
+        p, name, types = self.path, SYSTEM_NAMES.get(self.system, self.system), self.types
         if not self.times:
             raise DataFileError(f"{p}: no {name} observation epochs" + (f" in {tlim}" if tlim is not None else ""))
-        V = np.stack(self.rows)  # (T, PRN, types)
-        L = np.stack(self.lrows)
+        shape = (len(self.times), self.n_prn, len(types))
+        V = np.full(shape, np.nan)  # (T, PRN, types)
+        L = np.zeros(shape, np.int8)
+        ti, pi, ji, vi, li = (np.asarray(c) for c in self.cells)
+        if ti.size:
+            V[ti, pi, ji] = vi
+            L[ti, pi, ji] = li
         seen = np.flatnonzero(np.isfinite(V).any(axis=(0, 2)))
         if seen.size == 0:
             raise DataFileError(f"{p}: no {name} satellites observed with {' '.join(types)}")
@@ -564,34 +587,6 @@ def _epoch(year: str, month: str, day: str, hour: str, minute: str, second: str)
 def _complete(have: int, need: int, what: str) -> None:
     if have < need:
         raise _Bad(f"the epoch announces {need} {what}, the file ends after {have}: the file is truncated")
-
-
-def _value(
-    line: str, start: int, vals: np.ndarray, lli: np.ndarray, prn: int, j: int, obs_type: str, system: str = "G"
-) -> None:
-    """One F14.3 observation (columns ``start``+1..+14) and its loss-of-lock digit into ``vals``/``lli``."""
-    f = line[start : start + 14]
-    if not f.strip():
-        return
-    ok = len(f) == 14 and f[10] == "."
-    try:
-        value = float(f) if ok else 0.0
-    except ValueError:
-        ok = False
-    if not ok:
-        raise _Bad(
-            f"{obs_type} of {system}{prn:02d} (columns {start + 1}-{start + 14}): expected a number in F14.3 "
-            f"(e.g. '  22000000.123'), got {f!r}"
-        )
-    vals[prn, j] = value
-    ll = line[start + 14 : start + 15]
-    if ll.strip():
-        if not ll.isdigit():
-            raise _Bad(
-                f"loss-of-lock indicator of {obs_type}, {system}{prn:02d} (column {start + 15}): expected a digit "
-                f"0-7, got {ll!r}"
-            )
-        lli[prn, j] = int(ll)
 
 
 def on_grid(time: np.ndarray, interval_s: float) -> np.ndarray:
