@@ -70,9 +70,9 @@ class RinexHeader:
     glonass_channels: dict[str, int] = field(default_factory=dict)
 
     def types_of(self, system: str) -> tuple[str, ...]:
-        """The observation types of one system (RINEX 2: every type is shared, and only GPS is read)."""
+        """The observation types of one system (RINEX 2: every type is shared; GPS and Galileo are read)."""
         if self.version < 3:
-            return self.gps_types if system == "G" else ()
+            return self.gps_types if system in RINEX2_SYSTEMS else ()
         return self.types_by_system.get(system, ())
 
 
@@ -308,7 +308,8 @@ def read_observation_types(
     system: str = "G",
 ) -> RawObservations:
     """Read the observations of ``types`` of one satellite system (``system``: ``G`` GPS, ``E`` Galileo, ``C``
-    BeiDou, ``R`` GLONASS, … — RINEX 3 only for systems other than GPS), names as in the file: RINEX 3 ``C1C``,
+    BeiDou, ``R`` GLONASS, … — RINEX 3 only for systems other than GPS and Galileo), names as in the file: RINEX
+    3 ``C1C``,
     RINEX 2 ``C1``/``P2``….
 
     ``tlim`` (inclusive datetime64 bounds) and ``interval_s`` (keep epochs whose time of day is a multiple) select
@@ -356,7 +357,7 @@ def observations_from_lines(
 def _type_columns(p: Path, hdr: RinexHeader, types: Sequence[str], system: str) -> list[int]:
     """The index of each requested type among the system's types in the header, or the error naming the missing."""
     name = SYSTEM_NAMES.get(system, system)
-    if system != "G" and hdr.version < 3:
+    if system not in RINEX2_SYSTEMS and hdr.version < 3:
         raise DataFileError(f"{p}: {name} observations are read from RINEX 3 files only (this file is RINEX 2)")
     have = hdr.types_of(system)
     missing = [t for t in types if t not in have]
@@ -366,6 +367,9 @@ def _type_columns(p: Path, hdr: RinexHeader, types: Sequence[str], system: str) 
         )
     return [have.index(t) for t in types]
 
+
+RINEX2_SYSTEMS = ("G", "E")
+"""Systems read from RINEX 2.11 files (their satellites share the file's types: ``C1``, ``C5``…)."""
 
 _MAX_PRN = {"G": _N_PRN}  # GPS keeps its 1-39 (test PRNs above 32); other systems up to 63 (BeiDou C01-C63)
 _MAX_PRN_OTHER = 64
@@ -514,10 +518,10 @@ class _Scan:
         per_line = [[16 * (c % 5) if c // 5 == r else -1 for c in self.columns] for r in range(n_per_sat)]
         used = [r for r in range(n_per_sat) if any(a >= 0 for a in per_line[r])]
         for s, sv in enumerate(sats):
-            if sv[:1] not in ("G", " "):
+            if sv[:1] != self.system and not (self.system == "G" and sv[:1] == " "):
                 continue
             self.k = k0  # a bad satellite list is on the epoch line (or its continuation)
-            prn = _prn(sv[1:3], "G", self.n_prn)
+            prn = _prn(sv[1:3], self.system, self.n_prn)
             for r in used:
                 self.k = start + s * n_per_sat + r
                 self._line(block[s * n_per_sat + r], per_line[r], prn)
