@@ -180,7 +180,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     orbit: Any = (
         read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0, systems=(system,))
         if args.nav
-        else read_sp3(args.sp3)
+        else read_sp3(args.sp3, system=system)
     )
     tlim = tuple(args.tlim) if args.tlim else None
 
@@ -489,8 +489,8 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         "--system",
         choices=sorted(_SYSTEM_CODES),
         default="G",
-        help="satellite system: G (GPS, default) or E (Galileo, RINEX 3 observations, e.g. --l1-code C1X "
-        "--l2-code C5X; orbits from a mixed --nav file)",
+        help="satellite system: G (GPS, default) or E (Galileo: RINEX 3 or RINEX 2.11 mixed observations, e.g. "
+        "--l1-code C1X --l2-code C5X; orbits from a mixed --nav file or a multi-GNSS --sp3)",
     )
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_ionosphere)

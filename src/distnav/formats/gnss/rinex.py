@@ -339,8 +339,9 @@ def read_navigation(
     return BroadcastOrbit.from_records(columns, max_age_s=max_age_s, source=str(p))
 
 
-def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3Orbit:
-    """GPS orbits of one or more SP3 files (consecutive days are concatenated), Lagrange-interpolated."""
+def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9, system: str = "G") -> SP3Orbit:
+    """The orbits of one system (GPS by default; ``E`` Galileo, ``C`` BeiDou of a multi-GNSS product) of one or
+    more SP3 files (consecutive days are concatenated), Lagrange-interpolated."""
     items = [paths] if isinstance(paths, (str, Path)) else list(paths)
     gr = _georinex()
     datasets = []
@@ -368,7 +369,7 @@ def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3
         if ds is None or "position" not in getattr(ds, "data_vars", {}):
             raise DataFileError(f"{p}: not an SP3 orbit file")
         datasets.append(ds)
-    return SP3Orbit.from_datasets(datasets, order=order, source=", ".join(str(i) for i in items))
+    return SP3Orbit.from_datasets(datasets, system=system, order=order, source=", ".join(str(i) for i in items))
 
 
 def read_stations(
