@@ -182,7 +182,7 @@ def _ionosphere_run(
     from distnav.commands.gnss import default_graph
     from distnav.commands.gnss_ionosphere import network_from_observations
     from distnav.formats.gnss.rinex import read_navigation, read_stations
-    from distnav.models.gnss.gfnetwork import run_bias_filters
+    from distnav.models.gnss.gfnetwork import BiasFilterOptions, run_bias_filters
 
     t0, c0 = time.perf_counter(), time.process_time()
     obs = read_stations(
@@ -206,7 +206,9 @@ def _ionosphere_run(
     data = network_from_observations(obs, nav)
     t_model, c_model = time.perf_counter() - t1, time.process_time() - c1
     t2, c2 = time.perf_counter(), time.process_time()
-    series, _ = run_bias_filters(data, graph=default_graph(data.positions_ecef_m, data.stations), kn=4)
+    series, _ = run_bias_filters(
+        data, BiasFilterOptions(kn=4), graph=default_graph(data.positions_ecef_m, data.stations)
+    )
     t_filt, c_filt = time.perf_counter() - t2, time.process_time() - c2
     total, c_total = time.perf_counter() - t0, time.process_time() - c0
     T, p, n_rows = data.series.n_epochs, data.layout.n_states, len(series)

@@ -31,21 +31,22 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import main_for  # noqa: E402
 from distnav.algorithms.kalman import iterate_information_filter  # noqa: E402
-from distnav.commands.gnss_ionosphere import network_from_observations  # noqa: E402
+from distnav.commands.gnss_ionosphere import NetworkOptions, network_from_observations
+from distnav.models.gnss.biasmodel import BiasModelOptions  # noqa: E402
 from distnav.models.gnss.gfbias import gf_m_per_dsb_ns  # noqa: E402
-from distnav.models.gnss.gfnetwork import final_dsbs, run_bias_filters, satellite_fit  # noqa: E402
+from distnav.models.gnss.gfnetwork import BiasFilterOptions, final_dsbs, run_bias_filters, satellite_fit  # noqa: E402
 from distnav.models.gnss.ionosphere import (  # noqa: E402
     GeometryFreeSeries,
     IonosphereStateLayout,
     ionosphere_dynamics,
 )
-from distnav.models.gnss.netsim import REALISTIC, VtecField, simulate_network, truth_product  # noqa: E402
+from distnav.models.gnss.netsim import REALISTIC, NetworkSimOptions, VtecField, simulate_network, truth_product  # noqa: E402
 from distnav.models.gnss.orbits import synthetic_gps_constellation  # noqa: E402
 from distnav.models.gnss.products import compare_in_datum  # noqa: E402
 
 SESSIONS = ((0, 6), (6, 12), (12, 18), (18, 24))
 NEW_OPTIONS: dict[str, Any] = {}
-"""Extra :func:`network_from_observations` options of the new default (none: the CLI defaults)."""
+"""Extra :class:`~distnav.models.gnss.biasmodel.BiasModelOptions` of the new default (none: the CLI defaults)."""
 EXCLUDE = ("G01",)
 
 
@@ -69,10 +70,9 @@ def _cut(obs: list[Any], h0: float, h1: float) -> list[Any]:
 def _new(
     obs: list[Any], orbit: Any, options: dict[str, Any] | None = None
 ) -> tuple[dict[str, float], dict[str, float], dict[str, float], Any]:
-    data = network_from_observations(
-        obs, orbit, l2_code="C2W", interval_s=60.0, **(NEW_OPTIONS if options is None else options)
-    )
-    series, _ = run_bias_filters(data, local=False)
+    model = BiasModelOptions(**(NEW_OPTIONS if options is None else options))
+    data = network_from_observations(obs, orbit, NetworkOptions(l2_code="C2W", interval_s=60.0, model=model))
+    series, _ = run_bias_filters(data, BiasFilterOptions(local=False))
     sat, rx, sd = final_dsbs(data, series[0])
     return sat, rx, sd, (series[0], data)
 
@@ -82,7 +82,11 @@ def _old(obs: list[Any], orbit: Any) -> dict[str, float]:
     per epoch), pivot G10 or the most tracked satellite, paper 003's random walk (1 mm/√s), independent epochs, one σ
     for all stations."""
     data = network_from_observations(
-        obs, orbit, l2_code="C2W", interval_s=60.0, arc_correlation_s=0.0, station_weights="off"
+        obs,
+        orbit,
+        NetworkOptions(
+            l2_code="C2W", interval_s=60.0, arc_correlation_s=0.0, model=BiasModelOptions(station_weighting="off")
+        ),
     )
     geo, svs = data.geometry, data.layout.svs
     piv = "G10" if "G10" in svs else svs[int(np.argmax(geo.tracked.sum(axis=(0, 1))))]
@@ -153,11 +157,10 @@ def run(
         sim = simulate_network(
             orbit,
             day,
+            NetworkSimOptions(field=fld, **knobs),
             rng=np.random.default_rng([d, 1]),
-            field=fld,
             satellite_dsb_ns=sat_truth,
             receiver_dsb_ns=rx_truth,
-            **knobs,
         )
         prod = truth_product(sim)
         if "new" in models:
@@ -191,12 +194,10 @@ def run(
             dirty = simulate_network(
                 orbit,
                 day,
+                NetworkSimOptions(field=fld, gross_fraction=0.002, **knobs),
                 rng=np.random.default_rng([d, 1]),
-                field=fld,
                 satellite_dsb_ns=sat_truth,
                 receiver_dsb_ns=rx_truth,
-                gross_fraction=0.002,
-                **knobs,
             )
             g_sat, g_rx, _, _ = _new(dirty.observations, orbit, options)
             common = [s for s in sat if s in g_sat]

@@ -9,13 +9,18 @@ heights given):
   chose wrong (goal 0), and where it chose right;
 * **plant verdict**: plant-like halls (:data:`~distnav.models.uwb.hall.PLANT_LIKE`), known anchors in the middle
   and a corner. Counted: exit codes, and the share of exit-0 runs whose worst anchor is worse than the required
-  accuracy (goal ≤ 1 %); also the share of anchors reported as meeting it that do not (goal: none).
+  accuracy (goal ≤ 1 %); also the share of anchors reported as meeting it that do not (goal: none); σ against
+  the actual error; the halls whose every anchor is within half the required accuracy; the side test's Δ against
+  its critical value on the walls;
+* **reliability from the anchors' neighbourhoods** (issue 28 item 5): 12 plant-like halls solved by N-CLM, the
+  numbers from 2, 3, 4, 6 hops against the central ones (the same weak anchors; bytes).
 
     python benchmarks/bench_uwb_verdict.py [--quick]      # quick: 4 halls per row (default 25 per case: 50 a row)
 """
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import tempfile
@@ -26,7 +31,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import main_for  # noqa: E402
+from _common import RESULTS, main_for  # noqa: E402
 from distnav.commands.uwb import solve_range_log  # noqa: E402
 from distnav.experiments.uwb_field import write_hall  # noqa: E402
 from distnav.models.uwb.hall import PLANT_LIKE, simulate_hall  # noqa: E402
@@ -59,12 +64,24 @@ def _wall(job: tuple[int, float | None]) -> dict[str, Any]:
     main = rmse(sol.positions_m)
     other = rmse(sol.mirror_positions_m) if sol.mirror_positions_m is not None else None
     m = sol.mirror or {}
+    # the test's side A (lower squared residuals on the links both fits kept) and whether it is the truth
+    a_map = main if m.get("written_is_a", True) else other
     return {
+        "seed": seed,
+        "band_m": band,
         "exit": v.exit_code,
         "rmse_m": main,
         "other_m": other,
         "chosen": bool(m.get("chosen")) and m.get("apart_m", 0.0) > 0.5,
+        "tested": bool(m),
         "power": m.get("power"),
+        "delta": m.get("delta"),
+        "critical": m.get("critical"),
+        "noncentrality": m.get("noncentrality"),
+        "apart_m": m.get("apart_m"),
+        "robust_cost_a": m.get("robust_cost_a"),
+        "robust_cost_b": m.get("robust_cost_b"),
+        "a_is_truth": None if a_map is None else bool(a_map < MIRROR_M),
     }
 
 
@@ -80,11 +97,23 @@ def _plant(seed: int) -> dict[str, Any]:
     ids = [p.ids[i] for i in np.flatnonzero(p.estimated)]
     errs = {k: float(err[p.ids.index(k)]) for k in ids}
     meeting = [k for k in ids if k not in v.failing]
+    anchors = [  # per estimated anchor: error and σ on its free coordinates, radius, why it fails (if it does)
+        {
+            "id": k,
+            "error_m": [float(e) for e in (sol.positions_m[i] - p.truth_m[i])[p.free[i]]],
+            "sigma_m": [float(s) for s in sol.sigma_m[i][p.free[i]]],
+            "radius_m": v.accuracy_m.get(k),
+            "failing": v.failing.get(k),
+        }
+        for i, k in ((p.ids.index(k), k) for k in ids)
+    ]
     return {
+        "seed": seed,
         "exit": v.exit_code,
         "worst_m": max(errs.values()),
         "n_meeting": len(meeting),
         "n_meeting_wrong": sum(errs[k] > REQUIRED_ACCURACY_M for k in meeting),
+        "anchors": anchors,
     }
 
 
@@ -104,6 +133,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
     meeting = sum(r["n_meeting"] for r in plant)
     meeting_wrong = sum(r["n_meeting_wrong"] for r in plant)
     codes = {c: sum(r["exit"] == c for r in plant) for c in (0, 1, 3, 4)}
+    write_runs({"wall": wall, "plant": plant})
     return [
         {
             "name": "wall mirror (known anchors on one wall)",
@@ -127,7 +157,151 @@ def run(quick: bool) -> list[dict[str, Any]]:
             "goal": "≤ 1 % of exit-0 runs with an anchor worse than required",
             "meets_goal": (ok_bad / len(ok) if ok else 0.0) <= 0.01,
         },
+        sigma_calibration(plant),
+        margin_row(plant),
+        side_test_row(wall),
+        *reliability_rows(range(2 if quick else 12)),
     ]
+
+
+def _reliability(seed: int) -> list[dict[str, Any]]:
+    """One plant-like hall solved by N-CLM (the command's path); its kept links' reliability computed by the anchors
+    from their neighbourhoods (2, 3, 4, 6 hops) against the central numbers at the same solution and options."""
+    from distnav.algorithms.ranging.reliability import ReliabilityOptions, external_reliability, local_reliability
+    from distnav.models.uwb.field import FieldOptions, subset_measurements
+    from distnav.models.uwb.reliability import distributed_free_vector, reliability_weak
+
+    h = simulate_hall(np.random.default_rng([30, seed]), None, **PLANT_LIKE, known="middle" if seed % 2 else "corner")
+    with tempfile.TemporaryDirectory() as d:
+        f = write_hall(h, d)
+        sol, _, s = solve_range_log(f["ranges"], f["known"], heights=f["heights"], options=FieldOptions(solver="N-CLM"))
+    kept = subset_measurements(sol.problem, ~sol.excluded)
+    res, est = sol.result, kept.estimated
+    x = distributed_free_vector(kept, res)
+    assert x is not None
+    opts = ReliabilityOptions(0.1, s["range_offsets"], "cauchy_long", 0.3, 0.001, 0.1)
+    cen = external_reliability(kept, x, opts)
+    assert cen is not None
+    weak_c = sorted(reliability_weak(kept, cen, sol.sigma_m))
+    out = []
+    for hops in (2, 3, 4, 6):
+        loc = local_reliability(kept, res.estimates, opts, offsets_m=res.offsets_m, hops=hops)
+        lr = loc.as_external()
+        ok = np.isfinite(cen.shift_m[est]) & np.isfinite(lr.shift_m[est])
+        out.append(
+            {
+                "hops": hops,
+                "max_shift_diff_m": float(np.max(np.abs(lr.shift_m[est][ok] - cen.shift_m[est][ok]), initial=0.0)),
+                "r_max_diff": float(np.nanmax(np.abs(loc.r - cen.r))),
+                "weak_same": sorted(reliability_weak(kept, lr, sol.sigma_m)) == weak_c,
+                "all_span": int(loc.subnetwork_anchors[est].min()) == int(est.sum()),
+                "bytes": int(loc.comm.bytes),
+                "solve_bytes": int(sol.bytes),
+            }
+        )
+    return out
+
+
+def reliability_rows(seeds: range) -> list[dict[str, Any]]:
+    """Issue 28 item 5: the anchors' reliability from their neighbourhoods against the central numbers, per hops
+    (docs/uwb.md, "Reliability from the anchors' neighbourhoods")."""
+    with ProcessPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+        per_hall = list(pool.map(_reliability, seeds))
+    rows = []
+    for k, hops in enumerate((2, 3, 4, 6)):
+        r = [hall[k] for hall in per_hall]
+        d = np.array([x["max_shift_diff_m"] for x in r])
+        rows.append(
+            {
+                "name": f"reliability from {hops}-hop neighbourhoods vs central (N-CLM, plant-like)",
+                "halls": len(r),
+                "max_shift_diff_median_m": float(np.median(d)),
+                "max_shift_diff_max_m": float(d.max()),
+                "r_max_diff": max(x["r_max_diff"] for x in r),
+                "weak_as_central": sum(x["weak_same"] for x in r),
+                "every_neighbourhood_spans": sum(x["all_span"] for x in r),
+                "bytes_median": float(np.median([x["bytes"] for x in r])),
+                "share_of_solve_bytes": float(np.median([x["bytes"] / x["solve_bytes"] for x in r])),
+                "goal": "the same weak anchors as the central computation",
+                "meets_goal": all(x["weak_same"] for x in r),
+            }
+        )
+    return rows
+
+
+def write_runs(runs: dict[str, list[dict[str, Any]]]) -> None:
+    """Every run's record (per anchor: error, σ, radius, reason) beside the table's JSON, for the docs' analysis."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "uwb_verdict_runs.json").write_text(json.dumps(runs, indent=1, default=float) + "\n")
+
+
+def sigma_calibration(plant: list[dict[str, Any]]) -> dict[str, Any]:
+    """Is σ right? Per estimated anchor ``t = ‖e‖ / √(Σσ²)`` on its free coordinates (RMS ≈ 1 if the σ are right;
+    the truth is the simulator's) and the normalized coordinate errors ``e / σ`` pooled (RMS ≈ 1); also the share
+    of anchors outside their accuracy radius (≤ 1 % jointly per hall if σ are right)."""
+    a = [x for r in plant for x in r["anchors"] if x["sigma_m"] and all(np.isfinite(x["sigma_m"]))]
+    t = np.array([np.linalg.norm(x["error_m"]) / np.linalg.norm(x["sigma_m"]) for x in a])
+    z = np.concatenate([np.asarray(x["error_m"]) / np.asarray(x["sigma_m"]) for x in a])
+    out = np.array([np.linalg.norm(x["error_m"]) > x["radius_m"] for x in a])
+    ok = np.array([x["failing"] is None for x in a])
+    return {
+        "name": "σ vs the actual error (plant-like halls, every estimated anchor)",
+        "anchors": int(t.size),
+        "rms_error_over_sigma": float(np.sqrt(np.mean(t**2))),
+        "median_error_over_sigma": float(np.median(t)),
+        "rms_error_over_sigma_meeting": float(np.sqrt(np.mean(t[ok] ** 2))) if ok.any() else None,
+        "rms_coordinate_z": float(np.sqrt(np.mean(z**2))),
+        "share_beyond_radius": float(out.mean()),
+        "goal": "RMS error/σ ≈ 1 (0.8–1.25)",
+        "meets_goal": bool(0.8 <= np.sqrt(np.mean(t**2)) <= 1.25),
+    }
+
+
+def margin_row(plant: list[dict[str, Any]]) -> dict[str, Any]:
+    """Is the verdict useful? Halls whose every anchor is truly within half the required accuracy (a margin of 2)
+    but whose run did not exit 0, and why their anchors failed (the reason's first word, counted)."""
+    good = [r for r in plant if r["worst_m"] <= REQUIRED_ACCURACY_M / 2]
+    missed = [r for r in good if r["exit"] != 0]
+    why: dict[str, int] = {}
+    for r in missed:
+        for x in r["anchors"]:
+            if x["failing"]:
+                key = x["failing"].split(" ")[0].rstrip(":") + (
+                    ":" + x["failing"].split(" ")[1].rstrip(":") if x["failing"].startswith("weak") else ""
+                )
+                why[key] = why.get(key, 0) + 1
+    return {
+        "name": f"margin: every anchor truly within {REQUIRED_ACCURACY_M / 2:g} m",
+        "halls": len(good),
+        "exit_0": sum(r["exit"] == 0 for r in good),
+        "not_exit_0": len(missed),
+        "failing_reasons": why,
+        "goal": "exit 0 whenever every anchor meets it with margin",
+        "meets_goal": not missed,
+    }
+
+
+def side_test_row(wall: list[dict[str, Any]]) -> dict[str, Any]:
+    """The side test on the wall halls: Δ oriented to the truth (``Δ_true`` > 0 when the true side has the lower
+    squared residuals) against the critical value c; how often ``Δ_true > c`` (the test could choose the truth)
+    and the truth was chosen; the power ``Φ(√λ − z)`` of the ambiguous runs."""
+    t = [r for r in wall if r["tested"] and r["delta"] is not None and r["a_is_truth"] is not None]
+    d_true = [(r["delta"] if r["a_is_truth"] else -r["delta"]) for r in t]
+    above = [r for r, d in zip(t, d_true, strict=True) if d > r["critical"]]
+    above_chosen = sum(r["chosen"] and r["rmse_m"] < MIRROR_M for r in above)
+    amb = [r for r in t if r["exit"] == 4]
+    pw = np.array([r["power"] for r in amb], float) if amb else np.zeros(0)
+    return {
+        "name": "side test: Δ (true side) against its critical value",
+        "tested": len(t),
+        "delta_true_above_critical": len(above),
+        "of_them_truth_chosen": above_chosen,
+        "ambiguous": len(amb),
+        "ambiguous_power_median": float(np.median(pw)) if pw.size else None,
+        "ambiguous_power_max": float(pw.max()) if pw.size else None,
+        "goal": "the true side chosen whenever Δ exceeds the critical value",
+        "meets_goal": above_chosen == len(above),
+    }
 
 
 if __name__ == "__main__":

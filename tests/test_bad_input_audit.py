@@ -217,6 +217,7 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-codebias-ranks-zero", (*cb, *o, "--ranks", "0"), "must be at least 1"),
         Cli("gnss-codebias-ranks-inprocess", (*cb, *o, "--ranks", "2"), "applies only with --backend mpi"),
         Cli("gnss-codebias-weighting", (*cb, *o, "--weighting", "cos"), "invalid choice"),
+        Cli("gnss-codebias-admm-messages", (*cb, *o, "--admm-messages", "float16"), "invalid choice"),
         Cli("gnss-codebias-sigma-text", (*cb, *o, "--sigma", "small"), "invalid float value"),
         Cli("gnss-codebias-obs-missing", ("gnss", "codebias", "--obs", "{tmp}/no.rnx", "--nav", "{nav}", *o), "no.rnx"),
         Cli("gnss-codebias-tlim-one", (*cb, *o, "--tlim", "2024-01-10T00:00"), "expected 2 arguments"),
@@ -270,6 +271,8 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-mapping-choice", (*io, *o, "--mapping", "flat"), "invalid choice"),
         Cli("gnss-ionosphere-innovation-test-one", (*io, *o, "--innovation-test", "1"), "--innovation-test"),
         Cli("gnss-ionosphere-innovation-test-zero", (*io, *o, "--innovation-test", "0"), "--innovation-test"),
+        Cli("gnss-ionosphere-between-station-one", (*io, *o, "--between-station-level", "0.5"), "--between-station"),
+        Cli("gnss-ionosphere-between-station-text", (*io, *o, "--between-station-level", "x"), "invalid float value"),
         Cli("gnss-codebias-backend", (*cb, *o, "--backend", "tcp"), "invalid choice"),
         Cli("gnss-codebias-no-progress-value", (*cb, *o, "--no-progress=yes"), "ignored explicit"),
         Cli("gnss-codebias-reference-empty", (*cb, *o, "--reference", ""), "--reference"),
@@ -382,7 +385,14 @@ def _field_async_cases() -> list[Cli]:
     out = ("--out", "{tmp}/n.toml")
     demo = ("field", "demo", "--out", "{tmp}/out")
     cases = [
-        Cli("field-init-no-source", ("field", "init", *out), "one of the arguments --ranges --rinex is required"),
+        Cli(
+            "field-init-no-source",
+            ("field", "init", *out),
+            "one of the arguments --ranges --rinex --simulate is required",
+        ),
+        Cli("field-init-simulate-kind", ("field", "init", "--simulate", "x", *out), "invalid choice"),
+        Cli("field-init-simulate-nodes", ("field", "init", "--simulate", "ckf", "--nodes", "0", *out), "at least 1"),
+        Cli("field-init-simulate-hall-3", ("field", "init", "--simulate", "hall", "--nodes", "3", *out), "at least 4"),
         Cli("field-init-both-sources", (*init, "--rinex", "{obs}", *out), "not allowed with argument"),
         Cli("field-init-ranges-missing", ("field", "init", "--ranges", "{tmp}/none.csv", *out), "no such file"),
         Cli("field-init-rinex-missing", ("field", "init", "--rinex", "{tmp}/none.rnx", *out), "no such file"),

@@ -34,8 +34,12 @@ from test_mpi import BITWISE  # noqa: E402
 FAST = ["raw_send_and_broadcast", "route_send_and_broadcast"]
 
 
-def run_on_threads(fn: Callable[[str], dict[str, np.ndarray]], n_nodes: int, timeout_s: float = 300) -> list[Any]:
-    """Run ``fn("field")`` as ``n_nodes`` nodes, one thread each; returns each node's result (or its exception)."""
+def run_on_threads(
+    fn: Callable[[str], dict[str, np.ndarray]], n_nodes: int, timeout_s: float = 300, graph: Any = None
+) -> list[Any]:
+    """Run ``fn("field")`` as ``n_nodes`` nodes, one thread each; returns each node's result (or its exception).
+    With ``graph`` each node knows only its neighbours' addresses (global operations then go over the spanning tree,
+    as in a field node run from a description); without, every other node's."""
     ctx = zmq.Context()
     ctx.set(zmq.MAX_SOCKETS, 4 * n_nodes * n_nodes + 64)
     tag = uuid.uuid4().hex
@@ -44,7 +48,8 @@ def run_on_threads(fn: Callable[[str], dict[str, np.ndarray]], n_nodes: int, tim
     opts = TransportOptions(deadline_s=60.0, start_timeout_s=60.0)
 
     def node(i: int) -> None:
-        peers = [Peer(j, addr[j]) for j in range(n_nodes) if j != i]
+        known = range(n_nodes) if graph is None else graph.neighbors(i).tolist()
+        peers = [Peer(j, addr[j]) for j in known if j != i]
         tr = Transport(i, addr[i], peers, options=opts, context=ctx)
         try:
             tr.handshake()
@@ -77,7 +82,10 @@ def _n_nodes(fn: Callable[[str], dict[str, np.ndarray]]) -> int:
 @pytest.mark.parametrize("name", FAST)
 def test_field_equals_inprocess(name: str) -> None:
     ref = CASES[name]("inprocess")
-    results = run_on_threads(CASES[name], _n_nodes(CASES[name]))
+    _compare(name, ref, run_on_threads(CASES[name], _n_nodes(CASES[name])))
+
+
+def _compare(name: str, ref: dict[str, np.ndarray], results: list[Any]) -> None:
     errors = [r for r in results if isinstance(r, BaseException)]
     assert not errors, repr(errors[0])
     for node, got_all in enumerate(results):
@@ -88,3 +96,18 @@ def test_field_equals_inprocess(name: str) -> None:
                 assert np.array_equal(got, value), f"node {node}: {name}/{key}: max diff {np.max(np.abs(got - value))}"
             else:
                 np.testing.assert_allclose(got, value, rtol=1e-12, atol=1e-14, err_msg=f"node {node}: {name}/{key}")
+
+
+def _ckf_graph() -> Any:
+    from distnav.network import builders
+
+    return builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
+
+
+def test_neighbours_only_global_operations_go_over_the_spanning_tree() -> None:
+    """The CKF case (a gather and three reductions every epoch) with each node knowing only its neighbours: every
+    global operation travels over the spanning tree, and every node's result is the in-process one."""
+    name = "ckf_random_walk"
+    g = _ckf_graph()
+    ref = CASES[name]("inprocess")
+    _compare(name, ref, run_on_threads(CASES[name], g.n_nodes, timeout_s=120, graph=g))

@@ -63,6 +63,10 @@ def test_demo_on_four_processes(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert res["uwb_max_abs_diff_vs_inprocess_m"] == 0.0  # N-CSG-TBLS on node processes: bitwise
     assert res["runs"]["uwb_clean"]["finished"] == [0, 1, 2, 3]
     assert res["wire_bytes"] == sum(r["wire_bytes"] for r in res["runs"].values()) > 0
+    for name, run in res["runs"].items():  # each run beside gathering its data at one node (issue 26 item 5)
+        cmp = res["vs_gather"][name]
+        assert cmp["distributed"]["bytes"] == run["wire_bytes"] and cmp["ratio_bytes"] > 1
+        assert cmp["line"] in printed
     assert "consensus, 1 killed" in printed and "FAIL" not in printed
     # the demo report picks the section up
     from distnav.experiments.report import write_report

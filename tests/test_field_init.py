@@ -132,3 +132,27 @@ def test_bad_rinex_inputs(shared_data: Path, tmp_path: Path, capsys: pytest.Capt
     assert main(["field", "init", "--rinex", str(junk), files[0], "--out", out]) == 2
     assert "junk.21o" in capsys.readouterr().err
     assert not (tmp_path / "n.toml").exists()
+
+
+def test_simulated_network_writes_one_file_per_node_with_only_its_data(tmp_path: Path) -> None:
+    from distnav.commands.field_scenarios import codebias_scenario
+    from distnav.formats.field_data import read_node_arrays
+
+    out = tmp_path / "cb.toml"
+    assert main(["field", "init", "--simulate", "codebias", "--nodes", "6", "--seed", "2", "--out", str(out)]) == 0
+    d = read_description(out)
+    assert d.algorithm["name"] == "admm" and d.n_nodes == 6
+    problem = codebias_scenario(6, 2).problem  # the same simulation, built here independently of the files
+    assert problem is not None
+    for n in d.nodes:
+        assert n.data is not None and n.data.parent == tmp_path / "data-cb"
+        a = read_node_arrays(n.data, "admm", n.id, 6)
+        assert np.array_equal(a["A"], problem.A[n.id]) and np.array_equal(a["y"], problem.y[n.id])
+        assert a["A"].shape == problem.A.shape[1:]  # one node's block, not the network's
+    # never over existing data files, and bad counts refused before any work
+    assert main(["field", "init", "--simulate", "codebias", "--out", str(tmp_path / "cb2.toml")]) == 0
+    (tmp_path / "cb3.toml").write_text("")
+    assert main(["field", "init", "--simulate", "ckf", "--out", str(tmp_path / "cb3.toml")]) == 2
+    (tmp_path / "data-cb4").mkdir()
+    assert main(["field", "init", "--simulate", "ckf", "--out", str(tmp_path / "cb4.toml")]) == 2
+    assert main(["field", "init", "--simulate", "hall", "--nodes", "3", "--out", str(tmp_path / "h.toml")]) == 2

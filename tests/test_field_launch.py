@@ -14,7 +14,8 @@ pytest.importorskip("zmq")
 from distnav.algorithms.consensus.averaging import iterate_average_consensus  # noqa: E402
 from distnav.algorithms.consensus.flows import iterate_flow_consensus  # noqa: E402
 from distnav.cli import main  # noqa: E402
-from distnav.commands.field import launch, write_loopback_network  # noqa: E402
+from distnav.commands.field import launch  # noqa: E402
+from distnav.commands.field_processes import LoopbackOptions, write_loopback_network  # noqa: E402
 from distnav.network import builders  # noqa: E402
 
 
@@ -39,7 +40,7 @@ def test_consensus_on_node_processes_is_bitwise_the_inprocess_run(tmp_path: Path
     g = _graph(6)
     values = np.random.default_rng(2).normal(size=(6, 3))
     algo = {"name": "consensus", "rounds": 60, "protocol": "MH", "patience": 20}
-    net = write_loopback_network(tmp_path / "net", g.links, values, algorithm=algo, deadline_ms=20000)
+    net = write_loopback_network(tmp_path / "net", g.links, values, LoopbackOptions(algorithm=algo, deadline_ms=20000))
     summary = launch(net, tmp_path / "run", timeout_s=240, quiet=True)
     assert summary["finished"] == list(range(6)), summary["failed"]
     field = np.array([summary["nodes"][str(i)]["estimate"] for i in range(6)])
@@ -63,11 +64,7 @@ def _crash_network(tmp_path: Path, rounds: int, width: int, seed: int, deadline_
         tmp_path / "net",
         g.links,
         values,
-        algorithm=algo,
-        crash={dead: 20},
-        deadline_ms=deadline_ms,
-        miss_limit=3,
-        latency_max_ms=latency_max_ms,
+        LoopbackOptions(algorithm=algo, crash={dead: 20}, deadline_ms=deadline_ms, latency_max_ms=latency_max_ms),
     )
     return g, dead, values, net
 
@@ -124,7 +121,7 @@ def test_curve_network_runs_and_equals_the_plain_one(tmp_path: Path) -> None:
     g = _graph(5, seed=6)
     values = np.random.default_rng(7).normal(size=(5, 1))
     algo = {"name": "consensus", "rounds": 30, "protocol": "MH", "patience": 20}
-    net = write_loopback_network(tmp_path / "net", g.links, values, algorithm=algo, deadline_ms=20000)
+    net = write_loopback_network(tmp_path / "net", g.links, values, LoopbackOptions(algorithm=algo, deadline_ms=20000))
     assert main(["field", "keys", "--config", str(net), "--out", str(tmp_path / "curve")]) == 0
     summary = launch(tmp_path / "curve" / "network.toml", tmp_path / "run", timeout_s=240, quiet=True)
     assert summary["finished"] == list(range(5)), summary["failed"]

@@ -11,7 +11,7 @@ import pytest
 
 zmq = pytest.importorskip("zmq")
 
-from distnav.commands.field import free_loopback_ports  # noqa: E402
+from distnav.commands.field_processes import free_loopback_ports  # noqa: E402
 from distnav.exchange.field import CurveKeys, Kind, Peer, Transport, TransportOptions, WireError  # noqa: E402
 from distnav.exchange.field.wire import HEADER, decode, encode  # noqa: E402
 

@@ -151,33 +151,58 @@ def _two_satellites(T: int = 40) -> tuple[np.ndarray, list[np.ndarray]]:
 
 
 def test_screening_report_tells_the_w_test_from_the_slip_detector() -> None:
-    from distnav.models.gnss.levelling import level_station
+    from distnav.models.gnss.levelling import LevellingOptions, level_station
 
     t, cols = _two_satellites(60)
     cols[0][30, 0] += 15.0  # one wild code value: an MW outlier, not a slip
-    off = level_station(t, ("G01", "G02"), *cols, screen=False).screening_summary(["G01", "G02"])
+    off = level_station(t, ("G01", "G02"), *cols, options=LevellingOptions(screen=False)).screening_summary(
+        ["G01", "G02"]
+    )
     assert off["removed"] == 1 and off["removed_mw_outliers"] == 1
     assert off["removed_w_test"] == 0 and off["w_tested"] == 0
-    on = level_station(t, ("G01", "G02"), *cols, screen=True).screening_summary(["G01", "G02"])
+    on = level_station(t, ("G01", "G02"), *cols, options=LevellingOptions(screen=True)).screening_summary(
+        ["G01", "G02"]
+    )
     assert on["removed_mw_outliers"] == 1 and on["w_tested"] == 2 * 60 - 1  # every other code value w-tested
     assert on["removed"] == on["removed_w_test"] + 1
     # with the epochs of the rows the report names the epoch of the wild value (issue 32: epochs, not only satellites)
     times = np.datetime64("2024-01-10T00:00:00") + (t * 1e9).astype("timedelta64[ns]")
-    named = level_station(t, ("G01", "G02"), *cols, screen=False).screening_summary(["G01", "G02"], times)
+    named = level_station(t, ("G01", "G02"), *cols, options=LevellingOptions(screen=False)).screening_summary(
+        ["G01", "G02"], times
+    )
     assert named["removed_epochs"] == {"2024-01-10T00:15:00": ["G01"]}
     assert named["epochs_with_removals"] == 1 and named["most_removed_epoch"] == "2024-01-10T00:15:00"
 
 
 def test_raw_code_kept_where_no_arc_is_long_enough_is_counted() -> None:
-    from distnav.models.gnss.levelling import level_station
+    from distnav.models.gnss.levelling import LevellingOptions, level_station
 
     t, cols = _two_satellites()
     for c in cols:
         c[6:, 1] = np.nan  # G02: 6 epochs, shorter than the 10 kept
     for fallback, raw in ((True, 6), (False, 0)):
-        lev = level_station(t, ("G01", "G02"), *cols, screen=False, fallback_raw=fallback)
+        lev = level_station(t, ("G01", "G02"), *cols, options=LevellingOptions(screen=False, fallback_raw=fallback))
         a = lev.arc_summary()
         assert a["arcs"] == 1 and a["dropped_short"] == 1 and a["raw_code_observations"] == raw
+
+
+def test_every_removal_is_counted_on_its_arc() -> None:
+    """Issue 32 item 6: per arc, the w-test removals, the one-epoch MW outliers in its span and a short arc dropped
+    whole (its epochs), as arcs.csv lists them; the counts add up to the station's totals."""
+    from distnav.models.gnss.levelling import LevellingOptions, level_station
+
+    t, cols = _two_satellites(60)
+    cols[0][30, 0] += 15.0  # G01: one wild code value inside its arc (an MW outlier)
+    for c in cols:
+        c[6:, 1] = np.nan  # G02: 6 epochs, an arc dropped as shorter than 10
+    lev = level_station(t, ("G01", "G02"), *cols, options=LevellingOptions(screen=True))
+    (g01,) = lev.arcs
+    (g02,) = lev.short_arcs or []
+    assert (g01.sv, g01.removed_mw, g01.dropped_short) == ("G01", 1, 0)
+    assert (g02.sv, g02.n_epochs, g02.dropped_short, g02.removed) == ("G02", 6, 6, 0) and np.isnan(g02.offset_m)
+    report = lev.screening_summary(["G01", "G02"])
+    assert g01.removed + g01.removed_mw == report["removed"]
+    assert lev.arc_summary()["dropped_short"] == 1
 
 
 def test_console_names_a_ckf_node_without_estimates_and_prints_realistic_sigma(

@@ -12,15 +12,21 @@ from distnav.errors import ModelError
 from distnav.models.gnss.arcprecision import arc_variance_factor
 from distnav.models.gnss.geometry import geodetic_to_ecef
 from distnav.models.gnss.gfbias import gf_m_per_dsb_ns
-from distnav.models.gnss.gfnetwork import bias_network_model, run_bias_filters
-from distnav.models.gnss.ionosphere import ionosphere_geometry
+from distnav.models.gnss.gfnetwork import (
+    BiasFilterOptions,
+    BiasModelOptions,
+    GeometryFreeNetwork,
+    bias_network_model,
+    run_bias_filters,
+)
+from distnav.models.gnss.ionosphere import GeometryOptions, ionosphere_geometry
 from distnav.models.gnss.orbits import gps_seconds, synthetic_gps_constellation
 
 NAMES = ["A", "B", "C"]
 GPS = synthetic_gps_constellation()
 T_S = gps_seconds(np.datetime64("2016-06-02T00:00")) + 60.0 * np.arange(240)  # 4 h of 60-s epochs
 XYZ = geodetic_to_ecef(np.deg2rad([49.1, 50.8, 48.1]), np.deg2rad([12.9, 10.2, 16.4]), np.zeros(3))
-GEO = ionosphere_geometry(GPS, T_S, receivers_ecef_m=XYZ, names=NAMES, mask_deg=10)
+GEO = ionosphere_geometry(GPS, T_S, receivers_ecef_m=XYZ, names=NAMES, options=GeometryOptions(mask_deg=10))
 
 
 def _arcs(tracked: np.ndarray, length: int = 40) -> np.ndarray:
@@ -63,11 +69,15 @@ def _run(seed: int, arc_sigma_m: float, with_arcs: bool = True) -> tuple[np.ndar
         + sig * rng.standard_normal((T, n, S))
     )
     y[~GEO.tracked] = np.nan
-    data = bias_network_model(NAMES, T_S, XYZ, y, list(GPS.svs), GPS, ionosphere="common", sigma_zenith_m=0.3)
+    data = bias_network_model(
+        GeometryFreeNetwork(NAMES, T_S, XYZ, y, list(GPS.svs)),
+        GPS,
+        BiasModelOptions(ionosphere="common", sigma_zenith_m=0.3),
+    )
     if with_arcs:
         k = [list(GPS.svs).index(s) for s in data.layout.svs]
         data = replace(data, arc_id=ARCS[:, :, k])
-    (c,), _ = run_bias_filters(data, local=False)
+    (c,), _ = run_bias_filters(data, BiasFilterOptions(local=False))
     k_sv = [list(GPS.svs).index(s) for s in data.layout.svs]
     bs = b_s[k_sv]
     ref = np.concatenate([b_rx + bs.mean(), bs - bs.mean()]) / -gf_m_per_dsb_ns(2)

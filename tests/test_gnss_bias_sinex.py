@@ -151,3 +151,20 @@ def test_ionex_errors(tmp_path: Path) -> None:
     f.write_text("     1.0            IONOSPHERE MAPS     GPS                 IONEX VERSION / TYPE\n")
     with pytest.raises(DataFileError, match="no 'DIFFERENTIAL CODE BIASES"):
         read_ionex_dcb(f)
+
+
+@pytest.mark.parametrize(
+    ("header", "message"),
+    [
+        ({"agency": "TOOLONG"}, "agency is 1 to 3 ASCII characters, got 'TOOLONG'"),
+        ({"agency": ""}, "agency is 1 to 3 ASCII characters"),
+        ({"comments": "one line"}, "comments must be a list of lines, got one string"),
+        ({"sampling_s": 0}, "sampling_s must be a positive number of s, got 0.0"),
+        ({"sampling_s": "30"}, "sampling_s must be a positive number of s, got '30'"),
+    ],
+)
+def test_bias_sinex_header_is_checked_when_built(header: dict[str, object], message: str) -> None:
+    from distnav.formats.gnss.bias_sinex import BiasSinexHeader
+
+    with pytest.raises(DataFileError, match=message):
+        BiasSinexHeader(**header)  # type: ignore[arg-type]

@@ -10,11 +10,10 @@ import pytest
 
 from distnav.errors import ModelError
 from distnav.formats.gnss.rinex import read_code_observations, read_navigation
-from distnav.models.gnss.codebias import (
-    CodeBiasData,
+from distnav.models.gnss.codebias import CodeBiasData, combination_sigma, sat_bias_combination
+from distnav.models.gnss.codebias_build import (
+    CodeBiasSimulation,
     codebias_data_from_observations,
-    combination_sigma,
-    sat_bias_combination,
     simulate_codebias_data,
 )
 from distnav.models.gnss.geometry import geodetic_to_ecef
@@ -212,9 +211,11 @@ def test_simulation_and_building_validation(rng: np.random.Generator, shared_dat
     pos = geodetic_to_ecef(np.zeros(2), np.zeros(2), 0.0)
     t = sc.epoch_gps_s + np.arange(3) * 30.0
     with pytest.raises(ModelError, match=r"sat_biases_m must be \(satellites, 3\)"):
-        simulate_codebias_data(pos, sc, t, sc.l5_svs, rng=rng, sat_biases_m=np.zeros((3, 3)))
+        simulate_codebias_data(
+            pos, sc, t, sc.l5_svs, rng=rng, options=CodeBiasSimulation(sat_biases_m=np.zeros((3, 3)))
+        )
     with pytest.raises(ModelError, match=r"rx_biases_m must be \(stations, 3\)"):
-        simulate_codebias_data(pos, sc, t, sc.l5_svs, rng=rng, rx_biases_m=np.zeros((5, 3)))
+        simulate_codebias_data(pos, sc, t, sc.l5_svs, rng=rng, options=CodeBiasSimulation(rx_biases_m=np.zeros((5, 3))))
     nan = np.nan
     with pytest.raises(ModelError, match="no satellite code bias is estimable"):
         _data(np.array([[[nan, nan]], [[1.0, 2.0]]])).estimable_subset()
@@ -227,3 +228,45 @@ def test_simulation_and_building_validation(rng: np.random.Generator, shared_dat
 
     with pytest.raises(ModelError, match="no usable approximate position"):
         codebias_data_from_observations([replace(obs, position_ecef_m=np.full(3, np.nan))], nav)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"sigma0_m": 0.0}, "sigma0_m must be a positive number of metres"),
+        ({"sigma0_m": float("nan")}, "sigma0_m must be a positive number"),
+        ({"weighting": "elevation"}, "unknown elevation weighting 'elevation'"),
+        ({"mask_rad": 10.0}, r"mask_rad must be below 1.5708 \(radians, not degrees\), got 10.0"),
+        ({"mask_rad": -0.1}, r"mask_rad must be 0 or more"),
+        ({"sigma0_m": 0.2 + 1j}, r"sigma0_m must be a positive number of metres, got \(0.2\+1j\) \(complex\)"),
+        ({"sigma0_m": "0.2"}, r"sigma0_m must be a positive number of metres, got '0.2' \(str\)"),
+        ({"sat_dsb_sigma_ns": None}, "sat_dsb_sigma_ns must be a number of ns, got None"),
+        ({"rx_dsb_sigma_ns": -1.0}, "rx_dsb_sigma_ns must be 0 or more"),
+        ({"reference": 1.5}, r"reference \(a station index\) must be a whole number, got 1.5"),
+        ({"reference": True}, r"reference \(a station index\) must be a whole number, got True \(a bool\)"),
+    ],
+)
+def test_simulation_options_are_checked_when_built(options: dict[str, object], message: str) -> None:
+    with pytest.raises(ModelError, match=message):
+        CodeBiasSimulation(**options)  # type: ignore[arg-type]
+
+
+def test_simulation_times_and_positions_are_checked(rng: np.random.Generator) -> None:
+    sc = synthetic_gps_constellation()
+    pos = geodetic_to_ecef(np.zeros(2), np.zeros(2), 0.0)
+    t = sc.epoch_gps_s + np.zeros(1)
+    with pytest.raises(ModelError, match="t_gps_s are complex numbers"):
+        simulate_codebias_data(pos, sc, t + 1j, sc.l5_svs, rng=rng)
+    with pytest.raises(ModelError, match="t_gps_s must be a 1-D array of finite GPS seconds"):
+        simulate_codebias_data(pos, sc, t + np.inf, sc.l5_svs, rng=rng)
+    with pytest.raises(ModelError, match=r"positions_ecef_m must be finite \(stations, 3\) ECEF metres"):
+        simulate_codebias_data(pos[:, :2], sc, t, sc.l5_svs, rng=rng)
+
+
+def test_simulation_reference_must_be_a_station(rng: np.random.Generator) -> None:
+    sc = synthetic_gps_constellation()
+    pos = geodetic_to_ecef(np.zeros(2), np.zeros(2), 0.0)
+    with pytest.raises(ModelError, match="reference 2 is not one of the 2 stations"):
+        simulate_codebias_data(
+            pos, sc, sc.epoch_gps_s + np.zeros(1), sc.l5_svs, rng=rng, options=CodeBiasSimulation(reference=2)
+        )

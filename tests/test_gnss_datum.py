@@ -16,8 +16,14 @@ from distnav.models.gnss.gfbias import (
     gf_m_per_dsb_ns,
     in_datum,
 )
-from distnav.models.gnss.gfnetwork import bias_network_model, run_bias_filters
-from distnav.models.gnss.ionosphere import ionosphere_geometry
+from distnav.models.gnss.gfnetwork import (
+    BiasFilterOptions,
+    BiasModelOptions,
+    GeometryFreeNetwork,
+    bias_network_model,
+    run_bias_filters,
+)
+from distnav.models.gnss.ionosphere import GeometryOptions, ionosphere_geometry
 from distnav.models.gnss.orbits import gps_seconds, synthetic_gps_constellation
 from distnav.network.graph import Graph
 
@@ -31,7 +37,7 @@ def _simulate(
     gps = synthetic_gps_constellation()
     t = gps_seconds(np.datetime64("2016-06-02T00:00")) + 60.0 * np.arange(epochs)
     xyz = geodetic_to_ecef(np.deg2rad([-31.9, -32.0, -31.5]), np.deg2rad([115.8, 116.2, 115.9]), np.zeros(3))
-    geo = ionosphere_geometry(gps, t, receivers_ecef_m=xyz, names=NAMES, mask_deg=10)
+    geo = ionosphere_geometry(gps, t, receivers_ecef_m=xyz, names=NAMES, options=GeometryOptions(mask_deg=10))
     T, n, S = geo.tracked.shape
     b_rx, b_s = rng.normal(0, 3, n), rng.normal(0, 1.5, S)
     tec = 2.0 + np.cumsum(rng.normal(0, 1e-3 * np.sqrt(60.0), T))
@@ -58,7 +64,9 @@ def test_bases_and_datums_give_the_same_estimable_functions() -> None:
     receiver − receiver, receiver + satellite) agrees, and the three output datums are S-transforms of each other."""
     gps, t, xyz, y, _ = _simulate(3)
     data = bias_network_model(
-        NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3, reference="A"
+        GeometryFreeNetwork(NAMES, t, xyz, y, list(gps.svs)),
+        gps,
+        BiasModelOptions(ionosphere="common", sigma_zenith_m=0.3, reference="A"),
     )
     lay_r = data.layout
     piv = lay_r.svs[int(np.argmax(data.geometry.tracked.sum(axis=(0, 1))))]
@@ -97,8 +105,12 @@ def test_estimable_from_the_first_epoch_and_consistent_with_truth() -> None:
     z = []
     for seed in range(12):
         gps, t, xyz, y, truth = _simulate(seed, epochs=30)
-        data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
-        (central,), _ = run_bias_filters(data, datum="zero-mean", local=False)
+        data = bias_network_model(
+            GeometryFreeNetwork(NAMES, t, xyz, y, list(gps.svs)),
+            gps,
+            BiasModelOptions(ionosphere="common", sigma_zenith_m=0.3),
+        )
+        (central,), _ = run_bias_filters(data, BiasFilterOptions(datum="zero-mean", local=False))
         n = len(NAMES)
         seen0 = data.geometry.tracked[0].any(axis=0)
         assert np.isfinite(central.dsb_ns[0, n:][seen0]).all() and np.isfinite(central.dsb_ns[0, :n]).all()
@@ -112,16 +124,20 @@ def test_estimable_from_the_first_epoch_and_consistent_with_truth() -> None:
 
 def test_ckf_with_many_rounds_equals_central() -> None:
     gps, t, xyz, y, _ = _simulate(5, epochs=25)
-    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
+    data = bias_network_model(
+        GeometryFreeNetwork(NAMES, t, xyz, y, list(gps.svs)),
+        gps,
+        BiasModelOptions(ionosphere="common", sigma_zenith_m=0.3),
+    )
     graph = Graph.from_links(3, [(0, 1), (1, 2)], names=NAMES)
-    series, comm = run_bias_filters(data, datum="zero-mean", graph=graph, kn=80, local=False)
+    series, comm = run_bias_filters(data, BiasFilterOptions(datum="zero-mean", kn=80, local=False), graph=graph)
     central, ckfs = series[0], series[1:]
     assert [s.label for s in ckfs] == ["ckf:A", "ckf:B", "ckf:C"] and comm is not None
     for s in ckfs:
         ok = np.isfinite(central.dsb_ns[-1])
         np.testing.assert_allclose(s.dsb_ns[-1][ok], central.dsb_ns[-1][ok], atol=1e-6)
         np.testing.assert_allclose(s.tec[-1], central.tec[-1], atol=1e-6)
-    few, _ = run_bias_filters(data, datum="zero-mean", graph=graph, kn=1, local=False)
+    few, _ = run_bias_filters(data, BiasFilterOptions(datum="zero-mean", kn=1, local=False), graph=graph)
     assert np.nanmax(np.abs(few[1].dsb_ns[-1] - central.dsb_ns[-1])) > 1e-4  # one round is not the average
 
 
@@ -138,12 +154,20 @@ def test_layout_errors() -> None:
 def test_variance_factor_from_predicted_residuals() -> None:
     """σ̂² ≈ 1 when the data follow the model; ≈ 4 when the noise is twice the assumed σ."""
     gps, t, xyz, y, _ = _simulate(11, epochs=40)
-    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
-    (c,), _ = run_bias_filters(data, local=False)
+    data = bias_network_model(
+        GeometryFreeNetwork(NAMES, t, xyz, y, list(gps.svs)),
+        gps,
+        BiasModelOptions(ionosphere="common", sigma_zenith_m=0.3),
+    )
+    (c,), _ = run_bias_filters(data, BiasFilterOptions(local=False))
     assert c.n_innovations > 500 and c.variance_factor is not None
     assert 0.85 < c.variance_factor < 1.15
-    data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.15)
-    (c,), _ = run_bias_filters(data, local=False)
+    data = bias_network_model(
+        GeometryFreeNetwork(NAMES, t, xyz, y, list(gps.svs)),
+        gps,
+        BiasModelOptions(ionosphere="common", sigma_zenith_m=0.15),
+    )
+    (c,), _ = run_bias_filters(data, BiasFilterOptions(local=False))
     assert c.variance_factor is not None and 3.4 < c.variance_factor < 4.6
 
 
@@ -154,7 +178,7 @@ def test_realistic_sigma_with_time_correlated_errors() -> None:
     z, formal, real = [], [], []
     for seed in range(16):
         rng = np.random.default_rng(100 + seed)
-        geo = ionosphere_geometry(gps, t, receivers_ecef_m=xyz, names=NAMES, mask_deg=10)
+        geo = ionosphere_geometry(gps, t, receivers_ecef_m=xyz, names=NAMES, options=GeometryOptions(mask_deg=10))
         T, n, S = geo.tracked.shape
         b_rx, b_s = rng.normal(0, 3, n), rng.normal(0, 1.5, S)
         sig = 0.3 / np.sin(np.where(geo.tracked, geo.el_rad, np.pi / 2))
@@ -164,8 +188,12 @@ def test_realistic_sigma_with_time_correlated_errors() -> None:
             e[k] = 0.9 * e[k - 1] + np.sqrt(1 - 0.81) * rng.standard_normal((n, S))
         y = 2.0 * geo.coefficients[..., 0] + b_rx[None, :, None] + b_s[None, None, :] + sig * e
         y[~geo.tracked] = np.nan
-        data = bias_network_model(NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.3)
-        (c,), _ = run_bias_filters(data, local=False)
+        data = bias_network_model(
+            GeometryFreeNetwork(NAMES, t, xyz, y, list(gps.svs)),
+            gps,
+            BiasModelOptions(ionosphere="common", sigma_zenith_m=0.3),
+        )
+        (c,), _ = run_bias_filters(data, BiasFilterOptions(local=False))
         k_sv = [list(gps.svs).index(s) for s in data.layout.svs]
         bs = b_s[k_sv]
         ref = np.concatenate([b_rx + bs.mean(), bs - bs.mean()]) / -gf_m_per_dsb_ns(2)
@@ -183,9 +211,11 @@ def test_realistic_sigma_with_time_correlated_errors() -> None:
 def _session_dsbs(y: np.ndarray, gps: object, t: np.ndarray, xyz: np.ndarray, **datum: object) -> dict[str, float]:
     """Final central satellite DSBs [ns] by name (NaN satellites left out)."""
     data = bias_network_model(
-        NAMES, t, xyz, y, list(gps.svs), gps, ionosphere="common", sigma_zenith_m=0.01, min_satellite_obs=20
+        GeometryFreeNetwork(NAMES, t, xyz, y, list(gps.svs)),
+        gps,
+        BiasModelOptions(ionosphere="common", sigma_zenith_m=0.01, min_satellite_obs=20),
     )
-    (c,), _ = run_bias_filters(data, local=False, **datum)  # type: ignore[arg-type]
+    (c,), _ = run_bias_filters(data, BiasFilterOptions(local=False, **datum))  # type: ignore[arg-type]
     n = len(NAMES)
     return {s: float(v) for s, v in zip(data.layout.svs, c.dsb_ns[-1, n:], strict=True) if np.isfinite(v)}
 
@@ -232,3 +262,49 @@ def test_datum_statement_names_the_satellites() -> None:
     s = datum_statement(["G01", "G02"], ["G01", "G02", "G03"], "CAS")
     assert "fixed set of 3 satellites (G01 G02 G03)" in s and "CAS" in s and "1 missing (G03)" in s
     assert "differs from the full set" in datum_statement(["G01"], ["G01", "G03"])
+
+
+def test_a_removed_satellite_on_a_real_session_datum_part_and_estimation_part(shared_data: object) -> None:
+    """Issue 32 item 2 on BELE + DGAR, 06–12 h: removing G08's data moves every other DSB by (a) the datum's
+    part, a uniform shift that equals G08's own zero-mean DSB / (|F| − 1) (a formula of the default run's output,
+    not of the fixed-set code) and that the fixed set without G08 removes exactly, and (b) the estimation's part,
+    which no datum can remove: it stays within what the information removed implies
+    (``Cov(x_without − x_with) = P_without − P_with`` for nested BLUEs; realistic σ), and that predicted change
+    exceeds 0.01 ns, so issue 32's 0.01-ns target cannot hold on this session for any datum."""
+    from pathlib import Path
+
+    from distnav.commands.gnss_ionosphere_data import NetworkOptions, network_data
+    from distnav.formats.gnss.rinex import read_navigation
+
+    d = Path(str(shared_data)) / "gnss" / "igs_2024010_bele_dgar"
+    obs = [d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", d / "dgar0100.24o.gz"]
+    orbit = read_navigation(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz", max_age_s=4 * 3600.0)
+    tlim = ("2024-01-10T06:00", "2024-01-10T12:00")
+    full = network_data(obs, orbit, NetworkOptions(interval_s=60.0), tlim=tlim)
+    less = network_data(obs, orbit, NetworkOptions(interval_s=60.0, exclude=("G08",)), tlim=tlim)
+    rest = [s for s in full.layout.svs if s != "G08"]
+    assert "G08" in full.layout.svs and list(less.layout.svs) == rest
+
+    def central(data: object, members: list[str] | None) -> tuple[dict[str, float], dict[str, float], float]:
+        (c,), _ = run_bias_filters(data, BiasFilterOptions(local=False, datum_satellites=members))  # type: ignore[arg-type]
+        names = list(data.stations) + list(data.layout.svs)  # type: ignore[attr-defined]
+        var = np.diag(np.asarray(c.precision.covariance[0]))
+        return (
+            dict(zip(names, c.dsb_ns[-1].tolist(), strict=True)),
+            dict(zip(names, var, strict=True)),
+            c.realistic_factor,
+        )
+
+    default, _, _ = central(full, None)  # zero mean over all 25 estimated
+    kept, var_with, factor = central(full, rest)  # G08's data kept, G08 outside the fixed set
+    removed, var_without, _ = central(less, rest)  # G08's data removed
+    datum_part = np.array([kept[s] - default[s] for s in rest])
+    assert np.ptp(datum_part) < 1e-9
+    assert datum_part[0] == pytest.approx(default["G08"] / len(rest), abs=1e-9)
+    assert abs(datum_part[0]) > 0.1  # the default datum moves every other DSB by this much
+    estimation_part = np.array([removed[s] - kept[s] for s in rest])
+    dvar = np.array([var_without[s] - var_with[s] for s in rest])
+    assert dvar.min() > -1e-12  # removing data never improves a DSB's precision
+    predicted = np.sqrt(np.maximum(dvar, 0.0)) * factor
+    assert np.all(np.abs(estimation_part) < 3.0 * predicted)
+    assert np.abs(estimation_part).max() > 0.01 and predicted.max() > 0.01

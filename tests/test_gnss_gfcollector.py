@@ -16,8 +16,14 @@ from distnav.algorithms.kalman import iterate_information_filter
 from distnav.models.gnss import gfcollector
 from distnav.models.gnss.geometry import geodetic_to_ecef
 from distnav.models.gnss.gfbias import datum_transform, gf_m_per_dsb_ns, in_datum
-from distnav.models.gnss.gfnetwork import bias_network_model, run_bias_filters
-from distnav.models.gnss.ionosphere import ionosphere_geometry
+from distnav.models.gnss.gfnetwork import (
+    BiasFilterOptions,
+    BiasModelOptions,
+    GeometryFreeNetwork,
+    bias_network_model,
+    run_bias_filters,
+)
+from distnav.models.gnss.ionosphere import GeometryOptions, ionosphere_geometry
 from distnav.models.gnss.orbits import gps_seconds, synthetic_gps_constellation
 
 NAMES = ["A", "B", "C"]
@@ -28,7 +34,7 @@ def _data(epochs: int = 60) -> object:
     gps = synthetic_gps_constellation()
     t = gps_seconds(np.datetime64("2016-06-02T00:00")) + 60.0 * np.arange(epochs)
     xyz = geodetic_to_ecef(np.deg2rad([-31.9, -32.0, -31.5]), np.deg2rad([115.8, 116.2, 115.9]), np.zeros(3))
-    geo = ionosphere_geometry(gps, t, receivers_ecef_m=xyz, names=NAMES, mask_deg=10)
+    geo = ionosphere_geometry(gps, t, receivers_ecef_m=xyz, names=NAMES, options=GeometryOptions(mask_deg=10))
     T, n, S = geo.tracked.shape
     tec = 2.0 + np.cumsum(rng.normal(0, 1e-3 * np.sqrt(60.0), T))
     sig = 0.3 / np.sin(np.where(geo.tracked, geo.el_rad, np.pi / 2))
@@ -44,16 +50,9 @@ def _data(epochs: int = 60) -> object:
     y[~geo.tracked] = np.nan
     y[: T // 3, 2] = np.nan  # station C joins later: inestimable entries early on
     return bias_network_model(
-        NAMES,
-        t,
-        xyz,
-        y,
-        list(gps.svs),
+        GeometryFreeNetwork(NAMES, t, xyz, y, list(gps.svs)),
         gps,
-        ionosphere="common",
-        sigma_zenith_m=0.3,
-        reference="A",
-        min_satellite_obs=1,
+        BiasModelOptions(ionosphere="common", sigma_zenith_m=0.3, reference="A", min_satellite_obs=1),
     )
 
 
@@ -119,7 +118,7 @@ def _reference(data: object, datum: str) -> dict[str, object]:
 def test_block_outputs_equal_the_epoch_by_epoch_reference(monkeypatch: pytest.MonkeyPatch, datum: str) -> None:
     data = _data()
     monkeypatch.setattr(gfcollector, "BLOCK", 7)
-    series, _ = run_bias_filters(data, datum=datum, local=False)
+    series, _ = run_bias_filters(data, BiasFilterOptions(datum=datum, local=False))
     got, ref = series[0], _reference(data, datum)
     assert np.isnan(ref["dsb"][:10, 2]).all() and np.isfinite(ref["dsb"][-1]).all()  # C inestimable at first
     for name, a, b in (

@@ -13,7 +13,7 @@ import pytest
 
 from distnav.cli import main
 from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ
-from distnav.models.gnss.netsim import simulate_network
+from distnav.models.gnss.netsim import NetworkSimOptions, simulate_network
 from distnav.models.gnss.orbits import datetime_from_gps_seconds, gps_seconds, synthetic_gps_constellation
 
 STATIONS = {"SIMA": (49.14, 12.88, 650.0), "SIMB": (50.80, 10.20, 400.0)}
@@ -125,9 +125,9 @@ def heldout(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
         sim = simulate_network(
             orbit,
             day,
+            NetworkSimOptions(hours=3.0),
             rng=np.random.default_rng([k, 3]),
             stations=STATIONS,
-            hours=3.0,
             satellite_dsb_ns=sat,
             receiver_dsb_ns=RX_DSB,
         )

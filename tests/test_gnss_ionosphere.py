@@ -14,6 +14,7 @@ from distnav.models.gnss.ionosphere import (
     GF_SIGMA_ZENITH_M,
     TECU_L1_M,
     GeometryFreeSeries,
+    GeometryOptions,
     IonosphereStateLayout,
     choose_pivot,
     dcb_ns_from_gf_m,
@@ -38,12 +39,21 @@ def _geometry(
     t = float(gps_seconds(np.datetime64("2016-06-02T00:00:00", "ns"))) + step_s * np.arange(n_epochs)
     off = np.linspace(-spread_km, spread_km, n_rx) * 1e3 / 6.371e6
     geo = ionosphere_geometry(
-        const, t, lat_rad=LAT0 + off, lon_rad=LON0 + off[::-1], mask_deg=10.0, ionosphere=ionosphere
+        const,
+        t,
+        lat_rad=LAT0 + off,
+        lon_rad=LON0 + off[::-1],
+        options=GeometryOptions(mask_deg=10.0, ionosphere=ionosphere),
     )
     seen = np.asarray(geo.tracked.any(axis=(0, 1))).tolist()
     svs = tuple(s for s, k in zip(geo.svs, seen, strict=True) if k)
     geo = ionosphere_geometry(
-        const, t, lat_rad=LAT0 + off, lon_rad=LON0 + off[::-1], mask_deg=10.0, svs=svs, ionosphere=ionosphere
+        const,
+        t,
+        lat_rad=LAT0 + off,
+        lon_rad=LON0 + off[::-1],
+        svs=svs,
+        options=GeometryOptions(mask_deg=10.0, ionosphere=ionosphere),
     )
     return geo
 
@@ -261,9 +271,9 @@ def test_validation_errors():
         ionosphere_dynamics(layout, 0.0)
     const = synthetic_gps_constellation()
     with pytest.raises(ModelError, match="'common' or 'per-receiver'"):
-        ionosphere_geometry(const, [0.0], lat_rad=[0.0], lon_rad=[0.0], ionosphere="global")
+        ionosphere_geometry(const, [0.0], lat_rad=[0.0], lon_rad=[0.0], options=GeometryOptions(ionosphere="global"))
     with pytest.raises(ModelError, match="elevation mask"):
-        ionosphere_geometry(const, [0.0], lat_rad=[0.0], lon_rad=[0.0], mask_deg=95.0)
+        ionosphere_geometry(const, [0.0], lat_rad=[0.0], lon_rad=[0.0], options=GeometryOptions(mask_deg=95.0))
     with pytest.raises(ModelError, match="receiver ZZZZ: position"):
         ionosphere_geometry(const, [0.0], receivers_ecef_m=np.zeros((1, 3)), names=["ZZZZ"])
     with pytest.raises(ModelError, match="lat_rad/lon_rad or receivers_ecef_m"):

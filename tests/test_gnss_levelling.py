@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from distnav.algorithms.statistics import data_snooping
+from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, F_L1_HZ, F_L2_HZ, mu
-from distnav.models.gnss.levelling import find_arcs, level_station, melbourne_wubbena_cycles, screen_arc
+from distnav.models.gnss.levelling import (
+    LevellingOptions,
+    find_arcs,
+    level_station,
+    melbourne_wubbena_cycles,
+    screen_arc,
+)
 
 L1, L2 = C_M_S / F_L1_HZ, C_M_S / F_L2_HZ
 
@@ -33,7 +40,9 @@ def test_slips_start_new_arcs(rng: np.random.Generator, slip: tuple[int, int]) -
     n2[k:] += slip[1] * L2
     phi1 = rho - iono + n1 + 0.002 * rng.standard_normal(t.size)
     phi2 = rho - mu(2) * iono + n2 + 0.002 * rng.standard_normal(t.size)
-    lev = level_station(t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None], screen=False)
+    lev = level_station(
+        t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None], options=LevellingOptions(screen=False)
+    )
     assert len(lev.arcs) == 2 and lev.arcs[1].first == k and lev.arcs[1].start_reason in ("gf", "mw")
     # each arc's level equals the code's: the levelled observable is the ionosphere + the code bias (−3 m/(μ−1))
     truth = iono + (-2.0 - 1.0) / (mu(2) - 1.0)
@@ -62,7 +71,9 @@ def test_short_arcs_dropped_and_mw_outlier_removed(rng: np.random.Generator) -> 
     t, rho, iono, p1, p2, n1, n2 = _one_satellite(rng, T=60)
     phi1, phi2 = rho - iono + n1, rho - mu(2) * iono + n2
     p1[30] += 15.0  # one wild code value: an MW outlier, not a slip
-    lev = level_station(t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None], screen=False)
+    lev = level_station(
+        t, ("G01",), p1[:, None], p2[:, None], phi1[:, None], phi2[:, None], options=LevellingOptions(screen=False)
+    )
     assert len(lev.arcs) == 1 and lev.removed[30, 0] and np.isnan(lev.gf_m[30, 0])
     lev = level_station(t[:8], ("G01",), p1[:8, None], p2[:8, None], phi1[:8, None], phi2[:8, None])
     assert lev.arcs == [] and lev.dropped_short == 1 and np.isnan(lev.gf_m).all()
@@ -160,3 +171,28 @@ def test_gf_limit_follows_the_ionosphere_noise() -> None:
         arc, _, reasons = find_arcs(t, g + np.where(np.arange(t.size) >= k, slip, 0.0), mw)
         assert reasons[-1] == "gf" and len(reasons) == early + 2
         assert (arc[15:k] == early).all() and (arc[k:] == early + 1).all()
+
+
+def test_per_satellite_frequencies_level_each_column_to_its_own_l1_delay() -> None:
+    """The hook for other systems (issue 32 item 5): GLONASS-like FDMA channels, each satellite column with its own
+    (f_1, f_2); the levelled code of each column is that satellite's L1 delay (data written from the physics:
+    I_b = (f_1/f_b)² I_1), and the GPS constants instead would not give it."""
+    from distnav.models.gnss.constants import C_M_S
+
+    k = np.array([-4.0, 0.0, 5.0])  # channel numbers
+    f1, f2 = 1602e6 + k * 0.5625e6, 1246e6 + k * 0.4375e6
+    t = 30.0 * np.arange(80)
+    iono = 2.0 + 0.002 * t[:, None] + np.array([0.0, 0.5, 1.0])
+    rho = 2.1e7 + 50.0 * t[:, None]
+    m = (f1 / f2) ** 2
+    p1, p2 = rho + iono, rho + m * iono
+    phi1 = rho - iono + 1000.0 * C_M_S / f1
+    phi2 = rho - m * iono - 700.0 * C_M_S / f2
+    freqs = (f1, f2)
+    lev = level_station(t, ("R01", "R02", "R03"), p1, p2, phi1, phi2, options=LevellingOptions(frequencies_hz=freqs))
+    assert len(lev.arcs) == 3 and lev.starts == {"first": 3}
+    np.testing.assert_allclose(lev.gf_m, iono, atol=1e-6)
+    gps = level_station(t, ("R01", "R02", "R03"), p1, p2, phi1, phi2, options=LevellingOptions(screen=False))
+    assert np.nanmax(np.abs(gps.gf_m - iono)) > 0.05  # the GPS factor: 1 % of the delay off, 7 cm here
+    with pytest.raises(ModelError, match="frequencies must be positive"):
+        level_station(t, ("R01",), p1, p2, phi1, phi2, options=LevellingOptions(frequencies_hz=(f1, f1)))

@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from distnav.commands.gnss_ionosphere import network_from_observations
+from distnav.commands.gnss_ionosphere import NetworkOptions, network_from_observations
 from distnav.formats.gnss.bias_sinex import read_bias_sinex, write_bias_sinex
 from distnav.formats.gnss.product_files import correct_c1, product_dsbs
 from distnav.models.gnss.constants import C_M_S
-from distnav.models.gnss.gfnetwork import final_dsbs, run_bias_filters
-from distnav.models.gnss.netsim import simulate_network
+from distnav.models.gnss.gfnetwork import BiasFilterOptions, final_dsbs, run_bias_filters
+from distnav.models.gnss.netsim import NetworkSimOptions, simulate_network
 from distnav.models.gnss.orbits import synthetic_gps_constellation
 from distnav.models.gnss.products import compare_in_datum
 
@@ -30,12 +30,11 @@ def _mixed_network(tmp_path: Path) -> tuple[object, list[object], Path, Path, di
     sim = simulate_network(
         orbit,
         "2024-01-10",
+        NetworkSimOptions(hours=4.0, svn49=None),
         rng=np.random.default_rng(1),
         stations=TWO,
-        hours=4.0,
         satellite_dsb_ns=sat,
         receiver_dsb_ns={"SIMA": 4.0, "SIMB": -6.0},
-        svn49=None,
     )
     a, b = sim.observations
     # SIMB records C/A only: C1C = C1W + DSB(C1C−C1W) of receiver and satellite (biases add to observations)
@@ -68,8 +67,8 @@ def _mixed_network(tmp_path: Path) -> tuple[object, list[object], Path, Path, di
 
 
 def _solve(orbit: object, obs: list[object]) -> tuple[list[str], dict[str, float], dict[str, float]]:
-    data = network_from_observations(obs, orbit, interval_s=60.0)
-    series, _ = run_bias_filters(data, local=False)
+    data = network_from_observations(obs, orbit, NetworkOptions(interval_s=60.0))
+    series, _ = run_bias_filters(data, BiasFilterOptions(local=False))
     sat, rx, _ = final_dsbs(data, series[0])
     return list(data.layout.svs), sat, rx
 

@@ -5,11 +5,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from distnav.commands.gnss_ionosphere import network_from_observations
+from distnav.commands.gnss_ionosphere import NetworkOptions, network_from_observations
 from distnav.errors import ModelError
+from distnav.models.gnss.biasmodel import BiasModelOptions
 from distnav.models.gnss.constants import mu
-from distnav.models.gnss.gfnetwork import final_dsbs, run_bias_filters, satellite_fit
-from distnav.models.gnss.netsim import REALISTIC, TECU_L1_M, VtecField, simulate_network, truth_product
+from distnav.models.gnss.gfnetwork import BiasFilterOptions, final_dsbs, run_bias_filters, satellite_fit
+from distnav.models.gnss.netsim import (
+    REALISTIC,
+    TECU_L1_M,
+    NetworkSimOptions,
+    VtecField,
+    simulate_network,
+    truth_product,
+)
 from distnav.models.gnss.orbits import synthetic_gps_constellation
 from distnav.models.gnss.products import compare_in_datum
 
@@ -17,12 +25,21 @@ TWO = {"SIMA": (49.14, 12.88, 650.0), "SIMB": (50.80, 10.20, 400.0)}
 
 
 def _sim(**kw: object) -> object:
+    """Two stations, 4 h, fixed DSBs; ``kw``: :class:`NetworkSimOptions` fields (and ``stations``)."""
     orbit = synthetic_gps_constellation(epoch="2024-01-10T00:00:00")
     rng = np.random.default_rng(5)
     sat = {s: float(v) for s, v in zip(orbit.svs, rng.normal(0, 3, len(orbit.svs)), strict=True)}
-    args = {"stations": TWO, "hours": 4.0, "satellite_dsb_ns": sat, "receiver_dsb_ns": {"SIMA": 4.0, "SIMB": -6.0}}
-    args.update(kw)
-    return orbit, simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(1), **args)  # type: ignore[arg-type]
+    stations = kw.pop("stations", TWO)
+    options = NetworkSimOptions(**{"hours": 4.0, **kw})  # type: ignore[arg-type]
+    return orbit, simulate_network(
+        orbit,
+        "2024-01-10",
+        options,
+        rng=np.random.default_rng(1),
+        stations=stations,  # type: ignore[arg-type]
+        satellite_dsb_ns=sat,
+        receiver_dsb_ns={"SIMA": 4.0, "SIMB": -6.0},
+    )
 
 
 def test_observables_carry_the_ionosphere_and_the_biases() -> None:
@@ -53,14 +70,18 @@ def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
     orbit, sim = _sim()
     # the default (here a quarter of the best-tracked satellite's 480 station-epochs: 120) leaves out the
     # satellites seen briefly in these 4 h and names them
-    strict = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0)
+    strict = network_from_observations(sim.observations, orbit, NetworkOptions(l2_code="C2W", interval_s=60.0))
     named = [n for n in strict.notes if n.startswith("not estimated, fewer than 120 ")]
     assert len(named) == 1 and len(strict.layout.svs) >= 10
-    data = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, min_satellite_obs=30)
+    data = network_from_observations(
+        sim.observations,
+        orbit,
+        NetworkOptions(l2_code="C2W", interval_s=60.0, model=BiasModelOptions(min_satellite_obs=30)),
+    )
     assert set(strict.layout.svs) < set(data.layout.svs)
     assert all(s in named[0] for s in set(data.layout.svs) - set(strict.layout.svs))
     assert data.ionosphere == "common"  # 200 km apart: one regional layer
-    series, _ = run_bias_filters(data, local=False)
+    series, _ = run_bias_filters(data, BiasFilterOptions(local=False))
     c = series[0]
     sat, rx, sd = final_dsbs(data, c)
     names = [f"rx:{r}" for r in data.stations] + list(data.layout.svs)
@@ -85,8 +106,12 @@ def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
     assert worst is not None and worst[0] == "G01"
     # without the elevation-dependent bias G01 is an ordinary satellite, below the median
     orbit, clean = _sim(svn49=None)
-    data = network_from_observations(clean.observations, orbit, l2_code="C2W", interval_s=60.0, min_satellite_obs=30)
-    fit = satellite_fit(data, run_bias_filters(data, local=False)[0][0])
+    data = network_from_observations(
+        clean.observations,
+        orbit,
+        NetworkOptions(l2_code="C2W", interval_s=60.0, model=BiasModelOptions(min_satellite_obs=30)),
+    )
+    fit = satellite_fit(data, run_bias_filters(data, BiasFilterOptions(local=False))[0][0])
     assert fit.code_rms_m is not None
     g01 = float(fit.code_rms_m[data.layout.svs.index("G01")])
     assert g01 < 0.8 * worst[1] and g01 < np.nanmedian(fit.code_rms_m) * 1.1
@@ -96,7 +121,7 @@ def test_bias_model_recovers_the_truth_and_flags_svn49() -> None:
 def test_gross_errors_are_injected_and_screened() -> None:
     orbit, sim = _sim(gross_fraction=0.01, gross_station="SIMB")
     assert sim.gross_errors["SIMB"] > 20 and "SIMA" not in sim.gross_errors
-    data = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0)
+    data = network_from_observations(sim.observations, orbit, NetworkOptions(l2_code="C2W", interval_s=60.0))
     removed = int(data.levelled["SIMB"].removed.sum())
     assert removed >= 0.9 * sim.gross_errors["SIMB"]
 
@@ -104,9 +129,11 @@ def test_gross_errors_are_injected_and_screened() -> None:
 def test_bad_options() -> None:
     orbit = synthetic_gps_constellation()
     with pytest.raises(ModelError, match="gross_fraction"):
-        simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(0), gross_fraction=0.7)
+        simulate_network(orbit, "2024-01-10", NetworkSimOptions(gross_fraction=0.7), rng=np.random.default_rng(0))
     with pytest.raises(ModelError, match="no DSB given"):
-        simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(0), hours=1, receiver_dsb_ns={"SIMA": 1.0})
+        simulate_network(
+            orbit, "2024-01-10", NetworkSimOptions(hours=1), rng=np.random.default_rng(0), receiver_dsb_ns={"SIMA": 1.0}
+        )
 
 
 def test_ckf_receivers_screen_their_own_innovations() -> None:
@@ -117,13 +144,13 @@ def test_ckf_receivers_screen_their_own_innovations() -> None:
 
     orbit, sim = _sim(hours=2.0, gross_fraction=0.01, gross_station="SIMB", svn49=None)
     data = network_from_observations(
-        sim.observations, orbit, l2_code="C2W", interval_s=60.0, levelling=False, screen=False
+        sim.observations, orbit, NetworkOptions(l2_code="C2W", interval_s=60.0, levelling=False, screen=False)
     )
     graph = default_graph(data.positions_ecef_m, data.stations)
     truth = truth_product(sim)
     rms = {}
     for level in (None, 0.001):
-        series, _ = run_bias_filters(data, local=False, graph=graph, kn=20, innovation_level=level)
+        series, _ = run_bias_filters(data, BiasFilterOptions(local=False, kn=20, innovation_level=level), graph=graph)
         ckf = series[1]
         assert ckf.label == "ckf:SIMA"
         sat, rx, _ = final_dsbs(data, ckf)
@@ -172,20 +199,20 @@ def test_realistic_preset_is_noisier_but_consistent() -> None:
         s = simulate_network(
             orbit,
             "2024-01-10",
+            NetworkSimOptions(hours=1.0, multipath_day_fraction=fraction, **quiet),
             rng=np.random.default_rng(seed),
             stations=TWO,
-            hours=1.0,
             satellite_dsb_ns=dict.fromkeys(orbit.svs, 0.0),
             receiver_dsb_ns={"SIMA": 0, "SIMB": 0},
-            multipath_day_fraction=fraction,
-            **quiet,
         )
         return s.observations[0].range_m[1]
 
     assert np.nanmax(np.abs(code(1, 0.0) - code(2, 0.0))) < 1e-9
     assert np.nanmedian(np.abs(code(1, 0.6) - code(2, 0.6))) > 0.01
     with pytest.raises(ModelError, match="multipath_day_fraction"):
-        simulate_network(orbit, "2024-01-10", rng=np.random.default_rng(0), hours=1, multipath_day_fraction=1.5)
+        simulate_network(
+            orbit, "2024-01-10", NetworkSimOptions(hours=1, multipath_day_fraction=1.5), rng=np.random.default_rng(0)
+        )
 
 
 def test_arc_sigma_scale_counts_effective_observations() -> None:
@@ -206,12 +233,21 @@ def test_arc_sigma_scale_counts_effective_observations() -> None:
 def test_station_weights_follow_the_stations_noise() -> None:
     """SIMB with 2× the code noise and multipath of SIMA: with one common ionosphere ("auto") its σ factor from its
     own levelling residuals is larger (the ratio near 2); "off" or per-station ionospheres ("auto") leave the σ."""
-    from distnav.commands.gnss_ionosphere import network_from_observations
+    from distnav.commands.gnss_ionosphere import NetworkOptions, network_from_observations
+    from distnav.models.gnss.biasmodel import BiasModelOptions
 
     orbit, sim = _sim(hours=2.0, station_noise_scale=(1.0, 2.0))
-    on = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0)
-    off = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, station_weights="off")
-    per = network_from_observations(sim.observations, orbit, l2_code="C2W", interval_s=60.0, ionosphere="per-receiver")
+    on = network_from_observations(sim.observations, orbit, NetworkOptions(l2_code="C2W", interval_s=60.0))
+    off = network_from_observations(
+        sim.observations,
+        orbit,
+        NetworkOptions(l2_code="C2W", interval_s=60.0, model=BiasModelOptions(station_weighting="off")),
+    )
+    per = network_from_observations(
+        sim.observations,
+        orbit,
+        NetworkOptions(l2_code="C2W", interval_s=60.0, model=BiasModelOptions(ionosphere="per-receiver")),
+    )
     ratio = on.sigma_m / off.sigma_m
     tr = on.geometry.tracked
     fa, fb = float(np.median(ratio[:, 0][tr[:, 0]])), float(np.median(ratio[:, 1][tr[:, 1]]))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from distnav.cli import main
-from distnav.formats.gnss.bias_sinex import read_bias_sinex, sinex_time, write_bias_sinex
+from distnav.formats.gnss.bias_sinex import BiasSinexHeader, read_bias_sinex, sinex_time, write_bias_sinex
 from distnav.formats.gnss.product_files import product_day, product_dsbs
 from distnav.models.gnss.products import ProductDSB, compare_in_datum
 
@@ -61,7 +61,7 @@ def test_bias_sinex_no_zero_sigma_svns_comments_session(tmp_path: Path) -> None:
         satellites={**SATS, "G07": (1.0, float("nan"))},
         stations=STAS,
         svns={"G01": "G063", "G05": "G050"},
-        comments=[long],
+        header=BiasSinexHeader(comments=[long]),
     )
     assert isinstance(text, str)
     _, sat, _ = _independent_parse(text)
@@ -91,7 +91,7 @@ def test_bias_sinex_round_trip_two_parsers(tmp_path: Path) -> None:
         end="2024-01-11T00:00",
         satellites=SATS,
         stations={**STAS, "XXXX": (np.nan, 1.0)},
-        created="2024-01-12T13:45:56",
+        header=BiasSinexHeader(created="2024-01-12T13:45:56"),
     )
     text = gzip.decompress(path.read_bytes()).decode("ascii")
     first = text.splitlines()[0]

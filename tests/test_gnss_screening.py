@@ -11,9 +11,9 @@ IGS = "gnss/igs_2024010_bele_dgar"
 
 
 def test_gross_errors_at_one_station_move_no_dcb_by_more_than_0_1_ns(shared_data: Path) -> None:
-    from distnav.commands.gnss_ionosphere import network_from_observations
+    from distnav.commands.gnss_ionosphere import NetworkOptions, network_from_observations
     from distnav.formats.gnss.rinex import read_navigation, read_stations
-    from distnav.models.gnss.gfnetwork import run_bias_filters
+    from distnav.models.gnss.gfnetwork import BiasFilterOptions, run_bias_filters
 
     d = shared_data / IGS
     nav = read_navigation(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz", max_age_s=4 * 3600.0)
@@ -32,9 +32,9 @@ def test_gross_errors_at_one_station_move_no_dcb_by_more_than_0_1_ns(shared_data
     p1.ravel()[pick] += rng.choice([-1.0, 1.0], pick.size) * rng.uniform(3.0, 30.0, pick.size)
     bad = [obs[0], replace(dgar, range_m={1: p1, 2: dgar.range_m[2]})]
 
-    def dsb(o: list, **kw: object) -> tuple[dict[str, float], object]:
-        data = network_from_observations(o, nav, interval_s=60, **kw)
-        (c,), _ = run_bias_filters(data, local=False)
+    def dsb(o: list, levelling: bool = True) -> tuple[dict[str, float], object]:
+        data = network_from_observations(o, nav, NetworkOptions(interval_s=60, levelling=levelling))
+        (c,), _ = run_bias_filters(data, BiasFilterOptions(local=False))
         keys = [f"rx:{r}" for r in data.stations] + list(data.layout.svs)
         return dict(zip(keys, c.dsb_ns[-1].tolist(), strict=True)), data
 

@@ -8,7 +8,7 @@ import pytest
 from distnav.errors import ExchangeError, GraphError, WeightsError
 from distnav.exchange import make_exchange
 from distnav.network import builders, consensus_weights
-from distnav.network.graph_part import GraphPart
+from distnav.network.graph_part import GraphPart, edge_starts_from_degrees
 from distnav.network.partition import partition_nodes
 from distnav.network.weights import part_weights
 
@@ -59,14 +59,14 @@ def test_part_errors_are_clear() -> None:
     g = builders.path(5)
     with pytest.raises(GraphError, match="node ids must lie in 0..4"):
         GraphPart.from_graph(g, np.array([7]))
-    deg = g.degrees
+    start = edge_starts_from_degrees(g.degrees)
     # node 2's list is short: its degree says 2 neighbours
     with pytest.raises(GraphError, match="node 2 has 1 entries"):
-        GraphPart.from_neighbours(5, np.array([2]), deg, np.array([2, 1, 1, 3]), np.array([1, 2, 0, 4]))
+        GraphPart.from_neighbours(5, np.array([2]), np.array([2, 1, 1, 3]), np.array([1, 2, 0, 4]), start)
     with pytest.raises(GraphError, match="listed twice"):
-        GraphPart.from_neighbours(5, np.array([2]), deg, np.array([2, 2, 2]), np.array([1, 1, 3]))
+        GraphPart.from_neighbours(5, np.array([2]), np.array([2, 2, 2]), np.array([1, 1, 3]), start)
     with pytest.raises(GraphError, match="halo node's neighbour list is missing"):
-        GraphPart.from_neighbours(5, np.array([2]), deg, np.array([2, 2]), np.array([1, 3]))
+        GraphPart.from_neighbours(5, np.array([2]), np.array([2, 2]), np.array([1, 3]), start)
     with pytest.raises(ExchangeError, match="needs the whole graph, not a graph part"):
         make_exchange(GraphPart.from_graph(g, np.arange(5)))
     with pytest.raises(ExchangeError, match="'rcm' needs the whole graph"):

@@ -96,7 +96,7 @@ def test_uwb_solve_workflow_gives_the_distributed_solvers_lms_sigma_and_counts_t
     2-hop sub-network σ were 0.30–0.81 × them; the cost is that of CG rounds of P·(n_free + n) floats."""
     sub, geo, _ = _plant_corner()
     lm = solve_field(sub, FieldOptions(solver="LM", loss="cauchy"), geometry=geo)
-    d = solve_field(sub, FieldOptions(solver="N-CLM", loss="cauchy"), geometry=geo)
+    d = solve_field(sub, FieldOptions(solver="N-CLM", loss="cauchy", distributed_precision="central"), geometry=geo)
     two_hop = solve_field(
         sub, FieldOptions(solver="N-CLM", loss="cauchy", distributed_precision="subnetwork"), geometry=geo
     )

@@ -1,7 +1,7 @@
 """The message economy of the distributed UWB phases (distnav.algorithms.ranging.wire, issue 27): the packed rounds
-deliver exactly what the full rounds delivered, send fewer bytes for the stated reason, the float32 directions and
-the looser σ tolerance of the workflow stay within their stated distance of LM's dense answers, and the per-phase
-split of the bytes adds up to the totals."""
+deliver exactly what the full rounds delivered, send fewer bytes for the stated reason, the float16 (shared
+exponent) and float32 directions and the looser σ tolerance of the workflow stay within their stated distance of
+LM's dense answers, and the per-phase split of the bytes adds up to the totals."""
 
 from __future__ import annotations
 
@@ -13,6 +13,8 @@ from distnav.algorithms.ranging.covariance import ECONOMY_CG_RTOL, ECONOMY_WIRE_
 from distnav.algorithms.ranging.csg import solve
 from distnav.algorithms.ranging.lm import solve_lm
 from distnav.algorithms.ranging.refine import Links
+from distnav.algorithms.ranging.wire import pack_half, unpack_half
+from distnav.errors import ModelError
 from distnav.exchange import make_exchange
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field, subset_measurements
@@ -87,17 +89,55 @@ def test_a_lost_message_from_a_talking_anchor_is_still_an_error(hall):
             links.vectors(np.ones((p.n_anchors, p.dim, 1)) * p.free[:, :, None])
 
 
-def test_float32_directions_reach_lms_solution(hall):
-    """The LM phase with float32 CG directions ends where LM (dense, float64) ends, as the float64 phase does."""
+@pytest.mark.parametrize("dtype", [np.float16, np.float32])
+def test_reduced_precision_directions_reach_lms_solution(hall, dtype, monkeypatch):
+    """The LM phase with float16 (shared exponent, the default) or float32 CG directions ends where LM (dense,
+    float64) ends, as the float64 phase does; float16 sends 5 B per free anchor and link where float32 sent 8."""
     p = subset_measurements(hall[0], ~hall[2])
     lm = solve_lm(p, **OPTS)
     assert lm.status == "converged"
     sigma = lm.precision.std(a_posteriori=False)
+    monkeypatch.setattr(wire, "CG_WIRE_DTYPE", dtype)
     res = solve(p, "N-CLM", iterations=0, **OPTS)
     assert res.status == "converged", res.message
     z = np.abs(res.estimates - lm.estimates)[p.free] / sigma[p.free]
     assert z.max() < 1e-3
     assert np.abs(res.estimates - lm.estimates).max() < 1e-4  # 0.1 mm
+
+
+def test_half_rows_round_trip_to_11_bits_of_their_largest_entry():
+    """pack_half / unpack_half: 2 B per entry and one exponent byte per row; every entry within 2⁻¹¹ of its row's
+    largest magnitude (float16's 11 significant bits after the shared scaling), at any scale from 1e-30 to 1e30
+    (a bare float16 flushes 1e-9 to 0 and overflows at 65504); zero rows stay zero, signs kept."""
+    rng = np.random.default_rng(5)
+    rows = rng.normal(size=(7, 6)) * np.array([1e-30, 1e-9, 1e-3, 1.0, 7e4, 1e30, 0.0])[:, None]
+    packed = pack_half(rows)
+    assert packed.dtype == np.uint8 and packed.shape == (7, 2 * 6 + 1)
+    back = unpack_half(packed, 6)
+    top = np.max(np.abs(rows), axis=1, keepdims=True)
+    assert np.all(np.abs(back - rows) <= 2.0**-11 * top)
+    assert np.all(back[6] == 0.0) and np.all(np.sign(back[:6]) == np.sign(rows[:6]))
+    assert np.all(np.float16(rows[1]) == 0.0) and np.all(back[1] != 0.0)  # what the exponent is for
+    with pytest.raises(ModelError, match="13 bytes"):
+        unpack_half(packed[:, :-1], 6)
+
+
+def test_half_directions_bytes_per_round(hall):
+    """One CG round with float16 directions: 2 B per free column and 1 exponent byte, from every anchor with a free
+    parameter, on every directed link it sends on."""
+    p = hall[0]
+    g = Graph.from_links(p.n_anchors, p.links)
+    ex = make_exchange(g)
+    links = Links(p, ex)
+    v = np.random.default_rng(1).normal(size=(p.n_anchors, p.dim, 1)) * p.free[:, :, None]
+    before = ex.comm_totals().snapshot()
+    got = links.vectors(v, np.float16)
+    c = ex.comm_totals().since(before)
+    fixed = np.flatnonzero(~p.free.any(axis=1))
+    talking = 2 * p.links.shape[0] - int(np.isin(p.links, fixed).sum())
+    assert c.bytes == talking * (2 * 2 + 1) and c.messages == talking
+    exact = links.vectors(v, np.float64)
+    assert np.all(np.abs(got - exact) <= 2.0**-11 * np.max(np.abs(v)))
 
 
 def test_economy_sigma_within_1e5_of_lms_dense_covariance(hall):
@@ -122,7 +162,8 @@ def test_phases_add_up_to_the_totals(hall):
     assert sum(v["bytes"] for v in phases.values()) == r.comm.bytes
     assert sum(v["messages"] for v in phases.values()) == r.comm.messages
     sol = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
-    assert list(sol.comm_phases) == ["first_fit", "tighten", "exclusions", "polish", "precision"]
+    assert list(sol.comm_phases) == ["first_fit", "tighten", "exclusions", "polish", "precision", "reliability"]
+    assert sol.comm_phases["reliability"]["bytes"] == sol.reliability["bytes"] > 0  # issue 28 item 5
     assert sum(v["bytes"] for v in sol.comm_phases.values()) == sol.bytes
     assert sum(v["messages"] for v in sol.comm_phases.values()) == sol.messages
     assert sol.comm_phases["precision"]["bytes"] == sol.precision_bytes

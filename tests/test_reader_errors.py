@@ -86,7 +86,7 @@ APRIL = (
 
 
 def _bias_sinex() -> str:
-    from distnav.formats.gnss.bias_sinex import write_bias_sinex
+    from distnav.formats.gnss.bias_sinex import BiasSinexHeader, write_bias_sinex
 
     text = write_bias_sinex(
         None,
@@ -96,7 +96,7 @@ def _bias_sinex() -> str:
         end="2024-01-11",
         satellites={"G01": (1.25, 0.01), "G02": (-2.5, 0.02)},
         stations={"DGAR": (10.5, 0.1)},
-        created="2024-01-12",
+        header=BiasSinexHeader(created="2024-01-12"),
     )
     assert isinstance(text, str)
     return text
@@ -481,7 +481,7 @@ def test_enough_cases() -> None:
 # ------------------------------------------------------------------------------------------------------ CLI
 def _cli_cases(tmp: Path, shared: Path | None) -> list[tuple[str, list[str], Path]]:
     """(id, argv, the corrupted file) through the commands that read each format."""
-    from distnav.formats.gnss.bias_sinex import write_bias_sinex
+    from distnav.formats.gnss.bias_sinex import BiasSinexHeader, write_bias_sinex
 
     good_bia = tmp / "good.bia"
     write_bias_sinex(
@@ -492,7 +492,7 @@ def _cli_cases(tmp: Path, shared: Path | None) -> list[tuple[str, list[str], Pat
         end="2024-01-11",
         satellites={"G01": (1.0, 0.1)},
         stations={},
-        created="2024-01-12",
+        header=BiasSinexHeader(created="2024-01-12"),
     )
     known = tmp / "known.csv"
     known.write_text(POSITIONS)

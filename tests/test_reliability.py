@@ -20,7 +20,7 @@ from distnav.algorithms.statistics import (
     redundancy_numbers,
 )
 from distnav.models.uwb.problems import build_problem
-from distnav.models.uwb.reliability import external_reliability, reliability_weak
+from distnav.models.uwb.reliability import ReliabilityOptions, external_reliability, reliability_weak
 
 
 def test_noncentrality_is_baardas_and_gives_the_stated_power():
@@ -109,9 +109,7 @@ def _fit(p, ranges, start, offset: bool):
 def test_uwb_redundancy_mdb_and_shift_against_refits(offset):
     p, pos = _network(3)
     x, res = _fit(p, p.range_m, pos, offset)
-    rel = external_reliability(
-        p, x, sigma_m=0.1, offsets="common" if offset else "none", loss="linear", loss_scale_m=0.3, level=0.001
-    )
+    rel = external_reliability(p, x, ReliabilityOptions(sigma_m=0.1, offsets="common" if offset else "none"))
     assert rel is not None
     n_x = x.size
     # redundancy numbers against a finite-difference hat matrix of the independent residual function
@@ -138,7 +136,7 @@ def test_uwb_redundancy_mdb_and_shift_against_refits(offset):
 def test_reliability_weak_names_the_link_and_the_shift():
     p, pos = _network(3)
     x, _ = _fit(p, p.range_m, pos, False)
-    rel = external_reliability(p, x, sigma_m=0.1, offsets="none", loss="linear", loss_scale_m=0.3, level=0.001)
+    rel = external_reliability(p, x, ReliabilityOptions(sigma_m=0.1))
     assert rel is not None
     sigma = np.zeros((p.n_anchors, 2))
     top = int(np.argmax(rel.shift_m))
@@ -165,7 +163,7 @@ def test_an_unchecked_link_makes_its_anchor_weak():
     d[:4] += [0.02, -0.01, 0.015, -0.02]
     p = build_problem(ids, links, d, fixed=known, dim=2, truth_m=pos, initial_m=pos)
     x, _ = _fit(p, p.range_m, pos, False)
-    rel = external_reliability(p, x, sigma_m=0.1, offsets="none", loss="linear", loss_scale_m=0.3, level=0.001)
+    rel = external_reliability(p, x, ReliabilityOptions(sigma_m=0.1))
     assert rel is not None
     assert np.all(np.isinf(rel.mdb_m[4:])) and np.all(np.isfinite(rel.mdb_m[:4]))
     assert np.isinf(rel.shift_m[ids.index("F")]) and np.isfinite(rel.shift_m[ids.index("G")])

@@ -131,7 +131,11 @@ def test_report_link_check_catches_a_missing_figure(tmp_path):
 
 @pytest.mark.parametrize("name", list(EXPERIMENTS))
 def test_every_figure_an_experiment_writes_has_a_caption(name):
-    source = (SRC / (EXPERIMENTS[name].rsplit(".", 1)[1] + ".py")).read_text(encoding="utf-8")
+    stem = EXPERIMENTS[name].rsplit(".", 1)[1]
+    # the experiment's module and, where its figures have their own module, <stem>_figures.py
+    source = "".join(
+        p.read_text(encoding="utf-8") for p in (SRC / f"{stem}.py", SRC / f"{stem}_figures.py") if p.exists()
+    )
     figures = set(re.findall(r"\"(\w+\.png)\"", source))
     assert figures, name
     own = getattr(importlib.import_module(EXPERIMENTS[name]), "FIGURE_CAPTIONS", {})

@@ -457,6 +457,30 @@ def test_no_refine_skips_the_final_distributed_lm_phase(tmp_path):
     assert refined["messages"] < plain["messages"]
 
 
+def test_nclm_counts_its_distributed_lm_rounds_as_iterations(tmp_path, capsys, monkeypatch):
+    """Issue 28 item 3: N-CLM's fits run no neighbour iterations before the final distributed LM phase, and the
+    console said "0 iterations". The count is checked against every solve of the workflow, recorded here by a
+    wrapper around the solver's front door (its iterations plus its LM phase's rounds)."""
+    from distnav.algorithms.ranging import csg
+
+    f = hall(tmp_path, ceiling=False)
+    seen: list[int] = []
+    front_door = csg.solve
+
+    def recording(*a, **kw):
+        r = front_door(*a, **kw)
+        seen.append(int(r.iterations) + int(((r.settings or {}).get("refine") or {}).get("rounds", 0)))
+        return r
+
+    monkeypatch.setattr(csg, "solve", recording)
+    assert run(f, tmp_path / "out", "--solver", "N-CLM", "--initial", str(f["initial"])) in (*USABLE, 1)
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    phase = s["communication"]["distributed"]["final_lm_phase"]
+    assert phase["rounds"] >= 1 and seen and s["iterations"] == sum(seen) >= phase["rounds"]
+    assert "distributed LM phase" in s["iterations_counted"]
+    assert f"N-CLM (metres, cauchy_long): {s['iterations']} iterations" in capsys.readouterr().out
+
+
 def test_reliability_weak_anchors_carry_their_reason_and_the_limit_switches_it_off(tmp_path, capsys):
     """A narrow simulated hall (120 m × 14 m, two rows): anchors one undetected link could move by metres are
     reported weak with the link and the shift in positions.csv, summary.json and on the console;

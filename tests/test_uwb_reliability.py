@@ -1,5 +1,7 @@
 """External reliability (redundancy numbers, MDB, the worst undetected shift) for the distributed solvers of
-``uwb solve`` (issue 28, item 6): the same numbers as LM's where the network and the solution are the same."""
+``uwb solve`` (issue 28, item 5), computed by every anchor from its neighbourhood's link records
+(:data:`~distnav.models.uwb.reliability.LOCAL_HOPS` hops, which span this 16-anchor hall): the same numbers as LM's
+where the network and the solution are the same."""
 
 from __future__ import annotations
 
@@ -34,7 +36,8 @@ def test_distributed_reliability_equals_lms_on_the_same_network(tmp_path, solver
     assert np.array_equal(lm.excluded, dist.excluded)  # the same network
     assert np.max(np.abs(lm.positions_m - dist.positions_m)) < 1e-3  # the same solution (the final LM phase)
     a, b = s_lm["reliability"], s_d["reliability"]
-    assert a["tested"] and b["tested"] and "distributed solution" in b["computed"]
+    assert a["tested"] and b["tested"] and "neighbourhood" in b["computed"] and b["bytes"] > 0
+    assert b["largest_subnetwork"] == int(dist.problem.estimated.sum())  # a neighbourhood spans the network
     assert set(a["shift_m"]) == set(b["shift_m"])
     for k, v in a["shift_m"].items():
         assert (v is None) == (b["shift_m"][k] is None)

@@ -61,6 +61,32 @@ def test_a_good_map_exits_0_and_a_tight_requirement_exits_3_with_the_list(tmp_pa
     head = rows[0]
     meets = {r[0]: r[head.index("meets_required")] for r in rows[1:]}
     assert all(meets[k] == "0" for k in failing) and all(v in ("1", "") for k, v in meets.items() if k not in failing)
+    # what the map does meet (issue 28 item 2): every anchor failed by its radius alone, so the largest radius,
+    # rounded up to the mm, is a requirement the same run passes with exit 0
+    assert s["run"]["blocking"] == [] and s["run"]["map_accuracy_m"] == max(s["run"]["accuracy_m"].values())
+    bound = f"{np.ceil(s['run']['map_accuracy_m'] * 1000) / 1000:.3f}"
+    assert f"this map meets {bound} m" in err and f"--required-accuracy-m {bound} exits 0" in err
+    assert _solve(f, tmp_path / "bound", "--required-accuracy-m", bound) == 0
+
+
+def test_weak_anchors_block_at_any_accuracy_and_the_rest_is_stated() -> None:
+    """A verdict with a weak anchor and anchors failing by their radius: the weak one is ``blocking``, the map's
+    accuracy is the largest radius of the others, and the console line names both."""
+    from distnav.commands.uwb_outputs import map_accuracy_line
+    from distnav.models.uwb.verdict import RunVerdict
+
+    v = RunVerdict(
+        "not_accurate",
+        3,
+        "weakly_determined",
+        0.3,
+        {"A1": 0.2, "A2": 0.45, "A3": 0.9},
+        {"A2": "accuracy radius 0.450 m > 0.3 m", "A3": "weak: thin: 3 kept links for 2 coordinates"},
+    )
+    assert v.blocking == ("A3",) and v.map_accuracy_m == 0.45
+    line = map_accuracy_line(v)
+    assert "the other anchors meet 0.450 m" in line and "A3 fail at any required accuracy" in line
+    assert v.as_dict()["blocking"] == ["A3"] and v.as_dict()["map_accuracy_m"] == 0.45
 
 
 def test_required_accuracy_is_checked_before_any_work(tmp_path, capsys) -> None:

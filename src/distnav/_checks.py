@@ -15,7 +15,7 @@ import numpy as np
 
 from distnav.errors import DistnavError
 
-__all__ = ["affordable_nodes", "real_array", "whole_number"]
+__all__ = ["affordable_nodes", "real_array", "real_number", "whole_number"]
 
 #: Bytes every node of a network costs at the least (its links both ways in the graph's CSR arrays, its id, its
 #: value); a network above physical memory ÷ this cannot be built, so it is refused before numpy tries.
@@ -35,6 +35,34 @@ def whole_number(value: object, name: str, *, minimum: int = 0, error: type[Dist
         raise error(f"{name} must be a whole number, got {value!r} ({type(value).__name__})")
     if number < minimum:
         raise error(f"{name} must be at least {minimum}, got {number}")
+    return number
+
+
+def real_number(
+    value: object,
+    name: str,
+    *,
+    error: type[DistnavError],
+    minimum: float | None = None,
+    positive: bool = False,
+    below: float | None = None,
+    unit: str = "",
+) -> float:
+    """``value`` as a finite ``float``: an ``int``, a float or a numpy real; not a bool, a complex number, a string
+    or None. ``minimum`` (inclusive), ``positive`` (> 0) and ``below`` (exclusive) bound it; ``unit`` is named in
+    the message (``"m"``, ``"rad"``)."""
+    what = f"{name} must be a {'positive ' if positive else ''}number{f' of {unit}' if unit else ''}"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise error(f"{what}, got {value!r} ({type(value).__name__})")
+    number = float(value)
+    if not np.isfinite(number):
+        raise error(f"{what}, got {number!r}")
+    if positive and not number > 0.0:
+        raise error(f"{what}, got {number!r}")
+    if minimum is not None and number < minimum:
+        raise error(f"{name} must be {minimum:g} or more{f' ({unit})' if unit else ''}, got {number!r}")
+    if below is not None and not number < below:
+        raise error(f"{name} must be below {below:g}{f' ({unit})' if unit else ''}, got {number!r}")
     return number
 
 

@@ -99,8 +99,49 @@ def build_top_level_parser() -> argparse.ArgumentParser | None:
     return parser
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_words(words: Sequence[str]) -> tuple[str | None, str | None]:
+    """The command and, for ``reproduce``, the experiment named in ``words`` (None where not named): the top-level
+    parser and ``reproduce`` take no option with a value, so the first word that is not an option is the command,
+    and the next one after ``reproduce`` the experiment."""
+    positional = [w for w in words if not w.startswith("-")]
+    command = positional[0] if positional else None
+    experiment = None
+    if command == "reproduce" and len(words) > words.index("reproduce") + 1:
+        following = words[words.index("reproduce") + 1]
+        experiment = None if following.startswith("-") else following
+    return command, experiment
+
+
+def build_parser(words: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The CLI's parser. With ``words`` (the command line) only the command they name is built in full, every
+    other one is named with its one-line help but not built, so a run imports only the modules of its own command
+    (issue 32 item 7: building all cost 1.5 CPU-s, on every MPI rank); ``distnav reproduce NAME`` imports only that
+    experiment. Without ``words``, or when they name no known command, everything is built (the same parser: the
+    audit and tests/test_cli_startup.py compare the two)."""
+    command, experiment = command_words(words) if words is not None else (None, None)
+    if command not in TOP_LEVEL_HELP or build_top_level_parser() is None:
+        command = None
+    if command != "reproduce" or experiment not in EXPERIMENTS:
+        experiment = None
     parser, sub = _top_parser()
+    if command in (None, "demo"):
+        _add_demo_parser(sub)
+    else:
+        sub.add_parser("demo", help=TOP_LEVEL_HELP["demo"])
+    if command in (None, "reproduce"):
+        _add_reproduce_parser(sub, only=experiment)
+    else:
+        sub.add_parser("reproduce", help=TOP_LEVEL_HELP["reproduce"])
+    for modname in COMMAND_MODULES:
+        if command is not None and command not in COMMAND_NAMES[modname]:
+            for name in COMMAND_NAMES[modname]:
+                sub.add_parser(name, help=TOP_LEVEL_HELP[name])
+        elif importlib.util.find_spec(modname) is not None:
+            importlib.import_module(modname).register(sub)
+    return parser
+
+
+def _add_demo_parser(sub: Any) -> None:
     demo = sub.add_parser("demo", help=TOP_LEVEL_HELP["demo"])
     demo.add_argument(
         "--out", type=output_folder, default=Path("distnav-demo"), help="report folder (default distnav-demo)"
@@ -114,9 +155,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_common(demo)
 
+
+def _add_reproduce_parser(sub: Any, *, only: str | None) -> None:
+    """``distnav reproduce NAME``: every experiment's options, or with ``only`` that experiment's alone (the others
+    named, not imported)."""
     rep = sub.add_parser("reproduce", help=TOP_LEVEL_HELP["reproduce"])
     rep_sub = rep.add_subparsers(dest="experiment", required=True)
     for name in available():
+        if only is not None and name != only:
+            rep_sub.add_parser(name)
+            continue
         mod = load(name)
         p = rep_sub.add_parser(name, help=getattr(mod, "TITLE", name))
         p.add_argument("--out", type=output_folder, required=True, help="output folder")
@@ -124,11 +172,6 @@ def build_parser() -> argparse.ArgumentParser:
         _add_common(p)
         if hasattr(mod, "add_arguments"):
             mod.add_arguments(p)
-
-    for modname in COMMAND_MODULES:
-        if importlib.util.find_spec(modname) is not None:
-            importlib.import_module(modname).register(sub)
-    return parser
 
 
 def _context(args: argparse.Namespace, out_dir: Path, quick: bool) -> ExperimentContext:
@@ -464,7 +507,7 @@ def _main(argv: Sequence[str] | None) -> int:
         top = build_top_level_parser()
         if top is not None:
             top.parse_args(words)  # exits (help, version, or the error that a command is required)
-    parser = build_parser()
+    parser = build_parser(words)
     args = parser.parse_args(words)
     if getattr(args, "backend", "inprocess") == "mpi":
         try:  # every rank fails alike here, before MPI starts

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from functools import partial
+from typing import Any
 
 import numpy as np
 
@@ -172,6 +173,58 @@ def ckf_random_walk(backend: str) -> dict[str, np.ndarray]:
     res = ckf(dyn, NormalSeries(N, r), graph=g, protocol="P3", rounds=4, exchange=make_exchange(g, backend=backend))
     series = res.series
     return {"estimates": res.estimates, "std": series.std, "sent": res.comm.messages_sent}
+
+
+def _relay_series(seed: int, n: int, outlier: bool = False) -> Any:
+    from distnav.models.gnss.gfbias import BiasGeometryFreeSeries, BiasStateLayout
+
+    S, T = 6, 5
+    rng = np.random.default_rng(seed)
+    lay = BiasStateLayout(tuple(f"G{k:02d}" for k in range(S)), tuple(f"R{i}" for i in range(n)), reference="R0")
+    tracked = rng.random((T, n, S)) > 0.3
+    obs = (0.3 if outlier else 1.0) * rng.standard_normal((T, n, S))
+    if outlier:
+        obs[3, 4, np.flatnonzero(tracked[3, 4])[0]] += 40.0  # node 4 must reject it at epoch 3
+    return BiasGeometryFreeSeries(
+        lay,
+        rng.standard_normal((T, n, S, 3)),
+        rng.uniform(0.2, 0.4 if outlier else 1.0, (T, n, S)),
+        obs_m=obs,
+        tracked=tracked,
+        groups=np.zeros(n, np.int64),
+    )
+
+
+@case
+def ckf_relay_transport(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.kalman import DynamicModel
+    from distnav.algorithms.kalman.ckf import ckf
+
+    g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
+    ser = _relay_series(8, g.n_nodes)
+    dyn = DynamicModel(ser.n_states, noise_cov=0.01 * np.eye(ser.n_states))
+    ex = make_exchange(g, backend=backend)
+    res = ckf(dyn, ser, graph=g, protocol="P3", rounds=3, transport="relay", exchange=ex)
+    return {"estimates": res.series.estimates, "std": res.series.std, "bytes": res.comm.bytes_sent}
+
+
+@case
+def ckf_relay_with_innovation_tests(backend: str) -> dict[str, np.ndarray]:
+    from distnav.algorithms.kalman import DynamicModel
+    from distnav.algorithms.kalman.ckf import ckf
+
+    g = builders.connected_random_geometric(12, mean_degree=4, rng=np.random.default_rng(5))
+    ser = _relay_series(9, g.n_nodes, outlier=True)
+    dyn = DynamicModel(ser.n_states, noise_cov=0.01 * np.eye(ser.n_states))
+    ex = make_exchange(g, backend=backend)
+    res = ckf(dyn, ser, graph=g, rounds=3, transport="relay", exchange=ex, local_precision="exact", test_level=0.001)
+    assert res.tests is not None and res.local_std is not None
+    return {
+        "estimates": res.series.estimates,
+        "local_std": res.local_std,
+        "removed": np.asarray(res.tests.removed),
+        "bytes": res.comm.bytes_sent,
+    }
 
 
 @case
@@ -426,6 +479,48 @@ def consensus_on_graph_parts(backend: str) -> dict[str, np.ndarray]:
 
 
 @case
+def consensus_on_tiled_parts(backend: str) -> dict[str, np.ndarray]:
+    """MPI: each rank builds only its part of a tiled random geometric graph (no array over the whole network),
+    the partition held as node ranges; in-process: the whole tiled graph. Drops and a silent node: the same
+    numbers."""
+    from distnav.network.part_builders import (
+        radius_for_mean_degree,
+        tiled_random_geometric,
+        tiled_random_geometric_part,
+    )
+    from distnav.network.partition import block_ranges
+    from distnav.network.weights import part_weights
+
+    n = 5000
+    radius = radius_for_mean_degree(n, 8)
+    faults = FaultSchedule(drop_probability=0.1, silent_nodes=((4321, 3),), seed=9)
+    x0 = np.random.default_rng(5).normal(size=n)
+    if backend == "mpi":
+        from mpi4py import MPI
+
+        comm = MPI.COMM_WORLD
+        ranges = block_ranges(n, comm.Get_size())
+        part = tiled_random_geometric_part(
+            n, radius, seed=7, nodes=ranges.nodes_of(comm.Get_rank()), tile_nodes=128, comm=comm
+        )
+        ex = make_exchange(part, backend="mpi", faults=faults, partition=ranges)
+        mixer = ex.mixer(part_weights(part, "MH"))
+    else:
+        g = tiled_random_geometric(n, radius, seed=7, tile_nodes=128)
+        ex = make_exchange(g, faults=faults)
+        mixer = ex.mixer(consensus_weights(g, "MH"))
+    x = ex.local(x0)
+    for _ in range(12):
+        x = mixer.apply(x)
+    totals = ex.comm_totals()
+    return {
+        "estimates": ex.gather_nodes(x),
+        "received": totals.messages_received,
+        "per_round": totals.messages_per_round,
+    }
+
+
+@case
 def ncsg_neighbourhood_precision(backend: str) -> dict[str, np.ndarray]:
     """The node-local "neighbourhood" precision (block broadcasts) at an N-CSG-TBLS solution."""
     from distnav.algorithms.ranging.csg import solve_ncsg
@@ -608,4 +703,25 @@ def central_precision_distributed(backend: str) -> dict[str, np.ndarray]:
         "estimates": out.covariance(a_posteriori=True).ravel(),
         "sent": out.precision.comm.messages_sent,
         "count": np.asarray([out.cg_iterations, out.reductions, out.reduced_floats]),
+    }
+
+
+@case
+def local_reliability_distributed(backend: str) -> dict[str, np.ndarray]:
+    """Issue 28 item 5: every anchor's redundancy numbers, MDB and worst shift from its 2-hop neighbourhood's link
+    records, flooded through the exchange (one-sided Cauchy, common offset) on a 40-anchor random network."""
+    from distnav.algorithms.ranging.reliability import ReliabilityOptions, local_reliability
+
+    problem = _uwb_problem()
+    assert problem.truth_m is not None
+    est = problem.truth_m + np.where(problem.free, np.random.default_rng(5).normal(0.0, 0.05, problem.truth_m.shape), 0)
+    opts = ReliabilityOptions(sigma_m=0.1, offsets="common", loss="cauchy_long", loss_scale_m=0.3)
+    rel = local_reliability(
+        problem, est, opts, offsets_m=np.array([0.02]), hops=2, exchange=make_exchange(problem.graph, backend=backend)
+    )
+    return {
+        "estimates": np.nan_to_num(np.concatenate([rel.r, rel.mdb_m, rel.shift_m]), nan=-1.0),  # NaN: not owned
+        "count": np.concatenate([rel.worst_link, rel.subnetwork_anchors]),
+        "bytes": np.asarray(rel.comm.bytes_sent),
+        "sent": np.asarray(rel.comm.messages_sent),
     }

@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import logging
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -25,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from distnav._optional import require
+from distnav.commands.field_processes import kill_group, setup_node_log
 from distnav.errors import UsageError
 from distnav.formats.field_config import NetworkDescription, format_description, read_description
 from distnav.options import existing_file, node_output_files, nonnegative_int, output_folder, positive_float
@@ -74,20 +73,12 @@ def _description(path: Path) -> NetworkDescription:
     return read_description(path)
 
 
-def _setup_log(out_dir: Path, node_id: int) -> None:
-    handler = logging.FileHandler(out_dir / f"node-{node_id}.log", encoding="utf-8")
-    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
-    log = logging.getLogger("distnav.field")
-    log.addHandler(handler)
-    log.setLevel(logging.INFO)
-
-
 def _node(args: argparse.Namespace) -> int:
     from distnav.commands.field_node import check_node_id, run_node
 
     desc = _description(args.config)
     check_node_id(desc, args.id)
-    _setup_log(args.out, args.id)
+    setup_node_log(args.out, args.id)
     return run_node(desc, args.id, args.out, rejoin=args.rejoin)
 
 
@@ -136,17 +127,9 @@ def launch(desc_path: Path, out_dir: Path, *, timeout_s: float = 300.0, quiet: b
     finally:
         for p in procs.values():
             if p.poll() is None:
-                _kill_group(p)
+                kill_group(p)
     elapsed = time.monotonic() - t0
     return _collect(desc, out_dir, codes, elapsed, quiet=quiet, rejoined=rejoined)
-
-
-def _kill_group(p: subprocess.Popen[bytes]) -> None:
-    try:
-        os.killpg(p.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    p.wait(timeout=10)
 
 
 def _collect(
@@ -160,15 +143,18 @@ def _collect(
 ) -> dict[str, Any]:
     import json
 
-    from distnav.commands.field_node import CRASH_EXIT, node_values
+    from distnav.commands.field_node import CRASH_EXIT, STOPPED_EXIT, node_values
 
     nodes: dict[str, Any] = {}
-    finished, crashed, failed = [], [], []
+    finished, crashed, failed, stopped = [], [], [], []
     for node_id, code in sorted(codes.items()):
         f = out_dir / f"node-{node_id}.json"
         if code == 0 and f.exists():
             nodes[str(node_id)] = json.loads(f.read_text(encoding="utf-8"))
             finished.append(node_id)
+        elif code == STOPPED_EXIT and f.exists():  # ended on purpose without an answer, its reason in its file
+            nodes[str(node_id)] = json.loads(f.read_text(encoding="utf-8"))
+            stopped.append(node_id)
         elif code == CRASH_EXIT and node_id in desc.crash:
             crashed.append(node_id)
         else:
@@ -179,19 +165,22 @@ def _collect(
         "n_nodes": desc.n_nodes,
         "finished": finished,
         "crashed_on_purpose": crashed,
+        "stopped": stopped,
         "rejoined": rejoined,
         "failed": failed,
         "seconds": elapsed,
         "wire_bytes": int(sum(r["wire"]["bytes_sent"] for r in nodes.values())),
         "refused": int(sum(sum(r["refused"].values()) for r in nodes.values())),
     }
-    if finished:
+    consensus = desc.algorithm["name"] in ("consensus", "consensus_flows")
+    if nodes:
+        summary["lost_nodes"] = sorted({int(k) for r in nodes.values() for k in r["lost_nodes"]})
+        summary["rounds_per_second_min"] = min(r["rounds_per_second"] or 0.0 for r in nodes.values())
+    if finished and consensus:
         est = np.array([nodes[str(i)]["estimate"] for i in finished])
         data = np.array([node_values(desc, i) for i in range(desc.n_nodes) if i not in crashed])
         summary["central_mean_of_remaining"] = data.mean(axis=0)
         summary["max_abs_diff_vs_central_of_remaining"] = float(np.abs(est - data.mean(axis=0)).max())
-        summary["lost_nodes"] = sorted({int(k) for r in nodes.values() for k in r["lost_nodes"]})
-        summary["rounds_per_second_min"] = min(r["rounds_per_second"] or 0.0 for r in nodes.values())
     summary["nodes"] = nodes
     atomic_write_json(out_dir / "results.json", summary)
     if not quiet:
@@ -199,11 +188,18 @@ def _collect(
             f"{desc.name}: {len(finished)} of {desc.n_nodes} nodes finished in {elapsed:.1f} s"
             + (f", {len(crashed)} crashed on purpose {crashed}" if crashed else "")
             + (f", {len(failed)} FAILED {[f['node'] for f in failed]}" if failed else "")
+            + (f", {len(stopped)} stopped without an answer {stopped}" if stopped else "")
         )
+        if stopped:
+            print(f"  node {stopped[0]}: {nodes[str(stopped[0])]['message']}")
         if finished:
+            central = (
+                f"max |x_i - mean of remaining data| = {summary['max_abs_diff_vs_central_of_remaining']:.3g}; "
+                if consensus
+                else f"status of node {finished[0]}: {nodes[str(finished[0])]['status']}; "
+            )
             print(
-                f"  lost nodes noticed: {summary['lost_nodes']}; max |x_i - mean of remaining data| = "
-                f"{summary['max_abs_diff_vs_central_of_remaining']:.3g}; wire bytes {summary['wire_bytes']:,}; "
+                f"  lost nodes noticed: {summary['lost_nodes']}; {central}wire bytes {summary['wire_bytes']:,}; "
                 f"refused messages {summary['refused']}"
             )
         print(f"  -> {out_dir / 'results.json'}")
@@ -212,7 +208,7 @@ def _collect(
 
 def _launch(args: argparse.Namespace) -> int:
     summary = launch(args.config, args.out, timeout_s=args.timeout)
-    return 0 if not summary["failed"] else 1
+    return 1 if summary["failed"] else 3 if summary["stopped"] else 0
 
 
 def _keys(args: argparse.Namespace) -> int:
@@ -241,71 +237,3 @@ def _keys(args: argparse.Namespace) -> int:
         f'description with security = "curve" -> {out}'
     )
     return 0
-
-
-def free_loopback_ports(count: int) -> list[int]:
-    """``count`` TCP ports free on 127.0.0.1 right now (bound to port 0 and released; a race with other programs is
-    possible but rare)."""
-    import socket
-
-    socks, ports = [], []
-    try:
-        for _ in range(count):
-            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            s.bind(("127.0.0.1", 0))
-            socks.append(s)
-            ports.append(int(s.getsockname()[1]))
-    finally:
-        for s in socks:
-            s.close()
-    return ports
-
-
-def write_loopback_network(
-    folder: Path,
-    links: list[tuple[int, int]] | np.ndarray,
-    values: np.ndarray,
-    *,
-    name: str = "network",
-    algorithm: dict[str, Any] | None = None,
-    crash: dict[int, int] | None = None,
-    deadline_ms: float = 2000.0,
-    miss_limit: int = 3,
-    drop_probability: float = 0.0,
-    latency_max_ms: float = 0.0,
-    seed: int = 0,
-) -> Path:
-    """Write ``folder/network.toml`` and one data file per node (``values[i]``) for a network on loopback with free
-    ports: what tests, benchmarks and demos launch."""
-    from distnav.formats.field_config import NodeEntry
-
-    folder.mkdir(parents=True, exist_ok=True)
-    vals = np.asarray(values, dtype=float).reshape(len(values), -1)
-    n = vals.shape[0]
-    nbrs: list[set[int]] = [set() for _ in range(n)]
-    for i, j in np.asarray(links, dtype=int).reshape(-1, 2).tolist():
-        nbrs[i].add(j)
-        nbrs[j].add(i)
-    ports = free_loopback_ports(n)
-    (folder / "data").mkdir(exist_ok=True)
-    nodes = []
-    for i in range(n):
-        data = folder / "data" / f"node-{i}.txt"
-        atomic_write_text(data, " ".join(repr(float(v)) for v in vals[i]) + "\n")
-        nodes.append(
-            NodeEntry(id=i, address=f"tcp://127.0.0.1:{ports[i]}", neighbours=tuple(sorted(nbrs[i])), data=data)
-        )
-    desc = NetworkDescription(
-        nodes=tuple(nodes),
-        name=name,
-        deadline_ms=deadline_ms,
-        miss_limit=miss_limit,
-        algorithm=algorithm or {"name": "consensus", "rounds": 200, "protocol": "MH", "patience": 20},
-        crash=crash or {},
-        drop_probability=drop_probability,
-        drop_seed=seed,
-        latency_max_ms=latency_max_ms,
-    )
-    path = folder / "network.toml"
-    atomic_write_text(path, format_description(desc, relative_to=folder))
-    return path

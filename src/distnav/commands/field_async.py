@@ -122,23 +122,37 @@ def add_node_arguments(p: argparse.ArgumentParser) -> None:
 
 def open_node(args: argparse.Namespace) -> NetworkDescription:
     """The description of a node program's ``--config``, its ``--id`` checked, its log opened in ``--out``."""
-    from distnav.commands.field import _setup_log
+    from distnav.commands.field_processes import setup_node_log
 
     desc = read_description(args.config)
     if not 0 <= args.id < desc.n_nodes:
         raise UsageError(f"--id {args.id}: the description has nodes 0..{desc.n_nodes - 1}")
     args.out.mkdir(parents=True, exist_ok=True)
-    _setup_log(args.out, args.id)
+    setup_node_log(args.out, args.id)
     return desc
+
+
+def add_node_program(
+    field_sub: Any, name: str, help_text: str, func: Any, options: list[tuple[str, Any, Any, str]]
+) -> None:
+    """A ``distnav field NAME`` node program: ``--config/--id/--out`` and ``options`` (flag, type, default, help)."""
+    p = field_sub.add_parser(name, help=help_text)
+    add_node_arguments(p)
+    for flag, kind, default, text in options:
+        p.add_argument(flag, type=kind, default=default, help=text)
+    p.set_defaults(func=func, node_files=node_output_files)
 
 
 def register(field_sub: Any) -> None:
     """Add ``pushsum-node`` to the ``distnav field`` sub-commands."""
-    p = field_sub.add_parser("pushsum-node", help="run one node of an asynchronous push-sum network (own timer)")
-    add_node_arguments(p)
-    p.add_argument("--period-ms", type=positive_float, default=10.0, help="tick period of this node (default 10)")
-    p.add_argument("--duration-s", type=positive_float, default=5.0, help="how long the node ticks (default 5)")
-    p.set_defaults(func=_handler, node_files=node_output_files)
+    text = "run one node of an asynchronous push-sum network (own timer)"
+    add_node_program(field_sub, "pushsum-node", text, _handler, _PUSHSUM_OPTIONS)
+
+
+_PUSHSUM_OPTIONS = [
+    ("--period-ms", positive_float, 10.0, "tick period of this node (default 10)"),
+    ("--duration-s", positive_float, 5.0, "how long the node ticks (default 5)"),
+]
 
 
 def _handler(args: argparse.Namespace) -> int:

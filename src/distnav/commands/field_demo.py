@@ -16,7 +16,9 @@ they computed with an independent reference:
    ``uwb_max_abs_diff_vs_inprocess_m``. Every process rebuilds the simulated problem from its seed; the solver reads
    only its own node's rows (as under MPI) and learns the rest from messages.
 
-``DIR/results.json`` holds those numbers, ``wire_bytes`` (real bytes sent on the wire by all runs), ``verdicts``,
+``DIR/results.json`` holds those numbers, ``wire_bytes`` (real bytes sent on the wire by all runs), ``vs_gather``
+(per run, its wire bytes beside what gathering the nodes' data at one node by multi-hop relaying would cost:
+:func:`~distnav.algorithms.result.compare_with_gather`, also printed), ``verdicts``,
 each run's summary, and ``uwb_killed`` saying why no UWB run with a killed anchor is made (the distributed UWB solvers
 do not yet continue without a dead node). Each run's folder keeps the description, the nodes' results and logs.
 Every process is bounded by ``--timeout`` and killed (process group) on failure or Ctrl-C. ``distnav demo --out
@@ -34,16 +36,20 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from distnav.commands.field_async import add_node_arguments, open_node
+from distnav.commands.field_async import add_node_program, open_node
+from distnav.commands.field_processes import LoopbackOptions, kill_group, removable_node, write_loopback_network
 from distnav.errors import UsageError
 from distnav.network import builders
 from distnav.network.graph import Graph
-from distnav.options import node_output_files, output_folder, positive_float, positive_int, seed
+from distnav.options import output_folder, positive_float, positive_int, seed
 from distnav.output import atomic_write_json
+
+if TYPE_CHECKING:
+    from distnav.algorithms.result import CommComparison
 
 __all__ = ["DemoOptions", "run_field_demo", "launch_async", "register"]
 
@@ -82,18 +88,6 @@ class DemoOptions:
             raise UsageError(f"--nodes at most 64 on one machine, got {self.nodes}")
         if not 1 <= self.kill_round < self.rounds:
             raise UsageError(f"--kill-round must be in 1..{self.rounds - 1} (below --rounds), got {self.kill_round}")
-
-
-def _victim(graph: Graph) -> int:
-    """The highest-id node whose loss leaves the others connected."""
-    for v in range(graph.n_nodes - 1, -1, -1):
-        keep = [i for i in range(graph.n_nodes) if i != v]
-        links = [(a, b) for a, b in graph.links.tolist() if v not in (a, b)]
-        index = {k: n for n, k in enumerate(keep)}
-        sub = Graph.from_links(len(keep), [(index[a], index[b]) for a, b in links])
-        if sub.is_connected:
-            return v
-    raise UsageError("no node can be removed without splitting the network")  # unreachable for our graphs
 
 
 def launch_async(
@@ -169,8 +163,6 @@ def _uwb_node(args: argparse.Namespace) -> int:
 def _launch_nodes(desc_path: Path, out_dir: Path, commands: list[list[str]], timeout_s: float) -> dict[str, Any]:
     """Start one process per ``commands[i]`` (``distnav`` arguments for node ``i``), wait at most ``timeout_s`` (then
     kill the rest, process group and all) and collect their ``node-ID.json``."""
-    from distnav.commands.field import _kill_group
-
     out_dir.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     src = str(Path(__file__).resolve().parents[2])
@@ -204,7 +196,7 @@ def _launch_nodes(desc_path: Path, out_dir: Path, commands: list[list[str]], tim
     finally:
         for p in procs:
             if p.poll() is None:
-                _kill_group(p)
+                kill_group(p)
     nodes = {str(i): json.loads((out_dir / f"node-{i}.json").read_text()) for i, c in enumerate(codes) if c == 0}
     return {
         "finished": [i for i, c in enumerate(codes) if c == 0],
@@ -245,6 +237,7 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
         "every node finished (but the killed one)": not failed,
     }
     wire = int(sum(r["wire_bytes"] for r in runs.values()))
+    vs_gather = _versus_gather(runs, graph, values, _uwb_problem(opts.nodes, opts.seed))
     results: dict[str, Any] = {
         "nodes": opts.nodes,
         "links": graph.links.tolist(),
@@ -256,6 +249,7 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
         "uwb_max_abs_diff_vs_inprocess_m": uwb_diff,
         "uwb_killed": "not run: the distributed UWB solvers do not yet continue without a dead anchor",
         "wire_bytes": wire,
+        "vs_gather": {k: c.as_dict() for k, c in vs_gather.items()},
         "false_losses": sorted(set(killed["lost_nodes"]) - {victim}),
         "verdicts": verdicts,
         "failed": failed,
@@ -267,6 +261,7 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
             "async push-sum (node 0 3x slower): max |x_i - mean|": ps_diff,
             "UWB network, N-CSG-TBLS: max |field - in-process| (m)": uwb_diff,
             "wire bytes, all runs": wire,
+            **{f"{k}: wire bytes ÷ gathering the data at one node": c.ratio_bytes for k, c in vs_gather.items()},
         },
     }
     atomic_write_json(out / "results.json", results)
@@ -276,12 +271,14 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
 def _clean_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) -> dict[str, Any]:
     """Lock-step MH consensus on node processes; reference: the same rounds in-process."""
     from distnav.algorithms.consensus.averaging import iterate_average_consensus
-    from distnav.commands.field import launch, write_loopback_network
+    from distnav.commands.field import launch
     from distnav.formats.field_config import read_description
 
     algo = {"name": "consensus", "rounds": opts.rounds, "protocol": "MH", "patience": 5}
     folder = out / "consensus_clean"
-    net = write_loopback_network(folder, graph.links, values, name="demo-clean", algorithm=algo, deadline_ms=20000)
+    net = write_loopback_network(
+        folder, graph.links, values, LoopbackOptions(name="demo-clean", algorithm=algo, deadline_ms=20000)
+    )
     run = launch(net, folder, timeout_s=opts.timeout_s, quiet=True)
     ref = values
     for state in iterate_average_consensus(
@@ -295,21 +292,15 @@ def _clean_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) -
 
 def _killed_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) -> dict[str, Any]:
     """Flow consensus with one node exiting at ``kill_round``; reference: numpy's mean of the others' data."""
-    from distnav.commands.field import launch, write_loopback_network
+    from distnav.commands.field import launch
 
-    victim = _victim(graph)
+    victim = removable_node(graph)
     algo = {"name": "consensus_flows", "rounds": opts.rounds, "protocol": "MH", "patience": 5}
     folder = out / "consensus_killed"
-    net = write_loopback_network(
-        folder,
-        graph.links,
-        values,
-        name="demo-killed",
-        algorithm=algo,
-        crash={victim: opts.kill_round},
-        deadline_ms=opts.deadline_ms,
-        miss_limit=3,
+    killed = LoopbackOptions(
+        name="demo-killed", algorithm=algo, crash={victim: opts.kill_round}, deadline_ms=opts.deadline_ms
     )
+    net = write_loopback_network(folder, graph.links, values, killed)
     run = launch(net, folder, timeout_s=opts.timeout_s, quiet=True)
     keep = np.arange(opts.nodes) != victim
     ok = run["finished"]
@@ -325,10 +316,8 @@ def _killed_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) 
 
 def _pushsum_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path) -> dict[str, Any]:
     """Asynchronous push-sum, node 0 ticking every 30 ms and the others every 10 ms; reference: numpy's mean."""
-    from distnav.commands.field import write_loopback_network
-
     folder = out / "pushsum_async"
-    net = write_loopback_network(folder, graph.links, values, name="demo-pushsum")
+    net = write_loopback_network(folder, graph.links, values, LoopbackOptions(name="demo-pushsum"))
     periods = [30.0] + [10.0] * (opts.nodes - 1)
     run = launch_async(net, folder, periods_ms=periods, duration_s=opts.pushsum_seconds, timeout_s=opts.timeout_s)
     ok = run["finished"]
@@ -340,13 +329,10 @@ def _pushsum_run(opts: DemoOptions, graph: Graph, values: np.ndarray, out: Path)
 def _uwb_run(opts: DemoOptions, out: Path) -> dict[str, Any]:
     """N anchors of a UWB network (paper 002 problem RC), one process each, N-CSG-TBLS over the field exchange;
     reference: the same solve in-process."""
-    from distnav.commands.field import write_loopback_network
-
     problem = _uwb_problem(opts.nodes, opts.seed)
     folder = out / "uwb_clean"
-    net = write_loopback_network(
-        folder, problem.graph.links, np.zeros((opts.nodes, 1)), name="demo-uwb", deadline_ms=60000
-    )
+    uwb = LoopbackOptions(name="demo-uwb", deadline_ms=60000)
+    net = write_loopback_network(folder, problem.graph.links, np.zeros((opts.nodes, 1)), uwb)
     cmd = ["field", "demo-uwb-node", "--seed", str(opts.seed), "--iterations", str(opts.uwb_iterations)]
     run = _launch_nodes(net, folder, [cmd] * opts.nodes, opts.timeout_s)
     ref = _solve_uwb(problem, opts.uwb_iterations, "inprocess")
@@ -361,7 +347,30 @@ def _uwb_run(opts: DemoOptions, out: Path) -> dict[str, Any]:
 
 
 def _short(summary: dict[str, Any]) -> dict[str, Any]:
-    return {k: summary[k] for k in ("finished", "failed", "seconds", "wire_bytes") if k in summary}
+    out: dict[str, Any] = {k: summary[k] for k in ("finished", "failed", "seconds", "wire_bytes") if k in summary}
+    out["wire_frames"] = int(sum(r["wire"]["frames_sent"] for r in summary.get("nodes", {}).values()))
+    return out
+
+
+def _versus_gather(runs: dict[str, Any], graph: Graph, values: np.ndarray, uwb: Any) -> dict[str, CommComparison]:
+    """Each run's real wire bytes beside what gathering its data at one node by multi-hop relaying would cost
+    (:func:`~distnav.algorithms.result.compare_with_gather`): consensus nodes hold their values (float64), UWB
+    anchors the ranges they logged first (one float64 per sample, each sample once)."""
+    from distnav.algorithms.result import compare_with_gather
+
+    per_node = np.full(graph.n_nodes, 8 * values.shape[1])
+    uwb_bytes = 8 * np.bincount(uwb.meas_a, minlength=uwb.n_anchors)
+    data = {
+        "consensus_clean": (graph, per_node, "the node's values (float64)"),
+        "consensus_killed": (graph, per_node, "the node's values (float64)"),
+        "pushsum_async": (graph, per_node, "the node's values (float64)"),
+        "uwb_clean": (uwb.graph, uwb_bytes, "the anchor's range samples (float64)"),
+    }
+    return {
+        name: compare_with_gather((runs[name]["wire_bytes"], runs[name]["wire_frames"]), g, b, data=what)
+        for name, (g, b, what) in data.items()
+        if name in runs
+    }
 
 
 def _print_table(res: dict[str, Any]) -> None:
@@ -386,6 +395,8 @@ def _print_table(res: dict[str, Any]) -> None:
             f"{r['seconds']:>7.1f}"
         )
     print(f"UWB, one anchor killed: {res['uwb_killed']}")
+    for name, c in res["vs_gather"].items():
+        print(f"  {name}: {c['line']}")
     for text, ok in res["verdicts"].items():
         print(f"  {'ok  ' if ok else 'FAIL'} {text}")
 
@@ -409,11 +420,11 @@ def register(field_sub: Any) -> None:
     p.add_argument("--deadline-ms", type=positive_float, default=5000.0, help="killed run's step deadline (5000)")
     p.add_argument("--out", type=output_folder, required=True, help="folder for results.json and every run's files")
     p.set_defaults(func=_handler)
-    u = field_sub.add_parser("demo-uwb-node", help="one anchor of field demo's UWB network (started by field demo)")
-    add_node_arguments(u)
-    u.add_argument("--seed", type=seed, default=0, help="the simulated network's seed (as field demo's)")
-    u.add_argument("--iterations", type=positive_int, default=30, help="N-CSG-TBLS iterations")
-    u.set_defaults(func=_uwb_node, node_files=node_output_files)
+    uwb_options = [
+        ("--seed", seed, 0, "the simulated network's seed (as field demo's)"),
+        ("--iterations", positive_int, 30, "N-CSG-TBLS iterations"),
+    ]
+    add_node_program(field_sub, "demo-uwb-node", "one anchor of field demo's UWB network", _uwb_node, uwb_options)
 
 
 def _handler(args: argparse.Namespace) -> int:

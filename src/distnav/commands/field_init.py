@@ -4,7 +4,10 @@
   neighbours are the anchors it ranged with (a link when at least ``--min-ranges`` samples of the pair were read);
 * ``--rinex FILE ...`` — one RINEX observation file per GNSS station: one node per station, placed at its
   ``APPROX POSITION XYZ``, neighbours are the ``--k`` nearest stations (symmetrised: a link when either picks the
-  other).
+  other);
+* ``--simulate codebias|ckf|hall --nodes N`` — a simulated network for ADMM, the CKF or N-CLM
+  (:mod:`distnav.commands.field_scenarios`), one ``.npz`` data file per node holding only that node's data
+  (:mod:`distnav.formats.field_data`) in ``data-NAME/`` beside the description.
 
 Node ids are ``0..n-1`` in the order of the anchors' ids (numerically when they are numbers) or of the files given;
 a comment block at the top of the file names each node. Addresses are ``tcp://127.0.0.1:PORT`` with
@@ -27,10 +30,10 @@ from distnav.errors import DataFileError, UsageError
 from distnav.formats.field_config import NetworkDescription, NodeEntry, format_description
 from distnav.network import builders
 from distnav.network.graph import Graph
-from distnav.options import existing_file, positive_int
+from distnav.options import existing_file, positive_int, seed
 from distnav.output import atomic_write_text
 
-__all__ = ["InitPlan", "plan_from_ranges", "plan_from_rinex", "describe", "register"]
+__all__ = ["InitPlan", "plan_from_ranges", "plan_from_rinex", "plan_from_simulation", "describe", "register"]
 
 _HOST = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.\-]*[A-Za-z0-9])?$|^\[[0-9A-Fa-f:]+\]$")
 
@@ -109,8 +112,17 @@ def _addresses(n: int, hosts: list[str] | None, base_port: int) -> list[str]:
     return [f"tcp://{hosts[0] if len(hosts) == 1 else hosts[i]}:{base_port + i}" for i in range(n)]
 
 
-def describe(plan: InitPlan, *, hosts: list[str] | None, base_port: int, out: Path, name: str) -> str:
-    """The TOML text for ``plan`` (a comment block naming the nodes, then the description)."""
+def describe(
+    plan: InitPlan,
+    *,
+    hosts: list[str] | None,
+    base_port: int,
+    out: Path,
+    name: str,
+    algorithm: dict[str, Any] | None = None,
+) -> str:
+    """The TOML text for ``plan`` (a comment block naming the nodes, then the description; ``algorithm`` the
+    ``[algorithm]`` table, default the runtime's)."""
     g = plan.graph
     if not g.is_connected:
         comps = _components(g)
@@ -121,10 +133,15 @@ def describe(plan: InitPlan, *, hosts: list[str] | None, base_port: int, out: Pa
         NodeEntry(id=i, address=addresses[i], neighbours=tuple(int(j) for j in g.neighbors(i)), data=plan.data[i])
         for i in range(g.n_nodes)
     )
-    text = format_description(NetworkDescription(nodes=nodes, name=name), relative_to=out.parent)
+    desc = NetworkDescription(nodes=nodes, name=name)
+    if algorithm is not None:
+        desc = NetworkDescription(nodes=nodes, name=name, algorithm=algorithm)
+    text = format_description(desc, relative_to=out.parent)
     head = [
         f"# written by `distnav field init` from {plan.source}",
-        "# [algorithm] is the runtime's default: set it for what the nodes should compute with these data files.",
+        "# [algorithm] is the runtime's default: set it for what the nodes should compute with these data files."
+        if algorithm is None
+        else "# every node's data file holds only that node's data (copy node-ID.npz to node ID's host only)",
         "# node id = name:",
     ]
     head += [f"#   {i} = {n}" for i, n in enumerate(plan.names)]
@@ -174,6 +191,14 @@ def register(field_sub: Any) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--ranges", type=existing_file, help="UWB range log a,b,range_m: who ranges with whom")
     src.add_argument("--rinex", type=existing_file, nargs="+", help="one RINEX observation file per GNSS station")
+    src.add_argument(
+        "--simulate",
+        choices=("codebias", "ckf", "hall"),
+        help="a simulated network with one data file per node: ADMM on paper 000's code biases, the CKF of paper "
+        "003 §4, or N-CLM on a UWB hall (paper 002); files in DIR/data-NAME/ beside --out",
+    )
+    p.add_argument("--nodes", type=positive_int, default=8, help="--simulate: nodes (anchors) of the network (8)")
+    p.add_argument("--seed", type=seed, default=0, help="--simulate: the simulation's seed (0)")
     p.add_argument("--k", type=positive_int, default=3, help="GNSS: link each station to its k nearest (default 3)")
     p.add_argument("--min-ranges", type=positive_int, default=1, help="UWB: samples a pair needs for a link")
     p.add_argument("--hosts", type=_hosts, help="comma-separated hosts: one for all nodes or one per node")
@@ -183,12 +208,36 @@ def register(field_sub: Any) -> None:
     p.set_defaults(func=_handler)
 
 
+def plan_from_simulation(kind: str, n_nodes: int, seed_value: int, folder: Path) -> tuple[InitPlan, dict[str, Any]]:
+    """Simulate a network (:mod:`distnav.commands.field_scenarios`), write one data file per node into ``folder``
+    (which must not exist) and return the plan and the ``[algorithm]`` table."""
+    from distnav.commands.field_scenarios import SCENARIOS
+    from distnav.formats.field_data import write_node_arrays
+
+    if n_nodes < (4 if kind == "hall" else 2):
+        raise UsageError(f"--nodes {n_nodes}: a {kind} network needs at least {4 if kind == 'hall' else 2} nodes")
+    if folder.exists():
+        raise UsageError(f"{folder} exists: field init never overwrites (remove it or pick another --out)")
+    sc = SCENARIOS[kind](n_nodes, seed_value)
+    paths = tuple(folder / f"node-{i}.npz" for i in range(n_nodes))
+    for i, path in enumerate(paths):
+        write_node_arrays(path, sc.kind, i, n_nodes, sc.node_arrays(i))
+    names = tuple(sc.graph.names) if sc.graph.names is not None else tuple(str(i) for i in range(n_nodes))
+    return InitPlan(names, sc.graph, paths, f"a simulated {kind} network of {n_nodes} nodes (seed {seed_value})"), {
+        **sc.algorithm
+    }
+
+
 def _handler(args: argparse.Namespace) -> int:
+    algorithm = None
     if args.ranges is not None:
         plan = plan_from_ranges(args.ranges, min_ranges=args.min_ranges)
-    else:
+    elif args.rinex is not None:
         plan = plan_from_rinex(list(args.rinex), k=args.k)
-    text = describe(plan, hosts=args.hosts, base_port=args.base_port, out=args.out, name=args.name)
+    else:
+        folder = args.out.parent / f"data-{args.out.stem}"
+        plan, algorithm = plan_from_simulation(args.simulate, args.nodes, args.seed, folder)
+    text = describe(plan, hosts=args.hosts, base_port=args.base_port, out=args.out, name=args.name, algorithm=algorithm)
     if args.out.exists():  # made while we read the inputs
         raise UsageError(f"{args.out} exists: field init never overwrites a file")
     atomic_write_text(args.out, text)

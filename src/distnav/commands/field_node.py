@@ -25,10 +25,13 @@ from distnav.exchange.field import CurveKeys, FieldExchange, Transport
 from distnav.formats.field_config import NetworkDescription, read_node_values
 from distnav.output import atomic_write_json
 
-__all__ = ["CRASH_EXIT", "load_keys", "run_node", "node_values"]
+__all__ = ["CRASH_EXIT", "STOPPED_EXIT", "load_keys", "run_node", "node_values"]
 
 #: Exit code of a node that crashes on purpose (``[faults] crash`` in the description).
 CRASH_EXIT = 70
+#: Exit code of a node that stopped without an answer (a lost node its algorithm cannot do without), having written
+#: its node-ID.json with ``status = "stopped"`` and the reason.
+STOPPED_EXIT = 3
 LOG = logging.getLogger("distnav.field")
 
 
@@ -55,6 +58,7 @@ def load_keys(desc: NetworkDescription, node_id: int) -> CurveKeys | None:
 
 
 def node_values(desc: NetworkDescription, node_id: int) -> np.ndarray:
+    """A consensus node's values (its data file, :func:`read_node_values`)."""
     entry = desc.node(node_id)
     if entry.data is None:
         raise DataFileError(f"{desc._where()}: node {node_id}: key 'data' (its data file) is needed by consensus")
@@ -65,11 +69,11 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
     """Run node ``node_id`` to the end (see the module docstring); returns the exit code. ``rejoin``: a restarted
     node joining a running network (from its initial data, at the step its neighbours are at; no crash again)."""
     entry = desc.node(node_id)
-    values = node_values(desc, node_id)
+    consensus = desc.algorithm["name"] in ("consensus", "consensus_flows")
+    values = node_values(desc, node_id) if consensus else None
     keys = load_keys(desc, node_id)
-    algo = desc.algorithm
-    rounds = int(algo["rounds"])
-    crash_round = None if rejoin else desc.crash.get(node_id)
+    if rejoin and not consensus:
+        raise UsageError(f"--rejoin: only consensus nodes can rejoin a running network, not {desc.algorithm['name']}")
     transport = Transport(node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=keys)
     t0 = time.monotonic()
     try:
@@ -78,44 +82,33 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         if missing:
             LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
         schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
-        ex = FieldExchange(desc.graph(), node_id, transport, schedule)
+        crash_step = None if (consensus or rejoin) else desc.crash.get(node_id)
+        ex = (
+            FieldExchange(desc.graph(), node_id, transport, schedule)
+            if crash_step is None
+            else _CrashingExchange(desc.graph(), node_id, transport, schedule, crash_step=crash_step)
+        )
         if rejoin:
             ex.start_at(first)
             LOG.warning("node %d: rejoining at step %d", node_id, first)
-        t_start = time.monotonic()
-        full = np.zeros((desc.n_nodes, values.size))
-        full[node_id] = values  # the other rows are placeholders: only this node's row is read (ex.local)
-        states: Any
-        if algo["name"] == "consensus":
-            states = iterate_average_consensus(
-                full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds - first, exchange=ex
-            )
+        t_start, cpu_start = time.monotonic(), time.process_time()
+        if values is not None:
+            outcome = _run_consensus(desc, node_id, ex, values, first, None if rejoin else desc.crash.get(node_id))
         else:
-            states = iterate_flow_consensus(
-                full,
-                graph=ex.graph,
-                protocol=algo["protocol"],
-                rounds=rounds - first,
-                exchange=ex,
-                patience=algo["patience"],
-            )
-        last = None
-        for state in states:
-            last = state
-            if crash_round is not None and state.round + first == crash_round:
-                LOG.warning("node %d: crashing on purpose at round %d ([faults] crash)", node_id, crash_round)
-                logging.shutdown()
-                os._exit(CRASH_EXIT)
-        assert last is not None
-        elapsed = time.monotonic() - t_start
+            from distnav.commands.field_algorithms import run_algorithm
+
+            outcome = run_algorithm(desc, node_id, ex, transport)
+        elapsed, cpu = time.monotonic() - t_start, time.process_time() - cpu_start
         ex._flush()  # this node's model counters (comm_totals would gather over the network)
+        rounds = int(outcome.pop("rounds"))
+        status = outcome.pop("status", "completed")
         result = {
             "node": node_id,
-            "algorithm": algo["name"],
-            "estimate": last.values[0],
-            "initial": values,
+            "algorithm": desc.algorithm["name"],
+            **outcome,
             "rounds": rounds,
-            "status": "completed" if not transport.lost else "completed_with_lost_neighbours",
+            "steps": ex.step,
+            "status": status if not transport.lost or status == "stopped" else f"{status}_with_lost_neighbours",
             "lost_nodes": {str(k): v for k, v in sorted(transport.lost.items())},
             "readmitted_nodes": {str(k): v for k, v in sorted(transport.readmitted.items())},
             "missing_at_start": missing,
@@ -125,14 +118,64 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             "messages_received_model": int(ex.messages_received.sum()),
             "refused": transport.refusal_counts(),
             "seconds": elapsed,
+            "cpu_seconds": cpu,
             "seconds_total": time.monotonic() - t0,
             "rounds_per_second": rounds / elapsed if elapsed > 0 else None,
         }
         atomic_write_json(out_dir / f"node-{node_id}.json", result)
         LOG.info("node %d: %d rounds in %.2f s, lost %s", node_id, rounds, elapsed, sorted(transport.lost))
-        return 0
+        return STOPPED_EXIT if status == "stopped" else 0
     finally:
         transport.close()
+
+
+class _CrashingExchange(FieldExchange):
+    """A field exchange whose process exits on purpose when it reaches step ``crash_step`` (``[faults] crash`` of an
+    algorithm node: its "round" is the exchange's step, every message round or global operation one step)."""
+
+    def __init__(self, *args: Any, crash_step: int) -> None:
+        super().__init__(*args)
+        self._crash_step = int(crash_step)
+
+    def _next_step(self) -> int:
+        if self.step == self._crash_step:
+            LOG.warning("node %d: crashing on purpose at step %d ([faults] crash)", self.me, self.step)
+            logging.shutdown()
+            os._exit(CRASH_EXIT)
+        return super()._next_step()
+
+
+def _run_consensus(
+    desc: NetworkDescription, node_id: int, ex: FieldExchange, values: np.ndarray, first: int, crash_round: int | None
+) -> dict[str, Any]:
+    """Average consensus or its flow form from round ``first`` on; exits the process at ``crash_round``."""
+    algo = desc.algorithm
+    rounds = int(algo["rounds"])
+    full = np.zeros((desc.n_nodes, values.size))
+    full[node_id] = values  # the other rows are placeholders: only this node's row is read (ex.local)
+    states: Any
+    if algo["name"] == "consensus":
+        states = iterate_average_consensus(
+            full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds - first, exchange=ex
+        )
+    else:
+        states = iterate_flow_consensus(
+            full,
+            graph=ex.graph,
+            protocol=algo["protocol"],
+            rounds=rounds - first,
+            exchange=ex,
+            patience=algo["patience"],
+        )
+    last = None
+    for state in states:
+        last = state
+        if crash_round is not None and state.round + first == crash_round:
+            LOG.warning("node %d: crashing on purpose at round %d ([faults] crash)", node_id, crash_round)
+            logging.shutdown()
+            os._exit(CRASH_EXIT)
+    assert last is not None
+    return {"estimate": last.values[0], "initial": values, "rounds": rounds}
 
 
 def check_node_id(desc: NetworkDescription, node_id: int) -> None:

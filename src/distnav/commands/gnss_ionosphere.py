@@ -16,7 +16,9 @@ default, over the satellites estimated or a fixed ``--datum-satellites`` set; a 
 * ``tec_dcb_per_epoch.csv`` — per epoch, filter (``central``, ``local:STA``, ``ckf:STA``) and parameter: value
   and formal standard deviation (TEC in metres of L1 delay and in TECU, DSBs in ns).
 * ``dcb_final.csv`` — the last-epoch DSBs of every filter and, with ``--bias``, each product's.
-* ``arcs.csv`` — every levelled arc (start reason, offset, code RMS, removed observations).
+* ``arcs.csv`` — every arc (start reason, offset, code RMS) with every removal by reason: ``removed`` (w-test
+  screening), ``removed_mw_outliers`` (one-epoch Melbourne–Wübbena outliers in its span), ``dropped_short`` (the
+  whole arc, shorter than ``--min-arc``: no offset).
 * ``distnav_dsb.bia`` — Bias-SINEX 1.00 of the central filter (realistic σ).
 * ``summary.json`` — settings, codes, arcs, screening, precision, the satellites' fit, and per filter and product
   the datum-aligned comparison (mean, RMS, max, per satellite and receiver, the worst-fitting satellite).
@@ -33,17 +35,21 @@ import argparse
 import json
 import re
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from distnav.commands import add_backend_arguments, command_exchange
-from distnav.commands.gnss_ionosphere_data import REGIONAL_KM, network_data, network_from_observations
+from distnav.commands.gnss_ionosphere_data import REGIONAL_KM, NetworkOptions, network_data, network_from_observations
 from distnav.errors import DataFileError, ModelError
 
 __all__ = [
+    "NetworkOptions",
     "add_ionosphere_parser",
+    "filter_options",
+    "network_options",
     "add_parser",
     "network_data",  # the data stages (gnss_ionosphere_data), re-exported
     "network_from_observations",
@@ -101,6 +107,10 @@ def validate_arguments(args: argparse.Namespace) -> None:
             raise ModelError(f"{opt} {value:g}: must be a positive number")
     if args.kn < 0:
         raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
+    if args.between_station_level != 0 and not 0.0 < args.between_station_level < 0.5:
+        raise ModelError(
+            f"--between-station-level {args.between_station_level:g}: a test level in (0, 0.5), or 0 (off)"
+        )
     if args.innovation_test is not None and not 0.0 < args.innovation_test < 0.5:
         raise ModelError(f"--innovation-test {args.innovation_test:g}: a test level in (0, 0.5), e.g. 0.001")
     if args.min_satellite_obs is not None and args.min_satellite_obs < 1:
@@ -152,113 +162,140 @@ def _iso(t_gps_s: float) -> str:
 
 
 def run_ionosphere(args: argparse.Namespace) -> int:
-    """Handler of ``distnav gnss ionosphere``."""
-    from distnav.commands.gnss_report import (
-        C1C_WARNING,
-        choose_l1_code,
-    )
-    from distnav.formats.gnss.rinex import read_navigation, read_sp3
+    """Handler of ``distnav gnss ionosphere``: wires the options to the stages — read and prepare the network
+    (:func:`network_data`), the filters in the chosen datum (:func:`~distnav.models.gnss.gfnetwork.
+    run_bias_filters`), the outputs (:func:`~distnav.commands.gnss_ionosphere_out.write_results`)."""
+    from distnav.commands.gnss_datum import datum_choice
+    from distnav.commands.gnss_ionosphere_out import write_results
     from distnav.models.gnss.gfnetwork import run_bias_filters
 
     validate_arguments(args)
     days = _split_days(args)
     if len(days) > 1:
         return _run_days(args, days)
-    l1, l1_note = choose_l1_code(args)
-    l2 = args.l2_code.upper()
-    if l1_note:
-        print(f"NOTE: {l1_note}", file=sys.stderr, flush=True)
-    if l1 == "C1C" and not args.c1_corrections:
-        print(C1C_WARNING.format(l2=l2), file=sys.stderr, flush=True)
-    if args.bias:
-        for b in args.bias:
-            if not Path(b).exists():
-                raise DataFileError(f"{b}: file not found")
-    if args.nav and len(args.nav) > 1:
-        raise ModelError(f"{len(args.nav)} --nav files for one day of observations: give one")
-    system = getattr(args, "system", "G")
-    orbit: Any = (
-        read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0, systems=(system,))
-        if args.nav
-        else read_sp3(args.sp3, system=system)
-    )
-    tlim = tuple(args.tlim) if args.tlim else None
-
-    def progress(label: str, fraction: float) -> None:
-        _say(args, f"reading {label}: {100 * fraction:3.0f} %")
-
+    l1, l1_note = _first_code(args)
+    orbit = _read_orbit(args)
     try:
         data = network_data(
             args.obs,
             orbit,
+            network_options(args),
             l1_code=l1,
-            l2_code=l2,
-            tlim=tlim,
-            interval_s=args.interval,
-            mask_deg=args.mask,
-            ionosphere=args.ionosphere,
-            regional_km=args.regional_km,
-            sigma_zenith_m=args.sigma,
-            weighting=args.weighting,
-            reference=args.reference,
-            progress=progress,
-            exclude=args.exclude or (),
-            levelling=args.levelling == "arc",
-            min_arc_epochs=args.min_arc,
-            gf_threshold_m=args.gf_threshold,
-            screen=not args.no_screening,
+            tlim=tuple(args.tlim) if args.tlim else None,
+            progress=lambda label, fraction: _say(args, f"reading {label}: {100 * fraction:3.0f} %"),
             c1_corrections=args.c1_corrections,
-            tec_rw_m_per_sqrt_s=args.tec_rw,
-            min_satellite_obs=args.min_satellite_obs,
-            mapping=args.mapping,
-            tec_order=2 if args.tec_field == "quadratic" else 1,
-            system=system,
+            system=getattr(args, "system", "G"),
         )
     except DataFileError as exc:
         if l1_note and f"({l1})" in str(exc):
             raise DataFileError(f"{exc} ({l1_note})") from None
         raise
-    if args.c1_corrections:
-        l1 = "C1W"
+    l1 = "C1W" if args.c1_corrections else l1
     stations, layout = data.stations, data.layout
-    pivot = args.pivot.upper() if args.pivot else None
-    if args.datum == "pivot":
-        if pivot not in layout.svs:
-            raise ModelError(
-                f"--pivot {pivot}: not tracked above the mask by any station (tracked: {' '.join(layout.svs)})"
-            )
-    n = len(stations)
-    if args.graph:
-        from distnav.commands.gnss import load_edges
-
-        graph = load_edges(Path(args.graph), stations)
-    else:
-        graph = _default_graph(data.positions_ecef_m, stations)
-    from distnav.commands.gnss_datum import datum_choice
-
-    fixed = datum_choice(args, l1, l2)
+    pivot = _pivot(args, layout.svs)
+    graph = _network_graph(args, data)
+    fixed = datum_choice(args, l1, args.l2_code.upper())
     _say(
         args,
-        f"{n} station(s), {data.series.n_epochs} epochs, {len(layout.svs)} satellites, datum {args.datum}, "
-        f"estimation basis: receiver {layout.reference}; ionosphere {data.ionosphere}; graph links "
+        f"{len(stations)} station(s), {data.series.n_epochs} epochs, {len(layout.svs)} satellites, datum "
+        f"{args.datum}, estimation basis: receiver {layout.reference}; ionosphere {data.ionosphere}; graph links "
         f"{[(stations[i], stations[j]) for i, j in graph.links]}",
     )
     series, comm = run_bias_filters(
-        data,
+        data, filter_options(args, pivot, fixed), graph=graph, exchange=command_exchange(args, graph)
+    )
+    write_results(args, data, series, comm, l1=l1, l2=args.l2_code.upper(), pivot=pivot, graph=graph, fixed=fixed)
+    return 0
+
+
+def network_options(args: argparse.Namespace) -> NetworkOptions:
+    """The data and model stages' options from the command line."""
+    from distnav.models.gnss.biasmodel import BiasModelOptions
+    from distnav.models.gnss.gfbias import TEC_RW_M_PER_SQRT_S
+
+    model = BiasModelOptions(
+        mask_deg=args.mask,
+        ionosphere=args.ionosphere,
+        regional_km=args.regional_km,
+        sigma_zenith_m=args.sigma,
+        weighting=args.weighting,
+        reference=args.reference,
+        vtec_rw_m_per_sqrt_s=TEC_RW_M_PER_SQRT_S if args.tec_rw is None else args.tec_rw,
+        min_satellite_obs=args.min_satellite_obs,
+        tec_order=2 if args.tec_field == "quadratic" else 1,
+        mapping=args.mapping,
+    )
+    return NetworkOptions(
+        l2_code=args.l2_code.upper(),
+        interval_s=args.interval,
+        exclude=tuple(args.exclude or ()),
+        levelling=args.levelling == "arc",
+        min_arc_epochs=args.min_arc,
+        gf_threshold_m=args.gf_threshold,
+        screen=not args.no_screening,
+        model=model,
+    )
+
+
+def filter_options(args: argparse.Namespace, pivot: str | None, fixed: Any) -> Any:
+    """The filter stage's options (:class:`~distnav.models.gnss.gfnetwork.BiasFilterOptions`) from the command
+    line, the checked pivot and the fixed datum set (:func:`~distnav.commands.gnss_datum.datum_choice`)."""
+    from distnav.models.gnss.gfnetwork import BiasFilterOptions
+
+    return BiasFilterOptions(
         datum=args.datum,
         pivot=pivot,
         reference=args.reference,
-        graph=graph,
         kn=args.kn,
-        exchange=command_exchange(args, graph),
         innovation_level=args.innovation_test,
         datum_satellites=fixed.members,
         datum_reference_ns=fixed.reference_ns,
+        between_station_level=None if args.between_station_level == 0 else args.between_station_level,
     )
-    from distnav.commands.gnss_ionosphere_out import write_results
 
-    write_results(args, data, series, comm, l1=l1, l2=l2, pivot=pivot, graph=graph, fixed=fixed)
-    return 0
+
+def _first_code(args: argparse.Namespace) -> tuple[str, str | None]:
+    """The L1 code and why it was chosen (printed, with the C1C warning), after the product files are checked."""
+    from distnav.commands.gnss_report import C1C_WARNING, choose_l1_code
+
+    l1, l1_note = choose_l1_code(args)
+    if l1_note:
+        print(f"NOTE: {l1_note}", file=sys.stderr, flush=True)
+    if l1 == "C1C" and not args.c1_corrections:
+        print(C1C_WARNING.format(l2=args.l2_code.upper()), file=sys.stderr, flush=True)
+    for b in args.bias or []:
+        if not Path(b).exists():
+            raise DataFileError(f"{b}: file not found")
+    return l1, l1_note
+
+
+def _read_orbit(args: argparse.Namespace) -> Any:
+    """The broadcast (one ``--nav`` file of the day) or SP3 orbits."""
+    from distnav.formats.gnss.rinex import read_navigation, read_sp3
+
+    if args.nav and len(args.nav) > 1:
+        raise ModelError(f"{len(args.nav)} --nav files for one day of observations: give one")
+    system = getattr(args, "system", "G")
+    if args.nav:
+        return read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0, systems=(system,))
+    return read_sp3(args.sp3, system=system)
+
+
+def _pivot(args: argparse.Namespace, svs: Sequence[str]) -> str | None:
+    """The ``--pivot`` satellite, which the pivot datum needs tracked."""
+    pivot = args.pivot.upper() if args.pivot else None
+    if args.datum == "pivot" and pivot not in svs:
+        raise ModelError(f"--pivot {pivot}: not tracked above the mask by any station (tracked: {' '.join(svs)})")
+    return pivot
+
+
+def _network_graph(args: argparse.Namespace, data: Any) -> Any:
+    """The CKF's communication graph: ``--graph`` or the default (:func:`~distnav.commands.gnss.default_graph`)."""
+    if args.graph:
+        from distnav.commands.gnss import load_edges
+
+        return load_edges(Path(args.graph), data.stations)
+    return _default_graph(data.positions_ecef_m, data.stations)
 
 
 def _split_days(args: argparse.Namespace) -> dict[str, list[str]]:
@@ -356,6 +393,26 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--out", default="distnav-ionosphere", help="output folder (default distnav-ionosphere)")
     add_backend_arguments(p)
+    _add_code_and_datum_arguments(p)
+    _add_selection_arguments(p)
+    _add_tec_field_arguments(p)
+    _add_levelling_arguments(p)
+    _add_model_arguments(p)
+    p.add_argument(
+        "--system",
+        choices=sorted(_SYSTEM_CODES),
+        default="G",
+        help="satellite system: G (GPS, default) or E (Galileo: RINEX 3 or RINEX 2.11 mixed observations, e.g. "
+        "--l1-code C1X --l2-code C5X; orbits from a mixed --nav file or a multi-GNSS --sp3)",
+    )
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=run_ionosphere)
+    parser: argparse.ArgumentParser = p
+    return parser
+
+
+def _add_code_and_datum_arguments(p: argparse.ArgumentParser) -> None:
+    """The codes and the output datum (S-basis, pivot, fixed satellite set, reference receiver)."""
     p.add_argument(
         "--l1-code",
         default=None,
@@ -386,6 +443,10 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         help="reference receiver (--datum receiver; also the estimation basis; default: the station "
         "observing at the first epoch)",
     )
+
+
+def _add_selection_arguments(p: argparse.ArgumentParser) -> None:
+    """What is left out of the estimation and of the comparison, and the C1 corrections."""
     p.add_argument("--exclude", nargs="+", metavar="SAT|STA", help="satellites (G01) or stations (BELE) left out")
     p.add_argument(
         "--compare-exclude",
@@ -400,6 +461,10 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         "(satellites then refer to C1W, the P1 of IONEX/GFZ; a file without C1C uses its C1W; each "
         "receiver's DSB stays C1C-C2W, compared and written as such)",
     )
+
+
+def _add_tec_field_arguments(p: argparse.ArgumentParser) -> None:
+    """The model stage's VTEC field and single-layer mapping."""
     p.add_argument(
         "--tec-field",
         choices=["linear", "quadratic"],
@@ -413,29 +478,19 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         default="slm",
         help="single-layer mapping: 450-km thin shell (paper 003) or modified (506.7 km, α = 0.9782)",
     )
+
+
+def _add_model_arguments(p: argparse.ArgumentParser) -> None:
+    """The model stage: ionospheres, σ and weighting, random walk, satellites estimated, the CKF's innovation
+    tests and the between-station test of the realistic σ."""
     p.add_argument(
-        "--levelling",
-        choices=["arc", "none"],
-        default="arc",
-        help="carrier-to-code levelling per continuous arc (default) or raw code",
-    )
-    p.add_argument(
-        "--min-arc",
-        type=int,
-        default=10,
-        metavar="EPOCHS",
-        help="shortest arc kept for levelling, in epochs of the file (default 10)",
-    )
-    p.add_argument(
-        "--gf-threshold",
+        "--between-station-level",
         type=float,
         default=0.05,
-        metavar="M",
-        help="smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x "
-        "the satellite's recent prediction-error RMS where the ionosphere is noisier)",
+        metavar="LEVEL",
+        help="level of the χ² test whether the stations' single-receiver solutions agree within their realistic σ; "
+        "when rejected every σ grows by √(χ²/dof) (default 0.05; 0: off; docs/gnss.md)",
     )
-    p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
-    p.add_argument("--allow-other-day", action="store_true", help="compare with a product of another day than the data")
     p.add_argument(
         "--ionosphere",
         choices=["auto", "common", "per-receiver"],
@@ -485,17 +540,33 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         help="CKF: each receiver w-tests its own predicted residuals at this level and rejects outliers "
         "before the consensus (e.g. 0.001)",
     )
+
+
+def _add_levelling_arguments(p: argparse.ArgumentParser) -> None:
+    """The levelling and screening stage, and the comparison with products of another day."""
     p.add_argument(
-        "--system",
-        choices=sorted(_SYSTEM_CODES),
-        default="G",
-        help="satellite system: G (GPS, default) or E (Galileo: RINEX 3 or RINEX 2.11 mixed observations, e.g. "
-        "--l1-code C1X --l2-code C5X; orbits from a mixed --nav file or a multi-GNSS --sp3)",
+        "--levelling",
+        choices=["arc", "none"],
+        default="arc",
+        help="carrier-to-code levelling per continuous arc (default) or raw code",
     )
-    p.add_argument("--no-progress", action="store_true")
-    p.set_defaults(func=run_ionosphere)
-    parser: argparse.ArgumentParser = p
-    return parser
+    p.add_argument(
+        "--min-arc",
+        type=int,
+        default=10,
+        metavar="EPOCHS",
+        help="shortest arc kept for levelling, in epochs of the file (default 10)",
+    )
+    p.add_argument(
+        "--gf-threshold",
+        type=float,
+        default=0.05,
+        metavar="M",
+        help="smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x "
+        "the satellite's recent prediction-error RMS where the ionosphere is noisier)",
+    )
+    p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
+    p.add_argument("--allow-other-day", action="store_true", help="compare with a product of another day than the data")
 
 
 add_parser = add_ionosphere_parser

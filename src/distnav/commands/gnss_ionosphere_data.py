@@ -6,15 +6,25 @@ model (:func:`~distnav.models.gnss.gfnetwork.bias_network_model`). :func:`networ
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from distnav.errors import DataFileError
+from distnav.errors import DataFileError, ModelError
 
-__all__ = ["ARC_CORRELATION_S", "REGIONAL_KM", "network_data", "network_from_observations"]
+if TYPE_CHECKING:
+    from distnav.models.gnss.biasmodel import BiasModelOptions
+
+__all__ = [
+    "ARC_CORRELATION_S",
+    "REGIONAL_KM",
+    "NetworkOptions",
+    "geometry_free_network",
+    "network_data",
+    "network_from_observations",
+]
 
 REGIONAL_KM = 1000.0
 ARC_CORRELATION_S = 0.0
@@ -22,199 +32,115 @@ ARC_CORRELATION_S = 0.0
 :func:`~distnav.models.gnss.gfnetwork.arc_sigma_scale`); 0 = off (independent epochs, the default)."""
 
 
+@dataclass(frozen=True)
+class NetworkOptions:
+    """How :func:`network_data` / :func:`network_from_observations` prepare a network (defaults in brackets;
+    checked once, here).
+
+    ``l2_code`` [``"C2W"``]: the second code; its band (2, 5, …) is the model's (``model.band`` is set from it).
+    ``interval_s`` [None: every epoch]: the filter's grid. ``exclude`` [()]: satellites (``G01``) and stations
+    (``BELE``) left out. ``levelling`` [True]: carrier-to-code levelling per arc on the full-rate data
+    (:func:`~distnav.models.gnss.levelling.level_station`, arcs shorter than ``min_arc_epochs`` [10] dropped,
+    slips by the geometry-free phase from ``gf_threshold_m`` [0.05]); ``screen`` [True]: each station's w-test
+    screening of its own code. ``arc_correlation_s`` [None: :data:`ARC_CORRELATION_S`]: the levelled code's σ per
+    arc (:func:`~distnav.models.gnss.biasmodel.arc_sigma_scale`; 0: independent epochs). ``model``: the
+    :class:`~distnav.models.gnss.biasmodel.BiasModelOptions` of the model stage."""
+
+    l2_code: str = "C2W"
+    interval_s: float | None = None
+    exclude: tuple[str, ...] = ()
+    levelling: bool = True
+    min_arc_epochs: int = 10
+    gf_threshold_m: float = 0.05
+    screen: bool = True
+    arc_correlation_s: float | None = None
+    model: BiasModelOptions | None = None  # None: BiasModelOptions() (imported when used: the CLI starts light)
+
+    def __post_init__(self) -> None:
+        from distnav.models.gnss.biasmodel import BiasModelOptions
+
+        code = self.l2_code.upper()
+        if len(code) != 3 or code[0] != "C" or not code[1].isdigit() or code[1] == "1":
+            raise ModelError(f"l2_code {self.l2_code}: not a second code (C2W, C2L, C5Q …)")
+        if self.interval_s is not None and not (np.isfinite(self.interval_s) and self.interval_s > 0):
+            raise ModelError(f"interval_s must be a positive number of seconds, got {self.interval_s}")
+        if self.min_arc_epochs < 2:
+            raise ModelError(f"min_arc_epochs must be ≥ 2, got {self.min_arc_epochs}")
+        if not (np.isfinite(self.gf_threshold_m) and self.gf_threshold_m > 0):
+            raise ModelError(f"gf_threshold_m must be a positive number, got {self.gf_threshold_m}")
+        object.__setattr__(self, "exclude", tuple(e.upper() for e in self.exclude))
+        object.__setattr__(self, "model", replace(self.model or BiasModelOptions(), band=int(code[1])))
+
+    @property
+    def model_options(self) -> BiasModelOptions:
+        """The model stage's options (never None after construction; the band is the second code's)."""
+        assert self.model is not None
+        return self.model
+
+
 def network_data(
     obs_files: Sequence[str | Path],
     orbit: Any,
+    options: NetworkOptions = NetworkOptions(),
     *,
     l1_code: str = "C1C",
-    l2_code: str = "C2W",
     tlim: tuple[str, str] | None = None,
-    interval_s: float | None = None,
-    mask_deg: float = 10.0,
-    ionosphere: str = "auto",
-    regional_km: float = REGIONAL_KM,
-    sigma_zenith_m: float | None = None,
-    weighting: str = "sin",
-    reference: str | None = None,
     progress: Any = None,
-    exclude: Sequence[str] = (),
-    levelling: bool = True,
-    min_arc_epochs: int = 10,
-    gf_threshold_m: float = 0.05,
-    screen: bool = True,
     c1_corrections: str | None = None,
-    tec_rw_m_per_sqrt_s: float | None = None,
-    min_satellite_obs: int | None = None,
     system: str = "G",
-    **model: Any,
 ) -> Any:
-    """Read the stations, form the geometry-free code on the union of their epochs and build the bias model
-    (:func:`distnav.models.gnss.gfnetwork.bias_network_model`). ``exclude``: satellites (``G01``) and stations
-    (``BELE``) left out. ``levelling``: carrier-to-code levelling per arc on the full-rate data, then the
-    ``interval_s`` grid (:func:`~distnav.models.gnss.levelling.level_station`; ``screen`` runs each station's
-    w-test screening of its own code). ``system``: the satellite system read (``G``, or ``E`` Galileo).
-    Errors name the file: unreadable files, missing code types, a station
-    without any epoch with both codes."""
+    """Read the stations (the read stage), then :func:`network_from_observations`. ``l1_code``: the first code;
+    ``system``: the satellite system read (``G``, or ``E`` Galileo);
+    ``c1_corrections``: a Bias-SINEX product whose C1C−C1W DSBs are removed from C1C (the receivers' DSBs keep
+    their own code pair). Errors name the file: unreadable files, missing code types, a station without any epoch
+    with both codes; a navigation or SP3 file of another day is named, not left to the elevation mask."""
+    from distnav.formats.gnss.product_files import check_orbit_day
     from distnav.formats.gnss.rinex import read_stations
 
     obs = read_stations(
         list(obs_files),
         l1_code=l1_code,
-        l2_code=l2_code,
+        l2_code=options.l2_code,
         tlim=tlim,
-        interval_s=None if levelling else interval_s,
-        phases=levelling,
+        interval_s=None if options.levelling else options.interval_s,
+        phases=options.levelling,
         progress=progress,
         l1_fallback="C1W" if c1_corrections else None,
         system=system,
     )
+    check_orbit_day(orbit, obs)  # another day's orbits: named (issue 29), not left to the mask
     own = {o.station: dict(o.codes) for o in obs}  # the receivers' own codes (their DSBs' code pair)
     if c1_corrections:
         from distnav.formats.gnss.product_files import correct_c1
 
         obs = [correct_c1(o, c1_corrections) if o.codes.get(1) == "C1C" else o for o in obs]
-    data = network_from_observations(
-        obs,
-        orbit,
-        l2_code=l2_code,
-        interval_s=interval_s,
-        mask_deg=mask_deg,
-        ionosphere=ionosphere,
-        regional_km=regional_km,
-        sigma_zenith_m=sigma_zenith_m,
-        weighting=weighting,
-        reference=reference,
-        exclude=exclude,
-        levelling=levelling,
-        min_arc_epochs=min_arc_epochs,
-        gf_threshold_m=gf_threshold_m,
-        screen=screen,
-        tec_rw_m_per_sqrt_s=tec_rw_m_per_sqrt_s,
-        min_satellite_obs=min_satellite_obs,
-        **model,
-    )
+    data = network_from_observations(obs, orbit, options)
     return replace(data, codes={s: own[s] for s in data.stations})
 
 
-def network_from_observations(
-    obs: Sequence[Any],
-    orbit: Any,
-    *,
-    l2_code: str = "C2W",
-    interval_s: float | None = None,
-    mask_deg: float = 10.0,
-    ionosphere: str = "auto",
-    regional_km: float = REGIONAL_KM,
-    sigma_zenith_m: float | None = None,
-    weighting: str = "sin",
-    reference: str | None = None,
-    exclude: Sequence[str] = (),
-    levelling: bool = True,
-    min_arc_epochs: int = 10,
-    gf_threshold_m: float = 0.05,
-    screen: bool = True,
-    tec_rw_m_per_sqrt_s: float | None = None,
-    min_satellite_obs: int | None = None,
-    arc_correlation_s: float | None = None,
-    tec_order: int = 1,
-    mapping: str = "slm",
-    station_weights: str = "auto",
-) -> Any:
-    """:func:`network_data` from observations already read
-    (:class:`~distnav.models.gnss.code_observations.CodeObservations` with phases when ``levelling``; the
-    full-rate data, ``interval_s`` selects the filter's grid).
-    ``arc_correlation_s``: the levelled code's σ per arc from :func:`~distnav.models.gnss.gfnetwork.arc_sigma_scale`
-    (default :data:`ARC_CORRELATION_S`; 0: independent epochs). ``station_weights`` "auto" | "on" | "off": σ
-    factors from each station's levelling residuals ("auto": with a common ionosphere only; bias_network_model)."""
+def network_from_observations(obs: Sequence[Any], orbit: Any, options: NetworkOptions = NetworkOptions()) -> Any:
+    """The pipeline from observations already read (:class:`~distnav.models.gnss.code_observations.
+    CodeObservations` with phases when levelling; the full-rate data, ``interval_s`` selects the filter's grid):
+    level and screen each station (:func:`_level`), put the stations on one grid (:func:`geometry_free_network`),
+    build the model (:func:`~distnav.models.gnss.biasmodel.bias_network_model`) and attach the arcs."""
     from distnav.models.gnss.arcprecision import arc_ids_on_grid
-    from distnav.models.gnss.gfbias import geometry_free_band_m
-    from distnav.models.gnss.gfnetwork import (
-        TEC_RW_M_PER_SQRT_S,
-        arc_sigma_scale,
-        bias_network_model,
-    )
-    from distnav.models.gnss.levelling import station_sigma_factors
-    from distnav.models.gnss.orbits import gps_seconds
+    from distnav.models.gnss.biasmodel import bias_network_model
 
-    band = int(l2_code[1])
-    excl = {e.upper() for e in exclude}
+    excl = set(options.exclude)
     obs = [o for o in obs if o.station not in excl]
     if not obs:
         raise DataFileError("every station is excluded")
-    stations = [o.station for o in obs]
-    notes = [f"{o.station}: {n}" for o in obs for n in o.notes]
-    levelled = (
-        {
-            o.station: _level(o, orbit, band, mask_deg, min_arc_epochs, gf_threshold_m, screen, i)
-            for i, o in enumerate(obs)
-        }
-        if levelling
-        else {}
-    )
-    if levelling and interval_s:
+    band = options.model_options.band
+    levelled = {o.station: _level(o, orbit, band, options, i) for i, o in enumerate(obs)} if options.levelling else {}
+    if options.levelling and options.interval_s:
         from distnav.formats.gnss.rinex_obs import on_grid
 
-        grids = {o.station: on_grid(o.time, interval_s) for o in obs}
+        grids = {o.station: on_grid(o.time, options.interval_s) for o in obs}
     else:
         grids = {o.station: np.ones(o.time.size, bool) for o in obs}
-    t_all = np.unique(np.concatenate([gps_seconds(o.time[grids[o.station]]) for o in obs]))
-    svs_all = sorted({s for o in obs for s in o.svs} - excl)
-    T, n, S = t_all.size, len(obs), len(svs_all)
-    gf = np.full((T, n, S), np.nan)
-    corr_s = ARC_CORRELATION_S if arc_correlation_s is None else float(arc_correlation_s)
-    scale = np.ones((T, n, S)) if levelling and corr_s > 0 else None
-    for i, o in enumerate(obs):
-        keep_t = grids[o.station]
-        ti = np.searchsorted(t_all, gps_seconds(o.time[keep_t]))
-        cols = [k for k, sv in enumerate(o.svs) if sv not in excl]
-        si = np.array([svs_all.index(o.svs[k]) for k in cols], dtype=np.int64)
-        full = levelled[o.station].gf_m if levelling else geometry_free_band_m(o.range_m[1], o.range_m[band], band)
-        g = full[keep_t][:, cols]
-        gf[np.ix_(ti, np.array([i]), si)] = g[:, None, :]
-        if scale is not None and corr_s > 0:
-            arcs = levelled[o.station].arc[keep_t][:, cols]
-            scale[np.ix_(ti, np.array([i]), si)] *= arc_sigma_scale(arcs, t_all[ti], corr_s)[:, None, :]
-        if not (np.isfinite(o.range_m[1]) & np.isfinite(o.range_m[band])).any():
-            raise DataFileError(
-                f"{o.path}: no epoch with a GPS satellite on both {o.codes[1]} and {o.codes[band]} (missing frequency?)"
-            )
-    if excl:
-        notes.append(f"excluded: {' '.join(sorted(excl))}")
-    codes = {o.station: dict(o.codes) for o in obs}
-    xyz = np.stack([o.position_ecef_m for o in obs])
-    for sta, lev in levelled.items():
-        n_rm = int(lev.removed.sum())
-        notes.append(
-            f"{sta}: levelled {len(lev.arcs)} arcs (starts: "
-            f"{', '.join(f'{k} {v}' for k, v in sorted(lev.starts.items()))}; {lev.dropped_short} shorter "
-            f"than {min_arc_epochs} epochs dropped); screening removed {n_rm} code observations"
-        )
-    data = bias_network_model(
-        stations,
-        t_all,
-        xyz,
-        gf,
-        svs_all,
-        orbit,
-        band=band,
-        codes=codes,
-        mask_deg=mask_deg,
-        ionosphere=ionosphere,
-        regional_km=regional_km,
-        sigma_zenith_m=sigma_zenith_m,
-        weighting=weighting,
-        reference=reference,
-        notes=notes,
-        paths=[str(o.path) for o in obs],
-        vtec_rw_m_per_sqrt_s=TEC_RW_M_PER_SQRT_S if tec_rw_m_per_sqrt_s is None else tec_rw_m_per_sqrt_s,
-        min_satellite_obs=min_satellite_obs,
-        sigma_scale=scale,
-        tec_order=tec_order,
-        mapping=mapping,
-        station_weighting=station_weights,
-        station_sigma=station_sigma_factors([levelled[o.station] for o in obs]) if levelling else None,
-    )
-    arc_id = arc_ids_on_grid(obs, levelled, grids, data.t_gps_s, data.layout.svs) if levelling else None
+    network = geometry_free_network(obs, levelled, grids, options)
+    data = bias_network_model(network, orbit, options.model_options)
+    arc_id = arc_ids_on_grid(obs, levelled, grids, data.t_gps_s, data.layout.svs) if options.levelling else None
     return replace(
         data,
         levelled=levelled,
@@ -224,12 +150,70 @@ def network_from_observations(
     )
 
 
-def _level(
-    o: Any, orbit: Any, band: int, mask_deg: float, min_arc_epochs: int, gf_threshold_m: float, screen: bool, node: int
+def geometry_free_network(
+    obs: Sequence[Any], levelled: dict[str, Any], grids: dict[str, np.ndarray], options: NetworkOptions
 ) -> Any:
+    """The hand-over to the model stage (:class:`~distnav.models.gnss.biasmodel.GeometryFreeNetwork`): every
+    station's levelled (or raw) geometry-free code on the union of their grid epochs, the arcs' σ factors, the
+    stations' σ factors and the notes of the stages so far."""
+    from distnav.models.gnss.biasmodel import GeometryFreeNetwork, arc_sigma_scale
+    from distnav.models.gnss.gfbias import geometry_free_band_m
+    from distnav.models.gnss.levelling import station_sigma_factors
+    from distnav.models.gnss.orbits import gps_seconds
+
+    band, excl = options.model_options.band, set(options.exclude)
+    t_all = np.unique(np.concatenate([gps_seconds(o.time[grids[o.station]]) for o in obs]))
+    svs_all = sorted({s for o in obs for s in o.svs} - excl)
+    gf = np.full((t_all.size, len(obs), len(svs_all)), np.nan)
+    corr_s = ARC_CORRELATION_S if options.arc_correlation_s is None else float(options.arc_correlation_s)
+    scale = np.ones(gf.shape) if levelled and corr_s > 0 else None
+    for i, o in enumerate(obs):
+        keep_t = grids[o.station]
+        ti = np.searchsorted(t_all, gps_seconds(o.time[keep_t]))
+        cols = [k for k, sv in enumerate(o.svs) if sv not in excl]
+        si = np.array([svs_all.index(o.svs[k]) for k in cols], dtype=np.int64)
+        full = levelled[o.station].gf_m if levelled else geometry_free_band_m(o.range_m[1], o.range_m[band], band)
+        gf[np.ix_(ti, np.array([i]), si)] = full[keep_t][:, cols][:, None, :]
+        if scale is not None:
+            arcs = levelled[o.station].arc[keep_t][:, cols]
+            scale[np.ix_(ti, np.array([i]), si)] *= arc_sigma_scale(arcs, t_all[ti], corr_s)[:, None, :]
+        if not (np.isfinite(o.range_m[1]) & np.isfinite(o.range_m[band])).any():
+            raise DataFileError(
+                f"{o.path}: no epoch with a GPS satellite on both {o.codes[1]} and {o.codes[band]} (missing frequency?)"
+            )
+    return GeometryFreeNetwork(
+        [o.station for o in obs],
+        t_all,
+        np.stack([o.position_ecef_m for o in obs]),
+        gf,
+        svs_all,
+        codes={o.station: dict(o.codes) for o in obs},
+        notes=_stage_notes(obs, levelled, excl, options.min_arc_epochs),
+        paths=[str(o.path) for o in obs],
+        sigma_scale=scale,
+        station_sigma=station_sigma_factors([levelled[o.station] for o in obs]) if levelled else None,
+    )
+
+
+def _stage_notes(obs: Sequence[Any], levelled: dict[str, Any], excl: set[str], min_arc_epochs: int) -> list[str]:
+    """What reading, exclusion, levelling and screening did, station by station."""
+    notes = [f"{o.station}: {n}" for o in obs for n in o.notes]
+    if excl:
+        notes.append(f"excluded: {' '.join(sorted(excl))}")
+    for sta, lev in levelled.items():
+        n_rm = int(lev.removed.sum())
+        notes.append(
+            f"{sta}: levelled {len(lev.arcs)} arcs (starts: "
+            f"{', '.join(f'{k} {v}' for k, v in sorted(lev.starts.items()))}; {lev.dropped_short} shorter "
+            f"than {min_arc_epochs} epochs dropped); screening removed {n_rm} code observations"
+        )
+    return notes
+
+
+def _level(o: Any, orbit: Any, band: int, options: NetworkOptions, node: int) -> Any:
     """Level one station's geometry-free code per arc (σ of the code from the elevation: σ₀/sin θ)."""
     from distnav.models.gnss.geometry import azimuth_elevation
-    from distnav.models.gnss.levelling import level_station
+    from distnav.models.gnss.levelling import LevellingOptions, level_station
     from distnav.models.gnss.orbits import gps_seconds
 
     if band not in o.phase_m or 1 not in o.phase_m:
@@ -240,23 +224,17 @@ def _level(
     if svs:
         _, e = azimuth_elevation(o.position_ecef_m, orbit.positions_ecef(t, svs))
         el[:, [o.svs.index(s) for s in svs]] = e
-    above = np.isfinite(el) & (el > np.deg2rad(mask_deg))
+    above = np.isfinite(el) & (el > np.deg2rad(options.model_options.mask_deg))
     p1, pb = np.where(above, o.range_m[1], np.nan), np.where(above, o.range_m[band], np.nan)
     sigma = 1.0 / np.sin(np.where(above, el, 0.5 * np.pi))
     lli = o.lli.get(1, np.zeros(p1.shape, np.int8)) | o.lli.get(band, np.zeros(p1.shape, np.int8))
-    return level_station(
-        t,
-        o.svs,
-        p1,
-        pb,
-        o.phase_m[1],
-        o.phase_m[band],
+    lev = LevellingOptions(
         band=band,
-        lli=lli,
-        sigma_m=sigma,
-        min_arc_epochs=min_arc_epochs,
-        gf_threshold_m=gf_threshold_m,
-        screen=screen,
+        min_arc_epochs=options.min_arc_epochs,
+        gf_threshold_m=options.gf_threshold_m,
+        screen=options.screen,
         fallback_raw=True,
-        node=node,
+    )
+    return level_station(
+        t, o.svs, p1, pb, o.phase_m[1], o.phase_m[band], options=lev, lli=lli, sigma_m=sigma, node=node
     )

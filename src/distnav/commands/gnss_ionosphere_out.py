@@ -68,7 +68,8 @@ def write_results(
     summary["datum_statement"] = datum_text
     _levelling_outputs(out, data, summary)
     fac = series[0].realistic_factor
-    post = (finals["central"][0], {k: v * fac for k, v in finals["central"][1].items()})
+    realistic = {s.label: dict(zip(obj, s.realistic_std_ns().tolist(), strict=True)) for s in series}
+    post = (finals["central"][0], realistic["central"])
     svns = satellite_svns([*(args.bias or []), *([args.datum_satellites] if fixed.reference_name else [])])
     summary["bias_sinex"] = str(
         write_sinex(out / "distnav_dsb.bia", data, post, l1, l2, args.datum, times, datum_text=datum_text, svns=svns)
@@ -77,13 +78,15 @@ def write_results(
     print_data_report(summary)
     if summary["communication"] is not None:
         print("CKF " + summary["communication"]["line"])
-    print_summary(stations, comparison, finals, fac)
+    print_summary(stations, comparison, finals, fac, realistic["central"])
     print_worst_own(summary["satellite_fit"])
     c0 = series[0]
     print(
         f"precision: variance factor {c0.variance_factor or float('nan'):.2f}, lag-1 correlation of the predicted "
         f"residuals {c0.lag1_correlation:.3f}: realistic σ = formal σ × {fac:.2f} (used in distnav_dsb.bia)"
     )
+    if c0.between_station is not None:
+        print(f"model choice: {c0.between_station.statement()}")
     print(f"written {out / 'tec_dcb_per_epoch.csv'}, {out / 'dcb_final.csv'}, {out / 'summary.json'}")
 
 
@@ -227,7 +230,7 @@ def _summary(
         "innovations": {s.label: s.n_innovations for s in series},
         "lag1_correlation": {s.label: s.lag1_correlation for s in series},
         "final_dsb_std_realistic_ns": {
-            s.label: {k: v * s.realistic_factor for k, v in finals[s.label][1].items()} for s in series
+            s.label: dict(zip(obj, s.realistic_std_ns().tolist(), strict=True)) for s in series
         },
         "comparison": comparison,
         "messages": comm.as_dict() if comm is not None else {},
@@ -238,6 +241,8 @@ def _summary(
         },
     }
     summary["precision"] = {s.label: s.precision.summary() for s in series if s.precision is not None}
+    if c.between_station is not None:
+        summary["between_station_test"] = c.between_station.as_dict()
     if (tests := innovation_summary(series, stations)) is not None:
         summary["ckf_innovation_tests"] = tests
     fit = satellite_fit(data, series[0])
@@ -250,12 +255,18 @@ def _levelling_outputs(out: Path, data: Any, summary: dict[str, Any]) -> None:
     from distnav.output import atomic_write_text
 
     if data.levelled:
-        rows = ["station,satellite,first_epoch,last_epoch,n_epochs,start,offset_m,offset_std_m,code_rms_m,removed"]
+        rows = [
+            "station,satellite,first_epoch,last_epoch,n_epochs,start,offset_m,offset_std_m,code_rms_m,removed,"
+            "removed_mw_outliers,dropped_short"
+        ]
         for sta, lev in data.levelled.items():
-            for a in lev.arcs:
+            order = {sv: k for k, sv in enumerate(data.levelled_svs.get(sta, []))}
+            arcs = sorted([*lev.arcs, *(lev.short_arcs or [])], key=lambda a: (order.get(a.sv, -1), a.first))
+            for a in arcs:
+                level = "" if a.dropped_short else f"{a.offset_m:.4f},{a.offset_std_m:.4f},{a.code_rms_m:.4f}"
                 rows.append(
-                    f"{sta},{a.sv},{a.first},{a.last},{a.n_epochs},{a.start_reason},{a.offset_m:.4f},"
-                    f"{a.offset_std_m:.4f},{a.code_rms_m:.4f},{a.removed}"
+                    f"{sta},{a.sv},{a.first},{a.last},{a.n_epochs},{a.start_reason},"
+                    f"{level if level else ',,'},{a.removed},{a.removed_mw},{a.dropped_short}"
                 )
         atomic_write_text(out / "arcs.csv", "\n".join(rows) + "\n")
         summary["arcs"] = {sta: lev.arc_summary() for sta, lev in data.levelled.items()}

@@ -75,12 +75,15 @@ def print_summary(
     comparison: Mapping[str, Any],
     finals: Mapping[str, tuple[dict[str, float], dict[str, float]]],
     realistic_factor: float,
+    realistic_std_ns: Mapping[str, float] | None = None,
 ) -> None:
-    """The central filter's DSBs (σ realistic: formal × the a-posteriori factor) and every product comparison."""
+    """The central filter's DSBs (σ realistic: formal × the a-posteriori factor, or ``realistic_std_ns`` when
+    given: with the between-station term, :mod:`distnav.models.gnss.stationcheck`) and every product comparison."""
     c = finals["central"]
     f = realistic_factor if np.isfinite(realistic_factor) and realistic_factor > 0 else 1.0
-    sd = np.array([v for k, v in c[1].items() if not k.startswith("rx:") and np.isfinite(v)]) * f
-    rx = ", ".join(f"{k[3:]} {v:+.2f} ± {c[1][k] * f:.2f}" for k, v in c[0].items() if k.startswith("rx:"))
+    real = realistic_std_ns if realistic_std_ns is not None else {k: v * f for k, v in c[1].items()}
+    sd = np.array([v for k, v in real.items() if not k.startswith("rx:") and np.isfinite(v)])
+    rx = ", ".join(f"{k[3:]} {v:+.2f} ± {real[k]:.2f}" for k, v in c[0].items() if k.startswith("rx:"))
     print(
         f"central filter: {sd.size} satellite DSBs, median σ {np.median(sd):.2f} ns (realistic: formal × "
         f"{f:.2f}); receivers: {rx} ns"

@@ -16,7 +16,7 @@ def write_combined_sinex(
     path: Path, result: dict[str, Any], summaries: dict[str, Any], svns: dict[str, str] | None = None
 ) -> None:
     """The combined solution of several days (``multiday.json``) as Bias-SINEX 1.00, receivers on their own codes."""
-    from distnav.formats.gnss.bias_sinex import write_bias_sinex
+    from distnav.formats.gnss.bias_sinex import BiasSinexHeader, write_bias_sinex
     from distnav.output import atomic_write_text
 
     first = summaries[min(summaries)]
@@ -31,14 +31,18 @@ def write_combined_sinex(
         satellites={k: (v, sd[k]) for k, v in comb.items() if not k.startswith("rx:")},
         stations={k[3:]: (v, sd[k]) for k, v in comb.items() if k.startswith("rx:")},
         station_codes={k: tuple(v) for s in summaries.values() for k, v in (s.get("station_codes") or {}).items()},
-        comments=[
-            f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
-            "datum: zero-mean satellite datum over the satellites common to the days; each day's: "
-            + "; ".join(f"{d}: {s.get('datum_statement', s.get('datum', ''))}" for d, s in sorted(summaries.items())),
-            f"sigma: rho x mean daily variance + (1 - rho) x that of independent days, rho = "
-            f"{result.get('repeating_share', 0.0):.2f} the share of the daily variance that repeats (from the "
-            "repeatability; averaging days does not reduce it)",
-        ],
+        header=BiasSinexHeader(
+            comments=[
+                f"distnav gnss ionosphere, {len(summaries)} days combined: {', '.join(summaries)}",
+                "datum: zero-mean satellite datum over the satellites common to the days; each day's: "
+                + "; ".join(
+                    f"{d}: {s.get('datum_statement', s.get('datum', ''))}" for d, s in sorted(summaries.items())
+                ),
+                f"sigma: rho x mean daily variance + (1 - rho) x that of independent days, rho = "
+                f"{result.get('repeating_share', 0.0):.2f} the share of the daily variance that repeats (from the "
+                "repeatability; averaging days does not reduce it)",
+            ]
+        ),
         svns=svns,
     )
     atomic_write_text(path, str(text))
@@ -58,7 +62,7 @@ def write_sinex(
 ) -> Path:
     """The central filter's final DSBs as Bias-SINEX 1.00 (satellites and receivers with σ); ``datum_text``: the
     datum and its satellites in words (a comment); ``svns``: PRN → SVN from a reference product."""
-    from distnav.formats.gnss.bias_sinex import write_bias_sinex
+    from distnav.formats.gnss.bias_sinex import BiasSinexHeader, write_bias_sinex
 
     val, sd = final
     step = float(np.median(np.diff(data.t_gps_s))) if data.t_gps_s.size > 1 else 30.0
@@ -71,19 +75,21 @@ def write_sinex(
         obs2=l2,
         start=times[0],
         end=end,
-        sampling_s=step,
         satellites={k: (v, sd[k]) for k, v in val.items() if not k.startswith("rx:")},
         stations={k[3:]: (v, sd[k]) for k, v in val.items() if k.startswith("rx:")},
         station_codes={s: (c.get(1, l1), c.get(data.band, l2)) for s, c in data.codes.items()},
-        datum="zero-mean satellite datum" if datum == "zero-mean" else f"{datum} datum",
         svns=svns,
-        comments=[
-            f"distnav gnss ionosphere, central filter, datum {datum} "
-            f"({'IGS convention' if datum == 'zero-mean' else 'not the IGS convention'}): {datum_text}",
-            f"stations: {' '.join(data.stations)}; geometry-free {l1}-{l2} code, "
-            f"{'carrier-levelled' if data.levelled else 'raw'}",
-            "sigma: formal x sqrt(variance factor x (1+rho)/(1-rho)) of the predicted residuals",
-        ],
+        header=BiasSinexHeader(
+            sampling_s=step,
+            datum="zero-mean satellite datum" if datum == "zero-mean" else f"{datum} datum",
+            comments=[
+                f"distnav gnss ionosphere, central filter, datum {datum} "
+                f"({'IGS convention' if datum == 'zero-mean' else 'not the IGS convention'}): {datum_text}",
+                f"stations: {' '.join(data.stations)}; geometry-free {l1}-{l2} code, "
+                f"{'carrier-levelled' if data.levelled else 'raw'}",
+                "sigma: formal x sqrt(variance factor x (1+rho)/(1-rho)) of the predicted residuals",
+            ],
+        ),
     )
     atomic_write_text(path, str(text))
     return path

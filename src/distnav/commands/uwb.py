@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -55,9 +56,9 @@ import numpy as np
 
 from distnav.algorithms.ranging.csg import SOLVERS
 from distnav.algorithms.ranging.losses import LOSSES
-from distnav.algorithms.result import CommComparison, compare_with_gather
 from distnav.commands import add_backend_arguments
 from distnav.commands.uwb_outputs import (
+    communication_entry,
     plot,
     positions_table,
     report,
@@ -76,7 +77,6 @@ from distnav.formats.uwb.io import (
     read_ranges,
     single_link_anchors,
 )
-from distnav.models.uwb.communication import RANGES_DATA, range_bytes_per_anchor
 from distnav.models.uwb.field import (
     DELAY_SIGMA_M,
     RELIABILITY_LIMIT_M,
@@ -114,7 +114,7 @@ def default_loss(solver: str) -> str:
 
 
 def register(subparsers: Any) -> None:
-    """Add ``distnav uwb solve`` to the CLI."""
+    """Add ``distnav uwb solve`` and ``distnav uwb import-april`` to the CLI."""
     uwb = subparsers.add_parser("uwb", help="UWB anchor self-localization from inter-anchor range logs")
     sub = uwb.add_subparsers(dest="uwb_command", required=True)
     s = sub.add_parser(
@@ -123,11 +123,26 @@ def register(subparsers: Any) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    _add_file_arguments(s)
+    _add_model_arguments(s)
+    _add_test_arguments(s)
+    _add_run_arguments(s)
+    add_backend_arguments(s)
+    s.set_defaults(func=_handler)
+    _add_import_april(sub)
+
+
+def _add_file_arguments(s: argparse.ArgumentParser) -> None:
+    """``uwb solve``'s input files."""
     s.add_argument("--ranges", type=Path, required=True, help="CSV a,b,range_m (many rows per pair allowed)")
     s.add_argument("--known", type=Path, required=True, help="CSV id,x_m,y_m,z_m of the fixed (known) anchors")
     s.add_argument("--initial", type=Path, help="CSV id,x_m,y_m,z_m initial guess (default: MDS of the ranges)")
     s.add_argument("--truth", type=Path, help="CSV id,x_m,y_m,z_m true positions, for rmse_m")
     s.add_argument("--heights", type=Path, help="CSV id,z_m heights to hold fixed (anchors under a ceiling)")
+
+
+def _add_model_arguments(s: argparse.ArgumentParser) -> None:
+    """``uwb solve``'s solver, objective, loss and range model."""
     s.add_argument(
         "--solver",
         default="LM",
@@ -154,6 +169,10 @@ def register(subparsers: Any) -> None:
         help="range error (m) beyond which the robust loss down-weights a range (default 0.3)",
     )
     s.add_argument("--sigma-m", type=float, default=0.1, help="a-priori range σ in metres (default 0.1)")
+
+
+def _add_test_arguments(s: argparse.ArgumentParser) -> None:
+    """``uwb solve``'s link tests, precision, reliability and verdict."""
     s.add_argument(
         "--no-exclude",
         dest="exclude",
@@ -184,8 +203,8 @@ def register(subparsers: Any) -> None:
         "--reliability-limit-m",
         type=float,
         default=RELIABILITY_LIMIT_M,
-        help="LM: report an anchor weak when one link's minimal detectable bias, undetected, would move "
-        f"it more than this (m) and 3σ (external reliability; default {RELIABILITY_LIMIT_M}, "
+        help="report an anchor weak when one link's minimal detectable bias, undetected, would move "
+        f"it more than this (m) and 3σ (external reliability, every solver; default {RELIABILITY_LIMIT_M}, "
         "0 = off)",
     )
     s.add_argument(
@@ -196,6 +215,10 @@ def register(subparsers: Any) -> None:
         f"the reported σ) within it and not weak (default {REQUIRED_ACCURACY_M}); exit 3 lists the anchors that "
         "do not",
     )
+
+
+def _add_run_arguments(s: argparse.ArgumentParser) -> None:
+    """``uwb solve``'s geometry switch, iterations, input strictness and output folder."""
     s.add_argument(
         "--allow-planar-3d",
         action="store_true",
@@ -216,8 +239,10 @@ def register(subparsers: Any) -> None:
         help="refuse a range log with a negative, zero or non-finite sample (default: drop and count)",
     )
     s.add_argument("--out", type=Path, required=True, help="output folder")
-    add_backend_arguments(s)
-    s.set_defaults(func=_handler)
+
+
+def _add_import_april(sub: Any) -> None:
+    """``uwb import-april``."""
     imp = sub.add_parser(
         "import-april",
         help="convert an APRIL DW1000 log (../shared/data/uwb/april-dw1000-8node) to ranges.csv, known.csv, truth.csv",
@@ -311,33 +336,14 @@ def solve_range_log(
     warnings += single_link_anchors(comb) + ([units_warning] if units_warning else [])
     if unused_known:
         warnings.append(f"known anchors without ranges are ignored: {', '.join(unused_known[:10])}")
-    held: dict[str, dict[int, float]] = {}
-    if heights is not None:
-        if dim != 3:
-            raise DataFileError(f"{heights}: heights need a 3-D network, but {known} has no z_m column")
-        hz, hline = read_heights(heights)
-        for k, z in hz.items():
-            if k not in index:
-                raise DataFileError(f"{heights}:{hline[k]}: anchor {k!r} does not appear in {ranges}")
-            if k not in known_pos:
-                held[k] = {2: z}
+    held = _held_heights(heights, known, ranges, dim=dim, ids=index, known_pos=known_pos)
     fixed = {k: v for k, v in known_pos.items() if k in index}
     if not fixed:
         raise DataFileError(
             f"{known}: none of the known anchors ({', '.join(unused_known[:10])}) appears in "
             f"{ranges} (whose anchors are {', '.join(ids[:10])}{' …' if len(ids) > 10 else ''})"
         )
-
-    def full_array(path: Path, what: str) -> np.ndarray:
-        pos, d = read_positions(path)
-        if d != dim:
-            raise DataFileError(f"{path}: has {d}-D positions but {known} has {dim}-D")
-        missing = [k for k in ids if k not in pos]
-        if missing:
-            raise DataFileError(f"{path}: {what} lacks anchor(s) {', '.join(repr(m) for m in missing[:10])}")
-        return np.array([pos[k] for k in ids])
-
-    truth_m = full_array(truth, "truth") if truth is not None else None
+    truth_m = _every_anchor(truth, "truth", ids, dim, known) if truth is not None else None
     problem = build_problem(
         ids,
         list(comb.pairs),
@@ -350,7 +356,7 @@ def solve_range_log(
         check_determined=False,
     )
     _check_gauge(problem)
-    init = full_array(initial, "initial guess") if initial is not None else None
+    init = _every_anchor(initial, "initial guess", ids, dim, known) if initial is not None else None
     init_source = (
         str(initial)
         if initial is not None
@@ -378,6 +384,43 @@ def solve_range_log(
         warnings,
     )
     return sol, comb, summary
+
+
+def _held_heights(
+    heights: Path | None,
+    known: Path,
+    ranges: Path,
+    *,
+    dim: int,
+    ids: dict[str, int],
+    known_pos: dict[str, Any],
+) -> dict[str, dict[int, float]]:
+    """``{anchor: {2: z}}`` of the estimated anchors whose heights ``heights`` holds (DataFileError naming the file
+    and line of an anchor the log does not have, or heights for a 2-D network)."""
+    held: dict[str, dict[int, float]] = {}
+    if heights is None:
+        return held
+    if dim != 3:
+        raise DataFileError(f"{heights}: heights need a 3-D network, but {known} has no z_m column")
+    hz, hline = read_heights(heights)
+    for k, z in hz.items():
+        if k not in ids:
+            raise DataFileError(f"{heights}:{hline[k]}: anchor {k!r} does not appear in {ranges}")
+        if k not in known_pos:
+            held[k] = {2: z}
+    return held
+
+
+def _every_anchor(path: Path, what: str, ids: Sequence[str], dim: int, known: Path) -> np.ndarray:
+    """The positions of ``path`` for every anchor of the log, in its order (DataFileError: another dimension than
+    ``known``'s, or an anchor missing)."""
+    pos, d = read_positions(path)
+    if d != dim:
+        raise DataFileError(f"{path}: has {d}-D positions but {known} has {dim}-D")
+    missing = [k for k in ids if k not in pos]
+    if missing:
+        raise DataFileError(f"{path}: {what} lacks anchor(s) {', '.join(repr(m) for m in missing[:10])}")
+    return np.array([pos[k] for k in ids])
 
 
 def _check_gauge(problem: RangingProblem) -> None:
@@ -420,6 +463,11 @@ def _summary(
         "usable": sol.status in ("converged", "max_iterations", "weakly_determined"),
         "message": sol.message,
         "iterations": sol.iterations,
+        "iterations_counted": (
+            "LM iterations, every fit of the workflow"
+            if opts.solver.upper() == "LM"
+            else "neighbour iterations plus the final distributed LM phase's rounds, every fit of the workflow"
+        ),
         "rmse_m": rmse_m(p, sol.positions_m) if usable and p.truth_m is not None else None,
         "range_residual_rms_m": rms,
         "rms_cost": float(np.sqrt(np.mean(p.residuals(sol.positions_m) ** 2))) if usable else None,
@@ -454,40 +502,11 @@ def _summary(
         "units_check": units_note,
         "range_combination": "median of the samples of each pair",
         "initial_guess": init_source,
-        "communication": {
-            "distributed": {
-                "solver": opts.solver.upper(),
-                "messages": sol.messages,
-                "bytes": sol.bytes,
-                "precision_messages": sol.precision_messages,
-                "precision_bytes": sol.precision_bytes,
-                "final_lm_phase": getattr(sol.result, "settings", {}).get("refine"),
-                "note": "every re-solve of the exclusion loop and the precision included"
-                if opts.solver.upper() != "LM"
-                else "LM is centralized: it needs the ranges gathered (below)",
-            },
-            "gather_at_one_anchor": gather,
-            "comparison": None if opts.solver.upper() == "LM" else _comparison(sol).as_dict(),
-        },
+        "communication": communication_entry(sol, opts, gather),
         "messages": sol.messages,
         "bytes": sol.bytes,
         "warnings": warnings,
     }
-
-
-def _comparison(sol: FieldSolution) -> CommComparison:
-    """The distributed solve's traffic (totals: the exclusion loop's re-solves and the precision included) beside
-    gathering every range at one anchor over the range graph (each link's record held by its lower-numbered
-    anchor, :data:`RANGE_RECORD_BYTES` each; issue 27)."""
-    p = sol.problem
-    return compare_with_gather(
-        (sol.bytes, sol.messages),
-        p.graph,
-        range_bytes_per_anchor(p),
-        data=RANGES_DATA,
-        node_label="anchor",
-        node_names=p.ids,
-    )
 
 
 @np.errstate(over="ignore", invalid="ignore")  # a diverged run's summary reads huge estimates

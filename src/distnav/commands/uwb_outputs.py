@@ -4,18 +4,31 @@ lines of the verdict (:mod:`distnav.models.uwb.verdict`)."""
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from distnav.algorithms.result import CommComparison, compare_with_gather
 from distnav.formats.uwb.io import CombinedRanges, format_positions
-from distnav.models.uwb.field import FieldSolution
+from distnav.models.uwb.communication import RANGES_DATA, range_bytes_per_anchor
+from distnav.models.uwb.field import FieldOptions, FieldSolution
 from distnav.models.uwb.verdict import RunVerdict
 from distnav.output import atomic_write_text
 
-__all__ = ["positions_table", "report", "write_links", "write_mirror_positions", "write_offsets", "plot"]
+__all__ = [
+    "communication_entry",
+    "gather_comparison",
+    "map_accuracy_line",
+    "positions_table",
+    "report",
+    "write_links",
+    "write_mirror_positions",
+    "write_offsets",
+    "plot",
+]
 
 
 def write_links(path: Path, sol: FieldSolution, comb: CombinedRanges) -> None:
@@ -205,3 +218,59 @@ def report(summary: dict[str, Any], sol: FieldSolution, verdict: RunVerdict, out
         print(f"  {k}: {why}", file=sys.stderr)
     if n > 20:
         print(f"  … and {n - 20} more", file=sys.stderr)
+    print(map_accuracy_line(verdict), file=sys.stderr)
+
+
+def map_accuracy_line(verdict: RunVerdict) -> str:
+    """What the map does give (issue 28 item 2): the accuracy its anchors meet apart from the blocking ones (weak,
+    ambiguous, unsolved), and what to do about those."""
+    acc, blocking = verdict.map_accuracy_m, verdict.blocking
+    if acc is None:
+        return (
+            "  no anchor's accuracy can be stated: " + ", ".join(blocking[:12]) + " need more links or a known anchor"
+        )
+    bound = f"{math.ceil(acc * 1000.0) / 1000.0:.3f}"
+    if not blocking:
+        return (
+            f"  this map meets {bound} m (every anchor within its radius, 99 % jointly): "
+            f"--required-accuracy-m {bound} exits 0"
+        )
+    return (
+        f"  the other anchors meet {bound} m (99 % jointly); {', '.join(blocking[:12])}"
+        + (f" and {len(blocking) - 12} more" if len(blocking) > 12 else "")
+        + " fail at any required accuracy (weak, ambiguous or unsolved: add links to them or a known anchor near them)"
+    )
+
+
+def communication_entry(sol: FieldSolution, opts: FieldOptions, gather: dict[str, Any]) -> dict[str, Any]:
+    """``summary.json`` ``communication``: the distributed solve's messages and bytes beside the gather."""
+    return {
+        "distributed": {
+            "solver": opts.solver.upper(),
+            "messages": sol.messages,
+            "bytes": sol.bytes,
+            "precision_messages": sol.precision_messages,
+            "precision_bytes": sol.precision_bytes,
+            "final_lm_phase": getattr(sol.result, "settings", {}).get("refine"),
+            "note": "every re-solve of the exclusion loop and the precision included"
+            if opts.solver.upper() != "LM"
+            else "LM is centralized: it needs the ranges gathered (below)",
+        },
+        "gather_at_one_anchor": gather,
+        "comparison": None if opts.solver.upper() == "LM" else gather_comparison(sol).as_dict(),
+    }
+
+
+def gather_comparison(sol: FieldSolution) -> CommComparison:
+    """The distributed solve's traffic (totals: the exclusion loop's re-solves and the precision included) beside
+    gathering every range at one anchor over the range graph (each link's record held by its lower-numbered
+    anchor, :data:`RANGE_RECORD_BYTES` each; issue 27)."""
+    p = sol.problem
+    return compare_with_gather(
+        (sol.bytes, sol.messages),
+        p.graph,
+        range_bytes_per_anchor(p),
+        data=RANGES_DATA,
+        node_label="anchor",
+        node_names=p.ids,
+    )

@@ -438,8 +438,15 @@ class ExchangeCore(ABC):
         gathered = np.take(cols, self.in_src_col, axis=0, mode="clip")  # valid indices; "clip" skips a temporary
         return self._finish_round(gathered, act_out, act_in, tail, flat.shape[1] * flat.itemsize, owned=True)
 
-    def send(self, edge_values: np.ndarray, *, active: np.ndarray | None = None) -> Inbox:
-        """Send one value per outgoing edge (rows in :attr:`out_edges` order); receive one per incoming edge."""
+    def send(
+        self, edge_values: np.ndarray, *, active: np.ndarray | None = None, message_bytes: np.ndarray | None = None
+    ) -> Inbox:
+        """Send one value per outgoing edge (rows in :attr:`out_edges` order); receive one per incoming edge.
+
+        ``message_bytes`` (one integer per outgoing edge): the bytes each message really carries when the rows are
+        a fixed-width container of variable-length content (a relay of observation records); they are counted
+        instead of the row width. The sizes travel with the rows, so every backend counts the same bytes.
+        """
         x = np.asarray(edge_values)
         if x.ndim == 0 or x.shape[0] != self.out_edges.size:
             raise ExchangeError(
@@ -447,10 +454,42 @@ class ExchangeCore(ABC):
             )
         flat, tail = _flat(x)
         act_out, act_in = self._active_slices(active)
+        if message_bytes is not None:
+            return self._send_sized(flat, tail, active, act_out, act_in, message_bytes)
         moved = self._move_edges(flat, active)
         return self._finish_round(
             moved, act_out, act_in, tail, flat.shape[1] * flat.itemsize, owned=not np.may_share_memory(moved, x)
         )
+
+    def _send_sized(
+        self,
+        flat: np.ndarray,
+        tail: tuple[int, ...],
+        active: np.ndarray | None,
+        act_out: np.ndarray,
+        act_in: np.ndarray,
+        message_bytes: np.ndarray,
+    ) -> Inbox:
+        """:meth:`send` with per-message byte counts: the size rides in an extra float64 column (exact for any
+        count below 2⁵³); the round is counted with zero bytes, then each sent and delivered message's size added."""
+        sizes = np.asarray(message_bytes)
+        if sizes.shape != (self.out_edges.size,) or not np.issubdtype(sizes.dtype, np.integer) or (sizes < 0).any():
+            raise ExchangeError(
+                f"message_bytes must be one non-negative integer per outgoing edge ({self.out_edges.size}), "
+                f"got {sizes.dtype} array of shape {sizes.shape}"
+            )
+        wide = np.concatenate([flat.astype(float), sizes.astype(float)[:, None]], axis=1)
+        moved = self._move_edges(wide, active)
+        inbox = self._finish_round(moved, act_out, act_in, (wide.shape[1],), 0, owned=True)
+        sent = np.where(act_out, sizes, 0)
+        if self.faults.silent_nodes:
+            sent = np.where(self.faults.silent_mask(self.round_index - 1, self.nodes)[self.out_src], 0, sent)
+        got = np.where(inbox.delivered, np.rint(inbox.values[:, -1]), 0.0).astype(np.int64)
+        self.bytes_sent += np.bincount(self.out_src, weights=sent, minlength=self.n_local).astype(np.int64)
+        self.bytes_received += np.bincount(self.in_dst, weights=got, minlength=self.n_local).astype(np.int64)
+        self._round_bytes[-1] += int(sent.sum())
+        values = inbox.values[:, :-1].astype(flat.dtype, copy=False).reshape((inbox.values.shape[0], *tail))
+        return Inbox(values, inbox.delivered, inbox.dst, inbox.src, inbox.edges, inbox.n_local)
 
     def _part_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Positions of the in-edges and nodes in the arrays of :attr:`part` (exchanges built from a part)."""

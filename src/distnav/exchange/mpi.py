@@ -29,7 +29,9 @@ from distnav.exchange.core import ReduceOp, Reducible
 from distnav.exchange.faults import FaultSchedule
 from distnav.network.graph import Graph
 from distnav.network.graph_part import GraphPart, incoming_positions
-from distnav.network.partition import locality_order, partition_nodes
+from distnav.network.partition import NodeRanges, locality_order, owner_map, partition_nodes
+
+PartitionSpec = str | np.ndarray | NodeRanges | os.PathLike[str]
 
 __all__ = ["MPIExchange", "partition_nodes", "world_rank", "world_size"]
 
@@ -50,8 +52,7 @@ def _part_order(part: GraphPart, order: str | np.ndarray) -> np.ndarray | None:
     import scipy.sparse as sp
     from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-    k = np.minimum(np.searchsorted(part.nodes, part.src), part.n_local - 1)
-    inner = part.nodes[k] == part.src
+    k, inner = part.owned_positions(part.src)
     rows = np.repeat(np.arange(part.n_local), np.diff(part.in_ptr))[inner]
     adj = sp.csr_matrix((np.ones(rows.size), (rows, k[inner])), shape=(part.n_local, part.n_local))
     return np.asarray(reverse_cuthill_mckee(adj, symmetric_mode=True), dtype=np.int64)
@@ -69,6 +70,8 @@ class MPIExchange(Exchange):
     """This rank's block of the network; see the module docstring."""
 
     backend = "mpi"
+    owner: np.ndarray | NodeRanges
+    """Owner rank of every node: an array, or node ranges (an exchange built from a part with ``"block"``)."""
 
     def __init__(
         self,
@@ -76,7 +79,7 @@ class MPIExchange(Exchange):
         faults: FaultSchedule | None = None,
         *,
         comm: Any = None,
-        partition: str | np.ndarray | os.PathLike[str] | None = None,
+        partition: PartitionSpec | None = None,
         order: str | np.ndarray = "auto",
         persistent: bool = True,
     ) -> None:
@@ -86,40 +89,89 @@ class MPIExchange(Exchange):
         self.comm = comm if comm is not None else MPI.COMM_WORLD
         self.rank = int(self.comm.Get_rank())
         self.size = int(self.comm.Get_size())
-        me = self.rank
         if isinstance(graph, GraphPart):  # this rank's part only: the partition must be given, not computed
-            if partition is None or (isinstance(partition, str) and partition == "rcm"):
-                raise ExchangeError(
-                    "an exchange on a graph part needs the partition the parts were built from "
-                    "(an owner array, a partition file or 'block'): 'rcm' needs the whole graph"
-                )
-            self.owner = partition_nodes(graph, self.size, partition)
-            part = graph
-            if not np.array_equal(part.nodes, np.flatnonzero(self.owner == me)):
-                raise ExchangeError(
-                    f"rank {me}: the graph part holds other nodes than the partition gives this "
-                    f"rank ({part.n_local} nodes in the part, "
-                    f"{int(np.count_nonzero(self.owner == me))} in the partition)"
-                )
-            perm = _part_order(part, order)  # a locality order of the part's own links (results do not depend
-            # on it: every row sums its terms in global sender order)
+            part, perm = self._own_part(graph, partition, order)
         else:
-            self.owner = partition_nodes(graph, self.size, "rcm" if partition is None else partition)
-            part = GraphPart.from_graph(graph, np.flatnonzero(self.owner == me))
+            owner = partition_nodes(graph, self.size, "rcm" if partition is None else partition)
+            self.owner = owner
+            part = GraphPart.from_graph(graph, np.flatnonzero(owner == self.rank))
             full = locality_order(graph, order)  # the shared locality order (as in-process) restricted to the rank
-            perm = None if full is None else np.searchsorted(part.nodes, full[self.owner[full] == me])
+            perm = None if full is None else np.searchsorted(part.nodes, full[owner[full] == self.rank])
         self._setup_from_part(part, perm, persistent)
+
+    def _own_part(
+        self,
+        part: GraphPart,
+        partition: str | np.ndarray | NodeRanges | os.PathLike[str] | None,
+        order: str | np.ndarray,
+    ) -> tuple[GraphPart, np.ndarray | None]:
+        """Check a rank's graph part against the partition; its local order. ``"block"`` and node ranges are held
+        as ``ranks + 1`` bounds (:class:`~distnav.network.partition.NodeRanges`): nothing over the whole network."""
+        if partition is None or (isinstance(partition, str) and partition == "rcm"):
+            raise ExchangeError(
+                "an exchange on a graph part needs the partition the parts were built from "
+                "(node ranges, 'block', an owner array or a partition file): 'rcm' needs the whole graph"
+            )
+        owner = self.owner = owner_map(part, self.size, partition)
+        me = self.rank
+        if isinstance(owner, NodeRanges):
+            lo, hi = int(owner.bounds[me]), int(owner.bounds[me + 1])
+            same = part.n_local == hi - lo and (part.n_local == 0 or (part.nodes[0] == lo and part.nodes[-1] == hi - 1))
+            expected = hi - lo
+        else:
+            same = np.array_equal(part.nodes, np.flatnonzero(owner == me))
+            expected = int(np.count_nonzero(owner == me))
+        if not same:
+            raise ExchangeError(
+                f"rank {me}: the graph part holds other nodes than the partition gives this "
+                f"rank ({part.n_local} nodes in the part, {expected} in the partition)"
+            )
+        # a locality order of the part's own links (results do not depend on it: every row sums its terms in
+        # global sender order)
+        return part, _part_order(part, order)
+
+    def _owner_of(self, ids: np.ndarray) -> np.ndarray:
+        """Owner rank of each id, int32 (per-edge lookups: half the bytes)."""
+        return np.asarray(self.owner[ids]).astype(np.int32, copy=False)
 
     def _setup_from_part(self, part: GraphPart, perm: np.ndarray | None, persistent: bool) -> None:
         """Every index array of the block from its part: no array over the whole graph's edges."""
-        me, n_local = self.rank, part.n_local
         # edge-sized index arrays in 32 bits where every index fits (as in-process); global ids stay 64-bit
         idx = np.int32 if max(self.n_nodes, self.n_edges) < 2**31 - 1 else np.int64
-        owner = self.owner.astype(np.int32 if self.size < 2**31 - 1 else np.int64)  # per-edge lookups: half the bytes
-        # local order: ``perm[k]`` is the position in ``part.nodes`` of local node k
+        local_of_part, pos_in = self._local_edges(part, perm, idx)
+        own_in_src, own_out_dst = self._owner_of(self.in_src), self._owner_of(self.out_dst)
+        me = self.rank
+        # neighbour ranks: those sharing cut edges (symmetric: every link is stored both ways)
+        cut_out_rows = np.flatnonzero(own_out_dst != me)  # out rows, global edge order
+        cut_in_rows = np.flatnonzero(own_in_src != me)
+        cut_in_rows = cut_in_rows[np.argsort(self.in_edges[cut_in_rows], kind="stable")]  # global edge order
+        self.neighbour_ranks = np.unique(own_out_dst[cut_out_rows]).astype(np.int64)
+        send_rows = [cut_out_rows[own_out_dst[cut_out_rows] == r] for r in self.neighbour_ranks]
+        recv_rows = [cut_in_rows[own_in_src[cut_in_rows] == r] for r in self.neighbour_ranks]
+        del cut_out_rows, cut_in_rows
+        self._node_halo(part, local_of_part, send_rows, recv_rows, own_in_src == me, idx)
+        del own_in_src
+        self._edge_transport(part, pos_in, send_rows, recv_rows, own_out_dst == me, idx)
+        del pos_in
+        del own_out_dst
+        self._layouts: dict[tuple[int, int, int], Any] = {}
+        self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
+        self._edge_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
+        self._requests: list[Any] = []
+        nbr = self.neighbour_ranks.tolist()
+        self.dist_comm = self.comm.Create_dist_graph_adjacent(sources=nbr, destinations=nbr, reorder=False)
+        self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
+        self._init_accounting()
+
+    def _local_edges(
+        self, part: GraphPart, perm: np.ndarray | None, idx: type[np.signedinteger[Any]]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The block's nodes in local order and its in- and out-edges; returns part position → local index, and
+        the part position of every local in-edge. ``perm[k]`` is the position in ``part.nodes`` of local node k."""
+        n_local = part.n_local
         rows = np.arange(n_local, dtype=np.int64) if perm is None else np.asarray(perm, np.int64)
         self.nodes = part.nodes[rows]
-        local_of_part = np.empty(n_local, idx)  # part position → local index
+        local_of_part = np.empty(n_local, idx)
         local_of_part[rows] = np.arange(n_local, dtype=idx)
         pos_in = incoming_positions(part.in_ptr, rows)  # in-edges grouped by local receiver, senders ascending
         if self.part is not None:  # where the part's weights sit (PartWeights); not needed with the whole graph
@@ -127,72 +179,79 @@ class MPIExchange(Exchange):
         self.in_edges = part.edge_ids[pos_in]
         self.in_src = part.src[pos_in].astype(np.int64)  # global ids stay 64-bit (as in-process): callers compute
         self.in_dst = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr)[rows])
-        del pos_in
         # out-edges: the reverse of every in-edge, in global edge order
         recv_part = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr))
-        by_id = np.argsort(part.out_edge_ids, kind="stable")
+        by_id = np.argsort(part.out_edge_ids)  # distinct ids: any sort gives this order (quicksort: 2× faster)
         self.out_edges = part.out_edge_ids[by_id]
         self.out_src = local_of_part[recv_part[by_id]]
         self.out_dst = part.src[by_id].astype(np.int64)
-        del recv_part
+        return local_of_part, pos_in
+
+    def _node_halo(
+        self,
+        part: GraphPart,
+        local_of_part: np.ndarray,
+        send_rows: list[np.ndarray],
+        recv_rows: list[np.ndarray],
+        sender_is_mine: np.ndarray,
+        idx: type[np.signedinteger[Any]],
+    ) -> None:
+        """For each neighbour rank, the sorted boundary nodes sent to / received from it, and the column of every
+        in-edge's sender: ``[local nodes in local order | halo as received]``, the halo in one contiguous slice.
+        Each row of the mixer's product still sums its terms in global sender order (Mixer), so results agree
+        bitwise with in-process whatever the column numbering."""
 
         def local_index(glob: np.ndarray) -> np.ndarray:  # owned global ids → local index
-            return np.asarray(local_of_part[np.searchsorted(part.nodes, glob)])
+            return np.asarray(local_of_part[part.owned_positions(glob)[0]])
 
-        own_in_src = owner[self.in_src]
-        own_out_dst = owner[self.out_dst]
-        # neighbour ranks: those sharing cut edges (symmetric: every link is stored both ways)
-        cut_out_rows = np.flatnonzero(own_out_dst != me)  # out rows, global edge order
-        cut_in_rows = np.flatnonzero(own_in_src != me)
-        cut_in_rows = cut_in_rows[np.argsort(self.in_edges[cut_in_rows], kind="stable")]  # global edge order
-        self.neighbour_ranks = np.unique(own_out_dst[cut_out_rows]).astype(np.int64)
-        nbr = self.neighbour_ranks
-        send_rows = [cut_out_rows[own_out_dst[cut_out_rows] == r] for r in nbr]
-        recv_rows = [cut_in_rows[own_in_src[cut_in_rows] == r] for r in nbr]
-
-        # node halo: for each neighbour rank r, the sorted boundary nodes sent to / received from r
+        has_nbr = bool(self.neighbour_ranks.size)
         send_nodes = [np.unique(self.nodes[self.out_src[rr]]) for rr in send_rows]
         recv_nodes = [np.unique(self.in_src[rr]) for rr in recv_rows]
-        self._send_node_idx = local_index(np.concatenate(send_nodes)) if nbr.size else np.zeros(0, np.int64)
+        self._send_node_idx = local_index(np.concatenate(send_nodes)) if has_nbr else np.zeros(0, np.int64)
         self._node_send_counts = np.array([s.size for s in send_nodes], dtype=np.int64)
         self._node_recv_counts = np.array([s.size for s in recv_nodes], dtype=np.int64)
-        halo = np.concatenate(recv_nodes) if nbr.size else np.zeros(0, np.int64)
+        halo = np.concatenate(recv_nodes) if has_nbr else np.zeros(0, np.int64)
         self.n_halo = int(halo.size)
-        # columns = [local nodes in local order | halo as received]: the halo lands in one contiguous slice. Each
-        # row of the mixer's product still sums its terms in global sender order (Mixer), so results agree
-        # bitwise with in-process whatever the column numbering.
         self.n_columns = self.n_local + self.n_halo
         self.local_col = np.arange(self.n_local, dtype=np.int64)
         col = np.empty(self.in_src.size, idx)
-        mine = own_in_src == me
-        col[mine] = local_index(self.in_src[mine])
+        col[sender_is_mine] = local_index(self.in_src[sender_is_mine])
         if self.n_halo:
             halo_order = np.argsort(halo, kind="stable")
-            col[~mine] = self.n_local + halo_order[np.searchsorted(halo[halo_order], self.in_src[~mine])]
+            foreign = ~sender_is_mine
+            col[foreign] = self.n_local + halo_order[np.searchsorted(halo[halo_order], self.in_src[foreign])]
         self.in_src_col = col
 
-        # edge messages: per neighbour rank, cut edges in global edge order on both sides
-        in_by_id = np.argsort(self.in_edges, kind="stable")
-        local_out_rows = np.flatnonzero(own_out_dst == me)
+    def _edge_transport(
+        self,
+        part: GraphPart,
+        pos_in: np.ndarray,
+        send_rows: list[np.ndarray],
+        recv_rows: list[np.ndarray],
+        receiver_is_mine: np.ndarray,
+        idx: type[np.signedinteger[Any]],
+    ) -> None:
+        """Edge messages: rows moved inside the block, and per neighbour rank the cut edges in global edge order on
+        both sides."""
+        local_out_rows = np.flatnonzero(receiver_is_mine)
         self._local_out_pos = local_out_rows.astype(idx)
-        self._local_in_pos = in_by_id[np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])].astype(
-            idx
-        )
-        del in_by_id, local_out_rows, own_in_src, own_out_dst
-        self._edge_send_pos: np.ndarray = (np.concatenate(send_rows) if nbr.size else np.zeros(0, np.int64)).astype(idx)
-        self._edge_recv_pos: np.ndarray = (np.concatenate(recv_rows) if nbr.size else np.zeros(0, np.int64)).astype(idx)
+        if part.is_range:  # in-edge ids are a range: id → part position → local row, no sort
+            row_of_pos = np.empty(pos_in.size, idx)
+            row_of_pos[pos_in] = np.arange(pos_in.size, dtype=idx)
+            self._local_in_pos = row_of_pos[self.out_edges[local_out_rows] - int(part.edge_ids[0])]
+            del row_of_pos
+        else:
+            in_by_id = np.argsort(self.in_edges, kind="stable")
+            found = np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])
+            self._local_in_pos = in_by_id[found].astype(idx)
+            del in_by_id, found
+        del local_out_rows
+        empty = np.zeros(0, np.int64)
+        has_nbr = bool(self.neighbour_ranks.size)
+        self._edge_send_pos: np.ndarray = (np.concatenate(send_rows) if has_nbr else empty).astype(idx)
+        self._edge_recv_pos: np.ndarray = (np.concatenate(recv_rows) if has_nbr else empty).astype(idx)
         self._edge_send_counts = np.array([e.size for e in send_rows], dtype=np.int64)
         self._edge_recv_counts = np.array([e.size for e in recv_rows], dtype=np.int64)
-
-        self._layouts: dict[tuple[int, int, int], Any] = {}
-        self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
-        self._edge_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
-        self._requests: list[Any] = []
-        self.dist_comm = self.comm.Create_dist_graph_adjacent(
-            sources=nbr.tolist(), destinations=nbr.tolist(), reorder=False
-        )
-        self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
-        self._init_accounting()
 
     def _part_rows(self) -> tuple[np.ndarray, np.ndarray]:
         if self.part is None:

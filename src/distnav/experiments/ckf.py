@@ -146,53 +146,21 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         see_probability=0.7,
     )
     sched = consensus_schedule(graph, PROTOCOL)
-
-    runs: dict[int, Any] = {}
-    with ctx.progress.task("ckf: central, local and CKF filters", total=len(KN_VALUES) + 3) as advance:
-        central = central_filter(dyn, ms)
-        advance(1)
-        local = local_filters(dyn, ms)
-        advance(1)
-        for kn in KN_VALUES:
-            runs[kn] = ckf(dyn, ms, schedule=sched, rounds=kn, exchange=ctx.exchange(graph))
-            advance(1)
-        # robustness: 10 % of the messages lost (their weight moves to the receiver's self-weight); the CKF
-        # carries the rows of the product actually applied, so Fig. 7 stays exact
-        drops = FaultSchedule(drop_probability=DROP_PROBABILITY, seed=7)
-        lossy = ckf(dyn, ms, schedule=sched, rounds=DROP_KN, exchange=ctx.exchange(graph, faults=drops))
-        advance(1)
+    central, local, runs, lossy = _filters(ctx, dyn, ms, graph, sched)
     cs = central.series
     gathered = normal_bytes_per_node(ms)
     ls = local.series
     ratios = {kn: ckf_std_ratio(r.series, cs) for kn, r in runs.items()}
     local_ratio = std_ratio(ls, cs)
 
-    alpha_rows = [alpha_factor(consensus_product(sched, kn)) for kn in ALPHA_KN]
-    alpha: dict[str, Any] = {
-        "kn": list(ALPHA_KN),
-        "max_over_nodes": [float(a.max()) for a in alpha_rows],
-        "mean_over_nodes": [float(a.mean()) for a in alpha_rows],
-        "min_over_nodes": [float(a.min()) for a in alpha_rows],
-        "per_node": {str(kn): a.tolist() for kn, a in zip(ALPHA_KN, alpha_rows, strict=True)},
-        "stationary_closed_form_max_rel_error": {str(kn): stationary_check(graph, kn) for kn in KN_VALUES},
-    }
-
-    def final_max(r: np.ndarray) -> float:
-        return float(np.nanmax(r[-1]))
-
-    std_ratio_final = {str(kn): final_max(ratios[kn]) for kn in KN_VALUES}
-    # consistency of one realization: standardized errors of the CKF estimates with Fig. 7 std
-    zc = (truth[:, None, :] - cs.estimates) / cs.std
-    consistency = {"central": float(np.sqrt(np.nanmean(zc**2)))}
-    for kn, r in runs.items():
-        s = r.series
-        z = (truth[:, None, :] - s.estimates) / s.std
-        consistency[str(kn)] = float(np.sqrt(np.nanmean(z**2)))
+    alpha = _alpha(graph, sched)
+    std_ratio_final = {str(kn): _final_max(ratios[kn]) for kn in KN_VALUES}
+    consistency = _consistency(truth, cs, runs)
     lossy_ratio = ckf_std_ratio(lossy.series, cs)
     drops_result = {
         "k_n": DROP_KN,
         "drop_probability": DROP_PROBABILITY,
-        "std_ratio_final": final_max(lossy_ratio),
+        "std_ratio_final": _final_max(lossy_ratio),
         "messages_dropped": lossy.comm.messages_dropped,
         "messages": lossy.comm.messages,
     }
@@ -214,7 +182,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "std_ratio_final_note": "largest CKF/central std ratio over nodes and estimable parameters at the last epoch",
         "std_ratio_final_per_node": {str(kn): np.nanmax(ratios[kn][-1], axis=1).tolist() for kn in KN_VALUES},
         "local_to_central_final": {
-            "max": final_max(local_ratio),
+            "max": _final_max(local_ratio),
             "per_node": np.nanmax(local_ratio[-1], axis=1).tolist(),
         },
         "rms_standardized_error": consistency,
@@ -225,23 +193,86 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         },
         "message_drops": drops_result,
         "exact_average_vs_central": exact,
-        "headline": {
-            **{f"max CKF/central std ratio, last epoch, k_n={kn}": std_ratio_final[str(kn)] for kn in KN_VALUES},
-            "max local/central std ratio, last epoch": final_max(local_ratio),
-            f"max CKF/central std ratio, k_n={DROP_KN}, {DROP_PROBABILITY:.0%} messages lost": drops_result[
-                "std_ratio_final"
-            ],
-            **{f"α max over nodes, k_n={kn}": alpha["max_over_nodes"][ALPHA_KN.index(kn)] for kn in KN_VALUES},
-            "eq. (47) closed form, max rel. error": max(alpha["stationary_closed_form_max_rel_error"].values()),
-            "RMS (x−x̂)/σ of one realization, central": consistency["central"],
-            "RMS (x−x̂)/σ of one realization, CKF k_n=4": consistency["4"],
-            **{f"node-parameters not estimable at the end, k_n={kn}": not_estimable[str(kn)] for kn in KN_VALUES},
-        },
+        "headline": _headline(
+            std_ratio_final, _final_max(local_ratio), drops_result, alpha, consistency, not_estimable
+        ),
     }
     ctx.write_json("results.json", results)
     if ctx.is_root:
         _figures(ctx, graph, ratios, local_ratio, alpha, degrees, results)
     return results
+
+
+def _filters(
+    ctx: ExperimentContext, dyn: Any, ms: Any, graph: Graph, sched: Any
+) -> tuple[Any, Any, dict[int, Any], Any]:
+    """The central and local filters, the CKF for every k_n, and the CKF with 10 % of its messages lost."""
+    runs: dict[int, Any] = {}
+    with ctx.progress.task("ckf: central, local and CKF filters", total=len(KN_VALUES) + 3) as advance:
+        central = central_filter(dyn, ms)
+        advance(1)
+        local = local_filters(dyn, ms)
+        advance(1)
+        for kn in KN_VALUES:
+            runs[kn] = ckf(dyn, ms, schedule=sched, rounds=kn, exchange=ctx.exchange(graph))
+            advance(1)
+        # robustness: 10 % of the messages lost (their weight moves to the receiver's self-weight); the CKF
+        # carries the rows of the product actually applied, so Fig. 7 stays exact
+        drops = FaultSchedule(drop_probability=DROP_PROBABILITY, seed=7)
+        lossy = ckf(dyn, ms, schedule=sched, rounds=DROP_KN, exchange=ctx.exchange(graph, faults=drops))
+        advance(1)
+    return central, local, runs, lossy
+
+
+def _alpha(graph: Graph, sched: Any) -> dict[str, Any]:
+    """α of eq. (46) per node for every k_n of :data:`ALPHA_KN`, and the stationary closed form's error (eq. (47))."""
+    alpha_rows = [alpha_factor(consensus_product(sched, kn)) for kn in ALPHA_KN]
+    return {
+        "kn": list(ALPHA_KN),
+        "max_over_nodes": [float(a.max()) for a in alpha_rows],
+        "mean_over_nodes": [float(a.mean()) for a in alpha_rows],
+        "min_over_nodes": [float(a.min()) for a in alpha_rows],
+        "per_node": {str(kn): a.tolist() for kn, a in zip(ALPHA_KN, alpha_rows, strict=True)},
+        "stationary_closed_form_max_rel_error": {str(kn): stationary_check(graph, kn) for kn in KN_VALUES},
+    }
+
+
+def _final_max(r: np.ndarray) -> float:
+    return float(np.nanmax(r[-1]))
+
+
+def _consistency(truth: np.ndarray, cs: Any, runs: dict[int, Any]) -> dict[str, float]:
+    """Consistency of one realization: the RMS of the standardized errors of the central and CKF estimates with
+    their Fig. 7 std."""
+    zc = (truth[:, None, :] - cs.estimates) / cs.std
+    consistency = {"central": float(np.sqrt(np.nanmean(zc**2)))}
+    for kn, r in runs.items():
+        s = r.series
+        z = (truth[:, None, :] - s.estimates) / s.std
+        consistency[str(kn)] = float(np.sqrt(np.nanmean(z**2)))
+    return consistency
+
+
+def _headline(
+    std_ratio_final: dict[str, float],
+    local_final: float,
+    drops_result: dict[str, Any],
+    alpha: dict[str, Any],
+    consistency: dict[str, float],
+    not_estimable: dict[str, int],
+) -> dict[str, Any]:
+    return {
+        **{f"max CKF/central std ratio, last epoch, k_n={kn}": std_ratio_final[str(kn)] for kn in KN_VALUES},
+        "max local/central std ratio, last epoch": local_final,
+        f"max CKF/central std ratio, k_n={DROP_KN}, {DROP_PROBABILITY:.0%} messages lost": drops_result[
+            "std_ratio_final"
+        ],
+        **{f"α max over nodes, k_n={kn}": alpha["max_over_nodes"][ALPHA_KN.index(kn)] for kn in KN_VALUES},
+        "eq. (47) closed form, max rel. error": max(alpha["stationary_closed_form_max_rel_error"].values()),
+        "RMS (x−x̂)/σ of one realization, central": consistency["central"],
+        "RMS (x−x̂)/σ of one realization, CKF k_n=4": consistency["4"],
+        **{f"node-parameters not estimable at the end, k_n={kn}": not_estimable[str(kn)] for kn in KN_VALUES},
+    }
 
 
 def _figures(

@@ -41,11 +41,13 @@ from distnav.algorithms.consensus.averaging import consensus_product, consensus_
 from distnav.algorithms.kalman import DynamicModel, FilterSeries, central_filter, local_filters
 from distnav.algorithms.kalman.ckf import ckf, ckf_error_variance, consensus_rounds
 from distnav.errors import ModelError
-from distnav.experiments.common import ExperimentContext, pyplot
+from distnav.experiments.ckf_ionosphere_figures import IonosphereFigures, figures
+from distnav.experiments.common import ExperimentContext
 from distnav.models.gnss.ionosphere import (
     GF_M_PER_DSB_NS,
     TECU_L1_M,
     GeometryFreeSeries,
+    GeometryOptions,
     IonosphereGeometry,
     IonosphereStateLayout,
     geometry_free_series,
@@ -158,10 +160,14 @@ def perth_scenario(
     const = synthetic_gps_constellation(epoch=CONSTELLATION_EPOCH)
     t = float(gps_seconds(np.datetime64(START_GPS, "ns"))) + INTERVAL_S * np.arange(n_epochs)
     lat, lon = perth_positions(colocated=colocated)
-    geo0 = ionosphere_geometry(const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, mask_deg=MASK_DEG)
+    geo0 = ionosphere_geometry(
+        const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, options=GeometryOptions(mask_deg=MASK_DEG)
+    )
     seen = np.asarray(geo0.tracked.any(axis=(0, 1))).tolist()
     svs = tuple(s for s, k in zip(geo0.svs, seen, strict=True) if k)
-    geo = ionosphere_geometry(const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, mask_deg=MASK_DEG, svs=svs)
+    geo = ionosphere_geometry(
+        const, t, lat_rad=lat, lon_rad=lon, height_m=PERTH_HEIGHT_M, svs=svs, options=GeometryOptions(mask_deg=MASK_DEG)
+    )
     pivot = PIVOT if PIVOT in svs else svs[int(np.argmax(geo.tracked.sum(axis=(0, 1))))]
     layout = IonosphereStateLayout(svs, pivot)
     return geo, layout, geometry_free_series(geo, layout), ionosphere_dynamics(layout, INTERVAL_S)
@@ -285,48 +291,73 @@ def precision_analysis(
     )
 
 
-def run(ctx: ExperimentContext) -> dict[str, Any]:
-    from distnav.algorithms.kalman.gather_data import RECORDS_DATA, record_bytes_per_node
-    from distnav.algorithms.result import compare_with_gather
+@dataclass(frozen=True)
+class SimulatedCkf:
+    """One realization with data through the CKF (k_n = ``kn``): its result, the series it ran on, the truth, and
+    its standardized errors' share within ±3σ and RMS."""
 
+    kn: int
+    result: Any
+    data_series: GeometryFreeSeries
+    truth: np.ndarray
+    within_3sigma: float
+    rms_standardized: float
+    n_values: int
+
+
+def run(ctx: ExperimentContext) -> dict[str, Any]:
     n_epochs = int(ctx.option("epochs", QUICK_EPOCHS if ctx.quick else N_EPOCHS, minimum=1))
     data_kn = int(ctx.option("data_kn", 4, minimum=0))
     with ctx.progress.task("ckf-ionosphere: central, local and CKF (Fig. 7) variance recursions", total=3) as adv:
         pa = precision_analysis(n_epochs, progress=adv)
-    graph, geo, layout, series, dyn, kns = pa.graph, pa.geometry, pa.layout, pa.series, pa.dynamics, pa.kns
-    n = graph.n_nodes
-    central, local, ckf_series = pa.central, pa.local, pa.ckf
-    cs, ls = central.std, local.std
+    cs = pa.central.std
     steady = int(STEADY_AFTER_MIN * 60.0 / INTERVAL_S)
     if steady >= n_epochs:
         steady = n_epochs // 2
     with np.errstate(invalid="ignore", divide="ignore"):
-        local_ratio = ls[:, :, :3] / cs[:, :, :3]
-        ckf_ratio = {k: s.std[:, :, :3] / cs[:, :, :3] for k, s in ckf_series.items()}
+        local_ratio = pa.local.std[:, :, :3] / cs[:, :, :3]
+        ckf_ratio = {k: s.std[:, :, :3] / cs[:, :, :3] for k, s in pa.ckf.items()}
+    sim = _simulated_ckf(ctx, pa, data_kn)
+    results = _results(pa, n_epochs, steady, local_ratio, ckf_ratio, sim)
+    ctx.write_json("results.json", results)
+    if ctx.is_root:
+        figures(
+            ctx,
+            IonosphereFigures(
+                pa.graph,
+                PERTH_EAST_NORTH_KM,
+                pa.geometry,
+                pa.layout,
+                pa.central,
+                pa.local,
+                ckf_ratio,
+                local_ratio,
+                pa.dcb_minutes_central,
+                pa.dcb_minutes_ckf,
+                sim.result.series,
+                sim.truth,
+                steady,
+                INTERVAL_S,
+                MASK_DEG,
+            ),
+        )
+    return results
 
-    # initial local-to-central ratio: Perth network (receiver 1) and the co-located check (equal normals)
-    r0, t0 = initial_ratio(local, central)
-    _, _, s_col, d_col = perth_scenario(min(n_epochs, 5), colocated=True)
-    c_col = central_filter(d_col, s_col).series
-    l_col = local_filters(d_col, s_col).series
-    r0_col, t0_col = initial_ratio(l_col, c_col)
 
-    # DCB time to 0.5 ns
-    t_central, t_local, t_ckf = pa.dcb_minutes_central, pa.dcb_minutes_local, pa.dcb_minutes_ckf
-    t_central_c = dcb_time_to_threshold(cs, layout, first_tracked_epoch(series), m_per_ns=0.299792458)[0]
-
-    # one realization with data through the CKF
+def _simulated_ckf(ctx: ExperimentContext, pa: PrecisionAnalysis, data_kn: int) -> SimulatedCkf:
+    """One realization of the Perth scenario's data through the CKF with ``data_kn`` rounds, and how its errors
+    compare with its own σ."""
     rng = ctx.rng(1)
-    truth, obs, _ = simulate_geometry_free(geo, layout, INTERVAL_S, rng=rng)
-    data_series = geometry_free_series(geo, layout, obs_m=obs)
+    truth, obs, _ = simulate_geometry_free(pa.geometry, pa.layout, INTERVAL_S, rng=rng)
+    data_series = geometry_free_series(pa.geometry, pa.layout, obs_m=obs)
     with ctx.progress.task(f"ckf-ionosphere: CKF with k_n = {data_kn} on simulated data", total=1) as adv:
         res = ckf(
-            dyn,
+            pa.dynamics,
             data_series,
-            graph=graph,
+            graph=pa.graph,
             protocol=PROTOCOL,
             rounds=data_kn,
-            exchange=ctx.exchange(graph),
+            exchange=ctx.exchange(pa.graph),
             monitor=False,
         )
         adv(1)
@@ -334,41 +365,45 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     with np.errstate(invalid="ignore"):
         z = (ds.estimates - truth[:, None, :]) / ds.std
     zf = z[np.isfinite(z)]
-    within3 = float(np.mean(np.abs(zf) <= 3.0))
-    rms_z = float(np.sqrt(np.mean(zf**2)))
+    return SimulatedCkf(
+        data_kn,
+        res,
+        data_series,
+        truth,
+        float(np.mean(np.abs(zf) <= 3.0)),
+        float(np.sqrt(np.mean(zf**2))),
+        int(zf.size),
+    )
+
+
+def _results(
+    pa: PrecisionAnalysis,
+    n_epochs: int,
+    steady: int,
+    local_ratio: np.ndarray,
+    ckf_ratio: dict[int, np.ndarray],
+    sim: SimulatedCkf,
+) -> dict[str, Any]:
+    """results.json: the scenario, the std ratios of Figs. 11–12, the DCB times of Fig. 13, the CKF on data."""
+    from distnav.algorithms.kalman.gather_data import RECORDS_DATA, record_bytes_per_node
+    from distnav.algorithms.result import compare_with_gather
+
+    graph, kns, n, cs = pa.graph, pa.kns, pa.graph.n_nodes, pa.central.std
+    # initial local-to-central ratio: Perth network (receiver 1) and the co-located check (equal normals)
+    r0, t0 = initial_ratio(pa.local, pa.central)
+    _, _, s_col, d_col = perth_scenario(min(n_epochs, 5), colocated=True)
+    r0_col, t0_col = initial_ratio(local_filters(d_col, s_col).series, central_filter(d_col, s_col).series)
 
     def steady_range(r: np.ndarray) -> tuple[float, float]:
         v = r[steady:]
         return float(np.nanmin(v)), float(np.nanmax(v))
 
-    degrees = graph.degrees
     kmax = {str(k): float(np.nanmax(ckf_ratio[k][steady:])) for k in kns}
     per_rx_vtec = {str(k): np.nanmax(ckf_ratio[k][steady:, :, 0], axis=0).tolist() for k in kns}
-    dcb_central = box_stats(t_central)
+    dcb_central = box_stats(pa.dcb_minutes_central)
+    res = sim.result
     results: dict[str, Any] = {
-        "scenario": {
-            "receivers": n,
-            "links": graph.links.tolist(),
-            "degrees": degrees.tolist(),
-            "layout_east_north_km": PERTH_EAST_NORTH_KM.tolist(),
-            "n_epochs": n_epochs,
-            "interval_s": INTERVAL_S,
-            "start_gps": START_GPS,
-            "constellation": "synthetic 31-satellite GPS (PRN 4 absent)",
-            "satellites_tracked": list(layout.svs),
-            "n_satellites": len(layout.svs),
-            "pivot": layout.pivot,
-            "mask_deg": MASK_DEG,
-            "protocol": PROTOCOL,
-            "kn": kns,
-            "sending_intervals_s": list(SENDING_INTERVALS_S),
-            "satellites_rising_twice": _rerising(series, layout),
-            "visibility_epochs": _visibility(series, layout),
-            "units": {
-                "tec": f"metres of L1 delay (vertical); 1 TECU = {TECU_L1_M:.4f} m",
-                "dcb": "ns of the L1-L2 DSB difference DSB^s - DSB^p (0.4634 m of observable per ns)",
-            },
-        },
+        "scenario": _scenario(pa, n_epochs),
         "initial_local_to_central_ratio": r0,
         "initial_local_to_central_epoch": t0,
         "initial_local_to_central_ratio_colocated": r0_col,
@@ -389,43 +424,91 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "ckf_to_central_ratio_max": kmax,
         "ckf_to_central_ratio_max_note": "max over receivers, ν_o/ν_φ/ν_ψ and epochs from 1 h on (Fig. 7 recursion)",
         "ckf_to_central_vtec_max_per_receiver": per_rx_vtec,
-        "dcb_time_to_0.5ns_min": {
-            "central": dcb_central,
-            "local": {graph.names[i]: box_stats(t_local[i]) for i in range(n)},
-            "ckf": {str(k): {graph.names[i]: box_stats(t_ckf[k][i]) for i in range(n)} for k in kns},
-            "central_if_ns_means_c": box_stats(t_central_c),
-            "per_dcb_central": dict(zip(layout.dcb_svs, t_central.tolist(), strict=True)),
-        },
+        "dcb_time_to_0.5ns_min": _dcb_times(pa, dcb_central),
         "ckf_simulated_data": {
-            "kn": data_kn,
-            "fraction_within_3sigma": within3,
-            "rms_standardized_error": rms_z,
-            "n_values": int(zf.size),
+            "kn": sim.kn,
+            "fraction_within_3sigma": sim.within_3sigma,
+            "rms_standardized_error": sim.rms_standardized,
+            "n_values": sim.n_values,
             "messages": res.comm.as_dict() if hasattr(res.comm, "as_dict") else None,
         },
         "communication_vs_gather": {
-            f"CKF on simulated data, k_n = {data_kn}": compare_with_gather(
-                res.comm, graph, record_bytes_per_node(data_series.tracked), data=RECORDS_DATA, node_label="receiver"
+            f"CKF on simulated data, k_n = {sim.kn}": compare_with_gather(
+                res.comm,
+                graph,
+                record_bytes_per_node(sim.data_series.tracked),
+                data=RECORDS_DATA,
+                node_label="receiver",
             ).as_dict()
         },
         "paper": PAPER,
     }
+    results["headline"] = _headline(results, kns, kmax, per_rx_vtec, dcb_central, sim)
+    return results
+
+
+def _dcb_times(pa: PrecisionAnalysis, dcb_central: dict[str, Any]) -> dict[str, Any]:
+    """Minutes to a DCB std of 0.5 ns (Fig. 13): central, local and CKF per receiver, and per DCB."""
+    graph, layout, n = pa.graph, pa.layout, pa.graph.n_nodes
+    t_central, t_local, t_ckf = pa.dcb_minutes_central, pa.dcb_minutes_local, pa.dcb_minutes_ckf
+    t_central_c = dcb_time_to_threshold(pa.central.std, layout, first_tracked_epoch(pa.series), m_per_ns=0.299792458)
+    return {
+        "central": dcb_central,
+        "local": {graph.names[i]: box_stats(t_local[i]) for i in range(n)},
+        "ckf": {str(k): {graph.names[i]: box_stats(t_ckf[k][i]) for i in range(n)} for k in pa.kns},
+        "central_if_ns_means_c": box_stats(t_central_c[0]),
+        "per_dcb_central": dict(zip(layout.dcb_svs, t_central.tolist(), strict=True)),
+    }
+
+
+def _headline(
+    results: dict[str, Any],
+    kns: list[int],
+    kmax: dict[str, float],
+    per_rx_vtec: dict[str, list[float]],
+    dcb_central: dict[str, Any],
+    sim: SimulatedCkf,
+) -> dict[str, Any]:
     worst = max(per_rx_vtec[str(kns[0])])
-    results["headline"] = {
-        "initial local/central std ratio ν_o (receiver 1; √13 = 3.606)": r0,
-        "initial ratio, co-located receivers (equal normals)": r0_col,
+    return {
+        "initial local/central std ratio ν_o (receiver 1; √13 = 3.606)": results["initial_local_to_central_ratio"],
+        "initial ratio, co-located receivers (equal normals)": results["initial_local_to_central_ratio_colocated"],
         "local/central ν_o ratio after 1 h, receiver 1 (min)": results["local_to_central_after_1h"]["vtec"][0],
         "local/central ν_o ratio after 1 h, receiver 1 (max)": results["local_to_central_after_1h"]["vtec"][1],
         **{f"max CKF/central std ratio, k_n={k}": kmax[str(k)] for k in kns},
         f"worst receiver ν_o ratio k_n={kns[0]}": worst,
         "central DCB time to 0.5 ns, median [min]": dcb_central["median"],
         "central DCB time to 0.5 ns, max [min]": dcb_central["max"],
-        f"CKF k_n={data_kn} errors within ±3σ (simulated)": within3,
+        f"CKF k_n={sim.kn} errors within ±3σ (simulated)": sim.within_3sigma,
     }
-    ctx.write_json("results.json", results)
-    if ctx.is_root:
-        _figures(ctx, graph, geo, layout, central, local, ckf_ratio, local_ratio, t_central, t_ckf, ds, truth, steady)
-    return results
+
+
+def _scenario(pa: PrecisionAnalysis, n_epochs: int) -> dict[str, Any]:
+    """The scenario record of results.json."""
+    layout = pa.layout
+    return {
+        "receivers": pa.graph.n_nodes,
+        "links": pa.graph.links.tolist(),
+        "degrees": pa.graph.degrees.tolist(),
+        "layout_east_north_km": PERTH_EAST_NORTH_KM.tolist(),
+        "n_epochs": n_epochs,
+        "interval_s": INTERVAL_S,
+        "start_gps": START_GPS,
+        "constellation": "synthetic 31-satellite GPS (PRN 4 absent)",
+        "satellites_tracked": list(layout.svs),
+        "n_satellites": len(layout.svs),
+        "pivot": layout.pivot,
+        "mask_deg": MASK_DEG,
+        "protocol": PROTOCOL,
+        "kn": pa.kns,
+        "sending_intervals_s": list(SENDING_INTERVALS_S),
+        "satellites_rising_twice": _rerising(pa.series, layout),
+        "visibility_epochs": _visibility(pa.series, layout),
+        "units": {
+            "tec": f"metres of L1 delay (vertical); 1 TECU = {TECU_L1_M:.4f} m",
+            "dcb": "ns of the L1-L2 DSB difference DSB^s - DSB^p (0.4634 m of observable per ns)",
+        },
+    }
 
 
 def _rerising(series: GeometryFreeSeries, layout: IonosphereStateLayout) -> list[str]:
@@ -438,120 +521,3 @@ def _visibility(series: GeometryFreeSeries, layout: IonosphereStateLayout) -> di
     """Epochs at which each satellite is tracked by at least one receiver (Fig. 10, left)."""
     tr = np.asarray(series.tracked.any(axis=1))  # (T, S)
     return {s: int(k) for s, k in zip(layout.svs, tr.sum(axis=0), strict=True)}
-
-
-def _figures(
-    ctx: ExperimentContext,
-    graph: Graph,
-    geo: IonosphereGeometry,
-    layout: IonosphereStateLayout,
-    central: FilterSeries,
-    local: FilterSeries,
-    ckf_ratio: dict[int, np.ndarray],
-    local_ratio: np.ndarray,
-    t_central: np.ndarray,
-    t_ckf: dict[int, np.ndarray],
-    ds: FilterSeries,
-    truth: np.ndarray,
-    steady: int,
-) -> None:
-    plt = pyplot()
-    T = central.std.shape[0]
-    hours = 8.0 + np.arange(T) * INTERVAL_S / 3600.0  # Perth local time
-    labels = ["ν_o [m]", "ν_φ [m/rad]", "ν_ψ [m/rad]"]
-    n = graph.n_nodes
-    # Fig. 8 + 10: network and visibility
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    pos = PERTH_EAST_NORTH_KM
-    for i, j in graph.links:
-        axes[0].plot(pos[[i, j], 0], pos[[i, j], 1], "r-", lw=1)
-    axes[0].plot(pos[:, 0], pos[:, 1], "o", mfc="w", mec="k", ms=14)
-    for i in range(n):
-        axes[0].text(pos[i, 0], pos[i, 1], str(i + 1), ha="center", va="center", fontsize=8)
-    axes[0].set_aspect("equal")
-    axes[0].set_xlabel("east [km]")
-    axes[0].set_ylabel("north [km]")
-    axes[0].set_title("Perth network (links ≤ 4 km)")
-    vis = np.asarray(geo.tracked.any(axis=1))
-    for k in range(len(layout.svs)):
-        tt = np.where(vis[:, k], hours, np.nan)
-        axes[1].plot(tt, np.full(T, k), lw=4)
-    axes[1].set_yticks(range(len(layout.svs)))
-    axes[1].set_yticklabels([s[1:] for s in layout.svs], fontsize=6)
-    axes[1].set_xlabel("Perth local time [h]")
-    axes[1].set_ylabel("PRN")
-    axes[1].set_title(f"visibility above {MASK_DEG:.0f}° (synthetic constellation)")
-    ctx.save_figure(fig, "fig08_10_network_visibility.png")
-    # Fig. 11
-    sl = slice(min(steady, T - 1), T)
-    fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
-    for k in range(3):
-        axes[k, 0].plot(hours[sl], central.std[sl, 0, k], "g", label="central")
-        axes[k, 0].plot(hours[sl], local.std[sl, 0, k], "r", label="local (receiver 1)")
-        axes[k, 0].set_ylabel(f"std {labels[k]}")
-        axes[k, 1].plot(hours[sl], local_ratio[sl, 0, k], "k")
-        axes[k, 1].set_ylabel("local / central")
-        axes[k, 0].grid(alpha=0.3)
-        axes[k, 1].grid(alpha=0.3)
-    axes[0, 0].legend()
-    axes[2, 0].set_xlabel("Perth local time [h]")
-    axes[2, 1].set_xlabel("Perth local time [h]")
-    fig.suptitle("Fig. 11: central vs single-receiver standard deviations, from 1 h after the start")
-    ctx.save_figure(fig, "fig11_central_vs_local.png")
-    # Fig. 12
-    kshow = [k for k in ckf_ratio if k in (4, 12)] or list(ckf_ratio)[:2]
-    fig, axes = plt.subplots(3, len(kshow), figsize=(6 * len(kshow), 8), sharex=True, squeeze=False)
-    cmap = plt.get_cmap("tab20")
-    for c, kn in enumerate(kshow):
-        for k in range(3):
-            for i in range(n):
-                axes[k, c].plot(
-                    hours[sl], ckf_ratio[kn][sl, i, k], color=cmap(i), lw=0.9, label=f"rx {i + 1}" if k == 0 else None
-                )
-            axes[k, c].set_ylabel(f"CKF/central {labels[k].split()[0]}")
-            axes[k, c].grid(alpha=0.3)
-        axes[0, c].set_title(f"k_n = {kn} (δ = {INTERVAL_S / kn:.0f} s)")
-        axes[2, c].set_xlabel("Perth local time [h]")
-    axes[0, -1].legend(fontsize=6, ncol=2)
-    ctx.save_figure(fig, "fig12_ckf_to_central.png")
-    # Fig. 13
-    fig, axes = plt.subplots(len(t_ckf), 1, figsize=(11, 3.2 * len(t_ckf)), squeeze=False)
-    for r, (kn, tt) in enumerate(t_ckf.items()):
-        data = [t_central[np.isfinite(t_central)]] + [tt[i][np.isfinite(tt[i])] for i in range(n)]
-        axes[r, 0].boxplot(data, whis=(0, 100), tick_labels=["Cen."] + [str(i + 1) for i in range(n)])
-        axes[r, 0].set_ylabel("minutes to std < 0.5 ns")
-        axes[r, 0].set_title(f"δ = {INTERVAL_S / kn:.0f} s (k_n = {kn})")
-        axes[r, 0].grid(alpha=0.3)
-    fig.tight_layout()
-    ctx.save_figure(fig, "fig13_dcb_time_boxplots.png")
-    # CKF on data
-    fig, axes = plt.subplots(2, 1, figsize=(11, 6))
-    err = ds.estimates[:, 0, 0] - truth[:, 0]
-    sd = ds.std[:, 0, 0]
-    axes[0].plot(hours, err / TECU_L1_M, "b", lw=0.8, label="estimate − truth, receiver 1")
-    axes[0].fill_between(hours, -3 * sd / TECU_L1_M, 3 * sd / TECU_L1_M, color="0.8", label="±3σ (Fig. 7)")
-    axes[0].set_ylim(-3 * np.nanmedian(sd) / TECU_L1_M * 4, 3 * np.nanmedian(sd) / TECU_L1_M * 4)
-    axes[0].set_ylabel("ν_o error [TECU]")
-    axes[0].legend(fontsize=8)
-    axes[0].grid(alpha=0.3)
-    p0 = layout.n_tec
-    e_dcb = (ds.estimates[-1, :, p0:] - truth[-1, p0:]) / GF_M_PER_DSB_NS
-    s_dcb = ds.std[-1, :, p0:] / GF_M_PER_DSB_NS
-    xs = np.arange(e_dcb.shape[1])
-    for i in range(n):
-        axes[1].plot(xs + 0.03 * (i - n / 2), -e_dcb[i], ".", ms=3)
-    axes[1].errorbar(
-        xs,
-        np.zeros_like(xs, dtype=float),
-        yerr=3 * np.nanmax(s_dcb, axis=0),
-        fmt="none",
-        ecolor="k",
-        capsize=2,
-        label="±3σ (largest over receivers)",
-    )
-    axes[1].set_xticks(xs)
-    axes[1].set_xticklabels([s[1:] for s in layout.dcb_svs], fontsize=6)
-    axes[1].set_ylabel("DCB error at the end [ns]")
-    axes[1].legend(fontsize=8)
-    axes[1].grid(alpha=0.3)
-    ctx.save_figure(fig, "ckf_truth.png")

@@ -370,8 +370,72 @@ def _full_only(measured: tuple[Any, bool | None, str]) -> tuple[Any, bool | None
     )
 
 
+#: The quantitative sentences of §5–6 and Figs. 3–6 that a run's curves and Table 1 can check: (where, claim,
+#: paper's value, measure), in the order of docs/claims.md.
+UWB_EXTRA: tuple[tuple[str, str, str, Callable[[dict[str, Any]], tuple[Any, bool | None, str]]], ...] = (
+    ("Fig. 3", "LM's error stays above 1 m on every problem", "> 1 m", _lm_above_1m),
+    ("Fig. 3", "CSG is considerably slower than the other distributed solvers", "CSG slowest", _csg_slowest),
+    ("Fig. 4", "LM's cost settles in under 50 iterations on every problem", "< 50", _lm_settles),
+    (
+        "Fig. 4",
+        "N-CSG (± line search) and N-CLM settle in under 100 iterations except on class L; CSG lags",
+        "< 100 (not L)",
+        _neighbourhood_settles,
+    ),
+    ("Figs. 3–4", "N-CSG with a line search beats N-CSG without", "better", _line_search_better),
+    ("Fig. 4", "on class R, N-CSG and N-CSG-TBLS oscillate in cost, the others do not", "N-CSG, TBLS", _oscillation),
+    ("Figs. 4, 6", "step size and cost change only slightly from iteration 100 on", "slight", _settle_together),
+    (
+        "Table 1",
+        "G, L: opposite corners negligibly better than one corner, one corner better than middle",
+        "O ≲ C < M",
+        _placement_regular,
+    ),
+    (
+        "Table 1",
+        "the fixed-anchor placement matters more for LM than for the distributed solvers",
+        "LM > distributed",
+        _placement_lm,
+    ),
+    (
+        "Table 1",
+        "class R: fixed anchors in a corner give lower error and cost than in the middle",
+        "C < M",
+        _placement_random,
+    ),
+    ("§6", "the neighbourhood solvers' error is below 50 cm for most problems", "most", under_50cm),
+    (
+        "§5, Figs. 3–4 (d–f)",
+        "on class L every solver reduces cost and error at each iteration",
+        "monotone",
+        _ladder_monotone,
+    ),
+    ("§5", "N-CSG with a line search and N-CLM reach the lowest error and cost", "BLS/TBLS/N-CLM", _best_solvers),
+    ("Fig. 5", "the ladder's ambiguity can make estimates oscillate or diverge", "Fig. 5(a)/(b)", _ladder_divergence),
+)
+
+
+def _setup(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    st = get(r, "settings")
+    value = (
+        f"{st['anchors']} anchors, {st['fixed']} fixed, σ = {float(st['sigma_m']):g} m, "
+        f"± {float(st['init_halfwidth_m']):g} m start"
+    )
+    ok = (st["anchors"], st["fixed"], float(st["sigma_m"]), float(st["init_halfwidth_m"])) == (100, 3, 0.15, 5.0)
+    why = "the generator's settings; the layouts are tested class by class (test_grid_class_G, "
+    return value, ok, why + "test_ladder_class_L, test_random_class_R in tests/test_uwb_model.py)"
+
+
+def _not_in_results(where: str, text: str, paper_value: str, why: str) -> Row:
+    """A row of a statement no run can check, with the reason."""
+    return claim(
+        paper="002", where=where, text=text, paper_value=paper_value, distnav_value=None, ok=None, why=why, test=""
+    )
+
+
 def uwb_extra(r: dict[str, Any]) -> list[Row]:
-    """Issue 31: the quantitative sentences of §5–6 and Figs. 3–6 read from the run's curves and Table 1."""
+    """Issue 31: the quantitative sentences of §5–6 and Figs. 3–6 read from the run's curves and Table 1
+    (:data:`UWB_EXTRA`), with the set-up of §4 first and the two statements no run can check."""
 
     def row(where: str, text: str, paper_value: Any, measure: Any) -> Row:
         return checked(
@@ -383,16 +447,6 @@ def uwb_extra(r: dict[str, Any]) -> list[Row]:
             measure=lambda: _full_only(measure(r)),
         )
 
-    def setup() -> tuple[Any, bool | None, str]:
-        st = get(r, "settings")
-        value = (
-            f"{st['anchors']} anchors, {st['fixed']} fixed, σ = {float(st['sigma_m']):g} m, "
-            f"± {float(st['init_halfwidth_m']):g} m start"
-        )
-        ok = (st["anchors"], st["fixed"], float(st["sigma_m"]), float(st["init_halfwidth_m"])) == (100, 3, 0.15, 5.0)
-        why = "the generator's settings; the layouts are tested class by class (test_grid_class_G, "
-        return value, ok, why + "test_ladder_class_L, test_random_class_R in tests/test_uwb_model.py)"
-
     return [
         checked(
             paper="002",
@@ -400,83 +454,20 @@ def uwb_extra(r: dict[str, Any]) -> list[Row]:
             text="problems: 100 anchors, 3 fixed, ranging noise 0.15 m, initial guess ± 5 m",
             paper_value="100 / 3 / 0.15 / 5",
             test="tests/test_uwb_model.py::test_generated_noise_and_initial_guess_statistics",
-            measure=setup,
+            measure=lambda: _setup(r),
         ),
-        claim(
-            paper="002",
-            where="Fig. 1",
-            text="the N-CSG update matrix of a four-anchor subnet",
-            paper_value="illustration",
-            distnav_value=None,
-            ok=None,
-            why="not in results.json: an illustration of eqs. (15)–(18) without a quantity",
-            test="",
+        _not_in_results(
+            "Fig. 1",
+            "the N-CSG update matrix of a four-anchor subnet",
+            "illustration",
+            "not in results.json: an illustration of eqs. (15)–(18) without a quantity",
         ),
-        row(
-            "Fig. 3",
-            "LM's error stays above 1 m on every problem",
-            "> 1 m",
-            _lm_above_1m,
-        ),
-        row("Fig. 3", "CSG is considerably slower than the other distributed solvers", "CSG slowest", _csg_slowest),
-        row("Fig. 4", "LM's cost settles in under 50 iterations on every problem", "< 50", _lm_settles),
-        row(
-            "Fig. 4",
-            "N-CSG (± line search) and N-CLM settle in under 100 iterations except on class L; CSG lags",
-            "< 100 (not L)",
-            _neighbourhood_settles,
-        ),
-        row("Figs. 3–4", "N-CSG with a line search beats N-CSG without", "better", _line_search_better),
-        row(
-            "Fig. 4",
-            "on class R, N-CSG and N-CSG-TBLS oscillate in cost, the others do not",
-            "N-CSG, TBLS",
-            _oscillation,
-        ),
-        row("Figs. 4, 6", "step size and cost change only slightly from iteration 100 on", "slight", _settle_together),
-        row(
-            "Table 1",
-            "G, L: opposite corners negligibly better than one corner, one corner better than middle",
-            "O ≲ C < M",
-            _placement_regular,
-        ),
-        row(
-            "Table 1",
-            "the fixed-anchor placement matters more for LM than for the distributed solvers",
-            "LM > distributed",
-            _placement_lm,
-        ),
-        row(
-            "Table 1",
-            "class R: fixed anchors in a corner give lower error and cost than in the middle",
-            "C < M",
-            _placement_random,
-        ),
-        row("§6", "the neighbourhood solvers' error is below 50 cm for most problems", "most", under_50cm),
-        row(
-            "§5, Figs. 3–4 (d–f)",
-            "on class L every solver reduces cost and error at each iteration",
-            "monotone",
-            _ladder_monotone,
-        ),
-        row(
-            "§5", "N-CSG with a line search and N-CLM reach the lowest error and cost", "BLS/TBLS/N-CLM", _best_solvers
-        ),
-        row(
-            "Fig. 5",
-            "the ladder's ambiguity can make estimates oscillate or diverge",
-            "Fig. 5(a)/(b)",
-            _ladder_divergence,
-        ),
-        claim(
-            paper="002",
-            where="§5, Figs. 3–4 (g–i)",
-            text="class M (measured office): CSG-based RMSE 0.5–1 m, LM and N-CLM worst, middle fixed anchors best",
-            paper_value="0.5–1 m",
-            distnav_value=None,
-            ok=None,
-            why="not in results.json: the office network's 25 anchor positions and ranges are not published "
+        *(row(*spec) for spec in UWB_EXTRA),
+        _not_in_results(
+            "§5, Figs. 3–4 (g–i)",
+            "class M (measured office): CSG-based RMSE 0.5–1 m, LM and N-CLM worst, middle fixed anchors best",
+            "0.5–1 m",
+            "not in results.json: the office network's 25 anchor positions and ranges are not published "
             "(uwb-field simulates halls instead, docs/uwb.md)",
-            test="",
         ),
     ]

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from distnav.experiments.claims import FULL_ONLY, Row, checked, claim, get, rows_of
@@ -190,108 +191,115 @@ def _box_gap(r: dict[str, Any], kn: str, receivers: list[str] | None = None) -> 
     return max(gaps)
 
 
+_FULL_SESSION = FULL_ONLY + "the visibility and the times depend on the session length"
+
+
+def _perth(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    links = {tuple(sorted(int(v) + 1 for v in link)) for link in get(r, "scenario", "links")}
+    n = int(get(r, "scenario", "receivers"))
+    of1 = sorted(b if a == 1 else a for a, b in links if 1 in (a, b))
+    value = f"{n} receivers; receiver 1 linked to {', '.join(map(str, of1))}"
+    return value, n == 13 and of1 == [2, 6], "links of the stored layout (inter-station distance ≤ 4 km)"
+
+
+def _rerising(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    got = list(get(r, "scenario", "satellites_rising_twice"))
+    ok = sorted(got) == sorted(PAPER_RERISING)
+    return ", ".join(got) or "none", ok, "synthetic 31-satellite constellation (docs/ionosphere.md); " + _FULL_SESSION
+
+
+def _longest(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    vis = {k: int(v) for k, v in get(r, "scenario", "visibility_epochs").items()}
+    top, bottom = max(vis.values()), min(vis.values())
+    hi = [k for k, v in vis.items() if v == top]
+    lo = [k for k, v in vis.items() if v == bottom]
+    value = f"longest {', '.join(hi)} ({top} epochs), shortest {', '.join(lo)} ({bottom})"
+    ok = hi == [PAPER_LONGEST] and lo == [PAPER_SHORTEST]
+    return value, ok, "epochs tracked by any receiver (ties listed); " + _FULL_SESSION
+
+
+def _best4(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    per = [float(x) for x in get(r, "ckf_to_central_vtec_max_per_receiver", "4")]
+    deg = get(r, "scenario", "degrees")
+    best = sorted(sorted(range(len(per)), key=lambda i: per[i])[:4])
+    most = [i + 1 for i, d in enumerate(deg) if d == max(deg)]
+    value = ", ".join(f"{i + 1} ({per[i]:.3g})" for i in best)
+    why = f"ν_o std ratio to central, largest over the day; receivers with the most neighbours: {most}"
+    return value, [i + 1 for i in best] == list(PAPER_BEST_RECEIVERS), why
+
+
+def _better_than_local(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    ckf4 = float(get(r, "ckf_to_central_ratio_max", "4"))
+    local_min = float(get(r, "local_to_central_after_1h", "all_receivers_range")[0])
+    value = f"CKF (k_n = 4) ≤ {ckf4:.3g} < local ≥ {local_min:.3g}"
+    return (
+        value,
+        ckf4 < local_min,
+        "largest CKF/central vs smallest local/central std ratio, every receiver, from 1 h",
+    )
+
+
+def _boxes(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    kns = [str(k) for k in get(r, "scenario", "kn")]
+    gaps = [_box_gap(r, k) for k in kns]
+    value = ", ".join(f"k_n={k}: {g:.3g} min" for k, g in zip(kns, gaps, strict=True))
+    ok = all(b < a for a, b in zip(gaps, gaps[1:], strict=False))
+    return value, ok, "largest |CKF − central| over receivers and the five box statistics; " + _FULL_SESSION
+
+
+def _best_boxes(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    kns = [str(k) for k in get(r, "scenario", "kn")]
+    names = [str(i) for i in PAPER_BEST_RECEIVERS]
+    central_max = float(get(r, "dcb_time_to_0.5ns_min", "central", "max"))
+    gaps = {k: _box_gap(r, k, names) for k in kns}
+    value = ", ".join(f"k_n={k}: {g:.3g} min" for k, g in gaps.items())
+    ok = max(gaps.values()) <= 0.1 * central_max
+    why = (
+        "largest |CKF − central| of receivers 4, 7, 8, 9; 'almost similar' read as ≤ 10 % of the central "
+        f"max ({central_max:g} min); "
+    )
+    return value, ok, why + _FULL_SESSION
+
+
+_T = "tests/test_experiment_ckf_ionosphere.py::"
+
+#: Fig. 8's network, Fig. 10's visibility, Fig. 12's best receivers and CKF vs local, Fig. 13's boxplots:
+#: (where, claim, paper's value, test, measure)
+IONOSPHERE_EXTRA: tuple[tuple[str, str, str, str, Callable[[dict[str, Any]], tuple[Any, bool | None, str]]], ...] = (
+    (
+        "Fig. 8",
+        "13 receivers; receiver 1 is linked to 2 and 6, not to 3",
+        "13; 2, 6",
+        _T + "test_perth_network_matches_fig8_description",
+        _perth,
+    ),
+    ("Fig. 10", "PRNs 2, 6, 16, 17, 19, 26, 32 set and re-rise", "7 satellites", "", _rerising),
+    ("Fig. 10", "PRN 22 is visible longest, PRN 21 shortest", "G22 / G21", "", _longest),
+    (
+        "Fig. 12",
+        "at k_n = 4 receivers 4, 7, 8, 9 (most neighbours) are best",
+        "4, 7, 8, 9",
+        _T + "test_fig12_ckf_claims",
+        _best4,
+    ),
+    (
+        "Fig. 12",
+        "the CKF is better than the local filter",
+        "CKF < local",
+        _T + "test_fig12_ckf_claims",
+        _better_than_local,
+    ),
+    ("Fig. 13", "the CKF's DCB boxplots approach the central one as k_n grows (4, 6, 12)", "approach", "", _boxes),
+    ("Fig. 13", "receivers 4, 7, 8, 9 have almost the central boxplot at every k_n", "≈ central", "", _best_boxes),
+)
+
+
 def ionosphere_extra(r: dict[str, Any]) -> list[Row]:
-    """Issue 31: Fig. 10's visibility, Fig. 12's best receivers and CKF vs local, Fig. 13's boxplots."""
-    t = "tests/test_experiment_ckf_ionosphere.py::"
-    full = FULL_ONLY + "the visibility and the times depend on the session length"
-
-    def best4() -> tuple[Any, bool | None, str]:
-        per = [float(x) for x in get(r, "ckf_to_central_vtec_max_per_receiver", "4")]
-        deg = get(r, "scenario", "degrees")
-        best = sorted(sorted(range(len(per)), key=lambda i: per[i])[:4])
-        most = [i + 1 for i, d in enumerate(deg) if d == max(deg)]
-        value = ", ".join(f"{i + 1} ({per[i]:.3g})" for i in best)
-        why = f"ν_o std ratio to central, largest over the day; receivers with the most neighbours: {most}"
-        return value, [i + 1 for i in best] == list(PAPER_BEST_RECEIVERS), why
-
-    def better_than_local() -> tuple[Any, bool | None, str]:
-        ckf4 = float(get(r, "ckf_to_central_ratio_max", "4"))
-        local_min = float(get(r, "local_to_central_after_1h", "all_receivers_range")[0])
-        value = f"CKF (k_n = 4) ≤ {ckf4:.3g} < local ≥ {local_min:.3g}"
-        return (
-            value,
-            ckf4 < local_min,
-            "largest CKF/central vs smallest local/central std ratio, every receiver, from 1 h",
-        )
-
-    def boxes() -> tuple[Any, bool | None, str]:
-        kns = [str(k) for k in get(r, "scenario", "kn")]
-        gaps = [_box_gap(r, k) for k in kns]
-        value = ", ".join(f"k_n={k}: {g:.3g} min" for k, g in zip(kns, gaps, strict=True))
-        ok = all(b < a for a, b in zip(gaps, gaps[1:], strict=False))
-        return value, ok, "largest |CKF − central| over receivers and the five box statistics; " + full
-
-    def best_boxes() -> tuple[Any, bool | None, str]:
-        kns = [str(k) for k in get(r, "scenario", "kn")]
-        names = [str(i) for i in PAPER_BEST_RECEIVERS]
-        central_max = float(get(r, "dcb_time_to_0.5ns_min", "central", "max"))
-        gaps = {k: _box_gap(r, k, names) for k in kns}
-        value = ", ".join(f"k_n={k}: {g:.3g} min" for k, g in gaps.items())
-        ok = max(gaps.values()) <= 0.1 * central_max
-        why = (
-            "largest |CKF − central| of receivers 4, 7, 8, 9; 'almost similar' read as ≤ 10 % of the central "
-            f"max ({central_max:g} min); "
-        )
-        return value, ok, why + full
-
-    def rerising() -> tuple[Any, bool | None, str]:
-        got = list(get(r, "scenario", "satellites_rising_twice"))
-        ok = sorted(got) == sorted(PAPER_RERISING)
-        return ", ".join(got) or "none", ok, "synthetic 31-satellite constellation (docs/ionosphere.md); " + full
-
-    def longest() -> tuple[Any, bool | None, str]:
-        vis = {k: int(v) for k, v in get(r, "scenario", "visibility_epochs").items()}
-        top, bottom = max(vis.values()), min(vis.values())
-        hi = [k for k, v in vis.items() if v == top]
-        lo = [k for k, v in vis.items() if v == bottom]
-        value = f"longest {', '.join(hi)} ({top} epochs), shortest {', '.join(lo)} ({bottom})"
-        ok = hi == [PAPER_LONGEST] and lo == [PAPER_SHORTEST]
-        return value, ok, "epochs tracked by any receiver (ties listed); " + full
-
-    def row(where: str, text: str, paper_value: Any, test: str, measure: Any) -> Row:
-        return checked(paper="003", where=where, text=text, paper_value=paper_value, test=test, measure=measure)
-
-    def perth() -> tuple[Any, bool | None, str]:
-        links = {tuple(sorted(int(v) + 1 for v in link)) for link in get(r, "scenario", "links")}
-        n = int(get(r, "scenario", "receivers"))
-        of1 = sorted(b if a == 1 else a for a, b in links if 1 in (a, b))
-        value = f"{n} receivers; receiver 1 linked to {', '.join(map(str, of1))}"
-        return value, n == 13 and of1 == [2, 6], "links of the stored layout (inter-station distance ≤ 4 km)"
-
+    """Issue 31: Fig. 10's visibility, Fig. 12's best receivers and CKF vs local, Fig. 13's boxplots
+    (:data:`IONOSPHERE_EXTRA`)."""
     return [
-        row(
-            "Fig. 8",
-            "13 receivers; receiver 1 is linked to 2 and 6, not to 3",
-            "13; 2, 6",
-            t + "test_perth_network_matches_fig8_description",
-            perth,
-        ),
-        row("Fig. 10", "PRNs 2, 6, 16, 17, 19, 26, 32 set and re-rise", "7 satellites", "", rerising),
-        row("Fig. 10", "PRN 22 is visible longest, PRN 21 shortest", "G22 / G21", "", longest),
-        row(
-            "Fig. 12",
-            "at k_n = 4 receivers 4, 7, 8, 9 (most neighbours) are best",
-            "4, 7, 8, 9",
-            t + "test_fig12_ckf_claims",
-            best4,
-        ),
-        row(
-            "Fig. 12",
-            "the CKF is better than the local filter",
-            "CKF < local",
-            t + "test_fig12_ckf_claims",
-            better_than_local,
-        ),
-        row(
-            "Fig. 13", "the CKF's DCB boxplots approach the central one as k_n grows (4, 6, 12)", "approach", "", boxes
-        ),
-        row(
-            "Fig. 13",
-            "receivers 4, 7, 8, 9 have almost the central boxplot at every k_n",
-            "≈ central",
-            "",
-            best_boxes,
-        ),
+        checked(paper="003", where=where, text=text, paper_value=pv, test=test, measure=partial(measure, r))
+        for where, text, pv, test, measure in IONOSPHERE_EXTRA
     ]
 
 

@@ -34,8 +34,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from distnav.errors import GraphError, ModelError
-from distnav.experiments.common import ExperimentContext, pyplot
-from distnav.models.gnss.codebias import CodeBiasData, simulate_codebias_data
+from distnav.experiments.codebias_figures import figures
+from distnav.experiments.common import ExperimentContext
+from distnav.models.gnss.codebias import CodeBiasData
+from distnav.models.gnss.codebias_build import CodeBiasSimulation, simulate_codebias_data
 from distnav.models.gnss.constants import NS_TO_M
 from distnav.models.gnss.geometry import geodetic_to_ecef
 from distnav.models.gnss.orbits import (
@@ -220,6 +222,7 @@ def constellation(nav: str | None = None, start: str | None = None) -> tuple[Any
         l5 = sc.subset(sc.l5_svs)
         t0 = sc.epoch_gps_s if start is None else float(gps_seconds(np.array(start, dtype="datetime64[ns]")))
         return l5, l5.svs, t0, "synthetic constellation (nominal elements)"
+    from distnav.formats.gnss.product_files import check_orbit_times
     from distnav.formats.gnss.rinex import read_navigation
 
     orbit = read_navigation(Path(nav), max_age_s=4 * 3600.0)
@@ -231,6 +234,7 @@ def constellation(nav: str | None = None, start: str | None = None) -> tuple[Any
         t0 = float(np.ceil(first / 3600.0) * 3600.0 + 3600.0)
     else:
         t0 = float(gps_seconds(np.array(start, dtype="datetime64[ns]")))
+        check_orbit_times(orbit, t0, f"--start {start}", verb="is on")
     return orbit, svs, t0, f"broadcast ephemerides of {Path(nav).name}"
 
 
@@ -251,22 +255,67 @@ def _simulate(
         t,
         svs,
         rng=rng,
-        sat_biases_m=sat_biases_m,
-        rx_biases_m=rx_biases_m,
-        stations=net.graph.names,
-        reference=int(net.hubs[0]),
+        options=CodeBiasSimulation(
+            sat_biases_m=sat_biases_m,
+            rx_biases_m=rx_biases_m,
+            stations=net.graph.names,
+            reference=int(net.hubs[0]),
+        ),
     )
 
 
-def run(ctx: ExperimentContext) -> dict[str, Any]:
-    from distnav.algorithms.lsq.admm import admm
-    from distnav.algorithms.lsq.blue import blue
-    from distnav.algorithms.result import format_ratio
-    from distnav.network.constraint_nodes import choose_constraint_nodes
+@dataclass(frozen=True)
+class Sessions:
+    """The simulated sessions of :func:`run` and their centralized solutions: this session's ``data`` (its
+    ``problem`` in the ρ scale asked for, its BLUE ``x_hat`` and recursive solution ``x_rec``/``s_rec``) and the
+    adjacent session's solution ``x_prev`` (Fig. 10's "previous experiment")."""
 
+    net: StationNetwork
+    constraint_nodes: Any
+    orbit_text: str
+    t0_gps_s: float
+    data: CodeBiasData
+    solution: Any
+    x_prev: np.ndarray
+    problem: Any
+    x_hat: np.ndarray
+    x_rec: np.ndarray
+    s_rec: np.ndarray
+
+
+@dataclass(frozen=True)
+class AdmmRuns:
+    """The ADMM runs of :func:`run`: per ρ (Fig. 9), per initial value at ρ = 0.5 (Fig. 10), the iterations to
+    1 mm with ρ against the other scale's information, and the per-node tracks of the ``best`` and ``worst``
+    observed satellites (Fig. 11)."""
+
+    by_rho: dict[str, Any]
+    by_init: dict[str, Any]
+    other_scale: str
+    other: dict[str, int | None]
+    tracks: np.ndarray
+    best: int
+    worst: int
+
+
+def run(ctx: ExperimentContext) -> dict[str, Any]:
     epochs = int(ctx.option("epochs", 120 if ctx.quick else SESSION_EPOCHS, minimum=1))
     rho_scale = str(ctx.options.get("rho_scale") or "epoch")
     iterations = int(ctx.option("iterations", 300 if ctx.quick else 1000, minimum=1))
+    sessions = _sessions(ctx, epochs, rho_scale)
+    runs = _admm_runs(ctx, sessions, iterations, rho_scale)
+    results = _results(sessions, runs, iterations=iterations, epochs=epochs, rho_scale=rho_scale)
+    ctx.write_json("results.json", results)
+    if ctx.is_root:
+        figures(ctx, sessions, runs, THRESHOLD_M)
+    return results
+
+
+def _sessions(ctx: ExperimentContext, epochs: int, rho_scale: str) -> Sessions:
+    """Simulate this session and the adjacent one on the 110 stations and solve both centrally."""
+    from distnav.algorithms.lsq.blue import blue
+    from distnav.network.constraint_nodes import choose_constraint_nodes
+
     net = synthetic_igs_network(ctx.rng(1))
     graph = net.graph
     C = choose_constraint_nodes(graph, "min_cover")
@@ -291,87 +340,94 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         problem = data.linear_problem(per_epoch=rho_scale == "epoch")
         bl = blue(problem)
         x_rec, s_rec = data.recursive_solution()
-    x_hat = bl.x
+    return Sessions(net, C, orbit_text, t0, data, sol, x_prev, problem, bl.x, x_rec, s_rec)
+
+
+def _admm(
+    ctx: ExperimentContext,
+    s: Sessions,
+    problem: Any,
+    *,
+    rho: float,
+    init: Any,
+    iterations: int,
+    record_nodes: bool = True,
+) -> Any:
+    """One ADMM run of :func:`run` on the station graph, tracked against the centralized ``x̂``."""
+    from distnav.algorithms.lsq.admm import admm
+
+    graph = s.net.graph
+    return admm(
+        problem,
+        graph,
+        constraint_nodes=s.constraint_nodes,
+        W=rho,
+        init=init,
+        max_iterations=iterations,
+        tol=0.0,
+        reference=s.x_hat,
+        record_nodes=record_nodes,
+        exchange=ctx.exchange(graph),
+    )
+
+
+def _admm_runs(ctx: ExperimentContext, s: Sessions, iterations: int, rho_scale: str) -> AdmmRuns:
+    """Figs. 9–11's ADMM runs (and the other ρ scale's, at full size)."""
+    data = s.data
     counts = data.observation_counts()
     best, worst = int(np.argmax(counts)), int(np.argmin(counts))
-
     runs: dict[str, Any] = {}
     with ctx.progress.task(f"codebias: ADMM, ρ ∈ {list(RHOS)}, {iterations} iterations", total=len(RHOS)) as adv:
         for rho in RHOS:
-            runs[f"{rho:g}"] = admm(
-                problem,
-                graph,
-                constraint_nodes=C,
-                W=rho,
-                init="zero",
-                max_iterations=iterations,
-                tol=0.0,
-                reference=x_hat,
-                exchange=ctx.exchange(graph),
-            )
+            runs[f"{rho:g}"] = _admm(ctx, s, s.problem, rho=rho, init="zero", iterations=iterations)
             adv(1)
     other_scale = "session" if rho_scale == "epoch" else "epoch"
     problem_other = data.linear_problem(per_epoch=other_scale == "epoch")
     other: dict[str, int | None] = {}
     with ctx.progress.task(f"codebias: ADMM with ρ against the {other_scale}'s information", total=len(RHOS)) as adv:
         for rho in [] if ctx.quick else RHOS:
-            r_o = admm(
-                problem_other,
-                graph,
-                constraint_nodes=C,
-                W=rho,
-                init="zero",
-                max_iterations=iterations,
-                tol=0.0,
-                reference=x_hat,
-                record_nodes=False,
-                exchange=ctx.exchange(graph),
-            )
+            r_o = _admm(ctx, s, problem_other, rho=rho, init="zero", iterations=iterations, record_nodes=False)
             other[f"{rho:g}"] = _iterations_to(r_o.trace["max_distance_to_reference"], THRESHOLD_M)
             adv(1)
     inits: dict[str, np.ndarray] = {
         "0": np.zeros(data.n_sats),
         "+5 m": np.full(data.n_sats, 5.0),
         "-5 m": np.full(data.n_sats, -5.0),
-        "prev.": x_prev,
+        "prev.": s.x_prev,
     }
     init_runs: dict[str, Any] = {}
     with ctx.progress.task("codebias: ADMM ρ = 0.5 from different initial values", total=len(inits)) as adv:
         for label, x0 in inits.items():
-            if label == "0":  # identical to the ρ = 0.5 run of Fig. 9
-                init_runs[label] = runs["0.5"]
-                adv(1)
-                continue
-            init_runs[label] = admm(
-                problem,
-                graph,
-                constraint_nodes=C,
-                W=0.5,
-                init=x0,
-                max_iterations=iterations,
-                tol=0.0,
-                reference=x_hat,
-                exchange=ctx.exchange(graph),
+            # x⁰ = 0 is identical to the ρ = 0.5 run of Fig. 9
+            init_runs[label] = (
+                runs["0.5"] if label == "0" else _admm(ctx, s, s.problem, rho=0.5, init=x0, iterations=iterations)
             )
             adv(1)
-
     with ctx.progress.task("codebias: per-node tracks of two satellites (ρ = 0.5, x⁰ = prev.)"):
-        tracks = _tracks(problem, graph, C, x_prev, iterations, [best, worst], ctx)
+        tracks = _tracks(s.problem, s.net.graph, s.constraint_nodes, s.x_prev, iterations, [best, worst], ctx)
+    return AdmmRuns(runs, init_runs, other_scale, other, tracks, best, worst)
+
+
+def _results(s: Sessions, r: AdmmRuns, *, iterations: int, epochs: int, rho_scale: str) -> dict[str, Any]:
+    """results.json of :func:`run`."""
+    data, graph, C, sol, x_hat = s.data, s.net.graph, s.constraint_nodes, s.solution, s.x_hat
+    runs, best, worst = r.by_rho, r.best, r.worst
+    counts = data.observation_counts()
     per_sat = {
-        data.svs[k]: _iterations_to(np.abs(tracks[:, :, c] - x_hat[k]).max(axis=1), THRESHOLD_M)
+        data.svs[k]: _iterations_to(np.abs(r.tracks[:, :, c] - x_hat[k]).max(axis=1), THRESHOLD_M)
         for c, k in enumerate((best, worst))
     }
-    it_rho = {k: _iterations_to(r.trace["max_distance_to_reference"], THRESHOLD_M) for k, r in runs.items()}
-    it_init = {k: _iterations_to(r.trace["max_distance_to_reference"], THRESHOLD_M) for k, r in init_runs.items()}
-    it_init_cm = {k: _iterations_to(r.trace["max_distance_to_reference"], 1e-2) for k, r in init_runs.items()}
-    it_rho_cm = {k: _iterations_to(r.trace["max_distance_to_reference"], 1e-2) for k, r in runs.items()}
-    final_rho = {k: float(r.trace["max_distance_to_reference"][-1]) for k, r in runs.items()}
+    it_rho = _iterations_of(runs, THRESHOLD_M)
+    it_init = _iterations_of(r.by_init, THRESHOLD_M)
+    it_init_cm = _iterations_of(r.by_init, 1e-2)
+    it_rho_cm = _iterations_of(runs, 1e-2)
+    final_rho = {k: float(v.trace["max_distance_to_reference"][-1]) for k, v in runs.items()}
     truth = data.truth_m
     assert truth is not None
     err = sol.x_m - truth
     chi2 = float(err @ np.linalg.solve(sol.cov_m2, err)) / data.n_sats
-    vs_gather = {k: _vs_gather(r.comm, graph, problem).as_dict() for k, r in runs.items()}
-    results: dict[str, Any] = {
+    vs_gather = {k: _vs_gather(v.comm, graph, s.problem).as_dict() for k, v in runs.items()}
+    return {
         "n_nodes": graph.n_nodes,
         "n_links": graph.n_links,
         "n_constraint_nodes": C.size,
@@ -383,32 +439,32 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "iterations_to_1e-2_by_init_rho_0.5": it_init_cm,
         "iterations_to_1e-3_per_satellite_prev_init": per_sat,
         "rho_scale": rho_scale,
-        f"iterations_to_1e-3_rho_scale_{other_scale}": other,
+        f"iterations_to_1e-3_rho_scale_{r.other_scale}": r.other,
         "final_max_distance_m": final_rho,
         "iterations": iterations,
         "epochs": epochs,
         "epoch_s": EPOCH_S,
         "satellites": list(data.svs),
-        "constellation": orbit_text,
-        "session_start": str(datetime_from_gps_seconds(np.array(t0))),
+        "constellation": s.orbit_text,
+        "session_start": str(datetime_from_gps_seconds(np.array(s.t0_gps_s))),
         "reference_station": data.stations[data.reference],
         "observation_counts": dict(zip(data.svs, counts.tolist(), strict=True)),
         "well_visible": data.svs[best],
         "poorly_visible": data.svs[worst],
         "centralized_m": dict(zip(data.svs, x_hat.tolist(), strict=True)),
         "centralized_sigma_m": dict(zip(data.svs, sol.sigma_m.tolist(), strict=True)),
-        "fig8_recursive_sigma": _sigma_shrink(s_rec, data.svs),
+        "fig8_recursive_sigma": _sigma_shrink(s.s_rec, data.svs),
         "model_vs_lsq_blue_max_abs_m": float(np.abs(sol.x_m - x_hat).max()),
         "truth_m": dict(zip(data.svs, truth.tolist(), strict=True)),
         "chi2_per_dof_vs_truth": chi2,
-        "previous_session_offset_max_m": float(np.abs(x_prev - x_hat).max()),
+        "previous_session_offset_max_m": float(np.abs(s.x_prev - x_hat).max()),
         "network": {
-            "lat_deg": net.lat_deg.tolist(),
-            "lon_deg": net.lon_deg.tolist(),
+            "lat_deg": s.net.lat_deg.tolist(),
+            "lon_deg": s.net.lon_deg.tolist(),
             "links": graph.links.tolist(),
-            "hubs": net.hubs.tolist(),
+            "hubs": s.net.hubs.tolist(),
         },
-        "communication": {k: r.comm.as_dict() for k, r in runs.items()},
+        "communication": {k: v.comm.as_dict() for k, v in runs.items()},
         "communication_vs_gather": vs_gather,
         "paper": {
             **PAPER,
@@ -416,21 +472,34 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
             "a previous solution as initial value converges fastest; the well-tracked "
             "satellite (PRN 1) converges faster than the poorly tracked one (PRN 24)",
         },
-        "headline": {
-            "links / constraint nodes (paper 118 / 9)": f"{graph.n_links} / {C.size}",
-            **{f"iterations to 1 mm, ρ = {k}": (v if v is not None else f"> {iterations}") for k, v in it_rho.items()},
-            "iterations to 1 mm, ρ = 0.5, x⁰ = prev.": it_init["prev."],
-            "iterations to 1 cm, ρ = 0.5, x⁰ = 0 / prev.": f"{it_init_cm['0']} / {it_init_cm['prev.']}",
-            "ADMM bytes ÷ gathering the stations' data at one, ρ = 0.5": format_ratio(vs_gather["0.5"]["ratio_bytes"]),
-            f"σ of x̂ {data.svs[best]} / {data.svs[worst]} [cm]": (
-                f"{100 * sol.sigma_m[best]:.2f} / {100 * sol.sigma_m[worst]:.2f}"
-            ),
-        },
+        "headline": _headline(s, r, iterations, it_rho, it_init, it_init_cm, vs_gather),
     }
-    ctx.write_json("results.json", results)
-    if ctx.is_root:
-        _figures(ctx, net, C.nodes, data, x_rec, s_rec, runs, init_runs, tracks, x_hat, sol.sigma_m, best, worst)
-    return results
+
+
+def _iterations_of(runs: dict[str, Any], threshold_m: float) -> dict[str, int | None]:
+    return {k: _iterations_to(v.trace["max_distance_to_reference"], threshold_m) for k, v in runs.items()}
+
+
+def _headline(
+    s: Sessions,
+    r: AdmmRuns,
+    iterations: int,
+    it_rho: dict[str, int | None],
+    it_init: dict[str, int | None],
+    it_init_cm: dict[str, int | None],
+    vs_gather: dict[str, Any],
+) -> dict[str, Any]:
+    from distnav.algorithms.result import format_ratio
+
+    svs, sigma_m, best, worst = s.data.svs, s.solution.sigma_m, r.best, r.worst
+    return {
+        "links / constraint nodes (paper 118 / 9)": f"{s.net.graph.n_links} / {s.constraint_nodes.size}",
+        **{f"iterations to 1 mm, ρ = {k}": (v if v is not None else f"> {iterations}") for k, v in it_rho.items()},
+        "iterations to 1 mm, ρ = 0.5, x⁰ = prev.": it_init["prev."],
+        "iterations to 1 cm, ρ = 0.5, x⁰ = 0 / prev.": f"{it_init_cm['0']} / {it_init_cm['prev.']}",
+        "ADMM bytes ÷ gathering the stations' data at one, ρ = 0.5": format_ratio(vs_gather["0.5"]["ratio_bytes"]),
+        f"σ of x̂ {svs[best]} / {svs[worst]} [cm]": (f"{100 * sigma_m[best]:.2f} / {100 * sigma_m[worst]:.2f}"),
+    }
 
 
 def _sigma_shrink(s_rec: np.ndarray, svs: Sequence[str]) -> dict[str, Any]:
@@ -463,129 +532,6 @@ def _tracks(
     if close is not None:
         close()
     return out
-
-
-def _curves(ax: Any, values: np.ndarray, colour: str | None) -> tuple[float, float]:
-    """One line per node (columns of ``values`` against the iteration) as a single LineCollection (fast).
-    Returns the (min, max) of the finite plotted values (positive ones on a log axis) for the caller's limits."""
-    from matplotlib.collections import LineCollection
-
-    d = np.asarray(values, dtype=float)
-    if ax.get_yscale() == "log":
-        d = np.where(d > 0, d, np.nan)
-    k = np.arange(d.shape[0], dtype=float)
-    segs = np.stack([np.broadcast_to(k[:, None], d.shape), d], axis=-1).transpose(1, 0, 2)
-    if colour is None:
-        colors: Any = pyplot().get_cmap("tab20")(np.arange(d.shape[1]) % 20)
-        ax.add_collection(LineCollection(list(segs), colors=colors, linewidths=0.4))
-    else:
-        ax.add_collection(LineCollection(list(segs), colors=colour, linewidths=0.4, alpha=0.5))
-    ax.set_xlim(0, k[-1])
-    finite = d[np.isfinite(d)]
-    return (float(finite.min()), float(finite.max())) if finite.size else (1.0, 1.0)
-
-
-def _set_ylim(ax: Any, bounds: list[tuple[float, float]], log: bool) -> None:
-    lo = min(b[0] for b in bounds)
-    hi = max(b[1] for b in bounds)
-    if log:
-        ax.set_ylim(max(lo, 1e-12) / 2, hi * 2)
-    else:
-        pad = 0.05 * (hi - lo) + 1e-12
-        ax.set_ylim(lo - pad, hi + pad)
-
-
-def _figures(
-    ctx: ExperimentContext,
-    net: StationNetwork,
-    cnodes: np.ndarray,
-    data: CodeBiasData,
-    x_rec: np.ndarray,
-    s_rec: np.ndarray,
-    runs: dict[str, Any],
-    init_runs: dict[str, Any],
-    tracks: np.ndarray,
-    x_hat: np.ndarray,
-    sigma: np.ndarray,
-    best: int,
-    worst: int,
-) -> None:
-    plt = pyplot()
-    g = net.graph
-    # Fig. 7: network
-    fig, ax = plt.subplots(figsize=(10, 5))
-    for i, j in g.links:
-        lo = net.lon_deg[[i, j]]
-        if abs(lo[0] - lo[1]) > 180:
-            continue
-        ax.plot(lo, net.lat_deg[[i, j]], "-", color="tab:blue", lw=0.7)
-    ax.plot(net.lon_deg, net.lat_deg, "k.", ms=4)
-    ax.plot(net.lon_deg[cnodes], net.lat_deg[cnodes], "r^", ms=8, label=f"{cnodes.size} constraint nodes")
-    ax.set_xlim(-180, 180)
-    ax.set_ylim(-90, 90)
-    ax.set_xlabel("longitude [°]")
-    ax.set_ylabel("latitude [°]")
-    ax.set_title(f"{g.n_nodes} stations, {g.n_links} links")
-    ax.legend(loc="lower left")
-    ctx.save_figure(fig, "fig7_network.png")
-    # Fig. 8: recursive centralized solutions
-    hours = (np.asarray(data.t_gps_s) - data.t_gps_s[0]) / 3600.0
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for ax, k, what in zip(axes, (best, worst), ("best observed", "least observed"), strict=True):
-        ax.plot(hours, x_rec[:, k], "k-", lw=1, label="x̂(t)")
-        ax.plot(hours, x_rec[:, k] + 3 * s_rec[:, k], "k--", lw=0.8, label="±3σ")
-        ax.plot(hours, x_rec[:, k] - 3 * s_rec[:, k], "k--", lw=0.8)
-        if data.truth_m is not None:
-            ax.axhline(data.truth_m[k], color="tab:green", lw=0.8, label="truth")
-        ax.set_title(f"{data.svs[k]} ({what})")
-        ax.set_xlabel("time [h]")
-        ax.set_ylabel("code bias [m]")
-        ax.legend(fontsize=7)
-    ctx.save_figure(fig, "fig8_centralized.png")
-    # Fig. 9: convergence for ρ
-    colours = ["tab:red", "tab:green", "tab:blue", "tab:orange"]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    axes[0].set_yscale("log")
-    bounds = []
-    for (rho, res), c in zip(runs.items(), colours, strict=True):
-        bounds.append(_curves(axes[0], res.trace["distance_to_reference"], c))
-        axes[0].plot([], [], color=c, label=f"ρ = {rho}")
-        axes[1].semilogy(res.trace["max_distance_to_reference"], color=c, label=f"ρ = {rho}")
-    _set_ylim(axes[0], bounds, log=True)
-    for ax in axes:
-        ax.axhline(THRESHOLD_M, color="k", ls=":", lw=0.8)
-        ax.set_xlabel("iteration k")
-        ax.legend(fontsize=8)
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("‖x_i^[k] − x̂‖ [m], 110 nodes")
-    axes[1].set_ylabel("max_i ‖x_i^[k] − x̂‖ [m]")
-    ctx.save_figure(fig, "fig9_rho.png")
-    # Fig. 10: initial values
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.set_yscale("log")
-    bounds = []
-    for (label, res), c in zip(init_runs.items(), colours, strict=True):
-        bounds.append(_curves(ax, res.trace["distance_to_reference"], c))
-        ax.plot([], [], color=c, label=f"x⁰ = {label}")
-    _set_ylim(ax, bounds, log=True)
-    ax.axhline(THRESHOLD_M, color="k", ls=":", lw=0.8)
-    ax.set_xlabel("iteration k")
-    ax.set_ylabel("‖x_i^[k] − x̂‖ [m]  (ρ = 0.5)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    ctx.save_figure(fig, "fig10_init.png")
-    # Fig. 11: per-node differences, init prev., for the two satellites
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-    for col, (ax, k) in enumerate(zip(axes, (best, worst), strict=True)):
-        b = _curves(ax, tracks[:, :, col] - x_hat[k], None)
-        _set_ylim(ax, [b, (-3 * sigma[k], 3 * sigma[k])], log=False)
-        ax.axhline(3 * sigma[k], color="k", ls="--", lw=0.8)
-        ax.axhline(-3 * sigma[k], color="k", ls="--", lw=0.8)
-        ax.set_title(f"{data.svs[k]}: x_i^[k] − x̂ (ρ = 0.5, x⁰ = prev.)")
-        ax.set_xlim(0, min(tracks.shape[0] - 1, 300))
-        ax.set_xlabel("iteration k")
-    axes[0].set_ylabel("[m]")
-    ctx.save_figure(fig, "fig11_per_node.png")
 
 
 def _vs_gather(comm: CommTotals, graph: Graph, problem: LinearProblem) -> CommComparison:

@@ -99,49 +99,20 @@ def networks(ctx: ExperimentContext) -> tuple[str, Graph, SwitchingGraph]:
 
 
 def run(ctx: ExperimentContext) -> dict[str, Any]:
-    from distnav.algorithms.result import compare_with_gather
-
     kind, g_static, g_switch = networks(ctx)
     values = twenty_values(ctx.rng(2))
     samples = 20_000 if ctx.quick else 100_000
     q = np.round(np.linspace(0.0, 1.0, 41), 6)
-
-    runs: dict[str, Any] = {}
-    slem: dict[str, float] = {}
-    probability: dict[str, dict[str, list[float]]] = {}
     schedules: dict[str, tuple[Graph | SwitchingGraph, Any]] = {
         p: (g_static, consensus_schedule(g_static, p)) for p in ("P1", "P2", "P3")
     }
     schedules["P4"] = (g_switch, consensus_schedule(g_switch, "P4"))
-    with ctx.progress.task("consensus: protocols P1-P4, 30 iterations + Monte Carlo", total=4) as advance:
-        for p, (graph, sched) in schedules.items():
-            ex = ctx.exchange(sched.graph)
-            res = average_consensus(values, graph=graph, protocol=p, rounds=ITERATIONS, exchange=ex, record_values=True)
-            runs[p] = res
-            if p != "P4":
-                slem[p] = sched.weights[0].slem
-            probability[p] = {
-                str(kn): consensus_probability(
-                    consensus_product(sched, kn), q, samples=samples, rng=ctx.rng(10 + kn)
-                ).tolist()
-                for kn in KN_VALUES
-            }
-            advance(1)
-
+    runs, slem, probability = _protocols(ctx, schedules, values, q, samples)
     final_dev = {p: float(r.trace["max_abs_deviation"][-1]) for p, r in runs.items()}
     iq = int(np.argmin(np.abs(q - 0.2)))
     at = {p: {kn: probability[p][str(kn)][iq] for kn in KN_VALUES} for p in probability}
     results: dict[str, Any] = {
-        "network": {
-            "kind": kind,
-            "search": PAPER_LIKE["search"] if kind == "paper-like" else None,
-            "static": {"n_nodes": g_static.n_nodes, "n_links": g_static.n_links, "links": g_static.links.tolist()},
-            "switching": {
-                "n_nodes": g_switch.n_nodes,
-                "links_per_session": [s.n_links for s in g_switch.sessions],
-                "sessions": [s.links.tolist() for s in g_switch.sessions],
-            },
-        },
+        "network": _network_record(kind, g_static, g_switch),
         "values": values.tolist(),
         "average": float(values.mean()),
         "slem": slem,
@@ -152,12 +123,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "q": q.tolist(),
         "monte_carlo_samples": samples,
         "communication": {p: r.comm.as_dict() for p, r in runs.items()},
-        "communication_vs_gather": {
-            p: compare_with_gather(
-                r.comm, schedules[p][1].graph, np.full(values.shape[0], 8), data="each node's value (one float64)"
-            ).as_dict()
-            for p, r in runs.items()
-        },
+        "communication_vs_gather": _vs_gather(runs, schedules, values.shape[0]),
         "headline": {
             **{f"λ_(n-1) {p} (paper {PAPER_SLEM[p]})": v for p, v in slem.items()},
             **{f"max |r_i − r̄| after 30 it., {p} (paper: P1, P3 fastest)": v for p, v in final_dev.items()},
@@ -189,6 +155,62 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     return results
 
 
+def _protocols(
+    ctx: ExperimentContext,
+    schedules: dict[str, tuple[Graph | SwitchingGraph, Any]],
+    values: np.ndarray,
+    q: np.ndarray,
+    samples: int,
+) -> tuple[dict[str, Any], dict[str, float], dict[str, dict[str, list[float]]]]:
+    """Each protocol's 30 rounds (paper 003 Fig. 3), its λ_(n−1) (eq. (38); not for the switching P4) and its
+    Monte Carlo probabilities of eq. (40) at every q and k_n (Fig. 4)."""
+    runs: dict[str, Any] = {}
+    slem: dict[str, float] = {}
+    probability: dict[str, dict[str, list[float]]] = {}
+    with ctx.progress.task("consensus: protocols P1-P4, 30 iterations + Monte Carlo", total=4) as advance:
+        for p, (graph, sched) in schedules.items():
+            ex = ctx.exchange(sched.graph)
+            res = average_consensus(values, graph=graph, protocol=p, rounds=ITERATIONS, exchange=ex, record_values=True)
+            runs[p] = res
+            if p != "P4":
+                slem[p] = sched.weights[0].slem
+            probability[p] = {
+                str(kn): consensus_probability(
+                    consensus_product(sched, kn), q, samples=samples, rng=ctx.rng(10 + kn)
+                ).tolist()
+                for kn in KN_VALUES
+            }
+            advance(1)
+    return runs, slem, probability
+
+
+def _network_record(kind: str, g_static: Graph, g_switch: SwitchingGraph) -> dict[str, Any]:
+    return {
+        "kind": kind,
+        "search": PAPER_LIKE["search"] if kind == "paper-like" else None,
+        "static": {"n_nodes": g_static.n_nodes, "n_links": g_static.n_links, "links": g_static.links.tolist()},
+        "switching": {
+            "n_nodes": g_switch.n_nodes,
+            "links_per_session": [s.n_links for s in g_switch.sessions],
+            "sessions": [s.links.tolist() for s in g_switch.sessions],
+        },
+    }
+
+
+def _vs_gather(
+    runs: dict[str, Any], schedules: dict[str, tuple[Graph | SwitchingGraph, Any]], n_nodes: int
+) -> dict[str, Any]:
+    """Each protocol's messages beside gathering every node's value at one node (issue 27)."""
+    from distnav.algorithms.result import compare_with_gather
+
+    return {
+        p: compare_with_gather(
+            r.comm, schedules[p][1].graph, np.full(n_nodes, 8), data="each node's value (one float64)"
+        ).as_dict()
+        for p, r in runs.items()
+    }
+
+
 _TEST = "tests/test_experiment_consensus.py::"
 
 
@@ -212,7 +234,8 @@ def _claims(
 ) -> list[dict[str, Any]]:
     """The statements of paper 003 §3.3 on distnav's numbers (tolerances of :mod:`consensus_network`). On the
     paper-like network every note says that the network was chosen to meet these statements (``search``: the
-    record of :data:`PAPER_LIKE` written to results.json)."""
+    record of :data:`PAPER_LIKE` written to results.json). One row per tuple of (where, claim, paper's value,
+    distnav's value, agrees, why, test), in the order of docs/claims.md."""
     net = (
         network_choice(search)
         if kind == "paper-like" and search
@@ -220,6 +243,97 @@ def _claims(
         if kind == "paper-like"
         else "random network (--network random)"
     )
+    rows: list[tuple[str, str, Any, Any, bool, str, str]] = []
+    if fig2 is not None:
+        rows.append(_fig2_row(fig2, net))
+    rows += [
+        (
+            "§3.3 eq. (38)",
+            f"λ_(n−1) of Protocol {p[1]} ≈ {v}",
+            v,
+            round(slem[p], 4),
+            round(slem[p], 2) == v,
+            f"eigenvalues of W, {net}; to two decimals",
+            "test_paper_like_slem",
+        )
+        for p, v in PAPER_SLEM.items()
+    ]
+    p3_smallest = min(slem, key=slem.__getitem__)
+    rows.append(
+        (
+            "§3.3",
+            "Protocol 3 has the smallest λ_(n−1) (expected best)",
+            "P3",
+            p3_smallest,
+            p3_smallest == "P3",
+            net,
+            "test_paper_like_slem",
+        )
+    )
+    rows += _fig4_rows(at, net)
+    rows += _ordering_rows(probability, at, final_dev, net)
+    return [
+        claim(paper="003", where=w, text=t, paper_value=pv, distnav_value=dv, ok=ok, why=why, test=_TEST + test)
+        for w, t, pv, dv, ok, why, test in rows
+    ]
+
+
+def _fig2_row(fig2: dict[str, Any], net: str) -> tuple[str, str, Any, Any, bool, str, str]:
+    """Fig. 2's network facts: links and degrees of network (a), links per session of (b)."""
+    shape = (fig2["links"], fig2["degree_node_1"], fig2["degree_node_14"], list(fig2["session_links"]))
+    return (
+        "Fig. 2",
+        "network (a): 49 links, node 1 has 4 and node 14 has 7 neighbours; (b): 7, 6, 8, 7 links",
+        "49; 4, 7; 7/6/8/7",
+        f"{shape[0]}; {shape[1]}, {shape[2]}; " + "/".join(map(str, shape[3])),
+        shape == (49, 4, 7, [7, 6, 8, 7]),
+        net,
+        "test_paper_like_network_has_the_fig2_facts",
+    )
+
+
+def _fig4_rows(at: dict[str, dict[int, float]], net: str) -> list[tuple[str, str, Any, Any, bool, str, str]]:
+    """Fig. 4's values at q = 0.2 (``at[protocol][k_n]``)."""
+    test = "test_paper_like_probabilities"
+    return [
+        (
+            "Fig. 4",
+            "P1 ≈ 80 % at k_n = 10 (q = 0.2)",
+            "≈ 0.80",
+            round(at["P1"][10], 4),
+            abs(at["P1"][10] - 0.8) <= ABOUT,
+            f"Monte Carlo of eq. (40), {net}; 'about' read as ± {ABOUT:.0%}",
+            test,
+        ),
+        ("Fig. 4", "P2 < 5 % at k_n = 10 (q = 0.2)", "< 0.05", round(at["P2"][10], 4), at["P2"][10] < 0.05, net, test),
+        (
+            "Fig. 4",
+            "P2 ≈ 80 % at k_n = 30 (q = 0.2)",
+            "≈ 0.80",
+            round(at["P2"][30], 4),
+            abs(at["P2"][30] - 0.8) <= ABOUT,
+            net,
+            test,
+        ),
+        (
+            "Fig. 4",
+            "P1 and P3 close to 100 % at k_n = 30 (q = 0.2)",
+            "≈ 1",
+            f"{at['P1'][30]:.4f} / {at['P3'][30]:.4f}",
+            min(at["P1"][30], at["P3"][30]) >= CLOSE_TO_ONE,
+            f"{net}; 'close to' read as ≥ {CLOSE_TO_ONE}",
+            test,
+        ),
+    ]
+
+
+def _ordering_rows(
+    probability: dict[str, dict[str, list[float]]],
+    at: dict[str, dict[int, float]],
+    final_dev: dict[str, float],
+    net: str,
+) -> list[tuple[str, str, Any, Any, bool, str, str]]:
+    """The protocols' order: Fig. 4's probability curves (within the Monte Carlo slack) and Fig. 3's rates."""
     curves = {p: {k: np.asarray(v) for k, v in c.items()} for p, c in probability.items()}
     p3_best = all(np.all(curves["P3"][k] >= curves[p][k] - SLACK) for k in curves["P3"] for p in curves)
     p2_worst = all(np.all(curves["P2"][k] <= curves[p][k] + SLACK) for k in curves["P2"] for p in curves)
@@ -228,118 +342,37 @@ def _claims(
         for k in curves["P4"]
     )
     fast, slow = max(final_dev["P1"], final_dev["P3"]), min(final_dev["P2"], final_dev["P4"])
-    rows = []
-    if fig2 is not None:
-        shape = (fig2["links"], fig2["degree_node_1"], fig2["degree_node_14"], list(fig2["session_links"]))
-        rows.append(
-            claim(
-                paper="003",
-                where="Fig. 2",
-                text="network (a): 49 links, node 1 has 4 and node 14 has 7 neighbours; (b): 7, 6, 8, 7 links",
-                paper_value="49; 4, 7; 7/6/8/7",
-                distnav_value=f"{shape[0]}; {shape[1]}, {shape[2]}; " + "/".join(map(str, shape[3])),
-                ok=shape == (49, 4, 7, [7, 6, 8, 7]),
-                why=net,
-                test=_TEST + "test_paper_like_network_has_the_fig2_facts",
-            )
-        )
-    rows += [
-        claim(
-            paper="003",
-            where="§3.3 eq. (38)",
-            text=f"λ_(n−1) of Protocol {p[1]} ≈ {v}",
-            paper_value=v,
-            distnav_value=round(slem[p], 4),
-            ok=round(slem[p], 2) == v,
-            why=f"eigenvalues of W, {net}; to two decimals",
-            test=_TEST + "test_paper_like_slem",
-        )
-        for p, v in PAPER_SLEM.items()
-    ]
-    rows += [
-        claim(
-            paper="003",
-            where="§3.3",
-            text="Protocol 3 has the smallest λ_(n−1) (expected best)",
-            paper_value="P3",
-            distnav_value=min(slem, key=lambda p: slem[p]),
-            ok=min(slem, key=slem.__getitem__) == "P3",
-            why=net,
-            test=_TEST + "test_paper_like_slem",
+    test = "test_protocol_ordering"
+    return [
+        (
+            "Fig. 4",
+            "Protocol 3 gives the highest, Protocol 2 the lowest probabilities",
+            "P3 highest, P2 lowest",
+            f"P3 highest: {p3_best}, P2 lowest: {p2_worst}",
+            p3_best and p2_worst,
+            f"every q and k_n = 10, 20, 30, within {SLACK:.0%} Monte Carlo slack; {net}",
+            test,
         ),
-        claim(
-            paper="003",
-            where="Fig. 4",
-            text="P1 ≈ 80 % at k_n = 10 (q = 0.2)",
-            paper_value="≈ 0.80",
-            distnav_value=round(at["P1"][10], 4),
-            ok=abs(at["P1"][10] - 0.8) <= ABOUT,
-            why=f"Monte Carlo of eq. (40), {net}; 'about' read as ± {ABOUT:.0%}",
-            test=_TEST + "test_paper_like_probabilities",
+        (
+            "Fig. 4",
+            "Protocol 4 (network (b)) is clearly better than Protocol 2",
+            "P4 > P2",
+            f"k_n=10: {at['P4'][10]:.3f} vs {at['P2'][10]:.3f}",
+            p4_gt_p2,
+            f"curves at every k_n; {net}",
+            test,
         ),
-        claim(
-            paper="003",
-            where="Fig. 4",
-            text="P2 < 5 % at k_n = 10 (q = 0.2)",
-            paper_value="< 0.05",
-            distnav_value=round(at["P2"][10], 4),
-            ok=at["P2"][10] < 0.05,
-            why=net,
-            test=_TEST + "test_paper_like_probabilities",
-        ),
-        claim(
-            paper="003",
-            where="Fig. 4",
-            text="P2 ≈ 80 % at k_n = 30 (q = 0.2)",
-            paper_value="≈ 0.80",
-            distnav_value=round(at["P2"][30], 4),
-            ok=abs(at["P2"][30] - 0.8) <= ABOUT,
-            why=net,
-            test=_TEST + "test_paper_like_probabilities",
-        ),
-        claim(
-            paper="003",
-            where="Fig. 4",
-            text="P1 and P3 close to 100 % at k_n = 30 (q = 0.2)",
-            paper_value="≈ 1",
-            distnav_value=f"{at['P1'][30]:.4f} / {at['P3'][30]:.4f}",
-            ok=min(at["P1"][30], at["P3"][30]) >= CLOSE_TO_ONE,
-            why=f"{net}; 'close to' read as ≥ {CLOSE_TO_ONE}",
-            test=_TEST + "test_paper_like_probabilities",
-        ),
-        claim(
-            paper="003",
-            where="Fig. 4",
-            text="Protocol 3 gives the highest, Protocol 2 the lowest probabilities",
-            paper_value="P3 highest, P2 lowest",
-            distnav_value=f"P3 highest: {p3_best}, P2 lowest: {p2_worst}",
-            ok=p3_best and p2_worst,
-            why=f"every q and k_n = 10, 20, 30, within {SLACK:.0%} Monte Carlo slack; {net}",
-            test=_TEST + "test_protocol_ordering",
-        ),
-        claim(
-            paper="003",
-            where="Fig. 4",
-            text="Protocol 4 (network (b)) is clearly better than Protocol 2",
-            paper_value="P4 > P2",
-            distnav_value=f"k_n=10: {at['P4'][10]:.3f} vs {at['P2'][10]:.3f}",
-            ok=p4_gt_p2,
-            why=f"curves at every k_n; {net}",
-            test=_TEST + "test_protocol_ordering",
-        ),
-        claim(
-            paper="003",
-            where="Fig. 3",
-            text="P1 and P3 converge at about the same rate, faster than P2 and P4",
-            paper_value="P1 ≈ P3 < P2, P4",
-            distnav_value=", ".join(f"{p} {v:.3f}" for p, v in final_dev.items()),
-            ok=fast < slow,
-            why="max |r_i − r̄| after 30 iterations of one realization of the twenty values (the "
+        (
+            "Fig. 3",
+            "P1 and P3 converge at about the same rate, faster than P2 and P4",
+            "P1 ≈ P3 < P2, P4",
+            ", ".join(f"{p} {v:.3f}" for p, v in final_dev.items()),
+            fast < slow,
+            "max |r_i − r̄| after 30 iterations of one realization of the twenty values (the "
             "paper's values are not printed)",
-            test=_TEST + "test_protocol_ordering",
+            test,
         ),
     ]
-    return rows
 
 
 def _figures(

@@ -25,9 +25,8 @@ from scipy.linalg import block_diag
 from distnav.algorithms.lsq.blue import LinearProblem, blue
 from distnav.algorithms.lsq.qc import admm_data_snooping
 from distnav.algorithms.statistics import data_snooping
-from distnav.experiments.codebias import EPOCH_S, constellation, synthetic_igs_network
+from distnav.experiments.codebias import _simulate, constellation, synthetic_igs_network
 from distnav.experiments.common import ExperimentContext, pyplot
-from distnav.models.gnss.codebias import simulate_codebias_data
 from distnav.models.gnss.constants import NS_TO_M
 from distnav.network import builders
 from distnav.network.graph import Graph
@@ -103,18 +102,7 @@ def codebias_qc_problem(ctx: ExperimentContext, epochs: int, n_errors: int) -> d
     orbit, svs, t0, orbit_text = constellation(None, None)
     sat = ctx.rng(2).normal(0.0, 3.0 * NS_TO_M, size=(len(svs), 3))
     rx = ctx.rng(4).normal(0.0, 5.0 * NS_TO_M, size=(net.graph.n_nodes, 3))
-    t = t0 + np.arange(epochs) * EPOCH_S
-    data = simulate_codebias_data(
-        net.positions_ecef_m,
-        orbit,
-        t,
-        svs,
-        rng=ctx.rng(3),
-        sat_biases_m=sat,
-        rx_biases_m=rx,
-        stations=net.graph.names,
-        reference=int(net.hubs[0]),
-    )
+    data = _simulate(net, orbit, svs, t0, epochs, ctx.rng(3), sat, rx)  # the sessions of `reproduce codebias`
     data = data.estimable_subset()
     data.check()
     blocks = [data.node_system(i) for i in range(data.n_stations)]
@@ -172,11 +160,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     x_clean = blue(case["clean"]).x
     x_raw = blue(prob).x
     W = RHO_PER_EPOCH * case["epochs"]  # ρ against one epoch's information, as in `reproduce codebias`
-    with ctx.progress.task("qc: distributed data snooping (ADMM estimate, precision, w-tests, removals)"):
-        res = admm_data_snooping(prob, g, W=W, level=LEVEL, tol=1e-10, max_iterations=20000, exchange=ctx.exchange(g))
-    with ctx.progress.task("qc: centralized data snooping (the reference)"):
-        A, y, R = _stacked(prob)
-        ref = data_snooping(A, y, R, level=LEVEL)
+    res, ref, A, R = _snooping(ctx, prob, g, W)
     assert res.tests is not None and res.precision is not None and res.tests.comm is not None
     removed = set(res.tests.removed)
     blue_cov = np.linalg.inv(A.T @ np.linalg.solve(R, A))
@@ -200,9 +184,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "rho": W,
         "injected": sorted(bad),
         "distributed": {
-            "removed": list(res.tests.removed),
-            "detected": len(removed & bad),
-            "false_alarms": len(removed - bad),
+            **_removals(res.tests.removed, bad),
             "variance_factor": res.precision.variance_factor,
             "redundancy": res.precision.redundancy,
             "extra_iterations": res.tests.iterations,
@@ -220,9 +202,7 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
             ).as_dict()
         },
         "centralized": {
-            "removed": list(ref.removed),
-            "detected": len(set(ref.removed) & bad),
-            "false_alarms": len(set(ref.removed) - bad),
+            **_removals(ref.removed, bad),
             "variance_factor": ref.variance_factor,
             "redundancy": ref.redundancy,
         },
@@ -237,7 +217,38 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     ckf_part = _ckf_half(ctx)
     if ckf_part is not None:
         results["ckf"] = ckf_part
-    results["headline"] = {
+    results["headline"] = _headline(results, res, ref, bad, removed, dist)
+    if ckf_part is not None:
+        results["headline"].update({f"CKF: {k}": v for k, v in ckf_part.get("headline", {}).items()})
+    else:
+        results["headline"]["CKF half"] = "not run (experiments/qc_ckf.py absent)"
+    ctx.write_json("results.json", results)
+    if ctx.is_root:
+        _figures(ctx, prob, res, ref, bad, dist)
+    return results
+
+
+def _snooping(
+    ctx: ExperimentContext, prob: LinearProblem, g: Graph, W: float
+) -> tuple[Any, Any, np.ndarray, np.ndarray]:
+    """Distributed data snooping by ADMM and the centralized reference on the stacked rows ``(A, R)``."""
+    with ctx.progress.task("qc: distributed data snooping (ADMM estimate, precision, w-tests, removals)"):
+        res = admm_data_snooping(prob, g, W=W, level=LEVEL, tol=1e-10, max_iterations=20000, exchange=ctx.exchange(g))
+    with ctx.progress.task("qc: centralized data snooping (the reference)"):
+        A, y, R = _stacked(prob)
+        ref = data_snooping(A, y, R, level=LEVEL)
+    return res, ref, A, R
+
+
+def _removals(removed: Any, bad: set[int]) -> dict[str, Any]:
+    """What a data snooping removed, how many of the injected errors that finds and how many false alarms."""
+    return {"removed": list(removed), "detected": len(set(removed) & bad), "false_alarms": len(set(removed) - bad)}
+
+
+def _headline(
+    results: dict[str, Any], res: Any, ref: Any, bad: set[int], removed: set[int], dist: dict[str, float]
+) -> dict[str, Any]:
+    return {
         "gross errors injected / detected (distributed)": f"{len(bad)} / {len(removed & bad)}",
         "false alarms (distributed / centralized)": (
             f"{results['distributed']['false_alarms']} / {results['centralized']['false_alarms']}"
@@ -250,14 +261,6 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
         "σ̂² (distributed / centralized)": f"{res.precision.variance_factor:.6g} / {ref.variance_factor:.6g}",
         "extra iterations / messages after the first solution": f"{res.tests.iterations} / {res.tests.comm.messages}",
     }
-    if ckf_part is not None:
-        results["headline"].update({f"CKF: {k}": v for k, v in ckf_part.get("headline", {}).items()})
-    else:
-        results["headline"]["CKF half"] = "not run (experiments/qc_ckf.py absent)"
-    ctx.write_json("results.json", results)
-    if ctx.is_root:
-        _figures(ctx, prob, res, ref, bad, dist)
-    return results
 
 
 def _ckf_half(ctx: ExperimentContext) -> dict[str, Any] | None:

@@ -100,6 +100,39 @@ def central_tested_filter(
     return x[0], removed
 
 
+def _data_with_gross_errors(
+    dyn: DynamicModel, A: np.ndarray, sig: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, set[tuple[int, int, int]], np.ndarray]:
+    """Simulated observations, and the same with :data:`N_GROSS` gross errors of ±:data:`GROSS_SIGMA` σ from
+    epoch 2 on: ``(y_clean, y_bad, injected (epoch, node, row), their epochs)``."""
+    T = A.shape[0]
+    x = simulate_states(dyn, T, rng=rng, initial_state=rng.normal(0.0, 3.0, dyn.n_states))
+    y_clean = np.einsum("tnmp,tp->tnm", A, x) + sig * rng.standard_normal(sig.shape)
+    flat = rng.choice((T - 2) * N_NODES * N_OBS, N_GROSS, replace=False)
+    t_g, i_g, k_g = np.unravel_index(flat, (T - 2, N_NODES, N_OBS))
+    t_g = t_g + 2
+    y_bad = y_clean.copy()
+    y_bad[t_g, i_g, k_g] += GROSS_SIGMA * sig[t_g, i_g, k_g] * rng.choice([-1.0, 1.0], N_GROSS)
+    injected = {(int(a), int(b), int(c)) for a, b, c in zip(t_g, i_g, k_g, strict=True)}
+    return y_clean, y_bad, injected, t_g
+
+
+def _ckf_runs(
+    ctx: ExperimentContext, graph: Graph, dyn: DynamicModel, ms_bad: ObservationSeries, ms_clean: ObservationSeries
+) -> tuple[Any, Any, Any]:
+    """The CKF with local innovation tests and without them on the data with gross errors, and without them on
+    the clean data (the reference of both)."""
+    sched = consensus_schedule(graph, "P3")
+
+    def run_ckf(ms: ObservationSeries, **tests: Any) -> Any:
+        return ckf(
+            dyn, ms, schedule=sched, rounds=KN, exchange=ctx.exchange(graph), variance=False, monitor=False, **tests
+        )
+
+    tested = run_ckf(ms_bad, local_precision="exact", test_level=LEVEL)
+    return tested, run_ckf(ms_bad), run_ckf(ms_clean)
+
+
 def _trial(
     ctx: ExperimentContext,
     graph: Graph,
@@ -110,38 +143,11 @@ def _trial(
     *,
     trace: bool,
 ) -> dict[str, Any]:
-    T = A.shape[0]
-    x = simulate_states(dyn, T, rng=rng, initial_state=rng.normal(0.0, 3.0, dyn.n_states))
-    y_clean = np.einsum("tnmp,tp->tnm", A, x) + sig * rng.standard_normal(sig.shape)
-    flat = rng.choice((T - 2) * N_NODES * N_OBS, N_GROSS, replace=False)
-    t_g, i_g, k_g = np.unravel_index(flat, (T - 2, N_NODES, N_OBS))
-    t_g = t_g + 2
-    y_bad = y_clean.copy()
-    y_bad[t_g, i_g, k_g] += GROSS_SIGMA * sig[t_g, i_g, k_g] * rng.choice([-1.0, 1.0], N_GROSS)
-    injected = {(int(a), int(b), int(c)) for a, b, c in zip(t_g, i_g, k_g, strict=True)}
-    sched = consensus_schedule(graph, "P3")
+    y_clean, y_bad, injected, t_g = _data_with_gross_errors(dyn, A, sig, rng)
     clean_c = central_filter(dyn, ObservationSeries(dyn.n_states, _epochs(A, sig, y_clean))).estimates[0]
     ms_bad = ObservationSeries(dyn.n_states, _epochs(A, sig, y_bad))
-    tested = ckf(
-        dyn,
-        ms_bad,
-        schedule=sched,
-        rounds=KN,
-        exchange=ctx.exchange(graph),
-        local_precision="exact",
-        test_level=LEVEL,
-        variance=False,
-        monitor=False,
-    )
-    plain = ckf(dyn, ms_bad, schedule=sched, rounds=KN, exchange=ctx.exchange(graph), variance=False, monitor=False)
-    clean_ckf = ckf(
-        dyn,
-        ObservationSeries(dyn.n_states, _epochs(A, sig, y_clean)),
-        schedule=sched,
-        rounds=KN,
-        exchange=ctx.exchange(graph),
-        variance=False,
-        monitor=False,
+    tested, plain, clean_ckf = _ckf_runs(
+        ctx, graph, dyn, ms_bad, ObservationSeries(dyn.n_states, _epochs(A, sig, y_clean))
     )
     xc, removed_c = central_tested_filter(dyn, _epochs(A, sig, y_bad), LEVEL)
     tests = tested.tests

@@ -224,13 +224,14 @@ def _figure_class(size: tuple[int, int] | None) -> str:
 _CSS = (
     "body{font-family:system-ui,sans-serif;max-width:1200px;margin:auto;padding:0 12px;line-height:1.4}"
     "table{border-collapse:collapse;margin:6px 0;font-size:13px}td,th{border:1px solid #bbb;padding:2px 6px;"
-    "vertical-align:top;overflow-wrap:anywhere}th{background:#f3f3f3}figure{display:inline-block;vertical-align:top;margin:6px;"
+    "vertical-align:top;overflow-wrap:break-word}th{background:#f3f3f3}figure{display:inline-block;vertical-align:top;margin:6px;"
     "width:calc(33.3% - 16px)}figure.half{width:calc(50% - 16px)}"
     "figure.wide{width:calc(100% - 16px)}figure img{width:100%;max-height:400px;object-fit:contain;"
     "border:1px solid #ccc}"
     "figcaption{font-size:13px;color:#333}.caveat{background:#fff6d6;border-left:4px solid #e0b000;padding:4px 8px}"
     "table.claims td:nth-child(4){max-width:260px}table.claims td:nth-child(6){max-width:220px}"
-    "table.claims td:nth-child(8){min-width:340px;color:#444}"
+    "table.claims td:nth-child(8){min-width:340px;color:#444;overflow-wrap:anywhere}"
+    "table.claims td:nth-child(-n+3),table.claims td:nth-child(7){white-space:nowrap}"
 )
 
 
@@ -264,6 +265,66 @@ def _field_section(out_dir: Path) -> tuple[list[str], list[str]]:
     return parts, [*md, ""]
 
 
+def _entry_section(
+    out_dir: Path, name: str, title: str, figures: list[str], results: Any, seconds: float, *, quick: bool
+) -> tuple[list[str], list[str]]:
+    """One experiment's section (HTML lines, Markdown lines): its title and run time, the quick variant's caveat,
+    the headline table beside the paper's values, the communication lines and the captioned figures."""
+    import importlib
+
+    from distnav.experiments import EXPERIMENTS
+
+    mod_caps: dict[str, str] | None = None
+    if name in EXPERIMENTS:
+        mod_caps = getattr(importlib.import_module(EXPERIMENTS[name]), "FIGURE_CAPTIONS", None)
+    rel = Path(name)
+    parts = [
+        f"<h2 id='{html.escape(name)}'>{html.escape(title)}</h2>",
+        f"<p>{seconds:.1f} s &middot; <a href='{rel}/results.json'>results.json</a></p>",
+    ]
+    md = [f"## {title}", "", f"{seconds:.1f} s — [{rel}/results.json]({rel}/results.json)", ""]
+    if quick and name in QUICK_NOTES:
+        parts.append(f"<p class='caveat'>Quick variant: {html.escape(QUICK_NOTES[name])}</p>")
+        md += [f"> Quick variant: {QUICK_NOTES[name]}", ""]
+    headline = results.get("headline", {}) if isinstance(results, dict) else {}
+    if headline:
+        _headline_table(name, headline, parts, md)
+    if comm_lines := communication_lines(results):
+        parts.append(
+            "<p><b>Communication</b> (beside gathering the same data at one node by multi-hop relaying):<br>"
+            + "<br>".join(html.escape(t) for t in comm_lines)
+            + "</p>"
+        )
+        md += ["**Communication** (beside gathering the same data at one node by multi-hop relaying):", ""]
+        md += [f"- {t}" for t in comm_lines] + [""]
+    for fig in figures:
+        cap = caption(name, fig, mod_caps)
+        cls = _figure_class(_png_size(out_dir / rel / fig))
+        parts.append(
+            f"<figure{cls}><a href='{rel}/{fig}' title='open full size'><img src='{rel}/{fig}' "
+            f"alt='{html.escape(fig)}' loading='lazy'></a><figcaption>{html.escape(cap)} "
+            f"<a href='{rel}/{fig}'>[full size]</a></figcaption></figure>"
+        )
+        md += [f"[![{fig}]({rel}/{fig})]({rel}/{fig})", "", f"*{cap}*", ""]
+    md.append("")
+    return parts, md
+
+
+def _headline_table(name: str, headline: dict[str, Any], parts: list[str], md: list[str]) -> None:
+    """The headline numbers beside the paper's values, appended to the HTML ``parts`` and the Markdown ``md``."""
+    parts.append("<table><tr><th>quantity</th><th>distnav</th><th>paper</th></tr>")
+    md += ["| quantity | distnav | paper |", "|---|---|---|"]
+    for k, v in headline.items():
+        label = split_paper_value(str(k))[0]
+        paper_txt = paper_value(name, str(k))
+        parts.append(
+            f"<tr><td>{html.escape(label)}</td><td>{html.escape(_fmt(v))}</td><td>{html.escape(paper_txt)}</td></tr>"
+        )
+        md.append(f"| {label.replace('|', chr(92) + '|')} | {_fmt(v)} | {paper_txt.replace('|', '/')} |")
+    parts.append("</table>")
+    md.append("")
+
+
 def write_report(
     out_dir: Path, entries: list[tuple[str, str, Any, dict[str, Any], float]], *, quick: bool = True
 ) -> Path:
@@ -272,10 +333,6 @@ def write_report(
     ``entries`` are ``(name, title, context, results, seconds)``; ``context.figures`` lists the PNGs written in
     ``out_dir/name``. ``quick`` states the quick-variant caveats (``distnav demo`` runs the quick variants).
     """
-    import importlib
-
-    from distnav.experiments import EXPERIMENTS
-
     out_dir = Path(out_dir)
     rows = [r for name, _, _, results, _ in entries if isinstance(results, dict) for r in claims_for(name, results)]
     c = counts(rows)
@@ -317,48 +374,9 @@ def write_report(
         "",
     ]
     for name, title, ctx, results, seconds in entries:
-        mod_caps: dict[str, str] | None = None
-        if name in EXPERIMENTS:
-            mod_caps = getattr(importlib.import_module(EXPERIMENTS[name]), "FIGURE_CAPTIONS", None)
-        rel = Path(name)
-        parts.append(f"<h2 id='{html.escape(name)}'>{html.escape(title)}</h2>")
-        parts.append(f"<p>{seconds:.1f} s &middot; <a href='{rel}/results.json'>results.json</a></p>")
-        md += [f"## {title}", "", f"{seconds:.1f} s — [{rel}/results.json]({rel}/results.json)", ""]
-        if quick and name in QUICK_NOTES:
-            parts.append(f"<p class='caveat'>Quick variant: {html.escape(QUICK_NOTES[name])}</p>")
-            md += [f"> Quick variant: {QUICK_NOTES[name]}", ""]
-        headline = results.get("headline", {}) if isinstance(results, dict) else {}
-        if headline:
-            parts.append("<table><tr><th>quantity</th><th>distnav</th><th>paper</th></tr>")
-            md += ["| quantity | distnav | paper |", "|---|---|---|"]
-            for k, v in headline.items():
-                label = split_paper_value(str(k))[0]
-                paper_txt = paper_value(name, str(k))
-                parts.append(
-                    f"<tr><td>{html.escape(label)}</td><td>{html.escape(_fmt(v))}</td>"
-                    f"<td>{html.escape(paper_txt)}</td></tr>"
-                )
-                md.append(f"| {label.replace('|', chr(92) + '|')} | {_fmt(v)} | {paper_txt.replace('|', '/')} |")
-            parts.append("</table>")
-            md.append("")
-        if comm_lines := communication_lines(results):
-            parts.append(
-                "<p><b>Communication</b> (beside gathering the same data at one node by multi-hop relaying):<br>"
-                + "<br>".join(html.escape(t) for t in comm_lines)
-                + "</p>"
-            )
-            md += ["**Communication** (beside gathering the same data at one node by multi-hop relaying):", ""]
-            md += [f"- {t}" for t in comm_lines] + [""]
-        for fig in ctx.figures:
-            cap = caption(name, fig, mod_caps)
-            cls = _figure_class(_png_size(out_dir / rel / fig))
-            parts.append(
-                f"<figure{cls}><a href='{rel}/{fig}' title='open full size'><img src='{rel}/{fig}' "
-                f"alt='{html.escape(fig)}' loading='lazy'></a><figcaption>{html.escape(cap)} "
-                f"<a href='{rel}/{fig}'>[full size]</a></figcaption></figure>"
-            )
-            md += [f"[![{fig}]({rel}/{fig})]({rel}/{fig})", "", f"*{cap}*", ""]
-        md.append("")
+        entry_html, entry_md = _entry_section(out_dir, name, title, ctx.figures, results, seconds, quick=quick)
+        parts += entry_html
+        md += entry_md
     field_html, field_md = _field_section(out_dir)
     parts += field_html
     md += field_md

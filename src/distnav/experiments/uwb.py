@@ -192,99 +192,42 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     start = str(ctx.options.get("start") or "paper")
     if start not in STARTS:
         raise UsageError(f"--start must be one of {', '.join(STARTS)}, got {start!r}")
-    jobs = ctx.workers()
     n_inst = {c: (int(opt_inst) if opt_inst is not None else (1 if ctx.quick else PAPER_INSTANCES[c])) for c in "GLR"}
-    parallel = jobs > 1
-    curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
-    table: list[dict[str, Any]] = []
-    examples: dict[str, Any] = {}
-    vs_gather: dict[str, Any] = {}
-    timing: dict[str, float] = {s: 0.0 for s in SOLVERS}
     tasks = [
         _Task(ctx.seed, pi, name, inst, iterations, armijo_slope, hold_heights, start)
         for pi, name in enumerate(PAPER_PROBLEMS)
         for inst in range(n_inst[name[0]])
     ]
-    workers = min(jobs, len(tasks)) if parallel else 1
-    with ctx.progress.task(
-        f"uwb: {len(tasks)} instances of {len(PAPER_PROBLEMS)} problems × {len(SOLVERS)} "
-        f"solvers, {workers} process(es)",
-        total=len(tasks),
-    ) as advance:
-        if parallel:
-            runs = parallel_map(_run_instance, tasks, jobs, advance)
-        else:
-            runs = parallel_map(partial(_run_instance, exchange=ctx.exchange), tasks, 1, advance)
+    runs = _run_tasks(ctx, tasks)
+    curves: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+    table: list[dict[str, Any]] = []
+    examples: dict[str, Any] = {}
+    vs_gather: dict[str, Any] = {}
+    timing: dict[str, float] = {s: 0.0 for s in SOLVERS}
     for name in PAPER_PROBLEMS:
-        acc: dict[str, dict[str, Any]] = {
-            s: {"rmse": [], "cost": [], "step": [], "msg": [], "bytes": [], "xy": [], "z": [], "diverged": 0}
-            for s in SOLVERS
-        }
         done = [r for t, r in zip(tasks, runs, strict=True) if t.name == name]
-        for one in done:  # in instance order: the means are the serial loop's sums
-            for s, r in one["runs"].items():
-                a = acc[s]
-                timing[s] += r["seconds"]
-                a["msg"].append(r["messages"])
-                a["bytes"].append(r["bytes"])
-                if r["diverged"]:
-                    a["diverged"] += 1
-                    continue
-                for key in ("rmse", "cost", "xy", "z") + (("step",) if "step" in r else ()):
-                    a[key].append(r[key])
+        acc = _accumulate(done, timing)
+        for one in done:
             if one["example"] is not None:
                 examples[name] = one["example"]
             for s, v in one.get("vs_gather", {}).items():
                 vs_gather[f"{name}, {s}, instance 0"] = v
         curves[name] = {}
         for s in SOLVERS:
-            a = acc[s]
-            nanrow = [np.full(iterations + 1, np.nan)]
-            rm = np.mean(a["rmse"] or nanrow, axis=0)  # eq. (25), over the runs that did not blow up
-            rc = np.mean(a["cost"] or nanrow, axis=0)
-            curves[name][s] = {"rmse_m": rm, "rms_cost": rc}
-            if a["step"]:
-                curves[name][s]["step_size"] = np.mean(a["step"], axis=0)
-            finals = np.array([r[-1] for r in a["rmse"]]) if a["rmse"] else np.full(1, np.nan)
-            finals_c = np.array([c[-1] for c in a["cost"]]) if a["cost"] else np.full(1, np.nan)
+            curves[name][s], row = _mean_curves(acc[s], iterations)
             table.append(
                 {
                     "problem": name,
                     "solver": s,
-                    "rmse_m": float(rm[-1]),
-                    "rms_cost": float(rc[-1]),
-                    "rmse_m_median": float(np.median(finals)),
-                    "rms_cost_median": float(np.median(finals_c)),
-                    "messages": int(round(float(np.mean(a["msg"])))),
-                    "bytes": int(round(float(np.mean(a["bytes"])))),
-                    "rmse_xy_m": float(np.mean(a["xy"])) if a["xy"] else float("nan"),
-                    "rmse_z_m": float(np.mean(a["z"])) if a["z"] else float("nan"),
+                    **row,
                     "instances": n_inst[name[0]],
-                    "diverged": a["diverged"],
+                    "diverged": acc[s]["diverged"],
                     "iterations": iterations,
                 }
             )
-
     results: dict[str, Any] = {
         "communication_vs_gather": vs_gather,
-        "settings": {
-            "iterations": iterations,
-            "instances": n_inst,
-            "alpha": 1e-3,
-            "alpha0": 1e-2,
-            "beta": 0.5,
-            "gamma": 0.5,
-            "armijo_slope": armijo_slope,
-            "hold_heights": hold_heights,
-            "consensus_rounds": 1,
-            "weights": "MH",
-            "sigma_m": 0.15,
-            "init_halfwidth_m": 5.0,
-            "dim": 3,
-            "anchors": 100,
-            "fixed": 3,
-            **({"start": start} if start != "paper" else {}),
-        },
+        "settings": _settings(iterations, n_inst, armijo_slope, hold_heights, start),
         "table": table,
         "curves": {p: {s: {k: v.tolist() for k, v in d.items()} for s, d in sv.items()} for p, sv in curves.items()},
         "paper_claims": {
@@ -303,6 +246,89 @@ def run(ctx: ExperimentContext) -> dict[str, Any]:
     if ctx.is_root:
         _figures(ctx, curves, examples)
     return results
+
+
+def _run_tasks(ctx: ExperimentContext, tasks: list[_Task]) -> list[dict[str, Any]]:
+    """Every instance's solver runs, in ``--jobs`` processes (or in-process on the context's backend)."""
+    jobs = ctx.workers()
+    parallel = jobs > 1
+    workers = min(jobs, len(tasks)) if parallel else 1
+    with ctx.progress.task(
+        f"uwb: {len(tasks)} instances of {len(PAPER_PROBLEMS)} problems × {len(SOLVERS)} "
+        f"solvers, {workers} process(es)",
+        total=len(tasks),
+    ) as advance:
+        if parallel:
+            return parallel_map(_run_instance, tasks, jobs, advance)
+        return parallel_map(partial(_run_instance, exchange=ctx.exchange), tasks, 1, advance)
+
+
+def _accumulate(done: list[dict[str, Any]], timing: dict[str, float]) -> dict[str, dict[str, Any]]:
+    """One problem's instances collected per solver (the runs that did not blow up; ``diverged`` counts the
+    others), adding each solver's seconds to ``timing``."""
+    acc: dict[str, dict[str, Any]] = {
+        s: {"rmse": [], "cost": [], "step": [], "msg": [], "bytes": [], "xy": [], "z": [], "diverged": 0}
+        for s in SOLVERS
+    }
+    for one in done:  # in instance order: the means are the serial loop's sums
+        for s, r in one["runs"].items():
+            a = acc[s]
+            timing[s] += r["seconds"]
+            a["msg"].append(r["messages"])
+            a["bytes"].append(r["bytes"])
+            if r["diverged"]:
+                a["diverged"] += 1
+                continue
+            for key in ("rmse", "cost", "xy", "z") + (("step",) if "step" in r else ()):
+                a[key].append(r[key])
+    return acc
+
+
+def _mean_curves(a: dict[str, Any], iterations: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """A solver's mean curves over the instances (eq. (25)) and its row of the table (final mean and median
+    RMSE and cost, messages, bytes, horizontal and vertical RMSE)."""
+    nanrow = [np.full(iterations + 1, np.nan)]
+    rm = np.mean(a["rmse"] or nanrow, axis=0)  # eq. (25), over the runs that did not blow up
+    rc = np.mean(a["cost"] or nanrow, axis=0)
+    curve = {"rmse_m": rm, "rms_cost": rc}
+    if a["step"]:
+        curve["step_size"] = np.mean(a["step"], axis=0)
+    finals = np.array([r[-1] for r in a["rmse"]]) if a["rmse"] else np.full(1, np.nan)
+    finals_c = np.array([c[-1] for c in a["cost"]]) if a["cost"] else np.full(1, np.nan)
+    row = {
+        "rmse_m": float(rm[-1]),
+        "rms_cost": float(rc[-1]),
+        "rmse_m_median": float(np.median(finals)),
+        "rms_cost_median": float(np.median(finals_c)),
+        "messages": int(round(float(np.mean(a["msg"])))),
+        "bytes": int(round(float(np.mean(a["bytes"])))),
+        "rmse_xy_m": float(np.mean(a["xy"])) if a["xy"] else float("nan"),
+        "rmse_z_m": float(np.mean(a["z"])) if a["z"] else float("nan"),
+    }
+    return curve, row
+
+
+def _settings(
+    iterations: int, n_inst: dict[str, int], armijo_slope: str, hold_heights: bool, start: str
+) -> dict[str, Any]:
+    return {
+        "iterations": iterations,
+        "instances": n_inst,
+        "alpha": 1e-3,
+        "alpha0": 1e-2,
+        "beta": 0.5,
+        "gamma": 0.5,
+        "armijo_slope": armijo_slope,
+        "hold_heights": hold_heights,
+        "consensus_rounds": 1,
+        "weights": "MH",
+        "sigma_m": 0.15,
+        "init_halfwidth_m": 5.0,
+        "dim": 3,
+        "anchors": 100,
+        "fixed": 3,
+        **({"start": start} if start != "paper" else {}),
+    }
 
 
 def _final(table: list[dict[str, Any]], problem: str, solver: str, key: str) -> float:
@@ -392,25 +418,14 @@ def _table_csv(table: list[dict[str, Any]]) -> str:
 
 
 def _table_md(table: list[dict[str, Any]]) -> str:
-    out = [
-        "# Table 1 analogue (paper 002): final mean RMSE [m] / RMS cost [m²]",
-        "",
-        "| problem | " + " | ".join(SOLVERS) + " |",
-        "|---|" + "---|" * len(SOLVERS),
-    ]
-    for p in PAPER_PROBLEMS:
-        cells = [f"{_final(table, p, s, 'rmse_m'):.3f} / {_final(table, p, s, 'rms_cost'):.3g}" for s in SOLVERS]
-        out.append(f"| {p} | " + " | ".join(cells) + " |")
-    out += [
-        "",
-        "Messages / bytes per instance:",
-        "",
-        "| problem | " + " | ".join(SOLVERS) + " |",
-        "|---|" + "---|" * len(SOLVERS),
-    ]
-    for p in PAPER_PROBLEMS:
-        cells = [f"{int(_final(table, p, s, 'messages'))} / {int(_final(table, p, s, 'bytes'))}" for s in SOLVERS]
-        out.append(f"| {p} | " + " | ".join(cells) + " |")
+    def block(cell: Callable[[str, str], str]) -> list[str]:
+        head = ["| problem | " + " | ".join(SOLVERS) + " |", "|---|" + "---|" * len(SOLVERS)]
+        return head + [f"| {p} | " + " | ".join(cell(p, s) for s in SOLVERS) + " |" for p in PAPER_PROBLEMS]
+
+    out = ["# Table 1 analogue (paper 002): final mean RMSE [m] / RMS cost [m²]", ""]
+    out += block(lambda p, s: f"{_final(table, p, s, 'rmse_m'):.3f} / {_final(table, p, s, 'rms_cost'):.3g}")
+    out += ["", "Messages / bytes per instance:", ""]
+    out += block(lambda p, s: f"{int(_final(table, p, s, 'messages'))} / {int(_final(table, p, s, 'bytes'))}")
     return "\n".join(out) + "\n"
 
 

@@ -17,6 +17,10 @@ with :func:`format_description` (a string; the command writes it atomically). Th
     rounds = 200
     protocol = "MH"            # consensus weights (P1..P4, MH)
     patience = 20              # consensus_flows: rounds of silence after which a neighbour's flow is dropped
+    # name = "admm": rho = 1.0, max_iterations = 1000, tol = 1e-10, constraint_nodes = "min_cover",
+    #   messages = "pairs" (paper 000 Fig. 6 on each node's observation block, data = node-ID.npz)
+    # name = "ckf": rounds = 4 (k_n), protocol = "P3" (paper 003 Fig. 6 on each node's normals, data = node-ID.npz)
+    # name = "uwb": solver = "N-CLM", iterations = 200 (paper 002 on each anchor's own ranges, data = node-ID.npz)
 
     [[node]]
     id = 0
@@ -26,7 +30,7 @@ with :func:`format_description` (a string; the command writes it atomically). Th
     public_key = "…40 Z85 characters…"      # with security = "curve"
     secret_key = "keys/node-0.key_secret"   # this node's secret key file (needed only on its own host)
 
-    [faults]                   # for tests and demos: node 3 crashes (exits at once) at round 20,
+    [faults]                   # for tests and demos: node 3 crashes (exits at once) at round 20 (admm/ckf/uwb: step),
     crash = [{ node = 3, round = 20 }]     # add restart_after_s = 2 to restart it (it rejoins)
     drop_probability = 0.1     # each message dropped (the simulator's seeded FaultSchedule: the same drops)
     seed = 0
@@ -60,7 +64,7 @@ __all__ = [
 ]
 
 FORMAT_VERSION = 1
-ALGORITHMS = ("consensus", "consensus_flows")
+ALGORITHMS = ("consensus", "consensus_flows", "admm", "ckf", "uwb")
 _SECURITY = ("none", "curve")
 _Z85_KEY_LEN = 40
 
@@ -232,16 +236,47 @@ def _algorithm(table: dict[str, Any], where: str) -> dict[str, Any]:
     name = _get(table, "name", str, where, "consensus")
     if name not in ALGORITHMS:
         raise _fail(where, f"key 'name': unknown algorithm {name!r}; choose one of {list(ALGORITHMS)}")
-    rounds = _get(table, "rounds", int, where, 200)
-    if rounds < 1:
-        raise _fail(where, f"key 'rounds' must be >= 1, got {rounds}")
-    protocol = _get(table, "protocol", str, where, "MH")
-    if protocol not in ("P1", "P2", "P3", "P4", "MH"):
-        raise _fail(where, f"key 'protocol' must be one of P1, P2, P3, P4, MH, got {protocol!r}")
-    patience = _get(table, "patience", int, where, 20)
-    if patience < 1:
-        raise _fail(where, f"key 'patience' must be >= 1, got {patience}")
-    return {"name": name, "rounds": rounds, "protocol": protocol, "patience": patience}
+    allowed = {"name", *_SETTINGS[name]}
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise _fail(where, f"keys {unknown} mean nothing to {name!r} (its keys: {sorted(allowed)})")
+    out: dict[str, Any] = {"name": name}
+    for key, (kind, default, check, rule) in _SETTINGS[name].items():
+        value = _get(table, key, kind, where, default)
+        if not check(value):
+            raise _fail(where, f"key '{key}' must be {rule}, got {value!r}")
+        out[key] = float(value) if kind == (int, float) else value
+    return out
+
+
+_PROTOCOLS = ("P1", "P2", "P3", "P4", "MH")
+_UWB_SOLVERS = ("N-CLM", "N-CSG", "N-CSG-BLS", "N-CSG-TBLS", "CSG")
+_ROUNDS = (int, 200, lambda v: v >= 1, ">= 1")
+_CONSENSUS = {
+    "rounds": _ROUNDS,
+    "protocol": (str, "MH", lambda v: v in _PROTOCOLS, "one of P1, P2, P3, P4, MH"),
+    "patience": (int, 20, lambda v: v >= 1, ">= 1"),
+}
+#: every algorithm's keys: (type, default, check, the rule in words)
+_SETTINGS: dict[str, dict[str, tuple[Any, Any, Any, str]]] = {
+    "consensus": _CONSENSUS,
+    "consensus_flows": _CONSENSUS,
+    "admm": {
+        "rho": ((int, float), 1.0, lambda v: v > 0, "> 0 (the ADMM weight ρ, W = ρ I)"),
+        "max_iterations": (int, 1000, lambda v: v >= 1, ">= 1"),
+        "tol": ((int, float), 1e-10, lambda v: v >= 0, ">= 0"),
+        "constraint_nodes": (str, "min_cover", lambda v: v in ("min_cover", "all"), "'min_cover' or 'all'"),
+        "messages": (str, "pairs", lambda v: v in ("pairs", "ternary"), "'pairs' or 'ternary'"),
+    },
+    "uwb": {
+        "solver": (str, "N-CLM", lambda v: v in _UWB_SOLVERS, f"one of {list(_UWB_SOLVERS)}"),
+        "iterations": (int, 200, lambda v: v >= 1, ">= 1"),
+    },
+    "ckf": {
+        "rounds": (int, 4, lambda v: v >= 1, ">= 1 (k_n, consensus rounds per epoch)"),
+        "protocol": (str, "P3", lambda v: v in _PROTOCOLS, "one of P1, P2, P3, P4, MH"),
+    },
+}
 
 
 def _node(t: Any, k: int, n: int, base: Path, where: str, security: str) -> NodeEntry:
@@ -378,6 +413,8 @@ def read_node_values(path: Path, node_id: int) -> np.ndarray:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise DataFileError(f"{path}: node {node_id}: cannot read its data file ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise DataFileError(f"{path}: node {node_id}: not a text file of numbers (consensus reads text)") from None
     tokens = [
         (line_no, tok)
         for line_no, line in enumerate(text.splitlines(), 1)

@@ -163,8 +163,8 @@ def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator, *
     pos = rng.uniform(0.0, opt.size, size=(n, opt.dim))
     from scipy.spatial import cKDTree  # lazy: scipy.spatial is a third of the import time of the MPI path
 
-    pairs = cKDTree(pos).query_pairs(float(radius), output_type="ndarray")
-    return Graph.from_links(n, pairs, positions=pos, self_loops=opt.self_loops)
+    pairs = [cKDTree(pos).query_pairs(float(radius), output_type="ndarray")]  # i < j, each pair once
+    return Graph._from_link_pairs(n, pairs, positions=pos, self_loops=opt.self_loops)
 
 
 def connected_random_geometric(
@@ -271,7 +271,7 @@ def random_geometric_part(
     """
     from scipy.spatial import cKDTree
 
-    from distnav.network.graph_part import GraphPart, ascending_unique
+    from distnav.network.graph_part import GraphPart, ascending_unique, edge_starts_from_degrees
 
     n = _need(n_nodes, 1, "a random geometric graph")
     if not radius > 0:
@@ -317,4 +317,5 @@ def random_geometric_part(
     r_halo, s_halo = ball_pairs(halo)
     rows, nbr = np.concatenate([r_own, r_halo]), np.concatenate([s_own, s_halo])
     del r_own, s_own, r_halo, s_halo
-    return GraphPart.from_neighbours(n, own, degree, rows, nbr, self_loops=opt.self_loops)
+    start = edge_starts_from_degrees(degree, self_loops=opt.self_loops)
+    return GraphPart.from_neighbours(n, own, rows, nbr, start, self_loops=opt.self_loops)

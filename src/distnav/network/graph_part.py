@@ -6,14 +6,16 @@ foreign senders). Global edge ids are those of the whole :class:`~distnav.networ
 ``(dst, src)``), so the seeded fault schedule drops the same messages as on the whole graph and an exchange built
 on parts gives results bitwise equal to one built on the whole graph.
 
-Memory is proportional to the owned nodes' links plus a few per-node arrays of the whole network (the owner of each
-node, and for the geometric builder the positions and the degree count); see docs/scale.md for bytes per node and
-per link. Build a part with :meth:`GraphPart.from_graph` (tests, small graphs) or a builder that never makes the
-whole edge list (:func:`distnav.network.builders.random_geometric_part`).
+Memory is proportional to the owned nodes' links and their halo's. Build a part with :meth:`GraphPart.from_graph`
+(tests, small graphs), with a builder that holds no array over the whole network
+(:mod:`distnav.network.part_builders`: ring, grid, tiled random geometric), or with one that never makes the whole
+edge list but draws every position (:func:`distnav.network.builders.random_geometric_part`); see docs/scale.md for
+bytes per node and per link.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,7 +24,10 @@ import numpy as np
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
 
-__all__ = ["GraphPart", "ascending_unique", "incoming_positions"]
+__all__ = ["EdgeStart", "GraphPart", "ascending_unique", "edge_starts_from_degrees", "incoming_positions"]
+
+EdgeStart = Callable[[np.ndarray], np.ndarray]
+"""Node ids → global id of each node's first incoming edge (id ``n_nodes`` → the edge count)."""
 
 
 def incoming_positions(ptr: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -91,12 +96,30 @@ class GraphPart:
             for f in ("nodes", "in_ptr", "src", "edge_ids", "out_edge_ids", "degree", "halo", "halo_degree")
         )
 
+    @property
+    def is_range(self) -> bool:
+        """Whether the owned nodes are a range of ids (then their in-edges' ids are a range too)."""
+        return self.n_local > 0 and int(self.nodes[-1]) - int(self.nodes[0]) + 1 == self.n_local
+
+    def owned_positions(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position in :attr:`nodes` of each id (clipped into range where not owned) and whether it is owned: by a
+        subtraction when the owned nodes are a range of ids, else by binary search."""
+        ids = np.asarray(ids, np.int64)
+        if self.n_local == 0:
+            return np.zeros(ids.size, np.int64), np.zeros(ids.size, bool)
+        if self.is_range:
+            k = ids - int(self.nodes[0])
+            own = (k >= 0) & (k < self.n_local)
+            np.clip(k, 0, self.n_local - 1, out=k)
+            return k, own
+        k = np.minimum(np.searchsorted(self.nodes, ids), self.n_local - 1)
+        return k, self.nodes[k] == ids
+
     def sender_degree(self) -> np.ndarray:
         """Degree of the sender of each incoming edge (owned or halo)."""
         src = self.src
         out = np.empty(src.size, np.int64)
-        k = np.minimum(np.searchsorted(self.nodes, src), max(self.nodes.size - 1, 0))
-        own = self.nodes[k] == src if self.nodes.size else np.zeros(src.size, bool)
+        k, own = self.owned_positions(src)
         out[own] = self.degree[k[own]]
         if (~own).any():
             out[~own] = self.halo_degree[np.searchsorted(self.halo, src[~own])]
@@ -138,88 +161,55 @@ class GraphPart:
         cls,
         n_nodes: int,
         nodes: np.ndarray,
-        degree_all: np.ndarray,
         rows: np.ndarray,
         nbr: np.ndarray,
+        edge_start: EdgeStart,
         *,
         self_loops: bool = False,
     ) -> GraphPart:
-        """Assemble a part from neighbour lists without the whole edge list.
+        """Assemble a part from neighbour lists, without the whole edge list or any array over the whole graph.
 
-        ``degree_all``: the degree of every node of the whole graph (self excluded); ``(rows, nbr)``: every link
-        ``rows[k]–nbr[k]`` (both directions listed) for every row node that is owned *or* a neighbour of an owned
-        node (the halo's own neighbour lists give the ids of the owned nodes' outgoing edges). The global edge ids
-        follow from the degrees: the edges into ``u`` start at ``Σ_{v<u} (deg v + self)`` and are ordered by
-        sender, the self-loop at its place.
+        ``(rows, nbr)``: every link ``rows[k]–nbr[k]`` (both directions listed) for every row node that is owned
+        *or* a neighbour of an owned node (the halo's own neighbour lists give the ids of the owned nodes' outgoing
+        edges and the halo's degrees). ``edge_start(ids)``: the global id of the first incoming edge of each node
+        of ``ids`` (owned nodes, the node after each owned node, and halo nodes; id ``n_nodes`` gives the edge
+        count) — the edges into ``u`` start at ``Σ_{v<u} (deg v + self)`` and are ordered by sender, the self-loop
+        at its place. Builders with a closed form give it directly (:mod:`~distnav.network.part_builders`);
+        :func:`edge_starts_from_degrees` makes one from every node's degree.
         """
         n = int(n_nodes)
         own = ascending_unique(nodes)
-        deg = np.asarray(degree_all, dtype=np.int64)
-        if deg.shape != (n,):
-            raise GraphError(f"graph part: degree_all needs {n} entries, got shape {deg.shape}")
-        loop = 1 if self_loops else 0
-        row_len = deg + loop
-        start = np.zeros(n + 1, np.int64)
-        np.cumsum(row_len, out=start[1:])
-        r, s = np.asarray(rows, np.int64), np.asarray(nbr, np.int64)
-        if loop:  # every row node's self-loop, at its place in the sender order
-            uniq = np.union1d(r, own)
-            r, s = np.concatenate([r, uniq]), np.concatenate([s, uniq])
-        key = r * n
-        key += s
-        del r, s
-        key.sort()  # rows ascending, senders ascending within a row: the whole graph's edge order
-        if key.size > 1 and bool((key[1:] == key[:-1]).any()):
-            raise GraphError("graph part: a link is listed twice in the neighbour lists")
-        # the owned rows, in order
-        lo = np.searchsorted(key, own * n)
-        hi = np.searchsorted(key, own * n + n)
+        key = _sorted_link_keys(n, own, rows, nbr, self_loops)
+        lo, hi = np.searchsorted(key, own * n), np.searchsorted(key, own * n + n)
         counts = hi - lo
-        if not bool((counts == row_len[own]).all()):
-            bad = int(own[np.flatnonzero(counts != row_len[own])[0]])
-            raise GraphError(
-                f"graph part: node {bad} has {int(counts[own == bad][0])} entries in the neighbour lists, "
-                f"its degree is {int(deg[bad])}"
-            )
+        own_start = np.asarray(edge_start(own), np.int64)
+        _check_row_lengths(own, counts, np.asarray(edge_start(own + 1), np.int64) - own_start)
+        n_edges = int(np.asarray(edge_start(np.array([n], np.int64)))[0])
         in_ptr = np.zeros(own.size + 1, np.int64)
         np.cumsum(counts, out=in_ptr[1:])
         pos = _ranges(lo, hi)
         # a row's k-th entry is the edge start[row] + k (the edges into a node are ordered by sender)
-        idx = _index_dtype(int(start[-1]), n)
-        edge_ids = (pos + np.repeat(start[own] - lo, counts)).astype(idx)
+        idx = _index_dtype(n_edges, n)
+        edge_ids = (pos + np.repeat(own_start - lo, counts)).astype(idx)
         src = (key[pos] % n).astype(idx)
         del pos
-        want = src * np.int64(n)  # the reverse edge dst → src is entry dst of row src
-        want += np.repeat(own, counts)
-        # looked up in ascending order (a random-order binary search over the keys is ~20× slower at 10⁶ nodes)
-        order = np.argsort(want)
-        want = want[order]
-        rev = np.searchsorted(key, want)
-        ok = rev < key.size
-        ok[ok] = key[rev[ok]] == want[ok]
-        if not bool(ok.all()):
-            raise GraphError("graph part: a halo node's neighbour list is missing")
-        del ok
-        want //= n  # the rows (senders), ascending
-        rev -= np.searchsorted(key, want * n)  # position within the row
-        rev += start[want]
-        out_edge_ids = np.empty(src.size, idx)
-        out_edge_ids[order] = rev
-        del rev, want, order, key
+        out_edge_ids = _reverse_edge_ids(key, n, own, src, counts, edge_start)
         k = np.minimum(np.searchsorted(own, src), max(own.size - 1, 0))
         halo = np.unique(src[own[k] != src]).astype(np.int64) if own.size else np.zeros(0, np.int64)
         del k
+        loop = 1 if self_loops else 0
+        halo_len = np.searchsorted(key, halo * n + n) - np.searchsorted(key, halo * n)
         return cls(
             n_nodes=n,
-            n_edges=int(start[-1]),
+            n_edges=n_edges,
             nodes=own,
             in_ptr=in_ptr,
             src=src,
             edge_ids=edge_ids,
-            out_edge_ids=out_edge_ids,
-            degree=deg[own].astype(idx),
+            out_edge_ids=out_edge_ids.astype(idx),
+            degree=(counts - loop).astype(idx),
             halo=halo,
-            halo_degree=deg[halo].astype(idx),
+            halo_degree=(halo_len - loop).astype(idx),
             self_loops=bool(self_loops),
         )
 
@@ -228,6 +218,75 @@ class GraphPart:
             f"GraphPart(n_nodes={self.n_nodes}, owned={self.n_local}, in_edges={self.n_local_edges}, "
             f"halo={self.halo.size})"
         )
+
+
+def edge_starts_from_degrees(degree_all: np.ndarray, *, self_loops: bool = False) -> EdgeStart:
+    """``edge_start`` for :meth:`GraphPart.from_neighbours` from the degree of every node (self excluded): an
+    array over the whole graph, for builders that hold one anyway (:func:`~distnav.network.builders.
+    random_geometric_part`) and for tests."""
+    deg = np.asarray(degree_all, dtype=np.int64)
+    start = np.zeros(deg.size + 1, np.int64)
+    np.cumsum(deg + (1 if self_loops else 0), out=start[1:])
+    return lambda ids: start[np.asarray(ids, np.int64)]
+
+
+def _sorted_link_keys(n: int, own: np.ndarray, rows: np.ndarray, nbr: np.ndarray, self_loops: bool) -> np.ndarray:
+    """``row * n + neighbour`` of every listed link (with each row node's self-loop when the graph has them),
+    sorted: rows ascending, senders ascending within a row — the whole graph's edge order."""
+    r, s = np.asarray(rows, np.int64), np.asarray(nbr, np.int64)
+    if self_loops:  # every row node's self-loop, at its place in the sender order
+        uniq = np.union1d(r, own)
+        r, s = np.concatenate([r, uniq]), np.concatenate([s, uniq])
+    key = r * n
+    key += s
+    del r, s
+    key.sort()
+    if key.size > 1 and bool((key[1:] == key[:-1]).any()):
+        raise GraphError("graph part: a link is listed twice in the neighbour lists")
+    return key
+
+
+def _check_row_lengths(own: np.ndarray, counts: np.ndarray, expected: np.ndarray) -> None:
+    """Every owned node's list is as long as its edge range says (its degree, plus its self-loop)."""
+    if not bool((counts == expected).all()):
+        k = int(np.flatnonzero(counts != expected)[0])
+        raise GraphError(
+            f"graph part: node {int(own[k])} has {int(counts[k])} entries in the neighbour lists, "
+            f"its edge range holds {int(expected[k])}"
+        )
+
+
+def _reverse_edge_ids(
+    key: np.ndarray, n: int, own: np.ndarray, src: np.ndarray, counts: np.ndarray, edge_start: EdgeStart
+) -> np.ndarray:
+    """Global id of the reverse of every incoming edge: the edge ``dst → src`` is entry ``dst`` of row ``src``."""
+    want = src * np.int64(n)
+    want += np.repeat(own, counts)
+    order = np.argsort(want)
+    want = want[order]
+    # the reverse edges are exactly the listed entries whose neighbour is owned, and in key order they come in
+    # the order of the sorted ``want``: their positions, no search (checked entry by entry)
+    nbr = key % n
+    if own.size and int(own[-1]) - int(own[0]) + 1 == own.size:
+        nbr_owned = (nbr >= own[0]) & (nbr <= own[-1])
+    else:
+        at = np.minimum(np.searchsorted(own, nbr), max(own.size - 1, 0))
+        nbr_owned = own[at] == nbr if own.size else np.zeros(nbr.size, bool)
+        del at
+    del nbr
+    rev = np.flatnonzero(nbr_owned)
+    del nbr_owned
+    if rev.size != want.size or not np.array_equal(key[rev], want):
+        raise GraphError("graph part: a halo node's neighbour list is missing")
+    want //= n  # the rows (senders), ascending: each row's start looked up once, not once per entry
+    first = np.flatnonzero(np.diff(want, prepend=-1))
+    row = want[first]
+    counts_row = np.diff(np.append(first, want.size))
+    del want
+    rev -= np.repeat(np.searchsorted(key, row * n) - np.asarray(edge_start(row), np.int64), counts_row)
+    out = np.empty(src.size, np.int64)
+    out[order] = rev
+    return out
 
 
 def ascending_unique(values: np.ndarray) -> np.ndarray:

@@ -37,6 +37,9 @@ if TYPE_CHECKING:
 
 __all__ = [
     "LOCALITY_MIN_NODES",
+    "NodeRanges",
+    "block_ranges",
+    "owner_map",
     "locality_order",
     "partition_nodes",
     "rcm_order",
@@ -46,6 +49,68 @@ __all__ = [
 
 LOCALITY_MIN_NODES = 10_000
 """From this many nodes on, ``order="auto"`` renumbers by RCM."""
+
+
+class NodeRanges:
+    """A partition into contiguous ranges of node ids: rank ``r`` owns ``bounds[r]:bounds[r+1]``.
+
+    Held as ``ranks + 1`` numbers, not one rank per node: what an exchange built from a graph part uses for
+    ``partition="block"`` (or a ``NodeRanges`` given directly, e.g. uneven ranges), so no rank holds an array over the
+    whole network. ``ranges[ids]`` gives the owner of each id, as an owner array would.
+    """
+
+    def __init__(self, bounds: np.ndarray | list[int]) -> None:
+        b = np.asarray(bounds, dtype=np.int64)
+        if b.ndim != 1 or b.size < 2 or b[0] != 0 or bool((np.diff(b) <= 0).any()):
+            raise ExchangeError(
+                "node ranges need ascending bounds 0 = b_0 < b_1 < … < b_ranks = n_nodes (every rank holds a node)"
+            )
+        self.bounds = b
+        self.bounds.setflags(write=False)
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.bounds[-1])
+
+    @property
+    def n_ranks(self) -> int:
+        return int(self.bounds.size - 1)
+
+    def __getitem__(self, ids: np.ndarray) -> np.ndarray:
+        """Owner rank of each id."""
+        return np.asarray(np.searchsorted(self.bounds, np.asarray(ids, np.int64), side="right") - 1)
+
+    def nodes_of(self, rank: int) -> np.ndarray:
+        """The ids rank ``rank`` owns, ascending."""
+        return np.arange(self.bounds[rank], self.bounds[rank + 1], dtype=np.int64)
+
+    def __repr__(self) -> str:
+        return f"NodeRanges(n_nodes={self.n_nodes}, ranks={self.n_ranks})"
+
+
+def block_ranges(n_nodes: int, n_ranks: int) -> NodeRanges:
+    """The ``"block"`` partition as ranges: node ``u`` on rank ``⌊u·ranks/n⌋`` (as :func:`partition_nodes`)."""
+    if n_ranks > n_nodes:
+        raise ExchangeError(f"{n_ranks} ranks for {n_nodes} nodes: some ranks would hold no node")
+    r = np.arange(n_ranks + 1, dtype=np.int64)
+    return NodeRanges(-((-r * n_nodes) // n_ranks))  # the first u with u·ranks ≥ r·n
+
+
+def owner_map(
+    graph: Graph | GraphPart, n_ranks: int, method: str | np.ndarray | NodeRanges | os.PathLike[str]
+) -> np.ndarray | NodeRanges:
+    """Who owns each node, as compact as the partition allows: :class:`NodeRanges` for ``"block"`` and for given
+    ranges, else the owner array of :func:`partition_nodes`."""
+    if isinstance(method, NodeRanges):
+        if method.n_nodes != graph.n_nodes or method.n_ranks != n_ranks:
+            raise ExchangeError(
+                f"node ranges for {method.n_nodes} nodes on {method.n_ranks} ranks; the run has "
+                f"{graph.n_nodes} nodes on {n_ranks} ranks"
+            )
+        return method
+    if isinstance(method, str) and method == "block":
+        return block_ranges(graph.n_nodes, n_ranks)
+    return partition_nodes(graph, n_ranks, method)
 
 
 def rcm_order(graph: Graph) -> np.ndarray:
@@ -160,11 +225,13 @@ def read_partition(path: str | os.PathLike[str], n_nodes: int, n_ranks: int) -> 
 
 
 def partition_nodes(
-    graph: Graph | GraphPart, n_ranks: int, method: str | np.ndarray | os.PathLike[str] = "rcm"
+    graph: Graph | GraphPart, n_ranks: int, method: str | np.ndarray | NodeRanges | os.PathLike[str] = "rcm"
 ) -> np.ndarray:
-    """Rank owning each node: ``"rcm"``, ``"block"``, ``"node"``, an explicit owner array or a partition file
-    (see module doc)."""
+    """Rank owning each node: ``"rcm"``, ``"block"``, ``"node"``, an explicit owner array, node ranges or a
+    partition file (see module doc)."""
     n = graph.n_nodes
+    if isinstance(method, NodeRanges):
+        return owner_map(graph, n_ranks, method)[np.arange(n)]
     if isinstance(method, os.PathLike) or (
         isinstance(method, str) and method not in ("rcm", "block", "node") and ("/" in method or "." in method)
     ):

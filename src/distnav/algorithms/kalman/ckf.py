@@ -27,10 +27,9 @@ along in the consensus payload (paid for in bytes) so that Fig. 7 uses the produ
 
 from __future__ import annotations
 
-import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal, TypedDict, Unpack
 
 import numpy as np
 
@@ -44,8 +43,8 @@ from distnav.algorithms.kalman import (
     check_model,
     masked_std,
     pseudo_inverse_psd,
-    std_ratio,
 )
+from distnav.algorithms.kalman.ckf_design import alpha_factor, ckf_error_variance, ckf_std_ratio, consensus_rounds
 from distnav.algorithms.kalman.ckf_qc import (
     InnovationCollector,
     NodeEpochTest,
@@ -53,15 +52,18 @@ from distnav.algorithms.kalman.ckf_qc import (
     local_extra_bound,
     local_extra_exact,
 )
+from distnav.algorithms.kalman.relay import RelayPlan, relay_setup, relayed_payload
 from distnav.algorithms.result import Precision, TraceBuilder
 from distnav.algorithms.statistics import critical_value
-from distnav.errors import ModelError, WeightsError
-from distnav.exchange import Exchange, make_exchange
+from distnav.errors import ModelError
+from distnav.exchange import Exchange, Mixer, make_exchange
 from distnav.exchange.core import CommTotals
 from distnav.network.graph import Graph, SwitchingGraph
 from distnav.network.weights import ConsensusWeights
-from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
+from distnav.typing import BoolArray, FloatArray, IntArray
 
+Transport = Literal["matrices", "relay"]
+"""How the CKF's consensus travels: the mixed matrices every round, or the raw records (:mod:`.relay`)."""
 LocalPrecision = Literal["exact", "bound"]
 """Node-local form of the Fig. 7 variance (:mod:`distnav.algorithms.kalman.ckf_qc`)."""
 ConsensusProtocol = str | int | ConsensusWeights | Sequence[ConsensusWeights]
@@ -70,39 +72,14 @@ ConsensusProtocol = str | int | ConsensusWeights | Sequence[ConsensusWeights]
 __all__ = [
     "consensus_rounds",
     "alpha_factor",
+    "CKFOptions",
+    "CKFRunOptions",
     "CKFState",
     "iterate_ckf",
     "ckf",
     "ckf_error_variance",
     "ckf_std_ratio",
 ]
-
-
-def consensus_rounds(sampling_interval_s: float, sending_interval_s: float) -> int:
-    """``k_n = ⌊Δ/δ⌋``: consensus rounds that fit in one sampling interval (paper 003 §4.1, Fig. 5).
-
-    Δ = 60 s with δ = 15, 10, 5 s gives 4, 6, 12 (paper 003 §5.2).
-    """
-    D, d = float(sampling_interval_s), float(sending_interval_s)
-    if not (math.isfinite(D) and D > 0):
-        raise ModelError(f"sampling interval Δ must be positive, got {sampling_interval_s} s")
-    if not (math.isfinite(d) and d > 0):
-        raise ModelError(f"sending interval δ must be positive, got {sending_interval_s} s")
-    if d > D:
-        raise ModelError(
-            f"sending interval δ = {d} s exceeds the sampling interval Δ = {D} s: no consensus round "
-            f"fits in an epoch (the CKF needs δ ≤ Δ, paper 003 §4.1)"
-        )
-    return int(math.floor(D / d + 1e-9))
-
-
-def alpha_factor(product: ArrayLike) -> FloatArray:
-    """``α_i = n Σ_j l_ij²`` per node (paper 003 eq. (46)); ``α_i ≥ 1`` with equality iff ``l_i = e/n`` (eq. (48))."""
-    L = np.asarray(product, dtype=float)
-    if L.ndim != 2 or L.shape[0] != L.shape[1]:
-        raise WeightsError(f"product matrix must be square, got shape {L.shape}")
-    alpha: FloatArray = L.shape[0] * (L**2).sum(axis=1)
-    return alpha
 
 
 def _resolve_rounds(rounds: int | None, sampling_interval_s: float | None, sending_interval_s: float | None) -> int:
@@ -167,122 +144,268 @@ class CKFState:
     tests: tuple[NodeEpochTest | None, ...] = ()
 
 
+class CKFOptions(TypedDict, total=False):
+    """Keyword options of :func:`iterate_ckf` (default in brackets), validated before the first epoch.
+
+    ``protocol`` [``"P3"``]: a Table 1 name or number, one :class:`ConsensusWeights` or one per session.
+    ``rounds`` (= k_n) or both time scales ``sampling_interval_s`` (Δ) and ``sending_interval_s`` (δ), k_n = ⌊Δ/δ⌋.
+    ``variance`` [True]: the error-variance recursion of Fig. 7 alongside. ``monitor`` [True]: the consensus deviation
+    from the exact averages (a global reduction: monitoring only). ``local_precision`` [None]: ``"exact"`` or
+    ``"bound"`` node-local Fig. 7 (:mod:`distnav.algorithms.kalman.ckf_qc`). ``test_level`` [None]: innovation tests at
+    that level (needs ``local_precision`` and raw observations). ``transport`` [``"matrices"``]: or ``"relay"``
+    (:mod:`distnav.algorithms.kalman.relay`).
+    """
+
+    protocol: ConsensusProtocol
+    rounds: int | None
+    sampling_interval_s: float | None
+    sending_interval_s: float | None
+    variance: bool
+    monitor: bool
+    local_precision: LocalPrecision | None
+    test_level: float | None
+    transport: Transport
+
+
+class CKFRunOptions(CKFOptions, total=False):
+    """:class:`CKFOptions` plus ``store_matrices`` [False] of :func:`ckf`: keep ``P_i,t|t`` and ``I_i,t|t`` of every
+    epoch in the series."""
+
+    store_matrices: bool
+
+
+def _check_options(options: Mapping[str, Any], allowed: frozenset[str]) -> None:
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise ModelError(f"unknown CKF option(s) {', '.join(unknown)}; expected {', '.join(sorted(allowed))}")
+
+
+@dataclass(frozen=True, eq=False)
+class _CKFSetup:
+    """Everything :func:`iterate_ckf` fixes before the first epoch (validated options, mixers, index maps)."""
+
+    ex: Exchange
+    kn: int
+    mixers: list[Mixer]
+    p: int
+    up: IntArray  # flat indices of the upper triangle of a p×p matrix
+    lo: IntArray  # and of its mirror
+    variance: bool
+    monitor: bool
+    local_precision: LocalPrecision | None
+    critical: float | None
+    track_L: bool
+    L2_nominal: FloatArray | None
+    relay: tuple[RelayPlan, FloatArray] | None
+    n_err: int
+
+    @property
+    def n_tri(self) -> int:
+        return int(self.up.size)
+
+
+def _prepare_ckf(
+    measurements: MeasurementSeries,
+    graph: Graph | SwitchingGraph | None,
+    exchange: Exchange | None,
+    schedule: ConsensusSchedule | None,
+    options: CKFOptions,
+) -> _CKFSetup:
+    """Validate the options and build the mixers, the relay plan and the nominal ``L`` rows of this block."""
+    kn = _resolve_rounds(options.get("rounds"), options.get("sampling_interval_s"), options.get("sending_interval_s"))
+    n = measurements.n_nodes
+    sched = _schedule(graph, options.get("protocol", "P3"), schedule, n)
+    ex = exchange if exchange is not None else make_exchange(sched.graph)
+    if ex.graph.n_edges != sched.graph.n_edges or ex.graph.n_nodes != n:
+        raise ModelError("the exchange was built on a different graph than the consensus schedule")
+    variance = bool(options.get("variance", True))
+    local_precision = options.get("local_precision")
+    if local_precision not in (None, "exact", "bound"):
+        raise ModelError(f"local_precision must be 'exact', 'bound' or None, got {local_precision!r}")
+    test_level = options.get("test_level")
+    critical = _critical_level(measurements, local_precision, test_level)
+    transport = options.get("transport", "matrices")
+    if transport not in ("matrices", "relay"):
+        raise ModelError(f"transport must be 'matrices' or 'relay', got {transport!r}")
+    relay = relay_setup(sched, ex, kn) if transport == "relay" else None
+    mixers = (
+        [] if relay is not None else [ex.mixer(w, active=a) for w, a in zip(sched.weights, sched.active, strict=True)]
+    )
+    L_nominal = consensus_product(sched, kn) if (variance and not ex.faults.active) else None
+    iu = _triu(measurements.n_states)
+    p = measurements.n_states
+    return _CKFSetup(
+        ex=ex,
+        kn=kn,
+        mixers=mixers,
+        p=p,
+        up=iu[0] * p + iu[1],
+        lo=iu[1] * p + iu[0],
+        variance=variance,
+        monitor=bool(options.get("monitor", True)),
+        local_precision=local_precision,
+        critical=critical,
+        track_L=(variance and ex.faults.active) or local_precision is not None,
+        L2_nominal=L_nominal[ex.nodes] ** 2 if L_nominal is not None else None,  # once, not every epoch
+        relay=relay,
+        n_err=int(variance) + int(local_precision is not None),
+    )
+
+
+def _critical_level(
+    measurements: MeasurementSeries, local_precision: LocalPrecision | None, test_level: float | None
+) -> float | None:
+    """The innovation tests' critical value, or a :class:`ModelError` when they cannot run."""
+    if test_level is None:
+        return None
+    if local_precision is None:
+        raise ModelError(
+            "innovation tests need the node-local precision: give local_precision='exact' or 'bound' with test_level"
+        )
+    if type(measurements).observations is MeasurementSeries.observations:
+        raise ModelError(
+            f"innovation tests need the raw observations; {type(measurements).__name__} holds "
+            f"normal equations only (use an ObservationSeries)"
+        )
+    return critical_value(test_level)
+
+
 def iterate_ckf(
     dynamics: DynamicModel,
     measurements: MeasurementSeries,
     *,
     graph: Graph | SwitchingGraph | None = None,
-    protocol: ConsensusProtocol = "P3",
-    rounds: int | None = None,
-    sampling_interval_s: float | None = None,
-    sending_interval_s: float | None = None,
     exchange: Exchange | None = None,
     schedule: ConsensusSchedule | None = None,
-    variance: bool = True,
-    monitor: bool = True,
-    local_precision: LocalPrecision | None = None,
-    test_level: float | None = None,
+    **options: Unpack[CKFOptions],
 ) -> Iterator[CKFState]:
-    """Yield the CKF state (paper 003 Fig. 6) of this block's nodes after every epoch.
+    """Yield the CKF state (paper 003 Fig. 6) of this block's nodes after every epoch; options
+    :class:`CKFOptions`.
 
-    ``rounds`` (= k_n) or the two time scales ``sampling_interval_s`` (Δ) and ``sending_interval_s`` (δ).
-    ``variance`` runs the error-variance recursion of Fig. 7 alongside. ``monitor`` computes the consensus
-    deviation from the exact averages (a global reduction: monitoring only).
     Each consensus round sends one message per directed edge holding the upper triangle of ``N_i^(k)`` and
-    ``r_i^(k)`` (p(p+1)/2 + p floats).
+    ``r_i^(k)`` (p(p+1)/2 + p floats). ``local_precision`` ("exact" or "bound") runs the node-local form of Fig. 7
+    from the messages alone (:mod:`distnav.algorithms.kalman.ckf_qc`; it adds ``n (p(p+1)/2 + 1)`` resp. ``n``
+    floats to every message). ``test_level`` makes every node test its predicted residuals at that level and reject
+    outliers before they enter its consensus.
 
-    ``local_precision`` ("exact" or "bound") runs the node-local form of Fig. 7 from the messages alone
-    (:mod:`distnav.algorithms.kalman.ckf_qc`; it adds ``n (p(p+1)/2 + 1)`` resp. ``n`` floats to every message).
-    ``test_level`` (needs ``local_precision`` and raw observations) makes every node test its predicted residuals
-    at that level and reject outliers before they enter its consensus.
+    ``transport="relay"`` (static graph, no faults, a series with :meth:`~MeasurementSeries.records`): the same
+    ``k_n`` consensus rounds evaluated by every node from the raw observation records of the nodes within ``k_n``
+    hops, relayed hop by hop (20 B per record; :mod:`distnav.algorithms.kalman.relay`) instead of the mixed
+    matrices: the same filter (to the rounding of the sums) for far fewer bytes when a node's observations are
+    fewer than its normals' entries (issue 27). Node-local precision then costs no bytes (``l_i`` is static, the
+    ``N_j`` are rebuilt from the records); an observation an innovation test removed is not sent.
     """
+    _check_options(options, CKFOptions.__optional_keys__)
     check_model(dynamics, measurements)
-    kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
-    n = measurements.n_nodes
-    sched = _schedule(graph, protocol, schedule, n)
-    ex = exchange if exchange is not None else make_exchange(sched.graph)
-    if ex.graph.n_edges != sched.graph.n_edges or ex.graph.n_nodes != n:
-        raise ModelError("the exchange was built on a different graph than the consensus schedule")
-    mixers = [ex.mixer(w, active=a) for w, a in zip(sched.weights, sched.active, strict=True)]
-    p = measurements.n_states
-    iu = _triu(p)
-    n_tri = iu[0].size
-    nodes = ex.nodes
-    k_loc = nodes.size
-    if local_precision not in (None, "exact", "bound"):
-        raise ModelError(f"local_precision must be 'exact', 'bound' or None, got {local_precision!r}")
-    critical = None
-    if test_level is not None:
-        if local_precision is None:
-            raise ModelError(
-                "innovation tests need the node-local precision: give local_precision='exact' or "
-                "'bound' with test_level"
-            )
-        critical = critical_value(test_level)
-        if type(measurements).observations is MeasurementSeries.observations:
-            raise ModelError(
-                f"innovation tests need the raw observations; {type(measurements).__name__} holds "
-                f"normal equations only (use an ObservationSeries)"
-            )
-    track_L = (variance and ex.faults.active) or local_precision is not None
-    L_nominal = consensus_product(sched, kn) if (variance and not ex.faults.active) else None
-    L2_nominal = L_nominal[nodes] ** 2 if L_nominal is not None else None  # once, not every epoch
-    n_err = int(variance) + int(local_precision is not None)
-    ker = InformationKernel(k_loc, p, track_error=n_err > 0, n_errors=max(n_err, 1))
-    i_local = int(variance)  # index of the node-local variance in ker.Qs
-    up = iu[0] * p + iu[1]  # flat indices of the upper triangle and of its mirror
-    lo = iu[1] * p + iu[0]
+    s = _prepare_ckf(measurements, graph, exchange, schedule, options)
+    ex, nodes = s.ex, s.ex.nodes
+    ker = InformationKernel(nodes.size, s.p, track_error=s.n_err > 0, n_errors=max(s.n_err, 1))
+    i_local = int(s.variance)  # index of the node-local variance in ker.Qs
     for t in range(measurements.n_epochs):
         if t > 0:
             ker.time_update(dynamics, t)
         N, r = measurements.normals(t, nodes)
         tests: tuple[NodeEpochTest | None, ...] = ()
-        if critical is not None:
-            N, r, tests = _tested_normals(ker, measurements, t, nodes, N, r, i_local, critical)
-        tri = N.reshape(k_loc, p * p)[:, up]
-        parts = [tri, r]
-        if track_L:
-            parts.append(np.eye(n)[nodes])
-        if local_precision == "exact":
-            tagged = np.zeros((k_loc, n, n_tri))
-            tagged[np.arange(k_loc), nodes] = tri
-            parts.append(tagged.reshape(k_loc, n * n_tri))
-        payload = np.concatenate(parts, axis=1)
-        for k in range(kn):
-            payload = mixers[k % len(mixers)].apply(payload)
-        Nk = _symmetric(payload[:, :n_tri], up, lo, k_loc, p)
-        rk = payload[:, n_tri : n_tri + p]
-        extra = None
-        L_mixed = payload[:, n_tri + p : n_tri + p + n] if track_L else None
-        if variance:
-            if L_mixed is not None and ex.faults.active:
-                L2_rows = L_mixed**2
-            else:
-                assert L2_nominal is not None
-                L2_rows = L2_nominal
-            N_all = ex.gather_nodes(tri)  # analysis input of Fig. 7 (no node has it)
-            extra = _symmetric((n * n) * (L2_rows @ N_all), up, lo, k_loc, p)
-        if local_precision is None:
-            ker.measurement_update(Nk, rk, scale=float(n), extra_error=extra)
-        else:
-            assert L_mixed is not None
-            if local_precision == "exact":
-                E = local_extra_exact(L_mixed, payload[:, n_tri + p + n :].reshape(k_loc, n, n_tri))
-            else:
-                E = local_extra_bound(L_mixed, payload[:, :n_tri])
-            local_extra = _symmetric((n * n) * E, up, lo, k_loc, p)
-            ker.measurement_update(Nk, rk, scale=float(n), extra_errors=[extra, local_extra][-n_err:])
-        dev = 0.0
-        if monitor:
-            Nbar = ex.allreduce(N.sum(axis=0), "sum") / n
-            rbar = ex.allreduce(r.sum(axis=0), "sum") / n
-            loc = max(float(np.abs(Nk - Nbar).max(initial=0.0)), float(np.abs(rk - rbar).max(initial=0.0)))
-            dev = float(ex.allreduce(loc, "max"))
+        if s.critical is not None:
+            N, r, tests = _tested_normals(ker, measurements, t, nodes, N, r, i_local, s.critical)
+        tri = N.reshape(nodes.size, s.p * s.p)[:, s.up]
+        payload = _consensus(s, measurements, t, tri, r, tests)
+        Nk = _symmetric(payload[:, : s.n_tri], s.up, s.lo, nodes.size, s.p)
+        rk = payload[:, s.n_tri : s.n_tri + s.p]
+        _measurement_update(s, ker, payload, tri, Nk, rk)
+        dev = _consensus_deviation(ex, N, r, Nk, rk) if s.monitor else 0.0
         x, est, inv, P = ker.estimates()
-        if not variance:
-            P = None
-        P_local = ker.error_covariance(inv, i_local) if local_precision is not None else None
-        yield CKFState(t, nodes, ker.I, ker.i, x, est, P, inv, dev, P_local, tests)
+        P_local = ker.error_covariance(inv, i_local) if s.local_precision is not None else None
+        yield CKFState(t, nodes, ker.I, ker.i, x, est, P if s.variance else None, inv, dev, P_local, tests)
+
+
+def _consensus(
+    s: _CKFSetup,
+    measurements: MeasurementSeries,
+    t: int,
+    tri: FloatArray,
+    r: FloatArray,
+    tests: tuple[NodeEpochTest | None, ...],
+) -> FloatArray:
+    """The payload after the epoch's ``k_n`` rounds: ``[tri(N^(k_n)), r^(k_n)]``, then (when tracked) the rows of
+    ``L`` and, for the exact node-local precision, the tagged normals."""
+    if s.relay is not None:
+        return _relayed_consensus(s, measurements, t, tests)
+    nodes = s.ex.nodes
+    n, k_loc = measurements.n_nodes, nodes.size
+    parts = [tri, r]
+    if s.track_L:
+        parts.append(np.eye(n)[nodes])
+    if s.local_precision == "exact":
+        tagged = np.zeros((k_loc, n, s.n_tri))
+        tagged[np.arange(k_loc), nodes] = tri
+        parts.append(tagged.reshape(k_loc, n * s.n_tri))
+    payload = np.concatenate(parts, axis=1)
+    for k in range(s.kn):
+        payload = s.mixers[k % len(s.mixers)].apply(payload)
+    return payload
+
+
+def _measurement_update(
+    s: _CKFSetup, ker: InformationKernel, payload: FloatArray, tri: FloatArray, Nk: FloatArray, rk: FloatArray
+) -> None:
+    """Fig. 6's update with ``n N^(k_n)``, ``n r^(k_n)`` and Fig. 7's extra terms (gathered and/or node-local)."""
+    ex, n_tri, p = s.ex, s.n_tri, s.p
+    n, k_loc = ex.n_nodes, ex.nodes.size
+    extra = None
+    L_mixed = payload[:, n_tri + p : n_tri + p + n] if s.track_L else None
+    if s.variance:
+        if L_mixed is not None and ex.faults.active:
+            L2_rows = L_mixed**2
+        else:
+            assert s.L2_nominal is not None
+            L2_rows = s.L2_nominal
+        N_all = ex.gather_nodes(tri)  # analysis input of Fig. 7 (no node has it)
+        extra = _symmetric((n * n) * (L2_rows @ N_all), s.up, s.lo, k_loc, p)
+    if s.local_precision is None:
+        ker.measurement_update(Nk, rk, scale=float(n), extra_error=extra)
+        return
+    assert L_mixed is not None
+    if s.local_precision == "exact":
+        E = local_extra_exact(L_mixed, payload[:, n_tri + p + n :].reshape(k_loc, n, n_tri))
+    else:
+        E = local_extra_bound(L_mixed, payload[:, :n_tri])
+    local_extra = _symmetric((n * n) * E, s.up, s.lo, k_loc, p)
+    ker.measurement_update(Nk, rk, scale=float(n), extra_errors=[extra, local_extra][-s.n_err :])
+
+
+def _consensus_deviation(ex: Exchange, N: FloatArray, r: FloatArray, Nk: FloatArray, rk: FloatArray) -> float:
+    """``max |N_i^(k_n) − N̄|, |r_i^(k_n) − r̄|`` over the network (global reductions: monitoring only)."""
+    n = ex.n_nodes
+    Nbar = ex.allreduce(N.sum(axis=0), "sum") / n
+    rbar = ex.allreduce(r.sum(axis=0), "sum") / n
+    loc = max(float(np.abs(Nk - Nbar).max(initial=0.0)), float(np.abs(rk - rbar).max(initial=0.0)))
+    return float(ex.allreduce(loc, "max"))
+
+
+def _relayed_consensus(
+    s: _CKFSetup, measurements: MeasurementSeries, t: int, tests: tuple[NodeEpochTest | None, ...]
+) -> FloatArray:
+    """The matrix transport's payload from the relayed records (:func:`~distnav.algorithms.kalman.relay.
+    relayed_payload`); an observation an innovation test removed is not sent (its record's weight is 0)."""
+    assert s.relay is not None
+    plan, L_rows = s.relay
+    values, weights = measurements.records(t, s.ex.nodes)
+    for a, test in enumerate(tests):
+        if test is not None and test.removed:
+            weights[a, measurements.record_slots(t, s.ex.nodes[a : a + 1])[~test.keep]] = 0.0
+    return relayed_payload(
+        s.ex,
+        plan,
+        L_rows,
+        measurements,
+        t,
+        values,
+        weights,
+        s.up,
+        with_rows=s.track_L,
+        tagged=s.local_precision == "exact",
+    )
 
 
 def _tested_normals(
@@ -322,19 +445,11 @@ def ckf(
     measurements: MeasurementSeries,
     *,
     graph: Graph | SwitchingGraph | None = None,
-    protocol: ConsensusProtocol = "P3",
-    rounds: int | None = None,
-    sampling_interval_s: float | None = None,
-    sending_interval_s: float | None = None,
     exchange: Exchange | None = None,
     schedule: ConsensusSchedule | None = None,
-    variance: bool = True,
-    monitor: bool = True,
-    store_matrices: bool = False,
-    local_precision: LocalPrecision | None = None,
-    test_level: float | None = None,
+    **options: Unpack[CKFRunOptions],
 ) -> FilterResult:
-    """Run the CKF (paper 003 Fig. 6) over all epochs; see :func:`iterate_ckf` for the arguments.
+    """Run the CKF (paper 003 Fig. 6) over all epochs; options :class:`CKFRunOptions` (see :func:`iterate_ckf`).
 
     Returns a :class:`FilterResult` (``mode="ckf"``): ``estimates`` = last-epoch ``x̂_i,t|t`` (n×p),
     ``iterations`` = epochs, ``comm`` = message/byte totals of all consensus rounds, ``series``
@@ -350,61 +465,30 @@ def ckf(
     ``variance=False``. Per-node results are in the user's node order at every size (without ``exchange`` the run
     keeps the locality order ``"auto"`` inside and gathers back; docs/scale.md).
     """
-    kn = _resolve_rounds(rounds, sampling_interval_s, sending_interval_s)
+    _check_options(options, CKFRunOptions.__optional_keys__)
+    run: CKFOptions = {k: v for k, v in options.items() if k != "store_matrices"}  # type: ignore[assignment]
+    kn = _resolve_rounds(options.get("rounds"), options.get("sampling_interval_s"), options.get("sending_interval_s"))
+    run["rounds"], run["sampling_interval_s"], run["sending_interval_s"] = kn, None, None
     n = measurements.n_nodes
-    sched = _schedule(graph, protocol, schedule, n)
+    sched = _schedule(graph, options.get("protocol", "P3"), schedule, n)
     ex = exchange if exchange is not None else make_exchange(sched.graph, order="auto")  # results gathered
-    xs: list[FloatArray] = []
-    stds: list[FloatArray] = []
-    nstds: list[FloatArray] = []
-    ests: list[BoolArray] = []
-    covs: list[FloatArray] = []
-    infos: list[FloatArray] = []
-    lstds: list[FloatArray] = []
-    tb = TraceBuilder()
-    last: CKFState | None = None
+    test_level = options.get("test_level")
     collector = InnovationCollector(ex, n, test_level, critical_value(test_level)) if test_level is not None else None
-    for st in iterate_ckf(
-        dynamics,
-        measurements,
-        rounds=kn,
-        exchange=ex,
-        schedule=sched,
-        variance=variance,
-        monitor=monitor,
-        local_precision=local_precision,
-        test_level=test_level,
-    ):
-        xs.append(ex.gather_nodes(st.estimates))
-        if st.local_covariance is not None:
-            lstds.append(ex.gather_nodes(masked_std(st.local_covariance, st.estimable)))
+    kept = _GatheredSeries(ex, bool(options.get("store_matrices", False)))
+    last: CKFState | None = None
+    for st in iterate_ckf(dynamics, measurements, exchange=ex, schedule=sched, **run):
+        kept.add(st)
         if collector is not None:
             collector.add(st.tests)
-        ests.append(ex.gather_nodes(st.estimable))
-        nstds.append(ex.gather_nodes(masked_std(st.nominal_covariance, st.estimable)))
-        if st.covariance is not None:
-            stds.append(ex.gather_nodes(masked_std(st.covariance, st.estimable)))
-        if store_matrices:
-            infos.append(ex.gather_nodes(st.information))
-            if st.covariance is not None:
-                covs.append(ex.gather_nodes(st.covariance))
-        tb.add(consensus_deviation=st.consensus_deviation)
         last = st
     assert last is not None
-    nominal = np.stack(nstds)
-    series = FilterSeries(
-        estimates=np.stack(xs),
-        std=np.stack(stds) if stds else np.full_like(nominal, np.nan),
-        estimable=np.stack(ests),
-        nodes=np.arange(n),
-        nominal_std=nominal,
-        covariance=np.stack(covs) if covs else None,
-        information=np.stack(infos) if infos else None,
-    )
+    variance = bool(options.get("variance", True))
     L = consensus_product(sched, kn) if variance else None  # dense n×n: only with the variance recursion
+    series = kept.series(n)
     comm: CommTotals = ex.comm_totals()
     est_last = series.estimable[-1]
     complete = bool(est_last.all())
+    local_precision = options.get("local_precision")
     return FilterResult(
         estimates=series.estimates[-1],
         converged=complete,
@@ -414,7 +498,7 @@ def ckf(
             f"CKF over {measurements.n_epochs} epochs with k_n = {kn} consensus rounds each; "
             f"{int(est_last.sum())}/{est_last.size} node-entries estimable at the last epoch"
         ),
-        trace=tb.build(),
+        trace=kept.trace.build(),
         comm=comm,
         series=series,
         mode="ckf",
@@ -424,23 +508,68 @@ def ckf(
         rounds=kn,
         product=L,
         alpha=alpha_factor(L) if L is not None else None,
-        precision=_local_precision(ex, last, local_precision, comm, measurements.n_states, variance),
-        local_std=np.stack(lstds) if lstds else None,
+        precision=_local_precision(
+            ex, last, local_precision, comm, measurements.n_states, variance, options.get("transport") == "relay"
+        ),
+        local_std=np.stack(kept.lstds) if kept.lstds else None,
         tests=collector.build() if collector is not None else None,
     )
 
 
+class _GatheredSeries:
+    """The per-epoch arrays :func:`ckf` keeps, gathered over every node in the user's order."""
+
+    def __init__(self, ex: Exchange, store_matrices: bool) -> None:
+        self.ex, self.store = ex, store_matrices
+        self.xs: list[FloatArray] = []
+        self.stds: list[FloatArray] = []
+        self.nstds: list[FloatArray] = []
+        self.ests: list[BoolArray] = []
+        self.covs: list[FloatArray] = []
+        self.infos: list[FloatArray] = []
+        self.lstds: list[FloatArray] = []
+        self.trace = TraceBuilder()
+
+    def add(self, st: CKFState) -> None:
+        g = self.ex.gather_nodes
+        self.xs.append(g(st.estimates))
+        if st.local_covariance is not None:
+            self.lstds.append(g(masked_std(st.local_covariance, st.estimable)))
+        self.ests.append(g(st.estimable))
+        self.nstds.append(g(masked_std(st.nominal_covariance, st.estimable)))
+        if st.covariance is not None:
+            self.stds.append(g(masked_std(st.covariance, st.estimable)))
+        if self.store:
+            self.infos.append(g(st.information))
+            if st.covariance is not None:
+                self.covs.append(g(st.covariance))
+        self.trace.add(consensus_deviation=st.consensus_deviation)
+
+    def series(self, n: int) -> FilterSeries:
+        nominal = np.stack(self.nstds)
+        return FilterSeries(
+            estimates=np.stack(self.xs),
+            std=np.stack(self.stds) if self.stds else np.full_like(nominal, np.nan),
+            estimable=np.stack(self.ests),
+            nodes=np.arange(n),
+            nominal_std=nominal,
+            covariance=np.stack(self.covs) if self.covs else None,
+            information=np.stack(self.infos) if self.infos else None,
+        )
+
+
 def _local_precision(
-    ex: Exchange, last: CKFState, kind: LocalPrecision | None, comm: CommTotals, p: int, variance: bool
+    ex: Exchange, last: CKFState, kind: LocalPrecision | None, comm: CommTotals, p: int, variance: bool, relay: bool
 ) -> Precision | None:
-    """The node-local :class:`Precision` of the last epoch; ``comm`` = the bytes it added to the messages."""
+    """The node-local :class:`Precision` of the last epoch; ``comm`` = the bytes it added to the messages (none with
+    the relay transport: the records are sent anyway, the rows of ``L`` are static knowledge)."""
     if kind is None or last.local_covariance is None:
         return None
     n = ex.n_nodes
     n_tri = p * (p + 1) // 2
     base = n_tri + p + (n if (variance and ex.faults.active) else 0)
     width = n_tri + p + n + (n * n_tri if kind == "exact" else 0)
-    share = (width - base) / width
+    share = 0.0 if relay else (width - base) / width
     extra = CommTotals(
         0,
         np.zeros_like(comm.messages_sent),
@@ -458,72 +587,3 @@ def _local_precision(
         iterations=0,
         comm=extra,
     )
-
-
-def ckf_error_variance(
-    dynamics: DynamicModel, measurements: MeasurementSeries, product: ArrayLike, *, store_matrices: bool = False
-) -> FilterSeries:
-    """The CKF error-variance recursion of Fig. 7 alone, for every node and epoch, from ``L`` (= ``W^(k_n)``).
-
-    No data and no messages: the consensus normals are ``N_i^(k_n) = Σ_j l_ij N_j`` (eq. (35)), so ``I_i,t|t``
-    and ``P_i,t|t`` follow from the normal matrices and ``L`` — the a-priori design tool of paper 003 §4.2.
-    Returns a :class:`FilterSeries` with ``std`` = sqrt diag ``P_i,t|t`` and ``nominal_std`` = sqrt diag
-    ``I_i,t|t⁻¹`` (``estimates`` are NaN).
-
-    Cost per epoch: one dense GEMM ``[L; L∘L] · tri(N)`` of (2n × n) by (n × p(p+1)/2) — O(n² p²) flops, the
-    dominant term (≈ 1.1 GFLOP at n = 1,000, p = 33) — plus O(n p³) for the batched time update and inverses;
-    memory O(n² + n p²). Measured in ``benchmarks/bench_ckf.py`` against a bare batched-numpy implementation of the
-    same recursion (issue 17: ≤ 2×). For the node-local form that needs no global knowledge see
-    ``ckf(..., local_precision=...)``.
-    """
-    check_model(dynamics, measurements)
-    n, p = measurements.n_nodes, measurements.n_states
-    L = np.asarray(product, dtype=float)
-    if L.shape != (n, n):
-        raise ModelError(f"product matrix must be {n}×{n}, got {L.shape}")
-    LL = np.concatenate([L, L**2])  # one GEMM per epoch gives Σ_j l_ij N_j and Σ_j l_ij² N_j
-    iu = _triu(p)
-    ker = InformationKernel(n, p, track_error=True)
-    T = measurements.n_epochs
-    stds: list[FloatArray] = []
-    nstds: list[FloatArray] = []
-    ests: list[BoolArray] = []
-    covs: list[FloatArray] = []
-    infos: list[FloatArray] = []
-    for t in range(T):
-        if t > 0:
-            ker.time_update(dynamics, t)
-        N, _ = measurements.normals(t)
-        tri = N[:, iu[0], iu[1]]
-        both = LL @ tri
-        Nk = np.zeros((n, p, p))
-        Nk[:, iu[0], iu[1]] = both[:n]
-        Nk[:, iu[1], iu[0]] = both[:n]
-        extra = np.zeros((n, p, p))
-        extra[:, iu[0], iu[1]] = (n * n) * both[n:]
-        extra[:, iu[1], iu[0]] = (n * n) * both[n:]
-        ker.measurement_update(Nk, np.zeros((n, p)), scale=float(n), extra_error=extra)
-        inv, est = pseudo_inverse_psd(ker.I)
-        assert ker.Q is not None
-        P = inv @ ker.Q @ inv
-        stds.append(masked_std(P, est))
-        nstds.append(masked_std(inv, est))
-        ests.append(est)
-        if store_matrices:
-            covs.append(0.5 * (P + np.swapaxes(P, 1, 2)))
-            infos.append(ker.I)
-    std = np.stack(stds)
-    return FilterSeries(
-        estimates=np.full_like(std, np.nan),
-        std=std,
-        estimable=np.stack(ests),
-        nodes=np.arange(n),
-        nominal_std=np.stack(nstds),
-        covariance=np.stack(covs) if store_matrices else None,
-        information=np.stack(infos) if store_matrices else None,
-    )
-
-
-def ckf_std_ratio(ckf_series: FilterSeries, central_series: FilterSeries) -> FloatArray:
-    """CKF-to-central standard-deviation ratios per epoch, node and parameter (paper 003 Fig. 12), (T, n, p)."""
-    return std_ratio(ckf_series, central_series)

@@ -150,24 +150,46 @@ def kalman_filter(
                 covs[t, 0] = np.where(est[:, None] & est[None, :], Pb, np.nan)
                 continue
         else:
-            F = dynamics.transition_at(t)
-            x = F @ x
-            P = F @ P @ F.T + dynamics.noise_cov_at(t)
-            # node blocks are uncorrelated (eq. (23)): update with one node's rows at a time (exact, and
-            # O(Σ m_i³) instead of O((Σ m_i)³))
-            for blk in np.split(np.arange(A.shape[0]), np.flatnonzero(np.diff(row_node)) + 1):
-                if blk.size == 0:
-                    continue
-                Ab, yb = A[blk], y[blk]
-                S = np.eye(blk.size) + Ab @ P @ Ab.T  # Q_vv = R + A P⁻ Aᵀ (eq. (13)), R = I after whitening
-                K = np.linalg.solve(S, Ab @ P).T
-                x = x + K @ (yb - Ab @ x)
-                IKA = np.eye(p) - K @ Ab
-                P = IKA @ P @ IKA.T + K @ K.T
-            P = 0.5 * (P + P.T)
+            x, P = _covariance_step(dynamics, t, x, P, A, y, row_node)
         xs[t, 0] = x
         ests[t, 0] = True
         covs[t, 0] = P
+    return _covariance_result(xs, ests, covs, init_epoch, store_matrices, measurements.n_nodes)
+
+
+def _covariance_step(
+    dynamics: DynamicModel,
+    t: int,
+    x: FloatArray,
+    P: FloatArray,
+    A: FloatArray,
+    y: FloatArray,
+    row_node: IntArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Time update (eqs. (8)–(9)) and measurement update (eqs. (10)–(12), Joseph form) of epoch ``t``, one node's
+    whitened rows at a time: node blocks are uncorrelated (eq. (23)), so this is exact and O(Σ m_i³) instead of
+    O((Σ m_i)³)."""
+    p = x.size
+    F = dynamics.transition_at(t)
+    x = F @ x
+    P = F @ P @ F.T + dynamics.noise_cov_at(t)
+    for blk in np.split(np.arange(A.shape[0]), np.flatnonzero(np.diff(row_node)) + 1):
+        if blk.size == 0:
+            continue
+        Ab, yb = A[blk], y[blk]
+        S = np.eye(blk.size) + Ab @ P @ Ab.T  # Q_vv = R + A P⁻ Aᵀ (eq. (13)), R = I after whitening
+        K = np.linalg.solve(S, Ab @ P).T
+        x = x + K @ (yb - Ab @ x)
+        IKA = np.eye(p) - K @ Ab
+        P = IKA @ P @ IKA.T + K @ K.T
+    return x, 0.5 * (P + P.T)
+
+
+def _covariance_result(
+    xs: FloatArray, ests: BoolArray, covs: FloatArray, init_epoch: int, store_matrices: bool, n_nodes: int
+) -> FilterResult:
+    """The :class:`FilterResult` of :func:`kalman_filter` from its per-epoch arrays."""
+    T = xs.shape[0]
     series = FilterSeries(
         estimates=xs,
         std=masked_std(np.nan_to_num(covs), ests),
@@ -186,7 +208,7 @@ def kalman_filter(
             else "covariance-form Kalman filter: state never fully estimable"
         ),
         trace=TraceBuilder().build(),
-        comm=CommTotals.empty(measurements.n_nodes),
+        comm=CommTotals.empty(n_nodes),
         series=series,
         mode="covariance",
         init_epoch=init_epoch,

@@ -103,6 +103,12 @@ class DynamicModel:
         if p < 1:
             raise ModelError(f"n_states must be ≥ 1, got {n_states}")
         self.n_states = p
+        self._set_transitions(transition)
+        self._set_noise(self._noise_pairs(noise_cov, noise_map, noise_reduced_cov))
+
+    def _set_transitions(self, transition: ArrayLike | None) -> None:
+        """Check every ``Φ_t`` (finite, nonsingular: paper 003 eq. (2)) and keep it with its inverse."""
+        p = self.n_states
         if transition is None:
             self._phi_const, phis = True, [np.eye(p)]
         else:
@@ -123,11 +129,17 @@ class DynamicModel:
                 raise ModelError(f"transition matrix{e} is singular (paper 003 eq. (2) needs Φ nonsingular)")
             self._phi.append(F)
             self._phi_inv.append(np.linalg.inv(F))
+
+    def _noise_pairs(
+        self, noise_cov: ArrayLike | None, noise_map: ArrayLike | None, noise_reduced_cov: ArrayLike | None
+    ) -> list[tuple[FloatArray, FloatArray]]:
+        """The system noise as ``(H_t, S̃_t)`` per epoch (eq. (19)), from whichever form was given; sets
+        ``_noise_const``."""
+        p = self.n_states
         if noise_cov is not None and (noise_map is not None or noise_reduced_cov is not None):
             raise ModelError("give either noise_cov or (noise_map, noise_reduced_cov), not both")
         if (noise_map is None) != (noise_reduced_cov is None):
             raise ModelError("noise_map and noise_reduced_cov must be given together")
-        pairs: list[tuple[FloatArray, FloatArray]]
         if noise_cov is not None:
             self._noise_const, covs = _per_epoch(noise_cov, "noise_cov")
             pairs = []
@@ -136,7 +148,8 @@ class DynamicModel:
                     e = "" if self._noise_const else f" of epoch {t}"
                     raise ModelError(f"noise_cov{e} must be {p}×{p}, got {S.shape}")
                 pairs.append(noise_factor(S, epoch=None if self._noise_const else t))
-        elif noise_map is not None:
+            return pairs
+        if noise_map is not None:
             cH, Hs = _per_epoch(noise_map, "noise_map")
             assert noise_reduced_cov is not None  # checked above: both or neither
             cS, Ss = _per_epoch(noise_reduced_cov, "noise_reduced_cov")
@@ -145,55 +158,52 @@ class DynamicModel:
                     "noise_map and noise_reduced_cov must both be constant or both per epoch with the same length"
                 )
             self._noise_const = cH
-            pairs = list(zip(Hs, Ss, strict=True))
-        else:
-            self._noise_const = True
-            pairs = [(np.zeros((p, 0)), np.zeros((0, 0)))]
+            return list(zip(Hs, Ss, strict=True))
+        self._noise_const = True
+        return [(np.zeros((p, 0)), np.zeros((0, 0)))]
+
+    def _set_noise(self, pairs: list[tuple[FloatArray, FloatArray]]) -> None:
+        """Check every ``(H_t, S̃_t)`` (H full column rank, S̃ symmetric positive definite) and keep them with the
+        selection of H's unit columns and S̃'s inverse; an epoch repeating the previous inputs reuses their checks."""
         self._H: list[np.ndarray] = []
         self._sel: list[IntArray | None] = []
         self._sel_grid: list[tuple[np.ndarray, ...] | None] = []  # np.ix_(sel, sel), for noise_cov_at
         self._St: list[np.ndarray] = []
         self._St_inv: list[np.ndarray] = []
         prev_H: np.ndarray | None = None  # the previous epoch's inputs: a per-epoch model usually repeats
-        prev_St: np.ndarray | None = None  # them (one H object, equal S̃ for equal intervals), and their
-        for t, (H, St) in enumerate(pairs):  # checks, selection and inverse are then the previous epoch's
+        prev_St: np.ndarray | None = None  # them (one H object, equal S̃ for equal intervals)
+        for t, (H, St) in enumerate(pairs):
             e = "" if self._noise_const else f" of epoch {t}"
             if H is prev_H:
                 q = H.shape[1]
                 self._sel.append(self._sel[-1])
                 self._sel_grid.append(self._sel_grid[-1])
             else:
-                if H.ndim != 2 or H.shape[0] != p:
-                    raise ModelError(f"noise_map{e} must have {p} rows, got shape {H.shape}")
-                q = H.shape[1]
-                if not np.all(np.isfinite(H)):
-                    raise ModelError(f"system-noise factor{e} is not finite")
-                sel = _identity_columns(H)  # distinct unit columns: full column rank without an SVD
-                if q and sel is None and np.linalg.matrix_rank(H) < q:
-                    raise ModelError(f"noise_map{e} must have full column rank (paper 003 eq. (19))")
-                self._sel.append(sel)
-                self._sel_grid.append(None if sel is None else np.ix_(sel, sel))
+                q = self._check_noise_map(H, e)
             self._H.append(H)
             if prev_St is not None and St.shape == (q, q) == prev_St.shape and np.array_equal(St, prev_St):
                 self._St.append(self._St[-1])
                 self._St_inv.append(self._St_inv[-1])
             else:
-                if St.shape != (q, q):
-                    raise ModelError(f"noise_reduced_cov{e} must be {q}×{q} to match noise_map, got {St.shape}")
-                if not np.all(np.isfinite(St)):
-                    raise ModelError(f"system-noise factor{e} is not finite")
-                if q:
-                    if not np.allclose(St, St.T, rtol=0, atol=1e-12 * np.abs(St).max()):
-                        raise ModelError(f"noise_reduced_cov{e} is not symmetric")
-                    try:
-                        np.linalg.cholesky(St)
-                    except np.linalg.LinAlgError:
-                        raise ModelError(
-                            f"noise_reduced_cov{e} is not positive definite (paper 003 eq. (19) needs S̃ invertible)"
-                        ) from None
+                _check_reduced_cov(St, q, e)
                 self._St.append(0.5 * (St + St.T))
                 self._St_inv.append(np.linalg.inv(St) if q else St.copy())
             prev_H, prev_St = H, St
+
+    def _check_noise_map(self, H: np.ndarray, e: str) -> int:
+        """Check ``H`` (rows, finite, full column rank) and keep its unit-column selection; return its columns."""
+        p = self.n_states
+        if H.ndim != 2 or H.shape[0] != p:
+            raise ModelError(f"noise_map{e} must have {p} rows, got shape {H.shape}")
+        q = int(H.shape[1])
+        if not np.all(np.isfinite(H)):
+            raise ModelError(f"system-noise factor{e} is not finite")
+        sel = _identity_columns(H)  # distinct unit columns: full column rank without an SVD
+        if q and sel is None and np.linalg.matrix_rank(H) < q:
+            raise ModelError(f"noise_map{e} must have full column rank (paper 003 eq. (19))")
+        self._sel.append(sel)
+        self._sel_grid.append(None if sel is None else np.ix_(sel, sel))
+        return q
 
     # -- accessors: epoch t ≥ 1 (the step t−1 → t)
     def _idx(self, const: bool, n: int, t: int, what: str) -> int:
@@ -263,3 +273,20 @@ def simulate_states(
         d = H @ (np.linalg.cholesky(St) @ rng.standard_normal(St.shape[0])) if St.size else 0.0
         x[t] = dynamics.transition_at(t) @ x[t - 1] + d
     return x
+
+
+def _check_reduced_cov(St: np.ndarray, q: int, e: str) -> None:
+    """``S̃`` must be q×q, finite, symmetric and positive definite (paper 003 eq. (19) needs it invertible)."""
+    if St.shape != (q, q):
+        raise ModelError(f"noise_reduced_cov{e} must be {q}×{q} to match noise_map, got {St.shape}")
+    if not np.all(np.isfinite(St)):
+        raise ModelError(f"system-noise factor{e} is not finite")
+    if q:
+        if not np.allclose(St, St.T, rtol=0, atol=1e-12 * np.abs(St).max()):
+            raise ModelError(f"noise_reduced_cov{e} is not symmetric")
+        try:
+            np.linalg.cholesky(St)
+        except np.linalg.LinAlgError:
+            raise ModelError(
+                f"noise_reduced_cov{e} is not positive definite (paper 003 eq. (19) needs S̃ invertible)"
+            ) from None

@@ -124,6 +124,27 @@ class MeasurementSeries:
             f"{type(self).__name__} holds normal equations only; the covariance-form filter needs an ObservationSeries"
         )
 
+    def records(self, epoch: int, nodes: IntArray | None = None) -> tuple[FloatArray, FloatArray]:
+        """The raw observations of the given nodes as records over a fixed set of slots (e.g. satellites):
+        ``(values, weights)``, each (k × slots), weight 0 where nothing was observed. What the CKF's relay
+        transport sends (:mod:`distnav.algorithms.kalman.relay`); only series whose design rows follow from
+        knowledge every node holds (GNSS: orbits and station positions) have them."""
+        raise ModelError(
+            f"{type(self).__name__} gives no observation records; the CKF's relay transport needs them "
+            f"(use transport='matrices')"
+        )
+
+    def record_slots(self, epoch: int, nodes: IntArray | None = None) -> IntArray:
+        """The slot of each row of :meth:`observations` (same order): how a node leaves an observation an
+        innovation test removed out of the records it sends."""
+        raise ModelError(f"{type(self).__name__} gives no observation records")
+
+    def normals_from_records(
+        self, epoch: int, node: int, values: FloatArray, weights: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(N (p×p), r (p,))`` of ``node`` at ``epoch`` rebuilt from its records (:meth:`records`) alone."""
+        raise ModelError(f"{type(self).__name__} gives no observation records")
+
     def node_ids(self, nodes: ArrayLike | None = None) -> IntArray:
         """The selected global node ids as an int64 vector (default all), validated against ``n_nodes``."""
         if nodes is None:

@@ -151,8 +151,8 @@ class LinearProblem:
     ) -> LinearProblem:
         """Build from stacked arrays with the same row count ``m`` at every node: ``A (n, m, p)``, ``y (n, m)``,
         ``R`` ``(n, m, m)`` full, ``(n, m)`` variances, or None (identity)."""
-        A_s = np.asarray(A, dtype=float)
-        y_s = np.asarray(y, dtype=float)
+        A_s = real_array(A, "stacked A entries", error=ModelError)
+        y_s = real_array(y, "stacked y entries", error=ModelError)
         if A_s.ndim != 3:
             raise ModelError(f"stacked A must have shape (n_nodes, m, p), got {A_s.shape}")
         n, m, _p = A_s.shape
@@ -161,7 +161,7 @@ class LinearProblem:
         if R is None:
             R_s = np.broadcast_to(np.eye(m), (n, m, m)).copy()
         else:
-            R_s = np.asarray(R, dtype=float)
+            R_s = real_array(R, "stacked R entries", error=ModelError)
             if R_s.shape == (n, m):
                 if not np.all(np.isfinite(R_s)) or np.any(R_s <= 0):
                     bad = int(np.flatnonzero(~(np.isfinite(R_s) & (R_s > 0)).all(axis=1))[0])

@@ -245,42 +245,21 @@ def drive(
 ) -> AdmmResult:
     """Run a prepared state generator to the stopping rule of :func:`~distnav.algorithms.lsq.admm.admm`, tracing as it
     goes."""
-    gen, ex, C, p = run.states, run.exchange, run.constraint_nodes, run.p
-    ref = None
-    if reference is not None:
-        ref = np.asarray(reference, dtype=float)
-        if ref.shape != (p,):
-            raise ModelError(f"reference must be a length-{p} vector (x̂), got shape {ref.shape}")
-    ref_norm = float(np.linalg.norm(ref)) if ref is not None else 1.0
-    ref_norm = ref_norm if ref_norm > 0 else 1.0
-    tb = TraceBuilder()
+    gen, C, p = run.states, run.constraint_nodes, run.p
+    track = _ReferenceTrace(run.exchange, reference, p, record_nodes)
     n_pairs = int(C.per_node_count.sum())
     abs_term = atol * np.sqrt(n_pairs * p)
-    reached: dict[str, int | None] = {f"{t:g}": None for t in THRESHOLDS}
     state: AdmmState | None = None
     status: SolverStatus = "max_iterations"
-    converged = False
     for state in gen:
-        tb.add(primal_residual=state.primal_residual, dual_residual=state.dual_residual)
-        rel = None
-        if ref is not None:
-            dist_local = np.linalg.norm(state.x - ref[None, :], axis=1)
-            dmax = float(ex.allreduce(float(dist_local.max()) if dist_local.size else 0.0, "max"))
-            rel = dmax / ref_norm
-            tb.add(max_distance_to_reference=dmax, relative_max_distance=rel)
-            if record_nodes:
-                tb.add(distance_to_reference=ex.gather_nodes(dist_local))
-            for t in THRESHOLDS:
-                if reached[f"{t:g}"] is None and rel <= t:
-                    reached[f"{t:g}"] = state.iteration
+        track.tb.add(primal_residual=state.primal_residual, dual_residual=state.dual_residual)
+        rel = track.add(state)
         if state.iteration > 0:
             ok_pri = state.primal_residual <= abs_term + tol * max(state.x_norm, state.z_norm)
             ok_dual = state.dual_residual <= abs_term + tol * state.u_norm
-            if ok_pri and ok_dual:
-                status, converged = "converged", True
-                break
-            if stop_at_reference is not None and rel is not None and rel <= stop_at_reference:
-                status, converged = "converged", True
+            at_reference = stop_at_reference is not None and rel is not None and rel <= stop_at_reference
+            if (ok_pri and ok_dual) or at_reference:
+                status = "converged"
                 break
         if state.iteration >= max_iterations:
             break
@@ -288,6 +267,45 @@ def drive(
     if close is not None:
         close()
     assert state is not None
+    return _admm_result(run, state, status, track, n_pairs)
+
+
+class _ReferenceTrace:
+    """The trace of a run and, with a reference ``x̂``, each iteration's distance to it and the first iteration
+    below each of :data:`THRESHOLDS` (relative)."""
+
+    def __init__(self, ex: Exchange, reference: np.ndarray | None, p: int, record_nodes: bool) -> None:
+        self.ex, self.record_nodes, self.tb = ex, record_nodes, TraceBuilder()
+        self.ref: np.ndarray | None = None
+        if reference is not None:
+            self.ref = np.asarray(reference, dtype=float)
+            if self.ref.shape != (p,):
+                raise ModelError(f"reference must be a length-{p} vector (x̂), got shape {self.ref.shape}")
+        norm = float(np.linalg.norm(self.ref)) if self.ref is not None else 1.0
+        self.ref_norm = norm if norm > 0 else 1.0
+        self.reached: dict[str, int | None] = {f"{t:g}": None for t in THRESHOLDS}
+
+    def add(self, state: AdmmState) -> float | None:
+        """Trace the distance of ``state`` to the reference; return the relative maximum (None without one)."""
+        if self.ref is None:
+            return None
+        dist_local = np.linalg.norm(state.x - self.ref[None, :], axis=1)
+        dmax = float(self.ex.allreduce(float(dist_local.max()) if dist_local.size else 0.0, "max"))
+        rel = dmax / self.ref_norm
+        self.tb.add(max_distance_to_reference=dmax, relative_max_distance=rel)
+        if self.record_nodes:
+            self.tb.add(distance_to_reference=self.ex.gather_nodes(dist_local))
+        for t in THRESHOLDS:
+            if self.reached[f"{t:g}"] is None and rel <= t:
+                self.reached[f"{t:g}"] = state.iteration
+        return rel
+
+
+def _admm_result(
+    run: PreparedRun, state: AdmmState, status: SolverStatus, track: _ReferenceTrace, n_pairs: int
+) -> AdmmResult:
+    """The :class:`AdmmResult` of a finished run: every node's ``x_i`` and ``z`` gathered, the message counts."""
+    ex, C = run.exchange, run.constraint_nodes
     u = getattr(run.kernel, "multipliers", None) if run.kernel is not None else None
     x_all = ex.gather_nodes(state.x)
     z_all = ex.gather_nodes(state.z)
@@ -295,20 +313,21 @@ def drive(
         f"{state.iteration} iterations, primal residual {state.primal_residual:.3g}, "
         f"dual residual {state.dual_residual:.3g}"
     )
-    if ref is not None:
-        msg += f", max_i ‖x_i − x̂‖/‖x̂‖ = {float(np.max(np.linalg.norm(x_all - ref, axis=1))) / ref_norm:.3g}"
+    if track.ref is not None:
+        worst = float(np.max(np.linalg.norm(x_all - track.ref, axis=1))) / track.ref_norm
+        msg += f", max_i ‖x_i − x̂‖/‖x̂‖ = {worst:.3g}"
     return AdmmResult(
         estimates=x_all,
-        converged=converged,
+        converged=status == "converged",
         iterations=state.iteration,
         status=status,
         message=msg,
-        trace=tb.build(),
+        trace=track.tb.build(),
         comm=ex.comm_totals(),
         z=z_all[C.nodes],
         z_nodes=z_all,
         constraint_nodes=C,
-        iterations_to=reached,
+        iterations_to=track.reached,
         pairs=n_pairs,
         x_update=run.x_update,
         x_weight=run.x_weight,

@@ -188,17 +188,7 @@ class _Kernel:
         # its last read and the next broadcast, z_{i,s} = x_i + u_{i,s} (same values, one 100 MB array less at 10⁵
         # nodes for the first iteration to fault in).
         n_pairs = self.ip.size
-        u = np.zeros((n_pairs, self.p))
-        u_self = np.zeros_like(x)  # u_{s,s}; zero on rows of non-constraint nodes, and stays so
-        if u0 is not None:
-            if u0.pairs.shape != u.shape or u0.self_pairs.shape != u_self.shape:
-                raise ModelError(
-                    "the multipliers to continue from belong to another exchange block, constraint-"
-                    "node set or parameter count"
-                )
-            u[:] = u0.pairs
-            u_self[:] = u0.self_pairs
-        self._u = (u, u_self)
+        u, u_self = self._u = self._initial_multipliers(u0, x)
         faulty = self.ex.faults.active
         x_p = _take(x, self.pair_dst)  # x_i on every pair row: computed once per x-update, used twice
         # until z_s arrives, a node assumes its own x_i^[0]; until z_{i,s} arrives, s assumes its own z_s^[0]
@@ -207,10 +197,7 @@ class _Kernel:
         z_buf = np.empty((n_pairs, self.p))
         coded = _CodedRoutes(self.x_route, self.z_route, bits) if bits is not None else None
         # initialization round: constraint nodes send z_s^[0] to their neighbours
-        if coded is not None:
-            z_recv = coded.broadcast_z(z)
-        else:
-            z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
+        z_recv = self._broadcast_z(coded, held_z, z, z_buf)
         # x_p is not read again before the next x-update overwrites it, so the pair residuals x_i − z_s take its
         # buffer (one pair-sized array less to allocate and touch)
         diff = np.subtract(x_p, z_recv, out=x_p)
@@ -236,27 +223,12 @@ class _Kernel:
             _take(x, self.pair_dst, out=x_p)
             # z_buf is free between the last read of z_s (above) and the broadcast below
             np.add(x_p, u, out=z_buf)
-            if coded is not None:
-                zin_c = coded.send_x(z_buf)
-            else:
-                zin_c = _held(held_c, *self.x_route.send(z_buf))
+            zin_c = coded.send_x(z_buf) if coded is not None else _held(held_c, *self.x_route.send(z_buf))
             # step 2: z-update at constraint nodes, broadcast z_s
-            if self.z_weight is None:
-                z_new = self.S_c @ zin_c
-                z_new += x
-                z_new += u_self
-                z_new *= inv_size
-            else:
-                w_in, w_self, inv_total = self.z_weight
-                z_new = self.S_c @ (zin_c * w_in)
-                z_new += (x + u_self) * w_self
-                z_new *= inv_total
+            z_new = self._z_update(zin_c, x, u_self, inv_size)
             dz = z_new - z
             z = z_new
-            if coded is not None:
-                z_recv = coded.broadcast_z(z)
-            else:
-                z_recv = _held(held_z, *self.z_route.broadcast(z, out=z_buf))
+            z_recv = self._broadcast_z(coded, held_z, z, z_buf)
             diff = np.subtract(x_p, z_recv, out=x_p)
             np.subtract(x, z, out=diff_self)
             diff_self *= cm
@@ -265,6 +237,43 @@ class _Kernel:
                 yield self._state(k, x, z, diff, diff_self, dz, u, u_self, add_in_place=True)
             else:
                 yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
+
+    def _initial_multipliers(self, u0: Multipliers | None, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``u_{i,s}`` (pair order) and ``u_{s,s}``: zero (``u^[−1] = 0``, §4.3) or copied from ``u0``."""
+        u = np.zeros((self.ip.size, self.p))
+        u_self = np.zeros_like(x)  # u_{s,s}; zero on rows of non-constraint nodes, and stays so
+        if u0 is not None:
+            if u0.pairs.shape != u.shape or u0.self_pairs.shape != u_self.shape:
+                raise ModelError(
+                    "the multipliers to continue from belong to another exchange block, constraint-"
+                    "node set or parameter count"
+                )
+            u[:] = u0.pairs
+            u_self[:] = u0.self_pairs
+        return u, u_self
+
+    def _broadcast_z(
+        self, coded: _CodedRoutes | None, held_z: np.ndarray | None, z: np.ndarray, z_buf: np.ndarray
+    ) -> np.ndarray:
+        """Constraint nodes send ``z_s`` to their neighbours; ``z_s`` on every pair row (held where lost)."""
+        if coded is not None:
+            return coded.broadcast_z(z)
+        return _held(held_z, *self.z_route.broadcast(z, out=z_buf))
+
+    def _z_update(self, zin_c: np.ndarray, x: np.ndarray, u_self: np.ndarray, inv_size: np.ndarray) -> np.ndarray:
+        """Fig. 6 step 2 at the constraint nodes: the (weighted) mean of the received ``z_{i,s}`` and ``x_s +
+        u_{s,s}``."""
+        if self.z_weight is None:
+            z_new: np.ndarray = self.S_c @ zin_c
+            z_new += x
+            z_new += u_self
+            z_new *= inv_size
+            return z_new
+        w_in, w_self, inv_total = self.z_weight
+        z_new = self.S_c @ (zin_c * w_in)
+        z_new += (x + u_self) * w_self
+        z_new *= inv_total
+        return z_new
 
     @property
     def multipliers(self) -> Multipliers | None:

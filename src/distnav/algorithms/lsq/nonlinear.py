@@ -9,8 +9,9 @@ on the same kernel (:mod:`distnav.algorithms.lsq.kernel`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol, TypedDict, Unpack
 
 import numpy as np
 
@@ -36,6 +37,8 @@ from distnav.typing import ArrayLike, FloatArray
 
 __all__ = [
     "LinearizedAdmmResult",
+    "LinearizedOptions",
+    "NonlinearOptions",
     "NonlinearModel",
     "NonlinearProblem",
     "RangeModel",
@@ -220,21 +223,50 @@ def gauss_newton(
     )
 
 
+class LinearizedOptions(TypedDict, total=False):
+    """Keyword options of :func:`admm_linearized` (default in brackets): ``constraint_nodes`` [``"min_cover"``],
+    ``W`` [1.0], ``messages`` [``"pairs"``] as for :func:`~distnav.algorithms.lsq.admm.admm`; ``outer_iterations``
+    [10] and ``tol`` [1e-10] of the relinearization loop; ``inner_max_iterations`` [2000], ``inner_tol`` [1e-12] and
+    ``inner_atol`` [1e-12] of each ADMM run."""
+
+    constraint_nodes: ConstraintNodeSpec
+    W: ArrayLike
+    outer_iterations: int
+    inner_max_iterations: int
+    inner_tol: float
+    inner_atol: float
+    tol: float
+    messages: Literal["pairs", "aggregated"]
+
+
+class NonlinearOptions(TypedDict, total=False):
+    """Keyword options of :func:`admm_nonlinear` (default in brackets): ``constraint_nodes`` [``"min_cover"``],
+    ``W`` [1.0], ``max_iterations`` [2000], ``tol`` [1e-10], ``atol`` [0.0], ``record_nodes`` [True] as for
+    :func:`~distnav.algorithms.lsq.admm.admm`; ``gn_steps`` [2] Gauss–Newton steps per x-update."""
+
+    constraint_nodes: ConstraintNodeSpec
+    W: ArrayLike
+    gn_steps: int
+    max_iterations: int
+    tol: float
+    atol: float
+    record_nodes: bool
+
+
+def _check_option_names(options: Mapping[str, Any], allowed: frozenset[str], where: str) -> None:
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise ModelError(f"unknown {where} option(s) {', '.join(unknown)}; expected {', '.join(sorted(allowed))}")
+
+
 def admm_linearized(
     problem: NonlinearProblem,
     graph: Graph,
     x_approx: FloatArray,
     *,
-    constraint_nodes: ConstraintNodeSpec = "min_cover",
-    W: ArrayLike = 1.0,
-    outer_iterations: int = 10,
-    inner_max_iterations: int = 2000,
-    inner_tol: float = 1e-12,
-    inner_atol: float = 1e-12,
-    tol: float = 1e-10,
     reference: np.ndarray | None = None,
-    messages: Literal["pairs", "aggregated"] = "pairs",
     exchange: Exchange | None = None,
+    **options: Unpack[LinearizedOptions],
 ) -> LinearizedAdmmResult:
     """The linearized case of paper 000 §4.3: all nodes start from the same approximate value ``x^o``, linearize
     their models there, run Fig. 6 on the increments from ``Δx_i^[0] = z_s^[0] = 0`` until it converges, then set
@@ -245,12 +277,18 @@ def admm_linearized(
     ends the inner runs of the last steps, whose increments are tiny. Trace per outer iteration: ``max_step``,
     ``inner_iterations``, ``spread`` (``max_i ‖x_i^o − mean‖``) and with ``reference`` ``max_distance_to_reference``.
     """
+    _check_option_names(options, LinearizedOptions.__optional_keys__, "admm_linearized")
+    outer_iterations, tol = options.get("outer_iterations", 10), options.get("tol", 1e-10)
+    inner_max_iterations = options.get("inner_max_iterations", 2000)
+    inner_tol, inner_atol = options.get("inner_tol", 1e-12), options.get("inner_atol", 1e-12)
     p = problem.n_params
     check_stopping(inner_max_iterations, inner_tol, inner_atol)
     ex = exchange if exchange is not None else make_exchange(graph)
-    C = constraint_nodes_for(graph, constraint_nodes)
+    C = constraint_nodes_for(graph, options.get("constraint_nodes", "min_cover"))
     xo = _per_node(x_approx, problem.n_nodes, p, "x_approx")
-    options = AdmmOptions(constraint_nodes=C, W=W, init="zero", messages=messages)
+    admm_options = AdmmOptions(
+        constraint_nodes=C, W=options.get("W", 1.0), init="zero", messages=options.get("messages", "pairs")
+    )
     tb = TraceBuilder()
     converged = False
     total_inner = 0
@@ -258,7 +296,7 @@ def admm_linearized(
     while t < outer_iterations:
         t += 1
         inner = drive(
-            prepare(problem.linearize(xo), graph, ex, options),
+            prepare(problem.linearize(xo), graph, ex, admm_options),
             max_iterations=inner_max_iterations,
             tol=inner_tol,
             atol=inner_atol,
@@ -322,27 +360,24 @@ def admm_nonlinear(
     graph: Graph,
     x0: FloatArray,
     *,
-    constraint_nodes: ConstraintNodeSpec = "min_cover",
-    W: ArrayLike = 1.0,
-    gn_steps: int = 2,
-    max_iterations: int = 2000,
-    tol: float = 1e-10,
-    atol: float = 0.0,
     reference: np.ndarray | None = None,
-    record_nodes: bool = True,
     exchange: Exchange | None = None,
+    **options: Unpack[NonlinearOptions],
 ) -> AdmmResult:
     """ADMM with constraint nodes and the nonlinear x-update of paper 000 eq. (23): each node solves its regularized
     nonlinear least-squares problem (``gn_steps`` Gauss–Newton steps warm-started at its previous ``x_i`` per
     iteration; exact at convergence). ``x0``: common ``(p,)`` or per-node ``(n, p)`` start (also ``z_s^[0]``).
     Same stopping and trace as :func:`admm`."""
+    _check_option_names(options, NonlinearOptions.__optional_keys__, "admm_nonlinear")
+    max_iterations, tol, atol = options.get("max_iterations", 2000), options.get("tol", 1e-10), options.get("atol", 0.0)
+    gn_steps = options.get("gn_steps", 2)
     check_stopping(max_iterations, tol, atol)
     if gn_steps < 1:
         raise ModelError(f"gn_steps must be ≥ 1, got {gn_steps}")
     p = problem.n_params
-    Wm = weight_matrix(W, p)
+    Wm = weight_matrix(options.get("W", 1.0), p)
     ex = exchange if exchange is not None else make_exchange(graph)
-    C = constraint_nodes_for(graph, constraint_nodes)
+    C = constraint_nodes_for(graph, options.get("constraint_nodes", "min_cover"))
     x_init, z_init = initial_values(x0, None, problem.n_nodes, p)
     count = C.per_node_count[ex.nodes].astype(float)
     xu = _NonlinearXUpdate(problem, ex.nodes, Wm, count, gn_steps)
@@ -363,5 +398,5 @@ def admm_nonlinear(
         atol=atol,
         reference=reference,
         stop_at_reference=None,
-        record_nodes=record_nodes,
+        record_nodes=options.get("record_nodes", True),
     )

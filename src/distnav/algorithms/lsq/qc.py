@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Unpack
+from typing import TypedDict, Unpack
 
 import numpy as np
 import scipy.sparse.csgraph as csgraph
@@ -46,7 +46,14 @@ from distnav.network.constraint_nodes import ConstraintNodes, ConstraintNodeSpec
 from distnav.network.graph import Graph
 from distnav.typing import ArrayLike, BoolArray, FloatArray
 
-__all__ = ["MIN_REDUNDANCY_NUMBER", "PrecisionRun", "admm_data_snooping", "admm_precision", "remove_observation"]
+__all__ = [
+    "MIN_REDUNDANCY_NUMBER",
+    "PrecisionOptions",
+    "PrecisionRun",
+    "admm_data_snooping",
+    "admm_precision",
+    "remove_observation",
+]
 
 MIN_REDUNDANCY_NUMBER = 1e-6
 
@@ -77,7 +84,7 @@ def _normal_run(
     max_iterations: int,
     tol: float,
     atol: float,
-    reference: FloatArray | None,
+    reference: FloatArray | None = None,
 ) -> AdmmResult:
     """Fig. 6 on ``min Σ_i ½ tr(Xᵀ N_i X) − tr(B_iᵀ X)`` for this block's ``N`` ``(nl, p, p)``, ``B`` ``(nl, p, k)``."""
     p, k = B.shape[1], B.shape[2]
@@ -122,36 +129,94 @@ class PrecisionRun:
     variance_factor_nodes: FloatArray
 
 
+class PrecisionOptions(TypedDict, total=False):
+    """Keyword options of :func:`admm_precision` (default in brackets): ``W`` [1.0] and ``constraint_nodes``
+    [``"min_cover"``] as for :func:`~distnav.algorithms.lsq.admm.admm` (the same ρ suits both: the same ``N_i``);
+    ``max_iterations`` [5000], ``tol`` [1e-12], ``atol`` [0.0]: the stopping rule of each of the two runs."""
+
+    W: ArrayLike
+    constraint_nodes: ConstraintNodeSpec
+    max_iterations: int
+    tol: float
+    atol: float
+
+
 def admm_precision(
     problem: LinearProblem,
     graph: Graph,
     estimates: FloatArray,
     *,
-    W: ArrayLike = 1.0,
-    constraint_nodes: ConstraintNodeSpec = "min_cover",
     active: BoolArray | None = None,
-    max_iterations: int = 5000,
-    tol: float = 1e-12,
-    atol: float = 0.0,
     init: PrecisionRun | None = None,
     reference_covariance: FloatArray | None = None,
     exchange: Exchange | None = None,
     faults: FaultSchedule | None = None,
+    **options: Unpack[PrecisionOptions],
 ) -> PrecisionRun:
-    """Each node's covariance block ``Q_x̂ = N⁻¹`` and the a-posteriori variance factor, by message rounds only.
+    """Each node's covariance block ``Q_x̂ = N⁻¹`` and the a-posteriori variance factor, by message rounds only;
+    options :class:`PrecisionOptions`.
 
     ``estimates`` ``(n, p)``: every node's converged ``x_i`` (e.g. ``admm(...).estimates``; a node reads its own
-    row). ``active`` ``(n, m)``: observations still in the model (default: the problem's rows). ``W`` and
-    ``constraint_nodes`` as for :func:`~distnav.algorithms.lsq.admm.admm` (the same ρ suits both: the same ``N_i``).
+    row). ``active`` ``(n, m)``: observations still in the model (default: the problem's rows).
     ``init``: a previous :class:`PrecisionRun` to warm-start from (data snooping). ``reference_covariance``
     ``(p, p)``: the centralized ``N⁻¹``, for the trace and ``iterations_to`` of ``covariance_run`` only.
     The result's :class:`~distnav.algorithms.result.Precision` has ``kind="exact"`` (equal to the centralized value
     up to the stopping tolerance), the iterations and messages of both runs; the variance factor is node 0's
     (``variance_factor_nodes`` holds every node's, equal to the tolerance).
     """
-    driver.check_stopping(max_iterations, tol, atol)
+    unknown = sorted(set(options) - PrecisionOptions.__optional_keys__)
+    if unknown:
+        raise ModelError(f"unknown admm_precision option(s) {', '.join(unknown)}")
+    stop = _stopping(options)
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm_precision(), not both")
+    x_all = _check_precision_inputs(problem, graph, estimates, reference_covariance)
+    p = problem.n_params
+    Wm = weight_matrix(options.get("W", 1.0), p)
+    C = driver.constraint_nodes_for(graph, options.get("constraint_nodes", "min_cover"))
+    ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
+    before = ex.comm_totals().snapshot()
+    local = problem.subset(ex.nodes)
+    act = _active_rows(problem, active)[ex.nodes]
+    sums = _normal_run(
+        ex, C, *_sums_inputs(local, x_all[ex.nodes], act, ex.nodes), np.eye(3), _prev(init, "sums"), **stop
+    )
+    n_est, redundancy, vf = _variance_factor(sums.estimates, p)
+    B = np.broadcast_to(np.eye(p), (ex.nodes.size, p, p)) * (1.0 / n_est[ex.nodes])[:, None, None]
+    cov = _normal_run(
+        ex, C, local.normal_equations[0], B, Wm, _prev(init, "cov"), **stop, reference=reference_covariance
+    )
+    Q = cov.estimates.reshape(problem.n_nodes, p, p)
+    precision = Precision(
+        covariance=0.5 * (Q + np.swapaxes(Q, 1, 2)),
+        variance_factor=None if not np.isfinite(vf[0]) else float(vf[0]),
+        redundancy=float(redundancy[0]),
+        kind="exact",
+        iterations=sums.iterations + cov.iterations,
+        comm=ex.comm_totals().since(before),
+    )
+    return PrecisionRun(precision=precision, covariance_run=cov, sums_run=sums, variance_factor_nodes=vf)
+
+
+class _Stopping(TypedDict):
+    max_iterations: int
+    tol: float
+    atol: float
+
+
+def _stopping(options: PrecisionOptions) -> _Stopping:
+    """The checked stopping rule of :func:`admm_precision`'s runs."""
+    stop = _Stopping(
+        max_iterations=options.get("max_iterations", 5000), tol=options.get("tol", 1e-12), atol=options.get("atol", 0.0)
+    )
+    driver.check_stopping(stop["max_iterations"], stop["tol"], stop["atol"])
+    return stop
+
+
+def _check_precision_inputs(
+    problem: LinearProblem, graph: Graph, estimates: FloatArray, reference_covariance: FloatArray | None
+) -> FloatArray:
+    """The estimates as an ``(n, p)`` float array, or a :class:`ModelError` naming the mismatch."""
     n, p = problem.n_nodes, problem.n_params
     if problem.n_nodes != graph.n_nodes:
         raise ModelError(f"the problem has {problem.n_nodes} nodes, the graph {graph.n_nodes}")
@@ -160,59 +225,33 @@ def admm_precision(
         raise ModelError(f"estimates must be ({n}, {p}) (one x_i per node), got shape {x_all.shape}")
     if reference_covariance is not None and np.shape(reference_covariance) != (p, p):
         raise ModelError(f"reference_covariance must be ({p}, {p}), got shape {np.shape(reference_covariance)}")
-    Wm = weight_matrix(W, p)
-    C = driver.constraint_nodes_for(graph, constraint_nodes)
-    ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
-    before = ex.comm_totals().snapshot()
-    nodes = ex.nodes
-    local = problem.subset(nodes)
-    act = _active_rows(problem, active)[nodes]
-    # local sums: weighted SSR with the node's own estimate, observation count, the indicator of node 0
-    e = local.y - np.einsum("nmp,np->nm", local.A, x_all[nodes])
+    return x_all
+
+
+def _sums_inputs(
+    local: LinearProblem, x_local: FloatArray, act: BoolArray, nodes: np.ndarray
+) -> tuple[FloatArray, FloatArray]:
+    """``(N, B)`` of the network mean of each node's weighted SSR with its own estimate, its observation count and
+    the indicator of node 0 (so every node learns n as 1/mean)."""
+    e = local.y - np.einsum("nmp,np->nm", local.A, x_local)
     ssr = np.einsum("nm,nmk,nk->n", e, local.R_inv, e)
     values = np.stack([ssr, act.sum(axis=1).astype(float), (nodes == 0).astype(float)], axis=1)
-    sums = _normal_run(
-        ex,
-        C,
-        np.broadcast_to(np.eye(3), (nodes.size, 3, 3)),
-        values[:, :, None],
-        np.eye(3),
-        None if init is None else init.sums_run,
-        max_iterations=max_iterations,
-        tol=tol,
-        atol=atol,
-        reference=None,
-    )
-    mean = sums.estimates  # (n, 3) gathered for the result; node i uses its own row
+    return np.broadcast_to(np.eye(3), (nodes.size, 3, 3)), values[:, :, None]
+
+
+def _variance_factor(mean: FloatArray, p: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Per node from the network means: the node count, the redundancy ``Σ m_i − p`` and the variance factor."""
     n_est = 1.0 / mean[:, 2]
     weighted_ssr = mean[:, 0] * n_est
     redundancy = np.rint(mean[:, 1] * n_est) - p  # an integer: Σ m_i − rank A (= p, admm() refuses less)
     vf = np.where(redundancy > 0, weighted_ssr / np.maximum(redundancy, 1.0), np.nan)
-    N_local = local.normal_equations[0]
-    B = np.broadcast_to(np.eye(p), (nodes.size, p, p)) * (1.0 / n_est[nodes])[:, None, None]
-    cov = _normal_run(
-        ex,
-        C,
-        N_local,
-        B,
-        Wm,
-        None if init is None else init.covariance_run,
-        max_iterations=max_iterations,
-        tol=tol,
-        atol=atol,
-        reference=reference_covariance,
-    )
-    Q = cov.estimates.reshape(n, p, p)
-    Q = 0.5 * (Q + np.swapaxes(Q, 1, 2))
-    precision = Precision(
-        covariance=Q,
-        variance_factor=None if not np.isfinite(vf[0]) else float(vf[0]),
-        redundancy=float(redundancy[0]),
-        kind="exact",
-        iterations=sums.iterations + cov.iterations,
-        comm=ex.comm_totals().since(before),
-    )
-    return PrecisionRun(precision=precision, covariance_run=cov, sums_run=sums, variance_factor_nodes=vf)
+    return n_est, redundancy, vf
+
+
+def _prev(init: PrecisionRun | None, which: str) -> AdmmResult | None:
+    if init is None:
+        return None
+    return init.sums_run if which == "sums" else init.covariance_run
 
 
 def _active_rows(problem: LinearProblem, active: BoolArray | None) -> BoolArray:
@@ -290,100 +329,39 @@ def admm_data_snooping(
     k_crit = critical_value(level)
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
     opts = AdmmOptions(**options)
-    W, C = opts.get("W", 1.0), driver.constraint_nodes_for(graph, opts.get("constraint_nodes", "min_cover"))
+    C = driver.constraint_nodes_for(graph, opts.get("constraint_nodes", "min_cover"))
     opts["constraint_nodes"] = C
+    prec_opts = PrecisionOptions(
+        W=opts.get("W", 1.0), constraint_nodes=C, max_iterations=max_iterations, tol=tol, atol=atol
+    )
     diameter = int(np.max(csgraph.shortest_path(graph.adjacency(), unweighted=True, directed=False)))
     flood_rounds = max(diameter, 1) * (3 if ex.faults.active else 1)
     act = _active_rows(problem, None)
     offsets = np.concatenate([[0], np.cumsum(problem.rows)])
     prob = problem
-    est = drive(
-        driver.prepare(prob, graph, ex, opts),
-        reference=None,
-        stop_at_reference=None,
-        record_nodes=False,
-        max_iterations=max_iterations,
-        tol=tol,
-        atol=atol,
-    )
-    prec = admm_precision(
-        prob,
-        graph,
-        est.estimates,
-        W=W,
-        constraint_nodes=C,
-        active=act,
-        exchange=ex,
-        max_iterations=max_iterations,
-        tol=tol,
-        atol=atol,
-    )
+    est, prec = _solve_with_precision(prob, graph, ex, opts, act, None, prec_opts)
     first_iterations = est.iterations + prec.precision.iterations
     after_first = ex.comm_totals().snapshot()
     removed: list[int] = []
     extra_iterations = 0
     nodes = ex.nodes
     while True:
-        Q = prec.precision.covariance
-        w_local = _local_w(prob.subset(nodes), est.estimates[nodes], Q[nodes], act[nodes])
-        aw = np.where(np.isfinite(w_local), np.abs(w_local), -np.inf)
-        row = np.argmax(aw, axis=1)
-        val = aw[np.arange(nodes.size), row]
-        key = np.stack([np.where(val > k_crit, val, -np.inf), -(nodes * prob.max_rows + row).astype(float)], axis=1)
-        worst = _flood_max(ex, key, flood_rounds)
-        # monitoring only: every node must hold the same worst observation after the flood
-        agree = np.asarray(
-            ex.allreduce(
-                np.array(
-                    [
-                        worst[:, 0].max(initial=-np.inf),
-                        -worst[:, 0].min(initial=np.inf),
-                        worst[:, 1].max(initial=-np.inf),
-                        -worst[:, 1].min(initial=np.inf),
-                    ]
-                ),
-                "max",
-            )
-        )
-        if agree[0] != -agree[1] or (np.isfinite(agree[0]) and agree[2] != -agree[3]):
-            raise ModelError(f"the max-flood of {flood_rounds} rounds did not reach every node (message losses)")
-        if not np.isfinite(agree[0]) or (max_removals is not None and len(removed) >= max_removals):
+        w_local = _local_w(prob.subset(nodes), est.estimates[nodes], prec.precision.covariance[nodes], act[nodes])
+        gid = _worst_flagged(ex, prob, w_local, k_crit, flood_rounds)
+        if gid is None or (max_removals is not None and len(removed) >= max_removals):
             break
-        gid = int(-agree[2])
         node, r = divmod(gid, prob.max_rows)
         removed.append(int(offsets[node] + r))
         act = act.copy()
         act[node, r] = False
         prob = remove_observation(prob, node, r)
         warm = AdmmOptions(**{**opts, "init": est, "multipliers": est.multipliers})  # x, z and u carried over
-        est = drive(
-            driver.prepare(prob, graph, ex, warm),
-            reference=None,
-            stop_at_reference=None,
-            record_nodes=False,
-            max_iterations=max_iterations,
-            tol=tol,
-            atol=atol,
-        )
-        prec = admm_precision(
-            prob,
-            graph,
-            est.estimates,
-            W=W,
-            constraint_nodes=C,
-            active=act,
-            init=prec,
-            exchange=ex,
-            max_iterations=max_iterations,
-            tol=tol,
-            atol=atol,
-        )
+        est, prec = _solve_with_precision(prob, graph, ex, warm, act, prec, prec_opts)
         extra_iterations += est.iterations + prec.precision.iterations
     w_all = ex.gather_nodes(w_local)
     flat = np.concatenate([w_all[i, : problem.rows[i]] for i in range(problem.n_nodes)])
-    owner = np.repeat(np.arange(problem.n_nodes), problem.rows)
     tests = ObservationTests(
-        node=owner,
+        node=np.repeat(np.arange(problem.n_nodes), problem.rows),
         w=flat,
         critical_value=k_crit,
         level=level,
@@ -397,3 +375,50 @@ def admm_data_snooping(
         f"first solution ({first_iterations} for estimate and precision); {est.message}"
     )
     return dataclasses.replace(est, precision=prec.precision, tests=tests, message=msg, comm=ex.comm_totals())
+
+
+def _solve_with_precision(
+    prob: LinearProblem,
+    graph: Graph,
+    ex: Exchange,
+    opts: AdmmOptions,
+    act: BoolArray,
+    init: PrecisionRun | None,
+    prec_opts: PrecisionOptions,
+) -> tuple[AdmmResult, PrecisionRun]:
+    """One data-snooping step: the ADMM estimate of ``prob`` (warm when ``opts`` carry one) and its precision."""
+    est = drive(
+        driver.prepare(prob, graph, ex, opts),
+        reference=None,
+        stop_at_reference=None,
+        record_nodes=False,
+        max_iterations=prec_opts["max_iterations"],
+        tol=prec_opts["tol"],
+        atol=prec_opts["atol"],
+    )
+    prec = admm_precision(prob, graph, est.estimates, active=act, init=init, exchange=ex, **prec_opts)
+    return est, prec
+
+
+def _worst_flagged(
+    ex: Exchange, prob: LinearProblem, w_local: FloatArray, k_crit: float, flood_rounds: int
+) -> int | None:
+    """The flat id (``node · max_rows + row``) of the network's largest |w| above ``k_crit`` after a max-flood, or
+    ``None`` when nothing is flagged; a :class:`ModelError` if the flood did not reach every node."""
+    nodes = ex.nodes
+    aw = np.where(np.isfinite(w_local), np.abs(w_local), -np.inf)
+    row = np.argmax(aw, axis=1)
+    val = aw[np.arange(nodes.size), row]
+    key = np.stack([np.where(val > k_crit, val, -np.inf), -(nodes * prob.max_rows + row).astype(float)], axis=1)
+    worst = _flood_max(ex, key, flood_rounds)
+    # monitoring only: every node must hold the same worst observation after the flood
+    spread = [
+        worst[:, 0].max(initial=-np.inf),
+        -worst[:, 0].min(initial=np.inf),
+        worst[:, 1].max(initial=-np.inf),
+        -worst[:, 1].min(initial=np.inf),
+    ]
+    agree = np.asarray(ex.allreduce(np.array(spread), "max"))
+    if agree[0] != -agree[1] or (np.isfinite(agree[0]) and agree[2] != -agree[3]):
+        raise ModelError(f"the max-flood of {flood_rounds} rounds did not reach every node (message losses)")
+    return int(-agree[2]) if np.isfinite(agree[0]) else None

@@ -44,6 +44,7 @@ from distnav.algorithms.ranging.losses import LOSSES, loss_terms
 from distnav.algorithms.ranging.neighbourhoods import checked_estimates, exchange_for
 from distnav.algorithms.ranging.objective import range_sigma
 from distnav.algorithms.ranging.refine import Links, NormalSystem, block_preconditioner, jacobian_rows, pcg
+from distnav.algorithms.ranging.wire import reduction_cost
 from distnav.algorithms.result import Precision
 from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
@@ -100,8 +101,7 @@ class CentralPrecision:
     def reduction_cost(self, n_anchors: int) -> tuple[int, int]:
         """Messages and bytes of the network totals as spanning-tree reductions (up and down: ``2(n − 1)``
         messages each, carrying the reduced floats)."""
-        per = 2 * max(n_anchors - 1, 0)
-        return self.reductions * per, 8 * self.reduced_floats * per
+        return reduction_cost(n_anchors, self.reductions, self.reduced_floats)
 
 
 def central_precision(

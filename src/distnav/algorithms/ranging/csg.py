@@ -50,7 +50,7 @@ from distnav.algorithms.ranging.plan import check_offsets
 from distnav.algorithms.ranging.qc import DISTRIBUTED_TEST_SCALES, distributed_quality
 from distnav.algorithms.ranging.refine import refine_state
 from distnav.algorithms.ranging.stop import StopRule
-from distnav.algorithms.ranging.wire import comm_mark, comm_phases
+from distnav.algorithms.ranging.wire import comm_mark, comm_phases, reduction_cost
 from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -398,6 +398,13 @@ def _run(
                     "rounds": ref.rounds,
                     "cg_iterations": ref.cg_iterations,
                     "reductions": ref.reductions,
+                    **dict(
+                        zip(
+                            ("reduction_messages", "reduction_bytes"),
+                            reduction_cost(problem.n_anchors, ref.reductions, ref.reduced_floats),
+                            strict=True,
+                        )
+                    ),
                     "status": ref.status,
                 },
             }

@@ -69,6 +69,10 @@ class LMControls:
     gtol: float = 1e-12
     lambda0: float = 1e-3
 
+    def tolerances(self) -> dict[str, float]:
+        """The initial damping and the stopping tolerances, as ``RangingResult.settings`` lists them."""
+        return {"lambda0": self.lambda0, "ftol": self.ftol, "xtol": self.xtol, "gtol": self.gtol}
+
 
 @dataclass(frozen=True)
 class LMResult:
@@ -104,11 +108,8 @@ def levenberg_marquardt(
     Runs with OpenBLAS limited to one thread (:func:`single_threaded_blas`).
     """
     c = LMControls(**options)
-    max_iterations, ftol, xtol, gtol, lambda0 = c.max_iterations, c.ftol, c.xtol, c.gtol, c.lambda0
-    if loss not in LOSSES:
-        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-    if max_iterations < 0:
-        raise ModelError(f"max_iterations must be ≥ 0, got {max_iterations}")
+    max_iterations, xtol, lambda0 = c.max_iterations, c.xtol, c.lambda0
+    _check_lm(loss, max_iterations)
     x = np.array(x0, dtype=float)
     g = np.asarray(fun(x), float)
     w, obj = robust_weights(g, loss_scale, loss)
@@ -121,9 +122,8 @@ def levenberg_marquardt(
     J: Any = jac(x)  # dense or any scipy sparse format: used through its array interface
     solver = _DampedSolver(J, dense_limit)
     A, grad = normal(J, w, g)
-    converged, message, k = False, f"stopped after {max_iterations} iterations", 0
-    if x.size == 0:
-        converged, message = True, "nothing to estimate"
+    converged = x.size == 0
+    message, k = ("nothing to estimate" if converged else f"stopped after {max_iterations} iterations"), 0
     for k in range(1, max_iterations + 1):
         if converged:
             k -= 1
@@ -132,14 +132,9 @@ def levenberg_marquardt(
         if delta is None:
             lam *= nu
             nu *= 2.0
-            tb["cost"].append(float(g @ g))
-            tb["objective"].append(obj)
-            tb["step_norm"].append(0.0)
-            tb["lambda"].append(lam)
-            tb["accepted"].append(0.0)
+            _record(tb, g, obj, 0.0, lam, False)
             continue
-        jd = np.asarray(J @ delta).ravel()
-        pred = float(np.sum(w * g * g) - np.sum(w * (g + jd) ** 2))
+        pred = _predicted_reduction(J, delta, w, g)
         x_new = x + delta
         g_new = np.asarray(fun(x_new), float)
         w_new, obj_new = robust_weights(g_new, loss_scale, loss)
@@ -153,33 +148,13 @@ def levenberg_marquardt(
             nu = 2.0
             J = jac(x)
             A, grad = normal(J, w, g)
-            if actual <= ftol * obj_old and pred <= ftol * obj_old:
-                converged, message = True, f"relative reduction below ftol={ftol:g}"
-            elif step <= xtol * (xtol + float(np.linalg.norm(x))):
-                converged, message = True, f"step below xtol={xtol:g}"
-            else:
-                gnorm = float(np.linalg.norm(g))
-                if gnorm == 0.0:
-                    converged, message = True, "zero residual"
-                else:
-                    if sp.issparse(J):
-                        jc = J.tocsr()
-                        colnorm = np.sqrt(np.bincount(jc.indices, jc.data**2, minlength=x.size))
-                    else:
-                        colnorm = np.linalg.norm(J, axis=0)
-                    cos = np.abs(grad) / np.maximum(colnorm * gnorm, 1e-300)
-                    if float(cos.max(initial=0.0)) <= gtol:
-                        converged, message = True, f"gradient below gtol={gtol:g}"
+            converged, message = _stopped(c, (actual, pred, obj_old), step, x, g, J, grad, message)
         else:
             lam *= nu
             nu *= 2.0
             if step <= xtol * (xtol + float(np.linalg.norm(x))):
                 converged, message = True, f"step below xtol={xtol:g} (rejected)"
-        tb["cost"].append(float(g @ g))
-        tb["objective"].append(obj)
-        tb["step_norm"].append(step if accepted else 0.0)
-        tb["lambda"].append(lam)
-        tb["accepted"].append(1.0 if accepted else 0.0)
+        _record(tb, g, obj, step if accepted else 0.0, lam, accepted)
         if callback is not None:
             callback(k, x)
     else:
@@ -193,6 +168,116 @@ def levenberg_marquardt(
         message=message,
         trace={key: np.asarray(v) for key, v in tb.items()},
     )
+
+
+def _check_lm(loss: str, max_iterations: int) -> None:
+    if loss not in LOSSES:
+        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    if max_iterations < 0:
+        raise ModelError(f"max_iterations must be ≥ 0, got {max_iterations}")
+
+
+def _predicted_reduction(J: Any, delta: np.ndarray, w: np.ndarray, g: np.ndarray) -> float:
+    """The reduction of the (IRLS-weighted) objective the linear model predicts for the step ``delta``."""
+    jd = np.asarray(J @ delta).ravel()
+    return float(np.sum(w * g * g) - np.sum(w * (g + jd) ** 2))
+
+
+def _record(tb: dict[str, list[float]], g: np.ndarray, obj: float, step: float, lam: float, accepted: bool) -> None:
+    """One row of :func:`levenberg_marquardt`'s trace."""
+    tb["cost"].append(float(g @ g))
+    tb["objective"].append(obj)
+    tb["step_norm"].append(step)
+    tb["lambda"].append(lam)
+    tb["accepted"].append(1.0 if accepted else 0.0)
+
+
+def _stopped(
+    c: LMControls,
+    reduction: tuple[float, float, float],
+    step: float,
+    x: np.ndarray,
+    g: np.ndarray,
+    J: Any,
+    grad: np.ndarray,
+    message: str,
+) -> tuple[bool, str]:
+    """The stopping tests after an accepted step (``reduction``: actual, predicted, the objective before): relative
+    reduction (``ftol``), step (``xtol``), zero residual, MINPACK's gradient cosine (``gtol``); ``(stop, why)``."""
+    actual, pred, obj_old = reduction
+    if actual <= c.ftol * obj_old and pred <= c.ftol * obj_old:
+        return True, f"relative reduction below ftol={c.ftol:g}"
+    if step <= c.xtol * (c.xtol + float(np.linalg.norm(x))):
+        return True, f"step below xtol={c.xtol:g}"
+    gnorm = float(np.linalg.norm(g))
+    if gnorm == 0.0:
+        return True, "zero residual"
+    if sp.issparse(J):
+        jc = J.tocsr()
+        colnorm = np.sqrt(np.bincount(jc.indices, jc.data**2, minlength=x.size))
+    else:
+        colnorm = np.linalg.norm(J, axis=0)
+    cos = np.abs(grad) / np.maximum(colnorm * gnorm, 1e-300)
+    if float(cos.max(initial=0.0)) <= c.gtol:
+        return True, f"gradient below gtol={c.gtol:g}"
+    return False, message
+
+
+def _stages_trace(
+    stages: list[LMResult], start: tuple[float, float], c: LMControls, rmse: list[float] | None, pad: bool
+) -> Trace:
+    """:func:`solve_lm`'s trace: row 0 the start (``start``: cost and robust objective), then every stage's rows;
+    ``pad`` repeats the final state up to ``max_iterations`` rows."""
+    cost = np.concatenate([[start[0]]] + [st.trace["cost"] for st in stages])
+    objective_tr = np.concatenate([[start[1]]] + [st.trace["objective"] for st in stages])
+    step = np.concatenate([[0.0]] + [st.trace["step_norm"] for st in stages])
+    lam = np.concatenate([[c.lambda0]] + [st.trace["lambda"] for st in stages])
+    rmse_tr = np.asarray(rmse) if rmse is not None else np.full(cost.size, np.nan)
+    if pad and cost.size < c.max_iterations + 1:
+        n = c.max_iterations + 1 - cost.size
+        cost = np.concatenate([cost, np.full(n, cost[-1])])
+        objective_tr = np.concatenate([objective_tr, np.full(n, objective_tr[-1])])
+        step = np.concatenate([step, np.zeros(n)])
+        lam = np.concatenate([lam, np.full(n, lam[-1])])
+        rmse_tr = np.concatenate([rmse_tr, np.full(n, rmse_tr[-1])])
+    return Trace({"cost": cost, "objective": objective_tr, "rmse_m": rmse_tr, "step_size": step, "lambda": lam})
+
+
+def _lm_quality(
+    obj: Any, x: np.ndarray, scale: np.ndarray | float, loss: str, level: float, test_scale: str
+) -> tuple[Any, Any, np.ndarray | None]:
+    """Precision, w-tests (:func:`~distnav.algorithms.ranging.qc.centralized_quality`) and the offsets' σ of the
+    solution ``x`` of the objective ``obj`` with the loss's final weights."""
+    from distnav.algorithms.ranging.qc import centralized_quality
+
+    problem = obj.problem
+    r = obj.residual(x)
+    w = robust_weights(r, scale, loss)[0]
+    precision, tests, Q = centralized_quality(
+        problem, obj.jacobian(x), r, w, problem.n_meas, level=level, scale=test_scale
+    )
+    off_std = None
+    if Q is not None and obj.n_offsets:
+        s2 = precision.variance_factor if precision is not None and precision.variance_factor else 1.0
+        off_std = np.sqrt(np.diag(Q)[problem.n_free :] * s2)
+    return precision, tests, off_std
+
+
+def _initial(problem: RangingData, initial_m: np.ndarray | None) -> np.ndarray:
+    init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
+    if init is None:
+        raise ModelError("global LM needs an initial guess (problem.initial_m or initial_m=)")
+    return np.asarray(init)
+
+
+def _rmse_of(obj: Any, x: np.ndarray) -> float:
+    """RMSE (paper 002 eq. (24)) of the estimated anchors of the free vector ``x`` (NaN without the truth)."""
+    problem = obj.problem
+    truth, est = problem.truth_m, problem.estimated
+    if truth is None:
+        return float("nan")
+    d = obj.split(x)[0][est] - truth[est]
+    return float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d)))) if est.any() else 0.0
 
 
 def solve_lm(
@@ -231,71 +316,34 @@ def solve_lm(
     :func:`levenberg_marquardt` (defaults :class:`LMControls`).
     """
     from distnav.algorithms.ranging.objective import RangeObjective
-    from distnav.algorithms.ranging.qc import centralized_quality
 
     c = LMControls(**options)  # checks the option names first; the values the iteration uses, for trace and settings
-    init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
-    if init is None:
-        raise ModelError("global LM needs an initial guess (problem.initial_m or initial_m=)")
-    if loss not in LOSSES:
-        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    _check_lm(loss, c.max_iterations)
     obj = RangeObjective(problem, objective, sigma_m, range_offsets, offset_prior_sigma_m)
-    x0 = obj.x0(init)
-    truth = problem.truth_m
-    est = problem.estimated
+    x0 = obj.x0(_initial(problem, initial_m))
     scale = obj.loss_scale(loss_scale_m) if loss != "linear" else 1.0
-    rm: list[float] = []
-
-    def rmse(x: np.ndarray) -> float:
-        if truth is None:
-            return float("nan")
-        d = obj.split(x)[0][est] - truth[est]
-        return float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d)))) if est.any() else 0.0
-
-    rm.append(rmse(x0))
-    callback = (lambda k, x: rm.append(rmse(x))) if truth is not None else None
+    rm: list[float] | None = [_rmse_of(obj, x0)] if problem.truth_m is not None else None
+    callback = (lambda k, x: rm.append(_rmse_of(obj, x))) if rm is not None else None
     stages = []
     x_start = x0
     if (objective == "metres" if graduated is None else graduated) and loss != "linear":
-        first = levenberg_marquardt(obj.residual, obj.jacobian, x0, callback=callback, **options)
-        stages.append(first)
-        x_start = first.x
+        stages.append(levenberg_marquardt(obj.residual, obj.jacobian, x0, callback=callback, **options))
+        x_start = stages[0].x
     res = levenberg_marquardt(
         obj.residual, obj.jacobian, x_start, loss=loss, loss_scale=scale, callback=callback, **options
     )
     stages.append(res)
     g0 = obj.residual(x0)
-    cost = np.concatenate([[float(g0 @ g0)]] + [st.trace["cost"] for st in stages])
-    obj0 = robust_weights(g0, scale, loss)[1]
-    objective_tr = np.concatenate([[obj0]] + [st.trace["objective"] for st in stages])
-    step = np.concatenate([[0.0]] + [st.trace["step_norm"] for st in stages])
-    lam = np.concatenate([[c.lambda0]] + [st.trace["lambda"] for st in stages])
-    rmse_tr = np.asarray(rm) if truth is not None else np.full(cost.size, np.nan)
-    if pad_trace and cost.size < c.max_iterations + 1:
-        pad = c.max_iterations + 1 - cost.size
-        cost = np.concatenate([cost, np.full(pad, cost[-1])])
-        objective_tr = np.concatenate([objective_tr, np.full(pad, objective_tr[-1])])
-        step = np.concatenate([step, np.zeros(pad)])
-        lam = np.concatenate([lam, np.full(pad, lam[-1])])
-        rmse_tr = np.concatenate([rmse_tr, np.full(pad, rmse_tr[-1])])
-    trace = Trace({"cost": cost, "objective": objective_tr, "rmse_m": rmse_tr, "step_size": step, "lambda": lam})
+    start = (float(g0 @ g0), robust_weights(g0, scale, loss)[1])
+    trace = _stages_trace(stages, start, c, rm, pad_trace)
     pos, off = obj.split(res.x)
-    precision = tests = None
-    off_std = None
+    precision = tests = off_std = None
     if quality:
-        r = obj.residual(res.x)
-        w = robust_weights(r, scale, loss)[0]
-        precision, tests, Q = centralized_quality(
-            problem, obj.jacobian(res.x), r, w, problem.n_meas, level=test_level, scale=test_scale
-        )
-        if Q is not None and obj.n_offsets:
-            s2 = precision.variance_factor if precision is not None and precision.variance_factor else 1.0
-            off_std = np.sqrt(np.diag(Q)[problem.n_free :] * s2)
-    iterations = sum(st.iterations for st in stages)
+        precision, tests, off_std = _lm_quality(obj, res.x, scale, loss, test_level, test_scale)
     return RangingResult(
         estimates=pos,
         converged=res.converged,
-        iterations=iterations,
+        iterations=sum(st.iterations for st in stages),
         status="converged" if res.converged else "max_iterations",
         message=f"LM: {res.message}; cost {res.cost:.6g}",
         trace=trace,
@@ -305,15 +353,7 @@ def solve_lm(
         objective=res.objective,
         loss=loss,
         x=res.x,
-        settings={
-            "lambda0": c.lambda0,
-            "ftol": c.ftol,
-            "xtol": c.xtol,
-            "gtol": c.gtol,
-            "sigma_m": sigma_m,
-            "range_offsets": range_offsets,
-            "graduated": len(stages) > 1,
-        },
+        settings={**c.tolerances(), "sigma_m": sigma_m, "range_offsets": range_offsets, "graduated": len(stages) > 1},
         objective_kind=objective,
         precision=precision,
         tests=tests,

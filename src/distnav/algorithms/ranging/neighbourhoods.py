@@ -126,11 +126,30 @@ class Neighbourhoods:
         sigma_m: float | np.ndarray = 1.0,
     ) -> None:
         g = problem.graph
-        n = g.n_nodes
-        self.n, self.dim = n, problem.dim
+        self.n, self.dim = g.n_nodes, problem.dim
         self.K = int(g.degrees.max(initial=0)) + 1
-        nl = ex.n_local
-        self.nl = nl
+        self.nl = ex.n_local
+        self._key_sorted = g.dst * self.n + g.src  # graph edges are sorted by (dst, src)
+        self._in_ptr = g.in_ptr
+        self._slots(problem, ex)
+        self._half_links(problem, ex, loss, loss_scale_m, objective, sigma_m)
+        self._messages(ex)
+
+    def _is_edge(self, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+        key_sorted = self._key_sorted
+        want = dst * self.n + src
+        pos = np.minimum(np.searchsorted(key_sorted, want), key_sorted.size - 1)
+        return (key_sorted[pos] == want) if key_sorted.size else np.zeros(want.shape, bool)
+
+    def position(self, holder: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """Slot of node k in holder's vector (k must be holder or a neighbour)."""
+        e = np.searchsorted(self._key_sorted, holder * self.n + k)
+        return np.asarray(np.where(k == holder, 0, e - self._in_ptr[holder] + 1))
+
+    def _slots(self, problem: RangingData, ex: Exchange) -> None:
+        """Which node every slot of every local vector holds (slot 0: the node itself, then its neighbours in
+        ascending id order; -1 padding), and the free / known values per slot."""
+        g, nl = problem.graph, self.nl
         deg = g.degrees[ex.nodes]
         slot_node = np.full((nl, self.K), -1, np.int64)
         slot_node[:, 0] = ex.nodes
@@ -141,24 +160,21 @@ class Neighbourhoods:
         slot_node[rows, offs + 1] = g.src[starts[rows] + offs]
         self.slot_node = slot_node
         self.valid = slot_node >= 0
-        key_sorted = g.dst * n + g.src  # graph edges are sorted by (dst, src)
-
-        def is_edge(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-            want = dst * n + src
-            pos = np.minimum(np.searchsorted(key_sorted, want), key_sorted.size - 1)
-            return (key_sorted[pos] == want) if key_sorted.size else np.zeros(want.shape, bool)
-
-        def position(holder: np.ndarray, k: np.ndarray) -> np.ndarray:
-            """Slot of node k in holder's vector (k must be holder or a neighbour)."""
-            e = np.searchsorted(key_sorted, holder * n + k)
-            return np.where(k == holder, 0, e - g.in_ptr[holder] + 1)
-
-        self.position = position
-        # free / known values per slot
         safe = np.where(self.valid, slot_node, 0)
         self.free_slot = problem.free[safe] & self.valid[:, :, None]
         self.known_slot = np.where(self.valid[:, :, None], problem.positions_m[safe], 0.0)
-        # half-measurements: owner local idx, slot of the other end in the owner's vector
+
+    def _half_links(
+        self,
+        problem: RangingData,
+        ex: Exchange,
+        loss: str,
+        loss_scale_m: float,
+        objective: str,
+        sigma_m: float | np.ndarray,
+    ) -> None:
+        """The half-measurements: owner local idx, slot of the other end in the owner's vector, range, σ, loss
+        scale, and the sparse map ``Q`` from slot differences to half-measurements."""
         own_idx, other, d2, samp = half_measurements(problem, ex)
         self.h_own, self.h_d2, self.h_samp = own_idx, d2, samp
         self.loss = loss
@@ -171,7 +187,7 @@ class Neighbourhoods:
             self.h_scale = loss_scale_m / self.h_sigma
         else:
             self.h_scale = range_loss_scale(problem, loss_scale_m)[samp] if loss != "linear" else np.ones(samp.size)
-        self.h_slot = position(ex.nodes[own_idx], other)
+        self.h_slot = self.position(ex.nodes[own_idx], other)
         self.h_flat_self = own_idx * self.K
         self.h_flat_other = own_idx * self.K + self.h_slot
         # the same rows as flat element indices (a 1-D gather copies the same values, ~4× faster on short rows)
@@ -183,8 +199,12 @@ class Neighbourhoods:
                 np.concatenate([np.ones(nh), -np.ones(nh)]),
                 (np.concatenate([self.h_flat_self, self.h_flat_other]), np.concatenate([np.arange(nh)] * 2)),
             ),
-            shape=(nl * self.K, nh),
+            shape=(self.nl * self.K, nh),
         )
+
+    def _messages(self, ex: Exchange) -> None:
+        """Where every sent slot lands in the receiver's vector, and which receiver slots each sender holds."""
+        slot_node = self.slot_node
         # outgoing messages: sender slot s of node k goes to receiver i at position(i, k) when k ∈ N(i) ∪ {i}
         oe = np.arange(ex.out_edges.size)
         send_local = ex.out_src
@@ -193,8 +213,8 @@ class Neighbourhoods:
         s_rep = np.tile(np.arange(self.K), oe.size)
         k_node = slot_node[send_local[e_rep], s_rep]
         r_node = recv[e_rep]
-        ok = (k_node >= 0) & ((k_node == r_node) | is_edge(np.maximum(k_node, 0), r_node))
-        self.msg_flat = e_rep[ok] * self.K + position(r_node[ok], k_node[ok])
+        ok = (k_node >= 0) & ((k_node == r_node) | self._is_edge(np.maximum(k_node, 0), r_node))
+        self.msg_flat = e_rep[ok] * self.K + self.position(r_node[ok], k_node[ok])
         self.msg_src = send_local[e_rep[ok]] * self.K + s_rep[ok]
         self.n_out = oe.size
         # incoming: which positions of the receiver's vector the sender holds (static "has" mask)
@@ -203,7 +223,7 @@ class Neighbourhoods:
         p_rep = np.tile(np.arange(self.K), ie.size)
         kk = slot_node[ex.in_dst[i_rep], p_rep]
         snd = ex.in_src[i_rep]
-        has = (kk >= 0) & ((kk == snd) | is_edge(np.maximum(kk, 0), snd))
+        has = (kk >= 0) & ((kk == snd) | self._is_edge(np.maximum(kk, 0), snd))
         self.has = has.reshape(ie.size, self.K)
         self.in_dst = ex.in_dst
         self.n_in = ie.size

@@ -37,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -60,6 +61,7 @@ __all__ = [
     "centralized_quality",
     "exclude_links",
     "free_block_inverses",
+    "HalfLinks",
     "local_quality",
     "network_robust_scale",
     "robust_scale",
@@ -184,13 +186,22 @@ def free_block_inverses(info: np.ndarray, free: np.ndarray) -> np.ndarray:
     return cov
 
 
+@dataclass(frozen=True, eq=False)
+class HalfLinks:
+    """One row per half-measurement an exchange block holds: its measured ``range_m``, ``owner`` (local anchor
+    index) and the owner's free coordinates ``owner_free`` ``(h, dim)``, ``own_m`` / ``other_m`` (the owner's
+    estimate of itself and of the other end, ``(h, dim)``) and the range ``sigma``."""
+
+    range_m: np.ndarray
+    owner: np.ndarray
+    owner_free: np.ndarray
+    own_m: np.ndarray
+    other_m: np.ndarray
+    sigma: np.ndarray
+
+
 def local_quality(
-    range_m: np.ndarray,
-    owner: np.ndarray,
-    owner_free: np.ndarray,
-    own_m: np.ndarray,
-    other_m: np.ndarray,
-    sigma: np.ndarray,
+    half: HalfLinks,
     n_local: int,
     kind: str,
     *,
@@ -200,10 +211,8 @@ def local_quality(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What every anchor of one exchange block computes from its own links (module docstring); no messages.
 
-    One row per half-measurement the block holds: its measured range, ``owner`` (local anchor index) and the
-    owner's free coordinates ``(h, dim)``, ``own_m`` / ``other_m`` (the owner's estimate of itself and of the other
-    end, ``(h, dim)``), σ, and the loss with its per-row scale (for the IRLS weights). ``kind`` is the objective
-    (``"squared"`` or ``"metres"``).
+    ``half``: the block's half-measurements (:class:`HalfLinks`); the loss with its per-row scale (for the IRLS
+    weights). ``kind`` is the objective (``"squared"`` or ``"metres"``).
     ``scale``: ``"local"`` divides by each anchor's robust scale of its own links; ``"robust"`` and
     ``"a-priori"`` return the standardized residuals unscaled (the network's robust scale is applied by
     :func:`distributed_quality`, after a gather).
@@ -211,8 +220,9 @@ def local_quality(
     """
     if scale not in DISTRIBUTED_TEST_SCALES:
         raise ModelError(f"test scale must be one of {', '.join(DISTRIBUTED_TEST_SCALES)}, got {scale!r}")
-    dim = own_m.shape[1]
-    diff = own_m - other_m
+    range_m, owner, owner_free, sigma = half.range_m, half.owner, half.owner_free, half.sigma
+    dim = half.own_m.shape[1]
+    diff = half.own_m - half.other_m
     dist = np.linalg.norm(diff, axis=1)
     if kind == "metres":
         j = diff / (np.where(dist > 0, dist, np.inf) * sigma)[:, None]
@@ -291,35 +301,56 @@ def exclude_links(
         aw = np.where(ok, aw, -np.inf)
         if not aw.size or aw.max() <= t.critical_value:
             break
-        blocked = np.zeros(problem.n_anchors, bool)  # anchors of this round's links
         cap = min(limit - n_links, problem.n_meas if per_round is None else max(int(per_round), 1))
-        taken = 0
-        for worst in np.argsort(-aw, kind="stable"):
-            if taken >= cap or aw[worst] <= t.critical_value:
-                break
-            lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
-            if blocked[lo] or blocked[hi] or not keep[idx[worst]]:
-                continue
-            same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
-            keep[same] = False
-            removed.extend(int(s) for s in same)
-            n_links += 1
-            taken += 1
-            blocked[[lo, hi]] = True
+        n_links += _exclude_round(problem.n_anchors, aw, (a, b, idx), keep, removed, cap, t.critical_value)
         sub = dataclasses.replace(
             problem, meas_a=problem.meas_a[keep], meas_b=problem.meas_b[keep], range_m=problem.range_m[keep]
         )
         res = fit(sub)
+    if res.tests is None:
+        raise ModelError("exclude_links needs a fit that returns per-link tests (result.tests)")
+    return res, sub, _all_sample_tests(problem, res.tests, keep, removed)
+
+
+def _exclude_round(
+    n_anchors: int,
+    aw: np.ndarray,
+    samples: tuple[np.ndarray, np.ndarray, np.ndarray],
+    keep: np.ndarray,
+    removed: list[int],
+    cap: int,
+    critical: float,
+) -> int:
+    """One round of :func:`exclude_links`: up to ``cap`` flagged links in order of ``aw`` (|w| of the kept samples
+    ``samples = (a, b, index)``, −inf where not allowed), no two sharing an anchor, all their samples taken out of
+    ``keep`` and appended to ``removed``. Returns the number of links excluded."""
+    a, b, idx = samples
+    blocked = np.zeros(n_anchors, bool)  # anchors of this round's links
+    taken = 0
+    for worst in np.argsort(-aw, kind="stable"):
+        if taken >= cap or aw[worst] <= critical:
+            break
+        lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
+        if blocked[lo] or blocked[hi] or not keep[idx[worst]]:
+            continue
+        same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
+        keep[same] = False
+        removed.extend(int(s) for s in same)
+        taken += 1
+        blocked[[lo, hi]] = True
+    return taken
+
+
+def _all_sample_tests(
+    problem: RangingData, final: ObservationTests, keep: np.ndarray, removed: list[int]
+) -> ObservationTests:
+    """The final tests over every original sample (w NaN for the excluded ones) with the exclusions in order."""
     w_all = np.full(problem.n_meas, np.nan)
     flagged = np.zeros(problem.n_meas, bool)
-    final = res.tests
-    if final is None:
-        raise ModelError("exclude_links needs a fit that returns per-link tests (result.tests)")
     w_all[keep] = final.w
     flagged[keep] = final.flagged
-    node = np.minimum(problem.meas_a, problem.meas_b)
-    tests = ObservationTests(
-        node=node,
+    return ObservationTests(
+        node=np.minimum(problem.meas_a, problem.meas_b),
         w=w_all,
         critical_value=final.critical_value,
         level=final.level,
@@ -328,7 +359,6 @@ def exclude_links(
         iterations=0,
         comm=None,
     )
-    return res, sub, tests
 
 
 def distributed_quality(
@@ -351,12 +381,7 @@ def distributed_quality(
     owner, samp = st.half_owner, st.half_sample
     rng = problem.range_m[samp] - (0.0 if st.half_offset_m is None else st.half_offset_m)  # the holder's bias
     cov, w_half, wssr = local_quality(
-        rng,
-        owner,
-        problem.free[ex.nodes[owner]],
-        st.own_m[owner],
-        st.half_other_m,
-        sigma[samp],
+        HalfLinks(rng, owner, problem.free[ex.nodes[owner]], st.own_m[owner], st.half_other_m, sigma[samp]),
         ex.n_local,
         objective,
         loss=loss,

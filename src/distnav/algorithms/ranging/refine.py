@@ -17,8 +17,11 @@ iteration needs only the neighbours' values:
 * the **scalars** of CG (two dot products), the cost of a trial step, the common offset's row and the step's
   largest move are network totals, as the solvers' :class:`~distnav.algorithms.ranging.csg.StopRule` uses: each is a
   sum over the anchors assembled in the anchors' order (``gather_nodes``, so that in-process and MPI agree bit
-  for bit; a deployment would run a spanning-tree reduction, ``2(n − 1)`` messages of one float). They are
-  counted in :attr:`Refinement.reductions`.
+  for bit; a deployment would run a spanning-tree reduction, ``2(n − 1)`` messages of the reduced floats). They
+  are counted in :attr:`Refinement.reductions` / :attr:`Refinement.reduced_floats`, and their bytes
+  (:func:`~distnav.algorithms.ranging.wire.reduction_cost`) in the solver result's ``settings["refine"]``
+  and in ``uwb solve``'s totals (issue 27: before, only the broadcasts were counted — at two reductions of two
+  floats per CG iteration the reductions send about twice the bytes of the float16 broadcasts on a 28-anchor hall).
 
 The outer loop is Levenberg–Marquardt (Madsen, Nielsen & Tingleff 2004, §3.2: Marquardt's diagonal damping
 ``μ·diag(N)``, μ ÷ 3 after an accepted step, × 4 after a rejected one) on the objective LM minimises, ``F = Σ_l
@@ -36,10 +39,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
-from distnav.algorithms.ranging.wire import CG_WIRE_DTYPE, Wire
+from distnav.algorithms.ranging.wire import Wire
 from distnav.exchange import Exchange
 
 __all__ = [
@@ -64,7 +68,8 @@ class Refinement:
     """The refined state of one exchange block: own estimates ``(n_local, dim)``, own offsets (per anchor, or
     every anchor's copy of the common one; None without offsets), the neighbours' estimates and offsets per
     half-measurement (as :class:`~distnav.algorithms.ranging.neighbourhoods.IterationState`), the objective ``F``, the
-    status, outer rounds (accepted or not), CG iterations and network reductions."""
+    status, outer rounds (accepted or not), CG iterations and network reductions (with their floats per anchor,
+    summed: the cost, :func:`~distnav.algorithms.ranging.wire.reduction_cost`)."""
 
     own_m: np.ndarray
     offset_m: np.ndarray | None
@@ -75,6 +80,7 @@ class Refinement:
     rounds: int
     cg_iterations: int
     reductions: int
+    reduced_floats: int = 0
 
 
 class Links:
@@ -195,7 +201,7 @@ def refine(
                 damp_c = mu * max(dc, 1e-12)
                 pre_inv = block_preconditioner(own_block, damp, free)
                 system = NormalSystem(
-                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, CG_WIRE_DTYPE
+                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, wire.CG_WIRE_DTYPE
                 )
                 dxk, dck, its = pcg(
                     system,
@@ -248,6 +254,7 @@ def refine(
         rounds=rounds,
         cg_iterations=cg_total,
         reductions=links.reductions,
+        reduced_floats=links.reduced_floats,
     )
 
 
@@ -310,7 +317,7 @@ class NormalSystem:
     prior: float  # 1/σ_b² on per-anchor offsets (0 otherwise)
     free: np.ndarray  # (n_local, P)
     common: bool
-    wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float32 in the LM phase)
+    wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float16 in the LM phase)
 
     def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the

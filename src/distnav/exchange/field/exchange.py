@@ -12,8 +12,12 @@ its weight moves to the receiver's self-weight (as for a dropped message in-proc
 :class:`~distnav.exchange.faults.FaultSchedule` drops the same messages as in-process (decided by the receiver).
 
 Global operations (:meth:`allreduce`, :meth:`gather_nodes`, :meth:`barrier`) are implemented honestly over the
-network: every node sends its contribution to every other node (``n − 1`` messages per node per call, counted in
-the wire bytes); node code that should scale avoids them.
+network: when every other node is a peer of the transport (threads of one test), each node sends its contribution
+to every other node (``n − 1`` messages per node per call); when the transport knows only the neighbours (a field
+node run from a description), the contributions travel up and down a spanning tree of the network's own links
+(:mod:`.tree`, ``2 (n − 1)`` messages per call). Both forms give every node every contribution and reduce them in
+node-id order, so they agree bit for bit; the messages are counted in the wire bytes. Node code that should scale
+avoids global operations.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from distnav.exchange.base import Exchange
 from distnav.exchange.core import ExchangeCore, ReduceOp, Reducible
 from distnav.exchange.faults import FaultPlan, FaultSchedule
 from distnav.exchange.field.transport import Transport
+from distnav.exchange.field.tree import SpanningTree, tree_all
 from distnav.exchange.field.wire import Kind
 from distnav.exchange.mixer import Mixer
 from distnav.exchange.route import Route
@@ -133,8 +138,7 @@ class FieldExchange(Exchange):
         targets, senders, act_in = self._peers_of(active)
         step = self._next_step()
         row = np.ascontiguousarray(flat_local[0])
-        for t in targets:
-            self.transport.post(t, Kind.COLUMN, step, row)
+        self.transport.post_many(targets, Kind.COLUMN, step, row)
         got = self._received_rows(self.transport.collect(Kind.COLUMN, step, senders), row.shape, row.dtype)
         cols = np.zeros((self.n_columns, row.size), dtype=flat_local.dtype)
         cols[0] = row
@@ -186,11 +190,8 @@ class FieldExchange(Exchange):
         else the same dtype)."""
         step = self._next_step()
         others = [n for n in range(self.n_nodes) if n != self.me]
-        missing = [n for n in others if n not in self.transport.peers]
-        if missing:
-            raise ExchangeError(
-                f"node {self.me}: a global operation needs every node as a peer; no address for nodes {missing[:10]}"
-            )
+        if any(n not in self.transport.peers for n in others):  # neighbours only: over the spanning tree
+            return tree_all(self.transport, self._tree, self.me, step, array)
         for t in others:
             if t not in self.transport.lost:
                 self.transport.post(t, kind, step, array)
@@ -202,6 +203,10 @@ class FieldExchange(Exchange):
             got = self._received_rows(arrived, array.shape, array.dtype)
         got[self.me] = array
         return got
+
+    @cached_property
+    def _tree(self) -> SpanningTree:
+        return SpanningTree(self.graph)
 
     def _refuse_number(self, sender: int, arr: np.ndarray) -> bool:
         self.transport._refuse("malformed", f"node {sender} sent {arr.dtype} to a reduction at step {self.step}")

@@ -154,6 +154,8 @@ class Transport:
             self.pull.curve_publickey = keys.public
             self.pull.curve_server = True
         self.pull.bind(address)
+        self._poller = zmq.Poller()  # one poller for the run (a socket's poll() makes a new one per call)
+        self._poller.register(self.pull, zmq.POLLIN)
         self.push: dict[int, Any] = {}
         for p in peers:
             s = self.ctx.socket(zmq.PUSH)
@@ -181,7 +183,15 @@ class Transport:
     # ------------------------------------------------------------- sending
     def post(self, peer: int, kind: Kind, step: int, array: np.ndarray) -> None:
         """Queue one message to ``peer`` without blocking (a full queue to a dead peer drops it, counted)."""
+        self._send(peer, encode(kind, self.me, step, array))
+
+    def post_many(self, peers: list[int], kind: Kind, step: int, array: np.ndarray) -> None:
+        """:meth:`post` of the same message to every peer of ``peers``, encoded once."""
         frame = encode(kind, self.me, step, array)
+        for peer in peers:
+            self._send(peer, frame)
+
+    def _send(self, peer: int, frame: bytes) -> None:
         try:
             self.push[peer].send(frame, self._zmq.NOBLOCK, copy=len(frame) < 65536)
         except self._zmq.Again:
@@ -204,14 +214,14 @@ class Transport:
         limit = self.options.deadline_s if deadline_s is None else deadline_s
         end = time.monotonic() + limit
         while True:
+            self._drain(kind, step, got)  # what has arrived already: no poll call needed
             self._release(kind, step, got)
             waiting -= got.keys()
             now = time.monotonic()
             if not waiting or now >= end:
                 break
             until = min(end, self._delayed[0][0]) if self._delayed else end
-            if self.pull.poll(max(1, int((until - now) * 1000))):
-                self._drain(kind, step, got)
+            self._poller.poll(max(1, int((until - now) * 1000)))
         self._note_missing(want, got, step)
         return got
 
@@ -224,7 +234,7 @@ class Transport:
             except zmq.Again:
                 return
             self.frames_received += 1
-            self.bytes_received += len(frame.buffer)
+            self.bytes_received += len(frame)
             yield frame
 
     def receive_any(self, timeout_s: float) -> list[Message]:

@@ -7,7 +7,7 @@ offset    type   field
 ========  =====  ==========================================================================================
 0         4s     magic ``b"DNF1"``
 4         u1     version (:data:`VERSION`)
-5         u1     kind (:class:`Kind`: a consensus column, an edge value, a reduction, a gather, a hello)
+5         u1     kind (:class:`Kind`: a consensus column, an edge value, a reduction, a gather, a hello, tree)
 6         u1     dtype code (:data:`DTYPES`: 1 = float64, 2 = float32, 3 = int64, 4 = uint8)
 7         u1     ndim (0…4)
 8         u4     sender node id
@@ -25,8 +25,9 @@ exchange logs and counts such refusals and keeps running.
 from __future__ import annotations
 
 import enum
+import math
 import struct
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -57,24 +58,32 @@ class Kind(enum.IntEnum):
     GATHER = 4  #: a node's rows for gather_nodes (results)
     HELLO = 5  #: "I am up" (start-up and rejoin)
     BYE = 6  #: "I am done" (a neighbour that finished is not a lost one)
+    TREE_UP = 7  #: a subtree's rows of a global operation, child → parent (:mod:`.tree`)
+    TREE_DOWN = 8  #: every node's rows of a global operation, parent → child (:mod:`.tree`)
 
 
 class WireError(ExchangeError):
     """A received message that is not a valid distnav field message."""
 
 
-@dataclass(frozen=True)
-class Message:
+class Message(NamedTuple):
+    """One received message (a named tuple: made once per message, cheaply)."""
+
     kind: Kind
     sender: int
     step: int
     array: np.ndarray
 
 
+_CODE = {(dt.kind, dt.itemsize): c for c, dt in DTYPES.items()}  # (kind, itemsize) → dtype code
+_NATIVE = {c: dt.newbyteorder("=") for c, dt in DTYPES.items()}  # the received array's dtype in this host's order
+_KINDS = {int(k): k for k in Kind}
+
+
 def encode(kind: Kind, sender: int, step: int, array: np.ndarray) -> bytes:
     """One frame: header, shape, payload (C order, little-endian)."""
     a = np.asarray(array)
-    code = next((c for c, dt in DTYPES.items() if (a.dtype.kind, a.dtype.itemsize) == (dt.kind, dt.itemsize)), None)
+    code = _CODE.get((a.dtype.kind, a.dtype.itemsize))
     if code is None:
         raise WireError(f"cannot send dtype {a.dtype} (float64, float32, int64 or uint8 only)")
     if a.ndim > MAX_NDIM:
@@ -87,29 +96,29 @@ def encode(kind: Kind, sender: int, step: int, array: np.ndarray) -> bytes:
 def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
     """Parse and check one frame (see the module docstring); :class:`WireError` names what is wrong."""
     buf = memoryview(frame)
-    if len(buf) > max_bytes:
-        raise WireError(f"oversize message: {len(buf)} bytes (limit {max_bytes})")
-    if len(buf) < HEADER.size:
-        raise WireError(f"malformed message: {len(buf)} bytes, shorter than the {HEADER.size}-byte header")
+    size = len(buf)
+    if size > max_bytes:
+        raise WireError(f"oversize message: {size} bytes (limit {max_bytes})")
+    if size < HEADER.size:
+        raise WireError(f"malformed message: {size} bytes, shorter than the {HEADER.size}-byte header")
     magic, version, kind, code, ndim, sender, step, length = HEADER.unpack_from(buf)
     if magic != MAGIC:
         raise WireError(f"malformed message: magic {bytes(magic)!r}, expected {MAGIC!r}")
     if version != VERSION:
         raise WireError(f"message of wire version {version}; this node speaks version {VERSION}")
-    try:
-        kind_ = Kind(kind)
-    except ValueError:
-        raise WireError(f"malformed message: unknown kind {kind}") from None
+    kind_ = _KINDS.get(kind)
+    if kind_ is None:
+        raise WireError(f"malformed message: unknown kind {kind}")
     dtype = DTYPES.get(code)
     if dtype is None:
         raise WireError(f"malformed message: unknown dtype code {code}")
     if ndim > MAX_NDIM:
         raise WireError(f"malformed message: ndim {ndim} > {MAX_NDIM}")
     start = HEADER.size + ndim * _DIM.size
-    if len(buf) != start + length:
-        raise WireError(f"malformed message: {len(buf)} bytes, the header announces {start + length}")
+    if size != start + length:
+        raise WireError(f"malformed message: {size} bytes, the header announces {start + length}")
     shape = tuple(_DIM.unpack_from(buf, HEADER.size + k * _DIM.size)[0] for k in range(ndim))
-    if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize != length:
+    if math.prod(shape) * dtype.itemsize != length:
         raise WireError(f"malformed message: shape {shape} of {dtype} is not {length} bytes")
     arr = np.frombuffer(buf[start:], dtype=dtype).reshape(shape)
-    return Message(kind_, int(sender), int(step), arr.astype(dtype.newbyteorder("="), copy=False))
+    return Message(kind_, int(sender), int(step), arr.astype(_NATIVE[code], copy=False))

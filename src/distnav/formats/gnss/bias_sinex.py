@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from distnav._checks import real_number
 from distnav.errors import DataFileError, ModelError
 
 __all__ = [
@@ -33,6 +34,7 @@ __all__ = [
     "sinex_time",
     "session_length",
     "write_bias_sinex",
+    "BiasSinexHeader",
 ]
 
 
@@ -367,6 +369,27 @@ def _comment_lines(comments: Sequence[str]) -> list[str]:
     return out
 
 
+@dataclass(frozen=True, kw_only=True)
+class BiasSinexHeader:
+    """What a written Bias-SINEX file says about itself: the ``agency`` code (3 characters), the time it was
+    ``created`` (default now), the ``FILE/REFERENCE`` ``description``, the ``OBSERVATION_SAMPLING`` [s], the
+    ``FILE/COMMENT`` lines (wrapped at word boundaries) and the ``datum`` stated on the ``OUTPUT`` line."""
+
+    agency: str = "DNV"
+    created: object = None
+    description: str = ""
+    sampling_s: float = 30.0
+    comments: Sequence[str] = ()
+    datum: str = "zero-mean satellite datum"
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.agency, str) and 1 <= len(self.agency) <= 3 and self.agency.isascii()):
+            raise DataFileError(f"a Bias-SINEX agency is 1 to 3 ASCII characters, got {self.agency!r}")
+        if isinstance(self.comments, str):
+            raise DataFileError("comments must be a list of lines, got one string")
+        real_number(self.sampling_s, "sampling_s", positive=True, unit="s", error=DataFileError)
+
+
 def write_bias_sinex(
     path: str | Path | None,
     *,
@@ -376,14 +399,9 @@ def write_bias_sinex(
     end: object,
     satellites: Mapping[str, tuple[float, float]],
     stations: Mapping[str, tuple[float, float]],
-    agency: str = "DNV",
-    created: object = None,
-    description: str = "",
-    sampling_s: float = 30.0,
-    comments: Sequence[str] = (),
     station_codes: Mapping[str, tuple[str, str]] | None = None,
     svns: Mapping[str, str] | None = None,
-    datum: str = "zero-mean satellite datum",
+    header: BiasSinexHeader | None = None,
 ) -> Path | str:
     """Write satellite and station DSBs ``obs1 − obs2`` [ns] with σ as a Bias-SINEX 1.00 file (gzip if the name
     ends in ``.gz``): header line, ``FILE/REFERENCE``, ``FILE/COMMENT``, ``BIAS/DESCRIPTION`` (relative biases,
@@ -391,50 +409,90 @@ def write_bias_sinex(
     A bias without a value or a σ (not estimated) is left out and named in a comment — never written with σ = 0.
     ``svns``: each satellite's SVN (``G01`` → ``G063``, e.g. from a reference product: the SVN field is
     ``ANNN``); a satellite without one gets the system letter and a comment says so. Station biases carry the
-    system letter in the SVN and PRN fields (as CAS and DLR write them). The header's ``OUTPUT`` line states the
-    session length (:func:`session_length`) and ``datum``; comments are wrapped at word boundaries.
-    ``path=None`` returns the text instead (for an atomic write by the caller). ``station_codes``: a station's own
-    code pair where it differs from the satellites' (C1C receivers corrected to C1W)."""
-    import math
-
+    system letter in the SVN and PRN fields (as CAS and DLR write them). ``header``: :class:`BiasSinexHeader`; its
+    ``OUTPUT`` line states the session length (:func:`session_length`) and the datum. ``path=None`` returns the
+    text instead (for an atomic write by the caller). ``station_codes``: a station's own code pair where it
+    differs from the satellites' (C1C receivers corrected to C1W)."""
     import numpy as np
 
+    h = header if header is not None else BiasSinexHeader()
     t0, t1 = sinex_time(start), sinex_time(end)
     t_end, t_start = (np.asarray(x).astype("datetime64[s]")[()] for x in (end, start))
     spacing = int(round(float((t_end - t_start).astype(int))))
-    made = sinex_time(created if created is not None else np.datetime64("now", "s"))
     sv_ids = svns or {}
+    rows = _solution_rows(obs1, obs2, t0, t1, satellites, stations, station_codes or {}, sv_ids)
+    notes = list(h.comments) + _omission_notes(satellites, stations, sv_ids)
+    text = "\n".join(_file_lines(h, t0, t1, spacing, rows, notes)) + "\n"
+    if path is None:
+        return text
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    data = text.encode("ascii", errors="replace")
+    p.write_bytes(gzip.compress(data) if p.name.lower().endswith(".gz") else data)
+    return p
 
-    def known(v: float, sd: float) -> bool:
-        return math.isfinite(v) and math.isfinite(sd)
 
+def _known(v: float, sd: float) -> bool:
+    import math
+
+    return math.isfinite(v) and math.isfinite(sd)
+
+
+def _solution_rows(
+    obs1: str,
+    obs2: str,
+    t0: str,
+    t1: str,
+    satellites: Mapping[str, tuple[float, float]],
+    stations: Mapping[str, tuple[float, float]],
+    own: Mapping[str, tuple[str, str]],
+    sv_ids: Mapping[str, str],
+) -> list[str]:
+    """The ``BIAS/SOLUTION`` lines: satellites (SVN from ``sv_ids`` or the system letter), then stations on their
+    ``own`` code pair where given; biases without a value or σ are left out."""
     rows = [
         _solution_line(sv_ids.get(prn, prn[:1]), prn, "", obs1, obs2, t0, t1, v, sd)
         for prn, (v, sd) in sorted(satellites.items())
-        if known(v, sd)
+        if _known(v, sd)
     ]
-    own = station_codes or {}
     system = next(iter(sorted(satellites)), "G")[:1]  # a station's DSB belongs to the satellites' system
     rows += [
         _solution_line(system, system, sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
         for sta, (v, sd) in sorted(stations.items())
-        if known(v, sd)
+        if _known(v, sd)
     ]
-    notes = list(comments)
-    left_out = [k for k, (v, sd) in sorted({**satellites, **stations}.items()) if not known(v, sd)]
+    return rows
+
+
+def _omission_notes(
+    satellites: Mapping[str, tuple[float, float]],
+    stations: Mapping[str, tuple[float, float]],
+    sv_ids: Mapping[str, str],
+) -> list[str]:
+    """Comments naming the biases left out (no value or σ) and the satellites written without an SVN."""
+    notes = []
+    left_out = [k for k, (v, sd) in sorted({**satellites, **stations}.items()) if not _known(v, sd)]
     if left_out:
         notes.append(f"not estimated (left out, no value or sigma): {' '.join(left_out)}")
-    no_svn = [prn for prn, (v, sd) in sorted(satellites.items()) if known(v, sd) and prn not in sv_ids]
+    no_svn = [prn for prn, (v, sd) in sorted(satellites.items()) if _known(v, sd) and prn not in sv_ids]
     if no_svn:
         notes.append(f"SVN unknown (no reference product gave it; SVN field = system letter): {' '.join(no_svn)}")
+    return notes
+
+
+def _file_lines(h: BiasSinexHeader, t0: str, t1: str, spacing: int, rows: list[str], notes: list[str]) -> list[str]:
+    """Every line of the file, its blocks in the order of the format."""
+    import numpy as np
+
+    made = sinex_time(h.created if h.created is not None else np.datetime64("now", "s"))
     bar = "*" + "-" * 79
-    lines = [
-        f"%=BIA 1.00 {agency:<3} {made} {agency:<3} {t0} {t1} R {len(rows):08d}",
+    return [
+        f"%=BIA 1.00 {h.agency:<3} {made} {h.agency:<3} {t0} {t1} R {len(rows):08d}",
         bar,
         "+FILE/REFERENCE",
         "*INFO_TYPE_________ INFO" + "_" * 56,
-        f" DESCRIPTION        {description or 'distnav geometry-free code DCBs (receivers and satellites)'}"[:80],
-        f" OUTPUT             {session_length(spacing)} DSBs of satellites and receivers, {datum}"[:80],
+        f" DESCRIPTION        {h.description or 'distnav geometry-free code DCBs (receivers and satellites)'}"[:80],
+        f" OUTPUT             {session_length(spacing)} DSBs of satellites and receivers, {h.datum}"[:80],
         " SOFTWARE           distnav",
         "-FILE/REFERENCE",
         bar,
@@ -444,7 +502,7 @@ def write_bias_sinex(
         bar,
         "+BIAS/DESCRIPTION",
         "*KEYWORD________________________________ VALUE(S)" + "_" * 31,
-        f" OBSERVATION_SAMPLING                    {int(round(sampling_s))}",
+        f" OBSERVATION_SAMPLING                    {int(round(h.sampling_s))}",
         f" PARAMETER_SPACING                       {spacing}",
         " DETERMINATION_METHOD                    INTER-FREQUENCY_BIAS_ESTIMATION",
         " BIAS_MODE                               RELATIVE",
@@ -457,11 +515,3 @@ def write_bias_sinex(
         "-BIAS/SOLUTION",
         "%=ENDBIA",
     ]
-    text = "\n".join(lines) + "\n"
-    if path is None:
-        return text
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    data = text.encode("ascii", errors="replace")
-    p.write_bytes(gzip.compress(data) if p.name.lower().endswith(".gz") else data)
-    return p

@@ -4,7 +4,8 @@
 the given files by :func:`~distnav.formats.gnss.bias_sinex.resolve_dsb`; IONEX gives P1−P2 = C1W−C2W) as
 :class:`~distnav.models.gnss.products.ProductDSB`; :func:`read_estimates` reads a ``distnav gnss ionosphere``
 output or a Bias-SINEX file; :func:`product_day` gives the day a product is valid for, so a product of another day
-can be refused; :func:`correct_c1` turns C1C into C1W with a product's C1C−C1W DSBs.
+can be refused; :func:`check_orbit_day` refuses orbits (navigation or SP3 files) of another day than the
+observations; :func:`correct_c1` turns C1C into C1W with a product's C1C−C1W DSBs.
 """
 
 from __future__ import annotations
@@ -21,14 +22,26 @@ from distnav.models.gnss.constants import C_M_S
 from distnav.models.gnss.products import DSBEstimates, ProductDSB
 from distnav.models.gnss.systems import SYSTEM_NAMES
 
-__all__ = ["product_dsbs", "product_day", "read_estimates", "estimate_systems", "correct_c1", "satellite_svns"]
+__all__ = [
+    "product_dsbs",
+    "product_day",
+    "check_orbit_day",
+    "check_orbit_times",
+    "read_estimates",
+    "estimate_systems",
+    "correct_c1",
+    "satellite_svns",
+]
 
 
 def product_day(path: str | Path) -> np.datetime64 | None:
     """The day of a product or RINEX file from an IGS long file name (``..._YYYYDDDHHMM_01D_...``) or a short
     name (``codgDDD0.YYi``, ``dgarDDD0.YYo``/``.YYd``/``.YYn``); ``None`` when the name does not say."""
+    import os
     import re
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise DataFileError(f"product_day needs a file name, got {path!r} ({type(path).__name__})")
     name = Path(path).name
     m = re.search(r"_(\d{4})(\d{3})\d{4}_", name)
     if m:
@@ -38,6 +51,80 @@ def product_day(path: str | Path) -> np.datetime64 | None:
         year = 2000 + int(m.group(2)) if int(m.group(2)) < 80 else 1900 + int(m.group(2))
         return np.datetime64(f"{year}-01-01") + np.timedelta64(int(m.group(1)) - 1, "D")
     return None
+
+
+def _orbit_epochs(orbit: Any) -> tuple[np.ndarray, float, str] | None:
+    """The epochs an orbit source holds (GPS seconds: an SP3 file's samples, a navigation file's times of
+    ephemeris), how far from them it gives positions [s], and what kind of file it is; None for a source that is
+    not read from a file (a simulated constellation)."""
+    from distnav.models.gnss.orbits import BroadcastOrbit, SP3Orbit
+
+    if isinstance(orbit, SP3Orbit):
+        return np.asarray(orbit.t_gps_s, dtype=float), 0.0, "SP3 file"
+    if isinstance(orbit, BroadcastOrbit):
+        toe = [np.asarray(r["toe_abs_s"], dtype=float) for r in orbit.records.values()]
+        return np.concatenate(toe) if toe else np.zeros(0), float(orbit.max_age_s), "navigation file"
+    return None
+
+
+def _days(t_gps_s: np.ndarray) -> list[str]:
+    from distnav.models.gnss.orbits import datetime_from_gps_seconds
+
+    return sorted({str(d) for d in datetime_from_gps_seconds(t_gps_s).astype("datetime64[D]")})
+
+
+def check_orbit_day(orbit: Any, observations: Sequence[Any]) -> None:
+    """Refuse orbits of another day than the observations (issue 29: a navigation or SP3 file of the wrong day
+    used to end in "no satellite observed above the mask"), naming the orbit file, its day(s) and the observation
+    file with its day(s), in GPS time. Refused when the orbits give a position at none of a file's epochs, or when
+    they share no calendar day with it (a navigation file of the day before, whose last ephemerides still reach
+    into the first hours, is a file of the wrong day all the same). ``observations``: :class:`~distnav.models.gnss.
+    code_observations.CodeObservations` (``time``, ``path``); an orbit not read from a file is not checked."""
+    from distnav.models.gnss.orbits import gps_seconds
+
+    for o in observations:
+        check_orbit_times(orbit, gps_seconds(o.time), Path(o.path).name)
+
+
+def check_orbit_times(
+    orbit: Any, t_gps_s: Any, name: str, *, verb: str = "observes", what: str = "observation epochs"
+) -> None:
+    """:func:`check_orbit_day` for the times ``t_gps_s`` [GPS s] of one file or option, ``name`` in the message
+    (``"dgar0100.24o observes 2024-01-10"``, ``"--start 2021-01-01T00:00 is on 2021-01-01"`` with ``verb="is on"``);
+    ``what`` the times are."""
+    held = _orbit_epochs(orbit)
+    t = np.atleast_1d(np.asarray(t_gps_s, dtype=float))
+    if held is None or held[0].size == 0 or t.size == 0:
+        return
+    epochs, reach_s, kind = held
+    orbit_days = _days(epochs)
+    first, last = float(epochs.min()) - reach_s, float(epochs.max()) + reach_s
+    covered = (t >= first) & (t <= last)
+    days = _days(t)
+    if covered.any() and set(days) & set(orbit_days):
+        return
+    source = getattr(orbit, "source", "") or f"the {kind}"
+    if set(days) & set(orbit_days):
+        raise DataFileError(
+            f"{source}: its orbits reach {_minute(first)} to {_minute(last)} (GPS time), none of the {what} of "
+            f"{name} ({_minute(float(t.min()))} to {_minute(float(t.max()))}): give orbits that cover them"
+        )
+    if t.size == 1:
+        reach = "its orbits do not reach it"
+    else:
+        share = "none" if not covered.any() else f"only {int(covered.sum())} of {t.size}"
+        reach = f"its orbits reach {share} of the {what}"
+    article = "an" if kind.startswith("SP3") else "a"
+    raise DataFileError(
+        f"{source}: {article} {kind} of {' to '.join(dict.fromkeys([orbit_days[0], orbit_days[-1]]))} (GPS "
+        f"time), but {name} {verb} {', '.join(days)}: {reach}; give the {kind} of {', '.join(days)}"
+    )
+
+
+def _minute(t_gps_s: float) -> str:
+    from distnav.models.gnss.orbits import datetime_from_gps_seconds
+
+    return str(datetime_from_gps_seconds(t_gps_s).astype("datetime64[m]")).replace("T", " ")
 
 
 def product_dsbs(

@@ -250,12 +250,31 @@ class BiasGeometryFreeSeries(MeasurementSeries):
 
     def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         A, w = self.design(epoch, nodes)
-        Aw = A * w[..., None]
-        N = np.swapaxes(Aw, 1, 2) @ A
-        if self._y is None:
-            return N, np.zeros(N.shape[:2])
-        y = self._y[self._epoch(epoch), self._nodes(nodes)]
-        return N, np.einsum("ksp,ks->kp", Aw, y)
+        y = None if self._y is None else self._y[self._epoch(epoch), self._nodes(nodes)]
+        return _weighted_normals(A, w, y)
+
+    def records(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Per node and satellite the observation (m) and its weight ``1/σ²`` (0: not tracked), (k, S) each: the
+        20-byte records (value, weight, satellite) of the CKF's relay transport."""
+        t, idx = self._epoch(epoch), self._nodes(nodes)
+        y = np.zeros((idx.size, self.n_satellites)) if self._y is None else self._y[t, idx].copy()
+        return y, self._w[t, idx].copy()
+
+    def record_slots(self, epoch: int, nodes: np.ndarray | None = None) -> np.ndarray:
+        """The satellite of each row of :meth:`observations` (node-major, satellites ascending: the tracked ones)."""
+        _, slot = np.nonzero(self._w[self._epoch(epoch), self._nodes(nodes)] > 0)
+        return slot.astype(np.int64)
+
+    def normals_from_records(
+        self, epoch: int, node: int, values: np.ndarray, weights: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``node``'s normals from its records alone: the design rows follow from the geometry (orbits and the
+        station's position), the weights and values from the records."""
+        A_all, _ = self._epoch_design(self._epoch(epoch))
+        w = np.asarray(weights, float)[None]
+        A = A_all[[int(node)]] * (w > 0)[..., None]
+        N, r = _weighted_normals(A, w, None if self._y is None else np.asarray(values, float)[None])
+        return N[0], r[0]
 
     def observations(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Whitened rows ``W^{1/2} Ā``, ``W^{1/2} y`` and their node of the tracked observations."""
@@ -266,6 +285,15 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         sq = np.sqrt(w)
         node = np.broadcast_to(idx[:, None], w.shape)[keep]
         return (A * sq[..., None])[keep], (y * sq)[keep], node.astype(np.int64)
+
+
+def _weighted_normals(A: np.ndarray, w: np.ndarray, y: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """``N = Āᵀ W Ā`` (k, p, p) and ``r = Āᵀ W y`` (k, p; zeros without observations) of design rows ``A`` (k, S, p)."""
+    Aw = A * w[..., None]
+    N = np.swapaxes(Aw, 1, 2) @ A
+    if y is None:
+        return N, np.zeros(N.shape[:2])
+    return N, np.einsum("ksp,ks->kp", Aw, y)
 
 
 def datum_transform(

@@ -54,16 +54,31 @@ class DatumSeries:
     precision: Any = None
     innovation_tests: Any = None
     arc_variance_factor: float | None = None
+    between_station: Any = None
+    """The between-station test of the network's single-receiver solutions
+    (:class:`~distnav.models.gnss.stationcheck.BetweenStationTest`), when it ran."""
+    extra_variance_ns2: np.ndarray | None = None
+    """(n + S,) variance [ns²] added to the last epoch's realistic variance: what raises it to the floor of the
+    between-station test (:func:`~distnav.models.gnss.stationcheck.variance_floor`); None: none."""
 
     @property
     def realistic_factor(self) -> float:
-        """The formal σ times this is the realistic σ: ``√σ̂²_arc`` (the arcs' variance factor,
-        :mod:`~distnav.models.gnss.arcprecision`: the levelling error is common to all epochs of an arc) where the
-        filter has one, else ``√(σ̂² (1 + ρ)/(1 − ρ))`` (the misfit and the epoch-to-epoch correlation ``ρ`` of the
-        standardized predicted residuals: variance of a mean of AR(1) errors)."""
+        """The formal σ times this is the realistic σ (before :attr:`extra_variance_ns2`): ``√σ̂²_arc`` (the arcs'
+        variance factor, :mod:`~distnav.models.gnss.arcprecision`: the levelling error is common to all epochs of
+        an arc) where the filter has one, else ``√(σ̂² (1 + ρ)/(1 − ρ))`` (the misfit and the epoch-to-epoch
+        correlation ``ρ`` of the standardized predicted residuals: variance of a mean of AR(1) errors)."""
         if self.arc_variance_factor is not None:
             return float(np.sqrt(self.arc_variance_factor))
         return float(np.sqrt((self.variance_factor or 1.0) * self.correlation_inflation))
+
+    def realistic_std_ns(self) -> np.ndarray:
+        """(n + S,) the last epoch's realistic σ [ns]: formal σ × :attr:`realistic_factor`, with the
+        :attr:`extra_variance_ns2` added (the between-station floor)."""
+        sd: np.ndarray = self.dsb_std_ns[-1] * self.realistic_factor
+        if self.extra_variance_ns2 is None:
+            return sd
+        out: np.ndarray = np.sqrt(sd**2 + self.extra_variance_ns2)
+        return out
 
 
 @dataclass(frozen=True, eq=False)

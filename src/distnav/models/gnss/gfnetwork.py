@@ -1,10 +1,11 @@
-"""A receiver network's geometry-free code as one bias + ionosphere model, and the filters run in a chosen datum.
+"""The filter stage of the bias pipeline: the filters run on a network's bias model in a chosen datum.
 
-The stations' observations are read by :func:`distnav.formats.gnss.rinex.read_stations`; :func:`bias_network_model` puts
-the stations' undifferenced geometry-free observations on the union of their epochs into the model of
-:mod:`distnav.models.gnss.gfbias` (estimation basis: a reference receiver observing at the first epoch);
-:func:`run_bias_filters` runs the central filter, the single-receiver filters (each in its own receiver's basis,
-so its satellite DCBs are estimable from its own data) and the consensus Kalman filter, and S-transforms every
+The pipeline, one way: read (:func:`distnav.formats.gnss.rinex.read_stations`) → collect arcs, level and screen
+(:mod:`distnav.models.gnss.levelling`) → model (:mod:`distnav.models.gnss.biasmodel`, re-exported here) → filter
+(here) → datum (:mod:`distnav.models.gnss.gfcollector`, :mod:`distnav.models.gnss.datum`) → product
+(:mod:`distnav.models.gnss.products`, the writers in :mod:`distnav.formats.gnss`). :func:`run_bias_filters` runs
+the central filter, the single-receiver filters (each in its own receiver's basis, so its satellite DCBs are
+estimable from its own data) and the consensus Kalman filter, and S-transforms every
 epoch's estimates and covariance into the output datum (:func:`~distnav.models.gnss.gfbias.datum_transform`).
 """
 
@@ -12,24 +13,30 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import Any, Literal
 
 import numpy as np
 
-from distnav.errors import DataFileError, ModelError
+from distnav.errors import ModelError
 from distnav.models.gnss.arcprecision import arc_variance_factor, postfit_residuals
-from distnav.models.gnss.gfbias import (
-    TEC_RW_M_PER_SQRT_S,
-    BiasGeometryFreeSeries,
-    BiasStateLayout,
-    bias_dynamics,
-    gf_m_per_dsb_ns,
+from distnav.models.gnss.biasmodel import (
+    MIN_SATELLITE_OBS,
+    BiasModelOptions,
+    BiasNetworkData,
+    GeometryFreeNetwork,
+    arc_sigma_scale,
+    bias_network_model,
 )
+from distnav.models.gnss.gfbias import TEC_RW_M_PER_SQRT_S, gf_m_per_dsb_ns
 from distnav.models.gnss.gfcollector import Collector, DatumSeries
 
-__all__ = [
+__all__ = [  # the model stage's names are re-exported (their home: distnav.models.gnss.biasmodel)
+    "BiasModelOptions",
+    "BiasFilterOptions",
     "BiasNetworkData",
+    "GeometryFreeNetwork",
+    "arc_sigma_scale",
     "DatumSeries",
     "SatelliteFit",
     "final_dsbs",
@@ -43,261 +50,12 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-MIN_SATELLITE_OBS = 240
-"""Fewest station-epochs (at the filter's sampling) for a satellite to be estimated by default: 240 = 4
-station-hours on a 60-s grid, but at most a quarter of the best-tracked satellite's count and at least 30 (so
-short snapshots keep the old threshold, 30). Was 30 throughout; raised on the realistic simulator preset
-(docs/ionosphere.md), where satellites seen for
-less than about an hour per station in a 6-h session carry DCB errors of ~1 ns that dominate the session's RMS
-(the note "not estimated, fewer than …" names them; a full day excludes none)."""
-
-
-@dataclass(frozen=True, eq=False)
-class BiasNetworkData:
-    """Stations, epochs, geometry, layout (estimation basis), series and dynamics of a network."""
-
-    stations: list[str]
-    codes: dict[str, dict[int, str]]
-    band: int
-    t_gps_s: np.ndarray
-    geometry: Any
-    layout: BiasStateLayout
-    series: BiasGeometryFreeSeries
-    dynamics: Any
-    ionosphere: str
-    positions_ecef_m: np.ndarray
-    obs_m: np.ndarray
-    sigma_m: np.ndarray
-    notes: list[str] = field(default_factory=list)
-    levelled: dict[str, Any] = field(default_factory=dict)
-    levelled_svs: dict[str, list[str]] = field(default_factory=dict)
-    levelled_times: dict[str, np.ndarray] = field(default_factory=dict)
-    """Per station the epochs (``datetime64``) of the levelled rows (screening reports name them)."""
-    arc_id: np.ndarray | None = None
-    """(T, n, S) the levelled arc of every observation (per station; −1: raw code), ``None`` without levelling
-    (:mod:`~distnav.models.gnss.arcprecision`)."""
-
-    def series_for(self, reference: str) -> BiasGeometryFreeSeries:
-        """The same data in the basis of another reference receiver."""
-        lay = BiasStateLayout(
-            self.layout.svs,
-            self.layout.receivers,
-            self.layout.n_ionospheres,
-            "receiver",
-            reference,
-            self.layout.n_tec_terms,
-        )
-        return BiasGeometryFreeSeries(
-            lay,
-            self.geometry.coefficients,
-            self.sigma_m,
-            obs_m=self.obs_m,
-            tracked=self.geometry.tracked,
-            groups=self.geometry.groups,
-        )
-
-
-def bias_network_model(
-    stations: list[str],
-    t_gps_s: np.ndarray,
-    xyz: np.ndarray,
-    gf_m: np.ndarray,
-    svs_all: Sequence[str],
-    orbit: Any,
-    *,
-    band: int = 2,
-    codes: dict[str, dict[int, str]] | None = None,
-    mask_deg: float = 10.0,
-    ionosphere: str = "auto",
-    regional_km: float = 1000.0,
-    sigma_zenith_m: float | None = None,
-    weighting: str = "sin",
-    reference: str | None = None,
-    notes: list[str] | None = None,
-    paths: list[str] | None = None,
-    vtec_rw_m_per_sqrt_s: float = TEC_RW_M_PER_SQRT_S,
-    min_satellite_obs: int | None = None,
-    sigma_scale: np.ndarray | None = None,
-    tec_order: int = 1,
-    mapping: str = "slm",
-    station_sigma: np.ndarray | None = None,
-    station_weighting: str = "auto",
-) -> BiasNetworkData:
-    """The model from undifferenced geometry-free observations ``gf_m`` (T, n, S) [m] (NaN = not observed).
-
-    ``sigma_zenith_m`` defaults to the paper's 65.6 cm scaled to the band (√2·30 cm/(μ_b − 1)). The estimation
-    basis is the ``reference`` receiver (default: the station with the most observations among those observing
-    at the first epoch). Raises :class:`~distnav.errors.ModelError` / :class:`~distnav.errors.DataFileError` when
-    the orbit has no position at the epochs, a station keeps no observation above the mask, or the stations
-    share no satellite.
-
-    ``vtec_rw_m_per_sqrt_s``: random walk of the vertical delay (the gradients get 5× this per radian), by default
-    10× paper 003's 1 mm/√s — see :data:`TEC_RW_M_PER_SQRT_S`. Satellites with fewer than ``min_satellite_obs``
-    station-epochs (default: :data:`MIN_SATELLITE_OBS`' rule) are not estimated (a note names them): a
-    satellite seen for a few minutes at low elevation
-    at a session edge has a DCB of several ns σ that would only pull the zero-mean datum. ``sigma_scale``
-    (T, n, S): factors on the elevation-dependent σ (the levelled code's arc correlation, see
-    :func:`arc_sigma_scale`). ``tec_order`` 2: a second-order VTEC field per ionosphere (six parameters);
-    ``mapping`` ``"mslm"``: the modified single-layer mapping (both off by default; docs/gnss.md, low latitudes).
-    ``station_sigma`` (n,): per-station σ factors (:func:`~distnav.models.gnss.levelling.station_sigma_factors`),
-    applied with ``station_weighting`` "on", or "auto" when the stations share one ionosphere (docs/gnss.md: with
-    per-station layers each station's own ionosphere error, not its code noise, limits it).
-    """
-    from distnav.models.gnss.constants import mu
-    from distnav.models.gnss.ionosphere import ionosphere_geometry
-    from distnav.models.gnss.observables import elevation_sigma
-    from distnav.models.gnss.orbits import datetime_from_gps_seconds
-
-    notes = list(notes or [])
-    paths = paths or list(stations)
-    t_all = np.asarray(t_gps_s, dtype=float)
-    gf = np.asarray(gf_m, dtype=float)
-    T, n, S = gf.shape
-    base_km = float(np.max(np.linalg.norm(xyz[:, None] - xyz[None], axis=-1))) / 1e3 if n > 1 else 0.0
-    mode = ionosphere
-    if mode == "auto":
-        mode = "common" if base_km <= regional_km else "per-receiver"
-        rule = "≤" if mode == "common" else ">"
-        notes.append(
-            f"model choice: ionosphere {mode}, because the longest baseline {base_km:.0f} km {rule} the regional "
-            f"limit {regional_km:.0f} km (one VTEC field is valid within it); receiver DSBs depend on this choice "
-            "(--ionosphere common|per-receiver fixes it)"
-        )
-    geo = ionosphere_geometry(
-        orbit,
-        t_all,
-        receivers_ecef_m=xyz,
-        names=stations,
-        svs=svs_all,
-        mask_deg=mask_deg,
-        ionosphere=mode,
-        tec_order=tec_order,
-        mapping=mapping,
-    )
-    if not np.isfinite(geo.el_rad).any():
-        span = f"{str(datetime_from_gps_seconds(t_all[0]))[:19]} – {str(datetime_from_gps_seconds(t_all[-1]))[:19]}"
-        raise ModelError(
-            f"the orbit gives no satellite position at the observation epochs ({span}): wrong navigation/SP3 file?"
-        )
-    no_orbit = [
-        svs_all[k] for k in range(S) if np.isfinite(gf[:, :, k]).any() and not np.isfinite(geo.el_rad[:, :, k]).any()
-    ]
-    if no_orbit:
-        notes.append(
-            f"no orbit at the observation epochs for {' '.join(no_orbit)} (dropped; unhealthy or a sparse "
-            f"broadcast file: try a larger --nav-max-age)"
-        )
-    geo = geo.with_tracked(np.isfinite(gf))
-    for i in range(n):
-        if not geo.tracked[:, i].any():
-            raise DataFileError(
-                f"{paths[i]}: no observation above the {mask_deg:g}° mask with both codes "
-                f"(or no orbit for the satellites)"
-            )
-    if n > 1 and not (np.asarray(geo.tracked.any(axis=0)).sum(axis=0) >= 2).any():
-        raise ModelError("no satellite is tracked by two or more stations: the stations share no parameter")
-    n_obs = geo.tracked.sum(axis=(0, 1))
-    if min_satellite_obs is None:
-        min_satellite_obs = int(max(30, min(MIN_SATELLITE_OBS, 0.25 * float(n_obs.max()))))
-    few = [svs_all[k] for k in range(S) if 0 < n_obs[k] < min_satellite_obs]
-    if few:
-        notes.append(
-            f"not estimated, fewer than {min_satellite_obs} station-epochs: "
-            + " ".join(f"{s} ({int(n_obs[svs_all.index(s)])})" for s in few)
-        )
-    keep = np.flatnonzero(n_obs >= max(min_satellite_obs, 1))
-    if keep.size < 2:
-        raise ModelError(f"fewer than two satellites with {min_satellite_obs} station-epochs or more")
-    svs = tuple(svs_all[k] for k in keep.tolist())
-    geo = replace(
-        geo,
-        svs=svs,
-        el_rad=geo.el_rad[:, :, keep],
-        az_rad=geo.az_rad[:, :, keep],
-        tracked=geo.tracked[:, :, keep],
-        coefficients=geo.coefficients[:, :, keep],
-    )
-    counts = geo.tracked.sum(axis=(0, 2))
-    if reference is None:
-        first = np.flatnonzero(
-            geo.tracked.any(axis=2).any(axis=0) & geo.tracked[np.argmax(geo.tracked.any(axis=(1, 2)))].any(axis=1)
-        )
-        ref = stations[int(first[np.argmax(counts[first])])] if first.size else stations[int(np.argmax(counts))]
-    else:
-        ref = reference.upper()
-        if ref not in stations:
-            raise ModelError(f"reference receiver {reference}: not one of the stations {', '.join(stations)}")
-    layout = BiasStateLayout(
-        svs, tuple(stations), 1 if mode == "common" else n, "receiver", ref, 3 if tec_order == 1 else 6
-    )
-    sig0 = (np.sqrt(2.0) * 0.30 / (mu(band) - 1.0)) if sigma_zenith_m is None else float(sigma_zenith_m)
-    el = np.where(geo.tracked, geo.el_rad, 0.5 * np.pi)
-    sig = elevation_sigma(el, sig0, weighting)
-    if sigma_scale is not None:
-        sig = sig * np.where(geo.tracked, np.asarray(sigma_scale, float)[:, :, keep], 1.0)
-    if station_sigma is not None and (station_weighting == "on" or (station_weighting == "auto" and mode == "common")):
-        sig = sig * np.asarray(station_sigma, float)[None, :, None]
-        why = "station weighting on" if station_weighting == "on" else "the stations share one ionosphere"
-        notes.append(
-            f"model choice: station σ factors from the levelling ({why}): "
-            + ", ".join(
-                f"{s} {f:.2f}" for s, f in zip(stations, np.asarray(station_sigma, float).tolist(), strict=True)
-            )
-        )
-    obs = gf[:, :, keep]
-    series = BiasGeometryFreeSeries(layout, geo.coefficients, sig, obs_m=obs, tracked=geo.tracked, groups=geo.groups)
-    dt = np.concatenate([[np.nan], np.diff(t_all)]) if T > 1 else np.array([30.0])
-    if not (np.isfinite(vtec_rw_m_per_sqrt_s) and vtec_rw_m_per_sqrt_s > 0):
-        raise ModelError(f"the TEC random walk must be positive, got {vtec_rw_m_per_sqrt_s} m/√s")
-    dyn = bias_dynamics(
-        layout,
-        dt if T > 1 else 30.0,
-        vtec_std_m_per_sqrt_s=vtec_rw_m_per_sqrt_s,
-        gradient_std_m_per_rad_sqrt_s=5.0 * vtec_rw_m_per_sqrt_s,
-    )
-    return BiasNetworkData(
-        stations,
-        dict(codes or {}),
-        band,
-        t_all,
-        geo,
-        layout,
-        series,
-        dyn,
-        mode,
-        np.asarray(xyz, float),
-        obs,
-        sig,
-        notes,
-    )
-
-
-def arc_sigma_scale(arc_id: np.ndarray, t_s: np.ndarray, correlation_s: float) -> np.ndarray:
-    """σ factors (T, S) for levelled code whose error is mostly the arc's levelling offset, common to the arc.
-
-    An arc of ``n`` epochs over ``D`` seconds determines its offset only to about σ²/n_eff with
-    ``n_eff = max(1, D / correlation_s)`` (multipath and the levelling error are correlated over
-    ``correlation_s``), not σ²/n as independent epochs would: each epoch's σ is scaled by ``√(n / n_eff)`` so that
-    the arc carries n_eff observations' worth of information. A departure from paper 003 (raw code, white noise);
-    ``arc_id`` −1 (no arc, e.g. raw code kept) gets 1.
-    """
-    out = np.ones(arc_id.shape)
-    if correlation_s <= 0:
-        return out
-    for a in np.unique(arc_id[arc_id >= 0]).tolist():
-        where = arc_id == a
-        ti = np.nonzero(where)[0]
-        n = ti.size
-        n_eff = max(1.0, float(t_s[ti.max()] - t_s[ti.min()]) / correlation_s)
-        out[where] = np.sqrt(max(1.0, n / n_eff))
-    return out
-
 
 def final_dsbs(data: BiasNetworkData, s: DatumSeries) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
     """A filter's last-epoch DSBs [ns]: satellites (estimated ones), receivers, and the realistic σ of every
-    object (``rx:STA`` or the PRN; formal σ × :attr:`DatumSeries.realistic_factor`)."""
+    object (``rx:STA`` or the PRN; :meth:`DatumSeries.realistic_std_ns`)."""
     names = [f"rx:{r}" for r in data.stations] + list(data.layout.svs)
-    sd = dict(zip(names, (s.dsb_std_ns[-1] * s.realistic_factor).tolist(), strict=True))
+    sd = dict(zip(names, s.realistic_std_ns().tolist(), strict=True))
     fin = dict(zip(names, s.dsb_ns[-1].tolist(), strict=True))
     sat = {k: v for k, v in fin.items() if not k.startswith("rx:") and np.isfinite(v)}
     return sat, {k[3:]: v for k, v in fin.items() if k.startswith("rx:")}, sd
@@ -447,98 +205,194 @@ def _with_arc_factor(s: DatumSeries, data: BiasNetworkData, nodes: list[int] | N
     return replace(s, arc_variance_factor=arc.factor, precision=prec)
 
 
+DATUMS = ("zero-mean", "pivot", "receiver")
+
+
+@dataclass(frozen=True)
+class BiasFilterOptions:
+    """How :func:`run_bias_filters` runs (defaults in brackets; checked once, here).
+
+    ``between_station_level`` [0.05]: the level of the between-station test of the realistic σ
+    (:mod:`~distnav.models.gnss.stationcheck`; with the single-receiver filters of two or more stations; None: off).
+    ``datum`` [``"zero-mean"``]: the output S-basis, ``"zero-mean"`` satellites, a ``"pivot"`` satellite
+    (``pivot``) or a ``"receiver"`` (``reference``). ``datum_satellites`` / ``datum_reference_ns`` [None]: the
+    zero-mean datum over a fixed set of satellites, held in a reference product's datum when its DSBs are given
+    (:mod:`distnav.models.gnss.datum`). ``kn`` [4]: the CKF's consensus rounds per epoch. ``local`` [True]: the
+    single-receiver filters too. ``innovation_level`` [None]: the CKF receivers w-test their own predicted
+    residuals at this level (:mod:`distnav.algorithms.kalman.ckf_qc`)."""
+
+    datum: str = "zero-mean"
+    pivot: str | None = None
+    reference: str | None = None
+    kn: int = 4
+    local: bool = True
+    innovation_level: float | None = None
+    datum_satellites: Sequence[str] | None = None
+    datum_reference_ns: Mapping[str, float] | None = None
+    between_station_level: float | None = 0.05
+
+    def __post_init__(self) -> None:
+        if self.between_station_level is not None and not 0.0 < self.between_station_level < 0.5:
+            raise ModelError(f"between_station_level must lie in (0, 0.5), got {self.between_station_level}")
+        if self.datum not in DATUMS:
+            raise ModelError(f"datum must be one of {', '.join(DATUMS)}; got {self.datum!r}")
+        if self.datum == "pivot" and self.pivot is None:
+            raise ModelError("the pivot datum needs a pivot satellite")
+        if self.kn < 0:
+            raise ModelError(f"kn must be ≥ 0, got {self.kn}")
+        if self.innovation_level is not None and not 0.0 < self.innovation_level < 0.5:
+            raise ModelError(f"innovation_level must lie in (0, 0.5), got {self.innovation_level}")
+
+
 def run_bias_filters(
     data: BiasNetworkData,
+    options: BiasFilterOptions = BiasFilterOptions(),
     *,
-    datum: str = "zero-mean",
-    pivot: str | None = None,
-    reference: str | None = None,
     graph: Any = None,
-    kn: int = 4,
     exchange: Any = None,
-    local: bool = True,
-    innovation_level: float | None = None,
-    datum_satellites: Sequence[str] | None = None,
-    datum_reference_ns: Mapping[str, float] | None = None,
 ) -> tuple[list[DatumSeries], Any]:
-    """Central, single-receiver and CKF filters over the network, every epoch S-transformed into ``datum``.
+    """Central, single-receiver and CKF filters over the network, every epoch S-transformed into the datum.
 
     Returns the series (labels ``central``, ``local:STA``, ``ckf:STA``) and the communication totals of the CKF
-    (``None`` without a graph). ``innovation_level``: in the CKF every receiver tests its own predicted residuals
-    (w-tests at this level with its node-local "bound" precision, :mod:`distnav.algorithms.kalman.ckf_qc`) and rejects
-    outliers before its normals enter the consensus; the tests (network-wide
+    (``None`` without a ``graph``); ``options``: :class:`BiasFilterOptions`. With an ``innovation_level`` every CKF
+    receiver tests its own predicted residuals (w-tests at this level with its node-local "bound" precision) and
+    rejects outliers before its normals enter the consensus; the tests (network-wide
     :class:`~distnav.algorithms.kalman.InnovationTests`) are on every ``ckf:STA`` series as ``innovation_tests``.
-    ``datum_satellites`` / ``datum_reference_ns``: the zero-mean datum over a fixed set of satellites, held in a
-    reference product's datum when its DSBs are given (:mod:`distnav.models.gnss.datum`).
     """
-    from distnav.algorithms.kalman import iterate_information_filter
-    from distnav.algorithms.kalman.ckf import iterate_ckf
-
-    lay, T = data.layout, data.series.n_epochs
-    scale = gf_m_per_dsb_ns(data.band)
-    out: list[DatumSeries] = []
     opts: dict[str, Any] = {
-        "datum": datum,
-        "pivot": pivot,
-        "reference": reference,
-        "scale": scale,
-        "datum_satellites": datum_satellites,
-        "datum_reference_ns": datum_reference_ns,
+        "datum": options.datum,
+        "pivot": options.pivot,
+        "reference": options.reference,
+        "scale": gf_m_per_dsb_ns(data.band),
+        "datum_satellites": options.datum_satellites,
+        "datum_reference_ns": options.datum_reference_ns,
     }
-    everyone = np.arange(len(data.stations))
-    c = Collector("central", T, lay, data.series, everyone, data.dynamics, **opts)
-    for st in iterate_information_filter(data.dynamics, data.series, mode="central"):
-        c.step(st.epoch, st.estimates[0], st.estimable[0], st.covariance[0])
-    out.append(_with_arc_factor(c.done(), data, None))
-    if local:
-        for i, sta in enumerate(data.stations):
-            si = data.series_for(sta)
-            c = Collector(
-                f"local:{sta}",
-                T,
-                si.layout,
-                si,
-                np.array([i]),
-                data.dynamics,
-                **{**opts, "reference": None if datum != "receiver" else sta},
-            )
-            for st in iterate_information_filter(data.dynamics, si, mode="central", nodes=[i]):
-                c.step(st.epoch, st.estimates[0], st.estimable[0], st.covariance[0])
-            out.append(_with_arc_factor(c.done(), data, [i]))
+    out = [_central_filter(data, opts)]
+    if options.local:
+        out += [_local_filter(data, i, opts, options.datum) for i in range(len(data.stations))]
     comm = None
     if graph is not None:
-        from distnav.exchange import make_exchange
-
-        ex = exchange if exchange is not None else make_exchange(graph)
-        cs = [
-            Collector(f"ckf:{s}", T, lay, data.series, np.array([i]), data.dynamics, **opts)
-            for i, s in enumerate(data.stations)
-        ]
-        tests = None
-        if innovation_level is not None:
-            from distnav.algorithms.kalman.ckf_qc import InnovationCollector
-            from distnav.algorithms.statistics import critical_value
-
-            tests = InnovationCollector(ex, len(data.stations), innovation_level, critical_value(innovation_level))
-        for cst in iterate_ckf(
-            data.dynamics,
-            data.series,
-            graph=graph,
-            protocol="P3",
-            rounds=kn,
-            exchange=ex,
-            monitor=False,
-            local_precision=None if tests is None else "bound",
-            test_level=innovation_level,
-        ):
-            if tests is not None:
-                tests.add(cst.tests)
-            x = ex.gather_nodes(cst.estimates)
-            est = ex.gather_nodes(cst.estimable)
-            P = ex.gather_nodes(cst.covariance) if cst.covariance is not None else None
-            for i, col in enumerate(cs):
-                col.step(cst.epoch, x[i], est[i], None if P is None else P[i])
-        built = tests.build() if tests is not None else None
-        out += [replace(col.done(), precision=None, innovation_tests=built) for col in cs]
-        comm = ex.comm_totals()
+        ckf, comm = _ckf_filters(data, opts, options, graph, exchange)
+        out += ckf
+    test = _between_stations(data, out, options.between_station_level) if options.local else None
+    if test is not None:
+        out = _with_station_constant_errors(data, out, test)
     return out, comm
+
+
+def _with_station_constant_errors(data: BiasNetworkData, series: list[DatumSeries], test: Any) -> list[DatumSeries]:
+    """Every series with the test attached and, when it rejects, its satellites' realistic σ raised to the floor
+    the single-receiver solutions imply (:func:`~distnav.models.gnss.stationcheck.variance_floor`)."""
+    from distnav.models.gnss.stationcheck import variance_floor
+
+    n = len(data.stations)
+    local = {s.label[len("local:") :]: s.realistic_std_ns()[n:] for s in series if s.label.startswith("local:")}
+    every = np.stack([local[sta] for sta in data.stations if sta in local])
+    out = []
+    for s in series:
+        if not test.rejected:
+            out.append(replace(s, between_station=test))
+            continue
+        sta = s.label[len("local:") :] if s.label.startswith("local:") else None
+        floor = variance_floor(test.factor, every if sta is None else local[sta][None, :])
+        own = s.realistic_std_ns()[n:]
+        extra = np.zeros(n + len(data.layout.svs))
+        extra[n:] = np.where(np.isfinite(own), np.maximum(floor - own**2, 0.0), 0.0)
+        out.append(replace(s, between_station=test, extra_variance_ns2=extra))
+    return out
+
+
+def _between_stations(data: BiasNetworkData, series: Sequence[DatumSeries], level: float | None) -> Any:
+    """The between-station test (:mod:`~distnav.models.gnss.stationcheck`) on the single-receiver filters' last
+    satellite DSBs and realistic σ; None when off, with one station, or when no pair shares enough satellites."""
+    from distnav.models.gnss.stationcheck import between_station_test
+
+    local = [s for s in series if s.label.startswith("local:")]
+    if level is None or len(local) < 2:
+        return None
+    n = len(data.stations)
+    dsb = np.stack([s.dsb_ns[-1, n:] for s in local])
+    sigma = np.stack([s.realistic_std_ns()[n:] for s in local])
+    return between_station_test([s.label[len("local:") :] for s in local], dsb, sigma, level=level)
+
+
+def _central_filter(data: BiasNetworkData, opts: dict[str, Any]) -> DatumSeries:
+    """The central filter over every station's data."""
+    from distnav.algorithms.kalman import iterate_information_filter
+
+    c = Collector(
+        "central", data.series.n_epochs, data.layout, data.series, np.arange(len(data.stations)), data.dynamics, **opts
+    )
+    for st in iterate_information_filter(data.dynamics, data.series, mode="central"):
+        c.step(st.epoch, st.estimates[0], st.estimable[0], st.covariance[0])
+    return _with_arc_factor(c.done(), data, None)
+
+
+def _local_filter(data: BiasNetworkData, i: int, opts: dict[str, Any], datum: str) -> DatumSeries:
+    """Station ``i``'s single-receiver filter, in its own receiver's basis (so its satellite DCBs are estimable
+    from its own data)."""
+    from distnav.algorithms.kalman import iterate_information_filter
+
+    sta = data.stations[i]
+    si = data.series_for(sta)
+    own = {**opts, "reference": None if datum != "receiver" else sta}
+    c = Collector(f"local:{sta}", data.series.n_epochs, si.layout, si, np.array([i]), data.dynamics, **own)
+    for st in iterate_information_filter(data.dynamics, si, mode="central", nodes=[i]):
+        c.step(st.epoch, st.estimates[0], st.estimable[0], st.covariance[0])
+    return _with_arc_factor(c.done(), data, [i])
+
+
+def _ckf_filters(
+    data: BiasNetworkData, opts: dict[str, Any], options: BiasFilterOptions, graph: Any, exchange: Any
+) -> tuple[list[DatumSeries], Any]:
+    """The consensus Kalman filter (paper 003, P3 with ``kn`` rounds), one series per receiver, and its
+    communication totals."""
+    from distnav.algorithms.kalman.ckf import iterate_ckf
+    from distnav.exchange import make_exchange
+
+    T, level = data.series.n_epochs, options.innovation_level
+    ex = exchange if exchange is not None else make_exchange(graph)
+    cs = [
+        Collector(f"ckf:{s}", T, data.layout, data.series, np.array([i]), data.dynamics, **opts)
+        for i, s in enumerate(data.stations)
+    ]
+    tests = None
+    if level is not None:
+        from distnav.algorithms.kalman.ckf_qc import InnovationCollector
+        from distnav.algorithms.statistics import critical_value
+
+        tests = InnovationCollector(ex, len(data.stations), level, critical_value(level))
+    for cst in iterate_ckf(
+        data.dynamics,
+        data.series,
+        graph=graph,
+        protocol="P3",
+        rounds=options.kn,
+        exchange=ex,
+        monitor=False,
+        local_precision=None if tests is None else "bound",
+        test_level=level,
+        transport=_ckf_transport(ex, graph, options.kn, data.series),
+    ):
+        if tests is not None:
+            tests.add(cst.tests)
+        x = ex.gather_nodes(cst.estimates)
+        est = ex.gather_nodes(cst.estimable)
+        P = ex.gather_nodes(cst.covariance) if cst.covariance is not None else None
+        for i, col in enumerate(cs):
+            col.step(cst.epoch, x[i], est[i], None if P is None else P[i])
+    built = tests.build() if tests is not None else None
+    return [replace(col.done(), precision=None, innovation_tests=built) for col in cs], ex.comm_totals()
+
+
+def _ckf_transport(ex: Any, graph: Any, kn: int, series: Any) -> Literal["matrices", "relay"]:
+    """The CKF's transport, the cheaper in bytes (issue 27): relayed observation records (20 B each;
+    :mod:`distnav.algorithms.kalman.relay`) or the mixed normals, computed from the records the run will send
+    (innovation tests can only remove some). A fault schedule needs the matrices."""
+    from distnav.algorithms.kalman.relay import MAX_RELAY_NODES, matrix_bytes, relay_bytes, relay_plan
+
+    if ex.faults.active or graph.n_nodes > MAX_RELAY_NODES:
+        return "matrices"
+    records = np.asarray(series.tracked).sum(axis=2)  # (epochs, stations)
+    relay = relay_bytes(relay_plan(graph, kn), records)
+    return "relay" if relay < matrix_bytes(graph, kn, series.n_states, series.n_epochs) else "matrices"

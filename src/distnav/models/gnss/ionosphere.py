@@ -51,16 +51,16 @@ import numpy as np
 
 from distnav.algorithms.kalman import DynamicModel, MeasurementSeries, ObservationSeries, simulate_states
 from distnav.errors import ModelError
-from distnav.models.gnss.constants import C_M_S, F_L1_HZ, IONO_EARTH_RADIUS_M, mu
-from distnav.models.gnss.geometry import (
-    azimuth_elevation,
-    ecef_to_geodetic,
-    elevation_mask,
-    geodetic_to_ecef,
-    pierce_point,
+from distnav.models.gnss.constants import C_M_S, F_L1_HZ, mu
+from distnav.models.gnss.ionogeometry import (
+    MSLM_ALPHA,
+    MSLM_HEIGHT_M,
+    GeometryOptions,
+    IonosphereGeometry,
+    ionosphere_coefficients,
+    ionosphere_geometry,
 )
 from distnav.models.gnss.observables import elevation_sigma
-from distnav.models.gnss.orbits import SatelliteOrbit
 from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
 
 __all__ = [
@@ -74,7 +74,10 @@ __all__ = [
     "gf_m_from_dcb_ns",
     "geometry_free_m",
     "ionosphere_coefficients",
+    "GeometryOptions",
     "IonosphereGeometry",
+    "MSLM_ALPHA",
+    "MSLM_HEIGHT_M",
     "ionosphere_geometry",
     "IonosphereStateLayout",
     "ionosphere_dynamics",
@@ -112,10 +115,6 @@ TEC_NAMES_QUADRATIC = (
 """The six TEC parameters of a second-order field (``tec_order=2``): ν_o, the gradients, then the coefficients of
 Δφ², Δφ·Δψ and Δψ² — a departure from paper 003's linear field, for low-latitude stations (docs/gnss.md)."""
 
-MSLM_HEIGHT_M = 506.7e3
-MSLM_ALPHA = 0.9782
-"""Modified single-layer mapping (CODE): ``sin z' = R/(R + 506.7 km) · sin(0.9782 · (π/2 − θ))``."""
-
 
 def dcb_ns_from_gf_m(b_m: np.ndarray | float) -> np.ndarray:
     """Between-satellite DCB ``DSB^s − DSB^p`` [ns] from the geometry-free bias ``b^{ps}`` [m] (sign: Bias-SINEX)."""
@@ -130,178 +129,6 @@ def gf_m_from_dcb_ns(dcb_ns: np.ndarray | float) -> np.ndarray:
 def geometry_free_m(p1_m: np.ndarray, p2_m: np.ndarray) -> np.ndarray:
     """The geometry-free code combination ``(P2 − P1)/(μ2 − μ1)`` [m] (L1 slant delay + biases); NaN propagates."""
     return np.asarray((np.asarray(p2_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(2) - 1.0))
-
-
-def ionosphere_coefficients(
-    lat_ipp_rad: np.ndarray,
-    lon_ipp_rad: np.ndarray,
-    zenith_ipp_rad: np.ndarray,
-    ref_lat_rad: np.ndarray | float,
-    ref_lon_rad: np.ndarray | float,
-    *,
-    order: int = 1,
-) -> np.ndarray:
-    """Coefficients ``(a_o, a_φ, a_ψ)`` of paper 003 eq. (49) on a new last axis.
-
-    ``a_o = 1/cos z'``, ``a_φ = (φ_IPP − φ_o)/cos z'``, ``a_ψ = (ψ_IPP − ψ_o)/cos z'`` (radians; the longitude
-    difference is wrapped to (−π, π]). Inputs broadcast. ``order=2`` appends ``Δφ²``, ``Δφ·Δψ``, ``Δψ²`` over
-    cos z' (:data:`TEC_NAMES_QUADRATIC`).
-    """
-    inv_cos = 1.0 / np.cos(np.asarray(zenith_ipp_rad, dtype=float))
-    dlat = np.asarray(lat_ipp_rad, dtype=float) - np.asarray(ref_lat_rad, dtype=float)
-    dlon = np.asarray(lon_ipp_rad, dtype=float) - np.asarray(ref_lon_rad, dtype=float)
-    dlon = np.mod(dlon + np.pi, 2.0 * np.pi) - np.pi
-    terms = [inv_cos, dlat * inv_cos, dlon * inv_cos]
-    if order == 2:
-        terms += [dlat**2 * inv_cos, dlat * dlon * inv_cos, dlon**2 * inv_cos]
-    elif order != 1:
-        raise ModelError(f"the TEC field's order must be 1 (linear) or 2 (quadratic), got {order}")
-    return np.stack(np.broadcast_arrays(*terms), axis=-1)
-
-
-# ----------------------------------------------------------------------------------------------- geometry
-@dataclass(frozen=True, eq=False)
-class IonosphereGeometry:
-    """Receiver–satellite geometry of a network over time, with the single-layer coefficients.
-
-    ``t_gps_s`` (T,), ``svs`` (S,), receivers ``names`` (n,) at ``lat_rad``/``lon_rad``/``height_m`` (n,);
-    ``el_rad``, ``az_rad`` (T, n, S) (NaN where the satellite position is unknown); ``tracked`` (T, n, S) the
-    elevation-mask (and data) visibility; ``coefficients`` (T, n, S, 3) = ``(a_o, a_φ, a_ψ)`` of eq. (49) about the
-    reference point of each receiver's ionosphere (``ref_lat_rad``/``ref_lon_rad`` (n,)); ``groups`` (n,) the
-    ionosphere each receiver belongs to (all 0 for one regional ionosphere).
-    """
-
-    t_gps_s: np.ndarray
-    svs: tuple[str, ...]
-    names: tuple[str, ...]
-    lat_rad: np.ndarray
-    lon_rad: np.ndarray
-    height_m: np.ndarray
-    el_rad: np.ndarray
-    az_rad: np.ndarray
-    tracked: np.ndarray
-    coefficients: np.ndarray
-    ref_lat_rad: np.ndarray
-    ref_lon_rad: np.ndarray
-    groups: np.ndarray
-    mask_rad: float
-
-    @property
-    def n_epochs(self) -> int:
-        return int(self.t_gps_s.size)
-
-    @property
-    def n_receivers(self) -> int:
-        return len(self.names)
-
-    def with_tracked(self, tracked: np.ndarray) -> IonosphereGeometry:
-        """The same geometry with a narrower visibility (e.g. the epochs and satellites that have data)."""
-        tr = np.asarray(tracked, dtype=bool)
-        if tr.shape != self.tracked.shape:
-            raise ModelError(f"tracked mask of shape {tr.shape}, geometry has {self.tracked.shape}")
-        return IonosphereGeometry(
-            self.t_gps_s,
-            self.svs,
-            self.names,
-            self.lat_rad,
-            self.lon_rad,
-            self.height_m,
-            self.el_rad,
-            self.az_rad,
-            self.tracked & tr,
-            self.coefficients,
-            self.ref_lat_rad,
-            self.ref_lon_rad,
-            self.groups,
-            self.mask_rad,
-        )
-
-
-def ionosphere_geometry(
-    orbit: SatelliteOrbit,
-    t_gps_s: np.ndarray,
-    *,
-    lat_rad: np.ndarray | None = None,
-    lon_rad: np.ndarray | None = None,
-    height_m: np.ndarray | float = 0.0,
-    receivers_ecef_m: np.ndarray | None = None,
-    names: Sequence[str] | None = None,
-    svs: Sequence[str] | None = None,
-    mask_deg: float = 10.0,
-    ionosphere: str = "common",
-    tec_order: int = 1,
-    mapping: str = "slm",
-) -> IonosphereGeometry:
-    """Elevations, pierce points and eq.-(49) coefficients of every receiver–satellite pair at every epoch.
-
-    Receivers by geodetic ``lat_rad``/``lon_rad``/``height_m`` or by ``receivers_ecef_m`` (n, 3). ``ionosphere``:
-    ``"common"`` — one regional ionosphere about the receivers' centroid (paper 003 §5: all TEC parameters shared);
-    ``"per-receiver"`` — each receiver its own ν_o, ν_φ, ν_ψ about its own zenith (networks too wide for one
-    regional model). Satellites below ``mask_deg`` (paper: 10°) or without a position are not tracked.
-    ``tec_order`` 2: the second-order coefficients too; ``mapping`` ``"mslm"``: the modified single-layer mapping
-    (:data:`MSLM_HEIGHT_M`, :data:`MSLM_ALPHA`) instead of paper 003's 450-km thin shell.
-    """
-    if mapping not in ("slm", "mslm"):
-        raise ModelError(f"mapping must be 'slm' or 'mslm', got {mapping!r}")
-    if receivers_ecef_m is not None:
-        xyz = np.asarray(receivers_ecef_m, dtype=float).reshape(-1, 3)
-        if not np.all(np.isfinite(xyz)) or np.any(np.linalg.norm(xyz, axis=1) < 6.0e6):
-            bad = int(np.flatnonzero(~np.isfinite(xyz).all(axis=1) | (np.linalg.norm(xyz, axis=1) < 6.0e6))[0])
-            who = names[bad] if names is not None else str(bad)
-            raise ModelError(f"receiver {who}: position {xyz[bad].tolist()} m is not on the Earth's surface")
-        lat, lon, h = ecef_to_geodetic(xyz)
-    else:
-        if lat_rad is None or lon_rad is None:
-            raise ModelError("give the receivers as lat_rad/lon_rad or receivers_ecef_m")
-        lat = np.atleast_1d(np.asarray(lat_rad, dtype=float))
-        lon = np.atleast_1d(np.asarray(lon_rad, dtype=float))
-        h = np.broadcast_to(np.asarray(height_m, dtype=float), lat.shape).copy()
-        xyz = geodetic_to_ecef(lat, lon, h)
-    n = lat.size
-    rx_names = tuple(str(s) for s in names) if names is not None else tuple(str(i + 1) for i in range(n))
-    if len(rx_names) != n:
-        raise ModelError(f"{len(rx_names)} receiver names for {n} receivers")
-    if ionosphere not in ("common", "per-receiver"):
-        raise ModelError(f"ionosphere must be 'common' or 'per-receiver', got {ionosphere!r}")
-    if not 0.0 <= mask_deg < 90.0:
-        raise ModelError(f"elevation mask must lie in [0°, 90°), got {mask_deg}°")
-    t = np.atleast_1d(np.asarray(t_gps_s, dtype=float))
-    sv_names = tuple(orbit.svs) if svs is None else tuple(svs)
-    sat = orbit.positions_ecef(t, list(sv_names))  # (T, S, 3)
-    T, S = t.size, len(sv_names)
-    el = np.empty((T, n, S))
-    az = np.empty((T, n, S))
-    for i in range(n):
-        az[:, i], el[:, i] = azimuth_elevation(xyz[i], sat)
-    mask = np.deg2rad(mask_deg)
-    tracked = elevation_mask(el, mask)
-    if ionosphere == "common":
-        groups = np.zeros(n, np.int64)
-        # centroid of the receivers on the sphere (mean unit vector)
-        u = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=1).mean(axis=0)
-        ref_lat = np.full(n, np.arctan2(u[2], np.hypot(u[0], u[1])))
-        ref_lon = np.full(n, np.arctan2(u[1], u[0]))
-    else:
-        groups = np.arange(n, dtype=np.int64)
-        ref_lat, ref_lon = lat.copy(), lon.copy()
-    el_safe = np.where(tracked, el, 0.5 * np.pi)
-    az_safe = np.where(tracked, az, 0.0)
-    if mapping == "mslm":
-        lat_ipp, lon_ipp, _ = pierce_point(
-            lat[None, :, None], lon[None, :, None], az_safe, el_safe, height_m=MSLM_HEIGHT_M
-        )
-        z_ipp = np.arcsin(
-            IONO_EARTH_RADIUS_M / (IONO_EARTH_RADIUS_M + MSLM_HEIGHT_M) * np.sin(MSLM_ALPHA * (0.5 * np.pi - el_safe))
-        )
-    else:
-        lat_ipp, lon_ipp, z_ipp = pierce_point(lat[None, :, None], lon[None, :, None], az_safe, el_safe)
-    coef = ionosphere_coefficients(
-        lat_ipp, lon_ipp, z_ipp, ref_lat[None, :, None], ref_lon[None, :, None], order=tec_order
-    )
-    coef[~tracked] = 0.0
-    return IonosphereGeometry(
-        t, sv_names, rx_names, lat, lon, h, el, az, tracked, coef, ref_lat, ref_lon, groups, float(mask)
-    )
 
 
 # ----------------------------------------------------------------------------------------------- state + dynamics

@@ -42,11 +42,13 @@ import numpy as np
 from distnav.algorithms.result import ObservationTests
 from distnav.algorithms.statistics import critical_value, w_statistics
 from distnav.errors import ModelError
-from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
+from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ
 
 __all__ = [
     "ArcStatistics",
+    "band_frequencies_hz",
     "LevelledStation",
+    "LevellingOptions",
     "geometry_free_phase_m",
     "melbourne_wubbena_cycles",
     "find_arcs",
@@ -58,8 +60,11 @@ __all__ = [
 
 @dataclass(frozen=True)
 class ArcStatistics:
-    """One continuous arc: satellite, first/last epoch index, epochs kept, why it started, offset (m) and its σ,
-    RMS of code minus levelled phase before/after screening [m], observations removed by the screening."""
+    """One continuous arc: satellite, first/last epoch index, epochs, why it started, offset (m) and its σ,
+    RMS of code minus levelled phase after screening [m], and every removal by reason: ``removed`` by the
+    screening's w-tests, ``removed_mw`` one-epoch Melbourne–Wübbena outliers within the arc's span, and
+    ``dropped_short`` (the arc's epochs, when the whole arc was shorter than the minimum and dropped; then no
+    offset: NaN)."""
 
     sv: str
     first: int
@@ -70,6 +75,8 @@ class ArcStatistics:
     offset_std_m: float
     code_rms_m: float
     removed: int
+    removed_mw: int = 0
+    dropped_short: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -92,6 +99,8 @@ class LevelledStation:
     fit_wss: np.ndarray | None = None
     fit_n: np.ndarray | None = None
     mw_outlier: np.ndarray | None = None
+    short_arcs: list[ArcStatistics] | None = None
+    """The arcs dropped as too short (their epochs counted in ``dropped_short``), for ``arcs.csv``."""
 
     def arc_summary(self) -> dict[str, Any]:
         """Counts of arcs, starts by reason, short arcs dropped, median arc length and code RMS, and the raw
@@ -155,22 +164,44 @@ GF_MIN_ERRORS = 10
 is used from the third one on (before it: the fixed threshold)."""
 
 
-def geometry_free_phase_m(phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2) -> np.ndarray:
-    """``(Φ_1 − Φ_b)/(μ_b − 1)`` [m]: the L1 ionospheric delay plus a constant per arc."""
-    out: np.ndarray = (np.asarray(phi1_m, float) - np.asarray(phib_m, float)) / (mu(band) - 1.0)
+def band_frequencies_hz(band: int, frequencies_hz: tuple[Any, Any] | None = None) -> tuple[Any, Any]:
+    """``(f_1, f_b)`` [Hz]: the GPS frequencies of L1 and ``band``, or ``frequencies_hz`` — scalars or (S,)
+    arrays, one per satellite column (another system's signals, GLONASS FDMA channels), broadcast over epochs."""
+    if frequencies_hz is None:
+        return GPS_FREQUENCIES_HZ[1], GPS_FREQUENCIES_HZ[band]
+    f1, fb = (np.asarray(f, float) for f in frequencies_hz)
+    if not (np.all(f1 > 0) and np.all(fb > 0) and np.all(f1 != fb)):
+        raise ModelError("levelling: frequencies must be positive and differ between the two signals")
+    return f1, fb
+
+
+def geometry_free_phase_m(
+    phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2, *, frequencies_hz: tuple[Any, Any] | None = None
+) -> np.ndarray:
+    """``(Φ_1 − Φ_b)/(μ_b − 1)`` [m]: the L1 ionospheric delay plus a constant per arc (``μ_b = (f_1/f_b)²``,
+    :func:`band_frequencies_hz`)."""
+    f1, fb = band_frequencies_hz(band, frequencies_hz)
+    out: np.ndarray = (np.asarray(phi1_m, float) - np.asarray(phib_m, float)) / ((f1 / fb) ** 2 - 1.0)
     return out
 
 
 def melbourne_wubbena_cycles(
-    p1_m: np.ndarray, pb_m: np.ndarray, phi1_m: np.ndarray, phib_m: np.ndarray, band: int = 2
+    p1_m: np.ndarray,
+    pb_m: np.ndarray,
+    phi1_m: np.ndarray,
+    phib_m: np.ndarray,
+    band: int = 2,
+    *,
+    frequencies_hz: tuple[Any, Any] | None = None,
 ) -> np.ndarray:
     """Melbourne–Wübbena wide-lane [cycles of ``λ_w = c/(f_1 − f_b)``]: constant per arc up to code noise."""
-    f1, fb = GPS_FREQUENCIES_HZ[1], GPS_FREQUENCIES_HZ[band]
+    f1, fb = band_frequencies_hz(band, frequencies_hz)
     lw = C_M_S / (f1 - fb)
     l1, lb = C_M_S / f1, C_M_S / fb
     phase_wl = np.asarray(phi1_m, float) / l1 - np.asarray(phib_m, float) / lb
     code_nl = (f1 * np.asarray(p1_m, float) + fb * np.asarray(pb_m, float)) / ((f1 + fb) * lw)
-    return phase_wl - code_nl
+    out: np.ndarray = phase_wl - code_nl
+    return out
 
 
 def find_arcs(
@@ -300,6 +331,74 @@ def screen_arc(
     return keep, off, float(np.sqrt(s0 / sw)), w_out
 
 
+@dataclass(frozen=True)
+class LevellingOptions:
+    """How :func:`level_station` levels and screens one station's code (defaults in brackets).
+
+    ``band`` [2]: the second frequency's RINEX band (2, 5). ``min_arc_epochs`` [10]: shortest arc kept.
+    ``max_gap_s`` [None: 3 × the median sampling interval]: a longer gap ends an arc. ``gf_threshold_m`` [0.05] /
+    ``gf_sigmas`` [:data:`GF_SIGMAS`]: the geometry-free slip limit of :func:`find_arcs`. ``screen`` [True]: the
+    arcs' w-test screening at ``level`` [0.001]. ``fallback_raw`` [False]: epochs outside any kept arc keep the
+    raw code (instead of NaN). ``frequencies_hz`` [None: GPS L1 and ``band``]: ``(f_1, f_b)`` [Hz], scalars or
+    (S,) arrays per satellite column — the hook for other systems and GLONASS's FDMA channels. Checked once,
+    here."""
+
+    band: int = 2
+    min_arc_epochs: int = 10
+    max_gap_s: float | None = None
+    gf_threshold_m: float = 0.05
+    gf_sigmas: float = GF_SIGMAS
+    screen: bool = True
+    level: float = 0.001
+    fallback_raw: bool = False
+    frequencies_hz: tuple[Any, Any] | None = None
+
+    def __post_init__(self) -> None:
+        if self.band == 1:
+            raise ModelError("levelling: band 1 is the first frequency; the second is 2, 5, …")
+        if self.min_arc_epochs < 2:
+            raise ModelError(f"levelling: min_arc_epochs must be ≥ 2, got {self.min_arc_epochs}")
+        if self.max_gap_s is not None and not self.max_gap_s > 0:
+            raise ModelError(f"levelling: max_gap_s must be > 0, got {self.max_gap_s}")
+        if not (np.isfinite(self.gf_threshold_m) and self.gf_threshold_m > 0):
+            raise ModelError(f"levelling: gf_threshold_m must be a positive number, got {self.gf_threshold_m}")
+        if not 0.0 < self.level < 0.5:
+            raise ModelError(f"levelling: the test level must lie in (0, 0.5), got {self.level}")
+
+
+@dataclass
+class _Accumulator:
+    """What :func:`level_station` collects over the satellites (filled by :func:`_level_satellite`)."""
+
+    out: np.ndarray
+    arc_id: np.ndarray
+    removed: np.ndarray
+    mw_out: np.ndarray
+    w_all: np.ndarray
+    fit_wss: np.ndarray
+    fit_n: np.ndarray
+    arcs: list[ArcStatistics]
+    starts: dict[str, int]
+    dropped: int = 0
+    short: list[ArcStatistics] | None = None
+
+    @classmethod
+    def empty(cls, T: int, S: int) -> _Accumulator:
+        return cls(
+            np.full((T, S), np.nan),
+            np.full((T, S), -1, np.int64),
+            np.zeros((T, S), bool),
+            np.zeros((T, S), bool),
+            np.full((T, S), np.nan),
+            np.zeros(S),
+            np.zeros(S, np.int64),
+            [],
+            {},
+            0,
+            [],
+        )
+
+
 def level_station(
     t_s: np.ndarray,
     svs: tuple[str, ...],
@@ -308,101 +407,143 @@ def level_station(
     phi1_m: np.ndarray,
     phib_m: np.ndarray,
     *,
-    band: int = 2,
+    options: LevellingOptions = LevellingOptions(),
     lli: np.ndarray | None = None,
     sigma_m: np.ndarray | None = None,
-    min_arc_epochs: int = 10,
-    max_gap_s: float | None = None,
-    gf_threshold_m: float = 0.05,
-    gf_sigmas: float = GF_SIGMAS,
-    screen: bool = True,
-    level: float = 0.001,
-    fallback_raw: bool = False,
     node: int = 0,
 ) -> LevelledStation:
     """Level one station's geometry-free code (T, S) per arc (module doc). ``sigma_m`` (T, S) σ of the code
-    ``g_P`` (default 1: equal weights); ``max_gap_s`` defaults to 3 × the median sampling interval;
-    ``gf_threshold_m`` / ``gf_sigmas``: the GF slip limit of :func:`find_arcs`."""
+    ``g_P`` (default 1: equal weights); ``options``: :class:`LevellingOptions`; ``node``: the station's node id in
+    the screening's :class:`~distnav.algorithms.result.ObservationTests`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
+    >>> from distnav.models.gnss.levelling import LevellingOptions, level_station
+    >>> t = np.arange(60) * 30.0
+    >>> iono = 2.0 + 0.001 * t[:, None]
+    >>> rho = 2e7 + 100.0 * t[:, None]
+    >>> p1, pb = rho + iono, rho + mu(2) * iono
+    >>> phi1, phib = rho - iono + 5 * C_M_S / GPS_FREQUENCIES_HZ[1], rho - mu(2) * iono
+    >>> lev = level_station(t, ("G01",), p1, pb, phi1, phib, options=LevellingOptions(screen=False))
+    >>> len(lev.arcs), bool(np.allclose(lev.gf_m, iono))
+    (1, True)
+    """
     t = np.asarray(t_s, float)
     if t.ndim != 1 or np.any(np.diff(t) <= 0):
         raise ModelError("epoch times must be one increasing series")
-    gp = (np.asarray(pb_m, float) - np.asarray(p1_m, float)) / (mu(band) - 1.0)
-    gphi = geometry_free_phase_m(phi1_m, phib_m, band)
-    mw = melbourne_wubbena_cycles(p1_m, pb_m, phi1_m, phib_m, band)
+    band, freqs = options.band, options.frequencies_hz
+    f1, fb = band_frequencies_hz(band, freqs)
+    gp = (np.asarray(pb_m, float) - np.asarray(p1_m, float)) / ((f1 / fb) ** 2 - 1.0)
+    gphi = geometry_free_phase_m(phi1_m, phib_m, band, frequencies_hz=freqs)
+    mw = melbourne_wubbena_cycles(p1_m, pb_m, phi1_m, phib_m, band, frequencies_hz=freqs)
     sig = np.ones_like(gp) if sigma_m is None else np.asarray(sigma_m, float)
-    gap = max_gap_s if max_gap_s is not None else 3.0 * float(np.median(np.diff(t))) if t.size > 1 else 90.0
-    T, S = gp.shape
-    out = np.full((T, S), np.nan)
-    arc_id = np.full((T, S), -1, np.int64)
-    removed = np.zeros((T, S), bool)
-    mw_out = np.zeros((T, S), bool)
-    w_all = np.full((T, S), np.nan)
-    arcs: list[ArcStatistics] = []
-    starts: dict[str, int] = {}
-    dropped = 0
-    fit_wss = np.zeros(S)
-    fit_n = np.zeros(S, np.int64)
-    for s in range(S):
-        ok = np.isfinite(gp[:, s]) & np.isfinite(gphi[:, s])
-        a, outl, reasons = find_arcs(
-            t,
-            np.where(ok, gphi[:, s], np.nan),
-            np.where(ok, mw[:, s], np.nan),
-            None if lli is None else lli[:, s],
-            max_gap_s=gap,
-            gf_threshold_m=gf_threshold_m,
-            gf_sigmas=gf_sigmas,
-        )
-        removed[:, s] |= outl
-        mw_out[:, s] = outl
-        for j, why in enumerate(reasons):
-            starts[why] = starts.get(why, 0) + 1
-            ep = np.flatnonzero(a == j)
-            if ep.size < min_arc_epochs:
-                dropped += 1
-                continue
-            d = gp[ep, s] - gphi[ep, s]
-            if screen:
-                keep, off, off_sd, w_arc = screen_arc(d, sig[ep, s], level=level)
-                w_all[ep, s] = w_arc
-            else:
-                keep = np.ones(ep.size, bool)
-                wts = 1.0 / sig[ep, s] ** 2
-                off = float((wts * d).sum() / wts.sum())
-                off_sd = float(np.sqrt(1.0 / wts.sum()))
-            removed[ep[~keep], s] = True
-            out[ep, s] = gphi[ep, s] + off
-            fit_wss[s] += float((((d[keep] - off) / sig[ep, s][keep]) ** 2).sum())
-            fit_n[s] += int(keep.sum())
-            arc_id[ep, s] = len(arcs)
-            arcs.append(
-                ArcStatistics(
-                    svs[s],
-                    int(ep[0]),
-                    int(ep[-1]),
-                    int(ep.size),
-                    why,
-                    off,
-                    off_sd,
-                    float(np.sqrt(np.mean((d[keep] - off) ** 2))),
-                    int((~keep).sum()),
-                )
-            )
-    if fallback_raw:
-        raw = np.isnan(out) & np.isfinite(gp) & ~removed
-        out[raw] = gp[raw]
-    tested = np.isfinite(w_all) | removed
-    k = critical_value(level)
-    flat_w = w_all[tested]
+    gap = (
+        options.max_gap_s
+        if options.max_gap_s is not None
+        else 3.0 * float(np.median(np.diff(t)))
+        if t.size > 1
+        else 90.0
+    )
+    acc = _Accumulator.empty(*gp.shape)
+    for s in range(gp.shape[1]):
+        _level_satellite(acc, s, svs[s], t, gp, gphi, mw, sig, lli, gap, options)
+    if options.fallback_raw:
+        raw = np.isnan(acc.out) & np.isfinite(gp) & ~acc.removed
+        acc.out[raw] = gp[raw]
+    tested = np.isfinite(acc.w_all) | acc.removed
+    k = critical_value(options.level)
+    flat_w = acc.w_all[tested]
     tests = ObservationTests(
         node=np.full(flat_w.size, node, np.int64),
         w=flat_w,
         critical_value=k,
-        level=level,
+        level=options.level,
         flagged=np.abs(np.nan_to_num(flat_w)) > k,
-        removed=tuple(np.flatnonzero(removed[tested]).tolist()),
+        removed=tuple(np.flatnonzero(acc.removed[tested]).tolist()),
     )
-    return LevelledStation(out, arc_id, arcs, removed, starts, dropped, tests, fit_wss, fit_n, mw_out)
+    return LevelledStation(
+        acc.out,
+        acc.arc_id,
+        acc.arcs,
+        acc.removed,
+        acc.starts,
+        acc.dropped,
+        tests,
+        acc.fit_wss,
+        acc.fit_n,
+        acc.mw_out,
+        acc.short,
+    )
+
+
+def _level_satellite(
+    acc: _Accumulator,
+    s: int,
+    sv: str,
+    t: np.ndarray,
+    gp: np.ndarray,
+    gphi: np.ndarray,
+    mw: np.ndarray,
+    sig: np.ndarray,
+    lli: np.ndarray | None,
+    gap: float,
+    options: LevellingOptions,
+) -> None:
+    """One satellite's column: find its arcs, level and screen each kept arc, record it in ``acc``."""
+    ok = np.isfinite(gp[:, s]) & np.isfinite(gphi[:, s])
+    a, outl, reasons = find_arcs(
+        t,
+        np.where(ok, gphi[:, s], np.nan),
+        np.where(ok, mw[:, s], np.nan),
+        None if lli is None else lli[:, s],
+        max_gap_s=gap,
+        gf_threshold_m=options.gf_threshold_m,
+        gf_sigmas=options.gf_sigmas,
+    )
+    acc.removed[:, s] |= outl
+    acc.mw_out[:, s] = outl
+    for j, why in enumerate(reasons):
+        acc.starts[why] = acc.starts.get(why, 0) + 1
+        ep = np.flatnonzero(a == j)
+        mw_in = int(outl[ep[0] : ep[-1] + 1].sum()) if ep.size else 0
+        if ep.size < options.min_arc_epochs:
+            acc.dropped += 1
+            if ep.size and acc.short is not None:
+                nan = float("nan")
+                acc.short.append(
+                    ArcStatistics(sv, int(ep[0]), int(ep[-1]), int(ep.size), why, nan, nan, nan, 0, mw_in, int(ep.size))
+                )
+            continue
+        d = gp[ep, s] - gphi[ep, s]
+        if options.screen:
+            keep, off, off_sd, w_arc = screen_arc(d, sig[ep, s], level=options.level)
+            acc.w_all[ep, s] = w_arc
+        else:
+            keep = np.ones(ep.size, bool)
+            wts = 1.0 / sig[ep, s] ** 2
+            off = float((wts * d).sum() / wts.sum())
+            off_sd = float(np.sqrt(1.0 / wts.sum()))
+        acc.removed[ep[~keep], s] = True
+        acc.out[ep, s] = gphi[ep, s] + off
+        acc.fit_wss[s] += float((((d[keep] - off) / sig[ep, s][keep]) ** 2).sum())
+        acc.fit_n[s] += int(keep.sum())
+        acc.arc_id[ep, s] = len(acc.arcs)
+        acc.arcs.append(
+            ArcStatistics(
+                sv,
+                int(ep[0]),
+                int(ep[-1]),
+                int(ep.size),
+                why,
+                off,
+                off_sd,
+                float(np.sqrt(np.mean((d[keep] - off) ** 2))),
+                int((~keep).sum()),
+                mw_in,
+            )
+        )
 
 
 def station_sigma_factors(levelled: Sequence[LevelledStation]) -> np.ndarray:

@@ -60,7 +60,15 @@ from distnav.models.gnss.code_observations import CodeObservations
 from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
 from distnav.models.gnss.geometry import azimuth_elevation, geodetic_to_ecef, pierce_point
 
-__all__ = ["EUROPEAN_STATIONS", "REALISTIC", "VtecField", "SimulatedNetwork", "simulate_network", "truth_product"]
+__all__ = [
+    "EUROPEAN_STATIONS",
+    "REALISTIC",
+    "NetworkSimOptions",
+    "VtecField",
+    "SimulatedNetwork",
+    "simulate_network",
+    "truth_product",
+]
 
 TECU_L1_M = 40.3e16 / GPS_FREQUENCIES_HZ[1] ** 2
 """L1 delay of 1 TECU [m] (0.1624 m)."""
@@ -86,8 +94,8 @@ REALISTIC: dict[str, Any] = {
     "irregularity_tau_s": 600.0,
     "shell_jitter_km": 40.0,
 }
-"""Keyword arguments of :func:`simulate_network` for the "realistic" preset (module doc; the calibration is in
-``docs/ionosphere.md``): ``simulate_network(orbit, day, rng=rng, **REALISTIC)``."""
+"""Fields of :class:`NetworkSimOptions` for the "realistic" preset (module doc; the calibration is in
+``docs/ionosphere.md``): ``simulate_network(orbit, day, NetworkSimOptions(**REALISTIC), rng=rng)``."""
 
 
 @dataclass(frozen=True)
@@ -147,153 +155,240 @@ def _given_or_drawn(
     return {n: float(v) for n, v in zip(names, rng.normal(0.0, std, len(names)), strict=True)}
 
 
+@dataclass(frozen=True)
+class NetworkSimOptions:
+    """What :func:`simulate_network` simulates (module doc; defaults in brackets, checked once, here).
+
+    ``interval_s`` [30] / ``hours`` [24]: sampling and length from 00:00 GPS. ``field`` [:class:`VtecField`]: the
+    smooth VTEC. ``svn49`` [``"G01"``]: the satellite with an SVN49-like elevation-dependent code bias (None:
+    none). ``code_sigma_m`` [(0.15, 0.18)] / ``phase_sigma_m`` [0.002]: white noise of P1/P2 and the phases.
+    ``multipath_m`` [0.5] · e^(−θ/``multipath_el_scale_deg`` [15]): multipath per receiver–satellite pair whose
+    pattern ``multipath_seed`` [7] fixes (the same every day) and of which ``multipath_day_fraction`` [0] is new
+    each day. ``record_mask_deg`` [5]. ``gross_fraction`` [0] of ``gross_station``'s [the last] P1 ± 5–50 m.
+    ``station_noise_scale`` [(1,)]: per station (cycled) factors on noise and multipath. ``tid_tecu`` [0] ×
+    ``n_tid`` [3] travelling disturbances, ``irregularity_tecu`` [0] AR(1) irregularities of correlation time
+    ``irregularity_tau_s`` [600], ``shell_jitter_km`` [0] per-day shift of the shells (the realistic preset,
+    :data:`REALISTIC`)."""
+
+    interval_s: float = 30.0
+    hours: float = 24.0
+    field: VtecField | None = None
+    svn49: str | None = "G01"
+    code_sigma_m: tuple[float, float] = (0.15, 0.18)
+    multipath_m: float = 0.5
+    phase_sigma_m: float = 0.002
+    record_mask_deg: float = 5.0
+    gross_fraction: float = 0.0
+    gross_station: str | None = None
+    multipath_seed: int = 7
+    multipath_el_scale_deg: float = 15.0
+    multipath_day_fraction: float = 0.0
+    station_noise_scale: Sequence[float] = (1.0,)
+    tid_tecu: float = 0.0
+    n_tid: int = 3
+    irregularity_tecu: float = 0.0
+    irregularity_tau_s: float = 600.0
+    shell_jitter_km: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.interval_s) and self.interval_s > 0) or not 0 < self.hours <= 24:
+            raise ModelError(f"interval {self.interval_s} s / {self.hours} h: must be positive (at most 24 h)")
+        if not 0.0 <= self.gross_fraction < 0.5:
+            raise ModelError(f"gross_fraction {self.gross_fraction}: must lie in [0, 0.5)")
+        if not 0.0 <= self.multipath_day_fraction <= 1.0:
+            raise ModelError(f"multipath_day_fraction {self.multipath_day_fraction}: must lie in [0, 1]")
+        if (
+            not self.station_noise_scale
+            or min(self.station_noise_scale) <= 0
+            or self.irregularity_tau_s <= 0
+            or self.multipath_el_scale_deg <= 0
+        ):
+            raise ModelError("station_noise_scale, irregularity_tau_s and multipath_el_scale_deg must be positive")
+
+
+@dataclass(frozen=True, eq=False)
+class _Day:
+    """What every station of one simulated day shares: epochs, satellite positions, biases, shells, TIDs."""
+
+    t: np.ndarray
+    time: np.ndarray
+    svs: list[str]
+    sat_xyz: np.ndarray
+    sat_dsb: dict[str, float]
+    rx_dsb: dict[str, float]
+    field: VtecField
+    shells: list[tuple[float, float]]
+    tids: list[tuple[float, float, float, float, float]]
+
+
 def simulate_network(
     orbit: Any,
     day: str | np.datetime64,
+    options: NetworkSimOptions = NetworkSimOptions(),
     *,
     rng: np.random.Generator,
     stations: Mapping[str, tuple[float, float, float]] | None = None,
-    interval_s: float = 30.0,
-    hours: float = 24.0,
-    field: VtecField | None = None,
     satellite_dsb_ns: Mapping[str, float] | None = None,
     receiver_dsb_ns: Mapping[str, float] | None = None,
-    svn49: str | None = "G01",
-    code_sigma_m: tuple[float, float] = (0.15, 0.18),
-    multipath_m: float = 0.5,
-    phase_sigma_m: float = 0.002,
-    record_mask_deg: float = 5.0,
-    gross_fraction: float = 0.0,
-    gross_station: str | None = None,
-    multipath_seed: int = 7,
-    multipath_el_scale_deg: float = 15.0,
-    multipath_day_fraction: float = 0.0,
-    station_noise_scale: Sequence[float] = (1.0,),
-    tid_tecu: float = 0.0,
-    n_tid: int = 3,
-    irregularity_tecu: float = 0.0,
-    irregularity_tau_s: float = 600.0,
-    shell_jitter_km: float = 0.0,
 ) -> SimulatedNetwork:
-    """Simulate a day (or ``hours`` of it from 00:00 GPS) of the network (module doc) with ``orbit``
-    (``positions_ecef(t, svs)``, e.g. :func:`~distnav.models.gnss.orbits.synthetic_gps_constellation`).
+    """Simulate a day (or ``options.hours`` of it from 00:00 GPS) of the network (module doc) with ``orbit``
+    (``positions_ecef(t, svs)``, e.g. :func:`~distnav.models.gnss.orbits.synthetic_gps_constellation`);
+    ``stations`` name → (lat °, lon °, height m) [:data:`EUROPEAN_STATIONS`]; ``options``:
+    :class:`NetworkSimOptions`. ``rng`` draws the noise, ambiguities, gross errors and any DSB not given
+    (satellites σ 3 ns, receivers σ 8 ns), and the day's share of the multipath, the TIDs, irregularities and
+    shell shift.
 
-    ``multipath_seed`` fixes the multipath pattern of each receiver–satellite pair (the same every day, as real
-    multipath repeats with the geometry); ``rng`` draws the noise, ambiguities, gross errors and any DSB not
-    given, and the day's share of the multipath, the TIDs, irregularities and shell shift (module doc).
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from distnav.models.gnss.netsim import NetworkSimOptions, simulate_network
+    >>> from distnav.models.gnss.orbits import synthetic_gps_constellation
+    >>> orbit = synthetic_gps_constellation(epoch="2024-01-10T00:00:00")
+    >>> sim = simulate_network(orbit, "2024-01-10", NetworkSimOptions(hours=0.5), rng=np.random.default_rng(0))
+    >>> [o.station for o in sim.observations], sim.observations[0].time.size
+    (['SIMA', 'SIMB', 'SIMC'], 60)
     """
     from distnav.models.gnss.orbits import datetime_from_gps_seconds, gps_seconds
 
-    if not (np.isfinite(interval_s) and interval_s > 0) or not 0 < hours <= 24:
-        raise ModelError(f"interval {interval_s} s / {hours} h: must be positive (at most 24 h)")
-    if not 0.0 <= gross_fraction < 0.5:
-        raise ModelError(f"gross_fraction {gross_fraction}: must lie in [0, 0.5)")
-    if not 0.0 <= multipath_day_fraction <= 1.0:
-        raise ModelError(f"multipath_day_fraction {multipath_day_fraction}: must lie in [0, 1]")
-    if (
-        not station_noise_scale
-        or min(station_noise_scale) <= 0
-        or irregularity_tau_s <= 0
-        or multipath_el_scale_deg <= 0
-    ):
-        raise ModelError("station_noise_scale, irregularity_tau_s and multipath_el_scale_deg must be positive")
     sta = dict(EUROPEAN_STATIONS if stations is None else stations)
-    fld = field or VtecField()
-    names = list(sta)
-    svs = list(orbit.svs)
+    names, svs = list(sta), list(orbit.svs)
     t0 = float(gps_seconds(np.datetime64(str(day)[:10] + "T00:00:00")))
-    t = t0 + interval_s * np.arange(int(round(hours * 3600.0 / interval_s)))
+    t = t0 + options.interval_s * np.arange(int(round(options.hours * 3600.0 / options.interval_s)))
     sat_xyz = orbit.positions_ecef(t, svs)
     sat_dsb = _given_or_drawn(svs, satellite_dsb_ns, 3.0, rng)
     rx_dsb = _given_or_drawn(names, receiver_dsb_ns, 8.0, rng)
-    mu2 = mu(2)
-    lam = {k: C_M_S / GPS_FREQUENCIES_HZ[k] for k in (1, 2)}
     time = np.asarray(datetime_from_gps_seconds(t)).astype("datetime64[ns]")
-    gross_at = gross_station or names[-1]
-    obs: list[CodeObservations] = []
-    gross: dict[str, int] = {}
+    jitter = options.shell_jitter_km
     shells = [
-        (height + 1e3 * shell_jitter_km * rng.standard_normal() if shell_jitter_km > 0 else height, weight)
+        (height + 1e3 * jitter * rng.standard_normal() if jitter > 0 else height, weight)
         for height, weight in _SHELLS_M
     ]
-    tids = _draw_tids(rng, tid_tecu, n_tid)
+    tids = _draw_tids(rng, options.tid_tecu, options.n_tid)
+    shared = _Day(t, time, svs, sat_xyz, sat_dsb, rx_dsb, options.field or VtecField(), shells, tids)
+    gross_at = options.gross_station or names[-1]
+    obs: list[CodeObservations] = []
+    gross: dict[str, int] = {}
     for ri, name in enumerate(names):
-        lat_d, lon_d, h = sta[name]
-        lat, lon = np.deg2rad(lat_d), np.deg2rad(lon_d)
-        xyz = np.asarray(geodetic_to_ecef(lat, lon, h), float).reshape(3)
-        az, el = azimuth_elevation(xyz, sat_xyz)  # (T, S)
-        up = el > np.deg2rad(record_mask_deg)
-        el_s = np.where(up, el, 0.5 * np.pi)
-        az_s = np.where(up, az, 0.0)
-        iono = np.zeros(el.shape)
-        for height, weight in shells:
-            la, lo, z = pierce_point(lat, lon, az_s, el_s, height_m=height)
-            iono += weight * (fld.tecu(la, lo, t[:, None]) + _tid_tecu(tids, la, lo, t[:, None])) / np.cos(z)
-        if irregularity_tecu > 0:
-            _, _, z = pierce_point(lat, lon, az_s, el_s, height_m=450e3)
-            iono += irregularity_tecu * _ar1(rng, el.shape, interval_s / irregularity_tau_s) / np.cos(z)
-        iono *= TECU_L1_M
-        scale = float(station_noise_scale[ri % len(station_noise_scale)])
-        rho = np.linalg.norm(sat_xyz - xyz, axis=-1)
-        unit = _multipath(np.random.default_rng([multipath_seed, ri]), len(svs), el_s, az_s)
-        if multipath_day_fraction > 0:
-            today = _multipath(rng, len(svs), el_s, az_s)
-            unit = [
-                np.sqrt(1.0 - multipath_day_fraction**2) * u + multipath_day_fraction * v
-                for u, v in zip(unit, today, strict=True)
-            ]
-        amp = scale * multipath_m * np.exp(-np.rad2deg(el_s) / multipath_el_scale_deg)
-        ranges: dict[int, np.ndarray] = {}
-        phases: dict[int, np.ndarray] = {}
-        for k, (band, mu_k) in enumerate(((1, 1.0), (2, mu2))):
-            mp = (1.0 + 0.3 * k) * amp * unit[k]
-            dsb_part = np.array([sat_dsb[s] for s in svs]) + rx_dsb[name] if band == 1 else 0.0
-            p = (
-                rho
-                + mu_k * iono
-                + C_M_S * 1e-9 * dsb_part
-                + mp
-                + scale * code_sigma_m[k] / np.sin(el_s) * rng.standard_normal(el.shape)
-            )
-            if svn49 in svs:
-                j = svs.index(svn49)
-                p[:, j] += (0.9 if band == 1 else -0.3) * np.cos(el_s[:, j]) ** 2
-            ambiguity = np.zeros(el.shape)
-            for j in range(len(svs)):  # a new integer ambiguity per pass
-                starts = np.flatnonzero(np.diff(np.concatenate([[False], up[:, j]]).astype(int)) == 1)
-                if starts.size == 0:
-                    continue
-                for a, b in zip(starts, np.concatenate([starts[1:], [el.shape[0]]]), strict=True):
-                    ambiguity[a:b, j] = rng.integers(-5000, 5000)
-            phi = rho - mu_k * iono + lam[band] * ambiguity + phase_sigma_m * rng.standard_normal(el.shape)
-            ranges[band] = np.where(up, p, np.nan)
-            phases[band] = np.where(up, phi, np.nan)
-        if gross_fraction > 0 and name == gross_at:
-            idx = np.flatnonzero(up.ravel())
-            hit = rng.choice(idx, int(round(gross_fraction * idx.size)), replace=False)
-            flat = ranges[1].ravel()
-            flat[hit] += rng.choice([-1.0, 1.0], hit.size) * rng.uniform(5.0, 50.0, hit.size)
-            ranges[1] = flat.reshape(el.shape)
-            gross[name] = int(hit.size)
-        lli = {b: np.zeros(el.shape, np.int8) for b in (1, 2)}
-        obs.append(
-            CodeObservations(
-                name,
-                Path(f"simulated-{name}"),
-                time,
-                tuple(svs),
-                {1: "C1W", 2: "C2W"},
-                ranges,
-                xyz,
-                receiver="SIMULATED",
-                rinex_version=2.11,
-                notes=("simulated by distnav.models.gnss.netsim",),
-                phase_m=phases,
-                lli=lli,
-                phase_types={1: "L1W", 2: "L2W"},
-            )
+        o, n_gross = _station(shared, ri, name, sta[name], name == gross_at, options, rng)
+        obs.append(o)
+        if n_gross is not None:
+            gross[name] = n_gross
+    return SimulatedNetwork(obs, sat_dsb, rx_dsb, shared.field, options.svn49 if options.svn49 in svs else None, gross)
+
+
+def _station(
+    day: _Day,
+    ri: int,
+    name: str,
+    site: tuple[float, float, float],
+    gross_here: bool,
+    options: NetworkSimOptions,
+    rng: np.random.Generator,
+) -> tuple[CodeObservations, int | None]:
+    """One receiver's code and phase on both bands (and the number of its gross errors, if it gets them)."""
+    lat, lon = np.deg2rad(site[0]), np.deg2rad(site[1])
+    xyz = np.asarray(geodetic_to_ecef(lat, lon, site[2]), float).reshape(3)
+    az, el = azimuth_elevation(xyz, day.sat_xyz)  # (T, S)
+    up = el > np.deg2rad(options.record_mask_deg)
+    el_s = np.where(up, el, 0.5 * np.pi)
+    az_s = np.where(up, az, 0.0)
+    iono = _slant_ionosphere_m(day, lat, lon, az_s, el_s, options, rng)
+    scale = float(options.station_noise_scale[ri % len(options.station_noise_scale)])
+    rho = np.linalg.norm(day.sat_xyz - xyz, axis=-1)
+    unit = _multipath(np.random.default_rng([options.multipath_seed, ri]), len(day.svs), el_s, az_s)
+    if options.multipath_day_fraction > 0:
+        f = options.multipath_day_fraction
+        today = _multipath(rng, len(day.svs), el_s, az_s)
+        unit = [np.sqrt(1.0 - f**2) * u + f * v for u, v in zip(unit, today, strict=True)]
+    amp = scale * options.multipath_m * np.exp(-np.rad2deg(el_s) / options.multipath_el_scale_deg)
+    ranges: dict[int, np.ndarray] = {}
+    phases: dict[int, np.ndarray] = {}
+    for k, band in enumerate((1, 2)):
+        p, phi = _band(day, name, band, rho, iono, (1.0 + 0.3 * k) * amp * unit[k], scale, up, el_s, options, rng)
+        ranges[band], phases[band] = np.where(up, p, np.nan), np.where(up, phi, np.nan)
+    n_gross = None
+    if options.gross_fraction > 0 and gross_here:
+        idx = np.flatnonzero(up.ravel())
+        hit = rng.choice(idx, int(round(options.gross_fraction * idx.size)), replace=False)
+        flat = ranges[1].ravel()
+        flat[hit] += rng.choice([-1.0, 1.0], hit.size) * rng.uniform(5.0, 50.0, hit.size)
+        ranges[1] = flat.reshape(el.shape)
+        n_gross = int(hit.size)
+    obs = CodeObservations(
+        name,
+        Path(f"simulated-{name}"),
+        day.time,
+        tuple(day.svs),
+        {1: "C1W", 2: "C2W"},
+        ranges,
+        xyz,
+        receiver="SIMULATED",
+        rinex_version=2.11,
+        notes=("simulated by distnav.models.gnss.netsim",),
+        phase_m=phases,
+        lli={b: np.zeros(el.shape, np.int8) for b in (1, 2)},
+        phase_types={1: "L1W", 2: "L2W"},
+    )
+    return obs, n_gross
+
+
+def _slant_ionosphere_m(
+    day: _Day,
+    lat: float,
+    lon: float,
+    az_s: np.ndarray,
+    el_s: np.ndarray,
+    options: NetworkSimOptions,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """The slant L1 delay [m] integrated over the three shells (VTEC field + TIDs), plus the irregularities."""
+    iono = np.zeros(el_s.shape)
+    for height, weight in day.shells:
+        la, lo, z = pierce_point(lat, lon, az_s, el_s, height_m=height)
+        iono += (
+            weight * (day.field.tecu(la, lo, day.t[:, None]) + _tid_tecu(day.tids, la, lo, day.t[:, None])) / np.cos(z)
         )
-    return SimulatedNetwork(obs, sat_dsb, rx_dsb, fld, svn49 if svn49 in svs else None, gross)
+    if options.irregularity_tecu > 0:
+        _, _, z = pierce_point(lat, lon, az_s, el_s, height_m=450e3)
+        step = options.interval_s / options.irregularity_tau_s
+        iono += options.irregularity_tecu * _ar1(rng, el_s.shape, step) / np.cos(z)
+    out: np.ndarray = iono * TECU_L1_M
+    return out
+
+
+def _band(
+    day: _Day,
+    name: str,
+    band: int,
+    rho: np.ndarray,
+    iono: np.ndarray,
+    multipath: np.ndarray,
+    scale: float,
+    up: np.ndarray,
+    el_s: np.ndarray,
+    options: NetworkSimOptions,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Code and phase [m] of one band: range, ionosphere, DSBs (on P1), multipath, noise, the SVN49-like bias,
+    and a new integer ambiguity per pass."""
+    mu_k = 1.0 if band == 1 else mu(2)
+    k = 0 if band == 1 else 1
+    dsb_part = np.array([day.sat_dsb[s] for s in day.svs]) + day.rx_dsb[name] if band == 1 else 0.0
+    noise = scale * options.code_sigma_m[k] / np.sin(el_s) * rng.standard_normal(el_s.shape)
+    p = rho + mu_k * iono + C_M_S * 1e-9 * dsb_part + multipath + noise
+    if options.svn49 in day.svs:
+        j = day.svs.index(options.svn49)
+        p[:, j] += (0.9 if band == 1 else -0.3) * np.cos(el_s[:, j]) ** 2
+    ambiguity = np.zeros(el_s.shape)
+    for j in range(len(day.svs)):  # a new integer ambiguity per pass
+        starts = np.flatnonzero(np.diff(np.concatenate([[False], up[:, j]]).astype(int)) == 1)
+        if starts.size == 0:
+            continue
+        for a, b in zip(starts, np.concatenate([starts[1:], [el_s.shape[0]]]), strict=True):
+            ambiguity[a:b, j] = rng.integers(-5000, 5000)
+    lam = C_M_S / GPS_FREQUENCIES_HZ[band]
+    phi = rho - mu_k * iono + lam * ambiguity + options.phase_sigma_m * rng.standard_normal(el_s.shape)
+    return p, phi
 
 
 def _multipath(g: np.random.Generator, n_sv: int, el: np.ndarray, az: np.ndarray) -> list[np.ndarray]:

@@ -45,7 +45,7 @@ from distnav.errors import ModelError
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.cuts import cut_weak
 from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, solve_once, tighten_scale
-from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, distributed_sigma
+from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, SigmaModel, distributed_sigma
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
@@ -54,6 +54,7 @@ from distnav.models.uwb.problems import RangingProblem
 from distnav.models.uwb.reliability import (
     RELIABILITY_LIMIT_M,
     WEAK_RMS_M,
+    ReliabilityOptions,
     check_reliability,
     weak_anchor_reasons,
     weak_anchors,
@@ -571,20 +572,27 @@ def solve_field(
     reasons = weak_anchor_reasons(problem, residual, excluded, flagged)
     reliability: dict[str, Any] = {"tested": False}
     if opts.reliability_limit_m > 0 and objective == "metres":  # every solver (reliability.check_reliability)
+        kept = subset_measurements(problem, ~excluded)
         rel_weak, reliability, rel_note = check_reliability(
-            subset_measurements(problem, ~excluded),
+            kept,
             res,
             sigma,
-            sigma_m=opts.sigma_m,
-            offsets=opts.offsets_used,
-            loss=_solver_kwargs(opts).get("loss", "linear"),
-            loss_scale_m=fit_scale_m,
-            level=opts.level,
+            ReliabilityOptions(
+                opts.sigma_m,
+                opts.offsets_used,
+                _solver_kwargs(opts).get("loss", "linear"),
+                fit_scale_m,
+                opts.level,
+                opts.offset_prior_sigma_m,
+            ),
             limit_m=opts.reliability_limit_m,
-            offset_prior_sigma_m=opts.offset_prior_sigma_m,
+            exchange=None if exchange is None else exchange(kept),
         )
         reasons.update({k: v for k, v in rel_weak.items() if k not in reasons})
         note += rel_note
+        total[1] += int(reliability.get("messages", 0))  # the anchors' reliability rounds (distributed solvers)
+        total[2] += int(reliability.get("bytes", 0))
+        marks["reliability"] = (total[1], total[2])
     if opts.cut_test:  # a group of anchors the exclusions cut off: placed by fewer checks than they took (cuts.py)
         reasons.update({k: v for k, v in cut_weak(problem, excluded).items() if k not in reasons})
     every = [problem.ids[i] for i in np.flatnonzero(problem.estimated)]
@@ -692,11 +700,7 @@ def anchor_precision(
     kept = subset_measurements(problem, ~excluded)
     if opts.solver.upper() != "LM":
         try:
-            out = distributed_sigma(
-                kept,
-                res,
-                exchange=exchange,
-                objective=objective,
+            model = SigmaModel(
                 sigma_m=opts.sigma_m,
                 loss=_solver_kwargs(opts).get("loss", "linear"),
                 loss_scale_m=opts.loss_scale_m,
@@ -704,8 +708,10 @@ def anchor_precision(
                 offset_prior_sigma_m=opts.offset_prior_sigma_m,
                 delay_sigma_m=opts.delay_sigma_m if opts.considers_delays and objective == "metres" else 0.0,
                 estimate_delays=opts.estimate_delays,
-                mode=opts.distributed_precision,
                 fit_scale_m=fit_scale_m,
+            )
+            out = distributed_sigma(
+                kept, res, model, exchange=exchange, objective=objective, mode=opts.distributed_precision
             )
         except ModelError as err:
             note = f"; neighbourhood precision failed ({err}): σ are the conditional ones (a lower bound)"

@@ -63,7 +63,9 @@ def solve_once(
     phase (issue 27): the 500 iterations cost 55 % of the bytes of a whole ``uwb solve`` on plant-like halls
     (33 of 59 MB on ``[78, 0]``) and the workflow ended at the same positions without them (within 1 µm on 12
     plant-like halls, docs/economy_uwb.md). ``total`` (iterations, messages, bytes) is incremented by the
-    solve's."""
+    solve's: its iterations plus its distributed LM phase's rounds, its broadcasts and its LM phase's network
+    totals as spanning-tree reductions (``settings["refine"]``,
+    :func:`~distnav.algorithms.ranging.wire.reduction_cost`)."""
     key = solver.upper()
     extra: dict[str, Any] = {}
     if key != "LM" and exchange is not None:
@@ -77,10 +79,11 @@ def solve_once(
     elif first and key != "LM" and kw.get("refine", True) is not False:
         iterations = min(iterations, FIRST_ITERATIONS)
     r = csg.solve(problem, key, iterations=iterations, **kw, **extra)
-    if total is not None:
-        total[0] += int(r.iterations)
-        total[1] += int(r.comm.messages)
-        total[2] += int(r.comm.bytes)
+    if total is not None:  # the final distributed LM phase's rounds are iterations too (issue 28 item 3)
+        ref = (getattr(r, "settings", None) or {}).get("refine") or {}
+        total[0] += int(r.iterations) + int(ref.get("rounds", 0))
+        total[1] += int(r.comm.messages) + int(ref.get("reduction_messages", 0))
+        total[2] += int(r.comm.bytes) + int(ref.get("reduction_bytes", 0))
     return r
 
 

@@ -1,19 +1,31 @@
-"""Which per-anchor σ the distributed solvers report in the field workflow, and what it costs (issue 13 item 3).
+"""Which per-anchor σ the distributed solvers report in the field workflow, and what it costs (issue 13 item 3,
+issue 27).
 
-``"central"`` (:func:`distnav.algorithms.ranging.covariance.central_precision`): every anchor's block of LM's
-central a-posteriori covariance, the antenna delays considered and estimated as LM does, by CG over the exchange —
-messages of ``P (n_free + n)`` floats for ``≈ n_free`` rounds. ``"subnetwork"``
-(:func:`distnav.algorithms.ranging.precision.neighbourhood_precision` with :data:`PRECISION_HOPS` hops): each
-anchor's 2-hop sub-network, ``O(degree²)`` floats per link in ``3 + hops`` rounds, but 0.67–0.88 × LM's σ where the
-chain to the known anchors is long (docs/uwb.md). ``"auto"`` (the default): central for the metres objective up
-to :data:`~distnav.algorithms.ranging.covariance.CENTRAL_MAX_ANCHORS` anchors, else the sub-network; the
-sub-network is also the fallback where the central solve fails (a singular own block, CG not converged).
+``"gathered"`` (:func:`gathered_precision`, the default up to
+:data:`~distnav.algorithms.ranging.covariance.CENTRAL_MAX_ANCHORS` anchors with the metres objective): LM's
+central a-posteriori covariance with the antenna delays considered
+(:func:`distnav.models.uwb.precision.consider_precision`, exactly LM's σ code) at the distributed solution, computed
+at one anchor that gathers what it needs over a shortest-path tree of the range graph — every kept range record
+(:data:`~distnav.models.uwb.communication.RANGE_RECORD_BYTES`, held by the lower-numbered anchor of its link) and
+every anchor's estimate (``dim`` floats, and its own offset with per-anchor offsets) — and sends each anchor its
+own covariance block back (the packed upper triangle of its free coordinates). A **fusion centre for the σ
+only**: it costs about what gathering the ranges costs (1–2 ×), where the network-wide CG of ``"central"`` cost
+3,000 × that on plant-like 28-anchor halls (docs/economy_uwb.md); the positions are still the distributed
+solvers'. ``"central"`` (:func:`distnav.algorithms.ranging.covariance.central_precision`): the same blocks by CG
+over the exchange — messages of ``P (n_free + n)`` floats for ``≈ n_free`` rounds (the default before issue 27).
+``"subnetwork"`` (:func:`distnav.algorithms.ranging.precision.neighbourhood_precision` with
+:data:`PRECISION_HOPS` hops): each anchor's 2-hop sub-network, ``O(degree²)`` floats per link in ``3 + hops``
+rounds, but 0.67–0.88 × LM's σ where the chain to the known anchors is long (docs/uwb.md). ``"auto"`` (the
+default): gathered for the metres objective up to ``CENTRAL_MAX_ANCHORS`` anchors, else the sub-network (whose
+busiest anchor sends less than a gather's busiest relay on large networks); the sub-network is also the fallback
+where the gathered or central solve fails (a singular normal matrix, CG not converged).
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -24,104 +36,156 @@ from distnav.algorithms.ranging.covariance import (
     ECONOMY_WIRE_DTYPE,
     central_precision,
 )
+from distnav.algorithms.ranging.losses import robust_weights
 from distnav.algorithms.ranging.neighbourhood_offsets import sample_bias
+from distnav.algorithms.ranging.objective import RangeObjective
 from distnav.algorithms.ranging.precision import neighbourhood_precision
+from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
-from distnav.models.uwb.precision import DELAY_UPPER_Z
+from distnav.models.uwb.communication import range_bytes_per_anchor
+from distnav.models.uwb.precision import DELAY_UPPER_Z, consider_precision
 from distnav.models.uwb.problems import RangingProblem
+from distnav.network.gather import gather_cost
+from distnav.network.graph import Graph
 from distnav.typing import FloatArray
 
-__all__ = ["DistributedSigma", "distributed_sigma", "PRECISION_HOPS", "PRECISION_MODES"]
+__all__ = [
+    "DistributedSigma",
+    "SigmaModel",
+    "distributed_sigma",
+    "gathered_precision",
+    "gathered_cost",
+    "PRECISION_HOPS",
+    "PRECISION_MODES",
+]
 
 log = logging.getLogger(__name__)
 PRECISION_HOPS = 2  # the sub-network σ: each anchor's 2-hop sub-network (docs/uwb.md, "Per-anchor precision")
-PRECISION_MODES = ("auto", "central", "subnetwork")
+PRECISION_MODES = ("auto", "gathered", "central", "subnetwork")
+VALUE_BYTES = 8  # one float64 on the wire (an estimate, an offset, a covariance entry)
 
 
 @dataclass(frozen=True, eq=False)
 class DistributedSigma:
-    """σ ``(n, dim)``, the a-posteriori covariance blocks (m²), the kind (``"central"`` or ``"neighbourhood"``)
-    and the cost: the exchange's messages / bytes plus, for the central σ, its network totals as spanning-tree
-    reductions (:meth:`~distnav.algorithms.ranging.covariance.CentralPrecision.reduction_cost`)."""
+    """σ ``(n, dim)``, the a-posteriori covariance blocks (m²), the kind (``"gathered"``, ``"central"`` or
+    ``"neighbourhood"``) and the cost: the exchange's messages / bytes plus, for the central σ, its network totals
+    as spanning-tree reductions (:meth:`~distnav.algorithms.ranging.covariance.CentralPrecision.reduction_cost`);
+    for the gathered σ the tree's messages up and down. ``bytes_sent``: per anchor, where known (the gathered σ:
+    what each anchor transmits, its own data and what it relays)."""
 
     sigma_m: FloatArray
     covariance_m2: FloatArray
     kind: str
     messages: int
     bytes: int
+    bytes_sent: FloatArray | None = None
+
+
+@dataclass(frozen=True)
+class SigmaModel:
+    """The fit whose σ is wanted: the range σ (m), the loss and its scale (m) of the normal matrix's weights, the
+    offset model and the per-anchor offsets' prior σ (m), the antenna delays considered (σ_δ in m, 0: none; with
+    ``estimate_delays`` a floor, the residuals' upper bound used where larger), and ``fit_scale_m`` the loss scale
+    the solution was fitted at (the variance factor's weights, as LM's own; None: ``loss_scale_m``)."""
+
+    sigma_m: float = 0.1
+    loss: str = "linear"
+    loss_scale_m: float = 0.3
+    offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
+    delay_sigma_m: float = 0.0
+    estimate_delays: bool = False
+    fit_scale_m: float | None = None
+
+    def consider_kwargs(self) -> dict[str, Any]:
+        """The keyword arguments of :func:`~distnav.models.uwb.precision.consider_precision` (LM's σ code)."""
+        return {
+            "sigma_m": self.sigma_m,
+            "offsets": self.offsets,
+            "loss": self.loss,
+            "loss_scale_m": self.loss_scale_m,
+            "delay_sigma_m": self.delay_sigma_m,
+            "offset_prior_sigma_m": self.offset_prior_sigma_m,
+            "estimate_delays": self.estimate_delays and self.delay_sigma_m > 0,
+        }
 
 
 def distributed_sigma(
     kept: RangingProblem,
     res: Any,
+    model: SigmaModel,
     *,
     exchange: Any,
     objective: str,
-    sigma_m: float,
-    loss: str,
-    loss_scale_m: float,
-    offsets: str,
-    offset_prior_sigma_m: float,
-    delay_sigma_m: float,
-    estimate_delays: bool,
     mode: str = "auto",
-    fit_scale_m: float | None = None,
 ) -> DistributedSigma:
-    """The distributed solvers' σ on the links ``kept`` at the solution ``res`` (module docstring); ``exchange``
-    builds the exchange of a problem (None: in-process). ``delay_sigma_m`` 0: no delays considered; ``fit_scale_m``
-    the loss scale ``res`` was fitted at (the central σ̂² at it, as LM's). Raises
-    ModelError where neither can be computed."""
+    """The distributed solvers' σ on the links ``kept`` at the solution ``res`` of the fit ``model`` (module
+    docstring); ``exchange`` builds the exchange of a problem (None: in-process). Raises ModelError where none
+    can be computed, or the ``mode`` forced cannot."""
     if mode not in PRECISION_MODES:
         raise ModelError(f"distributed precision must be one of {', '.join(PRECISION_MODES)}, got {mode!r}")
-    est = np.asarray(res.estimates, float)
+    if mode in ("central", "gathered") and objective != "metres":
+        raise ModelError(f"distributed precision {mode!r} models the metres objective only, not {objective!r}")
+    if mode == "central":
+        return _central(kept, res, model, exchange)
+    if mode == "gathered" or (mode == "auto" and objective == "metres" and kept.n_anchors <= CENTRAL_MAX_ANCHORS):
+        gathered = gathered_precision(kept, res, model)
+        if gathered is not None:
+            return gathered
+        if mode == "gathered":
+            raise ModelError("gathered precision: the normal matrix of the kept links is singular")
+        log.info("gathered precision failed (a singular normal matrix): the 2-hop sub-network σ instead")
+    return _subnetwork(kept, res, model, exchange, objective)
+
+
+def _central(kept: RangingProblem, res: Any, model: SigmaModel, exchange: Any) -> DistributedSigma:
+    """LM's blocks by CG over the exchange (:func:`~distnav.algorithms.ranging.covariance.central_precision`, the
+    workflow's float32 directions to :data:`~distnav.algorithms.ranging.covariance.ECONOMY_CG_RTOL`)."""
     off = getattr(res, "offsets_m", None)
-    if mode == "central" and objective != "metres":
-        raise ModelError(f"distributed precision 'central' models the metres objective only, not {objective!r}")
-    if mode == "central" or (mode == "auto" and objective == "metres" and kept.n_anchors <= CENTRAL_MAX_ANCHORS):
-        try:
-            out = central_precision(
-                kept,
-                est,
-                offset_m=None if off is None else np.asarray(off, float),
-                exchange=None if exchange is None else exchange(kept),
-                sigma_m=sigma_m,
-                loss=loss,
-                loss_scale_m=loss_scale_m,
-                range_offsets=offsets,
-                offset_prior_sigma_m=offset_prior_sigma_m,
-                delay_sigma_m=delay_sigma_m,
-                estimate_delays=estimate_delays,
-                variance_scale_m=fit_scale_m,
-                delay_upper_z=DELAY_UPPER_Z,
-                rtol=ECONOMY_CG_RTOL,
-                wire_dtype=ECONOMY_WIRE_DTYPE,
-            )
-        except ModelError as err:
-            if mode == "central":
-                raise
-            log.info("central precision failed (%s): the 2-hop sub-network σ instead", err)
-        else:
-            comm = out.precision.comm
-            red_msg, red_bytes = out.reduction_cost(kept.n_anchors)
-            return DistributedSigma(
-                np.where(kept.free, out.std(a_posteriori=True), 0.0),
-                out.covariance(a_posteriori=True),
-                "central",
-                red_msg + (0 if comm is None else int(comm.messages)),
-                red_bytes + (0 if comm is None else int(comm.bytes)),
-            )
-    bias = 0.0 if off is None else _bias(kept, np.asarray(off, float))  # the sub-network σ know no offsets
+    out = central_precision(
+        kept,
+        np.asarray(res.estimates, float),
+        offset_m=None if off is None else np.asarray(off, float),
+        exchange=None if exchange is None else exchange(kept),
+        sigma_m=model.sigma_m,
+        loss=model.loss,
+        loss_scale_m=model.loss_scale_m,
+        range_offsets=model.offsets,
+        offset_prior_sigma_m=model.offset_prior_sigma_m,
+        delay_sigma_m=model.delay_sigma_m,
+        estimate_delays=model.estimate_delays,
+        variance_scale_m=model.fit_scale_m,
+        delay_upper_z=DELAY_UPPER_Z,
+        rtol=ECONOMY_CG_RTOL,
+        wire_dtype=ECONOMY_WIRE_DTYPE,
+    )
+    comm = out.precision.comm
+    red_msg, red_bytes = out.reduction_cost(kept.n_anchors)
+    return DistributedSigma(
+        np.where(kept.free, out.std(a_posteriori=True), 0.0),
+        out.covariance(a_posteriori=True),
+        "central",
+        red_msg + (0 if comm is None else int(comm.messages)),
+        red_bytes + (0 if comm is None else int(comm.bytes)),
+    )
+
+
+def _subnetwork(kept: RangingProblem, res: Any, model: SigmaModel, exchange: Any, objective: str) -> DistributedSigma:
+    """Every anchor's :data:`PRECISION_HOPS`-hop sub-network σ (they know no offsets: the ranges less the
+    solution's)."""
+    off = getattr(res, "offsets_m", None)
+    bias = 0.0 if off is None else _bias(kept, np.asarray(off, float))
     sub = kept.with_ranges(kept.range_m - bias) if not np.isscalar(bias) or bias != 0.0 else kept
     nb = neighbourhood_precision(
         sub,
-        est,
+        np.asarray(res.estimates, float),
         exchange=None if exchange is None else exchange(sub),
         objective=objective,
-        sigma_m=sigma_m,
-        loss=loss,
-        loss_scale_m=loss_scale_m,
+        sigma_m=model.sigma_m,
+        loss=model.loss,
+        loss_scale_m=model.loss_scale_m,
         hops=PRECISION_HOPS,
-        delay_sigma_m=delay_sigma_m,
+        delay_sigma_m=model.delay_sigma_m,
     )
     comm = nb.precision.comm
     return DistributedSigma(
@@ -135,3 +199,51 @@ def distributed_sigma(
 
 def _bias(problem: RangingProblem, off: FloatArray) -> FloatArray | float:
     return sample_bias(problem.meas_a, problem.meas_b, off)
+
+
+def gathered_precision(kept: RangingProblem, res: Any, model: SigmaModel) -> DistributedSigma | None:
+    """LM's σ at the distributed solution ``res`` on the links ``kept``, computed at one anchor (module docstring):
+    :func:`~distnav.models.uwb.precision.consider_precision` with the variance factor σ̂² = Σ w r² / redundancy of
+    the weights at ``model.fit_scale_m`` (the fit's, as :func:`~distnav.algorithms.ranging.covariance.
+    central_precision`) and the normal matrix's weights at ``model.loss_scale_m``. The cost
+    (:func:`gathered_cost`): the records up, the blocks down. None where the normal matrix is singular."""
+    obj = RangeObjective(kept, "metres", model.sigma_m, model.offsets, model.offset_prior_sigma_m)
+    est = np.asarray(res.estimates, float)
+    off = np.zeros(obj.n_offsets)
+    got = getattr(res, "offsets_m", None)
+    if obj.n_offsets:  # the solver's offsets: the common one (every anchor's copy, their mean) or each anchor's own
+        held = np.zeros(1) if got is None else np.asarray(got, float)
+        off = np.full(1, float(np.mean(held))) if model.offsets == "common" else held
+    if off.shape != (obj.n_offsets,) or not (np.all(np.isfinite(est)) and np.all(np.isfinite(off))):
+        return None
+    x = np.concatenate([kept.to_vector(est), off])
+    r = obj.residual(x)
+    scale = model.loss_scale_m if model.fit_scale_m is None else model.fit_scale_m
+    w_vf = robust_weights(r, obj.loss_scale(scale), model.loss)[0]
+    redundancy = float(r.size - obj.n_x)
+    vf = variance_factor(float(np.sum(w_vf * r * r)), redundancy)
+    prec = SimpleNamespace(variance_factor=1.0 if vf is None else vf, redundancy=redundancy)
+    out = consider_precision(kept, SimpleNamespace(x=x, precision=prec), **model.consider_kwargs())
+    if out is None:
+        return None
+    sigma, blocks = out
+    messages, sent = gathered_cost(kept, per_anchor_offsets=model.offsets == "per_anchor")
+    return DistributedSigma(np.where(kept.free, sigma, 0.0), blocks, "gathered", messages, int(sent.sum()), sent)
+
+
+def gathered_cost(problem: RangingProblem, *, per_anchor_offsets: bool = False) -> tuple[int, FloatArray]:
+    """Messages and bytes each anchor transmits for :func:`gathered_precision` over a shortest-path tree of the
+    range graph to the anchor with the fewest hop-bytes (:func:`distnav.network.gather.gather_cost`): up, every
+    anchor's range records and estimate (and offset); down, every anchor's covariance block (the packed upper
+    triangle of its free coordinates), each relayed by the anchors between it and the root. One message per tree
+    link each way (a relay bundles its subtree's)."""
+    graph = Graph.from_links(problem.n_anchors, problem.links)
+    n_free = problem.free.sum(axis=1)
+    up_bytes = range_bytes_per_anchor(problem) + VALUE_BYTES * (problem.dim + (1 if per_anchor_offsets else 0))
+    up = gather_cost(graph, up_bytes)
+    down_bytes = VALUE_BYTES * n_free * (n_free + 1) // 2
+    subtree = gather_cost(graph, down_bytes, sink=up.sink).relay_bytes  # its subtree's blocks, its own included
+    down = subtree - down_bytes  # a relay forwards its subtree's blocks but its own
+    down[up.sink] = int(down_bytes.sum() - down_bytes[up.sink])
+    sent = np.asarray(up.relay_bytes + down, float)
+    return 2 * up.tree_messages, sent

@@ -282,16 +282,33 @@ def check_geometry(
 ) -> GeometryReport:
     """Run every check of the module docstring on ``problem`` (built with ``check_determined=False`` if it may
     be undetermined). ``initial_m`` (default ``problem.initial_m``) is used for the network's planarity."""
-    n = problem.n_anchors
-    fixed = problem.fixed
+    keep = np.ones(problem.n_anchors, bool)
     issues: list[GeometryIssue] = []
     notes: list[str] = []
-    keep = np.ones(n, bool)
+    _unreachable(problem, keep, issues)  # 1. parts of the range graph without a known anchor
+    _non_rigid(problem, keep, issues, notes, rng)  # 2. non-rigid parts
+    _flips(problem, keep, issues)  # 3. flips: exactly as many neighbours as free coordinates
+    # 4. mirror of a whole part, nearly planar 3-D solve
+    z_free = problem.dim == 3 and bool(problem.free[keep & problem.estimated, 2].any())
+    init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
+    pk, pn = _mirrors(problem, keep, issues, z_free, planar_tol, init)
+    fit_ratio = _planar(problem, keep, issues, z_free, (pk, pn), planar_tol, allow_planar_3d)
+    return GeometryReport(
+        ids=problem.ids,
+        solvable=keep,
+        issues=tuple(issues),
+        planarity_known=pk,
+        planarity_network=pn,
+        notes=tuple(notes),
+        planar_fit_ratio=fit_ratio,
+    )
 
-    # 1. parts of the range graph without a known anchor
+
+def _unreachable(problem: RangingProblem, keep: BoolArray, issues: list[GeometryIssue]) -> None:
+    """Step 1: anchors with no chain of links to a known anchor are taken out of ``keep`` (unsolved)."""
     lost: list[int] = []
     for comp in _components(problem, keep):
-        if not fixed[comp].any():
+        if not problem.fixed[comp].any():
             lost += comp.tolist()
     if lost:
         keep[lost] = False
@@ -303,7 +320,16 @@ def check_geometry(
                 f"anchors {_names(problem, lost)} have no chain of measured links to a known anchor: left unsolved",
             )
         )
-    # 2. non-rigid parts (repeat: removing a flexible anchor can leave another flexible)
+
+
+def _non_rigid(
+    problem: RangingProblem,
+    keep: BoolArray,
+    issues: list[GeometryIssue],
+    notes: list[str],
+    rng: np.random.Generator | None,
+) -> None:
+    """Step 2: flexible anchors out of ``keep`` (repeated: removing a flexible anchor can leave another one)."""
     for _ in range(4):
         if not (keep & problem.estimated).any():
             break
@@ -325,13 +351,15 @@ def check_geometry(
                 f"rigid: too few links, or a part hinged on too few anchors): left unsolved",
             )
         )
-    # 3. flips: exactly as many neighbours as free coordinates
+
+
+def _flips(problem: RangingProblem, keep: BoolArray, issues: list[GeometryIssue]) -> None:
+    """Step 3: an anchor with exactly as many neighbours as free coordinates is ambiguous (its flip)."""
     lk = problem.links
     m = keep[lk[:, 0]] & keep[lk[:, 1]]
-    degree = np.bincount(lk[m].ravel(), minlength=n)
+    degree = np.bincount(lk[m].ravel(), minlength=problem.n_anchors)
     k_free = problem.free.sum(axis=1)
-    flips = np.flatnonzero(keep & (k_free > 0) & (degree == k_free))
-    for i in flips:
+    for i in np.flatnonzero(keep & (k_free > 0) & (degree == k_free)):
         nb = np.concatenate([lk[m & (lk[:, 0] == i), 1], lk[m & (lk[:, 1] == i), 0]])
         issues.append(
             GeometryIssue(
@@ -343,42 +371,28 @@ def check_geometry(
                 f"it needs at least {k_free[i] + 1}",
             )
         )
-    # 4. mirror of a whole part, nearly planar 3-D solve
-    z_free = problem.dim == 3 and bool(problem.free[keep & problem.estimated, 2].any())
-    init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
+
+
+def _mirrors(
+    problem: RangingProblem,
+    keep: BoolArray,
+    issues: list[GeometryIssue],
+    z_free: bool,
+    planar_tol: float,
+    init: FloatArray | None,
+) -> tuple[float | None, float | None]:
+    """Step 4a, per part with estimated anchors: known anchors on (nearly) one line (heights held or 2-D) or on one
+    plane (free heights). Returns the smallest planarity of the known anchors and of the initial guess (3-D, free
+    heights; None otherwise)."""
     pk: float | None = None
     pn: float | None = None
     for comp in _components(problem, keep):
         if not problem.estimated[comp].any():
             continue
-        kf = comp[fixed[comp]]
+        kf = comp[problem.fixed[comp]]
+        estimated = tuple(problem.ids[i] for i in comp if problem.estimated[i])
         if not z_free:
-            ratio = _line_ratio(problem.positions_m[kf][:, :2])
-            what = "2-D" if problem.dim == 2 else "3-D with the heights held"
-            if ratio <= EXACT_TOL:
-                issues.append(
-                    GeometryIssue(
-                        "mirror",
-                        "ambiguous",
-                        tuple(problem.ids[i] for i in comp if problem.estimated[i]),
-                        f"the {kf.size} known anchor(s) {_names(problem, kf.tolist())} lie on one line ({what}): the "
-                        f"mirror image of the network through that line fits every range equally (ambiguous); add a "
-                        f"known anchor off the line",
-                    )
-                )
-            elif ratio < planar_tol:
-                issues.append(
-                    GeometryIssue(
-                        "near_line",
-                        "weakly_determined",
-                        tuple(problem.ids[i] for i in comp if problem.estimated[i]),
-                        f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie nearly on one line ({what}; "
-                        f"none more than {_off_line_m(problem.positions_m[kf][:, :2]):.2f} m off it, line ratio "
-                        f"{ratio:.3f} < {planar_tol}): the mirror image of the network through that line fits the "
-                        f"ranges almost as well, range errors can choose it (weakly determined); add a known anchor "
-                        f"farther off the line",
-                    )
-                )
+            _line_mirror(problem, kf, estimated, issues, planar_tol)
             continue
         pk_c = planarity(problem.positions_m[kf])
         pk = pk_c if pk is None else min(pk, pk_c)
@@ -390,12 +404,60 @@ def check_geometry(
                 GeometryIssue(
                     "mirror",
                     "ambiguous",
-                    tuple(problem.ids[i] for i in comp if problem.estimated[i]),
+                    estimated,
                     f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie in one plane and the heights are "
                     f"free: the mirror image of the network through that plane fits every range equally (ambiguous); "
                     f"hold the surveyed heights (--heights) or add a known anchor off the plane",
                 )
             )
+    return pk, pn
+
+
+def _line_mirror(
+    problem: RangingProblem, kf: IntArray, estimated: tuple[str, ...], issues: list[GeometryIssue], planar_tol: float
+) -> None:
+    """A part whose known anchors ``kf`` lie on one line (``mirror``, ambiguous) or nearly (``near_line``: the
+    mirror test of :mod:`distnav.models.uwb.mirror`), 2-D or 3-D with the heights held."""
+    ratio = _line_ratio(problem.positions_m[kf][:, :2])
+    what = "2-D" if problem.dim == 2 else "3-D with the heights held"
+    if ratio <= EXACT_TOL:
+        issues.append(
+            GeometryIssue(
+                "mirror",
+                "ambiguous",
+                estimated,
+                f"the {kf.size} known anchor(s) {_names(problem, kf.tolist())} lie on one line ({what}): the "
+                f"mirror image of the network through that line fits every range equally (ambiguous); add a "
+                f"known anchor off the line",
+            )
+        )
+    elif ratio < planar_tol:
+        issues.append(
+            GeometryIssue(
+                "near_line",
+                "weakly_determined",
+                estimated,
+                f"the {kf.size} known anchors {_names(problem, kf.tolist())} lie nearly on one line ({what}; "
+                f"none more than {_off_line_m(problem.positions_m[kf][:, :2]):.2f} m off it, line ratio "
+                f"{ratio:.3f} < {planar_tol}): the mirror image of the network through that line fits the "
+                f"ranges almost as well, range errors can choose it (weakly determined); add a known anchor "
+                f"farther off the line",
+            )
+        )
+
+
+def _planar(
+    problem: RangingProblem,
+    keep: BoolArray,
+    issues: list[GeometryIssue],
+    z_free: bool,
+    planarities: tuple[float | None, float | None],
+    planar_tol: float,
+    allow_planar_3d: bool,
+) -> float | None:
+    """Step 4b: a nearly planar network solved in 3-D with free heights (refused unless ``allow_planar_3d``) or
+    nearly coplanar known anchors (``near_mirror``). Returns the planar fit ratio where it was computed."""
+    pk, pn = planarities
     network_planar = pn if pn is not None else pk
     fit_ratio: float | None = None
     if z_free and pn is not None and pn >= planar_tol:  # a planar network's MDS start need not be planar
@@ -404,6 +466,7 @@ def check_geometry(
         except ModelError:  # not connected: no embedding
             fit_ratio = None
     fits_plane = fit_ratio is not None and fit_ratio < PLANAR_FIT_RATIO
+    estimated = tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated))
     if z_free and network_planar is not None and (network_planar < planar_tol or fits_plane):
         sev: Severity = "weakly_determined" if allow_planar_3d else "refused"
         tail = (
@@ -415,7 +478,7 @@ def check_geometry(
             GeometryIssue(
                 "planar",
                 sev,
-                tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
+                estimated,
                 "the network is nearly planar (planarity of the known anchors "
                 f"{pk if pk is not None else float('nan'):.3f}"
                 f", of the initial guess {pn if pn is not None else float('nan'):.3f}"
@@ -434,17 +497,9 @@ def check_geometry(
             GeometryIssue(
                 "near_mirror",
                 "weakly_determined",
-                tuple(problem.ids[i] for i in np.flatnonzero(keep & problem.estimated)),
+                estimated,
                 f"the known anchors are nearly coplanar (planarity {pk:.3f} < {planar_tol}) and the heights are free: "
                 f"the mirror image through their plane fits the ranges almost as well (weakly determined)",
             )
         )
-    return GeometryReport(
-        ids=problem.ids,
-        solvable=keep,
-        issues=tuple(issues),
-        planarity_known=pk,
-        planarity_network=pn,
-        notes=tuple(notes),
-        planar_fit_ratio=fit_ratio,
-    )
+    return fit_ratio

@@ -149,6 +149,7 @@ def solve_with_mirror_test(
         )
     ssr = [float(np.sum(s.residual_m[~sol.excluded & ~other.excluded] ** 2)) for s in (sol, other)]
     best, alt = (sol, other) if ssr[0] <= ssr[1] else (other, sol)
+    side_a = best
     test = mirror_test(best, alt, opts.level)
     robust = (all_links_cost(problem, best.result, opts), all_links_cost(problem, alt.result, opts))
     costs = f"robust cost of all links {robust[0]:.4g} against {robust[1]:.4g}"
@@ -157,12 +158,18 @@ def solve_with_mirror_test(
     if not test.chosen and robust[1] < robust[0]:  # ambiguous: positions.csv gets the lower robust cost of all
         best, alt = alt, best  # the links (the workflow's own order, NLOS-aware), positions_mirror.csv the other
         costs = f"robust cost of all links {robust[1]:.4g} against {robust[0]:.4g}; squared residuals favour the other"
+    record = {  # side A: the lower squared residuals (the test's A); which map positions.csv holds
+        **test.as_dict(),
+        "robust_cost_a": robust[0],
+        "robust_cost_b": robust[1],
+        "written_is_a": best is side_a,
+    }
     best = dataclasses.replace(
         best,
         iterations=sol.iterations + other.iterations,
         messages=sol.messages + other.messages,
         bytes=sol.bytes + other.bytes,
-        mirror=test.as_dict(),
+        mirror=record,
     )  # both fits
     stats = (
         f"Δ = {test.delta:.3g} against the critical {test.critical:.3g} (λ = {test.noncentrality:.3g}, level "

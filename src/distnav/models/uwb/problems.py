@@ -219,6 +219,36 @@ def build_problem(
     problem is malformed or not determined (see the module docstring); ``check_determined=False`` skips the
     determinacy test (for :func:`distnav.models.uwb.geometry.check_geometry`, which finds the determined part).
     """
+    ids_t = _checked_ids(ids, dim)
+    n = len(ids_t)
+    index = {s: i for i, s in enumerate(ids_t)}
+    a, b, r = _sample_ends(links, range_m, ids_t, index)
+    positions, free = _known_coordinates(n, dim, index, fixed, held)
+    fixed_mask = np.asarray(~free.any(axis=1))
+    if check_determined:
+        _check_determined(ids_t, dim, positions, free, fixed_mask, a, b)
+    truth = _check_positions(truth_m, n, dim, "truth", ids_t) if truth_m is not None else None
+    init = None
+    if initial_m is not None:
+        init = _check_positions(initial_m, n, dim, "initial guess", ids_t)
+        init = np.where(free, init, positions)
+    return RangingProblem(
+        ids=ids_t,
+        dim=dim,
+        positions_m=positions,
+        free=free,
+        meas_a=a,
+        meas_b=b,
+        range_m=r,
+        truth_m=truth,
+        initial_m=init,
+        name=name,
+        info=dict(info or {}),
+    )
+
+
+def _checked_ids(ids: Sequence[str], dim: int) -> tuple[str, ...]:
+    """The anchor ids as strings (ModelError: a dimension other than 2 or 3, fewer than 2 anchors, an id twice)."""
     ids_t = tuple(str(s) for s in ids)
     n = len(ids_t)
     if dim not in (2, 3):
@@ -229,7 +259,18 @@ def build_problem(
         seen: set[str] = set()
         dup = next(s for s in ids_t if s in seen or seen.add(s))  # type: ignore[func-returns-value]
         raise ModelError(f"anchor id {dup!r} is used twice")
-    index = {s: i for i, s in enumerate(ids_t)}
+    return ids_t
+
+
+def _sample_ends(
+    links: Sequence[tuple[Any, Any]] | np.ndarray,
+    range_m: Sequence[float] | np.ndarray,
+    ids_t: tuple[str, ...],
+    index: dict[str, int],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(a, b, range_m)`` of every sample, its ends by index (ModelError naming the sample: an unknown anchor, a
+    self-range, a count mismatch, no ranges, a bad range)."""
+    n = len(ids_t)
 
     def idx(v: Any, k: int) -> int:
         if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
@@ -254,7 +295,17 @@ def build_problem(
         k = int(np.argmax(same))
         raise ModelError(f"range #{k} joins anchor {ids_t[a[k]]!r} to itself")
     _check_ranges(r, a, b, ids_t)
+    return a, b, r
 
+
+def _known_coordinates(
+    n: int,
+    dim: int,
+    index: dict[str, int],
+    fixed: Mapping[str, Any] | None,
+    held: Mapping[str, Mapping[int, float]] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(positions, free)``: the fixed anchors' positions and the held coordinates, and which are free."""
     positions = np.zeros((n, dim))
     free = np.ones((n, dim), bool)
     for key, pos in (fixed or {}).items():
@@ -273,28 +324,7 @@ def build_problem(
                 raise ModelError(f"held coordinate {ax}={val!r} of anchor {key!r} is invalid")
             positions[index[str(key)], int(ax)] = float(val)
             free[index[str(key)], int(ax)] = False
-
-    fixed_mask = np.asarray(~free.any(axis=1))
-    if check_determined:
-        _check_determined(ids_t, dim, positions, free, fixed_mask, a, b)
-    truth = _check_positions(truth_m, n, dim, "truth", ids_t) if truth_m is not None else None
-    init = None
-    if initial_m is not None:
-        init = _check_positions(initial_m, n, dim, "initial guess", ids_t)
-        init = np.where(free, init, positions)
-    return RangingProblem(
-        ids=ids_t,
-        dim=dim,
-        positions_m=positions,
-        free=free,
-        meas_a=a,
-        meas_b=b,
-        range_m=r,
-        truth_m=truth,
-        initial_m=init,
-        name=name,
-        info=dict(info or {}),
-    )
+    return positions, free
 
 
 def _check_determined(

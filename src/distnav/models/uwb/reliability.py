@@ -1,4 +1,9 @@
-"""External reliability of an LM field solve: which anchors one undetected bad link could move unseen.
+"""External reliability of a field solve: which anchors one undetected bad link could move unseen.
+
+The numbers themselves (redundancy numbers, MDB, worst shift) are computed in
+:mod:`distnav.algorithms.ranging.reliability`: centrally for LM, by every anchor from its neighbourhood's link
+records for the distributed solvers (:data:`LOCAL_HOPS` hops; issue 28 item 5). This module maps them to anchors
+(weak, with a reason) and to ``summary.json``.
 
 The link tests (w-tests, :mod:`distnav.algorithms.ranging.qc`) find an NLOS link only when its bias shows in its
 own residual. Baarda's reliability (:mod:`distnav.algorithms.statistics`, module docstring) says how large a bias
@@ -24,27 +29,31 @@ link of one anchor, not one link's). Dense ``Q``: skipped with a note above :dat
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
 
-from distnav._blas import single_threaded_blas
-from distnav.algorithms.ranging.losses import loss_terms
-from distnav.algorithms.ranging.objective import RangeObjective
 from distnav.algorithms.ranging.qc import robust_scale
-from distnav.algorithms.statistics import minimal_detectable_bias, noncentrality, redundancy_numbers, w_statistics
+from distnav.algorithms.ranging.reliability import (
+    MAX_FREE,
+    POWER,
+    ExternalReliability,
+    ReliabilityOptions,
+    external_reliability,
+    local_reliability,
+)
+from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
-from distnav.typing import BoolArray, FloatArray, IntArray
+from distnav.typing import BoolArray, FloatArray
 
 __all__ = [
+    "LOCAL_HOPS",
     "MAX_FREE",
     "POWER",
     "RELIABILITY_LIMIT_M",
     "WEAK_RMS_M",
     "ExternalReliability",
+    "ReliabilityOptions",
     "check_reliability",
     "distributed_free_vector",
     "external_reliability",
@@ -53,88 +62,8 @@ __all__ = [
     "weak_anchors",
 ]
 
-MAX_FREE = 1500  # free coordinates above which the dense Q is not formed (the test is skipped, with a note)
-POWER = 0.8  # Baarda's β: the probability that a bias of the MDB is found
 RELIABILITY_LIMIT_M = 0.3  # default shift one undetected link may cause before the anchor is reported weak
-_SENSITIVE = 1e-9  # |∂x/∂range| below this (whitened) counts as "this link does not move the anchor"
-
-
-@dataclass(frozen=True, eq=False)
-class ExternalReliability:
-    """Per kept link (``problem``'s measurements): redundancy number ``r``, ``mdb_m`` (inf: unchecked); per anchor:
-    ``shift_m`` the largest shift of its free coordinates by one link's undetected MDB (0 for known anchors, inf
-    when an unchecked link moves it) and ``worst_link`` that link's index (-1 if none); ``lam0`` and ``scale`` ŝ."""
-
-    r: FloatArray
-    mdb_m: FloatArray
-    shift_m: FloatArray
-    worst_link: IntArray
-    lam0: float
-    scale: float
-
-    @property
-    def redundancy(self) -> float:
-        """``Σ r_l`` over the range rows (= rows − unknowns with least-squares weights, less prior rows' share)."""
-        return float(np.sum(self.r))
-
-
-def external_reliability(
-    problem: RangingProblem,
-    x: FloatArray,
-    *,
-    sigma_m: float,
-    offsets: str,
-    loss: str,
-    loss_scale_m: float,
-    level: float,
-    offset_prior_sigma_m: float = 0.1,
-    power: float = POWER,
-) -> ExternalReliability | None:
-    """The reliability numbers (module docstring) of the LM metres-objective solution with free vector ``x`` on
-    ``problem`` (the kept links). None when the normal matrix is singular or the problem has more than
-    :data:`MAX_FREE` free coordinates."""
-    obj = RangeObjective(problem, "metres", sigma_m, offsets, offset_prior_sigma_m)
-    x = np.asarray(x, float)
-    if x.size != obj.n_x or problem.n_free > MAX_FREE or problem.n_free == 0:
-        return None
-    m = problem.n_meas
-    J = sp.csr_matrix(obj.jacobian(x))
-    res = obj.residual(x)
-    w = loss_terms(res, obj.loss_scale(loss_scale_m), loss)[0] if loss != "linear" else np.ones_like(res)
-    with single_threaded_blas():
-        N = np.asarray((J.T @ sp.diags(w) @ J).toarray())
-        try:
-            Q = sla.cho_solve(sla.cho_factor(N, check_finite=False), np.eye(obj.n_x), check_finite=False)
-        except (np.linalg.LinAlgError, ValueError):
-            return None
-        Jr = J[:m]
-        r = redundancy_numbers(Jr, w[:m], Q)
-        JQ = np.asarray(Jr @ Q)  # (m, n_x): row l is j_l Q
-        # the w-test's residual variance, fixed weights (ranging_qc.centralized_quality): 1 − 2wh + j Q JᵀW²J Q jᵀ
-        h = np.einsum("ij,ij->i", JQ, np.asarray(Jr.toarray()))
-        JW2J = np.asarray((J.T @ sp.diags(w * w) @ J).toarray())
-        q = np.maximum(1.0 - 2.0 * w[:m] * h + np.einsum("ij,jk,ik->i", JQ, JW2J, JQ), 0.0)
-    std = w_statistics(res[:m], q)
-    s = robust_scale(std)
-    s = s if np.isfinite(s) and s > 0 else 1.0
-    lam0 = noncentrality(level, power)
-    sigma = obj.sigma
-    mdb = minimal_detectable_bias(sigma * s, r, lam0, residual_variance=q)
-    # ∂x / ∂(range bias of l) in metres per metre: Q j_lᵀ w_l / σ_l (the whitened residual moves by ∇/σ)
-    gain = (JQ * (w[:m] / sigma)[:, None]).T[: problem.n_free]  # (n_free, m)
-    col = np.full(problem.free.shape, -1, np.int64)
-    col[problem.free] = np.arange(problem.n_free)
-    n = problem.n_anchors
-    shift = np.zeros(n)
-    worst = np.full(n, -1, np.int64)
-    finite = np.isfinite(mdb)
-    for i in np.flatnonzero(problem.free.any(axis=1)):
-        g = gain[col[i][col[i] >= 0]]  # (free coords of i, m)
-        gn = np.sqrt(np.sum(g * g, axis=0))
-        eff = np.where(finite, gn * np.where(finite, mdb, 0.0), np.where(gn > _SENSITIVE, np.inf, 0.0))
-        k = int(np.argmax(eff))
-        shift[i], worst[i] = float(eff[k]), (k if eff[k] > 0 else -1)
-    return ExternalReliability(r=r, mdb_m=mdb, shift_m=shift, worst_link=worst, lam0=lam0, scale=s)
+LOCAL_HOPS = 4  # the distributed solvers' neighbourhoods (docs/uwb.md, "Reliability from the anchors' neighbourhoods")
 
 
 def reliability_weak(
@@ -247,29 +176,16 @@ def check_reliability(
     problem: RangingProblem,
     result: Any,
     anchor_sigma_m: FloatArray,
+    options: ReliabilityOptions,
     *,
-    sigma_m: float,
-    offsets: str,
-    loss: str,
-    loss_scale_m: float,
-    level: float,
     limit_m: float,
-    offset_prior_sigma_m: float = 0.1,
+    exchange: Any = None,
+    hops: int = LOCAL_HOPS,
 ) -> tuple[dict[str, str], dict[str, Any], str]:
-    """:func:`external_reliability` and :func:`reliability_weak` of an LM result — or of a distributed solver's,
-    from its estimates and offsets (:func:`distributed_free_vector`; computed centrally, the same numbers as LM's
-    where the solutions agree) — on ``problem`` (the kept links): ``(weak anchors with reasons, the summary.json
-    entry, a note for the message)``."""
-    x = getattr(result, "x", None)
-    computed = "centrally on LM's solution"
-    if x is None:  # a distributed solver: its free vector from its estimates and offsets (the same as LM's layout)
-        x = distributed_free_vector(problem, result)
-        computed = (
-            "centrally on the distributed solution (the kept links and the solution gathered at one place; "
-            "not from the anchors' own message rounds)"
-        )
-    if x is None:
-        return {}, {"tested": False}, "; external reliability not tested (the solver gives no free vector)"
+    """:func:`external_reliability` and :func:`reliability_weak` on ``problem`` (the kept links): of an LM result
+    centrally; of a distributed solver's by every anchor from its ``hops``-hop neighbourhood through ``exchange``
+    (:func:`~distnav.algorithms.ranging.reliability.local_reliability`; None: in-process), its messages and bytes
+    in the entry. Returns ``(weak anchors with reasons, the summary.json entry, a note for the message)``."""
     if problem.n_free > MAX_FREE:
         return (
             {},
@@ -279,21 +195,37 @@ def check_reliability(
                 f"(> {MAX_FREE}, the dense covariance it needs)"
             ),
         )
-    rel = external_reliability(
-        problem,
-        np.asarray(x, float),
-        sigma_m=sigma_m,
-        offsets=offsets,
-        loss=loss,
-        loss_scale_m=loss_scale_m,
-        level=level,
-        offset_prior_sigma_m=offset_prior_sigma_m,
-    )
+    x = getattr(result, "x", None)
+    cost: dict[str, Any] = {}
+    if x is not None:
+        rel = external_reliability(problem, np.asarray(x, float), options)
+        computed = "centrally on LM's solution"
+    elif getattr(result, "estimates", None) is None:
+        return {}, {"tested": False}, "; external reliability not tested (the solver gives no estimates)"
+    else:
+        off = getattr(result, "offsets_m", None)
+        try:
+            loc = local_reliability(
+                problem, np.asarray(result.estimates, float), options, offsets_m=off, hops=hops, exchange=exchange
+            )
+        except ModelError as err:  # e.g. a lost message
+            return {}, {"tested": False}, f"; external reliability not tested ({err})"
+        rel = loc.as_external()
+        computed = (
+            f"by every anchor from the link records of its {hops}-hop neighbourhood ({loc.rounds} message rounds; "
+            "the same numbers as LM's where the neighbourhood spans the network)"
+        )
+        cost = {
+            "hops": hops,
+            "rounds": loc.rounds,
+            "messages": int(loc.comm.messages),
+            "bytes": int(loc.comm.bytes),
+            "largest_subnetwork": int(loc.subnetwork_anchors.max(initial=0)),
+        }
     if rel is None:
         return {}, {"tested": False}, "; external reliability not tested (singular normal matrix)"
     weak = reliability_weak(problem, rel, anchor_sigma_m, limit_m=limit_m)
-    entry = describe(rel, weak, limit_m)
-    entry["computed"] = computed
+    entry = {**describe(rel, weak, limit_m), "computed": computed, **cost}
     entry["shift_m"] = {  # per estimated anchor: its worst undetected-link shift (None: an unchecked link moves it)
         problem.ids[i]: (float(rel.shift_m[i]) if np.isfinite(rel.shift_m[i]) else None)
         for i in np.flatnonzero(problem.estimated)

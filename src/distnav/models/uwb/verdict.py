@@ -57,6 +57,7 @@ JOINT_CONFIDENCE = 0.99
 MAX_EXCLUDED_SHARE = 0.25
 MAX_VARIANCE_FACTOR = 25.0
 EXIT_OK, EXIT_UNUSABLE, EXIT_NOT_ACCURATE, EXIT_AMBIGUOUS = 0, 1, 3, 4
+_RADIUS = "accuracy radius"  # the reason of an anchor that fails by its radius alone
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,8 +74,22 @@ class RunVerdict:
     failing: dict[str, str]
     reasons: tuple[str, ...] = ()
 
+    @property
+    def blocking(self) -> tuple[str, ...]:
+        """The failing anchors that no required accuracy would let pass: weak, ambiguous, unsolved, a geometry
+        issue or no σ (their σ do not cover what may be wrong with them; the remedy is more links or a known
+        anchor near them, docs/uwb.md)."""
+        return tuple(k for k, why in self.failing.items() if not why.startswith(_RADIUS))
+
+    @property
+    def map_accuracy_m(self) -> float | None:
+        """The accuracy the map meets apart from :attr:`blocking`: the largest accuracy radius among the other
+        estimated anchors (``--required-accuracy-m`` at or above it passes them all; None if none is left)."""
+        rest = [v for k, v in self.accuracy_m.items() if k not in self.blocking and np.isfinite(v)]
+        return max(rest) if rest else None
+
     def as_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        return {**dataclasses.asdict(self), "map_accuracy_m": self.map_accuracy_m, "blocking": list(self.blocking)}
 
 
 def accuracy_radius_m(sigma_m: FloatArray, free: np.ndarray, *, confidence: float = JOINT_CONFIDENCE) -> FloatArray:
@@ -120,7 +135,7 @@ def run_verdict(sol: FieldSolution, required_accuracy_m: float = REQUIRED_ACCURA
         elif not np.isfinite(radius[i]):
             failing[name] = "no σ"
         elif radius[i] > required_accuracy_m:
-            failing[name] = f"accuracy radius {radius[i]:.3f} m > {required_accuracy_m:g} m"
+            failing[name] = f"{_RADIUS} {radius[i]:.3f} m > {required_accuracy_m:g} m"
     for name in sol.geometry.unsolved:
         failing[name] = "unsolved: the ranges cannot locate it"
     n_links = max(p.n_meas, 1)

@@ -1,0 +1,142 @@
+"""One consensus job on graph parts, measured per rank (launched by ``bench_scale.py`` under ``mpiexec``).
+
+    mpiexec -n R python -m mpi4py benchmarks/mpi_scale.py N_NODES ROUNDS REPEATS
+
+Every rank builds only its part of a tiled random geometric graph (mean degree 8, equal ranges of ids:
+:func:`~distnav.network.part_builders.tiled_random_geometric_part`), Metropolis weights, the MPI exchange (local RCM
+order) and the mixer, then times consensus rounds of 1 float per node interleaved with its **floor**: one scipy CSR
+product of the same rank's rows, written here from the part alone (the weights on ``[owned | halo]`` columns, owned
+nodes renumbered by scipy's reverse Cuthill–McKee) — no transport. It also times the halo transport alone and a bare
+ping-pong between ranks 0 and 1 (latency and bandwidth of this machine's MPI). Rank 0 prints one JSON line with
+every rank's row: set-up CPU seconds per stage, peak resident memory (``VmHWM``), owned nodes, in-edges, halo nodes,
+neighbour ranks, halo bytes per round, the round and the floor per round (medians) and their per-repeat ratios.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from mpi4py import MPI
+from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+from distnav.exchange import make_exchange
+from distnav.network.graph_part import GraphPart
+from distnav.network.part_builders import radius_for_mean_degree, tiled_random_geometric_part
+from distnav.network.partition import block_ranges
+from distnav.network.weights import PartWeights, part_weights
+
+
+def vm_hwm_mb() -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def floor_matrix(part: GraphPart, w: PartWeights) -> sp.csr_matrix:
+    """``W``'s rows of this rank over ``[owned | halo]`` columns, owned nodes in scipy's RCM order."""
+    n_own = part.n_local
+    dst = np.repeat(np.arange(n_own), np.diff(part.in_ptr))
+    k, own = part.owned_positions(part.src)
+    col = np.where(own, k, n_own + np.searchsorted(part.halo, part.src))
+    inner = sp.csr_matrix((np.ones(int(own.sum())), (dst[own], k[own])), shape=(n_own, n_own))
+    perm = np.asarray(reverse_cuthill_mckee(inner, symmetric_mode=True), np.int64)
+    new = np.empty(n_own, np.int64)
+    new[perm] = np.arange(n_own)
+    col = np.where(own, new[np.minimum(col, n_own - 1)], col)
+    rows = np.concatenate([new[dst], new])
+    cols = np.concatenate([col, new])
+    data = np.concatenate([w.edge_weight, w.self_weight])
+    return sp.csr_matrix((data, (rows, cols)), shape=(n_own, n_own + part.halo.size))
+
+
+def ping_pong(comm: Any, nbytes: int, reps: int) -> float:
+    """Seconds for one message of ``nbytes`` from rank 0 to rank 1 (half a round trip, best of ``reps``)."""
+    buf = np.zeros(max(nbytes, 1), np.uint8)
+    best = float("inf")
+    for _ in range(reps):
+        comm.Barrier()
+        t0 = time.perf_counter()
+        if comm.Get_rank() == 0:
+            comm.Send(buf, dest=1)
+            comm.Recv(buf, source=1)
+        elif comm.Get_rank() == 1:
+            comm.Recv(buf, source=0)
+            comm.Send(buf, dest=0)
+        best = min(best, (time.perf_counter() - t0) / 2)
+    return best
+
+
+def main() -> None:
+    n, rounds, repeats = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+    comm = MPI.COMM_WORLD
+    rank, size = comm.Get_rank(), comm.Get_size()
+    row: dict[str, Any] = {"rank": rank, "import_mb": vm_hwm_mb()}
+    ranges = block_ranges(n, size)
+    t = time.process_time()
+    part = tiled_random_geometric_part(n, radius_for_mean_degree(n, 8), seed=1, nodes=ranges.nodes_of(rank), comm=comm)
+    row["part_s"] = time.process_time() - t
+    row["part_mb"] = vm_hwm_mb()
+    t = time.process_time()
+    weights = part_weights(part, "MH")
+    row["weights_s"] = time.process_time() - t
+    t = time.process_time()
+    ex = make_exchange(part, backend="mpi", partition=ranges)
+    row["exchange_s"] = time.process_time() - t
+    t = time.process_time()
+    mixer = ex.mixer(weights)
+    row["mixer_s"] = time.process_time() - t
+    row["setup_s"] = row["part_s"] + row["weights_s"] + row["exchange_s"] + row["mixer_s"]
+    row["setup_mb"] = vm_hwm_mb()
+    floor = floor_matrix(part, weights)
+    x = ex.nodes.astype(float) / n
+    cols = np.random.default_rng(rank).random(floor.shape[1])
+    ours, bare, halo = [], [], []
+    for _ in range(repeats):
+        comm.Barrier()
+        t0 = time.perf_counter()
+        for _ in range(rounds):
+            x = mixer.apply(x)
+        ours.append((time.perf_counter() - t0) / rounds)
+        t0 = time.perf_counter()
+        for _ in range(rounds):
+            y = floor @ cols
+        bare.append((time.perf_counter() - t0) / rounds)
+        del y
+        comm.Barrier()
+        t0 = time.perf_counter()
+        for _ in range(rounds):
+            ex.halo(x[:, None])
+        halo.append((time.perf_counter() - t0) / rounds)
+    ratio = np.asarray(ours) / np.asarray(bare)
+    row.update(
+        owned=part.n_local,
+        in_edges=part.n_local_edges,
+        halo_nodes=int(ex.n_halo),
+        neighbour_ranks=int(ex.neighbour_ranks.size),
+        halo_bytes_per_round=int(ex.n_halo) * 8,
+        sent_bytes_per_round=int(ex._send_node_idx.size) * 8,
+        round_ms=float(np.median(ours)) * 1e3,
+        floor_ms=float(np.median(bare)) * 1e3,
+        halo_ms=float(np.median(halo)) * 1e3,
+        ratio_min=float(ratio.min()),
+        ratio_median=float(np.median(ratio)),
+        end_mb=vm_hwm_mb(),
+    )
+    if size > 1:  # ranks 0 and 1 measure; the others wait at the barriers
+        latency, big = ping_pong(comm, 8, 200), ping_pong(comm, 1 << 23, 10)
+        if rank == 0:
+            row["latency_s"], row["bandwidth_Bps"] = latency, (1 << 23) / big
+    rows = comm.gather(row)
+    if rank == 0:
+        print(json.dumps({"n_nodes": n, "n_edges": part.n_edges, "ranks": size, "rounds": rounds, "per_rank": rows}))
+
+
+if __name__ == "__main__":
+    main()

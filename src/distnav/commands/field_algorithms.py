@@ -1,0 +1,161 @@
+"""The algorithms beyond consensus as field node programs: ADMM (paper 000), the CKF (paper 003), UWB (paper 002).
+
+``distnav node`` calls :func:`run_algorithm` with its :class:`~distnav.exchange.field.FieldExchange`; the node reads
+only its own data file (:mod:`distnav.formats.field_data`) and runs **the same front door as in-process and under
+MPI** (:func:`~distnav.algorithms.lsq.admm.admm`, :func:`~distnav.algorithms.kalman.ckf.iterate_ckf`) over the field
+exchange. The global operations those front doors use (ADMM's rank check, stopping totals and gathered result; the
+CKF's gathered estimates) travel over the network's spanning tree (:mod:`distnav.exchange.field.tree`), so no node
+needs any address but its neighbours'. Without lost messages every node's numbers equal the in-process run's bit for
+bit (``tests/test_field_algorithms.py``).
+
+The UWB solvers' iterations read only an anchor's own links (paper 002 eq. (14)), but their monitoring, stopping rule,
+final cost, observation tests and precision are central computations on every range (under MPI every rank holds the
+whole problem). A field anchor's file holds only its own links; at start-up it gathers the other anchors' range
+samples once over the spanning tree (counted on the wire), so those central computations are the in-process ones.
+A deployment whose anchors must not share their ranges needs them made node-local (not done).
+
+Departure from the in-process defaults, stated: the CKF runs without the Fig. 7 error-variance recursion
+(``variance=False``: it needs every node's normals at every node each epoch, an analysis input no node has) and
+without the consensus-deviation monitor (``monitor=False``), as ``distnav gnss ionosphere`` runs it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from distnav.errors import ExchangeError
+from distnav.exchange.field import FieldExchange, Transport
+from distnav.formats.field_config import NetworkDescription
+from distnav.formats.field_data import admm_node_problem, ckf_node_model, read_node_arrays, uwb_samples_problem
+
+__all__ = ["NODE_ALGORITHMS", "run_algorithm"]
+
+NODE_ALGORITHMS = ("admm", "ckf", "uwb")
+
+
+def _arrays(desc: NetworkDescription, node_id: int, kind: str) -> dict[str, np.ndarray]:
+    from distnav.errors import DataFileError
+
+    entry = desc.node(node_id)
+    if entry.data is None:
+        raise DataFileError(f"{desc._where()}: node {node_id}: key 'data' (its .npz data file) is needed by {kind}")
+    return read_node_arrays(entry.data, kind, node_id, desc.n_nodes)
+
+
+def run_admm(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
+    """ADMM (paper 000 Fig. 6) on this node's observation block; its estimate, status and iterations."""
+    from distnav.algorithms.lsq.admm import admm
+
+    entry, algo = desc.node(node_id), desc.algorithm
+    assert entry.data is not None
+    problem = admm_node_problem(_arrays(desc, node_id, "admm"), entry.data, node_id, desc.n_nodes)
+    res = admm(
+        problem,
+        ex.graph,
+        constraint_nodes=algo["constraint_nodes"],
+        W=algo["rho"],
+        max_iterations=algo["max_iterations"],
+        tol=algo["tol"],
+        messages=algo["messages"],
+        record_nodes=False,
+        exchange=ex,
+    )
+    return {
+        "estimate": res.estimates[node_id],
+        "status": res.status,
+        "message": res.message,
+        "iterations": res.iterations,
+        "rounds": 2 * res.iterations + 1,
+    }
+
+
+def run_ckf(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
+    """The CKF (paper 003 Fig. 6) on this node's normals; its final estimate and which states it determines."""
+    from distnav.algorithms.kalman.ckf import iterate_ckf
+
+    entry, algo = desc.node(node_id), desc.algorithm
+    assert entry.data is not None
+    dyn, series = ckf_node_model(_arrays(desc, node_id, "ckf"), entry.data, node_id, desc.n_nodes)
+    last = None
+    for state in iterate_ckf(
+        dyn,
+        series,
+        graph=ex.graph,
+        protocol=algo["protocol"],
+        rounds=algo["rounds"],
+        exchange=ex,
+        variance=False,
+        monitor=False,
+    ):
+        last = state
+    assert last is not None
+    return {
+        "estimate": last.estimates[0],
+        "estimable": last.estimable[0],
+        "status": "completed",
+        "epochs": series.n_epochs,
+        "rounds": series.n_epochs * algo["rounds"],
+    }
+
+
+def run_uwb(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
+    """A UWB solver (paper 002; N-CLM by default) as anchor ``node_id``: its own position estimate and the status."""
+    from distnav.algorithms.ranging.csg import solve
+
+    entry, algo = desc.node(node_id), desc.algorithm
+    assert entry.data is not None
+    arrays = _arrays(desc, node_id, "uwb")
+    own = np.asarray(arrays["samples"], float)
+    if own.ndim != 2 or own.shape[1] != 4:
+        from distnav.errors import DataFileError
+
+        raise DataFileError(f"{entry.data}: node {node_id}: samples must be rows [index, a, b, range_m]")
+    width = int(ex.allreduce(own.shape[0], "max"))  # the other anchors' ranges, once (module docstring)
+    padded = np.full((1, width, 4), -1.0)
+    padded[0, : own.shape[0]] = own
+    rows = ex.gather_nodes(padded).reshape(-1, 4)
+    problem = uwb_samples_problem(arrays, rows[rows[:, 0] >= 0], entry.data)
+    res = solve(problem, algo["solver"], iterations=algo["iterations"], exchange=ex)
+    return {
+        "estimate": res.estimates[node_id],
+        "status": res.status,
+        "message": res.message,
+        "iterations": res.iterations,
+        "rounds": res.iterations,
+        "samples_gathered_at_start": int(problem.n_meas),
+    }
+
+
+def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, transport: Transport) -> dict[str, Any]:
+    """Run the description's algorithm (one of :data:`NODE_ALGORITHMS`) as node ``node_id``.
+
+    These algorithms have no answer without every node's data: ADMM would keep a lost node's last message and
+    converge to a point that still holds its data, the CKF's consensus would keep weighting it, and the UWB solvers'
+    monitoring gathers every anchor. So when a node is lost (noticed by this node, or a global operation that cannot
+    be finished without it) the node ends with ``status = "stopped"``, no estimate, and a message naming the lost
+    node and the step — never an answer that looks right. (Consensus in flow form does finish: the exact mean of the
+    nodes that remain, :mod:`distnav.algorithms.consensus.flows`.)"""
+    runner = {"admm": run_admm, "ckf": run_ckf, "uwb": run_uwb}[desc.algorithm["name"]]
+    try:
+        out = runner(desc, node_id, ex)
+    except ExchangeError as exc:
+        return _stopped(desc, ex, transport, str(exc))
+    if transport.lost:
+        return _stopped(desc, ex, transport, "")
+    return out
+
+
+def _stopped(desc: NetworkDescription, ex: FieldExchange, transport: Transport, error: str) -> dict[str, Any]:
+    lost = ", ".join(f"node {k} at step {v}" for k, v in sorted(transport.lost.items()))
+    why = "; ".join(t for t in (f"lost {lost}" if lost else "", error) if t)
+    return {
+        "estimate": None,
+        "status": "stopped",
+        "message": (
+            f"{desc.algorithm['name']} cannot finish without every node's data: {why}; no estimate is given (a "
+            "restart of the whole network without the lost node gives the answer of the rest)"
+        ),
+        "rounds": ex.step,
+    }

@@ -1,0 +1,140 @@
+"""What the real-data GNSS commands share: their data options (``--obs``, ``--nav | --sp3``, ``--graph``, ...)
+and the checks of their values before any file is read, the station graph (a CSV of links or the default
+nearest-neighbour graph), and the progress line.
+
+``distnav gnss codebias`` (:mod:`distnav.commands.gnss_codebias`) and ``distnav gnss ionosphere``
+(:mod:`distnav.commands.gnss_ionosphere`) use them; :mod:`distnav.commands.gnss` registers both.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from distnav.errors import DataFileError, ModelError
+
+__all__ = ["load_edges", "default_graph", "add_data_arguments", "check_data_arguments", "say"]
+
+
+def load_edges(path: Path, stations: list[str]) -> Any:
+    """A graph from a CSV of station-name pairs (one link per line, ``#`` comments and a header allowed)."""
+    from distnav.network.graph import Graph
+
+    index = {s.upper(): k for k, s in enumerate(stations)}
+    links: list[tuple[int, int]] = []
+    if not path.exists():
+        raise DataFileError(f"{path}: file not found")
+    with path.open(newline="", encoding="utf-8") as fh:
+        for no, row in enumerate(csv.reader(fh), start=1):
+            cells = [c.strip() for c in row if c.strip()]
+            if not cells or cells[0].startswith("#"):
+                continue
+            if len(cells) != 2:
+                raise DataFileError(f"{path}, line {no}: expected two station names, got {row}")
+            a, b = (c.upper()[:4] if c.upper() not in index else c.upper() for c in cells)
+            if a not in index or b not in index:
+                if no == 1:
+                    continue  # header line
+                unknown = [c for c in (a, b) if c not in index]
+                raise DataFileError(
+                    f"{path}, line {no}: unknown station {', '.join(unknown)} (stations: {', '.join(stations)})"
+                )
+            if a == b:
+                raise DataFileError(f"{path}, line {no}: a link from {a} to itself")
+            links.append((index[a], index[b]))
+    if not links and len(stations) > 1:
+        raise DataFileError(f"{path}: no links")
+    graph = Graph.from_links(len(stations), links, names=stations, allow_duplicates=True)
+    graph.require_connected(f"the graph of {path.name}")
+    return graph
+
+
+def default_graph(positions_ecef_m: np.ndarray, stations: list[str], k: int = 2) -> Any:
+    """Minimum spanning tree of the stations (straight-line distance) plus links to each one's ``k`` nearest."""
+    from scipy.sparse.csgraph import minimum_spanning_tree
+
+    from distnav.network.graph import Graph
+
+    n = len(stations)
+    d = np.linalg.norm(positions_ecef_m[:, None] - positions_ecef_m[None], axis=-1)
+    links: set[tuple[int, int]] = set()
+    if n > 1:
+        mst = minimum_spanning_tree(d + 1e-9 * (1 - np.eye(n))).tocoo()
+        links |= {(min(i, j), max(i, j)) for i, j in zip(mst.row.tolist(), mst.col.tolist(), strict=True)}
+        for i in range(n):
+            for j in np.argsort(d[i])[1 : k + 1].tolist():
+                links.add((min(i, j), max(i, j)))
+    return Graph.from_links(n, sorted(links), names=stations)
+
+
+def say(args: argparse.Namespace, text: str) -> None:
+    """A progress line on stderr, unless ``--no-progress``."""
+    if not getattr(args, "no_progress", False):
+        print(text, file=sys.stderr, flush=True)
+
+
+def add_data_arguments(parser: argparse.ArgumentParser, *, obs_note: str = "") -> None:
+    """The data options every real-data GNSS command shares: --obs, --nav | --sp3, --nav-max-age, --graph,
+    --tlim, --interval, --mask."""
+    parser.add_argument(
+        "--obs",
+        nargs="+",
+        required=True,
+        metavar="FILE",
+        help=f"RINEX 2.11/3.x observation files (.o/.d/.crx, gzip ok), one per station{obs_note}",
+    )
+    orbit = parser.add_mutually_exclusive_group(required=True)
+    orbit.add_argument(
+        "--nav",
+        nargs="+",
+        metavar="FILE",
+        help="RINEX navigation file (broadcast ephemerides); one per day for several days",
+    )
+    orbit.add_argument("--sp3", nargs="+", metavar="FILE", help="SP3 orbit files")
+    parser.add_argument(
+        "--nav-max-age",
+        type=float,
+        default=4.0,
+        metavar="HOURS",
+        help="use a broadcast record up to this far from its toe (default 4 h; elevations only need "
+        "km accuracy, so a sparse station nav file may need more)",
+    )
+    parser.add_argument("--graph", metavar="EDGES.csv", help="links as station-name pairs (default: MST + 2 nearest)")
+    parser.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")
+    parser.add_argument("--interval", type=float, default=None, help="keep epochs on this grid [s] (e.g. 60)")
+    parser.add_argument("--mask", type=float, default=10.0, help="elevation mask [deg] (default 10)")
+
+
+def check_data_arguments(args: argparse.Namespace) -> None:
+    """Check the values of the shared data options (:func:`add_data_arguments`) before any file is read; errors
+    name the option (the CLI exits with 2)."""
+    for opt, value in (("--interval", args.interval), ("--nav-max-age", args.nav_max_age)):
+        if value is not None and not (np.isfinite(value) and value > 0.0):
+            raise ModelError(f"{opt} {value:g}: must be a positive number")
+    if not 0.0 <= args.mask < 90.0:
+        raise ModelError(f"--mask {args.mask:g}: the elevation mask must lie in [0, 90) degrees")
+    if args.tlim:
+        try:
+            t0, t1 = (np.datetime64(t, "s") for t in args.tlim)
+        except ValueError:
+            raise ModelError(f"--tlim {' '.join(args.tlim)}: not ISO date/times (e.g. 2024-01-10T06:00)") from None
+        if not t0 < t1:
+            raise ModelError(f"--tlim {' '.join(args.tlim)}: the start must be before the stop")
+    for opt, files in (
+        ("--obs", args.obs),
+        ("--nav", args.nav),
+        ("--sp3", args.sp3),
+        ("--graph", [args.graph] if args.graph else None),
+        ("--bias", getattr(args, "bias", None)),
+    ):
+        for f in files or []:
+            if not Path(f).is_file():
+                raise DataFileError(f"{opt} {f}: file not found")
+    out = getattr(args, "out", None)
+    if out is not None and Path(out).exists() and not Path(out).is_dir():
+        raise DataFileError(f"--out {out}: exists and is not a folder")
