@@ -5,16 +5,23 @@ and how both grow with the network.
 
 1. **The plant-like 28-anchor hall** (``PLANT_LIKE``, seed ``[78, 0]``, known anchors in the middle and in a
    corner; ``uwb solve``'s workflow with ``--solver N-CLM``): messages and bytes per phase (first fit, tightening
-   of the one-sided loss, exclusion loop, polish, central σ), before and after the economy, measured in the same
-   run — *before* is the same code with the economy switched off (:func:`before`: 500 consensus iterations in the
-   first fit, every row sent in full in float64, the central σ's CG to ``1e-10``); the positions of both and
-   their largest difference; the yardstick: every range gathered at one anchor
+   of the one-sided loss, exclusion loop, polish, σ), in three configurations measured in the same run with the
+   same accounting (the broadcasts, and the LM phase's network totals as spanning-tree all-reductions):
+   *before* issue 27 (:func:`configured` ``"before"``: 500 consensus iterations in the first fit, every row sent in
+   full in float64, float64 CG scalars, the central σ by CG to ``1e-10``), *today* (the economy of the first
+   session: float32 CG directions, the central σ by CG in float32 to ``1e-6``, every fit to the solver's
+   tolerances) and *after* (the defaults: float16 directions with a shared exponent, float32 CG scalars, the seed
+   fits at their stage tolerances, the σ gathered at one anchor); the positions, their largest difference from
+   *today*'s, the σ ratio to *today*'s central σ; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
-   of that gather over the range graph (:func:`distnav.network.gather.gather_cost`).
+   of that gather over the range graph (:func:`distnav.network.gather.gather_cost`). Per anchor: what each
+   anchor's broadcasts and the gathered σ's tree sent, the reductions spread evenly (2 messages per anchor and
+   reduction on average; a leaf of the tree sends 1).
 2. **Bytes against network size** (halls of 10²…10⁴ anchors at the plant's anchor density, 4 known anchors in the
    middle, heights held): one warm distributed LM fit (the final phase every re-fit of the workflow runs:
    N-CLM with 0 consensus iterations, one-sided Cauchy at 0.3 m, common offset, no QC) from the truth displaced by
-   N(0, 0.2 m) — the total, the busiest and the median anchor's bytes sent — against gathering every anchor's
+   N(0, 0.2 m) — the total, the busiest and the median anchor's bytes sent (its broadcasts, and its messages
+   up and down a BFS spanning tree from the graph's centre for every network total) — against gathering every anchor's
    range records (16 B each, held by the lower-numbered anchor of the link) at one sink over the same graph
    (total hop-bytes, busiest relay). The crossing point is where the busiest anchor of the distributed fit
    sends less than the busiest relay of the gather.
@@ -33,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.sparse.csgraph import breadth_first_order
 
 import distnav.models.uwb.field_fits as field_fits
 import distnav.models.uwb.field_precision as field_precision
@@ -54,15 +62,36 @@ GOAL_RATIO = 100.0
 GOAL_MEDIAN_BYTES = 20_000
 
 
+LABELS = ("before", "today", "after")
+#: the module switches of each configuration (module docstring); FieldOptions in :data:`OPTIONS`
+SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
+    "before": {
+        (field_fits, "FIRST_ITERATIONS"): 10**9,
+        (field_precision, "ECONOMY_CG_RTOL"): COVARIANCE_CG_RTOL,
+        (wire, "PLAIN"): True,
+        (wire, "CG_SCALAR_DTYPE"): np.float64,
+    },
+    "today": {(wire, "CG_WIRE_DTYPE"): np.float32, (wire, "CG_SCALAR_DTYPE"): np.float64},
+    "after": {},
+}
+OPTIONS = {
+    "before": {"distributed_precision": "central", "staged_tolerances": False},
+    "today": {"distributed_precision": "central", "staged_tolerances": False},
+    "after": {},
+}
+
+
 @contextlib.contextmanager
-def before() -> Iterator[None]:
-    """The workflow as it was before the economy (module docstring)."""
-    saved = field_fits.FIRST_ITERATIONS, field_precision.ECONOMY_CG_RTOL, wire.PLAIN
-    field_fits.FIRST_ITERATIONS, field_precision.ECONOMY_CG_RTOL, wire.PLAIN = 10**9, COVARIANCE_CG_RTOL, True
+def configured(label: str) -> Iterator[None]:
+    """The module switches of configuration ``label`` (module docstring), restored afterwards."""
+    saved = {key: getattr(*key) for key in SWITCHES[label]}
+    for (mod, name), value in SWITCHES[label].items():
+        setattr(mod, name, value)
     try:
         yield
     finally:
-        field_fits.FIRST_ITERATIONS, field_precision.ECONOMY_CG_RTOL, wire.PLAIN = saved
+        for (mod, name), value in saved.items():
+            setattr(mod, name, value)
 
 
 def _hall_rows() -> list[dict[str, Any]]:
@@ -75,10 +104,10 @@ def _hall_rows() -> list[dict[str, Any]]:
         own = np.bincount(sub.links.min(axis=1), minlength=sub.n_anchors) * RECORD_BYTES
         relay = gather_cost(graph, own).busiest_relay_bytes
         got = {}
-        for label in ("before", "after"):
-            with before() if label == "before" else contextlib.nullcontext():
+        for label in LABELS:
+            with configured(label):
                 t0 = time.process_time()
-                sol = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+                sol = solve_field(sub, FieldOptions(solver="N-CLM", **OPTIONS[label]), geometry=geo)
                 cpu = time.process_time() - t0
             got[label] = sol
             d = (sol.positions_m - sub.truth_m)[sub.estimated]
@@ -96,16 +125,18 @@ def _hall_rows() -> list[dict[str, Any]]:
                 "busiest_anchor_bytes": float(np.max(per_anchor)),
                 "rmse_m": float(np.sqrt(np.mean(np.sum(d**2, axis=1)))),
                 "status": sol.status,
+                "sigma_kind": sol.precision_kind,
                 "cpu_s": cpu,
             }
-            if label == "after":
-                b = got["before"]
+            if label != "today" and "today" in got:
+                b = got["today"]
+                ratio = sol.sigma_m[sub.free] / b.sigma_m[sub.free]
                 row["max_position_change_m"] = float(np.max(np.abs(sol.positions_m - b.positions_m)))
-                row["sigma_max_rel_change"] = float(
-                    np.max(np.abs(sol.sigma_m[sub.free] / b.sigma_m[sub.free] - 1.0), initial=0.0)
-                )
+                row["sigma_ratio_min"], row["sigma_ratio_max"] = float(np.min(ratio)), float(np.max(ratio))
                 row["same_exclusions"] = bool(np.array_equal(sol.excluded, b.excluded))
                 row["bytes_saved_x"] = b.bytes / sol.bytes
+                row["bytes_saved_x_vs_before"] = got["before"].bytes / sol.bytes
+            if label == "after":
                 row["goal"] = f"≤ {GOAL_RATIO:g}× gather, median ≤ {GOAL_MEDIAN_BYTES} B"
                 row["meets_goal"] = bool(
                     row["ratio_to_gather"] <= GOAL_RATIO and row["median_anchor_bytes"] <= GOAL_MEDIAN_BYTES
@@ -127,8 +158,9 @@ def _per_anchor_bytes(sub: Any, sol: Any) -> np.ndarray:
 
 
 def _counting() -> None:
-    """Record every distributed solve's per-anchor bytes (``RangingResult.comm``) and every central σ's."""
-    solve, central = csg.solve, field_precision.central_precision
+    """Record every distributed solve's per-anchor bytes (``RangingResult.comm``) and every central or gathered
+    σ's."""
+    solve, central, gathered = csg.solve, field_precision.central_precision, field_precision.gathered_precision
 
     def counted_solve(*args: Any, **kw: Any) -> Any:
         r = solve(*args, **kw)
@@ -142,8 +174,24 @@ def _counting() -> None:
             _SENT.append(np.asarray(out.precision.comm.bytes_sent, float))
         return out
 
+    def counted_gathered(*args: Any, **kw: Any) -> Any:
+        out = gathered(*args, **kw)
+        if out is not None and out.bytes_sent is not None:
+            _SENT.append(np.asarray(out.bytes_sent, float))
+        return out
+
     field_fits.csg.solve = counted_solve  # type: ignore[assignment]
     field_precision.central_precision = counted_central
+    field_precision.gathered_precision = counted_gathered
+
+
+def _tree_sends(graph: Graph) -> np.ndarray:
+    """Messages each anchor sends in one all-reduction over a BFS spanning tree from the graph's centre (the sink
+    of a gather of one unit per anchor): one up (all but the root), one down to each child."""
+    root = gather_cost(graph, np.ones(graph.n_nodes)).sink
+    _, pred = breadth_first_order(graph.adjacency().tocsr(), root, directed=False, return_predecessors=True)
+    children = np.bincount(pred[pred >= 0], minlength=graph.n_nodes)
+    return np.asarray(children + (np.arange(graph.n_nodes) != root), float)
 
 
 def _scaling_row(n: int) -> dict[str, Any]:
@@ -169,13 +217,16 @@ def _scaling_row(n: int) -> dict[str, Any]:
     graph = Graph.from_links(p.n_anchors, p.links)
     own = np.bincount(p.links.min(axis=1), minlength=p.n_anchors) * RECORD_BYTES
     g = gather_cost(graph, own)
-    sent = np.asarray(r.comm.bytes_sent, float)
+    ref = r.settings.get("refine", {})
+    per_reduction = ref.get("reduction_bytes", 0) / max(2 * (n - 1), 1)  # Σ reduced bytes per message
+    sent = np.asarray(r.comm.bytes_sent, float) + _tree_sends(graph) * per_reduction
     d = (r.estimates - p.truth_m)[p.estimated]
     return {
         "name": f"one distributed LM fit, {n} anchors",
         "n_anchors": n,
         "links": int(p.links.shape[0]),
-        "bytes": r.comm.bytes,
+        "bytes": r.comm.bytes + ref.get("reduction_bytes", 0),
+        "reduction_bytes": ref.get("reduction_bytes", 0),
         "busiest_anchor_bytes": float(sent.max()),
         "median_anchor_bytes": float(np.median(sent)),
         "gather_total_hop_bytes": g.total_hop_bytes,

@@ -393,6 +393,11 @@ def _field_async_cases() -> list[Cli]:
         Cli("field-init-simulate-kind", ("field", "init", "--simulate", "x", *out), "invalid choice"),
         Cli("field-init-simulate-nodes", ("field", "init", "--simulate", "ckf", "--nodes", "0", *out), "at least 1"),
         Cli("field-init-simulate-hall-3", ("field", "init", "--simulate", "hall", "--nodes", "3", *out), "at least 4"),
+        Cli(
+            "field-init-simulate-seed",
+            ("field", "init", "--simulate", "ckf", "--seed", "-1", *out),
+            "seed must be 0 or more",
+        ),
         Cli("field-init-both-sources", (*init, "--rinex", "{obs}", *out), "not allowed with argument"),
         Cli("field-init-ranges-missing", ("field", "init", "--ranges", "{tmp}/none.csv", *out), "no such file"),
         Cli("field-init-rinex-missing", ("field", "init", "--rinex", "{tmp}/none.rnx", *out), "no such file"),

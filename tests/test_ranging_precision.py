@@ -146,8 +146,9 @@ def test_bad_input_is_refused():
 
 
 def test_uwb_solve_writes_lms_central_sigma_for_a_distributed_solver(tmp_path):
-    """``uwb solve --solver N-CLM``: positions.csv carries LM's central σ computed through the exchange (kind
-    "central" named in summary.json, its messages counted; since uwb19, before the 2-hop sub-network σ), not the
+    """``uwb solve --solver N-CLM``: positions.csv carries LM's central σ (kind "gathered" named in summary.json
+    since issue 27: computed at one anchor from what it gathers, its messages counted; "central" by CG through the
+    exchange since uwb19, before that the 2-hop sub-network σ), not the
     solver's conditional N_i⁻¹ — which an independent run of the same workflow gives, and which is at least 5 %
     smaller for most anchors on this network — and equals LM's central σ on the same links."""
     f = hall(tmp_path, ceiling=False, sigma_m=0.05, seed=2)
@@ -161,7 +162,7 @@ def test_uwb_solve_writes_lms_central_sigma_for_a_distributed_solver(tmp_path):
         3,
     )
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["precision_kind"] == "central"
+    assert summary["precision_kind"] == "gathered"
     dist = summary["communication"]["distributed"]
     assert 0 < dist["precision_bytes"] < dist["bytes"] and dist["precision_messages"] > 0
     rows = (out / "positions.csv").read_text().splitlines()

@@ -167,3 +167,31 @@ def test_phases_add_up_to_the_totals(hall):
     assert sum(v["bytes"] for v in sol.comm_phases.values()) == sol.bytes
     assert sum(v["messages"] for v in sol.comm_phases.values()) == sol.messages
     assert sol.comm_phases["precision"]["bytes"] == sol.precision_bytes
+
+
+def test_lm_phase_reductions_are_counted_and_float32_scalars_halve_them(hall, monkeypatch):
+    """The LM phase's network totals are charged as spanning-tree all-reductions (2(n − 1) messages each; at least
+    two per CG iteration: the curvature and the residual); with float32 CG scalars (the default) their bytes are
+    about half those of float64 (the costs and steps stay float64) and the phase still ends within 0.1 mm of LM."""
+    p = subset_measurements(hall[0], ~hall[2])
+    lm = solve_lm(p, **OPTS)
+    got = {}
+    for dtype in (np.float64, np.float32):
+        monkeypatch.setattr(wire, "CG_SCALAR_DTYPE", dtype)
+        res = solve(p, "N-CLM", iterations=0, **OPTS)
+        assert res.status == "converged" and np.abs(res.estimates - lm.estimates).max() < 1e-4
+        got[dtype] = ref = res.settings["refine"]
+        assert ref["reductions"] >= 2 * ref["cg_iterations"]
+        assert ref["reduction_messages"] == ref["reductions"] * 2 * (p.n_anchors - 1)
+    per64 = got[np.float64]["reduction_bytes"] / got[np.float64]["reductions"]
+    per32 = got[np.float32]["reduction_bytes"] / got[np.float32]["reductions"]
+    assert 0.5 <= per32 / per64 < 0.65
+
+
+def test_float16_directions_only_up_to_half_max_anchors(monkeypatch):
+    """float16 directions up to HALF_MAX_ANCHORS anchors, float32 above (CG needed twice the iterations in float16
+    at 3,000 and 10⁴ anchors); a float32 or float64 choice is kept at every size."""
+    assert wire.cg_wire_dtype(wire.HALF_MAX_ANCHORS) == np.float16
+    assert wire.cg_wire_dtype(wire.HALF_MAX_ANCHORS + 1) == np.float32
+    monkeypatch.setattr(wire, "CG_WIRE_DTYPE", np.float64)
+    assert wire.cg_wire_dtype(28) == np.float64 and wire.cg_wire_dtype(10**4) == np.float64

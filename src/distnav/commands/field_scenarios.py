@@ -92,7 +92,7 @@ def _station_graph(n: int, rng: np.random.Generator) -> tuple[np.ndarray, Graph]
 
 def codebias_scenario(n_nodes: int, seed: int = 0, *, epochs: int = 20, rho: float = 0.5) -> Scenario:
     """Paper 000's code-bias network on ``n_nodes`` stations (module docstring)."""
-    from distnav.models.gnss.codebias import simulate_codebias_data
+    from distnav.models.gnss.codebias_build import CodeBiasSimulation, simulate_codebias_data
     from distnav.models.gnss.orbits import synthetic_gps_constellation
 
     rng = np.random.default_rng([seed, 26000])
@@ -100,7 +100,7 @@ def codebias_scenario(n_nodes: int, seed: int = 0, *, epochs: int = 20, rho: flo
     sc = synthetic_gps_constellation()
     orbit = sc.subset(sc.l5_svs)
     t = sc.epoch_gps_s + EPOCH_S * np.arange(epochs)
-    data = simulate_codebias_data(xyz, orbit, t, orbit.svs, rng=rng, reference=0).estimable_subset()
+    data = simulate_codebias_data(xyz, orbit, t, orbit.svs, rng=rng, options=CodeBiasSimulation(reference=0)).estimable_subset()
     data.check()
     algo = {"name": "admm", "rho": rho, "max_iterations": 400, "tol": 1e-10}
     return Scenario(graph, "admm", algo, problem=data.linear_problem(per_epoch=True))
@@ -158,11 +158,12 @@ def rinex_ckf_scenario(obs_files: list[Path], nav_file: Path, *, kn: int = 4) ->
     with its defaults and a TEC random walk of 1 mm/√s, as ``benchmarks/bench_comm.py`` runs it), so each station's
     file holds its own normals of every epoch and the common dynamic model."""
     from distnav.commands.gnss import default_graph
-    from distnav.commands.gnss_ionosphere_data import network_data
+    from distnav.commands.gnss_ionosphere_data import NetworkOptions, network_data
     from distnav.formats.gnss.rinex import read_navigation
+    from distnav.models.gnss.biasmodel import BiasModelOptions
 
     orbit = read_navigation(nav_file, max_age_s=24 * 3600.0)
-    data = network_data(obs_files, orbit, tec_rw_m_per_sqrt_s=0.001)
+    data = network_data(obs_files, orbit, NetworkOptions(model=BiasModelOptions(vtec_rw_m_per_sqrt_s=0.001)))
     graph = default_graph(data.positions_ecef_m, data.stations)
     algo = {"name": "ckf", "rounds": kn, "protocol": "P3"}
     return Scenario(graph, "ckf", algo, dynamics=data.dynamics, series=data.series)

@@ -101,7 +101,7 @@ class CentralPrecision:
     def reduction_cost(self, n_anchors: int) -> tuple[int, int]:
         """Messages and bytes of the network totals as spanning-tree reductions (up and down: ``2(n − 1)``
         messages each, carrying the reduced floats)."""
-        return reduction_cost(n_anchors, self.reductions, self.reduced_floats)
+        return reduction_cost(n_anchors, self.reductions, 8 * self.reduced_floats)
 
 
 def central_precision(

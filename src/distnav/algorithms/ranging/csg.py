@@ -401,7 +401,7 @@ def _run(
                     **dict(
                         zip(
                             ("reduction_messages", "reduction_bytes"),
-                            reduction_cost(problem.n_anchors, ref.reductions, ref.reduced_floats),
+                            reduction_cost(problem.n_anchors, ref.reductions, ref.reduced_bytes),
                             strict=True,
                         )
                     ),

@@ -81,6 +81,7 @@ class Refinement:
     cg_iterations: int
     reductions: int
     reduced_floats: int = 0
+    reduced_bytes: int = 0
 
 
 class Links:
@@ -91,6 +92,7 @@ class Links:
         self.owner, self.other, _, self.samp = half_measurements(problem, ex)
         self.reductions = 0
         self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
+        self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
         self.wire = Wire(problem, ex, self.owner, self.other, 1 if per_anchor_offsets else 0)
 
     def neighbours(self, values: np.ndarray) -> np.ndarray:
@@ -103,15 +105,20 @@ class Links:
         columns: :meth:`~distnav.algorithms.ranging.wire.Wire.vectors`)."""
         return self.wire.vectors(v, dtype)
 
-    def total(self, per_node: np.ndarray) -> np.ndarray:
-        """Network sum of a per-anchor array ``(n_local, ...)``, in the anchors' order (the same bits everywhere)."""
-        return np.asarray(np.sum(self.gathered(per_node), axis=0))
+    def total(self, per_node: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
+        """Network sum of a per-anchor array ``(n_local, ...)``, in the anchors' order (the same bits everywhere);
+        ``dtype`` float32: every anchor's share is rounded to float32 on the wire (summed in float64)."""
+        return np.asarray(np.sum(self.gathered(per_node, dtype), axis=0))
 
-    def gathered(self, per_node: np.ndarray) -> np.ndarray:
-        """Every anchor's row of ``per_node`` (a reduction's worth of data: sums and maxima taken from it)."""
+    def gathered(self, per_node: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
+        """Every anchor's row of ``per_node`` (a reduction's worth of data: sums and maxima taken from it), as
+        ``dtype`` on the wire (returned as float64)."""
+        floats = int(np.prod(per_node.shape[1:], dtype=np.int64))
         self.reductions += 1
-        self.reduced_floats += int(np.prod(per_node.shape[1:], dtype=np.int64))
-        return np.asarray(self.ex.gather_nodes(per_node))
+        self.reduced_floats += floats
+        self.reduced_bytes += floats * np.dtype(dtype).itemsize
+        rows = per_node if dtype == np.float64 else np.asarray(per_node, dtype).astype(np.float64)
+        return np.asarray(self.ex.gather_nodes(rows))
 
 
 def refine(
@@ -144,6 +151,7 @@ def refine(
     free[:, :dim] = problem.free[ex.nodes]
     free_nb = np.ones((samp.size, P), bool)
     free_nb[:, :dim] = problem.free[other]
+    wire_dtype = wire.cg_wire_dtype(problem.n_anchors)
     prior = 1.0 / offset_prior_sigma_m**2 if per else 0.0
     x = np.zeros((nl, P))
     x[:, :dim] = own_m
@@ -201,7 +209,7 @@ def refine(
                 damp_c = mu * max(dc, 1e-12)
                 pre_inv = block_preconditioner(own_block, damp, free)
                 system = NormalSystem(
-                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, wire.CG_WIRE_DTYPE
+                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, wire_dtype
                 )
                 dxk, dck, its = pcg(
                     system,
@@ -211,6 +219,7 @@ def refine(
                     dc + damp_c if common else 1.0,
                     links,
                     cg_max,
+                    scalar_dtype=wire.CG_SCALAR_DTYPE,
                 )
                 dx, dcv = dxk[:, :, 0], float(dck[0])
                 cg_total += its
@@ -255,6 +264,7 @@ def refine(
         cg_iterations=cg_total,
         reductions=links.reductions,
         reduced_floats=links.reduced_floats,
+        reduced_bytes=links.reduced_bytes,
     )
 
 
@@ -351,6 +361,7 @@ def pcg(
     links: Links,
     max_its: int,
     rtol: float = CG_RTOL,
+    scalar_dtype: type[np.floating] = np.float64,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P, k)`` for ``k``
     right-hand sides at once (independent CG recurrences sharing every broadcast and reduction) and the common
@@ -362,7 +373,7 @@ def pcg(
     res, rc = b.copy(), np.asarray(bc, float).copy()
 
     def dots(u: np.ndarray, v: np.ndarray, extra: np.ndarray) -> np.ndarray:
-        return np.asarray(links.total(np.concatenate([np.einsum("nak,nak->nk", u, v), extra], axis=1)))
+        return np.asarray(links.total(np.concatenate([np.einsum("nak,nak->nk", u, v), extra], axis=1), scalar_dtype))
 
     z = np.einsum("nab,nbk->nak", pre_inv, res)
     zc = rc / pre_c

@@ -50,9 +50,27 @@ __all__ = [
     "pack_half",
     "unpack_half",
     "reduction_cost",
+    "CG_SCALAR_DTYPE",
+    "HALF_MAX_ANCHORS",
+    "cg_wire_dtype",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
+CG_SCALAR_DTYPE: type[np.floating] = np.float32  # the LM phase's CG dot products on the wire (item 4)
+#: above this many anchors the LM phase's directions travel as float32 even where CG_WIRE_DTYPE is float16: one
+#: warm fit (bench_uwb_economy.py) took 596 CG iterations at 1,000 anchors in float16 (712 in float32), but
+#: 2,630 at 3,000 (1,177) and 2,049 at 10⁴ (993) — CG's rounding noise grows with the network
+HALF_MAX_ANCHORS = 1000
+
+
+def cg_wire_dtype(n_anchors: int) -> type[np.floating]:
+    """The LM phase's CG directions on the wire for a network of ``n_anchors``: :data:`CG_WIRE_DTYPE`, float32
+    instead of float16 above :data:`HALF_MAX_ANCHORS` anchors."""
+    if CG_WIRE_DTYPE == np.float16 and n_anchors > HALF_MAX_ANCHORS:
+        return np.float32
+    return CG_WIRE_DTYPE
+
+
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -157,13 +175,13 @@ def unpack_half(packed: np.ndarray, m: int) -> np.ndarray:
     return np.asarray(np.ldexp(vals, e[:, None]))
 
 
-def reduction_cost(n_anchors: int, reductions: int, reduced_floats: int) -> tuple[int, int]:
+def reduction_cost(n_anchors: int, reductions: int, reduced_bytes: int) -> tuple[int, int]:
     """Messages and bytes of ``reductions`` network totals as spanning-tree all-reductions (up to a root and back
-    down: ``2(n − 1)`` messages each, every message carrying the reduced floats, float64): ``reduced_floats`` is
-    their sum over the reductions (per anchor). The exchange computes these totals by gathering every anchor's row
+    down: ``2(n − 1)`` messages each, every message carrying the reduced values): ``reduced_bytes`` is their size
+    summed over the reductions (per anchor). The exchange computes these totals by gathering every anchor's row
     (``gather_nodes``, so that in-process and MPI agree bit for bit); a deployment sends this."""
     per = 2 * max(n_anchors - 1, 0)
-    return reductions * per, 8 * reduced_floats * per
+    return reductions * per, reduced_bytes * per
 
 
 def comm_mark(ex: Exchange) -> tuple[int, int]:

@@ -28,7 +28,6 @@ takes it (the metres objective of issue 13; until then the paper's squared form)
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -37,7 +36,6 @@ import numpy as np
 
 from distnav._blas import single_threaded_blas
 from distnav.algorithms.ranging import csg
-from distnav.algorithms.ranging.lm import solve_lm
 from distnav.algorithms.ranging.neighbourhood_offsets import sample_bias
 from distnav.algorithms.ranging.qc import exclude_links
 from distnav.algorithms.ranging.wire import comm_phases
@@ -45,11 +43,17 @@ from distnav.errors import ModelError
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.cuts import cut_weak
 from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, solve_once, tighten_scale
-from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, SigmaModel, distributed_sigma
+from distnav.models.uwb.field_options import (
+    DELAY_SIGMA_M,
+    FieldOptions,
+    solver_kwargs,
+    subset_measurements,
+    supports_objective,
+)
+from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, AnchorPrecision, anchor_precision
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
 from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
-from distnav.models.uwb.precision import consider_precision
 from distnav.models.uwb.problems import RangingProblem
 from distnav.models.uwb.reliability import (
     RELIABILITY_LIMIT_M,
@@ -76,90 +80,17 @@ __all__ = [
     "RELIABILITY_LIMIT_M",
     "weak_anchors",
     "PRECISION_HOPS",
+    "DELAY_SIGMA_M",
+    "solver_kwargs",
 ]
+
+_solver_kwargs = solver_kwargs  # the old private name (tests)
 
 DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions were right, 1.80 on the folded one
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
-DELAY_SIGMA_M = 0.015  # Monte Carlo over 4 × 100 simulated halls (docs/uwb.md, "Precision")
 MULTI_START_MAX_ANCHORS = 200  # larger networks: the prepared start only (each extra start is a full LM fit)
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
 POLISH_RATIO = 1.01  # 24 halls: ≤ 1.004 where the polish helped; 1.05 and 1.44 where it pulled a weak anchor back
-
-
-@dataclass(frozen=True)
-class FieldOptions:
-    """How :func:`solve_field` solves (defaults: LM, objective in metres, Cauchy loss at 0.3 m, exclusions)."""
-
-    solver: str = "LM"
-    objective: str = "metres"
-    loss: str = "cauchy"
-    loss_scale_m: float = 0.3
-    sigma_m: float = 0.1
-    iterations: int = 500
-    exclude: bool = True
-    level: float = 0.001
-    max_exclusions: int | None = None
-    range_offsets: str = "auto"
-    offset_prior_sigma_m: float = 0.1
-    allow_planar_3d: bool = False
-    repair: bool = True
-    one_sided: bool = True
-    exclusions_per_round: int | None = 3  # at least; n_anchors // 4 on larger networks
-    multi_start: bool = True  # LM with the metres objective: choose_start before the exclusions
-    revert: bool = True  # exclusions that raise the all-links robust cost > DISAGREE_RATIO × are rejected
-    delay_sigma_m: float = DELAY_SIGMA_M  # antenna delays considered in σ (models/uwb/precision.py); 0: off
-    nlos_loss: bool = True  # metres with the Cauchy loss: one-sided ("cauchy_long"), tightened (nlos_aware)
-    polish: bool = True  # with nlos_aware: the kept links re-fitted at loss_scale_m at the end (_polish)
-    estimate_delays: bool = True  # σ: delay_sigma_m is a floor, larger delays the residuals show are used
-    reliability_limit_m: float = RELIABILITY_LIMIT_M  # LM: weak if one undetected link moves it more (reliability.py)
-    cut_test: bool = True  # weak: a part whose excluded cut links exceed the cut's redundancy (cuts.py)
-    distributed_precision: str = "auto"  # distributed σ: "central" / "subnetwork" / "auto" (field_precision.py)
-
-    @property
-    def considers_delays(self) -> bool:
-        """Whether σ admit the per-anchor delays: the metres objective, delays not estimated (``range_offsets``
-        none or common), ``delay_sigma_m`` > 0 — LM by :mod:`distnav.models.uwb.precision`, the distributed solvers
-        (metres) by :mod:`distnav.models.uwb.field_precision` (central blocks through the exchange, or each
-        anchor's 2-hop sub-network)."""
-        return (
-            self.delay_sigma_m > 0
-            and self.objective == "metres"
-            and supports_objective(self.solver)
-            and self.offsets_used in ("none", "common")
-        )
-
-    solver_options: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def nlos_aware(self) -> bool:
-        """Whether the solve uses the one-sided loss: ``nlos_loss``, the metres objective, the Cauchy loss and a
-        solver that has a robust loss — LM and every distributed solver but CSG (the same steps for all; the
-        distributed ones through the exchange, :mod:`distnav.models.uwb.field_fits`).
-        Then every fit uses ``"cauchy_long"`` (:func:`distnav.algorithms.ranging.losses.loss_terms`: Cauchy for
-        ranges read
-        long, linear for ranges read short: NLOS only lengthens a range), and after the choice of start its scale
-        is tightened from ``loss_scale_m`` by halves down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × the robust scatter
-        of the residuals (:func:`tighten`); the exclusions, the per-anchor check and the revert then work at that
-        scale, and :func:`all_links_cost` is the one-sided cost at it."""
-        return (
-            self.nlos_loss
-            and self.solver.upper() != "CSG"
-            and self.objective == "metres"
-            and self.loss == "cauchy"
-            and supports_objective(self.solver)
-        )
-
-    @property
-    def offsets_used(self) -> str:
-        """``range_offsets`` resolved: ``"auto"`` is a common range offset with the metres objective (every solver)
-        and none with the squared one. LM: on simulated halls with per-node antenna delays it brings the 2σ
-        coverage of LM's σ from 0.72–0.94 to 0.83–0.97 and lowers the RMSE a little. The distributed solvers
-        (docs/uwb.md, "Range offsets"): on plant-like halls whose ranges carry a 0.3 m common offset it halves
-        their RMSE and removes most false exclusions; without one it costs them 5–10 % RMSE (noisy, 3 halls);
-        on the APRIL lab logs it helps N-CLM on both (0.326 → 0.244, 0.342 → 0.253 m, docs/uwb.md)."""
-        if self.range_offsets != "auto":
-            return self.range_offsets
-        return "common" if self.objective == "metres" else "none"
 
 
 @dataclass(frozen=True, eq=False)
@@ -200,17 +131,6 @@ class FieldSolution:
         return self.status != "diverged"
 
 
-def supports_objective(solver: str) -> bool:
-    """Whether the solver front door takes ``objective=`` (the metres objective of issue 13)."""
-    key = solver.upper()
-    fn: Callable[..., Any] = (
-        solve_lm
-        if key == "LM"
-        else (csg.solve_csg if key == "CSG" else csg.solve_nclm if key == "N-CLM" else csg.solve_ncsg)
-    )
-    return "objective" in inspect.signature(fn).parameters
-
-
 def prepare(
     problem: RangingProblem,
     *,
@@ -244,24 +164,6 @@ def prepare(
     return sub, report
 
 
-def _solver_kwargs(opts: FieldOptions) -> dict[str, Any]:
-    """The solver front door's keyword arguments for ``opts`` (loss, objective, σ, offsets, test level)."""
-    key = opts.solver.upper()
-    kw: dict[str, Any] = dict(opts.solver_options)
-    if key != "CSG":
-        kw.update(loss="cauchy_long" if opts.nlos_aware else opts.loss, loss_scale_m=opts.loss_scale_m)
-    if supports_objective(key):
-        kw.update(objective=opts.objective)
-        if opts.objective == "metres":
-            kw.update(sigma_m=opts.sigma_m)
-            if opts.offsets_used != "none":  # LM and every distributed solver (neighbourhood_offsets)
-                kw.update(range_offsets=opts.offsets_used, offset_prior_sigma_m=opts.offset_prior_sigma_m)
-        kw.update(test_level=opts.level)
-    if opts.offsets_used != "none" and opts.objective != "metres":
-        raise ModelError(f"range offsets are estimated with the metres objective, not with {opts.objective!r}")
-    return kw
-
-
 def choose_start(problem: RangingProblem, opts: FieldOptions) -> tuple[FloatArray | None, str]:
     """The robust fit of every link (LM, graduated: linear then the robust loss) from the prepared start and from
     each of :func:`~distnav.models.uwb.initial.candidate_starts`; returns the solution with the lowest objective
@@ -270,7 +172,7 @@ def choose_start(problem: RangingProblem, opts: FieldOptions) -> tuple[FloatArra
     the prepared one. The exclusions then start from there. Why: on simulated plant-like halls with the known
     anchors in a corner the MDS/SMACOF start can be folded (2 m off) and the first robust fit keeps the fold; the
     careful fit's classical-MDS start, a leave-one-out alignment or one weak anchor mirrored finds a lower cost."""
-    kw = _solver_kwargs(opts)
+    kw = solver_kwargs(opts)
     kw["quality"] = False
     kw.update({k: v for k, v in START_TOLERANCES.items() if k not in kw})
     assert problem.initial_m is not None
@@ -312,20 +214,34 @@ def tighten(problem: RangingProblem, start_m: FloatArray, opts: FieldOptions) ->
     wrong (2 halls with an anchor 0.9–3.4 m off, a folded plant-like hall at 2.44 m), the tightened one-sided fit
     of every link, no link excluded, came within 1.0–1.4 × the oracle on four (the folded hall 0.35 m, oracle
     0.26 m); the two it did not fix have an anchor with one redundant link and one NLOS link among them."""
-    return tighten_scale(problem, start_m, opts.solver, _solver_kwargs(opts), opts.loss_scale_m, opts.iterations)
+    return tighten_scale(problem, start_m, opts.solver, solver_kwargs(opts), opts.loss_scale_m, opts.iterations)
+
+
+def _stage(opts: FieldOptions, stage: str) -> str | None:
+    """The stage tolerances of a distributed fit (:data:`~distnav.models.uwb.field_fits.STAGE_TOLERANCES`), unless
+    ``opts.staged_tolerances`` is off (every fit to the solver's own)."""
+    return stage if opts.staged_tolerances else None
 
 
 def _fitter(
     opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int], last: list[FloatArray]
 ) -> Callable[[Any], Any]:
     key = opts.solver.upper()
-    kw = _solver_kwargs(opts)
+    kw = solver_kwargs(opts)
     warm_refits = key == "LM" or opts.nlos_aware  # the distributed solvers' re-fits: graduated unless nlos_aware
 
     def fit(sub: Any) -> Any:
         if last:  # a re-fit after an exclusion starts from the last solution, robust loss straight away
             sub = sub.with_initial(last[-1])
-        r = solve_once(sub, key, kw, opts.iterations, exchange=exchange, total=comm, warm=bool(last) and warm_refits)
+        r = solve_once(
+            sub,
+            key,
+            kw,
+            opts.iterations,
+            exchange=exchange,
+            total=comm,
+            warm=bool(last) and warm_refits,
+        )
         if r.usable and np.all(np.isfinite(r.estimates)):
             last.append(np.asarray(r.estimates, float))
         return r
@@ -372,7 +288,7 @@ def _polish(
     r = solve_once(
         subset_measurements(problem, keep).with_initial(np.asarray(res.estimates, float)),
         opts.solver,
-        _solver_kwargs(opts),
+        solver_kwargs(opts),
         opts.iterations,
         exchange=exchange,
         total=total,
@@ -447,11 +363,12 @@ def solve_field(
             first_fit = solve_once(
                 problem,
                 opts.solver,
-                {**_solver_kwargs(opts), "quality": False},
+                {**solver_kwargs(opts), "quality": False},
                 opts.iterations,
                 exchange=exchange,
                 total=total,
                 first=True,
+                stage=_stage(given, "seed"),
             )
             best = np.asarray(first_fit.estimates, float) if first_fit.usable else None
             marks["first_fit"] = (total[1], total[2])
@@ -460,11 +377,12 @@ def solve_field(
                 problem,
                 best,
                 opts.solver,
-                _solver_kwargs(opts),
+                solver_kwargs(opts),
                 opts.loss_scale_m,
                 opts.iterations,
                 exchange=exchange,
                 total=total,
+                stage=_stage(given, "seed"),
             )
             starts.append(best)
             marks["tighten"] = (total[1], total[2])
@@ -580,7 +498,7 @@ def solve_field(
             ReliabilityOptions(
                 opts.sigma_m,
                 opts.offsets_used,
-                _solver_kwargs(opts).get("loss", "linear"),
+                solver_kwargs(opts).get("loss", "linear"),
                 fit_scale_m,
                 opts.level,
                 opts.offset_prior_sigma_m,
@@ -660,93 +578,3 @@ def solve_field(
         precision_bytes=prec_out.bytes,
         comm_phases=comm_phases(marks),
     )
-
-
-@dataclass(frozen=True, eq=False)
-class AnchorPrecision:
-    """What :func:`anchor_precision` gives ``solve_field``: σ per anchor and axis, the covariance blocks they come
-    from (a-posteriori, m²; None where unknown), the precision's kind, its messages / bytes and a note."""
-
-    sigma_m: FloatArray
-    covariance_m2: FloatArray | None
-    kind: str | None
-    messages: int = 0
-    bytes: int = 0
-    note: str = ""
-
-
-def anchor_precision(
-    problem: RangingProblem,
-    res: Any,
-    opts: FieldOptions,
-    excluded: BoolArray,
-    objective: str,
-    exchange: Callable[[RangingProblem], Any] | None,
-    *,
-    fit_scale_m: float | None = None,
-) -> AnchorPrecision:
-    """σ of every anchor after the solve, on the links kept (``~excluded``); ``fit_scale_m``: the loss scale
-    ``res`` was fitted at (its variance factor's, as LM's own; default ``opts.loss_scale_m``).
-
-    LM: its central ``σ̂² (JᵀWJ)⁻¹`` (kind ``"centralized"``), with the antenna delays considered where
-    ``opts.considers_delays`` (:mod:`distnav.models.uwb.precision`). The distributed solvers (through the
-    exchange, its messages counted; ``opts.distributed_precision``, :mod:`distnav.models.uwb.field_precision`):
-    by default LM's central blocks by CG (kind ``"central"``, up to 100 anchors), else every anchor's
-    :data:`PRECISION_HOPS`-hop sub-network (kind ``"neighbourhood"``, its own variance factor), the delays
-    considered; the solvers' own conditional
-    ``N_i⁻¹`` (a lower bound) is used only if that fails, and the note says so."""
-    nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
-    prec = res.precision
-    kept = subset_measurements(problem, ~excluded)
-    if opts.solver.upper() != "LM":
-        try:
-            model = SigmaModel(
-                sigma_m=opts.sigma_m,
-                loss=_solver_kwargs(opts).get("loss", "linear"),
-                loss_scale_m=opts.loss_scale_m,
-                offsets=opts.offsets_used,
-                offset_prior_sigma_m=opts.offset_prior_sigma_m,
-                delay_sigma_m=opts.delay_sigma_m if opts.considers_delays and objective == "metres" else 0.0,
-                estimate_delays=opts.estimate_delays,
-                fit_scale_m=fit_scale_m,
-            )
-            out = distributed_sigma(
-                kept, res, model, exchange=exchange, objective=objective, mode=opts.distributed_precision
-            )
-        except ModelError as err:
-            note = f"; neighbourhood precision failed ({err}): σ are the conditional ones (a lower bound)"
-        else:
-            return AnchorPrecision(
-                sigma_m=out.sigma_m,
-                covariance_m2=out.covariance_m2,
-                kind=out.kind,
-                messages=out.messages,
-                bytes=out.bytes,
-            )
-    else:
-        note = ""
-    if prec is None:
-        return AnchorPrecision(sigma_m=nan_pos, covariance_m2=None, kind=None, note=note)
-    vf = prec.variance_factor if prec.variance_factor is not None else 1.0
-    sigma = np.where(problem.free, prec.std(a_posteriori=True), 0.0)
-    cov = prec.covariance * vf
-    if opts.considers_delays:
-        considered = consider_precision(
-            kept,
-            res,
-            sigma_m=opts.sigma_m,
-            offsets=opts.offsets_used,
-            loss=_solver_kwargs(opts).get("loss", "linear"),
-            loss_scale_m=opts.loss_scale_m,
-            delay_sigma_m=opts.delay_sigma_m,
-            estimate_delays=opts.estimate_delays,
-        )
-        if considered is not None:
-            sigma, cov = considered  # the ellipses of the σ written, delays considered
-    return AnchorPrecision(sigma_m=sigma, covariance_m2=cov, kind=prec.kind, note=note)
-
-
-def subset_measurements(problem: RangingProblem, keep: BoolArray) -> RangingProblem:
-    """The same problem with only the measurements where ``keep`` is True (the oracle drops NLOS links)."""
-    k = np.asarray(keep, bool)
-    return dataclasses.replace(problem, meas_a=problem.meas_a[k], meas_b=problem.meas_b[k], range_m=problem.range_m[k])

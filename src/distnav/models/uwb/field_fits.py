@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from distnav.algorithms.ranging import csg
+from distnav.algorithms.ranging.stop import StopRule
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 
@@ -28,12 +29,18 @@ __all__ = [
     "REFIT_TOLERANCES",
     "TIGHTEN_FITS",
     "FIRST_ITERATIONS",
+    "STAGE_TOLERANCES",
 ]
 
 REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
 TIGHT_SCALE_FLOOR_M = 0.05  # the one-sided loss is tightened from loss_scale_m down to this (or 3 × the scatter)
 TIGHTEN_FITS = 8  # at most this many halvings
 WARM_ITERATIONS = 0  # a distributed solver's warm re-fit: consensus iterations before its final distributed LM phase
+#: (ftol, xtol_m) of a distributed solver's LM phase by the fit's stage in the workflow (issue 27): "seed", the fits
+#: whose solution only starts the next fit (the first fit, the tightening). The exclusion loop's re-fits and the
+#: polish keep the solver's StopRule (1e-6, 0.1 mm): any of them can be the answer, and on plant corner #0 a
+#: re-fit stopped at 0.3–1 mm steps ended 1.5 mm from LM's answer where the full tolerance ends 0.3 mm from it.
+STAGE_TOLERANCES = {"seed": (1e-3, 1e-2)}
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
 
@@ -48,6 +55,7 @@ def solve_once(
     warm: bool = False,
     tolerances: bool = True,
     first: bool = False,
+    stage: str | None = None,
 ) -> Any:
     """One solve of ``problem`` (its ``initial_m`` the start) by ``solver`` with the keyword arguments ``kw``.
     ``warm``: a re-fit from a solution, the robust loss straight away (no graduated linear phase; LM with
@@ -65,7 +73,9 @@ def solve_once(
     plant-like halls, docs/economy_uwb.md). ``total`` (iterations, messages, bytes) is incremented by the
     solve's: its iterations plus its distributed LM phase's rounds, its broadcasts and its LM phase's network
     totals as spanning-tree reductions (``settings["refine"]``,
-    :func:`~distnav.algorithms.ranging.wire.reduction_cost`)."""
+    :func:`~distnav.algorithms.ranging.wire.reduction_cost`). ``stage`` (``"seed"``; None: the solver's
+    own): a distributed solver's LM phase stops at :data:`STAGE_TOLERANCES` — a fit whose solution only
+    starts the next one needs no 0.1 mm steps (issue 27, docs/economy_uwb.md)."""
     key = solver.upper()
     extra: dict[str, Any] = {}
     if key != "LM" and exchange is not None:
@@ -78,6 +88,9 @@ def solve_once(
         iterations = min(iterations, WARM_ITERATIONS)
     elif first and key != "LM" and kw.get("refine", True) is not False:
         iterations = min(iterations, FIRST_ITERATIONS)
+    if stage is not None and key != "LM" and "stop" not in kw:
+        ftol, xtol_m = STAGE_TOLERANCES[stage]
+        extra["stop"] = StopRule(refine_ftol=ftol, refine_xtol_m=xtol_m)
     r = csg.solve(problem, key, iterations=iterations, **kw, **extra)
     if total is not None:  # the final distributed LM phase's rounds are iterations too (issue 28 item 3)
         ref = (getattr(r, "settings", None) or {}).get("refine") or {}
@@ -105,9 +118,11 @@ def tighten_scale(
     *,
     exchange: Callable[[RangingProblem], Any] | None = None,
     total: list[int] | None = None,
+    stage: str | None = None,
 ) -> tuple[FloatArray, float, int]:
     """The one-sided fit of every link by ``solver``, its loss scale halved from ``scale_m`` (each fit warm from the
-    last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger. Returns
+    last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger (``stage``:
+    :func:`solve_once`'s). Returns
     ``(positions, final scale, fits)`` (see :func:`distnav.models.uwb.field.tighten`)."""
     kw = {**kw, "quality": False}
     pos = np.asarray(start_m, float)
@@ -127,6 +142,7 @@ def tighten_scale(
             total=total,
             warm=True,
             tolerances=False,
+            stage=stage,
         )
         fits += 1
         if not (r.usable and np.all(np.isfinite(r.estimates))):

@@ -24,6 +24,7 @@ where the gathered or central solve fails (a singular normal matrix, CG not conv
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any
@@ -43,11 +44,12 @@ from distnav.algorithms.ranging.precision import neighbourhood_precision
 from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
 from distnav.models.uwb.communication import range_bytes_per_anchor
+from distnav.models.uwb.field_options import FieldOptions, solver_kwargs, subset_measurements
 from distnav.models.uwb.precision import DELAY_UPPER_Z, consider_precision
 from distnav.models.uwb.problems import RangingProblem
 from distnav.network.gather import gather_cost
 from distnav.network.graph import Graph
-from distnav.typing import FloatArray
+from distnav.typing import BoolArray, FloatArray
 
 __all__ = [
     "DistributedSigma",
@@ -57,6 +59,8 @@ __all__ = [
     "gathered_cost",
     "PRECISION_HOPS",
     "PRECISION_MODES",
+    "AnchorPrecision",
+    "anchor_precision",
 ]
 
 log = logging.getLogger(__name__)
@@ -247,3 +251,87 @@ def gathered_cost(problem: RangingProblem, *, per_anchor_offsets: bool = False) 
     down[up.sink] = int(down_bytes.sum() - down_bytes[up.sink])
     sent = np.asarray(up.relay_bytes + down, float)
     return 2 * up.tree_messages, sent
+
+
+@dataclass(frozen=True, eq=False)
+class AnchorPrecision:
+    """What :func:`anchor_precision` gives ``solve_field``: σ per anchor and axis, the covariance blocks they come
+    from (a-posteriori, m²; None where unknown), the precision's kind, its messages / bytes and a note."""
+
+    sigma_m: FloatArray
+    covariance_m2: FloatArray | None
+    kind: str | None
+    messages: int = 0
+    bytes: int = 0
+    note: str = ""
+
+
+def anchor_precision(
+    problem: RangingProblem,
+    res: Any,
+    opts: FieldOptions,
+    excluded: BoolArray,
+    objective: str,
+    exchange: Callable[[RangingProblem], Any] | None,
+    *,
+    fit_scale_m: float | None = None,
+) -> AnchorPrecision:
+    """σ of every anchor after the solve, on the links kept (``~excluded``); ``fit_scale_m``: the loss scale
+    ``res`` was fitted at (its variance factor's, as LM's own; default ``opts.loss_scale_m``).
+
+    LM: its central ``σ̂² (JᵀWJ)⁻¹`` (kind ``"centralized"``), with the antenna delays considered where
+    ``opts.considers_delays`` (:mod:`distnav.models.uwb.precision`). The distributed solvers (through the
+    exchange, its messages counted; ``opts.distributed_precision``, :mod:`distnav.models.uwb.field_precision`):
+    by default LM's central blocks by CG (kind ``"central"``, up to 100 anchors), else every anchor's
+    :data:`PRECISION_HOPS`-hop sub-network (kind ``"neighbourhood"``, its own variance factor), the delays
+    considered; the solvers' own conditional
+    ``N_i⁻¹`` (a lower bound) is used only if that fails, and the note says so."""
+    nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
+    prec = res.precision
+    kept = subset_measurements(problem, ~excluded)
+    if opts.solver.upper() != "LM":
+        try:
+            model = SigmaModel(
+                sigma_m=opts.sigma_m,
+                loss=solver_kwargs(opts).get("loss", "linear"),
+                loss_scale_m=opts.loss_scale_m,
+                offsets=opts.offsets_used,
+                offset_prior_sigma_m=opts.offset_prior_sigma_m,
+                delay_sigma_m=opts.delay_sigma_m if opts.considers_delays and objective == "metres" else 0.0,
+                estimate_delays=opts.estimate_delays,
+                fit_scale_m=fit_scale_m,
+            )
+            out = distributed_sigma(
+                kept, res, model, exchange=exchange, objective=objective, mode=opts.distributed_precision
+            )
+        except ModelError as err:
+            note = f"; neighbourhood precision failed ({err}): σ are the conditional ones (a lower bound)"
+        else:
+            return AnchorPrecision(
+                sigma_m=out.sigma_m,
+                covariance_m2=out.covariance_m2,
+                kind=out.kind,
+                messages=out.messages,
+                bytes=out.bytes,
+            )
+    else:
+        note = ""
+    if prec is None:
+        return AnchorPrecision(sigma_m=nan_pos, covariance_m2=None, kind=None, note=note)
+    vf = prec.variance_factor if prec.variance_factor is not None else 1.0
+    sigma = np.where(problem.free, prec.std(a_posteriori=True), 0.0)
+    cov = prec.covariance * vf
+    if opts.considers_delays:
+        considered = consider_precision(
+            kept,
+            res,
+            sigma_m=opts.sigma_m,
+            offsets=opts.offsets_used,
+            loss=solver_kwargs(opts).get("loss", "linear"),
+            loss_scale_m=opts.loss_scale_m,
+            delay_sigma_m=opts.delay_sigma_m,
+            estimate_delays=opts.estimate_delays,
+        )
+        if considered is not None:
+            sigma, cov = considered  # the ellipses of the σ written, delays considered
+    return AnchorPrecision(sigma_m=sigma, covariance_m2=cov, kind=prec.kind, note=note)

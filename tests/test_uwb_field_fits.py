@@ -1,0 +1,26 @@
+"""The distributed fits of uwb solve's workflow (distnav.models.uwb.field_fits): the seed fits (the first fit and the
+tightening) stop at their stage tolerances (issue 27) and the answer stays that of the full tolerances."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from distnav.experiments.uwb_field import hall_problem
+from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+
+
+def test_seed_fits_at_stage_tolerances_send_fewer_bytes_for_the_same_answer():
+    """Plant-like hall [78, 1] (corner): with the stage tolerances (the default) the first fit and the tightening
+    send fewer bytes than at the solver's own tolerances (staged_tolerances=False, the behaviour before), the
+    later phases start from another point but end at the same answer: the same links excluded, positions within
+    0.1 mm, the same status."""
+    h = simulate_hall(np.random.default_rng([78, 1]), HallConfig().with_(known="corner", **PLANT_LIKE))
+    sub, geo = prepare(hall_problem(h)[0])
+    staged = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    full = solve_field(sub, FieldOptions(solver="N-CLM", staged_tolerances=False), geometry=geo)
+    seed = ("first_fit", "tighten")
+    assert sum(staged.comm_phases[k]["bytes"] for k in seed) < 0.9 * sum(full.comm_phases[k]["bytes"] for k in seed)
+    assert staged.bytes < full.bytes
+    assert np.array_equal(staged.excluded, full.excluded) and staged.status == full.status
+    assert np.max(np.abs(staged.positions_m - full.positions_m)) < 1e-4
