@@ -24,8 +24,11 @@ def test_mu_hand_values() -> None:
     assert mu(1) == 1.0
     assert mu(2) == pytest.approx((154 / 120) ** 2, rel=1e-12)
     assert mu(5) == pytest.approx((154 / 115) ** 2, rel=1e-12)
+    # Galileo E5b (1207.14 MHz = 118 × 10.23) and E5 (1191.795 = 116.5 × 10.23): bands no GPS signal uses
+    assert mu(7) == pytest.approx((154 / 118) ** 2, rel=1e-12)
+    assert mu(8) == pytest.approx((154 / 116.5) ** 2, rel=1e-12)
     with pytest.raises(ValueError, match="unknown GPS band"):
-        mu(7)
+        mu(6)  # E6 1278.75 MHz but BeiDou B3 1268.52 MHz: one number, two frequencies
 
 
 def test_geodetic_ecef_against_pymap3d(rng: np.random.Generator) -> None:

@@ -41,17 +41,19 @@ def test_values_equal_georinex(shared_data: Path, name: str, types: list[str]) -
 
 
 @pytest.mark.parametrize(
-    "system,types",
+    "name,system,types",
     [
-        ("E", ["C1X", "C5X", "C7X", "L1X", "L5X"]),
-        ("C", ["C2I", "C6I", "C7I", "L2I"]),
-        ("R", ["C1C", "C1P", "C2C", "L1C"]),
+        ("BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", "E", ["C1X", "C5X", "C7X", "L1X", "L5X"]),
+        ("BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", "C", ["C2I", "C6I", "C7I", "L2I"]),
+        ("BELE00BRA_R_20240100000_01D_30S_MO.crx.gz", "R", ["C1C", "C1P", "C2C", "L1C"]),
+        ("dgar0100.24o.gz", "E", ["C1", "C5", "C7", "L1", "L5"]),  # RINEX 2.11 mixed: Galileo shares the types
     ],
 )
-def test_other_systems_equal_georinex(shared_data: Path, system: str, types: list[str]) -> None:
-    """Galileo, BeiDou and GLONASS lines of the mixed BELE file: every value and every satellite as georinex."""
+def test_other_systems_equal_georinex(shared_data: Path, name: str, system: str, types: list[str]) -> None:
+    """Galileo, BeiDou and GLONASS lines of the mixed BELE file (and DGAR's RINEX 2 Galileo): every value and
+    every satellite as georinex."""
     gr = pytest.importorskip("georinex")
-    path = shared_data / IGS / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz"
+    path = shared_data / IGS / name
     ours = read_observation_types(path, types, tlim=WINDOW, system=system)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -96,8 +98,12 @@ def test_glonass_channels_and_phase_wavelengths(shared_data: Path) -> None:
     f_wrong = carrier_frequencies_hz("R", 1, o.svs, {s: k + 1 for s, k in hdr.glonass_channels.items()})
     wrong = o.range_m[1] - o.phase_m[1] * f_right / f_wrong
     assert np.nanmedian(np.nanstd(wrong, axis=0)) > 20.0
-    with pytest.raises(DataFileError, match="Galileo observations are read from RINEX 3 files only"):
-        read_observation_types(shared_data / IGS / "dgar0100.24o.gz", ["C1"], system="E")
+    with pytest.raises(DataFileError, match="GLONASS observations are read from RINEX 3 files only"):
+        read_observation_types(shared_data / IGS / "dgar0100.24o.gz", ["C1"], system="R")
+    # RINEX 2 Galileo of a Septentrio: C1/C5/C7 are the pilots C1C/C5Q/C7Q (CAS: DGAR C1C−C5Q, C1C−C7Q)
+    dgar = read_code_observations(shared_data / IGS / "dgar0100.24o.gz", bands=(1, 5, 7), system="E", tlim=WINDOW)
+    assert dgar.codes == {1: "C1C", 5: "C5Q", 7: "C7Q"} and "RINEX 2 C5 read as C5Q (receiver SEPT)" in dgar.notes
+    assert len(dgar.svs) >= 5 and all(sv[0] == "E" for sv in dgar.svs)
 
 
 def test_latin1_byte_in_header_is_accepted(shared_data: Path, tmp_path: Path) -> None:

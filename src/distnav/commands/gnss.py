@@ -130,12 +130,28 @@ def _run_compare_dsb(args: argparse.Namespace, path: Path) -> int:
 
 
 def _compare_dsb(args: argparse.Namespace, path: Path, bias: list[str]) -> dict[str, Any]:
+    """Each satellite system of the estimates against the products (GPS first): the first system's comparison,
+    with every system's under ``systems`` when there are several."""
+    from distnav.formats.gnss.product_files import estimate_systems
+
+    systems = estimate_systems(path, filter_label=args.filter)
+    results = {s: _compare_system(args, path, bias, s, len(systems) > 1) for s in systems}
+    first = dict(results[systems[0]])
+    if len(systems) > 1:
+        first["systems"] = results
+    return first
+
+
+def _compare_system(args: argparse.Namespace, path: Path, bias: list[str], system: str, named: bool) -> dict[str, Any]:
     from distnav.commands.gnss_report import print_worst_vs_product
     from distnav.formats.gnss.product_files import product_dsbs, read_estimates
     from distnav.models.gnss.products import compare_in_datum
+    from distnav.models.gnss.systems import SYSTEM_NAMES
 
-    est = read_estimates(path, filter_label=args.filter)
+    est = read_estimates(path, filter_label=args.filter, system=system)
     products = product_dsbs(bias, sorted(est.satellite), sorted(est.station), est.obs1, est.obs2)
+    if named:
+        print(f"\n--- {SYSTEM_NAMES.get(system, system)} ({len(est.satellite)} satellites) ---")
     result: dict[str, Any] = {
         "estimates": est.source,
         "codes": [est.obs1, est.obs2],

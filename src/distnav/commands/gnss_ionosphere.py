@@ -66,12 +66,31 @@ def _say(args: argparse.Namespace, text: str) -> None:
 _PRN = re.compile(r"^G(0[1-9]|[12][0-9]|3[0-2])$")
 _L1_CODE = re.compile(r"^C1[CSLXPWYMN]$")
 _LB_CODE = re.compile(r"^C(2[CDSLXPWYMN]|5[IQX])$")
+_SYSTEM_CODES = {  # --system: (satellite ids, first code, second code, the system's codes in words)
+    "G": (
+        _PRN,
+        _L1_CODE,
+        _LB_CODE,
+        "a GPS satellite (G01 … G32)",
+        "GPS L1 code (C1C, C1W, C1L, C1X …)",
+        "GPS L2 or L5 code (C2W, C2L, C2X, C5Q, C5X …)",
+    ),
+    "E": (
+        re.compile(r"^E(0[1-9]|[1-3][0-9])$"),
+        re.compile(r"^C1[ABCXZ]$"),
+        re.compile(r"^C[578][IQX]$"),
+        "a Galileo satellite (E01 … E36)",
+        "Galileo E1 code (C1C, C1X …)",
+        "Galileo E5a, E5b or E5 code (C5Q, C5X, C7Q, C7X, C8Q …)",
+    ),
+}
 
 
 def validate_arguments(args: argparse.Namespace) -> None:
     """Check every option value before any file is read (errors name the option; the CLI exits with 2)."""
-    if args.pivot is not None and not _PRN.match(str(args.pivot).upper()):
-        raise ModelError(f"--pivot {args.pivot}: not a GPS satellite (G01 … G32)")
+    prn, l1_code, lb_code, sat_words, l1_words, lb_words = _SYSTEM_CODES[getattr(args, "system", "G")]
+    if args.pivot is not None and not prn.match(str(args.pivot).upper()):
+        raise ModelError(f"--pivot {args.pivot}: not {sat_words}")
     if args.datum == "pivot" and args.pivot is None:
         raise ModelError("--datum pivot needs --pivot PRN (e.g. --pivot G10)")
     if args.pivot is not None and args.datum != "pivot":
@@ -79,10 +98,10 @@ def validate_arguments(args: argparse.Namespace) -> None:
             f"--pivot {args.pivot} is the pivot of --datum pivot; the datum is {args.datum} (add "
             f"--datum pivot, or leave --pivot out)"
         )
-    if args.l1_code is not None and not _L1_CODE.match(args.l1_code.upper()):
-        raise ModelError(f"--l1-code {args.l1_code}: not a GPS L1 code (C1C, C1W, C1L, C1X …)")
-    if not _LB_CODE.match(args.l2_code.upper()):
-        raise ModelError(f"--l2-code {args.l2_code}: not a GPS L2 or L5 code (C2W, C2L, C2X, C5Q, C5X …)")
+    if args.l1_code is not None and not l1_code.match(args.l1_code.upper()):
+        raise ModelError(f"--l1-code {args.l1_code}: not a {l1_words}")
+    if not lb_code.match(args.l2_code.upper()):
+        raise ModelError(f"--l2-code {args.l2_code}: not a {lb_words}")
     for opt, value in (("--sigma", args.sigma), ("--regional-km", args.regional_km), ("--tec-rw", args.tec_rw)):
         if value is not None and not (np.isfinite(value) and value > 0.0):
             raise ModelError(f"{opt} {value:g}: must be a positive number")
@@ -101,8 +120,8 @@ def validate_arguments(args: argparse.Namespace) -> None:
     if not (np.isfinite(args.gf_threshold) and args.gf_threshold > 0.0):
         raise ModelError(f"--gf-threshold {args.gf_threshold:g}: must be a positive number of metres")
     for e in (args.exclude or []) + (args.compare_exclude or []):
-        if not (_PRN.match(e.upper()) or re.match(r"^[A-Za-z0-9]{4}$", e)):
-            raise ModelError(f"--exclude {e}: neither a GPS satellite (G01 … G32) nor a 4-character station")
+        if not (prn.match(e.upper()) or re.match(r"^[A-Za-z0-9]{4}$", e)):
+            raise ModelError(f"--exclude {e}: neither {sat_words} nor a 4-character station")
     if getattr(args, "c1_corrections", None):
         if args.l1_code is not None and args.l1_code.upper() != "C1C":
             raise ModelError(f"--c1-corrections applies to --l1-code C1C, not {args.l1_code}")
@@ -165,6 +184,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
             tlim=tuple(args.tlim) if args.tlim else None,
             progress=lambda label, fraction: _say(args, f"reading {label}: {100 * fraction:3.0f} %"),
             c1_corrections=args.c1_corrections,
+            system=getattr(args, "system", "G"),
         )
     except DataFileError as exc:
         if l1_note and f"({l1})" in str(exc):
@@ -255,7 +275,10 @@ def _read_orbit(args: argparse.Namespace) -> Any:
 
     if args.nav and len(args.nav) > 1:
         raise ModelError(f"{len(args.nav)} --nav files for one day of observations: give one")
-    return read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0) if args.nav else read_sp3(args.sp3)
+    system = getattr(args, "system", "G")
+    if args.nav:
+        return read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0, systems=(system,))
+    return read_sp3(args.sp3, system=system)
 
 
 def _pivot(args: argparse.Namespace, svs: Sequence[str]) -> str | None:
@@ -375,6 +398,13 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     _add_tec_field_arguments(p)
     _add_levelling_arguments(p)
     _add_model_arguments(p)
+    p.add_argument(
+        "--system",
+        choices=sorted(_SYSTEM_CODES),
+        default="G",
+        help="satellite system: G (GPS, default) or E (Galileo: RINEX 3 or RINEX 2.11 mixed observations, e.g. "
+        "--l1-code C1X --l2-code C5X; orbits from a mixed --nav file or a multi-GNSS --sp3)",
+    )
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_ionosphere)
     parser: argparse.ArgumentParser = p

@@ -87,8 +87,10 @@ def network_data(
     tlim: tuple[str, str] | None = None,
     progress: Any = None,
     c1_corrections: str | None = None,
+    system: str = "G",
 ) -> Any:
     """Read the stations (the read stage), then :func:`network_from_observations`. ``l1_code``: the first code;
+    ``system``: the satellite system read (``G``, or ``E`` Galileo);
     ``c1_corrections``: a Bias-SINEX product whose C1C−C1W DSBs are removed from C1C (the receivers' DSBs keep
     their own code pair). Errors name the file: unreadable files, missing code types, a station without any epoch
     with both codes; a navigation or SP3 file of another day is named, not left to the elevation mask."""
@@ -104,6 +106,7 @@ def network_data(
         phases=options.levelling,
         progress=progress,
         l1_fallback="C1W" if c1_corrections else None,
+        system=system,
     )
     check_orbit_day(orbit, obs)  # another day's orbits: named (issue 29), not left to the mask
     own = {o.station: dict(o.codes) for o in obs}  # the receivers' own codes (their DSBs' code pair)

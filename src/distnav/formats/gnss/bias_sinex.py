@@ -455,8 +455,9 @@ def _solution_rows(
         for prn, (v, sd) in sorted(satellites.items())
         if _known(v, sd)
     ]
+    system = next(iter(sorted(satellites)), "G")[:1]  # a station's DSB belongs to the satellites' system
     rows += [
-        _solution_line("G", "G", sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
+        _solution_line(system, system, sta.upper(), *own.get(sta, (obs1, obs2)), t0, t1, v, sd)
         for sta, (v, sd) in sorted(stations.items())
         if _known(v, sd)
     ]

@@ -20,6 +20,7 @@ from distnav.errors import DataFileError, ModelError
 from distnav.formats.gnss.bias_sinex import read_bias_sinex, read_ionex_dcb, resolve_dsb
 from distnav.models.gnss.constants import C_M_S
 from distnav.models.gnss.products import DSBEstimates, ProductDSB
+from distnav.models.gnss.systems import SYSTEM_NAMES
 
 __all__ = [
     "product_dsbs",
@@ -27,6 +28,7 @@ __all__ = [
     "check_orbit_day",
     "check_orbit_times",
     "read_estimates",
+    "estimate_systems",
     "correct_c1",
     "satellite_svns",
 ]
@@ -151,6 +153,7 @@ def product_dsbs(
                     f"{path}: neither a Bias-SINEX file ({exc_sinex}) nor an IONEX file with a DCB block ({exc_ionex})"
                 ) from None
     sinex = [prod for kind, prod, _ in kinds if kind == "sinex"]
+    system = svs[0][0] if svs else "G"  # the stations' DSBs of the satellites' system (E: Galileo receiver DSBs)
     out: list[ProductDSB] = []
     for kind, prod, path in kinds:
         sat: dict[str, float] = {}
@@ -169,7 +172,7 @@ def product_dsbs(
             for r in stations:
                 o1, o2 = (station_codes or {}).get(r, (obs1, obs2))
                 try:
-                    sta[r], chain = resolve_dsb(order, o1, o2, station=r)
+                    sta[r], chain = resolve_dsb(order, o1, o2, station=r, system=system)
                 except ModelError:
                     continue
                 if len(chain) > 1:
@@ -196,16 +199,13 @@ def product_dsbs(
     return out
 
 
-def read_estimates(path: str | Path, *, filter_label: str = "central") -> DSBEstimates:
+def read_estimates(path: str | Path, *, filter_label: str = "central", system: str | None = None) -> DSBEstimates:
     """The DSBs of a ``distnav gnss ionosphere`` output (its folder or ``summary.json``) or of a Bias-SINEX file
-    (one code pair: the most frequent satellite pair in it)."""
+    (one code pair: the most frequent satellite pair of ``system`` in it; default GPS, else the first system with
+    satellite DSBs: :func:`estimate_systems`)."""
     import json
 
-    p = Path(path)
-    if p.is_dir():
-        p = p / "summary.json"
-    if not p.exists():
-        raise DataFileError(f"{p}: file not found")
+    p = _estimates_file(path)
     if p.suffix == ".json":
         try:
             s = json.loads(p.read_text())
@@ -226,27 +226,59 @@ def read_estimates(path: str | Path, *, filter_label: str = "central") -> DSBEst
             days,
         )
     prod = read_bias_sinex(p)
+    found = _sinex_systems(prod)
+    if not found:
+        raise DataFileError(f"{p}: no satellite DSB")
+    sys_ = system or ("G" if "G" in found else found[0])
     pairs: dict[tuple[str, str], int] = {}
     for r in prod.records:
-        if r.kind == "DSB" and r.prn.startswith("G"):
+        if r.kind == "DSB" and r.prn.startswith(sys_):
             pairs[(r.obs1, r.obs2)] = pairs.get((r.obs1, r.obs2), 0) + 1
     if not pairs:
-        raise DataFileError(f"{p}: no GPS satellite DSB")
+        raise DataFileError(f"{p}: no {SYSTEM_NAMES.get(sys_, sys_)} satellite DSB (systems: {' '.join(found)})")
     o1, o2 = max(pairs, key=lambda k: pairs[k])
     sat = {
         r.prn: r.value
         for r in prod.records
-        if r.kind == "DSB" and r.prn.startswith("G") and (r.obs1, r.obs2) == (o1, o2)
+        if r.kind == "DSB" and r.prn.startswith(sys_) and (r.obs1, r.obs2) == (o1, o2)
     }
     sta = {
         r.station[:4].upper(): r.value
         for r in prod.records
-        if r.kind == "DSB" and r.station and r.system == "G" and (r.obs1, r.obs2) == (o1, o2)
+        if r.kind == "DSB" and r.station and r.system == sys_ and (r.obs1, r.obs2) == (o1, o2)
     }
     starts = {r.start for r in prod.records if r.start}
-    found = [_sinex_day(t) for t in starts]
-    days = tuple(sorted({d for d in found if d is not None}))
+    found_days = [_sinex_day(t) for t in starts]
+    days = tuple(sorted({d for d in found_days if d is not None}))
     return DSBEstimates(str(p), o1, o2, sat, sta, days)
+
+
+def _estimates_file(path: str | Path) -> Path:
+    p = Path(path)
+    if p.is_dir():
+        p = p / "summary.json"
+    if not p.exists():
+        raise DataFileError(f"{p}: file not found")
+    return p
+
+
+def _sinex_systems(prod: Any) -> list[str]:
+    """The system letters of a Bias-SINEX product's satellite DSBs, GPS first, then in file order."""
+    found: list[str] = []
+    for r in prod.records:
+        if r.kind == "DSB" and r.prn and not r.station and r.prn[:1] not in found:
+            found.append(r.prn[:1])
+    return sorted(found, key=lambda s: (s != "G", found.index(s)))
+
+
+def estimate_systems(path: str | Path, *, filter_label: str = "central") -> list[str]:
+    """The satellite systems of an estimates file (:func:`read_estimates`), GPS first: one per ``gnss compare``
+    table."""
+    p = _estimates_file(path)
+    if p.suffix == ".json":
+        est = read_estimates(p, filter_label=filter_label)
+        return sorted({s[:1] for s in est.satellite}, key=lambda s: (s != "G", s)) or ["G"]
+    return _sinex_systems(read_bias_sinex(p)) or ["G"]
 
 
 def _sinex_day(t: str) -> np.datetime64 | None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +54,7 @@ __all__ = [
     "CODE_PREFERENCE",
     "SYSTEM_CODE_PREFERENCE",
     "RINEX2_RECEIVER_ATTRIBUTES",
+    "RINEX2_GALILEO_ATTRIBUTES",
 ]
 
 CODE_PREFERENCE: dict[int, tuple[str, ...]] = {
@@ -160,7 +162,7 @@ def read_code_observations(
         chosen = _rinex3_codes(p, types, bands, forced, system)
         file_types, notes = dict(chosen), list[str]()
     else:
-        chosen, file_types, notes = _rinex2_codes(p, types, bands, forced, hdr.receiver)
+        chosen, file_types, notes = _rinex2_codes(p, types, bands, forced, hdr.receiver, system)
     phase_types: dict[int, str] = {}
     for b in bands if phases else ():
         ph = _phase_type(b, chosen[b], file_types[b], types, hdr.version >= 3)
@@ -208,11 +210,12 @@ def _rinex3_codes(
 
 
 def _rinex2_codes(
-    p: Path, types: Sequence[str], bands: Sequence[int], forced: Mapping[int, str], receiver: str
+    p: Path, types: Sequence[str], bands: Sequence[int], forced: Mapping[int, str], receiver: str, system: str = "G"
 ) -> tuple[dict[int, str], dict[int, str], list[str]]:
-    """The RINEX 3 code and the RINEX 2 type read per band of a RINEX 2 (GPS) file, and the notes on ``C2``/``C5``
-    read by receiver make (:data:`RINEX2_RECEIVER_ATTRIBUTES`)."""
-    amap, make = _rinex2_attribute_map(receiver)
+    """The RINEX 3 code and the RINEX 2 type read per band of a RINEX 2 file, and the notes on the types whose
+    tracking mode the receiver make decides (GPS ``C2``/``C5``: :data:`RINEX2_RECEIVER_ATTRIBUTES`; Galileo:
+    :data:`RINEX2_GALILEO_ATTRIBUTES`)."""
+    amap, make = _rinex2_attribute_map(receiver) if system == "G" else _rinex2_galileo_map(receiver)
     inverse: dict[str, list[str]] = {}
     for r2, r3 in amap.items():
         inverse.setdefault(r3, []).append(r2)
@@ -220,7 +223,7 @@ def _rinex2_codes(
     file_types: dict[int, str] = {}
     notes: list[str] = []
     for b in bands:
-        prefs = (forced[b],) if b in forced else CODE_PREFERENCE.get(b, ())
+        prefs = (forced[b],) if b in forced else SYSTEM_CODE_PREFERENCE[system].get(b, ())
         pair = next(((c3, r2) for c3 in prefs for r2 in inverse.get(c3, []) if r2 in types), None)
         if pair is None:
             r2_names = [r2 for c3 in prefs for r2 in inverse.get(c3, [])]
@@ -229,12 +232,25 @@ def _rinex2_codes(
                 f"file; types present: {' '.join(types)}"
             )
         chosen[b], file_types[b] = pair
-        if pair[1] in ("C2", "C5"):
+        if pair[1] in ("C2", "C5") or system != "G":
             notes.append(
                 f"RINEX 2 {pair[1]} read as {pair[0]} "
                 f"({'receiver ' + make if make else 'unknown receiver make: default'})"
             )
     return chosen, file_types, notes
+
+
+RINEX2_GALILEO_ATTRIBUTES: dict[str, str] = {"SEPT": "CQQQ", "LEICA": "CQQQ", "TRIMBLE": "XXXX", "JAVAD": "XXXX"}
+"""Galileo in RINEX 2.11 (``C1 C5 C7 C8``): the RINEX 3 attributes of E1, E5a, E5b, E5 by receiver make
+(Septentrio tracks the pilots: C1C C5Q C7Q C8Q, as CAS lists DGAR's receiver DSB C1C−C5Q; Trimble data+pilot X);
+an unknown make gets X."""
+
+
+def _rinex2_galileo_map(receiver: str) -> tuple[dict[str, str], str]:
+    rx = receiver.upper()
+    make = next((k for k in RINEX2_GALILEO_ATTRIBUTES if k in rx), "")
+    attributes = RINEX2_GALILEO_ATTRIBUTES.get(make, "XXXX")
+    return {f"C{b}": f"C{b}{a}" for b, a in zip("1578", attributes, strict=True)}, make
 
 
 def _ranges_m(values: Mapping[str, np.ndarray], file_types: Mapping[int, str]) -> dict[int, np.ndarray]:
@@ -323,8 +339,9 @@ def read_navigation(
     return BroadcastOrbit.from_records(columns, max_age_s=max_age_s, source=str(p))
 
 
-def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3Orbit:
-    """GPS orbits of one or more SP3 files (consecutive days are concatenated), Lagrange-interpolated."""
+def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9, system: str = "G") -> SP3Orbit:
+    """The orbits of one system (GPS by default; ``E`` Galileo, ``C`` BeiDou of a multi-GNSS product) of one or
+    more SP3 files (consecutive days are concatenated), Lagrange-interpolated."""
     items = [paths] if isinstance(paths, (str, Path)) else list(paths)
     gr = _georinex()
     datasets = []
@@ -352,7 +369,7 @@ def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9) -> SP3
         if ds is None or "position" not in getattr(ds, "data_vars", {}):
             raise DataFileError(f"{p}: not an SP3 orbit file")
         datasets.append(ds)
-    return SP3Orbit.from_datasets(datasets, order=order, source=", ".join(str(i) for i in items))
+    return SP3Orbit.from_datasets(datasets, system=system, order=order, source=", ".join(str(i) for i in items))
 
 
 def read_stations(
@@ -365,9 +382,11 @@ def read_stations(
     phases: bool = False,
     progress: ProgressCallback | None = None,
     l1_fallback: str | None = None,
+    system: str = "G",
 ) -> list[CodeObservations]:
-    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of every station; a file without
-    ``l1_code`` on L1 is read with ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
+    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of one system (``system``: GPS,
+    or ``E`` Galileo from RINEX 3 files) of every station; a file without ``l1_code`` on L1 is read with
+    ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
     if not paths:
         raise DataFileError("no observation file given")
     band = int(l2_code[1])
@@ -376,7 +395,14 @@ def read_stations(
     def read(p: str | Path) -> CodeObservations:
         try:
             return read_code_observations(
-                p, bands=(1, band), codes=codes, tlim=tlim, interval_s=interval_s, phases=phases, progress=progress
+                p,
+                bands=(1, band),
+                codes=codes,
+                tlim=tlim,
+                interval_s=interval_s,
+                phases=phases,
+                progress=progress,
+                system=system,
             )
         except DataFileError as exc:
             if l1_fallback is None or "no L1 code observation" not in str(exc):
@@ -389,9 +415,23 @@ def read_stations(
             interval_s=interval_s,
             phases=phases,
             progress=progress,
+            system=system,
         )
 
-    obs = [read(p) for p in paths]
+    def read_any_mode(p: str | Path) -> CodeObservations:
+        """Galileo: a station without the named code of a band is read with its own (C1C/C5Q for C1X/C5X)."""
+        try:
+            return read(p)
+        except DataFileError as exc:
+            if system == "G" or "code observation" not in str(exc):
+                raise
+        o = read_code_observations(
+            p, bands=(1, band), tlim=tlim, interval_s=interval_s, phases=phases, progress=progress, system=system
+        )
+        note = f"codes {o.codes[1]}/{o.codes[band]} (no {codes[1]}/{codes[band]}): its receiver DSB is of its own pair"
+        return replace(o, notes=(*o.notes, note))
+
+    obs = [read_any_mode(p) for p in paths]
     stations = [o.station for o in obs]
     dup = sorted({s for s in stations if stations.count(s) > 1})
     if dup:

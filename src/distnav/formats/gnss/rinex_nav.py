@@ -18,7 +18,7 @@ georinex 2 fails), and fields are read at their columns even when a line is shor
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from datetime import datetime
 from pathlib import Path
 
@@ -27,7 +27,13 @@ import numpy as np
 from distnav.errors import DataFileError
 from distnav.formats.gnss.rinex_obs import read_text_file
 
-__all__ = ["GPS_NAV_FIELDS", "check_navigation_file", "read_ephemerides", "read_gps_ephemerides"]
+__all__ = [
+    "GPS_NAV_FIELDS",
+    "check_navigation_file",
+    "read_ephemerides",
+    "read_glonass_ephemerides",
+    "read_gps_ephemerides",
+]
 
 GPS_NAV_FIELDS: tuple[str, ...] = (
     "SVclockBias",
@@ -127,13 +133,23 @@ def read_ephemerides(path: str | Path, *, systems: Sequence[str] = ("G",)) -> di
     """
     p = Path(path)
     lines = read_text_file(p, whole_lines=True)
+    wanted = {x for x in systems if x in _KEPLER_SYSTEMS}
+    found: dict[str, list[tuple[datetime, list[float]]]] = {}
+    for k, system, rinex3 in _records(p, lines):
+        if system in wanted:
+            sv, toc, vals = _record(p, lines, k, rinex3, 8)
+            found.setdefault(sv, []).append((toc, vals[: len(GPS_NAV_FIELDS)]))
+    return {sv: _columns(sv, recs) for sv, recs in found.items()}
+
+
+def _records(p: Path, lines: Sequence[str]) -> Iterator[tuple[int, str, bool]]:
+    """Every record of a navigation file after its checks (:func:`_check_first_line`, the end of the header, the
+    record's id, epoch and continuation lines): its first line, system letter and whether the file is RINEX 3."""
     version, gps_file = _check_first_line(p, lines)
     end = next((k for k, line in enumerate(lines) if line[60:73] == "END OF HEADER"), None)
     if end is None:
         raise DataFileError(f"{p}: no END OF HEADER line (the header is incomplete or the file is not RINEX)")
     rinex3 = version >= 3
-    wanted = set(systems)
-    found: dict[str, list[tuple[datetime, list[float]]]] = {}
     k, n_lines = end + 1, len(lines)
     while k < n_lines:
         line = lines[k]
@@ -142,12 +158,8 @@ def read_ephemerides(path: str | Path, *, systems: Sequence[str] = ("G",)) -> di
             continue
         n = _rinex3_record_lines(p, lines, k) if rinex3 else _rinex2_record_lines(p, line, k, gps_file)
         _check_continuation(p, lines, k, n)
-        system = line[0] if rinex3 else ("G" if gps_file else "R")
-        if system in wanted and system in _KEPLER_SYSTEMS:
-            sv, toc, vals = _kepler_record(p, lines, k, rinex3)
-            found.setdefault(sv, []).append((toc, vals))
+        yield k, (line[0] if rinex3 else ("G" if gps_file else "R")), rinex3
         k += n
-    return {sv: _columns(sv, recs) for sv, recs in found.items()}
 
 
 _KEPLER_SYSTEMS = ("G", "E", "C")
@@ -225,19 +237,18 @@ def _check_continuation(p: Path, lines: Sequence[str], k: int, n: int) -> None:
             )
 
 
-def _kepler_record(p: Path, lines: Sequence[str], k: int, rinex3: bool) -> tuple[str, datetime, list[float]]:
-    """The satellite, time of clock (the system's time scale) and fields of the 8-line record at ``k``."""
+def _record(p: Path, lines: Sequence[str], k: int, rinex3: bool, n: int) -> tuple[str, datetime, list[float]]:
+    """The satellite, epoch (the system's time scale) and numbers of the ``n``-line record at ``k``."""
     line = lines[k]
     first_starts, starts = ((23, 42, 61), (4, 23, 42, 61)) if rinex3 else ((22, 41, 60), (3, 22, 41, 60))
     vals: list[float] = []
     _numbers(p, k + 1, line, first_starts, vals)
-    for j in range(1, 8):
+    for j in range(1, n):
         _numbers(p, k + 1 + j, lines[k + j], starts, vals)
     if rinex3:
         sv = line[0] + line[1:3].replace(" ", "0")
         y, mo, d, h, mi, sec = (int(line[a:b]) for a, b in ((4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23)))
-        toc = datetime(y, mo, d, h, mi, sec)
-        return sv, toc, vals[: len(GPS_NAV_FIELDS)]
+        return sv, datetime(y, mo, d, h, mi, sec), vals
     try:
         toc = _rinex2_time(line)
     except ValueError:
@@ -245,7 +256,7 @@ def _kepler_record(p: Path, lines: Sequence[str], k: int, rinex3: bool) -> tuple
             f"{p}, line {k + 1}: the epoch second (columns 18-22): expected a number such as ' 0.0', "
             f"got {line[17:22].strip()!r}"
         ) from None
-    return f"G{int(line[:2]):02d}", toc, vals[: len(GPS_NAV_FIELDS)]
+    return f"{'R' if n == 4 else 'G'}{int(line[:2]):02d}", toc, vals
 
 
 def _columns(sv: str, recs: list[tuple[datetime, list[float]]]) -> dict[str, np.ndarray]:
@@ -265,6 +276,39 @@ def _columns(sv: str, recs: list[tuple[datetime, list[float]]]) -> dict[str, np.
         cols["toc_s"] = cols["toc_s"] - offset
     cols["time_offset_s"] = np.full(len(keep), offset)
     return cols
+
+
+def read_glonass_ephemerides(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
+    """The GLONASS records of a RINEX 2 GLONASS (``.g``) or RINEX 3 mixed navigation file, per satellite (``R01``),
+    in t_b order: ``tb_gps_s`` (the record's UTC epoch + the header's ``LEAP SECONDS``, 18 s when absent),
+    ``state`` (K, 6) position and velocity [m, m/s], ``accel`` (K, 3) [m/s²], ``clock_bias_s`` (−τ_n),
+    ``health``, ``channel`` (RINEX 2.11 Table A11 / 3.05 A10: X, Ẋ, Ẍ, health; Y…, channel; Z…, age; km)."""
+    from distnav.models.gnss.orbits import gps_seconds
+
+    p = Path(path)
+    lines = read_text_file(p, whole_lines=True)
+    end = next((k for k, line in enumerate(lines) if line[60:73] == "END OF HEADER"), len(lines))
+    leap = next((int(ln[:6]) for ln in lines[:end] if ln[60:73] == "LEAP SECONDS" and ln[:6].strip()), 18)
+    found: dict[str, list[tuple[datetime, list[float]]]] = {}
+    for k, system, rinex3 in _records(p, lines):
+        if system == "R":
+            sv, epoch, vals = _record(p, lines, k, rinex3, 4)
+            found.setdefault(sv, []).append((epoch, vals[:15]))
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for sv, recs in found.items():
+        recs.sort(key=lambda r: r[0])
+        keep = [r for i, r in enumerate(recs) if i == 0 or r[0] != recs[i - 1][0]]
+        v = np.array([r[1] for r in keep], dtype=float)
+        tb = gps_seconds(np.array([np.datetime64(r[0], "ns") for r in keep])) + leap
+        out[sv] = {
+            "tb_gps_s": tb,
+            "clock_bias_s": v[:, 0],
+            "state": 1e3 * v[:, [3, 7, 11, 4, 8, 12]],
+            "accel": 1e3 * v[:, [5, 9, 13]],
+            "health": v[:, 6],
+            "channel": v[:, 10],
+        }
+    return out
 
 
 def check_navigation_file(path: str | Path) -> None:

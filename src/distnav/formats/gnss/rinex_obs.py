@@ -15,10 +15,7 @@ flag 6 (cycle-slip records) skipped. Satellite identifiers without a system lett
 
 from __future__ import annotations
 
-import gzip
-import io
 import logging
-import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +24,13 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import DataFileError
+from distnav.formats.gnss.compressed import (
+    COMPRESSED_MAGIC,
+    _ends_with_newline,
+    _text_lines,
+    read_bytes,
+    read_text_file,
+)
 from distnav.models.gnss.code_observations import ProgressCallback
 from distnav.models.gnss.systems import SYSTEM_NAMES
 
@@ -70,9 +74,9 @@ class RinexHeader:
     glonass_channels: dict[str, int] = field(default_factory=dict)
 
     def types_of(self, system: str) -> tuple[str, ...]:
-        """The observation types of one system (RINEX 2: every type is shared, and only GPS is read)."""
+        """The observation types of one system (RINEX 2: every type is shared; GPS and Galileo are read)."""
         if self.version < 3:
-            return self.gps_types if system == "G" else ()
+            return self.gps_types if system in RINEX2_SYSTEMS else ()
         return self.types_by_system.get(system, ())
 
 
@@ -86,96 +90,6 @@ class RawObservations:
     svs: tuple[str, ...]
     values: dict[str, np.ndarray]
     lli: dict[str, np.ndarray]
-
-
-COMPRESSED_MAGIC = (b"\x1f\x9d", b"BZh", b"PK\x03\x04")  # Unix compress (.Z), bzip2, zip
-
-
-def _unix_decompress(raw: bytes, path: Path) -> bytes:
-    try:
-        import ncompress  # installed with hatanaka (the gnss extra)
-    except ImportError:
-        from distnav._optional import install_hint
-
-        raise DataFileError(
-            f"{path}: Unix-compressed (.Z); install the 'ncompress' package ({install_hint('gnss')})"
-        ) from None
-    out: bytes = ncompress.decompress(raw)
-    return out
-
-
-def _decompress(path: Path, raw: bytes) -> bytes:
-    """``raw`` decompressed by content (gzip, Unix compress, bzip2, zip; unchanged when none of them);
-    :class:`DataFileError` naming the file and the format when the compressed data are broken."""
-    if raw[:2] == b"\x1f\x8b":
-        try:
-            raw = gzip.decompress(raw)
-        except EOFError:
-            raise DataFileError(f"{path}: the gzip data end early (the file is truncated; download it again)") from None
-        except OSError:  # gzip.BadGzipFile and zlib errors
-            raise DataFileError(
-                f"{path}: starts like gzip but is not valid gzip data (expected a .gz file written by gzip)"
-            ) from None
-    if raw.startswith(COMPRESSED_MAGIC):
-        kind = "Unix compress (.Z)" if raw[:2] == b"\x1f\x9d" else "bzip2" if raw[:3] == b"BZh" else "zip"
-        try:
-            if raw[:2] == b"\x1f\x9d":
-                raw = _unix_decompress(raw, path)
-            elif raw[:3] == b"BZh":
-                import bz2
-
-                raw = bz2.decompress(raw)
-            else:
-                with zipfile.ZipFile(io.BytesIO(raw)) as z:
-                    names = z.namelist()
-                    if len(names) != 1:
-                        raise DataFileError(f"{path}: a zip archive of {len(names)} files (one expected)")
-                    raw = z.read(names[0])
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile):
-            raise DataFileError(
-                f"{path}: starts like {kind} data but could not be decompressed (truncated or "
-                f"not {kind}; download it again)"
-            ) from None
-    return raw
-
-
-def read_bytes(path: Path) -> bytes:
-    """A file's bytes, decompressed by content: gzip, Unix compress (``.Z``, older IGS archives), bzip2, zip (Hatanaka
-    compression is left to the caller)."""
-    if not path.exists():
-        raise DataFileError(f"{path}: file not found")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise DataFileError(f"{path}: cannot read the file ({exc.strerror or 'read error'})") from None
-    return _decompress(path, raw)
-
-
-def _text_lines(path: Path, raw: bytes) -> list[str]:
-    nul = raw.find(b"\x00")
-    if nul >= 0:
-        line = raw.count(b"\n", 0, nul) + 1
-        raise DataFileError(
-            f"{path}, line {line}: binary data (NUL bytes): expected a plain ASCII text file "
-            f"(not UTF-16, not a binary format)"
-        )
-    return raw.decode("latin-1").splitlines()
-
-
-def read_text_file(path: Path, *, whole_lines: bool = False) -> list[str]:
-    """The lines of a plain or compressed (:func:`read_bytes`) text file, decoded as latin-1 (any byte is accepted);
-    broken compressed data and a file with NUL bytes (binary data, UTF-16) are refused naming the file (and line).
-    ``whole_lines``: a file that ends inside a line (no final newline: a cut download) is refused too."""
-    raw = read_bytes(path)
-    if whole_lines:
-        _ends_with_newline(path, raw)
-    return _text_lines(path, raw)
-
-
-def _ends_with_newline(path: Path, raw: bytes) -> None:
-    if raw and not raw.endswith(b"\n"):  # records are lines: a cut download ends inside one
-        last = raw.count(b"\n") + 1
-        raise DataFileError(f"{path}, line {last}: the file ends inside a line (no final newline): it is truncated")
 
 
 def read_lines(path: Path) -> list[str]:
@@ -308,7 +222,8 @@ def read_observation_types(
     system: str = "G",
 ) -> RawObservations:
     """Read the observations of ``types`` of one satellite system (``system``: ``G`` GPS, ``E`` Galileo, ``C``
-    BeiDou, ``R`` GLONASS, … — RINEX 3 only for systems other than GPS), names as in the file: RINEX 3 ``C1C``,
+    BeiDou, ``R`` GLONASS, … — RINEX 3 only for systems other than GPS and Galileo), names as in the file: RINEX
+    3 ``C1C``,
     RINEX 2 ``C1``/``P2``….
 
     ``tlim`` (inclusive datetime64 bounds) and ``interval_s`` (keep epochs whose time of day is a multiple) select
@@ -356,7 +271,7 @@ def observations_from_lines(
 def _type_columns(p: Path, hdr: RinexHeader, types: Sequence[str], system: str) -> list[int]:
     """The index of each requested type among the system's types in the header, or the error naming the missing."""
     name = SYSTEM_NAMES.get(system, system)
-    if system != "G" and hdr.version < 3:
+    if system not in RINEX2_SYSTEMS and hdr.version < 3:
         raise DataFileError(f"{p}: {name} observations are read from RINEX 3 files only (this file is RINEX 2)")
     have = hdr.types_of(system)
     missing = [t for t in types if t not in have]
@@ -367,14 +282,18 @@ def _type_columns(p: Path, hdr: RinexHeader, types: Sequence[str], system: str) 
     return [have.index(t) for t in types]
 
 
+RINEX2_SYSTEMS = ("G", "E")
+"""Systems read from RINEX 2.11 files (their satellites share the file's types: ``C1``, ``C5``…)."""
+
 _MAX_PRN = {"G": _N_PRN}  # GPS keeps its 1-39 (test PRNs above 32); other systems up to 63 (BeiDou C01-C63)
 _MAX_PRN_OTHER = 64
 
 
 class _Scan:
-    """One pass over a file's observation records: the epochs kept and, per epoch, a (PRN, type) table of values
-    and loss-of-lock indicators of one system. ``k`` (the line being read) and ``epoch`` name the place of an
-    error (:class:`_Bad`)."""
+    """One pass over a file's observation records: the epochs kept and every non-blank value of the requested
+    types of one system, collected as flat lists (epoch, PRN, type, value, loss-of-lock) and put into arrays once
+    at the end (:meth:`result`). ``k`` (the line being read) and ``epoch`` name the place of an error
+    (:class:`_Bad`)."""
 
     def __init__(
         self,
@@ -388,6 +307,7 @@ class _Scan:
     ) -> None:
         self.path, self.lines, self.hdr, self.columns, self.system = path, lines, hdr, columns, system
         self.progress, self.name = progress, name
+        self.types = [hdr.types_of(system)[c] for c in columns]
         self.n_prn = _MAX_PRN.get(system, _MAX_PRN_OTHER)
         self.k = hdr.header_lines
         self.epoch: np.datetime64 | None = None
@@ -395,8 +315,7 @@ class _Scan:
         self.hi: Any = None
         self.step_ns = 0
         self.times: list[np.datetime64] = []
-        self.rows: list[np.ndarray] = []
-        self.lrows: list[np.ndarray] = []
+        self.cells: tuple[list[int], list[int], list[int], list[float], list[int]] = ([], [], [], [], [])
 
     def select(self, tlim: tuple[np.datetime64, np.datetime64] | None, interval_s: float | None) -> None:
         if tlim is not None:
@@ -413,14 +332,37 @@ class _Scan:
                 next_report += 0.1
             epoch_record(lines[self.k])
 
-    def _table(self) -> tuple[np.ndarray, np.ndarray]:
-        nt = len(self.columns)
-        return np.full((self.n_prn, nt), np.nan), np.zeros((self.n_prn, nt), np.int8)
-
-    def _keep(self, t: np.datetime64, vals: np.ndarray, lli: np.ndarray) -> None:
-        self.times.append(t)
-        self.rows.append(vals)
-        self.lrows.append(lli)
+    def _line(self, line: str, starts: Sequence[int], prn: int) -> None:
+        """The values of one satellite's line(s) at the field ``starts`` (one per requested type; -1: not on
+        this line) into :attr:`cells`."""
+        t = len(self.times)
+        ti, pi, ji, vi, li = self.cells
+        for j, a in enumerate(starts):
+            if a < 0:
+                continue
+            f = line[a : a + 14]
+            if not f or f.isspace():
+                continue
+            try:
+                if len(f) != 14 or f[10] != ".":
+                    raise ValueError
+                value = float(f)
+            except ValueError:
+                raise _Bad(
+                    f"{self.types[j]} of {self.system}{prn:02d} (columns {a + 1}-{a + 14}): expected a number in "
+                    f"F14.3 (e.g. '  22000000.123'), got {f!r}"
+                ) from None
+            ll = line[a + 14 : a + 15]
+            if ll and ll != " " and not "0" <= ll <= "9":
+                raise _Bad(
+                    f"loss-of-lock indicator of {self.types[j]}, {self.system}{prn:02d} (column {a + 15}): "
+                    f"expected a digit 0-7, got {ll!r}"
+                )
+            ti.append(t)
+            pi.append(prn)
+            ji.append(j)
+            vi.append(value)
+            li.append(ord(ll) - 48 if ll and ll != " " else 0)
 
     def _rinex3_epoch(self, line: str) -> None:
         """One RINEX 3 epoch (``>`` line, one line per satellite), from the line ``k``."""
@@ -439,25 +381,19 @@ class _Scan:
         self.k = start + nsat
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
-        vals, lli = self._table()
         system = self.system
+        starts = [3 + 16 * c for c in self.columns]
         for i, sl in enumerate(sat_lines):
+            self.k = start + i
             if sl[:1] != system or not sl[1:3].strip().isdigit():
                 if not (sl[:1].isalpha() and sl[1:3].strip().isdigit()):
-                    self.k = start + i
                     raise _Bad(
                         f"expected a satellite line starting with its id (e.g. G01) in columns 1-3, got {sl[:12]!r}"
                     )
                 continue
-            self.k = start + i
-            prn = _prn(sl[1:3], system, self.n_prn)
-            for j, c in enumerate(self.columns):
-                _value(sl, 3 + 16 * c, vals, lli, prn, j, self._type(j), system)
+            self._line(sl, starts, _prn(sl[1:3], system, self.n_prn))
         self.k = start + nsat
-        self._keep(t, vals, lli)
-
-    def _type(self, j: int) -> str:
-        return self.hdr.types_of(self.system)[self.columns[j]]
+        self.times.append(t)
 
     def _rinex2_epoch(self, line: str) -> None:
         """One RINEX 2 epoch (satellite list on the epoch line and its continuations, ⌈types/5⌉ lines per
@@ -493,26 +429,31 @@ class _Scan:
         self.k = start + nsat * n_per_sat
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
-        vals, lli = self._table()
+        per_line = [[16 * (c % 5) if c // 5 == r else -1 for c in self.columns] for r in range(n_per_sat)]
+        used = [r for r in range(n_per_sat) if any(a >= 0 for a in per_line[r])]
         for s, sv in enumerate(sats):
-            if sv[:1] not in ("G", " "):
+            if sv[:1] != self.system and not (self.system == "G" and sv[:1] == " "):
                 continue
             self.k = k0  # a bad satellite list is on the epoch line (or its continuation)
-            prn = _prn(sv[1:3], "G", self.n_prn)
-            for j, c in enumerate(self.columns):
-                self.k = start + s * n_per_sat + c // 5
-                _value(block[s * n_per_sat + c // 5], 16 * (c % 5), vals, lli, prn, j, self._type(j), "G")
+            prn = _prn(sv[1:3], self.system, self.n_prn)
+            for r in used:
+                self.k = start + s * n_per_sat + r
+                self._line(block[s * n_per_sat + r], per_line[r], prn)
         self.k = start + nsat * n_per_sat
-        self._keep(t, vals, lli)
+        self.times.append(t)
 
     def result(self, tlim: Any) -> RawObservations:
         """The epochs kept and the satellites seen with any of the types (PRN order)."""
-        p, name = self.path, SYSTEM_NAMES.get(self.system, self.system)
-        types = [self._type(j) for j in range(len(self.columns))]
+        p, name, types = self.path, SYSTEM_NAMES.get(self.system, self.system), self.types
         if not self.times:
             raise DataFileError(f"{p}: no {name} observation epochs" + (f" in {tlim}" if tlim is not None else ""))
-        V = np.stack(self.rows)  # (T, PRN, types)
-        L = np.stack(self.lrows)
+        shape = (len(self.times), self.n_prn, len(types))
+        V = np.full(shape, np.nan)  # (T, PRN, types)
+        L = np.zeros(shape, np.int8)
+        ti, pi, ji, vi, li = (np.asarray(c) for c in self.cells)
+        if ti.size:
+            V[ti, pi, ji] = vi
+            L[ti, pi, ji] = li
         seen = np.flatnonzero(np.isfinite(V).any(axis=(0, 2)))
         if seen.size == 0:
             raise DataFileError(f"{p}: no {name} satellites observed with {' '.join(types)}")
@@ -564,34 +505,6 @@ def _epoch(year: str, month: str, day: str, hour: str, minute: str, second: str)
 def _complete(have: int, need: int, what: str) -> None:
     if have < need:
         raise _Bad(f"the epoch announces {need} {what}, the file ends after {have}: the file is truncated")
-
-
-def _value(
-    line: str, start: int, vals: np.ndarray, lli: np.ndarray, prn: int, j: int, obs_type: str, system: str = "G"
-) -> None:
-    """One F14.3 observation (columns ``start``+1..+14) and its loss-of-lock digit into ``vals``/``lli``."""
-    f = line[start : start + 14]
-    if not f.strip():
-        return
-    ok = len(f) == 14 and f[10] == "."
-    try:
-        value = float(f) if ok else 0.0
-    except ValueError:
-        ok = False
-    if not ok:
-        raise _Bad(
-            f"{obs_type} of {system}{prn:02d} (columns {start + 1}-{start + 14}): expected a number in F14.3 "
-            f"(e.g. '  22000000.123'), got {f!r}"
-        )
-    vals[prn, j] = value
-    ll = line[start + 14 : start + 15]
-    if ll.strip():
-        if not ll.isdigit():
-            raise _Bad(
-                f"loss-of-lock indicator of {obs_type}, {system}{prn:02d} (column {start + 15}): expected a digit "
-                f"0-7, got {ll!r}"
-            )
-        lli[prn, j] = int(ll)
 
 
 def on_grid(time: np.ndarray, interval_s: float) -> np.ndarray:

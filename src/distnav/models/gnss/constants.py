@@ -53,8 +53,11 @@ WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
 F_L1_HZ = 1575.42e6
 F_L2_HZ = 1227.60e6
 F_L5_HZ = 1176.45e6
-GPS_FREQUENCIES_HZ: dict[int, float] = {1: F_L1_HZ, 2: F_L2_HZ, 5: F_L5_HZ}
-"""GPS carrier frequencies by RINEX band number (1 = L1, 2 = L2, 5 = L5)."""
+GPS_FREQUENCIES_HZ: dict[int, float] = {1: F_L1_HZ, 2: F_L2_HZ, 5: F_L5_HZ, 7: 1207.14e6, 8: 1191.795e6}
+"""Carrier frequencies by RINEX band number (1 = L1, 2 = L2, 5 = L5) of GPS, and of Galileo, whose E1 and E5a are
+GPS's L1 and L5 and whose E5b (7) and E5 (8) no GPS signal uses: each of these band numbers means one
+frequency in both systems, so the GPS-band models (μ, levelling) serve Galileo unchanged. The BeiDou and GLONASS
+frequencies differ per band number: :mod:`distnav.models.gnss.systems`."""
 
 IONO_HEIGHT_M = 450e3
 """Height of the single ionospheric layer [m] (paper 003 §5)."""
@@ -74,12 +77,14 @@ NS_TO_M = C_M_S * 1e-9
 def mu(band: int, reference_band: int = 1) -> float:
     """The ionospheric coefficient μ_j = (f₁/f_j)² of paper 000, §5.1 (eq. (25) and after).
 
-    ``band`` and ``reference_band`` are RINEX band numbers (1, 2, 5). μ₁ = 1 by definition.
+    ``band`` and ``reference_band`` are RINEX band numbers (GPS 1, 2, 5; Galileo 1, 5, 7, 8). μ₁ = 1 by definition.
     """
     try:
         return (GPS_FREQUENCIES_HZ[reference_band] / GPS_FREQUENCIES_HZ[band]) ** 2
     except KeyError as exc:
-        raise ValueError(f"unknown GPS band {exc.args[0]!r}; use one of {sorted(GPS_FREQUENCIES_HZ)}") from None
+        raise ValueError(
+            f"unknown GPS band {exc.args[0]!r} (or Galileo band); use one of {sorted(GPS_FREQUENCIES_HZ)}"
+        ) from None
 
 
 # a quick self-consistency guard (module import fails loudly if a constant is mistyped)
