@@ -193,7 +193,7 @@ def test_silent_node_runs(case):
         (dict(messages="edges"), "messages must be"),
         (dict(x_update="lu"), "unknown x-update method"),
         (dict(max_iterations=-1), "max_iterations must be"),
-        (dict(tol=-1.0), "tolerances must be"),
+        (dict(tol=-1.0), "tol \\(relative tolerance\\) must be 0 or more"),
         (dict(reference=np.zeros(3)), "reference must be a length-6"),
         (dict(init="previous"), "init must be 'zero'"),
         (dict(init=np.zeros(5)), "init must be a scalar"),

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from distnav._checks import real_number
 from distnav.algorithms.kalman.dynamics import DynamicModel
 from distnav.algorithms.kalman.kernel import InformationKernel, masked_std, pseudo_inverse_psd
 from distnav.algorithms.kalman.measurements import MeasurementSeries, check_model
@@ -22,11 +23,8 @@ def consensus_rounds(sampling_interval_s: float, sending_interval_s: float) -> i
 
     Δ = 60 s with δ = 15, 10, 5 s gives 4, 6, 12 (paper 003 §5.2).
     """
-    D, d = float(sampling_interval_s), float(sending_interval_s)
-    if not (math.isfinite(D) and D > 0):
-        raise ModelError(f"sampling interval Δ must be positive, got {sampling_interval_s} s")
-    if not (math.isfinite(d) and d > 0):
-        raise ModelError(f"sending interval δ must be positive, got {sending_interval_s} s")
+    D = real_number(sampling_interval_s, "sampling interval Δ", positive=True, unit="s", error=ModelError)
+    d = real_number(sending_interval_s, "sending interval δ", positive=True, unit="s", error=ModelError)
     if d > D:
         raise ModelError(
             f"sending interval δ = {d} s exceeds the sampling interval Δ = {D} s: no consensus round "

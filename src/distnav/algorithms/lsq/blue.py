@@ -268,6 +268,10 @@ class LinearProblem:
 
 
 # ----------------------------------------------------------------------------------------------- W and rank
+#: The range of an ADMM weight ρ (and of W's entries) whose products and squares stay finite and nonzero in float64.
+MIN_WEIGHT, MAX_WEIGHT = 1e-100, 1e100
+
+
 def weight_matrix(W: ArrayLike, p: int) -> np.ndarray:
     """The ADMM weight matrix: a scalar ``ρ > 0`` gives ``ρ I_p``; a ``(p, p)`` matrix must be symmetric
     positive definite (paper 000, eq. (8))."""
@@ -276,11 +280,18 @@ def weight_matrix(W: ArrayLike, p: int) -> np.ndarray:
         rho = float(arr)
         if not np.isfinite(rho) or rho <= 0:
             raise ModelError(f"the weight ρ must be finite and > 0, got {rho}")
+        if not MIN_WEIGHT <= rho <= MAX_WEIGHT:
+            raise ModelError(
+                f"the weight ρ = {rho:g} is outside {MIN_WEIGHT:g}..{MAX_WEIGHT:g}: ADMM's updates multiply by it and "
+                "its square, which overflow or vanish in float64; scale the observations instead"
+            )
         return rho * np.eye(p)
     if arr.shape != (p, p):
         raise ModelError(f"the weight matrix W must be a scalar ρ or ({p}, {p}), got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ModelError("the weight matrix W has non-finite entries")
+    if np.abs(arr).max() > MAX_WEIGHT:
+        raise ModelError(f"the weight matrix W has entries above {MAX_WEIGHT:g}: its products overflow in float64")
     if np.abs(arr - arr.T).max() > 1e-10 * max(np.abs(arr).max(), 1e-300):
         raise ModelError("the weight matrix W is not symmetric")
     lam = np.linalg.eigvalsh(arr)

@@ -14,6 +14,7 @@ from typing import Any, Literal, TypedDict, get_args
 
 import numpy as np
 
+from distnav._checks import real_number, whole_number
 from distnav.algorithms.lsq.blue import LinearProblem, inestimable_directions, weight_matrix
 from distnav.algorithms.lsq.kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
 from distnav.algorithms.lsq.xupdate import _diagonal_or_none
@@ -142,10 +143,11 @@ def initial_values(init: Any, z0: Any, n: int, p: int) -> tuple[FloatArray, Floa
 
 
 def check_stopping(max_iterations: int, tol: float, atol: float) -> None:
-    if max_iterations < 0:
-        raise ModelError(f"max_iterations must be ≥ 0, got {max_iterations}")
-    if tol < 0 or atol < 0:
-        raise ModelError(f"tolerances must be ≥ 0, got tol={tol}, atol={atol}")
+    """Refuse by name a stopping rule that is not a whole ``max_iterations ≥ 0`` and real tolerances ≥ 0 (not a
+    string, None, a fraction, a bool or a complex number)."""
+    whole_number(max_iterations, "max_iterations", minimum=0, error=ModelError)
+    real_number(tol, "tol (relative tolerance)", minimum=0.0, error=ModelError)
+    real_number(atol, "atol (absolute tolerance)", minimum=0.0, error=ModelError)
 
 
 def _check_estimable(problem: LinearProblem, local: LinearProblem, ex: Exchange, need_blocks: bool) -> None:
