@@ -36,6 +36,7 @@ Linearized at the anchors' estimates with the fit's loss weights (fixed IRLS wei
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 
@@ -52,6 +53,8 @@ from distnav.exchange import Exchange
 
 __all__ = [
     "CentralPrecision",
+    "CentralPrecisionOptions",
+    "CentralPrecisionSettings",
     "central_precision",
     "CENTRAL_MAX_ANCHORS",
     "COVARIANCE_CG_RTOL",
@@ -104,137 +107,106 @@ class CentralPrecision:
         return reduction_cost(n_anchors, self.reductions, 8 * self.reduced_floats)
 
 
+class CentralPrecisionOptions(TypedDict, total=False):
+    """Keyword options of :func:`central_precision`; the defaults and their meaning are
+    :class:`CentralPrecisionSettings`'s."""
+
+    sigma_m: float | np.ndarray
+    loss: str
+    loss_scale_m: float
+    range_offsets: str
+    offset_prior_sigma_m: float
+    delay_sigma_m: float
+    estimate_delays: bool
+    rtol: float
+    max_iterations: int | None
+    variance_scale_m: float | None
+    delay_upper_z: float
+    wire_dtype: type[np.floating]
+
+
+@dataclass(frozen=True)
+class CentralPrecisionSettings:
+    """What :func:`central_precision` computes with, checked once (defaults in brackets).
+
+    ``sigma_m`` [1] / ``loss`` [linear] / ``loss_scale_m`` [0.3]: the fit's. ``range_offsets`` [none]: ``common``
+    or ``per_anchor`` (prior σ ``offset_prior_sigma_m`` [0.1 m]). ``delay_sigma_m`` [0] > 0 (not with per-anchor
+    offsets): delays considered; ``estimate_delays`` [False]: that σ is a floor, the residuals' estimate is used
+    where larger (as LM, :func:`distnav.models.uwb.precision.consider_precision`; ``delay_upper_z`` [0]: the
+    estimate plus that many of its standard deviations, LM's ``DELAY_UPPER_Z`` in the field workflow).
+    ``variance_scale_m`` [None: ``loss_scale_m``]: the loss scale of σ̂²'s weights where the fit's own differs (LM's
+    σ̂² is its fit's; the field workflow's polish fits at 0.3 m, its σ at the tight scale). ``max_iterations``
+    [``2 n_unknowns + 20``]: CG rounds; a column not converged raises ModelError. ``rtol``
+    [:data:`COVARIANCE_CG_RTOL`] and ``wire_dtype`` [float64]: the CG vectors on the wire
+    (:mod:`~distnav.algorithms.ranging.wire`); the field workflow uses :data:`ECONOMY_WIRE_DTYPE` with
+    :data:`ECONOMY_CG_RTOL` (issue 27: 0.64 × the bytes of float64 at ``1e-10``, σ within 1e-5 relative of it on
+    plant-like halls, docs/economy_uwb.md); where its CG does not converge the columns are solved once more in
+    float64 to :data:`COVARIANCE_CG_RTOL` (both runs counted)."""
+
+    sigma_m: float | np.ndarray = 1.0
+    loss: str = "linear"
+    loss_scale_m: float = 0.3
+    range_offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
+    delay_sigma_m: float = 0.0
+    estimate_delays: bool = False
+    rtol: float = COVARIANCE_CG_RTOL
+    max_iterations: int | None = None
+    variance_scale_m: float | None = None
+    delay_upper_z: float = 0.0
+    wire_dtype: type[np.floating] = np.float64
+
+    def __post_init__(self) -> None:
+        _checked_options(self.loss, self.range_offsets, self.delay_sigma_m, self.loss_scale_m)
+
+
 def central_precision(
     problem: RangingData,
     estimates_m: np.ndarray,
     *,
     offset_m: float | np.ndarray | None = None,
     exchange: Exchange | None = None,
-    sigma_m: float | np.ndarray = 1.0,
-    loss: str = "linear",
-    loss_scale_m: float = 0.3,
-    range_offsets: str = "none",
-    offset_prior_sigma_m: float = 0.1,
-    delay_sigma_m: float = 0.0,
-    estimate_delays: bool = False,
-    rtol: float = COVARIANCE_CG_RTOL,
-    max_iterations: int | None = None,
-    variance_scale_m: float | None = None,
-    delay_upper_z: float = 0.0,
-    wire_dtype: type[np.floating] = np.float64,
+    **options: Unpack[CentralPrecisionOptions],
 ) -> CentralPrecision:
     """Every anchor's block of LM's central a-posteriori covariance through the exchange (module docstring).
 
     ``estimates_m`` ``(n_anchors, dim)``: the anchors' own estimates (each block reads its rows); ``offset_m``:
-    the common offset (``range_offsets="common"``) or every anchor's own (``"per_anchor"``, prior σ
-    ``offset_prior_sigma_m``), as the solver estimated them. ``sigma_m`` / ``loss`` / ``loss_scale_m``: the fit's.
-    ``delay_sigma_m`` > 0 (not with per-anchor offsets): delays considered; ``estimate_delays``: that σ is a floor,
-    the residuals' estimate is used where larger (as LM, :func:`distnav.models.uwb.precision.consider_precision`;
-    ``delay_upper_z``: the estimate plus that many of its standard deviations, LM's ``DELAY_UPPER_Z`` in the
-    field workflow).
-    ``variance_scale_m``: the loss scale of σ̂²'s weights where the fit's own differs from ``loss_scale_m`` (LM's
-    σ̂² is its fit's; the field workflow's polish fits at 0.3 m, its σ at the tight scale); default ``loss_scale_m``.
-    ``max_iterations``: CG rounds (default ``2 n_unknowns + 20``); a column not converged raises ModelError.
-    ``wire_dtype``: the CG vectors on the wire (:mod:`~distnav.algorithms.ranging.wire`); the field workflow uses
-    :data:`ECONOMY_WIRE_DTYPE` with ``rtol`` :data:`ECONOMY_CG_RTOL` (issue 27: 0.64 × the bytes of float64 at
-    ``1e-10``, σ within 1e-5 relative of it on plant-like halls, docs/economy_uwb.md); where its CG does not
-    converge the columns are solved once more in float64 to :data:`COVARIANCE_CG_RTOL` (both runs counted)."""
-    if loss not in LOSSES:
-        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-    if range_offsets not in ("none", "common", "per_anchor"):
-        raise ModelError(f"range_offsets must be 'none', 'common' or 'per_anchor', got {range_offsets!r}")
-    per, common = range_offsets == "per_anchor", range_offsets == "common"
-    if not (np.isfinite(delay_sigma_m) and delay_sigma_m >= 0) or (delay_sigma_m > 0 and per):
-        raise ModelError(f"delay_sigma_m must be ≥ 0 m (and not with per-anchor offsets), got {delay_sigma_m}")
-    if not loss_scale_m > 0:
-        raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
+    the common offset (``range_offsets="common"``) or every anchor's own (``"per_anchor"``), as the solver
+    estimated them; ``options``: :class:`CentralPrecisionSettings`."""
+    o = CentralPrecisionSettings(**options)
+    per, common = o.range_offsets == "per_anchor", o.range_offsets == "common"
     est = checked_estimates(problem, estimates_m)
     ex = exchange_for(problem, exchange)
     before = ex.comm_totals().snapshot()
     links = Links(problem, ex, per_anchor_offsets=per)
     owner, other, samp = links.owner, links.other, links.samp
     dim, n, nl = problem.dim, problem.n_anchors, ex.n_local
-    P = dim + (1 if per else 0)
-    x = np.zeros((nl, P))
-    x[:, :dim] = est[ex.nodes]
-    c = 0.0
-    if per:
-        off = np.asarray(offset_m, float) if offset_m is not None else np.zeros(0)
-        if off.shape != (n,):
-            raise ModelError(f"per-anchor offsets must have shape ({n},), got {off.shape}")
-        x[:, dim] = off[ex.nodes]
-    elif common:
-        c = float(np.mean(np.asarray(offset_m if offset_m is not None else 0.0, float)))
-    if not (np.all(np.isfinite(x)) and np.isfinite(c)):
-        raise ModelError("estimates are not finite (a diverged run has no precision)")
-    free = np.ones((nl, P), bool)
-    free[:, :dim] = problem.free[ex.nodes]
-    free_nb = np.ones((samp.size, P), bool)
-    free_nb[:, :dim] = problem.free[other]
-    prior = 1.0 / offset_prior_sigma_m**2 if per else 0.0
-    sig_all = range_sigma(problem, sigma_m)
+    x, c = _anchor_state(est, ex.nodes, dim, per, common, offset_m)
+    P = x.shape[1]
+    free, free_nb = _free_masks(problem.free, ex.nodes, other, P)
+    prior = 1.0 / o.offset_prior_sigma_m**2 if per else 0.0
+    sig_all = range_sigma(problem, o.sigma_m)
     sig = sig_all[samp]
     nb = links.neighbours(x)  # one broadcast: the neighbours' estimates (and offsets)
     bias = (x[owner, dim] + nb[:, dim]) if per else c
     r = (np.linalg.norm(x[owner, :dim] - nb[:, :dim], axis=1) + bias - problem.range_m[samp]) / sig
-    w = loss_terms(r, loss_scale_m / sig, loss)[0]
+    w = loss_terms(r, o.loss_scale_m / sig, o.loss)[0]
     a, cn, e = jacobian_rows(x, nb, owner, sig, dim, per, common, free, free_nb)
-    own_block = np.zeros((nl, P, P))
-    np.add.at(own_block, owner, np.einsum("h,ha,hb->hab", w, a, a))
-    if per:
-        own_block[:, dim, dim] += prior
-    try:
-        pre_inv = block_preconditioner(own_block, np.zeros((nl, P)), free)
-    except np.linalg.LinAlgError as err:
-        raise ModelError("an anchor's own normal block is singular (too few links): no central precision") from err
-    # columns: every free coordinate of the network (anchor by anchor, as LM's x), then every anchor's delay
-    col = np.full((n, dim), -1, np.int64)
-    col[problem.free] = np.arange(problem.n_free)
-    delays = delay_sigma_m > 0
-    k = problem.n_free + (n if delays else 0)
-    b = np.zeros((nl, P, k))
-    li, ai = np.nonzero(problem.free[ex.nodes])
-    b[li, ai, col[ex.nodes[li], ai]] = 1.0
-    bc = np.zeros(k)
-    if delays:  # JᵀWG: a link's row at both ends' delays (1/σ at each), the anchor's own rows; c's row a total
-        wa = (w / sig)[:, None] * a
-        for p_ in range(P):
-            np.add.at(b[:, p_, :], (owner, problem.n_free + ex.nodes[owner]), wa[:, p_])
-            np.add.at(b[:, p_, :], (owner, problem.n_free + other), wa[:, p_])
-        if common:
-            hc = np.zeros((nl, n))
-            np.add.at(hc, (owner, ex.nodes[owner]), 0.5 * w * e / sig)
-            np.add.at(hc, (owner, other), 0.5 * w * e / sig)
-            bc[problem.n_free :] = links.total(hc)
-        b = np.where(free[:, :, None], b, 0.0)
+    pre_inv = _preconditioner(owner, w, a, free, dim, prior if per else None)
+    delays = o.delay_sigma_m > 0
+    col, b, bc = _right_hand_sides(problem, ex, links, w, sig, a, e, free, common, delays)
     dc = float(links.total(0.5 * np.bincount(owner, w * e * e, minlength=nl))) if common else 1.0
     n_unknowns = int(links.total(free.sum(axis=1).astype(float))) + (1 if common else 0)
-    its_max = 2 * n_unknowns + 20 if max_iterations is None else max_iterations
-    # float32 directions whose CG does not converge: once more in float64 to COVARIANCE_CG_RTOL (both runs counted)
-    tries = [(wire_dtype, rtol)] + ([(np.float64, COVARIANCE_CG_RTOL)] if wire_dtype != np.float64 else [])
-    for dtype, tol in tries:
-        system = NormalSystem(links, owner, a, cn, e, w, np.zeros((nl, P)), 0.0, prior, free, common, dtype)
-        X, Xc, its = pcg(system, b, bc, pre_inv, dc, links, its_max, tol)
-        # the columns' final residuals (one product more: the check that every column reached tol)
-        q, q_share = system.matvec(X, Xc)
-        resid = np.where(free[:, :, None], b - q, 0.0)
-        t = links.total(
-            np.concatenate([np.einsum("nak,nak->nk", resid, resid), np.einsum("nak,nak->nk", b, b), q_share], axis=1)
-        )
-        rc = bc - t[2 * k :] if common else np.zeros(k)
-        worst = float(np.max(np.sqrt((t[:k] + rc * rc) / np.maximum(t[k : 2 * k] + bc * bc, 1e-300)), initial=0.0))
-        if worst <= max(100.0 * tol, 1e-8):
-            break
-    else:
-        raise ModelError(f"central precision: CG did not converge (relative residual {worst:.2g} after {its})")
-    blocks = np.zeros((nl, dim, dim))
-    for a_ in range(dim):
-        for b_ in range(dim):
-            ok = free[:, a_] & free[:, b_]
-            blocks[ok, a_, b_] = X[np.flatnonzero(ok), a_, col[ex.nodes[ok], b_]]
-    blocks = 0.5 * (blocks + blocks.transpose(0, 2, 1))
+    its_max = 2 * n_unknowns + 20 if o.max_iterations is None else o.max_iterations
+
+    def system(dtype: type[np.floating]) -> NormalSystem:
+        return NormalSystem(links, owner, a, cn, e, w, np.zeros((nl, P)), 0.0, prior, free, common, dtype)
+
+    tries = [(o.wire_dtype, o.rtol)] + ([(np.float64, COVARIANCE_CG_RTOL)] if o.wire_dtype != np.float64 else [])
+    X, Xc, its = _solve_columns(system, tries, links, b, bc, pre_inv, dc, its_max, free, common)
+    blocks = _own_blocks(X, free, col[ex.nodes], dim)
     # a-posteriori variance factor over LM's rows (the ranges and, per anchor, the offsets' priors)
-    w_vf = w if variance_scale_m is None else loss_terms(r, variance_scale_m / sig, loss)[0]
+    w_vf = w if o.variance_scale_m is None else loss_terms(r, o.variance_scale_m / sig, o.loss)[0]
     wssr_node = 0.5 * np.bincount(owner, w_vf * r * r, minlength=nl) + (prior * x[:, dim] ** 2 if per else 0.0)
     m_rows = problem.n_meas + (n if per else 0)
     redundancy = float(m_rows - n_unknowns)
@@ -245,37 +217,11 @@ def central_precision(
     )  # σ̂²'s, tr GᵀWG, ẽᵀẽ
     vf = variance_factor(float(totals[0]), redundancy)
     s2 = 1.0 if vf is None else vf
-    delay_cov = None
-    delay_sigma_used_m = delay_sigma_m
+    delay_sigma_used_m, s2, delay_cov = o.delay_sigma_m, s2, None
     if delays:
-        B = X[:, :, problem.n_free :]  # (n_local, P, n): rows of B = Q JᵀWG, the anchor's own
-        H = b[:, :, problem.n_free :]
-        hb = np.einsum("npk,npk->n", H, B)
-        tr_a = float(totals[1]) - float(links.total(hb)) - float(bc[problem.n_free :] @ Xc[problem.n_free :])
-        if estimate_delays and n <= ESTIMATE_MAX_ANCHORS:
-            estimate_m = _delay_estimate(
-                problem,
-                ex,
-                links,
-                owner,
-                other,
-                w,
-                r,
-                sig,
-                H,
-                B,
-                bc[problem.n_free :],
-                Xc[problem.n_free :],
-                tr_a,
-                float(totals[2]),
-                float(m_rows - n_unknowns),
-                delay_upper_z,
-            )
-            delay_sigma_used_m = max(delay_sigma_m, estimate_m)
-        share = delay_sigma_used_m**2 * tr_a / redundancy if redundancy > 0 else 0.0
-        s2 = max(s2 - share, MIN_NOISE_SHARE * s2)
-        Bp = B[:, :dim, :] * free[:, :dim, None]
-        delay_cov = delay_sigma_used_m**2 * np.einsum("nak,nbk->nab", Bp, Bp)
+        delay_sigma_used_m, s2, delay_cov = _delay_part(
+            o, problem, ex, links, (w, r, sig), (X, Xc, b, bc), totals, redundancy, free, s2
+        )
     precision = Precision(
         covariance=ex.gather_nodes(blocks),
         variance_factor=vf,
@@ -290,10 +236,186 @@ def central_precision(
         noise_factor=s2,
         delay_sigma_m=delay_sigma_used_m,
         cg_iterations=its,
-        columns=k,
+        columns=bc.size,
         reductions=links.reductions,
         reduced_floats=links.reduced_floats,
     )
+
+
+def _checked_options(loss: str, range_offsets: str, delay_sigma_m: float, loss_scale_m: float) -> tuple[bool, bool]:
+    """Refuse by name what :func:`central_precision` cannot use; returns ``(per-anchor offsets, common offset)``."""
+    if loss not in LOSSES:
+        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    if range_offsets not in ("none", "common", "per_anchor"):
+        raise ModelError(f"range_offsets must be 'none', 'common' or 'per_anchor', got {range_offsets!r}")
+    per, common = range_offsets == "per_anchor", range_offsets == "common"
+    if not (np.isfinite(delay_sigma_m) and delay_sigma_m >= 0) or (delay_sigma_m > 0 and per):
+        raise ModelError(f"delay_sigma_m must be ≥ 0 m (and not with per-anchor offsets), got {delay_sigma_m}")
+    if not loss_scale_m > 0:
+        raise ModelError(f"loss_scale_m must be positive, got {loss_scale_m}")
+    return per, common
+
+
+def _anchor_state(
+    est: np.ndarray, nodes: np.ndarray, dim: int, per: bool, common: bool, offset_m: float | np.ndarray | None
+) -> tuple[np.ndarray, float]:
+    """The block's anchors' unknowns ``x`` ``(n_local, dim [+ 1 per-anchor offset])`` and the common offset ``c``."""
+    n = est.shape[0]
+    x = np.zeros((nodes.size, dim + (1 if per else 0)))
+    x[:, :dim] = est[nodes]
+    c = 0.0
+    if per:
+        off = np.asarray(offset_m, float) if offset_m is not None else np.zeros(0)
+        if off.shape != (n,):
+            raise ModelError(f"per-anchor offsets must have shape ({n},), got {off.shape}")
+        x[:, dim] = off[nodes]
+    elif common:
+        c = float(np.mean(np.asarray(offset_m if offset_m is not None else 0.0, float)))
+    if not (np.all(np.isfinite(x)) and np.isfinite(c)):
+        raise ModelError("estimates are not finite (a diverged run has no precision)")
+    return x, c
+
+
+def _right_hand_sides(
+    problem: RangingData,
+    ex: Exchange,
+    links: Links,
+    w: np.ndarray,
+    sig: np.ndarray,
+    a: np.ndarray,
+    e: np.ndarray,
+    free: np.ndarray,
+    common: bool,
+    delays: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The CG columns: every free coordinate of the network (anchor by anchor, as LM's ``x``), then every anchor's
+    delay (``JᵀWG``: a link's row at both ends' delays, 1/σ at each; the common offset's row a network total).
+    Returns ``(col`` (n, dim) column of each free coordinate, ``b`` (n_local, P, k), ``bc`` (k,) the offset's row)."""
+    owner, other = links.owner, links.other
+    n, dim, nl, P = problem.n_anchors, problem.dim, ex.n_local, free.shape[1]
+    col = np.full((n, dim), -1, np.int64)
+    col[problem.free] = np.arange(problem.n_free)
+    k = problem.n_free + (n if delays else 0)
+    b = np.zeros((nl, P, k))
+    li, ai = np.nonzero(problem.free[ex.nodes])
+    b[li, ai, col[ex.nodes[li], ai]] = 1.0
+    bc = np.zeros(k)
+    if delays:
+        wa = (w / sig)[:, None] * a
+        for p_ in range(P):
+            np.add.at(b[:, p_, :], (owner, problem.n_free + ex.nodes[owner]), wa[:, p_])
+            np.add.at(b[:, p_, :], (owner, problem.n_free + other), wa[:, p_])
+        if common:
+            hc = np.zeros((nl, n))
+            np.add.at(hc, (owner, ex.nodes[owner]), 0.5 * w * e / sig)
+            np.add.at(hc, (owner, other), 0.5 * w * e / sig)
+            bc[problem.n_free :] = links.total(hc)
+        b = np.where(free[:, :, None], b, 0.0)
+    return col, b, bc
+
+
+def _solve_columns(
+    system: Any,
+    tries: list[tuple[Any, float]],
+    links: Links,
+    b: np.ndarray,
+    bc: np.ndarray,
+    pre_inv: np.ndarray,
+    dc: float,
+    its_max: int,
+    free: np.ndarray,
+    common: bool,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Preconditioned CG on every column, for each ``(wire dtype, tolerance)`` of ``tries`` until the columns'
+    final residuals (one product more, a network total) reach it; ModelError when none does."""
+    k = bc.size
+    worst, its = float("inf"), 0
+    for dtype, tol in tries:
+        sys_ = system(dtype)
+        X, Xc, its = pcg(sys_, b, bc, pre_inv, dc, links, its_max, tol)
+        q, q_share = sys_.matvec(X, Xc)
+        resid = np.where(free[:, :, None], b - q, 0.0)
+        t = links.total(
+            np.concatenate([np.einsum("nak,nak->nk", resid, resid), np.einsum("nak,nak->nk", b, b), q_share], axis=1)
+        )
+        rc = bc - t[2 * k :] if common else np.zeros(k)
+        worst = float(np.max(np.sqrt((t[:k] + rc * rc) / np.maximum(t[k : 2 * k] + bc * bc, 1e-300)), initial=0.0))
+        if worst <= max(100.0 * tol, 1e-8):
+            return X, Xc, its
+    raise ModelError(f"central precision: CG did not converge (relative residual {worst:.2g} after {its})")
+
+
+def _own_blocks(X: np.ndarray, free: np.ndarray, own_col: np.ndarray, dim: int) -> np.ndarray:
+    """Each local anchor's ``dim × dim`` covariance block from the solved columns (its free coordinates' own
+    columns ``own_col``), symmetrized."""
+    blocks = np.zeros((X.shape[0], dim, dim))
+    for a_ in range(dim):
+        for b_ in range(dim):
+            ok = free[:, a_] & free[:, b_]
+            blocks[ok, a_, b_] = X[np.flatnonzero(ok), a_, own_col[ok, b_]]
+    return 0.5 * (blocks + blocks.transpose(0, 2, 1))
+
+
+def _delay_part(
+    o: CentralPrecisionSettings,
+    problem: RangingData,
+    ex: Exchange,
+    links: Links,
+    fit: tuple[np.ndarray, np.ndarray, np.ndarray],
+    solved: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    totals: np.ndarray,
+    redundancy: float,
+    free: np.ndarray,
+    s2: float,
+) -> tuple[float, float, np.ndarray]:
+    """The delays' share of σ̂² and their covariance blocks (considered, or estimated from the residuals with
+    ``o.delay_sigma_m`` as floor): ``(delay σ used, noise factor, delay covariance blocks)``. ``fit``: the links'
+    ``(w, r, σ)``; ``solved``: the CG's ``(X, Xc)`` and its right-hand sides ``(b, bc)``; ``totals``: σ̂²'s,
+    tr GᵀWG, ẽᵀẽ."""
+    w, r, sig = fit
+    X, Xc, b, bc = solved
+    nf, dim = problem.n_free, problem.dim
+    B = X[:, :, nf:]  # (n_local, P, n): rows of B = Q JᵀWG, the anchor's own
+    H = b[:, :, nf:]
+    hb = np.einsum("npk,npk->n", H, B)
+    tr_a = float(totals[1]) - float(links.total(hb)) - float(bc[nf:] @ Xc[nf:])
+    delay_sigma_used_m = o.delay_sigma_m
+    if o.estimate_delays and problem.n_anchors <= ESTIMATE_MAX_ANCHORS:
+        rows = (links.owner, links.other, w, r, sig, H, B, bc[nf:], Xc[nf:])
+        estimate_m = _delay_estimate(problem, ex, links, *rows, tr_a, float(totals[2]), redundancy, o.delay_upper_z)
+        delay_sigma_used_m = max(o.delay_sigma_m, estimate_m)
+    share = delay_sigma_used_m**2 * tr_a / redundancy if redundancy > 0 else 0.0
+    s2 = max(s2 - share, MIN_NOISE_SHARE * s2)
+    Bp = B[:, :dim, :] * free[:, :dim, None]
+    return delay_sigma_used_m, s2, delay_sigma_used_m**2 * np.einsum("nak,nbk->nab", Bp, Bp)
+
+
+def _free_masks(anchor_free: np.ndarray, nodes: np.ndarray, other: np.ndarray, P: int) -> tuple[np.ndarray, np.ndarray]:
+    """Which unknowns are free: of the block's anchors ``(n_local, P)`` and of each link's other end
+    ``(n_links, P)`` (an offset column, when there is one, is always free)."""
+    dim = anchor_free.shape[1]
+    free = np.ones((nodes.size, P), bool)
+    free[:, :dim] = anchor_free[nodes]
+    free_nb = np.ones((other.size, P), bool)
+    free_nb[:, :dim] = anchor_free[other]
+    return free, free_nb
+
+
+def _preconditioner(
+    owner: np.ndarray, w: np.ndarray, a: np.ndarray, free: np.ndarray, dim: int, prior: float | None
+) -> np.ndarray:
+    """CG's block-Jacobi preconditioner: the inverse of each anchor's own normal block (its links' rows, and its
+    offset's prior when per-anchor offsets are estimated)."""
+    nl, P = free.shape
+    own_block = np.zeros((nl, P, P))
+    np.add.at(own_block, owner, np.einsum("h,ha,hb->hab", w, a, a))
+    if prior is not None:
+        own_block[:, dim, dim] += prior
+    try:
+        pre_inv: np.ndarray = block_preconditioner(own_block, np.zeros((nl, P)), free)
+    except np.linalg.LinAlgError as err:
+        raise ModelError("an anchor's own normal block is singular (too few links): no central precision") from err
+    return pre_inv
 
 
 def _delay_estimate(
