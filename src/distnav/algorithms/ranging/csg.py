@@ -414,17 +414,16 @@ def solve_ncsg(
     return _run(problem, states, ex, method, iterations, settings, setup)
 
 
-def _ncsg_parts(args: dict[str, Any]) -> tuple[_Setup, dict[str, Any], dict[str, Any]]:
-    """From :func:`solve_ncsg`'s arguments: the run's set-up, the iteration's options and the result's settings."""
-    objective, loss, iterations = args["objective"], args["loss"], args["iterations"]
-    grad_its = _graduated(objective, loss, args["graduated"], iterations)
+def _setup_from(args: dict[str, Any]) -> _Setup:
+    """The run's set-up (objective, loss, stopping rule, QC, offsets; checked) from a neighbourhood front door's
+    arguments (:func:`solve_ncsg`, :func:`solve_nclm`), with the graduated-loss iterations resolved."""
     setup = _Setup(
-        objective=objective,
+        objective=args["objective"],
         sigma_m=args["sigma_m"],
-        loss=loss,
+        loss=args["loss"],
         loss_scale_m=args["loss_scale_m"],
         stop=args["stop"],
-        graduated=grad_its,
+        graduated=_graduated(args["objective"], args["loss"], args["graduated"], args["iterations"]),
         quality=args["quality"],
         test_level=args["test_level"],
         test_scale=args["test_scale"],
@@ -434,6 +433,14 @@ def _ncsg_parts(args: dict[str, Any]) -> tuple[_Setup, dict[str, Any], dict[str,
         refine=args["refine"],
     )
     setup.check()
+    return setup
+
+
+def _ncsg_parts(args: dict[str, Any]) -> tuple[_Setup, dict[str, Any], dict[str, Any]]:
+    """From :func:`solve_ncsg`'s arguments: the run's set-up, the iteration's options and the result's settings."""
+    objective, loss = args["objective"], args["loss"]
+    setup = _setup_from(args)
+    grad_its = setup.graduated
     a = (1e-3 if objective == "squared" else 0.8) if args["alpha"] is None else args["alpha"]
     a0 = (1e-2 if objective == "squared" else 2.0) if args["alpha0"] is None else args["alpha0"]
     options = {
@@ -532,23 +539,8 @@ def solve_nclm(
     underdetermined, ranges exactly and the network drifts when the ranges disagree (one anchor pair 3 m NLOS:
     RMSE 3.15 m with the floor 1e-9, 0.30 m with 0.1 and a Cauchy loss; RM with heights held: 0.78 → 0.51 m).
     """
-    grad_its = _graduated(objective, loss, graduated, iterations)
-    setup = _Setup(
-        objective=objective,
-        sigma_m=sigma_m,
-        loss=loss,
-        loss_scale_m=loss_scale_m,
-        stop=stop,
-        graduated=grad_its,
-        quality=quality,
-        test_level=test_level,
-        test_scale=test_scale,
-        monitor_every=monitor_every,
-        range_offsets=range_offsets,
-        offset_prior_sigma_m=offset_prior_sigma_m,
-        refine=refine,
-    )
-    setup.check()
+    setup = _setup_from(dict(locals()))
+    grad_its = setup.graduated
     ex = exchange_for(problem, exchange)
     states = iterate_neighbourhood(
         problem,

@@ -127,6 +127,21 @@ class NeighbourhoodPlan:
             yield self.state(k, P, step, f0)
 
 
+def _check_choices(loss: str, armijo_slope: str, damping: str, objective: str, beta: float, gamma: float) -> None:
+    """Refuse by name a loss, Armijo slope, damping or objective :func:`plan_neighbourhood` does not know, and line
+    search factors outside (0, 1)."""
+    if loss not in LOSSES:
+        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
+    if armijo_slope not in ("gradient", "subgradient"):
+        raise ModelError(f"armijo_slope must be 'gradient' or 'subgradient', got {armijo_slope!r}")
+    if damping not in ("levenberg", "fletcher"):
+        raise ModelError(f"damping must be 'levenberg' or 'fletcher', got {damping!r}")
+    if not (0 < beta < 1 and 0 < gamma < 1):
+        raise ModelError(f"beta and gamma must lie in (0, 1), got beta={beta}, gamma={gamma}")
+    if objective not in ("squared", "metres"):
+        raise ModelError(f"objective must be 'squared' or 'metres', got {objective!r}")
+
+
 def plan_neighbourhood(
     problem: RangingData,
     *,
@@ -160,16 +175,7 @@ def plan_neighbourhood(
     init = check_start(problem, iterations, consensus_rounds, initial_m)
     if not (alpha > 0 and alpha0 > 0 and lambda0 > 0 and lambda_min > 0):
         raise ModelError("alpha, alpha0, lambda0 and lambda_min must be positive")
-    if loss not in LOSSES:
-        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-    if armijo_slope not in ("gradient", "subgradient"):
-        raise ModelError(f"armijo_slope must be 'gradient' or 'subgradient', got {armijo_slope!r}")
-    if damping not in ("levenberg", "fletcher"):
-        raise ModelError(f"damping must be 'levenberg' or 'fletcher', got {damping!r}")
-    if not (0 < beta < 1 and 0 < gamma < 1):
-        raise ModelError(f"beta and gamma must lie in (0, 1), got beta={beta}, gamma={gamma}")
-    if objective not in ("squared", "metres"):
-        raise ModelError(f"objective must be 'squared' or 'metres', got {objective!r}")
+    _check_choices(loss, armijo_slope, damping, objective, beta, gamma)
     if graduated < 0:
         raise ModelError(f"graduated must be ≥ 0 iterations, got {graduated}")
     check_offsets(range_offsets, offset_prior_sigma_m, objective)

@@ -315,6 +315,50 @@ def _subnetwork(
     return out, vf, delay, noise
 
 
+def _ball_columns(
+    free: np.ndarray, records: list[np.ndarray], k_max: int, width: int, n: int
+) -> tuple[dict[int, np.ndarray], list[int], np.ndarray, int]:
+    """The anchors whose link records an anchor holds (the ball, free ones: ``{anchor: its records}`` and in
+    order) and the column of every free coordinate of the ball ``(n, dim)`` (−1 elsewhere), with their count."""
+    recs: dict[int, np.ndarray] = {}
+    for row in records:
+        k = int(row[0])
+        if k >= 0 and k not in recs and free[k].any():
+            recs[k] = row[1:].reshape(k_max, width)
+    ball = sorted(recs)
+    col = np.full((n, free.shape[1]), -1, np.int64)
+    cnt = 0
+    for k in ball:
+        f = np.flatnonzero(free[k])
+        col[k, f] = cnt + np.arange(f.size)
+        cnt += f.size
+    return recs, ball, col, cnt
+
+
+def _with_ring(
+    q: np.ndarray,
+    x: np.ndarray,
+    ring: dict[int, list[tuple[int, np.ndarray]]],
+    sigma_ring: dict[int, np.ndarray],
+    col: np.ndarray,
+    free: np.ndarray,
+) -> np.ndarray | None:
+    """``q + N_SS⁻¹ N_SR (⊕_v Σ_v) N_RS N_SS⁻¹`` for the rows ``x`` of ``N_SS⁻¹``: the ring anchors behind the
+    ball's links considered with their blocks ``Σ_v``; None where a block is not finite."""
+    cnt, dim = x.shape[1], free.shape[1]
+    for v, parts in ring.items():
+        m_v = np.zeros((cnt, dim))  # N_SR column block of v: −c u_u u_vᵀ over its ball partners
+        for u, info in parts:
+            cu = col[u][free[u]]
+            m_v[cu] -= info[free[u]] * free[v]
+        xm = x @ m_v
+        sig = sigma_ring[v]
+        if not np.all(np.isfinite(sig)):
+            return None
+        q += xm @ sig @ xm.T
+    return q
+
+
 def _solve_ball(
     problem: RangingData,
     me: int,
@@ -332,18 +376,7 @@ def _solve_ball(
     back to ``cond`` (no delay term) where the sub-network's normal matrix is singular."""
     dim = problem.dim
     free = problem.free
-    recs: dict[int, np.ndarray] = {}
-    for row in records:
-        k = int(row[0])
-        if k >= 0 and k not in recs and free[k].any():
-            recs[k] = row[1:].reshape(k_max, width)
-    ball = sorted(recs)
-    col = np.full((n, dim), -1, np.int64)  # column of every free coordinate of the ball
-    cnt = 0
-    for k in ball:
-        f = np.flatnonzero(free[k])
-        col[k, f] = cnt + np.arange(f.size)
-        cnt += f.size
+    recs, ball, col, cnt = _ball_columns(free, records, k_max, width, n)
     nss = np.zeros((cnt, cnt))
     ring: dict[int, list[tuple[int, np.ndarray]]] = {}  # ring anchor -> (ball anchor, its O_uv)
     g_cols: dict[int, np.ndarray] = {}  # ∂(JᵀW r)/∂δ_k over the ball's coordinates: c u at both ends' delays
@@ -390,17 +423,9 @@ def _solve_ball(
     rhs = np.zeros((cnt, mine.size))
     rhs[mine, np.arange(mine.size)] = 1.0
     x = sla.cho_solve(fac, rhs).T  # rows of N_SS⁻¹ for my coordinates
-    q = x[:, mine].copy()
-    for v, parts in ring.items():
-        m_v = np.zeros((cnt, dim))  # N_SR column block of v: −c u_u u_vᵀ over its ball partners
-        for u, info in parts:
-            cu = col[u][free[u]]
-            m_v[cu] -= info[free[u]] * free[v]
-        xm = x @ m_v
-        sig = sigma_ring[v]
-        if not np.all(np.isfinite(sig)):
-            return cond, vf, zero, vf
-        q += xm @ sig @ xm.T
+    q = _with_ring(x[:, mine].copy(), x, ring, sigma_ring, col, free)
+    if q is None:  # a ring anchor without a finite block
+        return cond, vf, zero, vf
     f = free[me]
     out = zero.copy()
     out[np.ix_(f, f)] = 0.5 * (q + q.T)
