@@ -11,8 +11,18 @@ from scipy.sparse.csgraph import shortest_path
 
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
+from distnav.network import gather as network_gather
+from distnav.network.graph import Graph
 
-__all__ = ["RANGE_RECORD_BYTES", "RANGES_DATA", "POSITION_BYTES", "gather_cost", "range_bytes_per_anchor"]
+__all__ = [
+    "VALUE_BYTES",
+    "gathered_up",
+    "RANGE_RECORD_BYTES",
+    "RANGES_DATA",
+    "POSITION_BYTES",
+    "gather_cost",
+    "range_bytes_per_anchor",
+]
 
 RANGE_RECORD_BYTES = 16  # two int32 anchor ids + one float64 range
 #: What :func:`range_bytes_per_anchor` counts, in words (for reports).
@@ -58,3 +68,17 @@ def range_bytes_per_anchor(problem: RangingProblem) -> np.ndarray:
     lower-numbered anchor (the per-node data of :func:`distnav.network.gather.gather_cost`, issue 27)."""
     held: np.ndarray = np.bincount(problem.links[:, 0], minlength=problem.n_anchors) * RANGE_RECORD_BYTES
     return held
+
+
+VALUE_BYTES = 8  # one float64 on the wire (an estimate, an offset, a covariance entry)
+
+
+def gathered_up(
+    problem: RangingProblem, *, per_anchor_offsets: bool = False
+) -> tuple[Graph, network_gather.GatherCost]:
+    """The range graph and the gather of ``models.uwb.field_precision.gathered_precision`` (every anchor's range
+    records and estimate, and offset, up a shortest-path tree to the anchor with the fewest hop-bytes): its ``sink``
+    is the anchor that computes the σ, and the reliability numbers with it (``models.uwb.reliability``)."""
+    graph = Graph.from_links(problem.n_anchors, problem.links)
+    up_bytes = range_bytes_per_anchor(problem) + VALUE_BYTES * (problem.dim + (1 if per_anchor_offsets else 0))
+    return graph, network_gather.gather_cost(graph, up_bytes)

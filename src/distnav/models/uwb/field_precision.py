@@ -43,12 +43,11 @@ from distnav.algorithms.ranging.objective import RangeObjective
 from distnav.algorithms.ranging.precision import neighbourhood_precision
 from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
-from distnav.models.uwb.communication import range_bytes_per_anchor
+from distnav.models.uwb.communication import VALUE_BYTES, gathered_up
 from distnav.models.uwb.field_options import FieldOptions, solver_kwargs, subset_measurements
 from distnav.models.uwb.precision import DELAY_UPPER_Z, consider_precision
 from distnav.models.uwb.problems import RangingProblem
 from distnav.network.gather import gather_cost
-from distnav.network.graph import Graph
 from distnav.typing import BoolArray, FloatArray
 
 __all__ = [
@@ -66,7 +65,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 PRECISION_HOPS = 2  # the sub-network σ: each anchor's 2-hop sub-network (docs/uwb.md, "Per-anchor precision")
 PRECISION_MODES = ("auto", "gathered", "central", "subnetwork")
-VALUE_BYTES = 8  # one float64 on the wire (an estimate, an offset, a covariance entry)
 
 
 @dataclass(frozen=True, eq=False)
@@ -241,10 +239,8 @@ def gathered_cost(problem: RangingProblem, *, per_anchor_offsets: bool = False) 
     anchor's range records and estimate (and offset); down, every anchor's covariance block (the packed upper
     triangle of its free coordinates), each relayed by the anchors between it and the root. One message per tree
     link each way (a relay bundles its subtree's)."""
-    graph = Graph.from_links(problem.n_anchors, problem.links)
+    graph, up = gathered_up(problem, per_anchor_offsets=per_anchor_offsets)
     n_free = problem.free.sum(axis=1)
-    up_bytes = range_bytes_per_anchor(problem) + VALUE_BYTES * (problem.dim + (1 if per_anchor_offsets else 0))
-    up = gather_cost(graph, up_bytes)
     down_bytes = VALUE_BYTES * n_free * (n_free + 1) // 2
     subtree = gather_cost(graph, down_bytes, sink=up.sink).relay_bytes  # its subtree's blocks, its own included
     down = subtree - down_bytes  # a relay forwards its subtree's blocks but its own

@@ -43,10 +43,9 @@ from distnav.algorithms.ranging.reliability import (
     local_reliability,
 )
 from distnav.errors import ModelError
-from distnav.models.uwb.communication import range_bytes_per_anchor
+from distnav.models.uwb.communication import gathered_up
 from distnav.models.uwb.problems import RangingProblem
 from distnav.network.gather import gather_cost
-from distnav.network.graph import Graph
 from distnav.typing import BoolArray, FloatArray
 
 __all__ = [
@@ -215,7 +214,8 @@ def check_reliability(
         assert x_free is not None  # the result has estimates (the branch above)
         rel = external_reliability(problem, x_free, options)
         computed = "at the anchor that gathered the ranges for σ (the same numbers as LM's on this network)"
-        cost = {"rounds": 0, "messages": 0, "bytes": gathered_return_bytes(problem)}
+        per_anchor = options.offsets == "per_anchor"
+        cost = {"rounds": 0, "messages": 0, "bytes": gathered_return_bytes(problem, per_anchor_offsets=per_anchor)}
     else:
         off = getattr(result, "offsets_m", None)
         try:
@@ -252,11 +252,12 @@ def check_reliability(
 RETURN_VALUES = 4
 
 
-def gathered_return_bytes(problem: RangingProblem) -> int:
+def gathered_return_bytes(problem: RangingProblem, *, per_anchor_offsets: bool = False) -> int:
     """Bytes that carry every estimated anchor's reliability numbers (:data:`RETURN_VALUES` float64) from the
-    anchor that gathered the ranges down the same shortest-path tree, relayed hop by hop; they ride on the
+    anchor that gathered the ranges for σ (the same sink and tree,
+    :func:`~distnav.models.uwb.communication.gathered_up`) down to it, relayed hop by hop; they ride on the
     gathered σ's messages down (no message of their own)."""
-    graph = Graph.from_links(problem.n_anchors, problem.links)
-    sink = gather_cost(graph, range_bytes_per_anchor(problem)).sink
+    graph, up = gathered_up(problem, per_anchor_offsets=per_anchor_offsets)
+    sink = up.sink
     per_anchor = 8 * RETURN_VALUES * problem.estimated.astype(np.int64)
     return int(gather_cost(graph, per_anchor, sink=sink).total_hop_bytes)
