@@ -51,6 +51,12 @@ def test_consensus_on_node_processes_is_bitwise_the_inprocess_run(tmp_path: Path
     for i in range(6):
         r = summary["nodes"][str(i)]
         assert r["wire"]["bytes_sent"] >= r["model_bytes_sent"] + 32 * 60 * g.degrees[i]
+    # beside the fusion centre: the same wire bytes, and a gather of the node files as they lie on disk
+    vs = summary["vs_gather"]
+    assert vs["distributed"]["bytes"] == summary["wire_bytes"]
+    files = sorted((tmp_path / "net").rglob("node-*.txt"))
+    assert len(files) == 6 and vs["gather"]["data_bytes"] == sum(f.stat().st_size for f in files)
+    assert vs["ratio_bytes"] == pytest.approx(summary["wire_bytes"] / vs["gather"]["total_hop_bytes"])
 
 
 def _crash_network(tmp_path: Path, rounds: int, width: int, seed: int, deadline_ms: float, latency_max_ms: float = 0.0):  # type: ignore[no-untyped-def]

@@ -181,6 +181,8 @@ def _collect(
         data = np.array([node_values(desc, i) for i in range(desc.n_nodes) if i not in crashed])
         summary["central_mean_of_remaining"] = data.mean(axis=0)
         summary["max_abs_diff_vs_central_of_remaining"] = float(np.abs(est - data.mean(axis=0)).max())
+    if nodes:
+        summary["vs_gather"] = _versus_gather(desc, nodes)
     summary["nodes"] = nodes
     atomic_write_json(out_dir / "results.json", summary)
     if not quiet:
@@ -202,8 +204,24 @@ def _collect(
                 f"  lost nodes noticed: {summary['lost_nodes']}; {central}wire bytes {summary['wire_bytes']:,}; "
                 f"refused messages {summary['refused']}"
             )
+        if "vs_gather" in summary:
+            print(f"  {summary['vs_gather']['line']}")
         print(f"  -> {out_dir / 'results.json'}")
     return summary
+
+
+def _versus_gather(desc: NetworkDescription, nodes: dict[str, Any]) -> dict[str, Any]:
+    """The run's real wire bytes and frames beside gathering every node's data file at one node over the same graph
+    (:func:`~distnav.algorithms.result.compare_with_gather`; a node without a data file counts 0 bytes)."""
+    from distnav.algorithms.result import compare_with_gather
+
+    files = [desc.node(i).data for i in range(desc.n_nodes)]
+    sizes = [f.stat().st_size if f is not None and f.exists() else 0 for f in files]
+    sent = (
+        int(sum(r["wire"]["bytes_sent"] for r in nodes.values())),
+        int(sum(r["wire"]["frames_sent"] for r in nodes.values())),
+    )
+    return compare_with_gather(sent, desc.graph(), sizes, data="each node's data file").as_dict()
 
 
 def _launch(args: argparse.Namespace) -> int:
