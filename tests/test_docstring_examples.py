@@ -9,6 +9,7 @@ import importlib
 import pytest
 
 FRONT_DOORS = [
+    ("distnav._settings", "resolve_options"),  # the house style of options objects
     ("distnav.network.builders", "ring"),
     ("distnav.network.weights", "consensus_weights"),
     ("distnav.network.gather", "gather_cost"),

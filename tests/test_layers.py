@@ -2,8 +2,8 @@
 
 network → exchange → algorithms → models → formats → experiments | commands → cli: a module may import its own
 layer and the layers below it, never a layer above or beside (experiments and commands do not import each other).
-The utilities (errors, _optional, _sparse, _checks, typing) sit below everything; ``output`` (file writing, figures) and
-``options`` (checked CLI option types) are for experiments, commands and the CLI only.
+The utilities (errors, _optional, _sparse, _checks, _settings, typing) sit below everything; ``output`` (file
+writing, figures) and ``options`` (checked CLI option types) are for experiments, commands and the CLI only.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ RANK = {
     "_blas": 0.5,
     "_threads": 0.5,
     "_checks": 0.5,
+    "_settings": 0.5,
     "typing": 0.5,
     "network": 1,
     "exchange": 2,
