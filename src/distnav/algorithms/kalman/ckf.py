@@ -33,6 +33,7 @@ from typing import Any, Literal, TypedDict, Unpack
 
 import numpy as np
 
+from distnav._checks import whole_number
 from distnav.algorithms.consensus.averaging import ConsensusSchedule, consensus_product, consensus_schedule
 from distnav.algorithms.kalman import (
     DynamicModel,
@@ -86,9 +87,10 @@ def _resolve_rounds(rounds: int | None, sampling_interval_s: float | None, sendi
     if rounds is not None:
         if sampling_interval_s is not None or sending_interval_s is not None:
             raise ModelError("give either rounds or (sampling_interval_s, sending_interval_s), not both")
-        if int(rounds) != rounds or rounds < 0:
+        number = whole_number(rounds, "rounds", minimum=None, error=ModelError)
+        if number < 0:
             raise ModelError(f"rounds must be a non-negative integer, got {rounds}")
-        return int(rounds)
+        return number
     if sampling_interval_s is None or sending_interval_s is None:
         raise ModelError("give rounds, or both sampling_interval_s (Δ) and sending_interval_s (δ)")
     return consensus_rounds(sampling_interval_s, sending_interval_s)

@@ -45,6 +45,7 @@ from typing import TYPE_CHECKING, Any, Unpack
 
 import numpy as np
 
+from distnav._checks import real_number
 from distnav.algorithms.lsq.blue import LinearProblem
 from distnav.algorithms.lsq.driver import AdmmOptions, AdmmResult, MessageMode, XWeight, check_stopping, drive, prepare
 from distnav.algorithms.lsq.kernel import AdmmState, XUpdate, XUpdateMethod
@@ -172,6 +173,8 @@ def admm(
     same speed with your own exchange (docs/scale.md).
     """
     check_stopping(max_iterations, tol, atol)
+    if stop_at_reference is not None:
+        real_number(stop_at_reference, "stop_at_reference", minimum=0.0, error=ModelError)
     init = options.get("init", "zero")
     if max_iterations == 0 and (init is None or isinstance(init, str)):
         raise ModelError(

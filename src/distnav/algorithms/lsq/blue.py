@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav._checks import real_array
+from distnav._checks import real_array, real_number, whole_number
 from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange.core import CommTotals
@@ -275,15 +275,15 @@ MIN_WEIGHT, MAX_WEIGHT = 1e-100, 1e100
 def weight_matrix(W: ArrayLike, p: int) -> np.ndarray:
     """The ADMM weight matrix: a scalar ``ρ > 0`` gives ``ρ I_p``; a ``(p, p)`` matrix must be symmetric
     positive definite (paper 000, eq. (8))."""
-    arr = np.asarray(W, dtype=float)
+    arr = real_array(W, "the weight W", error=ModelError)
     if arr.ndim == 0:
         rho = float(arr)
         if not np.isfinite(rho) or rho <= 0:
-            raise ModelError(f"the weight ρ must be finite and > 0, got {rho}")
+            raise ModelError(f"the weight W = ρ must be finite and > 0, got {rho}")
         if not MIN_WEIGHT <= rho <= MAX_WEIGHT:
             raise ModelError(
-                f"the weight ρ = {rho:g} is outside {MIN_WEIGHT:g}..{MAX_WEIGHT:g}: ADMM's updates multiply by it and "
-                "its square, which overflow or vanish in float64; scale the observations instead"
+                f"the weight W = ρ = {rho:g} is outside {MIN_WEIGHT:g}..{MAX_WEIGHT:g}: ADMM's updates multiply by it "
+                "and its square, which overflow or vanish in float64; scale the observations instead"
             )
         return rho * np.eye(p)
     if arr.shape != (p, p):
@@ -373,6 +373,7 @@ def blue(problem: LinearProblem, *, rcond: float = 1e-10, W: ArrayLike | None = 
     Raises :class:`~distnav.errors.ModelError` when ``rank(A) < p`` (eq. (2) fails), naming a basis of the
     inestimable directions (e.g. ``x[0] − x[1]``). With ``W`` also returns ``û_i = W⁻¹(r_i − N_i x̂)`` (eq. (9)).
     """
+    rcond = real_number(rcond, "rcond", minimum=0.0, below=1.0, error=ModelError)
     N_i, r_i = problem.normal_equations
     N = N_i.sum(axis=0)
     r = r_i.sum(axis=0)
@@ -573,6 +574,7 @@ def method_of_multipliers(
     """Run :func:`iterate_method_of_multipliers`; the trace holds ``x`` (k × n × p), ``z``, ``u``, ``dual_value``
     ``g(u^[k])`` (eq. (10)) and, with ``reference``, ``distance_to_reference``. ``dual_value_initial`` is
     ``g(u^[0])``. Reference solver: it needs a fusion centre (no communication is modelled)."""
+    iterations = whole_number(iterations, "iterations", minimum=None, error=ModelError)
     states = iterate_method_of_multipliers(problem, W=W, iterations=iterations, u0=u0)
     return _run(problem, states, W, u0, reference, "method of multipliers")
 

@@ -23,6 +23,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from distnav._checks import whole_number
 from distnav.algorithms.ranging.csg_iterate import _cost_of, _graduated, _loss_scale, _summarize, iterate_csg
 from distnav.algorithms.ranging.data import RangingData, RangingResult
 from distnav.algorithms.ranging.line_search_pair import iterate_line_search_pair
@@ -576,6 +577,7 @@ def solve(
     problem: RangingData, solver: str, *, iterations: int = 500, exchange: Exchange | None = None, **options: Any
 ) -> RangingResult:
     """Run one of :data:`SOLVERS` by name with paper defaults (``options`` go to the solver's front door)."""
+    iterations = whole_number(iterations, "iterations", error=ModelError)
     key = str(solver).upper()
     if key == "LM":
         return solve_lm(problem, max_iterations=iterations, **options)

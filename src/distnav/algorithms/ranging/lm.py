@@ -31,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from distnav._blas import single_threaded_blas
+from distnav._checks import whole_number
 from distnav.algorithms.ranging.damped import DampedSolver as _DampedSolver
 from distnav.algorithms.ranging.data import RangingData, RangingResult
 from distnav.algorithms.ranging.losses import LOSSES, robust_weights
@@ -173,8 +174,7 @@ def levenberg_marquardt(
 def _check_lm(loss: str, max_iterations: int) -> None:
     if loss not in LOSSES:
         raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-    if max_iterations < 0:
-        raise ModelError(f"max_iterations must be ≥ 0, got {max_iterations}")
+    whole_number(max_iterations, "max_iterations", error=ModelError, allow_float=False)
 
 
 def _predicted_reduction(J: Any, delta: np.ndarray, w: np.ndarray, g: np.ndarray) -> float:
