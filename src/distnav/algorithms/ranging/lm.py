@@ -140,9 +140,8 @@ def levenberg_marquardt(
 
     Stops when an accepted step reduces the objective by less than ``ftol`` (relative, actual and predicted),
     when the step is below ``xtol·(‖x‖ + xtol)``, when ``max |Gᵀg| / (‖G_col‖ ‖g‖) ≤ gtol`` (MINPACK's cosine
-    test), or after ``max_iterations`` trial steps (``options``: :class:`LMOptions`, with keyword ``changes`` to
-    it). ``callback(k, x)`` is called after every iteration.
-    Runs with OpenBLAS limited to one thread (:func:`single_threaded_blas`).
+    test), or after ``max_iterations`` trial steps (``options``: :class:`LMOptions`, with keyword ``changes``).
+    ``callback(k, x)`` is called after every iteration. Runs with OpenBLAS on one thread (:func:`single_threaded_blas`).
     """
     c = resolve_options(LMOptions, options, changes)
     max_iterations, xtol, lambda0 = c.max_iterations, c.xtol, c.lambda0
