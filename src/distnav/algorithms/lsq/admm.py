@@ -41,7 +41,7 @@ reference (all in :mod:`distnav.algorithms.lsq.nonlinear`, re-exported here). Th
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -62,39 +62,16 @@ from distnav.errors import ModelError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
 
-if TYPE_CHECKING:
-    from distnav.algorithms.lsq.nonlinear import (
-        LinearizedAdmmResult,
-        NonlinearModel,
-        NonlinearProblem,
-        RangeModel,
-        admm_linearized,
-        admm_nonlinear,
-        gauss_newton,
-        range_positioning_problem,
-    )
-
-_NONLINEAR = frozenset(
-    {
-        "LinearizedAdmmResult",
-        "NonlinearModel",
-        "NonlinearProblem",
-        "RangeModel",
-        "admm_linearized",
-        "admm_nonlinear",
-        "gauss_newton",
-        "range_positioning_problem",
-    }
-)
-
 
 def __getattr__(name: str) -> Any:
-    """The nonlinear variants, re-exported from :mod:`distnav.algorithms.lsq.nonlinear` on first use (PEP 562): an
-    MPI job of the linear kernel does not import them at start-up."""
-    if name in _NONLINEAR:
+    """The nonlinear variants (the names of :data:`distnav.algorithms.lsq.nonlinear.__all__`), re-exported from
+    :mod:`distnav.algorithms.lsq.nonlinear` on first use (PEP 562): an MPI job of the linear kernel does not import
+    them at start-up (so they are not in this module's ``__all__``)."""
+    if not name.startswith("_"):
         from distnav.algorithms.lsq import nonlinear as module
 
-        return getattr(module, name)
+        if name in module.__all__:
+            return getattr(module, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
@@ -103,20 +80,12 @@ __all__ = [
     "AdmmResult",
     "AdmmRunOptions",
     "AdmmState",
-    "LinearizedAdmmResult",
     "MessageMode",
-    "NonlinearModel",
     "XUpdateMethod",
     "XWeight",
     "iterate_admm",
     "admm",
     "XUpdate",
-    "NonlinearProblem",
-    "RangeModel",
-    "range_positioning_problem",
-    "gauss_newton",
-    "admm_linearized",
-    "admm_nonlinear",
 ]
 
 
