@@ -213,7 +213,7 @@ class GraphPart:
             k = np.minimum(np.searchsorted(own, src), max(own.size - 1, 0))
             halo = np.unique(src[own[k] != src]).astype(np.int64) if own.size else np.zeros(0, np.int64)
             del k
-        out_edge_ids = _reverse_edge_ids(key, n, own, src, counts, edge_start)
+        out_edge_ids = _reverse_edge_ids(key, n, own, src, counts, (lo, own_start), edge_start)
         loop = 1 if self_loops else 0
         halo_len = np.searchsorted(key, halo * n + n) - np.searchsorted(key, halo * n)
         return cls(
@@ -293,14 +293,21 @@ def _check_row_lengths(own: np.ndarray, counts: np.ndarray, expected: np.ndarray
 
 
 def _reverse_edge_ids(
-    key: np.ndarray, n: int, own: np.ndarray, src: np.ndarray, counts: np.ndarray, edge_start: EdgeStart
+    key: np.ndarray,
+    n: int,
+    own: np.ndarray,
+    src: np.ndarray,
+    counts: np.ndarray,
+    own_rows: tuple[np.ndarray, np.ndarray],
+    edge_start: EdgeStart,
 ) -> np.ndarray:
     """Global id of the reverse of every incoming edge: the edge ``dst → src`` is entry ``dst`` of row ``src``.
 
     The reverse edges are exactly the listed entries whose neighbour is owned; in key order they are sorted by
     ``(row, owned neighbour)``, the incoming edges by ``(owned receiver, sender)``: one is the transpose of the other,
     made by scipy's linear-time CSR → CSC conversion (a stable counting sort by the owned node, no comparison sort),
-    then checked entry by entry against the incoming edges."""
+    then checked entry by entry against the incoming edges. ``own_rows``: each owned row's first position in ``key``
+    and its first edge id (known already: only the halo rows' are looked up)."""
     import scipy.sparse as sp
 
     nbr = key % n
@@ -323,7 +330,15 @@ def _reverse_edge_ids(
     row = row_of[first]
     del row_of
     counts_row = np.diff(np.append(first, rev.size))
-    rev -= np.repeat(np.searchsorted(key, row * n) - np.asarray(edge_start(row), np.int64), counts_row)
+    # each row's first key position minus its first edge id: an entry's position minus it is its edge id
+    k = np.minimum(np.searchsorted(own, row), max(own.size - 1, 0))
+    mine = own[k] == row if own.size else np.zeros(row.size, bool)
+    base = np.empty(row.size, np.int64)
+    base[mine] = own_rows[0][k[mine]] - own_rows[1][k[mine]]
+    halo = row[~mine]
+    base[~mine] = np.searchsorted(key, halo * n) - np.asarray(edge_start(halo), np.int64)
+    del k, mine, halo
+    rev -= np.repeat(base, counts_row)
     ptr = np.zeros(row.size + 1, np.int64)
     np.cumsum(counts_row, out=ptr[1:])
     idx = np.int32 if max(row.size, own.size, rev.size) < 2**31 - 1 else np.int64
