@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import DataFileError, ModelError
 from distnav.models.gnss.gfbias import (
     TEC_RW_M_PER_SQRT_S,
@@ -117,6 +118,7 @@ class BiasModelOptions:
     station_weighting: str = "auto"
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         for name, value, allowed in (
             ("ionosphere", self.ionosphere, IONOSPHERE_MODES),
             ("weighting", self.weighting, WEIGHTINGS),
