@@ -68,9 +68,13 @@ def gf_m_per_dsb_ns(band: int = 2) -> float:
     return C_M_S * 1e-9 / (mu(band) - 1.0)
 
 
-def geometry_free_band_m(p1_m: np.ndarray, pb_m: np.ndarray, band: int = 2) -> np.ndarray:
-    """``(P_b − P_1)/(μ_b − 1)`` [m] with the frequency factor of the second code's band; NaN propagates."""
-    out: np.ndarray = (np.asarray(pb_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(band) - 1.0)
+def geometry_free_band_m(
+    p1_m: np.ndarray, pb_m: np.ndarray, band: int = 2, *, mu_b: float | np.ndarray | None = None
+) -> np.ndarray:
+    """``(P_b − P_1)/(μ_b − 1)`` [m] with the frequency factor of the second code's GPS band, or ``mu_b`` (scalar
+    or (S,) per satellite column: another system's pair, GLONASS channels); NaN propagates."""
+    factor = (mu(band) if mu_b is None else np.asarray(mu_b, dtype=float)) - 1.0
+    out: np.ndarray = (np.asarray(pb_m, dtype=float) - np.asarray(p1_m, dtype=float)) / factor
     return out
 
 
