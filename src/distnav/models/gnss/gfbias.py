@@ -58,6 +58,9 @@ code's information on the level), 1 mm/√s (0.37 TECU per hour) is far stiffer 
 through the elevation dependence of the mapping function, into the satellite DCBs (6-h sessions several times
 worse than the full day; measured in docs/ionosphere.md, "Why the 6-h sessions got worse")."""
 
+NORMALS_BLOCK = 64
+"""Epochs whose normals :meth:`BiasGeometryFreeSeries.normals` computes at once (one batched product)."""
+
 DATUMS = ("zero-mean", "pivot", "receiver")
 """Output datums: zero-mean satellites (IGS products), pivot satellite, reference receiver."""
 
@@ -213,6 +216,7 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         self._scol = layout.satellite_column()
         self._last_design: tuple[tuple[int, bytes], np.ndarray, np.ndarray] | None = None
         self._epoch_cache: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._normals_block: tuple[int, np.ndarray, np.ndarray] | None = None
         self._static = np.zeros((n, S, layout.n_states))
         for i in range(n):
             if self._rcol[i] >= 0:
@@ -253,9 +257,30 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         return A, w
 
     def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        A, w = self.design(epoch, nodes)
-        y = None if self._y is None else self._y[self._epoch(epoch), self._nodes(nodes)]
-        return _weighted_normals(A, w, y)
+        """Every node's ``N = Āᵀ W Ā``, ``r = Āᵀ W y`` at ``epoch`` (k, p, p), (k, p): computed for
+        :data:`NORMALS_BLOCK` epochs of all nodes at once (the filters walk the epochs in order) and sliced."""
+        t, idx = self._epoch(epoch), self._nodes(nodes)
+        blk = self._normals_block
+        if blk is None or not blk[0] <= t < blk[0] + blk[1].shape[0]:
+            blk = self._normals_block = self._block_normals(t)
+        N, r = blk[1][t - blk[0]], blk[2][t - blk[0]]
+        return N[idx], r[idx]
+
+    def _block_normals(self, t0: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """The normals of epochs ``t0 … t0 + NORMALS_BLOCK − 1`` (B, n, p, p), (B, n, p): the design rows of
+        :meth:`_epoch_design` for the block in one array, then one batched product."""
+        ts = np.arange(t0, min(t0 + NORMALS_BLOCK, self.n_epochs))
+        nt = self.layout.n_tec_terms
+        A = np.repeat(self._static[None], ts.size, axis=0)
+        for i in range(self.n_nodes):
+            g = int(self._groups[i])
+            A[:, i, :, nt * g : nt * (g + 1)] = self._a[ts, i]
+        w = self._w[ts]
+        A *= (w > 0)[..., None]
+        Aw = A * w[..., None]
+        N = np.swapaxes(Aw, -1, -2) @ A
+        r = np.zeros(N.shape[:-1]) if self._y is None else np.einsum("bksp,bks->bkp", Aw, self._y[ts])
+        return int(t0), N, r
 
     def records(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per node and satellite the observation (m) and its weight ``1/σ²`` (0: not tracked), (k, S) each: the
