@@ -33,10 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from distnav.algorithms.kalman import DynamicModel, MeasurementSeries
+from distnav.algorithms.kalman import DynamicModel
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, mu
-from distnav.models.gnss.ionosphere import TEC_NAMES, TEC_NAMES_QUADRATIC, VTEC_RW_STD_M_PER_SQRT_S, series_inputs
+from distnav.models.gnss.ionosphere import TEC_NAMES, TEC_NAMES_QUADRATIC, VTEC_RW_STD_M_PER_SQRT_S, SeriesArrays
 
 __all__ = [
     "DATUMS",
@@ -112,31 +112,24 @@ class BiasStateLayout:
 
     def receiver_column(self) -> np.ndarray:
         """State column of each receiver's bias (``-1`` for the reference receiver in basis "receiver")."""
-        cached = self.__dict__.get("_rcol")
-        if cached is not None:
-            return np.asarray(cached).copy()
-        col = np.full(len(self.receivers), -1, np.int64)
-        k = self.n_tec
-        for j, r in enumerate(self.receivers):
-            if not (self.basis == "receiver" and r == self.reference):
-                col[j] = k
-                k += 1
-        object.__setattr__(self, "_rcol", col.copy())
-        return col
+        lumped = self.reference if self.basis == "receiver" else None
+        return self._columns("_rcol", self.receivers, lumped, self.n_tec)
 
     def satellite_column(self) -> np.ndarray:
         """State column of each satellite's bias (``-1`` for the pivot in basis "pivot")."""
-        cached = self.__dict__.get("_scol")
-        if cached is not None:
-            return np.asarray(cached).copy()
-        col = np.full(len(self.svs), -1, np.int64)
-        k = self.n_tec + int((self.receiver_column() >= 0).sum())
-        for j, s in enumerate(self.svs):
-            if not (self.basis == "pivot" and s == self.reference):
-                col[j] = k
-                k += 1
-        object.__setattr__(self, "_scol", col.copy())
-        return col
+        lumped = self.reference if self.basis == "pivot" else None
+        return self._columns("_scol", self.svs, lumped, self.n_tec + int((self.receiver_column() >= 0).sum()))
+
+    def _columns(self, key: str, names: Sequence[str], lumped: str | None, first: int) -> np.ndarray:
+        """Consecutive state columns from ``first`` for ``names``, ``-1`` for the one lumped into the others
+        (computed once, a copy returned)."""
+        cached = self.__dict__.get(key)
+        if cached is None:
+            cached = np.full(len(names), -1, np.int64)
+            free = [j for j, name in enumerate(names) if name != lumped]
+            cached[free] = first + np.arange(len(free))
+            object.__setattr__(self, key, cached)
+        return np.asarray(cached).copy()
 
     @property
     def n_states(self) -> int:
@@ -178,7 +171,7 @@ def bias_dynamics(
     return DynamicModel(layout.n_states, noise_map=[H] * dt.size, noise_reduced_cov=[np.diag(q2 * d) for d in dts])
 
 
-class BiasGeometryFreeSeries(MeasurementSeries):
+class BiasGeometryFreeSeries(SeriesArrays):
     """Per-node, per-epoch normals ``N = Āᵀ W Ā``, ``r = Āᵀ W y`` of the undifferenced model (module doc) with
     design rows ``Ā = [a_s (node's TEC block), e_{col(i)}, e_{col(s)}]`` and weights ``w = 1/σ²``.
 
@@ -187,31 +180,20 @@ class BiasGeometryFreeSeries(MeasurementSeries):
     observed), ``tracked`` (T, n, S), ``groups`` (n,).
     """
 
-    def __init__(
-        self,
-        layout: BiasStateLayout,
-        coefficients: np.ndarray,
-        sigma_m: np.ndarray,
-        *,
-        obs_m: np.ndarray | None = None,
-        tracked: np.ndarray | None = None,
-        groups: np.ndarray | None = None,
-    ) -> None:
-        a, sig, ok, y, g = series_inputs(
-            coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres, layout.n_tec_terms
-        )
-        T, n, S, _ = a.shape
-        if S != len(layout.svs) or n != len(layout.receivers):
+    layout: BiasStateLayout
+
+    def _usable(self, a: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """Every tracked observation, on the layout's receivers and satellites."""
+        _, n, S, _ = a.shape
+        if S != len(self.layout.svs) or n != len(self.layout.receivers):
             raise ModelError(
                 f"coefficients for {n} receivers × {S} satellites, the layout has "
-                f"{len(layout.receivers)} × {len(layout.svs)}"
+                f"{len(self.layout.receivers)} × {len(self.layout.svs)}"
             )
-        self.layout = layout
-        self.n_epochs, self.n_nodes, self.n_states, self.n_satellites = T, n, layout.n_states, S
-        self._a = np.where(ok[..., None], a, 0.0)
-        self._w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
-        self._y = None if y is None else np.where(ok, y, 0.0)
-        self._groups = g
+        return ok
+
+    def _setup(self) -> None:
+        layout, n, S = self.layout, self.n_nodes, self.n_satellites
         self._rcol = layout.receiver_column()
         self._scol = layout.satellite_column()
         self._last_design: tuple[tuple[int, bytes], np.ndarray, np.ndarray] | None = None
@@ -223,7 +205,6 @@ class BiasGeometryFreeSeries(MeasurementSeries):
                 self._static[i, :, self._rcol[i]] = 1.0
         sv = np.flatnonzero(self._scol >= 0)
         self._static[:, sv, self._scol[sv]] = 1.0
-        self.tracked = ok
 
     def design(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Design rows ``Ā`` (k, S, p) and weights ``w`` (k, S) (zero where not tracked)."""
