@@ -64,8 +64,12 @@ def _wall(job: tuple[int, float | None]) -> dict[str, Any]:
     main = rmse(sol.positions_m)
     other = rmse(sol.mirror_positions_m) if sol.mirror_positions_m is not None else None
     m = sol.mirror or {}
-    # the test's side A (lower squared residuals on the links both fits kept) and whether it is the truth
-    a_map = main if m.get("written_is_a", True) else other
+    # the test's side A (lower squared residuals on the links both fits kept) and whether it is the truth (a side
+    # chosen by the robust test is written alone: then A is the unwritten map, the truth when the written one is not)
+    written_true = main < MIRROR_M
+    a_is_truth = (
+        written_true if m.get("written_is_a", True) else (not written_true if other is None else other < MIRROR_M)
+    )
     return {
         "seed": seed,
         "band_m": band,
@@ -81,7 +85,10 @@ def _wall(job: tuple[int, float | None]) -> dict[str, Any]:
         "apart_m": m.get("apart_m"),
         "robust_cost_a": m.get("robust_cost_a"),
         "robust_cost_b": m.get("robust_cost_b"),
-        "a_is_truth": None if a_map is None else bool(a_map < MIRROR_M),
+        "robust_log_ratio": m.get("robust_log_ratio"),
+        "robust_threshold": m.get("robust_threshold"),
+        "chosen_by": m.get("chosen_by"),
+        "a_is_truth": bool(a_is_truth) if m else None,
     }
 
 
@@ -291,11 +298,20 @@ def side_test_row(wall: list[dict[str, Any]]) -> dict[str, Any]:
     above_chosen = sum(r["chosen"] and r["rmse_m"] < MIRROR_M for r in above)
     amb = [r for r in t if r["exit"] == 4]
     pw = np.array([r["power"] for r in amb], float) if amb else np.zeros(0)
+    d_rob = [(r["robust_log_ratio"] if r["a_is_truth"] else -r["robust_log_ratio"]) for r in t]  # positive: truth
+    rob_above = [r for r, d in zip(t, d_rob, strict=True) if d > r["robust_threshold"]]
+    by: dict[str, int] = {}
+    for r in t:
+        if r["chosen"]:
+            by[r["chosen_by"]] = by.get(r["chosen_by"], 0) + 1
     return {
         "name": "side test: Δ (true side) against its critical value",
         "tested": len(t),
         "delta_true_above_critical": len(above),
         "of_them_truth_chosen": above_chosen,
+        "robust_ratio_true_above_threshold": len(rob_above),
+        "of_them_truth_chosen_robust": sum(r["chosen"] and r["rmse_m"] < MIRROR_M for r in rob_above),
+        "chosen_by": by,
         "ambiguous": len(amb),
         "ambiguous_power_median": float(np.median(pw)) if pw.size else None,
         "ambiguous_power_max": float(pw.max()) if pw.size else None,
