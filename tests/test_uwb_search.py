@@ -69,3 +69,36 @@ def _positions_only(positions_m: np.ndarray) -> object:
         offsets_m = None
 
     return _R()
+
+
+def test_a_distributed_solver_starts_from_the_better_handedness(tmp_path) -> None:
+    """choose_handedness on the same hall: the prepared start (33 m off) is replaced by the other handedness (its
+    LM fit of every link is far cheaper); N-CLM from there no longer certifies an anchor that is off (it did: A15
+    and A16 "met" 0.3 m 6–10 m off); on a hall whose prepared start is right nothing changes."""
+    from distnav.commands.uwb import solve_range_log
+    from distnav.experiments.uwb_field import write_hall
+    from distnav.models.uwb.field import FieldOptions
+    from distnav.models.uwb.hall import PLANT_LIKE, simulate_hall
+    from distnav.models.uwb.problems import rmse_m
+    from distnav.models.uwb.search import choose_handedness
+    from distnav.models.uwb.verdict import run_verdict
+
+    h = simulate_hall(np.random.default_rng([30, 30]), None, **PLANT_LIKE, known="corner")
+    f = write_hall(h, tmp_path / "corner")
+    sol, _, _ = solve_range_log(
+        f["ranges"], f["known"], heights=f["heights"], truth=f["truth"], options=FieldOptions(solver="N-CLM")
+    )
+    p = sol.problem
+    assert p.truth_m is not None
+    assert "other handedness" in sol.message
+    err = np.linalg.norm(sol.positions_m - p.truth_m, axis=1)
+    v = run_verdict(sol)
+    assert all(err[i] <= 0.3 for i in np.flatnonzero(p.estimated) if p.ids[i] not in v.failing)
+    assert rmse_m(p, sol.positions_m) < 5.0  # was 22 m
+    assert choose_handedness(p, FieldOptions(solver="LM")) == (p, "")  # LM: its own multi-start
+    good = simulate_hall(np.random.default_rng([30, 1]), None, **PLANT_LIKE, known="middle")
+    g = write_hall(good, tmp_path / "middle")
+    sol2, _, _ = solve_range_log(g["ranges"], g["known"], heights=g["heights"], truth=g["truth"])
+    prepared = sol2.problem.with_initial(np.asarray(sol2.problem.initial_m))
+    got, note = choose_handedness(prepared, FieldOptions(solver="N-CLM"))
+    assert note == "" and got is prepared

@@ -60,6 +60,7 @@ from scipy import special
 from distnav.models.uwb.field import FieldOptions, FieldSolution, all_links_cost, solve_field
 from distnav.models.uwb.geometry import GeometryIssue, GeometryReport
 from distnav.models.uwb.problems import RangingProblem
+from distnav.models.uwb.search import choose_handedness
 from distnav.typing import FloatArray
 
 __all__ = [
@@ -161,12 +162,14 @@ def side_test(
 def solve_with_mirror_test(
     problem: RangingProblem, opts: FieldOptions, geometry: GeometryReport, exchange: Callable[[Any], Any] | None = None
 ) -> FieldSolution:
-    """:func:`~distnav.models.uwb.field.solve_field`, plus the mirror test of the module docstring where
-    ``geometry`` has a ``near_line`` issue (both fits are then made without it; it is kept, weakly determined,
-    only when the test cannot be made)."""
+    """:func:`~distnav.models.uwb.field.solve_field` (a distributed solver from the start of the better handedness,
+    :func:`~distnav.models.uwb.search.choose_handedness`), plus the mirror test of the module docstring where
+    ``geometry`` has a ``near_line`` issue (both fits are then made without it; kept only when no test is made)."""
+    problem, start_note = choose_handedness(problem, opts)
     near = [i for i in geometry.issues if i.kind == "near_line"]
     if not near:
-        return solve_field(problem, opts, geometry=geometry, exchange=exchange)
+        sol = solve_field(problem, opts, geometry=geometry, exchange=exchange)
+        return dataclasses.replace(sol, message=sol.message + start_note) if start_note else sol
     rest = tuple(i for i in geometry.issues if i.kind != "near_line")
     plain = dataclasses.replace(geometry, issues=rest)
     sol = solve_field(problem, opts, geometry=plain, exchange=exchange)
