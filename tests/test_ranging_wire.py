@@ -14,7 +14,15 @@ from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.covariance import ECONOMY_CG_RTOL, ECONOMY_WIRE_DTYPE, central_precision
 from distnav.algorithms.ranging.csg import solve
 from distnav.algorithms.ranging.lm import solve_lm
-from distnav.algorithms.ranging.refine import Links, NormalSystem, block_preconditioner, jacobian_rows, pcg
+from distnav.algorithms.ranging.neighbourhoods import half_measurements
+from distnav.algorithms.ranging.refine import (
+    Links,
+    NormalSystem,
+    block_preconditioner,
+    jacobian_rows,
+    pcg,
+    refine,
+)
 from distnav.algorithms.ranging.wire import pack_half, unpack_half
 from distnav.errors import ModelError
 from distnav.exchange import make_exchange
@@ -306,3 +314,43 @@ def test_preconditioned_stop_drops_one_reduced_float_per_iteration(hall):
             assert r @ r <= 0.1**2 * (b.reshape(-1) @ b.reshape(-1)) * (1 + 1e-9)
     for stop, (floats, its) in got.items():
         assert its > 3 and floats == 2 * its + (1 if stop else 2) * (its + 1)
+
+
+@pytest.mark.parametrize("offsets", ["common", "per_anchor"])
+def test_steps_leave_both_ends_with_the_same_parameters(hall, offsets, monkeypatch):
+    """The LM phase's trials sent as float16 steps from the accepted parameters (``wire.STEPS``): every anchor's
+    copy of each neighbour's parameters at the end is that neighbour's own, bit for bit (the sender moves by the
+    rounded step), and the phase ends within 0.01 mm of the one that sends the float64 parameters each trial, and
+    within 0.1 mm of LM, with fewer bytes."""
+    p = subset_measurements(hall[0], ~hall[2])
+    opts = {**OPTS, "range_offsets": offsets, "offset_prior_sigma_m": 0.1}
+    lm = solve_lm(p, **opts)
+    ex = _exchange(p)
+    owner, other, _, _ = half_measurements(p, ex)
+    sigma = np.full(p.n_meas, 0.1)
+    out = {}
+    for steps in (True, False):
+        monkeypatch.setattr(wire, "STEPS", steps)
+        ex = _exchange(p)
+        ref = refine(
+            p,
+            ex,
+            p.initial_m,
+            np.zeros(p.n_anchors),
+            sigma=sigma,
+            scale=0.3 / sigma,
+            loss="cauchy",
+            range_offsets=offsets,
+            offset_prior_sigma_m=0.1,
+            ftol=1e-6,
+            xtol_m=1e-4,
+        )
+        assert ref.status == "converged"
+        assert np.array_equal(ref.half_other_m, ref.own_m[other])
+        if offsets == "per_anchor":
+            assert ref.offset_m is not None and ref.half_offset_m is not None
+            assert np.array_equal(ref.half_offset_m, ref.offset_m[owner] + ref.offset_m[other])
+        out[steps] = (ref.own_m, ex.comm_totals().bytes)
+    assert np.abs(out[True][0] - out[False][0]).max() < 1e-5
+    assert np.abs(out[True][0] - lm.estimates).max() < 1e-4
+    assert out[True][1] < out[False][1]

@@ -164,10 +164,12 @@ def refine(
     n_unknowns = int(links.total(free.sum(axis=1).astype(float))) + (1 if common else 0)
     cg_max = min(n_unknowns + 10, 2000)
 
-    def evaluate(xv: np.ndarray, cv: float, step: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, float]:
+    def evaluate(
+        xv: np.ndarray, cv: float, step: np.ndarray, base: np.ndarray | None = None
+    ) -> tuple[np.ndarray, float, np.ndarray, float]:
         """Neighbour rows, F, the per-half residuals at ``(xv, cv)`` and the largest move of ``step`` (one
-        broadcast and one reduction)."""
-        nb = links.neighbours(xv)
+        broadcast and one reduction; ``base``: the neighbour rows ``step`` moved from, only the step is sent)."""
+        nb = links.neighbours(xv) if base is None or not steps else links.wire.stepped(base, step)
         diff = xv[owner, :dim] - nb[:, :dim]
         bias = (xv[owner, dim] + nb[:, dim]) if per else cv
         r = (np.linalg.norm(diff, axis=1) + bias - rng_m) / sig
@@ -176,6 +178,7 @@ def refine(
         both = links.gathered(np.c_[f_node, np.max(np.abs(step), axis=1, initial=0.0)])
         return nb, float(np.sum(both[:, 0])), r, float(np.max(both[:, 1], initial=0.0))
 
+    steps = wire.STEPS and not wire.PLAIN
     nb, F, r, _ = evaluate(x, c, np.zeros_like(x))
     mu = MU0
     status, rounds, cg_total = "max_iterations", 0, 0
@@ -226,8 +229,9 @@ def refine(
                 )
                 dx, dcv = dxk[:, :, 0], float(dck[0])
                 cg_total += its
+                dx = links.wire.rounded(dx) if steps else dx  # moved by the step its neighbours receive
                 x_new, c_new = x + dx, c + dcv
-                nb_new, F_new, r_new, moved = evaluate(x_new, c_new, dx)
+                nb_new, F_new, r_new, moved = evaluate(x_new, c_new, dx, nb)
                 moved = max(moved, abs(dcv))
                 if np.isfinite(F_new) and F_new <= F:
                     change = F - F_new

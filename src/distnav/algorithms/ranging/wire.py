@@ -34,7 +34,13 @@ and what it received before. So :class:`Wire`
    other end's Jacobian row times its row of ``v``, and that end has the row (the pair's unit vector, both ends
    know both positions, and the offset's ``1``): it sends ``σ_l · a_lᵀ v_j`` of its first sample of the pair, the
    receiver divides by its own sample's σ. ``k`` values per link (one exponent byte with them in float16) where a
-   row was ``k`` per free column: 3 B instead of 5 per link and CG iteration with heights held.
+   row was ``k`` per free column: 3 B instead of 5 per link and CG iteration with heights held;
+5. sends a trial's parameters, after the first, as the **LM step from the last accepted parameters**
+   (:meth:`Wire.stepped`, :data:`STEPS`), its free columns in float16 with the shared exponent (5 B where the
+   float64 columns were 16): the receiver knows the accepted ones (acceptance is decided on a network total)
+   and the sender moves by the rounded step (:meth:`Wire.rounded`), so both ends hold the same parameters bit
+   for bit — a step rounded to 11 bits is another inexact LM step (CG's forcing term is 0.1); the objective,
+   the gradient and so the fixed point are evaluated at parameters every end agrees on.
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
 """
@@ -60,6 +66,7 @@ __all__ = [
     "HALF_MAX_ANCHORS",
     "cg_wire_dtype",
     "PROJECTED",
+    "STEPS",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
@@ -81,6 +88,9 @@ def cg_wire_dtype(n_anchors: int) -> type[np.floating]:
 #: the LM phase's matrix–vector products: each anchor sends each neighbour its own product with the link's Jacobian
 #: row, ``k`` values per link (:meth:`Wire.projected`, item 4), not its row of the CG direction (False: as before)
 PROJECTED = True
+#: after the first, the LM phase's trial parameters travel as the step from the last accepted ones, float16 with
+#: the shared exponent (:meth:`Wire.stepped`, item 5); False: the free columns in float64 (as before)
+STEPS = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -138,6 +148,24 @@ class Wire:
         out = self._params
         out[np.ix_(self.talks_other, self.cols)] = got[self.talks_other]
         return out.copy()
+
+    def rounded(self, step: np.ndarray) -> np.ndarray:
+        """An LM step ``(n_local, P)`` as :meth:`stepped` delivers it: its free columns through :func:`pack_half`
+        (the sender moves by this step, so that both ends hold the same parameters bit for bit; item 5)."""
+        out = np.zeros_like(step)
+        m = self.cols.size
+        out[:, self.cols] = unpack_half(pack_half(step[:, self.cols]), m)
+        return out
+
+    def stepped(self, base: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """Each half-measurement's other end's parameters moved from ``base`` (per half-measurement, as both ends
+        hold them) by its :meth:`rounded` ``step``: the free columns as float16 with the shared exponent, from
+        anchors with a free parameter (item 5)."""
+        m = self.cols.size
+        got = unpack_half(self._round(pack_half(step[:, self.cols]), self.active, self.talks_other), m)
+        out = np.array(base, float)
+        out[np.ix_(self.talks_other, self.cols)] += got[self.talks_other]
+        return out
 
     def vectors(self, v: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
         """Each half-measurement's other end's rows of the CG vector ``v`` ``(n_local, P, k)`` (zero at parameters
