@@ -318,10 +318,10 @@ def test_preconditioned_stop_drops_one_reduced_float_per_iteration(hall):
 
 @pytest.mark.parametrize("offsets", ["common", "per_anchor"])
 def test_steps_leave_both_ends_with_the_same_parameters(hall, offsets, monkeypatch):
-    """The LM phase's trials sent as float16 steps from the accepted parameters (``wire.STEPS``): every anchor's
+    """The LM phase's trials sent as steps from the accepted parameters (``wire.STEPS``, float32): every anchor's
     copy of each neighbour's parameters at the end is that neighbour's own, bit for bit (the sender moves by the
-    rounded step), and the phase ends within 0.01 mm of the one that sends the float64 parameters each trial, and
-    within 0.1 mm of LM, with fewer bytes."""
+    rounded step), and the phase ends within 0.05 mm of the one that sends the float64 parameters each trial (half
+    the stopping tolerance of 0.1 mm), both within 0.1 mm of LM, with fewer bytes."""
     p = subset_measurements(hall[0], ~hall[2])
     opts = {**OPTS, "range_offsets": offsets, "offset_prior_sigma_m": 0.1}
     lm = solve_lm(p, **opts)
@@ -351,6 +351,6 @@ def test_steps_leave_both_ends_with_the_same_parameters(hall, offsets, monkeypat
             assert ref.offset_m is not None and ref.half_offset_m is not None
             assert np.array_equal(ref.half_offset_m, ref.offset_m[owner] + ref.offset_m[other])
         out[steps] = (ref.own_m, ex.comm_totals().bytes)
-    assert np.abs(out[True][0] - out[False][0]).max() < 1e-5
-    assert np.abs(out[True][0] - lm.estimates).max() < 1e-4
+    assert np.abs(out[True][0] - out[False][0]).max() < 5e-5
+    assert max(np.abs(out[s][0] - lm.estimates).max() for s in out) < 1e-4
     assert out[True][1] < out[False][1]

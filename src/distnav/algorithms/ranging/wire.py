@@ -36,10 +36,10 @@ and what it received before. So :class:`Wire`
    receiver divides by its own sample's σ. ``k`` values per link (one exponent byte with them in float16) where a
    row was ``k`` per free column: 3 B instead of 5 per link and CG iteration with heights held;
 5. sends a trial's parameters, after the first, as the **LM step from the last accepted parameters**
-   (:meth:`Wire.stepped`, :data:`STEPS`), its free columns in float16 with the shared exponent (5 B where the
-   float64 columns were 16): the receiver knows the accepted ones (acceptance is decided on a network total)
+   (:meth:`Wire.stepped`, :data:`STEPS`), its free columns in float32 (8 B where the float64 columns were 16;
+   :data:`STEP_DTYPE`): the receiver knows the accepted ones (acceptance is decided on a network total)
    and the sender moves by the rounded step (:meth:`Wire.rounded`), so both ends hold the same parameters bit
-   for bit — a step rounded to 11 bits is another inexact LM step (CG's forcing term is 0.1); the objective,
+   for bit — a step rounded to 24 bits is another inexact LM step (CG's forcing term is 0.1); the objective,
    the gradient and so the fixed point are evaluated at parameters every end agrees on.
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
@@ -67,6 +67,7 @@ __all__ = [
     "cg_wire_dtype",
     "PROJECTED",
     "STEPS",
+    "STEP_DTYPE",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
@@ -91,6 +92,10 @@ PROJECTED = True
 #: after the first, the LM phase's trial parameters travel as the step from the last accepted ones, float16 with
 #: the shared exponent (:meth:`Wire.stepped`, item 5); False: the free columns in float64 (as before)
 STEPS = True
+#: the steps' type on the wire: float32 (8 B per link with heights held). float16 with the shared exponent (5 B)
+#: left the phase "converged" 1–20 mm from LM on a 16 × 16 grid (tests/test_csg_handover.py): the rounding of
+#: 2⁻¹¹ stirs the slow modes, which the step-size test of the stop does not see
+STEP_DTYPE: type[np.floating] = np.float32
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -150,19 +155,18 @@ class Wire:
         return out.copy()
 
     def rounded(self, step: np.ndarray) -> np.ndarray:
-        """An LM step ``(n_local, P)`` as :meth:`stepped` delivers it: its free columns through :func:`pack_half`
-        (the sender moves by this step, so that both ends hold the same parameters bit for bit; item 5)."""
+        """An LM step ``(n_local, P)`` as :meth:`stepped` delivers it: its free columns as :data:`STEP_DTYPE` (the
+        sender moves by this step, so that both ends hold the same parameters bit for bit; item 5)."""
         out = np.zeros_like(step)
-        m = self.cols.size
-        out[:, self.cols] = unpack_half(pack_half(step[:, self.cols]), m)
+        out[:, self.cols] = _decode(_encode(step[:, self.cols], STEP_DTYPE), self.cols.size)
         return out
 
     def stepped(self, base: np.ndarray, step: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameters moved from ``base`` (per half-measurement, as both ends
-        hold them) by its :meth:`rounded` ``step``: the free columns as float16 with the shared exponent, from
-        anchors with a free parameter (item 5)."""
-        m = self.cols.size
-        got = unpack_half(self._round(pack_half(step[:, self.cols]), self.active, self.talks_other), m)
+        hold them) by its :meth:`rounded` ``step``: the free columns as :data:`STEP_DTYPE`, from anchors with a
+        free parameter (item 5)."""
+        sent = _encode(step[:, self.cols], STEP_DTYPE)
+        got = _decode(self._round(sent, self.active, self.talks_other), self.cols.size)
         out = np.array(base, float)
         out[np.ix_(self.talks_other, self.cols)] += got[self.talks_other]
         return out
@@ -229,6 +233,16 @@ class Wire:
         got = np.asarray(values[pos])
         got[~self.talks_other] = 0.0
         return got
+
+
+def _encode(rows: np.ndarray, dtype: type[np.floating]) -> np.ndarray:
+    """Rows ``(n, m)`` on the wire as ``dtype`` (float16: :func:`pack_half`)."""
+    return pack_half(rows) if dtype == np.float16 else np.ascontiguousarray(rows, dtype=dtype)
+
+
+def _decode(sent: np.ndarray, m: int) -> np.ndarray:
+    """The float64 rows of :func:`_encode`'s ``(n, m)``."""
+    return unpack_half(sent, m) if sent.dtype == np.uint8 else np.asarray(sent, float)
 
 
 HALF = np.dtype("<f2")  # little-endian on the wire whatever the host (the field runtime's convention)
