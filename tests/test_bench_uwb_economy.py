@@ -4,28 +4,11 @@ busiest anchor sends no more messages per all-reduction."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 from scipy.sparse.csgraph import shortest_path
 
 from distnav.network.graph import Graph
-
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
-def _bench():
-    sys.path.insert(0, str(BENCH))
-    try:
-        spec = importlib.util.spec_from_file_location("_bench_uwb_economy", BENCH / "bench_uwb_economy.py")
-        assert spec and spec.loader
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        return mod
-    finally:
-        sys.path.remove(str(BENCH))
+from test_benchmark_runner import _load
 
 
 def test_balanced_tree_sends_2_n_minus_1_messages_and_unloads_the_hub():
@@ -33,7 +16,7 @@ def test_balanced_tree_sends_2_n_minus_1_messages_and_unloads_the_hub():
     around them): every tree sends 2(n − 1) messages per all-reduction (n − 1 up, n − 1 down); the hub is the root
     either way (it sends one message down to each of its 12 children); the outer anchors, reachable from two
     inner ones each, are spread over the inner ones (each inner anchor 2 children)."""
-    bench = _bench()
+    bench = _load("bench_uwb_economy")
     inner = np.arange(1, 13)
     outer = np.arange(13, 37)
     links = [(0, i) for i in inner] + [(i, i % 12 + 1) for i in inner]
