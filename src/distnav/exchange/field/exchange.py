@@ -284,6 +284,7 @@ class _FieldMixer(Mixer):
     the self-weight, ``x_i ← Σ_{j delivered} w_ij x_j + (w_ii + Σ_{j lost} w_ij) x_i`` (row sums stay 1)."""
 
     _fused: sp.csr_matrix | None = None
+    _no_edges = np.zeros(0, np.int64)
 
     def __init__(
         self, exchange: FieldExchange, edge_weight: np.ndarray, self_weight: np.ndarray, active: np.ndarray | None
@@ -300,7 +301,7 @@ class _FieldMixer(Mixer):
             raise ExchangeError(f"mixer needs 1 local row, got array of shape {x.shape}")
         flat = x.reshape(1, -1)
         cols, msg_bytes = ex._columns(flat, self._active_global), flat.shape[1] * flat.itemsize
-        lost_e = np.flatnonzero(self._act_in & ex._lost_in)
+        lost_e = self._no_edges if ex._lost_in is ex._no_loss else np.flatnonzero(self._act_in & ex._lost_in)
         if lost_e.size == 0:
             ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
             return csr_times(self._fused_block(), cols.ravel() if x.ndim == 1 else cols).reshape(x.shape)
