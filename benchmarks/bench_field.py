@@ -17,6 +17,9 @@ Rows:
 * ``loss10_latency50`` — 10 % of messages dropped (seeded schedule) and 0–50 ms random latency injected on every
   message: the field run's final deviation from the mean vs the in-process run's with the same drops.
   Goal: the same precision (ratio ≤ 1).
+* ``uwb_killed_at_20`` — N-CLM (metres objective) on a well-connected simulated hall of 28 anchor processes (8),
+  one free anchor exits at step 20: the others agree on it, solve again on the remaining data, and end within 1 mm
+  of LM on that data (and bitwise equal to N-CLM in-process on it).
 The machine load (1-minute load average) is reported in every row: the machine is shared.
 """
 
@@ -260,6 +263,47 @@ def _killed_row(tmp: Path, n: int, rounds: int) -> dict[str, Any]:
     }
 
 
+def _uwb_killed_row(tmp: Path, n: int) -> dict[str, Any]:
+    """``uwb_killed_at_20``: N-CLM (metres objective) on a well-connected simulated hall of ``n`` anchor processes,
+    a free anchor exits at step 20; the others agree on it, solve again on the remaining data and must end within
+    1 mm of LM on that data (the dead anchor's links dropped), and bitwise equal to N-CLM in-process on it."""
+    from distnav.algorithms.ranging.csg import solve
+    from distnav.commands.field_scenarios import remaining_data
+
+    sc = hall_scenario(n, 5, iterations=300, objective="metres", hall={"link_loss": 0.0, "range_limit_m": 40.0})
+    p = sc.ranging
+    victim = removable_node(p.graph, skip=set(np.flatnonzero(p.fixed).tolist()))
+    net = write_scenario(tmp / "uwb-killed", sc, LoopbackOptions(deadline_ms=5000, crash={victim: 20}))
+    load0 = _load()
+    summary = launch(net, tmp / "run-uwb-killed", timeout_s=1800, quiet=True)
+    rest = [i for i in range(n) if i != victim]
+    ok = summary["finished"] == rest and summary["crashed_on_purpose"] == [victim]
+    reduced = remaining_data(p, victim)
+    lm = solve(reduced, "LM", iterations=500, objective="metres")
+    ref = solve(reduced, "N-CLM", iterations=300, objective="metres", exchange=make_exchange(reduced.graph))
+    nodes = [summary["nodes"][str(i)] for i in rest] if ok else []
+    field = np.array([r["estimate"] for r in nodes], dtype=float) if ok else np.full_like(lm.estimates, np.nan)
+    diff = float(np.abs(field - lm.estimates).max())
+    named = sorted({k for r in nodes for k in r["lost_nodes"]})
+    steps = sorted({r["lost_nodes"].get(str(victim)) for r in nodes})
+    return {
+        "name": "uwb_killed_at_20",
+        "n": n,
+        "killed": victim,
+        "finished": len(summary["finished"]),
+        "lost_nodes_named": named,
+        "noticed_at_steps": steps,
+        "restarted_at_step": nodes[0]["restarted_at_step"] if ok else None,
+        "max_abs_diff_vs_lm_of_remaining_m": diff,
+        "bitwise_equal_inprocess_of_remaining": bool(ok and np.array_equal(field, ref.estimates)),
+        "seconds": summary["seconds"],
+        "wire_bytes": summary["wire_bytes"],
+        "load_1min": load0,
+        "goal": "others finish, status names it, ≤ 1 mm of LM on the remaining data",
+        "meets_goal": bool(ok and named == [str(victim)] and diff <= 1e-3),
+    }
+
+
 def run(quick: bool) -> list[dict[str, Any]]:
     n = 8 if quick else 32
     rows: list[dict[str, Any]] = []
@@ -271,6 +315,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
         rows.append(_algorithm_row(tmp, "ckf", ckf_scenario(n, 0, epochs=10 if quick else 30)))
         rows.append(_algorithm_row(tmp, "uwb_nclm_hall", hall_scenario(8 if quick else 28, 0, iterations=100)))
         rows.append(_loss_row(tmp, n, quick))
+        rows.append(_uwb_killed_row(tmp, 8 if quick else 28))
     return rows
 
 

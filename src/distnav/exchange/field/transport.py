@@ -26,7 +26,7 @@ import time
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -34,7 +34,7 @@ from distnav._optional import require
 from distnav.errors import ExchangeError
 from distnav.exchange.field.wire import Kind, Message, WireError, decode, encode
 
-__all__ = ["CurveKeys", "Peer", "Transport", "TransportOptions"]
+__all__ = ["CurveKeys", "Peer", "StepTransport", "Transport", "TransportOptions"]
 
 LOG = logging.getLogger("distnav.field")
 #: longest single blocking receive (ms): a step waits in slices of this, re-checking the clock between them
@@ -92,6 +92,28 @@ class TransportOptions:
             raise ExchangeError(f"start_timeout_s must be > 0, got {self.start_timeout_s}")
         if self.max_message_bytes < 64:
             raise ExchangeError(f"max_message_bytes must be >= 64, got {self.max_message_bytes}")
+
+
+class StepTransport(Protocol):
+    """What the field exchange and the spanning-tree operations need of a node's transport: :class:`Transport`, or a
+    view of it on the nodes that remain after a loss (:class:`~distnav.exchange.field.survivors.SubnetTransport`)."""
+
+    me: int
+    peers: dict[int, Peer]
+    options: TransportOptions
+
+    @property
+    def lost(self) -> dict[int, int]: ...
+
+    def post(self, peer: int, kind: Kind, step: int, array: np.ndarray) -> None: ...
+
+    def post_many(self, peers: list[int], kind: Kind, step: int, array: np.ndarray) -> None: ...
+
+    def collect(
+        self, kind: Kind, step: int, senders: list[int] | np.ndarray, *, deadline_s: float | None = None
+    ) -> dict[int, np.ndarray]: ...
+
+    def _refuse(self, reason: str, text: str) -> Message | None: ...
 
 
 @dataclass
