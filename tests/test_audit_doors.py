@@ -245,20 +245,20 @@ def test_the_findings_by_name() -> None:
         ("push_sum-ticks", 2.7, "ticks must be a whole number, got 2.7"),
         ("generate_problem-n_fixed", 2.7, "n_fixed must be a whole number, got 2.7"),  # before: every anchor fixed
         ("select_fixed-n_fixed", None, "n_fixed must be a whole number, got None"),
-        ("generate_problem-dim", 0, "dim must be ≥ 2, got 0"),
+        ("generate_problem-dim", 0, "dim must be 2 or 3, got 0"),
         ("blue-W", "3", "the weight W must be numbers"),  # before: the text '3' taken as ρ = 3
         ("blue-rcond", None, "rcond must be a number"),
         ("DynamicModel-n_states", 2.7, "n_states must be a whole number"),  # before: truncated to 2
         ("DynamicModel-n_states", 2**40, "GiB of memory"),
         ("ckf-rounds", math.nan, "rounds must be a whole number"),
-        ("ckf-test_level", 1 + 2j, "test level must be a number"),
+        ("ckf-test_level", 1 + 2j, "test_level must be a number"),
         ("make_exchange-order", math.nan, "order must be 'auto'"),
         ("FaultSchedule-seed", "3", "FaultSchedule.seed must be a whole number"),
         ("generate_layout-n_anchors", -1, "n_anchors must be ≥ 1"),  # before: numpy's sqrt warning
         ("simulate_hall-n_anchors", 2**62, "GiB of memory"),  # before: numpy tried 22.6 GiB
         ("simulate_hall-sigma_m", -1.0, "HallConfig.sigma_m must be ≥ 0"),
         ("solve-iterations", 2.7, "iterations must be a whole number, got 2.7"),
-        ("solve-consensus_rounds", 2.0, "consensus_rounds must be a whole number"),  # range(2.0) later
+        ("solve-consensus_rounds", 2.5, "consensus_rounds must be a whole number"),
         ("admm-stop_at_reference", "1e-6", "stop_at_reference must be a number"),
         ("gather_cost-sink", math.inf, "sink must be a whole number"),
     ]

@@ -236,7 +236,8 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-out-file", (*io, "--out", "{file}"), "is an existing file"),
         Cli("gnss-ionosphere-ranks-zero", (*io, *o, "--ranks", "0"), "must be at least 1"),
         Cli("gnss-ionosphere-ionosphere", (*io, *o, "--ionosphere", "global"), "invalid choice"),
-        Cli("gnss-ionosphere-system", (*io, *o, "--system", "C"), "invalid choice"),
+        Cli("gnss-ionosphere-system", (*io, *o, "--system", "J"), "invalid choice"),
+        Cli("gnss-ionosphere-system-code", (*io, *o, "--system", "C"), "--l2-code C2W: not a BeiDou"),
         Cli("gnss-ionosphere-kn-text", (*io, *o, "--kn", "x"), "invalid int value"),
     ]
     for cmd, argv in (("codebias", cb), ("ionosphere", io)):

@@ -29,7 +29,7 @@ from distnav.models.gnss.biasmodel import (
     arc_sigma_scale,
     bias_network_model,
 )
-from distnav.models.gnss.gfbias import TEC_RW_M_PER_SQRT_S, gf_m_per_dsb_ns
+from distnav.models.gnss.gfbias import TEC_RW_M_PER_SQRT_S
 from distnav.models.gnss.gfcollector import Collector, DatumSeries
 
 __all__ = [  # the model stage's names are re-exported (their home: distnav.models.gnss.biasmodel)
@@ -265,7 +265,7 @@ def run_bias_filters(
         "datum": options.datum,
         "pivot": options.pivot,
         "reference": options.reference,
-        "scale": gf_m_per_dsb_ns(data.band),
+        "scale": data.dsb_scale_m_per_ns,
         "datum_satellites": options.datum_satellites,
         "datum_reference_ns": options.datum_reference_ns,
     }
