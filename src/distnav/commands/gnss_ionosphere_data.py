@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import DataFileError, ModelError
 
 if TYPE_CHECKING:
@@ -59,6 +60,7 @@ class NetworkOptions:
     def __post_init__(self) -> None:
         from distnav.models.gnss.biasmodel import BiasModelOptions
 
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         code = self.l2_code.upper()
         if len(code) != 3 or code[0] != "C" or not code[1].isdigit() or code[1] == "1":
             raise ModelError(f"l2_code {self.l2_code}: not a second code (C2W, C2L, C5Q …)")

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import DataFileError, ModelError
 from distnav.models.gnss.constants import C_M_S
 from distnav.models.gnss.gfbias import (
@@ -129,6 +130,7 @@ class BiasModelOptions:
     station_weighting: str = "auto"
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         for name, value, allowed in (
             ("ionosphere", self.ionosphere, IONOSPHERE_MODES),
             ("weighting", self.weighting, WEIGHTINGS),

@@ -18,6 +18,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import ModelError
 from distnav.models.gnss.arcprecision import arc_variance_factor, postfit_residuals
 from distnav.models.gnss.biasmodel import (
@@ -232,6 +233,7 @@ class BiasFilterOptions:
     between_station_level: float | None = 0.05
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if self.between_station_level is not None and not 0.0 < self.between_station_level < 0.5:
             raise ModelError(f"between_station_level must lie in (0, 0.5), got {self.between_station_level}")
         if self.datum not in DATUMS:
