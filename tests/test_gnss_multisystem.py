@@ -185,3 +185,30 @@ def test_channel_pattern_splits_by_channel() -> None:
     assert out["within_channel_rms_ns"] == pytest.approx(np.sqrt(4 * 0.25 / 5))
     assert out["channel_means_rms_ns"] == pytest.approx(np.sqrt(4 * 2.25 / 5))
     assert channel_pattern({"G01": 1.0}, {}) == {}
+
+
+@pytest.mark.parametrize(
+    ("system", "args", "message"),
+    [
+        ("C", ["--l1-code", "C1C", "--l2-code", "C6I"], "--l1-code C1C: not a BeiDou B1I code"),
+        ("C", ["--l1-code", "C2I", "--l2-code", "C2W"], "--l2-code C2W: not a BeiDou B3I or B2I code"),
+        ("R", ["--l1-code", "C1C", "--l2-code", "C5Q"], "--l2-code C5Q: not a GLONASS G2 code"),
+        ("R", ["--l1-code", "C1C", "--l2-code", "C2C", "--pivot", "R30", "--datum", "pivot"], "not a GLONASS sat"),
+    ],
+)
+def test_beidou_and_glonass_options_checked_before_reading(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], system: str, args: list[str], message: str
+) -> None:
+    base = [
+        "gnss",
+        "ionosphere",
+        "--system",
+        system,
+        "--obs",
+        str(shared_data / BELE),
+        "--nav",
+        str(shared_data / BRDC),
+    ]
+    assert main([*base, *args, "--out", str(tmp_path / "x"), "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
