@@ -197,6 +197,14 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     series, comm = run_bias_filters(
         data, filter_options(args, pivot, fixed), graph=graph, exchange=command_exchange(args, graph)
     )
+    if getattr(args, "model_spread", "auto") == "auto":
+        from dataclasses import replace
+
+        from distnav.models.gnss.modelspread import spread_of_one_station
+
+        series, spread = spread_of_one_station(data, orbit, series, network_options(args).model_options)
+        if spread is not None:
+            data = replace(data, notes=[*data.notes, spread.statement()])
     write_results(args, data, series, comm, l1=l1, l2=args.l2_code.upper(), pivot=pivot, graph=graph, fixed=fixed)
     return 0
 
@@ -569,6 +577,13 @@ def _add_levelling_arguments(p: argparse.ArgumentParser) -> None:
         "the satellite's recent prediction-error RMS where the ionosphere is noisier)",
     )
     p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
+    p.add_argument(
+        "--model-spread",
+        choices=["auto", "off"],
+        default="auto",
+        help="one station: add to each satellite's σ the RMS difference of its DSBs under the other ionosphere "
+        "field (linear/thin shell vs second order/modified mapping; docs/gnss.md); off: the filter's σ alone",
+    )
     p.add_argument("--allow-other-day", action="store_true", help="compare with a product of another day than the data")
 
 

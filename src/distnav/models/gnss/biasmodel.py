@@ -67,6 +67,9 @@ class BiasNetworkData:
     (:mod:`~distnav.models.gnss.arcprecision`)."""
     frequencies_hz: tuple[np.ndarray, np.ndarray] | None = None
     """``(f_1, f_2)`` (S,) of the estimated satellites (``layout.svs``); ``None``: GPS L1 and ``band``."""
+    network: GeometryFreeNetwork | None = None
+    """The hand-over this model was built from (kept by the data stage: another model of the same data,
+    :mod:`~distnav.models.gnss.modelspread`)."""
     m_per_dsb_ns: float | None = None
     """Metres of the geometry-free observable per ns of DSB, ``c·10⁻⁹/(μ − 1)`` of the network's signal pair
     (``None``: GPS L1 and ``band``, :func:`~distnav.models.gnss.gfbias.gf_m_per_dsb_ns`)."""
