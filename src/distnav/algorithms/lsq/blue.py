@@ -372,6 +372,21 @@ def blue(problem: LinearProblem, *, rcond: float = 1e-10, W: ArrayLike | None = 
 
     Raises :class:`~distnav.errors.ModelError` when ``rank(A) < p`` (eq. (2) fails), naming a basis of the
     inestimable directions (e.g. ``x[0] − x[1]``). With ``W`` also returns ``û_i = W⁻¹(r_i − N_i x̂)`` (eq. (9)).
+
+    Examples
+    --------
+    Three nodes with one observation each of ``x = (x₀, x₁)``: ``x₀``, ``x₁`` and ``x₀ + x₁``. No node alone can
+    solve for ``x``; the BLUE is ordinary least squares on the stacked rows (``R_i = I``):
+
+    >>> import numpy as np
+    >>> from distnav.algorithms.lsq.blue import LinearProblem, blue
+    >>> A = [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.array([[1.0, 1.0]])]
+    >>> y = [np.array([1.0]), np.array([2.0]), np.array([3.3])]
+    >>> sol = blue(LinearProblem.from_blocks(A, y))
+    >>> sol.x.round(6)
+    array([1.1, 2.1])
+    >>> bool(np.allclose(sol.x, np.linalg.lstsq(np.vstack(A), np.concatenate(y), rcond=None)[0]))
+    True
     """
     N_i, r_i = problem.normal_equations
     N = N_i.sum(axis=0)

@@ -108,15 +108,7 @@ def _normal_run(
         messages="pairs",
         kernel=kernel,
     )
-    return drive(
-        run,
-        max_iterations=stop.max_iterations,
-        tol=stop.tol,
-        atol=stop.atol,
-        reference=None if reference is None else reference.ravel(),
-        stop_at_reference=None,
-        record_nodes=False,
-    )
+    return drive(run, stop, reference=None if reference is None else reference.ravel())
 
 
 @dataclass(frozen=True, eq=False)
@@ -395,15 +387,7 @@ def _solve_with_precision(
     prec_opts: PrecisionOptions,
 ) -> tuple[AdmmResult, PrecisionRun]:
     """One data-snooping step: the ADMM estimate of ``prob`` (warm when ``opts`` carry one) and its precision."""
-    est = drive(
-        driver.prepare(prob, graph, ex, opts),
-        reference=None,
-        stop_at_reference=None,
-        record_nodes=False,
-        max_iterations=opts.max_iterations,
-        tol=opts.tol,
-        atol=opts.atol,
-    )
+    est = drive(driver.prepare(prob, graph, ex, opts), opts)
     prec = admm_precision(prob, graph, est.estimates, active=act, init=init, exchange=ex, options=prec_opts)
     return est, prec
 
