@@ -11,6 +11,7 @@ import pytest
 from distnav.algorithms.ranging.csg import solve, solve_line_search_pair, solve_nclm, solve_ncsg
 from distnav.algorithms.ranging.lm import solve_lm
 from distnav.algorithms.ranging.neighbourhood_offsets import NeighbourhoodOffsets, _linearize
+from distnav.algorithms.ranging.options import NcsgOptions
 from distnav.algorithms.ranging.plan import plan_neighbourhood
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import rmse_m
@@ -33,13 +34,15 @@ def test_offset_partial_gradient_matches_finite_differences(mode, loss):
     p = biased(hall(sigma_m=0.05, nlos={5: 2.0}), 0.2)
     plan, P, _ = plan_neighbourhood(
         p,
+        NcsgOptions(
+            objective="metres",
+            sigma_m=SIGMA,
+            loss=loss,
+            loss_scale_m=0.1,
+            range_offsets=mode,
+            offset_prior_sigma_m=0.05,
+        ),
         method="N-CSG-BLS",
-        objective="metres",
-        sigma_m=SIGMA,
-        loss=loss,
-        loss_scale_m=0.1,
-        range_offsets=mode,
-        offset_prior_sigma_m=0.05,
     )
     off = NeighbourhoodOffsets(plan.nb, mode, 0.05)
     B = np.where(off.free, np.random.default_rng(1).normal(0, 0.1, off.free.shape), 0.0)

@@ -16,18 +16,18 @@ Paper defaults: 500 iterations, ``α = 1e-3``, ``α₀ = 1e-2``, ``β = γ = 1/2
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, cast
 
 import numpy as np
 
-from distnav.algorithms.ranging.csg_iterate import _cost_of, _graduated, _loss_scale, _summarize, iterate_csg
+from distnav._settings import resolve_options
+from distnav.algorithms.ranging.csg_iterate import _cost_of, _loss_scale, _summarize, iterate_csg
 from distnav.algorithms.ranging.data import RangingData, RangingResult
 from distnav.algorithms.ranging.line_search_pair import iterate_line_search_pair
 from distnav.algorithms.ranging.lm import solve_lm
-from distnav.algorithms.ranging.losses import LOSSES, loss_terms
+from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhood import iterate_neighbourhood
 from distnav.algorithms.ranging.neighbourhood_offsets import offset_precision, sample_bias
 from distnav.algorithms.ranging.neighbourhoods import (
@@ -35,19 +35,22 @@ from distnav.algorithms.ranging.neighbourhoods import (
     exchange_for,
 )
 from distnav.algorithms.ranging.objective import range_sigma
-from distnav.algorithms.ranging.qc import DISTRIBUTED_TEST_SCALES, distributed_quality
+from distnav.algorithms.ranging.options import CsgOptions, NclmOptions, NcsgOptions, NeighbourhoodOptions, RunOptions
+from distnav.algorithms.ranging.qc import distributed_quality
 from distnav.algorithms.ranging.refine import refine_state
 from distnav.algorithms.ranging.stop import StopRule
 from distnav.algorithms.ranging.wire import comm_mark, comm_phases, reduction_cost
 from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
-from distnav.network.weights import ConsensusWeights
 
 __all__ = [
     "PAPER_MODE",
     "SOLVERS",
     "StopRule",
+    "CsgOptions",
+    "NcsgOptions",
+    "NclmOptions",
     "DISTRIBUTED_SOLVERS",
     "IterationState",
     "iterate_csg",
@@ -70,35 +73,19 @@ PAPER_MODE: dict[str, Any] = {"stop": None, "quality": False}
 # ---------------------------------------------------------------------- run-to-end front doors
 @dataclass(frozen=True)
 class _Setup:
-    """What :func:`_run` needs besides the states: objective, loss, stopping rule and QC options."""
+    """What :func:`_run` reads: a front door's options and its loss (CSG has none: the linear loss, the scale
+    0.3 m of the neighbourhood solvers' default for its metres quality control, no graduated phase)."""
 
-    objective: str = "squared"
-    sigma_m: float | np.ndarray = 1.0
+    o: RunOptions
     loss: str = "linear"
     loss_scale_m: float = 0.3
-    stop: StopRule | None = None
     graduated: int = 0
-    quality: bool = False
-    test_level: float = 0.001
-    test_scale: str = "robust"
-    monitor_every: int = 1
-    range_offsets: str = "none"
-    offset_prior_sigma_m: float = 0.1
-    refine: bool | None = None
 
-    @property
-    def refines(self) -> bool:
-        """Whether a final distributed LM phase runs (:mod:`distnav.algorithms.ranging.refine`): ``refine``, by
-        default with the metres objective and a stopping rule (never in the paper's mode)."""
-        return bool(self.refine) if self.refine is not None else self.objective == "metres" and self.stop is not None
-
-    def check(self) -> None:
-        if self.monitor_every < 0:
-            raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
-        if self.test_scale not in DISTRIBUTED_TEST_SCALES:
-            raise ModelError(f"test_scale must be one of {', '.join(DISTRIBUTED_TEST_SCALES)}, got {self.test_scale!r}")
-        if self.loss not in LOSSES:
-            raise ModelError(f"unknown loss {self.loss!r}; choose one of {', '.join(LOSSES)}")
+    @staticmethod
+    def of(o: RunOptions) -> _Setup:
+        if isinstance(o, NeighbourhoodOptions):
+            return _Setup(o, o.loss, o.loss_scale_m, o.graduated_iterations())
+        return _Setup(o)
 
 
 def _run(
@@ -120,12 +107,12 @@ def _run(
     trace are NaN; a blow-up (non-finite cost) is detected at the next monitored iteration and ends the run as
     ``"diverged"`` (estimates NaN). ``monitor_every=0`` monitors the start and the end only.
     """
-    monitor_every, stop = setup.monitor_every, setup.stop
+    monitor_every, stop = setup.o.monitor_every, setup.o.stop
     truth = problem.truth_m
     est = problem.estimated
     truth_est = None if truth is None else truth[est]
-    sigma = range_sigma(problem, setup.sigma_m)
-    cost_of = _cost_of(problem, setup.objective, sigma)
+    sigma = range_sigma(problem, setup.o.sigma_m)
+    cost_of = _cost_of(problem, setup.o.objective, sigma)
     rm: list[float] = []
     cost: list[float] = []
     pcost: list[float] = []
@@ -195,9 +182,9 @@ def _run(
         {"rmse_m": np.asarray(rm), "cost": np.asarray(cost), "partial_cost": np.asarray(pcost), key: np.asarray(step)}
     )
     final_cost = cost[-1]
-    scale = _loss_scale(problem, setup.objective, setup.loss, setup.loss_scale_m, sigma)
+    scale = _loss_scale(problem, setup.o.objective, setup.loss, setup.loss_scale_m, sigma)
     marks = {"iterations": comm_mark(ex)}  # the bytes of each phase (issue 27): settings["comm_phases"]
-    if setup.refines and status != "diverged":  # a final LM phase through the exchange (ranging_refine)
+    if setup.o.refines and status != "diverged":  # a final LM phase through the exchange (ranging_refine)
         rule = stop or StopRule()
         try:
             refined = refine_state(
@@ -207,8 +194,8 @@ def _run(
                 sigma=sigma,
                 scale=scale,
                 loss=setup.loss,
-                range_offsets=setup.range_offsets,
-                offset_prior_sigma_m=setup.offset_prior_sigma_m,
+                range_offsets=setup.o.range_offsets,
+                offset_prior_sigma_m=setup.o.offset_prior_sigma_m,
                 ftol=rule.phase_tolerances[0],
                 xtol_m=rule.phase_tolerances[1],
             )
@@ -242,14 +229,14 @@ def _run(
                 },
             }
     offsets = offsets_std = None
-    off_args = (setup.range_offsets, setup.offset_prior_sigma_m, setup.loss, sigma, scale)
+    off_args = (setup.o.range_offsets, setup.o.offset_prior_sigma_m, setup.loss, sigma, scale)
     if last.offset_m is not None and status != "diverged":
         offsets, offsets_std = offset_precision(problem, ex, last, *off_args, None)
     bias = sample_bias(problem.meas_a, problem.meas_b, offsets)
     with np.errstate(over="ignore", invalid="ignore"):
         res_final = (
             (problem.distances(own) + bias - problem.range_m) / sigma
-            if setup.objective == "metres"
+            if setup.o.objective == "metres"
             else problem.residuals(own)
         )
         if offsets is not None:
@@ -258,17 +245,17 @@ def _run(
     precision = tests = None
     if status == "diverged":
         own = np.full_like(own, np.nan)  # never present a blown-up iterate as a result
-    elif setup.quality and last.half_owner is not None:
+    elif setup.o.quality and last.half_owner is not None:
         precision, tests = distributed_quality(
             problem,
             ex,
             last,
             sigma,
             scale,
-            objective=setup.objective,
+            objective=setup.o.objective,
             loss=setup.loss,
-            test_scale=setup.test_scale,
-            test_level=setup.test_level,
+            test_scale=setup.o.test_scale,
+            test_level=setup.o.test_level,
         )
         if offsets is not None:
             offsets, offsets_std = offset_precision(problem, ex, last, *off_args, precision.variance_factor)
@@ -289,7 +276,7 @@ def _run(
         objective=objective,
         loss=setup.loss,
         settings=settings,
-        objective_kind=setup.objective,
+        objective_kind=setup.o.objective,
         precision=precision,
         tests=tests,
         offsets_m=offsets,
@@ -301,25 +288,14 @@ def solve_csg(
     problem: RangingData,
     *,
     exchange: Exchange | None = None,
-    iterations: int = 500,
-    alpha: float | None = None,
-    consensus_rounds: int = 1,
-    weights: str | ConsensusWeights = "MH",
-    initial_m: np.ndarray | None = None,
-    monitor_every: int = 1,
-    objective: str = "squared",
-    sigma_m: float | np.ndarray = 1.0,
-    stop: StopRule | None = StopRule(),
-    quality: bool = True,
-    test_level: float = 0.001,
-    test_scale: str = "robust",
-    range_offsets: str = "none",
-    offset_prior_sigma_m: float = 0.1,
-    refine: bool | None = None,
+    options: CsgOptions | None = None,
+    **changes: Any,
 ) -> RangingResult:
     """CSG (paper 002 eqs. (10)–(12)); trace: ``rmse_m``, ``cost`` (global f at the anchors' own estimates),
     ``partial_cost`` (Σ_i f⁽ⁱ⁾(x⁽ⁱ⁾)), ``step_size``; row 0 is the start.
 
+    ``options``: a :class:`~distnav.algorithms.ranging.options.CsgOptions` (its fields, defaults and units), with
+    keyword ``changes`` to it (``solve_csg(p, iterations=200)``; :func:`distnav._settings.resolve_options`).
     ``alpha`` defaults to the paper's 1e-3 (squared; a fixed step that diverges on long links — the run then
     ends ``"diverged"``) and to 0.8 for ``objective="metres"`` (relative to each anchor's information: below the
     stability bound 1 of the Gauss–Newton curvature).
@@ -328,35 +304,11 @@ def solve_csg(
     per-anchor covariance and the w-tests of every anchor's own links (:mod:`distnav.algorithms.ranging.qc`).
     ``monitor_every = k`` gathers the estimates for the trace (and the stopping and divergence tests) only every
     ``k``-th iteration (NaN rows otherwise; 0: start and end only); see :func:`_run`."""
-    setup = _Setup(
-        objective=objective,
-        sigma_m=sigma_m,
-        stop=stop,
-        quality=quality,
-        test_level=test_level,
-        test_scale=test_scale,
-        monitor_every=monitor_every,
-        range_offsets=range_offsets,
-        offset_prior_sigma_m=offset_prior_sigma_m,
-        refine=refine,
-    )
-    setup.check()
-    a = (1e-3 if objective == "squared" else 0.8) if alpha is None else alpha
+    o = resolve_options(CsgOptions, options, changes)
     ex = exchange_for(problem, exchange)
-    states = iterate_csg(
-        problem,
-        exchange=ex,
-        iterations=iterations,
-        alpha=a,
-        consensus_rounds=consensus_rounds,
-        weights=weights,
-        initial_m=initial_m,
-        objective=objective,
-        sigma_m=sigma_m,
-        range_offsets=range_offsets,
-        offset_prior_sigma_m=offset_prior_sigma_m,
-    )
-    return _run(problem, states, ex, "CSG", iterations, {"alpha": a, "consensus_rounds": consensus_rounds}, setup)
+    states = iterate_csg(problem, exchange=ex, options=o)
+    settings = {"alpha": o.step(), "consensus_rounds": o.consensus_rounds}
+    return _run(problem, states, ex, "CSG", o.iterations, settings, _Setup.of(o))
 
 
 def solve_ncsg(
@@ -364,36 +316,17 @@ def solve_ncsg(
     *,
     line_search: str | None = None,
     exchange: Exchange | None = None,
-    iterations: int = 500,
-    alpha: float | None = None,
-    alpha0: float | None = None,
-    beta: float = 0.5,
-    gamma: float = 0.5,
-    consensus_rounds: int = 1,
-    weights: str | ConsensusWeights = "MH",
-    initial_m: np.ndarray | None = None,
-    max_backtracks: int = 40,
-    armijo_slope: str = "subgradient",
-    loss: str = "linear",
-    loss_scale_m: float = 0.3,
-    monitor_every: int = 1,
-    objective: str = "squared",
-    sigma_m: float | np.ndarray = 1.0,
-    graduated: int | None = None,
-    stop: StopRule | None = StopRule(),
-    quality: bool = True,
-    test_level: float = 0.001,
-    test_scale: str = "robust",
-    range_offsets: str = "none",
-    offset_prior_sigma_m: float = 0.1,
-    refine: bool | None = None,
+    options: NcsgOptions | None = None,
+    **changes: Any,
 ) -> RangingResult:
     """N-CSG (eqs. (14)–(18)); ``line_search="BLS"`` (eqs. (19)–(20)) or ``"TBLS"`` (eq. (21)).
 
-    Trace, ``stop``, ``quality`` and ``monitor_every`` as :func:`solve_csg`; ``step_size`` is the mean ``α`` over
-    anchors (paper 002 Fig. 6). Steps: squared ``alpha = 1e-3``, ``alpha0 = 1e-2`` (the paper's), metres
-    ``alpha = 0.8``, ``alpha0 = 2`` (the Armijo test keeps it safe; 4 oscillates) relative to each anchor's
-    information (see :func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood`). ``graduated``: iterations
+    ``options``: a :class:`~distnav.algorithms.ranging.options.NcsgOptions` (its fields, defaults and units), with
+    keyword ``changes`` to it. Trace, ``stop``, ``quality`` and ``monitor_every`` as :func:`solve_csg`;
+    ``step_size`` is the mean ``α`` over anchors (paper 002 Fig. 6). Steps: squared ``alpha = 1e-3``,
+    ``alpha0 = 1e-2`` (the paper's), metres ``alpha = 0.8``, ``alpha0 = 2`` (the Armijo test keeps it safe; 4
+    oscillates) relative to each anchor's information (see
+    :func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood`). ``graduated``: iterations
     with the linear loss before the robust one (default: a quarter of ``iterations`` for metres with a robust loss,
     else 0). ``range_offsets`` ``"common"`` / ``"per_anchor"`` (metres; prior σ ``offset_prior_sigma_m``):
     range offsets estimated with the positions (:mod:`distnav.algorithms.ranging.neighbourhood_offsets`).
@@ -408,93 +341,48 @@ def solve_ncsg(
         method = f"N-CSG-{str(line_search).upper()}"
     else:
         raise ModelError(f"line_search must be None, 'BLS' or 'TBLS', got {line_search!r}")
-    setup, options, settings = _ncsg_parts(dict(locals()))
+    o = resolve_options(NcsgOptions, options, changes)
     ex = exchange_for(problem, exchange)
-    states = iterate_neighbourhood(problem, method=method, exchange=ex, **options)
-    return _run(problem, states, ex, method, iterations, settings, setup)
+    states = iterate_neighbourhood(problem, method=method, exchange=ex, options=o)
+    return _run(problem, states, ex, method, o.iterations, _ncsg_settings(o), _Setup.of(o))
 
 
-def _setup_from(args: dict[str, Any]) -> _Setup:
-    """The run's set-up (objective, loss, stopping rule, QC, offsets; checked) from a neighbourhood front door's
-    arguments (:func:`solve_ncsg`, :func:`solve_nclm`), with the graduated-loss iterations resolved."""
-    setup = _Setup(
-        objective=args["objective"],
-        sigma_m=args["sigma_m"],
-        loss=args["loss"],
-        loss_scale_m=args["loss_scale_m"],
-        stop=args["stop"],
-        graduated=_graduated(args["objective"], args["loss"], args["graduated"], args["iterations"]),
-        quality=args["quality"],
-        test_level=args["test_level"],
-        test_scale=args["test_scale"],
-        monitor_every=args["monitor_every"],
-        range_offsets=args["range_offsets"],
-        offset_prior_sigma_m=args["offset_prior_sigma_m"],
-        refine=args["refine"],
-    )
-    setup.check()
-    return setup
-
-
-def _ncsg_parts(args: dict[str, Any]) -> tuple[_Setup, dict[str, Any], dict[str, Any]]:
-    """From :func:`solve_ncsg`'s arguments: the run's set-up, the iteration's options and the result's settings."""
-    objective, loss = args["objective"], args["loss"]
-    setup = _setup_from(args)
-    grad_its = setup.graduated
-    a = (1e-3 if objective == "squared" else 0.8) if args["alpha"] is None else args["alpha"]
-    a0 = (1e-2 if objective == "squared" else 2.0) if args["alpha0"] is None else args["alpha0"]
-    options = {
-        k: args[k]
-        for k in (
-            "iterations",
-            "beta",
-            "gamma",
-            "consensus_rounds",
-            "weights",
-            "initial_m",
-            "max_backtracks",
-            "armijo_slope",
-            "loss",
-            "loss_scale_m",
-            "objective",
-            "sigma_m",
-            "range_offsets",
-            "offset_prior_sigma_m",
-        )
-    }
-    options.update(alpha=a, alpha0=a0, graduated=grad_its)
-    settings = {
+def _ncsg_settings(o: NcsgOptions) -> dict[str, Any]:
+    """The settings an N-CSG family result lists."""
+    a, a0 = o.steps()
+    return {
         "alpha": a,
         "alpha0": a0,
-        "beta": args["beta"],
-        "gamma": args["gamma"],
-        "consensus_rounds": args["consensus_rounds"],
-        "armijo_slope": args["armijo_slope"],
-        "loss": loss,
+        "beta": o.beta,
+        "gamma": o.gamma,
+        "consensus_rounds": o.consensus_rounds,
+        "armijo_slope": o.armijo_slope,
+        "loss": o.loss,
     }
-    return setup, options, settings
 
 
 def solve_line_search_pair(
-    problem: RangingData, *, exchanges: tuple[Exchange, Exchange] | None = None, **options: Any
+    problem: RangingData,
+    *,
+    exchanges: tuple[Exchange, Exchange] | None = None,
+    options: NcsgOptions | None = None,
+    **changes: Any,
 ) -> tuple[RangingResult, RangingResult]:
     """N-CSG-BLS and N-CSG-TBLS: the results of ``solve_ncsg(problem, line_search="BLS", exchange=exchanges[0],
-    **options)`` and of ``line_search="TBLS"`` on ``exchanges[1]``, computing the work the two runs provably share
-    once (:mod:`distnav.algorithms.ranging.line_search_pair`). ``options``: those of :func:`solve_ncsg`."""
-    if "line_search" in options or "exchange" in options:
+    options=options, **changes)`` and of ``line_search="TBLS"`` on ``exchanges[1]``, computing the work the two
+    runs provably share once (:mod:`distnav.algorithms.ranging.line_search_pair`)."""
+    if "line_search" in changes or "exchange" in changes:
         raise ModelError(
             "solve_line_search_pair runs BLS and TBLS: pass exchanges=(bls, tbls), not line_search or exchange"
         )
-    bound = inspect.signature(solve_ncsg).bind(problem, **options)
-    bound.apply_defaults()
-    setup, opts, settings = _ncsg_parts(dict(bound.arguments))
-    if opts["range_offsets"] != "none":
+    o = resolve_options(NcsgOptions, options, changes)
+    if o.range_offsets != "none":
         raise ModelError("solve_line_search_pair has no range offsets: run solve_ncsg for BLS and TBLS")
     pair = exchanges or (exchange_for(problem, None), exchange_for(problem, None))
     ex_b, ex_t = exchange_for(problem, pair[0]), exchange_for(problem, pair[1])
-    bls_states, tbls_states = iterate_line_search_pair(problem, exchanges=(ex_b, ex_t), **opts)
-    its = opts["iterations"]
+    bls_states, tbls_states = iterate_line_search_pair(problem, o, exchanges=(ex_b, ex_t))
     seen: dict[int, tuple[np.ndarray, np.ndarray, float, float]] = {}
+    setup, settings, its = _Setup.of(o), _ncsg_settings(o), o.iterations
     res_b = _run(problem, bls_states, ex_b, "N-CSG-BLS", its, settings, setup, seen)
     return res_b, _run(problem, tbls_states, ex_t, "N-CSG-TBLS", its, settings, setup, seen)
 
@@ -503,28 +391,11 @@ def solve_nclm(
     problem: RangingData,
     *,
     exchange: Exchange | None = None,
-    iterations: int = 500,
-    lambda0: float = 1e-3,
-    consensus_rounds: int = 1,
-    weights: str | ConsensusWeights = "MH",
-    initial_m: np.ndarray | None = None,
-    damping: str = "levenberg",
-    loss: str = "linear",
-    loss_scale_m: float = 0.3,
-    lambda_min: float = 0.1,
-    monitor_every: int = 1,
-    objective: str = "squared",
-    sigma_m: float | np.ndarray = 1.0,
-    graduated: int | None = None,
-    stop: StopRule | None = StopRule(),
-    quality: bool = True,
-    test_level: float = 0.001,
-    test_scale: str = "robust",
-    range_offsets: str = "none",
-    offset_prior_sigma_m: float = 0.1,
-    refine: bool | None = None,
+    options: NclmOptions | None = None,
+    **changes: Any,
 ) -> RangingResult:
-    """N-CLM (eq. (22)); trace, ``objective``, ``graduated``, ``stop``, ``quality``, ``monitor_every`` and
+    """N-CLM (eq. (22)); ``options`` (a :class:`~distnav.algorithms.ranging.options.NclmOptions`, with keyword
+    ``changes`` to it), trace, ``objective``, ``graduated``, ``stop``, ``quality``, ``monitor_every`` and
     ``range_offsets`` as :func:`solve_ncsg`, with the mean ``lambda`` instead of ``step_size``.
 
     ``damping="fletcher"`` is eq. (22) read literally with eq. (8)'s ``λ diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾)``. On the partial cost
@@ -539,37 +410,11 @@ def solve_nclm(
     underdetermined, ranges exactly and the network drifts when the ranges disagree (one anchor pair 3 m NLOS:
     RMSE 3.15 m with the floor 1e-9, 0.30 m with 0.1 and a Cauchy loss; RM with heights held: 0.78 → 0.51 m).
     """
-    setup = _setup_from(dict(locals()))
-    grad_its = setup.graduated
+    o = resolve_options(NclmOptions, options, changes)
     ex = exchange_for(problem, exchange)
-    states = iterate_neighbourhood(
-        problem,
-        method="N-CLM",
-        exchange=ex,
-        iterations=iterations,
-        lambda0=lambda0,
-        consensus_rounds=consensus_rounds,
-        weights=weights,
-        initial_m=initial_m,
-        damping=damping,
-        loss=loss,
-        loss_scale_m=loss_scale_m,
-        lambda_min=lambda_min,
-        objective=objective,
-        sigma_m=sigma_m,
-        graduated=grad_its,
-        range_offsets=range_offsets,
-        offset_prior_sigma_m=offset_prior_sigma_m,
-    )
-    return _run(
-        problem,
-        states,
-        ex,
-        "N-CLM",
-        iterations,
-        {"lambda0": lambda0, "consensus_rounds": consensus_rounds, "damping": damping, "loss": loss},
-        setup,
-    )
+    states = iterate_neighbourhood(problem, method="N-CLM", exchange=ex, options=o)
+    settings = {"lambda0": o.lambda0, "consensus_rounds": o.consensus_rounds, "damping": o.damping, "loss": o.loss}
+    return _run(problem, states, ex, "N-CLM", o.iterations, settings, _Setup.of(o))
 
 
 def solve(

@@ -4,17 +4,18 @@ the ranges anchor ``i`` measured (eq. (10)); consensus phase ``u⁽ⁱ⁾ ← Σ
 ``consensus_rounds`` times (eq. (11)), then ``x⁽ⁱ⁾ ← u⁽ⁱ⁾``. ``W`` is Metropolis–Hastings (eq. (12), ``"MH"``) or
 Koppanyi's own variant (``"Koppanyi"``). A message is the whole vector: its size grows with the *network*.
 
-Also here: what the family's front doors share (:func:`_cost_of`, :func:`_summarize`, :func:`_loss_scale`,
-:func:`_graduated`). Split from ``csg.py`` (issue 25: no module over 600 lines), which re-exports
-:func:`iterate_csg`."""
+Also here: what the family's front doors share (:func:`_cost_of`, :func:`_summarize`, :func:`_loss_scale`).
+Split from ``csg.py`` (issue 25: no module over 600 lines), which re-exports :func:`iterate_csg`."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
+from distnav._settings import resolve_options
 from distnav._sparse import csr_times
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.losses import range_loss_scale
@@ -26,10 +27,8 @@ from distnav.algorithms.ranging.neighbourhoods import (
     mixing_weights,
 )
 from distnav.algorithms.ranging.objective import range_sigma
-from distnav.algorithms.ranging.plan import check_offsets
-from distnav.errors import ModelError
+from distnav.algorithms.ranging.options import CsgOptions
 from distnav.exchange import Exchange
-from distnav.network.weights import ConsensusWeights
 
 __all__ = ["iterate_csg"]
 
@@ -69,35 +68,29 @@ def iterate_csg(
     problem: RangingData,
     *,
     exchange: Exchange | None = None,
-    iterations: int = 500,
-    alpha: float = 1e-3,
-    consensus_rounds: int = 1,
-    weights: str | ConsensusWeights = "MH",
-    initial_m: np.ndarray | None = None,
-    objective: str = "squared",
-    sigma_m: float | np.ndarray = 1.0,
-    range_offsets: str = "none",
-    offset_prior_sigma_m: float = 0.1,
+    options: CsgOptions | None = None,
+    **changes: Any,
 ) -> Iterator[IterationState]:
     """Yield the CSG state after iterations 0 (start), 1, …, ``iterations`` (paper 002 eqs. (10)–(12)).
+
+    ``options`` (:class:`~distnav.algorithms.ranging.options.CsgOptions`, with keyword ``changes`` to it): the
+    front door's; the run-only fields (``stop``, ``quality``, ...) are not used here.
 
     ``objective="metres"``: the residuals are ``(‖r_a − r_b‖ − d)/σ`` and ``α`` is relative to each anchor's
     information ``Σ_{l∈E(i)} σ_l⁻²`` (as in :func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood`).
     ``range_offsets`` (metres): every anchor also holds every anchor's offset (``"per_anchor"``, prior counted
     twice in its own partial cost) or its copy of the common one, mixed in the same round (the conventions of
     :mod:`distnav.algorithms.ranging.neighbourhood_offsets`)."""
-    check_offsets(range_offsets, offset_prior_sigma_m, objective)
-    init = check_start(problem, iterations, consensus_rounds, initial_m)
-    if not alpha > 0:
-        raise ModelError(f"alpha must be positive, got {alpha}")
-    if objective not in ("squared", "metres"):
-        raise ModelError(f"objective must be 'squared' or 'metres', got {objective!r}")
+    o = resolve_options(CsgOptions, options, changes)
+    iterations, consensus_rounds, objective = o.iterations, o.consensus_rounds, o.objective
+    range_offsets, offset_prior_sigma_m, alpha = o.range_offsets, o.offset_prior_sigma_m, o.step()
+    init = check_start(problem, iterations, consensus_rounds, o.initial_m)
     metres = objective == "metres"
     ex = exchange_for(problem, exchange)
-    mixer = ex.mixer(mixing_weights(problem, weights))
+    mixer = ex.mixer(mixing_weights(problem, o.weights))
     n, dim, nl = problem.n_anchors, problem.dim, ex.n_local
     own_idx, other, d2, samp = half_measurements(problem, ex)
-    sig = range_sigma(problem, sigma_m)[samp]
+    sig = range_sigma(problem, o.sigma_m)[samp]
     rng_m = problem.range_m[samp]
     me = ex.nodes[own_idx]
     # full vectors: F[li, k] = anchor ex.nodes[li]'s estimate of anchor k
@@ -187,12 +180,6 @@ def iterate_csg(
             U, Bo = V[:, : n * dim].reshape(nl, n, dim), V[:, n * dim :]
         F = np.where(free, U, known)
         yield state(k, pc)
-
-
-def _graduated(setup_objective: str, loss: str, graduated: int | None, iterations: int) -> int:
-    if graduated is not None:
-        return int(graduated)
-    return iterations // 4 if setup_objective == "metres" and loss != "linear" else 0
 
 
 def _loss_scale(problem: RangingData, objective: str, loss: str, loss_scale_m: float, sigma: np.ndarray) -> np.ndarray:

@@ -26,12 +26,12 @@ import math
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.neighbourhoods import ArmijoTest, IterationState, Mixing
+from distnav.algorithms.ranging.options import NcsgOptions
 from distnav.algorithms.ranging.plan import NeighbourhoodPlan, plan_neighbourhood
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -81,20 +81,19 @@ class _Runs:
 
 
 def iterate_line_search_pair(
-    problem: RangingData, *, exchanges: tuple[Exchange, Exchange], **options: Any
+    problem: RangingData, options: NcsgOptions, *, exchanges: tuple[Exchange, Exchange]
 ) -> tuple[Iterator[IterationState], Iterator[IterationState]]:
     """The BLS and the TBLS states after iterations 0, 1, …, ``iterations``: the same states as
-    ``iterate_neighbourhood(problem, method="N-CSG-BLS", exchange=exchanges[0], **options)`` and ``…"N-CSG-TBLS",
-    exchange=exchanges[1]…`` (see the module docstring); ``options`` as
-    :func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood` without ``method``. The two iterators may
-    be consumed in any order (the states one is ahead by are buffered)."""
+    ``iterate_neighbourhood(problem, method="N-CSG-BLS", exchange=exchanges[0], options=options)`` and
+    ``…"N-CSG-TBLS", exchange=exchanges[1]…`` (see the module docstring). The two iterators may be consumed in any
+    order (the states one is ahead by are buffered)."""
     ex_b, ex_t = exchanges
     if ex_b is ex_t:
         raise ModelError("the BLS and TBLS runs need an exchange each (their messages are counted separately)")
-    plan_b, P, step_b = plan_neighbourhood(problem, method="N-CSG-BLS", exchange=ex_b, **options)
-    plan_t, _, step_t = plan_neighbourhood(problem, method="N-CSG-TBLS", exchange=ex_t, **options)
+    plan_b, P, step_b = plan_neighbourhood(problem, options, method="N-CSG-BLS", exchange=ex_b)
+    plan_t, _, step_t = plan_neighbourhood(problem, options, method="N-CSG-TBLS", exchange=ex_t)
     runs = _Runs()
-    runs.shared = _lockstep(runs, plan_b, plan_t, P, step_b, step_t, _shareable(ex_b, ex_t, plan_b.beta))
+    runs.shared = _lockstep(runs, plan_b, plan_t, P, step_b, step_t, _shareable(ex_b, ex_t, plan_b.line.beta))
     return runs.run(0), runs.run(1)
 
 
@@ -119,7 +118,7 @@ def _lockstep(
     ex_t = plan_t.mix.ex
     for k in range(1, plan_b.iterations + 1):
         diff, g, _, f0, grad = plan_b.linearize(P, k)
-        test = ArmijoTest(nb, diff, -grad, f0, plan_b.gamma, plan_b.slope_factor)
+        test = ArmijoTest(nb, diff, -grad, f0, plan_b.line.gamma, plan_b.line.slope_factor)
         bls = plan_b.search(diff, g, grad, f0, plan_b.bls_start(), False, reuse=test)
         step_b = bls[0]
         step_t = plan_b.search(diff, g, grad, f0, step_t, True, known=bls, reuse=test)[0]

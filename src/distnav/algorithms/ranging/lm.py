@@ -25,12 +25,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypedDict, Unpack
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
 from distnav._blas import single_threaded_blas
+from distnav._settings import resolve_options
 from distnav.algorithms.ranging.damped import DampedSolver as _DampedSolver
 from distnav.algorithms.ranging.data import RangingData, RangingResult
 from distnav.algorithms.ranging.losses import LOSSES, robust_weights
@@ -41,27 +42,23 @@ from distnav.exchange.core import CommTotals
 __all__ = [
     "single_threaded_blas",
     "levenberg_marquardt",
-    "LMControls",
     "LMOptions",
+    "LMSolveOptions",
     "LMResult",
     "solve_lm",
 ]
 
 
-class LMOptions(TypedDict, total=False):
-    """Keyword options of the LM iteration, taken by :func:`levenberg_marquardt` and :func:`solve_lm`; the defaults
-    are those of :class:`LMControls`."""
+@dataclass(frozen=True, kw_only=True)
+class LMOptions:
+    """The stopping tests and initial damping of :func:`levenberg_marquardt` (see its docstring).
 
-    max_iterations: int
-    ftol: float
-    xtol: float
-    gtol: float
-    lambda0: float
-
-
-@dataclass(frozen=True)
-class LMControls:
-    """Stopping tests and initial damping of :func:`levenberg_marquardt` (see its docstring), with their defaults."""
+    - ``max_iterations`` (500): trial steps (linear solves), ≥ 0.
+    - ``ftol`` (1e-12): the relative reduction, actual and predicted, below which an accepted step stops.
+    - ``xtol`` (1e-12): the step, relative to ``‖x‖ + xtol``, below which LM stops.
+    - ``gtol`` (1e-12): MINPACK's gradient cosine below which LM stops.
+    - ``lambda0`` (1e-3): the initial damping ``λ`` of eq. (8).
+    """
 
     max_iterations: int = 500
     ftol: float = 1e-12
@@ -69,9 +66,48 @@ class LMControls:
     gtol: float = 1e-12
     lambda0: float = 1e-3
 
+    def __post_init__(self) -> None:
+        if self.max_iterations < 0:
+            raise ModelError(f"max_iterations must be ≥ 0, got {self.max_iterations}")
+
     def tolerances(self) -> dict[str, float]:
         """The initial damping and the stopping tolerances, as ``RangingResult.settings`` lists them."""
         return {"lambda0": self.lambda0, "ftol": self.ftol, "xtol": self.xtol, "gtol": self.gtol}
+
+
+@dataclass(frozen=True, kw_only=True)
+class LMSolveOptions(LMOptions):
+    """:class:`LMOptions` and what :func:`solve_lm` adds for a ranging problem.
+
+    - ``initial_m`` (None: the problem's start): the ``(n, dim)`` start positions, metres.
+    - ``loss`` (``"linear"``; ``"huber"``, ``"soft_l1"``, ``"cauchy"``, ...) and ``loss_scale_m`` (0.3, metres):
+      the robust loss and the range error where it bends.
+    - ``pad_trace`` (False): extend the trace to ``max_iterations`` rows by repeating the final state.
+    - ``objective`` (``"squared"``, paper 002 eq. (2); or ``"metres"``) and ``sigma_m`` (1.0, metres, a value or
+      one per range): the residuals fitted and their standard deviation.
+    - ``graduated`` (None: on for metres): fit the linear loss first, then the robust one from there.
+    - ``range_offsets`` (``"none"``; ``"common"`` / ``"per_anchor"`` with metres) and ``offset_prior_sigma_m``
+      (0.1, metres): range offsets estimated with the positions.
+    - ``quality`` (True), ``test_level`` (0.001), ``test_scale`` (``"robust"``): per-anchor covariance and
+      per-sample w-tests at the solution.
+    """
+
+    initial_m: np.ndarray | None = None
+    loss: str = "linear"
+    loss_scale_m: float = 0.3
+    pad_trace: bool = False
+    objective: str = "squared"
+    sigma_m: float | np.ndarray = 1.0
+    graduated: bool | None = None
+    range_offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
+    quality: bool = True
+    test_level: float = 0.001
+    test_scale: str = "robust"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_lm(self.loss, self.max_iterations)
 
 
 @dataclass(frozen=True)
@@ -97,17 +133,17 @@ def levenberg_marquardt(
     loss_scale: np.ndarray | float = 1.0,
     callback: Callable[[int, np.ndarray], None] | None = None,
     dense_limit: int = 200,
-    **options: Unpack[LMOptions],
+    options: LMOptions | None = None,
+    **changes: Any,
 ) -> LMResult:
     """Minimise ``Σ ρ(g(x))`` by Levenberg–Marquardt with Fletcher scaling (paper 002 eq. (8)); see module docstring.
 
     Stops when an accepted step reduces the objective by less than ``ftol`` (relative, actual and predicted),
     when the step is below ``xtol·(‖x‖ + xtol)``, when ``max |Gᵀg| / (‖G_col‖ ‖g‖) ≤ gtol`` (MINPACK's cosine
-    test), or after ``max_iterations`` trial steps (``options``: :class:`LMOptions`, defaults
-    :class:`LMControls`). ``callback(k, x)`` is called after every iteration.
-    Runs with OpenBLAS limited to one thread (:func:`single_threaded_blas`).
+    test), or after ``max_iterations`` trial steps (``options``: :class:`LMOptions`, with keyword ``changes``).
+    ``callback(k, x)`` is called after every iteration. Runs with OpenBLAS on one thread (:func:`single_threaded_blas`).
     """
-    c = LMControls(**options)
+    c = resolve_options(LMOptions, options, changes)
     max_iterations, xtol, lambda0 = c.max_iterations, c.xtol, c.lambda0
     _check_lm(loss, max_iterations)
     x = np.array(x0, dtype=float)
@@ -193,7 +229,7 @@ def _record(tb: dict[str, list[float]], g: np.ndarray, obj: float, step: float, 
 
 
 def _stopped(
-    c: LMControls,
+    c: LMOptions,
     reduction: tuple[float, float, float],
     step: float,
     x: np.ndarray,
@@ -224,7 +260,7 @@ def _stopped(
 
 
 def _stages_trace(
-    stages: list[LMResult], start: tuple[float, float], c: LMControls, rmse: list[float] | None, pad: bool
+    stages: list[LMResult], start: tuple[float, float], c: LMOptions, rmse: list[float] | None, pad: bool
 ) -> Trace:
     """:func:`solve_lm`'s trace: row 0 the start (``start``: cost and robust objective), then every stage's rows;
     ``pad`` repeats the final state up to ``max_iterations`` rows."""
@@ -280,23 +316,7 @@ def _rmse_of(obj: Any, x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d)))) if est.any() else 0.0
 
 
-def solve_lm(
-    problem: RangingData,
-    *,
-    initial_m: np.ndarray | None = None,
-    loss: str = "linear",
-    loss_scale_m: float = 0.3,
-    pad_trace: bool = False,
-    objective: str = "squared",
-    sigma_m: float | np.ndarray = 1.0,
-    graduated: bool | None = None,
-    range_offsets: str = "none",
-    offset_prior_sigma_m: float = 0.1,
-    quality: bool = True,
-    test_level: float = 0.001,
-    test_scale: str = "robust",
-    **options: Unpack[LMOptions],
-) -> RangingResult:
+def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **changes: Any) -> RangingResult:
     """Global LM (paper 002 eq. (8), Fletcher scaling) on a ranging problem; returns a :class:`RangingResult`.
 
     ``estimates`` are the ``(n, dim)`` anchor positions. Trace (one row per iteration, plus row 0 = start):
@@ -312,34 +332,35 @@ def solve_lm(
     range offset or per-anchor antenna delays (prior σ ``offset_prior_sigma_m``) jointly with the positions.
     ``quality`` adds the per-anchor covariance (``precision``) and per-sample w-tests (``tests``) at the solution
     (:func:`distnav.algorithms.ranging.qc.centralized_quality`; ``test_level``, ``test_scale``).
-    ``options`` (:class:`LMOptions`: ``max_iterations``, ``ftol``, ``xtol``, ``gtol``, ``lambda0``) go to
-    :func:`levenberg_marquardt` (defaults :class:`LMControls`).
+    ``options``: an :class:`LMSolveOptions` (its fields, defaults and units; its :class:`LMOptions` part,
+    ``max_iterations``, ``ftol``, ``xtol``, ``gtol``, ``lambda0``, goes to :func:`levenberg_marquardt`), with
+    keyword ``changes`` to it (:func:`distnav._settings.resolve_options`).
     """
     from distnav.algorithms.ranging.objective import RangeObjective
 
-    c = LMControls(**options)  # checks the option names first; the values the iteration uses, for trace and settings
-    _check_lm(loss, c.max_iterations)
-    obj = RangeObjective(problem, objective, sigma_m, range_offsets, offset_prior_sigma_m)
-    x0 = obj.x0(_initial(problem, initial_m))
-    scale = obj.loss_scale(loss_scale_m) if loss != "linear" else 1.0
+    c = resolve_options(LMSolveOptions, options, changes)
+    loss, objective, sigma_m, range_offsets = c.loss, c.objective, c.sigma_m, c.range_offsets
+    obj = RangeObjective(problem, objective, sigma_m, range_offsets, c.offset_prior_sigma_m)
+    x0 = obj.x0(_initial(problem, c.initial_m))
+    scale = obj.loss_scale(c.loss_scale_m) if loss != "linear" else 1.0
     rm: list[float] | None = [_rmse_of(obj, x0)] if problem.truth_m is not None else None
     callback = (lambda k, x: rm.append(_rmse_of(obj, x))) if rm is not None else None
     stages = []
     x_start = x0
-    if (objective == "metres" if graduated is None else graduated) and loss != "linear":
-        stages.append(levenberg_marquardt(obj.residual, obj.jacobian, x0, callback=callback, **options))
+    if (objective == "metres" if c.graduated is None else c.graduated) and loss != "linear":
+        stages.append(levenberg_marquardt(obj.residual, obj.jacobian, x0, callback=callback, options=c))
         x_start = stages[0].x
     res = levenberg_marquardt(
-        obj.residual, obj.jacobian, x_start, loss=loss, loss_scale=scale, callback=callback, **options
+        obj.residual, obj.jacobian, x_start, loss=loss, loss_scale=scale, callback=callback, options=c
     )
     stages.append(res)
     g0 = obj.residual(x0)
     start = (float(g0 @ g0), robust_weights(g0, scale, loss)[1])
-    trace = _stages_trace(stages, start, c, rm, pad_trace)
+    trace = _stages_trace(stages, start, c, rm, c.pad_trace)
     pos, off = obj.split(res.x)
     precision = tests = off_std = None
-    if quality:
-        precision, tests, off_std = _lm_quality(obj, res.x, scale, loss, test_level, test_scale)
+    if c.quality:
+        precision, tests, off_std = _lm_quality(obj, res.x, scale, loss, c.test_level, c.test_scale)
     return RangingResult(
         estimates=pos,
         converged=res.converged,

@@ -33,28 +33,37 @@ Fixed anchors take part (they measure and relay) but their coordinates, and any 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
+from distnav._settings import resolve_options
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.neighbourhood_offsets import NeighbourhoodOffsets, loop_with_offsets
 from distnav.algorithms.ranging.neighbourhoods import IterationState
+from distnav.algorithms.ranging.options import NclmOptions, NcsgOptions
 from distnav.algorithms.ranging.plan import plan_neighbourhood
+from distnav.exchange import Exchange
 
 __all__ = ["iterate_neighbourhood"]
 
 
-def iterate_neighbourhood(problem: RangingData, **options: Any) -> Iterator[IterationState]:
+def iterate_neighbourhood(
+    problem: RangingData,
+    *,
+    method: str = "N-CSG",
+    exchange: Exchange | None = None,
+    options: NcsgOptions | NclmOptions | None = None,
+    **changes: Any,
+) -> Iterator[IterationState]:
     """Yield the state of N-CSG / N-CSG-BLS / N-CSG-TBLS / N-CLM after iterations 0, 1, …, ``iterations``.
 
-    The options (checked by :func:`plan_neighbourhood`) are ``method`` (``"N-CSG"`` default), ``exchange``,
-    ``iterations`` (500), ``alpha`` (1e-3), ``alpha0`` (1e-2), ``beta`` and ``gamma`` (1/2), ``lambda0`` (1e-3),
-    ``consensus_rounds`` (1), ``weights`` ("MH"), ``initial_m``, ``max_backtracks`` (40), ``damping``
-    ("levenberg"), ``armijo_slope`` ("subgradient"), ``loss`` ("linear"), ``loss_scale_m`` (0.3), ``lambda_min``
-    (0.1), ``objective`` ("squared"), ``sigma_m`` (1), ``graduated`` (0), ``range_offsets`` ("none", or
-    "common" / "per_anchor" with the metres objective: :mod:`distnav.algorithms.ranging.neighbourhood_offsets`) and
-    ``offset_prior_sigma_m`` (0.1).
+    ``options``: an :class:`~distnav.algorithms.ranging.options.NclmOptions` for N-CLM, an
+    :class:`~distnav.algorithms.ranging.options.NcsgOptions` for the N-CSG family (their defaults, the front
+    doors', are those of the paper for the squared objective), with keyword ``changes`` to it (``alpha``,
+    ``loss``, ...: :func:`distnav._settings.resolve_options`); the run-only fields (``stop``, ``quality``, ...) are
+    not used here. ``range_offsets`` "common" / "per_anchor" (metres objective):
+    :mod:`distnav.algorithms.ranging.neighbourhood_offsets`.
 
     See the module docstring for the equations (paper 002 eqs. (14)–(22)). ``loss="huber"|"cauchy"`` makes every
     anchor minimise the robust partial objective ``Σ_{l∈E(i)} s_l² ρ((g_l/s_l)²)`` (``s_l = 2 d_l σ``,
@@ -68,11 +77,16 @@ def iterate_neighbourhood(problem: RangingData, **options: Any) -> Iterator[Iter
     (a gradient step of ``alpha ≤ 1`` is stable for the partial cost's Gauss–Newton curvature, whose largest
     eigenvalue is at most ``2 Σ σ_l⁻²``); ``graduated = k`` runs the first ``k`` iterations with the linear loss.
     """
-    plan, P, step = plan_neighbourhood(problem, **options)
+    o: NcsgOptions | NclmOptions  # resolve_options refuses an options object of the other class
+    if method.upper() == "N-CLM":
+        o = resolve_options(NclmOptions, cast("NclmOptions | None", options), changes)
+    else:
+        o = resolve_options(NcsgOptions, cast("NcsgOptions | None", options), changes)
+    plan, P, step = plan_neighbourhood(problem, o, method=method, exchange=exchange)
     nb = plan.nb
-    mode = options.get("range_offsets", "none")
+    mode = o.range_offsets
     if mode != "none":
-        off = NeighbourhoodOffsets(nb, mode, float(options.get("offset_prior_sigma_m", 0.1)))
+        off = NeighbourhoodOffsets(nb, mode, float(o.offset_prior_sigma_m))
         yield from loop_with_offsets(plan, off, P, step, np.full(nb.nl, 2.0))
         return
     diff, g = nb.geometry(P)

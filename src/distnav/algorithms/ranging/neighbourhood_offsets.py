@@ -277,7 +277,7 @@ def loop_with_offsets(
         else:
             if method != "N-CSG":
                 dB = -off.step_ratio[:, None] * gB
-                test = OffsetArmijoTest(off, diff, -gP, B, dB, gB, f0, plan.gamma, plan.slope_factor)
+                test = OffsetArmijoTest(off, diff, -gP, B, dB, gB, f0, plan.line.gamma, plan.line.slope_factor)
                 start = plan.bls_start() if method == "N-CSG-BLS" else step
                 step = plan.search(diff, r, gP, f0, start, method == "N-CSG-TBLS", reuse=test)[0]
             U = P - step[:, None, None] * gP

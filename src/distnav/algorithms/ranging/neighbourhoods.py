@@ -346,6 +346,20 @@ class ArmijoTest:
         return np.asarray(fa <= self.f0 + self.gamma * alpha * self.slope)
 
 
+@dataclass(frozen=True)
+class LineSearch:
+    """The settings of the per-anchor line searches (eqs. (19)–(21)): the largest step ``alpha0`` (per anchor for
+    the metres objective), the backtracking factor ``beta``, the Armijo constant ``gamma``, the trial steps per
+    search ``max_backtracks`` and the slope factor (2: the true gradient ``2 G⁽ⁱ⁾ᵀg⁽ⁱ⁾``; 1: the paper's
+    subgradient ``G⁽ⁱ⁾ᵀg⁽ⁱ⁾``)."""
+
+    alpha0: float | np.ndarray
+    beta: float
+    gamma: float
+    max_backtracks: int
+    slope_factor: float = 2.0
+
+
 def armijo_search(
     nb: Neighbourhoods,
     diff: np.ndarray,
@@ -353,17 +367,11 @@ def armijo_search(
     d: np.ndarray,
     f0: np.ndarray,
     alpha_start: np.ndarray,
-    alpha0: float | np.ndarray,
-    beta: float,
-    gamma: float,
+    rule: LineSearch,
     two_way: bool,
-    max_backtracks: int,
-    slope_factor: float = 2.0,
 ) -> np.ndarray:
     """Per-anchor step sizes by BLS (eqs. (19)–(20)) or TBLS (eq. (21)), vectorized over the block's anchors."""
-    return armijo_details(nb, diff, g, d, f0, alpha_start, alpha0, beta, gamma, two_way, max_backtracks, slope_factor)[
-        0
-    ]
+    return armijo_details(nb, diff, g, d, f0, alpha_start, rule, two_way)[0]
 
 
 def armijo_details(
@@ -373,12 +381,8 @@ def armijo_details(
     d: np.ndarray,
     f0: np.ndarray,
     alpha_start: np.ndarray,
-    alpha0: float | np.ndarray,
-    beta: float,
-    gamma: float,
+    rule: LineSearch,
     two_way: bool,
-    max_backtracks: int,
-    slope_factor: float = 2.0,
     known: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     reuse: ArmijoTest | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -390,8 +394,9 @@ def armijo_details(
     step ≥ the result needs no evaluation (every anchor's test depends on its own step only; the steps are exact
     grid values). A test is evaluated only when some moving anchor's step is below BLS's result. ``reuse``: the
     :class:`ArmijoTest` of the same point (computed once for both searches)."""
-    test = ArmijoTest(nb, diff, d, f0, gamma, slope_factor) if reuse is None else reuse
+    test = ArmijoTest(nb, diff, d, f0, rule.gamma, rule.slope_factor) if reuse is None else reuse
     moving = test.moving
+    beta, alpha0, max_backtracks = rule.beta, rule.alpha0, rule.max_backtracks
 
     def armijo(alpha: np.ndarray) -> np.ndarray:
         if known is not None and np.all((alpha >= known[0]) | ~moving):

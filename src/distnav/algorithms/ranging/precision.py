@@ -61,10 +61,12 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
 
+from distnav._settings import resolve_options
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.losses import LOSSES, loss_terms, range_loss_scale
 from distnav.algorithms.ranging.neighbourhoods import checked_estimates, exchange_for, half_measurements
@@ -75,7 +77,7 @@ from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
-__all__ = ["NeighbourhoodPrecision", "neighbourhood_precision"]
+__all__ = ["NeighbourhoodPrecision", "PrecisionOptions", "neighbourhood_precision"]
 
 log = logging.getLogger(__name__)
 VARIANCE_FLOOR = 1.0 / 16.0
@@ -116,112 +118,86 @@ class NeighbourhoodPrecision:
         return np.asarray(np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0)))
 
 
+@dataclass(frozen=True, kw_only=True)
+class PrecisionOptions:
+    """The settings of :func:`neighbourhood_precision` (checked here, :class:`~distnav.errors.ModelError` naming
+    the field).
+
+    - ``objective`` (``"metres"``; or ``"squared"``), ``sigma_m`` (1.0, metres, a value or one per range),
+      ``loss`` (``"linear"``) and ``loss_scale_m`` (0.3, metres): as the solver that produced the estimates.
+    - ``rounds`` (20): at most this many rounds of block messages; ``rtol`` (1e-3): they stop when no σ changed
+      by more than that, relative (0 runs all ``rounds``).
+    - ``hops`` (0; 1 or 2): the k-hop sub-network covariance.
+    - ``delay_sigma_m`` (0.0, metres; > 0 needs ``hops`` ≥ 1): per-anchor antenna delays considered.
+    """
+
+    objective: str = "metres"
+    sigma_m: float | np.ndarray = 1.0
+    loss: str = "linear"
+    loss_scale_m: float = 0.3
+    rounds: int = 20
+    rtol: float = 1e-3
+    hops: int = 0
+    delay_sigma_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        hops, delay_sigma_m = self.hops, self.delay_sigma_m
+        if hops not in (0, 1, 2):
+            raise ModelError(f"hops must be 0, 1 or 2, got {hops}")
+        if not (np.isfinite(delay_sigma_m) and delay_sigma_m >= 0) or (delay_sigma_m > 0 and not hops):
+            raise ModelError(f"delay_sigma_m must be ≥ 0 m (and needs hops ≥ 1), got {delay_sigma_m}")
+        if self.objective not in ("metres", "squared"):
+            raise ModelError(f"objective must be 'metres' or 'squared', got {self.objective!r}")
+        if self.loss not in LOSSES:
+            raise ModelError(f"unknown loss {self.loss!r}; choose one of {', '.join(LOSSES)}")
+        if self.rounds < 0:
+            raise ModelError(f"rounds must be ≥ 0, got {self.rounds}")
+
+
 def neighbourhood_precision(
     problem: RangingData,
     estimates_m: np.ndarray,
     *,
     exchange: Exchange | None = None,
-    objective: str = "metres",
-    sigma_m: float | np.ndarray = 1.0,
-    loss: str = "linear",
-    loss_scale_m: float = 0.3,
-    rounds: int = 20,
-    rtol: float = 1e-3,
-    hops: int = 0,
-    delay_sigma_m: float = 0.0,
+    options: PrecisionOptions | None = None,
+    **changes: Any,
 ) -> NeighbourhoodPrecision:
     """Every anchor's covariance from its own links and its neighbours' blocks (module docstring).
 
     ``estimates_m``: the anchors' estimates of themselves ``(n_anchors, dim)`` (a distributed solver's
     ``result.estimates``); each block reads only its own rows and learns its neighbours' positions by one
-    broadcast. ``objective`` / ``sigma_m`` / ``loss`` / ``loss_scale_m`` as the solver that produced them.
-    ``rounds``: at most this many rounds of block messages; they stop early when no σ changed by more than
-    ``rtol`` relative (a one-float max allreduce per round, like the solvers' :class:`~distnav.algorithms.ranging.csg.
-    StopRule`; ``rtol=0`` runs all ``rounds``). ``precision.iterations`` counts the message rounds including the
-    broadcast of the positions. ``hops`` ≥ 1: then the **k-hop sub-network** covariance (module docstring) from
-    one more broadcast of the blocks and ``hops`` relay rounds of link records (kind ``"neighbourhood"`` still;
-    ``variance_factor_nodes`` then from the sub-network's links). ``delay_sigma_m`` > 0 (with ``hops`` ≥ 1):
-    per-anchor antenna delays of that σ are *considered* over the sub-network (module docstring).
+    broadcast. ``options``: :class:`PrecisionOptions` (with keyword ``changes`` to it:
+    :func:`distnav._settings.resolve_options`); ``objective`` / ``sigma_m`` / ``loss`` / ``loss_scale_m`` as the
+    solver that produced them. ``rounds``: at most this many rounds of block messages; they stop early when no σ
+    changed by more than ``rtol`` relative (a one-float max allreduce per round, like the solvers'
+    :class:`~distnav.algorithms.ranging.csg.StopRule`; ``rtol=0`` runs all ``rounds``). ``precision.iterations``
+    counts the message rounds including the broadcast of the positions. ``hops`` ≥ 1: then the **k-hop
+    sub-network** covariance (module docstring) from one more broadcast of the blocks and ``hops`` relay rounds of
+    link records (kind ``"neighbourhood"`` still; ``variance_factor_nodes`` then from the sub-network's links).
+    ``delay_sigma_m`` > 0 (with ``hops`` ≥ 1): per-anchor antenna delays of that σ are *considered* over the
+    sub-network (module docstring).
     """
-    if hops not in (0, 1, 2):
-        raise ModelError(f"hops must be 0, 1 or 2, got {hops}")
-    if not (np.isfinite(delay_sigma_m) and delay_sigma_m >= 0) or (delay_sigma_m > 0 and not hops):
-        raise ModelError(f"delay_sigma_m must be ≥ 0 m (and needs hops ≥ 1), got {delay_sigma_m}")
-    if objective not in ("metres", "squared"):
-        raise ModelError(f"objective must be 'metres' or 'squared', got {objective!r}")
-    if loss not in LOSSES:
-        raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-    if rounds < 0:
-        raise ModelError(f"rounds must be ≥ 0, got {rounds}")
+    o = resolve_options(PrecisionOptions, options, changes)
     est = checked_estimates(problem, estimates_m)
     ex = exchange_for(problem, exchange)
     before = ex.comm_totals().snapshot()
-    dim, n, nl = problem.dim, problem.n_anchors, ex.n_local
     own = est[ex.nodes]
     if not np.all(np.isfinite(own)):
         raise ModelError("estimates are not finite (a diverged run has no precision)")
-    pos_in = ex.broadcast(own)  # every anchor learns its neighbours' own estimates
-    # in-edge of every half-measurement: receiver = owner (local), sender = the other end (global)
-    in_key = pos_in.dst * n + pos_in.src
-    order = np.argsort(in_key, kind="stable")
-    owner, other, _, samp = half_measurements(problem, ex)
-    want = owner * n + other
-    pos = order[np.minimum(np.searchsorted(in_key[order], want), order.size - 1)]
-    if order.size == 0 or not np.all(in_key[pos] == want) or not np.all(pos_in.delivered[pos]):
-        raise ModelError("a ranged pair is not an edge of the exchange's graph (or its message was lost)")
-    sigma = range_sigma(problem, sigma_m)[samp]
-    diff = own[owner] - pos_in.values[pos]
-    dist = np.linalg.norm(diff, axis=1)
-    if objective == "metres":
-        j = diff / (np.where(dist > 0, dist, np.inf) * sigma)[:, None]
-        r = (dist - problem.range_m[samp]) / sigma
-        scale = loss_scale_m / sigma
-    else:
-        j = 2.0 * diff
-        r = dist * dist - problem.range_m[samp] ** 2
-        scale = range_loss_scale(problem, loss_scale_m)[samp] if loss != "linear" else np.ones(samp.size)
-    w = loss_terms(r, scale, loss)[0]
-    free_own = problem.free[ex.nodes[owner]]
-    j_own = j * free_own
-    j_oth = j * problem.free[other]
-    info = np.zeros((nl, dim, dim))
-    np.add.at(info, owner, w[:, None, None] * j_own[:, :, None] * j_own[:, None, :])
-    cross = np.zeros((pos_in.values.shape[0], dim, dim))  # O_ij per in-edge (i = receiver, j = sender)
-    np.add.at(cross, pos, -w[:, None, None] * j_own[:, :, None] * j_oth[:, None, :])
+    lk = _Linearized.at(problem, ex, own, o)
     free = problem.free[ex.nodes]
-    cond = free_block_inverses(info, free)
-    # local variance factor from the anchor's share of its links
-    share = np.where(problem.fixed[other], 1.0, 0.5)
-    wssr_i = np.bincount(owner, share * w * r * r, minlength=nl)
-    red_i = np.bincount(owner, share, minlength=nl) - free.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        vf_i = np.where(red_i > 0, np.maximum(wssr_i / red_i, VARIANCE_FLOOR), 1.0)
-    vf_i = np.where(free.any(axis=1), vf_i, np.nan)
-    cov = cond.copy()
-    change = float("inf") if rounds else 0.0
-    done = 0
-    with np.errstate(invalid="ignore", over="ignore"):
-        while done < rounds and change > rtol:
-            nb = ex.broadcast(cov.reshape(nl, dim * dim))
-            s_nb = nb.values.reshape(-1, dim, dim)
-            term = np.einsum("eab,ebc,edc->ead", cross, s_nb, cross)  # O_ij Σ_j O_ijᵀ (O_ji = O_ijᵀ)
-            total = np.zeros((nl, dim, dim))
-            np.add.at(total, nb.dst[nb.delivered], term[nb.delivered])
-            new = cond + np.einsum("lab,lbc,ldc->lad", cond, total, cond)
-            s_old = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
-            s_new = np.sqrt(np.maximum(np.diagonal(new, axis1=1, axis2=2), 0.0))
-            rel = np.where(s_new > 0, np.abs(s_new - s_old) / np.where(s_new > 0, s_new, 1.0), 0.0)
-            change = float(ex.allreduce(float(np.nan_to_num(rel, nan=np.inf).max(initial=0.0)), "max"))
-            cov = new
-            done += 1
-    if change > rtol:
+    cond = free_block_inverses(lk.info, free)
+    vf_i = _local_variance_factor(problem, ex, lk, free)
+    cov, change, done = _block_rounds(ex, cond, lk.cross, o.rounds, o.rtol)
+    if change > o.rtol:
         log.info("neighbourhood precision: σ still changing by %.3g after %d rounds", change, done)
     delay_cov = noise_f = None
-    if hops:
+    if o.hops:
         cov, vf_i, delay_cov, noise_f = _subnetwork(
-            problem, ex, hops, cov, cond, pos, pos_in.values.shape[0], j_own, w, r, free, delay_sigma_m
+            problem, ex, o.hops, cov, cond, lk.pos, lk.cross.shape[0], lk.j_own, lk.w, lk.r, free, o.delay_sigma_m
         )
-        done += 1 + hops
+        done += 1 + o.hops
+    w, r = lk.w, lk.r
     wssr = float(ex.allreduce(float(np.sum(w * r * r)), "sum")) / 2.0  # every sample is held twice
     m_red = float(max(problem.n_meas - problem.n_free, 0))
     precision = Precision(
@@ -240,6 +216,93 @@ def neighbourhood_precision(
         delay_covariance=None if delay_cov is None else ex.gather_nodes(delay_cov),
         noise_factor_nodes=None if noise_f is None else ex.gather_nodes(noise_f),
     )
+
+
+@dataclass(frozen=True, eq=False)
+class _Linearized:
+    """The block's half-measurements linearized at the anchors' own estimates: the in-edge of each (``pos``,
+    ``owner``, ``other``), whitened Jacobian rows (own end, free coordinates only), residuals, IRLS weights, every
+    anchor's own information ``N_i`` and the cross blocks ``O_ij`` per in-edge."""
+
+    pos: np.ndarray
+    owner: np.ndarray
+    other: np.ndarray
+    j_own: np.ndarray
+    r: np.ndarray
+    w: np.ndarray
+    info: np.ndarray
+    cross: np.ndarray
+
+    @staticmethod
+    def at(problem: RangingData, ex: Exchange, own: np.ndarray, o: PrecisionOptions) -> _Linearized:
+        """One broadcast of the own estimates; the rest is local."""
+        dim, n, nl = problem.dim, problem.n_anchors, ex.n_local
+        pos_in = ex.broadcast(own)  # every anchor learns its neighbours' own estimates
+        # in-edge of every half-measurement: receiver = owner (local), sender = the other end (global)
+        in_key = pos_in.dst * n + pos_in.src
+        order = np.argsort(in_key, kind="stable")
+        owner, other, _, samp = half_measurements(problem, ex)
+        want = owner * n + other
+        pos = order[np.minimum(np.searchsorted(in_key[order], want), order.size - 1)]
+        if order.size == 0 or not np.all(in_key[pos] == want) or not np.all(pos_in.delivered[pos]):
+            raise ModelError("a ranged pair is not an edge of the exchange's graph (or its message was lost)")
+        sigma = range_sigma(problem, o.sigma_m)[samp]
+        diff = own[owner] - pos_in.values[pos]
+        dist = np.linalg.norm(diff, axis=1)
+        if o.objective == "metres":
+            j = diff / (np.where(dist > 0, dist, np.inf) * sigma)[:, None]
+            r = (dist - problem.range_m[samp]) / sigma
+            scale = o.loss_scale_m / sigma
+        else:
+            j = 2.0 * diff
+            r = dist * dist - problem.range_m[samp] ** 2
+            scale = range_loss_scale(problem, o.loss_scale_m)[samp] if o.loss != "linear" else np.ones(samp.size)
+        w = loss_terms(r, scale, o.loss)[0]
+        free_own = problem.free[ex.nodes[owner]]
+        j_own = j * free_own
+        j_oth = j * problem.free[other]
+        info = np.zeros((nl, dim, dim))
+        np.add.at(info, owner, w[:, None, None] * j_own[:, :, None] * j_own[:, None, :])
+        cross = np.zeros((pos_in.values.shape[0], dim, dim))  # O_ij per in-edge (i = receiver, j = sender)
+        np.add.at(cross, pos, -w[:, None, None] * j_own[:, :, None] * j_oth[:, None, :])
+        return _Linearized(pos, owner, other, j_own, r, w, info, cross)
+
+
+def _local_variance_factor(problem: RangingData, ex: Exchange, lk: _Linearized, free: np.ndarray) -> np.ndarray:
+    """Every local anchor's σ̂_i² from its share of its links (module docstring; NaN at known anchors)."""
+    w, r, owner, nl = lk.w, lk.r, lk.owner, ex.n_local
+    share = np.where(problem.fixed[lk.other], 1.0, 0.5)
+    wssr_i = np.bincount(owner, share * w * r * r, minlength=nl)
+    red_i = np.bincount(owner, share, minlength=nl) - free.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        vf_i = np.where(red_i > 0, np.maximum(wssr_i / red_i, VARIANCE_FLOOR), 1.0)
+    return np.asarray(np.where(free.any(axis=1), vf_i, np.nan))
+
+
+def _block_rounds(
+    ex: Exchange, cond: np.ndarray, cross: np.ndarray, rounds: int, rtol: float
+) -> tuple[np.ndarray, float, int]:
+    """``Σ_i⁽ᵗ⁺¹⁾ = N_i⁻¹ + N_i⁻¹ (Σ_j O_ij Σ_j⁽ᵗ⁾ O_ji) N_i⁻¹`` from ``Σ⁽⁰⁾ = N_i⁻¹`` (one broadcast of the blocks a
+    round) until no σ changes by more than ``rtol``: ``(Σ, the last change, rounds run)``."""
+    nl, dim = cond.shape[0], cond.shape[1]
+    cov = cond.copy()
+    change = float("inf") if rounds else 0.0
+    done = 0
+    with np.errstate(invalid="ignore", over="ignore"):
+        while done < rounds and change > rtol:
+            nb = ex.broadcast(cov.reshape(nl, dim * dim))
+            s_nb = nb.values.reshape(-1, dim, dim)
+            term = np.einsum("eab,ebc,edc->ead", cross, s_nb, cross)  # O_ij Σ_j O_ijᵀ (O_ji = O_ijᵀ)
+            total = np.zeros((nl, dim, dim))
+            np.add.at(total, nb.dst[nb.delivered], term[nb.delivered])
+            new = cond + np.einsum("lab,lbc,ldc->lad", cond, total, cond)
+            s_old = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
+            s_new = np.sqrt(np.maximum(np.diagonal(new, axis1=1, axis2=2), 0.0))
+            rel = np.where(s_new > 0, np.abs(s_new - s_old) / np.where(s_new > 0, s_new, 1.0), 0.0)
+            change = float(ex.allreduce(float(np.nan_to_num(rel, nan=np.inf).max(initial=0.0)), "max"))
+            cov = new
+            done += 1
+    return cov, change, done
 
 
 def _subnetwork(

@@ -36,9 +36,11 @@ stopping thresholds — and says ``max_iterations`` after ``max_rounds`` outer r
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from distnav._settings import resolve_options
 from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.losses import loss_terms
@@ -48,6 +50,7 @@ from distnav.exchange import Exchange
 
 __all__ = [
     "Refinement",
+    "RefineOptions",
     "refine",
     "refine_state",
     "MAX_ROUNDS",
@@ -121,151 +124,206 @@ class Links:
         return np.asarray(self.ex.gather_nodes(rows))
 
 
+@dataclass(frozen=True, kw_only=True)
+class RefineOptions:
+    """The settings of :func:`refine`, as the solver's: ``sigma`` / ``scale`` (every sample's range σ, metres, and
+    whitened loss scale), ``loss``, ``range_offsets`` (``"none"``, ``"common"``, ``"per_anchor"``) and
+    ``offset_prior_sigma_m`` (metres), the stopping thresholds ``ftol`` (relative) and ``xtol_m`` (metres), and
+    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds."""
+
+    sigma: np.ndarray
+    scale: np.ndarray
+    loss: str
+    range_offsets: str
+    offset_prior_sigma_m: float
+    ftol: float
+    xtol_m: float
+    max_rounds: int = MAX_ROUNDS
+
+
+@dataclass(frozen=True, eq=False)
+class _Linearization:
+    """One outer round's Jacobian rows (``a``, ``cn``, ``e``), IRLS weights ``w``, gradient ``g`` (and the common
+    offset's ``gc``, curvature ``dc``), the normal matrix's diagonal and every anchor's own block."""
+
+    a: np.ndarray
+    cn: np.ndarray
+    e: np.ndarray
+    w: np.ndarray
+    g: np.ndarray
+    gc: float
+    dc: float
+    diag: np.ndarray
+    own_block: np.ndarray
+
+
+class _Refiner:
+    """The fixed parts of one refinement (the block's links, weights, free parameters) and its steps."""
+
+    def __init__(self, problem: RangingData, ex: Exchange, o: RefineOptions) -> None:
+        self.o = o
+        self.per, self.common = o.range_offsets == "per_anchor", o.range_offsets == "common"
+        self.links = links = Links(problem, ex, per_anchor_offsets=self.per)
+        self.owner, self.other, self.samp = links.owner, links.other, links.samp
+        self.n, self.nl, self.dim = problem.n_anchors, ex.n_local, problem.dim
+        dim = self.dim
+        self.P = dim + (1 if self.per else 0)
+        self.sig, self.sc, self.rng_m = o.sigma[self.samp], o.scale[self.samp], problem.range_m[self.samp]
+        self.free = np.ones((self.nl, self.P), bool)
+        self.free[:, :dim] = problem.free[ex.nodes]
+        self.free_nb = np.ones((self.samp.size, self.P), bool)
+        self.free_nb[:, :dim] = problem.free[self.other]
+        self.wire_dtype = wire.cg_wire_dtype(problem.n_anchors)
+        self.prior = 1.0 / o.offset_prior_sigma_m**2 if self.per else 0.0
+
+    def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
+        """The start ``(x, c)`` and CG's iteration limit (two reductions: the common offset's mean, the unknowns)."""
+        dim, links = self.dim, self.links
+        x = np.zeros((self.nl, self.P))
+        x[:, :dim] = own_m
+        if self.per:
+            assert offset_m is not None
+            x[:, dim] = offset_m
+        common = self.common and offset_m is not None
+        c = float(links.total(np.asarray(offset_m, float))) / self.n if common else 0.0
+        n_unknowns = int(links.total(self.free.sum(axis=1).astype(float))) + (1 if self.common else 0)
+        return x, c, min(n_unknowns + 10, 2000)
+
+    def evaluate(self, xv: np.ndarray, cv: float, step: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, float]:
+        """Neighbour rows, F, the per-half residuals at ``(xv, cv)`` and the largest move of ``step`` (one
+        broadcast and one reduction)."""
+        dim, owner, per = self.dim, self.owner, self.per
+        nb = self.links.neighbours(xv)
+        diff = xv[owner, :dim] - nb[:, :dim]
+        bias = (xv[owner, dim] + nb[:, dim]) if per else cv
+        r = (np.linalg.norm(diff, axis=1) + bias - self.rng_m) / self.sig
+        terms = loss_terms(r, self.sc, self.o.loss)[1]
+        f_node = 0.5 * np.bincount(owner, terms, minlength=self.nl) + (self.prior * xv[:, dim] ** 2 if per else 0.0)
+        both = self.links.gathered(np.c_[f_node, np.max(np.abs(step), axis=1, initial=0.0)])
+        return nb, float(np.sum(both[:, 0])), r, float(np.max(both[:, 1], initial=0.0))
+
+    def linearize(self, x: np.ndarray, nb: np.ndarray, r: np.ndarray) -> _Linearization:
+        """The outer round's linearization at ``x`` (the common offset's rows: one reduction)."""
+        dim, nl, owner, per, prior = self.dim, self.nl, self.owner, self.per, self.prior
+        a, cn, e = jacobian_rows(x, nb, owner, self.sig, dim, per, self.common, self.free, self.free_nb)
+        w = loss_terms(r, self.sc, self.o.loss)[0]
+        g = _rows(owner, (w * r)[:, None] * a, nl)
+        if per:
+            g[:, dim] += prior * x[:, dim]
+        gc = dc = 0.0
+        if self.common:  # the common offset's gradient and curvature: one reduction
+            gc, dc = (
+                float(t)
+                for t in self.links.total(
+                    0.5
+                    * np.c_[np.bincount(owner, w * r * e, minlength=nl), np.bincount(owner, w * e * e, minlength=nl)]
+                )
+            )
+        diag = _rows(owner, w[:, None] * a * a, nl) + (np.c_[np.zeros((nl, dim)), np.full(nl, prior)] if per else 0.0)
+        block = np.einsum("h,ha,hb->hab", w, a, a)
+        own_block = np.zeros((nl, self.P, self.P))
+        np.add.at(own_block, owner, block)
+        if per:
+            own_block[:, dim, dim] += prior
+        return _Linearization(a, cn, e, w, g, gc, dc, diag, own_block)
+
+    def step(self, lin: _Linearization, mu: float, cg_max: int) -> tuple[np.ndarray, float, int]:
+        """The damped Gauss–Newton step ``(dx, dc)`` by preconditioned CG, and its CG iterations."""
+        free, common = self.free, self.common
+        damp = mu * np.maximum(lin.diag, 1e-12)
+        damp_c = mu * max(lin.dc, 1e-12)
+        pre_inv = block_preconditioner(lin.own_block, damp, free)
+        system = NormalSystem(
+            self.links, self.owner, lin.a, lin.cn, lin.e, lin.w, damp, damp_c, self.prior, free, common, self.wire_dtype
+        )
+        dxk, dck, its = pcg(
+            system,
+            -np.where(free, lin.g, 0.0)[:, :, None],
+            np.array([-lin.gc]),
+            pre_inv,
+            lin.dc + damp_c if common else 1.0,
+            self.links,
+            cg_max,
+            scalar_dtype=wire.CG_SCALAR_DTYPE,
+        )
+        return dxk[:, :, 0], float(dck[0]), its
+
+    def result(
+        self, x: np.ndarray, c: float, nb: np.ndarray, F: float, status: str, rounds: int, cg_total: int
+    ) -> Refinement:
+        dim, links = self.dim, self.links
+        offsets = half_off = None
+        if self.per:
+            offsets = x[:, dim].copy()
+            half_off = x[self.owner, dim] + nb[:, dim]
+        elif self.common:
+            offsets = np.full(self.nl, c)
+            half_off = np.full(self.samp.size, c)
+        return Refinement(
+            own_m=x[:, :dim].copy(),
+            offset_m=offsets,
+            half_other_m=nb[:, :dim].copy(),
+            half_offset_m=half_off,
+            objective=F,
+            status=status,
+            rounds=rounds,
+            cg_iterations=cg_total,
+            reductions=links.reductions,
+            reduced_floats=links.reduced_floats,
+            reduced_bytes=links.reduced_bytes,
+        )
+
+
 def refine(
     problem: RangingData,
     ex: Exchange,
     own_m: np.ndarray,
     offset_m: np.ndarray | None,
     *,
-    sigma: np.ndarray,
-    scale: np.ndarray,
-    loss: str,
-    range_offsets: str,
-    offset_prior_sigma_m: float,
-    ftol: float,
-    xtol_m: float,
-    max_rounds: int = MAX_ROUNDS,
+    options: RefineOptions | None = None,
+    **changes: Any,
 ) -> Refinement:
     """Refine the block's own estimates (and offsets) to the network's least-squares solution (module docstring).
 
-    ``sigma`` / ``scale``: every sample's range σ and loss scale (whitened), as the solver's; ``offset_m``: the
-    block's own offsets (``range_offsets="per_anchor"``) or its copies of the common one (their network mean is
-    the start)."""
-    per, common = range_offsets == "per_anchor", range_offsets == "common"
-    links = Links(problem, ex, per_anchor_offsets=per)
-    owner, other, samp = links.owner, links.other, links.samp
-    nl, dim = ex.n_local, problem.dim
-    P = dim + (1 if per else 0)
-    sig, sc, rng_m = sigma[samp], scale[samp], problem.range_m[samp]
-    free = np.ones((nl, P), bool)
-    free[:, :dim] = problem.free[ex.nodes]
-    free_nb = np.ones((samp.size, P), bool)
-    free_nb[:, :dim] = problem.free[other]
-    wire_dtype = wire.cg_wire_dtype(problem.n_anchors)
-    prior = 1.0 / offset_prior_sigma_m**2 if per else 0.0
-    x = np.zeros((nl, P))
-    x[:, :dim] = own_m
-    if per:
-        assert offset_m is not None
-        x[:, dim] = offset_m
-    c = float(links.total(np.asarray(offset_m, float))) / problem.n_anchors if common and offset_m is not None else 0.0
-    n_unknowns = int(links.total(free.sum(axis=1).astype(float))) + (1 if common else 0)
-    cg_max = min(n_unknowns + 10, 2000)
-
-    def evaluate(xv: np.ndarray, cv: float, step: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, float]:
-        """Neighbour rows, F, the per-half residuals at ``(xv, cv)`` and the largest move of ``step`` (one
-        broadcast and one reduction)."""
-        nb = links.neighbours(xv)
-        diff = xv[owner, :dim] - nb[:, :dim]
-        bias = (xv[owner, dim] + nb[:, dim]) if per else cv
-        r = (np.linalg.norm(diff, axis=1) + bias - rng_m) / sig
-        terms = loss_terms(r, sc, loss)[1]
-        f_node = 0.5 * np.bincount(owner, terms, minlength=nl) + (prior * xv[:, dim] ** 2 if per else 0.0)
-        both = links.gathered(np.c_[f_node, np.max(np.abs(step), axis=1, initial=0.0)])
-        return nb, float(np.sum(both[:, 0])), r, float(np.max(both[:, 1], initial=0.0))
-
-    nb, F, r, _ = evaluate(x, c, np.zeros_like(x))
+    ``options``: :class:`RefineOptions` (with keyword ``changes`` to it: :func:`distnav._settings.resolve_options`),
+    as the solver's; ``offset_m``: the block's own offsets (``range_offsets="per_anchor"``) or its copies of the
+    common one (their network mean is the start)."""
+    o = resolve_options(RefineOptions, options, changes)
+    run = _Refiner(problem, ex, o)
+    x, c, cg_max = run.start(own_m, offset_m)
+    nb, F, r, _ = run.evaluate(x, c, np.zeros_like(x))
     mu = MU0
     status, rounds, cg_total = "max_iterations", 0, 0
     with np.errstate(invalid="ignore", divide="ignore"):
-        while rounds < max_rounds:
+        while rounds < o.max_rounds:
             rounds += 1
-            a, cn, e = jacobian_rows(x, nb, owner, sig, dim, per, common, free, free_nb)
-            w = loss_terms(r, sc, loss)[0]
-            g = _rows(owner, (w * r)[:, None] * a, nl)
-            if per:
-                g[:, dim] += prior * x[:, dim]
-            gc = dc = 0.0
-            if common:  # the common offset's gradient and curvature: one reduction
-                gc, dc = (
-                    float(t)
-                    for t in links.total(
-                        0.5
-                        * np.c_[
-                            np.bincount(owner, w * r * e, minlength=nl), np.bincount(owner, w * e * e, minlength=nl)
-                        ]
-                    )
-                )
-            diag = _rows(owner, w[:, None] * a * a, nl) + (
-                np.c_[np.zeros((nl, dim)), np.full(nl, prior)] if per else 0.0
-            )
-            block = np.einsum("h,ha,hb->hab", w, a, a)
-            own_block = np.zeros((nl, P, P))
-            np.add.at(own_block, owner, block)
-            if per:
-                own_block[:, dim, dim] += prior
+            lin = run.linearize(x, nb, r)
             while True:  # inner: solve the damped system, try the step
-                damp = mu * np.maximum(diag, 1e-12)
-                damp_c = mu * max(dc, 1e-12)
-                pre_inv = block_preconditioner(own_block, damp, free)
-                system = NormalSystem(
-                    links, owner, a, cn, e, w, damp, damp_c, prior if per else 0.0, free, common, wire_dtype
-                )
-                dxk, dck, its = pcg(
-                    system,
-                    -np.where(free, g, 0.0)[:, :, None],
-                    np.array([-gc]),
-                    pre_inv,
-                    dc + damp_c if common else 1.0,
-                    links,
-                    cg_max,
-                    scalar_dtype=wire.CG_SCALAR_DTYPE,
-                )
-                dx, dcv = dxk[:, :, 0], float(dck[0])
+                dx, dcv, its = run.step(lin, mu, cg_max)
                 cg_total += its
                 x_new, c_new = x + dx, c + dcv
-                nb_new, F_new, r_new, moved = evaluate(x_new, c_new, dx)
+                nb_new, F_new, r_new, moved = run.evaluate(x_new, c_new, dx)
                 moved = max(moved, abs(dcv))
                 if np.isfinite(F_new) and F_new <= F:
                     change = F - F_new
                     x, c, nb, r = x_new, c_new, nb_new, r_new
                     F_old, F = F, F_new
                     mu = max(mu / 3.0, 1e-12)
-                    if change <= ftol * max(abs(F_old), 1e-300) and moved <= xtol_m:
+                    if change <= o.ftol * max(abs(F_old), 1e-300) and moved <= o.xtol_m:
                         status = "converged"
                     break
-                if moved <= xtol_m * 1e-3 and mu <= 1.0:  # a nearly undamped GN step of < 0.1 µm: F is at its
+                if moved <= o.xtol_m * 1e-3 and mu <= 1.0:  # a nearly undamped GN step of < 0.1 µm: F is at its
                     status = "converged"  # minimum up to rounding (the step no longer lowers it)
                     break
                 mu *= 4.0
                 if mu > 1e12:  # stalled: no decrease along ever shorter steps, status stays max_iterations
                     break
                 rounds += 1
-                if rounds >= max_rounds:
+                if rounds >= o.max_rounds:
                     break
             if status == "converged":
                 break
-    offsets = None
-    half_off = None
-    if per:
-        offsets = x[:, dim].copy()
-        half_off = x[owner, dim] + nb[:, dim]
-    elif common:
-        offsets = np.full(nl, c)
-        half_off = np.full(samp.size, c)
-    return Refinement(
-        own_m=x[:, :dim].copy(),
-        offset_m=offsets,
-        half_other_m=nb[:, :dim].copy(),
-        half_offset_m=half_off,
-        objective=F,
-        status=status,
-        rounds=rounds,
-        cg_iterations=cg_total,
-        reductions=links.reductions,
-        reduced_floats=links.reduced_floats,
-        reduced_bytes=links.reduced_bytes,
-    )
+    return run.result(x, c, nb, F, status, rounds, cg_total)
 
 
 def _rows(owner: np.ndarray, values: np.ndarray, nl: int) -> np.ndarray:
@@ -416,29 +474,12 @@ def refine_state(
     ex: Exchange,
     st: IterationState,
     *,
-    sigma: np.ndarray,
-    scale: np.ndarray,
-    loss: str,
-    range_offsets: str,
-    offset_prior_sigma_m: float,
-    ftol: float,
-    xtol_m: float,
+    options: RefineOptions | None = None,
+    **changes: Any,
 ) -> tuple[IterationState, Refinement]:
     """:func:`refine` from a solver's last state; the refined state (same iteration count, the neighbours' refined
     estimates and offsets on every half-measurement, for the local QC) and the refinement's record."""
-    ref = refine(
-        problem,
-        ex,
-        st.own_m,
-        st.offset_m,
-        sigma=sigma,
-        scale=scale,
-        loss=loss,
-        range_offsets=range_offsets,
-        offset_prior_sigma_m=offset_prior_sigma_m,
-        ftol=ftol,
-        xtol_m=xtol_m,
-    )
+    ref = refine(problem, ex, st.own_m, st.offset_m, options=resolve_options(RefineOptions, options, changes))
     owner, _, _, samp = half_measurements(problem, ex)
     out = IterationState(
         st.iteration,

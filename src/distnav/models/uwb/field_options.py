@@ -5,15 +5,14 @@ the solver front door's keyword arguments and whether it takes the metres object
 from __future__ import annotations
 
 import dataclasses
-import inspect
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from distnav._settings import option_names
 from distnav.algorithms.ranging import csg
-from distnav.algorithms.ranging.lm import solve_lm
+from distnav.algorithms.ranging.lm import LMSolveOptions
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
 from distnav.models.uwb.reliability import RELIABILITY_LIMIT_M
@@ -104,12 +103,12 @@ class FieldOptions:
 def supports_objective(solver: str) -> bool:
     """Whether the solver front door takes ``objective=`` (the metres objective of issue 13)."""
     key = solver.upper()
-    fn: Callable[..., Any] = (
-        solve_lm
+    options = (
+        LMSolveOptions
         if key == "LM"
-        else (csg.solve_csg if key == "CSG" else csg.solve_nclm if key == "N-CLM" else csg.solve_ncsg)
+        else (csg.CsgOptions if key == "CSG" else csg.NclmOptions if key == "N-CLM" else csg.NcsgOptions)
     )
-    return "objective" in inspect.signature(fn).parameters
+    return "objective" in option_names(options)
 
 
 def solver_kwargs(opts: FieldOptions) -> dict[str, Any]:

@@ -37,11 +37,14 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from distnav._settings import resolve_options
 from distnav.algorithms.ranging.data import RangingData
 from distnav.errors import ModelError
 
 __all__ = [
     "RangingProblem",
+    "ProblemOptions",
+    "PaperProblemOptions",
     "build_problem",
     "generate_problem",
     "generate_layout",
@@ -196,19 +199,35 @@ def _check_ranges(r: np.ndarray, a: np.ndarray, b: np.ndarray, ids: Sequence[str
         raise ModelError(f"range #{k} between {ids[a[k]]!r} and {ids[b[k]]!r} is negative ({r[k]} m)")
 
 
+@dataclass(frozen=True, kw_only=True)
+class ProblemOptions:
+    """What :func:`build_problem` knows of a problem besides its samples.
+
+    - ``fixed`` (None: no fixed anchor): every fixed anchor's id → its position, metres.
+    - ``dim`` (3; or 2): the dimension.
+    - ``held`` (None): an estimated anchor's id → ``{axis: value}`` of coordinates held, metres.
+    - ``initial_m`` / ``truth_m`` (None): ``(n, dim)`` start and true positions, metres.
+    - ``name`` (``""``) and ``info`` (None: empty): the problem's name and free-form description.
+    - ``check_determined`` (True): refuse a problem that is not determined (module docstring).
+    """
+
+    fixed: Mapping[str, Any] | None = None
+    dim: int = 3
+    held: Mapping[str, Mapping[int, float]] | None = None
+    initial_m: np.ndarray | None = None
+    truth_m: np.ndarray | None = None
+    name: str = ""
+    info: Mapping[str, Any] | None = None
+    check_determined: bool = True
+
+
 def build_problem(
     ids: Sequence[str],
     links: Sequence[tuple[Any, Any]] | np.ndarray,
     range_m: Sequence[float] | np.ndarray,
     *,
-    fixed: Mapping[str, Any] | None = None,
-    dim: int = 3,
-    held: Mapping[str, Mapping[int, float]] | None = None,
-    initial_m: np.ndarray | None = None,
-    truth_m: np.ndarray | None = None,
-    name: str = "",
-    info: Mapping[str, Any] | None = None,
-    check_determined: bool = True,
+    options: ProblemOptions | None = None,
+    **changes: Any,
 ) -> RangingProblem:
     """Build and validate a :class:`RangingProblem`.
 
@@ -218,14 +237,17 @@ def build_problem(
     ``{"A7": {2: 2.85}}`` holds A7's height at 2.85 m). Raises :class:`~distnav.errors.ModelError` when the
     problem is malformed or not determined (see the module docstring); ``check_determined=False`` skips the
     determinacy test (for :func:`distnav.models.uwb.geometry.check_geometry`, which finds the determined part).
+    ``options``: :class:`ProblemOptions`, with keyword ``changes`` to it (:func:`distnav._settings.resolve_options`).
     """
+    o = resolve_options(ProblemOptions, options, changes)
+    dim, truth_m, initial_m = o.dim, o.truth_m, o.initial_m
     ids_t = _checked_ids(ids, dim)
     n = len(ids_t)
     index = {s: i for i, s in enumerate(ids_t)}
     a, b, r = _sample_ends(links, range_m, ids_t, index)
-    positions, free = _known_coordinates(n, dim, index, fixed, held)
+    positions, free = _known_coordinates(n, dim, index, o.fixed, o.held)
     fixed_mask = np.asarray(~free.any(axis=1))
-    if check_determined:
+    if o.check_determined:
         _check_determined(ids_t, dim, positions, free, fixed_mask, a, b)
     truth = _check_positions(truth_m, n, dim, "truth", ids_t) if truth_m is not None else None
     init = None
@@ -242,8 +264,8 @@ def build_problem(
         range_m=r,
         truth_m=truth,
         initial_m=init,
-        name=name,
-        info=dict(info or {}),
+        name=o.name,
+        info=dict(o.info or {}),
     )
 
 
@@ -463,19 +485,33 @@ def select_fixed(pos: np.ndarray, selection: str, n_fixed: int = 3) -> np.ndarra
     return np.array(sorted(out), np.int64)
 
 
+@dataclass(frozen=True, kw_only=True)
+class PaperProblemOptions:
+    """The settings of :func:`generate_problem` (paper 002 §4): ``n_anchors`` (100), ``n_fixed`` (3),
+    ``spacing_m`` (10 m), ``range_limit_m`` (18 m), ``sigma_m`` (0.15 m, the ranges' noise), ``init_halfwidth_m``
+    (5 m), ``dim`` (3), ``layout`` (None: a new placement) and ``hold_heights`` (False)."""
+
+    n_anchors: int = 100
+    n_fixed: int = 3
+    spacing_m: float = 10.0
+    range_limit_m: float = 18.0
+    sigma_m: float = 0.15
+    init_halfwidth_m: float = 5.0
+    dim: int = 3
+    layout: tuple[np.ndarray, np.ndarray] | None = None
+    hold_heights: bool = False
+
+    def __post_init__(self) -> None:
+        if self.sigma_m < 0 or self.init_halfwidth_m < 0:
+            raise ModelError("sigma_m and init_halfwidth_m must be ≥ 0")
+
+
 def generate_problem(
     problem: str,
     rng: np.random.Generator,
     *,
-    n_anchors: int = 100,
-    n_fixed: int = 3,
-    spacing_m: float = 10.0,
-    range_limit_m: float = 18.0,
-    sigma_m: float = 0.15,
-    init_halfwidth_m: float = 5.0,
-    dim: int = 3,
-    layout: tuple[np.ndarray, np.ndarray] | None = None,
-    hold_heights: bool = False,
+    options: PaperProblemOptions | None = None,
+    **changes: Any,
 ) -> RangingProblem:
     """One seeded instance of a paper problem such as ``"GC"`` (class letter + fixed-anchor selection).
 
@@ -485,12 +521,14 @@ def generate_problem(
     and draws a new R placement for each instance. Anchors lie at z = 0 and are solved in ``dim`` = 3;
     ``hold_heights=True`` holds every estimated anchor's height at its true value (the paper's suggested height
     constraint), leaving the horizontal coordinates to estimate (the random draws are the same either way).
+    ``options``: :class:`PaperProblemOptions`, with keyword ``changes`` to it.
     """
     name = problem.upper()
     if len(name) != 2 or name[0] not in PROBLEM_CLASSES or name[1] not in SELECTIONS[name[0]]:
         raise ModelError(f"unknown problem {problem!r}; choose one of {', '.join(PAPER_PROBLEMS)}")
-    if sigma_m < 0 or init_halfwidth_m < 0:
-        raise ModelError("sigma_m and init_halfwidth_m must be ≥ 0")
+    o = resolve_options(PaperProblemOptions, options, changes)
+    n_anchors, spacing_m, range_limit_m, layout = o.n_anchors, o.spacing_m, o.range_limit_m, o.layout
+    sigma_m, init_halfwidth_m, dim = o.sigma_m, o.init_halfwidth_m, o.dim
     pos2, links = (
         layout
         if layout is not None
@@ -499,14 +537,14 @@ def generate_problem(
     n = pos2.shape[0]
     truth = np.zeros((n, dim))
     truth[:, :2] = pos2[:, :2]
-    fixed_idx = select_fixed(pos2, name[1], n_fixed)
+    fixed_idx = select_fixed(pos2, name[1], o.n_fixed)
     a, b = links[:, 0], links[:, 1]
     true_d = np.linalg.norm(truth[a] - truth[b], axis=1)
     ranges = np.abs(true_d + rng.normal(0.0, sigma_m, size=true_d.size))
     init = truth + rng.uniform(-init_halfwidth_m, init_halfwidth_m, size=truth.shape)
     ids = [str(i) for i in range(n)]
     held = None
-    if hold_heights:
+    if o.hold_heights:
         if dim != 3:
             raise ModelError("hold_heights needs dim=3")
         held = {ids[i]: {2: float(truth[i, 2])} for i in range(n) if i not in set(fixed_idx.tolist())}

@@ -1,0 +1,209 @@
+"""The settings of the distributed ranging front doors (paper 002 §3.2–3.4), in the house style of
+:mod:`distnav._settings`: one frozen options object per front door, validated once, with documented defaults.
+
+:class:`RunOptions` holds what CSG, N-CSG and N-CLM share (budget, consensus, start, objective, stopping rule,
+quality control, range offsets, final LM phase); :class:`CsgOptions` adds CSG's step, :class:`NeighbourhoodOptions`
+the robust loss of the neighbourhood solvers, and :class:`NcsgOptions` / :class:`NclmOptions` their line search or
+damping. The same object drives a front door (:func:`~distnav.algorithms.ranging.csg.solve_ncsg`) and its
+iteration (:func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood`), which ignores the run-only
+fields (``monitor_every``, ``stop``, ``quality``, ``test_level``, ``test_scale``, ``refine``).
+
+Values are checked in ``__post_init__`` and refused with :class:`~distnav.errors.ModelError` naming the field (the
+family's error since before the options objects; a name that is not a field is refused by
+:func:`~distnav._settings.resolve_options` with :class:`~distnav.errors.UsageError`). Checks that need
+the problem (``iterations``, ``consensus_rounds``, ``weights``, ``initial_m``, ``sigma_m``) stay where the
+problem is known.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from distnav.algorithms.ranging.losses import LOSSES
+from distnav.algorithms.ranging.qc import DISTRIBUTED_TEST_SCALES
+from distnav.algorithms.ranging.stop import StopRule
+from distnav.errors import ModelError
+from distnav.network.weights import ConsensusWeights
+
+__all__ = [
+    "OFFSET_MODES",
+    "CsgOptions",
+    "NclmOptions",
+    "NcsgOptions",
+    "NeighbourhoodOptions",
+    "RunOptions",
+    "check_offsets",
+]
+
+OFFSET_MODES = ("none", "common", "per_anchor")
+OBJECTIVES = ("squared", "metres")
+
+
+def check_offsets(range_offsets: str, offset_prior_sigma_m: float, objective: str) -> None:
+    """Refuse an unknown offset mode, offsets with the squared objective and a non-positive prior σ."""
+    if range_offsets not in OFFSET_MODES:
+        raise ModelError(f"range offsets must be one of {', '.join(OFFSET_MODES)}, got {range_offsets!r}")
+    if range_offsets != "none" and objective != "metres":
+        raise ModelError("range offsets are estimated with objective='metres' only")
+    if range_offsets == "per_anchor" and not offset_prior_sigma_m > 0:
+        raise ModelError(f"offset_prior_sigma_m must be positive, got {offset_prior_sigma_m}")
+
+
+def _positive(**values: float | None) -> None:
+    """Refuse, by name, a value that is given (not None) and not positive."""
+    for name, value in values.items():
+        if value is not None and not value > 0:
+            raise ModelError(f"{name} must be positive, got {value}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunOptions:
+    """What every distributed ranging front door takes (CSG, N-CSG, N-CLM).
+
+    - ``iterations`` (500, the paper's): the iteration budget.
+    - ``consensus_rounds`` (1): consensus rounds per iteration (eq. (11) / (15)).
+    - ``weights`` (``"MH"``, eq. (12); or ``"Koppanyi"``, or a :class:`ConsensusWeights`): the mixing weights.
+    - ``initial_m`` (None: the problem's start): the ``(n, dim)`` start positions, metres.
+    - ``monitor_every`` (1): gather the estimates for the trace and the stopping tests every k-th iteration
+      (0: start and end only).
+    - ``objective`` (``"squared"``, paper 002 eq. (2); or ``"metres"``): the residuals fitted.
+    - ``sigma_m`` (1.0): the ranges' standard deviation for the metres objective (a value or one per range), metres.
+    - ``stop`` (``StopRule()``; None runs all ``iterations`` as the paper): the stopping rule.
+    - ``quality`` (True): the per-anchor covariance and the w-tests of every anchor's own links.
+    - ``test_level`` (0.001): the w-tests' significance level.
+    - ``test_scale`` (``"robust"``; or ``"local"``, or one of the centralized scales): the w-tests' variance factor.
+    - ``range_offsets`` (``"none"``; ``"common"`` / ``"per_anchor"`` with the metres objective): range offsets
+      estimated with the positions.
+    - ``offset_prior_sigma_m`` (0.1): the per-anchor offsets' prior standard deviation, metres.
+    - ``refine`` (None: with the metres objective and a stopping rule): a final distributed LM phase.
+    """
+
+    iterations: int = 500
+    consensus_rounds: int = 1
+    weights: str | ConsensusWeights = "MH"
+    initial_m: np.ndarray | None = None
+    monitor_every: int = 1
+    objective: str = "squared"
+    sigma_m: float | np.ndarray = 1.0
+    stop: StopRule | None = StopRule()
+    quality: bool = True
+    test_level: float = 0.001
+    test_scale: str = "robust"
+    range_offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
+    refine: bool | None = None
+
+    def __post_init__(self) -> None:
+        if self.monitor_every < 0:
+            raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
+        if self.test_scale not in DISTRIBUTED_TEST_SCALES:
+            raise ModelError(f"test_scale must be one of {', '.join(DISTRIBUTED_TEST_SCALES)}, got {self.test_scale!r}")
+        check_offsets(self.range_offsets, self.offset_prior_sigma_m, self.objective)
+        if self.objective not in OBJECTIVES:
+            raise ModelError(f"objective must be 'squared' or 'metres', got {self.objective!r}")
+
+    @property
+    def refines(self) -> bool:
+        """Whether a final distributed LM phase runs (:mod:`distnav.algorithms.ranging.refine`): ``refine``, by
+        default with the metres objective and a stopping rule (never in the paper's mode)."""
+        return bool(self.refine) if self.refine is not None else self.objective == "metres" and self.stop is not None
+
+
+@dataclass(frozen=True, kw_only=True)
+class CsgOptions(RunOptions):
+    """:class:`RunOptions` and CSG's step ``alpha`` (eq. (10); None: the paper's 1e-3 for the squared objective,
+    0.8 relative to each anchor's information for metres). CSG has no robust loss (Koppanyi's algorithm)."""
+
+    alpha: float | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive(alpha=self.alpha)
+
+    def step(self) -> float:
+        """``alpha``, or its default for the objective."""
+        return (1e-3 if self.objective == "squared" else 0.8) if self.alpha is None else self.alpha
+
+
+@dataclass(frozen=True, kw_only=True)
+class NeighbourhoodOptions(RunOptions):
+    """:class:`RunOptions` and the robust loss of the neighbourhood solvers (N-CSG, N-CLM).
+
+    - ``loss`` (``"linear"``; ``"huber"``, ``"soft_l1"``, ``"cauchy"``, ...): the robust loss of the partial costs.
+    - ``loss_scale_m`` (0.3): the range error where the loss bends, metres.
+    - ``graduated`` (None: a quarter of ``iterations`` for metres with a robust loss, else 0): iterations with the
+      linear loss before the robust one.
+    """
+
+    loss: str = "linear"
+    loss_scale_m: float = 0.3
+    graduated: int | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.loss not in LOSSES:
+            raise ModelError(f"unknown loss {self.loss!r}; choose one of {', '.join(LOSSES)}")
+        if self.graduated is not None and self.graduated < 0:
+            raise ModelError(f"graduated must be ≥ 0 iterations, got {self.graduated}")
+
+    def graduated_iterations(self) -> int:
+        """``graduated``, or its default."""
+        if self.graduated is not None:
+            return int(self.graduated)
+        return self.iterations // 4 if self.objective == "metres" and self.loss != "linear" else 0
+
+
+@dataclass(frozen=True, kw_only=True)
+class NcsgOptions(NeighbourhoodOptions):
+    """:class:`NeighbourhoodOptions` and N-CSG's steps and line search (eqs. (14)–(21)).
+
+    - ``alpha`` (None: 1e-3 squared, 0.8 metres, relative to each anchor's information): N-CSG's fixed step.
+    - ``alpha0`` (None: 1e-2 squared, the paper's; 2 metres): the line searches' largest step.
+    - ``beta`` (1/2), ``gamma`` (1/2): the backtracking factor and the Armijo constant, both in (0, 1).
+    - ``max_backtracks`` (40): the line searches' trial steps per iteration.
+    - ``armijo_slope`` (``"subgradient"``, the paper's; or ``"gradient"``): the slope in the Armijo test.
+    """
+
+    alpha: float | None = None
+    alpha0: float | None = None
+    beta: float = 0.5
+    gamma: float = 0.5
+    max_backtracks: int = 40
+    armijo_slope: str = "subgradient"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive(alpha=self.alpha, alpha0=self.alpha0)
+        if self.armijo_slope not in ("gradient", "subgradient"):
+            raise ModelError(f"armijo_slope must be 'gradient' or 'subgradient', got {self.armijo_slope!r}")
+        if not (0 < self.beta < 1 and 0 < self.gamma < 1):
+            raise ModelError(f"beta and gamma must lie in (0, 1), got beta={self.beta}, gamma={self.gamma}")
+
+    def steps(self) -> tuple[float, float]:
+        """``(alpha, alpha0)``, or their defaults for the objective."""
+        squared = self.objective == "squared"
+        a = (1e-3 if squared else 0.8) if self.alpha is None else self.alpha
+        a0 = (1e-2 if squared else 2.0) if self.alpha0 is None else self.alpha0
+        return a, a0
+
+
+@dataclass(frozen=True, kw_only=True)
+class NclmOptions(NeighbourhoodOptions):
+    """:class:`NeighbourhoodOptions` and N-CLM's damping (eq. (22)).
+
+    - ``lambda0`` (1e-3): every anchor's initial ``λ_i``.
+    - ``damping`` (``"levenberg"``: ``λ_i · mean(diag(G⁽ⁱ⁾ᵀG⁽ⁱ⁾)) · I``; or ``"fletcher"``, eq. (8) literally).
+    - ``lambda_min`` (0.1): the floor of every ``λ_i``.
+    """
+
+    lambda0: float = 1e-3
+    damping: str = "levenberg"
+    lambda_min: float = 0.1
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive(lambda0=self.lambda0, lambda_min=self.lambda_min)
+        if self.damping not in ("levenberg", "fletcher"):
+            raise ModelError(f"damping must be 'levenberg' or 'fletcher', got {self.damping!r}")
