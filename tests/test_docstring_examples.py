@@ -20,6 +20,10 @@ FRONT_DOORS = [
     ("distnav.algorithms.lsq.blue", "blue"),
     ("distnav.algorithms.lsq.admm", "admm"),
     ("distnav.algorithms.kalman.ckf", "ckf"),
+    ("distnav.algorithms.consensus.pushsum", "push_sum"),
+    ("distnav.algorithms.lsq.qc", "admm_data_snooping"),
+    ("distnav.algorithms.kalman.information", "central_filter"),
+    ("distnav.algorithms.kalman.ckf_design", "ckf_error_variance"),
     ("distnav.models.gnss.biasmodel", "bias_network_model"),  # the GNSS bias pipeline's stages (issue 25 item 4)
     ("distnav.models.gnss.levelling", "level_station"),
     ("distnav.models.gnss.ionogeometry", "ionosphere_geometry"),
