@@ -22,6 +22,8 @@ FRONT_DOORS = [
     ("distnav.algorithms.kalman.ckf", "ckf"),
     ("distnav.algorithms.consensus.pushsum", "push_sum"),
     ("distnav.algorithms.lsq.qc", "admm_data_snooping"),
+    ("distnav.algorithms.lsq.qc", "admm_precision"),
+    ("distnav.algorithms.lsq.blue", "method_of_multipliers"),
     ("distnav.algorithms.kalman.information", "central_filter"),
     ("distnav.algorithms.kalman.ckf_design", "ckf_error_variance"),
     ("distnav.models.gnss.biasmodel", "bias_network_model"),  # the GNSS bias pipeline's stages (issue 25 item 4)

@@ -506,7 +506,17 @@ def method_of_multipliers(
 ) -> MultiplierResult:
     """Run :func:`iterate_method_of_multipliers`; the trace holds ``x`` (k × n × p), ``z``, ``u``, ``dual_value``
     ``g(u^[k])`` (eq. (10)) and, with ``reference``, ``distance_to_reference``. ``dual_value_initial`` is
-    ``g(u^[0])``. Reference solver: it needs a fusion centre (no communication is modelled)."""
+    ``g(u^[0])``. Reference solver: it needs a fusion centre (no communication is modelled).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from distnav.algorithms.lsq.blue import LinearProblem, method_of_multipliers
+    >>> A = [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.array([[1.0, 1.0]])]
+    >>> problem = LinearProblem.from_blocks(A, [np.array([1.0]), np.array([2.0]), np.array([3.3])])
+    >>> method_of_multipliers(problem, W=1.0, iterations=200).estimates.round(6).tolist()  # the BLUE at every node
+    [[1.1, 2.1], [1.1, 2.1], [1.1, 2.1]]
+    """
     states = iterate_method_of_multipliers(problem, W=W, iterations=iterations, u0=u0)
     return _run(problem, states, W, u0, reference, "method of multipliers")
 

@@ -191,6 +191,25 @@ def admm_precision(
     The result's :class:`~distnav.algorithms.result.Precision` has ``kind="exact"`` (equal to the centralized value
     up to the stopping tolerance), the iterations and messages of both runs; the variance factor is node 0's
     (``variance_factor_nodes`` holds every node's, equal to the tolerance).
+
+    Examples
+    --------
+    The three nodes of :func:`~distnav.algorithms.lsq.admm.admm`'s example: each node learns ``N⁻¹`` with
+    ``N = [[2, 1], [1, 2]]``, i.e. ``[[2, −1], [−1, 2]]/3``, and ``σ̂² = 0.03/(3 − 2)`` (three residuals of size 0.1):
+
+    >>> import numpy as np
+    >>> from distnav.algorithms.lsq.admm import admm
+    >>> from distnav.algorithms.lsq.blue import LinearProblem
+    >>> from distnav.algorithms.lsq.qc import admm_precision
+    >>> from distnav.network import builders
+    >>> A = [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.array([[1.0, 1.0]])]
+    >>> problem = LinearProblem.from_blocks(A, [np.array([1.0]), np.array([2.0]), np.array([3.3])])
+    >>> est = admm(problem, builders.path(3), max_iterations=2000, tol=1e-12).estimates
+    >>> run = admm_precision(problem, builders.path(3), est)
+    >>> bool(np.allclose(run.precision.covariance, np.array([[2.0, -1.0], [-1.0, 2.0]]) / 3))
+    True
+    >>> round(run.precision.variance_factor, 9), run.precision.redundancy
+    (0.03, 1.0)
     """
     o = resolve_options(PrecisionOptions, options, changes)
     if exchange is not None and faults is not None:
