@@ -198,6 +198,16 @@ def _tree_sends(graph: Graph, balanced: bool = True) -> np.ndarray:
     the root of scipy's BFS tree sent every total to each of its children); False: scipy's BFS tree."""
     root = gather_cost(graph, np.ones(graph.n_nodes)).sink
     adj = graph.adjacency().tocsr()
+    if balanced:  # the root sends every total to each of its children, all its neighbours in a BFS tree: the
+        # anchor of the lowest degree within two hops of the centre (the tree one or two levels deeper)
+        near = breadth_first_order(adj, root, directed=False, return_predecessors=True)
+        hops = np.full(graph.n_nodes, np.iinfo(np.int64).max)
+        hops[root] = 0
+        for v in near[0][1:]:
+            hops[v] = hops[near[1][v]] + 1
+        degree = np.diff(adj.indptr)
+        cand = np.flatnonzero(hops <= 2)
+        root = int(cand[np.lexsort((cand, hops[cand], degree[cand]))[0]])
     order, pred = breadth_first_order(adj, root, directed=False, return_predecessors=True)
     if balanced:
         level = np.zeros(graph.n_nodes, np.int64)
