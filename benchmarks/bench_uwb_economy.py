@@ -12,7 +12,8 @@ and how both grow with the network.
    the third session: float16 directions' rows with a shared exponent, float32 CG scalars, CG stopped on ``rᵀr``,
    every trial's parameters in float64, the seed fits at their stage tolerances, the σ gathered at one anchor)
    and *after* (the defaults: each neighbour's product sent per link, ``wire.PROJECTED``; CG stopped on ``rᵀz``,
-   ``refine.PRECONDITIONED_STOP``; trials as float32 steps, ``wire.STEPS``); the positions, their largest
+   ``refine.PRECONDITIONED_STOP``; trials as float32 steps, ``wire.STEPS``; a round's own totals but the
+   objective in float32, ``refine.ROUND_SCALARS``); the positions, their largest
    difference from
    *today*'s, the σ ratio to *today*'s central σ; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
@@ -76,7 +77,12 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (wire, "PLAIN"): True,
         (wire, "CG_SCALAR_DTYPE"): np.float64,
     },
-    "today": {(wire, "PROJECTED"): False, (wire, "STEPS"): False, (ranging_refine, "PRECONDITIONED_STOP"): False},
+    "today": {
+        (wire, "PROJECTED"): False,
+        (wire, "STEPS"): False,
+        (ranging_refine, "PRECONDITIONED_STOP"): False,
+        (ranging_refine, "ROUND_SCALARS"): False,
+    },
     "after": {},
 }
 OPTIONS = {
