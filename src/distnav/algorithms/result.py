@@ -118,13 +118,8 @@ class Precision:
         return diag
 
     def summary(self) -> dict[str, Any]:
-        return {
-            "variance_factor": self.variance_factor,
-            "redundancy": self.redundancy,
-            "kind": self.kind,
-            "iterations": self.iterations,
-            "communication": None if self.comm is None else self.comm.as_dict(),
-        }
+        plain = {name: getattr(self, name) for name in ("variance_factor", "redundancy", "kind", "iterations")}
+        return {**plain, "communication": None if self.comm is None else self.comm.as_dict()}
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,13 +209,8 @@ class SolverResult:
 
     def summary(self) -> dict[str, Any]:
         """JSON-friendly summary (no large arrays)."""
-        return {
-            "converged": self.converged,
-            "iterations": self.iterations,
-            "status": self.status,
-            "message": self.message,
-            "communication": self.comm.as_dict(),
-        }
+        plain = {name: getattr(self, name) for name in ("converged", "iterations", "status", "message")}
+        return {**plain, "communication": self.comm.as_dict()}
 
 
 def format_bytes(n_bytes: float) -> str:
