@@ -312,6 +312,8 @@ class CommComparison:
                 f"median {format_bytes(float(np.median(self.bytes_sent)))})"
             )
         g = self.gather
+        if self.total_bytes == 0 and g.total_hop_bytes == 0:
+            return f"{sent}; gathering would cost nothing either: the data are already at one {label}"
         hops = f"{format_count(g.messages)} relay hop{'' if g.messages == 1 else 's'}"
         return (
             f"{sent}; gathering {self.data} at {label} {self._name(g.sink)} would cost "

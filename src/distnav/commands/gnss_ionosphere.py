@@ -77,9 +77,23 @@ _SYSTEM_WORDS = {
 }
 
 
+_SYSTEM_CODES = {  # --system: the default codes (first, second) where --l1-code / --l2-code are not given
+    "G": (None, "C2W"),  # the first code: C1C, or C1W when the comparison products are on P1 (choose_l1_code)
+    "E": ("C1X", "C5X"),
+    "C": ("C2I", "C6I"),
+    "R": ("C1C", "C2C"),
+}
+
+
 def validate_arguments(args: argparse.Namespace) -> None:
-    """Check every option value before any file is read (errors name the option; the CLI exits with 2)."""
+    """Check every option value before any file is read (errors name the option; the CLI exits with 2); codes not
+    given take the system's defaults (:data:`_SYSTEM_CODES`)."""
     system = getattr(args, "system", "G")
+    first, second = _SYSTEM_CODES[system]
+    if args.l1_code is None and first is not None:
+        args.l1_code = first
+    if args.l2_code is None:
+        args.l2_code = second
     prn, l1_code, lb_code = (re.compile(p) for p in _SYSTEM_TABLE[system].split())
     sat_words, l1_words, lb_words = _SYSTEM_WORDS[system].split(";")
     if args.pivot is not None and not prn.match(str(args.pivot).upper()):
@@ -424,10 +438,14 @@ def _add_code_and_datum_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--l1-code",
         default=None,
-        help="L1 code (C1C = RINEX 2 C1, C1W = P1; default C1C, or C1W when every --bias is IONEX)",
+        help="first code (GPS: C1C = RINEX 2 C1, C1W = P1; default C1C, or C1W when every --bias is IONEX; "
+        "Galileo C1X, BeiDou C2I, GLONASS C1C by default)",
     )
     p.add_argument(
-        "--l2-code", default="C2W", help="second code (default C2W = RINEX 2 P2; C5Q/C5X use the L5 frequency factor)"
+        "--l2-code",
+        default=None,
+        help="second code (GPS: default C2W = RINEX 2 P2, C5Q/C5X use the L5 frequency factor; Galileo C5X, "
+        "BeiDou C6I, GLONASS C2C by default)",
     )
     p.add_argument(
         "--datum",
