@@ -7,6 +7,8 @@ import pytest
 from scipy.optimize import least_squares
 
 from distnav.algorithms.lsq.admm import (
+    AdmmOptions,
+    AdmmRunOptions,
     XUpdate,
     admm,
     admm_linearized,
@@ -16,7 +18,7 @@ from distnav.algorithms.lsq.admm import (
     range_positioning_problem,
 )
 from distnav.algorithms.lsq.blue import LinearProblem, blue, single_consensus_admm
-from distnav.errors import ModelError
+from distnav.errors import ModelError, UsageError
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.network import builders
 from distnav.network.constraint_nodes import choose_constraint_nodes
@@ -398,8 +400,33 @@ def test_printed_fig6_x_update_with_a_1_over_c_weighted_z_update_converges_to_th
 
 def test_unknown_option_is_a_project_error(case):
     g, prob, _ = case
-    with pytest.raises(ModelError, match="unknown ADMM option.*rhoo"):
-        admm(prob, g, rhoo=3.0)  # type: ignore[call-arg]
+    with pytest.raises(UsageError, match="AdmmRunOptions has no option 'rhoo'"):
+        admm(prob, g, rhoo=3.0)
+    with pytest.raises(UsageError, match="AdmmOptions has no option 'max_iterations'"):
+        iterate_admm(prob, g, max_iterations=3)  # the generator has no stopping rule
+    with pytest.raises(UsageError, match="options must be a AdmmRunOptions, got dict"):
+        admm(prob, g, options={"W": 3.0})  # type: ignore[arg-type]
+
+
+def test_options_object_and_keywords_run_the_same(case):
+    """The house style (distnav._settings): one frozen options object, keyword changes to it, or both — the same
+    run bit for bit; a kernel-only AdmmOptions gets admm()'s default stopping rule."""
+    g, prob, _ = case
+    by_keywords = admm(prob, g, W=20.0, x_weight="fig6", max_iterations=40, tol=0.0)
+    by_object = admm(prob, g, options=AdmmRunOptions(W=20.0, x_weight="fig6", max_iterations=40, tol=0.0))
+    mixed = admm(prob, g, options=AdmmOptions(W=20.0, x_weight="fig6"), max_iterations=40, tol=0.0)
+    for res in (by_object, mixed):
+        np.testing.assert_array_equal(res.estimates, by_keywords.estimates)
+        np.testing.assert_array_equal(res.trace["primal_residual"], by_keywords.trace["primal_residual"])
+    assert mixed.iterations == 40 and mixed.x_weight == "fig6"
+    kernel = AdmmOptions(W=20.0)
+    first = [s.x.copy() for s, _ in zip(iterate_admm(prob, g, options=kernel), range(4), strict=False)]
+    again = [s.x.copy() for s, _ in zip(iterate_admm(prob, g, W=20.0), range(4), strict=False)]
+    np.testing.assert_array_equal(np.stack(first), np.stack(again))
+    with pytest.raises(ModelError, match="messages must be"):
+        AdmmOptions(messages="edges")  # type: ignore[arg-type]
+    with pytest.raises(ModelError, match="max_iterations must be"):
+        AdmmRunOptions(max_iterations=-1)
 
 
 def test_result_is_typed_and_warm_start_reads_z_nodes(case):

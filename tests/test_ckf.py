@@ -27,7 +27,8 @@ from distnav.algorithms.kalman.ckf import (
     consensus_rounds,
     iterate_ckf,
 )
-from distnav.errors import ModelError, WeightsError
+from distnav.algorithms.kalman.ckf_options import CKFOptions, CKFRunOptions
+from distnav.errors import ModelError, UsageError, WeightsError
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.network import builders
 from distnav.network.graph import Graph, SwitchingGraph
@@ -375,6 +376,30 @@ def test_ckf_validation():
         ckf_error_variance(dyn, ms, np.eye(5))
     with pytest.raises(ModelError, match="3 states, measurements 4"):
         ckf(DynamicModel(3), ms, graph=g, rounds=1)
+
+
+def test_options_object_and_keywords_run_the_same():
+    """The house style (distnav._settings): CKFOptions / CKFRunOptions, keyword changes to them, or both — the same
+    filter bit for bit; unknown names and wrong objects are refused by name."""
+    dyn, ms, _ = observed_model(9, T=4)
+    g = builders.ring(ms.n_nodes)
+    by_keywords = ckf(dyn, ms, graph=g, rounds=3, protocol="P2", store_matrices=True)
+    by_object = ckf(dyn, ms, graph=g, options=CKFRunOptions(rounds=3, protocol="P2", store_matrices=True))
+    mixed = ckf(dyn, ms, graph=g, options=CKFOptions(protocol="P2"), rounds=3, store_matrices=True)
+    for res in (by_object, mixed):
+        np.testing.assert_array_equal(res.series.estimates, by_keywords.series.estimates)
+        np.testing.assert_array_equal(res.series.covariance, by_keywords.series.covariance)
+    assert ckf(dyn, ms, graph=g, options=CKFOptions(rounds=3)).series.covariance is None  # keeps no matrices
+    states = list(iterate_ckf(dyn, ms, graph=g, options=CKFOptions(rounds=3, protocol="P2")))
+    np.testing.assert_array_equal(states[-1].estimates, by_keywords.estimates)
+    with pytest.raises(UsageError, match="CKFRunOptions has no option 'round'.*did you mean 'rounds'"):
+        ckf(dyn, ms, graph=g, round=3)
+    with pytest.raises(UsageError, match="CKFOptions has no option 'store_matrices'"):
+        next(iterate_ckf(dyn, ms, graph=g, rounds=3, store_matrices=True))
+    with pytest.raises(ModelError, match="give rounds"):
+        ckf(dyn, ms, graph=g, options=CKFOptions(protocol="P2"))  # a partial object: the rounds are missing
+    with pytest.raises(ModelError, match="either rounds"):
+        CKFOptions(rounds=2, sending_interval_s=5.0)
 
 
 def test_zero_rounds_is_a_suboptimal_local_filter():

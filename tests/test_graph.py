@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse.csgraph as csgraph
 
-from distnav.errors import GraphError
+from distnav.errors import GraphError, UsageError
 from distnav.network import Graph, SwitchingGraph, builders
 
 
@@ -83,6 +83,28 @@ def test_connected_random_geometric_mean_degree():
     g = builders.connected_random_geometric(2000, mean_degree=8, rng=np.random.default_rng(0))
     assert g.is_connected
     assert 6.0 < g.degrees.mean() < 8.5  # boundary effects lower it slightly
+
+
+def test_point_options_object_and_keywords_build_the_same_graph():
+    """PointOptions in the house style (distnav._settings): the object, keyword changes or both give the same
+    points; the points lie in [0, size]^dim (checked here, not by the builder); bad values are refused by name."""
+    opts = builders.PointOptions(dim=3, size=50.0)
+    a = builders.random_geometric(40, 15.0, rng=np.random.default_rng(4), dim=3, size=50.0)
+    b = builders.random_geometric(40, 15.0, rng=np.random.default_rng(4), options=opts)
+    c = builders.random_geometric(
+        40, 15.0, rng=np.random.default_rng(4), options=builders.PointOptions(dim=3), size=50.0
+    )
+    for g in (b, c):
+        np.testing.assert_array_equal(g.positions, a.positions)
+        assert g.links.tolist() == a.links.tolist()
+    assert a.positions is not None and a.positions.shape == (40, 3)
+    assert a.positions.min() >= 0.0 and a.positions.max() <= 50.0 and a.positions.max() > 25.0
+    with pytest.raises(UsageError, match="PointOptions has no option 'sise'.*did you mean 'size'"):
+        builders.random_geometric(5, 0.5, rng=np.random.default_rng(0), sise=2.0)
+    with pytest.raises(GraphError, match="size must be a finite number > 0"):
+        builders.PointOptions(size=0.0)
+    with pytest.raises(GraphError, match="dim"):
+        builders.connected_random_geometric(10, mean_degree=3, rng=np.random.default_rng(0), dim=0)
 
 
 def test_k_nearest_each_node_has_at_least_k():

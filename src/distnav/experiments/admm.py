@@ -23,15 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from distnav.algorithms.lsq.admm import (
-    AdmmResult,
-    admm,
-    admm_linearized,
-    admm_nonlinear,
-    gauss_newton,
-    range_positioning_problem,
-)
+from distnav.algorithms.lsq.admm import AdmmResult, admm
 from distnav.algorithms.lsq.blue import LinearProblem, blue, method_of_multipliers, single_consensus_admm
+from distnav.algorithms.lsq.nonlinear import admm_linearized, admm_nonlinear, gauss_newton, range_positioning_problem
 from distnav.exchange import Exchange, make_exchange
 from distnav.experiments.admm_checks import fig5_conditions, fig6_as_printed
 from distnav.experiments.admm_figures import figures

@@ -10,7 +10,8 @@ and is listed in :data:`distnav.experiments.EXPERIMENTS`. ``ctx.quick`` selects 
 ``distnav demo`` runs. Only the root block (rank 0 under MPI) writes files; every write goes to a temporary
 name first and is renamed on success, so a failed run leaves no half-written output. The writers themselves
 (:func:`atomic_write_text`, :func:`atomic_write_json`, :func:`save_figure_file`, :func:`pyplot`, the rank-0 switch)
-live in :mod:`distnav.output`, shared with :mod:`distnav.commands`; they stay importable from here.
+live in :mod:`distnav.output`, shared with :mod:`distnav.commands` (import them from there; :func:`pyplot` is
+re-exported here for the experiments' figures).
 """
 
 from __future__ import annotations
@@ -32,15 +33,7 @@ from distnav.errors import UsageError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
 from distnav.options import positive_int
-from distnav.output import (  # re-exported: the writers moved to distnav.output
-    atomic_write_json,
-    atomic_write_text,
-    is_file_writer,
-    pyplot,
-    save_figure_file,
-    set_file_writer,
-    to_jsonable,
-)
+from distnav.output import atomic_write_json, atomic_write_text, pyplot, save_figure_file
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -54,14 +47,7 @@ __all__ = [
     "add_jobs_argument",
     "available_cores",
     "parallel_map",
-    # and, re-exported from distnav.output:
-    "to_jsonable",
-    "atomic_write_text",
-    "atomic_write_json",
-    "save_figure_file",
-    "set_file_writer",
-    "is_file_writer",
-    "pyplot",
+    "pyplot",  # re-exported from distnav.output for the experiments' figures
 ]
 
 

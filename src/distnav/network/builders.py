@@ -8,11 +8,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, TypedDict, Unpack
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from distnav._checks import affordable_nodes, whole_number
+from distnav._settings import resolve_options
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
 
@@ -132,26 +133,32 @@ def ladder(n_nodes: int, *, spacing_m: float = 1.0, diagonals: bool = True, self
     return Graph.from_links(n, np.concatenate(parts), positions=pos, self_loops=self_loops)
 
 
-@dataclass(frozen=True)
-class _Points:
+@dataclass(frozen=True, kw_only=True)
+class PointOptions:
+    """Options of the random geometric builders (house style: :mod:`distnav._settings`; default in brackets).
+
+    Fields
+    ------
+    dim : [2] coordinates per point (the connected builder sets its radius for 2 or 3).
+    size : [1.0] points uniform in ``[0, size]^dim`` (metres when the radius is).
+    self_loops : [False] as for :class:`~distnav.network.graph.Graph`.
+    """
+
     dim: int = 2
     size: float = 1.0
     self_loops: bool = False
 
-
-class PointOptions(TypedDict, total=False):
-    """Keyword options of the random geometric builders (defaults in brackets, kept in ``_Points``): ``dim`` [2]
-    coordinates, points uniform in ``[0, size]^dim`` (``size`` [1.0]), ``self_loops`` [False] as for
-    :class:`Graph`."""
-
-    dim: int
-    size: float
-    self_loops: bool
+    def __post_init__(self) -> None:
+        whole_number(self.dim, "dim", minimum=1, error=GraphError)
+        if not (isinstance(self.size, (int, float, np.integer, np.floating)) and 0 < self.size < np.inf):
+            raise GraphError(f"size must be a finite number > 0, got {self.size!r}")
 
 
-def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator, **points: Unpack[PointOptions]) -> Graph:
-    """Nodes uniform in ``[0, size]^dim``, linked when closer than ``radius`` (same units as ``size``); ``points``:
-    :class:`PointOptions`.
+def random_geometric(
+    n_nodes: int, radius: float, *, rng: np.random.Generator, options: PointOptions | None = None, **changes: Any
+) -> Graph:
+    """Nodes uniform in ``[0, size]^dim``, linked when closer than ``radius`` (same units as ``size``); options
+    :class:`PointOptions` (``options=`` and/or keyword changes to it).
 
     Uses a k-d tree, so 10⁶ nodes build in seconds. The result may be disconnected; see
     :func:`connected_random_geometric`.
@@ -159,7 +166,7 @@ def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator, *
     n = _need(n_nodes, 1, "a random geometric graph")
     if not radius > 0:
         raise GraphError(f"radius must be positive, got {radius}")
-    opt = _Points(**points)
+    opt = resolve_options(PointOptions, options, changes)
     pos = rng.uniform(0.0, opt.size, size=(n, opt.dim))
     from scipy.spatial import cKDTree  # lazy: scipy.spatial is a third of the import time of the MPI path
 
@@ -168,16 +175,22 @@ def random_geometric(n_nodes: int, radius: float, *, rng: np.random.Generator, *
 
 
 def connected_random_geometric(
-    n_nodes: int, *, mean_degree: float, rng: np.random.Generator, max_tries: int = 50, **points: Unpack[PointOptions]
+    n_nodes: int,
+    *,
+    mean_degree: float,
+    rng: np.random.Generator,
+    max_tries: int = 50,
+    options: PointOptions | None = None,
+    **changes: Any,
 ) -> Graph:
-    """A *connected* random geometric graph whose expected mean degree is ``mean_degree`` (``points``:
-    :class:`PointOptions`).
+    """A *connected* random geometric graph whose expected mean degree is ``mean_degree`` (options
+    :class:`PointOptions`, ``options=`` and/or keyword changes to it).
 
     The radius is set from the expected degree of a Poisson point process, ``d = n π r² / size²`` (2-D) or
     ``d = n (4/3) π r³ / size³`` (3-D); redrawn up to ``max_tries`` times until connected.
     """
     n = _need(n_nodes, 2, "a connected random geometric graph")
-    opt = _Points(**points)
+    opt = resolve_options(PointOptions, options, changes)
     dim, size = opt.dim, opt.size
     if dim == 2:
         radius = size * np.sqrt(mean_degree / (np.pi * n))
@@ -186,7 +199,7 @@ def connected_random_geometric(
     else:
         raise GraphError(f"dim must be 2 or 3, got {dim}")
     for _ in range(max_tries):
-        g = random_geometric(n, radius, rng=rng, **points)
+        g = random_geometric(n, radius, rng=rng, options=opt)
         if g.is_connected:
             return g
     raise GraphError(
@@ -260,7 +273,13 @@ def from_edges(
 
 
 def random_geometric_part(
-    n_nodes: int, radius: float, *, rng: np.random.Generator, nodes: np.ndarray, **points: Unpack[PointOptions]
+    n_nodes: int,
+    radius: float,
+    *,
+    rng: np.random.Generator,
+    nodes: np.ndarray,
+    options: PointOptions | None = None,
+    **changes: Any,
 ) -> GraphPart:
     """The part owned by ``nodes`` of the graph :func:`random_geometric` builds from the same arguments (the same
     positions, the same links, the same global edge ids), without the whole edge list: what one MPI rank builds.
@@ -276,7 +295,7 @@ def random_geometric_part(
     n = _need(n_nodes, 1, "a random geometric graph")
     if not radius > 0:
         raise GraphError(f"radius must be positive, got {radius}")
-    opt = _Points(**points)
+    opt = resolve_options(PointOptions, options, changes)
     pos = rng.uniform(0.0, opt.size, size=(n, opt.dim))
     tree = cKDTree(pos)
     r, step = float(radius), 1 << 16

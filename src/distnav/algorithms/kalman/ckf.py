@@ -27,12 +27,14 @@ along in the consensus payload (paid for in bytes) so that Fig. 7 uses the produ
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, Literal, TypedDict, Unpack
+from typing import Any
 
 import numpy as np
 
+from distnav._settings import option_names, resolve_options
 from distnav.algorithms.consensus.averaging import ConsensusSchedule, consensus_product, consensus_schedule
 from distnav.algorithms.kalman import (
     DynamicModel,
@@ -45,6 +47,12 @@ from distnav.algorithms.kalman import (
     pseudo_inverse_psd,
 )
 from distnav.algorithms.kalman.ckf_design import alpha_factor, ckf_error_variance, ckf_std_ratio, consensus_rounds
+from distnav.algorithms.kalman.ckf_options import (
+    CKFOptions,
+    CKFRunOptions,
+    ConsensusProtocol,
+    LocalPrecision,
+)
 from distnav.algorithms.kalman.ckf_qc import (
     InnovationCollector,
     NodeEpochTest,
@@ -59,15 +67,7 @@ from distnav.errors import ModelError
 from distnav.exchange import Exchange, Mixer, make_exchange
 from distnav.exchange.core import CommTotals
 from distnav.network.graph import Graph, SwitchingGraph
-from distnav.network.weights import ConsensusWeights
 from distnav.typing import BoolArray, FloatArray, IntArray
-
-Transport = Literal["matrices", "relay"]
-"""How the CKF's consensus travels: the mixed matrices every round, or the raw records (:mod:`.relay`)."""
-LocalPrecision = Literal["exact", "bound"]
-"""Node-local form of the Fig. 7 variance (:mod:`distnav.algorithms.kalman.ckf_qc`)."""
-ConsensusProtocol = str | int | ConsensusWeights | Sequence[ConsensusWeights]
-"""A consensus protocol: a Table 1 name or number (``"P1"``…``"P4"``), one weight object, or one per session."""
 
 __all__ = [
     "consensus_rounds",
@@ -80,18 +80,6 @@ __all__ = [
     "ckf_error_variance",
     "ckf_std_ratio",
 ]
-
-
-def _resolve_rounds(rounds: int | None, sampling_interval_s: float | None, sending_interval_s: float | None) -> int:
-    if rounds is not None:
-        if sampling_interval_s is not None or sending_interval_s is not None:
-            raise ModelError("give either rounds or (sampling_interval_s, sending_interval_s), not both")
-        if int(rounds) != rounds or rounds < 0:
-            raise ModelError(f"rounds must be a non-negative integer, got {rounds}")
-        return int(rounds)
-    if sampling_interval_s is None or sending_interval_s is None:
-        raise ModelError("give rounds, or both sampling_interval_s (Δ) and sending_interval_s (δ)")
-    return consensus_rounds(sampling_interval_s, sending_interval_s)
 
 
 def _schedule(
@@ -144,42 +132,6 @@ class CKFState:
     tests: tuple[NodeEpochTest | None, ...] = ()
 
 
-class CKFOptions(TypedDict, total=False):
-    """Keyword options of :func:`iterate_ckf` (default in brackets), validated before the first epoch.
-
-    ``protocol`` [``"P3"``]: a Table 1 name or number, one :class:`ConsensusWeights` or one per session.
-    ``rounds`` (= k_n) or both time scales ``sampling_interval_s`` (Δ) and ``sending_interval_s`` (δ), k_n = ⌊Δ/δ⌋.
-    ``variance`` [True]: the error-variance recursion of Fig. 7 alongside. ``monitor`` [True]: the consensus deviation
-    from the exact averages (a global reduction: monitoring only). ``local_precision`` [None]: ``"exact"`` or
-    ``"bound"`` node-local Fig. 7 (:mod:`distnav.algorithms.kalman.ckf_qc`). ``test_level`` [None]: innovation tests at
-    that level (needs ``local_precision`` and raw observations). ``transport`` [``"matrices"``]: or ``"relay"``
-    (:mod:`distnav.algorithms.kalman.relay`).
-    """
-
-    protocol: ConsensusProtocol
-    rounds: int | None
-    sampling_interval_s: float | None
-    sending_interval_s: float | None
-    variance: bool
-    monitor: bool
-    local_precision: LocalPrecision | None
-    test_level: float | None
-    transport: Transport
-
-
-class CKFRunOptions(CKFOptions, total=False):
-    """:class:`CKFOptions` plus ``store_matrices`` [False] of :func:`ckf`: keep ``P_i,t|t`` and ``I_i,t|t`` of every
-    epoch in the series."""
-
-    store_matrices: bool
-
-
-def _check_options(options: Mapping[str, Any], allowed: frozenset[str]) -> None:
-    unknown = sorted(set(options) - allowed)
-    if unknown:
-        raise ModelError(f"unknown CKF option(s) {', '.join(unknown)}; expected {', '.join(sorted(allowed))}")
-
-
 @dataclass(frozen=True, eq=False)
 class _CKFSetup:
     """Everything :func:`iterate_ckf` fixes before the first epoch (validated options, mixers, index maps)."""
@@ -211,23 +163,16 @@ def _prepare_ckf(
     schedule: ConsensusSchedule | None,
     options: CKFOptions,
 ) -> _CKFSetup:
-    """Validate the options and build the mixers, the relay plan and the nominal ``L`` rows of this block."""
-    kn = _resolve_rounds(options.get("rounds"), options.get("sampling_interval_s"), options.get("sending_interval_s"))
+    """Build the mixers, the relay plan and the nominal ``L`` rows of this block from validated options."""
+    kn = options.k_n
     n = measurements.n_nodes
-    sched = _schedule(graph, options.get("protocol", "P3"), schedule, n)
+    sched = _schedule(graph, options.protocol, schedule, n)
     ex = exchange if exchange is not None else make_exchange(sched.graph)
     if ex.graph.n_edges != sched.graph.n_edges or ex.graph.n_nodes != n:
         raise ModelError("the exchange was built on a different graph than the consensus schedule")
-    variance = bool(options.get("variance", True))
-    local_precision = options.get("local_precision")
-    if local_precision not in (None, "exact", "bound"):
-        raise ModelError(f"local_precision must be 'exact', 'bound' or None, got {local_precision!r}")
-    test_level = options.get("test_level")
-    critical = _critical_level(measurements, local_precision, test_level)
-    transport = options.get("transport", "matrices")
-    if transport not in ("matrices", "relay"):
-        raise ModelError(f"transport must be 'matrices' or 'relay', got {transport!r}")
-    relay = relay_setup(sched, ex, kn) if transport == "relay" else None
+    variance, local_precision = bool(options.variance), options.local_precision
+    critical = _critical_level(measurements, local_precision, options.test_level)
+    relay = relay_setup(sched, ex, kn) if options.transport == "relay" else None
     mixers = (
         [] if relay is not None else [ex.mixer(w, active=a) for w, a in zip(sched.weights, sched.active, strict=True)]
     )
@@ -242,7 +187,7 @@ def _prepare_ckf(
         up=iu[0] * p + iu[1],
         lo=iu[1] * p + iu[0],
         variance=variance,
-        monitor=bool(options.get("monitor", True)),
+        monitor=bool(options.monitor),
         local_precision=local_precision,
         critical=critical,
         track_L=(variance and ex.faults.active) or local_precision is not None,
@@ -277,10 +222,12 @@ def iterate_ckf(
     graph: Graph | SwitchingGraph | None = None,
     exchange: Exchange | None = None,
     schedule: ConsensusSchedule | None = None,
-    **options: Unpack[CKFOptions],
+    options: CKFOptions | None = None,
+    **changes: Any,
 ) -> Iterator[CKFState]:
     """Yield the CKF state (paper 003 Fig. 6) of this block's nodes after every epoch; options
-    :class:`CKFOptions`.
+    :class:`~distnav.algorithms.kalman.ckf_options.CKFOptions` (``options=`` and/or keyword changes to it, validated
+    before the first epoch).
 
     Each consensus round sends one message per directed edge holding the upper triangle of ``N_i^(k)`` and
     ``r_i^(k)`` (p(p+1)/2 + p floats). ``local_precision`` ("exact" or "bound") runs the node-local form of Fig. 7
@@ -295,9 +242,9 @@ def iterate_ckf(
     fewer than its normals' entries (issue 27). Node-local precision then costs no bytes (``l_i`` is static, the
     ``N_j`` are rebuilt from the records); an observation an innovation test removed is not sent.
     """
-    _check_options(options, CKFOptions.__optional_keys__)
+    o = resolve_options(CKFOptions, options, changes)
     check_model(dynamics, measurements)
-    s = _prepare_ckf(measurements, graph, exchange, schedule, options)
+    s = _prepare_ckf(measurements, graph, exchange, schedule, o)
     ex, nodes = s.ex, s.ex.nodes
     ker = InformationKernel(nodes.size, s.p, track_error=s.n_err > 0, n_errors=max(s.n_err, 1))
     i_local = int(s.variance)  # index of the node-local variance in ker.Qs
@@ -447,9 +394,12 @@ def ckf(
     graph: Graph | SwitchingGraph | None = None,
     exchange: Exchange | None = None,
     schedule: ConsensusSchedule | None = None,
-    **options: Unpack[CKFRunOptions],
+    options: CKFOptions | None = None,
+    **changes: Any,
 ) -> FilterResult:
-    """Run the CKF (paper 003 Fig. 6) over all epochs; options :class:`CKFRunOptions` (see :func:`iterate_ckf`).
+    """Run the CKF (paper 003 Fig. 6) over all epochs; options
+    :class:`~distnav.algorithms.kalman.ckf_options.CKFRunOptions` (those of :func:`iterate_ckf` plus
+    ``store_matrices``; ``options=`` and/or keyword changes to it — a :class:`CKFOptions` keeps no matrices).
 
     Returns a :class:`FilterResult` (``mode="ckf"``): ``estimates`` = last-epoch ``x̂_i,t|t`` (n×p),
     ``iterations`` = epochs, ``comm`` = message/byte totals of all consensus rounds, ``series``
@@ -465,30 +415,29 @@ def ckf(
     ``variance=False``. Per-node results are in the user's node order at every size (without ``exchange`` the run
     keeps the locality order ``"auto"`` inside and gathers back; docs/scale.md).
     """
-    _check_options(options, CKFRunOptions.__optional_keys__)
-    run: CKFOptions = {k: v for k, v in options.items() if k != "store_matrices"}  # type: ignore[assignment]
-    kn = _resolve_rounds(options.get("rounds"), options.get("sampling_interval_s"), options.get("sending_interval_s"))
-    run["rounds"], run["sampling_interval_s"], run["sending_interval_s"] = kn, None, None
+    o = resolve_options(CKFRunOptions, _run_options(options), changes)
+    kn = o.k_n
+    run = dataclasses.replace(o, rounds=kn, sampling_interval_s=None, sending_interval_s=None)
     n = measurements.n_nodes
-    sched = _schedule(graph, options.get("protocol", "P3"), schedule, n)
+    sched = _schedule(graph, o.protocol, schedule, n)
     ex = exchange if exchange is not None else make_exchange(sched.graph, order="auto")  # results gathered
-    test_level = options.get("test_level")
+    test_level = o.test_level
     collector = InnovationCollector(ex, n, test_level, critical_value(test_level)) if test_level is not None else None
-    kept = _GatheredSeries(ex, bool(options.get("store_matrices", False)))
+    kept = _GatheredSeries(ex, bool(o.store_matrices))
     last: CKFState | None = None
-    for st in iterate_ckf(dynamics, measurements, exchange=ex, schedule=sched, **run):
+    for st in iterate_ckf(dynamics, measurements, exchange=ex, schedule=sched, options=run):
         kept.add(st)
         if collector is not None:
             collector.add(st.tests)
         last = st
     assert last is not None
-    variance = bool(options.get("variance", True))
+    variance = bool(o.variance)
     L = consensus_product(sched, kn) if variance else None  # dense n×n: only with the variance recursion
     series = kept.series(n)
     comm: CommTotals = ex.comm_totals()
     est_last = series.estimable[-1]
     complete = bool(est_last.all())
-    local_precision = options.get("local_precision")
+    local_precision = o.local_precision
     return FilterResult(
         estimates=series.estimates[-1],
         converged=complete,
@@ -509,11 +458,20 @@ def ckf(
         product=L,
         alpha=alpha_factor(L) if L is not None else None,
         precision=_local_precision(
-            ex, last, local_precision, comm, measurements.n_states, variance, options.get("transport") == "relay"
+            ex, last, local_precision, comm, measurements.n_states, variance, o.transport == "relay"
         ),
         local_std=np.stack(kept.lstds) if kept.lstds else None,
         tests=collector.build() if collector is not None else None,
     )
+
+
+def _run_options(options: CKFOptions | None) -> CKFRunOptions | None:
+    """``options`` as a :class:`CKFRunOptions` (a :class:`CKFOptions` keeps no matrices)."""
+    if options is None or isinstance(options, CKFRunOptions):
+        return options
+    if isinstance(options, CKFOptions):
+        return CKFRunOptions(**{name: getattr(options, name) for name in option_names(CKFOptions)})
+    return options  # not an options object: refused by name in resolve_options
 
 
 class _GatheredSeries:

@@ -41,80 +41,66 @@ reference (all in :mod:`distnav.algorithms.lsq.nonlinear`, re-exported here). Th
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Any, Unpack
+from typing import Any
 
 import numpy as np
 
+from distnav._settings import resolve_options
 from distnav.algorithms.lsq.blue import LinearProblem
-from distnav.algorithms.lsq.driver import AdmmOptions, AdmmResult, MessageMode, XWeight, check_stopping, drive, prepare
+from distnav.algorithms.lsq.driver import (
+    AdmmOptions,
+    AdmmResult,
+    AdmmRunOptions,
+    MessageMode,
+    XWeight,
+    drive,
+    prepare,
+    run_options,
+)
 from distnav.algorithms.lsq.kernel import AdmmState, XUpdate, XUpdateMethod
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
 
-if TYPE_CHECKING:
-    from distnav.algorithms.lsq.nonlinear import (
-        LinearizedAdmmResult,
-        NonlinearModel,
-        NonlinearProblem,
-        RangeModel,
-        admm_linearized,
-        admm_nonlinear,
-        gauss_newton,
-        range_positioning_problem,
-    )
-
-_NONLINEAR = frozenset(
-    {
-        "LinearizedAdmmResult",
-        "NonlinearModel",
-        "NonlinearProblem",
-        "RangeModel",
-        "admm_linearized",
-        "admm_nonlinear",
-        "gauss_newton",
-        "range_positioning_problem",
-    }
-)
-
 
 def __getattr__(name: str) -> Any:
-    """The nonlinear variants, re-exported from :mod:`distnav.algorithms.lsq.nonlinear` on first use (PEP 562): an
-    MPI job of the linear kernel does not import them at start-up."""
-    if name in _NONLINEAR:
+    """The nonlinear variants (the names of :data:`distnav.algorithms.lsq.nonlinear.__all__`), re-exported from
+    :mod:`distnav.algorithms.lsq.nonlinear` on first use (PEP 562): an MPI job of the linear kernel does not import
+    them at start-up (so they are not in this module's ``__all__``)."""
+    if not name.startswith("_"):
         from distnav.algorithms.lsq import nonlinear as module
 
-        return getattr(module, name)
+        if name in module.__all__:
+            return getattr(module, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = [
     "AdmmOptions",
     "AdmmResult",
+    "AdmmRunOptions",
     "AdmmState",
-    "LinearizedAdmmResult",
     "MessageMode",
-    "NonlinearModel",
     "XUpdateMethod",
     "XWeight",
     "iterate_admm",
     "admm",
     "XUpdate",
-    "NonlinearProblem",
-    "RangeModel",
-    "range_positioning_problem",
-    "gauss_newton",
-    "admm_linearized",
-    "admm_nonlinear",
 ]
 
 
 def iterate_admm(
-    problem: LinearProblem, graph: Graph, *, exchange: Exchange | None = None, **options: Unpack[AdmmOptions]
+    problem: LinearProblem,
+    graph: Graph,
+    *,
+    exchange: Exchange | None = None,
+    options: AdmmOptions | None = None,
+    **changes: Any,
 ) -> Iterator[AdmmState]:
     """Yield the ADMM state of Fig. 6 (paper 000) after iterations ``0, 1, 2, …`` (endless: stop it yourself).
 
-    Options (:class:`~distnav.algorithms.lsq.driver.AdmmOptions`, validated before the first iteration):
+    Options: one :class:`~distnav.algorithms.lsq.driver.AdmmOptions` (``options=``) and/or keyword changes to it
+    (a name that is not one of its fields is refused), validated before the first iteration:
     ``constraint_nodes``: ``"min_cover"`` (default), ``"all"``, node ids, or a
     :class:`~distnav.network.constraint_nodes.ConstraintNodes`. ``W``: ``ρ`` (default 1) or an SPD ``(p, p)``
     matrix. ``x_update``: see :class:`XUpdate`. ``x_weight``: ``"lagrangian"`` (default), ``"fig6"`` or
@@ -134,24 +120,24 @@ def iterate_admm(
     Raises :class:`~distnav.errors.ModelError` for a problem whose ``Σ N_i`` is singular (as
     :func:`~distnav.algorithms.lsq.blue` does), naming the inestimable directions.
     """
-    return prepare(problem, graph, exchange, options).states
+    return prepare(problem, graph, exchange, resolve_options(AdmmOptions, options, changes)).states
 
 
 def admm(
     problem: LinearProblem,
     graph: Graph,
     *,
-    max_iterations: int = 1000,
-    tol: float = 1e-10,
-    atol: float = 0.0,
     reference: np.ndarray | None = None,
-    stop_at_reference: float | None = None,
-    record_nodes: bool = True,
     exchange: Exchange | None = None,
     faults: FaultSchedule | None = None,
-    **options: Unpack[AdmmOptions],
+    options: AdmmOptions | None = None,
+    **changes: Any,
 ) -> AdmmResult:
-    """Distributed least squares by ADMM with constraint nodes (paper 000, Fig. 6); options as :func:`iterate_admm`.
+    """Distributed least squares by ADMM with constraint nodes (paper 000, Fig. 6); options
+    :class:`~distnav.algorithms.lsq.driver.AdmmRunOptions`: those of :func:`iterate_admm` plus the stopping rule
+    ``max_iterations`` [1000], ``tol`` [1e-10], ``atol`` [0.0], ``stop_at_reference`` [None] and ``record_nodes``
+    [True] (``options=`` one object — an :class:`~distnav.algorithms.lsq.driver.AdmmOptions` gets the default stopping
+    rule — and/or keyword changes to it).
 
     Stops after ``max_iterations`` or when ``primal ≤ atol·√(P p) + tol·max(‖x‖, ‖z‖)`` and
     ``dual ≤ atol·√(P p) + tol·‖W U‖`` (pair norms, ``P`` pairs, ``U_i = Σ_s u_{i,s}``; after Boyd et al. 2011
@@ -171,9 +157,8 @@ def admm(
     locality order (``order="auto"``) inside and gathers back; pass ``make_exchange(graph, order="auto")`` for the
     same speed with your own exchange (docs/scale.md).
     """
-    check_stopping(max_iterations, tol, atol)
-    init = options.get("init", "zero")
-    if max_iterations == 0 and (init is None or isinstance(init, str)):
+    o = resolve_options(AdmmRunOptions, run_options(options), changes)
+    if o.max_iterations == 0 and (o.init is None or isinstance(o.init, str)):
         raise ModelError(
             "max_iterations=0 from a cold start returns the initial values, not a solution: give "
             "max_iterations ≥ 1, or init= a previous result or values to evaluate them"
@@ -181,13 +166,13 @@ def admm(
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm(), not both")
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults, order="auto")  # gathered below
-    run = prepare(problem, graph, ex, options)
+    run = prepare(problem, graph, ex, o)
     return drive(
         run,
-        max_iterations=max_iterations,
-        tol=tol,
-        atol=atol,
+        max_iterations=o.max_iterations,
+        tol=o.tol,
+        atol=o.atol,
         reference=reference,
-        stop_at_reference=stop_at_reference,
-        record_nodes=record_nodes,
+        stop_at_reference=o.stop_at_reference,
+        record_nodes=o.record_nodes,
     )

@@ -1,31 +1,44 @@
 """Setting up and driving a Fig. 6 run: the options shared by every ADMM front door, written once, and the result.
 
-:class:`AdmmOptions` names the kernel options that :func:`~distnav.algorithms.lsq.admm.iterate_admm`,
-:func:`~distnav.algorithms.lsq.admm.admm` and the QC runs accept as keywords; :func:`prepare` validates them (before any
-iteration) and builds the kernel's state generator; :func:`drive` runs a generator to the stopping rule and returns
-an :class:`AdmmResult`.
+:class:`AdmmOptions` is the frozen options object of the kernel that :func:`~distnav.algorithms.lsq.admm.iterate_admm`,
+:func:`~distnav.algorithms.lsq.admm.admm` and the QC runs accept (``options=`` and/or keyword changes, validated once
+when it is built; :class:`AdmmRunOptions` adds :func:`~distnav.algorithms.lsq.admm.admm`'s stopping rule);
+:func:`prepare` checks them against the problem and graph and builds the kernel's state generator; :func:`drive`
+runs a generator to the stopping rule and returns an :class:`AdmmResult`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal, TypedDict, get_args
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from distnav._checks import real_number, whole_number
+from distnav._settings import option_names
 from distnav.algorithms.lsq.blue import LinearProblem, inestimable_directions, weight_matrix
 from distnav.algorithms.lsq.kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
 from distnav.algorithms.lsq.xupdate import _diagonal_or_none
 from distnav.algorithms.result import ObservationTests, Precision, SolverResult, SolverStatus, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
-from distnav.network.constraint_nodes import ConstraintNodes, choose_constraint_nodes
+from distnav.network.constraint_nodes import ConstraintNodes, ConstraintNodeSpec, choose_constraint_nodes
 from distnav.network.graph import Graph
-from distnav.typing import FloatArray
+from distnav.typing import ArrayLike, FloatArray
 
-__all__ = ["AdmmOptions", "AdmmResult", "MessageMode", "PreparedRun", "XWeight", "drive", "prepare"]
+__all__ = [
+    "AdmmOptions",
+    "AdmmResult",
+    "AdmmRunOptions",
+    "ConstraintOptions",
+    "MessageMode",
+    "PreparedRun",
+    "XWeight",
+    "drive",
+    "prepare",
+    "run_options",
+]
 
 XWeight = Literal["lagrangian", "fig6", "fig6-zweighted"]
 MessageMode = Literal["pairs", "aggregated", "ternary"]
@@ -35,31 +48,92 @@ X_WEIGHTS: tuple[str, ...] = get_args(XWeight)
 THRESHOLDS = (1e-4, 1e-6, 1e-8)
 
 
-class AdmmOptions(TypedDict, total=False):
-    """Keyword options of the Fig. 6 kernel (default in brackets); see
-    :func:`~distnav.algorithms.lsq.admm.iterate_admm`.
+@dataclass(frozen=True, eq=False, kw_only=True)
+class ConstraintOptions:
+    """The two settings every ADMM options object starts with (default in brackets).
 
-    ``constraint_nodes`` [``"min_cover"``]: ``"min_cover"``, ``"all"``, node ids or a
-    :class:`~distnav.network.constraint_nodes.ConstraintNodes`. ``W`` [1.0]: ``ρ`` or an SPD ``(p, p)`` matrix.
-    ``x_update`` [``"auto"``]: see :class:`~distnav.algorithms.lsq.kernel.XUpdate`. ``x_weight``
-    [``"lagrangian"``]: ``"lagrangian"``, ``"fig6"`` or ``"fig6-zweighted"`` (module docstring of
-    :mod:`distnav.algorithms.lsq.admm`). ``messages`` [``"pairs"``]: ``"pairs"``, ``"aggregated"`` or ``"ternary"``
-    (per-pair messages as 2-bit deltas with error feedback after the first, :mod:`~distnav.algorithms.lsq.delta_codec`;
-    no fault schedule). ``init``
-    [``"zero"``] and ``z0`` [None]: initial values. ``monitor_every`` [1]: residuals every that many iterations.
-    ``multipliers`` [None: ``u^[−1] = 0``]: a previous per-pair run's :attr:`AdmmResult.multipliers` (same exchange
-    and constraint nodes) to continue from — a warm start of a changed problem (data snooping).
+    Fields
+    ------
+    constraint_nodes : [``"min_cover"``] ``"min_cover"``, ``"all"``, node ids or a
+        :class:`~distnav.network.constraint_nodes.ConstraintNodes` (the set ``C``).
+    W : [1.0] ``ρ`` or an SPD ``(p, p)`` matrix (checked against ``p`` when the run is set up).
     """
 
-    constraint_nodes: Any
-    W: Any
-    x_update: XUpdateMethod
-    x_weight: XWeight
-    messages: MessageMode
-    init: Any
-    z0: Any
-    monitor_every: int
-    multipliers: Multipliers | None
+    constraint_nodes: ConstraintNodeSpec = "min_cover"
+    W: ArrayLike = 1.0
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class AdmmOptions(ConstraintOptions):
+    """Options of the Fig. 6 kernel (paper 000 §4), validated once; taken by
+    :func:`~distnav.algorithms.lsq.admm.iterate_admm` as ``options=`` and/or keyword changes (house style:
+    :mod:`distnav._settings`): ``constraint_nodes`` and ``W`` of :class:`ConstraintOptions`, and (default in brackets)
+
+    Fields
+    ------
+    x_update : [``"auto"``] see :class:`~distnav.algorithms.lsq.kernel.XUpdate`.
+    x_weight : [``"lagrangian"``] ``"lagrangian"``, ``"fig6"`` or ``"fig6-zweighted"`` (module docstring of
+        :mod:`distnav.algorithms.lsq.admm`).
+    messages : [``"pairs"``] ``"pairs"``, ``"aggregated"`` or ``"ternary"`` (per-pair messages as 2-bit deltas with
+        error feedback after the first, :mod:`~distnav.algorithms.lsq.delta_codec`; no fault schedule).
+    init : [``"zero"``] ``"zero"``, a ``(p,)`` vector, an ``(n, p)`` array or a previous
+        :class:`~distnav.algorithms.result.SolverResult` (§4.3).
+    z0 : [None] ``z_s^[0]`` when it differs from the initial ``x_i^[0]``.
+    monitor_every : [1] residuals every that many iterations (0 = never).
+    multipliers : [None: ``u^[−1] = 0``] a previous per-pair run's :attr:`AdmmResult.multipliers` (same exchange
+        and constraint nodes) to continue from — a warm start of a changed problem (data snooping).
+    """
+
+    x_update: XUpdateMethod = "auto"
+    x_weight: XWeight = "lagrangian"
+    messages: MessageMode = "pairs"
+    init: Any = "zero"
+    z0: Any = None
+    monitor_every: int = 1
+    multipliers: Multipliers | None = None
+
+    def __post_init__(self) -> None:
+        if self.messages not in ("pairs", "aggregated", "ternary"):
+            raise ModelError(f"messages must be 'pairs', 'aggregated' or 'ternary', got {self.messages!r}")
+        if self.monitor_every < 0:
+            raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
+        if self.x_weight not in X_WEIGHTS:
+            raise ModelError(f"x_weight must be {', '.join(repr(w) for w in X_WEIGHTS)}, got {self.x_weight!r}")
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class AdmmRunOptions(AdmmOptions):
+    """:class:`AdmmOptions` plus the stopping rule of :func:`~distnav.algorithms.lsq.admm.admm` (default in brackets).
+
+    Fields
+    ------
+    max_iterations : [1000] at most that many iterations.
+    tol : [1e-10] relative tolerance of the residual test (Boyd et al. 2011 §3.3).
+    atol : [0.0] absolute tolerance of the residual test, in the units of ``x``.
+    stop_at_reference : [None] stop when ``max_i ‖x_i − x̂‖/‖x̂‖`` is at or below it (experiments).
+    record_nodes : [True] trace every node's distance to the reference.
+    """
+
+    max_iterations: int = 1000
+    tol: float = 1e-10
+    atol: float = 0.0
+    stop_at_reference: float | None = None
+    record_nodes: bool = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_stopping(self.max_iterations, self.tol, self.atol)
+
+
+def run_options(options: AdmmOptions | None) -> AdmmRunOptions | None:
+    """``options`` as an :class:`AdmmRunOptions` (a kernel-only :class:`AdmmOptions` gets the default stopping
+    rule), so one kernel options object serves :func:`~distnav.algorithms.lsq.admm.iterate_admm` and
+    :func:`~distnav.algorithms.lsq.admm.admm` alike."""
+    if options is None or isinstance(options, AdmmRunOptions):
+        return options
+    if not isinstance(options, AdmmOptions):
+        return options  # refused by name in resolve_options
+    return AdmmRunOptions(**{name: getattr(options, name) for name in option_names(AdmmOptions)})
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -172,34 +246,21 @@ def _check_estimable(problem: LinearProblem, local: LinearProblem, ex: Exchange,
 
 
 def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, options: AdmmOptions) -> PreparedRun:
-    """Validate the options (unknown names too) and build the Fig. 6 state generator for this exchange block."""
-    unknown = sorted(set(options) - AdmmOptions.__optional_keys__)
-    if unknown:
-        raise ModelError(
-            f"unknown ADMM option(s) {', '.join(unknown)}; expected {', '.join(sorted(AdmmOptions.__optional_keys__))}"
-        )
-    messages = options.get("messages", "pairs")
-    monitor_every = options.get("monitor_every", 1)
-    x_weight = options.get("x_weight", "lagrangian")
-    if messages not in ("pairs", "aggregated", "ternary"):
-        raise ModelError(f"messages must be 'pairs', 'aggregated' or 'ternary', got {messages!r}")
-    if monitor_every < 0:
-        raise ModelError(f"monitor_every must be ≥ 0, got {monitor_every}")
+    """Build the Fig. 6 state generator for this exchange block from validated options."""
+    messages, monitor_every, x_weight = options.messages, options.monitor_every, options.x_weight
     if problem.n_nodes != graph.n_nodes:
         raise ModelError(f"the problem has {problem.n_nodes} nodes, the graph {graph.n_nodes}")
-    if x_weight not in X_WEIGHTS:
-        raise ModelError(f"x_weight must be {', '.join(repr(w) for w in X_WEIGHTS)}, got {x_weight!r}")
     p = problem.n_params
-    Wm = weight_matrix(options.get("W", 1.0), p)
-    C = constraint_nodes_for(graph, options.get("constraint_nodes", "min_cover"))
+    Wm = weight_matrix(options.W, p)
+    C = constraint_nodes_for(graph, options.constraint_nodes)
     ex = exchange if exchange is not None else make_exchange(graph)
     if ex.graph.n_edges != graph.n_edges or ex.graph.n_nodes != graph.n_nodes:
         raise ModelError("the exchange was built on a different graph")
-    x0, zz0 = initial_values(options.get("init", "zero"), options.get("z0"), graph.n_nodes, p)
+    x0, zz0 = initial_values(options.init, options.z0, graph.n_nodes, p)
     local = problem.subset(ex.nodes)
     count = C.per_node_count[ex.nodes].astype(float)
     c_weight = count if x_weight == "lagrangian" else np.ones_like(count)
-    xu = XUpdate(local, Wm, c_weight, options.get("x_update", "auto"))
+    xu = XUpdate(local, Wm, c_weight, options.x_update)
     if messages == "aggregated" and ex.faults.active:
         raise ModelError(
             "messages='aggregated' keeps multiplier sums that lost messages corrupt for good (the run "
@@ -210,7 +271,7 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
     _check_estimable(problem, local, ex, need_blocks=xu.method != "observation")
     z_weight = 1.0 / C.per_node_count.astype(float) if x_weight == "fig6-zweighted" else None
     kernel = _Kernel(ex, C, Wm, p, xu, z_weight=z_weight)
-    u0 = options.get("multipliers")
+    u0 = options.multipliers
     if messages == "ternary" and ex.faults.active:
         raise ModelError(
             "messages='ternary' sends deltas against a copy both ends keep: a lost message desynchronizes them "

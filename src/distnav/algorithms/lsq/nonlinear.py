@@ -9,16 +9,17 @@ on the same kernel (:mod:`distnav.algorithms.lsq.kernel`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol, TypedDict, Unpack
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
+from distnav._settings import resolve_options
 from distnav.algorithms.lsq.blue import LinearProblem, weight_matrix
 from distnav.algorithms.lsq.driver import (
     AdmmOptions,
     AdmmResult,
+    ConstraintOptions,
     PreparedRun,
     check_stopping,
     constraint_nodes_for,
@@ -31,9 +32,9 @@ from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.exchange.core import CommTotals
-from distnav.network.constraint_nodes import ConstraintNodes, ConstraintNodeSpec
+from distnav.network.constraint_nodes import ConstraintNodes
 from distnav.network.graph import Graph
-from distnav.typing import ArrayLike, FloatArray
+from distnav.typing import FloatArray
 
 __all__ = [
     "LinearizedAdmmResult",
@@ -223,40 +224,55 @@ def gauss_newton(
     )
 
 
-class LinearizedOptions(TypedDict, total=False):
-    """Keyword options of :func:`admm_linearized` (default in brackets): ``constraint_nodes`` [``"min_cover"``],
-    ``W`` [1.0], ``messages`` [``"pairs"``] as for :func:`~distnav.algorithms.lsq.admm.admm`; ``outer_iterations``
-    [10] and ``tol`` [1e-10] of the relinearization loop; ``inner_max_iterations`` [2000], ``inner_tol`` [1e-12] and
-    ``inner_atol`` [1e-12] of each ADMM run."""
+@dataclass(frozen=True, eq=False, kw_only=True)
+class LinearizedOptions(ConstraintOptions):
+    """Options of :func:`admm_linearized` (house style: :mod:`distnav._settings`; default in brackets):
+    ``constraint_nodes`` and ``W`` as for :func:`~distnav.algorithms.lsq.admm.admm`, and
 
-    constraint_nodes: ConstraintNodeSpec
-    W: ArrayLike
-    outer_iterations: int
-    inner_max_iterations: int
-    inner_tol: float
-    inner_atol: float
-    tol: float
-    messages: Literal["pairs", "aggregated"]
+    Fields
+    ------
+    outer_iterations : [10] at most that many relinearizations,
+    tol : [1e-10] ending when ``max_i ‖Δx_i‖ ≤ tol·(1 + ‖x^o‖)``.
+    inner_max_iterations : [2000] the stopping rule of each ADMM run,
+    inner_tol : [1e-12] its relative tolerance,
+    inner_atol : [1e-12] and its absolute tolerance (units of ``x``).
+    messages : [``"pairs"``] ``"pairs"`` or ``"aggregated"``, as for :func:`~distnav.algorithms.lsq.admm.admm`.
+    """
 
+    outer_iterations: int = 10
+    inner_max_iterations: int = 2000
+    inner_tol: float = 1e-12
+    inner_atol: float = 1e-12
+    tol: float = 1e-10
+    messages: Literal["pairs", "aggregated"] = "pairs"
 
-class NonlinearOptions(TypedDict, total=False):
-    """Keyword options of :func:`admm_nonlinear` (default in brackets): ``constraint_nodes`` [``"min_cover"``],
-    ``W`` [1.0], ``max_iterations`` [2000], ``tol`` [1e-10], ``atol`` [0.0], ``record_nodes`` [True] as for
-    :func:`~distnav.algorithms.lsq.admm.admm`; ``gn_steps`` [2] Gauss–Newton steps per x-update."""
-
-    constraint_nodes: ConstraintNodeSpec
-    W: ArrayLike
-    gn_steps: int
-    max_iterations: int
-    tol: float
-    atol: float
-    record_nodes: bool
+    def __post_init__(self) -> None:
+        check_stopping(self.inner_max_iterations, self.inner_tol, self.inner_atol)
 
 
-def _check_option_names(options: Mapping[str, Any], allowed: frozenset[str], where: str) -> None:
-    unknown = sorted(set(options) - allowed)
-    if unknown:
-        raise ModelError(f"unknown {where} option(s) {', '.join(unknown)}; expected {', '.join(sorted(allowed))}")
+@dataclass(frozen=True, eq=False, kw_only=True)
+class NonlinearOptions(ConstraintOptions):
+    """Options of :func:`admm_nonlinear` (house style: :mod:`distnav._settings`; default in brackets):
+    ``constraint_nodes`` and ``W`` as for :func:`~distnav.algorithms.lsq.admm.admm`, and
+
+    Fields
+    ------
+    gn_steps : [2] Gauss–Newton steps per x-update (eq. (23)).
+    max_iterations : [2000], tol : [1e-10], atol : [0.0] the stopping rule, as for
+        :func:`~distnav.algorithms.lsq.admm.admm`.
+    record_nodes : [True] trace every node's distance to the reference.
+    """
+
+    gn_steps: int = 2
+    max_iterations: int = 2000
+    tol: float = 1e-10
+    atol: float = 0.0
+    record_nodes: bool = True
+
+    def __post_init__(self) -> None:
+        check_stopping(self.max_iterations, self.tol, self.atol)
+        if self.gn_steps < 1:
+            raise ModelError(f"gn_steps must be ≥ 1, got {self.gn_steps}")
 
 
 def admm_linearized(
@@ -266,40 +282,36 @@ def admm_linearized(
     *,
     reference: np.ndarray | None = None,
     exchange: Exchange | None = None,
-    **options: Unpack[LinearizedOptions],
+    options: LinearizedOptions | None = None,
+    **changes: Any,
 ) -> LinearizedAdmmResult:
     """The linearized case of paper 000 §4.3: all nodes start from the same approximate value ``x^o``, linearize
     their models there, run Fig. 6 on the increments from ``Δx_i^[0] = z_s^[0] = 0`` until it converges, then set
-    ``x_i^o ← x_i^o + Δx_i``; repeated until ``max_i ‖Δx_i‖ ≤ tol·(1 + ‖x^o‖)`` or ``outer_iterations``.
+    ``x_i^o ← x_i^o + Δx_i``; repeated until ``max_i ‖Δx_i‖ ≤ tol·(1 + ‖x^o‖)`` or ``outer_iterations``; options
+    :class:`LinearizedOptions` (``options=`` and/or keyword changes to it).
 
     Each node keeps its own ``x_i^o``; they stay identical up to the inner tolerance (the paper's requirement of
     identical approximate values), so ``inner_tol`` should be tight; ``inner_atol`` (absolute, in the units of ``x``)
     ends the inner runs of the last steps, whose increments are tiny. Trace per outer iteration: ``max_step``,
     ``inner_iterations``, ``spread`` (``max_i ‖x_i^o − mean‖``) and with ``reference`` ``max_distance_to_reference``.
     """
-    _check_option_names(options, LinearizedOptions.__optional_keys__, "admm_linearized")
-    outer_iterations, tol = options.get("outer_iterations", 10), options.get("tol", 1e-10)
-    inner_max_iterations = options.get("inner_max_iterations", 2000)
-    inner_tol, inner_atol = options.get("inner_tol", 1e-12), options.get("inner_atol", 1e-12)
+    o = resolve_options(LinearizedOptions, options, changes)
     p = problem.n_params
-    check_stopping(inner_max_iterations, inner_tol, inner_atol)
     ex = exchange if exchange is not None else make_exchange(graph)
-    C = constraint_nodes_for(graph, options.get("constraint_nodes", "min_cover"))
+    C = constraint_nodes_for(graph, o.constraint_nodes)
     xo = _per_node(x_approx, problem.n_nodes, p, "x_approx")
-    admm_options = AdmmOptions(
-        constraint_nodes=C, W=options.get("W", 1.0), init="zero", messages=options.get("messages", "pairs")
-    )
+    admm_options = AdmmOptions(constraint_nodes=C, W=o.W, init="zero", messages=o.messages)
     tb = TraceBuilder()
     converged = False
     total_inner = 0
     t = 0
-    while t < outer_iterations:
+    while t < o.outer_iterations:
         t += 1
         inner = drive(
             prepare(problem.linearize(xo), graph, ex, admm_options),
-            max_iterations=inner_max_iterations,
-            tol=inner_tol,
-            atol=inner_atol,
+            max_iterations=o.inner_max_iterations,
+            tol=o.inner_tol,
+            atol=o.inner_atol,
             reference=None,
             stop_at_reference=None,
             record_nodes=False,
@@ -315,7 +327,7 @@ def admm_linearized(
         )
         if reference is not None:
             tb.add(max_distance_to_reference=float(np.linalg.norm(xo - np.asarray(reference)[None, :], axis=1).max()))
-        if step <= tol * (1 + float(np.linalg.norm(xo.mean(axis=0)))):
+        if step <= o.tol * (1 + float(np.linalg.norm(xo.mean(axis=0)))):
             converged = True
             break
     return LinearizedAdmmResult(
@@ -362,22 +374,20 @@ def admm_nonlinear(
     *,
     reference: np.ndarray | None = None,
     exchange: Exchange | None = None,
-    **options: Unpack[NonlinearOptions],
+    options: NonlinearOptions | None = None,
+    **changes: Any,
 ) -> AdmmResult:
     """ADMM with constraint nodes and the nonlinear x-update of paper 000 eq. (23): each node solves its regularized
     nonlinear least-squares problem (``gn_steps`` Gauss–Newton steps warm-started at its previous ``x_i`` per
     iteration; exact at convergence). ``x0``: common ``(p,)`` or per-node ``(n, p)`` start (also ``z_s^[0]``).
-    Same stopping and trace as :func:`admm`."""
-    _check_option_names(options, NonlinearOptions.__optional_keys__, "admm_nonlinear")
-    max_iterations, tol, atol = options.get("max_iterations", 2000), options.get("tol", 1e-10), options.get("atol", 0.0)
-    gn_steps = options.get("gn_steps", 2)
-    check_stopping(max_iterations, tol, atol)
-    if gn_steps < 1:
-        raise ModelError(f"gn_steps must be ≥ 1, got {gn_steps}")
+    Same stopping and trace as :func:`admm`; options :class:`NonlinearOptions` (``options=`` and/or keyword changes
+    to it)."""
+    o = resolve_options(NonlinearOptions, options, changes)
+    gn_steps = o.gn_steps
     p = problem.n_params
-    Wm = weight_matrix(options.get("W", 1.0), p)
+    Wm = weight_matrix(o.W, p)
     ex = exchange if exchange is not None else make_exchange(graph)
-    C = constraint_nodes_for(graph, options.get("constraint_nodes", "min_cover"))
+    C = constraint_nodes_for(graph, o.constraint_nodes)
     x_init, z_init = initial_values(x0, None, problem.n_nodes, p)
     count = C.per_node_count[ex.nodes].astype(float)
     xu = _NonlinearXUpdate(problem, ex.nodes, Wm, count, gn_steps)
@@ -393,10 +403,10 @@ def admm_nonlinear(
     )
     return drive(
         run,
-        max_iterations=max_iterations,
-        tol=tol,
-        atol=atol,
+        max_iterations=o.max_iterations,
+        tol=o.tol,
+        atol=o.atol,
         reference=reference,
         stop_at_reference=None,
-        record_nodes=options.get("record_nodes", True),
+        record_nodes=o.record_nodes,
     )

@@ -29,27 +29,29 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TypedDict, Unpack
+from typing import Any
 
 import numpy as np
 import scipy.sparse.csgraph as csgraph
 
+from distnav._settings import resolve_options
 from distnav.algorithms.lsq import driver as driver
 from distnav.algorithms.lsq.blue import LinearProblem, weight_matrix
-from distnav.algorithms.lsq.driver import AdmmOptions, AdmmResult, PreparedRun, drive
+from distnav.algorithms.lsq.driver import AdmmResult, PreparedRun, drive
 from distnav.algorithms.lsq.kernel import _Kernel
 from distnav.algorithms.result import ObservationTests, Precision
 from distnav.algorithms.statistics import critical_value, w_statistics
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
-from distnav.network.constraint_nodes import ConstraintNodes, ConstraintNodeSpec
+from distnav.network.constraint_nodes import ConstraintNodes
 from distnav.network.graph import Graph
-from distnav.typing import ArrayLike, BoolArray, FloatArray
+from distnav.typing import BoolArray, FloatArray
 
 __all__ = [
     "MIN_REDUNDANCY_NUMBER",
     "PrecisionOptions",
     "PrecisionRun",
+    "SnoopingOptions",
     "admm_data_snooping",
     "admm_precision",
     "remove_observation",
@@ -80,10 +82,8 @@ def _normal_run(
     B: FloatArray,
     W: FloatArray,
     init: AdmmResult | None,
+    stop: PrecisionOptions,
     *,
-    max_iterations: int,
-    tol: float,
-    atol: float,
     reference: FloatArray | None = None,
 ) -> AdmmResult:
     """Fig. 6 on ``min Σ_i ½ tr(Xᵀ N_i X) − tr(B_iᵀ X)`` for this block's ``N`` ``(nl, p, p)``, ``B`` ``(nl, p, k)``."""
@@ -110,9 +110,9 @@ def _normal_run(
     )
     return drive(
         run,
-        max_iterations=max_iterations,
-        tol=tol,
-        atol=atol,
+        max_iterations=stop.max_iterations,
+        tol=stop.tol,
+        atol=stop.atol,
         reference=None if reference is None else reference.ravel(),
         stop_at_reference=None,
         record_nodes=False,
@@ -129,16 +129,51 @@ class PrecisionRun:
     variance_factor_nodes: FloatArray
 
 
-class PrecisionOptions(TypedDict, total=False):
-    """Keyword options of :func:`admm_precision` (default in brackets): ``W`` [1.0] and ``constraint_nodes``
-    [``"min_cover"``] as for :func:`~distnav.algorithms.lsq.admm.admm` (the same ρ suits both: the same ``N_i``);
-    ``max_iterations`` [5000], ``tol`` [1e-12], ``atol`` [0.0]: the stopping rule of each of the two runs."""
+@dataclass(frozen=True, eq=False, kw_only=True)
+class PrecisionOptions(driver.ConstraintOptions):
+    """Options of :func:`admm_precision` (house style: :mod:`distnav._settings`; default in brackets):
+    ``constraint_nodes`` and ``W`` as for :func:`~distnav.algorithms.lsq.admm.admm` (the same ρ suits both: the same
+    ``N_i``), and
 
-    W: ArrayLike
-    constraint_nodes: ConstraintNodeSpec
-    max_iterations: int
-    tol: float
-    atol: float
+    Fields
+    ------
+    max_iterations : [5000] the stopping rule of each of the two runs (sums and covariance),
+    tol : [1e-12] its relative tolerance,
+    atol : [0.0] and its absolute tolerance.
+    """
+
+    max_iterations: int = 5000
+    tol: float = 1e-12
+    atol: float = 0.0
+
+    def __post_init__(self) -> None:
+        driver.check_stopping(self.max_iterations, self.tol, self.atol)
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class SnoopingOptions(driver.AdmmOptions):
+    """Options of :func:`admm_data_snooping`: the kernel's :class:`~distnav.algorithms.lsq.driver.AdmmOptions`
+    plus (default in brackets)
+
+    Fields
+    ------
+    level : [0.001] significance level of each w-test (two-sided, :func:`~distnav.algorithms.statistics.
+        critical_value`).
+    max_removals : [None: until nothing is flagged] at most that many observations removed.
+    max_iterations : [5000] the stopping rule of every estimate and precision run,
+    tol : [1e-12] its relative tolerance,
+    atol : [0.0] and its absolute tolerance.
+    """
+
+    level: float = 0.001
+    max_removals: int | None = None
+    max_iterations: int = 5000
+    tol: float = 1e-12
+    atol: float = 0.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        driver.check_stopping(self.max_iterations, self.tol, self.atol)
 
 
 def admm_precision(
@@ -151,10 +186,11 @@ def admm_precision(
     reference_covariance: FloatArray | None = None,
     exchange: Exchange | None = None,
     faults: FaultSchedule | None = None,
-    **options: Unpack[PrecisionOptions],
+    options: PrecisionOptions | None = None,
+    **changes: Any,
 ) -> PrecisionRun:
     """Each node's covariance block ``Q_x̂ = N⁻¹`` and the a-posteriori variance factor, by message rounds only;
-    options :class:`PrecisionOptions`.
+    options :class:`PrecisionOptions` (``options=`` and/or keyword changes to it).
 
     ``estimates`` ``(n, p)``: every node's converged ``x_i`` (e.g. ``admm(...).estimates``; a node reads its own
     row). ``active`` ``(n, m)``: observations still in the model (default: the problem's rows).
@@ -164,28 +200,21 @@ def admm_precision(
     up to the stopping tolerance), the iterations and messages of both runs; the variance factor is node 0's
     (``variance_factor_nodes`` holds every node's, equal to the tolerance).
     """
-    unknown = sorted(set(options) - PrecisionOptions.__optional_keys__)
-    if unknown:
-        raise ModelError(f"unknown admm_precision option(s) {', '.join(unknown)}")
-    stop = _stopping(options)
+    o = resolve_options(PrecisionOptions, options, changes)
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm_precision(), not both")
     x_all = _check_precision_inputs(problem, graph, estimates, reference_covariance)
     p = problem.n_params
-    Wm = weight_matrix(options.get("W", 1.0), p)
-    C = driver.constraint_nodes_for(graph, options.get("constraint_nodes", "min_cover"))
+    Wm = weight_matrix(o.W, p)
+    C = driver.constraint_nodes_for(graph, o.constraint_nodes)
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
     before = ex.comm_totals().snapshot()
     local = problem.subset(ex.nodes)
     act = _active_rows(problem, active)[ex.nodes]
-    sums = _normal_run(
-        ex, C, *_sums_inputs(local, x_all[ex.nodes], act, ex.nodes), np.eye(3), _prev(init, "sums"), **stop
-    )
+    sums = _normal_run(ex, C, *_sums_inputs(local, x_all[ex.nodes], act, ex.nodes), np.eye(3), _prev(init, "sums"), o)
     n_est, redundancy, vf = _variance_factor(sums.estimates, p)
     B = np.broadcast_to(np.eye(p), (ex.nodes.size, p, p)) * (1.0 / n_est[ex.nodes])[:, None, None]
-    cov = _normal_run(
-        ex, C, local.normal_equations[0], B, Wm, _prev(init, "cov"), **stop, reference=reference_covariance
-    )
+    cov = _normal_run(ex, C, local.normal_equations[0], B, Wm, _prev(init, "cov"), o, reference=reference_covariance)
     Q = cov.estimates.reshape(problem.n_nodes, p, p)
     precision = Precision(
         covariance=0.5 * (Q + np.swapaxes(Q, 1, 2)),
@@ -196,21 +225,6 @@ def admm_precision(
         comm=ex.comm_totals().since(before),
     )
     return PrecisionRun(precision=precision, covariance_run=cov, sums_run=sums, variance_factor_nodes=vf)
-
-
-class _Stopping(TypedDict):
-    max_iterations: int
-    tol: float
-    atol: float
-
-
-def _stopping(options: PrecisionOptions) -> _Stopping:
-    """The checked stopping rule of :func:`admm_precision`'s runs."""
-    stop = _Stopping(
-        max_iterations=options.get("max_iterations", 5000), tol=options.get("tol", 1e-12), atol=options.get("atol", 0.0)
-    )
-    driver.check_stopping(stop["max_iterations"], stop["tol"], stop["atol"])
-    return stop
 
 
 def _check_precision_inputs(
@@ -310,30 +324,24 @@ def admm_data_snooping(
     problem: LinearProblem,
     graph: Graph,
     *,
-    level: float = 0.001,
-    max_removals: int | None = None,
-    max_iterations: int = 5000,
-    tol: float = 1e-12,
-    atol: float = 0.0,
     exchange: Exchange | None = None,
     faults: FaultSchedule | None = None,
-    **options: Unpack[AdmmOptions],
+    options: SnoopingOptions | None = None,
+    **changes: Any,
 ) -> AdmmResult:
     """Distributed iterative data snooping (module docstring): the final ADMM estimate with ``precision`` and
-    ``tests`` filled in. ``tests.removed`` are flat observation indices (node-major over each node's rows, as in
+    ``tests`` filled in; options :class:`SnoopingOptions` (``options=`` and/or keyword changes to it).
+    ``tests.removed`` are flat observation indices (node-major over each node's rows, as in
     :func:`distnav.algorithms.statistics.data_snooping` on the stacked data); ``tests.iterations`` and ``tests.comm``
     are what the re-convergences after the first solution cost (estimate, precision and the floods)."""
-    driver.check_stopping(max_iterations, tol, atol)
+    o = resolve_options(SnoopingOptions, options, changes)
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm_data_snooping(), not both")
-    k_crit = critical_value(level)
+    k_crit = critical_value(o.level)
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults)
-    opts = AdmmOptions(**options)
-    C = driver.constraint_nodes_for(graph, opts.get("constraint_nodes", "min_cover"))
-    opts["constraint_nodes"] = C
-    prec_opts = PrecisionOptions(
-        W=opts.get("W", 1.0), constraint_nodes=C, max_iterations=max_iterations, tol=tol, atol=atol
-    )
+    C = driver.constraint_nodes_for(graph, o.constraint_nodes)
+    opts = dataclasses.replace(o, constraint_nodes=C)
+    prec_opts = PrecisionOptions(W=o.W, constraint_nodes=C, max_iterations=o.max_iterations, tol=o.tol, atol=o.atol)
     diameter = int(np.max(csgraph.shortest_path(graph.adjacency(), unweighted=True, directed=False)))
     flood_rounds = max(diameter, 1) * (3 if ex.faults.active else 1)
     act = _active_rows(problem, None)
@@ -348,14 +356,14 @@ def admm_data_snooping(
     while True:
         w_local = _local_w(prob.subset(nodes), est.estimates[nodes], prec.precision.covariance[nodes], act[nodes])
         gid = _worst_flagged(ex, prob, w_local, k_crit, flood_rounds)
-        if gid is None or (max_removals is not None and len(removed) >= max_removals):
+        if gid is None or (o.max_removals is not None and len(removed) >= o.max_removals):
             break
         node, r = divmod(gid, prob.max_rows)
         removed.append(int(offsets[node] + r))
         act = act.copy()
         act[node, r] = False
         prob = remove_observation(prob, node, r)
-        warm = AdmmOptions(**{**opts, "init": est, "multipliers": est.multipliers})  # x, z and u carried over
+        warm = dataclasses.replace(opts, init=est, multipliers=est.multipliers)  # x, z and u carried over
         est, prec = _solve_with_precision(prob, graph, ex, warm, act, prec, prec_opts)
         extra_iterations += est.iterations + prec.precision.iterations
     w_all = ex.gather_nodes(w_local)
@@ -364,7 +372,7 @@ def admm_data_snooping(
         node=np.repeat(np.arange(problem.n_nodes), problem.rows),
         w=flat,
         critical_value=k_crit,
-        level=level,
+        level=o.level,
         flagged=np.nan_to_num(np.abs(flat)) > k_crit,
         removed=tuple(removed),
         iterations=extra_iterations,
@@ -381,7 +389,7 @@ def _solve_with_precision(
     prob: LinearProblem,
     graph: Graph,
     ex: Exchange,
-    opts: AdmmOptions,
+    opts: SnoopingOptions,
     act: BoolArray,
     init: PrecisionRun | None,
     prec_opts: PrecisionOptions,
@@ -392,11 +400,11 @@ def _solve_with_precision(
         reference=None,
         stop_at_reference=None,
         record_nodes=False,
-        max_iterations=prec_opts["max_iterations"],
-        tol=prec_opts["tol"],
-        atol=prec_opts["atol"],
+        max_iterations=opts.max_iterations,
+        tol=opts.tol,
+        atol=opts.atol,
     )
-    prec = admm_precision(prob, graph, est.estimates, active=act, init=init, exchange=ex, **prec_opts)
+    prec = admm_precision(prob, graph, est.estimates, active=act, init=init, exchange=ex, options=prec_opts)
     return est, prec
 
 

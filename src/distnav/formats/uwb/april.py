@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from distnav.errors import DataFileError
+from distnav.formats.uwb.io import decoded_text
 
 __all__ = ["C_M_PER_US", "MANUAL_DELAYS_US", "DEFAULT_DELAY_US", "TRUTH_FT", "read_april", "april_csv_texts"]
 
@@ -89,14 +90,7 @@ def _parse_log(p: Path) -> np.ndarray:
     if b"\x00" in raw:
         line = raw.count(b"\n", 0, raw.index(b"\x00")) + 1
         raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected an APRIL range log (text)")
-    try:
-        text = raw.decode("ascii")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise DataFileError(
-            f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not plain ASCII text: expected an "
-            f"APRIL range log (whitespace-separated numbers)"
-        ) from None
+    text = decoded_text(raw, p, "ascii", "plain ASCII text: expected an APRIL range log (whitespace-separated numbers)")
     out: list[tuple[float, float, float]] = []
     for number, text_line in enumerate(text.splitlines(), start=1):
         fields = text_line.split()

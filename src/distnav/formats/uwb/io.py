@@ -32,6 +32,7 @@ import numpy as np
 from distnav.errors import DataFileError
 
 __all__ = [
+    "decoded_text",
     "RangeLog",
     "CombinedRanges",
     "read_ranges",
@@ -99,20 +100,28 @@ class CombinedRanges:
     mad_m: np.ndarray
 
 
+def decoded_text(raw: bytes, p: Path, encoding: str, expected: str) -> str:
+    """``raw`` (the bytes of file ``p``) decoded with ``encoding``, or a :class:`DataFileError` naming the file, the
+    line and the byte that is not ``expected`` (its message goes on from "byte 0x.. is not ")."""
+    try:
+        return raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise DataFileError(f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not {expected}") from None
+
+
 def _rows(path: Path, required: Sequence[str]) -> tuple[list[str], list[tuple[int, list[str]]]]:
     p = Path(path)
     if not p.is_file():
         raise DataFileError(f"{p}: file not found")
     raw = p.read_bytes()
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise DataFileError(
-            f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 text: expected a CSV text "
-            f"file in UTF-8 (this looks like binary data, a gzip archive, or text saved as UTF-16 "
-            f"or in a local code page: save it as UTF-8 CSV)"
-        ) from None
+    text = decoded_text(
+        raw,
+        p,
+        "utf-8-sig",
+        "UTF-8 text: expected a CSV text file in UTF-8 (this looks like binary data, a gzip archive, or text saved "
+        "as UTF-16 or in a local code page: save it as UTF-8 CSV)",
+    )
     if "\x00" in text:
         line = text.count("\n", 0, text.index("\x00")) + 1
         raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected a CSV text file in UTF-8")
