@@ -155,8 +155,7 @@ def central_precision(
 
     ``estimates_m`` ``(n_anchors, dim)``: the anchors' own estimates (each block reads its rows); ``offset_m``:
     the common offset (``range_offsets="common"``) or every anchor's own (``"per_anchor"``), as the solver
-    estimated them; ``options``: :class:`CentralPrecisionOptions`, with keyword ``changes`` to it
-    (:func:`distnav._settings.resolve_options`)."""
+    estimated them; ``options``: :class:`CentralPrecisionOptions`, with keyword ``changes`` to it."""
     o = resolve_options(CentralPrecisionOptions, options, changes)
     per, common = o.range_offsets == "per_anchor", o.range_offsets == "common"
     est = checked_estimates(problem, estimates_m)
@@ -169,8 +168,7 @@ def central_precision(
     P = x.shape[1]
     free, free_nb = _free_masks(problem.free, ex.nodes, other, P)
     prior = 1.0 / o.offset_prior_sigma_m**2 if per else 0.0
-    sig_all = range_sigma(problem, o.sigma_m)
-    sig = sig_all[samp]
+    sig = range_sigma(problem, o.sigma_m)[samp]
     nb = links.neighbours(x)  # one broadcast: the neighbours' estimates (and offsets)
     bias = (x[owner, dim] + nb[:, dim]) if per else c
     r = (np.linalg.norm(x[owner, :dim] - nb[:, :dim], axis=1) + bias - problem.range_m[samp]) / sig
