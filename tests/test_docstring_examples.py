@@ -20,6 +20,7 @@ FRONT_DOORS = [
     ("distnav.models.gnss.levelling", "level_station"),
     ("distnav.models.gnss.ionogeometry", "ionosphere_geometry"),
     ("distnav.models.gnss.netsim", "simulate_network"),
+    ("distnav.algorithms.ranging.csg", "solve_ncsg"),  # the ranging front doors' options objects
 ]
 
 

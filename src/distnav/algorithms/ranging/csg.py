@@ -414,6 +414,24 @@ def solve_ncsg(
     the subgradient ``G⁽ⁱ⁾ᵀg⁽ⁱ⁾`` of eq. (10) in place of ``∇f⁽ⁱ⁾`` in the Armijo test, i.e. requires
     ``f⁽ⁱ⁾(x + αd) ≤ f⁽ⁱ⁾(x) − γα‖d‖²``; this reproduces the paper's Fig. 6 step sizes (≈1.2e-3 on RC/RM).
     ``"gradient"`` uses the true slope ``∇f⁽ⁱ⁾ᵀd = −2‖d‖²`` of ``f⁽ⁱ⁾ = Σ g²`` (a stricter test: steps ≈ 0.7×).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from distnav.algorithms.ranging.csg import NcsgOptions, solve_ncsg
+    >>> from distnav.models.uwb.problems import generate_problem
+    >>> p = generate_problem("GC", np.random.default_rng(1), n_anchors=16, dim=2)
+    >>> o = NcsgOptions(objective="metres", sigma_m=0.15, iterations=200)
+    >>> res = solve_ncsg(p, line_search="TBLS", options=o)
+    >>> res.status, res.iterations
+    ('converged', 200)
+    >>> same = solve_ncsg(p, line_search="TBLS", objective="metres", sigma_m=0.15, iterations=200)
+    >>> bool(np.array_equal(res.estimates, same.estimates))
+    True
+    >>> solve_ncsg(p, alpha=-1.0)
+    Traceback (most recent call last):
+        ...
+    distnav.errors.ModelError: alpha must be positive, got -1.0
     """
     if line_search is None:
         method = "N-CSG"
