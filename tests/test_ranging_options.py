@@ -71,39 +71,30 @@ def test_unknown_and_foreign_names_are_refused_by_name():
         solve_lm(p, max_iteration=3)
 
 
-def test_values_are_checked_when_the_object_is_made():
-    with pytest.raises(ModelError, match="beta and gamma"):
-        NcsgOptions(beta=1.5)
-    with pytest.raises(ModelError, match="armijo_slope"):
-        NcsgOptions(armijo_slope="exact")
-    with pytest.raises(ModelError, match="alpha0 must be positive"):
-        NcsgOptions(alpha0=0.0)
-    with pytest.raises(ModelError, match="damping"):
-        NclmOptions(damping="marquardt")
-    with pytest.raises(ModelError, match="lambda_min must be positive"):
-        NclmOptions(lambda_min=0.0)
-    with pytest.raises(ModelError, match="alpha must be positive"):
-        CsgOptions(alpha=-1.0)
-    with pytest.raises(ModelError, match="monitor_every"):
-        RunOptions(monitor_every=-1)
-    with pytest.raises(ModelError, match="test_scale"):
-        RunOptions(test_scale="mad")
-    with pytest.raises(ModelError, match="objective='metres' only"):
-        RunOptions(range_offsets="common")
-    with pytest.raises(ModelError, match="unknown loss"):
-        NeighbourhoodOptions(loss="tukey")
-    with pytest.raises(ModelError, match="graduated"):
-        NeighbourhoodOptions(graduated=-1)
-    with pytest.raises(ModelError, match="max_iterations"):
-        LMOptions(max_iterations=-1)
-    with pytest.raises(ModelError, match="unknown loss"):
-        LMSolveOptions(loss="tukey")
-    with pytest.raises(ModelError, match="hops"):
-        PrecisionOptions(hops=3)
-    with pytest.raises(ModelError, match="range_offsets"):
-        CentralPrecisionOptions(range_offsets="both")
-    with pytest.raises(ModelError, match="init_halfwidth_m"):
-        PaperProblemOptions(sigma_m=-1.0)
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda: NcsgOptions(beta=1.5), "beta and gamma"),
+        (lambda: NcsgOptions(armijo_slope="exact"), "armijo_slope"),
+        (lambda: NcsgOptions(alpha0=0.0), "alpha0 must be positive"),
+        (lambda: NclmOptions(damping="marquardt"), "damping"),
+        (lambda: NclmOptions(lambda_min=0.0), "lambda_min must be positive"),
+        (lambda: CsgOptions(alpha=-1.0), "alpha must be positive"),
+        (lambda: RunOptions(monitor_every=-1), "monitor_every"),
+        (lambda: RunOptions(test_scale="mad"), "test_scale"),
+        (lambda: RunOptions(range_offsets="common"), "objective='metres' only"),
+        (lambda: NeighbourhoodOptions(loss="tukey"), "unknown loss"),
+        (lambda: NeighbourhoodOptions(graduated=-1), "graduated"),
+        (lambda: LMOptions(max_iterations=-1), "max_iterations"),
+        (lambda: LMSolveOptions(loss="tukey"), "unknown loss"),
+        (lambda: PrecisionOptions(hops=3), "hops"),
+        (lambda: CentralPrecisionOptions(range_offsets="both"), "range_offsets"),
+        (lambda: PaperProblemOptions(sigma_m=-1.0), "init_halfwidth_m"),
+    ],
+)
+def test_values_are_checked_when_the_object_is_made(make, match):
+    with pytest.raises(ModelError, match=match):
+        make()
 
 
 def test_the_documented_defaults():
