@@ -11,6 +11,7 @@ from distnav.algorithms.ranging.covariance import CentralPrecisionOptions, centr
 from distnav.algorithms.ranging.csg import solve_csg, solve_nclm, solve_ncsg
 from distnav.algorithms.ranging.lm import LMOptions, LMSolveOptions, levenberg_marquardt, solve_lm
 from distnav.algorithms.ranging.neighbourhood import iterate_neighbourhood
+from distnav.algorithms.ranging.objective import FitOptions
 from distnav.algorithms.ranging.options import (
     CsgOptions,
     NclmOptions,
@@ -87,6 +88,8 @@ def test_unknown_and_foreign_names_are_refused_by_name():
         (lambda: NeighbourhoodOptions(graduated=-1), "graduated"),
         (lambda: LMOptions(max_iterations=-1), "max_iterations"),
         (lambda: LMSolveOptions(loss="tukey"), "unknown loss"),
+        (lambda: LMSolveOptions(range_offsets="common"), "objective='metres' only"),  # the shared FitOptions
+        (lambda: FitOptions(objective="cubic"), "objective must be 'squared' or 'metres'"),
         (lambda: PrecisionOptions(hops=3), "hops"),
         (lambda: CentralPrecisionOptions(range_offsets="both"), "range_offsets"),
         (lambda: PaperProblemOptions(sigma_m=-1.0), "init_halfwidth_m"),
