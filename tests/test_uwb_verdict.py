@@ -156,3 +156,35 @@ def test_help_documents_the_exit_codes(capsys) -> None:
     assert "Exit codes" in out and "--required-accuracy-m" in out
     for code in ("0  every anchor meets", "1  unusable", "2  bad input", "3  a usable map", "4  ambiguous"):
         assert code in out
+
+
+def test_an_anchor_on_a_doubtful_fit_is_never_certified(tmp_path) -> None:
+    """fit_doubts (issue 28's open defect): a good map (exit 0) whose solution is then given half of one anchor's
+    links as excluded, or one anchor's kept residuals far beyond the χ² quantile (scipy's, the independent
+    reference), no longer certifies that anchor; the untouched map certifies every anchor."""
+    from distnav.commands.uwb import solve_range_log
+    from distnav.models.uwb.verdict import CHI2_LEVEL, fit_doubts, run_verdict
+
+    f = write_hall(_small_hall(0), tmp_path / "hall")
+    sol, _, _ = solve_range_log(f["ranges"], f["known"], heights=f["heights"], truth=f["truth"])
+    assert run_verdict(sol).exit_code == 0 and fit_doubts(sol) == {}
+    p = sol.problem
+    i = int(np.flatnonzero(p.estimated)[0])
+    mine = np.flatnonzero((p.meas_a == i) | (p.meas_b == i))
+    half = np.zeros(p.n_meas, bool)
+    half[mine[: (mine.size + 1) // 2]] = True
+    v = run_verdict(dataclasses.replace(sol, excluded=sol.excluded | half))
+    assert v.exit_code == 3 and v.failing[p.ids[i]].startswith("excluded:") and p.ids[i] in v.blocking
+    # χ²: one kept link of the anchor misfit by k robust scales, k² just above / below the quantile
+    e = sol.residual_m
+    kept = ~sol.excluded & np.isfinite(e)
+    scale = 1.4826 * np.median(np.abs(e[kept]))
+    n_kept = int(kept[mine].sum())
+    assert kept[mine[0]]
+    q = stats.chi2.isf(CHI2_LEVEL / int(p.estimated.sum()), n_kept)
+    rest = float(np.sum((e[mine][kept[mine]] / scale) ** 2)) - (e[mine[0]] / scale) ** 2
+    for k2, doubted in ((q - rest + 1.0, True), (0.5 * (q - rest), False)):
+        e2 = e.copy()
+        e2[mine[0]] = np.sqrt(max(k2, 0.0)) * scale
+        got = fit_doubts(dataclasses.replace(sol, residual_m=e2))  # (the median moves by at most one link's rank)
+        assert (p.ids[i] in got and got[p.ids[i]].startswith("misfit:")) == doubted

@@ -13,19 +13,32 @@ test of stated power:
    again from there **without the multi-start** (its candidate starts are MDS starts aligned to the known anchors,
    which would take the fit back to whichever side the alignment chose: issue 28 found even ``--initial`` with the
    true positions ending in the mirror).
-2. **The test** (two simple hypotheses, side A or side B; Neyman–Pearson on the Gaussian likelihood). On the links
-   kept by both fits, with ``d`` the difference of the two fits' predicted ranges and ``σ̂²`` the a-posteriori
-   variance of the better fit, ``Δ = (Σ e_B² − Σ e_A²) / σ̂²`` (A: the lower cost) is about ``N(λ, 4λ)`` if A is
-   true and ``N(−λ, 4λ)`` if B is, ``λ = Σ d² / σ̂²``. A is chosen when ``Δ > c = 2 z √λ − λ``
-   (``z = Φ⁻¹(1 − level)``, ``level`` the link tests' false-alarm probability, 0.001): if B were the truth, a
-   difference that large would come with probability ``level`` at most. The **power** — the probability of
-   choosing when A is the truth — is ``Φ(√λ − z)`` and is reported with the test. A must also have the lower
-   robust cost of *all* the links (:func:`~distnav.models.uwb.field.all_links_cost`): the Gaussian test sees only
-   the links both fits kept, and a mirror fit that excluded the links contradicting it (23–24 excluded against
-   6–17 on the true side) passed it on 3 of 25 simulated walls whose robust costs said the opposite (60 against
-   47, 67 against 27, 70 against 41); with both criteria no wrong side was chosen there. When the reflected fit lands
-   back on the first solution (< :data:`MIRROR_DISTINCT_M` m RMS away) the mirror is no solution of the ranges
-   and the side is chosen (λ small, nothing to compare).
+2. **Two tests, each at half the level** (two simple hypotheses, side A or side B):
+
+   * **Gaussian** (Neyman–Pearson on the Gaussian likelihood). On the links kept by both fits, with ``d`` the
+     difference of the two fits' predicted ranges and ``σ̂²`` the a-posteriori variance of the better fit,
+     ``Δ = (Σ e_B² − Σ e_A²) / σ̂²`` (A: the lower sum) is about ``N(λ, 4λ)`` if A is true and ``N(−λ, 4λ)`` if B
+     is, ``λ = Σ d² / σ̂²``. It chooses A when ``Δ > c = 2 z √λ − λ`` (``z = Φ⁻¹(1 − level/2)``, ``level`` the
+     link tests' false-alarm probability, 0.001): if B were the truth, a difference that large would come with
+     probability ``level/2`` at most. Its **power** — the probability of choosing when A is the truth — is
+     ``Φ(√λ − z)`` and is reported. It sees only the links both fits kept, and each fit drops the links that
+     contradict it (a mirror fit excluded 23–24 links against the true side's 6–17 on simulated walls), so on
+     walls 0.2–1.5 m off the line its power was 0.23 (median λ 5.6) while the data held far more evidence.
+   * **Robust** (the likelihood ratio of *all* the links). The one-sided Cauchy cost of every link
+     (:func:`~distnav.models.uwb.field.all_links_cost`, excluded links too, at ``loss_scale_m`` ``s``) is, up to
+     a constant, exactly the negative log-likelihood of the error model the workflow fits: a range read short by
+     ``e`` has density ∝ ``exp(−(e/s)²)``, one read long ∝ ``1 / (1 + (e/s)²)``, one normalising constant for
+     both branches. So ``D = cost_B − cost_A`` is the log-likelihood ratio, and by Markov's inequality
+     (``E_B[L_A / L_B] = 1``) ``P_B(D ≥ T) ≤ exp(−T)`` whatever the geometry: with ``T = log(2 / level)`` a side
+     is chosen wrongly with probability ``level/2`` at most (``tests/test_uwb_mirror.py`` checks the bound by
+     Monte Carlo). On those walls ``D`` favoured the truth on 23 of 24 halls by 3.0–39.9, and was within 0.3 on
+     all 25 walls within 2 cm of a line (where no test can choose: λ ≈ 0.3).
+
+   A side is **chosen** when one test chooses it and the other does not choose the opposite side (a conflict is
+   ambiguous: on simulated walls the Gaussian test alone would have chosen the mirror 3 times, each time against a
+   robust ``D`` of 12–29 for the truth); the false choice has probability ≤ ``level`` (the union of the two).
+   When the reflected fit lands back on the first solution (< :data:`MIRROR_DISTINCT_M` m RMS away) the mirror
+   is no solution of the ranges and the side is chosen (λ small, nothing to compare).
 3. **Ambiguous** when the test cannot choose (``Δ ≤ c``): status ``ambiguous`` (exit 4 in ``uwb solve``), the
    map with the lower robust cost of all the links (:func:`~distnav.models.uwb.field.all_links_cost`, the
    workflow's own order) written as ``positions.csv`` and the other as ``positions_mirror.csv``; never one of
@@ -47,6 +60,7 @@ from scipy import special
 from distnav.models.uwb.field import FieldOptions, FieldSolution, all_links_cost, solve_field
 from distnav.models.uwb.geometry import GeometryIssue, GeometryReport
 from distnav.models.uwb.problems import RangingProblem
+from distnav.models.uwb.search import choose_handedness
 from distnav.typing import FloatArray
 
 __all__ = [
@@ -63,8 +77,10 @@ MIRROR_DISTINCT_M = 0.5  # RMS distance under which the reflected fit came back 
 
 @dataclasses.dataclass(frozen=True)
 class MirrorTest:
-    """The side test of the module docstring: ``delta`` (Δ), ``critical`` (c), ``noncentrality`` (λ), ``power``,
-    ``level``, ``chosen`` (whether Δ > c), ``apart_m`` (RMS distance of the two maps), ``n_links`` (kept by both)."""
+    """The side tests of the module docstring: ``delta`` (Δ), ``critical`` (c), ``noncentrality`` (λ), ``power``,
+    ``level`` (of the two tests together), ``chosen``, ``apart_m`` (RMS distance of the two maps), ``n_links`` (kept by
+    both); ``robust_log_ratio`` (D = cost_B − cost_A, positive for A), ``robust_threshold`` (T), ``chosen_by``
+    (``gaussian``, ``robust``, ``both``, ``same solution``; empty when not chosen)."""
 
     delta: float
     critical: float
@@ -74,6 +90,9 @@ class MirrorTest:
     chosen: bool
     apart_m: float
     n_links: int
+    robust_log_ratio: float | None = None
+    robust_threshold: float | None = None
+    chosen_by: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -101,9 +120,28 @@ def mirror_test(best: FieldSolution, other: FieldSolution, level: float) -> Mirr
     apart_m = float(np.sqrt(np.mean(np.sum((best.positions_m[est] - other.positions_m[est]) ** 2, axis=1))))
     both = ~best.excluded & ~other.excluded & np.isfinite(best.residual_m) & np.isfinite(other.residual_m)
     n_unknown = int(p.free[est].sum()) + 1  # the positions and a common offset
-    delta, critical, lam, power = side_test(best.residual_m[both], other.residual_m[both], n_unknown, level)
-    chosen = apart_m <= MIRROR_DISTINCT_M or delta > critical
-    return MirrorTest(delta, critical, lam, power, level, bool(chosen), apart_m, int(both.sum()))
+    delta, critical, lam, power = side_test(best.residual_m[both], other.residual_m[both], n_unknown, level / 2)
+    same = apart_m <= MIRROR_DISTINCT_M
+    chosen = same or delta > critical
+    by = "same solution" if same else ("gaussian" if chosen else "")
+    return MirrorTest(delta, critical, lam, power, level, bool(chosen), apart_m, int(both.sum()), chosen_by=by)
+
+
+def decide_side(test: MirrorTest, robust_a: float, robust_b: float) -> tuple[MirrorTest, bool]:
+    """The combined decision of the module docstring from the Gaussian ``test`` (side A: the lower squared residuals)
+    and the robust costs of all the links of A and B: ``(test with the decision, whether B is the chosen side)``."""
+    d = robust_b - robust_a
+    t = float(np.log(2.0 / test.level))
+    rec = dataclasses.replace(test, robust_log_ratio=d, robust_threshold=t)
+    if test.chosen_by == "same solution":
+        return rec, False
+    gauss_a, robust_a_wins, robust_b_wins = test.delta > test.critical, d > t, -d > t
+    if robust_b_wins and not gauss_a:
+        return dataclasses.replace(rec, chosen=True, chosen_by="robust"), True
+    if (gauss_a or robust_a_wins) and not robust_b_wins:
+        by = "both" if gauss_a and robust_a_wins else ("gaussian" if gauss_a else "robust")
+        return dataclasses.replace(rec, chosen=True, chosen_by=by), False
+    return dataclasses.replace(rec, chosen=False, chosen_by=""), False
 
 
 def side_test(
@@ -124,12 +162,14 @@ def side_test(
 def solve_with_mirror_test(
     problem: RangingProblem, opts: FieldOptions, geometry: GeometryReport, exchange: Callable[[Any], Any] | None = None
 ) -> FieldSolution:
-    """:func:`~distnav.models.uwb.field.solve_field`, plus the mirror test of the module docstring where
-    ``geometry`` has a ``near_line`` issue (both fits are then made without it; it is kept, weakly determined,
-    only when the test cannot be made)."""
+    """:func:`~distnav.models.uwb.field.solve_field` (a distributed solver from the start of the better handedness,
+    :func:`~distnav.models.uwb.search.choose_handedness`), plus the mirror test of the module docstring where
+    ``geometry`` has a ``near_line`` issue (both fits are then made without it; kept only when no test is made)."""
+    problem, start_note = choose_handedness(problem, opts)
     near = [i for i in geometry.issues if i.kind == "near_line"]
     if not near:
-        return solve_field(problem, opts, geometry=geometry, exchange=exchange)
+        sol = solve_field(problem, opts, geometry=geometry, exchange=exchange)
+        return dataclasses.replace(sol, message=sol.message + start_note) if start_note else sol
     rest = tuple(i for i in geometry.issues if i.kind != "near_line")
     plain = dataclasses.replace(geometry, issues=rest)
     sol = solve_field(problem, opts, geometry=plain, exchange=exchange)
@@ -150,13 +190,11 @@ def solve_with_mirror_test(
     ssr = [float(np.sum(s.residual_m[~sol.excluded & ~other.excluded] ** 2)) for s in (sol, other)]
     best, alt = (sol, other) if ssr[0] <= ssr[1] else (other, sol)
     side_a = best
-    test = mirror_test(best, alt, opts.level)
     robust = (all_links_cost(problem, best.result, opts), all_links_cost(problem, alt.result, opts))
+    test, b_chosen = decide_side(mirror_test(best, alt, opts.level), *robust)
     costs = f"robust cost of all links {robust[0]:.4g} against {robust[1]:.4g}"
-    if test.chosen and test.apart_m > MIRROR_DISTINCT_M and robust[0] > robust[1]:  # the two criteria disagree
-        test = dataclasses.replace(test, chosen=False)
-    if not test.chosen and robust[1] < robust[0]:  # ambiguous: positions.csv gets the lower robust cost of all
-        best, alt = alt, best  # the links (the workflow's own order, NLOS-aware), positions_mirror.csv the other
+    if b_chosen or (not test.chosen and robust[1] < robust[0]):  # the robust test's side; ambiguous: positions.csv
+        best, alt = alt, best  # gets the lower robust cost of all the links (the workflow's own order, NLOS-aware)
         costs = f"robust cost of all links {robust[1]:.4g} against {robust[0]:.4g}; squared residuals favour the other"
     record = {  # side A: the lower squared residuals (the test's A); which map positions.csv holds
         **test.as_dict(),
@@ -173,7 +211,9 @@ def solve_with_mirror_test(
     )  # both fits
     stats = (
         f"Δ = {test.delta:.3g} against the critical {test.critical:.3g} (λ = {test.noncentrality:.3g}, level "
-        f"{test.level:g}, power {test.power:.2f}, {test.n_links} links)"
+        f"{test.level / 2:g}, power {test.power:.2f}, {test.n_links} links); robust log-likelihood ratio "
+        f"{abs(test.robust_log_ratio or 0.0):.3g} against {test.robust_threshold or 0.0:.3g} (level {test.level / 2:g})"
+        + (f"; chosen by {test.chosen_by}" if test.chosen_by else "")
     )
     if not test.chosen:
         issue = GeometryIssue(
