@@ -16,7 +16,7 @@ Paper defaults: 500 iterations, ``α = 1e-3``, ``α₀ = 1e-2``, ``β = γ = 1/2
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -96,7 +96,7 @@ class _Watch:
         self,
         problem: RangingData,
         ex: Exchange,
-        cost_of: Any,
+        cost_of: Callable[[np.ndarray], float],
         seen: dict[int, tuple[np.ndarray, np.ndarray, float, float]] | None,
     ) -> None:
         self.problem, self.ex, self.cost_of, self.seen = problem, ex, cost_of, seen
