@@ -24,7 +24,9 @@ from hypothesis import strategies as st
 
 from test_audit_front_doors import ANY_VALUE, _is_real, _outcome
 
-SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+#: derandomized: the same draws every run (a CI run is never the one that meets a new finding by chance; explore
+#: with ``--hypothesis-seed=N`` and no derandomize when adding a door: 12 seeds were run so on this file)
+SETTINGS = settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 
 
 @dataclass(frozen=True)
@@ -221,7 +223,7 @@ def _names(arg: str) -> tuple[str, ...]:
 @SETTINGS
 @given(data=st.data())
 def test_front_door_any_value(door: Door, data: st.DataObject) -> None:
-    value = data.draw(SHORT if door.long else HUGE, label=door.arg)
+    value = data.draw(SHORT if door.long else HUGE if door.kind == "whole" else ANY_VALUE, label=door.arg)
     fits = _fits(door, value)
     refused = _outcome(lambda: door.call(value))
     if refused is None:
@@ -244,7 +246,7 @@ def test_the_findings_by_name() -> None:
     """What this audit found on the wave's main (a traceback, or a wrong type used silently), each now an error
     naming the argument."""
     by_id = {d.id: d for d in DOORS}
-    cases = [
+    cases: list[tuple[str, object, str | None]] = [
         ("push_sum-ticks", 2.7, "ticks must be a whole number, got 2.7"),
         ("generate_problem-n_fixed", 2.7, "n_fixed must be a whole number, got 2.7"),  # before: every anchor fixed
         ("select_fixed-n_fixed", None, "n_fixed must be a whole number, got None"),
@@ -260,11 +262,17 @@ def test_the_findings_by_name() -> None:
         ("generate_layout-n_anchors", -1, "n_anchors must be ≥ 1"),  # before: numpy's sqrt warning
         ("simulate_hall-n_anchors", 2**62, "GiB of memory"),  # before: numpy tried 22.6 GiB
         ("simulate_hall-sigma_m", -1.0, "HallConfig.sigma_m must be ≥ 0"),
+        ("simulate_hall-sigma_m", -0.0, None),  # numpy's "scale < 0" before: -0.0 is 0
+        ("generate_problem-sigma_m", -0.0, None),
         ("solve-iterations", 2.7, "iterations must be a whole number, got 2.7"),
         ("solve-consensus_rounds", 2.5, "consensus_rounds must be a whole number"),
         ("admm-stop_at_reference", "1e-6", "stop_at_reference must be a number"),
         ("gather_cost-sink", math.inf, "sink must be a whole number"),
+        ("admm-atol", 7.339051490861633e307, "atol (absolute tolerance) must be below 1e+100"),  # numpy's overflow
     ]
     for door_id, value, words in cases:
         refused = _outcome(lambda: by_id[door_id].call(value))  # noqa: B023 - called at once
-        assert refused is not None and words in str(refused), (door_id, value, refused)
+        if words is None:
+            assert refused is None, (door_id, value, refused)
+        else:
+            assert refused is not None and words in str(refused), (door_id, value, refused)

@@ -60,7 +60,7 @@ def real_number(
     what = f"{name} must be a {'positive ' if positive else ''}number{f' of {unit}' if unit else ''}"
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise error(f"{what}, got {value!r} ({type(value).__name__})")
-    number = float(value)
+    number = float(value) + 0.0  # -0.0 as 0.0 (numpy refuses a scale of -0.0: "scale < 0")
     if not np.isfinite(number):
         raise error(f"{what}, got {number!r}")
     if positive and not number > 0.0:

@@ -223,8 +223,9 @@ def check_stopping(max_iterations: int, tol: float, atol: float) -> None:
     """Refuse by name a stopping rule that is not a whole ``max_iterations ≥ 0`` and real tolerances ≥ 0 (not a
     string, None, a fraction, a bool or a complex number)."""
     whole_number(max_iterations, "max_iterations", minimum=0, error=ModelError)
-    real_number(tol, "tol (relative tolerance)", minimum=0.0, error=ModelError)
-    real_number(atol, "atol (absolute tolerance)", minimum=0.0, error=ModelError)
+    # below 1e100: a larger tolerance means no test at all, and its product with √(P p) overflows (issue 29)
+    real_number(tol, "tol (relative tolerance)", minimum=0.0, below=1e100, error=ModelError)
+    real_number(atol, "atol (absolute tolerance)", minimum=0.0, below=1e100, error=ModelError)
 
 
 def _check_estimable(problem: LinearProblem, local: LinearProblem, ex: Exchange, need_blocks: bool) -> None:
