@@ -8,10 +8,12 @@ and how both grow with the network.
    of the one-sided loss, exclusion loop, polish, σ), in three configurations measured in the same run with the
    same accounting (the broadcasts, and the LM phase's network totals as spanning-tree all-reductions):
    *before* issue 27 (:func:`configured` ``"before"``: 500 consensus iterations in the first fit, every row sent in
-   full in float64, float64 CG scalars, the central σ by CG to ``1e-10``), *today* (the economy of the first
-   session: float32 CG directions, the central σ by CG in float32 to ``1e-6``, every fit to the solver's
-   tolerances) and *after* (the defaults: float16 directions with a shared exponent, float32 CG scalars, the seed
-   fits at their stage tolerances, the σ gathered at one anchor); the positions, their largest difference from
+   full in float64, float64 CG scalars, the central σ by CG to ``1e-10``), *today* (the defaults at the start of
+   the third session: float16 directions' rows with a shared exponent, float32 CG scalars, CG stopped on ``rᵀr``,
+   every trial's parameters in float64, the seed fits at their stage tolerances, the σ gathered at one anchor)
+   and *after* (the defaults: each neighbour's product sent per link, ``wire.PROJECTED``; CG stopped on ``rᵀz``,
+   ``refine.PRECONDITIONED_STOP``; trials as float32 steps, ``wire.STEPS``); the positions, their largest
+   difference from
    *today*'s, the σ ratio to *today*'s central σ; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
    of that gather over the range graph (:func:`distnav.network.gather.gather_cost`). Per anchor: what each
@@ -24,7 +26,9 @@ and how both grow with the network.
    up and down a BFS spanning tree from the graph's centre for every network total) — against gathering every anchor's
    range records (16 B each, held by the lower-numbered anchor of the link) at one sink over the same graph
    (total hop-bytes, busiest relay). The crossing point is where the busiest anchor of the distributed fit
-   sends less than the busiest relay of the gather.
+   sends less than the busiest relay of the gather. The reductions' tree is a BFS tree from the graph's centre
+   whose parents are balanced (:func:`_tree_sends`; ``*_bfs_tree``: scipy's BFS tree, whose root sends every
+   total to each of its many children, as in the second session).
 
 Goals (issue 27): the 28-anchor hall's total bytes ≤ 100 × the gather, median per-anchor traffic ≤ 20 kB; at 10⁴
 anchors the busiest anchor below the busiest relay. Printed as one table; JSON in benchmarks/results/uwb_economy.json.
@@ -46,6 +50,7 @@ import distnav.models.uwb.field_fits as field_fits
 import distnav.models.uwb.field_precision as field_precision
 from _common import print_table, write_json
 from distnav.algorithms.ranging import csg, wire
+from distnav.algorithms.ranging import refine as ranging_refine
 from distnav.algorithms.ranging.covariance import COVARIANCE_CG_RTOL
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field
@@ -71,12 +76,12 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (wire, "PLAIN"): True,
         (wire, "CG_SCALAR_DTYPE"): np.float64,
     },
-    "today": {(wire, "CG_WIRE_DTYPE"): np.float32, (wire, "CG_SCALAR_DTYPE"): np.float64},
+    "today": {(wire, "PROJECTED"): False, (wire, "STEPS"): False, (ranging_refine, "PRECONDITIONED_STOP"): False},
     "after": {},
 }
 OPTIONS = {
     "before": {"distributed_precision": "central", "staged_tolerances": False},
-    "today": {"distributed_precision": "central", "staged_tolerances": False},
+    "today": {},
     "after": {},
 }
 
@@ -185,11 +190,28 @@ def _counting() -> None:
     field_precision.gathered_precision = counted_gathered
 
 
-def _tree_sends(graph: Graph) -> np.ndarray:
+def _tree_sends(graph: Graph, balanced: bool = True) -> np.ndarray:
     """Messages each anchor sends in one all-reduction over a BFS spanning tree from the graph's centre (the sink
-    of a gather of one unit per anchor): one up (all but the root), one down to each child."""
+    of a gather of one unit per anchor): one up (all but the root), one down to each child. ``balanced``: every
+    anchor's parent is, among its neighbours one level nearer the root, the one with the fewest children so far
+    (anchors with the fewest such neighbours placed first) — the same depth, a lower degree at the hubs (issue 27:
+    the root of scipy's BFS tree sent every total to each of its children); False: scipy's BFS tree."""
     root = gather_cost(graph, np.ones(graph.n_nodes)).sink
-    _, pred = breadth_first_order(graph.adjacency().tocsr(), root, directed=False, return_predecessors=True)
+    adj = graph.adjacency().tocsr()
+    order, pred = breadth_first_order(adj, root, directed=False, return_predecessors=True)
+    if balanced:
+        level = np.zeros(graph.n_nodes, np.int64)
+        for v in order[1:]:
+            level[v] = level[pred[v]] + 1
+        kids = np.zeros(graph.n_nodes, np.int64)
+        for lv in range(1, int(level.max(initial=0)) + 1):
+            here = np.flatnonzero(level == lv)
+            ups = [adj.indices[adj.indptr[v] : adj.indptr[v + 1]] for v in here]
+            ups = [u[level[u] == lv - 1] for u in ups]
+            for i in sorted(range(here.size), key=lambda i: (ups[i].size, here[i])):
+                best = ups[i][np.argmin(kids[ups[i]])]
+                pred[here[i]] = best
+                kids[best] += 1
     children = np.bincount(pred[pred >= 0], minlength=graph.n_nodes)
     return np.asarray(children + (np.arange(graph.n_nodes) != root), float)
 
@@ -220,6 +242,7 @@ def _scaling_row(n: int) -> dict[str, Any]:
     ref = r.settings.get("refine", {})
     per_reduction = ref.get("reduction_bytes", 0) / max(2 * (n - 1), 1)  # Σ reduced bytes per message
     sent = np.asarray(r.comm.bytes_sent, float) + _tree_sends(graph) * per_reduction
+    sent_bfs = np.asarray(r.comm.bytes_sent, float) + _tree_sends(graph, balanced=False) * per_reduction
     d = (r.estimates - p.truth_m)[p.estimated]
     return {
         "name": f"one distributed LM fit, {n} anchors",
@@ -233,6 +256,9 @@ def _scaling_row(n: int) -> dict[str, Any]:
         "gather_busiest_relay_bytes": g.busiest_relay_bytes,
         "gather_median_bytes": g.median_node_bytes,
         "busiest_vs_relay": float(sent.max()) / max(g.busiest_relay_bytes, 1),
+        "busiest_anchor_bytes_bfs_tree": float(sent_bfs.max()),
+        "busiest_vs_relay_bfs_tree": float(sent_bfs.max()) / max(g.busiest_relay_bytes, 1),
+        "broadcast_busiest_anchor_bytes": float(np.max(r.comm.bytes_sent)),
         "refine": r.settings.get("refine", {}),
         "status": r.status,
         "rmse_m": float(np.sqrt(np.mean(np.sum(d**2, axis=1)))),

@@ -159,3 +159,72 @@ FIXED: list[tuple[str, Callable[[], Any]]] = [
 @pytest.mark.parametrize("call", [pytest.param(call, id=case) for case, call in FIXED])
 def test_fixed_front_doors_refuse_by_name(call: Callable[[], Any]) -> None:
     assert _outcome(call) is not None, "accepted"
+
+
+# ------------------------------------------------------------------- the GNSS stages' options objects, every field
+def _gnss_options_classes() -> list[type]:
+    from distnav.commands.gnss_ionosphere_data import NetworkOptions
+    from distnav.models.gnss.biasmodel import BiasModelOptions
+    from distnav.models.gnss.gfnetwork import BiasFilterOptions
+    from distnav.models.gnss.ionogeometry import GeometryOptions
+    from distnav.models.gnss.levelling import LevellingOptions
+    from distnav.models.gnss.netsim import NetworkSimOptions
+
+    return [BiasModelOptions, BiasFilterOptions, GeometryOptions, LevellingOptions, NetworkSimOptions, NetworkOptions]
+
+
+def _fits(annotation: str, value: object) -> bool | None:
+    """Whether ``value`` has the type the field's annotation names (None: a type this audit does not judge)."""
+    if value is None:
+        return annotation.endswith("| None")
+    kind = annotation.removesuffix(" | None")
+    if kind == "int":
+        return _is_real(value) and math.isfinite(float(value)) and float(value).is_integer()  # type: ignore[arg-type]
+    if kind == "float":
+        return _is_real(value) and math.isfinite(float(value))  # type: ignore[arg-type]
+    if kind == "bool":
+        return isinstance(value, (bool, np.bool_))
+    if kind == "str":
+        return isinstance(value, str)
+    if kind.startswith(("Sequence[", "tuple[")):
+        return isinstance(value, (list, tuple, np.ndarray))
+    return None
+
+
+@pytest.mark.parametrize("cls", _gnss_options_classes(), ids=lambda c: c.__name__)
+@SETTINGS
+@given(data=st.data(), value=st.one_of(ANY_VALUE, st.lists(st.floats(0.1, 5), max_size=3).map(tuple)))
+def test_gnss_options_any_field_any_value(cls: type, data: st.DataObject, value: object) -> None:
+    """Every field of the GNSS stages' options (int, float, bool, str, sequence) under a value of any type: a
+    value of the wrong type is refused by a ModelError naming the field; a value of the right type is kept or
+    refused by the class's own range rule (also a DistnavError)."""
+    import dataclasses
+
+    field = data.draw(st.sampled_from([f for f in dataclasses.fields(cls) if f.name not in ("model", "field")]))
+    fits = _fits(str(field.type), value)
+    refused = _outcome(lambda: cls(**{field.name: value}))
+    if refused is None:
+        assert fits is not False, f"{cls.__name__}({field.name}={value!r}) accepted ({field.type})"
+    elif fits is False:
+        assert field.name in str(refused), str(refused)
+
+
+def test_gnss_options_issue_kinds() -> None:
+    """The kinds issue 29 names, on the GNSS options: float where int, bool where a number, complex, NaN."""
+    from distnav.models.gnss.biasmodel import BiasModelOptions
+    from distnav.models.gnss.levelling import LevellingOptions
+    from distnav.models.gnss.netsim import NetworkSimOptions
+
+    cases = [
+        (lambda: LevellingOptions(min_arc_epochs=2.7), "LevellingOptions.min_arc_epochs must be a whole number"),
+        (lambda: LevellingOptions(screen=2.7), "LevellingOptions.screen must be True or False"),
+        (lambda: BiasModelOptions(mask_deg=10 + 1j), "BiasModelOptions.mask_deg must be a number"),
+        (lambda: BiasModelOptions(band=True), "BiasModelOptions.band must be a whole number, got True"),
+        (lambda: NetworkSimOptions(multipath_m=math.nan), "NetworkSimOptions.multipath_m must be a number"),
+        (lambda: NetworkSimOptions(station_noise_scale=2.0), "NetworkSimOptions.station_noise_scale must be a list"),
+    ]
+    for call, words in cases:
+        refused = _outcome(call)
+        assert refused is not None and words in str(refused), (words, refused)
+    assert LevellingOptions(min_arc_epochs=12.0).min_arc_epochs == 12  # a whole float is kept as the int
+    assert type(LevellingOptions(min_arc_epochs=np.int64(12)).min_arc_epochs) is int

@@ -20,6 +20,7 @@ FRONT_DOORS = [
     ("distnav.models.gnss.levelling", "level_station"),
     ("distnav.models.gnss.ionogeometry", "ionosphere_geometry"),
     ("distnav.models.gnss.netsim", "simulate_network"),
+    ("distnav.models.gnss.systems", "signal_pair_frequencies_hz"),  # per-satellite frequency pairs (issue 32)
 ]
 
 

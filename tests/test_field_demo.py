@@ -62,6 +62,11 @@ def test_demo_on_four_processes(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert ps[0]["ticks"] < 0.6 * min(r["ticks"] for r in ps[1:])  # node 0 ticks 3x slower
     assert res["uwb_max_abs_diff_vs_inprocess_m"] == 0.0  # N-CSG-TBLS on node processes: bitwise
     assert res["runs"]["uwb_clean"]["finished"] == [0, 1, 2, 3]
+    uwb_killed, victim_u = res["runs"]["uwb_killed"], res["uwb_killed_node"]  # 6 anchors: 4 known, 2 free
+    assert uwb_killed["anchors"] == 6 and res["uwb_killed_lost_nodes"] == [victim_u]
+    assert uwb_killed["finished"] == [i for i in range(6) if i != victim_u]
+    assert uwb_killed["statuses"] == ["converged_without_lost_nodes"]
+    assert res["uwb_killed_max_abs_diff_vs_central_of_remaining_m"] <= 1e-3  # LM of the remaining data
     assert res["wire_bytes"] == sum(r["wire_bytes"] for r in res["runs"].values()) > 0
     for name, run in res["runs"].items():  # each run beside gathering its data at one node (issue 26 item 5)
         cmp = res["vs_gather"][name]

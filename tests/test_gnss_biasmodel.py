@@ -24,7 +24,7 @@ from distnav.models.gnss.levelling import LevellingOptions
         (lambda: BiasModelOptions(band=1), "band 1 is the first frequency"),
         (lambda: BiasModelOptions(mask_deg=90.0), "elevation mask"),
         (lambda: BiasModelOptions(regional_km=0.0), "regional_km must be a positive number"),
-        (lambda: BiasModelOptions(sigma_zenith_m=float("nan")), "sigma_zenith_m must be a positive number"),
+        (lambda: BiasModelOptions(sigma_zenith_m=float("nan")), "sigma_zenith_m must be a (positive )?number"),
         (lambda: BiasModelOptions(vtec_rw_m_per_sqrt_s=0.0), "TEC random walk must be positive"),
         (lambda: BiasModelOptions(min_satellite_obs=0), "min_satellite_obs must be ≥ 1"),
         (lambda: BiasFilterOptions(datum="mean"), "datum must be one of"),

@@ -28,6 +28,10 @@ def test_reverse_edge_and_edge_index():
     assert np.array_equal(g.src[rev], g.dst) and np.array_equal(g.dst[rev], g.src)
     e = g.edge_index(g.src, g.dst)
     assert np.array_equal(e, np.arange(g.n_edges))
+    for h in (builders.random_geometric(3_000, 0.04, rng=np.random.default_rng(2)), builders.ring(7, self_loops=True)):
+        rev = h.reverse_edge  # the transpose of the (dst, src) order: every edge's reverse, an involution
+        assert np.array_equal(h.src[rev], h.dst) and np.array_equal(h.dst[rev], h.src)
+        assert np.array_equal(rev[rev], np.arange(h.n_edges))
 
 
 def test_self_loops():

@@ -5,6 +5,8 @@ LM's dense answers, and the per-phase split of the bytes adds up to the totals."
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -12,7 +14,15 @@ from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.covariance import ECONOMY_CG_RTOL, ECONOMY_WIRE_DTYPE, central_precision
 from distnav.algorithms.ranging.csg import solve
 from distnav.algorithms.ranging.lm import solve_lm
-from distnav.algorithms.ranging.refine import Links
+from distnav.algorithms.ranging.neighbourhoods import half_measurements
+from distnav.algorithms.ranging.refine import (
+    Links,
+    NormalSystem,
+    block_preconditioner,
+    jacobian_rows,
+    pcg,
+    refine,
+)
 from distnav.algorithms.ranging.wire import pack_half, unpack_half
 from distnav.errors import ModelError
 from distnav.exchange import make_exchange
@@ -195,3 +205,152 @@ def test_float16_directions_only_up_to_half_max_anchors(monkeypatch):
     assert wire.cg_wire_dtype(wire.HALF_MAX_ANCHORS + 1) == np.float32
     monkeypatch.setattr(wire, "CG_WIRE_DTYPE", np.float64)
     assert wire.cg_wire_dtype(28) == np.float64 and wire.cg_wire_dtype(10**4) == np.float64
+
+
+def _system(p, per, sigma_on_wire, dtype=np.float64):
+    """The LM phase's normal system on the hall at its start (random IRLS weights and sample σ), the exchange, and
+    the dense ``JᵀWJ`` over every parameter built here from the positions (the reference)."""
+    ex = _exchange(p)
+    links = Links(p, ex, per_anchor_offsets=per)
+    rng = np.random.default_rng(11)
+    P, dim = p.dim + (1 if per else 0), p.dim
+    x = np.zeros((p.n_anchors, P))
+    x[:, :dim] = p.initial_m
+    if per:
+        x[:, dim] = rng.normal(scale=0.05, size=p.n_anchors)
+    sig_s, w_s = rng.uniform(0.05, 0.2, p.n_meas), rng.uniform(0.2, 1.0, p.n_meas)
+    free = np.ones((p.n_anchors, P), bool)
+    free[:, :dim] = p.free
+    free_nb = np.ones((links.samp.size, P), bool)
+    free_nb[:, :dim] = p.free[links.other]
+    nb = links.neighbours(x)
+    sig = sig_s[links.samp]
+    a, cn, e = jacobian_rows(x, nb, links.owner, sig, dim, per, False, free, free_nb)
+    damp = np.zeros((p.n_anchors, P))
+    system = NormalSystem(
+        links,
+        links.owner,
+        a,
+        cn,
+        e,
+        w_s[links.samp],
+        damp,
+        0.0,
+        0.0,
+        free,
+        False,
+        dtype,
+        sig if sigma_on_wire else None,
+    )
+    J = np.zeros((p.n_meas, p.n_anchors, P))
+    d = x[p.meas_a, :dim] - x[p.meas_b, :dim]
+    u = d / np.linalg.norm(d, axis=1)[:, None] / sig_s[:, None]
+    rows = np.arange(p.n_meas)
+    J[rows, p.meas_a, :dim] = u
+    J[rows, p.meas_b, :dim] = -u
+    if per:
+        J[rows, p.meas_a, dim] = J[rows, p.meas_b, dim] = 1.0 / sig_s
+    J = (J * free[None]).reshape(p.n_meas, -1)
+    return ex, links, system, J.T @ (w_s[:, None] * J), free
+
+
+@pytest.mark.parametrize("per", [False, True])
+def test_projected_products_equal_the_dense_normal_matrix(hall, per):
+    """The LM phase's matrix–vector product with every neighbour's product sent projected (one value per link and
+    column, ``wire.PROJECTED``) equals the dense ``JᵀWJ v`` (built here from the positions, per-anchor offsets
+    too) to rounding in float64, and to float16's 11 bits with the shared exponent; a projected round sends ``k``
+    values per link from every anchor with a free parameter, ``2k + 1`` bytes in float16, where a direction's
+    row was ``k`` values per free column (2 here: heights held). Every pair is ranged twice, once each way, with
+    another σ: a link's product is sent once, its two samples' rows differ by their σ only."""
+    h = hall[0]
+    p = dataclasses.replace(
+        h,
+        meas_a=np.r_[h.meas_a, h.meas_b],
+        meas_b=np.r_[h.meas_b, h.meas_a],
+        range_m=np.r_[h.range_m, h.range_m + 0.01],
+    )
+    k = 3
+    v = np.random.default_rng(2).normal(size=(p.n_anchors, p.dim + (1 if per else 0), k))
+    fixed = np.flatnonzero(~p.free.any(axis=1))
+    talking = 2 * h.links.shape[0] - (0 if per else int(np.isin(p.links, fixed).sum()))
+    for dtype, itemsize, tol in ((np.float64, 8 * k, 1e-12), (np.float16, 2 * k + 1, 2.0**-10)):
+        ex, links, system, N, free = _system(p, per, True, dtype)
+        vf = v * free[:, :, None]
+        want = (N @ vf.reshape(-1, k)).reshape(vf.shape)
+        before = ex.comm_totals().snapshot()
+        got = system.matvec(vf, np.zeros(k))[0]
+        c = ex.comm_totals().since(before)
+        assert c.messages == talking and c.bytes == talking * itemsize
+        assert np.max(np.abs(got - want)) <= tol * np.max(np.abs(want))
+        rows = _system(p, per, False)[2].matvec(vf, np.zeros(k))[0]  # the neighbours' rows sent instead
+        assert np.max(np.abs(rows - want)) <= 1e-12 * np.max(np.abs(want))
+
+
+def test_preconditioned_stop_drops_one_reduced_float_per_iteration(hall):
+    """CG stopped on ``rᵀz`` (the LM phase's default) reduces one float less per column and iteration than
+    stopped on ``rᵀr``, and it stops where the preconditioned residual, recomputed here from the dense matrix,
+    is below ``rtol`` of its start (the damped system: one diagonal block per anchor as the preconditioner)."""
+    p = hall[0]
+    got = {}
+    for stop in (True, False):
+        _, links, system, N, free = _system(p, False, True)
+        damp = 1e-3 * np.ones_like(system.damp)
+        system = NormalSystem(**{**system.__dict__, "damp": damp})
+        P = free.shape[1]
+        own_block = np.zeros((p.n_anchors, P, P))
+        np.add.at(own_block, system.owner, np.einsum("h,ha,hb->hab", system.w, system.a, system.a))
+        pre_inv = block_preconditioner(own_block, damp, free)
+        b = np.random.default_rng(4).normal(size=(p.n_anchors, P, 1)) * free[:, :, None]
+        before = links.reduced_floats
+        x, _, its = pcg(system, b, np.zeros(1), pre_inv, 1.0, links, 200, rtol=0.1, preconditioned_stop=stop)
+        got[stop] = (links.reduced_floats - before, its)
+        r = b.reshape(-1) - (N + np.diag(damp.reshape(-1) * free.reshape(-1))) @ x.reshape(-1)
+        r = r * free.reshape(-1)
+        z = np.einsum("nab,nb->na", pre_inv, r.reshape(p.n_anchors, P)).reshape(-1)
+        z0 = np.einsum("nab,nb->na", pre_inv, b[:, :, 0]).reshape(-1)
+        if stop:
+            assert r @ z <= 0.1**2 * (b.reshape(-1) @ z0) * (1 + 1e-9)
+        else:
+            assert r @ r <= 0.1**2 * (b.reshape(-1) @ b.reshape(-1)) * (1 + 1e-9)
+    for stop, (floats, its) in got.items():
+        assert its > 3 and floats == 2 * its + (1 if stop else 2) * (its + 1)
+
+
+@pytest.mark.parametrize("offsets", ["common", "per_anchor"])
+def test_steps_leave_both_ends_with_the_same_parameters(hall, offsets, monkeypatch):
+    """The LM phase's trials sent as steps from the accepted parameters (``wire.STEPS``, float32): every anchor's
+    copy of each neighbour's parameters at the end is that neighbour's own, bit for bit (the sender moves by the
+    rounded step), and the phase ends within 0.05 mm of the one that sends the float64 parameters each trial (half
+    the stopping tolerance of 0.1 mm), both within 0.1 mm of LM, with fewer bytes."""
+    p = subset_measurements(hall[0], ~hall[2])
+    opts = {**OPTS, "range_offsets": offsets, "offset_prior_sigma_m": 0.1}
+    lm = solve_lm(p, **opts)
+    ex = _exchange(p)
+    owner, other, _, _ = half_measurements(p, ex)
+    sigma = np.full(p.n_meas, 0.1)
+    out = {}
+    for steps in (True, False):
+        monkeypatch.setattr(wire, "STEPS", steps)
+        ex = _exchange(p)
+        ref = refine(
+            p,
+            ex,
+            p.initial_m,
+            np.zeros(p.n_anchors),
+            sigma=sigma,
+            scale=0.3 / sigma,
+            loss="cauchy",
+            range_offsets=offsets,
+            offset_prior_sigma_m=0.1,
+            ftol=1e-6,
+            xtol_m=1e-4,
+        )
+        assert ref.status == "converged"
+        assert np.array_equal(ref.half_other_m, ref.own_m[other])
+        if offsets == "per_anchor":
+            assert ref.offset_m is not None and ref.half_offset_m is not None
+            assert np.array_equal(ref.half_offset_m, ref.offset_m[owner] + ref.offset_m[other])
+        out[steps] = (ref.own_m, ex.comm_totals().bytes)
+    assert np.abs(out[True][0] - out[False][0]).max() < 5e-5
+    assert max(np.abs(out[s][0] - lm.estimates).max() for s in out) < 1e-4
+    assert out[True][1] < out[False][1]

@@ -12,7 +12,8 @@ The UWB solvers' iterations read only an anchor's own links (paper 002 eq. (14))
 final cost, observation tests and precision are central computations on every range (under MPI every rank holds the
 whole problem). A field anchor's file holds only its own links; at start-up it gathers the other anchors' range
 samples once over the spanning tree (counted on the wire), so those central computations are the in-process ones.
-A deployment whose anchors must not share their ranges needs them made node-local (not done).
+A deployment whose anchors must not share their ranges needs them made node-local (not done). The UWB program, and
+how its anchors go on without one that dies, is :mod:`distnav.commands.field_uwb`.
 
 Departure from the in-process defaults, stated: the CKF runs without the Fig. 7 error-variance recursion
 (``variance=False``: it needs every node's normals at every node each epoch, an analysis input no node has) and
@@ -28,7 +29,7 @@ import numpy as np
 from distnav.errors import ExchangeError
 from distnav.exchange.field import FieldExchange, Transport
 from distnav.formats.field_config import NetworkDescription
-from distnav.formats.field_data import admm_node_problem, ckf_node_model, read_node_arrays, uwb_samples_problem
+from distnav.formats.field_data import admm_node_problem, ckf_node_model, read_node_arrays
 
 __all__ = ["NODE_ALGORITHMS", "run_algorithm"]
 
@@ -100,49 +101,24 @@ def run_ckf(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
     }
 
 
-def run_uwb(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
-    """A UWB solver (paper 002; N-CLM by default) as anchor ``node_id``: its own position estimate and the status."""
-    from distnav.algorithms.ranging.csg import solve
-
-    entry, algo = desc.node(node_id), desc.algorithm
-    assert entry.data is not None
-    arrays = _arrays(desc, node_id, "uwb")
-    own = np.asarray(arrays["samples"], float)
-    if own.ndim != 2 or own.shape[1] != 4:
-        from distnav.errors import DataFileError
-
-        raise DataFileError(f"{entry.data}: node {node_id}: samples must be rows [index, a, b, range_m]")
-    width = int(ex.allreduce(own.shape[0], "max"))  # the other anchors' ranges, once (module docstring)
-    padded = np.full((1, width, 4), -1.0)
-    padded[0, : own.shape[0]] = own
-    rows = ex.gather_nodes(padded).reshape(-1, 4)
-    problem = uwb_samples_problem(arrays, rows[rows[:, 0] >= 0], entry.data)
-    res = solve(problem, algo["solver"], iterations=algo["iterations"], exchange=ex)
-    return {
-        "estimate": res.estimates[node_id],
-        "status": res.status,
-        "message": res.message,
-        "iterations": res.iterations,
-        "rounds": res.iterations,
-        "samples_gathered_at_start": int(problem.n_meas),
-    }
-
-
 def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, transport: Transport) -> dict[str, Any]:
     """Run the description's algorithm (one of :data:`NODE_ALGORITHMS`) as node ``node_id``.
 
-    These algorithms have no answer without every node's data: ADMM would keep a lost node's last message and
-    converge to a point that still holds its data, the CKF's consensus would keep weighting it, and the UWB solvers'
-    monitoring gathers every anchor. So when a node is lost (noticed by this node, or a global operation that cannot
-    be finished without it) the node ends with ``status = "stopped"``, no estimate, and a message naming the lost
-    node and the step — never an answer that looks right. (Consensus in flow form does finish: the exact mean of the
+    ADMM and the CKF have no answer without every node's data: ADMM would keep a lost node's last message and
+    converge to a point that still holds its data, the CKF's consensus would keep weighting it. So when a node is
+    lost (noticed by this node, or a global operation that cannot be finished without it) the node ends with
+    ``status = "stopped"``, no estimate, and a message naming the lost node and the step — never an answer that looks
+    right. The UWB anchors go on without a dead anchor: they agree on who remains and solve again on the remaining
+    anchors' data (:mod:`distnav.commands.field_uwb`). (Consensus in flow form also finishes: the exact mean of the
     nodes that remain, :mod:`distnav.algorithms.consensus.flows`.)"""
+    from distnav.commands.field_uwb import run_uwb
+
     runner = {"admm": run_admm, "ckf": run_ckf, "uwb": run_uwb}[desc.algorithm["name"]]
     try:
         out = runner(desc, node_id, ex)
     except ExchangeError as exc:
         return _stopped(desc, ex, transport, str(exc))
-    if transport.lost:
+    if transport.lost and "lost_nodes" not in out:  # (uwb names the losses it went on without itself)
         return _stopped(desc, ex, transport, "")
     return out
 

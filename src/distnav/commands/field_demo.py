@@ -16,13 +16,19 @@ they computed with an independent reference:
    ``uwb_max_abs_diff_vs_inprocess_m``. Every process rebuilds the simulated problem from its seed; the solver reads
    only its own node's rows (as under MPI) and learns the rest from messages.
 
+5. **UWB hall, one anchor killed** — ``max(N, 6)`` anchors of a well-connected simulated hall
+   (:func:`~distnav.commands.field_scenarios.hall_scenario`, every pair within 40 m measured), each ``distnav node``
+   holding only its own ranges, N-CLM with the metres objective; the highest free anchor whose loss keeps the rest
+   connected exits at step 20, the others agree on it and solve again on their own data
+   (:mod:`distnav.commands.field_uwb`); reference: LM on the remaining data (the dead anchor's ranges dropped) →
+   ``uwb_killed_lost_nodes`` and ``uwb_killed_max_abs_diff_vs_central_of_remaining_m``.
+
 ``DIR/results.json`` holds those numbers, ``wire_bytes`` (real bytes sent on the wire by all runs), ``vs_gather``
 (per run, its wire bytes beside what gathering the nodes' data at one node by multi-hop relaying would cost:
-:func:`~distnav.algorithms.result.compare_with_gather`, also printed), ``verdicts``,
-each run's summary, and ``uwb_killed`` saying why no UWB run with a killed anchor is made (the distributed UWB solvers
-do not yet continue without a dead node). Each run's folder keeps the description, the nodes' results and logs.
-Every process is bounded by ``--timeout`` and killed (process group) on failure or Ctrl-C. ``distnav demo --out
-D`` adds a section for ``D/field/results.json`` to its report when that file exists.
+:func:`~distnav.algorithms.result.compare_with_gather`, also printed), ``verdicts`` and each run's summary. Each
+run's folder keeps the description, the nodes' results and logs. Every process is bounded by ``--timeout`` and
+killed (process group) on failure or Ctrl-C. ``distnav demo --out D`` adds a section for ``D/field/results.json``
+to its report when that file exists.
 """
 
 from __future__ import annotations
@@ -221,12 +227,15 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
         "consensus_killed": _killed_run(opts, graph, values, out),
         "pushsum_async": _pushsum_run(opts, graph, values, out),
         "uwb_clean": _uwb_run(opts, out),
+        "uwb_killed": _uwb_killed_run(opts, out),
     }
     clean_diff = runs["consensus_clean"]["max_abs_diff_vs_inprocess"]
     killed = runs["consensus_killed"]
     killed_diff, victim = killed["max_abs_diff_vs_central_of_remaining"], killed["killed_node"]
     ps_diff = runs["pushsum_async"]["max_abs_diff_vs_mean"]
     uwb_diff = runs["uwb_clean"]["max_abs_diff_vs_inprocess_m"]
+    uwb_killed = runs["uwb_killed"]
+    uwb_killed_diff = uwb_killed["max_abs_diff_vs_central_of_remaining_m"]
     failed = {k: r["failed"] for k, r in runs.items() if r["failed"]}
     verdicts = {
         "clean run bitwise equal to in-process": clean_diff == 0.0,
@@ -234,10 +243,14 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
         "killed run within 1e-6 of the mean of the remaining data": killed_diff is not None and killed_diff <= 1e-6,
         "async push-sum within 1e-6 of the mean": ps_diff is not None and ps_diff <= 1e-6,
         "UWB network (N-CSG-TBLS) bitwise equal to in-process": uwb_diff == 0.0,
+        "UWB anchor killed: noticed at every remaining anchor": uwb_killed["lost_nodes"] == [uwb_killed["killed_node"]],
+        "UWB anchor killed: within 1 mm of LM on the remaining data": uwb_killed_diff is not None
+        and uwb_killed_diff <= 1e-3,
         "every node finished (but the killed one)": not failed,
     }
     wire = int(sum(r["wire_bytes"] for r in runs.values()))
     vs_gather = _versus_gather(runs, graph, values, _uwb_problem(opts.nodes, opts.seed))
+    vs_gather["uwb_killed"] = _gather_of(uwb_killed, _uwb_hall(opts).ranging)
     results: dict[str, Any] = {
         "nodes": opts.nodes,
         "links": graph.links.tolist(),
@@ -247,7 +260,9 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
         "max_abs_diff_vs_central_of_remaining": killed_diff,
         "pushsum_max_abs_diff_vs_mean": ps_diff,
         "uwb_max_abs_diff_vs_inprocess_m": uwb_diff,
-        "uwb_killed": "not run: the distributed UWB solvers do not yet continue without a dead anchor",
+        "uwb_killed_node": uwb_killed["killed_node"],
+        "uwb_killed_lost_nodes": uwb_killed["lost_nodes"],
+        "uwb_killed_max_abs_diff_vs_central_of_remaining_m": uwb_killed_diff,
         "wire_bytes": wire,
         "vs_gather": {k: c.as_dict() for k, c in vs_gather.items()},
         "false_losses": sorted(set(killed["lost_nodes"]) - {victim}),
@@ -260,6 +275,10 @@ def run_field_demo(opts: DemoOptions, out: Path) -> dict[str, Any]:
             "killed run: max |x_i - mean of remaining data|": killed_diff,
             "async push-sum (node 0 3x slower): max |x_i - mean|": ps_diff,
             "UWB network, N-CSG-TBLS: max |field - in-process| (m)": uwb_diff,
+            f"UWB hall, anchor {uwb_killed['killed_node']} killed at step 20: lost nodes named": uwb_killed[
+                "lost_nodes"
+            ],
+            "UWB hall, anchor killed: max |field - LM of remaining data| (m)": uwb_killed_diff,
             "wire bytes, all runs": wire,
             **{f"{k}: wire bytes ÷ gathering the data at one node": c.ratio_bytes for k, c in vs_gather.items()},
         },
@@ -346,6 +365,54 @@ def _uwb_run(opts: DemoOptions, out: Path) -> dict[str, Any]:
     }
 
 
+_WELL_CONNECTED = {"link_loss": 0.0, "range_limit_m": 40.0}
+
+
+def _uwb_hall(opts: DemoOptions) -> Any:
+    from distnav.commands.field_scenarios import hall_scenario
+
+    n = max(opts.nodes, 6)  # 4 known corner anchors and at least 2 free ones
+    return hall_scenario(n, opts.seed, iterations=300, objective="metres", hall=_WELL_CONNECTED)
+
+
+def _uwb_killed_run(opts: DemoOptions, out: Path) -> dict[str, Any]:
+    """A UWB hall on ``distnav node`` processes, one free anchor exiting at step 20 (module docstring); reference:
+    LM on the remaining data."""
+    from distnav.algorithms.ranging.csg import solve
+    from distnav.commands.field import launch
+    from distnav.commands.field_scenarios import remaining_data, write_scenario
+
+    sc = _uwb_hall(opts)
+    problem = sc.ranging
+    victim = removable_node(problem.graph, skip=set(np.flatnonzero(problem.fixed).tolist()))
+    folder = out / "uwb_killed"
+    options = LoopbackOptions(name="demo-uwb-killed", deadline_ms=opts.deadline_ms, crash={victim: 20})
+    run = launch(write_scenario(folder, sc, options), folder, timeout_s=opts.timeout_s, quiet=True)
+    rest = [i for i in range(problem.n_anchors) if i != victim]
+    lm = solve(remaining_data(problem, victim), "LM", iterations=500, objective="metres").estimates
+    ok = run["finished"]
+    diff = None
+    if ok and set(ok) <= set(rest):
+        diff = float(np.abs(_estimates(run, ok) - lm[[rest.index(i) for i in ok]]).max())
+    return {
+        **_short(run),
+        "anchors": problem.n_anchors,
+        "killed_node": victim,
+        "lost_nodes": run.get("lost_nodes", []),
+        "statuses": sorted({r["status"] for r in run["nodes"].values()}),
+        "max_abs_diff_vs_central_of_remaining_m": diff,
+    }
+
+
+def _gather_of(run: dict[str, Any], problem: Any) -> CommComparison:
+    """The killed UWB run's wire bytes beside gathering every anchor's range samples at one anchor."""
+    from distnav.algorithms.result import compare_with_gather
+
+    per_anchor = 8 * np.bincount(problem.meas_a, minlength=problem.n_anchors)
+    what = "the anchor's range samples (float64)"
+    return compare_with_gather((run["wire_bytes"], run["wire_frames"]), problem.graph, per_anchor, data=what)
+
+
 def _short(summary: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {k: summary[k] for k in ("finished", "failed", "seconds", "wire_bytes") if k in summary}
     out["wire_frames"] = int(sum(r["wire"]["frames_sent"] for r in summary.get("nodes", {}).values()))
@@ -386,15 +453,21 @@ def _print_table(res: dict[str, Any]) -> None:
         ),
         ("push-sum, async", runs["pushsum_async"], "-", res["pushsum_max_abs_diff_vs_mean"], "mean of all data"),
         ("UWB N-CSG-TBLS, clean", runs["uwb_clean"], "-", res["uwb_max_abs_diff_vs_inprocess_m"], "in-process run (m)"),
+        (
+            "UWB N-CLM, 1 killed",
+            runs["uwb_killed"],
+            str(res["uwb_killed_lost_nodes"]),
+            res["uwb_killed_max_abs_diff_vs_central_of_remaining_m"],
+            "LM of remaining data (m)",
+        ),
     ]
     print(f"{'run':<22}{'finished':>9}{'lost':>8}{'max |diff|':>12}  {'against':<24}{'wire bytes':>12}{'s':>7}")
     for name, r, lost, diff, ref in rows:
         d = "n/a" if diff is None else f"{diff:.2g}"
         print(
-            f"{name:<22}{len(r['finished']):>5}/{res['nodes']:<3}{lost:>8}{d:>12}  {ref:<24}{r['wire_bytes']:>12,}"
-            f"{r['seconds']:>7.1f}"
+            f"{name:<22}{len(r['finished']):>5}/{r.get('anchors', res['nodes']):<3}{lost:>8}{d:>12}  {ref:<24}"
+            f"{r['wire_bytes']:>12,}{r['seconds']:>7.1f}"
         )
-    print(f"UWB, one anchor killed: {res['uwb_killed']}")
     for name, c in res["vs_gather"].items():
         print(f"  {name}: {c['line']}")
     for text, ok in res["verdicts"].items():

@@ -102,14 +102,18 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         ex._flush()  # this node's model counters (comm_totals would gather over the network)
         rounds = int(outcome.pop("rounds"))
         status = outcome.pop("status", "completed")
+        agreed = outcome.pop("lost_nodes", None)  # losses the node program agreed on with the others (uwb)
+        lost = agreed if agreed is not None else {str(k): v for k, v in sorted(transport.lost.items())}
+        if agreed is None and transport.lost and status != "stopped":
+            status = f"{status}_with_lost_neighbours"
         result = {
             "node": node_id,
             "algorithm": desc.algorithm["name"],
             **outcome,
             "rounds": rounds,
             "steps": ex.step,
-            "status": status if not transport.lost or status == "stopped" else f"{status}_with_lost_neighbours",
-            "lost_nodes": {str(k): v for k, v in sorted(transport.lost.items())},
+            "status": status,
+            "lost_nodes": lost,
             "readmitted_nodes": {str(k): v for k, v in sorted(transport.readmitted.items())},
             "missing_at_start": missing,
             "rejoined_at_step": first if rejoin else None,

@@ -48,9 +48,12 @@ def kill_group(p: subprocess.Popen[bytes]) -> None:
     p.wait(timeout=10)
 
 
-def removable_node(graph: Graph) -> int:
-    """The highest-id node whose loss leaves the others connected (the node a demo or benchmark kills)."""
+def removable_node(graph: Graph, *, skip: set[int] | None = None) -> int:
+    """The highest-id node (not in ``skip``) whose loss leaves the others connected (the node a demo or benchmark
+    kills)."""
     for v in range(graph.n_nodes - 1, -1, -1):
+        if skip and v in skip:
+            continue
         keep = [i for i in range(graph.n_nodes) if i != v]
         index = {k: n for n, k in enumerate(keep)}
         links = [(index[a], index[b]) for a, b in graph.links.tolist() if v not in (a, b)]

@@ -42,6 +42,7 @@ __all__ = [
     "codebias_scenario",
     "ckf_scenario",
     "hall_scenario",
+    "remaining_data",
     "rinex_ckf_scenario",
     "write_scenario",
 ]
@@ -130,13 +131,23 @@ def ckf_scenario(n_nodes: int, seed: int = 0, *, epochs: int = 30, n_biases: int
     return Scenario(graph, "ckf", algo, dynamics=dyn, series=NormalSeries(N, r))
 
 
-def hall_scenario(n_nodes: int = 28, seed: int = 0, *, iterations: int = 100) -> Scenario:
-    """A simulated hall of ``n_nodes`` anchors for the UWB solvers (module docstring)."""
+def hall_scenario(
+    n_nodes: int = 28,
+    seed: int = 0,
+    *,
+    iterations: int = 100,
+    objective: str = "squared",
+    hall: dict[str, Any] | None = None,
+) -> Scenario:
+    """A simulated hall of ``n_nodes`` anchors for the UWB solvers (module docstring); ``objective`` goes to the
+    solver (paper 002's ``squared`` or ``metres``), ``hall`` changes further :class:`HallConfig` fields (e.g.
+    ``{"link_loss": 0.0, "range_limit_m": 40.0}``: every pair in range measured, a well-connected hall)."""
     from distnav.models.uwb.hall import HallConfig, simulate_hall
     from distnav.models.uwb.initial import mds_initial_guess
     from distnav.models.uwb.problems import build_problem
 
-    h = simulate_hall(np.random.default_rng([seed, 26002]), HallConfig().with_(n_anchors=n_nodes, known="corner"))
+    config = HallConfig().with_(n_anchors=n_nodes, known="corner", **(hall or {}))
+    h = simulate_hall(np.random.default_rng([seed, 26002]), config)
     a, b = h.links[h.sample_link, 0], h.links[h.sample_link, 1]
     known = set(h.known.tolist())
     held = {h.ids[i]: {2: float(h.surveyed_z_m[i])} for i in range(h.n_anchors) if i not in known}
@@ -150,8 +161,33 @@ def hall_scenario(n_nodes: int = 28, seed: int = 0, *, iterations: int = 100) ->
         name="hall",
     )
     problem = problem.with_initial(mds_initial_guess(problem))  # central, at set-up: written into every file
-    algo = {"name": "uwb", "solver": "N-CLM", "iterations": iterations}
+    algo: dict[str, Any] = {"name": "uwb", "solver": "N-CLM", "iterations": iterations}
+    if objective != "squared":
+        algo["objective"] = objective
     return Scenario(problem.graph, "uwb", algo, ranging=problem)
+
+
+def remaining_data(problem: RangingData, dead: int) -> RangingData:
+    """``problem`` without anchor ``dead``: its row and every range sample with it as an end dropped, the rest
+    renumbered in their order (the data a UWB field run that lost ``dead`` goes on with; the reference problem of
+    the demo and the benchmark)."""
+    from distnav.algorithms.ranging.data import RangingData
+
+    keep = np.array([i for i in range(problem.n_anchors) if i != dead])
+    new = np.full(problem.n_anchors, -1)
+    new[keep] = np.arange(keep.size)
+    m = (problem.meas_a != dead) & (problem.meas_b != dead)
+    return RangingData(
+        ids=tuple(problem.ids[i] for i in keep),
+        dim=problem.dim,
+        positions_m=problem.positions_m[keep],
+        free=problem.free[keep],
+        meas_a=new[problem.meas_a[m]],
+        meas_b=new[problem.meas_b[m]],
+        range_m=problem.range_m[m],
+        truth_m=None if problem.truth_m is None else problem.truth_m[keep],
+        initial_m=None if problem.initial_m is None else problem.initial_m[keep],
+    )
 
 
 def rinex_ckf_scenario(obs_files: list[Path], nav_file: Path, *, kn: int = 4) -> Scenario:

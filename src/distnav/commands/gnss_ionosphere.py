@@ -63,32 +63,25 @@ def _say(args: argparse.Namespace, text: str) -> None:
         print(text, file=sys.stderr, flush=True)
 
 
-_PRN = re.compile(r"^G(0[1-9]|[12][0-9]|3[0-2])$")
-_L1_CODE = re.compile(r"^C1[CSLXPWYMN]$")
-_LB_CODE = re.compile(r"^C(2[CDSLXPWYMN]|5[IQX])$")
-_SYSTEM_CODES = {  # --system: (satellite ids, first code, second code, the system's codes in words)
-    "G": (
-        _PRN,
-        _L1_CODE,
-        _LB_CODE,
-        "a GPS satellite (G01 … G32)",
-        "GPS L1 code (C1C, C1W, C1L, C1X …)",
-        "GPS L2 or L5 code (C2W, C2L, C2X, C5Q, C5X …)",
-    ),
-    "E": (
-        re.compile(r"^E(0[1-9]|[1-3][0-9])$"),
-        re.compile(r"^C1[ABCXZ]$"),
-        re.compile(r"^C[578][IQX]$"),
-        "a Galileo satellite (E01 … E36)",
-        "Galileo E1 code (C1C, C1X …)",
-        "Galileo E5a, E5b or E5 code (C5Q, C5X, C7Q, C7X, C8Q …)",
-    ),
+_SYSTEM_TABLE = {  # --system: satellite ids, first code, second code (patterns; then the same in words)
+    "G": r"^G(0[1-9]|[12][0-9]|3[0-2])$ ^C1[CSLXPWYMN]$ ^C(2[CDSLXPWYMN]|5[IQX])$",
+    "E": r"^E(0[1-9]|[1-3][0-9])$ ^C1[ABCXZ]$ ^C[578][IQX]$",
+    "C": r"^C(0[1-9]|[1-5][0-9]|6[0-3])$ ^C2[IQX]$ ^C[67][IQX]$",
+    "R": r"^R(0[1-9]|1[0-9]|2[0-7])$ ^C1[CP]$ ^C2[CP]$",
+}
+_SYSTEM_WORDS = {
+    "G": "a GPS satellite (G01 … G32);GPS L1 code (C1C, C1W, C1L, C1X …);GPS L2 or L5 code (C2W, C2L, C2X, C5Q, C5X …)",
+    "E": "a Galileo satellite (E01 … E36);Galileo E1 code (C1C, C1X …);Galileo E5a, E5b or E5 code (C5Q, C5X, C7Q …)",
+    "C": "a BeiDou satellite (C01 … C63);BeiDou B1I code (C2I, C2X …);BeiDou B3I or B2I code (C6I, C7I …)",
+    "R": "a GLONASS satellite (R01 … R27);GLONASS G1 code (C1C, C1P);GLONASS G2 code (C2C, C2P)",
 }
 
 
 def validate_arguments(args: argparse.Namespace) -> None:
     """Check every option value before any file is read (errors name the option; the CLI exits with 2)."""
-    prn, l1_code, lb_code, sat_words, l1_words, lb_words = _SYSTEM_CODES[getattr(args, "system", "G")]
+    system = getattr(args, "system", "G")
+    prn, l1_code, lb_code = (re.compile(p) for p in _SYSTEM_TABLE[system].split())
+    sat_words, l1_words, lb_words = _SYSTEM_WORDS[system].split(";")
     if args.pivot is not None and not prn.match(str(args.pivot).upper()):
         raise ModelError(f"--pivot {args.pivot}: not {sat_words}")
     if args.datum == "pivot" and args.pivot is None:
@@ -261,7 +254,7 @@ def _first_code(args: argparse.Namespace) -> tuple[str, str | None]:
     l1, l1_note = choose_l1_code(args)
     if l1_note:
         print(f"NOTE: {l1_note}", file=sys.stderr, flush=True)
-    if l1 == "C1C" and not args.c1_corrections:
+    if l1 == "C1C" and not args.c1_corrections and getattr(args, "system", "G") == "G":
         print(C1C_WARNING.format(l2=args.l2_code.upper()), file=sys.stderr, flush=True)
     for b in args.bias or []:
         if not Path(b).exists():
@@ -276,6 +269,14 @@ def _read_orbit(args: argparse.Namespace) -> Any:
     if args.nav and len(args.nav) > 1:
         raise ModelError(f"{len(args.nav)} --nav files for one day of observations: give one")
     system = getattr(args, "system", "G")
+    if args.nav and system == "R":
+        from distnav.formats.gnss.rinex_nav import read_glonass_ephemerides
+        from distnav.models.gnss.glonass import GlonassOrbit
+
+        records = read_glonass_ephemerides(args.nav[0])
+        if not records:
+            raise DataFileError(f"{args.nav[0]}: no GLONASS navigation records")
+        return GlonassOrbit.from_records(records, source=str(args.nav[0]))
     if args.nav:
         return read_navigation(args.nav[0], max_age_s=args.nav_max_age * 3600.0, systems=(system,))
     return read_sp3(args.sp3, system=system)
@@ -400,10 +401,12 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     _add_model_arguments(p)
     p.add_argument(
         "--system",
-        choices=sorted(_SYSTEM_CODES),
+        choices=sorted(_SYSTEM_TABLE),
         default="G",
-        help="satellite system: G (GPS, default) or E (Galileo: RINEX 3 or RINEX 2.11 mixed observations, e.g. "
-        "--l1-code C1X --l2-code C5X; orbits from a mixed --nav file or a multi-GNSS --sp3)",
+        help="satellite system: G (GPS, default), E (Galileo: RINEX 3 or RINEX 2.11 mixed observations, e.g. "
+        "--l1-code C1X --l2-code C5X), C (BeiDou, RINEX 3: --l1-code C2I --l2-code C6I or C7I) or R (GLONASS: "
+        "--l1-code C1C --l2-code C2C, or C1P/C2P; FDMA channels from the header or the --nav file); orbits from "
+        "a mixed --nav file or a multi-GNSS --sp3",
     )
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run_ionosphere)

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import DataFileError, ModelError
 
 if TYPE_CHECKING:
@@ -59,6 +60,7 @@ class NetworkOptions:
     def __post_init__(self) -> None:
         from distnav.models.gnss.biasmodel import BiasModelOptions
 
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         code = self.l2_code.upper()
         if len(code) != 3 or code[0] != "C" or not code[1].isdigit() or code[1] == "1":
             raise ModelError(f"l2_code {self.l2_code}: not a second code (C2W, C2L, C5Q …)")
@@ -90,7 +92,8 @@ def network_data(
     system: str = "G",
 ) -> Any:
     """Read the stations (the read stage), then :func:`network_from_observations`. ``l1_code``: the first code;
-    ``system``: the satellite system read (``G``, or ``E`` Galileo);
+    ``system``: the satellite system read (``G``; ``E`` Galileo, ``C`` BeiDou, ``R`` GLONASS, whose FDMA
+    channels come from the header or, RINEX 2, from the orbit's navigation records);
     ``c1_corrections``: a Bias-SINEX product whose C1C−C1W DSBs are removed from C1C (the receivers' DSBs keep
     their own code pair). Errors name the file: unreadable files, missing code types, a station without any epoch
     with both codes; a navigation or SP3 file of another day is named, not left to the elevation mask."""
@@ -107,6 +110,7 @@ def network_data(
         progress=progress,
         l1_fallback="C1W" if c1_corrections else None,
         system=system,
+        channels=orbit.channels() if system == "R" and hasattr(orbit, "channels") else None,  # RINEX 2 has none
     )
     check_orbit_day(orbit, obs)  # another day's orbits: named (issue 29), not left to the mask
     own = {o.station: dict(o.codes) for o in obs}  # the receivers' own codes (their DSBs' code pair)
@@ -127,7 +131,7 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, options: NetworkOp
     from distnav.models.gnss.biasmodel import bias_network_model
 
     excl = set(options.exclude)
-    obs = [o for o in obs if o.station not in excl]
+    obs = [_without_unknown_frequencies(o, options.model_options.band) for o in obs if o.station not in excl]
     if not obs:
         raise DataFileError("every station is excluded")
     band = options.model_options.band
@@ -165,6 +169,7 @@ def geometry_free_network(
     t_all = np.unique(np.concatenate([gps_seconds(o.time[grids[o.station]]) for o in obs]))
     svs_all = sorted({s for o in obs for s in o.svs} - excl)
     gf = np.full((t_all.size, len(obs), len(svs_all)), np.nan)
+    freqs = _network_frequencies(obs, svs_all, band)
     corr_s = ARC_CORRELATION_S if options.arc_correlation_s is None else float(options.arc_correlation_s)
     scale = np.ones(gf.shape) if levelled and corr_s > 0 else None
     for i, o in enumerate(obs):
@@ -172,7 +177,11 @@ def geometry_free_network(
         ti = np.searchsorted(t_all, gps_seconds(o.time[keep_t]))
         cols = [k for k, sv in enumerate(o.svs) if sv not in excl]
         si = np.array([svs_all.index(o.svs[k]) for k in cols], dtype=np.int64)
-        full = levelled[o.station].gf_m if levelled else geometry_free_band_m(o.range_m[1], o.range_m[band], band)
+        if levelled:
+            full = levelled[o.station].gf_m
+        else:
+            f1, fb = o.frequencies_hz(band)
+            full = geometry_free_band_m(o.range_m[1], o.range_m[band], band, mu_b=(f1 / fb) ** 2)
         gf[np.ix_(ti, np.array([i]), si)] = full[keep_t][:, cols][:, None, :]
         if scale is not None:
             arcs = levelled[o.station].arc[keep_t][:, cols]
@@ -192,6 +201,47 @@ def geometry_free_network(
         paths=[str(o.path) for o in obs],
         sigma_scale=scale,
         station_sigma=station_sigma_factors([levelled[o.station] for o in obs]) if levelled else None,
+        frequencies_hz=freqs,
+    )
+
+
+def _network_frequencies(obs: Sequence[Any], svs: list[str], band: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(f_1, f_b)`` (S,) [Hz] of the network's satellites (their own codes' bands and GLONASS channels; NaN for
+    a GLONASS satellite without a channel), or ``None`` for GPS/Galileo signals on GPS L1 and band ``band`` (the
+    models' default: the same numbers)."""
+    from distnav.models.gnss.constants import GPS_FREQUENCIES_HZ
+
+    f1, fb = np.full(len(svs), np.nan), np.full(len(svs), np.nan)
+    for o in obs:
+        g1, gb = o.frequencies_hz(band)
+        cols = [k for k, s in enumerate(o.svs) if s in svs]
+        at = [svs.index(o.svs[k]) for k in cols]
+        f1[at], fb[at] = g1[cols], gb[cols]
+    if np.all(f1 == GPS_FREQUENCIES_HZ[1]) and band in GPS_FREQUENCIES_HZ and np.all(fb == GPS_FREQUENCIES_HZ[band]):
+        return None
+    return f1, fb
+
+
+def _without_unknown_frequencies(o: Any, band: int) -> Any:
+    """The station without the satellites whose carrier frequency is unknown (a GLONASS satellite whose FDMA
+    channel neither the observation header nor the navigation file gives), with a note naming them."""
+    f1, fb = o.frequencies_hz(band)
+    bad = ~(np.isfinite(f1) & np.isfinite(fb))
+    if not bad.any():
+        return o
+    keep = np.flatnonzero(~bad)
+    named = " ".join(o.svs[k] for k in np.flatnonzero(bad).tolist())
+
+    def cut(d: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+        return {b: v[:, keep] for b, v in d.items()}
+
+    return replace(
+        o,
+        svs=tuple(o.svs[k] for k in keep.tolist()),
+        range_m=cut(o.range_m),
+        phase_m=cut(o.phase_m),
+        lli=cut(o.lli),
+        notes=(*o.notes, f"no frequency channel for {named} (dropped)"),
     )
 
 
@@ -230,6 +280,7 @@ def _level(o: Any, orbit: Any, band: int, options: NetworkOptions, node: int) ->
     lli = o.lli.get(1, np.zeros(p1.shape, np.int8)) | o.lli.get(band, np.zeros(p1.shape, np.int8))
     lev = LevellingOptions(
         band=band,
+        frequencies_hz=_network_frequencies([o], list(o.svs), band),
         min_arc_epochs=options.min_arc_epochs,
         gf_threshold_m=options.gf_threshold_m,
         screen=options.screen,

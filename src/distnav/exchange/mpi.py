@@ -53,8 +53,14 @@ def _part_order(part: GraphPart, order: str | np.ndarray) -> np.ndarray | None:
     from scipy.sparse.csgraph import reverse_cuthill_mckee
 
     k, inner = part.owned_positions(part.src)
-    rows = np.repeat(np.arange(part.n_local), np.diff(part.in_ptr))[inner]
-    adj = sp.csr_matrix((np.ones(rows.size), (rows, k[inner])), shape=(part.n_local, part.n_local))
+    # the links among owned nodes in CSR directly: the part's rows, the owned senders (ascending within a row)
+    ptr = np.zeros(inner.size + 1, np.int64)
+    np.cumsum(inner, out=ptr[1:])
+    ptr = ptr[part.in_ptr]
+    idx = np.int32 if max(part.n_local, int(ptr[-1])) < 2**31 - 1 else np.int64
+    cols = k[inner].astype(idx)
+    del k, inner
+    adj = sp.csr_matrix((np.ones(cols.size), cols, ptr.astype(idx)), shape=(part.n_local, part.n_local))
     return np.asarray(reverse_cuthill_mckee(adj, symmetric_mode=True), dtype=np.int64)
 
 

@@ -20,7 +20,8 @@ with :func:`format_description` (a string; the command writes it atomically). Th
     # name = "admm": rho = 1.0, max_iterations = 1000, tol = 1e-10, constraint_nodes = "min_cover",
     #   messages = "pairs" (paper 000 Fig. 6 on each node's observation block, data = node-ID.npz)
     # name = "ckf": rounds = 4 (k_n), protocol = "P3" (paper 003 Fig. 6 on each node's normals, data = node-ID.npz)
-    # name = "uwb": solver = "N-CLM", iterations = 200 (paper 002 on each anchor's own ranges, data = node-ID.npz)
+    # name = "uwb": solver = "N-CLM", iterations = 200, objective = "squared" (paper 002 on each anchor's own ranges,
+    #   data = node-ID.npz)
 
     [[node]]
     id = 0
@@ -271,6 +272,7 @@ _SETTINGS: dict[str, dict[str, tuple[Any, Any, Any, str]]] = {
     "uwb": {
         "solver": (str, "N-CLM", lambda v: v in _UWB_SOLVERS, f"one of {list(_UWB_SOLVERS)}"),
         "iterations": (int, 200, lambda v: v >= 1, ">= 1"),
+        "objective": (str, "squared", lambda v: v in ("squared", "metres"), "'squared' or 'metres' (paper 002)"),
     },
     "ckf": {
         "rounds": (int, 4, lambda v: v >= 1, ">= 1 (k_n, consensus rounds per epoch)"),

@@ -264,8 +264,16 @@ class Graph:
     def reverse_edge(self) -> np.ndarray:
         """For each directed edge ``e = (i→j)`` the index of ``(j→i)`` (self-loops map to themselves)."""
         # Edges are stored by (dst, src); listed by (src, dst) instead (a stable sort by src), the k-th is the
-        # pair (s, d) whose reverse (d→s) is the k-th stored edge: the link set is symmetric.
-        order = np.argsort(self.src, kind="stable")
+        # pair (s, d) whose reverse (d→s) is the k-th stored edge: the link set is symmetric. The stable sort by
+        # src is the transpose of the CSR (rows dst, columns src): scipy's CSR → CSC conversion, a linear-time
+        # counting sort (a comparison sort of 1.5 M edges took 0.12 s of the first ADMM set-up at 10⁵ nodes).
+        idx = np.int32 if self.n_edges < 2**31 - 1 else np.int64
+        by_dst = sp.csr_matrix(
+            (np.arange(self.n_edges, dtype=np.int64), self.src.astype(idx), self.in_ptr.astype(idx)),
+            shape=(self.n_nodes, self.n_nodes),
+        )
+        order = by_dst.tocsc().data
+        del by_dst
         out = np.empty(self.n_edges, dtype=np.int64)
         out[order] = np.arange(self.n_edges, dtype=np.int64)
         return out

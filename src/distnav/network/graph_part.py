@@ -180,23 +180,40 @@ class GraphPart:
         n = int(n_nodes)
         own = ascending_unique(nodes)
         key = _sorted_link_keys(n, own, rows, nbr, self_loops)
-        lo, hi = np.searchsorted(key, own * n), np.searchsorted(key, own * n + n)
-        counts = hi - lo
-        own_start = np.asarray(edge_start(own), np.int64)
-        _check_row_lengths(own, counts, np.asarray(edge_start(own + 1), np.int64) - own_start)
+        is_range = own.size > 0 and int(own[-1]) - int(own[0]) + 1 == own.size
+        if is_range:  # one call for every start: the node after an owned node is the next owned one
+            starts = np.asarray(edge_start(np.append(own, own[-1] + 1)), np.int64)
+            own_start, next_start = starts[:-1], starts[1:]
+            lo, counts, src_all = _range_rows(key, n, own)
+        else:
+            own_start = np.asarray(edge_start(own), np.int64)
+            next_start = np.asarray(edge_start(own + 1), np.int64)
+            lo = np.searchsorted(key, own * n)
+            counts = np.searchsorted(key, own * n + n) - lo
+        _check_row_lengths(own, counts, next_start - own_start)
+        del next_start
         n_edges = int(np.asarray(edge_start(np.array([n], np.int64)))[0])
         in_ptr = np.zeros(own.size + 1, np.int64)
         np.cumsum(counts, out=in_ptr[1:])
-        pos = _ranges(lo, hi)
-        # a row's k-th entry is the edge start[row] + k (the edges into a node are ordered by sender)
         idx = _index_dtype(n_edges, n)
-        edge_ids = (pos + np.repeat(own_start - lo, counts)).astype(idx)
-        src = (key[pos] % n).astype(idx)
-        del pos
-        out_edge_ids = _reverse_edge_ids(key, n, own, src, counts, edge_start)
-        k = np.minimum(np.searchsorted(own, src), max(own.size - 1, 0))
-        halo = np.unique(src[own[k] != src]).astype(np.int64) if own.size else np.zeros(0, np.int64)
-        del k
+        # a row's k-th entry is the edge start[row] + k (the edges into a node are ordered by sender)
+        if is_range:  # the rows are one slice of the keys, and their edges one range of ids (rows checked above)
+            edge_ids = np.arange(int(own_start[0]), int(own_start[0]) + int(in_ptr[-1]), dtype=idx)
+            src = src_all.astype(idx)
+            del src_all
+            foreign = src < own[0]
+            foreign |= src > own[-1]
+            halo = np.unique(src[foreign]).astype(np.int64)
+            del foreign
+        else:
+            pos = _ranges(lo, lo + counts)
+            edge_ids = (pos + np.repeat(own_start - lo, counts)).astype(idx)
+            src = (key[pos] % n).astype(idx)
+            del pos
+            k = np.minimum(np.searchsorted(own, src), max(own.size - 1, 0))
+            halo = np.unique(src[own[k] != src]).astype(np.int64) if own.size else np.zeros(0, np.int64)
+            del k
+        out_edge_ids = _reverse_edge_ids(key, n, own, src, counts, (lo, own_start), edge_start)
         loop = 1 if self_loops else 0
         halo_len = np.searchsorted(key, halo * n + n) - np.searchsorted(key, halo * n)
         return cls(
@@ -246,6 +263,25 @@ def _sorted_link_keys(n: int, own: np.ndarray, rows: np.ndarray, nbr: np.ndarray
     return key
 
 
+def _range_rows(key: np.ndarray, n: int, own: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For owned nodes that are a range of ids: each row's first position in the sorted ``key``, its length and
+    every entry's neighbour. The rows are one slice of the keys: one division over it instead of two binary
+    searches per owned node (and one per entry to tell the halo)."""
+    first, last = int(own[0]), int(own[-1])
+    lo_b, hi_b = (int(v) for v in np.searchsorted(key, [first * n, (last + 1) * n]))
+    block = key[lo_b:hi_b]
+    row = block // n
+    row -= first
+    counts = np.bincount(row, minlength=own.size)
+    row += first
+    row *= n
+    np.subtract(block, row, out=row)  # the neighbour of every entry
+    lo = np.full(own.size, lo_b, np.int64)
+    if own.size > 1:
+        lo[1:] += np.cumsum(counts[:-1])
+    return lo, counts, row
+
+
 def _check_row_lengths(own: np.ndarray, counts: np.ndarray, expected: np.ndarray) -> None:
     """Every owned node's list is as long as its edge range says (its degree, plus its self-loop)."""
     if not bool((counts == expected).all()):
@@ -257,36 +293,62 @@ def _check_row_lengths(own: np.ndarray, counts: np.ndarray, expected: np.ndarray
 
 
 def _reverse_edge_ids(
-    key: np.ndarray, n: int, own: np.ndarray, src: np.ndarray, counts: np.ndarray, edge_start: EdgeStart
+    key: np.ndarray,
+    n: int,
+    own: np.ndarray,
+    src: np.ndarray,
+    counts: np.ndarray,
+    own_rows: tuple[np.ndarray, np.ndarray],
+    edge_start: EdgeStart,
 ) -> np.ndarray:
-    """Global id of the reverse of every incoming edge: the edge ``dst → src`` is entry ``dst`` of row ``src``."""
-    want = src * np.int64(n)
-    want += np.repeat(own, counts)
-    order = np.argsort(want)
-    want = want[order]
-    # the reverse edges are exactly the listed entries whose neighbour is owned, and in key order they come in
-    # the order of the sorted ``want``: their positions, no search (checked entry by entry)
+    """Global id of the reverse of every incoming edge: the edge ``dst → src`` is entry ``dst`` of row ``src``.
+
+    The reverse edges are exactly the listed entries whose neighbour is owned; in key order they are sorted by
+    ``(row, owned neighbour)``, the incoming edges by ``(owned receiver, sender)``: one is the transpose of the other,
+    made by scipy's linear-time CSR → CSC conversion (a stable counting sort by the owned node, no comparison sort),
+    then checked entry by entry against the incoming edges. ``own_rows``: each owned row's first position in ``key``
+    and its first edge id (known already: only the halo rows' are looked up)."""
+    import scipy.sparse as sp
+
     nbr = key % n
     if own.size and int(own[-1]) - int(own[0]) + 1 == own.size:
-        nbr_owned = (nbr >= own[0]) & (nbr <= own[-1])
+        nbr_owned = nbr >= own[0]
+        nbr_owned &= nbr <= own[-1]
+        rev = np.flatnonzero(nbr_owned)
+        del nbr_owned
+        col = nbr[rev] - own[0]
     else:
         at = np.minimum(np.searchsorted(own, nbr), max(own.size - 1, 0))
-        nbr_owned = own[at] == nbr if own.size else np.zeros(nbr.size, bool)
+        rev = np.flatnonzero(own[at] == nbr) if own.size else np.zeros(0, np.int64)
+        col = at[rev]
         del at
     del nbr
-    rev = np.flatnonzero(nbr_owned)
-    del nbr_owned
-    if rev.size != want.size or not np.array_equal(key[rev], want):
+    if rev.size != src.size:
         raise GraphError("graph part: a halo node's neighbour list is missing")
-    want //= n  # the rows (senders), ascending: each row's start looked up once, not once per entry
-    first = np.flatnonzero(np.diff(want, prepend=-1))
-    row = want[first]
-    counts_row = np.diff(np.append(first, want.size))
-    del want
-    rev -= np.repeat(np.searchsorted(key, row * n) - np.asarray(edge_start(row), np.int64), counts_row)
-    out = np.empty(src.size, np.int64)
-    out[order] = rev
-    return out
+    row_of = key[rev] // n  # the rows (senders), ascending: each row's start looked up once, not once per entry
+    first = np.flatnonzero(np.diff(row_of, prepend=-1))
+    row = row_of[first]
+    del row_of
+    counts_row = np.diff(np.append(first, rev.size))
+    # each row's first key position minus its first edge id: an entry's position minus it is its edge id
+    k = np.minimum(np.searchsorted(own, row), max(own.size - 1, 0))
+    mine = own[k] == row if own.size else np.zeros(row.size, bool)
+    base = np.empty(row.size, np.int64)
+    base[mine] = own_rows[0][k[mine]] - own_rows[1][k[mine]]
+    halo = row[~mine]
+    base[~mine] = np.searchsorted(key, halo * n) - np.asarray(edge_start(halo), np.int64)
+    del k, mine, halo
+    rev -= np.repeat(base, counts_row)
+    ptr = np.zeros(row.size + 1, np.int64)
+    np.cumsum(counts_row, out=ptr[1:])
+    idx = np.int32 if max(row.size, own.size, rev.size) < 2**31 - 1 else np.int64
+    by_row = sp.csr_matrix((rev, col.astype(idx), ptr.astype(idx)), shape=(row.size, own.size))
+    del rev, col, ptr
+    by_owned = by_row.tocsc()
+    del by_row
+    if not (np.array_equal(np.diff(by_owned.indptr), counts) and np.array_equal(row[by_owned.indices], src)):
+        raise GraphError("graph part: a halo node's neighbour list is missing")
+    return np.asarray(by_owned.data)
 
 
 def ascending_unique(values: np.ndarray) -> np.ndarray:

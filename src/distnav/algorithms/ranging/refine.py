@@ -64,6 +64,8 @@ __all__ = [
 MAX_ROUNDS = 60  # outer LM rounds; plant-like halls: a median 4–6 after the exclusions, 16–36 with NLOS links kept
 CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
 MU0 = 1e-3  # initial Marquardt damping (relative to diag N)
+#: the LM phase's CG stops on the preconditioned residual ``rᵀz`` (no reduction of ``rᵀr``; :func:`pcg`, issue 27)
+PRECONDITIONED_STOP = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,6 +177,7 @@ class _Refiner:
         self.free_nb[:, :dim] = problem.free[self.other]
         self.wire_dtype = wire.cg_wire_dtype(problem.n_anchors)
         self.prior = 1.0 / o.offset_prior_sigma_m**2 if self.per else 0.0
+        self.steps = wire.STEPS and not wire.PLAIN  # trials travel as steps (wire, item 5)
 
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
         """The start ``(x, c)`` and CG's iteration limit (two reductions: the common offset's mean, the unknowns)."""
@@ -189,11 +192,14 @@ class _Refiner:
         n_unknowns = int(links.total(self.free.sum(axis=1).astype(float))) + (1 if self.common else 0)
         return x, c, min(n_unknowns + 10, 2000)
 
-    def evaluate(self, xv: np.ndarray, cv: float, step: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, float]:
+    def evaluate(
+        self, xv: np.ndarray, cv: float, step: np.ndarray, base: np.ndarray | None = None
+    ) -> tuple[np.ndarray, float, np.ndarray, float]:
         """Neighbour rows, F, the per-half residuals at ``(xv, cv)`` and the largest move of ``step`` (one
-        broadcast and one reduction)."""
+        broadcast and one reduction; ``base``: the neighbour rows ``step`` moved from, then only the step travels,
+        :meth:`~distnav.algorithms.ranging.wire.Wire.stepped`)."""
         dim, owner, per = self.dim, self.owner, self.per
-        nb = self.links.neighbours(xv)
+        nb = self.links.neighbours(xv) if base is None or not self.steps else self.links.wire.stepped(base, step)
         diff = xv[owner, :dim] - nb[:, :dim]
         bias = (xv[owner, dim] + nb[:, dim]) if per else cv
         r = (np.linalg.norm(diff, axis=1) + bias - self.rng_m) / self.sig
@@ -234,7 +240,19 @@ class _Refiner:
         damp_c = mu * max(lin.dc, 1e-12)
         pre_inv = block_preconditioner(lin.own_block, damp, free)
         system = NormalSystem(
-            self.links, self.owner, lin.a, lin.cn, lin.e, lin.w, damp, damp_c, self.prior, free, common, self.wire_dtype
+            self.links,
+            self.owner,
+            lin.a,
+            lin.cn,
+            lin.e,
+            lin.w,
+            damp,
+            damp_c,
+            self.prior,
+            free,
+            common,
+            self.wire_dtype,
+            self.sig,
         )
         dxk, dck, its = pcg(
             system,
@@ -245,6 +263,7 @@ class _Refiner:
             self.links,
             cg_max,
             scalar_dtype=wire.CG_SCALAR_DTYPE,
+            preconditioned_stop=PRECONDITIONED_STOP and not wire.PLAIN,
         )
         return dxk[:, :, 0], float(dck[0]), its
 
@@ -301,8 +320,9 @@ def refine(
             while True:  # inner: solve the damped system, try the step
                 dx, dcv, its = run.step(lin, mu, cg_max)
                 cg_total += its
+                dx = run.links.wire.rounded(dx) if run.steps else dx  # moved by the step its neighbours receive
                 x_new, c_new = x + dx, c + dcv
-                nb_new, F_new, r_new, moved = run.evaluate(x_new, c_new, dx)
+                nb_new, F_new, r_new, moved = run.evaluate(x_new, c_new, dx, nb)
                 moved = max(moved, abs(dcv))
                 if np.isfinite(F_new) and F_new <= F:
                     change = F - F_new
@@ -386,6 +406,7 @@ class NormalSystem:
     free: np.ndarray  # (n_local, P)
     common: bool
     wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float16 in the LM phase)
+    sigma: np.ndarray | None = None  # (h,) every half-measurement's range σ: the products travel projected
 
     def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
@@ -393,12 +414,14 @@ class NormalSystem:
         common offset's row ``(n_local, k)`` (summed over the network by the caller, together with its dot
         products: one reduction per CG iteration less)."""
         nl, P, k = v.shape
-        vn = self.links.vectors(v, self.wire_dtype)
-        jv = (
-            np.einsum("hp,hpk->hk", self.a, v[self.owner])
-            + np.einsum("hp,hpk->hk", self.cn, vn)
-            + self.e[:, None] * vc[None, :]
-        )
+        own = np.einsum("hp,hpk->hk", self.a, v[self.owner])
+        if (
+            self.sigma is not None and wire.PROJECTED and not wire.PLAIN
+        ):  # the neighbour's product itself: k values per link
+            other = self.links.wire.projected(own * self.sigma[:, None], self.wire_dtype) / self.sigma[:, None]
+        else:
+            other = np.einsum("hp,hpk->hk", self.cn, self.links.vectors(v, self.wire_dtype))
+        jv = own + other + self.e[:, None] * vc[None, :]
         wjv = self.w[:, None] * jv
         out = np.zeros_like(v)
         np.add.at(out, self.owner, wjv[:, None, :] * self.a[:, :, None])
@@ -420,11 +443,15 @@ def pcg(
     max_its: int,
     rtol: float = CG_RTOL,
     scalar_dtype: type[np.floating] = np.float64,
+    preconditioned_stop: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P, k)`` for ``k``
     right-hand sides at once (independent CG recurrences sharing every broadcast and reduction) and the common
     parameter's row ``bc`` ``(k,)`` (zeros without one); the dot products are network totals. It stops when every
-    column's residual is below ``rtol`` of its start, or one column's curvature ``pᵀNp`` is not positive."""
+    column's residual is below ``rtol`` of its start — in the preconditioner's norm ``rᵀM⁻¹r`` with
+    ``preconditioned_stop`` (the LM phase, issue 27: that norm is CG's ``rᵀz``, which the iteration reduces anyway,
+    so the residual's own norm ``rᵀr`` needs no reduction of its own) —, or one column's curvature ``pᵀNp`` is not
+    positive."""
     k = b.shape[2]
     x = np.zeros_like(b)
     xc = np.zeros(k)
@@ -433,10 +460,17 @@ def pcg(
     def dots(u: np.ndarray, v: np.ndarray, extra: np.ndarray) -> np.ndarray:
         return np.asarray(links.total(np.concatenate([np.einsum("nak,nak->nk", u, v), extra], axis=1), scalar_dtype))
 
+    def residual_dots(r: np.ndarray, zv: np.ndarray, r_c: np.ndarray, z_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``rᵀz`` and the residual norm the stop compares (``rᵀz`` itself with ``preconditioned_stop``)."""
+        if preconditioned_stop:
+            rz_ = dots(r, zv, np.zeros((r.shape[0], 0))) + r_c * z_c
+            return rz_, rz_
+        tt = dots(r, zv, np.einsum("nak,nak->nk", r, r))
+        return tt[:k] + r_c * z_c, tt[k:] + r_c * r_c
+
     z = np.einsum("nab,nbk->nak", pre_inv, res)
     zc = rc / pre_c
-    t = dots(res, z, np.einsum("nak,nak->nk", res, res))
-    rz, rr0 = t[:k] + rc * zc, t[k:] + rc * rc
+    rz, rr0 = residual_dots(res, z, rc, zc)
     p, pc = z.copy(), zc.copy()
     its = 0
     live = rr0 > 0.0
@@ -457,8 +491,7 @@ def pcg(
         rc -= alpha * qc
         z = np.einsum("nab,nbk->nak", pre_inv, res)
         zc = rc / pre_c
-        t = dots(res, z, np.einsum("nak,nak->nk", res, res))
-        rz_new, rr = t[:k] + rc * zc, t[k:] + rc * rc
+        rz_new, rr = residual_dots(res, z, rc, zc)
         live &= rr > rtol**2 * rr0
         if not live.any():
             break

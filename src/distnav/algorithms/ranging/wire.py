@@ -28,7 +28,19 @@ and what it received before. So :class:`Wire`
    fixed point is set by the gradient, which every anchor computes from the parameters (float64). The sender's
    own rows stay float64. No error feedback: every CG direction is a new vector, no rounding error carries over.
    Measured on 12 plant-like halls in ``uwb solve``'s workflow (docs/economy_uwb.md): float32 → float16 with the
-   exponent, 1.5–1.7 × fewer bytes, positions within 0.03 mm, the same links excluded.
+   exponent, 1.5–1.7 × fewer bytes, positions within 0.03 mm, the same links excluded;
+4. in the LM phase sends, instead of a CG direction's row, **each neighbour's product itself**
+   (:meth:`Wire.projected`, :data:`PROJECTED`): the matrix–vector product needs on a link only ``c_lᵀ v_j``, the
+   other end's Jacobian row times its row of ``v``, and that end has the row (the pair's unit vector, both ends
+   know both positions, and the offset's ``1``): it sends ``σ_l · a_lᵀ v_j`` of its first sample of the pair, the
+   receiver divides by its own sample's σ. ``k`` values per link (one exponent byte with them in float16) where a
+   row was ``k`` per free column: 3 B instead of 5 per link and CG iteration with heights held;
+5. sends a trial's parameters, after the first, as the **LM step from the last accepted parameters**
+   (:meth:`Wire.stepped`, :data:`STEPS`), its free columns in float32 (8 B where the float64 columns were 16;
+   :data:`STEP_DTYPE`): the receiver knows the accepted ones (acceptance is decided on a network total)
+   and the sender moves by the rounded step (:meth:`Wire.rounded`), so both ends hold the same parameters bit
+   for bit — a step rounded to 24 bits is another inexact LM step (CG's forcing term is 0.1); the objective,
+   the gradient and so the fixed point are evaluated at parameters every end agrees on.
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
 """
@@ -53,6 +65,9 @@ __all__ = [
     "CG_SCALAR_DTYPE",
     "HALF_MAX_ANCHORS",
     "cg_wire_dtype",
+    "PROJECTED",
+    "STEPS",
+    "STEP_DTYPE",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
@@ -71,6 +86,16 @@ def cg_wire_dtype(n_anchors: int) -> type[np.floating]:
     return CG_WIRE_DTYPE
 
 
+#: the LM phase's matrix–vector products: each anchor sends each neighbour its own product with the link's Jacobian
+#: row, ``k`` values per link (:meth:`Wire.projected`, item 4), not its row of the CG direction (False: as before)
+PROJECTED = True
+#: after the first, the LM phase's trial parameters travel as the step from the last accepted ones, float16 with
+#: the shared exponent (:meth:`Wire.stepped`, item 5); False: the free columns in float64 (as before)
+STEPS = True
+#: the steps' type on the wire: float32 (8 B per link with heights held). float16 with the shared exponent (5 B)
+#: left the phase "converged" 1–20 mm from LM on a 16 × 16 grid (tests/test_csg_handover.py): the rounding of
+#: 2⁻¹¹ stirs the slow modes, which the step-size test of the stop does not see
+STEP_DTYPE: type[np.floating] = np.float32
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -93,6 +118,7 @@ class Wire:
         self.talks_other = talks[other]  # per half-measurement: the other end sends
         self._pos: np.ndarray | None = None
         self._params: np.ndarray | None = None  # the last parameters received, per half-measurement
+        self._rep: tuple[np.ndarray, np.ndarray] | None = None  # per out-edge: a half-measurement, the edge's mask
 
     def _positions(self, box_dst: np.ndarray, box_src: np.ndarray) -> np.ndarray:
         if self._pos is None:
@@ -128,6 +154,23 @@ class Wire:
         out[np.ix_(self.talks_other, self.cols)] = got[self.talks_other]
         return out.copy()
 
+    def rounded(self, step: np.ndarray) -> np.ndarray:
+        """An LM step ``(n_local, P)`` as :meth:`stepped` delivers it: its free columns as :data:`STEP_DTYPE` (the
+        sender moves by this step, so that both ends hold the same parameters bit for bit; item 5)."""
+        out = np.zeros_like(step)
+        out[:, self.cols] = _decode(_encode(step[:, self.cols], STEP_DTYPE), self.cols.size)
+        return out
+
+    def stepped(self, base: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """Each half-measurement's other end's parameters moved from ``base`` (per half-measurement, as both ends
+        hold them) by its :meth:`rounded` ``step``: the free columns as :data:`STEP_DTYPE`, from anchors with a
+        free parameter (item 5)."""
+        sent = _encode(step[:, self.cols], STEP_DTYPE)
+        got = _decode(self._round(sent, self.active, self.talks_other), self.cols.size)
+        out = np.array(base, float)
+        out[np.ix_(self.talks_other, self.cols)] += got[self.talks_other]
+        return out
+
     def vectors(self, v: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
         """Each half-measurement's other end's rows of the CG vector ``v`` ``(n_local, P, k)`` (zero at parameters
         that are not free): the free columns only, from anchors with a free parameter, as ``dtype``; zeros
@@ -146,6 +189,60 @@ class Wire:
         out[:, self.cols, :] = got
         out[~self.talks_other] = 0.0
         return out
+
+    def _edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per outgoing edge, one half-measurement of its sender to its receiver (the first), and the mask of
+        the directed edges that carry a projected row: a ranged pair whose sender talks (either end knows it)."""
+        if self._rep is None:
+            ex, n = self.ex, self.n
+            key = self.owner * n + self.other
+            order = np.argsort(key, kind="stable")
+            sk = key[order]
+
+            def find(want: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                at = np.minimum(np.searchsorted(sk, want), max(order.size - 1, 0))
+                return (order[at] if order.size else np.zeros(want.size, np.int64)), (
+                    sk[at] == want if order.size else np.zeros(want.size, bool)
+                )
+
+            rep, has_out = find(ex.out_src * n + ex.out_dst)
+            has_in = find(ex.in_dst * n + ex.in_src)[1]
+            active = self.active.copy()
+            active[ex.out_edges[~has_out]] = False
+            active[ex.in_edges[~has_in]] = False
+            self._rep = (rep, active)
+        return self._rep
+
+    def projected(self, own: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
+        """Each half-measurement's other end's value of ``own`` ``(h, k)`` — a value per half-measurement that its
+        owner computed for the pair (the first of the pair's samples; item 4 of the module docstring) —, zero
+        where the other end has no free parameter: one message per directed edge of a ranged pair from an anchor
+        with a free parameter, ``k`` values as ``dtype`` (float16: :func:`pack_half`, ``2k + 1`` bytes)."""
+        rep, active = self._edges()
+        k = own.shape[1]
+        rows = np.asarray(own, float)[rep] if own.shape[0] else np.zeros((rep.size, k))
+        if dtype == np.float16:
+            box = self.ex.send(pack_half(rows), active=active)
+            values = unpack_half(box.values, k)
+        else:
+            box = self.ex.send(np.ascontiguousarray(rows, dtype=dtype), active=active)
+            values = np.asarray(box.values, float)
+        pos = self._positions(box.dst, box.src)
+        if not np.all(box.delivered[pos] | ~self.talks_other):
+            raise ModelError("refinement: a neighbour's message was lost (it needs every link each round)")
+        got = np.asarray(values[pos])
+        got[~self.talks_other] = 0.0
+        return got
+
+
+def _encode(rows: np.ndarray, dtype: type[np.floating]) -> np.ndarray:
+    """Rows ``(n, m)`` on the wire as ``dtype`` (float16: :func:`pack_half`)."""
+    return pack_half(rows) if dtype == np.float16 else np.ascontiguousarray(rows, dtype=dtype)
+
+
+def _decode(sent: np.ndarray, m: int) -> np.ndarray:
+    """The float64 rows of :func:`_encode`'s ``(n, m)``."""
+    return unpack_half(sent, m) if sent.dtype == np.uint8 else np.asarray(sent, float)
 
 
 HALF = np.dtype("<f2")  # little-endian on the wire whatever the host (the field runtime's convention)

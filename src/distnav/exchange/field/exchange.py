@@ -33,7 +33,7 @@ from distnav.errors import ExchangeError
 from distnav.exchange.base import Exchange
 from distnav.exchange.core import ExchangeCore, ReduceOp, Reducible
 from distnav.exchange.faults import FaultPlan, FaultSchedule
-from distnav.exchange.field.transport import Transport
+from distnav.exchange.field.transport import StepTransport
 from distnav.exchange.field.tree import SpanningTree, tree_all
 from distnav.exchange.field.wire import Kind
 from distnav.exchange.mixer import Mixer
@@ -56,7 +56,7 @@ class FieldExchange(Exchange):
 
     backend = "field"
 
-    def __init__(self, graph: Graph, node: int, transport: Transport, faults: FaultSchedule | None = None) -> None:
+    def __init__(self, graph: Graph, node: int, transport: StepTransport, faults: FaultSchedule | None = None) -> None:
         super().__init__(graph, faults)
         me = int(node)
         if not 0 <= me < graph.n_nodes:
@@ -190,7 +190,7 @@ class FieldExchange(Exchange):
         else the same dtype)."""
         step = self._next_step()
         others = [n for n in range(self.n_nodes) if n != self.me]
-        if any(n not in self.transport.peers for n in others):  # neighbours only: over the spanning tree
+        if not self._all_peers:  # neighbours only: over the spanning tree
             return tree_all(self.transport, self._tree, self.me, step, array)
         for t in others:
             if t not in self.transport.lost:
@@ -203,6 +203,18 @@ class FieldExchange(Exchange):
             got = self._received_rows(arrived, array.shape, array.dtype)
         got[self.me] = array
         return got
+
+    @cached_property
+    def _all_peers(self) -> bool:
+        """Whether global operations go to every node directly, a choice every node must make alike: when every
+        other node is a peer and either the graph is complete or some peer is not a neighbour (threads given every
+        node's address). A node of a description that happens to neighbour every other node still uses the tree,
+        as the others do."""
+        peers = set(self.transport.peers)
+        if any(n not in peers for n in range(self.n_nodes) if n != self.me):
+            return False
+        complete = int(np.count_nonzero(self.graph.src != self.graph.dst)) == self.n_nodes * (self.n_nodes - 1)
+        return complete or bool(peers - set(self.neighbours.tolist()))
 
     @cached_property
     def _tree(self) -> SpanningTree:
@@ -284,6 +296,7 @@ class _FieldMixer(Mixer):
     the self-weight, ``x_i ← Σ_{j delivered} w_ij x_j + (w_ii + Σ_{j lost} w_ij) x_i`` (row sums stay 1)."""
 
     _fused: sp.csr_matrix | None = None
+    _no_edges = np.zeros(0, np.int64)
 
     def __init__(
         self, exchange: FieldExchange, edge_weight: np.ndarray, self_weight: np.ndarray, active: np.ndarray | None
@@ -300,7 +313,7 @@ class _FieldMixer(Mixer):
             raise ExchangeError(f"mixer needs 1 local row, got array of shape {x.shape}")
         flat = x.reshape(1, -1)
         cols, msg_bytes = ex._columns(flat, self._active_global), flat.shape[1] * flat.itemsize
-        lost_e = np.flatnonzero(self._act_in & ex._lost_in)
+        lost_e = self._no_edges if ex._lost_in is ex._no_loss else np.flatnonzero(self._act_in & ex._lost_in)
         if lost_e.size == 0:
             ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
             return csr_times(self._fused_block(), cols.ravel() if x.ndim == 1 else cols).reshape(x.shape)

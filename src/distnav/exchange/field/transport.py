@@ -26,7 +26,7 @@ import time
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -34,9 +34,11 @@ from distnav._optional import require
 from distnav.errors import ExchangeError
 from distnav.exchange.field.wire import Kind, Message, WireError, decode, encode
 
-__all__ = ["CurveKeys", "Peer", "Transport", "TransportOptions"]
+__all__ = ["CurveKeys", "Peer", "StepTransport", "Transport", "TransportOptions"]
 
 LOG = logging.getLogger("distnav.field")
+#: longest single blocking receive (ms): a step waits in slices of this, re-checking the clock between them
+_SLICE_MS = 100
 
 
 def _zmq() -> Any:
@@ -90,6 +92,28 @@ class TransportOptions:
             raise ExchangeError(f"start_timeout_s must be > 0, got {self.start_timeout_s}")
         if self.max_message_bytes < 64:
             raise ExchangeError(f"max_message_bytes must be >= 64, got {self.max_message_bytes}")
+
+
+class StepTransport(Protocol):
+    """What the field exchange and the spanning-tree operations need of a node's transport: :class:`Transport`, or a
+    view of it on the nodes that remain after a loss (:class:`~distnav.exchange.field.survivors.SubnetTransport`)."""
+
+    me: int
+    peers: dict[int, Peer]
+    options: TransportOptions
+
+    @property
+    def lost(self) -> dict[int, int]: ...
+
+    def post(self, peer: int, kind: Kind, step: int, array: np.ndarray) -> None: ...
+
+    def post_many(self, peers: list[int], kind: Kind, step: int, array: np.ndarray) -> None: ...
+
+    def collect(
+        self, kind: Kind, step: int, senders: list[int] | np.ndarray, *, deadline_s: float | None = None
+    ) -> dict[int, np.ndarray]: ...
+
+    def _refuse(self, reason: str, text: str) -> Message | None: ...
 
 
 @dataclass
@@ -154,8 +178,7 @@ class Transport:
             self.pull.curve_publickey = keys.public
             self.pull.curve_server = True
         self.pull.bind(address)
-        self._poller = zmq.Poller()  # one poller for the run (a socket's poll() makes a new one per call)
-        self._poller.register(self.pull, zmq.POLLIN)
+        self._rcvtimeo = -1  # the PULL socket's receive timeout (ms) as last set (:meth:`_recv_within`)
         self.push: dict[int, Any] = {}
         for p in peers:
             s = self.ctx.socket(zmq.PUSH)
@@ -205,32 +228,62 @@ class Transport:
         self, kind: Kind, step: int, senders: list[int] | np.ndarray, *, deadline_s: float | None = None
     ) -> dict[int, np.ndarray]:
         """The arrays of ``step`` from ``senders`` that arrive before the deadline (peers declared lost are not
-        waited for, but still accepted if they arrive)."""
-        want = {int(s) for s in senders}
+        waited for, but still accepted if they arrive).
+
+        Frames are taken one at a time with a blocking receive (no poll call, no exception per empty socket), at
+        most :data:`_SLICE_MS` at a time or up to the deadline or the next delayed message's release; at the deadline
+        whatever has already arrived is still taken."""
         got: dict[int, np.ndarray] = {}
-        for msg in self._held.pop(step, {}).values():
-            self._accept(msg, kind, step, got)
-        waiting = {s for s in want if s not in got and s not in self.lost}
-        limit = self.options.deadline_s if deadline_s is None else deadline_s
-        end = time.monotonic() + limit
-        while True:
-            self._drain(kind, step, got)  # what has arrived already: no poll call needed
+        held = self._held.pop(step, None)
+        if held:
+            for msg in held.values():
+                self._accept(msg, kind, step, got)
+        lost = self.lost
+        waiting = {int(s) for s in senders if s not in got and s not in lost}
+        if not waiting and (lost or self._delayed):  # nobody to wait for: still read a lost peer's return
+            self._drain(kind, step, got)
             self._release(kind, step, got)
-            waiting -= got.keys()
+        end = time.monotonic() + (self.options.deadline_s if deadline_s is None else deadline_s)
+        while waiting:
             now = time.monotonic()
-            if not waiting or now >= end:
+            if self._delayed:
+                self._release(kind, step, got)
+                waiting.difference_update(got)
+                if not waiting:
+                    break
+            if now >= end:
+                self._drain(kind, step, got)  # what arrived by the deadline still counts
                 break
             until = min(end, self._delayed[0][0]) if self._delayed else end
-            self._poller.poll(max(1, int((until - now) * 1000)))
-        self._note_missing(want, got, step)
+            frame = self._recv_within(until - now)
+            if frame is not None:
+                sender = self._take(frame, kind, step, got)
+                if sender in got:
+                    waiting.discard(sender)
+        self._note_missing(senders, got, step)
         return got
+
+    def _recv_within(self, seconds: float) -> Any:
+        """One frame, waiting at most ``seconds`` (None when none came); the socket's receive timeout is changed only
+        when less than one slice is left, so a step usually costs no socket option call."""
+        ms = min(_SLICE_MS, int(seconds * 1000) + 1)
+        if ms != self._rcvtimeo:
+            self.pull.setsockopt(self._zmq.RCVTIMEO, ms)
+            self._rcvtimeo = ms
+        try:
+            frame = self.pull.recv(0, copy=not self.curve)
+        except self._zmq.Again:
+            return None
+        self.frames_received += 1
+        self.bytes_received += len(frame)
+        return frame
 
     def _frames(self) -> Iterator[Any]:
         """Every frame waiting on the socket now (counted as received bytes)."""
         zmq = self._zmq
         while True:
             try:
-                frame = self.pull.recv(zmq.NOBLOCK, copy=False)
+                frame = self.pull.recv(zmq.NOBLOCK, copy=not self.curve)
             except zmq.Again:
                 return
             self.frames_received += 1
@@ -252,16 +305,23 @@ class Transport:
 
     def _drain(self, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
         for frame in self._frames():
-            msg = self._checked(frame)
-            if msg is not None and msg.kind == Kind.HELLO:
-                self._hello(msg.sender, step)
-            if msg is None or msg.kind == Kind.HELLO:
-                continue
-            if self.options.latency_max_s > 0:  # injected latency: usable only from its release time on
-                delay = float(self._latency.uniform(0.0, self.options.latency_max_s))
-                heapq.heappush(self._delayed, (time.monotonic() + delay, self.frames_received, msg))
-                continue
-            self._route(msg, kind, step, got)
+            self._take(frame, kind, step, got)
+
+    def _take(self, frame: Any, kind: Kind, step: int, got: dict[int, np.ndarray]) -> int:
+        """Check one received frame and hand it on (to ``got``, the held messages of a later step, or the delayed
+        ones); returns its sender (-1 when refused)."""
+        msg = self._checked(frame)
+        if msg is None:
+            return -1
+        if msg.kind == Kind.HELLO:
+            self._hello(msg.sender, step)
+            return -1
+        if self.options.latency_max_s > 0:  # injected latency: usable only from its release time on
+            delay = float(self._latency.uniform(0.0, self.options.latency_max_s))
+            heapq.heappush(self._delayed, (time.monotonic() + delay, self.frames_received, msg))
+            return -1
+        self._route(msg, kind, step, got)
+        return msg.sender
 
     def _release(self, kind: Kind, step: int, got: dict[int, np.ndarray]) -> None:
         """Hand on the delayed messages whose release time has come (injected latency only)."""
@@ -316,7 +376,7 @@ class Transport:
 
     def _checked(self, frame: Any) -> Message | None:
         try:
-            msg = decode(frame.buffer, max_bytes=self.options.max_message_bytes)
+            msg = decode(frame.buffer if self.curve else frame, max_bytes=self.options.max_message_bytes)
         except WireError as exc:
             reason = "oversize" if str(exc).startswith("oversize") else "malformed"
             return self._refuse(reason, str(exc))
@@ -353,8 +413,8 @@ class Transport:
             LOG.warning("node %d: node %d is back at step %d", self.me, msg.sender, step)
         got[msg.sender] = msg.array
 
-    def _note_missing(self, want: set[int], got: dict[int, np.ndarray], step: int) -> None:
-        for s in want:
+    def _note_missing(self, want: list[int] | np.ndarray, got: dict[int, np.ndarray], step: int) -> None:
+        for s in map(int, want):
             if s in got:
                 self._missed[s] = 0
                 continue
@@ -403,7 +463,7 @@ class Transport:
 
     def _checked_hello(self, frame: Any) -> Message | None:
         try:
-            msg = decode(frame.buffer, max_bytes=self.options.max_message_bytes)
+            msg = decode(frame.buffer if self.curve else frame, max_bytes=self.options.max_message_bytes)
         except WireError as exc:
             return self._refuse("malformed", str(exc))
         if msg.sender not in self.peers:

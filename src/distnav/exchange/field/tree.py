@@ -19,8 +19,9 @@ when every node is a peer: the result is the same bit for bit.
 
 A child that misses the deadline leaves its subtree out; the root still sends the rows it has down the tree (so every
 node learns of the gap in the same step), and every node then raises :class:`ExchangeError` naming the missing nodes.
-A parent that misses the deadline leaves this node without the network's answer: :class:`ExchangeError` naming the
-parent. A global operation without every node is never replaced by a partial answer.
+A parent that misses the deadline leaves this node without the network's answer: it sends its own subtree's rows on
+to its children (who then raise at once instead of waiting out their own deadlines) and raises :class:`ExchangeError`
+naming the parent. A global operation without every node is never replaced by a partial answer.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from functools import cached_property
 import numpy as np
 
 from distnav.errors import ExchangeError
-from distnav.exchange.field.transport import Transport
+from distnav.exchange.field.transport import StepTransport
 from distnav.exchange.field.wire import Kind
 from distnav.network.graph import Graph
 
@@ -115,7 +116,9 @@ def _rows(block: np.ndarray, shape: tuple[int, ...]) -> dict[int, np.ndarray]:
     return {int(r[0]): r[1:].reshape(shape) for r in block}
 
 
-def tree_all(transport: Transport, tree: SpanningTree, me: int, step: int, array: np.ndarray) -> dict[int, np.ndarray]:
+def tree_all(
+    transport: StepTransport, tree: SpanningTree, me: int, step: int, array: np.ndarray
+) -> dict[int, np.ndarray]:
     """Every node's ``array`` (float64 or int64, the same shape at every node) on every node, routed over ``tree``
     in step ``step`` (see the module docstring)."""
     width = 1 + array.size
@@ -137,6 +140,8 @@ def tree_all(transport: Transport, tree: SpanningTree, me: int, step: int, array
         wait = deadline * (tree.below(0) + int(tree.depth[me]) + 1)  # up to the root and back down to here
         got = transport.collect(Kind.TREE_DOWN, step, [parent], deadline_s=wait)
         if parent not in got:
+            for child in children:  # what this subtree holds, so the nodes below learn of the gap now, not later
+                transport.post(child, Kind.TREE_DOWN, step, _block(rows))
             lost = transport.lost.get(parent)
             when = f" (lost at step {lost})" if lost is not None else ""
             raise ExchangeError(

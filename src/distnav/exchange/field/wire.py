@@ -27,6 +27,7 @@ from __future__ import annotations
 import enum
 import math
 import struct
+import sys
 from typing import NamedTuple
 
 import numpy as np
@@ -77,31 +78,39 @@ class Message(NamedTuple):
 
 _CODE = {(dt.kind, dt.itemsize): c for c, dt in DTYPES.items()}  # (kind, itemsize) → dtype code
 _NATIVE = {c: dt.newbyteorder("=") for c, dt in DTYPES.items()}  # the received array's dtype in this host's order
+_LITTLE = sys.byteorder == "little"  # the wire's order: received arrays are used as they are, no byte swap
 _KINDS = {int(k): k for k in Kind}
+#: header and shape of an ``ndim``-dimensional array in one struct (one pack / unpack call per message)
+_HEAD_SHAPE = [struct.Struct(HEADER.format + "I" * k) for k in range(MAX_NDIM + 1)]
+_SHAPE = [struct.Struct("<" + "I" * k) for k in range(MAX_NDIM + 1)]
 
 
 def encode(kind: Kind, sender: int, step: int, array: np.ndarray) -> bytes:
     """One frame: header, shape, payload (C order, little-endian)."""
-    a = np.asarray(array)
+    a = array if type(array) is np.ndarray else np.asarray(array)
     code = _CODE.get((a.dtype.kind, a.dtype.itemsize))
     if code is None:
         raise WireError(f"cannot send dtype {a.dtype} (float64, float32, int64 or uint8 only)")
     if a.ndim > MAX_NDIM:
         raise WireError(f"cannot send an array of {a.ndim} dimensions (at most {MAX_NDIM})")
-    payload = np.ascontiguousarray(a, dtype=DTYPES[code]).tobytes()
-    head = HEADER.pack(MAGIC, VERSION, int(kind), code, a.ndim, int(sender), int(step), len(payload))
-    return head + b"".join(_DIM.pack(int(d)) for d in a.shape) + payload
+    wire = DTYPES[code]
+    if a.dtype != wire or not a.flags.c_contiguous:
+        a = np.ascontiguousarray(a, dtype=wire)
+    payload = a.tobytes()
+    head = _HEAD_SHAPE[a.ndim].pack(
+        MAGIC, VERSION, int(kind), code, a.ndim, int(sender), int(step), len(payload), *a.shape
+    )
+    return head + payload
 
 
 def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
     """Parse and check one frame (see the module docstring); :class:`WireError` names what is wrong."""
-    buf = memoryview(frame)
-    size = len(buf)
+    size = len(frame)
     if size > max_bytes:
         raise WireError(f"oversize message: {size} bytes (limit {max_bytes})")
     if size < HEADER.size:
         raise WireError(f"malformed message: {size} bytes, shorter than the {HEADER.size}-byte header")
-    magic, version, kind, code, ndim, sender, step, length = HEADER.unpack_from(buf)
+    magic, version, kind, code, ndim, sender, step, length = HEADER.unpack_from(frame)
     if magic != MAGIC:
         raise WireError(f"malformed message: magic {bytes(magic)!r}, expected {MAGIC!r}")
     if version != VERSION:
@@ -114,11 +123,16 @@ def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
         raise WireError(f"malformed message: unknown dtype code {code}")
     if ndim > MAX_NDIM:
         raise WireError(f"malformed message: ndim {ndim} > {MAX_NDIM}")
-    start = HEADER.size + ndim * _DIM.size
+    start = HEADER.size + ndim * 4
     if size != start + length:
         raise WireError(f"malformed message: {size} bytes, the header announces {start + length}")
-    shape = tuple(_DIM.unpack_from(buf, HEADER.size + k * _DIM.size)[0] for k in range(ndim))
-    if math.prod(shape) * dtype.itemsize != length:
+    shape = _SHAPE[ndim].unpack_from(frame, HEADER.size)
+    count = math.prod(shape)
+    if count * dtype.itemsize != length:
         raise WireError(f"malformed message: shape {shape} of {dtype} is not {length} bytes")
-    arr = np.frombuffer(buf[start:], dtype=dtype).reshape(shape)
-    return Message(kind_, int(sender), int(step), arr.astype(_NATIVE[code], copy=False))
+    arr = np.frombuffer(frame, dtype=dtype, count=count, offset=start)
+    if ndim != 1:
+        arr = arr.reshape(shape)
+    if not _LITTLE:
+        arr = arr.astype(_NATIVE[code])
+    return Message(kind_, sender, step, arr)

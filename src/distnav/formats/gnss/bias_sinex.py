@@ -420,7 +420,7 @@ def write_bias_sinex(
     t_end, t_start = (np.asarray(x).astype("datetime64[s]")[()] for x in (end, start))
     spacing = int(round(float((t_end - t_start).astype(int))))
     sv_ids = svns or {}
-    rows = _solution_rows(obs1, obs2, t0, t1, satellites, stations, station_codes or {}, sv_ids)
+    rows = _solution_rows((obs1, obs2), (t0, t1), (satellites, stations), station_codes or {}, sv_ids)
     notes = list(h.comments) + _omission_notes(satellites, stations, sv_ids)
     text = "\n".join(_file_lines(h, t0, t1, spacing, rows, notes)) + "\n"
     if path is None:
@@ -438,18 +438,18 @@ def _known(v: float, sd: float) -> bool:
     return math.isfinite(v) and math.isfinite(sd)
 
 
+_Biases = Mapping[str, tuple[float, float]]
+_Codes = Mapping[str, tuple[str, str]]
+_Ids = Mapping[str, str]
+
+
 def _solution_rows(
-    obs1: str,
-    obs2: str,
-    t0: str,
-    t1: str,
-    satellites: Mapping[str, tuple[float, float]],
-    stations: Mapping[str, tuple[float, float]],
-    own: Mapping[str, tuple[str, str]],
-    sv_ids: Mapping[str, str],
+    pair: tuple[str, str], span: tuple[str, str], biases: tuple[_Biases, _Biases], own: _Codes, sv_ids: _Ids
 ) -> list[str]:
     """The ``BIAS/SOLUTION`` lines: satellites (SVN from ``sv_ids`` or the system letter), then stations on their
-    ``own`` code pair where given; biases without a value or σ are left out."""
+    ``own`` code pair where given; biases without a value or σ are left out. ``pair`` (obs1, obs2), ``span``
+    (t0, t1), ``biases`` (satellites, stations)."""
+    (obs1, obs2), (t0, t1), (satellites, stations) = pair, span, biases
     rows = [
         _solution_line(sv_ids.get(prn, prn[:1]), prn, "", obs1, obs2, t0, t1, v, sd)
         for prn, (v, sd) in sorted(satellites.items())

@@ -55,6 +55,7 @@ __all__ = [
     "SYSTEM_CODE_PREFERENCE",
     "RINEX2_RECEIVER_ATTRIBUTES",
     "RINEX2_GALILEO_ATTRIBUTES",
+    "RINEX2_GLONASS_TYPES",
 ]
 
 CODE_PREFERENCE: dict[int, tuple[str, ...]] = {
@@ -135,6 +136,7 @@ def read_code_observations(
     phases: bool = False,
     progress: ProgressCallback | None = None,
     system: str = "G",
+    channels: Mapping[str, int] | None = None,
 ) -> CodeObservations:
     """Read the code observations of one system (``system``: ``G`` GPS, ``E`` Galileo, ``C`` BeiDou — RINEX 3
     only for the others) of one RINEX 2.11/3.x observation file (``.o``, ``.d``, ``.crx``, ``.gz``).
@@ -144,8 +146,10 @@ def read_code_observations(
     datetimes, inclusive), ``interval_s`` keeps only epochs on that grid. ``phases=True`` also reads a carrier
     phase per band (``phase_m``, metres, and the loss-of-lock indicators ``lli``; a band without phase is left out
     of ``phase_m``). ``progress(label, fraction)`` is called while reading (see
-    :mod:`distnav.formats.gnss.rinex_obs`, the reader). Raises :class:`~distnav.errors.DataFileError` naming the
-    file for an unreadable file, a file without data of the system, or a band with none of the accepted codes.
+    :mod:`distnav.formats.gnss.rinex_obs`, the reader). ``channels``: GLONASS FDMA channels where the header has
+    none (RINEX 2; e.g. :meth:`~distnav.models.gnss.glonass.GlonassOrbit.channels` of the navigation file). Raises
+    :class:`~distnav.errors.DataFileError` naming the file for an unreadable file, a file without data of the
+    system, or a band with none of the accepted codes.
     """
     p = Path(path)
     lines = read_lines(p)
@@ -173,7 +177,8 @@ def read_code_observations(
     station = _station_name(hdr.marker, p)
     raw = observations_from_lines(p, lines, hdr, wanted, EpochSelection(window, interval_s), progress, station, system)
     ranges = _ranges_m(raw.values, file_types)
-    phase_m, lli = _phases_m(raw, phase_types, ranges, system, hdr.glonass_channels)
+    channel = {**(channels or {}), **hdr.glonass_channels}
+    phase_m, lli = _phases_m(raw, phase_types, ranges, system, channel)
     return CodeObservations(
         station=station,
         path=p,
@@ -189,6 +194,7 @@ def read_code_observations(
         lli=lli,
         phase_types={b: t for b, t in phase_types.items()},
         time_system=hdr.time_system,
+        channels={sv: k for sv, k in channel.items() if sv in raw.svs and system == "R"},
     )
 
 
@@ -215,7 +221,10 @@ def _rinex2_codes(
     """The RINEX 3 code and the RINEX 2 type read per band of a RINEX 2 file, and the notes on the types whose
     tracking mode the receiver make decides (GPS ``C2``/``C5``: :data:`RINEX2_RECEIVER_ATTRIBUTES`; Galileo:
     :data:`RINEX2_GALILEO_ATTRIBUTES`)."""
-    amap, make = _rinex2_attribute_map(receiver) if system == "G" else _rinex2_galileo_map(receiver)
+    if system == "R":
+        amap, make = dict(RINEX2_GLONASS_TYPES), ""
+    else:
+        amap, make = _rinex2_attribute_map(receiver) if system == "G" else _rinex2_galileo_map(receiver)
     inverse: dict[str, list[str]] = {}
     for r2, r3 in amap.items():
         inverse.setdefault(r3, []).append(r2)
@@ -232,7 +241,7 @@ def _rinex2_codes(
                 f"file; types present: {' '.join(types)}"
             )
         chosen[b], file_types[b] = pair
-        if pair[1] in ("C2", "C5") or system != "G":
+        if (system == "G" and pair[1] in ("C2", "C5")) or system == "E":
             notes.append(
                 f"RINEX 2 {pair[1]} read as {pair[0]} "
                 f"({'receiver ' + make if make else 'unknown receiver make: default'})"
@@ -244,6 +253,10 @@ RINEX2_GALILEO_ATTRIBUTES: dict[str, str] = {"SEPT": "CQQQ", "LEICA": "CQQQ", "T
 """Galileo in RINEX 2.11 (``C1 C5 C7 C8``): the RINEX 3 attributes of E1, E5a, E5b, E5 by receiver make
 (Septentrio tracks the pilots: C1C C5Q C7Q C8Q, as CAS lists DGAR's receiver DSB C1C−C5Q; Trimble data+pilot X);
 an unknown make gets X."""
+
+
+RINEX2_GLONASS_TYPES: dict[str, str] = {"C1": "C1C", "P1": "C1P", "C2": "C2C", "P2": "C2P"}
+"""GLONASS in RINEX 2.11: C/A and P code on G1 and G2 (RINEX 2.11 §5.1; no tracking-mode ambiguity)."""
 
 
 def _rinex2_galileo_map(receiver: str) -> tuple[dict[str, str], str]:
@@ -372,6 +385,25 @@ def read_sp3(paths: str | Path | Sequence[str | Path], *, order: int = 9, system
     return SP3Orbit.from_datasets(datasets, system=system, order=order, source=", ".join(str(i) for i in items))
 
 
+def _first_code_as_band_1(o: CodeObservations, first: int) -> CodeObservations:
+    """The first code under key 1 (the models' first signal), whatever its RINEX band (BeiDou B1I is band 2);
+    ``codes[1]`` keeps its real name, so its frequency stays known (:meth:`CodeObservations.frequencies_hz`)."""
+    if first == 1:
+        return o
+
+    def rekey(d: Mapping[int, Any]) -> dict[int, Any]:
+        return {(1 if b == first else b): v for b, v in d.items()}
+
+    return replace(
+        o,
+        codes=rekey(o.codes),
+        range_m=rekey(o.range_m),
+        phase_m=rekey(o.phase_m),
+        lli=rekey(o.lli),
+        phase_types=rekey(o.phase_types),
+    )
+
+
 def read_stations(
     paths: Sequence[str | Path],
     *,
@@ -383,40 +415,29 @@ def read_stations(
     progress: ProgressCallback | None = None,
     l1_fallback: str | None = None,
     system: str = "G",
+    channels: Mapping[str, int] | None = None,
 ) -> list[CodeObservations]:
-    """Read the L1 and second-band codes (band from ``l2_code``: ``C5X`` → L5) of one system (``system``: GPS,
-    or ``E`` Galileo from RINEX 3 files) of every station; a file without ``l1_code`` on L1 is read with
-    ``l1_fallback`` when given (a mixed C1W / C1C-only network)."""
+    """Read the first and second codes (bands from the codes: ``C5X`` → L5, ``C2I`` → BeiDou B1I) of one system
+    (``system``: ``G`` GPS, ``E`` Galileo, ``C`` BeiDou, ``R`` GLONASS; RINEX 2.11 mixed files for Galileo and
+    GLONASS too) of every station, the first code under key 1 whatever its band; a file without ``l1_code`` is
+    read with ``l1_fallback`` when given (a mixed C1W / C1C-only network). ``channels``: GLONASS FDMA channels
+    for files whose header has none."""
     if not paths:
         raise DataFileError("no observation file given")
-    band = int(l2_code[1])
-    codes = {1: l1_code.upper(), band: l2_code.upper()}
+    band, first = int(l2_code[1]), int(l1_code[1])
+    codes = {first: l1_code.upper(), band: l2_code.upper()}
+    bands = (first, band)
+
+    common: dict[str, Any] = {"bands": bands, "tlim": tlim, "interval_s": interval_s, "phases": phases}
+    common.update(progress=progress, system=system, channels=channels)
 
     def read(p: str | Path) -> CodeObservations:
         try:
-            return read_code_observations(
-                p,
-                bands=(1, band),
-                codes=codes,
-                tlim=tlim,
-                interval_s=interval_s,
-                phases=phases,
-                progress=progress,
-                system=system,
-            )
+            return read_code_observations(p, codes=codes, **common)
         except DataFileError as exc:
             if l1_fallback is None or "no L1 code observation" not in str(exc):
                 raise
-        return read_code_observations(
-            p,
-            bands=(1, band),
-            codes={**codes, 1: l1_fallback.upper()},
-            tlim=tlim,
-            interval_s=interval_s,
-            phases=phases,
-            progress=progress,
-            system=system,
-        )
+        return read_code_observations(p, codes={**codes, first: l1_fallback.upper()}, **common)
 
     def read_any_mode(p: str | Path) -> CodeObservations:
         """Galileo: a station without the named code of a band is read with its own (C1C/C5Q for C1X/C5X)."""
@@ -425,13 +446,14 @@ def read_stations(
         except DataFileError as exc:
             if system == "G" or "code observation" not in str(exc):
                 raise
-        o = read_code_observations(
-            p, bands=(1, band), tlim=tlim, interval_s=interval_s, phases=phases, progress=progress, system=system
+        o = read_code_observations(p, **common)
+        note = (
+            f"codes {o.codes[first]}/{o.codes[band]} (no {codes[first]}/{codes[band]}): its receiver DSB is of its "
+            "own pair"
         )
-        note = f"codes {o.codes[1]}/{o.codes[band]} (no {codes[1]}/{codes[band]}): its receiver DSB is of its own pair"
         return replace(o, notes=(*o.notes, note))
 
-    obs = [read_any_mode(p) for p in paths]
+    obs = [_first_code_as_band_1(read_any_mode(p), first) for p in paths]
     stations = [o.station for o in obs]
     dup = sorted({s for s in stations if stations.count(s) > 1})
     if dup:

@@ -74,7 +74,7 @@ class RinexHeader:
     glonass_channels: dict[str, int] = field(default_factory=dict)
 
     def types_of(self, system: str) -> tuple[str, ...]:
-        """The observation types of one system (RINEX 2: every type is shared; GPS and Galileo are read)."""
+        """The observation types of one system (RINEX 2: every type is shared; GPS, Galileo and GLONASS are read)."""
         if self.version < 3:
             return self.gps_types if system in RINEX2_SYSTEMS else ()
         return self.types_by_system.get(system, ())
@@ -282,7 +282,7 @@ def _type_columns(p: Path, hdr: RinexHeader, types: Sequence[str], system: str) 
     return [have.index(t) for t in types]
 
 
-RINEX2_SYSTEMS = ("G", "E")
+RINEX2_SYSTEMS = ("G", "E", "R")
 """Systems read from RINEX 2.11 files (their satellites share the file's types: ``C1``, ``C5``…)."""
 
 _MAX_PRN = {"G": _N_PRN}  # GPS keeps its 1-39 (test PRNs above 32); other systems up to 63 (BeiDou C01-C63)

@@ -40,7 +40,6 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import ModelError
-from distnav.models.gnss.gfbias import gf_m_per_dsb_ns
 
 __all__ = [
     "ARC_FACTOR_ESTIMATOR",
@@ -108,7 +107,7 @@ def _refit(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray
     geo, lay = data.geometry, data.layout
     T, n, S = data.obs_m.shape
     dsb = np.asarray(dsb_ns, float)
-    b_m = -(dsb[:n, None] + dsb[None, n:]) * gf_m_per_dsb_ns(data.band)  # (n, S) b_i + b^s [m]
+    b_m = -(dsb[:n, None] + dsb[None, n:]) * data.dsb_scale_m_per_ns  # (n, S) b_i + b^s [m]
     ok = geo.tracked & np.isfinite(data.obs_m) & np.isfinite(b_m)[None]
     if nodes is not None:
         sel = np.zeros(n, bool)

@@ -12,12 +12,15 @@ from typing import Any
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import DataFileError, ModelError
+from distnav.models.gnss.constants import C_M_S
 from distnav.models.gnss.gfbias import (
     TEC_RW_M_PER_SQRT_S,
     BiasGeometryFreeSeries,
     BiasStateLayout,
     bias_dynamics,
+    gf_m_per_dsb_ns,
 )
 
 __all__ = [
@@ -62,6 +65,14 @@ class BiasNetworkData:
     arc_id: np.ndarray | None = None
     """(T, n, S) the levelled arc of every observation (per station; −1: raw code), ``None`` without levelling
     (:mod:`~distnav.models.gnss.arcprecision`)."""
+    m_per_dsb_ns: float | None = None
+    """Metres of the geometry-free observable per ns of DSB, ``c·10⁻⁹/(μ − 1)`` of the network's signal pair
+    (``None``: GPS L1 and ``band``, :func:`~distnav.models.gnss.gfbias.gf_m_per_dsb_ns`)."""
+
+    @property
+    def dsb_scale_m_per_ns(self) -> float:
+        """Metres of the observable per ns of a DSB (the DSBs' scale, whatever the system)."""
+        return gf_m_per_dsb_ns(self.band) if self.m_per_dsb_ns is None else self.m_per_dsb_ns
 
     def series_for(self, reference: str) -> BiasGeometryFreeSeries:
         """The same data in the basis of another reference receiver."""
@@ -117,6 +128,7 @@ class BiasModelOptions:
     station_weighting: str = "auto"
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         for name, value, allowed in (
             ("ionosphere", self.ionosphere, IONOSPHERE_MODES),
             ("weighting", self.weighting, WEIGHTINGS),
@@ -158,6 +170,9 @@ class GeometryFreeNetwork:
     paths: list[str] | None = None
     sigma_scale: np.ndarray | None = None
     station_sigma: np.ndarray | None = None
+    frequencies_hz: tuple[np.ndarray, np.ndarray] | None = None
+    """``(f_1, f_2)`` (S,) [Hz] of each satellite's two signals (BeiDou B1I/B3I, GLONASS per FDMA channel);
+    ``None``: GPS L1 and the options' ``band`` (GPS, Galileo E1/E5a/E5b/E5)."""
 
 
 def bias_network_model(
@@ -197,13 +212,14 @@ def bias_network_model(
     mode = _ionosphere_mode(xyz, options, notes)
     geo = _tracked_geometry(network, orbit, mode, options, notes)
     keep = _estimated_satellites(geo.tracked, list(network.svs), options.min_satellite_obs, notes)
+    mu_pair, l1_factor = _signal_pair(network, keep, options.band)
     geo = replace(
         geo,
         svs=tuple(network.svs[k] for k in keep.tolist()),
         el_rad=geo.el_rad[:, :, keep],
         az_rad=geo.az_rad[:, :, keep],
         tracked=geo.tracked[:, :, keep],
-        coefficients=geo.coefficients[:, :, keep],
+        coefficients=geo.coefficients[:, :, keep] if l1_factor is None else geo.coefficients[:, :, keep] * l1_factor,
     )
     ref = _reference_receiver(geo.tracked, network.stations, options.reference)
     layout = BiasStateLayout(
@@ -214,7 +230,7 @@ def bias_network_model(
         ref,
         3 if options.tec_order == 1 else 6,
     )
-    sig = _observation_sigma(network, geo, keep, mode, options, notes)
+    sig = _observation_sigma(network, geo, keep, mode, options, notes, mu_pair)
     obs = gf[:, :, keep]
     series = BiasGeometryFreeSeries(layout, geo.coefficients, sig, obs_m=obs, tracked=geo.tracked, groups=geo.groups)
     T = t_all.size
@@ -239,7 +255,28 @@ def bias_network_model(
         obs,
         sig,
         notes,
+        m_per_dsb_ns=None if network.frequencies_hz is None else C_M_S * 1e-9 / (mu_pair - 1.0),
     )
+
+
+def _signal_pair(network: GeometryFreeNetwork, keep: np.ndarray, band: int) -> tuple[float, np.ndarray | None]:
+    """``μ = (f_1/f_2)²`` of the estimated satellites' signal pair and the factor ``(f_L1/f_1)²`` (1, 1, S, 1)
+    that makes their geometry-free code's TEC coefficients those of the L1 delay the state holds (the
+    observable is the delay on the satellite's own f_1: 40.3·TEC/f_1²); ``None`` for GPS/Galileo on L1.
+
+    One μ for all satellites: a DSB of ``d`` ns is ``d·c·10⁻⁹/(μ − 1)`` metres of every satellite's observable,
+    so a receiver bias is one parameter. GLONASS channels change f_1 and f_2 in the same ratio 9/7 (1602/1246 =
+    0.5625/0.4375), so their μ is one; a mix of ratios is refused."""
+    from distnav.models.gnss.constants import F_L1_HZ, mu
+
+    if network.frequencies_hz is None:
+        return mu(band), None
+    f1, f2 = (np.asarray(f, float)[keep] for f in network.frequencies_hz)
+    mus = (f1 / f2) ** 2
+    if not np.allclose(mus, mus[0], rtol=1e-9, atol=0.0):
+        odd = [network.svs[k] for k, m in zip(keep.tolist(), mus.tolist(), strict=True) if abs(m - mus[0]) > 1e-9]
+        raise ModelError(f"the satellites' signal pairs differ in frequency ratio ({' '.join(odd)}): one DSB scale")
+    return float(mus[0]), ((F_L1_HZ / f1) ** 2)[None, None, :, None]
 
 
 def _ionosphere_mode(xyz: np.ndarray, options: BiasModelOptions, notes: list[str]) -> str:
@@ -339,15 +376,20 @@ def _reference_receiver(tracked: np.ndarray, stations: list[str], reference: str
 
 
 def _observation_sigma(
-    network: GeometryFreeNetwork, geo: Any, keep: np.ndarray, mode: str, options: BiasModelOptions, notes: list[str]
+    network: GeometryFreeNetwork,
+    geo: Any,
+    keep: np.ndarray,
+    mode: str,
+    options: BiasModelOptions,
+    notes: list[str],
+    mu_pair: float,
 ) -> np.ndarray:
-    """σ (T, n, S) of every observation: the elevation weighting, the arcs' factors and the stations' factors
-    (the latter noted as a model choice with its reason)."""
-    from distnav.models.gnss.constants import mu
+    """σ (T, n, S) of every observation: the elevation weighting (zenith σ √2·30 cm/(μ − 1) of the signal pair
+    ``mu_pair`` unless given), the arcs' factors and the stations' factors (the latter noted as a model choice
+    with its reason)."""
     from distnav.models.gnss.observables import elevation_sigma
 
-    band = options.band
-    sig0 = (np.sqrt(2.0) * 0.30 / (mu(band) - 1.0)) if options.sigma_zenith_m is None else float(options.sigma_zenith_m)
+    sig0 = (np.sqrt(2.0) * 0.30 / (mu_pair - 1.0)) if options.sigma_zenith_m is None else float(options.sigma_zenith_m)
     el = np.where(geo.tracked, geo.el_rad, 0.5 * np.pi)
     sig = elevation_sigma(el, sig0, options.weighting)
     if network.sigma_scale is not None:

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from distnav.models.gnss.systems import signal_pair_frequencies_hz
+
 __all__ = ["CodeObservations", "ProgressCallback"]
 
 ProgressCallback = Callable[[str, float], None]
@@ -23,7 +25,9 @@ class CodeObservations:
     used for the band (e.g. ``{1: "C1C", 2: "C2W", 5: "C5X"}``), ``range_m[band]`` (T, S) pseudo-ranges in
     metres with NaN where not observed, ``position_ecef_m`` the header's approximate position. With
     ``phases=True``: ``phase_m[band]`` (T, S) carrier phase in metres (cycles × λ; NaN where the code is missing),
-    ``lli[band]`` its loss-of-lock indicators, ``phase_types[band]`` the phase type read.
+    ``lli[band]`` its loss-of-lock indicators, ``phase_types[band]`` the phase type read. Another system's first
+    code (BeiDou ``C2I``) is kept under key 1 by :func:`~distnav.formats.gnss.rinex.read_stations` (``codes[1]``
+    names its real band; :meth:`frequencies_hz` gives the carrier frequencies).
     """
 
     station: str
@@ -40,10 +44,17 @@ class CodeObservations:
     lli: dict[int, np.ndarray] = field(default_factory=dict)
     phase_types: dict[int, str] = field(default_factory=dict)
     time_system: str = "GPS"
+    channels: dict[str, int] = field(default_factory=dict)
+    """GLONASS FDMA channel per satellite (``{"R01": 1}``; the header's ``GLONASS SLOT / FRQ #``)."""
 
     @property
     def n_epochs(self) -> int:
         return int(self.time.size)
+
+    def frequencies_hz(self, band: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(f_1, f_b)`` [Hz] per satellite of the first code and the code of ``band`` (their own RINEX bands and
+        system, GLONASS channels from :attr:`channels`)."""
+        return signal_pair_frequencies_hz(self.svs, self.codes[1], self.codes[band], self.channels)
 
     def satellites_with_all_bands(self) -> tuple[str, ...]:
         """Satellites observed on every band at one epoch at least."""

@@ -33,10 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from distnav.algorithms.kalman import DynamicModel, MeasurementSeries
+from distnav.algorithms.kalman import DynamicModel
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import C_M_S, mu
-from distnav.models.gnss.ionosphere import TEC_NAMES, TEC_NAMES_QUADRATIC, VTEC_RW_STD_M_PER_SQRT_S, series_inputs
+from distnav.models.gnss.ionosphere import TEC_NAMES, TEC_NAMES_QUADRATIC, VTEC_RW_STD_M_PER_SQRT_S, SeriesArrays
 
 __all__ = [
     "DATUMS",
@@ -58,6 +58,9 @@ code's information on the level), 1 mm/√s (0.37 TECU per hour) is far stiffer 
 through the elevation dependence of the mapping function, into the satellite DCBs (6-h sessions several times
 worse than the full day; measured in docs/ionosphere.md, "Why the 6-h sessions got worse")."""
 
+NORMALS_BLOCK = 64
+"""Epochs whose normals :meth:`BiasGeometryFreeSeries.normals` computes at once (one batched product)."""
+
 DATUMS = ("zero-mean", "pivot", "receiver")
 """Output datums: zero-mean satellites (IGS products), pivot satellite, reference receiver."""
 
@@ -68,9 +71,13 @@ def gf_m_per_dsb_ns(band: int = 2) -> float:
     return C_M_S * 1e-9 / (mu(band) - 1.0)
 
 
-def geometry_free_band_m(p1_m: np.ndarray, pb_m: np.ndarray, band: int = 2) -> np.ndarray:
-    """``(P_b − P_1)/(μ_b − 1)`` [m] with the frequency factor of the second code's band; NaN propagates."""
-    out: np.ndarray = (np.asarray(pb_m, dtype=float) - np.asarray(p1_m, dtype=float)) / (mu(band) - 1.0)
+def geometry_free_band_m(
+    p1_m: np.ndarray, pb_m: np.ndarray, band: int = 2, *, mu_b: float | np.ndarray | None = None
+) -> np.ndarray:
+    """``(P_b − P_1)/(μ_b − 1)`` [m] with the frequency factor of the second code's GPS band, or ``mu_b`` (scalar
+    or (S,) per satellite column: another system's pair, GLONASS channels); NaN propagates."""
+    factor = (mu(band) if mu_b is None else np.asarray(mu_b, dtype=float)) - 1.0
+    out: np.ndarray = (np.asarray(pb_m, dtype=float) - np.asarray(p1_m, dtype=float)) / factor
     return out
 
 
@@ -105,31 +112,24 @@ class BiasStateLayout:
 
     def receiver_column(self) -> np.ndarray:
         """State column of each receiver's bias (``-1`` for the reference receiver in basis "receiver")."""
-        cached = self.__dict__.get("_rcol")
-        if cached is not None:
-            return np.asarray(cached).copy()
-        col = np.full(len(self.receivers), -1, np.int64)
-        k = self.n_tec
-        for j, r in enumerate(self.receivers):
-            if not (self.basis == "receiver" and r == self.reference):
-                col[j] = k
-                k += 1
-        object.__setattr__(self, "_rcol", col.copy())
-        return col
+        lumped = self.reference if self.basis == "receiver" else None
+        return self._columns("_rcol", self.receivers, lumped, self.n_tec)
 
     def satellite_column(self) -> np.ndarray:
         """State column of each satellite's bias (``-1`` for the pivot in basis "pivot")."""
-        cached = self.__dict__.get("_scol")
-        if cached is not None:
-            return np.asarray(cached).copy()
-        col = np.full(len(self.svs), -1, np.int64)
-        k = self.n_tec + int((self.receiver_column() >= 0).sum())
-        for j, s in enumerate(self.svs):
-            if not (self.basis == "pivot" and s == self.reference):
-                col[j] = k
-                k += 1
-        object.__setattr__(self, "_scol", col.copy())
-        return col
+        lumped = self.reference if self.basis == "pivot" else None
+        return self._columns("_scol", self.svs, lumped, self.n_tec + int((self.receiver_column() >= 0).sum()))
+
+    def _columns(self, key: str, names: Sequence[str], lumped: str | None, first: int) -> np.ndarray:
+        """Consecutive state columns from ``first`` for ``names``, ``-1`` for the one lumped into the others
+        (computed once, a copy returned)."""
+        cached = self.__dict__.get(key)
+        if cached is None:
+            cached = np.full(len(names), -1, np.int64)
+            free = [j for j, name in enumerate(names) if name != lumped]
+            cached[free] = first + np.arange(len(free))
+            object.__setattr__(self, key, cached)
+        return np.asarray(cached).copy()
 
     @property
     def n_states(self) -> int:
@@ -171,7 +171,7 @@ def bias_dynamics(
     return DynamicModel(layout.n_states, noise_map=[H] * dt.size, noise_reduced_cov=[np.diag(q2 * d) for d in dts])
 
 
-class BiasGeometryFreeSeries(MeasurementSeries):
+class BiasGeometryFreeSeries(SeriesArrays):
     """Per-node, per-epoch normals ``N = Āᵀ W Ā``, ``r = Āᵀ W y`` of the undifferenced model (module doc) with
     design rows ``Ā = [a_s (node's TEC block), e_{col(i)}, e_{col(s)}]`` and weights ``w = 1/σ²``.
 
@@ -180,42 +180,31 @@ class BiasGeometryFreeSeries(MeasurementSeries):
     observed), ``tracked`` (T, n, S), ``groups`` (n,).
     """
 
-    def __init__(
-        self,
-        layout: BiasStateLayout,
-        coefficients: np.ndarray,
-        sigma_m: np.ndarray,
-        *,
-        obs_m: np.ndarray | None = None,
-        tracked: np.ndarray | None = None,
-        groups: np.ndarray | None = None,
-    ) -> None:
-        a, sig, ok, y, g = series_inputs(
-            coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres, layout.n_tec_terms
-        )
-        T, n, S, _ = a.shape
-        if S != len(layout.svs) or n != len(layout.receivers):
+    layout: BiasStateLayout
+
+    def _usable(self, a: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """Every tracked observation, on the layout's receivers and satellites."""
+        _, n, S, _ = a.shape
+        if S != len(self.layout.svs) or n != len(self.layout.receivers):
             raise ModelError(
                 f"coefficients for {n} receivers × {S} satellites, the layout has "
-                f"{len(layout.receivers)} × {len(layout.svs)}"
+                f"{len(self.layout.receivers)} × {len(self.layout.svs)}"
             )
-        self.layout = layout
-        self.n_epochs, self.n_nodes, self.n_states, self.n_satellites = T, n, layout.n_states, S
-        self._a = np.where(ok[..., None], a, 0.0)
-        self._w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
-        self._y = None if y is None else np.where(ok, y, 0.0)
-        self._groups = g
+        return ok
+
+    def _setup(self) -> None:
+        layout, n, S = self.layout, self.n_nodes, self.n_satellites
         self._rcol = layout.receiver_column()
         self._scol = layout.satellite_column()
         self._last_design: tuple[tuple[int, bytes], np.ndarray, np.ndarray] | None = None
         self._epoch_cache: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._normals_block: tuple[int, np.ndarray, np.ndarray] | None = None
         self._static = np.zeros((n, S, layout.n_states))
         for i in range(n):
             if self._rcol[i] >= 0:
                 self._static[i, :, self._rcol[i]] = 1.0
         sv = np.flatnonzero(self._scol >= 0)
         self._static[:, sv, self._scol[sv]] = 1.0
-        self.tracked = ok
 
     def design(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Design rows ``Ā`` (k, S, p) and weights ``w`` (k, S) (zero where not tracked)."""
@@ -249,9 +238,30 @@ class BiasGeometryFreeSeries(MeasurementSeries):
         return A, w
 
     def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        A, w = self.design(epoch, nodes)
-        y = None if self._y is None else self._y[self._epoch(epoch), self._nodes(nodes)]
-        return _weighted_normals(A, w, y)
+        """Every node's ``N = Āᵀ W Ā``, ``r = Āᵀ W y`` at ``epoch`` (k, p, p), (k, p): computed for
+        :data:`NORMALS_BLOCK` epochs of all nodes at once (the filters walk the epochs in order) and sliced."""
+        t, idx = self._epoch(epoch), self._nodes(nodes)
+        blk = self._normals_block
+        if blk is None or not blk[0] <= t < blk[0] + blk[1].shape[0]:
+            blk = self._normals_block = self._block_normals(t)
+        N, r = blk[1][t - blk[0]], blk[2][t - blk[0]]
+        return N[idx], r[idx]
+
+    def _block_normals(self, t0: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """The normals of epochs ``t0 … t0 + NORMALS_BLOCK − 1`` (B, n, p, p), (B, n, p): the design rows of
+        :meth:`_epoch_design` for the block in one array, then one batched product."""
+        ts = np.arange(t0, min(t0 + NORMALS_BLOCK, self.n_epochs))
+        nt = self.layout.n_tec_terms
+        A = np.repeat(self._static[None], ts.size, axis=0)
+        for i in range(self.n_nodes):
+            g = int(self._groups[i])
+            A[:, i, :, nt * g : nt * (g + 1)] = self._a[ts, i]
+        w = self._w[ts]
+        A *= (w > 0)[..., None]
+        Aw = A * w[..., None]
+        N = np.swapaxes(Aw, -1, -2) @ A
+        r = np.zeros(N.shape[:-1]) if self._y is None else np.einsum("bksp,bks->bkp", Aw, self._y[ts])
+        return int(t0), N, r
 
     def records(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per node and satellite the observation (m) and its weight ``1/σ²`` (0: not tracked), (k, S) each: the

@@ -18,6 +18,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import ModelError
 from distnav.models.gnss.arcprecision import arc_variance_factor, postfit_residuals
 from distnav.models.gnss.biasmodel import (
@@ -28,7 +29,7 @@ from distnav.models.gnss.biasmodel import (
     arc_sigma_scale,
     bias_network_model,
 )
-from distnav.models.gnss.gfbias import TEC_RW_M_PER_SQRT_S, gf_m_per_dsb_ns
+from distnav.models.gnss.gfbias import TEC_RW_M_PER_SQRT_S
 from distnav.models.gnss.gfcollector import Collector, DatumSeries
 
 __all__ = [  # the model stage's names are re-exported (their home: distnav.models.gnss.biasmodel)
@@ -232,6 +233,7 @@ class BiasFilterOptions:
     between_station_level: float | None = 0.05
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if self.between_station_level is not None and not 0.0 < self.between_station_level < 0.5:
             raise ModelError(f"between_station_level must lie in (0, 0.5), got {self.between_station_level}")
         if self.datum not in DATUMS:
@@ -263,7 +265,7 @@ def run_bias_filters(
         "datum": options.datum,
         "pivot": options.pivot,
         "reference": options.reference,
-        "scale": gf_m_per_dsb_ns(data.band),
+        "scale": data.dsb_scale_m_per_ns,
         "datum_satellites": options.datum_satellites,
         "datum_reference_ns": options.datum_reference_ns,
     }

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import ModelError
 from distnav.models.gnss.constants import IONO_EARTH_RADIUS_M
 from distnav.models.gnss.geometry import (
@@ -134,6 +135,7 @@ class GeometryOptions:
     mapping: str = "slm"
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if self.mapping not in ("slm", "mslm"):
             raise ModelError(f"mapping must be 'slm' or 'mslm', got {self.mapping!r}")
         if self.ionosphere not in ("common", "per-receiver"):

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -65,6 +66,7 @@ from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
 
 __all__ = [
     "TECU_L1_M",
+    "SeriesArrays",
     "GF_M_PER_DSB_NS",
     "GF_SIGMA_ZENITH_M",
     "VTEC_RW_STD_M_PER_SQRT_S",
@@ -269,7 +271,45 @@ def series_inputs(
     return a, sig, ok, y, g
 
 
-class GeometryFreeSeries(MeasurementSeries):
+class SeriesArrays(MeasurementSeries):
+    """The arrays the geometry-free series share (:class:`GeometryFreeSeries`, :class:`~distnav.models.gnss.gfbias.
+    BiasGeometryFreeSeries`): inputs over (T epochs, n nodes, S satellites) checked by :func:`series_inputs` —
+    ``coefficients`` (T, n, S, terms), ``sigma_m``, ``obs_m`` (NaN = not observed), ``tracked`` (T, n, S),
+    ``groups`` (n,) — kept as TEC coefficients ``_a``, weights ``_w = 1/σ²`` and values ``_y``, zero where not
+    usable (:meth:`_usable`, each model's rule); :meth:`_setup` adds the model's own columns."""
+
+    def __init__(
+        self,
+        layout: Any,
+        coefficients: np.ndarray,
+        sigma_m: np.ndarray,
+        *,
+        obs_m: np.ndarray | None = None,
+        tracked: np.ndarray | None = None,
+        groups: np.ndarray | None = None,
+    ) -> None:
+        terms = getattr(layout, "n_tec_terms", 3)
+        a, sig, ok, y, g = series_inputs(coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres, terms)
+        self.layout = layout
+        ok = self._usable(a, ok)
+        T, n, S, _ = a.shape
+        self.n_epochs, self.n_nodes, self.n_states, self.n_satellites = T, n, layout.n_states, S
+        self._a = np.where(ok[..., None], a, 0.0)
+        self._w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
+        self._y = None if y is None else np.where(ok, y, 0.0)
+        self._groups = g
+        self.tracked = ok
+        self._setup()
+
+    def _usable(self, a: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """The observations the model uses of those tracked (and the shape checks against the layout)."""
+        return ok
+
+    def _setup(self) -> None:
+        """The model's own state columns (after the arrays)."""
+
+
+class GeometryFreeSeries(SeriesArrays):
     """Per-node, per-epoch normals of the between-satellite geometry-free model (paper 003 eqs. (49)–(51)).
 
     Inputs over (T epochs, n nodes, S satellites): ``coefficients`` (T, n, S, 3), ``sigma_m`` (T, n, S) standard
@@ -285,31 +325,20 @@ class GeometryFreeSeries(MeasurementSeries):
     eliminated. A node tracking fewer than two satellites contributes nothing.
     """
 
-    def __init__(
-        self,
-        layout: IonosphereStateLayout,
-        coefficients: np.ndarray,
-        sigma_m: np.ndarray,
-        *,
-        obs_m: np.ndarray | None = None,
-        tracked: np.ndarray | None = None,
-        groups: np.ndarray | None = None,
-    ) -> None:
-        a, sig, ok, y, g = series_inputs(coefficients, sigma_m, obs_m, tracked, groups, layout.n_ionospheres)
-        T, n, S, _ = a.shape
-        if S != len(layout.svs):
-            raise ModelError(f"coefficients for {S} satellites, the state layout has {len(layout.svs)}")
-        ok &= ok.sum(axis=2, keepdims=True) >= 2  # one satellite alone gives no between-satellite difference
-        self.layout = layout
-        self.n_epochs, self.n_nodes, self.n_states = T, n, layout.n_states
-        self.n_satellites = S
-        self._a = np.where(ok[..., None], a, 0.0)
-        self._w = np.where(ok, 1.0 / np.where(ok, sig, 1.0) ** 2, 0.0)
-        self._y = None if y is None else np.where(ok, y, 0.0)
-        self._groups = g
-        self._col = layout.dcb_column()
+    layout: IonosphereStateLayout
+
+    def _usable(self, a: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """The satellites of the layout; a node-epoch with one satellite alone gives no between-satellite
+        difference."""
+        S = a.shape[2]
+        if S != len(self.layout.svs):
+            raise ModelError(f"coefficients for {S} satellites, the state layout has {len(self.layout.svs)}")
+        out: np.ndarray = ok & (ok.sum(axis=2, keepdims=True) >= 2)
+        return out
+
+    def _setup(self) -> None:
+        self._col = self.layout.dcb_column()
         self._sv = np.flatnonzero(self._col >= 0)  # satellites with a DCB column, in column order
-        self.tracked = ok
 
     def design(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Undifferenced design rows ``Ā`` (k, S, p) and weights ``w`` (k, S) (zero where not tracked)."""

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.algorithms.result import ObservationTests
 from distnav.algorithms.statistics import critical_value, w_statistics
 from distnav.errors import ModelError
@@ -354,6 +355,7 @@ class LevellingOptions:
     frequencies_hz: tuple[Any, Any] | None = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if self.band == 1:
             raise ModelError("levelling: band 1 is the first frequency; the second is 2, 5, …")
         if self.min_arc_epochs < 2:

@@ -55,6 +55,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import ModelError
 from distnav.models.gnss.code_observations import CodeObservations
 from distnav.models.gnss.constants import C_M_S, GPS_FREQUENCIES_HZ, mu
@@ -191,6 +192,7 @@ class NetworkSimOptions:
     shell_jitter_km: float = 0.0
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if not (np.isfinite(self.interval_s) and self.interval_s > 0) or not 0 < self.hours <= 24:
             raise ModelError(f"interval {self.interval_s} s / {self.hours} h: must be positive (at most 24 h)")
         if not 0.0 <= self.gross_fraction < 0.5:

@@ -24,6 +24,9 @@ __all__ = [
     "WORST_LEVEL",
 ]
 
+NsByName = dict[str, float]
+"""DSBs [ns] by satellite (``G01``) or station (``BELE``)."""
+
 WORST_LEVEL = 0.05
 """Family-wise level of :func:`worst_satellite`'s "stands out" flag (Bonferroni over the compared satellites)."""
 
@@ -127,6 +130,6 @@ class DSBEstimates:
     source: str
     obs1: str
     obs2: str
-    satellite: dict[str, float]
-    station: dict[str, float]
+    satellite: NsByName
+    station: NsByName
     days: tuple[np.datetime64, ...]

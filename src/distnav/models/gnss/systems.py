@@ -27,6 +27,7 @@ __all__ = [
     "BEIDOU_GEO_PRNS",
     "carrier_frequencies_hz",
     "is_beidou_geo",
+    "signal_pair_frequencies_hz",
 ]
 
 SYSTEM_NAMES: dict[str, str] = {
@@ -92,3 +93,27 @@ def carrier_frequencies_hz(
         known = ", ".join(f"{s}: {sorted(t)}" for s, t in CARRIER_FREQUENCIES_HZ.items())
         raise DataFileError(f"no carrier frequency for system {system!r} band {band} (known bands: {known})")
     return np.full(len(svs), table[band])
+
+
+def signal_pair_frequencies_hz(
+    svs: Sequence[str], first_code: str, second_code: str, channels: Mapping[str, int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(f_1, f_2)`` [Hz] per satellite of ``svs`` (S,) for two RINEX 3 codes (``C2I``/``C6I``: the band digit of
+    each code, the system letter of each satellite): the frequency pair of the geometry-free combination,
+    ``μ = (f_1/f_2)²`` (per satellite for GLONASS, whose FDMA channel sets both; NaN without a channel).
+
+    >>> from distnav.models.gnss.systems import signal_pair_frequencies_hz
+    >>> f1, f2 = signal_pair_frequencies_hz(["C08"], "C2I", "C6I")
+    >>> float(f1[0]) / 1e6, float(f2[0]) / 1e6
+    (1561.098, 1268.52)
+    >>> f1, f2 = signal_pair_frequencies_hz(["R01", "R26"], "C1C", "C2C", {"R01": 1})
+    >>> f1 / 1e6, f2 / 1e6
+    (array([1602.5625,       nan]), array([1246.4375,       nan]))
+    """
+    f1, f2 = np.full(len(svs), np.nan), np.full(len(svs), np.nan)
+    for system in sorted({s[:1] for s in svs}):
+        idx = [k for k, s in enumerate(svs) if s[:1] == system]
+        names = [svs[k] for k in idx]
+        f1[idx] = carrier_frequencies_hz(system, int(first_code[1]), names, channels)
+        f2[idx] = carrier_frequencies_hz(system, int(second_code[1]), names, channels)
+    return f1, f2

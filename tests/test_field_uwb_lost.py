@@ -1,0 +1,63 @@
+"""A UWB anchor process killed mid-run: the others agree on it, solve again on their own data and finish (issue 26
+item 4): every remaining anchor names the lost one and the step, and the answer is LM's solution of the remaining
+data (the ranges of the remaining anchors, the dead one's links dropped) to 1 mm — and bit for bit the same solver
+run in-process on that data. Separate node processes on loopback, bounded in time, cleaned up by ``launch``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zmq")
+
+from distnav.algorithms.ranging.csg import solve  # noqa: E402
+from distnav.algorithms.ranging.data import RangingData  # noqa: E402
+from distnav.commands.field import launch  # noqa: E402
+from distnav.commands.field_processes import LoopbackOptions  # noqa: E402
+from distnav.commands.field_scenarios import hall_scenario, remaining_data, write_scenario  # noqa: E402
+from distnav.exchange import make_exchange  # noqa: E402
+from distnav.network.graph import Graph  # noqa: E402
+
+WELL_CONNECTED = {"link_loss": 0.0, "range_limit_m": 40.0}  # every pair in range measured: one LM minimum
+
+
+def _victim(p: RangingData) -> int:
+    """The highest-id anchor with free coordinates whose loss leaves the rest connected."""
+    for v in range(p.n_anchors - 1, -1, -1):
+        if p.fixed[v]:
+            continue
+        links = [(a, b) for a, b in p.links.tolist() if v not in (a, b)]
+        keep = [i for i in range(p.n_anchors) if i != v]
+        index = {k: n for n, k in enumerate(keep)}
+        if Graph.from_links(len(keep), [(index[a], index[b]) for a, b in links]).is_connected:
+            return v
+    raise AssertionError("no removable anchor")
+
+
+def test_uwb_anchors_go_on_without_a_killed_anchor(tmp_path: Path) -> None:
+    sc = hall_scenario(14, seed=5, iterations=300, objective="metres", hall=WELL_CONNECTED)
+    assert sc.ranging is not None
+    victim = _victim(sc.ranging)
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=2000, crash={victim: 40}))
+    summary = launch(net, tmp_path / "run", timeout_s=400, quiet=True)
+    rest = [i for i in range(14) if i != victim]
+    assert summary["crashed_on_purpose"] == [victim], summary
+    assert summary["finished"] == rest and summary["failed"] == [] and summary["stopped"] == [], summary
+    nodes = [summary["nodes"][str(i)] for i in rest]
+    steps = {r["lost_nodes"][str(victim)] for r in nodes}
+    assert all(list(r["lost_nodes"]) == [str(victim)] for r in nodes)  # named at every remaining anchor
+    assert len(steps) == 1 and steps.pop() >= 40  # the same step everywhere, not before it died
+    assert all(r["status"].endswith("_without_lost_nodes") and r["remaining_nodes"] == rest for r in nodes)
+    assert all(f"{victim} (at step" in r["message"] for r in nodes)
+
+    reduced = remaining_data(sc.ranging, victim)  # from the full problem's arrays, not the nodes' sample rows
+    field = np.array([r["estimate"] for r in nodes], dtype=float)
+    lm = solve(reduced, "LM", iterations=500, objective="metres")
+    assert lm.status == "converged"
+    assert np.abs(field - lm.estimates).max() <= 1e-3  # issue 26: within 1 mm of LM on the remaining data
+    inproc = solve(reduced, "N-CLM", iterations=300, objective="metres", exchange=make_exchange(reduced.graph))
+    np.testing.assert_array_equal(field, inproc.estimates)  # the same solver from the same start, in-process
+    full = solve(sc.ranging, "LM", iterations=500, objective="metres").estimates[rest]
+    assert np.abs(full - lm.estimates).max() > 1e-3  # the dead anchor's ranges mattered: not the full answer
