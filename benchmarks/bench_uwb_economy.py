@@ -12,7 +12,8 @@ and how both grow with the network.
    the third session: float16 directions' rows with a shared exponent, float32 CG scalars, CG stopped on ``rᵀr``,
    every trial's parameters in float64, the seed fits at their stage tolerances, the σ gathered at one anchor)
    and *after* (the defaults: each neighbour's product sent per link, ``wire.PROJECTED``; CG stopped on ``rᵀz``,
-   ``refine.PRECONDITIONED_STOP``; trials as float32 steps, ``wire.STEPS``); the positions, their largest
+   ``refine.PRECONDITIONED_STOP``; trials as float32 steps, ``wire.STEPS``; a round's own totals but the
+   objective in float32, ``refine.ROUND_SCALARS``); the positions, their largest
    difference from
    *today*'s, the σ ratio to *today*'s central σ; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
@@ -76,7 +77,12 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (wire, "PLAIN"): True,
         (wire, "CG_SCALAR_DTYPE"): np.float64,
     },
-    "today": {(wire, "PROJECTED"): False, (wire, "STEPS"): False, (ranging_refine, "PRECONDITIONED_STOP"): False},
+    "today": {
+        (wire, "PROJECTED"): False,
+        (wire, "STEPS"): False,
+        (ranging_refine, "PRECONDITIONED_STOP"): False,
+        (ranging_refine, "ROUND_SCALARS"): False,
+    },
     "after": {},
 }
 OPTIONS = {
@@ -198,6 +204,16 @@ def _tree_sends(graph: Graph, balanced: bool = True) -> np.ndarray:
     the root of scipy's BFS tree sent every total to each of its children); False: scipy's BFS tree."""
     root = gather_cost(graph, np.ones(graph.n_nodes)).sink
     adj = graph.adjacency().tocsr()
+    if balanced:  # the root sends every total to each of its children, all its neighbours in a BFS tree: the
+        # anchor of the lowest degree within two hops of the centre (the tree one or two levels deeper)
+        near = breadth_first_order(adj, root, directed=False, return_predecessors=True)
+        hops = np.full(graph.n_nodes, np.iinfo(np.int64).max)
+        hops[root] = 0
+        for v in near[0][1:]:
+            hops[v] = hops[near[1][v]] + 1
+        degree = np.diff(adj.indptr)
+        cand = np.flatnonzero(hops <= 2)
+        root = int(cand[np.lexsort((cand, hops[cand], degree[cand]))[0]])
     order, pred = breadth_first_order(adj, root, directed=False, return_predecessors=True)
     if balanced:
         level = np.zeros(graph.n_nodes, np.int64)

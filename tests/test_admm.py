@@ -18,6 +18,7 @@ from distnav.algorithms.lsq.admm import (
     range_positioning_problem,
 )
 from distnav.algorithms.lsq.blue import LinearProblem, blue, single_consensus_admm
+from distnav.algorithms.lsq.nonlinear import LinearizedOptions, NonlinearOptions
 from distnav.errors import ModelError, UsageError
 from distnav.exchange import FaultSchedule, make_exchange
 from distnav.network import builders
@@ -267,6 +268,22 @@ def test_nonlinear_x_update_admm_matches_gauss_newton(ranges):
     assert np.abs(res.estimates - xg).max() < 1e-6
     with pytest.raises(ModelError, match="gn_steps must be"):
         admm_nonlinear(prob, g, x0, gn_steps=0)
+
+
+def test_nonlinear_options_objects_and_keywords_run_the_same(ranges):
+    """LinearizedOptions / NonlinearOptions in the house style: the object, keyword changes or both, bit for bit."""
+    g, prob, x0 = ranges
+    lin = admm_linearized(prob, g, x0, W=1.0, outer_iterations=2, inner_max_iterations=50)
+    opts = LinearizedOptions(W=1.0, outer_iterations=2)
+    lin_obj = admm_linearized(prob, g, x0, options=opts, inner_max_iterations=50)
+    np.testing.assert_array_equal(lin_obj.estimates, lin.estimates)
+    nl = admm_nonlinear(prob, g, x0, W=1.0, max_iterations=40, gn_steps=1)
+    nl_obj = admm_nonlinear(prob, g, x0, options=NonlinearOptions(W=1.0, max_iterations=40, gn_steps=1))
+    np.testing.assert_array_equal(nl_obj.estimates, nl.estimates)
+    with pytest.raises(UsageError, match="NonlinearOptions has no option 'gn_step'.*'gn_steps'"):
+        admm_nonlinear(prob, g, x0, gn_step=1)
+    with pytest.raises(ModelError, match="max_iterations must be"):
+        LinearizedOptions(inner_max_iterations=-1)
 
 
 def test_range_model_validation():

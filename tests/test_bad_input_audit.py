@@ -236,7 +236,7 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-out-file", (*io, "--out", "{file}"), "is an existing file"),
         Cli("gnss-ionosphere-ranks-zero", (*io, *o, "--ranks", "0"), "must be at least 1"),
         Cli("gnss-ionosphere-ionosphere", (*io, *o, "--ionosphere", "global"), "invalid choice"),
-        Cli("gnss-ionosphere-system", (*io, *o, "--system", "C"), "invalid choice"),
+        Cli("gnss-ionosphere-system", (*io, *o, "--system", "X"), "invalid choice"),
         Cli("gnss-ionosphere-kn-text", (*io, *o, "--kn", "x"), "invalid int value"),
     ]
     for cmd, argv in (("codebias", cb), ("ionosphere", io)):
@@ -270,6 +270,7 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-min-satellite-obs-zero", (*io, *o, "--min-satellite-obs", "0"), "--min-satellite-obs"),
         Cli("gnss-ionosphere-tec-field-choice", (*io, *o, "--tec-field", "cubic"), "invalid choice"),
         Cli("gnss-ionosphere-mapping-choice", (*io, *o, "--mapping", "flat"), "invalid choice"),
+        Cli("gnss-ionosphere-model-spread-choice", (*io, *o, "--model-spread", "on"), "invalid choice"),
         Cli("gnss-ionosphere-innovation-test-one", (*io, *o, "--innovation-test", "1"), "--innovation-test"),
         Cli("gnss-ionosphere-innovation-test-zero", (*io, *o, "--innovation-test", "0"), "--innovation-test"),
         Cli("gnss-ionosphere-between-station-one", (*io, *o, "--between-station-level", "0.5"), "--between-station"),

@@ -140,3 +140,14 @@ def test_record_and_observation_bytes_per_node() -> None:
     # rows of 16 B (value, σ) + 12 B per non-zero entry -> 28 + 40
     series = ObservationSeries(2, [[(np.array([[1.0, 0.0], [1.0, 2.0]]), np.eye(2), np.zeros(2)), None]])
     assert observation_bytes_per_node(series).tolist() == [68, 0]
+
+
+def test_one_node_run_says_nothing_was_needed_not_an_infinite_ratio() -> None:
+    """A one-station network (gnss ionosphere on one receiver) sends nothing and gathering costs nothing: the line
+    says so instead of '∞× the bytes'."""
+    cmp = compare_with_gather((0, 0), builders.path(1), [240], data="every epoch's observations", node_label="station")
+    assert cmp.total_bytes == 0 and cmp.gather.total_hop_bytes == 0
+    assert "∞" not in cmp.line()
+    assert cmp.line() == (
+        "sent 0 B in 0 messages; gathering would cost nothing either: the data are already at one station"
+    )

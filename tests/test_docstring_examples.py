@@ -16,11 +16,22 @@ FRONT_DOORS = [
     ("distnav.exchange", "make_exchange"),
     ("distnav.algorithms.statistics", "critical_value"),
     ("distnav.algorithms.statistics", "variance_factor"),
+    ("distnav.algorithms.consensus.averaging", "average_consensus"),  # the algorithm families' front doors
+    ("distnav.algorithms.lsq.blue", "blue"),
+    ("distnav.algorithms.lsq.admm", "admm"),
+    ("distnav.algorithms.kalman.ckf", "ckf"),
+    ("distnav.algorithms.consensus.pushsum", "push_sum"),
+    ("distnav.algorithms.lsq.qc", "admm_data_snooping"),
+    ("distnav.algorithms.lsq.qc", "admm_precision"),
+    ("distnav.algorithms.lsq.blue", "method_of_multipliers"),
+    ("distnav.algorithms.kalman.information", "central_filter"),
+    ("distnav.algorithms.kalman.ckf_design", "ckf_error_variance"),
     ("distnav.models.gnss.biasmodel", "bias_network_model"),  # the GNSS bias pipeline's stages (issue 25 item 4)
     ("distnav.models.gnss.levelling", "level_station"),
     ("distnav.models.gnss.ionogeometry", "ionosphere_geometry"),
     ("distnav.models.gnss.netsim", "simulate_network"),
     ("distnav.models.gnss.systems", "signal_pair_frequencies_hz"),  # per-satellite frequency pairs (issue 32)
+    ("distnav.algorithms.ranging.csg", "solve_ncsg"),  # the ranging front doors' options objects
 ]
 
 

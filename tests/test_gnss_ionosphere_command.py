@@ -337,3 +337,37 @@ def test_c1_corrections_from_a_product(shared_data: Path, tmp_path: Path, capsys
         )
         == 2
     )
+
+
+@pytest.mark.parametrize(
+    ("system", "codes"), [("G", (None, "C2W")), ("E", ("C1X", "C5X")), ("C", ("C2I", "C6I")), ("R", ("C1C", "C2C"))]
+)
+def test_each_system_has_default_codes_that_pass_its_own_check(
+    system: str, codes: tuple[str | None, str], tmp_path: Path
+) -> None:
+    """`gnss ionosphere --system S` without --l1-code/--l2-code takes the system's usual pair (GPS keeps its
+    product-driven choice of the first code) and they pass the system's own code check."""
+    from distnav.cli import build_parser
+    from distnav.commands.gnss_ionosphere import validate_arguments
+
+    obs, nav = tmp_path / "a.rnx", tmp_path / "b.rnx"
+    obs.touch()
+    nav.touch()
+    words = [
+        "gnss",
+        "ionosphere",
+        "--obs",
+        str(obs),
+        "--nav",
+        str(nav),
+        "--out",
+        str(tmp_path / "o"),
+        "--system",
+        system,
+    ]
+    args = build_parser(words).parse_args(words)
+    validate_arguments(args)
+    assert (args.l1_code, args.l2_code) == codes
+    given = build_parser(words).parse_args([*words, "--l2-code", "C7I" if system == "C" else codes[1]])
+    validate_arguments(given)
+    assert given.l2_code == ("C7I" if system == "C" else codes[1])

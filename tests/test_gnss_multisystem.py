@@ -168,3 +168,47 @@ def test_beidou_and_glonass_dsbs_from_bele_against_cas(
     assert central["rms_zero_mean_ns"] < max_rms_ns
     bia = (out / "distnav_dsb.bia").read_text()
     assert f" {codes[0]}  {codes[1]} " in bia
+    if system == "R":  # BELE's C1C−C2C IFB pattern: the channel means carry most of the difference to CAS
+        ch = central["glonass_channels"]
+        assert ch["satellites"] == central["n"] and ch["channels"] <= central["n"]
+        total = ch["channel_means_rms_ns"] ** 2 + ch["within_channel_rms_ns"] ** 2
+        assert total == pytest.approx(central["rms_zero_mean_ns"] ** 2, rel=1e-9)  # the split is complete
+        assert ch["channel_means_rms_ns"] > 2.0 * ch["within_channel_rms_ns"]
+
+
+def test_channel_pattern_splits_by_channel() -> None:
+    from distnav.models.gnss.products import channel_pattern
+
+    f1 = {f"R{k:02d}": 1602e6 + 0.5625e6 * c for k, c in ((1, 1), (5, 1), (2, -4), (6, -4), (3, 5))}
+    out = channel_pattern({"R01": 2.0, "R05": 1.0, "R02": -1.0, "R06": -2.0, "R03": 0.0}, f1)
+    assert out["per_channel_ns"] == {-4: -1.5, 1: 1.5, 5: 0.0}
+    assert out["within_channel_rms_ns"] == pytest.approx(np.sqrt(4 * 0.25 / 5))
+    assert out["channel_means_rms_ns"] == pytest.approx(np.sqrt(4 * 2.25 / 5))
+    assert channel_pattern({"G01": 1.0}, {}) == {}
+
+
+@pytest.mark.parametrize(
+    ("system", "args", "message"),
+    [
+        ("C", ["--l1-code", "C1C", "--l2-code", "C6I"], "--l1-code C1C: not a BeiDou B1I code"),
+        ("C", ["--l1-code", "C2I", "--l2-code", "C2W"], "--l2-code C2W: not a BeiDou B3I or B2I code"),
+        ("R", ["--l1-code", "C1C", "--l2-code", "C5Q"], "--l2-code C5Q: not a GLONASS G2 code"),
+        ("R", ["--l1-code", "C1C", "--l2-code", "C2C", "--pivot", "R30", "--datum", "pivot"], "not a GLONASS sat"),
+    ],
+)
+def test_beidou_and_glonass_options_checked_before_reading(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], system: str, args: list[str], message: str
+) -> None:
+    base = [
+        "gnss",
+        "ionosphere",
+        "--system",
+        system,
+        "--obs",
+        str(shared_data / BELE),
+        "--nav",
+        str(shared_data / BRDC),
+    ]
+    assert main([*base, *args, "--out", str(tmp_path / "x"), "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

@@ -8,9 +8,15 @@ from scipy.linalg import block_diag
 
 from distnav.algorithms.lsq.admm import admm
 from distnav.algorithms.lsq.blue import LinearProblem, blue
-from distnav.algorithms.lsq.qc import admm_data_snooping, admm_precision, remove_observation
+from distnav.algorithms.lsq.qc import (
+    PrecisionOptions,
+    SnoopingOptions,
+    admm_data_snooping,
+    admm_precision,
+    remove_observation,
+)
 from distnav.algorithms.statistics import data_snooping
-from distnav.errors import ModelError
+from distnav.errors import ModelError, UsageError
 from distnav.exchange import FaultSchedule
 from distnav.experiments.qc import gross_error_problem
 from distnav.network import builders
@@ -115,3 +121,26 @@ def test_snooping_without_gross_errors_removes_nothing_and_max_removals():
     bad = gross_error_problem(np.random.default_rng([12, 0]))
     one = admm_data_snooping(bad.problem, bad.graph, W=3.0, tol=1e-11, max_removals=1)
     assert len(one.tests.removed) == 1 and one.tests.flagged.any()
+
+
+def test_options_objects_and_keywords_run_the_same(net):
+    """PrecisionOptions and SnoopingOptions in the house style (distnav._settings): the object, keyword changes or
+    both give bit-identical runs; unknown names and bad values are refused by name."""
+    g, prob, _ = net
+    est = admm(prob, g, W=20.0, max_iterations=300, tol=0.0)
+    by_keywords = admm_precision(prob, g, est.estimates, W=20.0, max_iterations=200)
+    by_object = admm_precision(prob, g, est.estimates, options=PrecisionOptions(W=20.0, max_iterations=200))
+    mixed = admm_precision(prob, g, est.estimates, options=PrecisionOptions(W=20.0), max_iterations=200)
+    for run in (by_object, mixed):
+        np.testing.assert_array_equal(run.precision.covariance, by_keywords.precision.covariance)
+    case = gross_error_problem(np.random.default_rng([12, 0]))
+    first = admm_data_snooping(case.problem, case.graph, W=3.0, tol=1e-11, max_removals=1)
+    again = admm_data_snooping(case.problem, case.graph, options=SnoopingOptions(W=3.0, tol=1e-11), max_removals=1)
+    assert again.tests.removed == first.tests.removed
+    np.testing.assert_array_equal(again.estimates, first.estimates)
+    with pytest.raises(UsageError, match="PrecisionOptions has no option 'max_iteration'.*'max_iterations'"):
+        admm_precision(prob, g, est.estimates, max_iteration=3)
+    with pytest.raises(UsageError, match="SnoopingOptions has no option 'levels'"):
+        admm_data_snooping(case.problem, case.graph, levels=0.01)
+    with pytest.raises(ModelError, match="tol \\(relative tolerance\\) must be 0 or more"):
+        SnoopingOptions(tol=-1.0)

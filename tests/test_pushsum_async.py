@@ -53,7 +53,7 @@ def test_threads_on_their_own_timers_reach_the_mean(loss: float) -> None:
     out: dict[int, NodeOutcome] = {}
 
     def node(i: int) -> None:
-        period = 0.006 if i == 2 else 0.002  # node 2 ticks 3x slower
+        period = 0.012 if i == 2 else 0.002  # node 2 ticks 6x slower (a margin on a loaded machine)
         out[i] = run_push_sum_node(
             x[i],
             out_degree=len(links[i].outs),

@@ -354,3 +354,16 @@ def test_steps_leave_both_ends_with_the_same_parameters(hall, offsets, monkeypat
     assert np.abs(out[True][0] - out[False][0]).max() < 5e-5
     assert max(np.abs(out[s][0] - lm.estimates).max() for s in out) < 1e-4
     assert out[True][1] < out[False][1]
+
+
+def test_a_rounds_totals_travel_as_float32_but_the_objective(hall):
+    """``Links.gathered`` with ``exact_columns``: the first columns arrive as sent (float64, 8 B each: the objective
+    that decides acceptance), the others rounded to float32 (4 B each), every anchor's row."""
+    p = hall[0]
+    links = Links(p, _exchange(p))
+    rows = np.random.default_rng(8).normal(size=(p.n_anchors, 3)) * np.array([1e3, 1e-3, 7.0])
+    got = links.gathered(rows, np.float32, exact_columns=1)
+    assert np.array_equal(got[:, 0], rows[:, 0])
+    assert np.array_equal(got[:, 1:], rows[:, 1:].astype(np.float32).astype(float))
+    assert not np.array_equal(got[:, 1:], rows[:, 1:])
+    assert links.reductions == 1 and links.reduced_bytes == 8 + 2 * 4 and links.reduced_floats == 3

@@ -1,8 +1,9 @@
 """The house style of a front door's settings: one frozen options object, validated once, with documented defaults.
 
 Every front door with more than about eight settings takes them as one frozen dataclass (``kw_only``), whose
-docstring lists each field with its unit and default and whose ``__post_init__`` checks the values (raising
-:class:`~distnav.errors.UsageError` that names the field). The front door accepts the object, keyword changes to
+docstring lists each field with its unit and default and whose ``__post_init__`` checks the values (raising a
+:class:`~distnav.errors.DistnavError` that names the field: the family's own, e.g. ``ModelError`` in ranging, else
+:class:`~distnav.errors.UsageError`). The front door accepts the object, keyword changes to
 it, or both::
 
     def solve(problem, *, exchange=None, options: SolveOptions | None = None, **changes: Any) -> Result:

@@ -118,13 +118,8 @@ class Precision:
         return diag
 
     def summary(self) -> dict[str, Any]:
-        return {
-            "variance_factor": self.variance_factor,
-            "redundancy": self.redundancy,
-            "kind": self.kind,
-            "iterations": self.iterations,
-            "communication": None if self.comm is None else self.comm.as_dict(),
-        }
+        plain = {name: getattr(self, name) for name in ("variance_factor", "redundancy", "kind", "iterations")}
+        return {**plain, "communication": None if self.comm is None else self.comm.as_dict()}
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,13 +209,8 @@ class SolverResult:
 
     def summary(self) -> dict[str, Any]:
         """JSON-friendly summary (no large arrays)."""
-        return {
-            "converged": self.converged,
-            "iterations": self.iterations,
-            "status": self.status,
-            "message": self.message,
-            "communication": self.comm.as_dict(),
-        }
+        plain = {name: getattr(self, name) for name in ("converged", "iterations", "status", "message")}
+        return {**plain, "communication": self.comm.as_dict()}
 
 
 def format_bytes(n_bytes: float) -> str:
@@ -322,6 +312,8 @@ class CommComparison:
                 f"median {format_bytes(float(np.median(self.bytes_sent)))})"
             )
         g = self.gather
+        if self.total_bytes == 0 and g.total_hop_bytes == 0:
+            return f"{sent}; gathering would cost nothing either: the data are already at one {label}"
         hops = f"{format_count(g.messages)} relay hop{'' if g.messages == 1 else 's'}"
         return (
             f"{sent}; gathering {self.data} at {label} {self._name(g.sink)} would cost "

@@ -30,7 +30,13 @@ import numpy as np
 
 from distnav.commands import add_backend_arguments
 from distnav.commands.gnss_codebias import compare_with_products, print_comparison, run_codebias
-from distnav.commands.gnss_common import add_data_arguments, check_data_arguments, default_graph, load_edges
+from distnav.commands.gnss_common import (
+    add_data_arguments,
+    check_data_arguments,
+    default_graph,
+    documented_parser,
+    load_edges,
+)
 from distnav.errors import DataFileError, ModelError
 
 __all__ = [
@@ -193,11 +199,8 @@ def register(subparsers: Any) -> None:
     gnss = subparsers.add_parser("gnss", help="real-data GNSS commands (code biases, ionosphere)")
     sub = gnss.add_subparsers(dest="gnss_command", required=True)
 
-    cb = sub.add_parser(
-        "codebias",
-        help="satellite code biases from L1/L2/L5 RINEX code data (paper 000 §5)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+    cb = documented_parser(
+        sub, "codebias", "satellite code biases from L1/L2/L5 RINEX code data (paper 000 §5)", __doc__
     )
     add_data_arguments(cb, obs_note="; the first is the S-basis reference unless --reference")
     cb.add_argument("--out", default="distnav-codebias", help="output folder (default distnav-codebias)")

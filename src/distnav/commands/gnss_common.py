@@ -138,3 +138,11 @@ def check_data_arguments(args: argparse.Namespace) -> None:
     out = getattr(args, "out", None)
     if out is not None and Path(out).exists() and not Path(out).is_dir():
         raise DataFileError(f"--out {out}: exists and is not a folder")
+
+
+def documented_parser(subparsers: Any, name: str, help_text: str, doc: str | None) -> argparse.ArgumentParser:
+    """A ``distnav gnss <name>`` sub-command whose ``--help`` shows the module docstring ``doc`` as written."""
+    parser: argparse.ArgumentParser = subparsers.add_parser(
+        name, help=help_text, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    return parser

@@ -77,9 +77,23 @@ _SYSTEM_WORDS = {
 }
 
 
+_SYSTEM_CODES = {  # --system: the default codes (first, second) where --l1-code / --l2-code are not given
+    "G": (None, "C2W"),  # the first code: C1C, or C1W when the comparison products are on P1 (choose_l1_code)
+    "E": ("C1X", "C5X"),
+    "C": ("C2I", "C6I"),
+    "R": ("C1C", "C2C"),
+}
+
+
 def validate_arguments(args: argparse.Namespace) -> None:
-    """Check every option value before any file is read (errors name the option; the CLI exits with 2)."""
+    """Check every option value before any file is read (errors name the option; the CLI exits with 2); codes not
+    given take the system's defaults (:data:`_SYSTEM_CODES`)."""
     system = getattr(args, "system", "G")
+    first, second = _SYSTEM_CODES[system]
+    if args.l1_code is None and first is not None:
+        args.l1_code = first
+    if args.l2_code is None:
+        args.l2_code = second
     prn, l1_code, lb_code = (re.compile(p) for p in _SYSTEM_TABLE[system].split())
     sat_words, l1_words, lb_words = _SYSTEM_WORDS[system].split(";")
     if args.pivot is not None and not prn.match(str(args.pivot).upper()):
@@ -197,6 +211,14 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     series, comm = run_bias_filters(
         data, filter_options(args, pivot, fixed), graph=graph, exchange=command_exchange(args, graph)
     )
+    if getattr(args, "model_spread", "auto") == "auto":
+        from dataclasses import replace
+
+        from distnav.models.gnss.modelspread import spread_of_one_station
+
+        series, spread = spread_of_one_station(data, orbit, series, network_options(args).model_options)
+        if spread is not None:
+            data = replace(data, notes=[*data.notes, spread.statement()])
     write_results(args, data, series, comm, l1=l1, l2=args.l2_code.upper(), pivot=pivot, graph=graph, fixed=fixed)
     return 0
 
@@ -376,13 +398,10 @@ def _default_graph(xyz: np.ndarray, stations: list[str]) -> Any:
 
 def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
     """Add ``distnav gnss ionosphere`` to the ``gnss`` sub-command group (``set_defaults(func=run_ionosphere)``)."""
-    p = gnss_subparsers.add_parser(
-        "ionosphere",
-        help="TEC and receiver + satellite DCBs by central, local and consensus Kalman filters (paper 003 §5)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    from distnav.commands.gnss import add_data_arguments  # gnss.py registers this module: import lazily
+    from distnav.commands.gnss_common import add_data_arguments, documented_parser
+
+    what = "TEC and receiver + satellite DCBs by central, local and consensus Kalman filters (paper 003 §5)"
+    p = documented_parser(gnss_subparsers, "ionosphere", what, __doc__)
 
     add_data_arguments(p)
     p.add_argument("--kn", type=int, default=4, help="consensus rounds per epoch (default 4 = δ 15 s at Δ 60 s)")
@@ -419,10 +438,14 @@ def _add_code_and_datum_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--l1-code",
         default=None,
-        help="L1 code (C1C = RINEX 2 C1, C1W = P1; default C1C, or C1W when every --bias is IONEX)",
+        help="first code (GPS: C1C = RINEX 2 C1, C1W = P1; default C1C, or C1W when every --bias is IONEX; "
+        "Galileo C1X, BeiDou C2I, GLONASS C1C by default)",
     )
     p.add_argument(
-        "--l2-code", default="C2W", help="second code (default C2W = RINEX 2 P2; C5Q/C5X use the L5 frequency factor)"
+        "--l2-code",
+        default=None,
+        help="second code (GPS: default C2W = RINEX 2 P2, C5Q/C5X use the L5 frequency factor; Galileo C5X, "
+        "BeiDou C6I, GLONASS C2C by default)",
     )
     p.add_argument(
         "--datum",
@@ -466,109 +489,59 @@ def _add_selection_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+_HELP = {  # the model, levelling and screening options' help texts (the calls below stay one line each)
+    "tec-field": "VTEC field of each ionosphere: paper 003's ν and two gradients, or second order too (low-latitude "
+    "stations: docs/gnss.md)",
+    "mapping": "single-layer mapping: 450-km thin shell (paper 003) or modified (506.7 km, α = 0.9782)",
+    "between-station-level": "level of the χ² test whether the stations' single-receiver solutions agree within "
+    "their realistic σ; when rejected every σ grows by √(χ²/dof) (default 0.05; 0: off; docs/gnss.md)",
+    "ionosphere": "one regional ionosphere for all stations, one per station, or auto (by --regional-km)",
+    "regional-km": f"auto: one common ionosphere if the longest baseline is below this (default {REGIONAL_KM:g})",
+    "sigma": "zenith σ of the geometry-free code [m] (default 0.656, paper 003 §5.1)",
+    "weighting": "elevation weighting (default sin: σ/sin θ)",
+    "tec-rw": "random walk of the vertical L1 delay [m/√s] (gradients 5× per radian; default 0.01, 10× paper "
+    "003's: docs/ionosphere.md)",
+    "min-satellite-obs": "satellites with fewer station-epochs (filter grid) are not estimated and named in the "
+    "notes (default 240 = 4 station-hours at 60 s, at most a quarter of the best-tracked satellite's, at least 30)",
+    "innovation-test": "CKF: each receiver w-tests its own predicted residuals at this level and rejects outliers "
+    "before the consensus (e.g. 0.001)",
+    "levelling": "carrier-to-code levelling per continuous arc (default) or raw code",
+    "min-arc": "shortest arc kept for levelling, in epochs of the file (default 10)",
+    "gf-threshold": "smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x the "
+    "satellite's recent prediction-error RMS where the ionosphere is noisier)",
+    "model-spread": "one station: add to each satellite's σ the RMS difference of its DSBs under the other "
+    "ionosphere field (linear/thin shell vs second order/modified mapping; docs/gnss.md); off: the filter's σ alone",
+}
+
+
 def _add_tec_field_arguments(p: argparse.ArgumentParser) -> None:
     """The model stage's VTEC field and single-layer mapping."""
-    p.add_argument(
-        "--tec-field",
-        choices=["linear", "quadratic"],
-        default="linear",
-        help="VTEC field of each ionosphere: paper 003's ν and two gradients, or second order too "
-        "(low-latitude stations: docs/gnss.md)",
-    )
-    p.add_argument(
-        "--mapping",
-        choices=["slm", "mslm"],
-        default="slm",
-        help="single-layer mapping: 450-km thin shell (paper 003) or modified (506.7 km, α = 0.9782)",
-    )
+    p.add_argument("--tec-field", choices=["linear", "quadratic"], default="linear", help=_HELP["tec-field"])
+    p.add_argument("--mapping", choices=["slm", "mslm"], default="slm", help=_HELP["mapping"])
 
 
 def _add_model_arguments(p: argparse.ArgumentParser) -> None:
     """The model stage: ionospheres, σ and weighting, random walk, satellites estimated, the CKF's innovation
     tests and the between-station test of the realistic σ."""
     p.add_argument(
-        "--between-station-level",
-        type=float,
-        default=0.05,
-        metavar="LEVEL",
-        help="level of the χ² test whether the stations' single-receiver solutions agree within their realistic σ; "
-        "when rejected every σ grows by √(χ²/dof) (default 0.05; 0: off; docs/gnss.md)",
+        "--between-station-level", type=float, default=0.05, metavar="LEVEL", help=_HELP["between-station-level"]
     )
-    p.add_argument(
-        "--ionosphere",
-        choices=["auto", "common", "per-receiver"],
-        default="auto",
-        help="one regional ionosphere for all stations, one per station, or auto (by --regional-km)",
-    )
-    p.add_argument(
-        "--regional-km",
-        type=float,
-        default=REGIONAL_KM,
-        help=f"auto: one common ionosphere if the longest baseline is below this (default {REGIONAL_KM:g})",
-    )
-    p.add_argument(
-        "--sigma",
-        type=float,
-        default=None,
-        help="zenith σ of the geometry-free code [m] (default 0.656, paper 003 §5.1)",
-    )
-    p.add_argument(
-        "--weighting",
-        choices=["sin", "euler-goad", "constant"],
-        default="sin",
-        help="elevation weighting (default sin: σ/sin θ)",
-    )
-    p.add_argument(
-        "--tec-rw",
-        type=float,
-        default=None,
-        metavar="M_PER_SQRT_S",
-        help="random walk of the vertical L1 delay [m/√s] (gradients 5× per radian; default 0.01, "
-        "10× paper 003's: docs/ionosphere.md)",
-    )
-    p.add_argument(
-        "--min-satellite-obs",
-        type=int,
-        default=None,
-        metavar="N",
-        help="satellites with fewer station-epochs (filter grid) are not estimated and named in the "
-        "notes (default 240 = 4 station-hours at 60 s, at most a quarter of the best-tracked "
-        "satellite's, at least 30)",
-    )
-    p.add_argument(
-        "--innovation-test",
-        type=float,
-        default=None,
-        metavar="LEVEL",
-        help="CKF: each receiver w-tests its own predicted residuals at this level and rejects outliers "
-        "before the consensus (e.g. 0.001)",
-    )
+    p.add_argument("--ionosphere", choices=["auto", "common", "per-receiver"], default="auto", help=_HELP["ionosphere"])
+    p.add_argument("--regional-km", type=float, default=REGIONAL_KM, help=_HELP["regional-km"])
+    p.add_argument("--sigma", type=float, default=None, help=_HELP["sigma"])
+    p.add_argument("--weighting", choices=["sin", "euler-goad", "constant"], default="sin", help=_HELP["weighting"])
+    p.add_argument("--tec-rw", type=float, default=None, metavar="M_PER_SQRT_S", help=_HELP["tec-rw"])
+    p.add_argument("--min-satellite-obs", type=int, default=None, metavar="N", help=_HELP["min-satellite-obs"])
+    p.add_argument("--innovation-test", type=float, default=None, metavar="LEVEL", help=_HELP["innovation-test"])
 
 
 def _add_levelling_arguments(p: argparse.ArgumentParser) -> None:
     """The levelling and screening stage, and the comparison with products of another day."""
-    p.add_argument(
-        "--levelling",
-        choices=["arc", "none"],
-        default="arc",
-        help="carrier-to-code levelling per continuous arc (default) or raw code",
-    )
-    p.add_argument(
-        "--min-arc",
-        type=int,
-        default=10,
-        metavar="EPOCHS",
-        help="shortest arc kept for levelling, in epochs of the file (default 10)",
-    )
-    p.add_argument(
-        "--gf-threshold",
-        type=float,
-        default=0.05,
-        metavar="M",
-        help="smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x "
-        "the satellite's recent prediction-error RMS where the ionosphere is noisier)",
-    )
+    p.add_argument("--levelling", choices=["arc", "none"], default="arc", help=_HELP["levelling"])
+    p.add_argument("--min-arc", type=int, default=10, metavar="EPOCHS", help=_HELP["min-arc"])
+    p.add_argument("--gf-threshold", type=float, default=0.05, metavar="M", help=_HELP["gf-threshold"])
     p.add_argument("--no-screening", action="store_true", help="no w-test screening of each station's code")
+    p.add_argument("--model-spread", choices=["auto", "off"], default="auto", help=_HELP["model-spread"])
     p.add_argument("--allow-other-day", action="store_true", help="compare with a product of another day than the data")
 
 

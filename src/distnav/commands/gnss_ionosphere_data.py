@@ -143,7 +143,7 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, options: NetworkOp
     else:
         grids = {o.station: np.ones(o.time.size, bool) for o in obs}
     network = geometry_free_network(obs, levelled, grids, options)
-    data = bias_network_model(network, orbit, options.model_options)
+    data = replace(bias_network_model(network, orbit, options.model_options), network=network)
     arc_id = arc_ids_on_grid(obs, levelled, grids, data.t_gps_s, data.layout.svs) if options.levelling else None
     return replace(
         data,

@@ -136,7 +136,7 @@ def _compare(
 ) -> tuple[list[Any], dict[str, Any]]:
     """The ``--bias`` products and every filter's datum-aligned comparison with each."""
     from distnav.formats.gnss.product_files import product_dsbs
-    from distnav.models.gnss.products import compare_in_datum
+    from distnav.models.gnss.products import channel_pattern, compare_in_datum
 
     stations, layout = data.stations, data.layout
     products = product_dsbs(args.bias, layout.svs, stations, l1, l2, station_codes=own) if args.bias else []
@@ -149,6 +149,10 @@ def _compare(
             sat = {k: v for k, v in val.items() if not k.startswith("rx:")}
             rx = {k[3:]: v for k, v in val.items() if k.startswith("rx:")}
             comparison[prod.name][label] = compare_in_datum(sat, rx, prod, exclude=excl)
+            if data.frequencies_hz is not None and layout.svs[0].startswith("R"):
+                f1 = dict(zip(layout.svs, data.frequencies_hz[0].tolist(), strict=True))
+                diff = comparison[prod.name][label].get("difference_ns", {})
+                comparison[prod.name][label]["glonass_channels"] = channel_pattern(diff, f1)
     return products, comparison
 
 

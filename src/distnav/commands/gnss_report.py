@@ -110,6 +110,13 @@ def print_summary(
                 if r.get("receivers_not_in_product"):
                     line += "; no receiver DSB in the product for " + " ".join(r["receivers_not_in_product"])
                 print(line)
+                ch = r.get("glonass_channels") if label == "central" else None
+                if ch:
+                    print(
+                        f"  GLONASS channels: one mean per channel ({ch['channels']} channels) "
+                        f"{ch['channel_means_rms_ns']:.2f} ns RMS, within channels {ch['within_channel_rms_ns']:.2f} "
+                        "ns (the receivers' per-channel inter-frequency biases go into their satellites' DSBs)"
+                    )
             elif label in comp:
                 print(f"  {label:<12} {r.get('note', 'no comparison')}")
         print_worst_vs_product(pname, comp.get("central", {}))

@@ -76,14 +76,9 @@ class CommTotals:
         return int(self.messages_sent.sum() - self.messages_received.sum())
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "rounds": self.rounds,
-            "messages": self.messages,
-            "bytes": self.bytes,
-            "messages_dropped": self.messages_dropped,
-            "max_messages_per_node": int(self.messages_sent.max()) if self.messages_sent.size else 0,
-            "max_bytes_per_node": int(self.bytes_sent.max()) if self.bytes_sent.size else 0,
-        }
+        totals = {name: getattr(self, name) for name in ("rounds", "messages", "bytes", "messages_dropped")}
+        per_node = {"max_messages_per_node": self.messages_sent, "max_bytes_per_node": self.bytes_sent}
+        return {**totals, **{key: int(sent.max()) if sent.size else 0 for key, sent in per_node.items()}}
 
     def snapshot(self) -> CommTotals:
         """A copy of these totals (an in-process exchange hands out its live counters, updated in place)."""

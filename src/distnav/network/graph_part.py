@@ -338,12 +338,14 @@ def _reverse_edge_ids(
     halo = row[~mine]
     base[~mine] = np.searchsorted(key, halo * n) - np.asarray(edge_start(halo), np.int64)
     del k, mine, halo
-    rev -= np.repeat(base, counts_row)
+    rev -= np.repeat(base, counts_row)  # now the reverse edges' global ids
     ptr = np.zeros(row.size + 1, np.int64)
     np.cumsum(counts_row, out=ptr[1:])
     idx = np.int32 if max(row.size, own.size, rev.size) < 2**31 - 1 else np.int64
-    by_row = sp.csr_matrix((rev, col.astype(idx), ptr.astype(idx)), shape=(row.size, own.size))
-    del rev, col, ptr
+    ids = rev.astype(np.int32) if rev.size == 0 or int(rev.max()) < 2**31 - 1 else rev  # the part keeps int32 ids
+    del rev
+    by_row = sp.csr_matrix((ids, col.astype(idx), ptr.astype(idx)), shape=(row.size, own.size))
+    del ids, col, ptr
     by_owned = by_row.tocsc()
     del by_row
     if not (np.array_equal(np.diff(by_owned.indptr), counts) and np.array_equal(row[by_owned.indices], src)):

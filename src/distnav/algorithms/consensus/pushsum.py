@@ -197,6 +197,17 @@ def push_sum(
     otherwise ``max_iterations``. The agreement test is a monitoring reduction (``allreduce``), as in the other
     solvers' stopping rules. Trace per tick: ``spread``, ``max_abs_deviation`` (vs the true average) and
     ``mass_error`` (invariant violation).
+
+    Examples
+    --------
+    Four nodes on a ring agree on the mean of their values (4.0):
+
+    >>> import numpy as np
+    >>> from distnav.algorithms.consensus.pushsum import push_sum
+    >>> from distnav.network import builders
+    >>> res = push_sum(np.array([1.0, 2.0, 3.0, 10.0]), graph=builders.ring(4), ticks=500)
+    >>> res.converged, res.estimates.round(6).ravel().tolist()
+    (True, [4.0, 4.0, 4.0, 4.0])
     """
     if not tol > 0:
         raise WeightsError(f"tol must be > 0, got {tol}")

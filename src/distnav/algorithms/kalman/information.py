@@ -148,7 +148,21 @@ def central_filter(
     nodes: Sequence[int] | IntArray | None = None,
     store_matrices: bool = False,
 ) -> FilterResult:
-    """The central (network, fusion-centre) information filter (eq. (25)); one row."""
+    """The central (network, fusion-centre) information filter (eq. (25)); one row.
+
+    Examples
+    --------
+    A constant (no system noise) observed once per epoch by each of three nodes, unit variance: after two epochs
+    the estimate is the mean of the six observations and its standard deviation ``1/√6``:
+
+    >>> import numpy as np
+    >>> from distnav.algorithms.kalman import DynamicModel, ObservationSeries, central_filter
+    >>> y = [[4.0, 5.0, 6.0], [5.5, 4.5, 5.0]]  # epochs × nodes
+    >>> series = ObservationSeries(1, [[(np.ones((1, 1)), np.ones(1), np.array([v])) for v in row] for row in y])
+    >>> res = central_filter(DynamicModel(1), series)
+    >>> round(float(res.estimates[0, 0]), 9), round(float(res.series.std[-1, 0, 0] * np.sqrt(6)), 9)
+    (5.0, 1.0)
+    """
     return information_filter(dynamics, measurements, mode="central", nodes=nodes, store_matrices=store_matrices)
 
 

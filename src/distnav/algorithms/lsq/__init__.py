@@ -1,7 +1,8 @@
 """Linear least squares over a network (paper 000 §2–4): the BLUE, the method of multipliers and ADMM.
 
-Rooms, from the bottom up: :mod:`~distnav.algorithms.lsq.blue` (the problem, the centralized BLUE with its rank
-check, the method of multipliers and single-consensus ADMM), :mod:`~distnav.algorithms.lsq.xupdate` (the x-update
+Rooms, from the bottom up: :mod:`~distnav.algorithms.lsq.conditions` (the weight ``W`` and the rank check),
+:mod:`~distnav.algorithms.lsq.blue` (the problem, the centralized BLUE, the method of multipliers and
+single-consensus ADMM), :mod:`~distnav.algorithms.lsq.xupdate` (the x-update
 methods), :mod:`~distnav.algorithms.lsq.kernel` (the ADMM iteration over a block of nodes),
 :mod:`~distnav.algorithms.lsq.driver` (options, stopping, results), :mod:`~distnav.algorithms.lsq.admm` (the front
 door), :mod:`~distnav.algorithms.lsq.nonlinear` (linearized and nonlinear ADMM) and :mod:`~distnav.algorithms.lsq.qc`

@@ -156,6 +156,21 @@ def admm(
     Every per-node result is in the user's node order at every size: without ``exchange`` the run keeps the
     locality order (``order="auto"``) inside and gathers back; pass ``make_exchange(graph, order="auto")`` for the
     same speed with your own exchange (docs/scale.md).
+
+    Examples
+    --------
+    The three nodes of :func:`~distnav.algorithms.lsq.blue.blue`'s example on a path ``0 – 1 – 2``: every node ends
+    with the BLUE ``(1.1, 2.1)`` by messages to its neighbours only:
+
+    >>> import numpy as np
+    >>> from distnav.algorithms.lsq.admm import admm
+    >>> from distnav.algorithms.lsq.blue import LinearProblem
+    >>> from distnav.network import builders
+    >>> A = [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.array([[1.0, 1.0]])]
+    >>> y = [np.array([1.0]), np.array([2.0]), np.array([3.3])]
+    >>> res = admm(LinearProblem.from_blocks(A, y), builders.path(3), max_iterations=2000, tol=1e-12)
+    >>> res.converged, res.estimates.round(6).tolist()
+    (True, [[1.1, 2.1], [1.1, 2.1], [1.1, 2.1]])
     """
     o = resolve_options(AdmmRunOptions, run_options(options), changes)
     if o.max_iterations == 0 and (o.init is None or isinstance(o.init, str)):
@@ -167,12 +182,4 @@ def admm(
         raise ModelError("pass faults either to the exchange or to admm(), not both")
     ex = exchange if exchange is not None else make_exchange(graph, faults=faults, order="auto")  # gathered below
     run = prepare(problem, graph, ex, o)
-    return drive(
-        run,
-        max_iterations=o.max_iterations,
-        tol=o.tol,
-        atol=o.atol,
-        reference=reference,
-        stop_at_reference=o.stop_at_reference,
-        record_nodes=o.record_nodes,
-    )
+    return drive(run, o, reference=reference, stop_at_reference=o.stop_at_reference, record_nodes=o.record_nodes)

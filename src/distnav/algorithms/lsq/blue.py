@@ -18,7 +18,7 @@ Conventions: ``f_i(x) = ½‖y_i − A_i x‖²_{R_i⁻¹}`` (eq. (3)); multipli
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from distnav._checks import real_array
+from distnav.algorithms.lsq.conditions import inestimable_directions, null_space_directions, weight_matrix
 from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange.core import CommTotals
@@ -267,88 +268,6 @@ class LinearProblem:
         )
 
 
-# ----------------------------------------------------------------------------------------------- W and rank
-#: The range of an ADMM weight ρ (and of W's entries) whose products and squares stay finite and nonzero in float64.
-MIN_WEIGHT, MAX_WEIGHT = 1e-100, 1e100
-
-
-def weight_matrix(W: ArrayLike, p: int) -> np.ndarray:
-    """The ADMM weight matrix: a scalar ``ρ > 0`` gives ``ρ I_p``; a ``(p, p)`` matrix must be symmetric
-    positive definite (paper 000, eq. (8))."""
-    arr = np.asarray(W, dtype=float)
-    if arr.ndim == 0:
-        rho = float(arr)
-        if not np.isfinite(rho) or rho <= 0:
-            raise ModelError(f"the weight ρ must be finite and > 0, got {rho}")
-        if not MIN_WEIGHT <= rho <= MAX_WEIGHT:
-            raise ModelError(
-                f"the weight ρ = {rho:g} is outside {MIN_WEIGHT:g}..{MAX_WEIGHT:g}: ADMM's updates multiply by it and "
-                "its square, which overflow or vanish in float64; scale the observations instead"
-            )
-        return rho * np.eye(p)
-    if arr.shape != (p, p):
-        raise ModelError(f"the weight matrix W must be a scalar ρ or ({p}, {p}), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ModelError("the weight matrix W has non-finite entries")
-    if np.abs(arr).max() > MAX_WEIGHT:
-        raise ModelError(f"the weight matrix W has entries above {MAX_WEIGHT:g}: its products overflow in float64")
-    if np.abs(arr - arr.T).max() > 1e-10 * max(np.abs(arr).max(), 1e-300):
-        raise ModelError("the weight matrix W is not symmetric")
-    lam = np.linalg.eigvalsh(arr)
-    if lam.min() <= 0:
-        raise ModelError(f"the weight matrix W is not positive definite (smallest eigenvalue {lam.min():.3g})")
-    return arr
-
-
-def null_space_directions(N: np.ndarray, *, rcond: float = 1e-10) -> np.ndarray:
-    """Orthonormal basis ``(p, d)`` of the directions of ``x`` that ``N`` does not determine.
-
-    ``N`` is Jacobi-scaled first (``D N D`` with ``D = diag(N)^{-1/2}``; a parameter with zero diagonal is a null
-    direction by itself), so the test ``λ ≤ rcond · λ_max`` does not depend on the parameters' units. The basis
-    is returned in the original coordinates and orthonormalized.
-    """
-    N = np.asarray(N, float)
-    d = np.diag(N)
-    scale = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))  # an unseen parameter keeps scale 1: its row is zero
-    Ns = scale[:, None] * N * scale[None, :]
-    lam, V = np.linalg.eigh(Ns)
-    small = lam <= rcond * max(float(lam.max()), 1e-300)
-    if not small.any():
-        return np.zeros((N.shape[0], 0))
-    Q, _ = np.linalg.qr(scale[:, None] * V[:, small])  # N (D v) = 0 ⇔ (D N D) v = 0
-    return Q
-
-
-def _describe_direction(v: np.ndarray, label: Callable[[int], str]) -> str:
-    v = v / np.abs(v).max()
-    if v[np.flatnonzero(np.abs(v) > 1e-8)[0]] < 0:
-        v = -v
-    terms = []
-    for k in np.flatnonzero(np.abs(v) > 1e-8):
-        c = v[k]
-        sign = "−" if c < 0 else "+"
-        mag = abs(c)
-        coef = "" if abs(mag - 1) < 1e-8 else f"{mag:.3g}·"
-        terms.append(f"{sign} {coef}{label(int(k))}")
-    text = " ".join(terms)
-    return text[2:] if text.startswith("+ ") else text
-
-
-def inestimable_directions(N: np.ndarray, label: Callable[[int], str], *, rcond: float = 1e-10) -> str | None:
-    """``None`` when ``N = Σ N_i`` is regular, else the rank statement naming a basis of the directions of ``x``
-    that the data do not determine (e.g. ``x[0] − x[1]``; paper 000, eq. (2)). ``label(k)`` names parameter ``k``."""
-    null = null_space_directions(N, rcond=rcond)
-    if null.shape[1] == 0:
-        return None
-    p = N.shape[0]
-    dirs = "; ".join(_describe_direction(null[:, k], label) for k in range(min(null.shape[1], 8)))
-    more = f" (and {null.shape[1] - 8} more)" if null.shape[1] > 8 else ""
-    return (
-        f"rank(A) = {p - null.shape[1]} < p = {p} (paper 000, eq. (2)): x is not estimable from all nodes' "
-        f"data; inestimable directions: {dirs}{more}"
-    )
-
-
 @dataclass(frozen=True, eq=False)
 class BlueSolution:
     """The centralized least-squares solution (paper 000, eqs. (3)–(4)).
@@ -372,6 +291,21 @@ def blue(problem: LinearProblem, *, rcond: float = 1e-10, W: ArrayLike | None = 
 
     Raises :class:`~distnav.errors.ModelError` when ``rank(A) < p`` (eq. (2) fails), naming a basis of the
     inestimable directions (e.g. ``x[0] − x[1]``). With ``W`` also returns ``û_i = W⁻¹(r_i − N_i x̂)`` (eq. (9)).
+
+    Examples
+    --------
+    Three nodes with one observation each of ``x = (x₀, x₁)``: ``x₀``, ``x₁`` and ``x₀ + x₁``. No node alone can
+    solve for ``x``; the BLUE is ordinary least squares on the stacked rows (``R_i = I``):
+
+    >>> import numpy as np
+    >>> from distnav.algorithms.lsq.blue import LinearProblem, blue
+    >>> A = [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.array([[1.0, 1.0]])]
+    >>> y = [np.array([1.0]), np.array([2.0]), np.array([3.3])]
+    >>> sol = blue(LinearProblem.from_blocks(A, y))
+    >>> sol.x.round(6)
+    array([1.1, 2.1])
+    >>> bool(np.allclose(sol.x, np.linalg.lstsq(np.vstack(A), np.concatenate(y), rcond=None)[0]))
+    True
     """
     N_i, r_i = problem.normal_equations
     N = N_i.sum(axis=0)
@@ -572,7 +506,17 @@ def method_of_multipliers(
 ) -> MultiplierResult:
     """Run :func:`iterate_method_of_multipliers`; the trace holds ``x`` (k × n × p), ``z``, ``u``, ``dual_value``
     ``g(u^[k])`` (eq. (10)) and, with ``reference``, ``distance_to_reference``. ``dual_value_initial`` is
-    ``g(u^[0])``. Reference solver: it needs a fusion centre (no communication is modelled)."""
+    ``g(u^[0])``. Reference solver: it needs a fusion centre (no communication is modelled).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from distnav.algorithms.lsq.blue import LinearProblem, method_of_multipliers
+    >>> A = [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.array([[1.0, 1.0]])]
+    >>> problem = LinearProblem.from_blocks(A, [np.array([1.0]), np.array([2.0]), np.array([3.3])])
+    >>> method_of_multipliers(problem, W=1.0, iterations=200).estimates.round(6).tolist()  # the BLUE at every node
+    [[1.1, 2.1], [1.1, 2.1], [1.1, 2.1]]
+    """
     states = iterate_method_of_multipliers(problem, W=W, iterations=iterations, u0=u0)
     return _run(problem, states, W, u0, reference, "method of multipliers")
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal, get_args
+from typing import Any, Literal, Protocol, get_args
 
 import numpy as np
 
@@ -34,6 +34,8 @@ __all__ = [
     "ConstraintOptions",
     "MessageMode",
     "PreparedRun",
+    "Stopping",
+    "StoppingRule",
     "XWeight",
     "drive",
     "prepare",
@@ -296,18 +298,44 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
     )
 
 
+class StoppingRule(Protocol):
+    """What :func:`drive` reads of an options object: ``max_iterations``, ``tol`` and ``atol`` (checked by
+    :func:`check_stopping` when the object was built)."""
+
+    @property
+    def max_iterations(self) -> int: ...
+
+    @property
+    def tol(self) -> float: ...
+
+    @property
+    def atol(self) -> float: ...
+
+
+@dataclass(frozen=True, kw_only=True)
+class Stopping:
+    """A stopping rule on its own (for runs whose options name it otherwise, e.g. the inner runs of
+    :func:`~distnav.algorithms.lsq.nonlinear.admm_linearized`)."""
+
+    max_iterations: int
+    tol: float
+    atol: float
+
+    def __post_init__(self) -> None:
+        check_stopping(self.max_iterations, self.tol, self.atol)
+
+
 def drive(
     run: PreparedRun,
+    stop: StoppingRule,
     *,
-    max_iterations: int,
-    tol: float,
-    atol: float,
-    reference: np.ndarray | None,
-    stop_at_reference: float | None,
-    record_nodes: bool,
+    reference: np.ndarray | None = None,
+    stop_at_reference: float | None = None,
+    record_nodes: bool = False,
 ) -> AdmmResult:
-    """Run a prepared state generator to the stopping rule of :func:`~distnav.algorithms.lsq.admm.admm`, tracing as it
-    goes."""
+    """Run a prepared state generator to the stopping rule ``stop`` of :func:`~distnav.algorithms.lsq.admm.admm`,
+    tracing as it goes (without a ``reference``: the residuals only)."""
+    max_iterations, tol, atol = stop.max_iterations, stop.tol, stop.atol
     gen, C, p = run.states, run.constraint_nodes, run.p
     track = _ReferenceTrace(run.exchange, reference, p, record_nodes)
     n_pairs = int(C.per_node_count.sum())

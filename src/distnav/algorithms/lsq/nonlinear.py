@@ -21,6 +21,7 @@ from distnav.algorithms.lsq.driver import (
     AdmmResult,
     ConstraintOptions,
     PreparedRun,
+    Stopping,
     check_stopping,
     constraint_nodes_for,
     drive,
@@ -301,21 +302,14 @@ def admm_linearized(
     C = constraint_nodes_for(graph, o.constraint_nodes)
     xo = _per_node(x_approx, problem.n_nodes, p, "x_approx")
     admm_options = AdmmOptions(constraint_nodes=C, W=o.W, init="zero", messages=o.messages)
+    inner_stop = Stopping(max_iterations=o.inner_max_iterations, tol=o.inner_tol, atol=o.inner_atol)
     tb = TraceBuilder()
     converged = False
     total_inner = 0
     t = 0
     while t < o.outer_iterations:
         t += 1
-        inner = drive(
-            prepare(problem.linearize(xo), graph, ex, admm_options),
-            max_iterations=o.inner_max_iterations,
-            tol=o.inner_tol,
-            atol=o.inner_atol,
-            reference=None,
-            stop_at_reference=None,
-            record_nodes=False,
-        )
+        inner = drive(prepare(problem.linearize(xo), graph, ex, admm_options), inner_stop)
         dx = inner.estimates
         xo = xo + dx
         total_inner += inner.iterations
@@ -401,12 +395,4 @@ def admm_nonlinear(
         x_weight="lagrangian",
         messages="pairs",
     )
-    return drive(
-        run,
-        max_iterations=o.max_iterations,
-        tol=o.tol,
-        atol=o.atol,
-        reference=reference,
-        stop_at_reference=None,
-        record_nodes=o.record_nodes,
-    )
+    return drive(run, o, reference=reference, record_nodes=o.record_nodes)

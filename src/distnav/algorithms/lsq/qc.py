@@ -108,15 +108,7 @@ def _normal_run(
         messages="pairs",
         kernel=kernel,
     )
-    return drive(
-        run,
-        max_iterations=stop.max_iterations,
-        tol=stop.tol,
-        atol=stop.atol,
-        reference=None if reference is None else reference.ravel(),
-        stop_at_reference=None,
-        record_nodes=False,
-    )
+    return drive(run, stop, reference=None if reference is None else reference.ravel())
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,6 +191,25 @@ def admm_precision(
     The result's :class:`~distnav.algorithms.result.Precision` has ``kind="exact"`` (equal to the centralized value
     up to the stopping tolerance), the iterations and messages of both runs; the variance factor is node 0's
     (``variance_factor_nodes`` holds every node's, equal to the tolerance).
+
+    Examples
+    --------
+    The three nodes of :func:`~distnav.algorithms.lsq.admm.admm`'s example: each node learns ``N⁻¹`` with
+    ``N = [[2, 1], [1, 2]]``, i.e. ``[[2, −1], [−1, 2]]/3``, and ``σ̂² = 0.03/(3 − 2)`` (three residuals of size 0.1):
+
+    >>> import numpy as np
+    >>> from distnav.algorithms.lsq.admm import admm
+    >>> from distnav.algorithms.lsq.blue import LinearProblem
+    >>> from distnav.algorithms.lsq.qc import admm_precision
+    >>> from distnav.network import builders
+    >>> A = [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.array([[1.0, 1.0]])]
+    >>> problem = LinearProblem.from_blocks(A, [np.array([1.0]), np.array([2.0]), np.array([3.3])])
+    >>> est = admm(problem, builders.path(3), max_iterations=2000, tol=1e-12).estimates
+    >>> run = admm_precision(problem, builders.path(3), est)
+    >>> bool(np.allclose(run.precision.covariance, np.array([[2.0, -1.0], [-1.0, 2.0]]) / 3))
+    True
+    >>> round(run.precision.variance_factor, 9), run.precision.redundancy
+    (0.03, 1.0)
     """
     o = resolve_options(PrecisionOptions, options, changes)
     if exchange is not None and faults is not None:
@@ -333,7 +344,27 @@ def admm_data_snooping(
     ``tests`` filled in; options :class:`SnoopingOptions` (``options=`` and/or keyword changes to it).
     ``tests.removed`` are flat observation indices (node-major over each node's rows, as in
     :func:`distnav.algorithms.statistics.data_snooping` on the stacked data); ``tests.iterations`` and ``tests.comm``
-    are what the re-convergences after the first solution cost (estimate, precision and the floods)."""
+    are what the re-convergences after the first solution cost (estimate, precision and the floods).
+
+    Examples
+    --------
+    Six nodes on a ring, three unit-variance observations each of ``x = (1, −2)``; node 2's first observation
+    carries a gross error of 8σ. The distributed tests remove it (flat index 2·3 + 0 = 6), as the centralized
+    data snooping on the stacked data does:
+
+    >>> import numpy as np
+    >>> from distnav.algorithms.lsq.blue import LinearProblem
+    >>> from distnav.algorithms.lsq.qc import admm_data_snooping
+    >>> from distnav.algorithms.statistics import data_snooping
+    >>> from distnav.network import builders
+    >>> rng = np.random.default_rng(1)
+    >>> A = rng.standard_normal((6, 3, 2))
+    >>> y = A @ np.array([1.0, -2.0]) + rng.standard_normal((6, 3))
+    >>> y[2, 0] += 8.0
+    >>> res = admm_data_snooping(LinearProblem.from_stacked(A, y), builders.ring(6), W=3.0, tol=1e-11)
+    >>> res.tests.removed, data_snooping(A.reshape(18, 2), y.ravel(), np.eye(18)).removed
+    ((6,), (6,))
+    """
     o = resolve_options(SnoopingOptions, options, changes)
     if exchange is not None and faults is not None:
         raise ModelError("pass faults either to the exchange or to admm_data_snooping(), not both")
@@ -395,15 +426,7 @@ def _solve_with_precision(
     prec_opts: PrecisionOptions,
 ) -> tuple[AdmmResult, PrecisionRun]:
     """One data-snooping step: the ADMM estimate of ``prob`` (warm when ``opts`` carry one) and its precision."""
-    est = drive(
-        driver.prepare(prob, graph, ex, opts),
-        reference=None,
-        stop_at_reference=None,
-        record_nodes=False,
-        max_iterations=opts.max_iterations,
-        tol=opts.tol,
-        atol=opts.atol,
-    )
+    est = drive(driver.prepare(prob, graph, ex, opts), opts)
     prec = admm_precision(prob, graph, est.estimates, active=act, init=init, exchange=ex, options=prec_opts)
     return est, prec
 

@@ -36,10 +36,11 @@ Linearized at the anchors' estimates with the fit's loss weights (fixed IRLS wei
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, TypedDict, Unpack
+from typing import Any
 
 import numpy as np
 
+from distnav._settings import resolve_options
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.losses import LOSSES, loss_terms
 from distnav.algorithms.ranging.neighbourhoods import checked_estimates, exchange_for
@@ -54,7 +55,6 @@ from distnav.exchange import Exchange
 __all__ = [
     "CentralPrecision",
     "CentralPrecisionOptions",
-    "CentralPrecisionSettings",
     "central_precision",
     "CENTRAL_MAX_ANCHORS",
     "COVARIANCE_CG_RTOL",
@@ -107,26 +107,8 @@ class CentralPrecision:
         return reduction_cost(n_anchors, self.reductions, 8 * self.reduced_floats)
 
 
-class CentralPrecisionOptions(TypedDict, total=False):
-    """Keyword options of :func:`central_precision`; the defaults and their meaning are
-    :class:`CentralPrecisionSettings`'s."""
-
-    sigma_m: float | np.ndarray
-    loss: str
-    loss_scale_m: float
-    range_offsets: str
-    offset_prior_sigma_m: float
-    delay_sigma_m: float
-    estimate_delays: bool
-    rtol: float
-    max_iterations: int | None
-    variance_scale_m: float | None
-    delay_upper_z: float
-    wire_dtype: type[np.floating]
-
-
-@dataclass(frozen=True)
-class CentralPrecisionSettings:
+@dataclass(frozen=True, kw_only=True)
+class CentralPrecisionOptions:
     """What :func:`central_precision` computes with, checked once (defaults in brackets).
 
     ``sigma_m`` [1] / ``loss`` [linear] / ``loss_scale_m`` [0.3]: the fit's. ``range_offsets`` [none]: ``common``
@@ -166,14 +148,15 @@ def central_precision(
     *,
     offset_m: float | np.ndarray | None = None,
     exchange: Exchange | None = None,
-    **options: Unpack[CentralPrecisionOptions],
+    options: CentralPrecisionOptions | None = None,
+    **changes: Any,
 ) -> CentralPrecision:
     """Every anchor's block of LM's central a-posteriori covariance through the exchange (module docstring).
 
     ``estimates_m`` ``(n_anchors, dim)``: the anchors' own estimates (each block reads its rows); ``offset_m``:
     the common offset (``range_offsets="common"``) or every anchor's own (``"per_anchor"``), as the solver
-    estimated them; ``options``: :class:`CentralPrecisionSettings`."""
-    o = CentralPrecisionSettings(**options)
+    estimated them; ``options``: :class:`CentralPrecisionOptions`, with keyword ``changes`` to it."""
+    o = resolve_options(CentralPrecisionOptions, options, changes)
     per, common = o.range_offsets == "per_anchor", o.range_offsets == "common"
     est = checked_estimates(problem, estimates_m)
     ex = exchange_for(problem, exchange)
@@ -185,8 +168,7 @@ def central_precision(
     P = x.shape[1]
     free, free_nb = _free_masks(problem.free, ex.nodes, other, P)
     prior = 1.0 / o.offset_prior_sigma_m**2 if per else 0.0
-    sig_all = range_sigma(problem, o.sigma_m)
-    sig = sig_all[samp]
+    sig = range_sigma(problem, o.sigma_m)[samp]
     nb = links.neighbours(x)  # one broadcast: the neighbours' estimates (and offsets)
     bias = (x[owner, dim] + nb[:, dim]) if per else c
     r = (np.linalg.norm(x[owner, :dim] - nb[:, :dim], axis=1) + bias - problem.range_m[samp]) / sig
@@ -357,7 +339,7 @@ def _own_blocks(X: np.ndarray, free: np.ndarray, own_col: np.ndarray, dim: int) 
 
 
 def _delay_part(
-    o: CentralPrecisionSettings,
+    o: CentralPrecisionOptions,
     problem: RangingData,
     ex: Exchange,
     links: Links,

@@ -16,7 +16,7 @@ Paper defaults: 500 iterations, ``α = 1e-3``, ``α₀ = 1e-2``, ``β = γ = 1/2
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -88,6 +88,172 @@ class _Setup:
         return _Setup(o)
 
 
+class _Watch:
+    """The monitoring of one run (see :func:`_run`): the trace's rows, the anchors' gathered estimates, and the
+    divergence and stopping tests of the stopping rule against the previous monitored iteration."""
+
+    def __init__(
+        self,
+        problem: RangingData,
+        ex: Exchange,
+        cost_of: Callable[[np.ndarray], float],
+        seen: dict[int, tuple[np.ndarray, np.ndarray, float, float]] | None,
+    ) -> None:
+        self.problem, self.ex, self.cost_of, self.seen = problem, ex, cost_of, seen
+        truth = problem.truth_m
+        self.est = problem.estimated
+        self.truth_est = None if truth is None else truth[self.est]
+        self.rm: list[float] = []
+        self.cost: list[float] = []
+        self.pcost: list[float] = []
+        self.step: list[float] = []
+        self.count = max(int(ex.allreduce(ex.n_local, "sum")), 1)
+        self.own: np.ndarray | None = None
+        self.prev_local: np.ndarray | None = None
+        self.prev_off: np.ndarray | None = None
+        self.prev_pcost = float("nan")
+        self.centre, self.extent = np.zeros(problem.dim), 1.0
+        self.calm = 0
+
+    def skip(self) -> None:
+        """An unmonitored iteration: NaN rows."""
+        nan = float("nan")
+        for rows in (self.rm, self.cost, self.pcost, self.step):
+            rows.append(nan)
+
+    def record(self, st: IterationState) -> float:
+        """Gather and sum iteration ``st`` (or reuse the monitoring of the same ``own_m``); its global cost."""
+        ex, seen = self.ex, self.seen
+        hit = seen.get(id(st.own_m)) if seen is not None else None
+        if hit is not None and hit[0] is st.own_m:
+            own, c, r = hit[1].copy(), hit[2], hit[3]  # a result of its own
+        else:
+            own, c, r = _summarize(self.problem, ex, st.own_m, self.truth_est, self.est, self.cost_of)
+            if seen is not None:
+                seen[id(st.own_m)] = (st.own_m, own, c, r)  # st.own_m kept alive: its id stays unique
+        self.own = own
+        self.rm.append(r)
+        self.cost.append(c)
+        self.pcost.append(float(ex.allreduce(float(st.partial_cost.sum()), "sum")))
+        self.step.append(float(ex.allreduce(float(st.step_size.sum()), "sum")) / self.count)
+        if st.iteration == 0:
+            self.centre = own.mean(axis=0)
+            self.extent = max(float(np.max(np.linalg.norm(own - self.centre, axis=1), initial=0.0)), 1.0)
+        return c
+
+    def verdict(self, st: IterationState, stop: StopRule, graduated: int) -> tuple[SolverStatus, str] | None:
+        """``("diverged" | "converged", why)`` when the stopping rule ends the run at ``st``, else None."""
+        assert self.own is not None
+        far = float(np.max(np.linalg.norm(self.own - self.centre, axis=1), initial=0.0))
+        if far > stop.divergence_factor * self.extent:
+            return "diverged", f"an estimate left the network ({far:.3g} m from its centre)"
+        pcost = self.pcost
+        if self.prev_local is not None and st.iteration > graduated + 1:  # vs the previous monitored iteration
+            local_move = np.linalg.norm(st.own_m - self.prev_local, axis=1)
+            if st.offset_m is not None and self.prev_off is not None:  # the offsets must have settled too
+                local_move = np.maximum(local_move, np.abs(st.offset_m - self.prev_off))
+            moved = float(self.ex.allreduce(float(local_move.max(initial=0.0)), "max"))
+            change = abs(pcost[-1] - self.prev_pcost)
+            small = change <= stop.ftol * max(abs(pcost[-1]), 1e-9 * abs(pcost[0]), 1e-300) and moved <= stop.xtol_m
+            self.calm = self.calm + 1 if small else 0
+            if self.calm >= stop.patience:
+                return "converged", (
+                    f"objective change ≤ {stop.ftol:g} (relative) and steps ≤ {stop.xtol_m:g} m "
+                    f"for {stop.patience} checks"
+                )
+        self.prev_local, self.prev_pcost, self.prev_off = st.own_m, pcost[-1], st.offset_m
+        return None
+
+
+@dataclass
+class _Outcome:
+    """Where a run ended and what its result says: the last state, the gathered estimates, the status and why,
+    the final cost, the settings listed and the bytes of each phase so far."""
+
+    last: IterationState
+    own: np.ndarray
+    status: SolverStatus
+    why: str
+    final_cost: float
+    settings: dict[str, Any]
+    marks: dict[str, tuple[int, int]]
+
+    def note(self, text: str) -> None:
+        self.why = (self.why + "; " if self.why else "") + text
+
+
+def _iterate(
+    states: Iterator[IterationState], watch: _Watch, iterations: int, setup: _Setup
+) -> tuple[IterationState, SolverStatus, str]:
+    """Run the state generator until the stopping rule or the budget: ``(last state, status, why)``."""
+    monitor_every, stop = setup.o.monitor_every, setup.o.stop
+    last: IterationState | None = None
+    status: SolverStatus = "max_iterations"
+    why = ""
+    with np.errstate(over="ignore", invalid="ignore"):
+        for st in states:
+            last = st
+            k = st.iteration
+            if not (k == 0 or k == iterations or (monitor_every and k % monitor_every == 0)):
+                watch.skip()
+                continue
+            c = watch.record(st)
+            if not np.isfinite(c):  # the estimates blew up (e.g. a fixed α too large for the geometry)
+                status, why = "diverged", "the cost is not finite"
+                break
+            if stop is None:
+                continue
+            ended = watch.verdict(st, stop, setup.graduated)
+            if ended is not None:
+                status, why = ended
+                break
+    assert last is not None
+    return last, status, why
+
+
+def _refine_phase(
+    problem: RangingData, ex: Exchange, setup: _Setup, sigma: np.ndarray, scale: np.ndarray, out: _Outcome
+) -> None:
+    """A final LM phase through the exchange (:mod:`distnav.algorithms.ranging.refine`), recorded in ``out``."""
+    rule = setup.o.stop or StopRule()
+    try:
+        refined = refine_state(
+            problem,
+            ex,
+            out.last,
+            sigma=sigma,
+            scale=scale,
+            loss=setup.loss,
+            range_offsets=setup.o.range_offsets,
+            offset_prior_sigma_m=setup.o.offset_prior_sigma_m,
+            ftol=rule.phase_tolerances[0],
+            xtol_m=rule.phase_tolerances[1],
+        )
+    except ModelError as err:  # e.g. a lost message: the refinement needs every link each round
+        out.note(f"no distributed LM phase ({err})")
+        return
+    out.last, ref = refined
+    if out.status == "max_iterations":
+        out.note(f"the {out.last.iteration} iterations ran out")
+    out.own, out.status = ex.gather_nodes(out.last.own_m), cast(SolverStatus, ref.status)
+    out.note(
+        f"then distributed LM: {ref.status.replace('_', ' ')} after "
+        f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations"
+    )
+    out.marks["refine"] = comm_mark(ex)
+    cost = reduction_cost(problem.n_anchors, ref.reductions, ref.reduced_bytes)
+    out.settings = {
+        **out.settings,
+        "refine": {
+            "rounds": ref.rounds,
+            "cg_iterations": ref.cg_iterations,
+            "reductions": ref.reductions,
+            **dict(zip(("reduction_messages", "reduction_bytes"), cost, strict=True)),
+            "status": ref.status,
+        },
+    }
+
+
 def _run(
     problem: RangingData,
     states: Iterator[IterationState],
@@ -105,183 +271,97 @@ def _run(
     Monitoring gathers every anchor's own estimate (``ex.gather_nodes``) and sums the partial costs and steps
     (``ex.allreduce``): network-wide collectives a deployment would not run each iteration. Unmonitored rows of the
     trace are NaN; a blow-up (non-finite cost) is detected at the next monitored iteration and ends the run as
-    ``"diverged"`` (estimates NaN). ``monitor_every=0`` monitors the start and the end only.
+    ``"diverged"`` (estimates NaN). ``monitor_every=0`` monitors the start and the end only. Then the final LM
+    phase (:func:`_refine_phase`) and the quality control (:func:`_quality_phase`).
     """
-    monitor_every, stop = setup.o.monitor_every, setup.o.stop
-    truth = problem.truth_m
-    est = problem.estimated
-    truth_est = None if truth is None else truth[est]
-    sigma = range_sigma(problem, setup.o.sigma_m)
-    cost_of = _cost_of(problem, setup.o.objective, sigma)
-    rm: list[float] = []
-    cost: list[float] = []
-    pcost: list[float] = []
-    step: list[float] = []
-    count = max(int(ex.allreduce(ex.n_local, "sum")), 1)
-    own: np.ndarray | None = None
-    last: IterationState | None = None
-    prev_local: np.ndarray | None = None
-    prev_off: np.ndarray | None = None
-    prev_pcost = nan = float("nan")
-    centre, extent = np.zeros(problem.dim), 1.0
-    status: SolverStatus = "max_iterations"
-    why = ""
-    calm = 0
-    with np.errstate(over="ignore", invalid="ignore"):
-        for st in states:
-            last = st
-            k = st.iteration
-            if not (k == 0 or k == iterations or (monitor_every and k % monitor_every == 0)):
-                rm.append(nan)
-                cost.append(nan)
-                pcost.append(nan)
-                step.append(nan)
-                continue
-            hit = seen.get(id(st.own_m)) if seen is not None else None
-            if hit is not None and hit[0] is st.own_m:
-                own, c, r = hit[1].copy(), hit[2], hit[3]  # a result of its own
-            else:
-                own, c, r = _summarize(problem, ex, st.own_m, truth_est, est, cost_of)
-                if seen is not None:
-                    seen[id(st.own_m)] = (st.own_m, own, c, r)  # st.own_m kept alive: its id stays unique
-            rm.append(r)
-            cost.append(c)
-            pcost.append(float(ex.allreduce(float(st.partial_cost.sum()), "sum")))
-            step.append(float(ex.allreduce(float(st.step_size.sum()), "sum")) / count)
-            if k == 0:
-                centre = own.mean(axis=0)
-                extent = max(float(np.max(np.linalg.norm(own - centre, axis=1), initial=0.0)), 1.0)
-            if not np.isfinite(c):  # the estimates blew up (e.g. a fixed α too large for the geometry)
-                status, why = "diverged", "the cost is not finite"
-                break
-            if stop is None:
-                continue
-            far = float(np.max(np.linalg.norm(own - centre, axis=1), initial=0.0))
-            if far > stop.divergence_factor * extent:
-                status, why = "diverged", f"an estimate left the network ({far:.3g} m from its centre)"
-                break
-            if prev_local is not None and k > setup.graduated + 1:  # vs the previous monitored iteration
-                local_move = np.linalg.norm(st.own_m - prev_local, axis=1)
-                if st.offset_m is not None and prev_off is not None:  # the offsets must have settled too
-                    local_move = np.maximum(local_move, np.abs(st.offset_m - prev_off))
-                moved = float(ex.allreduce(float(local_move.max(initial=0.0)), "max"))
-                change = abs(pcost[-1] - prev_pcost)
-                small = change <= stop.ftol * max(abs(pcost[-1]), 1e-9 * abs(pcost[0]), 1e-300) and moved <= stop.xtol_m
-                calm = calm + 1 if small else 0
-                if calm >= stop.patience:
-                    status = "converged"
-                    why = (
-                        f"objective change ≤ {stop.ftol:g} (relative) and steps ≤ {stop.xtol_m:g} m "
-                        f"for {stop.patience} checks"
-                    )
-                    break
-            prev_local, prev_pcost, prev_off = st.own_m, pcost[-1], st.offset_m
-    assert own is not None and last is not None
+    o = setup.o
+    sigma = range_sigma(problem, o.sigma_m)
+    cost_of = _cost_of(problem, o.objective, sigma)
+    watch = _Watch(problem, ex, cost_of, seen)
+    last, status, why = _iterate(states, watch, iterations, setup)
+    assert watch.own is not None
     key = "lambda" if name == "N-CLM" else "step_size"
     trace = Trace(
-        {"rmse_m": np.asarray(rm), "cost": np.asarray(cost), "partial_cost": np.asarray(pcost), key: np.asarray(step)}
+        {
+            "rmse_m": np.asarray(watch.rm),
+            "cost": np.asarray(watch.cost),
+            "partial_cost": np.asarray(watch.pcost),
+            key: np.asarray(watch.step),
+        }
     )
-    final_cost = cost[-1]
-    scale = _loss_scale(problem, setup.o.objective, setup.loss, setup.loss_scale_m, sigma)
+    scale = _loss_scale(problem, o.objective, setup.loss, setup.loss_scale_m, sigma)
     marks = {"iterations": comm_mark(ex)}  # the bytes of each phase (issue 27): settings["comm_phases"]
-    if setup.o.refines and status != "diverged":  # a final LM phase through the exchange (ranging_refine)
-        rule = stop or StopRule()
-        try:
-            refined = refine_state(
-                problem,
-                ex,
-                last,
-                sigma=sigma,
-                scale=scale,
-                loss=setup.loss,
-                range_offsets=setup.o.range_offsets,
-                offset_prior_sigma_m=setup.o.offset_prior_sigma_m,
-                ftol=rule.phase_tolerances[0],
-                xtol_m=rule.phase_tolerances[1],
-            )
-        except ModelError as err:  # e.g. a lost message: the refinement needs every link each round
-            why = (why + "; " if why else "") + f"no distributed LM phase ({err})"
-        else:
-            last, ref = refined
-            if status == "max_iterations":
-                why = (why + "; " if why else "") + f"the {last.iteration} iterations ran out"
-            own, status = ex.gather_nodes(last.own_m), cast(SolverStatus, ref.status)
-            final_cost = cost_of(own)
-            why = (why + "; " if why else "") + (
-                f"then distributed LM: {ref.status.replace('_', ' ')} after "
-                f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations"
-            )
-            marks["refine"] = comm_mark(ex)
-            settings = {
-                **settings,
-                "refine": {
-                    "rounds": ref.rounds,
-                    "cg_iterations": ref.cg_iterations,
-                    "reductions": ref.reductions,
-                    **dict(
-                        zip(
-                            ("reduction_messages", "reduction_bytes"),
-                            reduction_cost(problem.n_anchors, ref.reductions, ref.reduced_bytes),
-                            strict=True,
-                        )
-                    ),
-                    "status": ref.status,
-                },
-            }
-    offsets = offsets_std = None
-    off_args = (setup.o.range_offsets, setup.o.offset_prior_sigma_m, setup.loss, sigma, scale)
-    if last.offset_m is not None and status != "diverged":
-        offsets, offsets_std = offset_precision(problem, ex, last, *off_args, None)
-    bias = sample_bias(problem.meas_a, problem.meas_b, offsets)
-    with np.errstate(over="ignore", invalid="ignore"):
-        res_final = (
-            (problem.distances(own) + bias - problem.range_m) / sigma
-            if setup.o.objective == "metres"
-            else problem.residuals(own)
-        )
-        if offsets is not None:
-            final_cost = float(res_final @ res_final)
-        objective = final_cost if setup.loss == "linear" else float(np.sum(loss_terms(res_final, scale, setup.loss)[1]))
-    precision = tests = None
-    if status == "diverged":
-        own = np.full_like(own, np.nan)  # never present a blown-up iterate as a result
-    elif setup.o.quality and last.half_owner is not None:
-        precision, tests = distributed_quality(
-            problem,
-            ex,
-            last,
-            sigma,
-            scale,
-            objective=setup.o.objective,
-            loss=setup.loss,
-            test_scale=setup.o.test_scale,
-            test_level=setup.o.test_level,
-        )
-        if offsets is not None:
-            offsets, offsets_std = offset_precision(problem, ex, last, *off_args, precision.variance_factor)
-    marks["quality"] = comm_mark(ex)
-    settings = {**settings, "comm_phases": comm_phases(marks)}
-    tail = f" ({why})" if why else ""
+    out = _Outcome(last, watch.own, status, why, watch.cost[-1], settings, marks)
+    if o.refines and status != "diverged":  # a final LM phase through the exchange (ranging_refine)
+        _refine_phase(problem, ex, setup, sigma, scale, out)
+        if "refine" in out.marks:
+            out.final_cost = cost_of(out.own)
+    offsets, offsets_std, objective, precision, tests = _quality_phase(problem, ex, setup, sigma, scale, out)
+    out.marks["quality"] = comm_mark(ex)
+    tail = f" ({out.why})" if out.why else ""
+    status, last, final_cost = out.status, out.last, out.final_cost
     return RangingResult(
-        estimates=own,
+        estimates=out.own,
         converged=status == "converged",
         iterations=last.iteration,
         status=status,
         message=f"{name}: {status.replace('_', ' ')} after {last.iteration} iterations{tail}, cost {final_cost:.6g}"
-        + (f", RMSE {rm[-1]:.3f} m" if truth is not None and status != "diverged" else ""),
+        + (f", RMSE {watch.rm[-1]:.3f} m" if problem.truth_m is not None and status != "diverged" else ""),
         trace=trace,
         comm=ex.comm_totals(),
         solver=name,
         cost=final_cost,
         objective=objective,
         loss=setup.loss,
-        settings=settings,
-        objective_kind=setup.o.objective,
+        settings={**out.settings, "comm_phases": comm_phases(out.marks)},
+        objective_kind=o.objective,
         precision=precision,
         tests=tests,
         offsets_m=offsets,
         offsets_std_m=offsets_std,
     )
+
+
+def _quality_phase(
+    problem: RangingData, ex: Exchange, setup: _Setup, sigma: np.ndarray, scale: np.ndarray, out: _Outcome
+) -> tuple[np.ndarray | None, np.ndarray | None, float, Any, Any]:
+    """The offsets and their σ, the robust objective, and (``quality``) the precision and w-tests at the end of a
+    run: ``(offsets, offsets_std, objective, precision, tests)``; a diverged run's estimates become NaN."""
+    o, last, own = setup.o, out.last, out.own
+    offsets = offsets_std = None
+    off_args = (o.range_offsets, o.offset_prior_sigma_m, setup.loss, sigma, scale)
+    if last.offset_m is not None and out.status != "diverged":
+        offsets, offsets_std = offset_precision(problem, ex, last, *off_args, None)
+    bias = sample_bias(problem.meas_a, problem.meas_b, offsets)
+    with np.errstate(over="ignore", invalid="ignore"):
+        res_final = (
+            (problem.distances(own) + bias - problem.range_m) / sigma
+            if o.objective == "metres"
+            else problem.residuals(own)
+        )
+        if offsets is not None:
+            out.final_cost = float(res_final @ res_final)
+        objective = (
+            out.final_cost if setup.loss == "linear" else float(np.sum(loss_terms(res_final, scale, setup.loss)[1]))
+        )
+    precision = tests = None
+    if out.status == "diverged":
+        out.own = np.full_like(own, np.nan)  # never present a blown-up iterate as a result
+    elif o.quality and last.half_owner is not None:
+        precision, tests = distributed_quality(
+            problem,
+            ex,
+            last,
+            sigma,
+            scale,
+            objective=o.objective,
+            loss=setup.loss,
+            test_scale=o.test_scale,
+            test_level=o.test_level,
+        )
+        if offsets is not None:
+            offsets, offsets_std = offset_precision(problem, ex, last, *off_args, precision.variance_factor)
+    return offsets, offsets_std, objective, precision, tests
 
 
 def solve_csg(
@@ -334,6 +414,24 @@ def solve_ncsg(
     the subgradient ``G⁽ⁱ⁾ᵀg⁽ⁱ⁾`` of eq. (10) in place of ``∇f⁽ⁱ⁾`` in the Armijo test, i.e. requires
     ``f⁽ⁱ⁾(x + αd) ≤ f⁽ⁱ⁾(x) − γα‖d‖²``; this reproduces the paper's Fig. 6 step sizes (≈1.2e-3 on RC/RM).
     ``"gradient"`` uses the true slope ``∇f⁽ⁱ⁾ᵀd = −2‖d‖²`` of ``f⁽ⁱ⁾ = Σ g²`` (a stricter test: steps ≈ 0.7×).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from distnav.algorithms.ranging.csg import NcsgOptions, solve_ncsg
+    >>> from distnav.models.uwb.problems import generate_problem
+    >>> p = generate_problem("GC", np.random.default_rng(1), n_anchors=16, dim=2)
+    >>> o = NcsgOptions(objective="metres", sigma_m=0.15, iterations=200)
+    >>> res = solve_ncsg(p, line_search="TBLS", options=o)
+    >>> res.status, res.iterations
+    ('converged', 200)
+    >>> same = solve_ncsg(p, line_search="TBLS", objective="metres", sigma_m=0.15, iterations=200)
+    >>> bool(np.array_equal(res.estimates, same.estimates))
+    True
+    >>> solve_ncsg(p, alpha=-1.0)
+    Traceback (most recent call last):
+        ...
+    distnav.errors.ModelError: alpha must be positive, got -1.0
     """
     if line_search is None:
         method = "N-CSG"

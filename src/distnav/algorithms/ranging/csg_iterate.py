@@ -82,104 +82,124 @@ def iterate_csg(
     twice in its own partial cost) or its copy of the common one, mixed in the same round (the conventions of
     :mod:`distnav.algorithms.ranging.neighbourhood_offsets`)."""
     o = resolve_options(CsgOptions, options, changes)
-    iterations, consensus_rounds, objective = o.iterations, o.consensus_rounds, o.objective
-    range_offsets, offset_prior_sigma_m, alpha = o.range_offsets, o.offset_prior_sigma_m, o.step()
-    init = check_start(problem, iterations, consensus_rounds, o.initial_m)
-    metres = objective == "metres"
-    ex = exchange_for(problem, exchange)
-    mixer = ex.mixer(mixing_weights(problem, o.weights))
-    n, dim, nl = problem.n_anchors, problem.dim, ex.n_local
-    own_idx, other, d2, samp = half_measurements(problem, ex)
-    sig = range_sigma(problem, o.sigma_m)[samp]
-    rng_m = problem.range_m[samp]
-    me = ex.nodes[own_idx]
-    # full vectors: F[li, k] = anchor ex.nodes[li]'s estimate of anchor k
-    F = np.broadcast_to(init, (nl, n, dim)).copy()
-    free = np.broadcast_to(problem.free, (nl, n, dim))
-    known = np.broadcast_to(problem.positions_m, (nl, n, dim))
-    fl_self = own_idx * n + me
-    fl_other = own_idx * n + other
-    nh = own_idx.size
-    Q = sp.csr_matrix(
-        (
-            np.concatenate([np.ones(nh), -np.ones(nh)]),
-            (np.concatenate([fl_self, fl_other]), np.concatenate([np.arange(nh)] * 2)),
-        ),
-        shape=(nl * n, nh),
-    )
-    per = range_offsets == "per_anchor"
-    prior_w = 2.0 / offset_prior_sigma_m**2 if per else 0.0  # b_i² in f⁽ⁱ⁾, counted twice (see above)
-    Bo = np.zeros((nl, n if per else 1))  # every anchor's offsets (per anchor) or its copy of the common one
-    b_self, b_other = (fl_self, fl_other) if per else (own_idx, own_idx)
-    mine = np.arange(nl), (ex.nodes if per else np.zeros(nl, np.int64))
-    if metres:
-        info = np.bincount(own_idx, 1.0 / sig**2, minlength=nl)
-        alpha_local = alpha / np.where(info > 0, info, 1.0)
-        ratio = info / np.maximum(info + prior_w, 1e-300)  # offset step / position step
-    else:
-        alpha_local = np.full(nl, float(alpha))
+    init = check_start(problem, o.iterations, o.consensus_rounds, o.initial_m)
+    run = _Csg(problem, exchange_for(problem, exchange), o, init)
+    yield run.state(0, run.partial_cost(run.F))
+    for k in range(1, o.iterations + 1):
+        yield run.state(k, run.advance())
 
-    def bias() -> np.ndarray | float:
-        flat_b = Bo.reshape(-1)
-        return 0.0 if range_offsets == "none" else np.asarray(flat_b[b_self] + (flat_b[b_other] if per else 0.0))
 
-    def residual(diff: np.ndarray) -> np.ndarray:
+class _Csg:
+    """One block's CSG iteration (:func:`iterate_csg`): the set-up, and the state ``F`` (``F[li, k]`` = anchor
+    ``ex.nodes[li]``'s estimate of anchor ``k``) with the offsets ``Bo`` (every anchor's, per anchor, or its copy
+    of the common one)."""
+
+    def __init__(self, problem: RangingData, ex: Exchange, o: CsgOptions, init: np.ndarray) -> None:
+        self.ex, self.consensus_rounds, self.range_offsets = ex, o.consensus_rounds, o.range_offsets
+        self.alpha = alpha = o.step()
+        self.metres = metres = o.objective == "metres"
+        self.mixer = ex.mixer(mixing_weights(problem, o.weights))
+        n, dim, nl = problem.n_anchors, problem.dim, ex.n_local
+        own_idx, other, d2, samp = half_measurements(problem, ex)
+        self.n, self.dim, self.nl, self.own_idx, self.d2, self.samp = n, dim, nl, own_idx, d2, samp
+        self.sig = sig = range_sigma(problem, o.sigma_m)[samp]
+        self.rng_m = problem.range_m[samp]
+        me = ex.nodes[own_idx]
+        self.F = np.broadcast_to(init, (nl, n, dim)).copy()
+        self.free = np.broadcast_to(problem.free, (nl, n, dim))
+        self.known = np.broadcast_to(problem.positions_m, (nl, n, dim))
+        self.fl_self = fl_self = own_idx * n + me
+        self.fl_other = fl_other = own_idx * n + other
+        nh = own_idx.size
+        self.Q = sp.csr_matrix(
+            (
+                np.concatenate([np.ones(nh), -np.ones(nh)]),
+                (np.concatenate([fl_self, fl_other]), np.concatenate([np.arange(nh)] * 2)),
+            ),
+            shape=(nl * n, nh),
+        )
+        self.per = per = o.range_offsets == "per_anchor"
+        self.prior_w = prior_w = 2.0 / o.offset_prior_sigma_m**2 if per else 0.0  # b_i² in f⁽ⁱ⁾, counted twice
+        self.Bo = np.zeros((nl, n if per else 1))
+        self.b_self: np.ndarray = fl_self if per else own_idx
+        self.b_other: np.ndarray = fl_other if per else own_idx
+        self.mine = np.arange(nl), (ex.nodes if per else np.zeros(nl, np.int64))
+        self.ratio: np.ndarray | None = None
         if metres:
-            return np.asarray((np.linalg.norm(diff, axis=1) + bias() - rng_m) / sig)
-        return np.asarray(np.einsum("ij,ij->i", diff, diff) - d2)
+            info = np.bincount(own_idx, 1.0 / sig**2, minlength=nl)
+            self.alpha_local = alpha / np.where(info > 0, info, 1.0)
+            self.ratio = info / np.maximum(info + prior_w, 1e-300)  # offset step / position step
+        else:
+            self.alpha_local = np.full(nl, float(alpha))
 
-    def partial_cost(Fc: np.ndarray) -> np.ndarray:
-        flat = Fc.reshape(nl * n, dim)
-        g = residual(flat[fl_self] - flat[fl_other])
-        return np.asarray(np.bincount(own_idx, g * g, minlength=nl) + prior_w * Bo[mine] ** 2)
+    def bias(self) -> np.ndarray | float:
+        flat_b = self.Bo.reshape(-1)
+        if self.range_offsets == "none":
+            return 0.0
+        return np.asarray(flat_b[self.b_self] + (flat_b[self.b_other] if self.per else 0.0))
 
-    def state(k: int, pc: np.ndarray) -> IterationState:
-        flat = F.reshape(nl * n, dim)
-        own = flat[ex.nodes + np.arange(nl) * n].copy()
-        if range_offsets == "none":
-            return IterationState(k, own, alpha_local, pc, own_idx, samp, flat[fl_other])
+    def residual(self, diff: np.ndarray) -> np.ndarray:
+        if self.metres:
+            return np.asarray((np.linalg.norm(diff, axis=1) + self.bias() - self.rng_m) / self.sig)
+        return np.asarray(np.einsum("ij,ij->i", diff, diff) - self.d2)
+
+    def partial_cost(self, Fc: np.ndarray) -> np.ndarray:
+        nl = self.nl
+        flat = Fc.reshape(nl * self.n, self.dim)
+        g = self.residual(flat[self.fl_self] - flat[self.fl_other])
+        return np.asarray(np.bincount(self.own_idx, g * g, minlength=nl) + self.prior_w * self.Bo[self.mine] ** 2)
+
+    def state(self, k: int, pc: np.ndarray) -> IterationState:
+        nl, n, own_idx, samp = self.nl, self.n, self.own_idx, self.samp
+        flat = self.F.reshape(nl * n, self.dim)
+        own = flat[self.ex.nodes + np.arange(nl) * n].copy()
+        if self.range_offsets == "none":
+            return IterationState(k, own, self.alpha_local, pc, own_idx, samp, flat[self.fl_other])
         return IterationState(
             k,
             own,
-            alpha_local,
+            self.alpha_local,
             pc,
             own_idx,
             samp,
-            flat[fl_other],
-            Bo[mine].copy(),
-            np.broadcast_to(bias(), own_idx.shape).copy(),
+            flat[self.fl_other],
+            self.Bo[self.mine].copy(),
+            np.broadcast_to(self.bias(), own_idx.shape).copy(),
         )
 
-    yield state(0, partial_cost(F))
-    for k in range(1, iterations + 1):
+    def advance(self) -> np.ndarray:
+        """One iteration (eqs. (10)–(11)); the partial costs at its start."""
+        nl, n, dim, F, Bo, sig = self.nl, self.n, self.dim, self.F, self.Bo, self.sig
+        own_idx, mine, prior_w, free, known = self.own_idx, self.mine, self.prior_w, self.free, self.known
         flat = F.reshape(nl * n, dim)
-        diff = flat[fl_self] - flat[fl_other]
-        g = residual(diff)
+        diff = flat[self.fl_self] - flat[self.fl_other]
+        g = self.residual(diff)
         pc = np.bincount(own_idx, g * g, minlength=nl)
         pc = pc + prior_w * Bo[mine] ** 2 if prior_w else pc
-        if metres:
+        if self.metres:
             norm = np.linalg.norm(diff, axis=1)
             jr = diff / (np.where(norm > 0, norm, np.inf) * sig)[:, None]
-            grad = csr_times(Q, g[:, None] * jr).reshape(nl, n, dim)
-            U = np.where(free, F - alpha_local[:, None, None] * grad, known)
+            grad = csr_times(self.Q, g[:, None] * jr).reshape(nl, n, dim)
+            U = np.where(free, F - self.alpha_local[:, None, None] * grad, known)
         else:
-            grad = csr_times(Q, 2.0 * g[:, None] * diff).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
-            U = np.where(free, F - alpha * grad, known)
-        if range_offsets == "none":
-            for _ in range(consensus_rounds):  # eq. (11)
-                U = mixer.apply(U)
+            grad = csr_times(self.Q, 2.0 * g[:, None] * diff).reshape(nl, n, dim)  # G⁽ⁱ⁾ᵀ g⁽ⁱ⁾, eq. (10)
+            U = np.where(free, F - self.alpha * grad, known)
+        if self.range_offsets == "none":
+            for _ in range(self.consensus_rounds):  # eq. (11)
+                U = self.mixer.apply(U)
         else:  # the offsets' gradient, step and consensus (in the same messages: n·dim + n or + 1 floats)
+            assert self.ratio is not None  # offsets come with the metres objective only
             gB = (
-                np.bincount(b_self, g / sig, minlength=Bo.size)
-                + (np.bincount(b_other, g / sig, minlength=Bo.size) if per else 0.0)
+                np.bincount(self.b_self, g / sig, minlength=Bo.size)
+                + (np.bincount(self.b_other, g / sig, minlength=Bo.size) if self.per else 0.0)
             ).reshape(Bo.shape)
             gB[mine] = gB[mine] + prior_w * Bo[mine]
-            V = np.concatenate([U.reshape(nl, n * dim), Bo - (alpha_local * ratio)[:, None] * gB], axis=1)
-            for _ in range(consensus_rounds):
-                V = mixer.apply(V)
-            U, Bo = V[:, : n * dim].reshape(nl, n, dim), V[:, n * dim :]
-        F = np.where(free, U, known)
-        yield state(k, pc)
+            V = np.concatenate([U.reshape(nl, n * dim), Bo - (self.alpha_local * self.ratio)[:, None] * gB], axis=1)
+            for _ in range(self.consensus_rounds):
+                V = self.mixer.apply(V)
+            U, self.Bo = V[:, : n * dim].reshape(nl, n, dim), V[:, n * dim :]
+        self.F = np.where(free, U, known)
+        return np.asarray(pc)
 
 
 def _loss_scale(problem: RangingData, objective: str, loss: str, loss_scale_m: float, sigma: np.ndarray) -> np.ndarray:

@@ -35,6 +35,7 @@ from distnav._settings import resolve_options
 from distnav.algorithms.ranging.damped import DampedSolver as _DampedSolver
 from distnav.algorithms.ranging.data import RangingData, RangingResult
 from distnav.algorithms.ranging.losses import LOSSES, robust_weights
+from distnav.algorithms.ranging.objective import FitOptions, RangeObjective
 from distnav.algorithms.result import Trace
 from distnav.errors import ModelError
 from distnav.exchange.core import CommTotals
@@ -76,37 +77,26 @@ class LMOptions:
 
 
 @dataclass(frozen=True, kw_only=True)
-class LMSolveOptions(LMOptions):
-    """:class:`LMOptions` and what :func:`solve_lm` adds for a ranging problem.
+class LMSolveOptions(LMOptions, FitOptions):
+    """:class:`LMOptions`, the fit the ranging front doors share
+    (:class:`~distnav.algorithms.ranging.objective.FitOptions`: ``initial_m``, ``objective``, ``sigma_m``,
+    ``range_offsets``, ``offset_prior_sigma_m``, ``quality``, ``test_level``, ``test_scale``) and what
+    :func:`solve_lm` adds:
 
-    - ``initial_m`` (None: the problem's start): the ``(n, dim)`` start positions, metres.
     - ``loss`` (``"linear"``; ``"huber"``, ``"soft_l1"``, ``"cauchy"``, ...) and ``loss_scale_m`` (0.3, metres):
       the robust loss and the range error where it bends.
     - ``pad_trace`` (False): extend the trace to ``max_iterations`` rows by repeating the final state.
-    - ``objective`` (``"squared"``, paper 002 eq. (2); or ``"metres"``) and ``sigma_m`` (1.0, metres, a value or
-      one per range): the residuals fitted and their standard deviation.
     - ``graduated`` (None: on for metres): fit the linear loss first, then the robust one from there.
-    - ``range_offsets`` (``"none"``; ``"common"`` / ``"per_anchor"`` with metres) and ``offset_prior_sigma_m``
-      (0.1, metres): range offsets estimated with the positions.
-    - ``quality`` (True), ``test_level`` (0.001), ``test_scale`` (``"robust"``): per-anchor covariance and
-      per-sample w-tests at the solution.
     """
 
-    initial_m: np.ndarray | None = None
     loss: str = "linear"
     loss_scale_m: float = 0.3
     pad_trace: bool = False
-    objective: str = "squared"
-    sigma_m: float | np.ndarray = 1.0
     graduated: bool | None = None
-    range_offsets: str = "none"
-    offset_prior_sigma_m: float = 0.1
-    quality: bool = True
-    test_level: float = 0.001
-    test_scale: str = "robust"
 
     def __post_init__(self) -> None:
-        super().__post_init__()
+        LMOptions.__post_init__(self)
+        FitOptions.__post_init__(self)
         _check_lm(self.loss, self.max_iterations)
 
 
@@ -336,8 +326,6 @@ def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **c
     ``max_iterations``, ``ftol``, ``xtol``, ``gtol``, ``lambda0``, goes to :func:`levenberg_marquardt`), with
     keyword ``changes`` to it (:func:`distnav._settings.resolve_options`).
     """
-    from distnav.algorithms.ranging.objective import RangeObjective
-
     c = resolve_options(LMSolveOptions, options, changes)
     loss, objective, sigma_m, range_offsets = c.loss, c.objective, c.sigma_m, c.range_offsets
     obj = RangeObjective(problem, objective, sigma_m, range_offsets, c.offset_prior_sigma_m)

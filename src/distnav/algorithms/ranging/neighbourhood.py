@@ -4,8 +4,9 @@ Every anchor is a node of the measurement graph and talks only to the anchors it
 exchange (:mod:`distnav.exchange`); all arrays below are local to the exchange's block of anchors. The front doors
 (:func:`~distnav.algorithms.ranging.csg.solve_ncsg`, :func:`~distnav.algorithms.ranging.csg.solve_nclm`) are in
 :mod:`~distnav.algorithms.ranging.csg`; the index maps of the neighbourhood vectors (:class:`Neighbourhoods`), the
-consensus round (:class:`Mixing`), the line searches (:func:`armijo_search`), the local LM step (:class:`LocalLM`)
-and the iteration itself (:func:`iterate_neighbourhood`).
+consensus round (:class:`Mixing`), the line searches
+(:func:`~distnav.algorithms.ranging.neighbourhoods.armijo_details`), the local LM step (:class:`LocalLM`) and the
+iteration itself (:func:`iterate_neighbourhood`).
 
 * **N-CSG** (eqs. (14)–(18)): ``x⁽ⁱ⁾`` holds only anchor ``i`` and its neighbours; the update minimises the
   partial cost ``f⁽ⁱ⁾ = Σ_{l∈E(i)} g_l²`` (eq. (14)). In the consensus phase anchor ``j`` sends to each neighbour

@@ -1,6 +1,6 @@
 """The shared machinery of the neighbourhood solvers N-CSG and N-CLM (paper 002 §3.3–3.4) and of CSG: the
 iteration state, the index maps of the neighbourhood vectors (:class:`Neighbourhoods`), the consensus round
-(:class:`Mixing`) and the per-anchor line searches (:func:`armijo_search`). The bottom of the neighbourhood
+(:class:`Mixing`) and the per-anchor line searches (:func:`armijo_details`). The bottom of the neighbourhood
 rooms: :mod:`~distnav.algorithms.ranging.local_lm`, :mod:`~distnav.algorithms.ranging.plan` and
 :mod:`~distnav.algorithms.ranging.neighbourhood` build on it. See :mod:`distnav.algorithms.ranging.neighbourhood`
 for the equations."""
@@ -360,20 +360,6 @@ class LineSearch:
     slope_factor: float = 2.0
 
 
-def armijo_search(
-    nb: Neighbourhoods,
-    diff: np.ndarray,
-    g: np.ndarray,
-    d: np.ndarray,
-    f0: np.ndarray,
-    alpha_start: np.ndarray,
-    rule: LineSearch,
-    two_way: bool,
-) -> np.ndarray:
-    """Per-anchor step sizes by BLS (eqs. (19)–(20)) or TBLS (eq. (21)), vectorized over the block's anchors."""
-    return armijo_details(nb, diff, g, d, f0, alpha_start, rule, two_way)[0]
-
-
 def armijo_details(
     nb: Neighbourhoods,
     diff: np.ndarray,
@@ -386,8 +372,9 @@ def armijo_details(
     known: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     reuse: ArmijoTest | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`armijo_search`'s ``(steps, ok, moving)``: whether the Armijo condition holds at the returned step,
-    and which anchors have a descent direction (the others keep ``alpha_start``).
+    """Per-anchor step sizes by BLS (eqs. (19)–(20)) or TBLS (``two_way``, eq. (21)), vectorized over the block's
+    anchors: ``(steps, ok, moving)``, with whether the Armijo condition holds at the returned step and which
+    anchors have a descent direction (the others keep ``alpha_start``).
 
     ``known``: a BLS search's ``(steps, ok, moving)`` at the same point with the same ``α₀`` and a power-of-two
     ``β``: it tested every grid step from ``α₀`` down to its result, all failing but the result, so a test at a

@@ -24,7 +24,7 @@ import scipy.sparse as sp
 from distnav.algorithms.ranging.data import RangingData
 from distnav.errors import ModelError
 
-__all__ = ["OFFSETS", "RangeObjective", "range_sigma"]
+__all__ = ["OFFSETS", "FitOptions", "RangeObjective", "check_fit", "range_sigma"]
 
 OFFSETS = ("none", "common", "per_anchor")
 _PRIOR_SCALE = 1e30  # the loss scale of prior rows: ρ(z) = z for every loss
@@ -38,6 +38,46 @@ def range_sigma(problem: RangingData, sigma_m: float | np.ndarray) -> np.ndarray
     return s
 
 
+def check_fit(objective: str, range_offsets: str, offset_prior_sigma_m: float) -> None:
+    """Refuse by name an unknown objective or offset mode, offsets with the squared objective and a non-positive
+    prior σ of per-anchor offsets (every ranging front door's fit: LM's and the distributed solvers')."""
+    if objective not in ("squared", "metres"):
+        raise ModelError(f"objective must be 'squared' or 'metres', got {objective!r}")
+    if range_offsets not in OFFSETS:
+        raise ModelError(f"range offsets must be one of {', '.join(OFFSETS)}, got {range_offsets!r}")
+    if range_offsets != "none" and objective != "metres":
+        raise ModelError("range offsets are estimated with objective='metres' only")
+    if range_offsets == "per_anchor" and not offset_prior_sigma_m > 0:
+        raise ModelError(f"offset_prior_sigma_m must be positive, got {offset_prior_sigma_m}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FitOptions:
+    """What every ranging front door fits and tests, LM (:class:`~distnav.algorithms.ranging.lm.LMSolveOptions`)
+    and the distributed solvers (:class:`~distnav.algorithms.ranging.options.RunOptions`).
+
+    - ``initial_m`` (None: the problem's start): the ``(n, dim)`` start positions, metres.
+    - ``objective`` (``"squared"``, paper 002 eq. (2); or ``"metres"``): the residuals fitted.
+    - ``sigma_m`` (1.0): the ranges' standard deviation for the metres objective (a value or one per range), metres.
+    - ``range_offsets`` (``"none"``; ``"common"`` / ``"per_anchor"`` with the metres objective): range offsets
+      estimated with the positions; ``offset_prior_sigma_m`` (0.1): the per-anchor offsets' prior σ, metres.
+    - ``quality`` (True): the per-anchor covariance and the w-tests of the links; ``test_level`` (0.001): their
+      significance level; ``test_scale`` (``"robust"``): their variance factor.
+    """
+
+    initial_m: np.ndarray | None = None
+    objective: str = "squared"
+    sigma_m: float | np.ndarray = 1.0
+    range_offsets: str = "none"
+    offset_prior_sigma_m: float = 0.1
+    quality: bool = True
+    test_level: float = 0.001
+    test_scale: str = "robust"
+
+    def __post_init__(self) -> None:
+        check_fit(self.objective, self.range_offsets, self.offset_prior_sigma_m)
+
+
 @dataclass(frozen=True, eq=False)
 class RangeObjective:
     """Whitened residuals and their Jacobian for LM on a ranging problem (see the module docstring)."""
@@ -49,14 +89,7 @@ class RangeObjective:
     offset_prior_sigma_m: float = 0.1
 
     def __post_init__(self) -> None:
-        if self.kind not in ("squared", "metres"):
-            raise ModelError(f"objective must be 'squared' or 'metres', got {self.kind!r}")
-        if self.offsets not in OFFSETS:
-            raise ModelError(f"range offsets must be one of {', '.join(OFFSETS)}, got {self.offsets!r}")
-        if self.offsets != "none" and self.kind != "metres":
-            raise ModelError("range offsets are estimated with objective='metres' only")
-        if self.offsets == "per_anchor" and not self.offset_prior_sigma_m > 0:
-            raise ModelError(f"offset_prior_sigma_m must be positive, got {self.offset_prior_sigma_m}")
+        check_fit(self.kind, self.offsets, self.offset_prior_sigma_m)
 
     @cached_property
     def sigma(self) -> np.ndarray:

@@ -1,12 +1,14 @@
 """The settings of the distributed ranging front doors (paper 002 §3.2–3.4), in the house style of
 :mod:`distnav._settings`: one frozen options object per front door, validated once, with documented defaults.
 
-:class:`RunOptions` holds what CSG, N-CSG and N-CLM share (budget, consensus, start, objective, stopping rule,
-quality control, range offsets, final LM phase); :class:`CsgOptions` adds CSG's step, :class:`NeighbourhoodOptions`
-the robust loss of the neighbourhood solvers, and :class:`NcsgOptions` / :class:`NclmOptions` their line search or
-damping. The same object drives a front door (:func:`~distnav.algorithms.ranging.csg.solve_ncsg`) and its
-iteration (:func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood`), which ignores the run-only
-fields (``monitor_every``, ``stop``, ``quality``, ``test_level``, ``test_scale``, ``refine``).
+:class:`RunOptions` holds what CSG, N-CSG and N-CLM share: over
+:class:`~distnav.algorithms.ranging.objective.FitOptions` (what LM shares too: start, objective, range offsets,
+quality control) the budget, consensus, stopping rule and final LM phase. :class:`CsgOptions` adds CSG's step,
+:class:`NeighbourhoodOptions` the robust loss of the neighbourhood solvers, and :class:`NcsgOptions` /
+:class:`NclmOptions` their line search or damping. The same object drives a front door
+(:func:`~distnav.algorithms.ranging.csg.solve_ncsg`) and its iteration
+(:func:`~distnav.algorithms.ranging.neighbourhood.iterate_neighbourhood`), which ignores the run-only fields
+(``monitor_every``, ``stop``, ``quality``, ``test_level``, ``test_scale``, ``refine``).
 
 Values are checked in ``__post_init__`` and refused with :class:`~distnav.errors.ModelError` naming the field (the
 family's error since before the options objects; a name that is not a field is refused by
@@ -19,36 +21,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from distnav.algorithms.ranging.losses import LOSSES
+from distnav.algorithms.ranging.objective import FitOptions
 from distnav.algorithms.ranging.qc import DISTRIBUTED_TEST_SCALES
 from distnav.algorithms.ranging.stop import StopRule
 from distnav.errors import ModelError
 from distnav.network.weights import ConsensusWeights
 
 __all__ = [
-    "OFFSET_MODES",
     "CsgOptions",
     "NclmOptions",
     "NcsgOptions",
     "NeighbourhoodOptions",
     "RunOptions",
-    "check_offsets",
 ]
-
-OFFSET_MODES = ("none", "common", "per_anchor")
-OBJECTIVES = ("squared", "metres")
-
-
-def check_offsets(range_offsets: str, offset_prior_sigma_m: float, objective: str) -> None:
-    """Refuse an unknown offset mode, offsets with the squared objective and a non-positive prior σ."""
-    if range_offsets not in OFFSET_MODES:
-        raise ModelError(f"range offsets must be one of {', '.join(OFFSET_MODES)}, got {range_offsets!r}")
-    if range_offsets != "none" and objective != "metres":
-        raise ModelError("range offsets are estimated with objective='metres' only")
-    if range_offsets == "per_anchor" and not offset_prior_sigma_m > 0:
-        raise ModelError(f"offset_prior_sigma_m must be positive, got {offset_prior_sigma_m}")
 
 
 def _positive(**values: float | None) -> None:
@@ -59,40 +45,25 @@ def _positive(**values: float | None) -> None:
 
 
 @dataclass(frozen=True, kw_only=True)
-class RunOptions:
-    """What every distributed ranging front door takes (CSG, N-CSG, N-CLM).
+class RunOptions(FitOptions):
+    """:class:`~distnav.algorithms.ranging.objective.FitOptions` and what every distributed ranging front door adds
+    (CSG, N-CSG, N-CLM).
 
     - ``iterations`` (500, the paper's): the iteration budget.
     - ``consensus_rounds`` (1): consensus rounds per iteration (eq. (11) / (15)).
     - ``weights`` (``"MH"``, eq. (12); or ``"Koppanyi"``, or a :class:`ConsensusWeights`): the mixing weights.
-    - ``initial_m`` (None: the problem's start): the ``(n, dim)`` start positions, metres.
     - ``monitor_every`` (1): gather the estimates for the trace and the stopping tests every k-th iteration
       (0: start and end only).
-    - ``objective`` (``"squared"``, paper 002 eq. (2); or ``"metres"``): the residuals fitted.
-    - ``sigma_m`` (1.0): the ranges' standard deviation for the metres objective (a value or one per range), metres.
     - ``stop`` (``StopRule()``; None runs all ``iterations`` as the paper): the stopping rule.
-    - ``quality`` (True): the per-anchor covariance and the w-tests of every anchor's own links.
-    - ``test_level`` (0.001): the w-tests' significance level.
-    - ``test_scale`` (``"robust"``; or ``"local"``, or one of the centralized scales): the w-tests' variance factor.
-    - ``range_offsets`` (``"none"``; ``"common"`` / ``"per_anchor"`` with the metres objective): range offsets
-      estimated with the positions.
-    - ``offset_prior_sigma_m`` (0.1): the per-anchor offsets' prior standard deviation, metres.
     - ``refine`` (None: with the metres objective and a stopping rule): a final distributed LM phase.
+    - ``test_scale`` also ``"local"`` (each anchor's own scale) beside the centralized scales.
     """
 
     iterations: int = 500
     consensus_rounds: int = 1
     weights: str | ConsensusWeights = "MH"
-    initial_m: np.ndarray | None = None
     monitor_every: int = 1
-    objective: str = "squared"
-    sigma_m: float | np.ndarray = 1.0
     stop: StopRule | None = StopRule()
-    quality: bool = True
-    test_level: float = 0.001
-    test_scale: str = "robust"
-    range_offsets: str = "none"
-    offset_prior_sigma_m: float = 0.1
     refine: bool | None = None
 
     def __post_init__(self) -> None:
@@ -100,9 +71,7 @@ class RunOptions:
             raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
         if self.test_scale not in DISTRIBUTED_TEST_SCALES:
             raise ModelError(f"test_scale must be one of {', '.join(DISTRIBUTED_TEST_SCALES)}, got {self.test_scale!r}")
-        check_offsets(self.range_offsets, self.offset_prior_sigma_m, self.objective)
-        if self.objective not in OBJECTIVES:
-            raise ModelError(f"objective must be 'squared' or 'metres', got {self.objective!r}")
+        super().__post_init__()
 
     @property
     def refines(self) -> bool:

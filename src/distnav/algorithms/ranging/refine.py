@@ -66,6 +66,9 @@ CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Ste
 MU0 = 1e-3  # initial Marquardt damping (relative to diag N)
 #: the LM phase's CG stops on the preconditioned residual ``rᵀz`` (no reduction of ``rᵀr``; :func:`pcg`, issue 27)
 PRECONDITIONED_STOP = True
+#: a round's own network totals — the common offset's gradient and curvature, a trial's largest move — as the CG
+#: scalars (float32) on the wire; the objective, which decides acceptance, stays float64 (issue 27)
+ROUND_SCALARS = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,14 +118,21 @@ class Links:
         ``dtype`` float32: every anchor's share is rounded to float32 on the wire (summed in float64)."""
         return np.asarray(np.sum(self.gathered(per_node, dtype), axis=0))
 
-    def gathered(self, per_node: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
+    def gathered(
+        self, per_node: np.ndarray, dtype: type[np.floating] = np.float64, *, exact_columns: int = 0
+    ) -> np.ndarray:
         """Every anchor's row of ``per_node`` (a reduction's worth of data: sums and maxima taken from it), as
-        ``dtype`` on the wire (returned as float64)."""
+        ``dtype`` on the wire (returned as float64) but for its first ``exact_columns`` columns (float64: an
+        objective that decides acceptance)."""
         floats = int(np.prod(per_node.shape[1:], dtype=np.int64))
         self.reductions += 1
         self.reduced_floats += floats
-        self.reduced_bytes += floats * np.dtype(dtype).itemsize
-        rows = per_node if dtype == np.float64 else np.asarray(per_node, dtype).astype(np.float64)
+        self.reduced_bytes += exact_columns * 8 + (floats - exact_columns) * np.dtype(dtype).itemsize
+        if dtype == np.float64:
+            return np.asarray(self.ex.gather_nodes(per_node))
+        rows = np.asarray(per_node, dtype).astype(np.float64)
+        if exact_columns:
+            rows[:, :exact_columns] = per_node[:, :exact_columns]
         return np.asarray(self.ex.gather_nodes(rows))
 
 
@@ -205,7 +215,8 @@ class _Refiner:
         r = (np.linalg.norm(diff, axis=1) + bias - self.rng_m) / self.sig
         terms = loss_terms(r, self.sc, self.o.loss)[1]
         f_node = 0.5 * np.bincount(owner, terms, minlength=self.nl) + (self.prior * xv[:, dim] ** 2 if per else 0.0)
-        both = self.links.gathered(np.c_[f_node, np.max(np.abs(step), axis=1, initial=0.0)])
+        small = wire.CG_SCALAR_DTYPE if ROUND_SCALARS and not wire.PLAIN else np.float64
+        both = self.links.gathered(np.c_[f_node, np.max(np.abs(step), axis=1, initial=0.0)], small, exact_columns=1)
         return nb, float(np.sum(both[:, 0])), r, float(np.max(both[:, 1], initial=0.0))
 
     def linearize(self, x: np.ndarray, nb: np.ndarray, r: np.ndarray) -> _Linearization:
@@ -222,7 +233,8 @@ class _Refiner:
                 float(t)
                 for t in self.links.total(
                     0.5
-                    * np.c_[np.bincount(owner, w * r * e, minlength=nl), np.bincount(owner, w * e * e, minlength=nl)]
+                    * np.c_[np.bincount(owner, w * r * e, minlength=nl), np.bincount(owner, w * e * e, minlength=nl)],
+                    wire.CG_SCALAR_DTYPE if ROUND_SCALARS and not wire.PLAIN else np.float64,
                 )
             )
         diag = _rows(owner, w[:, None] * a * a, nl) + (np.c_[np.zeros((nl, dim)), np.full(nl, prior)] if per else 0.0)

@@ -65,6 +65,11 @@ class BiasNetworkData:
     arc_id: np.ndarray | None = None
     """(T, n, S) the levelled arc of every observation (per station; −1: raw code), ``None`` without levelling
     (:mod:`~distnav.models.gnss.arcprecision`)."""
+    frequencies_hz: tuple[np.ndarray, np.ndarray] | None = None
+    """``(f_1, f_2)`` (S,) of the estimated satellites (``layout.svs``); ``None``: GPS L1 and ``band``."""
+    network: GeometryFreeNetwork | None = None
+    """The hand-over this model was built from (kept by the data stage: another model of the same data,
+    :mod:`~distnav.models.gnss.modelspread`)."""
     m_per_dsb_ns: float | None = None
     """Metres of the geometry-free observable per ns of DSB, ``c·10⁻⁹/(μ − 1)`` of the network's signal pair
     (``None``: GPS L1 and ``band``, :func:`~distnav.models.gnss.gfbias.gf_m_per_dsb_ns`)."""
@@ -255,6 +260,7 @@ def bias_network_model(
         obs,
         sig,
         notes,
+        frequencies_hz=None if network.frequencies_hz is None else tuple(f[keep] for f in network.frequencies_hz),
         m_per_dsb_ns=None if network.frequencies_hz is None else C_M_S * 1e-9 / (mu_pair - 1.0),
     )
 

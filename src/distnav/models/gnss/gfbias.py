@@ -198,7 +198,7 @@ class BiasGeometryFreeSeries(SeriesArrays):
         self._scol = layout.satellite_column()
         self._last_design: tuple[tuple[int, bytes], np.ndarray, np.ndarray] | None = None
         self._epoch_cache: tuple[int, np.ndarray, np.ndarray] | None = None
-        self._normals_block: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._normals_block: tuple[bytes, int, np.ndarray, np.ndarray] | None = None
         self._static = np.zeros((n, S, layout.n_states))
         for i in range(n):
             if self._rcol[i] >= 0:
@@ -239,29 +239,31 @@ class BiasGeometryFreeSeries(SeriesArrays):
 
     def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Every node's ``N = Āᵀ W Ā``, ``r = Āᵀ W y`` at ``epoch`` (k, p, p), (k, p): computed for
-        :data:`NORMALS_BLOCK` epochs of all nodes at once (the filters walk the epochs in order) and sliced."""
+        :data:`NORMALS_BLOCK` epochs of these nodes at once (the filters walk the epochs in order) and handed out
+        as read-only views."""
         t, idx = self._epoch(epoch), self._nodes(nodes)
+        key = idx.tobytes()
         blk = self._normals_block
-        if blk is None or not blk[0] <= t < blk[0] + blk[1].shape[0]:
-            blk = self._normals_block = self._block_normals(t)
-        N, r = blk[1][t - blk[0]], blk[2][t - blk[0]]
-        return N[idx], r[idx]
+        if blk is None or blk[0] != key or not blk[1] <= t < blk[1] + blk[2].shape[0]:
+            blk = self._normals_block = (key, t, *self._block_normals(t, idx))
+        return blk[2][t - blk[1]], blk[3][t - blk[1]]
 
-    def _block_normals(self, t0: int) -> tuple[int, np.ndarray, np.ndarray]:
-        """The normals of epochs ``t0 … t0 + NORMALS_BLOCK − 1`` (B, n, p, p), (B, n, p): the design rows of
-        :meth:`_epoch_design` for the block in one array, then one batched product."""
+    def _block_normals(self, t0: int, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The normals of the nodes ``idx`` at epochs ``t0 … t0 + NORMALS_BLOCK − 1`` (B, k, p, p), (B, k, p): the
+        design rows of :meth:`_epoch_design` for the block in one array, then one batched product."""
         ts = np.arange(t0, min(t0 + NORMALS_BLOCK, self.n_epochs))
         nt = self.layout.n_tec_terms
-        A = np.repeat(self._static[None], ts.size, axis=0)
-        for i in range(self.n_nodes):
+        A = self._static[idx][None].repeat(ts.size, axis=0)
+        for j, i in enumerate(idx.tolist()):
             g = int(self._groups[i])
-            A[:, i, :, nt * g : nt * (g + 1)] = self._a[ts, i]
-        w = self._w[ts]
+            A[:, j, :, nt * g : nt * (g + 1)] = self._a[ts, i]
+        w = self._w[ts][:, idx]
         A *= (w > 0)[..., None]
         Aw = A * w[..., None]
         N = np.swapaxes(Aw, -1, -2) @ A
-        r = np.zeros(N.shape[:-1]) if self._y is None else np.einsum("bksp,bks->bkp", Aw, self._y[ts])
-        return int(t0), N, r
+        r = np.zeros(N.shape[:-1]) if self._y is None else np.einsum("bksp,bks->bkp", Aw, self._y[ts][:, idx])
+        N.flags.writeable = r.flags.writeable = False  # handed out as views: a caller copies before changing them
+        return N, r
 
     def records(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per node and satellite the observation (m) and its weight ``1/σ²`` (0: not tracked), (k, S) each: the

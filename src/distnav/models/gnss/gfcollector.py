@@ -59,7 +59,8 @@ class DatumSeries:
     (:class:`~distnav.models.gnss.stationcheck.BetweenStationTest`), when it ran."""
     extra_variance_ns2: np.ndarray | None = None
     """(n + S,) variance [ns²] added to the last epoch's realistic variance: what raises it to the floor of the
-    between-station test (:func:`~distnav.models.gnss.stationcheck.variance_floor`); None: none."""
+    between-station test (:func:`~distnav.models.gnss.stationcheck.variance_floor`) and, for one station, the
+    ionosphere model's spread (:mod:`~distnav.models.gnss.modelspread`); None: none."""
 
     @property
     def realistic_factor(self) -> float:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "channel_pattern",
     "ProductDSB",
     "compare_in_datum",
     "DSBEstimates",
@@ -133,3 +134,35 @@ class DSBEstimates:
     satellite: NsByName
     station: NsByName
     days: tuple[np.datetime64, ...]
+
+
+def channel_pattern(difference_ns: Mapping[str, float], f1_hz: Mapping[str, float]) -> dict[str, Any]:
+    """The GLONASS FDMA channels' share of a comparison (docs/gnss.md): the datum-aligned differences
+    ``difference_ns`` (satellite → ns) split into one mean per channel (from each satellite's G1 frequency
+    ``f1_hz``, channel ``k = (f_1 − 1602 MHz)/0.5625 MHz``) and the rest. A receiver's inter-frequency bias per
+    channel is inseparable from the DSBs of that channel's (two antipodal) satellites, so a network of few
+    receivers carries their pattern in the per-channel means.
+
+    >>> from distnav.models.gnss.products import channel_pattern
+    >>> out = channel_pattern({"R01": 1.0, "R05": 1.2, "R02": -1.0}, {"R01": 1602.5625e6, "R05": 1602.5625e6,
+    ...                                                             "R02": 1599.75e6})
+    >>> out["per_channel_ns"], round(out["within_channel_rms_ns"], 3)
+    ({-4: -1.0, 1: 1.1}, 0.082)
+    """
+    groups: dict[int, list[float]] = {}
+    for sv, d in difference_ns.items():
+        f = f1_hz.get(sv)
+        if f is not None and np.isfinite(f) and np.isfinite(d):
+            groups.setdefault(int(round((f - 1602.0e6) / 0.5625e6)), []).append(float(d))
+    if not groups:
+        return {}
+    means = {k: float(np.mean(v)) for k, v in sorted(groups.items())}
+    rest = np.concatenate([np.asarray(v) - means[k] for k, v in groups.items()])
+    every = np.concatenate([np.full(len(v), means[k]) for k, v in groups.items()])
+    return {
+        "channels": len(means),
+        "satellites": int(rest.size),
+        "per_channel_ns": {k: round(v, 4) for k, v in means.items()},
+        "channel_means_rms_ns": float(np.sqrt(np.mean(every**2))),
+        "within_channel_rms_ns": float(np.sqrt(np.mean(rest**2))),
+    }

@@ -311,15 +311,16 @@ def _unreachable(problem: RangingProblem, keep: BoolArray, issues: list[Geometry
         if not problem.fixed[comp].any():
             lost += comp.tolist()
     if lost:
-        keep[lost] = False
-        issues.append(
-            GeometryIssue(
-                "disconnected",
-                "unsolved",
-                tuple(problem.ids[i] for i in lost),
-                f"anchors {_names(problem, lost)} have no chain of measured links to a known anchor: left unsolved",
-            )
-        )
+        why = f"anchors {_names(problem, lost)} have no chain of measured links to a known anchor: left unsolved"
+        _leave_unsolved(problem, keep, issues, lost, "disconnected", why)
+
+
+def _leave_unsolved(
+    problem: RangingProblem, keep: BoolArray, issues: list[GeometryIssue], anchors: Any, kind: str, why: str
+) -> None:
+    """Take ``anchors`` (indices) out of ``keep`` and record why: an ``"unsolved"`` issue of ``kind``."""
+    keep[anchors] = False
+    issues.append(GeometryIssue(kind, "unsolved", tuple(problem.ids[i] for i in anchors), why))
 
 
 def _non_rigid(
@@ -341,16 +342,11 @@ def _non_rigid(
         if not flex_sub.any():
             break
         flex = np.flatnonzero(keep)[flex_sub]
-        keep[flex] = False
-        issues.append(
-            GeometryIssue(
-                "non_rigid",
-                "unsolved",
-                tuple(problem.ids[i] for i in flex),
-                f"anchors {_names(problem, flex)} can move without changing any range (not "
-                f"rigid: too few links, or a part hinged on too few anchors): left unsolved",
-            )
+        why = (
+            f"anchors {_names(problem, flex)} can move without changing any range (not "
+            f"rigid: too few links, or a part hinged on too few anchors): left unsolved"
         )
+        _leave_unsolved(problem, keep, issues, flex, "non_rigid", why)
 
 
 def _flips(problem: RangingProblem, keep: BoolArray, issues: list[GeometryIssue]) -> None:

@@ -54,33 +54,14 @@ __all__ = [
 ]
 
 
-def consider_sigma(
-    problem: RangingProblem,
-    result: Any,
-    *,
-    sigma_m: float,
-    offsets: str,
-    loss: str,
-    loss_scale_m: float,
-    delay_sigma_m: float,
-    offset_prior_sigma_m: float = 0.1,
-    estimate_delays: bool = False,
-) -> FloatArray | None:
+def consider_sigma(problem: RangingProblem, result: Any, **settings: Any) -> FloatArray | None:
     """σ per anchor and axis ``(n, dim)`` (0 at known coordinates) of an LM metres-objective ``result`` on
     ``problem`` (the links it was fitted on), with per-anchor delays of σ ``delay_sigma_m`` considered (module
     docstring). None when the result carries no free vector or variance factor, or the normal matrix is singular.
+    ``settings``: those of :func:`consider_precision` (``sigma_m``, ``offsets``, ``loss``, ``loss_scale_m``,
+    ``delay_sigma_m``, ``offset_prior_sigma_m``, ``estimate_delays``).
     """
-    out = consider_precision(
-        problem,
-        result,
-        sigma_m=sigma_m,
-        offsets=offsets,
-        loss=loss,
-        loss_scale_m=loss_scale_m,
-        delay_sigma_m=delay_sigma_m,
-        offset_prior_sigma_m=offset_prior_sigma_m,
-        estimate_delays=estimate_delays,
-    )
+    out = consider_precision(problem, result, **settings)
     return None if out is None else out[0]
 
 
