@@ -133,7 +133,7 @@ def _without_lost(
         if not sub_graph.is_connected:
             return _stopped(ex, dead, "the remaining anchors are not one connected network")
         link = SubnetTransport(base, alive)
-        sub = FieldExchange(sub_graph, link.me, link, ex.faults)
+        sub = FieldExchange(sub_graph, link.me, link, ex.faults, direct=False)
         sub.step = step
         try:
             _check_agreement(sub, alive, failed)
