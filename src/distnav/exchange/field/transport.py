@@ -214,7 +214,7 @@ class Transport:
         push, again, flags, copy = self.push, self._zmq.Again, self._zmq.NOBLOCK, len(frame) < 65536
         for peer in peers:  # _send inlined: a consensus round sends one frame per neighbour
             try:
-                push[peer].send(frame, flags, copy=copy)
+                push[peer].send(frame, flags, copy)  # positional: cheaper than keywords per frame
             except again:
                 self.send_failures += 1
                 continue
@@ -223,7 +223,7 @@ class Transport:
 
     def _send(self, peer: int, frame: bytes) -> None:
         try:
-            self.push[peer].send(frame, self._zmq.NOBLOCK, copy=len(frame) < 65536)
+            self.push[peer].send(frame, self._zmq.NOBLOCK, len(frame) < 65536)
         except self._zmq.Again:
             self.send_failures += 1
             return
@@ -278,7 +278,7 @@ class Transport:
             self.pull.setsockopt(self._zmq.RCVTIMEO, ms)
             self._rcvtimeo = ms
         try:
-            frame = self.pull.recv(0, copy=not self.curve)
+            frame = self.pull.recv(0, not self.curve)
         except self._zmq.Again:
             return None
         self.frames_received += 1
@@ -290,7 +290,7 @@ class Transport:
         zmq = self._zmq
         while True:
             try:
-                frame = self.pull.recv(zmq.NOBLOCK, copy=not self.curve)
+                frame = self.pull.recv(zmq.NOBLOCK, not self.curve)
             except zmq.Again:
                 return
             self.frames_received += 1

@@ -131,7 +131,7 @@ def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
     count = shape[0] if ndim == 1 else math.prod(shape)
     if count * dtype.itemsize != length:
         raise WireError(f"malformed message: shape {shape} of {dtype} is not {length} bytes")
-    arr = np.frombuffer(frame, dtype=dtype, count=count, offset=start)
+    arr = np.frombuffer(frame, dtype, count, start)  # positional: keywords cost more than the call here
     if ndim != 1:
         arr = arr.reshape(shape)
     if not _LITTLE:
