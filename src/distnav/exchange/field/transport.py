@@ -105,6 +105,9 @@ class StepTransport(Protocol):
     @property
     def lost(self) -> dict[int, int]: ...
 
+    @property
+    def heard(self) -> dict[int, int]: ...
+
     def post(self, peer: int, kind: Kind, step: int, array: np.ndarray) -> None: ...
 
     def post_many(self, peers: list[int], kind: Kind, step: int, array: np.ndarray) -> None: ...
@@ -195,6 +198,7 @@ class Transport:
         self._missed = dict.fromkeys(self.peers, 0)
         self.lost: dict[int, int] = {}  # peer → step at which it was declared lost
         self.readmitted: dict[int, int] = {}
+        self.heard = dict.fromkeys(self.peers, 0)  # checked messages per peer (any step or kind): signs of life
         self.bytes_sent = 0
         self.bytes_received = 0
         self.frames_sent = 0
@@ -402,6 +406,7 @@ class Transport:
                 return self._refuse(
                     "forged_sender", f"message claims node {msg.sender} but came under the key of node {owner}"
                 )
+        self.heard[msg.sender] += 1  # a checked message of its own: its sender is alive, whatever its step or kind
         if msg.step <= self._last_step[msg.sender]:
             return self._refuse(
                 "replay", f"replay of step {msg.step} from node {msg.sender} (already at {self._last_step[msg.sender]})"
