@@ -25,19 +25,22 @@ __all__ = ["affordable_nodes", "check_field_types", "real_array", "real_number",
 MIN_BYTES_PER_NODE = 64
 
 
-def whole_number(value: object, name: str, *, minimum: int | None = 0, error: type[DistnavError]) -> int:
-    """``value`` as an ``int`` ≥ ``minimum`` (None: any): an ``int``, a numpy integer or a float with no fraction
-    (``3.0``); not ``True``/``False``, not ``2.7``, not NaN, not a string."""
+def whole_number(
+    value: object, name: str, *, minimum: int | None = 0, error: type[DistnavError], allow_float: bool = True
+) -> int:
+    """``value`` as an ``int`` ≥ ``minimum`` (None: any): an ``int``, a numpy integer or (``allow_float``, for a
+    check whose caller keeps using the value it was given: not) a float with no fraction (``3.0``); not
+    ``True``/``False``, not ``2.7``, not NaN, not a string."""
     if isinstance(value, (bool, np.bool_)):
         raise error(f"{name} must be a whole number, got {value!r} (a bool)")
     if isinstance(value, numbers.Integral):
         number = operator.index(value)
-    elif isinstance(value, numbers.Real) and math.isfinite(float(value)) and float(value).is_integer():
+    elif allow_float and isinstance(value, numbers.Real) and math.isfinite(float(value)) and float(value).is_integer():
         number = int(float(value))
     else:
         raise error(f"{name} must be a whole number, got {value!r} ({type(value).__name__})")
     if minimum is not None and number < minimum:
-        raise error(f"{name} must be at least {minimum}, got {number}")
+        raise error(f"{name} must be ≥ {minimum}, got {number}")
     return number
 
 
@@ -97,15 +100,21 @@ def _physical_memory_bytes() -> int | None:
         return None
 
 
-def affordable_nodes(n_nodes: int, what: str, *, error: type[DistnavError], items: str = "nodes") -> None:
-    """Refuse a network of ``n_nodes`` (or of that many links: ``items="links"``) that cannot fit in this
-    machine's memory (at :data:`MIN_BYTES_PER_NODE` each), naming the size and the memory."""
+NETWORK_HINT = "(for networks beyond one machine: MPI across hosts, docs/scale.md)"
+
+
+def affordable_nodes(
+    n_nodes: int, what: str, *, error: type[DistnavError], items: str = "nodes", hint: str = NETWORK_HINT
+) -> None:
+    """Refuse a network of ``n_nodes`` (or of that many links: ``items="links"``; or any other ``items`` with its
+    own ``hint``) that cannot fit in this machine's memory (at :data:`MIN_BYTES_PER_NODE` each), naming the size
+    and the memory."""
     memory = _physical_memory_bytes()
     need = n_nodes * MIN_BYTES_PER_NODE
     if memory is not None and need > memory:
         raise error(
-            f"{what} of {n_nodes:,} {items} needs at least {need / 2**30:,.0f} GiB of memory; this machine has "
-            f"{memory / 2**30:,.1f} GiB (for networks beyond one machine: MPI across hosts, docs/scale.md)"
+            f"{what} of {n_nodes:,} {items} needs at least {need >> 30:,} GiB of memory; this machine has "
+            f"{memory / 2**30:,.1f} GiB{f' {hint}' if hint else ''}"
         )
 
 

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
+from distnav._checks import real_number
 from distnav.errors import ModelError
 from distnav.typing import ArrayLike, BoolArray, FloatArray, IntArray
 
@@ -60,6 +61,7 @@ def critical_value(level: float) -> float:
     >>> round(critical_value(0.001), 2), round(critical_value(0.05), 2)
     (3.29, 1.96)
     """
+    level = real_number(level, "test level", error=ModelError)
     if not 0.0 < level < 1.0:
         raise ModelError(f"test level must lie in (0, 1), got {level!r}")
     return float(-special.ndtri(level / 2.0))  # N(0, 1) upper quantile (scipy.stats.norm.isf's own formula)

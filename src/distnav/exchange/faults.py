@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav.errors import ExchangeError
 
 __all__ = ["FaultPlan", "FaultSchedule", "uniform_hash"]
@@ -64,6 +65,7 @@ class FaultSchedule:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ExchangeError)  # types first, naming the field (issue 29)
         if not 0.0 <= float(self.drop_probability) < 1.0:
             raise ExchangeError(f"drop_probability must be in [0, 1), got {self.drop_probability}")
         object.__setattr__(self, "failed_links", tuple(tuple(int(v) for v in t) for t in self.failed_links))

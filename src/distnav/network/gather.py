@@ -27,6 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, shortest_path
 
+from distnav._checks import whole_number
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
 from distnav.typing import ArrayLike
@@ -142,6 +143,7 @@ def gather_cost(graph: Graph, bytes_per_node: ArrayLike, *, sink: int | None = N
     data = np.rint(data).astype(np.int64)
     adj = graph.adjacency().tocsr()
     if sink is not None:
+        sink = whole_number(sink, "sink", error=GraphError)
         if not 0 <= int(sink) < graph.n_nodes:
             raise GraphError(f"sink {sink} is not a node of this {graph.n_nodes}-node graph")
         return _cost(adj, data, int(sink))

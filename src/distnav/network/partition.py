@@ -169,7 +169,13 @@ def locality_order(graph: Graph, method: str | np.ndarray = "auto") -> np.ndarra
     """The order an exchange keeps its nodes in (see the module doc); ``None`` means the user's ids unchanged."""
     n = graph.n_nodes
     if isinstance(method, np.ndarray) or not isinstance(method, str):
-        order = np.asarray(method, dtype=np.int64)
+        given = np.asarray(method)
+        if given.dtype.kind not in "iu" or given.ndim != 1:
+            raise ExchangeError(
+                f"order must be 'auto', 'rcm', 'hilbert', 'none' or a permutation of 0..{n - 1} (integers), "
+                f"got {method!r}"
+            )
+        order = given.astype(np.int64)
         if order.shape != (n,) or not np.array_equal(np.sort(order), np.arange(n)):
             raise ExchangeError(f"an explicit node order must be a permutation of 0..{n - 1}")
         return order

@@ -136,6 +136,8 @@ def protocol_weights(graph: Graph, protocol: int) -> ConsensusWeights:
     """
     g = graph
     n = g.n_nodes
+    if isinstance(protocol, (bool, np.bool_)):
+        raise WeightsError(f"protocol must be 1, 2, 3 or 4 (paper 003 Table 1), got {protocol!r} (a bool)")
     if protocol == 1:
         max_dg = max(int(g.degrees.max()), 1)
         w = np.full(g.n_edges, 1.0 / max_dg)

@@ -41,6 +41,7 @@ from typing import Protocol
 import numpy as np
 import scipy.sparse as sp
 
+from distnav._checks import real_number, whole_number
 from distnav.algorithms.result import SolverResult, SolverStatus, TraceBuilder
 from distnav.errors import WeightsError
 from distnav.exchange import Exchange, make_exchange
@@ -209,8 +210,8 @@ def push_sum(
     >>> res.converged, res.estimates.round(6).ravel().tolist()
     (True, [4.0, 4.0, 4.0, 4.0])
     """
-    if not tol > 0:
-        raise WeightsError(f"tol must be > 0, got {tol}")
+    ticks = whole_number(ticks, "ticks", error=WeightsError)
+    tol = real_number(tol, "tol", positive=True, error=WeightsError)
     flat = _node_values(values, graph.n_nodes)
     clock.per_node(graph.n_nodes)
     ex = exchange if exchange is not None else make_exchange(graph)

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
+from distnav._checks import check_field_types
 from distnav.algorithms.kalman.ckf_design import consensus_rounds
 from distnav.errors import ModelError
 from distnav.network.weights import ConsensusWeights
@@ -55,6 +56,7 @@ class CKFOptions:
     transport: Transport = "matrices"
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if self.rounds is not None or self.sampling_interval_s is not None or self.sending_interval_s is not None:
             _ = self.k_n  # either form, checked; neither is refused when the filter starts (a partial object is fine)
         if self.local_precision not in (None, "exact", "bound"):

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from distnav._checks import whole_number
 from distnav.algorithms.kalman.dynamics import DynamicModel
 from distnav.algorithms.kalman.kernel import EST_TOL, RANK_RTOL, masked_std
 from distnav.algorithms.kalman.measurements import MeasurementSeries, check_model
@@ -119,6 +120,7 @@ def kalman_filter(
     ``max_batch_epochs`` epochs. Before the initialization every epoch re-solves the batch (O((p + Σ q_t)³)): a
     reference for moderate rank-deficient phases; the information form is the production path.
     """
+    max_batch_epochs = whole_number(max_batch_epochs, "max_batch_epochs", error=ModelError)
     check_model(dynamics, measurements)
     idx = measurements.node_ids(nodes)
     p = measurements.n_states

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from distnav._checks import affordable_nodes, whole_number
 from distnav.errors import ModelError
 from distnav.typing import ArrayLike, FloatArray, IntArray
 
@@ -99,9 +100,8 @@ class DynamicModel:
         noise_map: ArrayLike | None = None,
         noise_reduced_cov: ArrayLike | None = None,
     ) -> None:
-        p = int(n_states)
-        if p < 1:
-            raise ModelError(f"n_states must be ≥ 1, got {n_states}")
+        p = whole_number(n_states, "n_states", minimum=1, error=ModelError)
+        affordable_nodes(p * p, f"n_states={p:,}: a p×p matrix", error=ModelError, items="entries", hint="")
         self.n_states = p
         self._set_transitions(transition)
         self._set_noise(self._noise_pairs(noise_cov, noise_map, noise_reduced_cov))

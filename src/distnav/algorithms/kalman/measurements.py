@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from distnav._checks import affordable_nodes, whole_number
 from distnav.algorithms.kalman.dynamics import DynamicModel
 from distnav.errors import ModelError
 from distnav.typing import ArrayLike, FloatArray, IntArray
@@ -182,9 +183,8 @@ class ObservationSeries(MeasurementSeries):
     """
 
     def __init__(self, n_states: int, epochs: Sequence[Sequence[NodeData]]) -> None:
-        p = int(n_states)
-        if p < 1:
-            raise ModelError(f"n_states must be ≥ 1, got {n_states}")
+        p = whole_number(n_states, "n_states", minimum=1, error=ModelError)
+        affordable_nodes(p * p, f"n_states={p:,}: a p×p matrix", error=ModelError, items="entries", hint="")
         if len(epochs) == 0:
             raise ModelError("an ObservationSeries needs at least one epoch")
         n = len(epochs[0])

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav._checks import real_array
+from distnav._checks import real_array, real_number, whole_number
 from distnav.algorithms.lsq.conditions import inestimable_directions, null_space_directions, weight_matrix
 from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
@@ -307,6 +307,7 @@ def blue(problem: LinearProblem, *, rcond: float = 1e-10, W: ArrayLike | None = 
     >>> bool(np.allclose(sol.x, np.linalg.lstsq(np.vstack(A), np.concatenate(y), rcond=None)[0]))
     True
     """
+    rcond = real_number(rcond, "rcond", minimum=0.0, below=1.0, error=ModelError)
     N_i, r_i = problem.normal_equations
     N = N_i.sum(axis=0)
     r = r_i.sum(axis=0)
@@ -517,6 +518,7 @@ def method_of_multipliers(
     >>> method_of_multipliers(problem, W=1.0, iterations=200).estimates.round(6).tolist()  # the BLUE at every node
     [[1.1, 2.1], [1.1, 2.1], [1.1, 2.1]]
     """
+    iterations = whole_number(iterations, "iterations", minimum=None, error=ModelError)
     states = iterate_method_of_multipliers(problem, W=W, iterations=iterations, u0=u0)
     return _run(problem, states, W, u0, reference, "method of multipliers")
 

@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from distnav._checks import real_array
 from distnav.errors import ModelError
 from distnav.typing import ArrayLike
 
@@ -23,15 +24,15 @@ MIN_WEIGHT, MAX_WEIGHT = 1e-100, 1e100
 def weight_matrix(W: ArrayLike, p: int) -> np.ndarray:
     """The ADMM weight matrix: a scalar ``ρ > 0`` gives ``ρ I_p``; a ``(p, p)`` matrix must be symmetric
     positive definite (paper 000, eq. (8))."""
-    arr = np.asarray(W, dtype=float)
+    arr = real_array(W, "the weight W", error=ModelError)
     if arr.ndim == 0:
         rho = float(arr)
         if not np.isfinite(rho) or rho <= 0:
-            raise ModelError(f"the weight ρ must be finite and > 0, got {rho}")
+            raise ModelError(f"the weight W = ρ must be finite and > 0, got {rho}")
         if not MIN_WEIGHT <= rho <= MAX_WEIGHT:
             raise ModelError(
-                f"the weight ρ = {rho:g} is outside {MIN_WEIGHT:g}..{MAX_WEIGHT:g}: ADMM's updates multiply by it and "
-                "its square, which overflow or vanish in float64; scale the observations instead"
+                f"the weight W = ρ = {rho:g} is outside {MIN_WEIGHT:g}..{MAX_WEIGHT:g}: ADMM's updates multiply by it "
+                "and its square, which overflow or vanish in float64; scale the observations instead"
             )
         return rho * np.eye(p)
     if arr.shape != (p, p):

@@ -15,7 +15,7 @@ from typing import Any, Literal, Protocol, get_args
 
 import numpy as np
 
-from distnav._checks import real_number, whole_number
+from distnav._checks import check_field_types, real_number, whole_number
 from distnav._settings import option_names
 from distnav.algorithms.lsq.blue import LinearProblem, inestimable_directions, weight_matrix
 from distnav.algorithms.lsq.kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
@@ -95,6 +95,7 @@ class AdmmOptions(ConstraintOptions):
     multipliers: Multipliers | None = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if self.messages not in ("pairs", "aggregated", "ternary"):
             raise ModelError(f"messages must be 'pairs', 'aggregated' or 'ternary', got {self.messages!r}")
         if self.monitor_every < 0:

@@ -14,6 +14,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
+from distnav._checks import check_field_types
 from distnav._settings import resolve_options
 from distnav.algorithms.lsq.blue import LinearProblem, weight_matrix
 from distnav.algorithms.lsq.driver import (
@@ -248,6 +249,7 @@ class LinearizedOptions(ConstraintOptions):
     messages: Literal["pairs", "aggregated"] = "pairs"
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         check_stopping(self.inner_max_iterations, self.inner_tol, self.inner_atol)
 
 
@@ -271,6 +273,7 @@ class NonlinearOptions(ConstraintOptions):
     record_nodes: bool = True
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         check_stopping(self.max_iterations, self.tol, self.atol)
         if self.gn_steps < 1:
             raise ModelError(f"gn_steps must be ≥ 1, got {self.gn_steps}")

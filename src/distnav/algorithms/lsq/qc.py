@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse.csgraph as csgraph
 
+from distnav._checks import check_field_types
 from distnav._settings import resolve_options
 from distnav.algorithms.lsq import driver as driver
 from distnav.algorithms.lsq.blue import LinearProblem, weight_matrix
@@ -139,6 +140,7 @@ class PrecisionOptions(driver.ConstraintOptions):
     atol: float = 0.0
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         driver.check_stopping(self.max_iterations, self.tol, self.atol)
 
 

@@ -22,6 +22,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from distnav._checks import whole_number
 from distnav._settings import resolve_options
 from distnav.algorithms.ranging.csg_iterate import _cost_of, _loss_scale, _summarize, iterate_csg
 from distnav.algorithms.ranging.data import RangingData, RangingResult
@@ -519,6 +520,7 @@ def solve(
     problem: RangingData, solver: str, *, iterations: int = 500, exchange: Exchange | None = None, **options: Any
 ) -> RangingResult:
     """Run one of :data:`SOLVERS` by name with paper defaults (``options`` go to the solver's front door)."""
+    iterations = whole_number(iterations, "iterations", error=ModelError)
     key = str(solver).upper()
     if key == "LM":
         return solve_lm(problem, max_iterations=iterations, **options)

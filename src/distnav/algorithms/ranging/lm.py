@@ -31,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from distnav._blas import single_threaded_blas
+from distnav._checks import check_field_types, whole_number
 from distnav._settings import resolve_options
 from distnav.algorithms.ranging.damped import DampedSolver as _DampedSolver
 from distnav.algorithms.ranging.data import RangingData, RangingResult
@@ -68,6 +69,7 @@ class LMOptions:
     lambda0: float = 1e-3
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if self.max_iterations < 0:
             raise ModelError(f"max_iterations must be ≥ 0, got {self.max_iterations}")
 
@@ -199,8 +201,7 @@ def levenberg_marquardt(
 def _check_lm(loss: str, max_iterations: int) -> None:
     if loss not in LOSSES:
         raise ModelError(f"unknown loss {loss!r}; choose one of {', '.join(LOSSES)}")
-    if max_iterations < 0:
-        raise ModelError(f"max_iterations must be ≥ 0, got {max_iterations}")
+    whole_number(max_iterations, "max_iterations", error=ModelError, allow_float=False)
 
 
 def _predicted_reduction(J: Any, delta: np.ndarray, w: np.ndarray, g: np.ndarray) -> float:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from distnav._checks import whole_number
 from distnav._sparse import csr_times
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.losses import loss_terms, range_loss_scale
@@ -49,10 +50,8 @@ class IterationState:
 def check_start(
     problem: RangingData, iterations: int, consensus_rounds: int, initial_m: ArrayLike | None
 ) -> np.ndarray:
-    if iterations < 0:
-        raise ModelError(f"iterations must be ≥ 0, got {iterations}")
-    if consensus_rounds < 1:
-        raise ModelError(f"consensus_rounds must be ≥ 1, got {consensus_rounds}")
+    whole_number(iterations, "iterations", error=ModelError, allow_float=False)
+    whole_number(consensus_rounds, "consensus_rounds", minimum=1, error=ModelError, allow_float=False)
     init = problem.initial_m if initial_m is None else np.asarray(initial_m, float)
     if init is None:
         raise ModelError("the solver needs an initial guess (problem.initial_m or initial_m=)")

@@ -21,6 +21,7 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
+from distnav._checks import real_array
 from distnav.algorithms.ranging.data import RangingData
 from distnav.errors import ModelError
 
@@ -32,7 +33,7 @@ _PRIOR_SCALE = 1e30  # the loss scale of prior rows: ρ(z) = z for every loss
 
 def range_sigma(problem: RangingData, sigma_m: float | np.ndarray) -> np.ndarray:
     """The range σ of every sample (a scalar is broadcast); must be finite and positive."""
-    s = np.broadcast_to(np.asarray(sigma_m, float), problem.range_m.shape).copy()
+    s = np.broadcast_to(real_array(sigma_m, "sigma_m", error=ModelError), problem.range_m.shape).copy()
     if not np.all(np.isfinite(s)) or np.any(s <= 0):
         raise ModelError(f"sigma_m must be finite and positive (one value or one per range sample), got {sigma_m!r}")
     return s

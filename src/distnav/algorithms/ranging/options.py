@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from distnav._checks import check_field_types
 from distnav.algorithms.ranging.losses import LOSSES
 from distnav.algorithms.ranging.objective import FitOptions
 from distnav.algorithms.ranging.qc import DISTRIBUTED_TEST_SCALES
@@ -67,6 +68,7 @@ class RunOptions(FitOptions):
     refine: bool | None = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if self.monitor_every < 0:
             raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
         if self.test_scale not in DISTRIBUTED_TEST_SCALES:

@@ -47,6 +47,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from distnav._checks import affordable_nodes, check_field_types
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import select_fixed
 from distnav.typing import BoolArray, FloatArray, IntArray
@@ -93,11 +94,16 @@ class HallConfig:
     known_wall_band_m: float | None = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
+        affordable_nodes(self.n_anchors, "a hall", error=ModelError, items="anchors")
         if self.n_anchors < 4:
             raise ModelError(f"a hall needs at least 4 anchors, got {self.n_anchors}")
         for name in ("length_m", "width_m", "ceiling_m", "range_limit_m"):
             if not getattr(self, name) > 0:
                 raise ModelError(f"HallConfig.{name} must be positive, got {getattr(self, name)}")
+        for name in ("sigma_m", "height_survey_sd_m", "antenna_delay_sd_m", "nlos_spread_m", "grid_jitter_m"):
+            if getattr(self, name) < 0:  # a standard deviation (or spread) of a draw
+                raise ModelError(f"HallConfig.{name} must be ≥ 0, got {getattr(self, name)}")
         for name in (
             "link_loss",
             "sample_loss",

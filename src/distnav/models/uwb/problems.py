@@ -37,6 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from distnav._checks import affordable_nodes, check_field_types, real_array, real_number, whole_number
 from distnav._settings import resolve_options
 from distnav.algorithms.ranging.data import RangingData
 from distnav.errors import ModelError
@@ -305,7 +306,7 @@ def _sample_ends(
         return index[s]
 
     link_list = list(links) if not isinstance(links, np.ndarray) else links.tolist()
-    r = np.asarray(range_m, float).ravel()
+    r = real_array(range_m, "range_m", error=ModelError).ravel()
     if len(link_list) != r.size:
         raise ModelError(f"got {len(link_list)} links but {r.size} ranges")
     if r.size == 0:
@@ -410,6 +411,11 @@ def generate_layout(
     R: ``n`` anchors uniform in a square of side ``spacing_m·√n`` (the grid's density), linked when closer than
     ``range_limit_m``; redrawn until connected (needs ``rng``).
     """
+    n_anchors = whole_number(n_anchors, "n_anchors", minimum=1, error=ModelError)
+    affordable_nodes(n_anchors, "a layout", error=ModelError, items="anchors")
+    spacing_m = real_number(spacing_m, "spacing_m", positive=True, unit="m", error=ModelError)
+    range_limit_m = real_number(range_limit_m, "range_limit_m", positive=True, unit="m", error=ModelError)
+    max_tries = whole_number(max_tries, "max_tries", minimum=1, error=ModelError)
     cls = cls.upper()
     if cls in ("G", "L"):
         if cls == "G":
@@ -471,6 +477,9 @@ def select_fixed(pos: np.ndarray, selection: str, n_fixed: int = 3) -> np.ndarra
     the lower-right corner and one nearest the upper-left (paper 002 §4: "two in the bottom-right and one in
     the upper-left corner"); M = the anchors nearest the centroid. Chosen so they are never collinear."""
     p = np.asarray(pos, float)[:, :2]
+    n_fixed = whole_number(n_fixed, "n_fixed", minimum=2 if selection.upper() == "O" else 1, error=ModelError)
+    if n_fixed > p.shape[0]:
+        raise ModelError(f"n_fixed={n_fixed} fixed anchors asked for among {p.shape[0]} anchors")
     lo, hi = p.min(axis=0), p.max(axis=0)
     sel = selection.upper()
     if sel == "C":
@@ -502,8 +511,11 @@ class PaperProblemOptions:
     hold_heights: bool = False
 
     def __post_init__(self) -> None:
+        check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         if self.sigma_m < 0 or self.init_halfwidth_m < 0:
             raise ModelError("sigma_m and init_halfwidth_m must be ≥ 0")
+        if self.dim not in (2, 3):
+            raise ModelError(f"dim must be 2 or 3, got {self.dim}")
 
 
 def generate_problem(
