@@ -61,3 +61,25 @@ def test_uwb_anchors_go_on_without_a_killed_anchor(tmp_path: Path) -> None:
     np.testing.assert_array_equal(field, inproc.estimates)  # the same solver from the same start, in-process
     full = solve(sc.ranging, "LM", iterations=500, objective="metres").estimates[rest]
     assert np.abs(full - lm.estimates).max() > 1e-3  # the dead anchor's ranges mattered: not the full answer
+
+
+@pytest.mark.parametrize("victim", [0, 1])  # the spanning tree's root; an inner node of it (parent of 4 and 9)
+def test_uwb_anchors_go_on_without_the_tree_root_or_an_inner_node(tmp_path: Path, victim: int) -> None:
+    """The anchor that relays the global operations dies (known anchors here): the nodes below it learn of the gap
+    from their parents, all agree on the loss in the same step, and end within 1 mm of LM on the remaining data."""
+    from distnav.exchange.field.tree import SpanningTree
+
+    sc = hall_scenario(10, seed=5, iterations=300, objective="metres", hall=WELL_CONNECTED)
+    assert sc.ranging is not None
+    parent = SpanningTree(sc.ranging.graph).parent
+    assert (parent == victim).sum() >= 2  # it relays for at least two other anchors
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=2000, crash={victim: 30}))
+    summary = launch(net, tmp_path / "run", timeout_s=400, quiet=True)
+    rest = [i for i in range(10) if i != victim]
+    assert summary["crashed_on_purpose"] == [victim] and summary["finished"] == rest, summary
+    nodes = [summary["nodes"][str(i)] for i in rest]
+    assert len({r["lost_nodes"][str(victim)] for r in nodes}) == 1
+    assert all(list(r["lost_nodes"]) == [str(victim)] for r in nodes)
+    lm = solve(remaining_data(sc.ranging, victim), "LM", iterations=500, objective="metres")
+    field = np.array([r["estimate"] for r in nodes], dtype=float)
+    assert np.abs(field - lm.estimates).max() <= 1e-3

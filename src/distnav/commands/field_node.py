@@ -84,7 +84,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
         crash_step = None if (consensus or rejoin) else desc.crash.get(node_id)
         ex = (
-            FieldExchange(desc.graph(), node_id, transport, schedule)
+            FieldExchange(desc.graph(), node_id, transport, schedule, direct=False)
             if crash_step is None
             else _CrashingExchange(desc.graph(), node_id, transport, schedule, crash_step=crash_step)
         )
@@ -138,7 +138,7 @@ class _CrashingExchange(FieldExchange):
     algorithm node: its "round" is the exchange's step, every message round or global operation one step)."""
 
     def __init__(self, *args: Any, crash_step: int) -> None:
-        super().__init__(*args)
+        super().__init__(*args, direct=False)
         self._crash_step = int(crash_step)
 
     def _next_step(self) -> int:

@@ -44,6 +44,9 @@ from distnav.formats.field_data import read_node_arrays, uwb_samples_problem
 
 __all__ = ["run_uwb"]
 
+#: the agreement after the k-th loss runs from step k × this (far beyond any run's steps; the wire's step is a u64),
+#: so that anchors which noticed the loss in different steps still agree in the same steps
+_ATTEMPT_STEPS = 1 << 40
 _TABLE = ("ids", "positions_m", "free", "initial_m", "truth_m")  # the anchor table's per-anchor arrays
 
 
@@ -122,9 +125,12 @@ def _without_lost(
     assert path is not None  # run_uwb read it
     window = agreement_window_s(graph, base.options.deadline_s)
     dead: dict[int, int] = {}
-    step, failed = ex.step, ex.step - 1
-    for _ in range(desc.n_nodes):
-        alive, step = agree_on_survivors(base, graph, step, window_s=window, dead=set(dead))
+    failed = ex.step - 1
+    for attempt in range(1, desc.n_nodes + 1):
+        start = attempt * _ATTEMPT_STEPS  # the same at every node, wherever it noticed the loss
+        alive, failed, step = agree_on_survivors(
+            base, graph, start, window_s=window, failed_step=failed, dead=set(dead)
+        )
         newly = sorted(set(np.flatnonzero(~alive).tolist()) - set(dead))
         if not newly:
             return _stopped(ex, dead, f"a global operation failed at step {failed} with every anchor alive ({error})")
@@ -133,7 +139,7 @@ def _without_lost(
         if not sub_graph.is_connected:
             return _stopped(ex, dead, "the remaining anchors are not one connected network")
         link = SubnetTransport(base, alive)
-        sub = FieldExchange(sub_graph, link.me, link, ex.faults)
+        sub = FieldExchange(sub_graph, link.me, link, ex.faults, direct=False)
         sub.step = step
         try:
             _check_agreement(sub, alive, failed)
@@ -141,7 +147,7 @@ def _without_lost(
             problem = uwb_samples_problem(table, rows, path)
             res = _solve(problem, desc.algorithm, sub)
         except ExchangeError as exc:
-            step, failed, error = sub.step, sub.step - 1, str(exc)
+            failed, error = sub.step - 1, str(exc)
             continue
         lost = ", ".join(f"{d} (at step {s})" for d, s in sorted(dead.items()))
         return {

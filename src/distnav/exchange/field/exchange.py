@@ -12,12 +12,13 @@ its weight moves to the receiver's self-weight (as for a dropped message in-proc
 :class:`~distnav.exchange.faults.FaultSchedule` drops the same messages as in-process (decided by the receiver).
 
 Global operations (:meth:`allreduce`, :meth:`gather_nodes`, :meth:`barrier`) are implemented honestly over the
-network: when every other node is a peer of the transport (threads of one test), each node sends its contribution
-to every other node (``n − 1`` messages per node per call); when the transport knows only the neighbours (a field
-node run from a description), the contributions travel up and down a spanning tree of the network's own links
-(:mod:`.tree`, ``2 (n − 1)`` messages per call). Both forms give every node every contribution and reduce them in
-node-id order, so they agree bit for bit; the messages are counted in the wire bytes. Node code that should scale
-avoids global operations.
+network: when every other node is a peer of the transport (threads of one test, the demo's UWB nodes), each node
+sends its contribution to every other node (``n − 1`` messages per node per call); when the transport knows only the
+neighbours, and always for a field node run from a description (``direct=False``: every node must choose alike, and
+a node that neighbours every other one cannot tell the two cases apart), the contributions travel up and down a
+spanning tree of the network's own links (:mod:`.tree`, ``2 (n − 1)`` messages per call). Both forms give every
+node every contribution and reduce them in node-id order, so they agree bit for bit; the messages are counted in the
+wire bytes. Node code that should scale avoids global operations.
 """
 
 from __future__ import annotations
@@ -56,8 +57,17 @@ class FieldExchange(Exchange):
 
     backend = "field"
 
-    def __init__(self, graph: Graph, node: int, transport: StepTransport, faults: FaultSchedule | None = None) -> None:
+    def __init__(
+        self,
+        graph: Graph,
+        node: int,
+        transport: StepTransport,
+        faults: FaultSchedule | None = None,
+        *,
+        direct: bool | None = None,
+    ) -> None:
         super().__init__(graph, faults)
+        self._direct = direct
         me = int(node)
         if not 0 <= me < graph.n_nodes:
             raise ExchangeError(f"node {me} is not in the graph (0..{graph.n_nodes - 1})")
@@ -206,15 +216,13 @@ class FieldExchange(Exchange):
 
     @cached_property
     def _all_peers(self) -> bool:
-        """Whether global operations go to every node directly, a choice every node must make alike: when every
-        other node is a peer and either the graph is complete or some peer is not a neighbour (threads given every
-        node's address). A node of a description that happens to neighbour every other node still uses the tree,
-        as the others do."""
-        peers = set(self.transport.peers)
-        if any(n not in peers for n in range(self.n_nodes) if n != self.me):
-            return False
-        complete = int(np.count_nonzero(self.graph.src != self.graph.dst)) == self.n_nodes * (self.n_nodes - 1)
-        return complete or bool(peers - set(self.neighbours.tolist()))
+        """Whether global operations go to every node directly instead of over the tree, a choice every node of a
+        run must make alike: ``direct`` when given (a node run from a description passes False: a node that
+        happens to neighbour every other node still uses the tree, as the others do), else whether every other
+        node is a peer (threads or processes given every node's address)."""
+        if self._direct is not None:
+            return self._direct
+        return all(n in self.transport.peers for n in range(self.n_nodes) if n != self.me)
 
     @cached_property
     def _tree(self) -> SpanningTree:

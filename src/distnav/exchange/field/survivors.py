@@ -12,15 +12,20 @@ rounds every node of a connected surviving network holds the marks of exactly th
 
 **Timing.** The nodes do not enter the agreement together: a global operation that lost a node ends at each node
 when its own deadline for the missing message passes, and a node below the dead one in the spanning tree waits
-longest — at most ``deadline × (2·height + 1)`` later than the first (:mod:`.tree`). Round ``k`` therefore ends at
-the latest ``(k + 1)·window_s`` after the node entered the agreement, with ``window_s`` more than that skew
-(:func:`agreement_window_s`): a live neighbour, which entered at most one skew later and has itself waited at most
-``k·window_s`` for its earlier rounds, has sent its round-``k`` marks by then. A neighbour whose marks have not
-come by then is dead, and is not waited for in the later rounds (so a dead neighbour costs one window, once).
-The rounds' deadlines are absolute, so waits do not add up along a path of nodes.
+longest — at most ``deadline × (2·height + 1)`` later than the first (:mod:`.tree`). A dying process may also take
+its last queued messages with it, so some nodes can fail a step or two before the others. The rounds therefore run
+in steps that do not depend on where a node failed (the caller passes the same base at every node), and round ``k``
+ends at the latest ``(k + 1)·window_s`` after the node entered the agreement, with ``window_s`` more than that skew
+(:func:`agreement_window_s`). A neighbour is taken for dead only when nothing at all came from it during a round (no
+marks, and no message of another step or kind either): a live neighbour still busy with the failed computation is
+waited for in the next round. A dead neighbour costs one window, once; the rounds' deadlines are absolute, so waits
+do not add up along a path of nodes. The marks also carry the earliest step at which a node saw the operation fail,
+so every node reports the same step.
 
 The result is checked afterwards by the caller (every node's marks gathered over the new sub-network must be equal);
-a disagreement is an error, never a guess.
+a disagreement is an error, never a guess. (Found by the test that kills the tree's inner node: with step-numbered
+rounds and "no marks = dead", the two children of the dead node, which had failed two steps earlier, and the other
+nodes each took the others for dead and solved apart, two answers that looked right.)
 """
 
 from __future__ import annotations
@@ -46,30 +51,42 @@ def agreement_window_s(graph: Graph, deadline_s: float) -> float:
 
 
 def agree_on_survivors(
-    transport: StepTransport, graph: Graph, step: int, *, window_s: float, dead: set[int] | None = None
-) -> tuple[np.ndarray, int]:
+    transport: StepTransport,
+    graph: Graph,
+    step: int,
+    *,
+    window_s: float,
+    failed_step: int,
+    dead: set[int] | None = None,
+) -> tuple[np.ndarray, int, int]:
     """The nodes that are still running (a boolean mask over the graph's nodes), agreed by flooding in steps
-    ``step .. step + n − 1`` (module docstring), and the next step. ``dead``: nodes already known dead."""
+    ``step .. step + n − 1`` (module docstring), the earliest ``failed_step`` among them (the step of the failed
+    operation, as every node saw it) and the next step. ``step`` must not depend on where a node noticed the loss
+    (the caller passes a fixed base per attempt), so nodes that failed in different steps still flood in the same
+    ones. ``dead``: nodes already known dead."""
     me, n = transport.me, graph.n_nodes
     gone = set(dead or ())
     nbrs = [int(j) for j in sorted(graph.neighbors(me)) if int(j) not in gone]
-    marks = np.zeros(n, np.uint8)
-    marks[me] = 1
+    marks = np.zeros(n + 1, np.int64)  # [earliest failed step, a mark per node]
+    marks[0], marks[1 + me] = failed_step, 1
     t0 = time.monotonic()
     for k in range(n):
         live = [j for j in nbrs if j not in gone]
+        heard = {j: transport.heard.get(j, 0) for j in live}
         transport.post_many(live, Kind.COLUMN, step + k, marks)
         wait = max(0.0, t0 + (k + 1) * window_s - time.monotonic())
         got = transport.collect(Kind.COLUMN, step + k, live, deadline_s=wait)
         for j in live:
             theirs = got.get(j)
             if theirs is None:
-                gone.add(j)
-            elif theirs.shape != (n,) or theirs.dtype != np.uint8:
+                if transport.heard.get(j, 0) == heard[j]:  # not a sign of life in the whole round: dead
+                    gone.add(j)
+            elif theirs.shape != (n + 1,) or theirs.dtype != np.int64:
                 transport._refuse("malformed", f"node {j} sent marks {theirs.dtype}{theirs.shape} at step {step + k}")
             else:
-                marks |= theirs
-    return marks.astype(bool), step + n
+                marks[0] = min(marks[0], theirs[0])
+                marks[1:] |= theirs[1:]
+    return marks[1:].astype(bool), int(marks[0]), step + n
 
 
 def subnetwork(graph: Graph, alive: np.ndarray) -> Graph:
@@ -100,6 +117,10 @@ class SubnetTransport:
     @property
     def lost(self) -> dict[int, int]:
         return {self._new[k]: v for k, v in self.base.lost.items() if k in self._new}
+
+    @property
+    def heard(self) -> dict[int, int]:
+        return {self._new[k]: v for k, v in self.base.heard.items() if k in self._new}
 
     def post(self, peer: int, kind: Kind, step: int, array: np.ndarray) -> None:
         self.base.post(self._old[peer], kind, step, array)

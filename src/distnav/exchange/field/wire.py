@@ -82,7 +82,6 @@ _LITTLE = sys.byteorder == "little"  # the wire's order: received arrays are use
 _KINDS = {int(k): k for k in Kind}
 #: header and shape of an ``ndim``-dimensional array in one struct (one pack / unpack call per message)
 _HEAD_SHAPE = [struct.Struct(HEADER.format + "I" * k) for k in range(MAX_NDIM + 1)]
-_SHAPE = [struct.Struct("<" + "I" * k) for k in range(MAX_NDIM + 1)]
 
 
 def encode(kind: Kind, sender: int, step: int, array: np.ndarray) -> bytes:
@@ -110,7 +109,9 @@ def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
         raise WireError(f"oversize message: {size} bytes (limit {max_bytes})")
     if size < HEADER.size:
         raise WireError(f"malformed message: {size} bytes, shorter than the {HEADER.size}-byte header")
-    magic, version, kind, code, ndim, sender, step, length = HEADER.unpack_from(frame)
+    ndim = frame[7]  # header and shape in one unpack when ndim is valid (else the header alone, for the error)
+    fields = (_HEAD_SHAPE[ndim] if ndim <= MAX_NDIM and size >= HEADER.size + 4 * ndim else HEADER).unpack_from(frame)
+    magic, version, kind, code, ndim, sender, step, length = fields[:8]
     if magic != MAGIC:
         raise WireError(f"malformed message: magic {bytes(magic)!r}, expected {MAGIC!r}")
     if version != VERSION:
@@ -126,11 +127,11 @@ def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
     start = HEADER.size + ndim * 4
     if size != start + length:
         raise WireError(f"malformed message: {size} bytes, the header announces {start + length}")
-    shape = _SHAPE[ndim].unpack_from(frame, HEADER.size)
-    count = math.prod(shape)
+    shape = fields[8:]
+    count = shape[0] if ndim == 1 else math.prod(shape)
     if count * dtype.itemsize != length:
         raise WireError(f"malformed message: shape {shape} of {dtype} is not {length} bytes")
-    arr = np.frombuffer(frame, dtype=dtype, count=count, offset=start)
+    arr = np.frombuffer(frame, dtype, count, start)  # positional: keywords cost more than the call here
     if ndim != 1:
         arr = arr.reshape(shape)
     if not _LITTLE:
