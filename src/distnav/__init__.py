@@ -7,7 +7,7 @@ all. See docs/DEVELOPING.md (checked by tests/test_layers.py).
 
 from __future__ import annotations
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 from distnav._threads import one_blas_thread_under_mpi  # noqa: E402
 
