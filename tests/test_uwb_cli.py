@@ -343,10 +343,10 @@ def test_distributed_solve_under_mpi_writes_the_same_positions(tmp_path):
 
 def test_diverged_run_exits_non_zero_and_writes_no_positions(tmp_path, capsys, monkeypatch):
 
-    import distnav.models.uwb.field as field
+    import distnav.algorithms.ranging.csg as csg  # the module the workflow's fits call by name (field_steps)
 
-    real = field.csg.solve
-    monkeypatch.setattr(field.csg, "solve", lambda *a, **kw: real(*a, **{**kw, "alpha": 1.0}))  # blows up
+    real = csg.solve
+    monkeypatch.setattr(csg, "solve", lambda *a, **kw: real(*a, **{**kw, "alpha": 1.0}))  # blows up
     f = hall(tmp_path, ceiling=False)
     out = tmp_path / "out"
     assert (
