@@ -46,23 +46,18 @@ def _arrays(desc: NetworkDescription, node_id: int, kind: str) -> dict[str, np.n
 
 
 def run_admm(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
-    """ADMM (paper 000 Fig. 6) on this node's observation block; its estimate, status and iterations."""
-    from distnav.algorithms.lsq.admm import admm
+    """ADMM (paper 000 Fig. 6) on this node's observation block; its estimate, status and iterations. A node lost
+    mid-run: the others go on without it (:mod:`distnav.commands.field_admm`)."""
+    from distnav.commands.field_admm import run_admm_field, without_lost
 
-    entry, algo = desc.node(node_id), desc.algorithm
+    entry = desc.node(node_id)
     assert entry.data is not None
-    problem = admm_node_problem(_arrays(desc, node_id, "admm"), entry.data, node_id, desc.n_nodes)
-    res = admm(
-        problem,
-        ex.graph,
-        constraint_nodes=algo["constraint_nodes"],
-        W=algo["rho"],
-        max_iterations=algo["max_iterations"],
-        tol=algo["tol"],
-        messages=algo["messages"],
-        record_nodes=False,
-        exchange=ex,
-    )
+    arrays = _arrays(desc, node_id, "admm")
+    problem = admm_node_problem(arrays, entry.data, node_id, desc.n_nodes)
+    try:
+        res = run_admm_field(desc.algorithm, problem, ex)
+    except ExchangeError as exc:
+        return without_lost(desc, ex, arrays, str(exc))
     return {
         "estimate": res.estimates[node_id],
         "status": res.status,
@@ -104,13 +99,12 @@ def run_ckf(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
 def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, transport: Transport) -> dict[str, Any]:
     """Run the description's algorithm (one of :data:`NODE_ALGORITHMS`) as node ``node_id``.
 
-    ADMM and the CKF have no answer without every node's data: ADMM would keep a lost node's last message and
-    converge to a point that still holds its data, the CKF's consensus would keep weighting it. So when a node is
-    lost (noticed by this node, or a global operation that cannot be finished without it) the node ends with
+    The CKF has no answer without every node's data (its consensus would keep weighting a lost node): when a node
+    is lost (noticed by this node, or a global operation that cannot be finished without it) the node ends with
     ``status = "stopped"``, no estimate, and a message naming the lost node and the step — never an answer that looks
-    right. The UWB anchors go on without a dead anchor: they agree on who remains and solve again on the remaining
-    anchors' data (:mod:`distnav.commands.field_uwb`). (Consensus in flow form also finishes: the exact mean of the
-    nodes that remain, :mod:`distnav.algorithms.consensus.flows`.)"""
+    right. ADMM nodes and UWB anchors go on without a dead node: they agree on who remains and run again on the
+    remaining nodes' data (:mod:`distnav.commands.field_admm`, :mod:`distnav.commands.field_uwb`). (Consensus in
+    flow form also finishes: the exact mean of the nodes that remain, :mod:`distnav.algorithms.consensus.flows`.)"""
     from distnav.commands.field_uwb import run_uwb
 
     runner = {"admm": run_admm, "ckf": run_ckf, "uwb": run_uwb}[desc.algorithm["name"]]
@@ -118,7 +112,7 @@ def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, tra
         out = runner(desc, node_id, ex)
     except ExchangeError as exc:
         return _stopped(desc, ex, transport, str(exc))
-    if transport.lost and "lost_nodes" not in out:  # (uwb names the losses it went on without itself)
+    if transport.lost and "lost_nodes" not in out:  # (admm, uwb name the losses it went on without itself)
         return _stopped(desc, ex, transport, "")
     return out
 

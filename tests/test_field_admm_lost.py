@@ -1,0 +1,71 @@
+"""An ADMM node process killed mid-run (issue 26 item 4): the others agree on it, run ADMM again on their own data
+and finish; every remaining node names the lost node and the step, and its answer is the centralized BLUE (paper 000
+eq. (4), :func:`~distnav.algorithms.lsq.blue.blue`) of the remaining nodes' data to 1e-6. Separate node processes on
+loopback, bounded in time, cleaned up by ``launch``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zmq")
+pytest.importorskip("tomli_w")
+
+from distnav.algorithms.lsq.blue import LinearProblem, blue  # noqa: E402
+from distnav.commands.field import launch  # noqa: E402
+from distnav.commands.field_processes import LoopbackOptions  # noqa: E402
+from distnav.commands.field_scenarios import codebias_scenario, write_scenario  # noqa: E402
+from distnav.network import builders  # noqa: E402
+from distnav.network.graph import Graph  # noqa: E402
+
+
+def _remaining_blue(problem: LinearProblem, rest: list[int]) -> np.ndarray:
+    """The BLUE of the remaining nodes' blocks (built here from the full problem's arrays, not the nodes' files)."""
+    A = [problem.A[i, : problem.rows[i]] for i in rest]
+    y = [problem.y[i, : problem.rows[i]] for i in rest]
+    R = [problem.R[i, : problem.rows[i], : problem.rows[i]] for i in rest]
+    return blue(LinearProblem.from_blocks(A, y, R)).x
+
+
+def test_admm_nodes_go_on_without_a_killed_node(tmp_path: Path) -> None:
+    sc = codebias_scenario(10, seed=1, epochs=10)
+    assert sc.problem is not None
+    victim, rest = 9, list(range(9))
+    keep = np.arange(10) != 9
+    links = [(a, b) for a, b in np.asarray(sc.graph.links).reshape(-1, 2).tolist() if keep[a] and keep[b]]
+    assert Graph.from_links(9, links).is_connected  # the rest stays one network
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=2000, crash={victim: 30}))
+    summary = launch(net, tmp_path / "run", timeout_s=300, quiet=True)
+    assert summary["crashed_on_purpose"] == [victim], summary
+    assert summary["finished"] == rest and summary["failed"] == [] and summary["stopped"] == [], summary
+    nodes = [summary["nodes"][str(i)] for i in rest]
+    steps = {r["lost_nodes"][str(victim)] for r in nodes}
+    assert all(list(r["lost_nodes"]) == [str(victim)] for r in nodes)  # named at every remaining node
+    assert len(steps) == 1 and steps.pop() >= 30  # the same step everywhere, not before it died
+    assert all(r["status"] == "converged_without_lost_nodes" and r["remaining_nodes"] == rest for r in nodes)
+    assert all(f"node {victim} (at step" in r["message"] for r in nodes)
+
+    field = np.array([r["estimate"] for r in nodes], dtype=float)
+    ref = _remaining_blue(sc.problem, rest)
+    assert np.abs(field - ref).max() <= 1e-6  # issue 26: the centralized solution of the data that remained
+    full = blue(sc.problem).x
+    assert np.abs(full - ref).max() > 1e-4  # the dead node's data mattered: not the answer of all the data
+
+
+def test_admm_stops_and_says_why_when_the_rest_is_disconnected(tmp_path: Path) -> None:
+    """On a path 0 – … – 7 node 5 dies at step 30: the remaining nodes are two networks, so no node presents an
+    answer; every remaining node stops and names the lost node and why."""
+    sc = codebias_scenario(8, seed=1, epochs=10)
+    sc = type(sc)(builders.path(8), sc.kind, sc.algorithm, problem=sc.problem)
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=2000, crash={5: 30}))
+    summary = launch(net, tmp_path / "run", timeout_s=300, quiet=True)
+    assert summary["crashed_on_purpose"] == [5]
+    assert summary["finished"] == [] and summary["failed"] == [], summary
+    assert sorted(summary["stopped"]) == [0, 1, 2, 3, 4, 6, 7]
+    for r in summary["nodes"].values():
+        assert r["status"] == "stopped" and r["estimate"] is None
+        assert "nodes [5]" in r["message"] and "may be split" in r["message"], r["message"]
+        assert list(r["lost_nodes"]) == ["5"]  # the nodes beyond it are named as out of reach, not as lost
+    assert "[6, 7]" in summary["nodes"]["4"]["message"] and "[0, 1, 2, 3, 4]" in summary["nodes"]["6"]["message"]
