@@ -29,8 +29,21 @@ def _remaining_blue(problem: LinearProblem, rest: list[int]) -> np.ndarray:
     return blue(LinearProblem.from_blocks(A, y, R)).x
 
 
+def _with_a_parameter_of_one_node(problem: LinearProblem, node: int) -> LinearProblem:
+    """The problem with one more parameter, "G99", observed only by the first row of ``node`` (a satellite only it
+    tracked): determined with every node, inestimable without that one."""
+    A = np.concatenate([problem.A, np.zeros((*problem.A.shape[:2], 1))], axis=2)
+    A[node, 0, -1] = 1.0
+    assert problem.parameter_names is not None
+    return LinearProblem(
+        A=A, y=problem.y, R=problem.R, rows=problem.rows, parameter_names=(*problem.parameter_names, "G99")
+    )
+
+
 def test_admm_nodes_go_on_without_a_killed_node(tmp_path: Path) -> None:
     sc = codebias_scenario(10, seed=1, epochs=10)
+    assert sc.problem is not None
+    sc = type(sc)(sc.graph, sc.kind, sc.algorithm, problem=_with_a_parameter_of_one_node(sc.problem, 9))
     assert sc.problem is not None
     victim, rest = 9, list(range(9))
     keep = np.arange(10) != 9
@@ -48,9 +61,13 @@ def test_admm_nodes_go_on_without_a_killed_node(tmp_path: Path) -> None:
     assert all(f"node {victim} (at step" in r["message"] for r in nodes)
 
     field = np.array([r["estimate"] for r in nodes], dtype=float)
-    ref = _remaining_blue(sc.problem, rest)
-    assert np.abs(field - ref).max() <= 1e-6  # issue 26: the centralized solution of the data that remained
-    full = blue(sc.problem).x
+    assert all(r["dropped_parameters"] == ["G99"] for r in nodes)  # seen only by the dead node: named, no number
+    assert np.isnan(field[:, -1]).all() and np.isfinite(field[:, :-1]).all()
+    p = sc.problem.n_params - 1
+    without = LinearProblem(A=sc.problem.A[:, :, :p], y=sc.problem.y, R=sc.problem.R, rows=sc.problem.rows)
+    ref = _remaining_blue(without, rest)
+    assert np.abs(field[:, :-1] - ref).max() <= 1e-6  # issue 26: the centralized solution of the data that remained
+    full = blue(sc.problem).x[:p]
     assert np.abs(full - ref).max() > 1e-4  # the dead node's data mattered: not the answer of all the data
 
 
