@@ -8,7 +8,7 @@ lacks a node raises :class:`~distnav.errors.ExchangeError` at every node. The no
 1. agree on who remains (:func:`~distnav.exchange.field.survivors.agree_on_survivors`) and check the agreement over
    the remaining nodes' spanning tree (every node's view of the remaining nodes and the failed step equal);
 2. drop the parameters that no remaining node's rows observe (a network OR of each node's non-zero columns, eq. (1)'s
-   ``A_i``): typically the dead station's receiver code bias, or a satellite only it tracked. They are reported by
+   ``A_i``): e.g. the code bias of a satellite only the dead station tracked. They are reported by
    name in ``dropped_parameters`` and given as NaN in the estimate, never as a number;
 3. run ADMM again **from the start** (``x = 0``, ``u = 0``, §4.3) with the same settings on the sub-network the
    remaining nodes induce, each with only its own rows, over a
@@ -20,7 +20,8 @@ node's data in the multipliers). ``status`` is the new run's with ``_without_los
 every lost node with the step of the failed operation. The node stops (``status = "stopped"``, no estimate, the
 reason named) when the remaining network may be split (below), when the remaining data leave a direction inestimable
 (ADMM's rank check names it, e.g. the datum of the code biases when the reference station dies), or when a global
-operation failed with every node alive.
+operation failed with every node alive. The field CKF uses the same :func:`without_lost` with its own
+:data:`Rerun` (:func:`distnav.commands.field_algorithms.run_ckf`).
 
 **A split network.** The agreement (flooding) cannot tell a dead node from a live one cut off behind the dead: on
 a path ``0 – … – 7`` without node 5, nodes ``0..4`` never hear of 6 and 7, and each side would take the other for
@@ -32,6 +33,8 @@ finished with an answer of their own half.)
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -42,7 +45,7 @@ from distnav.exchange.field.survivors import SubnetTransport, agree_on_survivors
 from distnav.formats.field_config import NetworkDescription
 from distnav.formats.field_data import admm_node_problem
 
-__all__ = ["run_admm_field", "without_lost"]
+__all__ = ["Rerun", "admm_again", "run_admm_field", "without_lost"]
 
 _UNSEEN = (
     "the remaining network may be split: no remaining node is a neighbour of (so none saw die) the nodes that are "
@@ -87,15 +90,38 @@ def _names(arrays: dict[str, np.ndarray], which: np.ndarray) -> list[str]:
     return [str(names[k]) if names is not None else f"x[{k}]" for k in np.flatnonzero(which)]
 
 
-def without_lost(
-    desc: NetworkDescription, ex: FieldExchange, arrays: dict[str, np.ndarray], error: str
-) -> dict[str, Any]:
-    """Agree on the remaining nodes and run ADMM again on their data (module docstring); at most one pass per node
-    of the network (each pass loses at least one)."""
+#: a node program's new run on the remaining nodes: its result fields (``status`` and ``message`` of that run) from
+#: its exchange on the sub-network; it raises ExchangeError (another loss) or ModelError (no answer: stop)
+Rerun = Callable[[FieldExchange], dict[str, Any]]
+
+
+def admm_again(algo: dict[str, Any], arrays: dict[str, np.ndarray], path: Path) -> Rerun:
+    """ADMM on the remaining nodes' rows, without the parameters none of them observes (module docstring)."""
+
+    def rerun(sub: FieldExchange) -> dict[str, Any]:
+        used = _used_columns(sub, arrays)
+        problem = admm_node_problem(_columns(arrays, used), path, sub.me, sub.graph.n_nodes)
+        res = run_admm_field(algo, problem, sub)
+        estimate = np.full(used.size, np.nan)
+        estimate[used] = res.estimates[sub.me]
+        dropped = _names(arrays, ~used)
+        return {
+            "estimate": estimate,
+            "status": res.status,
+            "message": f"parameters no remaining node observes (NaN): {dropped or 'none'}; {res.message}",
+            "iterations": res.iterations,
+            "dropped_parameters": dropped,
+        }
+
+    return rerun
+
+
+def without_lost(desc: NetworkDescription, ex: FieldExchange, error: str, rerun: Rerun) -> dict[str, Any]:
+    """Agree on the remaining nodes and run again on their data (module docstring); at most one pass per node of
+    the network (each pass loses at least one)."""
     from distnav.commands.field_uwb import _ATTEMPT_STEPS, _check_agreement
 
-    graph, base, path = ex.graph, ex.transport, desc.node(ex.me).data
-    assert path is not None  # run_admm read it
+    graph, base, name = ex.graph, ex.transport, desc.algorithm["name"]
     window = agreement_window_s(graph, base.options.deadline_s)
     dead: dict[int, int] = {}
     failed = ex.step - 1
@@ -105,26 +131,33 @@ def without_lost(
         )
         newly = sorted(set(np.flatnonzero(~alive).tolist()) - set(dead))
         if not newly:
-            return _stopped(ex, dead, f"a global operation failed at step {failed} with every node alive ({error})")
+            return _stopped(
+                name, ex, dead, f"a global operation failed at step {failed} with every node alive ({error})"
+            )
         unseen = [k for k in newly if not any(alive[int(j)] for j in graph.neighbors(k))]
         dead.update({k: failed for k in newly if k not in unseen})
         if unseen:
-            return _stopped(ex, dead, f"{_UNSEEN} {unseen}")
+            return _stopped(name, ex, dead, f"{_UNSEEN} {unseen}")
         sub = _sub_exchange(ex, alive, step)
         if sub is None:
-            return _stopped(ex, dead, "the remaining nodes are not one connected network")
+            return _stopped(name, ex, dead, "the remaining nodes are not one connected network")
         try:
             _check_agreement(sub, alive, failed)
-            used = _used_columns(sub, arrays)
-            problem = admm_node_problem(_columns(arrays, used), path, sub.me, sub.graph.n_nodes)
-            res = run_admm_field(desc.algorithm, problem, sub)
+            out = rerun(sub)
         except ExchangeError as exc:
             failed, error = sub.step - 1, str(exc)
             continue
         except ModelError as exc:
-            return _stopped(ex, dead, f"the remaining nodes' data do not determine the parameters: {exc}")
-        return _finished(ex, res, sub, alive, used, dead, step, _names(arrays, ~used))
-    return _stopped(ex, dead, error)
+            return _stopped(name, ex, dead, f"the remaining nodes' data do not determine the parameters: {exc}")
+        lost = ", ".join(f"node {d} (at step {s})" for d, s in sorted(dead.items()))
+        out["status"] = f"{out['status']}_without_lost_nodes"
+        out["message"] = (
+            f"lost {lost}; the {int(alive.sum())} remaining nodes agreed on it and ran {name} again on their own "
+            f"data from step {step} ({out['message']})"
+        )
+        out["rounds"] = sub.step
+        return out | _lost_fields(dead, alive, step)
+    return _stopped(name, ex, dead, error)
 
 
 def _sub_exchange(ex: FieldExchange, alive: np.ndarray, step: int) -> FieldExchange | None:
@@ -138,40 +171,14 @@ def _sub_exchange(ex: FieldExchange, alive: np.ndarray, step: int) -> FieldExcha
     return sub
 
 
-def _finished(
-    ex: FieldExchange,
-    res: Any,
-    sub: FieldExchange,
-    alive: np.ndarray,
-    used: np.ndarray,
-    dead: dict[int, int],
-    step: int,
-    dropped: list[str],
-) -> dict[str, Any]:
-    estimate = np.full(used.size, np.nan)
-    estimate[used] = res.estimates[sub.me]
-    lost = ", ".join(f"node {d} (at step {s})" for d, s in sorted(dead.items()))
-    return {
-        "estimate": estimate,
-        "status": f"{res.status}_without_lost_nodes",
-        "message": (
-            f"lost {lost}; the {int(alive.sum())} remaining nodes agreed on it and ran ADMM again on their own data "
-            f"from step {step}; parameters no remaining node observes (NaN): {dropped or 'none'} ({res.message})"
-        ),
-        "iterations": res.iterations,
-        "rounds": sub.step,
-        "dropped_parameters": dropped,
-    } | _lost_fields(dead, alive, step)
-
-
 def _lost_fields(dead: dict[int, int], alive: np.ndarray, step: int) -> dict[str, Any]:
     """Who was lost (node → step of the failed operation), who remains, and where the new run began."""
     lost = {str(d): s for d, s in sorted(dead.items())}
     return {"lost_nodes": lost, "remaining_nodes": np.flatnonzero(alive).tolist(), "restarted_at_step": step}
 
 
-def _stopped(ex: FieldExchange, dead: dict[int, int], why: str) -> dict[str, Any]:
+def _stopped(name: str, ex: FieldExchange, dead: dict[int, int], why: str) -> dict[str, Any]:
     """No estimate: the reason, and the nodes seen lost (node → step)."""
-    text = f"admm cannot go on without the lost nodes {sorted(dead)}: {why}; no estimate is given"
+    text = f"{name} cannot go on without the lost nodes {sorted(dead)}: {why}; no estimate is given"
     lost = {str(d): s for d, s in sorted(dead.items())}
     return dict(estimate=None, status="stopped", message=text, rounds=ex.step, lost_nodes=lost)
