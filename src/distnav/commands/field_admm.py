@@ -19,7 +19,7 @@ test_field_admm_lost.py``). Departure, stated: the iterations before the loss ar
 node's data in the multipliers). ``status`` is the new run's with ``_without_lost_nodes``; ``lost_nodes`` names
 every lost node with the step of the failed operation. The node stops (``status = "stopped"``, no estimate, the
 reason named) when the remaining network may be split (below), when the remaining data leave a direction inestimable
-(ADMM's rank check names it, e.g. the datum of the code biases when the reference station dies), or when a global
+(ADMM's rank check names the direction), or when a global
 operation failed with every node alive. The field CKF uses the same :func:`without_lost` with its own
 :data:`Rerun` (:func:`distnav.commands.field_algorithms.run_ckf`).
 
