@@ -86,3 +86,27 @@ def test_admm_stops_and_says_why_when_the_rest_is_disconnected(tmp_path: Path) -
         assert "nodes [5]" in r["message"] and "may be split" in r["message"], r["message"]
         assert list(r["lost_nodes"]) == ["5"]  # the nodes beyond it are named as out of reach, not as lost
     assert "[6, 7]" in summary["nodes"]["4"]["message"] and "[0, 1, 2, 3, 4]" in summary["nodes"]["6"]["message"]
+
+
+def test_admm_stops_naming_the_direction_the_remaining_data_leave_open(tmp_path: Path) -> None:
+    """Two more parameters, G98 and G99: node 0 observes their sum, node 9 G98 alone. With node 9 dead, both are
+    still observed but only as a sum: ADMM's rank check names the inestimable direction and every remaining node
+    stops with it, no number."""
+    sc = codebias_scenario(10, seed=1, epochs=10)
+    problem = sc.problem
+    assert problem is not None and problem.parameter_names is not None
+    A = np.concatenate([problem.A, np.zeros((*problem.A.shape[:2], 2))], axis=2)
+    A[0, 0, -2:] = 1.0
+    A[9, 0, -2] = 1.0
+    names = (*problem.parameter_names, "G98", "G99")
+    extended = LinearProblem(A=A, y=problem.y, R=problem.R, rows=problem.rows, parameter_names=names)
+    blue(extended)  # all the data determine every parameter
+    sc = type(sc)(sc.graph, sc.kind, sc.algorithm, problem=extended)
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=2000, crash={9: 30}))
+    summary = launch(net, tmp_path / "run", timeout_s=300, quiet=True)
+    assert summary["crashed_on_purpose"] == [9] and summary["finished"] == [], summary
+    assert sorted(summary["stopped"]) == list(range(9)), summary
+    for i in range(9):
+        r = summary["nodes"][str(i)]
+        assert r["status"] == "stopped" and r["estimate"] is None and list(r["lost_nodes"]) == ["9"]
+        assert "do not determine" in r["message"] and "G98" in r["message"] and "G99" in r["message"], r["message"]
