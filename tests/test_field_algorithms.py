@@ -114,21 +114,6 @@ def test_a_node_file_of_another_node_is_refused(tmp_path: Path) -> None:
         read_node_arrays(bad, "admm", 0, 4)
 
 
-def test_admm_with_a_killed_node_stops_and_says_why(tmp_path: Path) -> None:
-    """A node process of ADMM exits at step 30: ADMM has no answer without its data, so no node presents one; the
-    ones that stop name the lost node. (UWB anchors go on without a dead anchor: tests/test_field_uwb_lost.py.)"""
-    sc = codebias_scenario(8, seed=1, epochs=10)
-    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=3000, crash={5: 30}))
-    summary = launch(net, tmp_path / "run", timeout_s=240, quiet=True)
-    assert summary["crashed_on_purpose"] == [5]
-    assert summary["finished"] == [] and summary["failed"] == [], summary
-    assert sorted(summary["stopped"]) == [0, 1, 2, 3, 4, 6, 7]
-    for r in summary["nodes"].values():
-        assert r["status"] == "stopped" and r["estimate"] is None
-    messages = [r["message"] for r in summary["nodes"].values()]
-    assert all("node 5" in m or "nodes [5]" in m for m in messages), messages
-
-
 @pytest.mark.parametrize(
     ("table", "match"),
     [
@@ -160,3 +145,39 @@ def test_algorithm_defaults_are_filled() -> None:
         "constraint_nodes": "min_cover",
         "messages": "pairs",
     }
+
+
+def test_ckf_nodes_go_on_without_a_killed_node(tmp_path: Path) -> None:
+    """A CKF node process exits at step 30 of 48: every other node learns of it at the end (a global check), they
+    agree on who remains and run the CKF again on their own normals; every remaining node names the lost node and
+    the step, and its estimate is bit for bit the in-process CKF of the remaining nodes' normals on their graph."""
+    from distnav.algorithms.kalman.ckf import iterate_ckf
+    from distnav.algorithms.kalman.measurements import NormalSeries
+    from distnav.exchange.field.survivors import subnetwork
+
+    sc = ckf_scenario(10, seed=2, epochs=12)
+    assert sc.dynamics is not None and sc.series is not None
+    victim, rest = 7, [i for i in range(10) if i != 7]
+    alive = np.arange(10) != victim
+    sub = subnetwork(sc.graph, alive)
+    assert sub.is_connected
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=2000, crash={victim: 30}))
+    summary = launch(net, tmp_path / "run", timeout_s=300, quiet=True)
+    assert summary["crashed_on_purpose"] == [victim], summary
+    assert summary["finished"] == rest and summary["stopped"] == [] and summary["failed"] == [], summary
+    nodes = [summary["nodes"][str(i)] for i in rest]
+    assert all(list(r["lost_nodes"]) == [str(victim)] for r in nodes)
+    assert len({r["lost_nodes"][str(victim)] for r in nodes}) == 1
+    assert all(r["status"] == "completed_without_lost_nodes" for r in nodes)
+
+    normals = [sc.series.normals(t) for t in range(sc.series.n_epochs)]
+    series = NormalSeries(np.stack([n[0][alive] for n in normals]), np.stack([n[1][alive] for n in normals]))
+    options = {"protocol": "P3", "rounds": 4, "variance": False, "monitor": False}
+    ref = np.asarray(
+        list(iterate_ckf(sc.dynamics, series, graph=sub, exchange=make_exchange(sub), **options))[-1].estimates
+    )
+    field = np.array([r["estimate"] for r in nodes], dtype=float)
+    assert np.isfinite(ref).any()
+    assert np.array_equal(field, ref, equal_nan=True), np.nanmax(np.abs(field - ref))
+    full = _ckf_inprocess(sc)[rest]
+    assert not np.allclose(full, ref, equal_nan=True)  # the dead node's normals mattered

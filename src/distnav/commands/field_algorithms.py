@@ -22,6 +22,7 @@ without the consensus-deviation monitor (``monitor=False``), as ``distnav gnss i
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -46,23 +47,18 @@ def _arrays(desc: NetworkDescription, node_id: int, kind: str) -> dict[str, np.n
 
 
 def run_admm(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
-    """ADMM (paper 000 Fig. 6) on this node's observation block; its estimate, status and iterations."""
-    from distnav.algorithms.lsq.admm import admm
+    """ADMM (paper 000 Fig. 6) on this node's observation block; its estimate, status and iterations. A node lost
+    mid-run: the others go on without it (:mod:`distnav.commands.field_admm`)."""
+    from distnav.commands.field_admm import admm_again, run_admm_field, without_lost
 
-    entry, algo = desc.node(node_id), desc.algorithm
+    entry = desc.node(node_id)
     assert entry.data is not None
-    problem = admm_node_problem(_arrays(desc, node_id, "admm"), entry.data, node_id, desc.n_nodes)
-    res = admm(
-        problem,
-        ex.graph,
-        constraint_nodes=algo["constraint_nodes"],
-        W=algo["rho"],
-        max_iterations=algo["max_iterations"],
-        tol=algo["tol"],
-        messages=algo["messages"],
-        record_nodes=False,
-        exchange=ex,
-    )
+    arrays = _arrays(desc, node_id, "admm")
+    problem = admm_node_problem(arrays, entry.data, node_id, desc.n_nodes)
+    try:
+        res = run_admm_field(desc.algorithm, problem, ex)
+    except ExchangeError as exc:
+        return without_lost(desc, ex, str(exc), admm_again(desc.algorithm, arrays, entry.data))
     return {
         "estimate": res.estimates[node_id],
         "status": res.status,
@@ -73,12 +69,32 @@ def run_admm(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[
 
 
 def run_ckf(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
-    """The CKF (paper 003 Fig. 6) on this node's normals; its final estimate and which states it determines."""
+    """The CKF (paper 003 Fig. 6) on this node's normals; its final estimate and which states it determines. A
+    global check at the end (the CKF has none of its own) tells every node of a loss; then the remaining nodes agree
+    on who remains and run the CKF again from the first epoch on their own normals
+    (:func:`~distnav.commands.field_admm.without_lost`)."""
+    from distnav.commands.field_admm import without_lost
+
+    entry = desc.node(node_id)
+    assert entry.data is not None
+    path, arrays = entry.data, _arrays(desc, node_id, "ckf")
+
+    def ckf_on(sub: FieldExchange) -> dict[str, Any]:
+        return _ckf(desc.algorithm, arrays, path, sub)
+
+    try:
+        out = _ckf(desc.algorithm, arrays, path, ex)
+    except ExchangeError as exc:
+        return without_lost(desc, ex, str(exc), ckf_on)
+    return out
+
+
+def _ckf(algo: dict[str, Any], arrays: dict[str, np.ndarray], path: Path, ex: FieldExchange) -> dict[str, Any]:
+    """The CKF front door on this node's normals over ``ex`` (its graph's nodes), then a global check that every
+    node is still there (a loss raises :class:`ExchangeError` at every node)."""
     from distnav.algorithms.kalman.ckf import iterate_ckf
 
-    entry, algo = desc.node(node_id), desc.algorithm
-    assert entry.data is not None
-    dyn, series = ckf_node_model(_arrays(desc, node_id, "ckf"), entry.data, node_id, desc.n_nodes)
+    dyn, series = ckf_node_model(arrays, path, ex.me, ex.graph.n_nodes)
     last = None
     for state in iterate_ckf(
         dyn,
@@ -92,10 +108,12 @@ def run_ckf(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
     ):
         last = state
     assert last is not None
+    ex.allreduce(0, "max")  # a node lost anywhere: the operation cannot be finished, at every node
     return {
         "estimate": last.estimates[0],
         "estimable": last.estimable[0],
         "status": "completed",
+        "message": f"{series.n_epochs} epochs",
         "epochs": series.n_epochs,
         "rounds": series.n_epochs * algo["rounds"],
     }
@@ -104,13 +122,11 @@ def run_ckf(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
 def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, transport: Transport) -> dict[str, Any]:
     """Run the description's algorithm (one of :data:`NODE_ALGORITHMS`) as node ``node_id``.
 
-    ADMM and the CKF have no answer without every node's data: ADMM would keep a lost node's last message and
-    converge to a point that still holds its data, the CKF's consensus would keep weighting it. So when a node is
-    lost (noticed by this node, or a global operation that cannot be finished without it) the node ends with
-    ``status = "stopped"``, no estimate, and a message naming the lost node and the step — never an answer that looks
-    right. The UWB anchors go on without a dead anchor: they agree on who remains and solve again on the remaining
-    anchors' data (:mod:`distnav.commands.field_uwb`). (Consensus in flow form also finishes: the exact mean of the
-    nodes that remain, :mod:`distnav.algorithms.consensus.flows`.)"""
+    ADMM, the CKF and UWB go on without a dead node: the remaining nodes agree on who remains and run again on their
+    own data (:mod:`distnav.commands.field_admm`, :mod:`distnav.commands.field_uwb`); where they cannot (the rest may
+    be split, a parameter becomes inestimable, another failure) the node ends with ``status = "stopped"``, no
+    estimate, and a message naming the lost node and the reason — never an answer that looks right. (Consensus in
+    flow form also finishes: the exact mean of the nodes that remain, :mod:`distnav.algorithms.consensus.flows`.)"""
     from distnav.commands.field_uwb import run_uwb
 
     runner = {"admm": run_admm, "ckf": run_ckf, "uwb": run_uwb}[desc.algorithm["name"]]
@@ -118,7 +134,7 @@ def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, tra
         out = runner(desc, node_id, ex)
     except ExchangeError as exc:
         return _stopped(desc, ex, transport, str(exc))
-    if transport.lost and "lost_nodes" not in out:  # (uwb names the losses it went on without itself)
+    if transport.lost and "lost_nodes" not in out:  # (admm, uwb name the losses it went on without itself)
         return _stopped(desc, ex, transport, "")
     return out
 
