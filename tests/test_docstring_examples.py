@@ -9,6 +9,7 @@ import importlib
 import pytest
 
 FRONT_DOORS = [
+    ("distnav.exchange.field.survivors", "beyond_reach"),  # who may be alive behind a cut
     ("distnav._settings", "resolve_options"),  # the house style of options objects
     ("distnav.network.builders", "ring"),
     ("distnav.network.weights", "consensus_weights"),

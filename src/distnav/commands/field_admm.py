@@ -41,7 +41,13 @@ import numpy as np
 
 from distnav.errors import ExchangeError, ModelError
 from distnav.exchange.field import FieldExchange
-from distnav.exchange.field.survivors import SubnetTransport, agree_on_survivors, agreement_window_s, subnetwork
+from distnav.exchange.field.survivors import (
+    SubnetTransport,
+    agree_on_survivors,
+    agreement_window_s,
+    beyond_reach,
+    subnetwork,
+)
 from distnav.formats.field_config import NetworkDescription
 from distnav.formats.field_data import admm_node_problem
 
@@ -134,7 +140,7 @@ def without_lost(desc: NetworkDescription, ex: FieldExchange, error: str, rerun:
             return _stopped(
                 name, ex, dead, f"a global operation failed at step {failed} with every node alive ({error})"
             )
-        unseen = [k for k in newly if not any(alive[int(j)] for j in graph.neighbors(k))]
+        unseen = beyond_reach(graph, alive, newly)
         dead.update({k: failed for k in newly if k not in unseen})
         if unseen:
             return _stopped(name, ex, dead, f"{_UNSEEN} {unseen}")

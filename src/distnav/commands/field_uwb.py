@@ -38,7 +38,13 @@ import numpy as np
 
 from distnav.errors import DataFileError, ExchangeError
 from distnav.exchange.field import FieldExchange
-from distnav.exchange.field.survivors import SubnetTransport, agree_on_survivors, agreement_window_s, subnetwork
+from distnav.exchange.field.survivors import (
+    SubnetTransport,
+    agree_on_survivors,
+    agreement_window_s,
+    beyond_reach,
+    subnetwork,
+)
 from distnav.formats.field_config import NetworkDescription
 from distnav.formats.field_data import read_node_arrays, uwb_samples_problem
 
@@ -134,7 +140,15 @@ def _without_lost(
         newly = sorted(set(np.flatnonzero(~alive).tolist()) - set(dead))
         if not newly:
             return _stopped(ex, dead, f"a global operation failed at step {failed} with every anchor alive ({error})")
-        dead.update(dict.fromkeys(newly, failed))
+        unseen = beyond_reach(graph, alive, newly)  # maybe alive behind a cut: never solve apart from them
+        dead.update({k: failed for k in newly if k not in unseen})
+        if unseen:
+            return _stopped(
+                ex,
+                dead,
+                f"the remaining anchors may be split: none of them neighbours anchors {unseen}, which may be "
+                "alive on the other side of the lost ones",
+            )
         sub_graph = subnetwork(graph, alive)
         if not sub_graph.is_connected:
             return _stopped(ex, dead, "the remaining anchors are not one connected network")

@@ -40,7 +40,7 @@ from distnav.exchange.field.tree import SpanningTree
 from distnav.exchange.field.wire import Kind, Message
 from distnav.network.graph import Graph
 
-__all__ = ["SubnetTransport", "agree_on_survivors", "agreement_window_s", "subnetwork"]
+__all__ = ["SubnetTransport", "agree_on_survivors", "agreement_window_s", "beyond_reach", "subnetwork"]
 
 
 def agreement_window_s(graph: Graph, deadline_s: float) -> float:
@@ -87,6 +87,24 @@ def agree_on_survivors(
                 marks[0] = min(marks[0], theirs[0])
                 marks[1:] |= theirs[1:]
     return marks[1:].astype(bool), int(marks[0]), step + n
+
+
+def beyond_reach(graph: Graph, alive: np.ndarray, missing: list[int]) -> list[int]:
+    """The nodes of ``missing`` that no node of ``alive`` neighbours. The agreement cannot tell a dead node from a
+    live one cut off behind the dead (a path ``0 – … – 7`` without node 5: nodes ``0..4`` never hear of 6 and 7),
+    so only a missing node that a remaining neighbour saw silent counts as lost; one beyond reach may be alive on
+    the other side of a cut, and a caller that went on without it would solve apart from it.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from distnav.exchange.field.survivors import beyond_reach
+    >>> from distnav.network import builders
+    >>> alive = np.array([True] * 5 + [False] * 3)
+    >>> beyond_reach(builders.path(8), alive, [5, 6, 7])
+    [6, 7]
+    """
+    return [k for k in missing if not np.any(alive[np.asarray(graph.neighbors(k), np.int64)])]
 
 
 def subnetwork(graph: Graph, alive: np.ndarray) -> Graph:
