@@ -49,7 +49,8 @@ def _arrays(desc: NetworkDescription, node_id: int, kind: str) -> dict[str, np.n
 def run_admm(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
     """ADMM (paper 000 Fig. 6) on this node's observation block; its estimate, status and iterations. A node lost
     mid-run: the others go on without it (:mod:`distnav.commands.field_admm`)."""
-    from distnav.commands.field_admm import admm_again, run_admm_field, without_lost
+    from distnav.commands.field_admm import admm_again, run_admm_field
+    from distnav.commands.field_survive import without_lost
 
     entry = desc.node(node_id)
     assert entry.data is not None
@@ -72,14 +73,14 @@ def run_ckf(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
     """The CKF (paper 003 Fig. 6) on this node's normals; its final estimate and which states it determines. A
     global check at the end (the CKF has none of its own) tells every node of a loss; then the remaining nodes agree
     on who remains and run the CKF again from the first epoch on their own normals
-    (:func:`~distnav.commands.field_admm.without_lost`)."""
-    from distnav.commands.field_admm import without_lost
+    (:func:`~distnav.commands.field_survive.without_lost`)."""
+    from distnav.commands.field_survive import without_lost
 
     entry = desc.node(node_id)
     assert entry.data is not None
     path, arrays = entry.data, _arrays(desc, node_id, "ckf")
 
-    def ckf_on(sub: FieldExchange) -> dict[str, Any]:
+    def ckf_on(sub: FieldExchange, alive: np.ndarray) -> dict[str, Any]:  # alive unused: every node has its own normals
         return _ckf(desc.algorithm, arrays, path, sub)
 
     try:

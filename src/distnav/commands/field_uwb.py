@@ -32,27 +32,19 @@ connected, stops the anchor with the reason.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from distnav.commands.field_survive import Rerun, without_lost
 from distnav.errors import DataFileError, ExchangeError
 from distnav.exchange.field import FieldExchange
-from distnav.exchange.field.survivors import (
-    SubnetTransport,
-    agree_on_survivors,
-    agreement_window_s,
-    beyond_reach,
-    subnetwork,
-)
 from distnav.formats.field_config import NetworkDescription
 from distnav.formats.field_data import read_node_arrays, uwb_samples_problem
 
 __all__ = ["run_uwb"]
 
-#: the agreement after the k-th loss runs from step k × this (far beyond any run's steps; the wire's step is a u64),
-#: so that anchors which noticed the loss in different steps still agree in the same steps
-_ATTEMPT_STEPS = 1 << 40
 _TABLE = ("ids", "positions_m", "free", "initial_m", "truth_m")  # the anchor table's per-anchor arrays
 
 
@@ -70,7 +62,7 @@ def run_uwb(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
         problem = uwb_samples_problem(arrays, _gathered(ex, own), entry.data)
         res = _solve(problem, desc.algorithm, ex)
     except ExchangeError as exc:
-        return _without_lost(desc, ex, arrays, own, str(exc))
+        return without_lost(desc, ex, str(exc), _uwb_again(desc, arrays, own, entry.data))
     return {
         "estimate": res.estimates[node_id],
         "status": res.status,
@@ -121,79 +113,20 @@ def _between(own: np.ndarray, alive: np.ndarray) -> np.ndarray:
     return np.asarray(own[alive[a] & alive[b]])
 
 
-def _without_lost(
-    desc: NetworkDescription, ex: FieldExchange, arrays: dict[str, np.ndarray], own: np.ndarray, error: str
-) -> dict[str, Any]:
-    """Agree on the remaining anchors and solve again on their data (module docstring); at most one pass per
-    anchor of the network (each pass loses at least one)."""
-    graph, base = ex.graph, ex.transport
-    path = desc.node(ex.me).data
-    assert path is not None  # run_uwb read it
-    window = agreement_window_s(graph, base.options.deadline_s)
-    dead: dict[int, int] = {}
-    failed = ex.step - 1
-    for attempt in range(1, desc.n_nodes + 1):
-        start = attempt * _ATTEMPT_STEPS  # the same at every node, wherever it noticed the loss
-        alive, failed, step = agree_on_survivors(
-            base, graph, start, window_s=window, failed_step=failed, dead=set(dead)
-        )
-        newly = sorted(set(np.flatnonzero(~alive).tolist()) - set(dead))
-        if not newly:
-            return _stopped(ex, dead, f"a global operation failed at step {failed} with every anchor alive ({error})")
-        unseen = beyond_reach(graph, alive, newly)  # maybe alive behind a cut: never solve apart from them
-        dead.update({k: failed for k in newly if k not in unseen})
-        if unseen:
-            return _stopped(
-                ex,
-                dead,
-                f"the remaining anchors may be split: none of them neighbours anchors {unseen}, which may be "
-                "alive on the other side of the lost ones",
-            )
-        sub_graph = subnetwork(graph, alive)
-        if not sub_graph.is_connected:
-            return _stopped(ex, dead, "the remaining anchors are not one connected network")
-        link = SubnetTransport(base, alive)
-        sub = FieldExchange(sub_graph, link.me, link, ex.faults, direct=False)
-        sub.step = step
-        try:
-            _check_agreement(sub, alive, failed)
-            table, rows = _reduced(arrays, _gathered(sub, _between(own, alive)), alive)
-            problem = uwb_samples_problem(table, rows, path)
-            res = _solve(problem, desc.algorithm, sub)
-        except ExchangeError as exc:
-            failed, error = sub.step - 1, str(exc)
-            continue
-        lost = ", ".join(f"{d} (at step {s})" for d, s in sorted(dead.items()))
+def _uwb_again(desc: NetworkDescription, arrays: dict[str, np.ndarray], own: np.ndarray, path: Path) -> Rerun:
+    """The solve again on the remaining anchors' data (module docstring, step 3), the UWB :data:`Rerun` of
+    :func:`~distnav.commands.field_survive.without_lost`."""
+
+    def rerun(sub: FieldExchange, alive: np.ndarray) -> dict[str, Any]:
+        table, rows = _reduced(arrays, _gathered(sub, _between(own, alive)), alive)
+        problem = uwb_samples_problem(table, rows, path)
+        res = _solve(problem, desc.algorithm, sub)
         return {
             "estimate": res.estimates[sub.me],
-            "status": f"{res.status}_without_lost_nodes",
-            "message": (
-                f"anchors lost: {lost}; the {int(alive.sum())} remaining anchors agreed on it and solved again on "
-                f"their own data from step {step} ({res.message})"
-            ),
+            "status": res.status,
+            "message": res.message,
             "iterations": res.iterations,
-            "rounds": sub.step,
-            "lost_nodes": {str(d): s for d, s in sorted(dead.items())},
-            "remaining_nodes": np.flatnonzero(alive).tolist(),
-            "restarted_at_step": step,
             "samples_of_remaining": int(problem.n_meas),
         }
-    return _stopped(ex, dead, error)
 
-
-def _check_agreement(sub: FieldExchange, alive: np.ndarray, failed: int) -> None:
-    """Every remaining anchor's view (which anchors remain, the failed step) must be this anchor's."""
-    mine = np.r_[float(failed), alive.astype(float)][None]
-    views = sub.gather_nodes(mine)
-    if not np.array_equal(views, np.repeat(mine, views.shape[0], axis=0)):
-        raise ExchangeError(f"the remaining anchors disagree on who remains: views {views.tolist()}")
-
-
-def _stopped(ex: FieldExchange, dead: dict[int, int], why: str) -> dict[str, Any]:
-    return {
-        "estimate": None,
-        "status": "stopped",
-        "message": f"uwb cannot go on without the lost anchors {sorted(dead)}: {why}; no estimate is given",
-        "rounds": ex.step,
-        "lost_nodes": {str(d): s for d, s in sorted(dead.items())},
-    }
+    return rerun
