@@ -86,6 +86,8 @@ def test_unknown_and_foreign_names_are_refused_by_name():
         (lambda: RunOptions(range_offsets="common"), "objective='metres' only"),
         (lambda: NeighbourhoodOptions(loss="tukey"), "unknown loss"),
         (lambda: NeighbourhoodOptions(graduated=-1), "graduated"),
+        (lambda: NeighbourhoodOptions(objective="metres", range_offsets="per_anchor", initial_offset_m=0.3), "common"),
+        (lambda: NeighbourhoodOptions(initial_offset_m=0.3), "common offset's start"),
         (lambda: LMOptions(max_iterations=-1), "max_iterations"),
         (lambda: LMSolveOptions(loss="tukey"), "unknown loss"),
         (lambda: LMSolveOptions(range_offsets="common"), "objective='metres' only"),  # the shared FitOptions
