@@ -41,3 +41,18 @@ def test_precision_std_scales_with_the_variance_factor() -> None:
     p = Precision(covariance=cov, variance_factor=4.0, redundancy=3, kind="centralized")
     np.testing.assert_allclose(p.std(), [[2.0, 3.0]])
     np.testing.assert_allclose(p.std(a_posteriori=True), [[4.0, 6.0]])
+
+
+def test_gathered_precision_holds_every_block_and_only_the_messages_since_the_snapshot() -> None:
+    from distnav.exchange import make_exchange
+
+    ex = make_exchange(builders.ring(4))
+    ex.broadcast(np.zeros((4, 1)))  # before the snapshot: not the precision's cost
+    before = ex.comm_totals().snapshot()
+    ex.broadcast(np.zeros((4, 1)))  # one round on a 4-ring: every node to both neighbours, 8 messages
+    blocks = np.arange(4.0).reshape(4, 1, 1)
+    p = Precision.gathered(ex, blocks, before, variance_factor=2.0, redundancy=3.0, kind="exact", iterations=1)
+    assert p.covariance.tolist() == [[[0.0]], [[1.0]], [[2.0]], [[3.0]]]
+    assert (p.variance_factor, p.redundancy, p.kind, p.iterations) == (2.0, 3.0, "exact", 1)
+    assert p.comm is not None and (p.comm.rounds, p.comm.messages) == (1, 8)
+    assert ex.comm_totals().messages == 16

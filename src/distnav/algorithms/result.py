@@ -13,6 +13,7 @@ from distnav.exchange.core import CommTotals
 from distnav.typing import ArrayLike
 
 if TYPE_CHECKING:
+    from distnav.exchange.base import Exchange
     from distnav.network.gather import GatherCost
     from distnav.network.graph import Graph
 
@@ -109,6 +110,29 @@ class Precision:
     kind: Literal["exact", "bound", "centralized", "conditional", "neighbourhood", "central"]
     iterations: int = 0
     comm: CommTotals | None = None
+
+    @classmethod
+    def gathered(
+        cls,
+        ex: Exchange,
+        blocks: np.ndarray,
+        before: CommTotals,
+        *,
+        variance_factor: float | None,
+        redundancy: float,
+        kind: Literal["exact", "bound", "conditional", "neighbourhood", "central"],
+        iterations: int,
+    ) -> Precision:
+        """A distributed precision: every node's covariance block (``blocks``, the exchange's local rows) gathered
+        for the result, and what the exchange ``ex`` cost since the snapshot ``before``."""
+        return cls(
+            covariance=ex.gather_nodes(blocks),
+            variance_factor=variance_factor,
+            redundancy=redundancy,
+            kind=kind,
+            iterations=iterations,
+            comm=ex.comm_totals().since(before),
+        )
 
     def std(self, *, a_posteriori: bool = False) -> np.ndarray:
         """Standard deviations ``(n_nodes, p)`` from the covariance diagonal (a-posteriori: × σ̂)."""

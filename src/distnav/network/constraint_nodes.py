@@ -40,19 +40,13 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any, Literal, TypeAlias
+from typing import Any, Literal, TypeAlias
 
 import numpy as np
 
-from distnav._optional import lazy
+from distnav._optional import scipy_sparse as sp
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
-
-if TYPE_CHECKING:
-    import scipy.sparse as sp
-else:  # imported on first use (start-up of an MPI job)
-    sp = lazy("scipy.sparse")
-
 
 __all__ = [
     "lp_lower_bound",

@@ -204,13 +204,8 @@ def central_precision(
         delay_sigma_used_m, s2, delay_cov = _delay_part(
             o, problem, ex, links, (w, r, sig), (X, Xc, b, bc), totals, redundancy, free, s2
         )
-    precision = Precision(
-        covariance=ex.gather_nodes(blocks),
-        variance_factor=vf,
-        redundancy=redundancy,
-        kind="central",
-        iterations=its + 2,
-        comm=ex.comm_totals().since(before),
+    precision = Precision.gathered(
+        ex, blocks, before, variance_factor=vf, redundancy=redundancy, kind="central", iterations=its + 2
     )
     return CentralPrecision(
         precision=precision,

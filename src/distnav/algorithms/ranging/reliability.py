@@ -199,15 +199,8 @@ class LocalReliability:
     def as_external(self) -> ExternalReliability:
         """The numbers in :class:`ExternalReliability`'s form (``scale``: the median of the anchors' ŝ)."""
         sc = self.scale[np.isfinite(self.scale)]
-        return ExternalReliability(
-            r=self.r,
-            mdb_m=self.mdb_m,
-            shift_m=self.shift_m,
-            worst_link=self.worst_link,
-            lam0=self.lam0,
-            scale=float(np.median(sc)) if sc.size else 1.0,
-            q=self.q,
-        )
+        same = {name: getattr(self, name) for name in ("r", "mdb_m", "shift_m", "worst_link", "lam0", "q")}
+        return ExternalReliability(**same, scale=float(np.median(sc)) if sc.size else 1.0)
 
 
 def local_reliability(
