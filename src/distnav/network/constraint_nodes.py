@@ -553,3 +553,28 @@ def choose_constraint_nodes(
         return out
     validate_constraint_nodes(graph, out.nodes, literal=literal)
     return out
+
+
+if TYPE_CHECKING:  # (kept apart from the imports above)
+    from distnav.network.graph_part import GraphPart
+
+
+def part_cover(part: GraphPart) -> np.ndarray:
+    """Constraint nodes chosen by one graph part alone (no whole-network array, no message): a mask over
+    ``part.nodes`` that, applied by every rank to its part, is a vertex cover of the whole graph (so conditions (18)
+    hold). Links between two owned nodes: ``"min_cover"``'s 2-approximation (both ends of a greedy maximal matching,
+    then pruned) on the owned nodes' subgraph; a link to another part's node: its end with the smaller global id
+    (both sides read the same rule, so the cut link is covered by exactly the end that owns the rule)."""
+    n = part.n_local
+    dst_local = np.repeat(np.arange(n), np.diff(part.in_ptr))
+    k, own = part.owned_positions(part.src)
+    real = part.src != part.nodes[dst_local]
+    inner = own & real & (k > dst_local)  # each link between owned nodes once, local ids
+    inC = np.zeros(n, bool)
+    if inner.any():
+        sub = Graph.from_links(n, np.stack([dst_local[inner], k[inner]], axis=1))
+        inC[_maximal_matching(sub).ravel()] = True
+        inC = _prune(sub, inC)
+    cut = real & ~own
+    inC[dst_local[cut][part.nodes[dst_local[cut]] < part.src[cut]]] = True
+    return inC
