@@ -52,14 +52,25 @@ def test_part_rule_covers_every_link(kind, ranks):
     assert inC.sum() < g.n_nodes  # a cover, not every node
 
 
-def test_part_rule_on_one_part_is_the_whole_graph_approximation():
-    """One part holding every node: the rule is ``"min_cover"``'s 2-approximation of the whole graph."""
-    from distnav.network.constraint_nodes import choose_constraint_nodes
-
+@pytest.mark.parametrize("ranks", [2, 3, 7])
+def test_part_rule_does_not_depend_on_the_split(ranks):
+    """The rule reads only ids: the ranks' parts together choose what one part holding every node chooses."""
     g = builders.connected_random_geometric(400, mean_degree=8, rng=np.random.default_rng(3))
-    inC = part_cover(GraphPart.from_graph(g, np.arange(g.n_nodes)))
-    approx = choose_constraint_nodes(g, "min_cover", method="approx")
-    assert np.array_equal(inC, approx.mask)
+    whole = part_cover(GraphPart.from_graph(g, np.arange(g.n_nodes)))
+    assert np.array_equal(_union_cover(g, bounds_for(g.n_nodes, ranks, 0)), whole)
+    # the nodes left out are exactly the local minima of the hash (an independent set, checked by brute force)
+    h = np.array([hash_of(i) for i in range(g.n_nodes)])
+    minima = np.array([all(h[i] < h[j] for j in g.neighbors(i, include_self=False)) for i in range(g.n_nodes)])
+    assert np.array_equal(~whole, minima)
+
+
+def hash_of(i: int) -> int:
+    """SplitMix64's finalizer in Python integers (an independent implementation of the rule's hash)."""
+    mask = (1 << 64) - 1
+    z = (i + 0x9E3779B97F4A7C15) & mask
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & mask
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & mask
+    return z ^ (z >> 31)
 
 
 def test_refusals_name_the_problem():
