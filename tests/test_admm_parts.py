@@ -73,11 +73,47 @@ def hash_of(i: int) -> int:
     return z ^ (z >> 31)
 
 
+def _one_rank_part(n_side: int = 12):
+    """An MPI exchange of one rank (mpi4py's singleton) on the part holding a whole 8-neighbour grid."""
+    pytest.importorskip("mpi4py", reason="the mpi extra is not installed")
+    from distnav.network.part_builders import grid_part
+    from distnav.network.partition import block_ranges
+
+    n = n_side * n_side
+    part = grid_part(n_side, n_side, np.arange(n), neighbourhood=8)
+    return part, make_exchange(part, backend="mpi", partition=block_ranges(n, 1))
+
+
+def test_one_part_holding_every_node_is_the_inprocess_run():
+    part, ex = _one_rank_part()
+    g = builders.grid(12, 12, neighbourhood=8)
+    A, y = problem_rows(0, g.n_nodes)
+    prob = LinearProblem.from_stacked(A, y)
+    ours = iterate_admm_on_part(prob, ex, W=2.0)
+    C = np.flatnonzero(part_cover(part))
+    ref = iterate_admm(prob, g, constraint_nodes=C, W=2.0, messages="aggregated", exchange=make_exchange(g))
+    for _ in range(20):
+        a, b = next(ours), next(ref)
+    assert np.array_equal(a.x, b.x[ex.nodes])
+    assert a.primal_residual == pytest.approx(b.primal_residual, rel=1e-12)
+
+
 def test_refusals_name_the_problem():
     g = builders.ring(12)
     prob = LinearProblem.from_stacked(np.ones((12, 1, 1)), np.ones((12, 1)))
     with pytest.raises(ModelError, match="built from a graph part"):
         iterate_admm_on_part(prob, make_exchange(g))
+    part, ex = _one_rank_part()
+    A, y = problem_rows(0, part.n_local)
+    prob = LinearProblem.from_stacked(A, y)
+    with pytest.raises(ModelError, match="the problem has 143 nodes, this rank's part 144"):
+        iterate_admm_on_part(LinearProblem.from_stacked(A[1:], y[1:]), ex)
+    with pytest.raises(ModelError, match="only messages='aggregated'"):
+        iterate_admm_on_part(prob, ex, messages="pairs")
+    with pytest.raises(ModelError, match="boolean mask over the part's 144 nodes"):
+        iterate_admm_on_part(prob, ex, constraint_nodes=[1, 2])
+    with pytest.raises(ModelError, match="init on a graph part"):
+        iterate_admm_on_part(prob, ex, init=np.ones((144, 3)))
 
 
 def _launch(tmp_path: Path, n: int, small: int, iterations: int, seed: int = GRAPH_SEED) -> list[dict]:

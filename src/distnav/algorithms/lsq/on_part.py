@@ -10,11 +10,12 @@ network is made, so a rank's memory is proportional to its nodes and edges (issu
 The iteration is :mod:`distnav.algorithms.lsq.aggregated`'s (``messages="aggregated"``): with the same constraint
 nodes it is bitwise the in-process run on the whole graph (every row sums its terms in global sender order on every
 backend, and the x-update is per node). **Departures from** :func:`~distnav.algorithms.lsq.admm.iterate_admm`:
-``constraint_nodes="min_cover"`` means the part rule (a vertex cover of the whole graph, not the whole-graph
-2-approximation: a link between parts is covered by its end with the smaller id), or a mask over the part's nodes;
-only ``messages="aggregated"`` (the per-pair form's pair tables pair each edge with its reverse through the whole
-graph's edge ids — not built on parts), no fault schedule, ``init`` ``"zero"`` or a ``(p,)`` vector, no ``z0`` or
-``multipliers``.
+``constraint_nodes="min_cover"`` means the part rule (every node but the local minima of a hash of the ids: a vertex
+cover of the whole graph, the same on every split, larger than the whole-graph 2-approximation), or a mask over the
+part's nodes; only ``messages="aggregated"`` (the default here; the per-pair form's pair tables pair each edge with
+its reverse through the whole graph's edge ids — not built on parts), no fault schedule, ``init`` ``"zero"`` or a
+``(p,)`` vector, no ``z0`` or ``multipliers``; a node without neighbours is refused by id (ADMM needs a connected
+graph).
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ def iterate_admm_on_part(
     partition=ranges)``). Options as :func:`~distnav.algorithms.lsq.admm.iterate_admm` with the departures of the
     module docstring; states hold the rank's rows in ``exchange.nodes`` order, residuals are network totals.
     """
+    if options is None:  # the only form built on parts is the default here
+        changes.setdefault("messages", "aggregated")
     o = resolve_options(AdmmOptions, options, changes)
     ex = exchange
     part = ex.part
