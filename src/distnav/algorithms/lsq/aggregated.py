@@ -74,12 +74,17 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
     z_in = inC_col[ex.in_src_col] & real_in
     real_out = ex.out_dst != ex.nodes[ex.out_src]
     z_out = inC[ex.out_src] & real_out
-    # an out-edge's receiver sends on the reverse in-edge: its membership is read there, by global id
-    order = np.argsort(ex.in_src, kind="stable")
-    ids = ex.in_src[order]
-    member = inC_col[ex.in_src_col][order]
-    x_out = member[np.minimum(np.searchsorted(ids, ex.out_dst), ids.size - 1)] & real_out
-    del order, ids, member
+    # an out-edge's receiver: owned (its row by the part's positions) or a halo node, whose membership arrived on
+    # the in-edges it sends on (set on an array aligned with the part's ascending halo ids: no sort over the edges)
+    k, own = part.owned_positions(ex.out_dst)
+    x_out = np.asarray(inC_part, bool)[k]
+    from_halo = np.flatnonzero(ex.in_src_col >= ex.n_local)
+    halo_member = np.zeros(part.halo.size, bool)
+    halo_member[np.searchsorted(part.halo, ex.in_src[from_halo])] = inC_col[ex.in_src_col[from_halo]]
+    to_halo = np.flatnonzero(~own)
+    x_out[to_halo] = halo_member[np.searchsorted(part.halo, ex.out_dst[to_halo])]
+    x_out &= real_out
+    del k, own, from_halo, to_halo
     # 0/1 weights on the part (one broadcast 1.0, zeroed off the masks); the masks are over the block's own edge
     # rows, which Exchange.mixer (a mask over the whole graph's edges) does not take: the mixer is made directly
     ones = np.broadcast_to(np.float64(1.0), (part.n_local_edges,))
