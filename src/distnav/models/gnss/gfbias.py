@@ -296,11 +296,17 @@ class BiasGeometryFreeSeries(SeriesArrays):
     ) -> tuple[np.ndarray, np.ndarray]:
         """``node``'s normals from its records alone: the design rows follow from the geometry (orbits and the
         station's position), the weights and values from the records."""
-        A_all, _ = self._epoch_design(self._epoch(epoch))
-        w = np.asarray(weights, float)[None]
-        A = A_all[[int(node)]] * (w > 0)[..., None]
-        N, r = _weighted_normals(A, w, None if self._y is None else np.asarray(values, float)[None])
+        N, r = self.normals_from_records_of(epoch, np.array([int(node)]), np.asarray(values)[None], weights[None])
         return N[0], r[0]
+
+    def normals_from_records_of(
+        self, epoch: int, nodes: np.ndarray, values: np.ndarray, weights: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`normals_from_records` of several nodes in one batched product, ``(k, p, p)``, ``(k, p)``."""
+        A_all, _ = self._epoch_design(self._epoch(epoch))
+        w = np.asarray(weights, float)
+        A = A_all[np.asarray(nodes, np.int64)] * (w > 0)[..., None]
+        return _weighted_normals(A, w, None if self._y is None else np.asarray(values, float))
 
     def observations(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Whitened rows ``W^{1/2} Ā``, ``W^{1/2} y`` and their node of the tracked observations."""
