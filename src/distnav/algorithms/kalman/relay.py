@@ -153,6 +153,9 @@ def relay_records(
     in_row = {int(e): r for r, e in enumerate(ex.in_edges.tolist())}
     out_src, in_dst = ex.out_src, ex.in_dst
     for pairs in plan.carried:
+        if not pairs:  # every origin is known within fewer hops: an empty round (counted, nothing carried)
+            ex.send(np.zeros((ex.out_edges.size, 1)), active=np.zeros(ex.n_edges, bool))
+            continue
         per_edge: dict[int, list[int]] = {}
         for e, o in pairs:
             per_edge.setdefault(e, []).append(o)
