@@ -17,7 +17,7 @@ import numpy as np
 
 from distnav._checks import check_field_types, real_number, whole_number
 from distnav._settings import option_names
-from distnav.algorithms.lsq.aggregated import _AggregatedKernel
+from distnav.algorithms.lsq.aggregated import _AggregatedKernel, rounds_on_graph
 from distnav.algorithms.lsq.blue import LinearProblem, inestimable_directions, weight_matrix
 from distnav.algorithms.lsq.kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
 from distnav.algorithms.lsq.xupdate import InLocalOrder, _diagonal_or_none, in_local_order
@@ -290,7 +290,7 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
             raise ModelError("multipliers can only be continued with messages='pairs'")
         x_loc, z_loc = x0[ex.nodes], zz0[ex.nodes]
         del x0, zz0  # the kernel takes the block's rows over: no whole-size copy stays
-        states = _AggregatedKernel(ex, C, Wm, p, xu).run(x_loc, z_loc, monitor_every)
+        states = _AggregatedKernel(ex, rounds_on_graph(ex, C), Wm, p, xu).run(x_loc, z_loc, monitor_every)
     return PreparedRun(
         states=states,
         exchange=ex,
