@@ -40,7 +40,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Literal, TypeAlias
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias
 
 import numpy as np
 
@@ -549,7 +549,7 @@ def choose_constraint_nodes(
     return out
 
 
-if TYPE_CHECKING:  # (kept apart from the imports above)
+if TYPE_CHECKING:
     from distnav.network.graph_part import GraphPart
 
 
