@@ -321,7 +321,7 @@ class Transport:
             self.frames_received += 1
             self.bytes_received += len(frame)
             sender = heads.pop(frame[:n_head], -1) if len(frame) == size else -1
-            if sender < 0:  # not the expected header (a replay, another step or kind, malformed, ...): the checks
+            if sender not in waiting:  # not the expected header (a replay, another step or kind, malformed, ...)
                 sender = self._take(frame, kind, step, got)
                 if sender in got:
                     waiting.discard(sender)
