@@ -268,6 +268,22 @@ def _killed_row(tmp: Path, n: int, rounds: int) -> dict[str, Any]:
     }
 
 
+def _after_loss(summary: dict[str, Any], victim: int, n: int) -> tuple[bool, list[dict[str, Any]], dict[str, Any]]:
+    """Whether every other node finished (and the victim crashed on purpose), their results, and the row's fields on
+    the loss: the victim, how many finished, the nodes they name as lost, the steps at which they did."""
+    rest = [i for i in range(n) if i != victim]
+    ok = summary["finished"] == rest and summary["crashed_on_purpose"] == [victim]
+    nodes = [summary["nodes"][str(i)] for i in rest] if ok else []
+    head = {
+        "n": n,
+        "killed": victim,
+        "finished": len(summary["finished"]),
+        "lost_nodes_named": sorted({k for r in nodes for k in r["lost_nodes"]}),
+        "noticed_at_steps": sorted({r["lost_nodes"].get(str(victim)) for r in nodes}),
+    }
+    return ok, nodes, head
+
+
 def _admm_victim(sc: Any) -> int:
     """The highest-id node whose loss leaves the rest connected and their stacked rows of full numerical rank (numpy's
     tolerance): on 8 stations the removable node 7 leaves rank 5 of 6, a direction ADMM's rank check (rcond 1e-10
@@ -297,21 +313,16 @@ def _admm_killed_row(tmp: Path, n: int, epochs: int) -> dict[str, Any]:
     load0 = _load()
     summary = launch(net, tmp / "run-admm-killed", timeout_s=1800, quiet=True)
     rest = [i for i in range(n) if i != victim]
-    ok = summary["finished"] == rest and summary["crashed_on_purpose"] == [victim]
-    nodes = [summary["nodes"][str(i)] for i in rest] if ok else []
+    ok, nodes, head = _after_loss(summary, victim, n)
     field = np.array([r["estimate"] for r in nodes], dtype=float) if ok else np.full((len(rest), p.n_params), np.nan)
     used = ~np.isnan(field).any(axis=0)
     blocks = [(p.A[i, : p.rows[i]][:, used], p.y[i, : p.rows[i]], p.R[i, : p.rows[i], : p.rows[i]]) for i in rest]
     ref = blue(LinearProblem.from_blocks(*(list(b) for b in zip(*blocks, strict=True)))).x
     diff = float(np.abs(field[:, used] - ref).max()) if ok and used.any() else float("nan")
-    named = sorted({k for r in nodes for k in r["lost_nodes"]})
+    named = head["lost_nodes_named"]
     return {
         "name": "admm_killed_at_20",
-        "n": n,
-        "killed": victim,
-        "finished": len(summary["finished"]),
-        "lost_nodes_named": named,
-        "noticed_at_steps": sorted({r["lost_nodes"].get(str(victim)) for r in nodes}),
+        **head,
         "dropped_parameters": nodes[0].get("dropped_parameters") if ok else None,
         "status": nodes[0]["status"] if ok else None,
         "max_abs_diff_vs_blue_of_remaining": diff,
@@ -336,23 +347,16 @@ def _uwb_killed_row(tmp: Path, n: int) -> dict[str, Any]:
     net = write_scenario(tmp / "uwb-killed", sc, LoopbackOptions(deadline_ms=5000, crash={victim: 20}))
     load0 = _load()
     summary = launch(net, tmp / "run-uwb-killed", timeout_s=1800, quiet=True)
-    rest = [i for i in range(n) if i != victim]
-    ok = summary["finished"] == rest and summary["crashed_on_purpose"] == [victim]
+    ok, nodes, head = _after_loss(summary, victim, n)
     reduced = remaining_data(p, victim)
     lm = solve(reduced, "LM", iterations=500, objective="metres")
     ref = solve(reduced, "N-CLM", iterations=300, objective="metres", exchange=make_exchange(reduced.graph))
-    nodes = [summary["nodes"][str(i)] for i in rest] if ok else []
     field = np.array([r["estimate"] for r in nodes], dtype=float) if ok else np.full_like(lm.estimates, np.nan)
     diff = float(np.abs(field - lm.estimates).max())
-    named = sorted({k for r in nodes for k in r["lost_nodes"]})
-    steps = sorted({r["lost_nodes"].get(str(victim)) for r in nodes})
+    named = head["lost_nodes_named"]
     return {
         "name": "uwb_killed_at_20",
-        "n": n,
-        "killed": victim,
-        "finished": len(summary["finished"]),
-        "lost_nodes_named": named,
-        "noticed_at_steps": steps,
+        **head,
         "restarted_at_step": nodes[0]["restarted_at_step"] if ok else None,
         "max_abs_diff_vs_lm_of_remaining_m": diff,
         "bitwise_equal_inprocess_of_remaining": bool(ok and np.array_equal(field, ref.estimates)),
