@@ -22,12 +22,12 @@ from distnav.exchange import make_exchange  # noqa: E402
 
 
 def _restarting(net: Path, victim: int, step: int) -> None:
-    """The description's crash entry of ``victim`` with a restart 1 s after it exits (``field launch`` restarts it
+    """The description's crash entry of ``victim`` with a restart 0.5 s after it exits (``field launch`` restarts it
     with ``--rejoin``)."""
     text = net.read_text()
     entry = f"{{ node = {victim}, round = {step} }}"
     assert entry in text
-    net.write_text(text.replace(entry, f"{{ node = {victim}, round = {step}, restart_after_s = 1.0 }}"))
+    net.write_text(text.replace(entry, f"{{ node = {victim}, round = {step}, restart_after_s = 0.5 }}"))
 
 
 def _check_rejoined(summary: dict, victim: int, n: int, status: str) -> list[dict]:  # type: ignore[type-arg]
