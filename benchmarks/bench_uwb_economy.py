@@ -244,13 +244,20 @@ def _tree_sends(graph: Graph, balanced: bool = True) -> np.ndarray:
     return np.asarray(children + (np.arange(graph.n_nodes) != root), float)
 
 
-def _scaling_row(n: int) -> dict[str, Any]:
+def _scaled_hall(n: int) -> tuple[Any, np.ndarray]:
+    """The hall of ``n`` anchors at the plant's density (sections 2 and 3) and the start: the truth displaced by
+    N(0, 0.2 m)."""
     scale = np.sqrt(n / 28.0)
     cfg = HallConfig().with_(**{**PLANT_LIKE, "n_anchors": n, "length_m": 60.0 * scale, "width_m": 30.0 * scale})
     h = simulate_hall(np.random.default_rng([78, n]), cfg)
     p = hall_problem(h)[0]
     rng = np.random.default_rng([27, n])
     start = np.where(p.free, p.truth_m + rng.normal(0.0, 0.2, p.truth_m.shape), p.positions_m)
+    return p, start
+
+
+def _scaling_row(n: int) -> dict[str, Any]:
+    p, start = _scaled_hall(n)
     t0 = time.process_time()
     r = csg.solve(
         p.with_initial(start),
@@ -298,12 +305,7 @@ def _solve_row(n: int) -> dict[str, Any]:
     """Section 3: a whole ``uwb solve`` workflow (N-CLM) on the hall of :func:`_scaling_row`, per-anchor bytes of
     all its fits (broadcasts + balanced-tree messages of every fit's reductions) against the gather's busiest
     relay."""
-    scale = np.sqrt(n / 28.0)
-    cfg = HallConfig().with_(**{**PLANT_LIKE, "n_anchors": n, "length_m": 60.0 * scale, "width_m": 30.0 * scale})
-    h = simulate_hall(np.random.default_rng([78, n]), cfg)
-    p = hall_problem(h)[0]
-    rng = np.random.default_rng([27, n])
-    start = np.where(p.free, p.truth_m + rng.normal(0.0, 0.2, p.truth_m.shape), p.positions_m)
+    p, start = _scaled_hall(n)
     _SENT.clear()
     _FITS.clear()
     t0 = time.process_time()
