@@ -34,8 +34,8 @@ and how both grow with the network.
    workflow with N-CLM: first fit, tightening, exclusion loop, per-anchor check, polish): the bytes each anchor
    sends over all the fits (its broadcasts, and its messages up and down the balanced tree of 2. for every
    network total of every fit) against the gather's busiest relay, and the number of fits; the σ after the fits
-   (gathered at one anchor, ``distributed_precision="gathered"``, to keep the run short; its bytes in the total
-   only: ``sigma_bytes``) and no reliability test (``reliability_limit_m=0``).
+   (gathered at one anchor up to :data:`GATHERED_SIGMA_MAX` anchors, the 2-hop sub-network σ above, to keep the
+   run short; its bytes in the total only: ``sigma_bytes``) and no reliability test (``reliability_limit_m=0``).
 
 Goals (issue 27): the 28-anchor hall's total bytes ≤ 100 × the gather, median per-anchor traffic ≤ 20 kB; at 10⁴
 anchors the busiest anchor below the busiest relay. Printed as one table; JSON in benchmarks/results/uwb_economy.json.
@@ -68,7 +68,8 @@ from distnav.network.graph import Graph
 HALL_SEED = [78, 0]
 SIZES = (100, 300, 1000, 3000, 10000)
 QUICK_SIZES = (100, 300)
-SOLVE_SIZES = (100, 300, 1000)  # section 3 (a whole solve: about 10 to 40 fits)
+SOLVE_SIZES = (100, 300, 1000, 3000, 10000)  # section 3 (a whole solve: about 10 to 40 fits)
+GATHERED_SIGMA_MAX = 3000
 QUICK_SOLVE_SIZES = (100,)
 RECORD_BYTES = 16  # two int32 ids + one float64 range (models/uwb/communication.py)
 GOAL_RATIO = 100.0
@@ -309,7 +310,8 @@ def _solve_row(n: int) -> dict[str, Any]:
     _SENT.clear()
     _FITS.clear()
     t0 = time.process_time()
-    opts = FieldOptions(solver="N-CLM", distributed_precision="gathered", reliability_limit_m=0.0)
+    sigma = "gathered" if n <= GATHERED_SIGMA_MAX else "subnetwork"  # a dense σ of 2n unknowns up to there
+    opts = FieldOptions(solver="N-CLM", distributed_precision=sigma, reliability_limit_m=0.0)
     sol = solve_field(p.with_initial(start), opts, geometry=None)
     cpu = time.process_time() - t0
     graph = Graph.from_links(p.n_anchors, p.links)
