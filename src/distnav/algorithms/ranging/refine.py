@@ -35,6 +35,7 @@ stopping thresholds — and says ``max_iterations`` after ``max_rounds`` outer r
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -88,6 +89,7 @@ class Refinement:
     rounds: int
     cg_iterations: int
     reduced: wire.Reductions
+    mu: float = MU0  # the Marquardt damping at the end (a warm re-fit may start from it: RefineOptions.mu0)
 
 
 class Links:
@@ -142,8 +144,8 @@ class Links:
 class RefineOptions:
     """The settings of :func:`refine`, as the solver's: ``sigma`` / ``scale`` (every sample's range σ, metres, and
     whitened loss scale), ``loss``, ``range_offsets`` (``"none"``, ``"common"``, ``"per_anchor"``) and
-    ``offset_prior_sigma_m`` (metres), the stopping thresholds ``ftol`` (relative) and ``xtol_m`` (metres), and
-    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds."""
+    ``offset_prior_sigma_m`` (metres), the stopping thresholds ``ftol`` (relative) and ``xtol_m`` (metres),
+    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds and ``mu0`` (:data:`MU0`) the initial damping."""
 
     sigma: np.ndarray
     scale: np.ndarray
@@ -153,6 +155,7 @@ class RefineOptions:
     ftol: float
     xtol_m: float
     max_rounds: int = MAX_ROUNDS
+    mu0: float = MU0
 
 
 @dataclass(frozen=True, eq=False)
@@ -323,7 +326,7 @@ def refine(
     run = _Refiner(problem, ex, o)
     x, c, cg_max = run.start(own_m, offset_m)
     nb, F, r, _ = run.evaluate(x, c, np.zeros_like(x))
-    mu = MU0
+    mu = o.mu0
     status, rounds, cg_total = "max_iterations", 0, 0
     with np.errstate(invalid="ignore", divide="ignore"):
         while rounds < o.max_rounds:
@@ -355,7 +358,7 @@ def refine(
                     break
             if status == "converged":
                 break
-    return run.result(x, c, nb, F, status, rounds, cg_total)
+    return dataclasses.replace(run.result(x, c, nb, F, status, rounds, cg_total), mu=mu)
 
 
 def _rows(owner: np.ndarray, values: np.ndarray, nl: int) -> np.ndarray:
