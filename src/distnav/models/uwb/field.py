@@ -484,7 +484,7 @@ def _precision_and_reasons(
         run.mark("reliability")
     if opts.cut_test:  # a group of anchors the exclusions cut off: placed by fewer checks than they took (cuts.py)
         reasons.update({k: v for k, v in cut_weak(problem, fit.excluded).items() if k not in reasons})
-    if numbers is not None:  # σ admits the NLOS links the exclusions left in (reliability.py; issue 28)
+    if numbers is not None and getattr(res, "x", None) is not None:  # LM: σ admits the NLOS links left in (issue 28)
         weak = np.isin(np.array(problem.ids), list(reasons))
         kept = subset_measurements(problem, ~fit.excluded)
         nlos = undetected_nlos_covariance(kept, numbers, -residual[fit.excluded], weak)
