@@ -74,23 +74,34 @@ def _raw_push(port: int, keys: CurveKeys | None = None, server: bytes | None = N
     return s
 
 
-def test_refusals_are_counted_and_the_node_keeps_running(caplog: pytest.LogCaptureFixture) -> None:
+@pytest.mark.parametrize("like", [None, np.zeros(1)], ids=["decode", "expected_header"])
+def test_refusals_are_counted_and_the_node_keeps_running(
+    caplog: pytest.LogCaptureFixture, like: np.ndarray | None
+) -> None:
+    """Every refusal, with the receiver's general checks and with its expected-header path (``like``: a round whose
+    dtype and shape are known), which must refuse the same frames."""
     t0, p0, _ = _pair()
     push = _raw_push(p0)
     try:
         push.send(b"garbage")  # malformed
         push.send(encode(Kind.COLUMN, 9, 0, np.zeros(1)))  # unknown sender
         push.send(encode(Kind.COLUMN, 1, 0, np.zeros(1 << 14)))  # oversize (128 kB > 64 kB)
+        push.send(encode(Kind.COLUMN, 1, 0, np.array([7.0])) + b"x")  # the expected header, one byte too many
         push.send(encode(Kind.COLUMN, 1, 0, np.array([4.0])))  # the good one
-        got = t0.collect(Kind.COLUMN, 0, [1])
+        got = t0.collect(Kind.COLUMN, 0, [1], like=like)
         assert got[1].tolist() == [4.0]
         push.send(encode(Kind.COLUMN, 1, 0, np.array([5.0])))  # replay of step 0
         push.send(encode(Kind.COLUMN, 1, 1, np.array([6.0])))
-        got = t0.collect(Kind.COLUMN, 1, [1])
+        got = t0.collect(Kind.COLUMN, 1, [1], like=like)
         assert got[1].tolist() == [6.0]  # the replay did not replace it
+        push.send(encode(Kind.COLUMN, 1, 1, np.array([8.0])))  # replay of the step just taken
+        push.send(encode(Kind.EDGE, 1, 2, np.array([9.0])))  # another kind than the step's
+        assert t0.collect(Kind.COLUMN, 2, [1], like=like, deadline_s=0.3) == {}
         counts = t0.refusal_counts()
-        assert counts == {"malformed": 1, "unknown_sender": 1, "oversize": 1, "replay": 1}, counts
+        want = {"malformed": 2, "unknown_sender": 1, "oversize": 1, "replay": 2, "out_of_sequence": 1}
+        assert counts == want, counts
         assert "replay of step 0 from node 1" in caplog.text
+        assert "41 bytes, the header announces 40" in caplog.text
     finally:
         push.close()
         t0.close()

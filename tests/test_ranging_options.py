@@ -86,10 +86,17 @@ def test_unknown_and_foreign_names_are_refused_by_name():
         (lambda: RunOptions(range_offsets="common"), "objective='metres' only"),
         (lambda: NeighbourhoodOptions(loss="tukey"), "unknown loss"),
         (lambda: NeighbourhoodOptions(graduated=-1), "graduated"),
+        (lambda: NeighbourhoodOptions(objective="metres", range_offsets="per_anchor", initial_offset_m=0.3), "common"),
+        (lambda: NeighbourhoodOptions(initial_offset_m=0.3), "common offset's start"),
         (lambda: LMOptions(max_iterations=-1), "max_iterations"),
         (lambda: LMSolveOptions(loss="tukey"), "unknown loss"),
         (lambda: LMSolveOptions(range_offsets="common"), "objective='metres' only"),  # the shared FitOptions
         (lambda: FitOptions(objective="cubic"), "objective must be 'squared' or 'metres'"),
+        # issue 29: σ was unchecked and ignored with the squared objective
+        (lambda: FitOptions(sigma_m=0.1), "used by objective='metres' only"),
+        (lambda: NclmOptions(sigma_m=np.full(3, 0.1)), "used by objective='metres' only"),
+        (lambda: LMSolveOptions(objective="metres", sigma_m=-0.1), "sigma_m must be finite and positive"),
+        (lambda: RunOptions(objective="metres", sigma_m=np.nan), "sigma_m must be finite and positive"),
         (lambda: PrecisionOptions(hops=3), "hops"),
         (lambda: CentralPrecisionOptions(range_offsets="both"), "range_offsets"),
         (lambda: PaperProblemOptions(sigma_m=-1.0), "init_halfwidth_m"),

@@ -8,9 +8,12 @@ writes ``node-ID.json`` (its estimate, status, rounds, the peers it lost and whe
 
 from __future__ import annotations
 
+import gc
+import itertools
 import logging
 import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -77,10 +80,6 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
     transport = Transport(node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=keys)
     t0 = time.monotonic()
     try:
-        first = transport.join() if rejoin else 0
-        missing = [] if rejoin else transport.handshake()
-        if missing:
-            LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
         schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
         crash_step = None if (consensus or rejoin) else desc.crash.get(node_id)
         ex = (
@@ -88,12 +87,22 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             if crash_step is None
             else _CrashingExchange(desc.graph(), node_id, transport, schedule, crash_step=crash_step)
         )
+        first = transport.join() if rejoin else 0
         if rejoin:
             ex.start_at(first)
             LOG.warning("node %d: rejoining at step %d", node_id, first)
+        # a consensus node is ready before it greets: weights, checks and mixers built (no message), so the first
+        # round does not wait for this node's set-up, and the rounds are timed alone
+        states = _consensus_states(desc, node_id, ex, values, first) if values is not None else None
+        gc.freeze()  # the set-up's objects (modules, description, weights) out of the collector's passes
+        missing = [] if rejoin else transport.handshake()
+        if missing:
+            LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
         t_start, cpu_start = time.monotonic(), time.process_time()
-        if values is not None:
-            outcome = _run_consensus(desc, node_id, ex, values, first, None if rejoin else desc.crash.get(node_id))
+        if states is not None:
+            assert values is not None
+            crash_round = None if rejoin else desc.crash.get(node_id)
+            outcome = _run_consensus(states, values, node_id, int(desc.algorithm["rounds"]), first, crash_round)
         else:
             from distnav.commands.field_algorithms import run_algorithm
 
@@ -149,28 +158,29 @@ class _CrashingExchange(FieldExchange):
         return super()._next_step()
 
 
-def _run_consensus(
-    desc: NetworkDescription, node_id: int, ex: FieldExchange, values: np.ndarray, first: int, crash_round: int | None
-) -> dict[str, Any]:
-    """Average consensus or its flow form from round ``first`` on; exits the process at ``crash_round``."""
+def _consensus_states(
+    desc: NetworkDescription, node_id: int, ex: FieldExchange, values: np.ndarray, first: int
+) -> Iterator[Any]:
+    """Average consensus or its flow form from round ``first`` on, its set-up done (the initial state taken)."""
     algo = desc.algorithm
-    rounds = int(algo["rounds"])
+    rounds = int(algo["rounds"]) - first
     full = np.zeros((desc.n_nodes, values.size))
     full[node_id] = values  # the other rows are placeholders: only this node's row is read (ex.local)
-    states: Any
+    states: Iterator[Any]
     if algo["name"] == "consensus":
-        states = iterate_average_consensus(
-            full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds - first, exchange=ex
-        )
+        states = iterate_average_consensus(full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds, exchange=ex)
     else:
         states = iterate_flow_consensus(
-            full,
-            graph=ex.graph,
-            protocol=algo["protocol"],
-            rounds=rounds - first,
-            exchange=ex,
-            patience=algo["patience"],
+            full, graph=ex.graph, protocol=algo["protocol"], rounds=rounds, exchange=ex, patience=algo["patience"]
         )
+    first_state = next(states)  # builds the weights and mixers; no message yet
+    return itertools.chain([first_state], states)
+
+
+def _run_consensus(
+    states: Iterator[Any], values: np.ndarray, node_id: int, rounds: int, first: int, crash_round: int | None
+) -> dict[str, Any]:
+    """Run the consensus rounds; exits the process at round ``crash_round`` (``[faults] crash``)."""
     last = None
     for state in states:
         last = state

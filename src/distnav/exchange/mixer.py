@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from distnav._optional import lazy
+from distnav._optional import scipy_sparse as sp
 from distnav._sparse import csr_times
 from distnav.errors import ExchangeError
 from distnav.exchange._arrays import _flat, _masked_count, _segment_matrix
@@ -14,11 +14,7 @@ from distnav.exchange._arrays import _flat, _masked_count, _segment_matrix
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    import scipy.sparse as sp
-
     from distnav.exchange.core import ExchangeCore
-else:  # imported on first use (start-up of an MPI job)
-    sp = lazy("scipy.sparse")
 
 __all__ = ["Mixer"]
 

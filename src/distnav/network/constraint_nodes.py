@@ -44,15 +44,9 @@ from typing import TYPE_CHECKING, Any, Literal, TypeAlias
 
 import numpy as np
 
-from distnav._optional import lazy
+from distnav._optional import scipy_sparse as sp
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
-
-if TYPE_CHECKING:
-    import scipy.sparse as sp
-else:  # imported on first use (start-up of an MPI job)
-    sp = lazy("scipy.sparse")
-
 
 __all__ = [
     "lp_lower_bound",
@@ -555,7 +549,7 @@ def choose_constraint_nodes(
     return out
 
 
-if TYPE_CHECKING:  # (kept apart from the imports above)
+if TYPE_CHECKING:
     from distnav.network.graph_part import GraphPart
 
 

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from distnav._optional import lazy
+from distnav._optional import scipy_sparse as sp
 from distnav.algorithms.lsq.delta_codec import DeltaCodec
 from distnav.algorithms.lsq.xupdate import XUpdate, XUpdateMethod
 from distnav.errors import ModelError
@@ -24,11 +24,7 @@ from distnav.exchange import Exchange
 from distnav.network.constraint_nodes import ConstraintNodes
 
 if TYPE_CHECKING:
-    import scipy.sparse as sp
-
     from distnav.exchange.route import Route
-else:  # imported on first use (start-up of an MPI job)
-    sp = lazy("scipy.sparse")
 
 __all__ = ["AdmmState", "Multipliers", "XUpdate", "XUpdateMethod"]
 

@@ -106,11 +106,14 @@ class NeighbourhoodOptions(RunOptions):
     - ``loss_scale_m`` (0.3): the range error where the loss bends, metres.
     - ``graduated`` (None: a quarter of ``iterations`` for metres with a robust loss, else 0): iterations with the
       linear loss before the robust one.
+    - ``initial_offset_m`` (None: 0): the common range offset's start, metres (``range_offsets="common"``; a warm
+      re-fit carries the last fit's, which every anchor holds: issue 27).
     """
 
     loss: str = "linear"
     loss_scale_m: float = 0.3
     graduated: int | None = None
+    initial_offset_m: float | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -118,6 +121,10 @@ class NeighbourhoodOptions(RunOptions):
             raise ModelError(f"unknown loss {self.loss!r}; choose one of {', '.join(LOSSES)}")
         if self.graduated is not None and self.graduated < 0:
             raise ModelError(f"graduated must be ≥ 0 iterations, got {self.graduated}")
+        if self.initial_offset_m is not None and self.range_offsets != "common":
+            raise ModelError(
+                f"initial_offset_m is the common offset's start, not for range_offsets={self.range_offsets!r}"
+            )
 
     def graduated_iterations(self) -> int:
         """``graduated``, or its default."""

@@ -149,7 +149,7 @@ class FieldExchange(Exchange):
         step = self._next_step()
         row = np.ascontiguousarray(flat_local[0])
         self.transport.post_many(targets, Kind.COLUMN, step, row)
-        got = self._received_rows(self.transport.collect(Kind.COLUMN, step, senders), row.shape, row.dtype)
+        got = self._received_rows(self.transport.collect(Kind.COLUMN, step, senders, like=row), row.shape, row.dtype)
         cols = np.zeros((self.n_columns, row.size), dtype=flat_local.dtype)
         cols[0] = row
         for s, arr in got.items():
@@ -164,7 +164,9 @@ class FieldExchange(Exchange):
             self.transport.post(int(self.out_dst[r]), Kind.EDGE, step, flat_out[r])
         senders = np.unique(self.in_src[act_in])
         width = flat_out.shape[1]
-        got = self._received_rows(self.transport.collect(Kind.EDGE, step, senders), (width,), flat_out.dtype)
+        like = flat_out[0] if len(flat_out) else None
+        arrived = self.transport.collect(Kind.EDGE, step, senders, like=like)
+        got = self._received_rows(arrived, (width,), flat_out.dtype)
         out = np.zeros((self.in_edges.size, width), dtype=flat_out.dtype)
         if self._self_in.size and self._self_out.size:
             out[self._self_in] = flat_out[self._self_out]

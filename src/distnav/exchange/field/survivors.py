@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 from distnav.errors import ExchangeError
-from distnav.exchange.field.transport import Peer, StepTransport, TransportOptions
+from distnav.exchange.field.transport import Like, Peer, Senders, StepTransport, TransportOptions
 from distnav.exchange.field.tree import SpanningTree
 from distnav.exchange.field.wire import Kind, Message
 from distnav.network.graph import Graph
@@ -147,9 +147,9 @@ class SubnetTransport:
         self.base.post_many([self._old[p] for p in peers], kind, step, array)
 
     def collect(
-        self, kind: Kind, step: int, senders: list[int] | np.ndarray, *, deadline_s: float | None = None
+        self, kind: Kind, step: int, senders: Senders, *, deadline_s: float | None = None, like: Like = None
     ) -> dict[int, np.ndarray]:
-        got = self.base.collect(kind, step, [self._old[int(s)] for s in senders], deadline_s=deadline_s)
+        got = self.base.collect(kind, step, [self._old[int(s)] for s in senders], deadline_s=deadline_s, like=like)
         return {self._new[s]: a for s, a in got.items() if s in self._new}
 
     def _refuse(self, reason: str, text: str) -> Message | None:

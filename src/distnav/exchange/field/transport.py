@@ -32,13 +32,19 @@ import numpy as np
 
 from distnav._optional import require
 from distnav.errors import ExchangeError
-from distnav.exchange.field.wire import Kind, Message, WireError, decode, encode
+from distnav.exchange.field.wire import Kind, Message, WireError, decode, encode, expected
 
 __all__ = ["CurveKeys", "Peer", "StepTransport", "Transport", "TransportOptions"]
 
 LOG = logging.getLogger("distnav.field")
+#: the senders a step waits for; an array shaped and typed as the step's messages are expected (or None)
+Senders = list[int] | np.ndarray
+Like = np.ndarray | None
 #: longest single blocking receive (ms): a step waits in slices of this, re-checking the clock between them
 _SLICE_MS = 100
+
+#: The wire counters every transport keeps (attributes of the same names) and reports in :meth:`wire_counts`.
+WIRE_COUNTERS = ("bytes_sent", "bytes_received", "frames_sent", "frames_received", "send_failures")
 
 
 def _zmq() -> Any:
@@ -113,7 +119,7 @@ class StepTransport(Protocol):
     def post_many(self, peers: list[int], kind: Kind, step: int, array: np.ndarray) -> None: ...
 
     def collect(
-        self, kind: Kind, step: int, senders: list[int] | np.ndarray, *, deadline_s: float | None = None
+        self, kind: Kind, step: int, senders: Senders, *, deadline_s: float | None = None, like: Like = None
     ) -> dict[int, np.ndarray]: ...
 
     def _refuse(self, reason: str, text: str) -> Message | None: ...
@@ -236,14 +242,16 @@ class Transport:
 
     # ------------------------------------------------------------- receiving
     def collect(
-        self, kind: Kind, step: int, senders: list[int] | np.ndarray, *, deadline_s: float | None = None
+        self, kind: Kind, step: int, senders: Senders, *, deadline_s: float | None = None, like: Like = None
     ) -> dict[int, np.ndarray]:
         """The arrays of ``step`` from ``senders`` that arrive before the deadline (peers declared lost are not
         waited for, but still accepted if they arrive).
 
         Frames are taken one at a time with a blocking receive (no poll call, no exception per empty socket), at
         most :data:`_SLICE_MS` at a time or up to the deadline or the next delayed message's release; at the deadline
-        whatever has already arrived is still taken."""
+        whatever has already arrived is still taken. ``like``: the messages are expected with this array's dtype and
+        shape (a consensus or edge round), and a frame that carries exactly the expected header is accepted after
+        one comparison (:func:`~.wire.expected`; :meth:`_collect_expected`)."""
         got: dict[int, np.ndarray] = {}
         held = self._held.pop(step, None)
         if held:
@@ -255,6 +263,8 @@ class Transport:
             self._drain(kind, step, got)
             self._release(kind, step, got)
         end = time.monotonic() + (self.options.deadline_s if deadline_s is None else deadline_s)
+        if waiting and like is not None and not self.curve and not self._delayed and not self.options.latency_max_s:
+            self._collect_expected(kind, step, waiting, like, got, end)
         while waiting:
             now = time.monotonic()
             if self._delayed:
@@ -273,6 +283,47 @@ class Transport:
                     waiting.discard(sender)
         self._note_missing(senders, got, step)
         return got
+
+    def _collect_expected(
+        self, kind: Kind, step: int, waiting: set[int], like: np.ndarray, got: dict[int, np.ndarray], end: float
+    ) -> None:
+        """:meth:`collect`'s loop for messages of a known header: a frame whose header is the one expected of a
+        sender still awaited (kind, step, sender, dtype, shape, length, version: every check of
+        :func:`~.wire.decode`; not a replay, as that sender's message of this step has not come yet) and whose size
+        is the expected one is taken as an array at once; any other frame is checked and routed as usual
+        (:meth:`_take`). Returns when every sender's message is in, or at the deadline (what has arrived by then is
+        taken by :meth:`collect`)."""
+        exp = expected(kind, step, waiting, like)
+        if exp is None or exp.size > self.options.max_message_bytes:
+            return
+        heads, n_head, size, dtype, count = exp
+        shape = like.shape if like.ndim != 1 else None
+        last, heard, pull, again, monotonic = self._last_step, self.heard, self.pull, self._zmq.Again, time.monotonic
+        while waiting:
+            left = end - monotonic()
+            if left <= 0:
+                return
+            ms = min(_SLICE_MS, int(left * 1000) + 1)
+            if ms != self._rcvtimeo:
+                pull.setsockopt(self._zmq.RCVTIMEO, ms)
+                self._rcvtimeo = ms
+            try:
+                frame = pull.recv(0, True)
+            except again:
+                continue
+            self.frames_received += 1
+            self.bytes_received += len(frame)
+            sender = heads.pop(frame[:n_head], -1) if len(frame) == size else -1
+            if sender < 0:  # not the expected header (a replay, another step or kind, malformed, ...): the checks
+                sender = self._take(frame, kind, step, got)
+                if sender in got:
+                    waiting.discard(sender)
+                continue
+            heard[sender] += 1
+            last[sender] = step
+            arr = np.frombuffer(frame, dtype, count, n_head)  # positional: keywords cost more than the call
+            got[sender] = arr if shape is None else arr.reshape(shape)
+            waiting.discard(sender)
 
     def _recv_within(self, seconds: float) -> Any:
         """One frame, waiting at most ``seconds`` (None when none came); the socket's receive timeout is changed only
@@ -492,13 +543,7 @@ class Transport:
 
     def wire_counts(self) -> dict[str, int]:
         """Real bytes and frames this node put on and took off the wire, and the sends that could not be queued."""
-        return {
-            "bytes_sent": self.bytes_sent,
-            "bytes_received": self.bytes_received,
-            "frames_sent": self.frames_sent,
-            "frames_received": self.frames_received,
-            "send_failures": self.send_failures,
-        }
+        return {name: int(getattr(self, name)) for name in WIRE_COUNTERS}
 
     @property
     def refusals(self) -> int:

@@ -34,7 +34,7 @@ import numpy as np
 
 from distnav.errors import ExchangeError
 
-__all__ = ["MAGIC", "VERSION", "DTYPES", "Kind", "Message", "WireError", "encode", "decode", "HEADER"]
+__all__ = ["MAGIC", "VERSION", "DTYPES", "Kind", "Message", "WireError", "encode", "decode", "HEADER", "Expected"]
 
 MAGIC = b"DNF1"
 VERSION = 1
@@ -137,3 +137,46 @@ def decode(frame: bytes | memoryview, *, max_bytes: int) -> Message:
     if not _LITTLE:
         arr = arr.astype(_NATIVE[code])
     return Message(kind_, sender, step, arr)
+
+
+class Expected(NamedTuple):
+    """The exact header each sender's message of one step must carry, when its kind, dtype and shape are known
+    (a consensus or edge round: the same as the array this node sends): ``heads`` maps the header bytes (magic,
+    version, kind, dtype code, ndim, sender, step, length, shape) to the sender. A frame of ``size`` bytes whose
+    first ``head_bytes`` are a key of ``heads`` passes every check of :func:`decode` (and names its sender and step)
+    with one slice and one dict look-up; any other frame goes through :func:`decode` and is refused or routed as
+    usual."""
+
+    heads: dict[bytes, int]
+    head_bytes: int
+    size: int
+    dtype: np.dtype
+    items: int
+
+
+def expected(kind: Kind, step: int, senders: set[int], like: np.ndarray) -> Expected | None:
+    """:class:`Expected` of ``step``'s messages from ``senders`` shaped as ``like`` (None if ``like``'s dtype or
+    rank cannot be sent). The headers are made of a per-sender prefix (magic … sender, made once) and this step's
+    suffix (step, length, shape)."""
+    code = _CODE.get((like.dtype.kind, like.dtype.itemsize))
+    if code is None or like.ndim > MAX_NDIM or not _LITTLE:  # a big-endian host decodes and swaps
+        return None
+    dtype, ndim = DTYPES[code], like.ndim
+    length = like.size * dtype.itemsize
+    suffix = _TAIL[ndim].pack(step, length, *like.shape)
+    prefixes = _PREFIXES.get((kind, code, ndim))
+    if prefixes is None:
+        prefixes = _PREFIXES[kind, code, ndim] = {}
+    heads = {}
+    for s in senders:
+        head = prefixes.get(s)
+        if head is None:
+            head = prefixes[s] = _PREFIX.pack(MAGIC, VERSION, int(kind), code, ndim, s)
+        heads[head + suffix] = s
+    n_head = HEADER.size + 4 * ndim
+    return Expected(heads, n_head, n_head + length, dtype, like.size)
+
+
+_PREFIX = struct.Struct("<4sBBBBI")  # the header up to the sender (its first 12 bytes)
+_TAIL = [struct.Struct("<QQ" + "I" * k) for k in range(MAX_NDIM + 1)]  # step, length, shape
+_PREFIXES: dict[tuple[Kind, int, int], dict[int, bytes]] = {}  # (kind, dtype code, ndim) → sender → prefix
