@@ -9,6 +9,7 @@ runs a generator to the stopping rule and returns an :class:`AdmmResult`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol, get_args
@@ -311,8 +312,10 @@ def _x_update(
     and the x-update moves ``l`` and ``x`` between the orders (:func:`~distnav.algorithms.lsq.xupdate.in_local_order`:
     per-node arithmetic, so bitwise the same ``x``); a block of some nodes (MPI) holds its own rows."""
     if ex.n_local == problem.n_nodes:
-        xu = XUpdate(problem, W, c, method)
-        return in_local_order(xu, ex.nodes), problem
+        # the same arrays under a fresh cache: what the set-up derives (N_i, R_i⁻¹) goes with the run, not onto the
+        # caller's object
+        mine = dataclasses.replace(problem, _cache={})
+        return in_local_order(XUpdate(mine, W, c, method), ex.nodes), mine
     local = problem.subset(ex.nodes)
     return XUpdate(local, W, c[ex.nodes], method), local
 
