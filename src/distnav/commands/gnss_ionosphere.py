@@ -214,9 +214,9 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     if getattr(args, "model_spread", "auto") == "auto":
         from dataclasses import replace
 
-        from distnav.models.gnss.modelspread import spread_of_one_station
+        from distnav.models.gnss.modelspread import spread_of_own_layers
 
-        series, spread = spread_of_one_station(data, orbit, series, network_options(args).model_options)
+        series, spread = spread_of_own_layers(data, orbit, series, network_options(args).model_options)
         if spread is not None:
             data = replace(data, notes=[*data.notes, spread.statement()])
     write_results(args, data, series, comm, l1=l1, l2=args.l2_code.upper(), pivot=pivot, graph=graph, fixed=fixed)
@@ -509,7 +509,8 @@ _HELP = {  # the model, levelling and screening options' help texts (the calls b
     "min-arc": "shortest arc kept for levelling, in epochs of the file (default 10)",
     "gf-threshold": "smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x the "
     "satellite's recent prediction-error RMS where the ionosphere is noisier)",
-    "model-spread": "one station: add to each satellite's σ the RMS difference of its DSBs under the other "
+    "model-spread": "one station, or stations each with its own ionosphere layer: add to each satellite's σ the "
+    "RMS difference of its DSBs under the other "
     "ionosphere field (linear/thin shell vs second order/modified mapping; docs/gnss.md); off: the filter's σ alone",
 }
 
