@@ -127,3 +127,23 @@ def test_bele_dgar_six_hour_session_sigma_covers_its_error(shared_data: Path, tm
         assert all("2 stations, each with its own ionosphere layer" in n for n in notes)
     assert 0.7 <= ratios["auto"] <= 1.3
     assert ratios["off"] > 1.4
+
+
+def _series(label: str, arc_factor: float | None) -> DatumSeries:
+    z = np.zeros((1, 3))
+    return DatumSeries(label, z, z, z, z, None, 0, 0.0, 1.0, None, arc_variance_factor=arc_factor)
+
+
+def test_sigma_limits_name_what_the_sigma_cannot_contain() -> None:
+    """The console says when the arcs' factor is missing (BeiDou from BELE: 2.24× too small against CAS) and, for
+    GLONASS, that one receiver's FDMA channel biases are not separable (C1C−C2C from BELE: 3.11×)."""
+    from distnav.models.gnss.modelspread import sigma_limits
+
+    assert sigma_limits([_series("central", 0.5)], 1, "G", True) == []
+    assert sigma_limits([_series("central", None)], 1, "G", False) == []  # raw code: no arcs to miss
+    (arcs,) = sigma_limits([_series("central", None)], 1, "C", True)
+    assert "not estimable" in arcs and "too small" in arcs
+    (one,) = sigma_limits([_series("central", 0.5)], 1, "R", True)
+    assert "one receiver" in one and "not separable" in one
+    (two,) = sigma_limits([_series("central", 0.5)], 2, "R", True)
+    assert "2 receivers" in two and "between-station check" in two

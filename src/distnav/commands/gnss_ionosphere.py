@@ -211,14 +211,16 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     series, comm = run_bias_filters(
         data, filter_options(args, pivot, fixed), graph=graph, exchange=command_exchange(args, graph)
     )
+    from dataclasses import replace
+
+    from distnav.models.gnss.modelspread import sigma_limits, spread_of_own_layers
+
     if getattr(args, "model_spread", "auto") == "auto":
-        from dataclasses import replace
-
-        from distnav.models.gnss.modelspread import spread_of_own_layers
-
         series, spread = spread_of_own_layers(data, orbit, series, network_options(args).model_options)
         if spread is not None:
             data = replace(data, notes=[*data.notes, spread.statement()])
+    limits = sigma_limits(series, len(stations), getattr(args, "system", "G"), args.levelling == "arc")
+    data = replace(data, notes=[*data.notes, *limits])
     write_results(args, data, series, comm, l1=l1, l2=args.l2_code.upper(), pivot=pivot, graph=graph, fixed=fixed)
     return 0
 

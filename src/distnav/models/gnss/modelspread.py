@@ -37,6 +37,7 @@ __all__ = [
     "alternative_model",
     "model_spread",
     "spread_of_one_station",
+    "sigma_limits",
     "spread_of_own_layers",
     "with_model_spread",
 ]
@@ -128,3 +129,30 @@ def spread_of_own_layers(
 
 
 spread_of_one_station = spread_of_own_layers  # the name before networks with their own layers were included
+
+
+def sigma_limits(series: Sequence[DatumSeries], n_receivers: int, system: str, levelled: bool) -> list[str]:
+    """What the central filter's realistic σ cannot contain, one console note each (gnss5, measured against CAS on
+    BELE 2024-01-10, docs/gnss.md): the arcs' variance factor missing (too few degrees of freedom beyond the
+    biases: BeiDou's MEO satellites from one equatorial station, RMS(error/σ) 2.24), and for GLONASS the receivers'
+    FDMA channel biases, which one receiver cannot separate from the satellites of a channel (C1C−C2C: 3.11)."""
+    central = next((s for s in series if s.label == "central"), None)
+    notes = []
+    if central is not None and levelled and central.arc_variance_factor is None:
+        notes.append(
+            "precision: the arcs' variance factor is not estimable (fewer than 8 degrees of freedom beyond the "
+            "biases: few satellites in view per epoch or few arcs), so the realistic σ is the formal σ × the "
+            "predicted residuals' factor, which misses the levelling errors constant over an arc: expect it too small"
+        )
+    if system == "R":
+        who = (
+            "one receiver: its channel biases go into the satellite DSBs, not separable from them and not in their σ"
+            if n_receivers == 1
+            else f"{n_receivers} receivers: the satellite DSBs take the receivers' mean per channel; the σ contains "
+            "their differences only through the between-station check"
+        )
+        notes.append(
+            "GLONASS: each FDMA channel has its own receiver inter-frequency bias, shared by the channel's two "
+            f"satellites; with {who} (GLONASS channels: docs/gnss.md)"
+        )
+    return notes
