@@ -36,7 +36,6 @@ __all__ = [
     "ModelSpread",
     "alternative_model",
     "model_spread",
-    "spread_of_one_station",
     "sigma_limits",
     "spread_of_own_layers",
     "with_model_spread",
@@ -126,9 +125,6 @@ def spread_of_own_layers(
     )
     spread = replace(spread, stations=len(data.stations))
     return with_model_spread(series, len(data.stations), spread), spread
-
-
-spread_of_one_station = spread_of_own_layers  # the name before networks with their own layers were included
 
 
 def sigma_limits(series: Sequence[DatumSeries], n_receivers: int, system: str, levelled: bool) -> list[str]:
