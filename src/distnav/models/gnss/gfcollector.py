@@ -184,7 +184,7 @@ class Collector:
                 Ar = np.take_along_axis(A, order[..., None], axis=1) * kept[..., None]
                 wr = np.take_along_axis(w, order, axis=1)
                 yr = np.take_along_axis(y, order, axis=1)
-                Sn = np.stack([self.dynamics.noise_cov_at(int(t)) for t in t_in])
+                Sn = self.dynamics.noise_cov_block(t_in)
                 Pm = np.where(ep[:, :, None] & ep[:, None, :], Pp + Sn, 0.0)
                 v = np.where(kept, yr - (Ar @ np.where(ep, xp, 0.0)[..., None])[..., 0], 0.0)
                 Qv = Ar @ Pm @ np.swapaxes(Ar, 1, 2)
