@@ -82,6 +82,7 @@ def test_unknown_and_foreign_names_are_refused_by_name():
         (lambda: NclmOptions(lambda_min=0.0), "lambda_min must be positive"),
         (lambda: CsgOptions(alpha=-1.0), "alpha must be positive"),
         (lambda: RunOptions(monitor_every=-1), "monitor_every"),
+        (lambda: RunOptions(refine_mu0=0.0), "refine_mu0 must be positive"),
         (lambda: RunOptions(test_scale="mad"), "test_scale"),
         (lambda: RunOptions(range_offsets="common"), "objective='metres' only"),
         (lambda: NeighbourhoodOptions(loss="tukey"), "unknown loss"),

@@ -57,6 +57,8 @@ class RunOptions(FitOptions):
       (0: start and end only).
     - ``stop`` (``StopRule()``; None runs all ``iterations`` as the paper): the stopping rule.
     - ``refine`` (None: with the metres objective and a stopping rule): a final distributed LM phase.
+    - ``refine_mu0`` (None: ``refine.MU0``): that phase's initial Marquardt damping (a warm re-fit: the last fit's
+      final one, ``settings["refine"]["mu"]``, issue 27).
     - ``test_scale`` also ``"local"`` (each anchor's own scale) beside the centralized scales.
     """
 
@@ -66,9 +68,11 @@ class RunOptions(FitOptions):
     monitor_every: int = 1
     stop: StopRule | None = StopRule()
     refine: bool | None = None
+    refine_mu0: float | None = None
 
     def __post_init__(self) -> None:
         check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
+        _positive(refine_mu0=self.refine_mu0)
         if self.monitor_every < 0:
             raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
         if self.test_scale not in DISTRIBUTED_TEST_SCALES:

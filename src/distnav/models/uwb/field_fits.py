@@ -54,6 +54,10 @@ REFIT_STAGES: tuple[str, ...] = ("refit",)
 #: a warm distributed fit starts from the last fit's common range offset (every anchor holds it; :func:`solve_once`)
 #: instead of 0 (issue 27: from 0 each re-fit's first rounds found the offset again, 0.3 m on the plant-like halls)
 CARRY_OFFSET = True
+#: a warm distributed fit's LM phase starts from the last fit's final Marquardt damping (floored at MU_FLOOR) instead of
+#: refine.MU0 (issue 27)
+CARRY_DAMPING = True
+MU_FLOOR = 1e-6
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
 
@@ -107,13 +111,11 @@ def solve_once(
     if stage is not None and key != "LM" and "stop" not in kw:
         ftol, xtol_m = STAGE_TOLERANCES[stage]
         extra["stop"] = StopRule(refine_ftol=ftol, refine_xtol_m=xtol_m)
-    carried = CARRY_OFFSET and carry is not None and key not in ("LM", "CSG") and kw.get("range_offsets") == "common"
-    if carried and warm and carry and "initial_offset_m" not in kw:
-        extra["initial_offset_m"] = carry["initial_offset_m"]
+    if carry is not None and warm and key != "LM":
+        extra.update({k: v for k, v in carry.items() if k not in kw and _carries(k, key, kw)})
     r = csg.solve(problem, key, iterations=iterations, **kw, **extra)
-    off = getattr(r, "offsets_m", None)
-    if carried and carry is not None and r.usable and off is not None and np.size(off) == 1:
-        carry["initial_offset_m"] = float(np.ravel(off)[0])
+    if carry is not None and key != "LM" and r.usable:
+        _carry(r, carry)
     if total is not None:  # the final distributed LM phase's rounds are iterations too (issue 28 item 3)
         ref = (getattr(r, "settings", None) or {}).get("refine") or {}
         total[0] += int(r.iterations) + int(ref.get("rounds", 0))
@@ -181,3 +183,21 @@ def refit_margin_w(stage: str, sigma_m: float) -> float:
     ``2 · xtol_m``, its whitened residual by that over ``sigma_m`` and its w by that over the smallest robust
     scale of the tests (:data:`~distnav.algorithms.ranging.qc.SCALE_FLOOR`)."""
     return 2.0 * STAGE_TOLERANCES[stage][1] / (sigma_m * SCALE_FLOOR)
+
+
+def _carries(name: str, key: str, kw: dict[str, Any]) -> bool:
+    """Whether a warm fit of ``key`` with ``kw`` takes the carried setting ``name`` (:func:`_carry`)."""
+    if name == "initial_offset_m":
+        return CARRY_OFFSET and key != "CSG" and kw.get("range_offsets") == "common"
+    return CARRY_DAMPING and kw.get("refine", True) is not False
+
+
+def _carry(r: Any, carry: dict[str, float]) -> None:
+    """What a distributed fit hands to the next warm one: its common offset and its LM phase's final damping —
+    values every anchor holds at the end (no message)."""
+    off = getattr(r, "offsets_m", None)
+    if off is not None and np.size(off) == 1:
+        carry["initial_offset_m"] = float(np.ravel(off)[0])
+    mu = ((getattr(r, "settings", None) or {}).get("refine") or {}).get("mu")
+    if mu is not None:
+        carry["refine_mu0"] = max(float(mu), MU_FLOOR)
