@@ -8,14 +8,14 @@ and how both grow with the network.
    of the one-sided loss, exclusion loop, polish, σ), in three configurations measured in the same run with the
    same accounting (the broadcasts, and the LM phase's network totals as spanning-tree all-reductions):
    *before* issue 27 (:func:`configured` ``"before"``: 500 consensus iterations in the first fit, every row sent in
-   full in float64, float64 CG scalars, the central σ by CG to ``1e-10``), *today* (the defaults at the start of
-   the third session: float16 directions' rows with a shared exponent, float32 CG scalars, CG stopped on ``rᵀr``,
-   every trial's parameters in float64, the seed fits at their stage tolerances, the σ gathered at one anchor)
-   and *after* (the defaults: each neighbour's product sent per link, ``wire.PROJECTED``; CG stopped on ``rᵀz``,
-   ``refine.PRECONDITIONED_STOP``; trials as float32 steps, ``wire.STEPS``; a round's own totals but the
-   objective in float32, ``refine.ROUND_SCALARS``); the positions, their largest
-   difference from
-   *today*'s, the σ ratio to *today*'s central σ; the yardstick: every range gathered at one anchor
+   full in float64, float64 CG scalars, the central σ by CG to ``1e-10``, every re-fit from offset 0 and the initial
+   damping), *today* (the defaults at the start of the fourth session: each neighbour's product per link, CG
+   stopped on ``rᵀz``, trials as float32 steps, a round's totals in float32, the seed fits at their stage
+   tolerances, the σ gathered at one anchor; every exclusion re-fit at the solver's tolerances from offset 0 and
+   the initial damping) and *after* (the defaults: the exclusion loop's re-fits stopped at 1 cm and decided with
+   a margin, one full fit at its end, ``field_fits.REFIT_STAGES``; every warm fit from the last fit's common
+   offset, ``field_fits.CARRY_OFFSET``, and final damping, ``field_fits.CARRY_DAMPING``); the positions, their
+   largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
    of that gather over the range graph (:func:`distnav.network.gather.gather_cost`). Per anchor: what each
    anchor's broadcasts and the gathered σ's tree sent, the reductions spread evenly (2 messages per anchor and
@@ -30,6 +30,12 @@ and how both grow with the network.
    sends less than the busiest relay of the gather. The reductions' tree is a BFS tree from the graph's centre
    whose parents are balanced (:func:`_tree_sends`; ``*_bfs_tree``: scipy's BFS tree, whose root sends every
    total to each of its many children, as in the second session).
+3. **A whole solve against network size** (the halls of 2., from the same displaced start, ``uwb solve``'s
+   workflow with N-CLM: first fit, tightening, exclusion loop, per-anchor check, polish): the bytes each anchor
+   sends over all the fits (its broadcasts, and its messages up and down the balanced tree of 2. for every
+   network total of every fit) against the gather's busiest relay, and the number of fits; the σ after the fits
+   (gathered at one anchor up to :data:`GATHERED_SIGMA_MAX` anchors, the 2-hop sub-network σ above, to keep the
+   run short; its bytes in the total only: ``sigma_bytes``) and no reliability test (``reliability_limit_m=0``).
 
 Goals (issue 27): the 28-anchor hall's total bytes ≤ 100 × the gather, median per-anchor traffic ≤ 20 kB; at 10⁴
 anchors the busiest anchor below the busiest relay. Printed as one table; JSON in benchmarks/results/uwb_economy.json.
@@ -51,7 +57,6 @@ import distnav.models.uwb.field_fits as field_fits
 import distnav.models.uwb.field_precision as field_precision
 from _common import print_table, write_json
 from distnav.algorithms.ranging import csg, wire
-from distnav.algorithms.ranging import refine as ranging_refine
 from distnav.algorithms.ranging.covariance import COVARIANCE_CG_RTOL
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field
@@ -63,6 +68,9 @@ from distnav.network.graph import Graph
 HALL_SEED = [78, 0]
 SIZES = (100, 300, 1000, 3000, 10000)
 QUICK_SIZES = (100, 300)
+SOLVE_SIZES = (100, 300, 1000, 3000, 10000)  # section 3 (a whole solve: about 10 to 40 fits)
+GATHERED_SIGMA_MAX = 3000
+QUICK_SOLVE_SIZES = (100,)
 RECORD_BYTES = 16  # two int32 ids + one float64 range (models/uwb/communication.py)
 GOAL_RATIO = 100.0
 GOAL_MEDIAN_BYTES = 20_000
@@ -76,12 +84,13 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (field_precision, "ECONOMY_CG_RTOL"): COVARIANCE_CG_RTOL,
         (wire, "PLAIN"): True,
         (wire, "CG_SCALAR_DTYPE"): np.float64,
+        (field_fits, "CARRY_OFFSET"): False,
+        (field_fits, "CARRY_DAMPING"): False,
     },
     "today": {
-        (wire, "PROJECTED"): False,
-        (wire, "STEPS"): False,
-        (ranging_refine, "PRECONDITIONED_STOP"): False,
-        (ranging_refine, "ROUND_SCALARS"): False,
+        (field_fits, "REFIT_STAGES"): (),
+        (field_fits, "CARRY_OFFSET"): False,
+        (field_fits, "CARRY_DAMPING"): False,
     },
     "after": {},
 }
@@ -157,6 +166,7 @@ def _hall_rows() -> list[dict[str, Any]]:
 
 
 _SENT: list[np.ndarray] = []
+_FITS: list[tuple[np.ndarray, float]] = []  # every distributed fit's bytes per anchor and reduced bytes (section 3)
 
 
 def _per_anchor_bytes(sub: Any, sol: Any) -> np.ndarray:
@@ -164,6 +174,7 @@ def _per_anchor_bytes(sub: Any, sol: Any) -> np.ndarray:
     :func:`_counting`); the central σ's reductions are spread evenly (they are spanning-tree sums)."""
     sent = np.sum(_SENT, axis=0) if _SENT else np.zeros(sub.n_anchors)
     _SENT.clear()
+    _FITS.clear()
     extra = sol.bytes - float(np.sum(sent))
     return np.asarray(sent + extra / sub.n_anchors)
 
@@ -177,6 +188,8 @@ def _counting() -> None:
         r = solve(*args, **kw)
         if r.comm is not None and r.comm.bytes_sent.size:
             _SENT.append(np.asarray(r.comm.bytes_sent, float))
+            reduced = float((r.settings.get("refine") or {}).get("reduction_bytes", 0))
+            _FITS.append((np.asarray(r.comm.bytes_sent, float), reduced))
         return r
 
     def counted_central(*args: Any, **kw: Any) -> Any:
@@ -232,13 +245,20 @@ def _tree_sends(graph: Graph, balanced: bool = True) -> np.ndarray:
     return np.asarray(children + (np.arange(graph.n_nodes) != root), float)
 
 
-def _scaling_row(n: int) -> dict[str, Any]:
+def _scaled_hall(n: int) -> tuple[Any, np.ndarray]:
+    """The hall of ``n`` anchors at the plant's density (sections 2 and 3) and the start: the truth displaced by
+    N(0, 0.2 m)."""
     scale = np.sqrt(n / 28.0)
     cfg = HallConfig().with_(**{**PLANT_LIKE, "n_anchors": n, "length_m": 60.0 * scale, "width_m": 30.0 * scale})
     h = simulate_hall(np.random.default_rng([78, n]), cfg)
     p = hall_problem(h)[0]
     rng = np.random.default_rng([27, n])
     start = np.where(p.free, p.truth_m + rng.normal(0.0, 0.2, p.truth_m.shape), p.positions_m)
+    return p, start
+
+
+def _scaling_row(n: int) -> dict[str, Any]:
+    p, start = _scaled_hall(n)
     t0 = time.process_time()
     r = csg.solve(
         p.with_initial(start),
@@ -278,6 +298,45 @@ def _scaling_row(n: int) -> dict[str, Any]:
         "refine": r.settings.get("refine", {}),
         "status": r.status,
         "rmse_m": float(np.sqrt(np.mean(np.sum(d**2, axis=1)))),
+        "cpu_s": cpu,
+    }
+
+
+def _solve_row(n: int) -> dict[str, Any]:
+    """Section 3: a whole ``uwb solve`` workflow (N-CLM) on the hall of :func:`_scaling_row`, per-anchor bytes of
+    all its fits (broadcasts + balanced-tree messages of every fit's reductions) against the gather's busiest
+    relay."""
+    p, start = _scaled_hall(n)
+    _SENT.clear()
+    _FITS.clear()
+    t0 = time.process_time()
+    sigma = "gathered" if n <= GATHERED_SIGMA_MAX else "subnetwork"  # a dense σ of 2n unknowns up to there
+    opts = FieldOptions(solver="N-CLM", distributed_precision=sigma, reliability_limit_m=0.0)
+    sol = solve_field(p.with_initial(start), opts, geometry=None)
+    cpu = time.process_time() - t0
+    graph = Graph.from_links(p.n_anchors, p.links)
+    tree = _tree_sends(graph) / max(2 * (n - 1), 1)  # each anchor's share of one reduction's messages
+    sent = np.sum([b for b, _ in _FITS], axis=0) + tree * sum(r for _, r in _FITS)
+    fits = len(_FITS)
+    _SENT.clear()
+    _FITS.clear()
+    own = np.bincount(p.links.min(axis=1), minlength=p.n_anchors) * RECORD_BYTES
+    g = gather_cost(graph, own)
+    phases = sol.comm_phases
+    fit_bytes = sum(v["bytes"] for k, v in phases.items() if k not in ("precision", "reliability"))
+    return {
+        "name": f"whole solve, {n} anchors",
+        "n_anchors": n,
+        "fits": fits,
+        "bytes": sol.bytes,
+        "fit_bytes": fit_bytes,
+        "sigma_bytes": sol.bytes - fit_bytes,
+        "busiest_anchor_bytes": float(sent.max()),
+        "median_anchor_bytes": float(np.median(sent)),
+        "gather_busiest_relay_bytes": g.busiest_relay_bytes,
+        "busiest_vs_relay": float(sent.max()) / max(g.busiest_relay_bytes, 1),
+        "excluded_links": int(sol.excluded.sum()),
+        "status": sol.status,
         "cpu_s": cpu,
     }
 
@@ -333,7 +392,8 @@ def run(quick: bool, plot_path: Path | None = None) -> list[dict[str, Any]]:
         big["meets_goal"] = bool(big["busiest_vs_relay"] < 1.0)
     if plot_path is not None:
         plot(scaling, plot_path)
-    return rows + scaling
+    solves = [_solve_row(n) for n in (QUICK_SOLVE_SIZES if quick else SOLVE_SIZES)]
+    return rows + scaling + solves
 
 
 def main() -> None:

@@ -95,11 +95,12 @@ def test_consensus_rounds_from_time_scales():
     assert [consensus_rounds(60.0, d) for d in (15.0, 10.0, 5.0)] == [4, 6, 12]
     assert consensus_rounds(1.0, 0.3) == 3
     assert consensus_rounds(60.0, 60.0) == 1
-    with pytest.raises(ModelError, match="exceeds the sampling interval"):
+    # the messages name the arguments to change (issue 29), not only the paper's symbols
+    with pytest.raises(ModelError, match="sending_interval_s = 15.0 s .δ. exceeds sampling_interval_s = 10.0 s"):
         consensus_rounds(10.0, 15.0)
-    with pytest.raises(ModelError, match="sampling interval"):
+    with pytest.raises(ModelError, match="sampling_interval_s .the sampling interval Δ."):
         consensus_rounds(0.0, 1.0)
-    with pytest.raises(ModelError, match="sending interval"):
+    with pytest.raises(ModelError, match="sending_interval_s .the sending interval δ."):
         consensus_rounds(60.0, -5.0)
 
 

@@ -134,3 +134,19 @@ def test_offset_options_are_validated():
         solve(p, "CSG", iterations=2, objective="metres", range_offsets="per_anchor", offset_prior_sigma_m=0.0)
     with pytest.raises(ModelError, match="no range offsets"):
         solve_line_search_pair(p, iterations=2, objective="metres", range_offsets="common")
+
+
+def test_a_warm_fit_starts_from_the_carried_common_offset():
+    """``initial_offset_m`` (issue 27): N-CLM with no iterations and no LM phase returns its start (0.25 m on every
+    anchor; from none: 0); the LM phase from the carried offset and from 0 both end at LM's offset and positions
+    (the same fixed point, independently computed)."""
+    p = biased(hall(sigma_m=0.02), 0.3)
+    kw = {"objective": "metres", "sigma_m": SIGMA, "range_offsets": "common", "quality": False}
+    assert np.allclose(solve_nclm(p, iterations=0, refine=False, initial_offset_m=0.25, **kw).offsets_m, 0.25)
+    assert np.allclose(solve_nclm(p, iterations=0, refine=False, **kw).offsets_m, 0.0)
+    lm = solve_lm(p, objective="metres", sigma_m=SIGMA, range_offsets="common")
+    for start in (0.25, None):
+        r = solve_nclm(p, iterations=0, initial_offset_m=start, **kw)
+        assert r.status == "converged"
+        assert abs(r.offsets_m[0] - lm.offsets_m[0]) < 1e-3
+        assert np.max(np.abs(r.estimates - lm.estimates)) < 1e-3

@@ -92,3 +92,18 @@ def test_lazy_module_resolves_on_first_attribute() -> None:
         _ = mod.no_such_name
     with pytest.raises(AttributeError):
         _ = lazy("json").__wrapped__  # introspection of a dunder does not import
+
+
+def test_one_shared_lazy_scipy_sparse_for_every_layer() -> None:
+    """``distnav._optional.scipy_sparse`` is the one deferred scipy.sparse the network, exchange and ADMM modules
+    bind as ``sp``; once used it is the real module's namespace."""
+    import scipy.sparse
+
+    from distnav._optional import scipy_sparse
+    from distnav.algorithms.lsq import kernel
+    from distnav.exchange import mixer
+    from distnav.network import constraint_nodes, graph, weights
+
+    assert isinstance(scipy_sparse, LazyModule)
+    assert all(m.sp is scipy_sparse for m in (graph, weights, constraint_nodes, mixer, kernel))
+    assert scipy_sparse.csr_matrix is scipy.sparse.csr_matrix

@@ -277,3 +277,42 @@ def test_robust_w_tests_and_covariance_match_the_dense_formula(offsets):
     q_ref = np.diag(R @ R.T)[: p.n_meas]
     np.testing.assert_allclose(Q, Q_ref, rtol=1e-10, atol=1e-10 * np.abs(Q_ref).max())
     np.testing.assert_allclose(tests.w, r[: p.n_meas] / np.sqrt(q_ref), rtol=1e-10, atol=1e-10)
+
+
+def test_loose_refits_decide_only_with_a_margin_and_end_with_the_full_fit():
+    """exclude_links with ``loose`` (issue 27): the re-fits after an exclusion are the loose fit's; its choice is
+    taken where it is decided with the margin, otherwise (and at the loop's end) the full fit decides — the same
+    links are excluded as by the full fit alone, the loose fit's own order or threshold would have excluded others."""
+    p = _ring()
+    pair = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(p.meas_a, p.meas_b, strict=True))}
+    w = np.zeros(p.n_meas)
+    w[pair[(0, 1)]], w[pair[(0, 2)]], w[pair[(4, 5)]], w[pair[(6, 7)]] = -9.0, -8.0, -7.0, -3.2
+    alone = exclude_links(p, _Scripted(p, w))[2].removed
+    assert alone == (pair[(0, 1)], pair[(0, 2)], pair[(4, 5)])
+    # loose |w| far from each other and from 3.29: every choice decided loose
+    near = w.copy()
+    near[pair[(0, 2)]], near[pair[(4, 5)]], near[pair[(6, 7)]] = -7.95, -7.05, -2.0
+    full, loose = _Scripted(p, w), _Scripted(p, near)
+    assert exclude_links(p, full, loose=[(loose, 0.1)])[2].removed == alone
+    assert (full.calls, loose.calls) == (2, 3)  # the first fit and the end; three loose re-fits
+    # the loose fit ranks N4-N5 above N0-N2 (0.05 apart) and reads N6-N7 flagged (3.35, 0.06 above 3.29)
+    swapped = w.copy()
+    swapped[pair[(0, 2)]], swapped[pair[(4, 5)]], swapped[pair[(6, 7)]] = -7.0, -7.05, -3.35
+    with_margin = exclude_links(p, _Scripted(p, w), loose=[(_Scripted(p, swapped), 0.1)])[2].removed
+    assert with_margin == alone
+    without = exclude_links(p, _Scripted(p, w), loose=[(_Scripted(p, swapped), 0.0)])[2].removed
+    assert pair[(6, 7)] in without and without != alone  # what the margin prevents
+
+
+def test_decided_swaps_only_what_changes_the_choice():
+    """_decided: two close links of one anchor (only one can go per round) are undecided; two close links of
+    different anchors both go whatever their order (decided); a |w| within the margin of the critical value is
+    undecided."""
+    from distnav.algorithms.ranging.qc import _decided
+
+    a, b = np.array([0, 0, 4]), np.array([1, 2, 5])
+    assert not _decided(6, np.array([7.0, 7.05, 5.0]), (a, b), 3, 3.29, 0.1)
+    assert _decided(6, np.array([7.0, 5.0, 7.05]), (a, b), 3, 3.29, 0.1)
+    assert _decided(6, np.array([7.0, 6.0, 5.0]), (a, b), 3, 3.29, 0.1)
+    assert not _decided(6, np.array([7.0, 6.0, 3.3]), (a, b), 3, 3.29, 0.1)
+    assert not _decided(6, np.array([7.0, 5.0, 7.05]), (a, b), 1, 3.29, 0.1)  # the cap of 1: the order decides

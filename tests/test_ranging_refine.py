@@ -127,3 +127,22 @@ def test_paper_mode_and_squared_objective_do_not_refine():
     for kw in ({"objective": "metres", "sigma_m": 0.1, "stop": None}, {"objective": "squared"}):
         res = solve(p, "N-CLM", iterations=30, **kw)
         assert "refine" not in res.settings and "distributed LM" not in res.message
+
+
+def test_the_lm_phase_reports_its_final_damping_and_starts_from_a_given_one():
+    """``settings["refine"]["mu"]`` is the phase's damping at the end (divided by 3 per accepted step from MU0);
+    ``refine_mu0`` starts it there: from the truth's neighbourhood both reach LM's solution (issue 27)."""
+    from distnav.algorithms.ranging.csg import solve_nclm
+    from distnav.algorithms.ranging.lm import solve_lm
+    from distnav.algorithms.ranging.refine import MU0
+    from test_csg_metres import hall
+
+    p = hall(sigma_m=0.02)
+    lm = solve_lm(p, objective="metres", sigma_m=0.1)
+    a = solve_nclm(p, iterations=0, objective="metres", sigma_m=0.1, quality=False)
+    mu = a.settings["refine"]["mu"]
+    assert 0 < mu < MU0
+    b = solve_nclm(p, iterations=0, objective="metres", sigma_m=0.1, quality=False, refine_mu0=mu)
+    for r in (a, b):
+        assert r.status == "converged" and np.max(np.abs(r.estimates - lm.estimates)) < 1e-3
+    assert b.settings["refine"]["mu"] < mu

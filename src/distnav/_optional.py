@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import importlib
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 from distnav.errors import MissingExtraError
+
+__all__ = ["DISTRIBUTION", "EXTRAS", "LazyModule", "install_hint", "lazy", "require", "scipy_sparse"]
 
 DISTRIBUTION = "distnav-estimation"
 """The name distnav is installed under (``pip install .`` in a clone, or the wheel ``python -m build`` makes); the
@@ -67,3 +70,9 @@ class LazyModule(ModuleType):
 def lazy(name: str) -> ModuleType:
     """A :class:`LazyModule` for ``name`` (imported on first attribute access)."""
     return LazyModule(name)
+
+
+if TYPE_CHECKING:
+    import scipy.sparse as scipy_sparse
+else:  # imported on first use (start-up of an MPI job): one lazy module for every layer that builds sparse matrices
+    scipy_sparse = lazy("scipy.sparse")

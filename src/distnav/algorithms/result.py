@@ -13,6 +13,7 @@ from distnav.exchange.core import CommTotals
 from distnav.typing import ArrayLike
 
 if TYPE_CHECKING:
+    from distnav.exchange.base import Exchange
     from distnav.network.gather import GatherCost
     from distnav.network.graph import Graph
 
@@ -27,6 +28,7 @@ __all__ = [
     "SOLVER_STATUSES",
     "SolverResult",
     "SolverStatus",
+    "stopping_fields",
     "Trace",
     "TraceBuilder",
 ]
@@ -109,6 +111,29 @@ class Precision:
     kind: Literal["exact", "bound", "centralized", "conditional", "neighbourhood", "central"]
     iterations: int = 0
     comm: CommTotals | None = None
+
+    @classmethod
+    def gathered(
+        cls,
+        ex: Exchange,
+        blocks: np.ndarray,
+        before: CommTotals,
+        *,
+        variance_factor: float | None,
+        redundancy: float,
+        kind: Literal["exact", "bound", "conditional", "neighbourhood", "central"],
+        iterations: int,
+    ) -> Precision:
+        """A distributed precision: every node's covariance block (``blocks``, the exchange's local rows) gathered
+        for the result, and what the exchange ``ex`` cost since the snapshot ``before``."""
+        return cls(
+            covariance=ex.gather_nodes(blocks),
+            variance_factor=variance_factor,
+            redundancy=redundancy,
+            kind=kind,
+            iterations=iterations,
+            comm=ex.comm_totals().since(before),
+        )
 
     def std(self, *, a_posteriori: bool = False) -> np.ndarray:
         """Standard deviations ``(n_nodes, p)`` from the covariance diagonal (a-posteriori: × σ̂)."""
@@ -211,6 +236,22 @@ class SolverResult:
         """JSON-friendly summary (no large arrays)."""
         plain = {name: getattr(self, name) for name in ("converged", "iterations", "status", "message")}
         return {**plain, "communication": self.comm.as_dict()}
+
+
+def stopping_fields(
+    converged: bool, iterations: int, message: str, trace: TraceBuilder, comm: CommTotals
+) -> dict[str, Any]:
+    """The :class:`SolverResult` fields but ``estimates`` of a run that stops at its tolerance (status
+    ``converged``) or else at its iteration limit (``max_iterations``), its trace built."""
+    status: SolverStatus = "converged" if converged else "max_iterations"
+    return {
+        "converged": converged,
+        "iterations": iterations,
+        "status": status,
+        "message": message,
+        "trace": trace.build(),
+        "comm": comm,
+    }
 
 
 def format_bytes(n_bytes: float) -> str:

@@ -173,21 +173,7 @@ def remaining_data(problem: RangingData, dead: int) -> RangingData:
     the demo and the benchmark)."""
     from distnav.algorithms.ranging.data import RangingData
 
-    keep = np.array([i for i in range(problem.n_anchors) if i != dead])
-    new = np.full(problem.n_anchors, -1)
-    new[keep] = np.arange(keep.size)
-    m = (problem.meas_a != dead) & (problem.meas_b != dead)
-    return RangingData(
-        ids=tuple(problem.ids[i] for i in keep),
-        dim=problem.dim,
-        positions_m=problem.positions_m[keep],
-        free=problem.free[keep],
-        meas_a=new[problem.meas_a[m]],
-        meas_b=new[problem.meas_b[m]],
-        range_m=problem.range_m[m],
-        truth_m=None if problem.truth_m is None else problem.truth_m[keep],
-        initial_m=None if problem.initial_m is None else problem.initial_m[keep],
-    )
+    return RangingData(dim=problem.dim, **problem.kept_arrays(np.arange(problem.n_anchors) != dead))
 
 
 def rinex_ckf_scenario(obs_files: list[Path], nav_file: Path, *, kn: int = 4) -> Scenario:

@@ -3,16 +3,10 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from distnav._optional import lazy
-
-if TYPE_CHECKING:
-    import scipy.sparse as sp
-else:  # imported on first use (start-up of an MPI job)
-    sp = lazy("scipy.sparse")
+from distnav._optional import scipy_sparse as sp
 
 __all__: list[str] = []
 

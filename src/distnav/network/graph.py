@@ -15,18 +15,13 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from distnav._checks import affordable_nodes, whole_number
-from distnav._optional import lazy
+from distnav._optional import scipy_sparse as sp
 from distnav.errors import GraphError
-
-if TYPE_CHECKING:
-    import scipy.sparse as sp
-else:  # imported on first use (start-up of an MPI job)
-    sp = lazy("scipy.sparse")
 
 __all__ = ["Graph", "SwitchingGraph"]
 

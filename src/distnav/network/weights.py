@@ -17,19 +17,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from distnav._optional import lazy
+from distnav._optional import scipy_sparse as sp
 from distnav.errors import WeightsError
 from distnav.network.graph import Graph
 from distnav.network.graph_part import GraphPart
-
-if TYPE_CHECKING:
-    import scipy.sparse as sp
-else:  # imported on first use (start-up of an MPI job)
-    sp = lazy("scipy.sparse")
 
 __all__ = [
     "ConsensusWeights",

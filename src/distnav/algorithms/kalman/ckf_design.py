@@ -23,11 +23,15 @@ def consensus_rounds(sampling_interval_s: float, sending_interval_s: float) -> i
 
     Δ = 60 s with δ = 15, 10, 5 s gives 4, 6, 12 (paper 003 §5.2).
     """
-    D = real_number(sampling_interval_s, "sampling interval Δ", positive=True, unit="s", error=ModelError)
-    d = real_number(sending_interval_s, "sending interval δ", positive=True, unit="s", error=ModelError)
+    D = real_number(
+        sampling_interval_s, "sampling_interval_s (the sampling interval Δ)", positive=True, unit="s", error=ModelError
+    )
+    d = real_number(
+        sending_interval_s, "sending_interval_s (the sending interval δ)", positive=True, unit="s", error=ModelError
+    )
     if d > D:
         raise ModelError(
-            f"sending interval δ = {d} s exceeds the sampling interval Δ = {D} s: no consensus round "
+            f"sending_interval_s = {d} s (δ) exceeds sampling_interval_s = {D} s (Δ): no consensus round "
             f"fits in an epoch (the CKF needs δ ≤ Δ, paper 003 §4.1)"
         )
     return int(math.floor(D / d + 1e-9))

@@ -9,6 +9,7 @@ runs a generator to the stopping rule and returns an :class:`AdmmResult`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol, get_args
@@ -17,9 +18,10 @@ import numpy as np
 
 from distnav._checks import check_field_types, real_number, whole_number
 from distnav._settings import option_names
+from distnav.algorithms.lsq.aggregated import _AggregatedKernel, rounds_on_graph
 from distnav.algorithms.lsq.blue import LinearProblem, inestimable_directions, weight_matrix
 from distnav.algorithms.lsq.kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
-from distnav.algorithms.lsq.xupdate import _diagonal_or_none
+from distnav.algorithms.lsq.xupdate import InLocalOrder, _diagonal_or_none, in_local_order
 from distnav.algorithms.result import ObservationTests, Precision, SolverResult, SolverStatus, TraceBuilder
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
@@ -261,10 +263,9 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
     if ex.graph.n_edges != graph.n_edges or ex.graph.n_nodes != graph.n_nodes:
         raise ModelError("the exchange was built on a different graph")
     x0, zz0 = initial_values(options.init, options.z0, graph.n_nodes, p)
-    local = problem.subset(ex.nodes)
-    count = C.per_node_count[ex.nodes].astype(float)
+    count = C.per_node_count.astype(float)
     c_weight = count if x_weight == "lagrangian" else np.ones_like(count)
-    xu = XUpdate(local, Wm, c_weight, options.x_update)
+    xu, local = _x_update(problem, ex, Wm, c_weight, options.x_update)
     if messages == "aggregated" and ex.faults.active:
         raise ModelError(
             "messages='aggregated' keeps multiplier sums that lost messages corrupt for good (the run "
@@ -273,21 +274,24 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
     if messages == "aggregated" and x_weight == "fig6-zweighted":
         raise ModelError("x_weight='fig6-zweighted' weights the z-update per pair: use messages='pairs'")
     _check_estimable(problem, local, ex, need_blocks=xu.method != "observation")
-    z_weight = 1.0 / C.per_node_count.astype(float) if x_weight == "fig6-zweighted" else None
-    kernel = _Kernel(ex, C, Wm, p, xu, z_weight=z_weight)
     u0 = options.multipliers
     if messages == "ternary" and ex.faults.active:
         raise ModelError(
             "messages='ternary' sends deltas against a copy both ends keep: a lost message desynchronizes them "
             "for good; use messages='pairs' with a fault schedule"
         )
+    kernel: _Kernel | None = None
     if messages in ("pairs", "ternary"):
+        z_weight = 1.0 / C.per_node_count.astype(float) if x_weight == "fig6-zweighted" else None
+        kernel = _Kernel(ex, C, Wm, p, xu, z_weight=z_weight)
         bits = TERNARY_BITS if messages == "ternary" else None
         states = kernel.run(x0[ex.nodes], zz0[ex.nodes], monitor_every, u0=u0, bits=bits)
     else:
         if u0 is not None:
             raise ModelError("multipliers can only be continued with messages='pairs'")
-        states = kernel.run_aggregated(x0[ex.nodes], zz0[ex.nodes], monitor_every)
+        x_loc, z_loc = x0[ex.nodes], zz0[ex.nodes]
+        del x0, zz0  # the kernel takes the block's rows over: no whole-size copy stays
+        states = _AggregatedKernel(ex, rounds_on_graph(ex, C), Wm, p, xu).run(x_loc, z_loc, monitor_every)
     return PreparedRun(
         states=states,
         exchange=ex,
@@ -296,8 +300,24 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
         x_update=xu.method,
         x_weight=x_weight,
         messages=messages,
-        kernel=kernel if messages in ("pairs", "ternary") else None,
+        kernel=kernel,
     )
+
+
+def _x_update(
+    problem: LinearProblem, ex: Exchange, W: np.ndarray, c: np.ndarray, method: XUpdateMethod
+) -> tuple[XUpdate | InLocalOrder, LinearProblem]:
+    """The block's x-update (``c``: every node's ``c_i`` weight) and the problem rows it reads. A block holding every
+    node (in-process) keeps the caller's problem in the caller's order — no permuted copy of ``A``, ``y``, ``R`` —
+    and the x-update moves ``l`` and ``x`` between the orders (:func:`~distnav.algorithms.lsq.xupdate.in_local_order`:
+    per-node arithmetic, so bitwise the same ``x``); a block of some nodes (MPI) holds its own rows."""
+    if ex.n_local == problem.n_nodes:
+        # the same arrays under a fresh cache: what the set-up derives (N_i, R_i⁻¹) goes with the run, not onto the
+        # caller's object
+        mine = dataclasses.replace(problem, _cache={})
+        return in_local_order(XUpdate(mine, W, c, method), ex.nodes), mine
+    local = problem.subset(ex.nodes)
+    return XUpdate(local, W, c[ex.nodes], method), local
 
 
 class StoppingRule(Protocol):

@@ -1,9 +1,9 @@
 """The Fig. 6 kernel of ADMM with constraint nodes (paper 000 §4) on one exchange block.
 
 :class:`XUpdate` is the linear x-update (eqs. (20)/(21)); :class:`AdmmState` what an iteration yields; the private
-``_Kernel`` runs the iterations as message rounds (per-pair messages exactly as Fig. 6, or aggregated ones) and
-holds the last value received on every edge when messages are lost. The x-update lives in
-:mod:`distnav.algorithms.lsq.xupdate` (re-exported here). The front doors are
+``_Kernel`` runs the iterations as message rounds with per-pair messages exactly as Fig. 6 and holds the last value
+received on every edge when messages are lost (aggregated messages: :mod:`distnav.algorithms.lsq.aggregated`). The
+x-update lives in :mod:`distnav.algorithms.lsq.xupdate` (re-exported here). The front doors are
 :func:`distnav.algorithms.lsq.admm.admm` and :func:`~distnav.algorithms.lsq.admm.iterate_admm`; the module docstring of
 :mod:`distnav.algorithms.lsq.admm` describes the iteration and the weighting of the x-update.
 """
@@ -12,12 +12,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from distnav._optional import lazy
+from distnav._optional import scipy_sparse as sp
 from distnav.algorithms.lsq.delta_codec import DeltaCodec
 from distnav.algorithms.lsq.xupdate import XUpdate, XUpdateMethod
 from distnav.errors import ModelError
@@ -25,11 +24,7 @@ from distnav.exchange import Exchange
 from distnav.network.constraint_nodes import ConstraintNodes
 
 if TYPE_CHECKING:
-    import scipy.sparse as sp
-
     from distnav.exchange.route import Route
-else:  # imported on first use (start-up of an MPI job)
-    sp = lazy("scipy.sparse")
 
 __all__ = ["AdmmState", "Multipliers", "XUpdate", "XUpdateMethod"]
 
@@ -283,127 +278,11 @@ class _Kernel:
         u, u_self = self._u
         return Multipliers(u.copy(), u_self.copy())
 
-    def run_aggregated(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int) -> Iterator[AdmmState]:
-        """Fig. 6 with aggregated messages: node ``i`` broadcasts ``x_i`` to its constraint neighbours instead of
-        ``z_{i,s} = x_i + u_{i,s}`` per pair, and keeps only ``U_i = Σ_s u_{i,s}``; constraint node ``s`` keeps
-        ``V_s = Σ_{i∈N_s} u_{i,s}``. Since ``Σ_i z_{i,s} = Σ_i x_i + V_s``, the iterates equal those of
-        :meth:`run` in exact arithmetic (and ``V_s = 0`` after the first iteration, Boyd et al. 2011 §7.1).
-
-        Without faults a round whose receiver only needs the *sum* of its messages is a fused mixer round
-        (``ex.mixer`` with 0/1 weights: one sparse product); monitored iterations send the x-round as a broadcast
-        so each constraint node can form its exact pair residuals ``‖x_i − z_s‖``.
-        """
-        from distnav.network.weights import ConsensusWeights
-
-        ex = self.ex
-        g = ex.graph
-        fused = not ex.faults.active
-        if fused:
-            inC_f = self.inC_global.astype(float)
-            mix_x = ex.mixer(ConsensusWeights(g, self.to_c.astype(float), inC_f, name="sum into C"), active=self.to_c)
-            mix_z = ex.mixer(
-                ConsensusWeights(g, self.from_c.astype(float), inC_f, name="sum from C"), active=self.from_c
-            )
-        cm = self.inC_loc[:, None].astype(float)
-        inv_count = 1.0 / self.count[:, None]
-        inv_size = cm / self.size_s[:, None]
-        cnt = self.count[:, None].astype(float)
-        size = self.size_s[:, None]
-        x = x0.copy()
-        z = z0 * cm
-        held_x = _Held(ex.in_edges.size, self.p)
-        held_z = _Held(ex.in_edges.size, self.p)
-
-        def x_round(x: np.ndarray, monitored: bool, fill: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-            if fused and not monitored:
-                return mix_x.apply(x), None
-            inbox = ex.broadcast(x, active=self.to_c)
-            vals = held_x.update(inbox.values, inbox.delivered, self.ic, fill=fill)
-            out = self.S_c_in @ vals
-            out += x * cm
-            return out, vals
-
-        def z_round(z: np.ndarray, fill: np.ndarray | None) -> np.ndarray:
-            if fused:
-                return mix_z.apply(z)
-            inbox = ex.broadcast(z, active=self.from_c)
-            vals = held_z.update(inbox.values, inbox.delivered, self.ip, fill=fill)
-            out: np.ndarray = self.S_pairs_in @ vals
-            out += z
-            return out
-
-        # initialization rounds: z_s^[0] from constraint nodes, x_i^[0] to constraint nodes
-        zsum = z_round(z, fill=x[ex.in_dst])
-        xsum, xvals = x_round(x, True, fill=z[ex.in_dst])
-        U = np.zeros_like(x)
-        V = (xsum - size * z) * cm  # Σ_i u^[0]_{i,s} with u^[−1] = 0
-        yield self._state_agg(0, x, z, xvals, np.zeros_like(z), U + cnt * x - zsum)
-        k = 0
-        while True:
-            k += 1
-            monitored = bool(monitor_every) and k % monitor_every == 0
-            U += cnt * x - zsum  # Σ_s of the u-updates
-            l = (zsum - U) * inv_count
-            x = self.x_update(l, x)
-            xsum, xvals = x_round(x, monitored, None)
-            z_new = (xsum + V) * inv_size
-            V += (xsum - size * z_new) * cm
-            dz = z_new - z
-            z = z_new
-            zsum = z_round(z, None)
-            if monitored:
-                yield self._state_agg(k, x, z, xvals, dz, U + cnt * x - zsum)
-            else:
-                yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
-
-    @cached_property
-    def ic(self) -> np.ndarray:
-        """The aggregated form's in-edge rows at constraint nodes (``i→s``, ``s ∈ C``)."""
-        ex = self.ex
-        return np.flatnonzero(self.inC_loc[ex.in_dst] & (ex.in_src != ex.nodes[ex.in_dst]))
-
-    @cached_property
-    def S_c_in(self) -> sp.csr_matrix:
-        """Sum over the in-edges ``i→s`` at each constraint node (full-length inbox, aggregated form)."""
-        ex = self.ex
-        return sp.csr_matrix(
-            (np.ones(self.ic.size), (ex.in_dst[self.ic], self.ic)), shape=(ex.n_local, ex.in_edges.size)
-        )
-
-    @cached_property
-    def S_pairs_in(self) -> sp.csr_matrix:
-        """Sum over the pair in-edges ``s→i`` at each node (full-length inbox, aggregated form)."""
-        ex = self.ex
-        return sp.csr_matrix((np.ones(self.ip.size), (self.pair_dst, self.ip)), shape=(ex.n_local, ex.in_edges.size))
-
-    def _state_agg(
-        self, k: int, x: np.ndarray, z: np.ndarray, xvals: np.ndarray | None, dz: np.ndarray, U_next: np.ndarray
-    ) -> AdmmState:
-        assert xvals is not None
-        d = xvals[self.ic] - z[self.ex.in_dst[self.ic]]  # at constraint node s: x_i − z_s for i ∈ N_s
-        ds = (x - z) * self.inC_loc[:, None]
-        WU = self._times_W(U_next)
-        sums = np.array(
-            [
-                np.einsum("ij,ij->", d, d) + np.einsum("ij,ij->", ds, ds),
-                self._dual_sq(dz),
-                np.einsum("i,ij,ij->", self.count_f, x, x),
-                np.einsum("i,ij,ij->", self.size_c, z, z),
-                np.einsum("ij,ij->", WU, WU),
-            ]
-        )
-        tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
-        return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
-
     def _dual_sq(self, dz: np.ndarray) -> float:
-        """``Σ_pairs ‖W (z_s^[k] − z_s^[k−1])‖²`` (every constraint node ``s`` is in ``|N_s|`` pairs)."""
-        if self.w_iso is not None:
-            return float(self.w_scale**2 * np.einsum("i,ij,ij->", self.size_c, dz, dz))
-        Wdz = self._times_W(dz)
-        return float(np.einsum("i,ij,ij->", self.size_c, Wdz, Wdz))
+        return _dual_sq(dz, self.size_c, self.W, self.w_iso, self.w_scale)
 
     def _times_W(self, a: np.ndarray) -> np.ndarray:
-        return a * self.w_iso if self.w_iso is not None else np.einsum("ij,jk->ik", a, self.W)
+        return _times_W(a, self.W, self.w_iso)
 
     def _state(
         self,
@@ -435,6 +314,18 @@ class _Kernel:
         )
         tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
         return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
+
+
+def _dual_sq(dz: np.ndarray, size_c: np.ndarray, W: np.ndarray, w_iso: float | None, w_scale: float) -> float:
+    """``Σ_pairs ‖W (z_s^[k] − z_s^[k−1])‖²`` (every constraint node ``s`` is in ``|N_s|`` pairs: ``size_c``)."""
+    if w_iso is not None:
+        return float(w_scale**2 * np.einsum("i,ij,ij->", size_c, dz, dz))
+    Wdz = _times_W(dz, W, w_iso)
+    return float(np.einsum("i,ij,ij->", size_c, Wdz, Wdz))
+
+
+def _times_W(a: np.ndarray, W: np.ndarray, w_iso: float | None) -> np.ndarray:
+    return a * w_iso if w_iso is not None else np.einsum("ij,jk->ik", a, W)
 
 
 def _index_dtype(size: int) -> type[np.signedinteger[Any]]:
@@ -472,32 +363,6 @@ def _take(a: np.ndarray, index: np.ndarray, out: np.ndarray | None = None) -> np
 
 def _sq_rows(a: np.ndarray) -> float:
     return float(np.einsum("ij,ij->", a, a))
-
-
-class _Held:
-    """Last value received on each incoming edge: a dropped message is replaced by the previous one.
-
-    Without drops the inbox array is used as is (no copy); the first drop switches to a private copy.
-    """
-
-    def __init__(self, n_in: int, p: int) -> None:
-        self.prev: np.ndarray | None = None
-        self.own = False
-        self.shape = (n_in, p)
-
-    def update(self, values: np.ndarray, delivered: np.ndarray, pos: np.ndarray, fill: np.ndarray | None) -> np.ndarray:
-        ok = delivered[pos]
-        if not self.own and ok.all():
-            self.prev = values
-            return values
-        if not self.own:
-            base = self.prev if self.prev is not None else (fill if fill is not None else np.zeros(self.shape))
-            self.prev = np.array(base, dtype=float)
-            self.own = True
-        assert self.prev is not None
-        keep = pos[ok]
-        self.prev[keep] = values[keep]
-        return self.prev
 
 
 class _CodedRoutes:

@@ -38,7 +38,7 @@ from distnav.algorithms.ranging.neighbourhoods import (
 from distnav.algorithms.ranging.objective import range_sigma
 from distnav.algorithms.ranging.options import CsgOptions, NclmOptions, NcsgOptions, NeighbourhoodOptions, RunOptions
 from distnav.algorithms.ranging.qc import distributed_quality
-from distnav.algorithms.ranging.refine import refine_state
+from distnav.algorithms.ranging.refine import MU0, refine_state
 from distnav.algorithms.ranging.stop import StopRule
 from distnav.algorithms.ranging.wire import comm_mark, comm_phases, reduction_cost
 from distnav.algorithms.result import SolverStatus, Trace
@@ -229,6 +229,7 @@ def _refine_phase(
             offset_prior_sigma_m=setup.o.offset_prior_sigma_m,
             ftol=rule.phase_tolerances[0],
             xtol_m=rule.phase_tolerances[1],
+            mu0=MU0 if setup.o.refine_mu0 is None else setup.o.refine_mu0,
         )
     except ModelError as err:  # e.g. a lost message: the refinement needs every link each round
         out.note(f"no distributed LM phase ({err})")
@@ -242,15 +243,16 @@ def _refine_phase(
         f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations"
     )
     out.marks["refine"] = comm_mark(ex)
-    cost = reduction_cost(problem.n_anchors, ref.reductions, ref.reduced_bytes)
+    cost = reduction_cost(problem.n_anchors, ref.reduced.count, ref.reduced.bytes)
     out.settings = {
         **out.settings,
         "refine": {
             "rounds": ref.rounds,
             "cg_iterations": ref.cg_iterations,
-            "reductions": ref.reductions,
+            "reductions": ref.reduced.count,
             **dict(zip(("reduction_messages", "reduction_bytes"), cost, strict=True)),
             "status": ref.status,
+            "mu": ref.mu,
         },
     }
 

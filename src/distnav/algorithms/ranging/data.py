@@ -93,6 +93,25 @@ class RangingData:
     def range_sq(self) -> np.ndarray:
         return np.asarray(self.range_m**2)
 
+    def kept_arrays(self, keep: np.ndarray) -> dict[str, Any]:
+        """The anchor and range arrays of the anchors where the boolean mask ``keep`` is True: their rows, and the
+        range samples between two kept anchors with their ends renumbered in the kept order (the fields of a
+        sub-problem; ``dim`` and any subclass fields are the caller's)."""
+        idx = np.flatnonzero(keep)
+        new = np.full(self.n_anchors, -1, np.int64)
+        new[idx] = np.arange(idx.size)
+        m = keep[self.meas_a] & keep[self.meas_b]
+        return {
+            "ids": tuple(self.ids[i] for i in idx),
+            "positions_m": self.positions_m[idx],
+            "free": self.free[idx],
+            "meas_a": new[self.meas_a[m]],
+            "meas_b": new[self.meas_b[m]],
+            "range_m": self.range_m[m],
+            "truth_m": None if self.truth_m is None else self.truth_m[idx],
+            "initial_m": None if self.initial_m is None else self.initial_m[idx],
+        }
+
     # ------------------------------------------------------------------ x <-> positions
     @cached_property
     def _col(self) -> np.ndarray:

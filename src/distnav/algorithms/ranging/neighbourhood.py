@@ -87,7 +87,7 @@ def iterate_neighbourhood(
     nb = plan.nb
     mode = o.range_offsets
     if mode != "none":
-        off = NeighbourhoodOffsets(nb, mode, float(o.offset_prior_sigma_m))
+        off = NeighbourhoodOffsets(nb, mode, float(o.offset_prior_sigma_m), o.initial_offset_m or 0.0)
         yield from loop_with_offsets(plan, off, P, step, np.full(nb.nl, 2.0))
         return
     diff, g = nb.geometry(P)

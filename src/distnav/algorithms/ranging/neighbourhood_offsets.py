@@ -56,8 +56,8 @@ __all__ = [
 class NeighbourhoodOffsets:
     """The offsets every anchor of one block holds, ``B (n_local, K)`` in the slots of its neighbourhood vector."""
 
-    def __init__(self, nb: Neighbourhoods, mode: str, prior_sigma_m: float) -> None:
-        self.nb, self.mode = nb, mode
+    def __init__(self, nb: Neighbourhoods, mode: str, prior_sigma_m: float, start_m: float = 0.0) -> None:
+        self.nb, self.mode, self.start_m = nb, mode, start_m  # start_m: the common offset's (a warm re-fit's)
         self.per_anchor = mode == "per_anchor"
         self.prior_w = 2.0 / prior_sigma_m**2 if self.per_anchor else 0.0  # weight of b_i² in f⁽ⁱ⁾ (see above)
         self.flat_self = nb.h_own * nb.K
@@ -67,7 +67,10 @@ class NeighbourhoodOffsets:
         self.step_ratio = info / np.maximum(info + self.prior_w, 1e-300)  # offset step / position step
 
     def initial(self) -> np.ndarray:
-        return np.zeros((self.nb.nl, self.nb.K))
+        B = np.zeros((self.nb.nl, self.nb.K))
+        if not self.per_anchor:
+            B[:, 0] = self.start_m
+        return B
 
     def half(self, B: np.ndarray) -> np.ndarray:
         """``b_l`` of every half-measurement as its holder sees it."""

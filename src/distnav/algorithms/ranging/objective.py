@@ -39,6 +39,19 @@ def range_sigma(problem: RangingData, sigma_m: float | np.ndarray) -> np.ndarray
     return s
 
 
+def check_sigma(objective: str, sigma_m: float | np.ndarray) -> None:
+    """Refuse a ``sigma_m`` that is not finite and positive, and one given with the squared objective, which
+    weights every range alike (paper 002 eq. (2)) and would ignore it silently."""
+    s = real_array(sigma_m, "sigma_m", error=ModelError)
+    if not np.all(np.isfinite(s)) or np.any(s <= 0):
+        raise ModelError(f"sigma_m must be finite and positive (one value or one per range sample), got {sigma_m!r}")
+    if objective == "squared" and not (s.ndim == 0 and float(s) == 1.0):
+        raise ModelError(
+            f"sigma_m={sigma_m!r} is used by objective='metres' only: the squared objective (paper 002 eq. (2)) "
+            f"weights every range alike; pass objective='metres' to weight the ranges by their σ"
+        )
+
+
 def check_fit(objective: str, range_offsets: str, offset_prior_sigma_m: float) -> None:
     """Refuse by name an unknown objective or offset mode, offsets with the squared objective and a non-positive
     prior σ of per-anchor offsets (every ranging front door's fit: LM's and the distributed solvers')."""
@@ -77,6 +90,7 @@ class FitOptions:
 
     def __post_init__(self) -> None:
         check_fit(self.objective, self.range_offsets, self.offset_prior_sigma_m)
+        check_sigma(self.objective, self.sigma_m)
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,6 +105,7 @@ class RangeObjective:
 
     def __post_init__(self) -> None:
         check_fit(self.kind, self.offsets, self.offset_prior_sigma_m)
+        check_sigma(self.kind, self.sigma_m)
 
     @cached_property
     def sigma(self) -> np.ndarray:

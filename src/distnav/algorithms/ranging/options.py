@@ -57,6 +57,8 @@ class RunOptions(FitOptions):
       (0: start and end only).
     - ``stop`` (``StopRule()``; None runs all ``iterations`` as the paper): the stopping rule.
     - ``refine`` (None: with the metres objective and a stopping rule): a final distributed LM phase.
+    - ``refine_mu0`` (None: ``refine.MU0``): that phase's initial Marquardt damping (a warm re-fit: the last fit's
+      final one, ``settings["refine"]["mu"]``, issue 27).
     - ``test_scale`` also ``"local"`` (each anchor's own scale) beside the centralized scales.
     """
 
@@ -66,9 +68,11 @@ class RunOptions(FitOptions):
     monitor_every: int = 1
     stop: StopRule | None = StopRule()
     refine: bool | None = None
+    refine_mu0: float | None = None
 
     def __post_init__(self) -> None:
         check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
+        _positive(refine_mu0=self.refine_mu0)
         if self.monitor_every < 0:
             raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
         if self.test_scale not in DISTRIBUTED_TEST_SCALES:
@@ -106,11 +110,14 @@ class NeighbourhoodOptions(RunOptions):
     - ``loss_scale_m`` (0.3): the range error where the loss bends, metres.
     - ``graduated`` (None: a quarter of ``iterations`` for metres with a robust loss, else 0): iterations with the
       linear loss before the robust one.
+    - ``initial_offset_m`` (None: 0): the common range offset's start, metres (``range_offsets="common"``; a warm
+      re-fit carries the last fit's, which every anchor holds: issue 27).
     """
 
     loss: str = "linear"
     loss_scale_m: float = 0.3
     graduated: int | None = None
+    initial_offset_m: float | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -118,6 +125,10 @@ class NeighbourhoodOptions(RunOptions):
             raise ModelError(f"unknown loss {self.loss!r}; choose one of {', '.join(LOSSES)}")
         if self.graduated is not None and self.graduated < 0:
             raise ModelError(f"graduated must be ≥ 0 iterations, got {self.graduated}")
+        if self.initial_offset_m is not None and self.range_offsets != "common":
+            raise ModelError(
+                f"initial_offset_m is the common offset's start, not for range_offsets={self.range_offsets!r}"
+            )
 
     def graduated_iterations(self) -> int:
         """``graduated``, or its default."""

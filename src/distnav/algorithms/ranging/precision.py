@@ -200,13 +200,9 @@ def neighbourhood_precision(
     w, r = lk.w, lk.r
     wssr = float(ex.allreduce(float(np.sum(w * r * r)), "sum")) / 2.0  # every sample is held twice
     m_red = float(max(problem.n_meas - problem.n_free, 0))
-    precision = Precision(
-        covariance=ex.gather_nodes(cov),
-        variance_factor=variance_factor(wssr, m_red),
-        redundancy=m_red,
-        kind="neighbourhood",
-        iterations=done + 1,
-        comm=ex.comm_totals().since(before),
+    vf = variance_factor(wssr, m_red)
+    precision = Precision.gathered(
+        ex, cov, before, variance_factor=vf, redundancy=m_red, kind="neighbourhood", iterations=done + 1
     )
     return NeighbourhoodPrecision(
         precision=precision,

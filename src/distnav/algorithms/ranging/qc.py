@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -265,6 +265,7 @@ def exclude_links(
     max_exclusions: int | None = None,
     one_sided: bool = False,
     per_round: int | None = 1,
+    loose: Sequence[tuple[Callable[[RangingData], RangingResult], float]] = (),
 ) -> tuple[RangingResult, RangingData, ObservationTests]:
     """Iterative exclusion: while a link is flagged, remove the link (all its samples) with the largest |w| whose
     two anchors keep more links than free coordinates (the network stays determined with a check), and re-fit.
@@ -279,6 +280,14 @@ def exclude_links(
     inflates the residuals of the other links of its anchors most (swamping), so links of one anchor are
     removed one per re-fit; links of different anchors together.
 
+    ``loose`` (issue 27): fits stopped early, loosest first, each with its margin ``(fit, margin_w)``. The re-fit
+    after an exclusion is the first; its choice is taken only where it is **decided with its margin**: no eligible
+    link's |w| within ``margin_w`` of the critical value and no two links whose |w| are within ``2 · margin_w``
+    of each other chosen differently in the other order (:func:`_decided`). Otherwise, and when it would end the
+    loop, the next fit continues from its solution (the caller's fits start from the last one) and decides, the
+    last being ``fit`` (no margin): the loop ends with ``fit``'s answer and tests, and excludes what ``fit``
+    alone would have excluded wherever each margin bounds the change of |w| up to ``fit``'s solution.
+
     ``fit(subproblem)`` solves a problem and returns a result with ``tests`` (LM with QC, or a distributed solver).
     Returns ``(final result, the problem without the excluded links, tests)`` where the tests hold the final
     ``w`` of every original sample (NaN for excluded ones), ``flagged`` in the final solution and ``removed`` =
@@ -286,59 +295,94 @@ def exclude_links(
     """
     keep = np.ones(problem.n_meas, bool)
     removed: list[int] = []
-    res = fit(problem)
+    ladder = [*loose, (fit, 0.0)]
+    res, level = fit(problem), len(ladder) - 1
     sub = problem
     limit = problem.n_meas if max_exclusions is None else int(max_exclusions)
     n_links = 0
     need = problem.free.sum(axis=1) + 1
-    while res.tests is not None and res.usable and n_links < limit:
-        t = res.tests
-        idx = np.flatnonzero(keep)
-        aw = np.where(np.isfinite(t.w) & ((t.w < 0) if one_sided else True), np.abs(t.w), -np.inf)
-        left = _links_left(problem, keep)
-        a, b = problem.meas_a[idx], problem.meas_b[idx]
-        ok = ((left[a] - 1 >= need[a]) | problem.fixed[a]) & ((left[b] - 1 >= need[b]) | problem.fixed[b])
-        aw = np.where(ok, aw, -np.inf)
-        if not aw.size or aw.max() <= t.critical_value:
-            break
+    while True:
         cap = min(limit - n_links, problem.n_meas if per_round is None else max(int(per_round), 1))
-        n_links += _exclude_round(problem.n_anchors, aw, (a, b, idx), keep, removed, cap, t.critical_value)
+        usable = res.tests is not None and res.usable and cap > 0
+        aw, a, b, idx = _eligible(problem, res.tests, keep, need, one_sided) if usable else (np.zeros(0),) * 4
+        crit = float(res.tests.critical_value) if usable and res.tests is not None else 0.0
+        picks = _round_picks(problem.n_anchors, aw, a, b, cap, crit)
+        margin = ladder[level][1]
+        if level < len(ladder) - 1 and (not picks or not _decided(problem.n_anchors, aw, (a, b), cap, crit, margin)):
+            level += 1  # undecided, or the loop's end: a tighter fit from this solution decides
+            res = ladder[level][0](sub)
+            continue
+        if not picks:
+            break
+        for worst in picks:
+            lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
+            same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
+            keep[same] = False
+            removed.extend(int(s) for s in same)
+        n_links += len(picks)
         sub = dataclasses.replace(
             problem, meas_a=problem.meas_a[keep], meas_b=problem.meas_b[keep], range_m=problem.range_m[keep]
         )
-        res = fit(sub)
+        level = 0
+        res = ladder[0][0](sub)
     if res.tests is None:
         raise ModelError("exclude_links needs a fit that returns per-link tests (result.tests)")
     return res, sub, _all_sample_tests(problem, res.tests, keep, removed)
 
 
-def _exclude_round(
-    n_anchors: int,
-    aw: np.ndarray,
-    samples: tuple[np.ndarray, np.ndarray, np.ndarray],
-    keep: np.ndarray,
-    removed: list[int],
-    cap: int,
-    critical: float,
-) -> int:
-    """One round of :func:`exclude_links`: up to ``cap`` flagged links in order of ``aw`` (|w| of the kept samples
-    ``samples = (a, b, index)``, −inf where not allowed), no two sharing an anchor, all their samples taken out of
-    ``keep`` and appended to ``removed``. Returns the number of links excluded."""
-    a, b, idx = samples
+def _eligible(
+    problem: RangingData, t: ObservationTests | None, keep: np.ndarray, need: np.ndarray, one_sided: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """|w| of every kept sample (−inf where it may not be excluded: NaN, read short with ``one_sided``, or an end
+    left with no check), its anchors and its original index."""
+    assert t is not None
+    idx = np.flatnonzero(keep)
+    aw = np.where(np.isfinite(t.w) & ((t.w < 0) if one_sided else True), np.abs(t.w), -np.inf)
+    left = _links_left(problem, keep)
+    a, b = problem.meas_a[idx], problem.meas_b[idx]
+    ok = ((left[a] - 1 >= need[a]) | problem.fixed[a]) & ((left[b] - 1 >= need[b]) | problem.fixed[b])
+    return np.where(ok, aw, -np.inf), a, b, idx
+
+
+def _round_picks(n_anchors: int, aw: np.ndarray, a: np.ndarray, b: np.ndarray, cap: int, critical: float) -> list[int]:
+    """One round of :func:`exclude_links`: up to ``cap`` flagged samples (|w| ``aw`` above ``critical``, −inf
+    where not allowed) in order of ``aw``, no two sharing an anchor (so no two samples of one link)."""
     blocked = np.zeros(n_anchors, bool)  # anchors of this round's links
-    taken = 0
+    picks: list[int] = []
     for worst in np.argsort(-aw, kind="stable"):
-        if taken >= cap or aw[worst] <= critical:
+        if len(picks) >= cap or aw[worst] <= critical:
             break
-        lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
-        if blocked[lo] or blocked[hi] or not keep[idx[worst]]:
+        if blocked[a[worst]] or blocked[b[worst]]:
             continue
-        same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
-        keep[same] = False
-        removed.extend(int(s) for s in same)
-        taken += 1
-        blocked[[lo, hi]] = True
-    return taken
+        picks.append(int(worst))
+        blocked[[a[worst], b[worst]]] = True
+    return picks
+
+
+def _links_of(picks: list[int], a: np.ndarray, b: np.ndarray) -> set[tuple[int, int]]:
+    return {(int(min(a[k], b[k])), int(max(a[k], b[k]))) for k in picks}
+
+
+def _decided(
+    n_anchors: int, aw: np.ndarray, ends: tuple[np.ndarray, np.ndarray], cap: int, critical: float, margin: float
+) -> bool:
+    """Whether a round's choice (:func:`_round_picks`) stands when every |w| may be off by ``margin``: no eligible
+    |w| within ``margin`` of ``critical``, and swapping the |w| of any two links within ``2 · margin`` of each other
+    (both above ``critical − margin``) chooses the same links."""
+    a, b = ends
+    if np.any(np.abs(aw - critical) <= margin):
+        return False
+    base = _links_of(_round_picks(n_anchors, aw, a, b, cap, critical), a, b)
+    near = np.flatnonzero(aw > critical - margin)
+    for i_pos, i in enumerate(near):
+        for j in near[i_pos + 1 :]:
+            if abs(aw[i] - aw[j]) > 2 * margin:
+                continue
+            swapped = aw.copy()
+            swapped[[i, j]] = aw[[j, i]]
+            if _links_of(_round_picks(n_anchors, swapped, a, b, cap, critical), a, b) != base:
+                return False
+    return True
 
 
 def _all_sample_tests(

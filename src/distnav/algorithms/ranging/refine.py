@@ -18,7 +18,7 @@ iteration needs only the neighbours' values:
   largest move are network totals, as the solvers' :class:`~distnav.algorithms.ranging.csg.StopRule` uses: each is a
   sum over the anchors assembled in the anchors' order (``gather_nodes``, so that in-process and MPI agree bit
   for bit; a deployment would run a spanning-tree reduction, ``2(n − 1)`` messages of the reduced floats). They
-  are counted in :attr:`Refinement.reductions` / :attr:`Refinement.reduced_floats`, and their bytes
+  are counted in :attr:`Refinement.reduced` (:class:`~distnav.algorithms.ranging.wire.Reductions`), their bytes
   (:func:`~distnav.algorithms.ranging.wire.reduction_cost`) in the solver result's ``settings["refine"]``
   and in ``uwb solve``'s totals (issue 27: before, only the broadcasts were counted — at two reductions of two
   floats per CG iteration the reductions send about twice the bytes of the float16 broadcasts on a 28-anchor hall).
@@ -35,6 +35,7 @@ stopping thresholds — and says ``max_iterations`` after ``max_rounds`` outer r
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -87,9 +88,8 @@ class Refinement:
     status: str
     rounds: int
     cg_iterations: int
-    reductions: int
-    reduced_floats: int = 0
-    reduced_bytes: int = 0
+    reduced: wire.Reductions
+    mu: float = MU0  # the Marquardt damping at the end (a warm re-fit may start from it: RefineOptions.mu0)
 
 
 class Links:
@@ -102,6 +102,10 @@ class Links:
         self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
         self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
         self.wire = Wire(problem, ex, self.owner, self.other, 1 if per_anchor_offsets else 0)
+
+    def counted(self) -> wire.Reductions:
+        """The reductions counted so far."""
+        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes)
 
     def neighbours(self, values: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)`` (one broadcast; after
@@ -140,8 +144,8 @@ class Links:
 class RefineOptions:
     """The settings of :func:`refine`, as the solver's: ``sigma`` / ``scale`` (every sample's range σ, metres, and
     whitened loss scale), ``loss``, ``range_offsets`` (``"none"``, ``"common"``, ``"per_anchor"``) and
-    ``offset_prior_sigma_m`` (metres), the stopping thresholds ``ftol`` (relative) and ``xtol_m`` (metres), and
-    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds."""
+    ``offset_prior_sigma_m`` (metres), the stopping thresholds ``ftol`` (relative) and ``xtol_m`` (metres),
+    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds and ``mu0`` (:data:`MU0`) the initial damping."""
 
     sigma: np.ndarray
     scale: np.ndarray
@@ -151,6 +155,7 @@ class RefineOptions:
     ftol: float
     xtol_m: float
     max_rounds: int = MAX_ROUNDS
+    mu0: float = MU0
 
 
 @dataclass(frozen=True, eq=False)
@@ -299,9 +304,7 @@ class _Refiner:
             status=status,
             rounds=rounds,
             cg_iterations=cg_total,
-            reductions=links.reductions,
-            reduced_floats=links.reduced_floats,
-            reduced_bytes=links.reduced_bytes,
+            reduced=links.counted(),
         )
 
 
@@ -323,7 +326,7 @@ def refine(
     run = _Refiner(problem, ex, o)
     x, c, cg_max = run.start(own_m, offset_m)
     nb, F, r, _ = run.evaluate(x, c, np.zeros_like(x))
-    mu = MU0
+    mu = o.mu0
     status, rounds, cg_total = "max_iterations", 0, 0
     with np.errstate(invalid="ignore", divide="ignore"):
         while rounds < o.max_rounds:
@@ -355,7 +358,7 @@ def refine(
                     break
             if status == "converged":
                 break
-    return run.result(x, c, nb, F, status, rounds, cg_total)
+    return dataclasses.replace(run.result(x, c, nb, F, status, rounds, cg_total), mu=mu)
 
 
 def _rows(owner: np.ndarray, values: np.ndarray, nl: int) -> np.ndarray:

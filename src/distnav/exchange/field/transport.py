@@ -43,6 +43,9 @@ Like = np.ndarray | None
 #: longest single blocking receive (ms): a step waits in slices of this, re-checking the clock between them
 _SLICE_MS = 100
 
+#: The wire counters every transport keeps (attributes of the same names) and reports in :meth:`wire_counts`.
+WIRE_COUNTERS = ("bytes_sent", "bytes_received", "frames_sent", "frames_received", "send_failures")
+
 
 def _zmq() -> Any:
     return require("zmq", "field")
@@ -567,13 +570,7 @@ class Transport:
 
     def wire_counts(self) -> dict[str, int]:
         """Real bytes and frames this node put on and took off the wire, and the sends that could not be queued."""
-        return {
-            "bytes_sent": self.bytes_sent,
-            "bytes_received": self.bytes_received,
-            "frames_sent": self.frames_sent,
-            "frames_received": self.frames_received,
-            "send_failures": self.send_failures,
-        }
+        return {name: int(getattr(self, name)) for name in WIRE_COUNTERS}
 
     @property
     def refusals(self) -> int:

@@ -94,14 +94,11 @@ class BetweenStationTest:
         return head + ": accepted, σ unchanged"
 
     def as_dict(self) -> dict[str, Any]:
+        numbers = {
+            name: getattr(self, name) for name in ("chi2", "dof", "critical", "level", "ratio", "rejected", "factor")
+        }
         return {
-            "chi2": self.chi2,
-            "dof": self.dof,
-            "critical": self.critical,
-            "level": self.level,
-            "ratio": self.ratio,
-            "rejected": self.rejected,
-            "factor": self.factor,
+            **numbers,
             "pairs": [list(p) for p in self.pairs],
             "statement": self.statement(),
         }

@@ -18,7 +18,10 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
    ``loss_scale_m`` at the end (:func:`polish_fit`). The distributed solvers take the same steps through the
    exchange (:mod:`distnav.models.uwb.field_fits`: their warm re-fits are the final distributed LM phase from the
    last solution) but not the multi-start (LM fits); network totals: the residual scatter that sets the tight
-   scale, the costs of all the links (revert, per-anchor check, polish), the link tests' robust scale.
+   scale, the costs of all the links (revert, per-anchor check, polish), the link tests' robust scale. Their
+   re-fits after an exclusion stop early and choose the next links only where the choice is decided with a
+   margin, one full fit ending the loop (``field_fits.REFIT_STAGES``); every warm fit starts from the last fit's
+   common offset and damping (``field_fits.CARRY_OFFSET``, ``CARRY_DAMPING``; issue 27, docs/economy_uwb.md).
 3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
 
 The solve call goes to :func:`distnav.algorithms.ranging.csg.solve` by name, with ``objective`` passed when the solver
@@ -37,9 +40,10 @@ import numpy as np
 from distnav._blas import single_threaded_blas
 from distnav.algorithms.ranging.wire import comm_phases
 from distnav.errors import ModelError
+from distnav.models.uwb import field_fits
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.cuts import cut_weak
-from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, solve_once, tighten_scale
+from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, refit_margin_w, solve_once, tighten_scale
 from distnav.models.uwb.field_options import (
     DELAY_SIGMA_M,
     FieldOptions,
@@ -71,8 +75,10 @@ from distnav.models.uwb.reliability import (
     WEAK_RMS_M,
     ReliabilityOptions,
     check_reliability,
+    undetected_nlos_covariance,
     weak_anchor_reasons,
     weak_anchors,
+    with_covariance,
 )
 from distnav.typing import BoolArray, FloatArray
 
@@ -190,10 +196,12 @@ class _Run:
     objective: str
     note: str
     fit_any: Callable[[Any], Any]  # a fit by name (make_fitter) over ``total`` and ``starts``
+    loose: list[tuple[Callable[[Any], Any], float]]  # the exclusion loop's early-stopped re-fits and margins
     total: list[int]
     starts: list[FloatArray]
     marks: dict[str, tuple[int, int]] = field(default_factory=dict)  # phase -> (messages, bytes) at its end
     no_exclusion: list[Any] = field(default_factory=list)  # the first robust fit, on every link
+    carry: dict[str, float] = field(default_factory=dict)  # the common offset handed from fit to fit (solve_once)
 
     def fit(self, sub: Any) -> Any:
         r = self.fit_any(sub)
@@ -258,9 +266,9 @@ def _start_run(
     note = "" if objective == opts.objective else f" ({opts.solver} has no {opts.objective} objective: squared used)"
     total: list[int] = [0, 0, 0]
     starts: list[FloatArray] = []
-    return _Run(
-        problem, opts, opts, exchange, objective, note, make_fitter(opts, exchange, total, starts), total, starts
-    )
+    carry: dict[str, float] = {}
+    fit_any = make_fitter(opts, exchange, total, starts, carry=carry)
+    return _Run(problem, opts, opts, exchange, objective, note, fit_any, [], total, starts, carry=carry)
 
 
 def _seed(run: _Run) -> None:
@@ -288,8 +296,9 @@ def _seed(run: _Run) -> None:
             opts.iterations,
             exchange=run.exchange,
             total=run.total,
-            first=True,
+            start="first",
             stage=stage_name(given, "seed"),
+            carry=run.carry,
         )
         best = np.asarray(first_fit.estimates, float) if first_fit.usable else None
         run.mark("first_fit")
@@ -305,11 +314,20 @@ def _seed(run: _Run) -> None:
         exchange=run.exchange,
         total=run.total,
         stage=stage_name(given, "seed"),
+        carry=run.carry,
     )
     run.starts.append(best)
     run.mark("tighten")
     run.opts = dataclasses.replace(opts, loss_scale_m=tight)
-    run.fit_any = make_fitter(run.opts, run.exchange, run.total, run.starts)
+    run.fit_any = make_fitter(run.opts, run.exchange, run.total, run.starts, carry=run.carry)
+    if opts.solver.upper() != "LM" and given.staged_tolerances:  # the exclusion loop's re-fits stop early
+        run.loose = [
+            (
+                make_fitter(run.opts, run.exchange, run.total, run.starts, stage, run.carry),
+                refit_margin_w(stage, opts.sigma_m),
+            )
+            for stage in field_fits.REFIT_STAGES  # read at run time (the benchmark's configurations)
+        ]
     run.note += (
         f"; one-sided Cauchy loss (ranges read long), scale tightened to {tight:.3g} m"
         if tight < given.loss_scale_m
@@ -321,7 +339,7 @@ def _exclusions(run: _Run) -> _Fit:
     """The exclusions tested at the robust solution (an NLOS link does not drag it; every re-fit robust too), and
     with ``repair`` the per-anchor check (:func:`_repair`); without ``exclude`` one fit of every link."""
     problem, opts = run.problem, run.opts
-    first = exclude_worst(problem, run.fit, opts) if opts.exclude else None
+    first = exclude_worst(problem, run.fit, opts, run.loose) if opts.exclude else None
     if first is None:
         res = run.fit(problem)
         none = np.zeros(problem.n_meas, bool)
@@ -361,7 +379,7 @@ def _repair(run: _Run, fit: _Fit) -> bool:
     for k, at in moved.items():  # each changed anchor starts where its own links put it
         seed[k] = at
     run.starts.append(seed)
-    again = exclude_worst(subset_measurements(problem, ~repaired), run.fit, opts)
+    again = exclude_worst(subset_measurements(problem, ~repaired), run.fit, opts, run.loose)
     if again is None:
         run.note += "; per-anchor check: its re-fit gave no link tests, kept the first choice"
         return False
@@ -396,7 +414,7 @@ def _revert_and_polish(run: _Run, fit: _Fit) -> None:
     fit.fit_scale_m = opts.loss_scale_m  # the final fit's: its w-tests, the reliability's weights, σ's variance factor
     if given.nlos_aware and given.polish and fit.res.usable and opts.loss_scale_m < given.loss_scale_m:
         polished, w2, f2 = polish_fit(
-            run.problem, fit.res, fit.excluded, fit.w, fit.flagged, given, run.exchange, run.total
+            run.problem, fit.res, fit.excluded, fit.w, fit.flagged, given, run.exchange, run.total, run.carry
         )
         if run.cost_ratio(polished, fit.res) <= POLISH_RATIO:
             fit.res, fit.w, fit.flagged, fit.fit_scale_m = polished, w2, f2, given.loss_scale_m
@@ -440,9 +458,10 @@ def _precision_and_reasons(
     run.note += prec.note
     reasons = weak_anchor_reasons(problem, residual, fit.excluded, fit.flagged)
     reliability: dict[str, Any] = {"tested": False}
+    numbers = None
     if opts.reliability_limit_m > 0 and run.objective == "metres":  # every solver (reliability.check_reliability)
         kept = subset_measurements(problem, ~fit.excluded)
-        rel_weak, reliability, rel_note = check_reliability(
+        rel_weak, reliability, rel_note, numbers = check_reliability(
             kept,
             res,
             prec.sigma_m,
@@ -465,6 +484,11 @@ def _precision_and_reasons(
         run.mark("reliability")
     if opts.cut_test:  # a group of anchors the exclusions cut off: placed by fewer checks than they took (cuts.py)
         reasons.update({k: v for k, v in cut_weak(problem, fit.excluded).items() if k not in reasons})
+    if numbers is not None and getattr(res, "x", None) is not None:  # LM: σ admits the NLOS links left in (issue 28)
+        weak = np.isin(np.array(problem.ids), list(reasons))
+        kept = subset_measurements(problem, ~fit.excluded)
+        nlos = undetected_nlos_covariance(kept, numbers, -residual[fit.excluded], weak)
+        prec = dataclasses.replace(prec, **with_covariance(prec.sigma_m, prec.covariance_m2, nlos))
     return prec, _whole_map_doubts(run, fit, reasons), reliability
 
 

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from distnav.algorithms.ranging import csg
+from distnav.algorithms.ranging.qc import SCALE_FLOOR
 from distnav.algorithms.ranging.stop import StopRule
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
@@ -30,6 +31,9 @@ __all__ = [
     "TIGHTEN_FITS",
     "FIRST_ITERATIONS",
     "STAGE_TOLERANCES",
+    "REFIT_STAGES",
+    "refit_margin_w",
+    "CARRY_OFFSET",
 ]
 
 REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
@@ -37,10 +41,23 @@ TIGHT_SCALE_FLOOR_M = 0.05  # the one-sided loss is tightened from loss_scale_m 
 TIGHTEN_FITS = 8  # at most this many halvings
 WARM_ITERATIONS = 0  # a distributed solver's warm re-fit: consensus iterations before its final distributed LM phase
 #: (ftol, xtol_m) of a distributed solver's LM phase by the fit's stage in the workflow (issue 27): "seed", the fits
-#: whose solution only starts the next fit (the first fit, the tightening). The exclusion loop's re-fits and the
-#: polish keep the solver's StopRule (1e-6, 0.1 mm): any of them can be the answer, and on plant corner #0 a
-#: re-fit stopped at 0.3–1 mm steps ended 1.5 mm from LM's answer where the full tolerance ends 0.3 mm from it.
-STAGE_TOLERANCES = {"seed": (1e-3, 1e-2)}
+#: whose solution only starts the next fit (the first fit, the tightening); "refit", the exclusion loop's re-fits
+#: after an exclusion, whose tests only choose the next links (:data:`REFIT_STAGES`). The loop's first fit, its
+#: last (one full fit from the last re-fit: :func:`~distnav.algorithms.ranging.qc.exclude_links`) and the polish
+#: keep the solver's StopRule (1e-6, 0.1 mm): any of them can be the answer, and on plant corner #0 a loop whose
+#: every re-fit stopped at 0.3–1 mm steps ended 1.5 mm from LM's answer where the full tolerance ends 0.3 mm from it.
+STAGE_TOLERANCES = {"seed": (1e-3, 1e-2), "refit": (1e-3, 1e-2)}
+#: the exclusion loop's early-stopped re-fits, loosest first, each deciding with :func:`refit_margin_w` (issue 27;
+#: () every re-fit at the solver's tolerances, as before). A ladder ("refit" then one at 1 mm) was measured and
+#: not kept: every rung is one more fit's start, 1.04 × fewer bytes on 12 plant-like halls where one rung gave 1.08 ×
+REFIT_STAGES: tuple[str, ...] = ("refit",)
+#: a warm distributed fit starts from the last fit's common range offset (every anchor holds it; :func:`solve_once`)
+#: instead of 0 (issue 27: from 0 each re-fit's first rounds found the offset again, 0.3 m on the plant-like halls)
+CARRY_OFFSET = True
+#: a warm distributed fit's LM phase starts from the last fit's final Marquardt damping (floored at MU_FLOOR) instead of
+#: refine.MU0 (issue 27)
+CARRY_DAMPING = True
+MU_FLOOR = 1e-6
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
 
@@ -52,13 +69,13 @@ def solve_once(
     *,
     exchange: Callable[[RangingProblem], Any] | None = None,
     total: list[int] | None = None,
-    warm: bool = False,
+    start: str = "cold",
     tolerances: bool = True,
-    first: bool = False,
     stage: str | None = None,
+    carry: dict[str, float] | None = None,
 ) -> Any:
     """One solve of ``problem`` (its ``initial_m`` the start) by ``solver`` with the keyword arguments ``kw``.
-    ``warm``: a re-fit from a solution, the robust loss straight away (no graduated linear phase; LM with
+    ``start="warm"``: a re-fit from a solution, the robust loss straight away (no graduated linear phase; LM with
     :data:`REFIT_TOLERANCES` unless ``kw`` sets them or ``tolerances`` is False). A distributed solver runs on
     ``exchange(problem)``; its warm re-fit runs :data:`WARM_ITERATIONS` consensus iterations, then the final
     distributed LM phase (:mod:`distnav.algorithms.ranging.refine`) from the solution — unless that phase is off
@@ -66,7 +83,7 @@ def solve_once(
     from it (N-CLM's fixed point is not LM's: warm at LM's solution of a plant-like corner hall, its iterate was
     1.48 m RMS off after 500 iterations), and at a tightened loss scale the LM phase can then end in another
     basin (plant corner #0 of ``reproduce uwb-field``: 0.449 m against LM's 0.354 m on the same links); with 0
-    the phase stays in the solution's basin, as LM's warm re-fit, for 5 % of the messages. ``first``: the first
+    the phase stays in the solution's basin, as LM's warm re-fit, for 5 % of the messages. ``start="first"``: the first
     fit of the workflow (from the prepared start) runs :data:`FIRST_ITERATIONS` consensus iterations before that
     phase (issue 27): the 500 iterations cost 55 % of the bytes of a whole ``uwb solve`` on plant-like halls
     (33 of 59 MB on ``[78, 0]``) and the workflow ended at the same positions without them (within 1 µm on 12
@@ -75,8 +92,11 @@ def solve_once(
     totals as spanning-tree reductions (``settings["refine"]``,
     :func:`~distnav.algorithms.ranging.wire.reduction_cost`). ``stage`` (``"seed"``; None: the solver's
     own): a distributed solver's LM phase stops at :data:`STAGE_TOLERANCES` — a fit whose solution only
-    starts the next one needs no 0.1 mm steps (issue 27, docs/economy_uwb.md)."""
+    starts the next one needs no 0.1 mm steps (issue 27, docs/economy_uwb.md). ``carry``: the common range offset
+    handed from fit to fit (:data:`CARRY_OFFSET`): a warm distributed re-fit starts from the last fit's, which every
+    anchor holds (no message), instead of 0; the fit's own is stored for the next."""
     key = solver.upper()
+    warm, first = start == "warm", start == "first"
     extra: dict[str, Any] = {}
     if key != "LM" and exchange is not None:
         extra["exchange"] = exchange(problem)
@@ -91,7 +111,11 @@ def solve_once(
     if stage is not None and key != "LM" and "stop" not in kw:
         ftol, xtol_m = STAGE_TOLERANCES[stage]
         extra["stop"] = StopRule(refine_ftol=ftol, refine_xtol_m=xtol_m)
+    if carry is not None and warm and key != "LM":
+        extra.update({k: v for k, v in carry.items() if k not in kw and _carries(k, key, kw)})
     r = csg.solve(problem, key, iterations=iterations, **kw, **extra)
+    if carry is not None and key != "LM" and r.usable:
+        _carry(r, carry)
     if total is not None:  # the final distributed LM phase's rounds are iterations too (issue 28 item 3)
         ref = (getattr(r, "settings", None) or {}).get("refine") or {}
         total[0] += int(r.iterations) + int(ref.get("rounds", 0))
@@ -119,10 +143,11 @@ def tighten_scale(
     exchange: Callable[[RangingProblem], Any] | None = None,
     total: list[int] | None = None,
     stage: str | None = None,
+    carry: dict[str, float] | None = None,
 ) -> tuple[FloatArray, float, int]:
     """The one-sided fit of every link by ``solver``, its loss scale halved from ``scale_m`` (each fit warm from the
     last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger (``stage``:
-    :func:`solve_once`'s). Returns
+    :func:`solve_once`'s, and ``carry``). Returns
     ``(positions, final scale, fits)`` (see :func:`distnav.models.uwb.field.tighten`)."""
     kw = {**kw, "quality": False}
     pos = np.asarray(start_m, float)
@@ -140,12 +165,39 @@ def tighten_scale(
             iterations,
             exchange=exchange,
             total=total,
-            warm=True,
+            start="warm",
             tolerances=False,
             stage=stage,
+            carry=carry,
         )
         fits += 1
         if not (r.usable and np.all(np.isfinite(r.estimates))):
             break
         pos = np.asarray(r.estimates, float)
     return pos, scale, fits
+
+
+def refit_margin_w(stage: str, sigma_m: float) -> float:
+    """The margin in |w| within which a re-fit stopped at ``stage`` (:data:`STAGE_TOLERANCES`) leaves the exclusion
+    loop's choice undecided: both ends of a link off by the stage's step tolerance change its residual by up to
+    ``2 · xtol_m``, its whitened residual by that over ``sigma_m`` and its w by that over the smallest robust
+    scale of the tests (:data:`~distnav.algorithms.ranging.qc.SCALE_FLOOR`)."""
+    return 2.0 * STAGE_TOLERANCES[stage][1] / (sigma_m * SCALE_FLOOR)
+
+
+def _carries(name: str, key: str, kw: dict[str, Any]) -> bool:
+    """Whether a warm fit of ``key`` with ``kw`` takes the carried setting ``name`` (:func:`_carry`)."""
+    if name == "initial_offset_m":
+        return CARRY_OFFSET and key != "CSG" and kw.get("range_offsets") == "common"
+    return CARRY_DAMPING and kw.get("refine", True) is not False
+
+
+def _carry(r: Any, carry: dict[str, float]) -> None:
+    """What a distributed fit hands to the next warm one: its common offset and its LM phase's final damping —
+    values every anchor holds at the end (no message)."""
+    off = getattr(r, "offsets_m", None)
+    if off is not None and np.size(off) == 1:
+        carry["initial_offset_m"] = float(np.ravel(off)[0])
+    mu = ((getattr(r, "settings", None) or {}).get("refine") or {}).get("mu")
+    if mu is not None:
+        carry["refine_mu0"] = max(float(mu), MU_FLOOR)

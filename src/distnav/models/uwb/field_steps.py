@@ -7,7 +7,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -105,8 +105,17 @@ def stage_name(opts: FieldOptions, stage: str) -> str | None:
 
 
 def make_fitter(
-    opts: FieldOptions, exchange: Callable[[RangingProblem], Any] | None, comm: list[int], last: list[FloatArray]
+    opts: FieldOptions,
+    exchange: Callable[[RangingProblem], Any] | None,
+    comm: list[int],
+    last: list[FloatArray],
+    stage: str | None = None,
+    carry: dict[str, float] | None = None,
 ) -> Callable[[Any], Any]:
+    """A fit by name of a (sub)problem from the last usable solution in ``last`` (appended to it), its messages
+    added to ``comm``; ``stage``: a distributed solver's LM phase stops at that stage's tolerances
+    (:data:`~distnav.models.uwb.field_fits.STAGE_TOLERANCES`); ``carry``: the common offset handed from fit to fit
+    (:func:`~distnav.models.uwb.field_fits.solve_once`)."""
     key = opts.solver.upper()
     kw = solver_kwargs(opts)
     warm_refits = key == "LM" or opts.nlos_aware  # the distributed solvers' re-fits: graduated unless nlos_aware
@@ -121,7 +130,9 @@ def make_fitter(
             opts.iterations,
             exchange=exchange,
             total=comm,
-            warm=bool(last) and warm_refits,
+            start="warm" if last and warm_refits else "cold",
+            stage=stage,
+            carry=carry,
         )
         if r.usable and np.all(np.isfinite(r.estimates)):
             last.append(np.asarray(r.estimates, float))
@@ -158,6 +169,7 @@ def polish_fit(
     opts: FieldOptions,
     exchange: Callable[[RangingProblem], Any] | None = None,
     total: list[int] | None = None,
+    carry: dict[str, float] | None = None,
 ) -> tuple[Any, FloatArray, BoolArray]:
     """The kept links re-fitted at the given loss scale (one-sided, from the tightened solution), with its tests
     and precision: once the NLOS links are out, the tight scale only down-weights LOS links a little (their σ and
@@ -173,7 +185,8 @@ def polish_fit(
         opts.iterations,
         exchange=exchange,
         total=total,
-        warm=True,
+        start="warm",
+        carry=carry,
     )
     if not (r.usable and np.all(np.isfinite(r.estimates)) and r.tests is not None):
         return res, w, flagged
@@ -184,14 +197,27 @@ def polish_fit(
     return r, w2, f2
 
 
-def exclude_worst(problem: RangingProblem, fit: Callable[[Any], Any], opts: FieldOptions) -> tuple[Any, Any] | None:
-    """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular)."""
+def exclude_worst(
+    problem: RangingProblem,
+    fit: Callable[[Any], Any],
+    opts: FieldOptions,
+    loose: Sequence[tuple[Callable[[Any], Any], float]] = (),
+) -> tuple[Any, Any] | None:
+    """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular).
+    ``loose``: the re-fits after an exclusion stop early and decide only with a margin
+    (:data:`~distnav.models.uwb.field_fits.REFIT_MARGIN_W`), one ``fit`` at the end
+    (:func:`~distnav.algorithms.ranging.qc.exclude_links`)."""
     try:
         per_round = opts.exclusions_per_round
         if per_round is not None:  # 3 on a 28-anchor plant; grows with the network (1000 anchors: 250 per re-fit)
             per_round = max(per_round, problem.n_anchors // 4)
         res, _, tests = exclude_links(
-            problem, fit, max_exclusions=opts.max_exclusions, one_sided=opts.one_sided, per_round=per_round
+            problem,
+            fit,
+            max_exclusions=opts.max_exclusions,
+            one_sided=opts.one_sided,
+            per_round=per_round,
+            loose=loose,
         )
     except ModelError:
         return None

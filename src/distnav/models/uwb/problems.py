@@ -116,26 +116,12 @@ class RangingProblem(RangingData):
         k = np.asarray(keep, bool)
         if k.shape != (self.n_anchors,):
             raise ModelError(f"keep must have shape ({self.n_anchors},), got {k.shape}")
-        idx = np.flatnonzero(k)
-        new = np.full(self.n_anchors, -1, np.int64)
-        new[idx] = np.arange(idx.size)
-        m = k[self.meas_a] & k[self.meas_b]
-        if not m.any():
+        kept = self.kept_arrays(k)
+        if not kept["range_m"].size:
             raise ModelError("the kept anchors have no range between them")
         info = dict(self.info)
-        info["subset_of"] = idx.tolist()
-        out = _replace(
-            self,
-            ids=tuple(self.ids[i] for i in idx),
-            positions_m=self.positions_m[idx],
-            free=self.free[idx],
-            meas_a=new[self.meas_a[m]],
-            meas_b=new[self.meas_b[m]],
-            range_m=self.range_m[m],
-            truth_m=None if self.truth_m is None else self.truth_m[idx],
-            initial_m=None if self.initial_m is None else self.initial_m[idx],
-            info=info,
-        )
+        info["subset_of"] = np.flatnonzero(k).tolist()
+        out = _replace(self, **kept, info=info)
         if check:
             _check_determined(out.ids, out.dim, out.positions_m, out.free, out.fixed, out.meas_a, out.meas_b)
         return out

@@ -1,0 +1,207 @@
+"""Fig. 6 of paper 000 with aggregated messages (``messages="aggregated"``) on one exchange block: no per-pair state.
+
+Node ``i`` broadcasts ``x_i`` to its constraint neighbours instead of ``z_{i,s} = x_i + u_{i,s}`` per pair, and keeps
+only ``U_i = Σ_s u_{i,s}``; constraint node ``s`` keeps ``V_s = Σ_{i∈N_s} u_{i,s}``. Since
+``Σ_i z_{i,s} = Σ_i x_i + V_s``, the iterates equal those of the per-pair form in exact arithmetic (and ``V_s = 0``
+after the first iteration, Boyd et al. 2011 §7.1). Every round's receiver needs only the *sum* of its messages, so
+each round is a fused mixer round (``ex.mixer`` with 0/1 weights: one sparse product); the form refuses a fault
+schedule (:func:`~distnav.algorithms.lsq.driver.prepare`), since a lost message corrupts the sums for good.
+
+**Memory** (issue 30). A block holds, per node, the x-update's gains and ``p``-wide state vectors, and per edge
+into or out of ``C`` one entry of the two mixers' matrices — nothing per pair of width ``p``. The mixers' edge
+weights are one read-only broadcast 1.0 (the active masks zero the rest), and the monitored iterations form the
+pair residuals ``‖x_i − z_s‖`` from the columns the x-round's transport fills (the block's own values and its halo)
+a chunk of pairs at a time, instead of a full-length inbox of ``p`` floats per in-edge.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+import numpy as np
+
+from distnav.algorithms.lsq.kernel import AdmmState, _dual_sq, _times_W
+from distnav.exchange import Exchange
+from distnav.exchange.mixer import Mixer
+from distnav.network.constraint_nodes import ConstraintNodes
+from distnav.network.weights import ConsensusWeights
+
+__all__: list[str] = []
+
+_XUpdateFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+#: Pairs per chunk of a monitored iteration's residual (a few MB of ``p``-wide temporaries).
+_PAIR_CHUNK = 1 << 16
+
+
+class _Rounds:
+    """The two message rounds of the aggregated form on one block and what they are summed by: ``mix_x`` (``x_i``
+    into the constraint nodes, self-weight 1 there), ``mix_z`` (``z_s`` out of them), every local node's ``inC``,
+    ``count`` ``c_i = |N_i ∩ C|`` (``i`` itself counted when ``i ∈ C``) and ``size`` ``|N_s| + 1``."""
+
+    def __init__(self, mix_x: Mixer, mix_z: Mixer, inC: np.ndarray, count: np.ndarray, size: np.ndarray) -> None:
+        self.mix_x, self.mix_z, self.inC, self.count, self.size = mix_x, mix_z, inC, count, size
+
+
+def rounds_on_graph(ex: Exchange, C: ConstraintNodes) -> _Rounds:
+    """:class:`_Rounds` of an exchange on the whole graph (in-process, or MPI with the graph on every rank)."""
+    g = ex.graph
+    inC = C.mask
+    real = g.src != g.dst
+    to_c = inC[g.dst] & real  # i→s, s ∈ C: the x-round
+    from_c = inC[g.src] & real  # s→i, s ∈ C: the z-round
+    del real
+    # the same 0/1 weights as before (1 on the active edges, the self-weight 1 at constraint nodes) without an
+    # edge-sized float array per mixer: the inactive edges' weights are zeroed by the masks
+    ones = np.broadcast_to(np.float64(1.0), (g.n_edges,))
+    inC_f = inC.astype(float)
+    mix_x = ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum into C"), active=to_c)
+    mix_z = ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum from C"), active=from_c)
+    return _Rounds(mix_x, mix_z, inC[ex.nodes], C.per_node_count[ex.nodes], _sizes(ex))
+
+
+def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
+    """:class:`_Rounds` of an exchange built from a graph part, ``inC_part`` the constraint nodes among the part's
+    nodes (part order): the halo's membership comes by one transport of the block's own (a set-up round, not
+    counted), and the rounds' masks are over the block's own edge rows — no array over the whole network."""
+    part = ex.part
+    assert part is not None
+    node_pos = ex._part_rows()[1]
+    inC = np.asarray(inC_part, bool)[node_pos]
+    inC_col = np.array(ex._columns(inC.astype(float)[:, None], None)[:, 0] > 0.5)  # [local | halo]
+    real_in = ex.in_src_col != ex.local_col[ex.in_dst]
+    x_in = inC[ex.in_dst] & real_in
+    z_in = inC_col[ex.in_src_col] & real_in
+    real_out = ex.out_dst != ex.nodes[ex.out_src]
+    z_out = inC[ex.out_src] & real_out
+    # an out-edge's receiver: owned (its row by the part's positions) or a halo node, whose membership arrived on
+    # the in-edges it sends on (set on an array aligned with the part's ascending halo ids: no sort over the edges)
+    k, own = part.owned_positions(ex.out_dst)
+    x_out = np.asarray(inC_part, bool)[k]
+    from_halo = np.flatnonzero(ex.in_src_col >= ex.n_local)
+    halo_member = np.zeros(part.halo.size, bool)
+    halo_member[np.searchsorted(part.halo, ex.in_src[from_halo])] = inC_col[ex.in_src_col[from_halo]]
+    to_halo = np.flatnonzero(~own)
+    x_out[to_halo] = halo_member[np.searchsorted(part.halo, ex.out_dst[to_halo])]
+    x_out &= real_out
+    del k, own, from_halo, to_halo
+    # 0/1 weights on the part (one broadcast 1.0, zeroed off the masks); the masks are over the block's own edge
+    # rows, which Exchange.mixer (a mask over the whole graph's edges) does not take: the mixer is made directly
+    ones = np.broadcast_to(np.float64(1.0), (part.n_local_edges,))
+    self_w = np.asarray(inC_part, float)
+    rows = ex._part_rows()
+    mix_x = Mixer(ex, ones, self_w, (x_in, x_out), rows=rows)
+    mix_z = Mixer(ex, ones, self_w, (z_in, z_out), rows=rows)
+    count = np.bincount(ex.in_dst, weights=z_in, minlength=ex.n_local).astype(np.int64) + inC
+    return _Rounds(mix_x, mix_z, inC, count, _sizes(ex))
+
+
+def _sizes(ex: Exchange) -> np.ndarray:
+    """``|N_s| + 1`` of every local node (its real in-edges and itself)."""
+    sender_is_self = ex.in_src_col == ex.local_col[ex.in_dst]
+    return (np.bincount(ex.in_dst, weights=~sender_is_self, minlength=ex.n_local) + 1).astype(float)
+
+
+class _AggregatedKernel:
+    """Fig. 6 with aggregated messages on one exchange block (fault-free); ``x_update`` maps ``(l, x_prev)`` to the
+    new ``x`` for the block."""
+
+    def __init__(self, ex: Exchange, rounds: _Rounds, W: np.ndarray, p: int, x_update: _XUpdateFn) -> None:
+        self.ex, self.W, self.p, self.x_update = ex, W, p, x_update
+        self.w_scale = float(np.linalg.eigvalsh(W).max())
+        self.w_iso = float(W[0, 0]) if np.array_equal(W, W[0, 0] * np.eye(p)) else None
+        self.mix_x, self.mix_z = rounds.mix_x, rounds.mix_z
+        self.inC_loc = rounds.inC
+        self.count = rounds.count
+        self.size_s = rounds.size
+        self.size_c = self.size_s * self.inC_loc
+        self.count_f = self.count.astype(float)
+
+    def run(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int) -> Iterator[AdmmState]:
+        """The iterations from ``x0``, ``z0`` (``u^[−1] = 0``, §4.3)."""
+        cm = self.inC_loc[:, None].astype(float)
+        inv_count = 1.0 / self.count[:, None]
+        inv_size = cm / self.size_s[:, None]
+        cnt = self.count[:, None].astype(float)
+        size = self.size_s[:, None]
+        x = x0  # the caller's fresh rows (the driver's copies): taken over, not copied again
+        z = z0 * cm
+        del x0, z0
+        # initialization rounds: z_s^[0] from constraint nodes, x_i^[0] to constraint nodes
+        zsum = self.mix_z.apply(z)
+        xsum = self.mix_x.apply(x)
+        U = np.zeros_like(x)
+        V = (xsum - size * z) * cm  # Σ_i u^[0]_{i,s} with u^[−1] = 0
+        del xsum
+        t, dz = np.empty_like(x), np.zeros_like(z)
+        yield self._state(0, x, z, dz, _u_next(U, cnt, x, zsum, out=t))
+        k = 0
+        while True:
+            k += 1
+            monitored = bool(monitor_every) and k % monitor_every == 0
+            # the expressions of Fig. 6 with two scratch buffers (t, dz), each operation as before
+            np.multiply(cnt, x, out=t)
+            t -= zsum
+            U += t  # U += cnt x − zsum: Σ_s of the u-updates
+            np.subtract(zsum, U, out=t)
+            t *= inv_count  # l = (zsum − U) / c
+            del zsum  # the next one comes with z_new
+            x = self.x_update(t, x)
+            xsum = self.mix_x.apply(x)
+            z_new = np.add(xsum, V)  # a fresh array: a yielded state's x and z are never written again
+            z_new *= inv_size  # z_new = (xsum + V) / |N_s|
+            np.multiply(size, z_new, out=dz)
+            np.subtract(xsum, dz, out=dz)
+            dz *= cm
+            V += dz  # V += (xsum − |N_s| z_new) at constraint nodes
+            del xsum
+            np.subtract(z_new, z, out=dz)
+            z = z_new
+            zsum = self.mix_z.apply(z)
+            if monitored:
+                yield self._state(k, x, z, dz, _u_next(U, cnt, x, zsum, out=t))
+            else:
+                yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
+
+    def _pair_sq(self, x: np.ndarray, z: np.ndarray) -> float:
+        """``Σ_{s∈C} Σ_{i∈N_s, i≠s} ‖x_i − z_s‖²`` on this block, from the x-round's columns (the block's own ``x``
+        and its halo: what the constraint nodes received), a chunk of pairs at a time."""
+        ex = self.ex
+        cols = ex._columns(x, None)  # the values the x-round delivers (monitoring: read again, counted once)
+        total = 0.0
+        for a in range(0, ex.in_dst.size, _PAIR_CHUNK):
+            dst, src_col = ex.in_dst[a : a + _PAIR_CHUNK], ex.in_src_col[a : a + _PAIR_CHUNK]
+            pair = self.inC_loc[dst] & (src_col != ex.local_col[dst])  # i→s, s ∈ C, i ≠ s
+            d = np.take(cols, src_col[pair], axis=0)
+            d -= np.take(z, dst[pair], axis=0)
+            total += float(np.einsum("ij,ij->", d, d))
+        return total
+
+    def _state(self, k: int, x: np.ndarray, z: np.ndarray, dz: np.ndarray, U_next: np.ndarray) -> AdmmState:
+        """The monitored state; ``U_next`` (``U + c x − zsum``, a scratch buffer) is overwritten."""
+        ds = (x - z) * self.inC_loc[:, None]
+        self_sq = np.einsum("ij,ij->", ds, ds)
+        del ds
+        if self.w_iso is not None:
+            WU = np.multiply(U_next, self.w_iso, out=U_next)
+        else:
+            WU = _times_W(U_next, self.W, self.w_iso)
+        sums = np.array(
+            [
+                self._pair_sq(x, z) + self_sq,
+                _dual_sq(dz, self.size_c, self.W, self.w_iso, self.w_scale),
+                np.einsum("i,ij,ij->", self.count_f, x, x),
+                np.einsum("i,ij,ij->", self.size_c, z, z),
+                np.einsum("ij,ij->", WU, WU),
+            ]
+        )
+        tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
+        return AdmmState(k, x, z, float(tot[0]), float(tot[1]), float(tot[2]), float(tot[3]), float(tot[4]))
+
+
+def _u_next(U: np.ndarray, cnt: np.ndarray, x: np.ndarray, zsum: np.ndarray, *, out: np.ndarray) -> np.ndarray:
+    """``U + c x − zsum`` (the next ``U``, for the dual norm) in ``out``, evaluated as ``(U + c x) − zsum``."""
+    np.multiply(cnt, x, out=out)
+    np.add(U, out, out=out)
+    out -= zsum
+    return out
