@@ -79,7 +79,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
     if rejoin and not consensus and desc.algorithm["name"] not in REJOIN_ALGORITHMS:
         raise UsageError(f"--rejoin: {desc.algorithm['name']} nodes cannot rejoin a running network (not done)")
     transport = Transport(node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=keys)
-    transport.readmit_on_hello = consensus  # ADMM, CKF: a returning node is invited to a run again (field_survive)
+    transport.readmit_on_hello = consensus  # ADMM, CKF, UWB: a returning node is invited to a re-run (field_survive)
     t0 = time.monotonic()
     try:
         schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
@@ -102,7 +102,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
         t_start, cpu_start = time.monotonic(), time.process_time()
         outcome: dict[str, Any]
-        if late is not None:  # an ADMM or CKF node back after the others finished: no answer, the reason
+        if late is not None:  # a node program back after the others finished: no answer, the reason
             outcome = {"estimate": None, "status": "stopped", "message": late, "rounds": 0}
         elif states is not None:
             assert values is not None
@@ -148,9 +148,9 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
 
 
 def _join(transport: Transport, consensus: bool) -> tuple[int, str | None]:
-    """A restarted node's way back: a consensus node at the step its neighbours are at; an ADMM or CKF node when the
-    others invite it to run again with them (:func:`~distnav.commands.field_survive.without_lost`), or, if none
-    does within ``start_timeout_s`` (they finished without it), the reason it stops."""
+    """A restarted node's way back: a consensus node at the step its neighbours are at; an ADMM, CKF or UWB node
+    when the others invite it to run again with them (:func:`~distnav.commands.field_survive.without_lost`), or, if
+    none does within ``start_timeout_s`` (they finished without it), the reason it stops."""
     try:
         return transport.join(invitation=not consensus), None
     except ExchangeError as exc:
