@@ -5,7 +5,10 @@ Rows:
   paper 003 §4 (32 nodes; 8 with --quick) and N-CLM on a simulated 28-anchor hall (8), every node its own process
   holding only its own data file (``distnav field init --simulate``): bitwise equal to the same front door in-process.
 * ``killed_at_20`` — flow consensus on 32 node processes, one (whose loss leaves the rest connected) exits at round 20:
-  the others finish, name it, and end within 1e-6 of the mean of the remaining data.
+  the others finish, name it, and end within 1e-6 of the mean of the remaining data (wall time and wire bytes).
+* ``admm_killed_at_20`` — ADMM on the code-bias network of 32 node processes (8 with --quick), one exits at step 20:
+  the others agree on it, run again on their own data, name it, and end within 1e-6 of the BLUE of the remaining
+  data (wall time and wire bytes).
 * ``lockstep_consensus`` — N node processes (32; 8 with --quick), average consensus (MH) in lock-step: rounds per
   second (the slowest node, after start-up) and whether every node's result is bitwise the in-process one.
   Goal ≥ 1,000 rounds/s.
@@ -257,9 +260,77 @@ def _killed_row(tmp: Path, n: int, rounds: int) -> dict[str, Any]:
         "lost_nodes_named": named,
         "noticed_at_steps": noticed_at,
         "max_abs_diff_vs_central_of_remaining": diff,
+        "seconds": summary["seconds"],
+        "wire_bytes": summary["wire_bytes"],
         "load_1min": load0,
         "goal": "others finish, status names it, ≤ 1e-6",
         "meets_goal": met,
+    }
+
+
+def _after_loss(summary: dict[str, Any], victim: int, n: int) -> tuple[bool, list[dict[str, Any]], dict[str, Any]]:
+    """Whether every other node finished (and the victim crashed on purpose), their results, and the row's fields on
+    the loss: the victim, how many finished, the nodes they name as lost, the steps at which they did."""
+    rest = [i for i in range(n) if i != victim]
+    ok = summary["finished"] == rest and summary["crashed_on_purpose"] == [victim]
+    nodes = [summary["nodes"][str(i)] for i in rest] if ok else []
+    head = {
+        "n": n,
+        "killed": victim,
+        "finished": len(summary["finished"]),
+        "lost_nodes_named": sorted({k for r in nodes for k in r["lost_nodes"]}),
+        "noticed_at_steps": sorted({r["lost_nodes"].get(str(victim)) for r in nodes}),
+    }
+    return ok, nodes, head
+
+
+def _admm_victim(sc: Any) -> int:
+    """The highest-id node whose loss leaves the rest connected and their stacked rows of full numerical rank (numpy's
+    tolerance): on 8 stations the removable node 7 leaves rank 5 of 6, a direction ADMM's rank check (rcond 1e-10
+    on the normals) does not flag, whose BLUE is 7e13 — no reference to compare with."""
+    p = sc.problem
+    skip: set[int] = set()
+    while True:
+        v = removable_node(sc.graph, skip=skip)
+        rows = np.vstack([p.A[i, : p.rows[i]] for i in range(sc.graph.n_nodes) if i != v])
+        if np.linalg.matrix_rank(rows) == p.n_params:
+            return v
+        skip.add(v)
+
+
+def _admm_killed_row(tmp: Path, n: int, epochs: int) -> dict[str, Any]:
+    """``admm_killed_at_20``: ADMM on the code-bias network of ``n`` node processes, one (whose loss leaves the rest
+    connected) exits at step 20; the others agree on it, run again on their own data and must end within 1e-6 of
+    the centralized BLUE of the remaining nodes' data (parameters no remaining node observes dropped: NaN)."""
+    from distnav.algorithms.lsq.blue import LinearProblem, blue
+
+    sc = codebias_scenario(n, 0, epochs=epochs)
+    p = sc.problem
+    assert p is not None
+    victim = _admm_victim(sc)
+    opts = LoopbackOptions(deadline_ms=5000, crash={victim: 20}, algorithm={"max_iterations": 3000})
+    net = write_scenario(tmp / "admm-killed", sc, opts)
+    load0 = _load()
+    summary = launch(net, tmp / "run-admm-killed", timeout_s=1800, quiet=True)
+    rest = [i for i in range(n) if i != victim]
+    ok, nodes, head = _after_loss(summary, victim, n)
+    field = np.array([r["estimate"] for r in nodes], dtype=float) if ok else np.full((len(rest), p.n_params), np.nan)
+    used = ~np.isnan(field).any(axis=0)
+    blocks = [(p.A[i, : p.rows[i]][:, used], p.y[i, : p.rows[i]], p.R[i, : p.rows[i], : p.rows[i]]) for i in rest]
+    ref = blue(LinearProblem.from_blocks(*(list(b) for b in zip(*blocks, strict=True)))).x
+    diff = float(np.abs(field[:, used] - ref).max()) if ok and used.any() else float("nan")
+    named = head["lost_nodes_named"]
+    return {
+        "name": "admm_killed_at_20",
+        **head,
+        "dropped_parameters": nodes[0].get("dropped_parameters") if ok else None,
+        "status": nodes[0]["status"] if ok else None,
+        "max_abs_diff_vs_blue_of_remaining": diff,
+        "seconds": summary["seconds"],
+        "wire_bytes": summary["wire_bytes"],
+        "load_1min": load0,
+        "goal": "others finish, status names it, ≤ 1e-6 of the BLUE of the remaining data",
+        "meets_goal": bool(ok and named == [str(victim)] and diff <= 1e-6),
     }
 
 
@@ -276,23 +347,16 @@ def _uwb_killed_row(tmp: Path, n: int) -> dict[str, Any]:
     net = write_scenario(tmp / "uwb-killed", sc, LoopbackOptions(deadline_ms=5000, crash={victim: 20}))
     load0 = _load()
     summary = launch(net, tmp / "run-uwb-killed", timeout_s=1800, quiet=True)
-    rest = [i for i in range(n) if i != victim]
-    ok = summary["finished"] == rest and summary["crashed_on_purpose"] == [victim]
+    ok, nodes, head = _after_loss(summary, victim, n)
     reduced = remaining_data(p, victim)
     lm = solve(reduced, "LM", iterations=500, objective="metres")
     ref = solve(reduced, "N-CLM", iterations=300, objective="metres", exchange=make_exchange(reduced.graph))
-    nodes = [summary["nodes"][str(i)] for i in rest] if ok else []
     field = np.array([r["estimate"] for r in nodes], dtype=float) if ok else np.full_like(lm.estimates, np.nan)
     diff = float(np.abs(field - lm.estimates).max())
-    named = sorted({k for r in nodes for k in r["lost_nodes"]})
-    steps = sorted({r["lost_nodes"].get(str(victim)) for r in nodes})
+    named = head["lost_nodes_named"]
     return {
         "name": "uwb_killed_at_20",
-        "n": n,
-        "killed": victim,
-        "finished": len(summary["finished"]),
-        "lost_nodes_named": named,
-        "noticed_at_steps": steps,
+        **head,
         "restarted_at_step": nodes[0]["restarted_at_step"] if ok else None,
         "max_abs_diff_vs_lm_of_remaining_m": diff,
         "bitwise_equal_inprocess_of_remaining": bool(ok and np.array_equal(field, ref.estimates)),
@@ -311,6 +375,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
         tmp = Path(tmp_name)
         rows += _consensus_rows(tmp, n, 200 if quick else 500, 3 if quick else 5)
         rows.append(_killed_row(tmp, n, 400 if quick else 1000))
+        rows.append(_admm_killed_row(tmp, n, 10 if quick else 20))
         rows.append(_algorithm_row(tmp, "admm_codebias", codebias_scenario(n, 0, epochs=10 if quick else 20)))
         rows.append(_algorithm_row(tmp, "ckf", ckf_scenario(n, 0, epochs=10 if quick else 30)))
         rows.append(_algorithm_row(tmp, "uwb_nclm_hall", hall_scenario(8 if quick else 28, 0, iterations=100)))

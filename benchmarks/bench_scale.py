@@ -6,6 +6,11 @@ of 1 float against the floor — one scipy CSR product of the same rank's rows, 
 the part (goal ≤ 1.2× at 10⁷ nodes). Per rank: set-up CPU seconds (goal ≤ 10 s at 10⁷ nodes, 4 ranks) and peak
 resident memory after the set-up (``VmHWM``, imports included; goal ∝ n/ranks).
 
+Rows ``ADMM (aggregated) on graph parts`` (issue 30 item 3): the ``admm`` job of ``mpi_scale.py`` (an 8-neighbour
+grid, p = 10, m_i = 5) at 1, 2 and 4 ranks: set-up CPU per rank (goal ≤ 10 s), peak memory per rank, the iteration
+against the rank's bare products; a memory model (imports + kB per owned node, fitted on those rows) predicts 10⁷
+nodes on 4 ranks against this machine's memory, and ``DISTNAV_SCALE_BIG=1`` runs that job only if it fits.
+
 Sizes: ``--quick`` 10⁵ nodes; default 10⁶ at 1, 2 and 4 ranks; ``DISTNAV_SCALE_BIG=1`` adds 10⁷ nodes at 2 and 4 ranks
 (≈ 3 GB per rank at 4 ranks; minutes; run it once, niced).
 
@@ -42,10 +47,10 @@ HERE = Path(__file__).resolve().parent
 CLUSTER = {"latency_s": 2.0e-6, "host_bandwidth_Bps": 12.0e9, "ranks_per_host": 16, "cores_per_host": 16}
 
 
-def _launch(ranks: int, n: int, rounds: int, repeats: int) -> dict[str, Any]:
+def _launch(ranks: int, n: int, rounds: int, repeats: int, *, admm: bool = False) -> dict[str, Any]:
     mpiexec = Path(sys.executable).parent / "mpiexec"
     cmd = [str(mpiexec), "-n", str(ranks), sys.executable, "-m", "mpi4py", str(HERE / "mpi_scale.py")]
-    cmd += [str(n), str(rounds), str(repeats)]
+    cmd += ["admm"] * admm + [str(n), str(rounds), str(repeats)]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=3600)
     if proc.returncode != 0:
@@ -180,6 +185,65 @@ def _predictions(c_edge: float, mean_in: float, halo_a: float) -> list[dict[str,
     return out
 
 
+def _admm_row(job: dict[str, Any], load: float) -> dict[str, Any]:
+    name = "ADMM (aggregated) on graph parts"
+    if "error" in job:
+        return {"name": name, **job}
+    per = job["per_rank"]
+    keys = ("iteration_ms", "floor_ms", "ratio_median", "setup_s", "admm_setup_s", "setup_mb", "iterations_mb", "owned")
+    top = {k: max(r[k] for r in per) for k in keys}  # the largest over the ranks
+    return {
+        "name": name,
+        "n_nodes": job["n_nodes"],
+        "ranks": job["ranks"],
+        "distnav_ms": top["iteration_ms"],
+        "floor_ms": top["floor_ms"],
+        "floor": "the rank's two 0/1 CSR products (p columns) and batched x-update products (no transport)",
+        "ratio_min": min(r["ratio_min"] for r in per),
+        "ratio_median": top["ratio_median"],
+        **{f"{k}_max": top[k] for k in ("setup_s", "admm_setup_s", "owned")},
+        "setup_peak_mb_max": top["setup_mb"],
+        "iterations_peak_mb_max": top["iterations_mb"],
+        "import_mb": per[0]["import_mb"],
+        "goal": "set-up ≤ 10 s per rank; memory ∝ n/ranks",
+        "meets_goal": bool(top["setup_s"] <= 10.0),
+        "job_wall_s": job["wall_s"],
+        "load": load,
+        "per_rank": per,
+    }
+
+
+def admm_memory_model(rows: list[dict[str, Any]], n: int = 10**7, ranks: int = 4) -> list[dict[str, Any]]:
+    """Per-rank peak = imports + ``b`` × owned nodes, ``b`` fitted (least squares) on the measured ADMM rows; the
+    prediction for ``n`` nodes on ``ranks`` ranks against this machine's memory."""
+    ok = [r for r in rows if r.get("name", "").startswith("ADMM") and "error" not in r]
+    if not ok:
+        return []
+    owned = np.array([r["owned_max"] for r in ok], float)
+    above = np.array([r["iterations_peak_mb_max"] - r["import_mb"] for r in ok])
+    b_mb = float(owned @ above / (owned @ owned))
+    per_rank_mb = float(np.mean([r["import_mb"] for r in ok])) + b_mb * n / ranks
+    with open("/proc/meminfo") as fh:
+        mem = {line.split(":")[0]: int(line.split()[1]) / 1024.0 for line in fh}
+    total = per_rank_mb * ranks
+    return [
+        {
+            "name": "ADMM on graph parts: memory model (prediction)",
+            "n_nodes": n,
+            "ranks": ranks,
+            "fitted_on": sorted({(r["n_nodes"], r["ranks"]) for r in ok}),
+            "kb_per_owned_node": b_mb * 1e3,
+            "residuals_mb": [float(a - b_mb * o) for a, o in zip(above, owned, strict=True)],
+            "predicted_per_rank_mb": per_rank_mb,
+            "predicted_total_mb": total,
+            "machine_total_mb": mem["MemTotal"],
+            "machine_available_mb": mem["MemAvailable"],
+            "fits": bool(total < mem["MemAvailable"]),
+            "short_by_mb": max(0.0, total - mem["MemAvailable"]),
+        }
+    ]
+
+
 def run(quick: bool) -> list[dict[str, Any]]:
     sizes = [(10**5, (1, 2, 4))] if quick else [(10**6, (1, 2, 4))]
     if os.environ.get("DISTNAV_SCALE_BIG") == "1" and not quick:  # ≈ 2.1 GB per rank at 4 ranks, 4.3 GB at 2
@@ -189,7 +253,14 @@ def run(quick: bool) -> list[dict[str, Any]]:
         for ranks in rank_counts:
             load = os.getloadavg()[0]
             rows.append(_row(_launch(ranks, n, rounds=10 if n <= 10**6 else 5, repeats=7), load))
-    return rows + model_rows(rows)
+    admm_rows = []
+    for ranks in (1, 2, 4):  # ADMM on parts (issue 30 item 3): the 10⁷ row only where the model says it fits
+        load = os.getloadavg()[0]
+        admm_rows.append(_admm_row(_launch(ranks, sizes[0][0], 3, 5, admm=True), load))
+    model = admm_memory_model(admm_rows)
+    if os.environ.get("DISTNAV_SCALE_BIG") == "1" and not quick and model and model[0]["fits"]:
+        admm_rows.append(_admm_row(_launch(4, 10**7, 3, 3, admm=True), os.getloadavg()[0]))
+    return rows + model_rows(rows) + admm_rows + model
 
 
 if __name__ == "__main__":

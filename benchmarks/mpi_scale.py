@@ -1,15 +1,15 @@
-"""One consensus job on graph parts, measured per rank (launched by ``bench_scale.py`` under ``mpiexec``).
+"""One consensus (or ADMM) job on graph parts, measured per rank (launched by ``bench_scale.py`` under ``mpiexec``).
 
     mpiexec -n R python -m mpi4py benchmarks/mpi_scale.py N_NODES ROUNDS REPEATS
+    mpiexec -n R python -m mpi4py benchmarks/mpi_scale.py admm N_NODES ITERATIONS REPEATS
 
-Every rank builds only its part of a tiled random geometric graph (mean degree 8, equal ranges of ids:
-:func:`~distnav.network.part_builders.tiled_random_geometric_part`), Metropolis weights, the MPI exchange (local RCM
-order) and the mixer, then times consensus rounds of 1 float per node interleaved with its **floor**: one scipy CSR
-product of the same rank's rows, written here from the part alone (the weights on ``[owned | halo]`` columns, owned
-nodes renumbered by scipy's reverse Cuthill–McKee) — no transport. It also times the halo transport alone and a bare
-ping-pong between ranks 0 and 1 (latency and bandwidth of this machine's MPI). Rank 0 prints one JSON line with
-every rank's row: set-up CPU seconds per stage, peak resident memory (``VmHWM``), owned nodes, in-edges, halo nodes,
-neighbour ranks, halo bytes per round, the round and the floor per round (medians) and their per-repeat ratios.
+``admm`` (:func:`admm_main`): ADMM with aggregated messages on the parts
+(:func:`~distnav.algorithms.lsq.on_part.iterate_admm_on_part`) of an 8-neighbour grid of ``≈ N_NODES`` nodes (ADMM
+needs a connected graph; the tiled geometric graph at mean degree 8 leaves ≈ n·e⁻⁸ nodes alone), p = 10 and 5 rows
+per node drawn by each rank for its own nodes; per rank the set-up CPU seconds (part; ADMM: constraint nodes,
+rounds, gains, state 0), ``VmHWM`` after the part and the problem, after the set-up and after the iterations, and
+the iteration against its floor: two products of a 0/1 CSR matrix of the rank's rows (``p`` columns, written from
+the part) and the batched x-update products, timed after the run.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from distnav.exchange import make_exchange
 from distnav.network.graph_part import GraphPart
-from distnav.network.part_builders import radius_for_mean_degree, tiled_random_geometric_part
+from distnav.network.part_builders import grid_part, radius_for_mean_degree, tiled_random_geometric_part
 from distnav.network.partition import block_ranges
 from distnav.network.weights import PartWeights, part_weights
 
@@ -138,5 +138,89 @@ def main() -> None:
         print(json.dumps({"n_nodes": n, "n_edges": part.n_edges, "ranks": size, "rounds": rounds, "per_rank": rows}))
 
 
+def admm_main() -> None:
+    """The ``admm`` job (module docstring): rank 0 prints one JSON line with every rank's row."""
+    from distnav.algorithms.lsq.blue import LinearProblem
+    from distnav.algorithms.lsq.on_part import iterate_admm_on_part
+
+    n, iterations, repeats = int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+    p, m = 10, 5
+    comm = MPI.COMM_WORLD
+    rank, size = comm.Get_rank(), comm.Get_size()
+    row: dict[str, Any] = {"rank": rank, "import_mb": vm_hwm_mb()}
+    side = int(round(np.sqrt(n)))  # an 8-neighbour grid: connected (a tiled geometric graph has lone nodes)
+    n = side * side
+    ranges = block_ranges(n, size)
+    t = time.process_time()
+    part = grid_part(side, side, ranges.nodes_of(rank), neighbourhood=8)
+    row["part_s"] = time.process_time() - t
+    ex = make_exchange(part, backend="mpi", partition=ranges)
+    row["exchange_s"] = time.process_time() - t - row["part_s"]
+    rng = np.random.default_rng([7, rank])  # this rank's nodes' data, drawn here
+    A = rng.standard_normal((part.n_local, m, p))
+    y = A @ rng.standard_normal(p) + 0.1 * rng.standard_normal((part.n_local, m))
+    problem = LinearProblem.from_stacked(A, y)
+    row["part_mb"] = vm_hwm_mb()
+    t = time.process_time()
+    states = iterate_admm_on_part(problem, ex, W=5.0, messages="aggregated", monitor_every=0)
+    next(states)
+    row["admm_setup_s"] = time.process_time() - t
+    row["setup_s"] = row["part_s"] + row["exchange_s"] + row["admm_setup_s"]
+    row["setup_mb"] = vm_hwm_mb()
+    ours = []
+    for _ in range(repeats):
+        comm.Barrier()
+        t0 = time.perf_counter()
+        for _ in range(iterations):
+            st = next(states)
+        ours.append((time.perf_counter() - t0) / iterations)
+    row["iterations_mb"] = vm_hwm_mb()
+    bare = _admm_floor(part, A, st.x, iterations, repeats, comm)
+    ratio = np.asarray(ours) / np.asarray(bare)
+    row.update(
+        owned=part.n_local,
+        in_edges=part.n_local_edges,
+        iteration_ms=float(np.median(ours)) * 1e3,
+        floor_ms=float(np.median(bare)) * 1e3,
+        ratio_min=float(ratio.min()),
+        ratio_median=float(np.median(ratio)),
+        end_mb=vm_hwm_mb(),
+    )
+    rows = comm.gather(row)
+    if rank == 0:
+        print(
+            json.dumps(
+                {"n_nodes": n, "n_edges": part.n_edges, "ranks": size, "iterations": iterations, "per_rank": rows}
+            )
+        )
+
+
+def _admm_floor(part: GraphPart, A: np.ndarray, x: np.ndarray, iterations: int, repeats: int, comm: Any) -> list[float]:
+    """Seconds per bare iteration of this rank: two products of a 0/1 CSR matrix of its rows over ``[owned | halo]``
+    columns with ``p`` columns of values, and the x-update's two batched products (``A l`` and ``Aᵀ r``, standing in
+    for ``G r``: the same shapes), made after the run (not in its memory)."""
+    n_own, p = part.n_local, A.shape[2]
+    w = PartWeights(part, np.ones(part.n_local_edges), np.ones(n_own))
+    S = floor_matrix(part, w)
+    cols = np.random.default_rng(1).random((S.shape[1], p))
+    At = np.ascontiguousarray(A.transpose(0, 2, 1))
+    l = x.copy()
+    out = []
+    for _ in range(repeats):
+        comm.Barrier()
+        t0 = time.perf_counter()
+        for _ in range(iterations):
+            xs = S @ cols
+            zs = S @ cols
+            res = (A @ l[..., None])[..., 0]
+            l = l + (At @ res[..., None])[..., 0] * 1e-3
+            del xs, zs
+        out.append((time.perf_counter() - t0) / iterations)
+    return out
+
+
 if __name__ == "__main__":
-    main()
+    if sys.argv[1] == "admm":
+        admm_main()
+    else:
+        main()

@@ -83,3 +83,39 @@ def test_uwb_anchors_go_on_without_the_tree_root_or_an_inner_node(tmp_path: Path
     lm = solve(remaining_data(sc.ranging, victim), "LM", iterations=500, objective="metres")
     field = np.array([r["estimate"] for r in nodes], dtype=float)
     assert np.abs(field - lm.estimates).max() <= 1e-3
+
+
+def test_uwb_anchors_on_a_chain_cut_in_two_stop_and_name_the_anchor(tmp_path: Path) -> None:
+    """The anchors measure only along a path (a snake through the 2 × 5 grid of a 10-anchor hall, the known anchors
+    at one end); the inner anchor 2 dies at step 20, which cuts the path in two. Neither half can tell the other
+    half from the dead (survivors.beyond_reach), so every remaining anchor stops, names anchor 2 as lost and the far
+    half as out of reach, and gives no estimate — never two half answers."""
+    from dataclasses import replace
+
+    from distnav.commands.field_scenarios import Scenario
+
+    sc = hall_scenario(10, seed=5, iterations=300, objective="metres", hall=WELL_CONNECTED)
+    p = sc.ranging
+    assert p is not None
+    path = [0, 5, 6, 1, 2, 7, 8, 3, 4, 9]  # anchors 0, 1, 5, 6 known; 2 is free and inner
+    on_path = {frozenset(e) for e in zip(path[:-1], path[1:], strict=True)}
+    keep = np.array([frozenset((a, b)) in on_path for a, b in zip(p.meas_a, p.meas_b, strict=True)])
+    chain = replace(p, meas_a=p.meas_a[keep], meas_b=p.meas_b[keep], range_m=p.range_m[keep])
+    assert chain.graph.n_edges == 2 * 9 and chain.free[2].any() and not chain.free[[0, 1, 5, 6]].any()
+    left, right = [0, 5, 6, 1], [7, 8, 3, 4, 9]
+    net = write_scenario(
+        tmp_path / "net",
+        Scenario(chain.graph, "uwb", sc.algorithm, ranging=chain),
+        LoopbackOptions(deadline_ms=2000, crash={2: 20}),
+    )
+    summary = launch(net, tmp_path / "run", timeout_s=400, quiet=True)
+    assert summary["crashed_on_purpose"] == [2]
+    assert summary["finished"] == [] and summary["failed"] == [], summary
+    assert sorted(summary["stopped"]) == sorted(left + right)
+    for i in left + right:
+        r = summary["nodes"][str(i)]
+        assert r["status"] == "stopped" and r["estimate"] is None, r
+        assert "may be split" in r["message"], r["message"]
+        assert list(r["lost_nodes"]) == ["2"]  # the far half is named as out of reach, not as lost
+        far = right if i in left else left
+        assert str(sorted(far)) in r["message"], r["message"]

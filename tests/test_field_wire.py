@@ -107,6 +107,26 @@ def test_refusals_are_counted_and_the_node_keeps_running(
         t0.close()
 
 
+@pytest.mark.parametrize("like", [None, np.zeros(1)], ids=["decode", "expected_header"])
+def test_a_second_message_of_a_step_is_a_replay_whatever_its_shape(like: np.ndarray | None) -> None:
+    """A sender's first message of a step is the one taken (here of another shape: the exchange refuses it as
+    malformed); a second one of the same step, even with the expected header, is a replay on both paths."""
+    p0, p1, p2 = free_loopback_ports(3)
+    peers = [Peer(1, f"tcp://127.0.0.1:{p1}"), Peer(2, f"tcp://127.0.0.1:{p2}")]
+    t0 = Transport(0, f"tcp://127.0.0.1:{p0}", peers, options=TransportOptions(deadline_s=0.5))
+    push = _raw_push(p0)
+    try:
+        push.send(encode(Kind.COLUMN, 1, 0, np.array([1.0, 2.0])))
+        push.send(encode(Kind.COLUMN, 1, 0, np.array([3.0])))  # while node 2's is still awaited
+        push.send(encode(Kind.COLUMN, 2, 0, np.array([4.0])))
+        got = t0.collect(Kind.COLUMN, 0, [1, 2], like=like)
+        assert got[1].tolist() == [1.0, 2.0] and got[2].tolist() == [4.0]
+        assert t0.refusal_counts() == {"replay": 1}
+    finally:
+        push.close()
+        t0.close()
+
+
 def test_a_missing_message_is_lost_after_the_deadline_and_a_silent_peer_declared_lost() -> None:
     t0, _, _ = _pair()
     try:

@@ -166,3 +166,19 @@ def test_per_epoch_model_still_checks_changed_inputs() -> None:
     flat = np.ones((p, 2))  # not identity columns, rank 1
     with pytest.raises(ModelError, match="epoch 1 must have full column rank"):
         DynamicModel(p, noise_map=[H, flat, flat, flat], noise_reduced_cov=[good] * T)
+
+
+def test_noise_cov_block_is_h_s_ht_at_every_epoch() -> None:
+    """The collectors' block of system-noise covariances equals ``H_t S̃_t H_tᵀ`` formed by hand, epoch by epoch,
+    for identity-column maps varying in size over the epochs and for a general map."""
+    from distnav.algorithms.kalman import DynamicModel
+
+    rng = np.random.default_rng(3)
+    H = np.eye(5)[:, [1, 3]]
+    covs = [np.diag(rng.uniform(0.1, 2.0, 2)) for _ in range(6)]
+    dyn = DynamicModel(5, noise_map=[H] * 6, noise_reduced_cov=covs)
+    got = dyn.noise_cov_block(np.arange(1, 6))
+    np.testing.assert_array_equal(got, np.stack([H @ c @ H.T for c in covs[1:]]))
+    G = rng.standard_normal((5, 2))
+    general = DynamicModel(5, noise_map=G, noise_reduced_cov=covs[0])
+    np.testing.assert_allclose(general.noise_cov_block(np.array([1, 2])), np.stack([G @ covs[0] @ G.T] * 2))

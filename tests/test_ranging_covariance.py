@@ -133,7 +133,7 @@ def test_cost_and_convergence_are_checked():
     assert from_fixed > 0 and per_round[0] == links and np.all(per_round[1:] == links - from_fixed)
     assert comm.bytes == links * 8 * P + (links - from_fixed) * 8 * p_free * k * (got.cg_iterations + 1)
     msgs, nbytes = got.reduction_cost(p.n_anchors)
-    assert msgs == got.reductions * 2 * (p.n_anchors - 1) and nbytes > 0
+    assert msgs == got.reduced.count * 2 * (p.n_anchors - 1) and nbytes > 0
     with pytest.raises(ModelError, match="did not converge"):
         central_precision(p, p.truth_m, sigma_m=0.1, max_iterations=3)
 

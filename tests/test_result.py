@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from distnav.algorithms.consensus.averaging import ConsensusResult, average_consensus
-from distnav.algorithms.result import SOLVER_STATUSES, Precision, SolverResult, Trace
+from distnav.algorithms.result import SOLVER_STATUSES, Precision, SolverResult, Trace, TraceBuilder, stopping_fields
+from distnav.exchange.core import CommTotals
 from distnav.network import builders
 
 
@@ -56,3 +57,16 @@ def test_gathered_precision_holds_every_block_and_only_the_messages_since_the_sn
     assert (p.variance_factor, p.redundancy, p.kind, p.iterations) == (2.0, 3.0, "exact", 1)
     assert p.comm is not None and (p.comm.rounds, p.comm.messages) == (1, 8)
     assert ex.comm_totals().messages == 16
+
+
+def test_stopping_fields_name_the_status_by_the_tolerance():
+    """A run that met its tolerance ends ``converged``, else ``max_iterations``; the trace is built, the rest kept."""
+    tb = TraceBuilder()
+    tb.add(step=1.0)
+    tb.add(step=0.5)
+    comm = CommTotals.empty(3)
+    met = SolverResult(estimates=np.zeros((3, 1)), **stopping_fields(True, 2, "two steps", tb, comm))
+    not_met = SolverResult(estimates=np.zeros((3, 1)), **stopping_fields(False, 2, "two steps", tb, comm))
+    assert (met.status, met.converged, met.iterations, met.message) == ("converged", True, 2, "two steps")
+    assert (not_met.status, not_met.converged) == ("max_iterations", False)
+    assert met.trace["step"].tolist() == [1.0, 0.5] and met.comm is comm

@@ -8,13 +8,13 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from distnav.algorithms.ranging.covariance import COVARIANCE_CG_RTOL, central_precision
+from distnav.algorithms.ranging.covariance import COVARIANCE_CG_RTOL, CentralPrecisionOptions, central_precision
 from distnav.algorithms.ranging.lm import solve_lm
 from distnav.errors import ModelError
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field, subset_measurements
-from distnav.models.uwb.field_precision import SigmaModel, distributed_sigma, gathered_cost
+from distnav.models.uwb.field_precision import distributed_sigma, gathered_cost
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 from distnav.models.uwb.precision import DELAY_UPPER_Z
 
@@ -28,15 +28,15 @@ def _hall(known: str = "corner", seed: int = 1200):
 
 
 def _sigma(p, res, mode, offsets, delay_sigma_m):
-    model = SigmaModel(
+    model = CentralPrecisionOptions(
         sigma_m=0.1,
         loss="cauchy_long",
         loss_scale_m=0.1,
-        offsets=offsets,
+        range_offsets=offsets,
         offset_prior_sigma_m=0.05,
         delay_sigma_m=delay_sigma_m,
         estimate_delays=delay_sigma_m > 0,
-        fit_scale_m=0.3,
+        variance_scale_m=0.3,
     )
     return distributed_sigma(p, res, model, exchange=None, objective="metres", mode=mode)
 
@@ -126,4 +126,4 @@ def test_gathered_precision_models_the_metres_objective_only():
     p = subset_measurements(sub, ~nlos)
     lm = solve_lm(p, objective="metres", sigma_m=0.1, range_offsets="common", initial_m=p.truth_m)
     with pytest.raises(ModelError, match="'gathered' models the metres objective"):
-        distributed_sigma(p, lm, SigmaModel(), exchange=None, objective="squared", mode="gathered")
+        distributed_sigma(p, lm, CentralPrecisionOptions(), exchange=None, objective="squared", mode="gathered")

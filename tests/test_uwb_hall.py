@@ -9,7 +9,7 @@ import pytest
 from distnav.errors import ModelError
 from distnav.experiments.uwb_field import write_hall
 from distnav.formats.uwb.io import combine_ranges, read_heights, read_positions, read_ranges
-from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+from distnav.models.uwb.hall import PLANT_HARD, PLANT_LIKE, HallConfig, simulate_hall
 
 
 def _pooled(seeds: range, **changes: object) -> list:
@@ -202,3 +202,52 @@ def test_known_anchors_on_one_wall_are_nearly_collinear():
         k = h.truth_m[h.known, :2]
         sv = np.linalg.svd(k - k.mean(0), compute_uv=False)
         assert sv[1] < 0.25 * sv[0] and k[:, 1].max() < 10.0  # along y ≈ 0, spread along x
+
+
+def test_plant_hard_adds_a_bias_per_los_link_and_dw1000_delays():
+    """PLANT_HARD: PLANT_LIKE's links and NLOS, plus a bias of its own per LOS link (sd 0.1 m, every sample of the
+    link), per-node delays N(0.35, 0.1²); pooled over 20 halls."""
+    halls = _pooled(range(20), **PLANT_HARD)
+    assert 95 <= np.mean([h.links.shape[0] for h in halls]) <= 115
+    assert 0.07 <= np.mean([h.nlos.mean() for h in halls]) <= 0.11
+    med, rec, off = [], [], []
+    for h in halls:
+        assert h.los_bias_m is not None and np.all(h.los_bias_m[h.nlos] == 0.0)
+        ex = _excess(h)
+        for k in np.flatnonzero(~h.nlos):
+            med.append(np.median(ex[h.sample_link == k]))  # the link's bias + the median of its noise
+            rec.append(h.los_bias_m[k])
+        off.extend(h.offset_m)
+    med, rec = np.array(med), np.array(rec)
+    assert abs(np.std(rec) - 0.1) < 0.01 and abs(np.mean(rec)) < 0.01
+    assert np.corrcoef(med, rec)[0, 1] > 0.9  # the bias is the link's own, on every sample
+    assert abs(np.std(med - rec) - 0.05 * 1.25 / np.sqrt(30)) < 0.02  # what is left: the median of the noise
+    assert abs(np.mean(off) - 0.35) < 0.02 and abs(np.std(off) - 0.1) < 0.015
+    with pytest.raises(ModelError, match="los_bias_sd_m"):
+        HallConfig(los_bias_sd_m=-0.1)
+
+
+def test_plant_hard_range_errors_within_the_april_dw1000_logs(shared_data):
+    """PLANT_HARD's range errors against the real APRIL DW1000 logs (PROVENANCE.md's delays and truth in feet; each
+    pair's median range minus its distance, computed here from the raw file): the common offset within 0.1 m of
+    APRIL's mean error, the LOS link bias and per-node delay sd no larger than APRIL's scatter (short links, where
+    the DW1000's bias is largest), the sample noise at least APRIL's median per-pair scatter."""
+    from test_uwb_april import DELAY_US, TRUTH_FT, C  # one copy of PROVENANCE.md's numbers
+
+    for name in ("dataset4.txt", "dataset5.txt"):
+        raw = np.loadtxt(shared_data / "uwb" / "april-dw1000-8node" / name, usecols=(0, 1, 2))
+        pairs: dict[tuple[int, int], list[float]] = {}
+        for t, a, b in raw:
+            a, b = int(a), int(b)
+            d = (t - 0.5 * (DELAY_US[a] + DELAY_US[b])) * C
+            if a in TRUTH_FT and b in TRUTH_FT and 0 < d < 50:
+                pairs.setdefault((min(a, b), max(a, b)), []).append(d)
+        err = np.array(
+            [np.median(v) - 0.3048 * np.hypot(*np.subtract(TRUTH_FT[a], TRUTH_FT[b])) for (a, b), v in pairs.items()]
+        )
+        scatter = np.median([1.4826 * np.median(np.abs(np.subtract(v, np.median(v)))) for v in pairs.values()])
+        assert len(err) == 21
+        assert abs(PLANT_HARD["common_offset_m"] - err.mean()) < 0.1, (name, err.mean())  # type: ignore[operator]
+        assert PLANT_HARD["los_bias_sd_m"] <= np.std(err, ddof=1), (name, np.std(err, ddof=1))  # type: ignore[operator]
+        assert PLANT_HARD["antenna_delay_sd_m"] <= np.std(err, ddof=1)  # type: ignore[operator]
+        assert 0.02 < scatter <= HallConfig().sigma_m, (name, scatter)

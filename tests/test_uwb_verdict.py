@@ -188,3 +188,26 @@ def test_an_anchor_on_a_doubtful_fit_is_never_certified(tmp_path) -> None:
         e2[mine[0]] = np.sqrt(max(k2, 0.0)) * scale
         got = fit_doubts(dataclasses.replace(sol, residual_m=e2))  # (the median moves by at most one link's rank)
         assert (p.ids[i] in got and got[p.ids[i]].startswith("misfit:")) == doubted
+
+
+def test_alternative_link_set_that_fits_as_well_is_not_certified(tmp_path):
+    """Plant-like hall [30, 1003] (middle): A22 has 7 links, 3 of them NLOS; the fit kept the 3 NLOS links and
+    one good one (they agree at a point 1.84 m off) and excluded 3 good ones, σ 0.05 m: certified for 0.3 m before.
+    Leaving out the NLOS links instead fits as well at the truth's side, with every left-out link long: the anchor
+    fails as ``alternative`` (its point within 0.1 m of the truth), and no other anchor of the hall does."""
+    from distnav.commands.uwb import solve_range_log
+    from distnav.models.uwb.verdict import alternative_links, run_verdict
+
+    h = simulate_hall(np.random.default_rng([30, 1003]), None, **PLANT_LIKE, known="middle")
+    f = write_hall(h, tmp_path / "hall")
+    sol, _, _ = solve_range_log(f["ranges"], f["known"], heights=f["heights"], truth=f["truth"])
+    p = sol.problem
+    assert p.truth_m is not None
+    i = p.ids.index("A22")
+    assert np.linalg.norm(sol.positions_m[i] - p.truth_m[i]) > 1.5  # the case
+    v = run_verdict(sol)
+    assert v.failing["A22"].startswith("alternative: leaving out")
+    assert sorted(k for k, why in v.failing.items() if why.startswith("alternative")) == ["A22"]
+    err = np.linalg.norm(sol.positions_m - p.truth_m, axis=1)
+    assert all(err[p.ids.index(k)] <= 0.3 for k in np.array(p.ids)[p.estimated] if k not in v.failing)
+    assert alternative_links(sol, i, 2.0) is None  # 1.87 m away: within a required accuracy of 2 m

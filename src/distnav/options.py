@@ -17,12 +17,14 @@ input folder, and an existing ``--out`` may hold only files that distnav wrote t
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import math
 import os
 from collections.abc import Iterable, Iterator
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 from distnav.errors import UsageError
 
@@ -35,6 +37,7 @@ __all__ = [
     "input_paths",
     "record_outputs",
     "existing_file",
+    "fields_from_args",
     "finite_float",
     "iso_datetime",
     "nonnegative_float",
@@ -45,6 +48,18 @@ __all__ = [
     "probe_output_folder",
     "seed",
 ]
+
+
+def fields_from_args(args: argparse.Namespace, options_type: type[Any], *, but: Iterable[str] = ()) -> dict[str, Any]:
+    """The fields of the options dataclass ``options_type`` that the command line gives under the same name (an
+    option ``--loss-scale-m`` for a field ``loss_scale_m``), as keyword arguments; ``but`` names the fields the
+    command sets itself (a default that depends on another option, a value converted)."""
+    skip = set(but)
+    return {
+        f.name: getattr(args, f.name)
+        for f in dataclasses.fields(options_type)
+        if f.name not in skip and hasattr(args, f.name)
+    }
 
 
 def _int(text: str) -> int:

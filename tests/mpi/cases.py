@@ -702,7 +702,7 @@ def central_precision_distributed(backend: str) -> dict[str, np.ndarray]:
     return {
         "estimates": out.covariance(a_posteriori=True).ravel(),
         "sent": out.precision.comm.messages_sent,
-        "count": np.asarray([out.cg_iterations, out.reductions, out.reduced_floats]),
+        "count": np.asarray([out.cg_iterations, out.reduced.count, out.reduced.floats]),
     }
 
 

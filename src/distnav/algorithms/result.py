@@ -28,6 +28,7 @@ __all__ = [
     "SOLVER_STATUSES",
     "SolverResult",
     "SolverStatus",
+    "stopping_fields",
     "Trace",
     "TraceBuilder",
 ]
@@ -235,6 +236,22 @@ class SolverResult:
         """JSON-friendly summary (no large arrays)."""
         plain = {name: getattr(self, name) for name in ("converged", "iterations", "status", "message")}
         return {**plain, "communication": self.comm.as_dict()}
+
+
+def stopping_fields(
+    converged: bool, iterations: int, message: str, trace: TraceBuilder, comm: CommTotals
+) -> dict[str, Any]:
+    """The :class:`SolverResult` fields but ``estimates`` of a run that stops at its tolerance (status
+    ``converged``) or else at its iteration limit (``max_iterations``), its trace built."""
+    status: SolverStatus = "converged" if converged else "max_iterations"
+    return {
+        "converged": converged,
+        "iterations": iterations,
+        "status": status,
+        "message": message,
+        "trace": trace.build(),
+        "comm": comm,
+    }
 
 
 def format_bytes(n_bytes: float) -> str:

@@ -23,18 +23,23 @@ without the consensus-deviation monitor (``monitor=False``), as ``distnav gnss i
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from distnav.errors import ExchangeError
+from distnav.errors import ExchangeError, UsageError
 from distnav.exchange.field import FieldExchange, Transport
 from distnav.formats.field_config import NetworkDescription
 from distnav.formats.field_data import admm_node_problem, ckf_node_model, read_node_arrays
 
-__all__ = ["NODE_ALGORITHMS", "run_algorithm"]
+if TYPE_CHECKING:
+    from distnav.commands.field_survive import Rerun
+
+__all__ = ["NODE_ALGORITHMS", "REJOIN_ALGORITHMS", "rejoin_algorithm", "run_algorithm"]
 
 NODE_ALGORITHMS = ("admm", "ckf", "uwb")
+#: node programs a restarted node can rejoin (besides consensus): they run again from the start with it
+REJOIN_ALGORITHMS = ("admm", "ckf")
 
 
 def _arrays(desc: NetworkDescription, node_id: int, kind: str) -> dict[str, np.ndarray]:
@@ -49,7 +54,7 @@ def _arrays(desc: NetworkDescription, node_id: int, kind: str) -> dict[str, np.n
 def run_admm(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
     """ADMM (paper 000 Fig. 6) on this node's observation block; its estimate, status and iterations. A node lost
     mid-run: the others go on without it (:mod:`distnav.commands.field_admm`)."""
-    from distnav.commands.field_admm import admm_again, run_admm_field
+    from distnav.commands.field_admm import run_admm_field
     from distnav.commands.field_survive import without_lost
 
     entry = desc.node(node_id)
@@ -59,7 +64,7 @@ def run_admm(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[
     try:
         res = run_admm_field(desc.algorithm, problem, ex)
     except ExchangeError as exc:
-        return without_lost(desc, ex, str(exc), admm_again(desc.algorithm, arrays, entry.data))
+        return without_lost(desc, ex, str(exc), _rerun(desc, node_id))
     return {
         "estimate": res.estimates[node_id],
         "status": res.status,
@@ -78,16 +83,40 @@ def run_ckf(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
 
     entry = desc.node(node_id)
     assert entry.data is not None
-    path, arrays = entry.data, _arrays(desc, node_id, "ckf")
+    try:
+        out = _ckf(desc.algorithm, _arrays(desc, node_id, "ckf"), entry.data, ex)
+    except ExchangeError as exc:
+        return without_lost(desc, ex, str(exc), _rerun(desc, node_id))
+    return out
+
+
+def _rerun(desc: NetworkDescription, node_id: int) -> Rerun:
+    """The run again of an ADMM or CKF node on a sub-network (without lost nodes, or with returned ones), from the
+    start on its own data."""
+    from distnav.commands.field_admm import admm_again
+
+    entry = desc.node(node_id)
+    assert entry.data is not None
+    path, kind = entry.data, desc.algorithm["name"]
+    arrays = _arrays(desc, node_id, kind)
+    if kind == "admm":
+        return admm_again(desc.algorithm, arrays, path)
 
     def ckf_on(sub: FieldExchange, alive: np.ndarray) -> dict[str, Any]:  # alive unused: every node has its own normals
         return _ckf(desc.algorithm, arrays, path, sub)
 
-    try:
-        out = _ckf(desc.algorithm, arrays, path, ex)
-    except ExchangeError as exc:
-        return without_lost(desc, ex, str(exc), ckf_on)
-    return out
+    return ckf_on
+
+
+def rejoin_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, invited: np.ndarray) -> dict[str, Any]:
+    """A restarted ADMM or CKF node, invited back by the others (``invited``: :meth:`Transport.join`): it runs
+    again from the start with them, on every node's data that is there (:func:`~distnav.commands.field_survive.
+    without_lost`)."""
+    from distnav.commands.field_survive import without_lost
+
+    if desc.algorithm["name"] not in REJOIN_ALGORITHMS:
+        raise UsageError(f"--rejoin: {desc.algorithm['name']} nodes cannot rejoin (only {REJOIN_ALGORITHMS})")
+    return without_lost(desc, ex, "", _rerun(desc, node_id), invited=invited)
 
 
 def _ckf(algo: dict[str, Any], arrays: dict[str, np.ndarray], path: Path, ex: FieldExchange) -> dict[str, Any]:
@@ -132,7 +161,11 @@ def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, tra
 
     runner = {"admm": run_admm, "ckf": run_ckf, "uwb": run_uwb}[desc.algorithm["name"]]
     try:
-        out = runner(desc, node_id, ex)
+        out = (
+            runner(desc, node_id, ex)
+            if transport.invited is None
+            else rejoin_algorithm(desc, node_id, ex, transport.invited)
+        )
     except ExchangeError as exc:
         return _stopped(desc, ex, transport, str(exc))
     if transport.lost and "lost_nodes" not in out:  # (admm, uwb name the losses it went on without itself)

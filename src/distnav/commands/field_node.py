@@ -22,6 +22,7 @@ import numpy as np
 from distnav._optional import require
 from distnav.algorithms.consensus.averaging import iterate_average_consensus
 from distnav.algorithms.consensus.flows import iterate_flow_consensus
+from distnav.commands.field_algorithms import REJOIN_ALGORITHMS
 from distnav.errors import DataFileError, UsageError
 from distnav.exchange import FaultSchedule
 from distnav.exchange.field import CurveKeys, FieldExchange, Transport
@@ -75,9 +76,10 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
     consensus = desc.algorithm["name"] in ("consensus", "consensus_flows")
     values = node_values(desc, node_id) if consensus else None
     keys = load_keys(desc, node_id)
-    if rejoin and not consensus:
-        raise UsageError(f"--rejoin: only consensus nodes can rejoin a running network, not {desc.algorithm['name']}")
+    if rejoin and not consensus and desc.algorithm["name"] not in REJOIN_ALGORITHMS:
+        raise UsageError(f"--rejoin: {desc.algorithm['name']} nodes cannot rejoin a running network (not done)")
     transport = Transport(node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=keys)
+    transport.readmit_on_hello = consensus  # ADMM, CKF: a returning node is invited to a run again (field_survive)
     t0 = time.monotonic()
     try:
         schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
@@ -87,8 +89,8 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             if crash_step is None
             else _CrashingExchange(desc.graph(), node_id, transport, schedule, crash_step=crash_step)
         )
-        first = transport.join() if rejoin else 0
-        if rejoin:
+        first = transport.join(invitation=not consensus) if rejoin else 0  # ADMM, CKF: run again with the others
+        if rejoin and consensus:
             ex.start_at(first)
             LOG.warning("node %d: rejoining at step %d", node_id, first)
         # a consensus node is ready before it greets: weights, checks and mixers built (no message), so the first

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import ExchangeError, ModelError
-from distnav.exchange.field import FieldExchange
+from distnav.exchange.field import FieldExchange, Kind
 from distnav.exchange.field.survivors import (
     SubnetTransport,
     agree_on_survivors,
@@ -36,7 +36,9 @@ from distnav.exchange.field.survivors import (
     beyond_reach,
     subnetwork,
 )
+from distnav.exchange.field.transport import StepTransport
 from distnav.formats.field_config import NetworkDescription
+from distnav.network.graph import Graph
 
 __all__ = ["ATTEMPT_STEPS", "Rerun", "check_agreement", "without_lost"]
 
@@ -55,46 +57,108 @@ _UNSEEN = (
 Rerun = Callable[[FieldExchange, np.ndarray], dict[str, Any]]
 
 
-def without_lost(desc: NetworkDescription, ex: FieldExchange, error: str, rerun: Rerun) -> dict[str, Any]:
-    """Agree on the remaining nodes and run again on their data (module docstring); at most one pass per node of
-    the network (each pass loses at least one)."""
+def without_lost(
+    desc: NetworkDescription, ex: FieldExchange, error: str, rerun: Rerun, *, invited: np.ndarray | None = None
+) -> dict[str, Any]:
+    """Agree on the remaining nodes and run again on their data (module docstring); a lost node that greets its
+    neighbours again before that run ends is invited back and the nodes run once more with it (:func:`_invite`).
+    ``invited``: this node is such a returning one (the invitation, :meth:`Transport.join`). At most a few passes
+    per node of the network (each pass loses or regains one at least)."""
     graph, base, name = ex.graph, ex.transport, desc.algorithm["name"]
     window = agreement_window_s(graph, base.options.deadline_s)
     dead: dict[int, int] = {}
-    failed = ex.step - 1
-    for attempt in range(1, desc.n_nodes + 1):
-        alive, failed, step = agree_on_survivors(
-            base, graph, attempt * ATTEMPT_STEPS, window_s=window, failed_step=failed, dead=set(dead)
-        )
-        newly = sorted(set(np.flatnonzero(~alive).tolist()) - set(dead))
-        if not newly:
-            return _stopped(
-                name, ex, dead, f"a global operation failed at step {failed} with every node alive ({error})"
+    back: dict[int, int] = {}
+    failed, attempt, start = ex.step - 1, 1, None
+    if invited is not None:  # [first step of the run with this node, the failed step, the run's nodes]
+        failed, attempt = int(invited[1]), int(invited[0]) // ATTEMPT_STEPS + 1
+        start = (np.asarray(invited[2:]) > 0, int(invited[0]))
+        dead = {int(k): failed for k in np.flatnonzero(~start[0])}
+        back = {ex.me: start[1]}
+    for _ in range(2 * desc.n_nodes + 2):
+        if start is None:
+            alive, failed, step = agree_on_survivors(
+                base, graph, attempt * ATTEMPT_STEPS, window_s=window, failed_step=failed, dead=set(dead)
             )
-        unseen = beyond_reach(graph, alive, newly)
-        dead.update({k: failed for k in newly if k not in unseen})
-        if unseen:
-            return _stopped(name, ex, dead, f"{_UNSEEN} {unseen}")
+            attempt += 1
+            why = _lost_now(graph, alive, dead, failed, error)
+            if why:
+                return _stopped(name, ex, dead, why)
+        else:
+            (alive, step), start = start, None
         sub = _sub_exchange(ex, alive, step)
         if sub is None:
             return _stopped(name, ex, dead, "the remaining nodes are not one connected network")
         try:
             check_agreement(sub, alive, failed)
             out = rerun(sub, alive)
+            returned = _returned(sub, base, dead, graph.n_nodes)
         except ExchangeError as exc:
             failed, error = sub.step - 1, str(exc)
             continue
         except ModelError as exc:
             return _stopped(name, ex, dead, f"the remaining nodes' data do not determine the parameters: {exc}")
-        lost = ", ".join(f"node {d} (at step {s})" for d, s in sorted(dead.items()))
-        out["status"] = f"{out['status']}_without_lost_nodes"
-        out["message"] = (
-            f"lost {lost}; the {int(alive.sum())} remaining nodes agreed on it and ran {name} again on their own "
-            f"data from step {step} ({out['message']})"
-        )
-        out["rounds"] = sub.step
-        return out | _lost_fields(dead, alive, step)
+        if returned:
+            start = _invite(base, alive, returned, failed, (attempt - 1) * ATTEMPT_STEPS + ATTEMPT_STEPS // 2)
+            back.update({d: start[1] for d in returned})
+            dead = {d: s for d, s in dead.items() if d not in returned}
+            continue
+        return _finished(out, name, dead, back, alive, step) | {"rounds": sub.step}
     return _stopped(name, ex, dead, error)
+
+
+def _lost_now(graph: Graph, alive: np.ndarray, dead: dict[int, int], failed: int, error: str) -> str:
+    """Record the nodes the agreement found newly lost in ``dead``; the reason to stop, if any (nobody lost, or a
+    possible split: :func:`~distnav.exchange.field.survivors.beyond_reach`)."""
+    newly = sorted(set(np.flatnonzero(~alive).tolist()) - set(dead))
+    if not newly:
+        return f"a global operation failed at step {failed} with every node alive ({error})"
+    unseen = beyond_reach(graph, alive, newly)
+    dead.update({k: failed for k in newly if k not in unseen})
+    return f"{_UNSEEN} {unseen}" if unseen else ""
+
+
+def _returned(sub: FieldExchange, base: StepTransport, dead: dict[int, int], n: int) -> list[int]:
+    """The lost nodes whose restarted process greeted a remaining neighbour (:attr:`Transport.greeted`: the hello
+    of a restarted process, not the start-up's), as every remaining node learns them (a global OR over the
+    remaining nodes)."""
+    mine = np.zeros(n, np.int64)
+    mine[[d for d in dead if d in base.greeted]] = 1
+    return np.flatnonzero(np.asarray(sub.allreduce(mine, "max")) > 0).tolist()
+
+
+def _invite(
+    base: StepTransport, alive: np.ndarray, returned: list[int], failed: int, step: int
+) -> tuple[np.ndarray, int]:
+    """Invite the returned nodes to a run from ``step`` with every remaining node and them: each remaining neighbour
+    of one sends it ``[step, failed, the run's nodes]`` (:attr:`Kind.INVITE`); the same nodes and step here."""
+    everyone = alive.copy()
+    everyone[returned] = True
+    invitation = np.r_[step, failed, everyone.astype(np.int64)].astype(np.int64)
+    for d in returned:
+        base.greeted.pop(d, None)  # a later loss of it needs a new restart
+        if d in base.peers:
+            base.readmit(d, step)
+            base.post(d, Kind.INVITE, step, invitation)
+    return everyone, step
+
+
+def _finished(
+    out: dict[str, Any], name: str, dead: dict[int, int], back: dict[int, int], alive: np.ndarray, step: int
+) -> dict[str, Any]:
+    """The run's result with who was lost (and is still), who came back and from which step they ran together."""
+    lost = ", ".join(f"node {d} (at step {s})" for d, s in sorted(dead.items()))
+    rejoined = ", ".join(f"node {d}" for d in sorted(back))
+    if dead:
+        out["status"] = f"{out['status']}_without_lost_nodes"
+        done = f"lost {lost}; the {int(alive.sum())} remaining nodes agreed on it and ran {name} again on their own "
+    else:
+        out["status"] = f"{out['status']}_with_rejoined_nodes"
+        done = f"every lost node came back ({rejoined}); the {int(alive.sum())} nodes ran {name} again on all "
+    if back and dead:
+        done += f"(with {rejoined}, back after a loss) "
+    out["message"] = f"{done}data from step {step} ({out['message']})"
+    out["rejoined_nodes"] = {str(d): s for d, s in sorted(back.items())}
+    return out | _lost_fields(dead, alive, step)
 
 
 def _sub_exchange(ex: FieldExchange, alive: np.ndarray, step: int) -> FieldExchange | None:

@@ -211,14 +211,16 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     series, comm = run_bias_filters(
         data, filter_options(args, pivot, fixed), graph=graph, exchange=command_exchange(args, graph)
     )
+    from dataclasses import replace
+
+    from distnav.models.gnss.modelspread import sigma_limits, spread_of_own_layers
+
     if getattr(args, "model_spread", "auto") == "auto":
-        from dataclasses import replace
-
-        from distnav.models.gnss.modelspread import spread_of_one_station
-
-        series, spread = spread_of_one_station(data, orbit, series, network_options(args).model_options)
+        series, spread = spread_of_own_layers(data, orbit, series, network_options(args).model_options)
         if spread is not None:
             data = replace(data, notes=[*data.notes, spread.statement()])
+    limits = sigma_limits(series, len(stations), getattr(args, "system", "G"), args.levelling == "arc")
+    data = replace(data, notes=[*data.notes, *limits])
     write_results(args, data, series, comm, l1=l1, l2=args.l2_code.upper(), pivot=pivot, graph=graph, fixed=fixed)
     return 0
 
@@ -509,7 +511,8 @@ _HELP = {  # the model, levelling and screening options' help texts (the calls b
     "min-arc": "shortest arc kept for levelling, in epochs of the file (default 10)",
     "gf-threshold": "smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x the "
     "satellite's recent prediction-error RMS where the ionosphere is noisier)",
-    "model-spread": "one station: add to each satellite's σ the RMS difference of its DSBs under the other "
+    "model-spread": "one station, or stations each with its own ionosphere layer: add to each satellite's σ the "
+    "RMS difference of its DSBs under the other "
     "ionosphere field (linear/thin shell vs second order/modified mapping; docs/gnss.md); off: the filter's σ alone",
 }
 

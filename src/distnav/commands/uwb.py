@@ -90,7 +90,7 @@ from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_i
 from distnav.models.uwb.mirror import solve_with_mirror_test
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 from distnav.models.uwb.verdict import EXIT_NOT_ACCURATE, EXIT_OK, REQUIRED_ACCURACY_M, RunVerdict, run_verdict
-from distnav.options import positive_float
+from distnav.options import fields_from_args, positive_float
 from distnav.output import atomic_write_text
 
 __all__ = [
@@ -512,19 +512,8 @@ def _summary(
 @np.errstate(over="ignore", invalid="ignore")  # a diverged run's summary reads huge estimates
 def _handler(args: argparse.Namespace) -> int:
     opts = FieldOptions(
-        solver=args.solver,
-        objective=args.objective,
+        **fields_from_args(args, FieldOptions, but=("loss", "solver_options")),
         loss=args.loss or default_loss(args.solver),
-        loss_scale_m=args.loss_scale_m,
-        sigma_m=args.sigma_m,
-        iterations=args.iterations,
-        exclude=args.exclude,
-        level=args.level,
-        range_offsets=args.range_offsets,
-        offset_prior_sigma_m=args.offset_prior_sigma_m,
-        allow_planar_3d=args.allow_planar_3d,
-        delay_sigma_m=args.delay_sigma_m,
-        reliability_limit_m=args.reliability_limit_m,
         solver_options={} if args.refine else {"refine": False},
     )
     if not args.refine and opts.solver == "LM":

@@ -75,7 +75,9 @@ class Mixer:
     """A prepared consensus round ``x_i ← w_ii x_i + Σ_{j∈N_i} w_ij x_j`` on an exchange.
 
     Built by :meth:`Exchange.mixer`; holds the local CSR block of ``W`` so a fault-free round costs one sparse
-    product. With faults, a lost message's weight moves to the receiver's self-weight.
+    product. With faults, a lost message's weight moves to the receiver's self-weight. ``active``: a mask over the
+    whole graph's edges, or (on a graph part, which has none) a pair of masks over the block's own in- and out-edge
+    rows.
     """
 
     def __init__(
@@ -83,7 +85,7 @@ class Mixer:
         exchange: ExchangeCore,
         edge_weight: np.ndarray,
         self_weight: np.ndarray,
-        active: np.ndarray | None,
+        active: np.ndarray | tuple[np.ndarray, np.ndarray] | None,
         *,
         rows: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
@@ -92,8 +94,14 @@ class Mixer:
         self._edge_weight = edge_weight  # kept by reference (the caller's weights hold it): no copy
         # which entries of the weight arrays belong to the in-edges and nodes: global ids, or a part's positions
         self._weight_rows = (ex.in_edges, ex.nodes) if rows is None else rows
-        self._act_in = ex._real_in if active is None else np.asarray(active, bool)[ex.in_edges] & ex._real_in
-        self._act_out = ex._real_out if active is None else np.asarray(active, bool)[ex.out_edges] & ex._real_out
+        every_edge = active is None
+        if isinstance(active, tuple):  # masks over this block's own in- and out-edge rows (a graph part)
+            self._act_in = np.asarray(active[0], bool) & ex._real_in
+            self._act_out = np.asarray(active[1], bool) & ex._real_out
+            active = None
+        else:
+            self._act_in = ex._real_in if active is None else np.asarray(active, bool)[ex.in_edges] & ex._real_in
+            self._act_out = ex._real_out if active is None else np.asarray(active, bool)[ex.out_edges] & ex._real_out
         self._active_global = active
         self._self_w = np.asarray(self_weight, float)[self._weight_rows[1]]
         # fault-free: the fused local block of W over [local nodes | halo columns], each row's terms in global
@@ -116,7 +124,7 @@ class Mixer:
                 self._self_w,
                 ex.n_columns,
             )
-        if active is None:  # the exchange's own counts over its real edges (the same mask: the same numbers)
+        if every_edge:  # the exchange's own counts over its real edges (the same mask: the same numbers)
             self._sent_counts, self._recv_counts = ex._all_sent, ex._all_recv
         else:
             self._sent_counts = _masked_count(ex.out_src, self._act_out, ex.n_local)

@@ -40,7 +40,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Literal, TypeAlias
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias
 
 import numpy as np
 
@@ -547,3 +547,36 @@ def choose_constraint_nodes(
         return out
     validate_constraint_nodes(graph, out.nodes, literal=literal)
     return out
+
+
+if TYPE_CHECKING:
+    from distnav.network.graph_part import GraphPart
+
+
+def part_cover(part: GraphPart) -> np.ndarray:
+    """Constraint nodes decided by one graph part alone (no whole-network array, no message): a mask over
+    ``part.nodes``. Every node is a constraint node but the *local minima* of a fixed hash of the global ids (a node
+    whose hash is below all its neighbours'): those form an independent set, so the rest is a vertex cover of the
+    whole graph and conditions (18) hold. The hash of a halo node comes from its id, so the choice does not depend
+    on how the graph is split into parts (the same set on every partition and in-process: the union over the ranks'
+    parts is the rule on the whole graph) and costs one pass over the part's edges — no rounds (the greedy matching
+    of ``"min_cover"`` needs rounds along chains of links, 6 s at 2.5·10⁵ nodes of a grid). The price: a larger set
+    than the matching's (a node is a local minimum with probability ``1/(deg + 1)``: ≈ 89 % of nodes at degree 8
+    against ≈ 75 % for ``"min_cover"`` on a grid); a node without neighbours is left out (a split graph)."""
+    n = part.n_local
+    prio = _id_hash(part.src)
+    dst_local = np.repeat(np.arange(n), np.diff(part.in_ptr))
+    prio[part.src == part.nodes[dst_local]] = np.iinfo(np.uint64).max  # a self-loop is no neighbour
+    lowest = np.full(n, np.iinfo(np.uint64).max, np.uint64)
+    has = np.diff(part.in_ptr) > 0
+    if prio.size:
+        lowest[has] = np.minimum.reduceat(prio, part.in_ptr[:-1][has])
+    return ~(_id_hash(part.nodes) < lowest)
+
+
+def _id_hash(ids: np.ndarray) -> np.ndarray:
+    """SplitMix64's finalizer of the ids (a bijection of 64-bit words: no two nodes tie)."""
+    z = np.asarray(ids).astype(np.uint64) + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))

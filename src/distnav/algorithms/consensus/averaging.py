@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from distnav._checks import real_array, whole_number
-from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.algorithms.result import SolverResult, TraceBuilder, stopping_fields
 from distnav.errors import WeightsError
 from distnav.exchange import Exchange, make_exchange
 from distnav.network.graph import Graph, SwitchingGraph
@@ -228,15 +228,9 @@ def average_consensus(
     dev_final = float(np.abs(final - mean).max())
     tol = 1e-9 * (1 + float(np.abs(mean).max()))
     converged = dev_final <= tol
+    message = f"{rounds} rounds, max |r_i − r̄| = {dev_final:.3g}"
     return ConsensusResult(
-        estimates=final,
-        converged=converged,
-        iterations=rounds,
-        status="converged" if converged else "max_iterations",
-        message=f"{rounds} rounds, max |r_i − r̄| = {dev_final:.3g}",
-        trace=tb.build(),
-        comm=ex.comm_totals(),
-        average=mean,
+        estimates=final, **stopping_fields(converged, rounds, message, tb, ex.comm_totals()), average=mean
     )
 
 

@@ -242,6 +242,19 @@ class DynamicModel:
         S = H @ St @ H.T
         return S
 
+    def noise_cov_block(self, epochs: IntArray) -> FloatArray:
+        """:meth:`noise_cov_at` of several epochs, ``(B, p, p)`` (the same numbers; one array filled at once where
+        ``H`` is made of identity columns)."""
+        ts = np.asarray(epochs, np.int64).tolist()
+        ks = [self._idx(self._noise_const, len(self._H), t, "system noise") for t in ts]
+        sels = {None if self._sel[k] is None else self._sel[k].tobytes() for k in ks}  # type: ignore[union-attr]
+        if len(sels) != 1 or self._sel[ks[0]] is None:
+            return np.stack([self.noise_cov_at(t) for t in ts]).reshape(len(ts), self.n_states, self.n_states)
+        sel = np.asarray(self._sel[ks[0]])
+        S: FloatArray = np.zeros((len(ts), self.n_states, self.n_states))
+        S[:, sel[:, None], sel[None, :]] = np.stack([self._St[k] for k in ks]) if ks else 0.0
+        return S
+
     def check_epochs(self, n_epochs: int) -> None:
         if not self._phi_const and len(self._phi) < n_epochs:
             raise ModelError(f"transition given for {len(self._phi)} epochs, the measurements have {n_epochs}")

@@ -14,7 +14,7 @@ import numpy as np
 
 from distnav._blas import single_threaded_blas
 from distnav.algorithms.kalman.dynamics import DynamicModel
-from distnav.typing import BoolArray, FloatArray
+from distnav.typing import BoolArray, FloatArray, IntArray
 
 __all__ = ["EST_TOL", "RANK_RTOL", "InformationKernel", "masked_std", "pseudo_inverse_psd"]
 
@@ -47,11 +47,10 @@ def pseudo_inverse_psd(info: FloatArray, *, rtol: float = RANK_RTOL) -> tuple[Fl
     inv = np.zeros_like(info)
     est = np.zeros((k, p), bool)
     if k == 1:  # one filter (central, single-receiver): the observed entries by one grid
-        cols = np.flatnonzero(seen[0])
+        cols, flat = _grid(seen[0])
         if cols.size:
-            grid = np.ix_(cols, cols)
-            sub_inv, sub_est = _inv_or_pinv(info[0][grid][None], rtol)
-            inv[0][grid] = sub_inv[0]
+            sub_inv, sub_est = _inv_or_pinv(info.reshape(p * p)[flat].reshape(1, cols.size, cols.size), rtol)
+            inv.reshape(p * p)[flat] = sub_inv.reshape(-1)
             est[0, cols] = sub_est[0]
         return inv, est
     if (seen == seen[0]).all():
@@ -69,6 +68,23 @@ def pseudo_inverse_psd(info: FloatArray, *, rtol: float = RANK_RTOL) -> tuple[Fl
         inv[np.ix_(rows, cols, cols)] = sub_inv
         est[np.ix_(rows, cols)] = sub_est
     return inv, est
+
+
+_GRIDS: dict[bytes, tuple[IntArray, IntArray]] = {}
+
+
+def _grid(seen: BoolArray) -> tuple[IntArray, IntArray]:
+    """The observed entries ``cols`` of one filter and the flat indices of their ``cols × cols`` block in its
+    ``p × p`` matrix (the pattern changes rarely: remembered for the last few hundred patterns)."""
+    key = seen.tobytes()
+    got = _GRIDS.get(key)
+    if got is None:
+        cols = np.flatnonzero(seen)
+        got = (cols, (cols[:, None] * seen.size + cols[None, :]).reshape(-1))
+        if len(_GRIDS) > 256:
+            _GRIDS.clear()
+        _GRIDS[key] = got
+    return got
 
 
 def _inv_or_pinv(sub: FloatArray, rtol: float) -> tuple[FloatArray, BoolArray]:
@@ -203,7 +219,8 @@ class InformationKernel:
         """``(x̂ (NaN where not estimable), estimable, I⁺, P = I⁺ Q I⁺ or None)``."""
         inv, est = pseudo_inverse_psd(self.I)
         x = (inv @ self.i[..., None])[..., 0]
-        x[~est] = np.nan
+        if not est.all():
+            x[~est] = np.nan
         P = self.error_covariance(inv) if self.Qs else None
         return x, est, inv, P
 

@@ -146,6 +146,16 @@ class MeasurementSeries:
         """``(N (p×p), r (p,))`` of ``node`` at ``epoch`` rebuilt from its records (:meth:`records`) alone."""
         raise ModelError(f"{type(self).__name__} gives no observation records")
 
+    def normals_from_records_of(
+        self, epoch: int, nodes: IntArray, values: FloatArray, weights: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """:meth:`normals_from_records` of several ``nodes`` (rows of ``values``, ``weights``): ``(k×p×p)``,
+        ``(k×p)``; a series may do them in one batched product (the same numbers)."""
+        pairs = [
+            self.normals_from_records(epoch, int(j), values[a], weights[a]) for a, j in enumerate(np.asarray(nodes))
+        ]
+        return np.stack([N for N, _ in pairs]), np.stack([r for _, r in pairs])
+
     def node_ids(self, nodes: ArrayLike | None = None) -> IntArray:
         """The selected global node ids as an int64 vector (default all), validated against ``n_nodes``."""
         if nodes is None:

@@ -153,6 +153,9 @@ def relay_records(
     in_row = {int(e): r for r, e in enumerate(ex.in_edges.tolist())}
     out_src, in_dst = ex.out_src, ex.in_dst
     for pairs in plan.carried:
+        if not pairs:  # every origin is known within fewer hops: an empty round (counted, nothing carried)
+            ex.send(np.zeros((ex.out_edges.size, 1)), active=np.zeros(ex.n_edges, bool))
+            continue
         per_edge: dict[int, list[int]] = {}
         for e, o in pairs:
             per_edge.setdefault(e, []).append(o)
@@ -197,20 +200,28 @@ def relayed_payload(
     with ``with_rows`` the row ``l_i`` (static knowledge here, sent nowhere) and with ``tagged`` the blocks
     ``l_ij tri(N_j)`` the tagged matrices of the exact node-local precision would have carried."""
     known = relay_records(ex, plan, values, weights)
-    decoded: dict[int, FloatArray] = {}
     n, p, n_tri = measurements.n_nodes, measurements.n_states, up.size
     blocks = np.zeros((ex.n_local, n, n_tri)) if tagged else None
     out = np.zeros((ex.n_local, n_tri + p))
+    first: dict[int, tuple[FloatArray, FloatArray]] = {}  # each origin's records (every copy is the same)
+    needs = []
     for a, got in enumerate(known):
         need = np.flatnonzero(L_rows[a])
         missing = set(need.tolist()) - set(got)
         if missing:
             raise ModelError(f"relay: node {int(ex.nodes[a])} lacks the records of nodes {sorted(missing)}")
         for j in need.tolist():
-            if j not in decoded:
-                N_j, r_j = measurements.normals_from_records(t, j, *got[j])
-                decoded[j] = np.concatenate([N_j.reshape(p * p)[up], r_j])
-        stacked = np.stack([decoded[j] for j in need.tolist()])
+            first.setdefault(j, got[j])
+        needs.append(need)
+    origins = np.array(sorted(first), np.int64)
+    decoded = np.zeros((n, n_tri + p))  # one batched rebuild of every origin's normals
+    if origins.size:
+        N, r = measurements.normals_from_records_of(
+            t, origins, np.stack([first[j][0] for j in origins.tolist()]), np.stack([first[j][1] for j in origins])
+        )
+        decoded[origins] = np.concatenate([N.reshape(origins.size, p * p)[:, up], r], axis=1)
+    for a, need in enumerate(needs):
+        stacked = decoded[need]
         out[a] = L_rows[a, need] @ stacked
         if blocks is not None:
             blocks[a, need] = L_rows[a, need][:, None] * stacked[:, :n_tri]

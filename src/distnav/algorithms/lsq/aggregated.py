@@ -22,6 +22,7 @@ import numpy as np
 
 from distnav.algorithms.lsq.kernel import AdmmState, _dual_sq, _times_W
 from distnav.exchange import Exchange
+from distnav.exchange.mixer import Mixer
 from distnav.network.constraint_nodes import ConstraintNodes
 from distnav.network.weights import ConsensusWeights
 
@@ -33,33 +34,86 @@ _XUpdateFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 _PAIR_CHUNK = 1 << 16
 
 
+class _Rounds:
+    """The two message rounds of the aggregated form on one block and what they are summed by: ``mix_x`` (``x_i``
+    into the constraint nodes, self-weight 1 there), ``mix_z`` (``z_s`` out of them), every local node's ``inC``,
+    ``count`` ``c_i = |N_i ∩ C|`` (``i`` itself counted when ``i ∈ C``) and ``size`` ``|N_s| + 1``."""
+
+    def __init__(self, mix_x: Mixer, mix_z: Mixer, inC: np.ndarray, count: np.ndarray, size: np.ndarray) -> None:
+        self.mix_x, self.mix_z, self.inC, self.count, self.size = mix_x, mix_z, inC, count, size
+
+
+def rounds_on_graph(ex: Exchange, C: ConstraintNodes) -> _Rounds:
+    """:class:`_Rounds` of an exchange on the whole graph (in-process, or MPI with the graph on every rank)."""
+    g = ex.graph
+    inC = C.mask
+    real = g.src != g.dst
+    to_c = inC[g.dst] & real  # i→s, s ∈ C: the x-round
+    from_c = inC[g.src] & real  # s→i, s ∈ C: the z-round
+    del real
+    # the same 0/1 weights as before (1 on the active edges, the self-weight 1 at constraint nodes) without an
+    # edge-sized float array per mixer: the inactive edges' weights are zeroed by the masks
+    ones = np.broadcast_to(np.float64(1.0), (g.n_edges,))
+    inC_f = inC.astype(float)
+    mix_x = ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum into C"), active=to_c)
+    mix_z = ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum from C"), active=from_c)
+    return _Rounds(mix_x, mix_z, inC[ex.nodes], C.per_node_count[ex.nodes], _sizes(ex))
+
+
+def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
+    """:class:`_Rounds` of an exchange built from a graph part, ``inC_part`` the constraint nodes among the part's
+    nodes (part order): the halo's membership comes by one transport of the block's own (a set-up round, not
+    counted), and the rounds' masks are over the block's own edge rows — no array over the whole network."""
+    part = ex.part
+    assert part is not None
+    node_pos = ex._part_rows()[1]
+    inC = np.asarray(inC_part, bool)[node_pos]
+    inC_col = np.array(ex._columns(inC.astype(float)[:, None], None)[:, 0] > 0.5)  # [local | halo]
+    real_in = ex.in_src_col != ex.local_col[ex.in_dst]
+    x_in = inC[ex.in_dst] & real_in
+    z_in = inC_col[ex.in_src_col] & real_in
+    real_out = ex.out_dst != ex.nodes[ex.out_src]
+    z_out = inC[ex.out_src] & real_out
+    # an out-edge's receiver: owned (its row by the part's positions) or a halo node, whose membership arrived on
+    # the in-edges it sends on (set on an array aligned with the part's ascending halo ids: no sort over the edges)
+    k, own = part.owned_positions(ex.out_dst)
+    x_out = np.asarray(inC_part, bool)[k]
+    from_halo = np.flatnonzero(ex.in_src_col >= ex.n_local)
+    halo_member = np.zeros(part.halo.size, bool)
+    halo_member[np.searchsorted(part.halo, ex.in_src[from_halo])] = inC_col[ex.in_src_col[from_halo]]
+    to_halo = np.flatnonzero(~own)
+    x_out[to_halo] = halo_member[np.searchsorted(part.halo, ex.out_dst[to_halo])]
+    x_out &= real_out
+    del k, own, from_halo, to_halo
+    # 0/1 weights on the part (one broadcast 1.0, zeroed off the masks); the masks are over the block's own edge
+    # rows, which Exchange.mixer (a mask over the whole graph's edges) does not take: the mixer is made directly
+    ones = np.broadcast_to(np.float64(1.0), (part.n_local_edges,))
+    self_w = np.asarray(inC_part, float)
+    rows = ex._part_rows()
+    mix_x = Mixer(ex, ones, self_w, (x_in, x_out), rows=rows)
+    mix_z = Mixer(ex, ones, self_w, (z_in, z_out), rows=rows)
+    count = np.bincount(ex.in_dst, weights=z_in, minlength=ex.n_local).astype(np.int64) + inC
+    return _Rounds(mix_x, mix_z, inC, count, _sizes(ex))
+
+
+def _sizes(ex: Exchange) -> np.ndarray:
+    """``|N_s| + 1`` of every local node (its real in-edges and itself)."""
+    sender_is_self = ex.in_src_col == ex.local_col[ex.in_dst]
+    return (np.bincount(ex.in_dst, weights=~sender_is_self, minlength=ex.n_local) + 1).astype(float)
+
+
 class _AggregatedKernel:
     """Fig. 6 with aggregated messages on one exchange block (fault-free); ``x_update`` maps ``(l, x_prev)`` to the
     new ``x`` for the block."""
 
-    def __init__(self, ex: Exchange, C: ConstraintNodes, W: np.ndarray, p: int, x_update: _XUpdateFn) -> None:
-        g = ex.graph
+    def __init__(self, ex: Exchange, rounds: _Rounds, W: np.ndarray, p: int, x_update: _XUpdateFn) -> None:
         self.ex, self.W, self.p, self.x_update = ex, W, p, x_update
         self.w_scale = float(np.linalg.eigvalsh(W).max())
         self.w_iso = float(W[0, 0]) if np.array_equal(W, W[0, 0] * np.eye(p)) else None
-        inC = C.mask
-        self.inC_loc = inC[ex.nodes]
-        real = g.src != g.dst
-        to_c = inC[g.dst] & real  # i→s, s ∈ C: the x-round
-        from_c = inC[g.src] & real  # s→i, s ∈ C: the z-round
-        del real
-        # the same 0/1 weights as before (1 on the active edges, the self-weight 1 at constraint nodes) without an
-        # edge-sized float array per mixer: the inactive edges' weights are zeroed by the masks
-        ones = np.broadcast_to(np.float64(1.0), (g.n_edges,))
-        inC_f = inC.astype(float)
-        self.mix_x = ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum into C"), active=to_c)
-        self.mix_z = ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum from C"), active=from_c)
-        del to_c, from_c, inC_f
-        self.count = C.per_node_count[ex.nodes]  # c_i = |N_i ∩ C| (i itself counted when i ∈ C)
-        n_local = ex.n_local
-        sender_is_self = ex.in_src_col == ex.local_col[ex.in_dst]
-        self.size_s = (np.bincount(ex.in_dst, weights=~sender_is_self, minlength=n_local) + 1).astype(float)
-        del sender_is_self
+        self.mix_x, self.mix_z = rounds.mix_x, rounds.mix_z
+        self.inC_loc = rounds.inC
+        self.count = rounds.count
+        self.size_s = rounds.size
         self.size_c = self.size_s * self.inC_loc
         self.count_f = self.count.astype(float)
 

@@ -9,6 +9,7 @@ runs a generator to the stopping rule and returns an :class:`AdmmResult`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol, get_args
@@ -17,7 +18,7 @@ import numpy as np
 
 from distnav._checks import check_field_types, real_number, whole_number
 from distnav._settings import option_names
-from distnav.algorithms.lsq.aggregated import _AggregatedKernel
+from distnav.algorithms.lsq.aggregated import _AggregatedKernel, rounds_on_graph
 from distnav.algorithms.lsq.blue import LinearProblem, inestimable_directions, weight_matrix
 from distnav.algorithms.lsq.kernel import AdmmState, Multipliers, XUpdate, XUpdateMethod, _Kernel, _per_node
 from distnav.algorithms.lsq.xupdate import InLocalOrder, _diagonal_or_none, in_local_order
@@ -290,7 +291,7 @@ def prepare(problem: LinearProblem, graph: Graph, exchange: Exchange | None, opt
             raise ModelError("multipliers can only be continued with messages='pairs'")
         x_loc, z_loc = x0[ex.nodes], zz0[ex.nodes]
         del x0, zz0  # the kernel takes the block's rows over: no whole-size copy stays
-        states = _AggregatedKernel(ex, C, Wm, p, xu).run(x_loc, z_loc, monitor_every)
+        states = _AggregatedKernel(ex, rounds_on_graph(ex, C), Wm, p, xu).run(x_loc, z_loc, monitor_every)
     return PreparedRun(
         states=states,
         exchange=ex,
@@ -311,8 +312,10 @@ def _x_update(
     and the x-update moves ``l`` and ``x`` between the orders (:func:`~distnav.algorithms.lsq.xupdate.in_local_order`:
     per-node arithmetic, so bitwise the same ``x``); a block of some nodes (MPI) holds its own rows."""
     if ex.n_local == problem.n_nodes:
-        xu = XUpdate(problem, W, c, method)
-        return in_local_order(xu, ex.nodes), problem
+        # the same arrays under a fresh cache: what the set-up derives (N_i, R_i⁻¹) goes with the run, not onto the
+        # caller's object
+        mine = dataclasses.replace(problem, _cache={})
+        return in_local_order(XUpdate(mine, W, c, method), ex.nodes), mine
     local = problem.subset(ex.nodes)
     return XUpdate(local, W, c[ex.nodes], method), local
 

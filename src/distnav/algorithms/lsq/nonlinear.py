@@ -30,7 +30,7 @@ from distnav.algorithms.lsq.driver import (
     prepare,
 )
 from distnav.algorithms.lsq.kernel import _Kernel, _per_node
-from distnav.algorithms.result import SolverResult, TraceBuilder
+from distnav.algorithms.result import SolverResult, TraceBuilder, stopping_fields
 from distnav.errors import ModelError
 from distnav.exchange import Exchange, make_exchange
 from distnav.exchange.core import CommTotals
@@ -215,15 +215,8 @@ def gauss_newton(
         if np.linalg.norm(dx) <= tol * (1 + np.linalg.norm(x)):
             converged = True
             break
-    return SolverResult(
-        estimates=x[None, :],
-        converged=converged,
-        iterations=k,
-        status="converged" if converged else "max_iterations",
-        message=f"Gauss-Newton: {k} iterations, cost {problem.cost(x):.6g}",
-        trace=tb.build(),
-        comm=CommTotals.empty(n),
-    )
+    message = f"Gauss-Newton: {k} iterations, cost {problem.cost(x):.6g}"
+    return SolverResult(estimates=x[None, :], **stopping_fields(converged, k, message, tb, CommTotals.empty(n)))
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -327,14 +320,10 @@ def admm_linearized(
         if step <= o.tol * (1 + float(np.linalg.norm(xo.mean(axis=0)))):
             converged = True
             break
+    message = f"linearized ADMM: {t} outer iterations, {total_inner} ADMM iterations in all"
     return LinearizedAdmmResult(
         estimates=xo,
-        converged=converged,
-        iterations=t,
-        status="converged" if converged else "max_iterations",
-        message=f"linearized ADMM: {t} outer iterations, {total_inner} ADMM iterations in all",
-        trace=tb.build(),
-        comm=ex.comm_totals(),
+        **stopping_fields(converged, t, message, tb, ex.comm_totals()),
         inner_iterations_total=total_inner,
         constraint_nodes=C,
     )

@@ -46,7 +46,7 @@ from distnav.algorithms.ranging.losses import LOSSES, loss_terms
 from distnav.algorithms.ranging.neighbourhoods import checked_estimates, exchange_for
 from distnav.algorithms.ranging.objective import range_sigma
 from distnav.algorithms.ranging.refine import Links, NormalSystem, block_preconditioner, jacobian_rows, pcg
-from distnav.algorithms.ranging.wire import reduction_cost
+from distnav.algorithms.ranging.wire import Reductions, reduction_cost
 from distnav.algorithms.result import Precision
 from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
@@ -76,7 +76,7 @@ class CentralPrecision:
     gathered for the result (each computed by its anchor), ``variance_factor`` σ̂², ``comm`` the exchange's
     broadcasts. ``delay_covariance``: ``σ_δ² B_i B_iᵀ`` per anchor (None without delays), ``noise_factor``
     σ̂²_noise, ``delay_sigma_m`` the σ_δ used (the prior or the larger estimate). ``cg_iterations``, ``columns``
-    and the network ``reductions`` with their ``reduced_floats`` (per anchor) for the cost."""
+    and the network reductions (``reduced``) for the cost."""
 
     precision: Precision
     delay_covariance: np.ndarray | None
@@ -84,8 +84,7 @@ class CentralPrecision:
     delay_sigma_m: float
     cg_iterations: int
     columns: int
-    reductions: int
-    reduced_floats: int
+    reduced: Reductions
 
     def covariance(self, *, a_posteriori: bool = False) -> np.ndarray:
         """Every anchor's covariance ``(n_anchors, dim, dim)``: ``Q_ii`` (a-posteriori: ``σ̂²_noise Q_ii`` plus
@@ -104,7 +103,7 @@ class CentralPrecision:
     def reduction_cost(self, n_anchors: int) -> tuple[int, int]:
         """Messages and bytes of the network totals as spanning-tree reductions (up and down: ``2(n − 1)``
         messages each, carrying the reduced floats)."""
-        return reduction_cost(n_anchors, self.reductions, 8 * self.reduced_floats)
+        return reduction_cost(n_anchors, self.reduced.count, 8 * self.reduced.floats)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -214,8 +213,7 @@ def central_precision(
         delay_sigma_m=delay_sigma_used_m,
         cg_iterations=its,
         columns=bc.size,
-        reductions=links.reductions,
-        reduced_floats=links.reduced_floats,
+        reduced=links.counted(),
     )
 
 

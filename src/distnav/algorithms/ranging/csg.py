@@ -243,13 +243,13 @@ def _refine_phase(
         f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations"
     )
     out.marks["refine"] = comm_mark(ex)
-    cost = reduction_cost(problem.n_anchors, ref.reductions, ref.reduced_bytes)
+    cost = reduction_cost(problem.n_anchors, ref.reduced.count, ref.reduced.bytes)
     out.settings = {
         **out.settings,
         "refine": {
             "rounds": ref.rounds,
             "cg_iterations": ref.cg_iterations,
-            "reductions": ref.reductions,
+            "reductions": ref.reduced.count,
             **dict(zip(("reduction_messages", "reduction_bytes"), cost, strict=True)),
             "status": ref.status,
             "mu": ref.mu,

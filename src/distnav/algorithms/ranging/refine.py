@@ -18,7 +18,7 @@ iteration needs only the neighbours' values:
   largest move are network totals, as the solvers' :class:`~distnav.algorithms.ranging.csg.StopRule` uses: each is a
   sum over the anchors assembled in the anchors' order (``gather_nodes``, so that in-process and MPI agree bit
   for bit; a deployment would run a spanning-tree reduction, ``2(n − 1)`` messages of the reduced floats). They
-  are counted in :attr:`Refinement.reductions` / :attr:`Refinement.reduced_floats`, and their bytes
+  are counted in :attr:`Refinement.reduced` (:class:`~distnav.algorithms.ranging.wire.Reductions`), their bytes
   (:func:`~distnav.algorithms.ranging.wire.reduction_cost`) in the solver result's ``settings["refine"]``
   and in ``uwb solve``'s totals (issue 27: before, only the broadcasts were counted — at two reductions of two
   floats per CG iteration the reductions send about twice the bytes of the float16 broadcasts on a 28-anchor hall).
@@ -88,9 +88,7 @@ class Refinement:
     status: str
     rounds: int
     cg_iterations: int
-    reductions: int
-    reduced_floats: int = 0
-    reduced_bytes: int = 0
+    reduced: wire.Reductions
     mu: float = MU0  # the Marquardt damping at the end (a warm re-fit may start from it: RefineOptions.mu0)
 
 
@@ -104,6 +102,10 @@ class Links:
         self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
         self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
         self.wire = Wire(problem, ex, self.owner, self.other, 1 if per_anchor_offsets else 0)
+
+    def counted(self) -> wire.Reductions:
+        """The reductions counted so far."""
+        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes)
 
     def neighbours(self, values: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)`` (one broadcast; after
@@ -302,9 +304,7 @@ class _Refiner:
             status=status,
             rounds=rounds,
             cg_iterations=cg_total,
-            reductions=links.reductions,
-            reduced_floats=links.reduced_floats,
-            reduced_bytes=links.reduced_bytes,
+            reduced=links.counted(),
         )
 
 

@@ -100,7 +100,8 @@ class ExternalReliability:
     """Per kept link (``problem``'s measurements): redundancy number ``r``, ``mdb_m`` (inf: unchecked); per anchor:
     ``shift_m`` the largest shift of its free coordinates by one link's undetected MDB (0 for known anchors, inf
     when an unchecked link moves it) and ``worst_link`` that link's index (-1 if none); ``lam0`` and ``scale`` ŝ;
-    ``q`` the w-test's residual variance per link."""
+    ``q`` the w-test's residual variance per link; ``gain`` ``(n_free, m)`` the free coordinates' move per metre
+    of bias on each link, ``Q j_lᵀ w_l / σ_l`` (central numbers only; None from the neighbourhoods)."""
 
     r: FloatArray
     mdb_m: FloatArray
@@ -109,6 +110,7 @@ class ExternalReliability:
     lam0: float
     scale: float
     q: FloatArray | None = None
+    gain: FloatArray | None = None
 
     @property
     def redundancy(self) -> float:
@@ -155,7 +157,7 @@ def _numbers(problem: RangingData, x: FloatArray, opts: ReliabilityOptions) -> E
     # ∂x / ∂(range bias of l) in metres per metre: Q j_lᵀ w_l / σ_l (the whitened residual moves by ∇/σ)
     gain = (JQ * (w[:m] / sigma)[:, None]).T[: problem.n_free]  # (n_free, m)
     shift, worst = _worst_shifts(problem, gain, mdb)
-    return ExternalReliability(r=r, mdb_m=mdb, shift_m=shift, worst_link=worst, lam0=lam0, scale=s, q=q)
+    return ExternalReliability(r=r, mdb_m=mdb, shift_m=shift, worst_link=worst, lam0=lam0, scale=s, q=q, gain=gain)
 
 
 def _worst_shifts(problem: RangingData, gain: FloatArray, mdb: FloatArray) -> tuple[FloatArray, IntArray]:

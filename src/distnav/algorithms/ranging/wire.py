@@ -47,6 +47,8 @@ Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from distnav.algorithms.ranging.data import RangingData
@@ -62,6 +64,7 @@ __all__ = [
     "pack_half",
     "unpack_half",
     "reduction_cost",
+    "Reductions",
     "CG_SCALAR_DTYPE",
     "HALF_MAX_ANCHORS",
     "cg_wire_dtype",
@@ -270,6 +273,17 @@ def unpack_half(packed: np.ndarray, m: int) -> np.ndarray:
     vals = np.ascontiguousarray(b[:, : 2 * m]).view(HALF).astype(float)
     e = b[:, 2 * m].view(np.int8).astype(int)
     return np.asarray(np.ldexp(vals, e[:, None]))
+
+
+@dataclass(frozen=True)
+class Reductions:
+    """The network totals a solver took as all-reductions: how many (``count``) and their size per anchor summed
+    over them, in floats and in bytes (float64, or fewer bytes where a float32 wire carried them); their cost as
+    spanning-tree messages: :func:`reduction_cost`."""
+
+    count: int = 0
+    floats: int = 0
+    bytes: int = 0
 
 
 def reduction_cost(n_anchors: int, reductions: int, reduced_bytes: int) -> tuple[int, int]:

@@ -136,6 +136,13 @@ class SubnetTransport:
     def lost(self) -> dict[int, int]:
         return {self._new[k]: v for k, v in self.base.lost.items() if k in self._new}
 
+    def readmit(self, peer: int, step: int) -> None:
+        self.base.readmit(self._old[peer], step)
+
+    @property
+    def greeted(self) -> dict[int, int]:
+        return {self._new[k]: v for k, v in self.base.greeted.items() if k in self._new}
+
     @property
     def heard(self) -> dict[int, int]:
         return {self._new[k]: v for k, v in self.base.heard.items() if k in self._new}

@@ -114,7 +114,12 @@ class StepTransport(Protocol):
     @property
     def heard(self) -> dict[int, int]: ...
 
+    @property
+    def greeted(self) -> dict[int, int]: ...
+
     def post(self, peer: int, kind: Kind, step: int, array: np.ndarray) -> None: ...
+
+    def readmit(self, peer: int, step: int) -> None: ...
 
     def post_many(self, peers: list[int], kind: Kind, step: int, array: np.ndarray) -> None: ...
 
@@ -205,6 +210,11 @@ class Transport:
         self.lost: dict[int, int] = {}  # peer → step at which it was declared lost
         self.readmitted: dict[int, int] = {}
         self.heard = dict.fromkeys(self.peers, 0)  # checked messages per peer (any step or kind): signs of life
+        self.greeted: dict[int, int] = {}  # peer → the step at which its latest hello during the run came
+        self.invited: np.ndarray | None = None  # the invitation a restarted node was given (:meth:`join`)
+        #: a lost peer's hello readmits it at once (consensus); False: a node program that takes a returning node
+        #: back by running again with it (ADMM, the CKF) waits for it only from that run on
+        self.readmit_on_hello = True
         self.bytes_sent = 0
         self.bytes_received = 0
         self.frames_sent = 0
@@ -314,7 +324,7 @@ class Transport:
             self.frames_received += 1
             self.bytes_received += len(frame)
             sender = heads.pop(frame[:n_head], -1) if len(frame) == size else -1
-            if sender < 0:  # not the expected header (a replay, another step or kind, malformed, ...): the checks
+            if sender not in waiting:  # not the expected header (a replay, another step or kind, malformed, ...)
                 sender = self._take(frame, kind, step, got)
                 if sender in got:
                     waiting.discard(sender)
@@ -376,7 +386,7 @@ class Transport:
         if msg is None:
             return -1
         if msg.kind == Kind.HELLO:
-            self._hello(msg.sender, step)
+            self._hello(msg.sender, step, restarted=msg.array.size > 0)
             return -1
         if self.options.latency_max_s > 0:  # injected latency: usable only from its release time on
             delay = float(self._latency.uniform(0.0, self.options.latency_max_s))
@@ -402,22 +412,32 @@ class Transport:
         else:
             self._accept(msg, kind, step, got)
 
-    def _hello(self, sender: int, step: int) -> None:
+    def _hello(self, sender: int, step: int, *, restarted: bool) -> None:
         """A hello during the run: a repeated one of the start-up, or a restarted peer (lost, or its process new)
-        asking to rejoin: readmitted, its steps counted afresh, waited for again from the next step on."""
-        if sender in self.lost:
-            del self.lost[sender]
-            self.readmitted[sender] = step
-            self._last_step[sender] = -1
-            self._missed[sender] = 0
-            LOG.warning("node %d: node %d rejoins at step %d", self.me, sender, step)
+        asking to rejoin: readmitted, its steps counted afresh, waited for again from the next step on (and noted in
+        :attr:`greeted`, for node programs that take a returning node back by running again with it)."""
+        if restarted:  # a restarted process's hello (one byte; the start-up's is empty)
+            self.greeted[sender] = step
+        if sender in self.lost and self.readmit_on_hello:
+            self.readmit(sender, step)
 
-    def join(self) -> int:
+    def readmit(self, peer: int, step: int) -> None:
+        """Take a restarted peer back: no longer lost, its steps counted afresh, waited for from ``step`` on."""
+        self.lost.pop(peer, None)
+        self.readmitted[peer] = step
+        self._last_step[peer] = -1
+        self._missed[peer] = 0
+        LOG.warning("node %d: node %d rejoins at step %d", self.me, peer, step)
+
+    def join(self, *, invitation: bool = False) -> int:
         """Rejoin a running network (a restarted node): greet the neighbours until one of them sends a step
-        message, and return the latest step seen (the step to run next); messages of earlier steps are dropped."""
+        message, and return the latest step seen (the step to run next); messages of earlier steps are dropped.
+        ``invitation``: wait instead for a neighbour's :attr:`Kind.INVITE` (node programs that run again from the
+        start with a returning node), keep its array in :attr:`invited` and return its step; the messages of later
+        steps are kept for them."""
         zmq = self._zmq
         end = time.monotonic() + self.options.start_timeout_s
-        hello, next_send, seen = np.zeros(0, np.uint8), 0.0, -1
+        hello, next_send, seen = np.ones(1, np.uint8), 0.0, -1  # one byte: the hello of a restarted process
         while time.monotonic() < end:  # until a step message, then half a second more (queued old steps first)
             if time.monotonic() >= next_send:
                 for p in self.push.values():
@@ -428,15 +448,22 @@ class Transport:
                 next_send = time.monotonic() + 0.2
             if self.pull.poll(50):
                 for frame in self._frames():
-                    msg = self._checked_hello(frame)
-                    if msg is not None and msg.kind != Kind.HELLO:
+                    msg = self._checked(frame) if invitation else self._checked_hello(frame)
+                    if msg is None or msg.kind == Kind.HELLO:
+                        continue
+                    if not invitation:
                         seen = max(seen, msg.step)
+                    elif msg.kind == Kind.INVITE:
+                        self.invited, seen, end = msg.array, msg.step, 0.0
+                    else:
+                        self._held.setdefault(msg.step, {})[msg.sender] = msg
             if seen >= 0:
                 end = min(end, time.monotonic() + 0.5) if end - time.monotonic() > 0.5 else end
                 if time.monotonic() >= end:
                     break
         if seen < 0:
-            raise ExchangeError(f"node {self.me}: no neighbour answered within {self.options.start_timeout_s} s")
+            what = "invited it back" if invitation else "answered"
+            raise ExchangeError(f"node {self.me}: no neighbour {what} within {self.options.start_timeout_s} s")
         for k in [k for k in self._held if k < seen]:
             del self._held[k]
         return seen

@@ -61,6 +61,7 @@ class Kind(enum.IntEnum):
     BYE = 6  #: "I am done" (a neighbour that finished is not a lost one)
     TREE_UP = 7  #: a subtree's rows of a global operation, child → parent (:mod:`.tree`)
     TREE_DOWN = 8  #: every node's rows of a global operation, parent → child (:mod:`.tree`)
+    INVITE = 9  #: to a restarted node: the step of the re-run with it, the failed step, the re-run's nodes
 
 
 class WireError(ExchangeError):

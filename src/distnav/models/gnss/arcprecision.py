@@ -118,8 +118,9 @@ def _refit(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray
     a = np.where(ok[..., None], geo.coefficients, 0.0)  # (T, n, S, 3 or 6)
     groups = np.asarray(geo.groups, np.int64)
     onehot = np.eye(lay.n_ionospheres)[groups]  # (n, G)
-    N = np.einsum("ng,tns,tnsk,tnsl->tgkl", onehot, w, a, a)
-    r = np.einsum("ng,tns,tnsk,tns->tgk", onehot, w, a, y)
+    aw_t = np.swapaxes(a * w[..., None], -1, -2)  # (T, n, k, S): batched products, not a 4-operand einsum
+    N = np.einsum("ng,tnkl->tgkl", onehot, aw_t @ a)
+    r = np.einsum("ng,tnk->tgk", onehot, (aw_t @ y[..., None])[..., 0])
     if a.shape[-1] == 3:
         good = np.linalg.det(N) > 1e-12 * np.maximum(np.einsum("tgkk->tg", N), 1e-300) ** 3
     else:  # the curvature terms are small (Δφ² ≪ 1): judge by the eigenvalue spread
@@ -133,7 +134,7 @@ def _refit(data: Any, dsb_ns: np.ndarray, nodes: Any = None) -> tuple[np.ndarray
     Ninv = np.zeros(N.shape)
     if good.any():
         Ninv[good] = np.linalg.inv(N[good])
-    h = w * np.einsum("tnsk,tnkl,tnsl->tns", a, Ninv[:, groups], a)  # the TEC fit's leverage
+    h = w * ((a @ Ninv[:, groups]) * a).sum(axis=-1)  # the TEC fit's leverage a_sᵀ N⁻¹ a_s
     return e, w, use, np.where(use, h, 0.0)
 
 

@@ -213,11 +213,12 @@ class BiasGeometryFreeSeries(SeriesArrays):
         key = (t, idx.tobytes())
         if self._last_design is not None and self._last_design[0] == key:
             return self._last_design[1], self._last_design[2]
-        A_all, w_all = self._epoch_design(t)
         if idx.size == self.n_nodes and np.array_equal(idx, np.arange(self.n_nodes)):
-            A, w = A_all, w_all
-        else:
-            A, w = A_all[idx], w_all[idx]
+            A, w = self._epoch_design(t)
+        elif self._epoch_cache is not None and self._epoch_cache[0] == t:
+            A, w = self._epoch_cache[1][idx], self._epoch_cache[2][idx]
+        else:  # a single-receiver filter's rows: only its nodes'
+            A, w = self._rows_design(t, idx), self._w[t][idx]
         self._last_design = (key, A, w)  # the filter and the residual statistics ask twice per epoch
         return A, w
 
@@ -226,16 +227,21 @@ class BiasGeometryFreeSeries(SeriesArrays):
         and the residual statistics of each node ask for their rows of the same epoch)."""
         if self._epoch_cache is not None and self._epoch_cache[0] == t:
             return self._epoch_cache[1], self._epoch_cache[2]
-        A = self._static.copy()  # receiver and satellite columns (constant)
+        A = self._rows_design(t, np.arange(self.n_nodes))
+        self._epoch_cache = (t, A, self._w[t])
+        return A, self._w[t]
+
+    def _rows_design(self, t: int, idx: np.ndarray) -> np.ndarray:
+        """The design rows of nodes ``idx`` at epoch ``t``: the constant receiver and satellite columns and each
+        node's TEC block (``nt`` contiguous columns), zero on the satellites it does not track."""
+        tracked = (self._w[t][idx] > 0)[..., None]
+        A: np.ndarray = self._static[idx] * tracked
         nt = self.layout.n_tec_terms
         a = self._a[t]
-        for i in range(self.n_nodes):  # the node's TEC block: nt contiguous columns
+        for j, i in enumerate(idx.tolist()):
             g = int(self._groups[i])
-            A[i, :, nt * g : nt * (g + 1)] = a[i]
-        w = self._w[t]
-        A *= (w > 0)[..., None]
-        self._epoch_cache = (t, A, w)
-        return A, w
+            A[j, :, nt * g : nt * (g + 1)] = a[i] * tracked[j]
+        return A
 
     def normals(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Every node's ``N = Āᵀ W Ā``, ``r = Āᵀ W y`` at ``epoch`` (k, p, p), (k, p): computed for
@@ -251,7 +257,19 @@ class BiasGeometryFreeSeries(SeriesArrays):
     def _block_normals(self, t0: int, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The normals of the nodes ``idx`` at epochs ``t0 … t0 + NORMALS_BLOCK − 1`` (B, k, p, p), (B, k, p): the
         design rows of :meth:`_epoch_design` for the block in one array, then one batched product."""
+        A, w = self.design_block(np.arange(t0, min(t0 + NORMALS_BLOCK, self.n_epochs)), idx)
         ts = np.arange(t0, min(t0 + NORMALS_BLOCK, self.n_epochs))
+        Aw = A * w[..., None]
+        N = np.swapaxes(Aw, -1, -2) @ A
+        r = np.zeros(N.shape[:-1]) if self._y is None else np.einsum("bksp,bks->bkp", Aw, self._y[ts][:, idx])
+        N.flags.writeable = r.flags.writeable = False  # handed out as views: a caller copies before changing them
+        return N, r
+
+    def design_block(self, epochs: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`design` of the nodes ``nodes`` at several ``epochs`` in one array each: ``(B, k, S, p)``,
+        ``(B, k, S)`` (the normals of a block and the filter outputs' predicted residuals)."""
+        ts = np.asarray(epochs, np.int64)
+        idx = np.asarray(nodes, np.int64)
         nt = self.layout.n_tec_terms
         A = self._static[idx][None].repeat(ts.size, axis=0)
         for j, i in enumerate(idx.tolist()):
@@ -259,11 +277,7 @@ class BiasGeometryFreeSeries(SeriesArrays):
             A[:, j, :, nt * g : nt * (g + 1)] = self._a[ts, i]
         w = self._w[ts][:, idx]
         A *= (w > 0)[..., None]
-        Aw = A * w[..., None]
-        N = np.swapaxes(Aw, -1, -2) @ A
-        r = np.zeros(N.shape[:-1]) if self._y is None else np.einsum("bksp,bks->bkp", Aw, self._y[ts][:, idx])
-        N.flags.writeable = r.flags.writeable = False  # handed out as views: a caller copies before changing them
-        return N, r
+        return A, w
 
     def records(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per node and satellite the observation (m) and its weight ``1/σ²`` (0: not tracked), (k, S) each: the
@@ -282,11 +296,17 @@ class BiasGeometryFreeSeries(SeriesArrays):
     ) -> tuple[np.ndarray, np.ndarray]:
         """``node``'s normals from its records alone: the design rows follow from the geometry (orbits and the
         station's position), the weights and values from the records."""
-        A_all, _ = self._epoch_design(self._epoch(epoch))
-        w = np.asarray(weights, float)[None]
-        A = A_all[[int(node)]] * (w > 0)[..., None]
-        N, r = _weighted_normals(A, w, None if self._y is None else np.asarray(values, float)[None])
+        N, r = self.normals_from_records_of(epoch, np.array([int(node)]), np.asarray(values)[None], weights[None])
         return N[0], r[0]
+
+    def normals_from_records_of(
+        self, epoch: int, nodes: np.ndarray, values: np.ndarray, weights: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`normals_from_records` of several nodes in one batched product, ``(k, p, p)``, ``(k, p)``."""
+        A_all, _ = self._epoch_design(self._epoch(epoch))
+        w = np.asarray(weights, float)
+        A = A_all[np.asarray(nodes, np.int64)] * (w > 0)[..., None]
+        return _weighted_normals(A, w, None if self._y is None else np.asarray(values, float))
 
     def observations(self, epoch: int, nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Whitened rows ``W^{1/2} Ā``, ``W^{1/2} y`` and their node of the tracked observations."""

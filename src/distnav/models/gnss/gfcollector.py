@@ -131,7 +131,7 @@ class Collector:
         nt, q = layout.n_tec, len(layout.receivers) + len(layout.svs)
         self.ssr = self.zz = self.zlag = 0.0
         self.m = 0
-        self._buf: list[tuple[int, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]] = []
+        self._buf: list[tuple[int, np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # x, est, P of the last state with P
         self._z_last: tuple[int, np.ndarray] | None = None  # epoch and standardized residuals (NaN: none)
         self._rows: dict[bytes, _DatumRows | None] = {}
@@ -144,8 +144,7 @@ class Collector:
 
     def step(self, t: int, x: np.ndarray, est: np.ndarray, P: np.ndarray | None) -> None:
         """The filter's state after the measurement update of epoch ``t`` (copied: filters may reuse arrays)."""
-        A, w = self.series.design(t, self.nodes)  # the filter has just asked for them: cached
-        self._buf.append((t, x.copy(), est.copy(), None if P is None else P.copy(), A, w))
+        self._buf.append((t, x.copy(), est.copy(), None if P is None else P.copy()))
         if len(self._buf) >= BLOCK:
             self._flush()
 
@@ -154,7 +153,7 @@ class Collector:
         if not buf:
             return
         prevs: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
-        for t, x, est, P, _, _ in buf:
+        for t, x, est, P in buf:
             prevs.append(self._prev if t > 0 else None)
             if P is not None:
                 self._prev = (x, est, P)
@@ -166,12 +165,12 @@ class Collector:
         all estimable before the epoch (``P⁻ = P_{t−1} + S_t``), and their lag-1 products."""
         ts = np.array([b[0] for b in buf], np.int64)
         jj = [j for j, pr in enumerate(prevs) if pr is not None]
-        kS = buf[0][5].size
+        kS = self.nodes.size * self.series.n_satellites
         Z = np.full((len(buf), kS), np.nan)
         if jj:
-            A = np.stack([buf[j][4] for j in jj]).reshape(len(jj), kS, -1)
-            w = np.stack([buf[j][5] for j in jj]).reshape(len(jj), kS)
             t_in = ts[jj]
+            A, w = self.series.design_block(t_in, self.nodes)  # the design rows of these epochs in one array
+            A, w = A.reshape(len(jj), kS, -1), w.reshape(len(jj), kS)
             ser = self.series
             y = np.zeros(w.shape) if ser._y is None else ser._y[t_in][:, self.nodes].reshape(len(jj), kS)
             xp = np.stack([prevs[j][0] for j in jj])  # type: ignore[index]
@@ -185,7 +184,7 @@ class Collector:
                 Ar = np.take_along_axis(A, order[..., None], axis=1) * kept[..., None]
                 wr = np.take_along_axis(w, order, axis=1)
                 yr = np.take_along_axis(y, order, axis=1)
-                Sn = np.stack([self.dynamics.noise_cov_at(int(t)) for t in t_in])
+                Sn = self.dynamics.noise_cov_block(t_in)
                 Pm = np.where(ep[:, :, None] & ep[:, None, :], Pp + Sn, 0.0)
                 v = np.where(kept, yr - (Ar @ np.where(ep, xp, 0.0)[..., None])[..., 0], 0.0)
                 Qv = Ar @ Pm @ np.swapaxes(Ar, 1, 2)

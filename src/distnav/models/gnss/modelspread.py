@@ -1,4 +1,4 @@
-"""The ionosphere model's share of a single station's DSB error (issue 32 item 1, one station).
+"""The ionosphere model's share of a station's DSB error where each station has its own layer (issue 32 item 1).
 
 A single station's satellite DSBs carry the error of its single-layer ionosphere along its own passes: constant
 over the day, the same in every epoch's residuals, so neither the formal σ nor the arcs' variance factor sees it,
@@ -9,6 +9,15 @@ field + modified mapping, docs/gnss.md), and the satellites' zero-mean DSBs of t
 ``d_s``. Each satellite's variance gets the pooled ``mean_s d_s²`` added (one number: the per-satellite ``d_s²`` is
 itself one noisy draw). This is a departure from paper 003 (one model, formal σ); it is checked, never tuned,
 against CAS on the shared days (docs/gnss.md) — no product enters the computation.
+
+The same holds for a network whose stations each have their own ionosphere (``per-receiver``, stations far apart:
+the satellites are all that ties them): every station's layer errs along its own passes, and in a 6-h session
+the between-station test has too few common satellites to see it (5–6 degrees of freedom on BELE + DGAR; it
+accepted three of the four sessions whose σ were 1.3–2.0× too small against CAS and GFZ). The spread is then
+taken from the network's central filters of the two models and added on top of the between-station floor (the
+two overlap: on the full day the σ is conservative, RMS(error/σ) 0.78 / 0.95 against CAS / GFZ, docs/gnss.md).
+A network sharing one layer (nearby stations) is left as it is: there the stations see the same ionosphere and
+the arcs' and between-station checks measure its error.
 """
 
 from __future__ import annotations
@@ -23,7 +32,14 @@ from distnav.models.gnss.biasmodel import BiasModelOptions, BiasNetworkData, bia
 from distnav.models.gnss.gfcollector import DatumSeries
 from distnav.models.gnss.gfnetwork import BiasFilterOptions, run_bias_filters
 
-__all__ = ["ModelSpread", "alternative_model", "model_spread", "spread_of_one_station", "with_model_spread"]
+__all__ = [
+    "ModelSpread",
+    "alternative_model",
+    "model_spread",
+    "sigma_limits",
+    "spread_of_own_layers",
+    "with_model_spread",
+]
 
 
 @dataclass(frozen=True)
@@ -34,14 +50,20 @@ class ModelSpread:
     variance_ns2: float
     satellites: int
     alternative: str
+    stations: int = 1
 
     @property
     def rms_ns(self) -> float:
         return float(np.sqrt(self.variance_ns2))
 
     def statement(self) -> str:
+        why = (
+            "one station, so no between-station check"
+            if self.stations == 1
+            else f"{self.stations} stations, each with its own ionosphere layer"
+        )
         return (
-            f"model choice: one station, so no between-station check; each satellite's σ includes the ionosphere "
+            f"model choice: {why}; each satellite's σ includes the ionosphere "
             f"model spread {self.rms_ns:.2f} ns (RMS difference of the zero-mean satellite DSBs from the "
             f"{self.alternative} over {self.satellites} satellites; --model-spread off leaves it out)"
         )
@@ -83,12 +105,13 @@ def with_model_spread(series: Sequence[DatumSeries], n_receivers: int, spread: M
     return out
 
 
-def spread_of_one_station(
+def spread_of_own_layers(
     data: BiasNetworkData, orbit: Any, series: Sequence[DatumSeries], options: BiasModelOptions
 ) -> tuple[list[DatumSeries], ModelSpread | None]:
-    """For a one-station network (:attr:`BiasNetworkData.network` kept by the data stage): the alternative
-    model's central filter, the spread, and the series with it; other networks are returned unchanged."""
-    if len(data.stations) != 1 or data.network is None:
+    """For a network whose every station has its own ionosphere layer — one station, or stations far apart with
+    per-receiver layers (:attr:`BiasNetworkData.network` kept by the data stage): the alternative model's central
+    filter, the spread, and the series with it; networks sharing a layer are returned unchanged."""
+    if data.network is None or data.layout.n_ionospheres != len(data.stations):
         return list(series), None
     alt_options, name = alternative_model(options)
     alt = bias_network_model(data.network, orbit, alt_options)
@@ -100,4 +123,32 @@ def spread_of_one_station(
         dict(zip(alt.layout.svs, alt_central.dsb_ns[-1, n:].tolist(), strict=True)),
         name,
     )
+    spread = replace(spread, stations=len(data.stations))
     return with_model_spread(series, len(data.stations), spread), spread
+
+
+def sigma_limits(series: Sequence[DatumSeries], n_receivers: int, system: str, levelled: bool) -> list[str]:
+    """What the central filter's realistic σ cannot contain, one console note each (gnss5, measured against CAS on
+    BELE 2024-01-10, docs/gnss.md): the arcs' variance factor missing (too few degrees of freedom beyond the
+    biases: BeiDou's MEO satellites from one equatorial station, RMS(error/σ) 2.24), and for GLONASS the receivers'
+    FDMA channel biases, which one receiver cannot separate from the satellites of a channel (C1C−C2C: 3.11)."""
+    central = next((s for s in series if s.label == "central"), None)
+    notes = []
+    if central is not None and levelled and central.arc_variance_factor is None:
+        notes.append(
+            "precision: the arcs' variance factor is not estimable (fewer than 8 degrees of freedom beyond the "
+            "biases: few satellites in view per epoch or few arcs), so the realistic σ is the formal σ × the "
+            "predicted residuals' factor, which misses the levelling errors constant over an arc: expect it too small"
+        )
+    if system == "R":
+        who = (
+            "one receiver: its channel biases go into the satellite DSBs, not separable from them and not in their σ"
+            if n_receivers == 1
+            else f"{n_receivers} receivers: the satellite DSBs take the receivers' mean per channel; the σ contains "
+            "their differences only through the between-station check"
+        )
+        notes.append(
+            "GLONASS: each FDMA channel has its own receiver inter-frequency bias, shared by the channel's two "
+            f"satellites; with {who} (GLONASS channels: docs/gnss.md)"
+        )
+    return notes

@@ -75,8 +75,10 @@ from distnav.models.uwb.reliability import (
     WEAK_RMS_M,
     ReliabilityOptions,
     check_reliability,
+    undetected_nlos_covariance,
     weak_anchor_reasons,
     weak_anchors,
+    with_covariance,
 )
 from distnav.typing import BoolArray, FloatArray
 
@@ -456,9 +458,10 @@ def _precision_and_reasons(
     run.note += prec.note
     reasons = weak_anchor_reasons(problem, residual, fit.excluded, fit.flagged)
     reliability: dict[str, Any] = {"tested": False}
+    numbers = None
     if opts.reliability_limit_m > 0 and run.objective == "metres":  # every solver (reliability.check_reliability)
         kept = subset_measurements(problem, ~fit.excluded)
-        rel_weak, reliability, rel_note = check_reliability(
+        rel_weak, reliability, rel_note, numbers = check_reliability(
             kept,
             res,
             prec.sigma_m,
@@ -481,6 +484,11 @@ def _precision_and_reasons(
         run.mark("reliability")
     if opts.cut_test:  # a group of anchors the exclusions cut off: placed by fewer checks than they took (cuts.py)
         reasons.update({k: v for k, v in cut_weak(problem, fit.excluded).items() if k not in reasons})
+    if numbers is not None and getattr(res, "x", None) is not None:  # LM: σ admits the NLOS links left in (issue 28)
+        weak = np.isin(np.array(problem.ids), list(reasons))
+        kept = subset_measurements(problem, ~fit.excluded)
+        nlos = undetected_nlos_covariance(kept, numbers, -residual[fit.excluded], weak)
+        prec = dataclasses.replace(prec, **with_covariance(prec.sigma_m, prec.covariance_m2, nlos))
     return prec, _whole_map_doubts(run, fit, reasons), reliability
 
 

@@ -35,6 +35,7 @@ from distnav.algorithms.ranging.covariance import (
     CENTRAL_MAX_ANCHORS,
     ECONOMY_CG_RTOL,
     ECONOMY_WIRE_DTYPE,
+    CentralPrecisionOptions,
     central_precision,
 )
 from distnav.algorithms.ranging.losses import robust_weights
@@ -52,7 +53,6 @@ from distnav.typing import BoolArray, FloatArray
 
 __all__ = [
     "DistributedSigma",
-    "SigmaModel",
     "distributed_sigma",
     "gathered_precision",
     "gathered_cost",
@@ -83,47 +83,34 @@ class DistributedSigma:
     bytes_sent: FloatArray | None = None
 
 
-@dataclass(frozen=True)
-class SigmaModel:
-    """The fit whose σ is wanted: the range σ (m), the loss and its scale (m) of the normal matrix's weights, the
-    offset model and the per-anchor offsets' prior σ (m), the antenna delays considered (σ_δ in m, 0: none; with
-    ``estimate_delays`` a floor, the residuals' upper bound used where larger), and ``fit_scale_m`` the loss scale
-    the solution was fitted at (the variance factor's weights, as LM's own; None: ``loss_scale_m``)."""
-
-    sigma_m: float = 0.1
-    loss: str = "linear"
-    loss_scale_m: float = 0.3
-    offsets: str = "none"
-    offset_prior_sigma_m: float = 0.1
-    delay_sigma_m: float = 0.0
-    estimate_delays: bool = False
-    fit_scale_m: float | None = None
-
-    def consider_kwargs(self) -> dict[str, Any]:
-        """The keyword arguments of :func:`~distnav.models.uwb.precision.consider_precision` (LM's σ code)."""
-        return {
-            "sigma_m": self.sigma_m,
-            "offsets": self.offsets,
-            "loss": self.loss,
-            "loss_scale_m": self.loss_scale_m,
-            "delay_sigma_m": self.delay_sigma_m,
-            "offset_prior_sigma_m": self.offset_prior_sigma_m,
-            "estimate_delays": self.estimate_delays and self.delay_sigma_m > 0,
-        }
+def _consider_kwargs(model: CentralPrecisionOptions) -> dict[str, Any]:
+    """The keyword arguments of :func:`~distnav.models.uwb.precision.consider_precision` (LM's σ code) for the fit
+    ``model``."""
+    return {
+        "sigma_m": model.sigma_m,
+        "offsets": model.range_offsets,
+        "loss": model.loss,
+        "loss_scale_m": model.loss_scale_m,
+        "delay_sigma_m": model.delay_sigma_m,
+        "offset_prior_sigma_m": model.offset_prior_sigma_m,
+        "estimate_delays": model.estimate_delays and model.delay_sigma_m > 0,
+    }
 
 
 def distributed_sigma(
     kept: RangingProblem,
     res: Any,
-    model: SigmaModel,
+    model: CentralPrecisionOptions,
     *,
     exchange: Any,
     objective: str,
     mode: str = "auto",
 ) -> DistributedSigma:
     """The distributed solvers' σ on the links ``kept`` at the solution ``res`` of the fit ``model`` (module
-    docstring); ``exchange`` builds the exchange of a problem (None: in-process). Raises ModelError where none
-    can be computed, or the ``mode`` forced cannot."""
+    docstring: the fit's range σ, loss, offsets, delays considered and ``variance_scale_m``, the scale it was
+    fitted at, as :func:`~distnav.algorithms.ranging.covariance.central_precision` takes them); ``exchange``
+    builds the exchange of a problem (None: in-process). Raises ModelError where none can be computed, or the
+    ``mode`` forced cannot."""
     if mode not in PRECISION_MODES:
         raise ModelError(f"distributed precision must be one of {', '.join(PRECISION_MODES)}, got {mode!r}")
     if mode in ("central", "gathered") and objective != "metres":
@@ -140,7 +127,7 @@ def distributed_sigma(
     return _subnetwork(kept, res, model, exchange, objective)
 
 
-def _central(kept: RangingProblem, res: Any, model: SigmaModel, exchange: Any) -> DistributedSigma:
+def _central(kept: RangingProblem, res: Any, model: CentralPrecisionOptions, exchange: Any) -> DistributedSigma:
     """LM's blocks by CG over the exchange (:func:`~distnav.algorithms.ranging.covariance.central_precision`, the
     workflow's float32 directions to :data:`~distnav.algorithms.ranging.covariance.ECONOMY_CG_RTOL`)."""
     off = getattr(res, "offsets_m", None)
@@ -149,14 +136,7 @@ def _central(kept: RangingProblem, res: Any, model: SigmaModel, exchange: Any) -
         np.asarray(res.estimates, float),
         offset_m=None if off is None else np.asarray(off, float),
         exchange=None if exchange is None else exchange(kept),
-        sigma_m=model.sigma_m,
-        loss=model.loss,
-        loss_scale_m=model.loss_scale_m,
-        range_offsets=model.offsets,
-        offset_prior_sigma_m=model.offset_prior_sigma_m,
-        delay_sigma_m=model.delay_sigma_m,
-        estimate_delays=model.estimate_delays,
-        variance_scale_m=model.fit_scale_m,
+        options=model,
         delay_upper_z=DELAY_UPPER_Z,
         rtol=ECONOMY_CG_RTOL,
         wire_dtype=ECONOMY_WIRE_DTYPE,
@@ -172,7 +152,9 @@ def _central(kept: RangingProblem, res: Any, model: SigmaModel, exchange: Any) -
     )
 
 
-def _subnetwork(kept: RangingProblem, res: Any, model: SigmaModel, exchange: Any, objective: str) -> DistributedSigma:
+def _subnetwork(
+    kept: RangingProblem, res: Any, model: CentralPrecisionOptions, exchange: Any, objective: str
+) -> DistributedSigma:
     """Every anchor's :data:`PRECISION_HOPS`-hop sub-network σ (they know no offsets: the ranges less the
     solution's)."""
     off = getattr(res, "offsets_m", None)
@@ -203,33 +185,33 @@ def _bias(problem: RangingProblem, off: FloatArray) -> FloatArray | float:
     return sample_bias(problem.meas_a, problem.meas_b, off)
 
 
-def gathered_precision(kept: RangingProblem, res: Any, model: SigmaModel) -> DistributedSigma | None:
+def gathered_precision(kept: RangingProblem, res: Any, model: CentralPrecisionOptions) -> DistributedSigma | None:
     """LM's σ at the distributed solution ``res`` on the links ``kept``, computed at one anchor (module docstring):
     :func:`~distnav.models.uwb.precision.consider_precision` with the variance factor σ̂² = Σ w r² / redundancy of
-    the weights at ``model.fit_scale_m`` (the fit's, as :func:`~distnav.algorithms.ranging.covariance.
+    the weights at ``model.variance_scale_m`` (the fit's, as :func:`~distnav.algorithms.ranging.covariance.
     central_precision`) and the normal matrix's weights at ``model.loss_scale_m``. The cost
     (:func:`gathered_cost`): the records up, the blocks down. None where the normal matrix is singular."""
-    obj = RangeObjective(kept, "metres", model.sigma_m, model.offsets, model.offset_prior_sigma_m)
+    obj = RangeObjective(kept, "metres", model.sigma_m, model.range_offsets, model.offset_prior_sigma_m)
     est = np.asarray(res.estimates, float)
     off = np.zeros(obj.n_offsets)
     got = getattr(res, "offsets_m", None)
     if obj.n_offsets:  # the solver's offsets: the common one (every anchor's copy, their mean) or each anchor's own
         held = np.zeros(1) if got is None else np.asarray(got, float)
-        off = np.full(1, float(np.mean(held))) if model.offsets == "common" else held
+        off = np.full(1, float(np.mean(held))) if model.range_offsets == "common" else held
     if off.shape != (obj.n_offsets,) or not (np.all(np.isfinite(est)) and np.all(np.isfinite(off))):
         return None
     x = np.concatenate([kept.to_vector(est), off])
     r = obj.residual(x)
-    scale = model.loss_scale_m if model.fit_scale_m is None else model.fit_scale_m
+    scale = model.loss_scale_m if model.variance_scale_m is None else model.variance_scale_m
     w_vf = robust_weights(r, obj.loss_scale(scale), model.loss)[0]
     redundancy = float(r.size - obj.n_x)
     vf = variance_factor(float(np.sum(w_vf * r * r)), redundancy)
     prec = SimpleNamespace(variance_factor=1.0 if vf is None else vf, redundancy=redundancy)
-    out = consider_precision(kept, SimpleNamespace(x=x, precision=prec), **model.consider_kwargs())
+    out = consider_precision(kept, SimpleNamespace(x=x, precision=prec), **_consider_kwargs(model))
     if out is None:
         return None
     sigma, blocks = out
-    messages, sent = gathered_cost(kept, per_anchor_offsets=model.offsets == "per_anchor")
+    messages, sent = gathered_cost(kept, per_anchor_offsets=model.range_offsets == "per_anchor")
     return DistributedSigma(np.where(kept.free, sigma, 0.0), blocks, "gathered", messages, int(sent.sum()), sent)
 
 
@@ -287,15 +269,15 @@ def anchor_precision(
     kept = subset_measurements(problem, ~excluded)
     if opts.solver.upper() != "LM":
         try:
-            model = SigmaModel(
+            model = CentralPrecisionOptions(
                 sigma_m=opts.sigma_m,
                 loss=solver_kwargs(opts).get("loss", "linear"),
                 loss_scale_m=opts.loss_scale_m,
-                offsets=opts.offsets_used,
+                range_offsets=opts.offsets_used,
                 offset_prior_sigma_m=opts.offset_prior_sigma_m,
                 delay_sigma_m=opts.delay_sigma_m if opts.considers_delays and objective == "metres" else 0.0,
                 estimate_delays=opts.estimate_delays,
-                fit_scale_m=fit_scale_m,
+                variance_scale_m=fit_scale_m,
             )
             out = distributed_sigma(
                 kept, res, model, exchange=exchange, objective=objective, mode=opts.distributed_precision

@@ -34,6 +34,9 @@ draw from one seeded :class:`numpy.random.Generator`):
   differ by a per-link ``N(0, s²)``, half each way) and ``known_on_wall`` (the known anchors taken from the row
   along the wall ``y = 0``, nearest its middle or its corner: nearly collinear); with ``known_wall_band_m`` they
   are mounted on that wall, ``y ~ U(0, band)`` (collinear within the band: 0.02 m is issue 28's mirror case).
+* **LOS range bias** (``los_bias_sd_m``, default 0: no draw): every LOS link gets a bias of its own
+  ``N(0, los_bias_sd_m²)`` on all its samples (the DW1000's received-power range bias and multipath that the
+  median of a pair does not remove; ``HallNetwork.los_bias_m``). :data:`PLANT_HARD` uses it.
 
 :func:`distnav.formats.uwb.hall_files.hall_csv_texts` gives the CSV files ``distnav uwb solve`` reads
 (``ranges.csv`` ``a,b,range_m``; ``known.csv``, ``truth.csv`` ``id,x_m,y_m,z_m``; ``heights.csv`` ``id,z_m``) plus
@@ -52,7 +55,7 @@ from distnav.errors import ModelError
 from distnav.models.uwb.problems import select_fixed
 from distnav.typing import BoolArray, FloatArray, IntArray
 
-__all__ = ["HallConfig", "HallNetwork", "simulate_hall", "KNOWN_PLACEMENTS", "PLANT_LIKE"]
+__all__ = ["HallConfig", "HallNetwork", "simulate_hall", "KNOWN_PLACEMENTS", "PLANT_LIKE", "PLANT_HARD"]
 
 KNOWN_PLACEMENTS = ("middle", "corner", "spread")
 
@@ -92,6 +95,7 @@ class HallConfig:
     asymmetry_sd_m: float = 0.0
     known_on_wall: bool = False
     known_wall_band_m: float | None = None
+    los_bias_sd_m: float = 0.0
 
     def __post_init__(self) -> None:
         check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
@@ -101,7 +105,14 @@ class HallConfig:
         for name in ("length_m", "width_m", "ceiling_m", "range_limit_m"):
             if not getattr(self, name) > 0:
                 raise ModelError(f"HallConfig.{name} must be positive, got {getattr(self, name)}")
-        for name in ("sigma_m", "height_survey_sd_m", "antenna_delay_sd_m", "nlos_spread_m", "grid_jitter_m"):
+        for name in (
+            "sigma_m",
+            "height_survey_sd_m",
+            "antenna_delay_sd_m",
+            "nlos_spread_m",
+            "grid_jitter_m",
+            "los_bias_sd_m",
+        ):
             if getattr(self, name) < 0:  # a standard deviation (or spread) of a draw
                 raise ModelError(f"HallConfig.{name} must be ≥ 0, got {getattr(self, name)}")
         for name in (
@@ -148,6 +159,22 @@ class HallConfig:
 PLANT_LIKE: dict[str, object] = {"link_loss": 0.7, "nlos_p1": 0.15, "min_links": 4}
 """:class:`HallConfig` changes that give the link and NLOS counts of issue 13's real plant (module docstring)."""
 
+PLANT_HARD: dict[str, object] = {
+    **PLANT_LIKE,
+    "los_bias_sd_m": 0.1,
+    "common_offset_m": 0.35,
+    "antenna_delay_sd_m": 0.1,
+}
+"""A plant as hard as issue 28's held-out one: :data:`PLANT_LIKE`'s links and NLOS (≈ 108 links, 9 NLOS of
+0.5–2.5 m) plus the range errors of real DW1000 logs, calibrated on the APRIL 8-node logs (``../shared/data/uwb``,
+each pair's median range against the surveyed distance, the lab's delays applied; docs/uwb.md, "A plant as hard
+as the held-out one"): a common offset of 0.35 m (APRIL: 0.375 / 0.415 m, dataset 4 / 5), per-node delays
+N(0, 0.1²) (APRIL's per-node least-squares offsets scatter 0.19 / 0.41 m, an upper bound: with 6 links a node
+they are mostly the links' own errors) and a bias per LOS link N(0, 0.1²) (APRIL: 0.28 / 0.47 m after the common
+offset, on 1.5–6 m links where the DW1000's received-power bias is largest; 0.1 m puts the default solve at the
+held-out plant's 0.21 m with the known anchors in the middle). The per-sample noise stays 5 cm (APRIL's median
+per-pair scatter: 0.049 / 0.028 m)."""
+
 
 @dataclass(frozen=True, eq=False)
 class HallNetwork:
@@ -171,6 +198,7 @@ class HallNetwork:
     sample_link: IntArray
     range_m: FloatArray
     swapped: BoolArray = field(repr=False)
+    los_bias_m: FloatArray | None = field(default=None, repr=False)  # per link: the LOS range bias (0 on NLOS)
 
     @property
     def n_anchors(self) -> int:
@@ -285,6 +313,10 @@ def simulate_hall(rng: np.random.Generator, config: HallConfig | None = None, **
     if cfg.nlos_long_fraction < 1.0:  # bimodal NLOS links: only some samples take the long path (no draw at 1)
         long = long & (rng.random(m) < cfg.nlos_long_fraction)
     r = base + noise + np.where(long, bias[link] + excess, np.where(nlos[link], 0.0, multipath))
+    los_bias = np.zeros(n_links)
+    if cfg.los_bias_sd_m > 0.0:  # a DW1000 range bias of its own per LOS link (no draw at 0: the same halls)
+        los_bias = np.where(nlos, 0.0, rng.normal(0.0, cfg.los_bias_sd_m, n_links))
+        r = r + los_bias[link]
     if cfg.gross_link_fraction > 0.0:  # a few gross samples (± a few metres) on some links
         for k in np.flatnonzero(rng.random(n_links) < cfg.gross_link_fraction):
             mine = np.flatnonzero(link == k)
@@ -309,4 +341,5 @@ def simulate_hall(rng: np.random.Generator, config: HallConfig | None = None, **
         sample_link=link.astype(np.int64),
         range_m=r,
         swapped=swapped,
+        los_bias_m=los_bias,
     )

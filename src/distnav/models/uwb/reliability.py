@@ -32,6 +32,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from scipy import special
 
 from distnav.algorithms.ranging.qc import robust_scale
 from distnav.algorithms.ranging.reliability import (
@@ -57,6 +58,8 @@ __all__ = [
     "ExternalReliability",
     "ReliabilityOptions",
     "check_reliability",
+    "undetected_nlos_covariance",
+    "with_covariance",
     "distributed_free_vector",
     "external_reliability",
     "reliability_weak",
@@ -174,6 +177,60 @@ def distributed_free_vector(problem: RangingProblem, result: Any) -> FloatArray 
     return x
 
 
+def undetected_nlos_covariance(
+    problem: RangingProblem, rel: ExternalReliability | None, bias_m: FloatArray, weak: BoolArray | None = None
+) -> FloatArray:
+    """Per anchor ``(n, dim, dim)`` (m², zero at known coordinates): what NLOS links the exclusions left in may do to
+    it — a *consider* covariance (Tapley, Schutz & Born 2004, §6.4) of the kept links' undetected biases, from the
+    run's own data (issue 28: the tail of ``e/σ``, anchors 1.5–2.3 m off with σ of 0.1 m, were anchors one kept
+    NLOS link moved unseen).
+
+    ``problem`` holds the kept links, ``bias_m`` the excluded links' biases (their prediction residuals read long,
+    ≥ 0). A kept link ``l`` is NLOS with the prior probability ``p`` = the share of the run's links excluded, with
+    a bias drawn from the excluded ones, and left in when the w-test missed it: probability
+    ``Φ(k − (k + z_β) b / MDB_l)`` (``k + z_β = √λ0``: 1 − power at the MDB, ≈ 1 at 0; 1 for an unchecked link). Its
+    second moment ``E_l = p · mean_k(b_k² · P_miss,l(b_k))`` moves the anchors through the gain ``g_l = ∂x̂/∂b_l``
+    (:class:`~distnav.algorithms.ranging.reliability.ExternalReliability`), the links independent:
+    ``C_i = Σ_l E_l g_il g_ilᵀ``. Well-checked links (MDB of a few decimetres against NLOS biases of metres) add
+    almost nothing. In a ``weak`` anchor's own block (per anchor; the run's reasons: thin, cut, misfit,
+    reliability) its own links count as unchecked (``P_miss`` = 1): the test that would find their bias is what
+    the anchor lacks, and the linearization at a wrong choice of links does not see it (a thin anchor whose good
+    link was excluded and whose NLOS link was kept fits its 3 links exactly; the kept NLOS link then has r = 0.02
+    and an MDB of 0.5 m, yet its 1.1 m bias went unseen: docs/uwb.md, "A σ that tells the truth"). Zero without
+    excluded links (no prior to take) or central numbers (``rel.gain``)."""
+    n, dim = problem.free.shape
+    out = np.zeros((n, dim, dim))
+    b = np.maximum(np.asarray(bias_m, float), 0.0)
+    if rel is None or rel.gain is None or b.size == 0:
+        return out
+    share = b.size / (b.size + problem.n_meas)
+    z_beta = float(special.ndtri(POWER))
+    k = np.sqrt(rel.lam0) - z_beta
+    mdb = np.asarray(rel.mdb_m, float)
+    finite = np.isfinite(mdb)[:, None]
+    ratio = np.where(finite, b[None, :] / np.where(finite, mdb[:, None], 1.0), 0.0)
+    miss = np.where(finite, special.ndtr(k - (k + z_beta) * ratio), 1.0)  # (m kept, n excluded)
+    e2 = share * np.mean(b[None, :] ** 2 * miss, axis=1)
+    unchecked = share * float(np.mean(b**2))
+    weak_mask = np.zeros(n, bool) if weak is None else np.asarray(weak, bool)
+    col = np.full(problem.free.shape, -1, np.int64)
+    col[problem.free] = np.arange(problem.n_free)
+    for i in np.flatnonzero(problem.free.any(axis=1)):
+        axes = np.flatnonzero(col[i] >= 0)
+        g = rel.gain[col[i][axes]]
+        own = np.where((problem.meas_a == i) | (problem.meas_b == i), unchecked, e2) if weak_mask[i] else e2
+        out[i][np.ix_(axes, axes)] = (g * own) @ g.T
+    return out
+
+
+def with_covariance(sigma_m: FloatArray, covariance_m2: FloatArray | None, extra_m2: FloatArray) -> dict[str, Any]:
+    """``{"sigma_m", "covariance_m2"}`` with the per-anchor blocks ``extra_m2`` added (σ from the new diagonal;
+    NaN σ stay NaN, missing blocks stay missing)."""
+    sigma = np.sqrt(np.asarray(sigma_m, float) ** 2 + np.diagonal(extra_m2, axis1=1, axis2=2))
+    cov = None if covariance_m2 is None else np.asarray(covariance_m2, float) + extra_m2
+    return {"sigma_m": sigma, "covariance_m2": cov}
+
+
 def check_reliability(
     problem: RangingProblem,
     result: Any,
@@ -184,7 +241,7 @@ def check_reliability(
     exchange: Any = None,
     hops: int = LOCAL_HOPS,
     gathered: bool = False,
-) -> tuple[dict[str, str], dict[str, Any], str]:
+) -> tuple[dict[str, str], dict[str, Any], str, ExternalReliability | None]:
     """:func:`external_reliability` and :func:`reliability_weak` on ``problem`` (the kept links): of an LM result
     centrally; of a distributed solver's by every anchor from its ``hops``-hop neighbourhood through ``exchange``
     (:func:`~distnav.algorithms.ranging.reliability.local_reliability`; None: in-process), its messages and bytes
@@ -192,7 +249,7 @@ def check_reliability(
     (``models.uwb.field_precision.gathered_precision``), which then computes the numbers exactly as LM's on this
     network and sends each anchor its own back with its covariance block (:func:`gathered_return_bytes`) —
     a 4-hop flood would cost a thousand times that on a plant-like hall (docs/economy_uwb.md). Returns ``(weak
-    anchors with reasons, the summary.json entry, a note for the message)``."""
+    anchors with reasons, the summary.json entry, a note for the message, the numbers or None)``."""
     if problem.n_free > MAX_FREE:
         return (
             {},
@@ -201,6 +258,7 @@ def check_reliability(
                 f"; external reliability not tested: {problem.n_free} free coordinates "
                 f"(> {MAX_FREE}, the dense covariance it needs)"
             ),
+            None,
         )
     x = getattr(result, "x", None)
     cost: dict[str, Any] = {}
@@ -208,7 +266,7 @@ def check_reliability(
         rel = external_reliability(problem, np.asarray(x, float), options)
         computed = "centrally on LM's solution"
     elif getattr(result, "estimates", None) is None:
-        return {}, {"tested": False}, "; external reliability not tested (the solver gives no estimates)"
+        return {}, {"tested": False}, "; external reliability not tested (the solver gives no estimates)", None
     elif gathered:
         x_free = distributed_free_vector(problem, result)
         assert x_free is not None  # the result has estimates (the branch above)
@@ -223,7 +281,7 @@ def check_reliability(
                 problem, np.asarray(result.estimates, float), options, offsets_m=off, hops=hops, exchange=exchange
             )
         except ModelError as err:  # e.g. a lost message
-            return {}, {"tested": False}, f"; external reliability not tested ({err})"
+            return {}, {"tested": False}, f"; external reliability not tested ({err})", None
         rel = loc.as_external()
         computed = (
             f"by every anchor from the link records of its {hops}-hop neighbourhood ({loc.rounds} message rounds; "
@@ -237,14 +295,14 @@ def check_reliability(
             "largest_subnetwork": int(loc.subnetwork_anchors.max(initial=0)),
         }
     if rel is None:
-        return {}, {"tested": False}, "; external reliability not tested (singular normal matrix)"
+        return {}, {"tested": False}, "; external reliability not tested (singular normal matrix)", None
     weak = reliability_weak(problem, rel, anchor_sigma_m, limit_m=limit_m)
     entry = {**describe(rel, weak, limit_m), "computed": computed, **cost}
     entry["shift_m"] = {  # per estimated anchor: its worst undetected-link shift (None: an unchecked link moves it)
         problem.ids[i]: (float(rel.shift_m[i]) if np.isfinite(rel.shift_m[i]) else None)
         for i in np.flatnonzero(problem.estimated)
     }
-    return weak, entry, ""
+    return weak, entry, "", rel
 
 
 #: What each estimated anchor gets back from the gathering anchor: its worst undetected-link shift (one value per
