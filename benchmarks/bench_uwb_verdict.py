@@ -382,10 +382,15 @@ def _hard(seed: int) -> dict[str, Any]:
             for a, b in zip(p.meas_a, p.meas_b, strict=True)
         ]
     )
+    v = run_verdict(sol)
+    err = np.linalg.norm(sol.positions_m - truth, axis=1)
+    meeting = [i for i in np.flatnonzero(est) if p.ids[i] not in v.failing]
     return {
         "seed": seed,
         "placement": "middle" if seed % 2 else "corner",
-        "exit": run_verdict(sol).exit_code,
+        "exit": v.exit_code,
+        "n_meeting": len(meeting),
+        "n_meeting_wrong": int(sum(err[i] > REQUIRED_ACCURACY_M for i in meeting)),
         "default_m": rmse(sol.positions_m) if sol.usable else float("nan"),
         "oracle_common_m": rmse(careful_offsets_fit(p, nlos, False)),
         "oracle_per_anchor_m": rmse(careful_offsets_fit(p, nlos, True)),
@@ -415,8 +420,10 @@ def hard_plant_rows(seeds: range) -> list[dict[str, Any]]:
         row["nlos_named"] = [sum(x["nlos_named"] for x in r), sum(x["nlos_links"] for x in r)]
         row["false_named"] = sum(x["false_named"] for x in r)
         row["exit_codes"] = {c: sum(x["exit"] == c for x in r) for c in (0, 1, 3, 4)}
-        row["goal"] = f"median RMSE [m] and 90th percentile; the held-out plant's target ≤ {goal} m"
-        row["meets_goal"] = bool(row["default"][0] <= goal)
+        row["anchors_meeting"] = sum(x["n_meeting"] for x in r)
+        row["anchors_meeting_but_worse"] = sum(x["n_meeting_wrong"] for x in r)
+        row["goal"] = f"median RMSE ≤ {goal} m (the held-out plant's target); no anchor meeting 0.3 m while worse"
+        row["meets_goal"] = bool(row["default"][0] <= goal) and row["anchors_meeting_but_worse"] == 0
         rows.append(row)
     return rows
 
