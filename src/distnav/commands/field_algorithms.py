@@ -39,7 +39,7 @@ __all__ = ["NODE_ALGORITHMS", "REJOIN_ALGORITHMS", "rejoin_algorithm", "run_algo
 
 NODE_ALGORITHMS = ("admm", "ckf", "uwb")
 #: node programs a restarted node can rejoin (besides consensus): they run again from the start with it
-REJOIN_ALGORITHMS = ("admm", "ckf")
+REJOIN_ALGORITHMS = ("admm", "ckf", "uwb")
 
 
 def _arrays(desc: NetworkDescription, node_id: int, kind: str) -> dict[str, np.ndarray]:
@@ -91,13 +91,16 @@ def run_ckf(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
 
 
 def _rerun(desc: NetworkDescription, node_id: int) -> Rerun:
-    """The run again of an ADMM or CKF node on a sub-network (without lost nodes, or with returned ones), from the
+    """The run again of an ADMM, CKF or UWB node on a sub-network (without lost nodes, or with returned ones), from the
     start on its own data."""
     from distnav.commands.field_admm import admm_again
+    from distnav.commands.field_uwb import uwb_again
 
     entry = desc.node(node_id)
     assert entry.data is not None
     path, kind = entry.data, desc.algorithm["name"]
+    if kind == "uwb":
+        return uwb_again(desc, node_id)
     arrays = _arrays(desc, node_id, kind)
     if kind == "admm":
         return admm_again(desc.algorithm, arrays, path)
@@ -109,7 +112,7 @@ def _rerun(desc: NetworkDescription, node_id: int) -> Rerun:
 
 
 def rejoin_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, invited: np.ndarray) -> dict[str, Any]:
-    """A restarted ADMM or CKF node, invited back by the others (``invited``: :meth:`Transport.join`): it runs
+    """A restarted ADMM, CKF or UWB node, invited back by the others (``invited``: :meth:`Transport.join`): it runs
     again from the start with them, on every node's data that is there (:func:`~distnav.commands.field_survive.
     without_lost`)."""
     from distnav.commands.field_survive import without_lost

@@ -23,7 +23,7 @@ from distnav._optional import require
 from distnav.algorithms.consensus.averaging import iterate_average_consensus
 from distnav.algorithms.consensus.flows import iterate_flow_consensus
 from distnav.commands.field_algorithms import REJOIN_ALGORITHMS
-from distnav.errors import DataFileError, UsageError
+from distnav.errors import DataFileError, ExchangeError, UsageError
 from distnav.exchange import FaultSchedule
 from distnav.exchange.field import CurveKeys, FieldExchange, Transport
 from distnav.formats.field_config import NetworkDescription, read_node_values
@@ -79,7 +79,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
     if rejoin and not consensus and desc.algorithm["name"] not in REJOIN_ALGORITHMS:
         raise UsageError(f"--rejoin: {desc.algorithm['name']} nodes cannot rejoin a running network (not done)")
     transport = Transport(node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=keys)
-    transport.readmit_on_hello = consensus  # ADMM, CKF: a returning node is invited to a run again (field_survive)
+    transport.readmit_on_hello = consensus  # ADMM, CKF, UWB: a returning node is invited to a re-run (field_survive)
     t0 = time.monotonic()
     try:
         schedule = FaultSchedule(drop_probability=desc.drop_probability, seed=desc.drop_seed)
@@ -89,7 +89,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             if crash_step is None
             else _CrashingExchange(desc.graph(), node_id, transport, schedule, crash_step=crash_step)
         )
-        first = transport.join(invitation=not consensus) if rejoin else 0  # ADMM, CKF: run again with the others
+        first, late = _join(transport, consensus) if rejoin else (0, None)
         if rejoin and consensus:
             ex.start_at(first)
             LOG.warning("node %d: rejoining at step %d", node_id, first)
@@ -101,7 +101,10 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         if missing:
             LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
         t_start, cpu_start = time.monotonic(), time.process_time()
-        if states is not None:
+        outcome: dict[str, Any]
+        if late is not None:  # a node program back after the others finished: no answer, the reason
+            outcome = {"estimate": None, "status": "stopped", "message": late, "rounds": 0}
+        elif states is not None:
             assert values is not None
             crash_round = None if rejoin else desc.crash.get(node_id)
             outcome = _run_consensus(states, values, node_id, int(desc.algorithm["rounds"]), first, crash_round)
@@ -142,6 +145,18 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         return STOPPED_EXIT if status == "stopped" else 0
     finally:
         transport.close()
+
+
+def _join(transport: Transport, consensus: bool) -> tuple[int, str | None]:
+    """A restarted node's way back: a consensus node at the step its neighbours are at; an ADMM, CKF or UWB node
+    when the others invite it to run again with them (:func:`~distnav.commands.field_survive.without_lost`), or, if
+    none does within ``start_timeout_s`` (they finished without it), the reason it stops."""
+    try:
+        return transport.join(invitation=not consensus), None
+    except ExchangeError as exc:
+        if consensus:
+            raise
+        return 0, f"restarted, but the others did not take it back (they finished without it?): {exc}"
 
 
 class _CrashingExchange(FieldExchange):

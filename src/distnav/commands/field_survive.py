@@ -10,7 +10,12 @@ agree on who they are, check the agreement, and run again on their own data thro
 3. check the agreement (:func:`check_agreement`: every node's view of the remaining nodes and of the failed step,
    gathered over the remaining nodes' spanning tree, must be equal);
 4. run the family's :data:`Rerun` on the sub-network the remaining nodes induce (a
-   :class:`~distnav.exchange.field.survivors.SubnetTransport`); another loss starts the next attempt.
+   :class:`~distnav.exchange.field.survivors.SubnetTransport`); another loss starts the next attempt;
+5. take back a lost node whose process was restarted (``--rejoin``): after the run, one global OR tells every
+   remaining node whether such a node greeted a neighbour (:attr:`Transport.greeted`); its neighbours readmit it and
+   invite it (:attr:`Kind.INVITE`: the new run's first step, the failed step, the run's nodes), and every node, it
+   too (``without_lost(..., invited=...)``), runs the :data:`Rerun` again from the start on that network. A rejoin
+   costs a re-run; ``status`` ``<status>_with_rejoined_nodes`` when every lost node is back, ``rejoined_nodes``.
 
 ``status`` is the new run's with ``_without_lost_nodes``; ``lost_nodes`` names every lost node with the step of the
 failed operation, ``remaining_nodes`` and ``restarted_at_step`` say who went on and from where. The node stops

@@ -43,7 +43,7 @@ from distnav.exchange.field import FieldExchange
 from distnav.formats.field_config import NetworkDescription
 from distnav.formats.field_data import read_node_arrays, uwb_samples_problem
 
-__all__ = ["run_uwb"]
+__all__ = ["run_uwb", "uwb_again"]
 
 _TABLE = ("ids", "positions_m", "free", "initial_m", "truth_m")  # the anchor table's per-anchor arrays
 
@@ -51,18 +51,12 @@ _TABLE = ("ids", "positions_m", "free", "initial_m", "truth_m")  # the anchor ta
 def run_uwb(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[str, Any]:
     """A UWB solver (paper 002; N-CLM by default) as anchor ``node_id``: its own position estimate and the status
     (on the remaining anchors when one died: module docstring)."""
-    entry = desc.node(node_id)
-    if entry.data is None:
-        raise DataFileError(f"{desc._where()}: node {node_id}: key 'data' (its .npz data file) is needed by uwb")
-    arrays = read_node_arrays(entry.data, "uwb", node_id, desc.n_nodes)
-    own = np.asarray(arrays["samples"], float)
-    if own.ndim != 2 or own.shape[1] != 4:
-        raise DataFileError(f"{entry.data}: node {node_id}: samples must be rows [index, a, b, range_m]")
+    arrays, own, path = _own(desc, node_id)
     try:
-        problem = uwb_samples_problem(arrays, _gathered(ex, own), entry.data)
+        problem = uwb_samples_problem(arrays, _gathered(ex, own), path)
         res = _solve(problem, desc.algorithm, ex)
     except ExchangeError as exc:
-        return without_lost(desc, ex, str(exc), _uwb_again(desc, arrays, own, entry.data))
+        return without_lost(desc, ex, str(exc), _uwb_again(desc, arrays, own, path))
     return {
         "estimate": res.estimates[node_id],
         "status": res.status,
@@ -71,6 +65,24 @@ def run_uwb(desc: NetworkDescription, node_id: int, ex: FieldExchange) -> dict[s
         "rounds": res.iterations,
         "samples_gathered_at_start": int(problem.n_meas),
     }
+
+
+def uwb_again(desc: NetworkDescription, node_id: int) -> Rerun:
+    """The UWB :data:`Rerun` of anchor ``node_id`` from its file: a restarted anchor's solve with the others
+    (:func:`~distnav.commands.field_algorithms.rejoin_algorithm`)."""
+    return _uwb_again(desc, *_own(desc, node_id))
+
+
+def _own(desc: NetworkDescription, node_id: int) -> tuple[dict[str, np.ndarray], np.ndarray, Path]:
+    """This anchor's file: its arrays, its own sample rows ``[index, a, b, range_m]`` and the file's path."""
+    entry = desc.node(node_id)
+    if entry.data is None:
+        raise DataFileError(f"{desc._where()}: node {node_id}: key 'data' (its .npz data file) is needed by uwb")
+    arrays = read_node_arrays(entry.data, "uwb", node_id, desc.n_nodes)
+    own = np.asarray(arrays["samples"], float)
+    if own.ndim != 2 or own.shape[1] != 4:
+        raise DataFileError(f"{entry.data}: node {node_id}: samples must be rows [index, a, b, range_m]")
+    return arrays, own, entry.data
 
 
 def _gathered(ex: FieldExchange, own: np.ndarray) -> np.ndarray:

@@ -99,11 +99,19 @@ def _triu(p: int) -> tuple[IntArray, IntArray]:
 
 
 def _symmetric(tri: FloatArray, up: IntArray, lo: IntArray, k: int, p: int) -> FloatArray:
-    """Rebuild symmetric (k, p, p) matrices from their upper triangles (flat indices ``up``, mirror ``lo``)."""
-    out = np.empty((k, p * p))
-    out[:, lo] = tri
-    out[:, up] = tri
-    return out.reshape(k, p, p)
+    """Rebuild symmetric (k, p, p) matrices from their upper triangles (flat indices ``up``, mirror ``lo``): one
+    gather by the position of every entry in the triangle (made once per ``p``)."""
+    where = _TRI_POSITION.get(p)
+    if where is None:
+        where = np.empty(p * p, np.int64)
+        where[lo] = np.arange(lo.size)
+        where[up] = np.arange(up.size)
+        _TRI_POSITION[p] = where
+    out: FloatArray = tri[:, where].reshape(k, p, p)
+    return out
+
+
+_TRI_POSITION: dict[int, IntArray] = {}
 
 
 @dataclass(frozen=True, eq=False)

@@ -167,6 +167,7 @@ class DynamicModel:
         selection of H's unit columns and S̃'s inverse; an epoch repeating the previous inputs reuses their checks."""
         self._H: list[np.ndarray] = []
         self._sel: list[IntArray | None] = []
+        self._sel_slice: list[slice | None] = []
         self._sel_grid: list[tuple[np.ndarray, ...] | None] = []  # np.ix_(sel, sel), for noise_cov_at
         self._St: list[np.ndarray] = []
         self._St_inv: list[np.ndarray] = []
@@ -177,6 +178,7 @@ class DynamicModel:
             if H is prev_H:
                 q = H.shape[1]
                 self._sel.append(self._sel[-1])
+                self._sel_slice.append(self._sel_slice[-1])
                 self._sel_grid.append(self._sel_grid[-1])
             else:
                 q = self._check_noise_map(H, e)
@@ -203,6 +205,8 @@ class DynamicModel:
             raise ModelError(f"noise_map{e} must have full column rank (paper 003 eq. (19))")
         self._sel.append(sel)
         self._sel_grid.append(None if sel is None else np.ix_(sel, sel))
+        contiguous = sel is not None and bool((np.diff(sel) == 1).all())
+        self._sel_slice.append(slice(int(sel[0]), int(sel[-1]) + 1) if contiguous and sel is not None else None)
         return q
 
     # -- accessors: epoch t ≥ 1 (the step t−1 → t)
@@ -229,6 +233,11 @@ class DynamicModel:
         """Indices ``sel`` when ``H_t`` is made of identity columns ``I[:, sel]`` (eq. (20)), else ``None``."""
         k = self._idx(self._noise_const, len(self._H), t, "system noise")
         return self._sel[k]
+
+    def noise_slice_at(self, t: int) -> slice | None:
+        """:meth:`noise_selection_at` as a slice when its columns are consecutive and ascending (views instead of
+        copies), else ``None``."""
+        return self._sel_slice[self._idx(self._noise_const, len(self._H), t, "system noise")]
 
     def noise_cov_at(self, t: int) -> FloatArray:
         """``S_t = H_t S̃_t H_tᵀ``."""

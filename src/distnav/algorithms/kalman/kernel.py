@@ -167,7 +167,9 @@ class InformationKernel:
         if q == 0:
             self.I, self.i, self.Qs = M, v, Qs
             return
-        sel = dyn.noise_selection_at(t)
+        sel: np.ndarray | slice | None = dyn.noise_slice_at(t)
+        if sel is None:
+            sel = dyn.noise_selection_at(t)
         if sel is not None:  # H = columns `sel` of the identity (eq. (20)): slicing instead of products
             MH = M[:, :, sel]  # (k,p,q)
             K = MH[:, sel, :] + St_inv
