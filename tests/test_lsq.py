@@ -73,6 +73,19 @@ def test_rank_deficiency_names_inestimable_directions(rng):
         assert np.linalg.norm(basis @ (basis.T @ v) - v) < 1e-10
 
 
+def test_a_column_of_rounding_is_no_information(rng):
+    """Found in the field (issue 26): a parameter seen only through rounding-level entries of A (1e-16 beside
+    order-one ones, as a reparametrization leaves them) was Jacobi-scaled up to order one and passed the rank
+    check; the BLUE then returned values near 1e13. numpy's SVD rank of the stacked rows is the reference."""
+    n, m, p = 6, 3, 4
+    A = rng.normal(size=(n, m, p))
+    A[:, :, 2] = rng.normal(size=(n, m)) * 1e-16  # rounding, not an observation
+    assert np.linalg.matrix_rank(A.reshape(n * m, p)) == 3
+    prob = LinearProblem.from_stacked(A, rng.normal(size=(n, m)))
+    with pytest.raises(ModelError, match=r"rank\(A\) = 3 < p = 4 .*inestimable directions: x\[2\]"):
+        blue(prob)
+
+
 def test_rank_check_is_unit_free(rng):
     """A parameter in tiny units (column scaled by 1e-6) is still estimable."""
     n, m, p = 6, 2, 3

@@ -58,7 +58,11 @@ def null_space_directions(N: np.ndarray, *, rcond: float = 1e-10) -> np.ndarray:
     """
     N = np.asarray(N, float)
     d = np.diag(N)
-    scale = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))  # an unseen parameter keeps scale 1: its row is zero
+    # A diagonal at rounding level of the largest one (e.g. 1e-30 beside 20: a column of A_i whose entries are the
+    # rounding of a reparametrization) is no information: Jacobi-scaling by it would blow the rounding up to order
+    # one and call the parameter estimable. The floor keeps such a row (and an unseen one, d = 0) tiny after scaling.
+    floor = max(float(d.max(initial=0.0)), 1e-300) * N.shape[0] * np.finfo(float).eps
+    scale = 1.0 / np.sqrt(np.maximum(d, floor))
     Ns = scale[:, None] * N * scale[None, :]
     lam, V = np.linalg.eigh(Ns)
     small = lam <= rcond * max(float(lam.max()), 1e-300)
