@@ -9,9 +9,14 @@ schedule (:func:`~distnav.algorithms.lsq.driver.prepare`), since a lost message 
 
 **Memory** (issue 30). A block holds, per node, the x-update's gains and ``p``-wide state vectors, and per edge
 into or out of ``C`` one entry of the two mixers' matrices — nothing per pair of width ``p``. The mixers' edge
-weights are one read-only broadcast 1.0 (the active masks zero the rest), and the monitored iterations form the
-pair residuals ``‖x_i − z_s‖`` from the columns the x-round's transport fills (the block's own values and its halo)
-a chunk of pairs at a time, instead of a full-length inbox of ``p`` floats per in-edge.
+weights are one read-only broadcast 1.0 (the active masks zero the rest); once built, each mixer drops what only a
+fault round reads (fault schedules are refused) and the two share one array of ones and their message counts
+(:func:`_lean`). An iteration holds five ``p``-wide arrays across it and one more at a time: the elementwise
+updates of ``U`` and ``V`` run a chunk of rows at a time, and the monitored iterations form the pair residuals
+``‖x_i − z_s‖`` from the columns the x-round's transport fills (the block's own values and its halo), a chunk of
+pairs at a time in the free ``z^[k] − z^[k−1]`` buffer, instead of a full-length inbox of ``p`` floats per in-edge.
+Every element's operations, and every sum's terms and order, are those of one pass (the iterates and residuals are
+bitwise those of the unchunked form).
 """
 
 from __future__ import annotations
