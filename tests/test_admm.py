@@ -108,6 +108,33 @@ def test_aggregated_messages_give_the_same_iterates(case):
     assert a.comm.messages_per_round[1:].tolist() == b.comm.messages_per_round[2:].tolist()
 
 
+def test_aggregated_chunks_change_no_bit_and_residual_matches_the_pairs(case, monkeypatch):
+    """The aggregated kernel's elementwise updates run a chunk of rows at a time and its pair residual fills a free
+    buffer a chunk of pairs at a time: rows of 5 give bitwise the iterates of one pass, and the primal residual is
+    ``sqrt(Σ_{s∈C} Σ_{i∈N_s} ‖x_i − z_s‖²)`` recomputed here from the graph (pairs of 16: the buffer path)."""
+    import distnav.algorithms.lsq.aggregated as agg
+
+    g, prob, _ = case
+    C = choose_constraint_nodes(g, "min_cover")
+
+    def run() -> list:
+        ex = make_exchange(g, order="rcm")
+        gen = iterate_admm(prob, g, constraint_nodes=C, W=2.0, exchange=ex, messages="aggregated")
+        return [(ex, next(gen)) for _ in range(8)]
+
+    base = run()
+    monkeypatch.setattr(agg, "_ROW_CHUNK", 5)
+    monkeypatch.setattr(agg, "_PAIR_CHUNK", 16)
+    for (_, a), (ex, b) in zip(base, run(), strict=True):
+        assert np.array_equal(a.x, b.x) and np.array_equal(a.z, b.z)
+        assert a.dual_residual == b.dual_residual and a.u_norm == b.u_norm
+        x, z = ex.gather_nodes(b.x), ex.gather_nodes(b.z)
+        s, i = g.dst, g.src  # every directed edge i → s with s ∈ C is a pair, and (s, s) for s ∈ C
+        on = C.mask[s]
+        ref = np.sum((x[i[on & (i != s)]] - z[s[on & (i != s)]]) ** 2) + np.sum((x[C.mask] - z[C.mask]) ** 2)
+        np.testing.assert_allclose(b.primal_residual, np.sqrt(ref), rtol=1e-12)
+
+
 def test_message_counts_match_the_pairs(case):
     g, prob, _ = case
     C = choose_constraint_nodes(g, "min_cover")

@@ -398,3 +398,61 @@ def test_route_rows_checked():
         r.send(np.zeros((g.n_edges, 1)))
     with pytest.raises(ExchangeError, match="out must be a contiguous"):
         r.broadcast(np.zeros((4, 2)), out=np.zeros((3, 3)))
+
+
+def test_mixer_block_with_dropped_entries_equals_the_dense_weights(monkeypatch):
+    """The CSR block compacted in place (chunks of a few entries here) holds exactly the non-zero weights: inactive
+    edges and zero self-weights left out, each row by ascending sender, the row pointers counting what was kept."""
+    import distnav.exchange.mixer as mixer_mod
+
+    monkeypatch.setattr(mixer_mod, "_CSR_CHUNK", 7)
+    g = builders.connected_random_geometric(60, mean_degree=6, rng=np.random.default_rng(4))
+    rng = np.random.default_rng(5)
+    w = consensus_weights(g, "MH")
+    active = rng.random(g.n_edges) < 0.6
+    self_w = np.where(rng.random(g.n_nodes) < 0.3, 0.0, w.self_weight)
+    for order in ("none", "rcm"):
+        ex = make_exchange(g, order=order)
+        m = mixer_mod.Mixer(ex, w.edge_weight, self_w, active)
+        dense = np.zeros((g.n_nodes, g.n_nodes))
+        dense[g.dst[active], g.src[active]] = w.edge_weight[active]
+        dense[np.arange(g.n_nodes), np.arange(g.n_nodes)] += self_w
+        local = dense[np.ix_(ex.nodes, ex.nodes)]  # rows and columns in the exchange's order
+        blk = m._w_full
+        assert blk is not None and blk.nnz == np.count_nonzero(local)
+        assert np.array_equal(blk.toarray(), local)
+        for r in range(g.n_nodes):  # each row's entries by ascending global sender id
+            senders = ex.nodes[blk.indices[blk.indptr[r] : blk.indptr[r + 1]]]
+            assert np.all(np.diff(senders) > 0)
+
+
+def test_mixer_sharing_and_dropped_fault_state_leave_rounds_and_counts_unchanged():
+    """Two 0/1 mixers (a round into a node set and its reverse) share one array of ones and their counts after
+    ``share_with``; without their fault state their rounds, and the messages counted, are bitwise those of fresh
+    mixers. A mixer under a fault schedule keeps its fault state."""
+    from distnav.exchange.mixer import Mixer
+
+    g = builders.connected_random_geometric(80, mean_degree=7, rng=np.random.default_rng(6))
+    inC = np.random.default_rng(7).random(g.n_nodes) < 0.7
+    ones = np.ones(g.n_edges)
+    into = inC[g.dst] & (g.src != g.dst)
+    out_of = inC[g.src] & (g.src != g.dst)
+    x = np.random.default_rng(8).normal(size=(g.n_nodes, 3))
+    ex_ref, ex = make_exchange(g, order="rcm"), make_exchange(g, order="rcm")
+    refs = [Mixer(ex_ref, ones, inC.astype(float), a) for a in (into, out_of)]
+    a, b = (Mixer(ex, ones, inC.astype(float), m) for m in (into, out_of))
+    for m in (a, b):
+        m.drop_fault_state()
+    a.share_with(b)
+    b.share_with(a)
+    small, big = sorted((a._w_full, b._w_full), key=lambda blk: blk.nnz)
+    assert np.shares_memory(small.data, big.data)
+    assert a._sent_counts is b._recv_counts and a._recv_counts is b._sent_counts
+    for ref, m in ((refs[0], a), (refs[1], b), (refs[0], a)):
+        assert np.array_equal(ref.apply(x), m.apply(x))
+    assert np.array_equal(ex_ref.messages_sent, ex.messages_sent)
+    assert np.array_equal(ex_ref.messages_received, ex.messages_received)
+    ex_f = make_exchange(g, faults=FaultSchedule(drop_probability=0.1, seed=1))
+    f = Mixer(ex_f, ones, inC.astype(float), into)
+    f.drop_fault_state()
+    assert f._act_in.shape == (ex_f.in_dst.size,)

@@ -60,6 +60,8 @@ class InProcessExchange(Exchange):
         self.out_edges = e
         self.n_columns = graph.n_nodes
         self._init_accounting()
+        if np.array_equal(self._all_sent, self._all_recv):  # a symmetric graph: one array of both counts
+            self._all_recv = self._all_sent
 
     # the senders' and receivers' global ids per edge are made only when asked for (consensus needs neither: two
     # edge-sized arrays less at 10⁶ nodes); the graph's own arrays in the user's order
@@ -74,7 +76,7 @@ class InProcessExchange(Exchange):
     def _real_edges(self) -> tuple[np.ndarray, np.ndarray]:
         # sender and receiver are the same node exactly when their local positions are
         real = self.in_src_col != self.in_dst
-        return real, real.copy()
+        return real, real  # the same edges in both orders (read only: one array)
 
     def _sender_below(self) -> np.ndarray:
         below = self.graph.src < self.graph.dst

@@ -61,11 +61,26 @@ def _block_csr(
     if keep.all():
         ptr = slot_start
     else:
-        kept = np.add.reduceat(keep, slot_start[:-1], dtype=np.int64) if n else np.zeros(0, np.int64)
-        data, cols = data[keep], cols[keep]
+        # entries kept per row: its slots less the few dropped (no edge-sized integer copy of ``keep``)
+        dropped = np.searchsorted(slot_start, np.flatnonzero(~keep), side="right") - 1
+        kept = np.diff(slot_start) - np.bincount(dropped, minlength=n)
+        del dropped
+        _compact(data, keep)
+        _compact(cols, keep)
         ptr = np.zeros(n + 1, np.int64)
         np.cumsum(kept, out=ptr[1:])
     return sp.csr_matrix((data, cols, ptr.astype(idx_dtype)), shape=(n, n_cols))
+
+
+def _compact(arr: np.ndarray, keep: np.ndarray) -> None:
+    """``arr`` becomes ``arr[keep]`` in place (its own buffer, shrunk): a chunk of :data:`_CSR_CHUNK` entries at a
+    time, each kept entry moved down (never past an entry still to be read), so no second array of its size."""
+    w = 0
+    for a in range(0, arr.size, _CSR_CHUNK):
+        part = arr[a : a + _CSR_CHUNK][keep[a : a + _CSR_CHUNK]]
+        arr[w : w + part.size] = part
+        w += part.size
+    arr.resize(w, refcheck=False)  # the array owns its buffer and nothing else refers to it
 
 
 _CSR_CHUNK = 1 << 18  # edges per pass when the mixer's block is written (a few MB of temporaries)
@@ -130,6 +145,33 @@ class Mixer:
             self._sent_counts = _masked_count(ex.out_src, self._act_out, ex.n_local)
             self._recv_counts = _masked_count(ex.in_dst, self._act_in, ex.n_local)
         self._sent_total = int(self._sent_counts.sum())
+
+    def drop_fault_state(self) -> None:
+        """Release what only a fault round reads — the in- and out-edge masks, the self-weights and the whole
+        graph's edge mask — on a fault-free mixer of this class (its rounds are one product with the fused block;
+        a subclass may read them in its own rounds and keeps them). For a caller that refuses fault schedules (the
+        aggregated ADMM rounds): an edge mask less per direction and the self-weights per node."""
+        if type(self) is not Mixer or self._w_full is None:
+            return
+        self._act_in = self._act_out = np.zeros(0, bool)
+        self._self_w = np.zeros(0)
+        self._active_global = None
+
+    def share_with(self, other: Mixer) -> None:
+        """Let this mixer read what it holds equal to ``other``'s from ``other``'s arrays: the fused block's weights
+        when every weight of both is the same value (two 0/1 mixers: all ones; a prefix of the longer array), and
+        its per-node message counts where they equal ``other``'s (a round and its reverse: the one's sent counts
+        are the other's received ones). The products and counts are unchanged (the same values)."""
+        a, b = self._w_full, other._w_full
+        if a is not None and b is not None and 0 < a.nnz <= b.nnz:
+            v = b.data[0]
+            if bool((a.data == v).all()) and bool((b.data == v).all()):
+                a.data = b.data[: a.nnz]
+        for mine in ("_sent_counts", "_recv_counts"):
+            for theirs in ("_sent_counts", "_recv_counts"):
+                if np.array_equal(getattr(self, mine), getattr(other, theirs)):
+                    setattr(self, mine, getattr(other, theirs))
+                    break
 
     def apply(self, x_local: np.ndarray) -> np.ndarray:
         """One consensus round on local values ``x_local`` of shape ``(n_local, ...)``."""

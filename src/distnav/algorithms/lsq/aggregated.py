@@ -9,9 +9,14 @@ schedule (:func:`~distnav.algorithms.lsq.driver.prepare`), since a lost message 
 
 **Memory** (issue 30). A block holds, per node, the x-update's gains and ``p``-wide state vectors, and per edge
 into or out of ``C`` one entry of the two mixers' matrices — nothing per pair of width ``p``. The mixers' edge
-weights are one read-only broadcast 1.0 (the active masks zero the rest), and the monitored iterations form the
-pair residuals ``‖x_i − z_s‖`` from the columns the x-round's transport fills (the block's own values and its halo)
-a chunk of pairs at a time, instead of a full-length inbox of ``p`` floats per in-edge.
+weights are one read-only broadcast 1.0 (the active masks zero the rest); once built, each mixer drops what only a
+fault round reads (fault schedules are refused) and the two share one array of ones and their message counts
+(:func:`_lean`). An iteration holds five ``p``-wide arrays across it and one more at a time: the elementwise
+updates of ``U`` and ``V`` run a chunk of rows at a time, and the monitored iterations form the pair residuals
+``‖x_i − z_s‖`` from the columns the x-round's transport fills (the block's own values and its halo), a chunk of
+pairs at a time in the free ``z^[k] − z^[k−1]`` buffer, instead of a full-length inbox of ``p`` floats per in-edge.
+Every element's operations, and every sum's terms and order, are those of one pass (the iterates and residuals are
+bitwise those of the unchunked form).
 """
 
 from __future__ import annotations
@@ -47,17 +52,28 @@ def rounds_on_graph(ex: Exchange, C: ConstraintNodes) -> _Rounds:
     """:class:`_Rounds` of an exchange on the whole graph (in-process, or MPI with the graph on every rank)."""
     g = ex.graph
     inC = C.mask
-    real = g.src != g.dst
-    to_c = inC[g.dst] & real  # i→s, s ∈ C: the x-round
-    from_c = inC[g.src] & real  # s→i, s ∈ C: the z-round
-    del real
     # the same 0/1 weights as before (1 on the active edges, the self-weight 1 at constraint nodes) without an
-    # edge-sized float array per mixer: the inactive edges' weights are zeroed by the masks
+    # edge-sized float array per mixer: the inactive edges' weights are zeroed by the masks. One mixer at a time,
+    # each made lean (:func:`_lean`) before the next is built
     ones = np.broadcast_to(np.float64(1.0), (g.n_edges,))
     inC_f = inC.astype(float)
-    mix_x = ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum into C"), active=to_c)
-    mix_z = ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum from C"), active=from_c)
+    to_c = inC[g.dst] & (g.src != g.dst)  # i→s, s ∈ C: the x-round
+    mix_x = _lean(ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum into C"), active=to_c))
+    del to_c
+    from_c = inC[g.src] & (g.src != g.dst)  # s→i, s ∈ C: the z-round
+    mix_z = _lean(ex.mixer(ConsensusWeights(g, ones, inC_f, name="sum from C"), active=from_c), mix_x)
+    del from_c
     return _Rounds(mix_x, mix_z, inC[ex.nodes], C.per_node_count[ex.nodes], _sizes(ex))
+
+
+def _lean(mix: Mixer, other: Mixer | None = None) -> Mixer:
+    """``mix`` without what only a fault round reads (fault schedules are refused), and, with ``other`` (the
+    round's other 0/1 mixer), one array of ones for both: :meth:`Mixer.drop_fault_state`, :meth:`Mixer.share_with`."""
+    mix.drop_fault_state()
+    if other is not None:
+        mix.share_with(other)
+        other.share_with(mix)
+    return mix
 
 
 def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
@@ -111,18 +127,22 @@ class _AggregatedKernel:
         self.w_scale = float(np.linalg.eigvalsh(W).max())
         self.w_iso = float(W[0, 0]) if np.array_equal(W, W[0, 0] * np.eye(p)) else None
         self.mix_x, self.mix_z = rounds.mix_x, rounds.mix_z
+        _lean(self.mix_x)
+        _lean(self.mix_z, self.mix_x)  # (made lean already on a whole graph: then a no-op)
         self.inC_loc = rounds.inC
-        self.count = rounds.count
         self.size_s = rounds.size
         self.size_c = self.size_s * self.inC_loc
-        self.count_f = self.count.astype(float)
+        self.count_f = rounds.count.astype(float)  # c_i (the same values as the integer counts)
 
     def run(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int) -> Iterator[AdmmState]:
-        """The iterations from ``x0``, ``z0`` (``u^[−1] = 0``, §4.3)."""
-        cm = self.inC_loc[:, None].astype(float)
-        inv_count = 1.0 / self.count[:, None]
-        inv_size = cm / self.size_s[:, None]
-        cnt = self.count[:, None].astype(float)
+        """The iterations from ``x0``, ``z0`` (``u^[−1] = 0``, §4.3).
+
+        Five ``p``-wide arrays live across an iteration (``x``, ``z``, ``U``, ``V``, ``zsum``) and one more at a time
+        (the new ``x`` or ``z``, ``l``, ``xsum`` turned into ``z^[k] − z^[k−1]``): the elementwise updates of ``U``
+        and ``V`` run a chunk of rows at a time (:func:`_rowwise`), which leaves every element's operations, and so
+        its bits, as in one pass."""
+        cm = self.inC_loc[:, None]  # a 0/1 factor: bool, cast to 0.0/1.0 by each product (the same bits)
+        cnt = self.count_f[:, None]  # (1 / c and [s ∈ C] / |N_s| are made when used: the same values)
         size = self.size_s[:, None]
         x = x0  # the caller's fresh rows (the driver's copies): taken over, not copied again
         z = z0 * cm
@@ -131,68 +151,81 @@ class _AggregatedKernel:
         zsum = self.mix_z.apply(z)
         xsum = self.mix_x.apply(x)
         U = np.zeros_like(x)
-        V = (xsum - size * z) * cm  # Σ_i u^[0]_{i,s} with u^[−1] = 0
+        V = np.empty_like(x)
+        _rowwise(_v_first, V, xsum, size, z, cm)  # Σ_i u^[0]_{i,s} with u^[−1] = 0
+        xsum[...] = 0.0  # dz of state 0
+        yield self._state(0, x, z, xsum, U, cnt, zsum)
         del xsum
-        t, dz = np.empty_like(x), np.zeros_like(z)
-        yield self._state(0, x, z, dz, _u_next(U, cnt, x, zsum, out=t))
         k = 0
         while True:
             k += 1
             monitored = bool(monitor_every) and k % monitor_every == 0
-            # the expressions of Fig. 6 with two scratch buffers (t, dz), each operation as before
-            np.multiply(cnt, x, out=t)
-            t -= zsum
-            U += t  # U += cnt x − zsum: Σ_s of the u-updates
-            np.subtract(zsum, U, out=t)
-            t *= inv_count  # l = (zsum − U) / c
+            _rowwise(_u_step, U, cnt, x, zsum)  # U += cnt x − zsum: Σ_s of the u-updates
+            l = np.subtract(zsum, U)
+            l *= 1.0 / cnt  # l = (zsum − U) / c
             del zsum  # the next one comes with z_new
-            x = self.x_update(t, x)
+            x = self.x_update(l, x)
+            del l
             xsum = self.mix_x.apply(x)
             z_new = np.add(xsum, V)  # a fresh array: a yielded state's x and z are never written again
-            z_new *= inv_size  # z_new = (xsum + V) / |N_s|
-            np.multiply(size, z_new, out=dz)
-            np.subtract(xsum, dz, out=dz)
-            dz *= cm
-            V += dz  # V += (xsum − |N_s| z_new) at constraint nodes
+            z_new *= cm / size  # z_new = (xsum + V) / |N_s| at constraint nodes
+            _rowwise(_v_step, V, xsum, size, z_new, cm)  # V += (xsum − |N_s| z_new) at constraint nodes
+            dz = np.subtract(z_new, z, out=xsum)
             del xsum
-            np.subtract(z_new, z, out=dz)
             z = z_new
+            del z_new
             zsum = self.mix_z.apply(z)
             if monitored:
-                yield self._state(k, x, z, dz, _u_next(U, cnt, x, zsum, out=t))
+                yield self._state(k, x, z, dz, U, cnt, zsum)
             else:
                 yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)
+            del dz
 
-    def _pair_sq(self, x: np.ndarray, z: np.ndarray) -> float:
+    def _pair_sq(self, x: np.ndarray, z: np.ndarray, scratch: np.ndarray) -> float:
         """``Σ_{s∈C} Σ_{i∈N_s, i≠s} ‖x_i − z_s‖²`` on this block, from the x-round's columns (the block's own ``x``
-        and its halo: what the constraint nodes received), a chunk of pairs at a time."""
+        and its halo: what the constraint nodes received), a chunk of pairs at a time, each chunk's differences in
+        the rows of ``scratch`` (a free ``(n_local, p)`` buffer) when they fit there (the same values, the same
+        sum)."""
         ex = self.ex
         cols = ex._columns(x, None)  # the values the x-round delivers (monitoring: read again, counted once)
         total = 0.0
         for a in range(0, ex.in_dst.size, _PAIR_CHUNK):
             dst, src_col = ex.in_dst[a : a + _PAIR_CHUNK], ex.in_src_col[a : a + _PAIR_CHUNK]
             pair = self.inC_loc[dst] & (src_col != ex.local_col[dst])  # i→s, s ∈ C, i ≠ s
-            d = np.take(cols, src_col[pair], axis=0)
-            d -= np.take(z, dst[pair], axis=0)
+            src_p, dst_p = src_col[pair], dst[pair]
+            if src_p.size <= scratch.shape[0]:
+                d = np.take(cols, src_p, axis=0, out=scratch[: src_p.size], mode="clip")  # (valid indices)
+            else:
+                d = np.take(cols, src_p, axis=0)
+            for c in range(0, dst_p.size, _ROW_CHUNK):  # elementwise: z's rows taken a sub-chunk at a time
+                d[c : c + _ROW_CHUNK] -= np.take(z, dst_p[c : c + _ROW_CHUNK], axis=0)
             total += float(np.einsum("ij,ij->", d, d))
         return total
 
-    def _state(self, k: int, x: np.ndarray, z: np.ndarray, dz: np.ndarray, U_next: np.ndarray) -> AdmmState:
-        """The monitored state; ``U_next`` (``U + c x − zsum``, a scratch buffer) is overwritten."""
-        ds = (x - z) * self.inC_loc[:, None]
-        self_sq = np.einsum("ij,ij->", ds, ds)
-        del ds
+    def _state(
+        self, k: int, x: np.ndarray, z: np.ndarray, dz: np.ndarray, U: np.ndarray, cnt: np.ndarray, zsum: np.ndarray
+    ) -> AdmmState:
+        """The monitored state. ``dz`` (``z^[k] − z^[k−1]``) is the scratch buffer of the other sums once the dual
+        one is taken: ``U + c x − zsum`` (the next ``U``), then ``(x − z)`` at the constraint nodes."""
+        dual_sq = _dual_sq(dz, self.size_c, self.W, self.w_iso, self.w_scale)
+        U_next = _u_next(U, cnt, x, zsum, out=dz)
         if self.w_iso is not None:
             WU = np.multiply(U_next, self.w_iso, out=U_next)
         else:
             WU = _times_W(U_next, self.W, self.w_iso)
+        u_sq = np.einsum("ij,ij->", WU, WU)
+        del WU, U_next
+        ds = np.subtract(x, z, out=dz)
+        ds *= self.inC_loc[:, None]
+        self_sq = np.einsum("ij,ij->", ds, ds)
+        del ds
         sums = np.array(
             [
-                self._pair_sq(x, z) + self_sq,
-                _dual_sq(dz, self.size_c, self.W, self.w_iso, self.w_scale),
+                self._pair_sq(x, z, dz) + self_sq,
+                dual_sq,
                 np.einsum("i,ij,ij->", self.count_f, x, x),
                 np.einsum("i,ij,ij->", self.size_c, z, z),
-                np.einsum("ij,ij->", WU, WU),
+                u_sq,
             ]
         )
         tot = np.sqrt(np.asarray(self.ex.allreduce(sums, "sum")))
@@ -205,3 +238,37 @@ def _u_next(U: np.ndarray, cnt: np.ndarray, x: np.ndarray, zsum: np.ndarray, *, 
     np.add(U, out, out=out)
     out -= zsum
     return out
+
+
+#: Rows per chunk of an elementwise update (:func:`_rowwise`: its temporaries are a chunk's, not the block's).
+_ROW_CHUNK = 8192
+
+
+def _rowwise(step: Callable[..., None], target: np.ndarray, *args: np.ndarray) -> None:
+    """``step(target[a:b], *(arg[a:b] for arg in args))`` over chunks of :data:`_ROW_CHUNK` rows: an elementwise
+    update whose temporaries are a chunk's. Each element sees the same operations as in one pass (bitwise)."""
+    for a in range(0, target.shape[0], _ROW_CHUNK):
+        b = a + _ROW_CHUNK
+        step(target[a:b], *(arg[a:b] for arg in args))
+
+
+def _u_step(U: np.ndarray, cnt: np.ndarray, x: np.ndarray, zsum: np.ndarray) -> None:
+    """``U += (c x − zsum)`` in place."""
+    t = np.multiply(cnt, x)
+    t -= zsum
+    U += t
+
+
+def _v_first(V: np.ndarray, xsum: np.ndarray, size: np.ndarray, z: np.ndarray, cm: np.ndarray) -> None:
+    """``V = (xsum − |N_s| z) · [s ∈ C]`` (state 0, ``u^[−1] = 0``) in place."""
+    t = size * z
+    np.subtract(xsum, t, out=t)
+    np.multiply(t, cm, out=V)
+
+
+def _v_step(V: np.ndarray, xsum: np.ndarray, size: np.ndarray, z_new: np.ndarray, cm: np.ndarray) -> None:
+    """``V += (xsum − |N_s| z_new) · [s ∈ C]`` in place."""
+    t = np.multiply(size, z_new)
+    np.subtract(xsum, t, out=t)
+    t *= cm
+    V += t

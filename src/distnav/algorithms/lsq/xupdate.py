@@ -11,7 +11,7 @@ in-process backends stay bitwise equal). Split from :mod:`distnav.algorithms.lsq
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -105,8 +105,9 @@ class InLocalOrder:
         self.xu = xu
         self.method = xu.method
         self.nodes = np.asarray(nodes, dtype=np.intp)
-        position = np.empty(self.nodes.size, dtype=np.intp)
-        position[self.nodes] = np.arange(self.nodes.size, dtype=np.intp)
+        idx: type[np.signedinteger[Any]] = np.int32 if self.nodes.size < 2**31 - 1 else np.intp  # 32 bits if they fit
+        position = np.empty(self.nodes.size, dtype=idx)
+        position[self.nodes] = np.arange(self.nodes.size, dtype=idx)
         self.position = position  # the block's row of each node
 
     def __call__(self, l: np.ndarray, x_prev: np.ndarray | None = None) -> np.ndarray:
