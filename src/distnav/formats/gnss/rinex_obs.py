@@ -320,6 +320,7 @@ class _Scan:
         self.progress, self.name, self.fast = progress, name, fast
         self.pending: dict[tuple[int, ...], tuple[list[str], list[int], list[int]]] = {}
         self.cell_arrays: tuple[np.ndarray, ...] = ()
+        self.layout: tuple[list[tuple[int, ...]], list[int]] | None = None
         self.types = [hdr.types_of(system)[c] for c in columns]
         self.n_prn = _MAX_PRN.get(system, _MAX_PRN_OTHER)
         self.k = hdr.header_lines
@@ -430,6 +431,15 @@ class _Scan:
         self.k = start + nsat
         self.times.append(t)
 
+    def _rinex2_layout(self, n_per_sat: int) -> tuple[list[tuple[int, ...]], list[int]]:
+        """The field starts of the requested types on each of a satellite's RINEX 2 lines, and the lines that hold
+        any (the same for every epoch of the file: computed once)."""
+        if self.layout is None:
+            cols = self.columns
+            per_line = [tuple(16 * (c % 5) if c // 5 == r else -1 for c in cols) for r in range(n_per_sat)]
+            self.layout = per_line, [r for r in range(n_per_sat) if any(a >= 0 for a in per_line[r])]
+        return self.layout
+
     def _rinex2_epoch(self, line: str) -> None:
         """One RINEX 2 epoch (satellite list on the epoch line and its continuations, ⌈types/5⌉ lines per
         satellite), from the line ``k``."""
@@ -464,8 +474,7 @@ class _Scan:
         self.k = start + nsat * n_per_sat
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
-        per_line = [tuple(16 * (c % 5) if c // 5 == r else -1 for c in self.columns) for r in range(n_per_sat)]
-        used = [r for r in range(n_per_sat) if any(a >= 0 for a in per_line[r])]
+        per_line, used = self._rinex2_layout(n_per_sat)
         for s, sv in enumerate(sats):
             if sv[:1] != self.system and not (self.system == "G" and sv[:1] == " "):
                 continue
