@@ -347,8 +347,9 @@ class _Scan:
             epoch_record(lines[self.k])
 
     def parse_pending(self) -> None:
-        """The fields of the satellite lines collected on the fast path into :attr:`cells` (file order within
-        one layout of fields; the layouts of RINEX 2's lines hold different types)."""
+        """The fields of the satellite lines collected on the fast path, as the arrays :attr:`cells` would give
+        (:attr:`cell_arrays`; file order within one layout of fields, and the layouts of RINEX 2's lines hold
+        different types, so a repeated satellite's last value wins as before)."""
         parts: list[tuple[np.ndarray, ...]] = []  # (the fast path leaves :attr:`cells` empty)
         for starts, (lines, epochs, prns) in self.pending.items():
             got = parse_fields(lines, starts)
