@@ -185,3 +185,53 @@ def test_rinex2_types_stop_at_the_label(tmp_path: Path, types: list[str]) -> Non
     assert o.n_epochs == 2 and o.svs[:2] == ("G01", "G07")
     np.testing.assert_allclose(o.range_m[1][:, 0], 21e6 + 10.0)  # P1 is the 2nd type
     np.testing.assert_allclose(o.range_m[2][:, 1], 22e6 + 20.0)  # P2 the 3rd
+
+
+def test_fast_fields_match_python_float_and_refuse_what_the_line_reader_refuses() -> None:
+    """``parse_fields`` (all lines at once) gives Python's ``float`` of every ``F14.3`` field and its loss-of-lock
+    digit; blank or cut-off-blank fields are absent; anything the line-by-line reader would reject gives ``None``."""
+    from distnav.formats.gnss.rinex_fields import parse_fields
+
+    rng = np.random.default_rng(7)
+    vals = rng.uniform(-3e7, 3e7, (200, 3)).round(3)
+    lines = []
+    for i, row in enumerate(vals):
+        f = [f"{v:14.3f}{i % 8 if i % 3 else ' '} " for v in row]
+        if i % 7 == 0:
+            f[1] = " " * 16  # a blank field
+        lines.append("G01" + "".join(f) if i % 11 else ("G01" + "".join(f[:2])).rstrip())  # 3rd past the end
+    starts = (3, 19, 35)
+    got = parse_fields(lines, starts)
+    assert got is not None
+    values, lli, present = got
+    for i, line in enumerate(lines):
+        for j, a in enumerate(starts):
+            text = line[a : a + 14]
+            assert present[i, j] == bool(text.strip())
+            if present[i, j]:
+                assert values[i, j] == float(text)  # bitwise
+                assert lli[i, j] == (int(line[a + 14]) if line[a + 14 : a + 15].strip() else 0)
+    assert parse_fields(lines, (3, -1, 35)) is not None
+    for bad in ("  2200000.12 3", "  22000000123 ", " 2200000.123x", "  22000000.1", "  22000a00.123"):
+        assert parse_fields([*lines[:5], "G01" + bad], starts[:1]) is None, bad
+
+
+def test_a_bad_field_is_named_by_its_line_before_a_later_bad_epoch(tmp_path: Path) -> None:
+    """The fast path parses fields after the walk; a malformed field still gives the first problem's line."""
+    head = (
+        "     3.04           OBSERVATION DATA    G                   RINEX VERSION / TYPE\n"
+        "G    2 C1C C2W                                              SYS / # / OBS TYPES\n"
+        "                                                            END OF HEADER\n"
+    )
+    ok = "> 2024 01 10 00 00  0.0000000  0  1\nG01  22000000.000    22000001.000\n"
+    p = tmp_path / "bad.rnx"
+    p.write_text(
+        head
+        + ok
+        + "> 2024 01 10 00 00 30.0000000  0  1\nG01  2200000x.000    22000001.000\n"
+        + ok.replace(" 0.0", "xx.0")
+    )
+    with pytest.raises(DataFileError, match=r"bad\.rnx, line 7 \(epoch 2024-01-10T00:00:30\): C1C of G01"):
+        read_observation_types(p, ["C1C"])
+    p.write_text(head + ok + ok.replace(" 0.0", "30.0"))
+    assert read_observation_types(p, ["C1C", "C2W"]).values["C2W"].tolist() == [[22000001.0], [22000001.0]]

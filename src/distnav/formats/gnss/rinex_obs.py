@@ -31,6 +31,7 @@ from distnav.formats.gnss.compressed import (
     read_bytes,
     read_text_file,
 )
+from distnav.formats.gnss.rinex_fields import parse_fields
 from distnav.models.gnss.code_observations import ProgressCallback
 from distnav.models.gnss.systems import SYSTEM_NAMES
 
@@ -256,13 +257,19 @@ def observations_from_lines(
     """:func:`read_observation_types` on a file's lines already read (:func:`read_lines`) and its header."""
     if hdr.file_type not in ("O", ""):
         raise DataFileError(f"{p}: not a RINEX observation file (type {hdr.file_type!r})")
-    scan = _Scan(p, lines, hdr, _type_columns(p, hdr, types, system), system, progress, label or p.name)
-    scan.select(window.tlim, window.interval_s)
-    try:
-        scan.run()
-    except _Bad as exc:
-        at = f" (epoch {str(scan.epoch)[:19]})" if scan.epoch is not None and "epoch" not in str(exc) else ""
-        raise DataFileError(f"{p}, line {scan.k + 1}{at}: {exc}") from None
+    columns = _type_columns(p, hdr, types, system)
+    for fast in (True, False):  # anything wrong on the fast path: read line by line, which names the first problem
+        scan = _Scan(p, lines, hdr, columns, system, progress if fast else None, label or p.name, fast=fast)
+        scan.select(window.tlim, window.interval_s)
+        try:
+            scan.run()
+            scan.parse_pending()
+        except _Bad as exc:
+            if fast:
+                continue
+            at = f" (epoch {str(scan.epoch)[:19]})" if scan.epoch is not None and "epoch" not in str(exc) else ""
+            raise DataFileError(f"{p}, line {scan.k + 1}{at}: {exc}") from None
+        break
     if progress is not None:
         progress(scan.name, 1.0)
     return scan.result(window.tlim)
@@ -293,7 +300,9 @@ class _Scan:
     """One pass over a file's observation records: the epochs kept and every non-blank value of the requested
     types of one system, collected as flat lists (epoch, PRN, type, value, loss-of-lock) and put into arrays once
     at the end (:meth:`result`). ``k`` (the line being read) and ``epoch`` name the place of an error
-    (:class:`_Bad`)."""
+    (:class:`_Bad`). With ``fast`` the satellite lines are only collected and their fields parsed all at once by
+    :func:`~distnav.formats.gnss.rinex_fields.parse_fields` (:meth:`parse_pending`; any malformed field raises
+    :class:`_Bad` without a place: the caller reads line by line again, which names it)."""
 
     def __init__(
         self,
@@ -304,9 +313,14 @@ class _Scan:
         system: str,
         progress: ProgressCallback | None,
         name: str,
+        *,
+        fast: bool = False,
     ) -> None:
         self.path, self.lines, self.hdr, self.columns, self.system = path, lines, hdr, columns, system
-        self.progress, self.name = progress, name
+        self.progress, self.name, self.fast = progress, name, fast
+        self.pending: dict[tuple[int, ...], tuple[list[str], list[int], list[int]]] = {}
+        self.cell_arrays: tuple[np.ndarray, ...] = ()
+        self.layout: tuple[list[tuple[int, ...]], list[int]] | None = None
         self.types = [hdr.types_of(system)[c] for c in columns]
         self.n_prn = _MAX_PRN.get(system, _MAX_PRN_OTHER)
         self.k = hdr.header_lines
@@ -332,10 +346,33 @@ class _Scan:
                 next_report += 0.1
             epoch_record(lines[self.k])
 
-    def _line(self, line: str, starts: Sequence[int], prn: int) -> None:
+    def parse_pending(self) -> None:
+        """The fields of the satellite lines collected on the fast path, as the arrays :attr:`cells` would give
+        (:attr:`cell_arrays`; file order within one layout of fields, and the layouts of RINEX 2's lines hold
+        different types, so a repeated satellite's last value wins as before)."""
+        parts: list[tuple[np.ndarray, ...]] = []  # (the fast path leaves :attr:`cells` empty)
+        for starts, (lines, epochs, prns) in self.pending.items():
+            got = parse_fields(lines, starts)
+            if got is None:
+                raise _Bad("a malformed observation field")
+            values, lli, present = got
+            rows, cols = np.nonzero(present)
+            parts.append((np.asarray(epochs)[rows], np.asarray(prns)[rows], cols, values[rows, cols], lli[rows, cols]))
+        self.cell_arrays = tuple(np.concatenate(c) for c in zip(*parts, strict=True))
+        self.pending = {}
+
+    def _line(self, line: str, starts: tuple[int, ...], prn: int) -> None:
         """The values of one satellite's line(s) at the field ``starts`` (one per requested type; -1: not on
-        this line) into :attr:`cells`."""
+        this line) into :attr:`cells` (on the fast path: the line kept for :meth:`parse_pending`)."""
         t = len(self.times)
+        if self.fast:
+            got = self.pending.get(starts)
+            if got is None:
+                got = self.pending[starts] = ([], [], [])
+            got[0].append(line)
+            got[1].append(t)
+            got[2].append(prn)
+            return
         ti, pi, ji, vi, li = self.cells
         for j, a in enumerate(starts):
             if a < 0:
@@ -382,7 +419,7 @@ class _Scan:
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
         system = self.system
-        starts = [3 + 16 * c for c in self.columns]
+        starts = tuple(3 + 16 * c for c in self.columns)
         for i, sl in enumerate(sat_lines):
             self.k = start + i
             if sl[:1] != system or not sl[1:3].strip().isdigit():
@@ -394,6 +431,15 @@ class _Scan:
             self._line(sl, starts, _prn(sl[1:3], system, self.n_prn))
         self.k = start + nsat
         self.times.append(t)
+
+    def _rinex2_layout(self, n_per_sat: int) -> tuple[list[tuple[int, ...]], list[int]]:
+        """The field starts of the requested types on each of a satellite's RINEX 2 lines, and the lines that hold
+        any (the same for every epoch of the file: computed once)."""
+        if self.layout is None:
+            cols = self.columns
+            per_line = [tuple(16 * (c % 5) if c // 5 == r else -1 for c in cols) for r in range(n_per_sat)]
+            self.layout = per_line, [r for r in range(n_per_sat) if any(a >= 0 for a in per_line[r])]
+        return self.layout
 
     def _rinex2_epoch(self, line: str) -> None:
         """One RINEX 2 epoch (satellite list on the epoch line and its continuations, ⌈types/5⌉ lines per
@@ -429,8 +475,7 @@ class _Scan:
         self.k = start + nsat * n_per_sat
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
-        per_line = [[16 * (c % 5) if c // 5 == r else -1 for c in self.columns] for r in range(n_per_sat)]
-        used = [r for r in range(n_per_sat) if any(a >= 0 for a in per_line[r])]
+        per_line, used = self._rinex2_layout(n_per_sat)
         for s, sv in enumerate(sats):
             if sv[:1] != self.system and not (self.system == "G" and sv[:1] == " "):
                 continue
@@ -450,7 +495,7 @@ class _Scan:
         shape = (len(self.times), self.n_prn, len(types))
         V = np.full(shape, np.nan)  # (T, PRN, types)
         L = np.zeros(shape, np.int8)
-        ti, pi, ji, vi, li = (np.asarray(c) for c in self.cells)
+        ti, pi, ji, vi, li = self.cell_arrays or tuple(np.asarray(c) for c in self.cells)
         if ti.size:
             V[ti, pi, ji] = vi
             L[ti, pi, ji] = li

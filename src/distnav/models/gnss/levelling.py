@@ -33,6 +33,7 @@ that an arc's total information on its level equals that of its code (Σ 1/σ² 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -224,27 +225,33 @@ def find_arcs(
     The geometry-free test's limit is ``max(gf_threshold_m, gf_sigmas × s)``, ``s`` the RMS of the satellite's
     recent prediction errors (exponentially weighted over ``gf_window_epochs``, slips excluded; module doc);
     ``gf_sigmas`` 0: the fixed threshold alone."""
-    t = np.asarray(t_s, float)
-    g = np.asarray(gf_phase_m, float)
-    w = np.asarray(mw_cycles, float)
-    ok = np.isfinite(g) & np.isfinite(w)
-    arc = np.full(t.size, -1, np.int64)
-    outlier = np.zeros(t.size, bool)
+    g_arr = np.asarray(gf_phase_m, float)
+    w_arr = np.asarray(mw_cycles, float)
+    ok = np.isfinite(g_arr) & np.isfinite(w_arr)
+    n = g_arr.size
+    arc = np.full(n, -1, np.int64)
+    outlier = np.zeros(n, bool)
     reasons: list[str] = []
-    idx = np.flatnonzero(ok)
+    idx = np.flatnonzero(ok).tolist()
+    # the scan is sequential (each decision depends on the arc so far): on Python floats, which round as numpy's
+    # float64 scalars do (same IEEE operations, ``** 2`` through the same ``pow``) at a fraction of the cost
+    t: list[float] = np.asarray(t_s, float).tolist()
+    g: list[float] = g_arr.tolist()
+    w: list[float] = w_arr.tolist()
+    lli_bits: list[int] | None = None if lli is None else (np.asarray(lli).astype(np.int64) & 1).tolist()
     cur = -1
     hist: list[int] = []  # epochs of the current arc
     mw_sum = mw_sq = 0.0
     gf_ms = 0.0  # the satellite's recent mean square GF prediction error (kept across arcs)
     warm: list[float] = []
     lam = 1.0 / max(int(gf_window_epochs), 1)
-    for pos, k in enumerate(idx.tolist()):
+    for pos, k in enumerate(idx):
         reason = ""
         if cur < 0:
             reason = "first"
         elif t[k] - t[hist[-1]] > max_gap_s:
             reason = "gap"
-        elif lli is not None and int(lli[k]) & 1:
+        elif lli_bits is not None and lli_bits[k]:
             reason = "lli"
         else:
             if len(hist) >= 2:
@@ -253,7 +260,7 @@ def find_arcs(
                 err = g[k] - pred
                 lim_gf = gf_threshold_m
                 if gf_sigmas > 0 and len(warm) >= 3:
-                    lim_gf = max(gf_threshold_m, gf_sigmas * np.sqrt(gf_ms))
+                    lim_gf = max(gf_threshold_m, gf_sigmas * math.sqrt(gf_ms))
                 if abs(err) > lim_gf:
                     reason = "gf"
                 if len(warm) < GF_MIN_ERRORS:  # the first errors, slips or not: a robust start (median)
@@ -263,10 +270,10 @@ def find_arcs(
                     gf_ms += lam * (err * err - gf_ms)
             if not reason and len(hist) >= 3:
                 m = mw_sum / len(hist)
-                sd = np.sqrt(max(mw_sq / len(hist) - m * m, 0.0))
+                sd = math.sqrt(max(mw_sq / len(hist) - m * m, 0.0))
                 lim = max(mw_sigmas * sd, mw_min_cycles)
                 if abs(w[k] - m) > lim:
-                    nxt = idx[pos + 1] if pos + 1 < idx.size else -1
+                    nxt = idx[pos + 1] if pos + 1 < len(idx) else -1
                     confirmed = nxt >= 0 and abs(w[nxt] - m) > lim and abs(w[nxt] - w[k]) < lim
                     if confirmed:
                         reason = "mw"

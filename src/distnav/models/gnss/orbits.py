@@ -134,8 +134,7 @@ def _kepler_position(
     m = p["M0"] + n * tk
     e = p["Eccentricity"]
     ecc = m.copy()
-    for _ in range(12):  # Newton on E − e sin E = M
-        ecc = ecc - (ecc - e * np.sin(ecc) - m) / (1.0 - e * np.cos(ecc))
+    ecc = _kepler_newton(m, e)
     nu = np.arctan2(np.sqrt(1.0 - e * e) * np.sin(ecc), np.cos(ecc) - e)
     phi = nu + p["omega"]
     s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)
@@ -149,6 +148,20 @@ def _kepler_position(
     if geo:
         pos = _beidou_geo_rotation(pos, omega_e * tk)
     return pos, ecc
+
+
+def _kepler_newton(m: np.ndarray, e: np.ndarray, steps: int = 12) -> np.ndarray:
+    """``steps`` Newton steps on ``E − e sin E = M`` from ``E = M``, elementwise. Within 3–4 steps every element
+    either stops changing or alternates between two neighbouring doubles; once step ``k + 1`` equals step
+    ``k − 1`` everywhere the sequence has period 2 from there, so the result of all ``steps`` is known without the
+    rest (the same bits, ~60 % fewer sines and cosines)."""
+    prev, ecc = m, m.copy()
+    for k in range(steps):
+        nxt = ecc - (ecc - e * np.sin(ecc) - m) / (1.0 - e * np.cos(ecc))
+        if k > 0 and np.array_equal(nxt, prev):
+            return nxt if (steps - k - 1) % 2 == 0 else ecc
+        prev, ecc = ecc, nxt
+    return ecc
 
 
 _GEO_TILT_RAD = np.deg2rad(-5.0)
