@@ -31,20 +31,23 @@ OFFSETS = ("none", "common", "per_anchor")
 _PRIOR_SCALE = 1e30  # the loss scale of prior rows: ρ(z) = z for every loss
 
 
-def range_sigma(problem: RangingData, sigma_m: float | np.ndarray) -> np.ndarray:
-    """The range σ of every sample (a scalar is broadcast); must be finite and positive."""
-    s = np.broadcast_to(real_array(sigma_m, "sigma_m", error=ModelError), problem.range_m.shape).copy()
+def _sigma_values(sigma_m: float | np.ndarray) -> np.ndarray:
+    """``sigma_m`` as a real array, refused by name unless every value is finite and positive."""
+    s = real_array(sigma_m, "sigma_m", error=ModelError)
     if not np.all(np.isfinite(s)) or np.any(s <= 0):
         raise ModelError(f"sigma_m must be finite and positive (one value or one per range sample), got {sigma_m!r}")
     return s
 
 
+def range_sigma(problem: RangingData, sigma_m: float | np.ndarray) -> np.ndarray:
+    """The range σ of every sample (a scalar is broadcast); must be finite and positive."""
+    return np.broadcast_to(_sigma_values(sigma_m), problem.range_m.shape).copy()
+
+
 def check_sigma(objective: str, sigma_m: float | np.ndarray) -> None:
     """Refuse a ``sigma_m`` that is not finite and positive, and one given with the squared objective, which
     weights every range alike (paper 002 eq. (2)) and would ignore it silently."""
-    s = real_array(sigma_m, "sigma_m", error=ModelError)
-    if not np.all(np.isfinite(s)) or np.any(s <= 0):
-        raise ModelError(f"sigma_m must be finite and positive (one value or one per range sample), got {sigma_m!r}")
+    s = _sigma_values(sigma_m)
     if objective == "squared" and not (s.ndim == 0 and float(s) == 1.0):
         raise ModelError(
             f"sigma_m={sigma_m!r} is used by objective='metres' only: the squared objective (paper 002 eq. (2)) "
