@@ -46,5 +46,5 @@ class Exchange(ExchangeCore):
             raise ExchangeError("weights are defined on a different graph than this exchange")
         if isinstance(weights.graph, GraphPart) and weights.graph is not self.part:
             raise ExchangeError("weights on a graph part must be made on this exchange's own part")
-        rows = self._part_rows() if isinstance(weights.graph, GraphPart) else None
+        rows = self.part_rows() if isinstance(weights.graph, GraphPart) else None
         return Mixer(self, weights.edge_weight, weights.self_weight, active, rows=rows)

@@ -486,7 +486,13 @@ class ExchangeCore(ABC):
         values = inbox.values[:, :-1].astype(flat.dtype, copy=False).reshape((inbox.values.shape[0], *tail))
         return Inbox(values, inbox.delivered, inbox.dst, inbox.src, inbox.edges, inbox.n_local)
 
-    def _part_rows(self) -> tuple[np.ndarray, np.ndarray]:
+    def node_columns(self, node_values: np.ndarray) -> np.ndarray:
+        """This block's node values followed by the values of the remote senders it reads (its halo), moved as a
+        round moves them but **not counted**: for values a counted round has already delivered (read again instead
+        of kept) and set-up values a family documents as uncounted. Algorithms use it, not the transport itself."""
+        return self._columns(node_values, None)
+
+    def part_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Positions of the in-edges and nodes in the arrays of :attr:`part` (exchanges built from a part)."""
         raise ExchangeError(f"the {self.backend} exchange is not built from a graph part")
 

@@ -259,9 +259,9 @@ class MPIExchange(Exchange):
         self._edge_send_counts = np.array([e.size for e in send_rows], dtype=np.int64)
         self._edge_recv_counts = np.array([e.size for e in recv_rows], dtype=np.int64)
 
-    def _part_rows(self) -> tuple[np.ndarray, np.ndarray]:
+    def part_rows(self) -> tuple[np.ndarray, np.ndarray]:
         if self.part is None:
-            return super()._part_rows()
+            return super().part_rows()
         return self._in_part_pos, self._node_part_pos
 
     # ------------------------------------------------------------- transport

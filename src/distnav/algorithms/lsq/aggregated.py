@@ -82,9 +82,9 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
     counted), and the rounds' masks are over the block's own edge rows — no array over the whole network."""
     part = ex.part
     assert part is not None
-    node_pos = ex._part_rows()[1]
+    node_pos = ex.part_rows()[1]
     inC = np.asarray(inC_part, bool)[node_pos]
-    inC_col = np.array(ex._columns(inC.astype(float)[:, None], None)[:, 0] > 0.5)  # [local | halo]
+    inC_col = np.array(ex.node_columns(inC.astype(float)[:, None])[:, 0] > 0.5)  # [local | halo]
     real_in = ex.in_src_col != ex.local_col[ex.in_dst]
     x_in = inC[ex.in_dst] & real_in
     z_in = inC_col[ex.in_src_col] & real_in
@@ -105,7 +105,7 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
     # rows, which Exchange.mixer (a mask over the whole graph's edges) does not take: the mixer is made directly
     ones = np.broadcast_to(np.float64(1.0), (part.n_local_edges,))
     self_w = np.asarray(inC_part, float)
-    rows = ex._part_rows()
+    rows = ex.part_rows()
     mix_x = Mixer(ex, ones, self_w, (x_in, x_out), rows=rows)
     mix_z = Mixer(ex, ones, self_w, (z_in, z_out), rows=rows)
     count = np.bincount(ex.in_dst, weights=z_in, minlength=ex.n_local).astype(np.int64) + inC
@@ -187,7 +187,7 @@ class _AggregatedKernel:
         the rows of ``scratch`` (a free ``(n_local, p)`` buffer) when they fit there (the same values, the same
         sum)."""
         ex = self.ex
-        cols = ex._columns(x, None)  # the values the x-round delivers (monitoring: read again, counted once)
+        cols = ex.node_columns(x)  # the values the x-round delivers (monitoring: read again, counted once)
         total = 0.0
         for a in range(0, ex.in_dst.size, _PAIR_CHUNK):
             dst, src_col = ex.in_dst[a : a + _PAIR_CHUNK], ex.in_src_col[a : a + _PAIR_CHUNK]

@@ -78,7 +78,7 @@ def iterate_admm_on_part(
             f"node {int(ex.nodes[alone[0]])} has no neighbour ({alone.size} such nodes on this rank): ADMM needs a "
             "connected graph"
         )
-    node_pos = ex._part_rows()[1]  # the part position of each local row
+    node_pos = ex.part_rows()[1]  # the part position of each local row
     c = np.empty(part.n_local)
     c[node_pos] = rounds.count if o.x_weight == "lagrangian" else 1.0
     xu = in_local_order(XUpdate(problem, Wm, c, o.x_update), node_pos)
