@@ -39,3 +39,15 @@ def shared_data() -> Path:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+def assert_lost_named_everywhere(summary: dict, victim: int, rest: list[int], after_step: int) -> list[dict]:
+    """A field run with one node killed on purpose: every other node finished, none failed or stopped, and each
+    names the victim as its only lost node at one and the same step, not before it died. Returns their results."""
+    assert summary["crashed_on_purpose"] == [victim], summary
+    assert summary["finished"] == rest and summary["failed"] == [] and summary["stopped"] == [], summary
+    nodes = [summary["nodes"][str(i)] for i in rest]
+    steps = {r["lost_nodes"][str(victim)] for r in nodes}
+    assert all(list(r["lost_nodes"]) == [str(victim)] for r in nodes)
+    assert len(steps) == 1 and steps.pop() >= after_step
+    return nodes

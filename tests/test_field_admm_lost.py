@@ -13,6 +13,7 @@ import pytest
 pytest.importorskip("zmq")
 pytest.importorskip("tomli_w")
 
+from conftest import assert_lost_named_everywhere
 from distnav.algorithms.lsq.blue import LinearProblem, blue  # noqa: E402
 from distnav.commands.field import launch  # noqa: E402
 from distnav.commands.field_processes import LoopbackOptions  # noqa: E402
@@ -51,12 +52,7 @@ def test_admm_nodes_go_on_without_a_killed_node(tmp_path: Path) -> None:
     assert Graph.from_links(9, links).is_connected  # the rest stays one network
     net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=2000, crash={victim: 30}))
     summary = launch(net, tmp_path / "run", timeout_s=300, quiet=True)
-    assert summary["crashed_on_purpose"] == [victim], summary
-    assert summary["finished"] == rest and summary["failed"] == [] and summary["stopped"] == [], summary
-    nodes = [summary["nodes"][str(i)] for i in rest]
-    steps = {r["lost_nodes"][str(victim)] for r in nodes}
-    assert all(list(r["lost_nodes"]) == [str(victim)] for r in nodes)  # named at every remaining node
-    assert len(steps) == 1 and steps.pop() >= 30  # the same step everywhere, not before it died
+    nodes = assert_lost_named_everywhere(summary, victim, rest, after_step=30)
     assert all(r["status"] == "converged_without_lost_nodes" and r["remaining_nodes"] == rest for r in nodes)
     assert all(f"node {victim} (at step" in r["message"] for r in nodes)
 

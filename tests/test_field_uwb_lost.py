@@ -12,6 +12,7 @@ import pytest
 
 pytest.importorskip("zmq")
 
+from conftest import assert_lost_named_everywhere
 from distnav.algorithms.ranging.csg import solve  # noqa: E402
 from distnav.algorithms.ranging.data import RangingData  # noqa: E402
 from distnav.commands.field import launch  # noqa: E402
@@ -43,12 +44,7 @@ def test_uwb_anchors_go_on_without_a_killed_anchor(tmp_path: Path) -> None:
     net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=2000, crash={victim: 40}))
     summary = launch(net, tmp_path / "run", timeout_s=400, quiet=True)
     rest = [i for i in range(14) if i != victim]
-    assert summary["crashed_on_purpose"] == [victim], summary
-    assert summary["finished"] == rest and summary["failed"] == [] and summary["stopped"] == [], summary
-    nodes = [summary["nodes"][str(i)] for i in rest]
-    steps = {r["lost_nodes"][str(victim)] for r in nodes}
-    assert all(list(r["lost_nodes"]) == [str(victim)] for r in nodes)  # named at every remaining anchor
-    assert len(steps) == 1 and steps.pop() >= 40  # the same step everywhere, not before it died
+    nodes = assert_lost_named_everywhere(summary, victim, rest, after_step=40)
     assert all(r["status"].endswith("_without_lost_nodes") and r["remaining_nodes"] == rest for r in nodes)
     assert all(f"{victim} (at step" in r["message"] for r in nodes)
 
