@@ -75,6 +75,7 @@ __all__ = [
     "PROJECTED",
     "STEPS",
     "STEP_DTYPE",
+    "KNOWN_FROM_PROBLEM",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
@@ -126,6 +127,12 @@ STEPS = True
 #: left the phase "converged" 1–20 mm from LM on a 16 × 16 grid (tests/test_csg_handover.py): the rounding of
 #: 2⁻¹¹ stirs the slow modes, which the step-size test of the stop does not see
 STEP_DTYPE: type[np.floating] = np.float32
+#: the first parameters of a phase travel as the later ones (the free columns, from anchors with a free parameter):
+#: every receiver takes a fixed anchor's coordinates and the held ones from the problem (``positions_m``: set up
+#: once with the ranges, the same on every anchor; the solvers hold those coordinates at exactly these values),
+#: not from the message (issue 27, fifth session: a fit's first broadcast 16 B per link instead of 24, none from
+#: a fixed anchor); False: the whole row, float64, from every anchor (as before)
+KNOWN_FROM_PROBLEM = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -134,8 +141,18 @@ class Wire:
     local holder and the other end's global id; ``extra``: parameter columns beyond ``dim`` that every anchor
     estimates (a per-anchor range offset)."""
 
-    def __init__(self, problem: RangingData, ex: Exchange, owner: np.ndarray, other: np.ndarray, extra: int) -> None:
+    def __init__(
+        self,
+        problem: RangingData,
+        ex: Exchange,
+        owner: np.ndarray,
+        other: np.ndarray,
+        extra: int,
+        *,
+        known_from_problem: bool = False,
+    ) -> None:
         self.ex, self.n = ex, problem.n_anchors
+        self.known_from_problem = known_from_problem  # :data:`KNOWN_FROM_PROBLEM` (the LM phase's: refine.py)
         self.owner, self.other = owner, other
         free = np.concatenate([problem.free, np.ones((problem.n_anchors, extra), bool)], axis=1)
         self.P = free.shape[1]
@@ -146,6 +163,9 @@ class Wire:
         active[ex.in_edges] = talks[ex.in_src]
         self.active = active
         self.talks_other = talks[other]  # per half-measurement: the other end sends
+        known = np.zeros((other.size, self.P))  # the other end's known coordinates (the problem's: fixed, held)
+        known[:, : problem.dim] = problem.positions_m[other]
+        self._known = known
         self._pos: np.ndarray | None = None
         self._params: np.ndarray | None = None  # the last parameters received, per half-measurement
         self._rep: tuple[np.ndarray, np.ndarray] | None = None  # per out-edge: a half-measurement, the edge's mask
@@ -173,12 +193,16 @@ class Wire:
 
     def parameters(self, values: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)``: the whole row the first
-        time, the free columns from anchors with a free parameter after that (the rest as first received)."""
+        time (with ``known_from_problem``, :data:`KNOWN_FROM_PROBLEM`, only the free columns from anchors with a free
+        parameter, the known coordinates from the problem: ``values`` must hold them there, as the LM phase does),
+        the free columns from anchors with a free parameter after that (the rest as first received)."""
         if PLAIN:
             return self._round(values, None, None)
-        if self._params is None:
+        if self._params is None and not (KNOWN_FROM_PROBLEM and self.known_from_problem):
             self._params = self._round(values, None, None).copy()
             return self._params.copy()
+        if self._params is None:
+            self._params = self._known.copy()
         got = self._round(np.ascontiguousarray(values[:, self.cols]), self.active, self.talks_other)
         out = self._params
         out[np.ix_(self.talks_other, self.cols)] = got[self.talks_other]
