@@ -326,6 +326,28 @@ def test_projected_products_equal_the_dense_normal_matrix(hall, per):
         assert np.max(np.abs(rows - want)) <= 1e-12 * np.max(np.abs(want))
 
 
+def test_a_cg_runs_later_products_travel_on_the_held_exponent(hall, monkeypatch):
+    """``wire.HELD_EXPONENT``: in one CG run (one normal system) the first projected round carries each link's
+    exponent (``2k + 1`` bytes); a later product within float16's normal range on it (10 and 1,000 times smaller)
+    travels without (``2k``), one 10⁶ times smaller or 10⁶ times larger again carries a new exponent; every one
+    keeps float16's 11 bits against the dense ``JᵀWJ v``; with the switch off every round carries its exponent."""
+    k = 2
+    v = np.random.default_rng(5).normal(size=(hall[0].n_anchors, hall[0].dim, k))
+    fixed = np.flatnonzero(~hall[0].free.any(axis=1))
+    talking = 2 * hall[0].links.shape[0] - int(np.isin(hall[0].links, fixed).sum())
+    for on in (True, False):
+        monkeypatch.setattr(wire, "HELD_EXPONENT", on)
+        ex, links, system, N, free = _system(hall[0], False, True, np.float16)
+        vf = v * free[:, :, None]
+        for scale, exponent in ((1.0, True), (0.1, False), (1e-3, False), (1e-9, True), (1e-3, True)):
+            want = (N @ (scale * vf).reshape(-1, k)).reshape(vf.shape)
+            before = ex.comm_totals().snapshot()
+            got = system.matvec(scale * vf, np.zeros(k))[0]
+            c = ex.comm_totals().since(before)
+            assert c.messages == talking and c.bytes == talking * (2 * k + (1 if exponent or not on else 0))
+            assert np.max(np.abs(got - want)) <= 2.0**-10 * np.max(np.abs(want))
+
+
 def test_preconditioned_stop_drops_one_reduced_float_per_iteration(hall):
     """CG stopped on ``rᵀz`` (the LM phase's default) reduces one float less per column and iteration than
     stopped on ``rᵀr``, and it stops where the preconditioned residual, recomputed here from the dense matrix,

@@ -36,7 +36,7 @@ stopping thresholds — and says ``max_iterations`` after ``max_rounds`` outer r
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -434,6 +434,7 @@ class NormalSystem:
     common: bool
     wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float16 in the LM phase)
     sigma: np.ndarray | None = None  # (h,) every half-measurement's range σ: the products travel projected
+    held: list[np.ndarray] = field(default_factory=list)  # the CG run's exponents per link (wire.HELD_EXPONENT)
 
     def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
@@ -445,7 +446,8 @@ class NormalSystem:
         if (
             self.sigma is not None and wire.PROJECTED and not wire.PLAIN
         ):  # the neighbour's product itself: k values per link
-            other = self.links.wire.projected(own * self.sigma[:, None], self.wire_dtype) / self.sigma[:, None]
+            held = self.held if wire.HELD_EXPONENT else None
+            other = self.links.wire.projected(own * self.sigma[:, None], self.wire_dtype, held) / self.sigma[:, None]
         else:
             other = np.einsum("hp,hpk->hk", self.cn, self.links.vectors(v, self.wire_dtype))
         jv = own + other + self.e[:, None] * vc[None, :]
