@@ -75,7 +75,7 @@ class DistributedSigma:
     ``"neighbourhood"``) and the cost: the exchange's messages / bytes plus, for the central σ, its network totals
     as spanning-tree reductions (:meth:`~distnav.algorithms.ranging.covariance.CentralPrecision.reduction_cost`);
     for the gathered σ the tree's messages up and down. ``bytes_sent``: per anchor, where known (the gathered σ:
-    what each anchor transmits, its own data and what it relays)."""
+    what each anchor transmits, its own data and what it relays; the sub-network σ: its exchange's counters)."""
 
     sigma_m: FloatArray
     covariance_m2: FloatArray
@@ -180,6 +180,7 @@ def _subnetwork(
         nb.precision.kind,
         0 if comm is None else int(comm.messages),
         0 if comm is None else int(comm.bytes),
+        None if comm is None else np.asarray(comm.bytes_sent, float),
     )
 
 
