@@ -55,6 +55,7 @@ __all__ = [
 PRIOR_ITERATIONS = 6  # variance-component re-fits at most (Förstner's iteration)
 PRIOR_TOLERANCE = 0.02  # ... until σ_b changes by less than this share
 PRIOR_BOUNDS_M = (0.002, 1.0)  # σ_b is kept within these (metres): a prior of 0 or ∞ has no variance component
+PRIOR_MAX_UNKNOWNS = 1500  # the estimate inverts the dense normal matrix: above this the given prior is kept
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -331,8 +332,10 @@ def prior_variance_ratio(obj: RangeObjective, x: np.ndarray, scale: np.ndarray |
     """``ŝ_b² / ŝ_r²``: the variance factor of the delays' prior rows over that of the range rows at the solution
     ``x`` (Förstner 1979, *Ein Verfahren zur Schätzung von Varianz- und Kovarianzkomponenten*, AVN 86: each group's
     ``ŝ_k² = vₖᵀ Wₖ vₖ / r_k`` with its redundancy ``r_k = n_k − tr(Q Nₖ)``, ``Q = N⁻¹``, ``N = Σ Nₖ``; the range
-    rows with the robust loss's final IRLS weights). None when the normal matrix is singular or a group has no
-    redundancy left."""
+    rows with the robust loss's final IRLS weights). None when the normal matrix is singular, a group has no
+    redundancy left or there are more than :data:`PRIOR_MAX_UNKNOWNS` unknowns."""
+    if obj.n_x > PRIOR_MAX_UNKNOWNS:
+        return None
     J = sp.csr_matrix(obj.jacobian(x))
     r = obj.residual(x)
     m = obj.problem.n_meas
