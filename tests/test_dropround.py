@@ -153,3 +153,14 @@ def test_non_finite_weight_keeps_the_numpy_path():
     assert m._w_masked is not None
     m._w_masked.data[3] = np.inf
     assert dr.prepare(m._w_masked, ex._fault_plan.edge_ids, m._act_in, m._self_w) is None
+
+
+@needs_kernel
+def test_read_only_and_strided_values():
+    """A read-only or non-contiguous input goes through the kernel and gives the numpy path's bits."""
+    g = builders.connected_random_geometric(200, mean_degree=7, rng=np.random.default_rng(9))
+    fast, slow = _pair(g, FaultSchedule(drop_probability=0.3, seed=11), "none", None)
+    x = np.random.default_rng(4).normal(size=(g.n_nodes, 4))[:, 1]  # a strided column
+    x.setflags(write=False)
+    a, b = fast.apply(x), slow.apply(x)
+    assert isinstance(fast._kernel, dr.DropRound) and np.array_equal(_bits(a), _bits(b))
