@@ -9,12 +9,13 @@ and how both grow with the network.
    same accounting (the broadcasts, and the LM phase's network totals as spanning-tree all-reductions):
    *before* issue 27 (:func:`configured` ``"before"``: 500 consensus iterations in the first fit, every row sent in
    full in float64, float64 CG scalars, the central σ by CG to ``1e-10``, every re-fit from offset 0 and the initial
-   damping), *today* (the defaults at the start of the fourth session: each neighbour's product per link, CG
-   stopped on ``rᵀz``, trials as float32 steps, a round's totals in float32, the seed fits at their stage
-   tolerances, the σ gathered at one anchor; every exclusion re-fit at the solver's tolerances from offset 0 and
-   the initial damping) and *after* (the defaults: the exclusion loop's re-fits stopped at 1 cm and decided with
-   a margin, one full fit at its end, ``field_fits.REFIT_STAGES``; every warm fit from the last fit's common
-   offset, ``field_fits.CARRY_OFFSET``, and final damping, ``field_fits.CARRY_DAMPING``); the positions, their
+   damping, the tightening by halvings), *today* (the defaults at the start of the fifth session: each neighbour's
+   product per link, CG stopped on ``rᵀz``, trials as float32 steps, a round's totals in float32, the seed fits at
+   their stage tolerances, the σ gathered at one anchor, the exclusion loop's re-fits stopped at 1 cm and decided
+   with a margin, every warm fit from the last fit's common offset and damping; the tightening by halvings, CG's
+   dot products in float32) and *after* (the defaults: the tightening's fit jumps to its target scale,
+   ``field_fits.TIGHTEN_JUMP``; CG's dot products as float16 with an exponent per value,
+   ``wire.CG_DOT_DTYPE``); the positions, their
    largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
    of that gather over the range graph (:func:`distnav.network.gather.gather_cost`). Per anchor: what each
@@ -84,13 +85,14 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (field_precision, "ECONOMY_CG_RTOL"): COVARIANCE_CG_RTOL,
         (wire, "PLAIN"): True,
         (wire, "CG_SCALAR_DTYPE"): np.float64,
+        (wire, "CG_DOT_DTYPE"): np.float64,
         (field_fits, "CARRY_OFFSET"): False,
         (field_fits, "CARRY_DAMPING"): False,
+        (field_fits, "TIGHTEN_JUMP"): False,
     },
     "today": {
-        (field_fits, "REFIT_STAGES"): (),
-        (field_fits, "CARRY_OFFSET"): False,
-        (field_fits, "CARRY_DAMPING"): False,
+        (field_fits, "TIGHTEN_JUMP"): False,
+        (wire, "CG_DOT_DTYPE"): np.float32,
     },
     "after": {},
 }

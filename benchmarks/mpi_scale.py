@@ -1,7 +1,7 @@
 """One consensus (or ADMM) job on graph parts, measured per rank (launched by ``bench_scale.py`` under ``mpiexec``).
 
     mpiexec -n R python -m mpi4py benchmarks/mpi_scale.py N_NODES ROUNDS REPEATS
-    mpiexec -n R python -m mpi4py benchmarks/mpi_scale.py admm N_NODES ITERATIONS REPEATS
+    mpiexec -n R python -m mpi4py benchmarks/mpi_scale.py admm N_NODES ITERATIONS REPEATS [ORDER]
 
 ``admm`` (:func:`admm_main`): ADMM with aggregated messages on the parts
 (:func:`~distnav.algorithms.lsq.on_part.iterate_admm_on_part`) of an 8-neighbour grid of ``≈ N_NODES`` nodes (ADMM
@@ -9,7 +9,9 @@ needs a connected graph; the tiled geometric graph at mean degree 8 leaves ≈ n
 per node drawn by each rank for its own nodes; per rank the set-up CPU seconds (part; ADMM: constraint nodes,
 rounds, gains, state 0), ``VmHWM`` after the part and the problem, after the set-up and after the iterations, and
 the iteration against its floor: two products of a 0/1 CSR matrix of the rank's rows (``p`` columns, written from
-the part) and the batched x-update products, timed after the run.
+the part) and the batched x-update products, timed after the run. ``ORDER`` is the exchange's local order
+(default ``"none"``: the grid's row-major ids are already local, and the exchange then shares the part's edge
+arrays instead of holding a permuted copy; ``"auto"``: reverse Cuthill–McKee of the part).
 """
 
 from __future__ import annotations
@@ -144,6 +146,7 @@ def admm_main() -> None:
     from distnav.algorithms.lsq.on_part import iterate_admm_on_part
 
     n, iterations, repeats = int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+    order = sys.argv[5] if len(sys.argv) > 5 else "none"
     p, m = 10, 5
     comm = MPI.COMM_WORLD
     rank, size = comm.Get_rank(), comm.Get_size()
@@ -154,7 +157,8 @@ def admm_main() -> None:
     t = time.process_time()
     part = grid_part(side, side, ranges.nodes_of(rank), neighbourhood=8)
     row["part_s"] = time.process_time() - t
-    ex = make_exchange(part, backend="mpi", partition=ranges)
+    ex = make_exchange(part, backend="mpi", partition=ranges, order=order)
+    row["order"] = order
     row["exchange_s"] = time.process_time() - t - row["part_s"]
     rng = np.random.default_rng([7, rank])  # this rank's nodes' data, drawn here
     A = rng.standard_normal((part.n_local, m, p))

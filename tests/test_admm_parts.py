@@ -98,6 +98,26 @@ def test_one_part_holding_every_node_is_the_inprocess_run():
     assert a.primal_residual == pytest.approx(b.primal_residual, rel=1e-12)
 
 
+@pytest.mark.parametrize("order", ["none", "rcm"])
+def test_exchange_on_a_part_holds_no_copy_of_its_edge_arrays_in_the_parts_order(order):
+    """In the part's own order the exchange's in-edge arrays *are* the part's (no permuted copy), the rows a send
+    moves inside the block are made at the first edge send only, and every message still arrives on its edge (a
+    value equal to its edge id, in both orders)."""
+    part, _ = _one_rank_part()
+    from distnav.network.partition import block_ranges
+
+    ex = make_exchange(part, backend="mpi", partition=block_ranges(part.n_nodes, 1), order=order)
+    shared = ex.in_src is part.src and ex.in_edges is part.edge_ids and ex.nodes is part.nodes
+    assert shared == (order == "none")
+    assert ex.in_src.dtype == part.src.dtype == np.int32 and ex.out_dst.dtype == np.int32
+    assert ex._local_move_rows is None
+    inbox = ex.send(ex.out_edges.astype(float))
+    assert ex._local_move_rows is not None
+    assert inbox.delivered.all() and np.array_equal(inbox.values, ex.in_edges.astype(float))
+    rows = ex.part_rows()[0]
+    assert np.array_equal(part.edge_ids[rows], ex.in_edges)  # the part position of every local in-edge
+
+
 def test_refusals_name_the_problem():
     g = builders.ring(12)
     prob = LinearProblem.from_stacked(np.ones((12, 1, 1)), np.ones((12, 1)))

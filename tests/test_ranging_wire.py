@@ -181,13 +181,15 @@ def test_phases_add_up_to_the_totals(hall):
 
 def test_lm_phase_reductions_are_counted_and_float32_scalars_halve_them(hall, monkeypatch):
     """The LM phase's network totals are charged as spanning-tree all-reductions (2(n − 1) messages each; at least
-    two per CG iteration: the curvature and the residual); with float32 CG scalars (the default) their bytes are
-    about half those of float64 (the costs and steps stay float64) and the phase still ends within 0.1 mm of LM."""
+    two per CG iteration: the curvature and the residual); with float32 CG scalars their bytes are about half those
+    of float64 (the costs and steps stay float64), with CG's dot products in float16 with an exponent per value
+    (the default, 3 B) 0.5–0.8 of float32's, and the phase still ends within 0.1 mm of LM."""
     p = subset_measurements(hall[0], ~hall[2])
     lm = solve_lm(p, **OPTS)
     got = {}
-    for dtype in (np.float64, np.float32):
-        monkeypatch.setattr(wire, "CG_SCALAR_DTYPE", dtype)
+    for dtype in (np.float64, np.float32, np.float16):
+        monkeypatch.setattr(wire, "CG_SCALAR_DTYPE", np.float32 if dtype == np.float16 else dtype)
+        monkeypatch.setattr(wire, "CG_DOT_DTYPE", dtype)
         res = solve(p, "N-CLM", iterations=0, **OPTS)
         assert res.status == "converged" and np.abs(res.estimates - lm.estimates).max() < 1e-4
         got[dtype] = ref = res.settings["refine"]
@@ -195,7 +197,24 @@ def test_lm_phase_reductions_are_counted_and_float32_scalars_halve_them(hall, mo
         assert ref["reduction_messages"] == ref["reductions"] * 2 * (p.n_anchors - 1)
     per64 = got[np.float64]["reduction_bytes"] / got[np.float64]["reductions"]
     per32 = got[np.float32]["reduction_bytes"] / got[np.float32]["reductions"]
+    per16 = got[np.float16]["reduction_bytes"] / got[np.float16]["reductions"]
     assert 0.5 <= per32 / per64 < 0.65
+    assert 0.5 <= per16 / per32 < 0.8
+
+
+def test_cg_dot_products_as_float16_with_an_exponent_per_value(monkeypatch):
+    """``wire.pack_scalars``: 3 B a value, 11 significant bits whatever its magnitude (a bare float16 would flush
+    1e-9 to zero and overflow 1e6); float16 dots only up to HALF_MAX_ANCHORS anchors, CG_SCALAR_DTYPE above."""
+    vals = np.array([[1e-9, -3.7e6], [0.0, 123.456]])
+    packed = wire.pack_scalars(vals)
+    assert packed.shape == (4, 3) and packed.dtype == np.uint8
+    back = wire.unpack_scalars(packed, vals.shape)
+    assert np.all(np.abs(back - vals) <= np.abs(vals) * 2.0**-11)
+    assert back[1, 0] == 0.0 and back[0, 0] != 0.0
+    assert wire.cg_dot_dtype(wire.HALF_MAX_ANCHORS) == np.float16
+    assert wire.cg_dot_dtype(wire.HALF_MAX_ANCHORS + 1) == wire.CG_SCALAR_DTYPE
+    monkeypatch.setattr(wire, "CG_DOT_DTYPE", np.float32)
+    assert wire.cg_dot_dtype(10) == wire.CG_SCALAR_DTYPE
 
 
 def test_float16_directions_only_up_to_half_max_anchors(monkeypatch):

@@ -25,8 +25,11 @@
   messages).
 
 * ``--range-offsets common|per_anchor`` (every solver, metres objective) estimates one range offset or per-anchor
-  antenna delays with the positions; ``auto`` (default):
-  :attr:`~distnav.models.uwb.field.FieldOptions.offsets_used`.
+  antenna delays with the positions; ``common_delays`` (LM only; the distributed solvers refuse it, exit 2) both: a
+  common offset without a prior and per-anchor delays about it with the prior σ ``--offset-prior-sigma-m``
+  (:mod:`distnav.algorithms.ranging.objective`; ``offsets.csv`` lists every anchor's total delay ``c/2 + b_i``,
+  ``summary.json`` the common ``c``); ``auto`` (default): :attr:`~distnav.models.uwb.field.FieldOptions.offsets_used`
+  (docs/uwb.md, "Antenna delays about a common offset": why it is not the default).
 
 Outputs in OUT_DIR: ``positions.csv`` (every anchor, with its accuracy radius and whether it meets
 ``--required-accuracy-m``), ``links.csv``, ``summary.json`` (``run``: the verdict), ``positions.png``, when offsets
@@ -184,12 +187,17 @@ def _add_test_arguments(s: argparse.ArgumentParser) -> None:
     s.add_argument(
         "--range-offsets",
         default="auto",
-        choices=["auto", "none", "common", "per_anchor"],
-        help="estimate a common range offset or per-anchor antenna delays (metres objective, every "
-        "solver); auto (default): common with the metres objective, none with the squared one",
+        choices=["auto", "none", "common", "per_anchor", "common_delays"],
+        help="estimate a common range offset, per-anchor antenna delays, or both (common_delays: the delays about "
+        "the common offset, LM only; metres objective); auto (default): common with the metres objective, none "
+        "with the squared one",
     )
     s.add_argument(
-        "--offset-prior-sigma-m", type=float, default=0.1, help="prior σ of each per-anchor offset (m, default 0.1)"
+        "--offset-prior-sigma-m",
+        type=float,
+        default=0.1,
+        help="prior σ of each per-anchor delay (per_anchor: about 0; common_delays: about the common offset; "
+        "m, default 0.1)",
     )
     s.add_argument(
         "--delay-sigma-m",
@@ -306,6 +314,11 @@ def _validate(opts: FieldOptions) -> None:
         raise ModelError(f"--level must lie in (0, 0.5), got {opts.level}")
     if opts.range_offsets not in ("none", "auto") and opts.objective != "metres":
         raise ModelError(f"--range-offsets {opts.range_offsets} is estimated with --objective metres only")
+    if opts.range_offsets == "common_delays" and opts.solver.upper() != "LM":
+        raise ModelError(
+            f"--range-offsets common_delays is LM's only (--solver {opts.solver} estimates common or per_anchor "
+            "offsets): a common offset plus per-anchor delays about it is not in the distributed solvers"
+        )
 
 
 def solve_range_log(
@@ -486,6 +499,7 @@ def _summary(
         "range_offsets": opts.offsets_used,
         "offsets_m": None if offsets is None else np.asarray(offsets).tolist(),
         "offsets_std_m": None if offsets_std is None else np.asarray(offsets_std).tolist(),
+        "common_offset_m": getattr(res, "settings", {}).get("common_offset_m"),  # common_delays: c (offsets: c/2 + b_i)
         "geometry": sol.geometry.as_dict(),
         "unsolved": list(sol.geometry.unsolved),
         "weakly_determined_anchors": list(sol.weak),

@@ -85,7 +85,7 @@ def _compact(arr: np.ndarray, keep: np.ndarray) -> None:
     arr.resize(w, refcheck=False)  # the array owns its buffer and nothing else refers to it
 
 
-_CSR_CHUNK = 1 << 18  # edges per pass when the mixer's block is written (a few MB of temporaries)
+_CSR_CHUNK = 1 << 15  # edges per pass when the mixer's block is written (a few MB of temporaries)
 
 
 class Mixer:
@@ -150,15 +150,18 @@ class Mixer:
         self._sent_total = int(self._sent_counts.sum())
 
     def drop_fault_state(self) -> None:
-        """Release what only a fault round reads — the in- and out-edge masks, the self-weights and the whole
-        graph's edge mask — on a fault-free mixer of this class (its rounds are one product with the fused block;
-        a subclass may read them in its own rounds and keeps them). For a caller that refuses fault schedules (the
-        aggregated ADMM rounds): an edge mask less per direction and the self-weights per node."""
+        """Release what only a fault round reads — the in- and out-edge masks, the self-weights, the whole graph's
+        edge mask and the weights' row maps — on a fault-free mixer of this class (its rounds are one product with
+        the fused block; a subclass may read them in its own rounds and keeps them). For a caller that refuses
+        fault schedules (the aggregated ADMM rounds): an edge mask less per direction and the self-weights per
+        node."""
         if type(self) is not Mixer or self._w_full is None:
             return
         self._act_in = self._act_out = np.zeros(0, bool)
         self._self_w = np.zeros(0)
         self._active_global = None
+        empty = np.zeros(0, np.int64)
+        self._weight_rows = (empty, empty)  # where the weights sat: read only while the block was written
 
     def share_with(self, other: Mixer) -> None:
         """Let this mixer read what it holds equal to ``other``'s from ``other``'s arrays: the fused block's weights

@@ -144,7 +144,7 @@ class MPIExchange(Exchange):
         """Every index array of the block from its part: no array over the whole graph's edges."""
         # edge-sized index arrays in 32 bits where every index fits (as in-process); global ids stay 64-bit
         idx = np.int32 if max(self.n_nodes, self.n_edges) < 2**31 - 1 else np.int64
-        local_of_part, pos_in = self._local_edges(part, perm, idx)
+        local_of_part = self._local_edges(part, perm, idx)
         own_in_src, own_out_dst = self._owner_of(self.in_src), self._owner_of(self.out_dst)
         me = self.rank
         # neighbour ranks: those sharing cut edges (symmetric: every link is stored both ways)
@@ -157,9 +157,8 @@ class MPIExchange(Exchange):
         del cut_out_rows, cut_in_rows
         self._node_halo(part, local_of_part, send_rows, recv_rows, own_in_src == me, idx)
         del own_in_src
-        self._edge_transport(part, pos_in, send_rows, recv_rows, own_out_dst == me, idx)
-        del pos_in
         del own_out_dst
+        self._edge_transport(send_rows, recv_rows, idx)
         self._layouts: dict[tuple[int, int, int], Any] = {}
         self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
         self._edge_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
@@ -169,29 +168,31 @@ class MPIExchange(Exchange):
         self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
         self._init_accounting()
 
-    def _local_edges(
-        self, part: GraphPart, perm: np.ndarray | None, idx: type[np.signedinteger[Any]]
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The block's nodes in local order and its in- and out-edges; returns part position → local index, and
-        the part position of every local in-edge. ``perm[k]`` is the position in ``part.nodes`` of local node k."""
+    def _local_edges(self, part: GraphPart, perm: np.ndarray | None, idx: type[np.signedinteger[Any]]) -> np.ndarray:
+        """The block's nodes in local order and its in- and out-edges; returns part position → local index.
+        ``perm[k]`` is the position in ``part.nodes`` of local node k (None: the part's order)."""
         n_local = part.n_local
         rows = np.arange(n_local, dtype=np.int64) if perm is None else np.asarray(perm, np.int64)
-        self.nodes = part.nodes[rows]
         local_of_part = np.empty(n_local, idx)
         local_of_part[rows] = np.arange(n_local, dtype=idx)
-        pos_in = incoming_positions(part.in_ptr, rows)  # in-edges grouped by local receiver, senders ascending
+        # the part's own order (no locality order): the in-edge arrays are the part's, shared, not copied
+        pos_in = None if perm is None else incoming_positions(part.in_ptr, rows)  # grouped by local receiver
+        self.nodes = part.nodes if perm is None else part.nodes[rows]
         if self.part is not None:  # where the part's weights sit (PartWeights); not needed with the whole graph
-            self._in_part_pos, self._node_part_pos = pos_in.astype(idx), rows
-        self.in_edges = part.edge_ids[pos_in]
-        self.in_src = part.src[pos_in].astype(np.int64)  # global ids stay 64-bit (as in-process): callers compute
+            self._in_part_pos = None if pos_in is None else pos_in.astype(idx)  # None: the identity (part_rows)
+            self._node_part_pos = rows
+        # global ids in the part's dtype (int32 where every id fits, as the part holds them): indices and
+        # comparisons only
+        self.in_edges = part.edge_ids if pos_in is None else part.edge_ids[pos_in]
+        self.in_src = part.src if pos_in is None else part.src[pos_in]
         self.in_dst = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr)[rows])
         # out-edges: the reverse of every in-edge, in global edge order
         recv_part = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr))
         by_id = np.argsort(part.out_edge_ids)  # distinct ids: any sort gives this order (quicksort: 2× faster)
         self.out_edges = part.out_edge_ids[by_id]
         self.out_src = local_of_part[recv_part[by_id]]
-        self.out_dst = part.src[by_id].astype(np.int64)
-        return local_of_part, pos_in
+        self.out_dst = part.src[by_id]
+        return local_of_part
 
     def _node_halo(
         self,
@@ -229,29 +230,12 @@ class MPIExchange(Exchange):
         self.in_src_col = col
 
     def _edge_transport(
-        self,
-        part: GraphPart,
-        pos_in: np.ndarray,
-        send_rows: list[np.ndarray],
-        recv_rows: list[np.ndarray],
-        receiver_is_mine: np.ndarray,
-        idx: type[np.signedinteger[Any]],
+        self, send_rows: list[np.ndarray], recv_rows: list[np.ndarray], idx: type[np.signedinteger[Any]]
     ) -> None:
-        """Edge messages: rows moved inside the block, and per neighbour rank the cut edges in global edge order on
-        both sides."""
-        local_out_rows = np.flatnonzero(receiver_is_mine)
-        self._local_out_pos = local_out_rows.astype(idx)
-        if part.is_range:  # in-edge ids are a range: id → part position → local row, no sort
-            row_of_pos = np.empty(pos_in.size, idx)
-            row_of_pos[pos_in] = np.arange(pos_in.size, dtype=idx)
-            self._local_in_pos = row_of_pos[self.out_edges[local_out_rows] - int(part.edge_ids[0])]
-            del row_of_pos
-        else:
-            in_by_id = np.argsort(self.in_edges, kind="stable")
-            found = np.searchsorted(self.in_edges[in_by_id], self.out_edges[local_out_rows])
-            self._local_in_pos = in_by_id[found].astype(idx)
-            del in_by_id, found
-        del local_out_rows
+        """Edge messages: per neighbour rank the cut edges in global edge order on both sides. The rows moved
+        inside the block are found at the first edge send (:meth:`_local_moves`): a job that sends only node
+        values (consensus, aggregated ADMM) never holds them."""
+        self._local_move_rows: tuple[np.ndarray, np.ndarray] | None = None
         empty = np.zeros(0, np.int64)
         has_nbr = bool(self.neighbour_ranks.size)
         self._edge_send_pos: np.ndarray = (np.concatenate(send_rows) if has_nbr else empty).astype(idx)
@@ -262,7 +246,30 @@ class MPIExchange(Exchange):
     def part_rows(self) -> tuple[np.ndarray, np.ndarray]:
         if self.part is None:
             return super().part_rows()
+        if self._in_part_pos is None:  # the part's own order: the identity, made when asked (not held)
+            n_in = self.in_edges.size
+            return np.arange(n_in, dtype=np.int32 if n_in < 2**31 - 1 else np.int64), self._node_part_pos
         return self._in_part_pos, self._node_part_pos
+
+    def _local_moves(self) -> tuple[np.ndarray, np.ndarray]:
+        """The in-edge rows and out-edge rows of the messages that stay in the block (receiver owned here), made
+        at the first edge send and kept: an out-edge's message arrives on the in-edge with its id."""
+        if self._local_move_rows is None:
+            idx = self.in_dst.dtype.type
+            local_out_rows = np.flatnonzero(self._owner_of(self.out_dst) == self.rank)
+            ids = self.in_edges
+            first = int(ids.min()) if ids.size else 0
+            if ids.size and int(ids.max()) - first + 1 == ids.size:  # the ids are a range: no sort
+                row_of_id = np.empty(ids.size, idx)
+                row_of_id[ids - first] = np.arange(ids.size, dtype=idx)
+                local_in = row_of_id[self.out_edges[local_out_rows] - first]
+                del row_of_id
+            else:
+                in_by_id = np.argsort(ids, kind="stable")
+                local_in = in_by_id[np.searchsorted(ids[in_by_id], self.out_edges[local_out_rows])]
+                del in_by_id
+            self._local_move_rows = (local_in.astype(idx), local_out_rows.astype(idx))
+        return self._local_move_rows
 
     # ------------------------------------------------------------- transport
     @staticmethod
@@ -363,11 +370,13 @@ class MPIExchange(Exchange):
             send, recv, req = bufs
             np.take(flat_out, self._edge_send_pos, axis=0, out=send)
             req.Start()
-            out[self._local_in_pos] = flat_out[self._local_out_pos]
+            local_in, local_out = self._local_moves()
+            out[local_in] = flat_out[local_out]
             req.Wait()
             out[self._edge_recv_pos] = recv
             return out
-        out[self._local_in_pos] = flat_out[self._local_out_pos]
+        local_in, local_out = self._local_moves()
+        out[local_in] = flat_out[local_out]
         recv = self._alltoallv(
             flat_out[self._edge_send_pos], self._edge_send_counts, self._edge_recv_counts, width, flat_out.dtype
         )

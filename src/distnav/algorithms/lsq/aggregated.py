@@ -82,7 +82,8 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
     counted), and the rounds' masks are over the block's own edge rows — no array over the whole network."""
     part = ex.part
     assert part is not None
-    node_pos = ex.part_rows()[1]
+    rows = ex.part_rows()  # (made once: on a part in its own order the identity is made when asked)
+    node_pos = rows[1]
     inC = np.asarray(inC_part, bool)[node_pos]
     inC_col = np.array(ex.node_columns(inC.astype(float)[:, None])[:, 0] > 0.5)  # [local | halo]
     real_in = ex.in_src_col != ex.local_col[ex.in_dst]
@@ -105,7 +106,6 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
     # rows, which Exchange.mixer (a mask over the whole graph's edges) does not take: the mixer is made directly
     ones = np.broadcast_to(np.float64(1.0), (part.n_local_edges,))
     self_w = np.asarray(inC_part, float)
-    rows = ex.part_rows()
     mix_x = Mixer(ex, ones, self_w, (x_in, x_out), rows=rows)
     mix_z = Mixer(ex, ones, self_w, (z_in, z_out), rows=rows)
     count = np.bincount(ex.in_dst, weights=z_in, minlength=ex.n_local).astype(np.int64) + inC
@@ -183,14 +183,17 @@ class _AggregatedKernel:
 
     def _pair_sq(self, x: np.ndarray, z: np.ndarray, scratch: np.ndarray) -> float:
         """``Σ_{s∈C} Σ_{i∈N_s, i≠s} ‖x_i − z_s‖²`` on this block, from the x-round's columns (the block's own ``x``
-        and its halo: what the constraint nodes received), a chunk of pairs at a time, each chunk's differences in
-        the rows of ``scratch`` (a free ``(n_local, p)`` buffer) when they fit there (the same values, the same
-        sum)."""
+        and its halo: what the constraint nodes received), a chunk of in-edges at a time — at most
+        :data:`_PAIR_CHUNK` and at most the block's node count, so each chunk's differences fit in the rows of
+        ``scratch`` (a free ``(n_local, p)`` buffer) and the temporaries scale with the block, not with a fixed
+        chunk (a 10⁴-node block's peak was a 65,536-pair chunk's). The chunk's sums are added in chunk order, so the
+        monitored residuals' last bits depend on the chunk size (the iterates do not)."""
         ex = self.ex
         cols = ex.node_columns(x)  # the values the x-round delivers (monitoring: read again, counted once)
         total = 0.0
-        for a in range(0, ex.in_dst.size, _PAIR_CHUNK):
-            dst, src_col = ex.in_dst[a : a + _PAIR_CHUNK], ex.in_src_col[a : a + _PAIR_CHUNK]
+        step = max(min(_PAIR_CHUNK, scratch.shape[0]), 1)  # in-edges per chunk: its pairs fit in the scratch rows
+        for a in range(0, ex.in_dst.size, step):
+            dst, src_col = ex.in_dst[a : a + step], ex.in_src_col[a : a + step]
             pair = self.inC_loc[dst] & (src_col != ex.local_col[dst])  # i→s, s ∈ C, i ≠ s
             src_p, dst_p = src_col[pair], dst[pair]
             if src_p.size <= scratch.shape[0]:
@@ -241,7 +244,7 @@ def _u_next(U: np.ndarray, cnt: np.ndarray, x: np.ndarray, zsum: np.ndarray, *, 
 
 
 #: Rows per chunk of an elementwise update (:func:`_rowwise`: its temporaries are a chunk's, not the block's).
-_ROW_CHUNK = 8192
+_ROW_CHUNK = 2048
 
 
 def _rowwise(step: Callable[..., None], target: np.ndarray, *args: np.ndarray) -> None:

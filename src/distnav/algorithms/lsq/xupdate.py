@@ -28,7 +28,7 @@ XUpdateMethod = Literal["auto", "normal", "observation", "cholesky"]
 SMALL_M = 10
 
 #: Nodes per block of an x-update call (its temporaries: a block's residuals and products, not the network's).
-CALL_BLOCK = 8192
+CALL_BLOCK = 2048
 
 _BLOCK = 2048  # nodes per node-last block (a block's (p, m, k) arrays stay in cache)
 

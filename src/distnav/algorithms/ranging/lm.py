@@ -273,8 +273,9 @@ def _stages_trace(
 def _lm_quality(
     obj: Any, x: np.ndarray, scale: np.ndarray | float, loss: str, level: float, test_scale: str
 ) -> tuple[Any, Any, np.ndarray | None]:
-    """Precision, w-tests (:func:`~distnav.algorithms.ranging.qc.centralized_quality`) and the offsets' σ of the
-    solution ``x`` of the objective ``obj`` with the loss's final weights."""
+    """Precision, w-tests (:func:`~distnav.algorithms.ranging.qc.centralized_quality`) and the σ of the offsets
+    reported (:meth:`RangeObjective.anchor_offsets`; with ``"common_delays"`` the common offset's σ first, then
+    the anchors' totals) of the solution ``x`` of the objective ``obj`` with the loss's final weights."""
     from distnav.algorithms.ranging.qc import centralized_quality
 
     problem = obj.problem
@@ -286,7 +287,11 @@ def _lm_quality(
     off_std = None
     if Q is not None and obj.n_offsets:
         s2 = precision.variance_factor if precision is not None and precision.variance_factor else 1.0
-        off_std = np.sqrt(np.diag(Q)[problem.n_free :] * s2)
+        T = obj.anchor_offsets_map()  # the offsets reported: every anchor's total delay with "common_delays"
+        q_off = Q[problem.n_free :, problem.n_free :]
+        off_std = np.sqrt(np.einsum("ij,jk,ik->i", T, q_off, T) * s2)
+        if obj.offsets == "common_delays":  # the common offset's σ (settings["common_offset_std_m"]) leads
+            off_std = np.concatenate([[np.sqrt(q_off[0, 0] * s2)], off_std])
     return precision, tests, off_std
 
 
@@ -320,7 +325,10 @@ def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **c
     ``objective="metres"`` fits ``e = ‖r_a − r_b‖ − d`` with weight ``1/sigma_m²`` instead of paper 002's squared
     form (:mod:`distnav.algorithms.ranging.objective`); ``graduated`` (default: on for metres) first fits the linear
     loss, then the robust one from there. ``range_offsets="common"|"per_anchor"`` (metres only) estimates a common
-    range offset or per-anchor antenna delays (prior σ ``offset_prior_sigma_m``) jointly with the positions.
+    range offset or per-anchor antenna delays (prior σ ``offset_prior_sigma_m``) jointly with the positions;
+    ``"common_delays"`` both, the delays about the common offset (``offsets_m``: every anchor's total delay
+    ``c/2 + b_i``, so a range reads ``δ_a + δ_b`` long; ``settings["common_offset_m"]`` the common ``c``; ``x``
+    holds ``[coordinates, c, b_1 … b_n]``).
     ``quality`` adds the per-anchor covariance (``precision``) and per-sample w-tests (``tests``) at the solution
     (:func:`distnav.algorithms.ranging.qc.centralized_quality`; ``test_level``, ``test_scale``).
     ``options``: an :class:`LMSolveOptions` (its fields, defaults and units; its :class:`LMOptions` part,
@@ -350,6 +358,16 @@ def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **c
     precision = tests = off_std = None
     if c.quality:
         precision, tests, off_std = _lm_quality(obj, res.x, scale, loss, c.test_level, c.test_scale)
+    settings: dict[str, Any] = {
+        **c.tolerances(),
+        "sigma_m": sigma_m,
+        "range_offsets": range_offsets,
+        "graduated": len(stages) > 1,
+    }
+    if range_offsets == "common_delays":  # offsets_m: every anchor's total delay; the common offset c here
+        settings.update(common_offset_m=float(off[0]), offset_prior_sigma_m=c.offset_prior_sigma_m)
+        settings["common_offset_std_m"] = None if off_std is None else float(off_std[0])
+        off_std = None if off_std is None else off_std[1:]
     return RangingResult(
         estimates=pos,
         converged=res.converged,
@@ -363,10 +381,10 @@ def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **c
         objective=res.objective,
         loss=loss,
         x=res.x,
-        settings={**c.tolerances(), "sigma_m": sigma_m, "range_offsets": range_offsets, "graduated": len(stages) > 1},
+        settings=settings,
         objective_kind=objective,
         precision=precision,
         tests=tests,
-        offsets_m=off if obj.n_offsets else None,
+        offsets_m=obj.anchor_offsets(off) if obj.n_offsets else None,
         offsets_std_m=off_std,
     )

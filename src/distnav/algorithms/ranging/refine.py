@@ -129,12 +129,16 @@ class Links:
         ``dtype`` on the wire (returned as float64) but for its first ``exact_columns`` columns (float64: an
         objective that decides acceptance)."""
         floats = int(np.prod(per_node.shape[1:], dtype=np.int64))
+        size = 3 if dtype == np.float16 else np.dtype(dtype).itemsize  # float16: with its exponent (wire.pack_scalars)
         self.reductions += 1
         self.reduced_floats += floats
-        self.reduced_bytes += exact_columns * 8 + (floats - exact_columns) * np.dtype(dtype).itemsize
+        self.reduced_bytes += exact_columns * 8 + (floats - exact_columns) * size
         if dtype == np.float64:
             return np.asarray(self.ex.gather_nodes(per_node))
-        rows = np.asarray(per_node, dtype).astype(np.float64)
+        if dtype == np.float16:
+            rows = wire.unpack_scalars(wire.pack_scalars(per_node), per_node.shape)
+        else:
+            rows = np.asarray(per_node, dtype).astype(np.float64)
         if exact_columns:
             rows[:, :exact_columns] = per_node[:, :exact_columns]
         return np.asarray(self.ex.gather_nodes(rows))
@@ -191,6 +195,7 @@ class _Refiner:
         self.free_nb = np.ones((self.samp.size, self.P), bool)
         self.free_nb[:, :dim] = problem.free[self.other]
         self.wire_dtype = wire.cg_wire_dtype(problem.n_anchors)
+        self.dot_dtype = wire.cg_dot_dtype(problem.n_anchors)  # CG's reduced dot products (fifth session)
         self.prior = 1.0 / o.offset_prior_sigma_m**2 if self.per else 0.0
         self.steps = wire.STEPS and not wire.PLAIN  # trials travel as steps (wire, item 5)
 
@@ -279,7 +284,7 @@ class _Refiner:
             lin.dc + damp_c if common else 1.0,
             self.links,
             cg_max,
-            scalar_dtype=wire.CG_SCALAR_DTYPE,
+            scalar_dtype=self.dot_dtype,
             preconditioned_stop=PRECONDITIONED_STOP and not wire.PLAIN,
         )
         return dxk[:, :, 0], float(dck[0]), its

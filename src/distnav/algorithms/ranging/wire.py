@@ -68,6 +68,10 @@ __all__ = [
     "CG_SCALAR_DTYPE",
     "HALF_MAX_ANCHORS",
     "cg_wire_dtype",
+    "CG_DOT_DTYPE",
+    "cg_dot_dtype",
+    "pack_scalars",
+    "unpack_scalars",
     "PROJECTED",
     "STEPS",
     "STEP_DTYPE",
@@ -75,6 +79,11 @@ __all__ = [
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
 CG_SCALAR_DTYPE: type[np.floating] = np.float32  # the LM phase's CG dot products on the wire (item 4)
+#: CG's own network totals in the LM phase (each anchor's share of ``pᵀq``, ``rᵀz`` and the common offset's row):
+#: float16 with an exponent per value, 3 B (:func:`pack_scalars`, issue 27 fifth session) up to
+#: :data:`HALF_MAX_ANCHORS` anchors; :data:`CG_SCALAR_DTYPE` above, or where this is not float16
+#: (:func:`cg_dot_dtype`)
+CG_DOT_DTYPE: type[np.floating] = np.float16
 #: above this many anchors the LM phase's directions travel as float32 even where CG_WIRE_DTYPE is float16: one
 #: warm fit (bench_uwb_economy.py) took 596 CG iterations at 1,000 anchors in float16 (712 in float32), but
 #: 2,630 at 3,000 (1,177) and 2,049 at 10⁴ (993) — CG's rounding noise grows with the network
@@ -87,6 +96,24 @@ def cg_wire_dtype(n_anchors: int) -> type[np.floating]:
     if CG_WIRE_DTYPE == np.float16 and n_anchors > HALF_MAX_ANCHORS:
         return np.float32
     return CG_WIRE_DTYPE
+
+
+def cg_dot_dtype(n_anchors: int) -> type[np.floating]:
+    """The type of CG's reduced dot products in the LM phase of a network of ``n_anchors`` (:data:`CG_DOT_DTYPE`).
+
+    Why float16 (issue 27, fifth session): CG's two reductions per iteration (3 floats: ``pᵀq``, the common
+    offset's share, ``rᵀz``) sent more bytes than its products on the links (on the 28-anchor hall 648 B against
+    489 B per iteration in float32). An anchor's share rounded to 11 significant bits (its own exponent: 3 B)
+    changes CG's step lengths ``α`` and ``β`` by a relative 2⁻¹¹ of the terms' magnitudes at most: another
+    inexact inner solve within the forcing term 0.1, as the float16 directions (module docstring, item 3); the
+    gradient, the objective and so the fixed point stay float64/float32. Measured on 12 plant-like halls: 1.11 ×
+    fewer bytes, positions within 0.1 mm, the same links excluded (docs/economy_uwb.md). As the directions, only
+    up to :data:`HALF_MAX_ANCHORS` anchors (CG's rounding noise grows with the network). The simulation rounds
+    every anchor's share and sums them in float64; a tree that re-rounds each partial sum on the way up adds one
+    rounding per level (4 levels on the hall)."""
+    if CG_DOT_DTYPE == np.float16 and n_anchors <= HALF_MAX_ANCHORS:
+        return np.float16
+    return CG_SCALAR_DTYPE
 
 
 #: the LM phase's matrix–vector products: each anchor sends each neighbour its own product with the link's Jacobian
@@ -273,6 +300,17 @@ def unpack_half(packed: np.ndarray, m: int) -> np.ndarray:
     vals = np.ascontiguousarray(b[:, : 2 * m]).view(HALF).astype(float)
     e = b[:, 2 * m].view(np.int8).astype(int)
     return np.asarray(np.ldexp(vals, e[:, None]))
+
+
+def pack_scalars(values: np.ndarray) -> np.ndarray:
+    """Every value of ``values`` as 3 bytes (:func:`pack_half` of a one-entry row: float16 of the value scaled to
+    [0.5, 1), then its exponent), shape ``(values.size, 3)``."""
+    return pack_half(np.asarray(values, float).reshape(-1, 1))
+
+
+def unpack_scalars(packed: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """The float64 values of :func:`pack_scalars`'s bytes, in ``shape``."""
+    return unpack_half(packed, 1).reshape(shape)
 
 
 @dataclass(frozen=True)
