@@ -88,19 +88,26 @@ typedef struct {
 
 /* One fault round; y is (n_rows, k) and written whole, lost_acc (n_rows) is added to. */
 #define DN_ROUND(NAME, IDX, EDGE, KEEP)                                                                              \
-    static void NAME##_edges(int64_t a, int64_t b, const double *keep, const IDX *indices, const double *data,      \
-                             const double *cols, int64_t k, double *yi, dn_row *r) {                                \
-        for (int64_t jj = a; jj < b; jj++) {                                                                         \
-            const double w = data[jj], wd = w * keep[jj - a];                                                        \
-            if (k == 1) {                                                                                            \
-                r->sum += wd * cols[indices[jj]];                                                                    \
-            } else {                                                                                                 \
+    static inline void NAME##_edges(int64_t a, int64_t b, const double *keep, const IDX *indices,                   \
+                                    const double *data, const double *cols, int64_t k, double *yi, dn_row *r) {     \
+        double sum = r->sum, lostw = r->lostw, kept = r->kept; /* locals: no store-load per entry */                \
+        if (k == 1) {                                                                                                \
+            for (int64_t jj = a; jj < b; jj++) {                                                                     \
+                const double w = data[jj], f = keep[jj - a], wd = w * f;                                             \
+                sum += wd * cols[indices[jj]];                                                                       \
+                lostw += w - wd;                                                                                     \
+                kept += f;                                                                                           \
+            }                                                                                                        \
+        } else {                                                                                                     \
+            for (int64_t jj = a; jj < b; jj++) {                                                                     \
+                const double w = data[jj], f = keep[jj - a], wd = w * f;                                             \
                 const double *xj = cols + (int64_t)indices[jj] * k;                                                  \
                 for (int64_t c = 0; c < k; c++) yi[c] += wd * xj[c];                                                 \
+                lostw += w - wd;                                                                                     \
+                kept += f;                                                                                           \
             }                                                                                                        \
-            r->lostw += w - wd;                                                                                      \
-            r->kept += keep[jj - a];                                                                                 \
         }                                                                                                            \
+        r->sum = sum, r->lostw = lostw, r->kept = kept;                                                              \
     }                                                                                                                \
     DN_EXPORT void NAME(int64_t n_rows, int64_t k, const IDX *indptr, const IDX *indices, const double *data,        \
                         const EDGE *edges, const uint8_t *active, const int64_t *dead_from, int64_t round_index,    \
