@@ -122,6 +122,22 @@ typedef struct {
             while (end < n_rows && (int64_t)indptr[end + 1] - a0 <= KEEP_BLOCK) end++;                               \
             const int64_t b0 = (int64_t)indptr[end];                                                                 \
             if (b0 - a0 <= KEEP_BLOCK) KEEP(a0, b0, edges, &f, keep);                                                \
+            if (k == 1 && b0 - a0 <= KEEP_BLOCK) { /* the common case in its own tight loop */                       \
+                const double *kp = keep - a0;                                                                        \
+                for (; i < end; i++) {                                                                               \
+                    const int64_t a = (int64_t)indptr[i], b = (int64_t)indptr[i + 1];                                \
+                    double sum = 0.0, lostw = 0.0, kept = 0.0;                                                       \
+                    for (int64_t jj = a; jj < b; jj++) {                                                             \
+                        const double w = data[jj], fk = kp[jj], wd = w * fk;                                         \
+                        sum += wd * cols[indices[jj]];                                                               \
+                        lostw += w - wd;                                                                             \
+                        kept += fk;                                                                                  \
+                    }                                                                                                \
+                    y[i] = sum + (self_w[i] + lostw) * xl[i];                                                        \
+                    lost_acc[i] += (b - a) - (int64_t)kept;                                                          \
+                }                                                                                                    \
+                continue;                                                                                            \
+            }                                                                                                        \
             for (; i < end; i++) {                                                                                   \
                 const int64_t a = (int64_t)indptr[i], b = (int64_t)indptr[i + 1];                                    \
                 double *yi = y + i * k;                                                                              \
