@@ -41,7 +41,7 @@ static inline uint64_t dn_splitmix64(uint64_t x) {
     return z ^ (z >> 31);
 }
 
-DN_EXPORT int dn_abi_version(void) { return 1; }
+DN_EXPORT int dn_abi_version(void) { return 2; }
 
 /* The key of a round, as FaultPlan._keys. */
 DN_EXPORT uint64_t dn_round_key(uint64_t seed, uint64_t round_index) {
@@ -111,9 +111,9 @@ typedef struct {
     }                                                                                                                \
     DN_EXPORT void NAME(int64_t n_rows, int64_t k, const IDX *indptr, const IDX *indices, const double *data,        \
                         const EDGE *edges, const uint8_t *active, const int64_t *dead_from, int64_t round_index,    \
-                        uint64_t key, uint64_t threshold, const double *cols, const double *self_w,                 \
+                        uint64_t seed, uint64_t threshold, const double *cols, const double *self_w,                 \
                         const double *xl, double *y, int64_t *lost_acc) {                                           \
-        const dn_faults f = {active, dead_from, round_index, key, threshold};                                        \
+        const dn_faults f = {active, dead_from, round_index, dn_round_key(seed, (uint64_t)round_index), threshold};                                        \
         double keep[KEEP_BLOCK];                                                                                     \
         int64_t i = 0;                                                                                               \
         while (i < n_rows) {                                                                                         \
@@ -171,8 +171,8 @@ DN_ROUND(dn_fault_round_i64_e64, int64_t, int64_t, dn_keep_e64)
 /* The lost mask of edges [0, n) in one round (the keep phase alone: for tests against FaultPlan.delivered). */
 #define DN_LOST_MASK(NAME, EDGE, KEEP)                                                                               \
     DN_EXPORT void NAME(int64_t n, const EDGE *edges, const uint8_t *active, const int64_t *dead_from,              \
-                        int64_t round_index, uint64_t key, uint64_t threshold, uint8_t *lost) {                     \
-        const dn_faults f = {active, dead_from, round_index, key, threshold};                                        \
+                        int64_t round_index, uint64_t seed, uint64_t threshold, uint8_t *lost) {                     \
+        const dn_faults f = {active, dead_from, round_index, dn_round_key(seed, (uint64_t)round_index), threshold};                                        \
         double keep[KEEP_BLOCK];                                                                                     \
         for (int64_t a = 0; a < n; a += KEEP_BLOCK) {                                                                \
             const int64_t b = n - a < KEEP_BLOCK ? n : a + KEEP_BLOCK;                                               \

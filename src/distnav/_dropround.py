@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 
 __all__ = ["DropRound", "library", "lost_mask", "prepare"]
 
-_ABI = 1
+_ABI = 2  # 2: the kernels take the seed and make the round key themselves
 _LIB: list[Any] = []  # the loaded library, or None: looked up once, at the first fault round
 _P, _I, _U = ctypes.c_void_p, ctypes.c_int64, ctypes.c_uint64
 _ROUND_ARGS = [_I, _I, _P, _P, _P, _P, _P, _P, _I, _U, _U, _P, _P, _P, _P, _P]
@@ -115,9 +115,10 @@ class DropRound:
         k = x_local.shape[1]
         y = np.empty((self.n_rows, k))
         ip, ix, data, edges, act, self_w = self.pointers
-        key = int(self.lib.dn_round_key(seed & _MASK64, round_index))
-        self.fn(self.n_rows, k, ip, ix, data, edges, act, _ptr(dead_from), round_index, key, threshold,
-                _addr(cols), self_w, _addr(x_local), _addr(y), _addr(lost_acc))  # fmt: skip
+        x_addr = _addr(x_local)
+        cols_addr = x_addr if cols is x_local else _addr(cols)  # in-process the columns are the local values
+        self.fn(self.n_rows, k, ip, ix, data, edges, act, _ptr(dead_from), round_index, seed & _MASK64, threshold,
+                cols_addr, self_w, x_addr, _addr(y), _addr(lost_acc))  # fmt: skip
         return y
 
 
@@ -164,7 +165,6 @@ def lost_mask(
     act = None if active is None else np.ascontiguousarray(active, dtype=bool).view(np.uint8)
     dead = None if dead_from is None else np.ascontiguousarray(dead_from, dtype=np.int64)
     out = np.zeros(edges.size, np.uint8)
-    key = int(lib.dn_round_key(seed & _MASK64, round_index))
     fn = getattr(lib, f"dn_lost_mask_e{et}")
-    fn(edges.size, edges.ctypes.data, _ptr(act), _ptr(dead), round_index, key, threshold, out.ctypes.data)
+    fn(edges.size, edges.ctypes.data, _ptr(act), _ptr(dead), round_index, seed & _MASK64, threshold, out.ctypes.data)
     return out.view(bool)
