@@ -113,7 +113,7 @@ def test_monte_carlo_covariance_of_positions_offset_and_delays_is_the_normal_mat
         off_var.append(r.offsets_std_m**2 / s2)
     errs_a = np.array(errs)
     nf = int(free.sum())
-    assert np.mean(chi2) == pytest.approx(x.size, rel=0.12)  # sd of the mean: √(2·17/300) / 17 = 2 %
+    assert np.mean(chi2) == pytest.approx(x.size, rel=0.12)  # sd of the mean: √(2·14/300) / 14 = 2.2 %
     emp_pos = errs_a[:, :nf].var(axis=0)
     np.testing.assert_allclose(emp_pos, np.mean(pos_var, axis=0), rtol=0.25)  # sd of a variance: 8 %
     totals = 0.5 * errs_a[:, nf : nf + 1] + errs_a[:, nf + 1 :]  # the reported offsets: c/2 + b_i
