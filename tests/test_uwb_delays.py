@@ -113,7 +113,7 @@ def test_monte_carlo_covariance_of_positions_offset_and_delays_is_the_normal_mat
         off_var.append(r.offsets_std_m**2 / s2)
     errs_a = np.array(errs)
     nf = int(free.sum())
-    assert np.mean(chi2) == pytest.approx(x.size, rel=0.12)  # sd of the mean: √(2·17/300) / 17 = 2 %
+    assert np.mean(chi2) == pytest.approx(x.size, rel=0.12)  # sd of the mean: √(2·14/300) / 14 = 2.2 %
     emp_pos = errs_a[:, :nf].var(axis=0)
     np.testing.assert_allclose(emp_pos, np.mean(pos_var, axis=0), rtol=0.25)  # sd of a variance: 8 %
     totals = 0.5 * errs_a[:, nf : nf + 1] + errs_a[:, nf + 1 :]  # the reported offsets: c/2 + b_i
@@ -189,3 +189,19 @@ def test_estimated_prior_needs_delays():
         solve_lm(
             _problem(*_network(), np.ones(28)), objective="metres", range_offsets="common", estimate_offset_prior=True
         )
+
+
+def test_lms_reliability_takes_the_mode_the_neighbourhoods_refuse_it():
+    """The external reliability of an LM ``common_delays`` fit (central: :class:`RangeObjective`'s layout) gives
+    finite MDBs; the anchors' neighbourhood reliability (the distributed solvers') refuses the mode by name."""
+    from distnav.algorithms.ranging.reliability import ReliabilityOptions, external_reliability, local_reliability
+
+    truth, free, a, b = _network()
+    rng = np.random.default_rng(8)
+    p = _problem(truth, free, a, b, _ranges(truth, a, b, rng.normal(0.0, PRIOR_M, truth.shape[0]), rng))
+    r = solve_lm(p, objective="metres", sigma_m=SIGMA_M, range_offsets="common_delays", offset_prior_sigma_m=PRIOR_M)
+    opts = ReliabilityOptions(sigma_m=SIGMA_M, offsets="common_delays", offset_prior_sigma_m=PRIOR_M)
+    rel = external_reliability(p, np.asarray(r.x), opts)
+    assert rel is not None and np.all(np.isfinite(rel.mdb_m)) and np.all(rel.r > 0)
+    with pytest.raises(ModelError, match="not common_delays"):
+        local_reliability(p, r.estimates, opts, offsets_m=r.offsets_m)

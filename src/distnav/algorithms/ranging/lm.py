@@ -303,11 +303,11 @@ def _lm_quality(
     off_std = None
     if Q is not None and obj.n_offsets:
         s2 = precision.variance_factor if precision is not None and precision.variance_factor else 1.0
-        T = obj.anchor_offsets_map()  # the offsets reported: every anchor's total delay with "common_delays"
-        q_off = Q[problem.n_free :, problem.n_free :]
-        off_std = np.sqrt(np.einsum("ij,jk,ik->i", T, q_off, T) * s2)
-        if obj.offsets == "common_delays":  # the common offset's σ (settings["common_offset_std_m"]) leads
-            off_std = np.concatenate([[np.sqrt(q_off[0, 0] * s2)], off_std])
+        off_std = np.sqrt(np.diag(Q)[problem.n_free :] * s2)
+        if obj.offsets == "common_delays":  # the common offset's σ (settings["common_offset_std_m"]), then the
+            T = obj.anchor_offsets_map()  # σ of the offsets reported: every anchor's total delay c/2 + b_i
+            q_off = Q[problem.n_free :, problem.n_free :]
+            off_std = np.concatenate([off_std[:1], np.sqrt(np.einsum("ij,jk,ik->i", T, q_off, T) * s2)])
     return precision, tests, off_std
 
 
