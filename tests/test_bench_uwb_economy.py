@@ -11,6 +11,15 @@ from distnav.network.graph import Graph
 from test_benchmark_runner import _load
 
 
+def _hub() -> Graph:
+    inner = np.arange(1, 13)
+    outer = np.arange(13, 37)
+    links = [(0, i) for i in inner] + [(i, i % 12 + 1) for i in inner]
+    links += [(inner[k // 2], o) for k, o in enumerate(outer)]
+    links += [(inner[(k // 2 + 1) % 12], o) for k, o in enumerate(outer)]
+    return Graph.from_links(37, np.array(links))
+
+
 def test_balanced_tree_sends_2_n_minus_1_messages_and_unloads_the_hub():
     """A hub joined to 12 anchors, each joined to its ring neighbours and to 4 of 24 outer anchors (each outer
     anchor to two inner ones): every tree sends 2(n − 1) messages per all-reduction (n − 1 up, n − 1 down). From
@@ -18,17 +27,41 @@ def test_balanced_tree_sends_2_n_minus_1_messages_and_unloads_the_hub():
     tree roots at an anchor of the lowest degree near the hub and spreads the children: its busiest anchor (the
     hub still, the only parent of the inner anchors two ring steps from the root) sends 7."""
     bench = _load("bench_uwb_economy")
-    inner = np.arange(1, 13)
-    outer = np.arange(13, 37)
-    links = [(0, i) for i in inner] + [(i, i % 12 + 1) for i in inner]
-    links += [(inner[k // 2], o) for k, o in enumerate(outer)]
-    links += [(inner[(k // 2 + 1) % 12], o) for k, o in enumerate(outer)]
-    g = Graph.from_links(37, np.array(links))
+    g = _hub()
     n = g.n_nodes
     hops = shortest_path(g.adjacency(), unweighted=True, directed=False, indices=0)
     assert hops.max() == 2
-    bal, bfs = bench._tree_sends(g), bench._tree_sends(g, balanced=False)
+    bal, bfs = bench._tree_sends(g, "balanced"), bench._tree_sends(g, "bfs")
     for sends in (bal, bfs):
         assert sends.sum() == 2 * (n - 1)
     assert bfs[0] == bfs.max() == 12  # the root: no message up, one down to each neighbour
     assert bal.max() == bal[0] == 7
+
+
+def test_capped_tree_is_a_spanning_tree_whose_anchors_send_at_most_three_messages():
+    """The capped tree (sixth session) on the hub graph above and on a 400-anchor geometric graph: every anchor's
+    parent is a neighbour, following parents reaches the root (no cycle), 2(n − 1) messages per all-reduction, and
+    its busiest anchor sends fewer than the balanced tree's, and on the geometric graph no more than 3 (2 children
+    and one up)."""
+    bench = _load("bench_uwb_economy")
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(0.0, 100.0, (400, 2))
+    a, b = np.triu_indices(400, 1)
+    close = np.linalg.norm(pts[a] - pts[b], axis=1) < 12.0
+    geo = Graph.from_links(400, np.stack([a[close], b[close]], 1))
+    assert geo.is_connected
+    for g in (_hub(), geo):
+        n = g.n_nodes
+        parent, root = bench._tree_parents(g, "capped")
+        adj = g.adjacency().toarray() > 0
+        others = np.flatnonzero(np.arange(n) != root)
+        assert parent[root] == -1 and np.all(adj[others, parent[others]])
+        for v in others:  # the parents lead to the root within n steps
+            steps = 0
+            while v != root and steps <= n:
+                v, steps = parent[v], steps + 1
+            assert v == root
+        sends = bench._tree_sends(g, "capped")
+        assert sends.sum() == 2 * (n - 1)
+        assert sends.max() < bench._tree_sends(g, "balanced").max()
+    assert sends.max() <= 3  # the geometric graph: 24 outer hub anchors on 12 inner ones force 4 above

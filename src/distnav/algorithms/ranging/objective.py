@@ -6,11 +6,18 @@ range-bias calibration (a common offset or per-anchor antenna delays with a prio
 * ``"metres"``: ``e_l = ‖r_a − r_b‖ + b_l − d_l`` whitened by the range σ, ``r_l = e_l / σ_l`` (weight ``1/σ²``), a
   robust loss on ``r`` with the scale ``σ_loss / σ_l`` — i.e. it switches at range errors of about ``σ_loss``
   metres whatever the link's length. ``b_l`` is the range bias: 0, a common offset ``b`` (every range reads ``b``
-  too long), or the sum ``b_a + b_b`` of the two anchors' antenna delays. Per-anchor delays are not separable from
-  the geometry without a prior: each gets a pseudo-observation ``b_i / σ_b = 0`` (``offset_prior_sigma_m``);
-  prior rows are never down-weighted by the loss.
+  too long), the sum ``b_a + b_b`` of the two anchors' antenna delays (``"per_anchor"``), or both,
+  ``c + b_a + b_b`` (``"common_delays"``, issue 28: a common offset with no prior and per-anchor delays about it).
+  Per-anchor delays are not separable from the geometry without a prior: each gets a pseudo-observation
+  ``b_i / σ_b = 0`` (``offset_prior_sigma_m``); prior rows are never down-weighted by the loss. With
+  ``"common_delays"`` the prior also fixes the one direction the ranges cannot see (every ``b_i`` up by ``k``,
+  ``c`` down by ``2k``): it is a hierarchical prior ``δ_i = c/2 + b_i ~ N(c/2, σ_b²)`` on the anchors' total
+  delays with an unknown mean (prior information as pseudo-observations: Theil & Goldberger 1961, mixed
+  estimation), where ``"per_anchor"`` holds that mean at 0 and so pulls a common offset of decimetres into the
+  geometry (docs/uwb.md, "Antenna delays about a common offset").
 
-The free vector is ``x = [free coordinates (eq. (1)), offsets]``.
+The free vector is ``x = [free coordinates (eq. (1)), offsets]``; the offsets are ``[b]``, ``[b_1 … b_n]`` or
+``[c, b_1 … b_n]``.
 """
 
 from __future__ import annotations
@@ -25,9 +32,11 @@ from distnav._checks import real_array
 from distnav.algorithms.ranging.data import RangingData
 from distnav.errors import ModelError
 
-__all__ = ["OFFSETS", "FitOptions", "RangeObjective", "check_fit", "range_sigma"]
+__all__ = ["DELAY_MODES", "OFFSETS", "FitOptions", "RangeObjective", "check_fit", "range_sigma"]
 
-OFFSETS = ("none", "common", "per_anchor")
+OFFSETS = ("none", "common", "per_anchor", "common_delays")
+#: the modes whose per-anchor delays carry the prior ``N(0, offset_prior_sigma_m²)``
+DELAY_MODES = ("per_anchor", "common_delays")
 _PRIOR_SCALE = 1e30  # the loss scale of prior rows: ρ(z) = z for every loss
 
 
@@ -64,7 +73,7 @@ def check_fit(objective: str, range_offsets: str, offset_prior_sigma_m: float) -
         raise ModelError(f"range offsets must be one of {', '.join(OFFSETS)}, got {range_offsets!r}")
     if range_offsets != "none" and objective != "metres":
         raise ModelError("range offsets are estimated with objective='metres' only")
-    if range_offsets == "per_anchor" and not offset_prior_sigma_m > 0:
+    if range_offsets in DELAY_MODES and not offset_prior_sigma_m > 0:
         raise ModelError(f"offset_prior_sigma_m must be positive, got {offset_prior_sigma_m}")
 
 
@@ -76,8 +85,9 @@ class FitOptions:
     - ``initial_m`` (None: the problem's start): the ``(n, dim)`` start positions, metres.
     - ``objective`` (``"squared"``, paper 002 eq. (2); or ``"metres"``): the residuals fitted.
     - ``sigma_m`` (1.0): the ranges' standard deviation for the metres objective (a value or one per range), metres.
-    - ``range_offsets`` (``"none"``; ``"common"`` / ``"per_anchor"`` with the metres objective): range offsets
-      estimated with the positions; ``offset_prior_sigma_m`` (0.1): the per-anchor offsets' prior σ, metres.
+    - ``range_offsets`` (``"none"``; ``"common"`` / ``"per_anchor"`` / ``"common_delays"`` with the metres
+      objective; the last LM's only): range offsets estimated with the positions; ``offset_prior_sigma_m`` (0.1):
+      the per-anchor delays' prior σ, metres (PLANT_HARD's calibrated delays: sd 0.1 m).
     - ``quality`` (True): the per-anchor covariance and the w-tests of the links; ``test_level`` (0.001): their
       significance level; ``test_scale`` (``"robust"``): their variance factor.
     """
@@ -116,11 +126,12 @@ class RangeObjective:
 
     @property
     def n_offsets(self) -> int:
-        return {"none": 0, "common": 1, "per_anchor": self.problem.n_anchors}[self.offsets]
+        n = self.problem.n_anchors
+        return {"none": 0, "common": 1, "per_anchor": n, "common_delays": n + 1}[self.offsets]
 
     @property
     def n_prior(self) -> int:
-        return self.problem.n_anchors if self.offsets == "per_anchor" else 0
+        return self.problem.n_anchors if self.offsets in DELAY_MODES else 0
 
     @property
     def n_x(self) -> int:
@@ -141,7 +152,22 @@ class RangeObjective:
             return np.full(p.n_meas, float(offsets[0]))
         if self.offsets == "per_anchor":
             return np.asarray(offsets[p.meas_a] + offsets[p.meas_b])
+        if self.offsets == "common_delays":
+            return np.asarray(offsets[0] + offsets[1 + p.meas_a] + offsets[1 + p.meas_b])
         return np.zeros(p.n_meas)
+
+    def anchor_offsets(self, offsets: np.ndarray) -> np.ndarray:
+        """Every anchor's total delay ``δ_i`` with ``b_l = δ_a + δ_b`` (``"per_anchor"``: ``b_i``;
+        ``"common_delays"``: ``c/2 + b_i``); the offsets themselves for ``"none"`` / ``"common"``."""
+        off = np.asarray(offsets, float)
+        return np.asarray(0.5 * off[0] + off[1:]) if self.offsets == "common_delays" else off
+
+    def anchor_offsets_map(self) -> np.ndarray:
+        """The matrix ``T`` with :meth:`anchor_offsets` ``= T @ offsets`` (for their covariance ``T Q Tᵀ``)."""
+        n = self.n_offsets
+        if self.offsets != "common_delays":
+            return np.eye(n)
+        return np.hstack([np.full((n - 1, 1), 0.5), np.eye(n - 1)])
 
     def residual(self, x: np.ndarray) -> np.ndarray:
         pos, off = self.split(x)
@@ -149,7 +175,7 @@ class RangeObjective:
             return self.problem.residuals(pos)
         r = (self.problem.distances(pos) + self.sample_offsets(off) - self.problem.range_m) / self.sigma
         if self.n_prior:
-            r = np.concatenate([r, off / self.offset_prior_sigma_m])
+            r = np.concatenate([r, off[off.size - self.n_prior :] / self.offset_prior_sigma_m])  # the delays b_i
         return np.asarray(r)
 
     def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
@@ -160,20 +186,24 @@ class RangeObjective:
         jac = sp.diags(1.0 / self.sigma) @ p.jacobian_m(pos)
         if self.offsets == "none":
             return sp.csr_matrix(jac)
+        common = sp.csr_matrix((1.0 / self.sigma)[:, None])
         if self.offsets == "common":
-            cols = sp.csr_matrix((1.0 / self.sigma)[:, None])
+            cols = common
         else:
             m, n = p.n_meas, p.n_anchors
             rows = np.concatenate([np.arange(m)] * 2)
             cols = sp.csr_matrix(
                 (np.concatenate([1.0 / self.sigma] * 2), (rows, np.concatenate([p.meas_a, p.meas_b]))), shape=(m, n)
             )
+            if self.offsets == "common_delays":
+                cols = sp.hstack([common, cols])
         top = sp.hstack([jac, cols])
         if not self.n_prior:
             return sp.csr_matrix(top)
+        lead = p.n_free + self.n_offsets - self.n_prior  # the columns before the delays: coordinates (and c)
         prior = sp.hstack(
             [
-                sp.csr_matrix((self.n_prior, p.n_free)),
+                sp.csr_matrix((self.n_prior, lead)),
                 sp.identity(self.n_prior, format="csr") / self.offset_prior_sigma_m,
             ]
         )

@@ -60,6 +60,9 @@ class RunOptions(FitOptions):
     - ``refine_mu0`` (None: ``refine.MU0``): that phase's initial Marquardt damping (a warm re-fit: the last fit's
       final one, ``settings["refine"]["mu"]``, issue 27).
     - ``test_scale`` also ``"local"`` (each anchor's own scale) beside the centralized scales.
+
+    ``range_offsets="common_delays"`` (LM's) is refused by name: the neighbourhood solvers' offsets
+    (:mod:`~distnav.algorithms.ranging.neighbourhood_offsets`) hold a common offset or per-anchor delays, not both.
     """
 
     iterations: int = 500
@@ -78,6 +81,11 @@ class RunOptions(FitOptions):
         if self.test_scale not in DISTRIBUTED_TEST_SCALES:
             raise ModelError(f"test_scale must be one of {', '.join(DISTRIBUTED_TEST_SCALES)}, got {self.test_scale!r}")
         super().__post_init__()
+        if self.range_offsets == "common_delays":
+            raise ModelError(
+                "range_offsets='common_delays' (a common offset plus per-anchor delays about it) is LM's only: the "
+                "distributed solvers (CSG, N-CSG, N-CLM) estimate 'common' or 'per_anchor' offsets"
+            )
 
     @property
     def refines(self) -> bool:

@@ -64,7 +64,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
 
 from distnav._settings import resolve_options
 from distnav.algorithms.ranging.data import RangingData
@@ -72,6 +71,7 @@ from distnav.algorithms.ranging.losses import LOSSES, loss_terms, range_loss_sca
 from distnav.algorithms.ranging.neighbourhoods import checked_estimates, exchange_for, half_measurements
 from distnav.algorithms.ranging.objective import range_sigma
 from distnav.algorithms.ranging.qc import free_block_inverses
+from distnav.algorithms.ranging.subnetwork import VARIANCE_FLOOR, _send_blocks, _subnetwork
 from distnav.algorithms.result import Precision
 from distnav.algorithms.statistics import variance_factor
 from distnav.errors import ModelError
@@ -80,8 +80,6 @@ from distnav.exchange import Exchange
 __all__ = ["NeighbourhoodPrecision", "PrecisionOptions", "neighbourhood_precision"]
 
 log = logging.getLogger(__name__)
-VARIANCE_FLOOR = 1.0 / 16.0
-MIN_NOISE_SHARE = 0.1  # as distnav.models.uwb.precision: the noise keeps at least this share of σ̂²
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -188,7 +186,7 @@ def neighbourhood_precision(
     free = problem.free[ex.nodes]
     cond = free_block_inverses(lk.info, free)
     vf_i = _local_variance_factor(problem, ex, lk, free)
-    cov, change, done = _block_rounds(ex, cond, lk.cross, o.rounds, o.rtol)
+    cov, change, done = _block_rounds(ex, cond, lk.cross, free, o.rounds, o.rtol)
     if change > o.rtol:
         log.info("neighbourhood precision: σ still changing by %.3g after %d rounds", change, done)
     delay_cov = noise_f = None
@@ -276,17 +274,18 @@ def _local_variance_factor(problem: RangingData, ex: Exchange, lk: _Linearized, 
 
 
 def _block_rounds(
-    ex: Exchange, cond: np.ndarray, cross: np.ndarray, rounds: int, rtol: float
+    ex: Exchange, cond: np.ndarray, cross: np.ndarray, free: np.ndarray, rounds: int, rtol: float
 ) -> tuple[np.ndarray, float, int]:
-    """``Σ_i⁽ᵗ⁺¹⁾ = N_i⁻¹ + N_i⁻¹ (Σ_j O_ij Σ_j⁽ᵗ⁾ O_ji) N_i⁻¹`` from ``Σ⁽⁰⁾ = N_i⁻¹`` (one broadcast of the blocks a
-    round) until no σ changes by more than ``rtol``: ``(Σ, the last change, rounds run)``."""
+    """``Σ_i⁽ᵗ⁺¹⁾ = N_i⁻¹ + N_i⁻¹ (Σ_j O_ij Σ_j⁽ᵗ⁾ O_ji) N_i⁻¹`` from ``Σ⁽⁰⁾ = N_i⁻¹`` (one message of the packed
+    blocks on every link a round, :func:`_send_blocks`) until no σ changes by more than ``rtol``: ``(Σ, the last
+    change, rounds run)``."""
     nl, dim = cond.shape[0], cond.shape[1]
     cov = cond.copy()
     change = float("inf") if rounds else 0.0
     done = 0
     with np.errstate(invalid="ignore", over="ignore"):
         while done < rounds and change > rtol:
-            nb = ex.broadcast(cov.reshape(nl, dim * dim))
+            nb = _send_blocks(ex, cov, free)[1]
             s_nb = nb.values.reshape(-1, dim, dim)
             term = np.einsum("eab,ebc,edc->ead", cross, s_nb, cross)  # O_ij Σ_j O_ijᵀ (O_ji = O_ijᵀ)
             total = np.zeros((nl, dim, dim))
@@ -299,201 +298,3 @@ def _block_rounds(
             cov = new
             done += 1
     return cov, change, done
-
-
-def _subnetwork(
-    problem: RangingData,
-    ex: Exchange,
-    hops: int,
-    cov: np.ndarray,
-    cond: np.ndarray,
-    pos: np.ndarray,
-    n_in: int,
-    j_own: np.ndarray,
-    w: np.ndarray,
-    r: np.ndarray,
-    free: np.ndarray,
-    delay_sigma_m: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """The k-hop sub-network covariance and variance factor of every local anchor (module docstring).
-
-    Link record of in-edge (i ← v), held by i: ``[v, u (dim), c, Σ w r², samples, Σ_v (dim²)]`` with ``c u uᵀ``
-    the link's information (``u`` the unit direction of the own-end Jacobian row, ``c = Σ_s w_s ‖j_s‖²``). One
-    broadcast of the final ``Σ`` (so the records carry the neighbours' blocks), then round 1: every anchor
-    broadcasts ``[id, its K records]`` (``K`` = the largest degree, padded with id −1), round 2 (``hops = 2``):
-    it relays the ``K`` rows it received. ``(n_in, …)`` arrays follow the in-edges of ``ex``."""
-    dim, nl, n = problem.dim, ex.n_local, problem.n_anchors
-    bsz = dim * dim
-    k_max = int(problem.graph.degrees.max(initial=0))
-    nb = ex.broadcast(cov.reshape(nl, bsz))  # every anchor's final Σ to its neighbours
-    norm2 = np.einsum("hd,hd->h", j_own, j_own)
-    c_in = np.bincount(pos, w * norm2, minlength=n_in)
-    wr2_in = np.bincount(pos, w * r * r, minlength=n_in)
-    cnt_in = np.bincount(pos, minlength=n_in).astype(float)
-    u_in = np.zeros((n_in, dim))
-    nz = norm2 > 0
-    u_in[pos[nz]] = j_own[nz] / np.sqrt(norm2[nz])[:, None]  # same direction for every sample of a pair
-    width = 4 + dim + bsz
-    link = np.concatenate(
-        [
-            nb.src[:, None].astype(float),
-            u_in,
-            c_in[:, None],
-            wr2_in[:, None],
-            cnt_in[:, None],
-            np.where(nb.delivered[:, None], nb.values, np.nan),
-        ],
-        axis=1,
-    )
-    rows = np.full((nl, 1 + k_max * width), -1.0)
-    rows[:, 0] = ex.nodes
-    starts = np.flatnonzero(np.r_[True, nb.dst[1:] != nb.dst[:-1]]) if n_in else np.zeros(0, np.int64)
-    slot = np.arange(n_in) - np.repeat(starts, np.diff(np.r_[starts, n_in]))  # in-edges grouped by receiver
-    flat = rows[:, 1:].reshape(nl, k_max, width)
-    flat[nb.dst, slot] = link
-    rows[:, 1:] = flat.reshape(nl, -1)
-    known: list[list[np.ndarray]] = [[rows[li]] for li in range(nl)]
-    first = ex.broadcast(rows)
-    for e in np.flatnonzero(first.delivered):
-        known[first.dst[e]].append(first.values[e])
-    if hops == 2:
-        relay = np.full((nl, k_max, rows.shape[1]), -1.0)
-        relay[first.dst, slot] = np.where(first.delivered[:, None], first.values, -1.0)
-        second = ex.broadcast(relay.reshape(nl, -1))
-        for e in np.flatnonzero(second.delivered):
-            known[second.dst[e]].extend(second.values[e].reshape(k_max, -1))
-    out = cov.copy()
-    vf = np.full(nl, np.nan)
-    delay = np.zeros_like(cov) if delay_sigma_m > 0 else None
-    noise = np.full(nl, np.nan) if delay_sigma_m > 0 else None
-    for li in np.flatnonzero(free.any(axis=1)):
-        ball = _solve_ball(problem, int(ex.nodes[li]), known[li], k_max, width, cond[li], n, delay_sigma_m)
-        out[li], vf[li] = ball[0], ball[1]
-        if delay is not None and noise is not None:
-            delay[li], noise[li] = ball[2], ball[3]
-    return out, vf, delay, noise
-
-
-def _ball_columns(
-    free: np.ndarray, records: list[np.ndarray], k_max: int, width: int, n: int
-) -> tuple[dict[int, np.ndarray], list[int], np.ndarray, int]:
-    """The anchors whose link records an anchor holds (the ball, free ones: ``{anchor: its records}`` and in
-    order) and the column of every free coordinate of the ball ``(n, dim)`` (−1 elsewhere), with their count."""
-    recs: dict[int, np.ndarray] = {}
-    for row in records:
-        k = int(row[0])
-        if k >= 0 and k not in recs and free[k].any():
-            recs[k] = row[1:].reshape(k_max, width)
-    ball = sorted(recs)
-    col = np.full((n, free.shape[1]), -1, np.int64)
-    cnt = 0
-    for k in ball:
-        f = np.flatnonzero(free[k])
-        col[k, f] = cnt + np.arange(f.size)
-        cnt += f.size
-    return recs, ball, col, cnt
-
-
-def _with_ring(
-    q: np.ndarray,
-    x: np.ndarray,
-    ring: dict[int, list[tuple[int, np.ndarray]]],
-    sigma_ring: dict[int, np.ndarray],
-    col: np.ndarray,
-    free: np.ndarray,
-) -> np.ndarray | None:
-    """``q + N_SS⁻¹ N_SR (⊕_v Σ_v) N_RS N_SS⁻¹`` for the rows ``x`` of ``N_SS⁻¹``: the ring anchors behind the
-    ball's links considered with their blocks ``Σ_v``; None where a block is not finite."""
-    cnt, dim = x.shape[1], free.shape[1]
-    for v, parts in ring.items():
-        m_v = np.zeros((cnt, dim))  # N_SR column block of v: −c u_u u_vᵀ over its ball partners
-        for u, info in parts:
-            cu = col[u][free[u]]
-            m_v[cu] -= info[free[u]] * free[v]
-        xm = x @ m_v
-        sig = sigma_ring[v]
-        if not np.all(np.isfinite(sig)):
-            return None
-        q += xm @ sig @ xm.T
-    return q
-
-
-def _solve_ball(
-    problem: RangingData,
-    me: int,
-    records: list[np.ndarray],
-    k_max: int,
-    width: int,
-    cond: np.ndarray,
-    n: int,
-    delay_sigma_m: float = 0.0,
-) -> tuple[np.ndarray, float, np.ndarray, float]:
-    """Anchor ``me``'s block of ``Q_SS = N_SS⁻¹ + N_SS⁻¹ N_SR (⊕_v Σ_v) N_RS N_SS⁻¹`` over the anchors whose link
-    records it holds (``S``, free ones), the ring ``R`` behind their links considered with its blocks ``Σ_v``,
-    and the variance factor of the sub-network's links (shares as the local one); with ``delay_sigma_m`` the
-    delays' covariance ``σ_δ² B_i B_iᵀ`` (``B = N_SS⁻¹ G_S``) and the noise factor less the delays' share. Falls
-    back to ``cond`` (no delay term) where the sub-network's normal matrix is singular."""
-    dim = problem.dim
-    free = problem.free
-    recs, ball, col, cnt = _ball_columns(free, records, k_max, width, n)
-    nss = np.zeros((cnt, cnt))
-    ring: dict[int, list[tuple[int, np.ndarray]]] = {}  # ring anchor -> (ball anchor, its O_uv)
-    g_cols: dict[int, np.ndarray] = {}  # ∂(JᵀW r)/∂δ_k over the ball's coordinates: c u at both ends' delays
-    trace_g = 0.0
-    sigma_ring: dict[int, np.ndarray] = {}
-    wssr = share_sum = 0.0
-    for u in ball:
-        lk = recs[u]
-        lk = lk[lk[:, 0] >= 0]
-        cu = col[u][free[u]]
-        for row in lk:
-            v = int(row[0])
-            d_u = row[1 : 1 + dim] * free[u]
-            c = float(row[1 + dim])
-            info = c * np.outer(d_u, row[1 : 1 + dim])  # c u uᵀ, rows of u's free coordinates
-            nss[np.ix_(cu, cu)] += info[np.ix_(free[u], free[u])]
-            if not free[v].any():
-                sh = 1.0
-            elif v in recs:
-                sh = 0.5  # counted from both ends
-                cv = col[v][free[v]]
-                nss[np.ix_(cu, cv)] -= info[np.ix_(free[u], free[v])]
-            else:
-                sh = 0.5
-                ring.setdefault(v, []).append((u, info))
-                sigma_ring.setdefault(v, row[4 + dim :].reshape(dim, dim))
-            wssr += sh * float(row[2 + dim])
-            share_sum += sh * float(row[3 + dim])
-            if delay_sigma_m > 0:
-                g = np.zeros(cnt)
-                g[cu] = c * row[1 : 1 + dim][free[u]]
-                for k in (u, v):
-                    g_cols[k] = g_cols[k] + g if k in g_cols else g.copy()
-                trace_g += sh * 2.0 * c
-    red = share_sum - cnt
-    vf = max(wssr / red, VARIANCE_FLOOR) if red > 0 else 1.0
-    nss = 0.5 * (nss + nss.T)
-    mine = col[me][free[me]]
-    zero = np.zeros((dim, dim))
-    try:
-        fac = sla.cho_factor(nss, check_finite=True)
-    except (np.linalg.LinAlgError, ValueError):
-        return cond, vf, zero, vf
-    rhs = np.zeros((cnt, mine.size))
-    rhs[mine, np.arange(mine.size)] = 1.0
-    x = sla.cho_solve(fac, rhs).T  # rows of N_SS⁻¹ for my coordinates
-    q = _with_ring(x[:, mine].copy(), x, ring, sigma_ring, col, free)
-    if q is None:  # a ring anchor without a finite block
-        return cond, vf, zero, vf
-    f = free[me]
-    out = zero.copy()
-    out[np.ix_(f, f)] = 0.5 * (q + q.T)
-    if delay_sigma_m <= 0 or not g_cols:
-        return out, vf, zero, vf
-    g_s = np.column_stack([g_cols[k] for k in sorted(g_cols)])
-    b = sla.cho_solve(fac, g_s)  # N_SS⁻¹ G_S: the ball's coordinates moved by each delay
-    delay = zero.copy()
-    b_me = b[mine]
-    delay[np.ix_(f, f)] = delay_sigma_m**2 * (b_me @ b_me.T)
-    share = delay_sigma_m**2 * (trace_g - float(np.sum(g_s * b))) / red if red > 0 else 0.0
-    return out, vf, delay, max(vf - share, MIN_NOISE_SHARE * vf)

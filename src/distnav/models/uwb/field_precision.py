@@ -14,8 +14,10 @@ only**: it costs about what gathering the ranges costs (1–2 ×), where the net
 solvers'. ``"central"`` (:func:`distnav.algorithms.ranging.covariance.central_precision`): the same blocks by CG
 over the exchange — messages of ``P (n_free + n)`` floats for ``≈ n_free`` rounds (the default before issue 27).
 ``"subnetwork"`` (:func:`distnav.algorithms.ranging.precision.neighbourhood_precision` with
-:data:`PRECISION_HOPS` hops): each anchor's 2-hop sub-network, ``O(degree²)`` floats per link in ``3 + hops``
-rounds, but 0.67–0.88 × LM's σ where the chain to the known anchors is long (docs/uwb.md). ``"auto"`` (the
+:data:`PRECISION_HOPS` hops): each anchor's 2-hop sub-network from its neighbours' link records and each 2-hop
+anchor's relayed once (:mod:`distnav.algorithms.ranging.subnetwork`: 25–35 × fewer bytes than the records relayed by
+every neighbour before issue 27's sixth session), but 0.67–0.88 × LM's σ where the chain to the known anchors is long
+(docs/uwb.md). ``"auto"`` (the
 default): gathered for the metres objective up to ``CENTRAL_MAX_ANCHORS`` anchors, else the sub-network (whose
 busiest anchor sends less than a gather's busiest relay on large networks); the sub-network is also the fallback
 where the gathered or central solve fails (a singular normal matrix, CG not converged).
@@ -73,7 +75,7 @@ class DistributedSigma:
     ``"neighbourhood"``) and the cost: the exchange's messages / bytes plus, for the central σ, its network totals
     as spanning-tree reductions (:meth:`~distnav.algorithms.ranging.covariance.CentralPrecision.reduction_cost`);
     for the gathered σ the tree's messages up and down. ``bytes_sent``: per anchor, where known (the gathered σ:
-    what each anchor transmits, its own data and what it relays)."""
+    what each anchor transmits, its own data and what it relays; the sub-network σ: its exchange's counters)."""
 
     sigma_m: FloatArray
     covariance_m2: FloatArray
@@ -178,6 +180,7 @@ def _subnetwork(
         nb.precision.kind,
         0 if comm is None else int(comm.messages),
         0 if comm is None else int(comm.bytes),
+        None if comm is None else np.asarray(comm.bytes_sent, float),
     )
 
 
