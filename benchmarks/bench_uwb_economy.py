@@ -460,7 +460,7 @@ def plot(rows: list[dict[str, Any]], path: Path, solves: list[dict[str, Any]] | 
     x = crossing(rows)
     if x is not None:
         ax.axvline(x, color="grey", lw=0.8)
-        ax.text(x, ax.get_ylim()[0] * 2, f" one fit's busiest: {x:.0f} anchors", color="grey")
+        ax.text(x, ax.get_ylim()[0] * 2, f"one fit's busiest < relay: {x:.0f} anchors ", color="grey", ha="right")
     ax.set_xlabel("anchors (plant-like density, 4 known)")
     ax.set_ylabel("bytes sent")
     ax.set_title("UWB: distributed N-CLM vs gathering every range (multi-hop)")

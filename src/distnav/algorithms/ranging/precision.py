@@ -20,7 +20,7 @@ replaced by their current estimates, iterated over rounds of messages:
 
     ``Σ_i⁽⁰⁾ = N_i⁻¹``,  ``Σ_i⁽ᵗ⁺¹⁾ = N_i⁻¹ + N_i⁻¹ (Σ_{j∈N(i)} O_ij Σ_j⁽ᵗ⁾ O_ji) N_i⁻¹``
 
-— every round each anchor broadcasts its ``dim × dim`` block (``dim²`` floats per link). Every term added is
+— every round each anchor sends its ``dim × dim`` block (packed: the free upper triangle). Every term added is
 positive semidefinite, so ``Σ_i⁽ᵗ⁾`` grows monotonically from the conditional value; it is still an
 approximation (neither bound): the dropped ``Q_jk`` are mostly positive (neighbours share the errors of the
 network's far part) and make it optimistic for anchors far from the known ones; ``Q_jj`` of a neighbour with
@@ -38,7 +38,8 @@ Anchor ``i`` takes ``S`` = the free anchors within ``hops`` hops and replaces ``
 anchors' neighbourhood blocks ``⊕_v Σ_v`` (a consider covariance of the ring, Bierman 1977 ch. VI): the
 cross-covariances *inside* ``S`` are now carried exactly, only those among the ring are dropped. It learns
 ``N_SS`` and ``N_SR`` from link records ``[v, u, c, Σ w r², samples, Σ_v]`` (``c u uᵀ`` is the link's
-information) relayed over ``hops`` rounds of messages (padded to the largest degree). Where ``S`` spans the
+information) relayed over ``hops`` rounds of messages (:mod:`~distnav.algorithms.ranging.subnetwork`: each
+record once per neighbourhood, in float32). Where ``S`` spans the
 network (every anchor within ``hops`` of every other) it is LM's ``(JᵀWJ)⁻¹`` block (tested). Its variance
 factor is the local one's over ``S``'s links (a link into the ring counts ½), which is the global ``σ̂²`` where
 ``S`` spans the network.
