@@ -22,7 +22,6 @@ import ctypes
 import importlib.machinery
 import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -48,13 +47,15 @@ def library() -> Any:
 
 
 def _load() -> Any:
-    here = Path(__file__).resolve().parent
+    here = os.path.dirname(
+        os.path.realpath(__file__)
+    )  # os.path, not pathlib: the MPI path's start-up imports no pathlib
     for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-        path = here / f"_dropround_c{suffix}"
-        if not path.is_file():
+        path = os.path.join(here, f"_dropround_c{suffix}")
+        if not os.path.isfile(path):
             continue
         try:
-            lib = ctypes.CDLL(str(path))
+            lib = ctypes.CDLL(path)
             if lib.dn_abi_version() != _ABI:
                 return None
         except (OSError, AttributeError):  # not loadable here, or another build's library: the numpy path
