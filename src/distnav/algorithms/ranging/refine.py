@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from distnav._settings import resolve_options
-from distnav.algorithms.ranging import chebyshev, wire
+from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
@@ -283,21 +283,12 @@ class _Refiner:
             self.wire_dtype,
             self.sig,
         )
-        b, bc, pre_c = -np.where(free, lin.g, 0.0)[:, :, None], np.array([-lin.gc]), lin.dc + damp_c if common else 1.0
-        if chebyshev.INNER_SOLVER == "chebyshev":  # no dot products (ranging/chebyshev.py, issue 27: tried)
-            bounds = chebyshev.spectrum_bounds(
-                lin, self.owner, free, damp, damp_c, pre_inv, pre_c, mu, self.links.gathered
-            )
-            dxk, dck, its = chebyshev.chebyshev(
-                system, b, bc, pre_inv, pre_c, self.links.gathered, bounds, cg_max, CG_RTOL
-            )
-            return dxk[:, :, 0], float(dck[0]), its
         dxk, dck, its = pcg(
             system,
-            b,
-            bc,
+            -np.where(free, lin.g, 0.0)[:, :, None],
+            np.array([-lin.gc]),
             pre_inv,
-            pre_c,
+            lin.dc + damp_c if common else 1.0,
             self.links,
             cg_max,
             scalar_dtype=self.dot_dtype,
