@@ -128,6 +128,8 @@ class Mixer:
         self._w_full: sp.csr_matrix | None = None
         self._w_masked: sp.csr_matrix | None = None
         self._kernel: DropRound | None | bool = False  # the compiled fault round, prepared at the first one
+        self._kernel_threshold = 0  # the drop threshold and (without silent senders) the sent counts it uses
+        self._kernel_sent: tuple[np.ndarray, int] | tuple[()] = ()
         if ex.faults.active:
             self._w_masked = _segment_matrix(
                 ex.in_dst, ex.n_local, ex.n_columns, self._in_edge_weights(), ex.in_src_col
@@ -224,20 +226,23 @@ class Mixer:
             m, ex = self._w_masked, self.exchange
             assert m is not None
             self._kernel = _dropround.prepare(m, ex._fault_plan.edge_ids, self._act_in, self._self_w)
+            self._kernel_threshold = ex._fault_plan.drop_threshold
+            # without silent senders the sent counts are the same every round: taken once, not looked up per round
+            self._kernel_sent = () if ex.faults.silent_nodes else ex._sent_counts(self._act_out, cache=True)
         kernel = self._kernel
         if not isinstance(kernel, _dropround.DropRound):
             return None
         ex = self.exchange
         plan = ex._fault_plan
         k = ex.round_index
-        sent, sent_total = ex._sent_counts(self._act_out, cache=True)
+        sent, sent_total = self._kernel_sent if self._kernel_sent else ex._sent_counts(self._act_out, cache=True)
         out = kernel.run(
             cols if cols.flags.c_contiguous else np.ascontiguousarray(cols),
             flat if flat.flags.c_contiguous else np.ascontiguousarray(flat),
             ex._lost_counter(msg_bytes),
             seed=ex.faults.seed,
             round_index=k,
-            threshold=plan.drop_threshold,
+            threshold=self._kernel_threshold,
             dead_from=plan.dead_from(k),
         )
         ex._account(sent, self._recv_counts, msg_bytes, sent_total)
