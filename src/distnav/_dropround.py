@@ -105,7 +105,7 @@ class DropRound:
     output addresses and makes one ctypes call with one prepared argument (issue 27: the per-round Python cost
     counts at 10³ nodes, where a whole round takes a few µs)."""
 
-    __slots__ = ("_args", "_byref", "_call", "_lost", "arrays", "n_rows")
+    __slots__ = ("_args", "_byref", "_call", "_lost", "_seen", "arrays", "n_rows")
 
     def __init__(self, lib: Any, kind: int, arrays: tuple[np.ndarray, ...], active: np.ndarray | None) -> None:
         self.arrays = (*arrays, active)  # kept alive: the kernel reads them through the addresses in the struct
@@ -116,33 +116,54 @@ class DropRound:
         self._byref = ctypes.byref(a)
         self._call = lib.dn_fault_round
         self._lost: np.ndarray | None = None  # the lost counter whose address is in the struct
+        # the last two value arrays seen with their addresses (a loop ``x = mixer.apply(x)`` passes the last output,
+        # a benchmark the same input): held, so neither is freed and its id reused while it is here
+        self._seen: list[tuple[np.ndarray, int]] = []
+
+    def set_faults(self, seed: int, threshold: int) -> None:
+        """The schedule's seed and drop threshold ``⌈p·2⁵³⌉·2¹¹``: the same every round, set once."""
+        self._args.seed, self._args.threshold = seed & _MASK64, threshold
+
+    def _values(self, key: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, int]:
+        """``flat`` (the values ``key`` as ``(n, k)``) C-ordered, and its address: taken once for an array seen in
+        the last two rounds."""
+        for held, addr in self._seen:
+            if held is key:
+                return flat, addr
+        if not flat.flags.c_contiguous:
+            flat = np.ascontiguousarray(flat)
+        addr = _addr(flat)
+        if key.flags.c_contiguous:  # ``flat`` is a view of ``key``'s own values: the address stays
+            self._remember(key, addr)
+        return flat, addr
+
+    def _remember(self, values: np.ndarray, addr: int) -> None:
+        self._seen = [self._seen[-1], (values, addr)] if self._seen else [(values, addr)]
 
     def run(
-        self,
-        cols: np.ndarray,
-        x_local: np.ndarray,
-        lost_acc: np.ndarray,
-        *,
-        seed: int,
-        round_index: int,
-        threshold: int,
-        dead_from: np.ndarray | None,
+        self, key: np.ndarray, flat: np.ndarray, cols: np.ndarray, lost_acc: np.ndarray, round_index: int, dead: Any
     ) -> np.ndarray:
-        """One fault round on ``cols`` (``(n_columns, k)`` float64, C order; the first rows may be ``x_local``'s):
-        returns ``(n_rows, k)``, adds each row's lost messages to ``lost_acc`` (int64, C order). ``threshold``:
-        ``⌈p·2⁵³⌉·2¹¹``; ``dead_from``: per edge, the first round its message is dead (failed link or silent
-        sender), or None when no such fault has begun."""
+        """One fault round on the values ``key`` (``(n_rows, ...)`` float64; ``flat``: the same as ``(n_rows, k)``)
+        and ``cols`` (``(n_columns, k)``: the local values then the remote senders', or ``flat`` itself), with the
+        seed and threshold of :meth:`set_faults`: returns the new values shaped as ``key``, adds each row's lost
+        messages to ``lost_acc`` (int64, C order). ``dead``: per edge, the first round its message is dead (failed
+        link or silent sender), or None when no such fault has begun."""
         a = self._args
-        k = x_local.shape[1]
-        y = np.empty((self.n_rows, k))
+        in_place = cols is flat  # in-process the columns are the local values
+        flat, x_addr = self._values(key, flat)
+        y = np.empty(key.shape)  # C order: the same memory as (n_rows, k)
         if lost_acc is not self._lost:  # the exchange's counter: the same array round after round
             a.lost_acc, self._lost = _addr(lost_acc), lost_acc
-        a.k, a.round_index, a.seed, a.threshold = k, round_index, seed & _MASK64, threshold
-        a.dead_from = None if dead_from is None else _addr(dead_from)
-        a.xl = x_addr = _addr(x_local)
-        a.cols = x_addr if cols is x_local else _addr(cols)  # in-process the columns are the local values
-        a.y = _addr(y)
+        a.k, a.round_index, a.xl = flat.shape[1], round_index, x_addr
+        a.dead_from = None if dead is None else _addr(dead)
+        if in_place:
+            a.cols = x_addr
+        else:
+            cols = np.ascontiguousarray(cols)  # held until the call returns
+            a.cols = _addr(cols)
+        a.y = y_addr = _addr(y)
         self._call(self._byref)
+        self._remember(y, y_addr)  # the next round's values, in a loop ``x = mixer.apply(x)``
         return y
 
 
