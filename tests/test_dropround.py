@@ -113,6 +113,26 @@ def test_kernel_rounds_on_reused_changed_and_strided_inputs():
 
 
 @needs_kernel
+def test_kernel_reads_columns_apart_from_the_values():
+    """Under MPI the columns are a buffer of their own (local values, then the halo): the kernel must read them there,
+    not at the values' address. Equal columns in another array (C- or Fortran-ordered) give the numpy path's bits;
+    columns with other values give another result."""
+    g = builders.connected_random_geometric(300, mean_degree=8, rng=np.random.default_rng(10))
+    fast, slow = _pair(g, SCHEDULES["drops"], "auto", None)
+    x = fast.exchange.local(np.random.default_rng(11).normal(size=(g.n_nodes, 2)))
+    kernel = fast._prepare_kernel()
+    assert isinstance(kernel, dr.DropRound)
+    ref = slow.apply(x)  # round 0 by the numpy path
+    lost = np.zeros(g.n_nodes, np.int64)
+    for cols in (x.copy(), np.asfortranarray(x)):
+        out = kernel.run(x, x, cols, lost, 0, None)
+        assert np.array_equal(_bits(out), _bits(ref))
+    out = kernel.run(x, x, 2.0 * x, lost, 0, None)
+    assert not np.array_equal(out, ref)
+    assert lost.sum() == 3 * slow.exchange.comm_totals().messages_dropped > 0
+
+
+@needs_kernel
 @pytest.mark.parametrize("name", list(SCHEDULES))
 @pytest.mark.parametrize("edge_dtype", [np.int32, np.int64])
 def test_kernel_drops_exactly_the_scheduled_messages(name, edge_dtype):
