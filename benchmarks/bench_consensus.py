@@ -85,6 +85,7 @@ def drop_vs_fault_free(lossy: Mixer, clean: Mixer, x_loc: np.ndarray, *, repeat:
     other processes' turns), ``2·repeat + 1`` pairs of ``5·number`` rounds each (batches of ≥ 5 ms: the CPU clock's
     resolution)."""
     lossy.apply(x_loc)  # the first fault round prepares the kernel: its path is then known
+    clean.apply(x_loc)  # and a first fault-free round outside the clock too (else the first pair's floor is cold)
     t: dict[str, list[float]] = {"ours": [], "floor": []}
     for _ in range(2 * repeat + 1):
         for key, fn in (("floor", clean.apply), ("ours", lossy.apply)):

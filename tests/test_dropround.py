@@ -91,6 +91,48 @@ def test_kernel_round_equals_numpy_path_bit_for_bit(name, kind, floats):
 
 
 @needs_kernel
+def test_kernel_rounds_on_reused_changed_and_strided_inputs():
+    """The kernel keeps the addresses of the values it saw in the last two rounds: an input changed in place, one
+    passed again after another, a strided view and a Fortran-ordered array must still give the numpy path's bits."""
+    g = builders.connected_random_geometric(300, mean_degree=8, rng=np.random.default_rng(8))
+    fast, slow = _pair(g, SCHEDULES["drops"], "auto", None)
+    rng = np.random.default_rng(9)
+    x = fast.exchange.local(rng.normal(size=g.n_nodes))
+    wide = np.asfortranarray(rng.normal(size=(g.n_nodes, 3)))
+    strided = rng.normal(size=2 * g.n_nodes)[::2]
+    other = x + 1.0
+    for step in range(9):
+        if step in (3, 6):
+            x *= -0.5  # the same arrays, new values
+            strided *= -0.5
+        inp = {5: strided, 6: strided, 7: wide, 8: other}.get(step, x)
+        out_f, out_s = fast.apply(inp), slow.apply(inp)
+        assert out_f.shape == out_s.shape == inp.shape and np.array_equal(_bits(out_f), _bits(out_s)), step
+    assert isinstance(fast._kernel, dr.DropRound)
+    assert fast.exchange.comm_totals().as_dict() == slow.exchange.comm_totals().as_dict()
+
+
+@needs_kernel
+def test_kernel_reads_columns_apart_from_the_values():
+    """Under MPI the columns are a buffer of their own (local values, then the halo): the kernel must read them there,
+    not at the values' address. Equal columns in another array (C- or Fortran-ordered) give the numpy path's bits;
+    columns with other values give another result."""
+    g = builders.connected_random_geometric(300, mean_degree=8, rng=np.random.default_rng(10))
+    fast, slow = _pair(g, SCHEDULES["drops"], "auto", None)
+    x = fast.exchange.local(np.random.default_rng(11).normal(size=(g.n_nodes, 2)))
+    kernel = fast._prepare_kernel()
+    assert isinstance(kernel, dr.DropRound)
+    ref = slow.apply(x)  # round 0 by the numpy path
+    lost = np.zeros(g.n_nodes, np.int64)
+    for cols in (x.copy(), np.asfortranarray(x)):
+        out = kernel.run(x, x, cols, lost, 0, None)
+        assert np.array_equal(_bits(out), _bits(ref))
+    out = kernel.run(x, x, 2.0 * x, lost, 0, None)
+    assert not np.array_equal(out, ref)
+    assert lost.sum() == 3 * slow.exchange.comm_totals().messages_dropped > 0
+
+
+@needs_kernel
 @pytest.mark.parametrize("name", list(SCHEDULES))
 @pytest.mark.parametrize("edge_dtype", [np.int32, np.int64])
 def test_kernel_drops_exactly_the_scheduled_messages(name, edge_dtype):

@@ -21,7 +21,6 @@ from __future__ import annotations
 import ctypes
 import importlib.machinery
 import os
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -31,10 +30,9 @@ if TYPE_CHECKING:
 
 __all__ = ["DropRound", "library", "lost_mask", "prepare"]
 
-_ABI = 2  # 2: the kernels take the seed and make the round key themselves
+_ABI = 3  # 3: one entry point taking its arguments in a struct (2: the kernels make the round key)
 _LIB: list[Any] = []  # the loaded library, or None: looked up once, at the first fault round
 _P, _I, _U = ctypes.c_void_p, ctypes.c_int64, ctypes.c_uint64
-_ROUND_ARGS = [_I, _I, _P, _P, _P, _P, _P, _P, _I, _U, _U, _P, _P, _P, _P, _P]
 _MASK_ARGS = [_I, _P, _P, _P, _I, _U, _U, _P]
 _MASK64 = 0xFFFFFFFFFFFFFFFF
 
@@ -60,9 +58,7 @@ def _load() -> Any:
                 return None
         except (OSError, AttributeError):  # not loadable here, or another build's library: the numpy path
             return None
-        for name in ("i32_e32", "i32_e64", "i64_e32", "i64_e64"):
-            fn = getattr(lib, f"dn_fault_round_{name}")
-            fn.argtypes, fn.restype = _ROUND_ARGS, None
+        lib.dn_fault_round.restype = None  # no argtypes: its one argument is a prepared byref, passed as is
         for name in ("e32", "e64"):
             fn = getattr(lib, f"dn_lost_mask_{name}")
             fn.argtypes, fn.restype = _MASK_ARGS, None
@@ -88,38 +84,86 @@ def _addr(a: np.ndarray) -> int:
         return int(a.ctypes.data)
 
 
-@dataclass(frozen=True)
-class DropRound:
-    """A mixer's in-edge block prepared for the kernel (the arrays held, their addresses taken once)."""
+class _Args(ctypes.Structure):
+    """``dn_round_args`` of ``_dropround.c``: one fault round's arguments, passed by one pointer."""
 
-    fn: Any
-    lib: Any
-    n_rows: int
-    arrays: tuple[np.ndarray, ...]  # kept alive: the kernel reads them through the addresses below
-    pointers: tuple[int | None, ...]  # indptr, indices, data, edge ids, active (None: every edge), self-weights
+    _fields_ = [
+        ("kind", _I),
+        ("n_rows", _I),
+        ("k", _I),
+        *((name, _P) for name in ("indptr", "indices", "data", "edges", "active", "dead_from")),
+        ("round_index", _I),
+        ("seed", _U),
+        ("threshold", _U),
+        *((name, _P) for name in ("cols", "self_w", "xl", "y", "lost_acc")),
+    ]
+
+
+class DropRound:
+    """A mixer's in-edge block prepared for the kernel: the arrays held, their addresses and every argument that
+    does not change between rounds set once in the argument struct; a round sets the round index and the value and
+    output addresses and makes one ctypes call with one prepared argument (issue 27: the per-round Python cost
+    counts at 10³ nodes, where a whole round takes a few µs)."""
+
+    __slots__ = ("_args", "_byref", "_call", "_lost", "_seen", "arrays", "n_rows")
+
+    def __init__(self, lib: Any, kind: int, arrays: tuple[np.ndarray, ...], active: np.ndarray | None) -> None:
+        self.arrays = (*arrays, active)  # kept alive: the kernel reads them through the addresses in the struct
+        self.n_rows = int(arrays[0].size - 1)
+        a = self._args = _Args(kind=kind, n_rows=self.n_rows)
+        a.indptr, a.indices, a.data, a.edges, a.self_w = (int(x.ctypes.data) for x in arrays)
+        a.active = _ptr(active)
+        self._byref = ctypes.byref(a)
+        self._call = lib.dn_fault_round
+        self._lost: np.ndarray | None = None  # the lost counter whose address is in the struct
+        # the last two value arrays seen with their addresses (a loop ``x = mixer.apply(x)`` passes the last output,
+        # a benchmark the same input): held, so neither is freed and its id reused while it is here
+        self._seen: list[tuple[np.ndarray, int]] = []
+
+    def set_faults(self, seed: int, threshold: int) -> None:
+        """The schedule's seed and drop threshold ``⌈p·2⁵³⌉·2¹¹``: the same every round, set once."""
+        self._args.seed, self._args.threshold = seed & _MASK64, threshold
+
+    def _values(self, key: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, int]:
+        """``flat`` (the values ``key`` as ``(n, k)``) C-ordered, and its address: taken once for an array seen in
+        the last two rounds."""
+        for held, addr in self._seen:
+            if held is key:
+                return flat, addr
+        if not flat.flags.c_contiguous:
+            flat = np.ascontiguousarray(flat)
+        addr = _addr(flat)
+        if key.flags.c_contiguous:  # ``flat`` is a view of ``key``'s own values: the address stays
+            self._remember(key, addr)
+        return flat, addr
+
+    def _remember(self, values: np.ndarray, addr: int) -> None:
+        self._seen = [self._seen[-1], (values, addr)] if self._seen else [(values, addr)]
 
     def run(
-        self,
-        cols: np.ndarray,
-        x_local: np.ndarray,
-        lost_acc: np.ndarray,
-        *,
-        seed: int,
-        round_index: int,
-        threshold: int,
-        dead_from: np.ndarray | None,
+        self, key: np.ndarray, flat: np.ndarray, cols: np.ndarray, lost_acc: np.ndarray, round_index: int, dead: Any
     ) -> np.ndarray:
-        """One fault round on ``cols`` (``(n_columns, k)`` float64, C order; the first rows may be ``x_local``'s):
-        returns ``(n_rows, k)``, adds each row's lost messages to ``lost_acc`` (int64). ``threshold``:
-        ``⌈p·2⁵³⌉·2¹¹``; ``dead_from``: per edge, the first round its message is dead (failed link or silent
-        sender), or None when no such fault has begun."""
-        k = x_local.shape[1]
-        y = np.empty((self.n_rows, k))
-        ip, ix, data, edges, act, self_w = self.pointers
-        x_addr = _addr(x_local)
-        cols_addr = x_addr if cols is x_local else _addr(cols)  # in-process the columns are the local values
-        self.fn(self.n_rows, k, ip, ix, data, edges, act, _ptr(dead_from), round_index, seed & _MASK64, threshold,
-                cols_addr, self_w, x_addr, _addr(y), _addr(lost_acc))  # fmt: skip
+        """One fault round on the values ``key`` (``(n_rows, ...)`` float64; ``flat``: the same as ``(n_rows, k)``)
+        and ``cols`` (``(n_columns, k)``: the local values then the remote senders', or ``flat`` itself), with the
+        seed and threshold of :meth:`set_faults`: returns the new values shaped as ``key``, adds each row's lost
+        messages to ``lost_acc`` (int64, C order). ``dead``: per edge, the first round its message is dead (failed
+        link or silent sender), or None when no such fault has begun."""
+        a = self._args
+        in_place = cols is flat  # in-process the columns are the local values
+        flat, x_addr = self._values(key, flat)
+        y = np.empty(key.shape)  # C order: the same memory as (n_rows, k)
+        if lost_acc is not self._lost:  # the exchange's counter: the same array round after round
+            a.lost_acc, self._lost = _addr(lost_acc), lost_acc
+        a.k, a.round_index, a.xl = flat.shape[1], round_index, x_addr
+        a.dead_from = None if dead is None else _addr(dead)
+        if in_place:
+            a.cols = x_addr
+        else:
+            cols = np.ascontiguousarray(cols)  # held until the call returns
+            a.cols = _addr(cols)
+        a.y = y_addr = _addr(y)
+        self._call(self._byref)
+        self._remember(y, y_addr)  # the next round's values, in a loop ``x = mixer.apply(x)``
         return y
 
 
@@ -139,12 +183,9 @@ def prepare(
         return None
     arrays = tuple(np.ascontiguousarray(a) for a in (indptr, indices, data, edge_ids))
     act = np.ascontiguousarray(active, dtype=bool)
-    act_u8 = None if act.all() else act.view(np.uint8)
     self_w = np.ascontiguousarray(self_weight, dtype=np.float64)
-    pointers = (*(int(a.ctypes.data) for a in arrays), _ptr(act_u8), int(self_w.ctypes.data))
-    fn = getattr(lib, f"dn_fault_round_i{it}_e{et}")
-    held = (*arrays, act, self_w)
-    return DropRound(fn=fn, lib=lib, n_rows=int(indptr.size - 1), arrays=held, pointers=pointers)
+    kind = ("32", "64").index(it) * 2 + ("32", "64").index(et)
+    return DropRound(lib, kind, (*arrays, self_w), None if act.all() else act.view(np.uint8))
 
 
 def lost_mask(

@@ -128,6 +128,7 @@ class Mixer:
         self._w_full: sp.csr_matrix | None = None
         self._w_masked: sp.csr_matrix | None = None
         self._kernel: DropRound | None | bool = False  # the compiled fault round, prepared at the first one
+        self._kernel_sent: tuple[np.ndarray, int] | tuple[()] = ()  # the kernel's sent counts, when fixed
         if ex.faults.active:
             self._w_masked = _segment_matrix(
                 ex.in_dst, ex.n_local, ex.n_columns, self._in_edge_weights(), ex.in_src_col
@@ -192,9 +193,9 @@ class Mixer:
             ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
             out = csr_times(self._w_full, cols.ravel() if x.ndim == 1 else cols)
             return out.reshape(x.shape)
-        compiled = self._kernel_round(flat, cols, msg_bytes)
+        compiled = self._kernel_round(x, flat, cols, msg_bytes)
         if compiled is not None:
-            return compiled.reshape(x.shape)
+            return compiled
         # fault round: the prepared edge matrix with its lost entries zeroed for the product, lost weight to the
         # self-weight (the lost messages are a tenth of the edges: counters and lost weight are summed over them
         # alone, in edge order, which adds the same terms in the same order as a pass over every edge). Entries
@@ -216,32 +217,34 @@ class Mixer:
         out += (self._self_w + lost)[:, None] * flat
         return out.reshape(x.shape)
 
-    def _kernel_round(self, flat: np.ndarray, cols: np.ndarray, msg_bytes: int) -> np.ndarray | None:
+    def _kernel_round(self, x: np.ndarray, flat: np.ndarray, cols: np.ndarray, msg_bytes: int) -> np.ndarray | None:
         """The fault round by the compiled kernel (:mod:`distnav._dropround`: the same drops, the same bits as the
         numpy path below), or None where it is not built: one pass over the in-edge rows, the lost messages added
         to the exchange's lost counter (folded into the received counts lazily, as a fault-free round's are)."""
-        if self._kernel is False:
-            m, ex = self._w_masked, self.exchange
-            assert m is not None
-            self._kernel = _dropround.prepare(m, ex._fault_plan.edge_ids, self._act_in, self._self_w)
         kernel = self._kernel
+        if kernel is False:
+            kernel = self._prepare_kernel()
         if not isinstance(kernel, _dropround.DropRound):
             return None
         ex = self.exchange
-        plan = ex._fault_plan
         k = ex.round_index
-        sent, sent_total = ex._sent_counts(self._act_out, cache=True)
-        out = kernel.run(
-            cols if cols.flags.c_contiguous else np.ascontiguousarray(cols),
-            flat if flat.flags.c_contiguous else np.ascontiguousarray(flat),
-            ex._lost_counter(msg_bytes),
-            seed=ex.faults.seed,
-            round_index=k,
-            threshold=plan.drop_threshold,
-            dead_from=plan.dead_from(k),
-        )
+        sent, sent_total = self._kernel_sent or ex._sent_counts(self._act_out, cache=True)
+        out = kernel.run(x, flat, cols, ex._lost_counter(msg_bytes), k, ex._fault_plan.dead_from(k))
         ex._account(sent, self._recv_counts, msg_bytes, sent_total)
         return out
+
+    def _prepare_kernel(self) -> DropRound | None:
+        """The compiled fault round for this mixer's in-edge block (None without the kernel), with what it reads
+        that does not change between rounds: the seed, the drop threshold, and (without silent senders, whose
+        silencing changes them) the sent counts."""
+        m, ex = self._w_masked, self.exchange
+        assert m is not None
+        plan = ex._fault_plan
+        kernel = self._kernel = _dropround.prepare(m, plan.edge_ids, self._act_in, self._self_w)
+        if kernel is not None:
+            kernel.set_faults(ex.faults.seed, plan.drop_threshold)
+            self._kernel_sent = () if ex.faults.silent_nodes else ex._sent_counts(self._act_out, cache=True)
+        return kernel
 
     def _in_edge_weights(self, a: int = 0, b: int | None = None) -> np.ndarray:
         """``w_ij`` on the incoming edges ``a:b`` (zero on inactive edges and self-loops)."""
