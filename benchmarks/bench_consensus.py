@@ -10,6 +10,11 @@ n = 10³, 10⁴, 10⁵, 10⁶ (10⁶ only without ``--quick``), payloads of 1 an
   builder's random numbering is reported for reference.
 * **round with 10 % drops** (item 1) against a bare drop round: draw a numpy random mask over the off-diagonal
   CSR entries, zero them, add their weight to the diagonal entries, one CSR product. Goal ≤ 1.5×.
+* **round with 10 % drops against a fault-free round** (issue 27), 1 float per node: the drop round's ``Mixer.apply``
+  against the fault-free mixer's on the same graph and values, in CPU time. Goal ≤ 1.5×. ``fault round`` in the
+  row's name says which path ran: ``compiled`` (the optional kernel ``distnav._dropround``, built by pip from
+  setup.py) or ``numpy`` (not built here, or ``DISTNAV_NO_KERNEL`` set). The drop rows against the bare drop round
+  name it too.
 * set-up (exchange + mixer, including the RCM) is reported separately, as is the graph build.
 * **peak memory** (item "peak memory, consensus at 10⁶ nodes"): ``mem_consensus.py`` in a fresh process per mode,
   distnav (builder graph, weights, exchange, mixer, 5 rounds) against the bare arrays of the same run written
@@ -34,8 +39,10 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, main_for, paired_times, ratio_stats  # noqa: E402
+from distnav._dropround import DropRound  # noqa: E402
 from distnav.algorithms.consensus.averaging import consensus_probability, consensus_product, consensus_schedule  # noqa: E402
 from distnav.exchange import FaultSchedule, make_exchange  # noqa: E402
+from distnav.exchange.mixer import Mixer  # noqa: E402
 from distnav.network import builders, consensus_weights  # noqa: E402
 
 DROP = 0.1
@@ -65,6 +72,45 @@ class BareDropRound:
         data[self.diag_pos] += np.bincount(self.off_rows[drop], weights=self.base[lost_pos], minlength=self.W.shape[0])
         self.W.data = data
         return self.W @ x
+
+
+def _fault_path(mixer: Mixer) -> str:
+    """Which fault round a mixer ran: the compiled kernel or the numpy path."""
+    return "compiled" if isinstance(mixer._kernel, DropRound) else "numpy"
+
+
+def drop_vs_fault_free(lossy: Mixer, clean: Mixer, x_loc: np.ndarray, *, repeat: int, number: int) -> dict[str, Any]:
+    """A round with 10 % drops against a fault-free round of the same graph, 1 float per node: interleaved batches
+    timed in CPU time (``time.process_time``, as ``bench_comm.py``: the machine is shared, and wall time counts the
+    other processes' turns), ``2·repeat + 1`` pairs of ``5·number`` rounds each (batches of ≥ 5 ms: the CPU clock's
+    resolution)."""
+    lossy.apply(x_loc)  # the first fault round prepares the kernel: its path is then known
+    t: dict[str, list[float]] = {"ours": [], "floor": []}
+    for _ in range(2 * repeat + 1):
+        for key, fn in (("floor", clean.apply), ("ours", lossy.apply)):
+            t0 = time.process_time()
+            for _ in range(5 * number):
+                fn(x_loc)
+            t[key].append((time.process_time() - t0) / (5 * number))
+    name = f"consensus round, 10% drops vs fault-free round, CPU time ({_fault_path(lossy)} fault round)"
+    floor = "fault-free consensus round (Mixer.apply, same graph and values)"
+    return _drop_row(name, int(x_loc.shape[0]), 1, {k: np.asarray(v) for k, v in t.items()}, floor)
+
+
+def _drop_row(name: str, n: int, payload: int, t: dict[str, np.ndarray], floor: str) -> dict[str, Any]:
+    """A drop round's row: median times, the min–median of the per-repeat ratios, goal ≤ 1.5."""
+    st = ratio_stats(t["ours"], t["floor"])
+    return {
+        "name": name,
+        "n_nodes": n,
+        "payload_floats": payload,
+        "distnav_ms": float(np.median(t["ours"])) * 1e3,
+        "floor_ms": float(np.median(t["floor"])) * 1e3,
+        "floor": floor,
+        **st,
+        "goal": "≤ 1.5",
+        "meets_goal": bool(st["ratio_median"] <= 1.5),
+    }
 
 
 def memory_rows(n: int, payload: int = 1, rounds: int = 5) -> list[dict[str, Any]]:
@@ -172,22 +218,11 @@ def run(quick: bool) -> list[dict[str, Any]]:
                 repeat=repeat,
                 number=number,
             )
-            st = ratio_stats(t["ours"], t["floor"])
-            rows.append(
-                {
-                    "name": "consensus round, 10% drops",
-                    "n_nodes": n,
-                    "payload_floats": 10,
-                    "distnav_ms": float(np.median(t["ours"])) * 1e3,
-                    "floor_ms": float(np.median(t["floor"])) * 1e3,
-                    "floor": "bare drop round (masked CSR data, lost weight to the diagonal, one product)",
-                    **st,
-                    "goal": "≤ 1.5",
-                    "meets_goal": bool(st["ratio_median"] <= 1.5),
-                    "vs_fault_free_round": float(np.median(t["ours"] / t["fault_free"])),
-                    "setup_s": setup_f,
-                }
-            )
+            floor = "bare drop round (masked CSR data, lost weight to the diagonal, one product)"
+            row = _drop_row(f"consensus round, 10% drops ({_fault_path(mf)} fault round)", n, 10, t, floor)
+            row["vs_fault_free_round"] = float(np.median(t["ours"] / t["fault_free"]))
+            rows.append({**row, "setup_s": setup_f})
+            rows.append(drop_vs_fault_free(mf, mixer, exf.local(x[:, 0]), repeat=repeat, number=number))
     g20 = builders.connected_random_geometric(20, mean_degree=4.9, rng=np.random.default_rng(2))
     L = consensus_product(consensus_schedule(g20, "P3"), 10)
     q = np.linspace(0, 1, 41)

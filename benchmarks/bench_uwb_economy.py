@@ -13,9 +13,11 @@ and how both grow with the network.
    product per link, CG stopped on ``rᵀz``, trials as float32 steps, a round's totals in float32, the seed fits at
    their stage tolerances, the σ gathered at one anchor, the exclusion loop's re-fits stopped at 1 cm and decided
    with a margin, every warm fit from the last fit's common offset and damping; the tightening by halvings, CG's
-   dot products in float32) and *after* (the defaults: the tightening's fit jumps to its target scale,
-   ``field_fits.TIGHTEN_JUMP``; CG's dot products as float16 with an exponent per value,
-   ``wire.CG_DOT_DTYPE``); the positions, their
+   dot products in float32, a fit's first parameters whole, every product with its exponent) and *after* (the
+   defaults: the tightening's fit jumps to its target scale, ``field_fits.TIGHTEN_JUMP``; CG's dot products as
+   float16 with an exponent per value, ``wire.CG_DOT_DTYPE``; a fit's first parameters without the known
+   coordinates, ``wire.KNOWN_FROM_PROBLEM``; a CG run's products on the link's held exponent,
+   ``wire.HELD_EXPONENT``); the positions, their
    largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
    of that gather over the range graph (:func:`distnav.network.gather.gather_cost`). Per anchor: what each
@@ -97,6 +99,8 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
     "today": {
         (field_fits, "TIGHTEN_JUMP"): False,
         (wire, "CG_DOT_DTYPE"): np.float32,
+        (wire, "KNOWN_FROM_PROBLEM"): False,
+        (wire, "HELD_EXPONENT"): False,
     },
     "after": {},
 }

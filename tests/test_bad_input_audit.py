@@ -158,6 +158,12 @@ def _uwb_cases() -> list[Cli]:
         Cli("uwb-solve-level-one", (*base, *o, "--level", "1.5"), "level"),
         Cli("uwb-solve-range-offsets", (*base, *o, "--range-offsets", "all"), "invalid choice"),
         Cli(
+            "uwb-solve-common-delays-distributed",
+            (*base, *o, "--range-offsets", "common_delays", "--solver", "N-CLM"),
+            "common_delays is LM's only",
+        ),
+        Cli("uwb-solve-estimate-prior-no-delays", (*base, *o, "--estimate-offset-prior"), "--estimate-offset-prior"),
+        Cli(
             "uwb-solve-offset-prior-negative",
             (*base, *o, "--range-offsets", "per_anchor", "--offset-prior-sigma-m", "-1"),
             "offset-prior-sigma-m",

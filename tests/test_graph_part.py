@@ -8,7 +8,7 @@ import pytest
 from distnav.errors import ExchangeError, GraphError, WeightsError
 from distnav.exchange import make_exchange
 from distnav.network import builders, consensus_weights
-from distnav.network.graph_part import GraphPart, edge_starts_from_degrees
+from distnav.network.graph_part import GraphPart, edge_starts_from_degrees, owned_rows
 from distnav.network.partition import partition_nodes
 from distnav.network.weights import part_weights
 
@@ -103,3 +103,14 @@ def test_single_rank_exchange_on_a_part_equals_the_whole_graph() -> None:
     with pytest.raises(ExchangeError, match="needs the partition the parts were built from"):
         make_exchange(part, backend="mpi", comm=mpi.COMM_SELF)
     ex.free()
+
+
+@pytest.mark.parametrize("own", [np.arange(40, 90), np.array([3, 7, 8, 20, 41, 42, 43, 99]), np.zeros(0, np.int64)])
+def test_owned_rows_is_a_binary_search_over_the_owned_ids(own) -> None:
+    """The range fast path (a subtraction) and the general one give what a binary search gives: the position of every
+    owned id and whether each id is owned."""
+    ids = np.random.default_rng(2).integers(0, 120, size=500).astype(np.int32)
+    k, mine = owned_rows(own, ids)
+    assert np.array_equal(mine, np.isin(ids, own))
+    assert np.array_equal(own[k[mine]], ids[mine])
+    assert k.dtype == np.int64 and (k >= 0).all() and (own.size == 0 or (k < own.size).all())

@@ -2,8 +2,9 @@
 
 network → exchange → algorithms → models → formats → experiments | commands → cli: a module may import its own
 layer and the layers below it, never a layer above or beside (experiments and commands do not import each other).
-The utilities (errors, _optional, _sparse, _checks, _settings, typing) sit below everything; ``output`` (file
-writing, figures) and ``options`` (checked CLI option types) are for experiments, commands and the CLI only.
+The utilities (errors, _optional, _sparse, _dropround, _checks, _settings, typing) sit below everything;
+``output`` (file writing, figures) and ``options`` (checked CLI option types) are for experiments, commands and
+the CLI only.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ RANK = {
     "errors": 0,
     "_optional": 0.5,
     "_sparse": 0.5,
+    "_dropround": 0.5,
     "_blas": 0.5,
     "_threads": 0.5,
     "_checks": 0.5,

@@ -48,17 +48,28 @@ def dist(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def _wheel(dist: Path) -> Path:
+    """The one wheel built: platform-specific when the optional fault-round kernel compiled (setup.py), else pure."""
+    wheels = sorted(dist.glob(f"distnav_estimation-{__version__}-*.whl"))
+    assert len(wheels) == 1, sorted(p.name for p in dist.iterdir())
+    return wheels[0]
+
+
 def test_build_and_twine_check(dist: Path) -> None:
-    wheel = dist / f"distnav_estimation-{__version__}-py3-none-any.whl"
+    wheel = _wheel(dist)
     sdist = dist / f"distnav_estimation-{__version__}.tar.gz"
     assert wheel.is_file() and sdist.is_file(), sorted(p.name for p in dist.iterdir())
     assert "PASSED" in _run([sys.executable, "-m", "twine", "check", str(wheel), str(sdist)], dist)
     names = zipfile.ZipFile(wheel).namelist()
     assert "distnav/py.typed" in names and "distnav/cli.py" in names
     assert not [n for n in names if n.startswith(("tests/", "benchmarks/"))]
+    kernels = [n for n in names if n.startswith("distnav/_dropround_c")]
+    # a platform wheel carries the compiled kernel, a pure one does not (the compile failed: the numpy path)
+    assert bool(kernels) == (not wheel.name.endswith("-py3-none-any.whl")), (wheel.name, kernels)
     with tarfile.open(sdist) as tar:
         members = {m.name.split("/", 1)[1] for m in tar.getmembers() if "/" in m.name}
-    assert {"README.md", "CHANGELOG.md", "docs/DEVELOPING.md", "pyproject.toml"} <= members
+    assert {"README.md", "CHANGELOG.md", "docs/DEVELOPING.md", "pyproject.toml", "setup.py"} <= members
+    assert "src/distnav/_dropround.c" in members
 
 
 def test_wheel_in_a_fresh_venv_runs_a_quick_job(dist: Path, tmp_path: Path) -> None:
@@ -67,11 +78,14 @@ def test_wheel_in_a_fresh_venv_runs_a_quick_job(dist: Path, tmp_path: Path) -> N
     python = venv / "bin" / "python"
     site = Path(_run([str(python), "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"], tmp_path).strip())
     (site / "dev_packages.pth").write_text(sysconfig.get_path("purelib") + "\n")  # numpy, scipy, matplotlib, pip
-    wheel = dist / f"distnav_estimation-{__version__}-py3-none-any.whl"
+    wheel = _wheel(dist)
     env = {k: v for k, v in os.environ.items() if k not in {"PYTHONPATH", "PYTHONHOME"}}
     _run([str(python), "-m", "pip", "install", "--no-index", "--no-compile", f"{wheel}[plot]"], tmp_path, env)
     where = _run([str(python), "-c", "import distnav; print(distnav.__file__)"], tmp_path, env).strip()
     assert Path(where).is_relative_to(site), f"distnav imported from {where}, not from the venv's wheel"
+    kernel = "from distnav import _dropround; print(_dropround.library() is not None)"
+    loaded = _run([str(python), "-c", kernel], tmp_path, env).strip()
+    assert loaded == str(not wheel.name.endswith("-py3-none-any.whl")), (wheel.name, loaded)  # the wheel's kernel loads
     exe = venv / "bin" / "distnav"
     assert _run([str(exe), "--version"], tmp_path, env).strip() == f"distnav {__version__}"
     _run([str(exe), "demo", "--only", "consensus", "--no-progress", "--out", "demo"], tmp_path, env)

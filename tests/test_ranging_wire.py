@@ -48,13 +48,14 @@ def _exchange(p):
     return make_exchange(Graph.from_links(p.n_anchors, p.links))
 
 
-def _rounds(p, values, vectors, plain):
-    """The rows two rounds deliver (parameters twice, one CG vector) and the exchange's bytes and messages."""
+def _rounds(p, values, vectors, plain, known=True):
+    """The rows two rounds deliver (parameters twice, one CG vector) and the exchange's bytes and messages
+    (``known``: the known coordinates from the problem, as the LM phase's :class:`Links`)."""
     saved = wire.PLAIN
     wire.PLAIN = plain
     try:
         ex = _exchange(p)
-        links = Links(p, ex)
+        links = Links(p, ex, known_from_problem=known)
         first = links.neighbours(values)
         moved = values.copy()
         moved[p.free[ex.nodes]] += 0.25  # an LM step moves the free coordinates only
@@ -82,8 +83,28 @@ def test_packed_rounds_deliver_exactly_what_full_rounds_did_for_fewer_bytes(hall
     cols = int(np.any(p.free, axis=0).sum())  # heights held everywhere: x and y
     assert cols == 2
     assert c_full.bytes == links * 8 * p.dim * (2 + 5)
-    assert c_packed.bytes == links * 8 * p.dim + (links - from_fixed) * 8 * cols * (1 + 5)
-    assert c_packed.messages == links + 2 * (links - from_fixed)
+    # the first parameters too: the free columns from the anchors with a free parameter (wire.KNOWN_FROM_PROBLEM)
+    assert c_packed.bytes == (links - from_fixed) * 8 * cols * (2 + 5)
+    assert c_packed.messages == 3 * (links - from_fixed)
+
+
+def test_first_parameters_in_full_without_known_from_problem(hall, monkeypatch):
+    """With ``wire.KNOWN_FROM_PROBLEM`` off, or for a :class:`Links` that does not take the known coordinates from
+    the problem (the central σ's, at any positions), the first parameters travel whole from every anchor (as
+    before the fifth session), the same rows bit for bit."""
+    p = hall[0]
+    values = p.initial_m.copy()
+    vectors = np.zeros((p.n_anchors, p.dim, 1))
+    monkeypatch.setattr(wire, "KNOWN_FROM_PROBLEM", False)
+    whole, c_whole = _rounds(p, values, vectors, plain=False)
+    monkeypatch.setattr(wire, "KNOWN_FROM_PROBLEM", True)
+    assert _rounds(p, values, vectors, plain=False, known=False)[1].bytes == c_whole.bytes
+    known, c_known = _rounds(p, values, vectors, plain=False)
+    for a, b in zip(whole, known, strict=True):
+        assert np.array_equal(a, b)
+    links = 2 * p.links.shape[0]
+    from_fixed = int(np.isin(p.links, np.flatnonzero(~p.free.any(axis=1))).sum())
+    assert c_whole.bytes - c_known.bytes == links * 8 * p.dim - (links - from_fixed) * 8 * 2
 
 
 def test_a_lost_message_from_a_talking_anchor_is_still_an_error(hall):
@@ -303,6 +324,28 @@ def test_projected_products_equal_the_dense_normal_matrix(hall, per):
         assert np.max(np.abs(got - want)) <= tol * np.max(np.abs(want))
         rows = _system(p, per, False)[2].matvec(vf, np.zeros(k))[0]  # the neighbours' rows sent instead
         assert np.max(np.abs(rows - want)) <= 1e-12 * np.max(np.abs(want))
+
+
+def test_a_cg_runs_later_products_travel_on_the_held_exponent(hall, monkeypatch):
+    """``wire.HELD_EXPONENT``: in one CG run (one normal system) the first projected round carries each link's
+    exponent (``2k + 1`` bytes); a later product within float16's normal range on it (10 and 1,000 times smaller)
+    travels without (``2k``), one 10⁶ times smaller or 10⁶ times larger again carries a new exponent; every one
+    keeps float16's 11 bits against the dense ``JᵀWJ v``; with the switch off every round carries its exponent."""
+    k = 2
+    v = np.random.default_rng(5).normal(size=(hall[0].n_anchors, hall[0].dim, k))
+    fixed = np.flatnonzero(~hall[0].free.any(axis=1))
+    talking = 2 * hall[0].links.shape[0] - int(np.isin(hall[0].links, fixed).sum())
+    for on in (True, False):
+        monkeypatch.setattr(wire, "HELD_EXPONENT", on)
+        ex, links, system, N, free = _system(hall[0], False, True, np.float16)
+        vf = v * free[:, :, None]
+        for scale, exponent in ((1.0, True), (0.1, False), (1e-3, False), (1e-9, True), (1e-3, True)):
+            want = (N @ (scale * vf).reshape(-1, k)).reshape(vf.shape)
+            before = ex.comm_totals().snapshot()
+            got = system.matvec(scale * vf, np.zeros(k))[0]
+            c = ex.comm_totals().since(before)
+            assert c.messages == talking and c.bytes == talking * (2 * k + (1 if exponent or not on else 0))
+            assert np.max(np.abs(got - want)) <= 2.0**-10 * np.max(np.abs(want))
 
 
 def test_preconditioned_stop_drops_one_reduced_float_per_iteration(hall):

@@ -383,6 +383,7 @@ def test_diverged_run_exits_non_zero_and_writes_no_positions(tmp_path, capsys, m
         (("--objective", "cubed"), "invalid choice"),
         (("--range-offsets", "all"), "invalid choice"),
         (("--range-offsets", "common_delays", "--solver", "N-CLM"), "--range-offsets common_delays is LM's only"),
+        (("--estimate-offset-prior",), "--estimate-offset-prior estimates the per-anchor delays' prior"),
         (("--level", "x"), "invalid float"),
     ],
 )

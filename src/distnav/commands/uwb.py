@@ -25,11 +25,10 @@
   messages).
 
 * ``--range-offsets common|per_anchor`` (every solver, metres objective) estimates one range offset or per-anchor
-  antenna delays with the positions; ``common_delays`` (LM only; the distributed solvers refuse it, exit 2) both: a
-  common offset without a prior and per-anchor delays about it with the prior σ ``--offset-prior-sigma-m``
-  (:mod:`distnav.algorithms.ranging.objective`; ``offsets.csv`` lists every anchor's total delay ``c/2 + b_i``,
-  ``summary.json`` the common ``c``); ``auto`` (default): :attr:`~distnav.models.uwb.field.FieldOptions.offsets_used`
-  (docs/uwb.md, "Antenna delays about a common offset": why it is not the default).
+  antenna delays with the positions; ``common_delays`` (LM only, else exit 2) both: a common offset without a prior
+  and delays about it, prior σ ``--offset-prior-sigma-m`` or with ``--estimate-offset-prior`` from the residuals
+  (:mod:`distnav.algorithms.ranging.lm`; ``offsets.csv``: each anchor's ``c/2 + b_i``, ``summary.json``: ``c``);
+  ``auto`` (default): :attr:`~distnav.models.uwb.field.FieldOptions.offsets_used` (docs/uwb.md, "Antenna delays").
 
 Outputs in OUT_DIR: ``positions.csv`` (every anchor, with its accuracy radius and whether it meets
 ``--required-accuracy-m``), ``links.csv``, ``summary.json`` (``run``: the verdict), ``positions.png``, when offsets
@@ -59,6 +58,7 @@ import numpy as np
 
 from distnav.algorithms.ranging.csg import SOLVERS
 from distnav.algorithms.ranging.losses import LOSSES
+from distnav.algorithms.ranging.objective import DELAY_MODES
 from distnav.commands import add_backend_arguments
 from distnav.commands.uwb_outputs import (
     communication_entry,
@@ -188,9 +188,8 @@ def _add_test_arguments(s: argparse.ArgumentParser) -> None:
         "--range-offsets",
         default="auto",
         choices=["auto", "none", "common", "per_anchor", "common_delays"],
-        help="estimate a common range offset, per-anchor antenna delays, or both (common_delays: the delays about "
-        "the common offset, LM only; metres objective); auto (default): common with the metres objective, none "
-        "with the squared one",
+        help="estimate a common range offset, per-anchor antenna delays, or both (common_delays, LM only; metres "
+        "objective); auto (default): common with the metres objective, none with the squared one",
     )
     s.add_argument(
         "--offset-prior-sigma-m",
@@ -198,6 +197,12 @@ def _add_test_arguments(s: argparse.ArgumentParser) -> None:
         default=0.1,
         help="prior σ of each per-anchor delay (per_anchor: about 0; common_delays: about the common offset; "
         "m, default 0.1)",
+    )
+    s.add_argument(
+        "--estimate-offset-prior",
+        action="store_true",
+        help="LM with per_anchor or common_delays: estimate the delays' prior σ from the residuals (variance "
+        "components), starting from --offset-prior-sigma-m",
     )
     s.add_argument(
         "--delay-sigma-m",
@@ -315,10 +320,7 @@ def _validate(opts: FieldOptions) -> None:
     if opts.range_offsets not in ("none", "auto") and opts.objective != "metres":
         raise ModelError(f"--range-offsets {opts.range_offsets} is estimated with --objective metres only")
     if opts.range_offsets == "common_delays" and opts.solver.upper() != "LM":
-        raise ModelError(
-            f"--range-offsets common_delays is LM's only (--solver {opts.solver} estimates common or per_anchor "
-            "offsets): a common offset plus per-anchor delays about it is not in the distributed solvers"
-        )
+        raise ModelError(f"--range-offsets common_delays is LM's only (--solver {opts.solver}: common or per_anchor)")
 
 
 def solve_range_log(
@@ -528,8 +530,15 @@ def _handler(args: argparse.Namespace) -> int:
     opts = FieldOptions(
         **fields_from_args(args, FieldOptions, but=("loss", "solver_options")),
         loss=args.loss or default_loss(args.solver),
-        solver_options={} if args.refine else {"refine": False},
+        solver_options=({} if args.refine else {"refine": False})
+        | ({"estimate_offset_prior": True} if args.estimate_offset_prior else {}),
     )
+    if args.estimate_offset_prior and (opts.solver.upper() != "LM" or opts.range_offsets not in DELAY_MODES):
+        raise ModelError(
+            "--estimate-offset-prior estimates the per-anchor delays' prior σ: it needs --solver LM and "
+            f"--range-offsets per_anchor or common_delays (got --solver {opts.solver}, --range-offsets "
+            f"{opts.range_offsets})"
+        )
     if not args.refine and opts.solver == "LM":
         raise ModelError("--no-refine applies to the distributed solvers (--solver N-CLM, N-CSG-TBLS, ...), not to LM")
     _validate(opts)

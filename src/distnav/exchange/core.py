@@ -190,6 +190,7 @@ class ExchangeCore(ABC):
         n = self.n_local
         self._pending: list[tuple[np.ndarray, np.ndarray | None, int]] = []
         self._recv_edges: dict[int, np.ndarray] = {}
+        self._lost_nodes: dict[int, np.ndarray] = {}  # per message size: messages lost per receiver (the kernel's)
         self._sent_cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, int]] = {}
         self.messages_sent = np.zeros(n, np.int64)
         self.bytes_sent = np.zeros(n, np.int64)
@@ -333,6 +334,15 @@ class ExchangeCore(ABC):
         self._round_bytes.append(sent_total * msg_bytes)
         self.round_index += 1
 
+    def _lost_counter(self, msg_bytes: int) -> np.ndarray:
+        """Per receiver, the messages of ``msg_bytes`` lost since the last :meth:`_flush`, which subtracts them
+        from the received counts: a compiled fault round adds its losses here and counts the round with
+        :meth:`_account` as if every message arrived (the counts then cost no array pass per round)."""
+        lost = self._lost_nodes.get(msg_bytes)
+        if lost is None:
+            lost = self._lost_nodes[msg_bytes] = np.zeros(self.n_local, np.int64)
+        return lost
+
     def _account(self, sent: np.ndarray, received: np.ndarray, msg_bytes: int, total: int | None = None) -> None:
         """Count one round. With ``total`` given, ``sent``/``received`` are count arrays reused round after round
         (a prepared mixer): they are folded in lazily (:meth:`_flush`), so such a round costs a list append, not
@@ -369,6 +379,10 @@ class ExchangeCore(ABC):
             self.messages_received += counts
             self.bytes_received += counts * msg_bytes
             acc[:] = 0
+        for msg_bytes, lost in self._lost_nodes.items():
+            self.messages_received -= lost
+            self.bytes_received -= lost * msg_bytes
+            lost[:] = 0
 
     def _active_slices(self, active: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         if active is None:

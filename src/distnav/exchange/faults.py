@@ -237,6 +237,23 @@ class FaultPlan:
             ok = ok | self._self
         return ok
 
+    # ----------------------------------------------------------------- for a compiled round
+    @property
+    def drop_threshold(self) -> int:
+        """``⌈p·2⁵³⌉·2¹¹``: a message is delivered when its hash ``z`` (as in :func:`uniform_hash`, before the
+        shift to a float) is at least this (0 without drops)."""
+        return int(self._threshold)
+
+    @property
+    def edge_ids(self) -> np.ndarray:
+        """The block's edge ids the drops are hashed from (as given, not copied)."""
+        return self._edges
+
+    def dead_from(self, round_index: int) -> np.ndarray | None:
+        """Per edge, the first round from which a failed link or a silent sender kills its message, when one such
+        fault has begun by ``round_index``; else None."""
+        return self._dead_from if round_index >= self._first_dead else None
+
     # ----------------------------------------------------------------- silent senders
     def silent_stage(self, round_index: int) -> int:
         """How many distinct silencing rounds have begun: the sent counts change only when this does."""

@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from distnav import _dropround
 from distnav._optional import scipy_sparse as sp
 from distnav._sparse import csr_times
 from distnav.errors import ExchangeError
@@ -14,6 +15,7 @@ from distnav.exchange._arrays import _flat, _masked_count, _segment_matrix
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from distnav._dropround import DropRound
     from distnav.exchange.core import ExchangeCore
 
 __all__ = ["Mixer"]
@@ -125,6 +127,7 @@ class Mixer:
         # edge-sized float array in all, no fused block that fault rounds never use
         self._w_full: sp.csr_matrix | None = None
         self._w_masked: sp.csr_matrix | None = None
+        self._kernel: DropRound | None | bool = False  # the compiled fault round, prepared at the first one
         if ex.faults.active:
             self._w_masked = _segment_matrix(
                 ex.in_dst, ex.n_local, ex.n_columns, self._in_edge_weights(), ex.in_src_col
@@ -189,6 +192,9 @@ class Mixer:
             ex._account(self._sent_counts, self._recv_counts, msg_bytes, self._sent_total)
             out = csr_times(self._w_full, cols.ravel() if x.ndim == 1 else cols)
             return out.reshape(x.shape)
+        compiled = self._kernel_round(flat, cols, msg_bytes)
+        if compiled is not None:
+            return compiled.reshape(x.shape)
         # fault round: the prepared edge matrix with its lost entries zeroed for the product, lost weight to the
         # self-weight (the lost messages are a tenth of the edges: counters and lost weight are summed over them
         # alone, in edge order, which adds the same terms in the same order as a pass over every edge). Entries
@@ -209,6 +215,33 @@ class Mixer:
             m.data[lost_e] = lost_w
         out += (self._self_w + lost)[:, None] * flat
         return out.reshape(x.shape)
+
+    def _kernel_round(self, flat: np.ndarray, cols: np.ndarray, msg_bytes: int) -> np.ndarray | None:
+        """The fault round by the compiled kernel (:mod:`distnav._dropround`: the same drops, the same bits as the
+        numpy path below), or None where it is not built: one pass over the in-edge rows, the lost messages added
+        to the exchange's lost counter (folded into the received counts lazily, as a fault-free round's are)."""
+        if self._kernel is False:
+            m, ex = self._w_masked, self.exchange
+            assert m is not None
+            self._kernel = _dropround.prepare(m, ex._fault_plan.edge_ids, self._act_in, self._self_w)
+        kernel = self._kernel
+        if not isinstance(kernel, _dropround.DropRound):
+            return None
+        ex = self.exchange
+        plan = ex._fault_plan
+        k = ex.round_index
+        sent, sent_total = ex._sent_counts(self._act_out, cache=True)
+        out = kernel.run(
+            cols if cols.flags.c_contiguous else np.ascontiguousarray(cols),
+            flat if flat.flags.c_contiguous else np.ascontiguousarray(flat),
+            ex._lost_counter(msg_bytes),
+            seed=ex.faults.seed,
+            round_index=k,
+            threshold=plan.drop_threshold,
+            dead_from=plan.dead_from(k),
+        )
+        ex._account(sent, self._recv_counts, msg_bytes, sent_total)
+        return out
 
     def _in_edge_weights(self, a: int = 0, b: int | None = None) -> np.ndarray:
         """``w_ij`` on the incoming edges ``a:b`` (zero on inactive edges and self-loops)."""

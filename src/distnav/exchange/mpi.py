@@ -64,6 +64,22 @@ def _part_order(part: GraphPart, order: str | np.ndarray) -> np.ndarray | None:
     return np.asarray(reverse_cuthill_mckee(adj, symmetric_mode=True), dtype=np.int64)
 
 
+def _order_of_distinct(ids: np.ndarray) -> np.ndarray:
+    """The order that sorts distinct integer ids: one scatter over their span when it is at most twice their count
+    (a range part's out-edge ids: its own in-edges and its halo's, a few id ranges), else a sort (distinct ids: any
+    sort gives this order; quicksort is 2× faster than a stable one)."""
+    if ids.size == 0:
+        return np.zeros(0, np.int64)
+    lo = int(ids.min())
+    span = int(ids.max()) - lo + 1
+    if span > 2 * ids.size:
+        return np.asarray(np.argsort(ids))
+    idx = np.int32 if ids.size < 2**31 - 1 else np.int64
+    slot: np.ndarray = np.full(span, -1, idx)
+    slot[ids - lo] = np.arange(ids.size, dtype=idx)
+    return slot[slot >= 0]
+
+
 def world_rank() -> int:
     return int(_mpi().COMM_WORLD.Get_rank())
 
@@ -188,7 +204,7 @@ class MPIExchange(Exchange):
         self.in_dst = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr)[rows])
         # out-edges: the reverse of every in-edge, in global edge order
         recv_part = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr))
-        by_id = np.argsort(part.out_edge_ids)  # distinct ids: any sort gives this order (quicksort: 2× faster)
+        by_id = _order_of_distinct(part.out_edge_ids)
         self.out_edges = part.out_edge_ids[by_id]
         self.out_src = local_of_part[recv_part[by_id]]
         self.out_dst = part.src[by_id]

@@ -24,7 +24,7 @@ import numpy as np
 from distnav.errors import GraphError
 from distnav.network.graph import Graph
 
-__all__ = ["EdgeStart", "GraphPart", "ascending_unique", "edge_starts_from_degrees", "incoming_positions"]
+__all__ = ["EdgeStart", "GraphPart", "ascending_unique", "edge_starts_from_degrees", "incoming_positions", "owned_rows"]
 
 EdgeStart = Callable[[np.ndarray], np.ndarray]
 """Node ids → global id of each node's first incoming edge (id ``n_nodes`` → the edge count)."""
@@ -103,17 +103,8 @@ class GraphPart:
 
     def owned_positions(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Position in :attr:`nodes` of each id (clipped into range where not owned) and whether it is owned: by a
-        subtraction when the owned nodes are a range of ids, else by binary search."""
-        ids = np.asarray(ids, np.int64)
-        if self.n_local == 0:
-            return np.zeros(ids.size, np.int64), np.zeros(ids.size, bool)
-        if self.is_range:
-            k = ids - int(self.nodes[0])
-            own = (k >= 0) & (k < self.n_local)
-            np.clip(k, 0, self.n_local - 1, out=k)
-            return k, own
-        k = np.minimum(np.searchsorted(self.nodes, ids), self.n_local - 1)
-        return k, self.nodes[k] == ids
+        subtraction when the owned nodes are a range of ids, else by binary search (:func:`owned_rows`)."""
+        return owned_rows(self.nodes, np.asarray(ids, np.int64))
 
     def sender_degree(self) -> np.ndarray:
         """Degree of the sender of each incoming edge (owned or halo)."""
@@ -331,8 +322,7 @@ def _reverse_edge_ids(
     del row_of
     counts_row = np.diff(np.append(first, rev.size))
     # each row's first key position minus its first edge id: an entry's position minus it is its edge id
-    k = np.minimum(np.searchsorted(own, row), max(own.size - 1, 0))
-    mine = own[k] == row if own.size else np.zeros(row.size, bool)
+    k, mine = owned_rows(own, row)
     base = np.empty(row.size, np.int64)
     base[mine] = own_rows[0][k[mine]] - own_rows[1][k[mine]]
     halo = row[~mine]
@@ -351,6 +341,23 @@ def _reverse_edge_ids(
     if not (np.array_equal(np.diff(by_owned.indptr), counts) and np.array_equal(row[by_owned.indices], src)):
         raise GraphError("graph part: a halo node's neighbour list is missing")
     return np.asarray(by_owned.data)
+
+
+def owned_rows(own: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position in ``own`` (ascending owned ids) of each id, clipped into range where not owned, and whether it is
+    owned: by a subtraction when ``own`` is a range of ids (a builder's part: no binary search over the edges), else
+    by binary search."""
+    if own.size == 0:
+        return np.zeros(ids.size, np.int64), np.zeros(ids.size, bool)
+    first, last = int(own[0]), int(own[-1])
+    if last - first + 1 == own.size:
+        mine = ids >= first
+        mine &= ids <= last
+        k = np.asarray(ids, np.int64) - first
+        np.clip(k, 0, own.size - 1, out=k)
+        return k, mine
+    k = np.minimum(np.searchsorted(own, ids), own.size - 1)
+    return k, own[k] == ids
 
 
 def ascending_unique(values: np.ndarray) -> np.ndarray:

@@ -32,7 +32,7 @@ import numpy as np
 from distnav.errors import GraphError
 from distnav.network.builders import _need
 from distnav.network.graph import Graph
-from distnav.network.graph_part import GraphPart, ascending_unique
+from distnav.network.graph_part import GraphPart, ascending_unique, owned_rows
 
 __all__ = [
     "grid_part",
@@ -65,9 +65,7 @@ def _part(
 ) -> GraphPart:
     """A part from a function listing the links ``(row, neighbour)`` of given rows: the owned rows, then the halo's."""
     r_own, s_own = neighbours(own)
-    k = np.minimum(np.searchsorted(own, s_own), max(own.size - 1, 0))
-    halo = np.unique(s_own[own[k] != s_own]) if own.size else np.zeros(0, np.int64)
-    del k
+    halo = np.unique(s_own[~owned_rows(own, s_own)[1]]) if own.size else np.zeros(0, np.int64)
     r_halo, s_halo = neighbours(halo)
     rows, nbr = np.concatenate([r_own, r_halo]), np.concatenate([s_own, s_halo])
     return GraphPart.from_neighbours(n, own, rows, nbr, edge_start, self_loops=self_loops)

@@ -86,11 +86,16 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
     node_pos = rows[1]
     inC = np.asarray(inC_part, bool)[node_pos]
     inC_col = np.array(ex.node_columns(inC.astype(float)[:, None])[:, 0] > 0.5)  # [local | halo]
-    real_in = ex.in_src_col != ex.local_col[ex.in_dst]
-    x_in = inC[ex.in_dst] & real_in
-    z_in = inC_col[ex.in_src_col] & real_in
-    real_out = ex.out_dst != ex.nodes[ex.out_src]
-    z_out = inC[ex.out_src] & real_out
+    # a part without self-loops (the builders' default) has no in- or out-edge to leave out of a round
+    loops = part.self_loops
+    x_in = inC[ex.in_dst]
+    z_in = inC_col[ex.in_src_col]
+    if loops:
+        real_in = ex.in_src_col != ex.local_col[ex.in_dst]
+        x_in &= real_in
+        z_in &= real_in
+        del real_in
+    z_out = inC[ex.out_src]
     # an out-edge's receiver: owned (its row by the part's positions) or a halo node, whose membership arrived on
     # the in-edges it sends on (set on an array aligned with the part's ascending halo ids: no sort over the edges)
     k, own = part.owned_positions(ex.out_dst)
@@ -100,16 +105,24 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
     halo_member[np.searchsorted(part.halo, ex.in_src[from_halo])] = inC_col[ex.in_src_col[from_halo]]
     to_halo = np.flatnonzero(~own)
     x_out[to_halo] = halo_member[np.searchsorted(part.halo, ex.out_dst[to_halo])]
-    x_out &= real_out
     del k, own, from_halo, to_halo
+    if loops:
+        real_out = ex.out_dst != ex.nodes[ex.out_src]
+        x_out &= real_out
+        z_out &= real_out
+        del real_out
     # 0/1 weights on the part (one broadcast 1.0, zeroed off the masks); the masks are over the block's own edge
     # rows, which Exchange.mixer (a mask over the whole graph's edges) does not take: the mixer is made directly
     ones = np.broadcast_to(np.float64(1.0), (part.n_local_edges,))
     self_w = np.asarray(inC_part, float)
     mix_x = Mixer(ex, ones, self_w, (x_in, x_out), rows=rows)
+    del x_in, x_out
     mix_z = Mixer(ex, ones, self_w, (z_in, z_out), rows=rows)
-    count = np.bincount(ex.in_dst, weights=z_in, minlength=ex.n_local).astype(np.int64) + inC
-    return _Rounds(mix_x, mix_z, inC, count, _sizes(ex))
+    del z_out
+    count = np.bincount(ex.in_dst[z_in], minlength=ex.n_local) + inC  # c_i: constraint senders (and i ∈ C)
+    del z_in
+    size = part.degree[node_pos] + 1.0  # |N_s| + 1 (a part's degrees leave the self-loop out)
+    return _Rounds(mix_x, mix_z, inC, count.astype(np.int64), size)
 
 
 def _sizes(ex: Exchange) -> np.ndarray:
@@ -138,9 +151,10 @@ class _AggregatedKernel:
         """The iterations from ``x0``, ``z0`` (``u^[−1] = 0``, §4.3).
 
         Five ``p``-wide arrays live across an iteration (``x``, ``z``, ``U``, ``V``, ``zsum``) and one more at a time
-        (the new ``x`` or ``z``, ``l``, ``xsum`` turned into ``z^[k] − z^[k−1]``): the elementwise updates of ``U``
-        and ``V`` run a chunk of rows at a time (:func:`_rowwise`), which leaves every element's operations, and so
-        its bits, as in one pass."""
+        (the new ``x`` or ``z``, ``l``, ``xsum`` — turned into ``z^[k] − z^[k−1]`` on a monitored iteration, released
+        before the z-round on the others; a caller holding the last state keeps its ``x`` and ``z`` too): the
+        elementwise updates of ``U`` and ``V`` run a chunk of rows at a time (:func:`_rowwise`), which leaves every
+        element's operations, and so its bits, as in one pass."""
         cm = self.inC_loc[:, None]  # a 0/1 factor: bool, cast to 0.0/1.0 by each product (the same bits)
         cnt = self.count_f[:, None]  # (1 / c and [s ∈ C] / |N_s| are made when used: the same values)
         size = self.size_s[:, None]
@@ -170,12 +184,14 @@ class _AggregatedKernel:
             z_new = np.add(xsum, V)  # a fresh array: a yielded state's x and z are never written again
             z_new *= cm / size  # z_new = (xsum + V) / |N_s| at constraint nodes
             _rowwise(_v_step, V, xsum, size, z_new, cm)  # V += (xsum − |N_s| z_new) at constraint nodes
-            dz = np.subtract(z_new, z, out=xsum)
+            # z^[k] − z^[k−1] only where the residuals are formed: an unmonitored iteration lets the x-sum's buffer
+            # go before the z-round's product (one p-wide array less at its peak)
+            dz = np.subtract(z_new, z, out=xsum) if monitored else None
             del xsum
             z = z_new
             del z_new
             zsum = self.mix_z.apply(z)
-            if monitored:
+            if dz is not None:
                 yield self._state(k, x, z, dz, U, cnt, zsum)
             else:
                 yield AdmmState(k, x, z, np.nan, np.nan, np.nan, np.nan, np.nan)

@@ -36,7 +36,7 @@ from distnav._settings import resolve_options
 from distnav.algorithms.ranging.damped import DampedSolver as _DampedSolver
 from distnav.algorithms.ranging.data import RangingData, RangingResult
 from distnav.algorithms.ranging.losses import LOSSES, robust_weights
-from distnav.algorithms.ranging.objective import FitOptions, RangeObjective
+from distnav.algorithms.ranging.objective import DELAY_MODES, FitOptions, RangeObjective
 from distnav.algorithms.result import Trace
 from distnav.errors import ModelError
 from distnav.exchange.core import CommTotals
@@ -48,7 +48,14 @@ __all__ = [
     "LMSolveOptions",
     "LMResult",
     "solve_lm",
+    "estimate_prior_sigma",
+    "prior_variance_ratio",
 ]
+
+PRIOR_ITERATIONS = 6  # variance-component re-fits at most (Förstner's iteration)
+PRIOR_TOLERANCE = 0.02  # ... until σ_b changes by less than this share
+PRIOR_BOUNDS_M = (0.002, 1.0)  # σ_b is kept within these (metres): a prior of 0 or ∞ has no variance component
+PRIOR_MAX_UNKNOWNS = 1500  # the estimate inverts the dense normal matrix: above this the given prior is kept
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -89,17 +96,26 @@ class LMSolveOptions(LMOptions, FitOptions):
       the robust loss and the range error where it bends.
     - ``pad_trace`` (False): extend the trace to ``max_iterations`` rows by repeating the final state.
     - ``graduated`` (None: on for metres): fit the linear loss first, then the robust one from there.
+    - ``estimate_offset_prior`` (False): with per-anchor delays (``"per_anchor"``, ``"common_delays"``), estimate
+      their prior σ from the residuals (:func:`estimate_prior_sigma`, Förstner's variance components), starting
+      from ``offset_prior_sigma_m``.
     """
 
     loss: str = "linear"
     loss_scale_m: float = 0.3
     pad_trace: bool = False
     graduated: bool | None = None
+    estimate_offset_prior: bool = False
 
     def __post_init__(self) -> None:
         LMOptions.__post_init__(self)
         FitOptions.__post_init__(self)
         _check_lm(self.loss, self.max_iterations)
+        if self.estimate_offset_prior and self.range_offsets not in DELAY_MODES:
+            raise ModelError(
+                f"estimate_offset_prior estimates the per-anchor delays' prior σ: range_offsets must be one of "
+                f"{', '.join(DELAY_MODES)}, got {self.range_offsets!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -287,11 +303,11 @@ def _lm_quality(
     off_std = None
     if Q is not None and obj.n_offsets:
         s2 = precision.variance_factor if precision is not None and precision.variance_factor else 1.0
-        T = obj.anchor_offsets_map()  # the offsets reported: every anchor's total delay with "common_delays"
-        q_off = Q[problem.n_free :, problem.n_free :]
-        off_std = np.sqrt(np.einsum("ij,jk,ik->i", T, q_off, T) * s2)
-        if obj.offsets == "common_delays":  # the common offset's σ (settings["common_offset_std_m"]) leads
-            off_std = np.concatenate([[np.sqrt(q_off[0, 0] * s2)], off_std])
+        off_std = np.sqrt(np.diag(Q)[problem.n_free :] * s2)
+        if obj.offsets == "common_delays":  # the common offset's σ (settings["common_offset_std_m"]), then the
+            T = obj.anchor_offsets_map()  # σ of the offsets reported: every anchor's total delay c/2 + b_i
+            q_off = Q[problem.n_free :, problem.n_free :]
+            off_std = np.concatenate([off_std[:1], np.sqrt(np.einsum("ij,jk,ik->i", T, q_off, T) * s2)])
     return precision, tests, off_std
 
 
@@ -310,6 +326,54 @@ def _rmse_of(obj: Any, x: np.ndarray) -> float:
         return float("nan")
     d = obj.split(x)[0][est] - truth[est]
     return float(np.sqrt(np.mean(np.einsum("ij,ij->i", d, d)))) if est.any() else 0.0
+
+
+def prior_variance_ratio(obj: RangeObjective, x: np.ndarray, scale: np.ndarray | float, loss: str) -> float | None:
+    """``ŝ_b² / ŝ_r²``: the variance factor of the delays' prior rows over that of the range rows at the solution
+    ``x`` (Förstner 1979, *Ein Verfahren zur Schätzung von Varianz- und Kovarianzkomponenten*, AVN 86: each group's
+    ``ŝ_k² = vₖᵀ Wₖ vₖ / r_k`` with its redundancy ``r_k = n_k − tr(Q Nₖ)``, ``Q = N⁻¹``, ``N = Σ Nₖ``; the range
+    rows with the robust loss's final IRLS weights). None when the normal matrix is singular, a group has no
+    redundancy left or there are more than :data:`PRIOR_MAX_UNKNOWNS` unknowns."""
+    if obj.n_x > PRIOR_MAX_UNKNOWNS:
+        return None
+    J = sp.csr_matrix(obj.jacobian(x))
+    r = obj.residual(x)
+    m = obj.problem.n_meas
+    w = robust_weights(r, scale, loss)[0] if loss != "linear" else np.ones_like(r)
+    Jr, Jb = J[:m], J[m:]
+    Nr = np.asarray((Jr.T @ sp.diags(w[:m]) @ Jr).toarray())
+    Nb = np.asarray((Jb.T @ Jb).toarray())
+    try:
+        Q = np.linalg.inv(Nr + Nb)
+    except np.linalg.LinAlgError:
+        return None
+    red_r, red_b = m - float(np.sum(Q * Nr)), obj.n_prior - float(np.sum(Q * Nb))
+    if not (red_r > 0.5 and red_b > 0.05):
+        return None
+    return float((r[m:] @ r[m:] / red_b) / (np.sum(w[:m] * r[:m] ** 2) / red_r))
+
+
+def estimate_prior_sigma(
+    obj: RangeObjective, res: LMResult, fit: Callable[[RangeObjective, np.ndarray], LMResult], scale: Any, loss: str
+) -> tuple[RangeObjective, LMResult, list[LMResult]]:
+    """The per-anchor delays' prior σ_b estimated from the residuals: Förstner's iteration
+    σ_b ← σ_b · √(ŝ_b² / ŝ_r²) (:func:`prior_variance_ratio`) with a re-fit ``fit(objective, start)`` after each
+    update, until σ_b changes by less than :data:`PRIOR_TOLERANCE` or after :data:`PRIOR_ITERATIONS` re-fits;
+    σ_b within :data:`PRIOR_BOUNDS_M`. Returns the final objective (its ``offset_prior_sigma_m``: the estimate),
+    fit and the re-fits made."""
+    refits: list[LMResult] = []
+    for _ in range(PRIOR_ITERATIONS):
+        ratio = prior_variance_ratio(obj, res.x, scale, loss)
+        if ratio is None:
+            break
+        old = obj.offset_prior_sigma_m
+        new = float(np.clip(old * np.sqrt(ratio), *PRIOR_BOUNDS_M))
+        if abs(new / old - 1.0) < PRIOR_TOLERANCE:
+            break
+        obj = RangeObjective(obj.problem, obj.kind, obj.sigma_m, obj.offsets, new)
+        res = fit(obj, res.x)
+        refits.append(res)
+    return obj, res, refits
 
 
 def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **changes: Any) -> RangingResult:
@@ -351,6 +415,15 @@ def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **c
         obj.residual, obj.jacobian, x_start, loss=loss, loss_scale=scale, callback=callback, options=c
     )
     stages.append(res)
+    if c.estimate_offset_prior:  # σ_b from the residuals: re-fits with the robust loss from the last solution
+
+        def refit(o: RangeObjective, x: np.ndarray) -> LMResult:
+            return levenberg_marquardt(
+                o.residual, o.jacobian, x, loss=loss, loss_scale=scale, callback=callback, options=c
+            )
+
+        obj, res, refits = estimate_prior_sigma(obj, res, refit, scale, loss)
+        stages += refits
     g0 = obj.residual(x0)
     start = (float(g0 @ g0), robust_weights(g0, scale, loss)[1])
     trace = _stages_trace(stages, start, c, rm, c.pad_trace)
@@ -364,8 +437,10 @@ def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **c
         "range_offsets": range_offsets,
         "graduated": len(stages) > 1,
     }
+    if range_offsets == "common_delays" or c.estimate_offset_prior:  # the prior used: given, or estimated
+        settings.update(offset_prior_sigma_m=obj.offset_prior_sigma_m, offset_prior_estimated=c.estimate_offset_prior)
     if range_offsets == "common_delays":  # offsets_m: every anchor's total delay; the common offset c here
-        settings.update(common_offset_m=float(off[0]), offset_prior_sigma_m=c.offset_prior_sigma_m)
+        settings.update(common_offset_m=float(off[0]))
         settings["common_offset_std_m"] = None if off_std is None else float(off_std[0])
         off_std = None if off_std is None else off_std[1:]
     return RangingResult(

@@ -87,7 +87,8 @@ class FitOptions:
     - ``sigma_m`` (1.0): the ranges' standard deviation for the metres objective (a value or one per range), metres.
     - ``range_offsets`` (``"none"``; ``"common"`` / ``"per_anchor"`` / ``"common_delays"`` with the metres
       objective; the last LM's only): range offsets estimated with the positions; ``offset_prior_sigma_m`` (0.1):
-      the per-anchor delays' prior σ, metres (PLANT_HARD's calibrated delays: sd 0.1 m).
+      the per-anchor delays' prior σ, metres (``b_i`` in ``b_a + b_b``: ``PLANT_HARD``'s delays are 0.05 m so; LM
+      can estimate it, ``LMSolveOptions.estimate_offset_prior``).
     - ``quality`` (True): the per-anchor covariance and the w-tests of the links; ``test_level`` (0.001): their
       significance level; ``test_scale`` (``"robust"``): their variance factor.
     """

@@ -36,7 +36,7 @@ stopping thresholds — and says ``max_iterations`` after ``max_rounds`` outer r
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -95,13 +95,17 @@ class Refinement:
 class Links:
     """The half-measurements of one block, their neighbour rows in a broadcast, and the network totals."""
 
-    def __init__(self, problem: RangingData, ex: Exchange, *, per_anchor_offsets: bool = False) -> None:
+    def __init__(
+        self, problem: RangingData, ex: Exchange, *, per_anchor_offsets: bool = False, known_from_problem: bool = False
+    ) -> None:
         self.ex, self.n = ex, problem.n_anchors
         self.owner, self.other, _, self.samp = half_measurements(problem, ex)
         self.reductions = 0
         self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
         self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
-        self.wire = Wire(problem, ex, self.owner, self.other, 1 if per_anchor_offsets else 0)
+        self.wire = Wire(
+            problem, ex, self.owner, self.other, 1 if per_anchor_offsets else 0, known_from_problem=known_from_problem
+        )
 
     def counted(self) -> wire.Reductions:
         """The reductions counted so far."""
@@ -184,7 +188,7 @@ class _Refiner:
     def __init__(self, problem: RangingData, ex: Exchange, o: RefineOptions) -> None:
         self.o = o
         self.per, self.common = o.range_offsets == "per_anchor", o.range_offsets == "common"
-        self.links = links = Links(problem, ex, per_anchor_offsets=self.per)
+        self.links = links = Links(problem, ex, per_anchor_offsets=self.per, known_from_problem=True)
         self.owner, self.other, self.samp = links.owner, links.other, links.samp
         self.n, self.nl, self.dim = problem.n_anchors, ex.n_local, problem.dim
         dim = self.dim
@@ -192,6 +196,8 @@ class _Refiner:
         self.sig, self.sc, self.rng_m = o.sigma[self.samp], o.scale[self.samp], problem.range_m[self.samp]
         self.free = np.ones((self.nl, self.P), bool)
         self.free[:, :dim] = problem.free[ex.nodes]
+        self.n_free = int(problem.free.sum()) + (self.n if self.per else 0)  # the network's free parameters
+        self.known_m = problem.positions_m[ex.nodes]
         self.free_nb = np.ones((self.samp.size, self.P), bool)
         self.free_nb[:, :dim] = problem.free[self.other]
         self.wire_dtype = wire.cg_wire_dtype(problem.n_anchors)
@@ -200,16 +206,17 @@ class _Refiner:
         self.steps = wire.STEPS and not wire.PLAIN  # trials travel as steps (wire, item 5)
 
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
-        """The start ``(x, c)`` and CG's iteration limit (two reductions: the common offset's mean, the unknowns)."""
+        """The start ``(x, c)`` and CG's iteration limit (one reduction: the common offset's mean; the number of
+        unknowns is the problem's structure, which every anchor holds: no message, issue 27 fifth session)."""
         dim, links = self.dim, self.links
         x = np.zeros((self.nl, self.P))
-        x[:, :dim] = own_m
+        x[:, :dim] = np.where(self.free[:, :dim], own_m, self.known_m)  # known coordinates as the problem's (wire)
         if self.per:
             assert offset_m is not None
             x[:, dim] = offset_m
         common = self.common and offset_m is not None
         c = float(links.total(np.asarray(offset_m, float))) / self.n if common else 0.0
-        n_unknowns = int(links.total(self.free.sum(axis=1).astype(float))) + (1 if self.common else 0)
+        n_unknowns = self.n_free + (1 if self.common else 0)
         return x, c, min(n_unknowns + 10, 2000)
 
     def evaluate(
@@ -427,6 +434,7 @@ class NormalSystem:
     common: bool
     wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float16 in the LM phase)
     sigma: np.ndarray | None = None  # (h,) every half-measurement's range σ: the products travel projected
+    held: list[np.ndarray] = field(default_factory=list)  # the CG run's exponents per link (wire.HELD_EXPONENT)
 
     def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
@@ -438,7 +446,8 @@ class NormalSystem:
         if (
             self.sigma is not None and wire.PROJECTED and not wire.PLAIN
         ):  # the neighbour's product itself: k values per link
-            other = self.links.wire.projected(own * self.sigma[:, None], self.wire_dtype) / self.sigma[:, None]
+            held = self.held if wire.HELD_EXPONENT else None
+            other = self.links.wire.projected(own * self.sigma[:, None], self.wire_dtype, held) / self.sigma[:, None]
         else:
             other = np.einsum("hp,hpk->hk", self.cn, self.links.vectors(v, self.wire_dtype))
         jv = own + other + self.e[:, None] * vc[None, :]

@@ -272,6 +272,8 @@ def local_reliability(
 
 
 def _checked_offsets(problem: RangingData, offsets: str, offsets_m: FloatArray | None) -> FloatArray:
+    if offsets == "common_delays":  # LM's only: the distributed solvers refuse it (ranging.options.RunOptions)
+        raise ModelError("the neighbourhoods' reliability takes offsets none, common or per_anchor, not common_delays")
     want = {"none": 0, "common": 1, "per_anchor": problem.n_anchors}[offsets]
     off = np.zeros(0) if offsets_m is None else np.atleast_1d(np.asarray(offsets_m, float))
     if offsets == "none":

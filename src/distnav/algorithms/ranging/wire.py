@@ -75,6 +75,8 @@ __all__ = [
     "PROJECTED",
     "STEPS",
     "STEP_DTYPE",
+    "KNOWN_FROM_PROBLEM",
+    "HELD_EXPONENT",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
@@ -126,6 +128,15 @@ STEPS = True
 #: left the phase "converged" 1–20 mm from LM on a 16 × 16 grid (tests/test_csg_handover.py): the rounding of
 #: 2⁻¹¹ stirs the slow modes, which the step-size test of the stop does not see
 STEP_DTYPE: type[np.floating] = np.float32
+#: the LM phase's projected products after a CG run's first iteration: float16 on the exponent that the run's first
+#: message on the link carried, 2 B a value instead of 3 (:meth:`Wire.projected`, issue 27 fifth session)
+HELD_EXPONENT = True
+#: the first parameters of a phase travel as the later ones (the free columns, from anchors with a free parameter):
+#: every receiver takes a fixed anchor's coordinates and the held ones from the problem (``positions_m``: set up
+#: once with the ranges, the same on every anchor; the solvers hold those coordinates at exactly these values),
+#: not from the message (issue 27, fifth session: a fit's first broadcast 16 B per link instead of 24, none from
+#: a fixed anchor); False: the whole row, float64, from every anchor (as before)
+KNOWN_FROM_PROBLEM = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -134,8 +145,18 @@ class Wire:
     local holder and the other end's global id; ``extra``: parameter columns beyond ``dim`` that every anchor
     estimates (a per-anchor range offset)."""
 
-    def __init__(self, problem: RangingData, ex: Exchange, owner: np.ndarray, other: np.ndarray, extra: int) -> None:
+    def __init__(
+        self,
+        problem: RangingData,
+        ex: Exchange,
+        owner: np.ndarray,
+        other: np.ndarray,
+        extra: int,
+        *,
+        known_from_problem: bool = False,
+    ) -> None:
         self.ex, self.n = ex, problem.n_anchors
+        self.known_from_problem = known_from_problem  # :data:`KNOWN_FROM_PROBLEM` (the LM phase's: refine.py)
         self.owner, self.other = owner, other
         free = np.concatenate([problem.free, np.ones((problem.n_anchors, extra), bool)], axis=1)
         self.P = free.shape[1]
@@ -146,6 +167,9 @@ class Wire:
         active[ex.in_edges] = talks[ex.in_src]
         self.active = active
         self.talks_other = talks[other]  # per half-measurement: the other end sends
+        known = np.zeros((other.size, self.P))  # the other end's known coordinates (the problem's: fixed, held)
+        known[:, : problem.dim] = problem.positions_m[other]
+        self._known = known
         self._pos: np.ndarray | None = None
         self._params: np.ndarray | None = None  # the last parameters received, per half-measurement
         self._rep: tuple[np.ndarray, np.ndarray] | None = None  # per out-edge: a half-measurement, the edge's mask
@@ -173,12 +197,16 @@ class Wire:
 
     def parameters(self, values: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)``: the whole row the first
-        time, the free columns from anchors with a free parameter after that (the rest as first received)."""
+        time (with ``known_from_problem``, :data:`KNOWN_FROM_PROBLEM`, only the free columns from anchors with a free
+        parameter, the known coordinates from the problem: ``values`` must hold them there, as the LM phase does),
+        the free columns from anchors with a free parameter after that (the rest as first received)."""
         if PLAIN:
             return self._round(values, None, None)
-        if self._params is None:
+        if self._params is None and not (KNOWN_FROM_PROBLEM and self.known_from_problem):
             self._params = self._round(values, None, None).copy()
             return self._params.copy()
+        if self._params is None:
+            self._params = self._known.copy()
         got = self._round(np.ascontiguousarray(values[:, self.cols]), self.active, self.talks_other)
         out = self._params
         out[np.ix_(self.talks_other, self.cols)] = got[self.talks_other]
@@ -243,15 +271,26 @@ class Wire:
             self._rep = (rep, active)
         return self._rep
 
-    def projected(self, own: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
+    def projected(
+        self, own: np.ndarray, dtype: type[np.floating] = np.float64, held: list[np.ndarray] | None = None
+    ) -> np.ndarray:
         """Each half-measurement's other end's value of ``own`` ``(h, k)`` — a value per half-measurement that its
         owner computed for the pair (the first of the pair's samples; item 4 of the module docstring) —, zero
         where the other end has no free parameter: one message per directed edge of a ranged pair from an anchor
-        with a free parameter, ``k`` values as ``dtype`` (float16: :func:`pack_half`, ``2k + 1`` bytes)."""
+        with a free parameter, ``k`` values as ``dtype`` (float16: :func:`pack_half`, ``2k + 1`` bytes).
+
+        ``held`` (float16 only; :data:`HELD_EXPONENT`): a CG run's state, empty at its start: each link's last
+        exponent sent, which both ends keep. A message whose row float16 holds to 11 bits on that exponent is
+        ``2k`` bytes, the others carry a new one (``2k + 1``; the first of the run on every link) —
+        :func:`_on_held_exponent`."""
         rep, active = self._edges()
         k = own.shape[1]
         rows = np.asarray(own, float)[rep] if own.shape[0] else np.zeros((rep.size, k))
-        if dtype == np.float16:
+        if dtype == np.float16 and held is not None:
+            packed, sizes = _on_held_exponent(rows, held)
+            box = self.ex.send(packed, active=active, message_bytes=sizes)
+            values = unpack_half(box.values, k)
+        elif dtype == np.float16:
             box = self.ex.send(pack_half(rows), active=active)
             values = unpack_half(box.values, k)
         else:
@@ -263,6 +302,42 @@ class Wire:
         got = np.asarray(values[pos])
         got[~self.talks_other] = 0.0
         return got
+
+
+def _exponents(packed: np.ndarray, k: int) -> np.ndarray:
+    """The exponent byte of every row of :func:`pack_half`'s ``(n, 2k + 1)`` bytes, as integers."""
+    return np.ascontiguousarray(packed[:, 2 * k], dtype=np.uint8).view(np.int8).astype(np.int64)
+
+
+#: the binades around a link's held exponent in which its row travels on it (:func:`_on_held_exponent`): float16's
+#: normal range, so that the row's largest entry keeps 11 significant bits
+HELD_BELOW, HELD_ABOVE = 13, 15
+
+
+def _on_held_exponent(rows: np.ndarray, held: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``(n, k)`` as :func:`pack_half`'s bytes and each message's size (:meth:`Wire.projected`): a row whose
+    largest entry lies within float16's normal range on the link's held exponent ``e`` (``held[0]``; its own
+    exponent from ``e − 13`` to ``e + 15``, or a zero row) travels as float16 of ``row · 2⁻ᵉ``, ``2k`` bytes —
+    the receiver holds ``e``; the container carries it for the simulation —, any other row (every row when
+    ``held`` is empty: a CG run's first round) as :func:`pack_half` with its own exponent, ``2k + 1`` bytes, which
+    both ends then hold. Why the window: in a large network a CG direction spreads from the anchors the gradient
+    is on, and a link's product can grow 10⁶-fold within a run (1,000 anchors: 2²³), beyond any fixed exponent."""
+    rows = np.asarray(rows, float)
+    k = rows.shape[1]
+    fresh = pack_half(rows)
+    own = _exponents(fresh, k)
+    if not held:
+        held[:] = [own]
+        return fresh, np.full(rows.shape[0], 2 * k + 1, np.int64)
+    e = held[0]
+    zero = np.max(np.abs(rows), axis=1, initial=0.0) == 0.0
+    keep = zero | ((own >= e - HELD_BELOW) & (own <= e + HELD_ABOVE))
+    out = fresh.copy()
+    on_e = np.ldexp(rows[keep], -e[keep, None]).astype(HALF)
+    out[keep, : 2 * k] = np.ascontiguousarray(on_e).view(np.uint8).reshape(-1, 2 * k)
+    out[keep, 2 * k] = e[keep].astype(np.int8).view(np.uint8)
+    held[0] = np.where(keep, e, own)
+    return out, np.where(keep, 2 * k, 2 * k + 1).astype(np.int64)
 
 
 def _encode(rows: np.ndarray, dtype: type[np.floating]) -> np.ndarray:

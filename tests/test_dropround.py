@@ -1,0 +1,166 @@
+"""The compiled fault round (``distnav._dropround``, issue 27) against the mixer's numpy path and the fault schedule.
+
+The kernel must drop exactly the messages :meth:`FaultSchedule.delivered` drops (the same SplitMix64 hash), and a
+round must equal the numpy path bit for bit (values and message counts) on drops, failed links, silent nodes, inactive
+edges, self-loops, several floats per node and rows longer than the kernel's block. The references are the numpy
+path (the same mixer with the kernel switched off) and the schedule's own per-edge decision.
+"""
+
+from __future__ import annotations
+
+from importlib.machinery import EXTENSION_SUFFIXES
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import distnav._dropround as dr
+from distnav.exchange import FaultSchedule, make_exchange
+from distnav.exchange.faults import FaultPlan
+from distnav.network import builders, consensus_weights
+
+BUILT = any((Path(dr.__file__).parent / f"_dropround_c{s}").is_file() for s in EXTENSION_SUFFIXES)
+needs_kernel = pytest.mark.skipif(not BUILT, reason="the optional kernel is not built here (numpy path only)")
+
+
+def _bits(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64).view(np.uint64)
+
+
+def test_built_kernel_loads():
+    """A kernel built next to the module must load (a broken build would otherwise fall back silently)."""
+    if BUILT:
+        assert dr.library() is not None
+    else:
+        assert dr.library() is None or dr.library() is not None  # nothing built: whatever the environment says
+
+
+SCHEDULES = {
+    "drops": FaultSchedule(drop_probability=0.1, seed=1),
+    "heavy drops": FaultSchedule(drop_probability=0.63, seed=2**63 + 5),
+    "links and silent": FaultSchedule(
+        drop_probability=0.2, failed_links=((0, 1, 2), (3, 4, 0)), silent_nodes=((5, 1), (7, 3)), seed=4
+    ),
+    "links only": FaultSchedule(failed_links=((0, 1, 1),), silent_nodes=((2, 0),)),
+}
+
+
+def _graph(kind: str):
+    if kind == "geometric":
+        return builders.connected_random_geometric(400, mean_degree=8, rng=np.random.default_rng(3))
+    if kind == "star":  # a hub with 2,999 in-edges: longer than the kernel's 1,024-edge block
+        return builders.star(3000)
+    return builders.ring(12, self_loops=True)
+
+
+def _with_links(schedule: FaultSchedule, g) -> FaultSchedule:
+    """The schedule's failed links moved onto links of ``g`` (the same rounds), its nodes kept inside ``g``."""
+    links = [(int(g.links[i, 0]), int(g.links[i, 1]), r) for i, (_, _, r) in enumerate(schedule.failed_links)]
+    silent = tuple((node % g.n_nodes, r) for node, r in schedule.silent_nodes)
+    return FaultSchedule(schedule.drop_probability, tuple(links), silent, schedule.seed)
+
+
+def _pair(g, schedule: FaultSchedule, order: str, active: np.ndarray | None):
+    w = consensus_weights(g, "MH")
+    mixers = []
+    for _ in range(2):
+        ex = make_exchange(g, faults=schedule, order=order)
+        mixers.append(ex.mixer(w, active=active))
+    mixers[1]._kernel = None  # the numpy path
+    return mixers
+
+
+@needs_kernel
+@pytest.mark.parametrize("name", list(SCHEDULES))
+@pytest.mark.parametrize("kind", ["geometric", "star", "ring with self-loops"])
+@pytest.mark.parametrize("floats", [1, 3])
+def test_kernel_round_equals_numpy_path_bit_for_bit(name, kind, floats):
+    g = _graph(kind)
+    schedule = _with_links(SCHEDULES[name], g)
+    rng = np.random.default_rng(7)
+    active = rng.random(g.n_edges) < 0.9 if kind == "geometric" and floats == 3 else None
+    fast, slow = _pair(g, schedule, "auto" if kind == "geometric" else "none", active)
+    x = rng.normal(size=(g.n_nodes, floats) if floats > 1 else g.n_nodes)
+    xf = xs = fast.exchange.local(x)
+    for _ in range(5):
+        xf, xs = fast.apply(xf), slow.apply(xs)
+        assert isinstance(fast._kernel, dr.DropRound) and slow._kernel is None  # each took its own path
+        assert xf.shape == xs.shape and np.array_equal(_bits(xf), _bits(xs))
+    a, b = fast.exchange.comm_totals().as_dict(), slow.exchange.comm_totals().as_dict()
+    assert a == b and a["messages_dropped"] > 0
+
+
+@needs_kernel
+@pytest.mark.parametrize("name", list(SCHEDULES))
+@pytest.mark.parametrize("edge_dtype", [np.int32, np.int64])
+def test_kernel_drops_exactly_the_scheduled_messages(name, edge_dtype):
+    g = builders.connected_random_geometric(300, mean_degree=9, rng=np.random.default_rng(5))
+    schedule = _with_links(SCHEDULES[name], g)
+    edges = np.random.default_rng(6).permutation(g.n_edges).astype(edge_dtype)  # any order, any subset
+    src, dst = g.src[edges], g.dst[edges]
+    plan = FaultPlan(schedule, src, dst, edges)
+    active = np.random.default_rng(8).random(edges.size) < 0.8
+    for k in range(6):
+        ok = schedule.delivered(k, src, dst, edges)  # the schedule's reference decision
+        for act in (None, active):
+            lost = dr.lost_mask(
+                edges, act, plan.dead_from(k), seed=schedule.seed, round_index=k, threshold=plan.drop_threshold
+            )
+            assert lost is not None
+            assert np.array_equal(lost, (np.ones(edges.size, bool) if act is None else act) & ~ok)
+
+
+@needs_kernel
+def test_kernel_hash_equals_uniform_hash_on_large_ids():
+    """Edge ids up to 2⁶³ − 1 and a seed above 2⁶³: the integer threshold decides as ``uniform_hash ≥ p``."""
+    from distnav.exchange.faults import uniform_hash
+
+    edges = np.concatenate([np.arange(5000), np.random.default_rng(1).integers(2**40, 2**63 - 1, 5000)])
+    p, seed = 0.3, 2**64 - 3
+    plan = FaultPlan(FaultSchedule(drop_probability=p, seed=seed), edges, edges + 1, edges)
+    for k in (0, 1, 2**31 + 7):
+        lost = dr.lost_mask(edges, None, None, seed=seed, round_index=k, threshold=plan.drop_threshold)
+        assert lost is not None and np.array_equal(lost, uniform_hash(seed, k, edges) < p)
+
+
+def test_numpy_path_when_the_kernel_is_missing(monkeypatch):
+    """Without the library the mixer takes the numpy path; the round equals the one recomputed by hand."""
+    monkeypatch.setattr(dr, "_LIB", [None])
+    g = builders.ring(6)
+    w = consensus_weights(g, "P3")
+    ex = make_exchange(g, faults=FaultSchedule(drop_probability=0.4, seed=5))
+    m = ex.mixer(w)
+    x = np.random.default_rng(1).normal(size=6)
+    got = m.apply(x)
+    assert m._kernel is None
+    ok = FaultSchedule(drop_probability=0.4, seed=5).delivered(0, g.src, g.dst, np.arange(g.n_edges))
+    dense = w.to_dense()
+    ref = np.array(
+        [
+            dense[i, i] * x[i]
+            + sum(dense[i, g.src[e]] * (x[g.src[e]] if ok[e] else x[i]) for e in np.flatnonzero(g.dst == i))
+            for i in range(6)
+        ]
+    )
+    assert np.allclose(got, ref, atol=1e-14)
+
+
+@needs_kernel
+def test_non_finite_weight_keeps_the_numpy_path():
+    g = builders.ring(8)
+    ex = make_exchange(g, faults=FaultSchedule(drop_probability=0.2, seed=1))
+    m = ex.mixer(consensus_weights(g, "P3"))
+    assert m._w_masked is not None
+    m._w_masked.data[3] = np.inf
+    assert dr.prepare(m._w_masked, ex._fault_plan.edge_ids, m._act_in, m._self_w) is None
+
+
+@needs_kernel
+def test_read_only_and_strided_values():
+    """A read-only or non-contiguous input goes through the kernel and gives the numpy path's bits."""
+    g = builders.connected_random_geometric(200, mean_degree=7, rng=np.random.default_rng(9))
+    fast, slow = _pair(g, FaultSchedule(drop_probability=0.3, seed=11), "none", None)
+    x = np.random.default_rng(4).normal(size=(g.n_nodes, 4))[:, 1]  # a strided column
+    x.setflags(write=False)
+    a, b = fast.apply(x), slow.apply(x)
+    assert isinstance(fast._kernel, dr.DropRound) and np.array_equal(_bits(a), _bits(b))
