@@ -250,8 +250,9 @@ def _tree_parents(graph: Graph, kind: str = "capped") -> tuple[np.ndarray, int]:
       has room — at most :data:`TREE_CHILDREN` children, 1 for an anchor of more than the median degree (its
       broadcasts already load it: one message per link and round); an anchor none of whose tree neighbours has room
       waits for the next pass, and a pass that places none gives one more child to the emptiest tree neighbour of
-      the first waiting anchor. Every anchor then sends at most 3 messages per all-reduction (2 where capped at 1
-      child), the tree a few levels deeper than a BFS tree (latency, not bytes);
+      the first waiting anchor. On the benchmark's halls every anchor then sends at most 3 messages per
+      all-reduction (an anchor capped at 1 child 2, unless a stuck pass gave it one more), the tree deeper than a
+      BFS tree (latency, not bytes);
     - ``"balanced"`` (third session): a BFS tree rooted at the anchor of the lowest degree within two hops of the
       centre, every anchor's parent the neighbour one level nearer the root with the fewest children so far
       (anchors with the fewest such neighbours placed first): the root sends every total to all its neighbours;

@@ -14,18 +14,20 @@ the rows themselves a fixed-width container padded to the largest degree):
   lacks it (``k`` is not ``j`` nor ``j``'s neighbour, both free) and ``i`` is the one common neighbour of ``j`` and
   ``k`` that the least hash of ``(i, j, k)`` designates (:func:`_relay_plan`): each 2-hop anchor's record reaches
   ``j`` once, not once per common neighbour, and nothing comes back that ``j`` already holds. One message per
-  relayed record.
+  relayed record. A relayed record carries the other end's block only for links whose end ``v`` may be in ``j``'s
+  ring: not where the relay knows ``j`` holds ``v``'s record (:func:`_ring_links`; 12–13 % fewer bytes);
 * the record values in :data:`RECORD_DTYPE` (float32): they set ``N_SS`` and the ring's blocks, whose float32
   rounding (6e-8 relative) moves σ by at most 3e-8 relative on the halls of 100–1,000 anchors (docs/economy_uwb.md);
   ids and sample counts as int32 (:data:`ID_BYTES`). The 1-hop block rounds of
   :mod:`~distnav.algorithms.ranging.precision` are packed the same way and stay float64.
 
 Under message loss a record lost on its one designated path is not made up by another relay (before, every common
-neighbour relayed it): that anchor's ball lacks the record's anchor, which then counts in its ring.
+neighbour relayed it): that anchor's ball lacks the record's anchor, which then counts in its ring — and where the
+relay left that anchor's block out, the receiver has no block for it and falls back to its conditional σ.
 
 Before issue 27's sixth session every anchor broadcast ``[id, K × 16 floats]`` (``K`` the largest degree) and, in
 round 2, relayed all ``K`` rows it had received to every neighbour: 44 MB on a hall of 100 anchors. Now each anchor
-gets the same ball, the same σ up to the float32 rounding, for 25–35 × fewer bytes on halls of 100–1,000 anchors.
+gets the same ball, the same σ up to the float32 rounding, for 28–40 × fewer bytes on halls of 100–1,000 anchors.
 """
 
 from __future__ import annotations
@@ -51,7 +53,8 @@ def _send_blocks(
     ``(the blocks as sent — upper triangle mirrored —, the inbox: one flattened block per in-edge)``."""
     nl = blocks.shape[0]
     sym = np.triu(blocks) + np.swapaxes(np.triu(blocks, 1), 1, 2)
-    sym = sym.astype(dtype).astype(float)
+    with np.errstate(over="ignore"):  # beyond float32's range (a nearly singular anchor's block): inf
+        sym = sym.astype(dtype).astype(float)
     nf = free.sum(axis=1)
     size = (np.dtype(dtype).itemsize * nf * (nf + 1) // 2).astype(np.int64)
     return sym, ex.send(sym.reshape(nl, -1)[ex.out_src], message_bytes=size[ex.out_src])
@@ -100,7 +103,8 @@ def _subnetwork(
         axis=1,
     )
     fl = np.r_[1 : 3 + dim, 4 + dim : link.shape[1]]  # the values (not the ids, not the sample count)
-    link[:, fl] = link[:, fl].astype(RECORD_DTYPE).astype(float)  # as the wire carries them
+    with np.errstate(over="ignore"):  # as the wire carries them (inf beyond float32's range)
+        link[:, fl] = link[:, fl].astype(RECORD_DTYPE).astype(float)
     width = link.shape[1]
     rows = np.full((nl, 1 + k_max * width), -1.0)
     rows[:, 0] = ex.nodes
@@ -119,12 +123,16 @@ def _subnetwork(
         known[first.dst[e]].append(first.values[e])
     if hops == 2:
         edge, rank, out_e, in_e, mine = _relay_plan(problem, ex)
+        ids = first.values[in_e[:, None], 1 + np.arange(k_max) * width].astype(np.int64)
+        drop = ~_ring_links(problem, ex.nodes[ex.out_src[out_e]], ex.out_dst[out_e], ids)
         for t in range(int(rank.max(initial=-1)) + 1):  # one message per relayed record
             act = np.zeros(ex.n_edges, bool)  # the same mask in every block
             act[edge[rank == t]] = True
             sel = rank[mine] == t
             box = np.zeros((ex.out_edges.size, rows.shape[1]))
-            box[out_e[sel]] = np.where(first.delivered[in_e[sel], None], first.values[in_e[sel]], -1.0)
+            recs = np.where(first.delivered[in_e[sel], None], first.values[in_e[sel]], -1.0)
+            recs[:, 1:].reshape(-1, k_max, width)[:, :, 4 + dim :][drop[sel]] = np.nan  # blocks the receiver ignores
+            box[out_e[sel]] = recs
             second = ex.send(box, active=act, message_bytes=_record_bytes(box, problem.free, k_max))
             del box
             for e in np.flatnonzero(second.delivered & act[second.edges]):
@@ -160,16 +168,63 @@ def _record_bytes(rows: np.ndarray, free: np.ndarray, k_max: int) -> np.ndarray:
     """The bytes each record row of :func:`_subnetwork` needs on the wire (0 for a row of −1s): the anchor's id
     (:data:`ID_BYTES`) and per link the other end's id, ``u``'s free coordinates (the owner's free mask; the
     others are 0), ``c``, ``Σ w r²`` (:data:`RECORD_DTYPE` each), the sample count (:data:`ID_BYTES`) and
-    the other end's block packed (:func:`_send_blocks`; nothing for a known anchor)."""
+    the other end's block packed (:func:`_send_blocks`; nothing for a known anchor, nor where the block is NaN:
+    not sent, :func:`_ring_links`)."""
     owner = rows[:, 0].astype(np.int64)
     ids = rows[:, 1:].reshape(rows.shape[0], k_max, -1)[:, :, 0].astype(np.int64)
     nf = free.sum(axis=1)
     valid = ids >= 0
     nf_v = np.where(valid, nf[np.maximum(ids, 0)], 0)
     nf_own = np.where(owner >= 0, nf[np.maximum(owner, 0)], 0)
-    per_link = 2 * ID_BYTES + np.dtype(RECORD_DTYPE).itemsize * (nf_own[:, None] + 2 + nf_v * (nf_v + 1) // 2)
+    block = ~np.isnan(rows[:, 1:].reshape(rows.shape[0], k_max, -1)[:, :, -1])  # not sent where NaN
+    packed = np.where(block, nf_v * (nf_v + 1) // 2, 0)
+    per_link = 2 * ID_BYTES + np.dtype(RECORD_DTYPE).itemsize * (nf_own[:, None] + 2 + packed)
     size = np.where(owner >= 0, ID_BYTES + np.sum(np.where(valid, per_link, 0), axis=1), 0)
     return np.asarray(size, np.int64)
+
+
+def _directed_links(problem: RangingData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every directed link ``node · n + neighbour`` sorted, the neighbours in that order, and each node's first
+    position and count in it."""
+    n = problem.n_anchors
+    lk = problem.graph.links
+    lk = lk[lk[:, 0] != lk[:, 1]]
+    key = np.unique(np.concatenate([lk[:, 0] * n + lk[:, 1], lk[:, 1] * n + lk[:, 0]]))
+    deg = np.bincount(key // n, minlength=n)
+    return key, key % n, np.r_[0, np.cumsum(deg)[:-1]], deg
+
+
+def _neighbours(start: np.ndarray, deg: np.ndarray, nbr: np.ndarray, of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(position in of, neighbour)`` of every neighbour of every node of ``of``."""
+    d = deg[of]
+    at = np.arange(int(d.sum())) - np.repeat(np.cumsum(d) - d, d)
+    return np.repeat(np.arange(of.size), d), nbr[np.repeat(start[of], d) + at]
+
+
+def _ring_links(problem: RangingData, relay: np.ndarray, to: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Which links ``(k, v)`` of the records relayed ``relay → to`` (``ids``: ``v`` per slot, −1 for none) carry
+    ``v``'s block: not where the relay ``c`` knows that the receiver ``j`` holds ``v``'s record — ``v`` is ``c``,
+    ``j``, a neighbour of either or of one of their common neighbours ``m`` (``c`` has every such ``m``'s link list
+    from round 1): then ``v`` is in ``j``'s ball, never in its ring, where alone a block is read."""
+    n = problem.n_anchors
+    key, nbr, start, deg = _directed_links(problem)
+
+    def linked(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        ab = a * n + b
+        return np.asarray(key[np.minimum(np.searchsorted(key, ab), key.size - 1)] == ab)
+
+    pair, row_pair = np.unique(relay * n + to, return_inverse=True)
+    pc, pj = pair // n, pair % n
+    at, m = _neighbours(start, deg, nbr, pc)  # the relay's neighbours m, those of the receiver too
+    common = linked(pj[at], m)
+    at_m, v_m = _neighbours(start, deg, nbr, m[common])
+    held = np.unique(at[common][at_m] * n + v_m)  # (pair, a neighbour of a common neighbour)
+    v = np.maximum(ids, 0)
+    c, j = relay[:, None], to[:, None]
+    known = (v == c) | (v == j) | linked(c, v) | linked(j, v)
+    tk = row_pair.reshape(-1, 1) * n + v
+    known |= held[np.minimum(np.searchsorted(held, tk), max(held.size - 1, 0))] == tk if held.size else False
+    return np.asarray((ids >= 0) & ~known)
 
 
 def _relay_plan(
@@ -183,13 +238,7 @@ def _relay_plan(
     ``(its edge, its rank t on that edge — it travels in the t-th message —, for the records this block relays:
     the out-edge row and the in-edge row at the sender holding k's record, the mask of those)``."""
     n = problem.n_anchors
-    lk = problem.graph.links
-    lk = lk[lk[:, 0] != lk[:, 1]]
-    both = np.concatenate([lk, lk[:, ::-1]])
-    key = np.unique(both[:, 0] * n + both[:, 1])  # every directed link, sorted by (node, neighbour)
-    node, nbr = key // n, key % n
-    deg = np.bincount(node, minlength=n)
-    start = np.r_[0, np.cumsum(deg)[:-1]]
+    key, nbr, start, deg = _directed_links(problem)  # every directed link, sorted by (node, neighbour)
     pairs = deg * deg
     c = np.repeat(np.arange(n), pairs)  # every relay c and ordered pair (j, k) of its neighbours
     at = np.arange(int(pairs.sum())) - np.repeat(np.cumsum(pairs) - pairs, pairs)
