@@ -376,6 +376,26 @@ def estimate_prior_sigma(
     return obj, res, refits
 
 
+def _lm_settings(
+    c: LMSolveOptions, obj: RangeObjective, off: np.ndarray, off_std: np.ndarray | None, *, graduated: bool
+) -> tuple[dict[str, Any], np.ndarray | None]:
+    """:func:`solve_lm`'s ``settings`` and the offsets' σ it reports: with ``"common_delays"`` the common offset
+    ``c`` and its σ go to the settings and ``off_std`` keeps the anchors' totals only."""
+    settings: dict[str, Any] = {
+        **c.tolerances(),
+        "sigma_m": c.sigma_m,
+        "range_offsets": c.range_offsets,
+        "graduated": graduated,
+    }
+    if c.range_offsets == "common_delays" or c.estimate_offset_prior:  # the prior used: given, or estimated
+        settings.update(offset_prior_sigma_m=obj.offset_prior_sigma_m, offset_prior_estimated=c.estimate_offset_prior)
+    if c.range_offsets == "common_delays":  # offsets_m: every anchor's total delay; the common offset c here
+        settings.update(common_offset_m=float(off[0]))
+        settings["common_offset_std_m"] = None if off_std is None else float(off_std[0])
+        off_std = None if off_std is None else off_std[1:]
+    return settings, off_std
+
+
 def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **changes: Any) -> RangingResult:
     """Global LM (paper 002 eq. (8), Fletcher scaling) on a ranging problem; returns a :class:`RangingResult`.
 
@@ -431,18 +451,7 @@ def solve_lm(problem: RangingData, *, options: LMSolveOptions | None = None, **c
     precision = tests = off_std = None
     if c.quality:
         precision, tests, off_std = _lm_quality(obj, res.x, scale, loss, c.test_level, c.test_scale)
-    settings: dict[str, Any] = {
-        **c.tolerances(),
-        "sigma_m": sigma_m,
-        "range_offsets": range_offsets,
-        "graduated": len(stages) > 1,
-    }
-    if range_offsets == "common_delays" or c.estimate_offset_prior:  # the prior used: given, or estimated
-        settings.update(offset_prior_sigma_m=obj.offset_prior_sigma_m, offset_prior_estimated=c.estimate_offset_prior)
-    if range_offsets == "common_delays":  # offsets_m: every anchor's total delay; the common offset c here
-        settings.update(common_offset_m=float(off[0]))
-        settings["common_offset_std_m"] = None if off_std is None else float(off_std[0])
-        off_std = None if off_std is None else off_std[1:]
+    settings, off_std = _lm_settings(c, obj, off, off_std, graduated=len(stages) > 1)
     return RangingResult(
         estimates=pos,
         converged=res.converged,
