@@ -31,7 +31,7 @@ and how both grow with the network.
    range records (16 B each, held by the lower-numbered anchor of the link) at one sink over the same graph
    (total hop-bytes, busiest relay). The crossing point is where the busiest anchor of the distributed fit
    sends less than the busiest relay of the gather. The reductions' tree (:func:`_tree_parents`) caps every
-   anchor's children (the sixth session: at most 2, 1 for anchors of more than the median degree, so no anchor
+   anchor's children (the fifth session: at most 2, 1 for anchors of more than the median degree, so no anchor
    sends more than 3 messages per total); ``*_balanced_tree``: the third session's BFS tree with balanced parents,
    whose root sends every total to all its neighbours; ``*_bfs_tree``: scipy's BFS tree (the second session's).
 3. **A whole solve against network size** (the halls of 2., from the same displaced start, ``uwb solve``'s
@@ -245,7 +245,7 @@ def _tree_sends(graph: Graph, kind: str = "capped") -> np.ndarray:
 def _tree_parents(graph: Graph, kind: str = "capped") -> tuple[np.ndarray, int]:
     """Every anchor's parent (−1 at the root) and the root of the reductions' spanning tree of ``kind``:
 
-    - ``"capped"`` (sixth session): from the centre (the sink of a gather of one unit per anchor), the anchors in
+    - ``"capped"`` (fifth session): from the centre (the sink of a gather of one unit per anchor), the anchors in
       BFS order, each taking as parent the shallowest anchor already in the tree among its neighbours that still
       has room — at most :data:`TREE_CHILDREN` children, 1 for an anchor of more than the median degree (its
       broadcasts already load it: one message per link and round); an anchor none of whose tree neighbours has room

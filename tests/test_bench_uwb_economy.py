@@ -39,7 +39,7 @@ def test_balanced_tree_sends_2_n_minus_1_messages_and_unloads_the_hub():
 
 
 def test_capped_tree_is_a_spanning_tree_whose_anchors_send_at_most_three_messages():
-    """The capped tree (sixth session) on the hub graph above and on a 400-anchor geometric graph: every anchor's
+    """The capped tree (fifth session) on the hub graph above and on a 400-anchor geometric graph: every anchor's
     parent is a neighbour, following parents reaches the root (no cycle), 2(n − 1) messages per all-reduction, and
     its busiest anchor sends fewer than the balanced tree's, and on the geometric graph no more than 3 (2 children
     and one up)."""

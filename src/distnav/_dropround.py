@@ -45,9 +45,8 @@ def library() -> Any:
 
 
 def _load() -> Any:
-    here = os.path.dirname(
-        os.path.realpath(__file__)
-    )  # os.path, not pathlib: the MPI path's start-up imports no pathlib
+    # os.path, not pathlib: the MPI path's start-up imports no pathlib (tests/test_lazy_imports.py)
+    here = os.path.dirname(os.path.realpath(__file__))
     for suffix in importlib.machinery.EXTENSION_SUFFIXES:
         path = os.path.join(here, f"_dropround_c{suffix}")
         if not os.path.isfile(path):

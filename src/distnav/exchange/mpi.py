@@ -274,16 +274,9 @@ class MPIExchange(Exchange):
             idx = self.in_dst.dtype.type
             local_out_rows = np.flatnonzero(self._owner_of(self.out_dst) == self.rank)
             ids = self.in_edges
-            first = int(ids.min()) if ids.size else 0
-            if ids.size and int(ids.max()) - first + 1 == ids.size:  # the ids are a range: no sort
-                row_of_id = np.empty(ids.size, idx)
-                row_of_id[ids - first] = np.arange(ids.size, dtype=idx)
-                local_in = row_of_id[self.out_edges[local_out_rows] - first]
-                del row_of_id
-            else:
-                in_by_id = np.argsort(ids, kind="stable")
-                local_in = in_by_id[np.searchsorted(ids[in_by_id], self.out_edges[local_out_rows])]
-                del in_by_id
+            in_by_id = _order_of_distinct(ids)  # a range part's ids: one scatter, no sort
+            local_in = in_by_id[np.searchsorted(ids[in_by_id], self.out_edges[local_out_rows])]
+            del in_by_id
             self._local_move_rows = (local_in.astype(idx), local_out_rows.astype(idx))
         return self._local_move_rows
 

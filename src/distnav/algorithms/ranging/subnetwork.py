@@ -25,7 +25,7 @@ Under message loss a record lost on its one designated path is not made up by an
 neighbour relayed it): that anchor's ball lacks the record's anchor, which then counts in its ring — and where the
 relay left that anchor's block out, the receiver has no block for it and falls back to its conditional σ.
 
-Before issue 27's sixth session every anchor broadcast ``[id, K × 16 floats]`` (``K`` the largest degree) and, in
+Before issue 27's fifth session every anchor broadcast ``[id, K × 16 floats]`` (``K`` the largest degree) and, in
 round 2, relayed all ``K`` rows it had received to every neighbour: 44 MB on a hall of 100 anchors. Now each anchor
 gets the same ball, the same σ up to the float32 rounding, for 28–40 × fewer bytes on halls of 100–1,000 anchors.
 """

@@ -167,9 +167,7 @@ class Wire:
         active[ex.in_edges] = talks[ex.in_src]
         self.active = active
         self.talks_other = talks[other]  # per half-measurement: the other end sends
-        known = np.zeros((other.size, self.P))  # the other end's known coordinates (the problem's: fixed, held)
-        known[:, : problem.dim] = problem.positions_m[other]
-        self._known = known
+        self._problem = problem  # the other ends' known coordinates, read at a first broadcast (known_from_problem)
         self._pos: np.ndarray | None = None
         self._params: np.ndarray | None = None  # the last parameters received, per half-measurement
         self._rep: tuple[np.ndarray, np.ndarray] | None = None  # per out-edge: a half-measurement, the edge's mask
@@ -205,8 +203,9 @@ class Wire:
         if self._params is None and not (KNOWN_FROM_PROBLEM and self.known_from_problem):
             self._params = self._round(values, None, None).copy()
             return self._params.copy()
-        if self._params is None:
-            self._params = self._known.copy()
+        if self._params is None:  # the other end's known coordinates (the problem's: fixed, held), zeros elsewhere
+            self._params = np.zeros((self.other.size, self.P))
+            self._params[:, : self._problem.dim] = self._problem.positions_m[self.other]
         got = self._round(np.ascontiguousarray(values[:, self.cols]), self.active, self.talks_other)
         out = self._params
         out[np.ix_(self.talks_other, self.cols)] = got[self.talks_other]

@@ -16,7 +16,7 @@ over the exchange — messages of ``P (n_free + n)`` floats for ``≈ n_free`` r
 ``"subnetwork"`` (:func:`distnav.algorithms.ranging.precision.neighbourhood_precision` with
 :data:`PRECISION_HOPS` hops): each anchor's 2-hop sub-network from its neighbours' link records and each 2-hop
 anchor's relayed once (:mod:`distnav.algorithms.ranging.subnetwork`: 28–40 × fewer bytes than the records relayed by
-every neighbour before issue 27's sixth session), but 0.67–0.88 × LM's σ where the chain to the known anchors is long
+every neighbour before issue 27's fifth session), but 0.67–0.88 × LM's σ where the chain to the known anchors is long
 (docs/uwb.md). ``"auto"`` (the
 default): gathered for the metres objective up to ``CENTRAL_MAX_ANCHORS`` anchors, else the sub-network (whose
 busiest anchor sends less than a gather's busiest relay on large networks); the sub-network is also the fallback
