@@ -157,6 +157,11 @@ def test_uwb_solve_common_delays_on_a_hard_hall(tmp_path):
     total = np.array([float(r["offset_m"]) for r in rows])
     assert abs(total.mean() - s["common_offset_m"] / 2) < 0.05  # the delays' prior holds their mean near 0
     assert all(float(r["sigma_m"]) > 0 for r in rows)
+    assert s["offset_prior_sigma_m"] == 0.1 and s["offset_prior_estimated"] is False  # the given prior, said
+    est = ["--range-offsets", "common_delays", "--estimate-offset-prior", "--out", str(tmp_path / "e")]
+    assert main([*base, *est]) in (0, 3)
+    e = json.loads((tmp_path / "e" / "summary.json").read_text())
+    assert e["offset_prior_estimated"] is True and e["offset_prior_sigma_m"] != 0.1  # the estimate, written
     assert main([*base, "--range-offsets", "common_delays", "--solver", "N-CLM", "--out", str(tmp_path / "n")]) == 2
     assert not (tmp_path / "n").exists()
 

@@ -502,6 +502,9 @@ def _summary(
         "offsets_m": None if offsets is None else np.asarray(offsets).tolist(),
         "offsets_std_m": None if offsets_std is None else np.asarray(offsets_std).tolist(),
         "common_offset_m": getattr(res, "settings", {}).get("common_offset_m"),  # common_delays: c (offsets: c/2 + b_i)
+        # the delays' prior σ used (common_delays, or estimated: --estimate-offset-prior) and whether it was estimated
+        "offset_prior_sigma_m": getattr(res, "settings", {}).get("offset_prior_sigma_m"),
+        "offset_prior_estimated": getattr(res, "settings", {}).get("offset_prior_estimated"),
         "geometry": sol.geometry.as_dict(),
         "unsolved": list(sol.geometry.unsolved),
         "weakly_determined_anchors": list(sol.weak),
