@@ -17,6 +17,7 @@ arrays instead of holding a permuted copy; ``"auto"``: reverse Cuthill–McKee o
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from typing import Any
@@ -31,6 +32,26 @@ from distnav.network.graph_part import GraphPart
 from distnav.network.part_builders import grid_part, radius_for_mean_degree, tiled_random_geometric_part
 from distnav.network.partition import block_ranges
 from distnav.network.weights import PartWeights, part_weights
+
+#: The ``admm`` job's glibc ``M_MMAP_THRESHOLD`` (bytes; ``DISTNAV_MMAP_THRESHOLD``, 0: glibc's default, which
+#: raises the threshold up to 32 MB after the first large free, so freed set-up temporaries stay in the heap).
+MMAP_THRESHOLD = 256 * 1024
+
+
+def return_freed_blocks(threshold: int) -> int:
+    """Every allocation of at least ``threshold`` bytes gets its own mapping, returned to the system when freed
+    (glibc ``mallopt(M_MMAP_THRESHOLD)``; as ``MALLOC_MMAP_THRESHOLD_=threshold`` in the environment). Returns the
+    threshold set, 0 where not set (``threshold`` 0, or no glibc)."""
+    if threshold <= 0:
+        return 0
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return threshold if libc.mallopt(-3, threshold) == 1 else 0  # M_MMAP_THRESHOLD = -3
+    except (OSError, AttributeError):  # pragma: no cover - not glibc
+        return 0
 
 
 def vm_hwm_mb() -> float:
@@ -150,7 +171,8 @@ def admm_main() -> None:
     p, m = 10, 5
     comm = MPI.COMM_WORLD
     rank, size = comm.Get_rank(), comm.Get_size()
-    row: dict[str, Any] = {"rank": rank, "import_mb": vm_hwm_mb()}
+    threshold = int(os.environ.get("DISTNAV_MMAP_THRESHOLD", MMAP_THRESHOLD))
+    row: dict[str, Any] = {"rank": rank, "import_mb": vm_hwm_mb(), "mmap_threshold": return_freed_blocks(threshold)}
     side = int(round(np.sqrt(n)))  # an 8-neighbour grid: connected (a tiled geometric graph has lone nodes)
     n = side * side
     ranges = block_ranges(n, size)
@@ -179,7 +201,10 @@ def admm_main() -> None:
             st = next(states)
         ours.append((time.perf_counter() - t0) / iterations)
     row["iterations_mb"] = vm_hwm_mb()
-    bare = _admm_floor(part, A, st.x, iterations, repeats, comm)
+    x_last = st.x.copy()
+    del st, states, problem  # the solver's arrays go before the floor's are made (the floor is the job's, not ADMM's)
+    ex.free()
+    bare = _admm_floor(part, A, x_last, iterations, repeats, comm)
     ratio = np.asarray(ours) / np.asarray(bare)
     row.update(
         owned=part.n_local,

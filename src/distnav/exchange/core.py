@@ -110,6 +110,15 @@ class CommTotals:
         return CommTotals(0, z, z.copy(), z.copy(), z.copy(), np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
+def _all_true_as_broadcast(out_mask: np.ndarray, in_mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The real-edge masks, each held as one read-only broadcast ``True`` when it has no self-loop to leave out (a
+    graph without self-loops: two edge-sized masks less); one object for both when they were one."""
+    same = out_mask is in_mask
+    out_b = np.broadcast_to(np.True_, out_mask.shape) if bool(out_mask.all()) else out_mask
+    in_b = out_b if same else np.broadcast_to(np.True_, in_mask.shape) if bool(in_mask.all()) else in_mask
+    return out_b, in_b
+
+
 def incoming_edges(graph: Graph, nodes: np.ndarray) -> np.ndarray:
     """Global ids of the edges into ``nodes``, grouped by receiver in the order of ``nodes`` (senders ascending
     within a receiver, as in the graph's own edge order)."""
@@ -200,8 +209,12 @@ class ExchangeCore(ABC):
         self._all_sent = _masked_count(self.out_src, real_out, n)
         self._all_recv = _masked_count(self.in_dst, real_in, n)
         self._all_sent_total = int(self._all_sent.sum())
-        self._real_out = real_out
-        self._real_in = real_in
+        self._real_out, self._real_in = _all_true_as_broadcast(real_out, real_in)
+
+    def release_out_edges(self) -> None:
+        """Let go of the out-edge tables where the backend makes them again when next read (MPI on a graph part);
+        a no-op here. For a caller done with them (the aggregated ADMM's set-up on a part)."""
+        return None
 
     def _real_edges(self) -> tuple[np.ndarray, np.ndarray]:
         """Masks over the out- and in-edges that are not self-loops."""

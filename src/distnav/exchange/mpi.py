@@ -80,6 +80,18 @@ def _order_of_distinct(ids: np.ndarray) -> np.ndarray:
     return slot[slot >= 0]
 
 
+def _out_edge_tables(
+    part: GraphPart, local_of_part: np.ndarray | None, idx: type[np.signedinteger[Any]]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The block's out-edges — the reverse of every in-edge of the part — in global edge order: their ids, local
+    senders and receivers' global ids (``local_of_part``: the local index of each part position; None: the same)."""
+    recv = np.repeat(np.arange(part.n_local, dtype=idx), np.diff(part.in_ptr))
+    by_id = _order_of_distinct(part.out_edge_ids)
+    out_src = recv[by_id] if local_of_part is None else local_of_part[recv[by_id]]
+    del recv
+    return part.out_edge_ids[by_id], out_src, part.src[by_id]
+
+
 def world_rank() -> int:
     return int(_mpi().COMM_WORLD.Get_rank())
 
@@ -183,6 +195,9 @@ class MPIExchange(Exchange):
         self.dist_comm = self.comm.Create_dist_graph_adjacent(sources=nbr, destinations=nbr, reorder=False)
         self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
         self._init_accounting()
+        if np.array_equal(self._all_sent, self._all_recv):  # every link both ways: one array of both counts
+            self._all_recv = self._all_sent
+        self.release_out_edges()  # (a part's: made again when read)
 
     def _local_edges(self, part: GraphPart, perm: np.ndarray | None, idx: type[np.signedinteger[Any]]) -> np.ndarray:
         """The block's nodes in local order and its in- and out-edges; returns part position → local index.
@@ -196,18 +211,15 @@ class MPIExchange(Exchange):
         self.nodes = part.nodes if perm is None else part.nodes[rows]
         if self.part is not None:  # where the part's weights sit (PartWeights); not needed with the whole graph
             self._in_part_pos = None if pos_in is None else pos_in.astype(idx)  # None: the identity (part_rows)
-            self._node_part_pos = rows
+            self._node_part_pos = None if perm is None else rows  # None: the identity (part_rows)
         # global ids in the part's dtype (int32 where every id fits, as the part holds them): indices and
         # comparisons only
         self.in_edges = part.edge_ids if pos_in is None else part.edge_ids[pos_in]
         self.in_src = part.src if pos_in is None else part.src[pos_in]
         self.in_dst = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr)[rows])
-        # out-edges: the reverse of every in-edge, in global edge order
-        recv_part = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr))
-        by_id = _order_of_distinct(part.out_edge_ids)
-        self.out_edges = part.out_edge_ids[by_id]
-        self.out_src = local_of_part[recv_part[by_id]]
-        self.out_dst = part.src[by_id]
+        self._out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = _out_edge_tables(
+            part, None if perm is None else local_of_part, idx
+        )
         return local_of_part
 
     def _node_halo(
@@ -236,7 +248,7 @@ class MPIExchange(Exchange):
         halo = np.concatenate(recv_nodes) if has_nbr else np.zeros(0, np.int64)
         self.n_halo = int(halo.size)
         self.n_columns = self.n_local + self.n_halo
-        self.local_col = np.arange(self.n_local, dtype=np.int64)
+        self.local_col = np.arange(self.n_local, dtype=idx)
         col = np.empty(self.in_src.size, idx)
         col[sender_is_mine] = local_index(self.in_src[sender_is_mine])
         if self.n_halo:
@@ -262,10 +274,44 @@ class MPIExchange(Exchange):
     def part_rows(self) -> tuple[np.ndarray, np.ndarray]:
         if self.part is None:
             return super().part_rows()
-        if self._in_part_pos is None:  # the part's own order: the identity, made when asked (not held)
+        # the part's own order: the identities, made when asked (not held)
+        nodes = np.arange(self.n_local, dtype=np.int64) if self._node_part_pos is None else self._node_part_pos
+        if self._in_part_pos is None:
             n_in = self.in_edges.size
-            return np.arange(n_in, dtype=np.int32 if n_in < 2**31 - 1 else np.int64), self._node_part_pos
-        return self._in_part_pos, self._node_part_pos
+            return np.arange(n_in, dtype=np.int32 if n_in < 2**31 - 1 else np.int64), nodes
+        return self._in_part_pos, nodes
+
+    # the out-edge tables (``out_edges``, ``out_src``, ``out_dst``: three edge-sized arrays) of an exchange built from
+    # a part are made from the part when read and kept until :meth:`release_out_edges`; the set-up lets them go
+    # (consensus rounds and the aggregated ADMM iterations never read them)
+    def _out_edges_made(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._out is None:
+            rows = self._node_part_pos
+            local_of_part = None
+            if rows is not None:
+                local_of_part = np.empty(rows.size, self.in_dst.dtype)
+                local_of_part[rows] = np.arange(rows.size, dtype=self.in_dst.dtype)
+            assert self.part is not None  # (released only on a part)
+            self._out = _out_edge_tables(self.part, local_of_part, self.in_dst.dtype.type)
+        return self._out
+
+    @property
+    def out_edges(self) -> np.ndarray:  # type: ignore[override]
+        return self._out_edges_made()[0]
+
+    @property
+    def out_src(self) -> np.ndarray:  # type: ignore[override]
+        return self._out_edges_made()[1]
+
+    @property
+    def out_dst(self) -> np.ndarray:  # type: ignore[override]
+        return self._out_edges_made()[2]
+
+    def release_out_edges(self) -> None:
+        """Let go of the out-edge tables (made again from the part when next read): on an exchange built from a
+        graph part; a no-op on one built from the whole graph (nothing to make them from)."""
+        if self.part is not None:
+            self._out = None
 
     def _local_moves(self) -> tuple[np.ndarray, np.ndarray]:
         """The in-edge rows and out-edge rows of the messages that stay in the block (receiver owned here), made

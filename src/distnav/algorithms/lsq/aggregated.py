@@ -119,6 +119,7 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
     del x_in, x_out
     mix_z = Mixer(ex, ones, self_w, (z_in, z_out), rows=rows)
     del z_out
+    ex.release_out_edges()  # read by the masks and counts above only (three edge-sized arrays)
     count = np.bincount(ex.in_dst[z_in], minlength=ex.n_local) + inC  # c_i: constraint senders (and i ∈ C)
     del z_in
     size = part.degree[node_pos] + 1.0  # |N_s| + 1 (a part's degrees leave the self-loop out)
@@ -144,7 +145,6 @@ class _AggregatedKernel:
         _lean(self.mix_z, self.mix_x)  # (made lean already on a whole graph: then a no-op)
         self.inC_loc = rounds.inC
         self.size_s = rounds.size
-        self.size_c = self.size_s * self.inC_loc
         self.count_f = rounds.count.astype(float)  # c_i (the same values as the integer counts)
 
     def run(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int) -> Iterator[AdmmState]:
@@ -226,7 +226,8 @@ class _AggregatedKernel:
     ) -> AdmmState:
         """The monitored state. ``dz`` (``z^[k] − z^[k−1]``) is the scratch buffer of the other sums once the dual
         one is taken: ``U + c x − zsum`` (the next ``U``), then ``(x − z)`` at the constraint nodes."""
-        dual_sq = _dual_sq(dz, self.size_c, self.W, self.w_iso, self.w_scale)
+        size_c = self.size_s * self.inC_loc  # |N_s| + 1 at constraint nodes, 0 elsewhere (made when monitored)
+        dual_sq = _dual_sq(dz, size_c, self.W, self.w_iso, self.w_scale)
         U_next = _u_next(U, cnt, x, zsum, out=dz)
         if self.w_iso is not None:
             WU = np.multiply(U_next, self.w_iso, out=U_next)
@@ -243,7 +244,7 @@ class _AggregatedKernel:
                 self._pair_sq(x, z, dz) + self_sq,
                 dual_sq,
                 np.einsum("i,ij,ij->", self.count_f, x, x),
-                np.einsum("i,ij,ij->", self.size_c, z, z),
+                np.einsum("i,ij,ij->", size_c, z, z),
                 u_sq,
             ]
         )
