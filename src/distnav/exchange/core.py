@@ -211,11 +211,6 @@ class ExchangeCore(ABC):
         self._all_sent_total = int(self._all_sent.sum())
         self._real_out, self._real_in = _all_true_as_broadcast(real_out, real_in)
 
-    def release_out_edges(self) -> None:
-        """Let go of the out-edge tables where the backend makes them again when next read (MPI on a graph part);
-        a no-op here. For a caller done with them (the aggregated ADMM's set-up on a part)."""
-        return None
-
     def _real_edges(self) -> tuple[np.ndarray, np.ndarray]:
         """Masks over the out- and in-edges that are not self-loops."""
         return self.out_dst != self.nodes[self.out_src], self.in_src != self.nodes[self.in_dst]
