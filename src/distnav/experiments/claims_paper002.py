@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav.experiments.claims import FULL_ONLY, Missing, Row, checked, claim, get, rows_of
+from distnav.experiments.claims import FULL_ONLY, Missing, Row, checked, claim, get, rows_of, unchecked
 
 
 def uwb(r: dict[str, Any]) -> list[Row]:
@@ -426,13 +426,6 @@ def _setup(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
     return value, ok, why + "test_ladder_class_L, test_random_class_R in tests/test_uwb_model.py)"
 
 
-def _not_in_results(where: str, text: str, paper_value: str, why: str) -> Row:
-    """A row of a statement no run can check, with the reason."""
-    return claim(
-        paper="002", where=where, text=text, paper_value=paper_value, distnav_value=None, ok=None, why=why, test=""
-    )
-
-
 def uwb_extra(r: dict[str, Any]) -> list[Row]:
     """Issue 31: the quantitative sentences of §5–6 and Figs. 3–6 read from the run's curves and Table 1
     (:data:`UWB_EXTRA`), with the set-up of §4 first and the two statements no run can check."""
@@ -456,14 +449,16 @@ def uwb_extra(r: dict[str, Any]) -> list[Row]:
             test="tests/test_uwb_model.py::test_generated_noise_and_initial_guess_statistics",
             measure=lambda: _setup(r),
         ),
-        _not_in_results(
+        unchecked(
+            "002",
             "Fig. 1",
             "the N-CSG update matrix of a four-anchor subnet",
             "illustration",
             "not in results.json: an illustration of eqs. (15)–(18) without a quantity",
         ),
         *(row(*spec) for spec in UWB_EXTRA),
-        _not_in_results(
+        unchecked(
+            "002",
             "§5, Figs. 3–4 (g–i)",
             "class M (measured office): CSG-based RMSE 0.5–1 m, LM and N-CLM worst, middle fixed anchors best",
             "0.5–1 m",
