@@ -16,7 +16,7 @@ import pytest
 from distnav.algorithms.lsq.admm import iterate_admm
 from distnav.algorithms.lsq.blue import LinearProblem
 from distnav.algorithms.lsq.on_part import iterate_admm_on_part
-from distnav.errors import ModelError
+from distnav.errors import ExchangeError, ModelError
 from distnav.exchange import make_exchange
 from distnav.network import builders
 from distnav.network.constraint_nodes import part_cover
@@ -116,6 +116,42 @@ def test_exchange_on_a_part_holds_no_copy_of_its_edge_arrays_in_the_parts_order(
     assert inbox.delivered.all() and np.array_equal(inbox.values, ex.in_edges.astype(float))
     rows = ex.part_rows()[0]
     assert np.array_equal(part.edge_ids[rows], ex.in_edges)  # the part position of every local in-edge
+
+
+@pytest.mark.parametrize("self_loops", [False, True])
+def test_exchange_on_a_part_makes_its_out_edge_tables_when_read(self_loops):
+    """An exchange built from a part holds no out-edge tables after its set-up (made from the in-edges: every link
+    is stored both ways), nor after the aggregated ADMM's set-up and iterations; read, they are the block's
+    out-edges as the whole graph's own arrays list them, and its counts are the graph's. The real-edge masks are a
+    broadcast True only without self-loops."""
+    pytest.importorskip("mpi4py", reason="the mpi extra is not installed")
+    from distnav.exchange.mixer import Mixer
+    from distnav.network.partition import block_ranges
+
+    g = builders.connected_random_geometric(40, mean_degree=5, rng=np.random.default_rng(4), self_loops=self_loops)
+    part = GraphPart.from_graph(g, np.arange(40))  # (mpi4py's singleton: one rank holds every node)
+    ex = make_exchange(part, backend="mpi", partition=block_ranges(40, 1), order="none")
+    assert ex._out is None and ex._edge_send is None
+    real = g.src != g.dst
+    assert ex._all_sent is ex._all_recv and np.array_equal(ex._all_sent, np.bincount(g.dst[real], minlength=40))
+    assert (ex._real_in.strides == (0,)) != self_loops and np.array_equal(ex._real_in, real[ex.in_edges])
+    A, y = np.ones((40, 2, 1)), np.arange(80.0).reshape(40, 2)
+    prob = LinearProblem.from_stacked(A, y)
+    states = iterate_admm_on_part(prob, ex, W=1.0)
+    C = np.flatnonzero(part_cover(part))
+    g_ex = make_exchange(g)
+    ref = iterate_admm(prob, g, constraint_nodes=C, W=1.0, messages="aggregated", exchange=g_ex)
+    for _ in range(3):
+        a, b = next(states), next(ref)
+    assert np.array_equal(a.x, b.x) and ex._out is None
+    # the rounds' sent counts come from the in-edges: the same messages as the in-process run counts
+    ours, theirs = ex.comm_totals(), g_ex.comm_totals()
+    assert np.array_equal(ours.messages_sent, theirs.messages_sent) and ours.messages > 0
+    assert np.array_equal(ours.messages_received, theirs.messages_received)
+    assert np.array_equal(ex.out_edges, np.arange(g.n_edges))  # the whole graph's edges, global order
+    assert np.array_equal(ex.out_src, g.src) and np.array_equal(ex.out_dst, g.dst)
+    with pytest.raises(ExchangeError, match="without its out-edge mask needs sent_counts"):
+        Mixer(ex, np.ones(part.n_local_edges), np.ones(10), (np.ones(part.n_local_edges, bool), None))
 
 
 def test_refusals_name_the_problem():
