@@ -107,6 +107,40 @@ def test_simulated_receivers_measure_their_channel_biases() -> None:
     assert np.sqrt(np.mean(est)) == pytest.approx(float(drawn.std()), rel=0.35)
 
 
+def test_simulated_system_with_too_few_arcs_borrows_the_receivers_gps_factor() -> None:
+    """One receiver (realistic preset, one day): a 10-satellite "other system" has too few arcs for its own factor
+    (as BeiDou from BELE), and its σ from the predicted residuals is ≈ 3× too small against the truth; with the
+    factor of the same receiver's arcs of all 31 satellites (same multipath model) the pooled RMS(error/σ) over
+    five days is 0.74 (per day 0.37–1.01: one day's ten satellites scatter)."""
+    from distnav.models.gnss.netsim import REALISTIC
+
+    own, borrowed = [], []
+    mo = BiasModelOptions(min_satellite_obs=30)
+    for seed in range(5):
+        orbit = synthetic_gps_constellation(epoch="2024-01-10T00:00:00")
+        opts = NetworkSimOptions(**{**REALISTIC, "interval_s": 30.0, "svn49": None})  # type: ignore[arg-type]
+        sim = simulate_network(
+            orbit, "2024-01-10", opts, rng=np.random.default_rng(seed), stations={"SIMA": (49.14, 12.88, 650.0)}
+        )
+        sub = list(orbit.svs)[seed % 3 :: 3][:10]
+        rest = tuple(s for s in orbit.svs if s not in sub)
+        other = network_from_observations(
+            sim.observations, orbit, NetworkOptions(l2_code="C2W", interval_s=30.0, exclude=rest, model=mo)
+        )
+        gps = network_from_observations(
+            sim.observations, orbit, NetworkOptions(l2_code="C2W", interval_s=30.0, model=mo)
+        )
+        (c,), _ = run_bias_filters(other, BiasFilterOptions(local=False, between_station_level=None))
+        (g,), _ = run_bias_filters(gps, BiasFilterOptions(local=False, between_station_level=None))
+        assert c.arc_variance_factor is None and g.arc_variance_factor is not None
+        for out, series in ((own, c), (borrowed, with_arc_factor([c], g.arc_variance_factor)[0])):
+            sat, rx, sd = final_dsbs(other, series)
+            r = compare_in_datum(sat, rx, truth_product(sim))
+            out.extend(d / sd[s] for s, d in r["difference_ns"].items())
+    assert np.sqrt(np.mean(np.square(own))) > 2.0
+    assert 0.6 <= np.sqrt(np.mean(np.square(borrowed))) <= 1.3
+
+
 def test_borrowed_arc_factor_only_where_missing() -> None:
     from distnav.models.gnss.gfcollector import DatumSeries
 
