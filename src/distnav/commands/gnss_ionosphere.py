@@ -222,7 +222,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
             data = replace(data, notes=[*data.notes, spread.statement()])
     from distnav.commands.gnss_sigma_terms import sigma_terms
 
-    data, series = sigma_terms(args, data, network_options(args), series)
+    data, series = sigma_terms(args, data, orbit, network_options(args), series)
     ifb = "glonass_channel_ifb" in data.sigma_terms
     limits = sigma_limits(series, len(stations), getattr(args, "system", "G"), args.levelling == "arc", ifb)
     data = replace(data, notes=[*data.notes, *limits])

@@ -24,9 +24,11 @@ doi:10.1007/s10291-017-0618-5); 2 ns of the DSB is a round value at the low end 
 papers (docs/gnss.md says what it was checked on). No prior is applied to the P pair (C1P−C2P) unless given."""
 
 
-def sigma_terms(args: argparse.Namespace, data: Any, options: Any, series: list[Any]) -> tuple[Any, list[Any]]:
+def sigma_terms(
+    args: argparse.Namespace, data: Any, orbit: Any, options: Any, series: list[Any]
+) -> tuple[Any, list[Any]]:
     """The data with the terms' notes and ``sigma_terms`` record, and the series with the terms applied;
-    ``options`` the run's :class:`~distnav.commands.gnss_ionosphere_data.NetworkOptions`."""
+    ``orbit`` the run's orbits, ``options`` its :class:`~distnav.commands.gnss_ionosphere_data.NetworkOptions`."""
     record: dict[str, Any] = {}
     notes: list[str] = []
     system = getattr(args, "system", "G")
@@ -36,7 +38,7 @@ def sigma_terms(args: argparse.Namespace, data: Any, options: Any, series: list[
         notes.append(note)
         record["arc_factor"] = rec
     if system == "R" and data.frequencies_hz is not None:
-        series, ifb = glonass_channel_ifb(args, data, series)
+        series, ifb = glonass_channel_ifb(args, data, orbit, options, series)
         if ifb is not None:
             notes.append(ifb.statement())
             record["glonass_channel_ifb"] = ifb.as_dict()
@@ -80,12 +82,15 @@ def borrowed_arc_factor(
     return with_arc_factor(series, float(factor)), note, rec
 
 
-def glonass_channel_ifb(args: argparse.Namespace, data: Any, series: list[Any]) -> tuple[list[Any], Any]:
-    """The receivers' channel-bias consider term: σ from the single-station solutions of two or more receivers,
-    else the prior (``--glonass-ifb-sigma-ns``; by default only for a C/A pair)."""
+def glonass_channel_ifb(
+    args: argparse.Namespace, data: Any, orbit: Any, network: Any, series: list[Any]
+) -> tuple[list[Any], Any]:
+    """The receivers' channel-bias consider term. Its σ: ``--glonass-ifb-sigma-ns`` when given; else from the
+    data — the single-station solutions of two or more receivers, or for one receiver on a C/A pair the same
+    receiver's P pair (C1P−C2P) of the same files; else for a C/A pair the prior :data:`GLONASS_IFB_PRIOR_NS`
+    (a P pair alone gets none)."""
     from distnav.models.gnss.sigmaterms import (
         ChannelIfb,
-        channel_ifb_sigma_ns,
         channel_ifb_variance_ns2,
         channels_from_f1_hz,
         with_channel_ifb,
@@ -94,26 +99,65 @@ def glonass_channel_ifb(args: argparse.Namespace, data: Any, series: list[Any]) 
     n = len(data.stations)
     k = channels_from_f1_hz(data.frequencies_hz[0])
     by_sv = dict(zip(data.layout.svs, k.tolist(), strict=True))
-    local = [s for s in series if s.label.startswith("local:")]
+    given = getattr(args, "glonass_ifb_sigma_ns", None)
+    ca = "C" in (args.l1_code.upper()[-1:], args.l2_code.upper()[-1:])
     ifb = None
-    if len(local) >= 2:
-        est, K, dof = [], 0, 0
-        for a in range(len(local)):
-            for b in range(a + 1, len(local)):
-                d = local[a].dsb_ns[-1, n:] - local[b].dsb_ns[-1, n:]
-                sig, K_ab, dof_ab = channel_ifb_sigma_ns(dict(zip(data.layout.svs, d.tolist(), strict=True)), by_sv)
-                if np.isfinite(sig):
-                    est.append(sig**2 / 2.0)  # two independent receivers: 2σ_ifb²
-                    K, dof = max(K, K_ab), max(dof, dof_ab)
-        if est:
-            ifb = ChannelIfb(float(np.sqrt(np.mean(est))), "between receivers", n, K, dof, "floor")
+    if given is not None:
+        ifb = ChannelIfb(float(given), "given", n, mode="added" if n == 1 else "floor")
+    elif n >= 2:
+        ifb = _between_receivers(data, series, by_sv)
+    elif ca:
+        ifb = _against_the_p_pair(args, data, orbit, network, series, by_sv)
+    if ifb is None and given is None and ca:
+        ifb = ChannelIfb(GLONASS_IFB_PRIOR_NS, "prior", n, mode="added" if n == 1 else "floor")
     if ifb is None:
-        prior = getattr(args, "glonass_ifb_sigma_ns", None)
-        ca = "C" in (args.l1_code.upper()[-1:], args.l2_code.upper()[-1:])
-        if prior is None and ca:
-            prior = GLONASS_IFB_PRIOR_NS
-        if prior is None or prior == 0.0:
-            return series, None
-        ifb = ChannelIfb(float(prior), "prior", n, mode="added" if n == 1 else "floor")
+        return series, None
     var = channel_ifb_variance_ns2(k, ifb.sigma_ns, n)
     return with_channel_ifb(series, n, var, floor=ifb.mode == "floor"), ifb
+
+
+def _between_receivers(data: Any, series: list[Any], by_sv: dict[str, float]) -> Any:
+    """σ_ifb from every pair of receivers' single-station satellite DSBs (each pair's channel means: 2σ_ifb²)."""
+    from distnav.models.gnss.sigmaterms import ChannelIfb, channel_ifb_sigma_ns
+
+    n = len(data.stations)
+    local = [s for s in series if s.label.startswith("local:")]
+    est, K, dof = [], 0, 0
+    for a in range(len(local)):
+        for b in range(a + 1, len(local)):
+            d = local[a].dsb_ns[-1, n:] - local[b].dsb_ns[-1, n:]
+            sig, K_ab, dof_ab = channel_ifb_sigma_ns(dict(zip(data.layout.svs, d.tolist(), strict=True)), by_sv)
+            if np.isfinite(sig):
+                est.append(sig**2 / 2.0)  # two independent receivers: 2σ_ifb²
+                K, dof = max(K, K_ab), max(dof, dof_ab)
+    return ChannelIfb(float(np.sqrt(np.mean(est))), "between receivers", n, K, dof, "floor") if est else None
+
+
+def _against_the_p_pair(
+    args: argparse.Namespace, data: Any, orbit: Any, network: Any, series: list[Any], by_sv: dict[str, float]
+) -> Any:
+    """One receiver on a C/A pair: the central filter of its P pair (C1P−C2P) in the same files and window; the
+    channel means of the C/A minus P satellite DSBs carry both pairs' channel patterns (σ_CA² + σ_P²), an upper
+    bound of the C/A pair's. ``None`` where the P codes are not tracked."""
+    from distnav.commands.gnss_ionosphere_data import network_data
+    from distnav.models.gnss.gfnetwork import BiasFilterOptions, run_bias_filters
+    from distnav.models.gnss.sigmaterms import ChannelIfb, channel_ifb_sigma_ns
+
+    try:
+        p = network_data(
+            args.obs,
+            orbit,
+            replace(network, l2_code="C2P"),
+            l1_code="C1P",
+            tlim=tuple(args.tlim) if args.tlim else None,
+            system="R",
+        )
+        (cp,), _ = run_bias_filters(p, BiasFilterOptions(local=False, between_station_level=None))
+    except (DataFileError, ModelError):
+        return None
+    central = next(s for s in series if s.label == "central")
+    ours = dict(zip(data.layout.svs, central.dsb_ns[-1, 1:].tolist(), strict=True))
+    theirs = dict(zip(p.layout.svs, cp.dsb_ns[-1, len(p.stations) :].tolist(), strict=True))
+    d = {sv: ours[sv] - theirs[sv] for sv in ours if sv in theirs}
+    sig, K, dof = channel_ifb_sigma_ns(d, by_sv)
+    return ChannelIfb(float(sig), "P pair of the same receiver", 1, K, dof) if np.isfinite(sig) else None

@@ -51,9 +51,10 @@ GLONASS_G1_HZ, GLONASS_G1_STEP_HZ = 1602.0e6, 0.5625e6
 @dataclass(frozen=True)
 class ChannelIfb:
     """The consider term of the receivers' FDMA channel biases: ``sigma_ns`` σ_ifb per receiver and channel,
-    ``source`` (``"between receivers"`` or ``"prior"``), ``channels`` and ``dof`` of the estimate (0 for a prior),
-    ``receivers`` n_r and ``mode`` (``"added"``: one receiver; ``"floor"``: a network, whose between-station floor
-    already scales with the receivers' differences)."""
+    ``source`` (``"between receivers"``, ``"P pair of the same receiver"``, ``"given"`` or ``"prior"``),
+    ``channels`` and ``dof`` of the estimate (0 for a prior), ``receivers`` n_r and ``mode`` (``"added"``: one
+    receiver; ``"floor"``: a network, whose arcs and between-station floor already see the receivers'
+    differences)."""
 
     sigma_ns: float
     source: str
@@ -73,11 +74,13 @@ class ChannelIfb:
         }
 
     def statement(self) -> str:
-        where = (
-            f"from the {self.receivers} receivers' single-station DSBs ({self.channels} channels, {self.dof} dof)"
-            if self.source == "between receivers"
-            else "the prior --glonass-ifb-sigma-ns (one receiver: not estimable from its data; docs/gnss.md)"
-        )
+        where = {
+            "between receivers": f"from the {self.receivers} receivers' single-station DSBs ({self.channels} "
+            f"channels, {self.dof} dof)",
+            "P pair of the same receiver": f"from the channel means of its C/A minus P-pair (C1P-C2P) DSBs "
+            f"({self.channels} channels, {self.dof} dof; both pairs' patterns: an upper bound)",
+            "given": "as given by --glonass-ifb-sigma-ns",
+        }.get(self.source, "the prior of --glonass-ifb-sigma-ns (not estimable from these data; docs/gnss.md)")
         how = "added to" if self.mode == "added" else "a floor of"
         return (
             f"model choice: GLONASS FDMA channel biases of the receivers, σ {self.sigma_ns:.2f} ns per receiver and "
@@ -102,8 +105,8 @@ def channel_ifb_variance_ns2(channels: Sequence[float] | np.ndarray, sigma_ns: f
     satellites (module doc): ``σ²/n_r · (1 − 2 n_k/S + Σ_j n_j²/S²)``; a satellite without a channel (NaN) gets 0.
 
     >>> from distnav.models.gnss.sigmaterms import channel_ifb_variance_ns2
-    >>> channel_ifb_variance_ns2([1, 1, 2, 3], 2.0, 1)  # S = 4, n = (2, 2, 1, 1): Σn²/S² = 10/16
-    array([2.5, 2.5, 4.5, 4.5])
+    >>> channel_ifb_variance_ns2([1, 1, 2, 3], 2.0, 1)  # S = 4, n = (2, 1, 1): Σn²/S² = 6/16
+    array([1.5, 1.5, 3.5, 3.5])
     """
     k = np.asarray(channels, float)
     ok = np.isfinite(k)
