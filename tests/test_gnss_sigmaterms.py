@@ -111,7 +111,7 @@ def test_simulated_system_with_too_few_arcs_borrows_the_receivers_gps_factor() -
     """One receiver (realistic preset, one day): a 10-satellite "other system" has too few arcs for its own factor
     (as BeiDou from BELE), and its σ from the predicted residuals is ≈ 3× too small against the truth; with the
     factor of the same receiver's arcs of all 31 satellites (same multipath model) the pooled RMS(error/σ) over
-    five days is 0.74 (per day 0.37–1.01: one day's ten satellites scatter)."""
+    five draws of the day is 0.74 (per draw 0.37–1.01: ten satellites scatter)."""
     from distnav.models.gnss.netsim import REALISTIC
 
     own, borrowed = [], []
