@@ -77,7 +77,7 @@ def borrowed_arc_factor(
     note = (
         f"model choice: the arcs' variance factor is not estimable (fewer than 8 degrees of freedom beyond the "
         f"biases), so the realistic σ takes the factor of the same receivers' GPS C1C-C2W arcs, σ̂²_arc "
-        f"{factor:.2f} (formal × {np.sqrt(factor):.2f}; the same arc error in metres assumed: docs/gnss.md)"
+        f"{factor:.2f} (formal × {np.sqrt(factor):.2f}; its arcs assumed to err as GPS's: docs/gnss.md)"
     )
     return with_arc_factor(series, float(factor)), note, rec
 

@@ -6,10 +6,10 @@ degrees of freedom beyond the biases (BeiDou's 15 MEO satellites from one equato
 biases) it is not estimable and the filter falls back to the predicted residuals' factor, which does not see that
 error (BELE's BeiDou σ 2.24× too small against CAS). The same receiver's GPS arcs in the same observation file go
 through the same levelling, antenna and environment; their factor σ̂²_arc (the ratio of the arc-constant error's
-variance to the white model's ``1/W_a``, with the same code σ model in metres) is taken for the other system's
-arcs (:func:`with_arc_factor`). The assumption — the same arc error in metres for both systems' codes — is a
-departure from paper 003 (formal σ only), stated on the console and checked against CAS and the simulator
-(docs/gnss.md).
+variance to the white model's ``1/W_a``, whose code σ each pair scales by ``1/(μ − 1)``) is taken for the other
+system's arcs (:func:`with_arc_factor`). The assumption — the other system's arcs err relative to that model as
+the GPS arcs do — is a departure from paper 003 (formal σ only), stated on the console and checked against CAS
+and the simulator (docs/gnss.md).
 
 **GLONASS: the receivers' FDMA channel biases as a consider term.** Each GLONASS receiver has its own
 inter-frequency code bias ``δ_{r,k}`` per FDMA channel *k*, shared by the channel's (two antipodal) satellites and
