@@ -35,7 +35,7 @@ def sigma_terms(
     central = next((s for s in series if s.label == "central"), None)
     if system != "G" and args.levelling == "arc" and central is not None and central.arc_variance_factor is None:
         series, note, rec = borrowed_arc_factor(args, options, series)
-        notes.append(note)
+        notes += [note] if note else []  # without: sigma_limits says the factor is missing
         record["arc_factor"] = rec
     if system == "R" and data.frequencies_hz is not None:
         series, ifb = glonass_channel_ifb(args, data, orbit, options, series)
@@ -47,7 +47,7 @@ def sigma_terms(
 
 def borrowed_arc_factor(
     args: argparse.Namespace, network: Any, series: list[Any]
-) -> tuple[list[Any], str, dict[str, Any]]:
+) -> tuple[list[Any], str | None, dict[str, Any]]:
     """The central filter of the same observation files' GPS C1C−C2W arcs (same stations, window, grid and model)
     and its arcs' variance factor, given to the series without one."""
     from distnav.commands.gnss_ionosphere_data import network_data
@@ -67,12 +67,12 @@ def borrowed_arc_factor(
         gps = network_data(args.obs, orbit, options, l1_code="C1C", tlim=tuple(args.tlim) if args.tlim else None)
         (central,), _ = run_bias_filters(gps, BiasFilterOptions(local=False, between_station_level=None))
     except (DataFileError, ModelError) as exc:
-        why = f"no GPS C1C/C2W arcs to borrow from ({exc})"
-        return series, f"precision: the arcs' variance factor is not estimable and {why}: expect the σ too small", rec
+        rec["not_borrowed"] = f"no GPS C1C/C2W arcs: {exc}"
+        return series, None, rec
     factor = central.arc_variance_factor
     if factor is None:
-        note = "precision: the arcs' variance factor is not estimable, nor from the same files' GPS arcs"
-        return series, note + ": expect the σ too small", rec
+        rec["not_borrowed"] = "the GPS arcs' factor is not estimable either"
+        return series, None, rec
     rec["factor"] = float(factor)
     note = (
         f"model choice: the arcs' variance factor is not estimable (fewer than 8 degrees of freedom beyond the "
@@ -112,8 +112,11 @@ def glonass_channel_ifb(
         ifb = ChannelIfb(GLONASS_IFB_PRIOR_NS, "prior", n, mode="added" if n == 1 else "floor")
     if ifb is None:
         return series, None
-    var = channel_ifb_variance_ns2(k, ifb.sigma_ns, n)
-    return with_channel_ifb(series, n, var, floor=ifb.mode == "floor"), ifb
+    floor = ifb.mode == "floor"
+    network = channel_ifb_variance_ns2(k, ifb.sigma_ns, n)  # the receivers' mean per channel
+    own = channel_ifb_variance_ns2(k, ifb.sigma_ns, 1)  # a single-station filter carries its receiver's own
+    out = [with_channel_ifb([s], n, own if s.label.startswith("local:") else network, floor=floor)[0] for s in series]
+    return out, ifb
 
 
 def _between_receivers(data: Any, series: list[Any], by_sv: dict[str, float]) -> Any:
