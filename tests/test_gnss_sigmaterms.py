@@ -193,3 +193,45 @@ def test_bele_alone_beidou_and_glonass_sigma_against_cas(
         assert ifb["source"] == "P pair of the same receiver" and ifb["channels"] >= 10 and ifb["sigma_ns"] > 1.5
         assert any("C/A minus P-pair" in n for n in s["notes"])
         assert 0.7 <= ratio <= 1.3
+
+
+def test_the_command_chooses_the_channel_bias_source_and_applies_it_per_filter() -> None:
+    """Two receivers: σ_ifb from their single-station DSBs (channel means of the difference, ANOVA), a floor,
+    the single-station filters with their own receiver's share (n_r = 1), the network's with the mean's; a given
+    --glonass-ifb-sigma-ns wins; a P pair of one receiver gets nothing by default."""
+    from argparse import Namespace
+    from types import SimpleNamespace
+
+    from distnav.commands.gnss_sigma_terms import glonass_channel_ifb
+    from distnav.models.gnss.gfcollector import DatumSeries
+
+    k = np.array(CHANNELS, float)
+    svs = [f"R{j + 1:02d}" for j in range(k.size)]
+    f1 = 1602e6 + 0.5625e6 * k
+    groups = np.unique(k)
+    rng = np.random.default_rng(4)
+    pattern = rng.normal(0, 3.0, groups.size)[np.searchsorted(groups, k)]
+    S, n = k.size, 2
+    tiny = np.full((1, n + S), 1e-3)
+
+    def series(label: str, sats: np.ndarray) -> DatumSeries:
+        dsb = np.concatenate([[0.0, 0.0], sats])[None]
+        return DatumSeries(label, np.zeros((1, 3)), np.zeros((1, 3)), dsb, tiny, 1.0)
+
+    data = SimpleNamespace(stations=["A", "B"], layout=SimpleNamespace(svs=svs), frequencies_hz=(f1, f1))
+    filters = [series("central", pattern / 2), series("local:A", pattern), series("local:B", np.zeros(S))]
+    args = Namespace(glonass_ifb_sigma_ns=None, l1_code="C1C", l2_code="C2C", obs=[], tlim=None)
+    out, ifb = glonass_channel_ifb(args, data, None, None, filters)
+    expected = channel_ifb_sigma_ns(dict(zip(svs, pattern, strict=True)), dict(zip(svs, k, strict=True)))[0] / np.sqrt(
+        2
+    )
+    assert ifb.source == "between receivers" and ifb.mode == "floor" and ifb.sigma_ns == pytest.approx(expected)
+    var_net = channel_ifb_variance_ns2(k, ifb.sigma_ns, 2)
+    var_own = channel_ifb_variance_ns2(k, ifb.sigma_ns, 1)
+    np.testing.assert_allclose(out[0].realistic_std_ns()[n:] ** 2, var_net, rtol=1e-6)
+    np.testing.assert_allclose(out[1].realistic_std_ns()[n:] ** 2, var_own, rtol=1e-6)
+    args.glonass_ifb_sigma_ns = 1.0
+    assert glonass_channel_ifb(args, data, None, None, filters)[1].source == "given"
+    one = SimpleNamespace(stations=["A"], layout=SimpleNamespace(svs=svs), frequencies_hz=(f1, f1))
+    p = Namespace(glonass_ifb_sigma_ns=None, l1_code="C1P", l2_code="C2P", obs=[], tlim=None)
+    assert glonass_channel_ifb(p, one, None, None, [series("central", pattern)])[1] is None
