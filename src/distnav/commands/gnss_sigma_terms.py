@@ -140,8 +140,9 @@ def _against_the_p_pair(
     args: argparse.Namespace, data: Any, orbit: Any, network: Any, series: list[Any], by_sv: dict[str, float]
 ) -> Any:
     """One receiver on a C/A pair: the central filter of its P pair (C1P−C2P) in the same files and window; the
-    channel means of the C/A minus P satellite DSBs carry both pairs' channel patterns (σ_CA² + σ_P²), an upper
-    bound of the C/A pair's. ``None`` where the P codes are not tracked."""
+    channel means of the C/A minus P satellite DSBs carry the difference of the two pairs' channel patterns
+    (σ_CA² + σ_P² if independent: an upper bound of the C/A pair's; nothing of a pattern both pairs share, as
+    DGAR's). ``None`` where the P codes are not tracked."""
     from distnav.commands.gnss_ionosphere_data import network_data
     from distnav.models.gnss.gfnetwork import BiasFilterOptions, run_bias_filters
     from distnav.models.gnss.sigmaterms import ChannelIfb, channel_ifb_sigma_ns
