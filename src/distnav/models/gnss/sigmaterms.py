@@ -22,8 +22,9 @@ satellite *s* on channel ``k(s)`` of a network of ``n_r`` receivers takes the re
 (:func:`channel_ifb_variance_ns2`; the receiver DSBs take the mean). The size ``σ_ifb`` comes from the data where
 two or more receivers are there: the difference of two receivers' single-station satellite DSBs has per channel the
 mean ``δ_{r,k} − δ_{r',k}`` (variance ``2σ_ifb²``) plus the estimation's errors, which the scatter within a
-channel measures — a one-way random-effects analysis of variance (:func:`channel_ifb_sigma_ns`). One receiver has
-no such data: then a stated prior (``--glonass-ifb-sigma-ns``, docs/gnss.md).
+channel measures — a one-way random-effects analysis of variance (:func:`channel_ifb_sigma_ns`). One receiver
+tracking both GLONASS pairs gives the same analysis of its C/A minus P-pair DSBs (the difference of the two pairs'
+patterns); without either, a stated prior (``--glonass-ifb-sigma-ns``, docs/gnss.md).
 """
 
 from __future__ import annotations
