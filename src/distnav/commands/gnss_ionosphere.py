@@ -516,8 +516,9 @@ _HELP = {  # the model, levelling and screening options' help texts (the calls b
     "min-arc": "shortest arc kept for levelling, in epochs of the file (default 10)",
     "gf-threshold": "smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x the "
     "satellite's recent prediction-error RMS where the ionosphere is noisier)",
-    "glonass-ifb": "GLONASS, one receiver: σ of its FDMA channel biases per channel [ns] (default 2.0 for a C/A "
-    "pair, none for C1P-C2P; 0: off; two or more receivers estimate it from their single-station DSBs; docs/gnss.md)",
+    "glonass-ifb": "GLONASS: σ of the receivers' FDMA channel biases per channel [ns], used as given (0: off); not "
+    "given, estimated from two or more receivers' single-station DSBs or from one receiver's C/A minus P-pair "
+    "channel means, else 2.0 for a C/A pair and none for C1P-C2P (docs/gnss.md)",
     "model-spread": "one station, or stations each with its own ionosphere layer: add to each satellite's σ the "
     "RMS difference of its DSBs under the other "
     "ionosphere field (linear/thin shell vs second order/modified mapping; docs/gnss.md); off: the filter's σ alone",
