@@ -193,13 +193,12 @@ class MPIExchange(Exchange):
         nbr = self.neighbour_ranks.tolist()
         self.dist_comm = self.comm.Create_dist_graph_adjacent(sources=nbr, destinations=nbr, reorder=False)
         self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
-        self._init_accounting()
-        if np.array_equal(self._all_sent, self._all_recv):  # every link both ways: one array of both counts
-            self._all_recv = self._all_sent
+        self._init_accounting()  # (one array of the sent and received all-edge counts: _out_reverses_in)
         self.release_out_edges()  # (a part's: made again when read)
 
     def _local_edges(self, part: GraphPart, perm: np.ndarray | None, idx: type[np.signedinteger[Any]]) -> np.ndarray:
-        """The block's nodes in local order and its in- and out-edges; returns part position → local index.
+        """The block's nodes in local order and its in-edges (the out-edges: :meth:`_out_edges_made`); returns part
+        position → local index.
         ``perm[k]`` is the position in ``part.nodes`` of local node k (None: the part's order)."""
         n_local = part.n_local
         rows = np.arange(n_local, dtype=np.int64) if perm is None else np.asarray(perm, np.int64)
