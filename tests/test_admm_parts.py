@@ -144,13 +144,13 @@ def test_exchange_on_a_part_makes_its_out_edge_tables_when_read(self_loops):
     for _ in range(3):
         a, b = next(states), next(ref)
     assert np.array_equal(a.x, b.x) and ex._out is None
-    # the rounds' sent counts come from the in-edges: the same messages as the in-process run counts
+    # the rounds' counts come from the in-edges: the same messages as the in-process run counts
     ours, theirs = ex.comm_totals(), g_ex.comm_totals()
     assert np.array_equal(ours.messages_sent, theirs.messages_sent) and ours.messages > 0
     assert np.array_equal(ours.messages_received, theirs.messages_received)
     assert np.array_equal(ex.out_edges, np.arange(g.n_edges))  # the whole graph's edges, global order
     assert np.array_equal(ex.out_src, g.src) and np.array_equal(ex.out_dst, g.dst)
-    with pytest.raises(ExchangeError, match="without its out-edge mask needs sent_counts"):
+    with pytest.raises(ExchangeError, match="without its out-edge mask needs its counts"):
         Mixer(ex, np.ones(part.n_local_edges), np.ones(10), (np.ones(part.n_local_edges, bool), None))
 
 

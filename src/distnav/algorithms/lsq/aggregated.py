@@ -95,17 +95,18 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
         x_in &= real_in
         z_in &= real_in
         del real_in
-    # the sent counts without the out-edge tables (every link runs both ways): a node sends into C on as many links
-    # as it receives on from C (the z-round's received counts), a constraint node out of C on all its real links
+    # the rounds' counts from the in-edges (every link runs both ways): a node sends into C on as many links as it
+    # receives on from C, a constraint node receives into C and sends out of C on all its real links
     from_c = np.bincount(ex.in_dst[z_in], minlength=ex.n_local)
     degree = part.degree[node_pos]  # (a part's degrees leave the self-loop out)
+    all_c = np.where(inC, degree, 0).astype(np.int64)
     # 0/1 weights on the part (one broadcast 1.0, zeroed off the masks); the masks are over the block's own edge
     # rows, which Exchange.mixer (a mask over the whole graph's edges) does not take: the mixer is made directly
     ones = np.broadcast_to(np.float64(1.0), (part.n_local_edges,))
     self_w = np.asarray(inC_part, float)
-    mix_x = Mixer(ex, ones, self_w, (x_in, None), rows=rows, sent_counts=from_c)
+    mix_x = Mixer(ex, ones, self_w, (x_in, None), rows=rows, counts=(from_c, all_c))
     del x_in
-    mix_z = Mixer(ex, ones, self_w, (z_in, None), rows=rows, sent_counts=np.where(inC, degree, 0).astype(np.int64))
+    mix_z = Mixer(ex, ones, self_w, (z_in, None), rows=rows, counts=(all_c, from_c))
     del z_in
     count = from_c + inC  # c_i: constraint senders (and i ∈ C)
     size = degree + 1.0  # |N_s| + 1
