@@ -11,7 +11,9 @@ rounds, gains, state 0), ``VmHWM`` after the part and the problem, after the set
 the iteration against its floor: two products of a 0/1 CSR matrix of the rank's rows (``p`` columns, written from
 the part) and the batched x-update products, timed after the run. ``ORDER`` is the exchange's local order
 (default ``"none"``: the grid's row-major ids are already local, and the exchange then shares the part's edge
-arrays instead of holding a permuted copy; ``"auto"``: reverse Cuthill–McKee of the part).
+arrays instead of holding a permuted copy; ``"auto"``: reverse Cuthill–McKee of the part). The job sets glibc's mmap
+threshold (:data:`MMAP_THRESHOLD`: freed set-up temporaries go back to the system), and after the iterations frees
+the solver, checks its result (:func:`_admm_check`) and times the floor.
 """
 
 from __future__ import annotations
