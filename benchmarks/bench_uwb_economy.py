@@ -14,10 +14,11 @@ and how both grow with the network.
    stopped on ``rᵀz`` with float16 dot products, trials as float32 steps, the seed fits at their stage tolerances,
    the σ gathered at one anchor, the exclusion loop's re-fits stopped at 1 cm and decided with a margin, every warm
    fit from the last fit's common offset and damping, the tightening's jump; but no extrapolated tail,
-   ``refine.EXTRAPOLATE`` None, and every near-critical link leaving a loose re-fit's choice open,
-   ``qc.BLOCKED_NEAR`` False) and *after* (the defaults: the LM phase's steady IRLS tail extrapolated,
-   ``refine.EXTRAPOLATE``; a near-critical link that a pick of its anchors always blocks no longer leaves the
-   choice open, ``qc.BLOCKED_NEAR``); the positions, their
+   ``refine.EXTRAPOLATE`` None, every near-critical link leaving a loose re-fit's choice open,
+   ``qc.BLOCKED_NEAR`` False, one loose rung, ``field_fits.REFIT_STAGES`` ``("refit",)``) and *after* (the
+   defaults: the LM phase's steady IRLS tail extrapolated, ``refine.EXTRAPOLATE``; a near-critical link that a
+   pick of its anchors always blocks no longer leaves the choice open, ``qc.BLOCKED_NEAR``; an open choice goes
+   to a 3 mm fit before the full one, ``field_fits.REFIT_STAGES``); the positions, their
    largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
    of that gather over the range graph (:func:`distnav.network.gather.gather_cost`). Per anchor: what each
@@ -98,7 +99,7 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (refine, "EXTRAPOLATE"): None,
         (qc, "BLOCKED_NEAR"): False,
     },
-    "today": {(refine, "EXTRAPOLATE"): None, (qc, "BLOCKED_NEAR"): False},
+    "today": {(refine, "EXTRAPOLATE"): None, (qc, "BLOCKED_NEAR"): False, (field_fits, "REFIT_STAGES"): ("refit",)},
     "after": {},
 }
 OPTIONS = {

@@ -332,3 +332,25 @@ def test_a_near_critical_link_behind_a_pick_of_its_anchor_does_not_leave_the_cho
     for w1 in (3.19, 3.39):
         assert qc._round_picks(6, np.array([7.0, w1, 5.0]), a, b, 3, 3.29) == [0, 2]
     assert qc._always_blocked(np.array([7.0, 3.3, 5.0]), a, b, [0, 2], 3.29, 0.1).tolist() == [False, True, False]
+
+
+def test_a_ladder_of_loose_fits_climbs_only_where_a_choice_is_open():
+    """exclude_links with two loose rungs (issue 27, sixth session: 1 cm, then 3 mm): a choice the first rung leaves
+    open goes to the second, which decides it with its smaller margin; where a decided choice ends the loop, the
+    full fit confirms it at once (the second rung is not run there). The same links as the full fit alone."""
+    p = _ring()
+    pair = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(p.meas_a, p.meas_b, strict=True))}
+    w = np.zeros(p.n_meas)
+    w[pair[(0, 1)]], w[pair[(0, 2)]], w[pair[(4, 5)]] = -9.0, -8.0, -7.0
+    alone = exclude_links(p, _Scripted(p, w))[2].removed
+    near = w.copy()
+    near[pair[(0, 2)]], near[pair[(4, 5)]] = -7.95, -7.05
+    full, coarse, fine = _Scripted(p, w), _Scripted(p, near), _Scripted(p, near)
+    assert exclude_links(p, full, loose=[(coarse, 0.1), (fine, 0.02)])[2].removed == alone
+    assert (full.calls, coarse.calls, fine.calls) == (2, 3, 0)  # every choice decided by the coarse rung
+    # the coarse rung reads N0-N2 and N4-N5 0.02 apart (open at its margin 0.1), the fine rung 0.9 apart (decided)
+    blur = w.copy()
+    blur[pair[(0, 2)]], blur[pair[(4, 5)]] = -7.06, -7.04
+    full, coarse, fine = _Scripted(p, w), _Scripted(p, blur), _Scripted(p, near)
+    assert exclude_links(p, full, loose=[(coarse, 0.1), (fine, 0.02)])[2].removed == alone
+    assert fine.calls >= 1 and full.calls == 2  # the fine rung decided; the full fit: the first and the end

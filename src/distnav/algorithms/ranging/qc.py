@@ -285,10 +285,11 @@ def exclude_links(
     after an exclusion is the first; its choice is taken only where it is **decided with its margin**: no eligible
     link's |w| within ``margin_w`` of the critical value (but one always blocked by a pick of its anchors) and no
     two links whose |w| are within ``2 · margin_w`` of each other chosen differently in the other order
-    (:func:`_decided`). Otherwise, and when it would end the
-    loop, the next fit continues from its solution (the caller's fits start from the last one) and decides, the
-    last being ``fit`` (no margin): the loop ends with ``fit``'s answer and tests, and excludes what ``fit``
-    alone would have excluded wherever each margin bounds the change of |w| up to ``fit``'s solution.
+    (:func:`_decided`). Otherwise the next fit continues from its solution (the caller's fits start from the last
+    one) and decides, the last being ``fit`` (no margin); where a decided choice would end the loop, ``fit``
+    continues at once and confirms it (issue 27, sixth session: not every rung): the loop ends with ``fit``'s answer
+    and tests, and excludes what ``fit`` alone would have excluded wherever each margin bounds the change of |w|
+    up to ``fit``'s solution.
 
     ``fit(subproblem)`` solves a problem and returns a result with ``tests`` (LM with QC, or a distributed solver).
     Returns ``(final result, the problem without the excluded links, tests)`` where the tests hold the final
@@ -310,10 +311,12 @@ def exclude_links(
         crit = float(res.tests.critical_value) if usable and res.tests is not None else 0.0
         picks = _round_picks(problem.n_anchors, aw, a, b, cap, crit)
         margin = ladder[level][1]
-        if level < len(ladder) - 1 and (not picks or not _decided(problem.n_anchors, aw, (a, b), cap, crit, margin)):
-            level += 1  # undecided, or the loop's end: a tighter fit from this solution decides
-            res = ladder[level][0](sub)
-            continue
+        if level < len(ladder) - 1:
+            decided = _decided(problem.n_anchors, aw, (a, b), cap, crit, margin)
+            if not picks or not decided:  # undecided: the next fit decides; the loop's end: the last fit confirms
+                level = level + 1 if not decided else len(ladder) - 1
+                res = ladder[level][0](sub)
+                continue
         if not picks:
             break
         for worst in picks:

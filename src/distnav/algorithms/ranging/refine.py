@@ -31,9 +31,9 @@ b_l − d_l)/σ_l``), preconditioned by each anchor's own damped block (block Ja
 LM's (IRLS weights: the stationary point of the robust objective). It stops ``converged`` when an accepted step
 moved no parameter by more than ``xtol_m`` and changed ``F`` by at most ``ftol`` (relative) — the solvers'
 stopping thresholds — and says ``max_iterations`` after ``max_rounds`` outer rounds. Where the IRLS weights make the
-tail linear (the steps' largest moves shrinking by a steady ratio ρ: 0.75 per round on a weakly determined part of a
-plant-like hall), one trial jumps by the rest of the geometric series of the steps (:data:`EXTRAPOLATE`, issue 27;
-a trial like any other, counted as a round, kept only where it lowers ``F``).
+tail linear (the largest move shrinking by a steady ratio ρ: 0.75 a round on a weakly determined part of a plant-like
+hall), one trial jumps by the rest of the steps' geometric series (Aitken's idea; :data:`EXTRAPOLATE`, issue 27): a
+trial like any other, counted as a round, kept only where it lowers ``F``; the stop is tested on plain steps only.
 """
 
 from __future__ import annotations
@@ -73,10 +73,8 @@ PRECONDITIONED_STOP = True
 #: a round's own network totals — the common offset's gradient and curvature, a trial's largest move — as the CG
 #: scalars (float32) on the wire; the objective, which decides acceptance, stays float64 (issue 27)
 ROUND_SCALARS = True
-#: after three accepted steps whose largest moves shrank by ratios ``ρ`` within 10 % of each other and in [0.2, 0.97]
-#: (IRLS's linear tail), one trial of the rest of that geometric series, ``ρ/(1 − ρ)`` × the last step, kept where it
-#: lowers ``F`` (Aitken's idea on the step; issue 27, sixth session; None: off). The stop is tested on plain steps
-#: only, so the fixed point and the stop are LM's as before.
+#: after three accepted steps whose largest moves shrank by ratios ``ρ`` within 10 % of each other, in [0.2, 0.97],
+#: one trial of ``ρ/(1 − ρ)`` × the last step, kept where it lowers ``F`` (module docstring; None: off)
 EXTRAPOLATE: tuple[float, float, float] | None = (0.2, 0.97, 0.1)  # ρ's range, its largest relative change
 
 
@@ -317,11 +315,10 @@ class _Refiner:
         """One trial of the rest of the geometric series of the steps (:data:`EXTRAPOLATE`): ``ρ/(1 − ρ)`` × the last
         step from ``(x, c)`` (one broadcast of the step and one reduction, as any trial), kept where it lowers ``F``;
         the tail restarts either way."""
-        rho = tail[-1] / tail[-2]
+        jump = tail[-1] / tail[-2] / (1.0 - tail[-1] / tail[-2])
         tail.clear()
-        dx = last[0] * (rho / (1.0 - rho))
-        dx = self.links.wire.rounded(dx) if self.steps else dx
-        dcv = last[1] * (rho / (1.0 - rho))
+        dx = self.links.wire.rounded(last[0] * jump) if self.steps else last[0] * jump
+        dcv = last[1] * jump
         nb_new, F_new, r_new, _ = self.evaluate(x + dx, c + dcv, dx, nb)
         if np.isfinite(F_new) and F_new < F:
             return x + dx, c + dcv, nb_new, r_new, F_new
