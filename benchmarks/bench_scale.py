@@ -13,7 +13,7 @@ nodes on 4 ranks against this machine's memory, and ``DISTNAV_SCALE_BIG=1`` runs
 to spare.
 
 Sizes: ``--quick`` 10⁵ nodes; default 10⁶ at 1, 2 and 4 ranks; ``DISTNAV_SCALE_BIG=1`` adds 10⁷ nodes at 2 and 4 ranks
-(≈ 3 GB per rank at 4 ranks; minutes; run it once, niced).
+(≈ 3 GB per rank at 4 ranks; minutes; run it once, niced). ``DISTNAV_SCALE_ONLY=admm`` runs the ADMM rows alone.
 
 **The scaling model** (rows ``scaling model …``, docs/scale.md): a lock-step round on ``R`` ranks costs
 
@@ -206,6 +206,15 @@ def _admm_row(job: dict[str, Any], load: float) -> dict[str, Any]:
         "setup_peak_mb_max": top["setup_mb"],
         "iterations_peak_mb_max": top["iterations_mb"],
         "import_mb": per[0]["import_mb"],
+        # per owned node above the imports, with and without the caller's problem data (A, y) the peak includes
+        "kb_per_owned_node": max((r["iterations_mb"] - r["import_mb"]) / r["owned"] for r in per) * 1.048576e3,
+        "kb_per_owned_node_without_problem": max(
+            (r["iterations_mb"] - r["import_mb"] - r.get("problem_mb", 0.0)) / r["owned"] for r in per
+        )
+        * 1.048576e3,
+        "mmap_threshold": per[0].get("mmap_threshold"),
+        "max_err_vs_central": per[0].get("max_err_vs_central"),
+        "max_link_disagreement": per[0].get("max_link_disagreement"),
         "goal": "set-up ≤ 10 s per rank; memory ∝ n/ranks",
         "meets_goal": bool(top["setup_s"] <= 10.0),
         "job_wall_s": job["wall_s"],
@@ -255,8 +264,9 @@ def run(quick: bool) -> list[dict[str, Any]]:
     sizes = [(10**5, (1, 2, 4))] if quick else [(10**6, (1, 2, 4))]
     if os.environ.get("DISTNAV_SCALE_BIG") == "1" and not quick:  # ≈ 2.1 GB per rank at 4 ranks, 4.3 GB at 2
         sizes.append((10**7, (2, 4)))
-    rows = []
-    for n, rank_counts in sizes:
+    rows: list[dict[str, Any]] = []
+    only_admm = os.environ.get("DISTNAV_SCALE_ONLY") == "admm"  # the ADMM rows and their model alone
+    for n, rank_counts in [] if only_admm else sizes:
         for ranks in rank_counts:
             load = os.getloadavg()[0]
             rows.append(_row(_launch(ranks, n, rounds=10 if n <= 10**6 else 5, repeats=7), load))
@@ -267,7 +277,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
     model = admm_memory_model(admm_rows)
     if os.environ.get("DISTNAV_SCALE_BIG") == "1" and not quick and model and model[0]["fits"]:
         admm_rows.append(_admm_row(_launch(4, 10**7, 3, 3, admm=True), os.getloadavg()[0]))
-    return rows + model_rows(rows) + admm_rows + model
+    return rows + (model_rows(rows) if rows else []) + admm_rows + model
 
 
 if __name__ == "__main__":

@@ -9,15 +9,15 @@ and how both grow with the network.
    same accounting (the broadcasts, and the LM phase's network totals as spanning-tree all-reductions):
    *before* issue 27 (:func:`configured` ``"before"``: 500 consensus iterations in the first fit, every row sent in
    full in float64, float64 CG scalars, the central σ by CG to ``1e-10``, every re-fit from offset 0 and the initial
-   damping, the tightening by halvings), *today* (the defaults at the start of the fifth session: each neighbour's
-   product per link, CG stopped on ``rᵀz``, trials as float32 steps, a round's totals in float32, the seed fits at
-   their stage tolerances, the σ gathered at one anchor, the exclusion loop's re-fits stopped at 1 cm and decided
-   with a margin, every warm fit from the last fit's common offset and damping; the tightening by halvings, CG's
-   dot products in float32, a fit's first parameters whole, every product with its exponent) and *after* (the
-   defaults: the tightening's fit jumps to its target scale, ``field_fits.TIGHTEN_JUMP``; CG's dot products as
-   float16 with an exponent per value, ``wire.CG_DOT_DTYPE``; a fit's first parameters without the known
-   coordinates, ``wire.KNOWN_FROM_PROBLEM``; a CG run's products on the link's held exponent,
-   ``wire.HELD_EXPONENT``); the positions, their
+   damping, the tightening by halvings, no extrapolated tail), *today* (the defaults at the start of the sixth
+   session: items 1–19 of docs/economy_uwb.md — each neighbour's product per link on the link's held exponent, CG
+   stopped on ``rᵀz`` with float16 dot products, trials as float32 steps, the seed fits at their stage tolerances,
+   the σ gathered at one anchor, the exclusion loop's re-fits stopped at 1 cm and decided with a margin, every warm
+   fit from the last fit's common offset and damping, the tightening's jump; but no extrapolated tail,
+   ``refine.EXTRAPOLATE`` None, and every near-critical link leaving a loose re-fit's choice open,
+   ``qc.BLOCKED_NEAR`` False) and *after* (the defaults: the LM phase's steady IRLS tail extrapolated,
+   ``refine.EXTRAPOLATE``; a near-critical link that a pick of its anchors always blocks no longer leaves the
+   choice open, ``qc.BLOCKED_NEAR``); the positions, their
    largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
    of that gather over the range graph (:func:`distnav.network.gather.gather_cost`). Per anchor: what each
@@ -62,7 +62,7 @@ from scipy.sparse.csgraph import breadth_first_order
 import distnav.models.uwb.field_fits as field_fits
 import distnav.models.uwb.field_precision as field_precision
 from _common import print_table, write_json
-from distnav.algorithms.ranging import csg, wire
+from distnav.algorithms.ranging import csg, qc, refine, wire
 from distnav.algorithms.ranging.covariance import COVARIANCE_CG_RTOL
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field
@@ -95,13 +95,10 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (field_fits, "CARRY_OFFSET"): False,
         (field_fits, "CARRY_DAMPING"): False,
         (field_fits, "TIGHTEN_JUMP"): False,
+        (refine, "EXTRAPOLATE"): None,
+        (qc, "BLOCKED_NEAR"): False,
     },
-    "today": {
-        (field_fits, "TIGHTEN_JUMP"): False,
-        (wire, "CG_DOT_DTYPE"): np.float32,
-        (wire, "KNOWN_FROM_PROBLEM"): False,
-        (wire, "HELD_EXPONENT"): False,
-    },
+    "today": {(refine, "EXTRAPOLATE"): None, (qc, "BLOCKED_NEAR"): False},
     "after": {},
 }
 OPTIONS = {

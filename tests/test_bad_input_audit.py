@@ -277,6 +277,7 @@ def _gnss_cases() -> list[Cli]:
         Cli("gnss-ionosphere-tec-field-choice", (*io, *o, "--tec-field", "cubic"), "invalid choice"),
         Cli("gnss-ionosphere-mapping-choice", (*io, *o, "--mapping", "flat"), "invalid choice"),
         Cli("gnss-ionosphere-model-spread-choice", (*io, *o, "--model-spread", "on"), "invalid choice"),
+        Cli("gnss-ionosphere-glonass-ifb-negative", (*io, *o, "--glonass-ifb-sigma-ns", "-1"), "--glonass-ifb"),
         Cli("gnss-ionosphere-innovation-test-one", (*io, *o, "--innovation-test", "1"), "--innovation-test"),
         Cli("gnss-ionosphere-innovation-test-zero", (*io, *o, "--innovation-test", "0"), "--innovation-test"),
         Cli("gnss-ionosphere-between-station-one", (*io, *o, "--between-station-level", "0.5"), "--between-station"),

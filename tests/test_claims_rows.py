@@ -326,3 +326,21 @@ def test_setup_and_illustration_rows_are_stated_not_measured():
     assert all("not in results.json" in r["why"] for r in illustrations)
     tested = [r for r in rows if r["paper_value"] == "algorithm"]
     assert tested and all(r["verdict"] == "agree" and r["test"] for r in tested)
+
+
+def test_a_missing_field_gives_a_not_checkable_row_naming_it_in_rows_of_and_in_checked():
+    from distnav.experiments.claims import checked, claim, get, rows_of
+
+    def value() -> Any:
+        return get({"a": {}}, "a", "b")
+
+    stated = {"paper": "002", "distnav_value": None, "verdict": "not checkable", "test": ""}
+    lacks = "results.json lacks 'a.b'"
+    made = rows_of(
+        [lambda: claim(paper="002", where="§5", text="t", paper_value=1, distnav_value=value(), ok=True)], "002"
+    )
+    assert made == [
+        stated | {"where": "—", "claim": "(a claim this run cannot evaluate)", "paper_value": None, "why": lacks}
+    ]
+    row = checked(paper="002", where="§5", text="t", paper_value=1, test="x", measure=lambda: (value(), True, "w"))
+    assert row == stated | {"where": "§5", "claim": "t", "paper_value": 1, "why": lacks}

@@ -32,6 +32,7 @@ FRONT_DOORS = [
     ("distnav.models.gnss.ionogeometry", "ionosphere_geometry"),
     ("distnav.models.gnss.netsim", "simulate_network"),
     ("distnav.models.gnss.systems", "signal_pair_frequencies_hz"),  # per-satellite frequency pairs (issue 32)
+    ("distnav.models.gnss.sigmaterms", "channel_ifb_variance_ns2"),  # GLONASS channel biases' share (gnss8)
     ("distnav.algorithms.ranging.csg", "solve_ncsg"),  # the ranging front doors' options objects
 ]
 

@@ -316,3 +316,19 @@ def test_decided_swaps_only_what_changes_the_choice():
     assert _decided(6, np.array([7.0, 6.0, 5.0]), (a, b), 3, 3.29, 0.1)
     assert not _decided(6, np.array([7.0, 6.0, 3.3]), (a, b), 3, 3.29, 0.1)
     assert not _decided(6, np.array([7.0, 5.0, 7.05]), (a, b), 1, 3.29, 0.1)  # the cap of 1: the order decides
+
+
+def test_a_near_critical_link_behind_a_pick_of_its_anchor_does_not_leave_the_choice_open():
+    """_decided (issue 27, sixth session): a link whose |w| is within the margin of the critical value but shares an
+    anchor with a pick that stays flagged and ahead of it whatever the margin is never picked this round — the
+    choice is decided; not where the pick could fall behind it, nor for a near-critical link of other anchors."""
+    from distnav.algorithms.ranging import qc
+
+    a, b = np.array([0, 0, 4]), np.array([1, 2, 5])
+    assert qc._decided(6, np.array([7.0, 3.3, 5.0]), (a, b), 3, 3.29, 0.1)
+    assert not qc._decided(6, np.array([3.45, 3.3, 5.0]), (a, b), 3, 3.29, 0.1)  # 0.15 apart: the order may swap
+    assert not qc._decided(6, np.array([7.0, 5.0, 3.3]), (a, b), 3, 3.29, 0.1)  # anchors 4, 5: nothing ahead
+    # the picks are the same at either end of the margin: the blocked link goes neither way
+    for w1 in (3.19, 3.39):
+        assert qc._round_picks(6, np.array([7.0, w1, 5.0]), a, b, 3, 3.29) == [0, 2]
+    assert qc._always_blocked(np.array([7.0, 3.3, 5.0]), a, b, [0, 2], 3.29, 0.1).tolist() == [False, True, False]

@@ -440,29 +440,33 @@ def _versus_gather(runs: dict[str, Any], graph: Graph, values: np.ndarray, uwb: 
     }
 
 
+#: The printed table's rows: (label, run, key of the lost nodes or None, key of the max |diff|, what it is against).
+_TABLE_ROWS = (
+    ("consensus, clean", "consensus_clean", None, "max_abs_diff_vs_inprocess", "in-process run"),
+    (
+        "consensus, 1 killed",
+        "consensus_killed",
+        "lost_nodes",
+        "max_abs_diff_vs_central_of_remaining",
+        "mean of remaining data",
+    ),
+    ("push-sum, async", "pushsum_async", None, "pushsum_max_abs_diff_vs_mean", "mean of all data"),
+    ("UWB N-CSG-TBLS, clean", "uwb_clean", None, "uwb_max_abs_diff_vs_inprocess_m", "in-process run (m)"),
+    (
+        "UWB N-CLM, 1 killed",
+        "uwb_killed",
+        "uwb_killed_lost_nodes",
+        "uwb_killed_max_abs_diff_vs_central_of_remaining_m",
+        "LM of remaining data (m)",
+    ),
+)
+
+
 def _print_table(res: dict[str, Any]) -> None:
-    runs = res["runs"]
-    rows = [
-        ("consensus, clean", runs["consensus_clean"], "-", res["max_abs_diff_vs_inprocess"], "in-process run"),
-        (
-            "consensus, 1 killed",
-            runs["consensus_killed"],
-            str(res["lost_nodes"]),
-            res["max_abs_diff_vs_central_of_remaining"],
-            "mean of remaining data",
-        ),
-        ("push-sum, async", runs["pushsum_async"], "-", res["pushsum_max_abs_diff_vs_mean"], "mean of all data"),
-        ("UWB N-CSG-TBLS, clean", runs["uwb_clean"], "-", res["uwb_max_abs_diff_vs_inprocess_m"], "in-process run (m)"),
-        (
-            "UWB N-CLM, 1 killed",
-            runs["uwb_killed"],
-            str(res["uwb_killed_lost_nodes"]),
-            res["uwb_killed_max_abs_diff_vs_central_of_remaining_m"],
-            "LM of remaining data (m)",
-        ),
-    ]
     print(f"{'run':<22}{'finished':>9}{'lost':>8}{'max |diff|':>12}  {'against':<24}{'wire bytes':>12}{'s':>7}")
-    for name, r, lost, diff, ref in rows:
+    for name, run, lost_key, diff_key, ref in _TABLE_ROWS:
+        r, diff = res["runs"][run], res[diff_key]
+        lost = "-" if lost_key is None else str(res[lost_key])
         d = "n/a" if diff is None else f"{diff:.2g}"
         print(
             f"{name:<22}{len(r['finished']):>5}/{r.get('anchors', res['nodes']):<3}{lost:>8}{d:>12}  {ref:<24}"

@@ -44,6 +44,7 @@ import numpy as np
 from distnav.commands import add_backend_arguments, command_exchange
 from distnav.commands.gnss_ionosphere_data import REGIONAL_KM, NetworkOptions, network_data, network_from_observations
 from distnav.errors import DataFileError, ModelError
+from distnav.options import nonnegative_float
 
 __all__ = [
     "NetworkOptions",
@@ -219,7 +220,11 @@ def run_ionosphere(args: argparse.Namespace) -> int:
         series, spread = spread_of_own_layers(data, orbit, series, network_options(args).model_options)
         if spread is not None:
             data = replace(data, notes=[*data.notes, spread.statement()])
-    limits = sigma_limits(series, len(stations), getattr(args, "system", "G"), args.levelling == "arc")
+    from distnav.commands.gnss_sigma_terms import sigma_terms
+
+    data, series = sigma_terms(args, data, orbit, network_options(args), series)
+    ifb = "glonass_channel_ifb" in data.sigma_terms
+    limits = sigma_limits(series, len(stations), getattr(args, "system", "G"), args.levelling == "arc", ifb)
     data = replace(data, notes=[*data.notes, *limits])
     write_results(args, data, series, comm, l1=l1, l2=args.l2_code.upper(), pivot=pivot, graph=graph, fixed=fixed)
     return 0
@@ -511,6 +516,9 @@ _HELP = {  # the model, levelling and screening options' help texts (the calls b
     "min-arc": "shortest arc kept for levelling, in epochs of the file (default 10)",
     "gf-threshold": "smallest cycle-slip limit on the geometry-free phase [m] (default 0.05; raised to 4x the "
     "satellite's recent prediction-error RMS where the ionosphere is noisier)",
+    "glonass-ifb": "GLONASS: σ of the receivers' FDMA channel biases per channel [ns], used as given (0: off); not "
+    "given, estimated from two or more receivers' single-station DSBs or from one receiver's C/A minus P-pair "
+    "channel means, else 2.0 for a C/A pair and none for C1P-C2P (docs/gnss.md)",
     "model-spread": "one station, or stations each with its own ionosphere layer: add to each satellite's σ the "
     "RMS difference of its DSBs under the other "
     "ionosphere field (linear/thin shell vs second order/modified mapping; docs/gnss.md); off: the filter's σ alone",
@@ -536,6 +544,9 @@ def _add_model_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tec-rw", type=float, default=None, metavar="M_PER_SQRT_S", help=_HELP["tec-rw"])
     p.add_argument("--min-satellite-obs", type=int, default=None, metavar="N", help=_HELP["min-satellite-obs"])
     p.add_argument("--innovation-test", type=float, default=None, metavar="LEVEL", help=_HELP["innovation-test"])
+    p.add_argument(
+        "--glonass-ifb-sigma-ns", type=nonnegative_float, default=None, metavar="NS", help=_HELP["glonass-ifb"]
+    )
 
 
 def _add_levelling_arguments(p: argparse.ArgumentParser) -> None:

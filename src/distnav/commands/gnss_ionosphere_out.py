@@ -245,6 +245,7 @@ def _summary(
         },
     }
     summary["precision"] = {s.label: s.precision.summary() for s in series if s.precision is not None}
+    summary["sigma_terms"] = data.sigma_terms
     if c.between_station is not None:
         summary["between_station_test"] = c.between_station.as_dict()
     if (tests := innovation_summary(series, stations)) is not None:

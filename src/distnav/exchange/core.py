@@ -110,6 +110,20 @@ class CommTotals:
         return CommTotals(0, z, z.copy(), z.copy(), z.copy(), np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
+def _all_true_as_broadcast(out_mask: np.ndarray, in_mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The real-edge masks, each held as one read-only broadcast ``True`` when it has no self-loop to leave out (a
+    graph without self-loops: two edge-sized masks less); one object for both when they were one."""
+    same = out_mask is in_mask
+    out_b = np.broadcast_to(np.True_, out_mask.shape) if bool(out_mask.all()) else out_mask
+    in_b = out_b if same else np.broadcast_to(np.True_, in_mask.shape) if bool(in_mask.all()) else in_mask
+    return out_b, in_b
+
+
+def _is_all_true(mask: np.ndarray) -> bool:
+    """Whether ``mask`` is a broadcast ``True`` of :func:`_all_true_as_broadcast` (one element seen everywhere)."""
+    return mask.ndim == 1 and mask.size > 0 and mask.strides == (0,) and bool(mask[0])
+
+
 def incoming_edges(graph: Graph, nodes: np.ndarray) -> np.ndarray:
     """Global ids of the edges into ``nodes``, grouped by receiver in the order of ``nodes`` (senders ascending
     within a receiver, as in the graph's own edge order)."""
@@ -161,6 +175,9 @@ class ExchangeCore(ABC):
     """
 
     backend: str = "abstract"
+    #: True where the out-edge rows are the reverses of the in-edge rows (every link stored both ways, as a graph
+    #: part holds them): a node's out-edges and in-edges then pair up, and its sent counts equal its received ones.
+    _out_reverses_in: bool = False
     #: True where a message on out-edge row ``r`` arrives on in-edge row ``r`` with nothing moved (in-process).
     _moves_rows_in_place: bool = False
 
@@ -196,12 +213,14 @@ class ExchangeCore(ABC):
         self.bytes_sent = np.zeros(n, np.int64)
         self.messages_received = np.zeros(n, np.int64)
         self.bytes_received = np.zeros(n, np.int64)
-        real_out, real_in = self._real_edges()
-        self._all_sent = _masked_count(self.out_src, real_out, n)
-        self._all_recv = _masked_count(self.in_dst, real_in, n)
+        real_out, real_in = _all_true_as_broadcast(*self._real_edges())
+        self._all_recv = _masked_count(self.in_dst, None if _is_all_true(real_in) else real_in, n)
+        if self._out_reverses_in:  # the same (sender, receiver) pairs: the sent counts are the received ones
+            self._all_sent = self._all_recv
+        else:
+            self._all_sent = _masked_count(self.out_src, None if _is_all_true(real_out) else real_out, n)
         self._all_sent_total = int(self._all_sent.sum())
-        self._real_out = real_out
-        self._real_in = real_in
+        self._real_out, self._real_in = real_out, real_in
 
     def _real_edges(self) -> tuple[np.ndarray, np.ndarray]:
         """Masks over the out- and in-edges that are not self-loops."""

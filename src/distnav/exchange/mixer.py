@@ -94,7 +94,9 @@ class Mixer:
     Built by :meth:`Exchange.mixer`; holds the local CSR block of ``W`` so a fault-free round costs one sparse
     product. With faults, a lost message's weight moves to the receiver's self-weight. ``active``: a mask over the
     whole graph's edges, or (on a graph part, which has none) a pair of masks over the block's own in- and out-edge
-    rows.
+    rows. ``sent_counts``: the messages each local node sends per round, where the caller knows them (a round and
+    its reverse on a graph whose links run both ways: the one's received counts are the other's sent ones); the
+    out-edge mask may then be None (fault-free only: a fault round reads it), and the out-edge tables are not read.
     """
 
     def __init__(
@@ -102,9 +104,10 @@ class Mixer:
         exchange: ExchangeCore,
         edge_weight: np.ndarray,
         self_weight: np.ndarray,
-        active: np.ndarray | tuple[np.ndarray, np.ndarray] | None,
+        active: np.ndarray | tuple[np.ndarray, np.ndarray | None] | None,
         *,
         rows: tuple[np.ndarray, np.ndarray] | None = None,
+        sent_counts: np.ndarray | None = None,
     ) -> None:
         ex = exchange
         self.exchange = ex
@@ -113,8 +116,10 @@ class Mixer:
         self._weight_rows = (ex.in_edges, ex.nodes) if rows is None else rows
         every_edge = active is None
         if isinstance(active, tuple):  # masks over this block's own in- and out-edge rows (a graph part)
+            if active[1] is None and (sent_counts is None or ex.faults.active):
+                raise ExchangeError("a mixer without its out-edge mask needs sent_counts and no fault schedule")
             self._act_in = np.asarray(active[0], bool) & ex._real_in
-            self._act_out = np.asarray(active[1], bool) & ex._real_out
+            self._act_out = np.zeros(0, bool) if active[1] is None else np.asarray(active[1], bool) & ex._real_out
             active = None
         else:
             self._act_in = ex._real_in if active is None else np.asarray(active, bool)[ex.in_edges] & ex._real_in
@@ -146,7 +151,9 @@ class Mixer:
         if every_edge:  # the exchange's own counts over its real edges (the same mask: the same numbers)
             self._sent_counts, self._recv_counts = ex._all_sent, ex._all_recv
         else:
-            self._sent_counts = _masked_count(ex.out_src, self._act_out, ex.n_local)
+            if sent_counts is None:
+                sent_counts = _masked_count(ex.out_src, self._act_out, ex.n_local)
+            self._sent_counts = sent_counts
             self._recv_counts = _masked_count(ex.in_dst, self._act_in, ex.n_local)
         self._sent_total = int(self._sent_counts.sum())
 

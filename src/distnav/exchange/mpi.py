@@ -80,6 +80,18 @@ def _order_of_distinct(ids: np.ndarray) -> np.ndarray:
     return slot[slot >= 0]
 
 
+def _out_edge_tables(
+    part: GraphPart, local_of_part: np.ndarray | None, idx: type[np.signedinteger[Any]]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The block's out-edges — the reverse of every in-edge of the part — in global edge order: their ids, local
+    senders and receivers' global ids (``local_of_part``: the local index of each part position; None: the same)."""
+    recv = np.repeat(np.arange(part.n_local, dtype=idx), np.diff(part.in_ptr))
+    by_id = _order_of_distinct(part.out_edge_ids)
+    out_src = recv[by_id] if local_of_part is None else local_of_part[recv[by_id]]
+    del recv
+    return part.out_edge_ids[by_id], out_src, part.src[by_id]
+
+
 def world_rank() -> int:
     return int(_mpi().COMM_WORLD.Get_rank())
 
@@ -92,6 +104,7 @@ class MPIExchange(Exchange):
     """This rank's block of the network; see the module docstring."""
 
     backend = "mpi"
+    _out_reverses_in = True  # the out-edges are the reverses of the part's in-edges (_out_edge_tables)
     owner: np.ndarray | NodeRanges
     """Owner rank of every node: an array, or node ranges (an exchange built from a part with ``"block"``)."""
 
@@ -161,20 +174,18 @@ class MPIExchange(Exchange):
         # edge-sized index arrays in 32 bits where every index fits (as in-process); global ids stay 64-bit
         idx = np.int32 if max(self.n_nodes, self.n_edges) < 2**31 - 1 else np.int64
         local_of_part = self._local_edges(part, perm, idx)
-        own_in_src, own_out_dst = self._owner_of(self.in_src), self._owner_of(self.out_dst)
+        own_in_src = self._owner_of(self.in_src)
         me = self.rank
-        # neighbour ranks: those sharing cut edges (symmetric: every link is stored both ways)
-        cut_out_rows = np.flatnonzero(own_out_dst != me)  # out rows, global edge order
+        # every link is stored both ways: the ranks this block sends to are those it receives from, and what it
+        # sends to rank r leaves the receivers of its in-edges from r (the out-edge tables are not read)
         cut_in_rows = np.flatnonzero(own_in_src != me)
         cut_in_rows = cut_in_rows[np.argsort(self.in_edges[cut_in_rows], kind="stable")]  # global edge order
-        self.neighbour_ranks = np.unique(own_out_dst[cut_out_rows]).astype(np.int64)
-        send_rows = [cut_out_rows[own_out_dst[cut_out_rows] == r] for r in self.neighbour_ranks]
+        self.neighbour_ranks = np.unique(own_in_src[cut_in_rows]).astype(np.int64)
         recv_rows = [cut_in_rows[own_in_src[cut_in_rows] == r] for r in self.neighbour_ranks]
-        del cut_out_rows, cut_in_rows
-        self._node_halo(part, local_of_part, send_rows, recv_rows, own_in_src == me, idx)
+        del cut_in_rows
+        self._node_halo(part, local_of_part, recv_rows, own_in_src == me, idx)
         del own_in_src
-        del own_out_dst
-        self._edge_transport(send_rows, recv_rows, idx)
+        self._edge_transport(recv_rows, idx)
         self._layouts: dict[tuple[int, int, int], Any] = {}
         self._column_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
         self._edge_buffers: dict[tuple[int, str], tuple[np.ndarray, np.ndarray, Any]] = {}
@@ -183,6 +194,9 @@ class MPIExchange(Exchange):
         self.dist_comm = self.comm.Create_dist_graph_adjacent(sources=nbr, destinations=nbr, reorder=False)
         self.persistent = bool(persistent and hasattr(self.dist_comm, "Neighbor_alltoallv_init"))
         self._init_accounting()
+        if np.array_equal(self._all_sent, self._all_recv):  # every link both ways: one array of both counts
+            self._all_recv = self._all_sent
+        self.release_out_edges()  # (a part's: made again when read)
 
     def _local_edges(self, part: GraphPart, perm: np.ndarray | None, idx: type[np.signedinteger[Any]]) -> np.ndarray:
         """The block's nodes in local order and its in- and out-edges; returns part position → local index.
@@ -196,25 +210,22 @@ class MPIExchange(Exchange):
         self.nodes = part.nodes if perm is None else part.nodes[rows]
         if self.part is not None:  # where the part's weights sit (PartWeights); not needed with the whole graph
             self._in_part_pos = None if pos_in is None else pos_in.astype(idx)  # None: the identity (part_rows)
-            self._node_part_pos = rows
+            self._node_part_pos = None if perm is None else rows  # None: the identity (part_rows)
         # global ids in the part's dtype (int32 where every id fits, as the part holds them): indices and
         # comparisons only
         self.in_edges = part.edge_ids if pos_in is None else part.edge_ids[pos_in]
         self.in_src = part.src if pos_in is None else part.src[pos_in]
         self.in_dst = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr)[rows])
-        # out-edges: the reverse of every in-edge, in global edge order
-        recv_part = np.repeat(np.arange(n_local, dtype=idx), np.diff(part.in_ptr))
-        by_id = _order_of_distinct(part.out_edge_ids)
-        self.out_edges = part.out_edge_ids[by_id]
-        self.out_src = local_of_part[recv_part[by_id]]
-        self.out_dst = part.src[by_id]
+        # the out-edge tables: made when read from a part (_out_edges_made); kept from the whole graph
+        self._out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        if self.part is None:
+            self._out = _out_edge_tables(part, None if perm is None else local_of_part, idx)
         return local_of_part
 
     def _node_halo(
         self,
         part: GraphPart,
         local_of_part: np.ndarray,
-        send_rows: list[np.ndarray],
         recv_rows: list[np.ndarray],
         sender_is_mine: np.ndarray,
         idx: type[np.signedinteger[Any]],
@@ -228,7 +239,7 @@ class MPIExchange(Exchange):
             return np.asarray(local_of_part[part.owned_positions(glob)[0]])
 
         has_nbr = bool(self.neighbour_ranks.size)
-        send_nodes = [np.unique(self.nodes[self.out_src[rr]]) for rr in send_rows]
+        send_nodes = [np.unique(self.nodes[self.in_dst[rr]]) for rr in recv_rows]  # (links both ways)
         recv_nodes = [np.unique(self.in_src[rr]) for rr in recv_rows]
         self._send_node_idx = local_index(np.concatenate(send_nodes)) if has_nbr else np.zeros(0, np.int64)
         self._node_send_counts = np.array([s.size for s in send_nodes], dtype=np.int64)
@@ -236,7 +247,7 @@ class MPIExchange(Exchange):
         halo = np.concatenate(recv_nodes) if has_nbr else np.zeros(0, np.int64)
         self.n_halo = int(halo.size)
         self.n_columns = self.n_local + self.n_halo
-        self.local_col = np.arange(self.n_local, dtype=np.int64)
+        self.local_col = np.arange(self.n_local, dtype=idx)
         col = np.empty(self.in_src.size, idx)
         col[sender_is_mine] = local_index(self.in_src[sender_is_mine])
         if self.n_halo:
@@ -245,27 +256,78 @@ class MPIExchange(Exchange):
             col[foreign] = self.n_local + halo_order[np.searchsorted(halo[halo_order], self.in_src[foreign])]
         self.in_src_col = col
 
-    def _edge_transport(
-        self, send_rows: list[np.ndarray], recv_rows: list[np.ndarray], idx: type[np.signedinteger[Any]]
-    ) -> None:
-        """Edge messages: per neighbour rank the cut edges in global edge order on both sides. The rows moved
-        inside the block are found at the first edge send (:meth:`_local_moves`): a job that sends only node
-        values (consensus, aggregated ADMM) never holds them."""
+    def _edge_transport(self, recv_rows: list[np.ndarray], idx: type[np.signedinteger[Any]]) -> None:
+        """Edge messages: per neighbour rank the cut edges in global edge order on both sides — the received ones
+        now, the sent ones (rows of the out-edge tables) at the first edge send (:meth:`_edge_sends`), with the rows
+        moved inside the block (:meth:`_local_moves`): a job that sends only node values (consensus, aggregated
+        ADMM) never makes them."""
         self._local_move_rows: tuple[np.ndarray, np.ndarray] | None = None
-        empty = np.zeros(0, np.int64)
+        self._edge_send: tuple[np.ndarray, np.ndarray] | None = None
         has_nbr = bool(self.neighbour_ranks.size)
-        self._edge_send_pos: np.ndarray = (np.concatenate(send_rows) if has_nbr else empty).astype(idx)
-        self._edge_recv_pos: np.ndarray = (np.concatenate(recv_rows) if has_nbr else empty).astype(idx)
-        self._edge_send_counts = np.array([e.size for e in send_rows], dtype=np.int64)
+        self._edge_recv_pos: np.ndarray = (np.concatenate(recv_rows) if has_nbr else np.zeros(0, np.int64)).astype(idx)
         self._edge_recv_counts = np.array([e.size for e in recv_rows], dtype=np.int64)
+
+    def _edge_sends(self) -> tuple[np.ndarray, np.ndarray]:
+        """The out-edge rows of the cut edges per neighbour rank, in global edge order, and their counts (made at
+        the first edge send and kept)."""
+        if self._edge_send is None:
+            own_out_dst = self._owner_of(self.out_dst)
+            cut_out_rows = np.flatnonzero(own_out_dst != self.rank)  # out rows, global edge order
+            send_rows = [cut_out_rows[own_out_dst[cut_out_rows] == r] for r in self.neighbour_ranks]
+            pos = np.concatenate(send_rows) if send_rows else np.zeros(0, np.int64)
+            counts = np.array([e.size for e in send_rows], dtype=np.int64)
+            self._edge_send = (pos.astype(self.in_dst.dtype), counts)
+        return self._edge_send
+
+    def _real_edges(self) -> tuple[np.ndarray, np.ndarray]:
+        # an out-edge is a self-loop exactly when the in-edge it reverses is: without one among the in-edges there
+        # is none among the out-edges (their tables are not read)
+        real_in = self.in_src != self.nodes[self.in_dst]
+        if bool(real_in.all()):
+            return np.broadcast_to(np.True_, (self.in_edges.size,)), real_in
+        return super()._real_edges()
 
     def part_rows(self) -> tuple[np.ndarray, np.ndarray]:
         if self.part is None:
             return super().part_rows()
-        if self._in_part_pos is None:  # the part's own order: the identity, made when asked (not held)
+        # the part's own order: the identities, made when asked (not held)
+        nodes = np.arange(self.n_local, dtype=np.int64) if self._node_part_pos is None else self._node_part_pos
+        if self._in_part_pos is None:
             n_in = self.in_edges.size
-            return np.arange(n_in, dtype=np.int32 if n_in < 2**31 - 1 else np.int64), self._node_part_pos
-        return self._in_part_pos, self._node_part_pos
+            return np.arange(n_in, dtype=np.int32 if n_in < 2**31 - 1 else np.int64), nodes
+        return self._in_part_pos, nodes
+
+    # the out-edge tables (``out_edges``, ``out_src``, ``out_dst``: three edge-sized arrays) of an exchange built from
+    # a part are made from the part when read and kept until :meth:`release_out_edges`; the set-up lets them go
+    # (consensus rounds and the aggregated ADMM iterations never read them)
+    def _out_edges_made(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._out is None:
+            rows = self._node_part_pos
+            local_of_part = None
+            if rows is not None:
+                local_of_part = np.empty(rows.size, self.in_dst.dtype)
+                local_of_part[rows] = np.arange(rows.size, dtype=self.in_dst.dtype)
+            assert self.part is not None  # (released only on a part)
+            self._out = _out_edge_tables(self.part, local_of_part, self.in_dst.dtype.type)
+        return self._out
+
+    @property
+    def out_edges(self) -> np.ndarray:  # type: ignore[override]
+        return self._out_edges_made()[0]
+
+    @property
+    def out_src(self) -> np.ndarray:  # type: ignore[override]
+        return self._out_edges_made()[1]
+
+    @property
+    def out_dst(self) -> np.ndarray:  # type: ignore[override]
+        return self._out_edges_made()[2]
+
+    def release_out_edges(self) -> None:
+        """Let go of the out-edge tables (made again from the part when next read): on an exchange built from a
+        graph part; a no-op on one built from the whole graph (nothing to make them from)."""
+        if self.part is not None:
+            self._out = None
 
     def _local_moves(self) -> tuple[np.ndarray, np.ndarray]:
         """The in-edge rows and out-edge rows of the messages that stay in the block (receiver owned here), made
@@ -370,14 +432,15 @@ class MPIExchange(Exchange):
         out = np.zeros((self.in_edges.size, width), dtype=flat_out.dtype)
         key = (width, flat_out.dtype.str)
         bufs = self._edge_buffers.get(key)
+        send_pos, send_counts = self._edge_sends()
         if bufs is None and self.neighbour_ranks.size:
-            send = np.empty((self._edge_send_pos.size, width), dtype=flat_out.dtype)
+            send = np.empty((send_pos.size, width), dtype=flat_out.dtype)
             recv = np.empty((self._edge_recv_pos.size, width), dtype=flat_out.dtype)
-            req = self._persistent_request(send, self._edge_send_counts, recv, self._edge_recv_counts)
+            req = self._persistent_request(send, send_counts, recv, self._edge_recv_counts)
             bufs = self._edge_buffers[key] = (send, recv, req)
         if bufs is not None and bufs[2] is not None:
             send, recv, req = bufs
-            np.take(flat_out, self._edge_send_pos, axis=0, out=send)
+            np.take(flat_out, send_pos, axis=0, out=send)
             req.Start()
             local_in, local_out = self._local_moves()
             out[local_in] = flat_out[local_out]
@@ -386,9 +449,7 @@ class MPIExchange(Exchange):
             return out
         local_in, local_out = self._local_moves()
         out[local_in] = flat_out[local_out]
-        recv = self._alltoallv(
-            flat_out[self._edge_send_pos], self._edge_send_counts, self._edge_recv_counts, width, flat_out.dtype
-        )
+        recv = self._alltoallv(flat_out[send_pos], send_counts, self._edge_recv_counts, width, flat_out.dtype)
         out[self._edge_recv_pos] = recv
         return out
 
@@ -433,4 +494,4 @@ class MPIExchange(Exchange):
     @property
     def n_cut_edges(self) -> int:
         """Directed edges leaving this rank's block."""
-        return int(self._edge_send_pos.size)
+        return int(self._edge_recv_pos.size)  # (every link both ways: as many leave as arrive)

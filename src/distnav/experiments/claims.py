@@ -27,7 +27,9 @@ __all__ = [
     "checked",
     "claim",
     "get",
+    "illustration",
     "rows_of",
+    "unchecked",
     "verdict",
 ]
 
@@ -68,6 +70,18 @@ def claim(
     }
 
 
+def unchecked(paper: str, where: str, text: str, paper_value: Any, why: str) -> dict[str, Any]:
+    """A "not checkable" row: no distnav value, no test, ``why`` the reason (a field the run lacks, or a statement
+    no run can measure: an illustration, unpublished data)."""
+    return claim(paper=paper, where=where, text=text, paper_value=paper_value, distnav_value=None, ok=None, why=why)
+
+
+def illustration(paper: str, where: str, text: str, note: str = "") -> dict[str, Any]:
+    """The "not checkable" row of a figure that illustrates without a quantity; ``note`` adds where it is checked."""
+    why = "not in results.json: an illustration without a quantity" + (f"; {note}" if note else "")
+    return unchecked(paper, where, text, "illustration", why)
+
+
 # ------------------------------------------------------------------------------------------------ reading a run
 class Missing(KeyError):
     """A field a claim needs is absent from the run's ``results.json`` (the row becomes "not checkable")."""
@@ -100,16 +114,7 @@ def checked(
     try:
         value, ok, why = measure()
     except (Missing, KeyError, TypeError, ValueError, IndexError, ZeroDivisionError) as exc:
-        return claim(
-            paper=paper,
-            where=where,
-            text=text,
-            paper_value=paper_value,
-            distnav_value=None,
-            ok=None,
-            why=f"results.json lacks {exc}",
-            test="",
-        )
+        return unchecked(paper, where, text, paper_value, f"results.json lacks {exc}")
     if not test and ok is not None and FULL_ONLY not in why:
         why += "; no test pins it yet"
     return claim(
@@ -127,16 +132,5 @@ def rows_of(makers: list[Callable[[], Row]], paper: str) -> list[Row]:
                 row["why"] += "; no test pins it yet"
             out.append(row)
         except (Missing, KeyError, TypeError, ValueError) as exc:
-            out.append(
-                claim(
-                    paper=paper,
-                    where="—",
-                    text="(a claim this run cannot evaluate)",
-                    paper_value=None,
-                    distnav_value=None,
-                    ok=None,
-                    why=f"results.json lacks {exc}",
-                    test="",
-                )
-            )
+            out.append(unchecked(paper, "—", "(a claim this run cannot evaluate)", None, f"results.json lacks {exc}"))
     return out

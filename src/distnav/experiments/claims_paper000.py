@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from distnav.experiments.claims import FULL_ONLY, Row, checked, claim, get, rows_of
+from distnav.experiments.claims import FULL_ONLY, Row, checked, claim, get, illustration, rows_of
 from distnav.experiments.claims_paper003 import qc_ckf
 
 _FIG6_TEST = "tests/test_admm.py::test_literal_fig6_weighting_is_biased_on_irregular_graphs_but_not_on_regular_ones"
@@ -281,22 +281,16 @@ def codebias_extra(r: dict[str, Any]) -> list[Row]:
         return value, ok, why
 
     return [
-        checked(
-            paper="000",
-            where="Fig. 8",
-            text="the 3σ intervals of the recursive centralized solution shrink as epochs accumulate",
-            paper_value="shrinking",
-            test=t,
-            measure=bands,
-        ),
-        checked(
-            paper="000",
-            where="Fig. 9",
-            text="ρ = 5 converges very slowly from zero",
-            paper_value="very slow",
-            test=t,
-            measure=slow,
-        ),
+        checked(paper="000", where=where, text=text, paper_value=value, test=t, measure=measure)
+        for where, text, value, measure in (
+            (
+                "Fig. 8",
+                "the 3σ intervals of the recursive centralized solution shrink as epochs accumulate",
+                "shrinking",
+                bands,
+            ),
+            ("Fig. 9", "ρ = 5 converges very slowly from zero", "very slow", slow),
+        )
     ]
 
 
@@ -335,30 +329,12 @@ def qc(r: dict[str, Any]) -> list[Row]:
         return value, ok, "largest |x − x̂_clean| over nodes and satellites; agree when distributed = centralized"
 
     rows = [
-        checked(
-            paper="000",
-            where=where,
-            text="distributed data snooping removes what centralized data snooping removes",
-            paper_value="(open)",
-            test=t,
-            measure=snooping,
-        ),
-        checked(
-            paper="000",
-            where=where,
-            text="the distributed precision (covariance, σ̂²) equals the centralized one",
-            paper_value="(open)",
-            test=t,
-            measure=precision,
-        ),
-        checked(
-            paper="000",
-            where=where,
-            text="distributed snooping brings the solution as close to the clean one as centralized snooping",
-            paper_value="(open)",
-            test=t,
-            measure=repair,
-        ),
+        checked(paper="000", where=where, text=text, paper_value="(open)", test=t, measure=measure)
+        for text, measure in (
+            ("distributed data snooping removes what centralized data snooping removes", snooping),
+            ("the distributed precision (covariance, σ̂²) equals the centralized one", precision),
+            ("distributed snooping brings the solution as close to the clean one as centralized snooping", repair),
+        )
     ]
     if "ckf" in r:
         rows += qc_ckf(get(r, "ckf"))
@@ -371,16 +347,7 @@ QC_TOL = 1e-6
 def setup_rows() -> list[Row]:
     """Paper 000's figures that carry no quantity a run could measure (illustrations)."""
     return [
-        claim(
-            paper="000",
-            where=where,
-            text=text,
-            paper_value="illustration",
-            distnav_value=None,
-            ok=None,
-            why="not in results.json: an illustration without a quantity; " + what,
-            test="",
-        )
+        illustration("000", where, text, what)
         for where, text, what in (
             ("Fig. 1", "centralized versus distributed processing", "the fusion-centre cost is network.gather"),
             ("Fig. 2", "problem (3) in centralized and distributed form", "the rows of Figs. 6 and (23) check it"),

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from functools import partial
 from typing import Any
 
-from distnav.experiments.claims import FULL_ONLY, Row, checked, claim, get, rows_of
+from distnav.experiments.claims import FULL_ONLY, Row, checked, claim, get, illustration, rows_of
 
 
 def ckf(r: dict[str, Any]) -> list[Row]:
@@ -388,16 +388,7 @@ def setup_rows() -> list[Row]:
         for where, text, test, how in tested
     ]
     rows += [
-        claim(
-            paper="003",
-            where=where,
-            text=text,
-            paper_value="illustration",
-            distnav_value=None,
-            ok=None,
-            why="not in results.json: an illustration without a quantity",
-            test="",
-        )
+        illustration("003", where, text)
         for where, text in (
             ("Fig. 5", "the two time scales of the CKF (sampling Δ, sending δ)"),
             ("Fig. 9", "longitude and latitude of an ionospheric pierce point"),

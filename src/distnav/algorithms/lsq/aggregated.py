@@ -95,33 +95,20 @@ def rounds_on_part(ex: Exchange, inC_part: np.ndarray) -> _Rounds:
         x_in &= real_in
         z_in &= real_in
         del real_in
-    z_out = inC[ex.out_src]
-    # an out-edge's receiver: owned (its row by the part's positions) or a halo node, whose membership arrived on
-    # the in-edges it sends on (set on an array aligned with the part's ascending halo ids: no sort over the edges)
-    k, own = part.owned_positions(ex.out_dst)
-    x_out = np.asarray(inC_part, bool)[k]
-    from_halo = np.flatnonzero(ex.in_src_col >= ex.n_local)
-    halo_member = np.zeros(part.halo.size, bool)
-    halo_member[np.searchsorted(part.halo, ex.in_src[from_halo])] = inC_col[ex.in_src_col[from_halo]]
-    to_halo = np.flatnonzero(~own)
-    x_out[to_halo] = halo_member[np.searchsorted(part.halo, ex.out_dst[to_halo])]
-    del k, own, from_halo, to_halo
-    if loops:
-        real_out = ex.out_dst != ex.nodes[ex.out_src]
-        x_out &= real_out
-        z_out &= real_out
-        del real_out
+    # the sent counts without the out-edge tables (every link runs both ways): a node sends into C on as many links
+    # as it receives on from C (the z-round's received counts), a constraint node out of C on all its real links
+    from_c = np.bincount(ex.in_dst[z_in], minlength=ex.n_local)
+    degree = part.degree[node_pos]  # (a part's degrees leave the self-loop out)
     # 0/1 weights on the part (one broadcast 1.0, zeroed off the masks); the masks are over the block's own edge
     # rows, which Exchange.mixer (a mask over the whole graph's edges) does not take: the mixer is made directly
     ones = np.broadcast_to(np.float64(1.0), (part.n_local_edges,))
     self_w = np.asarray(inC_part, float)
-    mix_x = Mixer(ex, ones, self_w, (x_in, x_out), rows=rows)
-    del x_in, x_out
-    mix_z = Mixer(ex, ones, self_w, (z_in, z_out), rows=rows)
-    del z_out
-    count = np.bincount(ex.in_dst[z_in], minlength=ex.n_local) + inC  # c_i: constraint senders (and i ∈ C)
+    mix_x = Mixer(ex, ones, self_w, (x_in, None), rows=rows, sent_counts=from_c)
+    del x_in
+    mix_z = Mixer(ex, ones, self_w, (z_in, None), rows=rows, sent_counts=np.where(inC, degree, 0).astype(np.int64))
     del z_in
-    size = part.degree[node_pos] + 1.0  # |N_s| + 1 (a part's degrees leave the self-loop out)
+    count = from_c + inC  # c_i: constraint senders (and i ∈ C)
+    size = degree + 1.0  # |N_s| + 1
     return _Rounds(mix_x, mix_z, inC, count.astype(np.int64), size)
 
 
@@ -144,7 +131,6 @@ class _AggregatedKernel:
         _lean(self.mix_z, self.mix_x)  # (made lean already on a whole graph: then a no-op)
         self.inC_loc = rounds.inC
         self.size_s = rounds.size
-        self.size_c = self.size_s * self.inC_loc
         self.count_f = rounds.count.astype(float)  # c_i (the same values as the integer counts)
 
     def run(self, x0: np.ndarray, z0: np.ndarray, monitor_every: int) -> Iterator[AdmmState]:
@@ -226,7 +212,8 @@ class _AggregatedKernel:
     ) -> AdmmState:
         """The monitored state. ``dz`` (``z^[k] − z^[k−1]``) is the scratch buffer of the other sums once the dual
         one is taken: ``U + c x − zsum`` (the next ``U``), then ``(x − z)`` at the constraint nodes."""
-        dual_sq = _dual_sq(dz, self.size_c, self.W, self.w_iso, self.w_scale)
+        size_c = self.size_s * self.inC_loc  # |N_s| + 1 at constraint nodes, 0 elsewhere (made when monitored)
+        dual_sq = _dual_sq(dz, size_c, self.W, self.w_iso, self.w_scale)
         U_next = _u_next(U, cnt, x, zsum, out=dz)
         if self.w_iso is not None:
             WU = np.multiply(U_next, self.w_iso, out=U_next)
@@ -243,7 +230,7 @@ class _AggregatedKernel:
                 self._pair_sq(x, z, dz) + self_sq,
                 dual_sq,
                 np.einsum("i,ij,ij->", self.count_f, x, x),
-                np.einsum("i,ij,ij->", self.size_c, z, z),
+                np.einsum("i,ij,ij->", size_c, z, z),
                 u_sq,
             ]
         )

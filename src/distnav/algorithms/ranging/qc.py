@@ -71,7 +71,8 @@ log = logging.getLogger(__name__)
 TEST_SCALES = ("robust", "a-priori")
 DISTRIBUTED_TEST_SCALES = (*TEST_SCALES, "local")  # "robust": the network's robust scale; "local": each anchor's
 SCALE_FLOOR = 0.25  # the distributed tests' robust scale is floored at a quarter of the a-priori σ
-_MAX_DENSE = 6000  # unknowns up to which the covariance is formed (a dense inverse)
+_MAX_DENSE = 6000
+BLOCKED_NEAR = True  # unknowns up to which the covariance is formed (a dense inverse)
 
 
 def robust_scale(standardized: np.ndarray) -> float:
@@ -282,8 +283,9 @@ def exclude_links(
 
     ``loose`` (issue 27): fits stopped early, loosest first, each with its margin ``(fit, margin_w)``. The re-fit
     after an exclusion is the first; its choice is taken only where it is **decided with its margin**: no eligible
-    link's |w| within ``margin_w`` of the critical value and no two links whose |w| are within ``2 · margin_w``
-    of each other chosen differently in the other order (:func:`_decided`). Otherwise, and when it would end the
+    link's |w| within ``margin_w`` of the critical value (but one always blocked by a pick of its anchors) and no
+    two links whose |w| are within ``2 · margin_w`` of each other chosen differently in the other order
+    (:func:`_decided`). Otherwise, and when it would end the
     loop, the next fit continues from its solution (the caller's fits start from the last one) and decides, the
     last being ``fit`` (no margin): the loop ends with ``fit``'s answer and tests, and excludes what ``fit``
     alone would have excluded wherever each margin bounds the change of |w| up to ``fit``'s solution.
@@ -367,12 +369,17 @@ def _decided(
     n_anchors: int, aw: np.ndarray, ends: tuple[np.ndarray, np.ndarray], cap: int, critical: float, margin: float
 ) -> bool:
     """Whether a round's choice (:func:`_round_picks`) stands when every |w| may be off by ``margin``: no eligible
-    |w| within ``margin`` of ``critical``, and swapping the |w| of any two links within ``2 · margin`` of each other
+    |w| within ``margin`` of ``critical`` (but one that a pick of its anchors always blocks, :data:`BLOCKED_NEAR`),
+    and swapping the |w| of any two links within ``2 · margin`` of each other
     (both above ``critical − margin``) chooses the same links."""
     a, b = ends
-    if np.any(np.abs(aw - critical) <= margin):
+    picks = _round_picks(n_anchors, aw, a, b, cap, critical)
+    near_crit = np.abs(aw - critical) <= margin
+    if BLOCKED_NEAR:  # a link always behind a pick of one of its anchors is never picked, whatever its |w|
+        near_crit &= ~_always_blocked(aw, a, b, picks, critical, margin)
+    if np.any(near_crit):
         return False
-    base = _links_of(_round_picks(n_anchors, aw, a, b, cap, critical), a, b)
+    base = _links_of(picks, a, b)
     near = np.flatnonzero(aw > critical - margin)
     for i_pos, i in enumerate(near):
         for j in near[i_pos + 1 :]:
@@ -383,6 +390,20 @@ def _decided(
             if _links_of(_round_picks(n_anchors, swapped, a, b, cap, critical), a, b) != base:
                 return False
     return True
+
+
+def _always_blocked(
+    aw: np.ndarray, a: np.ndarray, b: np.ndarray, picks: list[int], critical: float, margin: float
+) -> np.ndarray:
+    """Per sample: whether it shares an anchor with a pick that stays flagged and ahead of it when every |w| may be
+    off by ``margin`` (the pick's |w| above ``critical + margin`` and more than ``2 · margin`` above the sample's)."""
+    out = np.zeros(aw.size, bool)
+    for k in picks:
+        if aw[k] <= critical + margin:
+            continue
+        shares = (a == a[k]) | (a == b[k]) | (b == a[k]) | (b == b[k])
+        out |= shares & (aw < aw[k] - 2 * margin)
+    return out
 
 
 def _all_sample_tests(

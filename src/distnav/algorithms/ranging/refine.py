@@ -30,7 +30,10 @@ the metres residual ``r_l = (‖x_a − x_b‖ +
 b_l − d_l)/σ_l``), preconditioned by each anchor's own damped block (block Jacobi, local). Its fixed point is
 LM's (IRLS weights: the stationary point of the robust objective). It stops ``converged`` when an accepted step
 moved no parameter by more than ``xtol_m`` and changed ``F`` by at most ``ftol`` (relative) — the solvers'
-stopping thresholds — and says ``max_iterations`` after ``max_rounds`` outer rounds.
+stopping thresholds — and says ``max_iterations`` after ``max_rounds`` outer rounds. Where the IRLS weights make the
+tail linear (the steps' largest moves shrinking by a steady ratio ρ: 0.75 per round on a weakly determined part of a
+plant-like hall), one trial jumps by the rest of the geometric series of the steps (:data:`EXTRAPOLATE`, issue 27;
+a trial like any other, counted as a round, kept only where it lowers ``F``).
 """
 
 from __future__ import annotations
@@ -70,6 +73,11 @@ PRECONDITIONED_STOP = True
 #: a round's own network totals — the common offset's gradient and curvature, a trial's largest move — as the CG
 #: scalars (float32) on the wire; the objective, which decides acceptance, stays float64 (issue 27)
 ROUND_SCALARS = True
+#: after three accepted steps whose largest moves shrank by ratios ``ρ`` within 10 % of each other and in [0.2, 0.97]
+#: (IRLS's linear tail), one trial of the rest of that geometric series, ``ρ/(1 − ρ)`` × the last step, kept where it
+#: lowers ``F`` (Aitken's idea on the step; issue 27, sixth session; None: off). The stop is tested on plain steps
+#: only, so the fixed point and the stop are LM's as before.
+EXTRAPOLATE: tuple[float, float, float] | None = (0.2, 0.97, 0.1)  # ρ's range, its largest relative change
 
 
 @dataclass(frozen=True, eq=False)
@@ -296,6 +304,29 @@ class _Refiner:
         )
         return dxk[:, :, 0], float(dck[0]), its
 
+    def extrapolate(
+        self,
+        x: np.ndarray,
+        c: float,
+        nb: np.ndarray,
+        r: np.ndarray,
+        F: float,
+        last: tuple[np.ndarray, float],
+        tail: list[float],
+    ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, float]:
+        """One trial of the rest of the geometric series of the steps (:data:`EXTRAPOLATE`): ``ρ/(1 − ρ)`` × the last
+        step from ``(x, c)`` (one broadcast of the step and one reduction, as any trial), kept where it lowers ``F``;
+        the tail restarts either way."""
+        rho = tail[-1] / tail[-2]
+        tail.clear()
+        dx = last[0] * (rho / (1.0 - rho))
+        dx = self.links.wire.rounded(dx) if self.steps else dx
+        dcv = last[1] * (rho / (1.0 - rho))
+        nb_new, F_new, r_new, _ = self.evaluate(x + dx, c + dcv, dx, nb)
+        if np.isfinite(F_new) and F_new < F:
+            return x + dx, c + dcv, nb_new, r_new, F_new
+        return x, c, nb, r, F
+
     def result(
         self, x: np.ndarray, c: float, nb: np.ndarray, F: float, status: str, rounds: int, cg_total: int
     ) -> Refinement:
@@ -340,6 +371,7 @@ def refine(
     nb, F, r, _ = run.evaluate(x, c, np.zeros_like(x))
     mu = o.mu0
     status, rounds, cg_total = "max_iterations", 0, 0
+    tail: list[float] = []  # the largest moves of the last accepted plain steps (EXTRAPOLATE)
     with np.errstate(invalid="ignore", divide="ignore"):
         while rounds < o.max_rounds:
             rounds += 1
@@ -358,6 +390,9 @@ def refine(
                     mu = max(mu / 3.0, 1e-12)
                     if change <= o.ftol * max(abs(F_old), 1e-300) and moved <= o.xtol_m:
                         status = "converged"
+                    elif _steady(tail, moved) and rounds < o.max_rounds:  # one more trial: counted as a round
+                        rounds += 1
+                        x, c, nb, r, F = run.extrapolate(x, c, nb, r, F, (dx, dcv), tail)
                     break
                 if moved <= o.xtol_m * 1e-3 and mu <= 1.0:  # a nearly undamped GN step of < 0.1 µm: F is at its
                     status = "converged"  # minimum up to rounding (the step no longer lowers it)
@@ -371,6 +406,17 @@ def refine(
             if status == "converged":
                 break
     return dataclasses.replace(run.result(x, c, nb, F, status, rounds, cg_total), mu=mu)
+
+
+def _steady(tail: list[float], moved: float) -> bool:
+    """Record an accepted plain step's largest move; whether the last three shrank by a steady ratio in the range
+    of :data:`EXTRAPOLATE`."""
+    tail.append(moved)
+    if EXTRAPOLATE is None or len(tail) < 3:
+        return False
+    lo, hi, change = EXTRAPOLATE
+    r1, r2 = tail[-2] / max(tail[-3], 1e-300), tail[-1] / max(tail[-2], 1e-300)
+    return lo <= r2 <= hi and abs(r2 - r1) <= change * max(r1, r2)
 
 
 def _rows(owner: np.ndarray, values: np.ndarray, nl: int) -> np.ndarray:

@@ -73,6 +73,9 @@ class BiasNetworkData:
     m_per_dsb_ns: float | None = None
     """Metres of the geometry-free observable per ns of DSB, ``c·10⁻⁹/(μ − 1)`` of the network's signal pair
     (``None``: GPS L1 and ``band``, :func:`~distnav.models.gnss.gfbias.gf_m_per_dsb_ns`)."""
+    sigma_terms: dict[str, Any] = field(default_factory=dict)
+    """The σ terms another part of the same data supplied (``summary.json`` ``sigma_terms``;
+    :mod:`~distnav.models.gnss.sigmaterms`)."""
 
     @property
     def dsb_scale_m_per_ns(self) -> float:

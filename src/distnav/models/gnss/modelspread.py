@@ -127,11 +127,14 @@ def spread_of_own_layers(
     return with_model_spread(series, len(data.stations), spread), spread
 
 
-def sigma_limits(series: Sequence[DatumSeries], n_receivers: int, system: str, levelled: bool) -> list[str]:
+def sigma_limits(
+    series: Sequence[DatumSeries], n_receivers: int, system: str, levelled: bool, channel_ifb: bool = False
+) -> list[str]:
     """What the central filter's realistic σ cannot contain, one console note each (gnss5, measured against CAS on
     BELE 2024-01-10, docs/gnss.md): the arcs' variance factor missing (too few degrees of freedom beyond the
     biases: BeiDou's MEO satellites from one equatorial station, RMS(error/σ) 2.24), and for GLONASS the receivers'
-    FDMA channel biases, which one receiver cannot separate from the satellites of a channel (C1C−C2C: 3.11)."""
+    FDMA channel biases, which one receiver cannot separate from the satellites of a channel (C1C−C2C: 3.11),
+    unless ``channel_ifb``: their consider term is in the σ (:mod:`~distnav.models.gnss.sigmaterms`)."""
     central = next((s for s in series if s.label == "central"), None)
     notes = []
     if central is not None and levelled and central.arc_variance_factor is None:
@@ -140,7 +143,7 @@ def sigma_limits(series: Sequence[DatumSeries], n_receivers: int, system: str, l
             "biases: few satellites in view per epoch or few arcs), so the realistic σ is the formal σ × the "
             "predicted residuals' factor, which misses the levelling errors constant over an arc: expect it too small"
         )
-    if system == "R":
+    if system == "R" and not channel_ifb:
         who = (
             "one receiver: its channel biases go into the satellite DSBs, not separable from them and not in their σ"
             if n_receivers == 1

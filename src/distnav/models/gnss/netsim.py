@@ -21,7 +21,10 @@ with a product — runs exactly as on real files. What is simulated, per receive
 * an **SVN49-like satellite** (``svn49``, default G01): an elevation-dependent code bias
   ``0.9 m·cos²θ`` on P1 and ``−0.3 m·cos²θ`` on P2 (the reflection in its antenna), which no constant DCB
   fits — it should be the worst-fitting satellite;
-* optional gross errors: a fraction of one receiver's P1 values off by ±5…50 m.
+* optional gross errors: a fraction of one receiver's P1 values off by ±5…50 m;
+* optional **receiver channel biases** (GLONASS-like FDMA inter-frequency biases, gnss8): ``channels`` puts the
+  satellites in groups (a channel each) and every receiver gets one code bias per group, N(0, ``channel_ifb_ns``)
+  on P1, shared by the group's satellites — inseparable from their DSBs, which the truth leaves out.
 
 **Realism knobs** (all off by default, so the default simulation is unchanged; :data:`REALISTIC` sets them,
 calibrated so that the first-wave model scores on it about what it scored on the held-out IGS network):
@@ -143,6 +146,8 @@ class SimulatedNetwork:
     field: VtecField
     svn49: str | None
     gross_errors: dict[str, int] = dataclass_field(default_factory=dict)
+    channel_ifb_ns: dict[str, dict[int, float]] = dataclass_field(default_factory=dict)
+    """Receiver → channel group → its code bias [ns] (``NetworkSimOptions.channels``; not in the DSB truth)."""
 
 
 def _given_or_drawn(
@@ -169,7 +174,8 @@ class NetworkSimOptions:
     ``station_noise_scale`` [(1,)]: per station (cycled) factors on noise and multipath. ``tid_tecu`` [0] ×
     ``n_tid`` [3] travelling disturbances, ``irregularity_tecu`` [0] AR(1) irregularities of correlation time
     ``irregularity_tau_s`` [600], ``shell_jitter_km`` [0] per-day shift of the shells (the realistic preset,
-    :data:`REALISTIC`)."""
+    :data:`REALISTIC`). ``channels`` [None] satellite → channel group and ``channel_ifb_ns`` [0]: the receivers'
+    per-group code bias σ (module doc)."""
 
     interval_s: float = 30.0
     hours: float = 24.0
@@ -190,6 +196,8 @@ class NetworkSimOptions:
     irregularity_tecu: float = 0.0
     irregularity_tau_s: float = 600.0
     shell_jitter_km: float = 0.0
+    channels: Mapping[str, int] | None = None
+    channel_ifb_ns: float = 0.0
 
     def __post_init__(self) -> None:
         check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
@@ -206,6 +214,8 @@ class NetworkSimOptions:
             or self.multipath_el_scale_deg <= 0
         ):
             raise ModelError("station_noise_scale, irregularity_tau_s and multipath_el_scale_deg must be positive")
+        if not (np.isfinite(self.channel_ifb_ns) and self.channel_ifb_ns >= 0):
+            raise ModelError(f"channel_ifb_ns {self.channel_ifb_ns}: must be a non-negative number")
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,6 +231,7 @@ class _Day:
     field: VtecField
     shells: list[tuple[float, float]]
     tids: list[tuple[float, float, float, float, float]]
+    channel_ifb_ns: dict[str, dict[int, float]] = dataclass_field(default_factory=dict)
 
 
 def simulate_network(
@@ -266,7 +277,14 @@ def simulate_network(
         for height, weight in _SHELLS_M
     ]
     tids = _draw_tids(rng, options.tid_tecu, options.n_tid)
-    shared = _Day(t, time, svs, sat_xyz, sat_dsb, rx_dsb, options.field or VtecField(), shells, tids)
+    ifb: dict[str, dict[int, float]] = {}
+    if options.channels is not None and options.channel_ifb_ns > 0:
+        groups = sorted(set(options.channels.values()))
+        ifb = {
+            n: dict(zip(groups, rng.normal(0.0, options.channel_ifb_ns, len(groups)).tolist(), strict=True))
+            for n in names
+        }
+    shared = _Day(t, time, svs, sat_xyz, sat_dsb, rx_dsb, options.field or VtecField(), shells, tids, ifb)
     gross_at = options.gross_station or names[-1]
     obs: list[CodeObservations] = []
     gross: dict[str, int] = {}
@@ -275,7 +293,8 @@ def simulate_network(
         obs.append(o)
         if n_gross is not None:
             gross[name] = n_gross
-    return SimulatedNetwork(obs, sat_dsb, rx_dsb, shared.field, options.svn49 if options.svn49 in svs else None, gross)
+    svn49 = options.svn49 if options.svn49 in svs else None
+    return SimulatedNetwork(obs, sat_dsb, rx_dsb, shared.field, svn49, gross, ifb)
 
 
 def _station(
@@ -308,6 +327,9 @@ def _station(
     for k, band in enumerate((1, 2)):
         p, phi = _band(day, name, band, rho, iono, (1.0 + 0.3 * k) * amp * unit[k], scale, up, el_s, options, rng)
         ranges[band], phases[band] = np.where(up, p, np.nan), np.where(up, phi, np.nan)
+    if name in day.channel_ifb_ns and options.channels is not None:
+        own = day.channel_ifb_ns[name]
+        ranges[1] = ranges[1] + C_M_S * 1e-9 * np.array([own.get(options.channels.get(s, -99), 0.0) for s in day.svs])
     n_gross = None
     if options.gross_fraction > 0 and gross_here:
         idx = np.flatnonzero(up.ravel())
