@@ -30,7 +30,7 @@ halls of a placement and the RMS over them; a prediction's median and 90th perce
 draws (:data:`DRAWS` per hall, ``e ~ N(0, C)`` through the linearized estimator, pooled over the halls), its RMS the
 analytic ``√(tr GCGᵀ / n)`` (the held heights' survey error counted in both).
 
-    python benchmarks/bench_uwb_headroom.py [--quick]      # quick: 4 halls (default 50 per placement)
+    python benchmarks/bench_uwb_headroom.py [--quick]      # quick: 2 halls per placement (default 50)
 """
 
 from __future__ import annotations
