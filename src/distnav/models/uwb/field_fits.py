@@ -57,8 +57,9 @@ STAGE_TOLERANCES = {"seed": (1e-3, 1e-2), "refit": (1e-3, 1e-2), "rung": (3e-4, 
 #: () every re-fit at the solver's tolerances, as before). A choice the 1 cm re-fit leaves open goes to a 3 mm fit
 #: (margin 0.24) before the full one; a decided end of the loop goes straight to the full fit
 #: (:func:`~distnav.algorithms.ranging.qc.exclude_links`). Sixth session: 1.03 × fewer bytes on 12 plant-like halls
-#: (corner #0 1.32 ×, middle #0 0.94 ×, the other 10 the same bytes), the same links excluded. The fourth session's
-#: ladder (1 cm, 1 mm) climbed every rung at the loop's end too: 1.04 × where one rung gave 1.08 ×
+#: (corner #0 1.32 ×, middle #0 0.94 ×, the other 10 the same bytes; 10⁴ anchors, with items 20–21: 0.45 % more),
+#: the same links excluded. The fourth session's ladder (1 cm, 1 mm) climbed every rung at the loop's end too:
+#: 1.04 × where one rung gave 1.08 ×
 REFIT_STAGES: tuple[str, ...] = ("refit", "rung")
 #: a warm distributed fit starts from the last fit's common range offset (every anchor holds it; :func:`solve_once`)
 #: instead of 0 (issue 27: from 0 each re-fit's first rounds found the offset again, 0.3 m on the plant-like halls)
