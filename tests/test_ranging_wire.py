@@ -429,3 +429,52 @@ def test_a_rounds_totals_travel_as_float32_but_the_objective(hall):
     assert np.array_equal(got[:, 1:], rows[:, 1:].astype(np.float32).astype(float))
     assert not np.array_equal(got[:, 1:], rows[:, 1:])
     assert links.reductions == 1 and links.reduced_bytes == 8 + 2 * 4 and links.reduced_floats == 3
+
+
+def _first_round(p, held_m=None):
+    """The rows a fresh LM phase's :class:`Links` delivers in its first and second parameter rounds, and the bytes
+    and messages of the first (``held_m``: what the receivers hold from the last fit, wire item 6)."""
+    ex = _exchange(p)
+    links = Links(p, ex, known_from_problem=True, held_m=held_m)
+    values = np.where(p.free, p.initial_m, p.positions_m)  # the LM phase's start (refine._Refiner.start)
+    first = links.neighbours(values)
+    c = ex.comm_totals().snapshot()  # the live counters go on counting
+    moved = values + 0.25 * p.free  # an LM step moves the free coordinates only
+    return first, links.neighbours(moved), c
+
+
+def test_a_warm_start_the_receivers_hold_sends_only_the_other_rows(hall):
+    """wire item 6 (issue 27, seventh session): an anchor whose start every ranged neighbour holds (``held_m`` not
+    NaN) sends no first parameters; the receivers' rows are the full first broadcast's bit for bit, the next round
+    is unchanged, and the first round's bytes are exactly the free columns from the anchors not held."""
+    p = hall[0]
+    full, full2, c_full = _first_round(p)
+    start = np.where(p.free, p.initial_m, p.positions_m)
+    held = start.copy()
+    moved = np.flatnonzero(p.free.any(axis=1))[::3]  # every third free anchor: its receivers do not hold its start
+    held[moved] = np.nan
+    got, got2, c_got = _first_round(p, held)
+    assert np.array_equal(got, full) and np.array_equal(got2, full2)  # bit for bit
+    a, b = p.links[:, 0], p.links[:, 1]
+    senders = np.r_[a, b]  # each link both ways: the sender of each directed edge
+    from_moved = int(np.isin(senders, moved).sum())
+    assert 0 < from_moved < senders.size
+    assert c_got.messages == from_moved and c_got.bytes == from_moved * 8 * 2  # x and y, float64
+    nothing, nothing2, c_none = _first_round(p, start)  # every start held: no first round at all
+    assert np.array_equal(nothing, full) and np.array_equal(nothing2, full2)
+    assert c_none.messages == 0 and c_none.bytes == 0
+
+
+def test_a_start_that_differs_from_what_the_receivers_hold_is_refused(hall, monkeypatch):
+    """The receivers would fill another row than the sender's start: a ModelError, not a silent difference; with
+    ``wire.HELD_FROM_LAST_FIT`` off ``held_m`` is ignored (the full first round)."""
+    p = hall[0]
+    held = np.where(p.free, p.initial_m, p.positions_m)
+    i = int(np.flatnonzero(p.free.any(axis=1))[0])
+    held[i] = np.nextafter(held[i], np.inf)  # one bit off on the free coordinates
+    with pytest.raises(ModelError, match="held_m"):
+        _first_round(p, held)
+    with pytest.raises(ModelError, match="shape"):
+        _first_round(p, held[:-1])
+    monkeypatch.setattr(wire, "HELD_FROM_LAST_FIT", False)
+    assert _first_round(p, held)[2].bytes == _first_round(p)[2].bytes

@@ -55,3 +55,32 @@ def test_loose_refits_and_the_carried_state_send_fewer_bytes_for_the_same_answer
         if known == "middle":
             assert now.comm_phases["exclusions"]["bytes"] < before.comm_phases["exclusions"]["bytes"]
             assert now.bytes < 0.95 * before.bytes
+
+
+def test_warm_fits_send_no_start_the_receivers_hold_and_end_bit_for_bit_the_same(monkeypatch):
+    """Plant-like hall [78, 0] (corner; its exclusion loop is the longest): every warm fit's LM phase sends no first
+    parameters from an anchor whose ranged neighbours hold its start from the last fit (``field_fits.CARRY_HELD``,
+    the default, issue 27 seventh session) against every warm fit broadcasting them (the behaviour before): the
+    receivers' rows are the same bits, so the same answer bit for bit — positions, σ, links excluded, status —
+    for fewer bytes, ≥ 2 kB fewer per warm fit (the hall's first broadcast of the free columns: about 2.9 kB)."""
+    import distnav.models.uwb.field_fits as field_fits
+
+    h = simulate_hall(np.random.default_rng([78, 0]), HallConfig().with_(known="corner", **PLANT_LIKE))
+    sub, geo = prepare(hall_problem(h)[0])
+    solve, fits = field_fits.csg.solve, []
+
+    def counted(*args, **kw):
+        fits.append(kw.get("refine_held_m") is not None)
+        return solve(*args, **kw)
+
+    with monkeypatch.context() as m:
+        m.setattr(field_fits.csg, "solve", counted)
+        now = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    assert len(fits) > 8 and not fits[0] and all(fits[1:])  # every distributed fit after the first one
+    monkeypatch.setattr(field_fits, "CARRY_HELD", False)
+    before = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    assert np.array_equal(now.positions_m, before.positions_m)
+    assert np.array_equal(now.sigma_m, before.sigma_m, equal_nan=True)
+    assert np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert now.comm_phases["first_fit"] == before.comm_phases["first_fit"]  # a cold fit: nothing held
+    assert before.bytes - now.bytes >= 2000 * (len(fits) - 1)

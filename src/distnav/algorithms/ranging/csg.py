@@ -230,6 +230,7 @@ def _refine_phase(
             ftol=rule.phase_tolerances[0],
             xtol_m=rule.phase_tolerances[1],
             mu0=MU0 if setup.o.refine_mu0 is None else setup.o.refine_mu0,
+            held_m=setup.o.refine_held_m,
         )
     except ModelError as err:  # e.g. a lost message: the refinement needs every link each round
         out.note(f"no distributed LM phase ({err})")

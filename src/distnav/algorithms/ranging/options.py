@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from distnav._checks import check_field_types
 from distnav.algorithms.ranging.losses import LOSSES
 from distnav.algorithms.ranging.objective import FitOptions
@@ -59,6 +61,10 @@ class RunOptions(FitOptions):
     - ``refine`` (None: with the metres objective and a stopping rule): a final distributed LM phase.
     - ``refine_mu0`` (None: ``refine.MU0``): that phase's initial Marquardt damping (a warm re-fit: the last fit's
       final one, ``settings["refine"]["mu"]``, issue 27).
+    - ``refine_held_m`` (None; an ``(n_anchors, dim)`` array): per anchor, the coordinates every one of its ranged
+      neighbours holds bit for bit from the last fit's LM phase (NaN: not held); that phase's start must equal
+      them there and sends nothing from those anchors (a warm re-fit: ``field_fits.CARRY_HELD``; issue 27,
+      :class:`~distnav.algorithms.ranging.wire.Wire` item 6).
     - ``test_scale`` also ``"local"`` (each anchor's own scale) beside the centralized scales.
 
     ``range_offsets="common_delays"`` (LM's) is refused by name: the neighbourhood solvers' offsets
@@ -72,6 +78,7 @@ class RunOptions(FitOptions):
     stop: StopRule | None = StopRule()
     refine: bool | None = None
     refine_mu0: float | None = None
+    refine_held_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)

@@ -99,19 +99,17 @@ class Refinement:
 
 
 class Links:
-    """The half-measurements of one block, their neighbour rows in a broadcast, and the network totals."""
+    """The half-measurements of one block, their neighbour rows in a broadcast (``wire_options``: Wire's), totals."""
 
     def __init__(
-        self, problem: RangingData, ex: Exchange, *, per_anchor_offsets: bool = False, known_from_problem: bool = False
+        self, problem: RangingData, ex: Exchange, *, per_anchor_offsets: bool = False, **wire_options: Any
     ) -> None:
         self.ex, self.n = ex, problem.n_anchors
         self.owner, self.other, _, self.samp = half_measurements(problem, ex)
         self.reductions = 0
         self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
         self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
-        self.wire = Wire(
-            problem, ex, self.owner, self.other, 1 if per_anchor_offsets else 0, known_from_problem=known_from_problem
-        )
+        self.wire = Wire(problem, ex, self.owner, self.other, int(per_anchor_offsets), **wire_options)
 
     def counted(self) -> wire.Reductions:
         """The reductions counted so far."""
@@ -159,7 +157,8 @@ class RefineOptions:
     """The settings of :func:`refine`, as the solver's: ``sigma`` / ``scale`` (every sample's range σ, metres, and
     whitened loss scale), ``loss``, ``range_offsets`` (``"none"``, ``"common"``, ``"per_anchor"``) and
     ``offset_prior_sigma_m`` (metres), the stopping thresholds ``ftol`` (relative) and ``xtol_m`` (metres),
-    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds and ``mu0`` (:data:`MU0`) the initial damping."""
+    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds, ``mu0`` (:data:`MU0`) the initial damping and ``held_m``
+    what the receivers hold from the last fit (:class:`~distnav.algorithms.ranging.wire.Wire`, item 6)."""
 
     sigma: np.ndarray
     scale: np.ndarray
@@ -170,6 +169,7 @@ class RefineOptions:
     xtol_m: float
     max_rounds: int = MAX_ROUNDS
     mu0: float = MU0
+    held_m: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -194,7 +194,7 @@ class _Refiner:
     def __init__(self, problem: RangingData, ex: Exchange, o: RefineOptions) -> None:
         self.o = o
         self.per, self.common = o.range_offsets == "per_anchor", o.range_offsets == "common"
-        self.links = links = Links(problem, ex, per_anchor_offsets=self.per, known_from_problem=True)
+        self.links = links = Links(problem, ex, per_anchor_offsets=self.per, known_from_problem=True, held_m=o.held_m)
         self.owner, self.other, self.samp = links.owner, links.other, links.samp
         self.n, self.nl, self.dim = problem.n_anchors, ex.n_local, problem.dim
         dim = self.dim

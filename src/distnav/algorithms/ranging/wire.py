@@ -77,6 +77,7 @@ __all__ = [
     "STEP_DTYPE",
     "KNOWN_FROM_PROBLEM",
     "HELD_EXPONENT",
+    "HELD_FROM_LAST_FIT",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
@@ -137,13 +138,19 @@ HELD_EXPONENT = True
 #: not from the message (issue 27, fifth session: a fit's first broadcast 16 B per link instead of 24, none from
 #: a fixed anchor); False: the whole row, float64, from every anchor (as before)
 KNOWN_FROM_PROBLEM = True
+#: a warm fit's first parameters are not sent from an anchor whose receivers hold them from the last fit
+#: (``Wire(held_m=...)``, item 6 of the module docstring); False: sent as :data:`KNOWN_FROM_PROBLEM` says
+HELD_FROM_LAST_FIT = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
 class Wire:
     """The packed rounds of one exchange block (module docstring). ``owner`` / ``other``: every half-measurement's
     local holder and the other end's global id; ``extra``: parameter columns beyond ``dim`` that every anchor
-    estimates (a per-anchor range offset)."""
+    estimates (a per-anchor range offset); ``held_m`` ``(n, dim)``: per anchor, the coordinates every one of its
+    ranged neighbours holds bit for bit from the last fit (NaN: not held) — its start must be these where they are
+    given (a ModelError otherwise), and its first parameters are then not sent (item 6; with ``known_from_problem``
+    and no ``extra`` column only)."""
 
     def __init__(
         self,
@@ -154,6 +161,7 @@ class Wire:
         extra: int,
         *,
         known_from_problem: bool = False,
+        held_m: np.ndarray | None = None,
     ) -> None:
         self.ex, self.n = ex, problem.n_anchors
         self.known_from_problem = known_from_problem  # :data:`KNOWN_FROM_PROBLEM` (the LM phase's: refine.py)
@@ -167,9 +175,16 @@ class Wire:
         active[ex.in_edges] = talks[ex.in_src]
         self.active = active
         self.talks_other = talks[other]  # per half-measurement: the other end sends
+        self._talks = talks
         self._problem = problem  # the other ends' known coordinates, read at a first broadcast (known_from_problem)
         self._pos: np.ndarray | None = None
         self._params: np.ndarray | None = None  # the last parameters received, per half-measurement
+        self._held: np.ndarray | None = None  # per anchor, its coordinates its receivers hold (item 6), else None
+        if held_m is not None and HELD_FROM_LAST_FIT and known_from_problem and extra == 0:
+            held = np.asarray(held_m, float)
+            if held.shape != (problem.n_anchors, problem.dim):
+                raise ModelError(f"held_m must have shape ({problem.n_anchors}, {problem.dim}), got {held.shape}")
+            self._held = held
         self._rep: tuple[np.ndarray, np.ndarray] | None = None  # per out-edge: a half-measurement, the edge's mask
 
     def _positions(self, box_dst: np.ndarray, box_src: np.ndarray) -> np.ndarray:
@@ -203,13 +218,35 @@ class Wire:
         if self._params is None and not (KNOWN_FROM_PROBLEM and self.known_from_problem):
             self._params = self._round(values, None, None).copy()
             return self._params.copy()
+        active, need, send = self.active, self.talks_other, True
         if self._params is None:  # the other end's known coordinates (the problem's: fixed, held), zeros elsewhere
             self._params = np.zeros((self.other.size, self.P))
             self._params[:, : self._problem.dim] = self._problem.positions_m[self.other]
-        got = self._round(np.ascontiguousarray(values[:, self.cols]), self.active, self.talks_other)
+            if self._held is not None:
+                active, need, send = self._held_start(values)
         out = self._params
-        out[np.ix_(self.talks_other, self.cols)] = got[self.talks_other]
+        if send:  # not when no anchor of the network sends (every block knows: no round at all)
+            got = self._round(np.ascontiguousarray(values[:, self.cols]), active, need)
+            out[np.ix_(need, self.cols)] = got[need]
         return out.copy()
+
+    def _held_start(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+        """A warm fit's first broadcast with :attr:`_held` (item 6): the receivers' rows of the anchors whose start
+        they hold filled from it; the edges that still carry a message, the half-measurements that need one and
+        whether any anchor of the network sends."""
+        assert self._held is not None
+        ex, cols = self.ex, self.cols
+        held = np.all(np.isfinite(self._held[:, cols]), axis=1)
+        own = held[ex.nodes]
+        if not np.array_equal(values[own][:, cols], self._held[ex.nodes[own]][:, cols]):
+            raise ModelError("a warm fit's start differs from the parameters its receivers hold (held_m)")
+        from_held = self.talks_other & held[self.other]
+        assert self._params is not None
+        self._params[np.ix_(from_held, cols)] = self._held[self.other[from_held]][:, cols]
+        active = self.active.copy()
+        active[ex.out_edges] &= ~held[ex.nodes[ex.out_src]]
+        active[ex.in_edges] &= ~held[ex.in_src]
+        return active, self.talks_other & ~held[self.other], bool(np.any(self._talks & ~held))
 
     def rounded(self, step: np.ndarray) -> np.ndarray:
         """An LM step ``(n_local, P)`` as :meth:`stepped` delivers it: its free columns as :data:`STEP_DTYPE` (the

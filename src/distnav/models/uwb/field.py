@@ -201,7 +201,7 @@ class _Run:
     starts: list[FloatArray]
     marks: dict[str, tuple[int, int]] = field(default_factory=dict)  # phase -> (messages, bytes) at its end
     no_exclusion: list[Any] = field(default_factory=list)  # the first robust fit, on every link
-    carry: dict[str, float] = field(default_factory=dict)  # the common offset handed from fit to fit (solve_once)
+    carry: dict[str, Any] = field(default_factory=dict)  # the common offset handed from fit to fit (solve_once)
 
     def fit(self, sub: Any) -> Any:
         r = self.fit_any(sub)
@@ -266,7 +266,7 @@ def _start_run(
     note = "" if objective == opts.objective else f" ({opts.solver} has no {opts.objective} objective: squared used)"
     total: list[int] = [0, 0, 0]
     starts: list[FloatArray] = []
-    carry: dict[str, float] = {}
+    carry: dict[str, Any] = {}
     fit_any = make_fitter(opts, exchange, total, starts, carry=carry)
     return _Run(problem, opts, opts, exchange, objective, note, fit_any, [], total, starts, carry=carry)
 

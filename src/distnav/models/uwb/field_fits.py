@@ -35,6 +35,7 @@ __all__ = [
     "REFIT_STAGES",
     "refit_margin_w",
     "CARRY_OFFSET",
+    "CARRY_HELD",
 ]
 
 REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
@@ -68,6 +69,9 @@ CARRY_OFFSET = True
 #: refine.MU0 (issue 27)
 CARRY_DAMPING = True
 MU_FLOOR = 1e-6
+#: a warm distributed fit's LM phase sends no first parameters from an anchor whose ranged neighbours hold its start
+#: bit for bit from the last fit (:func:`_held`, ``RunOptions.refine_held_m``; issue 27 seventh session)
+CARRY_HELD = True
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
 
@@ -82,7 +86,7 @@ def solve_once(
     start: str = "cold",
     tolerances: bool = True,
     stage: str | None = None,
-    carry: dict[str, float] | None = None,
+    carry: dict[str, Any] | None = None,
 ) -> Any:
     """One solve of ``problem`` (its ``initial_m`` the start) by ``solver`` with the keyword arguments ``kw``.
     ``start="warm"``: a re-fit from a solution, the robust loss straight away (no graduated linear phase; LM with
@@ -104,7 +108,9 @@ def solve_once(
     own): a distributed solver's LM phase stops at :data:`STAGE_TOLERANCES` — a fit whose solution only
     starts the next one needs no 0.1 mm steps (issue 27, docs/economy_uwb.md). ``carry``: the common range offset
     handed from fit to fit (:data:`CARRY_OFFSET`): a warm distributed re-fit starts from the last fit's, which every
-    anchor holds (no message), instead of 0; the fit's own is stored for the next."""
+    anchor holds (no message), instead of 0; the fit's own is stored for the next — with its LM phase's final
+    coordinates and links, which every ranged neighbour holds (:data:`CARRY_HELD`: a warm fit sends no first
+    parameters from an anchor that starts there)."""
     key = solver.upper()
     warm, first = start == "warm", start == "first"
     extra: dict[str, Any] = {}
@@ -123,9 +129,11 @@ def solve_once(
         extra["stop"] = StopRule(refine_ftol=ftol, refine_xtol_m=xtol_m)
     if carry is not None and warm and key != "LM":
         extra.update({k: v for k, v in carry.items() if k not in kw and _carries(k, key, kw)})
+        if CARRY_HELD and "held" in carry and iterations == 0 and kw.get("refine", True) is not False:
+            extra["refine_held_m"] = _held(problem, carry["held"])  # the LM phase starts at the fit's start
     r = csg.solve(problem, key, iterations=iterations, **kw, **extra)
     if carry is not None and key != "LM" and r.usable:
-        _carry(r, carry)
+        _carry(r, carry, problem)
     if total is not None:  # the final distributed LM phase's rounds are iterations too (issue 28 item 3)
         ref = (getattr(r, "settings", None) or {}).get("refine") or {}
         total[0] += int(r.iterations) + int(ref.get("rounds", 0))
@@ -153,7 +161,7 @@ def tighten_scale(
     exchange: Callable[[RangingProblem], Any] | None = None,
     total: list[int] | None = None,
     stage: str | None = None,
-    carry: dict[str, float] | None = None,
+    carry: dict[str, Any] | None = None,
 ) -> tuple[FloatArray, float, int]:
     """The one-sided fit of every link by ``solver``, its loss scale halved from ``scale_m`` (each fit warm from the
     last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger (``stage``:
@@ -204,17 +212,48 @@ def refit_margin_w(stage: str, sigma_m: float) -> float:
 
 def _carries(name: str, key: str, kw: dict[str, Any]) -> bool:
     """Whether a warm fit of ``key`` with ``kw`` takes the carried setting ``name`` (:func:`_carry`)."""
+    if name == "held":
+        return False  # not a setting: read by :func:`_held`
     if name == "initial_offset_m":
         return CARRY_OFFSET and key != "CSG" and kw.get("range_offsets") == "common"
     return CARRY_DAMPING and kw.get("refine", True) is not False
 
 
-def _carry(r: Any, carry: dict[str, float]) -> None:
+def _carry(r: Any, carry: dict[str, Any], problem: RangingProblem) -> None:
     """What a distributed fit hands to the next warm one: its common offset and its LM phase's final damping —
     values every anchor holds at the end (no message)."""
     off = getattr(r, "offsets_m", None)
     if off is not None and np.size(off) == 1:
         carry["initial_offset_m"] = float(np.ravel(off)[0])
-    mu = ((getattr(r, "settings", None) or {}).get("refine") or {}).get("mu")
+    ref = (getattr(r, "settings", None) or {}).get("refine") or {}
+    mu = ref.get("mu")
     if mu is not None:
         carry["refine_mu0"] = max(float(mu), MU_FLOOR)
+    carry.pop("held", None)
+    if ref and np.all(np.isfinite(r.estimates)):  # its LM phase's last accepted coordinates (every neighbour's)
+        carry["held"] = (problem.ids, np.array(r.estimates, float), _link_keys(problem))
+
+
+def _link_keys(problem: Any) -> np.ndarray:
+    """Every ranged pair of ``problem``, both ways, as sorted keys ``a · n + b``."""
+    a, b, n = np.asarray(problem.meas_a), np.asarray(problem.meas_b), problem.n_anchors
+    return np.unique(np.r_[a * n + b, b * n + a])
+
+
+def _held(problem: RangingProblem, held: tuple[Any, np.ndarray, np.ndarray]) -> np.ndarray:
+    """``RunOptions.refine_held_m`` of a warm fit of ``problem`` (:data:`CARRY_HELD`): per anchor, the last fit's
+    coordinates where its start is bit for bit those on every free coordinate and every one of its links was a
+    link of the last fit (so that each of its receivers holds them), NaN elsewhere — a revert's start, a link
+    back. Every anchor can tell: the starts and the links are the workflow's, which every anchor follows."""
+    ids, last_m, keys = held
+    out = np.full((problem.n_anchors, problem.dim), np.nan)
+    if tuple(ids) != tuple(problem.ids) or problem.initial_m is None or last_m.shape != out.shape:
+        return out
+    start = np.asarray(problem.initial_m, float)
+    same = np.all((start == last_m) | ~problem.free, axis=1)
+    now = _link_keys(problem)
+    new = now[~np.isin(now, keys)]  # a pair not ranged in the last fit: neither end holds the other's row
+    same[new // problem.n_anchors] = False
+    same[new % problem.n_anchors] = False
+    out[same] = last_m[same]
+    return out

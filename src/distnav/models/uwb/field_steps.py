@@ -110,7 +110,7 @@ def make_fitter(
     comm: list[int],
     last: list[FloatArray],
     stage: str | None = None,
-    carry: dict[str, float] | None = None,
+    carry: dict[str, Any] | None = None,
 ) -> Callable[[Any], Any]:
     """A fit by name of a (sub)problem from the last usable solution in ``last`` (appended to it), its messages
     added to ``comm``; ``stage``: a distributed solver's LM phase stops at that stage's tolerances
@@ -169,7 +169,7 @@ def polish_fit(
     opts: FieldOptions,
     exchange: Callable[[RangingProblem], Any] | None = None,
     total: list[int] | None = None,
-    carry: dict[str, float] | None = None,
+    carry: dict[str, Any] | None = None,
 ) -> tuple[Any, FloatArray, BoolArray]:
     """The kept links re-fitted at the given loss scale (one-sided, from the tightened solution), with its tests
     and precision: once the NLOS links are out, the tight scale only down-weights LOS links a little (their σ and
