@@ -9,17 +9,11 @@ and how both grow with the network.
    same accounting (the broadcasts, and the LM phase's network totals as spanning-tree all-reductions):
    *before* issue 27 (:func:`configured` ``"before"``: 500 consensus iterations in the first fit, every row sent in
    full in float64, float64 CG scalars, the central σ by CG to ``1e-10``, every re-fit from offset 0 and the initial
-   damping, the tightening by halvings, no extrapolated tail), *today* (the defaults at the start of the sixth
-   session: items 1–19 of docs/economy_uwb.md — each neighbour's product per link on the link's held exponent, CG
-   stopped on ``rᵀz`` with float16 dot products, trials as float32 steps, the seed fits at their stage tolerances,
-   the σ gathered at one anchor, the exclusion loop's re-fits stopped at 1 cm and decided with a margin, every warm
-   fit from the last fit's common offset and damping, the tightening's jump; but no extrapolated tail,
-   ``refine.EXTRAPOLATE`` None, every near-critical link leaving a loose re-fit's choice open,
-   ``qc.BLOCKED_NEAR`` False, one loose rung, ``field_fits.REFIT_STAGES`` ``("refit",)``) and *after* (the
-   defaults: the LM phase's steady IRLS tail extrapolated, ``refine.EXTRAPOLATE``; a near-critical link that a
-   pick of its anchors always blocks no longer leaves the choice open, ``qc.BLOCKED_NEAR``; an open choice goes
-   to a 3 mm fit before the full one, ``field_fits.REFIT_STAGES``); the positions, their
-   largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range gathered at one anchor
+   damping, the tightening by halvings, no extrapolated tail, every warm fit's first parameters broadcast), *today*
+   (the defaults at the start of the seventh session: items 1–22 of docs/economy_uwb.md, but every warm fit's LM
+   phase broadcasting its first parameters, ``field_fits.CARRY_HELD`` False) and *after* (the defaults: no first
+   parameters from an anchor whose ranged neighbours hold its start from the last fit, item 23); the positions,
+   their largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
    of that gather over the range graph (:func:`distnav.network.gather.gather_cost`). Per anchor: what each
    anchor's broadcasts and the gathered σ's tree sent, the reductions spread evenly (2 messages per anchor and
@@ -98,8 +92,9 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (field_fits, "TIGHTEN_JUMP"): False,
         (refine, "EXTRAPOLATE"): None,
         (qc, "BLOCKED_NEAR"): False,
+        (field_fits, "CARRY_HELD"): False,
     },
-    "today": {(refine, "EXTRAPOLATE"): None, (qc, "BLOCKED_NEAR"): False, (field_fits, "REFIT_STAGES"): ("refit",)},
+    "today": {(field_fits, "CARRY_HELD"): False},
     "after": {},
 }
 OPTIONS = {
