@@ -238,7 +238,8 @@ class Wire:
         ex, cols = self.ex, self.cols
         held = np.all(np.isfinite(self._held[:, cols]), axis=1)
         own = held[ex.nodes]
-        if not np.array_equal(values[own][:, cols], self._held[ex.nodes[own]][:, cols]):
+        differs = not np.array_equal(values[own][:, cols], self._held[ex.nodes[own]][:, cols])
+        if ex.allreduce(float(differs), "max") > 0:  # every block refuses together (a check: monitoring, no bytes)
             raise ModelError("a warm fit's start differs from the parameters its receivers hold (held_m)")
         from_held = self.talks_other & held[self.other]
         assert self._params is not None
