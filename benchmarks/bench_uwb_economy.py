@@ -10,7 +10,7 @@ and how both grow with the network.
    *before* issue 27 (:func:`configured` ``"before"``: 500 consensus iterations in the first fit, every row sent in
    full in float64, float64 CG scalars, the central σ by CG to ``1e-10``, every re-fit from offset 0 and the initial
    damping, the tightening by halvings, no extrapolated tail, every warm fit's first parameters broadcast), *today*
-   (the defaults at the start of the seventh session: items 1–22 of docs/economy_uwb.md, but every warm fit's LM
+   (the defaults before the sixth session's item 23: items 1–22 of docs/economy_uwb.md, but every warm fit's LM
    phase broadcasting its first parameters, ``field_fits.CARRY_HELD`` False) and *after* (the defaults: no first
    parameters from an anchor whose ranged neighbours hold its start from the last fit, item 23); the positions,
    their largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range gathered at one anchor

@@ -444,7 +444,7 @@ def _first_round(p, held_m=None):
 
 
 def test_a_warm_start_the_receivers_hold_sends_only_the_other_rows(hall):
-    """wire item 6 (issue 27, seventh session): an anchor whose start every ranged neighbour holds (``held_m`` not
+    """wire item 6 (issue 27, item 23): an anchor whose start every ranged neighbour holds (``held_m`` not
     NaN) sends no first parameters; the receivers' rows are the full first broadcast's bit for bit, the next round
     is unchanged, and the first round's bytes are exactly the free columns from the anchors not held."""
     p = hall[0]

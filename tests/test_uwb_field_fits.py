@@ -60,7 +60,7 @@ def test_loose_refits_and_the_carried_state_send_fewer_bytes_for_the_same_answer
 def test_warm_fits_send_no_start_the_receivers_hold_and_end_bit_for_bit_the_same(monkeypatch):
     """Plant-like hall [78, 0] (corner; its exclusion loop is the longest): every warm fit's LM phase sends no first
     parameters from an anchor whose ranged neighbours hold its start from the last fit (``field_fits.CARRY_HELD``,
-    the default, issue 27 seventh session) against every warm fit broadcasting them (the behaviour before): the
+    the default, issue 27 sixth session, item 23) against every warm fit broadcasting them (the behaviour before): the
     receivers' rows are the same bits, so the same answer bit for bit — positions, σ, links excluded, status —
     for fewer bytes, ≥ 2 kB fewer per warm fit (the hall's first broadcast of the free columns: about 2.9 kB)."""
     import distnav.models.uwb.field_fits as field_fits

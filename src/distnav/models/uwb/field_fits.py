@@ -70,7 +70,7 @@ CARRY_OFFSET = True
 CARRY_DAMPING = True
 MU_FLOOR = 1e-6
 #: a warm distributed fit's LM phase sends no first parameters from an anchor whose ranged neighbours hold its start
-#: bit for bit from the last fit (:func:`_held`, ``RunOptions.refine_held_m``; issue 27 seventh session)
+#: bit for bit from the last fit (:func:`_held`, ``RunOptions.refine_held_m``; issue 27 sixth session, item 23)
 CARRY_HELD = True
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
