@@ -113,9 +113,12 @@ def glonass_channel_ifb(
     if ifb is None:
         return series, None
     floor = ifb.mode == "floor"
-    network = channel_ifb_variance_ns2(k, ifb.sigma_ns, n)  # the receivers' mean per channel
-    own = channel_ifb_variance_ns2(k, ifb.sigma_ns, 1)  # a single-station filter carries its receiver's own
-    out = [with_channel_ifb([s], n, own if s.label.startswith("local:") else network, floor=floor)[0] for s in series]
+    of_mean_ns2 = channel_ifb_variance_ns2(k, ifb.sigma_ns, n)  # the receivers' mean per channel
+    of_own_ns2 = channel_ifb_variance_ns2(k, ifb.sigma_ns, 1)  # a single-station filter carries its receiver's own
+    out = [
+        with_channel_ifb([s], n, of_own_ns2 if s.label.startswith("local:") else of_mean_ns2, floor=floor)[0]
+        for s in series
+    ]
     return out, ifb
 
 

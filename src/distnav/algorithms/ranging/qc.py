@@ -71,8 +71,10 @@ log = logging.getLogger(__name__)
 TEST_SCALES = ("robust", "a-priori")
 DISTRIBUTED_TEST_SCALES = (*TEST_SCALES, "local")  # "robust": the network's robust scale; "local": each anchor's
 SCALE_FLOOR = 0.25  # the distributed tests' robust scale is floored at a quarter of the a-priori σ
-_MAX_DENSE = 6000
-BLOCKED_NEAR = True  # unknowns up to which the covariance is formed (a dense inverse)
+_MAX_DENSE = 6000  # unknowns up to which the covariance is formed (a dense inverse)
+#: a near-critical link that a pick of its anchors always blocks does not leave a loose re-fit's choice open
+#: (:func:`_decided`, issue 27); False: every link within the margin does
+BLOCKED_NEAR = True
 
 
 def robust_scale(standardized: np.ndarray) -> float:
@@ -312,7 +314,7 @@ def exclude_links(
         picks = _round_picks(problem.n_anchors, aw, a, b, cap, crit)
         margin = ladder[level][1]
         if level < len(ladder) - 1:
-            decided = _decided(problem.n_anchors, aw, (a, b), cap, crit, margin)
+            decided = _decided(problem.n_anchors, aw, (a, b), cap, crit, margin, picks)
             if not picks or not decided:  # undecided: the next fit decides; the loop's end: the last fit confirms
                 level = level + 1 if not decided else len(ladder) - 1
                 res = ladder[level][0](sub)
@@ -369,14 +371,22 @@ def _links_of(picks: list[int], a: np.ndarray, b: np.ndarray) -> set[tuple[int, 
 
 
 def _decided(
-    n_anchors: int, aw: np.ndarray, ends: tuple[np.ndarray, np.ndarray], cap: int, critical: float, margin: float
+    n_anchors: int,
+    aw: np.ndarray,
+    ends: tuple[np.ndarray, np.ndarray],
+    cap: int,
+    critical: float,
+    margin: float,
+    picks: list[int] | None = None,
 ) -> bool:
     """Whether a round's choice (:func:`_round_picks`) stands when every |w| may be off by ``margin``: no eligible
     |w| within ``margin`` of ``critical`` (but one that a pick of its anchors always blocks, :data:`BLOCKED_NEAR`),
     and swapping the |w| of any two links within ``2 · margin`` of each other
-    (both above ``critical − margin``) chooses the same links."""
+    (both above ``critical − margin``) chooses the same links. ``picks``: the round's choice
+    (:func:`_round_picks` of the same arguments; None: made here)."""
     a, b = ends
-    picks = _round_picks(n_anchors, aw, a, b, cap, critical)
+    if picks is None:
+        picks = _round_picks(n_anchors, aw, a, b, cap, critical)
     near_crit = np.abs(aw - critical) <= margin
     if BLOCKED_NEAR:  # a link always behind a pick of one of its anchors is never picked, whatever its |w|
         near_crit &= ~_always_blocked(aw, a, b, picks, critical, margin)

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from distnav.models.gnss.systems import GLONASS_FDMA_HZ
+
 __all__ = [
     "channel_pattern",
     "ProductDSB",
@@ -153,7 +155,7 @@ def channel_pattern(difference_ns: Mapping[str, float], f1_hz: Mapping[str, floa
     for sv, d in difference_ns.items():
         f = f1_hz.get(sv)
         if f is not None and np.isfinite(f) and np.isfinite(d):
-            groups.setdefault(int(round((f - 1602.0e6) / 0.5625e6)), []).append(float(d))
+            groups.setdefault(int(round((f - GLONASS_FDMA_HZ[1][0]) / GLONASS_FDMA_HZ[1][1])), []).append(float(d))
     if not groups:
         return {}
     means = {k: float(np.mean(v)) for k, v in sorted(groups.items())}

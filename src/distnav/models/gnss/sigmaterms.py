@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from distnav.models.gnss.gfcollector import DatumSeries
+from distnav.models.gnss.systems import GLONASS_FDMA_HZ
 
 __all__ = [
     "ChannelIfb",
@@ -45,8 +46,8 @@ __all__ = [
     "with_channel_ifb",
 ]
 
-GLONASS_G1_HZ, GLONASS_G1_STEP_HZ = 1602.0e6, 0.5625e6
-"""GLONASS G1 FDMA: f = 1602 MHz + k·0.5625 MHz (GLONASS ICD 5.1 §3.3.1.1; also in :mod:`.systems`)."""
+GLONASS_G1_HZ, GLONASS_G1_STEP_HZ = GLONASS_FDMA_HZ[1]
+"""GLONASS G1 FDMA: f = 1602 MHz + k·0.5625 MHz (GLONASS ICD 5.1 §3.3.1.1; :data:`.systems.GLONASS_FDMA_HZ`)."""
 
 
 @dataclass(frozen=True)
