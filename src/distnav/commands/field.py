@@ -110,7 +110,8 @@ def launch(desc_path: Path, out_dir: Path, *, timeout_s: float = 300.0, quiet: b
     rejoined: list[int] = []
     restart_at: dict[int, float] = {}
     try:
-        procs = {n.id: start(n.id) for n in desc.nodes}
+        for n in desc.nodes:  # one at a time: a Ctrl-C between two starts leaves the started ones to the finally
+            procs[n.id] = start(n.id)
         while len(codes) < len(procs) and time.monotonic() - t0 < timeout_s:
             for node_id, p in procs.items():
                 if node_id in codes or p.poll() is None:
