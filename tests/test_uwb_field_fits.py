@@ -114,3 +114,36 @@ def test_the_last_tightening_fit_opens_the_exclusion_loop_for_the_same_answer(mo
     before = solve_field(sub, opts, geometry=geo)
     assert not before.excluded.any()
     assert np.max(np.abs(now.positions_m - before.positions_m)) < 2e-4
+
+
+def test_the_loop_ends_loose_where_the_polish_follows_for_the_same_answer(monkeypatch):
+    """Plant-like halls [78, 5] (corner) and [78, 1] (middle): the exclusion loop ends on its decided 1 cm re-fit and
+    the polish starts there (``field_fits.LOOP_ENDS_LOOSE``, the default; issue 27 seventh session) instead of after a
+    full fit of the kept links (the behaviour before): the same links excluded, the same status, positions within
+    0.2 mm, fewer bytes. Without the polish nothing changes (bit for bit); where the polish is not kept
+    (``POLISH_RATIO`` forced down) the answer is the loose end continued to the solver's tolerances (within 0.2 mm of
+    the full fit of before; the 1 cm end itself is mm away)."""
+    import distnav.models.uwb.field as field
+    import distnav.models.uwb.field_fits as field_fits
+
+    for seed, known in (([78, 5], "corner"), ([78, 1], "middle")):
+        h = simulate_hall(np.random.default_rng(seed), HallConfig().with_(known=known, **PLANT_LIKE))
+        sub, geo = prepare(hall_problem(h)[0])
+        got = {}
+        for ends_loose in (True, False):
+            monkeypatch.setattr(field_fits, "LOOP_ENDS_LOOSE", ends_loose)
+            got[ends_loose] = [
+                solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo),
+                solve_field(sub, FieldOptions(solver="N-CLM", polish=False), geometry=geo),
+            ]
+            with monkeypatch.context() as m:
+                m.setattr(field, "POLISH_RATIO", 0.5)  # the polish never kept
+                got[ends_loose].append(solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo))
+        (now, now_np, now_rej), (before, before_np, before_rej) = got[True], got[False]
+        assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+        assert np.max(np.abs(now.positions_m - before.positions_m)) < 2e-4
+        assert now.bytes < 0.95 * before.bytes
+        assert np.array_equal(now_np.positions_m, before_np.positions_m) and now_np.bytes == before_np.bytes
+        assert np.array_equal(now_rej.excluded, before_rej.excluded)
+        assert np.max(np.abs(now_rej.positions_m - before_rej.positions_m)) < 2e-4
+        assert np.max(np.abs(now_rej.positions_m - now.positions_m)) > 1e-3  # the polish moves mm: it was rejected
