@@ -147,3 +147,28 @@ def test_the_loop_ends_loose_where_the_polish_follows_for_the_same_answer(monkey
         assert np.array_equal(now_rej.excluded, before_rej.excluded)
         assert np.max(np.abs(now_rej.positions_m - before_rej.positions_m)) < 2e-4
         assert np.max(np.abs(now_rej.positions_m - now.positions_m)) > 1e-3  # the polish moves mm: it was rejected
+
+
+def test_the_first_fit_opens_the_loop_where_nothing_is_tightened(monkeypatch, tmp_path):
+    """A PLANT_HARD hall ([34, 18], corner) whose residual scatter keeps the loss scale at 0.3 m (no tightening fit,
+    no polish): the first robust fit (every link, at that scale, stopped at 1 cm) is tested and opens the exclusion
+    loop (``field_fits.TIGHTEN_OPENS_LOOP``, issue 27 seventh session) instead of a full fit of every link: the same
+    links excluded and status, positions within 0.3 mm, fewer bytes in the loop."""
+    import distnav.models.uwb.field_fits as field_fits
+    from distnav.commands.uwb import solve_range_log
+    from distnav.experiments.uwb_field import write_hall
+    from distnav.models.uwb.hall import PLANT_HARD
+
+    h = simulate_hall(np.random.default_rng([34, 18]), None, **PLANT_HARD, known="corner")
+    f = write_hall(h, tmp_path)
+    got = {}
+    for opens in (True, False):
+        monkeypatch.setattr(field_fits, "TIGHTEN_OPENS_LOOP", opens)
+        got[opens] = solve_range_log(
+            f["ranges"], f["known"], heights=f["heights"], options=FieldOptions(solver="N-CLM")
+        )[0]
+    now, before = got[True], got[False]
+    assert now.comm_phases["tighten"]["bytes"] == 0 and now.comm_phases["polish"]["bytes"] == 0
+    assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 3e-4
+    assert now.comm_phases["exclusions"]["bytes"] < 0.9 * before.comm_phases["exclusions"]["bytes"]

@@ -277,11 +277,12 @@ def _seed(run: _Run) -> None:
             run.note += start_note
     if not opts.nlos_aware:
         return
+    opens: list[Any] | None = [] if field_fits.opens_loop(opts.solver, opts.exclude, given.staged_tolerances) else None
     if best is None:  # the distributed solvers (and LM without multi-start): the first robust fit, graduated
         first_fit = solve_once(
             problem,
             opts.solver,
-            {**solver_kwargs(opts), "quality": False},
+            {**solver_kwargs(opts), "quality": opens is not None},  # it opens the loop where nothing is tightened
             opts.iterations,
             exchange=run.exchange,
             total=run.total,
@@ -290,10 +291,10 @@ def _seed(run: _Run) -> None:
             carry=run.carry,
         )
         best = np.asarray(first_fit.estimates, float) if first_fit.usable else None
+        opens = None if opens is None else [first_fit]
         run.mark("first_fit")
     if best is None or not np.all(np.isfinite(best)):
         return
-    opens: list[Any] | None = [] if field_fits.opens_loop(opts.solver, opts.exclude, given.staged_tolerances) else None
     best, tight, _ = tighten_scale(
         problem,
         best,
