@@ -20,8 +20,10 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
    last solution) but not the multi-start (LM fits); network totals: the residual scatter that sets the tight
    scale, the costs of all the links (revert, per-anchor check, polish), the link tests' robust scale. Their
    re-fits after an exclusion stop early and choose the next links only where the choice is decided with a
-   margin, one full fit ending the loop (``field_fits.REFIT_STAGES``); every warm fit starts from the last fit's
-   common offset and damping (``field_fits.CARRY_OFFSET``, ``CARRY_DAMPING``; issue 27, docs/economy_uwb.md).
+   margin (``field_fits.REFIT_STAGES``); the last tightening fit opens the loop as such a re-fit, and where the
+   polish follows, the loop ends on its decided early-stopped re-fit, else on one full fit (``TIGHTEN_OPENS_LOOP``,
+   ``LOOP_ENDS_LOOSE``); every warm fit starts from the last fit's common offset and damping
+   (``field_fits.CARRY_OFFSET``, ``CARRY_DAMPING``; issue 27, docs/economy_uwb.md).
 3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
 
 The solve call goes to :func:`distnav.algorithms.ranging.csg.solve` by name, with ``objective`` passed when the solver
