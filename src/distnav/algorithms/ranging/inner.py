@@ -52,10 +52,32 @@ class Links:
         columns: :meth:`~distnav.algorithms.ranging.wire.Wire.vectors`)."""
         return self.wire.vectors(v, dtype)
 
-    def total(self, per_node: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
+    def total(
+        self, per_node: np.ndarray, dtype: type[np.floating] = np.float64, held: wire.HeldScalars | None = None
+    ) -> np.ndarray:
         """Network sum of a per-anchor array ``(n_local, ...)``, in the anchors' order (the same bits everywhere);
-        ``dtype`` float32: every anchor's share is rounded to float32 on the wire (summed in float64)."""
+        ``dtype`` float32: every anchor's share is rounded to float32 on the wire (summed in float64); ``held``
+        (float16 ``(n_local, f)`` only, :data:`~distnav.algorithms.ranging.wire.HELD_DOTS`): a CG run's held
+        exponents of this reduction, :meth:`held_total`."""
+        if held is not None and dtype == np.float16 and wire.HELD_DOTS and not wire.PLAIN:
+            return self.held_total(per_node, held)
         return np.asarray(np.sum(self.gathered(per_node, dtype), axis=0))
+
+    def held_total(self, per_node: np.ndarray, held: wire.HeldScalars) -> np.ndarray:
+        """Network sum of ``per_node`` ``(n_local, f)``, every share rounded as float16 (the values of
+        :meth:`gathered` with float16, bit for bit) on its held exponent
+        (:func:`~distnav.algorithms.ranging.wire.held_scalars`). Counted per value: 2 B where every anchor's share
+        and the total lie in their held windows, else 3 B (every message of the spanning tree at that size; the
+        tree's partial sums are not simulated, as the rounding is not)."""
+        rows, on_held = wire.held_scalars(per_node, held.shares)
+        f = rows.shape[1]
+        got = np.asarray(self.ex.gather_nodes(np.c_[rows, on_held]))  # the flags ride along (for the count only)
+        out = np.asarray(np.sum(got[:, :f], axis=0))
+        total_on = wire.held_scalars(out.reshape(1, -1), held.total)[1][0]
+        self.reductions += 1
+        self.reduced_floats += f
+        self.reduced_bytes += int(np.sum(np.where(np.all(got[:, f:] > 0, axis=0) & total_on, 2, 3)))
+        return out
 
     def gathered(
         self, per_node: np.ndarray, dtype: type[np.floating] = np.float64, *, exact_columns: int = 0
@@ -158,13 +180,16 @@ def pcg(
     xc = np.zeros(k)
     res, rc = b.copy(), np.asarray(bc, float).copy()
 
-    def dots(u: np.ndarray, v: np.ndarray, extra: np.ndarray) -> np.ndarray:
-        return np.asarray(links.total(np.concatenate([np.einsum("nak,nak->nk", u, v), extra], axis=1), scalar_dtype))
+    held_pq, held_rz = wire.HeldScalars(), wire.HeldScalars()  # the run's held exponents (wire.HELD_DOTS)
+
+    def dots(u: np.ndarray, v: np.ndarray, extra: np.ndarray, held: wire.HeldScalars | None = None) -> np.ndarray:
+        both = np.concatenate([np.einsum("nak,nak->nk", u, v), extra], axis=1)
+        return np.asarray(links.total(both, scalar_dtype, held))
 
     def residual_dots(r: np.ndarray, zv: np.ndarray, r_c: np.ndarray, z_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``rᵀz`` and the residual norm the stop compares (``rᵀz`` itself with ``preconditioned_stop``)."""
         if preconditioned_stop:
-            rz_ = dots(r, zv, np.zeros((r.shape[0], 0))) + r_c * z_c
+            rz_ = dots(r, zv, np.zeros((r.shape[0], 0)), held_rz) + r_c * z_c
             return rz_, rz_
         tt = dots(r, zv, np.einsum("nak,nak->nk", r, r))
         return tt[:k] + r_c * z_c, tt[k:] + r_c * r_c
@@ -180,7 +205,7 @@ def pcg(
     while its < max_its:
         its += 1
         q, q_share = system.matvec(p, pc)
-        t = dots(p, q, q_share)
+        t = dots(p, q, q_share, held_pq)
         qc = t[k:] + system.damp_c * pc if system.common else np.zeros(k)
         pq = t[:k] + pc * qc
         if not np.all(pq[live] > 0):
