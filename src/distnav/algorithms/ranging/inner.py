@@ -3,8 +3,8 @@
 normal matrix applied through the exchange (:class:`NormalSystem`), each anchor's own block as preconditioner
 (:func:`block_preconditioner`) and preconditioned conjugate gradients over them (:func:`pcg`, Saad 2003, Alg. 9.1).
 
-Split from :mod:`~distnav.algorithms.ranging.refine` (issue 27, seventh session) unchanged; what each piece puts on
-the wire: :mod:`~distnav.algorithms.ranging.wire`.
+Split from :mod:`~distnav.algorithms.ranging.refine` (issue 27, seventh session); what each piece puts on the wire:
+:mod:`~distnav.algorithms.ranging.wire` (CG's reduced dot products on their held exponents: :meth:`Links.held_total`).
 """
 
 from __future__ import annotations
@@ -174,7 +174,9 @@ def pcg(
     column's residual is below ``rtol`` of its start — in the preconditioner's norm ``rᵀM⁻¹r`` with
     ``preconditioned_stop`` (the LM phase, issue 27: that norm is CG's ``rᵀz``, which the iteration reduces anyway,
     so the residual's own norm ``rᵀr`` needs no reduction of its own) —, or one column's curvature ``pᵀNp`` is not
-    positive."""
+    positive. Per iteration two reductions: ``pᵀq`` with the common offset's row of ``q`` (only with a common offset),
+    then ``rᵀz``; with float16 ``scalar_dtype`` each value after a run's first travels on its slot's held exponent
+    (:data:`~distnav.algorithms.ranging.wire.HELD_DOTS`, issue 27, seventh session)."""
     k = b.shape[2]
     x = np.zeros_like(b)
     xc = np.zeros(k)
@@ -204,8 +206,8 @@ def pcg(
         return x, xc, 0
     while its < max_its:
         its += 1
-        q, q_share = system.matvec(p, pc)
-        t = dots(p, q, q_share, held_pq)
+        q, q_share = system.matvec(p, pc)  # the common offset's row only with one (issue 27, seventh session)
+        t = dots(p, q, q_share if system.common else q_share[:, :0], held_pq)
         qc = t[k:] + system.damp_c * pc if system.common else np.zeros(k)
         pq = t[:k] + pc * qc
         if not np.all(pq[live] > 0):

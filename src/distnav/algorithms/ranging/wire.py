@@ -40,7 +40,10 @@ and what it received before. So :class:`Wire`
    :data:`STEP_DTYPE`): the receiver knows the accepted ones (acceptance is decided on a network total)
    and the sender moves by the rounded step (:meth:`Wire.rounded`), so both ends hold the same parameters bit
    for bit — a step rounded to 24 bits is another inexact LM step (CG's forcing term is 0.1); the objective,
-   the gradient and so the fixed point are evaluated at parameters every end agrees on.
+   the gradient and so the fixed point are evaluated at parameters every end agrees on;
+7. sends CG's reduced dot products (float16, :data:`CG_DOT_DTYPE`) after a CG run's first reduction **on the
+   exponent each slot carried last** (:data:`HELD_DOTS`, :func:`held_scalars`): 2 B a value instead of 3 where it
+   lies in float16's normal range on it — the same 11 bits, so the same values bit for bit.
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
 """
