@@ -517,9 +517,9 @@ def test_pcg_with_held_dot_exponents_is_the_same_solve_in_fewer_bytes(hall, monk
     iterations and solution bit for bit; a reduced value costs 3 B at a run's start (the initial ``rᵀz``, the
     first ``pᵀq``; no common offset here, so no share of its row) and where an anchor's share or the total left
     its held window (from 13 below to 15 above the exponent its slot carried last, recounted here by ``frexp``
-    from the values reduced), 2 B otherwise — against 3 + 6 B per iteration with the switch off. The solution equals numpy's
-    dense solve of the damped system within CG's tolerance: ``‖x − x*‖_A² = rᵀA⁻¹r ≤ rᵀM⁻¹r / λ_min(M⁻¹A)``,
-    with ``rᵀM⁻¹r ≤ rtol² bᵀM⁻¹b``."""
+    from the values reduced), 2 B otherwise — against 3 + 6 B per iteration with the switch off. The solution
+    equals numpy's dense solve of the damped system within CG's tolerance:
+    ``‖x − x*‖_A² = rᵀA⁻¹r ≤ rᵀM⁻¹r / λ_min(M⁻¹A)``, with ``rᵀM⁻¹r ≤ rtol² bᵀM⁻¹b``."""
     p = hall[0]
     got = {}
     calls: list[tuple[int, np.ndarray]] = []
