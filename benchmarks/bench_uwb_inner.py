@@ -241,22 +241,35 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
     return sub, sol, row
 
 
+#: the configurations compared, in one run: the defaults at the seventh session's start, item 24's held exponents
+#: of CG's dot products alone, and the defaults (the products' held exponents kept across a fit's CG runs too)
+CONFIGS = {
+    "before": {"HELD_DOTS": False, "HELD_ACROSS_RUNS": False},
+    "dots": {"HELD_DOTS": True, "HELD_ACROSS_RUNS": False},
+    "after": {"HELD_DOTS": True, "HELD_ACROSS_RUNS": True},
+}
+
+
 def _workflow(k: int, place: str) -> list[dict[str, Any]]:
-    """Before (the defaults without :data:`wire.HELD_DOTS`) and after (the defaults), in one run."""
+    """Every configuration of :data:`CONFIGS` on one workflow; each compared with *before*."""
     rows, sols = [], {}
-    for label, held in (("before", False), ("after", True)):
-        saved, wire.HELD_DOTS = wire.HELD_DOTS, held
+    for label, switches in CONFIGS.items():
+        saved = {name: getattr(wire, name) for name in switches}
+        for name, value in switches.items():
+            setattr(wire, name, value)
         try:
             sub, sol, row = _solve(k, place)
         finally:
-            wire.HELD_DOTS = saved
+            for name, value in saved.items():
+                setattr(wire, name, value)
         sols[label] = sol
         rows.append({"name": f"[78,{k}] {place}, {label}", **row})
-    b, a = sols["before"], sols["after"]
-    rows[-1]["max_position_change_m"] = float(np.max(np.abs(a.positions_m - b.positions_m)))
-    rows[-1]["same_exclusions"] = bool(np.array_equal(a.excluded, b.excluded))
-    rows[-1]["same_sigma"] = bool(np.array_equal(a.sigma_m, b.sigma_m))
-    rows[-1]["bytes_saved_x"] = b.bytes / a.bytes
+        if label != "before":
+            b = sols["before"]
+            rows[-1]["max_position_change_m"] = float(np.max(np.abs(sol.positions_m - b.positions_m)))
+            rows[-1]["same_exclusions"] = bool(np.array_equal(sol.excluded, b.excluded))
+            rows[-1]["same_sigma"] = bool(np.array_equal(sol.sigma_m, b.sigma_m))
+            rows[-1]["bytes_saved_x"] = b.bytes / sol.bytes
     return rows
 
 
@@ -270,7 +283,7 @@ def main() -> None:
     _recording()
     economy._counting()
     rows = [row for k, place in (QUICK if args.quick else WORKFLOWS) for row in _workflow(k, place)]
-    for label in ("before", "after"):
+    for label in CONFIGS:
         got = [r for r in rows if r["name"].endswith(label)]
         rows.append(
             {

@@ -82,6 +82,7 @@ __all__ = [
     "HELD_EXPONENT",
     "HELD_FROM_LAST_FIT",
     "HELD_DOTS",
+    "HELD_ACROSS_RUNS",
     "HeldScalars",
     "held_scalars",
 ]
@@ -151,6 +152,12 @@ HELD_FROM_LAST_FIT = True
 #: exponent its slot carried last (per anchor's share and for the total), 2 B instead of 3 where every share and the
 #: total lie in its window (:func:`held_scalars`; issue 27, seventh session) — the same values bit for bit
 HELD_DOTS = True
+#: the held exponents of the LM phase's products (:data:`HELD_EXPONENT`) kept from one CG run to the next within a
+#: fit (both ends of every link know where a run ends), so a run's first product needs no new exponent either where
+#: it lies in the window (issue 27, seventh session; False: every run starts with new exponents, as before). Not for
+#: the dot products: kept across runs they cost more (on 12 plant-like workflows 1.28 → 1.36 MB of reductions:
+#: one share outside its window sends the value at 3 B in every message, and the shares' scale jumps between runs)
+HELD_ACROSS_RUNS = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
