@@ -5,13 +5,16 @@
 For each of the 12 workflows (plant-like 28-anchor halls ``[78, k]``, k = 0…5, known anchors in the middle and in a
 corner; ``uwb solve``'s workflow ``solve_field`` with N-CLM) every inner solve of the LM phase (``refine.pcg``) is
 recorded: its CG iterations, the bytes its products sent on the links and its reductions' bytes as spanning-tree
-all-reductions (``wire.reduction_cost``), per fit and per LM round.
+all-reductions (``wire.reduction_cost``), per fit and per LM round — in the configurations of :data:`CONFIGS`, in
+one run: the defaults at the seventh session's start (*before*), with item 24 alone (*dots*: ``wire.HELD_DOTS``)
+and the defaults (*after*: ``wire.HELD_ACROSS_RUNS`` too); every position, σ and exclusion compared with *before*'s.
 
 ``--study`` also rebuilds every inner system densely (numpy, from the linearization the solve used) and counts the
 iterations that preconditioned CG needs to the same stop (``rᵀz ≤ rtol² · bᵀM⁻¹b``, float64) — as is; deflated by
 the exact eigenvectors of the smallest eigenvalues of ``M⁻¹A`` (an oracle no anchor has: what a perfect coarse
 space would save); and deflated by coarse spaces every anchor can build from its own row (the rigid motions of the
-free anchors: per cluster of anchors, translations and the rotation about the cluster's centre), each as full
+free anchors: per cluster of anchors, translations and the rotation about the cluster's centre; the rotation about
+the known anchors' centre alone), each as full
 deflation (DPCG: the coarse correction in every iteration, Saad et al. 2000 / Tang et al. 2009 "A-DEF2") and as a
 deflated start only (the coarse solve once, then plain PCG). Printed as one table; JSON in
 benchmarks/results/uwb_inner.json.

@@ -43,7 +43,8 @@ and what it received before. So :class:`Wire`
    the gradient and so the fixed point are evaluated at parameters every end agrees on;
 7. sends CG's reduced dot products (float16, :data:`CG_DOT_DTYPE`) after a CG run's first reduction **on the
    exponent each slot carried last** (:data:`HELD_DOTS`, :func:`held_scalars`): 2 B a value instead of 3 where it
-   lies in float16's normal range on it — the same 11 bits, so the same values bit for bit.
+   lies in float16's normal range on it — the same 11 bits, so the same values bit for bit; the products' held
+   exponents (4., :data:`HELD_EXPONENT`) are kept from one CG run to the next of a fit (:data:`HELD_ACROSS_RUNS`).
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
 """
