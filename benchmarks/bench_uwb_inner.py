@@ -5,9 +5,10 @@
 For each of the 12 workflows (plant-like 28-anchor halls ``[78, k]``, k = 0…5, known anchors in the middle and in a
 corner; ``uwb solve``'s workflow ``solve_field`` with N-CLM) every inner solve of the LM phase (``refine.pcg``) is
 recorded: its CG iterations, the bytes its products sent on the links and its reductions' bytes as spanning-tree
-all-reductions (``wire.reduction_cost``), per fit and per LM round — in the configurations of :data:`CONFIGS`, in
-one run: the defaults at the seventh session's start (*before*), with item 24 alone (*dots*: ``wire.HELD_DOTS``)
-and the defaults (*after*: ``wire.HELD_ACROSS_RUNS`` too); every position, σ and exclusion compared with *before*'s.
+all-reductions (``wire.reduction_cost``), per workflow, per fit (``refine.refine`` calls) and per LM round — in the
+configurations of :data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*), with item 24
+alone (*dots*: ``wire.HELD_DOTS``) and the defaults (*after*: ``wire.HELD_ACROSS_RUNS`` too); every position, σ and
+exclusion compared with *before*'s.
 
 ``--study`` also rebuilds every inner system densely (numpy, from the linearization the solve used) and counts the
 iterations that preconditioned CG needs to the same stop (``rᵀz ≤ rtol² · bᵀM⁻¹b``, float64) — as is; deflated by
@@ -204,6 +205,13 @@ def _recording() -> None:
 
     refine.pcg = recorded  # type: ignore[assignment]
     refine._Refiner.linearize = lin  # type: ignore[method-assign]
+    fit = refine.refine
+
+    def counted_fit(*args: Any, **kw: Any) -> Any:
+        _CALLS.append({"fit": True})
+        return fit(*args, **kw)
+
+    refine.refine = counted_fit  # type: ignore[assignment]
 
 
 def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
@@ -217,14 +225,17 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
     per_anchor = economy._per_anchor_bytes(sub, sol)
     solves = [c for c in _CALLS if "its" in c]
     rounds = sum(1 for c in _CALLS if "round" in c)
+    fits = sum(1 for c in _CALLS if "fit" in c)
     its = sum(c["its"] for c in solves)
     d = (sol.positions_m - sub.truth_m)[sub.estimated]
     row: dict[str, Any] = {
         "bytes": sol.bytes,
         "x_gather": sol.bytes / range_gather_cost(sub)["bytes"],
         "median_anchor_bytes": float(np.median(per_anchor)),
+        "fits": fits,
         "lm_rounds": rounds,
         "cg_its": its,
+        "cg_its_per_fit": its / max(fits, 1),
         "cg_its_per_round": its / max(rounds, 1),
         "product_bytes": sum(c["product_bytes"] for c in solves),
         "reduction_bytes": sum(c["reduction_bytes"] for c in solves),
