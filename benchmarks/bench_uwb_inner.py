@@ -5,13 +5,17 @@
 For each of the 12 workflows (plant-like 28-anchor halls ``[78, k]``, k = 0…5, known anchors in the middle and in a
 corner; ``uwb solve``'s workflow ``solve_field`` with N-CLM) every inner solve of the LM phase (``refine.pcg``) is
 recorded: its CG iterations, the bytes its products sent on the links and its reductions' bytes as spanning-tree
-all-reductions (``wire.reduction_cost``), per fit and per LM round.
+all-reductions (``wire.reduction_cost``), per workflow, per fit (``refine.refine`` calls) and per LM round — in the
+configurations of :data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*), with item 24
+alone (*dots*: ``wire.HELD_DOTS``) and the defaults (*after*: ``wire.HELD_ACROSS_RUNS`` too); every position, σ and
+exclusion compared with *before*'s.
 
 ``--study`` also rebuilds every inner system densely (numpy, from the linearization the solve used) and counts the
 iterations that preconditioned CG needs to the same stop (``rᵀz ≤ rtol² · bᵀM⁻¹b``, float64) — as is; deflated by
 the exact eigenvectors of the smallest eigenvalues of ``M⁻¹A`` (an oracle no anchor has: what a perfect coarse
 space would save); and deflated by coarse spaces every anchor can build from its own row (the rigid motions of the
-free anchors: per cluster of anchors, translations and the rotation about the cluster's centre), each as full
+free anchors: per cluster of anchors, translations and the rotation about the cluster's centre; the rotation about
+the known anchors' centre alone), each as full
 deflation (DPCG: the coarse correction in every iteration, Saad et al. 2000 / Tang et al. 2009 "A-DEF2") and as a
 deflated start only (the coarse solve once, then plain PCG). Printed as one table; JSON in
 benchmarks/results/uwb_inner.json.
@@ -201,6 +205,13 @@ def _recording() -> None:
 
     refine.pcg = recorded  # type: ignore[assignment]
     refine._Refiner.linearize = lin  # type: ignore[method-assign]
+    fit = refine.refine
+
+    def counted_fit(*args: Any, **kw: Any) -> Any:
+        _CALLS.append({"fit": True})
+        return fit(*args, **kw)
+
+    refine.refine = counted_fit  # type: ignore[assignment]
 
 
 def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
@@ -214,14 +225,17 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
     per_anchor = economy._per_anchor_bytes(sub, sol)
     solves = [c for c in _CALLS if "its" in c]
     rounds = sum(1 for c in _CALLS if "round" in c)
+    fits = sum(1 for c in _CALLS if "fit" in c)
     its = sum(c["its"] for c in solves)
     d = (sol.positions_m - sub.truth_m)[sub.estimated]
     row: dict[str, Any] = {
         "bytes": sol.bytes,
         "x_gather": sol.bytes / range_gather_cost(sub)["bytes"],
         "median_anchor_bytes": float(np.median(per_anchor)),
+        "fits": fits,
         "lm_rounds": rounds,
         "cg_its": its,
+        "cg_its_per_fit": its / max(fits, 1),
         "cg_its_per_round": its / max(rounds, 1),
         "product_bytes": sum(c["product_bytes"] for c in solves),
         "reduction_bytes": sum(c["reduction_bytes"] for c in solves),
@@ -241,22 +255,35 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
     return sub, sol, row
 
 
+#: the configurations compared, in one run: the defaults at the seventh session's start, item 24's held exponents
+#: of CG's dot products alone, and the defaults (the products' held exponents kept across a fit's CG runs too)
+CONFIGS = {
+    "before": {"HELD_DOTS": False, "HELD_ACROSS_RUNS": False},
+    "dots": {"HELD_DOTS": True, "HELD_ACROSS_RUNS": False},
+    "after": {"HELD_DOTS": True, "HELD_ACROSS_RUNS": True},
+}
+
+
 def _workflow(k: int, place: str) -> list[dict[str, Any]]:
-    """Before (the defaults without :data:`wire.HELD_DOTS`) and after (the defaults), in one run."""
+    """Every configuration of :data:`CONFIGS` on one workflow; each compared with *before*."""
     rows, sols = [], {}
-    for label, held in (("before", False), ("after", True)):
-        saved, wire.HELD_DOTS = wire.HELD_DOTS, held
+    for label, switches in CONFIGS.items():
+        saved = {name: getattr(wire, name) for name in switches}
+        for name, value in switches.items():
+            setattr(wire, name, value)
         try:
             sub, sol, row = _solve(k, place)
         finally:
-            wire.HELD_DOTS = saved
+            for name, value in saved.items():
+                setattr(wire, name, value)
         sols[label] = sol
         rows.append({"name": f"[78,{k}] {place}, {label}", **row})
-    b, a = sols["before"], sols["after"]
-    rows[-1]["max_position_change_m"] = float(np.max(np.abs(a.positions_m - b.positions_m)))
-    rows[-1]["same_exclusions"] = bool(np.array_equal(a.excluded, b.excluded))
-    rows[-1]["same_sigma"] = bool(np.array_equal(a.sigma_m, b.sigma_m))
-    rows[-1]["bytes_saved_x"] = b.bytes / a.bytes
+        if label != "before":
+            b = sols["before"]
+            rows[-1]["max_position_change_m"] = float(np.max(np.abs(sol.positions_m - b.positions_m)))
+            rows[-1]["same_exclusions"] = bool(np.array_equal(sol.excluded, b.excluded))
+            rows[-1]["same_sigma"] = bool(np.array_equal(sol.sigma_m, b.sigma_m))
+            rows[-1]["bytes_saved_x"] = b.bytes / sol.bytes
     return rows
 
 
@@ -270,7 +297,7 @@ def main() -> None:
     _recording()
     economy._counting()
     rows = [row for k, place in (QUICK if args.quick else WORKFLOWS) for row in _workflow(k, place)]
-    for label in ("before", "after"):
+    for label in CONFIGS:
         got = [r for r in rows if r["name"].endswith(label)]
         rows.append(
             {

@@ -385,6 +385,18 @@ def test_preconditioned_stop_drops_one_reduced_float_per_iteration(hall):
         assert its > 3 and floats == its + (1 if stop else 2) * (its + 1)
 
 
+def _refined(p, offsets):
+    """The LM phase on ``p`` from its initial positions (σ 0.1 m, Cauchy at 0.3 m, offsets ``offsets``) and its
+    exchange."""
+    ex = _exchange(p)
+    sigma = np.full(p.n_meas, 0.1)
+    common = {"loss": "cauchy", "offset_prior_sigma_m": 0.1, "ftol": 1e-6, "xtol_m": 1e-4}
+    ref = refine(
+        p, ex, p.initial_m, np.zeros(p.n_anchors), sigma=sigma, scale=0.3 / sigma, range_offsets=offsets, **common
+    )
+    return ref, ex
+
+
 @pytest.mark.parametrize("offsets", ["common", "per_anchor"])
 def test_steps_leave_both_ends_with_the_same_parameters(hall, offsets, monkeypatch):
     """The LM phase's trials sent as steps from the accepted parameters (``wire.STEPS``, float32): every anchor's
@@ -396,24 +408,10 @@ def test_steps_leave_both_ends_with_the_same_parameters(hall, offsets, monkeypat
     lm = solve_lm(p, **opts)
     ex = _exchange(p)
     owner, other, _, _ = half_measurements(p, ex)
-    sigma = np.full(p.n_meas, 0.1)
     out = {}
     for steps in (True, False):
         monkeypatch.setattr(wire, "STEPS", steps)
-        ex = _exchange(p)
-        ref = refine(
-            p,
-            ex,
-            p.initial_m,
-            np.zeros(p.n_anchors),
-            sigma=sigma,
-            scale=0.3 / sigma,
-            loss="cauchy",
-            range_offsets=offsets,
-            offset_prior_sigma_m=0.1,
-            ftol=1e-6,
-            xtol_m=1e-4,
-        )
+        ref, ex = _refined(p, offsets)
         assert ref.status == "converged"
         assert np.array_equal(ref.half_other_m, ref.own_m[other])
         if offsets == "per_anchor":
@@ -579,3 +577,22 @@ def test_pcg_with_held_dot_exponents_is_the_same_solve_in_fewer_bytes(hall, monk
     assert r @ Minv @ r <= 0.1**2 * (bb @ Minv @ bb) * 1.001
     assert err @ A @ err <= (r @ Minv @ r) / lam_min * (1 + 1e-9)
     assert np.linalg.norm(err) < np.linalg.norm(exact)
+
+
+def test_products_keep_their_exponents_from_one_cg_run_to_the_next(hall, monkeypatch):
+    """``wire.HELD_ACROSS_RUNS``: the LM phase's products keep each link's exponent from one CG run (LM round) to
+    the next of the fit. The phase is the same bit for bit (positions, objective, rounds, CG iterations, the
+    reductions' bytes) and its broadcasts send fewer bytes: at most one byte per talking link and CG run after the
+    first (a run's first product on a link without its exponent byte)."""
+    p = subset_measurements(hall[0], ~hall[2])
+    fixed = np.flatnonzero(~p.free.any(axis=1))
+    talking = 2 * p.links.shape[0] - int(np.isin(p.links, fixed).sum())
+    out = {}
+    for on in (True, False):
+        monkeypatch.setattr(wire, "HELD_ACROSS_RUNS", on)
+        ref, ex = _refined(p, "common")
+        out[on] = (ref, ex.comm_totals().bytes)
+    (a, sent_on), (b, sent_off) = out[True], out[False]
+    assert a.status == b.status == "converged" and a.rounds == b.rounds > 2 and a.cg_iterations == b.cg_iterations
+    assert np.array_equal(a.own_m, b.own_m) and a.objective == b.objective and a.reduced == b.reduced
+    assert 0 < sent_off - sent_on <= (a.rounds - 1) * talking

@@ -129,6 +129,11 @@ class NormalSystem:
     wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float16 in the LM phase)
     sigma: np.ndarray | None = None  # (h,) every half-measurement's range σ: the products travel projected
     held: list[np.ndarray] = field(default_factory=list)  # the CG run's exponents per link (wire.HELD_EXPONENT)
+    #: the held exponents of :func:`pcg`'s two reductions (``pᵀq`` with the common offset's row, ``rᵀz``;
+    #: wire.HELD_DOTS), fresh for every system
+    held_dots: tuple[wire.HeldScalars, wire.HeldScalars] = field(
+        default_factory=lambda: (wire.HeldScalars(), wire.HeldScalars())
+    )
 
     def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
@@ -182,7 +187,7 @@ def pcg(
     xc = np.zeros(k)
     res, rc = b.copy(), np.asarray(bc, float).copy()
 
-    held_pq, held_rz = wire.HeldScalars(), wire.HeldScalars()  # the run's held exponents (wire.HELD_DOTS)
+    held_pq, held_rz = system.held_dots  # the held exponents of the reductions (wire.HELD_DOTS)
 
     def dots(u: np.ndarray, v: np.ndarray, extra: np.ndarray, held: wire.HeldScalars | None = None) -> np.ndarray:
         both = np.concatenate([np.einsum("nak,nak->nk", u, v), extra], axis=1)

@@ -156,6 +156,8 @@ class _Refiner:
         self.dot_dtype = wire.cg_dot_dtype(problem.n_anchors)  # CG's reduced dot products (fifth session)
         self.prior = 1.0 / o.offset_prior_sigma_m**2 if self.per else 0.0
         self.steps = wire.STEPS and not wire.PLAIN  # trials travel as steps (wire, item 5)
+        # the products' held exponents per link, kept from one CG run to the next of the fit (wire.HELD_ACROSS_RUNS)
+        self.held: list[np.ndarray] = []
 
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
         """The start ``(x, c)`` and CG's iteration limit (one reduction: the common offset's mean; the number of
@@ -234,6 +236,7 @@ class _Refiner:
             common,
             self.wire_dtype,
             self.sig,
+            held=self.held if wire.HELD_ACROSS_RUNS else [],
         )
         dxk, dck, its = pcg(
             system,

@@ -43,7 +43,8 @@ and what it received before. So :class:`Wire`
    the gradient and so the fixed point are evaluated at parameters every end agrees on;
 7. sends CG's reduced dot products (float16, :data:`CG_DOT_DTYPE`) after a CG run's first reduction **on the
    exponent each slot carried last** (:data:`HELD_DOTS`, :func:`held_scalars`): 2 B a value instead of 3 where it
-   lies in float16's normal range on it — the same 11 bits, so the same values bit for bit.
+   lies in float16's normal range on it — the same 11 bits, so the same values bit for bit; the products' held
+   exponents (4., :data:`HELD_EXPONENT`) are kept from one CG run to the next of a fit (:data:`HELD_ACROSS_RUNS`).
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
 """
@@ -82,6 +83,7 @@ __all__ = [
     "HELD_EXPONENT",
     "HELD_FROM_LAST_FIT",
     "HELD_DOTS",
+    "HELD_ACROSS_RUNS",
     "HeldScalars",
     "held_scalars",
 ]
@@ -151,6 +153,12 @@ HELD_FROM_LAST_FIT = True
 #: exponent its slot carried last (per anchor's share and for the total), 2 B instead of 3 where every share and the
 #: total lie in its window (:func:`held_scalars`; issue 27, seventh session) — the same values bit for bit
 HELD_DOTS = True
+#: the held exponents of the LM phase's products (:data:`HELD_EXPONENT`) kept from one CG run to the next within a
+#: fit (both ends of every link know where a run ends), so a run's first product needs no new exponent either where
+#: it lies in the window (issue 27, seventh session; False: every run starts with new exponents, as before). Not for
+#: the dot products: kept across runs they cost more (on 12 plant-like workflows 1.28 → 1.36 MB of reductions:
+#: one share outside its window sends the value at 3 B in every message, and the shares' scale jumps between runs)
+HELD_ACROSS_RUNS = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
