@@ -5,10 +5,13 @@
 For each of the 12 workflows (plant-like 28-anchor halls ``[78, k]``, k = 0…5, known anchors in the middle and in a
 corner; ``uwb solve``'s workflow ``solve_field`` with N-CLM) every inner solve of the LM phase (``refine.pcg``) is
 recorded: its CG iterations, the bytes its products sent on the links and its reductions' bytes as spanning-tree
-all-reductions (``wire.reduction_cost``), per workflow, per fit (``refine.refine`` calls) and per LM round — in the
-configurations of :data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*), with item 24
-alone (*dots*: ``wire.HELD_DOTS``) and the defaults (*after*: ``wire.HELD_ACROSS_RUNS`` too); every position, σ and
-exclusion compared with *before*'s.
+all-reductions (``wire.reduction_cost``), per workflow, per fit (``refine.refine`` calls) and per LM round — and what
+the LM rounds' own methods sent (``refine._Refiner.start`` / ``evaluate`` / ``linearize``: the start's offset mean,
+the first evaluation, every trial's step and its objective and largest move, the extrapolated trials, the common
+offset's row; broadcast messages and bytes, reductions as spanning-tree bytes) — in the configurations of
+:data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*), with items 25–26 (*inner*:
+``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``) and the defaults (*after*: the rounds' own messages too, items 27–29);
+every position, σ, exclusion and status compared with the configuration before it.
 
 ``--study`` also rebuilds every inner system densely (numpy, from the linearization the solve used) and counts the
 iterations that preconditioned CG needs to the same stop (``rᵀz ≤ rtol² · bᵀM⁻¹b``, float64) — as is; deflated by
@@ -212,6 +215,50 @@ def _recording() -> None:
         return fit(*args, **kw)
 
     refine.refine = counted_fit  # type: ignore[assignment]
+    _counting_rounds()
+
+
+#: the LM rounds' own messages by kind (seventh session, items 27–29), per workflow: broadcast bytes and messages,
+#: reduction bytes (spanning-tree, as ``wire.reduction_cost``)
+_KINDS: dict[str, list[int]] = {}
+_IN_EXTRAPOLATION = [False]
+
+
+def _kind_of(name: str, args: tuple[Any, ...], kw: dict[str, Any]) -> str:
+    if name != "evaluate":
+        return {"start": "start (offset mean)", "linearize": "offset row"}[name]
+    base = args[3] if len(args) > 3 else kw.get("base")
+    return "first evaluation" if base is None else ("extrapolation" if _IN_EXTRAPOLATION[0] else "trial")
+
+
+def _counting_rounds() -> None:
+    """Wrap the LM phase's round methods (``refine._Refiner``): what each sends, by kind (:data:`_KINDS`)."""
+    for name in ("start", "evaluate", "linearize"):
+        orig = getattr(refine._Refiner, name)
+
+        def counted(self: Any, *args: Any, _orig: Any = orig, _name: str = name, **kw: Any) -> Any:
+            c0 = self.links.ex.comm_totals()
+            m0, b0, r0 = c0.messages, c0.bytes, self.links.reduced_bytes
+            out = _orig(self, *args, **kw)
+            c1 = self.links.ex.comm_totals()
+            k = _KINDS.setdefault(_kind_of(_name, args, kw), [0, 0, 0, 0])
+            k[0] += 1
+            k[1] += c1.messages - m0
+            k[2] += c1.bytes - b0
+            k[3] += (self.links.reduced_bytes - r0) * 2 * (self.links.n - 1)
+            return out
+
+        setattr(refine._Refiner, name, counted)
+    extrapolate = refine._Refiner.extrapolate
+
+    def flagged(self: Any, *args: Any, **kw: Any) -> Any:
+        _IN_EXTRAPOLATION[0] = True
+        try:
+            return extrapolate(self, *args, **kw)
+        finally:
+            _IN_EXTRAPOLATION[0] = False
+
+    refine._Refiner.extrapolate = flagged  # type: ignore[method-assign]
 
 
 def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
@@ -219,6 +266,7 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
     h = simulate_hall(np.random.default_rng([78, k]), HallConfig().with_(known=place, **PLANT_LIKE))
     sub, geo = prepare(hall_problem(h)[0])
     _CALLS.clear()
+    _KINDS.clear()
     t0 = time.process_time()
     sol = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
     cpu = time.process_time() - t0
@@ -243,6 +291,10 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
         "status": sol.status,
         "cpu_s": cpu,
     }
+    for kind, (calls, msgs, bcast, red) in sorted(_KINDS.items()):
+        row[f"{kind}: calls, broadcast msgs / B, reduction B"] = f"{calls}, {msgs} / {bcast}, {red}"
+    row["rounds_own_bytes"] = sum(k[2] + k[3] for k in _KINDS.values())
+    row["rounds_own_share"] = row["rounds_own_bytes"] / sol.bytes
     row["cg_bytes_per_it"] = (row["product_bytes"] + row["reduction_bytes"]) / max(its, 1)
     row["cg_share"] = (row["product_bytes"] + row["reduction_bytes"]) / sol.bytes
     if _STUDY:
@@ -255,34 +307,37 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
     return sub, sol, row
 
 
-#: the configurations compared, in one run: the defaults at the seventh session's start, item 24's held exponents
-#: of CG's dot products alone, and the defaults (the products' held exponents kept across a fit's CG runs too)
-CONFIGS = {
-    "before": {"HELD_DOTS": False, "HELD_ACROSS_RUNS": False},
-    "dots": {"HELD_DOTS": True, "HELD_ACROSS_RUNS": False},
-    "after": {"HELD_DOTS": True, "HELD_ACROSS_RUNS": True},
+#: the configurations compared, in one run (module, switch, value): the defaults at the seventh session's start
+#: (*before*), with items 25–26 (*inner*: CG's dot products and the products' exponents held) and the defaults
+#: (*after*: the LM rounds' own messages too, items 27–29)
+_ROUNDS_OFF = [(wire, "STEP_HELD", False), (refine, "FIRST_MOVE_KNOWN", False), (refine, "OFFSET_START_HELD", False)]
+CONFIGS: dict[str, list[tuple[Any, str, bool]]] = {
+    "before": [(wire, "HELD_DOTS", False), (wire, "HELD_ACROSS_RUNS", False), *_ROUNDS_OFF],
+    "inner": _ROUNDS_OFF,
+    "after": [],
 }
 
 
 def _workflow(k: int, place: str) -> list[dict[str, Any]]:
-    """Every configuration of :data:`CONFIGS` on one workflow; each compared with *before*."""
+    """Every configuration of :data:`CONFIGS` on one workflow; each compared with the one before it."""
     rows, sols = [], {}
     for label, switches in CONFIGS.items():
-        saved = {name: getattr(wire, name) for name in switches}
-        for name, value in switches.items():
-            setattr(wire, name, value)
+        saved = [(module, name, getattr(module, name)) for module, name, _ in switches]
+        for module, name, value in switches:
+            setattr(module, name, value)
         try:
             sub, sol, row = _solve(k, place)
         finally:
-            for name, value in saved.items():
-                setattr(wire, name, value)
+            for module, name, value in saved:
+                setattr(module, name, value)
         sols[label] = sol
         rows.append({"name": f"[78,{k}] {place}, {label}", **row})
-        if label != "before":
-            b = sols["before"]
+        if len(sols) > 1:  # compared with the configuration before it
+            b = sols[list(sols)[-2]]
             rows[-1]["max_position_change_m"] = float(np.max(np.abs(sol.positions_m - b.positions_m)))
             rows[-1]["same_exclusions"] = bool(np.array_equal(sol.excluded, b.excluded))
             rows[-1]["same_sigma"] = bool(np.array_equal(sol.sigma_m, b.sigma_m))
+            rows[-1]["same_status"] = sol.status == b.status
             rows[-1]["bytes_saved_x"] = b.bytes / sol.bytes
     return rows
 

@@ -76,6 +76,12 @@ ROUND_SCALARS = True
 #: after three accepted steps whose largest moves shrank by ratios ``ρ`` within 10 % of each other, in [0.2, 0.97],
 #: one trial of ``ρ/(1 − ρ)`` × the last step, kept where it lowers ``F`` (module docstring; None: off)
 EXTRAPOLATE: tuple[float, float, float] | None = (0.2, 0.97, 0.1)  # ρ's range, its largest relative change
+#: a fit's first evaluation reduces the objective only: the largest move of its zero step is 0, which every anchor
+#: knows (issue 27, seventh session; False: a zero column reduced with the objective, as before)
+FIRST_MOVE_KNOWN = True
+#: the common offset's start not reduced where every anchor's copy is the one the options give (``offset_start_m``:
+#: a fit's LM phase from the solver's start, which every anchor holds; issue 27, seventh session)
+OFFSET_START_HELD = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,8 +109,10 @@ class RefineOptions:
     """The settings of :func:`refine`, as the solver's: ``sigma`` / ``scale`` (every sample's range σ, metres, and
     whitened loss scale), ``loss``, ``range_offsets`` (``"none"``, ``"common"``, ``"per_anchor"``) and
     ``offset_prior_sigma_m`` (metres), the stopping thresholds ``ftol`` (relative) and ``xtol_m`` (metres),
-    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds, ``mu0`` (:data:`MU0`) the initial damping and ``held_m``
-    what the receivers hold from the last fit (:class:`~distnav.algorithms.ranging.wire.Wire`, item 6)."""
+    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds, ``mu0`` (:data:`MU0`) the initial damping, ``held_m``
+    what the receivers hold from the last fit (:class:`~distnav.algorithms.ranging.wire.Wire`, item 6) and
+    ``offset_start_m`` the common offset every anchor's copy holds at the start, metres (None: not known; then
+    the start is their network mean, one reduction; :data:`OFFSET_START_HELD`)."""
 
     sigma: np.ndarray
     scale: np.ndarray
@@ -116,6 +124,7 @@ class RefineOptions:
     max_rounds: int = MAX_ROUNDS
     mu0: float = MU0
     held_m: np.ndarray | None = None
+    offset_start_m: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,7 +178,15 @@ class _Refiner:
             assert offset_m is not None
             x[:, dim] = offset_m
         common = self.common and offset_m is not None
-        c = float(links.total(np.asarray(offset_m, float))) / self.n if common else 0.0
+        c, held = 0.0, self.o.offset_start_m
+        if common and held is not None and OFFSET_START_HELD and not wire.PLAIN:
+            differs = not np.all(np.asarray(offset_m, float) == held)  # a check (monitoring, no bytes): if any
+            if links.ex.allreduce(float(differs), "max") > 0:  # copy is not the one given, the mean is reduced
+                held = None
+            else:
+                c = float(np.sum(np.full(self.n, held))) / self.n  # the mean of n equal copies, as the reduction's
+        if common and (held is None or not OFFSET_START_HELD or wire.PLAIN):
+            c = float(links.total(np.asarray(offset_m, float))) / self.n
         n_unknowns = self.n_free + (1 if self.common else 0)
         return x, c, min(n_unknowns + 10, 2000)
 
@@ -187,6 +204,9 @@ class _Refiner:
         terms = loss_terms(r, self.sc, self.o.loss)[1]
         f_node = 0.5 * np.bincount(owner, terms, minlength=self.nl) + (self.prior * xv[:, dim] ** 2 if per else 0.0)
         small = wire.CG_SCALAR_DTYPE if ROUND_SCALARS and not wire.PLAIN else np.float64
+        if base is None and FIRST_MOVE_KNOWN and not wire.PLAIN:  # a zero step: its largest move is 0 everywhere
+            only = self.links.gathered(np.c_[f_node], small, exact_columns=1)
+            return nb, float(np.sum(only[:, 0])), r, 0.0
         both = self.links.gathered(np.c_[f_node, np.max(np.abs(step), axis=1, initial=0.0)], small, exact_columns=1)
         return nb, float(np.sum(both[:, 0])), r, float(np.max(both[:, 1], initial=0.0))
 

@@ -44,7 +44,12 @@ and what it received before. So :class:`Wire`
 7. sends CG's reduced dot products (float16, :data:`CG_DOT_DTYPE`) after a CG run's first reduction **on the
    exponent each slot carried last** (:data:`HELD_DOTS`, :func:`held_scalars`): 2 B a value instead of 3 where it
    lies in float16's normal range on it — the same 11 bits, so the same values bit for bit; the products' held
-   exponents (4., :data:`HELD_EXPONENT`) are kept from one CG run to the next of a fit (:data:`HELD_ACROSS_RUNS`).
+   exponents (4., :data:`HELD_EXPONENT`) are kept from one CG run to the next of a fit (:data:`HELD_ACROSS_RUNS`);
+8. sends a trial's float32 step (5.) after a fit's first **on the exponents its entries carried last**
+   (:data:`STEP_HELD`, :func:`pack_steps`): every entry's sign and 23-bit mantissa with its exponent as a 4-bit
+   difference from the one its column carried in the sender's last step, which every receiver holds (28 bits an
+   entry: 7 B for two free columns instead of 8); a step with an entry outside that window, and a fit's first,
+   as plain float32. The same float32 values bit for bit (issue 27, seventh session).
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
 """
@@ -86,6 +91,9 @@ __all__ = [
     "HELD_ACROSS_RUNS",
     "HeldScalars",
     "held_scalars",
+    "STEP_HELD",
+    "pack_steps",
+    "unpack_steps",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
@@ -159,6 +167,10 @@ HELD_DOTS = True
 #: the dot products: kept across runs they cost more (on 12 plant-like workflows 1.28 → 1.36 MB of reductions:
 #: one share outside its window sends the value at 3 B in every message, and the shares' scale jumps between runs)
 HELD_ACROSS_RUNS = True
+#: a trial's float32 step after a fit's first on the exponents its entries carried in the sender's last step
+#: (:func:`pack_steps`, item 8): 28 bits an entry (7 B for two free columns instead of 8), the same values bit
+#: for bit; False: plain float32 (as before)
+STEP_HELD = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -204,6 +216,8 @@ class Wire:
                 raise ModelError(f"held_m must have shape ({problem.n_anchors}, {problem.dim}), got {held.shape}")
             self._held = held
         self._rep: tuple[np.ndarray, np.ndarray] | None = None  # per out-edge: a half-measurement, the edge's mask
+        self._step_sent: np.ndarray | None = None  # the exponents of this block's last step, per column (item 8)
+        self._step_got: np.ndarray | None = None  # the same of every other end's last step, per half-measurement
 
     def _positions(self, box_dst: np.ndarray, box_src: np.ndarray) -> np.ndarray:
         if self._pos is None:
@@ -278,11 +292,35 @@ class Wire:
         """Each half-measurement's other end's parameters moved from ``base`` (per half-measurement, as both ends
         hold them) by its :meth:`rounded` ``step``: the free columns as :data:`STEP_DTYPE`, from anchors with a
         free parameter (item 5)."""
-        sent = _encode(step[:, self.cols], STEP_DTYPE)
-        got = _decode(self._round(sent, self.active, self.talks_other), self.cols.size)
+        if STEP_HELD and STEP_DTYPE == np.float32:
+            got = self._held_step(step[:, self.cols])
+        else:
+            got = _decode(
+                self._round(_encode(step[:, self.cols], STEP_DTYPE), self.active, self.talks_other), self.cols.size
+            )
         out = np.array(base, float)
         out[np.ix_(self.talks_other, self.cols)] += got[self.talks_other]
         return out
+
+    def _held_step(self, step: np.ndarray) -> np.ndarray:
+        """Every half-measurement's other end's ``step`` ``(n_local, m)`` in float32, sent as :func:`pack_steps` on
+        the exponents of the sender's last step (item 8): one message per active directed edge, 7 B or 8 B with two
+        columns. The receiver decodes on the exponents it holds from that sender's last step."""
+        m, ex = step.shape[1], self.ex
+        if self._step_sent is None:
+            self._step_sent = np.zeros((ex.n_local, m), np.int64)
+            self._step_got = np.zeros((self.other.size, m), np.int64)
+        assert self._step_got is not None
+        packed, sizes, self._step_sent = pack_steps(step.astype(np.float32), self._step_sent)
+        box = ex.send(packed[ex.out_src], active=self.active, message_bytes=sizes[ex.out_src])
+        pos = self._positions(box.dst, box.src)
+        if not np.all(box.delivered[pos] | ~self.talks_other):
+            raise ModelError("refinement: a neighbour's message was lost (it needs every link each round)")
+        got = np.zeros((self.other.size, m))
+        talk = self.talks_other
+        values, self._step_got[talk] = unpack_steps(np.asarray(box.values)[pos[talk]], self._step_got[talk], m)
+        got[talk] = values
+        return got
 
     def vectors(self, v: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
         """Each half-measurement's other end's rows of the CG vector ``v`` ``(n_local, P, k)`` (zero at parameters
@@ -423,6 +461,58 @@ def _encode(rows: np.ndarray, dtype: type[np.floating]) -> np.ndarray:
 def _decode(sent: np.ndarray, m: int) -> np.ndarray:
     """The float64 rows of :func:`_encode`'s ``(n, m)``."""
     return unpack_half(sent, m) if sent.dtype == np.uint8 else np.asarray(sent, float)
+
+
+#: the exponent differences an entry of a step may have from its column's held one (:func:`pack_steps`): 4 bits,
+#: code 0 a zero entry
+STEP_WINDOW = 7
+_STEP_BITS = 28  # sign, 4-bit exponent difference, 23-bit mantissa
+
+
+def pack_steps(rows: np.ndarray, held: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """float32 rows ``(n, m)`` on the exponents ``held`` ``(n, m)`` of each row's last step (0: none held), as
+    bytes ``(n, 4m + 1)`` with each message's size and the exponents held after it (item 8 of the module
+    docstring). A row whose every entry is zero or a normal float32 within :data:`STEP_WINDOW` binades of its held
+    exponent travels as one 28-bit word an entry (sign, the difference + 8 in 4 bits — 0 for a zero —, the
+    mantissa), ``ceil(28m/8)`` bytes; any other row as its plain float32 bytes (``4m``). The last byte says which
+    (the message's size does on the wire; here the container is of one width)."""
+    r = np.ascontiguousarray(rows, np.float32)
+    n, m = r.shape
+    bits = r.view(np.uint32).astype(np.int64)
+    exp, mant, sign = (bits >> 23) & 0xFF, bits & 0x7FFFFF, bits >> 31
+    zero = (exp == 0) & (mant == 0)
+    near = (exp > 0) & (exp < 255) & (held > 0) & (np.abs(exp - held) <= STEP_WINDOW)
+    coded = np.all(zero | near, axis=1)
+    out = np.zeros((n, 4 * m + 1), np.uint8)
+    out[:, : 4 * m] = r.view(np.uint8).reshape(n, 4 * m)
+    words = (sign << 27) | (np.where(zero, 0, exp - held + 8) << 23) | mant
+    wbits = ((words[:, :, None] >> np.arange(_STEP_BITS - 1, -1, -1)) & 1).astype(np.uint8).reshape(n, -1)
+    size = -(-_STEP_BITS * m // 8)
+    out[coded, :size] = np.packbits(wbits[coded], axis=1)
+    out[coded, size : 4 * m] = 0
+    out[:, 4 * m] = coded
+    return out, np.where(coded, size, 4 * m).astype(np.int64), np.where(zero, held, exp)
+
+
+def unpack_steps(packed: np.ndarray, held: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The float64 values of :func:`pack_steps`'s rows ``(n, 4m + 1)`` decoded on the exponents ``held``
+    ``(n, m)`` the receiver holds from each sender's last step, and the exponents it holds after them."""
+    b = np.ascontiguousarray(packed, np.uint8)
+    n = b.shape[0]
+    if b.ndim != 2 or b.shape[1] != 4 * m + 1:
+        raise ModelError(f"a packed step must have {4 * m + 1} bytes, got shape {b.shape}")
+    plain = np.ascontiguousarray(b[:, : 4 * m]).view(np.float32).reshape(n, m)
+    size = -(-_STEP_BITS * m // 8)
+    wbits = np.unpackbits(b[:, :size], axis=1)[:, : _STEP_BITS * m].reshape(n, m, _STEP_BITS).astype(np.int64)
+    words = np.sum(wbits << np.arange(_STEP_BITS - 1, -1, -1), axis=2)
+    code, mant, sign = (words >> 23) & 0xF, words & 0x7FFFFF, words >> 27
+    exp = np.where(code == 0, 0, held + code - 8)
+    decoded = ((sign << 31) | (exp << 23) | mant).astype(np.uint32).view(np.float32)
+    values = np.where((b[:, 4 * m] == 1)[:, None], decoded, plain)
+    vbits = values.view(np.uint32).astype(np.int64)
+    vexp = (vbits >> 23) & 0xFF
+    vzero = (vexp == 0) & ((vbits & 0x7FFFFF) == 0)
+    return values.astype(float), np.where(vzero, held, vexp)
 
 
 HALF = np.dtype("<f2")  # little-endian on the wire whatever the host (the field runtime's convention)
