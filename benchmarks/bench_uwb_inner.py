@@ -10,7 +10,7 @@ the LM rounds' own methods sent (``refine._Refiner.start`` / ``evaluate`` / ``li
 the first evaluation, every trial's step and its objective and largest move, the extrapolated trials, the common
 offset's row; broadcast messages and bytes, reductions as spanning-tree bytes) — in the configurations of
 :data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*), with items 25–26 (*inner*:
-``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``) and the defaults (*after*: the rounds' own messages too, items 27–29);
+``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``) and the defaults (*after*: the rounds' own messages too, items 27–31);
 every position, σ, exclusion and status compared with the configuration before it.
 
 ``--study`` also rebuilds every inner system densely (numpy, from the linearization the solve used) and counts the
@@ -218,7 +218,7 @@ def _recording() -> None:
     _counting_rounds()
 
 
-#: the LM rounds' own messages by kind (seventh session, items 27–29), per workflow: broadcast bytes and messages,
+#: the LM rounds' own messages by kind (seventh session, items 27–31), per workflow: broadcast bytes and messages,
 #: reduction bytes (spanning-tree, as ``wire.reduction_cost``)
 _KINDS: dict[str, list[int]] = {}
 _IN_EXTRAPOLATION = [False]
@@ -238,14 +238,14 @@ def _counting_rounds() -> None:
 
         def counted(self: Any, *args: Any, _orig: Any = orig, _name: str = name, **kw: Any) -> Any:
             c0 = self.links.ex.comm_totals()
-            m0, b0, r0 = c0.messages, c0.bytes, self.links.reduced_bytes
+            m0, b0, r0, d0 = c0.messages, c0.bytes, self.links.reduced_bytes, self.links.decided[2]
             out = _orig(self, *args, **kw)
             c1 = self.links.ex.comm_totals()
             k = _KINDS.setdefault(_kind_of(_name, args, kw), [0, 0, 0, 0])
             k[0] += 1
             k[1] += c1.messages - m0
             k[2] += c1.bytes - b0
-            k[3] += (self.links.reduced_bytes - r0) * 2 * (self.links.n - 1)
+            k[3] += ((self.links.reduced_bytes - r0) * 2 + self.links.decided[2] - d0) * (self.links.n - 1)
             return out
 
         setattr(refine._Refiner, name, counted)
@@ -309,8 +309,14 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
 
 #: the configurations compared, in one run (module, switch, value): the defaults at the seventh session's start
 #: (*before*), with items 25–26 (*inner*: CG's dot products and the products' exponents held) and the defaults
-#: (*after*: the LM rounds' own messages too, items 27–29)
-_ROUNDS_OFF = [(wire, "STEP_HELD", False), (refine, "FIRST_MOVE_KNOWN", False), (refine, "OFFSET_START_HELD", False)]
+#: (*after*: the LM rounds' own messages too, items 27–31)
+_ROUNDS_OFF = [
+    (wire, "STEP_HELD", False),
+    (refine, "FIRST_MOVE_KNOWN", False),
+    (refine, "OFFSET_START_HELD", False),
+    (refine, "ROOT_DECIDES", False),
+    (refine, "SCALED_TRIAL_KNOWN", False),
+]
 CONFIGS: dict[str, list[tuple[Any, str, bool]]] = {
     "before": [(wire, "HELD_DOTS", False), (wire, "HELD_ACROSS_RUNS", False), *_ROUNDS_OFF],
     "inner": _ROUNDS_OFF,

@@ -8,6 +8,7 @@ import pytest
 
 from distnav.algorithms.ranging import refine as refine_mod
 from distnav.algorithms.ranging import wire
+from distnav.algorithms.ranging.inner import Links
 from distnav.algorithms.ranging.refine import refine
 from distnav.algorithms.ranging.wire import pack_steps, unpack_steps
 from distnav.exchange import make_exchange
@@ -17,7 +18,13 @@ from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
 from distnav.network.graph import Graph
 
 FIT = {"loss": "cauchy", "range_offsets": "common", "offset_prior_sigma_m": 0.1, "ftol": 1e-6, "xtol_m": 1e-4}
-SWITCHES = [(wire, "STEP_HELD"), (refine_mod, "FIRST_MOVE_KNOWN"), (refine_mod, "OFFSET_START_HELD")]
+SWITCHES = [
+    (wire, "STEP_HELD"),
+    (refine_mod, "FIRST_MOVE_KNOWN"),
+    (refine_mod, "OFFSET_START_HELD"),
+    (refine_mod, "ROOT_DECIDES"),
+    (refine_mod, "SCALED_TRIAL_KNOWN"),
+]
 
 
 def _hall(k, place):
@@ -85,10 +92,10 @@ def _same(a, b):
 
 
 def test_lm_phase_with_the_rounds_economy_is_the_same_solve_in_the_bytes_recounted(hall, monkeypatch):
-    """The LM phase with the three switches on and off: the same solution, rounds, CG iterations and damping bit for
+    """The LM phase with the four switches on and off: the same solution, rounds, CG iterations and damping bit for
     bit; the broadcasts differ by exactly what the steps' sizes recount from the rows sent (each on every active
-    edge of its sender), the reductions by the first evaluation's largest move (4 B) and the offset's start mean
-    (8 B: every copy is 0, ``offset_start_m=0``)."""
+    edge of its sender), the reductions by the offset's start mean (8 B: every copy is 0, ``offset_start_m=0``),
+    the first evaluation's largest move and the totals the root decides on (``ROOT_DECIDES``)."""
     p = subset_measurements(hall[0], ~hall[2])
     sent: list[tuple[np.ndarray, np.ndarray]] = []
     pack = wire.pack_steps
@@ -114,7 +121,17 @@ def test_lm_phase_with_the_rounds_economy_is_the_same_solve_in_the_bytes_recount
     assert len(sent) == on.rounds and saved > 0  # every trial's step (no first one: the start is a broadcast)
     assert ex_off.comm_totals().bytes - ex_on.comm_totals().bytes == saved
     assert ex_off.comm_totals().messages == ex_on.comm_totals().messages
-    assert off.reduced.bytes - on.reduced.bytes == 4 + 8 and off.reduced.count - on.reduced.count == 1
+    # the reductions: the start's mean (8 B) gone, the first objective (8 B) up only, every trial's objective and
+    # largest move (8 + 4 B) up and a 1 B decision down — the rest (the offset's rows, CG's totals) as before
+    trials = on.rounds
+    assert on.reduced.count == off.reduced.count - 1 and on.reduced.decided == 1 + trials
+    assert on.reduced.bytes == off.reduced.bytes - 8 - (8 + 4) - 12 * trials
+    assert on.reduced.decided_directions == 1 + 2 * trials and on.reduced.decided_bytes == 8 + 13 * trials
+    edges = p.n_anchors - 1
+    saved_tree = edges * (2 * (8 + 12 + 12 * trials) - (8 + 13 * trials))
+    assert wire.reductions_cost(p.n_anchors, off.reduced)[1] - wire.reductions_cost(p.n_anchors, on.reduced)[1] == (
+        saved_tree
+    )
 
 
 def test_an_offset_start_that_is_not_every_copy_is_reduced_as_before(hall, monkeypatch):
@@ -144,3 +161,50 @@ def test_a_whole_solve_is_the_same_bit_for_bit_in_fewer_bytes(place, monkeypatch
     assert np.array_equal(a.sigma_m, b.sigma_m, equal_nan=True)
     assert np.array_equal(a.excluded, b.excluded) and a.status == b.status
     assert b.bytes < 0.98 * a.bytes
+
+
+def test_a_scaled_step_is_the_senders_rounding_without_a_message(hall):
+    """``Wire.scaled``: every receiver's rows moved by ``factor`` × the last step it received, rounded as the sender
+    rounds ``factor`` × its own step — bit for bit what sending that step delivers — and nothing sent."""
+    p = hall[0]
+    rng = np.random.default_rng(9)
+    got = []
+    for send in (True, False):
+        ex = make_exchange(Graph.from_links(p.n_anchors, p.links))
+        links = Links(p, ex, known_from_problem=True)
+        first = links.neighbours(np.where(p.free, p.initial_m, p.positions_m))
+        step = links.wire.rounded(np.where(p.free, rng.normal(size=p.free.shape) * 1e-3, 0.0))
+        nb = links.wire.stepped(first, step)
+        before = ex.comm_totals().snapshot()
+        factor = 2.9 / 1.3
+        nb2 = links.wire.stepped(nb, links.wire.rounded(step * factor)) if send else links.wire.scaled(nb, factor)
+        sent = ex.comm_totals().bytes - before.bytes
+        got.append((nb2, sent))
+        rng = np.random.default_rng(9)
+    assert np.array_equal(got[0][0], got[1][0]) and got[0][1] > 0 and got[1][1] == 0
+
+
+def test_an_extrapolated_trial_is_the_same_solve_without_its_broadcast(hall, monkeypatch):
+    """With a trigger that fires (``EXTRAPOLATE`` loosened), the LM phase with the switches on and off: the same
+    solution bit for bit, one step message fewer per extrapolated trial."""
+    p = subset_measurements(hall[0], ~hall[2])
+    monkeypatch.setattr(refine_mod, "EXTRAPOLATE", (0.05, 0.999, 0.9))
+    calls = []
+    extrapolate = refine_mod._Refiner.extrapolate
+
+    def counted(self, *args):
+        calls.append(1)
+        return extrapolate(self, *args)
+
+    monkeypatch.setattr(refine_mod._Refiner, "extrapolate", counted)
+    out = {}
+    for on in (False, True):
+        for mod, name in SWITCHES:
+            monkeypatch.setattr(mod, name, on)
+        calls.clear()
+        ref, ex = _refined(p, offset_start_m=0.0)
+        out[on] = (ref, ex.comm_totals().messages, len(calls))
+    assert out[True][2] == out[False][2] > 0
+    assert _same(out[True][0], out[False][0])
+    edges = int(np.sum(np.bincount(p.links.ravel(), minlength=p.n_anchors) * p.free.any(axis=1)))
+    assert out[False][1] - out[True][1] == edges * out[True][2]  # no step message in an extrapolated trial

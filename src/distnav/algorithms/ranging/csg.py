@@ -40,7 +40,7 @@ from distnav.algorithms.ranging.options import CsgOptions, NclmOptions, NcsgOpti
 from distnav.algorithms.ranging.qc import distributed_quality
 from distnav.algorithms.ranging.refine import MU0, refine_state
 from distnav.algorithms.ranging.stop import StopRule
-from distnav.algorithms.ranging.wire import comm_mark, comm_phases, reduction_cost
+from distnav.algorithms.ranging.wire import comm_mark, comm_phases, reductions_cost
 from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -253,7 +253,7 @@ def _refine_phase(
         f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations"
     )
     out.marks["refine"] = comm_mark(ex)
-    cost = reduction_cost(problem.n_anchors, ref.reduced.count, ref.reduced.bytes)
+    cost = reductions_cost(problem.n_anchors, ref.reduced)
     out.settings = {
         **out.settings,
         "refine": {

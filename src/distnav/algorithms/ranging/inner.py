@@ -36,11 +36,12 @@ class Links:
         self.reductions = 0
         self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
         self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
+        self.decided = [0, 0, 0]  # totals decided at the tree's root: count, directions, bytes per edge (Reductions)
         self.wire = Wire(problem, ex, self.owner, self.other, int(per_anchor_offsets), **wire_options)
 
     def counted(self) -> wire.Reductions:
         """The reductions counted so far."""
-        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes)
+        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes, *self.decided)
 
     def neighbours(self, values: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)`` (one broadcast; after
@@ -80,16 +81,29 @@ class Links:
         return out
 
     def gathered(
-        self, per_node: np.ndarray, dtype: type[np.floating] = np.float64, *, exact_columns: int = 0
+        self,
+        per_node: np.ndarray,
+        dtype: type[np.floating] = np.float64,
+        *,
+        exact_columns: int = 0,
+        down_bytes: int | None = None,
     ) -> np.ndarray:
         """Every anchor's row of ``per_node`` (a reduction's worth of data: sums and maxima taken from it), as
         ``dtype`` on the wire (returned as float64) but for its first ``exact_columns`` columns (float64: an
-        objective that decides acceptance)."""
+        objective that decides acceptance). ``down_bytes`` (None: an all-reduction): the totals go up the tree to
+        its root only, which decides for every anchor and sends ``down_bytes`` down (0: nothing; :meth:`decide`
+        adds to it) — counted as such; every anchor's copy here takes the same decision from the same values."""
         floats = int(np.prod(per_node.shape[1:], dtype=np.int64))
         size = 3 if dtype == np.float16 else np.dtype(dtype).itemsize  # float16: with its exponent (wire.pack_scalars)
+        up = exact_columns * 8 + (floats - exact_columns) * size
         self.reductions += 1
         self.reduced_floats += floats
-        self.reduced_bytes += exact_columns * 8 + (floats - exact_columns) * size
+        if down_bytes is None:
+            self.reduced_bytes += up
+        else:
+            self.decided[0] += 1
+            self.decided[1] += 1 + (down_bytes > 0)
+            self.decided[2] += up + down_bytes
         if dtype == np.float64:
             return np.asarray(self.ex.gather_nodes(per_node))
         if dtype == np.float16:
@@ -99,6 +113,11 @@ class Links:
         if exact_columns:
             rows[:, :exact_columns] = per_node[:, :exact_columns]
         return np.asarray(self.ex.gather_nodes(rows))
+
+    def decide(self, extra_bytes: int) -> None:
+        """``extra_bytes`` more in the last decided total's message down (a number the root sends with its
+        decision, :meth:`gathered`)."""
+        self.decided[2] += extra_bytes
 
 
 def block_preconditioner(own_block: np.ndarray, damp: np.ndarray, free: np.ndarray) -> np.ndarray:

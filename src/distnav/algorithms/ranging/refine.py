@@ -79,6 +79,13 @@ EXTRAPOLATE: tuple[float, float, float] | None = (0.2, 0.97, 0.1)  # ρ's range,
 #: a fit's first evaluation reduces the objective only: the largest move of its zero step is 0, which every anchor
 #: knows (issue 27, seventh session; False: a zero column reduced with the objective, as before)
 FIRST_MOVE_KNOWN = True
+#: a trial's objective and largest move go up the reduction tree to its root only, which decides (accept, stop,
+#: extrapolate) and sends every anchor its decision: 1 B down (and the jump factor with an extrapolation) instead of
+#: the totals; a fit's first objective goes up only (issue 27, seventh session; False: all-reductions, as before)
+ROOT_DECIDES = True
+#: an extrapolated trial's step not sent: every receiver scales the last step it holds by the jump factor, which the
+#: root's decision carries (``Wire.scaled``, the same rows bit for bit; issue 27, seventh session)
+SCALED_TRIAL_KNOWN = True
 #: the common offset's start not reduced where every anchor's copy is the one the options give (``offset_start_m``:
 #: a fit's LM phase from the solver's start, which every anchor holds; issue 27, seventh session)
 OFFSET_START_HELD = True
@@ -191,23 +198,40 @@ class _Refiner:
         return x, c, min(n_unknowns + 10, 2000)
 
     def evaluate(
-        self, xv: np.ndarray, cv: float, step: np.ndarray, base: np.ndarray | None = None
+        self,
+        xv: np.ndarray,
+        cv: float,
+        step: np.ndarray,
+        base: np.ndarray | None = None,
+        *,
+        move: bool = True,
+        scaled: float | None = None,
     ) -> tuple[np.ndarray, float, np.ndarray, float]:
         """Neighbour rows, F, the per-half residuals at ``(xv, cv)`` and the largest move of ``step`` (one
         broadcast and one reduction; ``base``: the neighbour rows ``step`` moved from, then only the step travels,
-        :meth:`~distnav.algorithms.ranging.wire.Wire.stepped`)."""
+        :meth:`~distnav.algorithms.ranging.wire.Wire.stepped`; ``move`` False: its largest move is not needed, an
+        extrapolated trial's, and not reduced with :data:`ROOT_DECIDES`; ``scaled``: ``step`` is this factor times
+        the last step sent, which the receivers scale themselves, :data:`SCALED_TRIAL_KNOWN`)."""
         dim, owner, per = self.dim, self.owner, self.per
-        nb = self.links.neighbours(xv) if base is None or not self.steps else self.links.wire.stepped(base, step)
+        if base is None or not self.steps:
+            nb = self.links.neighbours(xv)
+        elif scaled is not None and SCALED_TRIAL_KNOWN and ROOT_DECIDES:  # the factor travels with the decision
+            nb = self.links.wire.scaled(base, scaled)
+        else:
+            nb = self.links.wire.stepped(base, step)
         diff = xv[owner, :dim] - nb[:, :dim]
         bias = (xv[owner, dim] + nb[:, dim]) if per else cv
         r = (np.linalg.norm(diff, axis=1) + bias - self.rng_m) / self.sig
         terms = loss_terms(r, self.sc, self.o.loss)[1]
         f_node = 0.5 * np.bincount(owner, terms, minlength=self.nl) + (self.prior * xv[:, dim] ** 2 if per else 0.0)
         small = wire.CG_SCALAR_DTYPE if ROUND_SCALARS and not wire.PLAIN else np.float64
-        if base is None and FIRST_MOVE_KNOWN and not wire.PLAIN:  # a zero step: its largest move is 0 everywhere
-            only = self.links.gathered(np.c_[f_node], small, exact_columns=1)
+        root = ROOT_DECIDES and not wire.PLAIN
+        down = (0 if base is None else 1) if root else None  # the first objective: nothing to decide yet
+        if (base is None and FIRST_MOVE_KNOWN or not move and root) and not wire.PLAIN:  # F alone
+            only = self.links.gathered(np.c_[f_node], small, exact_columns=1, down_bytes=down)
             return nb, float(np.sum(only[:, 0])), r, 0.0
-        both = self.links.gathered(np.c_[f_node, np.max(np.abs(step), axis=1, initial=0.0)], small, exact_columns=1)
+        moves = np.max(np.abs(step), axis=1, initial=0.0)
+        both = self.links.gathered(np.c_[f_node, moves], small, exact_columns=1, down_bytes=down)
         return nb, float(np.sum(both[:, 0])), r, float(np.max(both[:, 1], initial=0.0))
 
     def linearize(self, x: np.ndarray, nb: np.ndarray, r: np.ndarray) -> _Linearization:
@@ -282,13 +306,13 @@ class _Refiner:
         tail: list[float],
     ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, float]:
         """One trial of the rest of the geometric series of the steps (:data:`EXTRAPOLATE`): ``ρ/(1 − ρ)`` × the last
-        step from ``(x, c)`` (one broadcast of the step and one reduction, as any trial), kept where it lowers ``F``;
-        the tail restarts either way."""
+        step from ``(x, c)`` (one reduction, as any trial; the step is broadcast only without
+        :data:`SCALED_TRIAL_KNOWN`), kept where it lowers ``F``; the tail restarts either way."""
         jump = tail[-1] / tail[-2] / (1.0 - tail[-1] / tail[-2])
         tail.clear()
         dx = self.links.wire.rounded(last[0] * jump) if self.steps else last[0] * jump
         dcv = last[1] * jump
-        nb_new, F_new, r_new, _ = self.evaluate(x + dx, c + dcv, dx, nb)
+        nb_new, F_new, r_new, _ = self.evaluate(x + dx, c + dcv, dx, nb, move=False, scaled=jump)
         if np.isfinite(F_new) and F_new < F:
             return x + dx, c + dcv, nb_new, r_new, F_new
         return x, c, nb, r, F
@@ -358,6 +382,8 @@ def refine(
                         status = "converged"
                     elif _steady(tail, moved) and rounds < o.max_rounds:  # one more trial: counted as a round
                         rounds += 1
+                        if ROOT_DECIDES and not wire.PLAIN:  # the root's decision carries the jump factor
+                            run.links.decide(8)
                         x, c, nb, r, F = run.extrapolate(x, c, nb, r, F, (dx, dcv), tail)
                     break
                 if moved <= o.xtol_m * 1e-3 and mu <= 1.0:  # a nearly undamped GN step of < 0.1 µm: F is at its

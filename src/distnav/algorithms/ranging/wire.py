@@ -46,10 +46,11 @@ and what it received before. So :class:`Wire`
    lies in float16's normal range on it — the same 11 bits, so the same values bit for bit; the products' held
    exponents (4., :data:`HELD_EXPONENT`) are kept from one CG run to the next of a fit (:data:`HELD_ACROSS_RUNS`);
 8. sends a trial's float32 step (5.) after a fit's first **on the exponents its entries carried last**
-   (:data:`STEP_HELD`, :func:`pack_steps`): every entry's sign and 23-bit mantissa with its exponent as a 4-bit
-   difference from the one its column carried in the sender's last step, which every receiver holds (28 bits an
-   entry: 7 B for two free columns instead of 8); a step with an entry outside that window, and a fit's first,
-   as plain float32. The same float32 values bit for bit (issue 27, seventh session).
+   (:data:`STEP_HELD`, :func:`pack_steps`): sign, 23-bit mantissa and a 4-bit difference from the exponent of the
+   column in the sender's last step, which every receiver holds (7 B for two free columns instead of 8; outside
+   that window and a fit's first as plain float32): the same values bit for bit (issue 27, seventh session);
+9. sends nothing for an extrapolated trial (``refine.EXTRAPOLATE``): its step is a shared factor times the last
+   step, which every receiver holds (:meth:`Wire.scaled`).
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
 """
@@ -61,6 +62,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.step_codec import pack_steps, unpack_steps
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
@@ -74,6 +76,7 @@ __all__ = [
     "unpack_half",
     "reduction_cost",
     "Reductions",
+    "reductions_cost",
     "CG_SCALAR_DTYPE",
     "HALF_MAX_ANCHORS",
     "cg_wire_dtype",
@@ -168,8 +171,7 @@ HELD_DOTS = True
 #: one share outside its window sends the value at 3 B in every message, and the shares' scale jumps between runs)
 HELD_ACROSS_RUNS = True
 #: a trial's float32 step after a fit's first on the exponents its entries carried in the sender's last step
-#: (:func:`pack_steps`, item 8): 28 bits an entry (7 B for two free columns instead of 8), the same values bit
-#: for bit; False: plain float32 (as before)
+#: (:func:`pack_steps`, item 8): 7 B for two free columns instead of 8, bit for bit; False: plain float32
 STEP_HELD = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
@@ -218,6 +220,7 @@ class Wire:
         self._rep: tuple[np.ndarray, np.ndarray] | None = None  # per out-edge: a half-measurement, the edge's mask
         self._step_sent: np.ndarray | None = None  # the exponents of this block's last step, per column (item 8)
         self._step_got: np.ndarray | None = None  # the same of every other end's last step, per half-measurement
+        self._last_got: np.ndarray | None = None  # every other end's last step received (item 9)
 
     def _positions(self, box_dst: np.ndarray, box_src: np.ndarray) -> np.ndarray:
         if self._pos is None:
@@ -285,8 +288,12 @@ class Wire:
         """An LM step ``(n_local, P)`` as :meth:`stepped` delivers it: its free columns as :data:`STEP_DTYPE` (the
         sender moves by this step, so that both ends hold the same parameters bit for bit; item 5)."""
         out = np.zeros_like(step)
-        out[:, self.cols] = _decode(_encode(step[:, self.cols], STEP_DTYPE), self.cols.size)
+        out[:, self.cols] = self.rounded_columns(step[:, self.cols])
         return out
+
+    def rounded_columns(self, columns: np.ndarray) -> np.ndarray:
+        """The free columns of a step ``(rows, m)`` rounded as :data:`STEP_DTYPE` (float64 values)."""
+        return _decode(_encode(columns, STEP_DTYPE), self.cols.size)
 
     def stepped(self, base: np.ndarray, step: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameters moved from ``base`` (per half-measurement, as both ends
@@ -298,6 +305,18 @@ class Wire:
             got = _decode(
                 self._round(_encode(step[:, self.cols], STEP_DTYPE), self.active, self.talks_other), self.cols.size
             )
+        self._last_got = got
+        out = np.array(base, float)
+        out[np.ix_(self.talks_other, self.cols)] += got[self.talks_other]
+        return out
+
+    def scaled(self, base: np.ndarray, factor: float) -> np.ndarray:
+        """:meth:`stepped` by :meth:`rounded` ``factor`` × the last step every receiver holds from each sender (an
+        extrapolated trial, ``refine.EXTRAPOLATE``; ``factor`` from a decision all anchors share): no message, the
+        same rows bit for bit as the senders' own rounding of ``factor`` × their last step (item 9)."""
+        if self._last_got is None:
+            raise ModelError("no step to scale: no trial was sent")
+        got = self.rounded_columns(self._last_got * factor)
         out = np.array(base, float)
         out[np.ix_(self.talks_other, self.cols)] += got[self.talks_other]
         return out
@@ -463,58 +482,6 @@ def _decode(sent: np.ndarray, m: int) -> np.ndarray:
     return unpack_half(sent, m) if sent.dtype == np.uint8 else np.asarray(sent, float)
 
 
-#: the exponent differences an entry of a step may have from its column's held one (:func:`pack_steps`): 4 bits,
-#: code 0 a zero entry
-STEP_WINDOW = 7
-_STEP_BITS = 28  # sign, 4-bit exponent difference, 23-bit mantissa
-
-
-def pack_steps(rows: np.ndarray, held: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """float32 rows ``(n, m)`` on the exponents ``held`` ``(n, m)`` of each row's last step (0: none held), as
-    bytes ``(n, 4m + 1)`` with each message's size and the exponents held after it (item 8 of the module
-    docstring). A row whose every entry is zero or a normal float32 within :data:`STEP_WINDOW` binades of its held
-    exponent travels as one 28-bit word an entry (sign, the difference + 8 in 4 bits — 0 for a zero —, the
-    mantissa), ``ceil(28m/8)`` bytes; any other row as its plain float32 bytes (``4m``). The last byte says which
-    (the message's size does on the wire; here the container is of one width)."""
-    r = np.ascontiguousarray(rows, np.float32)
-    n, m = r.shape
-    bits = r.view(np.uint32).astype(np.int64)
-    exp, mant, sign = (bits >> 23) & 0xFF, bits & 0x7FFFFF, bits >> 31
-    zero = (exp == 0) & (mant == 0)
-    near = (exp > 0) & (exp < 255) & (held > 0) & (np.abs(exp - held) <= STEP_WINDOW)
-    coded = np.all(zero | near, axis=1)
-    out = np.zeros((n, 4 * m + 1), np.uint8)
-    out[:, : 4 * m] = r.view(np.uint8).reshape(n, 4 * m)
-    words = (sign << 27) | (np.where(zero, 0, exp - held + 8) << 23) | mant
-    wbits = ((words[:, :, None] >> np.arange(_STEP_BITS - 1, -1, -1)) & 1).astype(np.uint8).reshape(n, -1)
-    size = -(-_STEP_BITS * m // 8)
-    out[coded, :size] = np.packbits(wbits[coded], axis=1)
-    out[coded, size : 4 * m] = 0
-    out[:, 4 * m] = coded
-    return out, np.where(coded, size, 4 * m).astype(np.int64), np.where(zero, held, exp)
-
-
-def unpack_steps(packed: np.ndarray, held: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """The float64 values of :func:`pack_steps`'s rows ``(n, 4m + 1)`` decoded on the exponents ``held``
-    ``(n, m)`` the receiver holds from each sender's last step, and the exponents it holds after them."""
-    b = np.ascontiguousarray(packed, np.uint8)
-    n = b.shape[0]
-    if b.ndim != 2 or b.shape[1] != 4 * m + 1:
-        raise ModelError(f"a packed step must have {4 * m + 1} bytes, got shape {b.shape}")
-    plain = np.ascontiguousarray(b[:, : 4 * m]).view(np.float32).reshape(n, m)
-    size = -(-_STEP_BITS * m // 8)
-    wbits = np.unpackbits(b[:, :size], axis=1)[:, : _STEP_BITS * m].reshape(n, m, _STEP_BITS).astype(np.int64)
-    words = np.sum(wbits << np.arange(_STEP_BITS - 1, -1, -1), axis=2)
-    code, mant, sign = (words >> 23) & 0xF, words & 0x7FFFFF, words >> 27
-    exp = np.where(code == 0, 0, held + code - 8)
-    decoded = ((sign << 31) | (exp << 23) | mant).astype(np.uint32).view(np.float32)
-    values = np.where((b[:, 4 * m] == 1)[:, None], decoded, plain)
-    vbits = values.view(np.uint32).astype(np.int64)
-    vexp = (vbits >> 23) & 0xFF
-    vzero = (vexp == 0) & ((vbits & 0x7FFFFF) == 0)
-    return values.astype(float), np.where(vzero, held, vexp)
-
-
 HALF = np.dtype("<f2")  # little-endian on the wire whatever the host (the field runtime's convention)
 
 
@@ -562,6 +529,19 @@ class Reductions:
     count: int = 0
     floats: int = 0
     bytes: int = 0
+    #: of them, totals decided at the tree's root (``refine.ROOT_DECIDES``): how many, their tree directions (1 or 2)
+    #: and bytes per tree edge (the values up, the decision down), summed — not in ``bytes``
+    decided: int = 0
+    decided_directions: int = 0
+    decided_bytes: int = 0
+
+
+def reductions_cost(n_anchors: int, reduced: Reductions) -> tuple[int, int]:
+    """Messages and bytes of ``reduced`` over a spanning tree: :func:`reduction_cost` of its all-reductions, and
+    ``n − 1`` messages per direction of every decided one (its bytes per tree edge on each of the ``n − 1`` edges)."""
+    m, b = reduction_cost(n_anchors, reduced.count - reduced.decided, reduced.bytes)
+    edges = max(n_anchors - 1, 0)
+    return m + reduced.decided_directions * edges, b + reduced.decided_bytes * edges
 
 
 def reduction_cost(n_anchors: int, reductions: int, reduced_bytes: int) -> tuple[int, int]:
