@@ -382,3 +382,28 @@ def test_an_opening_fit_starts_the_loop_at_the_first_rung():
     full = _Scripted(p, w)
     assert exclude_links(p, full, opening=_Scripted(p, blur)(p))[2].removed == alone
     assert full.calls == 4  # no loose rung: the opening is ignored (the first fit and three re-fits, all full)
+
+
+def test_without_confirm_a_decided_loose_end_is_returned():
+    """exclude_links with ``confirm=False`` (issue 27, seventh session): where a decided choice ends the loop on a loose
+    re-fit, that fit is returned without a full fit to confirm it (the caller completes it where needed); the same
+    links are excluded, and an open choice still goes to the full fit."""
+    p, pair, w, alone, near = _three_flagged()
+    full, loose = _Scripted(p, w), _Scripted(p, near)
+    res, _, tests = exclude_links(p, full, loose=[(loose, 0.1)], confirm=False)
+    assert tests.removed == alone
+    assert (full.calls, loose.calls) == (1, 3)  # the first fit only: the loop ended on the third loose re-fit
+    assert np.array_equal(res.tests.w, loose(_without(p, alone)).tests.w)
+    blur = near.copy()
+    blur[pair[(6, 7)]] = -3.3  # every loose re-fit reads N6-N7 within the margin of 3.29: open
+    full = _Scripted(p, w)
+    res, _, tests = exclude_links(p, full, loose=[(_Scripted(p, blur), 0.1)], confirm=False)
+    assert tests.removed == alone
+    assert full.calls == 4  # the first fit, then each open choice's: the loop ends on the full fit
+    assert np.array_equal(res.tests.w, full(_without(p, alone)).tests.w)
+
+
+def _without(p, removed):
+    keep = np.ones(p.n_meas, bool)
+    keep[list(removed)] = False
+    return dataclasses.replace(p, meas_a=p.meas_a[keep], meas_b=p.meas_b[keep], range_m=p.range_m[keep])

@@ -270,6 +270,7 @@ def exclude_links(
     per_round: int | None = 1,
     loose: Sequence[tuple[Callable[[RangingData], RangingResult], float]] = (),
     opening: RangingResult | None = None,
+    confirm: bool = True,
 ) -> tuple[RangingResult, RangingData, ObservationTests]:
     """Iterative exclusion: while a link is flagged, remove the link (all its samples) with the largest |w| whose
     two anchors keep more links than free coordinates (the network stays determined with a check), and re-fit.
@@ -297,6 +298,8 @@ def exclude_links(
     ``opening`` (issue 27, seventh session): a fit of the whole ``problem`` already made, stopped as early as the
     first of ``loose`` (the workflow's last tightening fit, with its tests): the loop starts from it at that rung
     instead of with ``fit(problem)`` — its choice taken only where decided with that margin, as a re-fit's.
+    ``confirm`` False (issue 27, seventh session): where a decided choice ends the loop on a loose fit, that fit is
+    returned (no ``fit`` to confirm it): the caller completes it where its answer needs the full tolerance.
 
     ``fit(subproblem)`` solves a problem and returns a result with ``tests`` (LM with QC, or a distributed solver).
     Returns ``(final result, the problem without the excluded links, tests)`` where the tests hold the final
@@ -321,6 +324,8 @@ def exclude_links(
         if level < len(ladder) - 1:
             decided = _decided(problem.n_anchors, aw, (a, b), cap, crit, margin, picks)
             if not picks or not decided:  # undecided: the next fit decides; the loop's end: the last fit confirms
+                if decided and not confirm:
+                    break
                 level = level + 1 if not decided else len(ladder) - 1
                 res = ladder[level][0](sub)
                 continue

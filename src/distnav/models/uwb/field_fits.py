@@ -37,6 +37,7 @@ __all__ = [
     "CARRY_OFFSET",
     "CARRY_HELD",
     "TIGHTEN_OPENS_LOOP",
+    "LOOP_ENDS_LOOSE",
     "opens_loop",
     "opening_fit",
 ]
@@ -80,6 +81,10 @@ CARRY_HELD = True
 #: taken where decided with the re-fit's margin, instead of a full fit of every link from its solution (issue 27,
 #: seventh session; the robust fit of every link, the revert's reference, is completed only where a ratio needs it)
 TIGHTEN_OPENS_LOOP = True
+#: the exclusion loop may end on a decided early-stopped re-fit where the polish follows: the full fit of the kept
+#: links runs only where the polish is not kept or a cost ratio comes near its threshold (``field._complete``; issue
+#: 27, seventh session) — the polish, from the early-stopped solution, is then the answer
+LOOP_ENDS_LOOSE = True
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
 
