@@ -9,8 +9,8 @@ all-reductions (``wire.reduction_cost``), per workflow, per fit (``refine.refine
 the LM rounds' own methods sent (``refine._Refiner.start`` / ``evaluate`` / ``linearize``: the start's offset mean,
 the first evaluation, every trial's step and its objective and largest move, the extrapolated trials, the common
 offset's row; broadcast messages and bytes, reductions as spanning-tree bytes) — in the configurations of
-:data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*), with items 25–26 (*inner*:
-``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``) and the defaults (*after*: the rounds' own messages too, items 27–31);
+:data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*), with items 26–27 (*inner*:
+``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``) and the defaults (*after*: the rounds' own messages too, items 28–32);
 every position, σ, exclusion and status compared with the configuration before it.
 
 ``--study`` also rebuilds every inner system densely (numpy, from the linearization the solve used) and counts the
@@ -218,7 +218,7 @@ def _recording() -> None:
     _counting_rounds()
 
 
-#: the LM rounds' own messages by kind (seventh session, items 27–31), per workflow: broadcast bytes and messages,
+#: the LM rounds' own messages by kind (seventh session, items 28–32), per workflow: broadcast bytes and messages,
 #: reduction bytes (spanning-tree, as ``wire.reduction_cost``)
 _KINDS: dict[str, list[int]] = {}
 _IN_EXTRAPOLATION = [False]
@@ -308,8 +308,8 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
 
 
 #: the configurations compared, in one run (module, switch, value): the defaults at the seventh session's start
-#: (*before*), with items 25–26 (*inner*: CG's dot products and the products' exponents held) and the defaults
-#: (*after*: the LM rounds' own messages too, items 27–31)
+#: (*before*), with items 26–27 (*inner*: CG's dot products and the products' exponents held) and the defaults
+#: (*after*: the LM rounds' own messages too, items 28–32)
 _ROUNDS_OFF = [
     (wire, "STEP_HELD", False),
     (refine, "FIRST_MOVE_KNOWN", False),
