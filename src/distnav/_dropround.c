@@ -17,7 +17,9 @@
  *
  * Two phases per block of rows, so the hash vectorizes: the keep factors of a block's edges (at most KEEP_BLOCK,
  * a longer row in pieces), then the rows. On x86-64 Linux with GCC the drop-only keep phase is compiled for
- * AVX-512, AVX2 and the baseline and chosen at load time (target_clones); integer arithmetic, the same bits. */
+ * AVX-512, AVX2 and the baseline and chosen at load time (target_clones); integer arithmetic, the same bits. The
+ * round itself is cloned too (issue 27: 3 % of a 10^3-node round in VEX-encoded scalar code; no fused multiply-add
+ * with -ffp-contract=off, so the same bits). */
 #include <stdint.h>
 
 #if defined(_WIN32)
@@ -109,10 +111,11 @@ typedef struct {
         }                                                                                                            \
         r->sum = sum, r->lostw = lostw, r->kept = kept;                                                              \
     }                                                                                                                \
-    DN_EXPORT void NAME(int64_t n_rows, int64_t k, const IDX *indptr, const IDX *indices, const double *data,        \
-                        const EDGE *edges, const uint8_t *active, const int64_t *dead_from, int64_t round_index,    \
-                        uint64_t seed, uint64_t threshold, const double *cols, const double *self_w,                 \
-                        const double *xl, double *y, int64_t *lost_acc) {                                           \
+    DN_EXPORT DN_CLONES void NAME(int64_t n_rows, int64_t k, const IDX *indptr, const IDX *indices,                  \
+                                  const double *data, const EDGE *edges, const uint8_t *active,                      \
+                                  const int64_t *dead_from, int64_t round_index, uint64_t seed, uint64_t threshold,  \
+                                  const double *cols, const double *self_w, const double *xl, double *y,             \
+                                  int64_t *lost_acc) {                                                               \
         const dn_faults f = {active, dead_from, round_index, dn_round_key(seed, (uint64_t)round_index), threshold};                                        \
         double keep[KEEP_BLOCK];                                                                                     \
         int64_t i = 0;                                                                                               \
