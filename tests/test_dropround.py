@@ -239,3 +239,24 @@ def test_reused_outputs_never_overwrite_a_result_the_caller_holds():
         assert np.array_equal(_bits(xf), _bits(xs))
         assert step == 0 or any(buf is xf for buf, _ in kernel._out), step  # one of the kernel's own buffers
     assert fast.exchange.comm_totals().as_dict() == slow.exchange.comm_totals().as_dict()
+
+
+@needs_kernel
+def test_one_float_per_node_shortcut_and_what_it_leaves_to_the_general_path():
+    """In a block without remote senders, one float64 per node goes straight to the kernel (apply's general path
+    skipped); other dtypes and shapes still take the general path: float32 and integer values are converted (the
+    numpy path's bits), a wrong length is refused with the shape named."""
+    from distnav.errors import ExchangeError
+
+    g = builders.connected_random_geometric(250, mean_degree=8, rng=np.random.default_rng(14))
+    fast, slow = _pair(g, _with_links(SCHEDULES["links and silent"], g), "auto", None)
+    rng = np.random.default_rng(15)
+    x = fast.exchange.local(rng.normal(size=g.n_nodes))
+    inputs = [x, x.astype(np.float32), (100 * x).astype(np.int64), x, x.reshape(-1, 1)]
+    for step, inp in enumerate(inputs):
+        out_f, out_s = fast.apply(inp), slow.apply(inp)
+        assert out_f.shape == out_s.shape == inp.shape and np.array_equal(_bits(out_f), _bits(out_s)), step
+        assert fast._kernel_vector == (g.n_nodes,)  # the shortcut is prepared after the first round
+    with pytest.raises(ExchangeError, match=r"got array of shape \(249,\)"):
+        fast.apply(x[:-1])
+    assert fast.exchange.comm_totals().as_dict() == slow.exchange.comm_totals().as_dict()

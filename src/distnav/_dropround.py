@@ -176,13 +176,21 @@ class DropRound:
         return made
 
     def run(
-        self, key: np.ndarray, flat: np.ndarray, cols: np.ndarray, lost_acc: np.ndarray, round_index: int, dead: Any
+        self,
+        key: np.ndarray,
+        flat: np.ndarray,
+        cols: np.ndarray,
+        lost_acc: np.ndarray,
+        round_index: int,
+        dead: Any,
+        width: int | None = None,
     ) -> np.ndarray:
         """One fault round on the values ``key`` (``(n_rows, ...)`` float64; ``flat``: the same as ``(n_rows, k)``)
         and ``cols`` (``(n_columns, k)``: the local values then the remote senders', or ``flat`` itself), with the
         seed and threshold of :meth:`set_faults`: returns the new values shaped as ``key``, adds each row's lost
         messages to ``lost_acc`` (int64, C order). ``dead``: per edge, the first round its message is dead (failed
-        link or silent sender), or None when no such fault has begun."""
+        link or silent sender), or None when no such fault has begun. ``width``: ``k``, when ``flat`` is ``key``
+        itself, 1-D (one float per node)."""
         in_place = cols is flat  # in-process the columns are the local values
         out = self._out
         x_addr = 0
@@ -207,7 +215,8 @@ class DropRound:
         if dead is not self._dead:
             self._args.dead_from, self._dead = (None if dead is None else _addr(dead)), dead
         c_addr = x_addr if in_place else self._columns(cols)
-        _PACK.pack_into(self._mem, _ROUND_AT, flat.shape[1], round_index, c_addr, x_addr, y_addr)
+        k = flat.shape[1] if width is None else width
+        _PACK.pack_into(self._mem, _ROUND_AT, k, round_index, c_addr, x_addr, y_addr)
         self._call(self._byref)
         return y
 
