@@ -260,3 +260,41 @@ def test_one_float_per_node_shortcut_and_what_it_leaves_to_the_general_path():
     with pytest.raises(ExchangeError, match=r"got array of shape \(249,\)"):
         fast.apply(x[:-1])
     assert fast.exchange.comm_totals().as_dict() == slow.exchange.comm_totals().as_dict()
+
+
+@needs_kernel
+def test_a_plan_that_is_not_the_schedules_own_keeps_the_numpy_path():
+    """The field exchange's plan also drops what its network lost (``_NetworkPlan``), which the kernel cannot see: a
+    mixer whose exchange has such a plan takes the numpy path, and the extra losses show in the round (checked
+    against the round recomputed by hand from the plan's own decisions)."""
+
+    class _ExtraLossPlan:  # a FaultPlan that also loses edge 0's message, as the field's plan wraps the schedule's
+        def __init__(self, plan: FaultPlan) -> None:
+            self._plan = plan
+
+        def delivered(self, round_index: int) -> np.ndarray:
+            ok = np.array(self._plan.delivered(round_index))
+            ok[0] = False
+            return ok
+
+        def __getattr__(self, name: str) -> object:
+            return getattr(self._plan, name)
+
+    g = builders.ring(6)
+    w = consensus_weights(g, "P3")
+    schedule = FaultSchedule(drop_probability=0.2, seed=3)
+    ex = make_exchange(g, faults=schedule)
+    plan = ex._fault_plan
+    ex.__dict__["_fault_plan"] = _ExtraLossPlan(plan)
+    m = ex.mixer(w)
+    x = np.random.default_rng(2).normal(size=6)
+    got = m.apply(x)
+    assert m._kernel is None
+    ok = plan.delivered(0).copy()
+    ok[0] = False
+    src, dst = ex.in_src, ex.nodes[ex.in_dst]
+    dense = w.to_dense()
+    ref = np.diag(dense) * x
+    for e in range(ex.in_edges.size):
+        ref[dst[e]] += dense[dst[e], src[e]] * (x[src[e]] if ok[e] else x[dst[e]])
+    assert not ok[0] and np.allclose(got, ref, atol=1e-14)
