@@ -9,11 +9,13 @@ and how both grow with the network.
    same accounting (the broadcasts, and the LM phase's network totals as spanning-tree all-reductions):
    *before* issue 27 (:func:`configured` ``"before"``: 500 consensus iterations in the first fit, every row sent in
    full in float64, float64 CG scalars, the central σ by CG to ``1e-10``, every re-fit from offset 0 and the initial
-   damping, the tightening by halvings, no extrapolated tail, every warm fit's first parameters broadcast), *today*
-   (the defaults before the sixth session's item 23: items 1–22 of docs/economy_uwb.md, but every warm fit's LM
-   phase broadcasting its first parameters, ``field_fits.CARRY_HELD`` False) and *after* (the defaults: no first
-   parameters from an anchor whose ranged neighbours hold its start from the last fit, item 23); the positions,
-   their largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range gathered at one anchor
+   damping, the tightening by halvings, no extrapolated tail, every warm fit's first parameters broadcast, the loop
+   opened and ended by full fits), *today* (the defaults at the seventh session's start: items 1–23 of
+   docs/economy_uwb.md, the exclusion loop opened by a full fit of every link and ended by a full fit of the kept
+   links, ``field_fits.TIGHTEN_OPENS_LOOP`` and ``LOOP_ENDS_LOOSE`` False) and *after* (the defaults: the last
+   tightening fit opens the loop, the loop ends on its decided 1 cm re-fit where the polish follows, items 24–25);
+   the positions, their largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range
+   gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
    of that gather over the range graph (:func:`distnav.network.gather.gather_cost`). Per anchor: what each
    anchor's broadcasts and the gathered σ's tree sent, the reductions spread evenly (2 messages per anchor and
@@ -93,8 +95,10 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (refine, "EXTRAPOLATE"): None,
         (qc, "BLOCKED_NEAR"): False,
         (field_fits, "CARRY_HELD"): False,
+        (field_fits, "TIGHTEN_OPENS_LOOP"): False,
+        (field_fits, "LOOP_ENDS_LOOSE"): False,
     },
-    "today": {(field_fits, "CARRY_HELD"): False},
+    "today": {(field_fits, "TIGHTEN_OPENS_LOOP"): False, (field_fits, "LOOP_ENDS_LOOSE"): False},
     "after": {},
 }
 OPTIONS = {

@@ -84,3 +84,91 @@ def test_warm_fits_send_no_start_the_receivers_hold_and_end_bit_for_bit_the_same
     assert np.array_equal(now.excluded, before.excluded) and now.status == before.status
     assert now.comm_phases["first_fit"] == before.comm_phases["first_fit"]  # a cold fit: nothing held
     assert before.bytes - now.bytes >= 2000 * (len(fits) - 1)
+
+
+def test_the_last_tightening_fit_opens_the_exclusion_loop_for_the_same_answer(monkeypatch):
+    """Plant-like hall [78, 0] (middle): the last tightening fit (1 cm, all the links, at the tight scale) is tested and
+    opens the exclusion loop (``field_fits.TIGHTEN_OPENS_LOOP``, the default; issue 27 seventh session) instead of a
+    full fit of every link from its solution (the behaviour before): the same links excluded, the same status,
+    positions within 0.2 mm, ≥ 10 % fewer bytes in the loop. Where the exclusions are rejected (``DISAGREE_RATIO``
+    forced down) the answer is the robust fit of every link continued to the solver's tolerances, not the 1 cm
+    opening: within 0.2 mm of the full fit of every link of the behaviour before (the opening is mm away)."""
+    import distnav.models.uwb.field as field
+    import distnav.models.uwb.field_fits as field_fits
+
+    h = simulate_hall(np.random.default_rng([78, 0]), HallConfig().with_(known="middle", **PLANT_LIKE))
+    sub, geo = prepare(hall_problem(h)[0])
+    now = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    with monkeypatch.context() as m:
+        m.setattr(field_fits, "TIGHTEN_OPENS_LOOP", False)
+        before = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 2e-4
+    assert now.comm_phases["exclusions"]["bytes"] < 0.9 * before.comm_phases["exclusions"]["bytes"]
+    assert now.comm_phases["tighten"] == before.comm_phases["tighten"]  # its tests cost nothing counted here
+    opts = FieldOptions(solver="N-CLM", polish=False)
+    monkeypatch.setattr(field, "DISAGREE_RATIO", 0.5)  # every exclusion rejected: the robust fit of every link
+    now = solve_field(sub, opts, geometry=geo)
+    assert not now.excluded.any()
+    monkeypatch.setattr(field_fits, "TIGHTEN_OPENS_LOOP", False)
+    before = solve_field(sub, opts, geometry=geo)
+    assert not before.excluded.any()
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 2e-4
+
+
+def test_the_loop_ends_loose_where_the_polish_follows_for_the_same_answer(monkeypatch):
+    """Plant-like halls [78, 5] (corner) and [78, 1] (middle): the exclusion loop ends on its decided 1 cm re-fit and
+    the polish starts there (``field_fits.LOOP_ENDS_LOOSE``, the default; issue 27 seventh session) instead of after a
+    full fit of the kept links (the behaviour before): the same links excluded, the same status, positions within
+    0.2 mm, fewer bytes. Without the polish nothing changes (bit for bit); where the polish is not kept
+    (``POLISH_RATIO`` forced down) the answer is the loose end continued to the solver's tolerances (within 0.2 mm of
+    the full fit of before; the 1 cm end itself is mm away)."""
+    import distnav.models.uwb.field as field
+    import distnav.models.uwb.field_fits as field_fits
+
+    for seed, known in (([78, 5], "corner"), ([78, 1], "middle")):
+        h = simulate_hall(np.random.default_rng(seed), HallConfig().with_(known=known, **PLANT_LIKE))
+        sub, geo = prepare(hall_problem(h)[0])
+        got = {}
+        for ends_loose in (True, False):
+            monkeypatch.setattr(field_fits, "LOOP_ENDS_LOOSE", ends_loose)
+            got[ends_loose] = [
+                solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo),
+                solve_field(sub, FieldOptions(solver="N-CLM", polish=False), geometry=geo),
+            ]
+            with monkeypatch.context() as m:
+                m.setattr(field, "POLISH_RATIO", 0.5)  # the polish never kept
+                got[ends_loose].append(solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo))
+        (now, now_np, now_rej), (before, before_np, before_rej) = got[True], got[False]
+        assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+        assert np.max(np.abs(now.positions_m - before.positions_m)) < 2e-4
+        assert now.bytes < 0.95 * before.bytes
+        assert np.array_equal(now_np.positions_m, before_np.positions_m) and now_np.bytes == before_np.bytes
+        assert np.array_equal(now_rej.excluded, before_rej.excluded)
+        assert np.max(np.abs(now_rej.positions_m - before_rej.positions_m)) < 2e-4
+        assert np.max(np.abs(now_rej.positions_m - now.positions_m)) > 1e-3  # the polish moves mm: it was rejected
+
+
+def test_the_first_fit_opens_the_loop_where_nothing_is_tightened(monkeypatch, tmp_path):
+    """A PLANT_HARD hall ([34, 18], corner) whose residual scatter keeps the loss scale at 0.3 m (no tightening fit,
+    no polish): the first robust fit (every link, at that scale, stopped at 1 cm) is tested and opens the exclusion
+    loop (``field_fits.TIGHTEN_OPENS_LOOP``, issue 27 seventh session) instead of a full fit of every link: the same
+    links excluded and status, positions within 0.3 mm, fewer bytes in the loop."""
+    import distnav.models.uwb.field_fits as field_fits
+    from distnav.commands.uwb import solve_range_log
+    from distnav.experiments.uwb_field import write_hall
+    from distnav.models.uwb.hall import PLANT_HARD
+
+    h = simulate_hall(np.random.default_rng([34, 18]), None, **PLANT_HARD, known="corner")
+    f = write_hall(h, tmp_path)
+    got = {}
+    for opens in (True, False):
+        monkeypatch.setattr(field_fits, "TIGHTEN_OPENS_LOOP", opens)
+        got[opens] = solve_range_log(
+            f["ranges"], f["known"], heights=f["heights"], options=FieldOptions(solver="N-CLM")
+        )[0]
+    now, before = got[True], got[False]
+    assert now.comm_phases["tighten"]["bytes"] == 0 and now.comm_phases["polish"]["bytes"] == 0
+    assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 3e-4
+    assert now.comm_phases["exclusions"]["bytes"] < 0.9 * before.comm_phases["exclusions"]["bytes"]

@@ -20,8 +20,10 @@ guess, a graduated robust solve, NLOS exclusion, per-anchor precision and the co
    last solution) but not the multi-start (LM fits); network totals: the residual scatter that sets the tight
    scale, the costs of all the links (revert, per-anchor check, polish), the link tests' robust scale. Their
    re-fits after an exclusion stop early and choose the next links only where the choice is decided with a
-   margin, one full fit ending the loop (``field_fits.REFIT_STAGES``); every warm fit starts from the last fit's
-   common offset and damping (``field_fits.CARRY_OFFSET``, ``CARRY_DAMPING``; issue 27, docs/economy_uwb.md).
+   margin (``field_fits.REFIT_STAGES``); the last tightening fit opens the loop as such a re-fit, and where the
+   polish follows, the loop ends on its decided early-stopped re-fit, else on one full fit (``TIGHTEN_OPENS_LOOP``,
+   ``LOOP_ENDS_LOOSE``); every warm fit starts from the last fit's common offset and damping
+   (``field_fits.CARRY_OFFSET``, ``CARRY_DAMPING``; issue 27, docs/economy_uwb.md).
 3. :func:`gather_cost`: what gathering every range at one anchor over the same graph would cost instead.
 
 The solve call goes to :func:`distnav.algorithms.ranging.csg.solve` by name, with ``objective`` passed when the solver
@@ -37,7 +39,6 @@ from typing import Any
 
 import numpy as np
 
-from distnav._blas import single_threaded_blas
 from distnav.algorithms.ranging.wire import comm_phases
 from distnav.errors import ModelError
 from distnav.models.uwb import field_fits
@@ -55,19 +56,22 @@ from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, 
 from distnav.models.uwb.field_steps import (
     DISAGREE_RATIO,
     MULTI_START_MAX_ANCHORS,
+    POLISH_BAND,
     POLISH_RATIO,
+    REFERENCE_BAND,
     START_TOLERANCES,
     all_links_cost,
     choose_start,
     exclude_worst,
+    kept_tests,
     make_fitter,
     offset_bias_m,
     polish_fit,
+    prepare,
     stage_name,
     tighten,
 )
 from distnav.models.uwb.geometry import GeometryReport, check_geometry
-from distnav.models.uwb.initial import mds_initial_guess
 from distnav.models.uwb.local import repair_exclusions
 from distnav.models.uwb.problems import RangingProblem
 from distnav.models.uwb.reliability import (
@@ -150,39 +154,6 @@ class FieldSolution:
         return self.status != "diverged"
 
 
-def prepare(
-    problem: RangingProblem,
-    *,
-    initial_m: FloatArray | None = None,
-    allow_planar_3d: bool = False,
-    rng: np.random.Generator | None = None,
-) -> tuple[RangingProblem, GeometryReport]:
-    """Geometry checks, the determined part, its initial guess (see the module docstring)."""
-    first = check_geometry(problem, allow_planar_3d=allow_planar_3d, rng=rng)
-    if not (first.solvable & problem.estimated).any():
-        raise ModelError("nothing to solve: " + ("; ".join(first.messages()) or "no estimated anchor"))
-    sub = problem.subset(first.solvable)
-    if initial_m is not None:
-        init = np.asarray(initial_m, float)[first.solvable]
-    else:
-        with single_threaded_blas():  # dense n × n SVD / products: one BLAS thread is 4× cheaper in CPU on 2 cores
-            init = mds_initial_guess(sub)
-    sub = sub.with_initial(init)
-    second = check_geometry(sub, allow_planar_3d=allow_planar_3d, rng=rng)
-    carried = tuple(i for i in first.issues if i.severity == "unsolved")
-    report = GeometryReport(
-        ids=problem.ids,
-        solvable=first.solvable,
-        issues=carried + second.issues,
-        planarity_known=second.planarity_known,
-        planarity_network=second.planarity_network,
-        notes=first.notes + second.notes,
-        planar_fit_ratio=second.planar_fit_ratio,
-    )
-    report.raise_if_refused()
-    return sub, report
-
-
 @dataclass(eq=False)
 class _Run:
     """What :func:`solve_field`'s steps share and update: the options in force (``opts``, tightened by the seed
@@ -202,9 +173,11 @@ class _Run:
     marks: dict[str, tuple[int, int]] = field(default_factory=dict)  # phase -> (messages, bytes) at its end
     no_exclusion: list[Any] = field(default_factory=list)  # the first robust fit, on every link
     carry: dict[str, Any] = field(default_factory=dict)  # the common offset handed from fit to fit (solve_once)
+    opening: Any = None  # the last tightening fit, tested, where it opens the exclusion loop (TIGHTEN_OPENS_LOOP)
+    last_full: Any = None  # the last fit at the solver's tolerances (a loop that ends loose did not end on it)
 
     def fit(self, sub: Any) -> Any:
-        r = self.fit_any(sub)
+        r = self.last_full = self.fit_any(sub)
         if not self.no_exclusion:
             self.no_exclusion.append(r)
         return r
@@ -215,6 +188,23 @@ class _Run:
     def cost_ratio(self, res: Any, than: Any) -> float:
         """All-links robust cost of ``res`` over that of ``than`` (:func:`all_links_cost`)."""
         return all_links_cost(self.problem, res, self.opts) / max(all_links_cost(self.problem, than, self.opts), 1e-12)
+
+    def reference_ratio(self, res: Any) -> float:
+        """:meth:`cost_ratio` of ``res`` to the robust fit of every link; where that is the loop's early-stopped
+        opening (``field_fits.TIGHTEN_OPENS_LOOP``) and the ratio within :data:`REFERENCE_BAND` of
+        :data:`DISAGREE_RATIO` or above, to that fit continued to the solver's tolerances (the revert's answer)."""
+        ratio = self.cost_ratio(res, self.no_exclusion[0])
+        if (
+            self.opening is not None
+            and self.no_exclusion[0] is self.opening
+            and ratio > DISAGREE_RATIO / REFERENCE_BAND
+        ):
+            self.starts.append(np.asarray(self.opening.estimates, float))
+            full = self.fit_any(self.problem)
+            if full.usable and full.tests is not None and np.all(np.isfinite(full.estimates)):
+                self.no_exclusion[0] = full
+                ratio = self.cost_ratio(res, full)
+        return ratio
 
 
 @dataclass(eq=False)
@@ -229,6 +219,7 @@ class _Fit:
     untested: bool = False  # LM's exclusion loop got no link tests (a singular normal matrix)
     reverted: float = 0.0  # the all-links cost ratio that rejected the exclusions (0: not rejected)
     fit_scale_m: float = 0.0  # the loss scale of the final fit
+    loose: bool = False  # res is an early-stopped re-fit that ended the loop (LOOP_ENDS_LOOSE): _complete
 
 
 def solve_field(
@@ -288,11 +279,12 @@ def _seed(run: _Run) -> None:
             run.note += start_note
     if not opts.nlos_aware:
         return
+    opens: list[Any] | None = [] if field_fits.opens_loop(opts.solver, opts.exclude, given.staged_tolerances) else None
     if best is None:  # the distributed solvers (and LM without multi-start): the first robust fit, graduated
         first_fit = solve_once(
             problem,
             opts.solver,
-            {**solver_kwargs(opts), "quality": False},
+            {**solver_kwargs(opts), "quality": opens is not None},  # it opens the loop where nothing is tightened
             opts.iterations,
             exchange=run.exchange,
             total=run.total,
@@ -301,6 +293,7 @@ def _seed(run: _Run) -> None:
             carry=run.carry,
         )
         best = np.asarray(first_fit.estimates, float) if first_fit.usable else None
+        opens = None if opens is None else [first_fit]
         run.mark("first_fit")
     if best is None or not np.all(np.isfinite(best)):
         return
@@ -315,9 +308,11 @@ def _seed(run: _Run) -> None:
         total=run.total,
         stage=stage_name(given, "seed"),
         carry=run.carry,
+        results=opens,
     )
     run.starts.append(best)
     run.mark("tighten")
+    run.opening = field_fits.opening_fit(opens)
     run.opts = dataclasses.replace(opts, loss_scale_m=tight)
     run.fit_any = make_fitter(run.opts, run.exchange, run.total, run.starts, carry=run.carry)
     if opts.solver.upper() != "LM" and given.staged_tolerances:  # the exclusion loop's re-fits stop early
@@ -339,7 +334,12 @@ def _exclusions(run: _Run) -> _Fit:
     """The exclusions tested at the robust solution (an NLOS link does not drag it; every re-fit robust too), and
     with ``repair`` the per-anchor check (:func:`_repair`); without ``exclude`` one fit of every link."""
     problem, opts = run.problem, run.opts
-    first = exclude_worst(problem, run.fit, opts, run.loose) if opts.exclude else None
+    if run.opening is not None and run.loose:  # the robust fit of every link: the opening (reference_ratio)
+        run.no_exclusion.append(run.opening)
+    else:
+        run.opening = None
+    confirm = not _ends_loose(run)
+    first = exclude_worst(problem, run.fit, opts, run.loose, run.opening, confirm) if opts.exclude else None
     if first is None:
         res = run.fit(problem)
         none = np.zeros(problem.n_meas, bool)
@@ -354,7 +354,7 @@ def _exclusions(run: _Run) -> _Fit:
         res, tests = first
         excluded = np.zeros(problem.n_meas, bool)
         excluded[list(tests.removed)] = True
-        fit = _Fit(res, excluded, tests.w, tests.flagged, float(tests.critical_value))
+        fit = _Fit(res, excluded, tests.w, tests.flagged, float(tests.critical_value), loose=res is not run.last_full)
         for _ in range(2 if opts.repair else 0):
             if not fit.res.usable or not _repair(run, fit):
                 break
@@ -374,12 +374,13 @@ def _repair(run: _Run, fit: _Fit) -> bool:
     )
     if not notes:
         return False
-    kept_idx = np.flatnonzero(~repaired)
+    kept = ~repaired  # (repaired becomes fit.excluded below, and is updated there)
+    kept_idx = np.flatnonzero(kept)
     seed = np.asarray(fit.res.estimates, float).copy()
     for k, at in moved.items():  # each changed anchor starts where its own links put it
         seed[k] = at
     run.starts.append(seed)
-    again = exclude_worst(subset_measurements(problem, ~repaired), run.fit, opts, run.loose)
+    again = exclude_worst(subset_measurements(problem, ~repaired), run.fit, opts, run.loose, None, not _ends_loose(run))
     if again is None:
         run.note += "; per-anchor check: its re-fit gave no link tests, kept the first choice"
         return False
@@ -388,12 +389,9 @@ def _repair(run: _Run, fit: _Fit) -> bool:
         run.note += "; per-anchor check: its re-solve fitted all the ranges worse, kept the first choice"
         return False
     if res2.usable:
-        fit.res, fit.excluded = res2, repaired
+        fit.res, fit.excluded, fit.loose = res2, repaired, res2 is not run.last_full
         fit.excluded[kept_idx[list(t2.removed)]] = True
-        fit.w = np.full(problem.n_meas, np.nan)
-        fit.w[kept_idx] = t2.w
-        fit.flagged = np.zeros(problem.n_meas, bool)
-        fit.flagged[kept_idx] = t2.flagged
+        fit.w, fit.flagged = kept_tests(problem.n_meas, kept, t2)
         run.note += "; per-anchor check: " + "; ".join(notes)
     return True
 
@@ -404,9 +402,11 @@ def _revert_and_polish(run: _Run, fit: _Fit) -> None:
     fits all the links no worse than :data:`POLISH_RATIO`."""
     opts, given, first = run.opts, run.given, run.no_exclusion
     if fit.excluded.any() and first and first[0].usable and fit.res.usable and opts.revert:
-        worse = run.cost_ratio(fit.res, first[0])
+        worse = run.reference_ratio(fit.res)
+        if fit.loose and worse > DISAGREE_RATIO / REFERENCE_BAND:
+            worse = run.reference_ratio(_complete(run, fit).res)
         if worse > DISAGREE_RATIO:  # the exclusions raised the robust cost of all the data: rejected
-            fit.reverted = worse
+            fit.reverted, fit.loose = worse, False
             fit.res = first[0]
             fit.excluded = np.zeros(run.problem.n_meas, bool)
             if fit.res.tests is not None:
@@ -416,8 +416,33 @@ def _revert_and_polish(run: _Run, fit: _Fit) -> None:
         polished, w2, f2 = polish_fit(
             run.problem, fit.res, fit.excluded, fit.w, fit.flagged, given, run.exchange, run.total, run.carry
         )
-        if run.cost_ratio(polished, fit.res) <= POLISH_RATIO:
-            fit.res, fit.w, fit.flagged, fit.fit_scale_m = polished, w2, f2, given.loss_scale_m
+        ratio = run.cost_ratio(polished, fit.res)
+        if fit.loose and ratio > POLISH_RATIO / POLISH_BAND:  # near the threshold: against the full fit
+            ratio = run.cost_ratio(polished, _complete(run, fit).res)
+        if ratio <= POLISH_RATIO:
+            fit.res, fit.w, fit.flagged, fit.fit_scale_m, fit.loose = polished, w2, f2, given.loss_scale_m, False
+    _complete(run, fit)
+
+
+def _ends_loose(run: _Run) -> bool:
+    """Whether the exclusion loop may end on a decided early-stopped re-fit (``field_fits.LOOP_ENDS_LOOSE``): where
+    the polish follows it, from its solution."""
+    given = run.given
+    polish = given.nlos_aware and given.polish and run.opts.loss_scale_m < given.loss_scale_m
+    return field_fits.LOOP_ENDS_LOOSE and bool(run.loose) and polish
+
+
+def _complete(run: _Run, fit: _Fit) -> _Fit:
+    """``fit`` where the loop ended on an early-stopped re-fit: that fit continued to the solver's tolerances on the
+    kept links (the fit the loop would have ended with), its tests over every measurement."""
+    if fit.loose:
+        fit.loose = False
+        run.starts.append(np.asarray(fit.res.estimates, float))
+        r = run.fit(subset_measurements(run.problem, ~fit.excluded))
+        if r.usable and r.tests is not None and np.all(np.isfinite(r.estimates)):
+            fit.res = r
+            fit.w, fit.flagged = kept_tests(run.problem.n_meas, ~fit.excluded, r.tests)
+    return fit
 
 
 def _diverged(run: _Run, fit: _Fit, geo: GeometryReport) -> FieldSolution:
@@ -504,7 +529,7 @@ def _whole_map_doubts(run: _Run, fit: _Fit, reasons: dict[str, str]) -> dict[str
         )
     first = run.no_exclusion
     if not fit.reverted and fit.excluded.any() and first and first[0].usable:
-        ratio = run.cost_ratio(fit.res, first[0])
+        ratio = run.reference_ratio(fit.res)
         fit.reverted = ratio if ratio > DISAGREE_RATIO else 0.0
     if fit.reverted:
         reasons = dict.fromkeys(every, "disagree: the exclusions and the robust fit of every link disagree")

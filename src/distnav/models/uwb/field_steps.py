@@ -12,28 +12,34 @@ from typing import Any
 
 import numpy as np
 
+from distnav._blas import single_threaded_blas
 from distnav.algorithms.ranging import csg
 from distnav.algorithms.ranging.neighbourhood_offsets import sample_bias
 from distnav.algorithms.ranging.qc import exclude_links
 from distnav.errors import ModelError
 from distnav.models.uwb.field_fits import solve_once, tighten_scale
 from distnav.models.uwb.field_options import FieldOptions, solver_kwargs, subset_measurements
-from distnav.models.uwb.initial import candidate_starts
+from distnav.models.uwb.geometry import GeometryReport, check_geometry
+from distnav.models.uwb.initial import candidate_starts, mds_initial_guess
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import BoolArray, FloatArray
 
 __all__ = [
     "DISAGREE_RATIO",
     "MULTI_START_MAX_ANCHORS",
+    "POLISH_BAND",
     "POLISH_RATIO",
+    "REFERENCE_BAND",
     "SAME_START_M",
     "START_TOLERANCES",
     "all_links_cost",
     "choose_start",
     "exclude_worst",
+    "kept_tests",
     "make_fitter",
     "offset_bias_m",
     "polish_fit",
+    "prepare",
     "stage_name",
     "tighten",
 ]
@@ -42,7 +48,46 @@ DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions wer
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
 MULTI_START_MAX_ANCHORS = 200  # larger networks: the prepared start only (each extra start is a full LM fit)
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
+#: the all-links cost ratio to an early-stopped robust fit of every link within this factor of DISAGREE_RATIO (or
+#: above) is decided against that fit continued to the solver's tolerances (``field._Run.reference_ratio``)
+REFERENCE_BAND = 1.25
+#: the polish's cost ratio to an early-stopped end of the exclusion loop above POLISH_RATIO / this is decided against
+#: that end continued to the solver's tolerances (``field._complete``)
+POLISH_BAND = 1.002
 POLISH_RATIO = 1.01  # 24 halls: ≤ 1.004 where the polish helped; 1.05 and 1.44 where it pulled a weak anchor back
+
+
+def prepare(
+    problem: RangingProblem,
+    *,
+    initial_m: FloatArray | None = None,
+    allow_planar_3d: bool = False,
+    rng: np.random.Generator | None = None,
+) -> tuple[RangingProblem, GeometryReport]:
+    """Geometry checks, the determined part, its initial guess (see :mod:`distnav.models.uwb.field`'s docstring)."""
+    first = check_geometry(problem, allow_planar_3d=allow_planar_3d, rng=rng)
+    if not (first.solvable & problem.estimated).any():
+        raise ModelError("nothing to solve: " + ("; ".join(first.messages()) or "no estimated anchor"))
+    sub = problem.subset(first.solvable)
+    if initial_m is not None:
+        init = np.asarray(initial_m, float)[first.solvable]
+    else:
+        with single_threaded_blas():  # dense n × n SVD / products: one BLAS thread is 4× cheaper in CPU on 2 cores
+            init = mds_initial_guess(sub)
+    sub = sub.with_initial(init)
+    second = check_geometry(sub, allow_planar_3d=allow_planar_3d, rng=rng)
+    carried = tuple(i for i in first.issues if i.severity == "unsolved")
+    report = GeometryReport(
+        ids=problem.ids,
+        solvable=first.solvable,
+        issues=carried + second.issues,
+        planarity_known=second.planarity_known,
+        planarity_network=second.planarity_network,
+        notes=first.notes + second.notes,
+        planar_fit_ratio=second.planar_fit_ratio,
+    )
+    report.raise_if_refused()
+    return sub, report
 
 
 def choose_start(problem: RangingProblem, opts: FieldOptions) -> tuple[FloatArray | None, str]:
@@ -190,11 +235,17 @@ def polish_fit(
     )
     if not (r.usable and np.all(np.isfinite(r.estimates)) and r.tests is not None):
         return res, w, flagged
-    w2 = np.full(problem.n_meas, np.nan)
-    w2[keep] = r.tests.w
-    f2 = np.zeros(problem.n_meas, bool)
-    f2[keep] = r.tests.flagged
-    return r, w2, f2
+    return (r, *kept_tests(problem.n_meas, keep, r.tests))
+
+
+def kept_tests(n_meas: int, keep: BoolArray, tests: Any) -> tuple[FloatArray, BoolArray]:
+    """``w`` and ``flagged`` over every measurement from the tests of a fit of the ``keep`` ones (NaN / False at
+    the others)."""
+    w = np.full(n_meas, np.nan)
+    w[keep] = tests.w
+    flagged = np.zeros(n_meas, bool)
+    flagged[keep] = tests.flagged
+    return w, flagged
 
 
 def exclude_worst(
@@ -202,11 +253,16 @@ def exclude_worst(
     fit: Callable[[Any], Any],
     opts: FieldOptions,
     loose: Sequence[tuple[Callable[[Any], Any], float]] = (),
+    opening: Any = None,
+    confirm: bool = True,
 ) -> tuple[Any, Any] | None:
     """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular).
     ``loose``: the re-fits after an exclusion stop early and decide only with a margin
     (:data:`~distnav.models.uwb.field_fits.REFIT_MARGIN_W`), one ``fit`` at the end
-    (:func:`~distnav.algorithms.ranging.qc.exclude_links`)."""
+    (:func:`~distnav.algorithms.ranging.qc.exclude_links`); ``opening``: the loop starts from that early-stopped
+    fit of ``problem`` (the last tightening fit, :data:`~distnav.models.uwb.field_fits.TIGHTEN_OPENS_LOOP`);
+    ``confirm`` False: the loop may end on a decided loose re-fit
+    (:data:`~distnav.models.uwb.field_fits.LOOP_ENDS_LOOSE`)."""
     try:
         per_round = opts.exclusions_per_round
         if per_round is not None:  # 3 on a 28-anchor plant; grows with the network (1000 anchors: 250 per re-fit)
@@ -218,6 +274,8 @@ def exclude_worst(
             one_sided=opts.one_sided,
             per_round=per_round,
             loose=loose,
+            opening=opening,
+            confirm=confirm,
         )
     except ModelError:
         return None
