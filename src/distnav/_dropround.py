@@ -21,6 +21,7 @@ from __future__ import annotations
 import ctypes
 import importlib.machinery
 import os
+import struct
 import sys
 from typing import TYPE_CHECKING, Any, cast
 
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
 
 __all__ = ["DropRound", "library", "lost_mask", "prepare"]
 
-_ABI = 3  # 3: one entry point taking its arguments in a struct (2: the kernels make the round key)
+_ABI = 4  # 4: what changes per round at the struct's end (3: one entry point taking a struct; 2: the round key)
 _LIB: list[Any] = []  # the loaded library, or None: looked up once, at the first fault round
 _P, _I, _U = ctypes.c_void_p, ctypes.c_int64, ctypes.c_uint64
 _MASK_ARGS = [_I, _P, _P, _P, _I, _U, _U, _P]
@@ -85,18 +86,38 @@ def _addr(a: np.ndarray) -> int:
 
 
 class _Args(ctypes.Structure):
-    """``dn_round_args`` of ``_dropround.c``: one fault round's arguments, passed by one pointer."""
+    """``dn_round_args`` of ``_dropround.c``: one fault round's arguments, passed by one pointer; what changes from
+    round to round (``_ROUND_FIELDS``) sits together at the end."""
 
     _fields_ = [
         ("kind", _I),
         ("n_rows", _I),
-        ("k", _I),
-        *((name, _P) for name in ("indptr", "indices", "data", "edges", "active", "dead_from")),
-        ("round_index", _I),
+        *((name, _P) for name in ("indptr", "indices", "data", "edges", "active")),
         ("seed", _U),
         ("threshold", _U),
-        *((name, _P) for name in ("cols", "self_w", "xl", "y", "lost_acc")),
+        *((name, _P) for name in ("self_w", "dead_from", "lost_acc")),
+        ("k", _I),
+        ("round_index", _I),
+        *((name, _P) for name in ("cols", "xl", "y")),
     ]
+
+
+_ROUND_FIELDS = ("k", "round_index", "cols", "xl", "y")
+
+
+def _round_packer() -> tuple[struct.Struct, int]:
+    """A packer writing ``_ROUND_FIELDS`` into the struct's memory in one call (a third of five ctypes attribute
+    sets), laid out from ctypes' own offsets and sizes (pointers are 4 bytes on a 32-bit build), and their offset."""
+    fmt, at = "=", getattr(_Args, _ROUND_FIELDS[0]).offset
+    first = at
+    for name in _ROUND_FIELDS:
+        field = getattr(_Args, name)
+        fmt += "x" * (field.offset - at) + {8: "q", 4: "i"}[field.size]
+        at = field.offset + field.size
+    return struct.Struct(fmt), first
+
+
+_PACK, _ROUND_AT = _round_packer()
 
 
 class DropRound:
@@ -110,7 +131,7 @@ class DropRound:
     keeps it unchanged (a new buffer is made then). No round allocates in such a loop and no address is looked up:
     the input is the last output, whose address is known."""
 
-    __slots__ = ("_args", "_byref", "_call", "_cols", "_dead", "_in", "_lost", "_out", "arrays", "n_rows")
+    __slots__ = ("_args", "_byref", "_call", "_cols", "_dead", "_in", "_lost", "_mem", "_out", "arrays", "n_rows")
 
     def __init__(self, lib: Any, kind: int, arrays: tuple[np.ndarray, ...], active: np.ndarray | None) -> None:
         self.arrays = (*arrays, active)  # kept alive: the kernel reads them through the addresses in the struct
@@ -119,6 +140,7 @@ class DropRound:
         a.indptr, a.indices, a.data, a.edges, a.self_w = (int(x.ctypes.data) for x in arrays)
         a.active = _ptr(active)
         self._byref = ctypes.byref(a)
+        self._mem = memoryview(a).cast("B")  # the struct's bytes, for _PACK
         self._call = lib.dn_fault_round
         self._lost: np.ndarray | None = None  # the lost counter whose address is in the struct
         self._dead: np.ndarray | None = None  # the dead-from array whose address is in the struct
@@ -133,14 +155,8 @@ class DropRound:
         self._args.seed, self._args.threshold = seed & _MASK64, threshold
 
     def _values(self, key: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, int]:
-        """The address of the values ``key`` (``flat``: the same as ``(n, k)``), C-ordered: an output of this
-        kernel's or the last input's is known; another is looked up (and held, when ``key``'s own memory is read)."""
-        for buf, addr in self._out:
-            if buf is key:
-                return flat, addr
-        held = self._in
-        if held is not None and held[0] is key:
-            return flat, held[1]
+        """``flat`` (the values ``key`` as ``(n, k)``) C-ordered and its address, for values that are neither an
+        output of this kernel's nor the last input (:meth:`run` knows those): held when ``key``'s own memory is read."""
         if not flat.flags.c_contiguous:
             flat = np.ascontiguousarray(flat)  # a copy of this round's values: the caller holds it for the call
         addr = _addr(flat)
@@ -148,41 +164,59 @@ class DropRound:
             self._in = (key, addr)
         return flat, addr
 
-    def _output(self, shape: tuple[int, ...], key: np.ndarray) -> tuple[np.ndarray, int]:
-        """A C-ordered float64 buffer of ``shape`` that nothing outside this object refers to, and its address."""
-        out = self._out
-        for buf, addr in out:
-            # references: the list's tuple, ``buf`` here and getrefcount's argument (a caller's name, a view or a
-            # container holding it adds one)
-            if sys.getrefcount(buf) <= 3 and buf.shape == shape:
-                return buf, addr
-        y = np.empty(shape)  # C order: the same memory as (n_rows, k)
+    def _new_output(self, key: np.ndarray) -> tuple[np.ndarray, int]:
+        """A new output buffer shaped as ``key``, held in place of one that is not this round's input."""
+        y = np.empty(key.shape)  # C order: the same memory as (n_rows, k)
         made = (y, _addr(y))
+        out = self._out
         if len(out) < 2:
             out.append(made)
-        else:  # replace the buffer that is not this round's input (the caller keeps the other)
+        else:  # the caller keeps the other (it is this round's input, or refers to both)
             out[0 if out[1][0] is key else 1] = made
         return made
 
     def run(
-        self, key: np.ndarray, flat: np.ndarray, cols: np.ndarray, lost_acc: np.ndarray, round_index: int, dead: Any
+        self,
+        key: np.ndarray,
+        flat: np.ndarray,
+        cols: np.ndarray,
+        lost_acc: np.ndarray,
+        round_index: int,
+        dead: Any,
+        width: int | None = None,
     ) -> np.ndarray:
         """One fault round on the values ``key`` (``(n_rows, ...)`` float64; ``flat``: the same as ``(n_rows, k)``)
         and ``cols`` (``(n_columns, k)``: the local values then the remote senders', or ``flat`` itself), with the
         seed and threshold of :meth:`set_faults`: returns the new values shaped as ``key``, adds each row's lost
         messages to ``lost_acc`` (int64, C order). ``dead``: per edge, the first round its message is dead (failed
-        link or silent sender), or None when no such fault has begun."""
-        a = self._args
+        link or silent sender), or None when no such fault has begun. ``width``: ``k``, when ``flat`` is ``key``
+        itself, 1-D (one float per node)."""
         in_place = cols is flat  # in-process the columns are the local values
-        flat, x_addr = self._values(key, flat)
-        c_addr = x_addr if in_place else self._columns(cols)
-        y, y_addr = self._output(key.shape, key)
+        out = self._out
+        x_addr = 0
+        for buf, addr in out:  # a loop ``x = mixer.apply(x)``: the last output
+            if buf is key:
+                x_addr = addr
+        if not x_addr:
+            held = self._in  # the same input again
+            x_addr = held[1] if held is not None and held[0] is key else 0
+            if not x_addr:
+                flat, x_addr = self._values(key, flat)
+        for buf, addr in out:
+            # a buffer nothing outside refers to: its references are the list's tuple, ``buf`` here and
+            # getrefcount's argument (a caller's name, a view or a container holding it adds one)
+            if sys.getrefcount(buf) <= 3 and buf.shape == key.shape:
+                y, y_addr = buf, addr
+                break
+        else:
+            y, y_addr = self._new_output(key)
         if lost_acc is not self._lost:  # the exchange's counter: the same array round after round
-            a.lost_acc, self._lost = _addr(lost_acc), lost_acc
+            self._args.lost_acc, self._lost = _addr(lost_acc), lost_acc
         if dead is not self._dead:
-            a.dead_from, self._dead = (None if dead is None else _addr(dead)), dead
-        a.k, a.round_index = flat.shape[1], round_index
-        a.xl, a.cols, a.y = x_addr, c_addr, y_addr
+            self._args.dead_from, self._dead = (None if dead is None else _addr(dead)), dead
+        c_addr = x_addr if in_place else self._columns(cols)
+        k = flat.shape[1] if width is None else width
+        _PACK.pack_into(self._mem, _ROUND_AT, k, round_index, c_addr, x_addr, y_addr)
         self._call(self._byref)
         return y
 
