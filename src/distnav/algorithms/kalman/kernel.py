@@ -93,8 +93,9 @@ def _inv_or_pinv(sub: FloatArray, rtol: float) -> tuple[FloatArray, BoolArray]:
         inv = np.linalg.inv(sub)
         # well-conditioned PD check: 1 ≤ (I⁻¹)_jj I_jj (Cauchy–Schwarz), large values flag near-singularity
         vif = np.diagonal(inv, axis1=1, axis2=2) * np.diagonal(sub, axis1=1, axis2=2)
-        if ((vif >= 1.0 - 1e-6) & (vif < 1e-3 / rtol)).all() and np.isfinite(inv).all():  # one reduction each
-            sym: np.ndarray = 0.5 * (inv + np.swapaxes(inv, 1, 2))
+        if vif.min() >= 1.0 - 1e-6 and vif.max() < 1e-3 / rtol and np.isfinite(inv).all():  # NaN fails both
+            sym: np.ndarray = inv + np.swapaxes(inv, 1, 2)
+            sym *= 0.5  # 0.5 (I⁻¹ + I⁻ᵀ) in place: the same products, one temporary less
             return sym, np.ones((k, m), bool)
     except np.linalg.LinAlgError:
         pass
@@ -177,8 +178,11 @@ class InformationKernel:
             MH = M @ H
             K = np.swapaxes(MH, 1, 2) @ H + St_inv  # Hᵀ M H + S̃⁻¹, (k,q,q)
         G = MH @ np.linalg.inv(K)  # M H K⁻¹, (k,p,q)
-        I_new = M - G @ np.swapaxes(MH, 1, 2)
-        self.I = 0.5 * (I_new + np.swapaxes(I_new, 1, 2))
+        I_new = G @ np.swapaxes(MH, 1, 2)
+        np.subtract(M, I_new, out=I_new)
+        I_sym = I_new + np.swapaxes(I_new, 1, 2)
+        I_sym *= 0.5
+        self.I = I_sym
         vH = v[:, sel] if sel is not None else v @ H
         self.i = v - (G @ vH[..., None])[..., 0]
         new: list[FloatArray] = []
@@ -189,7 +193,9 @@ class InformationKernel:
             BQH = BQ[:, :, sel] if sel is not None else BQ @ H  # (k,p,q)
             F = G @ St_inv
             Q_new = BQ - BQH @ np.swapaxes(G, 1, 2) + F @ (_St @ np.swapaxes(F, 1, 2))
-            new.append(0.5 * (Q_new + np.swapaxes(Q_new, 1, 2)))
+            Q_sym = Q_new + np.swapaxes(Q_new, 1, 2)
+            Q_sym *= 0.5
+            new.append(Q_sym)
         self.Qs = new
 
     def measurement_update(
@@ -204,8 +210,10 @@ class InformationKernel:
 
         ``extra_errors`` gives one term per propagated variance (:attr:`Qs`) instead (``None`` entries: nothing).
         """
-        self.I = self.I + scale * N
-        self.i = self.i + scale * r
+        if scale == 1.0:  # 1·x is x: the same sums without the products
+            self.I, self.i = self.I + N, self.i + r
+        else:
+            self.I, self.i = self.I + scale * N, self.i + scale * r
         terms: Sequence[FloatArray | None] = extra_errors if extra_errors else [extra_error]
         for j, term in enumerate(terms):
             if j < len(self.Qs) and term is not None:
@@ -214,7 +222,8 @@ class InformationKernel:
     def error_covariance(self, inverse: FloatArray, which: int = 0) -> FloatArray:
         """``P = I⁺ Q I⁺`` of variance ``which`` (symmetrized), given ``inverse`` = ``I⁺`` from :meth:`estimates`."""
         P = inverse @ self.Qs[which] @ inverse
-        out: FloatArray = 0.5 * (P + np.swapaxes(P, 1, 2))
+        out: FloatArray = P + np.swapaxes(P, 1, 2)
+        out *= 0.5
         return out
 
     def estimates(self) -> tuple[FloatArray, BoolArray, FloatArray, FloatArray | None]:

@@ -143,8 +143,10 @@ class Collector:
         self.dsb_std = np.full((n_epochs, q), np.nan)
 
     def step(self, t: int, x: np.ndarray, est: np.ndarray, P: np.ndarray | None) -> None:
-        """The filter's state after the measurement update of epoch ``t`` (copied: filters may reuse arrays)."""
-        self._buf.append((t, x.copy(), est.copy(), None if P is None else P.copy()))
+        """The filter's state after the measurement update of epoch ``t``, kept as given, not copied: the filters
+        of :mod:`~distnav.models.gnss.gfnetwork` hand out new arrays every epoch (a caller that reuses its arrays
+        must pass copies)."""
+        self._buf.append((t, x, est, P))
         if len(self._buf) >= BLOCK:
             self._flush()
 
@@ -215,8 +217,10 @@ class Collector:
         E = np.stack([b[2] for b in buf])
         self.tec[ts] = np.where(E[:, :nt], X[:, :nt], np.nan)
         hasP = np.array([b[3] is not None for b in buf])
-        if hasP.any():
-            d = np.stack([np.diagonal(b[3]) for b in buf if b[3] is not None])
+        Ps = np.stack([b[3] for b in buf if b[3] is not None]) if hasP.any() else None  # the epochs with P
+        at = np.cumsum(hasP) - 1  # epoch j's row in Ps (where hasP)
+        if Ps is not None:
+            d = np.diagonal(Ps, axis1=1, axis2=2)
             self.tec_std[ts[hasP]] = np.where(E[hasP, :nt], np.sqrt(np.maximum(d[:, :nt], 0.0)), np.nan)
         groups: dict[bytes, list[int]] = {}
         for j, b in enumerate(buf):
@@ -246,9 +250,10 @@ class Collector:
                 continue
             val = Xz[js] @ rows.Tz.T
             sd = np.full(val.shape, np.nan)
-            withP = [j for j in js if buf[j][3] is not None]
+            withP = [j for j in js if hasP[j]]
             if withP:
-                Pz = np.stack([buf[j][3] for j in withP])
+                assert Ps is not None
+                Pz = Ps if len(withP) == Ps.shape[0] else Ps[at[withP]]  # (not changed below: np.where copies)
                 Pz = np.where(np.isfinite(Pz), Pz, 0.0)
                 sd[hasP[js]] = np.sqrt(np.maximum(((rows.Tz @ Pz) * rows.Tz).sum(axis=2), 0.0))  # diag(T P Tᵀ)
                 if withP[-1] > last_j:
