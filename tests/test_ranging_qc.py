@@ -334,10 +334,9 @@ def test_a_near_critical_link_behind_a_pick_of_its_anchor_does_not_leave_the_cho
     assert qc._always_blocked(np.array([7.0, 3.3, 5.0]), a, b, [0, 2], 3.29, 0.1).tolist() == [False, True, False]
 
 
-def test_a_ladder_of_loose_fits_climbs_only_where_a_choice_is_open():
-    """exclude_links with two loose rungs (issue 27, sixth session: 1 cm, then 3 mm): a choice the first rung leaves
-    open goes to the second, which decides it with its smaller margin; where a decided choice ends the loop, the
-    full fit confirms it at once (the second rung is not run there). The same links as the full fit alone."""
+def _three_flagged():
+    """The ring with three flagged links (N0-N1, N0-N2 of one anchor, N4-N5), the links the full fit alone excludes,
+    and a loose fit's reading of them: N0-N2 and N4-N5 0.05 off, far from each other and from 3.29."""
     p = _ring()
     pair = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(p.meas_a, p.meas_b, strict=True))}
     w = np.zeros(p.n_meas)
@@ -345,6 +344,14 @@ def test_a_ladder_of_loose_fits_climbs_only_where_a_choice_is_open():
     alone = exclude_links(p, _Scripted(p, w))[2].removed
     near = w.copy()
     near[pair[(0, 2)]], near[pair[(4, 5)]] = -7.95, -7.05
+    return p, pair, w, alone, near
+
+
+def test_a_ladder_of_loose_fits_climbs_only_where_a_choice_is_open():
+    """exclude_links with two loose rungs (issue 27, sixth session: 1 cm, then 3 mm): a choice the first rung leaves
+    open goes to the second, which decides it with its smaller margin; where a decided choice ends the loop, the
+    full fit confirms it at once (the second rung is not run there). The same links as the full fit alone."""
+    p, pair, w, alone, near = _three_flagged()
     full, coarse, fine = _Scripted(p, w), _Scripted(p, near), _Scripted(p, near)
     assert exclude_links(p, full, loose=[(coarse, 0.1), (fine, 0.02)])[2].removed == alone
     assert (full.calls, coarse.calls, fine.calls) == (2, 3, 0)  # every choice decided by the coarse rung
@@ -354,3 +361,24 @@ def test_a_ladder_of_loose_fits_climbs_only_where_a_choice_is_open():
     full, coarse, fine = _Scripted(p, w), _Scripted(p, blur), _Scripted(p, near)
     assert exclude_links(p, full, loose=[(coarse, 0.1), (fine, 0.02)])[2].removed == alone
     assert fine.calls >= 1 and full.calls == 2  # the fine rung decided; the full fit: the first and the end
+
+
+def test_an_opening_fit_starts_the_loop_at_the_first_rung():
+    """exclude_links with ``opening`` (issue 27, seventh session: the workflow's last tightening fit, stopped at 1 cm
+    and tested): the loop starts from it as from a loose re-fit — a decided choice is taken without a full fit of
+    every link, an open one goes to the next fit — and excludes the same links as the full fit alone; without a
+    loose rung the opening is not used (the full fit first, as before)."""
+    p, pair, w, alone, near = _three_flagged()
+    full, loose = _Scripted(p, w), _Scripted(p, near)
+    opening = _Scripted(p, near)(p)
+    assert exclude_links(p, full, loose=[(loose, 0.1)], opening=opening)[2].removed == alone
+    assert (full.calls, loose.calls) == (1, 3)  # no full fit of every link (only the loop's end); three re-fits
+    # the opening reads N4-N5 at 3.3, within the margin of 3.29: open, the full fit of every link decides
+    blur = w.copy()
+    blur[pair[(0, 2)]], blur[pair[(4, 5)]] = -7.95, -3.3
+    full, loose = _Scripted(p, w), _Scripted(p, near)
+    assert exclude_links(p, full, loose=[(loose, 0.1)], opening=_Scripted(p, blur)(p))[2].removed == alone
+    assert full.calls == 2
+    full = _Scripted(p, w)
+    assert exclude_links(p, full, opening=_Scripted(p, blur)(p))[2].removed == alone
+    assert full.calls == 4  # no loose rung: the opening is ignored (the first fit and three re-fits, all full)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import ctypes
 import importlib.machinery
 import os
+import sys
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -100,11 +101,16 @@ class _Args(ctypes.Structure):
 
 class DropRound:
     """A mixer's in-edge block prepared for the kernel: the arrays held, their addresses and every argument that
-    does not change between rounds set once in the argument struct; a round sets the round index and the value and
-    output addresses and makes one ctypes call with one prepared argument (issue 27: the per-round Python cost
-    counts at 10³ nodes, where a whole round takes a few µs)."""
+    does not change between rounds set once in the argument struct; a round sets only what changed (the round
+    index; the value, column and output addresses when they moved) and makes one ctypes call with one prepared
+    argument (issue 27: the per-round Python cost counts at 10³ nodes, where a whole round takes a few µs).
 
-    __slots__ = ("_args", "_byref", "_call", "_lost", "_seen", "arrays", "n_rows")
+    Outputs come from two held buffers, each reused only when nothing outside this object refers to it any more
+    (its reference count): a loop ``x = mixer.apply(x)`` alternates between them and a caller that keeps a result
+    keeps it unchanged (a new buffer is made then). No round allocates in such a loop and no address is looked up:
+    the input is the last output, whose address is known."""
+
+    __slots__ = ("_args", "_byref", "_call", "_cols", "_dead", "_in", "_lost", "_out", "arrays", "n_rows")
 
     def __init__(self, lib: Any, kind: int, arrays: tuple[np.ndarray, ...], active: np.ndarray | None) -> None:
         self.arrays = (*arrays, active)  # kept alive: the kernel reads them through the addresses in the struct
@@ -115,29 +121,48 @@ class DropRound:
         self._byref = ctypes.byref(a)
         self._call = lib.dn_fault_round
         self._lost: np.ndarray | None = None  # the lost counter whose address is in the struct
-        # the last two value arrays seen with their addresses (a loop ``x = mixer.apply(x)`` passes the last output,
-        # a benchmark the same input): held, so neither is freed and its id reused while it is here
-        self._seen: list[tuple[np.ndarray, int]] = []
+        self._dead: np.ndarray | None = None  # the dead-from array whose address is in the struct
+        # the output buffers with their addresses, and the last other input and column arrays with theirs: held, so
+        # none is freed and its address reused by another array while it is here
+        self._out: list[tuple[np.ndarray, int]] = []
+        self._in: tuple[np.ndarray, int] | None = None
+        self._cols: tuple[np.ndarray, int] | None = None
 
     def set_faults(self, seed: int, threshold: int) -> None:
         """The schedule's seed and drop threshold ``⌈p·2⁵³⌉·2¹¹``: the same every round, set once."""
         self._args.seed, self._args.threshold = seed & _MASK64, threshold
 
     def _values(self, key: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, int]:
-        """``flat`` (the values ``key`` as ``(n, k)``) C-ordered, and its address: taken once for an array seen in
-        the last two rounds."""
-        for held, addr in self._seen:
-            if held is key:
+        """The address of the values ``key`` (``flat``: the same as ``(n, k)``), C-ordered: an output of this
+        kernel's or the last input's is known; another is looked up (and held, when ``key``'s own memory is read)."""
+        for buf, addr in self._out:
+            if buf is key:
                 return flat, addr
+        held = self._in
+        if held is not None and held[0] is key:
+            return flat, held[1]
         if not flat.flags.c_contiguous:
-            flat = np.ascontiguousarray(flat)
+            flat = np.ascontiguousarray(flat)  # a copy of this round's values: the caller holds it for the call
         addr = _addr(flat)
         if key.flags.c_contiguous:  # ``flat`` is a view of ``key``'s own values: the address stays
-            self._remember(key, addr)
+            self._in = (key, addr)
         return flat, addr
 
-    def _remember(self, values: np.ndarray, addr: int) -> None:
-        self._seen = [self._seen[-1], (values, addr)] if self._seen else [(values, addr)]
+    def _output(self, shape: tuple[int, ...], key: np.ndarray) -> tuple[np.ndarray, int]:
+        """A C-ordered float64 buffer of ``shape`` that nothing outside this object refers to, and its address."""
+        out = self._out
+        for buf, addr in out:
+            # references: the list's tuple, ``buf`` here and getrefcount's argument (a caller's name, a view or a
+            # container holding it adds one)
+            if sys.getrefcount(buf) <= 3 and buf.shape == shape:
+                return buf, addr
+        y = np.empty(shape)  # C order: the same memory as (n_rows, k)
+        made = (y, _addr(y))
+        if len(out) < 2:
+            out.append(made)
+        else:  # replace the buffer that is not this round's input (the caller keeps the other)
+            out[0 if out[1][0] is key else 1] = made
+        return made
 
     def run(
         self, key: np.ndarray, flat: np.ndarray, cols: np.ndarray, lost_acc: np.ndarray, round_index: int, dead: Any
@@ -150,20 +175,26 @@ class DropRound:
         a = self._args
         in_place = cols is flat  # in-process the columns are the local values
         flat, x_addr = self._values(key, flat)
-        y = np.empty(key.shape)  # C order: the same memory as (n_rows, k)
+        c_addr = x_addr if in_place else self._columns(cols)
+        y, y_addr = self._output(key.shape, key)
         if lost_acc is not self._lost:  # the exchange's counter: the same array round after round
             a.lost_acc, self._lost = _addr(lost_acc), lost_acc
-        a.k, a.round_index, a.xl = flat.shape[1], round_index, x_addr
-        a.dead_from = None if dead is None else _addr(dead)
-        if in_place:
-            a.cols = x_addr
-        else:
-            cols = np.ascontiguousarray(cols)  # held until the call returns
-            a.cols = _addr(cols)
-        a.y = y_addr = _addr(y)
+        if dead is not self._dead:
+            a.dead_from, self._dead = (None if dead is None else _addr(dead)), dead
+        a.k, a.round_index = flat.shape[1], round_index
+        a.xl, a.cols, a.y = x_addr, c_addr, y_addr
         self._call(self._byref)
-        self._remember(y, y_addr)  # the next round's values, in a loop ``x = mixer.apply(x)``
         return y
+
+    def _columns(self, cols: np.ndarray) -> int:
+        """The address of the columns, C-ordered: the MPI exchange's column buffer is the same array every round."""
+        held = self._cols
+        if held is not None and held[0] is cols:
+            return held[1]
+        c = np.ascontiguousarray(cols)
+        addr = _addr(c)
+        self._cols = (cols, addr) if c is cols else (c, addr)  # a copy is held until the next round takes another
+        return addr
 
 
 def prepare(

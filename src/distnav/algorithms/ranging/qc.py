@@ -269,6 +269,7 @@ def exclude_links(
     one_sided: bool = False,
     per_round: int | None = 1,
     loose: Sequence[tuple[Callable[[RangingData], RangingResult], float]] = (),
+    opening: RangingResult | None = None,
 ) -> tuple[RangingResult, RangingData, ObservationTests]:
     """Iterative exclusion: while a link is flagged, remove the link (all its samples) with the largest |w| whose
     two anchors keep more links than free coordinates (the network stays determined with a check), and re-fit.
@@ -293,6 +294,10 @@ def exclude_links(
     and tests, and excludes what ``fit`` alone would have excluded wherever each margin bounds the change of |w|
     up to ``fit``'s solution.
 
+    ``opening`` (issue 27, seventh session): a fit of the whole ``problem`` already made, stopped as early as the
+    first of ``loose`` (the workflow's last tightening fit, with its tests): the loop starts from it at that rung
+    instead of with ``fit(problem)`` — its choice taken only where decided with that margin, as a re-fit's.
+
     ``fit(subproblem)`` solves a problem and returns a result with ``tests`` (LM with QC, or a distributed solver).
     Returns ``(final result, the problem without the excluded links, tests)`` where the tests hold the final
     ``w`` of every original sample (NaN for excluded ones), ``flagged`` in the final solution and ``removed`` =
@@ -301,7 +306,7 @@ def exclude_links(
     keep = np.ones(problem.n_meas, bool)
     removed: list[int] = []
     ladder = [*loose, (fit, 0.0)]
-    res, level = fit(problem), len(ladder) - 1
+    res, level = (opening, 0) if opening is not None and loose else (fit(problem), len(ladder) - 1)
     sub = problem
     limit = problem.n_meas if max_exclusions is None else int(max_exclusions)
     n_links = 0

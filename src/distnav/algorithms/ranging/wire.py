@@ -40,14 +40,17 @@ and what it received before. So :class:`Wire`
    :data:`STEP_DTYPE`): the receiver knows the accepted ones (acceptance is decided on a network total)
    and the sender moves by the rounded step (:meth:`Wire.rounded`), so both ends hold the same parameters bit
    for bit — a step rounded to 24 bits is another inexact LM step (CG's forcing term is 0.1); the objective,
-   the gradient and so the fixed point are evaluated at parameters every end agrees on.
+   the gradient and so the fixed point are evaluated at parameters every end agrees on;
+7. sends CG's reduced dot products (float16, :data:`CG_DOT_DTYPE`) after a CG run's first reduction **on the
+   exponent each slot carried last** (:data:`HELD_DOTS`, :func:`held_scalars`): 2 B a value instead of 3 where it
+   lies in float16's normal range on it — the same 11 bits, so the same values bit for bit.
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -78,6 +81,9 @@ __all__ = [
     "KNOWN_FROM_PROBLEM",
     "HELD_EXPONENT",
     "HELD_FROM_LAST_FIT",
+    "HELD_DOTS",
+    "HeldScalars",
+    "held_scalars",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
@@ -141,6 +147,10 @@ KNOWN_FROM_PROBLEM = True
 #: a warm fit's first parameters are not sent from an anchor whose receivers hold them from the last fit
 #: (``Wire(held_m=...)``, item 6 of the module docstring); False: sent as :data:`KNOWN_FROM_PROBLEM` says
 HELD_FROM_LAST_FIT = True
+#: CG's reduced dot products (float16, :data:`CG_DOT_DTYPE`) after a CG run's first reduction: each value on the
+#: exponent its slot carried last (per anchor's share and for the total), 2 B instead of 3 where every share and the
+#: total lie in its window (:func:`held_scalars`; issue 27, seventh session) — the same values bit for bit
+HELD_DOTS = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -375,6 +385,26 @@ def _on_held_exponent(rows: np.ndarray, held: list[np.ndarray]) -> tuple[np.ndar
     out[keep, 2 * k] = e[keep].astype(np.int8).view(np.uint8)
     held[0] = np.where(keep, e, own)
     return out, np.where(keep, 2 * k, 2 * k + 1).astype(np.int64)
+
+
+@dataclass
+class HeldScalars:
+    """One CG run's held exponents of one reduction's values (:data:`HELD_DOTS`): every anchor's share's and the
+    network total's (empty at the run's start; :func:`held_scalars` fills and updates them)."""
+
+    shares: list[np.ndarray] = field(default_factory=list)
+    total: list[np.ndarray] = field(default_factory=list)
+
+
+def held_scalars(values: np.ndarray, held: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """``values`` ``(n, f)`` as :func:`pack_scalars` rounds them — float16 of each value scaled by a power of two,
+    11 significant bits — and per value whether it travelled on its slot's held exponent (2 B) or carried a new one
+    (3 B; every value of a run's first reduction): :func:`_on_held_exponent` with one value per row. A value whose
+    own exponent lies within the window (``e − 13`` … ``e + 15`` of the held ``e``) is a normal float16 on ``e``,
+    so it keeps the same 11 bits: the returned values equal :func:`pack_scalars`'s bit for bit either way."""
+    v = np.asarray(values, float)
+    packed, sizes = _on_held_exponent(v.reshape(-1, 1), held)
+    return unpack_half(packed, 1).reshape(v.shape), (sizes == 2).reshape(v.shape)
 
 
 def _encode(rows: np.ndarray, dtype: type[np.floating]) -> np.ndarray:

@@ -56,6 +56,7 @@ from distnav.models.uwb.field_steps import (
     DISAGREE_RATIO,
     MULTI_START_MAX_ANCHORS,
     POLISH_RATIO,
+    REFERENCE_BAND,
     START_TOLERANCES,
     all_links_cost,
     choose_start,
@@ -202,6 +203,7 @@ class _Run:
     marks: dict[str, tuple[int, int]] = field(default_factory=dict)  # phase -> (messages, bytes) at its end
     no_exclusion: list[Any] = field(default_factory=list)  # the first robust fit, on every link
     carry: dict[str, Any] = field(default_factory=dict)  # the common offset handed from fit to fit (solve_once)
+    opening: Any = None  # the last tightening fit, tested, where it opens the exclusion loop (TIGHTEN_OPENS_LOOP)
 
     def fit(self, sub: Any) -> Any:
         r = self.fit_any(sub)
@@ -215,6 +217,23 @@ class _Run:
     def cost_ratio(self, res: Any, than: Any) -> float:
         """All-links robust cost of ``res`` over that of ``than`` (:func:`all_links_cost`)."""
         return all_links_cost(self.problem, res, self.opts) / max(all_links_cost(self.problem, than, self.opts), 1e-12)
+
+    def reference_ratio(self, res: Any) -> float:
+        """:meth:`cost_ratio` of ``res`` to the robust fit of every link; where that is the loop's early-stopped
+        opening (``field_fits.TIGHTEN_OPENS_LOOP``) and the ratio within :data:`REFERENCE_BAND` of
+        :data:`DISAGREE_RATIO` or above, to that fit continued to the solver's tolerances (the revert's answer)."""
+        ratio = self.cost_ratio(res, self.no_exclusion[0])
+        if (
+            self.opening is not None
+            and self.no_exclusion[0] is self.opening
+            and ratio > DISAGREE_RATIO / REFERENCE_BAND
+        ):
+            self.starts.append(np.asarray(self.opening.estimates, float))
+            full = self.fit_any(self.problem)
+            if full.usable and full.tests is not None and np.all(np.isfinite(full.estimates)):
+                self.no_exclusion[0] = full
+                ratio = self.cost_ratio(res, full)
+        return ratio
 
 
 @dataclass(eq=False)
@@ -304,6 +323,7 @@ def _seed(run: _Run) -> None:
         run.mark("first_fit")
     if best is None or not np.all(np.isfinite(best)):
         return
+    opens: list[Any] | None = [] if field_fits.opens_loop(opts.solver, opts.exclude, given.staged_tolerances) else None
     best, tight, _ = tighten_scale(
         problem,
         best,
@@ -315,9 +335,11 @@ def _seed(run: _Run) -> None:
         total=run.total,
         stage=stage_name(given, "seed"),
         carry=run.carry,
+        results=opens,
     )
     run.starts.append(best)
     run.mark("tighten")
+    run.opening = field_fits.opening_fit(opens)
     run.opts = dataclasses.replace(opts, loss_scale_m=tight)
     run.fit_any = make_fitter(run.opts, run.exchange, run.total, run.starts, carry=run.carry)
     if opts.solver.upper() != "LM" and given.staged_tolerances:  # the exclusion loop's re-fits stop early
@@ -339,7 +361,11 @@ def _exclusions(run: _Run) -> _Fit:
     """The exclusions tested at the robust solution (an NLOS link does not drag it; every re-fit robust too), and
     with ``repair`` the per-anchor check (:func:`_repair`); without ``exclude`` one fit of every link."""
     problem, opts = run.problem, run.opts
-    first = exclude_worst(problem, run.fit, opts, run.loose) if opts.exclude else None
+    if run.opening is not None and run.loose:  # the robust fit of every link: the opening (reference_ratio)
+        run.no_exclusion.append(run.opening)
+    else:
+        run.opening = None
+    first = exclude_worst(problem, run.fit, opts, run.loose, run.opening) if opts.exclude else None
     if first is None:
         res = run.fit(problem)
         none = np.zeros(problem.n_meas, bool)
@@ -404,7 +430,7 @@ def _revert_and_polish(run: _Run, fit: _Fit) -> None:
     fits all the links no worse than :data:`POLISH_RATIO`."""
     opts, given, first = run.opts, run.given, run.no_exclusion
     if fit.excluded.any() and first and first[0].usable and fit.res.usable and opts.revert:
-        worse = run.cost_ratio(fit.res, first[0])
+        worse = run.reference_ratio(fit.res)
         if worse > DISAGREE_RATIO:  # the exclusions raised the robust cost of all the data: rejected
             fit.reverted = worse
             fit.res = first[0]
@@ -504,7 +530,7 @@ def _whole_map_doubts(run: _Run, fit: _Fit, reasons: dict[str, str]) -> dict[str
         )
     first = run.no_exclusion
     if not fit.reverted and fit.excluded.any() and first and first[0].usable:
-        ratio = run.cost_ratio(fit.res, first[0])
+        ratio = run.reference_ratio(fit.res)
         fit.reverted = ratio if ratio > DISAGREE_RATIO else 0.0
     if fit.reverted:
         reasons = dict.fromkeys(every, "disagree: the exclusions and the robust fit of every link disagree")

@@ -36,6 +36,9 @@ __all__ = [
     "refit_margin_w",
     "CARRY_OFFSET",
     "CARRY_HELD",
+    "TIGHTEN_OPENS_LOOP",
+    "opens_loop",
+    "opening_fit",
 ]
 
 REFIT_TOLERANCES = {"ftol": 1e-10, "xtol": 1e-10}  # LM's defaults are 1e-12 (first fit)
@@ -72,6 +75,11 @@ MU_FLOOR = 1e-6
 #: a warm distributed fit's LM phase sends no first parameters from an anchor whose ranged neighbours hold its start
 #: bit for bit from the last fit (:func:`_held`, ``RunOptions.refine_held_m``; issue 27 sixth session, item 23)
 CARRY_HELD = True
+#: a distributed solver's last tightening fit (all the links, at the tight scale, stopped at the seed's 1 cm) is
+#: tested and opens the exclusion loop as its first early-stopped re-fit (``qc.exclude_links(opening=…)``), its choice
+#: taken where decided with the re-fit's margin, instead of a full fit of every link from its solution (issue 27,
+#: seventh session; the robust fit of every link, the revert's reference, is completed only where a ratio needs it)
+TIGHTEN_OPENS_LOOP = True
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
 
@@ -162,18 +170,21 @@ def tighten_scale(
     total: list[int] | None = None,
     stage: str | None = None,
     carry: dict[str, Any] | None = None,
+    results: list[Any] | None = None,
 ) -> tuple[FloatArray, float, int]:
     """The one-sided fit of every link by ``solver``, its loss scale halved from ``scale_m`` (each fit warm from the
     last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger (``stage``:
     :func:`solve_once`'s, and ``carry``); a distributed solver with :data:`TIGHTEN_JUMP` goes to that target at
     once, the target recomputed at each fit's solution (the loop ends where it no longer falls). Returns
-    ``(positions, final scale, fits)`` (see :func:`distnav.models.uwb.field.tighten`).
+    ``(positions, final scale, fits)`` (see :func:`distnav.models.uwb.field.tighten`). ``results``: each fit's result
+    is appended to it, and the fits run with their link tests (``quality``; :data:`TIGHTEN_OPENS_LOOP`: the last one,
+    at the final scale, opens the exclusion loop).
 
     Why the jump (issue 27): each halving is one more distributed fit (its start and its rounds; 166 kB of 937 on
     the plant-like hall ``[78, 0]``); the halvings only lead the solution through the intermediate scales, and on
     12 plant-like halls the jump ended within 0.063 mm of them, the same links excluded, the tight scale within
     2.1 % (docs/economy_uwb.md, fifth session). Not for LM, whose fits send nothing."""
-    kw = {**kw, "quality": False}
+    kw = {**kw, "quality": results is not None}
     pos = np.asarray(start_m, float)
     scale, fits = float(scale_m), 0
     jump = TIGHTEN_JUMP and solver.upper() != "LM"
@@ -196,10 +207,31 @@ def tighten_scale(
             carry=carry,
         )
         fits += 1
+        if results is not None:
+            results.append(r)
         if not (r.usable and np.all(np.isfinite(r.estimates))):
             break
         pos = np.asarray(r.estimates, float)
     return pos, scale, fits
+
+
+def opens_loop(solver: str, exclude: bool, staged: bool) -> bool:
+    """Whether a distributed solver's last tightening fit opens the exclusion loop (:data:`TIGHTEN_OPENS_LOOP`):
+    with exclusions and staged tolerances, the seed's stop no looser than the loop's first early-stopped re-fit's,
+    whose margin (:func:`refit_margin_w`) then decides its choice."""
+    if not (TIGHTEN_OPENS_LOOP and exclude and staged and REFIT_STAGES) or solver.upper() == "LM":
+        return False
+    seed, rung = STAGE_TOLERANCES["seed"], STAGE_TOLERANCES[REFIT_STAGES[0]]
+    return seed[0] <= rung[0] and seed[1] <= rung[1]
+
+
+def opening_fit(results: list[Any] | None) -> Any:
+    """The last tightening fit (:func:`tighten_scale`'s ``results``; run at the final scale) where it can open the
+    exclusion loop: usable and tested; None otherwise."""
+    r = results[-1] if results else None
+    if r is None or not (r.usable and r.tests is not None and np.all(np.isfinite(r.estimates))):
+        return None
+    return r
 
 
 def refit_margin_w(stage: str, sigma_m: float) -> float:

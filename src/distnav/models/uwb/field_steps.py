@@ -26,6 +26,7 @@ __all__ = [
     "DISAGREE_RATIO",
     "MULTI_START_MAX_ANCHORS",
     "POLISH_RATIO",
+    "REFERENCE_BAND",
     "SAME_START_M",
     "START_TOLERANCES",
     "all_links_cost",
@@ -42,6 +43,9 @@ DISAGREE_RATIO = 1.5  # on 24 simulated halls: ≤ 1.37 where the exclusions wer
 START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins; the chosen one is refined
 MULTI_START_MAX_ANCHORS = 200  # larger networks: the prepared start only (each extra start is a full LM fit)
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
+#: the all-links cost ratio to an early-stopped robust fit of every link within this factor of DISAGREE_RATIO (or
+#: above) is decided against that fit continued to the solver's tolerances (``field._Run.reference_ratio``)
+REFERENCE_BAND = 1.25
 POLISH_RATIO = 1.01  # 24 halls: ≤ 1.004 where the polish helped; 1.05 and 1.44 where it pulled a weak anchor back
 
 
@@ -202,11 +206,13 @@ def exclude_worst(
     fit: Callable[[Any], Any],
     opts: FieldOptions,
     loose: Sequence[tuple[Callable[[Any], Any], float]] = (),
+    opening: Any = None,
 ) -> tuple[Any, Any] | None:
     """csg's exclusion loop; None when a re-fit returns no tests (e.g. its normal matrix became singular).
     ``loose``: the re-fits after an exclusion stop early and decide only with a margin
     (:data:`~distnav.models.uwb.field_fits.REFIT_MARGIN_W`), one ``fit`` at the end
-    (:func:`~distnav.algorithms.ranging.qc.exclude_links`)."""
+    (:func:`~distnav.algorithms.ranging.qc.exclude_links`); ``opening``: the loop starts from that early-stopped
+    fit of ``problem`` (the last tightening fit, :data:`~distnav.models.uwb.field_fits.TIGHTEN_OPENS_LOOP`)."""
     try:
         per_round = opts.exclusions_per_round
         if per_round is not None:  # 3 on a 28-anchor plant; grows with the network (1000 anchors: 250 per re-fit)
@@ -218,6 +224,7 @@ def exclude_worst(
             one_sided=opts.one_sided,
             per_round=per_round,
             loose=loose,
+            opening=opening,
         )
     except ModelError:
         return None
