@@ -189,7 +189,7 @@ class Collector:
                 Sn = self.dynamics.noise_cov_block(t_in)
                 Pm = np.where(ep[:, :, None] & ep[:, None, :], Pp + Sn, 0.0)
                 v = np.where(kept, yr - (Ar @ np.where(ep, xp, 0.0)[..., None])[..., 0], 0.0)
-                Qv = Ar @ Pm @ np.swapaxes(Ar, 1, 2)
+                Qv = Ar @ Pm @ Ar.swapaxes(1, 2)
                 dq = np.arange(M)
                 Qv[:, dq, dq] += np.where(kept, 1.0 / np.where(kept, wr, 1.0), 1.0)  # R + A P⁻ Aᵀ (padding: 1)
                 self.ssr += float((v * np.linalg.solve(Qv, v[..., None])[..., 0]).sum())
@@ -220,7 +220,7 @@ class Collector:
         Ps = np.stack([b[3] for b in buf if b[3] is not None]) if hasP.any() else None  # the epochs with P
         at = np.cumsum(hasP) - 1  # epoch j's row in Ps (where hasP)
         if Ps is not None:
-            d = np.diagonal(Ps, axis1=1, axis2=2)
+            d = Ps.diagonal(axis1=1, axis2=2)
             self.tec_std[ts[hasP]] = np.where(E[hasP, :nt], np.sqrt(np.maximum(d[:, :nt], 0.0)), np.nan)
         groups: dict[bytes, list[int]] = {}
         for j, b in enumerate(buf):
