@@ -156,8 +156,7 @@ class InformationKernel:
 
     def time_update(self, dyn: DynamicModel, t: int) -> None:
         """Predict from epoch ``t − 1`` to ``t`` with the model of that step (eqs. (19)–(21)); ``Q`` alongside."""
-        Finv = dyn.transition_inverse_at(t)
-        H, _St, St_inv = dyn.noise_factor_at(t)
+        Finv, H, _St, St_inv, sel = dyn.update_at(t)
         M, v = self.I, self.i
         Qs = self.Qs
         if Finv is not None:
@@ -168,9 +167,6 @@ class InformationKernel:
         if q == 0:
             self.I, self.i, self.Qs = M, v, Qs
             return
-        sel: np.ndarray | slice | None = dyn.noise_slice_at(t)
-        if sel is None:
-            sel = dyn.noise_selection_at(t)
         if sel is not None:  # H = columns `sel` of the identity (eq. (20)): slicing instead of products
             MH = M[:, :, sel]  # (k,p,q)
             K = MH[:, sel, :] + St_inv
