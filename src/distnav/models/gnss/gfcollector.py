@@ -189,7 +189,9 @@ class Collector:
                 xp, ep, Pp = (a[rows_in[0] : rows_in[0] + len(rows_in)] for a in stacked)
             else:
                 xp, ep, Pp = (a[rows_in] for a in stacked)
-            rows = (w > 0) & ~((A != 0) & ~ep[:, None, :]).any(axis=2)  # no coefficient on an inestimable entry
+            every = bool(ep.all())  # every entry estimable before every epoch (most blocks): no masks needed
+            # the rows with no coefficient on an inestimable entry
+            rows = (w > 0) if every else (w > 0) & ~((A != 0) & ~ep[:, None, :]).any(axis=2)
             M = int(rows.sum(axis=1).max())
             if M:
                 order = np.argsort(~rows, axis=1, kind="stable")[:, :M]  # each epoch's rows first, padded
@@ -198,8 +200,8 @@ class Collector:
                 wr = np.take_along_axis(w, order, axis=1)
                 yr = np.take_along_axis(y, order, axis=1)
                 Sn = self.dynamics.noise_cov_block(t_in)
-                Pm = np.where(ep[:, :, None] & ep[:, None, :], Pp + Sn, 0.0)
-                v = np.where(kept, yr - (Ar @ np.where(ep, xp, 0.0)[..., None])[..., 0], 0.0)
+                Pm = Pp + Sn if every else np.where(ep[:, :, None] & ep[:, None, :], Pp + Sn, 0.0)
+                v = np.where(kept, yr - (Ar @ (xp if every else np.where(ep, xp, 0.0))[..., None])[..., 0], 0.0)
                 Qv = Ar @ Pm @ Ar.swapaxes(1, 2)
                 dq = np.arange(M)
                 Qv[:, dq, dq] += np.where(kept, 1.0 / np.where(kept, wr, 1.0), 1.0)  # R + A P⁻ Aᵀ (padding: 1)
@@ -265,7 +267,8 @@ class Collector:
             if withP:
                 assert Ps is not None
                 Pz = Ps if len(withP) == Ps.shape[0] else Ps[at[withP]]  # (not changed below: np.where copies)
-                Pz = np.where(np.isfinite(Pz), Pz, 0.0)
+                if not np.isfinite(Pz).all():  # (else the same numbers without a copy)
+                    Pz = np.where(np.isfinite(Pz), Pz, 0.0)
                 sd[hasP[js]] = np.sqrt(np.maximum(((rows.Tz @ Pz) * rows.Tz).sum(axis=2), 0.0))  # diag(T P Tᵀ)
                 if withP[-1] > last_j:
                     last_j, last_rows = withP[-1], rows
