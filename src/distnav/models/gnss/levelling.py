@@ -239,8 +239,16 @@ def find_arcs(
     g: list[float] = g_arr.tolist()
     w: list[float] = w_arr.tolist()
     lli_bits: list[int] | None = None if lli is None else (np.asarray(lli).astype(np.int64) & 1).tolist()
+    # the GF prediction error from the two previous data epochs, for all at once (the same IEEE operations in the
+    # same order): the scan takes it where those two are the arc's last two (no outlier between), else computes it
+    ia = np.asarray(idx, np.int64)
+    ta, ga = np.asarray(t_s, float)[ia], g_arr[ia]
+    dt_a = ta[1:-1] - ta[:-2]
+    pred_a = ga[1:-1] + (ga[1:-1] - ga[:-2]) * (ta[2:] - ta[1:-1]) / np.where(1e-9 > dt_a, 1e-9, dt_a)
+    err_at: list[float] = [0.0, 0.0, *(ga[2:] - pred_a).tolist()]
     cur = -1
     hist: list[int] = []  # epochs of the current arc
+    last_pos = prev_pos = -9  # positions in idx of hist[-1], hist[-2]
     nh = 0  # len(hist); the conditionals below are max() as Python evaluates it (the same floats, fewer calls)
     mw_sum = mw_sq = 0.0
     gf_ms = 0.0  # the satellite's recent mean square GF prediction error (kept across arcs)
@@ -256,10 +264,12 @@ def find_arcs(
             reason = "lli"
         else:
             if nh >= 2:
-                k1, k2 = hist[-1], hist[-2]
-                dt = t[k1] - t[k2]
-                pred = g[k1] + (g[k1] - g[k2]) * (t[k] - t[k1]) / (1e-9 if 1e-9 > dt else dt)
-                err = g[k] - pred
+                if last_pos == pos - 1 and prev_pos == pos - 2:
+                    err = err_at[pos]
+                else:
+                    k1, k2 = hist[-1], hist[-2]
+                    dt = t[k1] - t[k2]
+                    err = g[k] - (g[k1] + (g[k1] - g[k2]) * (t[k] - t[k1]) / (1e-9 if 1e-9 > dt else dt))
                 lim_gf = gf_threshold_m
                 n_warm = len(warm)
                 if gf_sigmas > 0 and n_warm >= 3:
@@ -294,6 +304,7 @@ def find_arcs(
             mw_sum = mw_sq = 0.0
         arc[k] = cur
         hist.append(k)
+        prev_pos, last_pos = last_pos, pos
         nh += 1
         mw_sum += w[k]
         mw_sq += w[k] ** 2
