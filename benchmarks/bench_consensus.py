@@ -14,7 +14,8 @@ n = 10³, 10⁴, 10⁵, 10⁶ (10⁶ only without ``--quick``), payloads of 1 an
   against the fault-free mixer's on the same graph and values, in CPU time. Goal ≤ 1.5×. ``fault round`` in the
   row's name says which path ran: ``compiled`` (the optional kernel ``distnav._dropround``, built by pip from
   setup.py) or ``numpy`` (not built here, or ``DISTNAV_NO_KERNEL`` set). The drop rows against the bare drop round
-  name it too.
+  name it too. With the kernel, the row also splits the drop round's time: ``kernel_call_ms`` (the C round through
+  one ctypes call, the struct of the last round) and ``python_ms`` (the rest of ``Mixer.apply``).
 * set-up (exchange + mixer, including the RCM) is reported separately, as is the graph build.
 * **peak memory** (item "peak memory, consensus at 10⁶ nodes"): ``mem_consensus.py`` in a fresh process per mode,
   distnav (builder graph, weights, exchange, mixer, 5 rounds) against the bare arrays of the same run written
@@ -95,7 +96,29 @@ def drop_vs_fault_free(lossy: Mixer, clean: Mixer, x_loc: np.ndarray, *, repeat:
             t[key].append((time.process_time() - t0) / (5 * number))
     name = f"consensus round, 10% drops vs fault-free round, CPU time ({_fault_path(lossy)} fault round)"
     floor = "fault-free consensus round (Mixer.apply, same graph and values)"
-    return _drop_row(name, int(x_loc.shape[0]), 1, {k: np.asarray(v) for k, v in t.items()}, floor)
+    row = _drop_row(name, int(x_loc.shape[0]), 1, {k: np.asarray(v) for k, v in t.items()}, floor)
+    kernel = lossy._kernel
+    if isinstance(kernel, DropRound):  # where the round's time goes: the C round through ctypes, and the rest
+        row["kernel_call_ms"] = _kernel_call_ms(kernel, 5 * number, 2 * repeat + 1)
+        row["python_ms"] = row["distnav_ms"] - row["kernel_call_ms"]
+    return row
+
+
+def _kernel_call_ms(kernel: DropRound, number: int, batches: int) -> float:
+    """The compiled round alone, called through ctypes with the argument struct of the last round (median CPU
+    time of ``batches`` batches of ``number`` calls): what ``Mixer.apply`` adds is the rest. The calls add to the
+    exchange's lost counter: it is restored after."""
+    lost = kernel._lost
+    saved = None if lost is None else lost.copy()
+    times = []
+    for _ in range(batches):
+        t0 = time.process_time()
+        for _ in range(number):
+            kernel._call(kernel._byref)
+        times.append((time.process_time() - t0) / number)
+    if lost is not None and saved is not None:
+        lost[:] = saved
+    return float(np.median(times)) * 1e3
 
 
 def _drop_row(name: str, n: int, payload: int, t: dict[str, np.ndarray], floor: str) -> dict[str, Any]:

@@ -167,6 +167,9 @@ def test_admm_rows_conditions_18_and_fig6_as_printed():
     assert _row(rows, "C = {1,2,3,4,5,6,7,8,9} satisfies")["verdict"] == "differ"
     assert _row(rows, "Fig. 6 as printed")["verdict"] == "differ"
     assert "0.005" in _row(rows, "Fig. 6 as printed")["distnav_value"]  # the value comes from the results
+    other = copy.deepcopy(r)
+    other["fig5_conditions_18"]["C_reduced"]["nodes_1_based"] = [1, 3, 4, 6]  # (18) holds, but not the paper's C
+    assert _row(admm(other), "C = {1,3,4,9} satisfies")["verdict"] == "differ"
 
 
 def codebias_results() -> dict[str, Any]:
@@ -328,19 +331,26 @@ def test_setup_and_illustration_rows_are_stated_not_measured():
     assert tested and all(r["verdict"] == "agree" and r["test"] for r in tested)
 
 
-def test_a_missing_field_gives_a_not_checkable_row_naming_it_in_rows_of_and_in_checked():
-    from distnav.experiments.claims import checked, claim, get, rows_of
+def test_a_claims_table_row_by_row_a_missing_field_keeps_the_claim_and_names_the_field():
+    from distnav.experiments.claims import Claim, get, rows_from, stated
 
-    def value() -> Any:
-        return get({"a": {}}, "a", "b")
+    def value(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+        return get(r, "a", "b"), get(r, "a", "b") > 2, "w"
 
-    stated = {"paper": "002", "distnav_value": None, "verdict": "not checkable", "test": ""}
-    lacks = "results.json lacks 'a.b'"
-    made = rows_of(
-        [lambda: claim(paper="002", where="§5", text="t", paper_value=1, distnav_value=value(), ok=True)], "002"
+    table = (
+        Claim("§5", "t", 1, "x", value),
+        Claim("§6", "u", 2, "", value),
+        Claim("Fig. 1", "v", "illustration", "", stated("not in results.json: why")),
     )
-    assert made == [
-        stated | {"where": "—", "claim": "(a claim this run cannot evaluate)", "paper_value": None, "why": lacks}
+    lacks = {"distnav_value": None, "verdict": "not checkable", "test": "", "why": "results.json lacks 'a.b'"}
+    rows = rows_from("002", table, {"a": {}})
+    assert rows[0] == {"paper": "002", "where": "§5", "claim": "t", "paper_value": 1} | lacks
+    assert rows[1] == {"paper": "002", "where": "§6", "claim": "u", "paper_value": 2} | lacks
+    stated_row = {"paper": "002", "where": "Fig. 1", "claim": "v", "paper_value": "illustration"}
+    assert rows[2] == stated_row | lacks | {"why": "not in results.json: why"}
+    rows = rows_from("002", table, {"a": {"b": 3}})
+    assert [(r["distnav_value"], r["verdict"], r["test"], r["why"]) for r in rows[:2]] == [
+        (3, "agree", "x", "w"),
+        (3, "agree", "", "w; no test pins it yet"),  # a measured row no test pins says so
     ]
-    row = checked(paper="002", where="§5", text="t", paper_value=1, test="x", measure=lambda: (value(), True, "w"))
-    assert row == stated | {"where": "§5", "claim": "t", "paper_value": 1, "why": lacks}
+    assert rows_from("002", table, {"a": {"b": 1}})[0]["verdict"] == "differ"

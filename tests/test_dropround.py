@@ -206,3 +206,95 @@ def test_read_only_and_strided_values():
     x.setflags(write=False)
     a, b = fast.apply(x), slow.apply(x)
     assert isinstance(fast._kernel, dr.DropRound) and np.array_equal(_bits(a), _bits(b))
+
+
+@needs_kernel
+def test_reused_outputs_never_overwrite_a_result_the_caller_holds():
+    """The kernel writes into two held buffers, reusing one only when nothing outside refers to it: results kept in
+    a list, through a view or under a name must keep their values while later rounds run (each equal, bit for bit,
+    to the numpy path's round), and a loop ``x = mixer.apply(x)`` alternates between the two buffers."""
+    g = builders.connected_random_geometric(300, mean_degree=8, rng=np.random.default_rng(12))
+    fast, slow = _pair(g, SCHEDULES["drops"], "auto", None)
+    x = fast.exchange.local(np.random.default_rng(13).normal(size=g.n_nodes))
+    kept, refs, views = [], [], []
+    xf = xs = x
+    for step in range(12):
+        xf, xs = fast.apply(xf), slow.apply(xs)
+        assert np.array_equal(_bits(xf), _bits(xs)), step
+        if step % 3 == 0:
+            kept.append(xf)  # held by a list
+            refs.append(xs.copy())
+        elif step % 3 == 1:
+            views.append((xf[::2], xs[::2].copy()))  # only a view of it held
+    for got, ref in zip(kept, refs, strict=True):
+        assert np.array_equal(_bits(got), _bits(ref))
+    for got, ref in views:
+        assert np.array_equal(_bits(got), _bits(ref))
+    # with nothing held, a loop runs in the kernel's two buffers: no new output array per round
+    kernel = fast._kernel
+    assert isinstance(kernel, dr.DropRound)
+    del kept, views
+    for step in range(6):
+        xf, xs = fast.apply(xf), slow.apply(xs)
+        assert np.array_equal(_bits(xf), _bits(xs))
+        assert step == 0 or any(buf is xf for buf, _ in kernel._out), step  # one of the kernel's own buffers
+    assert fast.exchange.comm_totals().as_dict() == slow.exchange.comm_totals().as_dict()
+
+
+@needs_kernel
+def test_one_float_per_node_shortcut_and_what_it_leaves_to_the_general_path():
+    """In a block without remote senders, one float64 per node goes straight to the kernel (apply's general path
+    skipped); other dtypes and shapes still take the general path: float32 and integer values are converted (the
+    numpy path's bits), a wrong length is refused with the shape named."""
+    from distnav.errors import ExchangeError
+
+    g = builders.connected_random_geometric(250, mean_degree=8, rng=np.random.default_rng(14))
+    fast, slow = _pair(g, _with_links(SCHEDULES["links and silent"], g), "auto", None)
+    rng = np.random.default_rng(15)
+    x = fast.exchange.local(rng.normal(size=g.n_nodes))
+    inputs = [x, x.astype(np.float32), (100 * x).astype(np.int64), x, x.reshape(-1, 1)]
+    for step, inp in enumerate(inputs):
+        out_f, out_s = fast.apply(inp), slow.apply(inp)
+        assert out_f.shape == out_s.shape == inp.shape and np.array_equal(_bits(out_f), _bits(out_s)), step
+        assert fast._kernel_vector == (g.n_nodes,)  # the shortcut is prepared after the first round
+    with pytest.raises(ExchangeError, match=r"got array of shape \(249,\)"):
+        fast.apply(x[:-1])
+    assert fast.exchange.comm_totals().as_dict() == slow.exchange.comm_totals().as_dict()
+
+
+@needs_kernel
+def test_a_plan_that_is_not_the_schedules_own_keeps_the_numpy_path():
+    """The field exchange's plan also drops what its network lost (``_NetworkPlan``), which the kernel cannot see: a
+    mixer whose exchange has such a plan takes the numpy path, and the extra losses show in the round (checked
+    against the round recomputed by hand from the plan's own decisions)."""
+
+    class _ExtraLossPlan:  # a FaultPlan that also loses edge 0's message, as the field's plan wraps the schedule's
+        def __init__(self, plan: FaultPlan) -> None:
+            self._plan = plan
+
+        def delivered(self, round_index: int) -> np.ndarray:
+            ok = np.array(self._plan.delivered(round_index))
+            ok[0] = False
+            return ok
+
+        def __getattr__(self, name: str) -> object:
+            return getattr(self._plan, name)
+
+    g = builders.ring(6)
+    w = consensus_weights(g, "P3")
+    schedule = FaultSchedule(drop_probability=0.2, seed=3)
+    ex = make_exchange(g, faults=schedule)
+    plan = ex._fault_plan
+    ex.__dict__["_fault_plan"] = _ExtraLossPlan(plan)
+    m = ex.mixer(w)
+    x = np.random.default_rng(2).normal(size=6)
+    got = m.apply(x)
+    assert m._kernel is None
+    ok = plan.delivered(0).copy()
+    ok[0] = False
+    src, dst = ex.in_src, ex.nodes[ex.in_dst]
+    dense = w.to_dense()
+    ref = np.diag(dense) * x
+    for e in range(ex.in_edges.size):
+        ref[dst[e]] += dense[dst[e], src[e]] * (x[src[e]] if ok[e] else x[dst[e]])
+    assert not ok[0] and np.allclose(got, ref, atol=1e-14)

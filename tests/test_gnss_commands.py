@@ -262,3 +262,26 @@ def test_sp3_and_broadcast_orbits_give_the_same_biases(shared_data: Path, tmp_pa
     assert a["satellites"] == b["satellites"] and len(a["satellites"]) >= 4
     for s in a["satellites"]:
         assert abs(a["x_ns"][s] - b["x_ns"][s]) < 0.01 * a["sigma_ns"][s]
+
+
+def test_default_graph_spanning_tree_is_scipys_ties_included() -> None:
+    """default_graph's own Kruskal (issue 32, gnss9: no scipy.sparse import in a run) picks the links scipy's
+    minimum_spanning_tree picks, on random stations and on grids and repeated positions where distances tie."""
+    from scipy.sparse.csgraph import minimum_spanning_tree
+
+    from distnav.commands.gnss_common import _spanning_tree
+
+    rng = np.random.default_rng(9)
+    cases = [rng.normal(0.0, 3e6, (n, 3)) for n in (2, 3, 5, 12, 40) for _ in range(4)]
+    cases += [np.array([[x, y, 0.0] for x in range(r) for y in range(c)]) * 1e3 for r, c in ((2, 2), (3, 4), (5, 5))]
+    cases += [np.repeat(rng.normal(0.0, 1e6, (4, 3)), 3, axis=0)]  # stations at the same place: 1e-9 weights
+    for xyz in cases:
+        n = len(xyz)
+        w = np.linalg.norm(xyz[:, None] - xyz[None], axis=-1) + 1e-9 * (1 - np.eye(n))
+        ref = minimum_spanning_tree(w).tocoo()
+        want = {(min(i, j), max(i, j)) for i, j in zip(ref.row.tolist(), ref.col.tolist(), strict=True)}
+        got = {(min(i, j), max(i, j)) for i, j in _spanning_tree(w)}
+        assert got == want and len(got) == n - 1
+    names = [f"S{i}" for i in range(12)]
+    graph = default_graph(cases[12], names)
+    assert graph.n_nodes == 12

@@ -308,3 +308,29 @@ def test_a_removed_satellite_on_a_real_session_datum_part_and_estimation_part(sh
     predicted = np.sqrt(np.maximum(dvar, 0.0)) * factor
     assert np.all(np.abs(estimation_part) < 3.0 * predicted)
     assert np.abs(estimation_part).max() > 0.01 and predicted.max() > 0.01
+
+
+def test_error_ratio_interval_matches_a_monte_carlo_of_chi2() -> None:
+    """The 90 % interval of RMS(error/σ) against a product (issue 32, gnss9) is what chance gives when σ is right:
+    a Monte Carlo of n errors of the stated σ, aligned to zero mean like the comparison, falls below / above it
+    5 % of the time each; without the alignment the same holds for ``datum_dof=0``, and the n-dof interval would
+    be wrong for aligned errors (the datum's lost degree of freedom matters at 15 satellites)."""
+    from distnav.models.gnss.datum import error_ratio_interval
+
+    rng = np.random.default_rng(32)
+    draws = 200_000  # a 5 % tail share has MC σ 0.0005
+    for n in (15, 21, 31):
+        sigma_ns = 0.8
+        e = sigma_ns * rng.standard_normal((draws, n))
+        raw = np.sqrt(np.mean((e / sigma_ns) ** 2, axis=1))
+        aligned = np.sqrt(np.mean(((e - e.mean(axis=1, keepdims=True)) / sigma_ns) ** 2, axis=1))
+        lo, hi = error_ratio_interval(n)
+        assert abs(np.mean(aligned < lo) - 0.05) < 0.003 and abs(np.mean(aligned > hi) - 0.05) < 0.003
+        lo0, hi0 = error_ratio_interval(n, datum_dof=0)
+        assert abs(np.mean(raw < lo0) - 0.05) < 0.003 and abs(np.mean(raw > hi0) - 0.05) < 0.003
+        if n == 15:
+            assert np.mean(aligned < lo0) > 0.07  # the n-dof interval misplaces the aligned errors
+    lo, hi = error_ratio_interval(21, level=0.5)
+    assert 0.7 < lo < 1.0 < hi < 1.3
+    with pytest.raises(ModelError, match="n_satellites > datum_dof"):
+        error_ratio_interval(1)

@@ -235,3 +235,25 @@ def test_a_bad_field_is_named_by_its_line_before_a_later_bad_epoch(tmp_path: Pat
         read_observation_types(p, ["C1C"])
     p.write_text(head + ok + ok.replace(" 0.0", "30.0"))
     assert read_observation_types(p, ["C1C", "C2W"]).values["C2W"].tolist() == [[22000001.0], [22000001.0]]
+
+
+def test_epoch_time_is_numpys_parse_of_the_minute() -> None:
+    """The reader's epoch (issue 32, gnss9: the hour parsed once, minute and seconds added in ns) is the
+    datetime64 numpy parses from each epoch's minute plus the seconds, and refuses what that parse refuses."""
+    from distnav.formats.gnss.rinex_obs import _epoch_time
+
+    def parsed(y: int, mo: int, d: int, h: int, mi: int, sec: float) -> np.datetime64:
+        base = np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}T{h:02d}:{mi:02d}", "ns")
+        return base + np.timedelta64(int(round(sec * 1e9)), "ns")
+
+    rng = np.random.default_rng(32)
+    for _ in range(3000):
+        y, mo, d, h, mi = (int(rng.integers(a, b)) for a, b in ((1980, 2090), (1, 13), (1, 29), (0, 24), (0, 60)))
+        sec = float(np.round(rng.uniform(-1.0, 61.0), 7))
+        got, want = _epoch_time(y, mo, d, h, mi, sec), parsed(y, mo, d, h, mi, sec)
+        assert got == want and got.dtype == want.dtype
+    for bad in ((2024, 13, 1, 0, 0, 0.0), (2023, 2, 29, 0, 0, 0.0), (2024, 1, 1, 24, 0, 0.0), (2024, 1, 1, 0, 60, 0.0)):
+        with pytest.raises(ValueError):
+            parsed(*bad)
+        with pytest.raises(ValueError):
+            _epoch_time(*bad)

@@ -17,7 +17,9 @@
  *
  * Two phases per block of rows, so the hash vectorizes: the keep factors of a block's edges (at most KEEP_BLOCK,
  * a longer row in pieces), then the rows. On x86-64 Linux with GCC the drop-only keep phase is compiled for
- * AVX-512, AVX2 and the baseline and chosen at load time (target_clones); integer arithmetic, the same bits. */
+ * AVX-512, AVX2 and the baseline and chosen at load time (target_clones); integer arithmetic, the same bits. The
+ * round itself is cloned too (issue 27: 3 % of a 10^3-node round in VEX-encoded scalar code; no fused multiply-add
+ * with -ffp-contract=off, so the same bits). */
 #include <stdint.h>
 
 #if defined(_WIN32)
@@ -41,7 +43,7 @@ static inline uint64_t dn_splitmix64(uint64_t x) {
     return z ^ (z >> 31);
 }
 
-DN_EXPORT int dn_abi_version(void) { return 3; }
+DN_EXPORT int dn_abi_version(void) { return 4; }
 
 /* The key of a round, as FaultPlan._keys. */
 DN_EXPORT uint64_t dn_round_key(uint64_t seed, uint64_t round_index) {
@@ -109,10 +111,11 @@ typedef struct {
         }                                                                                                            \
         r->sum = sum, r->lostw = lostw, r->kept = kept;                                                              \
     }                                                                                                                \
-    DN_EXPORT void NAME(int64_t n_rows, int64_t k, const IDX *indptr, const IDX *indices, const double *data,        \
-                        const EDGE *edges, const uint8_t *active, const int64_t *dead_from, int64_t round_index,    \
-                        uint64_t seed, uint64_t threshold, const double *cols, const double *self_w,                 \
-                        const double *xl, double *y, int64_t *lost_acc) {                                           \
+    DN_EXPORT DN_CLONES void NAME(int64_t n_rows, int64_t k, const IDX *indptr, const IDX *indices,                  \
+                                  const double *data, const EDGE *edges, const uint8_t *active,                      \
+                                  const int64_t *dead_from, int64_t round_index, uint64_t seed, uint64_t threshold,  \
+                                  const double *cols, const double *self_w, const double *xl, double *y,             \
+                                  int64_t *lost_acc) {                                                               \
         const dn_faults f = {active, dead_from, round_index, dn_round_key(seed, (uint64_t)round_index), threshold};                                        \
         double keep[KEEP_BLOCK];                                                                                     \
         int64_t i = 0;                                                                                               \
@@ -185,15 +188,17 @@ DN_ROUND(dn_fault_round_i64_e64, int64_t, int64_t, dn_keep_e64)
  * addresses) in a prepared struct and passes one pointer: a call from ctypes then converts one argument, not 16
  * (about 1 us of the few us a 10^3-node round takes). kind: 0..3 for i32_e32, i32_e64, i64_e32, i64_e64. */
 typedef struct {
-    int64_t kind, n_rows, k;
+    int64_t kind, n_rows;
     const void *indptr, *indices, *data, *edges;
     const uint8_t *active;
-    const int64_t *dead_from;
-    int64_t round_index;
     uint64_t seed, threshold;
-    const double *cols, *self_w, *xl;
-    double *y;
+    const double *self_w;
+    const int64_t *dead_from;
     int64_t *lost_acc;
+    /* what changes from round to round, together at the end: the caller writes them in one step */
+    int64_t k, round_index;
+    const double *cols, *xl;
+    double *y;
 } dn_round_args;
 
 DN_EXPORT void dn_fault_round(const dn_round_args *a) {

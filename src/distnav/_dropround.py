@@ -21,6 +21,8 @@ from __future__ import annotations
 import ctypes
 import importlib.machinery
 import os
+import struct
+import sys
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -30,7 +32,7 @@ if TYPE_CHECKING:
 
 __all__ = ["DropRound", "library", "lost_mask", "prepare"]
 
-_ABI = 3  # 3: one entry point taking its arguments in a struct (2: the kernels make the round key)
+_ABI = 4  # 4: what changes per round at the struct's end (3: one entry point taking a struct; 2: the round key)
 _LIB: list[Any] = []  # the loaded library, or None: looked up once, at the first fault round
 _P, _I, _U = ctypes.c_void_p, ctypes.c_int64, ctypes.c_uint64
 _MASK_ARGS = [_I, _P, _P, _P, _I, _U, _U, _P]
@@ -84,27 +86,52 @@ def _addr(a: np.ndarray) -> int:
 
 
 class _Args(ctypes.Structure):
-    """``dn_round_args`` of ``_dropround.c``: one fault round's arguments, passed by one pointer."""
+    """``dn_round_args`` of ``_dropround.c``: one fault round's arguments, passed by one pointer; what changes from
+    round to round (``_ROUND_FIELDS``) sits together at the end."""
 
     _fields_ = [
         ("kind", _I),
         ("n_rows", _I),
-        ("k", _I),
-        *((name, _P) for name in ("indptr", "indices", "data", "edges", "active", "dead_from")),
-        ("round_index", _I),
+        *((name, _P) for name in ("indptr", "indices", "data", "edges", "active")),
         ("seed", _U),
         ("threshold", _U),
-        *((name, _P) for name in ("cols", "self_w", "xl", "y", "lost_acc")),
+        *((name, _P) for name in ("self_w", "dead_from", "lost_acc")),
+        ("k", _I),
+        ("round_index", _I),
+        *((name, _P) for name in ("cols", "xl", "y")),
     ]
+
+
+_ROUND_FIELDS = ("k", "round_index", "cols", "xl", "y")
+
+
+def _round_packer() -> tuple[struct.Struct, int]:
+    """A packer writing ``_ROUND_FIELDS`` into the struct's memory in one call (a third of five ctypes attribute
+    sets), laid out from ctypes' own offsets and sizes (pointers are 4 bytes on a 32-bit build), and their offset."""
+    fmt, at = "=", getattr(_Args, _ROUND_FIELDS[0]).offset
+    first = at
+    for name in _ROUND_FIELDS:
+        field = getattr(_Args, name)
+        fmt += "x" * (field.offset - at) + {8: "q", 4: "i"}[field.size]
+        at = field.offset + field.size
+    return struct.Struct(fmt), first
+
+
+_PACK, _ROUND_AT = _round_packer()
 
 
 class DropRound:
     """A mixer's in-edge block prepared for the kernel: the arrays held, their addresses and every argument that
-    does not change between rounds set once in the argument struct; a round sets the round index and the value and
-    output addresses and makes one ctypes call with one prepared argument (issue 27: the per-round Python cost
-    counts at 10³ nodes, where a whole round takes a few µs)."""
+    does not change between rounds set once in the argument struct; a round sets only what changed (the round
+    index; the value, column and output addresses when they moved) and makes one ctypes call with one prepared
+    argument (issue 27: the per-round Python cost counts at 10³ nodes, where a whole round takes a few µs).
 
-    __slots__ = ("_args", "_byref", "_call", "_lost", "_seen", "arrays", "n_rows")
+    Outputs come from two held buffers, each reused only when nothing outside this object refers to it any more
+    (its reference count): a loop ``x = mixer.apply(x)`` alternates between them and a caller that keeps a result
+    keeps it unchanged (a new buffer is made then). No round allocates in such a loop and no address is looked up:
+    the input is the last output, whose address is known."""
+
+    __slots__ = ("_args", "_byref", "_call", "_cols", "_dead", "_in", "_lost", "_mem", "_out", "arrays", "n_rows")
 
     def __init__(self, lib: Any, kind: int, arrays: tuple[np.ndarray, ...], active: np.ndarray | None) -> None:
         self.arrays = (*arrays, active)  # kept alive: the kernel reads them through the addresses in the struct
@@ -113,57 +140,95 @@ class DropRound:
         a.indptr, a.indices, a.data, a.edges, a.self_w = (int(x.ctypes.data) for x in arrays)
         a.active = _ptr(active)
         self._byref = ctypes.byref(a)
+        self._mem = memoryview(a).cast("B")  # the struct's bytes, for _PACK
         self._call = lib.dn_fault_round
         self._lost: np.ndarray | None = None  # the lost counter whose address is in the struct
-        # the last two value arrays seen with their addresses (a loop ``x = mixer.apply(x)`` passes the last output,
-        # a benchmark the same input): held, so neither is freed and its id reused while it is here
-        self._seen: list[tuple[np.ndarray, int]] = []
+        self._dead: np.ndarray | None = None  # the dead-from array whose address is in the struct
+        # the output buffers with their addresses, and the last other input and column arrays with theirs: held, so
+        # none is freed and its address reused by another array while it is here
+        self._out: list[tuple[np.ndarray, int]] = []
+        self._in: tuple[np.ndarray, int] | None = None
+        self._cols: tuple[np.ndarray, int] | None = None
 
     def set_faults(self, seed: int, threshold: int) -> None:
         """The schedule's seed and drop threshold ``⌈p·2⁵³⌉·2¹¹``: the same every round, set once."""
         self._args.seed, self._args.threshold = seed & _MASK64, threshold
 
     def _values(self, key: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, int]:
-        """``flat`` (the values ``key`` as ``(n, k)``) C-ordered, and its address: taken once for an array seen in
-        the last two rounds."""
-        for held, addr in self._seen:
-            if held is key:
-                return flat, addr
+        """``flat`` (the values ``key`` as ``(n, k)``) C-ordered and its address, for values that are neither an
+        output of this kernel's nor the last input (:meth:`run` knows those): held when ``key``'s own memory is read."""
         if not flat.flags.c_contiguous:
-            flat = np.ascontiguousarray(flat)
+            flat = np.ascontiguousarray(flat)  # a copy of this round's values: the caller holds it for the call
         addr = _addr(flat)
         if key.flags.c_contiguous:  # ``flat`` is a view of ``key``'s own values: the address stays
-            self._remember(key, addr)
+            self._in = (key, addr)
         return flat, addr
 
-    def _remember(self, values: np.ndarray, addr: int) -> None:
-        self._seen = [self._seen[-1], (values, addr)] if self._seen else [(values, addr)]
+    def _new_output(self, key: np.ndarray) -> tuple[np.ndarray, int]:
+        """A new output buffer shaped as ``key``, held in place of one that is not this round's input."""
+        y = np.empty(key.shape)  # C order: the same memory as (n_rows, k)
+        made = (y, _addr(y))
+        out = self._out
+        if len(out) < 2:
+            out.append(made)
+        else:  # the caller keeps the other (it is this round's input, or refers to both)
+            out[0 if out[1][0] is key else 1] = made
+        return made
 
     def run(
-        self, key: np.ndarray, flat: np.ndarray, cols: np.ndarray, lost_acc: np.ndarray, round_index: int, dead: Any
+        self,
+        key: np.ndarray,
+        flat: np.ndarray,
+        cols: np.ndarray,
+        lost_acc: np.ndarray,
+        round_index: int,
+        dead: Any,
+        width: int | None = None,
     ) -> np.ndarray:
         """One fault round on the values ``key`` (``(n_rows, ...)`` float64; ``flat``: the same as ``(n_rows, k)``)
         and ``cols`` (``(n_columns, k)``: the local values then the remote senders', or ``flat`` itself), with the
         seed and threshold of :meth:`set_faults`: returns the new values shaped as ``key``, adds each row's lost
         messages to ``lost_acc`` (int64, C order). ``dead``: per edge, the first round its message is dead (failed
-        link or silent sender), or None when no such fault has begun."""
-        a = self._args
+        link or silent sender), or None when no such fault has begun. ``width``: ``k``, when ``flat`` is ``key``
+        itself, 1-D (one float per node)."""
         in_place = cols is flat  # in-process the columns are the local values
-        flat, x_addr = self._values(key, flat)
-        y = np.empty(key.shape)  # C order: the same memory as (n_rows, k)
-        if lost_acc is not self._lost:  # the exchange's counter: the same array round after round
-            a.lost_acc, self._lost = _addr(lost_acc), lost_acc
-        a.k, a.round_index, a.xl = flat.shape[1], round_index, x_addr
-        a.dead_from = None if dead is None else _addr(dead)
-        if in_place:
-            a.cols = x_addr
+        out = self._out
+        x_addr = 0
+        for buf, addr in out:  # a loop ``x = mixer.apply(x)``: the last output
+            if buf is key:
+                x_addr = addr
+        if not x_addr:
+            held = self._in  # the same input again
+            x_addr = held[1] if held is not None and held[0] is key else 0
+            if not x_addr:
+                flat, x_addr = self._values(key, flat)
+        for buf, addr in out:
+            # a buffer nothing outside refers to: its references are the list's tuple, ``buf`` here and
+            # getrefcount's argument (a caller's name, a view or a container holding it adds one)
+            if sys.getrefcount(buf) <= 3 and buf.shape == key.shape:
+                y, y_addr = buf, addr
+                break
         else:
-            cols = np.ascontiguousarray(cols)  # held until the call returns
-            a.cols = _addr(cols)
-        a.y = y_addr = _addr(y)
+            y, y_addr = self._new_output(key)
+        if lost_acc is not self._lost:  # the exchange's counter: the same array round after round
+            self._args.lost_acc, self._lost = _addr(lost_acc), lost_acc
+        if dead is not self._dead:
+            self._args.dead_from, self._dead = (None if dead is None else _addr(dead)), dead
+        c_addr = x_addr if in_place else self._columns(cols)
+        k = flat.shape[1] if width is None else width
+        _PACK.pack_into(self._mem, _ROUND_AT, k, round_index, c_addr, x_addr, y_addr)
         self._call(self._byref)
-        self._remember(y, y_addr)  # the next round's values, in a loop ``x = mixer.apply(x)``
         return y
+
+    def _columns(self, cols: np.ndarray) -> int:
+        """The address of the columns, C-ordered: the MPI exchange's column buffer is the same array every round."""
+        held = self._cols
+        if held is not None and held[0] is cols:
+            return held[1]
+        c = np.ascontiguousarray(cols)
+        addr = _addr(c)
+        self._cols = (cols, addr) if c is cols else (c, addr)  # a copy is held until the next round takes another
+        return addr
 
 
 def prepare(

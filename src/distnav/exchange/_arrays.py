@@ -40,5 +40,8 @@ _COUNT_CHUNK = 1 << 20  # edges per bincount (8 MB of 64-bit indices)
 
 
 def _flat(values: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
+    """``values`` as ``(n, k)`` (a view where its layout allows) and its shape after the first axis."""
+    if values.ndim == 1:  # the common case of a consensus round, without the general path's ≈ 0.3 µs
+        return values[:, None], ()
     tail = values.shape[1:]
     return values.reshape(values.shape[0], math.prod(tail)), tail

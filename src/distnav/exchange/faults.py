@@ -249,6 +249,11 @@ class FaultPlan:
         """The block's edge ids the drops are hashed from (as given, not copied)."""
         return self._edges
 
+    @property
+    def first_dead(self) -> int:
+        """The first round in which a failed link or a silent sender kills a message (the largest int64 if none)."""
+        return self._first_dead
+
     def dead_from(self, round_index: int) -> np.ndarray | None:
         """Per edge, the first round from which a failed link or a silent sender kills its message, when one such
         fault has begun by ``round_index``; else None."""

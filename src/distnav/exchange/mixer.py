@@ -11,6 +11,7 @@ from distnav._optional import scipy_sparse as sp
 from distnav._sparse import csr_times
 from distnav.errors import ExchangeError
 from distnav.exchange._arrays import _flat, _masked_count, _segment_matrix
+from distnav.exchange.faults import FaultPlan
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -19,6 +20,8 @@ if TYPE_CHECKING:
     from distnav.exchange.core import ExchangeCore
 
 __all__ = ["Mixer"]
+
+_F64 = np.dtype(np.float64)
 
 
 def _block_csr(
@@ -135,6 +138,12 @@ class Mixer:
         self._w_masked: sp.csr_matrix | None = None
         self._kernel: DropRound | None | bool = False  # the compiled fault round, prepared at the first one
         self._kernel_sent: tuple[np.ndarray, int] | tuple[()] = ()  # the kernel's sent counts, when fixed
+        self._kernel_lost: tuple[int, np.ndarray] | None = None  # the exchange's lost counter for a message size
+        self._kernel_dead = 0  # the first round a failed link or silent sender kills a message
+        # the shape of one float per node where the kernel takes such values without apply's general path (a block
+        # without remote senders), and the lost counter of 8-byte messages; () where not
+        self._kernel_vector: tuple[int, ...] = ()
+        self._kernel_lost_8 = np.zeros(0, np.int64)
         if ex.faults.active:
             self._w_masked = _segment_matrix(
                 ex.in_dst, ex.n_local, ex.n_columns, self._in_edge_weights(), ex.in_src_col
@@ -190,6 +199,13 @@ class Mixer:
 
     def apply(self, x_local: np.ndarray) -> np.ndarray:
         """One consensus round on local values ``x_local`` of shape ``(n_local, ...)``."""
+        if (
+            self._kernel_vector
+            and x_local.__class__ is np.ndarray
+            and x_local.dtype is _F64
+            and x_local.shape == self._kernel_vector
+        ):
+            return self._kernel_vector_round(x_local)
         ex = self.exchange
         x = np.asarray(x_local, dtype=float)
         if x.shape[0] != ex.n_local:
@@ -228,7 +244,9 @@ class Mixer:
     def _kernel_round(self, x: np.ndarray, flat: np.ndarray, cols: np.ndarray, msg_bytes: int) -> np.ndarray | None:
         """The fault round by the compiled kernel (:mod:`distnav._dropround`: the same drops, the same bits as the
         numpy path below), or None where it is not built: one pass over the in-edge rows, the lost messages added
-        to the exchange's lost counter (folded into the received counts lazily, as a fault-free round's are)."""
+        to the exchange's lost counter (folded into the received counts lazily, as a fault-free round's are).
+        What does not change between rounds is looked up once (:meth:`_prepare_kernel`): the round costs the call
+        and the exchange's round count."""
         kernel = self._kernel
         if kernel is False:
             kernel = self._prepare_kernel()
@@ -237,21 +255,47 @@ class Mixer:
         ex = self.exchange
         k = ex.round_index
         sent, sent_total = self._kernel_sent or ex._sent_counts(self._act_out, cache=True)
-        out = kernel.run(x, flat, cols, ex._lost_counter(msg_bytes), k, ex._fault_plan.dead_from(k))
+        lost = self._kernel_lost
+        if lost is None or lost[0] != msg_bytes:
+            lost = self._kernel_lost = (msg_bytes, ex._lost_counter(msg_bytes))
+        dead = None if k < self._kernel_dead else ex._fault_plan.dead_from(k)
+        out = kernel.run(x, flat, cols, lost[1], k, dead)
         ex._account(sent, self._recv_counts, msg_bytes, sent_total)
         return out
 
+    def _kernel_vector_round(self, x: np.ndarray) -> np.ndarray:
+        """:meth:`_kernel_round` for one float64 per node in a block without remote senders (its columns are its
+        values): what :meth:`apply` makes of other values — the ``(n, k)`` view, the columns, the message size — is
+        known, so the round is the kernel's call and the exchange's count (issue 27: ≈ 0.3 µs of a 10 µs round at
+        10³ nodes)."""
+        ex, kernel = self.exchange, self._kernel
+        assert isinstance(kernel, _dropround.DropRound)
+        k = ex.round_index
+        sent, sent_total = self._kernel_sent or ex._sent_counts(self._act_out, cache=True)
+        dead = None if k < self._kernel_dead else ex._fault_plan.dead_from(k)
+        out = kernel.run(x, x, x, self._kernel_lost_8, k, dead, 1)
+        ex._account(sent, self._recv_counts, 8, sent_total)
+        return out
+
     def _prepare_kernel(self) -> DropRound | None:
-        """The compiled fault round for this mixer's in-edge block (None without the kernel), with what it reads
-        that does not change between rounds: the seed, the drop threshold, and (without silent senders, whose
-        silencing changes them) the sent counts."""
+        """The compiled fault round for this mixer's in-edge block (None without the kernel, or where the exchange's
+        plan is not the schedule's own: the field's also drops what its network lost), with what it reads that does
+        not change between rounds: the seed, the drop threshold, the first round a failed link or silent sender
+        kills a message and (without silent senders, whose silencing changes them) the sent counts."""
         m, ex = self._w_masked, self.exchange
         assert m is not None
         plan = ex._fault_plan
+        if type(plan) is not FaultPlan:
+            self._kernel = None
+            return None
         kernel = self._kernel = _dropround.prepare(m, plan.edge_ids, self._act_in, self._self_w)
         if kernel is not None:
             kernel.set_faults(ex.faults.seed, plan.drop_threshold)
             self._kernel_sent = () if ex.faults.silent_nodes else ex._sent_counts(self._act_out, cache=True)
+            self._kernel_dead = plan.first_dead
+            if ex.n_columns == ex.n_local:  # no remote sender: the columns are the block's own values
+                self._kernel_lost_8 = ex._lost_counter(8)
+                self._kernel_vector = (ex.n_local,)
         return kernel
 
     def _in_edge_weights(self, a: int = 0, b: int | None = None) -> np.ndarray:

@@ -1,6 +1,11 @@
 """Paper claims as data: the ``claims`` list an experiment writes into its ``results.json``.
 
-One claim is a flat dict (JSON-ready)::
+A paper's claims are a table of :class:`Claim` rows (data: where, the statement, the paper's value, the test that
+pins it, and the measure reading distnav's value from a run), turned into rows by one builder, :func:`rows_from`;
+a new claim is one :class:`Claim` line in its paper's table (``experiments/claims_paper<NNN>.py``) and, when the
+run must be read, its measure beside it.
+
+One row is a flat dict (JSON-ready)::
 
     {"paper": "003", "where": "Fig. 4", "claim": "P1 ≈ 80 % at k_n = 10, q = 0.2",
      "paper_value": "≈ 0.80", "distnav_value": 0.803, "verdict": "agree",
@@ -13,8 +18,9 @@ cannot be checked; ``test`` names the test that fails if the claim changes ("" w
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterable
+from functools import partial
+from typing import Any, NamedTuple
 
 __all__ = [
     "AGREE",
@@ -22,14 +28,18 @@ __all__ = [
     "NOT_CHECKABLE",
     "VERDICTS",
     "FULL_ONLY",
+    "Claim",
+    "Measure",
     "Missing",
     "Row",
     "checked",
     "claim",
     "get",
-    "illustration",
-    "rows_of",
+    "illustrated",
+    "rows_from",
+    "stated",
     "unchecked",
+    "unit_tested",
     "verdict",
 ]
 
@@ -76,12 +86,6 @@ def unchecked(paper: str, where: str, text: str, paper_value: Any, why: str) -> 
     return claim(paper=paper, where=where, text=text, paper_value=paper_value, distnav_value=None, ok=None, why=why)
 
 
-def illustration(paper: str, where: str, text: str, note: str = "") -> dict[str, Any]:
-    """The "not checkable" row of a figure that illustrates without a quantity; ``note`` adds where it is checked."""
-    why = "not in results.json: an illustration without a quantity" + (f"; {note}" if note else "")
-    return unchecked(paper, where, text, "illustration", why)
-
-
 # ------------------------------------------------------------------------------------------------ reading a run
 class Missing(KeyError):
     """A field a claim needs is absent from the run's ``results.json`` (the row becomes "not checkable")."""
@@ -122,15 +126,54 @@ def checked(
     )
 
 
-def rows_of(makers: list[Callable[[], Row]], paper: str) -> list[Row]:
-    """The rows the ``makers`` build; one that finds a field missing gives a "not checkable" row instead."""
-    out = []
-    for make in makers:
-        try:
-            row = make()
-            if not row["test"] and FULL_ONLY not in row["why"]:
-                row["why"] += "; no test pins it yet"
-            out.append(row)
-        except (Missing, KeyError, TypeError, ValueError) as exc:
-            out.append(unchecked(paper, "—", "(a claim this run cannot evaluate)", None, f"results.json lacks {exc}"))
-    return out
+#: What a claim's measure returns from a run's results: ``(distnav_value, ok, why)``; ``ok`` None: not checkable.
+Measure = Callable[[dict[str, Any]], tuple[Any, bool | None, str]]
+
+
+class Claim(NamedTuple):
+    """One claim of a paper as a row of data, read by :func:`rows_from`."""
+
+    where: str  #: figure / table / section of the paper
+    text: str  #: the paper's statement
+    paper_value: Any  #: the paper's value (or "illustration", "algorithm", "(open)")
+    test: str  #: the test that fails if distnav's side changes ("" with the reason in the measure's ``why``)
+    measure: Measure  #: reads ``(distnav_value, ok, why)`` from the run's results
+
+
+def rows_from(paper: str, table: Iterable[Claim], r: dict[str, Any]) -> list[Row]:
+    """The rows of ``table`` on the run's results ``r``: one :func:`checked` row per claim (a field the run lacks
+    makes that row "not checkable", its claim kept)."""
+    return [
+        checked(
+            paper=paper,
+            where=c.where,
+            text=c.text,
+            paper_value=c.paper_value,
+            test=c.test,
+            measure=partial(c.measure, r),
+        )
+        for c in table
+    ]
+
+
+def _stated(why: str, r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    return None, None, why
+
+
+def stated(why: str) -> Measure:
+    """The measure of a claim no run can check: "not checkable", ``why`` the reason."""
+    return partial(_stated, why)
+
+
+def illustrated(note: str = "") -> Measure:
+    """The measure of a figure that illustrates without a quantity; ``note`` adds where it is checked."""
+    return stated("not in results.json: an illustration without a quantity" + (f"; {note}" if note else ""))
+
+
+def _unit_tested(how: str, r: dict[str, Any]) -> tuple[Any, bool | None, str]:
+    return "implemented", True, "not in results.json: a unit test compares it " + how
+
+
+def unit_tested(how: str) -> Measure:
+    """The measure of an algorithm box pinned by a unit test (the claim's ``test``) against an independent form."""
+    return partial(_unit_tested, how)

@@ -239,6 +239,16 @@ class DynamicModel:
         copies), else ``None``."""
         return self._sel_slice[self._idx(self._noise_const, len(self._H), t, "system noise")]
 
+    def update_at(
+        self, t: int
+    ) -> tuple[FloatArray | None, FloatArray, FloatArray, FloatArray, slice | IntArray | None]:
+        """What the time update to epoch ``t`` needs in one look-up: ``(Φ_t⁻¹ or None, H_t, S̃_t, S̃_t⁻¹, sel)``,
+        ``sel`` the slice of :meth:`noise_slice_at`, else the indices of :meth:`noise_selection_at`, else None."""
+        phi_inv = self._phi_inv[self._idx(self._phi_const, len(self._phi), t, "transition")]
+        k = self._idx(self._noise_const, len(self._H), t, "system noise")
+        cut = self._sel_slice[k]
+        return phi_inv, self._H[k], self._St[k], self._St_inv[k], self._sel[k] if cut is None else cut
+
     def noise_cov_at(self, t: int) -> FloatArray:
         """``S_t = H_t S̃_t H_tᵀ``."""
         k = self._idx(self._noise_const, len(self._H), t, "system noise")

@@ -40,7 +40,7 @@ def pseudo_inverse_psd(info: FloatArray, *, rtol: float = RANK_RTOL) -> tuple[Fl
     k, p, _ = info.shape
     if k == 0:
         return np.zeros_like(info), np.zeros((k, p), bool)
-    d = np.diagonal(info, axis1=1, axis2=2)
+    d = info.diagonal(axis1=1, axis2=2)
     seen = d > 0  # exactly zero: no information ever (structural); the rest is decided scale-free below
     if seen.all():
         return _inv_or_pinv(info, rtol)
@@ -92,23 +92,24 @@ def _inv_or_pinv(sub: FloatArray, rtol: float) -> tuple[FloatArray, BoolArray]:
     try:
         inv = np.linalg.inv(sub)
         # well-conditioned PD check: 1 ≤ (I⁻¹)_jj I_jj (Cauchy–Schwarz), large values flag near-singularity
-        vif = np.diagonal(inv, axis1=1, axis2=2) * np.diagonal(sub, axis1=1, axis2=2)
-        if ((vif >= 1.0 - 1e-6) & (vif < 1e-3 / rtol)).all() and np.isfinite(inv).all():  # one reduction each
-            sym: np.ndarray = 0.5 * (inv + np.swapaxes(inv, 1, 2))
+        vif = inv.diagonal(axis1=1, axis2=2) * sub.diagonal(axis1=1, axis2=2)
+        if vif.min() >= 1.0 - 1e-6 and vif.max() < 1e-3 / rtol and np.isfinite(inv).all():  # NaN fails both
+            sym: np.ndarray = inv + inv.swapaxes(1, 2)
+            sym *= 0.5  # 0.5 (I⁻¹ + I⁻ᵀ) in place: the same products, one temporary less
             return sym, np.ones((k, m), bool)
     except np.linalg.LinAlgError:
         pass
     # eigen-decomposition of the scaled matrix C = D^-1/2 I D^-1/2 (unit diagonal): the rank decision does not
     # depend on the units of the state entries. G = D^-1/2 C⁺ D^-1/2 is a generalized inverse of I, and for
     # estimable entries e_kᵀ G i and e_kᵀ G Q G e_k do not depend on which generalized inverse is used.
-    dsq = np.sqrt(np.diagonal(sub, axis1=1, axis2=2))
+    dsq = np.sqrt(sub.diagonal(axis1=1, axis2=2))
     scale = 1.0 / np.where(dsq > 0, dsq, 1.0)
     C = sub * scale[:, :, None] * scale[:, None, :]
     with single_threaded_blas():  # OpenBLAS's 2 threads make this p ≲ 50 eigh 15–60× dearer in CPU (measured)
         w, U = np.linalg.eigh(C)
     keep = w > rtol * np.maximum(w[:, -1:], 1e-300)
     winv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
-    inv = ((U * winv[:, None, :]) @ np.swapaxes(U, 1, 2)) * scale[:, :, None] * scale[:, None, :]
+    inv = ((U * winv[:, None, :]) @ U.swapaxes(1, 2)) * scale[:, :, None] * scale[:, None, :]
     null_proj = np.einsum("kij,kj->ki", U**2, (~keep).astype(float))
     return inv, null_proj < EST_TOL
 
@@ -155,8 +156,7 @@ class InformationKernel:
 
     def time_update(self, dyn: DynamicModel, t: int) -> None:
         """Predict from epoch ``t − 1`` to ``t`` with the model of that step (eqs. (19)–(21)); ``Q`` alongside."""
-        Finv = dyn.transition_inverse_at(t)
-        H, _St, St_inv = dyn.noise_factor_at(t)
+        Finv, H, _St, St_inv, sel = dyn.update_at(t)
         M, v = self.I, self.i
         Qs = self.Qs
         if Finv is not None:
@@ -167,29 +167,31 @@ class InformationKernel:
         if q == 0:
             self.I, self.i, self.Qs = M, v, Qs
             return
-        sel: np.ndarray | slice | None = dyn.noise_slice_at(t)
-        if sel is None:
-            sel = dyn.noise_selection_at(t)
         if sel is not None:  # H = columns `sel` of the identity (eq. (20)): slicing instead of products
             MH = M[:, :, sel]  # (k,p,q)
             K = MH[:, sel, :] + St_inv
         else:
             MH = M @ H
-            K = np.swapaxes(MH, 1, 2) @ H + St_inv  # Hᵀ M H + S̃⁻¹, (k,q,q)
+            K = MH.swapaxes(1, 2) @ H + St_inv  # Hᵀ M H + S̃⁻¹, (k,q,q)
         G = MH @ np.linalg.inv(K)  # M H K⁻¹, (k,p,q)
-        I_new = M - G @ np.swapaxes(MH, 1, 2)
-        self.I = 0.5 * (I_new + np.swapaxes(I_new, 1, 2))
+        I_new = G @ MH.swapaxes(1, 2)
+        np.subtract(M, I_new, out=I_new)
+        I_sym = I_new + I_new.swapaxes(1, 2)
+        I_sym *= 0.5
+        self.I = I_sym
         vH = v[:, sel] if sel is not None else v @ H
         self.i = v - (G @ vH[..., None])[..., 0]
         new: list[FloatArray] = []
         for Q in Qs:
             # B Q Bᵀ with B = I − G Hᵀ as rank-q corrections, plus F S̃ Fᵀ with F = B M H = G S̃⁻¹
-            HtQ = Q[:, sel, :] if sel is not None else np.swapaxes(H, 0, 1) @ Q  # (k,q,p)
+            HtQ = Q[:, sel, :] if sel is not None else H.swapaxes(0, 1) @ Q  # (k,q,p)
             BQ = Q - G @ HtQ
             BQH = BQ[:, :, sel] if sel is not None else BQ @ H  # (k,p,q)
             F = G @ St_inv
-            Q_new = BQ - BQH @ np.swapaxes(G, 1, 2) + F @ (_St @ np.swapaxes(F, 1, 2))
-            new.append(0.5 * (Q_new + np.swapaxes(Q_new, 1, 2)))
+            Q_new = BQ - BQH @ G.swapaxes(1, 2) + F @ (_St @ F.swapaxes(1, 2))
+            Q_sym = Q_new + Q_new.swapaxes(1, 2)
+            Q_sym *= 0.5
+            new.append(Q_sym)
         self.Qs = new
 
     def measurement_update(
@@ -204,8 +206,10 @@ class InformationKernel:
 
         ``extra_errors`` gives one term per propagated variance (:attr:`Qs`) instead (``None`` entries: nothing).
         """
-        self.I = self.I + scale * N
-        self.i = self.i + scale * r
+        if scale == 1.0:  # 1·x is x: the same sums without the products
+            self.I, self.i = self.I + N, self.i + r
+        else:
+            self.I, self.i = self.I + scale * N, self.i + scale * r
         terms: Sequence[FloatArray | None] = extra_errors if extra_errors else [extra_error]
         for j, term in enumerate(terms):
             if j < len(self.Qs) and term is not None:
@@ -214,7 +218,8 @@ class InformationKernel:
     def error_covariance(self, inverse: FloatArray, which: int = 0) -> FloatArray:
         """``P = I⁺ Q I⁺`` of variance ``which`` (symmetrized), given ``inverse`` = ``I⁺`` from :meth:`estimates`."""
         P = inverse @ self.Qs[which] @ inverse
-        out: FloatArray = 0.5 * (P + np.swapaxes(P, 1, 2))
+        out: FloatArray = P + P.swapaxes(1, 2)
+        out *= 0.5
         return out
 
     def estimates(self) -> tuple[FloatArray, BoolArray, FloatArray, FloatArray | None]:

@@ -221,10 +221,12 @@ def relayed_payload(
         )
         decoded[origins] = np.concatenate([N.reshape(origins.size, p * p)[:, up], r], axis=1)
     for a, need in enumerate(needs):
-        stacked = decoded[need]
+        stacked = decoded if need.size == n else decoded[need]  # every node's row: the same array, no gather
         out[a] = L_rows[a, need] @ stacked
         if blocks is not None:
             blocks[a, need] = L_rows[a, need][:, None] * stacked[:, :n_tri]
+    if not with_rows and blocks is None:
+        return out
     parts = [out]
     if with_rows:
         parts.append(L_rows)

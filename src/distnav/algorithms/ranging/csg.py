@@ -40,7 +40,7 @@ from distnav.algorithms.ranging.options import CsgOptions, NclmOptions, NcsgOpti
 from distnav.algorithms.ranging.qc import distributed_quality
 from distnav.algorithms.ranging.refine import MU0, refine_state
 from distnav.algorithms.ranging.stop import StopRule
-from distnav.algorithms.ranging.wire import comm_mark, comm_phases, reduction_cost
+from distnav.algorithms.ranging.wire import comm_mark, comm_phases, reductions_cost
 from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -212,6 +212,14 @@ def _iterate(
     return last, status, why
 
 
+def _start_offset(o: RunOptions, last: IterationState) -> float | None:
+    """The common offset every anchor's copy holds when the LM phase starts from the solver's start (no iteration:
+    the neighbourhood solvers start every copy at ``initial_offset_m``), else None (refine.OFFSET_START_HELD)."""
+    if isinstance(o, NeighbourhoodOptions) and o.range_offsets == "common" and last.iteration == 0:
+        return float(o.initial_offset_m or 0.0)
+    return None
+
+
 def _refine_phase(
     problem: RangingData, ex: Exchange, setup: _Setup, sigma: np.ndarray, scale: np.ndarray, out: _Outcome
 ) -> None:
@@ -231,6 +239,7 @@ def _refine_phase(
             xtol_m=rule.phase_tolerances[1],
             mu0=MU0 if setup.o.refine_mu0 is None else setup.o.refine_mu0,
             held_m=setup.o.refine_held_m,
+            offset_start_m=_start_offset(setup.o, out.last),
         )
     except ModelError as err:  # e.g. a lost message: the refinement needs every link each round
         out.note(f"no distributed LM phase ({err})")
@@ -244,7 +253,7 @@ def _refine_phase(
         f"{ref.rounds} rounds, {ref.cg_iterations} CG iterations"
     )
     out.marks["refine"] = comm_mark(ex)
-    cost = reduction_cost(problem.n_anchors, ref.reduced.count, ref.reduced.bytes)
+    cost = reductions_cost(problem.n_anchors, ref.reduced)
     out.settings = {
         **out.settings,
         "refine": {

@@ -39,7 +39,7 @@ trial like any other, counted as a round, kept only where it lowers ``F``; the s
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -47,9 +47,9 @@ import numpy as np
 from distnav._settings import resolve_options
 from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.inner import CG_RTOL, Links, NormalSystem, block_preconditioner, pcg
 from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
-from distnav.algorithms.ranging.wire import Wire
 from distnav.exchange import Exchange
 
 __all__ = [
@@ -63,10 +63,10 @@ __all__ = [
     "pcg",
     "jacobian_rows",
     "block_preconditioner",
+    "CG_RTOL",
 ]
 
 MAX_ROUNDS = 60  # outer LM rounds; plant-like halls: a median 4–6 after the exclusions, 16–36 with NLOS links kept
-CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
 MU0 = 1e-3  # initial Marquardt damping (relative to diag N)
 #: the LM phase's CG stops on the preconditioned residual ``rᵀz`` (no reduction of ``rᵀr``; :func:`pcg`, issue 27)
 PRECONDITIONED_STOP = True
@@ -76,6 +76,19 @@ ROUND_SCALARS = True
 #: after three accepted steps whose largest moves shrank by ratios ``ρ`` within 10 % of each other, in [0.2, 0.97],
 #: one trial of ``ρ/(1 − ρ)`` × the last step, kept where it lowers ``F`` (module docstring; None: off)
 EXTRAPOLATE: tuple[float, float, float] | None = (0.2, 0.97, 0.1)  # ρ's range, its largest relative change
+#: a fit's first evaluation reduces the objective only: the largest move of its zero step is 0, which every anchor
+#: knows (issue 27, seventh session; False: a zero column reduced with the objective, as before)
+FIRST_MOVE_KNOWN = True
+#: a trial's objective and largest move go up the reduction tree to its root only, which decides (accept, stop,
+#: extrapolate) and sends every anchor its decision: 1 B down (and the jump factor with an extrapolation) instead of
+#: the totals; a fit's first objective goes up only (issue 27, seventh session; False: all-reductions, as before)
+ROOT_DECIDES = True
+#: an extrapolated trial's step not sent: every receiver scales the last step it holds by the jump factor, which the
+#: root's decision carries (``Wire.scaled``, the same rows bit for bit; issue 27, seventh session)
+SCALED_TRIAL_KNOWN = True
+#: the common offset's start not reduced where every anchor's copy is the one the options give (``offset_start_m``:
+#: a fit's LM phase from the solver's start, which every anchor holds; issue 27, seventh session)
+OFFSET_START_HELD = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,67 +111,15 @@ class Refinement:
     mu: float = MU0  # the Marquardt damping at the end (a warm re-fit may start from it: RefineOptions.mu0)
 
 
-class Links:
-    """The half-measurements of one block, their neighbour rows in a broadcast (``wire_options``: Wire's), totals."""
-
-    def __init__(
-        self, problem: RangingData, ex: Exchange, *, per_anchor_offsets: bool = False, **wire_options: Any
-    ) -> None:
-        self.ex, self.n = ex, problem.n_anchors
-        self.owner, self.other, _, self.samp = half_measurements(problem, ex)
-        self.reductions = 0
-        self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
-        self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
-        self.wire = Wire(problem, ex, self.owner, self.other, int(per_anchor_offsets), **wire_options)
-
-    def counted(self) -> wire.Reductions:
-        """The reductions counted so far."""
-        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes)
-
-    def neighbours(self, values: np.ndarray) -> np.ndarray:
-        """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)`` (one broadcast; after
-        the first, only what can change: :meth:`~distnav.algorithms.ranging.wire.Wire.parameters`)."""
-        return self.wire.parameters(values)
-
-    def vectors(self, v: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
-        """Each half-measurement's other end's rows of a CG vector ``(n_local, P, k)`` (one broadcast of the free
-        columns: :meth:`~distnav.algorithms.ranging.wire.Wire.vectors`)."""
-        return self.wire.vectors(v, dtype)
-
-    def total(self, per_node: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
-        """Network sum of a per-anchor array ``(n_local, ...)``, in the anchors' order (the same bits everywhere);
-        ``dtype`` float32: every anchor's share is rounded to float32 on the wire (summed in float64)."""
-        return np.asarray(np.sum(self.gathered(per_node, dtype), axis=0))
-
-    def gathered(
-        self, per_node: np.ndarray, dtype: type[np.floating] = np.float64, *, exact_columns: int = 0
-    ) -> np.ndarray:
-        """Every anchor's row of ``per_node`` (a reduction's worth of data: sums and maxima taken from it), as
-        ``dtype`` on the wire (returned as float64) but for its first ``exact_columns`` columns (float64: an
-        objective that decides acceptance)."""
-        floats = int(np.prod(per_node.shape[1:], dtype=np.int64))
-        size = 3 if dtype == np.float16 else np.dtype(dtype).itemsize  # float16: with its exponent (wire.pack_scalars)
-        self.reductions += 1
-        self.reduced_floats += floats
-        self.reduced_bytes += exact_columns * 8 + (floats - exact_columns) * size
-        if dtype == np.float64:
-            return np.asarray(self.ex.gather_nodes(per_node))
-        if dtype == np.float16:
-            rows = wire.unpack_scalars(wire.pack_scalars(per_node), per_node.shape)
-        else:
-            rows = np.asarray(per_node, dtype).astype(np.float64)
-        if exact_columns:
-            rows[:, :exact_columns] = per_node[:, :exact_columns]
-        return np.asarray(self.ex.gather_nodes(rows))
-
-
 @dataclass(frozen=True, kw_only=True)
 class RefineOptions:
     """The settings of :func:`refine`, as the solver's: ``sigma`` / ``scale`` (every sample's range σ, metres, and
     whitened loss scale), ``loss``, ``range_offsets`` (``"none"``, ``"common"``, ``"per_anchor"``) and
     ``offset_prior_sigma_m`` (metres), the stopping thresholds ``ftol`` (relative) and ``xtol_m`` (metres),
-    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds, ``mu0`` (:data:`MU0`) the initial damping and ``held_m``
-    what the receivers hold from the last fit (:class:`~distnav.algorithms.ranging.wire.Wire`, item 6)."""
+    ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds, ``mu0`` (:data:`MU0`) the initial damping, ``held_m``
+    what the receivers hold from the last fit (:class:`~distnav.algorithms.ranging.wire.Wire`, item 6) and
+    ``offset_start_m`` the common offset every anchor's copy holds at the start, metres (None: not known; then
+    the start is their network mean, one reduction; :data:`OFFSET_START_HELD`)."""
 
     sigma: np.ndarray
     scale: np.ndarray
@@ -170,6 +131,7 @@ class RefineOptions:
     max_rounds: int = MAX_ROUNDS
     mu0: float = MU0
     held_m: np.ndarray | None = None
+    offset_start_m: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,6 +172,8 @@ class _Refiner:
         self.dot_dtype = wire.cg_dot_dtype(problem.n_anchors)  # CG's reduced dot products (fifth session)
         self.prior = 1.0 / o.offset_prior_sigma_m**2 if self.per else 0.0
         self.steps = wire.STEPS and not wire.PLAIN  # trials travel as steps (wire, item 5)
+        # the products' held exponents per link, kept from one CG run to the next of the fit (wire.HELD_ACROSS_RUNS)
+        self.held: list[np.ndarray] = []
 
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
         """The start ``(x, c)`` and CG's iteration limit (one reduction: the common offset's mean; the number of
@@ -221,25 +185,53 @@ class _Refiner:
             assert offset_m is not None
             x[:, dim] = offset_m
         common = self.common and offset_m is not None
-        c = float(links.total(np.asarray(offset_m, float))) / self.n if common else 0.0
+        c, held = 0.0, self.o.offset_start_m
+        if common and held is not None and OFFSET_START_HELD and not wire.PLAIN:
+            differs = not np.all(np.asarray(offset_m, float) == held)  # a check (monitoring, no bytes): if any
+            if links.ex.allreduce(float(differs), "max") > 0:  # copy is not the one given, the mean is reduced
+                held = None
+            else:
+                c = float(np.sum(np.full(self.n, held))) / self.n  # the mean of n equal copies, as the reduction's
+        if common and (held is None or not OFFSET_START_HELD or wire.PLAIN):
+            c = float(links.total(np.asarray(offset_m, float))) / self.n
         n_unknowns = self.n_free + (1 if self.common else 0)
         return x, c, min(n_unknowns + 10, 2000)
 
     def evaluate(
-        self, xv: np.ndarray, cv: float, step: np.ndarray, base: np.ndarray | None = None
+        self,
+        xv: np.ndarray,
+        cv: float,
+        step: np.ndarray,
+        base: np.ndarray | None = None,
+        *,
+        move: bool = True,
+        scaled: float | None = None,
     ) -> tuple[np.ndarray, float, np.ndarray, float]:
         """Neighbour rows, F, the per-half residuals at ``(xv, cv)`` and the largest move of ``step`` (one
         broadcast and one reduction; ``base``: the neighbour rows ``step`` moved from, then only the step travels,
-        :meth:`~distnav.algorithms.ranging.wire.Wire.stepped`)."""
+        :meth:`~distnav.algorithms.ranging.wire.Wire.stepped`; ``move`` False: its largest move is not needed, an
+        extrapolated trial's, and not reduced with :data:`ROOT_DECIDES`; ``scaled``: ``step`` is this factor times
+        the last step sent, which the receivers scale themselves, :data:`SCALED_TRIAL_KNOWN`)."""
         dim, owner, per = self.dim, self.owner, self.per
-        nb = self.links.neighbours(xv) if base is None or not self.steps else self.links.wire.stepped(base, step)
+        if base is None or not self.steps:
+            nb = self.links.neighbours(xv)
+        elif scaled is not None and SCALED_TRIAL_KNOWN and ROOT_DECIDES:  # the factor travels with the decision
+            nb = self.links.wire.scaled(base, scaled)
+        else:
+            nb = self.links.wire.stepped(base, step)
         diff = xv[owner, :dim] - nb[:, :dim]
         bias = (xv[owner, dim] + nb[:, dim]) if per else cv
         r = (np.linalg.norm(diff, axis=1) + bias - self.rng_m) / self.sig
         terms = loss_terms(r, self.sc, self.o.loss)[1]
         f_node = 0.5 * np.bincount(owner, terms, minlength=self.nl) + (self.prior * xv[:, dim] ** 2 if per else 0.0)
         small = wire.CG_SCALAR_DTYPE if ROUND_SCALARS and not wire.PLAIN else np.float64
-        both = self.links.gathered(np.c_[f_node, np.max(np.abs(step), axis=1, initial=0.0)], small, exact_columns=1)
+        root = ROOT_DECIDES and not wire.PLAIN
+        down = (0 if base is None else 1) if root else None  # the first objective: nothing to decide yet
+        if (base is None and FIRST_MOVE_KNOWN or not move and root) and not wire.PLAIN:  # F alone
+            only = self.links.gathered(np.c_[f_node], small, exact_columns=1, down_bytes=down)
+            return nb, float(np.sum(only[:, 0])), r, 0.0
+        moves = np.max(np.abs(step), axis=1, initial=0.0)
+        both = self.links.gathered(np.c_[f_node, moves], small, exact_columns=1, down_bytes=down)
         return nb, float(np.sum(both[:, 0])), r, float(np.max(both[:, 1], initial=0.0))
 
     def linearize(self, x: np.ndarray, nb: np.ndarray, r: np.ndarray) -> _Linearization:
@@ -288,6 +280,7 @@ class _Refiner:
             common,
             self.wire_dtype,
             self.sig,
+            held=self.held if wire.HELD_ACROSS_RUNS else [],
         )
         dxk, dck, its = pcg(
             system,
@@ -313,13 +306,13 @@ class _Refiner:
         tail: list[float],
     ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, float]:
         """One trial of the rest of the geometric series of the steps (:data:`EXTRAPOLATE`): ``ρ/(1 − ρ)`` × the last
-        step from ``(x, c)`` (one broadcast of the step and one reduction, as any trial), kept where it lowers ``F``;
-        the tail restarts either way."""
+        step from ``(x, c)`` (one reduction, as any trial; the step is broadcast only without
+        :data:`SCALED_TRIAL_KNOWN`), kept where it lowers ``F``; the tail restarts either way."""
         jump = tail[-1] / tail[-2] / (1.0 - tail[-1] / tail[-2])
         tail.clear()
         dx = self.links.wire.rounded(last[0] * jump) if self.steps else last[0] * jump
         dcv = last[1] * jump
-        nb_new, F_new, r_new, _ = self.evaluate(x + dx, c + dcv, dx, nb)
+        nb_new, F_new, r_new, _ = self.evaluate(x + dx, c + dcv, dx, nb, move=False, scaled=jump)
         if np.isfinite(F_new) and F_new < F:
             return x + dx, c + dcv, nb_new, r_new, F_new
         return x, c, nb, r, F
@@ -389,6 +382,8 @@ def refine(
                         status = "converged"
                     elif _steady(tail, moved) and rounds < o.max_rounds:  # one more trial: counted as a round
                         rounds += 1
+                        if ROOT_DECIDES and not wire.PLAIN:  # the root's decision carries the jump factor
+                            run.links.decide(8)
                         x, c, nb, r, F = run.extrapolate(x, c, nb, r, F, (dx, dcv), tail)
                     break
                 if moved <= o.xtol_m * 1e-3 and mu <= 1.0:  # a nearly undamped GN step of < 0.1 µm: F is at its
@@ -448,130 +443,6 @@ def jacobian_rows(
     cn *= free_nb
     e = 1.0 / sig if common else np.zeros(sig.size)
     return a, cn, e
-
-
-def block_preconditioner(own_block: np.ndarray, damp: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """The inverse of every anchor's own (damped) block over its free parameters (identity at fixed ones)."""
-    P = free.shape[1]
-    pre = (own_block + damp[:, :, None] * np.eye(P)) * (free[:, :, None] & free[:, None, :])
-    idx = np.nonzero(~free)
-    pre[idx[0], idx[1], idx[1]] = 1.0
-    return np.asarray(np.linalg.inv(pre))
-
-
-@dataclass(frozen=True, eq=False)
-class NormalSystem:
-    """The (damped) normal matrix of one linearization, applied through the exchange (module docstring); shared
-    by :func:`refine` and :func:`distnav.algorithms.ranging.covariance.central_precision`."""
-
-    links: Links
-    owner: np.ndarray
-    a: np.ndarray  # (h, P) ∂r/∂(own parameters) of every half-measurement
-    cn: np.ndarray  # (h, P) ∂r/∂(the other end's parameters)
-    e: np.ndarray  # (h,) ∂r/∂(common offset), zeros without one
-    w: np.ndarray  # (h,) IRLS weights
-    damp: np.ndarray  # (n_local, P) μ·diag N
-    damp_c: float
-    prior: float  # 1/σ_b² on per-anchor offsets (0 otherwise)
-    free: np.ndarray  # (n_local, P)
-    common: bool
-    wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float16 in the LM phase)
-    sigma: np.ndarray | None = None  # (h,) every half-measurement's range σ: the products travel projected
-    held: list[np.ndarray] = field(default_factory=list)  # the CG run's exponents per link (wire.HELD_EXPONENT)
-
-    def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
-        common offset's row ``(k,)``; one broadcast of ``P·k`` floats per link), and each anchor's share of the
-        common offset's row ``(n_local, k)`` (summed over the network by the caller, together with its dot
-        products: one reduction per CG iteration less)."""
-        nl, P, k = v.shape
-        own = np.einsum("hp,hpk->hk", self.a, v[self.owner])
-        if (
-            self.sigma is not None and wire.PROJECTED and not wire.PLAIN
-        ):  # the neighbour's product itself: k values per link
-            held = self.held if wire.HELD_EXPONENT else None
-            other = self.links.wire.projected(own * self.sigma[:, None], self.wire_dtype, held) / self.sigma[:, None]
-        else:
-            other = np.einsum("hp,hpk->hk", self.cn, self.links.vectors(v, self.wire_dtype))
-        jv = own + other + self.e[:, None] * vc[None, :]
-        wjv = self.w[:, None] * jv
-        out = np.zeros_like(v)
-        np.add.at(out, self.owner, wjv[:, None, :] * self.a[:, :, None])
-        out += self.damp[:, :, None] * v
-        if self.prior:
-            out[:, -1] += self.prior * v[:, -1]
-        half = np.zeros((nl, k))
-        np.add.at(half, self.owner, 0.5 * wjv * self.e[:, None])
-        return np.where(self.free[:, :, None], out, 0.0), half
-
-
-def pcg(
-    system: NormalSystem,
-    b: np.ndarray,
-    bc: np.ndarray,
-    pre_inv: np.ndarray,
-    pre_c: float,
-    links: Links,
-    max_its: int,
-    rtol: float = CG_RTOL,
-    scalar_dtype: type[np.floating] = np.float64,
-    preconditioned_stop: bool = False,
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P, k)`` for ``k``
-    right-hand sides at once (independent CG recurrences sharing every broadcast and reduction) and the common
-    parameter's row ``bc`` ``(k,)`` (zeros without one); the dot products are network totals. It stops when every
-    column's residual is below ``rtol`` of its start — in the preconditioner's norm ``rᵀM⁻¹r`` with
-    ``preconditioned_stop`` (the LM phase, issue 27: that norm is CG's ``rᵀz``, which the iteration reduces anyway,
-    so the residual's own norm ``rᵀr`` needs no reduction of its own) —, or one column's curvature ``pᵀNp`` is not
-    positive."""
-    k = b.shape[2]
-    x = np.zeros_like(b)
-    xc = np.zeros(k)
-    res, rc = b.copy(), np.asarray(bc, float).copy()
-
-    def dots(u: np.ndarray, v: np.ndarray, extra: np.ndarray) -> np.ndarray:
-        return np.asarray(links.total(np.concatenate([np.einsum("nak,nak->nk", u, v), extra], axis=1), scalar_dtype))
-
-    def residual_dots(r: np.ndarray, zv: np.ndarray, r_c: np.ndarray, z_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``rᵀz`` and the residual norm the stop compares (``rᵀz`` itself with ``preconditioned_stop``)."""
-        if preconditioned_stop:
-            rz_ = dots(r, zv, np.zeros((r.shape[0], 0))) + r_c * z_c
-            return rz_, rz_
-        tt = dots(r, zv, np.einsum("nak,nak->nk", r, r))
-        return tt[:k] + r_c * z_c, tt[k:] + r_c * r_c
-
-    z = np.einsum("nab,nbk->nak", pre_inv, res)
-    zc = rc / pre_c
-    rz, rr0 = residual_dots(res, z, rc, zc)
-    p, pc = z.copy(), zc.copy()
-    its = 0
-    live = rr0 > 0.0
-    if not live.any():
-        return x, xc, 0
-    while its < max_its:
-        its += 1
-        q, q_share = system.matvec(p, pc)
-        t = dots(p, q, q_share)
-        qc = t[k:] + system.damp_c * pc if system.common else np.zeros(k)
-        pq = t[:k] + pc * qc
-        if not np.all(pq[live] > 0):
-            break
-        alpha = np.where(live, rz / np.where(live, pq, 1.0), 0.0)
-        x += alpha * p
-        xc += alpha * pc
-        res -= alpha * q
-        rc -= alpha * qc
-        z = np.einsum("nab,nbk->nak", pre_inv, res)
-        zc = rc / pre_c
-        rz_new, rr = residual_dots(res, z, rc, zc)
-        live &= rr > rtol**2 * rr0
-        if not live.any():
-            break
-        beta = np.where(live, rz_new / np.where(live, rz, 1.0), 0.0)
-        p = z + beta * p
-        pc = zc + beta * pc
-        rz = rz_new
-    return x, xc, its
 
 
 def refine_state(

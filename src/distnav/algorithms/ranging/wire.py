@@ -40,18 +40,29 @@ and what it received before. So :class:`Wire`
    :data:`STEP_DTYPE`): the receiver knows the accepted ones (acceptance is decided on a network total)
    and the sender moves by the rounded step (:meth:`Wire.rounded`), so both ends hold the same parameters bit
    for bit — a step rounded to 24 bits is another inexact LM step (CG's forcing term is 0.1); the objective,
-   the gradient and so the fixed point are evaluated at parameters every end agrees on.
+   the gradient and so the fixed point are evaluated at parameters every end agrees on;
+7. sends CG's reduced dot products (float16, :data:`CG_DOT_DTYPE`) after a CG run's first reduction **on the
+   exponent each slot carried last** (:data:`HELD_DOTS`, :func:`held_scalars`): 2 B a value instead of 3 where it
+   lies in float16's normal range on it — the same 11 bits, so the same values bit for bit; the products' held
+   exponents (4., :data:`HELD_EXPONENT`) are kept from one CG run to the next of a fit (:data:`HELD_ACROSS_RUNS`);
+8. sends a trial's float32 step (5.) after a fit's first **on the exponents its entries carried last**
+   (:data:`STEP_HELD`, :func:`pack_steps`): sign, 23-bit mantissa and a 4-bit difference from the exponent of the
+   column in the sender's last step, which every receiver holds (7 B for two free columns instead of 8; outside
+   that window and a fit's first as plain float32): the same values bit for bit (issue 27, seventh session);
+9. sends nothing for an extrapolated trial (``refine.EXTRAPOLATE``): its step is a shared factor times the last
+   step, which every receiver holds (:meth:`Wire.scaled`).
 
 Measured (``benchmarks/bench_uwb_economy.py``, plant-like 28-anchor hall ``[78, 0]``): see docs/economy_uwb.md.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.step_codec import pack_steps, unpack_steps
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
@@ -65,6 +76,7 @@ __all__ = [
     "unpack_half",
     "reduction_cost",
     "Reductions",
+    "reductions_cost",
     "CG_SCALAR_DTYPE",
     "HALF_MAX_ANCHORS",
     "cg_wire_dtype",
@@ -78,6 +90,13 @@ __all__ = [
     "KNOWN_FROM_PROBLEM",
     "HELD_EXPONENT",
     "HELD_FROM_LAST_FIT",
+    "HELD_DOTS",
+    "HELD_ACROSS_RUNS",
+    "HeldScalars",
+    "held_scalars",
+    "STEP_HELD",
+    "pack_steps",
+    "unpack_steps",
 ]
 
 CG_WIRE_DTYPE: type[np.floating] = np.float16  # the LM phase's CG directions: float16 + exponent (item 3)
@@ -141,6 +160,19 @@ KNOWN_FROM_PROBLEM = True
 #: a warm fit's first parameters are not sent from an anchor whose receivers hold them from the last fit
 #: (``Wire(held_m=...)``, item 6 of the module docstring); False: sent as :data:`KNOWN_FROM_PROBLEM` says
 HELD_FROM_LAST_FIT = True
+#: CG's reduced dot products (float16, :data:`CG_DOT_DTYPE`) after a CG run's first reduction: each value on the
+#: exponent its slot carried last (per anchor's share and for the total), 2 B instead of 3 where every share and the
+#: total lie in its window (:func:`held_scalars`; issue 27, seventh session) — the same values bit for bit
+HELD_DOTS = True
+#: the held exponents of the LM phase's products (:data:`HELD_EXPONENT`) kept from one CG run to the next within a
+#: fit (both ends of every link know where a run ends), so a run's first product needs no new exponent either where
+#: it lies in the window (issue 27, seventh session; False: every run starts with new exponents, as before). Not for
+#: the dot products: kept across runs they cost more (on 12 plant-like workflows 1.28 → 1.36 MB of reductions:
+#: one share outside its window sends the value at 3 B in every message, and the shares' scale jumps between runs)
+HELD_ACROSS_RUNS = True
+#: a trial's float32 step after a fit's first on the exponents its entries carried in the sender's last step
+#: (:func:`pack_steps`, item 8): 7 B for two free columns instead of 8, bit for bit; False: plain float32
+STEP_HELD = True
 PLAIN = False  # True: every row in full, float64, from every anchor (as before issue 27; bench_uwb_economy's "before")
 
 
@@ -186,6 +218,9 @@ class Wire:
                 raise ModelError(f"held_m must have shape ({problem.n_anchors}, {problem.dim}), got {held.shape}")
             self._held = held
         self._rep: tuple[np.ndarray, np.ndarray] | None = None  # per out-edge: a half-measurement, the edge's mask
+        self._step_sent: np.ndarray | None = None  # the exponents of this block's last step, per column (item 8)
+        self._step_got: np.ndarray | None = None  # the same of every other end's last step, per half-measurement
+        self._last_got: np.ndarray | None = None  # every other end's last step received (item 9)
 
     def _positions(self, box_dst: np.ndarray, box_src: np.ndarray) -> np.ndarray:
         if self._pos is None:
@@ -253,18 +288,58 @@ class Wire:
         """An LM step ``(n_local, P)`` as :meth:`stepped` delivers it: its free columns as :data:`STEP_DTYPE` (the
         sender moves by this step, so that both ends hold the same parameters bit for bit; item 5)."""
         out = np.zeros_like(step)
-        out[:, self.cols] = _decode(_encode(step[:, self.cols], STEP_DTYPE), self.cols.size)
+        out[:, self.cols] = self.rounded_columns(step[:, self.cols])
         return out
+
+    def rounded_columns(self, columns: np.ndarray) -> np.ndarray:
+        """The free columns of a step ``(rows, m)`` rounded as :data:`STEP_DTYPE` (float64 values)."""
+        return _decode(_encode(columns, STEP_DTYPE), self.cols.size)
 
     def stepped(self, base: np.ndarray, step: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameters moved from ``base`` (per half-measurement, as both ends
         hold them) by its :meth:`rounded` ``step``: the free columns as :data:`STEP_DTYPE`, from anchors with a
         free parameter (item 5)."""
-        sent = _encode(step[:, self.cols], STEP_DTYPE)
-        got = _decode(self._round(sent, self.active, self.talks_other), self.cols.size)
+        if STEP_HELD and STEP_DTYPE == np.float32:
+            got = self._held_step(step[:, self.cols])
+        else:
+            got = _decode(
+                self._round(_encode(step[:, self.cols], STEP_DTYPE), self.active, self.talks_other), self.cols.size
+            )
+        self._last_got = got
         out = np.array(base, float)
         out[np.ix_(self.talks_other, self.cols)] += got[self.talks_other]
         return out
+
+    def scaled(self, base: np.ndarray, factor: float) -> np.ndarray:
+        """:meth:`stepped` by :meth:`rounded` ``factor`` × the last step every receiver holds from each sender (an
+        extrapolated trial, ``refine.EXTRAPOLATE``; ``factor`` from a decision all anchors share): no message, the
+        same rows bit for bit as the senders' own rounding of ``factor`` × their last step (item 9)."""
+        if self._last_got is None:
+            raise ModelError("no step to scale: no trial was sent")
+        got = self.rounded_columns(self._last_got * factor)
+        out = np.array(base, float)
+        out[np.ix_(self.talks_other, self.cols)] += got[self.talks_other]
+        return out
+
+    def _held_step(self, step: np.ndarray) -> np.ndarray:
+        """Every half-measurement's other end's ``step`` ``(n_local, m)`` in float32, sent as :func:`pack_steps` on
+        the exponents of the sender's last step (item 8): one message per active directed edge, 7 B or 8 B with two
+        columns. The receiver decodes on the exponents it holds from that sender's last step."""
+        m, ex = step.shape[1], self.ex
+        if self._step_sent is None:
+            self._step_sent = np.zeros((ex.n_local, m), np.int64)
+            self._step_got = np.zeros((self.other.size, m), np.int64)
+        assert self._step_got is not None
+        packed, sizes, self._step_sent = pack_steps(step.astype(np.float32), self._step_sent)
+        box = ex.send(packed[ex.out_src], active=self.active, message_bytes=sizes[ex.out_src])
+        pos = self._positions(box.dst, box.src)
+        if not np.all(box.delivered[pos] | ~self.talks_other):
+            raise ModelError("refinement: a neighbour's message was lost (it needs every link each round)")
+        got = np.zeros((self.other.size, m))
+        talk = self.talks_other
+        values, self._step_got[talk] = unpack_steps(np.asarray(box.values)[pos[talk]], self._step_got[talk], m)
+        got[talk] = values
+        return got
 
     def vectors(self, v: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
         """Each half-measurement's other end's rows of the CG vector ``v`` ``(n_local, P, k)`` (zero at parameters
@@ -377,6 +452,26 @@ def _on_held_exponent(rows: np.ndarray, held: list[np.ndarray]) -> tuple[np.ndar
     return out, np.where(keep, 2 * k, 2 * k + 1).astype(np.int64)
 
 
+@dataclass
+class HeldScalars:
+    """One CG run's held exponents of one reduction's values (:data:`HELD_DOTS`): every anchor's share's and the
+    network total's (empty at the run's start; :func:`held_scalars` fills and updates them)."""
+
+    shares: list[np.ndarray] = field(default_factory=list)
+    total: list[np.ndarray] = field(default_factory=list)
+
+
+def held_scalars(values: np.ndarray, held: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """``values`` ``(n, f)`` as :func:`pack_scalars` rounds them — float16 of each value scaled by a power of two,
+    11 significant bits — and per value whether it travelled on its slot's held exponent (2 B) or carried a new one
+    (3 B; every value of a run's first reduction): :func:`_on_held_exponent` with one value per row. A value whose
+    own exponent lies within the window (``e − 13`` … ``e + 15`` of the held ``e``) is a normal float16 on ``e``,
+    so it keeps the same 11 bits: the returned values equal :func:`pack_scalars`'s bit for bit either way."""
+    v = np.asarray(values, float)
+    packed, sizes = _on_held_exponent(v.reshape(-1, 1), held)
+    return unpack_half(packed, 1).reshape(v.shape), (sizes == 2).reshape(v.shape)
+
+
 def _encode(rows: np.ndarray, dtype: type[np.floating]) -> np.ndarray:
     """Rows ``(n, m)`` on the wire as ``dtype`` (float16: :func:`pack_half`)."""
     return pack_half(rows) if dtype == np.float16 else np.ascontiguousarray(rows, dtype=dtype)
@@ -434,6 +529,19 @@ class Reductions:
     count: int = 0
     floats: int = 0
     bytes: int = 0
+    #: of them, totals decided at the tree's root (``refine.ROOT_DECIDES``): how many, their tree directions (1 or 2)
+    #: and bytes per tree edge (the values up, the decision down), summed — not in ``bytes``
+    decided: int = 0
+    decided_directions: int = 0
+    decided_bytes: int = 0
+
+
+def reductions_cost(n_anchors: int, reduced: Reductions) -> tuple[int, int]:
+    """Messages and bytes of ``reduced`` over a spanning tree: :func:`reduction_cost` of its all-reductions, and
+    ``n − 1`` messages per direction of every decided one (its bytes per tree edge on each of the ``n − 1`` edges)."""
+    m, b = reduction_cost(n_anchors, reduced.count - reduced.decided, reduced.bytes)
+    edges = max(n_anchors - 1, 0)
+    return m + reduced.decided_directions * edges, b + reduced.decided_bytes * edges
 
 
 def reduction_cost(n_anchors: int, reductions: int, reduced_bytes: int) -> tuple[int, int]:

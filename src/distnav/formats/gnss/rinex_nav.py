@@ -156,8 +156,11 @@ def _records(p: Path, lines: Sequence[str]) -> Iterator[tuple[int, str, bool]]:
         if not line.strip():
             k += 1
             continue
-        n = _rinex3_record_lines(p, lines, k) if rinex3 else _rinex2_record_lines(p, line, k, gps_file)
-        _check_continuation(p, lines, k, n)
+        if rinex3:  # its continuation lines are counted by their 4 blanks: in the file and checked already
+            n = _rinex3_record_lines(p, lines, k)
+        else:
+            n = _rinex2_record_lines(p, line, k, gps_file)
+            _check_continuation(p, lines, k, n)
         yield k, (line[0] if rinex3 else ("G" if gps_file else "R")), rinex3
         k += n
 
@@ -189,7 +192,7 @@ def _rinex3_record_lines(p: Path, lines: Sequence[str], k: int) -> int:
             f"G05 in columns 1-3, got {line[:12]!r}"
         )
     n = 1  # RINEX 3: continuation lines start with 4 blanks (3.05 GLONASS records have 5 lines, not 4)
-    while k + n < n_lines and lines[k + n][:4] == "    " and lines[k + n].strip():
+    while k + n < n_lines and lines[k + n][:4] == "    " and not lines[k + n].isspace():
         n += 1
     need = _RECORD_LINES.get(line[0], 8)
     if n < need:
@@ -197,14 +200,15 @@ def _rinex3_record_lines(p: Path, lines: Sequence[str], k: int) -> int:
             f"{p}, line {k + 1}: the record of {line[:3]} has {n} of {need} lines: the file "
             f"is truncated or a line is missing"
         )
-    _ints(
-        p,
-        k + 1,
-        line,
-        [(4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23)],
-        "the epoch",
-        "year month day hour minute second as in 'G05 2024 01 10 00 00 00'",
-    )
+    if len(line) < 23 or not (line[4:8] + line[9:11] + line[12:14] + line[15:17] + line[18:20] + line[21:23]).isdigit():
+        _ints(  # (all digits, as written: every field passes; else the field by field check names the bad one)
+            p,
+            k + 1,
+            line,
+            [(4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23)],
+            "the epoch",
+            "year month day hour minute second as in 'G05 2024 01 10 00 00 00'",
+        )
     return n
 
 

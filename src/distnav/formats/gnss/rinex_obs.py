@@ -207,9 +207,23 @@ def read_header(path: str | Path) -> RinexHeader:
     return _parse_header(_read_lines(p), p)
 
 
+_HOURS: dict[tuple[int, int, int, int], int] = {}
+
+
 def _epoch_time(y: int, mo: int, d: int, h: int, mi: int, sec: float) -> np.datetime64:
-    base = np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}T{h:02d}:{mi:02d}", "ns")
-    return base + np.timedelta64(int(round(sec * 1e9)), "ns")
+    """The epoch in ns: the hour parsed (and so checked) by numpy once per hour and remembered, the minute checked
+    here, then whole nanoseconds added — the same datetime64 as parsing every epoch's minute (issue 32: 6 µs of
+    string parsing per epoch)."""
+    key = (y, mo, d, h)
+    hour_ns = _HOURS.get(key)
+    if hour_ns is None:
+        hour_ns = int(np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}T{h:02d}", "ns").astype(np.int64))
+        if len(_HOURS) > 4096:
+            _HOURS.clear()
+        _HOURS[key] = hour_ns
+    if not 0 <= mi <= 59:
+        raise ValueError(f"minute {mi}")
+    return np.datetime64(hour_ns + mi * 60_000_000_000 + int(round(sec * 1e9)), "ns")
 
 
 def read_observation_types(
@@ -361,14 +375,19 @@ class _Scan:
         self.cell_arrays = tuple(np.concatenate(c) for c in zip(*parts, strict=True))
         self.pending = {}
 
+    def _sink(self, starts: tuple[int, ...]) -> tuple[list[str], list[int], list[int]]:
+        """The fast path's lists (lines, epoch rows, PRNs) of the lines with the field ``starts``."""
+        got = self.pending.get(starts)
+        if got is None:
+            got = self.pending[starts] = ([], [], [])
+        return got
+
     def _line(self, line: str, starts: tuple[int, ...], prn: int) -> None:
         """The values of one satellite's line(s) at the field ``starts`` (one per requested type; -1: not on
         this line) into :attr:`cells` (on the fast path: the line kept for :meth:`parse_pending`)."""
         t = len(self.times)
         if self.fast:
-            got = self.pending.get(starts)
-            if got is None:
-                got = self.pending[starts] = ([], [], [])
+            got = self._sink(starts)
             got[0].append(line)
             got[1].append(t)
             got[2].append(prn)
@@ -420,6 +439,8 @@ class _Scan:
             return
         system = self.system
         starts = tuple(3 + 16 * c for c in self.columns)
+        sink: tuple[list[str], list[int], list[int]] | None = None  # the fast path's lists, without a call a line
+        t_row = len(self.times)
         for i, sl in enumerate(sat_lines):
             self.k = start + i
             if sl[:1] != system or not sl[1:3].strip().isdigit():
@@ -428,7 +449,15 @@ class _Scan:
                         f"expected a satellite line starting with its id (e.g. G01) in columns 1-3, got {sl[:12]!r}"
                     )
                 continue
-            self._line(sl, starts, _prn(sl[1:3], system, self.n_prn))
+            prn = _prn(sl[1:3], system, self.n_prn)
+            if self.fast:
+                if sink is None:
+                    sink = self._sink(starts)
+                sink[0].append(sl)
+                sink[1].append(t_row)
+                sink[2].append(prn)
+                continue
+            self._line(sl, starts, prn)
         self.k = start + nsat
         self.times.append(t)
 
@@ -476,11 +505,22 @@ class _Scan:
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
         per_line, used = self._rinex2_layout(n_per_sat)
+        # the fast path keeps the lines for parse_pending: appended here without a call per line
+        sinks: list[tuple[list[str], list[int], list[int]]] | None = None
+        t_row = len(self.times)
         for s, sv in enumerate(sats):
             if sv[:1] != self.system and not (self.system == "G" and sv[:1] == " "):
                 continue
             self.k = k0  # a bad satellite list is on the epoch line (or its continuation)
             prn = _prn(sv[1:3], self.system, self.n_prn)
+            if self.fast:
+                if sinks is None:  # made at the first satellite kept (as the per-line path would)
+                    sinks = [self._sink(per_line[r]) for r in used]
+                for r, (keep_lines, keep_t, keep_prn) in zip(used, sinks, strict=True):
+                    keep_lines.append(block[s * n_per_sat + r])
+                    keep_t.append(t_row)
+                    keep_prn.append(prn)
+                continue
             for r in used:
                 self.k = start + s * n_per_sat + r
                 self._line(block[s * n_per_sat + r], per_line[r], prn)

@@ -28,7 +28,7 @@ import numpy as np
 from distnav.errors import ModelError
 from distnav.models.gnss.gfbias import BiasStateLayout
 
-__all__ = ["present_satellites", "datum_offset_ns", "datum_statement"]
+__all__ = ["present_satellites", "datum_offset_ns", "datum_statement", "error_ratio_interval"]
 
 
 def present_satellites(layout: BiasStateLayout, estimable: np.ndarray) -> np.ndarray:
@@ -83,3 +83,29 @@ def datum_statement(
             "differs from the full set's"
         )
     return text
+
+
+def error_ratio_interval(n_satellites: int, *, level: float = 0.90, datum_dof: int = 1) -> tuple[float, float]:
+    """The ``level`` interval that chance gives ``RMS(e/σ)`` of ``n_satellites`` DSB errors ``e`` against a product
+    when the stated σ is right: ``n·RMS² ~ χ²_ν`` with ``ν = n − datum_dof``, so the interval is
+    ``[√(χ²_{ν,(1−level)/2}/n), √(χ²_{ν,(1+level)/2}/n)]`` (90 %: the 5 % and 95 % quantiles).
+
+    ``datum_dof = 1`` for errors aligned to zero mean over the satellites (the comparison's datum takes one
+    degree of freedom). Approximate: it assumes independent errors of equal σ, while the errors of one solution are
+    correlated through the datum and the shared receivers — a row outside it misses by more than chance alone
+    would give, a row inside it is not proven right. The quantiles are those of
+    :func:`~distnav.algorithms.statistics.variance_factor_test`.
+
+    Examples
+    --------
+    >>> from distnav.models.gnss.datum import error_ratio_interval
+    >>> [round(v, 3) for v in error_ratio_interval(15)]
+    [0.662, 1.257]
+    """
+    from distnav.algorithms.statistics import variance_factor_test
+
+    dof = n_satellites - datum_dof
+    if dof < 1 or not 0.0 < level < 1.0:
+        raise ModelError(f"need n_satellites > datum_dof and 0 < level < 1; got {n_satellites}, {datum_dof}, {level}")
+    _, (lo, hi), _ = variance_factor_test(float(dof), float(dof), level=1.0 - level)
+    return float(np.sqrt(lo * dof / n_satellites)), float(np.sqrt(hi * dof / n_satellites))

@@ -260,7 +260,7 @@ class BiasGeometryFreeSeries(SeriesArrays):
         A, w = self.design_block(np.arange(t0, min(t0 + NORMALS_BLOCK, self.n_epochs)), idx)
         ts = np.arange(t0, min(t0 + NORMALS_BLOCK, self.n_epochs))
         Aw = A * w[..., None]
-        N = np.swapaxes(Aw, -1, -2) @ A
+        N = Aw.swapaxes(-1, -2) @ A
         r = np.zeros(N.shape[:-1]) if self._y is None else np.einsum("bksp,bks->bkp", Aw, self._y[ts][:, idx])
         N.flags.writeable = r.flags.writeable = False  # handed out as views: a caller copies before changing them
         return N, r
@@ -322,7 +322,7 @@ class BiasGeometryFreeSeries(SeriesArrays):
 def _weighted_normals(A: np.ndarray, w: np.ndarray, y: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """``N = Āᵀ W Ā`` (k, p, p) and ``r = Āᵀ W y`` (k, p; zeros without observations) of design rows ``A`` (k, S, p)."""
     Aw = A * w[..., None]
-    N = np.swapaxes(Aw, 1, 2) @ A
+    N = Aw.swapaxes(1, 2) @ A
     if y is None:
         return N, np.zeros(N.shape[:2])
     return N, np.einsum("ksp,ks->kp", Aw, y)

@@ -143,8 +143,10 @@ class Collector:
         self.dsb_std = np.full((n_epochs, q), np.nan)
 
     def step(self, t: int, x: np.ndarray, est: np.ndarray, P: np.ndarray | None) -> None:
-        """The filter's state after the measurement update of epoch ``t`` (copied: filters may reuse arrays)."""
-        self._buf.append((t, x.copy(), est.copy(), None if P is None else P.copy()))
+        """The filter's state after the measurement update of epoch ``t``, kept as given, not copied: the filters
+        of :mod:`~distnav.models.gnss.gfnetwork` hand out new arrays every epoch (a caller that reuses its arrays
+        must pass copies)."""
+        self._buf.append((t, x, est, P))
         if len(self._buf) >= BLOCK:
             self._flush()
 
@@ -152,19 +154,27 @@ class Collector:
         buf, self._buf = self._buf, []
         if not buf:
             return
-        prevs: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
-        for t, x, est, P in buf:
-            prevs.append(self._prev if t > 0 else None)
+        # the states with P, the last one before the block first: stacked once for both computations
+        head: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = [] if self._prev is None else [self._prev]
+        states = head + [(b[1], b[2], b[3]) for b in buf if b[3] is not None]
+        prev_row: list[int] = []  # each epoch's previous state with P: its row in `states` (-1: none)
+        row = len(head) - 1
+        for t, _, _, P in buf:
+            prev_row.append(row if t > 0 else -1)
             if P is not None:
-                self._prev = (x, est, P)
-        self._innovations(buf, prevs)
-        self._outputs(buf)
+                row += 1
+        if states:
+            self._prev = states[-1]
+        stacked = tuple(np.stack([st[i] for st in states]) for i in range(3)) if states else None
+        self._innovations(buf, prev_row, stacked)
+        self._outputs(buf, None if stacked is None else stacked[2][len(head) :])
 
-    def _innovations(self, buf: list[Any], prevs: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None]) -> None:
+    def _innovations(self, buf: list[Any], prev_row: list[int], stacked: tuple[np.ndarray, ...] | None) -> None:
         """Accumulate the predicted residuals of the block's epochs over the observations whose parameters were
-        all estimable before the epoch (``P⁻ = P_{t−1} + S_t``), and their lag-1 products."""
+        all estimable before the epoch (``P⁻ = P_{t−1} + S_t``), and their lag-1 products; ``prev_row``: each
+        epoch's previous state with P, a row of ``stacked`` (x, estimable, P), or -1."""
         ts = np.array([b[0] for b in buf], np.int64)
-        jj = [j for j, pr in enumerate(prevs) if pr is not None]
+        jj = [j for j, r in enumerate(prev_row) if r >= 0]
         kS = self.nodes.size * self.series.n_satellites
         Z = np.full((len(buf), kS), np.nan)
         if jj:
@@ -173,10 +183,15 @@ class Collector:
             A, w = A.reshape(len(jj), kS, -1), w.reshape(len(jj), kS)
             ser = self.series
             y = np.zeros(w.shape) if ser._y is None else ser._y[t_in][:, self.nodes].reshape(len(jj), kS)
-            xp = np.stack([prevs[j][0] for j in jj])  # type: ignore[index]
-            ep = np.stack([prevs[j][1] for j in jj])  # type: ignore[index]
-            Pp = np.stack([prevs[j][2] for j in jj])  # type: ignore[index]
-            rows = (w > 0) & ~((A != 0) & ~ep[:, None, :]).any(axis=2)  # no coefficient on an inestimable entry
+            assert stacked is not None
+            rows_in = [prev_row[j] for j in jj]
+            if rows_in == list(range(rows_in[0], rows_in[0] + len(rows_in))):  # consecutive: views, no copies
+                xp, ep, Pp = (a[rows_in[0] : rows_in[0] + len(rows_in)] for a in stacked)
+            else:
+                xp, ep, Pp = (a[rows_in] for a in stacked)
+            every = bool(ep.all())  # every entry estimable before every epoch (most blocks): no masks needed
+            # the rows with no coefficient on an inestimable entry
+            rows = (w > 0) if every else (w > 0) & ~((A != 0) & ~ep[:, None, :]).any(axis=2)
             M = int(rows.sum(axis=1).max())
             if M:
                 order = np.argsort(~rows, axis=1, kind="stable")[:, :M]  # each epoch's rows first, padded
@@ -185,9 +200,9 @@ class Collector:
                 wr = np.take_along_axis(w, order, axis=1)
                 yr = np.take_along_axis(y, order, axis=1)
                 Sn = self.dynamics.noise_cov_block(t_in)
-                Pm = np.where(ep[:, :, None] & ep[:, None, :], Pp + Sn, 0.0)
-                v = np.where(kept, yr - (Ar @ np.where(ep, xp, 0.0)[..., None])[..., 0], 0.0)
-                Qv = Ar @ Pm @ np.swapaxes(Ar, 1, 2)
+                Pm = Pp + Sn if every else np.where(ep[:, :, None] & ep[:, None, :], Pp + Sn, 0.0)
+                v = np.where(kept, yr - (Ar @ (xp if every else np.where(ep, xp, 0.0))[..., None])[..., 0], 0.0)
+                Qv = Ar @ Pm @ Ar.swapaxes(1, 2)
                 dq = np.arange(M)
                 Qv[:, dq, dq] += np.where(kept, 1.0 / np.where(kept, wr, 1.0), 1.0)  # R + A P⁻ Aᵀ (padding: 1)
                 self.ssr += float((v * np.linalg.solve(Qv, v[..., None])[..., 0]).sum())
@@ -207,16 +222,18 @@ class Collector:
         self.zlag += float((Zp[1:][follows] * Zp[:-1][follows]).sum())
         self._z_last = (int(ts[-1]), Z[-1])
 
-    def _outputs(self, buf: list[Any]) -> None:
+    def _outputs(self, buf: list[Any], Ps: np.ndarray | None) -> None:
         """TEC and their σ; DSBs ``T x`` and σ ``sqrt diag(T P Tᵀ)`` in the output datum (NaN rows of ``T``: NaN)."""
         nt = self.layout.n_tec
         ts = np.array([b[0] for b in buf], np.int64)
         X = np.stack([b[1] for b in buf])
         E = np.stack([b[2] for b in buf])
         self.tec[ts] = np.where(E[:, :nt], X[:, :nt], np.nan)
-        hasP = np.array([b[3] is not None for b in buf])
+        hasP = np.array([b[3] is not None for b in buf])  # Ps: the P of these epochs, stacked by _flush
+        at = np.cumsum(hasP) - 1  # epoch j's row in Ps (where hasP)
         if hasP.any():
-            d = np.stack([np.diagonal(b[3]) for b in buf if b[3] is not None])
+            assert Ps is not None
+            d = Ps.diagonal(axis1=1, axis2=2)
             self.tec_std[ts[hasP]] = np.where(E[hasP, :nt], np.sqrt(np.maximum(d[:, :nt], 0.0)), np.nan)
         groups: dict[bytes, list[int]] = {}
         for j, b in enumerate(buf):
@@ -246,10 +263,12 @@ class Collector:
                 continue
             val = Xz[js] @ rows.Tz.T
             sd = np.full(val.shape, np.nan)
-            withP = [j for j in js if buf[j][3] is not None]
+            withP = [j for j in js if hasP[j]]
             if withP:
-                Pz = np.stack([buf[j][3] for j in withP])
-                Pz = np.where(np.isfinite(Pz), Pz, 0.0)
+                assert Ps is not None
+                Pz = Ps if len(withP) == Ps.shape[0] else Ps[at[withP]]  # (not changed below: np.where copies)
+                if not np.isfinite(Pz).all():  # (else the same numbers without a copy)
+                    Pz = np.where(np.isfinite(Pz), Pz, 0.0)
                 sd[hasP[js]] = np.sqrt(np.maximum(((rows.Tz @ Pz) * rows.Tz).sum(axis=2), 0.0))  # diag(T P Tᵀ)
                 if withP[-1] > last_j:
                     last_j, last_rows = withP[-1], rows

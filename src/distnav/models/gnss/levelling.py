@@ -239,8 +239,17 @@ def find_arcs(
     g: list[float] = g_arr.tolist()
     w: list[float] = w_arr.tolist()
     lli_bits: list[int] | None = None if lli is None else (np.asarray(lli).astype(np.int64) & 1).tolist()
+    # the GF prediction error from the two previous data epochs, for all at once (the same IEEE operations in the
+    # same order): the scan takes it where those two are the arc's last two (no outlier between), else computes it
+    ia = np.asarray(idx, np.int64)
+    ta, ga = np.asarray(t_s, float)[ia], g_arr[ia]
+    dt_a = ta[1:-1] - ta[:-2]
+    pred_a = ga[1:-1] + (ga[1:-1] - ga[:-2]) * (ta[2:] - ta[1:-1]) / np.where(1e-9 > dt_a, 1e-9, dt_a)
+    err_at: list[float] = [0.0, 0.0, *(ga[2:] - pred_a).tolist()]
     cur = -1
     hist: list[int] = []  # epochs of the current arc
+    last_pos = prev_pos = -9  # positions in idx of hist[-1], hist[-2]
+    nh = 0  # len(hist); the conditionals below are max() as Python evaluates it (the same floats, fewer calls)
     mw_sum = mw_sq = 0.0
     gf_ms = 0.0  # the satellite's recent mean square GF prediction error (kept across arcs)
     warm: list[float] = []
@@ -254,24 +263,31 @@ def find_arcs(
         elif lli_bits is not None and lli_bits[k]:
             reason = "lli"
         else:
-            if len(hist) >= 2:
-                k1, k2 = hist[-1], hist[-2]
-                pred = g[k1] + (g[k1] - g[k2]) * (t[k] - t[k1]) / max(t[k1] - t[k2], 1e-9)
-                err = g[k] - pred
+            if nh >= 2:
+                if last_pos == pos - 1 and prev_pos == pos - 2:
+                    err = err_at[pos]
+                else:
+                    k1, k2 = hist[-1], hist[-2]
+                    dt = t[k1] - t[k2]
+                    err = g[k] - (g[k1] + (g[k1] - g[k2]) * (t[k] - t[k1]) / (1e-9 if 1e-9 > dt else dt))
                 lim_gf = gf_threshold_m
-                if gf_sigmas > 0 and len(warm) >= 3:
-                    lim_gf = max(gf_threshold_m, gf_sigmas * math.sqrt(gf_ms))
+                n_warm = len(warm)
+                if gf_sigmas > 0 and n_warm >= 3:
+                    s_gf = gf_sigmas * math.sqrt(gf_ms)
+                    lim_gf = s_gf if s_gf > gf_threshold_m else gf_threshold_m
                 if abs(err) > lim_gf:
                     reason = "gf"
-                if len(warm) < GF_MIN_ERRORS:  # the first errors, slips or not: a robust start (median)
+                if n_warm < GF_MIN_ERRORS:  # the first errors, slips or not: a robust start (median)
                     warm.append(err * err)
                     gf_ms = float(np.median(warm)) / 0.455  # median of χ²₁ = 0.455
                 elif not reason:
                     gf_ms += lam * (err * err - gf_ms)
-            if not reason and len(hist) >= 3:
-                m = mw_sum / len(hist)
-                sd = math.sqrt(max(mw_sq / len(hist) - m * m, 0.0))
-                lim = max(mw_sigmas * sd, mw_min_cycles)
+            if not reason and nh >= 3:
+                m = mw_sum / nh
+                var = mw_sq / nh - m * m
+                sd = math.sqrt(0.0 if 0.0 > var else var)
+                lim = mw_sigmas * sd
+                lim = mw_min_cycles if mw_min_cycles > lim else lim
                 if abs(w[k] - m) > lim:
                     nxt = idx[pos + 1] if pos + 1 < len(idx) else -1
                     confirmed = nxt >= 0 and abs(w[nxt] - m) > lim and abs(w[nxt] - w[k]) < lim
@@ -284,9 +300,12 @@ def find_arcs(
             cur = len(reasons)
             reasons.append(reason)
             hist = []
+            nh = 0
             mw_sum = mw_sq = 0.0
         arc[k] = cur
         hist.append(k)
+        prev_pos, last_pos = last_pos, pos
+        nh += 1
         mw_sum += w[k]
         mw_sq += w[k] ** 2
     return arc, outlier, reasons

@@ -1,0 +1,254 @@
+"""The inner solve of the final distributed LM phase (:mod:`~distnav.algorithms.ranging.refine`) and of the central σ
+(:mod:`~distnav.algorithms.ranging.covariance`): the block's links and network totals (:class:`Links`), the damped
+normal matrix applied through the exchange (:class:`NormalSystem`), each anchor's own block as preconditioner
+(:func:`block_preconditioner`) and preconditioned conjugate gradients over them (:func:`pcg`, Saad 2003, Alg. 9.1).
+
+Split from :mod:`~distnav.algorithms.ranging.refine` (issue 27, seventh session); what each piece puts on the wire:
+:mod:`~distnav.algorithms.ranging.wire` (CG's reduced dot products on their held exponents: :meth:`Links.held_total`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from distnav.algorithms.ranging import wire
+from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.neighbourhoods import half_measurements
+from distnav.algorithms.ranging.wire import Wire
+from distnav.exchange import Exchange
+
+__all__ = ["CG_RTOL", "Links", "NormalSystem", "block_preconditioner", "pcg"]
+
+CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
+
+
+class Links:
+    """The half-measurements of one block, their neighbour rows in a broadcast (``wire_options``: Wire's), totals."""
+
+    def __init__(
+        self, problem: RangingData, ex: Exchange, *, per_anchor_offsets: bool = False, **wire_options: Any
+    ) -> None:
+        self.ex, self.n = ex, problem.n_anchors
+        self.owner, self.other, _, self.samp = half_measurements(problem, ex)
+        self.reductions = 0
+        self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
+        self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
+        self.decided = [0, 0, 0]  # totals decided at the tree's root: count, directions, bytes per edge (Reductions)
+        self.wire = Wire(problem, ex, self.owner, self.other, int(per_anchor_offsets), **wire_options)
+
+    def counted(self) -> wire.Reductions:
+        """The reductions counted so far."""
+        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes, *self.decided)
+
+    def neighbours(self, values: np.ndarray) -> np.ndarray:
+        """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)`` (one broadcast; after
+        the first, only what can change: :meth:`~distnav.algorithms.ranging.wire.Wire.parameters`)."""
+        return self.wire.parameters(values)
+
+    def vectors(self, v: np.ndarray, dtype: type[np.floating] = np.float64) -> np.ndarray:
+        """Each half-measurement's other end's rows of a CG vector ``(n_local, P, k)`` (one broadcast of the free
+        columns: :meth:`~distnav.algorithms.ranging.wire.Wire.vectors`)."""
+        return self.wire.vectors(v, dtype)
+
+    def total(
+        self, per_node: np.ndarray, dtype: type[np.floating] = np.float64, held: wire.HeldScalars | None = None
+    ) -> np.ndarray:
+        """Network sum of a per-anchor array ``(n_local, ...)``, in the anchors' order (the same bits everywhere);
+        ``dtype`` float32: every anchor's share is rounded to float32 on the wire (summed in float64); ``held``
+        (float16 ``(n_local, f)`` only, :data:`~distnav.algorithms.ranging.wire.HELD_DOTS`): a CG run's held
+        exponents of this reduction, :meth:`held_total`."""
+        if held is not None and dtype == np.float16 and wire.HELD_DOTS and not wire.PLAIN:
+            return self.held_total(per_node, held)
+        return np.asarray(np.sum(self.gathered(per_node, dtype), axis=0))
+
+    def held_total(self, per_node: np.ndarray, held: wire.HeldScalars) -> np.ndarray:
+        """Network sum of ``per_node`` ``(n_local, f)``, every share rounded as float16 (the values of
+        :meth:`gathered` with float16, bit for bit) on its held exponent
+        (:func:`~distnav.algorithms.ranging.wire.held_scalars`). Counted per value: 2 B where every anchor's share
+        and the total lie in their held windows, else 3 B (every message of the spanning tree at that size; the
+        tree's partial sums are not simulated, as the rounding is not)."""
+        rows, on_held = wire.held_scalars(per_node, held.shares)
+        f = rows.shape[1]
+        got = np.asarray(self.ex.gather_nodes(np.c_[rows, on_held]))  # the flags ride along (for the count only)
+        out = np.asarray(np.sum(got[:, :f], axis=0))
+        total_on = wire.held_scalars(out.reshape(1, -1), held.total)[1][0]
+        self.reductions += 1
+        self.reduced_floats += f
+        self.reduced_bytes += int(np.sum(np.where(np.all(got[:, f:] > 0, axis=0) & total_on, 2, 3)))
+        return out
+
+    def gathered(
+        self,
+        per_node: np.ndarray,
+        dtype: type[np.floating] = np.float64,
+        *,
+        exact_columns: int = 0,
+        down_bytes: int | None = None,
+    ) -> np.ndarray:
+        """Every anchor's row of ``per_node`` (a reduction's worth of data: sums and maxima taken from it), as
+        ``dtype`` on the wire (returned as float64) but for its first ``exact_columns`` columns (float64: an
+        objective that decides acceptance). ``down_bytes`` (None: an all-reduction): the totals go up the tree to
+        its root only, which decides for every anchor and sends ``down_bytes`` down (0: nothing; :meth:`decide`
+        adds to it) — counted as such; every anchor's copy here takes the same decision from the same values."""
+        floats = int(np.prod(per_node.shape[1:], dtype=np.int64))
+        size = 3 if dtype == np.float16 else np.dtype(dtype).itemsize  # float16: with its exponent (wire.pack_scalars)
+        up = exact_columns * 8 + (floats - exact_columns) * size
+        self.reductions += 1
+        self.reduced_floats += floats
+        if down_bytes is None:
+            self.reduced_bytes += up
+        else:
+            self.decided[0] += 1
+            self.decided[1] += 1 + (down_bytes > 0)
+            self.decided[2] += up + down_bytes
+        if dtype == np.float64:
+            return np.asarray(self.ex.gather_nodes(per_node))
+        if dtype == np.float16:
+            rows = wire.unpack_scalars(wire.pack_scalars(per_node), per_node.shape)
+        else:
+            rows = np.asarray(per_node, dtype).astype(np.float64)
+        if exact_columns:
+            rows[:, :exact_columns] = per_node[:, :exact_columns]
+        return np.asarray(self.ex.gather_nodes(rows))
+
+    def decide(self, extra_bytes: int) -> None:
+        """``extra_bytes`` more in the last decided total's message down (a number the root sends with its
+        decision, :meth:`gathered`)."""
+        self.decided[2] += extra_bytes
+
+
+def block_preconditioner(own_block: np.ndarray, damp: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """The inverse of every anchor's own (damped) block over its free parameters (identity at fixed ones)."""
+    P = free.shape[1]
+    pre = (own_block + damp[:, :, None] * np.eye(P)) * (free[:, :, None] & free[:, None, :])
+    idx = np.nonzero(~free)
+    pre[idx[0], idx[1], idx[1]] = 1.0
+    return np.asarray(np.linalg.inv(pre))
+
+
+@dataclass(frozen=True, eq=False)
+class NormalSystem:
+    """The (damped) normal matrix of one linearization, applied through the exchange (module docstring); shared
+    by :func:`refine` and :func:`distnav.algorithms.ranging.covariance.central_precision`."""
+
+    links: Links
+    owner: np.ndarray
+    a: np.ndarray  # (h, P) ∂r/∂(own parameters) of every half-measurement
+    cn: np.ndarray  # (h, P) ∂r/∂(the other end's parameters)
+    e: np.ndarray  # (h,) ∂r/∂(common offset), zeros without one
+    w: np.ndarray  # (h,) IRLS weights
+    damp: np.ndarray  # (n_local, P) μ·diag N
+    damp_c: float
+    prior: float  # 1/σ_b² on per-anchor offsets (0 otherwise)
+    free: np.ndarray  # (n_local, P)
+    common: bool
+    wire_dtype: type[np.floating] = np.float64  # the CG vectors on the wire (ranging.wire: float16 in the LM phase)
+    sigma: np.ndarray | None = None  # (h,) every half-measurement's range σ: the products travel projected
+    held: list[np.ndarray] = field(default_factory=list)  # the CG run's exponents per link (wire.HELD_EXPONENT)
+    #: the held exponents of :func:`pcg`'s two reductions (``pᵀq`` with the common offset's row, ``rᵀz``;
+    #: wire.HELD_DOTS), fresh for every system
+    held_dots: tuple[wire.HeldScalars, wire.HeldScalars] = field(
+        default_factory=lambda: (wire.HeldScalars(), wire.HeldScalars())
+    )
+
+    def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
+        common offset's row ``(k,)``; one broadcast of ``P·k`` floats per link), and each anchor's share of the
+        common offset's row ``(n_local, k)`` (summed over the network by the caller, together with its dot
+        products: one reduction per CG iteration less)."""
+        nl, P, k = v.shape
+        own = np.einsum("hp,hpk->hk", self.a, v[self.owner])
+        if (
+            self.sigma is not None and wire.PROJECTED and not wire.PLAIN
+        ):  # the neighbour's product itself: k values per link
+            held = self.held if wire.HELD_EXPONENT else None
+            other = self.links.wire.projected(own * self.sigma[:, None], self.wire_dtype, held) / self.sigma[:, None]
+        else:
+            other = np.einsum("hp,hpk->hk", self.cn, self.links.vectors(v, self.wire_dtype))
+        jv = own + other + self.e[:, None] * vc[None, :]
+        wjv = self.w[:, None] * jv
+        out = np.zeros_like(v)
+        np.add.at(out, self.owner, wjv[:, None, :] * self.a[:, :, None])
+        out += self.damp[:, :, None] * v
+        if self.prior:
+            out[:, -1] += self.prior * v[:, -1]
+        half = np.zeros((nl, k))
+        np.add.at(half, self.owner, 0.5 * wjv * self.e[:, None])
+        return np.where(self.free[:, :, None], out, 0.0), half
+
+
+def pcg(
+    system: NormalSystem,
+    b: np.ndarray,
+    bc: np.ndarray,
+    pre_inv: np.ndarray,
+    pre_c: float,
+    links: Links,
+    max_its: int,
+    rtol: float = CG_RTOL,
+    scalar_dtype: type[np.floating] = np.float64,
+    preconditioned_stop: bool = False,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P, k)`` for ``k``
+    right-hand sides at once (independent CG recurrences sharing every broadcast and reduction) and the common
+    parameter's row ``bc`` ``(k,)`` (zeros without one); the dot products are network totals. It stops when every
+    column's residual is below ``rtol`` of its start — in the preconditioner's norm ``rᵀM⁻¹r`` with
+    ``preconditioned_stop`` (the LM phase, issue 27: that norm is CG's ``rᵀz``, which the iteration reduces anyway,
+    so the residual's own norm ``rᵀr`` needs no reduction of its own) —, or one column's curvature ``pᵀNp`` is not
+    positive. Per iteration two reductions: ``pᵀq`` with the common offset's row of ``q`` (only with a common offset),
+    then ``rᵀz``; with float16 ``scalar_dtype`` each value after a run's first travels on its slot's held exponent
+    (:data:`~distnav.algorithms.ranging.wire.HELD_DOTS`, issue 27, seventh session)."""
+    k = b.shape[2]
+    x = np.zeros_like(b)
+    xc = np.zeros(k)
+    res, rc = b.copy(), np.asarray(bc, float).copy()
+
+    held_pq, held_rz = system.held_dots  # the held exponents of the reductions (wire.HELD_DOTS)
+
+    def dots(u: np.ndarray, v: np.ndarray, extra: np.ndarray, held: wire.HeldScalars | None = None) -> np.ndarray:
+        both = np.concatenate([np.einsum("nak,nak->nk", u, v), extra], axis=1)
+        return np.asarray(links.total(both, scalar_dtype, held))
+
+    def residual_dots(r: np.ndarray, zv: np.ndarray, r_c: np.ndarray, z_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``rᵀz`` and the residual norm the stop compares (``rᵀz`` itself with ``preconditioned_stop``)."""
+        if preconditioned_stop:
+            rz_ = dots(r, zv, np.zeros((r.shape[0], 0)), held_rz) + r_c * z_c
+            return rz_, rz_
+        tt = dots(r, zv, np.einsum("nak,nak->nk", r, r))
+        return tt[:k] + r_c * z_c, tt[k:] + r_c * r_c
+
+    z = np.einsum("nab,nbk->nak", pre_inv, res)
+    zc = rc / pre_c
+    rz, rr0 = residual_dots(res, z, rc, zc)
+    p, pc = z.copy(), zc.copy()
+    its = 0
+    live = rr0 > 0.0
+    if not live.any():
+        return x, xc, 0
+    while its < max_its:
+        its += 1
+        q, q_share = system.matvec(p, pc)  # the common offset's row only with one (issue 27, seventh session)
+        t = dots(p, q, q_share if system.common else q_share[:, :0], held_pq)
+        qc = t[k:] + system.damp_c * pc if system.common else np.zeros(k)
+        pq = t[:k] + pc * qc
+        if not np.all(pq[live] > 0):
+            break
+        alpha = np.where(live, rz / np.where(live, pq, 1.0), 0.0)
+        x += alpha * p
+        xc += alpha * pc
+        res -= alpha * q
+        rc -= alpha * qc
+        z = np.einsum("nab,nbk->nak", pre_inv, res)
+        zc = rc / pre_c
+        rz_new, rr = residual_dots(res, z, rc, zc)
+        live &= rr > rtol**2 * rr0
+        if not live.any():
+            break
+        beta = np.where(live, rz_new / np.where(live, rz, 1.0), 0.0)
+        p = z + beta * p
+        pc = zc + beta * pc
+        rz = rz_new
+    return x, xc, its
