@@ -403,6 +403,27 @@ def test_without_confirm_a_decided_loose_end_is_returned():
     assert np.array_equal(res.tests.w, full(_without(p, alone)).tests.w)
 
 
+class _Unusable(_Scripted):
+    """A loose fit that fails (diverged / singular: unusable) on every subproblem but the whole one."""
+
+    def __call__(self, sub):
+        r = super().__call__(sub)
+        r.usable = sub.n_meas == self.problem.n_meas
+        return r
+
+
+def test_without_confirm_an_unusable_loose_fit_does_not_end_the_loop():
+    """exclude_links with ``confirm=False``: a loose re-fit that is unusable has no eligible link, so its (empty)
+    choice is "decided" — it must not end the loop (review of issue 27, seventh session: it returned the unusable
+    fit with one link excluded of three); the full fit continues, and the loop excludes what it alone excludes."""
+    p, pair, w, alone, near = _three_flagged()
+    full, loose = _Scripted(p, w), _Unusable(p, near)
+    res, _, tests = exclude_links(p, full, loose=[(loose, 0.1)], confirm=False)
+    assert res.usable
+    assert tests.removed == alone
+    assert np.array_equal(res.tests.w, full(_without(p, alone)).tests.w)
+
+
 def _without(p, removed):
     keep = np.ones(p.n_meas, bool)
     keep[list(removed)] = False

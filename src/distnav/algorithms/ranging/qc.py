@@ -320,31 +320,67 @@ def exclude_links(
         aw, a, b, idx = _eligible(problem, res.tests, keep, need, one_sided) if usable else (np.zeros(0),) * 4
         crit = float(res.tests.critical_value) if usable and res.tests is not None else 0.0
         picks = _round_picks(problem.n_anchors, aw, a, b, cap, crit)
-        margin = ladder[level][1]
         if level < len(ladder) - 1:
-            decided = _decided(problem.n_anchors, aw, (a, b), cap, crit, margin, picks)
-            if not picks or not decided:  # undecided: the next fit decides; the loop's end: the last fit confirms
-                if decided and not confirm:
-                    break
-                level = level + 1 if not decided else len(ladder) - 1
+            step = _ladder_step(problem.n_anchors, res, (aw, a, b), (cap, crit, ladder[level][1]), picks, confirm)
+            if step == _END:
+                break
+            if step != _TAKE:  # the next fit decides (its level), or the last fit confirms the loop's end
+                level = level + 1 if step == _NEXT else len(ladder) - 1
                 res = ladder[level][0](sub)
                 continue
         if not picks:
             break
-        for worst in picks:
-            lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
-            same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
-            keep[same] = False
-            removed.extend(int(s) for s in same)
-        n_links += len(picks)
-        sub = dataclasses.replace(
-            problem, meas_a=problem.meas_a[keep], meas_b=problem.meas_b[keep], range_m=problem.range_m[keep]
-        )
-        level = 0
+        sub, n_links, level = _drop_links(problem, keep, removed, picks, (a, b, idx)), n_links + len(picks), 0
         res = ladder[0][0](sub)
     if res.tests is None:
         raise ModelError("exclude_links needs a fit that returns per-link tests (result.tests)")
     return res, sub, _all_sample_tests(problem, res.tests, keep, removed)
+
+
+def _drop_links(
+    problem: RangingData,
+    keep: np.ndarray,
+    removed: list[int],
+    picks: list[int],
+    rows: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> RangingData:
+    """Every sample of each picked link (``rows``: the ends and original index of every kept sample) cleared from
+    ``keep`` and appended to ``removed`` (both updated in place); the problem without them."""
+    a, b, idx = rows
+    for worst in picks:
+        lo, hi = int(min(a[worst], b[worst])), int(max(a[worst], b[worst]))
+        same = idx[(np.minimum(a, b) == lo) & (np.maximum(a, b) == hi)]
+        keep[same] = False
+        removed.extend(int(s) for s in same)
+    return dataclasses.replace(
+        problem, meas_a=problem.meas_a[keep], meas_b=problem.meas_b[keep], range_m=problem.range_m[keep]
+    )
+
+
+_TAKE, _NEXT, _CONFIRM, _END = "take", "next", "confirm", "end"  # :func:`_ladder_step`'s answers
+
+
+def _ladder_step(
+    n_anchors: int,
+    res: RangingResult,
+    round_: tuple[np.ndarray, np.ndarray, np.ndarray],
+    limits: tuple[int, float, float],
+    picks: list[int],
+    confirm: bool,
+) -> str:
+    """What :func:`exclude_links` does with an early-stopped fit's round (``round_``: |w| ``aw`` and the ends of
+    every kept sample; ``limits``: the round's cap, the critical value and the fit's margin): ``_TAKE`` its
+    ``picks`` where decided; where undecided, ``_NEXT`` (the next fit decides); where a decided choice ends the
+    loop, ``_CONFIRM`` (the last fit confirms it) or, with ``confirm`` False, ``_END`` (the loop ends on this
+    fit) — only where the fit is usable and tested: an unusable fit (diverged, singular; no eligible link, so
+    "decided") has nothing to end on, and the last fit continues as with ``confirm``."""
+    aw, a, b = round_
+    cap, crit, margin = limits
+    if not _decided(n_anchors, aw, (a, b), cap, crit, margin, picks):
+        return _NEXT
+    if picks:
+        return _TAKE
+    return _END if res.usable and res.tests is not None and not confirm else _CONFIRM
 
 
 def _eligible(

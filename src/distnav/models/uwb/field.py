@@ -304,11 +304,9 @@ def _seed(run: _Run) -> None:
         solver_kwargs(opts),
         opts.loss_scale_m,
         opts.iterations,
-        exchange=run.exchange,
-        total=run.total,
-        stage=stage_name(given, "seed"),
-        carry=run.carry,
-        results=opens,
+        field_fits.TightenShared(
+            exchange=run.exchange, total=run.total, stage=stage_name(given, "seed"), carry=run.carry, results=opens
+        ),
     )
     run.starts.append(best)
     run.mark("tighten")

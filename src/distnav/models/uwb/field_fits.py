@@ -12,6 +12,7 @@ that decides whether the polish is kept (a sum over the anchors).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -26,6 +27,7 @@ __all__ = [
     "solve_once",
     "scatter_m",
     "tighten_scale",
+    "TightenShared",
     "TIGHT_SCALE_FLOOR_M",
     "REFIT_TOLERANCES",
     "TIGHTEN_FITS",
@@ -163,6 +165,20 @@ def scatter_m(problem: RangingProblem, positions_m: FloatArray) -> float:
     return float(1.4826 * np.median(np.abs(e - np.median(e)))) if e.size else 0.0
 
 
+@dataclass(frozen=True, kw_only=True, eq=False)
+class TightenShared:
+    """What :func:`tighten_scale`'s fits share with the rest of a workflow (one settings piece; each default: not
+    used): ``exchange`` (a distributed solver's, per problem), ``total`` (the running iterations, messages, bytes),
+    ``stage`` and ``carry`` (:func:`solve_once`'s) and ``results`` (each fit's result appended; the fits then run
+    with their link tests)."""
+
+    exchange: Callable[[RangingProblem], Any] | None = None
+    total: list[int] | None = None
+    stage: str | None = None
+    carry: dict[str, Any] | None = None
+    results: list[Any] | None = None
+
+
 def tighten_scale(
     problem: RangingProblem,
     start_m: FloatArray,
@@ -170,25 +186,22 @@ def tighten_scale(
     kw: dict[str, Any],
     scale_m: float,
     iterations: int,
-    *,
-    exchange: Callable[[RangingProblem], Any] | None = None,
-    total: list[int] | None = None,
-    stage: str | None = None,
-    carry: dict[str, Any] | None = None,
-    results: list[Any] | None = None,
+    shared: TightenShared | None = None,
 ) -> tuple[FloatArray, float, int]:
     """The one-sided fit of every link by ``solver``, its loss scale halved from ``scale_m`` (each fit warm from the
-    last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger (``stage``:
-    :func:`solve_once`'s, and ``carry``); a distributed solver with :data:`TIGHTEN_JUMP` goes to that target at
+    last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger (``shared``:
+    :class:`TightenShared`); a distributed solver with :data:`TIGHTEN_JUMP` goes to that target at
     once, the target recomputed at each fit's solution (the loop ends where it no longer falls). Returns
-    ``(positions, final scale, fits)`` (see :func:`distnav.models.uwb.field.tighten`). ``results``: each fit's result
-    is appended to it, and the fits run with their link tests (``quality``; :data:`TIGHTEN_OPENS_LOOP`: the last one,
-    at the final scale, opens the exclusion loop).
+    ``(positions, final scale, fits)`` (see :func:`distnav.models.uwb.field.tighten`). ``shared.results``: each fit's
+    result is appended to it, and the fits run with their link tests (``quality``; :data:`TIGHTEN_OPENS_LOOP`: the
+    last one, at the final scale, opens the exclusion loop).
 
     Why the jump (issue 27): each halving is one more distributed fit (its start and its rounds; 166 kB of 937 on
     the plant-like hall ``[78, 0]``); the halvings only lead the solution through the intermediate scales, and on
     12 plant-like halls the jump ended within 0.063 mm of them, the same links excluded, the tight scale within
     2.1 % (docs/economy_uwb.md, fifth session). Not for LM, whose fits send nothing."""
+    sh = shared or TightenShared()
+    results = sh.results
     kw = {**kw, "quality": results is not None}
     pos = np.asarray(start_m, float)
     scale, fits = float(scale_m), 0
@@ -204,12 +217,12 @@ def tighten_scale(
             solver,
             kw,
             iterations,
-            exchange=exchange,
-            total=total,
+            exchange=sh.exchange,
+            total=sh.total,
             start="warm",
             tolerances=False,
-            stage=stage,
-            carry=carry,
+            stage=sh.stage,
+            carry=sh.carry,
         )
         fits += 1
         if results is not None:
