@@ -95,6 +95,7 @@ def test_the_last_tightening_fit_opens_the_exclusion_loop_for_the_same_answer(mo
     opening: within 0.2 mm of the full fit of every link of the behaviour before (the opening is mm away)."""
     import distnav.models.uwb.field as field
     import distnav.models.uwb.field_fits as field_fits
+    import distnav.models.uwb.field_run as field_run
 
     h = simulate_hall(np.random.default_rng([78, 0]), HallConfig().with_(known="middle", **PLANT_LIKE))
     sub, geo = prepare(hall_problem(h)[0])
@@ -108,6 +109,7 @@ def test_the_last_tightening_fit_opens_the_exclusion_loop_for_the_same_answer(mo
     assert now.comm_phases["tighten"] == before.comm_phases["tighten"]  # its tests cost nothing counted here
     opts = FieldOptions(solver="N-CLM", polish=False)
     monkeypatch.setattr(field, "DISAGREE_RATIO", 0.5)  # every exclusion rejected: the robust fit of every link
+    monkeypatch.setattr(field_run, "DISAGREE_RATIO", 0.5)  # (and compared with it: FieldRun.reference_ratio)
     now = solve_field(sub, opts, geometry=geo)
     assert not now.excluded.any()
     monkeypatch.setattr(field_fits, "TIGHTEN_OPENS_LOOP", False)
@@ -172,3 +174,57 @@ def test_the_first_fit_opens_the_loop_where_nothing_is_tightened(monkeypatch, tm
     assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
     assert np.max(np.abs(now.positions_m - before.positions_m)) < 3e-4
     assert now.comm_phases["exclusions"]["bytes"] < 0.9 * before.comm_phases["exclusions"]["bytes"]
+
+
+def test_the_per_anchor_check_decides_a_close_call_on_completed_fits(monkeypatch):
+    """A PLANT_HARD hall ([34, 2], middle) where the per-anchor check runs on a loop that ended on its 1 cm re-fit
+    (``field_fits.LOOP_ENDS_LOOSE``) and its re-solve fits all the links within 6e-4 of that end's cost, inside the
+    band where a 1 cm stop can move it (``field_steps.POLISH_BAND``): the two are compared at the solver's
+    tolerances, the early-stopped end completed first (review of issue 27, seventh session: before, the 1 cm fit's
+    cost decided). The answer is that of the loop ended by a full fit: the same links, status, positions within
+    0.3 mm."""
+    import distnav.models.uwb.field as field
+    import distnav.models.uwb.field_fits as field_fits
+    import distnav.models.uwb.field_run as field_run
+    from distnav.models.uwb.hall import PLANT_HARD
+
+    h = simulate_hall(np.random.default_rng([34, 2]), None, **PLANT_HARD, known="middle")
+    sub, geo = prepare(hall_problem(h)[0])
+    full: set[int] = set()  # the fits at the solver's tolerances
+    compared: list[list[tuple[bool, float]]] = []  # the costs each check computed: (of a full fit, cost)
+    inside = [False]
+    fit, repair, cost = field_run.FieldRun.fit, field._repair, field_run.all_links_cost
+
+    def counted_fit(self, sub_):
+        r = fit(self, sub_)
+        full.add(id(r))
+        return r
+
+    def checked(run, fit_):
+        compared.append([])
+        inside[0] = True
+        try:
+            return repair(run, fit_)
+        finally:
+            inside[0] = False
+
+    def spied(problem, res, opts):
+        c = cost(problem, res, opts)
+        if inside[0]:
+            compared[-1].append((id(res) in full, c))
+        return c
+
+    with monkeypatch.context() as m:
+        m.setattr(field_run.FieldRun, "fit", counted_fit)
+        m.setattr(field, "_repair", checked)
+        m.setattr(field_run, "all_links_cost", spied)
+        now = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    assert compared and compared[0], "the per-anchor check ran and compared its re-solve"
+    first = compared[0]
+    assert not first[1][0], "the check's first comparison is against the loop's early-stopped end"
+    assert abs(first[0][1] / first[1][1] - 1.0) < field.POLISH_BAND - 1.0  # a close call
+    assert len(first) == 4 and first[2][0] and first[3][0]  # decided again on fits at the solver's tolerances
+    monkeypatch.setattr(field_fits, "LOOP_ENDS_LOOSE", False)
+    before = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    assert np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 3e-4

@@ -53,6 +53,7 @@ from distnav.models.uwb.field_options import (
     supports_objective,
 )
 from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, AnchorPrecision, anchor_precision
+from distnav.models.uwb.field_run import FieldFit, FieldRun, complete, ends_loose, no_worse
 from distnav.models.uwb.field_steps import (
     DISAGREE_RATIO,
     MULTI_START_MAX_ANCHORS,
@@ -154,74 +155,6 @@ class FieldSolution:
         return self.status != "diverged"
 
 
-@dataclass(eq=False)
-class _Run:
-    """What :func:`solve_field`'s steps share and update: the options in force (``opts``, tightened by the seed
-    step) and as given, the running totals ``[iterations, messages, bytes]``, the phase marks, the starts handed to
-    the next fit, the first robust fit on every link, and the note that becomes the solution's message."""
-
-    problem: RangingProblem
-    opts: FieldOptions
-    given: FieldOptions
-    exchange: Callable[[RangingProblem], Any] | None
-    objective: str
-    note: str
-    fit_any: Callable[[Any], Any]  # a fit by name (make_fitter) over ``total`` and ``starts``
-    loose: list[tuple[Callable[[Any], Any], float]]  # the exclusion loop's early-stopped re-fits and margins
-    total: list[int]
-    starts: list[FloatArray]
-    marks: dict[str, tuple[int, int]] = field(default_factory=dict)  # phase -> (messages, bytes) at its end
-    no_exclusion: list[Any] = field(default_factory=list)  # the first robust fit, on every link
-    carry: dict[str, Any] = field(default_factory=dict)  # the common offset handed from fit to fit (solve_once)
-    opening: Any = None  # the last tightening fit, tested, where it opens the exclusion loop (TIGHTEN_OPENS_LOOP)
-    last_full: Any = None  # the last fit at the solver's tolerances (a loop that ends loose did not end on it)
-
-    def fit(self, sub: Any) -> Any:
-        r = self.last_full = self.fit_any(sub)
-        if not self.no_exclusion:
-            self.no_exclusion.append(r)
-        return r
-
-    def mark(self, phase: str) -> None:
-        self.marks[phase] = (self.total[1], self.total[2])
-
-    def cost_ratio(self, res: Any, than: Any) -> float:
-        """All-links robust cost of ``res`` over that of ``than`` (:func:`all_links_cost`)."""
-        return all_links_cost(self.problem, res, self.opts) / max(all_links_cost(self.problem, than, self.opts), 1e-12)
-
-    def reference_ratio(self, res: Any) -> float:
-        """:meth:`cost_ratio` of ``res`` to the robust fit of every link; where that is the loop's early-stopped
-        opening (``field_fits.TIGHTEN_OPENS_LOOP``) and the ratio within :data:`REFERENCE_BAND` of
-        :data:`DISAGREE_RATIO` or above, to that fit continued to the solver's tolerances (the revert's answer)."""
-        ratio = self.cost_ratio(res, self.no_exclusion[0])
-        if (
-            self.opening is not None
-            and self.no_exclusion[0] is self.opening
-            and ratio > DISAGREE_RATIO / REFERENCE_BAND
-        ):
-            self.starts.append(np.asarray(self.opening.estimates, float))
-            full = self.fit_any(self.problem)
-            if full.usable and full.tests is not None and np.all(np.isfinite(full.estimates)):
-                self.no_exclusion[0] = full
-                ratio = self.cost_ratio(res, full)
-        return ratio
-
-
-@dataclass(eq=False)
-class _Fit:
-    """The current solution and its link tests: ``excluded`` / ``w`` / ``flagged`` per measurement."""
-
-    res: Any
-    excluded: BoolArray
-    w: FloatArray
-    flagged: BoolArray
-    crit: float | None
-    untested: bool = False  # LM's exclusion loop got no link tests (a singular normal matrix)
-    reverted: float = 0.0  # the all-links cost ratio that rejected the exclusions (0: not rejected)
-    fit_scale_m: float = 0.0  # the loss scale of the final fit
-    loose: bool = False  # res is an early-stopped re-fit that ended the loop (LOOP_ENDS_LOOSE): _complete
-
-
 def solve_field(
     problem: RangingProblem,
     options: FieldOptions | None = None,
@@ -245,7 +178,7 @@ def solve_field(
 
 def _start_run(
     problem: RangingProblem, options: FieldOptions | None, exchange: Callable[[RangingProblem], Any] | None
-) -> _Run:
+) -> FieldRun:
     opts = options or FieldOptions()
     if problem.initial_m is None:
         raise ModelError("solve_field needs a prepared problem with an initial guess (see prepare)")
@@ -259,10 +192,10 @@ def _start_run(
     starts: list[FloatArray] = []
     carry: dict[str, Any] = {}
     fit_any = make_fitter(opts, exchange, total, starts, carry=carry)
-    return _Run(problem, opts, opts, exchange, objective, note, fit_any, [], total, starts, carry=carry)
+    return FieldRun(problem, opts, opts, exchange, objective, note, fit_any, [], total, starts, carry=carry)
 
 
-def _seed(run: _Run) -> None:
+def _seed(run: FieldRun) -> None:
     """The start of the exclusions: LM's multi-start (metres), then with ``nlos_aware`` the first robust fit
     (distributed solvers) and the tightened one-sided loss scale, which every later fit and cost uses."""
     problem, opts, given = run.problem, run.opts, run.given
@@ -328,7 +261,7 @@ def _seed(run: _Run) -> None:
     )
 
 
-def _exclusions(run: _Run) -> _Fit:
+def _exclusions(run: FieldRun) -> FieldFit:
     """The exclusions tested at the robust solution (an NLOS link does not drag it; every re-fit robust too), and
     with ``repair`` the per-anchor check (:func:`_repair`); without ``exclude`` one fit of every link."""
     problem, opts = run.problem, run.opts
@@ -336,15 +269,15 @@ def _exclusions(run: _Run) -> _Fit:
         run.no_exclusion.append(run.opening)
     else:
         run.opening = None
-    confirm = not _ends_loose(run)
+    confirm = not ends_loose(run)
     first = exclude_worst(problem, run.fit, opts, run.loose, run.opening, confirm) if opts.exclude else None
     if first is None:
         res = run.fit(problem)
         none = np.zeros(problem.n_meas, bool)
         if res.tests is not None and res.usable:
-            fit = _Fit(res, none, res.tests.w, res.tests.flagged, res.tests.critical_value)
+            fit = FieldFit(res, none, res.tests.w, res.tests.flagged, res.tests.critical_value)
         else:
-            fit = _Fit(res, none, np.full(problem.n_meas, np.nan), none.copy(), None)
+            fit = FieldFit(res, none, np.full(problem.n_meas, np.nan), none.copy(), None)
         if opts.exclude and res.usable:
             run.note += f"; {opts.solver}: no per-link tests (or they failed on a re-fit): no link excluded"
             fit.untested = opts.solver.upper() == "LM"
@@ -352,7 +285,9 @@ def _exclusions(run: _Run) -> _Fit:
         res, tests = first
         excluded = np.zeros(problem.n_meas, bool)
         excluded[list(tests.removed)] = True
-        fit = _Fit(res, excluded, tests.w, tests.flagged, float(tests.critical_value), loose=res is not run.last_full)
+        fit = FieldFit(
+            res, excluded, tests.w, tests.flagged, float(tests.critical_value), loose=res is not run.last_full
+        )
         for _ in range(2 if opts.repair else 0):
             if not fit.res.usable or not _repair(run, fit):
                 break
@@ -362,39 +297,44 @@ def _exclusions(run: _Run) -> _Fit:
     return fit
 
 
-def _repair(run: _Run, fit: _Fit) -> bool:
+def _repair(run: FieldRun, fit: FieldFit) -> bool:
     """One round of the per-anchor check (:func:`~distnav.models.uwb.local.repair_exclusions`): re-fit without the
-    links each anchor chose, test and exclude again; ``fit`` updated where the re-fit fits all the ranges no worse.
-    False when there is nothing more to do."""
+    links each anchor chose, test and exclude again; ``fit`` updated where the re-fit fits all the ranges no worse
+    (:func:`~distnav.models.uwb.field_run.no_worse`). False when there is nothing more to do. Where the loop ended
+    on an early-stopped re-fit (``field_fits.LOOP_ENDS_LOOSE``) the anchors choose at its solution: their
+    thresholds (an RMS of 0.15 m, a factor 2) are far from a 1 cm step (on PLANT_HARD ``[34, 0..10]``, 20 checks:
+    the same choice as at the completed fit)."""
     problem, opts = run.problem, run.opts
     repaired, notes, moved = repair_exclusions(
         problem, np.asarray(fit.res.estimates, float), fit.excluded, fit.flagged, one_sided=opts.one_sided
     )
     if not notes:
         return False
-    kept = ~repaired  # (repaired becomes fit.excluded below, and is updated there)
-    kept_idx = np.flatnonzero(kept)
+    kept_idx = np.flatnonzero(~repaired)
     seed = np.asarray(fit.res.estimates, float).copy()
     for k, at in moved.items():  # each changed anchor starts where its own links put it
         seed[k] = at
     run.starts.append(seed)
-    again = exclude_worst(subset_measurements(problem, ~repaired), run.fit, opts, run.loose, None, not _ends_loose(run))
+    again = exclude_worst(subset_measurements(problem, ~repaired), run.fit, opts, run.loose, None, not ends_loose(run))
     if again is None:
         run.note += "; per-anchor check: its re-fit gave no link tests, kept the first choice"
         return False
     res2, t2 = again
-    if res2.usable and all_links_cost(problem, res2, opts) > all_links_cost(problem, fit.res, opts):
+    if not res2.usable:
+        return True
+    new = FieldFit(
+        res2, repaired.copy(), *kept_tests(problem.n_meas, ~repaired, t2), fit.crit, loose=res2 is not run.last_full
+    )
+    new.excluded[kept_idx[list(t2.removed)]] = True
+    if not no_worse(run, new, fit):
         run.note += "; per-anchor check: its re-solve fitted all the ranges worse, kept the first choice"
         return False
-    if res2.usable:
-        fit.res, fit.excluded, fit.loose = res2, repaired, res2 is not run.last_full
-        fit.excluded[kept_idx[list(t2.removed)]] = True
-        fit.w, fit.flagged = kept_tests(problem.n_meas, kept, t2)
-        run.note += "; per-anchor check: " + "; ".join(notes)
+    fit.res, fit.excluded, fit.loose, fit.w, fit.flagged = new.res, new.excluded, new.loose, new.w, new.flagged
+    run.note += "; per-anchor check: " + "; ".join(notes)
     return True
 
 
-def _revert_and_polish(run: _Run, fit: _Fit) -> None:
+def _revert_and_polish(run: FieldRun, fit: FieldFit) -> None:
     """Exclusions that raised the robust cost of all the data more than :data:`DISAGREE_RATIO` are rejected
     (``revert``); with ``nlos_aware`` and ``polish`` the kept links are re-fitted at the given loss scale where that
     fits all the links no worse than :data:`POLISH_RATIO`."""
@@ -402,7 +342,7 @@ def _revert_and_polish(run: _Run, fit: _Fit) -> None:
     if fit.excluded.any() and first and first[0].usable and fit.res.usable and opts.revert:
         worse = run.reference_ratio(fit.res)
         if fit.loose and worse > DISAGREE_RATIO / REFERENCE_BAND:
-            worse = run.reference_ratio(_complete(run, fit).res)
+            worse = run.reference_ratio(complete(run, fit).res)
         if worse > DISAGREE_RATIO:  # the exclusions raised the robust cost of all the data: rejected
             fit.reverted, fit.loose = worse, False
             fit.res = first[0]
@@ -416,34 +356,13 @@ def _revert_and_polish(run: _Run, fit: _Fit) -> None:
         )
         ratio = run.cost_ratio(polished, fit.res)
         if fit.loose and ratio > POLISH_RATIO / POLISH_BAND:  # near the threshold: against the full fit
-            ratio = run.cost_ratio(polished, _complete(run, fit).res)
+            ratio = run.cost_ratio(polished, complete(run, fit).res)
         if ratio <= POLISH_RATIO:
             fit.res, fit.w, fit.flagged, fit.fit_scale_m, fit.loose = polished, w2, f2, given.loss_scale_m, False
-    _complete(run, fit)
+    complete(run, fit)
 
 
-def _ends_loose(run: _Run) -> bool:
-    """Whether the exclusion loop may end on a decided early-stopped re-fit (``field_fits.LOOP_ENDS_LOOSE``): where
-    the polish follows it, from its solution."""
-    given = run.given
-    polish = given.nlos_aware and given.polish and run.opts.loss_scale_m < given.loss_scale_m
-    return field_fits.LOOP_ENDS_LOOSE and bool(run.loose) and polish
-
-
-def _complete(run: _Run, fit: _Fit) -> _Fit:
-    """``fit`` where the loop ended on an early-stopped re-fit: that fit continued to the solver's tolerances on the
-    kept links (the fit the loop would have ended with), its tests over every measurement."""
-    if fit.loose:
-        fit.loose = False
-        run.starts.append(np.asarray(fit.res.estimates, float))
-        r = run.fit(subset_measurements(run.problem, ~fit.excluded))
-        if r.usable and r.tests is not None and np.all(np.isfinite(r.estimates)):
-            fit.res = r
-            fit.w, fit.flagged = kept_tests(run.problem.n_meas, ~fit.excluded, r.tests)
-    return fit
-
-
-def _diverged(run: _Run, fit: _Fit, geo: GeometryReport) -> FieldSolution:
+def _diverged(run: FieldRun, fit: FieldFit, geo: GeometryReport) -> FieldSolution:
     problem = run.problem
     nan_pos = np.full((problem.n_anchors, problem.dim), np.nan)
     return FieldSolution(
@@ -467,7 +386,7 @@ def _diverged(run: _Run, fit: _Fit, geo: GeometryReport) -> FieldSolution:
 
 
 def _precision_and_reasons(
-    run: _Run, fit: _Fit, residual: FloatArray
+    run: FieldRun, fit: FieldFit, residual: FloatArray
 ) -> tuple[AnchorPrecision, dict[str, str], dict[str, Any]]:
     """Every anchor's σ (:func:`anchor_precision`), then why an anchor is weak: its misfit, its reliability
     (every solver, metres), a cut the exclusions made, an untested exclusion loop, exclusions the robust fit of
@@ -515,7 +434,7 @@ def _precision_and_reasons(
     return prec, _whole_map_doubts(run, fit, reasons), reliability
 
 
-def _whole_map_doubts(run: _Run, fit: _Fit, reasons: dict[str, str]) -> dict[str, str]:
+def _whole_map_doubts(run: FieldRun, fit: FieldFit, reasons: dict[str, str]) -> dict[str, str]:
     """Every anchor weak where nothing was tested (a wrong answer would look right: docs/uwb.md, stress test) or
     where the exclusions and the robust fit of every link disagree (trust neither)."""
     every = [run.problem.ids[i] for i in np.flatnonzero(run.problem.estimated)]
@@ -545,7 +464,7 @@ def _whole_map_doubts(run: _Run, fit: _Fit, reasons: dict[str, str]) -> dict[str
     return reasons
 
 
-def _solution(run: _Run, fit: _Fit, geo: GeometryReport) -> FieldSolution:
+def _solution(run: FieldRun, fit: FieldFit, geo: GeometryReport) -> FieldSolution:
     """Precision, the weak anchors and their reasons, the status and the message of a usable solution."""
     problem, res = run.problem, fit.res
     pos = np.asarray(res.estimates, float)

@@ -84,7 +84,7 @@ CARRY_HELD = True
 #: seventh session; the robust fit of every link, the revert's reference, is completed only where a ratio needs it)
 TIGHTEN_OPENS_LOOP = True
 #: the exclusion loop may end on a decided early-stopped re-fit where the polish follows: the full fit of the kept
-#: links runs only where the polish is not kept or a cost ratio comes near its threshold (``field._complete``; issue
+#: links runs only where the polish is not kept or a cost ratio comes near its threshold (``field_run.complete``; issue
 #: 27, seventh session) — the polish, from the early-stopped solution, is then the answer
 LOOP_ENDS_LOOSE = True
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)

@@ -49,10 +49,10 @@ START_TOLERANCES = {"ftol": 1e-6, "xtol": 1e-6}  # choose_start compares basins;
 MULTI_START_MAX_ANCHORS = 200  # larger networks: the prepared start only (each extra start is a full LM fit)
 SAME_START_M = 0.3  # RMS distance under which two starts are taken to lead to the same basin
 #: the all-links cost ratio to an early-stopped robust fit of every link within this factor of DISAGREE_RATIO (or
-#: above) is decided against that fit continued to the solver's tolerances (``field._Run.reference_ratio``)
+#: above) is decided against that fit continued to the solver's tolerances (``field_run.FieldRun.reference_ratio``)
 REFERENCE_BAND = 1.25
 #: the polish's cost ratio to an early-stopped end of the exclusion loop above POLISH_RATIO / this is decided against
-#: that end continued to the solver's tolerances (``field._complete``)
+#: that end continued to the solver's tolerances (``field_run.complete``)
 POLISH_BAND = 1.002
 POLISH_RATIO = 1.01  # 24 halls: ≤ 1.004 where the polish helped; 1.05 and 1.44 where it pulled a weak anchor back
 
