@@ -99,14 +99,41 @@ def test_the_last_tightening_fit_opens_the_exclusion_loop_for_the_same_answer(mo
 
     h = simulate_hall(np.random.default_rng([78, 0]), HallConfig().with_(known="middle", **PLANT_LIKE))
     sub, geo = prepare(hall_problem(h)[0])
-    now = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
-    with monkeypatch.context() as m:
-        m.setattr(field_fits, "TIGHTEN_OPENS_LOOP", False)
-        before = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    solve, tighten = field_fits.csg.solve, field.tighten_scale
+    got: dict[bool, dict[str, list]] = {}
+    for opens in (True, False):
+        seen: dict[str, list] = {"tested": [], "tightened": []}
+
+        def tested(*args, _seen=seen, **kw):
+            r = solve(*args, **kw)
+            _seen["tested"].append(r.tests is not None)
+            return r
+
+        def tightened(*args, _seen=seen, **kw):
+            out = tighten(*args, **kw)
+            _seen["tightened"].append(out)
+            return out
+
+        with monkeypatch.context() as m:
+            m.setattr(field_fits, "TIGHTEN_OPENS_LOOP", opens)
+            m.setattr(field_fits.csg, "solve", tested)
+            m.setattr(field, "tighten_scale", tightened)
+            seen["solution"] = [solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)]
+        got[opens] = seen
+    now, before = got[True]["solution"][0], got[False]["solution"][0]
     assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
     assert np.max(np.abs(now.positions_m - before.positions_m)) < 2e-4
     assert now.comm_phases["exclusions"]["bytes"] < 0.9 * before.comm_phases["exclusions"]["bytes"]
-    assert now.comm_phases["tighten"] == before.comm_phases["tighten"]  # its tests cost nothing counted here
+    # the tightening runs the same fits (tested now: their tests are local) to the same start and scale, bit for bit
+    ((pos_now, scale_now, n_now),), ((pos_before, scale_before, n_before),) = (got[o]["tightened"] for o in (1, 0))
+    assert np.array_equal(pos_now, pos_before) and (scale_now, n_now) == (scale_before, n_before)
+    assert now.comm_phases["tighten"] == before.comm_phases["tighten"]
+    # the network total no fit counts: each tested fit's robust scale of its link tests (docs/economy_uwb.md, "What
+    # is counted"). Every seed fit is tested now (the first and each tightening fit: which one opens the loop is known
+    # only after it), and the opening replaces the loop's full fit of every link: 2 such totals more than before here
+    n_seed = 1 + got[True]["tightened"][0][2]
+    assert all(got[True]["tested"][:n_seed]) and not any(got[False]["tested"][:n_seed])
+    assert sum(got[True]["tested"]) - n_seed == sum(got[False]["tested"]) - 1 == 7
     opts = FieldOptions(solver="N-CLM", polish=False)
     monkeypatch.setattr(field, "DISAGREE_RATIO", 0.5)  # every exclusion rejected: the robust fit of every link
     monkeypatch.setattr(field_run, "DISAGREE_RATIO", 0.5)  # (and compared with it: FieldRun.reference_ratio)
