@@ -11,9 +11,10 @@ and how both grow with the network.
    full in float64, float64 CG scalars, the central σ by CG to ``1e-10``, every re-fit from offset 0 and the initial
    damping, the tightening by halvings, no extrapolated tail, every warm fit's first parameters broadcast, the loop
    opened and ended by full fits), *today* (the defaults at the seventh session's start: items 1–23 of
-   docs/economy_uwb.md, the exclusion loop opened by a full fit of every link and ended by a full fit of the kept
-   links, ``field_fits.TIGHTEN_OPENS_LOOP`` and ``LOOP_ENDS_LOOSE`` False) and *after* (the defaults: the last
-   tightening fit opens the loop, the loop ends on its decided 1 cm re-fit where the polish follows, items 24–25);
+   docs/economy_uwb.md, every item of the seventh session switched off (:data:`SESSION_ITEMS`: the exclusion loop
+   opened by a full fit of every link and ended by a full fit of the kept links, items 24–25; CG's dot products and
+   the products' exponents not held, items 26–27; the LM rounds' own messages as before, items 28–32) and *after*
+   (the defaults: items 24–32);
    the positions, their largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range
    gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
@@ -95,12 +96,24 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (refine, "EXTRAPOLATE"): None,
         (qc, "BLOCKED_NEAR"): False,
         (field_fits, "CARRY_HELD"): False,
-        (field_fits, "TIGHTEN_OPENS_LOOP"): False,
-        (field_fits, "LOOP_ENDS_LOOSE"): False,
     },
-    "today": {(field_fits, "TIGHTEN_OPENS_LOOP"): False, (field_fits, "LOOP_ENDS_LOOSE"): False},
+    "today": {},  # every item of the seventh session off (items 24–32): SESSION_ITEMS
     "after": {},
 }
+#: the seventh session's items 24–32, each switched off in *today* (the defaults at the session's start)
+SESSION_ITEMS: dict[tuple[Any, str], Any] = {
+    (field_fits, "TIGHTEN_OPENS_LOOP"): False,  # item 24
+    (field_fits, "LOOP_ENDS_LOOSE"): False,  # item 25
+    (wire, "HELD_DOTS"): False,  # item 26
+    (wire, "HELD_ACROSS_RUNS"): False,  # item 27
+    (wire, "STEP_HELD"): False,  # items 28–32: the LM rounds' own messages
+    (refine, "FIRST_MOVE_KNOWN"): False,
+    (refine, "OFFSET_START_HELD"): False,
+    (refine, "ROOT_DECIDES"): False,
+    (refine, "SCALED_TRIAL_KNOWN"): False,
+}
+SWITCHES["today"].update(SESSION_ITEMS)
+SWITCHES["before"].update(SESSION_ITEMS)
 OPTIONS = {
     "before": {"distributed_precision": "central", "staged_tolerances": False},
     "today": {},

@@ -9,9 +9,10 @@ all-reductions (``wire.reduction_cost``), per workflow, per fit (``refine.refine
 the LM rounds' own methods sent (``refine._Refiner.start`` / ``evaluate`` / ``linearize``: the start's offset mean,
 the first evaluation, every trial's step and its objective and largest move, the extrapolated trials, the common
 offset's row; broadcast messages and bytes, reductions as spanning-tree bytes) — in the configurations of
-:data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*), with items 26–27 (*inner*:
-``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``) and the defaults (*after*: the rounds' own messages too, items 28–32);
-every position, σ, exclusion and status compared with the configuration before it.
+:data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*: items 24–32 off), with items 26–27
+(*inner*: ``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``), with items 24–27 (*loop*: ``field_fits.TIGHTEN_OPENS_LOOP``,
+``LOOP_ENDS_LOOSE`` too) and the defaults (*after*: the rounds' own messages too, items 28–32); every position, σ,
+exclusion and status compared with the configuration before it.
 
 ``--study`` also rebuilds every inner system densely (numpy, from the linearization the solve used) and counts the
 iterations that preconditioned CG needs to the same stop (``rᵀz ≤ rtol² · bᵀM⁻¹b``, float64) — as is; deflated by
@@ -36,6 +37,7 @@ import bench_uwb_economy as economy
 from _common import print_table, write_json
 from distnav.algorithms.ranging import refine, wire
 from distnav.experiments.uwb_field import hall_problem
+from distnav.models.uwb import field_fits
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field
 from distnav.models.uwb.field import gather_cost as range_gather_cost
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
@@ -307,9 +309,11 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
     return sub, sol, row
 
 
-#: the configurations compared, in one run (module, switch, value): the defaults at the seventh session's start
-#: (*before*), with items 26–27 (*inner*: CG's dot products and the products' exponents held) and the defaults
-#: (*after*: the LM rounds' own messages too, items 28–32)
+#: the configurations compared, in one run (module, switch, value), each against the one before it: the defaults at
+#: the seventh session's start (*before*: items 24–32 off), with items 26–27 (*inner*: CG's dot products and the
+#: products' exponents held), with items 24–27 (*loop*: the exclusion loop opened by the last tightening fit and
+#: ended on its decided 1 cm re-fit too) and the defaults (*after*: the LM rounds' own messages too, items 28–32)
+_LOOP_OFF = [(field_fits, "TIGHTEN_OPENS_LOOP", False), (field_fits, "LOOP_ENDS_LOOSE", False)]
 _ROUNDS_OFF = [
     (wire, "STEP_HELD", False),
     (refine, "FIRST_MOVE_KNOWN", False),
@@ -318,8 +322,9 @@ _ROUNDS_OFF = [
     (refine, "SCALED_TRIAL_KNOWN", False),
 ]
 CONFIGS: dict[str, list[tuple[Any, str, bool]]] = {
-    "before": [(wire, "HELD_DOTS", False), (wire, "HELD_ACROSS_RUNS", False), *_ROUNDS_OFF],
-    "inner": _ROUNDS_OFF,
+    "before": [*_LOOP_OFF, (wire, "HELD_DOTS", False), (wire, "HELD_ACROSS_RUNS", False), *_ROUNDS_OFF],
+    "inner": [*_LOOP_OFF, *_ROUNDS_OFF],
+    "loop": _ROUNDS_OFF,
     "after": [],
 }
 
