@@ -302,7 +302,7 @@ def _repair(run: FieldRun, fit: FieldFit) -> bool:
     links each anchor chose, test and exclude again; ``fit`` updated where the re-fit fits all the ranges no worse
     (:func:`~distnav.models.uwb.field_run.no_worse`). False when there is nothing more to do. Where the loop ended
     on an early-stopped re-fit (``field_fits.LOOP_ENDS_LOOSE``) the anchors choose at its solution: their
-    thresholds (an RMS of 0.15 m, a factor 2) are far from a 1 cm step (on PLANT_HARD ``[34, 0..10]``, 20 checks:
+    thresholds (an RMS of 0.15 m, a factor 2) are far from a 1 cm step (on PLANT_HARD ``[34, 0..10]``, 19 checks:
     the same choice as at the completed fit)."""
     problem, opts = run.problem, run.opts
     repaired, notes, moved = repair_exclusions(
