@@ -255,3 +255,15 @@ def test_the_per_anchor_check_decides_a_close_call_on_completed_fits(monkeypatch
     before = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
     assert np.array_equal(now.excluded, before.excluded) and now.status == before.status
     assert np.max(np.abs(now.positions_m - before.positions_m)) < 3e-4
+
+
+def test_tighten_shared_refuses_an_unknown_stage():
+    """``field_fits.TightenShared`` (tighten_scale's shared pieces) names a stage that has no tolerances."""
+    import pytest
+
+    from distnav.errors import ModelError
+    from distnav.models.uwb.field_fits import TightenShared
+
+    assert TightenShared(stage="seed").stage == "seed"
+    with pytest.raises(ModelError, match="TightenShared.stage must be one of seed"):
+        TightenShared(stage="sead")

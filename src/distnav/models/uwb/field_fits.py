@@ -20,6 +20,7 @@ import numpy as np
 from distnav.algorithms.ranging import csg
 from distnav.algorithms.ranging.qc import SCALE_FLOOR
 from distnav.algorithms.ranging.stop import StopRule
+from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
 from distnav.typing import FloatArray
 
@@ -177,6 +178,12 @@ class TightenShared:
     stage: str | None = None
     carry: dict[str, Any] | None = None
     results: list[Any] | None = None
+
+    def __post_init__(self) -> None:
+        if self.stage is not None and self.stage not in STAGE_TOLERANCES:
+            raise ModelError(
+                f"TightenShared.stage must be one of {', '.join(STAGE_TOLERANCES)} or None, got {self.stage!r}"
+            )
 
 
 def tighten_scale(
