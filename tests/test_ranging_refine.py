@@ -182,3 +182,43 @@ def test_a_steady_tail_is_told_from_an_unsteady_one():
     assert not _steady([8.0, 4.0], 3.9)  # 0.5 then 0.975: beyond the range
     assert not _steady([8.0, 7.0], 2.0)  # 0.875 then 0.29: not steady
     assert not _steady([8.0, 4.0], 2.4)  # 0.5 then 0.6: more than 10 % apart
+
+
+def test_the_forcing_term_follows_eisenstat_walker_choice_2_with_its_safeguard():
+    """Hand-computed ``η_k = γ (‖g_k‖/‖g_{k−1}‖)^α`` (γ 0.9, α 2), the safeguard ``γ η_{k−1}^α`` where it exceeds
+    0.1, the bounds [0.1, 0.9], η₀ 0.5 first and a round's η kept for its retries."""
+    from distnav.algorithms.ranging.inner import Forcing
+
+    f = Forcing(0.9, 2.0, 0.5, 0.1, 0.9)
+    assert f.rtol(10.0) == 0.5  # the first round: η₀
+    assert f.rtol(3.0) == 0.5  # a retry on the same linearization keeps its η
+    f.linearized()
+    assert f.rtol(1.0) == pytest.approx(0.9 * 0.5**2)  # raw 0.9·0.1² = 0.009 < the safeguard 0.9·0.5² = 0.225
+    f.linearized()
+    assert f.rtol(0.1) == 0.1  # raw 0.009, safeguard 0.9·0.225² = 0.046 < 0.1 is off: the floor
+    f.linearized()
+    assert f.rtol(0.1) == 0.9  # no decrease: raw 0.9, the ceiling
+    f.linearized()
+    assert f.rtol(0.05) == pytest.approx(0.9 * 0.9**2)  # raw 0.225 below the safeguard 0.729
+
+
+def test_the_adaptive_forcing_term_keeps_the_corner_workflow_answer_for_fewer_bytes(monkeypatch):
+    """``inner.FORCING`` (issue 27, eighth session; not the default): the whole ``uwb solve`` workflow with N-CLM on
+    the plant-like hall ``[78, 0]`` with the known anchors in a corner, with ``FORCING_TRIED`` (no end-game cap,
+    ``refine.NEAR`` None) against the fixed ``CG_RTOL``: the same links excluded and status, positions within
+    0.05 mm of each other and within 0.1 mm of LM's workflow, at least 10 % fewer bytes (measured 1.21 ×)."""
+    from distnav.algorithms.ranging import inner
+    from distnav.algorithms.ranging import refine as refine_module
+    from distnav.models.uwb.field import FieldOptions, solve_field
+
+    p = corner_hall()
+    lm = solve_field(p, FieldOptions(solver="LM"))
+    off = solve_field(p, FieldOptions(solver="N-CLM"))
+    monkeypatch.setattr(inner, "FORCING", inner.FORCING_TRIED)
+    monkeypatch.setattr(refine_module, "NEAR", None)
+    on = solve_field(p, FieldOptions(solver="N-CLM"))
+    assert np.array_equal(on.excluded, off.excluded) and np.array_equal(on.excluded, lm.excluded)
+    assert on.status == off.status
+    assert np.max(np.abs(on.positions_m - off.positions_m)) < 5e-5
+    assert np.max(np.abs(on.positions_m - lm.positions_m)) < 1e-4
+    assert on.bytes < 0.9 * off.bytes, (on.bytes, off.bytes)
