@@ -20,29 +20,43 @@ from distnav.algorithms.ranging.neighbourhoods import half_measurements
 from distnav.algorithms.ranging.wire import Wire
 from distnav.exchange import Exchange
 
-__all__ = ["CG_RTOL", "FORCING", "FORCING_TRIED", "Forcing", "Links", "NormalSystem", "block_preconditioner", "pcg"]
+__all__ = [
+    "CG_RTOL",
+    "FORCING",
+    "FORCING_TRIED",
+    "STOP_ETA",
+    "Forcing",
+    "Links",
+    "NormalSystem",
+    "block_preconditioner",
+    "pcg",
+]
 
 CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
 #: the LM phase's adaptive forcing term (Eisenstat & Walker 1996, choice 2; :class:`Forcing`): ``(γ, α, η₀, η_min,
-#: η_max)``, e.g. :data:`FORCING_TRIED`; None (the default): every CG run to :data:`CG_RTOL`. Not kept (issue 27,
-#: eighth session, docs/economy_uwb.md item 33): 1.11 × fewer bytes on 12 plant-like halls, but ``[78, 0]`` middle
-#: 96 → 96–108 × and a PLANT_HARD corner 1.42 mm from today's answer (0.05 mm from LM's)
+#: η_max)``, e.g. :data:`FORCING_TRIED`, in the fits that stop early (``refine.FORCING_FROM_M``); None (the default):
+#: every CG run to :data:`CG_RTOL`. Not kept (issue 27, eighth session, docs/economy_uwb.md item 33): its savings
+#: (1.17 × on 12 plant-like halls) came from stopping on short inexact steps, which on the folded plant corner #0
+#: excluded a link LM keeps; stopping only on a step solved to CG_RTOL (:data:`STOP_ETA`) keeps LM's links but
+#: sends 1.13 × more bytes than without the term (η ≤ 0.3 at the stop: 1.01 × more)
 FORCING: tuple[float, float, float, float, float] | None = None
-#: the forcing term measured (γ 0.9, α (1 + √5)/2, η₀ 0.5, η in [0.05, 0.9])
-FORCING_TRIED = (0.9, 1.618, 0.5, 0.05, 0.9)
+#: the setting measured (γ 0.9, α (1 + √5)/2, η₀ 0.5, η in [0.1, 0.9]), the best of nine on the 12 halls
+FORCING_TRIED = (0.9, 1.618, 0.5, 0.1, 0.9)
+#: the loosest forcing term whose step may stop the LM phase (:meth:`Forcing.settled`)
+STOP_ETA = CG_RTOL
 
 
 @dataclass
 class Forcing:
     """The forcing term ``η_k`` of one LM phase's inexact inner solves (Eisenstat & Walker 1996, choice 2):
     ``η_k = γ (‖g_k‖/‖g_{k−1}‖)^α``, safeguarded by ``max(η_k, γ η_{k−1}^α)`` where ``γ η_{k−1}^α > 0.1`` (their
-    eq. (2.6)) and kept in ``[η_min, η_max]``; ``η₀`` for the first round. Departures: ``‖g‖`` is the
+    safeguard) and kept in ``[η_min, η_max]``; ``η₀`` for the first round. Departures: ``‖g‖`` is the
     preconditioned gradient norm ``√(gᵀM⁻¹g)`` — CG's first ``rᵀz`` (:func:`pcg`), which every anchor holds bit
     for bit, so the term costs no message (the preconditioner moves with the damping μ, a heuristic as the paper's
-    norm); a rejected trial's retry on the same linearization keeps the round's η; ``near`` (set by the LM phase,
-    ``refine.NEAR``) caps η at :data:`CG_RTOL` for the end game. Measured on the 12 plant-like workflows of
-    docs/economy_uwb.md (item 33): :data:`FORCING_TRIED` saved the most of four settings (α 2, η₀ 0.1 or η_max 0.5
-    saved fewer bytes or cost ``[78, 0]`` middle more); not the default."""
+    norm); a rejected trial's retry on the same linearization keeps the round's η; a step solved looser than
+    :data:`STOP_ETA` does not stop the phase (:meth:`settled`). Measured with :data:`FORCING_TRIED` (its floor the
+    fixed :data:`CG_RTOL`: near the solution no tighter than before): not the default (docs/economy_uwb.md item
+    33)."""
 
     gamma: float
     alpha: float
@@ -52,7 +66,7 @@ class Forcing:
     norm: float | None = None  # the last linearization's ‖g‖
     eta: float | None = None  # the current round's η (None: a new linearization, set by the next CG run)
     eta_last: float | None = None  # the last round's η
-    near: bool = False  # the LM phase's steps are near its stopping threshold: η at most CG_RTOL from then on
+    tight: bool = False  # from now on η = CG_RTOL at most (settled)
 
     def linearized(self) -> None:
         """A new outer round (its η follows from its first CG run's ‖g‖)."""
@@ -69,10 +83,20 @@ class Forcing:
             last = self.gamma * (self.eta0 if self.eta_last is None else self.eta_last) ** self.alpha
             if last > 0.1:  # the safeguard: no sudden tightening
                 eta = max(eta, last)
-        top = min(self.eta_max, CG_RTOL) if self.near else self.eta_max
+        top = min(self.eta_max, CG_RTOL) if self.tight else self.eta_max
         self.eta = self.eta_last = float(min(max(eta, self.eta_min), top))
         self.norm = norm
         return self.eta
+
+    def settled(self) -> bool:
+        """Whether a step that passed the stopping test may stop the phase: only if its inner solve ran to at most
+        :data:`CG_RTOL` — a looser one's step is shorter than the Newton step, so its length understates the
+        distance to the solution (on the folded plant corner #0 the loop's 1 cm re-fits stopped early enough to
+        exclude a link LM keeps). Else the rest of the phase runs at most to CG_RTOL (one more round at least)."""
+        if self.eta is None or self.eta <= STOP_ETA:
+            return True
+        self.tight = True
+        return False
 
 
 class Links:

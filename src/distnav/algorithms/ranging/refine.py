@@ -89,9 +89,11 @@ SCALED_TRIAL_KNOWN = True
 #: the common offset's start not reduced where every anchor's copy is the one the options give (``offset_start_m``:
 #: a fit's LM phase from the solver's start, which every anchor holds; issue 27, seventh session)
 OFFSET_START_HELD = True
-#: the adaptive forcing term (``inner.FORCING``) is capped at CG_RTOL once an accepted step moved no parameter by
-#: more than this many × ``xtol_m`` (None: never capped; issue 27, eighth session)
-NEAR: float | None = 10.0
+#: the adaptive forcing term (``inner.FORCING``, off by default) only in fits that stop at ``xtol_m`` ≥ this, metres:
+#: the workflow's early-stopped fits (``field_fits.STAGE_TOLERANCES``: 3 mm, 1 cm), whose solutions only start the
+#: next fit; a fit that can be the answer (0.1 mm) solves to CG_RTOL (issue 27, eighth session: in every fit, a
+#: PLANT_HARD corner hall ended 1.42 mm from the fixed forcing term's answer; 0: every fit)
+FORCING_FROM_M = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,7 +180,8 @@ class _Refiner:
         # the products' held exponents per link, kept from one CG run to the next of the fit (wire.HELD_ACROSS_RUNS)
         self.held: list[np.ndarray] = []
         # the adaptive forcing term of the fit's CG runs (inner.FORCING; None: CG_RTOL)
-        self.forcing = Forcing(*inner.FORCING) if inner.FORCING is not None and not wire.PLAIN else None
+        terms = inner.FORCING
+        self.forcing = Forcing(*terms) if terms is not None and not wire.PLAIN and o.xtol_m >= FORCING_FROM_M else None
 
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
         """The start ``(x, c)`` and CG's iteration limit (one reduction: the common offset's mean; the number of
@@ -386,10 +389,9 @@ def refine(
                     x, c, nb, r = x_new, c_new, nb_new, r_new
                     F_old, F = F, F_new
                     mu = max(mu / 3.0, 1e-12)
-                    if run.forcing is not None and NEAR is not None and moved <= NEAR * o.xtol_m:
-                        run.forcing.near = True  # the end game: no looser inner solves than CG_RTOL
                     if change <= o.ftol * max(abs(F_old), 1e-300) and moved <= o.xtol_m:
-                        status = "converged"
+                        if run.forcing is None or run.forcing.settled():  # a loose solve's short step: one more
+                            status = "converged"  # round to CG_RTOL (inner.Forcing.settled)
                     elif _steady(tail, moved) and rounds < o.max_rounds:  # one more trial: counted as a round
                         rounds += 1
                         if ROOT_DECIDES and not wire.PLAIN:  # the root's decision carries the jump factor
