@@ -35,7 +35,7 @@ __all__ = [
 CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
 #: the LM phase's adaptive forcing term (Eisenstat & Walker 1996, choice 2; :class:`Forcing`): ``(γ, α, η₀, η_min,
 #: η_max)``, e.g. :data:`FORCING_TRIED`, in the fits that stop early (``refine.FORCING_FROM_M``); None (the default):
-#: every CG run to :data:`CG_RTOL`. Not kept (issue 27, eighth session, docs/economy_uwb.md item 33): its savings
+#: every CG run to :data:`CG_RTOL`. Not kept (issue 27, seventh session, docs/economy_uwb.md item 33): its savings
 #: (1.17 × on 12 plant-like halls) came from stopping on short inexact steps, which on the folded plant corner #0
 #: excluded a link LM keeps; stopping only on a step solved to CG_RTOL (:data:`STOP_ETA`) keeps LM's links but
 #: sends 1.13 × more bytes than without the term (η ≤ 0.3 at the stop: 1.01 × more)

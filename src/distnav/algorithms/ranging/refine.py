@@ -91,7 +91,7 @@ SCALED_TRIAL_KNOWN = True
 OFFSET_START_HELD = True
 #: the adaptive forcing term (``inner.FORCING``, off by default) only in fits that stop at ``xtol_m`` ≥ this, metres:
 #: the workflow's early-stopped fits (``field_fits.STAGE_TOLERANCES``: 3 mm, 1 cm), whose solutions only start the
-#: next fit; a fit that can be the answer (0.1 mm) solves to CG_RTOL (issue 27, eighth session: in every fit, a
+#: next fit; a fit that can be the answer (0.1 mm) solves to CG_RTOL (issue 27, seventh session: in every fit, a
 #: PLANT_HARD corner hall ended 1.42 mm from the fixed forcing term's answer; 0: every fit)
 FORCING_FROM_M = 1e-3
 
