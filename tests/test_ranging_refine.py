@@ -208,7 +208,7 @@ def test_the_forcing_term_follows_eisenstat_walker_choice_2_with_its_safeguard()
 
 
 def test_the_forcing_term_stops_a_fit_only_on_a_step_solved_tightly(monkeypatch):
-    """``inner.FORCING`` (issue 27, eighth session; off by default) on the folded plant corner #0 of ``reproduce
+    """``inner.FORCING`` (issue 27, seventh session; off by default) on the folded plant corner #0 of ``reproduce
     uwb-field`` with N-CLM's workflow: with ``FORCING_TRIED`` and a stop allowed on any step (``STOP_ETA`` 0.9) the
     exclusion loop's early-stopped re-fits stop short and the workflow excludes a link LM keeps (14.8 mm from LM's
     answer, measured); with ``STOP_ETA = CG_RTOL`` (:meth:`Forcing.settled`) it keeps LM's links, within 1 mm of
