@@ -8,6 +8,7 @@ path (the same mixer with the kernel switched off) and the schedule's own per-ed
 
 from __future__ import annotations
 
+import weakref
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
@@ -92,8 +93,10 @@ def test_kernel_round_equals_numpy_path_bit_for_bit(name, kind, floats):
 
 @needs_kernel
 def test_kernel_rounds_on_reused_changed_and_strided_inputs():
-    """The kernel keeps the addresses of the values it saw in the last two rounds: an input changed in place, one
-    passed again after another, a strided view and a Fortran-ordered array must still give the numpy path's bits."""
+    """The kernel keeps addresses: of its two output buffers, of the last input that was not one of them (read in
+    place when C-ordered) and of the last columns. An input changed in place, the same input passed again, a strided
+    view (read from a copy), a Fortran-ordered array and another array after them must still give the numpy path's
+    bits, round after round."""
     g = builders.connected_random_geometric(300, mean_degree=8, rng=np.random.default_rng(8))
     fast, slow = _pair(g, SCHEDULES["drops"], "auto", None)
     rng = np.random.default_rng(9)
@@ -230,15 +233,81 @@ def test_reused_outputs_never_overwrite_a_result_the_caller_holds():
         assert np.array_equal(_bits(got), _bits(ref))
     for got, ref in views:
         assert np.array_equal(_bits(got), _bits(ref))
-    # with nothing held, a loop runs in the kernel's two buffers: no new output array per round
+    # with nothing held, a loop runs in the kernel's two buffers: no new output array per round (where the reference
+    # count is trusted, _REUSE; elsewhere each round makes a new one)
     kernel = fast._kernel
     assert isinstance(kernel, dr.DropRound)
-    del kept, views
+    del kept, views, got, ref
+    xf, xs = fast.apply(fast.apply(xf)), slow.apply(slow.apply(xs))  # two rounds: both held buffers free
+    held = [weakref.ref(buf) for buf, _ in kernel._out]  # weak: a reference here would keep them from reuse
     for step in range(6):
         xf, xs = fast.apply(xf), slow.apply(xs)
         assert np.array_equal(_bits(xf), _bits(xs))
-        assert step == 0 or any(buf is xf for buf, _ in kernel._out), step  # one of the kernel's own buffers
+        assert any(buf is xf for buf, _ in kernel._out), step  # one of the kernel's own buffers
+        same = all(buf is was() for (buf, _), was in zip(kernel._out, held, strict=True))
+        assert same is dr._REUSE, step  # no new buffer where reused
     assert fast.exchange.comm_totals().as_dict() == slow.exchange.comm_totals().as_dict()
+
+
+@needs_kernel
+def test_without_reuse_every_round_makes_a_new_output(monkeypatch):
+    """Where the reference count is not trusted (``_REUSE`` off: CPython 3.14, the free-threaded build, other
+    interpreters) no output buffer is reused: every result, kept or not, keeps its values, each round equal bit for
+    bit to the numpy path's."""
+    monkeypatch.setattr(dr, "_REUSE", False)
+    g = builders.connected_random_geometric(300, mean_degree=8, rng=np.random.default_rng(12))
+    fast, slow = _pair(g, SCHEDULES["drops"], "auto", None)
+    xf = xs = fast.exchange.local(np.random.default_rng(13).normal(size=g.n_nodes))
+    results = []
+    for step in range(8):
+        xf, xs = fast.apply(xf), slow.apply(xs)
+        assert np.array_equal(_bits(xf), _bits(xs)), step
+        assert all(xf is not got for got, _ in results), step  # a new array every round
+        results.append((xf, xs.copy()))
+    for step, (got, ref) in enumerate(results):
+        assert np.array_equal(_bits(got), _bits(ref)), step
+
+
+def test_reference_count_reuse_only_where_verified():
+    """The reuse rule's reference counts are verified on CPython 3.11–3.13 with the GIL; anywhere else it is off."""
+    import sys
+
+    verified = sys.implementation.name == "cpython" and (3, 11) <= sys.version_info[:2] <= (3, 13)
+    assert dr._REUSE is (verified and "free-threading" not in sys.version)
+
+
+def test_round_packer_writes_addresses_unsigned():
+    """The per-round fields go into the C struct by one ``struct`` packer: addresses ≥ 2⁶³ (and ≥ 2³¹ with 4-byte
+    pointers) must pack, not raise ``struct.error``, and read back through ctypes as written; the two counts stay
+    signed."""
+    import ctypes
+
+    packer, at = dr._round_packer()
+    a = dr._Args()
+    values = (-3, 2**40 + 1, 2**64 - 8, 2**63, 2**63 + 64)
+    packer.pack_into(memoryview(a).cast("B"), at, *values)
+    assert (a.k, a.round_index, a.cols, a.xl, a.y) == values
+
+    class Args32(ctypes.Structure):  # a 32-bit build's layout: 4-byte addresses
+        _fields_ = [("k", ctypes.c_int64), ("round_index", ctypes.c_int64)]
+        _fields_ += [(name, ctypes.c_uint32) for name in ("cols", "xl", "y")]
+
+    packer, at = dr._round_packer(Args32)
+    b = Args32()
+    values = (7, -1, 2**31, 2**32 - 4, 2**31 + 8)
+    packer.pack_into(memoryview(b).cast("B"), at, *values)
+    assert (b.k, b.round_index, b.cols, b.xl, b.y) == values
+
+
+def test_round_packer_names_an_unknown_field_size():
+    import ctypes
+
+    class Odd(ctypes.Structure):
+        _fields_ = [("k", ctypes.c_int64), ("round_index", ctypes.c_int64), ("cols", ctypes.c_int16)]
+        _fields_ += [(name, ctypes.c_void_p) for name in ("xl", "y")]
+
+    with pytest.raises(RuntimeError, match=r"field 'cols' is 2 bytes on this build \(4 or 8 expected\)"):
+        dr._round_packer(Odd)
 
 
 @needs_kernel
@@ -298,3 +367,30 @@ def test_a_plan_that_is_not_the_schedules_own_keeps_the_numpy_path():
     for e in range(ex.in_edges.size):
         ref[dst[e]] += dense[dst[e], src[e]] * (x[src[e]] if ok[e] else x[dst[e]])
     assert not ok[0] and np.allclose(got, ref, atol=1e-14)
+
+
+@needs_kernel
+def test_counts_after_reset_accounting_equal_the_numpy_path():
+    """``reset_accounting`` mid-run: the kernel's rounds after it (one float and two floats per node, so both lost
+    counters the mixer holds) must be counted as the numpy path counts them, every counter equal. The mixer keeps
+    the exchange's lost-message arrays from its first fault round; a reset that replaced them left the kernel
+    writing its losses where no one read them (here 842 messages dropped against the numpy path's 2992 before the
+    fix)."""
+    g = builders.connected_random_geometric(300, mean_degree=8, rng=np.random.default_rng(12))
+    fast, slow = _pair(g, FaultSchedule(drop_probability=0.2, seed=1), "auto", None)
+    x = fast.exchange.local(np.random.default_rng(1).normal(size=g.n_nodes))
+    wide = fast.exchange.local(np.random.default_rng(2).normal(size=(g.n_nodes, 2)))
+    xf = xs = x
+    for step in range(8):
+        if step == 3:
+            fast.exchange.reset_accounting()
+            slow.exchange.reset_accounting()
+        xf, xs = fast.apply(xf), slow.apply(xs)
+        assert np.array_equal(_bits(xf), _bits(xs)), step
+    for _ in range(2):
+        assert np.array_equal(_bits(fast.apply(wide)), _bits(slow.apply(wide)))
+    assert isinstance(fast._kernel, dr.DropRound) and fast._kernel_vector and slow._kernel is None
+    a, b = fast.exchange.comm_totals().as_dict(), slow.exchange.comm_totals().as_dict()
+    assert a == b and a["rounds"] == 7 and a["messages_dropped"] > 0
+    for name in ("messages_sent", "bytes_sent", "messages_received", "bytes_received"):
+        assert np.array_equal(getattr(fast.exchange, name), getattr(slow.exchange, name)), name

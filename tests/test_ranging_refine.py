@@ -182,3 +182,66 @@ def test_a_steady_tail_is_told_from_an_unsteady_one():
     assert not _steady([8.0, 4.0], 3.9)  # 0.5 then 0.975: beyond the range
     assert not _steady([8.0, 7.0], 2.0)  # 0.875 then 0.29: not steady
     assert not _steady([8.0, 4.0], 2.4)  # 0.5 then 0.6: more than 10 % apart
+
+
+def test_the_forcing_term_follows_eisenstat_walker_choice_2_with_its_safeguard():
+    """Hand-computed ``η_k = γ (‖g_k‖/‖g_{k−1}‖)^α`` (γ 0.9, α 2), the safeguard ``γ η_{k−1}^α`` where it exceeds
+    0.1, the bounds [0.1, 0.9], η₀ 0.5 first, a round's η kept for its retries, and no stop on a step solved looser than
+    CG_RTOL (after which η stays at most CG_RTOL)."""
+    from distnav.algorithms.ranging.inner import Forcing
+
+    f = Forcing(0.9, 2.0, 0.5, 0.1, 0.9)
+    assert f.rtol(10.0) == 0.5  # the first round: η₀
+    assert f.rtol(3.0) == 0.5  # a retry on the same linearization keeps its η
+    f.linearized()
+    assert f.rtol(1.0) == pytest.approx(0.9 * 0.5**2)  # raw 0.9·0.1² = 0.009 < the safeguard 0.9·0.5² = 0.225
+    f.linearized()
+    assert f.rtol(0.1) == 0.1  # raw 0.009, safeguard 0.9·0.225² = 0.046 < 0.1 is off: the floor
+    f.linearized()
+    assert f.rtol(0.1) == 0.9  # no decrease: raw 0.9, the ceiling
+    f.linearized()
+    assert f.rtol(0.05) == pytest.approx(0.9 * 0.9**2)  # raw 0.225 below the safeguard 0.729
+    assert not f.settled()  # a step solved to 0.729 does not stop the phase (STOP_ETA = CG_RTOL)
+    f.linearized()
+    assert f.rtol(0.05) == 0.1  # from then on at most CG_RTOL (raw 0.9, safeguard 0.478)
+    assert f.settled()
+
+
+def test_the_forcing_term_stops_a_fit_only_on_a_step_solved_tightly(monkeypatch):
+    """``inner.FORCING`` (issue 27, seventh session; off by default) on the folded plant corner #0 of ``reproduce
+    uwb-field`` with N-CLM's workflow: with ``FORCING_TRIED`` and a stop allowed on any step (``STOP_ETA`` 0.9) the
+    exclusion loop's early-stopped re-fits stop short and the workflow excludes a link LM keeps (14.8 mm from LM's
+    answer, measured); with ``STOP_ETA = CG_RTOL`` (:meth:`Forcing.settled`) it keeps LM's links, within 1 mm of
+    LM's positions."""
+    from distnav.algorithms.ranging import inner
+    from distnav.models.uwb.field import FieldOptions, solve_field
+    from test_uwb_distributed_field import _hall
+
+    sub, geo, _ = _hall("corner", 0)
+    lm = solve_field(sub, FieldOptions(), geometry=geo)
+    monkeypatch.setattr(inner, "FORCING", inner.FORCING_TRIED)
+    settled = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    monkeypatch.setattr(inner, "STOP_ETA", 0.9)
+    loose = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    assert np.array_equal(settled.excluded, lm.excluded)
+    assert np.max(np.abs(settled.positions_m - lm.positions_m)) < 1e-3
+    assert not np.array_equal(loose.excluded, lm.excluded)
+
+
+def test_the_forcing_term_runs_only_in_the_fits_that_stop_early(monkeypatch):
+    """``refine.FORCING_FROM_M``: with ``inner.FORCING`` on, a fit to the solver's 0.1 mm runs every CG solve to
+    ``CG_RTOL`` (the same result bit for bit as with FORCING None); a fit stopped at 1 cm runs the forcing term
+    (another count of CG iterations)."""
+    from distnav.algorithms.ranging import inner
+    from distnav.algorithms.ranging.csg import solve_nclm
+    from distnav.algorithms.ranging.stop import StopRule
+
+    p = corner_hall()
+    kw = {"iterations": 0, "objective": "metres", "sigma_m": 0.1, "range_offsets": "common", "quality": False}
+    loose = StopRule(refine_ftol=1e-3, refine_xtol_m=1e-2)  # the stage "seed" of field_fits.STAGE_TOLERANCES
+    full_off, loose_off = solve_nclm(p, **kw), solve_nclm(p, **kw, stop=loose)
+    monkeypatch.setattr(inner, "FORCING", inner.FORCING_TRIED)
+    full_on, loose_on = solve_nclm(p, **kw), solve_nclm(p, **kw, stop=loose)
+    assert np.array_equal(full_on.estimates, full_off.estimates)
+    assert full_on.settings["refine"]["cg_iterations"] == full_off.settings["refine"]["cg_iterations"]
+    assert loose_on.settings["refine"]["cg_iterations"] != loose_off.settings["refine"]["cg_iterations"]

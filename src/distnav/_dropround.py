@@ -37,6 +37,13 @@ _LIB: list[Any] = []  # the loaded library, or None: looked up once, at the firs
 _P, _I, _U = ctypes.c_void_p, ctypes.c_int64, ctypes.c_uint64
 _MASK_ARGS = [_I, _P, _P, _P, _I, _U, _U, _P]
 _MASK64 = 0xFFFFFFFFFFFFFFFF
+# An output buffer is reused when its reference count shows that nothing outside refers to it. That rule holds on
+# CPython 3.11–3.13 with the GIL (the same loop over plain objects run on 3.11.7, 3.12.1 and 3.13.0: a buffer held
+# by a caller's name or a list is counted, a dropped one is not); 3.14 documents lower counts from borrowed stack
+# references and the free-threaded build counts otherwise, so there (and on other interpreters) every round makes a
+# new output: slower, never wrong.
+_REUSE = sys.implementation.name == "cpython" and (3, 11) <= sys.version_info[:2] <= (3, 13)
+_REUSE = _REUSE and "free-threading" not in sys.version
 
 
 def library() -> Any:
@@ -64,6 +71,7 @@ def _load() -> Any:
             fn = getattr(lib, f"dn_lost_mask_{name}")
             fn.argtypes, fn.restype = _MASK_ARGS, None
         lib.dn_round_key.argtypes, lib.dn_round_key.restype = [_U, _U], _U
+        _PACKER.append(_round_packer())
         return lib
     return None
 
@@ -105,19 +113,27 @@ class _Args(ctypes.Structure):
 _ROUND_FIELDS = ("k", "round_index", "cols", "xl", "y")
 
 
-def _round_packer() -> tuple[struct.Struct, int]:
+def _round_packer(args: type[ctypes.Structure] = _Args) -> tuple[struct.Struct, int]:
     """A packer writing ``_ROUND_FIELDS`` into the struct's memory in one call (a third of five ctypes attribute
-    sets), laid out from ctypes' own offsets and sizes (pointers are 4 bytes on a 32-bit build), and their offset."""
-    fmt, at = "=", getattr(_Args, _ROUND_FIELDS[0]).offset
-    first = at
+    sets), laid out from ctypes' own offsets and sizes (pointers are 4 bytes on a 32-bit build), and their offset.
+    Addresses are packed unsigned (an address ≥ 2³¹ on a 32-bit build, ≥ 2⁶³ on a 64-bit one, is no error), the
+    two counts signed, as the C struct declares them."""
+    at = first = getattr(args, _ROUND_FIELDS[0]).offset
+    fmt = "="
     for name in _ROUND_FIELDS:
-        field = getattr(_Args, name)
-        fmt += "x" * (field.offset - at) + {8: "q", 4: "i"}[field.size]
+        field = getattr(args, name)
+        code = {8: "q", 4: "i"}.get(field.size) if name in ("k", "round_index") else {8: "Q", 4: "I"}.get(field.size)
+        if code is None:
+            raise RuntimeError(
+                f"distnav._dropround: the kernel's argument field {name!r} is {field.size} bytes on this build "
+                "(4 or 8 expected); set DISTNAV_NO_KERNEL=1 to use the numpy path"
+            )
+        fmt += "x" * (field.offset - at) + code
         at = field.offset + field.size
     return struct.Struct(fmt), first
 
 
-_PACK, _ROUND_AT = _round_packer()
+_PACKER: list[tuple[struct.Struct, int]] = []  # _round_packer's, made when the library loads
 
 
 class DropRound:
@@ -127,11 +143,15 @@ class DropRound:
     argument (issue 27: the per-round Python cost counts at 10³ nodes, where a whole round takes a few µs).
 
     Outputs come from two held buffers, each reused only when nothing outside this object refers to it any more
-    (its reference count): a loop ``x = mixer.apply(x)`` alternates between them and a caller that keeps a result
-    keeps it unchanged (a new buffer is made then). No round allocates in such a loop and no address is looked up:
-    the input is the last output, whose address is known."""
+    (its reference count; on interpreters where that count is verified, ``_REUSE``): a loop ``x = mixer.apply(x)``
+    alternates between them and a caller that keeps a result keeps it unchanged (a new buffer is made then). No
+    round allocates in such a loop and no address is looked up: the input is the last output, whose address is
+    known. Elsewhere every round makes a new output (held as the newest of the two)."""
 
-    __slots__ = ("_args", "_byref", "_call", "_cols", "_dead", "_in", "_lost", "_mem", "_out", "arrays", "n_rows")
+    __slots__ = (
+        *("_args", "_at", "_byref", "_call", "_cols", "_dead", "_in", "_lost", "_mem", "_out", "_pack"),
+        *("arrays", "n_rows"),
+    )
 
     def __init__(self, lib: Any, kind: int, arrays: tuple[np.ndarray, ...], active: np.ndarray | None) -> None:
         self.arrays = (*arrays, active)  # kept alive: the kernel reads them through the addresses in the struct
@@ -140,7 +160,9 @@ class DropRound:
         a.indptr, a.indices, a.data, a.edges, a.self_w = (int(x.ctypes.data) for x in arrays)
         a.active = _ptr(active)
         self._byref = ctypes.byref(a)
-        self._mem = memoryview(a).cast("B")  # the struct's bytes, for _PACK
+        self._mem = memoryview(a).cast("B")  # the struct's bytes, for the packer
+        packer, self._at = _PACKER[0]
+        self._pack = packer.pack_into
         self._call = lib.dn_fault_round
         self._lost: np.ndarray | None = None  # the lost counter whose address is in the struct
         self._dead: np.ndarray | None = None  # the dead-from array whose address is in the struct
@@ -202,7 +224,7 @@ class DropRound:
             x_addr = held[1] if held is not None and held[0] is key else 0
             if not x_addr:
                 flat, x_addr = self._values(key, flat)
-        for buf, addr in out:
+        for buf, addr in out if _REUSE else ():
             # a buffer nothing outside refers to: its references are the list's tuple, ``buf`` here and
             # getrefcount's argument (a caller's name, a view or a container holding it adds one)
             if sys.getrefcount(buf) <= 3 and buf.shape == key.shape:
@@ -216,7 +238,7 @@ class DropRound:
             self._args.dead_from, self._dead = (None if dead is None else _addr(dead)), dead
         c_addr = x_addr if in_place else self._columns(cols)
         k = flat.shape[1] if width is None else width
-        _PACK.pack_into(self._mem, _ROUND_AT, k, round_index, c_addr, x_addr, y_addr)
+        self._pack(self._mem, self._at, k, round_index, c_addr, x_addr, y_addr)
         self._call(self._byref)
         return y
 

@@ -207,7 +207,12 @@ class ExchangeCore(ABC):
         n = self.n_local
         self._pending: list[tuple[np.ndarray, np.ndarray | None, int]] = []
         self._recv_edges: dict[int, np.ndarray] = {}
-        self._lost_nodes: dict[int, np.ndarray] = {}  # per message size: messages lost per receiver (the kernel's)
+        # per message size: messages lost per receiver (the kernel's). Zeroed in place on a reset: a mixer's compiled
+        # round holds these arrays, and losses written into a replaced one would go uncounted
+        lost_nodes: dict[int, np.ndarray] = self.__dict__.get("_lost_nodes", {})
+        for lost in lost_nodes.values():
+            lost[:] = 0
+        self._lost_nodes = lost_nodes
         self._sent_cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, int]] = {}
         self.messages_sent = np.zeros(n, np.int64)
         self.bytes_sent = np.zeros(n, np.int64)

@@ -20,9 +20,83 @@ from distnav.algorithms.ranging.neighbourhoods import half_measurements
 from distnav.algorithms.ranging.wire import Wire
 from distnav.exchange import Exchange
 
-__all__ = ["CG_RTOL", "Links", "NormalSystem", "block_preconditioner", "pcg"]
+__all__ = [
+    "CG_RTOL",
+    "FORCING",
+    "FORCING_TRIED",
+    "STOP_ETA",
+    "Forcing",
+    "Links",
+    "NormalSystem",
+    "block_preconditioner",
+    "pcg",
+]
 
 CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
+#: the LM phase's adaptive forcing term (Eisenstat & Walker 1996, choice 2; :class:`Forcing`): ``(γ, α, η₀, η_min,
+#: η_max)``, e.g. :data:`FORCING_TRIED`, in the fits that stop early (``refine.FORCING_FROM_M``); None (the default):
+#: every CG run to :data:`CG_RTOL`. Not kept (issue 27, seventh session, docs/economy_uwb.md item 33): its savings
+#: (1.17 × on 12 plant-like halls) came from stopping on short inexact steps, which on the folded plant corner #0
+#: excluded a link LM keeps; stopping only on a step solved to CG_RTOL (:data:`STOP_ETA`) keeps LM's links but
+#: sends 1.13 × more bytes than without the term (η ≤ 0.3 at the stop: 1.01 × more)
+FORCING: tuple[float, float, float, float, float] | None = None
+#: the setting measured (γ 0.9, α (1 + √5)/2, η₀ 0.5, η in [0.1, 0.9]), the best of nine on the 12 halls
+FORCING_TRIED = (0.9, 1.618, 0.5, 0.1, 0.9)
+#: the loosest forcing term whose step may stop the LM phase (:meth:`Forcing.settled`)
+STOP_ETA = CG_RTOL
+
+
+@dataclass
+class Forcing:
+    """The forcing term ``η_k`` of one LM phase's inexact inner solves (Eisenstat & Walker 1996, choice 2):
+    ``η_k = γ (‖g_k‖/‖g_{k−1}‖)^α``, safeguarded by ``max(η_k, γ η_{k−1}^α)`` where ``γ η_{k−1}^α > 0.1`` (their
+    safeguard) and kept in ``[η_min, η_max]``; ``η₀`` for the first round. Departures: ``‖g‖`` is the
+    preconditioned gradient norm ``√(gᵀM⁻¹g)`` — CG's first ``rᵀz`` (:func:`pcg`), which every anchor holds bit
+    for bit, so the term costs no message (the preconditioner moves with the damping μ, a heuristic as the paper's
+    norm); a rejected trial's retry on the same linearization keeps the round's η; a step solved looser than
+    :data:`STOP_ETA` does not stop the phase (:meth:`settled`). Measured with :data:`FORCING_TRIED` (its floor the
+    fixed :data:`CG_RTOL`: near the solution no tighter than before): not the default (docs/economy_uwb.md item
+    33)."""
+
+    gamma: float
+    alpha: float
+    eta0: float
+    eta_min: float
+    eta_max: float
+    norm: float | None = None  # the last linearization's ‖g‖
+    eta: float | None = None  # the current round's η (None: a new linearization, set by the next CG run)
+    eta_last: float | None = None  # the last round's η
+    tight: bool = False  # from now on η = CG_RTOL at most (settled)
+
+    def linearized(self) -> None:
+        """A new outer round (its η follows from its first CG run's ‖g‖)."""
+        self.eta = None
+
+    def rtol(self, norm: float) -> float:
+        """The round's η, given its gradient's norm (the first CG run of the round sets it)."""
+        if self.eta is not None:
+            return self.eta
+        if self.norm is None or not self.norm > 0:
+            eta = self.eta0
+        else:
+            eta = self.gamma * (norm / self.norm) ** self.alpha
+            last = self.gamma * (self.eta0 if self.eta_last is None else self.eta_last) ** self.alpha
+            if last > 0.1:  # the safeguard: no sudden tightening
+                eta = max(eta, last)
+        top = min(self.eta_max, CG_RTOL) if self.tight else self.eta_max
+        self.eta = self.eta_last = float(min(max(eta, self.eta_min), top))
+        self.norm = norm
+        return self.eta
+
+    def settled(self) -> bool:
+        """Whether a step that passed the stopping test may stop the phase: only if its inner solve ran to at most
+        :data:`CG_RTOL` — a looser one's step is shorter than the Newton step, so its length understates the
+        distance to the solution (on the folded plant corner #0 the loop's 1 cm re-fits stopped early enough to
+        exclude a link LM keeps). Else the rest of the phase runs at most to CG_RTOL (one more round at least)."""
+        if self.eta is None or self.eta <= STOP_ETA:
+            return True
+        self.tight = True
+        return False
 
 
 class Links:
@@ -191,6 +265,7 @@ def pcg(
     rtol: float = CG_RTOL,
     scalar_dtype: type[np.floating] = np.float64,
     preconditioned_stop: bool = False,
+    forcing: Forcing | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P, k)`` for ``k``
     right-hand sides at once (independent CG recurrences sharing every broadcast and reduction) and the common
@@ -200,7 +275,8 @@ def pcg(
     so the residual's own norm ``rᵀr`` needs no reduction of its own) —, or one column's curvature ``pᵀNp`` is not
     positive. Per iteration two reductions: ``pᵀq`` with the common offset's row of ``q`` (only with a common offset),
     then ``rᵀz``; with float16 ``scalar_dtype`` each value after a run's first travels on its slot's held exponent
-    (:data:`~distnav.algorithms.ranging.wire.HELD_DOTS`, issue 27, seventh session)."""
+    (:data:`~distnav.algorithms.ranging.wire.HELD_DOTS`, issue 27, seventh session). ``forcing``: ``rtol`` is the
+    round's adaptive forcing term instead (:class:`Forcing`, from the first ``rᵀz``)."""
     k = b.shape[2]
     x = np.zeros_like(b)
     xc = np.zeros(k)
@@ -223,6 +299,8 @@ def pcg(
     z = np.einsum("nab,nbk->nak", pre_inv, res)
     zc = rc / pre_c
     rz, rr0 = residual_dots(res, z, rc, zc)
+    if forcing is not None:  # the round's η from its gradient's norm (Forcing: no message)
+        rtol = forcing.rtol(float(np.sqrt(np.max(rr0))))
     p, pc = z.copy(), zc.copy()
     its = 0
     live = rr0 > 0.0

@@ -45,9 +45,9 @@ from typing import Any
 import numpy as np
 
 from distnav._settings import resolve_options
-from distnav.algorithms.ranging import wire
+from distnav.algorithms.ranging import inner, wire
 from distnav.algorithms.ranging.data import RangingData
-from distnav.algorithms.ranging.inner import CG_RTOL, Links, NormalSystem, block_preconditioner, pcg
+from distnav.algorithms.ranging.inner import CG_RTOL, Forcing, Links, NormalSystem, block_preconditioner, pcg
 from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
 from distnav.exchange import Exchange
@@ -89,6 +89,11 @@ SCALED_TRIAL_KNOWN = True
 #: the common offset's start not reduced where every anchor's copy is the one the options give (``offset_start_m``:
 #: a fit's LM phase from the solver's start, which every anchor holds; issue 27, seventh session)
 OFFSET_START_HELD = True
+#: the adaptive forcing term (``inner.FORCING``, off by default) only in fits that stop at ``xtol_m`` ≥ this, metres:
+#: the workflow's early-stopped fits (``field_fits.STAGE_TOLERANCES``: 3 mm, 1 cm), whose solutions only start the
+#: next fit; a fit that can be the answer (0.1 mm) solves to CG_RTOL (issue 27, seventh session: in every fit, a
+#: PLANT_HARD corner hall ended 1.42 mm from the fixed forcing term's answer; 0: every fit)
+FORCING_FROM_M = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,6 +179,9 @@ class _Refiner:
         self.steps = wire.STEPS and not wire.PLAIN  # trials travel as steps (wire, item 5)
         # the products' held exponents per link, kept from one CG run to the next of the fit (wire.HELD_ACROSS_RUNS)
         self.held: list[np.ndarray] = []
+        # the adaptive forcing term of the fit's CG runs (inner.FORCING; None: CG_RTOL)
+        terms = inner.FORCING
+        self.forcing = Forcing(*terms) if terms is not None and not wire.PLAIN and o.xtol_m >= FORCING_FROM_M else None
 
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
         """The start ``(x, c)`` and CG's iteration limit (one reduction: the common offset's mean; the number of
@@ -237,6 +245,8 @@ class _Refiner:
     def linearize(self, x: np.ndarray, nb: np.ndarray, r: np.ndarray) -> _Linearization:
         """The outer round's linearization at ``x`` (the common offset's rows: one reduction)."""
         dim, nl, owner, per, prior = self.dim, self.nl, self.owner, self.per, self.prior
+        if self.forcing is not None:
+            self.forcing.linearized()
         a, cn, e = jacobian_rows(x, nb, owner, self.sig, dim, per, self.common, self.free, self.free_nb)
         w = loss_terms(r, self.sc, self.o.loss)[0]
         g = _rows(owner, (w * r)[:, None] * a, nl)
@@ -292,6 +302,7 @@ class _Refiner:
             cg_max,
             scalar_dtype=self.dot_dtype,
             preconditioned_stop=PRECONDITIONED_STOP and not wire.PLAIN,
+            forcing=self.forcing,
         )
         return dxk[:, :, 0], float(dck[0]), its
 
@@ -379,7 +390,8 @@ def refine(
                     F_old, F = F, F_new
                     mu = max(mu / 3.0, 1e-12)
                     if change <= o.ftol * max(abs(F_old), 1e-300) and moved <= o.xtol_m:
-                        status = "converged"
+                        if run.forcing is None or run.forcing.settled():  # a loose solve's short step: one more
+                            status = "converged"  # round to CG_RTOL (inner.Forcing.settled)
                     elif _steady(tail, moved) and rounds < o.max_rounds:  # one more trial: counted as a round
                         rounds += 1
                         if ROOT_DECIDES and not wire.PLAIN:  # the root's decision carries the jump factor
