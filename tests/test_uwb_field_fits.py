@@ -267,3 +267,41 @@ def test_tighten_shared_refuses_an_unknown_stage():
     assert TightenShared(stage="seed").stage == "seed"
     with pytest.raises(ModelError, match="TightenShared.stage must be one of seed"):
         TightenShared(stage="sead")
+
+
+def test_the_forcing_term_runs_in_the_loops_refits_and_rungs_only(monkeypatch):
+    """``field_fits.STAGE_FORCING`` (issue 27, item 36): on plant-like hall [78, 0] (corner, the longest exclusion
+    loop) every fit of stage "refit" or "rung" hands the forcing term to its LM phase (``refine_forcing``), no other
+    fit does — not the first fit, not the tightening ("seed"), not the full-tolerance fits or the polish; against
+    the term off (None, every CG run to CG_RTOL as before): the same links excluded and status, positions within
+    0.1 mm, fewer bytes in all (measured 373.2 → 302.5 kB)."""
+    from distnav.algorithms.ranging import csg
+    from distnav.models.uwb import field, field_fits, field_steps
+
+    h = simulate_hall(np.random.default_rng([78, 0]), HallConfig().with_(known="corner", **PLANT_LIKE))
+    sub, geo = prepare(hall_problem(h)[0])
+    stages: list[str | None] = []
+    forcing: list[object] = []
+    once, solve = field_fits.solve_once, csg.solve
+
+    def once_spy(*args, **kw):
+        stages.append(kw.get("stage"))
+        return once(*args, **kw)
+
+    def solve_spy(*args, **kw):
+        forcing.append(kw.get("refine_forcing"))
+        return solve(*args, **kw)
+
+    for module in (field, field_fits, field_steps):
+        monkeypatch.setattr(module, "solve_once", once_spy)
+    monkeypatch.setattr(csg, "solve", solve_spy)
+    on = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    assert len(stages) == len(forcing) and {"seed", "refit", "rung", None} <= set(stages)
+    for stage, terms in zip(stages, forcing, strict=True):
+        assert terms == (field_fits.STAGE_FORCING if stage in ("refit", "rung") else None)
+    assert stages[0] == "seed" and forcing[0] is None  # the first fit
+    monkeypatch.setattr(field_fits, "STAGE_FORCING", None)
+    off = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    assert np.array_equal(on.excluded, off.excluded) and on.status == off.status
+    assert np.max(np.abs(on.positions_m - off.positions_m)) < 1e-4
+    assert on.bytes < off.bytes

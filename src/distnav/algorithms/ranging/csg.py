@@ -239,6 +239,7 @@ def _refine_phase(
             xtol_m=rule.phase_tolerances[1],
             mu0=MU0 if setup.o.refine_mu0 is None else setup.o.refine_mu0,
             held_m=setup.o.refine_held_m,
+            forcing=setup.o.refine_forcing,
             offset_start_m=_start_offset(setup.o, out.last),
         )
     except ModelError as err:  # e.g. a lost message: the refinement needs every link each round

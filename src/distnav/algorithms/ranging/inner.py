@@ -54,19 +54,28 @@ class Forcing:
     preconditioned gradient norm ``√(gᵀM⁻¹g)`` — CG's first ``rᵀz`` (:func:`pcg`), which every anchor holds bit
     for bit, so the term costs no message (the preconditioner moves with the damping μ, a heuristic as the paper's
     norm); a rejected trial's retry on the same linearization keeps the round's η; a step solved looser than
-    :data:`STOP_ETA` does not stop the phase (:meth:`settled`). Measured with :data:`FORCING_TRIED` (its floor the
-    fixed :data:`CG_RTOL`: near the solution no tighter than before): not the default (docs/economy_uwb.md item
-    33)."""
+    :data:`STOP_ETA` (or ``stop_eta`` where given) does not stop the phase (:meth:`settled`). The default's use:
+    the exclusion loop's re-fits and rungs only (``field_fits.STAGE_FORCING``, with ``stop_eta`` 0.9: issue 27,
+    docs/economy_uwb.md item 36). Measured with :data:`FORCING_TRIED` (its floor the
+    fixed :data:`CG_RTOL`: near the solution no tighter than before) in every early-stopped fit: not the default
+    (docs/economy_uwb.md item 33)."""
 
     gamma: float
     alpha: float
     eta0: float
     eta_min: float
     eta_max: float
+    stop_eta: float | None = None  # the loosest η whose step may stop the phase (None: STOP_ETA)
     norm: float | None = None  # the last linearization's ‖g‖
     eta: float | None = None  # the current round's η (None: a new linearization, set by the next CG run)
     eta_last: float | None = None  # the last round's η
     tight: bool = False  # from now on η = CG_RTOL at most (settled)
+
+    @classmethod
+    def of(cls, terms: tuple[float, ...]) -> Forcing:
+        """The term from ``(γ, α, η₀, η_min, η_max[, stop_η])`` (``RunOptions.refine_forcing``, ``inner.FORCING``)."""
+        gamma, alpha, eta0, eta_min, eta_max = terms[:5]
+        return cls(gamma, alpha, eta0, eta_min, eta_max, terms[5] if len(terms) > 5 else None)
 
     def linearized(self) -> None:
         """A new outer round (its η follows from its first CG run's ‖g‖)."""
@@ -93,7 +102,7 @@ class Forcing:
         :data:`CG_RTOL` — a looser one's step is shorter than the Newton step, so its length understates the
         distance to the solution (on the folded plant corner #0 the loop's 1 cm re-fits stopped early enough to
         exclude a link LM keeps). Else the rest of the phase runs at most to CG_RTOL (one more round at least)."""
-        if self.eta is None or self.eta <= STOP_ETA:
+        if self.eta is None or self.eta <= (STOP_ETA if self.stop_eta is None else self.stop_eta):
             return True
         self.tight = True
         return False

@@ -47,6 +47,19 @@ def _positive(**values: float | None) -> None:
             raise ModelError(f"{name} must be positive, got {value}")
 
 
+def _forcing(terms: tuple[float, ...] | None) -> None:
+    """Refuse a forcing term that is not ``(γ, α, η₀, η_min, η_max[, stop_η])`` with every η in (0, 1),
+    ``η_min ≤ η_max``, γ and α positive (:class:`~distnav.algorithms.ranging.inner.Forcing`)."""
+    if terms is None:
+        return
+    if len(terms) not in (5, 6):
+        raise ModelError(f"refine_forcing must be (gamma, alpha, eta0, eta_min, eta_max[, stop_eta]), got {terms!r}")
+    gamma, alpha, *etas = (float(t) for t in terms)
+    _positive(refine_forcing_gamma=gamma, refine_forcing_alpha=alpha)
+    if not all(0 < e <= 1 for e in etas) or etas[1] > etas[2]:
+        raise ModelError(f"refine_forcing's η values must lie in (0, 1] with eta_min ≤ eta_max, got {terms!r}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class RunOptions(FitOptions):
     """:class:`~distnav.algorithms.ranging.objective.FitOptions` and what every distributed ranging front door adds
@@ -65,6 +78,10 @@ class RunOptions(FitOptions):
       neighbours holds bit for bit from the last fit's LM phase (NaN: not held); that phase's start must equal
       them there and sends nothing from those anchors (a warm re-fit: ``field_fits.CARRY_HELD``; issue 27,
       :class:`~distnav.algorithms.ranging.wire.Wire` item 6).
+    - ``refine_forcing`` (None: ``inner.FORCING`` in the phases that stop early, ``refine.FORCING_FROM_M``; by
+      default none): that phase's adaptive forcing term ``(γ, α, η₀, η_min, η_max)``, optionally with the loosest
+      η whose step may stop it (:class:`~distnav.algorithms.ranging.inner.Forcing`; a workflow's stage:
+      ``field_fits.STAGE_FORCING``, issue 27).
     - ``test_scale`` also ``"local"`` (each anchor's own scale) beside the centralized scales.
 
     ``range_offsets="common_delays"`` (LM's) is refused by name: the neighbourhood solvers' offsets
@@ -79,10 +96,12 @@ class RunOptions(FitOptions):
     refine: bool | None = None
     refine_mu0: float | None = None
     refine_held_m: np.ndarray | None = None
+    refine_forcing: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         check_field_types(self, error=ModelError)  # types first, naming the field (issue 29)
         _positive(refine_mu0=self.refine_mu0)
+        _forcing(self.refine_forcing)
         if self.monitor_every < 0:
             raise ModelError(f"monitor_every must be ≥ 0, got {self.monitor_every}")
         if self.test_scale not in DISTRIBUTED_TEST_SCALES:

@@ -124,7 +124,10 @@ class RefineOptions:
     ``max_rounds`` (:data:`MAX_ROUNDS`) outer rounds, ``mu0`` (:data:`MU0`) the initial damping, ``held_m``
     what the receivers hold from the last fit (:class:`~distnav.algorithms.ranging.wire.Wire`, item 6) and
     ``offset_start_m`` the common offset every anchor's copy holds at the start, metres (None: not known; then
-    the start is their network mean, one reduction; :data:`OFFSET_START_HELD`)."""
+    the start is their network mean, one reduction; :data:`OFFSET_START_HELD`); ``forcing`` the adaptive forcing
+    term of the phase's inner solves (:class:`~distnav.algorithms.ranging.inner.Forcing`'s fields; None:
+    ``inner.FORCING`` where ``xtol_m`` ≥ :data:`FORCING_FROM_M`, which is None by default: every CG run to
+    ``CG_RTOL``)."""
 
     sigma: np.ndarray
     scale: np.ndarray
@@ -137,6 +140,7 @@ class RefineOptions:
     mu0: float = MU0
     held_m: np.ndarray | None = None
     offset_start_m: float | None = None
+    forcing: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -179,9 +183,10 @@ class _Refiner:
         self.steps = wire.STEPS and not wire.PLAIN  # trials travel as steps (wire, item 5)
         # the products' held exponents per link, kept from one CG run to the next of the fit (wire.HELD_ACROSS_RUNS)
         self.held: list[np.ndarray] = []
-        # the adaptive forcing term of the fit's CG runs (inner.FORCING; None: CG_RTOL)
-        terms = inner.FORCING
-        self.forcing = Forcing(*terms) if terms is not None and not wire.PLAIN and o.xtol_m >= FORCING_FROM_M else None
+        # the adaptive forcing term of the fit's CG runs (o.forcing, else inner.FORCING in early-stopped fits; None:
+        # every run to CG_RTOL)
+        terms = o.forcing if o.forcing is not None else inner.FORCING if o.xtol_m >= FORCING_FROM_M else None
+        self.forcing = Forcing.of(terms) if terms is not None and not wire.PLAIN else None
 
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
         """The start ``(x, c)`` and CG's iteration limit (one reduction: the common offset's mean; the number of

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from distnav.algorithms.ranging import csg
+from distnav.algorithms.ranging.inner import FORCING_TRIED
 from distnav.algorithms.ranging.qc import SCALE_FLOOR
 from distnav.algorithms.ranging.stop import StopRule
 from distnav.errors import ModelError
@@ -36,6 +37,8 @@ __all__ = [
     "FIRST_ITERATIONS",
     "STAGE_TOLERANCES",
     "REFIT_STAGES",
+    "FORCING_STAGES",
+    "STAGE_FORCING",
     "refit_margin_w",
     "CARRY_OFFSET",
     "CARRY_HELD",
@@ -69,6 +72,17 @@ STAGE_TOLERANCES = {"seed": (1e-3, 1e-2), "refit": (1e-3, 1e-2), "rung": (3e-4, 
 #: the same links excluded. The fourth session's ladder (1 cm, 1 mm) climbed every rung at the loop's end too:
 #: 1.04 × where one rung gave 1.08 ×
 REFIT_STAGES: tuple[str, ...] = ("refit", "rung")
+#: the adaptive forcing term of a distributed fit's LM phase (``RunOptions.refine_forcing``: ``(γ, α, η₀, η_min,
+#: η_max[, stop_η])``, :class:`~distnav.algorithms.ranging.inner.Forcing`) in the stages :data:`FORCING_STAGES`
+#: only: the exclusion loop's early-stopped re-fits and rungs, whose answers only choose links with a margin
+#: (:func:`refit_margin_w`) — never the first fit or the tightening ("seed"), whose answers move the next fits (issue
+#: 27, docs/economy_uwb.md items 33 and 36: the term in one fit of the folded plant corner #0, its fifth, a
+#: tightening fit, excluded a link LM keeps). :data:`~distnav.algorithms.ranging.inner.FORCING_TRIED` with a stop
+#: allowed on any step (stop_η = η_max 0.9): 12 plant-like halls 2.698 → 2.388 MB, the same links and status, within
+#: 0.10 mm; 100 PLANT_HARD halls and APRIL datasets 4–5 the same links, status and exit codes, within 1 mm. None:
+#: every fit to ``CG_RTOL``, as before
+STAGE_FORCING: tuple[float, ...] | None = (*FORCING_TRIED, 0.9)
+FORCING_STAGES: tuple[str, ...] = ("refit", "rung")
 #: a warm distributed fit starts from the last fit's common range offset (every anchor holds it; :func:`solve_once`)
 #: instead of 0 (issue 27: from 0 each re-fit's first rounds found the offset again, 0.3 m on the plant-like halls)
 CARRY_OFFSET = True
@@ -122,7 +136,8 @@ def solve_once(
     totals as spanning-tree reductions (``settings["refine"]``,
     :func:`~distnav.algorithms.ranging.wire.reduction_cost`). ``stage`` (``"seed"``; None: the solver's
     own): a distributed solver's LM phase stops at :data:`STAGE_TOLERANCES` — a fit whose solution only
-    starts the next one needs no 0.1 mm steps (issue 27, docs/economy_uwb.md). ``carry``: the common range offset
+    starts the next one needs no 0.1 mm steps (issue 27, docs/economy_uwb.md); in :data:`FORCING_STAGES` its CG
+    runs with the forcing term :data:`STAGE_FORCING` (where set). ``carry``: the common range offset
     handed from fit to fit (:data:`CARRY_OFFSET`): a warm distributed re-fit starts from the last fit's, which every
     anchor holds (no message), instead of 0; the fit's own is stored for the next — with its LM phase's final
     coordinates and links, which every ranged neighbour holds (:data:`CARRY_HELD`: a warm fit sends no first
@@ -143,6 +158,8 @@ def solve_once(
     if stage is not None and key != "LM" and "stop" not in kw:
         ftol, xtol_m = STAGE_TOLERANCES[stage]
         extra["stop"] = StopRule(refine_ftol=ftol, refine_xtol_m=xtol_m)
+        if STAGE_FORCING is not None and stage in FORCING_STAGES and "refine_forcing" not in kw:
+            extra["refine_forcing"] = tuple(STAGE_FORCING)  # the loop's re-fits only (STAGE_FORCING)
     if carry is not None and warm and key != "LM":
         extra.update({k: v for k, v in carry.items() if k not in kw and _carries(k, key, kw)})
         if CARRY_HELD and "held" in carry and iterations == 0 and kw.get("refine", True) is not False:
