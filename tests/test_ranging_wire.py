@@ -13,6 +13,7 @@ import pytest
 from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.covariance import ECONOMY_CG_RTOL, ECONOMY_WIRE_DTYPE, central_precision
 from distnav.algorithms.ranging.csg import solve
+from distnav.algorithms.ranging.inner import CGOptions
 from distnav.algorithms.ranging.lm import solve_lm
 from distnav.algorithms.ranging.neighbourhoods import half_measurements
 from distnav.algorithms.ranging.refine import (
@@ -24,7 +25,7 @@ from distnav.algorithms.ranging.refine import (
     refine,
 )
 from distnav.algorithms.ranging.wire import pack_half, unpack_half
-from distnav.errors import ModelError
+from distnav.errors import ModelError, UsageError
 from distnav.exchange import make_exchange
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.field import FieldOptions, prepare, solve_field, subset_measurements
@@ -384,6 +385,30 @@ def test_preconditioned_stop_drops_one_reduced_float_per_iteration(hall):
             assert r @ r <= 0.1**2 * (b.reshape(-1) @ b.reshape(-1)) * (1 + 1e-9)
     for stop, (floats, its) in got.items():  # pᵀq alone: no common offset, no share of its row (seventh session)
         assert its > 3 and floats == its + (1 if stop else 2) * (its + 1)
+
+
+def test_pcg_options_object_and_keywords_run_the_same(hall):
+    """:func:`pcg`'s settings as one :class:`CGOptions` or as keywords: the same solution bit for bit (and a tighter
+    ``rtol`` through either a different one, so the settings are not ignored); a misspelt keyword or a bad value is
+    refused by name."""
+    p = hall[0]
+    runs = []
+    for how in (
+        {"rtol": 0.1, "preconditioned_stop": True},
+        {"options": CGOptions(rtol=0.1, preconditioned_stop=True)},
+        {"options": CGOptions(rtol=0.1), "preconditioned_stop": True},
+        {"rtol": 1e-6},
+    ):
+        links, system, _, _, _, pre_inv, b = _damped(p, np.float64)
+        runs.append(pcg(system, b, np.zeros(1), pre_inv, 1.0, links, 200, **how))
+    for x, _, its in runs[1:3]:
+        assert its == runs[0][2] and np.array_equal(x, runs[0][0])
+    assert runs[3][2] > runs[0][2] and not np.array_equal(runs[3][0], runs[0][0])
+    links, system, _, _, _, pre_inv, b = _damped(p, np.float64)
+    with pytest.raises(UsageError, match="no option 'rtl'.*did you mean 'rtol'"):
+        pcg(system, b, np.zeros(1), pre_inv, 1.0, links, 200, rtl=0.1)
+    with pytest.raises(ModelError, match="rtol must be a finite number"):
+        CGOptions(rtol=float("nan"))
 
 
 def _refined(p, offsets):

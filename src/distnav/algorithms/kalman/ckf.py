@@ -458,13 +458,29 @@ def ckf(
             collector.add(st.tests)
         last = st
     assert last is not None
+    return _filter_result(measurements, ex, sched, o, kept, collector, last)
+
+
+def _filter_result(
+    measurements: MeasurementSeries,
+    ex: Exchange,
+    sched: ConsensusSchedule,
+    o: CKFRunOptions,
+    kept: _GatheredSeries,
+    collector: InnovationCollector | None,
+    last: CKFState,
+) -> FilterResult:
+    """:func:`ckf`'s result, assembled from its epochs (``kept``: gathered, ``collector``: their innovation tests,
+    ``last``: the last epoch's state): the series, the last epoch's information, the consensus product ``L`` and
+    ``α`` (with ``o.variance``), the local precision and the tests."""
+    kn = o.k_n
+    n = measurements.n_nodes
     variance = bool(o.variance)
     L = consensus_product(sched, kn) if variance else None  # dense n×n: only with the variance recursion
     series = kept.series(n)
     comm: CommTotals = ex.comm_totals()
     est_last = series.estimable[-1]
     complete = bool(est_last.all())
-    local_precision = o.local_precision
     return FilterResult(
         estimates=series.estimates[-1],
         converged=complete,
@@ -485,7 +501,7 @@ def ckf(
         product=L,
         alpha=alpha_factor(L) if L is not None else None,
         precision=_local_precision(
-            ex, last, local_precision, comm, measurements.n_states, variance, o.transport == "relay"
+            ex, last, o.local_precision, comm, measurements.n_states, variance, o.transport == "relay"
         ),
         local_std=np.stack(kept.lstds) if kept.lstds else None,
         tests=collector.build() if collector is not None else None,

@@ -307,7 +307,7 @@ def _solve_columns(
     worst, its = float("inf"), 0
     for dtype, tol in tries:
         sys_ = system(dtype)
-        X, Xc, its = pcg(sys_, b, bc, pre_inv, dc, links, its_max, tol)
+        X, Xc, its = pcg(sys_, b, bc, pre_inv, dc, links, its_max, rtol=tol)
         q, q_share = sys_.matvec(X, Xc)
         resid = np.where(free[:, :, None], b - q, 0.0)
         t = links.total(

@@ -14,14 +14,17 @@ from typing import Any
 
 import numpy as np
 
+from distnav._settings import resolve_options
 from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.neighbourhoods import half_measurements
 from distnav.algorithms.ranging.wire import Wire
+from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
 __all__ = [
     "CG_RTOL",
+    "CGOptions",
     "FORCING",
     "FORCING_TRIED",
     "STOP_ETA",
@@ -264,6 +267,25 @@ class NormalSystem:
         return np.where(self.free[:, :, None], out, 0.0), half
 
 
+@dataclass(frozen=True, kw_only=True)
+class CGOptions:
+    """The settings of one :func:`pcg` run, checked once (defaults in brackets): ``rtol`` [:data:`CG_RTOL`] the
+    residual's reduction that stops it (≥ 0); ``scalar_dtype`` [float64] the dot products on the wire (float16,
+    float32 or float64); ``preconditioned_stop`` [False] the stop in the preconditioner's norm ``rᵀz``;
+    ``forcing`` [None] the LM phase's adaptive forcing term (:class:`Forcing`: it replaces ``rtol``)."""
+
+    rtol: float = CG_RTOL
+    scalar_dtype: type[np.floating] = np.float64
+    preconditioned_stop: bool = False
+    forcing: Forcing | None = None
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.rtol) and self.rtol >= 0):
+            raise ModelError(f"pcg: rtol must be a finite number ≥ 0, got {self.rtol!r}")
+        if self.scalar_dtype not in (np.float16, np.float32, np.float64):
+            raise ModelError(f"pcg: scalar_dtype must be float16, float32 or float64, got {self.scalar_dtype!r}")
+
+
 def pcg(
     system: NormalSystem,
     b: np.ndarray,
@@ -272,10 +294,9 @@ def pcg(
     pre_c: float,
     links: Links,
     max_its: int,
-    rtol: float = CG_RTOL,
-    scalar_dtype: type[np.floating] = np.float64,
-    preconditioned_stop: bool = False,
-    forcing: Forcing | None = None,
+    *,
+    options: CGOptions | None = None,
+    **changes: Any,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Preconditioned conjugate gradients (Saad 2003, Alg. 9.1) on the block's rows ``(n_local, P, k)`` for ``k``
     right-hand sides at once (independent CG recurrences sharing every broadcast and reduction) and the common
@@ -285,8 +306,11 @@ def pcg(
     so the residual's own norm ``rᵀr`` needs no reduction of its own) —, or one column's curvature ``pᵀNp`` is not
     positive. Per iteration two reductions: ``pᵀq`` with the common offset's row of ``q`` (only with a common offset),
     then ``rᵀz``; with float16 ``scalar_dtype`` each value after a run's first travels on its slot's held exponent
-    (:data:`~distnav.algorithms.ranging.wire.HELD_DOTS`, issue 27, seventh session). ``forcing``: ``rtol`` is the
-    round's adaptive forcing term instead (:class:`Forcing`, from the first ``rᵀz``)."""
+    (:data:`~distnav.algorithms.ranging.wire.HELD_DOTS`, issue 27, seventh session). ``options``
+    (:class:`CGOptions`, or its fields as keywords): ``rtol``, ``scalar_dtype``, ``preconditioned_stop`` and
+    ``forcing`` (``rtol`` is then the round's adaptive forcing term: :class:`Forcing`, from the first ``rᵀz``)."""
+    o = resolve_options(CGOptions, options, changes)
+    rtol, scalar_dtype, preconditioned_stop, forcing = o.rtol, o.scalar_dtype, o.preconditioned_stop, o.forcing
     k = b.shape[2]
     x = np.zeros_like(b)
     xc = np.zeros(k)

@@ -225,27 +225,8 @@ def find_arcs(
     The geometry-free test's limit is ``max(gf_threshold_m, gf_sigmas × s)``, ``s`` the RMS of the satellite's
     recent prediction errors (exponentially weighted over ``gf_window_epochs``, slips excluded; module doc);
     ``gf_sigmas`` 0: the fixed threshold alone."""
-    g_arr = np.asarray(gf_phase_m, float)
-    w_arr = np.asarray(mw_cycles, float)
-    ok = np.isfinite(g_arr) & np.isfinite(w_arr)
-    n = g_arr.size
-    arc = np.full(n, -1, np.int64)
-    outlier = np.zeros(n, bool)
+    arc, outlier, idx, t, g, w, lli_bits, err_at = _scan_inputs(t_s, gf_phase_m, mw_cycles, lli)
     reasons: list[str] = []
-    idx = np.flatnonzero(ok).tolist()
-    # the scan is sequential (each decision depends on the arc so far): on Python floats, which round as numpy's
-    # float64 scalars do (same IEEE operations, ``** 2`` through the same ``pow``) at a fraction of the cost
-    t: list[float] = np.asarray(t_s, float).tolist()
-    g: list[float] = g_arr.tolist()
-    w: list[float] = w_arr.tolist()
-    lli_bits: list[int] | None = None if lli is None else (np.asarray(lli).astype(np.int64) & 1).tolist()
-    # the GF prediction error from the two previous data epochs, for all at once (the same IEEE operations in the
-    # same order): the scan takes it where those two are the arc's last two (no outlier between), else computes it
-    ia = np.asarray(idx, np.int64)
-    ta, ga = np.asarray(t_s, float)[ia], g_arr[ia]
-    dt_a = ta[1:-1] - ta[:-2]
-    pred_a = ga[1:-1] + (ga[1:-1] - ga[:-2]) * (ta[2:] - ta[1:-1]) / np.where(1e-9 > dt_a, 1e-9, dt_a)
-    err_at: list[float] = [0.0, 0.0, *(ga[2:] - pred_a).tolist()]
     cur = -1
     hist: list[int] = []  # epochs of the current arc
     last_pos = prev_pos = -9  # positions in idx of hist[-1], hist[-2]
@@ -266,10 +247,8 @@ def find_arcs(
             if nh >= 2:
                 if last_pos == pos - 1 and prev_pos == pos - 2:
                     err = err_at[pos]
-                else:
-                    k1, k2 = hist[-1], hist[-2]
-                    dt = t[k1] - t[k2]
-                    err = g[k] - (g[k1] + (g[k1] - g[k2]) * (t[k] - t[k1]) / (1e-9 if 1e-9 > dt else dt))
+                else:  # an outlier between: from the arc's last two epochs
+                    err = _gf_prediction_error(t, g, k, hist[-1], hist[-2])
                 lim_gf = gf_threshold_m
                 n_warm = len(warm)
                 if gf_sigmas > 0 and n_warm >= 3:
@@ -289,13 +268,10 @@ def find_arcs(
                 lim = mw_sigmas * sd
                 lim = mw_min_cycles if mw_min_cycles > lim else lim
                 if abs(w[k] - m) > lim:
-                    nxt = idx[pos + 1] if pos + 1 < len(idx) else -1
-                    confirmed = nxt >= 0 and abs(w[nxt] - m) > lim and abs(w[nxt] - w[k]) < lim
-                    if confirmed:
-                        reason = "mw"
-                    else:
+                    if not _mw_jump_confirmed(w, idx, pos, m, lim):
                         outlier[k] = True
                         continue
+                    reason = "mw"
         if reason:
             cur = len(reasons)
             reasons.append(reason)
@@ -309,6 +285,36 @@ def find_arcs(
         mw_sum += w[k]
         mw_sq += w[k] ** 2
     return arc, outlier, reasons
+
+
+def _scan_inputs(
+    t_s: np.ndarray, gf_phase_m: np.ndarray, mw_cycles: np.ndarray, lli: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, list[int], list[float], list[float], list[float], list[int] | None, list[float]]:
+    """:func:`find_arcs`' ``arc`` (−1), ``outlier`` (False) and its scan's inputs: the data epochs (GF, MW finite);
+    times, GF, MW and LLI bit 0 as Python floats and ints (the scan is sequential: they round as numpy's float64
+    scalars, the same IEEE operations, ``** 2`` through the same ``pow``, at a fraction of the cost); every data
+    epoch's :func:`_gf_prediction_error` from the two previous data epochs at once (same operations, same order)."""
+    g_arr, w_arr, t_arr = (np.asarray(a, float) for a in (gf_phase_m, mw_cycles, t_s))
+    ia = np.flatnonzero(np.isfinite(g_arr) & np.isfinite(w_arr))
+    ta, ga = t_arr[ia], g_arr[ia]
+    dt_a = ta[1:-1] - ta[:-2]
+    pred_a = ga[1:-1] + (ga[1:-1] - ga[:-2]) * (ta[2:] - ta[1:-1]) / np.where(1e-9 > dt_a, 1e-9, dt_a)
+    err_at: list[float] = [0.0, 0.0, *(ga[2:] - pred_a).tolist()]
+    lli_bits: list[int] | None = None if lli is None else (np.asarray(lli).astype(np.int64) & 1).tolist()
+    arc, outlier = np.full(g_arr.size, -1, np.int64), np.zeros(g_arr.size, bool)
+    return arc, outlier, ia.tolist(), t_arr.tolist(), g_arr.tolist(), w_arr.tolist(), lli_bits, err_at
+
+
+def _gf_prediction_error(t: list[float], g: list[float], k: int, k1: int, k2: int) -> float:
+    """Epoch ``k``'s GF minus its linear prediction from epochs ``k1`` (the last) and ``k2`` [m] (module doc)."""
+    dt = t[k1] - t[k2]
+    return g[k] - (g[k1] + (g[k1] - g[k2]) * (t[k] - t[k1]) / (1e-9 if 1e-9 > dt else dt))
+
+
+def _mw_jump_confirmed(w: list[float], idx: list[int], pos: int, mean: float, lim: float) -> bool:
+    """Whether the next data epoch confirms the MW jump at ``idx[pos]`` (a slip; else an outlier of one epoch)."""
+    nxt = idx[pos + 1] if pos + 1 < len(idx) else -1
+    return nxt >= 0 and abs(w[nxt] - mean) > lim and abs(w[nxt] - w[idx[pos]]) < lim
 
 
 def screen_arc(
