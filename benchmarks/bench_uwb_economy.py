@@ -13,8 +13,8 @@ and how both grow with the network.
    opened and ended by full fits), *today* (the defaults at the seventh session's start: items 1–23 of
    docs/economy_uwb.md, every item of the seventh session switched off (:data:`SESSION_ITEMS`: the exclusion loop
    opened by a full fit of every link and ended by a full fit of the kept links, items 24–25; CG's dot products and
-   the products' exponents not held, items 26–27; the LM rounds' own messages as before, items 28–32) and *after*
-   (the defaults: items 24–32);
+   the products' exponents not held, items 26–27; the LM rounds' own messages as before, items 28–32; no forcing
+   term in the loop's re-fits, item 36) and *after* (the defaults: items 24–32 and 36);
    the positions, their largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range
    gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
@@ -97,10 +97,10 @@ SWITCHES: dict[str, dict[tuple[Any, str], Any]] = {
         (qc, "BLOCKED_NEAR"): False,
         (field_fits, "CARRY_HELD"): False,
     },
-    "today": {},  # every item of the seventh session off (items 24–32): SESSION_ITEMS
+    "today": {},  # every item of the seventh session off (items 24–32, 36): SESSION_ITEMS
     "after": {},
 }
-#: the seventh session's items 24–32, each switched off in *today* (the defaults at the session's start)
+#: the seventh session's items 24–32 and 36, each switched off in *today* (the defaults at the session's start)
 SESSION_ITEMS: dict[tuple[Any, str], Any] = {
     (field_fits, "TIGHTEN_OPENS_LOOP"): False,  # item 24
     (field_fits, "LOOP_ENDS_LOOSE"): False,  # item 25
@@ -111,6 +111,7 @@ SESSION_ITEMS: dict[tuple[Any, str], Any] = {
     (refine, "OFFSET_START_HELD"): False,
     (refine, "ROOT_DECIDES"): False,
     (refine, "SCALED_TRIAL_KNOWN"): False,
+    (field_fits, "STAGE_FORCING"): None,  # item 36: the forcing term in the loop's re-fits
 }
 SWITCHES["today"].update(SESSION_ITEMS)
 SWITCHES["before"].update(SESSION_ITEMS)

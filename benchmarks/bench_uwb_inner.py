@@ -9,9 +9,10 @@ all-reductions (``wire.reduction_cost``), per workflow, per fit (``refine.refine
 the LM rounds' own methods sent (``refine._Refiner.start`` / ``evaluate`` / ``linearize``: the start's offset mean,
 the first evaluation, every trial's step and its objective and largest move, the extrapolated trials, the common
 offset's row; broadcast messages and bytes, reductions as spanning-tree bytes) — in the configurations of
-:data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*: items 24–32 off), with items 26–27
-(*inner*: ``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``), with items 24–27 (*loop*: ``field_fits.TIGHTEN_OPENS_LOOP``,
-``LOOP_ENDS_LOOSE`` too) and the defaults (*after*: the rounds' own messages too, items 28–32); every position, σ,
+:data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*: items 24–32 and 36 off), with
+items 26–27 (*inner*: ``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``), with items 24–27 (*loop*:
+``field_fits.TIGHTEN_OPENS_LOOP``, ``LOOP_ENDS_LOOSE`` too), with items 24–32 (*rounds*: the rounds' own messages too)
+and the defaults (*after*: ``field_fits.STAGE_FORCING`` too, item 36); every position, σ,
 exclusion and status compared with the configuration before it.
 
 ``--study`` also rebuilds every inner system densely (numpy, from the linearization the solve used) and counts the
@@ -310,9 +311,10 @@ def _solve(k: int, place: str) -> tuple[Any, Any, dict[str, Any]]:
 
 
 #: the configurations compared, in one run (module, switch, value), each against the one before it: the defaults at
-#: the seventh session's start (*before*: items 24–32 off), with items 26–27 (*inner*: CG's dot products and the
-#: products' exponents held), with items 24–27 (*loop*: the exclusion loop opened by the last tightening fit and
-#: ended on its decided 1 cm re-fit too) and the defaults (*after*: the LM rounds' own messages too, items 28–32)
+#: the seventh session's start (*before*: items 24–32 and 36 off), with items 26–27 (*inner*: CG's dot products and
+#: the products' exponents held), with items 24–27 (*loop*: the exclusion loop opened by the last tightening fit and
+#: ended on its decided 1 cm re-fit too), with items 24–32 (*rounds*: the LM rounds' own messages too) and the
+#: defaults (*after*: the forcing term in the loop's re-fits too, item 36)
 _LOOP_OFF = [(field_fits, "TIGHTEN_OPENS_LOOP", False), (field_fits, "LOOP_ENDS_LOOSE", False)]
 _ROUNDS_OFF = [
     (wire, "STEP_HELD", False),
@@ -321,10 +323,12 @@ _ROUNDS_OFF = [
     (refine, "ROOT_DECIDES", False),
     (refine, "SCALED_TRIAL_KNOWN", False),
 ]
-CONFIGS: dict[str, list[tuple[Any, str, bool]]] = {
-    "before": [*_LOOP_OFF, (wire, "HELD_DOTS", False), (wire, "HELD_ACROSS_RUNS", False), *_ROUNDS_OFF],
-    "inner": [*_LOOP_OFF, *_ROUNDS_OFF],
-    "loop": _ROUNDS_OFF,
+_FORCING_OFF = [(field_fits, "STAGE_FORCING", None)]  # item 36: the forcing term in the loop's re-fits
+CONFIGS: dict[str, list[tuple[Any, str, Any]]] = {
+    "before": [*_LOOP_OFF, (wire, "HELD_DOTS", False), (wire, "HELD_ACROSS_RUNS", False), *_ROUNDS_OFF, *_FORCING_OFF],
+    "inner": [*_LOOP_OFF, *_ROUNDS_OFF, *_FORCING_OFF],
+    "loop": [*_ROUNDS_OFF, *_FORCING_OFF],
+    "rounds": _FORCING_OFF,
     "after": [],
 }
 
