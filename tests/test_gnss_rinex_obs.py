@@ -241,7 +241,7 @@ def test_a_bad_field_is_named_by_its_line_before_a_later_bad_epoch(tmp_path: Pat
 def test_epoch_time_is_numpys_parse_of_the_minute() -> None:
     """The reader's epoch (issue 32, gnss9: the hour parsed once, minute and seconds added in ns) is the
     datetime64 numpy parses from each epoch's minute plus the seconds, and refuses what that parse refuses."""
-    from distnav.formats.gnss.rinex_obs import _epoch_time
+    from distnav.formats.gnss.rinex_fields import epoch_time as _epoch_time
 
     def parsed(y: int, mo: int, d: int, h: int, mi: int, sec: float) -> np.datetime64:
         base = np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}T{h:02d}:{mi:02d}", "ns")

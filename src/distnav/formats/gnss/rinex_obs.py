@@ -31,7 +31,7 @@ from distnav.formats.gnss.compressed import (
     read_bytes,
     read_text_file,
 )
-from distnav.formats.gnss.rinex_fields import parse_fields
+from distnav.formats.gnss.rinex_fields import epoch_time, glonass_slot_channels, parse_fields
 from distnav.models.gnss.code_observations import ProgressCallback
 from distnav.models.gnss.systems import SYSTEM_NAMES
 
@@ -177,7 +177,7 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
         elif label == "TIME OF FIRST OBS":
             tsys = line[48:51].strip() or "GPS"
         elif label == "GLONASS SLOT / FRQ #":
-            _glonass_channels(line, channels)
+            glonass_slot_channels(line, channels)
     if end < 0:
         raise DataFileError(f"{path}: not a RINEX file (no END OF HEADER line)")
     if not version:
@@ -189,41 +189,10 @@ def _parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
     return RinexHeader(version, ftype, receiver, marker, pos, tuple(types), tsys, end + 1, by_system, channels)
 
 
-def _glonass_channels(line: str, out: dict[str, int]) -> None:
-    """The ``Rnn k`` pairs (up to 8 per line, columns 5-60) of a ``GLONASS SLOT / FRQ #`` line; a malformed pair
-    is left out (the channel then comes from the navigation file)."""
-    for i in range(8):
-        sv, k = line[4 + 7 * i : 7 + 7 * i], line[8 + 7 * i : 10 + 7 * i]
-        if sv[:1] == "R" and sv[1:3].strip().isdigit():
-            try:
-                out[f"R{int(sv[1:3]):02d}"] = int(k)
-            except ValueError:
-                continue
-
-
 def read_header(path: str | Path) -> RinexHeader:
     """The header of an observation file (see :class:`RinexHeader`)."""
     p = Path(path)
     return _parse_header(_read_lines(p), p)
-
-
-_HOURS: dict[tuple[int, int, int, int], int] = {}
-
-
-def _epoch_time(y: int, mo: int, d: int, h: int, mi: int, sec: float) -> np.datetime64:
-    """The epoch in ns: the hour parsed (and so checked) by numpy once per hour and remembered, the minute checked
-    here, then whole nanoseconds added — the same datetime64 as parsing every epoch's minute (issue 32: 6 µs of
-    string parsing per epoch)."""
-    key = (y, mo, d, h)
-    hour_ns = _HOURS.get(key)
-    if hour_ns is None:
-        hour_ns = int(np.datetime64(f"{y:04d}-{mo:02d}-{d:02d}T{h:02d}", "ns").astype(np.int64))
-        if len(_HOURS) > 4096:
-            _HOURS.clear()
-        _HOURS[key] = hour_ns
-    if not 0 <= mi <= 59:
-        raise ValueError(f"minute {mi}")
-    return np.datetime64(hour_ns + mi * 60_000_000_000 + int(round(sec * 1e9)), "ns")
 
 
 def read_observation_types(
@@ -579,7 +548,7 @@ def _epoch(year: str, month: str, day: str, hour: str, minute: str, second: str)
     try:
         y, mo, d, h, mi = (int(f) for f in fields)
         sec = float(second)
-        return _epoch_time(y, mo, d, h, mi, sec)
+        return epoch_time(y, mo, d, h, mi, sec)
     except ValueError:
         got = " ".join(f.strip() for f in (*fields, second))
         raise _Bad(
