@@ -40,9 +40,10 @@ CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Ste
 #: η_max)``, e.g. :data:`FORCING_TRIED`, in the fits that stop early (``refine.FORCING_FROM_M``); None (the default):
 #: every CG run to :data:`CG_RTOL`. Not kept (issue 27, seventh session, docs/economy_uwb.md item 33): its savings
 #: (1.17 × on 12 plant-like halls) came from stopping on short inexact steps, which on the folded plant corner #0
-#: excluded a link LM keeps (on the tree before fix10; no longer since: item 36); stopping only on a step solved to
-#: CG_RTOL (:data:`STOP_ETA`) keeps LM's links but sends 1.13 × more bytes than without the term (η ≤ 0.3 at the
-#: stop: 1.01 × more). The default's term is the exclusion loop's re-fits' own (``field_fits.STAGE_FORCING``)
+#: excluded a link LM keeps (until the per-anchor check completed the early-stopped fits it compares: item 36)
+#: and on 100 PLANT_HARD halls changes the links of one; stopping only on a step solved to CG_RTOL
+#: (:data:`STOP_ETA`) keeps LM's links but sends 1.13 × more bytes than without the term (η ≤ 0.3 at the stop:
+#: 1.01 × more). The default's term is the exclusion loop's re-fits' own (``field_fits.STAGE_FORCING``)
 FORCING: tuple[float, float, float, float, float] | None = None
 #: the setting measured (γ 0.9, α (1 + √5)/2, η₀ 0.5, η in [0.1, 0.9]), the best of nine on the 12 halls
 FORCING_TRIED = (0.9, 1.618, 0.5, 0.1, 0.9)
