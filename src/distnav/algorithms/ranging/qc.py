@@ -75,6 +75,16 @@ _MAX_DENSE = 6000  # unknowns up to which the covariance is formed (a dense inve
 #: a near-critical link that a pick of its anchors always blocks does not leave a loose re-fit's choice open
 #: (:func:`_decided`, issue 27); False: every link within the margin does
 BLOCKED_NEAR = True
+#: issue 27, eighth session: a round of an early-stopped fit whose choice is open (:func:`_decided`) and holds at
+#: least :data:`DEFER_MIN_NEAR` eligible links within the margin of the critical value takes the picks that are sure
+#: one by one (:func:`_sure_picks`) and leaves the rest to the next re-fit instead of climbing the ladder; the next
+#: fit climbs only where no pick is sure. False: every open round climbs (the seventh session's)
+DEFER_OPEN = True
+#: why a gate: the number of links within the margin grows with the network (at 1 cm about 1 in 300 links: 19 at
+#: 1,000 anchors, 108 at 3,000), so at scale every round is open and each climbs to a full fit of the whole network;
+#: on a hall of 28 anchors an open round holds 1–2 such links, the full fit settles them at once, and deferring them
+#: changes which links go (`[78, 0]` middle: one link fewer), so there the loop stays the seventh session's
+DEFER_MIN_NEAR = 10
 
 
 def robust_scale(standardized: np.ndarray) -> float:
@@ -322,6 +332,13 @@ def exclude_links(
         picks = _round_picks(problem.n_anchors, aw, a, b, cap, crit)
         if level < len(ladder) - 1:
             step = _ladder_step(problem.n_anchors, res, (aw, a, b), (cap, crit, ladder[level][1]), picks, confirm)
+            sure = (
+                _sure_picks(aw, (a, b), cap, crit, ladder[level][1], picks)
+                if step == _NEXT and _defers(aw, crit, ladder[level][1])
+                else []
+            )
+            if sure:  # the sure picks now, the open rest at the next re-fit (issue 27, eighth session)
+                step, picks = _TAKE, sure
             if step == _END:
                 break
             if step != _TAKE:  # the next fit decides (its level), or the last fit confirms the loop's end
@@ -449,6 +466,44 @@ def _decided(
             if _links_of(_round_picks(n_anchors, swapped, a, b, cap, critical), a, b) != base:
                 return False
     return True
+
+
+def _defers(aw: np.ndarray, critical: float, margin: float) -> bool:
+    """Whether an open round defers its undecided links (:data:`DEFER_OPEN`, :data:`DEFER_MIN_NEAR`)."""
+    return DEFER_OPEN and int(np.count_nonzero(np.abs(aw - critical) <= margin)) >= DEFER_MIN_NEAR
+
+
+def _sure_picks(
+    aw: np.ndarray, ends: tuple[np.ndarray, np.ndarray], cap: int, critical: float, margin: float, picks: list[int]
+) -> list[int]:
+    """The picks of a round (:func:`_round_picks`) that every choice with each |w| off by up to ``margin`` takes too
+    (issue 27, eighth session): the pick's |w| above ``critical + margin``; every other link's sample of its anchors
+    that could be flagged (|w| above ``critical − margin``) more than ``2 · margin`` below it, so none can come
+    first; and fewer than ``cap`` other links' samples at most ``2 · margin`` below it or above, so the cap cannot
+    stop the round before it. Then some sample of the pick's link is the first of its anchors' flagged samples in
+    any such order, and the round takes that link — the one-at-a-time-per-anchor rule of Baarda's iteration
+    (:func:`exclude_links`) holds for it whatever the rest of the round chooses."""
+    a, b = ends
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    live = np.flatnonzero(aw > critical - margin)  # the samples any such round could take
+    ranked = np.sort(aw[live])
+    out: list[int] = []
+    for k in picks:
+        if aw[k] <= critical + margin:
+            continue
+        of_link = (lo[live] == lo[k]) & (hi[live] == hi[k])
+        ahead = (
+            live.size
+            - np.searchsorted(ranked, aw[k] - 2 * margin, side="right")
+            - np.count_nonzero(of_link & (aw[live] > aw[k] - 2 * margin))
+        )
+        if ahead >= cap:
+            continue
+        ends_k = (a[live] == a[k]) | (a[live] == b[k]) | (b[live] == a[k]) | (b[live] == b[k])
+        if np.any(ends_k & ~of_link & (aw[live] >= aw[k] - 2 * margin)):
+            continue
+        out.append(k)
+    return out
 
 
 def _always_blocked(
