@@ -492,23 +492,26 @@ def test_deferred_rounds_exclude_what_full_rounds_exclude_where_the_tests_do_not
     every round on the full fit: where each link's w stays the same from round to round (scripted) and no anchor
     runs out of links, Baarda's iteration ends with exactly the links the full fit flags, whatever the order — so
     deferral cannot change them. The same links on 6 draws, and fewer full fits than with every open round climbing
-    (the seventh session's loop: here 10–12 against 6–7), which the gate (:data:`qc.DEFER_MIN_NEAR`) restores to
+    (the seventh session's loop), which the gate (:data:`qc.DEFER_MIN_NEAR`) restores to
     the call."""
     from distnav.algorithms.ranging import qc
 
     p, rng, margin = _grid(), np.random.default_rng(8), 0.8
     for _ in range(6):
-        w, loose_w = _static_round_tests(rng, p, margin)
+        w, coarse_w = _static_round_tests(rng, p, margin)
+        fine_w = w + rng.uniform(-0.95 * margin / 4, 0.95 * margin / 4, w.size)
         alone = set(exclude_links(p, _Scripted(p, w), per_round=4)[2].removed)
         assert alone == set(np.flatnonzero(np.abs(w) > 3.29).tolist())
         calls = {}
-        for defer, min_near in ((True, 10), (False, 10), (True, 10**6)):
+        for defer, min_near, stays in ((True, 3, False), (True, 3, True), (False, 3, True), (True, 10**6, True)):
             monkeypatch.setattr(qc, "DEFER_OPEN", defer)
             monkeypatch.setattr(qc, "DEFER_MIN_NEAR", min_near)
-            full, loose = _Scripted(p, w), _Scripted(p, loose_w)
-            opening = _Scripted(p, loose_w)(p)  # the loop opens on a loose fit of every link, as the workflow's
-            removed = exclude_links(p, full, per_round=4, loose=[(loose, margin)], opening=opening)[2].removed
+            monkeypatch.setattr(qc, "DEFER_STAYS", stays)
+            full, coarse, fine = _Scripted(p, w), _Scripted(p, coarse_w), _Scripted(p, fine_w)
+            ladder = [(coarse, margin), (fine, margin / 4)]  # a 1 cm and a 3 mm rung, as the workflow's
+            opening = _Scripted(p, coarse_w)(p)  # the loop opens on a loose fit of every link, as the workflow's
+            removed = exclude_links(p, full, per_round=4, loose=ladder, opening=opening)[2].removed
             assert set(removed) == alone
-            calls[defer, min_near] = (full.calls, loose.calls, removed)
-        assert calls[True, 10][0] < calls[False, 10][0]
-        assert calls[True, 10**6] == calls[False, 10]  # gated off: the seventh session's loop, call for call
+            calls[defer, min_near, stays] = (full.calls, coarse.calls, fine.calls, removed)
+        assert max(calls[True, 3, False][0], calls[True, 3, True][0]) < calls[False, 3, True][0]
+        assert calls[True, 10**6, True] == calls[False, 3, True]  # gated off: the seventh session's, call for call

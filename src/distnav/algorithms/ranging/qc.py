@@ -78,13 +78,19 @@ BLOCKED_NEAR = True
 #: issue 27, eighth session: a round of an early-stopped fit whose choice is open (:func:`_decided`) and holds at
 #: least :data:`DEFER_MIN_NEAR` eligible links within the margin of the critical value takes the picks that are sure
 #: one by one (:func:`_sure_picks`) and leaves the rest to the next re-fit instead of climbing the ladder; the next
-#: fit climbs only where no pick is sure. False: every open round climbs (the seventh session's)
-DEFER_OPEN = True
+#: fit climbs only where no pick is sure. **Off** (the seventh session's loop: every open round climbs): at 10⁴
+#: anchors 1.28 × fewer bytes, but the RMSE against the truth moved 3 % at 3,000 and 10⁴ anchors where the issue
+#: allows 1 % (docs/economy_uwb.md, items 40–43)
+DEFER_OPEN = False
 #: why a gate: the number of links within the margin grows with the network (at 1 cm about 1 in 300 links: 19 at
 #: 1,000 anchors, 108 at 3,000), so at scale every round is open and each climbs to a full fit of the whole network;
 #: on a hall of 28 anchors an open round holds 1–2 such links, the full fit settles them at once, and deferring them
-#: changes which links go (`[78, 0]` middle: one link fewer), so there the loop stays the seventh session's
+#: changes which links go (`[78, 0]` middle: one link fewer; 8 of 100 `PLANT_HARD` workflows), so there the loop
+#: stays the seventh session's
 DEFER_MIN_NEAR = 10
+#: after a deferring round's sure picks the next re-fit is that round's fit again (a 3 mm rung's picks: a 3 mm
+#: re-fit, whose margin leaves about a tenth as many links open as the 1 cm one's), not the first rung
+DEFER_STAYS = True
 
 
 def robust_scale(standardized: np.ndarray) -> float:
@@ -330,6 +336,7 @@ def exclude_links(
         aw, a, b, idx = _eligible(problem, res.tests, keep, need, one_sided) if usable else (np.zeros(0),) * 4
         crit = float(res.tests.critical_value) if usable and res.tests is not None else 0.0
         picks = _round_picks(problem.n_anchors, aw, a, b, cap, crit)
+        stay = 0
         if level < len(ladder) - 1:
             step = _ladder_step(problem.n_anchors, res, (aw, a, b), (cap, crit, ladder[level][1]), picks, confirm)
             sure = (
@@ -339,6 +346,7 @@ def exclude_links(
             )
             if sure:  # the sure picks now, the open rest at the next re-fit (issue 27, eighth session)
                 step, picks = _TAKE, sure
+                stay = level if DEFER_STAYS else 0
             if step == _END:
                 break
             if step != _TAKE:  # the next fit decides (its level), or the last fit confirms the loop's end
@@ -347,8 +355,8 @@ def exclude_links(
                 continue
         if not picks:
             break
-        sub, n_links, level = _drop_links(problem, keep, removed, picks, (a, b, idx)), n_links + len(picks), 0
-        res = ladder[0][0](sub)
+        sub, n_links, level = _drop_links(problem, keep, removed, picks, (a, b, idx)), n_links + len(picks), stay
+        res = ladder[level][0](sub)
     if res.tests is None:
         raise ModelError("exclude_links needs a fit that returns per-link tests (result.tests)")
     return res, sub, _all_sample_tests(problem, res.tests, keep, removed)
