@@ -75,21 +75,15 @@ _MAX_DENSE = 6000  # unknowns up to which the covariance is formed (a dense inve
 #: a near-critical link that a pick of its anchors always blocks does not leave a loose re-fit's choice open
 #: (:func:`_decided`, issue 27); False: every link within the margin does
 BLOCKED_NEAR = True
-#: issue 27, eighth session: a round of an early-stopped fit whose choice is open (:func:`_decided`) and holds at
-#: least :data:`DEFER_MIN_NEAR` eligible links within the margin of the critical value takes the picks that are sure
-#: one by one (:func:`_sure_picks`) and leaves the rest to the next re-fit instead of climbing the ladder; the next
-#: fit climbs only where no pick is sure. **Off** (the seventh session's loop: every open round climbs): at 10⁴
-#: anchors 1.28 × fewer bytes, but the RMSE against the truth moved 3 % at 3,000 and 10⁴ anchors where the issue
-#: allows 1 % (docs/economy_uwb.md, items 40–43)
+#: issue 27, eighth session (docs/economy_uwb.md items 40–42): an open round (:func:`_decided`) of an early-stopped
+#: fit with at least :data:`DEFER_MIN_NEAR` eligible links within the margin of the critical value takes its sure
+#: picks (:func:`_sure_picks`) and defers the rest to the next re-fit; it climbs only where no pick is sure. **Off**:
+#: at 10⁴ anchors 1.28 × fewer bytes, but the RMSE moved 3 % at 3,000 and 10⁴ anchors (the issue allows 1 %)
 DEFER_OPEN = False
-#: why a gate: the number of links within the margin grows with the network (at 1 cm about 1 in 300 links: 19 at
-#: 1,000 anchors, 108 at 3,000), so at scale every round is open and each climbs to a full fit of the whole network;
-#: on a hall of 28 anchors an open round holds 1–2 such links, the full fit settles them at once, and deferring them
-#: changes which links go (`[78, 0]` middle: one link fewer; 8 of 100 `PLANT_HARD` workflows), so there the loop
-#: stays the seventh session's
+#: the gate: links within the margin grow with the network (at 1 cm about 1 in 300), so at scale every round is open;
+#: on `[78, 0]` middle (28 anchors) a round holds 1–2, a full fit settles them, and deferring changes the links
 DEFER_MIN_NEAR = 10
-#: after a deferring round's sure picks the next re-fit is that round's fit again (a 3 mm rung's picks: a 3 mm
-#: re-fit, whose margin leaves about a tenth as many links open as the 1 cm one's), not the first rung
+#: a deferring round's next re-fit is on its own rung (3 mm after a 3 mm round's picks), not the first
 DEFER_STAYS = True
 
 
@@ -338,12 +332,9 @@ def exclude_links(
         picks = _round_picks(problem.n_anchors, aw, a, b, cap, crit)
         stay = 0
         if level < len(ladder) - 1:
-            step = _ladder_step(problem.n_anchors, res, (aw, a, b), (cap, crit, ladder[level][1]), picks, confirm)
-            sure = (
-                _sure_picks(aw, (a, b), cap, crit, ladder[level][1], picks)
-                if step == _NEXT and _defers(aw, crit, ladder[level][1])
-                else []
-            )
+            margin = ladder[level][1]
+            step = _ladder_step(problem.n_anchors, res, (aw, a, b), (cap, crit, margin), picks, confirm)
+            sure = _sure_picks(aw, (a, b), cap, crit, margin, picks) if _defers(step, aw, crit, margin) else []
             if sure:  # the sure picks now, the open rest at the next re-fit (issue 27, eighth session)
                 step, picks = _TAKE, sure
                 stay = level if DEFER_STAYS else 0
@@ -476,21 +467,19 @@ def _decided(
     return True
 
 
-def _defers(aw: np.ndarray, critical: float, margin: float) -> bool:
-    """Whether an open round defers its undecided links (:data:`DEFER_OPEN`, :data:`DEFER_MIN_NEAR`)."""
-    return DEFER_OPEN and int(np.count_nonzero(np.abs(aw - critical) <= margin)) >= DEFER_MIN_NEAR
+def _defers(step: str, aw: np.ndarray, critical: float, margin: float) -> bool:
+    """Whether a round that :func:`_ladder_step` leaves open defers its undecided links (:data:`DEFER_OPEN`,
+    :data:`DEFER_MIN_NEAR`)."""
+    return step == _NEXT and DEFER_OPEN and int(np.count_nonzero(np.abs(aw - critical) <= margin)) >= DEFER_MIN_NEAR
 
 
 def _sure_picks(
     aw: np.ndarray, ends: tuple[np.ndarray, np.ndarray], cap: int, critical: float, margin: float, picks: list[int]
 ) -> list[int]:
-    """The picks of a round (:func:`_round_picks`) that every choice with each |w| off by up to ``margin`` takes too
-    (issue 27, eighth session): the pick's |w| above ``critical + margin``; every other link's sample of its anchors
-    that could be flagged (|w| above ``critical − margin``) more than ``2 · margin`` below it, so none can come
-    first; and fewer than ``cap`` other links' samples at most ``2 · margin`` below it or above, so the cap cannot
-    stop the round before it. Then some sample of the pick's link is the first of its anchors' flagged samples in
-    any such order, and the round takes that link — the one-at-a-time-per-anchor rule of Baarda's iteration
-    (:func:`exclude_links`) holds for it whatever the rest of the round chooses."""
+    """The picks of a round (:func:`_round_picks`) that it takes too with each |w| off by up to ``margin`` (issue 27,
+    eighth session): |w| above ``critical + margin``; every other link's sample of its anchors that could be flagged
+    (above ``critical − margin``) more than ``2 · margin`` below it (none can come first); fewer than ``cap`` other
+    links' samples at most ``2 · margin`` below it or above (the cap cannot stop the round before it)."""
     a, b = ends
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     live = np.flatnonzero(aw > critical - margin)  # the samples any such round could take
