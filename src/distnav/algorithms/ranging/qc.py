@@ -75,7 +75,7 @@ _MAX_DENSE = 6000  # unknowns up to which the covariance is formed (a dense inve
 #: a near-critical link that a pick of its anchors always blocks does not leave a loose re-fit's choice open
 #: (:func:`_decided`, issue 27); False: every link within the margin does
 BLOCKED_NEAR = True
-#: issue 27, eighth session (docs/economy_uwb.md items 40–42): an open round (:func:`_decided`) of an early-stopped
+#: issue 27, eighth session (docs/economy_uwb.md items 44–46): an open round (:func:`_decided`) of an early-stopped
 #: fit with at least :data:`DEFER_MIN_NEAR` eligible links within the margin of the critical value takes its sure
 #: picks (:func:`_sure_picks`) and defers the rest to the next re-fit; it climbs only where no pick is sure. **Off**:
 #: at 10⁴ anchors 1.28 × fewer bytes, but the RMSE moved 3 % at 3,000 and 10⁴ anchors (the issue allows 1 %)
