@@ -25,7 +25,6 @@ from distnav.exchange import Exchange
 __all__ = [
     "CG_RTOL",
     "CGOptions",
-    "FORCING",
     "FORCING_TRIED",
     "STOP_ETA",
     "Forcing",
@@ -36,16 +35,14 @@ __all__ = [
 ]
 
 CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
-#: the LM phase's adaptive forcing term (Eisenstat & Walker 1996, choice 2; :class:`Forcing`): ``(γ, α, η₀, η_min,
-#: η_max)``, e.g. :data:`FORCING_TRIED`, in the fits that stop early (``refine.FORCING_FROM_M``); None (the default):
-#: every CG run to :data:`CG_RTOL`. Not kept (issue 27, seventh session, docs/economy_uwb.md item 33): its savings
-#: (1.17 × on 12 plant-like halls) came from stopping on short inexact steps, which on the folded plant corner #0
-#: excluded a link LM keeps (until the per-anchor check completed the early-stopped fits it compares: item 36)
-#: and on 100 PLANT_HARD halls changes the links of one; stopping only on a step solved to CG_RTOL
-#: (:data:`STOP_ETA`) keeps LM's links but sends 1.13 × more bytes than without the term (η ≤ 0.3 at the stop:
-#: 1.01 × more). The default's term is the exclusion loop's re-fits' own (``field_fits.STAGE_FORCING``)
-FORCING: tuple[float, float, float, float, float] | None = None
-#: the setting measured (γ 0.9, α (1 + √5)/2, η₀ 0.5, η in [0.1, 0.9]), the best of nine on the 12 halls
+#: the LM phase's adaptive forcing term (Eisenstat & Walker 1996, choice 2; :class:`Forcing`) measured in issue 27
+#: (γ 0.9, α (1 + √5)/2, η₀ 0.5, η in [0.1, 0.9]), the best of nine on the 12 plant-like halls; a workflow's fits
+#: get it by their stage (``field_fits.STAGE_FORCING`` over ``field_fits.FORCING_STAGES``, through
+#: ``RunOptions.refine_forcing``; without it every CG run to :data:`CG_RTOL`). In every early-stopped fit (stages
+#: "seed", "refit", "rung") with a stop only on a step solved to CG_RTOL (:data:`STOP_ETA`), not kept
+#: (docs/economy_uwb.md item 33): its savings (1.17 × on the 12 halls) came from stopping on short inexact steps, and
+#: on 100 PLANT_HARD halls it changes the links of one; the default runs it in the exclusion loop's re-fits and rungs
+#: only, with a stop on any step (item 36)
 FORCING_TRIED = (0.9, 1.618, 0.5, 0.1, 0.9)
 #: the loosest forcing term whose step may stop the LM phase (:meth:`Forcing.settled`)
 STOP_ETA = CG_RTOL
@@ -62,8 +59,8 @@ class Forcing:
     :data:`STOP_ETA` (or ``stop_eta`` where given) does not stop the phase (:meth:`settled`). The default's use:
     the exclusion loop's re-fits and rungs only (``field_fits.STAGE_FORCING``, with ``stop_eta`` 0.9: issue 27,
     docs/economy_uwb.md item 36). Measured with :data:`FORCING_TRIED` (its floor the
-    fixed :data:`CG_RTOL`: near the solution no tighter than before) in every early-stopped fit: not the default
-    (docs/economy_uwb.md item 33)."""
+    fixed :data:`CG_RTOL`: near the solution no tighter than before) in every early-stopped fit
+    (``field_fits.FORCING_STAGES`` = ("seed", "refit", "rung")): not the default (docs/economy_uwb.md item 33)."""
 
     gamma: float
     alpha: float
@@ -78,7 +75,7 @@ class Forcing:
 
     @classmethod
     def of(cls, terms: tuple[float, ...]) -> Forcing:
-        """The term from ``(γ, α, η₀, η_min, η_max[, stop_η])`` (``RunOptions.refine_forcing``, ``inner.FORCING``)."""
+        """The term from ``(γ, α, η₀, η_min, η_max[, stop_η])`` (``RunOptions.refine_forcing``)."""
         gamma, alpha, eta0, eta_min, eta_max = terms[:5]
         return cls(gamma, alpha, eta0, eta_min, eta_max, terms[5] if len(terms) > 5 else None)
 

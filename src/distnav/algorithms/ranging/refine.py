@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from distnav._settings import resolve_options
-from distnav.algorithms.ranging import inner, wire
+from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.inner import CG_RTOL, Forcing, Links, NormalSystem, block_preconditioner, pcg
 from distnav.algorithms.ranging.losses import loss_terms
@@ -89,11 +89,6 @@ SCALED_TRIAL_KNOWN = True
 #: the common offset's start not reduced where every anchor's copy is the one the options give (``offset_start_m``:
 #: a fit's LM phase from the solver's start, which every anchor holds; issue 27, seventh session)
 OFFSET_START_HELD = True
-#: the adaptive forcing term (``inner.FORCING``, off by default) only in fits that stop at ``xtol_m`` ≥ this, metres:
-#: the workflow's early-stopped fits (``field_fits.STAGE_TOLERANCES``: 3 mm, 1 cm), whose solutions only start the
-#: next fit; a fit that can be the answer (0.1 mm) solves to CG_RTOL (issue 27, seventh session: in every fit, a
-#: PLANT_HARD corner hall ended 1.42 mm from the fixed forcing term's answer; 0: every fit)
-FORCING_FROM_M = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,9 +120,8 @@ class RefineOptions:
     what the receivers hold from the last fit (:class:`~distnav.algorithms.ranging.wire.Wire`, item 6) and
     ``offset_start_m`` the common offset every anchor's copy holds at the start, metres (None: not known; then
     the start is their network mean, one reduction; :data:`OFFSET_START_HELD`); ``forcing`` the adaptive forcing
-    term of the phase's inner solves (:class:`~distnav.algorithms.ranging.inner.Forcing`'s fields; None:
-    ``inner.FORCING`` where ``xtol_m`` ≥ :data:`FORCING_FROM_M`, which is None by default: every CG run to
-    ``CG_RTOL``)."""
+    term of the phase's inner solves (:class:`~distnav.algorithms.ranging.inner.Forcing`'s fields; None: every CG
+    run to ``CG_RTOL``; a workflow's fits get it by their stage, ``field_fits.STAGE_FORCING``)."""
 
     sigma: np.ndarray
     scale: np.ndarray
@@ -183,10 +177,8 @@ class _Refiner:
         self.steps = wire.STEPS and not wire.PLAIN  # trials travel as steps (wire, item 5)
         # the products' held exponents per link, kept from one CG run to the next of the fit (wire.HELD_ACROSS_RUNS)
         self.held: list[np.ndarray] = []
-        # the adaptive forcing term of the fit's CG runs (o.forcing, else inner.FORCING in early-stopped fits; None:
-        # every run to CG_RTOL)
-        terms = o.forcing if o.forcing is not None else inner.FORCING if o.xtol_m >= FORCING_FROM_M else None
-        self.forcing = Forcing.of(terms) if terms is not None and not wire.PLAIN else None
+        # the adaptive forcing term of the fit's CG runs (None: every run to CG_RTOL)
+        self.forcing = Forcing.of(o.forcing) if o.forcing is not None and not wire.PLAIN else None
 
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
         """The start ``(x, c)`` and CG's iteration limit (one reduction: the common offset's mean; the number of
