@@ -30,6 +30,8 @@ __all__ = [
     "Forcing",
     "Links",
     "NormalSystem",
+    "SitOut",
+    "sit_out_plan",
     "block_preconditioner",
     "pcg",
 ]
@@ -110,11 +112,67 @@ class Forcing:
         return False
 
 
+@dataclass(frozen=True, eq=False)
+class SitOut:
+    """The anchors without a free parameter that sit an LM phase out (:func:`sit_out_plan`, issue 27 item 37):
+    ``listens`` per anchor (False: sits out), and the samples whose two ends both sit out, each given to a
+    delegate — an anchor that takes part and ranges with one of its ends (``kk_samples``, ``kk_delegate``, and
+    ``kk_sender``, the end that hands it the sample's record)."""
+
+    listens: np.ndarray
+    kk_samples: np.ndarray
+    kk_delegate: np.ndarray
+    kk_sender: np.ndarray
+
+
+def sit_out_plan(problem: RangingData, free: np.ndarray) -> SitOut | None:
+    """Which anchors may sit out an LM phase (issue 27, eighth session, item 37): those without a free parameter
+    (``free`` ``(n, P)``, the phase's, offsets included), where the anchors with one form a connected range graph
+    (the reduction tree runs over them alone) and every sample between two anchors that sit out has a delegate (the
+    lowest-numbered anchor that takes part and ranges with its first end, else with its second). An anchor that sits
+    out needs nothing during the phase: its coordinates are the problem's, every term of a link to an anchor that
+    takes part is the same number at the other end (the residual is symmetric), and a sample between two such anchors
+    depends on the common offset only — the delegate evaluates it from the sample's record. None: nobody sits out.
+    Every anchor computes the plan from the problem's structure (no message)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    talks = np.asarray(np.any(free, axis=1))
+    n, a, b = problem.n_anchors, np.asarray(problem.meas_a), np.asarray(problem.meas_b)
+    if talks.all() or not talks.any():
+        return None
+    both = talks[a] & talks[b]
+    graph = coo_matrix((np.ones(int(both.sum())), (a[both], b[both])), shape=(n, n))
+    labels = connected_components(graph, directed=False)[1]
+    if np.unique(labels[talks]).size != 1:
+        return None
+    kk = np.flatnonzero(~talks[a] & ~talks[b])
+    delegate, sender = np.full(kk.size, -1), np.full(kk.size, -1)
+    for i, s in enumerate(kk):
+        for end in (a[s], b[s]):
+            nb = np.r_[b[a == end], a[b == end]]
+            nb = nb[talks[nb]]
+            if nb.size:
+                delegate[i], sender[i] = int(nb.min()), int(end)
+                break
+    if (delegate < 0).any():
+        return None
+    return SitOut(talks, kk, delegate, sender)
+
+
 class Links:
-    """The half-measurements of one block, their neighbour rows in a broadcast (``wire_options``: Wire's), totals."""
+    """The half-measurements of one block, their neighbour rows in a broadcast (``wire_options``: Wire's), totals;
+    ``sit_out`` (:class:`SitOut`): the anchors that sit the phase out receive nothing and are not in the reduction
+    tree."""
 
     def __init__(
-        self, problem: RangingData, ex: Exchange, *, per_anchor_offsets: bool = False, **wire_options: Any
+        self,
+        problem: RangingData,
+        ex: Exchange,
+        *,
+        per_anchor_offsets: bool = False,
+        sit_out: SitOut | None = None,
+        **wire_options: Any,
     ) -> None:
         self.ex, self.n = ex, problem.n_anchors
         self.owner, self.other, _, self.samp = half_measurements(problem, ex)
@@ -122,11 +180,15 @@ class Links:
         self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
         self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
         self.decided = [0, 0, 0]  # totals decided at the tree's root: count, directions, bytes per edge (Reductions)
-        self.wire = Wire(problem, ex, self.owner, self.other, int(per_anchor_offsets), **wire_options)
+        self.sit_out = sit_out
+        listens = None if sit_out is None else sit_out.listens
+        self.wire = Wire(problem, ex, self.owner, self.other, int(per_anchor_offsets), listens=listens, **wire_options)
 
     def counted(self) -> wire.Reductions:
         """The reductions counted so far."""
-        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes, *self.decided)
+        tree = 0 if self.sit_out is None else int(self.sit_out.listens.sum())
+        count, directions, down = self.decided
+        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes, count, directions, down, tree)
 
     def neighbours(self, values: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)`` (one broadcast; after
@@ -162,7 +224,10 @@ class Links:
         total_on = wire.held_scalars(out.reshape(1, -1), held.total)[1][0]
         self.reductions += 1
         self.reduced_floats += f
-        self.reduced_bytes += int(np.sum(np.where(np.all(got[:, f:] > 0, axis=0) & total_on, 2, 3)))
+        flags = got[:, f:] > 0
+        if self.sit_out is not None:  # an anchor that sits out sends no share (its row here is zeros)
+            flags |= ~self.sit_out.listens[:, None]
+        self.reduced_bytes += int(np.sum(np.where(np.all(flags, axis=0) & total_on, 2, 3)))
         return out
 
     def gathered(
@@ -238,6 +303,11 @@ class NormalSystem:
     held_dots: tuple[wire.HeldScalars, wire.HeldScalars] = field(
         default_factory=lambda: (wire.HeldScalars(), wire.HeldScalars())
     )
+    #: with anchors sitting out (:class:`SitOut`): each half-measurement's weight in the common offset's row (0 at an
+    #: owner that sits out, 2 where the other end sits out, else 1), and per anchor the curvature ``Σ w e²`` of the
+    #: samples it evaluates for two anchors that sit out
+    omega: np.ndarray | None = None
+    kk_curv: np.ndarray | None = None
 
     def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
@@ -261,7 +331,12 @@ class NormalSystem:
         if self.prior:
             out[:, -1] += self.prior * v[:, -1]
         half = np.zeros((nl, k))
-        np.add.at(half, self.owner, 0.5 * wjv * self.e[:, None])
+        if self.omega is None:
+            np.add.at(half, self.owner, 0.5 * wjv * self.e[:, None])
+        else:
+            np.add.at(half, self.owner, 0.5 * wjv * (self.e * self.omega)[:, None])
+        if self.kk_curv is not None:
+            half += self.kk_curv[:, None] * vc[None, :]
         return np.where(self.free[:, :, None], out, 0.0), half
 
 
