@@ -113,3 +113,29 @@ def test_no_byte_reaches_a_known_anchor_and_the_tree_spans_the_others(corner, mo
     r = ref_on.reduced
     assert cost_on[0] == (r.count - r.decided) * 2 * 23 + r.decided_directions * 23
     assert c_on.bytes + cost_on[1] < c_off.bytes + cost_off[1]
+
+
+def test_without_a_plan_a_warm_start_is_sent_to_the_anchors_that_may_have_sat_out(monkeypatch):
+    """A warm fit whose known anchors cannot sit out (anchor 5 reaches the others only through known anchors): its
+    first rows are held by the receivers of the last fit (``held_m``, ``field_fits.CARRY_HELD``), but a known anchor
+    may have sat that fit out and holds none (``inner.held_by_all``): every anchor that ranges with a known one sends
+    its first row (16 B on each of its 8 links here), the same solve bit for bit as without ``SIT_OUT``."""
+    links = [(0, 1), (1, 2), (0, 3), (1, 3), (1, 4), (0, 4), (3, 4), (2, 5), (1, 5)]
+    p = _small(links)
+    assert sit_out_plan(p, _free(p)) is None
+    rng = np.random.default_rng(3)
+    start = np.array(p.positions_m, float)
+    start[3:] = [[0.0, 3.0], [4.0, 3.0], [8.0, 3.0]] + rng.normal(0, 0.05, (3, 2))
+    out = {}
+    for on in (False, True):
+        monkeypatch.setattr(refine_mod, "SIT_OUT", on)
+        ex = make_exchange(Graph.from_links(p.n_anchors, p.links))
+        sigma = np.full(p.n_meas, 0.1)
+        ref = refine(
+            p, ex, start, np.zeros(p.n_anchors), sigma=sigma, scale=0.3 / sigma, **FIT, ftol=1e-6, xtol_m=1e-4,
+            offset_start_m=0.0, held_m=start,
+        )  # fmt: skip
+        out[on] = ref, ex.comm_totals().bytes
+    (off, b_off), (on, b_on) = out[False], out[True]
+    assert np.array_equal(on.own_m, off.own_m) and on.objective == off.objective and on.rounds == off.rounds
+    assert b_on - b_off == 8 * 16

@@ -17,6 +17,7 @@ import numpy as np
 from distnav._settings import resolve_options
 from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import half_measurements
 from distnav.algorithms.ranging.wire import Wire
 from distnav.errors import ModelError
@@ -30,7 +31,9 @@ __all__ = [
     "Forcing",
     "Links",
     "NormalSystem",
+    "Delegated",
     "SitOut",
+    "held_by_all",
     "sit_out_plan",
     "block_preconditioner",
     "pcg",
@@ -158,6 +161,87 @@ def sit_out_plan(problem: RangingData, free: np.ndarray) -> SitOut | None:
     if (delegate < 0).any():
         return None
     return SitOut(talks, kk, delegate, sender)
+
+
+class Delegated:
+    """The samples between two anchors that sit the phase out (``inner.SitOut``) that this block's anchors evaluate
+    as their delegates: both ends' coordinates are the problem's, so a sample's residual depends on the common offset
+    only; each counts for both its halves. Their records reach the delegates once per phase: one message from the
+    end that ranges with the delegate, 16 B a sample (a range record, as the gather's)."""
+
+    def __init__(
+        self,
+        problem: RangingData,
+        ex: Exchange,
+        plan: SitOut,
+        sigma: np.ndarray,
+        scale: np.ndarray,
+        loss: str,
+        common: bool,
+    ) -> None:
+        local_of = np.full(problem.n_anchors, -1)
+        local_of[ex.nodes] = np.arange(ex.n_local)
+        mine = local_of[plan.kk_delegate] >= 0
+        s = plan.kk_samples[mine]
+        self.at, self.nl, self.loss = local_of[plan.kk_delegate[mine]], ex.n_local, loss
+        a, b = problem.meas_a[s], problem.meas_b[s]
+        self.dist = np.linalg.norm(problem.positions_m[a] - problem.positions_m[b], axis=1)
+        self.rng, self.sig, self.sc = problem.range_m[s], sigma[s], scale[s]
+        self.common = common
+        self.e = 1.0 / self.sig if self.common else np.zeros(s.size)
+        self.w = np.zeros(s.size)
+        if plan.kk_samples.size:  # the records, in one round every block takes part in
+            _send_records(problem.n_anchors, ex, plan.kk_sender * problem.n_anchors + plan.kk_delegate)
+
+    def terms(self, c: float) -> tuple[np.ndarray, np.ndarray]:
+        """The samples' residuals at the common offset ``c`` and each delegate's share of the objective."""
+        r = (self.dist + (c if self.common else 0.0) - self.rng) / self.sig
+        return r, np.bincount(self.at, loss_terms(r, self.sc, self.loss)[1], minlength=self.nl)
+
+    def row(self, r: np.ndarray) -> np.ndarray:
+        """Each delegate's share of the common offset's gradient and curvature at the residuals ``r``."""
+        self.w = loss_terms(r, self.sc, self.loss)[0]
+        we = self.w * self.e
+        at, nl = self.at, self.nl
+        return np.asarray(np.c_[np.bincount(at, we * r, minlength=nl), np.bincount(at, we * self.e, minlength=nl)])
+
+    def curvature(self) -> np.ndarray:
+        """Each delegate's ``Σ w e²`` at the last linearization (the common offset's row of a CG product)."""
+        return np.bincount(self.at, self.w * self.e * self.e, minlength=self.nl)
+
+
+def held_by_all(problem: RangingData, held_m: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """``held_m`` where every receiver of an anchor may hold its row: an anchor without a free parameter may have
+    sat the last fit out (``refine.SIT_OUT``) and hold none, so the anchors that range with one send their first row
+    (NaN: not held) — conservative where it took part in the last fit."""
+    silent = ~np.any(free, axis=1)
+    if not silent.any():
+        return held_m
+    a, b = np.asarray(problem.meas_a), np.asarray(problem.meas_b)
+    near = np.zeros(problem.n_anchors, bool)
+    near[a[silent[b]]] = True
+    near[b[silent[a]]] = True
+    out = np.array(held_m, float)
+    out[near] = np.nan
+    return out
+
+
+def _send_records(n: int, ex: Exchange, pairs: np.ndarray) -> None:
+    """One round: from each sender to its delegate (``pairs``: ``sender · n + delegate``, one per sample) the range
+    records it hands over, 16 B a sample (:class:`Delegated`)."""
+    keys, count = np.unique(pairs, return_counts=True)
+
+    def lookup(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        at = np.minimum(np.searchsorted(keys, key), keys.size - 1)
+        return keys[at] == key, count[at]
+
+    hit_out, n_out = lookup(ex.nodes[ex.out_src] * n + ex.out_dst)
+    hit_in, _ = lookup(ex.in_src * n + ex.nodes[ex.in_dst])
+    active = np.zeros(ex.n_edges, bool)
+    active[ex.out_edges] = hit_out
+    active[ex.in_edges] = hit_in
+    sizes = np.where(hit_out, 16 * n_out, 0).astype(np.int64)
+    ex.send(np.zeros((ex.out_edges.size, 1)), active=active, message_bytes=sizes)
 
 
 class Links:

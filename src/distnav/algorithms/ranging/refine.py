@@ -49,11 +49,12 @@ from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
 from distnav.algorithms.ranging.inner import (
     CG_RTOL,
+    Delegated,
     Forcing,
     Links,
     NormalSystem,
-    SitOut,
     block_preconditioner,
+    held_by_all,
     pcg,
     sit_out_plan,
 )
@@ -179,8 +180,11 @@ class _Refiner:
         plan = None
         if SIT_OUT and not wire.PLAIN and (not self.common or o.offset_start_m is not None and OFFSET_START_HELD):
             plan = sit_out_plan(problem, every)  # with a common offset: its start held by every copy
+        held_m = o.held_m
+        if SIT_OUT and plan is None and held_m is not None:
+            held_m = held_by_all(problem, held_m, every)
         self.links = links = Links(
-            problem, ex, per_anchor_offsets=self.per, known_from_problem=True, held_m=o.held_m, sit_out=plan
+            problem, ex, per_anchor_offsets=self.per, known_from_problem=True, held_m=held_m, sit_out=plan
         )
         self.owner, self.other, self.samp = links.owner, links.other, links.samp
         self.sig, self.sc, self.rng_m = o.sigma[self.samp], o.scale[self.samp], problem.range_m[self.samp]
@@ -197,7 +201,7 @@ class _Refiner:
         self.held: list[np.ndarray] = []
         # the adaptive forcing term of the fit's CG runs (None: every run to CG_RTOL)
         self.forcing = Forcing.of(o.forcing) if o.forcing is not None and not wire.PLAIN else None
-        self.kk = None if plan is None else _Delegated(problem, ex, plan, o)
+        self.kk = None if plan is None else Delegated(problem, ex, plan, o.sigma, o.scale, o.loss, self.common)
         self.omega: np.ndarray | None = None
         if plan is not None:  # 0 at an owner that sits out, 2 where the other end does (the same term there)
             listens = plan.listens
@@ -454,62 +458,6 @@ def refine(
             if status == "converged":
                 break
     return dataclasses.replace(run.result(x, c, nb, F, status, rounds, cg_total), mu=mu)
-
-
-class _Delegated:
-    """The samples between two anchors that sit the phase out (``inner.SitOut``) that this block's anchors evaluate
-    as their delegates: both ends' coordinates are the problem's, so a sample's residual depends on the common offset
-    only; each counts for both its halves. Their records reach the delegates once per phase: one message from the
-    end that ranges with the delegate, 16 B a sample (a range record, as the gather's)."""
-
-    def __init__(self, problem: RangingData, ex: Exchange, plan: SitOut, o: RefineOptions) -> None:
-        local_of = np.full(problem.n_anchors, -1)
-        local_of[ex.nodes] = np.arange(ex.n_local)
-        mine = local_of[plan.kk_delegate] >= 0
-        s = plan.kk_samples[mine]
-        self.at, self.nl, self.loss = local_of[plan.kk_delegate[mine]], ex.n_local, o.loss
-        a, b = problem.meas_a[s], problem.meas_b[s]
-        self.dist = np.linalg.norm(problem.positions_m[a] - problem.positions_m[b], axis=1)
-        self.rng, self.sig, self.sc = problem.range_m[s], o.sigma[s], o.scale[s]
-        self.common = o.range_offsets == "common"
-        self.e = 1.0 / self.sig if self.common else np.zeros(s.size)
-        self.w = np.zeros(s.size)
-        if plan.kk_samples.size:  # the records, in one round every block takes part in
-            _send_records(problem.n_anchors, ex, plan.kk_sender * problem.n_anchors + plan.kk_delegate)
-
-    def terms(self, c: float) -> tuple[np.ndarray, np.ndarray]:
-        """The samples' residuals at the common offset ``c`` and each delegate's share of the objective."""
-        r = (self.dist + (c if self.common else 0.0) - self.rng) / self.sig
-        return r, np.bincount(self.at, loss_terms(r, self.sc, self.loss)[1], minlength=self.nl)
-
-    def row(self, r: np.ndarray) -> np.ndarray:
-        """Each delegate's share of the common offset's gradient and curvature at the residuals ``r``."""
-        self.w = loss_terms(r, self.sc, self.loss)[0]
-        we = self.w * self.e
-        at, nl = self.at, self.nl
-        return np.asarray(np.c_[np.bincount(at, we * r, minlength=nl), np.bincount(at, we * self.e, minlength=nl)])
-
-    def curvature(self) -> np.ndarray:
-        """Each delegate's ``Σ w e²`` at the last linearization (the common offset's row of a CG product)."""
-        return np.bincount(self.at, self.w * self.e * self.e, minlength=self.nl)
-
-
-def _send_records(n: int, ex: Exchange, pairs: np.ndarray) -> None:
-    """One round: from each sender to its delegate (``pairs``: ``sender · n + delegate``, one per sample) the range
-    records it hands over, 16 B a sample (:class:`_Delegated`)."""
-    keys, count = np.unique(pairs, return_counts=True)
-
-    def lookup(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        at = np.minimum(np.searchsorted(keys, key), keys.size - 1)
-        return keys[at] == key, count[at]
-
-    hit_out, n_out = lookup(ex.nodes[ex.out_src] * n + ex.out_dst)
-    hit_in, _ = lookup(ex.in_src * n + ex.nodes[ex.in_dst])
-    active = np.zeros(ex.n_edges, bool)
-    active[ex.out_edges] = hit_out
-    active[ex.in_edges] = hit_in
-    sizes = np.where(hit_out, 16 * n_out, 0).astype(np.int64)
-    ex.send(np.zeros((ex.out_edges.size, 1)), active=active, message_bytes=sizes)
 
 
 def _steady(tail: list[float], moved: float) -> bool:
