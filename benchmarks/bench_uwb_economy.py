@@ -14,7 +14,8 @@ and how both grow with the network.
    docs/economy_uwb.md, every item of the seventh session switched off (:data:`SESSION_ITEMS`: the exclusion loop
    opened by a full fit of every link and ended by a full fit of the kept links, items 24–25; CG's dot products and
    the products' exponents not held, items 26–27; the LM rounds' own messages as before, items 28–32; no forcing
-   term in the loop's re-fits, item 36) and *after* (the defaults: items 24–32 and 36);
+   term in the loop's re-fits, item 36; every anchor in the LM phase, item 37 of the eighth session) and *after*
+   (the defaults: items 24–32, 36 and 37);
    the positions, their largest difference from *today*'s, the σ ratio to *today*'s; the yardstick: every range
    gathered at one anchor
    (:func:`distnav.models.uwb.communication.gather_cost`, what ``summary.json`` reports) and the busiest relay
@@ -112,6 +113,7 @@ SESSION_ITEMS: dict[tuple[Any, str], Any] = {
     (refine, "ROOT_DECIDES"): False,
     (refine, "SCALED_TRIAL_KNOWN"): False,
     (field_fits, "STAGE_FORCING"): None,  # item 36: the forcing term in the loop's re-fits
+    (refine, "SIT_OUT"): False,  # item 37 (eighth session): the known anchors sit the LM phase out
 }
 SWITCHES["today"].update(SESSION_ITEMS)
 SWITCHES["before"].update(SESSION_ITEMS)

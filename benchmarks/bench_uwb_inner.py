@@ -11,8 +11,9 @@ the first evaluation, every trial's step and its objective and largest move, the
 offset's row; broadcast messages and bytes, reductions as spanning-tree bytes) — in the configurations of
 :data:`CONFIGS`, in one run: the defaults at the seventh session's start (*before*: items 24–32 and 36 off), with
 items 26–27 (*inner*: ``wire.HELD_DOTS``, ``wire.HELD_ACROSS_RUNS``), with items 24–27 (*loop*:
-``field_fits.TIGHTEN_OPENS_LOOP``, ``LOOP_ENDS_LOOSE`` too), with items 24–32 (*rounds*: the rounds' own messages too)
-and the defaults (*after*: ``field_fits.STAGE_FORCING`` too, item 36); every position, σ,
+``field_fits.TIGHTEN_OPENS_LOOP``, ``LOOP_ENDS_LOOSE`` too), with items 24–32 (*rounds*: the rounds' own messages too),
+the seventh session's end (*after*: ``field_fits.STAGE_FORCING`` too, item 36) and the defaults (*sit_out*:
+``refine.SIT_OUT`` too, item 37 of the eighth session); every position, σ,
 exclusion and status compared with the configuration before it.
 
 ``--study`` also rebuilds every inner system densely (numpy, from the linearization the solve used) and counts the
@@ -198,7 +199,7 @@ def _recording() -> None:
     ) -> Any:
         c0, r0 = links.ex.comm_totals().bytes, links.reduced_bytes
         out = pcg(system, b, bc, pre_inv, pre_c, links, max_its, **kw)
-        per = 2 * (links.n - 1)
+        per = 2 * ((links.counted().tree_nodes or links.n) - 1)  # the tree of the anchors that take part (item 37)
         rec: dict[str, Any] = {
             "its": out[2],
             "product_bytes": links.ex.comm_totals().bytes - c0,
@@ -248,7 +249,8 @@ def _counting_rounds() -> None:
             k[0] += 1
             k[1] += c1.messages - m0
             k[2] += c1.bytes - b0
-            k[3] += ((self.links.reduced_bytes - r0) * 2 + self.links.decided[2] - d0) * (self.links.n - 1)
+            edges = (self.links.counted().tree_nodes or self.links.n) - 1  # item 37: the known anchors sit out
+            k[3] += ((self.links.reduced_bytes - r0) * 2 + self.links.decided[2] - d0) * edges
             return out
 
         setattr(refine._Refiner, name, counted)
@@ -323,13 +325,15 @@ _ROUNDS_OFF = [
     (refine, "ROOT_DECIDES", False),
     (refine, "SCALED_TRIAL_KNOWN", False),
 ]
-_FORCING_OFF = [(field_fits, "STAGE_FORCING", None)]  # item 36: the forcing term in the loop's re-fits
+#: item 36: the forcing term in the loop's re-fits; item 37 (eighth session): the known anchors sit the phase out
+_FORCING_OFF = [(field_fits, "STAGE_FORCING", None), (refine, "SIT_OUT", False)]
 CONFIGS: dict[str, list[tuple[Any, str, Any]]] = {
     "before": [*_LOOP_OFF, (wire, "HELD_DOTS", False), (wire, "HELD_ACROSS_RUNS", False), *_ROUNDS_OFF, *_FORCING_OFF],
     "inner": [*_LOOP_OFF, *_ROUNDS_OFF, *_FORCING_OFF],
     "loop": [*_ROUNDS_OFF, *_FORCING_OFF],
     "rounds": _FORCING_OFF,
-    "after": [],
+    "after": [(refine, "SIT_OUT", False)],  # the seventh session's end
+    "sit_out": [],  # the defaults: item 37 too
 }
 
 

@@ -208,54 +208,68 @@ def test_the_forcing_term_follows_eisenstat_walker_choice_2_with_its_safeguard()
 
 
 def test_the_forcing_term_stops_a_fit_only_on_a_step_solved_tightly(monkeypatch):
-    """``inner.FORCING`` (issue 27, seventh session; off by default) on the folded plant corner #0 of ``reproduce
-    uwb-field`` with N-CLM's workflow: with ``FORCING_TRIED`` the workflow keeps LM's links, within 1 mm of LM's
-    positions, with ``STOP_ETA = CG_RTOL`` (:meth:`Forcing.settled`) and also with a stop allowed on any step
-    (``STOP_ETA`` 0.9). The latter excluded a link LM keeps (14.8 mm from LM, measured) until the per-anchor check
-    completed the early-stopped fits it compares (``field._repair``, the review's fix of items 24–25); the bytes
-    of the two differ (the stop rule is in force). The loop's re-fits' own term (``field_fits.STAGE_FORCING``, item
-    36) off here, so that ``inner.FORCING`` runs in every early-stopped fit."""
-    from distnav.algorithms.ranging import inner
+    """Item 33's experiment (issue 27, seventh session; off by default), expressed through the workflow's one switch:
+    ``field_fits.STAGE_FORCING = FORCING_TRIED`` over ``FORCING_STAGES = EARLY_STAGES`` (every early-stopped fit),
+    on the folded plant corner #0 of ``reproduce uwb-field`` with N-CLM's workflow: the workflow keeps LM's links,
+    within 1 mm of LM's positions, with a stop only on a step solved to ``STOP_ETA = CG_RTOL``
+    (:meth:`Forcing.settled`) and also with a stop allowed on any step (stop η 0.9, the sixth entry). The latter
+    excluded a link LM keeps (14.8 mm from LM, measured) until the per-anchor check completed the early-stopped
+    fits it compares (``field._repair``, the review's fix of items 24–25); the bytes of the two differ (the stop rule
+    is in force), and differ from the default's (the term runs in the seed fits too)."""
+    from distnav.algorithms.ranging.inner import FORCING_TRIED
     from distnav.models.uwb import field_fits
     from distnav.models.uwb.field import FieldOptions, solve_field
     from test_uwb_distributed_field import _hall
 
     sub, geo, _ = _hall("corner", 0)
     lm = solve_field(sub, FieldOptions(), geometry=geo)
-    monkeypatch.setattr(field_fits, "STAGE_FORCING", None)
-    monkeypatch.setattr(inner, "FORCING", inner.FORCING_TRIED)
+    default = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    monkeypatch.setattr(field_fits, "FORCING_STAGES", field_fits.EARLY_STAGES)
+    monkeypatch.setattr(field_fits, "STAGE_FORCING", FORCING_TRIED)
     settled = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
-    monkeypatch.setattr(inner, "STOP_ETA", 0.9)
+    monkeypatch.setattr(field_fits, "STAGE_FORCING", (*FORCING_TRIED, 0.9))
     loose = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
     for run in (settled, loose):
         assert np.array_equal(run.excluded, lm.excluded)
         assert np.max(np.abs(run.positions_m - lm.positions_m)) < 1e-3
-    assert loose.bytes != settled.bytes
+    assert len({loose.bytes, settled.bytes, default.bytes}) == 3
 
 
-def test_the_forcing_term_runs_only_in_the_fits_that_stop_early(monkeypatch):
-    """``refine.FORCING_FROM_M``: with ``inner.FORCING`` on, a fit to the solver's 0.1 mm runs every CG solve to
-    ``CG_RTOL`` (the same result bit for bit as with FORCING None); a fit stopped at 1 cm runs the forcing term
-    (another count of CG iterations)."""
-    from distnav.algorithms.ranging import inner
-    from distnav.algorithms.ranging.csg import solve_nclm
-    from distnav.algorithms.ranging.stop import StopRule
+def test_the_forcing_term_runs_only_in_the_fits_of_its_stages(monkeypatch):
+    """``field_fits.STAGE_FORCING`` over ``FORCING_STAGES`` (the one switch, issue 27 items 33 and 36): with item
+    33's expression (``FORCING_TRIED`` over ``EARLY_STAGES``) a fit to the solver's 0.1 mm (no stage) runs every CG
+    solve to ``CG_RTOL`` (the same result bit for bit as with the term off) and a fit of stage "seed" (stopped at
+    1 cm) runs the term (another count of CG iterations); with the default stages ("refit", "rung") the seed fit
+    runs to ``CG_RTOL`` (the same bits as off) and a "refit" fit runs the term."""
+    from distnav.algorithms.ranging.inner import FORCING_TRIED
+    from distnav.models.uwb import field_fits
 
     p = corner_hall()
-    kw = {"iterations": 0, "objective": "metres", "sigma_m": 0.1, "range_offsets": "common", "quality": False}
-    loose = StopRule(refine_ftol=1e-3, refine_xtol_m=1e-2)  # the stage "seed" of field_fits.STAGE_TOLERANCES
-    full_off, loose_off = solve_nclm(p, **kw), solve_nclm(p, **kw, stop=loose)
-    monkeypatch.setattr(inner, "FORCING", inner.FORCING_TRIED)
-    full_on, loose_on = solve_nclm(p, **kw), solve_nclm(p, **kw, stop=loose)
-    assert np.array_equal(full_on.estimates, full_off.estimates)
-    assert full_on.settings["refine"]["cg_iterations"] == full_off.settings["refine"]["cg_iterations"]
-    assert loose_on.settings["refine"]["cg_iterations"] != loose_off.settings["refine"]["cg_iterations"]
+    kw = {"objective": "metres", "sigma_m": 0.1, "range_offsets": "common", "quality": False}
+
+    def fit(stage):
+        return field_fits.solve_once(p, "N-CLM", dict(kw), 0, stage=stage)
+
+    def cg(r):
+        return r.settings["refine"]["cg_iterations"]
+
+    monkeypatch.setattr(field_fits, "STAGE_FORCING", None)
+    full_off, seed_off, refit_off = fit(None), fit("seed"), fit("refit")
+    monkeypatch.setattr(field_fits, "STAGE_FORCING", FORCING_TRIED)
+    monkeypatch.setattr(field_fits, "FORCING_STAGES", field_fits.EARLY_STAGES)
+    full_on, seed_on = fit(None), fit("seed")
+    assert np.array_equal(full_on.estimates, full_off.estimates) and cg(full_on) == cg(full_off)
+    assert cg(seed_on) != cg(seed_off)
+    monkeypatch.setattr(field_fits, "FORCING_STAGES", ("refit", "rung"))
+    seed_default, refit_default = fit("seed"), fit("refit")
+    assert np.array_equal(seed_default.estimates, seed_off.estimates) and cg(seed_default) == cg(seed_off)
+    assert cg(refit_default) != cg(refit_off)
 
 
 def test_a_forcing_term_given_runs_in_any_fit_and_may_allow_any_stop():
     """``RunOptions.refine_forcing`` (issue 27, item 36; how ``field_fits.STAGE_FORCING`` reaches a fit's LM
     phase): given, it runs whatever the fit's tolerance (another count of CG iterations than the fixed CG_RTOL in
-    a fit to 0.1 mm, where ``inner.FORCING`` would not run: ``refine.FORCING_FROM_M``); its sixth entry is the
+    a fit to 0.1 mm); its sixth entry is the
     loosest η whose step may stop the phase (:meth:`Forcing.settled`, hand-checked); a malformed one is refused by
     name."""
     from distnav.algorithms.ranging.csg import solve_nclm

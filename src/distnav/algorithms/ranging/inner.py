@@ -17,6 +17,7 @@ import numpy as np
 from distnav._settings import resolve_options
 from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
+from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import half_measurements
 from distnav.algorithms.ranging.wire import Wire
 from distnav.errors import ModelError
@@ -25,27 +26,28 @@ from distnav.exchange import Exchange
 __all__ = [
     "CG_RTOL",
     "CGOptions",
-    "FORCING",
     "FORCING_TRIED",
     "STOP_ETA",
     "Forcing",
     "Links",
     "NormalSystem",
+    "Delegated",
+    "SitOut",
+    "held_by_all",
+    "sit_out_plan",
     "block_preconditioner",
     "pcg",
 ]
 
 CG_RTOL = 0.1  # forcing term of the inexact inner solve (Dembo, Eisenstat & Steihaug 1982); docs/uwb.md
-#: the LM phase's adaptive forcing term (Eisenstat & Walker 1996, choice 2; :class:`Forcing`): ``(γ, α, η₀, η_min,
-#: η_max)``, e.g. :data:`FORCING_TRIED`, in the fits that stop early (``refine.FORCING_FROM_M``); None (the default):
-#: every CG run to :data:`CG_RTOL`. Not kept (issue 27, seventh session, docs/economy_uwb.md item 33): its savings
-#: (1.17 × on 12 plant-like halls) came from stopping on short inexact steps, which on the folded plant corner #0
-#: excluded a link LM keeps (until the per-anchor check completed the early-stopped fits it compares: item 36)
-#: and on 100 PLANT_HARD halls changes the links of one; stopping only on a step solved to CG_RTOL
-#: (:data:`STOP_ETA`) keeps LM's links but sends 1.13 × more bytes than without the term (η ≤ 0.3 at the stop:
-#: 1.01 × more). The default's term is the exclusion loop's re-fits' own (``field_fits.STAGE_FORCING``)
-FORCING: tuple[float, float, float, float, float] | None = None
-#: the setting measured (γ 0.9, α (1 + √5)/2, η₀ 0.5, η in [0.1, 0.9]), the best of nine on the 12 halls
+#: the LM phase's adaptive forcing term (Eisenstat & Walker 1996, choice 2; :class:`Forcing`) measured in issue 27
+#: (γ 0.9, α (1 + √5)/2, η₀ 0.5, η in [0.1, 0.9]), the best of nine on the 12 plant-like halls; a workflow's fits
+#: get it by their stage (``field_fits.STAGE_FORCING`` over ``field_fits.FORCING_STAGES``, through
+#: ``RunOptions.refine_forcing``; without it every CG run to :data:`CG_RTOL`). In every early-stopped fit (stages
+#: "seed", "refit", "rung") with a stop only on a step solved to CG_RTOL (:data:`STOP_ETA`), not kept
+#: (docs/economy_uwb.md item 33): its savings (1.17 × on the 12 halls) came from stopping on short inexact steps, and
+#: on 100 PLANT_HARD halls it changes the links of one; the default runs it in the exclusion loop's re-fits and rungs
+#: only, with a stop on any step (item 36)
 FORCING_TRIED = (0.9, 1.618, 0.5, 0.1, 0.9)
 #: the loosest forcing term whose step may stop the LM phase (:meth:`Forcing.settled`)
 STOP_ETA = CG_RTOL
@@ -62,8 +64,8 @@ class Forcing:
     :data:`STOP_ETA` (or ``stop_eta`` where given) does not stop the phase (:meth:`settled`). The default's use:
     the exclusion loop's re-fits and rungs only (``field_fits.STAGE_FORCING``, with ``stop_eta`` 0.9: issue 27,
     docs/economy_uwb.md item 36). Measured with :data:`FORCING_TRIED` (its floor the
-    fixed :data:`CG_RTOL`: near the solution no tighter than before) in every early-stopped fit: not the default
-    (docs/economy_uwb.md item 33)."""
+    fixed :data:`CG_RTOL`: near the solution no tighter than before) in every early-stopped fit
+    (``field_fits.FORCING_STAGES`` = ("seed", "refit", "rung")): not the default (docs/economy_uwb.md item 33)."""
 
     gamma: float
     alpha: float
@@ -78,7 +80,7 @@ class Forcing:
 
     @classmethod
     def of(cls, terms: tuple[float, ...]) -> Forcing:
-        """The term from ``(γ, α, η₀, η_min, η_max[, stop_η])`` (``RunOptions.refine_forcing``, ``inner.FORCING``)."""
+        """The term from ``(γ, α, η₀, η_min, η_max[, stop_η])`` (``RunOptions.refine_forcing``)."""
         gamma, alpha, eta0, eta_min, eta_max = terms[:5]
         return cls(gamma, alpha, eta0, eta_min, eta_max, terms[5] if len(terms) > 5 else None)
 
@@ -113,11 +115,148 @@ class Forcing:
         return False
 
 
-class Links:
-    """The half-measurements of one block, their neighbour rows in a broadcast (``wire_options``: Wire's), totals."""
+@dataclass(frozen=True, eq=False)
+class SitOut:
+    """The anchors without a free parameter that sit an LM phase out (:func:`sit_out_plan`, issue 27 item 37):
+    ``listens`` per anchor (False: sits out), and the samples whose two ends both sit out, each given to a
+    delegate — an anchor that takes part and ranges with one of its ends (``kk_samples``, ``kk_delegate``, and
+    ``kk_sender``, the end that hands it the sample's record)."""
+
+    listens: np.ndarray
+    kk_samples: np.ndarray
+    kk_delegate: np.ndarray
+    kk_sender: np.ndarray
+
+
+def sit_out_plan(problem: RangingData, free: np.ndarray) -> SitOut | None:
+    """Which anchors may sit out an LM phase (issue 27, eighth session, item 37): those without a free parameter
+    (``free`` ``(n, P)``, the phase's, offsets included), where the anchors with one form a connected range graph
+    (the reduction tree runs over them alone) and every sample between two anchors that sit out has a delegate (the
+    lowest-numbered anchor that takes part and ranges with its first end, else with its second). An anchor that sits
+    out needs nothing during the phase: its coordinates are the problem's, every term of a link to an anchor that
+    takes part is the same number at the other end (the residual is symmetric), and a sample between two such anchors
+    depends on the common offset only — the delegate evaluates it from the sample's record. None: nobody sits out.
+    Every anchor computes the plan from the problem's structure (no message)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    talks = np.asarray(np.any(free, axis=1))
+    n, a, b = problem.n_anchors, np.asarray(problem.meas_a), np.asarray(problem.meas_b)
+    if talks.all() or not talks.any():
+        return None
+    both = talks[a] & talks[b]
+    graph = coo_matrix((np.ones(int(both.sum())), (a[both], b[both])), shape=(n, n))
+    labels = connected_components(graph, directed=False)[1]
+    if np.unique(labels[talks]).size != 1:
+        return None
+    kk = np.flatnonzero(~talks[a] & ~talks[b])
+    delegate, sender = np.full(kk.size, -1), np.full(kk.size, -1)
+    for i, s in enumerate(kk):
+        for end in (a[s], b[s]):
+            nb = np.r_[b[a == end], a[b == end]]
+            nb = nb[talks[nb]]
+            if nb.size:
+                delegate[i], sender[i] = int(nb.min()), int(end)
+                break
+    if (delegate < 0).any():
+        return None
+    return SitOut(talks, kk, delegate, sender)
+
+
+class Delegated:
+    """The samples between two anchors that sit the phase out (``inner.SitOut``) that this block's anchors evaluate
+    as their delegates: both ends' coordinates are the problem's, so a sample's residual depends on the common offset
+    only; each counts for both its halves. Their records reach the delegates once per phase: one message from the
+    end that ranges with the delegate, 16 B a sample (a range record, as the gather's)."""
 
     def __init__(
-        self, problem: RangingData, ex: Exchange, *, per_anchor_offsets: bool = False, **wire_options: Any
+        self,
+        problem: RangingData,
+        ex: Exchange,
+        plan: SitOut,
+        sigma: np.ndarray,
+        scale: np.ndarray,
+        loss: str,
+        common: bool,
+    ) -> None:
+        local_of = np.full(problem.n_anchors, -1)
+        local_of[ex.nodes] = np.arange(ex.n_local)
+        mine = local_of[plan.kk_delegate] >= 0
+        s = plan.kk_samples[mine]
+        self.at, self.nl, self.loss = local_of[plan.kk_delegate[mine]], ex.n_local, loss
+        a, b = problem.meas_a[s], problem.meas_b[s]
+        self.dist = np.linalg.norm(problem.positions_m[a] - problem.positions_m[b], axis=1)
+        self.rng, self.sig, self.sc = problem.range_m[s], sigma[s], scale[s]
+        self.common = common
+        self.e = 1.0 / self.sig if self.common else np.zeros(s.size)
+        self.w = np.zeros(s.size)
+        if plan.kk_samples.size:  # the records, in one round every block takes part in
+            _send_records(problem.n_anchors, ex, plan.kk_sender * problem.n_anchors + plan.kk_delegate)
+
+    def terms(self, c: float) -> tuple[np.ndarray, np.ndarray]:
+        """The samples' residuals at the common offset ``c`` and each delegate's share of the objective."""
+        r = (self.dist + (c if self.common else 0.0) - self.rng) / self.sig
+        return r, np.bincount(self.at, loss_terms(r, self.sc, self.loss)[1], minlength=self.nl)
+
+    def row(self, r: np.ndarray) -> np.ndarray:
+        """Each delegate's share of the common offset's gradient and curvature at the residuals ``r``."""
+        self.w = loss_terms(r, self.sc, self.loss)[0]
+        we = self.w * self.e
+        at, nl = self.at, self.nl
+        return np.asarray(np.c_[np.bincount(at, we * r, minlength=nl), np.bincount(at, we * self.e, minlength=nl)])
+
+    def curvature(self) -> np.ndarray:
+        """Each delegate's ``Σ w e²`` at the last linearization (the common offset's row of a CG product)."""
+        return np.bincount(self.at, self.w * self.e * self.e, minlength=self.nl)
+
+
+def held_by_all(problem: RangingData, held_m: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """``held_m`` where every receiver of an anchor may hold its row: an anchor without a free parameter may have
+    sat the last fit out (``refine.SIT_OUT``) and hold none, so the anchors that range with one send their first row
+    (NaN: not held) — conservative where it took part in the last fit."""
+    silent = ~np.any(free, axis=1)
+    if not silent.any():
+        return held_m
+    a, b = np.asarray(problem.meas_a), np.asarray(problem.meas_b)
+    near = np.zeros(problem.n_anchors, bool)
+    near[a[silent[b]]] = True
+    near[b[silent[a]]] = True
+    out = np.array(held_m, float)
+    out[near] = np.nan
+    return out
+
+
+def _send_records(n: int, ex: Exchange, pairs: np.ndarray) -> None:
+    """One round: from each sender to its delegate (``pairs``: ``sender · n + delegate``, one per sample) the range
+    records it hands over, 16 B a sample (:class:`Delegated`)."""
+    keys, count = np.unique(pairs, return_counts=True)
+
+    def lookup(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        at = np.minimum(np.searchsorted(keys, key), keys.size - 1)
+        return keys[at] == key, count[at]
+
+    hit_out, n_out = lookup(ex.nodes[ex.out_src] * n + ex.out_dst)
+    hit_in, _ = lookup(ex.in_src * n + ex.nodes[ex.in_dst])
+    active = np.zeros(ex.n_edges, bool)
+    active[ex.out_edges] = hit_out
+    active[ex.in_edges] = hit_in
+    sizes = np.where(hit_out, 16 * n_out, 0).astype(np.int64)
+    ex.send(np.zeros((ex.out_edges.size, 1)), active=active, message_bytes=sizes)
+
+
+class Links:
+    """The half-measurements of one block, their neighbour rows in a broadcast (``wire_options``: Wire's), totals;
+    ``sit_out`` (:class:`SitOut`): the anchors that sit the phase out receive nothing and are not in the reduction
+    tree."""
+
+    def __init__(
+        self,
+        problem: RangingData,
+        ex: Exchange,
+        *,
+        per_anchor_offsets: bool = False,
+        sit_out: SitOut | None = None,
+        **wire_options: Any,
     ) -> None:
         self.ex, self.n = ex, problem.n_anchors
         self.owner, self.other, _, self.samp = half_measurements(problem, ex)
@@ -125,11 +264,15 @@ class Links:
         self.reduced_floats = 0  # per anchor, over every reduction (their cost as spanning-tree messages)
         self.reduced_bytes = 0  # the same in bytes (float64, or float32 for the LM phase's CG scalars)
         self.decided = [0, 0, 0]  # totals decided at the tree's root: count, directions, bytes per edge (Reductions)
-        self.wire = Wire(problem, ex, self.owner, self.other, int(per_anchor_offsets), **wire_options)
+        self.sit_out = sit_out
+        listens = None if sit_out is None else sit_out.listens
+        self.wire = Wire(problem, ex, self.owner, self.other, int(per_anchor_offsets), listens=listens, **wire_options)
 
     def counted(self) -> wire.Reductions:
         """The reductions counted so far."""
-        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes, *self.decided)
+        tree = 0 if self.sit_out is None else int(self.sit_out.listens.sum())
+        count, directions, down = self.decided
+        return wire.Reductions(self.reductions, self.reduced_floats, self.reduced_bytes, count, directions, down, tree)
 
     def neighbours(self, values: np.ndarray) -> np.ndarray:
         """Each half-measurement's other end's parameter row of ``values`` ``(n_local, P)`` (one broadcast; after
@@ -165,7 +308,10 @@ class Links:
         total_on = wire.held_scalars(out.reshape(1, -1), held.total)[1][0]
         self.reductions += 1
         self.reduced_floats += f
-        self.reduced_bytes += int(np.sum(np.where(np.all(got[:, f:] > 0, axis=0) & total_on, 2, 3)))
+        flags = got[:, f:] > 0
+        if self.sit_out is not None:  # an anchor that sits out sends no share (its row here is zeros)
+            flags |= ~self.sit_out.listens[:, None]
+        self.reduced_bytes += int(np.sum(np.where(np.all(flags, axis=0) & total_on, 2, 3)))
         return out
 
     def gathered(
@@ -241,6 +387,11 @@ class NormalSystem:
     held_dots: tuple[wire.HeldScalars, wire.HeldScalars] = field(
         default_factory=lambda: (wire.HeldScalars(), wire.HeldScalars())
     )
+    #: with anchors sitting out (:class:`SitOut`): each half-measurement's weight in the common offset's row (0 at an
+    #: owner that sits out, 2 where the other end sits out, else 1), and per anchor the curvature ``Σ w e²`` of the
+    #: samples it evaluates for two anchors that sit out
+    omega: np.ndarray | None = None
+    kk_curv: np.ndarray | None = None
 
     def matvec(self, v: np.ndarray, vc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(N + μD) V`` on the block's rows for ``k`` columns at once (``v`` ``(n_local, P, k)``, ``vc`` the
@@ -264,7 +415,12 @@ class NormalSystem:
         if self.prior:
             out[:, -1] += self.prior * v[:, -1]
         half = np.zeros((nl, k))
-        np.add.at(half, self.owner, 0.5 * wjv * self.e[:, None])
+        if self.omega is None:
+            np.add.at(half, self.owner, 0.5 * wjv * self.e[:, None])
+        else:
+            np.add.at(half, self.owner, 0.5 * wjv * (self.e * self.omega)[:, None])
+        if self.kk_curv is not None:
+            half += self.kk_curv[:, None] * vc[None, :]
         return np.where(self.free[:, :, None], out, 0.0), half
 
 

@@ -78,10 +78,10 @@ class RunOptions(FitOptions):
       neighbours holds bit for bit from the last fit's LM phase (NaN: not held); that phase's start must equal
       them there and sends nothing from those anchors (a warm re-fit: ``field_fits.CARRY_HELD``; issue 27,
       :class:`~distnav.algorithms.ranging.wire.Wire` item 6).
-    - ``refine_forcing`` (None: ``inner.FORCING`` in the phases that stop early, ``refine.FORCING_FROM_M``; by
-      default none): that phase's adaptive forcing term ``(γ, α, η₀, η_min, η_max)``, optionally with the loosest
-      η whose step may stop it (:class:`~distnav.algorithms.ranging.inner.Forcing`; a workflow's stage:
-      ``field_fits.STAGE_FORCING``, issue 27).
+    - ``refine_forcing`` (None: every inner solve to ``inner.CG_RTOL``): that phase's adaptive forcing term
+      ``(γ, α, η₀, η_min, η_max)``, optionally with the loosest η whose step may stop it
+      (:class:`~distnav.algorithms.ranging.inner.Forcing`; a workflow's fits by their stage:
+      ``field_fits.STAGE_FORCING`` over ``field_fits.FORCING_STAGES``, issue 27).
     - ``test_scale`` also ``"local"`` (each anchor's own scale) beside the centralized scales.
 
     ``range_offsets="common_delays"`` (LM's) is refused by name: the neighbourhood solvers' offsets

@@ -45,9 +45,19 @@ from typing import Any
 import numpy as np
 
 from distnav._settings import resolve_options
-from distnav.algorithms.ranging import inner, wire
+from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.data import RangingData
-from distnav.algorithms.ranging.inner import CG_RTOL, Forcing, Links, NormalSystem, block_preconditioner, pcg
+from distnav.algorithms.ranging.inner import (
+    CG_RTOL,
+    Delegated,
+    Forcing,
+    Links,
+    NormalSystem,
+    block_preconditioner,
+    held_by_all,
+    pcg,
+    sit_out_plan,
+)
 from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
 from distnav.exchange import Exchange
@@ -89,11 +99,9 @@ SCALED_TRIAL_KNOWN = True
 #: the common offset's start not reduced where every anchor's copy is the one the options give (``offset_start_m``:
 #: a fit's LM phase from the solver's start, which every anchor holds; issue 27, seventh session)
 OFFSET_START_HELD = True
-#: the adaptive forcing term (``inner.FORCING``, off by default) only in fits that stop at ``xtol_m`` ≥ this, metres:
-#: the workflow's early-stopped fits (``field_fits.STAGE_TOLERANCES``: 3 mm, 1 cm), whose solutions only start the
-#: next fit; a fit that can be the answer (0.1 mm) solves to CG_RTOL (issue 27, seventh session: in every fit, a
-#: PLANT_HARD corner hall ended 1.42 mm from the fixed forcing term's answer; 0: every fit)
-FORCING_FROM_M = 1e-3
+#: the anchors without a free parameter sit the phase out (``inner.sit_out_plan``): no message to them, the
+#: reduction tree over the others; their terms evaluated at the other end of each link (issue 27, eighth session)
+SIT_OUT = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,9 +133,8 @@ class RefineOptions:
     what the receivers hold from the last fit (:class:`~distnav.algorithms.ranging.wire.Wire`, item 6) and
     ``offset_start_m`` the common offset every anchor's copy holds at the start, metres (None: not known; then
     the start is their network mean, one reduction; :data:`OFFSET_START_HELD`); ``forcing`` the adaptive forcing
-    term of the phase's inner solves (:class:`~distnav.algorithms.ranging.inner.Forcing`'s fields; None:
-    ``inner.FORCING`` where ``xtol_m`` ≥ :data:`FORCING_FROM_M`, which is None by default: every CG run to
-    ``CG_RTOL``)."""
+    term of the phase's inner solves (:class:`~distnav.algorithms.ranging.inner.Forcing`'s fields; None: every CG
+    run to ``CG_RTOL``; a workflow's fits get it by their stage, ``field_fits.STAGE_FORCING``)."""
 
     sigma: np.ndarray
     scale: np.ndarray
@@ -165,14 +172,23 @@ class _Refiner:
     def __init__(self, problem: RangingData, ex: Exchange, o: RefineOptions) -> None:
         self.o = o
         self.per, self.common = o.range_offsets == "per_anchor", o.range_offsets == "common"
-        self.links = links = Links(problem, ex, per_anchor_offsets=self.per, known_from_problem=True, held_m=o.held_m)
-        self.owner, self.other, self.samp = links.owner, links.other, links.samp
         self.n, self.nl, self.dim = problem.n_anchors, ex.n_local, problem.dim
         dim = self.dim
         self.P = dim + (1 if self.per else 0)
+        every = np.ones((self.n, self.P), bool)
+        every[:, :dim] = problem.free
+        plan = None
+        if SIT_OUT and not wire.PLAIN and (not self.common or o.offset_start_m is not None and OFFSET_START_HELD):
+            plan = sit_out_plan(problem, every)  # with a common offset: its start held by every copy
+        held_m = o.held_m
+        if SIT_OUT and plan is None and held_m is not None:
+            held_m = held_by_all(problem, held_m, every)
+        self.links = links = Links(
+            problem, ex, per_anchor_offsets=self.per, known_from_problem=True, held_m=held_m, sit_out=plan
+        )
+        self.owner, self.other, self.samp = links.owner, links.other, links.samp
         self.sig, self.sc, self.rng_m = o.sigma[self.samp], o.scale[self.samp], problem.range_m[self.samp]
-        self.free = np.ones((self.nl, self.P), bool)
-        self.free[:, :dim] = problem.free[ex.nodes]
+        self.free = every[ex.nodes]
         self.n_free = int(problem.free.sum()) + (self.n if self.per else 0)  # the network's free parameters
         self.known_m = problem.positions_m[ex.nodes]
         self.free_nb = np.ones((self.samp.size, self.P), bool)
@@ -183,10 +199,13 @@ class _Refiner:
         self.steps = wire.STEPS and not wire.PLAIN  # trials travel as steps (wire, item 5)
         # the products' held exponents per link, kept from one CG run to the next of the fit (wire.HELD_ACROSS_RUNS)
         self.held: list[np.ndarray] = []
-        # the adaptive forcing term of the fit's CG runs (o.forcing, else inner.FORCING in early-stopped fits; None:
-        # every run to CG_RTOL)
-        terms = o.forcing if o.forcing is not None else inner.FORCING if o.xtol_m >= FORCING_FROM_M else None
-        self.forcing = Forcing.of(terms) if terms is not None and not wire.PLAIN else None
+        # the adaptive forcing term of the fit's CG runs (None: every run to CG_RTOL)
+        self.forcing = Forcing.of(o.forcing) if o.forcing is not None and not wire.PLAIN else None
+        self.kk = None if plan is None else Delegated(problem, ex, plan, o.sigma, o.scale, o.loss, self.common)
+        self.omega: np.ndarray | None = None
+        if plan is not None:  # 0 at an owner that sits out, 2 where the other end does (the same term there)
+            listens = plan.listens
+            self.omega = np.where(listens[ex.nodes[self.owner]], np.where(listens[self.other], 1.0, 2.0), 0.0)
 
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
         """The start ``(x, c)`` and CG's iteration limit (one reduction: the common offset's mean; the number of
@@ -206,7 +225,12 @@ class _Refiner:
             else:
                 c = float(np.sum(np.full(self.n, held))) / self.n  # the mean of n equal copies, as the reduction's
         if common and (held is None or not OFFSET_START_HELD or wire.PLAIN):
-            c = float(links.total(np.asarray(offset_m, float))) / self.n
+            plan = links.sit_out
+            if plan is None:
+                c = float(links.total(np.asarray(offset_m, float))) / self.n
+            else:  # the copies of the anchors that take part (the reduction tree's)
+                copies = np.where(plan.listens[links.ex.nodes], np.asarray(offset_m, float), 0.0)
+                c = float(links.total(copies)) / int(plan.listens.sum())
         n_unknowns = self.n_free + (1 if self.common else 0)
         return x, c, min(n_unknowns + 10, 2000)
 
@@ -235,8 +259,16 @@ class _Refiner:
         diff = xv[owner, :dim] - nb[:, :dim]
         bias = (xv[owner, dim] + nb[:, dim]) if per else cv
         r = (np.linalg.norm(diff, axis=1) + bias - self.rng_m) / self.sig
-        terms = loss_terms(r, self.sc, self.o.loss)[1]
-        f_node = 0.5 * np.bincount(owner, terms, minlength=self.nl) + (self.prior * xv[:, dim] ** 2 if per else 0.0)
+        if self.omega is None:
+            terms = loss_terms(r, self.sc, self.o.loss)[1]
+            f_node = 0.5 * np.bincount(owner, terms, minlength=self.nl) + (self.prior * xv[:, dim] ** 2 if per else 0.0)
+        else:  # an owner that sits out: its terms are the other end's (omega); the delegated samples' terms
+            r = np.where(self.omega > 0, r, 0.0)
+            terms = loss_terms(r, self.sc, self.o.loss)[1]
+            assert self.kk is not None
+            r_kk, f_kk = self.kk.terms(cv)
+            f_node = 0.5 * np.bincount(owner, terms * self.omega, minlength=self.nl) + f_kk
+            r = np.r_[r, r_kk]  # carried to the linearization
         small = wire.CG_SCALAR_DTYPE if ROUND_SCALARS and not wire.PLAIN else np.float64
         root = ROOT_DECIDES and not wire.PLAIN
         down = (0 if base is None else 1) if root else None  # the first objective: nothing to decide yet
@@ -252,6 +284,7 @@ class _Refiner:
         dim, nl, owner, per, prior = self.dim, self.nl, self.owner, self.per, self.prior
         if self.forcing is not None:
             self.forcing.linearized()
+        r, r_kk = r[: self.owner.size], r[self.owner.size :]  # the delegated samples' residuals after the halves'
         a, cn, e = jacobian_rows(x, nb, owner, self.sig, dim, per, self.common, self.free, self.free_nb)
         w = loss_terms(r, self.sc, self.o.loss)[0]
         g = _rows(owner, (w * r)[:, None] * a, nl)
@@ -259,14 +292,18 @@ class _Refiner:
             g[:, dim] += prior * x[:, dim]
         gc = dc = 0.0
         if self.common:  # the common offset's gradient and curvature: one reduction
-            gc, dc = (
-                float(t)
-                for t in self.links.total(
+            if self.omega is None:
+                shares = (
                     0.5
-                    * np.c_[np.bincount(owner, w * r * e, minlength=nl), np.bincount(owner, w * e * e, minlength=nl)],
-                    wire.CG_SCALAR_DTYPE if ROUND_SCALARS and not wire.PLAIN else np.float64,
+                    * np.c_[np.bincount(owner, w * r * e, minlength=nl), np.bincount(owner, w * e * e, minlength=nl)]
                 )
-            )
+            else:  # an owner that sits out: its rows are the other end's (omega); the delegated samples' rows
+                we = w * e * self.omega
+                shares = 0.5 * np.c_[np.bincount(owner, we * r, minlength=nl), np.bincount(owner, we * e, minlength=nl)]
+                assert self.kk is not None
+                shares += self.kk.row(r_kk)
+            small = wire.CG_SCALAR_DTYPE if ROUND_SCALARS and not wire.PLAIN else np.float64
+            gc, dc = (float(t) for t in self.links.total(shares, small))
         diag = _rows(owner, w[:, None] * a * a, nl) + (np.c_[np.zeros((nl, dim)), np.full(nl, prior)] if per else 0.0)
         block = np.einsum("h,ha,hb->hab", w, a, a)
         own_block = np.zeros((nl, self.P, self.P))
@@ -296,6 +333,8 @@ class _Refiner:
             self.wire_dtype,
             self.sig,
             held=self.held if wire.HELD_ACROSS_RUNS else [],
+            omega=self.omega,
+            kk_curv=None if self.kk is None else self.kk.curvature(),
         )
         dxk, dck, its = pcg(
             system,
@@ -344,10 +383,14 @@ class _Refiner:
         elif self.common:
             offsets = np.full(self.nl, c)
             half_off = np.full(self.samp.size, c)
+        other_m = nb[:, :dim].copy()
+        if self.omega is not None:  # the halves of an anchor that sat out, as their other ends hold them: tested
+            sat = self.omega == 0  # there (a deployment's delegate; here read uncounted, as a gather of the result)
+            other_m[sat] = np.asarray(links.ex.gather_nodes(x[:, :dim]))[self.other[sat]]
         return Refinement(
             own_m=x[:, :dim].copy(),
             offset_m=offsets,
-            half_other_m=nb[:, :dim].copy(),
+            half_other_m=other_m,
             half_offset_m=half_off,
             objective=F,
             status=status,

@@ -194,6 +194,7 @@ class Wire:
         *,
         known_from_problem: bool = False,
         held_m: np.ndarray | None = None,
+        listens: np.ndarray | None = None,
     ) -> None:
         self.ex, self.n = ex, problem.n_anchors
         self.known_from_problem = known_from_problem  # :data:`KNOWN_FROM_PROBLEM` (the LM phase's: refine.py)
@@ -205,8 +206,13 @@ class Wire:
         active = np.ones(ex.n_edges, bool)
         active[ex.out_edges] = talks[ex.nodes[ex.out_src]]
         active[ex.in_edges] = talks[ex.in_src]
+        if listens is not None:  # no message to an anchor that sits the phase out (inner.sit_out_plan, item 37)
+            active[ex.out_edges] &= listens[ex.out_dst]
+            active[ex.in_edges] &= listens[ex.nodes[ex.in_dst]]
         self.active = active
         self.talks_other = talks[other]  # per half-measurement: the other end sends
+        #: per half-measurement: a message arrives (its other end sends, its owner takes part)
+        self.need = self.talks_other if listens is None else self.talks_other & listens[ex.nodes[owner]]
         self._talks = talks
         self._problem = problem  # the other ends' known coordinates, read at a first broadcast (known_from_problem)
         self._pos: np.ndarray | None = None
@@ -253,7 +259,7 @@ class Wire:
         if self._params is None and not (KNOWN_FROM_PROBLEM and self.known_from_problem):
             self._params = self._round(values, None, None).copy()
             return self._params.copy()
-        active, need, send = self.active, self.talks_other, True
+        active, need, send = self.active, self.need, True
         if self._params is None:  # the other end's known coordinates (the problem's: fixed, held), zeros elsewhere
             self._params = np.zeros((self.other.size, self.P))
             self._params[:, : self._problem.dim] = self._problem.positions_m[self.other]
@@ -282,7 +288,7 @@ class Wire:
         active = self.active.copy()
         active[ex.out_edges] &= ~held[ex.nodes[ex.out_src]]
         active[ex.in_edges] &= ~held[ex.in_src]
-        return active, self.talks_other & ~held[self.other], bool(np.any(self._talks & ~held))
+        return active, self.need & ~held[self.other], bool(np.any(self._talks & ~held))
 
     def rounded(self, step: np.ndarray) -> np.ndarray:
         """An LM step ``(n_local, P)`` as :meth:`stepped` delivers it: its free columns as :data:`STEP_DTYPE` (the
@@ -302,9 +308,7 @@ class Wire:
         if STEP_HELD and STEP_DTYPE == np.float32:
             got = self._held_step(step[:, self.cols])
         else:
-            got = _decode(
-                self._round(_encode(step[:, self.cols], STEP_DTYPE), self.active, self.talks_other), self.cols.size
-            )
+            got = _decode(self._round(_encode(step[:, self.cols], STEP_DTYPE), self.active, self.need), self.cols.size)
         self._last_got = got
         out = np.array(base, float)
         out[np.ix_(self.talks_other, self.cols)] += got[self.talks_other]
@@ -333,10 +337,10 @@ class Wire:
         packed, sizes, self._step_sent = pack_steps(step.astype(np.float32), self._step_sent)
         box = ex.send(packed[ex.out_src], active=self.active, message_bytes=sizes[ex.out_src])
         pos = self._positions(box.dst, box.src)
-        if not np.all(box.delivered[pos] | ~self.talks_other):
+        if not np.all(box.delivered[pos] | ~self.need):
             raise ModelError("refinement: a neighbour's message was lost (it needs every link each round)")
         got = np.zeros((self.other.size, m))
-        talk = self.talks_other
+        talk = self.need
         values, self._step_got[talk] = unpack_steps(np.asarray(box.values)[pos[talk]], self._step_got[talk], m)
         got[talk] = values
         return got
@@ -351,13 +355,13 @@ class Wire:
         m = self.cols.size * k
         if dtype == np.float16:  # a shared exponent per row (module docstring, item 3)
             sent = pack_half(v[:, self.cols, :].reshape(nl, m))
-            got = unpack_half(self._round(sent, self.active, self.talks_other), m).reshape(-1, self.cols.size, k)
+            got = unpack_half(self._round(sent, self.active, self.need), m).reshape(-1, self.cols.size, k)
         else:
             sent = np.ascontiguousarray(v[:, self.cols, :], dtype=dtype).reshape(nl, m)
-            got = self._round(sent, self.active, self.talks_other).reshape(-1, self.cols.size, k)
+            got = self._round(sent, self.active, self.need).reshape(-1, self.cols.size, k)
         out = np.zeros((got.shape[0], P, k))
         out[:, self.cols, :] = got
-        out[~self.talks_other] = 0.0
+        out[~self.need] = 0.0
         return out
 
     def _edges(self) -> tuple[np.ndarray, np.ndarray]:
@@ -409,10 +413,10 @@ class Wire:
             box = self.ex.send(np.ascontiguousarray(rows, dtype=dtype), active=active)
             values = np.asarray(box.values, float)
         pos = self._positions(box.dst, box.src)
-        if not np.all(box.delivered[pos] | ~self.talks_other):
+        if not np.all(box.delivered[pos] | ~self.need):
             raise ModelError("refinement: a neighbour's message was lost (it needs every link each round)")
         got = np.asarray(values[pos])
-        got[~self.talks_other] = 0.0
+        got[~self.need] = 0.0
         return got
 
 
@@ -534,11 +538,16 @@ class Reductions:
     decided: int = 0
     decided_directions: int = 0
     decided_bytes: int = 0
+    #: the anchors of the spanning tree (0: every anchor; fewer where the anchors without a free parameter sit the
+    #: phase out, ``inner.sit_out_plan``, item 37)
+    tree_nodes: int = 0
 
 
 def reductions_cost(n_anchors: int, reduced: Reductions) -> tuple[int, int]:
     """Messages and bytes of ``reduced`` over a spanning tree: :func:`reduction_cost` of its all-reductions, and
-    ``n − 1`` messages per direction of every decided one (its bytes per tree edge on each of the ``n − 1`` edges)."""
+    ``n − 1`` messages per direction of every decided one (its bytes per tree edge on each of the ``n − 1`` edges);
+    ``n`` the tree's anchors (``reduced.tree_nodes``, else ``n_anchors``)."""
+    n_anchors = reduced.tree_nodes or n_anchors
     m, b = reduction_cost(n_anchors, reduced.count - reduced.decided, reduced.bytes)
     edges = max(n_anchors - 1, 0)
     return m + reduced.decided_directions * edges, b + reduced.decided_bytes * edges

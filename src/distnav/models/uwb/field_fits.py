@@ -39,6 +39,7 @@ __all__ = [
     "REFIT_STAGES",
     "FORCING_STAGES",
     "STAGE_FORCING",
+    "EARLY_STAGES",
     "refit_margin_w",
     "CARRY_OFFSET",
     "CARRY_HELD",
@@ -80,9 +81,13 @@ REFIT_STAGES: tuple[str, ...] = ("refit", "rung")
 #: tightening fit, excluded a link LM keeps). :data:`~distnav.algorithms.ranging.inner.FORCING_TRIED` with a stop
 #: allowed on any step (stop_η = η_max 0.9): 12 plant-like halls 2.698 → 2.388 MB, the same links and status, within
 #: 0.10 mm; 100 PLANT_HARD halls and APRIL datasets 4–5 the same links, status and exit codes, within 1 mm. None:
-#: every fit to ``CG_RTOL``, as before
+#: every fit to ``CG_RTOL``, as before. The one switch of the forcing term in the workflow: item 33's experiment
+#: (the term in every early-stopped fit, a stop only on a step solved to ``inner.STOP_ETA``) is
+#: ``STAGE_FORCING = FORCING_TRIED`` with ``FORCING_STAGES = EARLY_STAGES``
 STAGE_FORCING: tuple[float, ...] | None = (*FORCING_TRIED, 0.9)
 FORCING_STAGES: tuple[str, ...] = ("refit", "rung")
+#: every stage whose fits stop early (:data:`STAGE_TOLERANCES`: at 3 mm or 1 cm steps), whose answers are replaced
+EARLY_STAGES: tuple[str, ...] = ("seed", "refit", "rung")
 #: a warm distributed fit starts from the last fit's common range offset (every anchor holds it; :func:`solve_once`)
 #: instead of 0 (issue 27: from 0 each re-fit's first rounds found the offset again, 0.3 m on the plant-like halls)
 CARRY_OFFSET = True

@@ -1,0 +1,141 @@
+"""The anchors without a free parameter sit the distributed LM phase out (issue 27, eighth session, item 37:
+``refine.SIT_OUT``, ``inner.sit_out_plan``): the plan by hand, then the LM phase on a plant-like corner hall with
+and without them — the same objective at the same start (their terms are evaluated by the other ends and the
+delegates), the same fixed point, no byte received by a known anchor, the reductions over a tree of the others."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from distnav.algorithms.ranging import refine as refine_mod
+from distnav.algorithms.ranging import wire
+from distnav.algorithms.ranging.inner import sit_out_plan
+from distnav.algorithms.ranging.refine import refine
+from distnav.exchange import make_exchange
+from distnav.experiments.uwb_field import hall_problem
+from distnav.models.uwb.field import prepare
+from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
+from distnav.models.uwb.problems import build_problem
+from distnav.network.graph import Graph
+
+FIT = {"loss": "cauchy", "range_offsets": "common", "offset_prior_sigma_m": 0.1}
+
+
+def _small(links):
+    """Six anchors on a 2-D line of triangles: 0, 1, 2 known, 3, 4, 5 free; ``links`` by index."""
+    pos = np.array([[0.0, 0.0], [4.0, 0.0], [8.0, 0.0], [0.0, 3.0], [4.0, 3.0], [8.0, 3.0]])
+    ids = [f"A{i}" for i in range(6)]
+    d = [float(np.linalg.norm(pos[a] - pos[b])) for a, b in links]
+    fixed = {ids[i]: pos[i] for i in range(3)}
+    return build_problem(ids, links, d, fixed=fixed, dim=2, check_determined=False)
+
+
+def _free(p):
+    return np.asarray(p.free)
+
+
+def test_the_plan_by_hand():
+    """Known 0, 1, 2 listen to nothing; the samples 0–1 and 1–2 (both ends known) go to the lowest-numbered free
+    neighbour of their first end (3 for anchor 0 and for anchor 1), handed over by that end; no plan where the free
+    anchors' range graph is cut (the tree would need a known anchor), where a sample between known anchors has no
+    free neighbour at either end, or where every anchor (or none) has a free parameter."""
+    links = [(0, 1), (1, 2), (0, 3), (1, 3), (1, 4), (2, 5), (3, 4), (4, 5), (0, 4)]
+    p = _small(links)
+    plan = sit_out_plan(p, _free(p))
+    assert plan is not None
+    assert plan.listens.tolist() == [False, False, False, True, True, True]
+    assert plan.kk_samples.tolist() == [0, 1]
+    assert plan.kk_delegate.tolist() == [3, 3] and plan.kk_sender.tolist() == [0, 1]
+    cut = _small([(0, 1), (1, 2), (0, 3), (1, 4), (2, 5), (3, 4)])  # 5 reaches 3 and 4 only through known 2
+    assert sit_out_plan(cut, _free(cut)) is None
+    lone = _small([(0, 1), (1, 2), (1, 4), (3, 4), (4, 5), (3, 1), (5, 1)])  # 0 ranges with known 1 only...
+    plan = sit_out_plan(lone, _free(lone))
+    assert plan is not None and plan.kk_delegate.tolist() == [3, 3]  # ... so 0–1 goes to 1's free neighbour 3
+    stray = _small([(0, 2), (1, 3), (1, 4), (1, 5), (3, 4), (4, 5)])  # 0–2: neither end has a free neighbour
+    assert sit_out_plan(stray, _free(stray)) is None
+    assert sit_out_plan(p, np.ones_like(_free(p))) is None
+    assert sit_out_plan(p, np.zeros_like(_free(p))) is None
+
+
+@pytest.fixture(scope="module")
+def corner():
+    h = simulate_hall(np.random.default_rng([78, 0]), HallConfig().with_(known="corner", **PLANT_LIKE))
+    sub, _ = prepare(hall_problem(h)[0])
+    return sub
+
+
+def _refined(p, monkeypatch, on, **options):
+    monkeypatch.setattr(refine_mod, "SIT_OUT", on)
+    ex = make_exchange(Graph.from_links(p.n_anchors, p.links))
+    sigma = np.full(p.n_meas, 0.1)
+    kw = {"ftol": 1e-6, "xtol_m": 1e-4, "offset_start_m": 0.0, **options}
+    ref = refine(p, ex, p.initial_m, np.zeros(p.n_anchors), sigma=sigma, scale=0.3 / sigma, **FIT, **kw)
+    return ref, ex
+
+
+def test_the_same_objective_at_the_start_and_the_same_fixed_point(corner, monkeypatch):
+    """No round (``max_rounds=0``): the objective of the start is the same sum with the known anchors sitting out
+    (their terms counted at the other ends, the samples between two known anchors by the delegates) to rounding —
+    a wrong weight or a lost sample would move it by whole terms; run to a tight stop, both phases end at the same
+    positions and offset (the same gradient's zero)."""
+    known = ~np.any(corner.free, axis=1)
+    a, b = corner.meas_a, corner.meas_b
+    assert known.sum() == 4 and np.any(known[a] & known[b])  # samples between two known anchors exist
+    start = [_refined(corner, monkeypatch, on, max_rounds=0)[0].objective for on in (False, True)]
+    assert start[1] == pytest.approx(start[0], rel=1e-12)
+    tight = {"ftol": 1e-14, "xtol_m": 1e-9, "max_rounds": 200}
+    off, on = (_refined(corner, monkeypatch, s, **tight)[0] for s in (False, True))
+    assert off.status == on.status == "converged"
+    assert np.max(np.abs(on.own_m - off.own_m)) < 1e-6
+    assert on.offset_m[0] == pytest.approx(off.offset_m[0], abs=1e-7)
+    assert on.objective == pytest.approx(off.objective, rel=1e-10)
+    assert np.max(np.abs(on.half_other_m - off.half_other_m)) < 1e-6  # a known anchor's halves: its neighbours
+
+
+def test_no_byte_reaches_a_known_anchor_and_the_tree_spans_the_others(corner, monkeypatch):
+    """With the known anchors sitting out the phase sends nothing to them (only the records of the samples between
+    two known anchors leave them, once, 16 B a sample, to their delegates), its reductions run over a tree of the 24
+    others (``Reductions.tree_nodes``, ``wire.reductions_cost``) and it sends fewer bytes in all; without, every
+    anchor receives and the tree spans all 28."""
+    known = ~np.any(corner.free, axis=1)
+    a, b = corner.meas_a, corner.meas_b
+    kk = int(np.sum(known[a] & known[b]))
+    out = {}
+    for on in (False, True):
+        ref, ex = _refined(corner, monkeypatch, on)
+        c = ex.comm_totals()
+        out[on] = ref, c, wire.reductions_cost(corner.n_anchors, ref.reduced)
+    (ref_off, c_off, cost_off), (ref_on, c_on, cost_on) = out[False], out[True]
+    assert np.all(c_off.bytes_received[known] > 0) and ref_off.reduced.tree_nodes == 0
+    assert np.all(c_on.bytes_received[known] == 0) and ref_on.reduced.tree_nodes == 24
+    assert int(np.sum(c_on.bytes_sent[known])) == 16 * kk
+    r = ref_on.reduced
+    assert cost_on[0] == (r.count - r.decided) * 2 * 23 + r.decided_directions * 23
+    assert c_on.bytes + cost_on[1] < c_off.bytes + cost_off[1]
+
+
+def test_without_a_plan_a_warm_start_is_sent_to_the_anchors_that_may_have_sat_out(monkeypatch):
+    """A warm fit whose known anchors cannot sit out (anchor 5 reaches the others only through known anchors): its
+    first rows are held by the receivers of the last fit (``held_m``, ``field_fits.CARRY_HELD``), but a known anchor
+    may have sat that fit out and holds none (``inner.held_by_all``): every anchor that ranges with a known one sends
+    its first row (16 B on each of its 8 links here), the same solve bit for bit as without ``SIT_OUT``."""
+    links = [(0, 1), (1, 2), (0, 3), (1, 3), (1, 4), (0, 4), (3, 4), (2, 5), (1, 5)]
+    p = _small(links)
+    assert sit_out_plan(p, _free(p)) is None
+    rng = np.random.default_rng(3)
+    start = np.array(p.positions_m, float)
+    start[3:] = [[0.0, 3.0], [4.0, 3.0], [8.0, 3.0]] + rng.normal(0, 0.05, (3, 2))
+    out = {}
+    for on in (False, True):
+        monkeypatch.setattr(refine_mod, "SIT_OUT", on)
+        ex = make_exchange(Graph.from_links(p.n_anchors, p.links))
+        sigma = np.full(p.n_meas, 0.1)
+        ref = refine(
+            p, ex, start, np.zeros(p.n_anchors), sigma=sigma, scale=0.3 / sigma, **FIT, ftol=1e-6, xtol_m=1e-4,
+            offset_start_m=0.0, held_m=start,
+        )  # fmt: skip
+        out[on] = ref, ex.comm_totals().bytes
+    (off, b_off), (on, b_on) = out[False], out[True]
+    assert np.array_equal(on.own_m, off.own_m) and on.objective == off.objective and on.rounds == off.rounds
+    assert b_on - b_off == 8 * 16
