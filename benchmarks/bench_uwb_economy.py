@@ -392,7 +392,8 @@ def _scaling_row(n: int) -> dict[str, Any]:
 def _solve_row(n: int) -> dict[str, Any]:
     """Section 3: a whole ``uwb solve`` workflow (N-CLM) on the hall of :func:`_scaling_row`, per-anchor bytes of
     all its fits (broadcasts + capped-tree messages of every fit's reductions) and of its σ against the gather's
-    busiest relay."""
+    busiest relay; the RMSE of the estimated anchors against the truth (issue 27, eighth session: the answer must
+    stay as good where the exclusion loop changes)."""
     p, start = _scaled_hall(n)
     _SENT.clear()
     _FITS.clear()
@@ -416,6 +417,7 @@ def _solve_row(n: int) -> dict[str, Any]:
     g = gather_cost(graph, own)
     phases = sol.comm_phases
     fit_bytes = sum(v["bytes"] for k, v in phases.items() if k not in ("precision", "reliability"))
+    miss = (sol.positions_m - p.truth_m)[p.estimated]
     return {
         "name": f"whole solve, {n} anchors",
         "n_anchors": n,
@@ -431,6 +433,7 @@ def _solve_row(n: int) -> dict[str, Any]:
         **{f"busiest_anchor_fit_bytes_{k}_tree": float(v.max()) for k, v in fit_sent.items()},
         "busiest_anchor_sigma_bytes": float(sigma_sent.max()),
         "excluded_links": int(sol.excluded.sum()),
+        "rmse_m": float(np.sqrt(np.mean(np.sum(miss * miss, axis=1)))),
         "status": sol.status,
         "cpu_s": cpu,
     }
