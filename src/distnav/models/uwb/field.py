@@ -61,6 +61,7 @@ from distnav.models.uwb.field_steps import (
     POLISH_RATIO,
     REFERENCE_BAND,
     REPAIR_OPENS_LOOSE,
+    REPAIR_STARTS_MOVED,
     START_TOLERANCES,
     all_links_cost,
     choose_start,
@@ -305,8 +306,8 @@ def _repair(run: FieldRun, fit: FieldFit) -> bool:
     on an early-stopped re-fit (``field_fits.LOOP_ENDS_LOOSE``) the anchors choose at its solution: their
     thresholds (an RMS of 0.15 m, a factor 2) are far from a 1 cm step (on PLANT_HARD ``[34, 0..10]``, 19 checks:
     the same choice as at the completed fit). Its re-solve opens with the loop's first early-stopped rung from the
-    changed anchors' positions (``field_steps.REPAIR_OPENS_LOOSE``, issue 27 item 47): the re-solve's tests only
-    choose links, with that rung's margin, as the loop's re-fits do."""
+    current solution (``field_steps.REPAIR_OPENS_LOOSE``, ``REPAIR_STARTS_MOVED``; issue 27 items 47 and 50): the
+    re-solve's tests only choose links, with that rung's margin, as the loop's re-fits do."""
     problem, opts = run.problem, run.opts
     repaired, notes, moved = repair_exclusions(
         problem, np.asarray(fit.res.estimates, float), fit.excluded, fit.flagged, one_sided=opts.one_sided
@@ -315,7 +316,7 @@ def _repair(run: FieldRun, fit: FieldFit) -> bool:
         return False
     kept_idx = np.flatnonzero(~repaired)
     seed = np.asarray(fit.res.estimates, float).copy()
-    for k, at in moved.items():  # each changed anchor starts where its own links put it
+    for k, at in moved.items() if REPAIR_STARTS_MOVED else ():  # item 50: from the current solution
         seed[k] = at
     run.starts.append(seed)
     sub = subset_measurements(problem, ~repaired)
