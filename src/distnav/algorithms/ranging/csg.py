@@ -261,6 +261,7 @@ def _refine_phase(
             "rounds": ref.rounds,
             "cg_iterations": ref.cg_iterations,
             "reductions": ref.reduced.count,
+            "tree_nodes": ref.reduced.tree_nodes,  # 0: every anchor (refine.SIT_OUT: the ones with a free parameter)
             **dict(zip(("reduction_messages", "reduction_bytes"), cost, strict=True)),
             "status": ref.status,
             "mu": ref.mu,
