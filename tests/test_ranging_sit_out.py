@@ -220,3 +220,25 @@ def test_a_warm_fit_without_a_plan_gives_the_known_anchors_the_start(monkeypatch
     base, c_base = _run(p, start, np.zeros(p.n_anchors), held_m=start)
     assert np.array_equal(base.own_m, want.own_m)
     assert c_want.bytes_received[:3].tolist() == (c_base.bytes_received[:3] + 16 + 16 * np.array([2, 3, 1])).tolist()
+
+
+def test_local_test_scale_counts_the_known_anchors_final_rows(corner, monkeypatch):
+    """Review finding 3: the local QC tests each link at its lower-indexed anchor, often a known one that sat the LM
+    phase out; with ``test_scale="local"`` its own scale needs its neighbours' final coordinates and the common
+    offset, now one counted round (``refine.rows_for_local_tests``): (dim + 1) · 8 B on each link from an anchor that
+    took part to a known one, nothing else changed (the same w, bit for bit); none with the robust scale."""
+    from distnav.algorithms.ranging.csg import solve_nclm
+
+    monkeypatch.setattr(refine_mod, "SIT_OUT", True)
+    known = ~np.any(corner.free, axis=1)
+    a, b = corner.meas_a, corner.meas_b
+    pairs = np.unique(np.sort(np.c_[a, b], axis=1), axis=0)
+    to_known = int(np.sum(known[pairs[:, 0]] != known[pairs[:, 1]]))
+    kw = {"objective": "metres", "sigma_m": 0.1, "range_offsets": "common", "quality": True, "iterations": 0}
+    got = {s: solve_nclm(corner, test_scale=s, **kw) for s in ("local", "robust")}
+    assert got["local"].settings["refine"]["tree_nodes"] == int((~known).sum())
+    extra = got["local"].comm.bytes - got["robust"].comm.bytes
+    assert extra == to_known * (corner.dim + 1) * 8 and to_known > 0
+    assert np.array_equal(got["local"].estimates, got["robust"].estimates)
+    assert int(np.sum(got["local"].comm.bytes_received[known])) == extra
+    assert np.any(np.isfinite(got["local"].tests.w))

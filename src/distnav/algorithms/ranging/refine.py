@@ -61,6 +61,7 @@ from distnav.algorithms.ranging.inner import (
 )
 from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
+from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
 __all__ = [
@@ -484,6 +485,37 @@ def refine(
             if status == "converged":
                 break
     return dataclasses.replace(run.result(x, c, nb, F, status, rounds, cg_total), mu=mu)
+
+
+def rows_for_local_tests(problem: RangingData, ex: Exchange, ref: Refinement) -> None:
+    """Where the anchors without a free parameter sat the phase out (``ref.reduced.tree_nodes``): one round in
+    which each of them receives from every neighbour that took part its final coordinates and, with a common
+    offset, that offset (8 B a value) — what such an anchor needs to test its links with its own scale
+    (``test_scale="local"``: the local QC tests each link at its lower-indexed anchor). Counted only: the values
+    are the halves :func:`refine` gives them, bit for bit (checked); a lost one is a ModelError naming the anchor."""
+    if not ref.reduced.tree_nodes:
+        return
+    listens = np.any(problem.free, axis=1)
+    rows = ref.own_m if ref.offset_m is None else np.c_[ref.own_m, ref.offset_m]  # a plan: no per-anchor offsets
+    out_on = listens[ex.nodes[ex.out_src]] & ~listens[ex.out_dst]
+    in_on = listens[ex.in_src] & ~listens[ex.nodes[ex.in_dst]]
+    active = np.zeros(ex.n_edges, bool)
+    active[ex.out_edges] = out_on
+    active[ex.in_edges] = in_on
+    box = ex.send(np.asarray(rows, float)[ex.out_src], active=active)
+    lost = in_on & ~np.asarray(box.delivered, bool)
+    if lost.any():
+        anchor = problem.ids[ex.nodes[ex.in_dst[lost][0]]]
+        raise ModelError(f"refinement: anchor {anchor} did not receive its neighbours' final rows (lost)")
+    owner, other, _, _ = half_measurements(problem, ex)
+    values = np.asarray(box.values)
+    got = {(int(ex.in_dst[e]), int(ex.in_src[e])): values[e] for e in np.flatnonzero(in_on)}
+    for h in np.flatnonzero(~listens[ex.nodes[owner]] & listens[other]):
+        row = got[(int(owner[h]), int(other[h]))]
+        same = np.array_equal(row[: problem.dim], ref.half_other_m[h])
+        if ref.half_offset_m is not None:
+            same = same and row[problem.dim] == ref.half_offset_m[h]
+        assert same, "the halves refine() gives a known anchor are its neighbours' final rows"
 
 
 def _steady(tail: list[float], moved: float) -> bool:
