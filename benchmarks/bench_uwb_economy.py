@@ -405,11 +405,13 @@ def _scaling_row(n: int) -> dict[str, Any]:
 def _solve_row(n: int) -> dict[str, Any]:
     """Section 3: a whole ``uwb solve`` workflow (N-CLM) on the hall of :func:`_scaling_row`, per-anchor bytes of
     all its fits (broadcasts + capped-tree messages of every fit's reductions) and of its σ against the gather's
-    busiest relay."""
+    busiest relay; the RMSE of the estimated anchors against the truth (issue 27, eighth session: the answer must
+    stay as good where the exclusion loop changes)."""
     p, start = _scaled_hall(n)
     _SENT.clear()
     _FITS.clear()
     _SIGMA.clear()
+    _TREES.clear()
     t0 = time.process_time()
     sigma = "gathered" if n <= GATHERED_SIGMA_MAX else "subnetwork"  # a dense σ of 2n unknowns up to there
     opts = FieldOptions(solver="N-CLM", distributed_precision=sigma, reliability_limit_m=0.0)
@@ -425,10 +427,12 @@ def _solve_row(n: int) -> dict[str, Any]:
     _SENT.clear()
     _FITS.clear()
     _SIGMA.clear()
+    _TREES.clear()
     own = np.bincount(p.links.min(axis=1), minlength=p.n_anchors) * RECORD_BYTES
     g = gather_cost(graph, own)
     phases = sol.comm_phases
     fit_bytes = sum(v["bytes"] for k, v in phases.items() if k not in ("precision", "reliability"))
+    miss = (sol.positions_m - p.truth_m)[p.estimated]
     return {
         "name": f"whole solve, {n} anchors",
         "n_anchors": n,
@@ -444,6 +448,7 @@ def _solve_row(n: int) -> dict[str, Any]:
         **{f"busiest_anchor_fit_bytes_{k}_tree": float(v.max()) for k, v in fit_sent.items()},
         "busiest_anchor_sigma_bytes": float(sigma_sent.max()),
         "excluded_links": int(sol.excluded.sum()),
+        "rmse_m": float(np.sqrt(np.mean(np.sum(miss * miss, axis=1)))),
         "status": sol.status,
         "cpu_s": cpu,
     }

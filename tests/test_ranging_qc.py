@@ -243,11 +243,11 @@ def test_exclusion_rounds_take_links_of_different_anchors_together():
     _, _, t1 = exclude_links(p, one)
     assert list(t1.removed) == [pair[(0, 1)], pair[(0, 2)], pair[(4, 5)]] and one.calls == 4
     many = _Scripted(p, w)
-    _, _, t2 = exclude_links(p, many, per_round=None)
+    _, _, t2 = exclude_links(p, many, per_round=4)
     # round 1: N0-N1 and N4-N5 (no common anchor); N0-N2 waits for the re-fit (it shares N0); round 2: N0-N2
     assert list(t2.removed) == [pair[(0, 1)], pair[(4, 5)], pair[(0, 2)]] and many.calls == 3
     capped = _Scripted(p, w)
-    _, _, t3 = exclude_links(p, capped, per_round=None, max_exclusions=1)
+    _, _, t3 = exclude_links(p, capped, per_round=4, max_exclusions=1)
     assert list(t3.removed) == [pair[(0, 1)]]
     short = np.zeros(p.n_meas)
     short[pair[(4, 5)]] = +9.0  # measured short: never excluded one-sided, excluded two-sided
@@ -428,3 +428,90 @@ def _without(p, removed):
     keep = np.ones(p.n_meas, bool)
     keep[list(removed)] = False
     return dataclasses.replace(p, meas_a=p.meas_a[keep], meas_b=p.meas_b[keep], range_m=p.range_m[keep])
+
+
+def _grid():
+    """7 × 7 anchors 5 m apart (2-D), links up to 11 m (5–12 per anchor), the four corners known."""
+    xy = np.array([(5.0 * i, 5.0 * j) for i in range(7) for j in range(7)])
+    ids = [f"G{k}" for k in range(len(xy))]
+    links = [(i, j) for i in range(len(xy)) for j in range(i + 1, len(xy)) if np.linalg.norm(xy[i] - xy[j]) < 11]
+    d = [float(np.linalg.norm(xy[i] - xy[j])) for i, j in links]
+    corners = {ids[k]: xy[k] for k in (0, 6, 42, 48)}
+    return build_problem(ids, [(ids[i], ids[j]) for i, j in links], d, fixed=corners, dim=2, truth_m=xy, initial_m=xy)
+
+
+def test_sure_picks_are_chosen_whatever_each_w_within_the_margin():
+    """_sure_picks (issue 27, eighth session) against the round itself: on random rounds of the grid, every sure
+    pick is chosen by :func:`_round_picks` of the |w| each moved by anything within the margin (random moves and
+    moves to either end); by hand, a pick with a rival of its anchors within twice the margin, one within the margin
+    of the critical value, or one the cap may stop is not sure."""
+    from distnav.algorithms.ranging.qc import _round_picks, _sure_picks
+
+    p, rng, margin, n_sure = _grid(), np.random.default_rng(27), 0.8, 0
+    a, b = p.meas_a, p.meas_b
+    for _ in range(40):
+        aw = np.abs(rng.normal(0.0, 4.0, a.size))
+        aw[rng.random(a.size) < 0.1] = -np.inf  # not eligible
+        cap = int(rng.integers(2, 16))
+        picks = _round_picks(p.n_anchors, aw, a, b, cap, 3.29)
+        sure = _sure_picks(aw, (a, b), cap, 3.29, margin, picks)
+        assert set(sure) <= set(picks)
+        n_sure += len(sure)
+        for k in range(60):
+            move = rng.uniform(-margin, margin, a.size) if k % 2 else margin * rng.choice([-1.0, 1.0], a.size)
+            assert set(sure) <= set(_round_picks(p.n_anchors, aw + move, a, b, cap, 3.29))
+    assert n_sure > 40  # not vacuous: sure picks were checked
+    a, b = np.array([0, 0, 4]), np.array([1, 2, 5])
+    assert _sure_picks(np.array([7.0, 5.5, 5.0]), (a, b), 3, 3.29, 0.8, [0, 2]) == [2]  # 5.5 within 1.6 of 7.0
+    assert _sure_picks(np.array([7.0, 5.3, 5.0]), (a, b), 3, 3.29, 0.8, [0, 2]) == [0, 2]
+    assert _sure_picks(np.array([7.0, 5.3, 4.0]), (a, b), 3, 3.29, 0.8, [0, 2]) == [0]  # 4.0 within 0.8 of 3.29
+    assert _sure_picks(np.array([7.0, 5.3, 6.0]), (a, b), 1, 3.29, 0.8, [0]) == []  # 6.0 may come first: cap 1
+    assert _sure_picks(np.array([7.0, 5.3, 5.0]), (a, b), 1, 3.29, 0.8, [0]) == [0]
+
+
+def _static_round_tests(rng, p, margin):
+    """w of every grid link that does not depend on the round (a scripted full fit), with 22 links far above the
+    critical value and 24 near it, no anchor holding more than 3 links above ``3.29 − margin`` (so none runs
+    out of links: every anchor keeps more than its 3 needed), and a loose reading of them within ``margin``."""
+    w = -np.abs(rng.normal(0.0, 1.0, p.n_meas))
+    count = np.zeros(p.n_anchors, int)
+    chosen = []
+    for k in rng.permutation(p.n_meas):
+        ends = [int(p.meas_a[k]), int(p.meas_b[k])]
+        if len(chosen) < 46 and all(count[e] < 3 for e in ends):
+            chosen.append(k)
+            count[ends] += 1
+    chosen = np.array(chosen)
+    w[chosen[:22]] = -rng.uniform(5.0, 60.0, 22)
+    w[chosen[22:]] = -rng.uniform(3.29 - margin, 3.29 + margin, chosen.size - 22)
+    return w, w + rng.uniform(-0.95 * margin, 0.95 * margin, w.size)
+
+
+def test_deferred_rounds_exclude_what_full_rounds_exclude_where_the_tests_do_not_move(monkeypatch):
+    """exclude_links deferring an open round's undecided links (issue 27, eighth session) against the same loop with
+    every round on the full fit: where each link's w stays the same from round to round (scripted) and no anchor
+    runs out of links, Baarda's iteration ends with exactly the links the full fit flags, whatever the order — so
+    deferral cannot change them. The same links on 6 draws, and fewer full fits than with every open round climbing
+    (the seventh session's loop), which the gate (:data:`qc.DEFER_MIN_NEAR`) restores to
+    the call."""
+    from distnav.algorithms.ranging import qc
+
+    p, rng, margin = _grid(), np.random.default_rng(8), 0.8
+    for _ in range(6):
+        w, coarse_w = _static_round_tests(rng, p, margin)
+        fine_w = w + rng.uniform(-0.95 * margin / 4, 0.95 * margin / 4, w.size)
+        alone = set(exclude_links(p, _Scripted(p, w), per_round=4)[2].removed)
+        assert alone == set(np.flatnonzero(np.abs(w) > 3.29).tolist())
+        calls = {}
+        for defer, min_near, stays in ((True, 3, False), (True, 3, True), (False, 3, True), (True, 10**6, True)):
+            monkeypatch.setattr(qc, "DEFER_OPEN", defer)
+            monkeypatch.setattr(qc, "DEFER_MIN_NEAR", min_near)
+            monkeypatch.setattr(qc, "DEFER_STAYS", stays)
+            full, coarse, fine = _Scripted(p, w), _Scripted(p, coarse_w), _Scripted(p, fine_w)
+            ladder = [(coarse, margin), (fine, margin / 4)]  # a 1 cm and a 3 mm rung, as the workflow's
+            opening = _Scripted(p, coarse_w)(p)  # the loop opens on a loose fit of every link, as the workflow's
+            removed = exclude_links(p, full, per_round=4, loose=ladder, opening=opening)[2].removed
+            assert set(removed) == alone
+            calls[defer, min_near, stays] = (full.calls, coarse.calls, fine.calls, removed)
+        assert max(calls[True, 3, False][0], calls[True, 3, True][0]) < calls[False, 3, True][0]
+        assert calls[True, 10**6, True] == calls[False, 3, True]  # gated off: the seventh session's, call for call
