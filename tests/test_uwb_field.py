@@ -382,3 +382,29 @@ def test_a_hall_whose_exclusion_loop_gets_no_link_tests_reports_every_anchor_wea
     assert off.sum() >= 10 and not sol.excluded.any()
     assert "no link tests" in sol.message and sol.status == "weakly_determined"
     assert set(sol.weak) == {sub.ids[i] for i in np.flatnonzero(sub.estimated)}
+
+
+def test_the_per_anchor_checks_resolve_opens_on_its_first_rung(monkeypatch):
+    """A PLANT_HARD hall ([34, 0], corner) whose per-anchor check chooses other links (its re-solve fits all the
+    ranges worse and is not kept): the re-solve opens with the exclusion loop's 1 cm rung
+    (``field_steps.REPAIR_OPENS_LOOSE``, issue 27 item 47) from the current solution (``REPAIR_STARTS_MOVED``
+    False, item 50) instead of a fit at the solver's tolerances from the changed anchors' own fits (the behaviour
+    before): the same links excluded and status, positions within 0.3 mm, fewer bytes in the exclusions phase
+    (the loop and the check)."""
+    import distnav.models.uwb.field as field
+    from distnav.experiments.uwb_field import hall_problem
+    from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+    from distnav.models.uwb.hall import PLANT_HARD, simulate_hall
+
+    h = simulate_hall(np.random.default_rng([34, 0]), None, **PLANT_HARD, known="corner")
+    sub, geo = prepare(hall_problem(h)[0])
+    got = {}
+    for opens in (True, False):
+        monkeypatch.setattr(field, "REPAIR_OPENS_LOOSE", opens)
+        monkeypatch.setattr(field, "REPAIR_STARTS_MOVED", not opens)
+        got[opens] = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    now, before = got[True], got[False]
+    assert "per-anchor check: its re-solve" in before.message  # the check chose other links and re-solved
+    assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 3e-4
+    assert now.comm_phases["exclusions"]["bytes"] < 0.9 * before.comm_phases["exclusions"]["bytes"]

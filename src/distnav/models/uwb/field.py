@@ -60,6 +60,8 @@ from distnav.models.uwb.field_steps import (
     POLISH_BAND,
     POLISH_RATIO,
     REFERENCE_BAND,
+    REPAIR_OPENS_LOOSE,
+    REPAIR_STARTS_MOVED,
     START_TOLERANCES,
     all_links_cost,
     choose_start,
@@ -303,7 +305,9 @@ def _repair(run: FieldRun, fit: FieldFit) -> bool:
     (:func:`~distnav.models.uwb.field_run.no_worse`). False when there is nothing more to do. Where the loop ended
     on an early-stopped re-fit (``field_fits.LOOP_ENDS_LOOSE``) the anchors choose at its solution: their
     thresholds (an RMS of 0.15 m, a factor 2) are far from a 1 cm step (on PLANT_HARD ``[34, 0..10]``, 19 checks:
-    the same choice as at the completed fit)."""
+    the same choice as at the completed fit). Its re-solve opens with the loop's first early-stopped rung from the
+    current solution (``field_steps.REPAIR_OPENS_LOOSE``, ``REPAIR_STARTS_MOVED``; issue 27 items 47 and 50): the
+    re-solve's tests only choose links, with that rung's margin, as the loop's re-fits do."""
     problem, opts = run.problem, run.opts
     repaired, notes, moved = repair_exclusions(
         problem, np.asarray(fit.res.estimates, float), fit.excluded, fit.flagged, one_sided=opts.one_sided
@@ -312,10 +316,14 @@ def _repair(run: FieldRun, fit: FieldFit) -> bool:
         return False
     kept_idx = np.flatnonzero(~repaired)
     seed = np.asarray(fit.res.estimates, float).copy()
-    for k, at in moved.items():  # each changed anchor starts where its own links put it
+    for k, at in moved.items() if REPAIR_STARTS_MOVED else ():  # item 50: from the current solution
         seed[k] = at
     run.starts.append(seed)
-    again = exclude_worst(subset_measurements(problem, ~repaired), run.fit, opts, run.loose, None, not ends_loose(run))
+    sub = subset_measurements(problem, ~repaired)
+    opening = run.loose[0][0](sub) if REPAIR_OPENS_LOOSE and run.loose else None  # item 47: the first rung
+    if opening is not None and (opening.tests is None or not opening.usable):
+        opening = None  # no tests to decide on: the loop opens with a full fit, as before
+    again = exclude_worst(sub, run.fit, opts, run.loose, opening, not ends_loose(run))
     if again is None:
         run.note += "; per-anchor check: its re-fit gave no link tests, kept the first choice"
         return False

@@ -55,6 +55,14 @@ REFERENCE_BAND = 1.25
 #: that end continued to the solver's tolerances (``field_run.complete``)
 POLISH_BAND = 1.002
 POLISH_RATIO = 1.01  # 24 halls: ≤ 1.004 where the polish helped; 1.05 and 1.44 where it pulled a weak anchor back
+#: the per-anchor check's re-solve opens its exclusion loop with an early-stopped re-fit of the changed links (the
+#: loop's first rung, its choice taken where decided with that rung's margin) instead of a fit at the solver's
+#: tolerances (issue 27, eighth session, docs/economy_uwb.md item 47); False: a full fit first, as before
+REPAIR_OPENS_LOOSE = True
+#: the check's re-solve starts from the current solution, the changed anchors where they are (issue 27, eighth session,
+#: item 50); True: each changed anchor starts where its own chosen links put it (``local.repair_exclusions``'s
+#: positions), as before — 100 PLANT_HARD halls: the same links and status either way, 2.2 % fewer bytes from here
+REPAIR_STARTS_MOVED = False
 
 
 def prepare(
