@@ -191,15 +191,20 @@ def _hall_rows() -> list[dict[str, Any]]:
 _SENT: list[np.ndarray] = []
 _FITS: list[tuple[np.ndarray, float]] = []  # every distributed fit's bytes per anchor and reduced bytes (section 3)
 _SIGMA: list[np.ndarray] = []  # the gathered or sub-network σ's bytes per anchor (section 3)
+_TREES: list[tuple[np.ndarray, float]] = []  # every LM phase's reduction bytes and the anchors of its tree
 
 
 def _per_anchor_bytes(sub: Any, sol: Any) -> np.ndarray:
     """Bytes each anchor sent over the whole workflow (the exchanges' per-node counters, summed by
-    :func:`_counting`); the central σ's reductions are spread evenly (they are spanning-tree sums)."""
+    :func:`_counting`); each LM phase's reductions spread evenly over the anchors of its tree (those with a free
+    parameter where the known ones sit out, ``refine.SIT_OUT``), the central σ's over all (spanning-tree sums)."""
     sent = np.sum(_SENT, axis=0) if _SENT else np.zeros(sub.n_anchors)
+    for tree, reduced in _TREES:
+        sent = sent + np.where(tree, reduced / max(int(tree.sum()), 1), 0.0)
     _SENT.clear()
     _FITS.clear()
     _SIGMA.clear()
+    _TREES.clear()
     extra = sol.bytes - float(np.sum(sent))
     return np.asarray(sent + extra / sub.n_anchors)
 
@@ -216,6 +221,14 @@ def _counting() -> None:
             _SENT.append(np.asarray(r.comm.bytes_sent, float))
             reduced = float((r.settings.get("refine") or {}).get("reduction_bytes", 0))
             _FITS.append((np.asarray(r.comm.bytes_sent, float), reduced))
+            tree_nodes = int((r.settings.get("refine") or {}).get("tree_nodes", 0))
+            tree = (
+                np.any(kw.get("problem", args[0] if args else None).free, axis=1)
+                if tree_nodes
+                else np.ones(r.comm.bytes_sent.size, bool)
+            )
+            assert not tree_nodes or int(tree.sum()) == tree_nodes  # the plan's tree: the anchors with a free one
+            _TREES.append((tree, reduced))
         return r
 
     def counted_central(*args: Any, **kw: Any) -> Any:
@@ -398,6 +411,7 @@ def _solve_row(n: int) -> dict[str, Any]:
     _SENT.clear()
     _FITS.clear()
     _SIGMA.clear()
+    _TREES.clear()
     t0 = time.process_time()
     sigma = "gathered" if n <= GATHERED_SIGMA_MAX else "subnetwork"  # a dense σ of 2n unknowns up to there
     opts = FieldOptions(solver="N-CLM", distributed_precision=sigma, reliability_limit_m=0.0)
@@ -413,6 +427,7 @@ def _solve_row(n: int) -> dict[str, Any]:
     _SENT.clear()
     _FITS.clear()
     _SIGMA.clear()
+    _TREES.clear()
     own = np.bincount(p.links.min(axis=1), minlength=p.n_anchors) * RECORD_BYTES
     g = gather_cost(graph, own)
     phases = sol.comm_phases

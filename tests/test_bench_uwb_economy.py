@@ -65,3 +65,17 @@ def test_capped_tree_is_a_spanning_tree_whose_anchors_send_at_most_three_message
         assert sends.sum() == 2 * (n - 1)
         assert sends.max() < bench._tree_sends(g, "balanced").max()
     assert sends.max() <= 3  # the geometric graph: 24 outer hub anchors on 12 inner ones force 4 above
+
+
+def test_per_anchor_bytes_spread_each_lm_phase_s_reductions_over_its_tree():
+    """``_per_anchor_bytes`` (review of item 37, finding 5): an LM phase's reductions (30 B) go to the anchors of its
+    reduction tree (the 3 that take part: 10 B each), the rest of the total beyond the counted messages (8 B: a
+    central σ's reductions) to all 4 — by hand: 12, 22, 22, 22 B (spread over all 4 they read 19.5 B each)."""
+    from types import SimpleNamespace
+
+    bench = _load("bench_uwb_economy")
+    bench._SENT.append(np.full(4, 10.0))
+    bench._TREES.append((np.array([False, True, True, True]), 30.0))
+    per = bench._per_anchor_bytes(SimpleNamespace(n_anchors=4), SimpleNamespace(bytes=40 + 30 + 8))
+    assert per.tolist() == [12.0, 22.0, 22.0, 22.0]
+    assert not bench._TREES and not bench._SENT

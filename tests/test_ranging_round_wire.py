@@ -8,7 +8,7 @@ import pytest
 
 from distnav.algorithms.ranging import refine as refine_mod
 from distnav.algorithms.ranging import wire
-from distnav.algorithms.ranging.inner import Links
+from distnav.algorithms.ranging.inner import Links, sit_out_plan
 from distnav.algorithms.ranging.refine import refine
 from distnav.algorithms.ranging.wire import pack_steps, unpack_steps
 from distnav.exchange import make_exchange
@@ -42,7 +42,8 @@ def hall():
 @pytest.fixture(autouse=True)
 def _every_anchor_takes_part(monkeypatch):
     """These recounts assume a message on every edge from an anchor with a free parameter: the anchors without one
-    take part in the phase here (``refine.SIT_OUT`` off; issue 27 item 37 is tested in test_ranging_wire.py)."""
+    take part in the phase here (``refine.SIT_OUT`` off; issue 27 item 37 is tested in test_ranging_sit_out.py, and
+    its message sizes recounted in ``test_with_the_known_anchors_sitting_out_the_steps_recount``)."""
     monkeypatch.setattr(refine_mod, "SIT_OUT", False)
 
 
@@ -88,6 +89,19 @@ def _refined(p, **options):
     return ref, ex
 
 
+def _record_steps(monkeypatch):
+    """Every step ``wire.pack_steps`` packs from now on, with the exponents it was packed on (a list filled in)."""
+    sent: list[tuple[np.ndarray, np.ndarray]] = []
+    pack = wire.pack_steps
+
+    def recorded(rows, held):
+        sent.append((np.array(rows), np.array(held)))
+        return pack(rows, held)
+
+    monkeypatch.setattr(wire, "pack_steps", recorded)
+    return sent
+
+
 def _same(a, b):
     return (
         np.array_equal(a.own_m, b.own_m)
@@ -104,14 +118,7 @@ def test_lm_phase_with_the_rounds_economy_is_the_same_solve_in_the_bytes_recount
     edge of its sender), the reductions by the offset's start mean (8 B: every copy is 0, ``offset_start_m=0``),
     the first evaluation's largest move and the totals the root decides on (``ROOT_DECIDES``)."""
     p = subset_measurements(hall[0], ~hall[2])
-    sent: list[tuple[np.ndarray, np.ndarray]] = []
-    pack = wire.pack_steps
-
-    def recorded(rows, held):
-        sent.append((np.array(rows), np.array(held)))
-        return pack(rows, held)
-
-    monkeypatch.setattr(wire, "pack_steps", recorded)
+    sent = _record_steps(monkeypatch)
     for mod, name in SWITCHES:
         monkeypatch.setattr(mod, name, False)
     off, ex_off = _refined(p, offset_start_m=0.0)
@@ -139,6 +146,35 @@ def test_lm_phase_with_the_rounds_economy_is_the_same_solve_in_the_bytes_recount
     assert wire.reductions_cost(p.n_anchors, off.reduced)[1] - wire.reductions_cost(p.n_anchors, on.reduced)[1] == (
         saved_tree
     )
+
+
+def test_with_the_known_anchors_sitting_out_the_steps_recount(hall, monkeypatch):
+    """The shipped configuration (``refine.SIT_OUT`` on, the plan applies): the held steps (``wire.STEP_HELD``) on
+    and off give the same solve bit for bit, and the bytes differ by exactly what the steps' sizes recount from the
+    rows sent, each on the edges from its (talking) sender to the anchors that listen (``Wire(listens=)``) — not on
+    every edge of the sender (review of item 37, finding 8); no byte reaches a known anchor."""
+    monkeypatch.setattr(refine_mod, "SIT_OUT", True)
+    p = subset_measurements(hall[0], ~hall[2])
+    listens = p.free.any(axis=1)
+    assert sit_out_plan(p, np.asarray(p.free)) is not None and not listens.all()
+    monkeypatch.setattr(wire, "STEP_HELD", False)
+    off, ex_off = _refined(p, offset_start_m=0.0)
+    monkeypatch.setattr(wire, "STEP_HELD", True)
+    sent = _record_steps(monkeypatch)
+    on, ex_on = _refined(p, offset_start_m=0.0)
+    assert _same(on, off) and on.status == "converged" and on.reduced.tree_nodes == int(listens.sum())
+    a, b = p.links[:, 0], p.links[:, 1]
+    to_listeners = (np.bincount(a, listens[b], p.n_anchors) + np.bincount(b, listens[a], p.n_anchors)) * listens
+    every_edge = np.bincount(np.r_[a, b], minlength=p.n_anchors) * listens
+    saved = saved_every = 0
+    for rows, held in sent:
+        size, _ = _expected_size(rows, held)
+        saved += int(np.sum((4 * rows.shape[1] - size) * to_listeners))
+        saved_every += int(np.sum((4 * rows.shape[1] - size) * every_edge))
+    assert len(sent) == on.rounds and 0 < saved < saved_every  # the mask matters here
+    assert ex_off.comm_totals().bytes - ex_on.comm_totals().bytes == saved
+    for ex in (ex_off, ex_on):
+        assert np.all(ex.comm_totals().bytes_received[~listens] == 0)
 
 
 def test_an_offset_start_that_is_not_every_copy_is_reduced_as_before(hall, monkeypatch):

@@ -12,7 +12,9 @@ from distnav.algorithms.ranging import refine as refine_mod
 from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.inner import sit_out_plan
 from distnav.algorithms.ranging.refine import refine
+from distnav.errors import ModelError
 from distnav.exchange import make_exchange
+from distnav.exchange.faults import FaultSchedule
 from distnav.experiments.uwb_field import hall_problem
 from distnav.models.uwb.field import prepare
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, simulate_hall
@@ -119,7 +121,8 @@ def test_without_a_plan_a_warm_start_is_sent_to_the_anchors_that_may_have_sat_ou
     """A warm fit whose known anchors cannot sit out (anchor 5 reaches the others only through known anchors): its
     first rows are held by the receivers of the last fit (``held_m``, ``field_fits.CARRY_HELD``), but a known anchor
     may have sat that fit out and holds none (``inner.held_by_all``): every anchor that ranges with a known one sends
-    its first row (16 B on each of its 8 links here), the same solve bit for bit as without ``SIT_OUT``."""
+    its first row (16 B on each of its 8 links here), and each known anchor receives the common offset and the
+    damping (16 B, ``inner.hand_over``, review finding 2): the same solve bit for bit as without ``SIT_OUT``."""
     links = [(0, 1), (1, 2), (0, 3), (1, 3), (1, 4), (0, 4), (3, 4), (2, 5), (1, 5)]
     p = _small(links)
     assert sit_out_plan(p, _free(p)) is None
@@ -138,4 +141,104 @@ def test_without_a_plan_a_warm_start_is_sent_to_the_anchors_that_may_have_sat_ou
         out[on] = ref, ex.comm_totals().bytes
     (off, b_off), (on, b_on) = out[False], out[True]
     assert np.array_equal(on.own_m, off.own_m) and on.objective == off.objective and on.rounds == off.rounds
-    assert b_on - b_off == 8 * 16
+    assert b_on - b_off == 8 * 16 + 3 * 16
+
+
+def _six(links):
+    p = _small(links)
+    rng = np.random.default_rng(3)
+    start = np.array(p.positions_m, float)
+    start[3:] += rng.normal(0, 0.05, (3, 2))
+    return p, start
+
+
+def _run(p, start, offset_m, faults=None, **kw):
+    ex = make_exchange(Graph.from_links(p.n_anchors, p.links), faults=faults)
+    sigma = np.full(p.n_meas, 0.1)
+    base = {"ftol": 1e-6, "xtol_m": 1e-4, "offset_start_m": 0.0, **kw}
+    ref = refine(p, ex, start, offset_m, sigma=sigma, scale=0.3 / sigma, **FIT, **base)
+    return ref, ex.comm_totals()
+
+
+def test_a_lost_record_is_an_error(monkeypatch):
+    """Review finding 1 (its s3 case): the known anchors 0–2 silent from round 0, so the records of the samples
+    0–1 and 1–2 never reach their delegate 3 — a ModelError naming the lost record, as ``Wire`` raises for a lost
+    message (before the fix the delegate used them and the phase converged)."""
+    monkeypatch.setattr(refine_mod, "SIT_OUT", True)
+    p, start = _six([(0, 1), (1, 2), (0, 3), (1, 3), (1, 4), (2, 5), (3, 4), (4, 5), (0, 4)])
+    silent = FaultSchedule(silent_nodes=((0, 0), (1, 0), (2, 0)))
+    with pytest.raises(ModelError, match="record of the sample A0-A1 .delegated to A3. was lost"):
+        _run(p, start, np.zeros(p.n_anchors), faults=silent)
+    ref, _ = _run(p, start, np.zeros(p.n_anchors))  # without the faults: the plan applies and converges
+    assert ref.status == "converged"
+
+
+def test_differing_copies_start_from_their_network_mean(monkeypatch):
+    """Review finding 4 (s2): copies of the common offset other than ``offset_start_m``: the start is the mean of
+    every anchor's copy, the known anchors' too (the plan does not apply then), as without ``SIT_OUT`` — before the
+    fix the mean of the free anchors' copies only (0.50 instead of 0.35 here)."""
+    p, start = _six([(0, 1), (1, 2), (0, 3), (1, 3), (1, 4), (2, 5), (3, 4), (4, 5), (0, 4)])
+    copies = np.linspace(0.0, 0.7, p.n_anchors)
+    out = {}
+    for on in (False, True):
+        monkeypatch.setattr(refine_mod, "SIT_OUT", on)
+        out[on] = _run(p, start, copies, max_rounds=0)[0]
+    assert out[True].offset_m[0] == out[False].offset_m[0] == pytest.approx(np.mean(copies), abs=1e-15)
+    assert out[True].objective == out[False].objective
+
+
+def test_no_plan_when_known_coordinates_are_sent(monkeypatch):
+    """Review finding 6 (s4): with ``wire.KNOWN_FROM_PROBLEM`` False the first broadcast sends every anchor's row,
+    the known anchors' included: no plan (the tree spans every anchor), the bytes of the phase without ``SIT_OUT``
+    (before the fix the known anchors received that broadcast and the tree left them out)."""
+    p, start = _six([(0, 1), (1, 2), (0, 3), (1, 3), (1, 4), (2, 5), (3, 4), (4, 5), (0, 4)])
+    monkeypatch.setattr(wire, "KNOWN_FROM_PROBLEM", False)
+    out = {}
+    for on in (False, True):
+        monkeypatch.setattr(refine_mod, "SIT_OUT", on)
+        out[on] = _run(p, start, np.zeros(p.n_anchors))
+    assert out[True][0].reduced.tree_nodes == 0
+    assert np.array_equal(out[True][1].bytes_received, out[False][1].bytes_received)
+    assert np.array_equal(out[True][0].own_m, out[False][0].own_m)
+
+
+def test_a_warm_fit_without_a_plan_gives_the_known_anchors_the_start(monkeypatch):
+    """Review finding 2: a known anchor that sat the last fit out holds no copy of the common offset (its copy here:
+    99 m, not the fit's start). A warm fit where the plan does not apply hands it the start and the damping
+    (``inner.hand_over``, 16 B to each of the 3 known anchors): the same solve, bit for bit, as where every copy is
+    the start (before the fix its stale copy made the start the network mean, 49.5 m)."""
+    monkeypatch.setattr(refine_mod, "SIT_OUT", True)
+    p, start = _six([(0, 1), (1, 2), (0, 3), (1, 3), (1, 4), (0, 4), (3, 4), (2, 5), (1, 5)])
+    assert sit_out_plan(p, _free(p)) is None
+    stale = np.zeros(p.n_anchors)
+    stale[:3] = 99.0
+    got, c_got = _run(p, start, stale, held_m=start)
+    want, c_want = _run(p, start, np.zeros(p.n_anchors), held_m=start)
+    assert np.array_equal(got.own_m, want.own_m) and got.offset_m[0] == want.offset_m[0] == got.offset_m[-1]
+    assert np.array_equal(c_got.bytes_received[:3], c_want.bytes_received[:3]) and c_got.bytes == c_want.bytes
+    monkeypatch.setattr(refine_mod, "SIT_OUT", False)  # 16 B hand-over + first rows (inner.held_by_all)
+    base, c_base = _run(p, start, np.zeros(p.n_anchors), held_m=start)
+    assert np.array_equal(base.own_m, want.own_m)
+    assert c_want.bytes_received[:3].tolist() == (c_base.bytes_received[:3] + 16 + 16 * np.array([2, 3, 1])).tolist()
+
+
+def test_local_test_scale_counts_the_known_anchors_final_rows(corner, monkeypatch):
+    """Review finding 3: the local QC tests each link at its lower-indexed anchor, often a known one that sat the LM
+    phase out; with ``test_scale="local"`` its own scale needs its neighbours' final coordinates and the common
+    offset, now one counted round (``refine.rows_for_local_tests``): (dim + 1) · 8 B on each link from an anchor that
+    took part to a known one, nothing else changed (the same w, bit for bit); none with the robust scale."""
+    from distnav.algorithms.ranging.csg import solve_nclm
+
+    monkeypatch.setattr(refine_mod, "SIT_OUT", True)
+    known = ~np.any(corner.free, axis=1)
+    a, b = corner.meas_a, corner.meas_b
+    pairs = np.unique(np.sort(np.c_[a, b], axis=1), axis=0)
+    to_known = int(np.sum(known[pairs[:, 0]] != known[pairs[:, 1]]))
+    kw = {"objective": "metres", "sigma_m": 0.1, "range_offsets": "common", "quality": True, "iterations": 0}
+    got = {s: solve_nclm(corner, test_scale=s, **kw) for s in ("local", "robust")}
+    assert got["local"].settings["refine"]["tree_nodes"] == int((~known).sum())
+    extra = got["local"].comm.bytes - got["robust"].comm.bytes
+    assert extra == to_known * (corner.dim + 1) * 8 and to_known > 0
+    assert np.array_equal(got["local"].estimates, got["robust"].estimates)
+    assert int(np.sum(got["local"].comm.bytes_received[known])) == extra
+    assert np.any(np.isfinite(got["local"].tests.w))

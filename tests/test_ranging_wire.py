@@ -13,7 +13,7 @@ import pytest
 from distnav.algorithms.ranging import wire
 from distnav.algorithms.ranging.covariance import ECONOMY_CG_RTOL, ECONOMY_WIRE_DTYPE, central_precision
 from distnav.algorithms.ranging.csg import solve
-from distnav.algorithms.ranging.inner import CGOptions
+from distnav.algorithms.ranging.inner import CGOptions, sit_out_plan
 from distnav.algorithms.ranging.lm import solve_lm
 from distnav.algorithms.ranging.neighbourhoods import half_measurements
 from distnav.algorithms.ranging.refine import (
@@ -252,11 +252,12 @@ def test_float16_directions_only_up_to_half_max_anchors(monkeypatch):
     assert wire.cg_wire_dtype(28) == np.float64 and wire.cg_wire_dtype(10**4) == np.float64
 
 
-def _system(p, per, sigma_on_wire, dtype=np.float64):
+def _system(p, per, sigma_on_wire, dtype=np.float64, sit_out=None):
     """The LM phase's normal system on the hall at its start (random IRLS weights and sample σ), the exchange, and
-    the dense ``JᵀWJ`` over every parameter built here from the positions (the reference)."""
+    the dense ``JᵀWJ`` over every parameter built here from the positions (the reference); ``sit_out``: the
+    known anchors sit out (``inner.SitOut``, no common offset here: the coordinates' rows are the same)."""
     ex = _exchange(p)
-    links = Links(p, ex, per_anchor_offsets=per)
+    links = Links(p, ex, per_anchor_offsets=per, sit_out=sit_out, known_from_problem=sit_out is not None)
     rng = np.random.default_rng(11)
     P, dim = p.dim + (1 if per else 0), p.dim
     x = np.zeros((p.n_anchors, P))
@@ -286,6 +287,7 @@ def _system(p, per, sigma_on_wire, dtype=np.float64):
         False,
         dtype,
         sig if sigma_on_wire else None,
+        omega=None if sit_out is None else np.where(sit_out.listens[links.owner], 1.0, 0.0),
     )
     J = np.zeros((p.n_meas, p.n_anchors, P))
     d = x[p.meas_a, :dim] - x[p.meas_b, :dim]
@@ -351,6 +353,30 @@ def test_a_cg_runs_later_products_travel_on_the_held_exponent(hall, monkeypatch)
             c = ex.comm_totals().since(before)
             assert c.messages == talking and c.bytes == talking * (2 * k + (1 if exponent or not on else 0))
             assert np.max(np.abs(got - want)) <= 2.0**-10 * np.max(np.abs(want))
+
+
+def test_with_the_known_anchors_sitting_out_products_skip_them_and_recount(hall):
+    """The shipped configuration's products (``refine.SIT_OUT``: ``Links(sit_out=…)``, review of item 37, finding
+    8): a product goes only on the links from an anchor with a free parameter to another (none to a known anchor),
+    ``2k + 1`` bytes with the link's exponent, ``2k`` on the held one (``wire.HELD_EXPONENT``), and every free
+    anchor's row keeps float16's 11 bits against the dense ``JᵀWJ v``."""
+    k, p = 2, hall[0]
+    plan = sit_out_plan(p, np.asarray(p.free))
+    assert plan is not None
+    v = np.random.default_rng(5).normal(size=(p.n_anchors, p.dim, k))
+    a, b = p.links[:, 0], p.links[:, 1]
+    listening = int(np.sum(plan.listens[a] & plan.listens[b])) * 2
+    ex, links, system, N, free = _system(p, False, True, np.float16, sit_out=plan)
+    vf = v * free[:, :, None]
+    rows = plan.listens
+    for scale, exponent in ((1.0, True), (0.1, False), (1e-9, True)):
+        want = (N @ (scale * vf).reshape(-1, k)).reshape(vf.shape)
+        before = ex.comm_totals().snapshot()
+        got = system.matvec(scale * vf, np.zeros(k))[0]
+        c = ex.comm_totals().since(before)
+        assert c.messages == listening and c.bytes == listening * (2 * k + (1 if exponent else 0))
+        assert np.max(np.abs(got[rows] - want[rows])) <= 2.0**-10 * np.max(np.abs(want[rows]))
+    assert np.all(ex.comm_totals().bytes_received[~plan.listens] == 0)
 
 
 def _damped(p, dtype):

@@ -38,7 +38,7 @@ from distnav.algorithms.ranging.neighbourhoods import (
 from distnav.algorithms.ranging.objective import range_sigma
 from distnav.algorithms.ranging.options import CsgOptions, NclmOptions, NcsgOptions, NeighbourhoodOptions, RunOptions
 from distnav.algorithms.ranging.qc import distributed_quality
-from distnav.algorithms.ranging.refine import MU0, refine_state
+from distnav.algorithms.ranging.refine import MU0, refine_state, rows_for_local_tests
 from distnav.algorithms.ranging.stop import StopRule
 from distnav.algorithms.ranging.wire import comm_mark, comm_phases, reductions_cost
 from distnav.algorithms.result import SolverStatus, Trace
@@ -242,6 +242,8 @@ def _refine_phase(
             forcing=setup.o.refine_forcing,
             offset_start_m=_start_offset(setup.o, out.last),
         )
+        if setup.o.quality and setup.o.test_scale == "local":  # a known anchor's own scale (refine, SIT_OUT)
+            rows_for_local_tests(problem, ex, refined[1])
     except ModelError as err:  # e.g. a lost message: the refinement needs every link each round
         out.note(f"no distributed LM phase ({err})")
         return
@@ -261,6 +263,7 @@ def _refine_phase(
             "rounds": ref.rounds,
             "cg_iterations": ref.cg_iterations,
             "reductions": ref.reduced.count,
+            "tree_nodes": ref.reduced.tree_nodes,  # 0: every anchor (refine.SIT_OUT: the ones with a free parameter)
             **dict(zip(("reduction_messages", "reduction_bytes"), cost, strict=True)),
             "status": ref.status,
             "mu": ref.mu,

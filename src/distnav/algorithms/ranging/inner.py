@@ -167,7 +167,8 @@ class Delegated:
     """The samples between two anchors that sit the phase out (``inner.SitOut``) that this block's anchors evaluate
     as their delegates: both ends' coordinates are the problem's, so a sample's residual depends on the common offset
     only; each counts for both its halves. Their records reach the delegates once per phase: one message from the
-    end that ranges with the delegate, 16 B a sample (a range record, as the gather's)."""
+    end that ranges with the delegate, 16 B a sample (a range record, as the gather's); a lost record is an error
+    (a ModelError naming the sample's anchors), as a lost message of the phase is (``Wire``)."""
 
     def __init__(
         self,
@@ -185,17 +186,17 @@ class Delegated:
         s = plan.kk_samples[mine]
         self.at, self.nl, self.loss = local_of[plan.kk_delegate[mine]], ex.n_local, loss
         a, b = problem.meas_a[s], problem.meas_b[s]
-        self.dist = np.linalg.norm(problem.positions_m[a] - problem.positions_m[b], axis=1)
-        self.rng, self.sig, self.sc = problem.range_m[s], sigma[s], scale[s]
+        self.dist_m = np.linalg.norm(problem.positions_m[a] - problem.positions_m[b], axis=1)
+        self.range_m, self.sig, self.sc = problem.range_m[s], sigma[s], scale[s]
         self.common = common
         self.e = 1.0 / self.sig if self.common else np.zeros(s.size)
         self.w = np.zeros(s.size)
         if plan.kk_samples.size:  # the records, in one round every block takes part in
-            _send_records(problem.n_anchors, ex, plan.kk_sender * problem.n_anchors + plan.kk_delegate)
+            _send_records(problem, ex, plan)
 
     def terms(self, c: float) -> tuple[np.ndarray, np.ndarray]:
         """The samples' residuals at the common offset ``c`` and each delegate's share of the objective."""
-        r = (self.dist + (c if self.common else 0.0) - self.rng) / self.sig
+        r = (self.dist_m + (c if self.common else 0.0) - self.range_m) / self.sig
         return r, np.bincount(self.at, loss_terms(r, self.sc, self.loss)[1], minlength=self.nl)
 
     def row(self, r: np.ndarray) -> np.ndarray:
@@ -226,10 +227,11 @@ def held_by_all(problem: RangingData, held_m: np.ndarray, free: np.ndarray) -> n
     return out
 
 
-def _send_records(n: int, ex: Exchange, pairs: np.ndarray) -> None:
-    """One round: from each sender to its delegate (``pairs``: ``sender · n + delegate``, one per sample) the range
-    records it hands over, 16 B a sample (:class:`Delegated`)."""
-    keys, count = np.unique(pairs, return_counts=True)
+def _send_records(problem: RangingData, ex: Exchange, plan: SitOut) -> None:
+    """One round: from each sender to its delegate the range records it hands over, 16 B a sample
+    (:class:`Delegated`); a ModelError names a sample whose record a delegate of this block did not receive."""
+    n = problem.n_anchors
+    keys, count = np.unique(plan.kk_sender * n + plan.kk_delegate, return_counts=True)
 
     def lookup(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         at = np.minimum(np.searchsorted(keys, key), keys.size - 1)
@@ -241,7 +243,43 @@ def _send_records(n: int, ex: Exchange, pairs: np.ndarray) -> None:
     active[ex.out_edges] = hit_out
     active[ex.in_edges] = hit_in
     sizes = np.where(hit_out, 16 * n_out, 0).astype(np.int64)
-    ex.send(np.zeros((ex.out_edges.size, 1)), active=active, message_bytes=sizes)
+    box = ex.send(np.zeros((ex.out_edges.size, 1)), active=active, message_bytes=sizes)
+    lost = hit_in & ~np.asarray(box.delivered, bool)
+    if lost.any():
+        key = ex.in_src[lost][0] * n + ex.nodes[ex.in_dst[lost][0]]
+        s = plan.kk_samples[np.flatnonzero(plan.kk_sender * n + plan.kk_delegate == key)[0]]
+        a, b = problem.ids[problem.meas_a[s]], problem.ids[problem.meas_b[s]]
+        raise ModelError(
+            f"refinement: the record of the sample {a}-{b} (delegated to {problem.ids[key % n]}) was lost "
+            "(a delegate needs every record of the phase)"
+        )
+
+
+def hand_over(problem: RangingData, ex: Exchange, silent: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """One round: each anchor of ``silent`` receives its lowest-indexed neighbour's row of ``rows`` ``(n_local, k)``
+    (k floats, 8 B each; that neighbour not silent) — a warm fit's start after a fit it may have sat out
+    (``refine.SIT_OUT``): the common offset and the damping, which it does not hold. ``rows`` with the received
+    ones at this block's silent anchors; a lost message is a ModelError naming the anchor."""
+    n, vals = problem.n_anchors, np.asarray(rows, float)
+    a, b = np.asarray(problem.meas_a), np.asarray(problem.meas_b)
+    giver = np.full(n, n)
+    for s, t in ((a, b), (b, a)):  # the lowest-indexed neighbour of each silent anchor that is not silent
+        pick = silent[t] & ~silent[s]
+        np.minimum.at(giver, t[pick], s[pick])
+    to = silent & (giver < n)
+    out_hit = to[ex.out_dst] & (giver[ex.out_dst] == ex.nodes[ex.out_src])
+    in_hit = to[ex.nodes[ex.in_dst]] & (giver[ex.nodes[ex.in_dst]] == ex.in_src)
+    active = np.zeros(ex.n_edges, bool)
+    active[ex.out_edges] = out_hit
+    active[ex.in_edges] = in_hit
+    box = ex.send(vals[ex.out_src], active=active)
+    got = np.asarray(box.delivered, bool)
+    if np.any(in_hit & ~got):
+        anchor = ex.nodes[ex.in_dst[in_hit & ~got][0]]
+        raise ModelError(f"refinement: anchor {problem.ids[anchor]} did not receive the fit's start (lost)")
+    out = vals.copy()
+    out[ex.in_dst[in_hit]] = np.asarray(box.values)[in_hit]
+    return out
 
 
 class Links:

@@ -54,12 +54,14 @@ from distnav.algorithms.ranging.inner import (
     Links,
     NormalSystem,
     block_preconditioner,
+    hand_over,
     held_by_all,
     pcg,
     sit_out_plan,
 )
 from distnav.algorithms.ranging.losses import loss_terms
 from distnav.algorithms.ranging.neighbourhoods import IterationState, half_measurements
+from distnav.errors import ModelError
 from distnav.exchange import Exchange
 
 __all__ = [
@@ -169,7 +171,7 @@ class _Linearization:
 class _Refiner:
     """The fixed parts of one refinement (the block's links, weights, free parameters) and its steps."""
 
-    def __init__(self, problem: RangingData, ex: Exchange, o: RefineOptions) -> None:
+    def __init__(self, problem: RangingData, ex: Exchange, o: RefineOptions, offset_m: np.ndarray | None) -> None:
         self.o = o
         self.per, self.common = o.range_offsets == "per_anchor", o.range_offsets == "common"
         self.n, self.nl, self.dim = problem.n_anchors, ex.n_local, problem.dim
@@ -178,10 +180,18 @@ class _Refiner:
         every = np.ones((self.n, self.P), bool)
         every[:, :dim] = problem.free
         plan = None
-        if SIT_OUT and not wire.PLAIN and (not self.common or o.offset_start_m is not None and OFFSET_START_HELD):
-            plan = sit_out_plan(problem, every)  # with a common offset: its start held by every copy
-        held_m = o.held_m
-        if SIT_OUT and plan is None and held_m is not None:
+        if SIT_OUT and not wire.PLAIN and wire.KNOWN_FROM_PROBLEM:  # Wire sends no known coordinate: a plan may apply
+            plan = sit_out_plan(problem, every)
+        warm = SIT_OUT and o.held_m is not None  # a warm fit: the silent anchors may have sat the last one out
+        held_m, self.mu0, self.offset_m = o.held_m, o.mu0, offset_m
+        if plan is None and warm:
+            self.offset_m, self.mu0 = self._hand_over(problem, ex, every, offset_m)
+        self.start_held = self._start_held(ex, self.offset_m)
+        if self.common and not self.start_held and plan is not None:  # every copy in the start's mean (refine)
+            plan = None
+            if warm:
+                self.offset_m, self.mu0 = self._hand_over(problem, ex, every, offset_m)
+        if plan is None and held_m is not None and SIT_OUT:
             held_m = held_by_all(problem, held_m, every)
         self.links = links = Links(
             problem, ex, per_anchor_offsets=self.per, known_from_problem=True, held_m=held_m, sit_out=plan
@@ -207,6 +217,31 @@ class _Refiner:
             listens = plan.listens
             self.omega = np.where(listens[ex.nodes[self.owner]], np.where(listens[self.other], 1.0, 2.0), 0.0)
 
+    def _start_held(self, ex: Exchange, offset_m: np.ndarray | None) -> bool:
+        """Whether every copy of the common offset is the start the options give (:data:`OFFSET_START_HELD`: then
+        not reduced): a check (monitoring, no bytes)."""
+        held = self.o.offset_start_m
+        if not self.common or offset_m is None or held is None or not OFFSET_START_HELD or wire.PLAIN:
+            return False
+        differs = not np.all(np.asarray(offset_m, float) == held)
+        return bool(ex.allreduce(float(differs), "max") == 0)
+
+    def _hand_over(
+        self, problem: RangingData, ex: Exchange, every: np.ndarray, offset_m: np.ndarray | None
+    ) -> tuple[np.ndarray | None, float]:
+        """A warm fit where the plan does not apply: the anchors without a free parameter may have sat the last fit
+        out and hold neither the common offset (their copies) nor the damping: one message of both (8 B each) from
+        a neighbour (:func:`~distnav.algorithms.ranging.inner.hand_over`); their copies and μ as received."""
+        silent = ~np.any(every, axis=1)
+        if not silent.any():
+            return offset_m, self.o.mu0
+        common = self.common and offset_m is not None
+        rows = np.c_[np.full(self.nl, self.o.mu0), np.asarray(offset_m, float) if common else np.zeros((self.nl, 0))]
+        got = hand_over(problem, ex, silent, rows)
+        mine = silent[ex.nodes]
+        mu0 = float(got[mine, 0].max(initial=self.o.mu0))  # the same value everywhere (a check: the senders' μ)
+        return (got[:, 1].copy() if common else offset_m), mu0
+
     def start(self, own_m: np.ndarray, offset_m: np.ndarray | None) -> tuple[np.ndarray, float, int]:
         """The start ``(x, c)`` and CG's iteration limit (one reduction: the common offset's mean; the number of
         unknowns is the problem's structure, which every anchor holds: no message, issue 27 fifth session)."""
@@ -217,20 +252,12 @@ class _Refiner:
             assert offset_m is not None
             x[:, dim] = offset_m
         common = self.common and offset_m is not None
-        c, held = 0.0, self.o.offset_start_m
-        if common and held is not None and OFFSET_START_HELD and not wire.PLAIN:
-            differs = not np.all(np.asarray(offset_m, float) == held)  # a check (monitoring, no bytes): if any
-            if links.ex.allreduce(float(differs), "max") > 0:  # copy is not the one given, the mean is reduced
-                held = None
-            else:
-                c = float(np.sum(np.full(self.n, held))) / self.n  # the mean of n equal copies, as the reduction's
-        if common and (held is None or not OFFSET_START_HELD or wire.PLAIN):
-            plan = links.sit_out
-            if plan is None:
-                c = float(links.total(np.asarray(offset_m, float))) / self.n
-            else:  # the copies of the anchors that take part (the reduction tree's)
-                copies = np.where(plan.listens[links.ex.nodes], np.asarray(offset_m, float), 0.0)
-                c = float(links.total(copies)) / int(plan.listens.sum())
+        c = 0.0
+        if common and self.start_held:
+            held = float(self.o.offset_start_m or 0.0)
+            c = float(np.sum(np.full(self.n, held))) / self.n  # the mean of n equal copies, as the reduction's
+        elif common:  # their network mean (no plan here: every anchor's copy is in it)
+            c = float(links.total(np.asarray(offset_m, float))) / self.n
         n_unknowns = self.n_free + (1 if self.common else 0)
         return x, c, min(n_unknowns + 10, 2000)
 
@@ -415,10 +442,10 @@ def refine(
     as the solver's; ``offset_m``: the block's own offsets (``range_offsets="per_anchor"``) or its copies of the
     common one (their network mean is the start)."""
     o = resolve_options(RefineOptions, options, changes)
-    run = _Refiner(problem, ex, o)
-    x, c, cg_max = run.start(own_m, offset_m)
+    run = _Refiner(problem, ex, o, offset_m)
+    x, c, cg_max = run.start(own_m, run.offset_m)
     nb, F, r, _ = run.evaluate(x, c, np.zeros_like(x))
-    mu = o.mu0
+    mu = run.mu0
     status, rounds, cg_total = "max_iterations", 0, 0
     tail: list[float] = []  # the largest moves of the last accepted plain steps (EXTRAPOLATE)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -458,6 +485,37 @@ def refine(
             if status == "converged":
                 break
     return dataclasses.replace(run.result(x, c, nb, F, status, rounds, cg_total), mu=mu)
+
+
+def rows_for_local_tests(problem: RangingData, ex: Exchange, ref: Refinement) -> None:
+    """Where the anchors without a free parameter sat the phase out (``ref.reduced.tree_nodes``): one round in
+    which each of them receives from every neighbour that took part its final coordinates and, with a common
+    offset, that offset (8 B a value) — what such an anchor needs to test its links with its own scale
+    (``test_scale="local"``: the local QC tests each link at its lower-indexed anchor). Counted only: the values
+    are the halves :func:`refine` gives them, bit for bit (checked); a lost one is a ModelError naming the anchor."""
+    if not ref.reduced.tree_nodes:
+        return
+    listens = np.any(problem.free, axis=1)
+    rows = ref.own_m if ref.offset_m is None else np.c_[ref.own_m, ref.offset_m]  # a plan: no per-anchor offsets
+    out_on = listens[ex.nodes[ex.out_src]] & ~listens[ex.out_dst]
+    in_on = listens[ex.in_src] & ~listens[ex.nodes[ex.in_dst]]
+    active = np.zeros(ex.n_edges, bool)
+    active[ex.out_edges] = out_on
+    active[ex.in_edges] = in_on
+    box = ex.send(np.asarray(rows, float)[ex.out_src], active=active)
+    lost = in_on & ~np.asarray(box.delivered, bool)
+    if lost.any():
+        anchor = problem.ids[ex.nodes[ex.in_dst[lost][0]]]
+        raise ModelError(f"refinement: anchor {anchor} did not receive its neighbours' final rows (lost)")
+    owner, other, _, _ = half_measurements(problem, ex)
+    values = np.asarray(box.values)
+    got = {(int(ex.in_dst[e]), int(ex.in_src[e])): values[e] for e in np.flatnonzero(in_on)}
+    for h in np.flatnonzero(~listens[ex.nodes[owner]] & listens[other]):
+        row = got[(int(owner[h]), int(other[h]))]
+        same = np.array_equal(row[: problem.dim], ref.half_other_m[h])
+        if ref.half_offset_m is not None:
+            same = same and row[problem.dim] == ref.half_offset_m[h]
+        assert same, "the halves refine() gives a known anchor are its neighbours' final rows"
 
 
 def _steady(tail: list[float], moved: float) -> bool:

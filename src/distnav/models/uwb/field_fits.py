@@ -300,7 +300,9 @@ def _carries(name: str, key: str, kw: dict[str, Any]) -> bool:
 
 def _carry(r: Any, carry: dict[str, Any], problem: RangingProblem) -> None:
     """What a distributed fit hands to the next warm one: its common offset and its LM phase's final damping —
-    values every anchor holds at the end (no message)."""
+    values every anchor that took part in its LM phase holds at the end (no message). The anchors without a free
+    parameter may have sat that phase out (``refine.SIT_OUT``) and hold neither: a warm fit where they take part
+    (the plan does not apply) sends them both first (``inner.hand_over``, 16 B each, counted)."""
     off = getattr(r, "offsets_m", None)
     if off is not None and np.size(off) == 1:
         carry["initial_offset_m"] = float(np.ravel(off)[0])
