@@ -262,7 +262,7 @@ def _seed(run: FieldRun) -> None:
         if FINE_RUNG is not None and run.loose:  # item 51: a 1 mm rung before the full fit
             fine = StopRule(refine_ftol=FINE_RUNG[0], refine_xtol_m=FINE_RUNG[1])
             fit_fine = make_fitter(run.opts, run.exchange, run.total, run.starts, carry=run.carry, stop=fine)
-            run.loose.append((fit_fine, fine_margin_w(opts.sigma_m)))
+            run.loose.append((fit_fine, fine_margin_w(FINE_RUNG, opts.sigma_m)))
     run.note += (
         f"; one-sided Cauchy loss (ranges read long), scale tightened to {tight:.3g} m"
         if tight < given.loss_scale_m

@@ -203,10 +203,10 @@ def make_fitter(
     return fit
 
 
-def fine_margin_w(sigma_m: float) -> float:
-    """The |w| margin of the :data:`FINE_RUNG` (as ``field_fits.refit_margin_w``: both ends of a link off by its step
-    tolerance)."""
-    return 0.0 if FINE_RUNG is None else 2.0 * FINE_RUNG[1] / (sigma_m * SCALE_FLOOR)
+def fine_margin_w(rung: tuple[float, float], sigma_m: float) -> float:
+    """The |w| margin of a rung ``(ftol, xtol_m)`` such as :data:`FINE_RUNG` (as ``field_fits.refit_margin_w``: both
+    ends of a link off by its step tolerance)."""
+    return 2.0 * rung[1] / (sigma_m * SCALE_FLOOR)
 
 
 def offset_bias_m(problem: RangingProblem, res: Any) -> FloatArray | float:
