@@ -408,3 +408,25 @@ def test_the_per_anchor_checks_resolve_opens_on_its_first_rung(monkeypatch):
     assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
     assert np.max(np.abs(now.positions_m - before.positions_m)) < 3e-4
     assert now.comm_phases["exclusions"]["bytes"] < 0.9 * before.comm_phases["exclusions"]["bytes"]
+
+
+def test_a_1_mm_rung_decides_before_the_full_fit(monkeypatch):
+    """A PLANT_HARD hall ([34, 1], middle) whose exclusion loop climbs to a full fit that ends at the LM phase's
+    round limit: with a 1 mm rung between the 3 mm rung and the full fit (``field_steps.FINE_RUNG``, issue 27 item
+    51; off by default) the loop decides there; against the rung off (``None``) the same links excluded and status,
+    positions within 0.1 mm (0.006 mm measured), fewer bytes in the exclusions phase."""
+    import distnav.models.uwb.field as field
+    from distnav.experiments.uwb_field import hall_problem
+    from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+    from distnav.models.uwb.hall import PLANT_HARD, simulate_hall
+
+    h = simulate_hall(np.random.default_rng([34, 1]), None, **PLANT_HARD, known="middle")
+    sub, geo = prepare(hall_problem(h)[0])
+    got = {}
+    for rung in ((1e-4, 1e-3), None):
+        monkeypatch.setattr(field, "FINE_RUNG", rung)
+        got[rung is not None] = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    now, before = got[True], got[False]
+    assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 1e-4
+    assert now.comm_phases["exclusions"]["bytes"] < 0.8 * before.comm_phases["exclusions"]["bytes"]

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from distnav.algorithms.ranging.stop import StopRule
 from distnav.algorithms.ranging.wire import comm_phases
 from distnav.errors import ModelError
 from distnav.models.uwb import field_fits
@@ -56,6 +57,7 @@ from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, 
 from distnav.models.uwb.field_run import FieldFit, FieldRun, complete, ends_loose, no_worse
 from distnav.models.uwb.field_steps import (
     DISAGREE_RATIO,
+    FINE_RUNG,
     MULTI_START_MAX_ANCHORS,
     POLISH_BAND,
     POLISH_RATIO,
@@ -66,6 +68,7 @@ from distnav.models.uwb.field_steps import (
     all_links_cost,
     choose_start,
     exclude_worst,
+    fine_margin_w,
     kept_tests,
     make_fitter,
     offset_bias_m,
@@ -256,6 +259,10 @@ def _seed(run: FieldRun) -> None:
             )
             for stage in field_fits.REFIT_STAGES  # read at run time (the benchmark's configurations)
         ]
+        if FINE_RUNG is not None and run.loose:  # item 51: a 1 mm rung before the full fit
+            fine = StopRule(refine_ftol=FINE_RUNG[0], refine_xtol_m=FINE_RUNG[1])
+            fit_fine = make_fitter(run.opts, run.exchange, run.total, run.starts, carry=run.carry, stop=fine)
+            run.loose.append((fit_fine, fine_margin_w(FINE_RUNG, opts.sigma_m)))
     run.note += (
         f"; one-sided Cauchy loss (ranges read long), scale tightened to {tight:.3g} m"
         if tight < given.loss_scale_m

@@ -15,7 +15,8 @@ import numpy as np
 from distnav._blas import single_threaded_blas
 from distnav.algorithms.ranging import csg
 from distnav.algorithms.ranging.neighbourhood_offsets import sample_bias
-from distnav.algorithms.ranging.qc import exclude_links
+from distnav.algorithms.ranging.qc import SCALE_FLOOR, exclude_links
+from distnav.algorithms.ranging.stop import StopRule
 from distnav.errors import ModelError
 from distnav.models.uwb.field_fits import solve_once, tighten_scale
 from distnav.models.uwb.field_options import FieldOptions, solver_kwargs, subset_measurements
@@ -63,6 +64,12 @@ REPAIR_OPENS_LOOSE = True
 #: item 50); True: each changed anchor starts where its own chosen links put it (``local.repair_exclusions``'s
 #: positions), as before — 100 PLANT_HARD halls: the same links and status either way, 2.2 % fewer bytes from here
 REPAIR_STARTS_MOVED = False
+#: (ftol, xtol_m) of a last early-stopped rung of the exclusion loop, after ``field_fits.REFIT_STAGES``' and before
+#: the fit at the solver's tolerances: a choice the 3 mm rung leaves open goes to a fit of that rung (margin
+#: :func:`fine_margin_w`) first (issue 27, eighth session, item 51). None (the default): straight to the full fit.
+#: ``(1e-4, 1e-3)``, a 1 mm rung: 100 PLANT_HARD 32.11 -> 31.11 MB, the same links and status, but the plant-like
+#: ``[78, 0]`` middle 227.1 -> 247.9 kB (docs/economy_uwb.md item 51: off, the pages' figures unchanged)
+FINE_RUNG: tuple[float, float] | None = None
 
 
 def prepare(
@@ -164,13 +171,15 @@ def make_fitter(
     last: list[FloatArray],
     stage: str | None = None,
     carry: dict[str, Any] | None = None,
+    stop: StopRule | None = None,
 ) -> Callable[[Any], Any]:
     """A fit by name of a (sub)problem from the last usable solution in ``last`` (appended to it), its messages
     added to ``comm``; ``stage``: a distributed solver's LM phase stops at that stage's tolerances
     (:data:`~distnav.models.uwb.field_fits.STAGE_TOLERANCES`); ``carry``: the common offset handed from fit to fit
-    (:func:`~distnav.models.uwb.field_fits.solve_once`)."""
+    (:func:`~distnav.models.uwb.field_fits.solve_once`); ``stop``: a distributed solver's own StopRule (no stage:
+    the :data:`FINE_RUNG`)."""
     key = opts.solver.upper()
-    kw = solver_kwargs(opts)
+    kw = solver_kwargs(opts) if stop is None else {**solver_kwargs(opts), "stop": stop}
     warm_refits = key == "LM" or opts.nlos_aware  # the distributed solvers' re-fits: graduated unless nlos_aware
 
     def fit(sub: Any) -> Any:
@@ -192,6 +201,12 @@ def make_fitter(
         return r
 
     return fit
+
+
+def fine_margin_w(rung: tuple[float, float], sigma_m: float) -> float:
+    """The |w| margin of a rung ``(ftol, xtol_m)`` such as :data:`FINE_RUNG` (as ``field_fits.refit_margin_w``: both
+    ends of a link off by its step tolerance)."""
+    return 2.0 * rung[1] / (sigma_m * SCALE_FLOOR)
 
 
 def offset_bias_m(problem: RangingProblem, res: Any) -> FloatArray | float:
