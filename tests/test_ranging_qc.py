@@ -242,13 +242,14 @@ def test_exclusion_rounds_take_links_of_different_anchors_together():
     one = _Scripted(p, w)
     _, _, t1 = exclude_links(p, one)
     assert list(t1.removed) == [pair[(0, 1)], pair[(0, 2)], pair[(4, 5)]] and one.calls == 4
-    many = _Scripted(p, w)
-    _, _, t2 = exclude_links(p, many, per_round=4)
-    # round 1: N0-N1 and N4-N5 (no common anchor); N0-N2 waits for the re-fit (it shares N0); round 2: N0-N2
-    assert list(t2.removed) == [pair[(0, 1)], pair[(4, 5)], pair[(0, 2)]] and many.calls == 3
-    capped = _Scripted(p, w)
-    _, _, t3 = exclude_links(p, capped, per_round=4, max_exclusions=1)
-    assert list(t3.removed) == [pair[(0, 1)]]
+    for per_round in (4, None):  # a cap above the round's links, and no cap
+        many = _Scripted(p, w)
+        _, _, t2 = exclude_links(p, many, per_round=per_round)
+        # round 1: N0-N1 and N4-N5 (no common anchor); N0-N2 waits for the re-fit (it shares N0); round 2: N0-N2
+        assert list(t2.removed) == [pair[(0, 1)], pair[(4, 5)], pair[(0, 2)]] and many.calls == 3
+        capped = _Scripted(p, w)
+        _, _, t3 = exclude_links(p, capped, per_round=per_round, max_exclusions=1)
+        assert list(t3.removed) == [pair[(0, 1)]]
     short = np.zeros(p.n_meas)
     short[pair[(4, 5)]] = +9.0  # measured short: never excluded one-sided, excluded two-sided
     assert exclude_links(p, _Scripted(p, short), one_sided=True)[2].removed == ()

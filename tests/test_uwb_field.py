@@ -391,7 +391,7 @@ def test_the_per_anchor_checks_resolve_opens_on_its_first_rung(monkeypatch):
     False, item 50) instead of a fit at the solver's tolerances from the changed anchors' own fits (the behaviour
     before): the same links excluded and status, positions within 0.3 mm, fewer bytes in the exclusions phase
     (the loop and the check)."""
-    import distnav.models.uwb.field as field
+    import distnav.models.uwb.field_steps as field_steps
     from distnav.experiments.uwb_field import hall_problem
     from distnav.models.uwb.field import FieldOptions, prepare, solve_field
     from distnav.models.uwb.hall import PLANT_HARD, simulate_hall
@@ -400,8 +400,8 @@ def test_the_per_anchor_checks_resolve_opens_on_its_first_rung(monkeypatch):
     sub, geo = prepare(hall_problem(h)[0])
     got = {}
     for opens in (True, False):
-        monkeypatch.setattr(field, "REPAIR_OPENS_LOOSE", opens)
-        monkeypatch.setattr(field, "REPAIR_STARTS_MOVED", not opens)
+        monkeypatch.setattr(field_steps, "REPAIR_OPENS_LOOSE", opens)
+        monkeypatch.setattr(field_steps, "REPAIR_STARTS_MOVED", not opens)
         got[opens] = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
     now, before = got[True], got[False]
     assert "per-anchor check: its re-solve" in before.message  # the check chose other links and re-solved
@@ -415,7 +415,7 @@ def test_a_1_mm_rung_decides_before_the_full_fit(monkeypatch):
     round limit: with a 1 mm rung between the 3 mm rung and the full fit (``field_steps.FINE_RUNG``, issue 27 item
     51; off by default) the loop decides there; against the rung off (``None``) the same links excluded and status,
     positions within 0.1 mm (0.006 mm measured), fewer bytes in the exclusions phase."""
-    import distnav.models.uwb.field as field
+    import distnav.models.uwb.field_steps as field_steps
     from distnav.experiments.uwb_field import hall_problem
     from distnav.models.uwb.field import FieldOptions, prepare, solve_field
     from distnav.models.uwb.hall import PLANT_HARD, simulate_hall
@@ -424,7 +424,7 @@ def test_a_1_mm_rung_decides_before_the_full_fit(monkeypatch):
     sub, geo = prepare(hall_problem(h)[0])
     got = {}
     for rung in ((1e-4, 1e-3), None):
-        monkeypatch.setattr(field, "FINE_RUNG", rung)
+        monkeypatch.setattr(field_steps, "FINE_RUNG", rung)
         got[rung is not None] = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
     now, before = got[True], got[False]
     assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status

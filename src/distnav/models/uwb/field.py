@@ -42,7 +42,7 @@ import numpy as np
 from distnav.algorithms.ranging.stop import StopRule
 from distnav.algorithms.ranging.wire import comm_phases
 from distnav.errors import ModelError
-from distnav.models.uwb import field_fits
+from distnav.models.uwb import field_fits, field_steps
 from distnav.models.uwb.communication import RANGE_RECORD_BYTES, gather_cost
 from distnav.models.uwb.cuts import cut_weak
 from distnav.models.uwb.field_fits import TIGHT_SCALE_FLOOR_M, refit_margin_w, solve_once, tighten_scale
@@ -57,13 +57,10 @@ from distnav.models.uwb.field_precision import PRECISION_HOPS, PRECISION_MODES, 
 from distnav.models.uwb.field_run import FieldFit, FieldRun, complete, ends_loose, no_worse
 from distnav.models.uwb.field_steps import (
     DISAGREE_RATIO,
-    FINE_RUNG,
     MULTI_START_MAX_ANCHORS,
     POLISH_BAND,
     POLISH_RATIO,
     REFERENCE_BAND,
-    REPAIR_OPENS_LOOSE,
-    REPAIR_STARTS_MOVED,
     START_TOLERANCES,
     all_links_cost,
     choose_start,
@@ -259,10 +256,11 @@ def _seed(run: FieldRun) -> None:
             )
             for stage in field_fits.REFIT_STAGES  # read at run time (the benchmark's configurations)
         ]
-        if FINE_RUNG is not None and run.loose:  # item 51: a 1 mm rung before the full fit
-            fine = StopRule(refine_ftol=FINE_RUNG[0], refine_xtol_m=FINE_RUNG[1])
+        rung = field_steps.FINE_RUNG  # read at run time, as the switches above
+        if rung is not None and run.loose:  # item 51: a 1 mm rung before the full fit
+            fine = StopRule(refine_ftol=rung[0], refine_xtol_m=rung[1])
             fit_fine = make_fitter(run.opts, run.exchange, run.total, run.starts, carry=run.carry, stop=fine)
-            run.loose.append((fit_fine, fine_margin_w(FINE_RUNG, opts.sigma_m)))
+            run.loose.append((fit_fine, fine_margin_w(rung, opts.sigma_m)))
     run.note += (
         f"; one-sided Cauchy loss (ranges read long), scale tightened to {tight:.3g} m"
         if tight < given.loss_scale_m
@@ -323,11 +321,16 @@ def _repair(run: FieldRun, fit: FieldFit) -> bool:
         return False
     kept_idx = np.flatnonzero(~repaired)
     seed = np.asarray(fit.res.estimates, float).copy()
-    for k, at in moved.items() if REPAIR_STARTS_MOVED else ():  # item 50: from the current solution
+    for k, at in moved.items() if field_steps.REPAIR_STARTS_MOVED else ():  # item 50: from the current solution
         seed[k] = at
     run.starts.append(seed)
     sub = subset_measurements(problem, ~repaired)
-    opening = run.loose[0][0](sub) if REPAIR_OPENS_LOOSE and run.loose else None  # item 47: the first rung
+    opening = None
+    if field_steps.REPAIR_OPENS_LOOSE and run.loose:  # item 47: the first rung (guarded as exclude_worst's fits)
+        try:
+            opening = run.loose[0][0](sub)
+        except ModelError:
+            opening = None
     if opening is not None and (opening.tests is None or not opening.usable):
         opening = None  # no tests to decide on: the loop opens with a full fit, as before
     again = exclude_worst(sub, run.fit, opts, run.loose, opening, not ends_loose(run))

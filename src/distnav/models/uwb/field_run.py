@@ -106,6 +106,10 @@ def complete(run: FieldRun, fit: FieldFit) -> FieldFit:
         if r.usable and r.tests is not None and np.all(np.isfinite(r.estimates)):
             fit.res = r
             fit.w, fit.flagged = kept_tests(run.problem.n_meas, ~fit.excluded, r.tests)
+        else:  # said, not hidden: the answer stays the early-stopped fit's
+            run.note += (
+                "; the completion of an early-stopped fit failed (unusable or untested): its 1 cm answer is kept"
+            )
     return fit
 
 
