@@ -36,6 +36,8 @@ __all__ = [
     "held_by_all",
     "sit_out_plan",
     "block_preconditioner",
+    "edge_round",
+    "hand_over",
     "pcg",
 ]
 
@@ -167,8 +169,8 @@ class Delegated:
     """The samples between two anchors that sit the phase out (``inner.SitOut``) that this block's anchors evaluate
     as their delegates: both ends' coordinates are the problem's, so a sample's residual depends on the common offset
     only; each counts for both its halves. Their records reach the delegates once per phase: one message from the
-    end that ranges with the delegate, 16 B a sample (a range record, as the gather's); a lost record is an error
-    (a ModelError naming the sample's anchors), as a lost message of the phase is (``Wire``)."""
+    end that ranges with the delegate, 16 B a sample (``wire.RANGE_RECORD_BYTES``, as the gather's); a lost record
+    is an error (a ModelError naming the sample's anchors), as a lost message of the phase is (``Wire``)."""
 
     def __init__(
         self,
@@ -227,6 +229,24 @@ def held_by_all(problem: RangingData, held_m: np.ndarray, free: np.ndarray) -> n
     return out
 
 
+def edge_round(
+    ex: Exchange,
+    rows: np.ndarray,
+    out_on: np.ndarray,
+    in_on: np.ndarray,
+    message_bytes: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One round of messages on some directed links only (the item-37 rounds: records, the hand-over, the final
+    rows): ``rows`` ``(n_local, k)`` sent from each block anchor on its outgoing links where ``out_on`` (the receiver
+    side marks the same links ``in_on``); ``message_bytes`` as :meth:`Exchange.send`'s. Returns the received row of
+    every incoming link and the incoming links whose message was lost (``in_on`` and not delivered)."""
+    active = np.zeros(ex.n_edges, bool)
+    active[ex.out_edges] = out_on
+    active[ex.in_edges] = in_on
+    box = ex.send(np.asarray(rows, float)[ex.out_src], active=active, message_bytes=message_bytes)
+    return np.asarray(box.values), in_on & ~np.asarray(box.delivered, bool)
+
+
 def _send_records(problem: RangingData, ex: Exchange, plan: SitOut) -> None:
     """One round: from each sender to its delegate the range records it hands over, 16 B a sample
     (:class:`Delegated`); a ModelError names a sample whose record a delegate of this block did not receive."""
@@ -239,12 +259,8 @@ def _send_records(problem: RangingData, ex: Exchange, plan: SitOut) -> None:
 
     hit_out, n_out = lookup(ex.nodes[ex.out_src] * n + ex.out_dst)
     hit_in, _ = lookup(ex.in_src * n + ex.nodes[ex.in_dst])
-    active = np.zeros(ex.n_edges, bool)
-    active[ex.out_edges] = hit_out
-    active[ex.in_edges] = hit_in
-    sizes = np.where(hit_out, 16 * n_out, 0).astype(np.int64)
-    box = ex.send(np.zeros((ex.out_edges.size, 1)), active=active, message_bytes=sizes)
-    lost = hit_in & ~np.asarray(box.delivered, bool)
+    sizes = np.where(hit_out, wire.RANGE_RECORD_BYTES * n_out, 0).astype(np.int64)
+    _, lost = edge_round(ex, np.zeros((ex.n_local, 1)), hit_out, hit_in, sizes)
     if lost.any():
         key = ex.in_src[lost][0] * n + ex.nodes[ex.in_dst[lost][0]]
         s = plan.kk_samples[np.flatnonzero(plan.kk_sender * n + plan.kk_delegate == key)[0]]
@@ -269,16 +285,12 @@ def hand_over(problem: RangingData, ex: Exchange, silent: np.ndarray, rows: np.n
     to = silent & (giver < n)
     out_hit = to[ex.out_dst] & (giver[ex.out_dst] == ex.nodes[ex.out_src])
     in_hit = to[ex.nodes[ex.in_dst]] & (giver[ex.nodes[ex.in_dst]] == ex.in_src)
-    active = np.zeros(ex.n_edges, bool)
-    active[ex.out_edges] = out_hit
-    active[ex.in_edges] = in_hit
-    box = ex.send(vals[ex.out_src], active=active)
-    got = np.asarray(box.delivered, bool)
-    if np.any(in_hit & ~got):
-        anchor = ex.nodes[ex.in_dst[in_hit & ~got][0]]
+    values, lost = edge_round(ex, vals, out_hit, in_hit)
+    if lost.any():
+        anchor = ex.nodes[ex.in_dst[lost][0]]
         raise ModelError(f"refinement: anchor {problem.ids[anchor]} did not receive the fit's start (lost)")
     out = vals.copy()
-    out[ex.in_dst[in_hit]] = np.asarray(box.values)[in_hit]
+    out[ex.in_dst[in_hit]] = values[in_hit]
     return out
 
 

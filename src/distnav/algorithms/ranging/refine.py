@@ -54,6 +54,7 @@ from distnav.algorithms.ranging.inner import (
     Links,
     NormalSystem,
     block_preconditioner,
+    edge_round,
     hand_over,
     held_by_all,
     pcg,
@@ -499,16 +500,11 @@ def rows_for_local_tests(problem: RangingData, ex: Exchange, ref: Refinement) ->
     rows = ref.own_m if ref.offset_m is None else np.c_[ref.own_m, ref.offset_m]  # a plan: no per-anchor offsets
     out_on = listens[ex.nodes[ex.out_src]] & ~listens[ex.out_dst]
     in_on = listens[ex.in_src] & ~listens[ex.nodes[ex.in_dst]]
-    active = np.zeros(ex.n_edges, bool)
-    active[ex.out_edges] = out_on
-    active[ex.in_edges] = in_on
-    box = ex.send(np.asarray(rows, float)[ex.out_src], active=active)
-    lost = in_on & ~np.asarray(box.delivered, bool)
+    values, lost = edge_round(ex, rows, out_on, in_on)
     if lost.any():
         anchor = problem.ids[ex.nodes[ex.in_dst[lost][0]]]
         raise ModelError(f"refinement: anchor {anchor} did not receive its neighbours' final rows (lost)")
     owner, other, _, _ = half_measurements(problem, ex)
-    values = np.asarray(box.values)
     got = {(int(ex.in_dst[e]), int(ex.in_src[e])): values[e] for e in np.flatnonzero(in_on)}
     for h in np.flatnonzero(~listens[ex.nodes[owner]] & listens[other]):
         row = got[(int(owner[h]), int(other[h]))]

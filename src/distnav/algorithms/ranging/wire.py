@@ -68,6 +68,7 @@ from distnav.exchange import Exchange
 
 __all__ = [
     "Wire",
+    "RANGE_RECORD_BYTES",
     "CG_WIRE_DTYPE",
     "PLAIN",
     "comm_mark",
@@ -110,6 +111,9 @@ CG_DOT_DTYPE: type[np.floating] = np.float16
 #: warm fit (bench_uwb_economy.py) took 596 CG iterations at 1,000 anchors in float16 (712 in float32), but
 #: 2,630 at 3,000 (1,177) and 2,049 at 10⁴ (993) — CG's rounding noise grows with the network
 HALF_MAX_ANCHORS = 1000
+#: one range record as it travels whole (two int32 anchor ids + one float64 range): the gather's unit, and a
+#: delegated sample's record in the LM phase (``inner.Delegated``, issue 27 item 37)
+RANGE_RECORD_BYTES = 16
 
 
 def cg_wire_dtype(n_anchors: int) -> type[np.floating]:

@@ -9,6 +9,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
+from distnav.algorithms.ranging.wire import RANGE_RECORD_BYTES  # two int32 anchor ids + one float64 range
 from distnav.errors import ModelError
 from distnav.models.uwb.problems import RangingProblem
 from distnav.network import gather as network_gather
@@ -24,7 +25,6 @@ __all__ = [
     "range_bytes_per_anchor",
 ]
 
-RANGE_RECORD_BYTES = 16  # two int32 anchor ids + one float64 range
 #: What :func:`range_bytes_per_anchor` counts, in words (for reports).
 RANGES_DATA = f"the ranges ({RANGE_RECORD_BYTES} B each)"
 POSITION_BYTES = 8
