@@ -226,7 +226,8 @@ def test_local_test_scale_counts_the_known_anchors_final_rows(corner, monkeypatc
     """Review finding 3: the local QC tests each link at its lower-indexed anchor, often a known one that sat the LM
     phase out; with ``test_scale="local"`` its own scale needs its neighbours' final coordinates and the common
     offset, now one counted round (``refine.rows_for_local_tests``): (dim + 1) · 8 B on each link from an anchor that
-    took part to a known one, nothing else changed (the same w, bit for bit); none with the robust scale."""
+    took part to a known one, and the same positions as with the robust scale (the round's rows are checked equal to
+    the halves ``refine`` gives, inside ``rows_for_local_tests``); none with the robust scale."""
     from distnav.algorithms.ranging.csg import solve_nclm
 
     monkeypatch.setattr(refine_mod, "SIT_OUT", True)
