@@ -174,11 +174,11 @@ def _header_then(tail: bytes) -> Callable[[Path, Path], str]:
 
 
 def _compare(
-    day: str, *extra: str, bias: Callable[[Path, Path], list[str]] | None = None
+    day: str, *extra: str, bias: Callable[[Path, Path | None], list[str]] | None = None
 ) -> Callable[[Path, Path | None], list[str]]:
     def argv(tmp: Path, shared: Path | None) -> list[str]:
         est = _codebias_json(tmp, day, {"G01": 1.0, "G03": 2.0, "G08": -1.0})
-        files = bias(tmp, est) if bias else [str(tmp / "GFZ0OPSRAP_20240100000_01D_01D_DCB.BIA")]
+        files = bias(tmp, shared) if bias else [str(tmp / "GFZ0OPSRAP_20240100000_01D_01D_DCB.BIA")]
         for f in files:
             if not Path(f).exists():
                 Path(f).write_text("%=BIA 1.00\n")  # never read: the checks come first
@@ -265,12 +265,59 @@ GNSS_CASES = [
         lambda t, s: ["gnss", "compare", "--estimates", str(_bia(t)), "--bias", str(_bia(t))],
         "also given as --bias",
     ),
+    # "epoch times must be one increasing series" from the levelling, naming no file
+    Case(
+        "gnss-rinex-repeated-epoch",
+        _g(obs=lambda s, t: _rinex_with(s, t, _repeat_first_epoch)),
+        "is not after the previous epoch 2021-01-01T00:00:00",
+        shared=True,
+    ),
+    # exit 0 with the NaN DSB in the comparison
+    Case(
+        "gnss-compare-bias-sinex-nan",
+        _compare("2024-01-10", bias=lambda t, s: [_cas(t, s, "nan", "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA")]),
+        "expected a finite number, got 'nan'",
+        shared=True,
+    ),
+    # exit 0: a renamed product (the day only in its first line) of another day compared without a word
+    Case(
+        "gnss-compare-renamed-product-of-another-day",
+        _compare("2024-01-10", bias=lambda t, s: [_cas(t, s, "", "mybias.bia", day="20240110000")]),
+        "mybias.bia: a product of 2024-01-11",
+        shared=True,
+    ),
+    # exit 0: the experiment run twice into one folder
+    Case("demo-only-twice", lambda t, s: ["demo", "--out", "{out}", "--only", "ckf", "ckf"], "--only names ckf twice"),
     Case(
         "gnss-compare-bias-twice",
-        _compare("2024-01-10", bias=lambda t, e: [str(_bia(t)), str(_bia(t))]),
+        _compare("2024-01-10", bias=lambda t, s: [str(_bia(t)), str(_bia(t))]),
         "is given twice",
     ),
 ]
+
+
+def _repeat_first_epoch(raw: bytes) -> bytes:
+    """The first epoch of a RINEX 2 file (its epoch line and observation lines) written twice."""
+    start = raw.index(b"END OF HEADER") + 14
+    second = raw.index(b"\n 21  1  1  0  0 30.0", start) + 1
+    return raw[:second] + raw[start:second] + raw[second:]
+
+
+def _cas(tmp: Path, shared: Path | None, value: str, name: str, *, day: str = "20240100000") -> str:
+    """CAS's Bias-SINEX product of ../shared (``day``: 2024-01-10 or 01-11) as ``name``, its first DSB value
+    replaced by ``value`` (unless empty)."""
+    from distnav.formats.gnss.rinex_obs import read_bytes
+
+    assert shared is not None
+    raw = read_bytes(shared / IGS / f"CAS0OPSRAP_{day}_01D_01D_DCB.BIA.gz")
+    if value:
+        first = raw.index(b"\n DSB ") + 1
+        line_end = raw.index(b"\n", first)
+        line = raw[first:line_end]
+        raw = raw[:first] + line[:70] + value.rjust(21).encode() + line[91:] + raw[line_end:]
+    p = tmp / name
+    p.write_bytes(raw)
+    return str(p)
 
 
 def _bia(tmp: Path) -> Path:
@@ -367,3 +414,20 @@ def test_compare_of_codebias_leaves_out_the_excluded_satellites(
     ref = json.loads((tmp_path / "ref/comparison.json").read_text())
     assert "G03" not in got["zero_mean"]["differences_ns"] and got["n_common"] == ref["n_common"] == 3
     assert got["zero_mean"] == ref["zero_mean"]
+
+
+def test_default_graph_of_stations_at_one_point() -> None:
+    """Two receivers on one monument (a zero baseline; or one file under two names): the nearest-neighbour graph
+    linked a station to itself ("link #1 joins node 1 to itself; use self_loops=True")."""
+    import numpy as np
+
+    from distnav.commands.gnss_common import default_graph
+
+    same = [3.9e6, 3.0e5, 5.0e6]
+    for pos, links in (
+        ([same, same, [3.9e6, 4.0e5, 5.0e6]], [[0, 1], [0, 2], [1, 2]]),
+        ([[3.9e6, 4.0e5, 5.0e6], same, same], [[0, 1], [0, 2], [1, 2]]),
+        ([same, same], [[0, 1]]),
+    ):
+        graph = default_graph(np.array(pos), ["AAAA", "BBBB", "CCCC"][: len(pos)])
+        assert graph.links.tolist() == links

@@ -226,12 +226,16 @@ def input_paths(values: Iterable[object]) -> list[Path]:
 
 
 def check_repeated_inputs(args: argparse.Namespace) -> None:
-    """Refuse a file named twice in one option's list (``--bias A A``, ``--sp3 A ./A``): never meant, and it
-    would count the file's data twice or compare a product with itself. Station files (``--obs``, ``--rinex``) are
-    left to their readers, which name the station given twice (also in two different files)."""
+    """Refuse a file named twice in one option's list (``--bias A A``, ``--sp3 A ./A``) and an experiment named
+    twice in ``--only``: never meant, and it would count the file's data twice, compare a product with itself or
+    run an experiment twice. Station files (``--obs``, ``--rinex``) are left to their readers, which name the
+    station given twice (also in two different files)."""
     for key, value in vars(args).items():
         if not isinstance(value, (list, tuple)) or key in ("obs", "rinex"):
             continue
+        twice = sorted({str(v) for v in value if key == "only" and list(value).count(v) > 1})
+        if twice:  # --only NAME NAME: the same experiment run twice, into one folder
+            raise UsageError(f"--only names {', '.join(twice)} twice")
         seen: dict[Path, object] = {}
         for item in value:
             if not isinstance(item, (str, Path)) or not str(item) or not os.path.isfile(item):

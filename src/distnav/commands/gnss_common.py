@@ -81,7 +81,8 @@ def default_graph(positions_ecef_m: np.ndarray, stations: list[str], k: int = 2)
     if n > 1:
         links |= {(min(i, j), max(i, j)) for i, j in _spanning_tree(d + 1e-9 * (1 - np.eye(n)))}
         for i in range(n):
-            for j in np.argsort(d[i])[1 : k + 1].tolist():
+            others = np.where(np.arange(n) == i, np.inf, d[i])  # not [1:]: a station at the same point may sort first
+            for j in np.argsort(others)[: min(k, n - 1)].tolist():
                 links.add((min(i, j), max(i, j)))
     return Graph.from_links(n, sorted(links), names=stations)
 

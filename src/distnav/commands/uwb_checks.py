@@ -71,7 +71,7 @@ def held_heights(
     for k, z in hz.items():
         if k not in ids:
             raise DataFileError(f"{heights}:{hline[k]}: anchor {k!r} does not appear in {ranges}")
-        if k not in known_pos:
+        if k not in known_pos:  # a known anchor's line is ignored: its surveyed position holds (hall files list all)
             held[k] = {2: z}
     return held
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import gzip
 import itertools
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -195,12 +196,15 @@ def read_bias_sinex(path: str | Path) -> BiasProduct:
 
 def _number(p: Path, no: int, line: str, a: int, b: int, what: str) -> float:
     try:
-        return float(line[a:b])
+        value = float(line[a:b])
     except ValueError:
+        value = math.nan
+    if not math.isfinite(value):  # float() reads "nan" and "inf", which no product holds
         raise DataFileError(
             f"{p}, line {no}: malformed +BIAS/SOLUTION line: {what} (columns {a + 1}-{b}): expected "
-            f"a number, got {line[a:b].strip()!r}"
-        ) from None
+            f"a finite number, got {line[a:b].strip()!r}"
+        )
+    return value
 
 
 @dataclass(frozen=True)

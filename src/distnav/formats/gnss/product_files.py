@@ -50,7 +50,30 @@ def product_day(path: str | Path) -> np.datetime64 | None:
     if m:
         year = 2000 + int(m.group(2)) if int(m.group(2)) < 80 else 1900 + int(m.group(2))
         return np.datetime64(f"{year}-01-01") + np.timedelta64(int(m.group(1)) - 1, "D")
-    return None
+    return _bias_sinex_day(Path(path))
+
+
+def _bias_sinex_day(path: Path) -> np.datetime64 | None:
+    """The day of a Bias-SINEX file whose name does not say it (renamed, e.g. ``mybias.bia``), from its first line
+    (``%=BIA 1.00 AGC CREATED AGC START END ...``) when it spans one day at most; None otherwise (not a Bias-SINEX
+    file, several days). Before, such a product of another day was compared without a word."""
+    import gzip
+
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(2)
+        opener = gzip.open if head == b"\x1f\x8b" else open
+        with opener(path, "rb") as fh:
+            first = fh.readline(200).decode("latin-1")
+    except (OSError, EOFError):
+        return None
+    fields = first.split()
+    if len(fields) < 7 or not fields[0].startswith("%=BIA"):
+        return None
+    start, end = _sinex_day(fields[5]), _sinex_day(fields[6])
+    if start is None or end is None or end - start > np.timedelta64(1, "D"):
+        return None
+    return start
 
 
 def _orbit_epochs(orbit: Any) -> tuple[np.ndarray, float, str] | None:

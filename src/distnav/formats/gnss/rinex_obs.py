@@ -407,6 +407,7 @@ class _Scan:
         self.k = start + nsat
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
+        self._check_order(t, start - 1)
         system = self.system
         starts = tuple(3 + 16 * c for c in self.columns)
         sink: tuple[list[str], list[int], list[int]] | None = None  # the fast path's lists, without a call a line
@@ -430,6 +431,16 @@ class _Scan:
             self._line(sl, starts, prn)
         self.k = start + nsat
         self.times.append(t)
+
+    def _check_order(self, t: np.datetime64, line_index: int) -> None:
+        """Epochs must follow one another (a repeated or out-of-order epoch would count its data twice or end in
+        the levelling's "epoch times must be one increasing series", naming no file)."""
+        if self.times and not t > self.times[-1]:
+            self.k = line_index
+            raise _Bad(
+                f"epoch {str(t)[:19]} is not after the previous epoch {str(self.times[-1])[:19]} (a repeated or "
+                f"out-of-order epoch: the file is not one time series)"
+            )
 
     def _rinex2_layout(self, n_per_sat: int) -> tuple[list[tuple[int, ...]], list[int]]:
         """The field starts of the requested types on each of a satellite's RINEX 2 lines, and the lines that hold
@@ -474,6 +485,7 @@ class _Scan:
         self.k = start + nsat * n_per_sat
         if not _keep(t, self.lo, self.hi, self.step_ns):
             return
+        self._check_order(t, k0)
         per_line, used = self._rinex2_layout(n_per_sat)
         # the fast path keeps the lines for parse_pending: appended here without a call per line
         sinks: list[tuple[list[str], list[int], list[int]]] | None = None
