@@ -117,6 +117,25 @@ def _initial_coincident(tmp: Path, _: Path | None) -> list[str]:
     return ["uwb", "solve", "--ranges", str(ranges), "--known", str(known), "--initial", str(init), "--out", "{out}"]
 
 
+def _known_spelled_otherwise(tmp: Path, _: Path | None) -> list[str]:
+    """Numeric ids (as in the APRIL CSVs), the log spelling anchor 8 as 08 (a spreadsheet's zero padding)."""
+    ranges, known = _uwb_files(tmp)
+    numbers = {"A0": "8", "A1": "12", "A2": "54", "A3": "14", "A4": "61", "A5": "81"}
+    for path, log in ((ranges, True), (known, False)):
+        text = path.read_text()
+        for name, number in numbers.items():
+            text = text.replace(name, "08" if log and number == "8" else number)
+        path.write_text(text)
+    return ["uwb", "solve", "--ranges", str(ranges), "--known", str(known), "--out", "{out}"]
+
+
+def _header_twice(tmp: Path, _: Path | None) -> list[str]:
+    ranges, known = _uwb_files(tmp)
+    lines = ranges.read_text().splitlines()
+    ranges.write_text("\n".join(lines[:4] + lines[:1] + lines[4:]) + "\n")
+    return ["uwb", "solve", "--ranges", str(ranges), "--known", str(known), "--out", "{out}"]
+
+
 def _import(lines: list[str], *known: str, end: str = "\n") -> Callable[[Path, Path | None], list[str]]:
     def argv(tmp: Path, _: Path | None) -> list[str]:
         return ["uwb", "import-april", str(_april(tmp, lines, end=end)), *known, "--out", "{out}"]
@@ -127,6 +146,10 @@ def _import(lines: list[str], *known: str, end: str = "\n") -> Callable[[Path, P
 UWB_CASES = [
     # a traceback: "ValueError: 'list' argument must have no negative elements" (0/0 derivatives at one point)
     Case("uwb-solve-initial-all-at-one-point", _initial_coincident, "have the same initial position"),
+    # "range_m 'range_m' is not a number"
+    Case("uwb-solve-header-twice", _header_twice, "ranges.csv:5: the header line again"),
+    # exit 3: anchor 08 estimated as unknown, known anchor 8 ignored with a warning (a worse map)
+    Case("uwb-solve-known-id-spelled-otherwise", _known_spelled_otherwise, "known anchor '8' has no range in"),
     # exit 0 and a known.csv that `uwb solve` refuses ("listed twice", "no data rows", "needs 2 fixed anchors")
     Case("uwb-import-april-known-twice", _import(APRIL_LINES, "--known", "8,8,12"), "--known names node(s) 8 twice"),
     Case("uwb-import-april-known-empty", _import(APRIL_LINES, "--known", ""), "--known must be comma-separated"),
@@ -230,6 +253,13 @@ GNSS_CASES = [
         "between 2021-01-01T05:00:00 and 2021-01-01T06:00:00 (GPS time; --tlim)",
         shared=True,
     ),
+    # "fewer than two satellites with 30 station-epochs or more": a 7-s grid kept one 30-s epoch in 7
+    Case(
+        "gnss-interval-off-the-sampling",
+        _g("--interval", "7"),
+        "--interval 7 s does not fit the 30-s sampling of DELF",
+        shared=True,
+    ),
     # ran for days (10⁸ consensus rounds every epoch)
     Case("gnss-kn-huge", _g("--kn", "100000000"), "--kn must lie in 0 … 10,000", shared=True),
     # exit 0: the second code of a band silently won; a code of another band used with this band's coefficient
@@ -258,6 +288,10 @@ GNSS_CASES = [
         "gnss-compare-codebias-exclude-all",
         _compare("2024-01-10", "--exclude", "G01", "G03", "G08"),
         "--exclude leaves no satellite",
+    ),
+    # exit 0: --filter ignored for a codebias.json (one solution)
+    Case(
+        "gnss-compare-codebias-filter", _compare("2024-01-10", "--filter", "ckf:BELE"), "--filter ckf:BELE applies to"
     ),
     # exit 0: a product compared with itself, or counted twice
     Case(
@@ -431,3 +465,16 @@ def test_default_graph_of_stations_at_one_point() -> None:
     ):
         graph = default_graph(np.array(pos), ["AAAA", "BBBB", "CCCC"][: len(pos)])
         assert graph.links.tolist() == links
+
+
+def test_single_link_hint_names_the_same_number_spelled_otherwise() -> None:
+    """``12.0`` for ``12`` (a script's float formatting): the single-link warning named no likely typo (difflib's
+    ratio 0.67 is below its cut-off)."""
+    import numpy as np
+
+    from distnav.formats.uwb.io import CombinedRanges, single_link_anchors
+
+    pairs = (("12", "8"), ("12", "54"), ("8", "54"), ("12.0", "8"))
+    comb = CombinedRanges(pairs, np.ones(4), np.ones(4, np.int64), np.zeros(4))
+    (warning,) = single_link_anchors(comb)
+    assert "anchor '12.0' has a single measured link" in warning and "an id typo for '12'?" in warning

@@ -101,6 +101,8 @@ def _codebias_to_compare(args: argparse.Namespace, path: Path, est: dict[str, An
     before: a wrong day's product gave "no satellite in common", excluded satellites stayed in the RMS)."""
     from distnav.formats.gnss.product_files import product_day
 
+    if args.filter != "central":  # a codebias.json holds one solution: the option was ignored before
+        raise UsageError(f"--filter {args.filter} applies to a `gnss ionosphere` output, not to {path}")
     first, last = est.get("first_epoch"), est.get("last_epoch") or est.get("first_epoch")
     if first and not args.allow_other_day:
         days = np.arange(np.datetime64(str(first)[:10]), np.datetime64(str(last)[:10]) + np.timedelta64(1, "D"))

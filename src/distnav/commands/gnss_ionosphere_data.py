@@ -144,6 +144,8 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, options: NetworkOp
     if options.levelling and options.interval_s:
         from distnav.formats.gnss.rinex_obs import on_grid
 
+        for o in obs:
+            _check_interval(o, options.interval_s)
         grids = {o.station: on_grid(o.time, options.interval_s) for o in obs}
     else:
         grids = {o.station: np.ones(o.time.size, bool) for o in obs}
@@ -294,3 +296,31 @@ def _level(o: Any, orbit: Any, band: int, options: NetworkOptions, node: int) ->
     return level_station(
         t, o.svs, p1, pb, o.phase_m[1], o.phase_m[band], options=lev, lli=lli, sigma_m=sigma, node=node
     )
+
+
+def _check_interval(o: Any, interval_s: float) -> None:
+    """``--interval`` must fit a station's sampling: a multiple of it (every n-th epoch) or a divisor (every
+    epoch). Otherwise the grid keeps only the epochs at the common multiples (7 s on 30-s data: one in 7, at
+    210 s) and the run ended in "fewer than two satellites with 30 station-epochs", naming neither."""
+    if o.time.size < 2:
+        return
+    steps_s = np.diff(np.asarray(o.time, "datetime64[ns]")).astype(np.int64) / 1e9
+    step_s = float(np.median(steps_s))
+    if step_s <= 0 or np.mean(np.abs(steps_s - step_s) < 1e-3) < 0.9:  # irregular sampling: no grid to fit
+        return
+    ratio = interval_s / step_s
+    if min(abs(ratio - round(ratio)), abs(1 / ratio - round(1 / ratio))) < 1e-6:
+        return
+    raise ModelError(
+        f"--interval {interval_s:g} s does not fit the {step_s:g}-s sampling of {o.station}: the grid would keep "
+        f"only the epochs on both (one in {int(round(_lcm_s(interval_s, step_s) / step_s))}); give a multiple of "
+        f"{step_s:g} s"
+    )
+
+
+def _lcm_s(a_s: float, b_s: float) -> float:
+    """The least common multiple of two intervals given to the millisecond."""
+    import math
+
+    a, b = round(a_s * 1000), round(b_s * 1000)
+    return a * b // math.gcd(a, b) / 1000

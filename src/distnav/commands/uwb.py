@@ -63,6 +63,7 @@ from distnav.commands.uwb_checks import (
     april_known_ids,
     check_gauge,
     check_initial_distinct,
+    check_known_spelling,
     every_anchor,
     held_heights,
     validate_options,
@@ -328,6 +329,7 @@ def solve_range_log(
     # dropped samples: read_ranges has logged them (the CLI shows that line); summary.json counts them itself
     warnings: list[str] = []
     warnings += single_link_anchors(comb) + ([units_warning] if units_warning else [])
+    check_known_spelling(known, ranges, unused_known, ids)
     if unused_known:
         warnings.append(f"known anchors without ranges are ignored: {', '.join(unused_known[:10])}")
     held = held_heights(heights, known, ranges, dim=dim, ids=index, known_pos=known_pos)

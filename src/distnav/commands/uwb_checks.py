@@ -13,12 +13,12 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import DataFileError, ModelError
-from distnav.formats.uwb.io import read_heights, read_positions
+from distnav.formats.uwb.io import read_heights, read_positions, same_number_ids
 from distnav.models.uwb.field import FieldOptions
 from distnav.models.uwb.problems import RangingProblem
 
 __all__ = ["april_known_ids", "check_gauge", "check_initial_distinct", "every_anchor", "held_heights"]
-__all__ += ["validate_options"]
+__all__ += ["check_known_spelling", "validate_options"]
 
 #: two anchors of an initial guess closer than this (m) are at one point
 COINCIDENT_M = 1e-6
@@ -137,3 +137,16 @@ def april_known_ids(text: str, choices: Sequence[int]) -> list[int]:
             f"--known {text!r}: a 2-D frame needs at least 2 known nodes (their positions fix it), got {len(known)}"
         )
     return known
+
+
+def check_known_spelling(known: Path, ranges: Path, unused_known: Sequence[str], ids: Sequence[str]) -> None:
+    """A known anchor without ranges whose id the log spells as another number (``8`` in ``known``, ``08`` in the
+    log): the same anchor, which would be estimated as an unknown one while its known position is ignored (before:
+    a warning "known anchors without ranges are ignored" and a worse map)."""
+    for k in unused_known:
+        twins = same_number_ids(k, ids)
+        if twins:
+            raise DataFileError(
+                f"{known}: known anchor {k!r} has no range in {ranges}, which has {twins[0]!r}: the same anchor "
+                f"spelled two ways? (spell its id alike in both files)"
+            )

@@ -42,6 +42,7 @@ __all__ = [
     "format_positions",
     "check_units",
     "single_link_anchors",
+    "same_number_ids",
     "DROP_REASONS",
 ]
 
@@ -141,6 +142,8 @@ def _rows(path: Path, required: Sequence[str]) -> tuple[list[str], list[tuple[in
                     f"(got {','.join(fields)})"
                 )
             continue
+        if [f.lower() for f in fields] == header:  # before: "range_m 'range_m' is not a number"
+            raise DataFileError(f"{p}:{number}: the header line again (two files joined into one?): remove it")
         rows.append((number, fields))
     if header is None:
         raise DataFileError(f"{p}: empty file (expected a header {','.join(required)})")
@@ -322,8 +325,29 @@ def single_link_anchors(comb: CombinedRanges) -> list[str]:
 _LOOKALIKE = str.maketrans({"o": "0", "l": "1", "i": "1", "s": "5", "b": "8", "z": "2"})
 
 
+def same_number_ids(key: str, others: Sequence[str]) -> list[str]:
+    """Ids of ``others`` that spell the same number as ``key`` another way (``08`` and ``8``, ``12.0`` and ``12``:
+    a spreadsheet's or a script's formatting), none when ``key`` is not a number."""
+    try:
+        value = float(key)
+    except ValueError:
+        return []
+    out = []
+    for o in others:
+        try:
+            if o != key and float(o) == value:
+                out.append(o)
+        except ValueError:
+            continue
+    return out
+
+
 def _closest_ids(key: str, others: Sequence[str]) -> list[str]:
-    """Ids that differ from ``key`` by a look-alike character (O/0, l/1, ...) or else by one edit, at most 3."""
+    """Ids that spell the same number (:func:`same_number_ids`), differ from ``key`` by a look-alike character
+    (O/0, l/1, ...) or else by one edit, at most 3."""
+    numeric = same_number_ids(key, others)
+    if numeric:
+        return numeric[:3]
     norm = key.lower().translate(_LOOKALIKE)
     same = [o for o in others if o.lower().translate(_LOOKALIKE) == norm]
     if same:
