@@ -260,6 +260,12 @@ GNSS_CASES = [
         "--interval 7 s does not fit the 30-s sampling of DELF",
         shared=True,
     ),
+    Case(
+        "gnss-interval-beyond-the-data",
+        _g("--interval", "1e9"),
+        "is longer than the longest station's data (DELF: 3120 s)",
+        shared=True,
+    ),
     # ran for days (10⁸ consensus rounds every epoch)
     Case("gnss-kn-huge", _g("--kn", "100000000"), "--kn must lie in 0 … 10,000", shared=True),
     # exit 0: the second code of a band silently won; a code of another band used with this band's coefficient

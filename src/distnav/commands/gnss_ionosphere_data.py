@@ -146,6 +146,12 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, options: NetworkOp
 
         for o in obs:
             _check_interval(o, options.interval_s)
+        span_s, longest = max((float((o.time[-1] - o.time[0]) / np.timedelta64(1, "s")), o.station) for o in obs)
+        if options.interval_s > span_s:  # before: "fewer than two satellites with 30 station-epochs or more"
+            raise ModelError(
+                f"--interval {options.interval_s:g} s is longer than the longest station's data ({longest}: "
+                f"{span_s:g} s): the grid would keep one epoch"
+            )
         grids = {o.station: on_grid(o.time, options.interval_s) for o in obs}
     else:
         grids = {o.station: np.ones(o.time.size, bool) for o in obs}
