@@ -131,6 +131,30 @@ class NetworkDescription:
             latency_seed=self.drop_seed,
         )
 
+    def fingerprint(self) -> int:
+        """A 63-bit digest of what every node of the network must agree on (the ``[network]``, ``[algorithm]`` and
+        ``[faults]`` tables, every node's id, address, neighbours and public key), without what is local to a host
+        (data and secret key paths); a node's start-up hello carries it (:mod:`distnav.exchange.field.startup`)."""
+        import hashlib
+
+        shared = (
+            FORMAT_VERSION,
+            self.name,
+            self.security,
+            float(self.deadline_ms),
+            self.miss_limit,
+            float(self.start_timeout_s),
+            sorted((k, repr(v)) for k, v in self.algorithm.items()),
+            sorted(self.crash.items()),
+            sorted(self.restart_after_s.items()),
+            float(self.drop_probability),
+            self.drop_seed,
+            float(self.latency_max_ms),
+            [(n.id, n.address, sorted(n.neighbours), n.public_key) for n in self.nodes],
+        )
+        digest = hashlib.blake2b(repr(shared).encode(), digest_size=8).digest()
+        return int.from_bytes(digest, "little") >> 1 or 1
+
     def _where(self) -> str:
         return str(self.path) if self.path is not None else "network description"
 

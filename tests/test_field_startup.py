@@ -1,0 +1,152 @@
+"""Node programs started the way a tester starts them (docs/field.md, "What a node does when ..."): in a random
+order with delays, on a port another process holds, with another network's description or a data file that lost
+values. Each test starts its own `distnav node` processes on loopback, bounds them in time and kills their process
+groups in a `finally`, also when an assertion fails."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zmq")
+
+from distnav.algorithms.consensus.averaging import iterate_average_consensus  # noqa: E402
+from distnav.commands.field_processes import LoopbackOptions, write_loopback_network  # noqa: E402
+from distnav.network.graph import Graph  # noqa: E402
+
+N = 6
+#: a ring in which every node also links to the node two along: any one node can go and the others stay connected
+LINKS = sorted({(min(i, j), max(i, j)) for i in range(N) for j in ((i + 1) % N, (i + 2) % N)})
+
+
+def _start(net: Path, node: int, out: Path) -> subprocess.Popen[bytes]:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    cmd = [sys.executable, "-m", "distnav", "node", "--config", str(net), "--id", str(node), "--out", str(out)]
+    err = open(out / f"stderr-{node}-{time.monotonic_ns()}.txt", "wb")  # noqa: SIM115 - closed after the run
+    return subprocess.Popen(cmd, env=env, stdout=err, stderr=err, start_new_session=True)
+
+
+def _finish(procs: dict[int, subprocess.Popen[bytes]], timeout_s: float) -> dict[int, int | None]:
+    """Wait for every process at most ``timeout_s`` in all; the exit codes (None: killed at the timeout)."""
+    end = time.monotonic() + timeout_s
+    codes: dict[int, int | None] = {}
+    for k, p in procs.items():
+        try:
+            codes[k] = p.wait(timeout=max(0.1, end - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            codes[k] = None
+    return codes
+
+
+def _kill_all(procs: dict[int, subprocess.Popen[bytes]]) -> None:
+    for p in procs.values():
+        if p.poll() is None:
+            try:
+                os.killpg(p.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            p.wait(timeout=10)
+
+
+def _stderr(out: Path) -> str:
+    return "\n".join(f.read_text(errors="replace") for f in sorted(out.glob("stderr-*.txt")))
+
+
+def test_nodes_started_in_a_random_order_with_delays_run_bitwise_the_inprocess_rounds(tmp_path: Path) -> None:
+    """Before the start-up barrier a node whose neighbours had all answered went into its rounds while a neighbour
+    still waited for a node not yet started: its first steps passed without messages and plain consensus ended,
+    every node "completed" and nothing refused but "late", far from the mean. Now the nodes enter step 0 together."""
+    values = np.random.default_rng(3).normal(size=(N, 3))
+    algo = {"name": "consensus", "rounds": 40, "protocol": "MH", "patience": 20}
+    opts = LoopbackOptions(algorithm=algo, deadline_ms=2000, start_timeout_s=30)
+    net = write_loopback_network(tmp_path / "net", LINKS, values, opts)
+    out = tmp_path / "run"
+    out.mkdir()
+    procs: dict[int, subprocess.Popen[bytes]] = {}
+    try:  # node 2 comes 6 s after the others: node 5, not its neighbour, has heard all of its own neighbours by then
+        for node, pause_s in ((3, 0.3), (0, 0.3), (5, 0.3), (1, 0.3), (4, 6.0), (2, 0.0)):
+            procs[node] = _start(net, node, out)
+            time.sleep(pause_s)
+        codes = _finish(procs, 120)
+    finally:
+        _kill_all(procs)
+    assert all(c == 0 for c in codes.values()), (codes, _stderr(out)[-3000:])
+    res = [json.loads((out / f"node-{i}.json").read_text()) for i in range(N)]
+    field = np.array([r["estimate"] for r in res])
+    ref = list(iterate_average_consensus(values, graph=Graph.from_links(N, LINKS), protocol="MH", rounds=40))[-1]
+    assert np.array_equal(field, ref.values), np.abs(field - ref.values).max()
+    assert all(r["status"] == "completed" and not r["refused"] and not r["lost_nodes"] for r in res)
+
+
+def test_a_port_in_use_is_a_clear_error_with_exit_code_2(tmp_path: Path) -> None:
+    values = np.zeros((N, 1))
+    net = write_loopback_network(tmp_path / "net", LINKS, values, LoopbackOptions(start_timeout_s=5))
+    address = [ln for ln in net.read_text().splitlines() if ln.startswith("address")][2].split('"')[1]
+    port = int(address.rsplit(":", 1)[1])
+    out = tmp_path / "run"
+    out.mkdir()
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", port))
+        holder.listen()
+        procs = {2: _start(net, 2, out)}
+        try:
+            codes = _finish(procs, 60)
+        finally:
+            _kill_all(procs)
+    err = _stderr(out)
+    assert codes == {2: 2}, err
+    assert f"error: node 2: cannot listen on its address {address} (Address already in use)" in err, err
+    assert "Traceback" not in err and not (out / "node-2.json").exists()
+
+
+def test_a_node_of_another_network_or_with_a_cut_data_file_is_refused_at_start(tmp_path: Path) -> None:
+    """Node 3 started with another network's description (same ports and links, another name) and, in a second
+    network, node 3's data file cut (2 values where the others have 3). Before, both were taken for node 3 (its
+    data in the others' answer, or every round refused while it never counted as missing), every node "completed".
+    Now node 3 exits with code 2 naming the reason, and the others run without it: flow consensus gives the exact
+    mean of their data."""
+    values = np.random.default_rng(5).normal(size=(N, 3))
+    algo = {"name": "consensus_flows", "rounds": 150, "protocol": "MH", "patience": 5}
+    opts = LoopbackOptions(algorithm=algo, deadline_ms=1000, start_timeout_s=20)
+    net = write_loopback_network(tmp_path / "net", LINKS, values, opts)
+    other = tmp_path / "other" / "network.toml"
+    other.parent.mkdir()
+    other.write_text(net.read_text().replace('name = "network"', 'name = "other"').replace("data/", "../net/data/"))
+    cut = tmp_path / "cut" / "network.toml"
+    (cut.parent / "data").mkdir(parents=True)
+    for i in range(N):
+        v = values[i, :2] if i == 3 else values[i]
+        (cut.parent / "data" / f"node-{i}.txt").write_text(" ".join(repr(float(x)) for x in v) + "\n")
+    cut.write_text(net.read_text())
+    for name, odd, why in (
+        ("other", other, "it runs another network description"),
+        ("cut", cut, "its messages carry 3 values, this node's 2"),
+    ):
+        main_net = net if name == "other" else cut
+        out = tmp_path / f"run-{name}"
+        out.mkdir()
+        procs: dict[int, subprocess.Popen[bytes]] = {}
+        try:
+            for i in range(N):
+                procs[i] = _start(odd if i == 3 else main_net, i, out)
+            codes = _finish(procs, 150)
+        finally:
+            _kill_all(procs)
+        err = _stderr(out)
+        assert codes == {i: 2 if i == 3 else 0 for i in range(N)}, (name, codes, err[-3000:])
+        assert f"error: node 3: refused by the start-up check: neighbours [1, 2, 4, 5]: {why}" in err, err
+        res = {i: json.loads((out / f"node-{i}.json").read_text()) for i in range(N) if i != 3}
+        for i in (1, 2, 4, 5):
+            assert res[i]["lost_nodes"] == {"3": 0} and "3" in res[i]["refused_at_start"], res[i]
+        keep = [i for i in range(N) if i != 3]
+        field = np.array([res[i]["estimate"] for i in keep])
+        assert np.abs(field - values[keep].mean(axis=0)).max() <= 1e-6, (name, field, values[keep].mean(axis=0))
