@@ -207,3 +207,44 @@ def test_an_admm_node_stopped_past_the_deadlines_then_resumed_leaves_the_blue_of
     assert len({tuple(r["stalled_at_steps"]) for r in res}) == 1 and all(r["lost_nodes"] == {} for r in res)
     field = np.array([r["estimate"] for r in res], dtype=float)
     assert np.abs(field - blue(sc.problem).x).max() <= 1e-6
+
+
+def _processes_with(text: str) -> list[int]:
+    """The ids of the processes whose command line holds ``text`` (a test's own unique path)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        try:
+            if d.name.isdigit() and text in (d / "cmdline").read_bytes().decode(errors="replace"):
+                pids.append(int(d.name))
+        except OSError:
+            continue
+    return pids
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds the node processes through /proc")
+def test_a_terminated_launcher_leaves_no_node_process_behind(tmp_path: Path) -> None:
+    """SIGTERM to `distnav field launch` (a `kill`, a batch system's stop): before, the launcher died at once and its
+    node processes, each in its own session, ran on; now it kills them, says so and exits 130."""
+    algo = {"name": "consensus", "rounds": 10**7, "protocol": "MH", "patience": 20}
+    net = write_loopback_network(tmp_path / "net", LINKS, np.ones((N, 1)), LoopbackOptions(algorithm=algo))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    cmd = [sys.executable, "-m", "distnav", "field", "launch", "--config", str(net), "--out", str(tmp_path / "run")]
+    launcher = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        end = time.monotonic() + 120
+        logs = [tmp_path / "run" / f"node-{i}.log" for i in range(N)]
+        while time.monotonic() < end and not all(f.exists() and "started after" in f.read_text() for f in logs):
+            time.sleep(0.1)
+        assert len(_processes_with(str(net))) == N + 1  # the launcher and its nodes, in their rounds
+        launcher.send_signal(signal.SIGTERM)
+        _, err = launcher.communicate(timeout=60)
+        time.sleep(0.5)
+        left = _processes_with(str(net))
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
+        for pid in _processes_with(str(net)):
+            os.kill(pid, signal.SIGKILL)
+    assert launcher.returncode == 130 and b"interrupted: every node process stopped" in err, err
+    assert left == []
