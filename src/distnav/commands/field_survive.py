@@ -20,8 +20,9 @@ agree on who they are, check the agreement, and run again on their own data thro
 ``status`` is the new run's with ``_without_lost_nodes``; ``lost_nodes`` names every lost node with the step of the
 failed operation, ``remaining_nodes`` and ``restarted_at_step`` say who went on and from where. The node stops
 (``status = "stopped"``, no estimate, the reason named) on a possible split, a remaining network that is not
-connected, a failure with every node alive, or data that no longer determine the parameters (ModelError). The
-families' departures (the restart discards the iterations made before the loss) are in
+connected, a third failure with every node alive (:data:`MAX_STALLS`: before that the nodes run again with every
+node, ``status`` ``<status>_run_again``, ``stalled_at_steps``), or data that no longer determine the parameters
+(ModelError). The families' departures (the restart discards the iterations made before the loss) are in
 :mod:`distnav.commands.field_admm` and :mod:`distnav.commands.field_uwb`.
 """
 

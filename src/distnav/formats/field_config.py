@@ -42,6 +42,7 @@ Node ids are ``0..n-1``; neighbour lists must be symmetric; addresses distinct.
 
 from __future__ import annotations
 
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -337,9 +338,9 @@ def _node(t: Any, k: int, n: int, base: Path, where: str, security: str) -> Node
         id=node_id,
         address=address,
         neighbours=tuple(sorted(nbrs)),
-        data=None if data is None else base / data,
+        data=None if data is None else Path(os.path.normpath(base / data)),
         public_key=public,
-        secret_key=None if secret is None else base / secret,
+        secret_key=None if secret is None else Path(os.path.normpath(base / secret)),
     )
 
 
@@ -382,7 +383,8 @@ def _crashes(table: dict[str, Any], n: int, where: str) -> tuple[dict[int, int],
 
 
 def format_description(desc: NetworkDescription, *, relative_to: Path | None = None) -> str:
-    """The TOML text of ``desc`` (paths written relative to ``relative_to`` where they can be)."""
+    """The TOML text of ``desc`` (paths written relative to ``relative_to``, with ``..`` when they lie outside it,
+    so that a copy of the description and its files keeps working on another host; on another drive, absolute)."""
     tomli_w = require("tomli_w", "field")
 
     def rel(p: Path | None) -> str | None:
@@ -390,8 +392,8 @@ def format_description(desc: NetworkDescription, *, relative_to: Path | None = N
             return None
         if relative_to is not None:
             try:
-                return str(p.resolve().relative_to(relative_to.resolve()))
-            except ValueError:
+                return os.path.relpath(p.resolve(), relative_to.resolve())
+            except ValueError:  # another drive (Windows)
                 return str(p.resolve())
         return str(p)
 
