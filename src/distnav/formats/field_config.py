@@ -383,18 +383,21 @@ def _crashes(table: dict[str, Any], n: int, where: str) -> tuple[dict[int, int],
 
 
 def format_description(desc: NetworkDescription, *, relative_to: Path | None = None) -> str:
-    """The TOML text of ``desc`` (paths written relative to ``relative_to``, with ``..`` when they lie outside it,
-    so that a copy of the description and its files keeps working on another host; on another drive, absolute)."""
+    """The TOML text of ``desc`` (paths written relative to ``relative_to``, with ``..`` when they lie beside it,
+    so that a copy of the description and its files keeps working on another host; absolute when the two share no
+    folder but the root, or lie on different drives)."""
     tomli_w = require("tomli_w", "field")
 
     def rel(p: Path | None) -> str | None:
         if p is None:
             return None
         if relative_to is not None:
+            full, base = p.resolve(), relative_to.resolve()
             try:
-                return os.path.relpath(p.resolve(), relative_to.resolve())
+                shared = Path(os.path.commonpath([full, base]))
             except ValueError:  # another drive (Windows)
-                return str(p.resolve())
+                return str(full)
+            return os.path.relpath(full, base) if shared != Path(shared.anchor) else str(full)
         return str(p)
 
     nodes = []
