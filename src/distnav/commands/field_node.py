@@ -157,6 +157,11 @@ def _start(desc: NetworkDescription, node_id: int, transport: Transport, values:
     start = handshake(transport, check=check)
     if start.missing:
         LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, start.missing, desc.start_timeout_s)
+    if start.latest_step >= desc.miss_limit:  # they began without it, and have taken it for lost
+        raise ExchangeError(
+            f"node {node_id}: its neighbours are already at step {start.latest_step}: it started after the others "
+            f"began (more than start_timeout_s = {desc.start_timeout_s:g} s after them?); start it with --rejoin"
+        )
     if transport.peers and len(start.missing) + len(start.strangers) == len(transport.peers):
         reasons: dict[str, list[int]] = {}
         for k, v in sorted(start.strangers.items()):
@@ -164,11 +169,22 @@ def _start(desc: NetworkDescription, node_id: int, transport: Transport, values:
         why = "; ".join(f"neighbours {ids}: {v}" for v, ids in reasons.items())
         if why:
             raise ExchangeError(f"node {node_id}: refused by the start-up check: {why}")
+        curve = " With CURVE: is this node's key pair the one its neighbours' description lists?"
         raise ExchangeError(
             f"node {node_id}: none of its neighbours {sorted(transport.peers)} answered within "
             f"{desc.start_timeout_s:g} s (are they started, with this description, and their addresses reachable from "
-            "here? a node started after the others finished has no run to join)"
+            "here? a node started after the others finished has no run to join)." + (curve if transport.curve else "")
         )
+    if values is not None:  # consensus: a neighbour known absent is not waited for (it is readmitted if it comes)
+        for p in start.missing:
+            transport.lost.setdefault(p, 0)
+    LOG.info(
+        "node %d: started after %.1f s (neighbours missing %s, refused %s)",
+        node_id,
+        start.seconds,
+        start.missing,
+        sorted(start.strangers),
+    )
     return start
 
 

@@ -42,6 +42,7 @@ Node ids are ``0..n-1``; neighbour lists must be symmetric; addresses distinct.
 
 from __future__ import annotations
 
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -337,9 +338,9 @@ def _node(t: Any, k: int, n: int, base: Path, where: str, security: str) -> Node
         id=node_id,
         address=address,
         neighbours=tuple(sorted(nbrs)),
-        data=None if data is None else base / data,
+        data=None if data is None else Path(os.path.normpath(base / data)),
         public_key=public,
-        secret_key=None if secret is None else base / secret,
+        secret_key=None if secret is None else Path(os.path.normpath(base / secret)),
     )
 
 
@@ -382,17 +383,21 @@ def _crashes(table: dict[str, Any], n: int, where: str) -> tuple[dict[int, int],
 
 
 def format_description(desc: NetworkDescription, *, relative_to: Path | None = None) -> str:
-    """The TOML text of ``desc`` (paths written relative to ``relative_to`` where they can be)."""
+    """The TOML text of ``desc`` (paths written relative to ``relative_to``, with ``..`` when they lie beside it,
+    so that a copy of the description and its files keeps working on another host; absolute when the two share no
+    folder but the root, or lie on different drives)."""
     tomli_w = require("tomli_w", "field")
 
     def rel(p: Path | None) -> str | None:
         if p is None:
             return None
         if relative_to is not None:
+            full, base = p.resolve(), relative_to.resolve()
             try:
-                return str(p.resolve().relative_to(relative_to.resolve()))
-            except ValueError:
-                return str(p.resolve())
+                shared = Path(os.path.commonpath([full, base]))
+            except ValueError:  # another drive (Windows)
+                return str(full)
+            return os.path.relpath(full, base) if shared != Path(shared.anchor) else str(full)
         return str(p)
 
     nodes = []

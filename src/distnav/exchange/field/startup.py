@@ -67,6 +67,9 @@ class Startup:
     missing: list[int]
     strangers: dict[int, str] = field(default_factory=dict)
     seconds: float = 0.0
+    #: the latest step of a neighbour's message that came during the start (-1: none; a node that comes after the
+    #: others began sees their steps)
+    latest_step: int = -1
 
 
 def handshake(transport: Transport, peers: list[int] | None = None, check: StartCheck | None = None) -> Startup:
@@ -99,7 +102,8 @@ def handshake(transport: Transport, peers: list[int] | None = None, check: Start
     for p in strangers:
         transport.lost.setdefault(p, 0)
     missing = [p for p in targets if p not in levels and p not in strangers]
-    return Startup(missing, strangers, time.monotonic() - t0)
+    latest = max(transport._held, default=-1)
+    return Startup(missing, strangers, time.monotonic() - t0, latest)
 
 
 def _greet(transport: Transport, targets: list[int], level: int, chk: StartCheck) -> None:
