@@ -332,3 +332,29 @@ def test_the_forcing_term_runs_in_the_loops_refits_and_rungs_only(monkeypatch):
     assert np.array_equal(on.excluded, off.excluded) and on.status == off.status
     assert np.max(np.abs(on.positions_m - off.positions_m)) < 1e-4
     assert on.bytes < off.bytes
+
+
+def test_the_tightening_chase_stops_where_the_target_hardly_falls(monkeypatch):
+    """A PLANT_HARD hall ([34, 4], corner) whose tightening target creeps down after the first jump (0.215, 0.205,
+    0.204, 0.203 … m): with ``field_fits.TIGHTEN_MIN_FALL`` = 0.01 (issue 27 ninth session, item 53) the chase stops
+    where the target falls by less than 1 % of the scale, instead of one more fit per creep (0: the behaviour
+    before): the same links excluded and status, positions within 0.1 mm (0.025 mm measured), the final scale
+    within 1 %, fewer bytes in the tightening and in all."""
+    import re
+
+    import distnav.models.uwb.field_fits as field_fits
+    from distnav.models.uwb.hall import PLANT_HARD
+
+    h = simulate_hall(np.random.default_rng([34, 4]), None, **PLANT_HARD, known="corner")
+    sub, geo = prepare(hall_problem(h)[0])
+    got = {}
+    for fall in (0.01, 0.0):
+        monkeypatch.setattr(field_fits, "TIGHTEN_MIN_FALL", fall)
+        got[fall] = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    now, before = got[0.01], got[0.0]
+    scale = [float(re.search(r"scale tightened to ([0-9.]+) m", s.message).group(1)) for s in (now, before)]
+    assert scale[0] > scale[1] and scale[0] < 1.01 * scale[1]
+    assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 1e-4
+    assert now.comm_phases["tighten"]["bytes"] < 0.7 * before.comm_phases["tighten"]["bytes"]
+    assert now.bytes < before.bytes
