@@ -30,6 +30,7 @@ from distnav.experiments import EXPERIMENTS, available, load
 from distnav.options import (
     check_node_outputs,
     check_output_spares,
+    check_repeated_inputs,
     input_paths,
     output_folder,
     positive_int,
@@ -358,6 +359,7 @@ def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None
         from distnav._optional import require
 
         require("mpi4py.MPI", "mpi")
+    check_repeated_inputs(args)  # one file twice in a list (--bias A A): options.py
     out = getattr(args, "out", None)
     if out is not None and probe_out:
         probe_output_folder(out)

@@ -32,6 +32,7 @@ __all__ = [
     "OUTPUT_MANIFEST",
     "check_output_folder",
     "check_output_spares",
+    "check_repeated_inputs",
     "check_node_outputs",
     "node_output_files",
     "input_paths",
@@ -128,11 +129,15 @@ def nonnegative_float(text: str) -> float:
 def iso_datetime(text: str) -> str:
     """An ISO 8601 date and time such as ``2024-01-10T06:00`` (returned as given, checked here)."""
     try:
-        datetime.fromisoformat(text)
+        moment = datetime.fromisoformat(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected an ISO date and time such as 2024-01-10T06:00, got {text!r}"
         ) from None
+    if moment.tzinfo is not None:  # numpy dropped the zone with a deprecation warning: a shifted, silent window
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: times are GPS time, without a time zone (write e.g. {moment.replace(tzinfo=None).isoformat()})"
+        )
     return text
 
 
@@ -218,6 +223,24 @@ def input_paths(values: Iterable[object]) -> list[Path]:
         elif isinstance(value, (str, Path)) and str(value) and os.path.exists(value):
             found.append(Path(os.path.realpath(value)))
     return found
+
+
+def check_repeated_inputs(args: argparse.Namespace) -> None:
+    """Refuse a file named twice in one option's list (``--bias A A``, ``--sp3 A ./A``): never meant, and it
+    would count the file's data twice or compare a product with itself. Station files (``--obs``, ``--rinex``) are
+    left to their readers, which name the station given twice (also in two different files)."""
+    for key, value in vars(args).items():
+        if not isinstance(value, (list, tuple)) or key in ("obs", "rinex"):
+            continue
+        seen: dict[Path, object] = {}
+        for item in value:
+            if not isinstance(item, (str, Path)) or not str(item) or not os.path.isfile(item):
+                continue
+            real = Path(os.path.realpath(item))
+            if real in seen:
+                same = f" (as {seen[real]})" if str(seen[real]) != str(item) else ""
+                raise UsageError(f"--{key.replace('_', '-')}: {item} is given twice{same}")
+            seen[real] = item
 
 
 def _files_under(folder: Path) -> Iterator[str]:

@@ -37,7 +37,7 @@ from distnav.commands.gnss_common import (
     documented_parser,
     load_edges,
 )
-from distnav.errors import DataFileError, ModelError
+from distnav.errors import DataFileError, ModelError, UsageError
 
 __all__ = [
     "register",
@@ -65,6 +65,9 @@ def _run_compare(args: argparse.Namespace) -> int:
         if not _SATELLITE.match(sat.upper()):
             raise ModelError(f"--exclude {sat}: not a GPS satellite (G01 … G32)")
     path = Path(args.estimates)
+    for b in args.bias:
+        if path.is_file() and Path(b).is_file() and path.resolve() == Path(b).resolve():
+            raise UsageError(f"--estimates {args.estimates} is also given as --bias: a product compared with itself")
     if path.is_dir() and (path / "multiday.json").exists():
         return _run_compare_days(args, path)
     if (
@@ -83,12 +86,38 @@ def _run_compare(args: argparse.Namespace) -> int:
         _ = est["x_ns"], est["codes"], est["reference_station"], est["coefficients"]
     except (ValueError, KeyError, TypeError) as exc:
         raise DataFileError(f"{path}: not a distnav codebias.json ({type(exc).__name__}: {exc})") from None
+    est = _codebias_to_compare(args, path, est)
     summary = compare_with_products(est, [Path(b) for b in args.bias])
     print_comparison(summary)
     if args.out:
         atomic_write_json(Path(args.out) / "comparison.json", summary)
         print(f"written {Path(args.out) / 'comparison.json'}")
     return 0
+
+
+def _codebias_to_compare(args: argparse.Namespace, path: Path, est: dict[str, Any]) -> dict[str, Any]:
+    """A ``codebias.json`` for :func:`compare_with_products`: a product of another day than its epochs refused
+    unless ``--allow-other-day``, the ``--exclude`` satellites left out (both were ignored for codebias estimates
+    before: a wrong day's product gave "no satellite in common", excluded satellites stayed in the RMS)."""
+    from distnav.formats.gnss.product_files import product_day
+
+    first, last = est.get("first_epoch"), est.get("last_epoch") or est.get("first_epoch")
+    if first and not args.allow_other_day:
+        days = np.arange(np.datetime64(str(first)[:10]), np.datetime64(str(last)[:10]) + np.timedelta64(1, "D"))
+        for b in args.bias:
+            day = product_day(b)
+            if day is not None and day not in days:
+                raise ModelError(
+                    f"{Path(b).name}: a product of {day}, the estimates ({path}) are of "
+                    f"{', '.join(str(d) for d in days)} (--allow-other-day to compare anyway)"
+                )
+    exclude = {e.upper() for e in args.exclude or []}
+    if not exclude:
+        return est
+    kept = {sv: x for sv, x in est["x_ns"].items() if sv.upper() not in exclude}
+    if not kept:
+        raise ModelError(f"--exclude leaves no satellite of {path} ({', '.join(est['x_ns'])}) to compare")
+    return {**est, "x_ns": kept}
 
 
 def _run_compare_days(args: argparse.Namespace, path: Path) -> int:

@@ -33,7 +33,12 @@ def parse_codes(text: str | None) -> dict[int, str]:
         key = key.strip().upper()
         if key not in ("L1", "L2", "L5") or len(code.strip()) != 3:
             raise ModelError(f"--codes expects e.g. L1=C1C,L2=C2W,L5=C5X; got {item!r}")
-        out[int(key[1])] = code.strip().upper()
+        band, code = int(key[1]), code.strip().upper()
+        if band in out:
+            raise ModelError(f"--codes names {key} twice ({key}={out[band]}, {item.strip()}): give one code per band")
+        if code[:2] != f"C{band}":  # a code of another frequency would be used with this band's coefficient
+            raise ModelError(f"--codes {item.strip()}: {code} is not an {key} code (e.g. C{band}C)")
+        out[band] = code
     return out
 
 
@@ -234,6 +239,7 @@ def _report(args: argparse.Namespace, data: Any, obs: list[Any], run: CodeBiasRu
         "no_orbit": data.meta.get("no_orbit", []),
         "epochs": data.n_epochs,
         "first_epoch": str(np.asarray(obs[0].time)[0]) if obs[0].n_epochs else None,
+        "last_epoch": str(max(np.asarray(o.time)[-1] for o in obs if o.n_epochs)) if obs[0].n_epochs else None,
         "mask_deg": args.mask,
         "sigma0_m": args.sigma,
         "weighting": args.weighting,

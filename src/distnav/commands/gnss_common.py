@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -27,26 +28,42 @@ def load_edges(path: Path, stations: list[str]) -> Any:
 
     index = {s.upper(): k for k, s in enumerate(stations)}
     links: list[tuple[int, int]] = []
-    if not path.exists():
-        raise DataFileError(f"{path}: file not found")
-    with path.open(newline="", encoding="utf-8") as fh:
-        for no, row in enumerate(csv.reader(fh), start=1):
-            cells = [c.strip() for c in row if c.strip()]
-            if not cells or cells[0].startswith("#"):
-                continue
-            if len(cells) != 2:
-                raise DataFileError(f"{path}, line {no}: expected two station names, got {row}")
-            a, b = (c.upper()[:4] if c.upper() not in index else c.upper() for c in cells)
-            if a not in index or b not in index:
-                if no == 1:
-                    continue  # header line
-                unknown = [c for c in (a, b) if c not in index]
-                raise DataFileError(
-                    f"{path}, line {no}: unknown station {', '.join(unknown)} (stations: {', '.join(stations)})"
-                )
-            if a == b:
-                raise DataFileError(f"{path}, line {no}: a link from {a} to itself")
-            links.append((index[a], index[b]))
+    if not path.is_file():
+        raise DataFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")  # a byte-order mark (a Windows editor's) is not part of the first name
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise DataFileError(
+            f"{path}, line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 text: expected a CSV of station-name pairs"
+        ) from None
+    if "\x00" in text:
+        raise DataFileError(f"{path}: binary data (NUL bytes): expected a CSV of station-name pairs")
+    header = ""
+    for no, row in enumerate(csv.reader(text.splitlines()), start=1):
+        cells = [c.strip() for c in row if c.strip()]
+        if not cells or cells[0].startswith("#"):
+            continue
+        if len(cells) != 2:
+            raise DataFileError(f"{path}, line {no}: expected two station names, got {row}")
+        a, b = (c.upper()[:4] if c.upper() not in index else c.upper() for c in cells)
+        if a not in index or b not in index:
+            if no == 1 and a not in index and b not in index:
+                header = ",".join(cells)
+                continue  # a header line (it names no station)
+            unknown = [c for c in (a, b) if c not in index]
+            raise DataFileError(
+                f"{path}, line {no}: unknown station {', '.join(unknown)} (stations: {', '.join(stations)})"
+            )
+        if a == b:
+            raise DataFileError(f"{path}, line {no}: a link from {a} to itself")
+        links.append((index[a], index[b]))
+    if not links and header:
+        raise DataFileError(
+            f"{path}: no links (line 1, {header!r}, names none of the stations {', '.join(stations)} and was taken "
+            f"as a header)"
+        )
     if not links and len(stations) > 1:
         raise DataFileError(f"{path}: no links")
     graph = Graph.from_links(len(stations), links, names=stations, allow_duplicates=True)
@@ -141,6 +158,9 @@ def check_data_arguments(args: argparse.Namespace) -> None:
     if not 0.0 <= args.mask < 90.0:
         raise ModelError(f"--mask {args.mask:g}: the elevation mask must lie in [0, 90) degrees")
     if args.tlim:
+        for t in args.tlim:  # numpy would shift a zoned time to UTC with only a deprecation warning
+            if re.search(r"(Z|[+-]\d\d:?\d\d)$", t.strip()) and "T" in t:
+                raise ModelError(f"--tlim {t}: times are GPS time, without a time zone (e.g. 2024-01-10T06:00)")
         try:
             t0, t1 = (np.datetime64(t, "s") for t in args.tlim)
         except ValueError:

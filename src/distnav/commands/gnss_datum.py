@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import argparse
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from distnav.errors import DataFileError, ModelError
 
-__all__ = ["DatumChoice", "check_datum_option", "datum_choice"]
+__all__ = ["DatumChoice", "check_datum_option", "check_datum_tracked", "datum_choice"]
 
 _PRN = re.compile(r"^G(0[1-9]|[12][0-9]|3[0-2])$")
 _ALL_GPS = tuple(f"G{k:02d}" for k in range(1, 33))
@@ -65,3 +66,16 @@ def datum_choice(args: argparse.Namespace, l1: str, l2: str) -> DatumChoice:
     if len(prod.satellite) < 2:
         raise DataFileError(f"--datum-satellites {value}: no {l1}-{l2} satellite DSBs in the product")
     return DatumChoice(tuple(sorted(prod.satellite)), dict(prod.satellite), prod.name)
+
+
+def check_datum_tracked(fixed: DatumChoice, svs: Sequence[str]) -> None:
+    """A ``--datum-satellites`` list of which no satellite is tracked: its zero mean runs over no satellite and every
+    DSB of the output is undefined (before: written as empty cells, exit 0). A product's set is exempt: its missing
+    satellites are held at the product's values."""
+    if fixed.members is None or fixed.reference_name is not None:
+        return
+    if not set(fixed.members) & set(svs):
+        raise ModelError(
+            f"--datum-satellites {','.join(fixed.members)}: none of them is tracked above the mask by any station "
+            f"(tracked: {' '.join(svs)}), so the zero mean would run over no satellite"
+        )

@@ -59,6 +59,12 @@ __all__ = [
 ]
 
 
+#: the most consensus rounds per epoch ``--kn`` takes: each round is one message per link, every epoch runs them
+#: all (2,880 epochs of a day at 30 s), so 10⁸ (a typo) would run for days; the paper's networks converge within
+#: tens of rounds (paper 003 §5: 4, δ = 15 s at Δ = 60 s)
+MAX_KN = 10_000
+
+
 def _say(args: argparse.Namespace, text: str) -> None:
     if not getattr(args, "no_progress", False):
         print(text, file=sys.stderr, flush=True)
@@ -113,8 +119,11 @@ def validate_arguments(args: argparse.Namespace) -> None:
     for opt, value in (("--sigma", args.sigma), ("--regional-km", args.regional_km), ("--tec-rw", args.tec_rw)):
         if value is not None and not (np.isfinite(value) and value > 0.0):
             raise ModelError(f"{opt} {value:g}: must be a positive number")
-    if args.kn < 0:
-        raise ModelError(f"--kn must be ≥ 0, got {args.kn}")
+    if not 0 <= args.kn <= MAX_KN:
+        raise ModelError(
+            f"--kn must lie in 0 … {MAX_KN:,} consensus rounds per epoch, got {args.kn:,} (every epoch runs them "
+            f"all: a day at 30 s is 2,880 epochs)"
+        )
     if args.between_station_level != 0 and not 0.0 < args.between_station_level < 0.5:
         raise ModelError(
             f"--between-station-level {args.between_station_level:g}: a test level in (0, 0.5), or 0 (off)"
@@ -173,7 +182,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     """Handler of ``distnav gnss ionosphere``: wires the options to the stages — read and prepare the network
     (:func:`network_data`), the filters in the chosen datum (:func:`~distnav.models.gnss.gfnetwork.
     run_bias_filters`), the outputs (:func:`~distnav.commands.gnss_ionosphere_out.write_results`)."""
-    from distnav.commands.gnss_datum import datum_choice
+    from distnav.commands.gnss_datum import check_datum_tracked, datum_choice
     from distnav.commands.gnss_ionosphere_out import write_results
     from distnav.models.gnss.gfnetwork import run_bias_filters
 
@@ -203,6 +212,7 @@ def run_ionosphere(args: argparse.Namespace) -> int:
     pivot = _pivot(args, layout.svs)
     graph = _network_graph(args, data)
     fixed = datum_choice(args, l1, args.l2_code.upper())
+    check_datum_tracked(fixed, layout.svs)
     _say(
         args,
         f"{len(stations)} station(s), {data.series.n_epochs} epochs, {len(layout.svs)} satellites, datum "

@@ -131,6 +131,11 @@ def network_from_observations(obs: Sequence[Any], orbit: Any, options: NetworkOp
     from distnav.models.gnss.biasmodel import bias_network_model
 
     excl = set(options.exclude)
+    unknown = sorted(e for e in excl if len(e) == 4 and e not in {o.station for o in obs})  # satellites: 3 chars
+    if unknown:
+        raise DataFileError(
+            f"--exclude {' '.join(unknown)}: no such station (stations: {', '.join(o.station for o in obs)})"
+        )
     obs = [_without_unknown_frequencies(o, options.model_options.band) for o in obs if o.station not in excl]
     if not obs:
         raise DataFileError("every station is excluded")

@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +59,14 @@ from distnav.algorithms.ranging.csg import SOLVERS
 from distnav.algorithms.ranging.losses import LOSSES
 from distnav.algorithms.ranging.objective import DELAY_MODES
 from distnav.commands import add_backend_arguments
+from distnav.commands.uwb_checks import (
+    april_known_ids,
+    check_gauge,
+    check_initial_distinct,
+    every_anchor,
+    held_heights,
+    validate_options,
+)
 from distnav.commands.uwb_outputs import (
     communication_entry,
     plot,
@@ -75,7 +82,6 @@ from distnav.formats.uwb.io import (
     CombinedRanges,
     check_units,
     combine_ranges,
-    read_heights,
     read_positions,
     read_ranges,
     single_link_anchors,
@@ -287,42 +293,15 @@ def write_april_csvs(log: Path, out: Path, *, known: list[int], delays: str = "m
 
 
 def _import_april(args: argparse.Namespace) -> int:
-    try:
-        known = [int(k) for k in str(args.known).split(",") if k.strip()]
-    except ValueError:
-        raise DataFileError(f"--known must be comma-separated node ids, got {args.known!r}") from None
+    from distnav.formats.uwb.april import TRUTH_FT
+
+    known = april_known_ids(args.known, list(TRUTH_FT))
     files = write_april_csvs(args.log, args.out, known=known, delays=args.delays)
     print("wrote " + ", ".join(str(f) for f in files.values()))
     return 0
 
 
 # ---------------------------------------------------------------------- the solve
-def _validate(opts: FieldOptions) -> None:
-    if opts.loss != "linear" and opts.solver.upper() == "CSG":
-        raise ModelError(
-            f"--loss {opts.loss} is implemented for LM and the neighbourhood solvers, not CSG (pass --loss linear)"
-        )
-    if opts.iterations < 1:
-        raise ModelError(f"--iterations must be ≥ 1, got {opts.iterations}")
-    for name, v in (
-        ("--sigma-m", opts.sigma_m),
-        ("--loss-scale-m", opts.loss_scale_m),
-        ("--offset-prior-sigma-m", opts.offset_prior_sigma_m),
-    ):
-        if not (np.isfinite(v) and v > 0):
-            raise ModelError(f"{name} must be a positive number of metres, got {v}")
-    if not (np.isfinite(opts.delay_sigma_m) and opts.delay_sigma_m >= 0):
-        raise ModelError(f"--delay-sigma-m must be a number of metres ≥ 0, got {opts.delay_sigma_m}")
-    if not (np.isfinite(opts.reliability_limit_m) and opts.reliability_limit_m >= 0):
-        raise ModelError(f"--reliability-limit-m must be a number of metres ≥ 0, got {opts.reliability_limit_m}")
-    if not 0.0 < opts.level < 0.5:
-        raise ModelError(f"--level must lie in (0, 0.5), got {opts.level}")
-    if opts.range_offsets not in ("none", "auto") and opts.objective != "metres":
-        raise ModelError(f"--range-offsets {opts.range_offsets} is estimated with --objective metres only")
-    if opts.range_offsets == "common_delays" and opts.solver.upper() != "LM":
-        raise ModelError(f"--range-offsets common_delays is LM's only (--solver {opts.solver}: common or per_anchor)")
-
-
 def solve_range_log(
     ranges: Path,
     known: Path,
@@ -338,7 +317,7 @@ def solve_range_log(
 
     A distributed solver runs on an exchange of ``backend`` (``"mpi"`` under ``mpiexec``); LM is centralized."""
     opts = options or FieldOptions()
-    _validate(opts)
+    validate_options(opts)
     log = read_ranges(ranges, strict=strict)
     comb = combine_ranges(log)
     known_pos, dim = read_positions(known)
@@ -351,14 +330,14 @@ def solve_range_log(
     warnings += single_link_anchors(comb) + ([units_warning] if units_warning else [])
     if unused_known:
         warnings.append(f"known anchors without ranges are ignored: {', '.join(unused_known[:10])}")
-    held = _held_heights(heights, known, ranges, dim=dim, ids=index, known_pos=known_pos)
+    held = held_heights(heights, known, ranges, dim=dim, ids=index, known_pos=known_pos)
     fixed = {k: v for k, v in known_pos.items() if k in index}
     if not fixed:
         raise DataFileError(
             f"{known}: none of the known anchors ({', '.join(unused_known[:10])}) appears in "
             f"{ranges} (whose anchors are {', '.join(ids[:10])}{' …' if len(ids) > 10 else ''})"
         )
-    truth_m = _every_anchor(truth, "truth", ids, dim, known) if truth is not None else None
+    truth_m = every_anchor(truth, "truth", ids, dim, known) if truth is not None else None
     problem = build_problem(
         ids,
         list(comb.pairs),
@@ -370,8 +349,10 @@ def solve_range_log(
         name=Path(ranges).stem,
         check_determined=False,
     )
-    _check_gauge(problem)
-    init = _every_anchor(initial, "initial guess", ids, dim, known) if initial is not None else None
+    check_gauge(problem)
+    init = every_anchor(initial, "initial guess", ids, dim, known) if initial is not None else None
+    if initial is not None and init is not None:
+        check_initial_distinct(initial, ids, init, fixed)
     init_source = (
         str(initial)
         if initial is not None
@@ -399,55 +380,6 @@ def solve_range_log(
         warnings,
     )
     return sol, comb, summary
-
-
-def _held_heights(
-    heights: Path | None,
-    known: Path,
-    ranges: Path,
-    *,
-    dim: int,
-    ids: dict[str, int],
-    known_pos: dict[str, Any],
-) -> dict[str, dict[int, float]]:
-    """``{anchor: {2: z}}`` of the estimated anchors whose heights ``heights`` holds (DataFileError naming the file
-    and line of an anchor the log does not have, or heights for a 2-D network)."""
-    held: dict[str, dict[int, float]] = {}
-    if heights is None:
-        return held
-    if dim != 3:
-        raise DataFileError(f"{heights}: heights need a 3-D network, but {known} has no z_m column")
-    hz, hline = read_heights(heights)
-    for k, z in hz.items():
-        if k not in ids:
-            raise DataFileError(f"{heights}:{hline[k]}: anchor {k!r} does not appear in {ranges}")
-        if k not in known_pos:
-            held[k] = {2: z}
-    return held
-
-
-def _every_anchor(path: Path, what: str, ids: Sequence[str], dim: int, known: Path) -> np.ndarray:
-    """The positions of ``path`` for every anchor of the log, in its order (DataFileError: another dimension than
-    ``known``'s, or an anchor missing)."""
-    pos, d = read_positions(path)
-    if d != dim:
-        raise DataFileError(f"{path}: has {d}-D positions but {known} has {dim}-D")
-    missing = [k for k in ids if k not in pos]
-    if missing:
-        raise DataFileError(f"{path}: {what} lacks anchor(s) {', '.join(repr(m) for m in missing[:10])}")
-    return np.array([pos[k] for k in ids])
-
-
-def _check_gauge(problem: RangingProblem) -> None:
-    """The number of known anchors a frame needs (what build_problem checks first; ModelError otherwise)."""
-    fixed = problem.fixed
-    planar = problem.dim == 2 or bool(np.all(~problem.free[~fixed, 2]))
-    need = 2 if planar else 3
-    if int(fixed.sum()) < need:
-        what = (
-            "2 fixed anchors (2-D, or 3-D with every height held)" if planar else "3 non-collinear fixed anchors in 3-D"
-        )
-        raise ModelError(f"the problem is not determined: it needs at least {what}, got {int(fixed.sum())}")
 
 
 def _summary(
@@ -544,7 +476,7 @@ def _handler(args: argparse.Namespace) -> int:
         )
     if not args.refine and opts.solver == "LM":
         raise ModelError("--no-refine applies to the distributed solvers (--solver N-CLM, N-CSG-TBLS, ...), not to LM")
-    _validate(opts)
+    validate_options(opts)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise DataFileError(f"{out}: --out must be a folder, and this is a file")

@@ -30,6 +30,7 @@ from distnav.formats.gnss.compressed import (
     _text_lines,
     read_bytes,
     read_text_file,
+    text_bytes,
 )
 from distnav.formats.gnss.rinex_fields import epoch_time, glonass_slot_channels, parse_fields
 from distnav.models.gnss.code_observations import ProgressCallback
@@ -105,7 +106,7 @@ def parse_header(lines: Sequence[str], path: Path) -> RinexHeader:
 
 
 def _read_lines(path: Path) -> list[str]:
-    raw = read_bytes(path)
+    raw = text_bytes(path, read_bytes(path))
     _ends_with_newline(path, raw)
     if b"COMPACT RINEX" in raw[:200] or b"CRINEX VERS" in raw[:200]:
         try:
@@ -500,7 +501,11 @@ class _Scan:
         """The epochs kept and the satellites seen with any of the types (PRN order)."""
         p, name, types = self.path, SYSTEM_NAMES.get(self.system, self.system), self.types
         if not self.times:
-            raise DataFileError(f"{p}: no {name} observation epochs" + (f" in {tlim}" if tlim is not None else ""))
+            within = ""
+            if tlim is not None:
+                t0, t1 = (str(np.datetime64(t, "s")) for t in tlim)
+                within = f" between {t0} and {t1} (GPS time; --tlim)"
+            raise DataFileError(f"{p}: no {name} observation epochs{within}")
         shape = (len(self.times), self.n_prn, len(types))
         V = np.full(shape, np.nan)  # (T, PRN, types)
         L = np.zeros(shape, np.int8)

@@ -73,6 +73,10 @@ def april_csv_texts(path: str | Path, *, known: list[int], delays: str = "manual
             raise DataFileError(f"known node {k} has no ground truth; choose from {sorted(TRUTH_FT)}")
     a, b, r = read_april(path, delays=delays)
     keep = np.isin(a, list(TRUTH_FT)) & np.isin(b, list(TRUTH_FT))  # node 16: no truth, left out
+    if not keep.any():
+        raise DataFileError(
+            f"{path}: no sample between two nodes with ground truth {sorted(TRUTH_FT)} (node 16, the robot, has none)"
+        )
     lines = ["a,b,range_m"] + [f"{x},{y},{v:.6f}" for x, y, v in zip(a[keep], b[keep], r[keep], strict=True)]
 
     def table(nodes: list[int]) -> str:
@@ -90,7 +94,10 @@ def _parse_log(p: Path) -> np.ndarray:
     if b"\x00" in raw:
         line = raw.count(b"\n", 0, raw.index(b"\x00")) + 1
         raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected an APRIL range log (text)")
+    if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte-order mark (a Windows editor's): not part of the log
+        raw = raw[3:]
     text = decoded_text(raw, p, "ascii", "plain ASCII text: expected an APRIL range log (whitespace-separated numbers)")
+    _check_last_line(p, text)
     out: list[tuple[float, float, float]] = []
     for number, text_line in enumerate(text.splitlines(), start=1):
         fields = text_line.split()
@@ -107,7 +114,22 @@ def _parse_log(p: Path) -> np.ndarray:
             raise DataFileError(f"{p}, line {number}: time of propagation {fields[0]!r} is not a number") from None
         if not (fields[1].isdigit() and fields[2].isdigit()):
             raise DataFileError(f"{p}, line {number}: node ids {fields[1]!r} {fields[2]!r}: expected two whole numbers")
+        if int(fields[1]) == int(fields[2]):
+            raise DataFileError(f"{p}, line {number}: a range from node {fields[1]} to itself")
         out.append((t_us, float(fields[1]), float(fields[2])))
     if not out:
         raise DataFileError(f"{p}: no samples (an empty APRIL range log)")
     return np.array(out)
+
+
+def _check_last_line(p: Path, text: str) -> None:
+    """A log whose last line has no newline and fewer fields than the line before was cut while it was written
+    or copied: its last number may be cut too (``0.53`` of ``0.5313…``), a silently wrong range."""
+    if not text or text.endswith(("\n", "\r")):
+        return
+    lines = [line for line in text.splitlines() if line.strip()]
+    if len(lines) >= 2 and len(lines[-1].split()) < len(lines[-2].split()):
+        raise DataFileError(
+            f"{p}, line {text.count(chr(10)) + 1}: the file ends inside a line ({len(lines[-1].split())} fields, the "
+            f"line before has {len(lines[-2].split())}; no final newline): it is truncated"
+        )
