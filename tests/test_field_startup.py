@@ -248,3 +248,27 @@ def test_a_terminated_launcher_leaves_no_node_process_behind(tmp_path: Path) -> 
             os.kill(pid, signal.SIGKILL)
     assert launcher.returncode == 130 and b"interrupted: every node process stopped" in err, err
     assert left == []
+
+
+def test_a_node_started_after_the_others_began_exits_2_naming_rejoin(tmp_path: Path) -> None:
+    """Node 3 started 6 s after the others, whose start timeout (2 s) had passed: before, it ran from step 0 while its
+    neighbours were hundreds of steps ahead; now it exits 2 and says to start it with --rejoin."""
+    algo = {"name": "consensus_flows", "rounds": 10**6, "protocol": "MH", "patience": 5}
+    opts = LoopbackOptions(algorithm=algo, deadline_ms=1000, start_timeout_s=2)
+    net = write_loopback_network(tmp_path / "net", LINKS, np.ones((N, 1)), opts)
+    out = tmp_path / "run"
+    out.mkdir()
+    procs: dict[int, subprocess.Popen[bytes]] = {}
+    try:
+        procs = {i: _start(net, i, out) for i in range(N) if i != 3}
+        time.sleep(6.0)
+        late = _start(net, 3, out)
+        procs[3] = late
+        code = _finish({3: late}, 60)[3]
+        assert all(p.poll() is None for k, p in procs.items() if k != 3)  # the others still in their rounds
+    finally:
+        _kill_all(procs)
+    err = _stderr(out)
+    assert code == 2, err
+    assert "error: node 3: its neighbours are already at step" in err and "start it with --rejoin" in err, err
+    assert not (out / "node-3.json").exists()
