@@ -248,3 +248,65 @@ def test_a_terminated_launcher_leaves_no_node_process_behind(tmp_path: Path) -> 
             os.kill(pid, signal.SIGKILL)
     assert launcher.returncode == 130 and b"interrupted: every node process stopped" in err, err
     assert left == []
+
+
+def test_a_node_started_after_the_others_began_exits_2_naming_rejoin(tmp_path: Path) -> None:
+    """Node 3 started 6 s after the others, whose start timeout (2 s) had passed: before, it ran from step 0 while its
+    neighbours were hundreds of steps ahead; now it exits 2 and says to start it with --rejoin."""
+    algo = {"name": "consensus_flows", "rounds": 10**6, "protocol": "MH", "patience": 5}
+    opts = LoopbackOptions(algorithm=algo, deadline_ms=1000, start_timeout_s=2)
+    net = write_loopback_network(tmp_path / "net", LINKS, np.ones((N, 1)), opts)
+    out = tmp_path / "run"
+    out.mkdir()
+    procs: dict[int, subprocess.Popen[bytes]] = {}
+    try:
+        procs = {i: _start(net, i, out) for i in range(N) if i != 3}
+        time.sleep(6.0)
+        late = _start(net, 3, out)
+        procs[3] = late
+        code = _finish({3: late}, 60)[3]
+        assert all(p.poll() is None for k, p in procs.items() if k != 3)  # the others still in their rounds
+    finally:
+        _kill_all(procs)
+    err = _stderr(out)
+    assert code == 2, err
+    assert "error: node 3: its neighbours are already at step" in err and "start it with --rejoin" in err, err
+    assert not (out / "node-3.json").exists()
+
+
+def test_a_consensus_node_stopped_past_the_deadlines_learns_that_its_neighbours_dropped_it(tmp_path: Path) -> None:
+    """SIGSTOP of node 3 (flow consensus) mid-run for longer than the rest of the run, then SIGCONT: its neighbours
+    declare it lost and end with the exact mean of their own data while it is stopped. Before, node 3 then ran on
+    their queued messages and ended ``completed``, nothing said (its data in no one's answer); now their byes tell
+    it (``dropped_by``, ``..._dropped_by_neighbours``). (Resumed while they still run, it is readmitted and every
+    node ends with the mean of all the data: the flows' design.)"""
+    values = np.random.default_rng(8).normal(size=(N, 2))
+    algo = {"name": "consensus_flows", "rounds": 2000, "protocol": "MH", "patience": 5}
+    net = write_loopback_network(tmp_path / "net", LINKS, values, LoopbackOptions(algorithm=algo, deadline_ms=500))
+    out = tmp_path / "run"
+    out.mkdir()
+    procs: dict[int, subprocess.Popen[bytes]] = {}
+    try:
+        procs = {i: _start(net, i, out) for i in range(N)}
+        log = out / "node-3.log"
+        end = time.monotonic() + 120
+        while time.monotonic() < end and not (log.exists() and "started after" in log.read_text()):
+            time.sleep(0.05)
+        time.sleep(0.5)
+        assert procs[3].poll() is None, _stderr(out)
+        os.kill(procs[3].pid, signal.SIGSTOP)
+        others = {i: p for i, p in procs.items() if i != 3}
+        _finish(others, 120)  # they finish without it
+        os.kill(procs[3].pid, signal.SIGCONT)
+        codes = _finish(procs, 240)
+    finally:
+        _kill_all(procs)
+    assert all(c == 0 for c in codes.values()), (codes, _stderr(out)[-3000:])
+    res = {i: json.loads((out / f"node-{i}.json").read_text()) for i in range(N)}
+    keep = [i for i in range(N) if i != 3]
+    assert all("3" in res[i]["lost_nodes"] for i in (1, 2, 4, 5)), {i: res[i]["lost_nodes"] for i in keep}
+    field = np.array([res[i]["estimate"] for i in keep])
+    assert np.abs(field - values[keep].mean(axis=0)).max() <= 1e-6
+    assert res[3]["status"].endswith("_dropped_by_neighbours"), res[3]["status"]
+    assert sorted(res[3]["dropped_by"]) == ["1", "2", "4", "5"], res[3]["dropped_by"]
+    assert all(not res[i]["dropped_by"] for i in keep)

@@ -25,7 +25,7 @@ from distnav.algorithms.consensus.flows import iterate_flow_consensus
 from distnav.commands.field_algorithms import REJOIN_ALGORITHMS
 from distnav.errors import DataFileError, ExchangeError, UsageError
 from distnav.exchange import FaultSchedule
-from distnav.exchange.field import CurveKeys, FieldExchange, Transport
+from distnav.exchange.field import CurveKeys, FieldExchange, Kind, Transport
 from distnav.exchange.field.startup import StartCheck, Startup, handshake
 from distnav.formats.field_config import NetworkDescription, read_node_values
 from distnav.output import atomic_write_json
@@ -108,6 +108,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             assert values is not None
             crash_round = None if rejoin else desc.crash.get(node_id)
             outcome = _run_consensus(states, values, node_id, int(desc.algorithm["rounds"]), first, crash_round)
+            outcome |= _farewell(transport, ex.step)
         else:
             from distnav.commands.field_algorithms import run_algorithm
 
@@ -120,6 +121,8 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         lost = agreed if agreed is not None else {str(k): v for k, v in sorted(transport.lost.items())}
         if agreed is None and transport.lost and status != "stopped":
             status = f"{status}_with_lost_neighbours"
+        if outcome.get("dropped_by"):  # its neighbours went on without it (:func:`_farewell`)
+            status = f"{status}_dropped_by_neighbours"
         result = {
             "node": node_id,
             "algorithm": desc.algorithm["name"],
@@ -186,6 +189,23 @@ def _start(desc: NetworkDescription, node_id: int, transport: Transport, values:
         sorted(start.strangers),
     )
     return start
+
+
+def _farewell(transport: Transport, step: int) -> dict[str, Any]:
+    """A consensus node's last word: a bye to every neighbour saying whether (at which step, else -1) this node
+    declared it lost, and the byes that came from the neighbours by now. A node stopped (SIGSTOP) past the deadlines
+    and then resumed ran on its neighbours' queued messages and could not tell that they had dropped it: their answer
+    and its own no longer hold its data. The byes of neighbours that finished before it are there when it ends
+    (``dropped_by``, ``status`` ``..._dropped_by_neighbours``); a neighbour still running is not waited for."""
+    for p in transport.peers:
+        transport.post(p, Kind.BYE, step, np.array([transport.lost.get(p, -1)], np.int64))
+    byes = {s: m for held in transport._held.values() for s, m in held.items() if m.kind == Kind.BYE}
+    for frame in transport._frames():
+        msg = transport._checked(frame)
+        if msg is not None and msg.kind == Kind.BYE:
+            byes[msg.sender] = msg
+    dropped = {str(s): int(m.array[0]) for s, m in sorted(byes.items()) if m.array.size == 1 and m.array[0] >= 0}
+    return {"dropped_by": dropped}
 
 
 def _join(transport: Transport, consensus: bool) -> tuple[int, str | None]:

@@ -22,7 +22,9 @@ description or a cut data file):
   (:meth:`~distnav.formats.field_config.NetworkDescription.fingerprint`) and the number of values of this node's
   step messages where the algorithm knows it (consensus: the data's length); a hello that differs is refused
   (``another_network``, the reason logged once), and the sender is a *stranger*: lost from step 0 and every
-  later message of it refused (:attr:`Transport.strangers`).
+  later message of it refused (:attr:`Transport.strangers`). So is a peer whose step messages come before any hello
+  of it (a neighbour's hellos precede its step messages on their one connection): a run already going on without
+  this node, or another network's.
 
 The hello (kind ``HELLO``, step 0) carries int64 ``[level, fingerprint, values]``; a restarted process's hello is one
 byte (uint8), as before.
@@ -103,6 +105,9 @@ def handshake(transport: Transport, peers: list[int] | None = None, check: Start
         transport.lost.setdefault(p, 0)
     missing = [p for p in targets if p not in levels and p not in strangers]
     latest = max(transport._held, default=-1)
+    for held in transport._held.values():  # a stranger's step messages are never used
+        for p in strangers:
+            held.pop(p, None)
     return Startup(missing, strangers, time.monotonic() - t0, latest)
 
 
@@ -133,9 +138,13 @@ def _hear(transport: Transport, frame: Any, chk: StartCheck, levels: dict[int, i
     if sender in strangers:
         transport.refused["another_network"] += 1
         return
-    if msg.kind != Kind.HELLO:
+    if msg.kind != Kind.HELLO:  # a neighbour's hellos come before its step messages (one ordered connection)
         transport._held.setdefault(msg.step, {})[sender] = msg
-        levels[sender] = chk.levels
+        if sender in levels:
+            levels[sender] = chk.levels  # in its rounds: at the top
+            return
+        strangers[sender] = _UNGREETED
+        transport._refuse("another_network", f"node {transport.me}: refused node {sender}: {_UNGREETED}")
         return
     a = msg.array
     if a.dtype == np.uint8 and a.size == 1:  # a restarted process's hello: not a start-up
@@ -146,6 +155,12 @@ def _hear(transport: Transport, frame: Any, chk: StartCheck, levels: dict[int, i
         transport._refuse("another_network", f"node {transport.me}: refused node {sender}'s hello: {why}")
         return
     levels[sender] = max(levels.get(sender, -1), int(a[0]))
+
+
+_UNGREETED = (
+    "it sent step messages before any start-up hello of this network (a run that began without this node: start it "
+    "with --rejoin; or another network on these ports)"
+)
 
 
 def _difference(a: np.ndarray, chk: StartCheck) -> str | None:

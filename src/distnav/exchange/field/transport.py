@@ -454,7 +454,7 @@ class Transport:
             if self.pull.poll(50):
                 for frame in self._frames():
                     msg = self._checked(frame) if invitation else self._checked_hello(frame)
-                    if msg is None or msg.kind == Kind.HELLO:
+                    if msg is None or msg.kind in (Kind.HELLO, Kind.BYE):  # a bye: that run is over
                         continue
                     if not invitation:
                         seen = max(seen, msg.step)
