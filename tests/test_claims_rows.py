@@ -367,6 +367,8 @@ def test_rmse_stays_gradual_under_the_cost_oscillation_on_class_r():
     ).tolist()
     assert _row(uwb(r), "do not show in the RMSE")["verdict"] == "differ"
     r = uwb_results()
+    next(row for row in r["table"] if (row["problem"], row["solver"]) == ("RM", "N-CSG"))["diverged"] = 5
+    assert "RM N-CSG: RMSE rises 0, cost 61 times (5 blew up)" in _row(uwb(r), "do not show in")["distnav_value"]
     r["curves"]["RC"]["N-CSG"]["rmse_m"][-1] = None  # blew up: no gradual decrease to speak of
     assert "RC N-CSG: no curve (blew up)" in _row(uwb(r), "do not show in the RMSE")["distnav_value"]
 

@@ -327,10 +327,14 @@ def _rmse_gradual(r: dict[str, Any]) -> tuple[Any, bool | None, str]:
                 ok = False
                 continue
             ok = ok and rises(e) < limit and e[-1] < e[min(10, e.size - 1)]
-            parts.append(f"{p} {s}: RMSE rises {rises(e)}, cost {rises(c)} times")
+            blew = sum(int(row["diverged"]) for row in get(r, "table") if (row["problem"], row["solver"]) == (p, s))
+            parts.append(
+                f"{p} {s}: RMSE rises {rises(e)}, cost {rises(c)} times" + (f" ({blew} blew up)" if blew else "")
+            )
     why = (
-        "iterations after the tenth at which the mean RMSE / RMS cost go up; 'gradual decrease' read as: the RMSE "
-        f"rises at fewer than {OSCILLATION_SHARE:.0%} of them and ends below its value at iteration 10"
+        "iterations after the tenth at which the mean RMSE / RMS cost go up (runs that blew up left out of the "
+        f"means); 'gradual decrease' read as: the RMSE rises at fewer than {OSCILLATION_SHARE:.0%} of them and ends "
+        "below its value at iteration 10"
     )
     return "; ".join(parts), ok, why
 
