@@ -45,6 +45,7 @@ __all__ = [
     "CARRY_HELD",
     "TIGHTEN_OPENS_LOOP",
     "LOOP_ENDS_LOOSE",
+    "LOOSE_WITHOUT_POLISH",
     "opens_loop",
     "opening_fit",
 ]
@@ -107,6 +108,14 @@ TIGHTEN_OPENS_LOOP = True
 #: links runs only where the polish is not kept or a cost ratio comes near its threshold (``field_run.complete``; issue
 #: 27, seventh session) — the polish, from the early-stopped solution, is then the answer
 LOOP_ENDS_LOOSE = True
+#: with :data:`LOOP_ENDS_LOOSE`, the loop ends on its decided early-stopped re-fit also where no polish follows (no
+#: tightened scale, or ``polish=False``): the workflow's last step completes that end (``field_run.complete``: the
+#: fit at the solver's tolerances of the kept links from it, the fit the loop ended on before), and until then the
+#: per-anchor check and the revert use the early-stopped end as they do where the polish follows — the check's
+#: re-solve then also ends early-stopped and is completed only where its cost comes near the first choice's
+#: (``field_run.no_worse``). False: without the polish the loop ends on the full fit, as before (issue 27, ninth
+#: session, docs/economy_uwb.md item 52: 100 PLANT_HARD 32.11 -> 31.51 MB, the same links and status, within 0.2 mm)
+LOOSE_WITHOUT_POLISH = True
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
 
