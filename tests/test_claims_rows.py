@@ -367,6 +367,8 @@ def test_rmse_stays_gradual_under_the_cost_oscillation_on_class_r():
     ).tolist()
     assert _row(uwb(r), "do not show in the RMSE")["verdict"] == "differ"
     r = uwb_results()
+    next(row for row in r["table"] if (row["problem"], row["solver"]) == ("RM", "N-CSG"))["diverged"] = 5
+    assert "RM N-CSG: RMSE rises 0, cost 61 times (5 blew up)" in _row(uwb(r), "do not show in")["distnav_value"]
     r["curves"]["RC"]["N-CSG"]["rmse_m"][-1] = None  # blew up: no gradual decrease to speak of
     assert "RC N-CSG: no curve (blew up)" in _row(uwb(r), "do not show in the RMSE")["distnav_value"]
 
@@ -403,3 +405,20 @@ def test_every_solver_hardest_on_the_ladder():
 def test_fig8_stability_row_is_stated_not_measured():
     row = _row(codebias(codebias_results()), "rather stable over time")
     assert row["verdict"] == "not checkable" and "not the solution's series" in row["why"]
+
+
+def test_line_search_comparable_to_nclm_within_ten_per_cent():
+    r = uwb_results()  # BLS/TBLS end at 0.4 m / cost 0.2 + offset, N-CLM at 0.45 / 0.25: 12–20 % apart
+    assert _row(uwb(r), "comparable to N-CLM")["verdict"] == "differ"
+    for p in PROBLEMS:
+        for s in ("N-CSG-BLS", "N-CSG-TBLS"):
+            _set_final(r, p, s, "rmse_m", 1.05 * final_of(r, p, "N-CLM", "rmse_m"))
+            _set_final(r, p, s, "rms_cost", 0.95 * final_of(r, p, "N-CLM", "rms_cost"))
+    row = _row(uwb(r), "comparable to N-CLM")
+    assert (
+        row["verdict"] == "agree" and row["distnav_value"] == "largest difference from N-CLM: RMSE 5.0%, RMS cost 5.0%"
+    )
+
+
+def final_of(r: dict[str, Any], problem: str, solver: str, key: str) -> float:
+    return next(row[key] for row in r["table"] if (row["problem"], row["solver"]) == (problem, solver))
