@@ -354,3 +354,71 @@ def test_a_claims_table_row_by_row_a_missing_field_keeps_the_claim_and_names_the
         (3, "agree", "", "w; no test pins it yet"),  # a measured row no test pins says so
     ]
     assert rows_from("002", table, {"a": {"b": 1}})[0]["verdict"] == "differ"
+
+
+# ------------------------------------------------------------------------------------------------ docs12: §5 rows
+def test_rmse_stays_gradual_under_the_cost_oscillation_on_class_r():
+    r = uwb_results()  # N-CSG and N-CSG-TBLS have a cost sawtooth on class R, a smooth RMSE
+    row = _row(uwb(r), "do not show in the RMSE")
+    # the sawtooth's +1e-3 outweighs the decay 10 e^(-k/15) (1 - e^(-1/15)) from k = 98 on: even k = 98…218
+    assert row["verdict"] == "agree" and "RC N-CSG: RMSE rises 0, cost 61 times" in row["distnav_value"]
+    r["curves"]["RM"]["N-CSG-TBLS"]["rmse_m"] = (
+        np.asarray(r["curves"]["RM"]["N-CSG-TBLS"]["rmse_m"]) + 1e-3 * (np.arange(221) % 2)
+    ).tolist()
+    assert _row(uwb(r), "do not show in the RMSE")["verdict"] == "differ"
+    r = uwb_results()
+    next(row for row in r["table"] if (row["problem"], row["solver"]) == ("RM", "N-CSG"))["diverged"] = 5
+    assert "RM N-CSG: RMSE rises 0, cost 61 times (5 blew up)" in _row(uwb(r), "do not show in")["distnav_value"]
+    r["curves"]["RC"]["N-CSG"]["rmse_m"][-1] = None  # blew up: no gradual decrease to speak of
+    assert "RC N-CSG: no curve (blew up)" in _row(uwb(r), "do not show in the RMSE")["distnav_value"]
+
+
+def test_still_improving_at_the_last_iteration_needs_500_iterations_and_a_falling_tail():
+    assert _row(uwb(uwb_results()), "do not fully stop")["verdict"] == "not checkable"  # 220 iterations
+    r = uwb_results(iterations=500)  # decay constants of 15 iterations: flat (to 1e-12) over the last 50
+    assert _row(uwb(r), "do not fully stop")["verdict"] == "differ"
+    k = np.arange(501)
+    for p in PROBLEMS:
+        for s in ("N-CSG", "N-CSG-BLS", "N-CSG-TBLS", "N-CLM"):
+            r["curves"][p][s]["rms_cost"] = (0.2 + 10.0 / (1.0 + k)).tolist()  # still falling at 500
+    row = _row(uwb(r), "do not fully stop")
+    assert row["verdict"] == "agree" and row["distnav_value"].count("8 of 8") == 4
+    r["curves"]["GC"]["N-CLM"]["rms_cost"] = (0.2 + 10.0 * np.exp(-k / 15.0)).tolist()
+    for p in ("GO", "GM", "LC", "LO"):
+        r["curves"][p]["N-CLM"]["rms_cost"] = r["curves"]["GC"]["N-CLM"]["rms_cost"]
+    assert _row(uwb(r), "do not fully stop")["verdict"] == "differ"  # N-CLM flat on 5 of 8
+
+
+def test_every_solver_hardest_on_the_ladder():
+    r = uwb_results()
+    row = _row(uwb(r), "highest error on class L")
+    assert row["verdict"] == "differ" and "LM R" in row["distnav_value"]  # synthetic: R's placements worst
+    for p in ("LC", "LO", "LM"):
+        for s in SOLVERS:
+            _set_final(r, p, s, "rmse_m", 5.0)
+    row = _row(uwb(r), "highest error on class L")
+    assert row["verdict"] == "agree" and row["distnav_value"].endswith("N-CLM L")
+    _set_final(r, "RC", "CSG", "rmse_m", float("nan"))  # blew up in every instance: counted worst
+    assert "CSG R" in _row(uwb(r), "highest error on class L")["distnav_value"]
+
+
+def test_fig8_stability_row_is_stated_not_measured():
+    row = _row(codebias(codebias_results()), "rather stable over time")
+    assert row["verdict"] == "not checkable" and "not the solution's series" in row["why"]
+
+
+def test_line_search_comparable_to_nclm_within_ten_per_cent():
+    r = uwb_results()  # BLS/TBLS end at 0.4 m / cost 0.2 + offset, N-CLM at 0.45 / 0.25: 12–20 % apart
+    assert _row(uwb(r), "comparable to N-CLM")["verdict"] == "differ"
+    for p in PROBLEMS:
+        for s in ("N-CSG-BLS", "N-CSG-TBLS"):
+            _set_final(r, p, s, "rmse_m", 1.05 * final_of(r, p, "N-CLM", "rmse_m"))
+            _set_final(r, p, s, "rms_cost", 0.95 * final_of(r, p, "N-CLM", "rms_cost"))
+    row = _row(uwb(r), "comparable to N-CLM")
+    assert (
+        row["verdict"] == "agree" and row["distnav_value"] == "largest difference from N-CLM: RMSE 5.0%, RMS cost 5.0%"
+    )
+
+
+def final_of(r: dict[str, Any], problem: str, solver: str, key: str) -> float:
+    return next(row[key] for row in r["table"] if (row["problem"], row["solver"]) == (problem, solver))

@@ -22,6 +22,7 @@ zmq = pytest.importorskip("zmq")
 
 from distnav.exchange.field import Peer, Transport, TransportOptions  # noqa: E402
 from distnav.exchange.field.session import field_session  # noqa: E402
+from distnav.exchange.field.startup import handshake  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE / "mpi"))
@@ -52,7 +53,7 @@ def run_on_threads(
         peers = [Peer(j, addr[j]) for j in known if j != i]
         tr = Transport(i, addr[i], peers, options=opts, context=ctx)
         try:
-            tr.handshake()
+            handshake(tr)
             with field_session(i, tr):
                 results[i] = fn("field")
         except BaseException as exc:  # reported by the caller

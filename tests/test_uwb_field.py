@@ -412,9 +412,9 @@ def test_the_per_anchor_checks_resolve_opens_on_its_first_rung(monkeypatch):
 
 def test_a_1_mm_rung_decides_before_the_full_fit(monkeypatch):
     """A PLANT_HARD hall ([34, 1], middle) whose exclusion loop climbs to a full fit that ends at the LM phase's
-    round limit: with a 1 mm rung between the 3 mm rung and the full fit (``field_steps.FINE_RUNG``, issue 27 item
-    51; off by default) the loop decides there; against the rung off (``None``) the same links excluded and status,
-    positions within 0.1 mm (0.006 mm measured), fewer bytes in the exclusions phase."""
+    round limit: with a 1 mm rung between the 3 mm rung and the full fit (``field_steps.FINE_RUNG_FTOL_XTOL_M``,
+    issue 27 item 51; off by default) the loop decides there; against the rung off (``None``) the same links
+    excluded and status, positions within 0.1 mm (0.006 mm measured), fewer bytes in the exclusions phase."""
     import distnav.models.uwb.field_steps as field_steps
     from distnav.experiments.uwb_field import hall_problem
     from distnav.models.uwb.field import FieldOptions, prepare, solve_field
@@ -424,9 +424,30 @@ def test_a_1_mm_rung_decides_before_the_full_fit(monkeypatch):
     sub, geo = prepare(hall_problem(h)[0])
     got = {}
     for rung in ((1e-4, 1e-3), None):
-        monkeypatch.setattr(field_steps, "FINE_RUNG", rung)
+        monkeypatch.setattr(field_steps, "FINE_RUNG_FTOL_XTOL_M", rung)
         got[rung is not None] = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
     now, before = got[True], got[False]
     assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
     assert np.max(np.abs(now.positions_m - before.positions_m)) < 1e-4
     assert now.comm_phases["exclusions"]["bytes"] < 0.8 * before.comm_phases["exclusions"]["bytes"]
+
+
+def test_the_per_anchor_checks_kept_resolve_ends_on_lms_links():
+    """The kept case of ``field._repair`` (the test above has a rejected re-solve): on PLANT_HARD ``[34, 32]``
+    middle anchor A24's own links choose A24-A25 and A24-A26 instead, and the re-solve without them fits all the
+    ranges no worse, so it is kept (issue 27 item 49: kept twice in 93 re-solves). N-CLM then ends on LM's links
+    (``solve_field`` with LM, its multi-start and its own check) within 1 mm of LM's answer; without the check
+    (``repair=False``) it ends on other links."""
+    from distnav.experiments.uwb_field import hall_problem
+    from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+    from distnav.models.uwb.hall import PLANT_HARD, simulate_hall
+
+    h = simulate_hall(np.random.default_rng([34, 32]), None, **PLANT_HARD, known="middle")
+    sub, geo = prepare(hall_problem(h)[0])
+    lm = solve_field(sub, FieldOptions(solver="LM"), geometry=geo)
+    now = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    unchecked = solve_field(sub, FieldOptions(solver="N-CLM", repair=False), geometry=geo)
+    assert "per-anchor check: anchor 'A24': its links fit best without A24-A25, A24-A26" in now.message
+    assert np.array_equal(now.excluded, lm.excluded) and now.status == lm.status
+    assert np.max(np.abs(now.positions_m - lm.positions_m)) < 1e-3
+    assert not np.array_equal(unchecked.excluded, lm.excluded)

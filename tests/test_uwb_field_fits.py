@@ -149,11 +149,13 @@ def test_the_loop_ends_loose_where_the_polish_follows_for_the_same_answer(monkey
     """Plant-like halls [78, 5] (corner) and [78, 1] (middle): the exclusion loop ends on its decided 1 cm re-fit and
     the polish starts there (``field_fits.LOOP_ENDS_LOOSE``, the default; issue 27 seventh session) instead of after a
     full fit of the kept links (the behaviour before): the same links excluded, the same status, positions within
-    0.2 mm, fewer bytes. Without the polish nothing changes (bit for bit); where the polish is not kept
-    (``POLISH_RATIO`` forced down) the answer is the loose end continued to the solver's tolerances (within 0.2 mm of
-    the full fit of before; the 1 cm end itself is mm away)."""
+    0.2 mm, fewer bytes. Without the polish and ``LOOSE_WITHOUT_POLISH`` off nothing changes (bit for bit; with it
+    on: the next test); where the polish is not kept (``POLISH_RATIO`` forced down) the answer is the loose end
+    continued to the solver's tolerances (within 0.2 mm of the full fit of before; the 1 cm end itself is mm away)."""
     import distnav.models.uwb.field as field
     import distnav.models.uwb.field_fits as field_fits
+
+    monkeypatch.setattr(field_fits, "LOOSE_WITHOUT_POLISH", False)
 
     for seed, known in (([78, 5], "corner"), ([78, 1], "middle")):
         h = simulate_hall(np.random.default_rng(seed), HallConfig().with_(known=known, **PLANT_LIKE))
@@ -178,6 +180,30 @@ def test_the_loop_ends_loose_where_the_polish_follows_for_the_same_answer(monkey
         assert np.max(np.abs(now_rej.positions_m - now.positions_m)) > 1e-3  # the polish moves mm: it was rejected
 
 
+def test_the_loop_ends_loose_without_the_polish_and_the_last_step_completes_it(monkeypatch):
+    """A PLANT_HARD hall ([34, 16], corner) whose residual scatter keeps the loss scale at 0.3 m (no tightening, no
+    polish) and whose per-anchor check re-solves: the loop ends on its decided 1 cm re-fit and the workflow's last
+    step completes it (``field_fits.LOOSE_WITHOUT_POLISH``, issue 27 ninth session, item 52), the check's re-solve
+    ends early-stopped too, instead of both ending on a full fit (the behaviour before): the same links excluded
+    and status, positions within 0.3 mm, far fewer bytes (434 -> 281 kB measured)."""
+    import distnav.models.uwb.field_fits as field_fits
+    from distnav.models.uwb.hall import PLANT_HARD
+
+    h = simulate_hall(np.random.default_rng([34, 16]), None, **PLANT_HARD, known="corner")
+    sub, geo = prepare(hall_problem(h)[0])
+    got = {}
+    for alone in (True, False):
+        monkeypatch.setattr(field_fits, "LOOSE_WITHOUT_POLISH", alone)
+        got[alone] = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    now, before = got[True], got[False]
+    assert now.comm_phases["tighten"]["bytes"] == 0 and "scale tightened" not in now.message  # no polish follows
+    assert "per-anchor check" in before.message
+    assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 3e-4
+    # the completion at the end is counted in the "polish" phase (the step that runs it)
+    assert now.bytes < 0.75 * before.bytes
+
+
 def test_the_first_fit_opens_the_loop_where_nothing_is_tightened(monkeypatch, tmp_path):
     """A PLANT_HARD hall ([34, 18], corner) whose residual scatter keeps the loss scale at 0.3 m (no tightening fit,
     no polish): the first robust fit (every link, at that scale, stopped at 1 cm) is tested and opens the exclusion
@@ -197,7 +223,8 @@ def test_the_first_fit_opens_the_loop_where_nothing_is_tightened(monkeypatch, tm
             f["ranges"], f["known"], heights=f["heights"], options=FieldOptions(solver="N-CLM")
         )[0]
     now, before = got[True], got[False]
-    assert now.comm_phases["tighten"]["bytes"] == 0 and now.comm_phases["polish"]["bytes"] == 0
+    # no tightening fit and no polish (the "polish" phase holds the completion of the loop's early-stopped end, item 52)
+    assert now.comm_phases["tighten"]["bytes"] == 0 and "scale tightened" not in now.message
     assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
     assert np.max(np.abs(now.positions_m - before.positions_m)) < 3e-4
     assert now.comm_phases["exclusions"]["bytes"] < 0.9 * before.comm_phases["exclusions"]["bytes"]
@@ -305,3 +332,29 @@ def test_the_forcing_term_runs_in_the_loops_refits_and_rungs_only(monkeypatch):
     assert np.array_equal(on.excluded, off.excluded) and on.status == off.status
     assert np.max(np.abs(on.positions_m - off.positions_m)) < 1e-4
     assert on.bytes < off.bytes
+
+
+def test_the_tightening_chase_stops_where_the_target_hardly_falls(monkeypatch):
+    """A PLANT_HARD hall ([34, 4], corner) whose tightening target creeps down after the first jump (0.215, 0.205,
+    0.204, 0.203 … m): with ``field_fits.TIGHTEN_MIN_FALL`` = 0.01 (issue 27 ninth session, item 53) the chase stops
+    where the target falls by less than 1 % of the scale, instead of one more fit per creep (0: the behaviour
+    before): the same links excluded and status, positions within 0.1 mm (0.025 mm measured), the final scale
+    within 1 %, fewer bytes in the tightening and in all."""
+    import re
+
+    import distnav.models.uwb.field_fits as field_fits
+    from distnav.models.uwb.hall import PLANT_HARD
+
+    h = simulate_hall(np.random.default_rng([34, 4]), None, **PLANT_HARD, known="corner")
+    sub, geo = prepare(hall_problem(h)[0])
+    got = {}
+    for fall in (0.01, 0.0):
+        monkeypatch.setattr(field_fits, "TIGHTEN_MIN_FALL", fall)
+        got[fall] = solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo)
+    now, before = got[0.01], got[0.0]
+    scale = [float(re.search(r"scale tightened to ([0-9.]+) m", s.message).group(1)) for s in (now, before)]
+    assert scale[0] > scale[1] and scale[0] < 1.01 * scale[1]
+    assert now.excluded.any() and np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 1e-4
+    assert now.comm_phases["tighten"]["bytes"] < 0.7 * before.comm_phases["tighten"]["bytes"]
+    assert now.bytes < before.bytes

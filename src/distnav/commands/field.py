@@ -14,8 +14,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -109,6 +111,7 @@ def launch(desc_path: Path, out_dir: Path, *, timeout_s: float = 300.0, quiet: b
     codes: dict[int, int | None] = {}
     rejoined: list[int] = []
     restart_at: dict[int, float] = {}
+    previous = _terminate_as_interrupt()
     try:
         for n in desc.nodes:  # one at a time: a Ctrl-C between two starts leaves the started ones to the finally
             procs[n.id] = start(n.id)
@@ -129,8 +132,23 @@ def launch(desc_path: Path, out_dir: Path, *, timeout_s: float = 300.0, quiet: b
         for p in procs.values():
             if p.poll() is None:
                 kill_group(p)
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     elapsed = time.monotonic() - t0
     return _collect(desc, out_dir, codes, elapsed, quiet=quiet, rejoined=rejoined)
+
+
+def _terminate_as_interrupt() -> Any:
+    """SIGTERM (``kill``, a batch system's stop) raises KeyboardInterrupt as Ctrl-C does, so that :func:`launch`
+    kills its node processes on the way out (their own sessions: without this they outlived a terminated launcher);
+    returns the previous handler (None off the main thread, where no handler can be set)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    return signal.signal(signal.SIGTERM, interrupt)
 
 
 def _collect(
@@ -226,7 +244,11 @@ def _versus_gather(desc: NetworkDescription, nodes: dict[str, Any]) -> dict[str,
 
 
 def _launch(args: argparse.Namespace) -> int:
-    summary = launch(args.config, args.out, timeout_s=args.timeout)
+    try:
+        summary = launch(args.config, args.out, timeout_s=args.timeout)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: launch has killed every node process on the way out
+        print("interrupted: every node process stopped; no results.json", file=sys.stderr)
+        return 130
     return 1 if summary["failed"] else 3 if summary["stopped"] else 0
 
 

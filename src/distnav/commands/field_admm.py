@@ -20,7 +20,8 @@ node's data in the multipliers). ``status`` is the new run's with ``_without_los
 every lost node with the step of the failed operation. The node stops (``status = "stopped"``, no estimate, the
 reason named) when the remaining network may be split (below), when the remaining data leave a direction inestimable
 (ADMM's rank check names the direction), or when a global
-operation failed with every node alive. The field CKF and the UWB anchors use the same
+operation failed with every node alive a third time (the first two are stalls: the nodes run again with every node,
+``status`` ``<status>_run_again``). The field CKF and the UWB anchors use the same
 :func:`~distnav.commands.field_survive.without_lost` with their own
 :data:`Rerun` (:func:`distnav.commands.field_algorithms.run_ckf`).
 

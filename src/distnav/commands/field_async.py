@@ -25,6 +25,7 @@ from distnav.algorithms.consensus.pushsum import NodeOutcome, run_push_sum_node
 from distnav.errors import UsageError
 from distnav.exchange.faults import uniform_hash
 from distnav.exchange.field import Kind, Transport
+from distnav.exchange.field.startup import StartCheck, handshake
 from distnav.formats.field_config import NetworkDescription, read_description, read_node_values
 from distnav.options import existing_file, node_output_files, nonnegative_int, output_folder, positive_float
 from distnav.output import atomic_write_json
@@ -77,7 +78,8 @@ def run_async_node(
         node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=load_keys(desc, node_id)
     )
     try:
-        missing = transport.handshake()
+        check = StartCheck(desc.fingerprint(), value.size, desc.n_nodes - 1)
+        missing = handshake(transport, check=check).missing
         t0 = time.monotonic()
         link = TransportLink(transport, neighbours, drop_probability=desc.drop_probability, seed=desc.drop_seed)
         outcome = run_push_sum_node(

@@ -131,6 +131,7 @@ def _uwb_node(args: argparse.Namespace) -> int:
     from distnav.commands.field_node import load_keys
     from distnav.exchange.field import Transport
     from distnav.exchange.field.session import field_session
+    from distnav.exchange.field.startup import StartCheck, handshake
 
     desc = open_node(args)
     problem = _uwb_problem(desc.n_nodes, args.seed)
@@ -143,7 +144,7 @@ def _uwb_node(args: argparse.Namespace) -> int:
         keys=load_keys(desc, args.id),
     )
     try:
-        missing = transport.handshake()
+        missing = handshake(transport, check=StartCheck(desc.fingerprint(), 0, desc.n_nodes - 1)).missing
         t0 = time.monotonic()
         with field_session(args.id, transport):
             est = _solve_uwb(problem, args.iterations, "field")

@@ -25,7 +25,8 @@ from distnav.algorithms.consensus.flows import iterate_flow_consensus
 from distnav.commands.field_algorithms import REJOIN_ALGORITHMS
 from distnav.errors import DataFileError, ExchangeError, UsageError
 from distnav.exchange import FaultSchedule
-from distnav.exchange.field import CurveKeys, FieldExchange, Transport
+from distnav.exchange.field import CurveKeys, FieldExchange, Kind, Transport
+from distnav.exchange.field.startup import StartCheck, Startup, handshake
 from distnav.formats.field_config import NetworkDescription, read_node_values
 from distnav.output import atomic_write_json
 
@@ -97,9 +98,8 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         # round does not wait for this node's set-up, and the rounds are timed alone
         states = _consensus_states(desc, node_id, ex, values, first) if values is not None else None
         gc.freeze()  # the set-up's objects (modules, description, weights) out of the collector's passes
-        missing = [] if rejoin else transport.handshake()
-        if missing:
-            LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, missing, desc.start_timeout_s)
+        start = Startup([]) if rejoin else _start(desc, node_id, transport, values)
+        missing = start.missing
         t_start, cpu_start = time.monotonic(), time.process_time()
         outcome: dict[str, Any]
         if late is not None:  # a node program back after the others finished: no answer, the reason
@@ -108,6 +108,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             assert values is not None
             crash_round = None if rejoin else desc.crash.get(node_id)
             outcome = _run_consensus(states, values, node_id, int(desc.algorithm["rounds"]), first, crash_round)
+            outcome |= _farewell(transport, ex.step)
         else:
             from distnav.commands.field_algorithms import run_algorithm
 
@@ -120,6 +121,8 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         lost = agreed if agreed is not None else {str(k): v for k, v in sorted(transport.lost.items())}
         if agreed is None and transport.lost and status != "stopped":
             status = f"{status}_with_lost_neighbours"
+        if outcome.get("dropped_by"):  # its neighbours went on without it (:func:`_farewell`)
+            status = f"{status}_dropped_by_neighbours"
         result = {
             "node": node_id,
             "algorithm": desc.algorithm["name"],
@@ -130,6 +133,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             "lost_nodes": lost,
             "readmitted_nodes": {str(k): v for k, v in sorted(transport.readmitted.items())},
             "missing_at_start": missing,
+            "refused_at_start": {str(k): v for k, v in sorted(start.strangers.items())},
             "rejoined_at_step": first if rejoin else None,
             "wire": transport.wire_counts(),
             "model_bytes_sent": int(ex.bytes_sent.sum()),
@@ -145,6 +149,63 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         return STOPPED_EXIT if status == "stopped" else 0
     finally:
         transport.close()
+
+
+def _start(desc: NetworkDescription, node_id: int, transport: Transport, values: np.ndarray | None) -> Startup:
+    """The start-up handshake (:mod:`distnav.exchange.field.startup`: this network's fingerprint, a consensus node's
+    number of values, into step 0 with the whole network). A node that heard none of its neighbours takes part in
+    no run: :class:`ExchangeError` (exit code 2) with the reason, and no ``node-ID.json`` (a second start of a node
+    that already finished writes nothing over its result)."""
+    check = StartCheck(desc.fingerprint(), 0 if values is None else values.size, desc.n_nodes - 1)
+    start = handshake(transport, check=check)
+    if start.missing:
+        LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, start.missing, desc.start_timeout_s)
+    if start.latest_step >= desc.miss_limit:  # they began without it, and have taken it for lost
+        raise ExchangeError(
+            f"node {node_id}: its neighbours are already at step {start.latest_step}: it started after the others "
+            f"began (more than start_timeout_s = {desc.start_timeout_s:g} s after them?); start it with --rejoin"
+        )
+    if transport.peers and len(start.missing) + len(start.strangers) == len(transport.peers):
+        reasons: dict[str, list[int]] = {}
+        for k, v in sorted(start.strangers.items()):
+            reasons.setdefault(v, []).append(k)
+        why = "; ".join(f"neighbours {ids}: {v}" for v, ids in reasons.items())
+        if why:
+            raise ExchangeError(f"node {node_id}: refused by the start-up check: {why}")
+        curve = " With CURVE: is this node's key pair the one its neighbours' description lists?"
+        raise ExchangeError(
+            f"node {node_id}: none of its neighbours {sorted(transport.peers)} answered within "
+            f"{desc.start_timeout_s:g} s (are they started, with this description, and their addresses reachable from "
+            "here? a node started after the others finished has no run to join)." + (curve if transport.curve else "")
+        )
+    if values is not None:  # consensus: a neighbour known absent is not waited for (it is readmitted if it comes)
+        for p in start.missing:
+            transport.lost.setdefault(p, 0)
+    LOG.info(
+        "node %d: started after %.1f s (neighbours missing %s, refused %s)",
+        node_id,
+        start.seconds,
+        start.missing,
+        sorted(start.strangers),
+    )
+    return start
+
+
+def _farewell(transport: Transport, step: int) -> dict[str, Any]:
+    """A consensus node's last word: a bye to every neighbour saying whether (at which step, else -1) this node
+    declared it lost, and the byes that came from the neighbours by now. A node stopped (SIGSTOP) past the deadlines
+    and then resumed ran on its neighbours' queued messages and could not tell that they had dropped it: their answer
+    and its own no longer hold its data. The byes of neighbours that finished before it are there when it ends
+    (``dropped_by``, ``status`` ``..._dropped_by_neighbours``); a neighbour still running is not waited for."""
+    for p in transport.peers:
+        transport.post(p, Kind.BYE, step, np.array([transport.lost.get(p, -1)], np.int64))
+    byes = {s: m for held in transport._held.values() for s, m in held.items() if m.kind == Kind.BYE}
+    for frame in transport._frames():
+        msg = transport._checked(frame)
+        if msg is not None and msg.kind == Kind.BYE:
+            byes[msg.sender] = msg
+    dropped = {str(s): int(m.array[0]) for s, m in sorted(byes.items()) if m.array.size == 1 and m.array[0] >= 0}
+    return {"dropped_by": dropped}
 
 
 def _join(transport: Transport, consensus: bool) -> tuple[int, str | None]:

@@ -83,7 +83,8 @@ class LoopbackOptions:
     """The description's settings of a loopback network (documented defaults, checked once).
 
     name : the network's name. algorithm : the ``[algorithm]`` table (None: consensus, 200 rounds, MH).
-    crash : node → the round at which it exits on purpose. deadline_ms, miss_limit : the lock-step timing.
+    crash : node → the round at which it exits on purpose. deadline_ms, miss_limit, start_timeout_s : the lock-step
+    timing.
     drop_probability, latency_max_ms, seed : injected losses and latency (the ``[faults]`` table).
     """
 
@@ -95,10 +96,14 @@ class LoopbackOptions:
     latency_max_ms: float = 0.0
     seed: int = 0
     crash: dict[int, int] | None = None
+    start_timeout_s: float = 60.0
 
     def __post_init__(self) -> None:
-        if not self.deadline_ms > 0 or self.miss_limit < 1:
-            raise UsageError(f"deadline_ms must be > 0 and miss_limit >= 1, got {self.deadline_ms}, {self.miss_limit}")
+        if not self.deadline_ms > 0 or self.miss_limit < 1 or not self.start_timeout_s > 0:
+            raise UsageError(
+                "deadline_ms and start_timeout_s must be > 0 and miss_limit >= 1, got "
+                f"{self.deadline_ms}, {self.start_timeout_s}, {self.miss_limit}"
+            )
         if not 0 <= self.drop_probability < 1 or not self.latency_max_ms >= 0:
             raise UsageError(
                 f"drop_probability must be in [0, 1) and latency_max_ms >= 0, got {self.drop_probability}, "
@@ -127,6 +132,7 @@ def write_loopback_description(
         name=options.name,
         deadline_ms=options.deadline_ms,
         miss_limit=options.miss_limit,
+        start_timeout_s=options.start_timeout_s,
         algorithm=options.algorithm or {"name": "consensus", "rounds": 200, "protocol": "MH", "patience": 20},
         crash=options.crash or {},
         drop_probability=options.drop_probability,

@@ -20,8 +20,9 @@ agree on who they are, check the agreement, and run again on their own data thro
 ``status`` is the new run's with ``_without_lost_nodes``; ``lost_nodes`` names every lost node with the step of the
 failed operation, ``remaining_nodes`` and ``restarted_at_step`` say who went on and from where. The node stops
 (``status = "stopped"``, no estimate, the reason named) on a possible split, a remaining network that is not
-connected, a failure with every node alive, or data that no longer determine the parameters (ModelError). The
-families' departures (the restart discards the iterations made before the loss) are in
+connected, a third failure with every node alive (:data:`MAX_STALLS`: before that the nodes run again with every
+node, ``status`` ``<status>_run_again``, ``stalled_at_steps``), or data that no longer determine the parameters
+(ModelError). The families' departures (the restart discards the iterations made before the loss) are in
 :mod:`distnav.commands.field_admm` and :mod:`distnav.commands.field_uwb`.
 """
 
@@ -74,6 +75,7 @@ def without_lost(
     dead: dict[int, int] = {}
     back: dict[int, int] = {}
     failed, attempt, start = ex.step - 1, 1, None
+    stalls: list[int] = []  # failed steps with every node alive (a node stalled past the deadlines): run again
     if invited is not None:  # [first step of the run with this node, the failed step, the run's nodes]
         failed, attempt = int(invited[1]), int(invited[0]) // ATTEMPT_STEPS + 1
         start = (np.asarray(invited[2:]) > 0, int(invited[0]))
@@ -85,7 +87,7 @@ def without_lost(
                 base, graph, attempt * ATTEMPT_STEPS, window_s=window, failed_step=failed, dead=set(dead)
             )
             attempt += 1
-            why = _lost_now(graph, alive, dead, failed, error)
+            why = _lost_now(graph, alive, dead, failed, error, stalls)
             if why:
                 return _stopped(name, ex, dead, why)
         else:
@@ -107,16 +109,26 @@ def without_lost(
             back.update({d: start[1] for d in returned})
             dead = {d: s for d, s in dead.items() if d not in returned}
             continue
-        return _finished(out, name, dead, back, alive, step) | {"rounds": sub.step}
+        return _finished(out, name, dead, back, alive, step, stalls) | {"rounds": sub.step}
     return _stopped(name, ex, dead, error)
 
 
-def _lost_now(graph: Graph, alive: np.ndarray, dead: dict[int, int], failed: int, error: str) -> str:
-    """Record the nodes the agreement found newly lost in ``dead``; the reason to stop, if any (nobody lost, or a
-    possible split: :func:`~distnav.exchange.field.survivors.beyond_reach`)."""
+#: runs again after a failure with every node alive before a node stops (a node that keeps stalling, or a failure
+#: that is not a stall, would otherwise cost a run each time)
+MAX_STALLS = 2
+
+
+def _lost_now(graph: Graph, alive: np.ndarray, dead: dict[int, int], failed: int, error: str, stalls: list[int]) -> str:
+    """Record the nodes the agreement found newly lost in ``dead``; the reason to stop, if any (a possible split:
+    :func:`~distnav.exchange.field.survivors.beyond_reach`, or more than :data:`MAX_STALLS` failures with every node
+    alive). A failure with every node alive (a node stopped longer than the deadlines, then going on: the others
+    left the operation without it) is a stall: noted in ``stalls``, and the nodes run again with every node."""
     newly = sorted(set(np.flatnonzero(~alive).tolist()) - set(dead))
     if not newly:
-        return f"a global operation failed at step {failed} with every node alive ({error})"
+        if len(stalls) < MAX_STALLS:
+            stalls.append(failed)
+            return ""
+        return f"a global operation failed at steps {[*stalls, failed]} with every node alive ({error})"
     unseen = beyond_reach(graph, alive, newly)
     dead.update({k: failed for k in newly if k not in unseen})
     return f"{_UNSEEN} {unseen}" if unseen else ""
@@ -148,11 +160,26 @@ def _invite(
 
 
 def _finished(
-    out: dict[str, Any], name: str, dead: dict[int, int], back: dict[int, int], alive: np.ndarray, step: int
+    out: dict[str, Any],
+    name: str,
+    dead: dict[int, int],
+    back: dict[int, int],
+    alive: np.ndarray,
+    step: int,
+    stalls: list[int],
 ) -> dict[str, Any]:
     """The run's result with who was lost (and is still), who came back and from which step they ran together."""
     lost = ", ".join(f"node {d} (at step {s})" for d, s in sorted(dead.items()))
     rejoined = ", ".join(f"node {d}" for d in sorted(back))
+    out["stalled_at_steps"] = list(stalls)
+    if not dead and not back:  # only stalls: every node alive throughout
+        out["status"] = f"{out['status']}_run_again"
+        done = f"a global operation failed at steps {stalls} with every node alive (a node stalled past the deadlines)"
+        out["message"] = (
+            f"{done}; the {int(alive.sum())} nodes ran {name} again on all data from step {step} ({out['message']})"
+        )
+        out["rejoined_nodes"] = {}
+        return out | _lost_fields(dead, alive, step)
     if dead:
         out["status"] = f"{out['status']}_without_lost_nodes"
         done = f"lost {lost}; the {int(alive.sum())} remaining nodes agreed on it and ran {name} again on their own "

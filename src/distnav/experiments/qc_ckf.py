@@ -305,7 +305,7 @@ def _figures(
     ax.boxplot([dist[k] for k in ("distributed", "central", "untested")], showfliers=True)
     ax.set_xticks([1, 2, 3], ["CKF tested", "central tested", "CKF untested"])
     ax.set_yscale("log")
-    ax.set_ylabel("final max_i ‖x̂_i − x̂_clean central‖")
+    ax.set_ylabel("final max_i ‖x̂_i − x̂_clean central‖ (state units, dimensionless)")
     ax.grid(alpha=0.3)
     ctx.save_figure(fig, "ckf_detection.png")
     fig, ax = plt.subplots(figsize=(6, 4))
@@ -315,7 +315,7 @@ def _figures(
     for t in trace["gross_epochs"]:
         ax.axvline(t, color="r", lw=0.6, alpha=0.5)
     ax.set_xlabel("epoch (red: a gross error injected)")
-    ax.set_ylabel("max_i ‖x̂_i − x̂_i of the clean CKF‖")
+    ax.set_ylabel("max_i ‖x̂_i − x̂_i of the clean CKF‖ (state units, dimensionless)")
     ax.legend()
     ax.grid(alpha=0.3)
     ctx.save_figure(fig, "ckf_distance_trace.png")

@@ -22,6 +22,10 @@ from distnav.output import atomic_write_text, to_jsonable
 
 __all__ = [
     "write_report",
+    "legend_lines",
+    "table_lines",
+    "STATUS_MEANINGS",
+    "VERDICT_MEANINGS",
     "FIGURE_CAPTIONS",
     "QUICK_NOTES",
     "PAPER_VALUES",
@@ -151,6 +155,60 @@ PAPER_VALUES: tuple[tuple[str, str, str], ...] = (
     ("uwb", r"median cost", "all 8 (LM lowest cost)"),
     ("uwb", r"bytes per message", "neighbourhood-sized (N-CSG) vs network-sized (CSG)"),
 )
+
+
+#: What a verdict of the claims table means (:mod:`distnav.experiments.claims`).
+VERDICT_MEANINGS: dict[str, str] = {
+    AGREE: "distnav's number meets the paper's statement, read as the row's note says",
+    DIFFER: "it does not; the note says why (a departure of the paper, a synthetic stand-in, a quick run's size)",
+    NOT_CHECKABLE: "no run can measure it (an illustration, unpublished data) or this run lacks the field",
+}
+
+#: What a solver's status means (``SolverResult.status``, ``distnav.algorithms.result.SolverStatus``).
+STATUS_MEANINGS: dict[str, str] = {
+    "converged": "the stopping rule was met",
+    "max_iterations": "the iteration budget ran out first (estimates usable, not at the tolerance)",
+    "stopped": "a filter ran out of epochs before every state was estimable",
+    "diverged": "the iterates blew up; the estimates are not usable",
+    "ambiguous": "the data admit more than one solution (e.g. a mirror image); the estimates are one of them",
+    "weakly_determined": "converged, but some anchors or parameters are barely constrained (reported weak)",
+}
+
+
+def legend_lines() -> list[str]:
+    """The report's key: each verdict and each solver status with its meaning, one ``'word: meaning'`` each."""
+    return [f"{k}: {v}" for k, v in (VERDICT_MEANINGS | STATUS_MEANINGS).items()]
+
+
+def _legend_html() -> str:
+    def dl(title: str, d: dict[str, str]) -> str:
+        items = "; ".join(f"<b>{html.escape(k)}</b>: {html.escape(v)}" for k, v in d.items())
+        return f"<p><b>{title}</b> {items}.</p>"
+
+    return dl("Verdicts:", VERDICT_MEANINGS) + dl("Solver statuses (in the tables below):", STATUS_MEANINGS)
+
+
+def table_lines(results: Any) -> tuple[list[str], list[str]]:
+    """From an experiment's ``table`` rows (uwb-field): the solver statuses per row, and its bytes beside the
+    gather of ``models.uwb.communication.gather_cost`` (ranges to one anchor, positions back) where a row sent any.
+    """
+    table = results.get("table") if isinstance(results, dict) else None
+    statuses, comm = [], []
+    for row in table if isinstance(table, list) else []:
+        if not isinstance(row, dict):
+            continue
+        name = " ".join(str(row[k]) for k in ("scenario", "placement", "solver") if k in row)
+        if isinstance(row.get("statuses"), dict):
+            counts_txt = ", ".join(f"{k} {v}" for k, v in row["statuses"].items())
+            statuses.append(f"{name}: {counts_txt} (of {row.get('instances', '?')} halls)")
+        sent, gather = row.get("bytes"), row.get("gather_bytes")
+        if isinstance(sent, (int, float)) and isinstance(gather, (int, float)) and sent > 0 and gather > 0:
+            comm.append(
+                f"{name}: sent {sent / 1e3:,.1f} kB in {row.get('messages', 0):,.0f} messages per solve (mean); "
+                f"gathering the ranges at one anchor and sending the positions back would cost "
+                f"{gather / 1e3:,.2f} kB: {sent / gather:,.0f}× the bytes"
+            )
+    return statuses, comm
 
 
 def paper_value(name: str, label: str) -> str:
@@ -297,6 +355,15 @@ def _entry_section(
         )
         md += ["**Communication** (beside gathering the same data at one node by multi-hop relaying):", ""]
         md += [f"- {t}" for t in comm_lines] + [""]
+    statuses, table_comm = table_lines(results)
+    for head, tail, lines in (
+        ("Solver statuses", " (meanings under the summary)", statuses),
+        ("Communication", " (per solve, beside a gather over the range graph)", table_comm),
+    ):
+        if lines:
+            text = "<br>".join(html.escape(t) for t in lines)
+            parts.append(f"<p><b>{head}</b>{html.escape(tail)}:<br>{text}</p>")
+            md += [f"**{head}**{tail}:", ""] + [f"- {t}" for t in lines] + [""]
     for fig in figures:
         cap = caption(name, fig, mod_caps)
         cls = _figure_class(_png_size(out_dir / rel / fig))
@@ -357,6 +424,7 @@ def write_report(
         f"<p class='caveat'>{variant}</p>",
         f"<h2 id='summary'>Summary: what the papers claim and what distnav measured</h2><p>{summary}</p>",
         html_table(rows),
+        _legend_html(),
         "<p>Contents: "
         + " · ".join(f"<a href='#{html.escape(n)}'>{html.escape(t)}</a>" for n, t, *_ in entries)
         + "</p>",
@@ -371,6 +439,10 @@ def write_report(
         re.sub(r"</?b>", "", summary),
         "",
         markdown_table(rows),
+        "",
+        "What the verdicts and the solver statuses mean:",
+        "",
+        *[f"- {line}" for line in legend_lines()],
         "",
     ]
     for name, title, ctx, results, seconds in entries:

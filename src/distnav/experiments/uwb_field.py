@@ -402,7 +402,7 @@ def _figure(ctx: ExperimentContext, table: list[dict[str, Any]], example: dict[s
     ax.bar(x - 0.27, [r["rmse_m"] for r in table], 0.27, label="solver (with exclusion)")
     ax.bar(x, [r["careful_rmse_m"] for r in table], 0.27, label="careful scipy fit (no truth)")
     ax.bar(x + 0.27, [r["oracle_rmse_m"] for r in table], 0.27, label="oracle (NLOS removed by truth)")
-    ax.set_xticks(x, labels, fontsize=7)
+    ax.set_xticks(x, labels, fontsize=7, rotation=35, ha="right")  # upright, the 8 labels ran into each other
     ax.set_yscale("log")
     ax.set_ylabel("mean RMSE [m]")
     ax.legend(fontsize=8)
@@ -412,10 +412,12 @@ def _figure(ctx: ExperimentContext, table: list[dict[str, Any]], example: dict[s
         t, lk, nl = example["truth"], example["links"], example["nlos"]
         for (i, j), f in zip(lk.tolist(), nl, strict=True):
             ax.plot(t[[i, j], 0], t[[i, j], 1], "-", color="tab:red" if f else "0.75", lw=1.4 if f else 0.6)
-        ax.plot(t[:, 0], t[:, 1], "o", color="tab:blue", ms=4)
+        ax.plot(t[:, 0], t[:, 1], "o", color="tab:blue", ms=4, label="anchor")
         k = example["known"]
-        ax.plot(t[k, 0], t[k, 1], "^", color="k", ms=8)
+        ax.plot(t[k, 0], t[k, 1], "^", color="k", ms=8, label="known anchor")
         ax.set_aspect("equal")
         ax.set_title(f"first hall: {int(nl.sum())} NLOS links (red) of {len(nl)}")
         ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)  # off the map
     ctx.save_figure(fig, "fig_uwb_field.png")

@@ -42,6 +42,7 @@ Node ids are ``0..n-1``; neighbour lists must be symmetric; addresses distinct.
 
 from __future__ import annotations
 
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -130,6 +131,30 @@ class NetworkDescription:
             latency_max_s=self.latency_max_ms / 1000.0,
             latency_seed=self.drop_seed,
         )
+
+    def fingerprint(self) -> int:
+        """A 63-bit digest of what every node of the network must agree on (the ``[network]``, ``[algorithm]`` and
+        ``[faults]`` tables, every node's id, address, neighbours and public key), without what is local to a host
+        (data and secret key paths); a node's start-up hello carries it (:mod:`distnav.exchange.field.startup`)."""
+        import hashlib
+
+        shared = (
+            FORMAT_VERSION,
+            self.name,
+            self.security,
+            float(self.deadline_ms),
+            self.miss_limit,
+            float(self.start_timeout_s),
+            sorted((k, repr(v)) for k, v in self.algorithm.items()),
+            sorted(self.crash.items()),
+            sorted(self.restart_after_s.items()),
+            float(self.drop_probability),
+            self.drop_seed,
+            float(self.latency_max_ms),
+            [(n.id, n.address, sorted(n.neighbours), n.public_key) for n in self.nodes],
+        )
+        digest = hashlib.blake2b(repr(shared).encode(), digest_size=8).digest()
+        return int.from_bytes(digest, "little") >> 1 or 1
 
     def _where(self) -> str:
         return str(self.path) if self.path is not None else "network description"
@@ -313,9 +338,9 @@ def _node(t: Any, k: int, n: int, base: Path, where: str, security: str) -> Node
         id=node_id,
         address=address,
         neighbours=tuple(sorted(nbrs)),
-        data=None if data is None else base / data,
+        data=None if data is None else Path(os.path.normpath(base / data)),
         public_key=public,
-        secret_key=None if secret is None else base / secret,
+        secret_key=None if secret is None else Path(os.path.normpath(base / secret)),
     )
 
 
@@ -358,17 +383,21 @@ def _crashes(table: dict[str, Any], n: int, where: str) -> tuple[dict[int, int],
 
 
 def format_description(desc: NetworkDescription, *, relative_to: Path | None = None) -> str:
-    """The TOML text of ``desc`` (paths written relative to ``relative_to`` where they can be)."""
+    """The TOML text of ``desc`` (paths written relative to ``relative_to``, with ``..`` when they lie beside it,
+    so that a copy of the description and its files keeps working on another host; absolute when the two share no
+    folder but the root, or lie on different drives)."""
     tomli_w = require("tomli_w", "field")
 
     def rel(p: Path | None) -> str | None:
         if p is None:
             return None
         if relative_to is not None:
+            full, base = p.resolve(), relative_to.resolve()
             try:
-                return str(p.resolve().relative_to(relative_to.resolve()))
-            except ValueError:
-                return str(p.resolve())
+                shared = Path(os.path.commonpath([full, base]))
+            except ValueError:  # another drive (Windows)
+                return str(full)
+            return os.path.relpath(full, base) if shared != Path(shared.anchor) else str(full)
         return str(p)
 
     nodes = []

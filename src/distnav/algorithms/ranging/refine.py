@@ -232,7 +232,16 @@ class _Refiner:
     ) -> tuple[np.ndarray | None, float]:
         """A warm fit where the plan does not apply: the anchors without a free parameter may have sat the last fit
         out and hold neither the common offset (their copies) nor the damping: one message of both (8 B each) from
-        a neighbour (:func:`~distnav.algorithms.ranging.inner.hand_over`); their copies and μ as received."""
+        a neighbour (:func:`~distnav.algorithms.ranging.inner.hand_over`); their copies and μ as received.
+
+        Charged on every such warm fit, also where no anchor sat the last fit out, and why that is right: whether
+        the last fit's plan applied depends on *its* links and offset copies (:func:`~distnav.algorithms.ranging.
+        inner.sit_out_plan`, :meth:`_start_held`), which this phase does not hold — it holds the last fit's
+        coordinates only (``held_m``). An anchor that cannot tell whether its known neighbours hold ``c`` and μ must
+        send them, or the phase's result would hang on values they may lack; skipping the message would need the
+        last fit's plan passed with ``held_m`` through the front door. The price is 16 B to each known anchor once
+        per fit where the plan does not apply now; in the 1,252 fits counted on 100 PLANT_HARD and 12 plant-like
+        workflows the plan applied in every fit (docs/economy_uwb.md item 37), so it was never sent there."""
         silent = ~np.any(every, axis=1)
         if not silent.any():
             return offset_m, self.o.mu0

@@ -2,6 +2,7 @@
 
 * :mod:`.wire` — the versioned, language-neutral message format (no pickle) and its checks;
 * :mod:`.transport` — sockets, deadlines, refusals, lost peers, CURVE admission, real byte counts;
+* :mod:`.startup` — the start-up hellos: the network's fingerprint checked, every node into step 0 together;
 * :mod:`.exchange` — :class:`FieldExchange`, the lock-step backend the algorithms run on unchanged.
 
 pyzmq is imported only when a transport is made, so ``import distnav.exchange.field`` works without it.

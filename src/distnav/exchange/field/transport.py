@@ -191,7 +191,11 @@ class Transport:
             self.pull.curve_secretkey = keys.secret
             self.pull.curve_publickey = keys.public
             self.pull.curve_server = True
-        self.pull.bind(address)
+        try:
+            self.pull.bind(address)
+        except zmq.ZMQError as exc:
+            self._close_sockets()
+            raise ExchangeError(_bind_failure(self.me, address, exc)) from None
         self._rcvtimeo = -1  # the PULL socket's receive timeout (ms) as last set (:meth:`_recv_within`)
         self.push: dict[int, Any] = {}
         for p in peers:
@@ -211,6 +215,7 @@ class Transport:
         self.readmitted: dict[int, int] = {}
         self.heard = dict.fromkeys(self.peers, 0)  # checked messages per peer (any step or kind): signs of life
         self.greeted: dict[int, int] = {}  # peer → the step at which its latest hello during the run came
+        self.strangers: dict[int, str] = {}  # peer → why its start-up hello was refused (:mod:`.startup`)
         self.invited: np.ndarray | None = None  # the invitation a restarted node was given (:meth:`join`)
         #: a lost peer's hello readmits it at once (consensus); False: a node program that takes a returning node
         #: back by running again with it (ADMM, the CKF) waits for it only from that run on
@@ -385,8 +390,8 @@ class Transport:
         msg = self._checked(frame)
         if msg is None:
             return -1
-        if msg.kind == Kind.HELLO:
-            self._hello(msg.sender, step, restarted=msg.array.size > 0)
+        if msg.kind == Kind.HELLO:  # a restarted process's hello is one byte (a start-up one: :mod:`.startup`)
+            self._hello(msg.sender, step, restarted=msg.array.dtype == np.uint8 and msg.array.size == 1)
             return -1
         if self.options.latency_max_s > 0:  # injected latency: usable only from its release time on
             delay = float(self._latency.uniform(0.0, self.options.latency_max_s))
@@ -449,7 +454,7 @@ class Transport:
             if self.pull.poll(50):
                 for frame in self._frames():
                     msg = self._checked(frame) if invitation else self._checked_hello(frame)
-                    if msg is None or msg.kind == Kind.HELLO:
+                    if msg is None or msg.kind in (Kind.HELLO, Kind.BYE):  # a bye: that run is over
                         continue
                     if not invitation:
                         seen = max(seen, msg.step)
@@ -476,6 +481,9 @@ class Transport:
             return self._refuse(reason, str(exc))
         if msg.sender not in self.peers:
             return self._refuse("unknown_sender", f"message from node {msg.sender}, not a peer of node {self.me}")
+        if msg.sender in self.strangers:  # refused at start-up (another network, :mod:`.startup`): counted only
+            self.refused["another_network"] += 1
+            return None
         if msg.kind == Kind.HELLO:
             return msg
         if self.curve:
@@ -527,35 +535,6 @@ class Transport:
         return None
 
     # ------------------------------------------------------------- start-up, shutdown
-    def handshake(self, peers: list[int] | None = None) -> list[int]:
-        """Send a hello (step -1 is not a step: hellos use kind HELLO at step 0 of a separate count) to every peer and
-        wait for theirs; returns the peers that never answered within ``start_timeout_s``."""
-        targets = sorted(self.peers) if peers is None else sorted(peers)
-        zmq = self._zmq
-        seen: set[int] = set()
-        end = time.monotonic() + self.options.start_timeout_s
-        hello = np.zeros(0, np.uint8)
-        next_send = 0.0
-        while len(seen) < len(targets) and time.monotonic() < end:
-            now = time.monotonic()
-            if now >= next_send:  # repeat until answered: a peer that binds late missed nothing
-                for p in targets:
-                    frame = encode(Kind.HELLO, self.me, 0, hello)
-                    try:
-                        self.push[p].send(frame, zmq.NOBLOCK)
-                        self.bytes_sent += len(frame)
-                        self.frames_sent += 1
-                    except zmq.Again:
-                        pass
-                next_send = now + 0.5
-            if self.pull.poll(50):
-                for frame in self._frames():
-                    msg = self._checked_hello(frame)
-                    if msg is not None:
-                        seen.add(msg.sender)
-        # hellos still in flight are discarded by kind at step 0 (they are HELLO, never a step message)
-        return [p for p in targets if p not in seen]
-
     def _checked_hello(self, frame: Any) -> Message | None:
         try:
             msg = decode(frame.buffer if self.curve else frame, max_bytes=self.options.max_message_bytes)
@@ -586,8 +565,21 @@ class Transport:
     def close(self) -> None:
         for s in self.push.values():
             s.close()
+        self._close_sockets()
+
+    def _close_sockets(self) -> None:
         self.pull.close()
         if self._auth is not None:
             self._auth.stop()
         if self._owns_context:
             self.ctx.term()
+
+
+def _bind_failure(me: int, address: str, exc: Any) -> str:
+    """Why node ``me`` cannot listen on its own address, and the likely cause."""
+    text = f"node {me}: cannot listen on its address {address} ({exc.strerror.split(' (addr=')[0]})"
+    if "in use" in exc.strerror:
+        return f"{text}: another process holds that port (node {me} started twice, or another program)"
+    if "assign" in exc.strerror:
+        return f"{text}: this host does not have that address (is node {me} of the description on another host?)"
+    return text

@@ -256,7 +256,7 @@ def _seed(run: FieldRun) -> None:
             )
             for stage in field_fits.REFIT_STAGES  # read at run time (the benchmark's configurations)
         ]
-        rung = field_steps.FINE_RUNG  # read at run time, as the switches above
+        rung = field_steps.FINE_RUNG_FTOL_XTOL_M  # read at run time, as the switches above
         if rung is not None and run.loose:  # item 51: a 1 mm rung before the full fit
             fine = StopRule(refine_ftol=rung[0], refine_xtol_m=rung[1])
             fit_fine = make_fitter(run.opts, run.exchange, run.total, run.starts, carry=run.carry, stop=fine)

@@ -44,7 +44,9 @@ __all__ = [
     "CARRY_OFFSET",
     "CARRY_HELD",
     "TIGHTEN_OPENS_LOOP",
+    "TIGHTEN_MIN_FALL",
     "LOOP_ENDS_LOOSE",
+    "LOOSE_WITHOUT_POLISH",
     "opens_loop",
     "opening_fit",
 ]
@@ -56,6 +58,13 @@ TIGHTEN_FITS = 8  # at most this many halvings
 #: at the last solution) instead of halving towards it (issue 27, fifth session: 1.09 × fewer bytes on 12 plant-like
 #: halls, positions within 0.063 mm, the same links excluded); LM keeps the halvings
 TIGHTEN_JUMP = True
+#: a distributed tightening jumps again only where the target fell by more than this fraction of the scale it would
+#: replace (the first jump is always taken): on the hard halls the target creeps towards its fixed point by steps of
+#: 0.3–2 % (``[34, 3]`` middle: 0.257, 0.252, 0.249 … 0.245 m in 7 fits), each one more fit (issue 27, ninth session,
+#: docs/economy_uwb.md item 53: 100 PLANT_HARD 31.51 -> 30.40 MB, the same links and status; a 10 % band changed 4 of
+#: them: the final scale decides their close calls). 0: chase while the target falls at all, as before; LM keeps the
+#: halvings
+TIGHTEN_MIN_FALL = 0.01
 WARM_ITERATIONS = 0  # a distributed solver's warm re-fit: consensus iterations before its final distributed LM phase
 #: (ftol, xtol_m) of a distributed solver's LM phase by the fit's stage in the workflow (issue 27): "seed", the fits
 #: whose solution only starts the next fit (the first fit, the tightening); "refit", the exclusion loop's re-fits
@@ -107,6 +116,14 @@ TIGHTEN_OPENS_LOOP = True
 #: links runs only where the polish is not kept or a cost ratio comes near its threshold (``field_run.complete``; issue
 #: 27, seventh session) — the polish, from the early-stopped solution, is then the answer
 LOOP_ENDS_LOOSE = True
+#: with :data:`LOOP_ENDS_LOOSE`, the loop ends on its decided early-stopped re-fit also where no polish follows (no
+#: tightened scale, or ``polish=False``): the workflow's last step completes that end (``field_run.complete``: the
+#: fit at the solver's tolerances of the kept links from it, the fit the loop ended on before), and until then the
+#: per-anchor check and the revert use the early-stopped end as they do where the polish follows — the check's
+#: re-solve then also ends early-stopped and is completed only where its cost comes near the first choice's
+#: (``field_run.no_worse``). False: without the polish the loop ends on the full fit, as before (issue 27, ninth
+#: session, docs/economy_uwb.md item 52: 100 PLANT_HARD 32.11 -> 31.51 MB, the same links and status, within 0.2 mm)
+LOOSE_WITHOUT_POLISH = True
 FIRST_ITERATIONS = 0  # its first fit (from the prepared start): the same, issue 27 (solve_once's docstring)
 
 
@@ -220,7 +237,8 @@ def tighten_scale(
     """The one-sided fit of every link by ``solver``, its loss scale halved from ``scale_m`` (each fit warm from the
     last solution) down to :data:`TIGHT_SCALE_FLOOR_M` or 3 × :func:`scatter_m`, whichever is larger (``shared``:
     :class:`TightenShared`); a distributed solver with :data:`TIGHTEN_JUMP` goes to that target at
-    once, the target recomputed at each fit's solution (the loop ends where it no longer falls). Returns
+    once, the target recomputed at each fit's solution (the loop ends where it no longer falls, or after the first
+    jump by no more than :data:`TIGHTEN_MIN_FALL`). Returns
     ``(positions, final scale, fits)`` (see :func:`distnav.models.uwb.field.tighten`). ``shared.results``: each fit's
     result is appended to it, and the fits run with their link tests (``quality``; :data:`TIGHTEN_OPENS_LOOP`: the
     last one, at the final scale, opens the exclusion loop).
@@ -237,7 +255,7 @@ def tighten_scale(
     jump = TIGHTEN_JUMP and solver.upper() != "LM"
     while fits < TIGHTEN_FITS:
         target = max(TIGHT_SCALE_FLOOR_M, 3.0 * scatter_m(problem, pos))
-        if scale <= target * (1 + 1e-9):
+        if scale <= target * (1 + 1e-9) or (jump and fits and target > scale * (1.0 - TIGHTEN_MIN_FALL)):
             break
         scale = target if jump else max(scale / 2.0, target)
         kw["loss_scale_m"] = scale

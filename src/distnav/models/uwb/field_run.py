@@ -90,10 +90,11 @@ class FieldFit:
 
 def ends_loose(run: FieldRun) -> bool:
     """Whether the exclusion loop may end on a decided early-stopped re-fit (``field_fits.LOOP_ENDS_LOOSE``): where
-    the polish follows it, from its solution."""
+    the polish follows it, from its solution; else (``field_fits.LOOSE_WITHOUT_POLISH``) :func:`complete` at the
+    workflow's end."""
     given = run.given
     polish = given.nlos_aware and given.polish and run.opts.loss_scale_m < given.loss_scale_m
-    return field_fits.LOOP_ENDS_LOOSE and bool(run.loose) and polish
+    return field_fits.LOOP_ENDS_LOOSE and bool(run.loose) and (polish or field_fits.LOOSE_WITHOUT_POLISH)
 
 
 def complete(run: FieldRun, fit: FieldFit) -> FieldFit:

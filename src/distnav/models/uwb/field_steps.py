@@ -69,7 +69,7 @@ REPAIR_STARTS_MOVED = False
 #: :func:`fine_margin_w`) first (issue 27, eighth session, item 51). None (the default): straight to the full fit.
 #: ``(1e-4, 1e-3)``, a 1 mm rung: 100 PLANT_HARD 32.11 -> 31.11 MB, the same links and status, but the plant-like
 #: ``[78, 0]`` middle 227.1 -> 247.9 kB (docs/economy_uwb.md item 51: off, the pages' figures unchanged)
-FINE_RUNG: tuple[float, float] | None = None
+FINE_RUNG_FTOL_XTOL_M: tuple[float, float] | None = None
 
 
 def prepare(
@@ -177,7 +177,7 @@ def make_fitter(
     added to ``comm``; ``stage``: a distributed solver's LM phase stops at that stage's tolerances
     (:data:`~distnav.models.uwb.field_fits.STAGE_TOLERANCES`); ``carry``: the common offset handed from fit to fit
     (:func:`~distnav.models.uwb.field_fits.solve_once`); ``stop``: a distributed solver's own StopRule (no stage:
-    the :data:`FINE_RUNG`)."""
+    the :data:`FINE_RUNG_FTOL_XTOL_M`)."""
     key = opts.solver.upper()
     kw = solver_kwargs(opts) if stop is None else {**solver_kwargs(opts), "stop": stop}
     warm_refits = key == "LM" or opts.nlos_aware  # the distributed solvers' re-fits: graduated unless nlos_aware
@@ -204,8 +204,8 @@ def make_fitter(
 
 
 def fine_margin_w(rung: tuple[float, float], sigma_m: float) -> float:
-    """The |w| margin of a rung ``(ftol, xtol_m)`` such as :data:`FINE_RUNG` (as ``field_fits.refit_margin_w``: both
-    ends of a link off by its step tolerance)."""
+    """The |w| margin of a rung ``(ftol, xtol_m)`` such as :data:`FINE_RUNG_FTOL_XTOL_M` (as
+    ``field_fits.refit_margin_w``: both ends of a link off by its step tolerance)."""
     return 2.0 * rung[1] / (sigma_m * SCALE_FLOOR)
 
 

@@ -1,0 +1,312 @@
+"""Node programs started the way a tester starts them (docs/field.md, "What a node does when ..."): in a random
+order with delays, on a port another process holds, with another network's description or a data file that lost
+values. Each test starts its own `distnav node` processes on loopback, bounds them in time and kills their process
+groups in a `finally`, also when an assertion fails."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zmq")
+
+from distnav.algorithms.consensus.averaging import iterate_average_consensus  # noqa: E402
+from distnav.commands.field_processes import LoopbackOptions, write_loopback_network  # noqa: E402
+from distnav.network.graph import Graph  # noqa: E402
+
+N = 6
+#: a ring in which every node also links to the node two along: any one node can go and the others stay connected
+LINKS = sorted({(min(i, j), max(i, j)) for i in range(N) for j in ((i + 1) % N, (i + 2) % N)})
+
+
+def _start(net: Path, node: int, out: Path) -> subprocess.Popen[bytes]:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    cmd = [sys.executable, "-m", "distnav", "node", "--config", str(net), "--id", str(node), "--out", str(out)]
+    err = open(out / f"stderr-{node}-{time.monotonic_ns()}.txt", "wb")  # noqa: SIM115 - closed after the run
+    return subprocess.Popen(cmd, env=env, stdout=err, stderr=err, start_new_session=True)
+
+
+def _finish(procs: dict[int, subprocess.Popen[bytes]], timeout_s: float) -> dict[int, int | None]:
+    """Wait for every process at most ``timeout_s`` in all; the exit codes (None: killed at the timeout)."""
+    end = time.monotonic() + timeout_s
+    codes: dict[int, int | None] = {}
+    for k, p in procs.items():
+        try:
+            codes[k] = p.wait(timeout=max(0.1, end - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            codes[k] = None
+    return codes
+
+
+def _kill_all(procs: dict[int, subprocess.Popen[bytes]]) -> None:
+    for p in procs.values():
+        if p.poll() is None:
+            try:
+                os.killpg(p.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            p.wait(timeout=10)
+
+
+def _run_alone(net: Path, node: int, out: Path) -> tuple[int | None, str]:
+    """One node process, bounded (60 s): its exit code and what it printed."""
+    procs = {node: _start(net, node, out)}
+    try:
+        codes = _finish(procs, 60)
+    finally:
+        _kill_all(procs)
+    return codes[node], _stderr(out)
+
+
+def _stderr(out: Path) -> str:
+    return "\n".join(f.read_text(errors="replace") for f in sorted(out.glob("stderr-*.txt")))
+
+
+def test_nodes_started_in_a_random_order_with_delays_run_bitwise_the_inprocess_rounds(tmp_path: Path) -> None:
+    """Before the start-up barrier a node whose neighbours had all answered went into its rounds while a neighbour
+    still waited for a node not yet started: its first steps passed without messages and plain consensus ended,
+    every node "completed" and nothing refused but "late", far from the mean. Now the nodes enter step 0 together."""
+    values = np.random.default_rng(3).normal(size=(N, 3))
+    algo = {"name": "consensus", "rounds": 40, "protocol": "MH", "patience": 20}
+    opts = LoopbackOptions(algorithm=algo, deadline_ms=2000, start_timeout_s=30)
+    net = write_loopback_network(tmp_path / "net", LINKS, values, opts)
+    out = tmp_path / "run"
+    out.mkdir()
+    procs: dict[int, subprocess.Popen[bytes]] = {}
+    try:  # node 2 comes 6 s after the others: node 5, not its neighbour, has heard all of its own neighbours by then
+        for node, pause_s in ((3, 0.3), (0, 0.3), (5, 0.3), (1, 0.3), (4, 6.0), (2, 0.0)):
+            procs[node] = _start(net, node, out)
+            time.sleep(pause_s)
+        codes = _finish(procs, 120)
+    finally:
+        _kill_all(procs)
+    assert all(c == 0 for c in codes.values()), (codes, _stderr(out)[-3000:])
+    res = [json.loads((out / f"node-{i}.json").read_text()) for i in range(N)]
+    field = np.array([r["estimate"] for r in res])
+    ref = list(iterate_average_consensus(values, graph=Graph.from_links(N, LINKS), protocol="MH", rounds=40))[-1]
+    assert np.array_equal(field, ref.values), np.abs(field - ref.values).max()
+    assert all(r["status"] == "completed" and not r["refused"] and not r["lost_nodes"] for r in res)
+
+
+def test_a_port_in_use_is_a_clear_error_with_exit_code_2(tmp_path: Path) -> None:
+    values = np.zeros((N, 1))
+    net = write_loopback_network(tmp_path / "net", LINKS, values, LoopbackOptions(start_timeout_s=5))
+    address = [ln for ln in net.read_text().splitlines() if ln.startswith("address")][2].split('"')[1]
+    port = int(address.rsplit(":", 1)[1])
+    out = tmp_path / "run"
+    out.mkdir()
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", port))
+        holder.listen()
+        code, err = _run_alone(net, 2, out)
+    assert code == 2, err
+    assert f"error: node 2: cannot listen on its address {address} (Address already in use)" in err, err
+    assert "Traceback" not in err and not (out / "node-2.json").exists()
+
+
+def test_a_node_that_hears_no_neighbour_exits_2_and_writes_no_result(tmp_path: Path) -> None:
+    """Before, a node started alone (its neighbours not started, or finished long ago: a second start of a node)
+    ran every round on its own data and wrote ``completed_with_lost_neighbours`` with exit code 0 over the file of
+    the first start."""
+    net = write_loopback_network(tmp_path / "net", LINKS, np.ones((N, 2)), LoopbackOptions(start_timeout_s=2))
+    out = tmp_path / "run"
+    out.mkdir()
+    code, err = _run_alone(net, 0, out)
+    assert code == 2, err
+    assert "error: node 0: none of its neighbours [1, 2, 4, 5] answered within 2 s" in err, err
+    assert not (out / "node-0.json").exists()
+
+
+def test_a_node_of_another_network_or_with_a_cut_data_file_is_refused_at_start(tmp_path: Path) -> None:
+    """Node 3 started with another network's description (same ports and links, another name) and, in a second
+    network, node 3's data file cut (2 values where the others have 3). Before, both were taken for node 3 (its
+    data in the others' answer, or every round refused while it never counted as missing), every node "completed".
+    Now node 3 exits with code 2 naming the reason, and the others run without it: flow consensus gives the exact
+    mean of their data."""
+    values = np.random.default_rng(5).normal(size=(N, 3))
+    algo = {"name": "consensus_flows", "rounds": 150, "protocol": "MH", "patience": 5}
+    opts = LoopbackOptions(algorithm=algo, deadline_ms=1000, start_timeout_s=20)
+    net = write_loopback_network(tmp_path / "net", LINKS, values, opts)
+    other = tmp_path / "other" / "network.toml"
+    other.parent.mkdir()
+    other.write_text(net.read_text().replace('name = "network"', 'name = "other"').replace("data/", "../net/data/"))
+    cut = tmp_path / "cut" / "network.toml"
+    (cut.parent / "data").mkdir(parents=True)
+    for i in range(N):
+        v = values[i, :2] if i == 3 else values[i]
+        (cut.parent / "data" / f"node-{i}.txt").write_text(" ".join(repr(float(x)) for x in v) + "\n")
+    cut.write_text(net.read_text())
+    for name, odd, why in (
+        ("other", other, "it runs another network description"),
+        ("cut", cut, "its messages carry 3 values, this node's 2"),
+    ):
+        main_net = net if name == "other" else cut
+        out = tmp_path / f"run-{name}"
+        out.mkdir()
+        procs: dict[int, subprocess.Popen[bytes]] = {}
+        try:
+            for i in range(N):
+                procs[i] = _start(odd if i == 3 else main_net, i, out)
+            codes = _finish(procs, 150)
+        finally:
+            _kill_all(procs)
+        err = _stderr(out)
+        assert codes == {i: 2 if i == 3 else 0 for i in range(N)}, (name, codes, err[-3000:])
+        assert f"error: node 3: refused by the start-up check: neighbours [1, 2, 4, 5]: {why}" in err, err
+        res = {i: json.loads((out / f"node-{i}.json").read_text()) for i in range(N) if i != 3}
+        for i in (1, 2, 4, 5):
+            assert res[i]["lost_nodes"] == {"3": 0} and "3" in res[i]["refused_at_start"], res[i]
+        keep = [i for i in range(N) if i != 3]
+        field = np.array([res[i]["estimate"] for i in keep])
+        assert np.abs(field - values[keep].mean(axis=0)).max() <= 1e-6, (name, field, values[keep].mean(axis=0))
+
+
+def test_an_admm_node_stopped_past_the_deadlines_then_resumed_leaves_the_blue_of_all_the_data(tmp_path: Path) -> None:
+    """SIGSTOP of one of 6 ADMM node processes mid-run for 6 s (deadline 1 s), then SIGCONT: a global operation
+    fails at every node with every node alive. Before, every node stopped without an answer (exit code 3); now they
+    agree that every node is alive, run ADMM again with every node and end within 1e-6 of the centralized BLUE."""
+    from distnav.algorithms.lsq.blue import blue
+    from distnav.commands.field_scenarios import codebias_scenario, write_scenario
+
+    sc = codebias_scenario(6, seed=2, epochs=8)
+    assert sc.problem is not None
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=1000, start_timeout_s=60))
+    text = net.read_text()
+    assert "max_iterations = " in text
+    net.write_text(text.replace("tol = 1e-10", "tol = 1e-12"))
+    out = tmp_path / "run"
+    out.mkdir()
+    victim = 4
+    procs: dict[int, subprocess.Popen[bytes]] = {}
+    try:
+        procs = {i: _start(net, i, out) for i in range(6)}
+        log = out / f"node-{victim}.log"
+        end = time.monotonic() + 120
+        while time.monotonic() < end and not (log.exists() and "started after" in log.read_text()):
+            time.sleep(0.05)
+        time.sleep(1.0)  # into its rounds
+        assert procs[victim].poll() is None, _stderr(out)
+        os.kill(procs[victim].pid, signal.SIGSTOP)
+        time.sleep(6.0)
+        os.kill(procs[victim].pid, signal.SIGCONT)
+        codes = _finish(procs, 300)
+    finally:
+        _kill_all(procs)
+    assert all(c == 0 for c in codes.values()), (codes, _stderr(out)[-3000:])
+    res = [json.loads((out / f"node-{i}.json").read_text()) for i in range(6)]
+    assert all(r["status"].endswith("_run_again") and r["stalled_at_steps"] for r in res), [r["message"] for r in res]
+    assert len({tuple(r["stalled_at_steps"]) for r in res}) == 1 and all(r["lost_nodes"] == {} for r in res)
+    field = np.array([r["estimate"] for r in res], dtype=float)
+    assert np.abs(field - blue(sc.problem).x).max() <= 1e-6
+
+
+def _processes_with(text: str) -> list[int]:
+    """The ids of the processes whose command line holds ``text`` (a test's own unique path)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        try:
+            if d.name.isdigit() and text in (d / "cmdline").read_bytes().decode(errors="replace"):
+                pids.append(int(d.name))
+        except OSError:
+            continue
+    return pids
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds the node processes through /proc")
+def test_a_terminated_launcher_leaves_no_node_process_behind(tmp_path: Path) -> None:
+    """SIGTERM to `distnav field launch` (a `kill`, a batch system's stop): before, the launcher died at once and its
+    node processes, each in its own session, ran on; now it kills them, says so and exits 130."""
+    algo = {"name": "consensus", "rounds": 10**7, "protocol": "MH", "patience": 20}
+    net = write_loopback_network(tmp_path / "net", LINKS, np.ones((N, 1)), LoopbackOptions(algorithm=algo))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    cmd = [sys.executable, "-m", "distnav", "field", "launch", "--config", str(net), "--out", str(tmp_path / "run")]
+    launcher = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        end = time.monotonic() + 120
+        logs = [tmp_path / "run" / f"node-{i}.log" for i in range(N)]
+        while time.monotonic() < end and not all(f.exists() and "started after" in f.read_text() for f in logs):
+            time.sleep(0.1)
+        assert len(_processes_with(str(net))) == N + 1  # the launcher and its nodes, in their rounds
+        launcher.send_signal(signal.SIGTERM)
+        _, err = launcher.communicate(timeout=60)
+        time.sleep(0.5)
+        left = _processes_with(str(net))
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
+        for pid in _processes_with(str(net)):
+            os.kill(pid, signal.SIGKILL)
+    assert launcher.returncode == 130 and b"interrupted: every node process stopped" in err, err
+    assert left == []
+
+
+def test_a_node_started_after_the_others_began_exits_2_naming_rejoin(tmp_path: Path) -> None:
+    """Node 3 started 6 s after the others, whose start timeout (2 s) had passed: before, it ran from step 0 while its
+    neighbours were hundreds of steps ahead; now it exits 2 and says to start it with --rejoin."""
+    algo = {"name": "consensus_flows", "rounds": 10**6, "protocol": "MH", "patience": 5}
+    opts = LoopbackOptions(algorithm=algo, deadline_ms=1000, start_timeout_s=2)
+    net = write_loopback_network(tmp_path / "net", LINKS, np.ones((N, 1)), opts)
+    out = tmp_path / "run"
+    out.mkdir()
+    procs: dict[int, subprocess.Popen[bytes]] = {}
+    try:
+        procs = {i: _start(net, i, out) for i in range(N) if i != 3}
+        time.sleep(6.0)
+        late = _start(net, 3, out)
+        procs[3] = late
+        code = _finish({3: late}, 60)[3]
+        assert all(p.poll() is None for k, p in procs.items() if k != 3)  # the others still in their rounds
+    finally:
+        _kill_all(procs)
+    err = _stderr(out)
+    assert code == 2, err
+    assert "error: node 3: its neighbours are already at step" in err and "start it with --rejoin" in err, err
+    assert not (out / "node-3.json").exists()
+
+
+def test_a_consensus_node_stopped_past_the_deadlines_learns_that_its_neighbours_dropped_it(tmp_path: Path) -> None:
+    """SIGSTOP of node 3 (flow consensus) mid-run for longer than the rest of the run, then SIGCONT: its neighbours
+    declare it lost and end with the exact mean of their own data while it is stopped. Before, node 3 then ran on
+    their queued messages and ended ``completed``, nothing said (its data in no one's answer); now their byes tell
+    it (``dropped_by``, ``..._dropped_by_neighbours``). (Resumed while they still run, it is readmitted and every
+    node ends with the mean of all the data: the flows' design.)"""
+    values = np.random.default_rng(8).normal(size=(N, 2))
+    algo = {"name": "consensus_flows", "rounds": 2000, "protocol": "MH", "patience": 5}
+    net = write_loopback_network(tmp_path / "net", LINKS, values, LoopbackOptions(algorithm=algo, deadline_ms=500))
+    out = tmp_path / "run"
+    out.mkdir()
+    procs: dict[int, subprocess.Popen[bytes]] = {}
+    try:
+        procs = {i: _start(net, i, out) for i in range(N)}
+        log = out / "node-3.log"
+        end = time.monotonic() + 120
+        while time.monotonic() < end and not (log.exists() and "started after" in log.read_text()):
+            time.sleep(0.05)
+        time.sleep(0.5)
+        assert procs[3].poll() is None, _stderr(out)
+        os.kill(procs[3].pid, signal.SIGSTOP)
+        others = {i: p for i, p in procs.items() if i != 3}
+        _finish(others, 120)  # they finish without it
+        os.kill(procs[3].pid, signal.SIGCONT)
+        codes = _finish(procs, 240)
+    finally:
+        _kill_all(procs)
+    assert all(c == 0 for c in codes.values()), (codes, _stderr(out)[-3000:])
+    res = {i: json.loads((out / f"node-{i}.json").read_text()) for i in range(N)}
+    keep = [i for i in range(N) if i != 3]
+    assert all("3" in res[i]["lost_nodes"] for i in (1, 2, 4, 5)), {i: res[i]["lost_nodes"] for i in keep}
+    field = np.array([res[i]["estimate"] for i in keep])
+    assert np.abs(field - values[keep].mean(axis=0)).max() <= 1e-6
+    assert res[3]["status"].endswith("_dropped_by_neighbours"), res[3]["status"]
+    assert sorted(res[3]["dropped_by"]) == ["1", "2", "4", "5"], res[3]["dropped_by"]
+    assert all(not res[i]["dropped_by"] for i in keep)
