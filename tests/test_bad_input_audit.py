@@ -441,9 +441,9 @@ def _field_async_cases() -> list[Cli]:
                 ("field", cmd, "--config", "{tmp}/none.toml", "--id", "0", "--out", "{tmp}/o"),
                 "no such file",
             ),
-            Cli(f"field-{cmd}-id-text", (*node, "--id", "one"), "expected a whole number"),
-            Cli(f"field-{cmd}-id-range", (*node, "--id", "2"), "the description has nodes 0..1"),
-            Cli(f"field-{cmd}-out-file", (*node, "--out", "{file}"), "is an existing file"),
+            Cli(f"field-{cmd}-id-text", (*node[:4], "--id", "one", *node[6:]), "expected a whole number"),
+            Cli(f"field-{cmd}-id-range", (*node[:4], "--id", "2", *node[6:]), "the description has nodes 0..1"),
+            Cli(f"field-{cmd}-out-file", (*node[:6], "--out", "{file}"), "is an existing file"),
         ]
     node = ("field", "pushsum-node", "--config", _NET, "--id", "0", "--out", "{tmp}/out")
     uwb = ("field", "demo-uwb-node", "--config", _NET, "--id", "0", "--out", "{tmp}/out")

@@ -136,6 +136,13 @@ def _header_twice(tmp: Path, _: Path | None) -> list[str]:
     return ["uwb", "solve", "--ranges", str(ranges), "--known", str(known), "--out", "{out}"]
 
 
+def _ranges_twice(tmp: Path, _: Path | None) -> list[str]:
+    ranges, known = _uwb_files(tmp)
+    other = tmp / "other.csv"
+    other.write_text(ranges.read_text())
+    return ["uwb", "solve", "--ranges", str(ranges), "--known", str(known), "--ranges", str(other), "--out", "{out}"]
+
+
 def _import(lines: list[str], *known: str, end: str = "\n") -> Callable[[Path, Path | None], list[str]]:
     def argv(tmp: Path, _: Path | None) -> list[str]:
         return ["uwb", "import-april", str(_april(tmp, lines, end=end)), *known, "--out", "{out}"]
@@ -148,6 +155,8 @@ UWB_CASES = [
     Case("uwb-solve-initial-all-at-one-point", _initial_coincident, "have the same initial position"),
     # "range_m 'range_m' is not a number"
     Case("uwb-solve-header-twice", _header_twice, "ranges.csv:5: the header line again"),
+    # argparse kept the last --ranges: the first log was dropped without a word
+    Case("uwb-solve-option-twice", _ranges_twice, "--ranges is given twice: give it once"),
     # exit 3: anchor 08 estimated as unknown, known anchor 8 ignored with a warning (a worse map)
     Case("uwb-solve-known-id-spelled-otherwise", _known_spelled_otherwise, "known anchor '8' has no range in"),
     # exit 0 and a known.csv that `uwb solve` refuses ("listed twice", "no data rows", "needs 2 fixed anchors")
@@ -251,6 +260,13 @@ GNSS_CASES = [
         "gnss-tlim-outside-the-data",
         _g("--tlim", "2021-01-01T05:00", "2021-01-01T06:00"),
         "between 2021-01-01T05:00:00 and 2021-01-01T06:00:00 (GPS time; --tlim)",
+        shared=True,
+    ),
+    # exit 0 with DELF alone: argparse kept the last --obs list
+    Case(
+        "gnss-obs-option-twice",
+        lambda t, s: _gnss(s, t, "--obs", _nl(s, "zegv0010.21o")) if s else [],
+        "--obs is given twice: give it once, with all its values",
         shared=True,
     ),
     # "fewer than two satellites with 30 station-epochs or more": a 7-s grid kept one 30-s epoch in 7

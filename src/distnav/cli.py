@@ -31,6 +31,7 @@ from distnav.options import (
     check_node_outputs,
     check_output_spares,
     check_repeated_inputs,
+    check_repeated_options,
     input_paths,
     output_folder,
     positive_int,
@@ -511,6 +512,11 @@ def _main(argv: Sequence[str] | None) -> int:
             top.parse_args(words)  # exits (help, version, or the error that a command is required)
     parser = build_parser(words)
     args = parser.parse_args(words)
+    try:
+        check_repeated_options(parser, words)  # --obs A --obs B: argparse keeps B alone (options.py)
+    except UsageError as exc:
+        print(_user_error(exc), file=sys.stderr)
+        return 2
     if getattr(args, "backend", "inprocess") == "mpi":
         try:  # every rank fails alike here, before MPI starts
             check_arguments(args, probe_out=False)

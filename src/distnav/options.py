@@ -33,6 +33,7 @@ __all__ = [
     "check_output_folder",
     "check_output_spares",
     "check_repeated_inputs",
+    "check_repeated_options",
     "check_node_outputs",
     "node_output_files",
     "input_paths",
@@ -245,6 +246,35 @@ def check_repeated_inputs(args: argparse.Namespace) -> None:
                 same = f" (as {seen[real]})" if str(seen[real]) != str(item) else ""
                 raise UsageError(f"--{key.replace('_', '-')}: {item} is given twice{same}")
             seen[real] = item
+
+
+def check_repeated_options(parser: argparse.ArgumentParser, words: list[str]) -> None:
+    """Refuse an option given twice on one command line (``--obs A --obs B``, ``--ranges X --ranges Y``): argparse
+    keeps the last silently, so the first files were dropped without a word. Flags (no value) and ``append``
+    options may repeat."""
+    leaf = parser
+    for w in words:  # the (sub)command the words name: its parser holds the options
+        subs = [a for a in leaf._actions if isinstance(a, argparse._SubParsersAction)]
+        if subs and w in subs[0].choices:
+            leaf = subs[0].choices[w]
+    table = leaf._option_string_actions
+    seen: dict[str, str] = {}
+    for w in words:
+        if not w.startswith("--") or w == "--":
+            continue
+        flag = w.split("=", 1)[0]
+        matches = [table[flag]] if flag in table else [a for f, a in table.items() if f.startswith(flag)]
+        if (
+            len({id(a) for a in matches}) != 1
+            or matches[0].nargs == 0
+            or isinstance(matches[0], argparse._AppendAction)
+        ):
+            continue  # a flag given twice drops nothing; append options collect
+        dest = matches[0].dest
+        if dest in seen:
+            also = f" (also as {seen[dest]})" if seen[dest] != flag else ""
+            raise UsageError(f"{flag} is given twice{also}: give it once, with all its values")
+        seen[dest] = flag
 
 
 def _files_under(folder: Path) -> Iterator[str]:
