@@ -156,3 +156,19 @@ def test_simulated_network_writes_one_file_per_node_with_only_its_data(tmp_path:
     (tmp_path / "data-cb4").mkdir()
     assert main(["field", "init", "--simulate", "ckf", "--out", str(tmp_path / "cb4.toml")]) == 2
     assert main(["field", "init", "--simulate", "hall", "--nodes", "3", "--out", str(tmp_path / "h.toml")]) == 2
+
+
+def test_a_byte_order_mark_reads_as_without_it(tmp_path: Path) -> None:
+    """A description or a node's number file saved by a Windows editor starts with a UTF-8 byte-order mark; it reads
+    as the same file without it (it was "not valid TOML (Invalid statement at line 1, column 1)")."""
+    from distnav.formats.field_config import read_node_values
+
+    ranges = _write_ranges(tmp_path / "r.csv", [("A1", "A2", 3.0), ("A2", "A3", 4.0), ("A1", "A3", 2.0)])
+    plain = tmp_path / "n.toml"
+    assert main(["field", "init", "--ranges", str(ranges), "--out", str(plain)]) == 0
+    marked = tmp_path / "bom.toml"
+    marked.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    assert read_description(marked).nodes == read_description(plain).nodes
+    numbers = tmp_path / "values.txt"
+    numbers.write_bytes(b"\xef\xbb\xbf1.5 2.5\n")
+    np.testing.assert_array_equal(read_node_values(numbers, 0), [1.5, 2.5])

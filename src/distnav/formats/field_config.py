@@ -194,7 +194,7 @@ def read_description(path: str | Path) -> NetworkDescription:
     """Read and check a description file (:class:`DataFileError` names the file, the node and the key)."""
     p = Path(path)
     try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+        raw = tomllib.loads(p.read_text(encoding="utf-8-sig"))
     except OSError as exc:
         raise DataFileError(f"{p}: cannot read the network description ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
@@ -441,7 +441,7 @@ def format_description(desc: NetworkDescription, *, relative_to: Path | None = N
 def read_node_values(path: Path, node_id: int) -> np.ndarray:
     """A node's data for consensus: whitespace- or comma-separated finite numbers (a vector), ``#`` comments."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
     except OSError as exc:
         raise DataFileError(f"{path}: node {node_id}: cannot read its data file ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
