@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -69,6 +70,19 @@ def test_satellite_fit_robust_z() -> None:
     mild[-1] = 0.35  # 1.17× the median: not flagged
     w = SatelliteFit(fit.svs, fit.rms_m, fit.rms_w, fit.n, code_rms_m=mild, code_n=fit.code_n).as_dict()
     assert w["worst_fitting"]["satellite"] == "G08" and not w["worst_fitting"]["stands_out"]
+
+
+def test_satellite_fit_without_any_levelled_arc_warns_nothing() -> None:
+    """With no arc long enough to level (``--min-arc`` above every arc) every code RMS is NaN: the fit's median is
+    NaN and no numpy "All-NaN slice" warning reaches the console."""
+    nan = np.full(3, np.nan)
+    fit = SatelliteFit(
+        ("G01", "G02", "G03"), np.ones(3), np.ones(3), np.full(3, 50), code_rms_m=nan, code_n=np.zeros(3)
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        d = fit.as_dict()
+    assert np.isnan(d["median"])
 
 
 def _ns(bias: list[str] | None, l1: str | None = None) -> argparse.Namespace:

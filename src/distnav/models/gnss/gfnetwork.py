@@ -114,7 +114,9 @@ class SatelliteFit:
             if self.code_rms_m is not None and self.code_n is not None:
                 row.update({"code_minus_phase_rms_zenith_m": float(self.code_rms_m[k]), "code_n": int(self.code_n[k])})
             per[s] = row
-        med = float(np.nanmedian(self.code_rms_m if self.code_rms_m is not None else self.rms_w))
+        stats = np.asarray(self.code_rms_m if self.code_rms_m is not None else self.rms_w, dtype=float)
+        finite = stats[np.isfinite(stats)]  # no levelled arc anywhere: every code RMS is NaN
+        med = float(np.median(finite)) if finite.size else float("nan")
         z = self.robust_z(w[1]) if w is not None else None
         return {
             "statistic": stat,
