@@ -500,3 +500,31 @@ def test_single_link_hint_names_the_same_number_spelled_otherwise() -> None:
     comb = CombinedRanges(pairs, np.ones(4), np.ones(4, np.int64), np.zeros(4))
     (warning,) = single_link_anchors(comb)
     assert "anchor '12.0' has a single measured link" in warning and "an id typo for '12'?" in warning
+
+
+def test_a_product_of_several_days_is_not_taken_for_its_first_day(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A weekly, monthly or quarterly product (``DLR0MGXFIN_20240010000_03L_07D_DCB.BSX``) is valid over its span: the
+    name's start day alone made `gnss compare` refuse it as "a product of 2024-01-01" against estimates of
+    2024-01-10. Reference: the same file under its daily name gives the same comparison."""
+    import shutil
+
+    import numpy as np
+
+    from distnav.formats.gnss.product_files import product_day
+
+    assert product_day("DLR0MGXFIN_20240010000_03L_07D_DCB.BSX") is None
+    assert product_day("COD0OPSFIN_20240070000_07D_01D_OSB.BIA") is None
+    assert product_day("CAS0OPSRAP_20240100000_01D_01D_DCB.BIA") == np.datetime64("2024-01-10")
+    assert product_day("BELE00BRA_R_20240100000_15M_01S_MO.rnx") == np.datetime64("2024-01-10")
+    cas = shared_data / IGS / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"
+    quarterly = tmp_path / "CAS0OPSRAP_20240010000_03L_01D_DCB.BIA.gz"
+    shutil.copy(cas, quarterly)
+    est = _codebias_json(tmp_path, "2024-01-10", {"G01": 1.0, "G03": 2.5, "G08": -1.0, "G10": 0.3})
+    for name, product in (("daily", cas), ("quarterly", quarterly)):
+        argv = ["gnss", "compare", "--estimates", str(est), "--bias", str(product), "--out", str(tmp_path / name)]
+        assert main(argv) == 0, capsys.readouterr().err[-600:]
+    daily = json.loads((tmp_path / "daily/comparison.json").read_text())
+    other = json.loads((tmp_path / "quarterly/comparison.json").read_text())
+    assert other["zero_mean"] == daily["zero_mean"] and other["n_common"] == daily["n_common"] == 4

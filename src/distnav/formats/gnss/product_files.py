@@ -43,14 +43,22 @@ def product_day(path: str | Path) -> np.datetime64 | None:
     if not isinstance(path, (str, os.PathLike)):
         raise DataFileError(f"product_day needs a file name, got {path!r} ({type(path).__name__})")
     name = Path(path).name
-    m = re.search(r"_(\d{4})(\d{3})\d{4}_", name)
+    m = re.search(r"_(\d{4})(\d{3})\d{4}_(?:(\d{2})([SMHDWLYU])_)?", name)
     if m:
+        if m.group(3) is not None and _spans_days(int(m.group(3)), m.group(4)):
+            return None  # a weekly, monthly or quarterly product (``_07D_``, ``_03L_``) is valid over its span
         return np.datetime64(f"{m.group(1)}-01-01") + np.timedelta64(int(m.group(2)) - 1, "D")
     m = re.match(r"^[a-zA-Z0-9]{4}(\d{3})[0-9a-xA-X]\.(\d{2})[iIoOdDnNgG]", name)
     if m:
         year = 2000 + int(m.group(2)) if int(m.group(2)) < 80 else 1900 + int(m.group(2))
         return np.datetime64(f"{year}-01-01") + np.timedelta64(int(m.group(1)) - 1, "D")
     return _bias_sinex_day(Path(path))
+
+
+def _spans_days(count: int, unit: str) -> bool:
+    """Whether an IGS long name's period field (``01D``, ``15M``, ``07D``, ``03L``; units S, M, H, D, W, L month,
+    Y, U unspecified) spans more than one day: such a file has no one day (as a several-day Bias-SINEX header)."""
+    return (unit == "D" and count > 1) or (unit == "H" and count > 24) or unit in "WLY"
 
 
 def _bias_sinex_day(path: Path) -> np.datetime64 | None:
