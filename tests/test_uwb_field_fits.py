@@ -358,3 +358,23 @@ def test_the_tightening_chase_stops_where_the_target_hardly_falls(monkeypatch):
     assert np.max(np.abs(now.positions_m - before.positions_m)) < 1e-4
     assert now.comm_phases["tighten"]["bytes"] < 0.7 * before.comm_phases["tighten"]["bytes"]
     assert now.bytes < before.bytes
+
+
+def test_a_failed_completion_keeps_the_early_stopped_answer_without_calling_it_converged(monkeypatch):
+    """Where the fit that completes an early-stopped end fails (unusable), the 1 cm answer stays — said in the note —
+    and its status no longer reads ``converged``: that fit met the stage's 1 cm stop, not the solver's tolerances."""
+    from types import SimpleNamespace
+
+    from distnav.algorithms.result import SolverResult, Trace
+    from distnav.exchange.core import CommTotals
+    from distnav.models.uwb import field_run
+
+    early = SolverResult(np.zeros((3, 2)), True, 4, "converged", "stopped at 1 cm", Trace(), CommTotals.empty(3))
+    failed = SimpleNamespace(usable=False, tests=None, estimates=np.full((3, 2), np.nan))
+    run = SimpleNamespace(starts=[], note="", fit=lambda sub: failed, problem=SimpleNamespace(n_meas=3))
+    fit = SimpleNamespace(loose=True, res=early, excluded=np.zeros(3, bool))
+    monkeypatch.setattr(field_run, "subset_measurements", lambda problem, keep: problem)
+    out = field_run.complete(run, fit)
+    assert out.res.status == "max_iterations" and not out.res.converged
+    np.testing.assert_array_equal(out.res.estimates, early.estimates)
+    assert "completion of an early-stopped fit failed" in run.note and not out.loose

@@ -6,7 +6,7 @@ steps that complete an exclusion loop that ended on an early-stopped re-fit (``f
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -99,7 +99,9 @@ def ends_loose(run: FieldRun) -> bool:
 
 def complete(run: FieldRun, fit: FieldFit) -> FieldFit:
     """``fit`` where the loop ended on an early-stopped re-fit: that fit continued to the solver's tolerances on the
-    kept links (the fit the loop would have ended with), its tests over every measurement."""
+    kept links (the fit the loop would have ended with), its tests over every measurement. Where that fit fails, the
+    early-stopped answer stays, said in the note, and its status is ``max_iterations``: it met the 1 cm stage's stop,
+    not the solver's tolerances, so it must not read ``converged``."""
     if fit.loose:
         fit.loose = False
         run.starts.append(np.asarray(fit.res.estimates, float))
@@ -107,10 +109,12 @@ def complete(run: FieldRun, fit: FieldFit) -> FieldFit:
         if r.usable and r.tests is not None and np.all(np.isfinite(r.estimates)):
             fit.res = r
             fit.w, fit.flagged = kept_tests(run.problem.n_meas, ~fit.excluded, r.tests)
-        else:  # said, not hidden: the answer stays the early-stopped fit's
+        else:  # said, not hidden: the answer stays the early-stopped fit's, whose stop was not the solver's
             run.note += (
                 "; the completion of an early-stopped fit failed (unusable or untested): its 1 cm answer is kept"
             )
+            if fit.res.status in ("converged", "weakly_determined"):  # met the 1 cm stage's stop, not the solver's
+                fit.res = replace(fit.res, status="max_iterations", converged=False)
     return fit
 
 
