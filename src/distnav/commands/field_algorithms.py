@@ -35,7 +35,7 @@ from distnav.formats.field_data import admm_node_problem, ckf_node_model, read_n
 if TYPE_CHECKING:
     from distnav.commands.field_survive import Rerun
 
-__all__ = ["NODE_ALGORITHMS", "REJOIN_ALGORITHMS", "rejoin_algorithm", "run_algorithm"]
+__all__ = ["NODE_ALGORITHMS", "REJOIN_ALGORITHMS", "prepare_node", "rejoin_algorithm", "run_algorithm"]
 
 NODE_ALGORITHMS = ("admm", "ckf", "uwb")
 #: node programs a restarted node can rejoin (besides consensus): they run again from the start with it
@@ -150,6 +150,27 @@ def _ckf(algo: dict[str, Any], arrays: dict[str, np.ndarray], path: Path, ex: Fi
         "epochs": series.n_epochs,
         "rounds": series.n_epochs * algo["rounds"],
     }
+
+
+def prepare_node(desc: NetworkDescription, node_id: int) -> None:
+    """What a node program can do before the start-up barrier: import its algorithm's modules and read (and check)
+    its data file. The barrier lets every node into step 0 together; a node whose imports and file read came after
+    it spent the first steps' deadlines on them (``deadline_ms × miss_limit``, 6 s by default, is not long on a
+    loaded or slow device) and could be declared lost. A bad data file is refused here, before this node greets."""
+    import distnav.algorithms.lsq.admm  # noqa: F401  (the front doors the runners call; imported once)
+    import distnav.commands.field_survive  # noqa: F401
+
+    name = desc.algorithm["name"]
+    if name == "uwb":
+        import distnav.algorithms.ranging.csg  # noqa: F401  (the solvers' front door, imported in the solve)
+        from distnav.commands.field_uwb import _own
+
+        _own(desc, node_id)
+    else:
+        import distnav.algorithms.kalman.ckf  # noqa: F401
+        import distnav.commands.field_admm  # noqa: F401
+
+        _arrays(desc, node_id, name)
 
 
 def run_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, transport: Transport) -> dict[str, Any]:

@@ -97,6 +97,10 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         # a consensus node is ready before it greets: weights, checks and mixers built (no message), so the first
         # round does not wait for this node's set-up, and the rounds are timed alone
         states = _consensus_states(desc, node_id, ex, values, first) if values is not None else None
+        if states is None and late is None:  # ADMM, CKF, UWB: imports and the data file before the barrier
+            from distnav.commands.field_algorithms import prepare_node
+
+            prepare_node(desc, node_id)
         gc.freeze()  # the set-up's objects (modules, description, weights) out of the collector's passes
         start = Startup([]) if rejoin else _start(desc, node_id, transport, values)
         missing = start.missing
