@@ -97,10 +97,6 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         # a consensus node is ready before it greets: weights, checks and mixers built (no message), so the first
         # round does not wait for this node's set-up, and the rounds are timed alone
         states = _consensus_states(desc, node_id, ex, values, first) if values is not None else None
-        if states is None and late is None:  # ADMM, CKF, UWB: imports and the data file before the barrier
-            from distnav.commands.field_algorithms import prepare_node
-
-            prepare_node(desc, node_id)
         gc.freeze()  # the set-up's objects (modules, description, weights) out of the collector's passes
         start = Startup([]) if rejoin else _start(desc, node_id, transport, values)
         missing = start.missing
@@ -159,7 +155,13 @@ def _start(desc: NetworkDescription, node_id: int, transport: Transport, values:
     """The start-up handshake (:mod:`distnav.exchange.field.startup`: this network's fingerprint, a consensus node's
     number of values, into step 0 with the whole network). A node that heard none of its neighbours takes part in
     no run: :class:`ExchangeError` (exit code 2) with the reason, and no ``node-ID.json`` (a second start of a node
-    that already finished writes nothing over its result)."""
+    that already finished writes nothing over its result). ADMM, CKF and UWB nodes import their modules and read
+    their data file first (:func:`~distnav.commands.field_algorithms.prepare_node`), as a consensus node has built its
+    states: the barrier lets the network into step 0 together, so nothing slow may come after it."""
+    if values is None:
+        from distnav.commands.field_algorithms import prepare_node
+
+        prepare_node(desc, node_id)
     check = StartCheck(desc.fingerprint(), 0 if values is None else values.size, desc.n_nodes - 1)
     start = handshake(transport, check=check)
     if start.missing:
