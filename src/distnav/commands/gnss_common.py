@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import DataFileError, ModelError
+from distnav.formats.uwb.io import decoded_text
 
 __all__ = ["load_edges", "default_graph", "add_data_arguments", "check_data_arguments", "say"]
 
@@ -31,13 +32,8 @@ def load_edges(path: Path, stations: list[str]) -> Any:
     if not path.is_file():
         raise DataFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
     raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8-sig")  # a byte-order mark (a Windows editor's) is not part of the first name
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise DataFileError(
-            f"{path}, line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 text: expected a CSV of station-name pairs"
-        ) from None
+    # a byte-order mark (a Windows editor's) is not part of the first name
+    text = decoded_text(raw, path, "utf-8-sig", "UTF-8 text: expected a CSV of station-name pairs")
     if "\x00" in text:
         raise DataFileError(f"{path}: binary data (NUL bytes): expected a CSV of station-name pairs")
     header = ""
