@@ -25,7 +25,7 @@ from distnav.algorithms.consensus.flows import iterate_flow_consensus
 from distnav.commands.field_algorithms import REJOIN_ALGORITHMS
 from distnav.errors import DataFileError, ExchangeError, UsageError
 from distnav.exchange import FaultSchedule
-from distnav.exchange.field import CurveKeys, FieldExchange, Kind, Transport
+from distnav.exchange.field import CurveKeys, FieldExchange, Transport
 from distnav.exchange.field.startup import StartCheck, Startup, handshake
 from distnav.formats.field_config import NetworkDescription, read_node_values
 from distnav.output import atomic_write_json
@@ -199,19 +199,11 @@ def _start(desc: NetworkDescription, node_id: int, transport: Transport, values:
 
 def _farewell(transport: Transport, step: int) -> dict[str, Any]:
     """A consensus node's last word: a bye to every neighbour saying whether (at which step, else -1) this node
-    declared it lost, and the byes that came from the neighbours by now. A node stopped (SIGSTOP) past the deadlines
-    and then resumed ran on its neighbours' queued messages and could not tell that they had dropped it: their answer
-    and its own no longer hold its data. The byes of neighbours that finished before it are there when it ends
-    (``dropped_by``, ``status`` ``..._dropped_by_neighbours``); a neighbour still running is not waited for."""
-    for p in transport.peers:
-        transport.post(p, Kind.BYE, step, np.array([transport.lost.get(p, -1)], np.int64))
-    byes = {s: m for held in transport._held.values() for s, m in held.items() if m.kind == Kind.BYE}
-    for frame in transport._frames():
-        msg = transport._checked(frame)
-        if msg is not None and msg.kind == Kind.BYE:
-            byes[msg.sender] = msg
-    dropped = {str(s): int(m.array[0]) for s, m in sorted(byes.items()) if m.array.size == 1 and m.array[0] >= 0}
-    return {"dropped_by": dropped}
+    declared it lost, and the byes that came from the neighbours by now (:meth:`Transport.farewell`). A node stopped
+    (SIGSTOP) past the deadlines and then resumed ran on its neighbours' queued messages and could not tell that they
+    had dropped it: their answer and its own no longer hold its data. The byes of neighbours that finished before it
+    are there when it ends (``dropped_by``, ``status`` ``..._dropped_by_neighbours``)."""
+    return {"dropped_by": transport.farewell(step)}
 
 
 def _join(transport: Transport, consensus: bool) -> tuple[int, str | None]:

@@ -473,6 +473,19 @@ class Transport:
             del self._held[k]
         return seen
 
+    def farewell(self, step: int) -> dict[str, int]:
+        """Send a bye to every neighbour (the step at which this node declared it lost, else -1) and return the
+        neighbours whose byes by now say they dropped this node (neighbour → step); one not yet finished is not
+        waited for. A node stopped past the deadlines and resumed cannot tell otherwise that its answer lacks them."""
+        for p in self.peers:
+            self.post(p, Kind.BYE, step, np.array([self.lost.get(p, -1)], np.int64))
+        byes = {s: m for held in self._held.values() for s, m in held.items() if m.kind == Kind.BYE}
+        for frame in self._frames():
+            msg = self._checked(frame)
+            if msg is not None and msg.kind == Kind.BYE:
+                byes[msg.sender] = msg
+        return {str(s): int(m.array[0]) for s, m in sorted(byes.items()) if m.array.size == 1 and m.array[0] >= 0}
+
     def _checked(self, frame: Any) -> Message | None:
         try:
             msg = decode(frame.buffer if self.curve else frame, max_bytes=self.options.max_message_bytes)
