@@ -6,6 +6,13 @@ defaults. Every distributed fit is counted (bytes, messages, LM-phase rounds, CG
 called it: the first fit, the tightening, the exclusion loop, the per-anchor check's re-solves (``repair``), the
 completion of an early-stopped fit (``complete``), the revert's reference fit, the polish; σ and reliability are the
 rest of the solution's total. Monkeypatches ``solve_once`` in the modules that import it: a measurement, not a test.
+
+``scaled N OUT`` (issue 27, tenth session): the whole solve of ``benchmarks/bench_uwb_economy.py`` section 3 on its
+hall of ``N`` anchors (``_solve_row``'s set-up and per-anchor accounting: every fit's broadcasts plus its
+reductions over the capped tree), split by step *and* by the fit's own stage (``seed``, ``refit`` — 1 cm —,
+``rung`` — 3 mm —, ``full``): per step the network's bytes, the busiest anchor's (of the whole solve) and the
+largest any anchor sent in it, LM rounds and CG iterations; the σ apart. ``OUT`` (``-``: none): a ``.npz`` with
+every fit's step, per-anchor bytes, per-anchor move (end − start) and the links it fitted, for the regional study.
 """
 
 from __future__ import annotations
@@ -13,6 +20,7 @@ from __future__ import annotations
 import sys
 from collections import defaultdict
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,6 +32,9 @@ from distnav.models.uwb.hall import PLANT_HARD, PLANT_LIKE, HallConfig, simulate
 
 _STAGE = ["other"]
 _ROWS: dict[str, list[int]] = defaultdict(lambda: [0, 0, 0, 0])  # fits, bytes, rounds, CG iterations
+#: ``scaled``: the benchmark module (its per-fit counters ``_FITS``) and one record per fit
+_BENCH: list[Any] = [None]
+_LOG: list[dict[str, Any]] = []
 
 
 def _staged(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -44,13 +55,29 @@ def _install() -> None:
     def counted(*args: Any, **kw: Any) -> Any:
         total = kw.get("total")
         before = total[2] if total is not None else 0
+        fits_before = len(_BENCH[0]._FITS) if _BENCH[0] is not None else 0
         r = inner(*args, **kw)
         ref = (getattr(r, "settings", None) or {}).get("refine") or {}
-        row = _ROWS[_STAGE[0] if kw.get("start") != "first" else "first_fit"]
+        step = _STAGE[0] if kw.get("start") != "first" else "first_fit"
+        row = _ROWS[step]
         row[0] += 1
         row[1] += (total[2] - before) if total is not None else 0
         row[2] += int(ref.get("rounds", 0))
         row[3] += int(ref.get("cg_iterations", 0))
+        if _BENCH[0] is not None:
+            problem = args[0]
+            _LOG.append(
+                {
+                    "step": step,
+                    "stage": kw.get("stage") or ("first" if kw.get("start") == "first" else "full"),
+                    "bytes": (total[2] - before) if total is not None else 0,
+                    "rounds": int(ref.get("rounds", 0)),
+                    "cg": int(ref.get("cg_iterations", 0)),
+                    "fits": (fits_before, len(_BENCH[0]._FITS)),
+                    "move_m": np.linalg.norm(np.asarray(r.estimates) - problem.initial_m, axis=1).astype(np.float32),
+                    "links": np.asarray(problem.links, np.int32),
+                }
+            )
         return r
 
     for mod in (field, field_fits, field_steps):
@@ -83,8 +110,72 @@ def count(kind: str, k: int, place: str) -> None:
     print(f"  excluded {int(np.sum(sol.excluded))} links; {sol.status}")
 
 
+def scaled(n: int, out: str) -> None:
+    """Section 3's whole solve at ``n`` anchors by step and stage, per anchor (module docstring)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import bench_uwb_economy as bench
+    from distnav.network.graph import Graph
+
+    bench._counting()
+    _BENCH[0] = bench
+    _ROWS.clear()
+    _LOG.clear()
+    for kept in (bench._SENT, bench._FITS, bench._SIGMA, bench._TREES):
+        kept.clear()
+    p, start = bench._scaled_hall(n)
+    sigma = "gathered" if n <= bench.GATHERED_SIGMA_MAX else "subnetwork"
+    opts = FieldOptions(solver="N-CLM", distributed_precision=sigma, reliability_limit_m=0.0)
+    sol = solve_field(p.with_initial(start), opts, geometry=None)
+    tree = bench._tree_sends(Graph.from_links(n, p.links), "capped") / max(2 * (n - 1), 1)
+    fits = [b + tree * reduced for b, reduced in bench._FITS]
+    sigma_sent = np.sum(bench._SIGMA, axis=0) if bench._SIGMA else np.zeros(n)
+    sent = np.sum(fits, axis=0) + sigma_sent
+    busiest = int(np.argmax(sent))
+    groups: dict[str, list[Any]] = {}
+    for rec in _LOG:
+        per = np.sum(fits[rec["fits"][0] : rec["fits"][1]], axis=0) if rec["fits"][1] > rec["fits"][0] else 0 * tree
+        rec["sent"] = per.astype(np.float32)
+        g = groups.setdefault(f"{rec['step']}: {rec['stage']}", [0, 0, 0 * tree, 0, 0])
+        g[0] += 1
+        g[1] += rec["bytes"]
+        g[2] = g[2] + per
+        g[3] += rec["rounds"]
+        g[4] += rec["cg"]
+    miss = (sol.positions_m - p.truth_m)[p.estimated]
+    print(
+        f"scaled {n}: {sol.bytes / 1e6:.2f} MB, {len(_LOG)} fits, busiest anchor {busiest}: {sent.max() / 1e3:.1f} kB"
+    )
+    print(f"  (median {np.median(sent) / 1e3:.1f} kB), excluded {int(sol.excluded.sum())}, {sol.status}")
+    print(f"  RMSE {np.sqrt(np.mean(np.sum(miss * miss, axis=1))):.5f} m")
+    print(f"  {'step: stage':28s} {'fits':>4s} {'MB':>9s} {'busiest kB':>10s} {'max kB':>7s} {'rounds':>6s} {'CG':>6s}")
+    for name, (k, b, per, rounds, cg) in groups.items():
+        print(
+            f"  {name:28s} {k:4d} {b / 1e6:9.2f} {per[busiest] / 1e3:10.1f} {per.max() / 1e3:7.1f} {rounds:6d} {cg:6d}"
+        )
+    print(f"  {'σ':28s} {'':4s} {'':9s} {sigma_sent[busiest] / 1e3:10.1f} {sigma_sent.max() / 1e3:7.1f}")
+    if out != "-":
+        np.savez_compressed(
+            out,
+            steps=np.array([f"{r['step']}: {r['stage']}" for r in _LOG]),
+            sent=np.array([r["sent"] for r in _LOG]),
+            move_m=np.array([r["move_m"] for r in _LOG]),
+            links=np.concatenate([r["links"] for r in _LOG]),
+            link_counts=np.array([len(r["links"]) for r in _LOG]),
+            sigma_sent=sigma_sent,
+            positions_m=sol.positions_m,
+            truth_m=p.truth_m,
+            estimated=p.estimated,
+            all_links=np.asarray(p.links),
+            excluded=np.asarray(sol.excluded),
+        )
+    _BENCH[0] = None
+
+
 if __name__ == "__main__":
     _install()
     args = sys.argv[1:]
     for i in range(0, len(args), 3):
-        count(args[i], int(args[i + 1]), args[i + 2])
+        if args[i] == "scaled":
+            scaled(int(args[i + 1]), args[i + 2])
+        else:
+            count(args[i], int(args[i + 1]), args[i + 2])
