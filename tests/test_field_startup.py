@@ -359,3 +359,64 @@ def test_a_node_killed_during_the_start_up_and_restarted_with_rejoin_starts_with
     field = np.array([r["estimate"] for r in res])
     ref = list(iterate_average_consensus(values, graph=Graph.from_links(N, LINKS), protocol="MH", rounds=40))[-1]
     assert np.array_equal(field, ref.values), np.abs(field - ref.values).max()
+
+
+def test_the_start_up_depth_is_the_eccentricity_of_the_greeting_graph() -> None:
+    """The barrier's depth is each node's eccentricity (was n - 1 for every node): checked against scipy's
+    breadth-first distances on a path, a ring, LINKS and a random geometric graph."""
+    from scipy.sparse.csgraph import shortest_path
+
+    from distnav.exchange.field.startup import eccentricity
+    from distnav.network import builders
+
+    path = Graph.from_links(7, [(i, i + 1) for i in range(6)])
+    ring = Graph.from_links(9, [(i, (i + 1) % 9) for i in range(9)])
+    rgg = builders.connected_random_geometric(30, mean_degree=4, rng=np.random.default_rng(2))
+    for g in (path, ring, Graph.from_links(N, LINKS), rgg):
+        hops = shortest_path(g.adjacency(), unweighted=True, directed=False)
+        assert [eccentricity(g, i) for i in range(g.n_nodes)] == [int(h.max()) for h in hops]
+    assert [eccentricity(path, i) for i in (0, 3)] == [6, 3]
+
+
+def test_start_up_hellos_are_repeated_only_to_a_neighbour_that_has_not_answered() -> None:
+    """Four nodes that all greet each other (threads, inproc), node 3 started 3 s after the others. Before, every
+    node repeated its hello to every neighbour every 0.5 s until the whole network was up, and its level rose to
+    n - 1 = 3 (a hello per level change and neighbour): node 0 sent 28 hellos, node 3 15. Now the depth is 1 (every
+    node one hop away), the answered neighbours get only the level changes, and the repeats to node 3 go at 0.5, 1,
+    2 s: node 0 sent 12, node 3 6 (bounds 20 and 12)."""
+    import threading
+    import uuid
+
+    import zmq
+
+    from distnav.exchange.field import Peer, Transport, TransportOptions
+    from distnav.exchange.field.startup import StartCheck, handshake
+
+    ctx = zmq.Context()
+    addr = [f"inproc://hello-{uuid.uuid4().hex}-{i}" for i in range(4)]
+    sent: dict[int, dict[str, int]] = {}
+    missing: dict[int, list[int]] = {}
+
+    def node(i: int) -> None:
+        peers = [Peer(j, addr[j]) for j in range(4) if j != i]
+        tr = Transport(i, addr[i], peers, options=TransportOptions(start_timeout_s=20.0), context=ctx)
+        try:
+            missing[i] = handshake(tr, check=StartCheck(levels=1)).missing
+            sent[i] = tr.bytes_by_kind()
+        finally:
+            tr.close()
+
+    threads = [threading.Thread(target=node, args=(i,), daemon=True) for i in range(4)]
+    for t in threads[:3]:
+        t.start()
+    time.sleep(3.0)
+    threads[3].start()
+    for t in threads:
+        t.join(60)
+    assert not any(t.is_alive() for t in threads)
+    ctx.term()
+    assert missing == {i: [] for i in range(4)}
+    hello_frame_bytes = 28 + 4 + 3 * 8  # header, one dimension, three int64 (wire.py)
+    frames = {i: sent[i]["hello"] // hello_frame_bytes for i in range(4)}
+    assert all(sent[i]["hello"] % hello_frame_bytes == 0 for i in range(4))
+    assert frames[0] <= 20 and frames[3] <= 12, frames

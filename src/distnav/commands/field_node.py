@@ -26,7 +26,7 @@ from distnav.commands.field_algorithms import REJOIN_ALGORITHMS
 from distnav.errors import DataFileError, ExchangeError, UsageError
 from distnav.exchange import FaultSchedule
 from distnav.exchange.field import CurveKeys, FieldExchange, Transport
-from distnav.exchange.field.startup import StartCheck, Startup, handshake
+from distnav.exchange.field.startup import StartCheck, Startup, eccentricity, handshake
 from distnav.exchange.field.startup import rejoin as join_running
 from distnav.formats.field_config import NetworkDescription, read_node_values
 from distnav.output import atomic_write_json
@@ -140,6 +140,7 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             "rejoined_at_step": first if mid_run else None,
             "restarted_during_startup": rejoin and not mid_run,
             "wire": transport.wire_counts(),
+            "wire_bytes_by_kind": transport.bytes_by_kind(),
             "model_bytes_sent": int(ex.bytes_sent.sum()),
             "messages_received_model": int(ex.messages_received.sum()),
             "refused": transport.refusal_counts(),
@@ -166,7 +167,8 @@ def _start(desc: NetworkDescription, node_id: int, transport: Transport, values:
         from distnav.commands.field_algorithms import prepare_node
 
         prepare_node(desc, node_id)
-    check = StartCheck(desc.fingerprint(), 0 if values is None else values.size, desc.n_nodes - 1)
+    depth = eccentricity(desc.graph(), node_id)
+    check = StartCheck(desc.fingerprint(), 0 if values is None else values.size, depth)
     start = handshake(transport, check=check)
     if start.missing:
         LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, start.missing, desc.start_timeout_s)

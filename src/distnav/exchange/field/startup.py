@@ -10,11 +10,19 @@ description or a cut data file):
   theirs, and plain consensus ended, every node "completed", 1.5 away from the mean of data of size 1. Now every
   hello carries the sender's *level*: -1 while it waits for its own neighbours' hellos (at most ``start_timeout_s``),
   then ``1 + min`` of its answered neighbours' levels (0 when it has none), capped at ``levels``. A node at level
-  ``k`` knows that every node within ``k`` hops has heard its neighbours, so at ``levels = n - 1`` (a network
-  description's nodes) the whole connected network has, and the nodes enter step 0 within a few message latencies
-  of each other. A level change is sent at once (not at the 0.5 s repeat), so the rise to ``n - 1`` costs ``n - 1``
-  message latencies. Bounded: a node waits at most ``2 × start_timeout_s`` in all (a neighbour that answered and then
-  died holds the levels back until then; it is lost in the run as any dead node);
+  ``k`` knows that every node within ``k`` hops has heard its neighbours, so at ``levels`` = its
+  :func:`eccentricity` in the graph of who greets whom (at most ``n - 1``, the depth used before; 1 where every
+  node greets every other) the whole connected network has, and the nodes enter step 0 within a few message
+  latencies of each other. A level change is sent at once to every neighbour, so the rise costs ``levels`` message
+  latencies; a hello is repeated (0.5 s, then 1, 2, 4 s) only to a neighbour that has not answered (a hello to a node
+  not yet started waits in its queue and arrives when it starts), and answered at once (at most every 0.5 s) to one
+  whose hello says it still waits or that restarted. Bounded: a node waits at most ``2 × start_timeout_s`` in all (a
+  neighbour that answered and then died holds the levels back until then; it is lost in the run as any dead node);
+* **a rejoin during the start-up.** A node killed while the network was still starting and restarted with
+  ``--rejoin`` greeted with its one-byte hello, which the barrier ignored: it exited 2 ("no neighbour answered")
+  and the others waited ``2 × start_timeout_s`` and ran without its data. Now the barrier answers it (and waits
+  for its new process: its old level is void), :func:`rejoin` sees start-up hellos and no step message, and the
+  node starts as the others do, from step 0;
 * **a stranger taken for a neighbour.** Without CURVE anything on a neighbour's port was believed: a node of another
   network's description on the same ports ran with this one (its data in this network's answer, every status
   "completed"), and a node whose data file had lost values sent messages of the wrong length, refused every round
@@ -27,7 +35,8 @@ description or a cut data file):
   this node, or another network's.
 
 The hello (kind ``HELLO``, step 0) carries int64 ``[level, fingerprint, values]``; a restarted process's hello is one
-byte (uint8), as before.
+byte (uint8), as before. Every hello sent, :func:`rejoin`'s too, is counted in the transport's byte totals
+(:meth:`Transport.bytes_by_kind` ``hello``).
 """
 
 from __future__ import annotations
@@ -43,8 +52,9 @@ import numpy as np
 from distnav.errors import ExchangeError
 from distnav.exchange.field.transport import Transport
 from distnav.exchange.field.wire import Kind, WireError, decode
+from distnav.network.graph import Graph
 
-__all__ = ["StartCheck", "Startup", "handshake", "rejoin"]
+__all__ = ["StartCheck", "Startup", "eccentricity", "handshake", "rejoin"]
 
 LOG = logging.getLogger("distnav.field")
 _REPEAT_S = 0.5  # the first repeat of a hello to a neighbour that has not answered (a level change goes at once)
@@ -56,8 +66,9 @@ class StartCheck:
     """What a hello must agree on, and how far the start waits.
 
     network_id : the network's fingerprint (0: not checked). values : the number of values of this node's step
-    messages (0: not checked). levels : the start-up barrier's depth (``n - 1`` for a description of ``n`` nodes;
-    0: start as soon as the neighbours have answered).
+    messages (0: not checked). levels : the start-up barrier's depth: this node's :func:`eccentricity` in the graph of
+    who greets whom (every node within that many hops is every node; ``n - 1`` is always enough; 0: start as soon as
+    the neighbours have answered).
     """
 
     network_id: int = 0
@@ -75,6 +86,18 @@ class Startup:
     #: the latest step of a neighbour's message that came during the start (-1: none; a node that comes after the
     #: others began sees their steps)
     latest_step: int = -1
+
+
+def eccentricity(graph: Graph, node: int) -> int:
+    """The most hops from ``node`` to a node of its connected part of ``graph`` (breadth-first): the start-up depth
+    at which ``node`` knows that every node it can reach has heard its neighbours (:class:`StartCheck`)."""
+    seen, frontier, hops = {node}, [node], 0
+    while True:
+        nxt = [int(j) for i in frontier for j in graph.neighbors(i) if int(j) not in seen]
+        if not nxt:
+            return hops
+        seen.update(nxt)
+        frontier, hops = list(dict.fromkeys(nxt)), hops + 1
 
 
 def handshake(transport: Transport, peers: list[int] | None = None, check: StartCheck | None = None) -> Startup:

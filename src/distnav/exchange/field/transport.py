@@ -225,6 +225,7 @@ class Transport:
         self.frames_sent = 0
         self.frames_received = 0
         self.send_failures = 0
+        self._kind_bytes: Counter[int] = Counter()  # wire kind → bytes sent (:meth:`bytes_by_kind`)
         self._delayed: list[tuple[float, int, Message]] = []  # (release time, arrival number, message)
         self._latency = np.random.default_rng(self.options.latency_seed + 7919 * self.me)
 
@@ -236,15 +237,17 @@ class Transport:
     def post_many(self, peers: list[int], kind: Kind, step: int, array: np.ndarray) -> None:
         """:meth:`post` of the same message to every peer of ``peers``, encoded once."""
         frame = encode(kind, self.me, step, array)
-        push, again, flags, copy = self.push, self._zmq.Again, self._zmq.NOBLOCK, len(frame) < 65536
+        push, again, flags, copy, sent = self.push, self._zmq.Again, self._zmq.NOBLOCK, len(frame) < 65536, 0
         for peer in peers:  # _send inlined: a consensus round sends one frame per neighbour
             try:
                 push[peer].send(frame, flags, copy)  # positional: cheaper than keywords per frame
             except again:
                 self.send_failures += 1
                 continue
-            self.bytes_sent += len(frame)
-            self.frames_sent += 1
+            sent += 1
+        self.bytes_sent += sent * len(frame)
+        self.frames_sent += sent
+        self._kind_bytes[kind] += sent * len(frame)
 
     def _send(self, peer: int, frame: bytes) -> None:
         try:
@@ -254,6 +257,7 @@ class Transport:
             return
         self.bytes_sent += len(frame)
         self.frames_sent += 1
+        self._kind_bytes[frame[5]] += len(frame)  # the header's kind byte (:mod:`.wire`)
 
     # ------------------------------------------------------------- receiving
     def collect(
@@ -524,6 +528,10 @@ class Transport:
     def wire_counts(self) -> dict[str, int]:
         """Real bytes and frames this node put on and took off the wire, and the sends that could not be queued."""
         return {name: int(getattr(self, name)) for name in WIRE_COUNTERS}
+
+    def bytes_by_kind(self) -> dict[str, int]:
+        """:attr:`bytes_sent` by wire kind (``hello``, ``column``, ``edge``, ...)."""
+        return {Kind(k).name.lower(): int(v) for k, v in sorted(self._kind_bytes.items())}
 
     @property
     def refusals(self) -> int:
