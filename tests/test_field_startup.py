@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -420,3 +421,102 @@ def test_start_up_hellos_are_repeated_only_to_a_neighbour_that_has_not_answered(
     frames = {i: sent[i]["hello"] // hello_frame_bytes for i in range(4)}
     assert all(sent[i]["hello"] % hello_frame_bytes == 0 for i in range(4))
     assert frames[0] <= 20 and frames[3] <= 12, frames
+
+
+def _sockets(n: int) -> tuple[Any, list[str]]:
+    import uuid
+
+    import zmq
+
+    tag = uuid.uuid4().hex
+    return zmq.Context(), [f"inproc://raw-{tag}-{i}" for i in range(n)]
+
+
+def _drain(sock: Any) -> list[bytes]:
+    frames = []
+    while sock.poll(200):
+        frames.append(sock.recv())
+    return frames
+
+
+def test_rejoin_hellos_are_counted_as_the_bytes_that_reached_the_peer() -> None:
+    """A restarted node that nobody answers (start_timeout_s 1 s): every one-byte hello it sent reached its peer's
+    socket, and its byte totals are exactly what that socket received. Before, ``join`` counted none of them."""
+    import zmq
+
+    from distnav.errors import ExchangeError
+    from distnav.exchange.field import Peer, Transport, TransportOptions
+    from distnav.exchange.field.startup import rejoin
+
+    ctx, addr = _sockets(2)
+    peer = ctx.socket(zmq.PULL)
+    peer.bind(addr[1])
+    tr = Transport(0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=1.0), context=ctx)
+    try:
+        with pytest.raises(ExchangeError, match="no neighbour answered"):
+            rejoin(tr)
+        got = _drain(peer)
+        assert len(got) >= 3 and tr.frames_sent == len(got)
+        assert tr.bytes_sent == sum(len(f) for f in got) == len(got) * (28 + 4 + 1)  # header, one dimension, 1 byte
+        assert tr.bytes_by_kind() == {"hello": tr.bytes_sent}
+    finally:
+        tr.close()
+        peer.close()
+        ctx.term()
+
+
+def test_a_rejoin_that_hears_start_up_hellos_starts_normally() -> None:
+    """A neighbour still in its start-up (its hello is the three int64 of the barrier, and no step message follows):
+    :func:`rejoin` returns None at once (the node then starts as the others do) instead of waiting for a step."""
+    import zmq
+
+    from distnav.exchange.field import Kind, Peer, Transport, TransportOptions, encode
+    from distnav.exchange.field.startup import rejoin
+
+    ctx, addr = _sockets(2)
+    peer_in, peer_out = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
+    peer_in.bind(addr[1])
+    tr = Transport(0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=20.0), context=ctx)
+    try:
+        peer_out.connect(addr[0])
+        peer_out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 0, 0], np.int64)))
+        t0 = time.monotonic()
+        assert rejoin(tr) is None
+        assert time.monotonic() - t0 < 5.0  # half a second after the start-up hello, not the 20 s start timeout
+    finally:
+        tr.close()
+        peer_in.close()
+        peer_out.close(linger=0)
+        ctx.term()
+
+
+def test_a_neighbour_that_answered_and_was_refused_counts_once() -> None:
+    """Neighbour 1 sends a hello of this network, then one of another network (refused: a stranger); neighbour 2
+    never answers. Before, neighbour 1 counted as answered and as refused: "every neighbour heard" at once, and its
+    stale level -1 held the barrier until 2 x start_timeout_s (3 s). Now it counts once, as a stranger: the node
+    waits for neighbour 2 until start_timeout_s (1.5 s) and then starts, 2 missing and 1 refused."""
+    import zmq
+
+    from distnav.exchange.field import Kind, Peer, Transport, TransportOptions, encode
+    from distnav.exchange.field.startup import StartCheck, handshake
+
+    ctx, addr = _sockets(3)
+    sinks = [ctx.socket(zmq.PULL) for _ in range(2)]
+    for s, a in zip(sinks, addr[1:], strict=True):
+        s.bind(a)
+    peers = [Peer(1, addr[1]), Peer(2, addr[2])]
+    tr = Transport(0, addr[0], peers, options=TransportOptions(start_timeout_s=1.5), context=ctx)
+    out = ctx.socket(zmq.PUSH)
+    try:
+        out.connect(addr[0])
+        out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 77, 0], np.int64)))
+        out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 78, 0], np.int64)))  # another network's fingerprint
+        start = handshake(tr, check=StartCheck(network_id=77, levels=1))
+        assert list(start.strangers) == [1] and start.missing == [2]
+        assert 1.4 <= start.seconds < 2.6, start.seconds
+    finally:
+        tr.close()
+        for s in sinks:
+            s.close()
+        out.close(linger=0)
+        ctx.term()

@@ -168,7 +168,7 @@ class _Hellos:
 
     def answer(self, peer: int, level: int) -> None:
         now = time.monotonic()
-        if now >= self.last[peer] + _REPEAT_S:
+        if peer in self.last and now >= self.last[peer] + _REPEAT_S:  # a peer outside ``peers`` is not greeted
             self.send([peer], level, now)
 
 
