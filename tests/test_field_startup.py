@@ -11,6 +11,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -20,8 +21,12 @@ import pytest
 
 pytest.importorskip("zmq")
 
+import zmq  # noqa: E402
+
 from distnav.algorithms.consensus.averaging import iterate_average_consensus  # noqa: E402
 from distnav.commands.field_processes import LoopbackOptions, write_loopback_network  # noqa: E402
+from distnav.exchange.field import Kind, Peer, Transport, TransportOptions, encode  # noqa: E402
+from distnav.exchange.field.startup import StartCheck, announce, eccentricity, handshake, rejoin  # noqa: E402
 from distnav.network.graph import Graph  # noqa: E402
 
 N = 6
@@ -367,7 +372,6 @@ def test_the_start_up_depth_is_the_eccentricity_of_the_greeting_graph() -> None:
     breadth-first distances on a path, a ring, LINKS and a random geometric graph."""
     from scipy.sparse.csgraph import shortest_path
 
-    from distnav.exchange.field.startup import eccentricity
     from distnav.network import builders
 
     path = Graph.from_links(7, [(i, i + 1) for i in range(6)])
@@ -385,13 +389,7 @@ def test_start_up_hellos_are_repeated_only_to_a_neighbour_that_has_not_answered(
     n - 1 = 3 (a hello per level change and neighbour): node 0 sent 28 hellos, node 3 15. Now the depth is 1 (every
     node one hop away), the answered neighbours get only the level changes, and the repeats to node 3 go at 0.5, 1,
     2 s: node 0 sent 12, node 3 6 (bounds 20 and 12)."""
-    import threading
     import uuid
-
-    import zmq
-
-    from distnav.exchange.field import Peer, Transport, TransportOptions
-    from distnav.exchange.field.startup import StartCheck, handshake
 
     ctx = zmq.Context()
     addr = [f"inproc://hello-{uuid.uuid4().hex}-{i}" for i in range(4)]
@@ -417,7 +415,7 @@ def test_start_up_hellos_are_repeated_only_to_a_neighbour_that_has_not_answered(
     assert not any(t.is_alive() for t in threads)
     ctx.term()
     assert missing == {i: [] for i in range(4)}
-    hello_frame_bytes = 28 + 4 + 3 * 8  # header, one dimension, three int64 (wire.py)
+    hello_frame_bytes = 28 + 4 + 4 * 8  # header, one dimension, four int64 (wire.py)
     frames = {i: sent[i]["hello"] // hello_frame_bytes for i in range(4)}
     assert all(sent[i]["hello"] % hello_frame_bytes == 0 for i in range(4))
     assert frames[0] <= 20 and frames[3] <= 12, frames
@@ -425,8 +423,6 @@ def test_start_up_hellos_are_repeated_only_to_a_neighbour_that_has_not_answered(
 
 def _sockets(n: int) -> tuple[Any, list[str]]:
     import uuid
-
-    import zmq
 
     tag = uuid.uuid4().hex
     return zmq.Context(), [f"inproc://raw-{tag}-{i}" for i in range(n)]
@@ -442,11 +438,8 @@ def _drain(sock: Any) -> list[bytes]:
 def test_rejoin_hellos_are_counted_as_the_bytes_that_reached_the_peer() -> None:
     """A restarted node that nobody answers (start_timeout_s 1 s): every one-byte hello it sent reached its peer's
     socket, and its byte totals are exactly what that socket received. Before, ``join`` counted none of them."""
-    import zmq
 
     from distnav.errors import ExchangeError
-    from distnav.exchange.field import Peer, Transport, TransportOptions
-    from distnav.exchange.field.startup import rejoin
 
     ctx, addr = _sockets(2)
     peer = ctx.socket(zmq.PULL)
@@ -466,12 +459,8 @@ def test_rejoin_hellos_are_counted_as_the_bytes_that_reached_the_peer() -> None:
 
 
 def test_a_rejoin_that_hears_start_up_hellos_starts_normally() -> None:
-    """A neighbour still in its start-up (its hello is the three int64 of the barrier, and no step message follows):
+    """A neighbour still in its start-up (four int64, below its top level, and no step message follows):
     :func:`rejoin` returns None at once (the node then starts as the others do) instead of waiting for a step."""
-    import zmq
-
-    from distnav.exchange.field import Kind, Peer, Transport, TransportOptions, encode
-    from distnav.exchange.field.startup import rejoin
 
     ctx, addr = _sockets(2)
     peer_in, peer_out = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
@@ -479,7 +468,7 @@ def test_a_rejoin_that_hears_start_up_hellos_starts_normally() -> None:
     tr = Transport(0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=20.0), context=ctx)
     try:
         peer_out.connect(addr[0])
-        peer_out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 0, 0], np.int64)))
+        peer_out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 0, 0, 1], np.int64)))
         t0 = time.monotonic()
         assert rejoin(tr) is None
         assert time.monotonic() - t0 < 5.0  # half a second after the start-up hello, not the 20 s start timeout
@@ -495,10 +484,6 @@ def test_a_neighbour_that_answered_and_was_refused_counts_once() -> None:
     never answers. Before, neighbour 1 counted as answered and as refused: "every neighbour heard" at once, and its
     stale level -1 held the barrier until 2 x start_timeout_s (3 s). Now it counts once, as a stranger: the node
     waits for neighbour 2 until start_timeout_s (1.5 s) and then starts, 2 missing and 1 refused."""
-    import zmq
-
-    from distnav.exchange.field import Kind, Peer, Transport, TransportOptions, encode
-    from distnav.exchange.field.startup import StartCheck, handshake
 
     ctx, addr = _sockets(3)
     sinks = [ctx.socket(zmq.PULL) for _ in range(2)]
@@ -509,8 +494,8 @@ def test_a_neighbour_that_answered_and_was_refused_counts_once() -> None:
     out = ctx.socket(zmq.PUSH)
     try:
         out.connect(addr[0])
-        out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 77, 0], np.int64)))
-        out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 78, 0], np.int64)))  # another network's fingerprint
+        out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 77, 0, 1], np.int64)))
+        out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 78, 0, 1], np.int64)))  # another network's fingerprint
         start = handshake(tr, check=StartCheck(network_id=77, levels=1))
         assert list(start.strangers) == [1] and start.missing == [2]
         assert 1.4 <= start.seconds < 2.6, start.seconds
@@ -518,5 +503,98 @@ def test_a_neighbour_that_answered_and_was_refused_counts_once() -> None:
         tr.close()
         for s in sinks:
             s.close()
+        out.close(linger=0)
+        ctx.term()
+
+
+def _leave_times(n: int, links: list[tuple[int, int]], delays: dict[int, float], timeout_s: float) -> dict[int, float]:
+    """Threads (inproc) that run :func:`handshake` on the graph ``links``, node i started ``delays[i]`` s late (a
+    node not in ``delays`` never starts); when each left its barrier, in seconds from the first start."""
+    g = Graph.from_links(n, links)
+    ctx, addr = _sockets(n)
+    t0, ends = time.monotonic(), {}
+
+    def node(i: int) -> None:
+        time.sleep(delays[i])
+        peers = [Peer(int(j), addr[int(j)]) for j in sorted(g.neighbors(i))]
+        tr = Transport(i, addr[i], peers, options=TransportOptions(start_timeout_s=timeout_s), context=ctx)
+        try:
+            handshake(tr, check=StartCheck(levels=eccentricity(g, i), levels_if_missing=n - 1))
+            ends[i] = time.monotonic() - t0
+        finally:
+            tr.close()
+
+    threads = [threading.Thread(target=node, args=(i,), daemon=True) for i in delays]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(6 * timeout_s + max(delays.values()))
+    assert not any(t.is_alive() for t in threads)
+    ctx.term()
+    return ends
+
+
+def test_a_node_that_never_started_holds_every_barrier_until_the_network_can_have_heard_it() -> None:
+    """Ring of 6, node 3 never starts, node 2 starts 1.5 s late, start_timeout_s 3 s (review13, finding 2). With the
+    depth = the full ring's eccentricity (3), node 4 left its barrier at 3.1 s and its only live neighbour 5 at 4.5 s
+    (with 1 s deadlines node 4 declares 5 lost). Now node 4 timed out on node 3, so it waits n - 1 = 5 levels and its
+    hellos carry that depth to the others: every node leaves when node 2 has timed out on node 3 (4.5 s), together."""
+    ends = _leave_times(6, [(i, (i + 1) % 6) for i in range(6)], {0: 0.0, 1: 0.0, 2: 1.5, 4: 0.0, 5: 0.0}, 3.0)
+    assert sorted(ends) == [0, 1, 2, 4, 5]
+    assert min(ends.values()) >= 4.3, ends
+    assert max(ends.values()) - min(ends.values()) < 0.5, ends
+
+
+def test_a_rejoin_that_hears_a_top_level_hello_waits_for_the_first_step_message() -> None:
+    """A neighbour's last start-up hello is at its top level (level = depth: it leaves its barrier), and its first
+    step message comes 0.8 s later (an ADMM round's local work). Before, :func:`rejoin` returned None 0.5 s after
+    the hello (review13, finding 1): the node ran the start-up, and the neighbour's step messages, from a sender
+    that never greeted, made it a stranger ("another network"). Now it waits and rejoins at the neighbour's step."""
+    ctx, addr = _sockets(2)
+    peer_in, peer_out = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
+    peer_in.bind(addr[1])
+    tr = Transport(0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=10.0), context=ctx)
+
+    def neighbour() -> None:
+        peer_out.send(encode(Kind.HELLO, 1, 0, np.array([2, 0, 0, 2], np.int64)))
+        time.sleep(0.8)
+        peer_out.send(encode(Kind.COLUMN, 1, 3, np.zeros(2)))
+
+    try:
+        peer_out.connect(addr[0])
+        thread = threading.Thread(target=neighbour, daemon=True)
+        thread.start()
+        assert rejoin(tr) == 3 and sum(tr.refused.values()) == 0, tr.refused
+        thread.join(5)
+    finally:
+        tr.close()
+        peer_in.close()
+        peer_out.close(linger=0)
+        ctx.term()
+
+
+def test_a_node_back_mid_run_announces_its_top_level_to_a_neighbour_still_in_its_barrier() -> None:
+    """Node 0 is in its barrier (depth 1, start_timeout_s 3 s); neighbour 2 is at its top; neighbour 1 greeted, was
+    restarted (its one-byte hello: level -1 again) and takes the mid-run path (review13, finding 3). Before, it sent
+    no start-up hello there and node 0 waited 2 x start_timeout_s (6 s). Now its :func:`announce` (one hello at its
+    top level) lets node 0 leave at once."""
+    ctx, addr = _sockets(3)
+    sink, out = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
+    sink.bind(addr[2])
+    opts = TransportOptions(start_timeout_s=3.0)
+    tr = Transport(0, addr[0], [Peer(1, addr[1]), Peer(2, addr[2])], options=opts, context=ctx)
+    back = Transport(1, addr[1], [Peer(0, addr[0])], options=opts, context=ctx)
+    try:
+        out.connect(addr[0])
+        out.send(encode(Kind.HELLO, 2, 0, np.array([1, 0, 0, 1], np.int64)))
+        back.post_many([0], Kind.HELLO, 0, np.array([0, 0, 0, 1], np.int64))
+        back.post_many([0], Kind.HELLO, 0, np.ones(1, np.uint8))  # restarted: its old level is void
+        announce(back, StartCheck(levels=1))
+        start = handshake(tr, check=StartCheck(levels=1))
+        assert start.missing == [] and start.seconds < 1.5, start.seconds
+    finally:
+        for t in (tr, back):
+            t.close()
+        sink.close()
         out.close(linger=0)
         ctx.term()

@@ -78,7 +78,7 @@ def run_async_node(
         node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=load_keys(desc, node_id)
     )
     try:
-        check = StartCheck(desc.fingerprint(), value.size, eccentricity(desc.graph(), node_id))
+        check = StartCheck(desc.fingerprint(), value.size, eccentricity(desc.graph(), node_id), desc.n_nodes - 1)
         missing = handshake(transport, check=check).missing
         t0 = time.monotonic()
         link = TransportLink(transport, neighbours, drop_probability=desc.drop_probability, seed=desc.drop_seed)

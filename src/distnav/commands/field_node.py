@@ -26,7 +26,7 @@ from distnav.commands.field_algorithms import REJOIN_ALGORITHMS
 from distnav.errors import DataFileError, ExchangeError, UsageError
 from distnav.exchange import FaultSchedule
 from distnav.exchange.field import CurveKeys, FieldExchange, Transport
-from distnav.exchange.field.startup import StartCheck, Startup, eccentricity, handshake
+from distnav.exchange.field.startup import StartCheck, Startup, announce, eccentricity, handshake
 from distnav.exchange.field.startup import rejoin as join_running
 from distnav.formats.field_config import NetworkDescription, read_node_values
 from distnav.output import atomic_write_json
@@ -101,6 +101,8 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         # round does not wait for this node's set-up, and the rounds are timed alone
         states = _consensus_states(desc, node_id, ex, values, first) if values is not None else None
         gc.freeze()  # the set-up's objects (modules, description, weights) out of the collector's passes
+        if mid_run:  # a neighbour still in its barrier (our one-byte hello reset our level) must not wait for us
+            announce(transport, _check(desc, node_id, values))
         start = Startup([]) if mid_run else _start(desc, node_id, transport, values)
         missing = start.missing
         t_start, cpu_start = time.monotonic(), time.process_time()
@@ -156,6 +158,13 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
         transport.close()
 
 
+def _check(desc: NetworkDescription, node_id: int, values: np.ndarray | None) -> StartCheck:
+    """What this node's start-up hellos carry and how deep its barrier is: the eccentricity in the greeting graph,
+    ``n - 1`` once a neighbour never answered (:class:`~distnav.exchange.field.startup.StartCheck`)."""
+    depth = eccentricity(desc.graph(), node_id)
+    return StartCheck(desc.fingerprint(), 0 if values is None else values.size, depth, desc.n_nodes - 1)
+
+
 def _start(desc: NetworkDescription, node_id: int, transport: Transport, values: np.ndarray | None) -> Startup:
     """The start-up handshake (:mod:`distnav.exchange.field.startup`: this network's fingerprint, a consensus node's
     number of values, into step 0 with the whole network). A node that heard none of its neighbours takes part in
@@ -167,9 +176,7 @@ def _start(desc: NetworkDescription, node_id: int, transport: Transport, values:
         from distnav.commands.field_algorithms import prepare_node
 
         prepare_node(desc, node_id)
-    depth = eccentricity(desc.graph(), node_id)
-    check = StartCheck(desc.fingerprint(), 0 if values is None else values.size, depth)
-    start = handshake(transport, check=check)
+    start = handshake(transport, check=_check(desc, node_id, values))
     if start.missing:
         LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, start.missing, desc.start_timeout_s)
     if start.latest_step >= desc.miss_limit:  # they began without it, and have taken it for lost

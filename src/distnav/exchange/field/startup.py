@@ -54,11 +54,12 @@ from distnav.exchange.field.transport import Transport
 from distnav.exchange.field.wire import Kind, WireError, decode
 from distnav.network.graph import Graph
 
-__all__ = ["StartCheck", "Startup", "eccentricity", "handshake", "rejoin"]
+__all__ = ["StartCheck", "Startup", "announce", "eccentricity", "handshake", "rejoin"]
 
 LOG = logging.getLogger("distnav.field")
 _REPEAT_S = 0.5  # the first repeat of a hello to a neighbour that has not answered (a level change goes at once)
 _REPEAT_MAX_S = 4.0  # the longest wait between two repeats to it
+_RUNNING = 2**31  # the level of a neighbour whose step messages came: in its rounds, above every depth
 
 
 @dataclass(frozen=True)
@@ -68,12 +69,14 @@ class StartCheck:
     network_id : the network's fingerprint (0: not checked). values : the number of values of this node's step
     messages (0: not checked). levels : the start-up barrier's depth: this node's :func:`eccentricity` in the graph of
     who greets whom (every node within that many hops is every node; ``n - 1`` is always enough; 0: start as soon as
-    the neighbours have answered).
+    the neighbours have answered). levels_if_missing : the depth once a neighbour never answered (``n - 1``; 0: keep
+    ``levels``): without it, distances in the graph of the nodes that did start can exceed the eccentricity.
     """
 
     network_id: int = 0
     values: int = 0
     levels: int = 0
+    levels_if_missing: int = 0
 
 
 @dataclass
@@ -107,39 +110,61 @@ def handshake(transport: Transport, peers: list[int] | None = None, check: Start
     targets = sorted(transport.peers) if peers is None else sorted(peers)
     t0 = time.monotonic()
     end_answers, end_all = t0 + transport.options.start_timeout_s, t0 + 2 * transport.options.start_timeout_s
-    levels: dict[int, int] = {}  # neighbour → its latest level (-1: still waiting for its own neighbours)
-    strangers: dict[int, str] = {}
+    heard = _Heard(depth=chk.levels)
     hellos = _Hellos(transport, chk, targets)
     level, sent = -1, -2
     while True:
         now = time.monotonic()
-        answered = [p for p in targets if p in levels]
-        if level < 0 and (len(set(answered) | set(strangers)) >= len(targets) or now >= end_answers):
+        answered = [p for p in targets if p in heard.levels]
+        if level < 0 and (len(set(answered) | set(heard.strangers)) >= len(targets) or now >= end_answers):
             level = 0  # this node has heard its neighbours (or has waited for them long enough)
+            if len(answered) < len(targets):  # one never answered: the graph of who started is not the full one
+                heard.depth = max(heard.depth, chk.levels_if_missing)
         if level >= 0:
-            level = min(chk.levels, 1 + min((levels[p] for p in answered), default=chk.levels))
-        if level >= chk.levels or now >= end_all:
+            level = min(heard.depth, 1 + min((heard.levels[p] for p in answered), default=heard.depth))
+        if level >= heard.depth or now >= end_all:
             break
-        if level != sent:  # a new level goes to every neighbour at once
+        if level != sent or hellos.depth != heard.depth:  # a new level (or depth) goes to every neighbour at once
+            hellos.depth, sent = heard.depth, level
             hellos.send(targets, level, now)
-            sent = level
         else:  # repeated only to the neighbours that have not answered yet, less and less often
-            hellos.repeat([p for p in targets if p not in levels and p not in strangers], level, now)
+            hellos.repeat([p for p in targets if p not in heard.levels and p not in heard.strangers], level, now)
         if transport.pull.poll(50):
             for frame in transport._frames():
-                asker = _hear(transport, frame, chk, levels, strangers)
+                asker = _hear(transport, frame, chk, heard)
                 if asker >= 0:
                     hellos.answer(asker, level)
-    hellos.send(targets, chk.levels, time.monotonic())  # neighbours still rising see this node at the top
+    hellos.depth = heard.depth
+    hellos.send(targets, heard.depth, time.monotonic())  # neighbours still rising see this node at the top
+    strangers = heard.strangers
     transport.strangers.update(strangers)
     for p in strangers:
         transport.lost.setdefault(p, 0)
-    missing = [p for p in targets if p not in levels and p not in strangers]
+    missing = [p for p in targets if p not in heard.levels and p not in strangers]
     latest = max(transport._held, default=-1)
     for held in transport._held.values():  # a stranger's step messages are never used
         for p in strangers:
             held.pop(p, None)
     return Startup(missing, strangers, time.monotonic() - t0, latest)
+
+
+def announce(transport: Transport, check: StartCheck) -> None:
+    """One start-up hello at this node's top level to every neighbour (the highest depth it could have, ``n - 1``
+    where ``check.levels_if_missing`` says so; its depth field ``check.levels``): a restarted node that rejoins a
+    running network sends it first, so that a neighbour still in its start-up barrier (the restart's one-byte hello
+    set its level back to -1) does not wait ``2 × start_timeout_s`` for it."""
+    hellos = _Hellos(transport, check, sorted(transport.peers))
+    hellos.send(sorted(transport.peers), max(check.levels, check.levels_if_missing), time.monotonic())
+
+
+@dataclass
+class _Heard:
+    """What a node in its start-up has heard: its neighbours' levels (-1: still waiting for their own neighbours),
+    the strangers (neighbour → why refused), and the barrier's depth (the largest its own and its hellos' carried)."""
+
+    depth: int
+    levels: dict[int, int] = field(default_factory=dict)
+    strangers: dict[int, str] = field(default_factory=dict)
 
 
 class _Hellos:
@@ -149,12 +174,12 @@ class _Hellos:
     that asks for one (its hello says it still waits, or it is a restarted process)."""
 
     def __init__(self, transport: Transport, chk: StartCheck, targets: list[int]) -> None:
-        self.transport, self.chk = transport, chk
+        self.transport, self.chk, self.depth = transport, chk, chk.levels
         self.last = dict.fromkeys(targets, -math.inf)  # neighbour → when the latest hello to it was sent
         self.gap = dict.fromkeys(targets, _REPEAT_S)  # neighbour → the wait before its next repeat
 
     def send(self, peers: list[int], level: int, now: float) -> None:
-        array = np.array([level, self.chk.network_id, self.chk.values], np.int64)
+        array = np.array([level, self.chk.network_id, self.chk.values, self.depth], np.int64)
         self.transport.post_many(peers, Kind.HELLO, 0, array)
         for p in peers:
             self.last[p] = now
@@ -172,11 +197,12 @@ class _Hellos:
             self.send([peer], level, now)
 
 
-def _hear(transport: Transport, frame: Any, chk: StartCheck, levels: dict[int, int], strangers: dict[int, str]) -> int:
-    """One frame received during the start: a hello (its level noted, or its sender refused as a stranger), or a step
-    message of a neighbour already in its rounds (kept; that neighbour is at the top level). Returns the neighbour
-    that asks for this node's hello (-1: none): one whose hello says it still waits for its neighbours, or a
+def _hear(transport: Transport, frame: Any, chk: StartCheck, heard: _Heard) -> int:
+    """One frame received during the start: a hello (its level and depth noted, or its sender refused as a stranger),
+    or a step message of a neighbour already in its rounds (kept; that neighbour is at the top level). Returns the
+    neighbour that asks for this node's hello (-1: none): one whose hello says it still waits for its neighbours, or a
     restarted process (its one-byte hello: its old level no longer holds, it waits again)."""
+    levels, strangers = heard.levels, heard.strangers
     try:
         msg = decode(frame.buffer if transport.curve else frame, max_bytes=transport.options.max_message_bytes)
     except WireError as exc:
@@ -192,7 +218,7 @@ def _hear(transport: Transport, frame: Any, chk: StartCheck, levels: dict[int, i
     if msg.kind != Kind.HELLO:  # a neighbour's hellos come before its step messages (one ordered connection)
         transport._held.setdefault(msg.step, {})[sender] = msg
         if sender in levels:
-            levels[sender] = chk.levels  # in its rounds: at the top
+            levels[sender] = _RUNNING  # in its rounds: at the top
             return -1
         strangers[sender] = _UNGREETED
         transport._refuse("another_network", f"node {transport.me}: refused node {sender}: {_UNGREETED}")
@@ -209,6 +235,7 @@ def _hear(transport: Transport, frame: Any, chk: StartCheck, levels: dict[int, i
         transport._refuse("another_network", f"node {transport.me}: refused node {sender}'s hello: {why}")
         return -1
     levels[sender] = max(levels.get(sender, -1), int(a[0]))
+    heard.depth = max(heard.depth, int(a[3]))  # a node that missed a neighbour: every node waits n - 1 levels
     return sender if int(a[0]) < 0 else -1
 
 
@@ -217,11 +244,14 @@ def rejoin(transport: Transport, *, invitation: bool = False) -> int | None:
     step message, and return the latest step seen (the step to run next); messages of earlier steps are dropped.
     ``invitation``: wait instead for a neighbour's :attr:`Kind.INVITE` (node programs that run again from the start
     with a returning node), keep its array in :attr:`Transport.invited` and return its step; the messages of later
-    steps are kept for them. None: the neighbours are still in their start-up (a start-up hello came, and no step
-    message within 0.5 s after it): the network has not begun, and the node starts as any other
-    (:func:`handshake`, from step 0), its data in the answer."""
+    steps are kept for them. None: the neighbours are still in their start-up (a start-up hello below its sender's
+    top level came, no later one at the top, and no step message within 0.5 s after it): the network has not begun,
+    and the node starts as any other (:func:`handshake`, from step 0), its data in the answer. A hello at its
+    sender's top level (level = depth, the last one it sends on leaving its barrier) means the sender runs: its
+    first step message may come seconds later (an ADMM or UWB node's local work), and is waited for."""
     end = time.monotonic() + transport.options.start_timeout_s
-    hello, next_send, seen, running, starting = np.ones(1, np.uint8), 0.0, -1, False, -1.0
+    hello, next_send, seen, running = np.ones(1, np.uint8), 0.0, -1, False
+    rising: dict[int, float] = {}  # neighbour → when its start-up hello below its top came (the latest is below)
     while time.monotonic() < end:  # until a step message, then half a second more (queued old steps first)
         if time.monotonic() >= next_send:
             transport.post_many(sorted(transport.push), Kind.HELLO, 0, hello)  # counted as every frame sent
@@ -232,8 +262,7 @@ def rejoin(transport: Transport, *, invitation: bool = False) -> int | None:
                 if msg is None or msg.kind == Kind.BYE:  # a bye: that run is over
                     continue
                 if msg.kind == Kind.HELLO:
-                    if msg.array.dtype == np.int64 and starting < 0:  # a neighbour in its start-up
-                        starting = time.monotonic()
+                    _note_rising(rising, msg.sender, msg.array)
                     continue
                 running = True
                 if not invitation:
@@ -242,7 +271,7 @@ def rejoin(transport: Transport, *, invitation: bool = False) -> int | None:
                     transport.invited, seen, end = msg.array, msg.step, 0.0
                 else:
                     transport._held.setdefault(msg.step, {})[msg.sender] = msg
-        if not running and starting >= 0 and time.monotonic() >= starting + _REPEAT_S:
+        if not running and rising and time.monotonic() >= min(rising.values()) + _REPEAT_S:
             return None
         if seen >= 0:
             end = min(end, time.monotonic() + 0.5) if end - time.monotonic() > 0.5 else end
@@ -256,6 +285,17 @@ def rejoin(transport: Transport, *, invitation: bool = False) -> int | None:
     return seen
 
 
+def _note_rising(rising: dict[int, float], sender: int, a: np.ndarray) -> None:
+    """A start-up hello heard by :func:`rejoin`: below its sender's top level (still in its barrier), noted with its
+    time; at the top (leaving its barrier, into its rounds), its sender is no longer rising."""
+    if a.dtype != np.int64 or a.size != 4:
+        return
+    if int(a[0]) < int(a[3]):
+        rising.setdefault(sender, time.monotonic())
+    else:
+        rising.pop(sender, None)
+
+
 _UNGREETED = (
     "it sent step messages before any start-up hello of this network (a run that began without this node: start it "
     "with --rejoin; or another network on these ports)"
@@ -264,9 +304,9 @@ _UNGREETED = (
 
 def _difference(a: np.ndarray, chk: StartCheck) -> str | None:
     """Why a start-up hello's payload does not belong to this node's network (None: it does)."""
-    if a.dtype != np.int64 or a.size != 3:
+    if a.dtype != np.int64 or a.size != 4:
         return f"a start-up hello of another format ({a.dtype}, {a.size} values: another distnav version?)"
-    _, network_id, values = (int(v) for v in a)
+    _, network_id, values, _ = (int(v) for v in a)
     if chk.network_id and network_id != chk.network_id:
         return (
             f"it runs another network description (fingerprint {network_id & 0xFFFFFFFF:08x}, this node's "
