@@ -34,8 +34,23 @@ description or a cut data file):
   of it (a neighbour's hellos precede its step messages on their one connection): a run already going on without
   this node, or another network's.
 
-The hello (kind ``HELLO``, step 0) carries int64 ``[level, fingerprint, values]``; a restarted process's hello is one
-byte (uint8), as before. Every hello sent, :func:`rejoin`'s too, is counted in the transport's byte totals
+The hello (kind ``HELLO``, step 0) carries int64 ``[level, fingerprint, values, depth]``; a restarted process's hello
+is one byte (uint8), as before.
+
+Three start-up races (review13), each fixed here:
+
+* **a dead neighbour lengthens the distances.** With a node that never started, the live nodes' distances can
+  exceed the full graph's eccentricity, and a node left its barrier before a live neighbour (ring of 6, node 3 dead,
+  node 2 late: node 4 out at 3.1 s, node 5 at 4.5 s). A node that reaches level 0 by timing out on a neighbour takes
+  ``StartCheck.levels_if_missing`` (``n - 1``) as its depth and carries it in every hello; every node takes the
+  largest depth it hears (the depth travels in the same hellos as the levels it must hold back);
+* **a top-level hello read as "still starting".** :func:`rejoin` returned None 0.5 s after a neighbour's *last*
+  hello (at its top level) when its first step message came later; the node then ran :func:`handshake`, which took
+  that neighbour's step messages for a stranger's. Now only a hello below its sender's depth starts the 0.5 s wait;
+* **a node back mid-run held a neighbour in its barrier.** Its one-byte hello reset its level there; :func:`announce`
+  (one hello at its top level, sent first on the mid-run path) sets it again.
+
+Every hello sent, :func:`rejoin`'s too, is counted in the transport's byte totals
 (:meth:`Transport.bytes_by_kind` ``hello``).
 """
 
