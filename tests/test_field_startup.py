@@ -458,25 +458,43 @@ def test_rejoin_hellos_are_counted_as_the_bytes_that_reached_the_peer() -> None:
         ctx.term()
 
 
-def test_a_rejoin_that_hears_start_up_hellos_starts_normally() -> None:
-    """A neighbour still in its start-up (four int64, below its top level, and no step message follows):
-    :func:`rejoin` returns None at once (the node then starts as the others do) instead of waiting for a step."""
-
+def _rejoin_hearing(sends: list[tuple[float, bytes]], start_timeout_s: float) -> tuple[int | None, float, int]:
+    """Node 0 restarted (:func:`rejoin`, consensus) while neighbour 1 sends ``sends`` (each after its wait, in s):
+    what rejoin returned, after how many seconds, and how many of node 1's frames were refused."""
     ctx, addr = _sockets(2)
     peer_in, peer_out = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
     peer_in.bind(addr[1])
-    tr = Transport(0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=20.0), context=ctx)
+    tr = Transport(
+        0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=start_timeout_s), context=ctx
+    )
+
+    def neighbour() -> None:
+        for wait_s, frame in sends:
+            time.sleep(wait_s)
+            peer_out.send(frame)
+
+    thread = threading.Thread(target=neighbour, daemon=True)
     try:
         peer_out.connect(addr[0])
-        peer_out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 0, 0, 1], np.int64)))
         t0 = time.monotonic()
-        assert rejoin(tr) is None
-        assert time.monotonic() - t0 < 5.0  # half a second after the start-up hello, not the 20 s start timeout
+        thread.start()
+        got = rejoin(tr)
+        return got, time.monotonic() - t0, sum(tr.refused.values())
     finally:
+        if thread.ident is not None:
+            thread.join(5)
         tr.close()
         peer_in.close()
         peer_out.close(linger=0)
         ctx.term()
+
+
+def test_a_rejoin_that_hears_start_up_hellos_starts_normally() -> None:
+    """A neighbour still in its start-up (four int64, below its top level, and no step message follows):
+    :func:`rejoin` returns None at once (the node then starts as the others do) instead of waiting for a step."""
+    got, seconds, _ = _rejoin_hearing([(0.0, encode(Kind.HELLO, 1, 0, np.array([-1, 0, 0, 1], np.int64)))], 20.0)
+    assert got is None
+    assert seconds < 5.0  # half a second after the start-up hello, not the 20 s start timeout
 
 
 def test_a_neighbour_that_answered_and_was_refused_counts_once() -> None:
@@ -550,27 +568,9 @@ def test_a_rejoin_that_hears_a_top_level_hello_waits_for_the_first_step_message(
     step message comes 0.8 s later (an ADMM round's local work). Before, :func:`rejoin` returned None 0.5 s after
     the hello (review13, finding 1): the node ran the start-up, and the neighbour's step messages, from a sender
     that never greeted, made it a stranger ("another network"). Now it waits and rejoins at the neighbour's step."""
-    ctx, addr = _sockets(2)
-    peer_in, peer_out = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
-    peer_in.bind(addr[1])
-    tr = Transport(0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=10.0), context=ctx)
-
-    def neighbour() -> None:
-        peer_out.send(encode(Kind.HELLO, 1, 0, np.array([2, 0, 0, 2], np.int64)))
-        time.sleep(0.8)
-        peer_out.send(encode(Kind.COLUMN, 1, 3, np.zeros(2)))
-
-    try:
-        peer_out.connect(addr[0])
-        thread = threading.Thread(target=neighbour, daemon=True)
-        thread.start()
-        assert rejoin(tr) == 3 and sum(tr.refused.values()) == 0, tr.refused
-        thread.join(5)
-    finally:
-        tr.close()
-        peer_in.close()
-        peer_out.close(linger=0)
-        ctx.term()
+    hello = encode(Kind.HELLO, 1, 0, np.array([2, 0, 0, 2], np.int64))
+    got, _, refused = _rejoin_hearing([(0.0, hello), (0.8, encode(Kind.COLUMN, 1, 3, np.zeros(2)))], 10.0)
+    assert got == 3 and refused == 0
 
 
 def test_a_node_back_mid_run_announces_its_top_level_to_a_neighbour_still_in_its_barrier() -> None:
