@@ -38,6 +38,7 @@ from distnav.commands.gnss_common import (
     load_edges,
 )
 from distnav.errors import DataFileError, ModelError, UsageError
+from distnav.options import add_size_option, int_up_to
 
 __all__ = [
     "register",
@@ -52,6 +53,10 @@ __all__ = [
 _SUBCOMMAND_MODULES = ("distnav.commands.gnss_ionosphere",)
 
 
+#: The most ``codebias --iterations`` (refused at parse time above it).
+ADMM_ITERATIONS = int_up_to(
+    100_000, "100 × the default; every iteration is one exchange round of every station's normal equations"
+)
 _FILTER = re.compile(r"^(central|(ckf|local):[A-Za-z0-9]{4})$")
 _SATELLITE = re.compile(r"^G(0[1-9]|[12][0-9]|3[0-2])$")
 
@@ -241,7 +246,7 @@ def register(subparsers: Any) -> None:
     cb.add_argument("--sigma", type=float, default=0.20, help="zenith code σ [m] (default 0.20)")
     cb.add_argument("--weighting", choices=["euler-goad", "sin", "constant"], default="euler-goad")
     cb.add_argument("--rho", type=float, default=0.5, help="ADMM weight ρ, per-epoch scale (default 0.5)")
-    cb.add_argument("--iterations", type=int, default=1000, help="ADMM iterations (default 1000)")
+    add_size_option(cb, "--iterations", ADMM_ITERATIONS, default=1000, help="ADMM iterations (default 1000)")
     cb.add_argument(
         "--admm-messages",
         choices=["ternary", "pairs"],

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from distnav.errors import DataFileError
-from distnav.formats.uwb.io import decoded_text
+from distnav.formats.text import plain_text
 
 __all__ = ["C_M_PER_US", "MANUAL_DELAYS_US", "DEFAULT_DELAY_US", "TRUTH_FT", "read_april", "april_csv_texts"]
 
@@ -91,12 +91,13 @@ def _parse_log(p: Path) -> np.ndarray:
     raw = p.read_bytes()
     if raw[:2] == b"\x1f\x8b":
         raise DataFileError(f"{p}: a gzip archive: expected the APRIL range log as plain text (gunzip it first)")
-    if b"\x00" in raw:
-        line = raw.count(b"\n", 0, raw.index(b"\x00")) + 1
-        raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected an APRIL range log (text)")
-    if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte-order mark (a Windows editor's): not part of the log
-        raw = raw[3:]
-    text = decoded_text(raw, p, "ascii", "plain ASCII text: expected an APRIL range log (whitespace-separated numbers)")
+    text = plain_text(
+        p,
+        raw,
+        encoding="ascii",
+        expected="an APRIL range log (text)",
+        undecodable="plain ASCII text: expected an APRIL range log (whitespace-separated numbers)",
+    )
     _check_last_line(p, text)
     out: list[tuple[float, float, float]] = []
     for number, text_line in enumerate(text.splitlines(), start=1):

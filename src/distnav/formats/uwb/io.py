@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from distnav.errors import DataFileError
+from distnav.formats.text import plain_text
 
 __all__ = [
-    "decoded_text",
     "RangeLog",
     "CombinedRanges",
     "read_ranges",
@@ -101,31 +101,19 @@ class CombinedRanges:
     mad_m: np.ndarray
 
 
-def decoded_text(raw: bytes, p: Path, encoding: str, expected: str) -> str:
-    """``raw`` (the bytes of file ``p``) decoded with ``encoding``, or a :class:`DataFileError` naming the file, the
-    line and the byte that is not ``expected`` (its message goes on from "byte 0x.. is not ")."""
-    try:
-        return raw.decode(encoding)
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise DataFileError(f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not {expected}") from None
-
-
 def _rows(path: Path, required: Sequence[str]) -> tuple[list[str], list[tuple[int, list[str]]]]:
     p = Path(path)
     if not p.is_file():
         raise DataFileError(f"{p}: file not found")
     raw = p.read_bytes()
-    text = decoded_text(
-        raw,
+    text = plain_text(
         p,
-        "utf-8-sig",
-        "UTF-8 text: expected a CSV text file in UTF-8 (this looks like binary data, a gzip archive, or text saved "
-        "as UTF-16 or in a local code page: save it as UTF-8 CSV)",
+        raw,
+        encoding="utf-8",
+        expected="a CSV text file in UTF-8",
+        undecodable="UTF-8 text: expected a CSV text file in UTF-8 (this looks like binary data, a gzip archive, or "
+        "text saved as UTF-16 or in a local code page: save it as UTF-8 CSV)",
     )
-    if "\x00" in text:
-        line = text.count("\n", 0, text.index("\x00")) + 1
-        raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected a CSV text file in UTF-8")
     lines = text.splitlines()
     rows: list[tuple[int, list[str]]] = []
     header: list[str] | None = None
