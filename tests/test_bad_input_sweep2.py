@@ -142,3 +142,96 @@ def test_a_time_zone_in_tlim_is_refused_when_parsed(tmp_path: Path, capsys: pyte
         "2021-01-01T00:00",
         "2021-01-01T06:00",
     ]
+
+
+# ------------------------------------------------------------------------- guard13's sweep: uwb solve / import-april
+A = {"A0": (0.0, 0.0), "A1": (10.0, 0.0), "A2": (0.0, 8.0), "A3": (10.0, 8.0), "A4": (5.0, 4.0), "A5": (3.0, 6.0)}
+
+
+def _uwb(tmp: Path, *, ranges_extra: str = "", header: str = "a,b,range_m") -> list[str]:
+    ids = list(A)
+    rows = [header]
+    for i, a in enumerate(ids):
+        for b in ids[i + 1 :]:
+            (xa, ya), (xb, yb) = A[a], A[b]
+            rows.append(f"{a},{b},{((xa - xb) ** 2 + (ya - yb) ** 2) ** 0.5:.4f}")
+    (tmp / "ranges.csv").write_text("\n".join(rows) + "\n" + ranges_extra)
+    (tmp / "known.csv").write_text("id,x_m,y_m\n" + "".join(f"{k},{A[k][0]},{A[k][1]}\n" for k in ("A0", "A1", "A2")))
+    return ["uwb", "solve", "--ranges", str(tmp / "ranges.csv"), "--known", str(tmp / "known.csv")]
+
+
+def _exit_and_error(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return code, err
+
+
+@pytest.mark.parametrize(
+    ("extra", "expect"),
+    [
+        # exit 3, "no anchor's accuracy can be stated: A3, A4, A5 need more links or a known anchor"
+        (["--sigma-m", "1e308"], "--sigma-m 1e+308 m: a range σ over 300 m"),
+        # a traceback: OverflowError (34, 'Numerical result out of range')
+        (["--delay-sigma-m", "1e308"], "--delay-sigma-m 1e+308 m: a range σ over 300 m"),
+        # "input file ... lies inside the output folder ." (the empty path taken for the working folder)
+        (["--out", ""], "argument --out: an empty path is not an output folder"),
+    ],
+)
+def test_uwb_solve_absurd_values(
+    extra: list[str], expect: str, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    argv = _uwb(tmp_path)
+    argv += extra if "--out" in extra else ["--out", str(tmp_path / "o"), *extra]
+    code, err = _exit_and_error(argv, capsys)
+    assert code == 2 and expect in err, err[-600:]
+
+
+@pytest.mark.parametrize(
+    ("extra", "header", "expect"),
+    [
+        # a traceback: _csv.Error: field larger than field limit (131072)
+        ("A0,A1," + "9" * 200_000 + "\n", "a,b,range_m", "ranges.csv:17: not a CSV line (field larger than"),
+        # exit 0: the first range_m column read, the other silently ignored
+        ("", "a,b,range_m,range_m", "ranges.csv:1: column range_m named twice in the header"),
+    ],
+)
+def test_uwb_csv_lines_the_csv_module_refuses(
+    extra: str, header: str, expect: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = _uwb(tmp_path, ranges_extra=extra, header=header)
+    code, err = _exit_and_error([*argv, "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and expect in err, err[-600:]
+
+
+def test_a_range_of_1e308_m_is_dropped_as_a_bad_sample(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: "weighted residual sum of squares must be finite and ≥ 0, got nan" (exit 2, naming no line)."""
+    argv = _uwb(tmp_path, ranges_extra="A0,A3,1e308\n")
+    code, err = _exit_and_error([*argv, "--out", str(tmp_path / "o"), "--strict"], capsys)
+    assert code == 2 and "ranges.csv:17: beyond any radio range range '1e308' between 'A0' and 'A3'" in err, err
+    code, err = _exit_and_error([*argv, "--out", str(tmp_path / "o2")], capsys)
+    assert code == 0 and "dropped 1 bad range sample(s) of 16 (1 beyond any radio range; lines 17)" in err, err
+
+
+APRIL = "0.5312093098958 12 8 31.75 10191 15294 68 -108.34 -82.73 32.75 8484 12645 56 -111.94 -83.51 31.75\n"
+
+
+@pytest.mark.parametrize(
+    ("first", "expect"),
+    [
+        # "node ids [-9223372036854775808] are not the APRIL nodes"
+        ("0.53 99999999999999999999 8", "line 1: node 99999999999999999999 is not an APRIL node [8, 12,"),
+    ],
+)
+def test_april_log_bad_nodes_named_by_line(
+    first: str, expect: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = tmp_path / "dataset5.txt"
+    log.write_text(f"{first}\n" + APRIL * 5)
+    code, err = _exit_and_error(["uwb", "import-april", str(log), "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and expect in err, err[-600:]
+    assert not (tmp_path / "o").exists()

@@ -38,7 +38,7 @@ from distnav.commands.gnss_common import (
     load_edges,
 )
 from distnav.errors import DataFileError, ModelError, UsageError
-from distnav.options import add_size_option, int_up_to
+from distnav.options import add_size_option, int_up_to, output_folder
 
 __all__ = [
     "register",
@@ -239,7 +239,9 @@ def register(subparsers: Any) -> None:
         sub, "codebias", "satellite code biases from L1/L2/L5 RINEX code data (paper 000 §5)", __doc__
     )
     add_data_arguments(cb, obs_note="; the first is the S-basis reference unless --reference")
-    cb.add_argument("--out", default="distnav-codebias", help="output folder (default distnav-codebias)")
+    cb.add_argument(
+        "--out", type=output_folder, default="distnav-codebias", help="output folder (default distnav-codebias)"
+    )
     add_backend_arguments(cb)
     cb.add_argument("--reference", metavar="STATION", help="station lumped into the satellite biases")
     cb.add_argument("--codes", metavar="L1=C1C,L2=C2W,L5=C5X", help="force the code used on a band")
@@ -273,7 +275,7 @@ def register(subparsers: Any) -> None:
         help="Bias-SINEX files (.BIA/.BSX, gzip ok) or IONEX files with a DCB block; DSBs missing "
         "from the first are taken from the next (e.g. GFZ C1W-C2W completed with CAS C1C-C1W)",
     )
-    cmp_.add_argument("--out", help="write comparison.json here")
+    cmp_.add_argument("--out", type=output_folder, help="write comparison.json here")
     cmp_.add_argument(
         "--filter",
         default="central",

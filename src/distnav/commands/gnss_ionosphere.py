@@ -44,7 +44,7 @@ import numpy as np
 from distnav.commands import add_backend_arguments, command_exchange
 from distnav.commands.gnss_ionosphere_data import REGIONAL_KM, NetworkOptions, network_data, network_from_observations
 from distnav.errors import DataFileError, ModelError
-from distnav.options import nonnegative_float
+from distnav.options import nonnegative_float, output_folder
 
 __all__ = [
     "NetworkOptions",
@@ -428,7 +428,9 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         metavar="FILE",
         help="published products to compare with: Bias-SINEX (.BIA) and/or IONEX with a DCB block",
     )
-    p.add_argument("--out", default="distnav-ionosphere", help="output folder (default distnav-ionosphere)")
+    p.add_argument(
+        "--out", type=output_folder, default="distnav-ionosphere", help="output folder (default distnav-ionosphere)"
+    )
     add_backend_arguments(p)
     _add_code_and_datum_arguments(p)
     _add_selection_arguments(p)

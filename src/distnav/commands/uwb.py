@@ -100,7 +100,7 @@ from distnav.models.uwb.initial import classical_mds, height_spread_ratio, mds_i
 from distnav.models.uwb.mirror import solve_with_mirror_test
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
 from distnav.models.uwb.verdict import EXIT_NOT_ACCURATE, EXIT_OK, REQUIRED_ACCURACY_M, RunVerdict, run_verdict
-from distnav.options import add_size_option, fields_from_args, int_up_to, positive_float
+from distnav.options import add_size_option, fields_from_args, int_up_to, output_folder, positive_float
 from distnav.output import atomic_write_text
 
 __all__ = [
@@ -261,7 +261,7 @@ def _add_run_arguments(s: argparse.ArgumentParser) -> None:
         action="store_true",
         help="refuse a range log with a negative, zero or non-finite sample (default: drop and count)",
     )
-    s.add_argument("--out", type=Path, required=True, help="output folder")
+    s.add_argument("--out", type=output_folder, required=True, help="output folder")
 
 
 def _add_import_april(sub: Any) -> None:
@@ -278,7 +278,7 @@ def _add_import_april(sub: Any) -> None:
         choices=["manual", "default"],
         help="subtract the lab's hand-calibrated antenna delays (default) or one 0.516 µs for all",
     )
-    imp.add_argument("--out", type=Path, required=True, help="output folder")
+    imp.add_argument("--out", type=output_folder, required=True, help="output folder")
     imp.set_defaults(func=_import_april)
 
 

@@ -54,9 +54,6 @@ def read_april(path: str | Path, *, delays: str = "manual") -> tuple[np.ndarray,
         raise DataFileError(f"delays must be 'manual' or 'default', got {delays!r}")
     rows = _parse_log(p)
     a, b = rows[:, 1].astype(np.int64), rows[:, 2].astype(np.int64)
-    unknown = sorted(set(a.tolist() + b.tolist()) - set(MANUAL_DELAYS_US))
-    if unknown:
-        raise DataFileError(f"{p}: node ids {unknown} are not the APRIL nodes {sorted(MANUAL_DELAYS_US)}")
     if delays == "manual":
         da = np.array([MANUAL_DELAYS_US[int(k)] for k in a])
         db = np.array([MANUAL_DELAYS_US[int(k)] for k in b])
@@ -115,6 +112,11 @@ def _parse_log(p: Path) -> np.ndarray:
             raise DataFileError(f"{p}, line {number}: time of propagation {fields[0]!r} is not a number") from None
         if not (fields[1].isdigit() and fields[2].isdigit()):
             raise DataFileError(f"{p}, line {number}: node ids {fields[1]!r} {fields[2]!r}: expected two whole numbers")
+        strangers = [f for f in fields[1:3] if int(f) not in MANUAL_DELAYS_US]
+        if strangers:  # named here, as written (a 20-digit id was reported as -9223372036854775808)
+            raise DataFileError(
+                f"{p}, line {number}: node {', '.join(strangers)} is not an APRIL node {sorted(MANUAL_DELAYS_US)}"
+            )
         if int(fields[1]) == int(fields[2]):
             raise DataFileError(f"{p}, line {number}: a range from node {fields[1]} to itself")
         out.append((t_us, float(fields[1]), float(fields[2])))
