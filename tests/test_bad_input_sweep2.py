@@ -235,3 +235,36 @@ def test_april_log_bad_nodes_named_by_line(
     code, err = _exit_and_error(["uwb", "import-april", str(log), "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and expect in err, err[-600:]
     assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------------------------ guard13's sweep: gnss options
+NL = "gnss/nl_2021001_short_network_snapshot"
+
+
+@pytest.mark.parametrize(
+    ("extra", "expect"),
+    [
+        # exit 0 with "invalid value encountered in scalar divide"
+        (["--sigma", "1e308"], "--sigma 1e+308: at most 100 (a zenith code σ over 100 m is no code observation)"),
+        # a traceback: numpy.linalg.LinAlgError: Singular matrix
+        (["--tec-rw", "1e30"], "--tec-rw 1e+30: at most 1000 ("),
+    ],
+)
+def test_gnss_ionosphere_absurd_sigmas_refused_before_reading(
+    extra: list[str], expect: str, shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    d = shared_data / NL
+    argv = ["gnss", "ionosphere", "--obs", str(d / "delf0010.21o"), str(d / "wsra0010.21o")]
+    argv += ["--nav", str(d / "cbw10010.21n.gz"), "--no-progress", "--out", str(tmp_path / "o"), *extra]
+    code, err = _exit_and_error(argv, capsys)
+    assert code == 2 and expect in err, err[-600:]
+    assert not (tmp_path / "o").exists()
+
+
+def test_gnss_codebias_absurd_sigma_refused_before_reading(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The files are never read (the option check comes first): placeholders do."""
+    for name in ("a.21o", "a.21n"):
+        (tmp_path / name).write_text("dummy\n")
+    argv = ["gnss", "codebias", "--obs", str(tmp_path / "a.21o"), "--nav", str(tmp_path / "a.21n")]
+    code, err = _exit_and_error([*argv, "--out", str(tmp_path / "o"), "--sigma", "1e308"], capsys)
+    assert code == 2 and "--sigma 1e+308: at most 100" in err, err[-600:]

@@ -155,6 +155,12 @@ def add_data_arguments(parser: argparse.ArgumentParser, *, obs_note: str = "") -
     parser.add_argument("--mask", type=float, default=10.0, help="elevation mask [deg] (default 10)")
 
 
+#: The largest zenith code σ (m) ``--sigma`` takes (``gnss codebias``, ``gnss ionosphere``): beyond it nothing is
+#: modelled (``--sigma 1e308`` ran on with "invalid value encountered in scalar divide" and exit 0)
+MAX_CODE_SIGMA_M = 100.0
+CODE_SIGMA_WHY = "a zenith code σ over 100 m is no code observation"
+
+
 def check_data_arguments(args: argparse.Namespace) -> None:
     """Check the values of the shared data options (:func:`add_data_arguments`) before any file is read; errors
     name the option (the CLI exits with 2)."""

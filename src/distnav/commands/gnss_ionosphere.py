@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from distnav.commands import add_backend_arguments, command_exchange
+from distnav.commands.gnss_common import CODE_SIGMA_WHY, MAX_CODE_SIGMA_M
 from distnav.commands.gnss_ionosphere_data import REGIONAL_KM, NetworkOptions, network_data, network_from_observations
 from distnav.errors import DataFileError, ModelError
 from distnav.options import nonnegative_float, output_folder
@@ -92,6 +93,14 @@ _SYSTEM_CODES = {  # --system: the default codes (first, second) where --l1-code
 }
 
 
+#: Upper limits of the model's σ options: beyond them nothing is modelled, and the run broke (``--tec-rw 1e30``: a
+#: singular matrix, a traceback; ``--sigma 1e308``: "invalid value encountered in scalar divide", exit 0)
+_UPPER_LIMITS = (
+    ("--sigma", "sigma", MAX_CODE_SIGMA_M, CODE_SIGMA_WHY),
+    ("--tec-rw", "tec_rw", 1e3, "10⁵ × the default: over one 60-s epoch the vertical delay could change by km"),
+)
+
+
 def validate_arguments(args: argparse.Namespace) -> None:
     """Check every option value before any file is read (errors name the option; the CLI exits with 2); codes not
     given take the system's defaults (:data:`_SYSTEM_CODES`)."""
@@ -119,6 +128,9 @@ def validate_arguments(args: argparse.Namespace) -> None:
     for opt, value in (("--sigma", args.sigma), ("--regional-km", args.regional_km), ("--tec-rw", args.tec_rw)):
         if value is not None and not (np.isfinite(value) and value > 0.0):
             raise ModelError(f"{opt} {value:g}: must be a positive number")
+    for opt, value, most, why in _UPPER_LIMITS:
+        if getattr(args, value) is not None and getattr(args, value) > most:
+            raise ModelError(f"{opt} {getattr(args, value):g}: at most {most:g} ({why})")
     if not 0 <= args.kn <= MAX_KN:
         raise ModelError(
             f"--kn must lie in 0 … {MAX_KN:,} consensus rounds per epoch, got {args.kn:,} (every epoch runs them "
