@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import DataFileError, ModelError
-from distnav.formats.uwb.io import read_heights, read_positions, same_number_ids
+from distnav.formats.uwb.io import MAX_PLAUSIBLE_RANGE_M, read_heights, read_positions, same_number_ids
 from distnav.models.uwb.field import FieldOptions
 from distnav.models.uwb.problems import RangingProblem
 
@@ -41,6 +41,12 @@ def validate_options(opts: FieldOptions) -> None:
             raise ModelError(f"{name} must be a positive number of metres, got {v}")
     if not (np.isfinite(opts.delay_sigma_m) and opts.delay_sigma_m >= 0):
         raise ModelError(f"--delay-sigma-m must be a number of metres ≥ 0, got {opts.delay_sigma_m}")
+    for name, v in (("--sigma-m", opts.sigma_m), ("--delay-sigma-m", opts.delay_sigma_m)):
+        if v > MAX_PLAUSIBLE_RANGE_M:  # 1e308 overflowed (a traceback) or said "no accuracy can be stated"
+            raise ModelError(
+                f"{name} {v:g} m: a range σ over {MAX_PLAUSIBLE_RANGE_M:g} m, the longest range UWB measures, "
+                "states nothing (was it in mm or cm?)"
+            )
     if not (np.isfinite(opts.reliability_limit_m) and opts.reliability_limit_m >= 0):
         raise ModelError(f"--reliability-limit-m must be a number of metres ≥ 0, got {opts.reliability_limit_m}")
     if not 0.0 < opts.level < 0.5:
