@@ -11,6 +11,7 @@ import pytest
 FRONT_DOORS = [
     ("distnav.exchange.field.survivors", "beyond_reach"),  # who may be alive behind a cut
     ("distnav._settings", "resolve_options"),  # the house style of options objects
+    ("distnav._settings", "runs"),  # a runner takes its iterator's parameters
     ("distnav.network.builders", "ring"),
     ("distnav.network.weights", "consensus_weights"),
     ("distnav.network.gather", "gather_cost"),

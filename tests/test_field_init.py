@@ -38,7 +38,8 @@ def test_uwb_from_april_log(shared_data: Path, tmp_path: Path) -> None:
     assert main(["uwb", "import-april", str(log), "--out", str(tmp_path / "april")]) == 0
     ranges = tmp_path / "april" / "ranges.csv"
     out = tmp_path / "net.toml"
-    assert main(["field", "init", "--ranges", str(ranges), "--out", str(out)]) == 0
+    assert main(["field", "init", "--ranges", str(ranges), "--name", "april_dw1000-8.v1", "--out", str(out)]) == 0
+    assert read_description(out).name == "april_dw1000-8.v1"  # an identifier-like name is taken as given
     with ranges.open() as f:  # independent reading: every pair with a usable (positive) range
         pairs = {frozenset((r["a"], r["b"])) for r in csv.DictReader(f) if float(r["range_m"]) > 0}
     names = _names(out)
@@ -104,6 +105,10 @@ def test_disconnected_range_log_names_the_parts(tmp_path: Path, capsys: pytest.C
         (["--base-port", "80"], "1024..65535"),
         (["--base-port", "65534"], "passes port 65535"),
         (["--min-ranges", "2"], "no partner with at least 2"),
+        (["--name", "n" * 100_000], "(100,000 characters)"),
+        (["--name", "two words"], "1-64 letters, digits"),
+        (["--name", "_net"], "starting with a letter or digit"),
+        (["--name", "x" * 65], "1-64 letters"),
     ],
 )
 def test_bad_options_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], match: str) -> None:

@@ -9,6 +9,8 @@ from distnav.algorithms.lsq.blue import (
     LinearProblem,
     blue,
     dual_function,
+    iterate_method_of_multipliers,
+    iterate_single_consensus_admm,
     method_of_multipliers,
     multiplier_step,
     null_space_directions,
@@ -222,6 +224,13 @@ def test_reference_solver_validation(rng):
         method_of_multipliers(prob, W=1.0, iterations=-1)
     with pytest.raises(ModelError, match="iterations must be ≥ 0"):
         single_consensus_admm(prob, W=1.0, iterations=-1, z0=0.0)
+    for bad in (2.5, "3", True):  # the generators check the count themselves (2.5 was a bare TypeError of range)
+        with pytest.raises(ModelError, match="iterations must be a whole number"):
+            single_consensus_admm(prob, W=1.0, iterations=bad, z0=0.0)  # type: ignore[arg-type]
+        with pytest.raises(ModelError, match="iterations must be a whole number"):
+            next(iterate_method_of_multipliers(prob, W=1.0, iterations=bad))  # type: ignore[arg-type]
+        with pytest.raises(ModelError, match="iterations must be a whole number"):
+            next(iterate_single_consensus_admm(prob, W=1.0, iterations=bad, z0=0.0))  # type: ignore[arg-type]
     with pytest.raises(ModelError, match="multipliers u must have shape"):
         dual_function(prob, np.zeros(3), 1.0)
     with pytest.raises(ModelError, match="multipliers u have non-finite"):

@@ -203,3 +203,11 @@ def test_information_fusion_by_async_push_sum_equals_centralized_lsq() -> None:
     a = (h * np.sqrt(w)[..., None]).reshape(-1, p)
     x_ref = np.linalg.lstsq(a, (y * np.sqrt(w)).ravel(), rcond=None)[0]
     np.testing.assert_allclose(x_nodes, np.broadcast_to(x_ref, (16, p)), atol=1e-8)
+
+
+@pytest.mark.parametrize("ticks", [2.5, "3", True, -1])
+def test_iterator_names_a_bad_tick_count(ticks: object) -> None:
+    """The generator checks ``ticks`` itself (it used to leave 2.5 to ``range``: a bare TypeError)."""
+    states = iterate_push_sum(np.arange(4.0), graph=builders.ring(4), ticks=ticks)  # type: ignore[arg-type]
+    with pytest.raises(WeightsError, match="ticks must be"):
+        next(states)

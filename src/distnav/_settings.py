@@ -12,6 +12,9 @@ it, or both::
 so ``solve(p, rtol=1e-9)`` and ``solve(p, options=SolveOptions(rtol=1e-9))`` run the same. A keyword that is not a
 field of the options object is refused by name (with the fields it could have meant), never ignored.
 
+A front door that runs an ``iterate_…`` generator to the end takes the generator's parameters, spelled out (its
+body and its docs use them by name), and says so with :func:`runs`, which checks the two lists once, at import.
+
 Usable by every layer (it imports only :mod:`distnav.errors` and the standard library).
 """
 
@@ -19,14 +22,16 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-from collections.abc import Mapping
+import inspect
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any, TypeVar
 
 from distnav.errors import UsageError
 
-__all__ = ["option_names", "resolve_options"]
+__all__ = ["option_names", "resolve_options", "runs"]
 
 T = TypeVar("T")
+F = TypeVar("F", bound=Callable[..., Any])
 
 
 def option_names(options_type: type[Any]) -> tuple[str, ...]:
@@ -72,3 +77,74 @@ def resolve_options(options_type: type[T], options: T | None, changes: Mapping[s
     if not changes:
         return options
     return dataclasses.replace(options, **changes)  # type: ignore[type-var]
+
+
+def runs(
+    iterator: Callable[..., Iterator[Any]], *, adds: tuple[str, ...] = (), drops: tuple[str, ...] = ()
+) -> Callable[[F], F]:
+    """Declare the decorated front door the runner of ``iterator``: it takes the iterator's parameters (the same
+    names, kinds, defaults and annotations, in the same order), less ``drops`` (what the runner decides itself, e.g.
+    the schedule) and plus ``adds`` (its result's own settings, e.g. ``reference``). Checked once, when the module is
+    imported: a parameter added to, renamed in or dropped from one of the two and not the other is a ``TypeError``
+    naming both functions and the parameter, so the two signatures cannot drift apart. The runner is returned
+    unchanged (its own signature, typed by mypy, is what callers see).
+
+    Examples
+    --------
+    >>> from collections.abc import Iterator
+    >>> from distnav._settings import runs
+    >>> def iterate_halving(x: float, *, steps: int = 3) -> Iterator[float]:
+    ...     for _ in range(steps):
+    ...         x /= 2
+    ...         yield x
+    >>> @runs(iterate_halving)
+    ... def halving(x: float, *, steps: int = 3) -> float:
+    ...     return list(iterate_halving(x, steps=steps))[-1]
+    >>> halving(8.0)
+    1.0
+    >>> @runs(iterate_halving)
+    ... def halving(x: float, *, steps: int = 4) -> float:
+    ...     return list(iterate_halving(x, steps=steps))[-1]
+    Traceback (most recent call last):
+        ...
+    TypeError: halving takes the parameters of iterate_halving ...: ... has steps: int = 3, halving has steps: int = 4
+    """
+
+    def check(runner: F) -> F:
+        theirs = inspect.signature(iterator).parameters
+        ours = inspect.signature(runner).parameters
+        stray = [name for name in drops if name not in theirs] + [name for name in adds if name not in ours]
+        want = [_parameter(q) for name, q in theirs.items() if name not in drops]
+        have = [_parameter(q) for name, q in ours.items() if name not in adds]
+        if want != have or stray:
+            only_it = [_show(q) for q in want if q not in have]
+            only_run = [_show(q) for q in have if q not in want]
+            raise TypeError(
+                f"{runner.__name__} takes the parameters of {iterator.__name__} (less drops, plus adds): "
+                f"{iterator.__name__} has {', '.join(only_it) or 'none other'}, {runner.__name__} has "
+                f"{', '.join(only_run) or 'none other'}"
+                + (f"; not parameters: {', '.join(stray)}" if stray else "")
+                + ("; their order differs" if want != have and not (only_it or only_run) else "")
+            )
+        return runner
+
+    return check
+
+
+def _parameter(q: inspect.Parameter) -> tuple[str, str, str, str]:
+    """A parameter as :func:`runs` compares it: name, kind, default and annotation (as written)."""
+    written = q.annotation if isinstance(q.annotation, str) else inspect.formatannotation(q.annotation)
+    if q.annotation is inspect.Parameter.empty:
+        written = ""
+    return q.name, q.kind.name, repr(q.default), written
+
+
+def _show(q: tuple[str, str, str, str]) -> str:
+    name, kind, default, annotation = q
+    shown = name + (f": {annotation}" if annotation else "")
+    shown += "" if default == repr(inspect.Parameter.empty) else f" = {default}"
+    return (
+        {"VAR_POSITIONAL": "*", "VAR_KEYWORD": "**"}.get(kind, "")
+        + shown
+        + (" (positional)" if kind in ("POSITIONAL_ONLY", "POSITIONAL_OR_KEYWORD") else "")
+    )

@@ -170,9 +170,18 @@ def _port(text: str) -> int:
     return value
 
 
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
+
+
 def _network_name(text: str) -> str:
-    if not text.strip() or not text.isprintable():
-        raise argparse.ArgumentTypeError(f"must be a non-empty printable name, got {text!r}")
+    """A network's name: an identifier-like word of at most 64 characters (it goes into logs, file comments and
+    reports; a 100,000-character or multi-line name was taken before)."""
+    if not _NAME.fullmatch(text):
+        shown = repr(text) if len(text) <= 40 else f"{text[:40]!r}... ({len(text):,} characters)"
+        raise argparse.ArgumentTypeError(
+            "must be a non-empty printable name of 1-64 letters, digits, '_', '.' or '-' (starting with a letter or "
+            f"digit), got {shown}"
+        )
     return text
 
 

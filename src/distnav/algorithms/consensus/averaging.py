@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from distnav._checks import real_array, whole_number
+from distnav._settings import runs
 from distnav.algorithms.result import SolverResult, TraceBuilder, stopping_fields
 from distnav.errors import WeightsError
 from distnav.exchange import Exchange, make_exchange
@@ -178,6 +179,7 @@ class ConsensusResult(SolverResult):
     average: np.ndarray
 
 
+@runs(iterate_average_consensus, drops=("schedule",), adds=("record_values",))
 def average_consensus(
     values: np.ndarray,
     *,

@@ -30,6 +30,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from distnav._checks import whole_number
 from distnav.algorithms.consensus.averaging import ConsensusState, _as_node_array, consensus_schedule
 from distnav.errors import WeightsError
 from distnav.exchange import Exchange, make_exchange
@@ -54,10 +55,8 @@ def iterate_flow_consensus(
     enough that random losses do not reach it: dropping a live link's flow undoes its history and restarts its
     mixing; a lost link's flow is a node that is gone).
     """
-    if rounds < 0:
-        raise WeightsError(f"rounds must be ≥ 0, got {rounds}")
-    if patience < 1:
-        raise WeightsError(f"patience must be ≥ 1, got {patience}")
+    rounds = whole_number(rounds, "rounds", error=WeightsError)
+    patience = whole_number(patience, "patience", minimum=1, error=WeightsError)
     sched = consensus_schedule(graph, protocol)
     if sched.n_sessions != 1:
         raise WeightsError("flow consensus runs on a static graph (one session)")

@@ -42,6 +42,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from distnav._checks import real_number, whole_number
+from distnav._settings import runs
 from distnav.algorithms.result import SolverResult, SolverStatus, TraceBuilder
 from distnav.errors import WeightsError
 from distnav.exchange import Exchange, make_exchange
@@ -135,8 +136,7 @@ def iterate_push_sum(
     ``values`` ``(n_nodes, ...)`` are the initial values (flattened to ``(n_nodes, p)``); ``clock`` says which nodes
     act in each tick. Only this block's rows are used.
     """
-    if ticks < 0:
-        raise WeightsError(f"ticks must be ≥ 0, got {ticks}")
+    ticks = whole_number(ticks, "ticks", error=WeightsError)
     flat, rate = _node_values(values, graph.n_nodes), clock.per_node(graph.n_nodes)
     ex = exchange if exchange is not None else make_exchange(graph)
     if ex.n_edges != graph.n_edges or ex.n_nodes != graph.n_nodes:
@@ -182,6 +182,7 @@ def mass_in_flight(state: PushSumState, exchange: Exchange) -> np.ndarray:
     return out
 
 
+@runs(iterate_push_sum, adds=("tol",))
 def push_sum(
     values: np.ndarray,
     *,

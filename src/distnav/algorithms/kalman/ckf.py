@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav._settings import option_names, resolve_options
+from distnav._settings import option_names, resolve_options, runs
 from distnav.algorithms.consensus.averaging import ConsensusSchedule, consensus_product, consensus_schedule
 from distnav.algorithms.kalman import (
     DynamicModel,
@@ -395,6 +395,7 @@ def _tested_normals(
     return N, r, tuple(tests)
 
 
+@runs(iterate_ckf)
 def ckf(
     dynamics: DynamicModel,
     measurements: MeasurementSeries,

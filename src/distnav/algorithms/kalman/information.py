@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from distnav._settings import runs
 from distnav.algorithms.kalman.dynamics import DynamicModel
 from distnav.algorithms.kalman.kernel import InformationKernel, masked_std
 from distnav.algorithms.kalman.measurements import MeasurementSeries, check_model
@@ -84,6 +85,7 @@ def iterate_information_filter(
         yield FilterState(t, ker.I, ker.i, x, est, inv)
 
 
+@runs(iterate_information_filter, adds=("store_matrices",))
 def information_filter(
     dynamics: DynamicModel,
     measurements: MeasurementSeries,
@@ -141,6 +143,7 @@ def information_filter(
     )
 
 
+@runs(iterate_information_filter, drops=("mode",), adds=("store_matrices",))
 def central_filter(
     dynamics: DynamicModel,
     measurements: MeasurementSeries,
@@ -166,6 +169,7 @@ def central_filter(
     return information_filter(dynamics, measurements, mode="central", nodes=nodes, store_matrices=store_matrices)
 
 
+@runs(iterate_information_filter, drops=("mode",), adds=("store_matrices",))
 def local_filters(
     dynamics: DynamicModel,
     measurements: MeasurementSeries,
@@ -177,6 +181,7 @@ def local_filters(
     return information_filter(dynamics, measurements, mode="local", nodes=nodes, store_matrices=store_matrices)
 
 
+@runs(iterate_information_filter, drops=("mode",), adds=("store_matrices",))
 def exact_average_filters(
     dynamics: DynamicModel,
     measurements: MeasurementSeries,

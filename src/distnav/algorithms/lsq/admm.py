@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from distnav._settings import resolve_options
+from distnav._settings import resolve_options, runs
 from distnav.algorithms.lsq.blue import LinearProblem
 from distnav.algorithms.lsq.driver import (
     AdmmOptions,
@@ -123,6 +123,7 @@ def iterate_admm(
     return prepare(problem, graph, exchange, resolve_options(AdmmOptions, options, changes)).states
 
 
+@runs(iterate_admm, adds=("reference", "faults"))
 def admm(
     problem: LinearProblem,
     graph: Graph,

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from distnav._checks import real_array, real_number, whole_number
+from distnav._settings import runs
 from distnav.algorithms.lsq.conditions import inestimable_directions, null_space_directions, weight_matrix
 from distnav.algorithms.result import SolverResult, TraceBuilder
 from distnav.errors import ModelError
@@ -408,8 +409,7 @@ def iterate_method_of_multipliers(
     (eq. (15)), step 2 moves ``u`` along the ascent direction ``d_i = x_i − z`` (eq. (14)).
     Needs a fusion centre (``z^[k]`` uses all nodes' data). Yields states ``k = 1..iterations``."""
     Wm = weight_matrix(W, problem.n_params)
-    if iterations < 0:
-        raise ModelError(f"iterations must be ≥ 0, got {iterations}")
+    iterations = whole_number(iterations, "iterations", error=ModelError)
     u = _init_u(problem, u0)
     for k in range(1, iterations + 1):
         x, z = multiplier_step(problem, u, Wm)
@@ -426,8 +426,7 @@ def iterate_single_consensus_admm(
     Yields states ``k = 1..iterations``."""
     p = problem.n_params
     Wm = weight_matrix(W, p)
-    if iterations < 0:
-        raise ModelError(f"iterations must be ≥ 0, got {iterations}")
+    iterations = whole_number(iterations, "iterations", error=ModelError)
     z = np.broadcast_to(np.asarray(z0, dtype=float), (p,)).copy() if np.ndim(z0) <= 1 else None
     if z is None or not np.all(np.isfinite(z)):
         raise ModelError(f"z0 must be a scalar or a length-{p} vector of finite values, got {z0!r}")
@@ -497,6 +496,7 @@ def _run(
     )
 
 
+@runs(iterate_method_of_multipliers, adds=("reference",))
 def method_of_multipliers(
     problem: LinearProblem,
     *,
@@ -518,11 +518,11 @@ def method_of_multipliers(
     >>> method_of_multipliers(problem, W=1.0, iterations=200).estimates.round(6).tolist()  # the BLUE at every node
     [[1.1, 2.1], [1.1, 2.1], [1.1, 2.1]]
     """
-    iterations = whole_number(iterations, "iterations", minimum=None, error=ModelError)
     states = iterate_method_of_multipliers(problem, W=W, iterations=iterations, u0=u0)
     return _run(problem, states, W, u0, reference, "method of multipliers")
 
 
+@runs(iterate_single_consensus_admm, adds=("reference",))
 def single_consensus_admm(
     problem: LinearProblem,
     *,
