@@ -268,3 +268,20 @@ def test_gnss_codebias_absurd_sigma_refused_before_reading(tmp_path: Path, capsy
     argv = ["gnss", "codebias", "--obs", str(tmp_path / "a.21o"), "--nav", str(tmp_path / "a.21n")]
     code, err = _exit_and_error([*argv, "--out", str(tmp_path / "o"), "--sigma", "1e308"], capsys)
     assert code == 2 and "--sigma 1e+308: at most 100" in err, err[-600:]
+
+
+@pytest.mark.parametrize(
+    ("extra", "expect"),
+    [
+        # exit 0: the prior of per-anchor delays given where none are estimated, silently ignored
+        (["--range-offsets", "none", "--offset-prior-sigma-m", "0.5"], "--offset-prior-sigma-m 0.5 is the prior σ"),
+        # exit 0: the delays σ admits are the metres objective's, silently ignored with the squared one
+        (["--objective", "squared", "--delay-sigma-m", "0.2"], "it does not apply with --objective squared"),
+    ],
+)
+def test_uwb_solve_options_that_do_not_apply_are_refused(
+    extra: list[str], expect: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, err = _exit_and_error([*_uwb(tmp_path), "--out", str(tmp_path / "o"), *extra], capsys)
+    assert code == 2 and expect in err, err[-600:]
+    assert not (tmp_path / "o").exists()
