@@ -285,3 +285,12 @@ def test_uwb_solve_options_that_do_not_apply_are_refused(
     code, err = _exit_and_error([*_uwb(tmp_path), "--out", str(tmp_path / "o"), *extra], capsys)
     assert code == 2 and expect in err, err[-600:]
     assert not (tmp_path / "o").exists()
+
+
+def test_a_graph_file_with_a_huge_field_names_the_line(tmp_path: Path) -> None:
+    """Before: a traceback (_csv.Error: field larger than field limit (131072)); the UWB CSV readers share the fix
+    (formats.text.csv_rows)."""
+    graph = tmp_path / "g.csv"
+    graph.write_text("DELF,WSRA\n" + "X" * 200_000 + ",WSRA\n")
+    with pytest.raises(DataFileError, match=r"g\.csv:2: not a CSV line \(field larger than field limit"):
+        load_edges(graph, ["DELF", "WSRA"])
