@@ -72,7 +72,8 @@ def test_admm_stops_and_says_why_when_the_rest_is_disconnected(tmp_path: Path) -
     answer; every remaining node stops and names the lost node and why."""
     sc = codebias_scenario(8, seed=1, epochs=10)
     sc = type(sc)(builders.path(8), sc.kind, sc.algorithm, problem=sc.problem)
-    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=2000, crash={5: 30}))
+    # 1 s deadlines (as the ADMM stall test's): on this path the agreement's window is 17 deadlines
+    net = write_scenario(tmp_path / "net", sc, LoopbackOptions(deadline_ms=1000, crash={5: 30}))
     summary = launch(net, tmp_path / "run", timeout_s=300, quiet=True)
     assert summary["crashed_on_purpose"] == [5]
     assert summary["finished"] == [] and summary["failed"] == [], summary

@@ -36,6 +36,8 @@ def test_demo_on_four_processes(tmp_path: Path, capsys: pytest.CaptureFixture[st
             "4",
             "--uwb-iterations",
             "10",
+            "--deadline-ms",  # the killed runs wait 3 deadlines to notice the loss (and the UWB agreement a window
+            "2000",  # of deadlines): 2 s as the other field loss tests, not the demo's generous 5 s (82 -> ~50 s)
             "--timeout",
             "200",
             "--out",

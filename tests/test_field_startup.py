@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -28,9 +29,9 @@ N = 6
 LINKS = sorted({(min(i, j), max(i, j)) for i in range(N) for j in ((i + 1) % N, (i + 2) % N)})
 
 
-def _start(net: Path, node: int, out: Path) -> subprocess.Popen[bytes]:
+def _start(net: Path, node: int, out: Path, *extra: str) -> subprocess.Popen[bytes]:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    cmd = [sys.executable, "-m", "distnav", "node", "--config", str(net), "--id", str(node), "--out", str(out)]
+    cmd = [sys.executable, "-m", "distnav", "node", "--config", str(net), "--id", str(node), "--out", str(out), *extra]
     err = open(out / f"stderr-{node}-{time.monotonic_ns()}.txt", "wb")  # noqa: SIM115 - closed after the run
     return subprocess.Popen(cmd, env=env, stdout=err, stderr=err, start_new_session=True)
 
@@ -69,6 +70,14 @@ def _run_alone(net: Path, node: int, out: Path) -> tuple[int | None, str]:
 
 def _stderr(out: Path) -> str:
     return "\n".join(f.read_text(errors="replace") for f in sorted(out.glob("stderr-*.txt")))
+
+
+def _network(tmp_path: Path, values: np.ndarray, opts: LoopbackOptions) -> tuple[Path, Path]:
+    """The loopback description of LINKS with ``values`` and its (made) output folder."""
+    net = write_loopback_network(tmp_path / "net", LINKS, values, opts)
+    out = tmp_path / "run"
+    out.mkdir()
+    return net, out
 
 
 def _wait_until_started(out: Path, n_nodes: int, timeout_s: float) -> None:
@@ -319,3 +328,195 @@ def test_a_consensus_node_stopped_past_the_deadlines_learns_that_its_neighbours_
     assert res[3]["status"].endswith("_dropped_by_neighbours"), res[3]["status"]
     assert sorted(res[3]["dropped_by"]) == ["1", "2", "4", "5"], res[3]["dropped_by"]
     assert all(not res[i]["dropped_by"] for i in keep)
+
+
+def test_a_node_killed_during_the_start_up_and_restarted_with_rejoin_starts_with_the_others(tmp_path: Path) -> None:
+    """Node 3 killed while the network is still starting (node 0 not started yet), then restarted with --rejoin.
+    Before, its one-byte hello was ignored by the start-up barrier: it exited 2 ("no neighbour answered") and the
+    others waited 2 x start_timeout_s and ended without its data. Now its neighbours answer it with their start-up
+    hello, it starts as the others do (from step 0, ``restarted_during_startup``) and every node ends bit for bit with
+    the in-process rounds of all the data."""
+    values = np.random.default_rng(5).normal(size=(N, 2))
+    algo = {"name": "consensus", "rounds": 40, "protocol": "MH", "patience": 20}
+    net, out = _network(tmp_path, values, LoopbackOptions(algorithm=algo, start_timeout_s=8))
+    procs = {i: _start(net, i, out) for i in range(1, N)}
+    try:
+        end = time.monotonic() + 60
+        while time.monotonic() < end and not (out / "node-3.log").exists():
+            time.sleep(0.05)
+        time.sleep(1.0)  # into its start-up hellos; the barrier cannot end: node 0 is not started
+        os.killpg(procs[3].pid, signal.SIGKILL)
+        procs[3].wait(timeout=10)
+        procs[3] = _start(net, 3, out, "--rejoin")
+        time.sleep(1.0)
+        procs[0] = _start(net, 0, out)
+        codes = _finish(procs, 120)
+    finally:
+        _kill_all(procs)
+    assert all(c == 0 for c in codes.values()), (codes, _stderr(out)[-3000:])
+    res = [json.loads((out / f"node-{i}.json").read_text()) for i in range(N)]
+    assert res[3]["restarted_during_startup"] is True and res[3]["rejoined_at_step"] is None
+    assert all(r["status"] == "completed" and not r["lost_nodes"] and not r["missing_at_start"] for r in res)
+    field = np.array([r["estimate"] for r in res])
+    ref = list(iterate_average_consensus(values, graph=Graph.from_links(N, LINKS), protocol="MH", rounds=40))[-1]
+    assert np.array_equal(field, ref.values), np.abs(field - ref.values).max()
+
+
+def test_the_start_up_depth_is_the_eccentricity_of_the_greeting_graph() -> None:
+    """The barrier's depth is each node's eccentricity (was n - 1 for every node): checked against scipy's
+    breadth-first distances on a path, a ring, LINKS and a random geometric graph."""
+    from scipy.sparse.csgraph import shortest_path
+
+    from distnav.exchange.field.startup import eccentricity
+    from distnav.network import builders
+
+    path = Graph.from_links(7, [(i, i + 1) for i in range(6)])
+    ring = Graph.from_links(9, [(i, (i + 1) % 9) for i in range(9)])
+    rgg = builders.connected_random_geometric(30, mean_degree=4, rng=np.random.default_rng(2))
+    for g in (path, ring, Graph.from_links(N, LINKS), rgg):
+        hops = shortest_path(g.adjacency(), unweighted=True, directed=False)
+        assert [eccentricity(g, i) for i in range(g.n_nodes)] == [int(h.max()) for h in hops]
+    assert [eccentricity(path, i) for i in (0, 3)] == [6, 3]
+
+
+def test_start_up_hellos_are_repeated_only_to_a_neighbour_that_has_not_answered() -> None:
+    """Four nodes that all greet each other (threads, inproc), node 3 started 3 s after the others. Before, every
+    node repeated its hello to every neighbour every 0.5 s until the whole network was up, and its level rose to
+    n - 1 = 3 (a hello per level change and neighbour): node 0 sent 28 hellos, node 3 15. Now the depth is 1 (every
+    node one hop away), the answered neighbours get only the level changes, and the repeats to node 3 go at 0.5, 1,
+    2 s: node 0 sent 12, node 3 6 (bounds 20 and 12)."""
+    import threading
+    import uuid
+
+    import zmq
+
+    from distnav.exchange.field import Peer, Transport, TransportOptions
+    from distnav.exchange.field.startup import StartCheck, handshake
+
+    ctx = zmq.Context()
+    addr = [f"inproc://hello-{uuid.uuid4().hex}-{i}" for i in range(4)]
+    sent: dict[int, dict[str, int]] = {}
+    missing: dict[int, list[int]] = {}
+
+    def node(i: int) -> None:
+        peers = [Peer(j, addr[j]) for j in range(4) if j != i]
+        tr = Transport(i, addr[i], peers, options=TransportOptions(start_timeout_s=20.0), context=ctx)
+        try:
+            missing[i] = handshake(tr, check=StartCheck(levels=1)).missing
+            sent[i] = tr.bytes_by_kind()
+        finally:
+            tr.close()
+
+    threads = [threading.Thread(target=node, args=(i,), daemon=True) for i in range(4)]
+    for t in threads[:3]:
+        t.start()
+    time.sleep(3.0)
+    threads[3].start()
+    for t in threads:
+        t.join(60)
+    assert not any(t.is_alive() for t in threads)
+    ctx.term()
+    assert missing == {i: [] for i in range(4)}
+    hello_frame_bytes = 28 + 4 + 3 * 8  # header, one dimension, three int64 (wire.py)
+    frames = {i: sent[i]["hello"] // hello_frame_bytes for i in range(4)}
+    assert all(sent[i]["hello"] % hello_frame_bytes == 0 for i in range(4))
+    assert frames[0] <= 20 and frames[3] <= 12, frames
+
+
+def _sockets(n: int) -> tuple[Any, list[str]]:
+    import uuid
+
+    import zmq
+
+    tag = uuid.uuid4().hex
+    return zmq.Context(), [f"inproc://raw-{tag}-{i}" for i in range(n)]
+
+
+def _drain(sock: Any) -> list[bytes]:
+    frames = []
+    while sock.poll(200):
+        frames.append(sock.recv())
+    return frames
+
+
+def test_rejoin_hellos_are_counted_as_the_bytes_that_reached_the_peer() -> None:
+    """A restarted node that nobody answers (start_timeout_s 1 s): every one-byte hello it sent reached its peer's
+    socket, and its byte totals are exactly what that socket received. Before, ``join`` counted none of them."""
+    import zmq
+
+    from distnav.errors import ExchangeError
+    from distnav.exchange.field import Peer, Transport, TransportOptions
+    from distnav.exchange.field.startup import rejoin
+
+    ctx, addr = _sockets(2)
+    peer = ctx.socket(zmq.PULL)
+    peer.bind(addr[1])
+    tr = Transport(0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=1.0), context=ctx)
+    try:
+        with pytest.raises(ExchangeError, match="no neighbour answered"):
+            rejoin(tr)
+        got = _drain(peer)
+        assert len(got) >= 3 and tr.frames_sent == len(got)
+        assert tr.bytes_sent == sum(len(f) for f in got) == len(got) * (28 + 4 + 1)  # header, one dimension, 1 byte
+        assert tr.bytes_by_kind() == {"hello": tr.bytes_sent}
+    finally:
+        tr.close()
+        peer.close()
+        ctx.term()
+
+
+def test_a_rejoin_that_hears_start_up_hellos_starts_normally() -> None:
+    """A neighbour still in its start-up (its hello is the three int64 of the barrier, and no step message follows):
+    :func:`rejoin` returns None at once (the node then starts as the others do) instead of waiting for a step."""
+    import zmq
+
+    from distnav.exchange.field import Kind, Peer, Transport, TransportOptions, encode
+    from distnav.exchange.field.startup import rejoin
+
+    ctx, addr = _sockets(2)
+    peer_in, peer_out = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
+    peer_in.bind(addr[1])
+    tr = Transport(0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=20.0), context=ctx)
+    try:
+        peer_out.connect(addr[0])
+        peer_out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 0, 0], np.int64)))
+        t0 = time.monotonic()
+        assert rejoin(tr) is None
+        assert time.monotonic() - t0 < 5.0  # half a second after the start-up hello, not the 20 s start timeout
+    finally:
+        tr.close()
+        peer_in.close()
+        peer_out.close(linger=0)
+        ctx.term()
+
+
+def test_a_neighbour_that_answered_and_was_refused_counts_once() -> None:
+    """Neighbour 1 sends a hello of this network, then one of another network (refused: a stranger); neighbour 2
+    never answers. Before, neighbour 1 counted as answered and as refused: "every neighbour heard" at once, and its
+    stale level -1 held the barrier until 2 x start_timeout_s (3 s). Now it counts once, as a stranger: the node
+    waits for neighbour 2 until start_timeout_s (1.5 s) and then starts, 2 missing and 1 refused."""
+    import zmq
+
+    from distnav.exchange.field import Kind, Peer, Transport, TransportOptions, encode
+    from distnav.exchange.field.startup import StartCheck, handshake
+
+    ctx, addr = _sockets(3)
+    sinks = [ctx.socket(zmq.PULL) for _ in range(2)]
+    for s, a in zip(sinks, addr[1:], strict=True):
+        s.bind(a)
+    peers = [Peer(1, addr[1]), Peer(2, addr[2])]
+    tr = Transport(0, addr[0], peers, options=TransportOptions(start_timeout_s=1.5), context=ctx)
+    out = ctx.socket(zmq.PUSH)
+    try:
+        out.connect(addr[0])
+        out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 77, 0], np.int64)))
+        out.send(encode(Kind.HELLO, 1, 0, np.array([-1, 78, 0], np.int64)))  # another network's fingerprint
+        start = handshake(tr, check=StartCheck(network_id=77, levels=1))
+        assert list(start.strangers) == [1] and start.missing == [2]
+        assert 1.4 <= start.seconds < 2.6, start.seconds
+    finally:
+        tr.close()
+        for s in sinks:
+            s.close()
+        out.close(linger=0)
+        ctx.term()

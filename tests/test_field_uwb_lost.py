@@ -102,7 +102,7 @@ def test_uwb_anchors_on_a_chain_cut_in_two_stop_and_name_the_anchor(tmp_path: Pa
     net = write_scenario(
         tmp_path / "net",
         Scenario(chain.graph, "uwb", sc.algorithm, ranging=chain),
-        LoopbackOptions(deadline_ms=2000, crash={2: 20}),
+        LoopbackOptions(deadline_ms=1000, crash={2: 20}),  # the agreement's window is 21 deadlines on this path
     )
     summary = launch(net, tmp_path / "run", timeout_s=400, quiet=True)
     assert summary["crashed_on_purpose"] == [2]

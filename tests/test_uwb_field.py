@@ -451,3 +451,49 @@ def test_the_per_anchor_checks_kept_resolve_ends_on_lms_links():
     assert np.array_equal(now.excluded, lm.excluded) and now.status == lm.status
     assert np.max(np.abs(now.positions_m - lm.positions_m)) < 1e-3
     assert not np.array_equal(unchecked.excluded, lm.excluded)
+
+
+def test_the_per_anchor_check_does_not_re_solve_the_same_choice_twice(monkeypatch):
+    """``field_steps.REPAIR_SKIPS_REPEAT`` (issue 27 item 59): on PLANT_HARD ``[34, 32]`` middle the check's first
+    round is kept; its anchors made to choose the same links again in the second round (``repair_exclusions``
+    scripted to repeat its first answer), that round is not re-solved. The reference: the same workflow with the
+    switch off, which re-solves the same sub-network — it ends on the same links and status within 1 mm and sends
+    more bytes."""
+    import distnav.models.uwb.field as field
+    import distnav.models.uwb.field_steps as field_steps
+    from distnav.experiments.uwb_field import hall_problem
+    from distnav.models.uwb.field import FieldOptions, prepare, solve_field
+    from distnav.models.uwb.hall import PLANT_HARD, simulate_hall
+
+    h = simulate_hall(np.random.default_rng([34, 32]), None, **PLANT_HARD, known="middle")
+    sub, geo = prepare(hall_problem(h)[0])
+    real = field.repair_exclusions
+    first: list[tuple] = []
+    resolves = [0]
+    worst = field.exclude_worst
+
+    def repeating(*args, **kw):
+        out = real(*args, **kw)
+        if out[1] and not first:
+            first.append(out)
+        return first[0] if first else out
+
+    def counted(*args, **kw):
+        resolves[0] += 1
+        return worst(*args, **kw)
+
+    monkeypatch.setattr(field, "repair_exclusions", repeating)
+    monkeypatch.setattr(field, "exclude_worst", counted)
+    got = {}
+    for skip in (True, False):
+        first.clear()
+        resolves[0] = 0
+        monkeypatch.setattr(field_steps, "REPAIR_SKIPS_REPEAT", skip)
+        got[skip] = (solve_field(sub, FieldOptions(solver="N-CLM"), geometry=geo), resolves[0])
+    (now, n_now), (before, n_before) = got[True], got[False]
+    assert n_before == n_now + 1  # the main loop, one re-solve; the switch off: a second one of the same choice
+    assert "the same choice as its last round, not re-solved" in now.message
+    assert "not re-solved" not in before.message
+    assert np.array_equal(now.excluded, before.excluded) and now.status == before.status
+    assert np.max(np.abs(now.positions_m - before.positions_m)) < 1e-3
+    assert now.bytes < before.bytes

@@ -254,11 +254,11 @@ def test_the_per_anchor_check_decides_a_close_call_on_completed_fits(monkeypatch
         full.add(id(r))
         return r
 
-    def checked(run, fit_):
+    def checked(run, fit_, *rest):
         compared.append([])
         inside[0] = True
         try:
-            return repair(run, fit_)
+            return repair(run, fit_, *rest)
         finally:
             inside[0] = False
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from distnav._optional import require
-from distnav.commands.field_processes import kill_group, setup_node_log
+from distnav.commands.field_processes import kill_group, setup_node_log, wire_bytes_by_kind
 from distnav.errors import UsageError
 from distnav.formats.field_config import NetworkDescription, format_description, read_description
 from distnav.options import existing_file, node_output_files, nonnegative_int, output_folder, positive_float
@@ -189,6 +189,7 @@ def _collect(
         "failed": failed,
         "seconds": elapsed,
         "wire_bytes": int(sum(r["wire"]["bytes_sent"] for r in nodes.values())),
+        "wire_bytes_by_kind": wire_bytes_by_kind(nodes),
         "refused": int(sum(sum(r["refused"].values()) for r in nodes.values())),
     }
     consensus = desc.algorithm["name"] in ("consensus", "consensus_flows")

@@ -112,7 +112,7 @@ def _rerun(desc: NetworkDescription, node_id: int) -> Rerun:
 
 
 def rejoin_algorithm(desc: NetworkDescription, node_id: int, ex: FieldExchange, invited: np.ndarray) -> dict[str, Any]:
-    """A restarted ADMM, CKF or UWB node, invited back by the others (``invited``: :meth:`Transport.join`): it runs
+    """A restarted ADMM, CKF or UWB node, invited back by the others (``invited``: ``startup.rejoin``): it runs
     again from the start with them, on every node's data that is there (:func:`~distnav.commands.field_survive.
     without_lost`)."""
     from distnav.commands.field_survive import without_lost

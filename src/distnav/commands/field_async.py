@@ -25,7 +25,7 @@ from distnav.algorithms.consensus.pushsum import NodeOutcome, run_push_sum_node
 from distnav.errors import UsageError
 from distnav.exchange.faults import uniform_hash
 from distnav.exchange.field import Kind, Transport
-from distnav.exchange.field.startup import StartCheck, handshake
+from distnav.exchange.field.startup import StartCheck, eccentricity, handshake
 from distnav.formats.field_config import NetworkDescription, read_description, read_node_values
 from distnav.options import existing_file, node_output_files, nonnegative_int, output_folder, positive_float
 from distnav.output import atomic_write_json
@@ -78,7 +78,7 @@ def run_async_node(
         node_id, entry.address, desc.peers(node_id), options=desc.transport_options(), keys=load_keys(desc, node_id)
     )
     try:
-        check = StartCheck(desc.fingerprint(), value.size, desc.n_nodes - 1)
+        check = StartCheck(desc.fingerprint(), value.size, eccentricity(desc.graph(), node_id))
         missing = handshake(transport, check=check).missing
         t0 = time.monotonic()
         link = TransportLink(transport, neighbours, drop_probability=desc.drop_probability, seed=desc.drop_seed)
@@ -108,6 +108,7 @@ def run_async_node(
                 "refused": transport.refusal_counts(),
                 "missing_at_start": missing,
                 "wire": transport.wire_counts(),
+                "wire_bytes_by_kind": transport.bytes_by_kind(),
             },
         )
         return outcome

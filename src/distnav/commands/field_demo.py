@@ -47,7 +47,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from distnav.commands.field_async import add_node_program, open_node
-from distnav.commands.field_processes import LoopbackOptions, kill_group, removable_node, write_loopback_network
+from distnav.commands.field_processes import (
+    LoopbackOptions,
+    kill_group,
+    removable_node,
+    wire_bytes_by_kind,
+    write_loopback_network,
+)
 from distnav.errors import UsageError
 from distnav.network import builders
 from distnav.network.graph import Graph
@@ -144,7 +150,8 @@ def _uwb_node(args: argparse.Namespace) -> int:
         keys=load_keys(desc, args.id),
     )
     try:
-        missing = handshake(transport, check=StartCheck(desc.fingerprint(), 0, desc.n_nodes - 1)).missing
+        depth = min(1, desc.n_nodes - 1)  # every node greets every other: all within one hop
+        missing = handshake(transport, check=StartCheck(desc.fingerprint(), 0, depth)).missing
         t0 = time.monotonic()
         with field_session(args.id, transport):
             est = _solve_uwb(problem, args.iterations, "field")
@@ -158,6 +165,7 @@ def _uwb_node(args: argparse.Namespace) -> int:
                 "seconds": time.monotonic() - t0,
                 "missing_at_start": missing,
                 "wire": transport.wire_counts(),
+                "wire_bytes_by_kind": transport.bytes_by_kind(),
                 "refused": transport.refusal_counts(),
                 "lost_nodes": {str(k): v for k, v in transport.lost.items()},
             },
@@ -210,6 +218,7 @@ def _launch_nodes(desc_path: Path, out_dir: Path, commands: list[list[str]], tim
         "failed": [{"node": i, "exit_code": c, "timed_out": c is None} for i, c in enumerate(codes) if c != 0],
         "seconds": time.monotonic() - t0,
         "wire_bytes": int(sum(r["wire"]["bytes_sent"] for r in nodes.values())),
+        "wire_bytes_by_kind": wire_bytes_by_kind(nodes),
         "nodes": nodes,
     }
 
@@ -415,7 +424,9 @@ def _gather_of(run: dict[str, Any], problem: Any) -> CommComparison:
 
 
 def _short(summary: dict[str, Any]) -> dict[str, Any]:
-    out: dict[str, Any] = {k: summary[k] for k in ("finished", "failed", "seconds", "wire_bytes") if k in summary}
+    out: dict[str, Any] = {
+        k: summary[k] for k in ("finished", "failed", "seconds", "wire_bytes", "wire_bytes_by_kind") if k in summary
+    }
     out["wire_frames"] = int(sum(r["wire"]["frames_sent"] for r in summary.get("nodes", {}).values()))
     return out
 

@@ -26,7 +26,8 @@ from distnav.commands.field_algorithms import REJOIN_ALGORITHMS
 from distnav.errors import DataFileError, ExchangeError, UsageError
 from distnav.exchange import FaultSchedule
 from distnav.exchange.field import CurveKeys, FieldExchange, Transport
-from distnav.exchange.field.startup import StartCheck, Startup, handshake
+from distnav.exchange.field.startup import StartCheck, Startup, eccentricity, handshake
+from distnav.exchange.field.startup import rejoin as join_running
 from distnav.formats.field_config import NetworkDescription, read_node_values
 from distnav.output import atomic_write_json
 
@@ -90,15 +91,17 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             if crash_step is None
             else _CrashingExchange(desc.graph(), node_id, transport, schedule, crash_step=crash_step)
         )
-        first, late = _join(transport, consensus) if rejoin else (0, None)
-        if rejoin and consensus:
+        joined, late = _join(transport, consensus) if rejoin else (0, None)
+        mid_run = joined is not None and rejoin  # False: a normal start (the others were still starting)
+        first = joined if joined is not None else 0
+        if mid_run and consensus:
             ex.start_at(first)
             LOG.warning("node %d: rejoining at step %d", node_id, first)
         # a consensus node is ready before it greets: weights, checks and mixers built (no message), so the first
         # round does not wait for this node's set-up, and the rounds are timed alone
         states = _consensus_states(desc, node_id, ex, values, first) if values is not None else None
         gc.freeze()  # the set-up's objects (modules, description, weights) out of the collector's passes
-        start = Startup([]) if rejoin else _start(desc, node_id, transport, values)
+        start = Startup([]) if mid_run else _start(desc, node_id, transport, values)
         missing = start.missing
         t_start, cpu_start = time.monotonic(), time.process_time()
         outcome: dict[str, Any]
@@ -134,8 +137,10 @@ def run_node(desc: NetworkDescription, node_id: int, out_dir: Path, *, rejoin: b
             "readmitted_nodes": {str(k): v for k, v in sorted(transport.readmitted.items())},
             "missing_at_start": missing,
             "refused_at_start": {str(k): v for k, v in sorted(start.strangers.items())},
-            "rejoined_at_step": first if rejoin else None,
+            "rejoined_at_step": first if mid_run else None,
+            "restarted_during_startup": rejoin and not mid_run,
             "wire": transport.wire_counts(),
+            "wire_bytes_by_kind": transport.bytes_by_kind(),
             "model_bytes_sent": int(ex.bytes_sent.sum()),
             "messages_received_model": int(ex.messages_received.sum()),
             "refused": transport.refusal_counts(),
@@ -162,7 +167,8 @@ def _start(desc: NetworkDescription, node_id: int, transport: Transport, values:
         from distnav.commands.field_algorithms import prepare_node
 
         prepare_node(desc, node_id)
-    check = StartCheck(desc.fingerprint(), 0 if values is None else values.size, desc.n_nodes - 1)
+    depth = eccentricity(desc.graph(), node_id)
+    check = StartCheck(desc.fingerprint(), 0 if values is None else values.size, depth)
     start = handshake(transport, check=check)
     if start.missing:
         LOG.warning("node %d: no hello from neighbours %s within %.0f s", node_id, start.missing, desc.start_timeout_s)
@@ -206,12 +212,13 @@ def _farewell(transport: Transport, step: int) -> dict[str, Any]:
     return {"dropped_by": transport.farewell(step)}
 
 
-def _join(transport: Transport, consensus: bool) -> tuple[int, str | None]:
+def _join(transport: Transport, consensus: bool) -> tuple[int | None, str | None]:
     """A restarted node's way back: a consensus node at the step its neighbours are at; an ADMM, CKF or UWB node
     when the others invite it to run again with them (:func:`~distnav.commands.field_survive.without_lost`), or, if
-    none does within ``start_timeout_s`` (they finished without it), the reason it stops."""
+    none does within ``start_timeout_s`` (they finished without it), the reason it stops. None: the others are still
+    in their start-up (:func:`~distnav.exchange.field.startup.rejoin`), and the node starts with them from step 0."""
     try:
-        return transport.join(invitation=not consensus), None
+        return join_running(transport, invitation=not consensus), None
     except ExchangeError as exc:
         if consensus:
             raise

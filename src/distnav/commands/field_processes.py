@@ -25,6 +25,7 @@ __all__ = [
     "kill_group",
     "removable_node",
     "setup_node_log",
+    "wire_bytes_by_kind",
     "write_loopback_description",
     "write_loopback_network",
 ]
@@ -37,6 +38,15 @@ def setup_node_log(out_dir: Path, node_id: int) -> None:
     log = logging.getLogger("distnav.field")
     log.addHandler(handler)
     log.setLevel(logging.INFO)
+
+
+def wire_bytes_by_kind(nodes: dict[str, Any]) -> dict[str, int]:
+    """The bytes the nodes of a run sent, by wire kind (the sum of their ``wire_bytes_by_kind``)."""
+    out: dict[str, int] = {}
+    for r in nodes.values():
+        for kind, n in r.get("wire_bytes_by_kind", {}).items():
+            out[kind] = out.get(kind, 0) + int(n)
+    return dict(sorted(out.items()))
 
 
 def kill_group(p: subprocess.Popen[bytes]) -> None:

@@ -68,7 +68,7 @@ def without_lost(
 ) -> dict[str, Any]:
     """Agree on the remaining nodes and run again on their data (module docstring); a lost node that greets its
     neighbours again before that run ends is invited back and the nodes run once more with it (:func:`_invite`).
-    ``invited``: this node is such a returning one (the invitation, :meth:`Transport.join`). At most a few passes
+    ``invited``: this node is such a returning one (the invitation, ``startup.rejoin``). At most a few passes
     per node of the network (each pass loses or regains one at least)."""
     graph, base, name = ex.graph, ex.transport, desc.algorithm["name"]
     window = agreement_window_s(graph, base.options.deadline_s)

@@ -276,7 +276,7 @@ class FieldExchange(Exchange):
         return cast(FaultPlan, _NetworkPlan(base, self))
 
     def start_at(self, step: int) -> None:
-        """Continue a running network from ``step`` (a rejoining node, after :meth:`Transport.join`): for node code
+        """Continue a running network from ``step`` (a rejoining node, after :func:`.startup.rejoin`): for node code
         with one message round per step (consensus), round ``step`` is the next (the fault schedule follows)."""
         self.step = self.round_index = int(step)
 

@@ -10,11 +10,19 @@ description or a cut data file):
   theirs, and plain consensus ended, every node "completed", 1.5 away from the mean of data of size 1. Now every
   hello carries the sender's *level*: -1 while it waits for its own neighbours' hellos (at most ``start_timeout_s``),
   then ``1 + min`` of its answered neighbours' levels (0 when it has none), capped at ``levels``. A node at level
-  ``k`` knows that every node within ``k`` hops has heard its neighbours, so at ``levels = n - 1`` (a network
-  description's nodes) the whole connected network has, and the nodes enter step 0 within a few message latencies
-  of each other. A level change is sent at once (not at the 0.5 s repeat), so the rise to ``n - 1`` costs ``n - 1``
-  message latencies. Bounded: a node waits at most ``2 × start_timeout_s`` in all (a neighbour that answered and then
-  died holds the levels back until then; it is lost in the run as any dead node);
+  ``k`` knows that every node within ``k`` hops has heard its neighbours, so at ``levels`` = its
+  :func:`eccentricity` in the graph of who greets whom (at most ``n - 1``, the depth used before; 1 where every
+  node greets every other) the whole connected network has, and the nodes enter step 0 within a few message
+  latencies of each other. A level change is sent at once to every neighbour, so the rise costs ``levels`` message
+  latencies; a hello is repeated (0.5 s, then 1, 2, 4 s) only to a neighbour that has not answered (a hello to a node
+  not yet started waits in its queue and arrives when it starts), and answered at once (at most every 0.5 s) to one
+  whose hello says it still waits or that restarted. Bounded: a node waits at most ``2 × start_timeout_s`` in all (a
+  neighbour that answered and then died holds the levels back until then; it is lost in the run as any dead node);
+* **a rejoin during the start-up.** A node killed while the network was still starting and restarted with
+  ``--rejoin`` greeted with its one-byte hello, which the barrier ignored: it exited 2 ("no neighbour answered")
+  and the others waited ``2 × start_timeout_s`` and ran without its data. Now the barrier answers it (and waits
+  for its new process: its old level is void), :func:`rejoin` sees start-up hellos and no step message, and the
+  node starts as the others do, from step 0;
 * **a stranger taken for a neighbour.** Without CURVE anything on a neighbour's port was believed: a node of another
   network's description on the same ports ran with this one (its data in this network's answer, every status
   "completed"), and a node whose data file had lost values sent messages of the wrong length, refused every round
@@ -27,25 +35,30 @@ description or a cut data file):
   this node, or another network's.
 
 The hello (kind ``HELLO``, step 0) carries int64 ``[level, fingerprint, values]``; a restarted process's hello is one
-byte (uint8), as before.
+byte (uint8), as before. Every hello sent, :func:`rejoin`'s too, is counted in the transport's byte totals
+(:meth:`Transport.bytes_by_kind` ``hello``).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from distnav.errors import ExchangeError
 from distnav.exchange.field.transport import Transport
-from distnav.exchange.field.wire import Kind, WireError, decode, encode
+from distnav.exchange.field.wire import Kind, WireError, decode
+from distnav.network.graph import Graph
 
-__all__ = ["StartCheck", "Startup", "handshake"]
+__all__ = ["StartCheck", "Startup", "eccentricity", "handshake", "rejoin"]
 
 LOG = logging.getLogger("distnav.field")
-_REPEAT_S = 0.5  # a hello is repeated this often (and at once when the level changes)
+_REPEAT_S = 0.5  # the first repeat of a hello to a neighbour that has not answered (a level change goes at once)
+_REPEAT_MAX_S = 4.0  # the longest wait between two repeats to it
 
 
 @dataclass(frozen=True)
@@ -53,8 +66,9 @@ class StartCheck:
     """What a hello must agree on, and how far the start waits.
 
     network_id : the network's fingerprint (0: not checked). values : the number of values of this node's step
-    messages (0: not checked). levels : the start-up barrier's depth (``n - 1`` for a description of ``n`` nodes;
-    0: start as soon as the neighbours have answered).
+    messages (0: not checked). levels : the start-up barrier's depth: this node's :func:`eccentricity` in the graph of
+    who greets whom (every node within that many hops is every node; ``n - 1`` is always enough; 0: start as soon as
+    the neighbours have answered).
     """
 
     network_id: int = 0
@@ -74,6 +88,18 @@ class Startup:
     latest_step: int = -1
 
 
+def eccentricity(graph: Graph, node: int) -> int:
+    """The most hops from ``node`` to a node of its connected part of ``graph`` (breadth-first): the start-up depth
+    at which ``node`` knows that every node it can reach has heard its neighbours (:class:`StartCheck`)."""
+    seen, frontier, hops = {node}, [node], 0
+    while True:
+        nxt = [int(j) for i in frontier for j in graph.neighbors(i) if int(j) not in seen]
+        if not nxt:
+            return hops
+        seen.update(nxt)
+        frontier, hops = list(dict.fromkeys(nxt)), hops + 1
+
+
 def handshake(transport: Transport, peers: list[int] | None = None, check: StartCheck | None = None) -> Startup:
     """Greet ``peers`` (default: every peer of ``transport``) and wait as the module docstring says; returns who
     never answered and who was refused. Step messages that arrive meanwhile are kept for their step."""
@@ -83,23 +109,28 @@ def handshake(transport: Transport, peers: list[int] | None = None, check: Start
     end_answers, end_all = t0 + transport.options.start_timeout_s, t0 + 2 * transport.options.start_timeout_s
     levels: dict[int, int] = {}  # neighbour → its latest level (-1: still waiting for its own neighbours)
     strangers: dict[int, str] = {}
-    level, sent, next_send = -1, -2, 0.0
+    hellos = _Hellos(transport, chk, targets)
+    level, sent = -1, -2
     while True:
         now = time.monotonic()
         answered = [p for p in targets if p in levels]
-        if level < 0 and (len(answered) + len(strangers) >= len(targets) or now >= end_answers):
+        if level < 0 and (len(set(answered) | set(strangers)) >= len(targets) or now >= end_answers):
             level = 0  # this node has heard its neighbours (or has waited for them long enough)
         if level >= 0:
             level = min(chk.levels, 1 + min((levels[p] for p in answered), default=chk.levels))
         if level >= chk.levels or now >= end_all:
             break
-        if now >= next_send or level != sent:
-            _greet(transport, targets, level, chk)
-            sent, next_send = level, now + _REPEAT_S
+        if level != sent:  # a new level goes to every neighbour at once
+            hellos.send(targets, level, now)
+            sent = level
+        else:  # repeated only to the neighbours that have not answered yet, less and less often
+            hellos.repeat([p for p in targets if p not in levels and p not in strangers], level, now)
         if transport.pull.poll(50):
             for frame in transport._frames():
-                _hear(transport, frame, chk, levels, strangers)
-    _greet(transport, targets, chk.levels, chk)  # neighbours still rising see this node at the top
+                asker = _hear(transport, frame, chk, levels, strangers)
+                if asker >= 0:
+                    hellos.answer(asker, level)
+    hellos.send(targets, chk.levels, time.monotonic())  # neighbours still rising see this node at the top
     transport.strangers.update(strangers)
     for p in strangers:
         transport.lost.setdefault(p, 0)
@@ -111,50 +142,118 @@ def handshake(transport: Transport, peers: list[int] | None = None, check: Start
     return Startup(missing, strangers, time.monotonic() - t0, latest)
 
 
-def _greet(transport: Transport, targets: list[int], level: int, chk: StartCheck) -> None:
-    frame = encode(Kind.HELLO, transport.me, 0, np.array([level, chk.network_id, chk.values], np.int64))
-    zmq = transport._zmq
-    for p in targets:
-        try:
-            transport.push[p].send(frame, zmq.NOBLOCK)
-        except zmq.Again:
-            continue
-        transport.bytes_sent += len(frame)
-        transport.frames_sent += 1
+class _Hellos:
+    """The start-up hellos a node sends: every level change to every neighbour; a repeat only to a neighbour that has
+    not answered, after 0.5 s, then 1, 2, 4 s (a hello to a node not yet started waits in its queue and arrives when
+    it starts; the repeats are for a process that took it and died); an answer, at most one per 0.5 s, to a neighbour
+    that asks for one (its hello says it still waits, or it is a restarted process)."""
+
+    def __init__(self, transport: Transport, chk: StartCheck, targets: list[int]) -> None:
+        self.transport, self.chk = transport, chk
+        self.last = dict.fromkeys(targets, -math.inf)  # neighbour → when the latest hello to it was sent
+        self.gap = dict.fromkeys(targets, _REPEAT_S)  # neighbour → the wait before its next repeat
+
+    def send(self, peers: list[int], level: int, now: float) -> None:
+        array = np.array([level, self.chk.network_id, self.chk.values], np.int64)
+        self.transport.post_many(peers, Kind.HELLO, 0, array)
+        for p in peers:
+            self.last[p] = now
+
+    def repeat(self, peers: list[int], level: int, now: float) -> None:
+        due = [p for p in peers if now >= self.last[p] + self.gap[p]]
+        if due:
+            self.send(due, level, now)
+            for p in due:
+                self.gap[p] = min(2 * self.gap[p], _REPEAT_MAX_S)
+
+    def answer(self, peer: int, level: int) -> None:
+        now = time.monotonic()
+        if peer in self.last and now >= self.last[peer] + _REPEAT_S:  # a peer outside ``peers`` is not greeted
+            self.send([peer], level, now)
 
 
-def _hear(transport: Transport, frame: Any, chk: StartCheck, levels: dict[int, int], strangers: dict[int, str]) -> None:
+def _hear(transport: Transport, frame: Any, chk: StartCheck, levels: dict[int, int], strangers: dict[int, str]) -> int:
     """One frame received during the start: a hello (its level noted, or its sender refused as a stranger), or a step
-    message of a neighbour already in its rounds (kept; that neighbour is at the top level)."""
+    message of a neighbour already in its rounds (kept; that neighbour is at the top level). Returns the neighbour
+    that asks for this node's hello (-1: none): one whose hello says it still waits for its neighbours, or a
+    restarted process (its one-byte hello: its old level no longer holds, it waits again)."""
     try:
         msg = decode(frame.buffer if transport.curve else frame, max_bytes=transport.options.max_message_bytes)
     except WireError as exc:
         transport._refuse("malformed", str(exc))
-        return
+        return -1
     sender = msg.sender
     if sender not in transport.peers:
         transport._refuse("unknown_sender", f"message from node {sender}, not a peer of node {transport.me}")
-        return
+        return -1
     if sender in strangers:
         transport.refused["another_network"] += 1
-        return
+        return -1
     if msg.kind != Kind.HELLO:  # a neighbour's hellos come before its step messages (one ordered connection)
         transport._held.setdefault(msg.step, {})[sender] = msg
         if sender in levels:
             levels[sender] = chk.levels  # in its rounds: at the top
-            return
+            return -1
         strangers[sender] = _UNGREETED
         transport._refuse("another_network", f"node {transport.me}: refused node {sender}: {_UNGREETED}")
-        return
+        return -1
     a = msg.array
-    if a.dtype == np.uint8 and a.size == 1:  # a restarted process's hello: not a start-up
-        return
+    if a.dtype == np.uint8 and a.size == 1:  # a restarted process (--rejoin) while this node is still starting
+        if sender in levels:
+            levels[sender] = -1  # its old process's level is void: the barrier waits for the new one
+        return sender
     why = _difference(a, chk)
     if why is not None:
+        levels.pop(sender, None)  # an answer, then a refused hello: a stranger only (counted once)
         strangers[sender] = why
         transport._refuse("another_network", f"node {transport.me}: refused node {sender}'s hello: {why}")
-        return
+        return -1
     levels[sender] = max(levels.get(sender, -1), int(a[0]))
+    return sender if int(a[0]) < 0 else -1
+
+
+def rejoin(transport: Transport, *, invitation: bool = False) -> int | None:
+    """Rejoin a running network (a restarted node): greet the neighbours (one-byte hellos) until one of them sends a
+    step message, and return the latest step seen (the step to run next); messages of earlier steps are dropped.
+    ``invitation``: wait instead for a neighbour's :attr:`Kind.INVITE` (node programs that run again from the start
+    with a returning node), keep its array in :attr:`Transport.invited` and return its step; the messages of later
+    steps are kept for them. None: the neighbours are still in their start-up (a start-up hello came, and no step
+    message within 0.5 s after it): the network has not begun, and the node starts as any other
+    (:func:`handshake`, from step 0), its data in the answer."""
+    end = time.monotonic() + transport.options.start_timeout_s
+    hello, next_send, seen, running, starting = np.ones(1, np.uint8), 0.0, -1, False, -1.0
+    while time.monotonic() < end:  # until a step message, then half a second more (queued old steps first)
+        if time.monotonic() >= next_send:
+            transport.post_many(sorted(transport.push), Kind.HELLO, 0, hello)  # counted as every frame sent
+            next_send = time.monotonic() + 0.2
+        if transport.pull.poll(50):
+            for frame in transport._frames():
+                msg = transport._checked(frame) if invitation else transport._checked_hello(frame)
+                if msg is None or msg.kind == Kind.BYE:  # a bye: that run is over
+                    continue
+                if msg.kind == Kind.HELLO:
+                    if msg.array.dtype == np.int64 and starting < 0:  # a neighbour in its start-up
+                        starting = time.monotonic()
+                    continue
+                running = True
+                if not invitation:
+                    seen = max(seen, msg.step)
+                elif msg.kind == Kind.INVITE:
+                    transport.invited, seen, end = msg.array, msg.step, 0.0
+                else:
+                    transport._held.setdefault(msg.step, {})[msg.sender] = msg
+        if not running and starting >= 0 and time.monotonic() >= starting + _REPEAT_S:
+            return None
+        if seen >= 0:
+            end = min(end, time.monotonic() + 0.5) if end - time.monotonic() > 0.5 else end
+            if time.monotonic() >= end:
+                break
+    if seen < 0:
+        what = "invited it back" if invitation else "answered"
+        raise ExchangeError(f"node {transport.me}: no neighbour {what} within {transport.options.start_timeout_s} s")
+    for k in [k for k in transport._held if k < seen]:
+        del transport._held[k]
+    return seen
 
 
 _UNGREETED = (

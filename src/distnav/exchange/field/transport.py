@@ -216,7 +216,7 @@ class Transport:
         self.heard = dict.fromkeys(self.peers, 0)  # checked messages per peer (any step or kind): signs of life
         self.greeted: dict[int, int] = {}  # peer → the step at which its latest hello during the run came
         self.strangers: dict[int, str] = {}  # peer → why its start-up hello was refused (:mod:`.startup`)
-        self.invited: np.ndarray | None = None  # the invitation a restarted node was given (:meth:`join`)
+        self.invited: np.ndarray | None = None  # the invitation a restarted node was given (:func:`.startup.rejoin`)
         #: a lost peer's hello readmits it at once (consensus); False: a node program that takes a returning node
         #: back by running again with it (ADMM, the CKF) waits for it only from that run on
         self.readmit_on_hello = True
@@ -225,6 +225,7 @@ class Transport:
         self.frames_sent = 0
         self.frames_received = 0
         self.send_failures = 0
+        self._kind_bytes: Counter[int] = Counter()  # wire kind → bytes sent (:meth:`bytes_by_kind`)
         self._delayed: list[tuple[float, int, Message]] = []  # (release time, arrival number, message)
         self._latency = np.random.default_rng(self.options.latency_seed + 7919 * self.me)
 
@@ -236,15 +237,17 @@ class Transport:
     def post_many(self, peers: list[int], kind: Kind, step: int, array: np.ndarray) -> None:
         """:meth:`post` of the same message to every peer of ``peers``, encoded once."""
         frame = encode(kind, self.me, step, array)
-        push, again, flags, copy = self.push, self._zmq.Again, self._zmq.NOBLOCK, len(frame) < 65536
+        push, again, flags, copy, sent = self.push, self._zmq.Again, self._zmq.NOBLOCK, len(frame) < 65536, 0
         for peer in peers:  # _send inlined: a consensus round sends one frame per neighbour
             try:
                 push[peer].send(frame, flags, copy)  # positional: cheaper than keywords per frame
             except again:
                 self.send_failures += 1
                 continue
-            self.bytes_sent += len(frame)
-            self.frames_sent += 1
+            sent += 1
+        self.bytes_sent += sent * len(frame)
+        self.frames_sent += sent
+        self._kind_bytes[kind] += sent * len(frame)
 
     def _send(self, peer: int, frame: bytes) -> None:
         try:
@@ -254,6 +257,7 @@ class Transport:
             return
         self.bytes_sent += len(frame)
         self.frames_sent += 1
+        self._kind_bytes[frame[5]] += len(frame)  # the header's kind byte (:mod:`.wire`)
 
     # ------------------------------------------------------------- receiving
     def collect(
@@ -434,45 +438,6 @@ class Transport:
         self._missed[peer] = 0
         LOG.warning("node %d: node %d rejoins at step %d", self.me, peer, step)
 
-    def join(self, *, invitation: bool = False) -> int:
-        """Rejoin a running network (a restarted node): greet the neighbours until one of them sends a step
-        message, and return the latest step seen (the step to run next); messages of earlier steps are dropped.
-        ``invitation``: wait instead for a neighbour's :attr:`Kind.INVITE` (node programs that run again from the
-        start with a returning node), keep its array in :attr:`invited` and return its step; the messages of later
-        steps are kept for them."""
-        zmq = self._zmq
-        end = time.monotonic() + self.options.start_timeout_s
-        hello, next_send, seen = np.ones(1, np.uint8), 0.0, -1  # one byte: the hello of a restarted process
-        while time.monotonic() < end:  # until a step message, then half a second more (queued old steps first)
-            if time.monotonic() >= next_send:
-                for p in self.push.values():
-                    try:
-                        p.send(encode(Kind.HELLO, self.me, 0, hello), zmq.NOBLOCK)
-                    except zmq.Again:
-                        pass
-                next_send = time.monotonic() + 0.2
-            if self.pull.poll(50):
-                for frame in self._frames():
-                    msg = self._checked(frame) if invitation else self._checked_hello(frame)
-                    if msg is None or msg.kind in (Kind.HELLO, Kind.BYE):  # a bye: that run is over
-                        continue
-                    if not invitation:
-                        seen = max(seen, msg.step)
-                    elif msg.kind == Kind.INVITE:
-                        self.invited, seen, end = msg.array, msg.step, 0.0
-                    else:
-                        self._held.setdefault(msg.step, {})[msg.sender] = msg
-            if seen >= 0:
-                end = min(end, time.monotonic() + 0.5) if end - time.monotonic() > 0.5 else end
-                if time.monotonic() >= end:
-                    break
-        if seen < 0:
-            what = "invited it back" if invitation else "answered"
-            raise ExchangeError(f"node {self.me}: no neighbour {what} within {self.options.start_timeout_s} s")
-        for k in [k for k in self._held if k < seen]:
-            del self._held[k]
-        return seen
-
     def farewell(self, step: int) -> dict[str, int]:
         """Send a bye to every neighbour (the step at which this node declared it lost, else -1) and return the
         neighbours whose byes by now say they dropped this node (neighbour → step); one not yet finished is not
@@ -563,6 +528,10 @@ class Transport:
     def wire_counts(self) -> dict[str, int]:
         """Real bytes and frames this node put on and took off the wire, and the sends that could not be queued."""
         return {name: int(getattr(self, name)) for name in WIRE_COUNTERS}
+
+    def bytes_by_kind(self) -> dict[str, int]:
+        """:attr:`bytes_sent` by wire kind (``hello``, ``column``, ``edge``, ...)."""
+        return {Kind(k).name.lower(): int(v) for k, v in sorted(self._kind_bytes.items())}
 
     @property
     def refusals(self) -> int:

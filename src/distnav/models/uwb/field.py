@@ -295,8 +295,9 @@ def _exclusions(run: FieldRun) -> FieldFit:
         fit = FieldFit(
             res, excluded, tests.w, tests.flagged, float(tests.critical_value), loose=res is not run.last_full
         )
+        tried: list[np.ndarray] = []  # the kept-link masks the check re-solved (REPAIR_SKIPS_REPEAT)
         for _ in range(2 if opts.repair else 0):
-            if not fit.res.usable or not _repair(run, fit):
+            if not fit.res.usable or not _repair(run, fit, tried):
                 break
     if fit.crit is not None:
         fit.crit = float(fit.crit)
@@ -304,7 +305,7 @@ def _exclusions(run: FieldRun) -> FieldFit:
     return fit
 
 
-def _repair(run: FieldRun, fit: FieldFit) -> bool:
+def _repair(run: FieldRun, fit: FieldFit, tried: list[np.ndarray]) -> bool:
     """One round of the per-anchor check (:func:`~distnav.models.uwb.local.repair_exclusions`): re-fit without the
     links each anchor chose, test and exclude again; ``fit`` updated where the re-fit fits all the ranges no worse
     (:func:`~distnav.models.uwb.field_run.no_worse`). False when there is nothing more to do. Where the loop ended
@@ -312,13 +313,18 @@ def _repair(run: FieldRun, fit: FieldFit) -> bool:
     thresholds (an RMS of 0.15 m, a factor 2) are far from a 1 cm step (on PLANT_HARD ``[34, 0..10]``, 19 checks:
     the same choice as at the completed fit). Its re-solve opens with the loop's first early-stopped rung from the
     current solution (``field_steps.REPAIR_OPENS_LOOSE``, ``REPAIR_STARTS_MOVED``; issue 27 items 47 and 50): the
-    re-solve's tests only choose links, with that rung's margin, as the loop's re-fits do."""
+    re-solve's tests only choose links, with that rung's margin, as the loop's re-fits do. ``tried``: the choices
+    re-solved in earlier rounds; the same choice again is not re-solved (``field_steps.REPAIR_SKIPS_REPEAT``)."""
     problem, opts = run.problem, run.opts
     repaired, notes, moved = repair_exclusions(
         problem, np.asarray(fit.res.estimates, float), fit.excluded, fit.flagged, one_sided=opts.one_sided
     )
     if not notes:
         return False
+    if field_steps.REPAIR_SKIPS_REPEAT and any(np.array_equal(repaired, t) for t in tried):
+        run.note += "; per-anchor check: the same choice as its last round, not re-solved"
+        return False
+    tried.append(repaired.copy())
     kept_idx = np.flatnonzero(~repaired)
     seed = np.asarray(fit.res.estimates, float).copy()
     for k, at in moved.items() if field_steps.REPAIR_STARTS_MOVED else ():  # item 50: from the current solution

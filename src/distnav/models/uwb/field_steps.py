@@ -64,6 +64,11 @@ REPAIR_OPENS_LOOSE = True
 #: item 50); True: each changed anchor starts where its own chosen links put it (``local.repair_exclusions``'s
 #: positions), as before — 100 PLANT_HARD halls: the same links and status either way, 2.2 % fewer bytes from here
 REPAIR_STARTS_MOVED = False
+#: the check's second round is not re-solved where its anchors choose exactly the links its first round re-solved
+#: (the same mask of kept links): it would re-fit the same sub-network and test the same links again from the first
+#: round's answer (issue 27, tenth session, docs/economy_uwb.md item 59: at 1,000 and 3,000 anchors the second round
+#: repeated the first's sub-network and ended on the same links). False: that round re-solved, as before
+REPAIR_SKIPS_REPEAT = True
 #: (ftol, xtol_m) of a last early-stopped rung of the exclusion loop, after ``field_fits.REFIT_STAGES``' and before
 #: the fit at the solver's tolerances: a choice the 3 mm rung leaves open goes to a fit of that rung (margin
 #: :func:`fine_margin_w`) first (issue 27, eighth session, item 51). None (the default): straight to the full fit.
