@@ -294,3 +294,15 @@ def test_a_graph_file_with_a_huge_field_names_the_line(tmp_path: Path) -> None:
     graph.write_text("DELF,WSRA\n" + "X" * 200_000 + ",WSRA\n")
     with pytest.raises(DataFileError, match=r"g\.csv:2: not a CSV line \(field larger than field limit"):
         load_edges(graph, ["DELF", "WSRA"])
+
+
+def test_reproduce_uwb_sizes_allowed_alone_but_not_together(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: each within its limit, ``--instances 1000 --iterations 20000`` (≈ 356 CPU-hours) started."""
+    argv = ["reproduce", "uwb", "--out", str(tmp_path / "o"), "--instances", "1000", "--iterations", "20000"]
+    code, err = _exit_and_error(argv, capsys)
+    assert code == 2 and "--instances 1000 with --iterations 20,000 is ≈ 356 CPU-hours" in err, err[-600:]
+    assert not (tmp_path / "o").exists()
+    from distnav.experiments.uwb import check_options
+
+    for words in (["--iterations", "20000"], ["--instances", "1000"], ["--quick", "--iterations", "20000"]):
+        check_options(_parse(["reproduce", "uwb", "--out", str(tmp_path / "o"), *words]))  # each alone: allowed
