@@ -268,3 +268,41 @@ def test_gnss_codebias_absurd_sigma_refused_before_reading(tmp_path: Path, capsy
     argv = ["gnss", "codebias", "--obs", str(tmp_path / "a.21o"), "--nav", str(tmp_path / "a.21n")]
     code, err = _exit_and_error([*argv, "--out", str(tmp_path / "o"), "--sigma", "1e308"], capsys)
     assert code == 2 and "--sigma 1e+308: at most 100" in err, err[-600:]
+
+
+@pytest.mark.parametrize(
+    ("extra", "expect"),
+    [
+        # exit 0: the prior of per-anchor delays given where none are estimated, silently ignored
+        (["--range-offsets", "none", "--offset-prior-sigma-m", "0.5"], "--offset-prior-sigma-m 0.5 is the prior σ"),
+        # exit 0: the delays σ admits are the metres objective's, silently ignored with the squared one
+        (["--objective", "squared", "--delay-sigma-m", "0.2"], "it does not apply with --objective squared"),
+    ],
+)
+def test_uwb_solve_options_that_do_not_apply_are_refused(
+    extra: list[str], expect: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, err = _exit_and_error([*_uwb(tmp_path), "--out", str(tmp_path / "o"), *extra], capsys)
+    assert code == 2 and expect in err, err[-600:]
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_graph_file_with_a_huge_field_names_the_line(tmp_path: Path) -> None:
+    """Before: a traceback (_csv.Error: field larger than field limit (131072)); the UWB CSV readers share the fix
+    (formats.text.csv_rows)."""
+    graph = tmp_path / "g.csv"
+    graph.write_text("DELF,WSRA\n" + "X" * 200_000 + ",WSRA\n")
+    with pytest.raises(DataFileError, match=r"g\.csv:2: not a CSV line \(field larger than field limit"):
+        load_edges(graph, ["DELF", "WSRA"])
+
+
+def test_reproduce_uwb_sizes_allowed_alone_but_not_together(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: each within its limit, ``--instances 1000 --iterations 20000`` (≈ 356 CPU-hours) started."""
+    argv = ["reproduce", "uwb", "--out", str(tmp_path / "o"), "--instances", "1000", "--iterations", "20000"]
+    code, err = _exit_and_error(argv, capsys)
+    assert code == 2 and "--instances 1000 with --iterations 20,000 is ≈ 356 CPU-hours" in err, err[-600:]
+    assert not (tmp_path / "o").exists()
+    from distnav.experiments.uwb import check_options
+
+    for words in (["--iterations", "20000"], ["--instances", "1000"], ["--quick", "--iterations", "20000"]):
+        check_options(_parse(["reproduce", "uwb", "--out", str(tmp_path / "o"), *words]))  # each alone: allowed

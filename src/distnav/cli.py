@@ -363,6 +363,8 @@ def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None
 
         require("mpi4py.MPI", "mpi")
     check_repeated_inputs(args)  # one file twice in a list (--bias A A): options.py
+    if getattr(args, "experiment", None) in EXPERIMENTS:  # sizes that are each allowed but not together
+        getattr(load(args.experiment), "check_options", lambda _: None)(args)
     out = getattr(args, "out", None)
     if out is not None and probe_out:
         probe_output_folder(out)

@@ -9,7 +9,6 @@ nearest-neighbour graph), and the progress line.
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from pathlib import Path
 from typing import Any
@@ -17,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import DataFileError, ModelError
-from distnav.formats.text import plain_text
+from distnav.formats.text import csv_rows, plain_text
 from distnav.options import iso_datetime
 
 __all__ = ["load_edges", "default_graph", "add_data_arguments", "check_data_arguments", "say"]
@@ -40,7 +39,7 @@ def load_edges(path: Path, stations: list[str]) -> Any:
         undecodable="UTF-8 text: expected a CSV of station-name pairs",
     )
     header = ""
-    for no, row in enumerate(csv.reader(text.splitlines()), start=1):
+    for no, row in csv_rows(path, text.splitlines()):
         cells = [c.strip() for c in row if c.strip()]
         if not cells or cells[0].startswith("#"):
             continue

@@ -61,6 +61,7 @@ from distnav.algorithms.ranging.objective import DELAY_MODES
 from distnav.commands import add_backend_arguments
 from distnav.commands.uwb_checks import (
     april_known_ids,
+    check_applicable,
     check_gauge,
     check_initial_distinct,
     check_known_spelling,
@@ -482,6 +483,7 @@ def _handler(args: argparse.Namespace) -> int:
     if not args.refine and opts.solver == "LM":
         raise ModelError("--no-refine applies to the distributed solvers (--solver N-CLM, N-CSG-TBLS, ...), not to LM")
     validate_options(opts)
+    check_applicable(opts)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise DataFileError(f"{out}: --out must be a folder, and this is a file")

@@ -57,6 +57,26 @@ ITERATIONS = int_up_to(
 )
 
 
+#: The most CPU time ``--instances`` and ``--iterations`` may ask for together (each is bounded alone as well)
+MAX_CPU_HOURS = 24.0
+SET_CPU_S = 32.0  # one instance of the 8 problems at PAPER_ITERATIONS (docs/uwb.md)
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse (:class:`UsageError`, before any work) sizes that together ask for more than :data:`MAX_CPU_HOURS`
+    (``--instances 1000 --iterations 20000``: each within its limit, ≈ 356 CPU-hours together)."""
+    paper_sets = sum(PAPER_INSTANCES[name[0]] for name in PAPER_PROBLEMS) / len(PAPER_PROBLEMS)  # 50/50/100: 62.5
+    sets = args.instances or (1 if args.quick else paper_sets)
+    iterations = args.iterations or (QUICK_ITERATIONS if args.quick else PAPER_ITERATIONS)
+    hours = sets * SET_CPU_S * iterations / PAPER_ITERATIONS / 3600.0
+    if hours > MAX_CPU_HOURS:
+        raise UsageError(
+            f"--instances {args.instances or 'the paper’s'} with --iterations {iterations:,} is ≈ {hours:,.0f} "
+            f"CPU-hours (one instance of the 8 problems ≈ {SET_CPU_S:g} CPU-s at {PAPER_ITERATIONS} iterations): at "
+            f"most {MAX_CPU_HOURS:g} together"
+        )
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_size_option(
         parser,

@@ -20,17 +20,16 @@ each pair is returned so a user can spot unstable links.
 
 from __future__ import annotations
 
-import csv
 import difflib
 import logging
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from distnav.errors import DataFileError
-from distnav.formats.text import plain_text
+from distnav.formats.text import csv_rows, plain_text
 
 __all__ = [
     "RangeLog",
@@ -119,7 +118,7 @@ def _rows(path: Path, required: Sequence[str]) -> tuple[list[str], list[tuple[in
     )
     rows: list[tuple[int, list[str]]] = []
     header: list[str] | None = None
-    for number, fields in _csv_lines(p, text.splitlines()):
+    for number, fields in csv_rows(p, text.splitlines()):
         if not fields or all(not f.strip() for f in fields) or fields[0].lstrip().startswith("#"):
             continue
         fields = [f.strip() for f in fields]
@@ -143,22 +142,6 @@ def _rows(path: Path, required: Sequence[str]) -> tuple[list[str], list[tuple[in
     if not rows:
         raise DataFileError(f"{p}: no data rows after the header")
     return header, rows
-
-
-def _csv_lines(p: Path, lines: list[str]) -> Iterator[tuple[int, list[str]]]:
-    """The fields of each line, numbered from 1; a line the csv module refuses (a field over its 128 KiB limit,
-    which was a traceback) is a :class:`DataFileError` naming it."""
-    reader = csv.reader(lines)
-    number = 0
-    while True:
-        number += 1
-        try:
-            fields = next(reader)
-        except StopIteration:
-            return
-        except csv.Error as exc:
-            raise DataFileError(f"{p}:{number}: not a CSV line ({exc})") from None
-        yield number, fields
 
 
 def _float(p: Path, number: int, field: str, what: str) -> float:
