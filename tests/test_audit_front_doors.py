@@ -91,6 +91,13 @@ def test_product_day_any_name(value: object) -> None:
         assert "product_day needs a file name" in str(refused)
 
 
+def test_product_day_of_a_name_no_file_can_have() -> None:
+    """A name with a NUL byte (found by the property test above) is no product of a known day: None, not the bare
+    ``ValueError: embedded null byte`` of opening it."""
+    assert product_day("\x00") is None
+    assert product_day(Path("CAS0OPSRAP_x\x00.BIA")) is None
+
+
 @pytest.mark.parametrize(
     "parse",
     [

@@ -82,6 +82,20 @@ def _options(parser: argparse.ArgumentParser) -> list[argparse.Action]:
     ]
 
 
+def _bounded_bad_values(kind: object) -> list[tuple[str, str]]:
+    """The bad values of a size option's type (:class:`~distnav.options.IntUpTo`): below its least, not whole,
+    one above its limit."""
+    if not isinstance(kind, options.IntUpTo):
+        return []
+    low = "must be 0 or more" if kind.minimum == 0 else f"must be at least {kind.minimum}"
+    return [
+        (str(kind.minimum - 1), low),
+        ("x", "expected a whole number"),
+        ("2.5", "expected a whole number"),
+        (str(kind.maximum + 1), f"at most {kind.maximum:,}, got {kind.maximum + 1} ("),
+    ]
+
+
 def _derived_cases(path: tuple[str, ...], parser: argparse.ArgumentParser) -> list[Cli]:
     """Every option of ``distnav demo`` / ``reproduce NAME``: the bad values of its type, a bad choice,
     ``--ranks`` without MPI, an unknown option, and a missing required option."""
@@ -101,7 +115,7 @@ def _derived_cases(path: tuple[str, ...], parser: argparse.ArgumentParser) -> li
         elif action.nargs == 0:
             cases.append(Cli(f"{name}-{flag[2:]}-value", (*prefix, *rest, f"{flag}=yes"), "ignored explicit"))
         else:
-            bad = BAD_VALUES.get(action.type)  # type: ignore[arg-type]
+            bad = _bounded_bad_values(action.type) or BAD_VALUES.get(action.type)  # type: ignore[arg-type]
             assert bad, f"{name} {flag}: type {action.type!r} has no bad values in this audit"
             cases += [Cli(f"{name}-{flag[2:]}-{i}", (*prefix, *rest, flag, v), e) for i, (v, e) in enumerate(bad)]
     return cases
@@ -142,7 +156,7 @@ def _uwb_cases() -> list[Cli]:
         Cli("uwb-solve-ranks-zero", (*base, *o, "--ranks", "0"), "must be at least 1"),
         Cli("uwb-solve-ranks-inprocess", (*base, *o, "--ranks", "3"), "applies only with --backend mpi"),
         Cli("uwb-solve-backend", (*base, *o, "--backend", "tcp"), "invalid choice"),
-        Cli("uwb-solve-iterations-text", (*base, *o, "--iterations", "ten"), "invalid int value"),
+        Cli("uwb-solve-iterations-text", (*base, *o, "--iterations", "ten"), "expected a whole number"),
         Cli("uwb-solve-loss-scale-text", (*base, *o, "--loss-scale-m", "wide"), "invalid float value"),
         # values only the uwb command can judge (checked before solving)
         Cli("uwb-solve-iterations-zero", (*base, *o, "--iterations", "0"), "--iterations"),

@@ -165,19 +165,31 @@ def _cas(path: Path, system: str, pair: tuple[str, str]) -> dict[str, float]:
     [("C", ("C2I", "C6I"), 2.24), ("R", ("C1C", "C2C"), 3.11)],
 )
 def test_bele_alone_beidou_and_glonass_sigma_against_cas(
-    shared_data: Path, tmp_path: Path, system: str, codes: tuple[str, str], before: float
+    shared_data: Path,
+    tmp_path: Path,
+    request: pytest.FixtureRequest,
+    system: str,
+    codes: tuple[str, str],
+    before: float,
 ) -> None:
     """BELE alone, the full day: BeiDou's σ takes the GPS arcs' factor (RMS(error/σ) 2.24 → 1.35: nearer, still
     above 1.3), GLONASS C1C−C2C also the channel biases sized by BELE's own P pair (3.11 → 0.91). CAS only
-    checks."""
+    checks. GLONASS's day is the session's run (conftest.bele_glonass_day, the same arguments), which
+    test_gnss_multisystem checks too."""
     d = shared_data / IGS
     cas = d / "CAS0OPSRAP_20240100000_01D_01D_DCB.BIA.gz"
-    args = ["gnss", "ionosphere", "--system", system, "--obs", str(d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz")]
-    args += ["--nav", str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"), "--l1-code", codes[0], "--l2-code", codes[1]]
-    from distnav.cli import main
+    out = tmp_path
+    if system == "R":
+        out = request.getfixturevalue("bele_glonass_day")
+    else:
+        args = ["gnss", "ionosphere", "--system", system]
+        args += ["--obs", str(d / "BELE00BRA_R_20240100000_01D_30S_MO.crx.gz")]
+        args += ["--nav", str(d / "BRDC00IGS_R_20240100000_01D_MN.rnx.gz"), "--l1-code", codes[0]]
+        from distnav.cli import main
 
-    assert main([*args, "--bias", str(cas), "--out", str(tmp_path), "--kn", "0", "--no-progress"]) == 0
-    s = json.loads((tmp_path / "summary.json").read_text())
+        args += ["--l2-code", codes[1], "--bias", str(cas), "--out", str(out), "--kn", "0", "--no-progress"]
+        assert main(args) == 0
+    s = json.loads((out / "summary.json").read_text())
     est, sd = s["final_dsb_ns"]["central"], s["final_dsb_std_realistic_ns"]["central"]
     ref = _cas(cas, system, codes)
     sats = sorted(k for k in est if k in ref and est[k] is not None)

@@ -498,6 +498,7 @@ def test_deferred_rounds_exclude_what_full_rounds_exclude_where_the_tests_do_not
     from distnav.algorithms.ranging import qc
 
     p, rng, margin = _grid(), np.random.default_rng(8), 0.8
+    monkeypatch.setattr(qc, "DEFER_MIN_ANCHORS", 0)  # the scale gate (tenth session) off: a 49-anchor grid
     for _ in range(6):
         w, coarse_w = _static_round_tests(rng, p, margin)
         fine_w = w + rng.uniform(-0.95 * margin / 4, 0.95 * margin / 4, w.size)
@@ -516,3 +517,10 @@ def test_deferred_rounds_exclude_what_full_rounds_exclude_where_the_tests_do_not
             calls[defer, min_near, stays] = (full.calls, coarse.calls, fine.calls, removed)
         assert max(calls[True, 3, False][0], calls[True, 3, True][0]) < calls[False, 3, True][0]
         assert calls[True, 10**6, True] == calls[False, 3, True]  # gated off: the seventh session's, call for call
+        monkeypatch.setattr(qc, "DEFER_MIN_ANCHORS", p.n_anchors + 1)  # the scale gate: below it, the same
+        monkeypatch.setattr(qc, "DEFER_MIN_NEAR", 3)
+        full, coarse, fine = _Scripted(p, w), _Scripted(p, coarse_w), _Scripted(p, fine_w)
+        ladder = [(coarse, margin), (fine, margin / 4)]
+        removed = exclude_links(p, full, per_round=4, loose=ladder, opening=_Scripted(p, coarse_w)(p))[2].removed
+        assert (full.calls, coarse.calls, fine.calls, removed) == calls[False, 3, True]
+        monkeypatch.setattr(qc, "DEFER_MIN_ANCHORS", 0)

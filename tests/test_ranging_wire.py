@@ -185,6 +185,27 @@ def test_economy_sigma_within_1e5_of_lms_dense_covariance(hall):
     assert cheap.precision.comm.bytes < 0.75 * exact.precision.comm.bytes
 
 
+def test_phase_marks_gather_nothing_until_the_end(hall, monkeypatch):
+    """The phase marks are each block's own counters, summed over the blocks by one all-reduction at the end: the
+    network totals (every node's counters and the per-round totals, gathered: real traffic between field nodes)
+    are taken once, for the result's ``comm``, not at every mark (the field demo's clean UWB run: −75 kB)."""
+    from distnav.exchange.core import ExchangeCore
+
+    calls = {"comm_totals": 0}
+    real = ExchangeCore.comm_totals
+
+    def counted(self: ExchangeCore) -> object:
+        calls["comm_totals"] += 1
+        return real(self)
+
+    monkeypatch.setattr(ExchangeCore, "comm_totals", counted)
+    sub, _, _ = hall
+    r = solve(sub, "N-CLM", iterations=5, **OPTS)
+    assert calls["comm_totals"] == 1  # the result's comm (it was 4: three marks and the result)
+    phases = r.settings["comm_phases"]
+    assert sum(v["bytes"] for v in phases.values()) == r.comm.bytes
+
+
 def test_phases_add_up_to_the_totals(hall):
     sub, geo, _ = hall
     r = solve(sub, "N-CLM", iterations=5, **OPTS)

@@ -401,7 +401,7 @@ def test_import_april_errors(tmp_path, capsys):
     bad = tmp_path / "bad.txt"
     bad.write_text("0.53 12 99 1 2 3\n")
     assert main(["uwb", "import-april", str(bad), "--out", str(tmp_path / "o")]) == 2
-    assert "node ids [99]" in capsys.readouterr().err
+    assert "bad.txt, line 1: node 99 is not an APRIL node" in capsys.readouterr().err
     assert main(["uwb", "import-april", str(bad), "--known", "8,x", "--out", str(tmp_path / "o")]) == 2
     assert "--known must be comma-separated" in capsys.readouterr().err
 

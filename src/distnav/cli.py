@@ -28,13 +28,14 @@ from distnav import __version__
 from distnav.errors import DistnavError, UsageError
 from distnav.experiments import EXPERIMENTS, available, load
 from distnav.options import (
+    add_size_option,
     check_node_outputs,
     check_output_spares,
     check_repeated_inputs,
     check_repeated_options,
     input_paths,
+    jobs_count,
     output_folder,
-    positive_int,
     probe_output_folder,
     record_outputs,
     seed,
@@ -149,11 +150,12 @@ def _add_demo_parser(sub: Any) -> None:
         "--out", type=output_folder, default=Path("distnav-demo"), help="report folder (default distnav-demo)"
     )
     demo.add_argument("--only", nargs="+", choices=list(EXPERIMENTS), help="run only these experiments")
-    demo.add_argument(
+    add_size_option(
+        demo,
         "--jobs",
-        type=positive_int,
+        jobs_count,
         default=1,
-        help="run the experiments in this many processes (default 1; `make demo` uses 2); in-process backend only",
+        help="run the experiments in this many processes, in-process backend only (default 1; `make demo` uses 2)",
     )
     _add_common(demo)
 
@@ -361,6 +363,8 @@ def check_arguments(args: argparse.Namespace, *, probe_out: bool = True) -> None
 
         require("mpi4py.MPI", "mpi")
     check_repeated_inputs(args)  # one file twice in a list (--bias A A): options.py
+    if getattr(args, "experiment", None) in EXPERIMENTS:  # sizes that are each allowed but not together
+        getattr(load(args.experiment), "check_options", lambda _: None)(args)
     out = getattr(args, "out", None)
     if out is not None and probe_out:
         probe_output_folder(out)

@@ -38,6 +38,7 @@ from distnav.commands.gnss_common import (
     load_edges,
 )
 from distnav.errors import DataFileError, ModelError, UsageError
+from distnav.options import add_size_option, int_up_to, output_folder
 
 __all__ = [
     "register",
@@ -52,6 +53,10 @@ __all__ = [
 _SUBCOMMAND_MODULES = ("distnav.commands.gnss_ionosphere",)
 
 
+#: The most ``codebias --iterations`` (refused at parse time above it).
+ADMM_ITERATIONS = int_up_to(
+    100_000, "100 × the default; every iteration is one exchange round of every station's normal equations"
+)
 _FILTER = re.compile(r"^(central|(ckf|local):[A-Za-z0-9]{4})$")
 _SATELLITE = re.compile(r"^G(0[1-9]|[12][0-9]|3[0-2])$")
 
@@ -234,14 +239,16 @@ def register(subparsers: Any) -> None:
         sub, "codebias", "satellite code biases from L1/L2/L5 RINEX code data (paper 000 §5)", __doc__
     )
     add_data_arguments(cb, obs_note="; the first is the S-basis reference unless --reference")
-    cb.add_argument("--out", default="distnav-codebias", help="output folder (default distnav-codebias)")
+    cb.add_argument(
+        "--out", type=output_folder, default="distnav-codebias", help="output folder (default distnav-codebias)"
+    )
     add_backend_arguments(cb)
     cb.add_argument("--reference", metavar="STATION", help="station lumped into the satellite biases")
     cb.add_argument("--codes", metavar="L1=C1C,L2=C2W,L5=C5X", help="force the code used on a band")
     cb.add_argument("--sigma", type=float, default=0.20, help="zenith code σ [m] (default 0.20)")
     cb.add_argument("--weighting", choices=["euler-goad", "sin", "constant"], default="euler-goad")
     cb.add_argument("--rho", type=float, default=0.5, help="ADMM weight ρ, per-epoch scale (default 0.5)")
-    cb.add_argument("--iterations", type=int, default=1000, help="ADMM iterations (default 1000)")
+    add_size_option(cb, "--iterations", ADMM_ITERATIONS, default=1000, help="ADMM iterations (default 1000)")
     cb.add_argument(
         "--admm-messages",
         choices=["ternary", "pairs"],
@@ -268,7 +275,7 @@ def register(subparsers: Any) -> None:
         help="Bias-SINEX files (.BIA/.BSX, gzip ok) or IONEX files with a DCB block; DSBs missing "
         "from the first are taken from the next (e.g. GFZ C1W-C2W completed with CAS C1C-C1W)",
     )
-    cmp_.add_argument("--out", help="write comparison.json here")
+    cmp_.add_argument("--out", type=output_folder, help="write comparison.json here")
     cmp_.add_argument(
         "--filter",
         default="central",

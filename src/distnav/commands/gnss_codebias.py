@@ -17,7 +17,14 @@ from typing import Any
 import numpy as np
 
 from distnav.commands import command_exchange
-from distnav.commands.gnss_common import check_data_arguments, default_graph, load_edges, say
+from distnav.commands.gnss_common import (
+    CODE_SIGMA_WHY,
+    MAX_CODE_SIGMA_M,
+    check_data_arguments,
+    default_graph,
+    load_edges,
+    say,
+)
 from distnav.errors import ModelError
 
 __all__ = ["run_codebias", "compare_with_products", "parse_codes"]
@@ -50,6 +57,8 @@ def check_codebias_arguments(args: argparse.Namespace) -> None:
             raise ModelError(f"{opt} {value:g}: must be a positive number")
     if args.iterations < 1:
         raise ModelError(f"--iterations must be ≥ 1, got {args.iterations}")
+    if args.sigma > MAX_CODE_SIGMA_M:
+        raise ModelError(f"--sigma {args.sigma:g}: at most {MAX_CODE_SIGMA_M:g} ({CODE_SIGMA_WHY})")
     if args.reference is not None and not args.reference.strip():
         raise ModelError("--reference is empty: give a station name (e.g. BELE)")
     parse_codes(args.codes)

@@ -9,8 +9,6 @@ nearest-neighbour graph), and the progress line.
 from __future__ import annotations
 
 import argparse
-import csv
-import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -18,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from distnav.errors import DataFileError, ModelError
-from distnav.formats.uwb.io import decoded_text
+from distnav.formats.text import csv_rows, plain_text
+from distnav.options import iso_datetime
 
 __all__ = ["load_edges", "default_graph", "add_data_arguments", "check_data_arguments", "say"]
 
@@ -32,12 +31,15 @@ def load_edges(path: Path, stations: list[str]) -> Any:
     if not path.is_file():
         raise DataFileError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
     raw = path.read_bytes()
-    # a byte-order mark (a Windows editor's) is not part of the first name
-    text = decoded_text(raw, path, "utf-8-sig", "UTF-8 text: expected a CSV of station-name pairs")
-    if "\x00" in text:
-        raise DataFileError(f"{path}: binary data (NUL bytes): expected a CSV of station-name pairs")
+    text = plain_text(
+        path,
+        raw,
+        encoding="utf-8",
+        expected="a CSV of station-name pairs",
+        undecodable="UTF-8 text: expected a CSV of station-name pairs",
+    )
     header = ""
-    for no, row in enumerate(csv.reader(text.splitlines()), start=1):
+    for no, row in csv_rows(path, text.splitlines()):
         cells = [c.strip() for c in row if c.strip()]
         if not cells or cells[0].startswith("#"):
             continue
@@ -141,9 +143,21 @@ def add_data_arguments(parser: argparse.ArgumentParser, *, obs_note: str = "") -
         "km accuracy, so a sparse station nav file may need more)",
     )
     parser.add_argument("--graph", metavar="EDGES.csv", help="links as station-name pairs (default: MST + 2 nearest)")
-    parser.add_argument("--tlim", nargs=2, metavar=("START", "STOP"), help="time window, e.g. 2024-01-10T00:00 ...")
+    parser.add_argument(
+        "--tlim",
+        nargs=2,
+        type=iso_datetime,  # also refuses a time zone: times are GPS time (options.py)
+        metavar=("START", "STOP"),
+        help="time window (GPS time, no time zone), e.g. 2024-01-10T00:00 ...",
+    )
     parser.add_argument("--interval", type=float, default=None, help="keep epochs on this grid [s] (e.g. 60)")
     parser.add_argument("--mask", type=float, default=10.0, help="elevation mask [deg] (default 10)")
+
+
+#: The largest zenith code σ (m) ``--sigma`` takes (``gnss codebias``, ``gnss ionosphere``): beyond it nothing is
+#: modelled (``--sigma 1e308`` ran on with "invalid value encountered in scalar divide" and exit 0)
+MAX_CODE_SIGMA_M = 100.0
+CODE_SIGMA_WHY = "a zenith code σ over 100 m is no code observation"
 
 
 def check_data_arguments(args: argparse.Namespace) -> None:
@@ -155,9 +169,6 @@ def check_data_arguments(args: argparse.Namespace) -> None:
     if not 0.0 <= args.mask < 90.0:
         raise ModelError(f"--mask {args.mask:g}: the elevation mask must lie in [0, 90) degrees")
     if args.tlim:
-        for t in args.tlim:  # numpy would shift a zoned time to UTC with only a deprecation warning
-            if re.search(r"(Z|[+-]\d\d:?\d\d)$", t.strip()) and "T" in t:
-                raise ModelError(f"--tlim {t}: times are GPS time, without a time zone (e.g. 2024-01-10T06:00)")
         try:
             t0, t1 = (np.datetime64(t, "s") for t in args.tlim)
         except ValueError:

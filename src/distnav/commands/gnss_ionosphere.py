@@ -42,9 +42,10 @@ from typing import Any
 import numpy as np
 
 from distnav.commands import add_backend_arguments, command_exchange
+from distnav.commands.gnss_common import CODE_SIGMA_WHY, MAX_CODE_SIGMA_M
 from distnav.commands.gnss_ionosphere_data import REGIONAL_KM, NetworkOptions, network_data, network_from_observations
 from distnav.errors import DataFileError, ModelError
-from distnav.options import nonnegative_float
+from distnav.options import nonnegative_float, output_folder
 
 __all__ = [
     "NetworkOptions",
@@ -92,6 +93,14 @@ _SYSTEM_CODES = {  # --system: the default codes (first, second) where --l1-code
 }
 
 
+#: Upper limits of the model's σ options: beyond them nothing is modelled, and the run broke (``--tec-rw 1e30``: a
+#: singular matrix, a traceback; ``--sigma 1e308``: "invalid value encountered in scalar divide", exit 0)
+_UPPER_LIMITS = (
+    ("--sigma", "sigma", MAX_CODE_SIGMA_M, CODE_SIGMA_WHY),
+    ("--tec-rw", "tec_rw", 1e3, "10⁵ × the default: over one 60-s epoch the vertical delay could change by km"),
+)
+
+
 def validate_arguments(args: argparse.Namespace) -> None:
     """Check every option value before any file is read (errors name the option; the CLI exits with 2); codes not
     given take the system's defaults (:data:`_SYSTEM_CODES`)."""
@@ -119,6 +128,9 @@ def validate_arguments(args: argparse.Namespace) -> None:
     for opt, value in (("--sigma", args.sigma), ("--regional-km", args.regional_km), ("--tec-rw", args.tec_rw)):
         if value is not None and not (np.isfinite(value) and value > 0.0):
             raise ModelError(f"{opt} {value:g}: must be a positive number")
+    for opt, value, most, why in _UPPER_LIMITS:
+        if getattr(args, value) is not None and getattr(args, value) > most:
+            raise ModelError(f"{opt} {getattr(args, value):g}: at most {most:g} ({why})")
     if not 0 <= args.kn <= MAX_KN:
         raise ModelError(
             f"--kn must lie in 0 … {MAX_KN:,} consensus rounds per epoch, got {args.kn:,} (every epoch runs them "
@@ -428,7 +440,9 @@ def add_ionosphere_parser(gnss_subparsers: Any) -> argparse.ArgumentParser:
         metavar="FILE",
         help="published products to compare with: Bias-SINEX (.BIA) and/or IONEX with a DCB block",
     )
-    p.add_argument("--out", default="distnav-ionosphere", help="output folder (default distnav-ionosphere)")
+    p.add_argument(
+        "--out", type=output_folder, default="distnav-ionosphere", help="output folder (default distnav-ionosphere)"
+    )
     add_backend_arguments(p)
     _add_code_and_datum_arguments(p)
     _add_selection_arguments(p)

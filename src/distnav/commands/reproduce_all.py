@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from distnav.options import output_folder, positive_int, seed
+from distnav.options import add_size_option, jobs_count, output_folder, seed
 
 __all__ = ["RUNS", "Run", "register", "run_all", "child_environment", "BLAS_THREAD_VARIABLES"]
 
@@ -193,9 +193,10 @@ def register(subparsers: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--out", type=output_folder, required=True, help="run folder (one sub-folder per reproduction)")
-    p.add_argument(
+    add_size_option(
+        p,
         "--jobs",
-        type=positive_int,
+        jobs_count,
         default=2,
         help="reproductions at once, and the workers of those that take --jobs (default 2)",
     )

@@ -12,13 +12,14 @@ from typing import Any
 
 import numpy as np
 
+from distnav.algorithms.ranging.objective import DELAY_MODES
 from distnav.errors import DataFileError, ModelError
-from distnav.formats.uwb.io import read_heights, read_positions, same_number_ids
+from distnav.formats.uwb.io import MAX_PLAUSIBLE_RANGE_M, read_heights, read_positions, same_number_ids
 from distnav.models.uwb.field import FieldOptions
 from distnav.models.uwb.problems import RangingProblem
 
 __all__ = ["april_known_ids", "check_gauge", "check_initial_distinct", "every_anchor", "held_heights"]
-__all__ += ["check_known_spelling", "validate_options"]
+__all__ += ["check_applicable", "check_known_spelling", "validate_options"]
 
 #: two anchors of an initial guess closer than this (m) are at one point
 COINCIDENT_M = 1e-6
@@ -41,6 +42,12 @@ def validate_options(opts: FieldOptions) -> None:
             raise ModelError(f"{name} must be a positive number of metres, got {v}")
     if not (np.isfinite(opts.delay_sigma_m) and opts.delay_sigma_m >= 0):
         raise ModelError(f"--delay-sigma-m must be a number of metres ≥ 0, got {opts.delay_sigma_m}")
+    for name, v in (("--sigma-m", opts.sigma_m), ("--delay-sigma-m", opts.delay_sigma_m)):
+        if v > MAX_PLAUSIBLE_RANGE_M:  # 1e308 overflowed (a traceback) or said "no accuracy can be stated"
+            raise ModelError(
+                f"{name} {v:g} m: a range σ over {MAX_PLAUSIBLE_RANGE_M:g} m, the longest range UWB measures, "
+                "states nothing (was it in mm or cm?)"
+            )
     if not (np.isfinite(opts.reliability_limit_m) and opts.reliability_limit_m >= 0):
         raise ModelError(f"--reliability-limit-m must be a number of metres ≥ 0, got {opts.reliability_limit_m}")
     if not 0.0 < opts.level < 0.5:
@@ -49,6 +56,25 @@ def validate_options(opts: FieldOptions) -> None:
         raise ModelError(f"--range-offsets {opts.range_offsets} is estimated with --objective metres only")
     if opts.range_offsets == "common_delays" and opts.solver.upper() != "LM":
         raise ModelError(f"--range-offsets common_delays is LM's only (--solver {opts.solver}: common or per_anchor)")
+
+
+def check_applicable(opts: FieldOptions) -> None:
+    """Refuse a σ option given (not its default) where the solve does not use it: it was silently ignored
+    (guard13's sweep). ``--offset-prior-sigma-m`` is the prior of estimated per-anchor delays (``--range-offsets
+    per_anchor`` or ``common_delays``); ``--delay-sigma-m`` the delays admitted in σ when they are not estimated,
+    with the metres objective (:attr:`FieldOptions.considers_delays`)."""
+    default = FieldOptions()
+    estimated = opts.range_offsets in DELAY_MODES
+    if opts.offset_prior_sigma_m != default.offset_prior_sigma_m and not estimated:
+        raise ModelError(
+            f"--offset-prior-sigma-m {opts.offset_prior_sigma_m:g} is the prior σ of estimated per-anchor delays: "
+            f"it applies with --range-offsets per_anchor or common_delays, not {opts.range_offsets}"
+        )
+    if opts.delay_sigma_m != default.delay_sigma_m and (estimated or opts.objective != "metres"):
+        raise ModelError(
+            f"--delay-sigma-m {opts.delay_sigma_m:g} admits delays that are not estimated, with --objective metres: "
+            f"it does not apply with --objective {opts.objective} and --range-offsets {opts.range_offsets}"
+        )
 
 
 def held_heights(

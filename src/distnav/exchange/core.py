@@ -548,6 +548,13 @@ class ExchangeCore(ABC):
             bytes_per_round=np.asarray(self.allreduce(np.asarray(self._round_bytes, np.int64), "sum")),
         )
 
+    def local_totals(self) -> tuple[int, int]:
+        """This block's own messages and bytes sent so far (its nodes' counters; no message moves): a mark that a
+        family sums over the blocks once, at its end, where :meth:`comm_totals` at every mark would gather each
+        node's counters and the per-round totals over the network each time (real traffic in the field)."""
+        self._flush()
+        return int(self.messages_sent.sum()), int(self.bytes_sent.sum())
+
     def reset_accounting(self) -> None:
         """Zero the counters and the round index (the fault schedule restarts at round 0)."""
         self.round_index = 0

@@ -47,7 +47,7 @@ from distnav.models.gnss.orbits import (
     synthetic_gps_constellation,
 )
 from distnav.network.graph import Graph
-from distnav.options import existing_file, iso_datetime, positive_int
+from distnav.options import add_size_option, existing_file, int_up_to, iso_datetime
 from distnav.typing import FloatArray
 
 if TYPE_CHECKING:
@@ -64,6 +64,10 @@ RHOS = (5.0, 0.5, 0.05, 0.005)
 THRESHOLD_M = 1e-3
 EPOCH_S = 30.0
 SESSION_EPOCHS = 300  # 2.5 h of 30-s data
+#: Size limits of ``--epochs`` / ``--iterations`` (docs/claims.md: the full run, 300 epochs and 1,000 iterations with
+#: its ρ sweep, ≈ 13 CPU-s): refused at parse time above them.
+EPOCHS = int_up_to(2_880, "one day of 30-s epochs, the span of a daily bias product (≈ 10 × the default session)")
+ITERATIONS = int_up_to(100_000, "100 × the default: the full run with its ρ sweep then takes up to ≈ 20 CPU-minutes")
 PAPER = {"n_links": 118, "n_constraint_nodes": 9}
 
 # IGS-like regional clusters: (name, lat°, lon°, stations, spread°)
@@ -81,12 +85,17 @@ REGIONS: tuple[tuple[str, float, float, int, float], ...] = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--iterations", type=positive_int, default=None, help="ADMM iterations per run (default 1000; 300 with --quick)"
+    add_size_option(
+        parser,
+        "--iterations",
+        ITERATIONS,
+        default=None,
+        help="ADMM iterations per run (default 1000; 300 with --quick)",
     )
-    parser.add_argument(
+    add_size_option(
+        parser,
         "--epochs",
-        type=positive_int,
+        EPOCHS,
         default=None,
         help="30-s epochs of the session (default 300 = 2.5 h; 120 with --quick)",
     )

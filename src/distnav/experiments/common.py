@@ -32,7 +32,7 @@ import numpy as np
 from distnav.errors import UsageError
 from distnav.exchange import Exchange, FaultSchedule, make_exchange
 from distnav.network.graph import Graph
-from distnav.options import positive_int
+from distnav.options import add_size_option, jobs_count
 from distnav.output import atomic_write_json, atomic_write_text, pyplot, save_figure_file
 
 if TYPE_CHECKING:
@@ -120,13 +120,15 @@ def available_cores() -> int:
 
 
 def add_jobs_argument(parser: argparse.ArgumentParser) -> None:
-    """``--jobs N``: worker processes for an experiment's independent runs (:meth:`ExperimentContext.workers`)."""
-    parser.add_argument(
+    """``--jobs N``: worker processes for an experiment's independent runs (:meth:`ExperimentContext.workers`),
+    at most ``options.jobs_count.maximum``."""
+    add_size_option(
+        parser,
         "--jobs",
-        type=positive_int,
+        jobs_count,
         default=None,
-        help="worker processes for the independent runs (default: the available cores; 1: none); "
-        "the results do not depend on it",
+        help="worker processes for the independent runs, the results do not depend on it (default: the available "
+        "cores; 1: none)",
     )
 
 

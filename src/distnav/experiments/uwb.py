@@ -39,7 +39,7 @@ from distnav.experiments.common import ExperimentContext, add_jobs_argument, par
 from distnav.models.uwb.communication import RANGES_DATA, range_bytes_per_anchor
 from distnav.models.uwb.problems import PAPER_PROBLEMS, RangingProblem, generate_layout, generate_problem
 from distnav.network.graph import Graph
-from distnav.options import positive_int
+from distnav.options import add_size_option, int_up_to
 
 NAME = "uwb"
 TITLE = "UWB anchor self-localization: LM, CSG, N-CSG (+BLS/TBLS), N-CLM (paper 002 Figs. 3-6, Table 1)"
@@ -49,18 +49,46 @@ PAPER_ITERATIONS = 500
 QUICK_ITERATIONS = 60
 PAPER_TBLS_FINAL_STEP = {"N-CSG-BLS": 1.2e-3, "N-CSG-TBLS": 1.3e-3}
 STARTS = ("paper", "horizontal")
+#: Size limits of ``--instances`` / ``--iterations``, from the measured cost (docs/uwb.md: 6 solvers × 500 iterations
+#: on one instance of each of the 8 problems ≈ 32 CPU-s, linear in both): refused at parse time above them.
+INSTANCES = int_up_to(1_000, "one instance of the 8 problems is ≈ 32 CPU-s at 500 iterations: 1,000 are ≈ 9 CPU-hours")
+ITERATIONS = int_up_to(
+    20_000, "≈ 0.064 CPU-s per iteration of the 8 problems: the paper's instances at 20,000 are ≈ 14 CPU-hours"
+)
+
+
+#: The most CPU time ``--instances`` and ``--iterations`` may ask for together (each is bounded alone as well)
+MAX_CPU_HOURS = 24.0
+SET_CPU_S = 32.0  # one instance of the 8 problems at PAPER_ITERATIONS (docs/uwb.md)
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse (:class:`UsageError`, before any work) sizes that together ask for more than :data:`MAX_CPU_HOURS`
+    (``--instances 1000 --iterations 20000``: each within its limit, ≈ 356 CPU-hours together)."""
+    paper_sets = sum(PAPER_INSTANCES[name[0]] for name in PAPER_PROBLEMS) / len(PAPER_PROBLEMS)  # 50/50/100: 62.5
+    sets = args.instances or (1 if args.quick else paper_sets)
+    iterations = args.iterations or (QUICK_ITERATIONS if args.quick else PAPER_ITERATIONS)
+    hours = sets * SET_CPU_S * iterations / PAPER_ITERATIONS / 3600.0
+    if hours > MAX_CPU_HOURS:
+        raise UsageError(
+            f"--instances {args.instances or 'the paper’s'} with --iterations {iterations:,} is ≈ {hours:,.0f} "
+            f"CPU-hours (one instance of the 8 problems ≈ {SET_CPU_S:g} CPU-s at {PAPER_ITERATIONS} iterations): at "
+            f"most {MAX_CPU_HOURS:g} together"
+        )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
+    add_size_option(
+        parser,
         "--instances",
-        type=positive_int,
+        INSTANCES,
         default=None,
         help="instances per problem (default: the paper's 50 for G and L, 100 for R; --quick: 1)",
     )
-    parser.add_argument(
+    add_size_option(
+        parser,
         "--iterations",
-        type=positive_int,
+        ITERATIONS,
         default=None,
         help=f"iterations of every solver (default {PAPER_ITERATIONS}; --quick: {QUICK_ITERATIONS})",
     )

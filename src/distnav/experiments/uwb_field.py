@@ -45,7 +45,7 @@ from distnav.models.uwb.field import FieldOptions, gather_cost, prepare, solve_f
 from distnav.models.uwb.geometry import GeometryReport
 from distnav.models.uwb.hall import PLANT_LIKE, HallConfig, HallNetwork, simulate_hall
 from distnav.models.uwb.problems import RangingProblem, build_problem, rmse_m
-from distnav.options import positive_int
+from distnav.options import add_size_option, int_up_to
 from distnav.output import atomic_write_text
 
 NAME = "uwb-field"
@@ -58,6 +58,19 @@ TARGETS: dict[str, Any] = {
     "coverage": (0.90, 0.98),
 }
 PLACEMENTS = ("middle", "corner")
+#: Size limits, refused at parse time above them. Halls: hall ``k`` of a placement is drawn from seed
+#: ``1000·scenario + 100·placement + k``, so more than 100 would repeat the next placement's halls. Anchors: the
+#: quick run's cost, measured on the shared 2-core machine (docs/bad_input.md).
+HALLS = int_up_to(
+    100, "hall k of a placement is drawn from seed 1000·scenario + 100·placement + k: more would repeat halls"
+)
+ANCHORS = int_up_to(
+    112,
+    "4 × the default; the cost grows steeply: the quick run took 9.5 CPU-s at 28 anchors, 23 at 56, over 120 at 112, "
+    "and the full run is ≈ 60 × the quick one",
+    minimum=4,
+)
+ITERATIONS = int_up_to(20_000, "40 × the default 500, run by every distributed solver on every hall")
 SCENARIOS: dict[str, dict[str, object]] = {"dense": {}, "plant": dict(PLANT_LIKE)}
 CAREFUL_F_SCALE_M = 0.3
 FIGURE_CAPTIONS = {
@@ -80,9 +93,7 @@ def write_hall(net: HallNetwork, folder: str | Path) -> dict[str, Path]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--instances", type=positive_int, default=None, help="halls per placement (default 20; --quick 1)"
-    )
+    add_size_option(parser, "--instances", HALLS, default=None, help="halls per placement (default 20; --quick 1)")
     parser.add_argument(
         "--solvers",
         nargs="+",
@@ -91,13 +102,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="solvers to run (default all; --quick LM and N-CSG-TBLS)",
     )
-    parser.add_argument(
+    add_size_option(
+        parser,
         "--iterations",
-        type=positive_int,
+        ITERATIONS,
         default=None,
         help="iterations of the distributed solvers (default 500; --quick 200)",
     )
-    parser.add_argument("--anchors", type=positive_int, default=28, help="anchors per hall (default 28)")
+    add_size_option(parser, "--anchors", ANCHORS, default=28, help="anchors per hall (default 28; at least 4)")
 
 
 def hall_problem(h: HallNetwork, *, heights: bool = True) -> tuple[RangingProblem, np.ndarray]:

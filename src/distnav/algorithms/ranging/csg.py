@@ -40,7 +40,7 @@ from distnav.algorithms.ranging.options import CsgOptions, NclmOptions, NcsgOpti
 from distnav.algorithms.ranging.qc import distributed_quality
 from distnav.algorithms.ranging.refine import MU0, refine_state, rows_for_local_tests
 from distnav.algorithms.ranging.stop import StopRule
-from distnav.algorithms.ranging.wire import comm_mark, comm_phases, reductions_cost
+from distnav.algorithms.ranging.wire import comm_mark, comm_phases, network_marks, reductions_cost
 from distnav.algorithms.result import SolverStatus, Trace
 from distnav.errors import ModelError
 from distnav.exchange import Exchange
@@ -330,7 +330,7 @@ def _run(
         cost=final_cost,
         objective=objective,
         loss=setup.loss,
-        settings={**out.settings, "comm_phases": comm_phases(out.marks)},
+        settings={**out.settings, "comm_phases": comm_phases(network_marks(ex, out.marks))},
         objective_kind=o.objective,
         precision=precision,
         tests=tests,

@@ -72,16 +72,15 @@ TEST_SCALES = ("robust", "a-priori")
 DISTRIBUTED_TEST_SCALES = (*TEST_SCALES, "local")  # "robust": the network's robust scale; "local": each anchor's
 SCALE_FLOOR = 0.25  # the distributed tests' robust scale is floored at a quarter of the a-priori σ
 _MAX_DENSE = 6000  # unknowns up to which the covariance is formed (a dense inverse)
-#: a near-critical link that a pick of its anchors always blocks does not leave a loose re-fit's choice open
-#: (:func:`_decided`, issue 27); False: every link within the margin does
+#: a near-critical link always blocked by a pick of its anchors leaves no loose re-fit's choice open (:func:`_decided`)
 BLOCKED_NEAR = True
-#: issue 27, eighth session (docs/economy_uwb.md items 44–46): an open round (:func:`_decided`) of an early-stopped
-#: fit with at least :data:`DEFER_MIN_NEAR` eligible links within the margin of the critical value takes its sure
-#: picks (:func:`_sure_picks`) and defers the rest to the next re-fit; it climbs only where no pick is sure. **Off**:
-#: at 10⁴ anchors 1.28 × fewer bytes, but the RMSE moved 3 % at 3,000 and 10⁴ anchors (the issue allows 1 %)
-DEFER_OPEN = False
-#: the gate: links within the margin grow with the network (at 1 cm about 1 in 300), so at scale every round is open;
-#: on `[78, 0]` middle (28 anchors) a round holds 1–2, a full fit settles them, and deferring changes the links
+#: issue 27 (docs/economy_uwb.md items 44–46, 60): an open round (:func:`_decided`) of an early-stopped fit with at
+#: least :data:`DEFER_MIN_NEAR` eligible links within the margin of the critical value takes its sure picks
+#: (:func:`_sure_picks`), defers the rest to the next re-fit and climbs only where no pick is sure — in networks of
+#: :data:`DEFER_MIN_ANCHORS` or more: above 3,000 (where it doubled one anchor's error), below 10⁴ (what it is for)
+DEFER_OPEN = True
+DEFER_MIN_ANCHORS = 5000
+#: links within the margin grow with the network (1 cm: about 1 in 300); `[78, 0]` middle holds 1–2 (item 46)
 DEFER_MIN_NEAR = 10
 #: a deferring round's next re-fit is on its own rung (3 mm after a 3 mm round's picks), not the first
 DEFER_STAYS = True
@@ -334,7 +333,8 @@ def exclude_links(
         if level < len(ladder) - 1:
             margin = ladder[level][1]
             step = _ladder_step(problem.n_anchors, res, (aw, a, b), (cap, crit, margin), picks, confirm)
-            sure = _sure_picks(aw, (a, b), cap, crit, margin, picks) if _defers(step, aw, crit, margin) else []
+            defers = _defers(step, aw, crit, margin) and problem.n_anchors >= DEFER_MIN_ANCHORS
+            sure = _sure_picks(aw, (a, b), cap, crit, margin, picks) if defers else []
             if sure:  # the sure picks now, the open rest at the next re-fit (issue 27, eighth session)
                 step, picks = _TAKE, sure
                 stay = level if DEFER_STAYS else 0
@@ -469,7 +469,7 @@ def _decided(
 
 def _defers(step: str, aw: np.ndarray, critical: float, margin: float) -> bool:
     """Whether a round that :func:`_ladder_step` leaves open defers its undecided links (:data:`DEFER_OPEN`,
-    :data:`DEFER_MIN_NEAR`)."""
+    :data:`DEFER_MIN_NEAR`; the caller applies :data:`DEFER_MIN_ANCHORS`)."""
     return step == _NEXT and DEFER_OPEN and int(np.count_nonzero(np.abs(aw - critical) <= margin)) >= DEFER_MIN_NEAR
 
 

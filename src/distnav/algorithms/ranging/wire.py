@@ -73,6 +73,7 @@ __all__ = [
     "PLAIN",
     "comm_mark",
     "comm_phases",
+    "network_marks",
     "pack_half",
     "unpack_half",
     "reduction_cost",
@@ -567,10 +568,18 @@ def reduction_cost(n_anchors: int, reductions: int, reduced_bytes: int) -> tuple
 
 
 def comm_mark(ex: Exchange) -> tuple[int, int]:
-    """The exchange's network totals so far, (messages, bytes): a phase boundary for :func:`comm_phases`
-    (monitoring, as the result's ``comm``)."""
-    c = ex.comm_totals()
-    return c.messages, c.bytes
+    """This block's own totals so far, (messages, bytes): a phase boundary for :func:`comm_phases` (monitoring, as
+    the result's ``comm``), taken without a message; :func:`network_marks` sums the marks over the blocks once."""
+    return ex.local_totals()
+
+
+def network_marks(ex: Exchange, marks: dict[str, tuple[int, int]]) -> dict[str, tuple[int, int]]:
+    """The network's totals at each of :func:`comm_mark`'s marks: one all-reduction of every mark at the end (each
+    block counts what its own nodes sent, so the sum over the blocks is the network total at the mark) where a
+    network total at every mark cost the field's nodes a gather of every counter each time."""
+    flat = np.asarray([v for mark in marks.values() for v in mark], np.int64)
+    total = np.asarray(ex.allreduce(flat, "sum"), np.int64)
+    return {name: (int(total[2 * i]), int(total[2 * i + 1])) for i, name in enumerate(marks)}
 
 
 def comm_phases(marks: dict[str, tuple[int, int]]) -> dict[str, dict[str, int]]:

@@ -10,8 +10,9 @@ import zipfile
 from pathlib import Path
 
 from distnav.errors import DataFileError
+from distnav.formats.text import text_bytes
 
-__all__ = ["COMPRESSED_MAGIC", "read_bytes", "read_text_file", "text_bytes"]
+__all__ = ["COMPRESSED_MAGIC", "read_bytes", "read_text_file"]
 
 
 COMPRESSED_MAGIC = (b"\x1f\x9d", b"BZh", b"PK\x03\x04")  # Unix compress (.Z), bzip2, zip
@@ -77,19 +78,8 @@ def read_bytes(path: Path) -> bytes:
     return _decompress(path, raw)
 
 
-def _refuse_nul(path: Path, raw: bytes) -> None:
-    nul = raw.find(b"\x00")
-    if nul >= 0:
-        line = raw.count(b"\n", 0, nul) + 1
-        raise DataFileError(
-            f"{path}, line {line}: binary data (NUL bytes): expected a plain ASCII text file "
-            f"(not UTF-16, not a binary format)"
-        )
-
-
 def _text_lines(path: Path, raw: bytes) -> list[str]:
-    _refuse_nul(path, raw)
-    return raw.decode("latin-1").splitlines()
+    return text_bytes(path, raw).decode("latin-1").splitlines()
 
 
 def read_text_file(path: Path, *, whole_lines: bool = False) -> list[str]:
@@ -101,14 +91,6 @@ def read_text_file(path: Path, *, whole_lines: bool = False) -> list[str]:
     if whole_lines:
         _ends_with_newline(path, raw)
     return _text_lines(path, raw)
-
-
-def text_bytes(path: Path, raw: bytes) -> bytes:
-    """``raw`` (the decompressed bytes of ``path``) checked to be text before anything else is judged: NUL bytes
-    (binary data, UTF-16) refused naming the line (they seldom end with a newline, and are not a "truncated" file),
-    a leading UTF-8 byte-order mark (a Windows editor's) dropped, as it is not part of the first line."""
-    _refuse_nul(path, raw)
-    return raw[3:] if raw.startswith(b"\xef\xbb\xbf") else raw
 
 
 def _ends_with_newline(path: Path, raw: bytes) -> None:

@@ -73,7 +73,7 @@ def _bias_sinex_day(path: Path) -> np.datetime64 | None:
         opener = gzip.open if head == b"\x1f\x8b" else open
         with opener(path, "rb") as fh:
             first = fh.readline(200).decode("latin-1")
-    except (OSError, EOFError):
+    except (OSError, EOFError, ValueError):  # ValueError: a name no file can have (a NUL byte)
         return None
     fields = first.split()
     if len(fields) < 7 or not fields[0].startswith("%=BIA"):

@@ -30,9 +30,9 @@ from distnav.formats.gnss.compressed import (
     _text_lines,
     read_bytes,
     read_text_file,
-    text_bytes,
 )
 from distnav.formats.gnss.rinex_fields import epoch_time, glonass_slot_channels, parse_fields
+from distnav.formats.text import text_bytes
 from distnav.models.gnss.code_observations import ProgressCallback
 from distnav.models.gnss.systems import SYSTEM_NAMES
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from distnav.errors import DataFileError
-from distnav.formats.uwb.io import decoded_text
+from distnav.formats.text import plain_text
 
 __all__ = ["C_M_PER_US", "MANUAL_DELAYS_US", "DEFAULT_DELAY_US", "TRUTH_FT", "read_april", "april_csv_texts"]
 
@@ -54,9 +54,6 @@ def read_april(path: str | Path, *, delays: str = "manual") -> tuple[np.ndarray,
         raise DataFileError(f"delays must be 'manual' or 'default', got {delays!r}")
     rows = _parse_log(p)
     a, b = rows[:, 1].astype(np.int64), rows[:, 2].astype(np.int64)
-    unknown = sorted(set(a.tolist() + b.tolist()) - set(MANUAL_DELAYS_US))
-    if unknown:
-        raise DataFileError(f"{p}: node ids {unknown} are not the APRIL nodes {sorted(MANUAL_DELAYS_US)}")
     if delays == "manual":
         da = np.array([MANUAL_DELAYS_US[int(k)] for k in a])
         db = np.array([MANUAL_DELAYS_US[int(k)] for k in b])
@@ -91,12 +88,13 @@ def _parse_log(p: Path) -> np.ndarray:
     raw = p.read_bytes()
     if raw[:2] == b"\x1f\x8b":
         raise DataFileError(f"{p}: a gzip archive: expected the APRIL range log as plain text (gunzip it first)")
-    if b"\x00" in raw:
-        line = raw.count(b"\n", 0, raw.index(b"\x00")) + 1
-        raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected an APRIL range log (text)")
-    if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte-order mark (a Windows editor's): not part of the log
-        raw = raw[3:]
-    text = decoded_text(raw, p, "ascii", "plain ASCII text: expected an APRIL range log (whitespace-separated numbers)")
+    text = plain_text(
+        p,
+        raw,
+        encoding="ascii",
+        expected="an APRIL range log (text)",
+        undecodable="plain ASCII text: expected an APRIL range log (whitespace-separated numbers)",
+    )
     _check_last_line(p, text)
     out: list[tuple[float, float, float]] = []
     for number, text_line in enumerate(text.splitlines(), start=1):
@@ -114,6 +112,11 @@ def _parse_log(p: Path) -> np.ndarray:
             raise DataFileError(f"{p}, line {number}: time of propagation {fields[0]!r} is not a number") from None
         if not (fields[1].isdigit() and fields[2].isdigit()):
             raise DataFileError(f"{p}, line {number}: node ids {fields[1]!r} {fields[2]!r}: expected two whole numbers")
+        strangers = [f for f in fields[1:3] if int(f) not in MANUAL_DELAYS_US]
+        if strangers:  # named here, as written (a 20-digit id was reported as -9223372036854775808)
+            raise DataFileError(
+                f"{p}, line {number}: node {', '.join(strangers)} is not an APRIL node {sorted(MANUAL_DELAYS_US)}"
+            )
         if int(fields[1]) == int(fields[2]):
             raise DataFileError(f"{p}, line {number}: a range from node {fields[1]} to itself")
         out.append((t_us, float(fields[1]), float(fields[2])))

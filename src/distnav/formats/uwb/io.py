@@ -20,7 +20,6 @@ each pair is returned so a user can spot unstable links.
 
 from __future__ import annotations
 
-import csv
 import difflib
 import logging
 from collections.abc import Mapping, Sequence
@@ -30,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from distnav.errors import DataFileError
+from distnav.formats.text import csv_rows, plain_text
 
 __all__ = [
-    "decoded_text",
     "RangeLog",
     "CombinedRanges",
     "read_ranges",
@@ -48,7 +47,10 @@ __all__ = [
 
 log_ = logging.getLogger(__name__)
 
-DROP_REASONS = ("negative", "zero", "not finite")
+DROP_REASONS = ("negative", "zero", "not finite", "beyond any radio range")
+#: A range sample longer than this (1,000 km) is corrupt, not a unit (ranges in mm of a 300-m hall are 3·10⁵): it is
+#: dropped like a negative one (1e308 went on to "weighted residual sum of squares must be finite")
+MAX_SAMPLE_RANGE_M = 1e6
 
 
 @dataclass(frozen=True)
@@ -101,41 +103,31 @@ class CombinedRanges:
     mad_m: np.ndarray
 
 
-def decoded_text(raw: bytes, p: Path, encoding: str, expected: str) -> str:
-    """``raw`` (the bytes of file ``p``) decoded with ``encoding``, or a :class:`DataFileError` naming the file, the
-    line and the byte that is not ``expected`` (its message goes on from "byte 0x.. is not ")."""
-    try:
-        return raw.decode(encoding)
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        raise DataFileError(f"{p}, line {line}: byte 0x{raw[exc.start]:02x} is not {expected}") from None
-
-
 def _rows(path: Path, required: Sequence[str]) -> tuple[list[str], list[tuple[int, list[str]]]]:
     p = Path(path)
     if not p.is_file():
         raise DataFileError(f"{p}: file not found")
     raw = p.read_bytes()
-    text = decoded_text(
-        raw,
+    text = plain_text(
         p,
-        "utf-8-sig",
-        "UTF-8 text: expected a CSV text file in UTF-8 (this looks like binary data, a gzip archive, or text saved "
-        "as UTF-16 or in a local code page: save it as UTF-8 CSV)",
+        raw,
+        encoding="utf-8",
+        expected="a CSV text file in UTF-8",
+        undecodable="UTF-8 text: expected a CSV text file in UTF-8 (this looks like binary data, a gzip archive, or "
+        "text saved as UTF-16 or in a local code page: save it as UTF-8 CSV)",
     )
-    if "\x00" in text:
-        line = text.count("\n", 0, text.index("\x00")) + 1
-        raise DataFileError(f"{p}, line {line}: binary data (NUL bytes): expected a CSV text file in UTF-8")
-    lines = text.splitlines()
     rows: list[tuple[int, list[str]]] = []
     header: list[str] | None = None
-    for number, fields in enumerate(csv.reader(lines), start=1):
+    for number, fields in csv_rows(p, text.splitlines()):
         if not fields or all(not f.strip() for f in fields) or fields[0].lstrip().startswith("#"):
             continue
         fields = [f.strip() for f in fields]
         if header is None:
             header = [f.lower() for f in fields]
             missing = [c for c in required if c not in header]
+            twice = sorted({c for c in header if c and header.count(c) > 1})
+            if twice:  # before: the first of the two columns was read, the other silently ignored
+                raise DataFileError(f"{p}:{number}: column {', '.join(twice)} named twice in the header")
             if missing:
                 raise DataFileError(
                     f"{p}:{number}: header must name the columns {','.join(required)}; missing {', '.join(missing)} "
@@ -174,6 +166,8 @@ def _sample(p: Path, number: int, field_: str) -> tuple[float, str]:
         return v, "negative"
     if v == 0:
         return v, "zero"
+    if v > MAX_SAMPLE_RANGE_M:
+        return v, "beyond any radio range"
     return v, ""
 
 
