@@ -459,14 +459,13 @@ def test_rejoin_hellos_are_counted_as_the_bytes_that_reached_the_peer() -> None:
 
 
 def _rejoin_hearing(sends: list[tuple[float, bytes]], start_timeout_s: float) -> tuple[int | None, float, int]:
-    """Node 0 restarted (:func:`rejoin`, consensus) while neighbour 1 sends ``sends`` (each after its wait, in s):
-    what rejoin returned, after how many seconds, and how many of node 1's frames were refused."""
-    ctx, addr = _sockets(2)
+    """Node 0 restarted (:func:`rejoin`, consensus) while neighbours 1 and 2 send ``sends`` (each after its wait, in
+    s; node 2 never binds, what it is sent waits): what rejoin returned, after how many seconds, how many refused."""
+    ctx, addr = _sockets(3)
     peer_in, peer_out = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
     peer_in.bind(addr[1])
-    tr = Transport(
-        0, addr[0], [Peer(1, addr[1])], options=TransportOptions(start_timeout_s=start_timeout_s), context=ctx
-    )
+    peers = [Peer(1, addr[1]), Peer(2, addr[2])]
+    tr = Transport(0, addr[0], peers, options=TransportOptions(start_timeout_s=start_timeout_s), context=ctx)
 
     def neighbour() -> None:
         for wait_s, frame in sends:
@@ -502,7 +501,6 @@ def test_a_neighbour_that_answered_and_was_refused_counts_once() -> None:
     never answers. Before, neighbour 1 counted as answered and as refused: "every neighbour heard" at once, and its
     stale level -1 held the barrier until 2 x start_timeout_s (3 s). Now it counts once, as a stranger: the node
     waits for neighbour 2 until start_timeout_s (1.5 s) and then starts, 2 missing and 1 refused."""
-
     ctx, addr = _sockets(3)
     sinks = [ctx.socket(zmq.PULL) for _ in range(2)]
     for s, a in zip(sinks, addr[1:], strict=True):
@@ -564,12 +562,14 @@ def test_a_node_that_never_started_holds_every_barrier_until_the_network_can_hav
 
 
 def test_a_rejoin_that_hears_a_top_level_hello_waits_for_the_first_step_message() -> None:
-    """A neighbour's last start-up hello is at its top level (level = depth: it leaves its barrier), and its first
-    step message comes 0.8 s later (an ADMM round's local work). Before, :func:`rejoin` returned None 0.5 s after
-    the hello (review13, finding 1): the node ran the start-up, and the neighbour's step messages, from a sender
-    that never greeted, made it a stranger ("another network"). Now it waits and rejoins at the neighbour's step."""
-    hello = encode(Kind.HELLO, 1, 0, np.array([2, 0, 0, 2], np.int64))
-    got, _, refused = _rejoin_hearing([(0.0, hello), (0.8, encode(Kind.COLUMN, 1, 3, np.zeros(2)))], 10.0)
+    """Neighbour 1's last start-up hello is at its top level (level = depth: it leaves its barrier), neighbour 2's is
+    below it, and 1's first step message comes 0.8 s later (an ADMM round's local work). Before, :func:`rejoin`
+    returned None 0.5 s after the hello (review13, finding 1): the node ran the start-up, and node 1's step messages,
+    from a sender that never greeted there, made it a stranger ("another network"). Now it waits and rejoins at 1's
+    step (a neighbour at its top: the network runs, though another still rises)."""
+    hellos = [encode(Kind.HELLO, i, 0, np.array([level, 0, 0, 2], np.int64)) for i, level in ((1, 2), (2, 1))]
+    sends = [(0.0, hellos[0]), (0.0, hellos[1]), (0.8, encode(Kind.COLUMN, 1, 3, np.zeros(2)))]
+    got, _, refused = _rejoin_hearing(sends, 10.0)
     assert got == 3 and refused == 0
 
 

@@ -260,13 +260,13 @@ def rejoin(transport: Transport, *, invitation: bool = False) -> int | None:
     ``invitation``: wait instead for a neighbour's :attr:`Kind.INVITE` (node programs that run again from the start
     with a returning node), keep its array in :attr:`Transport.invited` and return its step; the messages of later
     steps are kept for them. None: the neighbours are still in their start-up (a start-up hello below its sender's
-    top level came, no later one at the top, and no step message within 0.5 s after it): the network has not begun,
+    top level came, no hello at a sender's top, and no step message within 0.5 s after it): the network has not begun,
     and the node starts as any other (:func:`handshake`, from step 0), its data in the answer. A hello at its
     sender's top level (level = depth, the last one it sends on leaving its barrier) means the sender runs: its
     first step message may come seconds later (an ADMM or UWB node's local work), and is waited for."""
     end = time.monotonic() + transport.options.start_timeout_s
     hello, next_send, seen, running = np.ones(1, np.uint8), 0.0, -1, False
-    rising: dict[int, float] = {}  # neighbour → when its start-up hello below its top came (the latest is below)
+    rising: dict[int, float] = {}  # neighbour → when its latest start-up hello, below its top, came (inf: at its top)
     while time.monotonic() < end:  # until a step message, then half a second more (queued old steps first)
         if time.monotonic() >= next_send:
             transport.post_many(sorted(transport.push), Kind.HELLO, 0, hello)  # counted as every frame sent
@@ -286,7 +286,7 @@ def rejoin(transport: Transport, *, invitation: bool = False) -> int | None:
                     transport.invited, seen, end = msg.array, msg.step, 0.0
                 else:
                     transport._held.setdefault(msg.step, {})[msg.sender] = msg
-        if not running and rising and time.monotonic() >= min(rising.values()) + _REPEAT_S:
+        if not running and _starting(rising) and time.monotonic() >= min(rising.values()) + _REPEAT_S:
             return None
         if seen >= 0:
             end = min(end, time.monotonic() + 0.5) if end - time.monotonic() > 0.5 else end
@@ -302,13 +302,21 @@ def rejoin(transport: Transport, *, invitation: bool = False) -> int | None:
 
 def _note_rising(rising: dict[int, float], sender: int, a: np.ndarray) -> None:
     """A start-up hello heard by :func:`rejoin`: below its sender's top level (still in its barrier), noted with its
-    time; at the top (leaving its barrier, into its rounds), its sender is no longer rising."""
+    time; at the top (leaving its barrier, into its rounds), noted as ``inf``."""
     if a.dtype != np.int64 or a.size != 4:
         return
     if int(a[0]) < int(a[3]):
-        rising.setdefault(sender, time.monotonic())
+        if rising.get(sender, math.inf) == math.inf:
+            rising[sender] = time.monotonic()
     else:
-        rising.pop(sender, None)
+        rising[sender] = math.inf
+
+
+def _starting(rising: dict[int, float]) -> bool:
+    """The network has not begun: a neighbour is in its barrier and none has left it (a neighbour at its top runs,
+    though another still rises: its step messages would come to :func:`handshake` from a sender that never greeted
+    there, refused as another network's)."""
+    return bool(rising) and math.inf not in rising.values()
 
 
 _UNGREETED = (
