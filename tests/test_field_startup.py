@@ -343,7 +343,7 @@ def test_a_node_killed_during_the_start_up_and_restarted_with_rejoin_starts_with
     the in-process rounds of all the data."""
     values = np.random.default_rng(5).normal(size=(N, 2))
     algo = {"name": "consensus", "rounds": 40, "protocol": "MH", "patience": 20}
-    net, out = _network(tmp_path, values, LoopbackOptions(algorithm=algo, start_timeout_s=8))
+    net, out = _network(tmp_path, values, LoopbackOptions(algorithm=algo, start_timeout_s=30))  # 8 s: CI load
     procs = {i: _start(net, i, out) for i in range(1, N)}
     try:
         end = time.monotonic() + 60
