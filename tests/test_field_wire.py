@@ -163,3 +163,11 @@ def test_curve_refuses_unknown_keys_and_forged_senders() -> None:
         good.close()
         bad.close()
         t0.close()
+
+
+def test_the_kind_offset_is_where_encode_puts_the_kind() -> None:
+    """The transport counts bytes by kind from one header byte (``wire.KIND_OFFSET``): it must be the kind's."""
+    from distnav.exchange.field.wire import KIND_OFFSET, Kind, encode
+
+    for kind in Kind:
+        assert encode(kind, 3, 7, np.ones(2))[KIND_OFFSET] == int(kind)

@@ -32,7 +32,7 @@ import numpy as np
 
 from distnav._optional import require
 from distnav.errors import ExchangeError
-from distnav.exchange.field.wire import Kind, Message, WireError, decode, encode, expected
+from distnav.exchange.field.wire import KIND_OFFSET, Kind, Message, WireError, decode, encode, expected
 
 __all__ = ["CurveKeys", "Peer", "StepTransport", "Transport", "TransportOptions"]
 
@@ -257,7 +257,7 @@ class Transport:
             return
         self.bytes_sent += len(frame)
         self.frames_sent += 1
-        self._kind_bytes[frame[5]] += len(frame)  # the header's kind byte (:mod:`.wire`)
+        self._kind_bytes[frame[KIND_OFFSET]] += len(frame)
 
     # ------------------------------------------------------------- receiving
     def collect(

@@ -34,11 +34,24 @@ import numpy as np
 
 from distnav.errors import ExchangeError
 
-__all__ = ["MAGIC", "VERSION", "DTYPES", "Kind", "Message", "WireError", "encode", "decode", "HEADER", "Expected"]
+__all__ = [
+    "MAGIC",
+    "VERSION",
+    "DTYPES",
+    "Kind",
+    "Message",
+    "WireError",
+    "encode",
+    "decode",
+    "HEADER",
+    "KIND_OFFSET",
+    "Expected",
+]
 
 MAGIC = b"DNF1"
 VERSION = 1
 HEADER = struct.Struct("<4sBBBBIQQ")
+KIND_OFFSET = 5  # the header's kind byte, after the 4-byte magic and the version (what a counter by kind reads)
 _DIM = struct.Struct("<I")
 MAX_NDIM = 4
 #: dtype code → numpy dtype (little-endian on the wire whatever the host)
